@@ -1,0 +1,82 @@
+/*
+ * render.h - the integrator and the unit of work a worker runs.
+ *
+ * Unidirectional path tracing: next-event estimation on emissive triangles and
+ * BSDF sampling, combined by multiple importance sampling with the power
+ * heuristic (Veach 1997, ch. 9); Russian roulette on throughput after
+ * rr_depth bounces. Every random number is pt_sample_*(pixel seed, sample
+ * index, dimension), so a pixel's samples [a,b) are the same numbers however
+ * the range is split. pt_render_tile accumulates each pixel's samples in
+ * sample order in double: rendering [0,64) equals the in-order sum of
+ * [0,16)+[16,32)+... bit for bit (pt_pixel_acc_add in that order).
+ * A sample with a NaN or Inf component is not accumulated; it is counted.
+ * The renderer is immutable after pt_renderer_new; pt_render_tile is
+ * thread-safe and allocates nothing.
+ */
+#ifndef PT_COMMON_RENDER_H
+#define PT_COMMON_RENDER_H
+
+#include <stdint.h>
+
+#include "common/error.h"
+#include "common/scene.h"
+
+/* Per-pixel partial sums of a range of samples. */
+typedef struct pt_pixel_acc {
+    double sum[3];  /* sum of the RGB samples */
+    double sum_sq;  /* sum of squared luminance of the samples (error estimate) */
+    uint32_t n;     /* samples accumulated (rejected ones excluded) */
+    uint32_t pad;
+} pt_pixel_acc;
+
+/* a += b (the order of calls fixes the floating-point result). */
+static inline void pt_pixel_acc_add(pt_pixel_acc *a, const pt_pixel_acc *b)
+{
+    a->sum[0] += b->sum[0];
+    a->sum[1] += b->sum[1];
+    a->sum[2] += b->sum[2];
+    a->sum_sq += b->sum_sq;
+    a->n += b->n;
+}
+
+typedef struct pt_rect {
+    uint32_t x0, y0, x1, y1; /* pixels [x0,x1) x [y0,y1), y down from the top row */
+} pt_rect;
+
+typedef struct pt_render_params {
+    uint32_t width, height;
+    uint32_t seed;
+    uint32_t max_depth;  /* maximum path vertices after the camera (bounces); default 16 */
+    uint32_t rr_depth;   /* Russian roulette starts after this many bounces; default 3 */
+} pt_render_params;
+
+typedef struct pt_render_stats {
+    uint64_t samples;    /* accepted samples */
+    uint64_t rejected;   /* NaN/Inf samples dropped */
+    uint64_t rays;       /* closest-hit + shadow rays traced */
+} pt_render_stats;
+
+typedef struct pt_renderer pt_renderer;
+
+/* Fills defaults (max_depth 16, rr_depth 3, seed 0) into p, keeping width/height. */
+void pt_render_params_default(pt_render_params *p);
+
+/* Builds the acceleration structure and lights for a scene, and picks the
+ * integrator variant specialised to scene->features. The scene must outlive
+ * the renderer. */
+pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
+                          pt_renderer **out, pt_error *err);
+void pt_renderer_free(pt_renderer *r); /* accepts NULL */
+const pt_render_params *pt_renderer_params(const pt_renderer *r);
+
+/* Renders samples [s0, s1) of every pixel of tile and writes one pt_pixel_acc
+ * per pixel (row-major over the tile, (x1-x0)*(y1-y0) entries, overwritten).
+ * stats (may be NULL) is added to. */
+void pt_render_tile(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,
+                    pt_pixel_acc *out, pt_render_stats *stats);
+
+/* Radiance of one camera sample (for tests). */
+pt_vec3 pt_render_sample(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index,
+                         pt_render_stats *stats);
+
+#endif
