@@ -6,9 +6,14 @@
  * heuristic (Veach 1997, ch. 9); Russian roulette on throughput after
  * rr_depth bounces. Every random number is pt_sample_*(pixel seed, sample
  * index, dimension), so a pixel's samples [a,b) are the same numbers however
- * the range is split. pt_render_tile accumulates each pixel's samples in
- * sample order in double: rendering [0,64) equals the in-order sum of
- * [0,16)+[16,32)+... bit for bit (pt_pixel_acc_add in that order).
+ * the range is split. pt_render_tile sums each aligned block of
+ * PT_SAMPLE_BLOCK samples in sample order in double, then adds the block sums
+ * in order: rendering [0,64) equals the in-order sum (pt_pixel_acc_add from
+ * zero) of [0,16)+[16,32)+... bit for bit, and in general any split of a range
+ * at block boundaries merged in order gives the same bits. (Floating-point
+ * addition is not associative, so a split inside a block, or merging chunks of
+ * several blocks each, is only equal to rounding; the farm therefore fixes the
+ * chunk size per job.)
  * A sample with a NaN or Inf component is not accumulated; it is counted.
  * The renderer is immutable after pt_renderer_new; pt_render_tile is
  * thread-safe and allocates nothing.
@@ -39,15 +44,22 @@ static inline void pt_pixel_acc_add(pt_pixel_acc *a, const pt_pixel_acc *b)
     a->n += b->n;
 }
 
+#define PT_SAMPLE_BLOCK 16u
+
 typedef struct pt_rect {
     uint32_t x0, y0, x1, y1; /* pixels [x0,x1) x [y0,y1), y down from the top row */
 } pt_rect;
 
+/* How emitters are reached: both strategies weighted by MIS (the default),
+ * or one alone (unweighted), which tests use to check each is unbiased. */
+enum { PT_LIGHT_MIS = 0, PT_LIGHT_NEE_ONLY = 1, PT_LIGHT_BSDF_ONLY = 2 };
+
 typedef struct pt_render_params {
     uint32_t width, height;
     uint32_t seed;
-    uint32_t max_depth;  /* maximum path vertices after the camera (bounces); default 16 */
-    uint32_t rr_depth;   /* Russian roulette starts after this many bounces; default 3 */
+    uint32_t max_depth;  /* maximum scattering events (bounces) per path; default 16 */
+    uint32_t rr_depth;   /* Russian roulette from this many bounces on; default 3 */
+    uint32_t light_strategy; /* PT_LIGHT_*; default PT_LIGHT_MIS */
 } pt_render_params;
 
 typedef struct pt_render_stats {
@@ -58,7 +70,7 @@ typedef struct pt_render_stats {
 
 typedef struct pt_renderer pt_renderer;
 
-/* Fills defaults (max_depth 16, rr_depth 3, seed 0) into p, keeping width/height. */
+/* Fills defaults (max_depth 16, rr_depth 3, seed 0, MIS) into p, keeping width/height. */
 void pt_render_params_default(pt_render_params *p);
 
 /* Builds the acceleration structure and lights for a scene, and picks the

@@ -1,0 +1,253 @@
+#include "worker/standalone.h"
+
+#include <pthread.h>
+#include <stdatomic.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "common/alloc.h"
+#include "common/exr.h"
+#include "common/film.h"
+#include "common/image.h"
+#include "common/render.h"
+#include "common/scene.h"
+
+typedef struct job {
+    const wrk_standalone_opts *o;
+    const pt_renderer *r;
+    pt_film *film;
+    pt_rect *tiles;
+    uint32_t num_tiles;
+    atomic_uint next_tile;
+    atomic_uint tiles_done;
+    atomic_uint running; /* render threads not yet finished */
+    atomic_uint_fast64_t samples_done;
+    pt_render_stats *thread_stats; /* one per thread, summed at the end */
+} job;
+
+typedef struct thread_arg {
+    job *j;
+    uint32_t index;
+} thread_arg;
+
+static double now_seconds(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+static void *render_thread(void *p)
+{
+    thread_arg *a = p;
+    job *j = a->j;
+    uint32_t max_px = j->o->tile * j->o->tile;
+    pt_pixel_acc *chunk = pt_malloc_array(max_px, sizeof *chunk);
+    pt_pixel_acc *sum = pt_malloc_array(max_px, sizeof *sum);
+    if (!chunk || !sum) {
+        /* Reported by the main thread as a missing tile count. */
+        pt_free(chunk);
+        pt_free(sum);
+        atomic_fetch_sub(&j->running, 1);
+        return NULL;
+    }
+    for (;;) {
+        uint32_t t = atomic_fetch_add(&j->next_tile, 1);
+        if (t >= j->num_tiles)
+            break;
+        pt_rect rc = j->tiles[t];
+        uint32_t npx = (rc.x1 - rc.x0) * (rc.y1 - rc.y0);
+        memset(sum, 0, npx * sizeof *sum);
+        for (uint32_t s0 = 0; s0 < j->o->spp; s0 += j->o->chunk) {
+            uint32_t s1 = s0 + j->o->chunk < j->o->spp ? s0 + j->o->chunk : j->o->spp;
+            pt_render_tile(j->r, rc, s0, s1, chunk, &j->thread_stats[a->index]);
+            for (uint32_t i = 0; i < npx; i++)
+                pt_pixel_acc_add(&sum[i], &chunk[i]);
+            atomic_fetch_add(&j->samples_done, (uint64_t)npx * (s1 - s0));
+        }
+        /* Tiles are disjoint: no lock needed to write the film. */
+        pt_film_add_tile(j->film, rc, sum);
+        atomic_fetch_add(&j->tiles_done, 1);
+    }
+    pt_free(chunk);
+    pt_free(sum);
+    atomic_fetch_sub(&j->running, 1);
+    return NULL;
+}
+
+static void format_eta(double s, char *buf, size_t n)
+{
+    if (!(s >= 0) || s > 360000)
+        snprintf(buf, n, "--");
+    else if (s >= 3600)
+        snprintf(buf, n, "%dh%02dm", (int)(s / 3600), (int)(s / 60) % 60);
+    else if (s >= 60)
+        snprintf(buf, n, "%dm%02ds", (int)(s / 60), (int)s % 60);
+    else
+        snprintf(buf, n, "%.0fs", s);
+}
+
+/* "out.exr" -> "out.png"; any other name gets ".png" appended. */
+static void preview_path(const char *exr, char *buf, size_t n)
+{
+    size_t len = strlen(exr);
+    if (len > 4 && strcmp(exr + len - 4, ".exr") == 0)
+        snprintf(buf, n, "%.*s.png", (int)(len - 4), exr);
+    else
+        snprintf(buf, n, "%s.png", exr);
+}
+
+int wrk_standalone_run(const wrk_standalone_opts *o)
+{
+    pt_error err = {0};
+    pt_scene *scene = NULL;
+    pt_renderer *r = NULL;
+    pt_film *film = NULL;
+    pt_image *img = NULL;
+    pt_rect *tiles = NULL;
+    pthread_t *threads = NULL;
+    thread_arg *args = NULL;
+    pt_render_stats *tstats = NULL;
+    int rc = 1;
+    double t0 = now_seconds();
+
+    pt_scene_opts so = {0};
+    so.camera_name = o->camera;
+    if (pt_scene_load(o->scene_path, &so, &scene, &err) != PT_OK) {
+        fprintf(stderr, "ptworker: %s\n", err.msg);
+        goto done;
+    }
+    pt_render_params p = {0};
+    pt_render_params_default(&p);
+    p.width = o->width;
+    p.height = o->height;
+    if (p.width == 0) {
+        p.width = 512;
+        float aspect = scene->camera.aspect > 0 ? scene->camera.aspect : 1.0f;
+        p.height = (uint32_t)(512.0f / aspect + 0.5f);
+        if (p.height == 0)
+            p.height = 1;
+    }
+    p.seed = o->seed;
+    p.max_depth = o->max_depth;
+    if (pt_renderer_new(scene, &p, &r, &err) != PT_OK ||
+        pt_film_new(p.width, p.height, &film, &err) != PT_OK ||
+        pt_image_new(p.width, p.height, &img, &err) != PT_OK) {
+        fprintf(stderr, "ptworker: %s\n", err.msg);
+        goto done;
+    }
+    double t_load = now_seconds() - t0;
+
+    uint32_t tx = (p.width + o->tile - 1) / o->tile, ty = (p.height + o->tile - 1) / o->tile;
+    uint32_t nt = tx * ty;
+    uint32_t nthreads = o->threads;
+    if (nthreads == 0) {
+        long n = sysconf(_SC_NPROCESSORS_ONLN);
+        nthreads = n > 0 ? (uint32_t)n : 1;
+    }
+    tiles = pt_malloc_array(nt, sizeof *tiles);
+    threads = pt_malloc_array(nthreads, sizeof *threads);
+    args = pt_malloc_array(nthreads, sizeof *args);
+    tstats = pt_calloc(nthreads, sizeof *tstats);
+    if (!tiles || !threads || !args || !tstats) {
+        fprintf(stderr, "ptworker: out of memory\n");
+        goto done;
+    }
+    for (uint32_t y = 0; y < ty; y++)
+        for (uint32_t x = 0; x < tx; x++) {
+            pt_rect *t = &tiles[y * tx + x];
+            t->x0 = x * o->tile;
+            t->y0 = y * o->tile;
+            t->x1 = t->x0 + o->tile < p.width ? t->x0 + o->tile : p.width;
+            t->y1 = t->y0 + o->tile < p.height ? t->y0 + o->tile : p.height;
+        }
+
+    job j = {.o = o, .r = r, .film = film, .tiles = tiles, .num_tiles = nt, .thread_stats = tstats};
+    atomic_init(&j.next_tile, 0);
+    atomic_init(&j.tiles_done, 0);
+    atomic_init(&j.samples_done, 0);
+    atomic_init(&j.running, nthreads);
+    if (!o->quiet)
+        fprintf(stderr, "ptworker: %s: %u triangles, %ux%u, %u spp, %u threads (loaded in %.2fs)\n",
+                o->scene_path, scene->num_triangles, p.width, p.height, o->spp, nthreads, t_load);
+    double t_render = now_seconds();
+    uint32_t started = 0;
+    for (; started < nthreads; started++) {
+        args[started] = (thread_arg){&j, started};
+        if (pthread_create(&threads[started], NULL, render_thread, &args[started]) != 0)
+            break;
+    }
+    atomic_fetch_sub(&j.running, nthreads - started);
+    if (started == 0) {
+        fprintf(stderr, "ptworker: cannot start render threads\n");
+        goto done;
+    }
+    uint64_t total = (uint64_t)p.width * p.height * o->spp;
+    double last_print = 0;
+    while (atomic_load(&j.running) > 0) {
+        struct timespec ts = {0, 100 * 1000 * 1000};
+        nanosleep(&ts, NULL);
+        double el = now_seconds() - t_render;
+        if (!o->quiet && el - last_print >= 1.0) {
+            last_print = el;
+            uint64_t done_s = atomic_load(&j.samples_done);
+            double rate = done_s / el;
+            char eta[32];
+            format_eta(rate > 0 ? (double)(total - done_s) / rate : -1, eta, sizeof eta);
+            fprintf(stderr, "\rptworker: %5.1f%%  %.2f spp  %.3g samples/s  ETA %s   ",
+                    100.0 * (double)done_s / (double)total,
+                    (double)done_s / ((double)p.width * p.height), rate, eta);
+        }
+    }
+    for (uint32_t i = 0; i < started; i++)
+        pthread_join(threads[i], NULL);
+    double secs = now_seconds() - t_render;
+    if (atomic_load(&j.tiles_done) != nt) {
+        fprintf(stderr, "\nptworker: %u of %u tiles failed (out of memory)\n",
+                nt - atomic_load(&j.tiles_done), nt);
+        goto done;
+    }
+
+    pt_render_stats st = {0, 0, 0};
+    for (uint32_t i = 0; i < nthreads; i++) {
+        st.samples += tstats[i].samples;
+        st.rejected += tstats[i].rejected;
+        st.rays += tstats[i].rays;
+    }
+    pt_film_resolve(film, img);
+    pt_exr_meta meta = {0};
+    meta.total_samples = pt_film_total_samples(film);
+    meta.render_seconds = secs;
+    snprintf(meta.scene_hash, sizeof meta.scene_hash, "%s", scene->hash);
+    if (pt_exr_write(o->out_path, img, &meta, &err) != PT_OK) {
+        fprintf(stderr, "\nptworker: %s\n", err.msg);
+        goto done;
+    }
+    char png[4096];
+    preview_path(o->out_path, png, sizeof png);
+    if (pt_png_write_preview(png, img, &err) != PT_OK) {
+        fprintf(stderr, "\nptworker: %s\n", err.msg);
+        goto done;
+    }
+    if (!o->quiet)
+        fputc('\n', stderr);
+    fprintf(stderr,
+            "ptworker: rendered %s in %.2fs: %.4g samples/s, %.4g rays/s, %llu rejected samples "
+            "(NaN/Inf)\nptworker: wrote %s and %s\n",
+            o->scene_path, secs, (double)st.samples / secs, (double)st.rays / secs,
+            (unsigned long long)st.rejected, o->out_path, png);
+    rc = 0;
+done:
+    pt_free(tstats);
+    pt_free(args);
+    pt_free(threads);
+    pt_free(tiles);
+    pt_image_free(img);
+    pt_film_free(film);
+    pt_renderer_free(r);
+    pt_scene_free(scene);
+    return rc;
+}

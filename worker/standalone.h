@@ -1,0 +1,30 @@
+/*
+ * standalone.h - `ptworker --scene`: render one image on this machine, no
+ * coordinator. Tiles are handed to T render threads; each thread renders its
+ * tile's sample chunks in order and adds them to the film in chunk order, the
+ * same merge the coordinator does, so the image is bit-identical to a farm
+ * render with the same seed, tile and chunk size.
+ */
+#ifndef PT_WORKER_STANDALONE_H
+#define PT_WORKER_STANDALONE_H
+
+#include <stdint.h>
+
+typedef struct wrk_standalone_opts {
+    const char *scene_path;
+    const char *out_path;   /* .exr; a .png preview is written beside it */
+    const char *camera;     /* NULL: the scene's first camera */
+    uint32_t spp;
+    uint32_t width, height; /* 0: from the camera's aspect, 512 wide */
+    uint32_t seed;
+    uint32_t threads;       /* 0: all cores */
+    uint32_t max_depth;
+    uint32_t tile;          /* tile side in pixels */
+    uint32_t chunk;         /* samples per chunk */
+    int quiet;
+} wrk_standalone_opts;
+
+/* Renders and writes the image. Returns a process exit status (0 success). */
+int wrk_standalone_run(const wrk_standalone_opts *o);
+
+#endif
