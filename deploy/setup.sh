@@ -1,0 +1,55 @@
+#!/usr/bin/env bash
+# Installs the Debian 12 packages ptfarm needs to build, test and run.
+# Idempotent: when everything is present it installs nothing and says so.
+# Run as root, or as a user with sudo.
+#
+#   deploy/setup.sh           build + test dependencies
+#   deploy/setup.sh --runtime only what the binaries need at run time
+set -euo pipefail
+
+build_pkgs=(
+  gcc g++ make cmake pkg-config        # toolchain
+  libembree-dev                        # ray queries (Embree 3)
+  libopenexr-dev                       # OpenEXR output (OpenEXRCore C API)
+  libtinygltf-dev nlohmann-json3-dev   # glTF 2.0 import
+  libstb-dev                           # image decoding for glTF, PNG previews
+  libssl-dev                           # SHA-256 scene hashes, HMAC authentication
+  clang libclang-rt-14-dev             # libFuzzer targets, sanitizer runtime
+  python3                              # scene generator and test helpers
+)
+runtime_pkgs=(libembree3-3 libopenexr-3-1-30 libstb0 libssl3)
+
+pkgs=("${build_pkgs[@]}")
+if [[ "${1:-}" == "--runtime" ]]; then
+  pkgs=("${runtime_pkgs[@]}")
+elif [[ -n "${1:-}" ]]; then
+  echo "usage: deploy/setup.sh [--runtime]" >&2
+  exit 2
+fi
+
+missing=()
+for p in "${pkgs[@]}"; do
+  if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then
+    missing+=("$p")
+  fi
+done
+
+if [[ ${#missing[@]} -eq 0 ]]; then
+  echo "setup: all ${#pkgs[@]} packages present; nothing to install"
+  exit 0
+fi
+
+as_root=()
+if [[ $(id -u) -ne 0 ]]; then
+  if command -v sudo >/dev/null; then
+    as_root=(sudo)
+  else
+    echo "setup: missing packages (${missing[*]}) and not root; run as root" >&2
+    exit 1
+  fi
+fi
+echo "setup: installing ${missing[*]}"
+export DEBIAN_FRONTEND=noninteractive
+"${as_root[@]}" apt-get update -qq
+"${as_root[@]}" apt-get install -y -qq --no-install-recommends "${missing[@]}"
+echo "setup: done"
