@@ -139,7 +139,7 @@ static inline void camera_ray(const pt_renderer *r, uint32_t px, uint32_t py, co
  */
 static inline __attribute__((always_inline)) pt_vec3
 li_impl(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index, pt_render_stats *stats,
-        const uint32_t features)
+        const uint32_t features, const pt_ray_sink *sink)
 {
     const pt_scene *s = r->scene;
     uint32_t seed = pt_pixel_seed(r->params.seed, px, py);
@@ -159,6 +159,8 @@ li_impl(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index, pt_rende
     for (uint32_t depth = 0;; depth++) {
         pt_hit hit;
         rays++;
+        if (sink)
+            sink->ray(sink->user, o, d, INFINITY, 0);
         if (!pt_accel_intersect(r->accel, o, d, INFINITY, &hit))
             break;
         surface sf;
@@ -210,8 +212,10 @@ li_impl(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index, pt_rende
                     pt_vec3 sd = pt_v3_sub(to, from);
                     float dist = pt_v3_len(sd);
                     rays++;
-                    if (dist > 0.0f &&
-                        !pt_accel_occluded(r->accel, from, pt_v3_scale(sd, 1.0f / dist), dist)) {
+                    pt_vec3 sdir = pt_v3_scale(sd, dist > 0.0f ? 1.0f / dist : 0.0f);
+                    if (sink && dist > 0.0f)
+                        sink->ray(sink->user, from, sdir, dist, 1);
+                    if (dist > 0.0f && !pt_accel_occluded(r->accel, from, sdir, dist)) {
                         float w = (strategy == PT_LIGHT_MIS ? power_heuristic(ls.pdf, bpdf) : 1.0f) /
                                   ls.pdf;
                         L = pt_v3_add(L, pt_v3_mul(beta, pt_v3_scale(pt_v3_mul(f, ls.radiance), w)));
@@ -254,7 +258,7 @@ li_impl(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index, pt_rende
     static pt_vec3 name(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index,          \
                         pt_render_stats *stats)                                                  \
     {                                                                                            \
-        return li_impl(r, px, py, index, stats, (feat));                                         \
+        return li_impl(r, px, py, index, stats, (feat), NULL);                                         \
     }
 VARIANT(li_general, ALL_FEATURES)
 VARIANT(li_untextured, ALL_FEATURES & ~(uint32_t)(PT_FEAT_TEXTURES | PT_FEAT_EMISSIVE_TEX))
@@ -308,6 +312,12 @@ pt_vec3 pt_render_sample(const pt_renderer *r, uint32_t px, uint32_t py, uint32_
                          pt_render_stats *stats)
 {
     return r->li(r, px, py, index, stats);
+}
+
+pt_vec3 pt_render_sample_traced(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index,
+                                const pt_ray_sink *sink)
+{
+    return li_impl(r, px, py, index, NULL, ALL_FEATURES, sink);
 }
 
 void pt_render_tile(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,

@@ -91,4 +91,16 @@ void pt_render_tile(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1
 pt_vec3 pt_render_sample(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index,
                          pt_render_stats *stats);
 
+/* Receives every ray one sample traces, for benchmarks that replay the same
+ * rays through bare Embree (the ray-query ceiling). occlusion: 1 for shadow
+ * rays (any hit in (0, tfar)), 0 for closest-hit rays. */
+typedef struct pt_ray_sink {
+    void (*ray)(void *user, pt_vec3 o, pt_vec3 d, float tfar, int occlusion);
+    void *user;
+} pt_ray_sink;
+
+/* pt_render_sample through the general variant, reporting each ray to sink. */
+pt_vec3 pt_render_sample_traced(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index,
+                                const pt_ray_sink *sink);
+
 #endif

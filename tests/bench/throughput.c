@@ -1,0 +1,233 @@
+/*
+ * ptbench-throughput - the renderer's samples/s and rays/s against the bare
+ * ray-query rate of Embree on the same rays, measured side by side.
+ *
+ * For each repetition: (1) render the whole image with T threads and count
+ * samples and rays; (2) replay a captured set of that render's own rays
+ * (closest-hit and shadow, in the renderer's order) through the acceleration
+ * structure alone with T threads. The ratio of (1)'s rays/s to (2)'s is the
+ * renderer's throughput as a fraction of the ray-query ceiling; everything
+ * else the renderer does (sampling, shading, BSDFs, lights, film) is the gap.
+ * Repetitions alternate (1) and (2) so both see the same machine load;
+ * medians are reported.
+ *
+ *   ptbench-throughput SCENE [--threads T] [--res WxH] [--spp N] [--reps R] [--csv FILE]
+ */
+#include <pthread.h>
+#include <stdatomic.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "common/accel.h"
+#include "common/alloc.h"
+#include "common/render.h"
+#include "common/scene.h"
+
+typedef struct ray_rec {
+    pt_vec3 o, d;
+    float tfar;
+    int occlusion;
+} ray_rec;
+
+typedef struct ray_log {
+    ray_rec *rays;
+    size_t n, cap;
+} ray_log;
+
+static void log_ray(void *user, pt_vec3 o, pt_vec3 d, float tfar, int occlusion)
+{
+    ray_log *l = user;
+    if (l->n < l->cap)
+        l->rays[l->n++] = (ray_rec){o, d, tfar, occlusion};
+}
+
+static double now(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+typedef struct shared {
+    const pt_renderer *r;
+    const pt_accel *accel;
+    uint32_t width, height, spp, tile;
+    atomic_uint next;
+    const ray_log *log;
+    pt_render_stats stats[64];
+    uint64_t hits[64];
+} shared;
+
+typedef struct targ {
+    shared *sh;
+    int id, nthreads;
+} targ;
+
+static void *render_worker(void *p)
+{
+    targ *a = p;
+    shared *sh = a->sh;
+    uint32_t tx = (sh->width + sh->tile - 1) / sh->tile, ty = (sh->height + sh->tile - 1) / sh->tile;
+    pt_pixel_acc *acc = pt_malloc_array((size_t)sh->tile * sh->tile, sizeof *acc);
+    for (;;) {
+        uint32_t t = atomic_fetch_add(&sh->next, 1);
+        if (t >= tx * ty)
+            break;
+        pt_rect rc = {(t % tx) * sh->tile, (t / tx) * sh->tile, 0, 0};
+        rc.x1 = rc.x0 + sh->tile < sh->width ? rc.x0 + sh->tile : sh->width;
+        rc.y1 = rc.y0 + sh->tile < sh->height ? rc.y0 + sh->tile : sh->height;
+        pt_render_tile(sh->r, rc, 0, sh->spp, acc, &sh->stats[a->id]);
+    }
+    pt_free(acc);
+    return NULL;
+}
+
+static void *replay_worker(void *p)
+{
+    targ *a = p;
+    shared *sh = a->sh;
+    size_t n = sh->log->n, lo = n * a->id / a->nthreads, hi = n * (a->id + 1) / a->nthreads;
+    uint64_t hits = 0;
+    for (size_t i = lo; i < hi; i++) {
+        const ray_rec *r = &sh->log->rays[i];
+        if (r->occlusion) {
+            hits += pt_accel_occluded(sh->accel, r->o, r->d, r->tfar);
+        } else {
+            pt_hit h;
+            hits += pt_accel_intersect(sh->accel, r->o, r->d, r->tfar, &h);
+        }
+    }
+    sh->hits[a->id] = hits;
+    return NULL;
+}
+
+static void run_threads(int n, void *(*fn)(void *), shared *sh)
+{
+    pthread_t th[64];
+    targ args[64];
+    for (int i = 0; i < n; i++) {
+        args[i] = (targ){sh, i, n};
+        pthread_create(&th[i], NULL, fn, &args[i]);
+    }
+    for (int i = 0; i < n; i++)
+        pthread_join(th[i], NULL);
+}
+
+static int cmp_double(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return (x > y) - (x < y);
+}
+
+static double median(double *v, int n)
+{
+    qsort(v, (size_t)n, sizeof *v, cmp_double);
+    return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+int main(int argc, char **argv)
+{
+    const char *scene_path = NULL, *csv = NULL;
+    int threads = 2, reps = 5;
+    uint32_t w = 256, h = 256, spp = 8;
+    for (int i = 1; i < argc; i++) {
+        if (!strcmp(argv[i], "--threads") && i + 1 < argc)
+            threads = atoi(argv[++i]);
+        else if (!strcmp(argv[i], "--res") && i + 1 < argc && sscanf(argv[i + 1], "%ux%u", &w, &h) == 2)
+            i++;
+        else if (!strcmp(argv[i], "--spp") && i + 1 < argc)
+            spp = (uint32_t)atoi(argv[++i]);
+        else if (!strcmp(argv[i], "--reps") && i + 1 < argc)
+            reps = atoi(argv[++i]);
+        else if (!strcmp(argv[i], "--csv") && i + 1 < argc)
+            csv = argv[++i];
+        else if (!strcmp(argv[i], "-h") || !strcmp(argv[i], "--help")) {
+            printf("usage: ptbench-throughput SCENE [--threads T] [--res WxH] [--spp N] [--reps R] "
+                   "[--csv FILE]\n");
+            return 0;
+        } else if (argv[i][0] != '-' && !scene_path)
+            scene_path = argv[i];
+        else {
+            fprintf(stderr, "ptbench-throughput: bad argument '%s' (see --help)\n", argv[i]);
+            return 2;
+        }
+    }
+    if (!scene_path || threads < 1 || threads > 64 || reps < 1 || reps > 100 || spp < 1 || !w || !h) {
+        fprintf(stderr, "ptbench-throughput: need a SCENE and sane options (see --help)\n");
+        return 2;
+    }
+    pt_error err = {0};
+    pt_scene *scene = NULL;
+    pt_renderer *r = NULL;
+    pt_accel *accel = NULL;
+    if (pt_scene_load(scene_path, NULL, &scene, &err) != PT_OK) {
+        fprintf(stderr, "ptbench-throughput: %s\n", err.msg);
+        return 1;
+    }
+    pt_render_params p = {0};
+    pt_render_params_default(&p);
+    p.width = w;
+    p.height = h;
+    if (pt_renderer_new(scene, &p, &r, &err) != PT_OK || pt_accel_new(scene, &accel, &err) != PT_OK) {
+        fprintf(stderr, "ptbench-throughput: %s\n", err.msg);
+        return 1;
+    }
+
+    /* Capture the rays of every pixel's first samples (at most 8M rays). */
+    ray_log log = {0};
+    log.cap = 8u << 20;
+    log.rays = pt_malloc_array(log.cap, sizeof *log.rays);
+    pt_ray_sink sink = {log_ray, &log};
+    for (uint32_t s = 0; s < spp && log.n < log.cap; s++)
+        for (uint32_t y = 0; y < h && log.n < log.cap; y++)
+            for (uint32_t x = 0; x < w && log.n < log.cap; x++)
+                pt_render_sample_traced(r, x, y, s, &sink);
+    size_t shadow = 0;
+    for (size_t i = 0; i < log.n; i++)
+        shadow += log.rays[i].occlusion;
+
+    double sps[100], rps[100], eps[100], ratio[100];
+    for (int k = 0; k < reps; k++) {
+        shared sh = {.r = r, .accel = accel, .width = w, .height = h, .spp = spp, .tile = 16, .log = &log};
+        atomic_init(&sh.next, 0);
+        double t0 = now();
+        run_threads(threads, render_worker, &sh);
+        double t_render = now() - t0;
+        uint64_t samples = 0, rays = 0;
+        for (int i = 0; i < threads; i++) {
+            samples += sh.stats[i].samples;
+            rays += sh.stats[i].rays;
+        }
+        t0 = now();
+        run_threads(threads, replay_worker, &sh);
+        double t_replay = now() - t0;
+        sps[k] = samples / t_render;
+        rps[k] = rays / t_render;
+        eps[k] = log.n / t_replay;
+        ratio[k] = rps[k] / eps[k];
+    }
+    double m_sps = median(sps, reps), m_rps = median(rps, reps), m_eps = median(eps, reps),
+           m_ratio = median(ratio, reps);
+    printf("scene            %s (%u triangles)\n", scene_path, scene->num_triangles);
+    printf("setup            %ux%u, %u spp, %d threads, %d repetitions (medians)\n", w, h, spp,
+           threads, reps);
+    printf("renderer         %.4g samples/s, %.4g rays/s\n", m_sps, m_rps);
+    printf("bare ray queries %.4g rays/s (%zu rays replayed, %.0f%% shadow)\n", m_eps, log.n,
+           100.0 * shadow / (log.n ? log.n : 1));
+    printf("ratio            %.3f of the ray-query ceiling\n", m_ratio);
+    if (csv) {
+        FILE *f = fopen(csv, "a");
+        if (f) {
+            fprintf(f, "%s,%u,%u,%u,%d,%.6g,%.6g,%.6g,%.4f\n", scene_path, w, h, spp, threads, m_sps,
+                    m_rps, m_eps, m_ratio);
+            fclose(f);
+        }
+    }
+    pt_free(log.rays);
+    pt_accel_free(accel);
+    pt_renderer_free(r);
+    pt_scene_free(scene);
+    return 0;
+}
