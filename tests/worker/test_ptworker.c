@@ -1,0 +1,126 @@
+/*
+ * test_ptworker.c - the standalone `ptworker --scene` command, as a user runs it.
+ *
+ * Real process, real files: usage errors exit 2, a missing or broken scene
+ * exits 1 naming the file, a render writes a valid EXR and PNG, and the
+ * pixels (R, G, B, samples) are bit-identical for 1 and 2 threads.
+ */
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include "common/exr.h"
+#include "common/image.h"
+#include "tests/check.h"
+
+static char tmpdir[256];
+
+/* Runs a shell command line; returns its exit status, stderr captured to err.txt. */
+static int run(const char *args)
+{
+    char cmd[8192];
+    snprintf(cmd, sizeof cmd, "%s/ptworker %s 2>%s/err.txt >%s/out.txt", PT_BIN_DIR, args, tmpdir,
+             tmpdir);
+    int st = system(cmd);
+    return WIFEXITED(st) ? WEXITSTATUS(st) : -1;
+}
+
+static int stderr_has(const char *needle)
+{
+    char path[512], buf[8192];
+    snprintf(path, sizeof path, "%s/err.txt", tmpdir);
+    FILE *f = fopen(path, "r");
+    if (!f)
+        return 0;
+    size_t n = fread(buf, 1, sizeof buf - 1, f);
+    fclose(f);
+    buf[n] = '\0';
+    return strstr(buf, needle) != NULL;
+}
+
+static pt_image *read_exr(const char *name, pt_exr_meta *meta)
+{
+    char path[512];
+    snprintf(path, sizeof path, "%s/%s", tmpdir, name);
+    pt_image *img = NULL;
+    pt_error err = {0};
+    if (pt_exr_read(path, &img, meta, &err) != PT_OK)
+        fprintf(stderr, "%s\n", err.msg);
+    return img;
+}
+
+static int same_pixels(const pt_image *a, const pt_image *b)
+{
+    size_t n = (size_t)a->width * a->height * sizeof(float);
+    return a->width == b->width && a->height == b->height && !memcmp(a->r, b->r, n) &&
+           !memcmp(a->g, b->g, n) && !memcmp(a->b, b->b, n) && !memcmp(a->samples, b->samples, n);
+}
+
+int main(void)
+{
+    snprintf(tmpdir, sizeof tmpdir, "/tmp/pt_test_ptworker_XXXXXX");
+    if (!mkdtemp(tmpdir)) {
+        perror("mkdtemp");
+        return 1;
+    }
+    char args[4096];
+    const char *cornell = PT_SOURCE_DIR "/scenes/cornell_box.gltf";
+
+    CHECK(run("--help") == 0);
+    CHECK(run("") == 2);
+    CHECK(run("--scene x.gltf") == 2);
+    CHECK(run("--scene x.gltf -o y.exr --spp 0") == 2 && stderr_has("--spp"));
+    CHECK(run("--scene x.gltf -o y.exr --res 12by4") == 2 && stderr_has("--res"));
+    CHECK(run("--scene x.gltf -o y.exr --bogus") == 2);
+
+    snprintf(args, sizeof args, "--scene %s/missing.gltf -o %s/m.exr", tmpdir, tmpdir);
+    CHECK(run(args) == 1 && stderr_has("missing.gltf"));
+    char broken[512];
+    snprintf(broken, sizeof broken, "%s/broken.gltf", tmpdir);
+    FILE *f = fopen(broken, "w");
+    fputs("{\"asset\": {\"version\": \"2.0\"}, \"meshes\": [", f);
+    fclose(f);
+    snprintf(args, sizeof args, "--scene %s -o %s/b.exr", broken, tmpdir);
+    CHECK(run(args) == 1 && stderr_has("broken.gltf"));
+
+    snprintf(args, sizeof args, "--scene %s -o %s/out/none.exr --res 8x8 --spp 1 -q", cornell,
+             tmpdir);
+    CHECKF(run(args) == 1 && stderr_has("none.exr"), "unwritable output must fail, naming it");
+
+    snprintf(args, sizeof args, "--scene %s -o %s/t1.exr --res 40x30 --spp 8 --threads 1 --tile 16",
+             cornell, tmpdir);
+    CHECK(run(args) == 0);
+    CHECK(stderr_has("samples/s") && stderr_has("rejected"));
+    snprintf(args, sizeof args, "--scene %s -o %s/t2.exr --res 40x30 --spp 8 --threads 2 --tile 16",
+             cornell, tmpdir);
+    CHECK(run(args) == 0);
+    pt_exr_meta m1, m2;
+    pt_image *a = read_exr("t1.exr", &m1), *b = read_exr("t2.exr", &m2);
+    CHECK(a && b);
+    if (a && b) {
+        CHECK(a->width == 40 && a->height == 30);
+        CHECKF(same_pixels(a, b), "1 and 2 threads differ");
+        CHECK(m1.total_samples == 40 * 30 * 8);
+        CHECK(strlen(m1.scene_hash) == 64);
+        CHECK(strstr(m1.software, "ptfarm") != NULL);
+        int lit = 0;
+        for (uint32_t i = 0; i < 40 * 30; i++)
+            lit += a->r[i] > 0.0f && a->samples[i] == 8.0f;
+        CHECK(lit > 40 * 30 / 2);
+    }
+    pt_image_free(a);
+    pt_image_free(b);
+    char png[512];
+    snprintf(png, sizeof png, "%s/t1.png", tmpdir);
+    struct stat sb;
+    CHECK(stat(png, &sb) == 0 && sb.st_size > 100);
+
+    char cmd[1024];
+    snprintf(cmd, sizeof cmd, "rm -rf %s", tmpdir);
+    if (system(cmd) != 0)
+        fprintf(stderr, "could not remove %s\n", tmpdir);
+    return check_report();
+}
