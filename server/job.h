@@ -1,0 +1,88 @@
+/*
+ * job.h - one render job on the coordinator: tasks, leases, the merge.
+ *
+ * The image is cut into tiles (tile x tile pixels) and the samples into chunks
+ * (chunk samples each). A task is (tile, chunk); its id is chunk * ntiles +
+ * tile, so handing out ids in increasing order hands out pass 0 (chunk 0 of
+ * every tile), then pass 1, and the progressive image improves evenly.
+ *
+ * Tasks are leased to an owner (a connection) until a deadline that
+ * heartbeats extend; an expired lease or a lost owner puts the task back in a
+ * requeue list that is served first. A result is accepted only from the owner
+ * of a live lease for exactly that task (tile, sample range, pixel count,
+ * finite sums, n <= samples), so merging is idempotent: a duplicate or late
+ * result changes nothing.
+ *
+ * Chunks of a tile are added to the film in chunk order (early arrivals are
+ * held), in double, so the final pixels are bit-identical however many
+ * workers rendered them and in whatever order results arrived.
+ * Pure code: no sockets, no clock (callers pass now_ms). One owner thread.
+ */
+#ifndef PT_SERVER_JOB_H
+#define PT_SERVER_JOB_H
+
+#include <stdint.h>
+
+#include "common/error.h"
+#include "common/film.h"
+#include "common/render.h"
+#include "protocol/msg.h"
+
+typedef struct srv_job_params {
+    uint32_t width, height;
+    uint32_t spp;
+    uint32_t tile, chunk;
+    uint32_t seed;
+    uint32_t max_depth, rr_depth;
+} srv_job_params;
+
+#define SRV_MAX_TASKS (64u * 1024u * 1024u)
+
+typedef enum srv_outcome {
+    SRV_MERGED = 0,   /* accepted (merged now or held until its turn) */
+    SRV_DUPLICATE,    /* already accepted: dropped, harmless */
+    SRV_NOT_LEASED,   /* no live lease of this owner for the task: dropped */
+    SRV_INVALID       /* malformed or inconsistent with the task: the peer is at fault */
+} srv_outcome;
+
+typedef struct srv_job srv_job;
+
+/* scene_hash: 32 raw bytes. PT_ERR_ARG for sizes that make no sense,
+ * PT_ERR_LIMIT over SRV_MAX_TASKS. */
+pt_status srv_job_new(uint64_t id, const srv_job_params *p, const uint8_t scene_hash[32],
+                      srv_job **out, pt_error *err);
+void srv_job_free(srv_job *job); /* accepts NULL */
+
+uint64_t srv_job_id(const srv_job *job);
+const srv_job_params *srv_job_params_of(const srv_job *job);
+
+/* Leases the next task to owner until now_ms + lease_ms and describes it in
+ * *task. Returns 0 when nothing is left to hand out right now. */
+int srv_job_lease(srv_job *job, uint64_t owner, uint64_t now_ms, uint32_t lease_ms,
+                  proto_task *task);
+
+/* Extends owner's lease of task_id (ignored when it holds none). */
+void srv_job_heartbeat(srv_job *job, uint64_t owner, uint64_t task_id, uint64_t now_ms,
+                       uint32_t lease_ms);
+
+/* Requeues every task leased to owner (it disconnected). Returns how many. */
+uint32_t srv_job_release_owner(srv_job *job, uint64_t owner);
+
+/* Requeues leases whose deadline passed. Returns how many; *next_deadline
+ * (may be NULL) receives the earliest remaining deadline or UINT64_MAX. */
+uint32_t srv_job_expire(srv_job *job, uint64_t now_ms, uint64_t *next_deadline);
+
+/* Accepts a result (see the file comment); err explains SRV_INVALID. */
+srv_outcome srv_job_result(srv_job *job, uint64_t owner, const proto_result *r, pt_error *err);
+
+/* Progress. */
+uint32_t srv_job_passes(const srv_job *job);       /* chunks per tile */
+uint32_t srv_job_passes_done(const srv_job *job);  /* passes merged for every tile */
+uint64_t srv_job_tasks_total(const srv_job *job);
+uint64_t srv_job_tasks_merged(const srv_job *job);
+uint64_t srv_job_samples_merged(const srv_job *job);
+uint32_t srv_job_leases(const srv_job *job);
+int srv_job_complete(const srv_job *job);
+const pt_film *srv_job_film(const srv_job *job);
+
+#endif

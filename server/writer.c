@@ -1,0 +1,121 @@
+#include "server/writer.h"
+
+#include <pthread.h>
+#include <stdio.h>
+#include <string.h>
+
+#include "common/alloc.h"
+
+struct srv_writer {
+    pthread_mutex_t mu;
+    pthread_cond_t cv;
+    pthread_t thread;
+    char exr[4096], png[4096];
+    pt_image *pending;
+    pt_exr_meta meta;
+    int busy, stop;
+    unsigned long written;
+    pt_status last;
+    pt_error last_err;
+};
+
+static void *writer_main(void *p)
+{
+    srv_writer *w = p;
+    pthread_mutex_lock(&w->mu);
+    for (;;) {
+        while (!w->pending && !w->stop)
+            pthread_cond_wait(&w->cv, &w->mu);
+        if (!w->pending && w->stop)
+            break;
+        pt_image *img = w->pending;
+        pt_exr_meta meta = w->meta;
+        w->pending = NULL;
+        w->busy = 1;
+        pthread_mutex_unlock(&w->mu);
+
+        pt_error err = {0};
+        pt_status st = pt_exr_write(w->exr, img, &meta, &err);
+        if (st == PT_OK)
+            st = pt_png_write_preview(w->png, img, &err);
+        pt_image_free(img);
+
+        pthread_mutex_lock(&w->mu);
+        w->busy = 0;
+        w->last = st;
+        w->last_err = err;
+        if (st == PT_OK)
+            w->written++;
+        pthread_cond_broadcast(&w->cv);
+    }
+    pthread_mutex_unlock(&w->mu);
+    return NULL;
+}
+
+pt_status srv_writer_new(const char *exr_path, srv_writer **out, pt_error *err)
+{
+    srv_writer *w = pt_calloc(1, sizeof *w);
+    if (!w)
+        return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
+    snprintf(w->exr, sizeof w->exr, "%s", exr_path);
+    size_t n = strlen(exr_path);
+    if (n > 4 && strcmp(exr_path + n - 4, ".exr") == 0)
+        snprintf(w->png, sizeof w->png, "%.*s.png", (int)(n - 4), exr_path);
+    else
+        snprintf(w->png, sizeof w->png, "%s.png", exr_path);
+    pthread_mutex_init(&w->mu, NULL);
+    pthread_cond_init(&w->cv, NULL);
+    if (pthread_create(&w->thread, NULL, writer_main, w) != 0) {
+        pthread_mutex_destroy(&w->mu);
+        pthread_cond_destroy(&w->cv);
+        pt_free(w);
+        return pt_error_set(err, PT_ERR_IO, "cannot start the EXR writer thread");
+    }
+    *out = w;
+    return PT_OK;
+}
+
+void srv_writer_submit(srv_writer *w, pt_image *img, const pt_exr_meta *meta)
+{
+    pthread_mutex_lock(&w->mu);
+    pt_image_free(w->pending);
+    w->pending = img;
+    w->meta = *meta;
+    pthread_cond_broadcast(&w->cv);
+    pthread_mutex_unlock(&w->mu);
+}
+
+pt_status srv_writer_flush(srv_writer *w, pt_error *err)
+{
+    pthread_mutex_lock(&w->mu);
+    while (w->pending || w->busy)
+        pthread_cond_wait(&w->cv, &w->mu);
+    pt_status st = w->last;
+    if (st != PT_OK && err)
+        *err = w->last_err;
+    pthread_mutex_unlock(&w->mu);
+    return st;
+}
+
+unsigned long srv_writer_count(srv_writer *w)
+{
+    pthread_mutex_lock(&w->mu);
+    unsigned long n = w->written;
+    pthread_mutex_unlock(&w->mu);
+    return n;
+}
+
+void srv_writer_free(srv_writer *w)
+{
+    if (!w)
+        return;
+    pthread_mutex_lock(&w->mu);
+    w->stop = 1;
+    pthread_cond_broadcast(&w->cv);
+    pthread_mutex_unlock(&w->mu);
+    pthread_join(w->thread, NULL);
+    pt_image_free(w->pending);
+    pthread_mutex_destroy(&w->mu);
+    pthread_cond_destroy(&w->cv);
+    pt_free(w);
+}
