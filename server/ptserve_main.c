@@ -1,0 +1,164 @@
+/*
+ * ptserve - the ptfarm coordinator.
+ *
+ *   ptserve [options] -o OUT.exr SCENE            serve workers that connect
+ *   ptserve --local N [options] -o OUT.exr SCENE  and start N of them here
+ */
+#include <errno.h>
+#include <getopt.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "server/serve.h"
+
+static void usage(FILE *f)
+{
+    fprintf(f,
+            "usage: ptserve [options] -o OUT.exr SCENE\n"
+            "       ptserve --local N [options] -o OUT.exr SCENE\n"
+            "\n"
+            "Coordinates a ptfarm render of a glTF 2.0 scene: splits the image into tiles x\n"
+            "sample chunks, leases them to ptworker processes, merges their results in a\n"
+            "fixed order (the image does not depend on how the work was split) and writes\n"
+            "progressive OpenEXR images (R, G, B, samples, variance) plus a PNG preview.\n"
+            "Exits 0 when the image is complete.\n"
+            "\n"
+            "options:\n"
+            "  -o, --output PATH      the EXR to write (required)\n"
+            "  --local N              start N ptworker processes on this machine\n"
+            "  --worker-threads T     threads per local worker (default: cores / N)\n"
+            "  --listen HOST:PORT     where workers connect (default 127.0.0.1:7878; with\n"
+            "                         --local, a free loopback port)\n"
+            "  --token-file PATH      shared secret workers must prove (HMAC challenge);\n"
+            "                         without it ptserve listens on loopback only\n"
+            "  --spp N                samples per pixel (default 64)\n"
+            "  --res WxH              image size (default 512 wide, height from the camera)\n"
+            "  --seed S               random seed (default 0)\n"
+            "  --max-depth D          maximum bounces (default 16)\n"
+            "  --camera NAME          the camera to render (default: the scene's first)\n"
+            "  --tile N               tile side in pixels (default 32)\n"
+            "  --chunk N              samples per task (default 16)\n"
+            "  --save-interval SEC    progressive saves at most this often (default 5)\n"
+            "  --lease-timeout SEC    requeue a task whose worker is silent this long (default 20)\n"
+            "  --port-file PATH       write the port listened on to PATH\n"
+            "  --worker-bin PATH      the ptworker to start with --local (default: beside ptserve)\n"
+            "  -q, --quiet            no progress line\n"
+            "  -h, --help             this text\n"
+            "\n"
+            "exit status: 0 image complete, 1 error (reason on stderr), 2 bad usage,\n"
+            "130 interrupted (the last progressive EXR is valid)\n");
+}
+
+static int parse_u32(const char *opt, const char *s, uint32_t min, uint32_t max, uint32_t *out)
+{
+    char *end;
+    errno = 0;
+    unsigned long long v = strtoull(s, &end, 10);
+    if (errno || end == s || *end || s[0] == '-' || v < min || v > max) {
+        fprintf(stderr, "ptserve: %s: '%s' is not a whole number in [%u, %u]\n", opt, s, min, max);
+        return -1;
+    }
+    *out = (uint32_t)v;
+    return 0;
+}
+
+static int parse_seconds(const char *opt, const char *s, double *out)
+{
+    char *end;
+    errno = 0;
+    double v = strtod(s, &end);
+    if (errno || end == s || *end || !(v >= 0.0) || v > 86400.0) {
+        fprintf(stderr, "ptserve: %s: '%s' is not a number of seconds in [0, 86400]\n", opt, s);
+        return -1;
+    }
+    *out = v;
+    return 0;
+}
+
+int main(int argc, char **argv)
+{
+    srv_config c;
+    memset(&c, 0, sizeof c);
+    c.job.spp = 64;
+    c.job.tile = 32;
+    c.job.chunk = 16;
+    c.job.max_depth = 16;
+    c.job.rr_depth = 3;
+    c.save_interval = 5.0;
+    double lease = 20.0;
+    enum { O_LOCAL = 256, O_WTHREADS, O_LISTEN, O_TOKEN, O_SPP, O_RES, O_SEED, O_DEPTH, O_CAMERA,
+           O_TILE, O_CHUNK, O_SAVE, O_LEASE, O_PORTFILE, O_WBIN };
+    static const struct option opts[] = {
+        {"output", required_argument, NULL, 'o'},
+        {"local", required_argument, NULL, O_LOCAL},
+        {"worker-threads", required_argument, NULL, O_WTHREADS},
+        {"listen", required_argument, NULL, O_LISTEN},
+        {"token-file", required_argument, NULL, O_TOKEN},
+        {"spp", required_argument, NULL, O_SPP},
+        {"res", required_argument, NULL, O_RES},
+        {"seed", required_argument, NULL, O_SEED},
+        {"max-depth", required_argument, NULL, O_DEPTH},
+        {"camera", required_argument, NULL, O_CAMERA},
+        {"tile", required_argument, NULL, O_TILE},
+        {"chunk", required_argument, NULL, O_CHUNK},
+        {"save-interval", required_argument, NULL, O_SAVE},
+        {"lease-timeout", required_argument, NULL, O_LEASE},
+        {"port-file", required_argument, NULL, O_PORTFILE},
+        {"worker-bin", required_argument, NULL, O_WBIN},
+        {"quiet", no_argument, NULL, 'q'},
+        {"help", no_argument, NULL, 'h'},
+        {NULL, 0, NULL, 0},
+    };
+    int ch;
+    while ((ch = getopt_long(argc, argv, "o:qh", opts, NULL)) != -1) {
+        int bad = 0;
+        switch (ch) {
+        case 'o': c.out_path = optarg; break;
+        case O_LOCAL: bad = parse_u32("--local", optarg, 1, 256, &c.local_workers); break;
+        case O_WTHREADS: bad = parse_u32("--worker-threads", optarg, 1, 1024, &c.worker_threads); break;
+        case O_LISTEN: c.listen = optarg; break;
+        case O_TOKEN: c.token_path = optarg; break;
+        case O_SPP: bad = parse_u32("--spp", optarg, 1, 1u << 24, &c.job.spp); break;
+        case O_RES: {
+            const char *x = strchr(optarg, 'x');
+            char w[32];
+            if (!x || (size_t)(x - optarg) >= sizeof w) {
+                fprintf(stderr, "ptserve: --res: '%s' is not WIDTHxHEIGHT\n", optarg);
+                return 2;
+            }
+            memcpy(w, optarg, (size_t)(x - optarg));
+            w[x - optarg] = '\0';
+            bad = parse_u32("--res width", w, 1, 16384, &c.job.width) ||
+                  parse_u32("--res height", x + 1, 1, 16384, &c.job.height);
+            break;
+        }
+        case O_SEED: bad = parse_u32("--seed", optarg, 0, UINT32_MAX, &c.job.seed); break;
+        case O_DEPTH: bad = parse_u32("--max-depth", optarg, 0, 1024, &c.job.max_depth); break;
+        case O_CAMERA: c.camera = optarg; break;
+        case O_TILE: bad = parse_u32("--tile", optarg, 1, 256, &c.job.tile); break;
+        case O_CHUNK: bad = parse_u32("--chunk", optarg, 1, 1u << 24, &c.job.chunk); break;
+        case O_SAVE: bad = parse_seconds("--save-interval", optarg, &c.save_interval); break;
+        case O_LEASE: bad = parse_seconds("--lease-timeout", optarg, &lease); break;
+        case O_PORTFILE: c.port_file = optarg; break;
+        case O_WBIN: c.worker_bin = optarg; break;
+        case 'q': c.quiet = 1; break;
+        case 'h': usage(stdout); return 0;
+        default: usage(stderr); return 2;
+        }
+        if (bad)
+            return 2;
+    }
+    if (optind + 1 != argc || !c.out_path) {
+        fprintf(stderr, "ptserve: need -o OUT.exr and exactly one SCENE\n");
+        usage(stderr);
+        return 2;
+    }
+    if (lease < 0.1) {
+        fprintf(stderr, "ptserve: --lease-timeout must be at least 0.1 s\n");
+        return 2;
+    }
+    c.scene_path = argv[optind];
+    c.lease_ms = (uint32_t)(lease * 1000.0);
+    return srv_serve(&c);
+}
