@@ -1,0 +1,199 @@
+/*
+ * test_job.c - the coordinator's job model without sockets: pass order,
+ * leases and their expiry, requeue on a lost worker, idempotent merging, and
+ * bit-identical films whatever order results arrive in.
+ */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "common/alloc.h"
+#include "server/job.h"
+#include "tests/check.h"
+
+static const uint8_t HASH[32] = {1, 2, 3};
+
+/* Deterministic synthetic pixels for a task (same task, same bits). */
+static void fake_result(const proto_task *t, pt_pixel_acc *px, proto_result *r)
+{
+    uint32_t n = (t->tile.x1 - t->tile.x0) * (t->tile.y1 - t->tile.y0);
+    uint64_t h = t->task_id * 0x9E3779B97F4A7C15ull + 1;
+    for (uint32_t i = 0; i < n; i++) {
+        h ^= h >> 33;
+        h *= 0xff51afd7ed558ccdull;
+        double v = (double)(h >> 11) / 9007199254740992.0;
+        px[i] = (pt_pixel_acc){{v, v * 0.5, v * 1e-7}, v * v, t->s1 - t->s0, 0};
+    }
+    memset(r, 0, sizeof *r);
+    r->job_id = t->job_id;
+    r->task_id = t->task_id;
+    r->tile = t->tile;
+    r->s0 = t->s0;
+    r->s1 = t->s1;
+    r->npixels = n;
+    r->pixels = px;
+}
+
+static srv_job *make(uint32_t w, uint32_t h, uint32_t spp, uint32_t tile, uint32_t chunk)
+{
+    srv_job_params p = {w, h, spp, tile, chunk, 5, 16, 3};
+    srv_job *j = NULL;
+    pt_error err = {0};
+    CHECKF(srv_job_new(9, &p, HASH, &j, &err) == PT_OK, "%s", err.msg);
+    return j;
+}
+
+static void pass_order(void)
+{
+    srv_job *j = make(70, 40, 40, 32, 16); /* 3x2 tiles, chunks 16,16,8 */
+    CHECK(srv_job_passes(j) == 3);
+    CHECK(srv_job_tasks_total(j) == 18);
+    proto_task t;
+    for (uint32_t i = 0; i < 18; i++) {
+        CHECK(srv_job_lease(j, 1, 0, 1000, &t) == 1);
+        CHECK(t.task_id == i);
+        CHECK(t.s0 == 16 * (i / 6));
+    }
+    CHECK(t.s1 == 40 && t.tile.x1 == 70 && t.tile.y1 == 40 && t.tile.x0 == 64);
+    CHECK(srv_job_lease(j, 1, 0, 1000, &t) == 0);
+    CHECK(memcmp(t.scene_hash, HASH, 32) == 0 && t.width == 70 && t.seed == 5);
+    srv_job_free(j);
+}
+
+static void leases(void)
+{
+    srv_job *j = make(64, 64, 32, 32, 16);
+    proto_task a, b, c;
+    srv_job_lease(j, 1, 0, 100, &a);
+    srv_job_lease(j, 2, 0, 100, &b);
+    /* Heartbeat keeps owner 1's lease; owner 2's expires. */
+    srv_job_heartbeat(j, 1, a.task_id, 90, 100);
+    srv_job_heartbeat(j, 1, b.task_id, 90, 100); /* not its lease: ignored */
+    CHECK(srv_job_expire(j, 150, NULL) == 1);
+    CHECK(srv_job_leases(j) == 1);
+    /* The requeued task is handed out before new ones. */
+    CHECK(srv_job_lease(j, 3, 150, 100, &c) == 1 && c.task_id == b.task_id);
+    /* A lost owner's tasks come back too. */
+    CHECK(srv_job_release_owner(j, 3) == 1);
+    CHECK(srv_job_lease(j, 4, 150, 100, &c) == 1 && c.task_id == b.task_id);
+
+    pt_pixel_acc px[1024];
+    proto_result r;
+    pt_error err = {0};
+    fake_result(&a, px, &r);
+    CHECK(srv_job_result(j, 2, &r, &err) == SRV_NOT_LEASED); /* never leased to 2 */
+    CHECK(srv_job_result(j, 1, &r, &err) == SRV_MERGED);
+    CHECK(srv_job_result(j, 1, &r, &err) == SRV_DUPLICATE);
+    fake_result(&c, px, &r);
+    r.s1++;
+    CHECK(srv_job_result(j, 4, &r, &err) == SRV_INVALID);
+    r.s1--;
+    px[3].sum[1] = NAN;
+    CHECK(srv_job_result(j, 4, &r, &err) == SRV_INVALID && strstr(err.msg, "pixel 3"));
+    fake_result(&c, px, &r);
+    px[0].n = 17;
+    CHECK(srv_job_result(j, 4, &r, &err) == SRV_INVALID);
+    fake_result(&c, px, &r);
+    r.npixels--;
+    CHECK(srv_job_result(j, 4, &r, &err) == SRV_INVALID);
+    r.npixels++;
+    r.task_id = 1000;
+    CHECK(srv_job_result(j, 4, &r, &err) == SRV_INVALID);
+    r.task_id = c.task_id;
+    r.job_id = 3;
+    CHECK(srv_job_result(j, 4, &r, &err) == SRV_NOT_LEASED);
+    r.job_id = c.job_id;
+    CHECK(srv_job_result(j, 4, &r, &err) == SRV_MERGED);
+    srv_job_free(j);
+}
+
+/* Completes a job with results arriving in an order given by a seed;
+ * returns the film's pixels (caller frees). */
+static pt_pixel_acc *complete(uint32_t seed, int owners)
+{
+    srv_job *j = make(50, 30, 64, 16, 16);
+    uint64_t total = srv_job_tasks_total(j);
+    proto_task *tasks = calloc(total, sizeof *tasks);
+    uint64_t n = 0;
+    int guard = 0;
+    srand(seed);
+    while (!srv_job_complete(j) && guard++ < 100000) {
+        /* Lease a few, then return a random one of those outstanding. */
+        for (int k = 0; k < 1 + rand() % 4; k++) {
+            proto_task t;
+            if (srv_job_lease(j, (uint64_t)(rand() % owners), 0, 1000, &t))
+                tasks[n++] = t;
+        }
+        if (n == 0)
+            continue;
+        uint64_t pick = (uint64_t)rand() % n;
+        proto_task t = tasks[pick];
+        tasks[pick] = tasks[--n];
+        if (rand() % 10 == 0) {
+            /* Every worker vanished: their tasks come back and are leased again. */
+            for (int o = 0; o < owners; o++)
+                srv_job_release_owner(j, (uint64_t)o);
+            n = 0;
+            continue;
+        }
+        pt_pixel_acc px[256];
+        proto_result r;
+        fake_result(&t, px, &r);
+        uint64_t owner_guess;
+        srv_outcome o = SRV_NOT_LEASED;
+        for (owner_guess = 0; owner_guess < (uint64_t)owners && o == SRV_NOT_LEASED; owner_guess++)
+            o = srv_job_result(j, owner_guess, &r, NULL);
+        CHECK(o == SRV_MERGED);
+    }
+    CHECK(srv_job_complete(j));
+    CHECK(srv_job_passes_done(j) == srv_job_passes(j));
+    CHECK(srv_job_samples_merged(j) == 50ull * 30 * 64);
+    const pt_film *f = srv_job_film(j);
+    pt_pixel_acc *out = malloc(50 * 30 * sizeof *out);
+    memcpy(out, f->px, 50 * 30 * sizeof *out);
+    free(tasks);
+    srv_job_free(j);
+    return out;
+}
+
+static void bit_identical(void)
+{
+    pt_pixel_acc *a = complete(1, 1);
+    int same = 1;
+    for (uint32_t s = 2; s < 8; s++) {
+        pt_pixel_acc *b = complete(s, 1 + (int)s % 4);
+        same &= memcmp(a, b, 50 * 30 * sizeof *a) == 0;
+        free(b);
+    }
+    CHECKF(same, "arrival order changed the film");
+    int exact = 1;
+    for (uint32_t i = 0; i < 50 * 30; i++)
+        exact &= a[i].n == 64;
+    CHECK(exact);
+    free(a);
+}
+
+static void bad_params(void)
+{
+    srv_job_params p = {0, 10, 4, 16, 4, 0, 4, 3};
+    srv_job *j = NULL;
+    pt_error err = {0};
+    CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
+    p.width = 10;
+    p.tile = 1000;
+    CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
+    p = (srv_job_params){16384, 16384, 1u << 24, 16, 1, 0, 4, 3};
+    CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_LIMIT);
+    CHECK(j == NULL);
+}
+
+int main(void)
+{
+    int64_t live = pt_alloc_live();
+    pass_order();
+    leases();
+    bit_identical();
+    bad_params();
+    CHECK(pt_alloc_live() == live);
+    return check_report();
+}
