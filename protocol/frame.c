@@ -1,0 +1,120 @@
+#include "protocol/frame.h"
+
+#include <assert.h>
+
+#include "protocol/msg.h"
+
+/* The byte-wise table is built by the preprocessor, so it is constant data
+ * with no run-time initialisation to race on. One step of the reflected CRC:
+ * shift right and fold in the polynomial when the low bit was set (the mask
+ * form keeps each expansion to two copies of its argument). */
+#define CRC_STEP(c) (((c) >> 1) ^ (0x82F63B78u & (0u - ((c) & 1u))))
+#define CRC_ENTRY(n)                                                                           \
+    CRC_STEP(CRC_STEP(CRC_STEP(CRC_STEP(CRC_STEP(CRC_STEP(CRC_STEP(CRC_STEP((uint32_t)(n)))))))))
+#define CRC_4(n) CRC_ENTRY(n), CRC_ENTRY((n) + 1), CRC_ENTRY((n) + 2), CRC_ENTRY((n) + 3)
+#define CRC_16(n) CRC_4(n), CRC_4((n) + 4), CRC_4((n) + 8), CRC_4((n) + 12)
+#define CRC_64(n) CRC_16(n), CRC_16((n) + 16), CRC_16((n) + 32), CRC_16((n) + 48)
+
+static const uint32_t crc_table[256] = {CRC_64(0), CRC_64(64), CRC_64(128), CRC_64(192)};
+
+uint32_t proto_crc32c(uint32_t crc, const void *data, size_t n)
+{
+    const uint8_t *p = data;
+    crc = ~crc;
+    while (n--)
+        crc = (crc >> 8) ^ crc_table[(crc ^ *p++) & 0xffu];
+    return ~crc;
+}
+
+pt_status proto_frame_decode(const uint8_t *buf, size_t len, uint32_t max_payload,
+                             proto_frame *out, size_t *consumed, pt_error *err)
+{
+    assert(max_payload <= PROTO_MAX_PAYLOAD);
+    /* Each header field is judged as soon as its bytes have arrived, so a peer
+     * speaking another protocol is refused at its first wrong byte. */
+    size_t m = len < 4 ? len : 4;
+    if (m && memcmp(buf, PROTO_MAGIC, m) != 0)
+        return pt_error_set(err, PT_ERR_PROTO, "frame: bad magic");
+    if (len < 6)
+        return PT_AGAIN;
+    uint16_t version = proto_get_u16(buf + 4);
+    if (version != PROTO_VERSION)
+        return pt_error_set(err, PT_ERR_PROTO, "frame: unsupported version %u (want %u)",
+                            (unsigned)version, PROTO_VERSION);
+    if (len < 8)
+        return PT_AGAIN;
+    uint16_t type = proto_get_u16(buf + 6);
+    if (!proto_msg_type_known(type))
+        return pt_error_set(err, PT_ERR_PROTO, "frame: unknown type %u", (unsigned)type);
+    if (len < PROTO_FRAME_HEADER)
+        return PT_AGAIN;
+    uint32_t plen = proto_get_u32(buf + 8);
+    if (plen > max_payload)
+        return pt_error_set(err, PT_ERR_PROTO, "frame: payload length %u over the cap of %u",
+                            (unsigned)plen, (unsigned)max_payload);
+    /* plen <= 64 MiB, so the sum cannot wrap even with a 32-bit size_t. */
+    size_t total = (size_t)PROTO_FRAME_HEADER + plen + PROTO_FRAME_TRAILER;
+    if (len < total)
+        return PT_AGAIN;
+    uint32_t want = proto_get_u32(buf + PROTO_FRAME_HEADER + plen);
+    uint32_t got = proto_crc32c(0, buf, PROTO_FRAME_HEADER + (size_t)plen);
+    if (want != got)
+        return pt_error_set(err, PT_ERR_PROTO, "frame: bad CRC (type %u, length %u)",
+                            (unsigned)type, (unsigned)plen);
+    out->version = version;
+    out->type = type;
+    out->len = plen;
+    out->payload = buf + PROTO_FRAME_HEADER;
+    *consumed = total;
+    return PT_OK;
+}
+
+pt_status proto_frame_begin(proto_writer *w, uint16_t type, size_t *mark, pt_error *err)
+{
+    if (!proto_msg_type_known(type))
+        return pt_error_set(err, PT_ERR_ARG, "frame: unknown type %u", (unsigned)type);
+    size_t at = w->len;
+    uint8_t *h = proto_w_reserve(w, PROTO_FRAME_HEADER);
+    if (!h)
+        return pt_error_set(err, proto_writer_status(w), "frame header: %s",
+                            pt_status_str(proto_writer_status(w)));
+    memcpy(h, PROTO_MAGIC, 4);
+    proto_put_u16(h + 4, PROTO_VERSION);
+    proto_put_u16(h + 6, type);
+    proto_put_u32(h + 8, 0);
+    *mark = at;
+    return PT_OK;
+}
+
+pt_status proto_frame_end(proto_writer *w, size_t mark, pt_error *err)
+{
+    if (proto_writer_status(w) != PT_OK)
+        return pt_error_set(err, proto_writer_status(w), "frame payload: %s",
+                            pt_status_str(proto_writer_status(w)));
+    assert(mark + PROTO_FRAME_HEADER <= w->len);
+    size_t plen = w->len - mark - PROTO_FRAME_HEADER;
+    if (plen > PROTO_MAX_PAYLOAD)
+        return pt_error_set(err, PT_ERR_ARG, "frame: payload of %zu bytes over the cap of %u",
+                            plen, PROTO_MAX_PAYLOAD);
+    proto_put_u32(w->buf + mark + 8, (uint32_t)plen);
+    uint32_t crc = proto_crc32c(0, w->buf + mark, PROTO_FRAME_HEADER + plen);
+    proto_w_u32(w, crc);
+    if (proto_writer_status(w) != PT_OK)
+        return pt_error_set(err, proto_writer_status(w), "frame trailer: %s",
+                            pt_status_str(proto_writer_status(w)));
+    return PT_OK;
+}
+
+pt_status proto_frame_encode(proto_writer *w, uint16_t type, const void *payload, size_t len,
+                             pt_error *err)
+{
+    if (len > PROTO_MAX_PAYLOAD)
+        return pt_error_set(err, PT_ERR_ARG, "frame: payload of %zu bytes over the cap of %u",
+                            len, PROTO_MAX_PAYLOAD);
+    size_t mark;
+    pt_status st = proto_frame_begin(w, type, &mark, err);
+    if (st != PT_OK)
+        return st;
+    proto_w_bytes(w, payload, len);
+    return proto_frame_end(w, mark, err);
+}

@@ -1,0 +1,558 @@
+#include "protocol/msg.h"
+
+#include <string.h>
+
+#include "common/alloc.h"
+
+#ifndef PT_BUILD_ID
+#error "PT_BUILD_ID must come from ptcore's compile definitions"
+#endif
+
+const char *proto_build_id(void) { return PT_BUILD_ID; }
+
+const char *proto_msg_type_name(uint32_t type)
+{
+    switch (type) {
+    case PROTO_MSG_HELLO: return "HELLO";
+    case PROTO_MSG_CHALLENGE: return "CHALLENGE";
+    case PROTO_MSG_AUTH: return "AUTH";
+    case PROTO_MSG_WELCOME: return "WELCOME";
+    case PROTO_MSG_ERROR: return "ERROR";
+    case PROTO_MSG_WORK_REQUEST: return "WORK_REQUEST";
+    case PROTO_MSG_TASK: return "TASK";
+    case PROTO_MSG_SCENE_GET: return "SCENE_GET";
+    case PROTO_MSG_SCENE_CHUNK: return "SCENE_CHUNK";
+    case PROTO_MSG_RESULT: return "RESULT";
+    case PROTO_MSG_HEARTBEAT: return "HEARTBEAT";
+    case PROTO_MSG_SUBMIT: return "SUBMIT";
+    case PROTO_MSG_LIST: return "LIST";
+    case PROTO_MSG_STATUS: return "STATUS";
+    case PROTO_MSG_WATCH: return "WATCH";
+    case PROTO_MSG_CANCEL: return "CANCEL";
+    case PROTO_MSG_FETCH: return "FETCH";
+    }
+    return "unknown";
+}
+
+int proto_msg_type_known(uint32_t type) { return strcmp(proto_msg_type_name(type), "unknown") != 0; }
+
+int proto_msg_type_preauth(uint32_t type) { return type >= PROTO_MSG_HELLO && type <= PROTO_MSG_ERROR; }
+
+/* ---- shared pieces ---- */
+
+/* A str field: u16 length, capped, then bytes without NUL, copied into dst
+ * (cap + 1 bytes) and terminated. */
+static void r_str(proto_reader *r, char *dst, size_t cap, const char *field)
+{
+    uint16_t n = proto_r_u16(r, field);
+    if (r->status != PT_OK)
+        return;
+    if (n > cap) {
+        proto_r_fail(r, PT_ERR_PROTO, "over the length cap:", field);
+        return;
+    }
+    const uint8_t *s = proto_r_bytes(r, n, field);
+    if (!s)
+        return;
+    if (memchr(s, 0, n)) {
+        proto_r_fail(r, PT_ERR_PROTO, "NUL byte in", field);
+        return;
+    }
+    memcpy(dst, s, n);
+    dst[n] = '\0';
+}
+
+static pt_status w_str(proto_writer *w, const char *s, size_t cap, const char *what,
+                       const char *field, pt_error *err)
+{
+    size_t n = strnlen(s, cap + 1);
+    if (n > cap)
+        return pt_error_set(err, PT_ERR_ARG, "%s: %s longer than %zu bytes", what, field, cap);
+    proto_w_u16(w, (uint16_t)n);
+    proto_w_bytes(w, s, n);
+    return PT_OK;
+}
+
+static pt_status w_done(const proto_writer *w, const char *what, pt_error *err)
+{
+    pt_status st = proto_writer_status(w);
+    if (st != PT_OK)
+        return pt_error_set(err, st, "%s: %s", what, pt_status_str(st));
+    return PT_OK;
+}
+
+/* Shape of a tile: non-empty, ordered, within the per-task cap. NULL when fine. */
+static const char *rect_problem(pt_rect t)
+{
+    if (t.x0 >= t.x1)
+        return "tile x0 >= x1";
+    if (t.y0 >= t.y1)
+        return "tile y0 >= y1";
+    if ((uint64_t)(t.x1 - t.x0) * (t.y1 - t.y0) > PROTO_MAX_TILE_PIXELS)
+        return "tile area over the cap";
+    return NULL;
+}
+
+static uint32_t rect_area(pt_rect t) { return (t.x1 - t.x0) * (t.y1 - t.y0); }
+
+static pt_rect r_rect(proto_reader *r)
+{
+    pt_rect t;
+    t.x0 = proto_r_u32(r, "tile x0");
+    t.y0 = proto_r_u32(r, "tile y0");
+    t.x1 = proto_r_u32(r, "tile x1");
+    t.y1 = proto_r_u32(r, "tile y1");
+    return t;
+}
+
+static void w_rect(proto_writer *w, pt_rect t)
+{
+    proto_w_u32(w, t.x0);
+    proto_w_u32(w, t.y0);
+    proto_w_u32(w, t.x1);
+    proto_w_u32(w, t.y1);
+}
+
+static pt_status bad(pt_error *err, pt_status code, const char *what, const char *problem)
+{
+    return pt_error_set(err, code, "%s: %s", what, problem);
+}
+
+/* ---- HELLO ---- */
+
+static const char *hello_problem(const proto_hello *m)
+{
+    if (m->role != PROTO_ROLE_WORKER && m->role != PROTO_ROLE_CLIENT)
+        return "unknown role";
+    return NULL;
+}
+
+pt_status proto_msg_encode_hello(proto_writer *w, const proto_hello *m, pt_error *err)
+{
+    const char *why = hello_problem(m);
+    if (why)
+        return bad(err, PT_ERR_ARG, "HELLO", why);
+    proto_w_u16(w, m->version);
+    proto_w_u8(w, m->role);
+    pt_status st = w_str(w, m->name, PROTO_MAX_NAME, "HELLO", "name", err);
+    if (st != PT_OK)
+        return st;
+    proto_w_u16(w, m->threads);
+    st = w_str(w, m->build_id, PROTO_MAX_BUILD_ID, "HELLO", "build id", err);
+    if (st != PT_OK)
+        return st;
+    proto_w_u32(w, m->caps);
+    return w_done(w, "HELLO", err);
+}
+
+pt_status proto_msg_decode_hello(const uint8_t *p, size_t len, proto_hello *out, pt_error *err)
+{
+    proto_reader r = proto_reader_make(p, len);
+    proto_hello m;
+    m.version = proto_r_u16(&r, "version");
+    m.role = proto_r_u8(&r, "role");
+    r_str(&r, m.name, PROTO_MAX_NAME, "name");
+    m.threads = proto_r_u16(&r, "threads");
+    r_str(&r, m.build_id, PROTO_MAX_BUILD_ID, "build id");
+    m.caps = proto_r_u32(&r, "capabilities");
+    pt_status st = proto_r_finish(&r, "HELLO", err);
+    if (st != PT_OK)
+        return st;
+    const char *why = hello_problem(&m);
+    if (why)
+        return bad(err, PT_ERR_PROTO, "HELLO", why);
+    *out = m;
+    return PT_OK;
+}
+
+/* ---- CHALLENGE, AUTH ---- */
+
+pt_status proto_msg_encode_challenge(proto_writer *w, const proto_challenge *m, pt_error *err)
+{
+    proto_w_bytes(w, m->nonce, PROTO_NONCE_SIZE);
+    return w_done(w, "CHALLENGE", err);
+}
+
+pt_status proto_msg_decode_challenge(const uint8_t *p, size_t len, proto_challenge *out,
+                                     pt_error *err)
+{
+    proto_reader r = proto_reader_make(p, len);
+    const uint8_t *nonce = proto_r_bytes(&r, PROTO_NONCE_SIZE, "nonce");
+    pt_status st = proto_r_finish(&r, "CHALLENGE", err);
+    if (st != PT_OK)
+        return st;
+    memcpy(out->nonce, nonce, PROTO_NONCE_SIZE);
+    return PT_OK;
+}
+
+pt_status proto_msg_encode_auth(proto_writer *w, const proto_auth *m, pt_error *err)
+{
+    proto_w_bytes(w, m->mac, PROTO_MAC_SIZE);
+    return w_done(w, "AUTH", err);
+}
+
+pt_status proto_msg_decode_auth(const uint8_t *p, size_t len, proto_auth *out, pt_error *err)
+{
+    proto_reader r = proto_reader_make(p, len);
+    const uint8_t *mac = proto_r_bytes(&r, PROTO_MAC_SIZE, "mac");
+    pt_status st = proto_r_finish(&r, "AUTH", err);
+    if (st != PT_OK)
+        return st;
+    memcpy(out->mac, mac, PROTO_MAC_SIZE);
+    return PT_OK;
+}
+
+/* ---- WELCOME ---- */
+
+pt_status proto_msg_encode_welcome(proto_writer *w, const proto_welcome *m, pt_error *err)
+{
+    proto_w_u64(w, m->session_id);
+    pt_status st = w_str(w, m->build_id, PROTO_MAX_BUILD_ID, "WELCOME", "build id", err);
+    if (st != PT_OK)
+        return st;
+    return w_done(w, "WELCOME", err);
+}
+
+pt_status proto_msg_decode_welcome(const uint8_t *p, size_t len, proto_welcome *out,
+                                   pt_error *err)
+{
+    proto_reader r = proto_reader_make(p, len);
+    proto_welcome m;
+    m.session_id = proto_r_u64(&r, "session id");
+    r_str(&r, m.build_id, PROTO_MAX_BUILD_ID, "build id");
+    pt_status st = proto_r_finish(&r, "WELCOME", err);
+    if (st != PT_OK)
+        return st;
+    *out = m;
+    return PT_OK;
+}
+
+/* ---- ERROR ---- */
+
+pt_status proto_msg_encode_error(proto_writer *w, const proto_error_msg *m, pt_error *err)
+{
+    proto_w_u16(w, m->code);
+    pt_status st = w_str(w, m->text, PROTO_MAX_ERROR_TEXT, "ERROR", "text", err);
+    if (st != PT_OK)
+        return st;
+    return w_done(w, "ERROR", err);
+}
+
+pt_status proto_msg_decode_error(const uint8_t *p, size_t len, proto_error_msg *out,
+                                 pt_error *err)
+{
+    proto_reader r = proto_reader_make(p, len);
+    proto_error_msg m;
+    m.code = proto_r_u16(&r, "code");
+    r_str(&r, m.text, PROTO_MAX_ERROR_TEXT, "text");
+    pt_status st = proto_r_finish(&r, "ERROR", err);
+    if (st != PT_OK)
+        return st;
+    *out = m;
+    return PT_OK;
+}
+
+/* ---- WORK_REQUEST ---- */
+
+pt_status proto_msg_encode_work_request(proto_writer *w, const proto_work_request *m,
+                                        pt_error *err)
+{
+    if (m->slots > PROTO_MAX_SLOTS)
+        return bad(err, PT_ERR_ARG, "WORK_REQUEST", "slots over the cap");
+    proto_w_u16(w, m->slots);
+    return w_done(w, "WORK_REQUEST", err);
+}
+
+pt_status proto_msg_decode_work_request(const uint8_t *p, size_t len, proto_work_request *out,
+                                        pt_error *err)
+{
+    proto_reader r = proto_reader_make(p, len);
+    uint16_t slots = proto_r_u16(&r, "slots");
+    pt_status st = proto_r_finish(&r, "WORK_REQUEST", err);
+    if (st != PT_OK)
+        return st;
+    if (slots > PROTO_MAX_SLOTS)
+        return bad(err, PT_ERR_PROTO, "WORK_REQUEST", "slots over the cap");
+    out->slots = slots;
+    return PT_OK;
+}
+
+/* ---- TASK ---- */
+
+static const char *task_problem(const proto_task *m)
+{
+    const char *why = rect_problem(m->tile);
+    if (why)
+        return why;
+    if (m->tile.x1 > m->width || m->tile.y1 > m->height)
+        return "tile outside the image";
+    if (m->s0 >= m->s1)
+        return "sample range s0 >= s1";
+    return NULL;
+}
+
+pt_status proto_msg_encode_task(proto_writer *w, const proto_task *m, pt_error *err)
+{
+    const char *why = task_problem(m);
+    if (why)
+        return bad(err, PT_ERR_ARG, "TASK", why);
+    proto_w_u64(w, m->job_id);
+    proto_w_u64(w, m->task_id);
+    w_rect(w, m->tile);
+    proto_w_u32(w, m->s0);
+    proto_w_u32(w, m->s1);
+    proto_w_u32(w, m->width);
+    proto_w_u32(w, m->height);
+    proto_w_u32(w, m->seed);
+    proto_w_u16(w, m->max_depth);
+    proto_w_u16(w, m->rr_depth);
+    proto_w_bytes(w, m->scene_hash, PROTO_HASH_SIZE);
+    proto_w_u32(w, m->lease_ms);
+    return w_done(w, "TASK", err);
+}
+
+pt_status proto_msg_decode_task(const uint8_t *p, size_t len, proto_task *out, pt_error *err)
+{
+    proto_reader r = proto_reader_make(p, len);
+    proto_task m;
+    m.job_id = proto_r_u64(&r, "job id");
+    m.task_id = proto_r_u64(&r, "task id");
+    m.tile = r_rect(&r);
+    m.s0 = proto_r_u32(&r, "s0");
+    m.s1 = proto_r_u32(&r, "s1");
+    m.width = proto_r_u32(&r, "width");
+    m.height = proto_r_u32(&r, "height");
+    m.seed = proto_r_u32(&r, "seed");
+    m.max_depth = proto_r_u16(&r, "max depth");
+    m.rr_depth = proto_r_u16(&r, "rr depth");
+    const uint8_t *hash = proto_r_bytes(&r, PROTO_HASH_SIZE, "scene hash");
+    m.lease_ms = proto_r_u32(&r, "lease");
+    pt_status st = proto_r_finish(&r, "TASK", err);
+    if (st != PT_OK)
+        return st;
+    memcpy(m.scene_hash, hash, PROTO_HASH_SIZE);
+    const char *why = task_problem(&m);
+    if (why)
+        return bad(err, PT_ERR_PROTO, "TASK", why);
+    *out = m;
+    return PT_OK;
+}
+
+/* ---- SCENE_GET, SCENE_CHUNK ---- */
+
+pt_status proto_msg_encode_scene_get(proto_writer *w, const proto_scene_get *m, pt_error *err)
+{
+    proto_w_bytes(w, m->hash, PROTO_HASH_SIZE);
+    proto_w_u64(w, m->offset);
+    return w_done(w, "SCENE_GET", err);
+}
+
+pt_status proto_msg_decode_scene_get(const uint8_t *p, size_t len, proto_scene_get *out,
+                                     pt_error *err)
+{
+    proto_reader r = proto_reader_make(p, len);
+    const uint8_t *hash = proto_r_bytes(&r, PROTO_HASH_SIZE, "scene hash");
+    uint64_t offset = proto_r_u64(&r, "offset");
+    pt_status st = proto_r_finish(&r, "SCENE_GET", err);
+    if (st != PT_OK)
+        return st;
+    memcpy(out->hash, hash, PROTO_HASH_SIZE);
+    out->offset = offset;
+    return PT_OK;
+}
+
+static const char *chunk_problem(const proto_scene_chunk *m)
+{
+    if (m->len > PROTO_MAX_SCENE_CHUNK)
+        return "data length over the cap";
+    /* offset + len <= total, written so that it cannot wrap. */
+    if (m->offset > m->total || m->len > m->total - m->offset)
+        return "chunk past the end of the scene";
+    return NULL;
+}
+
+pt_status proto_msg_encode_scene_chunk(proto_writer *w, const proto_scene_chunk *m,
+                                       pt_error *err)
+{
+    const char *why = chunk_problem(m);
+    if (why)
+        return bad(err, PT_ERR_ARG, "SCENE_CHUNK", why);
+    proto_w_bytes(w, m->hash, PROTO_HASH_SIZE);
+    proto_w_u64(w, m->offset);
+    proto_w_u64(w, m->total);
+    proto_w_u32(w, m->len);
+    proto_w_bytes(w, m->data, m->len);
+    return w_done(w, "SCENE_CHUNK", err);
+}
+
+pt_status proto_msg_decode_scene_chunk(const uint8_t *p, size_t len, proto_scene_chunk *out,
+                                       pt_error *err)
+{
+    proto_reader r = proto_reader_make(p, len);
+    proto_scene_chunk m;
+    const uint8_t *hash = proto_r_bytes(&r, PROTO_HASH_SIZE, "scene hash");
+    m.offset = proto_r_u64(&r, "offset");
+    m.total = proto_r_u64(&r, "total size");
+    m.len = proto_r_u32(&r, "data length");
+    m.data = NULL;
+    /* The cap is judged before the length is used to read. */
+    if (r.status == PT_OK && m.len > PROTO_MAX_SCENE_CHUNK)
+        proto_r_fail(&r, PT_ERR_PROTO, "over the cap:", "data length");
+    m.data = proto_r_bytes(&r, m.len, "data");
+    pt_status st = proto_r_finish(&r, "SCENE_CHUNK", err);
+    if (st != PT_OK)
+        return st;
+    memcpy(m.hash, hash, PROTO_HASH_SIZE);
+    const char *why = chunk_problem(&m);
+    if (why)
+        return bad(err, PT_ERR_PROTO, "SCENE_CHUNK", why);
+    *out = m;
+    return PT_OK;
+}
+
+/* ---- RESULT ---- */
+
+static const char *result_problem(const proto_result *m)
+{
+    const char *why = rect_problem(m->tile);
+    if (why)
+        return why;
+    if (m->s0 >= m->s1)
+        return "sample range s0 >= s1";
+    if (m->npixels != rect_area(m->tile))
+        return "pixel count differs from the tile's area";
+    return NULL;
+}
+
+pt_status proto_msg_encode_result(proto_writer *w, const proto_result *m, pt_error *err)
+{
+    const char *why = result_problem(m);
+    if (why)
+        return bad(err, PT_ERR_ARG, "RESULT", why);
+    uint32_t nmax = m->s1 - m->s0;
+    for (uint32_t i = 0; i < m->npixels; i++)
+        if (m->pixels[i].n > nmax)
+            return bad(err, PT_ERR_ARG, "RESULT", "pixel sample count over s1 - s0");
+    proto_w_u64(w, m->job_id);
+    proto_w_u64(w, m->task_id);
+    w_rect(w, m->tile);
+    proto_w_u32(w, m->s0);
+    proto_w_u32(w, m->s1);
+    proto_w_u64(w, m->rejected);
+    proto_w_u64(w, m->rays);
+    proto_w_u32(w, m->npixels);
+    /* One reservation for all pixels: a 64k-pixel tile is 2.4 MB. */
+    uint8_t *q = proto_w_reserve(w, (size_t)m->npixels * PROTO_RESULT_PIXEL_SIZE);
+    if (!q)
+        return w_done(w, "RESULT", err);
+    for (uint32_t i = 0; i < m->npixels; i++, q += PROTO_RESULT_PIXEL_SIZE) {
+        const pt_pixel_acc *a = &m->pixels[i];
+        proto_put_f64(q, a->sum[0]);
+        proto_put_f64(q + 8, a->sum[1]);
+        proto_put_f64(q + 16, a->sum[2]);
+        proto_put_f64(q + 24, a->sum_sq);
+        proto_put_u32(q + 32, a->n);
+    }
+    return w_done(w, "RESULT", err);
+}
+
+pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *buf,
+                                  size_t buf_cap, proto_result *out, pt_error *err)
+{
+    proto_reader r = proto_reader_make(p, len);
+    proto_result m;
+    m.job_id = proto_r_u64(&r, "job id");
+    m.task_id = proto_r_u64(&r, "task id");
+    m.tile = r_rect(&r);
+    m.s0 = proto_r_u32(&r, "s0");
+    m.s1 = proto_r_u32(&r, "s1");
+    m.rejected = proto_r_u64(&r, "rejected");
+    m.rays = proto_r_u64(&r, "rays");
+    m.npixels = proto_r_u32(&r, "pixel count");
+    m.pixels = NULL;
+    m.owns_pixels = 0;
+    if (r.status != PT_OK)
+        return proto_r_finish(&r, "RESULT", err);
+    /* Everything about the count is settled before a byte is allocated: the
+     * tile's shape and cap, that the count is its area, and that exactly that
+     * many pixels are present. */
+    const char *why = result_problem(&m);
+    if (why)
+        return bad(err, PT_ERR_PROTO, "RESULT", why);
+    size_t body = (size_t)m.npixels * PROTO_RESULT_PIXEL_SIZE;
+    if (proto_r_left(&r) < body)
+        return pt_error_set(err, PT_ERR_PROTO, "RESULT: truncated pixels (%zu of %zu bytes)",
+                            proto_r_left(&r), body);
+    if (proto_r_left(&r) > body)
+        return pt_error_set(err, PT_ERR_PROTO, "RESULT: %zu trailing bytes",
+                            proto_r_left(&r) - body);
+    const uint8_t *q = r.p;
+    uint32_t nmax = m.s1 - m.s0;
+    for (uint32_t i = 0; i < m.npixels; i++)
+        if (proto_get_u32(q + (size_t)i * PROTO_RESULT_PIXEL_SIZE + 32) > nmax)
+            return pt_error_set(err, PT_ERR_PROTO, "RESULT: pixel %u sample count over s1 - s0",
+                                (unsigned)i);
+    pt_pixel_acc *px = buf;
+    if (buf) {
+        if (m.npixels > buf_cap)
+            return pt_error_set(err, PT_ERR_LIMIT, "RESULT: %u pixels, buffer holds %zu",
+                                (unsigned)m.npixels, buf_cap);
+    } else {
+        px = pt_malloc_array(m.npixels, sizeof *px);
+        if (!px)
+            return pt_error_set(err, PT_ERR_NOMEM, "RESULT: %u pixels", (unsigned)m.npixels);
+        m.owns_pixels = 1;
+    }
+    for (uint32_t i = 0; i < m.npixels; i++, q += PROTO_RESULT_PIXEL_SIZE) {
+        px[i].sum[0] = proto_get_f64(q);
+        px[i].sum[1] = proto_get_f64(q + 8);
+        px[i].sum[2] = proto_get_f64(q + 16);
+        px[i].sum_sq = proto_get_f64(q + 24);
+        px[i].n = proto_get_u32(q + 32);
+        px[i].pad = 0;
+    }
+    m.pixels = px;
+    *out = m;
+    return PT_OK;
+}
+
+void proto_result_fini(proto_result *r)
+{
+    if (!r)
+        return;
+    if (r->owns_pixels)
+        pt_free(r->pixels);
+    r->pixels = NULL;
+    r->owns_pixels = 0;
+}
+
+/* ---- HEARTBEAT ---- */
+
+pt_status proto_msg_encode_heartbeat(proto_writer *w, const proto_heartbeat *m, pt_error *err)
+{
+    if (m->count > PROTO_MAX_HEARTBEAT_TASKS)
+        return bad(err, PT_ERR_ARG, "HEARTBEAT", "task count over the cap");
+    proto_w_u16(w, m->count);
+    for (uint16_t i = 0; i < m->count; i++)
+        proto_w_u64(w, m->task_ids[i]);
+    return w_done(w, "HEARTBEAT", err);
+}
+
+pt_status proto_msg_decode_heartbeat(const uint8_t *p, size_t len, proto_heartbeat *out,
+                                     pt_error *err)
+{
+    proto_reader r = proto_reader_make(p, len);
+    uint16_t count = proto_r_u16(&r, "task count");
+    if (r.status == PT_OK && count > PROTO_MAX_HEARTBEAT_TASKS)
+        proto_r_fail(&r, PT_ERR_PROTO, "over the cap:", "task count");
+    /* Ids are read straight into out only after the whole payload checked
+     * out, so a failure leaves out untouched. */
+    const uint8_t *ids = proto_r_bytes(&r, (size_t)count * 8, "task ids");
+    pt_status st = proto_r_finish(&r, "HEARTBEAT", err);
+    if (st != PT_OK)
+        return st;
+    out->count = count;
+    for (uint16_t i = 0; i < count; i++)
+        out->task_ids[i] = proto_get_u64(ids + (size_t)i * 8);
+    return PT_OK;
+}

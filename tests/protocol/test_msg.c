@@ -1,0 +1,630 @@
+/*
+ * test_msg.c - every message of protocol/msg.c: round trips, and every way a
+ * payload can be refused.
+ *
+ * - Each sample message (tests/protocol/samples.h, two variants) encodes,
+ *   decodes back to the same fields (floats bit for bit), and its layout size
+ *   matches the table in msg.h.
+ * - Every proper prefix of every payload, and the payload plus one byte, is
+ *   PT_ERR_PROTO, with the output left untouched.
+ * - Caps and shapes: strings at and over their caps, NUL in a string, unknown
+ *   role, tile order / area / image bounds, sample range, RESULT pixel count
+ *   against the area, counts over their caps (refused before the bytes they
+ *   announce are looked for), SCENE_CHUNK past the end of the scene.
+ * - RESULT into a caller's buffer and a decoder-allocated one; the allocation
+ *   failure loop without leaks; no allocation for a payload refused early.
+ */
+#include <string.h>
+
+#include "common/alloc.h"
+#include "protocol/frame.h"
+#include "protocol/msg.h"
+#include "tests/check.h"
+#include "tests/protocol/samples.h"
+
+/* Decodes payload as type into a scratch struct, and turns a failure that
+ * touched the output into PT_OK so that the caller's check fails. */
+static pt_status decode_any(uint16_t type, const uint8_t *p, size_t len, pt_error *err)
+{
+    static union {
+        proto_hello hello;
+        proto_challenge challenge;
+        proto_auth auth;
+        proto_welcome welcome;
+        proto_error_msg error;
+        proto_work_request work;
+        proto_task task;
+        proto_scene_get get;
+        proto_scene_chunk chunk;
+        proto_result result;
+        proto_heartbeat hb;
+    } u, before;
+    memset(&u, 0xCD, sizeof u);
+    before = u;
+    pt_status st = PT_ERR_ARG;
+    switch (type) {
+    case PROTO_MSG_HELLO: st = proto_msg_decode_hello(p, len, &u.hello, err); break;
+    case PROTO_MSG_CHALLENGE: st = proto_msg_decode_challenge(p, len, &u.challenge, err); break;
+    case PROTO_MSG_AUTH: st = proto_msg_decode_auth(p, len, &u.auth, err); break;
+    case PROTO_MSG_WELCOME: st = proto_msg_decode_welcome(p, len, &u.welcome, err); break;
+    case PROTO_MSG_ERROR: st = proto_msg_decode_error(p, len, &u.error, err); break;
+    case PROTO_MSG_WORK_REQUEST: st = proto_msg_decode_work_request(p, len, &u.work, err); break;
+    case PROTO_MSG_TASK: st = proto_msg_decode_task(p, len, &u.task, err); break;
+    case PROTO_MSG_SCENE_GET: st = proto_msg_decode_scene_get(p, len, &u.get, err); break;
+    case PROTO_MSG_SCENE_CHUNK: st = proto_msg_decode_scene_chunk(p, len, &u.chunk, err); break;
+    case PROTO_MSG_RESULT:
+        st = proto_msg_decode_result(p, len, NULL, 0, &u.result, err);
+        if (st == PT_OK)
+            proto_result_fini(&u.result);
+        break;
+    case PROTO_MSG_HEARTBEAT: st = proto_msg_decode_heartbeat(p, len, &u.hb, err); break;
+    }
+    if (st != PT_OK && memcmp(&u, &before, sizeof u) != 0) {
+        fprintf(stderr, "type %u: output touched on failure\n", (unsigned)type);
+        return PT_OK; /* makes the caller's CHECK fail */
+    }
+    return st;
+}
+
+static int acc_same(const pt_pixel_acc *a, const pt_pixel_acc *b)
+{
+    for (int c = 0; c < 3; c++)
+        if (proto_f64_bits(a->sum[c]) != proto_f64_bits(b->sum[c]))
+            return 0;
+    return proto_f64_bits(a->sum_sq) == proto_f64_bits(b->sum_sq) && a->n == b->n;
+}
+
+static void check_round_trip(int s, int v, const uint8_t *p, size_t len)
+{
+    pt_error err = {0};
+    switch (s) {
+    case 0: {
+        proto_hello a = sample_hello(v), b;
+        CHECK(proto_msg_decode_hello(p, len, &b, &err) == PT_OK);
+        CHECK(len == 13 + strlen(a.name) + strlen(a.build_id));
+        CHECK(a.version == b.version && a.role == b.role && a.threads == b.threads);
+        CHECK(strcmp(a.name, b.name) == 0 && strcmp(a.build_id, b.build_id) == 0);
+        CHECK(a.caps == b.caps);
+        break;
+    }
+    case 1: {
+        proto_challenge b;
+        CHECK(len == 32 && proto_msg_decode_challenge(p, len, &b, &err) == PT_OK);
+        CHECK(memcmp(b.nonce, p, 32) == 0);
+        break;
+    }
+    case 2: {
+        proto_auth b;
+        CHECK(len == 32 && proto_msg_decode_auth(p, len, &b, &err) == PT_OK);
+        CHECK(memcmp(b.mac, p, 32) == 0);
+        break;
+    }
+    case 3: {
+        proto_welcome b;
+        CHECK(proto_msg_decode_welcome(p, len, &b, &err) == PT_OK);
+        CHECK(len == 10 + strlen(b.build_id));
+        CHECK(b.session_id == (v ? 0 : 0x8877665544332211ull));
+        CHECK(strcmp(b.build_id, v ? "x" : proto_build_id()) == 0);
+        break;
+    }
+    case 4: {
+        proto_error_msg b;
+        CHECK(proto_msg_decode_error(p, len, &b, &err) == PT_OK);
+        CHECK(len == 4 + strlen(b.text));
+        CHECK(b.code == (v ? 999 : PROTO_E_AUTH));
+        CHECK(strcmp(b.text, v ? "" : "wrong response to the challenge") == 0);
+        break;
+    }
+    case 5: {
+        proto_work_request b;
+        CHECK(len == 2 && proto_msg_decode_work_request(p, len, &b, &err) == PT_OK);
+        CHECK(b.slots == (v ? PROTO_MAX_SLOTS : 9));
+        break;
+    }
+    case 6: {
+        proto_task a = sample_task(v), b;
+        CHECK(len == 92 && proto_msg_decode_task(p, len, &b, &err) == PT_OK);
+        CHECK(a.job_id == b.job_id && a.task_id == b.task_id);
+        CHECK(memcmp(&a.tile, &b.tile, sizeof a.tile) == 0);
+        CHECK(a.s0 == b.s0 && a.s1 == b.s1 && a.width == b.width && a.height == b.height);
+        CHECK(a.seed == b.seed && a.max_depth == b.max_depth && a.rr_depth == b.rr_depth);
+        CHECK(memcmp(a.scene_hash, b.scene_hash, 32) == 0 && a.lease_ms == b.lease_ms);
+        break;
+    }
+    case 7: {
+        proto_scene_get b;
+        CHECK(len == 40 && proto_msg_decode_scene_get(p, len, &b, &err) == PT_OK);
+        CHECK(b.offset == (v ? 1u << 20 : 0) && b.hash[1] == (uint8_t)(37 + 5 + v));
+        break;
+    }
+    case 8: {
+        proto_scene_chunk b;
+        CHECK(proto_msg_decode_scene_chunk(p, len, &b, &err) == PT_OK);
+        CHECK(len == 52 + b.len);
+        CHECK(b.offset == (v ? 1000u : 0) && b.total == (v ? 1000u : 4096u));
+        CHECK(b.len == (v ? 0 : sizeof sample_scene_bytes));
+        CHECK(b.data == p + 52 && memcmp(b.data, sample_scene_bytes, b.len) == 0);
+        break;
+    }
+    case 9: {
+        proto_result a = sample_result(v), b;
+        CHECK(proto_msg_decode_result(p, len, NULL, 0, &b, &err) == PT_OK);
+        CHECK(len == 60 + 36 * (size_t)a.npixels);
+        CHECK(a.job_id == b.job_id && a.task_id == b.task_id && a.s0 == b.s0 && a.s1 == b.s1);
+        CHECK(memcmp(&a.tile, &b.tile, sizeof a.tile) == 0);
+        CHECK(a.rejected == b.rejected && a.rays == b.rays && a.npixels == b.npixels);
+        CHECK(b.owns_pixels == 1);
+        int same = 1;
+        for (uint32_t i = 0; i < a.npixels; i++)
+            same &= acc_same(&a.pixels[i], &b.pixels[i]) && b.pixels[i].pad == 0;
+        CHECK(same);
+        proto_result_fini(&b);
+        CHECK(b.pixels == NULL);
+        proto_result_fini(&b);
+        proto_result_fini(NULL);
+        /* Into the caller's buffer: exact fit works, one short is PT_ERR_LIMIT. */
+        pt_pixel_acc buf[12];
+        CHECK(proto_msg_decode_result(p, len, buf, a.npixels, &b, &err) == PT_OK);
+        CHECK(b.pixels == buf && b.owns_pixels == 0 && acc_same(&buf[0], &a.pixels[0]));
+        proto_result_fini(&b);
+        CHECK(proto_msg_decode_result(p, len, buf, a.npixels - 1, &b, &err) == PT_ERR_LIMIT);
+        pt_error_clear(&err);
+        break;
+    }
+    case 10: {
+        proto_heartbeat *a = sample_heartbeat(v);
+        static proto_heartbeat b;
+        CHECK(len == 2 + 8 * (size_t)a->count);
+        CHECK(proto_msg_decode_heartbeat(p, len, &b, &err) == PT_OK);
+        CHECK(b.count == a->count);
+        CHECK(memcmp(a->task_ids, b.task_ids, 8 * (size_t)a->count) == 0);
+        break;
+    }
+    }
+    CHECKF(err.code == PT_OK, "sample %d: %s", s, err.msg);
+}
+
+static void test_samples(void)
+{
+    for (int s = 0; s < SAMPLE_COUNT; s++) {
+        for (int v = 0; v < 2; v++) {
+            proto_writer w;
+            proto_writer_init(&w, PROTO_MAX_PAYLOAD);
+            uint16_t type = sample_payload(s, v, &w);
+            CHECKF(type != 0, "sample %d variant %d does not encode", s, v);
+            if (!type) {
+                proto_writer_fini(&w);
+                continue;
+            }
+            check_round_trip(s, v, w.buf, w.len);
+            /* Every proper prefix is refused, as PT_ERR_PROTO, untouched output. */
+            int bad = 0;
+            pt_error err = {0};
+            for (size_t k = 0; k < w.len; k++) {
+                /* A copy of exactly k bytes, so ASan sees any read past them. */
+                uint8_t *c = pt_malloc(k);
+                memcpy(c, w.buf, k);
+                bad += decode_any(type, c, k, &err) != PT_ERR_PROTO;
+                pt_free(c);
+            }
+            CHECKF(bad == 0, "sample %d variant %d: %d prefixes not refused", s, v, bad);
+            CHECK(decode_any(type, w.buf, w.len, &err) == PT_OK);
+            proto_w_u8(&w, 0);
+            CHECK(decode_any(type, w.buf, w.len, &err) == PT_ERR_PROTO);
+            CHECK(strstr(err.msg, "trailing") != NULL);
+            proto_writer_fini(&w);
+        }
+    }
+}
+
+/* ---- hand-made payloads ---- */
+
+static void w_str(proto_writer *w, size_t n, char fill)
+{
+    proto_w_u16(w, (uint16_t)n);
+    for (size_t i = 0; i < n; i++)
+        proto_w_u8(w, (uint8_t)fill);
+}
+
+static pt_status hello_raw(uint8_t role, size_t name_len, char name_fill, size_t build_len,
+                           pt_error *err)
+{
+    proto_writer w;
+    proto_writer_init(&w, 1u << 20);
+    proto_w_u16(&w, PROTO_VERSION);
+    proto_w_u8(&w, role);
+    w_str(&w, name_len, name_fill);
+    proto_w_u16(&w, 4);
+    w_str(&w, build_len, 'b');
+    proto_w_u32(&w, 0);
+    pt_status st = decode_any(PROTO_MSG_HELLO, w.buf, w.len, err);
+    proto_writer_fini(&w);
+    return st;
+}
+
+static void test_strings(void)
+{
+    pt_error err = {0};
+    CHECK(hello_raw(PROTO_ROLE_WORKER, 64, 'n', 64, &err) == PT_OK);
+    CHECK(hello_raw(PROTO_ROLE_WORKER, 0, 'n', 0, &err) == PT_OK);
+    CHECK(hello_raw(PROTO_ROLE_WORKER, 65, 'n', 10, &err) == PT_ERR_PROTO);
+    CHECK(strstr(err.msg, "name") != NULL);
+    CHECK(hello_raw(PROTO_ROLE_WORKER, 10, 'n', 65, &err) == PT_ERR_PROTO);
+    CHECK(strstr(err.msg, "build id") != NULL);
+    CHECK(hello_raw(PROTO_ROLE_WORKER, 65535, 'n', 10, &err) == PT_ERR_PROTO);
+    CHECK(hello_raw(PROTO_ROLE_WORKER, 5, '\0', 10, &err) == PT_ERR_PROTO);
+    CHECK(strstr(err.msg, "NUL") != NULL);
+    CHECK(hello_raw(PROTO_ROLE_CLIENT, 5, 'n', 10, &err) == PT_OK);
+    CHECK(hello_raw(0, 5, 'n', 10, &err) == PT_ERR_PROTO);
+    CHECK(hello_raw(3, 5, 'n', 10, &err) == PT_ERR_PROTO);
+    CHECK(strstr(err.msg, "role") != NULL);
+
+    /* A string length over the cap is refused before its bytes are looked for. */
+    uint8_t head[5] = {1, 0, 1, 65, 0};
+    CHECK(decode_any(PROTO_MSG_HELLO, head, sizeof head, &err) == PT_ERR_PROTO);
+    CHECK(strstr(err.msg, "cap") != NULL);
+
+    /* ERROR text: 1024 bytes fit, 1025 do not. */
+    for (size_t n = 1023; n <= 1026; n++) {
+        proto_writer w;
+        proto_writer_init(&w, 4096);
+        proto_w_u16(&w, PROTO_E_LIMIT);
+        w_str(&w, n, 'e');
+        pt_status st = decode_any(PROTO_MSG_ERROR, w.buf, w.len, &err);
+        CHECKF(st == (n <= PROTO_MAX_ERROR_TEXT ? PT_OK : PT_ERR_PROTO), "text of %zu", n);
+        proto_writer_fini(&w);
+    }
+
+    /* Encoders refuse what decoders would. */
+    proto_writer w;
+    proto_writer_init(&w, 1u << 16);
+    proto_hello h = sample_hello(0);
+    memset(h.name, 'n', sizeof h.name); /* 65 bytes, no terminator inside the cap */
+    CHECK(proto_msg_encode_hello(&w, &h, &err) == PT_ERR_ARG);
+    h = sample_hello(0);
+    memset(h.build_id, 'b', sizeof h.build_id);
+    CHECK(proto_msg_encode_hello(&w, &h, &err) == PT_ERR_ARG);
+    h = sample_hello(0);
+    h.role = 7;
+    CHECK(proto_msg_encode_hello(&w, &h, &err) == PT_ERR_ARG);
+    proto_welcome wm;
+    wm.session_id = 1;
+    memset(wm.build_id, 'b', sizeof wm.build_id);
+    CHECK(proto_msg_encode_welcome(&w, &wm, &err) == PT_ERR_ARG);
+    static proto_error_msg em;
+    em.code = 1;
+    memset(em.text, 't', sizeof em.text);
+    CHECK(proto_msg_encode_error(&w, &em, &err) == PT_ERR_ARG);
+    em.text[PROTO_MAX_ERROR_TEXT] = '\0';
+    proto_writer_reset(&w);
+    CHECK(proto_msg_encode_error(&w, &em, &err) == PT_OK);
+    CHECK(w.len == 4 + PROTO_MAX_ERROR_TEXT);
+    /* The longest ERROR fits under the pre-authentication cap. */
+    CHECK(w.len <= PROTO_MAX_PAYLOAD_PREAUTH);
+    proto_writer_fini(&w);
+}
+
+static proto_writer task_raw(pt_rect t, uint32_t s0, uint32_t s1, uint32_t width,
+                             uint32_t height)
+{
+    proto_writer w;
+    proto_writer_init(&w, 1024);
+    proto_w_u64(&w, 1);
+    proto_w_u64(&w, 2);
+    proto_w_u32(&w, t.x0);
+    proto_w_u32(&w, t.y0);
+    proto_w_u32(&w, t.x1);
+    proto_w_u32(&w, t.y1);
+    proto_w_u32(&w, s0);
+    proto_w_u32(&w, s1);
+    proto_w_u32(&w, width);
+    proto_w_u32(&w, height);
+    proto_w_u32(&w, 5);
+    proto_w_u16(&w, 16);
+    proto_w_u16(&w, 3);
+    for (int i = 0; i < 32; i++)
+        proto_w_u8(&w, (uint8_t)i);
+    proto_w_u32(&w, 1000);
+    return w;
+}
+
+static pt_status task_check(pt_rect t, uint32_t s0, uint32_t s1, uint32_t width,
+                            uint32_t height, const char *want, pt_error *err)
+{
+    proto_writer w = task_raw(t, s0, s1, width, height);
+    pt_status st = decode_any(PROTO_MSG_TASK, w.buf, w.len, err);
+    proto_writer_fini(&w);
+    if (st != PT_OK && want && !strstr(err->msg, want)) {
+        fprintf(stderr, "wanted \"%s\" in \"%s\"\n", want, err->msg);
+        return PT_OK;
+    }
+    /* The encoder agrees with the decoder. */
+    proto_task m = sample_task(0);
+    m.tile = t;
+    m.s0 = s0;
+    m.s1 = s1;
+    m.width = width;
+    m.height = height;
+    proto_writer e;
+    proto_writer_init(&e, 1024);
+    pt_status est = proto_msg_encode_task(&e, &m, NULL);
+    proto_writer_fini(&e);
+    if ((st == PT_OK) != (est == PT_OK)) {
+        fprintf(stderr, "encoder and decoder disagree\n");
+        return PT_ERR_ARG;
+    }
+    return st;
+}
+
+static void test_task(void)
+{
+    pt_error err = {0};
+    CHECK(task_check((pt_rect){0, 0, 64, 64}, 0, 16, 64, 64, NULL, &err) == PT_OK);
+    CHECK(task_check((pt_rect){0, 0, 256, 256}, 0, 1, 256, 256, NULL, &err) == PT_OK);
+    CHECK(task_check((pt_rect){5, 0, 5, 8}, 0, 16, 64, 64, "x0", &err) == PT_ERR_PROTO);
+    CHECK(task_check((pt_rect){6, 0, 5, 8}, 0, 16, 64, 64, "x0", &err) == PT_ERR_PROTO);
+    CHECK(task_check((pt_rect){0, 8, 5, 8}, 0, 16, 64, 64, "y0", &err) == PT_ERR_PROTO);
+    CHECK(task_check((pt_rect){0, 0, 257, 256}, 0, 16, 512, 512, "area", &err) == PT_ERR_PROTO);
+    CHECK(task_check((pt_rect){0, 0, UINT32_MAX, UINT32_MAX}, 0, 16, UINT32_MAX, UINT32_MAX,
+                     "area", &err) == PT_ERR_PROTO);
+    CHECK(task_check((pt_rect){0, 0, 65, 64}, 0, 16, 64, 64, "outside", &err) == PT_ERR_PROTO);
+    CHECK(task_check((pt_rect){0, 0, 64, 65}, 0, 16, 64, 64, "outside", &err) == PT_ERR_PROTO);
+    CHECK(task_check((pt_rect){0, 0, 8, 8}, 16, 16, 64, 64, "s0", &err) == PT_ERR_PROTO);
+    CHECK(task_check((pt_rect){0, 0, 8, 8}, 17, 16, 64, 64, "s0", &err) == PT_ERR_PROTO);
+    CHECK(task_check((pt_rect){0, 0, 8, 8}, 0, UINT32_MAX, 64, 64, NULL, &err) == PT_OK);
+}
+
+static void test_counts(void)
+{
+    pt_error err = {0};
+    uint8_t b[2];
+    proto_put_u16(b, PROTO_MAX_SLOTS);
+    CHECK(decode_any(PROTO_MSG_WORK_REQUEST, b, 2, &err) == PT_OK);
+    proto_put_u16(b, PROTO_MAX_SLOTS + 1);
+    CHECK(decode_any(PROTO_MSG_WORK_REQUEST, b, 2, &err) == PT_ERR_PROTO);
+    proto_work_request wr = {PROTO_MAX_SLOTS + 1};
+    proto_writer w;
+    proto_writer_init(&w, 1u << 24);
+    CHECK(proto_msg_encode_work_request(&w, &wr, &err) == PT_ERR_ARG);
+
+    /* HEARTBEAT: the cap, one over it (refused on the count alone), and a
+     * count that promises more ids than are present. */
+    proto_writer_reset(&w);
+    proto_w_u16(&w, PROTO_MAX_HEARTBEAT_TASKS);
+    for (unsigned i = 0; i < PROTO_MAX_HEARTBEAT_TASKS; i++)
+        proto_w_u64(&w, i);
+    CHECK(decode_any(PROTO_MSG_HEARTBEAT, w.buf, w.len, &err) == PT_OK);
+    proto_put_u16(b, PROTO_MAX_HEARTBEAT_TASKS + 1);
+    CHECK(decode_any(PROTO_MSG_HEARTBEAT, b, 2, &err) == PT_ERR_PROTO);
+    CHECK(strstr(err.msg, "cap") != NULL);
+    proto_put_u16(b, 0xFFFF);
+    CHECK(decode_any(PROTO_MSG_HEARTBEAT, b, 2, &err) == PT_ERR_PROTO);
+    proto_put_u16(w.buf, 3);
+    CHECK(decode_any(PROTO_MSG_HEARTBEAT, w.buf, 2 + 8 * 3 - 1, &err) == PT_ERR_PROTO);
+    static proto_heartbeat hb;
+    hb.count = PROTO_MAX_HEARTBEAT_TASKS + 1;
+    proto_writer_reset(&w);
+    CHECK(proto_msg_encode_heartbeat(&w, &hb, &err) == PT_ERR_ARG);
+
+    /* SCENE_CHUNK: 1 MiB fits; one more byte is refused on the length alone. */
+    static uint8_t data[PROTO_MAX_SCENE_CHUNK + 1];
+    proto_scene_chunk c;
+    memset(&c, 0, sizeof c);
+    c.len = PROTO_MAX_SCENE_CHUNK;
+    c.total = PROTO_MAX_SCENE_CHUNK;
+    c.data = data;
+    proto_writer_reset(&w);
+    CHECK(proto_msg_encode_scene_chunk(&w, &c, &err) == PT_OK);
+    CHECK(decode_any(PROTO_MSG_SCENE_CHUNK, w.buf, w.len, &err) == PT_OK);
+    c.len++;
+    c.total++;
+    proto_writer_reset(&w);
+    CHECK(proto_msg_encode_scene_chunk(&w, &c, &err) == PT_ERR_ARG);
+    proto_writer_reset(&w);
+    proto_w_bytes(&w, data, 32);
+    proto_w_u64(&w, 0);
+    proto_w_u64(&w, UINT64_MAX);
+    proto_w_u32(&w, PROTO_MAX_SCENE_CHUNK + 1);
+    CHECK(decode_any(PROTO_MSG_SCENE_CHUNK, w.buf, w.len, &err) == PT_ERR_PROTO);
+    CHECK(strstr(err.msg, "cap") != NULL);
+    /* Chunks past the end of the scene, including offsets that would wrap. */
+    static const uint64_t cases[][3] = {
+        {0, 9, 10},  {1, 10, 10}, {11, 10, 0}, {UINT64_MAX, UINT64_MAX, 2}, {UINT64_MAX - 1, UINT64_MAX, 2},
+    };
+    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+        proto_writer_reset(&w);
+        proto_w_bytes(&w, data, 32);
+        proto_w_u64(&w, cases[i][0]);
+        proto_w_u64(&w, cases[i][1]);
+        proto_w_u32(&w, (uint32_t)cases[i][2]);
+        proto_w_bytes(&w, data, (size_t)cases[i][2]);
+        CHECKF(decode_any(PROTO_MSG_SCENE_CHUNK, w.buf, w.len, &err) == PT_ERR_PROTO, "case %zu",
+               i);
+        c.offset = cases[i][0];
+        c.total = cases[i][1];
+        c.len = (uint32_t)cases[i][2];
+        proto_writer_reset(&w);
+        CHECK(proto_msg_encode_scene_chunk(&w, &c, &err) == PT_ERR_ARG);
+    }
+    proto_writer_reset(&w);
+    proto_w_bytes(&w, data, 32);
+    proto_w_u64(&w, UINT64_MAX - 2);
+    proto_w_u64(&w, UINT64_MAX);
+    proto_w_u32(&w, 2);
+    proto_w_u16(&w, 0);
+    CHECK(decode_any(PROTO_MSG_SCENE_CHUNK, w.buf, w.len, &err) == PT_OK);
+    proto_writer_fini(&w);
+}
+
+/* A RESULT header for tile t claiming n pixels, followed by `have` pixels
+ * whose sample count is pixel_n. */
+static proto_writer result_raw(pt_rect t, uint32_t s0, uint32_t s1, uint32_t n, uint32_t have,
+                               uint32_t pixel_n)
+{
+    proto_writer w;
+    proto_writer_init(&w, PROTO_MAX_PAYLOAD);
+    proto_w_u64(&w, 1);
+    proto_w_u64(&w, 2);
+    proto_w_u32(&w, t.x0);
+    proto_w_u32(&w, t.y0);
+    proto_w_u32(&w, t.x1);
+    proto_w_u32(&w, t.y1);
+    proto_w_u32(&w, s0);
+    proto_w_u32(&w, s1);
+    proto_w_u64(&w, 0);
+    proto_w_u64(&w, 0);
+    proto_w_u32(&w, n);
+    for (uint32_t i = 0; i < have; i++) {
+        for (int k = 0; k < 4; k++)
+            proto_w_f64(&w, 1.0);
+        proto_w_u32(&w, pixel_n);
+    }
+    return w;
+}
+
+static pt_status result_check(pt_rect t, uint32_t s0, uint32_t s1, uint32_t n, uint32_t have,
+                              uint32_t pixel_n, const char *want, int *allocated)
+{
+    proto_writer w = result_raw(t, s0, s1, n, have, pixel_n);
+    pt_error err = {0};
+    proto_result r;
+    pt_alloc_fail_at(0); /* resets the allocation counter */
+    pt_status st = proto_msg_decode_result(w.buf, w.len, NULL, 0, &r, &err);
+    *allocated = (int)pt_alloc_count();
+    if (st == PT_OK)
+        proto_result_fini(&r);
+    proto_writer_fini(&w);
+    if (st != PT_OK && want && !strstr(err.msg, want)) {
+        fprintf(stderr, "wanted \"%s\" in \"%s\"\n", want, err.msg);
+        return PT_OK;
+    }
+    return st;
+}
+
+static void test_result(void)
+{
+    int alloc = 0;
+    int64_t live = pt_alloc_live();
+    CHECK(result_check((pt_rect){0, 0, 4, 2}, 0, 8, 8, 8, 8, NULL, &alloc) == PT_OK);
+    CHECK(alloc == 1);
+    CHECK(result_check((pt_rect){0, 0, 256, 256}, 0, 8, 65536, 65536, 0, NULL, &alloc) == PT_OK);
+    /* Refused before any allocation: */
+    CHECK(result_check((pt_rect){0, 0, 4, 2}, 0, 8, 7, 7, 1, "area", &alloc) == PT_ERR_PROTO);
+    CHECK(alloc == 0);
+    CHECK(result_check((pt_rect){0, 0, 4, 2}, 0, 8, 9, 9, 1, "area", &alloc) == PT_ERR_PROTO);
+    CHECK(alloc == 0);
+    CHECK(result_check((pt_rect){0, 0, 4, 2}, 0, 8, 8, 7, 1, "truncated", &alloc) ==
+          PT_ERR_PROTO);
+    CHECK(alloc == 0);
+    CHECK(result_check((pt_rect){0, 0, 4, 2}, 0, 8, 8, 9, 1, "trailing", &alloc) ==
+          PT_ERR_PROTO);
+    CHECK(alloc == 0);
+    CHECK(result_check((pt_rect){0, 0, 257, 256}, 0, 8, 257 * 256, 0, 1, "cap", &alloc) ==
+          PT_ERR_PROTO);
+    CHECK(alloc == 0);
+    /* An area that wraps 32 bits (65536 x 65536 = 2^32 -> 0) and a count of 0. */
+    CHECK(result_check((pt_rect){0, 0, 65536, 65536}, 0, 8, 0, 0, 1, "cap", &alloc) ==
+          PT_ERR_PROTO);
+    CHECK(result_check((pt_rect){0, 0, UINT32_MAX, UINT32_MAX}, 0, 8, UINT32_MAX, 0, 1, "cap",
+                       &alloc) == PT_ERR_PROTO);
+    CHECK(alloc == 0);
+    CHECK(result_check((pt_rect){4, 0, 4, 2}, 0, 8, 0, 0, 1, "x0", &alloc) == PT_ERR_PROTO);
+    CHECK(result_check((pt_rect){0, 3, 4, 2}, 0, 8, 0, 0, 1, "y0", &alloc) == PT_ERR_PROTO);
+    CHECK(result_check((pt_rect){0, 0, 4, 2}, 8, 8, 8, 8, 0, "s0", &alloc) == PT_ERR_PROTO);
+    CHECK(result_check((pt_rect){0, 0, 4, 2}, 0, 8, 8, 8, 9, "sample count", &alloc) ==
+          PT_ERR_PROTO);
+    CHECK(alloc == 0);
+    CHECK(pt_alloc_live() == live);
+
+    /* Encoder side of the same rules. */
+    proto_writer w;
+    pt_error err = {0};
+    proto_writer_init(&w, PROTO_MAX_PAYLOAD);
+    proto_result m = sample_result(0);
+    m.npixels = 11;
+    CHECK(proto_msg_encode_result(&w, &m, &err) == PT_ERR_ARG);
+    m = sample_result(0);
+    m.s1 = m.s0;
+    CHECK(proto_msg_encode_result(&w, &m, &err) == PT_ERR_ARG);
+    m = sample_result(0);
+    m.pixels[3].n = m.s1 - m.s0 + 1;
+    CHECK(proto_msg_encode_result(&w, &m, &err) == PT_ERR_ARG);
+    CHECK(w.len == 0);
+    /* Writer too small: PT_ERR_LIMIT. */
+    proto_writer_fini(&w);
+    proto_writer_init(&w, 100);
+    m = sample_result(0);
+    CHECK(proto_msg_encode_result(&w, &m, &err) == PT_ERR_LIMIT);
+    proto_writer_fini(&w);
+
+    /* The allocation-failure loop: fail allocation k of a decode for every k
+     * until one succeeds; each failure is PT_ERR_NOMEM, out untouched, no leak. */
+    proto_writer_init(&w, PROTO_MAX_PAYLOAD);
+    m = sample_result(0);
+    CHECK(proto_msg_encode_result(&w, &m, &err) == PT_OK);
+    int64_t live_w = pt_alloc_live(); /* the writer holds a block */
+    int done = 0;
+    for (uint64_t k = 1; k < 50 && !done; k++) {
+        proto_result r;
+        memset(&r, 0xCD, sizeof r);
+        proto_result before = r;
+        pt_alloc_fail_at(k);
+        pt_status st = proto_msg_decode_result(w.buf, w.len, NULL, 0, &r, &err);
+        pt_alloc_fail_at(0);
+        if (st == PT_OK) {
+            CHECK(r.npixels == 12 && acc_same(&r.pixels[11], &m.pixels[11]));
+            proto_result_fini(&r);
+            done = 1;
+        } else {
+            CHECK(st == PT_ERR_NOMEM && memcmp(&r, &before, sizeof r) == 0);
+        }
+        CHECK(pt_alloc_live() == live_w);
+    }
+    CHECK(done);
+    proto_writer_fini(&w);
+
+    /* The same loop over encoding every sample into a fresh writer. */
+    for (int s = 0; s < SAMPLE_COUNT; s++) {
+        done = 0;
+        for (uint64_t k = 1; k < 50 && !done; k++) {
+            proto_writer ew;
+            proto_writer_init(&ew, PROTO_MAX_PAYLOAD);
+            pt_alloc_fail_at(k);
+            uint16_t type = sample_frame(s, 1, &ew);
+            pt_alloc_fail_at(0);
+            done = type != 0;
+            proto_writer_fini(&ew);
+            CHECKF(pt_alloc_live() == live, "sample %d k %d", s, (int)k);
+        }
+        CHECKF(done, "sample %d", s);
+    }
+}
+
+static void test_types(void)
+{
+    CHECK(proto_msg_type_known(PROTO_MSG_HELLO) && proto_msg_type_known(PROTO_MSG_FETCH));
+    CHECK(!proto_msg_type_known(0) && !proto_msg_type_known(0x10001));
+    CHECK(proto_msg_type_preauth(PROTO_MSG_HELLO) && proto_msg_type_preauth(PROTO_MSG_ERROR));
+    CHECK(!proto_msg_type_preauth(PROTO_MSG_TASK) && !proto_msg_type_preauth(0));
+    CHECK(strcmp(proto_msg_type_name(PROTO_MSG_RESULT), "RESULT") == 0);
+    CHECK(strcmp(proto_msg_type_name(12345), "unknown") == 0);
+    size_t n = strlen(proto_build_id());
+    CHECK(n > 0 && n <= PROTO_MAX_BUILD_ID);
+    /* Every handshake message fits the pre-authentication cap at its largest. */
+    CHECK(13 + PROTO_MAX_NAME + PROTO_MAX_BUILD_ID <= PROTO_MAX_PAYLOAD_PREAUTH);
+    CHECK(4 + PROTO_MAX_ERROR_TEXT <= PROTO_MAX_PAYLOAD_PREAUTH);
+    /* A full RESULT fits the frame cap. */
+    CHECK(60 + (uint64_t)PROTO_RESULT_PIXEL_SIZE * PROTO_MAX_TILE_PIXELS <= PROTO_MAX_PAYLOAD);
+    CHECK(52 + (uint64_t)PROTO_MAX_SCENE_CHUNK <= PROTO_MAX_PAYLOAD);
+}
+
+int main(void)
+{
+    test_types();
+    test_samples();
+    test_strings();
+    test_task();
+    test_counts();
+    test_result();
+    return check_report();
+}
