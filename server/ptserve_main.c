@@ -41,6 +41,7 @@ static void usage(FILE *f)
             "  --chunk N              samples per task (default 16)\n"
             "  --save-interval SEC    progressive saves at most this often (default 5)\n"
             "  --lease-timeout SEC    requeue a task whose worker is silent this long (default 20)\n"
+            "  --handshake-timeout SEC  drop a peer that has not authenticated by then (default 10)\n"
             "  --port-file PATH       write the port listened on to PATH\n"
             "  --worker-bin PATH      the ptworker to start with --local (default: beside ptserve)\n"
             "  -q, --quiet            no progress line\n"
@@ -86,9 +87,9 @@ int main(int argc, char **argv)
     c.job.max_depth = 16;
     c.job.rr_depth = 3;
     c.save_interval = 5.0;
-    double lease = 20.0;
+    double lease = 20.0, handshake = 10.0;
     enum { O_LOCAL = 256, O_WTHREADS, O_LISTEN, O_TOKEN, O_SPP, O_RES, O_SEED, O_DEPTH, O_CAMERA,
-           O_TILE, O_CHUNK, O_SAVE, O_LEASE, O_PORTFILE, O_WBIN };
+           O_TILE, O_CHUNK, O_SAVE, O_LEASE, O_PORTFILE, O_WBIN, O_HANDSHAKE };
     static const struct option opts[] = {
         {"output", required_argument, NULL, 'o'},
         {"local", required_argument, NULL, O_LOCAL},
@@ -105,6 +106,7 @@ int main(int argc, char **argv)
         {"save-interval", required_argument, NULL, O_SAVE},
         {"lease-timeout", required_argument, NULL, O_LEASE},
         {"port-file", required_argument, NULL, O_PORTFILE},
+        {"handshake-timeout", required_argument, NULL, O_HANDSHAKE},
         {"worker-bin", required_argument, NULL, O_WBIN},
         {"quiet", no_argument, NULL, 'q'},
         {"help", no_argument, NULL, 'h'},
@@ -141,6 +143,7 @@ int main(int argc, char **argv)
         case O_SAVE: bad = parse_seconds("--save-interval", optarg, &c.save_interval); break;
         case O_LEASE: bad = parse_seconds("--lease-timeout", optarg, &lease); break;
         case O_PORTFILE: c.port_file = optarg; break;
+        case O_HANDSHAKE: bad = parse_seconds("--handshake-timeout", optarg, &handshake); break;
         case O_WBIN: c.worker_bin = optarg; break;
         case 'q': c.quiet = 1; break;
         case 'h': usage(stdout); return 0;
@@ -160,5 +163,6 @@ int main(int argc, char **argv)
     }
     c.scene_path = argv[optind];
     c.lease_ms = (uint32_t)(lease * 1000.0);
+    c.handshake_ms = (uint32_t)(handshake * 1000.0);
     return srv_serve(&c);
 }

@@ -37,7 +37,6 @@ enum { C_HELLO, C_AUTH, C_READY };
 #define IN_START (64u * 1024u)
 #define OUT_HIGH (16u << 20)   /* stop reading a peer whose unsent output passes this */
 #define OUT_MAX (256u << 20)   /* a peer that lets this much pile up is dropped */
-#define HANDSHAKE_MS 10000
 #define STALL_MS 30000         /* a partial frame with no progress for this long */
 #define CLOSE_GRACE_MS 1000    /* time to flush an ERROR before closing */
 
@@ -600,9 +599,9 @@ static void timers(server *s)
     for (conn *c = s->conns; c; c = c->next) {
         if (c->closing)
             continue;
-        if (c->state != C_READY && now - c->t_connect > HANDSHAKE_MS)
-            conn_send_error(s, c, PROTO_E_PROTOCOL, "handshake not finished in %d s",
-                            HANDSHAKE_MS / 1000);
+        if (c->state != C_READY && now - c->t_connect > s->cfg->handshake_ms)
+            conn_send_error(s, c, PROTO_E_PROTOCOL, "handshake not finished in %.1f s",
+                            s->cfg->handshake_ms / 1000.0);
         else if (c->in_len > 0 && now - c->t_progress > STALL_MS)
             conn_send_error(s, c, PROTO_E_PROTOCOL, "partial frame stalled for %d s",
                             STALL_MS / 1000);
