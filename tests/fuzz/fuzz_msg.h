@@ -1,0 +1,140 @@
+/*
+ * fuzz_msg.h - decodes one message payload with the decoder its type names,
+ * and checks that what decodes re-encodes to the very same bytes (the
+ * encoding is canonical, so any difference is a decoder bug).
+ * Shared by fuzz_msg.c (type from the first input byte) and fuzz_frame.c
+ * (type from each decoded frame). Aborts on a broken invariant.
+ */
+#ifndef PT_TESTS_FUZZ_MSG_H
+#define PT_TESTS_FUZZ_MSG_H
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "common/alloc.h"
+#include "protocol/frame.h"
+#include "protocol/msg.h"
+
+#define FUZZ_CHECK(cond)                                                                      \
+    do {                                                                                      \
+        if (!(cond)) {                                                                        \
+            fprintf(stderr, "%s:%d: fuzz invariant broken: %s\n", __FILE__, __LINE__, #cond); \
+            abort();                                                                          \
+        }                                                                                     \
+    } while (0)
+
+/* Re-encodes with enc and compares with the input payload. */
+#define FUZZ_REENCODE(enc, msgp)                                                             \
+    do {                                                                                     \
+        proto_writer w_;                                                                     \
+        proto_writer_init(&w_, PROTO_MAX_PAYLOAD);                                           \
+        FUZZ_CHECK(enc(&w_, (msgp), NULL) == PT_OK);                                         \
+        FUZZ_CHECK(w_.len == len && (len == 0 || memcmp(w_.buf, p, len) == 0));              \
+        proto_writer_fini(&w_);                                                              \
+    } while (0)
+
+/* Decodes payload p[0, len) as type; use_buf picks the caller-buffer path of
+ * RESULT. Returns the decoder's status. */
+static inline pt_status fuzz_decode(uint32_t type, const uint8_t *p, size_t len, int use_buf)
+{
+    static union {
+        proto_hello hello;
+        proto_challenge challenge;
+        proto_auth auth;
+        proto_welcome welcome;
+        proto_error_msg error;
+        proto_work_request work;
+        proto_task task;
+        proto_scene_get get;
+        proto_scene_chunk chunk;
+        proto_result result;
+        proto_heartbeat hb;
+    } u;
+    static pt_pixel_acc pixels[64];
+    pt_error err = {0}; /* a decoder that fails must fill it */
+    pt_status st = PT_ERR_ARG;
+    int64_t live = pt_alloc_live();
+    switch (type) {
+    case PROTO_MSG_HELLO:
+        st = proto_msg_decode_hello(p, len, &u.hello, &err);
+        if (st == PT_OK)
+            FUZZ_REENCODE(proto_msg_encode_hello, &u.hello);
+        break;
+    case PROTO_MSG_CHALLENGE:
+        st = proto_msg_decode_challenge(p, len, &u.challenge, &err);
+        if (st == PT_OK)
+            FUZZ_REENCODE(proto_msg_encode_challenge, &u.challenge);
+        break;
+    case PROTO_MSG_AUTH:
+        st = proto_msg_decode_auth(p, len, &u.auth, &err);
+        if (st == PT_OK)
+            FUZZ_REENCODE(proto_msg_encode_auth, &u.auth);
+        break;
+    case PROTO_MSG_WELCOME:
+        st = proto_msg_decode_welcome(p, len, &u.welcome, &err);
+        if (st == PT_OK)
+            FUZZ_REENCODE(proto_msg_encode_welcome, &u.welcome);
+        break;
+    case PROTO_MSG_ERROR:
+        st = proto_msg_decode_error(p, len, &u.error, &err);
+        if (st == PT_OK)
+            FUZZ_REENCODE(proto_msg_encode_error, &u.error);
+        break;
+    case PROTO_MSG_WORK_REQUEST:
+        st = proto_msg_decode_work_request(p, len, &u.work, &err);
+        if (st == PT_OK)
+            FUZZ_REENCODE(proto_msg_encode_work_request, &u.work);
+        break;
+    case PROTO_MSG_TASK:
+        st = proto_msg_decode_task(p, len, &u.task, &err);
+        if (st == PT_OK) {
+            FUZZ_CHECK(u.task.tile.x0 < u.task.tile.x1 && u.task.tile.y1 <= u.task.height);
+            FUZZ_REENCODE(proto_msg_encode_task, &u.task);
+        }
+        break;
+    case PROTO_MSG_SCENE_GET:
+        st = proto_msg_decode_scene_get(p, len, &u.get, &err);
+        if (st == PT_OK)
+            FUZZ_REENCODE(proto_msg_encode_scene_get, &u.get);
+        break;
+    case PROTO_MSG_SCENE_CHUNK:
+        st = proto_msg_decode_scene_chunk(p, len, &u.chunk, &err);
+        if (st == PT_OK) {
+            FUZZ_CHECK(u.chunk.data >= p && u.chunk.data + u.chunk.len <= p + len);
+            FUZZ_REENCODE(proto_msg_encode_scene_chunk, &u.chunk);
+        }
+        break;
+    case PROTO_MSG_RESULT:
+        st = proto_msg_decode_result(p, len, use_buf ? pixels : NULL,
+                                     use_buf ? sizeof pixels / sizeof pixels[0] : 0, &u.result,
+                                     &err);
+        if (st == PT_OK) {
+            FUZZ_CHECK(u.result.npixels <= PROTO_MAX_TILE_PIXELS);
+            FUZZ_CHECK(u.result.owns_pixels == !use_buf);
+            FUZZ_REENCODE(proto_msg_encode_result, &u.result);
+            proto_result_fini(&u.result);
+        }
+        break;
+    case PROTO_MSG_HEARTBEAT:
+        st = proto_msg_decode_heartbeat(p, len, &u.hb, &err);
+        if (st == PT_OK)
+            FUZZ_REENCODE(proto_msg_encode_heartbeat, &u.hb);
+        break;
+    default:
+        return PT_ERR_ARG;
+    }
+    /* A failure names its cause, and nothing is left allocated either way. */
+    FUZZ_CHECK(st == PT_OK || (st == err.code && err.msg[0] != '\0'));
+    FUZZ_CHECK(pt_alloc_live() == live);
+    return st;
+}
+
+/* The decodable types, indexed by the fuzz_msg selector byte. */
+static const uint16_t fuzz_types[] = {
+    PROTO_MSG_HELLO,     PROTO_MSG_CHALLENGE, PROTO_MSG_AUTH,        PROTO_MSG_WELCOME,
+    PROTO_MSG_ERROR,     PROTO_MSG_WORK_REQUEST, PROTO_MSG_TASK,     PROTO_MSG_SCENE_GET,
+    PROTO_MSG_SCENE_CHUNK, PROTO_MSG_RESULT, PROTO_MSG_HEARTBEAT};
+#define FUZZ_NTYPES (sizeof fuzz_types / sizeof fuzz_types[0])
+
+#endif

@@ -1,0 +1,42 @@
+#!/usr/bin/env bash
+# Builds (when needed) and runs each libFuzzer target of the protocol for a
+# bounded time:   tests/fuzz/run_fuzzers.sh SECONDS [TARGET...]
+# Build: build-fuzz/ (Debug, clang, -DPT_FUZZ=ON), or $PT_FUZZ_BUILD.
+# Each target starts from its committed seeds (tests/fuzz/corpus/<target>) and
+# writes what it discovers to <build>/fuzz-corpus/<target>, never to the
+# source tree; a crash is saved as <build>/fuzz-artifacts/<target>-crash-*
+# and fails the script. To keep a crash as a regression seed, copy it into
+# tests/fuzz/corpus/<target>/ once fixed.
+# Environment: PT_JOBS (build jobs, default nproc), PT_FUZZ_MAX_LEN (default 8192).
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+seconds=${1:?usage: run_fuzzers.sh SECONDS [TARGET...]}
+shift
+targets=("$@")
+[[ ${#targets[@]} -gt 0 ]] || targets=(fuzz_frame fuzz_msg)
+build=${PT_FUZZ_BUILD:-build-fuzz}
+jobs=${PT_JOBS:-$(nproc)}
+max_len=${PT_FUZZ_MAX_LEN:-8192}
+
+command -v clang >/dev/null || { echo "run_fuzzers.sh: clang not found" >&2; exit 1; }
+if [[ ! -f "$build/CMakeCache.txt" ]]; then
+  cmake -S . -B "$build" -DCMAKE_BUILD_TYPE=Debug -DPT_FUZZ=ON \
+    -DCMAKE_C_COMPILER=clang -DCMAKE_CXX_COMPILER=clang++ >/dev/null
+fi
+cmake --build "$build" -j "$jobs" --target "${targets[@]}"
+
+mkdir -p "$build/fuzz-artifacts"
+status=0
+for t in "${targets[@]}"; do
+  mkdir -p "$build/fuzz-corpus/$t"
+  echo "== $t: ${seconds}s"
+  if ! ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1 \
+      "$build/bin/$t" -max_total_time="$seconds" -timeout=10 -rss_limit_mb=2048 \
+      -max_len="$max_len" -print_final_stats=1 \
+      -artifact_prefix="$build/fuzz-artifacts/$t-" \
+      "$build/fuzz-corpus/$t" "tests/fuzz/corpus/$t"; then
+    echo "== $t: FAILED (see $build/fuzz-artifacts/)" >&2
+    status=1
+  fi
+done
+exit $status
