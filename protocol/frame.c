@@ -111,7 +111,7 @@ pt_status proto_frame_encode(proto_writer *w, uint16_t type, const void *payload
     if (len > PROTO_MAX_PAYLOAD)
         return pt_error_set(err, PT_ERR_ARG, "frame: payload of %zu bytes over the cap of %u",
                             len, PROTO_MAX_PAYLOAD);
-    size_t mark;
+    size_t mark = 0;
     pt_status st = proto_frame_begin(w, type, &mark, err);
     if (st != PT_OK)
         return st;
