@@ -7,7 +7,7 @@
 # source tree; a crash is saved as <build>/fuzz-artifacts/<target>-crash-*
 # and fails the script. To keep a crash as a regression seed, copy it into
 # tests/fuzz/corpus/<target>/ once fixed.
-# Environment: PT_JOBS (build jobs, default nproc), PT_FUZZ_MAX_LEN (default 8192).
+# Environment: PT_JOBS (build jobs, default nproc), PT_FUZZ_MAX_LEN (default 16384: room for a HEARTBEAT past its cap).
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 seconds=${1:?usage: run_fuzzers.sh SECONDS [TARGET...]}
@@ -16,7 +16,7 @@ targets=("$@")
 [[ ${#targets[@]} -gt 0 ]] || targets=(fuzz_frame fuzz_msg)
 build=${PT_FUZZ_BUILD:-build-fuzz}
 jobs=${PT_JOBS:-$(nproc)}
-max_len=${PT_FUZZ_MAX_LEN:-8192}
+max_len=${PT_FUZZ_MAX_LEN:-16384}
 
 command -v clang >/dev/null || { echo "run_fuzzers.sh: clang not found" >&2; exit 1; }
 if [[ ! -f "$build/CMakeCache.txt" ]]; then
