@@ -86,22 +86,34 @@ pt_status proto_frame_begin(proto_writer *w, uint16_t type, size_t *mark, pt_err
     return PT_OK;
 }
 
+void proto_frame_cancel(proto_writer *w, size_t mark)
+{
+    assert(mark + PROTO_FRAME_HEADER <= w->len);
+    proto_writer_truncate(w, mark);
+}
+
 pt_status proto_frame_end(proto_writer *w, size_t mark, pt_error *err)
 {
-    if (proto_writer_status(w) != PT_OK)
-        return pt_error_set(err, proto_writer_status(w), "frame payload: %s",
-                            pt_status_str(proto_writer_status(w)));
     assert(mark + PROTO_FRAME_HEADER <= w->len);
+    pt_status st = proto_writer_status(w);
+    if (st != PT_OK) {
+        proto_writer_truncate(w, mark);
+        return pt_error_set(err, st, "frame payload: %s", pt_status_str(st));
+    }
     size_t plen = w->len - mark - PROTO_FRAME_HEADER;
-    if (plen > PROTO_MAX_PAYLOAD)
+    if (plen > PROTO_MAX_PAYLOAD) {
+        proto_writer_truncate(w, mark);
         return pt_error_set(err, PT_ERR_ARG, "frame: payload of %zu bytes over the cap of %u",
                             plen, PROTO_MAX_PAYLOAD);
+    }
     proto_put_u32(w->buf + mark + 8, (uint32_t)plen);
     uint32_t crc = proto_crc32c(0, w->buf + mark, PROTO_FRAME_HEADER + plen);
     proto_w_u32(w, crc);
-    if (proto_writer_status(w) != PT_OK)
-        return pt_error_set(err, proto_writer_status(w), "frame trailer: %s",
-                            pt_status_str(proto_writer_status(w)));
+    st = proto_writer_status(w);
+    if (st != PT_OK) {
+        proto_writer_truncate(w, mark);
+        return pt_error_set(err, st, "frame trailer: %s", pt_status_str(st));
+    }
     return PT_OK;
 }
 

@@ -60,16 +60,22 @@ pt_status proto_frame_decode(const uint8_t *buf, size_t len, uint32_t max_payloa
 
 /* Appends one whole frame of type carrying payload[0, len) to w.
  * PT_ERR_ARG for an unknown type or len over PROTO_MAX_PAYLOAD; the writer's
- * failure (PT_ERR_LIMIT, PT_ERR_NOMEM) otherwise. On failure w's content is
- * unspecified past what it held before (check the writer and drop it). */
+ * failure (PT_ERR_LIMIT, PT_ERR_NOMEM) otherwise. On failure w holds no byte
+ * of the frame (a writer failure stays sticky in w). */
 pt_status proto_frame_encode(proto_writer *w, uint16_t type, const void *payload, size_t len,
                              pt_error *err);
 
 /* Writing a payload in place, with no copy: proto_frame_begin appends a header
  * and returns its offset in *mark; the caller appends the payload to w
  * (proto_msg_encode_*); proto_frame_end patches the length and appends the CRC.
- * Errors as proto_frame_encode; a writer failure in between is reported by end. */
+ * Errors as proto_frame_encode; a writer failure in between is reported by
+ * end. A failed begin or end leaves no byte of the frame in w; when the
+ * payload cannot be written, proto_frame_cancel(w, mark) removes the header:
+ *     if (proto_frame_begin(w, PROTO_MSG_TASK, &mark, err) != PT_OK) ...;
+ *     if (proto_msg_encode_task(w, &t, err) != PT_OK) proto_frame_cancel(w, mark);
+ *     else if (proto_frame_end(w, mark, err) != PT_OK) ...; */
 pt_status proto_frame_begin(proto_writer *w, uint16_t type, size_t *mark, pt_error *err);
 pt_status proto_frame_end(proto_writer *w, size_t mark, pt_error *err);
+void proto_frame_cancel(proto_writer *w, size_t mark);
 
 #endif

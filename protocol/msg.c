@@ -62,22 +62,26 @@ static void r_str(proto_reader *r, char *dst, size_t cap, const char *field)
     dst[n] = '\0';
 }
 
-static pt_status w_str(proto_writer *w, const char *s, size_t cap, const char *what,
-                       const char *field, pt_error *err)
+/* Encoders check a string before writing anything, so a refused message
+ * leaves the writer as it was. */
+static int str_fits(const char *s, size_t cap) { return strnlen(s, cap + 1) <= cap; }
+
+static void w_str(proto_writer *w, const char *s)
 {
-    size_t n = strnlen(s, cap + 1);
-    if (n > cap)
-        return pt_error_set(err, PT_ERR_ARG, "%s: %s longer than %zu bytes", what, field, cap);
+    size_t n = strlen(s);
     proto_w_u16(w, (uint16_t)n);
     proto_w_bytes(w, s, n);
-    return PT_OK;
 }
 
-static pt_status w_done(const proto_writer *w, const char *what, pt_error *err)
+/* Ends an encoder: on a writer failure, cuts the writer back to where the
+ * message started, so no partial message is left in it. */
+static pt_status w_done(proto_writer *w, size_t start, const char *what, pt_error *err)
 {
     pt_status st = proto_writer_status(w);
-    if (st != PT_OK)
+    if (st != PT_OK) {
+        proto_writer_truncate(w, start);
         return pt_error_set(err, st, "%s: %s", what, pt_status_str(st));
+    }
     return PT_OK;
 }
 
@@ -129,20 +133,21 @@ static const char *hello_problem(const proto_hello *m)
 
 pt_status proto_msg_encode_hello(proto_writer *w, const proto_hello *m, pt_error *err)
 {
+    size_t start = w->len;
     const char *why = hello_problem(m);
+    if (!why && !str_fits(m->name, PROTO_MAX_NAME))
+        why = "name over the length cap";
+    if (!why && !str_fits(m->build_id, PROTO_MAX_BUILD_ID))
+        why = "build id over the length cap";
     if (why)
         return bad(err, PT_ERR_ARG, "HELLO", why);
     proto_w_u16(w, m->version);
     proto_w_u8(w, m->role);
-    pt_status st = w_str(w, m->name, PROTO_MAX_NAME, "HELLO", "name", err);
-    if (st != PT_OK)
-        return st;
+    w_str(w, m->name);
     proto_w_u16(w, m->threads);
-    st = w_str(w, m->build_id, PROTO_MAX_BUILD_ID, "HELLO", "build id", err);
-    if (st != PT_OK)
-        return st;
+    w_str(w, m->build_id);
     proto_w_u32(w, m->caps);
-    return w_done(w, "HELLO", err);
+    return w_done(w, start, "HELLO", err);
 }
 
 pt_status proto_msg_decode_hello(const uint8_t *p, size_t len, proto_hello *out, pt_error *err)
@@ -169,8 +174,9 @@ pt_status proto_msg_decode_hello(const uint8_t *p, size_t len, proto_hello *out,
 
 pt_status proto_msg_encode_challenge(proto_writer *w, const proto_challenge *m, pt_error *err)
 {
+    size_t start = w->len;
     proto_w_bytes(w, m->nonce, PROTO_NONCE_SIZE);
-    return w_done(w, "CHALLENGE", err);
+    return w_done(w, start, "CHALLENGE", err);
 }
 
 pt_status proto_msg_decode_challenge(const uint8_t *p, size_t len, proto_challenge *out,
@@ -187,8 +193,9 @@ pt_status proto_msg_decode_challenge(const uint8_t *p, size_t len, proto_challen
 
 pt_status proto_msg_encode_auth(proto_writer *w, const proto_auth *m, pt_error *err)
 {
+    size_t start = w->len;
     proto_w_bytes(w, m->mac, PROTO_MAC_SIZE);
-    return w_done(w, "AUTH", err);
+    return w_done(w, start, "AUTH", err);
 }
 
 pt_status proto_msg_decode_auth(const uint8_t *p, size_t len, proto_auth *out, pt_error *err)
@@ -206,11 +213,12 @@ pt_status proto_msg_decode_auth(const uint8_t *p, size_t len, proto_auth *out, p
 
 pt_status proto_msg_encode_welcome(proto_writer *w, const proto_welcome *m, pt_error *err)
 {
+    size_t start = w->len;
+    if (!str_fits(m->build_id, PROTO_MAX_BUILD_ID))
+        return bad(err, PT_ERR_ARG, "WELCOME", "build id over the length cap");
     proto_w_u64(w, m->session_id);
-    pt_status st = w_str(w, m->build_id, PROTO_MAX_BUILD_ID, "WELCOME", "build id", err);
-    if (st != PT_OK)
-        return st;
-    return w_done(w, "WELCOME", err);
+    w_str(w, m->build_id);
+    return w_done(w, start, "WELCOME", err);
 }
 
 pt_status proto_msg_decode_welcome(const uint8_t *p, size_t len, proto_welcome *out,
@@ -231,11 +239,12 @@ pt_status proto_msg_decode_welcome(const uint8_t *p, size_t len, proto_welcome *
 
 pt_status proto_msg_encode_error(proto_writer *w, const proto_error_msg *m, pt_error *err)
 {
+    size_t start = w->len;
+    if (!str_fits(m->text, PROTO_MAX_ERROR_TEXT))
+        return bad(err, PT_ERR_ARG, "ERROR", "text over the length cap");
     proto_w_u16(w, m->code);
-    pt_status st = w_str(w, m->text, PROTO_MAX_ERROR_TEXT, "ERROR", "text", err);
-    if (st != PT_OK)
-        return st;
-    return w_done(w, "ERROR", err);
+    w_str(w, m->text);
+    return w_done(w, start, "ERROR", err);
 }
 
 pt_status proto_msg_decode_error(const uint8_t *p, size_t len, proto_error_msg *out,
@@ -257,10 +266,11 @@ pt_status proto_msg_decode_error(const uint8_t *p, size_t len, proto_error_msg *
 pt_status proto_msg_encode_work_request(proto_writer *w, const proto_work_request *m,
                                         pt_error *err)
 {
+    size_t start = w->len;
     if (m->slots > PROTO_MAX_SLOTS)
         return bad(err, PT_ERR_ARG, "WORK_REQUEST", "slots over the cap");
     proto_w_u16(w, m->slots);
-    return w_done(w, "WORK_REQUEST", err);
+    return w_done(w, start, "WORK_REQUEST", err);
 }
 
 pt_status proto_msg_decode_work_request(const uint8_t *p, size_t len, proto_work_request *out,
@@ -293,6 +303,7 @@ static const char *task_problem(const proto_task *m)
 
 pt_status proto_msg_encode_task(proto_writer *w, const proto_task *m, pt_error *err)
 {
+    size_t start = w->len;
     const char *why = task_problem(m);
     if (why)
         return bad(err, PT_ERR_ARG, "TASK", why);
@@ -308,7 +319,7 @@ pt_status proto_msg_encode_task(proto_writer *w, const proto_task *m, pt_error *
     proto_w_u16(w, m->rr_depth);
     proto_w_bytes(w, m->scene_hash, PROTO_HASH_SIZE);
     proto_w_u32(w, m->lease_ms);
-    return w_done(w, "TASK", err);
+    return w_done(w, start, "TASK", err);
 }
 
 pt_status proto_msg_decode_task(const uint8_t *p, size_t len, proto_task *out, pt_error *err)
@@ -342,9 +353,10 @@ pt_status proto_msg_decode_task(const uint8_t *p, size_t len, proto_task *out, p
 
 pt_status proto_msg_encode_scene_get(proto_writer *w, const proto_scene_get *m, pt_error *err)
 {
+    size_t start = w->len;
     proto_w_bytes(w, m->hash, PROTO_HASH_SIZE);
     proto_w_u64(w, m->offset);
-    return w_done(w, "SCENE_GET", err);
+    return w_done(w, start, "SCENE_GET", err);
 }
 
 pt_status proto_msg_decode_scene_get(const uint8_t *p, size_t len, proto_scene_get *out,
@@ -374,6 +386,7 @@ static const char *chunk_problem(const proto_scene_chunk *m)
 pt_status proto_msg_encode_scene_chunk(proto_writer *w, const proto_scene_chunk *m,
                                        pt_error *err)
 {
+    size_t start = w->len;
     const char *why = chunk_problem(m);
     if (why)
         return bad(err, PT_ERR_ARG, "SCENE_CHUNK", why);
@@ -382,7 +395,7 @@ pt_status proto_msg_encode_scene_chunk(proto_writer *w, const proto_scene_chunk 
     proto_w_u64(w, m->total);
     proto_w_u32(w, m->len);
     proto_w_bytes(w, m->data, m->len);
-    return w_done(w, "SCENE_CHUNK", err);
+    return w_done(w, start, "SCENE_CHUNK", err);
 }
 
 pt_status proto_msg_decode_scene_chunk(const uint8_t *p, size_t len, proto_scene_chunk *out,
@@ -426,6 +439,7 @@ static const char *result_problem(const proto_result *m)
 
 pt_status proto_msg_encode_result(proto_writer *w, const proto_result *m, pt_error *err)
 {
+    size_t start = w->len;
     const char *why = result_problem(m);
     if (why)
         return bad(err, PT_ERR_ARG, "RESULT", why);
@@ -444,7 +458,7 @@ pt_status proto_msg_encode_result(proto_writer *w, const proto_result *m, pt_err
     /* One reservation for all pixels: a 64k-pixel tile is 2.4 MB. */
     uint8_t *q = proto_w_reserve(w, (size_t)m->npixels * PROTO_RESULT_PIXEL_SIZE);
     if (!q)
-        return w_done(w, "RESULT", err);
+        return w_done(w, start, "RESULT", err);
     for (uint32_t i = 0; i < m->npixels; i++, q += PROTO_RESULT_PIXEL_SIZE) {
         const pt_pixel_acc *a = &m->pixels[i];
         proto_put_f64(q, a->sum[0]);
@@ -453,7 +467,7 @@ pt_status proto_msg_encode_result(proto_writer *w, const proto_result *m, pt_err
         proto_put_f64(q + 24, a->sum_sq);
         proto_put_u32(q + 32, a->n);
     }
-    return w_done(w, "RESULT", err);
+    return w_done(w, start, "RESULT", err);
 }
 
 pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *buf,
@@ -530,12 +544,13 @@ void proto_result_fini(proto_result *r)
 
 pt_status proto_msg_encode_heartbeat(proto_writer *w, const proto_heartbeat *m, pt_error *err)
 {
+    size_t start = w->len;
     if (m->count > PROTO_MAX_HEARTBEAT_TASKS)
         return bad(err, PT_ERR_ARG, "HEARTBEAT", "task count over the cap");
     proto_w_u16(w, m->count);
     for (uint16_t i = 0; i < m->count; i++)
         proto_w_u64(w, m->task_ids[i]);
-    return w_done(w, "HEARTBEAT", err);
+    return w_done(w, start, "HEARTBEAT", err);
 }
 
 pt_status proto_msg_decode_heartbeat(const uint8_t *p, size_t len, proto_heartbeat *out,

@@ -12,13 +12,16 @@
  * Decoders are pure functions over (payload, len): every read is bounds-checked
  * (protocol/wire.h), every count and length is checked against its cap before
  * it is used, and they return PT_OK or PT_ERR_PROTO with the field at fault in
- * err; *out is untouched on failure. Only proto_msg_decode_result may allocate.
+ * err (proto_msg_decode_result also PT_ERR_LIMIT and PT_ERR_NOMEM, see there);
+ * *out is untouched on failure. Only proto_msg_decode_result may allocate.
  * Decoders check the shape of a message (caps, rect order, sizes that must
  * agree), not its meaning for the session (whether a task id is leased, whether
  * values are finite): that is the server's and worker's business.
  * Encoders append the payload to a proto_writer (wrap them between
- * proto_frame_begin and proto_frame_end), refuse a message their decoder would
- * refuse (PT_ERR_ARG), and report the writer's failure (PT_ERR_LIMIT, PT_ERR_NOMEM).
+ * proto_frame_begin and proto_frame_end, and call proto_frame_cancel when one
+ * fails), refuse a message their decoder would refuse (PT_ERR_ARG, before
+ * writing anything), and report the writer's failure (PT_ERR_LIMIT,
+ * PT_ERR_NOMEM). A failed encoder leaves no byte of its message in the writer.
  * Thread-safety: reentrant, no state.
  */
 #ifndef PT_PROTOCOL_MSG_H

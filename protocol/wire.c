@@ -1,5 +1,7 @@
 #include "protocol/wire.h"
 
+#include <assert.h>
+
 #include "common/alloc.h"
 
 void proto_writer_init(proto_writer *w, size_t max)
@@ -26,6 +28,12 @@ void proto_writer_reset(proto_writer *w)
 {
     w->len = 0;
     w->status = PT_OK;
+}
+
+void proto_writer_truncate(proto_writer *w, size_t len)
+{
+    assert(len <= w->len);
+    w->len = len;
 }
 
 uint8_t *proto_w_reserve(proto_writer *w, size_t n)

@@ -117,6 +117,9 @@ void proto_writer_init(proto_writer *w, size_t max);
 void proto_writer_fini(proto_writer *w);
 /* Forgets the content and a sticky failure, keeping the memory. */
 void proto_writer_reset(proto_writer *w);
+/* Cuts the content back to its first len bytes (len <= w->len): undoes what
+ * was written since w->len was len. A sticky failure stays. */
+void proto_writer_truncate(proto_writer *w, size_t len);
 /* PT_OK, or the first failure of any write since init/reset. */
 static inline pt_status proto_writer_status(const proto_writer *w) { return w->status; }
 

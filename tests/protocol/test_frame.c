@@ -333,6 +333,7 @@ static void test_encoder_errors(void)
     uint8_t big[1024] = {0};
     CHECK(proto_frame_encode(&w, PROTO_MSG_AUTH, big, 1024 - 16 - 16 + 1, &err) ==
           PT_ERR_LIMIT);
+    CHECK(w.len == 16); /* no byte of the failed frame is left */
     proto_writer_fini(&w);
     proto_writer_init(&w, 1024);
     CHECK(proto_frame_encode(&w, PROTO_MSG_AUTH, big, 1024 - 16, &err) == PT_OK);
@@ -345,6 +346,29 @@ static void test_encoder_errors(void)
     CHECK(proto_frame_begin(&w, PROTO_MSG_SCENE_CHUNK, &mark, &err) == PT_OK);
     CHECK(proto_w_reserve(&w, (size_t)PROTO_MAX_PAYLOAD + 1) != NULL);
     CHECK(proto_frame_end(&w, mark, &err) == PT_ERR_ARG);
+    CHECK(w.len == 0 && proto_writer_status(&w) == PT_OK);
+    proto_writer_fini(&w);
+
+    /* Cancel: a frame whose payload could not be encoded leaves no header. */
+    proto_writer_init(&w, 1024);
+    CHECK(proto_frame_encode(&w, PROTO_MSG_AUTH, big, 32, &err) == PT_OK);
+    size_t before = w.len;
+    CHECK(proto_frame_begin(&w, PROTO_MSG_HELLO, &mark, &err) == PT_OK && mark == before);
+    proto_hello h;
+    memset(&h, 0, sizeof h);
+    h.role = 9;
+    CHECK(proto_msg_encode_hello(&w, &h, &err) == PT_ERR_ARG);
+    proto_frame_cancel(&w, mark);
+    CHECK(w.len == before);
+    proto_frame f;
+    size_t used;
+    CHECK(proto_frame_decode(w.buf, w.len, PROTO_MAX_PAYLOAD, &f, &used, &err) == PT_OK);
+    CHECK(used == w.len);
+    /* A writer failure inside the payload: end reports it and removes the frame. */
+    CHECK(proto_frame_begin(&w, PROTO_MSG_SCENE_CHUNK, &mark, &err) == PT_OK);
+    proto_w_reserve(&w, 2000);
+    CHECK(proto_frame_end(&w, mark, &err) == PT_ERR_LIMIT);
+    CHECK(w.len == before && proto_writer_status(&w) == PT_ERR_LIMIT);
     proto_writer_fini(&w);
 
     /* Allocation failure at every step: NOMEM or success, never a leak. */

@@ -284,6 +284,7 @@ static void test_strings(void)
     h = sample_hello(0);
     memset(h.build_id, 'b', sizeof h.build_id);
     CHECK(proto_msg_encode_hello(&w, &h, &err) == PT_ERR_ARG);
+    CHECK(w.len == 0); /* refused before a byte is written */
     h = sample_hello(0);
     h.role = 7;
     CHECK(proto_msg_encode_hello(&w, &h, &err) == PT_ERR_ARG);
@@ -550,11 +551,13 @@ static void test_result(void)
     m.pixels[3].n = m.s1 - m.s0 + 1;
     CHECK(proto_msg_encode_result(&w, &m, &err) == PT_ERR_ARG);
     CHECK(w.len == 0);
-    /* Writer too small: PT_ERR_LIMIT. */
+    /* Writer too small: PT_ERR_LIMIT, and no partial message left behind. */
     proto_writer_fini(&w);
     proto_writer_init(&w, 100);
+    proto_w_u32(&w, 0xABCD);
     m = sample_result(0);
     CHECK(proto_msg_encode_result(&w, &m, &err) == PT_ERR_LIMIT);
+    CHECK(w.len == 4 && proto_get_u32(w.buf) == 0xABCD);
     proto_writer_fini(&w);
 
     /* The allocation-failure loop: fail allocation k of a decode for every k
