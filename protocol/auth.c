@@ -28,8 +28,7 @@ pt_status proto_auth_hmac_sha256(const uint8_t *key, size_t key_len, const uint8
     unsigned int mac_len = 0;
     /* OpenSSL reads no key bytes when key_len is 0 but wants a non-NULL pointer. */
     static const uint8_t empty[1];
-    if (!HMAC(EVP_sha256(), key_len ? key : empty, (int)key_len, data, data_len, mac,
-              &mac_len) ||
+    if (!HMAC(EVP_sha256(), key_len ? key : empty, (int)key_len, data, data_len, mac, &mac_len) ||
         mac_len != PROTO_MAC_SIZE)
         return pt_error_set(err, PT_ERR_AUTH, "auth: HMAC-SHA256 failed");
     memcpy(out, mac, PROTO_MAC_SIZE);
@@ -104,16 +103,16 @@ pt_status proto_token_load(const char *path, uint8_t *buf, size_t cap, size_t *l
             break;
         n += (size_t)got;
     }
-    while (n > 0 && (tmp[n - 1] == ' ' || tmp[n - 1] == '\t' || tmp[n - 1] == '\r' ||
-                     tmp[n - 1] == '\n'))
+    while (n > 0 &&
+           (tmp[n - 1] == ' ' || tmp[n - 1] == '\t' || tmp[n - 1] == '\r' || tmp[n - 1] == '\n'))
         n--;
     if (n == 0) {
         st = pt_error_set(err, PT_ERR_FORMAT, "token file %s: empty token", path);
         goto fail;
     }
     if (n > PROTO_TOKEN_MAX || n > cap) {
-        st = pt_error_set(err, PT_ERR_LIMIT, "token file %s: token of %zu bytes over %zu", path,
-                          n, cap < PROTO_TOKEN_MAX ? cap : (size_t)PROTO_TOKEN_MAX);
+        st = pt_error_set(err, PT_ERR_LIMIT, "token file %s: token of %zu bytes over %zu", path, n,
+                          cap < PROTO_TOKEN_MAX ? cap : (size_t)PROTO_TOKEN_MAX);
         goto fail;
     }
     memcpy(buf, tmp, n);

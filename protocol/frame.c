@@ -8,8 +8,8 @@
  * with no run-time initialisation to race on. One step of the reflected CRC:
  * shift right and fold in the polynomial when the low bit was set (the mask
  * form keeps each expansion to two copies of its argument). */
-#define CRC_STEP(c) (((c) >> 1) ^ (0x82F63B78u & (0u - ((c) & 1u))))
-#define CRC_ENTRY(n)                                                                           \
+#define CRC_STEP(c) (((c) >> 1) ^ (0x82F63B78u & (0u - ((c)&1u))))
+#define CRC_ENTRY(n)                                                                               \
     CRC_STEP(CRC_STEP(CRC_STEP(CRC_STEP(CRC_STEP(CRC_STEP(CRC_STEP(CRC_STEP((uint32_t)(n)))))))))
 #define CRC_4(n) CRC_ENTRY(n), CRC_ENTRY((n) + 1), CRC_ENTRY((n) + 2), CRC_ENTRY((n) + 3)
 #define CRC_16(n) CRC_4(n), CRC_4((n) + 4), CRC_4((n) + 8), CRC_4((n) + 12)
@@ -26,8 +26,8 @@ uint32_t proto_crc32c(uint32_t crc, const void *data, size_t n)
     return ~crc;
 }
 
-pt_status proto_frame_decode(const uint8_t *buf, size_t len, uint32_t max_payload,
-                             proto_frame *out, size_t *consumed, pt_error *err)
+pt_status proto_frame_decode(const uint8_t *buf, size_t len, uint32_t max_payload, proto_frame *out,
+                             size_t *consumed, pt_error *err)
 {
     assert(max_payload <= PROTO_MAX_PAYLOAD);
     /* Each header field is judged as soon as its bytes have arrived, so a peer
@@ -103,8 +103,8 @@ pt_status proto_frame_end(proto_writer *w, size_t mark, pt_error *err)
     size_t plen = w->len - mark - PROTO_FRAME_HEADER;
     if (plen > PROTO_MAX_PAYLOAD) {
         proto_writer_truncate(w, mark);
-        return pt_error_set(err, PT_ERR_ARG, "frame: payload of %zu bytes over the cap of %u",
-                            plen, PROTO_MAX_PAYLOAD);
+        return pt_error_set(err, PT_ERR_ARG, "frame: payload of %zu bytes over the cap of %u", plen,
+                            PROTO_MAX_PAYLOAD);
     }
     proto_put_u32(w->buf + mark + 8, (uint32_t)plen);
     uint32_t crc = proto_crc32c(0, w->buf + mark, PROTO_FRAME_HEADER + plen);
@@ -121,8 +121,8 @@ pt_status proto_frame_encode(proto_writer *w, uint16_t type, const void *payload
                              pt_error *err)
 {
     if (len > PROTO_MAX_PAYLOAD)
-        return pt_error_set(err, PT_ERR_ARG, "frame: payload of %zu bytes over the cap of %u",
-                            len, PROTO_MAX_PAYLOAD);
+        return pt_error_set(err, PT_ERR_ARG, "frame: payload of %zu bytes over the cap of %u", len,
+                            PROTO_MAX_PAYLOAD);
     size_t mark = 0;
     pt_status st = proto_frame_begin(w, type, &mark, err);
     if (st != PT_OK)

@@ -32,8 +32,8 @@
 #define PROTO_FRAME_HEADER 12u
 #define PROTO_FRAME_TRAILER 4u
 #define PROTO_FRAME_OVERHEAD (PROTO_FRAME_HEADER + PROTO_FRAME_TRAILER)
-#define PROTO_MAX_PAYLOAD_PREAUTH (4u * 1024u)        /* before AUTH succeeded */
-#define PROTO_MAX_PAYLOAD (64u * 1024u * 1024u)       /* after; the hard cap */
+#define PROTO_MAX_PAYLOAD_PREAUTH (4u * 1024u)  /* before AUTH succeeded */
+#define PROTO_MAX_PAYLOAD (64u * 1024u * 1024u) /* after; the hard cap */
 
 /* A decoded frame; payload points into the buffer given to the decoder. */
 typedef struct proto_frame {
@@ -55,8 +55,8 @@ uint32_t proto_crc32c(uint32_t crc, const void *data, size_t n);
  *                 not after waiting for the payload) or a bad CRC; err says which.
  * max_payload must be <= PROTO_MAX_PAYLOAD. out and consumed are untouched
  * unless PT_OK. */
-pt_status proto_frame_decode(const uint8_t *buf, size_t len, uint32_t max_payload,
-                             proto_frame *out, size_t *consumed, pt_error *err);
+pt_status proto_frame_decode(const uint8_t *buf, size_t len, uint32_t max_payload, proto_frame *out,
+                             size_t *consumed, pt_error *err);
 
 /* Appends one whole frame of type carrying payload[0, len) to w.
  * PT_ERR_ARG for an unknown type or len over PROTO_MAX_PAYLOAD; the writer's

@@ -8,35 +8,61 @@
 #error "PT_BUILD_ID must come from ptcore's compile definitions"
 #endif
 
-const char *proto_build_id(void) { return PT_BUILD_ID; }
+const char *proto_build_id(void)
+{
+    return PT_BUILD_ID;
+}
 
 const char *proto_msg_type_name(uint32_t type)
 {
     switch (type) {
-    case PROTO_MSG_HELLO: return "HELLO";
-    case PROTO_MSG_CHALLENGE: return "CHALLENGE";
-    case PROTO_MSG_AUTH: return "AUTH";
-    case PROTO_MSG_WELCOME: return "WELCOME";
-    case PROTO_MSG_ERROR: return "ERROR";
-    case PROTO_MSG_WORK_REQUEST: return "WORK_REQUEST";
-    case PROTO_MSG_TASK: return "TASK";
-    case PROTO_MSG_SCENE_GET: return "SCENE_GET";
-    case PROTO_MSG_SCENE_CHUNK: return "SCENE_CHUNK";
-    case PROTO_MSG_RESULT: return "RESULT";
-    case PROTO_MSG_HEARTBEAT: return "HEARTBEAT";
-    case PROTO_MSG_SUBMIT: return "SUBMIT";
-    case PROTO_MSG_LIST: return "LIST";
-    case PROTO_MSG_STATUS: return "STATUS";
-    case PROTO_MSG_WATCH: return "WATCH";
-    case PROTO_MSG_CANCEL: return "CANCEL";
-    case PROTO_MSG_FETCH: return "FETCH";
+    case PROTO_MSG_HELLO:
+        return "HELLO";
+    case PROTO_MSG_CHALLENGE:
+        return "CHALLENGE";
+    case PROTO_MSG_AUTH:
+        return "AUTH";
+    case PROTO_MSG_WELCOME:
+        return "WELCOME";
+    case PROTO_MSG_ERROR:
+        return "ERROR";
+    case PROTO_MSG_WORK_REQUEST:
+        return "WORK_REQUEST";
+    case PROTO_MSG_TASK:
+        return "TASK";
+    case PROTO_MSG_SCENE_GET:
+        return "SCENE_GET";
+    case PROTO_MSG_SCENE_CHUNK:
+        return "SCENE_CHUNK";
+    case PROTO_MSG_RESULT:
+        return "RESULT";
+    case PROTO_MSG_HEARTBEAT:
+        return "HEARTBEAT";
+    case PROTO_MSG_SUBMIT:
+        return "SUBMIT";
+    case PROTO_MSG_LIST:
+        return "LIST";
+    case PROTO_MSG_STATUS:
+        return "STATUS";
+    case PROTO_MSG_WATCH:
+        return "WATCH";
+    case PROTO_MSG_CANCEL:
+        return "CANCEL";
+    case PROTO_MSG_FETCH:
+        return "FETCH";
     }
     return "unknown";
 }
 
-int proto_msg_type_known(uint32_t type) { return strcmp(proto_msg_type_name(type), "unknown") != 0; }
+int proto_msg_type_known(uint32_t type)
+{
+    return strcmp(proto_msg_type_name(type), "unknown") != 0;
+}
 
-int proto_msg_type_preauth(uint32_t type) { return type >= PROTO_MSG_HELLO && type <= PROTO_MSG_ERROR; }
+int proto_msg_type_preauth(uint32_t type)
+{
+    return type >= PROTO_MSG_HELLO && type <= PROTO_MSG_ERROR;
+}
 
 /* ---- shared pieces ---- */
 
@@ -64,7 +90,10 @@ static void r_str(proto_reader *r, char *dst, size_t cap, const char *field)
 
 /* Encoders check a string before writing anything, so a refused message
  * leaves the writer as it was. */
-static int str_fits(const char *s, size_t cap) { return strnlen(s, cap + 1) <= cap; }
+static int str_fits(const char *s, size_t cap)
+{
+    return strnlen(s, cap + 1) <= cap;
+}
 
 static void w_str(proto_writer *w, const char *s)
 {
@@ -97,7 +126,10 @@ static const char *rect_problem(pt_rect t)
     return NULL;
 }
 
-static uint32_t rect_area(pt_rect t) { return (t.x1 - t.x0) * (t.y1 - t.y0); }
+static uint32_t rect_area(pt_rect t)
+{
+    return (t.x1 - t.x0) * (t.y1 - t.y0);
+}
 
 static pt_rect r_rect(proto_reader *r)
 {
@@ -221,8 +253,7 @@ pt_status proto_msg_encode_welcome(proto_writer *w, const proto_welcome *m, pt_e
     return w_done(w, start, "WELCOME", err);
 }
 
-pt_status proto_msg_decode_welcome(const uint8_t *p, size_t len, proto_welcome *out,
-                                   pt_error *err)
+pt_status proto_msg_decode_welcome(const uint8_t *p, size_t len, proto_welcome *out, pt_error *err)
 {
     proto_reader r = proto_reader_make(p, len);
     proto_welcome m;
@@ -247,8 +278,7 @@ pt_status proto_msg_encode_error(proto_writer *w, const proto_error_msg *m, pt_e
     return w_done(w, start, "ERROR", err);
 }
 
-pt_status proto_msg_decode_error(const uint8_t *p, size_t len, proto_error_msg *out,
-                                 pt_error *err)
+pt_status proto_msg_decode_error(const uint8_t *p, size_t len, proto_error_msg *out, pt_error *err)
 {
     proto_reader r = proto_reader_make(p, len);
     proto_error_msg m;
@@ -263,8 +293,7 @@ pt_status proto_msg_decode_error(const uint8_t *p, size_t len, proto_error_msg *
 
 /* ---- WORK_REQUEST ---- */
 
-pt_status proto_msg_encode_work_request(proto_writer *w, const proto_work_request *m,
-                                        pt_error *err)
+pt_status proto_msg_encode_work_request(proto_writer *w, const proto_work_request *m, pt_error *err)
 {
     size_t start = w->len;
     if (m->slots > PROTO_MAX_SLOTS)
@@ -383,8 +412,7 @@ static const char *chunk_problem(const proto_scene_chunk *m)
     return NULL;
 }
 
-pt_status proto_msg_encode_scene_chunk(proto_writer *w, const proto_scene_chunk *m,
-                                       pt_error *err)
+pt_status proto_msg_encode_scene_chunk(proto_writer *w, const proto_scene_chunk *m, pt_error *err)
 {
     size_t start = w->len;
     const char *why = chunk_problem(m);
@@ -470,8 +498,8 @@ pt_status proto_msg_encode_result(proto_writer *w, const proto_result *m, pt_err
     return w_done(w, start, "RESULT", err);
 }
 
-pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *buf,
-                                  size_t buf_cap, proto_result *out, pt_error *err)
+pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *buf, size_t buf_cap,
+                                  proto_result *out, pt_error *err)
 {
     proto_reader r = proto_reader_make(p, len);
     proto_result m;

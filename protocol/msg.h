@@ -70,26 +70,26 @@ const char *proto_msg_type_name(uint32_t type);
 #define PROTO_MAX_NAME 64u
 #define PROTO_MAX_BUILD_ID 64u
 #define PROTO_MAX_ERROR_TEXT 1024u
-#define PROTO_MAX_SLOTS 1024u             /* WORK_REQUEST slots */
-#define PROTO_MAX_HEARTBEAT_TASKS 1024u   /* task ids in one HEARTBEAT */
-#define PROTO_MAX_SCENE_CHUNK (1u << 20)  /* data bytes in one SCENE_CHUNK */
+#define PROTO_MAX_SLOTS 1024u               /* WORK_REQUEST slots */
+#define PROTO_MAX_HEARTBEAT_TASKS 1024u     /* task ids in one HEARTBEAT */
+#define PROTO_MAX_SCENE_CHUNK (1u << 20)    /* data bytes in one SCENE_CHUNK */
 #define PROTO_MAX_TILE_PIXELS (256u * 256u) /* pixels in one TASK / RESULT tile */
-#define PROTO_HASH_SIZE 32u               /* scene content hash (SHA-256) */
+#define PROTO_HASH_SIZE 32u                 /* scene content hash (SHA-256) */
 #define PROTO_NONCE_SIZE 32u
-#define PROTO_MAC_SIZE 32u                /* HMAC-SHA256 */
-#define PROTO_RESULT_PIXEL_SIZE 36u       /* bytes per pixel in RESULT */
+#define PROTO_MAC_SIZE 32u          /* HMAC-SHA256 */
+#define PROTO_RESULT_PIXEL_SIZE 36u /* bytes per pixel in RESULT */
 
 enum { PROTO_ROLE_WORKER = 1, PROTO_ROLE_CLIENT = 2 };
 
 /* ERROR codes. Decoders accept any value, so a newer peer may add codes. */
 enum {
-    PROTO_E_PROTOCOL = 1, /* malformed frame or message, or one out of place */
-    PROTO_E_VERSION = 2,  /* protocol version not supported */
-    PROTO_E_AUTH = 3,     /* authentication failed */
-    PROTO_E_BUILD = 4,    /* renderer build id differs from the server's */
-    PROTO_E_LIMIT = 5,    /* a cap was exceeded */
+    PROTO_E_PROTOCOL = 1,  /* malformed frame or message, or one out of place */
+    PROTO_E_VERSION = 2,   /* protocol version not supported */
+    PROTO_E_AUTH = 3,      /* authentication failed */
+    PROTO_E_BUILD = 4,     /* renderer build id differs from the server's */
+    PROTO_E_LIMIT = 5,     /* a cap was exceeded */
     PROTO_E_NOT_FOUND = 6, /* unknown scene hash, job or task */
-    PROTO_E_INTERNAL = 7  /* the sender failed for its own reasons */
+    PROTO_E_INTERNAL = 7   /* the sender failed for its own reasons */
 };
 
 /* The renderer build id of this binary (PT_BUILD_ID of ptcore): workers of
@@ -247,12 +247,10 @@ pt_status proto_msg_encode_auth(proto_writer *w, const proto_auth *m, pt_error *
 pt_status proto_msg_decode_auth(const uint8_t *p, size_t len, proto_auth *out, pt_error *err);
 
 pt_status proto_msg_encode_welcome(proto_writer *w, const proto_welcome *m, pt_error *err);
-pt_status proto_msg_decode_welcome(const uint8_t *p, size_t len, proto_welcome *out,
-                                   pt_error *err);
+pt_status proto_msg_decode_welcome(const uint8_t *p, size_t len, proto_welcome *out, pt_error *err);
 
 pt_status proto_msg_encode_error(proto_writer *w, const proto_error_msg *m, pt_error *err);
-pt_status proto_msg_decode_error(const uint8_t *p, size_t len, proto_error_msg *out,
-                                 pt_error *err);
+pt_status proto_msg_decode_error(const uint8_t *p, size_t len, proto_error_msg *out, pt_error *err);
 
 pt_status proto_msg_encode_work_request(proto_writer *w, const proto_work_request *m,
                                         pt_error *err);
@@ -267,8 +265,7 @@ pt_status proto_msg_decode_scene_get(const uint8_t *p, size_t len, proto_scene_g
                                      pt_error *err);
 
 /* out->data borrows from p: keep the payload alive while it is used. */
-pt_status proto_msg_encode_scene_chunk(proto_writer *w, const proto_scene_chunk *m,
-                                       pt_error *err);
+pt_status proto_msg_encode_scene_chunk(proto_writer *w, const proto_scene_chunk *m, pt_error *err);
 pt_status proto_msg_decode_scene_chunk(const uint8_t *p, size_t len, proto_scene_chunk *out,
                                        pt_error *err);
 
@@ -279,8 +276,8 @@ pt_status proto_msg_encode_result(proto_writer *w, const proto_result *m, pt_err
  * is not NULL (PT_ERR_LIMIT when N > buf_cap; out->owns_pixels = 0), else to a
  * pt_malloc'd array that out owns (out->owns_pixels = 1; PT_ERR_NOMEM when the
  * allocation fails). Release with proto_result_fini either way. */
-pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *buf,
-                                  size_t buf_cap, proto_result *out, pt_error *err);
+pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *buf, size_t buf_cap,
+                                  proto_result *out, pt_error *err);
 /* Frees the pixels when the decoder allocated them, and clears the pointer. Accepts NULL. */
 void proto_result_fini(proto_result *r);
 

@@ -106,9 +106,15 @@ void proto_w_u64(proto_writer *w, uint64_t v)
         proto_put_u64(p, v);
 }
 
-void proto_w_f32(proto_writer *w, float v) { proto_w_u32(w, proto_f32_bits(v)); }
+void proto_w_f32(proto_writer *w, float v)
+{
+    proto_w_u32(w, proto_f32_bits(v));
+}
 
-void proto_w_f64(proto_writer *w, double v) { proto_w_u64(w, proto_f64_bits(v)); }
+void proto_w_f64(proto_writer *w, double v)
+{
+    proto_w_u64(w, proto_f64_bits(v));
+}
 
 void proto_r_fail(proto_reader *r, pt_status code, const char *why, const char *field)
 {

@@ -27,7 +27,10 @@
 
 /* ---- raw little-endian codecs (p must hold the bytes) ---- */
 
-static inline void proto_put_u8(uint8_t *p, uint8_t v) { p[0] = v; }
+static inline void proto_put_u8(uint8_t *p, uint8_t v)
+{
+    p[0] = v;
+}
 
 static inline void proto_put_u16(uint8_t *p, uint16_t v)
 {
@@ -49,7 +52,10 @@ static inline void proto_put_u64(uint8_t *p, uint64_t v)
     proto_put_u32(p + 4, (uint32_t)(v >> 32));
 }
 
-static inline uint8_t proto_get_u8(const uint8_t *p) { return p[0]; }
+static inline uint8_t proto_get_u8(const uint8_t *p)
+{
+    return p[0];
+}
 
 static inline uint16_t proto_get_u16(const uint8_t *p)
 {
@@ -96,10 +102,22 @@ static inline double proto_bits_f64(uint64_t u)
     return d;
 }
 
-static inline void proto_put_f32(uint8_t *p, float v) { proto_put_u32(p, proto_f32_bits(v)); }
-static inline void proto_put_f64(uint8_t *p, double v) { proto_put_u64(p, proto_f64_bits(v)); }
-static inline float proto_get_f32(const uint8_t *p) { return proto_bits_f32(proto_get_u32(p)); }
-static inline double proto_get_f64(const uint8_t *p) { return proto_bits_f64(proto_get_u64(p)); }
+static inline void proto_put_f32(uint8_t *p, float v)
+{
+    proto_put_u32(p, proto_f32_bits(v));
+}
+static inline void proto_put_f64(uint8_t *p, double v)
+{
+    proto_put_u64(p, proto_f64_bits(v));
+}
+static inline float proto_get_f32(const uint8_t *p)
+{
+    return proto_bits_f32(proto_get_u32(p));
+}
+static inline double proto_get_f64(const uint8_t *p)
+{
+    return proto_bits_f64(proto_get_u64(p));
+}
 
 /* ---- writer ---- */
 
@@ -121,7 +139,10 @@ void proto_writer_reset(proto_writer *w);
  * was written since w->len was len. A sticky failure stays. */
 void proto_writer_truncate(proto_writer *w, size_t len);
 /* PT_OK, or the first failure of any write since init/reset. */
-static inline pt_status proto_writer_status(const proto_writer *w) { return w->status; }
+static inline pt_status proto_writer_status(const proto_writer *w)
+{
+    return w->status;
+}
 
 /* Appends n uninitialised bytes and returns where they start, or NULL on
  * failure (PT_ERR_LIMIT past max, PT_ERR_NOMEM; sticky). The pointer is valid
@@ -152,7 +173,10 @@ static inline proto_reader proto_reader_make(const uint8_t *buf, size_t len)
     return r;
 }
 
-static inline size_t proto_r_left(const proto_reader *r) { return (size_t)(r->end - r->p); }
+static inline size_t proto_r_left(const proto_reader *r)
+{
+    return (size_t)(r->end - r->p);
+}
 
 /* Records a failure (the first one wins) and makes every later read fail. */
 void proto_r_fail(proto_reader *r, pt_status code, const char *why, const char *field);

@@ -16,22 +16,22 @@
 #include "protocol/frame.h"
 #include "protocol/msg.h"
 
-#define FUZZ_CHECK(cond)                                                                      \
-    do {                                                                                      \
-        if (!(cond)) {                                                                        \
-            fprintf(stderr, "%s:%d: fuzz invariant broken: %s\n", __FILE__, __LINE__, #cond); \
-            abort();                                                                          \
-        }                                                                                     \
+#define FUZZ_CHECK(cond)                                                                           \
+    do {                                                                                           \
+        if (!(cond)) {                                                                             \
+            fprintf(stderr, "%s:%d: fuzz invariant broken: %s\n", __FILE__, __LINE__, #cond);      \
+            abort();                                                                               \
+        }                                                                                          \
     } while (0)
 
 /* Re-encodes with enc and compares with the input payload. */
-#define FUZZ_REENCODE(enc, msgp)                                                             \
-    do {                                                                                     \
-        proto_writer w_;                                                                     \
-        proto_writer_init(&w_, PROTO_MAX_PAYLOAD);                                           \
-        FUZZ_CHECK(enc(&w_, (msgp), NULL) == PT_OK);                                         \
-        FUZZ_CHECK(w_.len == len && (len == 0 || memcmp(w_.buf, p, len) == 0));              \
-        proto_writer_fini(&w_);                                                              \
+#define FUZZ_REENCODE(enc, msgp)                                                                   \
+    do {                                                                                           \
+        proto_writer w_;                                                                           \
+        proto_writer_init(&w_, PROTO_MAX_PAYLOAD);                                                 \
+        FUZZ_CHECK(enc(&w_, (msgp), NULL) == PT_OK);                                               \
+        FUZZ_CHECK(w_.len == len && (len == 0 || memcmp(w_.buf, p, len) == 0));                    \
+        proto_writer_fini(&w_);                                                                    \
     } while (0)
 
 /* Decodes payload p[0, len) as type; use_buf picks the caller-buffer path of
@@ -132,9 +132,9 @@ static inline pt_status fuzz_decode(uint32_t type, const uint8_t *p, size_t len,
 
 /* The decodable types, indexed by the fuzz_msg selector byte. */
 static const uint16_t fuzz_types[] = {
-    PROTO_MSG_HELLO,     PROTO_MSG_CHALLENGE, PROTO_MSG_AUTH,        PROTO_MSG_WELCOME,
-    PROTO_MSG_ERROR,     PROTO_MSG_WORK_REQUEST, PROTO_MSG_TASK,     PROTO_MSG_SCENE_GET,
-    PROTO_MSG_SCENE_CHUNK, PROTO_MSG_RESULT, PROTO_MSG_HEARTBEAT};
+    PROTO_MSG_HELLO,       PROTO_MSG_CHALLENGE,    PROTO_MSG_AUTH,     PROTO_MSG_WELCOME,
+    PROTO_MSG_ERROR,       PROTO_MSG_WORK_REQUEST, PROTO_MSG_TASK,     PROTO_MSG_SCENE_GET,
+    PROTO_MSG_SCENE_CHUNK, PROTO_MSG_RESULT,       PROTO_MSG_HEARTBEAT};
 #define FUZZ_NTYPES (sizeof fuzz_types / sizeof fuzz_types[0])
 
 #endif

@@ -40,8 +40,8 @@ static void test_rfc4231(void)
     CHECK(memcmp(mac, want, 32) == 0);
 
     const char *data2 = "what do ya want for nothing?";
-    CHECK(proto_auth_hmac_sha256((const uint8_t *)"Jefe", 4, (const uint8_t *)data2,
-                                 strlen(data2), mac, &err) == PT_OK);
+    CHECK(proto_auth_hmac_sha256((const uint8_t *)"Jefe", 4, (const uint8_t *)data2, strlen(data2),
+                                 mac, &err) == PT_OK);
     hex("5bdcc146bf60754e6a042426089575c75a003f089d2739839dec58b964ec3843", want);
     CHECK(memcmp(mac, want, 32) == 0);
 

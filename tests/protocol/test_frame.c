@@ -72,10 +72,10 @@ static size_t hand_frame(uint8_t *out, uint16_t version, uint16_t type, const ui
 }
 
 static const uint16_t known_types[] = {
-    PROTO_MSG_HELLO,       PROTO_MSG_CHALLENGE, PROTO_MSG_AUTH,     PROTO_MSG_WELCOME,
-    PROTO_MSG_ERROR,       PROTO_MSG_WORK_REQUEST, PROTO_MSG_TASK,  PROTO_MSG_SCENE_GET,
-    PROTO_MSG_SCENE_CHUNK, PROTO_MSG_RESULT,    PROTO_MSG_HEARTBEAT, PROTO_MSG_SUBMIT,
-    PROTO_MSG_LIST,        PROTO_MSG_STATUS,    PROTO_MSG_WATCH,    PROTO_MSG_CANCEL,
+    PROTO_MSG_HELLO,       PROTO_MSG_CHALLENGE,    PROTO_MSG_AUTH,      PROTO_MSG_WELCOME,
+    PROTO_MSG_ERROR,       PROTO_MSG_WORK_REQUEST, PROTO_MSG_TASK,      PROTO_MSG_SCENE_GET,
+    PROTO_MSG_SCENE_CHUNK, PROTO_MSG_RESULT,       PROTO_MSG_HEARTBEAT, PROTO_MSG_SUBMIT,
+    PROTO_MSG_LIST,        PROTO_MSG_STATUS,       PROTO_MSG_WATCH,     PROTO_MSG_CANCEL,
     PROTO_MSG_FETCH};
 #define NKNOWN (sizeof known_types / sizeof known_types[0])
 
@@ -105,16 +105,16 @@ static void test_round_trip(void)
             uint8_t more[420];
             memcpy(more, w.buf, w.len);
             memcpy(more + w.len, "PTF1junk", 8);
-            CHECK(proto_frame_decode(more, w.len + 8, PROTO_MAX_PAYLOAD_PREAUTH, &f, &used,
-                                     &err) == PT_OK);
+            CHECK(proto_frame_decode(more, w.len + 8, PROTO_MAX_PAYLOAD_PREAUTH, &f, &used, &err) ==
+                  PT_OK);
             CHECK(used == w.len);
             /* Every proper prefix asks for more, and leaves the outputs alone. */
             int again = 1;
             for (size_t k = 0; k < w.len; k++) {
                 proto_frame g = {0};
                 size_t u = 12345;
-                pt_status st = proto_frame_decode(w.buf, k, PROTO_MAX_PAYLOAD_PREAUTH, &g, &u,
-                                                  &err);
+                pt_status st =
+                    proto_frame_decode(w.buf, k, PROTO_MAX_PAYLOAD_PREAUTH, &g, &u, &err);
                 again &= st == PT_AGAIN && u == 12345 && g.payload == NULL;
             }
             CHECKF(again, "type %u len %u", (unsigned)known_types[t], (unsigned)len);
@@ -185,8 +185,7 @@ static void test_rejects(void)
     CHECK(proto_frame_decode(h, 12, PROTO_MAX_PAYLOAD_PREAUTH, &f, &used, &err) == PT_AGAIN);
     proto_put_u32(h + 8, PROTO_MAX_PAYLOAD_PREAUTH + 1);
     CHECK(proto_frame_decode(h, 11, PROTO_MAX_PAYLOAD_PREAUTH, &f, &used, &err) == PT_AGAIN);
-    CHECK(proto_frame_decode(h, 12, PROTO_MAX_PAYLOAD_PREAUTH, &f, &used, &err) ==
-          PT_ERR_PROTO);
+    CHECK(proto_frame_decode(h, 12, PROTO_MAX_PAYLOAD_PREAUTH, &f, &used, &err) == PT_ERR_PROTO);
     CHECK(strstr(err.msg, "over the cap") != NULL);
     CHECK(proto_frame_decode(h, 12, PROTO_MAX_PAYLOAD, &f, &used, &err) == PT_AGAIN);
     proto_put_u32(h + 8, PROTO_MAX_PAYLOAD);
@@ -207,8 +206,8 @@ static void test_rejects(void)
             pt_status st = proto_frame_decode(b, n, PROTO_MAX_PAYLOAD, &f, &used, &err);
             CHECKF(st != PT_OK, "byte %zu bit %d", i, bit);
             if (i >= 12)
-                CHECKF(st == PT_ERR_PROTO && strstr(err.msg, "CRC"), "byte %zu bit %d: %s", i,
-                       bit, err.msg);
+                CHECKF(st == PT_ERR_PROTO && strstr(err.msg, "CRC"), "byte %zu bit %d: %s", i, bit,
+                       err.msg);
         }
     }
     /* The same over a real message frame of every sample. */
@@ -252,8 +251,8 @@ static void feed(reasm *r, const uint8_t *p, size_t n, const expect *ex, int nex
         proto_frame f;
         size_t used = 0;
         pt_error err = {0};
-        pt_status st = proto_frame_decode(r->buf, r->len, PROTO_MAX_PAYLOAD_PREAUTH, &f, &used,
-                                          &err);
+        pt_status st =
+            proto_frame_decode(r->buf, r->len, PROTO_MAX_PAYLOAD_PREAUTH, &f, &used, &err);
         if (st == PT_AGAIN)
             return;
         if (st != PT_OK || r->nframes >= nex) {
@@ -331,8 +330,7 @@ static void test_encoder_errors(void)
     /* The writer's max: a frame that does not fit is PT_ERR_LIMIT. */
     CHECK(proto_frame_encode(&w, PROTO_MSG_AUTH, NULL, 0, &err) == PT_OK);
     uint8_t big[1024] = {0};
-    CHECK(proto_frame_encode(&w, PROTO_MSG_AUTH, big, 1024 - 16 - 16 + 1, &err) ==
-          PT_ERR_LIMIT);
+    CHECK(proto_frame_encode(&w, PROTO_MSG_AUTH, big, 1024 - 16 - 16 + 1, &err) == PT_ERR_LIMIT);
     CHECK(w.len == 16); /* no byte of the failed frame is left */
     proto_writer_fini(&w);
     proto_writer_init(&w, 1024);

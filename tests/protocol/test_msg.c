@@ -43,21 +43,41 @@ static pt_status decode_any(uint16_t type, const uint8_t *p, size_t len, pt_erro
     before = u;
     pt_status st = PT_ERR_ARG;
     switch (type) {
-    case PROTO_MSG_HELLO: st = proto_msg_decode_hello(p, len, &u.hello, err); break;
-    case PROTO_MSG_CHALLENGE: st = proto_msg_decode_challenge(p, len, &u.challenge, err); break;
-    case PROTO_MSG_AUTH: st = proto_msg_decode_auth(p, len, &u.auth, err); break;
-    case PROTO_MSG_WELCOME: st = proto_msg_decode_welcome(p, len, &u.welcome, err); break;
-    case PROTO_MSG_ERROR: st = proto_msg_decode_error(p, len, &u.error, err); break;
-    case PROTO_MSG_WORK_REQUEST: st = proto_msg_decode_work_request(p, len, &u.work, err); break;
-    case PROTO_MSG_TASK: st = proto_msg_decode_task(p, len, &u.task, err); break;
-    case PROTO_MSG_SCENE_GET: st = proto_msg_decode_scene_get(p, len, &u.get, err); break;
-    case PROTO_MSG_SCENE_CHUNK: st = proto_msg_decode_scene_chunk(p, len, &u.chunk, err); break;
+    case PROTO_MSG_HELLO:
+        st = proto_msg_decode_hello(p, len, &u.hello, err);
+        break;
+    case PROTO_MSG_CHALLENGE:
+        st = proto_msg_decode_challenge(p, len, &u.challenge, err);
+        break;
+    case PROTO_MSG_AUTH:
+        st = proto_msg_decode_auth(p, len, &u.auth, err);
+        break;
+    case PROTO_MSG_WELCOME:
+        st = proto_msg_decode_welcome(p, len, &u.welcome, err);
+        break;
+    case PROTO_MSG_ERROR:
+        st = proto_msg_decode_error(p, len, &u.error, err);
+        break;
+    case PROTO_MSG_WORK_REQUEST:
+        st = proto_msg_decode_work_request(p, len, &u.work, err);
+        break;
+    case PROTO_MSG_TASK:
+        st = proto_msg_decode_task(p, len, &u.task, err);
+        break;
+    case PROTO_MSG_SCENE_GET:
+        st = proto_msg_decode_scene_get(p, len, &u.get, err);
+        break;
+    case PROTO_MSG_SCENE_CHUNK:
+        st = proto_msg_decode_scene_chunk(p, len, &u.chunk, err);
+        break;
     case PROTO_MSG_RESULT:
         st = proto_msg_decode_result(p, len, NULL, 0, &u.result, err);
         if (st == PT_OK)
             proto_result_fini(&u.result);
         break;
-    case PROTO_MSG_HEARTBEAT: st = proto_msg_decode_heartbeat(p, len, &u.hb, err); break;
+    case PROTO_MSG_HEARTBEAT:
+        st = proto_msg_decode_heartbeat(p, len, &u.hb, err);
+        break;
     }
     if (st != PT_OK && memcmp(&u, &before, sizeof u) != 0) {
         fprintf(stderr, "type %u: output touched on failure\n", (unsigned)type);
@@ -305,8 +325,7 @@ static void test_strings(void)
     proto_writer_fini(&w);
 }
 
-static proto_writer task_raw(pt_rect t, uint32_t s0, uint32_t s1, uint32_t width,
-                             uint32_t height)
+static proto_writer task_raw(pt_rect t, uint32_t s0, uint32_t s1, uint32_t width, uint32_t height)
 {
     proto_writer w;
     proto_writer_init(&w, 1024);
@@ -329,8 +348,8 @@ static proto_writer task_raw(pt_rect t, uint32_t s0, uint32_t s1, uint32_t width
     return w;
 }
 
-static pt_status task_check(pt_rect t, uint32_t s0, uint32_t s1, uint32_t width,
-                            uint32_t height, const char *want, pt_error *err)
+static pt_status task_check(pt_rect t, uint32_t s0, uint32_t s1, uint32_t width, uint32_t height,
+                            const char *want, pt_error *err)
 {
     proto_writer w = task_raw(t, s0, s1, width, height);
     pt_status st = decode_any(PROTO_MSG_TASK, w.buf, w.len, err);
@@ -366,8 +385,8 @@ static void test_task(void)
     CHECK(task_check((pt_rect){6, 0, 5, 8}, 0, 16, 64, 64, "x0", &err) == PT_ERR_PROTO);
     CHECK(task_check((pt_rect){0, 8, 5, 8}, 0, 16, 64, 64, "y0", &err) == PT_ERR_PROTO);
     CHECK(task_check((pt_rect){0, 0, 257, 256}, 0, 16, 512, 512, "area", &err) == PT_ERR_PROTO);
-    CHECK(task_check((pt_rect){0, 0, UINT32_MAX, UINT32_MAX}, 0, 16, UINT32_MAX, UINT32_MAX,
-                     "area", &err) == PT_ERR_PROTO);
+    CHECK(task_check((pt_rect){0, 0, UINT32_MAX, UINT32_MAX}, 0, 16, UINT32_MAX, UINT32_MAX, "area",
+                     &err) == PT_ERR_PROTO);
     CHECK(task_check((pt_rect){0, 0, 65, 64}, 0, 16, 64, 64, "outside", &err) == PT_ERR_PROTO);
     CHECK(task_check((pt_rect){0, 0, 64, 65}, 0, 16, 64, 64, "outside", &err) == PT_ERR_PROTO);
     CHECK(task_check((pt_rect){0, 0, 8, 8}, 16, 16, 64, 64, "s0", &err) == PT_ERR_PROTO);
@@ -430,7 +449,11 @@ static void test_counts(void)
     CHECK(strstr(err.msg, "cap") != NULL);
     /* Chunks past the end of the scene, including offsets that would wrap. */
     static const uint64_t cases[][3] = {
-        {0, 9, 10},  {1, 10, 10}, {11, 10, 0}, {UINT64_MAX, UINT64_MAX, 2}, {UINT64_MAX - 1, UINT64_MAX, 2},
+        {0, 9, 10},
+        {1, 10, 10},
+        {11, 10, 0},
+        {UINT64_MAX, UINT64_MAX, 2},
+        {UINT64_MAX - 1, UINT64_MAX, 2},
     };
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
         proto_writer_reset(&w);
@@ -514,11 +537,9 @@ static void test_result(void)
     CHECK(alloc == 0);
     CHECK(result_check((pt_rect){0, 0, 4, 2}, 0, 8, 9, 9, 1, "area", &alloc) == PT_ERR_PROTO);
     CHECK(alloc == 0);
-    CHECK(result_check((pt_rect){0, 0, 4, 2}, 0, 8, 8, 7, 1, "truncated", &alloc) ==
-          PT_ERR_PROTO);
+    CHECK(result_check((pt_rect){0, 0, 4, 2}, 0, 8, 8, 7, 1, "truncated", &alloc) == PT_ERR_PROTO);
     CHECK(alloc == 0);
-    CHECK(result_check((pt_rect){0, 0, 4, 2}, 0, 8, 8, 9, 1, "trailing", &alloc) ==
-          PT_ERR_PROTO);
+    CHECK(result_check((pt_rect){0, 0, 4, 2}, 0, 8, 8, 9, 1, "trailing", &alloc) == PT_ERR_PROTO);
     CHECK(alloc == 0);
     CHECK(result_check((pt_rect){0, 0, 257, 256}, 0, 8, 257 * 256, 0, 1, "cap", &alloc) ==
           PT_ERR_PROTO);
