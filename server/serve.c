@@ -134,6 +134,22 @@ static void conn_update_events(server *s, conn *c)
     }
 }
 
+/* Frames one message into c's output: begin, the encoder's status, end. A
+ * failed encoder leaves no partial frame behind. Returns 1 when queued. */
+static int frame_open(conn *c, uint16_t type, size_t *mark)
+{
+    return proto_frame_begin(&c->out, type, mark, NULL) == PT_OK;
+}
+
+static int frame_close(conn *c, size_t mark, pt_status encoded)
+{
+    if (encoded != PT_OK) {
+        proto_frame_cancel(&c->out, mark);
+        return 0;
+    }
+    return proto_frame_end(&c->out, mark, NULL) == PT_OK;
+}
+
 /* Marks c for closing once its output is flushed (or the grace time ends). */
 static void conn_close_soon(server *s, conn *c)
 {
@@ -157,9 +173,8 @@ static void conn_send_error(server *s, conn *c, uint16_t code, const char *fmt, 
     va_end(ap);
     logf_(s, "peer %s%s%s: %s; closing", c->peer, c->name[0] ? " " : "", c->name, m.text);
     size_t mark;
-    if (proto_frame_begin(&c->out, PROTO_MSG_ERROR, &mark, NULL) == PT_OK &&
-        proto_msg_encode_error(&c->out, &m, NULL) == PT_OK)
-        proto_frame_end(&c->out, mark, NULL);
+    if (frame_open(c, PROTO_MSG_ERROR, &mark))
+        frame_close(c, mark, proto_msg_encode_error(&c->out, &m, NULL));
     conn_close_soon(s, c);
 }
 
@@ -246,9 +261,8 @@ static void hand_out(server *s)
             if (!srv_job_lease(s->job, c->id, now, s->cfg->lease_ms, &t))
                 return;
             size_t mark;
-            if (proto_frame_begin(&c->out, PROTO_MSG_TASK, &mark, NULL) != PT_OK ||
-                proto_msg_encode_task(&c->out, &t, NULL) != PT_OK ||
-                proto_frame_end(&c->out, mark, NULL) != PT_OK) {
+            if (!frame_open(c, PROTO_MSG_TASK, &mark) ||
+                !frame_close(c, mark, proto_msg_encode_task(&c->out, &t, NULL))) {
                 srv_job_release_owner(s->job, c->id);
                 conn_send_error(s, c, PROTO_E_LIMIT, "output buffer full");
                 break;
@@ -315,9 +329,8 @@ static void on_hello(server *s, conn *c, const proto_frame *f)
     }
     memcpy(c->nonce, ch.nonce, sizeof c->nonce);
     size_t mark;
-    if (proto_frame_begin(&c->out, PROTO_MSG_CHALLENGE, &mark, NULL) == PT_OK &&
-        proto_msg_encode_challenge(&c->out, &ch, NULL) == PT_OK)
-        proto_frame_end(&c->out, mark, NULL);
+    if (frame_open(c, PROTO_MSG_CHALLENGE, &mark))
+        frame_close(c, mark, proto_msg_encode_challenge(&c->out, &ch, NULL));
     c->state = C_AUTH;
 }
 
@@ -337,9 +350,8 @@ static void on_auth(server *s, conn *c, const proto_frame *f)
     w.session_id = c->id;
     snprintf(w.build_id, sizeof w.build_id, "%s", proto_build_id());
     size_t mark;
-    if (proto_frame_begin(&c->out, PROTO_MSG_WELCOME, &mark, NULL) == PT_OK &&
-        proto_msg_encode_welcome(&c->out, &w, NULL) == PT_OK)
-        proto_frame_end(&c->out, mark, NULL);
+    if (frame_open(c, PROTO_MSG_WELCOME, &mark))
+        frame_close(c, mark, proto_msg_encode_welcome(&c->out, &w, NULL));
     c->state = C_READY;
     s->nworkers++;
     if (!s->cfg->quiet)
@@ -371,9 +383,8 @@ static void on_scene_get(server *s, conn *c, const proto_frame *f)
     ch.len = (uint32_t)(left < PROTO_MAX_SCENE_CHUNK ? left : PROTO_MAX_SCENE_CHUNK);
     ch.data = s->bundle->data + g.offset;
     size_t mark;
-    if (proto_frame_begin(&c->out, PROTO_MSG_SCENE_CHUNK, &mark, NULL) != PT_OK ||
-        proto_msg_encode_scene_chunk(&c->out, &ch, NULL) != PT_OK ||
-        proto_frame_end(&c->out, mark, NULL) != PT_OK)
+    if (!frame_open(c, PROTO_MSG_SCENE_CHUNK, &mark) ||
+        !frame_close(c, mark, proto_msg_encode_scene_chunk(&c->out, &ch, NULL)))
         conn_send_error(s, c, PROTO_E_LIMIT, "output buffer full");
 }
 
