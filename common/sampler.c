@@ -1,0 +1,162 @@
+/*
+ * sampler.c - Owen-scrambled Sobol after Burley 2020, "Practical Hash-based
+ * Owen Scrambling" (JCGT 9(4)).
+ *
+ * A value is Owen(Sobol_j(Shuffle(index))): the index is shuffled by a nested
+ * uniform scramble (an Owen scramble of the index read most significant bit
+ * first), which maps the first 2^k indices onto an aligned block of 2^k Sobol
+ * indices, itself a (t,k,s)-net; then the Sobol value is Owen-scrambled. Both
+ * scrambles use the Laine-Karras construction (Laine & Karras 2011,
+ * "Stratified sampling for stochastic transparency"): on the bit-reversed
+ * value, a chain of operations in which every output bit depends only on the
+ * input bits below it (an add, and x ^= x * even), which is a nested uniform
+ * scramble when the seed is random.
+ *
+ * Padding. A 2D pair of dimensions (2p, 2p+1) is Sobol dimensions (0, 1) under
+ * its own hashed index shuffle, and every dimension has its own hashed Owen
+ * seed. Burley pads 4D groups (Sobol dimensions 0-3 sharing one shuffle); we pad
+ * pairs instead because the renderer draws 2D pairs and needs each one to be a
+ * (0,2)-sequence, and no two Sobol dimensions other than (0, 1) form one: row 0
+ * of every Sobol generator matrix after the first is all ones, so the pair's
+ * 2x2 elementary intervals cannot all be hit by 4 points. Sobol dimensions 2
+ * and 3 (Joe & Kuo 2008, new-joe-kuo-6.21201, polynomials x^2+x+1 and x^3+x+1,
+ * initial m = {1,3} and {1,3,1}) are kept in pt_sobol_bits for a later 4D
+ * sample call and for the tests.
+ */
+#include "common/sampler.h"
+
+/*
+ * Direction vectors, bit-reversed: bit i of kRevDir[d][k] is row i (most
+ * significant output bit first) of column k of Sobol dimension d's generator
+ * matrix, so XOR-ing the columns of the set index bits yields the Sobol value
+ * already reversed, the form the Laine-Karras scramble works on. Dimension 0
+ * (van der Corput) is the identity and has no table. Dimension 1 is Pascal's
+ * triangle mod 2 (polynomial x + 1); dimensions 2-3 follow from the Joe & Kuo
+ * constants above by the Sobol recurrence m_k = 2 a_1 m_{k-1} ^ ... ^
+ * 2^s m_{k-s} ^ m_{k-s}; tests/common/test_sampler.c recomputes them.
+ */
+static const uint32_t kRevDir[3][32] = {
+    {
+        0x00000001u, 0x00000003u, 0x00000005u, 0x0000000fu, 0x00000011u, 0x00000033u,
+        0x00000055u, 0x000000ffu, 0x00000101u, 0x00000303u, 0x00000505u, 0x00000f0fu,
+        0x00001111u, 0x00003333u, 0x00005555u, 0x0000ffffu, 0x00010001u, 0x00030003u,
+        0x00050005u, 0x000f000fu, 0x00110011u, 0x00330033u, 0x00550055u, 0x00ff00ffu,
+        0x01010101u, 0x03030303u, 0x05050505u, 0x0f0f0f0fu, 0x11111111u, 0x33333333u,
+        0x55555555u, 0xffffffffu,
+    },
+    {
+        0x00000001u, 0x00000003u, 0x00000006u, 0x00000009u, 0x00000017u, 0x0000003au,
+        0x00000071u, 0x000000a3u, 0x00000116u, 0x00000339u, 0x00000677u, 0x000009aau,
+        0x00001601u, 0x00003903u, 0x00007706u, 0x0000aa09u, 0x00010117u, 0x0003033au,
+        0x00060671u, 0x000909a3u, 0x00171616u, 0x003a3939u, 0x00717777u, 0x00a3aaaau,
+        0x01170001u, 0x033a0003u, 0x06710006u, 0x09a30009u, 0x16160017u, 0x3939003au,
+        0x77770071u, 0xaaaa00a3u,
+    },
+    {
+        0x00000001u, 0x00000003u, 0x00000004u, 0x0000000au, 0x0000001fu, 0x0000002eu,
+        0x00000045u, 0x000000c9u, 0x0000011bu, 0x000002a4u, 0x0000079au, 0x00000b67u,
+        0x0000101eu, 0x0000302du, 0x00004041u, 0x0000a0c3u, 0x0001f104u, 0x0002e28au,
+        0x000457dfu, 0x000c9baeu, 0x0011a105u, 0x002a7289u, 0x0079e7dbu, 0x00b6dba4u,
+        0x0100011au, 0x030002a7u, 0x0400079eu, 0x0a000b6du, 0x1f001001u, 0x2e003003u,
+        0x45004004u, 0xc900a00au,
+    },
+};
+
+/* Domain tag that keeps index-shuffle seeds apart from per-dimension seeds. */
+#define SHUFFLE_TAG 0xa511e9b3u
+
+/* The finaliser of MurmurHash3 (Appleby), a full-avalanche 32-bit bijection. */
+uint32_t pt_hash_u32(uint32_t x)
+{
+    x ^= x >> 16;
+    x *= 0x85ebca6bu;
+    x ^= x >> 13;
+    x *= 0xc2b2ae35u;
+    x ^= x >> 16;
+    return x;
+}
+
+/* Boost's hash_combine mixing step, then a full avalanche so that nearby
+ * (seed, v) pairs (neighbouring pixels, dimensions) give unrelated seeds. */
+uint32_t pt_hash_combine(uint32_t seed, uint32_t v)
+{
+    return pt_hash_u32(seed ^ (pt_hash_u32(v) + 0x9e3779b9u + (seed << 6) + (seed >> 2)));
+}
+
+static inline uint32_t reverse_bits(uint32_t x)
+{
+    x = ((x >> 1) & 0x55555555u) | ((x & 0x55555555u) << 1);
+    x = ((x >> 2) & 0x33333333u) | ((x & 0x33333333u) << 2);
+    x = ((x >> 4) & 0x0f0f0f0fu) | ((x & 0x0f0f0f0fu) << 4);
+    x = ((x >> 8) & 0x00ff00ffu) | ((x & 0x00ff00ffu) << 8);
+    return (x >> 16) | (x << 16);
+}
+
+/*
+ * Laine-Karras permutation of a bit-reversed value: each step changes bit k
+ * as a function of bits <= k only (a carry moves upwards; x * even has bit k
+ * built from bits < k), so in the unreversed value each bit is flipped as a
+ * function of the bits above it: an Owen scramble. Constants from Burley 2020,
+ * section 3 (the improved hash).
+ */
+static inline uint32_t lk_permute(uint32_t x, uint32_t seed)
+{
+    x += seed;
+    x ^= x * 0x6c50b47cu;
+    x ^= x * 0xb82f1e52u;
+    x ^= x * 0xc7afe638u;
+    x ^= x * 0x8d22f6e6u;
+    return x;
+}
+
+/* Sobol value of dimension d (0..3), bit-reversed. */
+static inline uint32_t sobol_rev(uint32_t index, uint32_t d)
+{
+    if (d == 0)
+        return index;
+    const uint32_t *dir = kRevDir[d - 1];
+    uint32_t x = 0;
+    for (uint32_t k = 0; index; index >>= 1, k++)
+        if (index & 1u)
+            x ^= dir[k];
+    return x;
+}
+
+uint32_t pt_sobol_bits(uint32_t index, uint32_t d)
+{
+    return d < 4 ? reverse_bits(sobol_rev(index, d)) : 0;
+}
+
+/* The shuffled Sobol index of sample `index` for the pair holding dim. */
+static inline uint32_t shuffled_index(uint32_t pixel_seed, uint32_t index, uint32_t dim)
+{
+    uint32_t pair_seed = pt_hash_combine(pixel_seed ^ SHUFFLE_TAG, dim >> 1);
+    return reverse_bits(lk_permute(reverse_bits(index), pair_seed));
+}
+
+/* 24 bits to a float in [0, 1): exact, and never rounds up to 1. */
+static inline float to_unit(uint32_t bits) { return (float)(bits >> 8) * 0x1p-24f; }
+
+static inline float owen_sample(uint32_t pixel_seed, uint32_t sobol_index, uint32_t dim)
+{
+    uint32_t x = sobol_rev(sobol_index, dim & 1u);
+    return to_unit(reverse_bits(lk_permute(x, pt_hash_combine(pixel_seed, dim))));
+}
+
+float pt_sample_1d(uint32_t pixel_seed, uint32_t index, uint32_t dim)
+{
+    return owen_sample(pixel_seed, shuffled_index(pixel_seed, index, dim), dim);
+}
+
+void pt_sample_2d(uint32_t pixel_seed, uint32_t index, uint32_t dim, float out[2])
+{
+    if (dim & 1u) {
+        /* Straddles two pairs: two independently padded values. */
+        out[0] = pt_sample_1d(pixel_seed, index, dim);
+        out[1] = pt_sample_1d(pixel_seed, index, dim + 1);
+        return;
+    }
+    uint32_t s = shuffled_index(pixel_seed, index, dim);
+    out[0] = owen_sample(pixel_seed, s, dim);
+    out[1] = owen_sample(pixel_seed, s, dim + 1);
+}
