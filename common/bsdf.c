@@ -177,11 +177,10 @@ static float spec_prob(const pt_bsdf *b, float cos_o)
     return fminf(fmaxf(p, MIN_LOBE_PROB), 1.0f - MIN_LOBE_PROB);
 }
 
-/* Both lobes at (wo, wi), both above the surface: f * cos(wi) and the
- * mixture pdf. */
-static pt_vec3 eval_both(const pt_bsdf *b, pt_vec3 wo, pt_vec3 wi, float *pdf)
+/* Both lobes at (wo, wi), both above the surface, with ps = spec_prob(wo):
+ * f * cos(wi) and the mixture pdf. */
+static pt_vec3 eval_both(const pt_bsdf *b, pt_vec3 wo, pt_vec3 wi, float ps, float *pdf)
 {
-    float ps = spec_prob(b, wo.z);
     pt_vec3 f = pt_v3(0.0f, 0.0f, 0.0f);
     float p = 0.0f;
     if (ps < 1.0f) {
@@ -216,7 +215,7 @@ pt_vec3 pt_bsdf_eval(const pt_bsdf *b, pt_vec3 wo, pt_vec3 wi, float *pdf)
         *pdf = 0.0f;
         return pt_v3(0.0f, 0.0f, 0.0f);
     }
-    return eval_both(b, wo, wi, pdf);
+    return eval_both(b, wo, wi, spec_prob(b, wo.z), pdf);
 }
 
 float pt_bsdf_pdf(const pt_bsdf *b, pt_vec3 wo, pt_vec3 wi)
@@ -244,7 +243,7 @@ pt_vec3 pt_bsdf_sample(const pt_bsdf *b, pt_vec3 wo, const float u[3], pt_vec3 *
         return zero;
     /* The weight is the mixture's f cos / pdf, not the chosen lobe's, so it
      * agrees with pt_bsdf_eval / pt_bsdf_pdf and MIS sees one estimator. */
-    pt_vec3 f = eval_both(b, wo, *wi, pdf);
+    pt_vec3 f = eval_both(b, wo, *wi, ps, pdf);
     if (!(*pdf > 0.0f)) {
         *pdf = 0.0f;
         return zero;
