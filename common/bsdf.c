@@ -27,8 +27,14 @@
 #define DIELECTRIC_F0 0.04f /* glTF's ((1 - ior) / (1 + ior))^2 for ior 1.5 */
 #define MIN_LOBE_PROB 0.05f
 
-static inline float clamp01(float x) { return x < 0.0f ? 0.0f : (x > 1.0f ? 1.0f : x); }
-static inline float maxf(float a, float b) { return a > b ? a : b; }
+static inline float clamp01(float x)
+{
+    return x < 0.0f ? 0.0f : (x > 1.0f ? 1.0f : x);
+}
+static inline float maxf(float a, float b)
+{
+    return a > b ? a : b;
+}
 
 static inline pt_vec3 clamp3(pt_vec3 c, float hi)
 {
@@ -69,8 +75,8 @@ pt_bsdf pt_bsdf_setup(pt_vec3 base_color, float metallic, float roughness, float
     roughness = clamp01(roughness == roughness ? roughness : 1.0f);
     specular = clamp01(specular == specular ? specular : 1.0f);
     base_color = clamp3(base_color, 1.0f);
-    pt_vec3 f0_dielectric = pt_v3_scale(clamp3(pt_v3_scale(specular_color, DIELECTRIC_F0), 1.0f),
-                                        specular);
+    pt_vec3 f0_dielectric =
+        pt_v3_scale(clamp3(pt_v3_scale(specular_color, DIELECTRIC_F0), 1.0f), specular);
     pt_bsdf b;
     b.diffuse = pt_v3_scale(base_color, 1.0f - metallic);
     b.f0 = pt_v3_lerp(f0_dielectric, base_color, metallic);

@@ -45,7 +45,10 @@ static pcg32 pcg32_make(uint64_t seed, uint64_t stream)
     return r;
 }
 
-static float pcg32_float(pcg32 *r) { return (float)(pcg32_next(r) >> 8) * 0x1p-24f; }
+static float pcg32_float(pcg32 *r)
+{
+    return (float)(pcg32_next(r) >> 8) * 0x1p-24f;
+}
 
 static pt_vec3 dir_at(float theta_deg, float phi)
 {
@@ -108,7 +111,10 @@ static double gamma_q(double a, double x)
     return exp(-x + a * log(x) - lg) * h;
 }
 
-static double chi2_survival(double chi2, int dof) { return gamma_q(0.5 * dof, 0.5 * chi2); }
+static double chi2_survival(double chi2, int dof)
+{
+    return gamma_q(0.5 * dof, 0.5 * chi2);
+}
 
 static void test_chi2_survival(void)
 {
@@ -171,8 +177,8 @@ static int bin_of(const binning *bn, pt_vec3 w)
 
 typedef struct simpson_ctx {
     const binning *bn;
-    double t;          /* fixed t for the inner integral */
-    double p0, p1;     /* phi range for the inner integral */
+    double t;      /* fixed t for the inner integral */
+    double p0, p1; /* phi range for the inner integral */
 } simpson_ctx;
 
 static double integrand(const binning *bn, double t, double phi)
@@ -213,7 +219,10 @@ static double simpson(fn1 f, simpson_ctx *c, double a, double b, double eps, int
     return s;
 }
 
-static double inner_fn(simpson_ctx *c, double phi) { return integrand(c->bn, c->t, phi); }
+static double inner_fn(simpson_ctx *c, double phi)
+{
+    return integrand(c->bn, c->t, phi);
+}
 
 static double outer_fn(simpson_ctx *c, double t)
 {
@@ -227,8 +236,8 @@ static void cell_probs(const binning *bn, double prob[NCELL])
     for (int it = 0; it < NT; it++)
         for (int ip = 0; ip < NP; ip++) {
             simpson_ctx c = {bn, 0.0, 2.0 * PI_D * ip / NP, 2.0 * PI_D * (ip + 1) / NP};
-            prob[it * NP + ip] = simpson(outer_fn, &c, (double)it / NT, (double)(it + 1) / NT,
-                                         1e-6, 8);
+            prob[it * NP + ip] =
+                simpson(outer_fn, &c, (double)it / NT, (double)(it + 1) / NT, 1e-6, 8);
         }
 }
 
@@ -312,8 +321,8 @@ static double chi2_run(const char *name, const binning *bn, sample_fn sample, co
     double q = 1.0 - (double)lost / n;
     double sd = sqrt(fmax(q * (1.0 - q), 1.0 / n) / n);
     CHECKF(total <= 1.0 + 1e-3, "%s: pdf integrates to %.6f > 1", name, total);
-    CHECKF(fabs(total - q) < 4.0 * sd + 1e-3, "%s: pdf integral %.6f, possible-sample fraction %.6f",
-           name, total, q);
+    CHECKF(fabs(total - q) < 4.0 * sd + 1e-3,
+           "%s: pdf integral %.6f, possible-sample fraction %.6f", name, total, q);
     return total;
 }
 
@@ -354,7 +363,10 @@ static pt_vec3 bsdf_sample(const void *ctx, pcg32 *r, float *pdf)
     return wi;
 }
 
-static pt_vec3 mirror(pt_vec3 wo) { return pt_v3(-wo.x, -wo.y, wo.z); }
+static pt_vec3 mirror(pt_vec3 wo)
+{
+    return pt_v3(-wo.x, -wo.y, wo.z);
+}
 
 /* p such that the lobe's angular scale alpha lands near t = 0.3. */
 static double warp_for(float alpha)
@@ -468,7 +480,8 @@ static void test_ggx_normalisation(void)
     for (int i = 0; i < 5; i++)
         for (int j = 0; j < 3; j++) {
             ggx_ctx c = {dir_at(j * 40.0f, 0.2f), alphas[i]};
-            binning bn = {pt_frame_from_normal(pt_v3(0, 0, 1)), warp_for(alphas[i] * 0.5f), d_cos, &c};
+            binning bn = {pt_frame_from_normal(pt_v3(0, 0, 1)), warp_for(alphas[i] * 0.5f), d_cos,
+                          &c};
             double s = 0.0;
             cell_probs(&bn, prob);
             for (int k = 0; k < NCELL; k++)
@@ -493,7 +506,8 @@ static void test_pdf_integral_mc(void)
     const int n = 200000;
     for (int i = 0; i < 3; i++)
         for (int j = 0; j < 3; j++) {
-            pt_bsdf b = pt_bsdf_setup(pt_v3(0.5f, 0.5f, 0.5f), 0.7f, rough[i], 1.0f, pt_v3(1, 1, 1));
+            pt_bsdf b =
+                pt_bsdf_setup(pt_v3(0.5f, 0.5f, 0.5f), 0.7f, rough[i], 1.0f, pt_v3(1, 1, 1));
             pt_vec3 wo = dir_at(view[j], 2.0f);
             double s = 0.0, s2 = 0.0;
             for (int k = 0; k < n; k++) {
@@ -579,14 +593,14 @@ static void test_albedo(void)
                 pt_bsdf d = pt_bsdf_setup(pt_v3(1, 1, 1), k * 0.5f, rough[i], 1.0f, pt_v3(1, 1, 1));
                 estimate e = albedo_sampled(&d, wo, n, &r);
                 CHECKF(e.mean <= 1.0 + 3.0 * e.sd,
-                       "dielectric m %.1f r %.2f view %.0f: albedo %.4f +- %.4f", k * 0.5,
-                       rough[i], view[j], e.mean, e.sd);
+                       "dielectric m %.1f r %.2f view %.0f: albedo %.4f +- %.4f", k * 0.5, rough[i],
+                       view[j], e.mean, e.sd);
             }
             /* White Lambert (specular 0): every weight is 1. */
             pt_bsdf l = pt_bsdf_setup(pt_v3(1, 1, 1), 0.0f, rough[i], 0.0f, pt_v3(1, 1, 1));
             estimate e = albedo_sampled(&l, wo, n, &r);
-            CHECKF(fabs(e.mean - 1.0) < 1e-5 && e.sd < 1e-6, "lambert albedo %.7f +- %.2g",
-                   e.mean, e.sd);
+            CHECKF(fabs(e.mean - 1.0) < 1e-5 && e.sd < 1e-6, "lambert albedo %.7f +- %.2g", e.mean,
+                   e.sd);
         }
 }
 
@@ -634,8 +648,8 @@ static void test_reciprocity(void)
             float p1, p2;
             pt_vec3 a = pt_v3_scale(pt_bsdf_eval(&b, wo, wi, &p1), 1.0f / wi.z);
             pt_vec3 c = pt_v3_scale(pt_bsdf_eval(&b, wi, wo, &p2), 1.0f / wo.z);
-            bad += rel_err(a.x, c.x) > 1e-4f || rel_err(a.y, c.y) > 1e-4f ||
-                   rel_err(a.z, c.z) > 1e-4f;
+            bad +=
+                rel_err(a.x, c.x) > 1e-4f || rel_err(a.y, c.y) > 1e-4f || rel_err(a.z, c.z) > 1e-4f;
             n++;
         }
     }
@@ -680,8 +694,8 @@ static void test_edges(void)
                         pt_vec3 h = pt_ggx_sample_vndf(wo, m.alpha, us[i], us[j]);
                         bad += !pt_isfinite3(h) || h.z < 0.0f;
                         pt_vec3 cw = pt_sample_cosine_hemisphere(us[i], us[j]);
-                        bad += !pt_isfinite3(cw) || cw.z < 0.0f ||
-                               fabsf(pt_v3_len(cw) - 1.0f) > 1e-5f;
+                        bad +=
+                            !pt_isfinite3(cw) || cw.z < 0.0f || fabsf(pt_v3_len(cw) - 1.0f) > 1e-5f;
                     }
             }
     }
