@@ -26,23 +26,17 @@
 #include "common/sampler.h"
 
 /*
- * Direction vectors, bit-reversed: bit i of kRevDir[d][k] is row i (most
+ * Direction vectors, bit-reversed: bit i of kRevDir[d - 2][k] is row i (most
  * significant output bit first) of column k of Sobol dimension d's generator
  * matrix, so XOR-ing the columns of the set index bits yields the Sobol value
  * already reversed, the form the Laine-Karras scramble works on. Dimension 0
- * (van der Corput) is the identity and has no table. Dimension 1 is Pascal's
- * triangle mod 2 (polynomial x + 1); dimensions 2-3 follow from the Joe & Kuo
- * constants above by the Sobol recurrence m_k = 2 a_1 m_{k-1} ^ ... ^
- * 2^s m_{k-s} ^ m_{k-s}; tests/common/test_sampler.c recomputes them.
+ * (van der Corput) is the identity and dimension 1 (polynomial x + 1) is
+ * Pascal's triangle mod 2, both computed without a table in sobol_rev.
+ * Dimensions 2-3 follow from the Joe & Kuo constants above by the Sobol
+ * recurrence m_k = 2 a_1 m_{k-1} ^ ... ^ 2^s m_{k-s} ^ m_{k-s};
+ * tests/common/test_sampler.c recomputes all four.
  */
-static const uint32_t kRevDir[3][32] = {
-    {
-        0x00000001u, 0x00000003u, 0x00000005u, 0x0000000fu, 0x00000011u, 0x00000033u, 0x00000055u,
-        0x000000ffu, 0x00000101u, 0x00000303u, 0x00000505u, 0x00000f0fu, 0x00001111u, 0x00003333u,
-        0x00005555u, 0x0000ffffu, 0x00010001u, 0x00030003u, 0x00050005u, 0x000f000fu, 0x00110011u,
-        0x00330033u, 0x00550055u, 0x00ff00ffu, 0x01010101u, 0x03030303u, 0x05050505u, 0x0f0f0f0fu,
-        0x11111111u, 0x33333333u, 0x55555555u, 0xffffffffu,
-    },
+static const uint32_t kRevDir[2][32] = {
     {
         0x00000001u, 0x00000003u, 0x00000006u, 0x00000009u, 0x00000017u, 0x0000003au, 0x00000071u,
         0x000000a3u, 0x00000116u, 0x00000339u, 0x00000677u, 0x000009aau, 0x00001601u, 0x00003903u,
@@ -111,7 +105,20 @@ static inline uint32_t sobol_rev(uint32_t index, uint32_t d)
 {
     if (d == 0)
         return index;
-    const uint32_t *dir = kRevDir[d - 1];
+    if (d == 1) {
+        /* Pascal's triangle mod 2: by Lucas' theorem column k has row i set
+         * iff the bits of i are a subset of those of k, so reversed output bit
+         * i is the parity of the index bits k that contain i: a superset sum
+         * over the 5-bit positions, one butterfly per position bit. */
+        uint32_t y = index;
+        y ^= (y >> 1) & 0x55555555u;
+        y ^= (y >> 2) & 0x33333333u;
+        y ^= (y >> 4) & 0x0f0f0f0fu;
+        y ^= (y >> 8) & 0x00ff00ffu;
+        y ^= (y >> 16) & 0x0000ffffu;
+        return y;
+    }
+    const uint32_t *dir = kRevDir[d - 2];
     uint32_t x = 0;
     for (uint32_t k = 0; index; index >>= 1, k++)
         if (index & 1u)
