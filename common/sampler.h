@@ -2,11 +2,12 @@
  * sampler.h - deterministic sample values: Owen-scrambled Sobol keyed by
  * (seed, pixel, sample index, dimension).
  *
- * Burley 2020, "Practical Hash-based Owen Scrambling" (JCGT 9(4)): the sample
- * index is shuffled by a nested uniform scramble (Owen scramble of the
- * bit-reversed index), each 4-dimensional group of Sobol dimensions gets its own
- * shuffle seed ("padding"), and each dimension its own Owen scramble seed, all
- * derived by hashing. Every value is a pure function of its key, with no state:
+ * Burley 2020, "Practical Hash-based Owen Scrambling" (JCGT 9(4)): each pair
+ * of dimensions (2p, 2p+1) is Sobol dimensions (0,1) - the only pair of Sobol
+ * dimensions that is a (0,2)-sequence - with the sample index shuffled by a
+ * nested uniform scramble seeded per pair ("padding"), and each dimension
+ * Owen-scrambled with its own hashed seed. Every value is a pure function of
+ * its key, with no state:
  * samples [a,b) of a pixel give the same numbers wherever and in however many
  * pieces they are computed. Thread-safe.
  */
@@ -28,8 +29,8 @@ static inline uint32_t pt_pixel_seed(uint32_t job_seed, uint32_t px, uint32_t py
 /* Sample `index` of dimension `dim` for a pixel seed, in [0, 1). */
 float pt_sample_1d(uint32_t pixel_seed, uint32_t index, uint32_t dim);
 
-/* Two dimensions (dim, dim+1) of one sample, in [0,1)^2; dim should be even
- * so a pair stays within one Sobol group and keeps its 2D stratification. */
+/* Two dimensions (dim, dim+1) of one sample, in [0,1)^2; with dim even the
+ * pair keeps its 2D stratification. */
 void pt_sample_2d(uint32_t pixel_seed, uint32_t index, uint32_t dim, float out[2]);
 
 /* Unscrambled Sobol value (bits) of dimension d in 0..3, for tests. */
