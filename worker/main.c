@@ -2,7 +2,10 @@
  * ptworker - renders for ptfarm.
  *
  * `ptworker --scene SCENE -o OUT.exr --spp N ...` renders one image on this
- * machine (worker/standalone.c).
+ * machine (worker/standalone.c). `ptworker --server HOST:PORT ...` is a farm
+ * worker: it renders tasks for a ptserve coordinator until stopped
+ * (worker/client.c). The two modes share --threads; every other option
+ * belongs to one of them, and mixing them is bad usage (exit status 2).
  */
 #include <errno.h>
 #include <getopt.h>
@@ -11,24 +14,35 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include <unistd.h>
+
+#include "protocol/msg.h"
+#include "worker/client.h"
 #include "worker/standalone.h"
 
 static void usage(FILE *f)
 {
     fprintf(f,
-            "usage: ptworker --scene SCENE -o OUT.exr [options]\n"
+            "usage: ptworker --scene SCENE -o OUT.exr [options]    (standalone)\n"
+            "       ptworker --server HOST:PORT [options]          (farm worker)\n"
             "\n"
-            "Renders a glTF 2.0 scene (.gltf or .glb) with the ptfarm path tracer on this\n"
-            "machine and writes an OpenEXR image (R, G, B, samples, variance) plus an sRGB\n"
-            "PNG preview beside it.\n"
+            "Standalone: renders a glTF 2.0 scene (.gltf or .glb) with the ptfarm path tracer\n"
+            "on this machine and writes an OpenEXR image (R, G, B, samples, variance) plus an\n"
+            "sRGB PNG preview beside it.\n"
             "\n"
-            "options:\n"
+            "Farm worker: connects to a ptserve coordinator, renders the tasks it hands out\n"
+            "and sends the results back, until SIGTERM or SIGINT. Scenes are fetched by\n"
+            "content hash and kept in the cache folder. A lost connection is retried with\n"
+            "backoff (0.2 s doubling to 10 s); a refused token, build or protocol version\n"
+            "ends the worker.\n"
+            "\n"
+            "standalone options:\n"
             "  --scene PATH       the scene to render (required)\n"
             "  -o, --output PATH  the EXR to write (required); the preview is PATH.png\n"
             "  --spp N            samples per pixel (default 64)\n"
             "  --res WxH          image size (default 512 wide, height from the camera)\n"
             "  --seed S           random seed (default 0); same seed, same image\n"
-            "  --threads T        render threads (default: all cores)\n"
+            "  --threads T        render threads (default: all cores; both modes)\n"
             "  --max-depth D      maximum bounces (default 16)\n"
             "  --camera NAME      the camera to render (default: the scene's first)\n"
             "  --tile N           tile side in pixels (default 32)\n"
@@ -36,7 +50,22 @@ static void usage(FILE *f)
             "  -q, --quiet        no progress line\n"
             "  -h, --help         this text\n"
             "\n"
-            "exit status: 0 image written, 1 render or I/O error, 2 bad usage\n");
+            "farm worker options:\n"
+            "  --server HOST:PORT the coordinator to work for ([V6]:PORT for IPv6)\n"
+            "  --threads T        render threads (default: all cores)\n"
+            "  --prefetch N       tasks asked for beyond T, so no thread idles while a\n"
+            "                     result is in flight (default T; T + N <= %u)\n"
+            "  --token-file F     the farm's shared token (default: none, for a coordinator\n"
+            "                     that requires no token)\n"
+            "  --cache-dir D      where fetched scenes are kept (default: $XDG_CACHE_HOME/ptfarm\n"
+            "                     or ~/.cache/ptfarm); several workers may share one\n"
+            "  --name NAME        how the coordinator calls this worker (default HOST:PID,\n"
+            "                     at most %u bytes)\n"
+            "\n"
+            "exit status: standalone: 0 image written, 1 render or I/O error;\n"
+            "             farm worker: 0 stopped by a signal, 1 refused by the coordinator or\n"
+            "             a local error (token file, cache folder); 2 bad usage\n",
+            PROTO_MAX_SLOTS, PROTO_MAX_NAME);
 }
 
 static int parse_u32(const char *opt, const char *s, uint32_t min, uint32_t max, uint32_t *out)
@@ -75,8 +104,13 @@ int main(int argc, char **argv)
     o.max_depth = 16;
     o.tile = 32;
     o.chunk = 16;
+    wrk_client_opts net = {0};
+    uint32_t prefetch = 0;
+    int has_prefetch = 0;
+    /* Which options were given, to refuse mixing the modes. */
+    char standalone_opt[40] = "", farm_opt[40] = "";
     enum { OPT_SCENE = 256, OPT_SPP, OPT_RES, OPT_SEED, OPT_THREADS, OPT_DEPTH, OPT_CAMERA,
-           OPT_TILE, OPT_CHUNK };
+           OPT_TILE, OPT_CHUNK, OPT_SERVER, OPT_PREFETCH, OPT_TOKEN, OPT_CACHE, OPT_NAME };
     static const struct option longopts[] = {
         {"scene", required_argument, NULL, OPT_SCENE},
         {"output", required_argument, NULL, 'o'},
@@ -89,11 +123,16 @@ int main(int argc, char **argv)
         {"tile", required_argument, NULL, OPT_TILE},
         {"chunk", required_argument, NULL, OPT_CHUNK},
         {"quiet", no_argument, NULL, 'q'},
+        {"server", required_argument, NULL, OPT_SERVER},
+        {"prefetch", required_argument, NULL, OPT_PREFETCH},
+        {"token-file", required_argument, NULL, OPT_TOKEN},
+        {"cache-dir", required_argument, NULL, OPT_CACHE},
+        {"name", required_argument, NULL, OPT_NAME},
         {"help", no_argument, NULL, 'h'},
         {NULL, 0, NULL, 0},
     };
-    int c;
-    while ((c = getopt_long(argc, argv, "o:qh", longopts, NULL)) != -1) {
+    int c, li = 0;
+    while ((c = getopt_long(argc, argv, "o:qh", longopts, &li)) != -1) {
         int bad = 0;
         switch (c) {
         case OPT_SCENE: o.scene_path = optarg; break;
@@ -107,19 +146,66 @@ int main(int argc, char **argv)
         case OPT_TILE: bad = parse_u32("--tile", optarg, 1, 4096, &o.tile); break;
         case OPT_CHUNK: bad = parse_u32("--chunk", optarg, 1, 1u << 24, &o.chunk); break;
         case 'q': o.quiet = 1; break;
+        case OPT_SERVER: net.server = optarg; break;
+        case OPT_PREFETCH:
+            bad = parse_u32("--prefetch", optarg, 0, PROTO_MAX_SLOTS, &prefetch);
+            has_prefetch = 1;
+            break;
+        case OPT_TOKEN: net.token_file = optarg; break;
+        case OPT_CACHE: net.cache_dir = optarg; break;
+        case OPT_NAME: net.name = optarg; break;
         case 'h': usage(stdout); return 0;
         default: usage(stderr); return 2;
         }
         if (bad)
             return 2;
+        char *seen = c >= OPT_SERVER ? farm_opt : c != OPT_THREADS ? standalone_opt : NULL;
+        if (seen && c == 'o')
+            snprintf(seen, 40, "-o");
+        else if (seen && c == 'q')
+            snprintf(seen, 40, "-q");
+        else if (seen)
+            snprintf(seen, 40, "--%s", longopts[li].name);
     }
     if (optind < argc) {
         fprintf(stderr, "ptworker: unexpected argument '%s'\n", argv[optind]);
         usage(stderr);
         return 2;
     }
+    if (net.server || farm_opt[0]) {
+        if (!net.server) {
+            fprintf(stderr, "ptworker: %s needs --server\n", farm_opt);
+            usage(stderr);
+            return 2;
+        }
+        if (standalone_opt[0]) {
+            fprintf(stderr, "ptworker: %s is a standalone option; not with --server\n",
+                    standalone_opt);
+            return 2;
+        }
+        if (net.name && (!net.name[0] || strlen(net.name) > PROTO_MAX_NAME)) {
+            fprintf(stderr, "ptworker: --name: 1 to %u bytes\n", PROTO_MAX_NAME);
+            return 2;
+        }
+        net.threads = o.threads;
+        if (net.threads == 0) {
+            long n = sysconf(_SC_NPROCESSORS_ONLN);
+            net.threads = n > 0 ? (uint32_t)n : 1;
+            if (net.threads > PROTO_MAX_SLOTS / 2)
+                net.threads = PROTO_MAX_SLOTS / 2;
+        }
+        net.prefetch = has_prefetch ? prefetch : net.threads;
+        if (!has_prefetch && net.threads + net.prefetch > PROTO_MAX_SLOTS)
+            net.prefetch = PROTO_MAX_SLOTS - net.threads;
+        if (net.threads + net.prefetch > PROTO_MAX_SLOTS) {
+            fprintf(stderr, "ptworker: --threads + --prefetch is %u, over %u\n",
+                    net.threads + net.prefetch, PROTO_MAX_SLOTS);
+            return 2;
+        }
+        return wrk_client_run(&net);
+    }
     if (!o.scene_path || !o.out_path) {
-        fprintf(stderr, "ptworker: --scene and -o are required\n");
+        fprintf(stderr, "ptworker: --scene and -o are required (or --server HOST:PORT)\n");
         usage(stderr);
         return 2;
     }

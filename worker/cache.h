@@ -1,0 +1,86 @@
+/*
+ * cache.h - the worker's scene caches: bundles on disk, renderers in memory.
+ *
+ * On disk (wrk_cache): a folder holding, per scene, <hex>.bundle (the bundle's
+ * bytes, named by the lower-case hex SHA-256 of those bytes) and <hex>/ (the
+ * bundle unpacked). Both appear only by rename(2) of a finished temporary
+ * (".tmp-<hex>-<pid>-<n>", fsync'd before the rename for the bundle), so a
+ * crash never leaves a file or folder under a final name that looks complete
+ * but is not. Several worker processes may share one folder: a rename that
+ * loses a race to an identical result is harmless, and temporaries left by a
+ * dead process (its pid no longer exists) are removed by wrk_cache_open.
+ * A lookup re-hashes the bundle: a corrupt one is removed with its folder and
+ * reported, so that the caller fetches it again.
+ * The disk cache is used by one thread at a time (the I/O thread).
+ *
+ * In memory (wrk_scenes): loaded scenes with their renderer, keyed by scene
+ * hash + render parameters, at most `max` of them kept while unused (least
+ * recently used evicted). Thread-safe: the first thread that asks for a key
+ * loads and builds it outside the lock while later askers wait for it, so a
+ * scene is built once however many render threads want it at the same time.
+ */
+#ifndef PT_WORKER_CACHE_H
+#define PT_WORKER_CACHE_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "common/error.h"
+#include "common/render.h"
+
+#define WRK_HASH_SIZE 32u
+
+/* ---- on disk ------------------------------------------------------------------------ */
+
+typedef struct wrk_cache wrk_cache;
+
+/* Opens (creating it and its parents when missing) the cache folder dir and
+ * removes the temporaries of processes that no longer exist. */
+pt_status wrk_cache_open(const char *dir, wrk_cache **out, pt_error *err);
+void wrk_cache_close(wrk_cache *c); /* accepts NULL */
+const char *wrk_cache_dir(const wrk_cache *c);
+
+/* Finds the scene with this content hash. PT_OK: entry (cap bytes) receives the
+ * path of its entry file, unpacked again from the bundle when the folder was
+ * missing. PT_AGAIN: not cached. PT_ERR_FORMAT: the cached bundle's bytes no
+ * longer hash to its name or are malformed; both files were removed, so a
+ * later lookup says PT_AGAIN. PT_ERR_IO / PT_ERR_NOMEM / PT_ERR_LIMIT
+ * otherwise. Reads and hashes the whole bundle (about 1 s per GiB). */
+pt_status wrk_cache_lookup(wrk_cache *c, const uint8_t hash[WRK_HASH_SIZE], char *entry,
+                           size_t cap, pt_error *err);
+
+/* Stores a fetched bundle: checks that SHA-256(data) equals hash (PT_ERR_FORMAT
+ * otherwise, nothing written) and its layout, writes <hex>.bundle and unpacks
+ * it into <hex>/, and puts the entry file's path in entry. */
+pt_status wrk_cache_store(wrk_cache *c, const uint8_t hash[WRK_HASH_SIZE], const uint8_t *data,
+                          size_t size, char *entry, size_t cap, pt_error *err);
+
+/* Lower-case hex of a content hash (65 bytes with the NUL). */
+void wrk_hash_hex(const uint8_t hash[WRK_HASH_SIZE], char out[65]);
+
+/* ---- in memory ---------------------------------------------------------------------- */
+
+typedef struct wrk_scenes wrk_scenes;
+typedef struct wrk_scene_ref wrk_scene_ref; /* one use of a cached renderer */
+
+/* max: entries kept while nobody uses them (at least 1). */
+pt_status wrk_scenes_new(uint32_t max, wrk_scenes **out, pt_error *err);
+/* Frees every entry; none may be in use. Accepts NULL. */
+void wrk_scenes_free(wrk_scenes *s);
+
+/* The renderer for (hash, params), loading entry_path (the scene's entry file)
+ * and building it when it is not cached; blocks while another thread builds
+ * the same key. On failure the error of that build is returned to it and to
+ * every thread that waited for it, and the key is forgotten (a later acquire
+ * tries again). Release each PT_OK reference with wrk_scenes_release. */
+pt_status wrk_scenes_acquire(wrk_scenes *s, const uint8_t hash[WRK_HASH_SIZE],
+                             const pt_render_params *params, const char *entry_path,
+                             wrk_scene_ref **out, pt_error *err);
+const pt_renderer *wrk_scene_renderer(const wrk_scene_ref *ref);
+void wrk_scenes_release(wrk_scenes *s, wrk_scene_ref *ref); /* accepts NULL */
+
+/* Scenes built so far (failed builds included) and entries held now (tests). */
+uint64_t wrk_scenes_builds(wrk_scenes *s);
+uint32_t wrk_scenes_count(wrk_scenes *s);
+
+#endif

@@ -1,0 +1,1190 @@
+#include "worker/client.h"
+
+#include <errno.h>
+#include <fcntl.h>
+#include <poll.h>
+#include <pthread.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/socket.h>
+#include <sys/stat.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "common/alloc.h"
+#include "common/bundle.h"
+#include "common/net.h"
+#include "common/render.h"
+#include "protocol/auth.h"
+#include "protocol/frame.h"
+#include "protocol/msg.h"
+#include "worker/cache.h"
+
+#define BACKOFF_MIN_MS 200
+#define BACKOFF_MAX_MS 10000
+#define CONNECT_TIMEOUT_MS 5000
+#define HANDSHAKE_TIMEOUT_MS 15000
+#define HEARTBEAT_MIN_MS 200
+#define IN_MAX ((size_t)PROTO_MAX_PAYLOAD + PROTO_FRAME_OVERHEAD)
+#define OUT_MAX ((size_t)32 << 20)
+/* Finished results wait in the done list while this much output is unsent:
+ * a coordinator that stops reading gets backpressure, not an unbounded buffer. */
+#define OUT_HIGH_WATER ((size_t)8 << 20)
+#define SCENES_IN_MEMORY 2u
+
+/* ---- shared between the I/O thread and the render threads ---------------------------- */
+
+typedef struct task_item {
+    proto_task t;
+    char *entry;   /* the scene's entry file (pt_strdup) once known */
+    uint64_t epoch; /* connection it belongs to */
+    struct task_item *next;
+} task_item;
+
+typedef struct done_item {
+    proto_task t;
+    uint64_t epoch;
+    pt_status st;          /* PT_OK: pixels hold the result */
+    pt_error err;          /* why not */
+    pt_render_stats stats;
+    pt_pixel_acc *pixels;
+    struct done_item *next;
+} done_item;
+
+typedef struct running_slot {
+    int active;
+    uint64_t task_id;
+    uint32_t lease_ms;
+    uint64_t epoch;
+} running_slot;
+
+typedef struct worker worker;
+
+typedef struct render_arg {
+    worker *w;
+    uint32_t index;
+} render_arg;
+
+/* I/O-thread state for one scene hash: known on disk, or being fetched. */
+typedef struct scene_rec {
+    uint8_t hash[PROTO_HASH_SIZE];
+    char *entry;      /* entry file path, NULL until cached */
+    int fetching;     /* a SCENE_GET is outstanding on this connection */
+    uint8_t *buf;     /* bytes received so far */
+    size_t len, cap;
+    uint64_t total;   /* from the first chunk */
+    struct scene_rec *next;
+} scene_rec;
+
+enum { S_HELLO, S_AUTH, S_READY };
+/* How a session ended. */
+enum { END_RETRY, END_STOP, END_FATAL };
+
+struct worker {
+    const wrk_client_opts *o;
+    char host[256];
+    uint16_t port;
+    char name[PROTO_MAX_NAME + 1];
+    uint8_t token[PROTO_TOKEN_MAX];
+    size_t token_len;
+    uint32_t slots_max; /* threads + prefetch */
+
+    wrk_cache *cache;
+    wrk_scenes *scenes;
+
+    /* Shared, under mu. */
+    pthread_mutex_t mu;
+    pthread_cond_t cv;      /* queue got a task, or stop */
+    pthread_cond_t exit_cv; /* a render thread ended */
+    task_item *q_head, *q_tail;
+    uint32_t nqueued;
+    done_item *d_head, *d_tail;
+    running_slot *running;
+    uint32_t threads_alive;
+    uint64_t epoch;
+    int stop;
+    int wake_w; /* render threads write a byte here */
+
+    /* I/O thread only. */
+    int wake_r;
+    int fd;
+    int state;
+    uint8_t *in;
+    size_t in_start, in_len, in_cap;
+    proto_writer out;
+    size_t out_sent;
+    uint32_t requested;  /* slots asked for, TASKs not yet received */
+    task_item *pending;  /* tasks waiting for their scene */
+    uint32_t npending;
+    scene_rec *scenes_known;
+    uint64_t t_connect, t_heartbeat;
+    char reason[1600]; /* why the session ended */
+
+    /* Totals for the summary. */
+    uint64_t tasks_done, samples, failed;
+    uint64_t t_start;
+};
+
+static volatile sig_atomic_t g_stop;
+static int g_sig_w = -1;
+
+static void on_signal(int sig)
+{
+    (void)sig;
+    int e = errno;
+    g_stop = 1;
+    if (g_sig_w >= 0) {
+        char b = 1;
+        ssize_t r = write(g_sig_w, &b, 1);
+        (void)r;
+    }
+    errno = e;
+}
+
+static uint64_t now_ms(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (uint64_t)ts.tv_sec * 1000u + (uint64_t)ts.tv_nsec / 1000000u;
+}
+
+static int make_pipe(int fds[2])
+{
+    if (pipe(fds) != 0)
+        return -1;
+    for (int i = 0; i < 2; i++) {
+        fcntl(fds[i], F_SETFL, fcntl(fds[i], F_GETFL) | O_NONBLOCK);
+        fcntl(fds[i], F_SETFD, FD_CLOEXEC);
+    }
+    return 0;
+}
+
+static void drain(int fd)
+{
+    char buf[256];
+    while (read(fd, buf, sizeof buf) > 0) {
+    }
+}
+
+void wrk_client_default_cache_dir(char *buf, size_t cap)
+{
+    const char *x = getenv("XDG_CACHE_HOME"), *home = getenv("HOME");
+    if (x && x[0] == '/')
+        snprintf(buf, cap, "%s/ptfarm", x);
+    else if (home && home[0] == '/')
+        snprintf(buf, cap, "%s/.cache/ptfarm", home);
+    else
+        snprintf(buf, cap, "/tmp/ptfarm-cache-%ld", (long)getuid());
+}
+
+static void task_free(task_item *t)
+{
+    if (t) {
+        pt_free(t->entry);
+        pt_free(t);
+    }
+}
+
+static void done_free(done_item *d)
+{
+    if (d) {
+        pt_free(d->pixels);
+        pt_free(d);
+    }
+}
+
+/* ---- render threads ------------------------------------------------------------------ */
+
+static void render_one(worker *w, const task_item *t, done_item *d)
+{
+    const proto_task *k = &t->t;
+    pt_render_params p;
+    memset(&p, 0, sizeof p);
+    pt_render_params_default(&p);
+    p.width = k->width;
+    p.height = k->height;
+    p.seed = k->seed;
+    p.max_depth = k->max_depth;
+    p.rr_depth = k->rr_depth;
+    p.light_strategy = PT_LIGHT_MIS;
+    size_t npx = (size_t)(k->tile.x1 - k->tile.x0) * (k->tile.y1 - k->tile.y0);
+    d->pixels = pt_malloc_array(npx, sizeof *d->pixels);
+    if (!d->pixels) {
+        d->st = pt_error_set(&d->err, PT_ERR_NOMEM, "out of memory for %zu pixels", npx);
+        return;
+    }
+    wrk_scene_ref *ref = NULL;
+    d->st = wrk_scenes_acquire(w->scenes, k->scene_hash, &p, t->entry, &ref, &d->err);
+    if (d->st != PT_OK)
+        return;
+    pt_render_tile(wrk_scene_renderer(ref), k->tile, k->s0, k->s1, d->pixels, &d->stats);
+    wrk_scenes_release(w->scenes, ref);
+}
+
+static void wake_io(worker *w)
+{
+    char b = 1;
+    ssize_t r = write(w->wake_w, &b, 1); /* EAGAIN: a wake-up is pending anyway */
+    (void)r;
+}
+
+static void *render_thread(void *p)
+{
+    render_arg *a = p;
+    worker *w = a->w;
+    running_slot *slot = &w->running[a->index];
+    pthread_mutex_lock(&w->mu);
+    for (;;) {
+        while (!w->stop && !w->q_head)
+            pthread_cond_wait(&w->cv, &w->mu);
+        if (w->stop)
+            break;
+        task_item *t = w->q_head;
+        w->q_head = t->next;
+        if (!w->q_head)
+            w->q_tail = NULL;
+        w->nqueued--;
+        slot->active = 1;
+        slot->task_id = t->t.task_id;
+        slot->lease_ms = t->t.lease_ms;
+        slot->epoch = t->epoch;
+        pthread_mutex_unlock(&w->mu);
+
+        done_item *d = pt_calloc(1, sizeof *d);
+        if (d) {
+            d->t = t->t;
+            d->epoch = t->epoch;
+            render_one(w, t, d);
+        }
+        task_free(t);
+
+        pthread_mutex_lock(&w->mu);
+        slot->active = 0;
+        if (d && d->epoch == w->epoch && !w->stop) {
+            if (w->d_tail)
+                w->d_tail->next = d;
+            else
+                w->d_head = d;
+            w->d_tail = d;
+        } else {
+            done_free(d); /* the connection it came on is gone: the coordinator requeued it */
+        }
+        wake_io(w); /* also when d is NULL: a slot is free */
+    }
+    w->threads_alive--;
+    pthread_cond_broadcast(&w->exit_cv);
+    pthread_mutex_unlock(&w->mu);
+    return NULL;
+}
+
+/* ---- output -------------------------------------------------------------------------- */
+
+/* Sends what the socket takes now. 0, or -1 with w->reason set. */
+static int flush_out(worker *w)
+{
+    while (w->out_sent < w->out.len) {
+        ssize_t n = send(w->fd, w->out.buf + w->out_sent, w->out.len - w->out_sent,
+                         MSG_NOSIGNAL | MSG_DONTWAIT);
+        if (n < 0 && errno == EINTR)
+            continue;
+        if (n < 0 && (errno == EAGAIN || errno == EWOULDBLOCK))
+            break;
+        if (n <= 0) {
+            snprintf(w->reason, sizeof w->reason, "send: %s", strerror(errno));
+            return -1;
+        }
+        w->out_sent += (size_t)n;
+    }
+    if (w->out_sent == w->out.len) {
+        proto_writer_reset(&w->out);
+        w->out_sent = 0;
+    } else if (w->out_sent >= ((size_t)1 << 20)) {
+        /* Move the unsent tail to the front so the buffer does not creep. */
+        size_t left = w->out.len - w->out_sent;
+        memmove(w->out.buf, w->out.buf + w->out_sent, left);
+        proto_writer_truncate(&w->out, left);
+        w->out_sent = 0;
+    }
+    return 0;
+}
+
+static size_t out_pending(const worker *w)
+{
+    return w->out.len - w->out_sent;
+}
+
+/* Frames one message: the encoder is called between begin and end. */
+#define SEND_MSG(w, type, encode_call)                                                       \
+    do {                                                                                     \
+        size_t mark_;                                                                        \
+        pt_error e_ = {0};                                                                   \
+        if (proto_frame_begin(&(w)->out, (type), &mark_, &e_) != PT_OK) {                    \
+            snprintf((w)->reason, sizeof (w)->reason, "cannot queue %s: %s",                 \
+                     proto_msg_type_name(type), e_.msg);                                     \
+            return -1;                                                                       \
+        }                                                                                    \
+        if ((encode_call) != PT_OK) {                                                        \
+            proto_frame_cancel(&(w)->out, mark_);                                            \
+            snprintf((w)->reason, sizeof (w)->reason, "cannot encode %s",                    \
+                     proto_msg_type_name(type));                                             \
+            return -1;                                                                       \
+        }                                                                                    \
+        if (proto_frame_end(&(w)->out, mark_, &e_) != PT_OK) {                               \
+            snprintf((w)->reason, sizeof (w)->reason, "cannot queue %s: %s",                 \
+                     proto_msg_type_name(type), e_.msg);                                     \
+            return -1;                                                                       \
+        }                                                                                    \
+    } while (0)
+
+static int send_hello(worker *w)
+{
+    proto_hello h;
+    memset(&h, 0, sizeof h);
+    h.version = PROTO_VERSION;
+    h.role = PROTO_ROLE_WORKER;
+    snprintf(h.name, sizeof h.name, "%s", w->name);
+    h.threads = (uint16_t)w->o->threads;
+    snprintf(h.build_id, sizeof h.build_id, "%s", proto_build_id());
+    h.caps = 0;
+    SEND_MSG(w, PROTO_MSG_HELLO, proto_msg_encode_hello(&w->out, &h, NULL));
+    return 0;
+}
+
+static int send_scene_get(worker *w, const uint8_t *hash, uint64_t offset)
+{
+    proto_scene_get g;
+    memcpy(g.hash, hash, PROTO_HASH_SIZE);
+    g.offset = offset;
+    SEND_MSG(w, PROTO_MSG_SCENE_GET, proto_msg_encode_scene_get(&w->out, &g, NULL));
+    return 0;
+}
+
+/* Tells the coordinator why we hang up (best effort; it closes after ERROR too). */
+static void send_error(worker *w, uint16_t code, const char *text)
+{
+    proto_error_msg m;
+    m.code = code;
+    snprintf(m.text, sizeof m.text, "%s", text);
+    size_t mark;
+    if (proto_frame_begin(&w->out, PROTO_MSG_ERROR, &mark, NULL) != PT_OK)
+        return;
+    if (proto_msg_encode_error(&w->out, &m, NULL) != PT_OK) {
+        proto_frame_cancel(&w->out, mark);
+        return;
+    }
+    if (proto_frame_end(&w->out, mark, NULL) == PT_OK)
+        flush_out(w);
+}
+
+/* ---- the task pipeline --------------------------------------------------------------- */
+
+/* Tasks held: waiting for a scene, queued, running, finished but unsent. */
+static uint32_t held(worker *w, uint32_t *queued_running)
+{
+    pthread_mutex_lock(&w->mu);
+    uint32_t n = w->nqueued;
+    for (uint32_t i = 0; i < w->o->threads; i++)
+        n += w->running[i].active && w->running[i].epoch == w->epoch;
+    pthread_mutex_unlock(&w->mu);
+    if (queued_running)
+        *queued_running = n;
+    return n + w->npending;
+}
+
+static int request_work(worker *w)
+{
+    uint32_t busy = held(w, NULL) + w->requested;
+    if (busy >= w->slots_max)
+        return 0;
+    uint32_t slots = w->slots_max - busy;
+    if (slots > PROTO_MAX_SLOTS)
+        slots = PROTO_MAX_SLOTS;
+    proto_work_request r = {(uint16_t)slots};
+    SEND_MSG(w, PROTO_MSG_WORK_REQUEST, proto_msg_encode_work_request(&w->out, &r, NULL));
+    w->requested += slots;
+    return 0;
+}
+
+static int send_heartbeat(worker *w, uint64_t now)
+{
+    static proto_heartbeat hb; /* large; only the I/O thread uses it */
+    uint32_t min_lease = UINT32_MAX;
+    hb.count = 0;
+    for (task_item *t = w->pending; t; t = t->next) {
+        if (hb.count < PROTO_MAX_HEARTBEAT_TASKS)
+            hb.task_ids[hb.count++] = t->t.task_id;
+        if (t->t.lease_ms < min_lease)
+            min_lease = t->t.lease_ms;
+    }
+    pthread_mutex_lock(&w->mu);
+    for (task_item *t = w->q_head; t; t = t->next) {
+        if (hb.count < PROTO_MAX_HEARTBEAT_TASKS)
+            hb.task_ids[hb.count++] = t->t.task_id;
+        if (t->t.lease_ms < min_lease)
+            min_lease = t->t.lease_ms;
+    }
+    for (uint32_t i = 0; i < w->o->threads; i++) {
+        const running_slot *s = &w->running[i];
+        if (!s->active || s->epoch != w->epoch)
+            continue;
+        if (hb.count < PROTO_MAX_HEARTBEAT_TASKS)
+            hb.task_ids[hb.count++] = s->task_id;
+        if (s->lease_ms < min_lease)
+            min_lease = s->lease_ms;
+    }
+    for (done_item *d = w->d_head; d; d = d->next)
+        if (hb.count < PROTO_MAX_HEARTBEAT_TASKS)
+            hb.task_ids[hb.count++] = d->t.task_id;
+    pthread_mutex_unlock(&w->mu);
+    uint32_t interval = min_lease == UINT32_MAX ? 1000u : min_lease / 3;
+    if (interval < HEARTBEAT_MIN_MS)
+        interval = HEARTBEAT_MIN_MS;
+    w->t_heartbeat = now + interval;
+    if (hb.count == 0)
+        return 0; /* nothing to keep alive */
+    SEND_MSG(w, PROTO_MSG_HEARTBEAT, proto_msg_encode_heartbeat(&w->out, &hb, NULL));
+    return 0;
+}
+
+static void enqueue(worker *w, task_item *t)
+{
+    pthread_mutex_lock(&w->mu);
+    t->next = NULL;
+    if (w->q_tail)
+        w->q_tail->next = t;
+    else
+        w->q_head = t;
+    w->q_tail = t;
+    w->nqueued++;
+    pthread_cond_signal(&w->cv);
+    pthread_mutex_unlock(&w->mu);
+}
+
+static scene_rec *scene_find(worker *w, const uint8_t *hash, int create)
+{
+    for (scene_rec *s = w->scenes_known; s; s = s->next)
+        if (memcmp(s->hash, hash, PROTO_HASH_SIZE) == 0)
+            return s;
+    if (!create)
+        return NULL;
+    scene_rec *s = pt_calloc(1, sizeof *s);
+    if (!s)
+        return NULL;
+    memcpy(s->hash, hash, PROTO_HASH_SIZE);
+    s->next = w->scenes_known;
+    w->scenes_known = s;
+    return s;
+}
+
+static void fetch_reset(scene_rec *s)
+{
+    pt_free(s->buf);
+    s->buf = NULL;
+    s->len = s->cap = 0;
+    s->total = 0;
+    s->fetching = 0;
+}
+
+/* The scene is on disk: its waiting tasks go to the render queue. */
+static int scene_ready(worker *w, scene_rec *s)
+{
+    task_item **pp = &w->pending;
+    while (*pp) {
+        task_item *t = *pp;
+        if (memcmp(t->t.scene_hash, s->hash, PROTO_HASH_SIZE) != 0) {
+            pp = &t->next;
+            continue;
+        }
+        *pp = t->next;
+        w->npending--;
+        t->entry = pt_strdup(s->entry);
+        if (!t->entry) {
+            snprintf(w->reason, sizeof w->reason, "out of memory");
+            task_free(t);
+            return -1;
+        }
+        enqueue(w, t);
+    }
+    return 0;
+}
+
+static int on_task(worker *w, const proto_frame *f)
+{
+    pt_error err = {0};
+    task_item *t = pt_calloc(1, sizeof *t);
+    if (!t) {
+        snprintf(w->reason, sizeof w->reason, "out of memory");
+        return -1;
+    }
+    if (proto_msg_decode_task(f->payload, f->len, &t->t, &err) != PT_OK) {
+        snprintf(w->reason, sizeof w->reason, "bad TASK: %s", err.msg);
+        pt_free(t);
+        return -1;
+    }
+    if (w->requested == 0) {
+        snprintf(w->reason, sizeof w->reason, "TASK %llu was not asked for",
+                 (unsigned long long)t->t.task_id);
+        pt_free(t);
+        return -1;
+    }
+    w->requested--;
+    pthread_mutex_lock(&w->mu);
+    t->epoch = w->epoch;
+    pthread_mutex_unlock(&w->mu);
+
+    scene_rec *s = scene_find(w, t->t.scene_hash, 1);
+    if (!s) {
+        snprintf(w->reason, sizeof w->reason, "out of memory");
+        pt_free(t);
+        return -1;
+    }
+    if (!s->entry && !s->fetching) {
+        char entry[4096], hex[65];
+        pt_status st = wrk_cache_lookup(w->cache, s->hash, entry, sizeof entry, &err);
+        if (st == PT_OK) {
+            s->entry = pt_strdup(entry);
+            if (!s->entry) {
+                snprintf(w->reason, sizeof w->reason, "out of memory");
+                pt_free(t);
+                return -1;
+            }
+        } else {
+            if (st != PT_AGAIN)
+                fprintf(stderr, "ptworker: %s; fetching it again\n", err.msg);
+            wrk_hash_hex(s->hash, hex);
+            fprintf(stderr, "ptworker: fetching scene %.16s\n", hex);
+            if (send_scene_get(w, s->hash, 0) != 0) {
+                pt_free(t);
+                return -1;
+            }
+            s->fetching = 1;
+        }
+    }
+    if (s->entry) {
+        t->entry = pt_strdup(s->entry);
+        if (!t->entry) {
+            snprintf(w->reason, sizeof w->reason, "out of memory");
+            pt_free(t);
+            return -1;
+        }
+        enqueue(w, t);
+    } else {
+        t->next = w->pending;
+        w->pending = t;
+        w->npending++;
+    }
+    return 0;
+}
+
+static int on_scene_chunk(worker *w, const proto_frame *f)
+{
+    pt_error err = {0};
+    proto_scene_chunk c;
+    if (proto_msg_decode_scene_chunk(f->payload, f->len, &c, &err) != PT_OK) {
+        snprintf(w->reason, sizeof w->reason, "bad SCENE_CHUNK: %s", err.msg);
+        return -1;
+    }
+    char hex[65];
+    wrk_hash_hex(c.hash, hex);
+    scene_rec *s = scene_find(w, c.hash, 0);
+    if (!s || !s->fetching) {
+        snprintf(w->reason, sizeof w->reason, "SCENE_CHUNK for scene %.16s, not asked for", hex);
+        return -1;
+    }
+    if (c.offset != s->len || (s->len > 0 && c.total != s->total)) {
+        snprintf(w->reason, sizeof w->reason,
+                 "SCENE_CHUNK for %.16s at %llu of %llu, expected %zu of %llu", hex,
+                 (unsigned long long)c.offset, (unsigned long long)c.total, s->len,
+                 (unsigned long long)s->total);
+        return -1;
+    }
+    if (c.total == 0 || c.total > PT_BUNDLE_MAX_BYTES) {
+        snprintf(w->reason, sizeof w->reason, "scene %.16s of %llu bytes (cap %llu)", hex,
+                 (unsigned long long)c.total, (unsigned long long)PT_BUNDLE_MAX_BYTES);
+        return -1;
+    }
+    if (c.len == 0 && c.offset < c.total) {
+        snprintf(w->reason, sizeof w->reason, "empty SCENE_CHUNK for %.16s at %llu", hex,
+                 (unsigned long long)c.offset);
+        return -1;
+    }
+    s->total = c.total;
+    if (s->len + c.len > s->cap) {
+        /* Grow by doubling, never past the declared total. */
+        size_t cap = s->cap ? s->cap * 2 : ((size_t)1 << 20);
+        if (cap < s->len + c.len)
+            cap = s->len + c.len;
+        if (cap > s->total)
+            cap = (size_t)s->total;
+        uint8_t *nb = pt_realloc(s->buf, cap);
+        if (!nb) {
+            snprintf(w->reason, sizeof w->reason, "out of memory for scene %.16s (%zu bytes)",
+                     hex, cap);
+            return -1;
+        }
+        s->buf = nb;
+        s->cap = cap;
+    }
+    memcpy(s->buf + s->len, c.data, c.len);
+    s->len += c.len;
+    if (s->len < s->total)
+        return send_scene_get(w, s->hash, s->len);
+
+    char entry[4096];
+    pt_status st = wrk_cache_store(w->cache, s->hash, s->buf, s->len, entry, sizeof entry, &err);
+    fetch_reset(s);
+    if (st != PT_OK) {
+        snprintf(w->reason, sizeof w->reason, "scene %.16s: %s", hex, err.msg);
+        return -1;
+    }
+    s->entry = pt_strdup(entry);
+    if (!s->entry) {
+        snprintf(w->reason, sizeof w->reason, "out of memory");
+        return -1;
+    }
+    fprintf(stderr, "ptworker: scene %.16s cached (%llu bytes)\n", hex,
+            (unsigned long long)c.total);
+    return scene_ready(w, s);
+}
+
+/* Moves finished results into the output, while it is not too full. */
+static int collect_results(worker *w)
+{
+    for (;;) {
+        if (out_pending(w) >= OUT_HIGH_WATER)
+            return 0;
+        pthread_mutex_lock(&w->mu);
+        done_item *d = w->d_head;
+        if (d) {
+            w->d_head = d->next;
+            if (!w->d_head)
+                w->d_tail = NULL;
+        }
+        pthread_mutex_unlock(&w->mu);
+        if (!d)
+            return 0;
+        if (d->st != PT_OK) {
+            /* Dropped: the lease runs out and the coordinator hands it to another. */
+            fprintf(stderr, "ptworker: task %llu of job %llu failed: %s\n",
+                    (unsigned long long)d->t.task_id, (unsigned long long)d->t.job_id,
+                    d->err.msg);
+            w->failed++;
+            done_free(d);
+            continue;
+        }
+        proto_result r;
+        memset(&r, 0, sizeof r);
+        r.job_id = d->t.job_id;
+        r.task_id = d->t.task_id;
+        r.tile = d->t.tile;
+        r.s0 = d->t.s0;
+        r.s1 = d->t.s1;
+        r.rejected = d->stats.rejected;
+        r.rays = d->stats.rays;
+        r.npixels = (d->t.tile.x1 - d->t.tile.x0) * (d->t.tile.y1 - d->t.tile.y0);
+        r.pixels = d->pixels;
+        r.owns_pixels = 0;
+        uint64_t samples = d->stats.samples;
+        int bad = 0;
+        size_t mark;
+        pt_error e = {0};
+        if (proto_frame_begin(&w->out, PROTO_MSG_RESULT, &mark, &e) != PT_OK)
+            bad = 1;
+        else if (proto_msg_encode_result(&w->out, &r, &e) != PT_OK) {
+            proto_frame_cancel(&w->out, mark);
+            bad = 1;
+        } else if (proto_frame_end(&w->out, mark, &e) != PT_OK)
+            bad = 1;
+        done_free(d);
+        if (bad) {
+            snprintf(w->reason, sizeof w->reason, "cannot queue RESULT: %s", e.msg);
+            return -1;
+        }
+        w->tasks_done++;
+        w->samples += samples;
+    }
+}
+
+/* ---- input --------------------------------------------------------------------------- */
+
+static int fatal_code(uint16_t code)
+{
+    return code == PROTO_E_AUTH || code == PROTO_E_BUILD || code == PROTO_E_VERSION;
+}
+
+static int on_challenge(worker *w, const proto_frame *f)
+{
+    pt_error err = {0};
+    proto_challenge ch;
+    if (proto_msg_decode_challenge(f->payload, f->len, &ch, &err) != PT_OK) {
+        snprintf(w->reason, sizeof w->reason, "bad CHALLENGE: %s", err.msg);
+        return -1;
+    }
+    proto_auth a;
+    pt_status st;
+    if (w->token_len > 0) {
+        st = proto_auth_response(w->token, w->token_len, ch.nonce, a.mac, &err);
+    } else {
+        /* No token: the same MAC under the empty key (proto_auth_response
+         * takes tokens of at least one byte). */
+        uint8_t msg[sizeof PROTO_AUTH_LABEL - 1 + PROTO_NONCE_SIZE];
+        memcpy(msg, PROTO_AUTH_LABEL, sizeof PROTO_AUTH_LABEL - 1);
+        memcpy(msg + sizeof PROTO_AUTH_LABEL - 1, ch.nonce, PROTO_NONCE_SIZE);
+        st = proto_auth_hmac_sha256(NULL, 0, msg, sizeof msg, a.mac, &err);
+    }
+    if (st != PT_OK) {
+        snprintf(w->reason, sizeof w->reason, "cannot answer the challenge: %s", err.msg);
+        return -1;
+    }
+    SEND_MSG(w, PROTO_MSG_AUTH, proto_msg_encode_auth(&w->out, &a, NULL));
+    w->state = S_AUTH;
+    return 0;
+}
+
+/* Handles one frame. 0, or -1 (reason set; *end says how to go on). */
+static int dispatch(worker *w, const proto_frame *f, int *end)
+{
+    pt_error err = {0};
+    if (f->type == PROTO_MSG_ERROR) {
+        proto_error_msg m;
+        if (proto_msg_decode_error(f->payload, f->len, &m, &err) != PT_OK) {
+            snprintf(w->reason, sizeof w->reason, "bad ERROR: %s", err.msg);
+            return -1;
+        }
+        if (fatal_code(m.code)) {
+            fprintf(stderr, "ptworker: refused by %s:%u: %s\n", w->host, w->port, m.text);
+            *end = END_FATAL;
+        } else {
+            snprintf(w->reason, sizeof w->reason, "server said: %s (code %u)", m.text, m.code);
+        }
+        return -1;
+    }
+    switch (w->state) {
+    case S_HELLO:
+        if (f->type == PROTO_MSG_CHALLENGE)
+            return on_challenge(w, f);
+        break;
+    case S_AUTH:
+        if (f->type == PROTO_MSG_WELCOME) {
+            proto_welcome wm;
+            if (proto_msg_decode_welcome(f->payload, f->len, &wm, &err) != PT_OK) {
+                snprintf(w->reason, sizeof w->reason, "bad WELCOME: %s", err.msg);
+                return -1;
+            }
+            w->state = S_READY;
+            w->t_heartbeat = now_ms() + HEARTBEAT_MIN_MS;
+            fprintf(stderr, "ptworker: connected to %s:%u as %s (%u threads)\n", w->host,
+                    w->port, w->name, w->o->threads);
+            return 0;
+        }
+        break;
+    case S_READY:
+        if (f->type == PROTO_MSG_TASK)
+            return on_task(w, f);
+        if (f->type == PROTO_MSG_SCENE_CHUNK)
+            return on_scene_chunk(w, f);
+        break;
+    }
+    snprintf(w->reason, sizeof w->reason, "protocol error: unexpected %s from the server",
+             proto_msg_type_name(f->type));
+    send_error(w, PROTO_E_PROTOCOL, w->reason);
+    return -1;
+}
+
+/* Reads what is there and handles every whole frame. 0, or -1. */
+static int read_in(worker *w, int *end)
+{
+    if (w->in_start > 0) {
+        memmove(w->in, w->in + w->in_start, w->in_len - w->in_start);
+        w->in_len -= w->in_start;
+        w->in_start = 0;
+    }
+    if (w->in_cap - w->in_len < 65536 && w->in_cap < IN_MAX) {
+        size_t cap = w->in_cap * 2 < IN_MAX ? w->in_cap * 2 : IN_MAX;
+        uint8_t *nb = pt_realloc(w->in, cap);
+        if (!nb) {
+            snprintf(w->reason, sizeof w->reason, "out of memory for input");
+            return -1;
+        }
+        w->in = nb;
+        w->in_cap = cap;
+    }
+    ssize_t n = recv(w->fd, w->in + w->in_len, w->in_cap - w->in_len, MSG_DONTWAIT);
+    if (n < 0 && (errno == EINTR || errno == EAGAIN || errno == EWOULDBLOCK))
+        return 0;
+    if (n < 0) {
+        snprintf(w->reason, sizeof w->reason, "recv: %s", strerror(errno));
+        return -1;
+    }
+    if (n == 0) {
+        snprintf(w->reason, sizeof w->reason, "the server closed the connection");
+        return -1;
+    }
+    w->in_len += (size_t)n;
+    while (w->in_start < w->in_len) {
+        proto_frame f;
+        size_t used;
+        pt_error err = {0};
+        uint32_t cap = w->state == S_READY ? PROTO_MAX_PAYLOAD : PROTO_MAX_PAYLOAD_PREAUTH;
+        pt_status st = proto_frame_decode(w->in + w->in_start, w->in_len - w->in_start, cap, &f,
+                                          &used, &err);
+        if (st == PT_AGAIN)
+            break;
+        if (st != PT_OK) {
+            snprintf(w->reason, sizeof w->reason, "malformed frame from the server: %s",
+                     err.msg);
+            send_error(w, PROTO_E_PROTOCOL, w->reason);
+            return -1;
+        }
+        if (dispatch(w, &f, end) != 0)
+            return -1;
+        w->in_start += used;
+    }
+    return 0;
+}
+
+/* ---- sessions ------------------------------------------------------------------------ */
+
+/* Forgets everything the connection held: the coordinator requeues it. */
+static void drop_session(worker *w)
+{
+    if (w->fd >= 0)
+        close(w->fd);
+    w->fd = -1;
+    pthread_mutex_lock(&w->mu);
+    w->epoch++;
+    task_item *q = w->q_head;
+    w->q_head = w->q_tail = NULL;
+    w->nqueued = 0;
+    done_item *d = w->d_head;
+    w->d_head = w->d_tail = NULL;
+    pthread_mutex_unlock(&w->mu);
+    while (q) {
+        task_item *next = q->next;
+        task_free(q);
+        q = next;
+    }
+    while (d) {
+        done_item *next = d->next;
+        done_free(d);
+        d = next;
+    }
+    while (w->pending) {
+        task_item *next = w->pending->next;
+        task_free(w->pending);
+        w->pending = next;
+    }
+    w->npending = 0;
+    for (scene_rec *s = w->scenes_known; s; s = s->next)
+        fetch_reset(s);
+    w->requested = 0;
+    w->in_start = w->in_len = 0;
+    proto_writer_reset(&w->out);
+    w->out_sent = 0;
+}
+
+/* One connection, from connect to its end. Returns END_*. *welcomed is set
+ * when the handshake completed. */
+static int session(worker *w, int sig_r, int *welcomed)
+{
+    pt_error err = {0};
+    *welcomed = 0;
+    w->reason[0] = '\0';
+    if (pt_net_connect(w->host, w->port, CONNECT_TIMEOUT_MS, &w->fd, &err) != PT_OK) {
+        w->fd = -1;
+        snprintf(w->reason, sizeof w->reason, "%s", err.msg);
+        return g_stop ? END_STOP : END_RETRY;
+    }
+    if (pt_net_set_nonblock(w->fd, &err) != PT_OK) {
+        snprintf(w->reason, sizeof w->reason, "%s", err.msg);
+        drop_session(w);
+        return END_RETRY;
+    }
+    w->state = S_HELLO;
+    w->t_connect = now_ms();
+    int end = END_RETRY;
+    if (send_hello(w) != 0 || flush_out(w) != 0)
+        goto out;
+    for (;;) {
+        if (g_stop) {
+            end = END_STOP;
+            goto out;
+        }
+        uint64_t now = now_ms();
+        if (w->state == S_READY) {
+            *welcomed = 1;
+            if (collect_results(w) != 0 || request_work(w) != 0)
+                goto out;
+            if (now >= w->t_heartbeat && send_heartbeat(w, now) != 0)
+                goto out;
+            if (flush_out(w) != 0)
+                goto out;
+        } else if (now - w->t_connect > HANDSHAKE_TIMEOUT_MS) {
+            snprintf(w->reason, sizeof w->reason, "no WELCOME within %d s",
+                     HANDSHAKE_TIMEOUT_MS / 1000);
+            goto out;
+        }
+        int timeout;
+        if (w->state == S_READY)
+            timeout = w->t_heartbeat > now ? (int)(w->t_heartbeat - now) : 0;
+        else
+            timeout = (int)(w->t_connect + HANDSHAKE_TIMEOUT_MS - now) + 1;
+        if (timeout > 1000)
+            timeout = 1000;
+        struct pollfd p[3] = {
+            {w->fd, POLLIN | (out_pending(w) ? POLLOUT : 0), 0},
+            {w->wake_r, POLLIN, 0},
+            {sig_r, POLLIN, 0},
+        };
+        int n = poll(p, 3, timeout);
+        if (n < 0 && errno != EINTR) {
+            snprintf(w->reason, sizeof w->reason, "poll: %s", strerror(errno));
+            goto out;
+        }
+        if (n <= 0)
+            continue;
+        if (p[2].revents)
+            drain(sig_r);
+        if (p[1].revents)
+            drain(w->wake_r);
+        if (p[0].revents & POLLOUT && flush_out(w) != 0)
+            goto out;
+        if (p[0].revents & (POLLIN | POLLHUP | POLLERR)) {
+            if (read_in(w, &end) != 0)
+                goto out;
+        }
+    }
+out:
+    if (w->state == S_READY)
+        *welcomed = 1;
+    drop_session(w);
+    return end;
+}
+
+/* Sleeps ms, or less when a signal arrives. */
+static void backoff_sleep(int sig_r, uint32_t ms)
+{
+    uint64_t until = now_ms() + ms;
+    while (!g_stop) {
+        uint64_t now = now_ms();
+        if (now >= until)
+            break;
+        struct pollfd p = {sig_r, POLLIN, 0};
+        if (poll(&p, 1, (int)(until - now)) > 0)
+            drain(sig_r);
+    }
+}
+
+/* ---- setup and teardown -------------------------------------------------------------- */
+
+static int setup(worker *w, const wrk_client_opts *o)
+{
+    pt_error err = {0};
+    w->o = o;
+    w->fd = -1;
+    w->wake_r = w->wake_w = -1;
+    w->slots_max = o->threads + o->prefetch;
+    if (pt_net_split(o->server, w->host, sizeof w->host, &w->port, &err) != PT_OK) {
+        fprintf(stderr, "ptworker: --server: %s\n", err.msg);
+        return 2;
+    }
+    if (!w->host[0])
+        snprintf(w->host, sizeof w->host, "127.0.0.1");
+    if (o->name) {
+        snprintf(w->name, sizeof w->name, "%s", o->name);
+    } else {
+        char host[256];
+        if (gethostname(host, sizeof host) != 0)
+            snprintf(host, sizeof host, "worker");
+        host[sizeof host - 1] = '\0';
+        char pid[24];
+        snprintf(pid, sizeof pid, ":%ld", (long)getpid());
+        /* Keep the pid when the host name is long. */
+        size_t room = sizeof w->name - 1 - strlen(pid);
+        snprintf(w->name, sizeof w->name, "%.*s%s", (int)room, host, pid);
+    }
+    if (o->token_file) {
+        int loose = 0;
+        if (proto_token_load(o->token_file, w->token, sizeof w->token, &w->token_len, &loose,
+                             &err) != PT_OK) {
+            fprintf(stderr, "ptworker: %s\n", err.msg);
+            return 1;
+        }
+        if (loose)
+            fprintf(stderr, "ptworker: warning: %s is readable by other users\n",
+                    o->token_file);
+    }
+    char dir[2048];
+    if (o->cache_dir)
+        snprintf(dir, sizeof dir, "%s", o->cache_dir);
+    else
+        wrk_client_default_cache_dir(dir, sizeof dir);
+    if (wrk_cache_open(dir, &w->cache, &err) != PT_OK ||
+        wrk_scenes_new(SCENES_IN_MEMORY, &w->scenes, &err) != PT_OK) {
+        fprintf(stderr, "ptworker: %s\n", err.msg);
+        return 1;
+    }
+    w->in_cap = 65536;
+    w->in = pt_malloc(w->in_cap);
+    w->running = pt_calloc(o->threads, sizeof *w->running);
+    if (!w->in || !w->running) {
+        fprintf(stderr, "ptworker: out of memory\n");
+        return 1;
+    }
+    proto_writer_init(&w->out, OUT_MAX);
+    int fds[2];
+    if (make_pipe(fds) != 0) {
+        fprintf(stderr, "ptworker: pipe: %s\n", strerror(errno));
+        return 1;
+    }
+    w->wake_r = fds[0];
+    w->wake_w = fds[1];
+    pthread_mutex_init(&w->mu, NULL);
+    pthread_cond_init(&w->cv, NULL);
+    pthread_cond_init(&w->exit_cv, NULL);
+    return 0;
+}
+
+/* Waits up to ms for the render threads to end (each finishes its tile). */
+static int wait_threads(worker *w, uint32_t ms)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_REALTIME, &ts);
+    ts.tv_sec += ms / 1000;
+    ts.tv_nsec += (long)(ms % 1000) * 1000000L;
+    if (ts.tv_nsec >= 1000000000L) {
+        ts.tv_sec++;
+        ts.tv_nsec -= 1000000000L;
+    }
+    pthread_mutex_lock(&w->mu);
+    w->stop = 1;
+    pthread_cond_broadcast(&w->cv);
+    while (w->threads_alive > 0)
+        if (pthread_cond_timedwait(&w->exit_cv, &w->mu, &ts) != 0)
+            break;
+    int all = w->threads_alive == 0;
+    pthread_mutex_unlock(&w->mu);
+    return all;
+}
+
+int wrk_client_run(const wrk_client_opts *o)
+{
+    static worker wk; /* one per process: the signal handler is global anyway */
+    worker *w = &wk;
+    memset(w, 0, sizeof *w);
+    int rc = setup(w, o);
+    if (rc != 0)
+        return rc;
+
+    int sigp[2];
+    if (make_pipe(sigp) != 0) {
+        fprintf(stderr, "ptworker: pipe: %s\n", strerror(errno));
+        return 1;
+    }
+    g_sig_w = sigp[1];
+    struct sigaction sa;
+    memset(&sa, 0, sizeof sa);
+    sa.sa_handler = on_signal;
+    sigemptyset(&sa.sa_mask);
+    sigaction(SIGTERM, &sa, NULL);
+    sigaction(SIGINT, &sa, NULL);
+    signal(SIGPIPE, SIG_IGN);
+
+    /* Render threads never see SIGTERM/SIGINT: the I/O thread handles them. */
+    sigset_t block, old;
+    sigemptyset(&block);
+    sigaddset(&block, SIGTERM);
+    sigaddset(&block, SIGINT);
+    pthread_sigmask(SIG_BLOCK, &block, &old);
+    pthread_t *threads = pt_calloc(o->threads, sizeof *threads);
+    render_arg *args = pt_calloc(o->threads, sizeof *args);
+    uint32_t started = 0;
+    if (threads && args)
+        for (; started < o->threads; started++) {
+            args[started] = (render_arg){w, started};
+            pthread_mutex_lock(&w->mu);
+            w->threads_alive++;
+            pthread_mutex_unlock(&w->mu);
+            if (pthread_create(&threads[started], NULL, render_thread, &args[started]) != 0) {
+                pthread_mutex_lock(&w->mu);
+                w->threads_alive--;
+                pthread_mutex_unlock(&w->mu);
+                break;
+            }
+        }
+    pthread_sigmask(SIG_SETMASK, &old, NULL);
+    if (started < o->threads) {
+        fprintf(stderr, "ptworker: cannot start %u render threads\n", o->threads);
+        rc = 1;
+        g_stop = 1;
+    }
+
+    if (!g_stop)
+        fprintf(stderr,
+                "ptworker: farm worker %s: %u threads, prefetch %u, cache %s, server %s:%u%s\n",
+                w->name, o->threads, o->prefetch, wrk_cache_dir(w->cache), w->host, w->port,
+                w->token_len ? " (token)" : "");
+    w->t_start = now_ms();
+    uint32_t delay = BACKOFF_MIN_MS;
+    while (!g_stop) {
+        int welcomed = 0;
+        int end = session(w, sigp[0], &welcomed);
+        if (end == END_FATAL) {
+            rc = 1;
+            break;
+        }
+        if (end == END_STOP || g_stop)
+            break;
+        if (welcomed)
+            delay = BACKOFF_MIN_MS;
+        fprintf(stderr, "ptworker: %s %s:%u: %s; retrying in %.1f s\n",
+                welcomed ? "lost" : "cannot connect to", w->host, w->port, w->reason,
+                delay / 1000.0);
+        backoff_sleep(sigp[0], delay);
+        delay = delay * 2 > BACKOFF_MAX_MS ? BACKOFF_MAX_MS : delay * 2;
+    }
+
+    double secs = (double)(now_ms() - w->t_start) / 1000.0;
+    fprintf(stderr, "ptworker: %s: %llu tasks done, %llu samples, %.4g samples/s over %.1f s",
+            rc == 0 ? "stopped" : "giving up", (unsigned long long)w->tasks_done,
+            (unsigned long long)w->samples, secs > 0 ? (double)w->samples / secs : 0.0, secs);
+    if (w->failed)
+        fprintf(stderr, ", %llu failed", (unsigned long long)w->failed);
+    fputc('\n', stderr);
+
+    /* Finish nothing: threads end after the tile they are in. A tile of a
+     * huge scene may take long; then the process ends without freeing. */
+    if (!wait_threads(w, 2000)) {
+        fflush(stdout);
+        fflush(stderr);
+        _exit(rc);
+    }
+    for (uint32_t i = 0; i < started; i++)
+        pthread_join(threads[i], NULL);
+    drop_session(w);
+    while (w->scenes_known) {
+        scene_rec *next = w->scenes_known->next;
+        fetch_reset(w->scenes_known);
+        pt_free(w->scenes_known->entry);
+        pt_free(w->scenes_known);
+        w->scenes_known = next;
+    }
+    pt_free(threads);
+    pt_free(args);
+    wrk_scenes_free(w->scenes);
+    wrk_cache_close(w->cache);
+    proto_writer_fini(&w->out);
+    pt_free(w->in);
+    pt_free(w->running);
+    close(w->wake_r);
+    close(w->wake_w);
+    g_sig_w = -1;
+    close(sigp[0]);
+    close(sigp[1]);
+    pthread_cond_destroy(&w->exit_cv);
+    pthread_cond_destroy(&w->cv);
+    pthread_mutex_destroy(&w->mu);
+    return rc;
+}
