@@ -837,8 +837,10 @@ void hash_files(importer &im, const std::vector<unsigned char> &entry)
         snprintf(hex + 2 * i, 3, "%02x", md[i]);
     pt_scene_builder_set_hash(im.b, hex);
     // Buffers are in the model already; keep only the image files.
+    std::set<std::string> image_uris(uris.begin() + long(nbuf), uris.end());
     for (size_t i = 0; i < nbuf; i++)
-        im.files.erase(uris[i]);
+        if (!image_uris.count(uris[i]))
+            im.files.erase(uris[i]);
 }
 
 void parse(importer &im, const std::vector<unsigned char> &bytes)
@@ -847,12 +849,14 @@ void parse(importer &im, const std::vector<unsigned char> &bytes)
     image_loader_ctx ictx{&im.data_uri_images};
     loader.SetImageLoader(keep_image_bytes, &ictx);
     std::string terr, twarn;
-    bool ok;
+    bool ok, glb = false;
     if (bytes.empty())
         im.fail(PT_ERR_FORMAT, "file is empty");
-    if (bytes.size() >= 4 && memcmp(bytes.data(), "glTF", 4) == 0) {
+    bool glb_name = im.path.size() >= 4 && im.path.compare(im.path.size() - 4, 4, ".glb") == 0;
+    if ((bytes.size() >= 4 && memcmp(bytes.data(), "glTF", 4) == 0) || glb_name) {
         if (bytes.size() < 20)
             im.fail(PT_ERR_FORMAT, "GLB header truncated (%zu bytes)", bytes.size());
+        glb = true;
         ok = loader.LoadBinaryFromMemory(&im.model, &terr, &twarn, bytes.data(),
                                          unsigned(bytes.size()), im.base);
     } else {
@@ -873,9 +877,12 @@ void parse(importer &im, const std::vector<unsigned char> &bytes)
     };
     if (!ok) {
         std::string msg = tidy(terr.empty() ? twarn : terr);
+        // External images are not read by tinygltf, so a missing file is a buffer.
         bool io = msg.find("not found") != std::string::npos ||
                   msg.find("Failed to open") != std::string::npos;
-        im.fail(io ? PT_ERR_IO : PT_ERR_FORMAT, "%s", msg.empty() ? "not valid glTF" : msg.c_str());
+        const char *what = io ? "buffer file cannot be read"
+                           : glb ? "invalid or truncated GLB" : "invalid glTF JSON";
+        im.fail(io ? PT_ERR_IO : PT_ERR_FORMAT, "%s: %s", what, msg.c_str());
     }
     if (!twarn.empty())
         im.warn_once("tinygltf:" + twarn, "tinygltf: " + tidy(twarn));
