@@ -53,7 +53,8 @@ extern "C" {
 #include "common/scene.h"
 }
 
-namespace {
+namespace
+{
 
 const uint64_t kMaxFileBytes = 1ull << 30; // tinygltf takes an unsigned int length
 const int kMaxNodeDepth = 128;
@@ -65,8 +66,8 @@ struct load_failure {
 };
 
 struct importer {
-    std::string path;  // as given, for messages
-    std::string base;  // folder of the entry file, for relative URIs
+    std::string path; // as given, for messages
+    std::string base; // folder of the entry file, for relative URIs
     const pt_scene_opts *opts;
     pt_error *err;
     tinygltf::Model model;
@@ -117,8 +118,8 @@ struct image_loader_ctx {
 // tinygltf's image callback. Keeps the bytes of data: URI images for later
 // decoding; for images in buffer views it does not touch the bytes, because
 // tinygltf hands us &buffer[byteOffset] without checking the view's range.
-bool keep_image_bytes(tinygltf::Image *image, const int idx, std::string *, std::string *, int,
-                      int, const unsigned char *bytes, int size, void *user)
+bool keep_image_bytes(tinygltf::Image *image, const int idx, std::string *, std::string *, int, int,
+                      const unsigned char *bytes, int size, void *user)
 {
     auto *ctx = static_cast<image_loader_ctx *>(user);
     if (idx < 0)
@@ -183,10 +184,19 @@ std::string uri_decode(const std::string &s)
     return out;
 }
 
-bool is_data_uri(const std::string &u) { return u.compare(0, 5, "data:") == 0; }
+bool is_data_uri(const std::string &u)
+{
+    return u.compare(0, 5, "data:") == 0;
+}
 
-bool add_ok(uint64_t a, uint64_t b, uint64_t *r) { return !__builtin_add_overflow(a, b, r); }
-bool mul_ok(uint64_t a, uint64_t b, uint64_t *r) { return !__builtin_mul_overflow(a, b, r); }
+bool add_ok(uint64_t a, uint64_t b, uint64_t *r)
+{
+    return !__builtin_add_overflow(a, b, r);
+}
+bool mul_ok(uint64_t a, uint64_t b, uint64_t *r)
+{
+    return !__builtin_mul_overflow(a, b, r);
+}
 
 int comp_size(int ct)
 {
@@ -242,24 +252,24 @@ view_span accessor_span(importer &im, int ai, const char *what, int want_type, u
         im.fail(PT_ERR_FORMAT, "accessor %d (%s): sparse accessors are not supported", ai, what);
     int cs = comp_size(a.componentType), nc = type_comps(a.type);
     if (cs == 0 || nc != type_comps(want_type))
-        im.fail(PT_ERR_FORMAT, "accessor %d (%s): unexpected type %d / component type %d", ai,
-                what, a.type, a.componentType);
+        im.fail(PT_ERR_FORMAT, "accessor %d (%s): unexpected type %d / component type %d", ai, what,
+                a.type, a.componentType);
     if (a.count == 0)
         im.fail(PT_ERR_FORMAT, "accessor %d (%s): count is 0", ai, what);
     if (uint64_t(a.count) > max_count)
-        im.fail(PT_ERR_LIMIT, "accessor %d (%s): count %zu is over the cap %llu", ai, what,
-                a.count, (unsigned long long)max_count);
+        im.fail(PT_ERR_LIMIT, "accessor %d (%s): count %zu is over the cap %llu", ai, what, a.count,
+                (unsigned long long)max_count);
     view_span s{nullptr, uint64_t(cs) * uint64_t(nc), uint64_t(a.count), a.componentType,
                 a.normalized};
     if (a.bufferView < 0)
         return s; // glTF 3.6.2.1: no buffer view means zeros
     if (size_t(a.bufferView) >= m.bufferViews.size())
-        im.fail(PT_ERR_FORMAT, "accessor %d (%s): bufferView %d out of range (%zu views)", ai,
-                what, a.bufferView, m.bufferViews.size());
+        im.fail(PT_ERR_FORMAT, "accessor %d (%s): bufferView %d out of range (%zu views)", ai, what,
+                a.bufferView, m.bufferViews.size());
     const tinygltf::BufferView &v = m.bufferViews[size_t(a.bufferView)];
     if (v.buffer < 0 || size_t(v.buffer) >= m.buffers.size())
-        im.fail(PT_ERR_FORMAT, "accessor %d (%s): bufferView %d names buffer %d, out of range",
-                ai, what, a.bufferView, v.buffer);
+        im.fail(PT_ERR_FORMAT, "accessor %d (%s): bufferView %d names buffer %d, out of range", ai,
+                what, a.bufferView, v.buffer);
     const std::vector<unsigned char> &buf = m.buffers[size_t(v.buffer)].data;
     uint64_t elem = s.stride, view_end, last, end;
     if (!add_ok(v.byteOffset, v.byteLength, &view_end) || view_end > buf.size())
@@ -269,9 +279,10 @@ view_span accessor_span(importer &im, int ai, const char *what, int want_type, u
                 ai, what, a.bufferView, v.byteOffset, v.byteLength, v.buffer, buf.size());
     if (v.byteStride != 0) {
         if (v.byteStride < elem)
-            im.fail(PT_ERR_FORMAT, "accessor %d (%s): bufferView %d stride %zu is under the %llu "
-                    "bytes of an element", ai, what, a.bufferView, v.byteStride,
-                    (unsigned long long)elem);
+            im.fail(PT_ERR_FORMAT,
+                    "accessor %d (%s): bufferView %d stride %zu is under the %llu "
+                    "bytes of an element",
+                    ai, what, a.bufferView, v.byteStride, (unsigned long long)elem);
         s.stride = v.byteStride;
     }
     if (!mul_ok(s.stride, s.count - 1, &last) || !add_ok(last, a.byteOffset, &last) ||
@@ -279,8 +290,8 @@ view_span accessor_span(importer &im, int ai, const char *what, int want_type, u
         im.fail(PT_ERR_FORMAT,
                 "accessor %d (%s): %llu elements at offset %zu, stride %llu run past the end of "
                 "bufferView %d (%zu bytes)",
-                ai, what, (unsigned long long)s.count, a.byteOffset,
-                (unsigned long long)s.stride, a.bufferView, v.byteLength);
+                ai, what, (unsigned long long)s.count, a.byteOffset, (unsigned long long)s.stride,
+                a.bufferView, v.byteLength);
     s.data = buf.data() + v.byteOffset + a.byteOffset;
     return s;
 }
@@ -308,8 +319,8 @@ float read_comp(const unsigned char *p, int ct, bool normalized)
         return normalized ? std::fmax(f / 32767.0f, -1.0f) : f;
     }
     default: {
-        uint32_t u = uint32_t(p[0]) | uint32_t(p[1]) << 8 | uint32_t(p[2]) << 16 |
-                     uint32_t(p[3]) << 24;
+        uint32_t u =
+            uint32_t(p[0]) | uint32_t(p[1]) << 8 | uint32_t(p[2]) << 16 | uint32_t(p[3]) << 24;
         return float(u);
     }
     }
@@ -431,7 +442,10 @@ mat4 local_matrix(importer &im, const tinygltf::Node &n, int ni)
     return m;
 }
 
-const char *name_or(const std::string &s, const char *dflt) { return s.empty() ? dflt : s.c_str(); }
+const char *name_or(const std::string &s, const char *dflt)
+{
+    return s.empty() ? dflt : s.c_str();
+}
 
 int wrap_mode(int gl)
 {
@@ -490,7 +504,8 @@ int32_t texture_for(importer &im, int mi, const char *slot, const tinygltf::Text
         im.fail(PT_ERR_FORMAT, "%s: no such texture (%zu textures)", ctx, m.textures.size());
     if (info.texCoord != 0)
         im.warn_once("texcoord", std::string(ctx) + " uses TEXCOORD_" +
-                                     std::to_string(info.texCoord) + "; TEXCOORD_0 is used instead");
+                                     std::to_string(info.texCoord) +
+                                     "; TEXCOORD_0 is used instead");
     if (info.extensions.count("KHR_texture_transform"))
         im.warn_once("KHR_texture_transform",
                      std::string(ctx) + " uses KHR_texture_transform, which is ignored");
@@ -576,8 +591,8 @@ void add_materials(importer &im)
         if (es != g.extensions.end())
             strength = ext_number(es->second, "emissiveStrength", 1.0);
         for (size_t c = 0; c < 3; c++)
-            pm.emissive[c] = c < g.emissiveFactor.size() ? float(g.emissiveFactor[c] * strength)
-                                                         : 0.0f;
+            pm.emissive[c] =
+                c < g.emissiveFactor.size() ? float(g.emissiveFactor[c] * strength) : 0.0f;
         auto sp = g.extensions.find("KHR_materials_specular");
         if (sp != g.extensions.end()) {
             pm.specular = float(ext_number(sp->second, "specularFactor", 1.0));
@@ -589,8 +604,9 @@ void add_materials(importer &im)
             }
             if (sp->second.IsObject() &&
                 (sp->second.Has("specularTexture") || sp->second.Has("specularColorTexture")))
-                im.warn_once("specular-texture", "material " + std::to_string(i) +
-                                                     ": KHR_materials_specular textures are ignored");
+                im.warn_once("specular-texture",
+                             "material " + std::to_string(i) +
+                                 ": KHR_materials_specular textures are ignored");
         }
         pm.double_sided = g.doubleSided ? 1 : 0;
         for (const auto &e : g.extensions)
@@ -598,11 +614,11 @@ void add_materials(importer &im)
                 im.warn_once("ext:" + e.first, "material " + std::to_string(i) + " ('" + g.name +
                                                    "') uses " + e.first + ", which is ignored");
         if (g.normalTexture.index >= 0)
-            im.warn_once("normalTexture", "normal textures are ignored (material " +
-                                              std::to_string(i) + ")");
+            im.warn_once("normalTexture",
+                         "normal textures are ignored (material " + std::to_string(i) + ")");
         if (g.occlusionTexture.index >= 0)
-            im.warn_once("occlusionTexture", "occlusion textures are ignored (material " +
-                                                 std::to_string(i) + ")");
+            im.warn_once("occlusionTexture",
+                         "occlusion textures are ignored (material " + std::to_string(i) + ")");
         if (g.alphaMode == "BLEND" || g.alphaMode == "MASK")
             im.warn_once("alpha:" + g.alphaMode, "alphaMode " + g.alphaMode +
                                                      " is rendered as OPAQUE (material " +
@@ -645,9 +661,9 @@ void add_primitive(importer &im, int mesh, int pi, const mat4 &world)
     int mode = p.mode < 0 ? TINYGLTF_MODE_TRIANGLES : p.mode;
     if (mode != TINYGLTF_MODE_TRIANGLES && mode != TINYGLTF_MODE_TRIANGLE_STRIP &&
         mode != TINYGLTF_MODE_TRIANGLE_FAN) {
-        im.warn_once("mode" + std::to_string(mode),
-                     std::string(what) + ": primitive mode " + std::to_string(mode) +
-                         " (points or lines) is not rendered");
+        im.warn_once("mode" + std::to_string(mode), std::string(what) + ": primitive mode " +
+                                                        std::to_string(mode) +
+                                                        " (points or lines) is not rendered");
         return;
     }
     if (!p.targets.empty())
@@ -656,8 +672,8 @@ void add_primitive(importer &im, int mesh, int pi, const mat4 &world)
         if (a.first != "POSITION" && a.first != "NORMAL" && a.first != "TEXCOORD_0" &&
             a.first != "TANGENT" && a.first.compare(0, 9, "TEXCOORD_") != 0 &&
             a.first.compare(0, 1, "_") != 0)
-            im.warn_once("attr:" + a.first, std::string(what) + ": attribute " + a.first +
-                                                 " is ignored");
+            im.warn_once("attr:" + a.first,
+                         std::string(what) + ": attribute " + a.first + " is ignored");
     auto pos_it = p.attributes.find("POSITION");
     if (pos_it == p.attributes.end())
         im.fail(PT_ERR_FORMAT, "%s: no POSITION attribute", what);
@@ -671,8 +687,8 @@ void add_primitive(importer &im, int mesh, int pi, const mat4 &world)
         snprintf(w2, sizeof w2, "NORMAL of %s", what);
         read_floats(im, n_it->second, w2, TINYGLTF_TYPE_VEC3, false, nrm);
         if (nrm.size() / 3 != nv)
-            im.fail(PT_ERR_FORMAT, "accessor %d (%s): %zu normals for %llu positions",
-                    n_it->second, w2, nrm.size() / 3, (unsigned long long)nv);
+            im.fail(PT_ERR_FORMAT, "accessor %d (%s): %zu normals for %llu positions", n_it->second,
+                    w2, nrm.size() / 3, (unsigned long long)nv);
     }
     auto t_it = p.attributes.find("TEXCOORD_0");
     if (t_it != p.attributes.end()) {
@@ -688,8 +704,10 @@ void add_primitive(importer &im, int mesh, int pi, const mat4 &world)
         read_indices(im, p.indices, w2, idx);
         for (size_t i = 0; i < idx.size(); i++)
             if (idx[i] >= nv)
-                im.fail(PT_ERR_FORMAT, "accessor %d (%s): index %u at %zu out of range (%llu "
-                        "vertices)", p.indices, w2, idx[i], i, (unsigned long long)nv);
+                im.fail(PT_ERR_FORMAT,
+                        "accessor %d (%s): index %u at %zu out of range (%llu "
+                        "vertices)",
+                        p.indices, w2, idx[i], i, (unsigned long long)nv);
     } else {
         idx.resize(size_t(nv));
         for (size_t i = 0; i < idx.size(); i++)
@@ -719,9 +737,10 @@ void add_primitive(importer &im, int mesh, int pi, const mat4 &world)
     for (size_t i = 0; i < 16; i++)
         xf[i] = float(world[i]);
     pt_error e{};
-    pt_status st = pt_scene_builder_add_mesh(
-        im.b, what, pos.data(), nrm.empty() ? nullptr : nrm.data(), uv.empty() ? nullptr : uv.data(),
-        uint32_t(nv), tri.data(), uint32_t(tri.size() / 3), xf, mat, &e);
+    pt_status st =
+        pt_scene_builder_add_mesh(im.b, what, pos.data(), nrm.empty() ? nullptr : nrm.data(),
+                                  uv.empty() ? nullptr : uv.data(), uint32_t(nv), tri.data(),
+                                  uint32_t(tri.size() / 3), xf, mat, &e);
     im.check_builder(st, &e);
 }
 
@@ -739,7 +758,7 @@ void add_camera(importer &im, int ni, int ci, const mat4 &w)
         return;
     }
     pt_camera pc{};
-    std::string name = !c.name.empty() ? c.name
+    std::string name = !c.name.empty()   ? c.name
                        : !n.name.empty() ? n.name
                                          : "camera " + std::to_string(ci);
     snprintf(pc.name, sizeof pc.name, "%s", name.c_str());
@@ -822,8 +841,8 @@ void hash_files(importer &im, const std::vector<unsigned char> &entry)
         if (!read_file(im.base + uris[i], bytes, &e)) {
             if (i < nbuf)
                 im.fail(PT_ERR_IO, "buffer file '%s': %s", uris[i].c_str(), strerror(e));
-            im.warn_once("img:" + uris[i], "image file '" + uris[i] + "' cannot be read: " +
-                                               strerror(e));
+            im.warn_once("img:" + uris[i],
+                         "image file '" + uris[i] + "' cannot be read: " + strerror(e));
             continue;
         }
         EVP_DigestUpdate(ctx, bytes.data(), bytes.size());
@@ -880,8 +899,9 @@ void parse(importer &im, const std::vector<unsigned char> &bytes)
         // External images are not read by tinygltf, so a missing file is a buffer.
         bool io = msg.find("not found") != std::string::npos ||
                   msg.find("Failed to open") != std::string::npos;
-        const char *what = io ? "buffer file cannot be read"
-                           : glb ? "invalid or truncated GLB" : "invalid glTF JSON";
+        const char *what = io    ? "buffer file cannot be read"
+                           : glb ? "invalid or truncated GLB"
+                                 : "invalid glTF JSON";
         im.fail(io ? PT_ERR_IO : PT_ERR_FORMAT, "%s: %s", what, msg.c_str());
     }
     if (!twarn.empty())

@@ -121,7 +121,10 @@ void pt_scene_builder_set_hash(pt_scene_builder *b, const char *hex)
     b->hash_set = 1;
 }
 
-uint32_t pt_scene_builder_num_materials(const pt_scene_builder *b) { return b->nmat; }
+uint32_t pt_scene_builder_num_materials(const pt_scene_builder *b)
+{
+    return b->nmat;
+}
 
 static int finite_n(const float *v, int n)
 {
@@ -131,8 +134,8 @@ static int finite_n(const float *v, int n)
     return 1;
 }
 
-pt_status pt_scene_builder_add_material(pt_scene_builder *b, const pt_material *m,
-                                        uint32_t *index, pt_error *err)
+pt_status pt_scene_builder_add_material(pt_scene_builder *b, const pt_material *m, uint32_t *index,
+                                        pt_error *err)
 {
     const char *name = m->name[0] ? m->name : "(unnamed)";
     if (!finite_n(m->base_color, 4) || !isfinite(m->metallic) || !isfinite(m->roughness) ||
@@ -144,8 +147,8 @@ pt_status pt_scene_builder_add_material(pt_scene_builder *b, const pt_material *
     const int32_t tex[3] = {m->base_color_tex, m->metal_rough_tex, m->emissive_tex};
     for (int i = 0; i < 3; i++)
         if (tex[i] < -1 || (tex[i] >= 0 && (uint32_t)tex[i] >= b->ntex))
-            return pt_error_set(err, PT_ERR_ARG, "material '%.64s': texture %d out of range",
-                                name, (int)tex[i]);
+            return pt_error_set(err, PT_ERR_ARG, "material '%.64s': texture %d out of range", name,
+                                (int)tex[i]);
     if (!reserve((void **)&b->mats, &b->cap_mat, b->nmat + 1, sizeof(pt_material), 1))
         return pt_error_set(err, PT_ERR_NOMEM, "material '%.64s': out of memory", name);
     pt_material *d = &b->mats[b->nmat];
@@ -157,8 +160,8 @@ pt_status pt_scene_builder_add_material(pt_scene_builder *b, const pt_material *
     return PT_OK;
 }
 
-pt_status pt_scene_builder_add_texture(pt_scene_builder *b, const pt_texture *tex,
-                                       uint32_t *index, pt_error *err)
+pt_status pt_scene_builder_add_texture(pt_scene_builder *b, const pt_texture *tex, uint32_t *index,
+                                       pt_error *err)
 {
     pt_status st;
     if (!tex->rgba) {
@@ -291,8 +294,8 @@ pt_status pt_scene_builder_add_mesh(pt_scene_builder *b, const char *what, const
         if (normals) {
             const float *n = normals + 3 * (size_t)v;
             if (!finite_n(n, 3))
-                return pt_error_set(err, PT_ERR_FORMAT, "%s: vertex %u normal is not finite",
-                                    what, v);
+                return pt_error_set(err, PT_ERR_FORMAT, "%s: vertex %u normal is not finite", what,
+                                    v);
             double m[3], len2 = 0;
             for (int r = 0; r < 3; r++) {
                 m[r] = nsign * (c[r][0] * n[0] + c[r][1] * n[1] + c[r][2] * n[2]);
@@ -425,9 +428,9 @@ static pt_status hash_scene(const pt_scene *s, char out[65], pt_error *err)
     }
     for (uint32_t i = 0; i < s->num_cameras; i++) {
         const pt_camera *c = &s->cameras[i];
-        float f[15] = {c->position.x, c->position.y, c->position.z, c->right.x,   c->right.y,
-                       c->right.z,    c->up.x,       c->up.y,       c->up.z,      c->forward.x,
-                       c->forward.y,  c->forward.z,  c->yfov,       c->aspect,    c->znear};
+        float f[15] = {c->position.x, c->position.y, c->position.z, c->right.x, c->right.y,
+                       c->right.z,    c->up.x,       c->up.y,       c->up.z,    c->forward.x,
+                       c->forward.y,  c->forward.z,  c->yfov,       c->aspect,  c->znear};
         EVP_DigestUpdate(ctx, f, sizeof f);
         EVP_DigestUpdate(ctx, c->name, sizeof c->name);
     }
@@ -493,8 +496,8 @@ static pt_status choose_camera(pt_scene *s, const char *name, pt_error *err)
         size_t n = 0;
         list[0] = 0;
         for (uint32_t i = 0; i < s->num_cameras && n + 1 < sizeof list; i++) {
-            int w = snprintf(list + n, sizeof list - n, "%s'%s'", i ? ", " : "",
-                             s->cameras[i].name);
+            int w =
+                snprintf(list + n, sizeof list - n, "%s'%s'", i ? ", " : "", s->cameras[i].name);
             if (w < 0)
                 break;
             n += (size_t)w;
@@ -502,8 +505,8 @@ static pt_status choose_camera(pt_scene *s, const char *name, pt_error *err)
         if (n >= sizeof list)
             snprintf(list + sizeof list - 5, 5, "...");
         if (s->num_cameras == 0)
-            return pt_error_set(err, PT_ERR_ARG, "no camera named '%.64s': the scene has no cameras",
-                                name);
+            return pt_error_set(err, PT_ERR_ARG,
+                                "no camera named '%.64s': the scene has no cameras", name);
         return pt_error_set(err, PT_ERR_ARG, "no camera named '%.64s'; cameras: %s", name, list);
     }
     if (s->num_cameras > 0)
@@ -546,8 +549,8 @@ static uint32_t scene_features(const pt_scene *s, int has_uv, pt_error *err, pt_
     return f;
 }
 
-pt_status pt_scene_builder_finish(pt_scene_builder *b, const pt_scene_opts *opts,
-                                  pt_scene **out, pt_error *err)
+pt_status pt_scene_builder_finish(pt_scene_builder *b, const pt_scene_opts *opts, pt_scene **out,
+                                  pt_error *err)
 {
     pt_status st;
     pt_scene *s = NULL;

@@ -92,14 +92,13 @@ static size_t make_bin(unsigned char *bin, float p0x, uint16_t i2)
     return 68;
 }
 
-static const char *k_views =
-    "\"bufferViews\":[{\"buffer\":0,\"byteOffset\":0,\"byteLength\":36},"
-    "{\"buffer\":0,\"byteOffset\":36,\"byteLength\":6},"
-    "{\"buffer\":0,\"byteOffset\":44,\"byteLength\":24}]";
+static const char *k_views = "\"bufferViews\":[{\"buffer\":0,\"byteOffset\":0,\"byteLength\":36},"
+                             "{\"buffer\":0,\"byteOffset\":36,\"byteLength\":6},"
+                             "{\"buffer\":0,\"byteOffset\":44,\"byteLength\":24}]";
 
 /* A .gltf with the given pieces substituted. */
-static void make_gltf(const char *name, const char *bin_uri, const char *pos_acc,
-                      const char *views, const char *nodes, const char *extra)
+static void make_gltf(const char *name, const char *bin_uri, const char *pos_acc, const char *views,
+                      const char *nodes, const char *extra)
 {
     char json[8192];
     snprintf(json, sizeof json,
@@ -129,11 +128,12 @@ static void test_small_valid(void)
     /* A 2x2 PNG: red, green / blue, white; used as base colour with CLAMP / MIRROR. */
     unsigned char px[16] = {255, 0, 0, 255, 0, 255, 0, 255, 0, 0, 255, 255, 255, 255, 255, 255};
     CHECK(stbi_write_png(tpath("tex.png"), 2, 2, 4, px, 8) != 0);
-    make_gltf("tri.gltf", "tri.bin", k_pos_ok, k_views,
-              "[{\"mesh\":0,\"translation\":[0,0,1],\"children\":[1]},{\"camera\":0}]",
-              ",\"textures\":[{\"source\":0,\"sampler\":0}],\"images\":[{\"uri\":\"tex.png\"}],"
-              "\"samplers\":[{\"wrapS\":33071,\"wrapT\":33648}],"
-              "\"cameras\":[{\"type\":\"perspective\",\"perspective\":{\"yfov\":0.5,\"znear\":0.1}}]");
+    make_gltf(
+        "tri.gltf", "tri.bin", k_pos_ok, k_views,
+        "[{\"mesh\":0,\"translation\":[0,0,1],\"children\":[1]},{\"camera\":0}]",
+        ",\"textures\":[{\"source\":0,\"sampler\":0}],\"images\":[{\"uri\":\"tex.png\"}],"
+        "\"samplers\":[{\"wrapS\":33071,\"wrapT\":33648}],"
+        "\"cameras\":[{\"type\":\"perspective\",\"perspective\":{\"yfov\":0.5,\"znear\":0.1}}]");
     /* Same material, now textured (tri.gltf's material 0 has no texture). */
     char json[8192];
     FILE *f = fopen(tpath("tri.gltf"), "rb");
@@ -160,7 +160,8 @@ static void test_small_valid(void)
         CHECK(s->num_textures == 1);
         if (s->num_textures == 1) {
             CHECK(s->textures[0].width == 2 && s->textures[0].srgb == 1);
-            CHECK(s->textures[0].wrap_s == PT_WRAP_CLAMP && s->textures[0].wrap_t == PT_WRAP_MIRROR);
+            CHECK(s->textures[0].wrap_s == PT_WRAP_CLAMP &&
+                  s->textures[0].wrap_t == PT_WRAP_MIRROR);
             CHECK(s->textures[0].rgba[4] == 0 && s->textures[0].rgba[5] == 255);
         }
         CHECK(s->features & PT_FEAT_TEXTURES);
@@ -313,8 +314,7 @@ static void test_hostile(void)
     expect_fail("meshrange.gltf", 0, "mesh");
 
     /* A material uses a texture whose image does not exist. */
-    snprintf(buf, sizeof buf,
-             ",\"textures\":[{\"source\":3}],\"images\":[]");
+    snprintf(buf, sizeof buf, ",\"textures\":[{\"source\":3}],\"images\":[]");
     make_gltf("noimg.gltf", "tri.bin", k_pos_ok, k_views, k_nodes_ok, buf);
     {
         /* Patch the material to use texture 0 as its emissive texture. */
@@ -337,8 +337,7 @@ static void test_hostile(void)
         pt_error err = {0};
         pt_scene *s = NULL;
         pt_scene_load(tpath("noimg.gltf"), NULL, &s, &err);
-        CHECKF(strstr(err.msg, "material 0 ('m0')") && strstr(err.msg, "texture 0"), "%s",
-               err.msg);
+        CHECKF(strstr(err.msg, "material 0 ('m0')") && strstr(err.msg, "texture 0"), "%s", err.msg);
         pt_scene_free(s);
     }
 
@@ -531,8 +530,7 @@ static void check_asset(const asset *a)
     /* Each warning once: no line repeats. */
     char *copy = strdup(w.text), *save = NULL;
     int dup = 0;
-    for (char *line = strtok_r(copy, "\n", &save); line; line = strtok_r(NULL, "\n", &save))
-    {
+    for (char *line = strtok_r(copy, "\n", &save); line; line = strtok_r(NULL, "\n", &save)) {
         const char *first = strstr(w.text, line);
         dup += first && strstr(first + strlen(line), line) != NULL;
     }

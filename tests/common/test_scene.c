@@ -14,7 +14,10 @@
 static const float k_tri[9] = {0, 0, 0, 1, 0, 0, 0, 1, 0};
 static const uint32_t k_idx[3] = {0, 1, 2};
 
-static int near(float a, float b, float tol) { return fabsf(a - b) <= tol; }
+static int near(float a, float b, float tol)
+{
+    return fabsf(a - b) <= tol;
+}
 
 static pt_scene_builder *builder_with(const pt_material *m)
 {
@@ -195,8 +198,8 @@ static uint32_t features_of(const pt_material *m, int with_tex, int with_uv)
     unused.base_color_tex = with_tex ? 0 : -1;
     CHECK(pt_scene_builder_add_material(b, &unused, &mi, &err) == PT_OK);
     float uv[6] = {0, 0, 1, 0, 0, 1};
-    CHECK(pt_scene_builder_add_mesh(b, "f", k_tri, NULL, with_uv ? uv : NULL, 3, k_idx, 1, NULL,
-                                    0, &err) == PT_OK);
+    CHECK(pt_scene_builder_add_mesh(b, "f", k_tri, NULL, with_uv ? uv : NULL, 3, k_idx, 1, NULL, 0,
+                                    &err) == PT_OK);
     pt_scene *s = finish(b, NULL);
     uint32_t f = s ? s->features : 0xffffffffu;
     pt_scene_free(s);
@@ -226,8 +229,7 @@ static void test_features(void)
     emit.emissive[1] = 2;
     CHECK(features_of(&emit, 0, 0) == PT_FEAT_EMITTERS);
     emit.emissive_tex = 0;
-    CHECK(features_of(&emit, 1, 1) ==
-          (PT_FEAT_EMITTERS | PT_FEAT_EMISSIVE_TEX | PT_FEAT_UVS));
+    CHECK(features_of(&emit, 1, 1) == (PT_FEAT_EMITTERS | PT_FEAT_EMISSIVE_TEX | PT_FEAT_UVS));
 
     pt_material tex = lambert;
     tex.base_color_tex = 0;
@@ -313,7 +315,8 @@ static void test_cameras(void)
 
     /* Named, scaled and translated. */
     pt_scene_builder *b = builder_with(NULL);
-    CHECK(pt_scene_builder_add_mesh(b, "t", k_tri, NULL, NULL, 3, k_idx, 1, NULL, 0, &err) == PT_OK);
+    CHECK(pt_scene_builder_add_mesh(b, "t", k_tri, NULL, NULL, 3, k_idx, 1, NULL, 0, &err) ==
+          PT_OK);
     CHECK(pt_scene_builder_add_camera(b, &c, &err) == PT_OK);
     snprintf(c.name, sizeof c.name, "side");
     c.position = pt_v3(10, 0, 0);
@@ -333,7 +336,8 @@ static void test_cameras(void)
 
     /* Unknown name: PT_ERR_ARG listing the names. */
     b = builder_with(NULL);
-    CHECK(pt_scene_builder_add_mesh(b, "t", k_tri, NULL, NULL, 3, k_idx, 1, NULL, 0, &err) == PT_OK);
+    CHECK(pt_scene_builder_add_mesh(b, "t", k_tri, NULL, NULL, 3, k_idx, 1, NULL, 0, &err) ==
+          PT_OK);
     CHECK(pt_scene_builder_add_camera(b, &c, &err) == PT_OK);
     o.camera_name = "nope";
     s = NULL;
@@ -370,7 +374,8 @@ static void test_cameras(void)
             pt_vec3 d = pt_v3_sub(p, k->position);
             float z = pt_v3_dot(d, k->forward);
             CHECK(z > k->znear);
-            CHECKF(fabsf(pt_v3_dot(d, k->up)) / z <= t && fabsf(pt_v3_dot(d, k->right)) / z <= t * ar,
+            CHECKF(fabsf(pt_v3_dot(d, k->up)) / z <= t &&
+                       fabsf(pt_v3_dot(d, k->right)) / z <= t * ar,
                    "aspect %g corner %d outside the view", (double)aspects[a], i);
         }
     }
@@ -384,7 +389,8 @@ static void test_hash_and_nomem(void)
     for (int i = 0; i < 2; i++) {
         pt_scene_builder *b = builder_with(NULL);
         float p[9] = {0, 0, 0, 1, 0, 0, 0, 1, (float)i};
-        CHECK(pt_scene_builder_add_mesh(b, "t", p, NULL, NULL, 3, k_idx, 1, NULL, 0, &err) == PT_OK);
+        CHECK(pt_scene_builder_add_mesh(b, "t", p, NULL, NULL, 3, k_idx, 1, NULL, 0, &err) ==
+              PT_OK);
         pt_scene *s = finish(b, NULL);
         snprintf(h[i], sizeof h[i], "%s", s ? s->hash : "");
         pt_scene_free(s);
@@ -414,11 +420,11 @@ static void test_hash_and_nomem(void)
             (st = pt_scene_builder_add_material(b, &m, &mi, &err)) != PT_OK ||
             (st = pt_scene_builder_add_mesh(b, "t", k_tri, NULL, NULL, 3, k_idx, 1, NULL, 0,
                                             &err)) != PT_OK ||
-            (st = pt_scene_builder_add_camera(b, &(pt_camera){.forward = {0, 0, -1},
-                                                              .up = {0, 1, 0},
-                                                              .right = {1, 0, 0},
-                                                              .yfov = 1},
-                                              &err)) != PT_OK) {
+            (st = pt_scene_builder_add_camera(
+                 b,
+                 &(pt_camera){
+                     .forward = {0, 0, -1}, .up = {0, 1, 0}, .right = {1, 0, 0}, .yfov = 1},
+                 &err)) != PT_OK) {
             pt_scene_builder_free(b);
             goto done;
         }
