@@ -5,6 +5,7 @@
 #include <poll.h>
 #include <pthread.h>
 #include <signal.h>
+#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -378,24 +379,35 @@ static void send_error(worker *w, uint16_t code, const char *text)
         flush_out(w);
 }
 
+/* The server broke the protocol: say why (to it and in w->reason); -1. */
+static int fail_proto(worker *w, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+static int fail_proto(worker *w, const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(w->reason, sizeof w->reason, fmt, ap);
+    va_end(ap);
+    send_error(w, PROTO_E_PROTOCOL, w->reason);
+    return -1;
+}
+
 /* ---- the task pipeline --------------------------------------------------------------- */
 
-/* Tasks held: waiting for a scene, queued, running, finished but unsent. */
-static uint32_t held(worker *w, uint32_t *queued_running)
+/* Slots taken: tasks waiting for a scene, queued, and render threads busy
+ * (also with a task of a dropped connection: the thread is not free yet). */
+static uint32_t slots_taken(worker *w)
 {
     pthread_mutex_lock(&w->mu);
     uint32_t n = w->nqueued;
     for (uint32_t i = 0; i < w->o->threads; i++)
-        n += w->running[i].active && w->running[i].epoch == w->epoch;
+        n += w->running[i].active != 0;
     pthread_mutex_unlock(&w->mu);
-    if (queued_running)
-        *queued_running = n;
-    return n + w->npending;
+    return n + w->npending + w->requested;
 }
 
 static int request_work(worker *w)
 {
-    uint32_t busy = held(w, NULL) + w->requested;
+    uint32_t busy = slots_taken(w);
     if (busy >= w->slots_max)
         return 0;
     uint32_t slots = w->slots_max - busy;
@@ -519,17 +531,19 @@ static int on_task(worker *w, const proto_frame *f)
         return -1;
     }
     if (proto_msg_decode_task(f->payload, f->len, &t->t, &err) != PT_OK) {
-        snprintf(w->reason, sizeof w->reason, "bad TASK: %s", err.msg);
         pt_free(t);
-        return -1;
+        return fail_proto(w, "bad TASK: %s", err.msg);
     }
     if (w->requested == 0) {
-        snprintf(w->reason, sizeof w->reason, "TASK %llu was not asked for",
-                 (unsigned long long)t->t.task_id);
+        unsigned long long id = t->t.task_id;
         pt_free(t);
-        return -1;
+        return fail_proto(w, "TASK %llu was not asked for", id);
     }
     w->requested--;
+    /* A shorter lease than those held so far brings the next heartbeat closer. */
+    uint32_t interval = t->t.lease_ms / 3 > HEARTBEAT_MIN_MS ? t->t.lease_ms / 3 : HEARTBEAT_MIN_MS;
+    if (now_ms() + interval < w->t_heartbeat)
+        w->t_heartbeat = now_ms() + interval;
     pthread_mutex_lock(&w->mu);
     t->epoch = w->epoch;
     pthread_mutex_unlock(&w->mu);
@@ -582,34 +596,23 @@ static int on_scene_chunk(worker *w, const proto_frame *f)
 {
     pt_error err = {0};
     proto_scene_chunk c;
-    if (proto_msg_decode_scene_chunk(f->payload, f->len, &c, &err) != PT_OK) {
-        snprintf(w->reason, sizeof w->reason, "bad SCENE_CHUNK: %s", err.msg);
-        return -1;
-    }
+    if (proto_msg_decode_scene_chunk(f->payload, f->len, &c, &err) != PT_OK)
+        return fail_proto(w, "bad SCENE_CHUNK: %s", err.msg);
     char hex[65];
     wrk_hash_hex(c.hash, hex);
     scene_rec *s = scene_find(w, c.hash, 0);
-    if (!s || !s->fetching) {
-        snprintf(w->reason, sizeof w->reason, "SCENE_CHUNK for scene %.16s, not asked for", hex);
-        return -1;
-    }
-    if (c.offset != s->len || (s->len > 0 && c.total != s->total)) {
-        snprintf(w->reason, sizeof w->reason,
-                 "SCENE_CHUNK for %.16s at %llu of %llu, expected %zu of %llu", hex,
-                 (unsigned long long)c.offset, (unsigned long long)c.total, s->len,
-                 (unsigned long long)s->total);
-        return -1;
-    }
-    if (c.total == 0 || c.total > PT_BUNDLE_MAX_BYTES) {
-        snprintf(w->reason, sizeof w->reason, "scene %.16s of %llu bytes (cap %llu)", hex,
-                 (unsigned long long)c.total, (unsigned long long)PT_BUNDLE_MAX_BYTES);
-        return -1;
-    }
-    if (c.len == 0 && c.offset < c.total) {
-        snprintf(w->reason, sizeof w->reason, "empty SCENE_CHUNK for %.16s at %llu", hex,
-                 (unsigned long long)c.offset);
-        return -1;
-    }
+    if (!s || !s->fetching)
+        return fail_proto(w, "SCENE_CHUNK for scene %.16s, not asked for", hex);
+    if (c.offset != s->len || (s->len > 0 && c.total != s->total))
+        return fail_proto(w, "SCENE_CHUNK for %.16s at %llu of %llu, expected %zu of %llu", hex,
+                          (unsigned long long)c.offset, (unsigned long long)c.total, s->len,
+                          (unsigned long long)s->total);
+    if (c.total == 0 || c.total > PT_BUNDLE_MAX_BYTES)
+        return fail_proto(w, "scene %.16s of %llu bytes (cap %llu)", hex,
+                          (unsigned long long)c.total, (unsigned long long)PT_BUNDLE_MAX_BYTES);
+    if (c.len == 0 && c.offset < c.total)
+        return fail_proto(w, "empty SCENE_CHUNK for %.16s at %llu", hex,
+                          (unsigned long long)c.offset);
     s->total = c.total;
     if (s->len + c.len > s->cap) {
         /* Grow by doubling, never past the declared total. */
@@ -635,6 +638,8 @@ static int on_scene_chunk(worker *w, const proto_frame *f)
     char entry[4096];
     pt_status st = wrk_cache_store(w->cache, s->hash, s->buf, s->len, entry, sizeof entry, &err);
     fetch_reset(s);
+    if (st == PT_ERR_FORMAT)
+        return fail_proto(w, "scene %.16s: %s", hex, err.msg);
     if (st != PT_OK) {
         snprintf(w->reason, sizeof w->reason, "scene %.16s: %s", hex, err.msg);
         return -1;
@@ -671,6 +676,13 @@ static int collect_results(worker *w)
                     (unsigned long long)d->t.task_id, (unsigned long long)d->t.job_id,
                     d->err.msg);
             w->failed++;
+            /* Look the scene up (and check it) again for its next task, in
+             * case its files changed under us. */
+            scene_rec *s = scene_find(w, d->t.scene_hash, 0);
+            if (s && s->entry) {
+                pt_free(s->entry);
+                s->entry = NULL;
+            }
             done_free(d);
             continue;
         }
@@ -718,10 +730,8 @@ static int on_challenge(worker *w, const proto_frame *f)
 {
     pt_error err = {0};
     proto_challenge ch;
-    if (proto_msg_decode_challenge(f->payload, f->len, &ch, &err) != PT_OK) {
-        snprintf(w->reason, sizeof w->reason, "bad CHALLENGE: %s", err.msg);
-        return -1;
-    }
+    if (proto_msg_decode_challenge(f->payload, f->len, &ch, &err) != PT_OK)
+        return fail_proto(w, "bad CHALLENGE: %s", err.msg);
     proto_auth a;
     pt_status st;
     if (w->token_len > 0) {
@@ -750,8 +760,7 @@ static int dispatch(worker *w, const proto_frame *f, int *end)
     if (f->type == PROTO_MSG_ERROR) {
         proto_error_msg m;
         if (proto_msg_decode_error(f->payload, f->len, &m, &err) != PT_OK) {
-            snprintf(w->reason, sizeof w->reason, "bad ERROR: %s", err.msg);
-            return -1;
+            return fail_proto(w, "bad ERROR: %s", err.msg);
         }
         if (fatal_code(m.code)) {
             fprintf(stderr, "ptworker: refused by %s:%u: %s\n", w->host, w->port, m.text);
@@ -770,8 +779,7 @@ static int dispatch(worker *w, const proto_frame *f, int *end)
         if (f->type == PROTO_MSG_WELCOME) {
             proto_welcome wm;
             if (proto_msg_decode_welcome(f->payload, f->len, &wm, &err) != PT_OK) {
-                snprintf(w->reason, sizeof w->reason, "bad WELCOME: %s", err.msg);
-                return -1;
+                return fail_proto(w, "bad WELCOME: %s", err.msg);
             }
             w->state = S_READY;
             w->t_heartbeat = now_ms() + HEARTBEAT_MIN_MS;
@@ -787,10 +795,8 @@ static int dispatch(worker *w, const proto_frame *f, int *end)
             return on_scene_chunk(w, f);
         break;
     }
-    snprintf(w->reason, sizeof w->reason, "protocol error: unexpected %s from the server",
-             proto_msg_type_name(f->type));
-    send_error(w, PROTO_E_PROTOCOL, w->reason);
-    return -1;
+    return fail_proto(w, "protocol error: unexpected %s from the server",
+                      proto_msg_type_name(f->type));
 }
 
 /* Reads what is there and handles every whole frame. 0, or -1. */
@@ -833,10 +839,7 @@ static int read_in(worker *w, int *end)
         if (st == PT_AGAIN)
             break;
         if (st != PT_OK) {
-            snprintf(w->reason, sizeof w->reason, "malformed frame from the server: %s",
-                     err.msg);
-            send_error(w, PROTO_E_PROTOCOL, w->reason);
-            return -1;
+            return fail_proto(w, "malformed frame from the server: %s", err.msg);
         }
         if (dispatch(w, &f, end) != 0)
             return -1;
@@ -885,18 +888,19 @@ static void drop_session(worker *w)
     w->out_sent = 0;
 }
 
-/* One connection, from connect to its end. Returns END_*. *welcomed is set
- * when the handshake completed. */
-static int session(worker *w, int sig_r, int *welcomed)
+/* One connection, from connect to its end. Returns END_*. *connected is set
+ * when TCP connected, *welcomed when the handshake completed. */
+static int session(worker *w, int sig_r, int *connected, int *welcomed)
 {
     pt_error err = {0};
-    *welcomed = 0;
+    *connected = *welcomed = 0;
     w->reason[0] = '\0';
     if (pt_net_connect(w->host, w->port, CONNECT_TIMEOUT_MS, &w->fd, &err) != PT_OK) {
         w->fd = -1;
         snprintf(w->reason, sizeof w->reason, "%s", err.msg);
         return g_stop ? END_STOP : END_RETRY;
     }
+    *connected = 1;
     if (pt_net_set_nonblock(w->fd, &err) != PT_OK) {
         snprintf(w->reason, sizeof w->reason, "%s", err.msg);
         drop_session(w);
@@ -1129,8 +1133,8 @@ int wrk_client_run(const wrk_client_opts *o)
     w->t_start = now_ms();
     uint32_t delay = BACKOFF_MIN_MS;
     while (!g_stop) {
-        int welcomed = 0;
-        int end = session(w, sigp[0], &welcomed);
+        int welcomed = 0, connected = 0;
+        int end = session(w, sigp[0], &connected, &welcomed);
         if (end == END_FATAL) {
             rc = 1;
             break;
@@ -1139,9 +1143,14 @@ int wrk_client_run(const wrk_client_opts *o)
             break;
         if (welcomed)
             delay = BACKOFF_MIN_MS;
-        fprintf(stderr, "ptworker: %s %s:%u: %s; retrying in %.1f s\n",
-                welcomed ? "lost" : "cannot connect to", w->host, w->port, w->reason,
-                delay / 1000.0);
+        if (welcomed)
+            fprintf(stderr, "ptworker: lost %s:%u: %s; reconnecting in %.1f s\n", w->host,
+                    w->port, w->reason, delay / 1000.0);
+        else if (connected)
+            fprintf(stderr, "ptworker: %s:%u: %s; retrying in %.1f s\n", w->host, w->port,
+                    w->reason, delay / 1000.0);
+        else /* pt_net_connect's message names the address */
+            fprintf(stderr, "ptworker: %s; retrying in %.1f s\n", w->reason, delay / 1000.0);
         backoff_sleep(sigp[0], delay);
         delay = delay * 2 > BACKOFF_MAX_MS ? BACKOFF_MAX_MS : delay * 2;
     }
