@@ -359,6 +359,31 @@ static void test_hostile(void)
     }
     expect_fail("badimg.gltf", PT_ERR_FORMAT, "image 0");
 
+    /* An image in a buffer view that lies outside its buffer, used by a material. */
+    make_gltf("imgview.gltf", "tri.bin", k_pos_ok,
+              "\"bufferViews\":[{\"buffer\":0,\"byteOffset\":0,\"byteLength\":36},"
+              "{\"buffer\":0,\"byteOffset\":36,\"byteLength\":6},"
+              "{\"buffer\":0,\"byteOffset\":44,\"byteLength\":24},"
+              "{\"buffer\":0,\"byteOffset\":60,\"byteLength\":100}]",
+              k_nodes_ok,
+              ",\"textures\":[{\"source\":0}],"
+              "\"images\":[{\"bufferView\":3,\"mimeType\":\"image/png\"}]");
+    {
+        char json[8192];
+        FILE *f = fopen(tpath("imgview.gltf"), "rb");
+        size_t n = fread(json, 1, sizeof json - 1, f);
+        fclose(f);
+        json[n] = 0;
+        char *m = strstr(json, "\"name\":\"m0\",");
+        if (m) {
+            char out[8192];
+            snprintf(out, sizeof out, "%.*s\"name\":\"m0\",\"emissiveTexture\":{\"index\":0},%s",
+                     (int)(m - json), json, m + strlen("\"name\":\"m0\","));
+            write_file("imgview.gltf", out, strlen(out));
+        }
+    }
+    expect_fail("imgview.gltf", PT_ERR_FORMAT, "bufferView 3");
+
     write_file("empty.gltf", "", 0);
     expect_fail("empty.gltf", PT_ERR_FORMAT, "empty");
 
@@ -562,6 +587,24 @@ static void test_cameras(void)
     pt_scene_free(s);
 }
 
+/* The project's own scenes (scenes/): they must load, emit, and carry a camera or not. */
+static void test_project_scenes(void)
+{
+    const char *names[2] = {"scenes/cornell_box.gltf", "scenes/furnace.gltf"};
+    for (int i = 0; i < 2; i++) {
+        char p[1024];
+        snprintf(p, sizeof p, "%s/%s", PT_SOURCE_DIR, names[i]);
+        pt_scene *s = NULL;
+        pt_error err = {0};
+        CHECKF(pt_scene_load(p, NULL, &s, &err) == PT_OK, "%s", err.msg);
+        if (s) {
+            CHECK(s->num_triangles > 0 && (s->features & PT_FEAT_EMITTERS));
+            CHECK(strlen(s->hash) == 64);
+        }
+        pt_scene_free(s);
+    }
+}
+
 int main(void)
 {
     snprintf(tmp, sizeof tmp, "/tmp/pt_test_gltf_XXXXXX");
@@ -569,6 +612,7 @@ int main(void)
         return 1;
     test_small_valid();
     test_hostile();
+    test_project_scenes();
 
     struct stat sb;
     if (stat(PT_SHARED_SCENES, &sb) != 0) {
