@@ -11,8 +11,8 @@
 
 /*
  * Sample dimensions. Pixel jitter uses dims 0-1; bounce k uses the 8 dims
- * starting at PT_DIM_BOUNCE0 + 8k, so 2D pairs stay inside one 4-dimension
- * Sobol group (sampler.h) and keep their stratification.
+ * starting at DIM_BOUNCE0 + 8k. 2D values start at even dimensions, so each
+ * is one stratified pair of the sampler (sampler.h).
  */
 enum {
     DIM_PIXEL = 0,
