@@ -1,0 +1,256 @@
+/*
+ * accel.c - ray queries through Embree 3.
+ *
+ * One RTCDevice and one RTCScene per pt_accel, with one triangle geometry.
+ * The vertex and index data are copied into buffers that Embree allocates
+ * (rtcSetNewGeometryBuffer): Embree reads vertices with 16-byte loads and so
+ * needs the last vertex padded, which the scene's tightly packed arrays are
+ * not. The scene is built in robust mode (watertight traversal; no triangle
+ * is skipped through an edge or vertex crack) with high build quality: it is
+ * built once per scene and then traced billions of times.
+ *
+ * Queries (rtcIntersect1 / rtcOccluded1 on a committed scene) are thread-safe.
+ */
+#include "common/accel.h"
+
+#include <math.h>
+#include <string.h>
+
+#include <embree3/rtcore.h>
+
+#include "common/alloc.h"
+
+struct pt_accel {
+    RTCDevice device;
+    RTCScene scene;
+};
+
+/* Static text for an Embree error, and the status it maps to. */
+static pt_status rtc_status(enum RTCError e, const char **msg)
+{
+    switch (e) {
+    case RTC_ERROR_NONE:
+        *msg = "no error";
+        return PT_OK;
+    case RTC_ERROR_OUT_OF_MEMORY:
+        *msg = "out of memory";
+        return PT_ERR_NOMEM;
+    case RTC_ERROR_INVALID_ARGUMENT:
+        *msg = "invalid argument";
+        return PT_ERR_ARG;
+    case RTC_ERROR_INVALID_OPERATION:
+        *msg = "invalid operation";
+        return PT_ERR_ARG;
+    case RTC_ERROR_UNSUPPORTED_CPU:
+        *msg = "unsupported CPU";
+        return PT_ERR_LIMIT;
+    case RTC_ERROR_CANCELLED:
+        *msg = "build cancelled";
+        return PT_ERR_LIMIT;
+    case RTC_ERROR_UNKNOWN:
+    default:
+        *msg = "unknown error";
+        return PT_ERR_LIMIT;
+    }
+}
+
+/* Reports the device's pending error (if any) as a pt_error naming `step`. */
+static pt_status check_device(RTCDevice device, const char *step, pt_error *err)
+{
+    const char *msg;
+    enum RTCError e = rtcGetDeviceError(device);
+    pt_status st = rtc_status(e, &msg);
+    if (st != PT_OK)
+        return pt_error_set(err, st, "embree: %s: %s", step, msg);
+    return PT_OK;
+}
+
+pt_status pt_accel_new(const pt_scene *scene, pt_accel **out, pt_error *err)
+{
+    pt_status st;
+    if (!scene || !out)
+        return pt_error_set(err, PT_ERR_ARG, "pt_accel_new: NULL argument");
+    if (scene->num_triangles > 0 && (!scene->positions || !scene->indices))
+        return pt_error_set(err, PT_ERR_ARG, "pt_accel_new: scene has triangles but no arrays");
+
+    pt_accel *a = pt_calloc(1, sizeof *a);
+    if (!a)
+        return pt_error_set(err, PT_ERR_NOMEM, "pt_accel_new: out of memory");
+
+    a->device = rtcNewDevice("");
+    if (!a->device) {
+        st = check_device(NULL, "rtcNewDevice", err);
+        if (st == PT_OK)
+            st = pt_error_set(err, PT_ERR_LIMIT, "embree: rtcNewDevice failed");
+        goto fail;
+    }
+    a->scene = rtcNewScene(a->device);
+    if ((st = check_device(a->device, "rtcNewScene", err)) != PT_OK)
+        goto fail;
+    rtcSetSceneFlags(a->scene, RTC_SCENE_FLAG_ROBUST);
+    rtcSetSceneBuildQuality(a->scene, RTC_BUILD_QUALITY_HIGH);
+
+    if (scene->num_triangles > 0) {
+        RTCGeometry g = rtcNewGeometry(a->device, RTC_GEOMETRY_TYPE_TRIANGLE);
+        if ((st = check_device(a->device, "rtcNewGeometry", err)) != PT_OK)
+            goto fail;
+        rtcSetGeometryBuildQuality(g, RTC_BUILD_QUALITY_HIGH);
+        float *vb = rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
+                                            3 * sizeof(float), scene->num_vertices);
+        uint32_t *ib = rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
+                                               3 * sizeof(uint32_t), scene->num_triangles);
+        if (!vb || !ib) {
+            rtcReleaseGeometry(g);
+            if ((st = check_device(a->device, "vertex/index buffers", err)) == PT_OK)
+                st = pt_error_set(err, PT_ERR_NOMEM, "embree: vertex/index buffers: out of memory");
+            goto fail;
+        }
+        memcpy(vb, scene->positions, (size_t)scene->num_vertices * 3 * sizeof(float));
+        memcpy(ib, scene->indices, (size_t)scene->num_triangles * 3 * sizeof(uint32_t));
+        rtcCommitGeometry(g);
+        rtcAttachGeometry(a->scene, g); /* geometry id 0: primID is the triangle index */
+        rtcReleaseGeometry(g);
+        if ((st = check_device(a->device, "geometry", err)) != PT_OK)
+            goto fail;
+    }
+    rtcCommitScene(a->scene);
+    if ((st = check_device(a->device, "rtcCommitScene", err)) != PT_OK)
+        goto fail;
+    *out = a;
+    return PT_OK;
+
+fail:
+    pt_accel_free(a);
+    return st;
+}
+
+void pt_accel_free(pt_accel *accel)
+{
+    if (!accel)
+        return;
+    if (accel->scene)
+        rtcReleaseScene(accel->scene);
+    if (accel->device)
+        rtcReleaseDevice(accel->device);
+    pt_free(accel);
+}
+
+static void init_ray(struct RTCRay *r, pt_vec3 o, pt_vec3 d, float tfar)
+{
+    r->org_x = o.x;
+    r->org_y = o.y;
+    r->org_z = o.z;
+    r->tnear = 0.0f;
+    r->dir_x = d.x;
+    r->dir_y = d.y;
+    r->dir_z = d.z;
+    r->time = 0.0f;
+    r->tfar = tfar;
+    r->mask = 0xffffffffu;
+    r->id = 0;
+    r->flags = 0;
+}
+
+int pt_accel_intersect(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, pt_hit *hit)
+{
+    hit->tri = UINT32_MAX;
+    /* Embree accepts hits with tnear <= t <= tfar. tnear = 0: a hit at exactly
+     * t = 0 is a measure-zero event once origins are offset (pt_offset_ray). */
+    if (!(tfar > 0.0f))
+        return 0;
+    struct RTCIntersectContext ctx;
+    rtcInitIntersectContext(&ctx);
+    struct RTCRayHit rh;
+    init_ray(&rh.ray, o, d, tfar);
+    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+    rh.hit.primID = RTC_INVALID_GEOMETRY_ID;
+    rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+    rtcIntersect1(accel->scene, &ctx, &rh);
+    if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID)
+        return 0;
+    hit->t = rh.ray.tfar;
+    hit->b1 = rh.hit.u;
+    hit->b2 = rh.hit.v;
+    hit->tri = rh.hit.primID;
+    return 1;
+}
+
+int pt_accel_occluded(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar)
+{
+    if (!(tfar > 0.0f))
+        return 0;
+    struct RTCIntersectContext ctx;
+    rtcInitIntersectContext(&ctx);
+    struct RTCRay r;
+    /* The contract is the half-open [0, tfar): the end point itself (a light
+     * point the caller offset towards the shading point) must not occlude.
+     * Embree's test is closed, so pass the next float below tfar: exactly the
+     * open interval, not a hand-picked shortening. */
+    init_ray(&r, o, d, nextafterf(tfar, 0.0f));
+    rtcOccluded1(accel->scene, &ctx, &r);
+    return r.tfar == -INFINITY;
+}
+
+static pt_vec3 vertex(const pt_scene *s, uint32_t i)
+{
+    return pt_v3(s->positions[3 * i], s->positions[3 * i + 1], s->positions[3 * i + 2]);
+}
+
+void pt_accel_hit_point(const pt_scene *scene, const pt_hit *hit, pt_vec3 *p, pt_vec3 *ng)
+{
+    const uint32_t *t = &scene->indices[3 * hit->tri];
+    pt_vec3 v0 = vertex(scene, t[0]), v1 = vertex(scene, t[1]), v2 = vertex(scene, t[2]);
+    float b0 = 1.0f - hit->b1 - hit->b2;
+    /* Barycentric interpolation of the vertices: its error is relative to the
+     * vertex magnitudes, where o + t d adds the error of t times |d| (Waechter
+     * & Binder, RTG ch. 6, sec. 6.2.1). */
+    *p = pt_v3_add(pt_v3_add(pt_v3_scale(v0, b0), pt_v3_scale(v1, hit->b1)),
+                   pt_v3_scale(v2, hit->b2));
+    pt_vec3 n = pt_v3_cross(pt_v3_sub(v1, v0), pt_v3_sub(v2, v0));
+    float len = pt_v3_len(n);
+    if (len > 0.0f && isfinite(len)) {
+        *ng = pt_v3_scale(n, 1.0f / len);
+    } else {
+        /* Degenerate (or overflowing) triangle: any unit vector beats a NaN. */
+        double lx = n.x, ly = n.y, lz = n.z;
+        double l = sqrt(lx * lx + ly * ly + lz * lz);
+        if (l > 0.0 && isfinite(l))
+            *ng = pt_v3((float)(lx / l), (float)(ly / l), (float)(lz / l));
+        else
+            *ng = pt_v3(0.0f, 0.0f, 1.0f);
+    }
+}
+
+/* Waechter & Binder, "A Fast and Robust Method for Avoiding Self-Intersection",
+ * Ray Tracing Gems (2019) ch. 6. Far from the origin each coordinate is moved
+ * by an integer number of ULPs proportional to the normal's component
+ * (int_scale ULPs for a unit component), so the offset grows with the
+ * coordinate's own rounding error; near the origin, where ULPs get arbitrarily
+ * small, a fixed absolute offset float_scale * n is used instead. */
+#define OFFSET_ORIGIN (1.0f / 32.0f)
+#define OFFSET_FLOAT_SCALE (1.0f / 65536.0f)
+#define OFFSET_INT_SCALE 256.0f
+
+static float offset_coord(float p, float n)
+{
+    if (fabsf(p) < OFFSET_ORIGIN)
+        return p + OFFSET_FLOAT_SCALE * n;
+    /* n is unit length; the clamp only keeps a bad n (NaN) from an undefined
+     * float-to-int conversion. */
+    int32_t of = (int32_t)(OFFSET_INT_SCALE * fmaxf(-1.0f, fminf(1.0f, n)));
+    uint32_t bits;
+    memcpy(&bits, &p, sizeof bits);
+    /* Sign-magnitude floats: adding to the bits moves away from zero, so a
+     * negative coordinate moves along +n by subtracting. Unsigned arithmetic
+     * wraps instead of overflowing; finite |p| >= 1/32 stays far from both
+     * ends of the bit range. */
+    bits += (uint32_t)(p < 0.0f ? -of : of);
+    float r;
+    memcpy(&r, &bits, sizeof r);
+    return r;
+}
+
+pt_vec3 pt_offset_ray(pt_vec3 p, pt_vec3 n)
+{
+    return pt_v3(offset_coord(p.x, n.x), offset_coord(p.y, n.y), offset_coord(p.z, n.z));
+}
