@@ -49,7 +49,10 @@ pt_status pt_image_new(uint32_t width, uint32_t height, pt_image **out, pt_error
     return PT_OK;
 }
 
-void pt_image_free(pt_image *img) { pt_free(img); }
+void pt_image_free(pt_image *img)
+{
+    pt_free(img);
+}
 
 /* IEC 61966-2-1:1999, section 5.2 (encoding) and its inverse. */
 float pt_srgb_to_linear(float c)

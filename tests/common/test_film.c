@@ -20,7 +20,10 @@ static double rnd(void)
     return (double)(z >> 11) * 0x1.0p-53;
 }
 
-static double lum(double r, double g, double b) { return 0.2126 * r + 0.7152 * g + 0.0722 * b; }
+static double lum(double r, double g, double b)
+{
+    return 0.2126 * r + 0.7152 * g + 0.0722 * b;
+}
 
 /* The partial sums a task of chunk c would return for pixel (x, y). */
 static pt_pixel_acc synth_acc(uint32_t x, uint32_t y, uint32_t c)
