@@ -3,6 +3,7 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <inttypes.h>
+#include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -12,6 +13,8 @@
 #include <OpenEXR/openexr.h>
 
 #include "common/alloc.h"
+
+static atomic_uint temp_serial;
 
 /* The largest data window pt_exr_read accepts; pt_image_new enforces the
  * pixel cap as well. */
@@ -269,7 +272,10 @@ pt_status pt_exr_write(const char *path, const pt_image *img, const pt_exr_meta 
     char *tmp = pt_malloc(cap);
     if (!tmp)
         return pt_error_set(err, PT_ERR_NOMEM, "EXR %s: out of memory", path);
-    snprintf(tmp, cap, "%s.tmp.%ld", path, (long)getpid());
+    /* Unique per process (pid) and per call (counter), so two writers of
+     * one path, in this process or another, never share a temp file. */
+    snprintf(tmp, cap, "%s.tmp.%ld.%u", path, (long)getpid(),
+             (unsigned)atomic_fetch_add(&temp_serial, 1));
 
     pt_status st = PT_OK;
     exr_context_t ctx = NULL;

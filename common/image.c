@@ -3,6 +3,7 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <math.h>
+#include <stdatomic.h>
 #include <stdio.h>
 #include <string.h>
 #include <unistd.h>
@@ -10,6 +11,8 @@
 #include <stb/stb_image_write.h>
 
 #include "common/alloc.h"
+
+static atomic_uint temp_serial;
 
 /* Caps on image size: 65536 per side and 2^28 pixels (1 GiB per float plane
  * at the cap is already more than any render this farm makes). */
@@ -129,7 +132,10 @@ pt_status pt_png_write_preview(const char *path, const pt_image *img, pt_error *
         rgb[3 * i + 1] = to_byte(img->g[i]);
         rgb[3 * i + 2] = to_byte(img->b[i]);
     }
-    snprintf(tmp, plen + 32, "%s.tmp.%ld", path, (long)getpid());
+    /* Unique per process (pid) and per call (counter), so two writers of
+     * one path, in this process or another, never share a temp file. */
+    snprintf(tmp, plen + 32, "%s.tmp.%ld.%u", path, (long)getpid(),
+             (unsigned)atomic_fetch_add(&temp_serial, 1));
     dir_of(path, dir, plen + 2);
     errno = 0;
     if (!stbi_write_png(tmp, (int)img->width, (int)img->height, 3, rgb, (int)img->width * 3)) {

@@ -7,6 +7,7 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <math.h>
+#include <pthread.h>
 #include <signal.h>
 #include <string.h>
 #include <sys/stat.h>
@@ -433,6 +434,45 @@ static void test_foreign_files(void)
     unlink(path("tiled.exr"));
 }
 
+typedef struct writer_arg {
+    const char *target; /* path() is not thread-safe: resolved before the threads start */
+    const pt_image *img;
+    int failures;
+} writer_arg;
+
+static void *writer_thread(void *p)
+{
+    writer_arg *a = p;
+    for (int i = 0; i < 10; i++)
+        a->failures += pt_exr_write(a->target, a->img, NULL, NULL) != PT_OK;
+    return NULL;
+}
+
+/* Two threads of one process writing one path never share a temp file. */
+static void test_threads_one_path(void)
+{
+    pt_image *a = random_image(33, 17), *b = random_image(33, 17), *r = NULL;
+    char target[512];
+    snprintf(target, sizeof target, "%s", path("mt.exr"));
+    writer_arg wa = {target, a, 0}, wb = {target, b, 0};
+    pthread_t ta, tb;
+    int started = pthread_create(&ta, NULL, writer_thread, &wa) == 0;
+    started += pthread_create(&tb, NULL, writer_thread, &wb) == 0;
+    CHECK(started == 2);
+    if (started >= 1)
+        pthread_join(ta, NULL);
+    if (started == 2)
+        pthread_join(tb, NULL);
+    CHECK(wa.failures == 0 && wb.failures == 0);
+    CHECK(pt_exr_read(path("mt.exr"), &r, NULL, NULL) == PT_OK);
+    CHECK(same_image(r, a) || same_image(r, b));
+    CHECK(count_temp_files() == 0);
+    pt_image_free(r);
+    pt_image_free(a);
+    pt_image_free(b);
+    unlink(path("mt.exr"));
+}
+
 static void test_write_errors(void)
 {
     pt_image *a = random_image(4, 4);
@@ -587,6 +627,7 @@ int main(void)
     test_png();
     test_round_trip();
     test_atomic_replace();
+    test_threads_one_path();
     test_write_errors();
     test_foreign_files();
     test_hostile();
