@@ -106,13 +106,15 @@ static pt_status exr_fail(pt_error *err, const exr_stream *s, exr_result_t rv, c
     else if (rv == EXR_ERR_FILE_ACCESS || rv == EXR_ERR_WRITE_IO ||
              (rv == EXR_ERR_READ_IO && s->io_errno != 0))
         code = PT_ERR_IO;
+    /* The library's own message, when it gave one, says which field or chunk. */
+    const char *lp = exr_last_msg[0] ? " (" : "", *rp = exr_last_msg[0] ? ")" : "";
     if (code == PT_ERR_IO && s->io_errno) {
         errno = s->io_errno;
-        return pt_error_errno(err, code, "EXR %s: %s: %s (%s)", path, what,
-                              exr_get_error_code_as_string(rv), exr_last_msg);
+        return pt_error_errno(err, code, "EXR %s: %s: %s%s%s%s", path, what,
+                              exr_get_error_code_as_string(rv), lp, exr_last_msg, rp);
     }
-    return pt_error_set(err, code, "EXR %s: %s: %s (%s)", path, what,
-                        exr_get_error_code_as_string(rv), exr_last_msg);
+    return pt_error_set(err, code, "EXR %s: %s: %s%s%s%s", path, what,
+                        exr_get_error_code_as_string(rv), lp, exr_last_msg, rp);
 }
 
 static void stream_init(exr_context_initializer_t *init, exr_stream *s)
@@ -330,7 +332,8 @@ pt_status pt_exr_write(const char *path, const pt_image *img, const pt_exr_meta 
         goto fail;
     }
     pt_free(tmp);
-    /* The file is in place; a failed directory fsync only weakens durability. */
+    /* The file is complete and in place; a failed directory fsync is still
+     * reported, since the rename may not survive a crash. */
     if (fsync_dir_of(path) != 0)
         return pt_error_errno(err, PT_ERR_IO, "EXR %s: fsync of its directory", path);
     return PT_OK;
