@@ -289,8 +289,8 @@ static int is_file(const char *path)
     return stat(path, &sb) == 0 && S_ISREG(sb.st_mode);
 }
 
-pt_status wrk_cache_lookup(wrk_cache *c, const uint8_t hash[WRK_HASH_SIZE], char *entry,
-                           size_t cap, pt_error *err)
+pt_status wrk_cache_lookup(wrk_cache *c, const uint8_t hash[WRK_HASH_SIZE], char *entry, size_t cap,
+                           pt_error *err)
 {
     char hex[65], bundle_path[2200], scene_dir[2200], got[65];
     wrk_hash_hex(hash, hex);
@@ -385,9 +385,9 @@ struct wrk_scene_ref {
     pt_scene *scene;
     pt_renderer *renderer;
     int state;
-    pt_error err;       /* why the build failed (E_FAILED) */
-    uint32_t refs;      /* holders and waiters */
-    uint64_t last_use;  /* for LRU eviction */
+    pt_error err;      /* why the build failed (E_FAILED) */
+    uint32_t refs;     /* holders and waiters */
+    uint64_t last_use; /* for LRU eviction */
     wrk_scene_ref *next;
 };
 
@@ -463,8 +463,7 @@ static wrk_scene_ref *evict(wrk_scenes *s)
     while (s->count > s->max) {
         wrk_scene_ref *victim = NULL;
         for (wrk_scene_ref *e = s->head; e; e = e->next)
-            if (e->refs == 0 && e->state == E_READY &&
-                (!victim || e->last_use < victim->last_use))
+            if (e->refs == 0 && e->state == E_READY && (!victim || e->last_use < victim->last_use))
                 victim = e;
         if (!victim)
             break; /* all in use: over the limit until one is released */

@@ -46,8 +46,8 @@ const char *wrk_cache_dir(const wrk_cache *c);
  * longer hash to its name or are malformed; both files were removed, so a
  * later lookup says PT_AGAIN. PT_ERR_IO / PT_ERR_NOMEM / PT_ERR_LIMIT
  * otherwise. Reads and hashes the whole bundle (about 1 s per GiB). */
-pt_status wrk_cache_lookup(wrk_cache *c, const uint8_t hash[WRK_HASH_SIZE], char *entry,
-                           size_t cap, pt_error *err);
+pt_status wrk_cache_lookup(wrk_cache *c, const uint8_t hash[WRK_HASH_SIZE], char *entry, size_t cap,
+                           pt_error *err);
 
 /* Stores a fetched bundle: checks that SHA-256(data) equals hash (PT_ERR_FORMAT
  * otherwise, nothing written) and its layout, writes <hex>.bundle and unpacks

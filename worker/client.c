@@ -39,7 +39,7 @@
 
 typedef struct task_item {
     proto_task t;
-    char *entry;   /* the scene's entry file (pt_strdup) once known */
+    char *entry;    /* the scene's entry file (pt_strdup) once known */
     uint64_t epoch; /* connection it belongs to */
     struct task_item *next;
 } task_item;
@@ -47,8 +47,8 @@ typedef struct task_item {
 typedef struct done_item {
     proto_task t;
     uint64_t epoch;
-    pt_status st;          /* PT_OK: pixels hold the result */
-    pt_error err;          /* why not */
+    pt_status st; /* PT_OK: pixels hold the result */
+    pt_error err; /* why not */
     pt_render_stats stats;
     pt_pixel_acc *pixels;
     struct done_item *next;
@@ -71,11 +71,11 @@ typedef struct render_arg {
 /* I/O-thread state for one scene hash: known on disk, or being fetched. */
 typedef struct scene_rec {
     uint8_t hash[PROTO_HASH_SIZE];
-    char *entry;      /* entry file path, NULL until cached */
-    int fetching;     /* a SCENE_GET is outstanding on this connection */
-    uint8_t *buf;     /* bytes received so far */
+    char *entry;  /* entry file path, NULL until cached */
+    int fetching; /* a SCENE_GET is outstanding on this connection */
+    uint8_t *buf; /* bytes received so far */
     size_t len, cap;
-    uint64_t total;   /* from the first chunk */
+    uint64_t total; /* from the first chunk */
     struct scene_rec *next;
 } scene_rec;
 
@@ -116,8 +116,8 @@ struct worker {
     size_t in_start, in_len, in_cap;
     proto_writer out;
     size_t out_sent;
-    uint32_t requested;  /* slots asked for, TASKs not yet received */
-    task_item *pending;  /* tasks waiting for their scene */
+    uint32_t requested; /* slots asked for, TASKs not yet received */
+    task_item *pending; /* tasks waiting for their scene */
     uint32_t npending;
     scene_rec *scenes_known;
     uint64_t t_connect, t_heartbeat;
@@ -317,26 +317,26 @@ static size_t out_pending(const worker *w)
 }
 
 /* Frames one message: the encoder is called between begin and end. */
-#define SEND_MSG(w, type, encode_call)                                                       \
-    do {                                                                                     \
-        size_t mark_;                                                                        \
-        pt_error e_ = {0};                                                                   \
-        if (proto_frame_begin(&(w)->out, (type), &mark_, &e_) != PT_OK) {                    \
-            snprintf((w)->reason, sizeof (w)->reason, "cannot queue %s: %s",                 \
-                     proto_msg_type_name(type), e_.msg);                                     \
-            return -1;                                                                       \
-        }                                                                                    \
-        if ((encode_call) != PT_OK) {                                                        \
-            proto_frame_cancel(&(w)->out, mark_);                                            \
-            snprintf((w)->reason, sizeof (w)->reason, "cannot encode %s",                    \
-                     proto_msg_type_name(type));                                             \
-            return -1;                                                                       \
-        }                                                                                    \
-        if (proto_frame_end(&(w)->out, mark_, &e_) != PT_OK) {                               \
-            snprintf((w)->reason, sizeof (w)->reason, "cannot queue %s: %s",                 \
-                     proto_msg_type_name(type), e_.msg);                                     \
-            return -1;                                                                       \
-        }                                                                                    \
+#define SEND_MSG(w, type, encode_call)                                                             \
+    do {                                                                                           \
+        size_t mark_;                                                                              \
+        pt_error e_ = {0};                                                                         \
+        if (proto_frame_begin(&(w)->out, (type), &mark_, &e_) != PT_OK) {                          \
+            snprintf((w)->reason, sizeof(w)->reason, "cannot queue %s: %s",                        \
+                     proto_msg_type_name(type), e_.msg);                                           \
+            return -1;                                                                             \
+        }                                                                                          \
+        if ((encode_call) != PT_OK) {                                                              \
+            proto_frame_cancel(&(w)->out, mark_);                                                  \
+            snprintf((w)->reason, sizeof(w)->reason, "cannot encode %s",                           \
+                     proto_msg_type_name(type));                                                   \
+            return -1;                                                                             \
+        }                                                                                          \
+        if (proto_frame_end(&(w)->out, mark_, &e_) != PT_OK) {                                     \
+            snprintf((w)->reason, sizeof(w)->reason, "cannot queue %s: %s",                        \
+                     proto_msg_type_name(type), e_.msg);                                           \
+            return -1;                                                                             \
+        }                                                                                          \
     } while (0)
 
 static int send_hello(worker *w)
@@ -623,8 +623,8 @@ static int on_scene_chunk(worker *w, const proto_frame *f)
             cap = (size_t)s->total;
         uint8_t *nb = pt_realloc(s->buf, cap);
         if (!nb) {
-            snprintf(w->reason, sizeof w->reason, "out of memory for scene %.16s (%zu bytes)",
-                     hex, cap);
+            snprintf(w->reason, sizeof w->reason, "out of memory for scene %.16s (%zu bytes)", hex,
+                     cap);
             return -1;
         }
         s->buf = nb;
@@ -673,8 +673,7 @@ static int collect_results(worker *w)
         if (d->st != PT_OK) {
             /* Dropped: the lease runs out and the coordinator hands it to another. */
             fprintf(stderr, "ptworker: task %llu of job %llu failed: %s\n",
-                    (unsigned long long)d->t.task_id, (unsigned long long)d->t.job_id,
-                    d->err.msg);
+                    (unsigned long long)d->t.task_id, (unsigned long long)d->t.job_id, d->err.msg);
             w->failed++;
             /* Look the scene up (and check it) again for its next task, in
              * case its files changed under us. */
@@ -783,8 +782,8 @@ static int dispatch(worker *w, const proto_frame *f, int *end)
             }
             w->state = S_READY;
             w->t_heartbeat = now_ms() + HEARTBEAT_MIN_MS;
-            fprintf(stderr, "ptworker: connected to %s:%u as %s (%u threads)\n", w->host,
-                    w->port, w->name, w->o->threads);
+            fprintf(stderr, "ptworker: connected to %s:%u as %s (%u threads)\n", w->host, w->port,
+                    w->name, w->o->threads);
             return 0;
         }
         break;
@@ -834,8 +833,8 @@ static int read_in(worker *w, int *end)
         size_t used;
         pt_error err = {0};
         uint32_t cap = w->state == S_READY ? PROTO_MAX_PAYLOAD : PROTO_MAX_PAYLOAD_PREAUTH;
-        pt_status st = proto_frame_decode(w->in + w->in_start, w->in_len - w->in_start, cap, &f,
-                                          &used, &err);
+        pt_status st =
+            proto_frame_decode(w->in + w->in_start, w->in_len - w->in_start, cap, &f, &used, &err);
         if (st == PT_AGAIN)
             break;
         if (st != PT_OK) {
@@ -1017,8 +1016,7 @@ static int setup(worker *w, const wrk_client_opts *o)
             return 1;
         }
         if (loose)
-            fprintf(stderr, "ptworker: warning: %s is readable by other users\n",
-                    o->token_file);
+            fprintf(stderr, "ptworker: warning: %s is readable by other users\n", o->token_file);
     }
     char dir[2048];
     if (o->cache_dir)
@@ -1144,8 +1142,8 @@ int wrk_client_run(const wrk_client_opts *o)
         if (welcomed)
             delay = BACKOFF_MIN_MS;
         if (welcomed)
-            fprintf(stderr, "ptworker: lost %s:%u: %s; reconnecting in %.1f s\n", w->host,
-                    w->port, w->reason, delay / 1000.0);
+            fprintf(stderr, "ptworker: lost %s:%u: %s; reconnecting in %.1f s\n", w->host, w->port,
+                    w->reason, delay / 1000.0);
         else if (connected)
             fprintf(stderr, "ptworker: %s:%u: %s; retrying in %.1f s\n", w->host, w->port,
                     w->reason, delay / 1000.0);

@@ -27,9 +27,9 @@
 #include <stdint.h>
 
 typedef struct wrk_client_opts {
-    const char *server;     /* "HOST:PORT" */
-    uint32_t threads;       /* render threads, 1..PROTO_MAX_SLOTS */
-    uint32_t prefetch;      /* tasks asked for beyond threads; threads + prefetch <= PROTO_MAX_SLOTS */
+    const char *server; /* "HOST:PORT" */
+    uint32_t threads;   /* render threads, 1..PROTO_MAX_SLOTS */
+    uint32_t prefetch;  /* tasks asked for beyond threads; threads + prefetch <= PROTO_MAX_SLOTS */
     const char *token_file; /* NULL: empty token */
     const char *cache_dir;  /* NULL: wrk_client_default_cache_dir() */
     const char *name;       /* NULL: "hostname:pid"; at most PROTO_MAX_NAME bytes */

@@ -82,8 +82,7 @@ static void test_disk(const pt_bundle *b, const uint8_t hash[32])
     uint8_t wrong[32];
     memcpy(wrong, hash, 32);
     wrong[0] ^= 1;
-    CHECK(wrk_cache_store(c, wrong, b->data, b->size, entry, sizeof entry, &err) ==
-          PT_ERR_FORMAT);
+    CHECK(wrk_cache_store(c, wrong, b->data, b->size, entry, sizeof entry, &err) == PT_ERR_FORMAT);
     CHECK(wrk_cache_lookup(c, wrong, entry, sizeof entry, &err) == PT_AGAIN);
     /* Garbage whose hash matches is refused by the layout check. */
     const char garbage[] = "not a bundle at all";
@@ -233,8 +232,7 @@ static void test_memory(const uint8_t hash[32], const char *entry)
     racer r[2];
     race2(s, hash, entry, &p, r);
     CHECK(r[0].st == PT_OK && r[1].st == PT_OK);
-    CHECKF(wrk_scenes_builds(s) == 1, "built %llu times",
-           (unsigned long long)wrk_scenes_builds(s));
+    CHECKF(wrk_scenes_builds(s) == 1, "built %llu times", (unsigned long long)wrk_scenes_builds(s));
     CHECK(r[0].ref && r[0].ref == r[1].ref);
     if (r[0].st == PT_OK) {
         const pt_renderer *ren = wrk_scene_renderer(r[0].ref);
