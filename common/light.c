@@ -302,7 +302,10 @@ void pt_lights_free(pt_lights *lights)
     pt_free(lights);
 }
 
-uint32_t pt_lights_count(const pt_lights *lights) { return lights ? lights->count : 0; }
+uint32_t pt_lights_count(const pt_lights *lights)
+{
+    return lights ? lights->count : 0;
+}
 
 /* pdf_w = pmf / area * d^2 / |cos theta_light| (area to solid angle: dA =
  * d^2 / |cos| dw). 0 on the back of a single-sided light, at a grazing angle,

@@ -28,7 +28,10 @@ static uint64_t rng_next(void)
     return z ^ (z >> 31);
 }
 
-static float rnd(void) { return (float)(rng_next() >> 40) * 0x1p-24f; }
+static float rnd(void)
+{
+    return (float)(rng_next() >> 40) * 0x1p-24f;
+}
 
 static pt_vec3 rnd_dir(void)
 {
@@ -222,6 +225,7 @@ static void test_hit_miss(void)
 
 static void test_offset_basics(void)
 {
+    rng_state = 1;
     /* Near the origin a fixed 1/65536 along n; far away an ULP count. */
     pt_vec3 o = pt_offset_ray(pt_v3(0, 0, 0), pt_v3(0, 0, 1));
     CHECK(o.x == 0.0f && o.y == 0.0f && o.z == 1.0f / 65536.0f);
@@ -247,6 +251,7 @@ static void test_offset_basics(void)
 
 static void test_hit_accuracy(void)
 {
+    rng_state = 2;
     const float scales[] = {1e-4f, 1.0f, 1e4f};
     for (int si = 0; si < 3; si++) {
         for (int ti = 0; ti < 2; ti++) {
@@ -269,7 +274,8 @@ static void test_hit_accuracy(void)
             }
             pt_vec3 v[3];
             for (int k = 0; k < 3; k++)
-                v[k] = pt_v3(t.s.positions[3 * k], t.s.positions[3 * k + 1], t.s.positions[3 * k + 2]);
+                v[k] =
+                    pt_v3(t.s.positions[3 * k], t.s.positions[3 * k + 1], t.s.positions[3 * k + 2]);
             double nd[3];
             {
                 pt_vec3 e1 = pt_v3_sub(v[1], v[0]), e2 = pt_v3_sub(v[2], v[0]);
@@ -282,15 +288,17 @@ static void test_hit_accuracy(void)
             }
             float maxc = 0.0f;
             for (int k = 0; k < 3; k++)
-                maxc = fmaxf(maxc, pt_v3_max_comp(pt_v3(fabsf(v[k].x), fabsf(v[k].y), fabsf(v[k].z))));
+                maxc =
+                    fmaxf(maxc, pt_v3_max_comp(pt_v3(fabsf(v[k].x), fabsf(v[k].y), fabsf(v[k].z))));
             double worst_plane = 0, worst_target = 0, worst_td = 0;
             int misses = 0;
             for (int i = 0; i < 2000; i++) {
                 /* Inside by a margin, and not grazing: there the hit point
                  * along the ray is ill-conditioned whatever the method. */
                 float b1 = 0.05f + 0.8f * rnd(), b2 = 0.05f + (0.85f - b1) * rnd();
-                pt_vec3 q = pt_v3_add(pt_v3_add(pt_v3_scale(v[0], 1 - b1 - b2), pt_v3_scale(v[1], b1)),
-                                      pt_v3_scale(v[2], b2));
+                pt_vec3 q =
+                    pt_v3_add(pt_v3_add(pt_v3_scale(v[0], 1 - b1 - b2), pt_v3_scale(v[1], b1)),
+                              pt_v3_scale(v[2], b2));
                 pt_vec3 od = rnd_dir();
                 if (fabs(od.x * nd[0] + od.y * nd[1] + od.z * nd[2]) < 0.2) {
                     i--;
@@ -308,8 +316,9 @@ static void test_hit_accuracy(void)
                 double pd = fabs(((double)p.x - v[0].x) * nd[0] + ((double)p.y - v[0].y) * nd[1] +
                                  ((double)p.z - v[0].z) * nd[2]);
                 pt_vec3 ptd = pt_v3_add(o, pt_v3_scale(d, h.t));
-                double td = fabs(((double)ptd.x - v[0].x) * nd[0] + ((double)ptd.y - v[0].y) * nd[1] +
-                                 ((double)ptd.z - v[0].z) * nd[2]);
+                double td =
+                    fabs(((double)ptd.x - v[0].x) * nd[0] + ((double)ptd.y - v[0].y) * nd[1] +
+                         ((double)ptd.z - v[0].z) * nd[2]);
                 worst_plane = fmax(worst_plane, pd);
                 worst_td = fmax(worst_td, td);
                 worst_target = fmax(worst_target, pt_v3_len(pt_v3_sub(p, q)));
@@ -345,7 +354,7 @@ static void add_sphere(tscene *t, const place *pl, int nu, int nv)
         }
     }
     uint32_t bottom = ts_vert(t, to_world(pl, pt_v3(0, 0, -1)));
-#define RING(j, i) (base + 1 + (uint32_t)((j) - 1) * (uint32_t)nu + (uint32_t)((i) % nu))
+#define RING(j, i) (base + 1 + (uint32_t)((j)-1) * (uint32_t)nu + (uint32_t)((i) % nu))
     for (int i = 0; i < nu; i++) {
         ts_tri(t, top, RING(1, i), RING(1, i + 1));
         for (int j = 1; j < nv - 1; j++) {
@@ -394,7 +403,8 @@ static void self_intersection_at(const place *pl, int closed, const char *what)
             self += pt_accel_intersect(a, o, d, INFINITY, &h);
             occ += pt_accel_occluded(a, o, d, INFINITY);
         }
-        CHECKF(self == 0 && occ == 0, "%s: plane: %d self-hits, %d self-occlusions", what, self, occ);
+        CHECKF(self == 0 && occ == 0, "%s: plane: %d self-hits, %d self-occlusions", what, self,
+               occ);
         pt_accel_free(a);
         ts_fini(&t);
     }
@@ -478,6 +488,7 @@ static void self_intersection_at(const place *pl, int closed, const char *what)
  * open plane is tested everywhere. */
 static void test_self_intersection(void)
 {
+    rng_state = 3;
     static const struct {
         float scale, translate;
         int closed;
@@ -499,6 +510,7 @@ static void test_self_intersection(void)
 
 static void test_occluded_agrees(void)
 {
+    rng_state = 4;
     place pl = {2.0f, pt_v3(3, -1, 2), pt_frame_from_normal(pt_v3(0, 0, 1))};
     tscene t;
     ts_init(&t, 2 + 16 * 7 + 12, 2 * 16 * 7 + 6);
@@ -529,7 +541,6 @@ static void test_occluded_agrees(void)
 
 int main(void)
 {
-    rng_state = 12345;
     test_hit_miss();
     test_offset_basics();
     test_hit_accuracy();
