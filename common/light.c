@@ -225,12 +225,15 @@ pt_status pt_lights_new(const pt_scene *scene, pt_lights **out, pt_error *err)
         any_tex = 1;
     }
     if (any_tex) {
-        tex_mean = pt_calloc(scene->num_textures, sizeof *tex_mean);
+        tex_mean = pt_malloc_array(scene->num_textures, sizeof *tex_mean);
         if (!tex_mean)
             goto nomem;
+        /* NaN: not computed yet; each texture is read once. */
+        for (uint32_t i = 0; i < scene->num_textures; i++)
+            tex_mean[i] = pt_v3(NAN, NAN, NAN);
         for (uint32_t i = 0; i < scene->num_materials; i++) {
             const pt_material *m = &scene->materials[i];
-            if (emits(m) && m->emissive_tex >= 0 && !pt_v3_max_comp(tex_mean[m->emissive_tex]))
+            if (emits(m) && m->emissive_tex >= 0 && isnan(tex_mean[m->emissive_tex].x))
                 tex_mean[m->emissive_tex] = texture_mean(&scene->textures[m->emissive_tex]);
         }
     }
