@@ -4,7 +4,7 @@
  * Channels written: R, G, B (mean radiance), "samples" (per-pixel sample count)
  * and "variance" (variance of the pixel mean, luminance), all FLOAT, scanline,
  * ZIP compression. Header attributes: "ptfarm.samples" (total samples, as a
- * string/int64 pair), "ptfarm.renderSeconds" (double), "ptfarm.sceneHash"
+ * decimal string), "ptfarm.renderSeconds" (double), "ptfarm.sceneHash"
  * (string), "ptfarm.jobId" (string), and the standard "software" string.
  * Writes are atomic: a temp file in the same folder, fsync, rename, so a
  * reader never sees a torn file.

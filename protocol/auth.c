@@ -40,8 +40,8 @@ pt_status proto_auth_response(const uint8_t *token, size_t token_len,
                               const uint8_t nonce[PROTO_NONCE_SIZE], uint8_t out[PROTO_MAC_SIZE],
                               pt_error *err)
 {
-    if (token_len == 0 || token_len > PROTO_TOKEN_MAX)
-        return pt_error_set(err, PT_ERR_ARG, "auth: token of %zu bytes (1..%u)", token_len,
+    if (token_len > PROTO_TOKEN_MAX || (token_len > 0 && !token))
+        return pt_error_set(err, PT_ERR_ARG, "auth: token of %zu bytes (0..%u)", token_len,
                             PROTO_TOKEN_MAX);
     uint8_t msg[sizeof PROTO_AUTH_LABEL - 1 + PROTO_NONCE_SIZE];
     memcpy(msg, PROTO_AUTH_LABEL, sizeof PROTO_AUTH_LABEL - 1);

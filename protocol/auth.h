@@ -37,7 +37,8 @@ pt_status proto_auth_hmac_sha256(const uint8_t *key, size_t key_len, const uint8
                                  size_t data_len, uint8_t out[PROTO_MAC_SIZE], pt_error *err);
 
 /* out = HMAC-SHA256(token, PROTO_AUTH_LABEL || nonce). token_len must be
- * 1..PROTO_TOKEN_MAX (PT_ERR_ARG otherwise); PT_ERR_AUTH if libcrypto fails.
+ * 0..PROTO_TOKEN_MAX (PT_ERR_ARG otherwise); an empty token is the
+ * loopback-only mode of a coordinator started without --token-file; PT_ERR_AUTH if libcrypto fails.
  * out is untouched on failure. */
 pt_status proto_auth_response(const uint8_t *token, size_t token_len,
                               const uint8_t nonce[PROTO_NONCE_SIZE], uint8_t out[PROTO_MAC_SIZE],
