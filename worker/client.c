@@ -732,17 +732,8 @@ static int on_challenge(worker *w, const proto_frame *f)
     if (proto_msg_decode_challenge(f->payload, f->len, &ch, &err) != PT_OK)
         return fail_proto(w, "bad CHALLENGE: %s", err.msg);
     proto_auth a;
-    pt_status st;
-    if (w->token_len > 0) {
-        st = proto_auth_response(w->token, w->token_len, ch.nonce, a.mac, &err);
-    } else {
-        /* No token: the same MAC under the empty key (proto_auth_response
-         * takes tokens of at least one byte). */
-        uint8_t msg[sizeof PROTO_AUTH_LABEL - 1 + PROTO_NONCE_SIZE];
-        memcpy(msg, PROTO_AUTH_LABEL, sizeof PROTO_AUTH_LABEL - 1);
-        memcpy(msg + sizeof PROTO_AUTH_LABEL - 1, ch.nonce, PROTO_NONCE_SIZE);
-        st = proto_auth_hmac_sha256(NULL, 0, msg, sizeof msg, a.mac, &err);
-    }
+    /* Without --token-file the token is empty: a loopback-only coordinator's. */
+    pt_status st = proto_auth_response(w->token, w->token_len, ch.nonce, a.mac, &err);
     if (st != PT_OK) {
         snprintf(w->reason, sizeof w->reason, "cannot answer the challenge: %s", err.msg);
         return -1;
