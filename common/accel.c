@@ -20,9 +20,15 @@
 
 #include "common/alloc.h"
 
+/* Waechter & Binder's constants (RTG ch. 6), for a scene of about unit size. */
+#define OFFSET_ORIGIN (1.0f / 32.0f)
+#define OFFSET_FLOAT_SCALE (1.0f / 65536.0f)
+#define OFFSET_INT_SCALE 256.0f
+
 struct pt_accel {
     RTCDevice device;
     RTCScene scene;
+    float origin, float_scale; /* pt_accel_offset_ray's constants for this scene */
 };
 
 /* Static text for an Embree error, and the status it maps to. */
@@ -114,6 +120,19 @@ pt_status pt_accel_new(const pt_scene *scene, pt_accel **out, pt_error *err)
             goto fail;
     }
     rtcCommitScene(a->scene);
+    {
+        /* The scene's coordinate magnitude, rounded up to a power of two so the
+         * scaled constants are exact. */
+        float m = fmaxf(pt_v3_max_comp(pt_v3(fabsf(scene->bounds_min.x), fabsf(scene->bounds_min.y),
+                                             fabsf(scene->bounds_min.z))),
+                        pt_v3_max_comp(pt_v3(fabsf(scene->bounds_max.x), fabsf(scene->bounds_max.y),
+                                             fabsf(scene->bounds_max.z))));
+        int e = 0;
+        if (m > 0.0f && isfinite(m))
+            frexpf(m, &e);
+        a->origin = ldexpf(OFFSET_ORIGIN, e);
+        a->float_scale = ldexpf(OFFSET_FLOAT_SCALE, e);
+    }
     if ((st = check_device(a->device, "rtcCommitScene", err)) != PT_OK)
         goto fail;
     *out = a;
@@ -227,14 +246,11 @@ void pt_accel_hit_point(const pt_scene *scene, const pt_hit *hit, pt_vec3 *p, pt
  * (int_scale ULPs for a unit component), so the offset grows with the
  * coordinate's own rounding error; near the origin, where ULPs get arbitrarily
  * small, a fixed absolute offset float_scale * n is used instead. */
-#define OFFSET_ORIGIN (1.0f / 32.0f)
-#define OFFSET_FLOAT_SCALE (1.0f / 65536.0f)
-#define OFFSET_INT_SCALE 256.0f
 
-static float offset_coord(float p, float n)
+static float offset_coord(float p, float n, float origin, float float_scale)
 {
-    if (fabsf(p) < OFFSET_ORIGIN)
-        return p + OFFSET_FLOAT_SCALE * n;
+    if (fabsf(p) < origin)
+        return p + float_scale * n;
     /* n is unit length; the clamp only keeps a bad n (NaN) from an undefined
      * float-to-int conversion. */
     int32_t of = (int32_t)(OFFSET_INT_SCALE * fmaxf(-1.0f, fminf(1.0f, n)));
@@ -252,5 +268,14 @@ static float offset_coord(float p, float n)
 
 pt_vec3 pt_offset_ray(pt_vec3 p, pt_vec3 n)
 {
-    return pt_v3(offset_coord(p.x, n.x), offset_coord(p.y, n.y), offset_coord(p.z, n.z));
+    return pt_v3(offset_coord(p.x, n.x, OFFSET_ORIGIN, OFFSET_FLOAT_SCALE),
+                 offset_coord(p.y, n.y, OFFSET_ORIGIN, OFFSET_FLOAT_SCALE),
+                 offset_coord(p.z, n.z, OFFSET_ORIGIN, OFFSET_FLOAT_SCALE));
+}
+
+pt_vec3 pt_accel_offset_ray(const pt_accel *a, pt_vec3 p, pt_vec3 n)
+{
+    return pt_v3(offset_coord(p.x, n.x, a->origin, a->float_scale),
+                 offset_coord(p.y, n.y, a->origin, a->float_scale),
+                 offset_coord(p.z, n.z, a->origin, a->float_scale));
 }

@@ -38,7 +38,15 @@ int pt_accel_occluded(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar);
 void pt_accel_hit_point(const pt_scene *scene, const pt_hit *hit, pt_vec3 *p, pt_vec3 *ng);
 
 /* Offsets p along the geometric normal n (towards the side the ray leaves on)
- * so a ray starting there does not hit its own surface (Waechter & Binder). */
+ * so a ray starting there does not hit its own surface (Waechter & Binder),
+ * with the paper's constants, which suit scenes of about unit size. */
 pt_vec3 pt_offset_ray(pt_vec3 p, pt_vec3 n);
+
+/* The same with the near-origin constants (1/32 and 1/65536 in the paper)
+ * scaled by the power of two just above the scene's largest coordinate: near
+ * the origin a hit point's error is relative to the scene's coordinates, not
+ * absolute, so a fixed 1.5e-5 would be 15 % of a 1e-4 scene. Far from the
+ * origin both offset by ULPs and agree. The integrator uses this one. */
+pt_vec3 pt_accel_offset_ray(const pt_accel *accel, pt_vec3 p, pt_vec3 n);
 
 #endif

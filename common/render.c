@@ -204,11 +204,11 @@ li_impl(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index, pt_rende
                 float bpdf;
                 pt_vec3 f = pt_bsdf_eval(&bsdf, wo_l, pt_frame_to_local(&fr, ls.wi), &bpdf);
                 if (pt_v3_max_comp(f) > 0.0f) {
-                    pt_vec3 from = pt_offset_ray(sf.p, ng);
+                    pt_vec3 from = pt_accel_offset_ray(r->accel, sf.p, ng);
                     pt_vec3 nl = ls.normal;
                     if (pt_v3_dot(nl, ls.wi) > 0.0f)
                         nl = pt_v3_neg(nl);
-                    pt_vec3 to = pt_offset_ray(ls.position, nl);
+                    pt_vec3 to = pt_accel_offset_ray(r->accel, ls.position, nl);
                     pt_vec3 sd = pt_v3_sub(to, from);
                     float dist = pt_v3_len(sd);
                     rays++;
@@ -245,7 +245,7 @@ li_impl(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index, pt_rende
         }
         prev_p = sf.p;
         prev_pdf = pdf;
-        o = pt_offset_ray(sf.p, ng);
+        o = pt_accel_offset_ray(r->accel, sf.p, ng);
         d = wi;
     }
     if (stats)

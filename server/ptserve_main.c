@@ -36,7 +36,6 @@ static void usage(FILE *f)
             "  --res WxH              image size (default 512 wide, height from the camera)\n"
             "  --seed S               random seed (default 0)\n"
             "  --max-depth D          maximum bounces (default 16)\n"
-            "  --camera NAME          the camera to render (default: the scene's first)\n"
             "  --tile N               tile side in pixels (default 32)\n"
             "  --chunk N              samples per task (default 16)\n"
             "  --save-interval SEC    progressive saves at most this often (default 5)\n"
@@ -88,7 +87,7 @@ int main(int argc, char **argv)
     c.job.rr_depth = 3;
     c.save_interval = 5.0;
     double lease = 20.0, handshake = 10.0;
-    enum { O_LOCAL = 256, O_WTHREADS, O_LISTEN, O_TOKEN, O_SPP, O_RES, O_SEED, O_DEPTH, O_CAMERA,
+    enum { O_LOCAL = 256, O_WTHREADS, O_LISTEN, O_TOKEN, O_SPP, O_RES, O_SEED, O_DEPTH,
            O_TILE, O_CHUNK, O_SAVE, O_LEASE, O_PORTFILE, O_WBIN, O_HANDSHAKE };
     static const struct option opts[] = {
         {"output", required_argument, NULL, 'o'},
@@ -100,7 +99,6 @@ int main(int argc, char **argv)
         {"res", required_argument, NULL, O_RES},
         {"seed", required_argument, NULL, O_SEED},
         {"max-depth", required_argument, NULL, O_DEPTH},
-        {"camera", required_argument, NULL, O_CAMERA},
         {"tile", required_argument, NULL, O_TILE},
         {"chunk", required_argument, NULL, O_CHUNK},
         {"save-interval", required_argument, NULL, O_SAVE},
@@ -137,7 +135,6 @@ int main(int argc, char **argv)
         }
         case O_SEED: bad = parse_u32("--seed", optarg, 0, UINT32_MAX, &c.job.seed); break;
         case O_DEPTH: bad = parse_u32("--max-depth", optarg, 0, 1024, &c.job.max_depth); break;
-        case O_CAMERA: c.camera = optarg; break;
         case O_TILE: bad = parse_u32("--tile", optarg, 1, 256, &c.job.tile); break;
         case O_CHUNK: bad = parse_u32("--chunk", optarg, 1, 1u << 24, &c.job.chunk); break;
         case O_SAVE: bad = parse_seconds("--save-interval", optarg, &c.save_interval); break;

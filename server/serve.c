@@ -764,7 +764,7 @@ static pt_status setup(server *s, pt_error *err)
     }
     /* Load once here so a broken scene fails before any worker starts. */
     pt_scene_opts so = {0};
-    so.camera_name = cfg->camera;
+    /* Workers render the scene's first camera: TASK names no camera. */
     pt_scene *scene = NULL;
     if ((st = pt_scene_load(cfg->scene_path, &so, &scene, err)) != PT_OK)
         return st;

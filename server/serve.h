@@ -25,7 +25,6 @@ typedef struct srv_config {
     const char *listen;        /* HOST:PORT; NULL: 127.0.0.1:7878, or port 0 with --local */
     const char *token_path;    /* NULL: no token (loopback only) */
     const char *port_file;     /* write the bound port here (tests, scripts) */
-    const char *camera;
     const char *worker_bin;    /* NULL: ptworker beside this program */
     double save_interval;      /* seconds between progressive saves, at most this often */
     uint32_t lease_ms;

@@ -68,7 +68,7 @@ static void furnace(float scale)
     CHECK(s != NULL);
     if (!s)
         return;
-    const uint32_t W = 24, H = 24, SPP = 64;
+    const uint32_t W = 32, H = 32, SPP = 128;
     const double expected = 0.5 / (1.0 - 0.5);
     pt_renderer *r = renderer(s, W, H, 1000, PT_LIGHT_MIS);
     CHECK(r != NULL);
