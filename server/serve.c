@@ -77,6 +77,7 @@ typedef struct server {
     uint32_t saved_passes;
     uint64_t saved_samples;
     uint64_t rejected, rays;
+    uint64_t bytes_in, bytes_out; /* on the wire, all peers */
     pid_t *children;
     uint32_t nchildren, children_alive;
     char cache_dir[256];
@@ -541,6 +542,7 @@ static void conn_read(server *s, conn *c)
             return;
         }
         c->in_len += (size_t)r;
+        s->bytes_in += (uint64_t)r;
         c->t_progress = now_ms();
         conn_process(s, c);
     }
@@ -561,6 +563,7 @@ static void conn_flush(server *s, conn *c)
             break;
         }
         c->out_off += (size_t)w;
+        s->bytes_out += (uint64_t)w;
     }
     if (c->out_off == c->out.len) {
         proto_writer_reset(&c->out);
@@ -907,6 +910,12 @@ int srv_serve(const srv_config *cfg)
                     (unsigned long long)srv_job_samples_merged(s.job),
                     (double)srv_job_samples_merged(s.job) / secs, (unsigned long long)s.rejected,
                     cfg->out_path);
+            uint64_t samples = srv_job_samples_merged(s.job), tasks = srv_job_tasks_total(s.job);
+            fprintf(stderr, "ptserve: wire: %llu bytes in, %llu out (scene %zu); %.3f bytes per "
+                    "sample, %.0f per task\n", (unsigned long long)s.bytes_in,
+                    (unsigned long long)s.bytes_out, s.bundle->size,
+                    (double)(s.bytes_in + s.bytes_out) / (double)samples,
+                    (double)(s.bytes_in + s.bytes_out) / (double)tasks);
             rc = 0;
         } else if (g_stop) {
             fprintf(stderr, "ptserve: interrupted after %.2fs; %s holds %llu of %llu samples\n",
