@@ -1,6 +1,7 @@
 #include "common/film.h"
 
 #include <assert.h>
+#include <math.h>
 
 #include "common/alloc.h"
 
@@ -97,4 +98,23 @@ uint64_t pt_film_total_samples(const pt_film *film)
     for (size_t i = 0; i < n_px; i++)
         total += film->px[i].n;
     return total;
+}
+
+double pt_tile_rel_error(const pt_pixel_acc *px, uint32_t stride, uint32_t width, uint32_t height)
+{
+    double sum = 0.0;
+    for (uint32_t y = 0; y < height; y++) {
+        for (uint32_t x = 0; x < width; x++) {
+            const pt_pixel_acc *a = &px[(size_t)y * stride + x];
+            if (a->n < 2)
+                return INFINITY;
+            double n = a->n;
+            double mean = (0.2126 * a->sum[0] + 0.7152 * a->sum[1] + 0.0722 * a->sum[2]) / n;
+            double var = (a->sum_sq - n * mean * mean) / (n - 1.0);
+            double sigma = var > 0.0 ? sqrt(var / n) : 0.0;
+            double rel = sigma / (fabs(mean) + PT_ADAPTIVE_EPS);
+            sum += rel * rel;
+        }
+    }
+    return width && height ? sqrt(sum / ((double)width * height)) : 0.0;
 }

@@ -33,4 +33,14 @@ void pt_film_resolve(const pt_film *film, pt_image *img);
 /* Total samples over all pixels. */
 uint64_t pt_film_total_samples(const pt_film *film);
 
+/* Adaptive sampling's measure of a tile: the root mean square over its pixels
+ * of the relative error of each pixel mean, sigma_mean / (mean + eps), in
+ * luminance, with eps = PT_ADAPTIVE_EPS (so black background converges at
+ * once and near-black pixels are judged on an absolute scale). px holds the
+ * tile's accumulators row by row with the given stride (in pixels). A pixel
+ * with fewer than 2 samples has infinite error. Pure and deterministic: the
+ * same sums give the same decision wherever it is made. */
+#define PT_ADAPTIVE_EPS 1e-2
+double pt_tile_rel_error(const pt_pixel_acc *px, uint32_t stride, uint32_t width, uint32_t height);
+
 #endif

@@ -5,7 +5,7 @@
 
 #include "common/alloc.h"
 
-enum { T_PENDING = 0, T_LEASED = 1, T_HELD = 2, T_MERGED = 3 };
+enum { T_PENDING = 0, T_LEASED = 1, T_HELD = 2, T_MERGED = 3, T_SKIPPED = 4 };
 
 typedef struct lease {
     uint64_t task, owner, deadline;
@@ -34,6 +34,7 @@ struct srv_job {
     held *held;
     uint32_t nheld, held_cap;
     uint64_t merged, samples;
+    uint32_t stopped;
     pt_film *film;
 };
 
@@ -60,7 +61,8 @@ pt_status srv_job_new(uint64_t id, const srv_job_params *p, const uint8_t scene_
                       srv_job **out, pt_error *err)
 {
     if (!p->width || !p->height || !p->spp || !p->tile || !p->chunk || p->width > 65536 ||
-        p->height > 65536 || (uint64_t)p->tile * p->tile > PROTO_MAX_TILE_PIXELS)
+        p->height > 65536 || (uint64_t)p->tile * p->tile > PROTO_MAX_TILE_PIXELS ||
+        !(p->target_error >= 0.0) || !isfinite(p->target_error))
         return pt_error_set(err, PT_ERR_ARG,
                             "job: size %ux%u, %u spp, tile %u, chunk %u is not a valid job",
                             p->width, p->height, p->spp, p->tile, p->chunk);
@@ -122,6 +124,7 @@ uint64_t srv_job_tasks_total(const srv_job *j) { return j->ntasks; }
 uint64_t srv_job_tasks_merged(const srv_job *j) { return j->merged; }
 uint64_t srv_job_samples_merged(const srv_job *j) { return j->samples; }
 uint32_t srv_job_leases(const srv_job *j) { return j->nleases; }
+uint32_t srv_job_tiles_stopped(const srv_job *j) { return j->stopped; }
 int srv_job_complete(const srv_job *j) { return j->merged == j->ntasks; }
 const pt_film *srv_job_film(const srv_job *j) { return j->film; }
 
@@ -256,6 +259,34 @@ uint32_t srv_job_expire(srv_job *j, uint64_t now_ms, uint64_t *next_deadline)
     return n;
 }
 
+/* Adaptive sampling stopped a tile before chunk `from`: its later tasks are
+ * done without work; leased ones lose their lease, held ones their pixels. */
+static void stop_tile(srv_job *j, uint32_t tile, uint32_t from)
+{
+    for (uint32_t c = from; c < j->nchunks; c++) {
+        uint64_t t = (uint64_t)c * j->ntiles + tile;
+        if (j->state[t] == T_LEASED) {
+            for (uint32_t i = 0; i < j->nleases; i++)
+                if (j->leases[i].task == t) {
+                    j->leases[i] = j->leases[--j->nleases];
+                    break;
+                }
+        } else if (j->state[t] == T_HELD) {
+            for (uint32_t i = 0; i < j->nheld; i++)
+                if (j->held[i].task == t) {
+                    pt_free(j->held[i].px);
+                    j->held[i] = j->held[--j->nheld];
+                    break;
+                }
+        }
+        j->state[t] = T_SKIPPED;
+        j->merged++;
+        j->merged_in_pass[c]++;
+    }
+    j->next_chunk[tile] = j->nchunks;
+    j->stopped++;
+}
+
 static void merge_now(srv_job *j, uint64_t t, const pt_pixel_acc *px)
 {
     uint32_t tile = (uint32_t)(t % j->ntiles), chunk = (uint32_t)(t / j->ntiles);
@@ -268,6 +299,12 @@ static void merge_now(srv_job *j, uint64_t t, const pt_pixel_acc *px)
     j->merged++;
     j->next_chunk[tile] = chunk + 1;
     j->merged_in_pass[chunk]++;
+    if (j->p.target_error > 0.0 && chunk + 1 < j->nchunks &&
+        (uint64_t)(chunk + 1) * j->p.chunk >= j->p.min_spp) {
+        const pt_pixel_acc *fp = &j->film->px[(size_t)r.y0 * j->p.width + r.x0];
+        if (pt_tile_rel_error(fp, j->p.width, r.x1 - r.x0, r.y1 - r.y0) <= j->p.target_error)
+            stop_tile(j, tile, chunk + 1);
+    }
     while (j->passes_done < j->nchunks && j->merged_in_pass[j->passes_done] == j->ntiles)
         j->passes_done++;
 }
@@ -309,7 +346,7 @@ srv_outcome srv_job_result(srv_job *j, uint64_t owner, const proto_result *r, pt
         return SRV_INVALID;
     }
     uint64_t t = r->task_id;
-    if (j->state[t] == T_MERGED || j->state[t] == T_HELD)
+    if (j->state[t] == T_MERGED || j->state[t] == T_HELD || j->state[t] == T_SKIPPED)
         return SRV_DUPLICATE;
     int li = find_lease(j, t, owner);
     if (li < 0) {

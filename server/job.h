@@ -16,6 +16,13 @@
  * Chunks of a tile are added to the film in chunk order (early arrivals are
  * held), in double, so the final pixels are bit-identical however many
  * workers rendered them and in whatever order results arrived.
+ *
+ * Adaptive sampling: when a tile's chunk c is merged and the tile has at least
+ * min_spp samples, its error (pt_tile_rel_error over the film) is compared
+ * with target_error; at or below it the tile stops: its later chunks are
+ * skipped (dropped if already leased or held). The decision depends only on
+ * the tile's sums after chunk c, which do not depend on how the work was
+ * split, so adaptive images are bit-identical across worker counts too.
  * Pure code: no sockets, no clock (callers pass now_ms). One owner thread.
  */
 #ifndef PT_SERVER_JOB_H
@@ -34,6 +41,8 @@ typedef struct srv_job_params {
     uint32_t tile, chunk;
     uint32_t seed;
     uint32_t max_depth, rr_depth;
+    double target_error; /* adaptive sampling: 0 = off, else pt_tile_rel_error target */
+    uint32_t min_spp;    /* adaptive sampling: no tile stops before this many samples */
 } srv_job_params;
 
 #define SRV_MAX_TASKS (64u * 1024u * 1024u)
@@ -81,6 +90,7 @@ uint32_t srv_job_passes_done(const srv_job *job);  /* passes merged for every ti
 uint64_t srv_job_tasks_total(const srv_job *job);
 uint64_t srv_job_tasks_merged(const srv_job *job);
 uint64_t srv_job_samples_merged(const srv_job *job);
+uint32_t srv_job_tiles_stopped(const srv_job *job); /* tiles adaptive sampling stopped early */
 uint32_t srv_job_leases(const srv_job *job);
 int srv_job_complete(const srv_job *job);
 const pt_film *srv_job_film(const srv_job *job);

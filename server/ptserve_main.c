@@ -36,6 +36,10 @@ static void usage(FILE *f)
             "  --res WxH              image size (default 512 wide, height from the camera)\n"
             "  --seed S               random seed (default 0)\n"
             "  --max-depth D          maximum bounces (default 16)\n"
+            "  --target-error E       adaptive sampling: a tile stops once the RMS relative\n"
+            "                         error of its pixel means is <= E (e.g. 0.01); off by default\n"
+            "  --min-spp N            adaptive sampling: samples before a tile may stop\n"
+            "                         (default: one chunk)\n"
             "  --tile N               tile side in pixels (default 32)\n"
             "  --chunk N              samples per task (default 16)\n"
             "  --save-interval SEC    progressive saves at most this often (default 5)\n"
@@ -88,7 +92,7 @@ int main(int argc, char **argv)
     c.save_interval = 5.0;
     double lease = 20.0, handshake = 10.0;
     enum { O_LOCAL = 256, O_WTHREADS, O_LISTEN, O_TOKEN, O_SPP, O_RES, O_SEED, O_DEPTH,
-           O_TILE, O_CHUNK, O_SAVE, O_LEASE, O_PORTFILE, O_WBIN, O_HANDSHAKE };
+           O_TILE, O_CHUNK, O_SAVE, O_LEASE, O_PORTFILE, O_WBIN, O_HANDSHAKE, O_TARGET, O_MINSPP };
     static const struct option opts[] = {
         {"output", required_argument, NULL, 'o'},
         {"local", required_argument, NULL, O_LOCAL},
@@ -105,6 +109,8 @@ int main(int argc, char **argv)
         {"lease-timeout", required_argument, NULL, O_LEASE},
         {"port-file", required_argument, NULL, O_PORTFILE},
         {"handshake-timeout", required_argument, NULL, O_HANDSHAKE},
+        {"target-error", required_argument, NULL, O_TARGET},
+        {"min-spp", required_argument, NULL, O_MINSPP},
         {"worker-bin", required_argument, NULL, O_WBIN},
         {"quiet", no_argument, NULL, 'q'},
         {"help", no_argument, NULL, 'h'},
@@ -141,6 +147,16 @@ int main(int argc, char **argv)
         case O_LEASE: bad = parse_seconds("--lease-timeout", optarg, &lease); break;
         case O_PORTFILE: c.port_file = optarg; break;
         case O_HANDSHAKE: bad = parse_seconds("--handshake-timeout", optarg, &handshake); break;
+        case O_TARGET: {
+            char *end;
+            c.job.target_error = strtod(optarg, &end);
+            if (end == optarg || *end || !(c.job.target_error > 0.0) || c.job.target_error > 1e6) {
+                fprintf(stderr, "ptserve: --target-error: '%s' is not a positive number\n", optarg);
+                return 2;
+            }
+            break;
+        }
+        case O_MINSPP: bad = parse_u32("--min-spp", optarg, 2, 1u << 24, &c.job.min_spp); break;
         case O_WBIN: c.worker_bin = optarg; break;
         case 'q': c.quiet = 1; break;
         case 'h': usage(stdout); return 0;
@@ -158,6 +174,8 @@ int main(int argc, char **argv)
         fprintf(stderr, "ptserve: --lease-timeout must be at least 0.1 s\n");
         return 2;
     }
+    if (c.job.min_spp == 0)
+        c.job.min_spp = c.job.chunk > 1 ? c.job.chunk : 2;
     c.scene_path = argv[optind];
     c.lease_ms = (uint32_t)(lease * 1000.0);
     c.handshake_ms = (uint32_t)(handshake * 1000.0);

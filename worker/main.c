@@ -47,6 +47,10 @@ static void usage(FILE *f)
             "  --camera NAME      the camera to render (default: the scene's first)\n"
             "  --tile N           tile side in pixels (default 32)\n"
             "  --chunk N          samples per chunk (default 16)\n"
+            "  --target-error E   adaptive sampling: a tile stops once the RMS relative\n"
+            "                     error of its pixel means is <= E (e.g. 0.01); off by default\n"
+            "  --min-spp N        adaptive sampling: samples before a tile may stop\n"
+            "                     (default: one chunk)\n"
             "  -q, --quiet        no progress line\n"
             "  -h, --help         this text\n"
             "\n"
@@ -110,7 +114,7 @@ int main(int argc, char **argv)
     /* Which options were given, to refuse mixing the modes. */
     char standalone_opt[40] = "", farm_opt[40] = "";
     enum { OPT_SCENE = 256, OPT_SPP, OPT_RES, OPT_SEED, OPT_THREADS, OPT_DEPTH, OPT_CAMERA,
-           OPT_TILE, OPT_CHUNK, OPT_SERVER, OPT_PREFETCH, OPT_TOKEN, OPT_CACHE, OPT_NAME };
+           OPT_TILE, OPT_CHUNK, OPT_TARGET, OPT_MINSPP, OPT_SERVER, OPT_PREFETCH, OPT_TOKEN, OPT_CACHE, OPT_NAME };
     static const struct option longopts[] = {
         {"scene", required_argument, NULL, OPT_SCENE},
         {"output", required_argument, NULL, 'o'},
@@ -122,6 +126,8 @@ int main(int argc, char **argv)
         {"camera", required_argument, NULL, OPT_CAMERA},
         {"tile", required_argument, NULL, OPT_TILE},
         {"chunk", required_argument, NULL, OPT_CHUNK},
+        {"target-error", required_argument, NULL, OPT_TARGET},
+        {"min-spp", required_argument, NULL, OPT_MINSPP},
         {"quiet", no_argument, NULL, 'q'},
         {"server", required_argument, NULL, OPT_SERVER},
         {"prefetch", required_argument, NULL, OPT_PREFETCH},
@@ -145,6 +151,17 @@ int main(int argc, char **argv)
         case OPT_CAMERA: o.camera = optarg; break;
         case OPT_TILE: bad = parse_u32("--tile", optarg, 1, 4096, &o.tile); break;
         case OPT_CHUNK: bad = parse_u32("--chunk", optarg, 1, 1u << 24, &o.chunk); break;
+        case OPT_TARGET: {
+            char *end;
+            o.target_error = strtod(optarg, &end);
+            if (end == optarg || *end || !(o.target_error > 0.0) || o.target_error > 1e6) {
+                fprintf(stderr, "ptworker: --target-error: '%s' is not a positive number\n",
+                        optarg);
+                return 2;
+            }
+            break;
+        }
+        case OPT_MINSPP: bad = parse_u32("--min-spp", optarg, 2, 1u << 24, &o.min_spp); break;
         case 'q': o.quiet = 1; break;
         case OPT_SERVER: net.server = optarg; break;
         case OPT_PREFETCH:
@@ -209,5 +226,7 @@ int main(int argc, char **argv)
         usage(stderr);
         return 2;
     }
+    if (o.min_spp == 0)
+        o.min_spp = o.chunk > 1 ? o.chunk : 2;
     return wrk_standalone_run(&o);
 }

@@ -24,6 +24,7 @@ typedef struct job {
     atomic_uint next_tile;
     atomic_uint tiles_done;
     atomic_uint running; /* render threads not yet finished */
+    atomic_uint tiles_stopped; /* by adaptive sampling */
     atomic_uint_fast64_t samples_done;
     pt_render_stats *thread_stats; /* one per thread, summed at the end */
 } job;
@@ -67,6 +68,14 @@ static void *render_thread(void *p)
             for (uint32_t i = 0; i < npx; i++)
                 pt_pixel_acc_add(&sum[i], &chunk[i]);
             atomic_fetch_add(&j->samples_done, (uint64_t)npx * (s1 - s0));
+            /* The coordinator's rule (server/job.c), on the same sums. */
+            if (j->o->target_error > 0.0 && s1 < j->o->spp && s1 >= j->o->min_spp &&
+                pt_tile_rel_error(sum, rc.x1 - rc.x0, rc.x1 - rc.x0, rc.y1 - rc.y0) <=
+                    j->o->target_error) {
+                atomic_fetch_add(&j->samples_done, (uint64_t)npx * (j->o->spp - s1));
+                atomic_fetch_add(&j->tiles_stopped, 1);
+                break;
+            }
         }
         /* Tiles are disjoint: no lock needed to write the film. */
         pt_film_add_tile(j->film, rc, sum);
@@ -170,6 +179,7 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
     atomic_init(&j.tiles_done, 0);
     atomic_init(&j.samples_done, 0);
     atomic_init(&j.running, nthreads);
+    atomic_init(&j.tiles_stopped, 0);
     if (!o->quiet)
         fprintf(stderr, "ptworker: %s: %u triangles, %ux%u, %u spp, %u threads (loaded in %.2fs)\n",
                 o->scene_path, scene->num_triangles, p.width, p.height, o->spp, nthreads, t_load);
@@ -239,6 +249,10 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
             "(NaN/Inf)\nptworker: wrote %s and %s\n",
             o->scene_path, secs, (double)st.samples / secs, (double)st.rays / secs,
             (unsigned long long)st.rejected, o->out_path, png);
+    if (o->target_error > 0.0)
+        fprintf(stderr, "ptworker: adaptive sampling stopped %u of %u tiles early; %.2f spp on "
+                "average\n", atomic_load(&j.tiles_stopped), nt,
+                (double)st.samples / ((double)p.width * p.height));
     rc = 0;
 done:
     pt_free(tstats);

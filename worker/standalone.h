@@ -21,6 +21,8 @@ typedef struct wrk_standalone_opts {
     uint32_t max_depth;
     uint32_t tile;          /* tile side in pixels */
     uint32_t chunk;         /* samples per chunk */
+    double target_error;    /* adaptive sampling (0 = off): stop a tile at this error */
+    uint32_t min_spp;       /* adaptive sampling: samples before a tile may stop */
     int quiet;
 } wrk_standalone_opts;
 

@@ -179,6 +179,25 @@ static void bit_identity(void)
     CHECKF(same_pixels("ref.exr", "l1.exr"), "--local 1 differs from the standalone render");
     CHECKF(same_pixels("ref.exr", "l3.exr"), "--local 3 differs from the standalone render");
     CHECK(all_samples("l3.exr", 32.0f));
+
+    /* Adaptive sampling decides from the same sums in both: still identical. */
+    const char *ad_solo[] = {PT_BIN_DIR "/ptworker", "--scene", SCENE, COMMON, "--spp", "256",
+                             "--target-error", "0.05", "-o", path("ad_ref.exr"), "-q", NULL};
+    CHECK(run(ad_solo, "ad_ref.log", 120) == 0);
+    const char *ad_farm[] = {PT_BIN_DIR "/ptserve", "--local", "3", "--worker-threads", "1", COMMON,
+                             "--spp", "256", "--target-error", "0.05", "-o", path("ad3.exr"),
+                             SCENE, NULL};
+    CHECK(run(ad_farm, "ad3.log", 120) == 0);
+    CHECKF(same_pixels("ad_ref.exr", "ad3.exr"), "adaptive --local 3 differs from standalone");
+    pt_image *ad = load_exr("ad3.exr");
+    int fewer = 0, full = 0;
+    for (uint32_t i = 0; ad && i < ad->width * ad->height; i++) {
+        fewer += ad->samples[i] < 256.0f;
+        full += ad->samples[i] == 256.0f;
+    }
+    printf("adaptive: %d pixels stopped early, %d at the full count\n", fewer, full);
+    CHECK(fewer > 0);
+    pt_image_free(ad);
 }
 
 /* ---- 2. chaos ----------------------------------------------------------------------- */

@@ -36,7 +36,7 @@ static void fake_result(const proto_task *t, pt_pixel_acc *px, proto_result *r)
 
 static srv_job *make(uint32_t w, uint32_t h, uint32_t spp, uint32_t tile, uint32_t chunk)
 {
-    srv_job_params p = {w, h, spp, tile, chunk, 5, 16, 3};
+    srv_job_params p = {w, h, spp, tile, chunk, 5, 16, 3, 0.0, 0};
     srv_job *j = NULL;
     pt_error err = {0};
     CHECKF(srv_job_new(9, &p, HASH, &j, &err) == PT_OK, "%s", err.msg);
@@ -173,16 +173,62 @@ static void bit_identical(void)
     free(a);
 }
 
+/* Adaptive sampling: tiles whose pixels have no variance stop after min_spp;
+ * a noisy tile goes on to the end; tasks of a stopped tile that were already
+ * leased or held are dropped harmlessly. */
+static void adaptive(void)
+{
+    srv_job_params p = {64, 32, 64, 32, 8, 1, 16, 3, 0.01, 16};
+    srv_job *j = NULL;
+    CHECK(srv_job_new(2, &p, HASH, &j, NULL) == PT_OK);
+    if (!j)
+        return;
+    /* Tile 0: constant pixels (error 0). Tile 1: alternating values (noisy). */
+    pt_pixel_acc px[1024];
+    proto_task t;
+    proto_task leased[64];
+    int n = 0;
+    while (srv_job_lease(j, 1, 0, 1000, &t))
+        leased[n++] = t;
+    CHECK(n == 16);
+    int dup = 0;
+    for (int k = n - 1; k >= 0; k--) { /* arrival in reverse: everything is held first */
+        t = leased[k];
+        uint32_t np = 32 * 32, ns = t.s1 - t.s0;
+        int tile = (int)(t.task_id % 2);
+        for (uint32_t i = 0; i < np; i++) {
+            double v = tile == 0 ? 0.5 : ((i + t.task_id) % 2 ? 1.0 : 0.0);
+            /* ns samples of value v (tile 0), or half 0 and half 2v (tile 1). */
+            double sum = tile == 0 ? v * ns : v * ns;
+            double sq = tile == 0 ? ns * 0.25 : 2.0 * v * v * ns;
+            px[i] = (pt_pixel_acc){{sum, sum, sum}, sq, ns, 0};
+        }
+        proto_result r = {t.job_id, t.task_id, t.tile, t.s0, t.s1, 0, 0, 32 * 32, px, 0};
+        srv_outcome o = srv_job_result(j, 1, &r, NULL);
+        dup += o == SRV_DUPLICATE;
+        CHECK(o == SRV_MERGED || o == SRV_DUPLICATE);
+    }
+    CHECK(srv_job_complete(j));
+    CHECK(srv_job_tiles_stopped(j) == 1);
+    CHECK(dup == 0); /* held chunks of the stopped tile were dropped before their turn */
+    const pt_film *f = srv_job_film(j);
+    CHECK(f->px[0].n == 16);       /* tile 0: stopped at min_spp */
+    CHECK(f->px[32].n == 64);      /* tile 1: all chunks */
+    CHECK(srv_job_samples_merged(j) == 32ull * 32 * 16 + 32ull * 32 * 64);
+    CHECK(srv_job_passes_done(j) == srv_job_passes(j));
+    srv_job_free(j);
+}
+
 static void bad_params(void)
 {
-    srv_job_params p = {0, 10, 4, 16, 4, 0, 4, 3};
+    srv_job_params p = {0, 10, 4, 16, 4, 0, 4, 3, 0.0, 0};
     srv_job *j = NULL;
     pt_error err = {0};
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
     p.width = 10;
     p.tile = 1000;
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
-    p = (srv_job_params){16384, 16384, 1u << 24, 16, 1, 0, 4, 3};
+    p = (srv_job_params){16384, 16384, 1u << 24, 16, 1, 0, 4, 3, 0.0, 0};
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_LIMIT);
     CHECK(j == NULL);
 }
@@ -193,6 +239,7 @@ int main(void)
     pass_order();
     leases();
     bit_identical();
+    adaptive();
     bad_params();
     CHECK(pt_alloc_live() == live);
     return check_report();
