@@ -20,8 +20,7 @@ enum {
     DIM_PER_BOUNCE = 8,
     OFF_LIGHT_POINT = 0, /* 2D */
     OFF_BSDF_DIR = 2,    /* 2D */
-    OFF_LIGHT_PICK = 4,
-    OFF_BSDF_LOBE = 5,
+    OFF_LIGHT_PICK = 4, /* 2D with the lobe pick */
     OFF_RR = 6,
 };
 
@@ -193,10 +192,13 @@ li_impl(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index, pt_rende
         pt_vec3 wo_l = pt_frame_to_local(&fr, wo);
         pt_bsdf bsdf = material_bsdf(s, &sf, features);
         uint32_t dim = DIM_BOUNCE0 + DIM_PER_BOUNCE * depth;
+        /* The light pick and the lobe pick are one pair: one index shuffle. */
+        float picks[2];
+        pt_sample_2d(seed, index, dim + OFF_LIGHT_PICK, picks);
 
         if (has_lights) {
             float u3[3];
-            u3[0] = pt_sample_1d(seed, index, dim + OFF_LIGHT_PICK);
+            u3[0] = picks[0];
             pt_sample_2d(seed, index, dim + OFF_LIGHT_POINT, u3 + 1);
             pt_light_sample ls;
             if (pt_lights_sample(r->lights, s, sf.p, u3, &ls) && ls.pdf > 0.0f &&
@@ -225,7 +227,7 @@ li_impl(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index, pt_rende
         }
 
         float u3[3];
-        u3[0] = pt_sample_1d(seed, index, dim + OFF_BSDF_LOBE);
+        u3[0] = picks[1];
         pt_sample_2d(seed, index, dim + OFF_BSDF_DIR, u3 + 1);
         pt_vec3 wi_l;
         float pdf;
