@@ -18,6 +18,7 @@
 #include <string.h>
 
 #include "tests/check.h"
+#include "tests/stats.h"
 
 #define PI_D 3.14159265358979323846
 
@@ -71,59 +72,16 @@ static float rel_err(float a, float b)
 
 /* ---- chi-square survival function ---------------------------------------- */
 
-/*
- * Regularised upper incomplete gamma Q(a, x): the series of P(a, x) for
- * x < a + 1, else the continued fraction of Q evaluated by the modified Lentz
- * method (Abramowitz & Stegun 6.5.29 and 6.5.31).
- */
-static double gamma_q(double a, double x)
-{
-    if (x <= 0.0)
-        return 1.0;
-    double lg = lgamma(a);
-    if (x < a + 1.0) {
-        double term = 1.0 / a, sum = term;
-        for (int n = 1; n < 10000; n++) {
-            term *= x / (a + n);
-            sum += term;
-            if (fabs(term) < fabs(sum) * 1e-15)
-                break;
-        }
-        return 1.0 - sum * exp(-x + a * log(x) - lg);
-    }
-    const double tiny = 1e-300;
-    double b = x + 1.0 - a, c = 1.0 / tiny, d = 1.0 / b, h = d;
-    for (int i = 1; i < 10000; i++) {
-        double an = -i * (i - a);
-        b += 2.0;
-        d = an * d + b;
-        if (fabs(d) < tiny)
-            d = tiny;
-        c = b + an / c;
-        if (fabs(c) < tiny)
-            c = tiny;
-        d = 1.0 / d;
-        double del = d * c;
-        h *= del;
-        if (fabs(del - 1.0) < 1e-15)
-            break;
-    }
-    return exp(-x + a * log(x) - lg) * h;
-}
 
-static double chi2_survival(double chi2, int dof)
-{
-    return gamma_q(0.5 * dof, 0.5 * chi2);
-}
 
 static void test_chi2_survival(void)
 {
     /* Known values: dof 2 is exp(-x/2); dof 1 at 3.841 is 0.05; dof 10 at
      * 18.307 is 0.05; dof 100 at 135.807 is 0.01. */
-    CHECK(fabs(chi2_survival(3.0, 2) - exp(-1.5)) < 1e-12);
-    CHECK(fabs(chi2_survival(3.841459, 1) - 0.05) < 1e-6);
-    CHECK(fabs(chi2_survival(18.307038, 10) - 0.05) < 1e-6);
-    CHECK(fabs(chi2_survival(135.806723, 100) - 0.01) < 1e-6);
+    CHECK(fabs(stats_chi2_survival(3.0, 2) - exp(-1.5)) < 1e-12);
+    CHECK(fabs(stats_chi2_survival(3.841459, 1) - 0.05) < 1e-6);
+    CHECK(fabs(stats_chi2_survival(18.307038, 10) - 0.05) < 1e-6);
+    CHECK(fabs(stats_chi2_survival(135.806723, 100) - 0.01) < 1e-6);
 }
 
 /* ---- the binning and the pdf integration ---------------------------------- */
@@ -275,7 +233,7 @@ static double chi2_pvalue(cell *cells, int n, int *dof_out)
         used++;
     }
     *dof_out = used - 1;
-    return used > 1 ? chi2_survival(chi2, used - 1) : 1.0;
+    return used > 1 ? stats_chi2_survival(chi2, used - 1) : 1.0;
 }
 
 typedef pt_vec3 (*sample_fn)(const void *ctx, pcg32 *r, float *pdf);

@@ -19,6 +19,7 @@
 
 #include "common/alloc.h"
 #include "tests/check.h"
+#include "tests/stats.h"
 
 #define PI_D 3.14159265358979323846
 
@@ -47,41 +48,6 @@ static void rnd3(float u[3])
     u[2] = rnd();
 }
 
-/* Regularised upper incomplete gamma Q(a, x): the series for P when x < a + 1,
- * else the continued fraction for Q evaluated by the modified Lentz method
- * (Press et al., Numerical Recipes, 3rd ed., sec. 6.2). */
-static double gamma_q(double a, double x)
-{
-    if (x <= 0.0)
-        return 1.0;
-    double lg = a * log(x) - x - lgamma(a);
-    if (x < a + 1.0) {
-        double term = 1.0 / a, sum = term;
-        for (int n = 1; n < 10000 && fabs(term) > fabs(sum) * 1e-15; n++) {
-            term *= x / (a + n);
-            sum += term;
-        }
-        return 1.0 - sum * exp(lg);
-    }
-    const double tiny = 1e-300;
-    double b = x + 1.0 - a, c = 1.0 / tiny, d = 1.0 / b, h = d;
-    for (int i = 1; i < 10000; i++) {
-        double an = -i * (i - a);
-        b += 2.0;
-        d = an * d + b;
-        if (fabs(d) < tiny)
-            d = tiny;
-        c = b + an / c;
-        if (fabs(c) < tiny)
-            c = tiny;
-        d = 1.0 / d;
-        double delta = d * c;
-        h *= delta;
-        if (fabs(delta - 1.0) < 1e-15)
-            break;
-    }
-    return exp(lg) * h;
-}
 
 /* Pearson's chi-square test of observed counts against expected counts.
  * Bins expecting fewer than 5 are pooled into one (and that pool, if still
@@ -119,7 +85,7 @@ static double chi2_test(const double *obs, const double *expd, int n, double *st
     *dof = bins - 1;
     if (bins < 2)
         return 1.0;
-    return gamma_q(0.5 * (bins - 1), 0.5 * chi);
+    return stats_gamma_q(0.5 * (bins - 1), 0.5 * chi);
 }
 
 #define P_MIN 1e-3

@@ -1,0 +1,53 @@
+/*
+ * stats.h - statistics shared by the statistical tests.
+ *
+ * stats_gamma_q(a, x): the regularised upper incomplete gamma Q(a, x), by the
+ * series for P when x < a + 1, else the continued fraction for Q evaluated by
+ * the modified Lentz method (Abramowitz & Stegun 6.5.29 and 6.5.31; Press et
+ * al., Numerical Recipes, 3rd ed., sec. 6.2). stats_chi2_survival(chi2, dof)
+ * = Q(dof/2, chi2/2), the p-value of a chi-square statistic.
+ */
+#ifndef PT_TESTS_STATS_H
+#define PT_TESTS_STATS_H
+
+#include <math.h>
+
+static inline double stats_gamma_q(double a, double x)
+{
+    if (x <= 0.0)
+        return 1.0;
+    double lg = a * log(x) - x - lgamma(a);
+    if (x < a + 1.0) {
+        double term = 1.0 / a, sum = term;
+        for (int n = 1; n < 10000 && fabs(term) > fabs(sum) * 1e-15; n++) {
+            term *= x / (a + n);
+            sum += term;
+        }
+        return 1.0 - sum * exp(lg);
+    }
+    const double tiny = 1e-300;
+    double b = x + 1.0 - a, c = 1.0 / tiny, d = 1.0 / b, h = d;
+    for (int i = 1; i < 10000; i++) {
+        double an = -i * (i - a);
+        b += 2.0;
+        d = an * d + b;
+        if (fabs(d) < tiny)
+            d = tiny;
+        c = b + an / c;
+        if (fabs(c) < tiny)
+            c = tiny;
+        d = 1.0 / d;
+        double delta = d * c;
+        h *= delta;
+        if (fabs(delta - 1.0) < 1e-15)
+            break;
+    }
+    return exp(lg) * h;
+}
+
+static inline double stats_chi2_survival(double chi2, int dof)
+{
+    return stats_gamma_q(0.5 * dof, 0.5 * chi2);
+}
+
+#endif
