@@ -70,9 +70,7 @@ static float rel_err(float a, float b)
     return m > 0.0f ? fabsf(a - b) / m : 0.0f;
 }
 
-/* ---- chi-square survival function ---------------------------------------- */
-
-
+/* ---- chi-square survival function (tests/stats.h) ----------------------- */
 
 static void test_chi2_survival(void)
 {
