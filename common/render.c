@@ -35,6 +35,7 @@ struct pt_renderer {
     pt_lights *lights;
     pt_render_params params;
     li_fn li;
+    const char *variant;
     float tan_half_fov;
 };
 
@@ -44,9 +45,11 @@ void pt_render_params_default(pt_render_params *p)
     p->max_depth = 16;
     p->rr_depth = 3;
     p->light_strategy = PT_LIGHT_MIS;
+    p->extra_features = 0;
 }
 
 const pt_render_params *pt_renderer_params(const pt_renderer *r) { return &r->params; }
+const char *pt_renderer_variant(const pt_renderer *r) { return r->variant; }
 
 /* Power heuristic with beta = 2 (Veach 1997, eq. 9.13). */
 static inline float power_heuristic(float pa, float pb)
@@ -107,8 +110,59 @@ static inline pt_bsdf material_bsdf(const pt_scene *s, const surface *sf, const 
             metallic *= t[2];
         }
     }
+    if (!(features & PT_FEAT_GLOSSY)) {
+        /* pt_bsdf_setup's diffuse for metallic 0: the clamped base times 1. */
+        pt_bsdf b;
+        memset(&b, 0, sizeof b);
+        b.diffuse = pt_v3(fminf(fmaxf(base.x, 0.0f), 1.0f), fminf(fmaxf(base.y, 0.0f), 1.0f),
+                          fminf(fmaxf(base.z, 0.0f), 1.0f));
+        return b;
+    }
     return pt_bsdf_setup(base, metallic, roughness, m->specular,
                          pt_v3(m->specular_color[0], m->specular_color[1], m->specular_color[2]));
+}
+
+/*
+ * Lambert-only scenes (no PT_FEAT_GLOSSY: every material has metallic 0 and
+ * specularFactor 0): the glTF BSDF is diffuse / pi with a Fresnel weight of
+ * exactly 1 and the diffuse lobe always chosen. These repeat pt_bsdf_eval and
+ * pt_bsdf_sample's arithmetic for that case operation for operation
+ * ((1 - 0) * cos = cos exactly), so the pixels are bit-identical to the
+ * general integrator's; they skip the lobe choice, Fresnel and GGX terms.
+ */
+static inline pt_vec3 bsdf_eval(const pt_bsdf *b, pt_vec3 wo, pt_vec3 wi, float *pdf,
+                                const uint32_t features)
+{
+    if (features & PT_FEAT_GLOSSY)
+        return pt_bsdf_eval(b, wo, wi, pdf);
+    if (!(wo.z > 0.0f) || !(wi.z > 0.0f)) {
+        *pdf = 0.0f;
+        return pt_v3(0.0f, 0.0f, 0.0f);
+    }
+    float c = wi.z * PT_INV_PI;
+    *pdf = c;
+    return pt_v3_scale(b->diffuse, c);
+}
+
+static inline pt_vec3 bsdf_sample(const pt_bsdf *b, pt_vec3 wo, const float u[3], pt_vec3 *wi,
+                                  float *pdf, const uint32_t features)
+{
+    if (features & PT_FEAT_GLOSSY)
+        return pt_bsdf_sample(b, wo, u, wi, pdf);
+    pt_vec3 zero = pt_v3(0.0f, 0.0f, 0.0f);
+    *pdf = 0.0f;
+    *wi = pt_v3(0.0f, 0.0f, 1.0f);
+    if (!(wo.z > 0.0f))
+        return zero;
+    *wi = pt_sample_cosine_hemisphere(u[1], u[2]);
+    if (!(wi->z > 0.0f))
+        return zero;
+    pt_vec3 f = bsdf_eval(b, wo, *wi, pdf, features);
+    if (!(*pdf > 0.0f)) {
+        *pdf = 0.0f;
+        return zero;
+    }
+    return pt_v3_scale(f, 1.0f / *pdf);
 }
 
 static inline int emits(const pt_material *m)
@@ -204,7 +258,7 @@ li_impl(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index, pt_rende
             if (pt_lights_sample(r->lights, s, sf.p, u3, &ls) && ls.pdf > 0.0f &&
                 pt_v3_max_comp(ls.radiance) > 0.0f && pt_v3_dot(ls.wi, ng) > 0.0f) {
                 float bpdf;
-                pt_vec3 f = pt_bsdf_eval(&bsdf, wo_l, pt_frame_to_local(&fr, ls.wi), &bpdf);
+                pt_vec3 f = bsdf_eval(&bsdf, wo_l, pt_frame_to_local(&fr, ls.wi), &bpdf, features);
                 if (pt_v3_max_comp(f) > 0.0f) {
                     pt_vec3 from = pt_accel_offset_ray(r->accel, sf.p, ng);
                     pt_vec3 nl = ls.normal;
@@ -231,7 +285,7 @@ li_impl(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index, pt_rende
         pt_sample_2d(seed, index, dim + OFF_BSDF_DIR, u3 + 1);
         pt_vec3 wi_l;
         float pdf;
-        pt_vec3 weight = pt_bsdf_sample(&bsdf, wo_l, u3, &wi_l, &pdf);
+        pt_vec3 weight = bsdf_sample(&bsdf, wo_l, u3, &wi_l, &pdf, features);
         if (!(pdf > 0.0f) || !(pt_v3_max_comp(weight) > 0.0f))
             break;
         pt_vec3 wi = pt_frame_to_world(&fr, wi_l);
@@ -262,15 +316,24 @@ li_impl(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index, pt_rende
     {                                                                                            \
         return li_impl(r, px, py, index, stats, (feat), NULL);                                         \
     }
+#define NO_TEX (uint32_t)(PT_FEAT_TEXTURES | PT_FEAT_EMISSIVE_TEX)
 VARIANT(li_general, ALL_FEATURES)
-VARIANT(li_untextured, ALL_FEATURES & ~(uint32_t)(PT_FEAT_TEXTURES | PT_FEAT_EMISSIVE_TEX))
+VARIANT(li_untextured, ALL_FEATURES & ~NO_TEX)
+VARIANT(li_lambert, ALL_FEATURES & ~(uint32_t)PT_FEAT_GLOSSY)
+VARIANT(li_lambert_untextured, ALL_FEATURES & ~NO_TEX & ~(uint32_t)PT_FEAT_GLOSSY)
 #undef VARIANT
 
-static li_fn pick_variant(uint32_t features)
+/* The most specialised variant whose assumptions the scene meets. */
+static void pick_variant(pt_renderer *r, uint32_t features)
 {
-    if (!(features & (PT_FEAT_TEXTURES | PT_FEAT_EMISSIVE_TEX)))
-        return li_untextured;
-    return li_general;
+    int tex = (features & NO_TEX) != 0, glossy = (features & PT_FEAT_GLOSSY) != 0;
+    if (glossy) {
+        r->li = tex ? li_general : li_untextured;
+        r->variant = tex ? "general" : "untextured";
+    } else {
+        r->li = tex ? li_lambert : li_lambert_untextured;
+        r->variant = tex ? "lambert" : "lambert-untextured";
+    }
 }
 
 pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params, pt_renderer **out,
@@ -293,7 +356,7 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
         goto fail;
     if ((st = pt_lights_new(scene, &r->lights, err)) != PT_OK)
         goto fail;
-    r->li = pick_variant(scene->features);
+    pick_variant(r, scene->features | params->extra_features);
     *out = r;
     return PT_OK;
 fail:

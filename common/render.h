@@ -60,6 +60,9 @@ typedef struct pt_render_params {
     uint32_t max_depth;  /* maximum scattering events (bounces) per path; default 16 */
     uint32_t rr_depth;   /* Russian roulette from this many bounces on; default 3 */
     uint32_t light_strategy; /* PT_LIGHT_*; default PT_LIGHT_MIS */
+    uint32_t extra_features; /* PT_FEAT_* assumed present besides the scene's own, which
+                                picks a less specialised integrator (0xffffffff: the
+                                general one); for tests and benchmarks; default 0 */
 } pt_render_params;
 
 typedef struct pt_render_stats {
@@ -80,6 +83,10 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
                           pt_renderer **out, pt_error *err);
 void pt_renderer_free(pt_renderer *r); /* accepts NULL */
 const pt_render_params *pt_renderer_params(const pt_renderer *r);
+
+/* The integrator variant chosen for the scene ("general", "lambert", ...).
+ * Every variant gives the same bits as the general one; it only skips work. */
+const char *pt_renderer_variant(const pt_renderer *r);
 
 /* Renders samples [s0, s1) of every pixel of tile and writes one pt_pixel_acc
  * per pixel (row-major over the tile, (x1-x0)*(y1-y0) entries, overwritten).

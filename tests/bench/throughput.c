@@ -9,7 +9,9 @@
  * renderer's throughput as a fraction of the ray-query ceiling; everything
  * else the renderer does (sampling, shading, BSDFs, lights, film) is the gap.
  * Repetitions alternate (1) and (2) so both see the same machine load;
- * medians are reported.
+ * medians are reported. (3) In the same repetitions, the same render through
+ * the general integrator variant, so the speed-up of the variant chosen for
+ * the scene (render.h: pt_renderer_variant) is measured side by side.
  *
  *   ptbench-throughput SCENE [--threads T] [--res WxH] [--spp N] [--reps R] [--csv FILE]
  */
@@ -160,7 +162,7 @@ int main(int argc, char **argv)
     }
     pt_error err = {0};
     pt_scene *scene = NULL;
-    pt_renderer *r = NULL;
+    pt_renderer *r = NULL, *rg = NULL;
     pt_accel *accel = NULL;
     if (pt_scene_load(scene_path, NULL, &scene, &err) != PT_OK) {
         fprintf(stderr, "ptbench-throughput: %s\n", err.msg);
@@ -170,7 +172,10 @@ int main(int argc, char **argv)
     pt_render_params_default(&p);
     p.width = w;
     p.height = h;
-    if (pt_renderer_new(scene, &p, &r, &err) != PT_OK || pt_accel_new(scene, &accel, &err) != PT_OK) {
+    pt_render_params pg = p;
+    pg.extra_features = 0xffffffffu;
+    if (pt_renderer_new(scene, &p, &r, &err) != PT_OK || pt_renderer_new(scene, &pg, &rg, &err) != PT_OK ||
+        pt_accel_new(scene, &accel, &err) != PT_OK) {
         fprintf(stderr, "ptbench-throughput: %s\n", err.msg);
         return 1;
     }
@@ -188,7 +193,7 @@ int main(int argc, char **argv)
     for (size_t i = 0; i < log.n; i++)
         shadow += log.rays[i].occlusion;
 
-    double sps[100], rps[100], eps[100], ratio[100];
+    double sps[100], rps[100], eps[100], ratio[100], gsps[100], speedup[100];
     for (int k = 0; k < reps; k++) {
         shared sh = {.r = r, .accel = accel, .width = w, .height = h, .spp = spp, .tile = 16, .log = &log};
         atomic_init(&sh.next, 0);
@@ -203,10 +208,20 @@ int main(int argc, char **argv)
         t0 = now();
         run_threads(threads, replay_worker, &sh);
         double t_replay = now() - t0;
+        shared sg = {.r = rg, .accel = accel, .width = w, .height = h, .spp = spp, .tile = 16, .log = &log};
+        atomic_init(&sg.next, 0);
+        t0 = now();
+        run_threads(threads, render_worker, &sg);
+        double t_general = now() - t0;
+        uint64_t gsamples = 0;
+        for (int i = 0; i < threads; i++)
+            gsamples += sg.stats[i].samples;
+        gsps[k] = gsamples / t_general;
         sps[k] = samples / t_render;
         rps[k] = rays / t_render;
         eps[k] = log.n / t_replay;
         ratio[k] = rps[k] / eps[k];
+        speedup[k] = sps[k] / gsps[k];
     }
     double m_sps = median(sps, reps), m_rps = median(rps, reps), m_eps = median(eps, reps),
            m_ratio = median(ratio, reps);
@@ -217,6 +232,9 @@ int main(int argc, char **argv)
     printf("bare ray queries %.4g rays/s (%zu rays replayed, %.0f%% shadow)\n", m_eps, log.n,
            100.0 * shadow / (log.n ? log.n : 1));
     printf("ratio            %.3f of the ray-query ceiling\n", m_ratio);
+    double m_g = median(gsps, reps), m_speedup = median(speedup, reps);
+    printf("variant          %s: %.4g samples/s vs general %.4g samples/s: speed-up %.3f\n",
+           pt_renderer_variant(r), m_sps, m_g, m_speedup);
     if (csv) {
         FILE *f = fopen(csv, "a");
         if (f) {
@@ -228,6 +246,7 @@ int main(int argc, char **argv)
     pt_free(log.rays);
     pt_accel_free(accel);
     pt_renderer_free(r);
+    pt_renderer_free(rg);
     pt_scene_free(scene);
     return 0;
 }
