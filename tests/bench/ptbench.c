@@ -1,0 +1,658 @@
+/*
+ * ptbench - render time against image error.
+ *
+ *   ptbench SCENE (--reference REF.exr | --constant V) [--spp LIST | --time LIST]
+ *           [--res WxH] [--threads T] [--seed S] [--max-depth D] [--reps R]
+ *           [--label NAME] [--csv OUT.csv] [--plot OUT.png] [--plot-series IN.csv]...
+ *   ptbench error IMAGE.exr (REFERENCE.exr | --constant V)
+ *   ptbench plot OUT.png IN.csv...
+ *
+ * For each sample count of --spp (default 1,2,4,...,256) the whole image is
+ * rendered in this process with T threads pulling 16x16 tiles, each tile
+ * rendered as pt_render_tile(tile, 0, spp) into a film; the wall time of the
+ * render alone is measured (scene load, acceleration build and scratch
+ * allocation excluded; thread start included), the median over R repetitions
+ * reported. The film is resolved to an image and scored against the reference
+ * (common/metrics.h: RMSE, relMSE); efficiency = 1 / (MSE * seconds), which a
+ * Monte Carlo estimator keeps constant as samples grow, so it compares
+ * renderers independently of how long each ran.
+ * With --time, each budget in seconds is filled by rendering the whole image
+ * in passes of growing sample counts (doubling, then as many samples as the
+ * measured rate predicts will fit) and the spp reached and the actual time are
+ * reported; with R repetitions, the one with the median spp.
+ * The reference must not share the benchmark's random numbers: render it with
+ * another --seed, or the first samples of both agree and the error looks smaller
+ * than it is. Its own noise adds its MSE to every row.
+ * `error` scores an existing EXR (from any renderer) the same way; `plot`
+ * draws the CSVs of earlier runs, one series per label.
+ */
+#include <errno.h>
+#include <math.h>
+#include <pthread.h>
+#include <stdatomic.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "common/alloc.h"
+#include "common/exr.h"
+#include "common/film.h"
+#include "common/image.h"
+#include "common/metrics.h"
+#include "common/render.h"
+#include "common/scene.h"
+#include "tests/bench/plot.h"
+
+#define MAX_THREADS 64
+#define MAX_ROWS 64
+#define MAX_REPS 100
+#define MAX_SERIES_FILES 16
+#define TILE 16u
+#define PLOT_W 900
+#define PLOT_H 600
+
+static double now(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+/* ---- rendering ------------------------------------------------------------ */
+
+typedef struct pass {
+    const pt_renderer *r;
+    pt_film *film;
+    const pt_rect *tiles;
+    uint32_t num_tiles, s0, s1;
+    atomic_uint next;
+    pt_pixel_acc *scratch[MAX_THREADS]; /* TILE*TILE each, allocated once */
+    pt_render_stats stats[MAX_THREADS];
+} pass;
+
+typedef struct pass_arg {
+    pass *ps;
+    int id;
+} pass_arg;
+
+static void *pass_thread(void *p)
+{
+    pass_arg *a = p;
+    pass *ps = a->ps;
+    for (;;) {
+        uint32_t t = atomic_fetch_add(&ps->next, 1);
+        if (t >= ps->num_tiles)
+            break;
+        pt_render_tile(ps->r, ps->tiles[t], ps->s0, ps->s1, ps->scratch[a->id], &ps->stats[a->id]);
+        /* Tiles are disjoint: threads add to the film without a lock. */
+        pt_film_add_tile(ps->film, ps->tiles[t], ps->scratch[a->id]);
+    }
+    return NULL;
+}
+
+/* Renders samples [s0, s1) of every tile into the film (added to it). Returns
+ * 0, or -1 when no thread could be started. */
+static int run_pass(pass *ps, int threads, uint32_t s0, uint32_t s1)
+{
+    pthread_t th[MAX_THREADS];
+    pass_arg args[MAX_THREADS];
+    ps->s0 = s0;
+    ps->s1 = s1;
+    atomic_store(&ps->next, 0);
+    int started = 0;
+    for (; started < threads; started++) {
+        args[started] = (pass_arg){ps, started};
+        if (pthread_create(&th[started], NULL, pass_thread, &args[started]) != 0)
+            break;
+    }
+    if (started == 0)
+        return -1;
+    for (int i = 0; i < started; i++)
+        pthread_join(th[i], NULL);
+    return 0;
+}
+
+static void reset(pass *ps, int threads)
+{
+    memset(ps->film->px, 0, (size_t)ps->film->width * ps->film->height * sizeof *ps->film->px);
+    memset(ps->stats, 0, (size_t)threads * sizeof ps->stats[0]);
+}
+
+static pt_render_stats total_stats(const pass *ps, int threads)
+{
+    pt_render_stats st = {0, 0, 0};
+    for (int i = 0; i < threads; i++) {
+        st.samples += ps->stats[i].samples;
+        st.rejected += ps->stats[i].rejected;
+        st.rays += ps->stats[i].rays;
+    }
+    return st;
+}
+
+/* ---- results ---------------------------------------------------------------- */
+
+typedef struct row {
+    uint32_t spp;
+    double seconds;
+    pt_render_stats st;
+    pt_metrics m;
+} row;
+
+typedef struct reference {
+    const pt_image *img; /* NULL: the constant */
+    double value;
+} reference;
+
+static pt_status score(const pt_image *img, const reference *ref, pt_metrics *m, pt_error *err)
+{
+    return ref->img ? pt_metrics_compare(img, ref->img, m, err)
+                    : pt_metrics_compare_constant(img, ref->value, m, err);
+}
+
+static double efficiency(const row *r)
+{
+    return 1.0 / (r->m.rmse * r->m.rmse * r->seconds);
+}
+
+static void print_header(void)
+{
+    printf("%8s %10s %11s %11s %11s %11s %11s %9s\n", "spp", "seconds", "samples/s", "rays/s",
+           "RMSE", "relMSE", "efficiency", "mean");
+}
+
+static void print_row(const row *r)
+{
+    printf("%8u %10.4f %11.4g %11.4g %11.4e %11.4e %11.4g %9.5f\n", r->spp, r->seconds,
+           (double)r->st.samples / r->seconds, (double)r->st.rays / r->seconds, r->m.rmse,
+           r->m.rel_mse, efficiency(r), (r->m.mean[0] + r->m.mean[1] + r->m.mean[2]) / 3.0);
+}
+
+static const char *basename_of(const char *path)
+{
+    const char *s = strrchr(path, '/');
+    return s ? s + 1 : path;
+}
+
+/* Commas would split a CSV field: the label is written with them replaced. */
+static void csv_safe(char *s)
+{
+    for (; *s; s++)
+        if (*s == ',' || *s == '\n' || *s == '\r')
+            *s = '_';
+}
+
+static int write_csv(const char *path, const char *label, const char *scene, uint32_t w, uint32_t h,
+                     int threads, uint32_t seed, const row *rows, int n)
+{
+    FILE *f = fopen(path, "w");
+    if (!f) {
+        fprintf(stderr, "ptbench: %s: %s\n", path, strerror(errno));
+        return -1;
+    }
+    fprintf(f, "label,scene,width,height,threads,seed,spp,seconds,samples_per_s,rays_per_s,"
+               "rmse,relmse,efficiency,mean,nonfinite,rejected\n");
+    for (int i = 0; i < n; i++) {
+        const row *r = &rows[i];
+        fprintf(f, "%s,%s,%u,%u,%d,%u,%u,%.6g,%.6g,%.6g,%.6e,%.6e,%.6g,%.6g,%llu,%llu\n", label,
+                scene, w, h, threads, seed, r->spp, r->seconds, (double)r->st.samples / r->seconds,
+                (double)r->st.rays / r->seconds, r->m.rmse, r->m.rel_mse, efficiency(r),
+                (r->m.mean[0] + r->m.mean[1] + r->m.mean[2]) / 3.0,
+                (unsigned long long)r->m.nonfinite, (unsigned long long)r->st.rejected);
+    }
+    if (fclose(f) != 0) {
+        fprintf(stderr, "ptbench: %s: %s\n", path, strerror(errno));
+        return -1;
+    }
+    return 0;
+}
+
+static void plot_init(plot *p)
+{
+    memset(p, 0, sizeof *p);
+    snprintf(p->title, sizeof p->title, "RMSE AGAINST RENDER TIME");
+    snprintf(p->xlabel, sizeof p->xlabel, "SECONDS");
+    snprintf(p->ylabel, sizeof p->ylabel, "RMSE");
+}
+
+/* ---- argument parsing --------------------------------------------------------- */
+
+static int parse_u32(const char *s, uint32_t lo, uint32_t hi, uint32_t *out)
+{
+    char *end;
+    errno = 0;
+    unsigned long v = strtoul(s, &end, 10);
+    if (errno || end == s || *end || s[0] == '-' || v < lo || v > hi)
+        return -1;
+    *out = (uint32_t)v;
+    return 0;
+}
+
+static int parse_double(const char *s, double *out)
+{
+    char *end;
+    errno = 0;
+    double v = strtod(s, &end);
+    if (errno || end == s || *end || !isfinite(v))
+        return -1;
+    *out = v;
+    return 0;
+}
+
+/* "1,2,4" -> values; each in [lo, hi]; at most MAX_ROWS. Returns the count or -1. */
+static int parse_list(const char *s, int as_double, double *out)
+{
+    char buf[1024];
+    if (strlen(s) >= sizeof buf)
+        return -1;
+    strcpy(buf, s);
+    int n = 0;
+    for (char *save = NULL, *tok = strtok_r(buf, ",", &save); tok;
+         tok = strtok_r(NULL, ",", &save)) {
+        if (n == MAX_ROWS)
+            return -1;
+        if (as_double) {
+            if (parse_double(tok, &out[n]) != 0 || out[n] <= 0)
+                return -1;
+        } else {
+            uint32_t v;
+            if (parse_u32(tok, 1, 1u << 24, &v) != 0)
+                return -1;
+            out[n] = v;
+        }
+        n++;
+    }
+    return n;
+}
+
+static void usage(FILE *f)
+{
+    fprintf(f, "usage: ptbench SCENE (--reference REF.exr | --constant V) [options]\n"
+               "       ptbench error IMAGE.exr (REFERENCE.exr | --constant V)\n"
+               "       ptbench plot OUT.png IN.csv...\n"
+               "  --spp LIST          sample counts per pixel (default 1,2,4,8,16,32,64,128,256)\n"
+               "  --time LIST         time budgets in seconds instead: spp reached in each\n"
+               "  --res WxH           image size (default: the reference's, else 128 wide)\n"
+               "  --threads T         render threads (default 2)\n"
+               "  --seed S            random seed (default 0; render the reference with another)\n"
+               "  --max-depth D       maximum bounces (default 16)\n"
+               "  --reps R            repetitions; the median time is reported (default 1)\n"
+               "  --label NAME        series name in CSV and plot (default: the scene's name)\n"
+               "  --csv OUT.csv       write the table\n"
+               "  --plot OUT.png      log-log plot of RMSE against seconds\n"
+               "  --plot-series F.csv add an earlier run's CSV to the plot (repeatable)\n");
+}
+
+/* ---- subcommands ---------------------------------------------------------------- */
+
+static int cmd_error(int argc, char **argv)
+{
+    if (argc != 4 && !(argc == 5 && !strcmp(argv[3], "--constant"))) {
+        usage(stderr);
+        return 2;
+    }
+    pt_error err = {0};
+    pt_image *img = NULL, *refimg = NULL;
+    reference ref = {NULL, 0.0};
+    int rc = 1;
+    if (argc == 5 && parse_double(argv[4], &ref.value) != 0) {
+        fprintf(stderr, "ptbench: --constant: '%s' is not a finite number\n", argv[4]);
+        return 2;
+    }
+    if (pt_exr_read(argv[2], &img, NULL, &err) != PT_OK ||
+        (argc == 4 && pt_exr_read(argv[3], &refimg, NULL, &err) != PT_OK)) {
+        fprintf(stderr, "ptbench: %s\n", err.msg);
+        goto done;
+    }
+    ref.img = refimg;
+    pt_metrics m;
+    if (score(img, &ref, &m, &err) != PT_OK) {
+        fprintf(stderr, "ptbench: %s\n", err.msg);
+        goto done;
+    }
+    printf("RMSE     %.6e\nrelMSE   %.6e\nmean     %.6g %.6g %.6g\nnonfinite %llu\n", m.rmse,
+           m.rel_mse, m.mean[0], m.mean[1], m.mean[2], (unsigned long long)m.nonfinite);
+    rc = 0;
+done:
+    pt_image_free(img);
+    pt_image_free(refimg);
+    return rc;
+}
+
+static int cmd_plot(int argc, char **argv)
+{
+    if (argc < 4) {
+        usage(stderr);
+        return 2;
+    }
+    static plot p;
+    plot_init(&p);
+    pt_error err = {0};
+    for (int i = 3; i < argc; i++)
+        if (plot_read_csv(&p, argv[i], "seconds", "rmse", &err) != PT_OK) {
+            fprintf(stderr, "ptbench: %s\n", err.msg);
+            return 1;
+        }
+    if (plot_write_png(&p, argv[2], PLOT_W, PLOT_H, &err) != PT_OK) {
+        fprintf(stderr, "ptbench: %s\n", err.msg);
+        return 1;
+    }
+    return 0;
+}
+
+typedef struct opts {
+    const char *scene, *ref_path, *csv, *plot_path, *label;
+    const char *series[MAX_SERIES_FILES];
+    int num_series;
+    int has_constant;
+    double constant;
+    double list[MAX_ROWS];
+    int n, time_mode;
+    uint32_t w, h, seed, max_depth, reps;
+    int threads;
+} opts;
+
+static int parse_opts(int argc, char **argv, opts *o)
+{
+    static const double default_spp[] = {1, 2, 4, 8, 16, 32, 64, 128, 256};
+    memset(o, 0, sizeof *o);
+    o->threads = 2;
+    o->reps = 1;
+    o->max_depth = 16;
+    o->n = (int)(sizeof default_spp / sizeof default_spp[0]);
+    memcpy(o->list, default_spp, sizeof default_spp);
+    for (int i = 1; i < argc; i++) {
+        const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
+        int bad = 0;
+        uint32_t t;
+        if (!strcmp(a, "-h") || !strcmp(a, "--help")) {
+            usage(stdout);
+            exit(0);
+        } else if (a[0] != '-') {
+            if (o->scene)
+                bad = 1;
+            o->scene = a;
+            continue;
+        } else if (!v) {
+            bad = 1;
+        } else if (!strcmp(a, "--reference")) {
+            o->ref_path = v;
+        } else if (!strcmp(a, "--constant")) {
+            o->has_constant = 1;
+            bad = parse_double(v, &o->constant);
+        } else if (!strcmp(a, "--spp") || !strcmp(a, "--time")) {
+            o->time_mode = !strcmp(a, "--time");
+            o->n = parse_list(v, o->time_mode, o->list);
+            bad = o->n <= 0;
+        } else if (!strcmp(a, "--res")) {
+            char x;
+            bad = sscanf(v, "%u%c%u", &o->w, &x, &o->h) != 3 || x != 'x' || !o->w || !o->h ||
+                  o->w > 16384 || o->h > 16384;
+        } else if (!strcmp(a, "--threads")) {
+            bad = parse_u32(v, 1, MAX_THREADS, &t);
+            o->threads = (int)t;
+        } else if (!strcmp(a, "--seed")) {
+            bad = parse_u32(v, 0, UINT32_MAX, &o->seed);
+        } else if (!strcmp(a, "--max-depth")) {
+            bad = parse_u32(v, 1, 1024, &o->max_depth);
+        } else if (!strcmp(a, "--reps")) {
+            bad = parse_u32(v, 1, MAX_REPS, &o->reps);
+        } else if (!strcmp(a, "--label")) {
+            o->label = v;
+        } else if (!strcmp(a, "--csv")) {
+            o->csv = v;
+        } else if (!strcmp(a, "--plot")) {
+            o->plot_path = v;
+        } else if (!strcmp(a, "--plot-series")) {
+            bad = o->num_series == MAX_SERIES_FILES;
+            if (!bad)
+                o->series[o->num_series++] = v;
+        } else {
+            bad = 1;
+        }
+        if (bad) {
+            fprintf(stderr, "ptbench: bad argument '%s'%s%s (see --help)\n", a, v ? " " : "",
+                    v ? v : "");
+            return -1;
+        }
+        i++;
+    }
+    if (!o->scene || (!o->ref_path == !o->has_constant)) {
+        fprintf(stderr, "ptbench: need a SCENE and one of --reference or --constant "
+                        "(see --help)\n");
+        return -1;
+    }
+    return 0;
+}
+
+static int cmp_double(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return (x > y) - (x < y);
+}
+
+static int cmp_row_spp(const void *a, const void *b)
+{
+    const row *x = a, *y = b;
+    return (x->spp > y->spp) - (x->spp < y->spp);
+}
+
+/* One --spp row: R timed renders of [0, spp); the median time; the image of
+ * the last (every repetition renders the same bits). */
+static int bench_spp(pass *ps, const opts *o, uint32_t spp, row *out)
+{
+    double secs[MAX_REPS];
+    for (uint32_t k = 0; k < o->reps; k++) {
+        reset(ps, o->threads);
+        double t0 = now();
+        if (run_pass(ps, o->threads, 0, spp) != 0)
+            return -1;
+        secs[k] = now() - t0;
+    }
+    qsort(secs, o->reps, sizeof secs[0], cmp_double);
+    out->spp = spp;
+    out->seconds =
+        o->reps % 2 ? secs[o->reps / 2] : 0.5 * (secs[o->reps / 2 - 1] + secs[o->reps / 2]);
+    out->st = total_stats(ps, o->threads);
+    return 0;
+}
+
+/* One --time row: passes of growing sample counts until the next pass would
+ * overrun the budget, as predicted from the rate measured so far. */
+static int bench_time_once(pass *ps, const opts *o, double budget, row *out)
+{
+    reset(ps, o->threads);
+    uint32_t s = 0;
+    double t0 = now(), el = 0.0;
+    for (;;) {
+        uint32_t chunk = s ? s : 1;
+        if (s) {
+            double per_spp = el / s, fit = floor((budget - el) / per_spp);
+            if (fit < 1.0)
+                break;
+            if (fit < chunk)
+                chunk = (uint32_t)fit;
+        }
+        if (s + chunk > (1u << 24))
+            break;
+        if (run_pass(ps, o->threads, s, s + chunk) != 0)
+            return -1;
+        s += chunk;
+        el = now() - t0;
+    }
+    out->spp = s;
+    out->seconds = el;
+    out->st = total_stats(ps, o->threads);
+    return 0;
+}
+
+static int cmd_bench(int argc, char **argv)
+{
+    opts o;
+    if (parse_opts(argc, argv, &o) != 0)
+        return 2;
+    pt_error err = {0};
+    pt_scene *scene = NULL;
+    pt_renderer *r = NULL;
+    pt_film *film = NULL;
+    pt_image *img = NULL, *refimg = NULL;
+    pt_rect *tiles = NULL;
+    static pass ps;
+    static plot pl;
+    static row rows[MAX_ROWS], reps[MAX_REPS];
+    int rc = 1;
+
+    reference ref = {NULL, o.constant};
+    if (o.ref_path) {
+        if (pt_exr_read(o.ref_path, &refimg, NULL, &err) != PT_OK) {
+            fprintf(stderr, "ptbench: %s\n", err.msg);
+            goto done;
+        }
+        ref.img = refimg;
+        if (!o.w) {
+            o.w = refimg->width;
+            o.h = refimg->height;
+        } else if (o.w != refimg->width || o.h != refimg->height) {
+            fprintf(stderr, "ptbench: --res %ux%u but the reference %s is %ux%u\n", o.w, o.h,
+                    o.ref_path, refimg->width, refimg->height);
+            rc = 2;
+            goto done;
+        }
+    }
+    if (pt_scene_load(o.scene, NULL, &scene, &err) != PT_OK) {
+        fprintf(stderr, "ptbench: %s\n", err.msg);
+        goto done;
+    }
+    if (!o.w) {
+        float aspect = scene->camera.aspect > 0 ? scene->camera.aspect : 1.0f;
+        o.w = 128;
+        o.h = (uint32_t)(128.0f / aspect + 0.5f);
+        o.h = o.h ? o.h : 1;
+    }
+    pt_render_params p = {0};
+    pt_render_params_default(&p);
+    p.width = o.w;
+    p.height = o.h;
+    p.seed = o.seed;
+    p.max_depth = o.max_depth;
+    if (pt_renderer_new(scene, &p, &r, &err) != PT_OK ||
+        pt_film_new(o.w, o.h, &film, &err) != PT_OK ||
+        pt_image_new(o.w, o.h, &img, &err) != PT_OK) {
+        fprintf(stderr, "ptbench: %s\n", err.msg);
+        goto done;
+    }
+    uint32_t tx = (o.w + TILE - 1) / TILE, ty = (o.h + TILE - 1) / TILE;
+    tiles = pt_malloc_array((size_t)tx * ty, sizeof *tiles);
+    if (!tiles) {
+        fprintf(stderr, "ptbench: out of memory\n");
+        goto done;
+    }
+    for (uint32_t y = 0; y < ty; y++)
+        for (uint32_t x = 0; x < tx; x++)
+            tiles[y * tx + x] =
+                (pt_rect){x * TILE, y * TILE, (x + 1) * TILE < o.w ? (x + 1) * TILE : o.w,
+                          (y + 1) * TILE < o.h ? (y + 1) * TILE : o.h};
+    ps.r = r;
+    ps.film = film;
+    ps.tiles = tiles;
+    ps.num_tiles = tx * ty;
+    for (int i = 0; i < o.threads; i++)
+        if (!(ps.scratch[i] = pt_malloc_array(TILE * TILE, sizeof(pt_pixel_acc)))) {
+            fprintf(stderr, "ptbench: out of memory\n");
+            goto done;
+        }
+
+    char label[PLOT_MAX_LABEL];
+    if (o.label) {
+        snprintf(label, sizeof label, "%s", o.label);
+    } else {
+        snprintf(label, sizeof label, "%s", basename_of(o.scene));
+        char *dot = strrchr(label, '.');
+        if (dot && dot != label)
+            *dot = '\0';
+    }
+    csv_safe(label);
+    printf("ptbench: %s, %ux%u, %d threads, seed %u, max depth %u, variant %s, %u rep%s\n", o.scene,
+           o.w, o.h, o.threads, o.seed, o.max_depth, pt_renderer_variant(r), o.reps,
+           o.reps == 1 ? "" : "s");
+    if (ref.img)
+        printf("ptbench: reference %s\n", o.ref_path);
+    else
+        printf("ptbench: constant reference %g\n", ref.value);
+    print_header();
+    for (int i = 0; i < o.n; i++) {
+        row *rw = &rows[i];
+        int bad;
+        if (o.time_mode) {
+            for (uint32_t k = 0; k < o.reps; k++)
+                if (bench_time_once(&ps, &o, o.list[i], &reps[k]) != 0)
+                    goto nothreads;
+            qsort(reps, o.reps, sizeof reps[0], cmp_row_spp);
+            *rw = reps[o.reps / 2];
+            /* The film holds the last repetition: render the chosen one's
+             * samples again for its image (equal up to the rounding of sums). */
+            bad = 0;
+            if (o.reps > 1) {
+                reset(&ps, o.threads);
+                bad = run_pass(&ps, o.threads, 0, rw->spp);
+            }
+        } else {
+            bad = bench_spp(&ps, &o, (uint32_t)o.list[i], rw);
+        }
+        if (bad)
+            goto nothreads;
+        pt_film_resolve(film, img);
+        if (score(img, &ref, &rw->m, &err) != PT_OK) {
+            fprintf(stderr, "ptbench: %s\n", err.msg);
+            goto done;
+        }
+        print_row(rw);
+        fflush(stdout);
+        if (rw->m.nonfinite || rw->st.rejected)
+            fprintf(stderr, "ptbench: %llu non-finite values in the image, %llu rejected samples\n",
+                    (unsigned long long)rw->m.nonfinite, (unsigned long long)rw->st.rejected);
+    }
+    if (o.csv &&
+        write_csv(o.csv, label, basename_of(o.scene), o.w, o.h, o.threads, o.seed, rows, o.n) != 0)
+        goto done;
+    if (o.plot_path) {
+        plot_init(&pl);
+        for (int i = 0; i < o.num_series; i++)
+            if (plot_read_csv(&pl, o.series[i], "seconds", "rmse", &err) != PT_OK) {
+                fprintf(stderr, "ptbench: %s\n", err.msg);
+                goto done;
+            }
+        plot_series *s = plot_series_get(&pl, label);
+        for (int i = 0; s && i < o.n; i++)
+            plot_series_add(s, rows[i].seconds, rows[i].m.rmse);
+        if (!s || plot_write_png(&pl, o.plot_path, PLOT_W, PLOT_H, &err) != PT_OK) {
+            fprintf(stderr, "ptbench: %s\n", s ? err.msg : "too many series to plot");
+            goto done;
+        }
+    }
+    rc = 0;
+    goto done;
+nothreads:
+    fprintf(stderr, "ptbench: cannot start render threads\n");
+done:
+    for (int i = 0; i < MAX_THREADS; i++) {
+        pt_free(ps.scratch[i]);
+        ps.scratch[i] = NULL;
+    }
+    pt_free(tiles);
+    pt_image_free(img);
+    pt_image_free(refimg);
+    pt_film_free(film);
+    pt_renderer_free(r);
+    pt_scene_free(scene);
+    return rc;
+}
+
+int main(int argc, char **argv)
+{
+    if (argc >= 2 && !strcmp(argv[1], "error"))
+        return cmd_error(argc, argv);
+    if (argc >= 2 && !strcmp(argv[1], "plot"))
+        return cmd_plot(argc, argv);
+    return cmd_bench(argc, argv);
+}
