@@ -9,6 +9,15 @@
  * the same direction); a transform with a negative determinant mirrors space,
  * so the triangle winding is flipped to keep the geometric normal on the side
  * the shading normals point to.
+ *
+ * Rebasing: world-space positions (node transform, then opts' scale and
+ * translation) are kept in double until pt_scene_builder_finish, which moves
+ * the scene next to the origin before rounding to float. A float's ULP at 1e5
+ * is 8 mm, so georeferenced data stored as world-space floats would lose its
+ * detail and push the ray offsets (Waechter & Binder, 256 ULPs) to metres;
+ * stored relative to a nearby origin, positions keep float's full relative
+ * precision whatever the translation, and rendering is translation invariant,
+ * so nothing downstream needs to know (world = stored + scene->origin).
  */
 #include "common/scene.h"
 
@@ -27,7 +36,8 @@
 #define PT_SCENE_MAX_VERTICES (3u * PT_SCENE_MAX_TRIANGLES)
 
 struct pt_scene_builder {
-    float *pos, *nrm, *uv;
+    double *pos; /* world space, before opts' scale/translate; float only at finish */
+    float *nrm, *uv;
     uint32_t nv, cap_pos, cap_nrm, cap_uv;
     int has_uv;
     uint32_t *idx, *tmat;
@@ -37,7 +47,8 @@ struct pt_scene_builder {
     pt_texture *texs;
     uint32_t ntex, cap_tex;
     pt_camera *cams;
-    uint32_t ncam, cap_cam;
+    double *cam_pos; /* 3 per camera: the world-space position in double */
+    uint32_t ncam, cap_cam, cap_cam_pos;
     int hash_set;
     char hash[65];
 };
@@ -112,6 +123,7 @@ void pt_scene_builder_free(pt_scene_builder *b)
     pt_free(b->mats);
     free_textures(b->texs, b->ntex);
     pt_free(b->cams);
+    pt_free(b->cam_pos);
     pt_free(b);
 }
 
@@ -195,18 +207,24 @@ fail:
     return st;
 }
 
-pt_status pt_scene_builder_add_camera(pt_scene_builder *b, const pt_camera *cam, pt_error *err)
+pt_status pt_scene_builder_add_camera_at(pt_scene_builder *b, const pt_camera *cam,
+                                        const double position[3], pt_error *err)
 {
     const char *name = cam->name[0] ? cam->name : "(unnamed)";
-    if (!pt_isfinite3(cam->position) || !pt_isfinite3(cam->right) || !pt_isfinite3(cam->up) ||
-        !pt_isfinite3(cam->forward) || !(cam->yfov > 0.0f && cam->yfov < PT_PI) ||
-        !(cam->aspect >= 0.0f && cam->aspect < 1e6f) || !(cam->znear >= 0.0f) ||
-        !isfinite(cam->znear))
+    if (!isfinite(position[0]) || !isfinite(position[1]) || !isfinite(position[2]) ||
+        fabs(position[0]) > (double)PT_SCENE_MAX_COORD ||
+        fabs(position[1]) > (double)PT_SCENE_MAX_COORD ||
+        fabs(position[2]) > (double)PT_SCENE_MAX_COORD || !pt_isfinite3(cam->right) ||
+        !pt_isfinite3(cam->up) || !pt_isfinite3(cam->forward) ||
+        !(cam->yfov > 0.0f && cam->yfov < PT_PI) || !(cam->aspect >= 0.0f && cam->aspect < 1e6f) ||
+        !(cam->znear >= 0.0f) || !isfinite(cam->znear))
         return pt_error_set(err, PT_ERR_FORMAT, "camera '%.64s': invalid parameters", name);
     if (b->ncam >= 65536)
         return pt_error_set(err, PT_ERR_LIMIT, "camera '%.64s': too many cameras", name);
-    if (!reserve((void **)&b->cams, &b->cap_cam, b->ncam + 1, sizeof(pt_camera), 1))
+    if (!reserve((void **)&b->cams, &b->cap_cam, b->ncam + 1, sizeof(pt_camera), 1) ||
+        !reserve((void **)&b->cam_pos, &b->cap_cam_pos, b->ncam + 1, sizeof(double), 3))
         return pt_error_set(err, PT_ERR_NOMEM, "camera '%.64s': out of memory", name);
+    memcpy(&b->cam_pos[3 * (size_t)b->ncam], position, 3 * sizeof(double));
     pt_camera *d = &b->cams[b->ncam++];
     *d = *cam;
     size_t len = strnlen(cam->name, sizeof cam->name - 1);
@@ -214,14 +232,20 @@ pt_status pt_scene_builder_add_camera(pt_scene_builder *b, const pt_camera *cam,
     return PT_OK;
 }
 
+pt_status pt_scene_builder_add_camera(pt_scene_builder *b, const pt_camera *cam, pt_error *err)
+{
+    const double p[3] = {cam->position.x, cam->position.y, cam->position.z};
+    return pt_scene_builder_add_camera_at(b, cam, p, err);
+}
+
 /* 3x3 cofactor matrix of the column-major 4x4's upper-left block, as rows
  * c[r][k] so that n' = c * n, and the determinant. cof(A) = det(A) inv(A)^T. */
-static double normal_matrix(const float *m, double c[3][3])
+static double normal_matrix(const double *m, double c[3][3])
 {
     double a[3][3]; /* a[row][col] */
     for (int r = 0; r < 3; r++)
         for (int k = 0; k < 3; k++)
-            a[r][k] = m ? (double)m[k * 4 + r] : (r == k);
+            a[r][k] = m ? m[k * 4 + r] : (r == k);
     for (int r = 0; r < 3; r++) {
         for (int k = 0; k < 3; k++) {
             int r1 = (r + 1) % 3, r2 = (r + 2) % 3, k1 = (k + 1) % 3, k2 = (k + 2) % 3;
@@ -236,7 +260,21 @@ pt_status pt_scene_builder_add_mesh(pt_scene_builder *b, const char *what, const
                                     const uint32_t *indices, uint32_t nt, const float xform[16],
                                     uint32_t material, pt_error *err)
 {
-    float *acc = NULL;
+    double xd[16];
+    if (xform)
+        for (int i = 0; i < 16; i++)
+            xd[i] = xform[i];
+    return pt_scene_builder_add_mesh_dxform(b, what, positions, normals, uvs, nv, indices, nt,
+                                            xform ? xd : NULL, material, err);
+}
+
+pt_status pt_scene_builder_add_mesh_dxform(pt_scene_builder *b, const char *what,
+                                           const float *positions, const float *normals,
+                                           const float *uvs, uint32_t nv, const uint32_t *indices,
+                                           uint32_t nt, const double xform[16], uint32_t material,
+                                           pt_error *err)
+{
+    double *acc = NULL;
     pt_status st = PT_OK;
     if (!what)
         what = "mesh";
@@ -263,7 +301,7 @@ pt_status pt_scene_builder_add_mesh(pt_scene_builder *b, const char *what, const
                                     indices[i], (uint32_t)(i / 3), nv);
     }
     uint32_t nv_all = b->nv + nv, nt_all = b->nt + nt;
-    if (!reserve((void **)&b->pos, &b->cap_pos, nv_all, sizeof(float), 3) ||
+    if (!reserve((void **)&b->pos, &b->cap_pos, nv_all, sizeof(double), 3) ||
         !reserve((void **)&b->nrm, &b->cap_nrm, nv_all, sizeof(float), 3) ||
         !reserve((void **)&b->uv, &b->cap_uv, nv_all, sizeof(float), 2) ||
         !reserve((void **)&b->idx, &b->cap_idx, nt_all, sizeof(uint32_t), 3) ||
@@ -273,15 +311,16 @@ pt_status pt_scene_builder_add_mesh(pt_scene_builder *b, const char *what, const
     double c[3][3];
     double det = normal_matrix(xform, c);
     double nsign = det < 0 ? -1.0 : 1.0;
-    float *P = b->pos + 3 * (size_t)b->nv, *N = b->nrm + 3 * (size_t)b->nv;
+    double *P = b->pos + 3 * (size_t)b->nv;
+    float *N = b->nrm + 3 * (size_t)b->nv;
     float *UV = b->uv + 2 * (size_t)b->nv;
     int need_geo = normals == NULL;
     for (uint32_t v = 0; v < nv; v++) {
         const float *p = positions + 3 * (size_t)v;
         double q[3];
         for (int r = 0; r < 3; r++) {
-            q[r] = xform ? (double)xform[r] * p[0] + (double)xform[4 + r] * p[1] +
-                               (double)xform[8 + r] * p[2] + (double)xform[12 + r]
+            q[r] = xform ? xform[r] * p[0] + xform[4 + r] * p[1] + xform[8 + r] * p[2] +
+                               xform[12 + r]
                          : (double)p[r];
             if (!isfinite(q[r]) || fabs(q[r]) > (double)PT_SCENE_MAX_COORD)
                 return pt_error_set(err, PT_ERR_FORMAT,
@@ -289,7 +328,7 @@ pt_status pt_scene_builder_add_mesh(pt_scene_builder *b, const char *what, const
                                     "%g in world space",
                                     what, v, (double)p[0], (double)p[1], (double)p[2],
                                     (double)PT_SCENE_MAX_COORD);
-            P[3 * v + r] = (float)q[r];
+            P[3 * v + r] = q[r];
         }
         if (normals) {
             const float *n = normals + 3 * (size_t)v;
@@ -339,44 +378,41 @@ pt_status pt_scene_builder_add_mesh(pt_scene_builder *b, const char *what, const
     if (need_geo) {
         /* Area-weighted vertex normals: the cross product's length is twice
          * the triangle's area, so summing unnormalised cross products weights
-         * each face by its area. Degenerate faces add nothing. */
-        acc = pt_calloc((size_t)nv * 3, sizeof(float));
+         * each face by its area. Degenerate faces add nothing. In double, from
+         * the double world-space positions: edges of a mesh far from the
+         * origin keep their precision, so a translation does not change the
+         * normals. */
+        acc = pt_calloc((size_t)nv * 3, sizeof(double));
         if (!acc) {
             st = pt_error_set(err, PT_ERR_NOMEM, "%s: out of memory", what);
             goto fail;
         }
         for (uint32_t t = 0; t < nt; t++) {
             uint32_t i[3] = {I[3 * t] - b->nv, I[3 * t + 1] - b->nv, I[3 * t + 2] - b->nv};
-            pt_vec3 p0 = pt_v3(P[3 * i[0]], P[3 * i[0] + 1], P[3 * i[0] + 2]);
-            pt_vec3 p1 = pt_v3(P[3 * i[1]], P[3 * i[1] + 1], P[3 * i[1] + 2]);
-            pt_vec3 p2 = pt_v3(P[3 * i[2]], P[3 * i[2] + 1], P[3 * i[2] + 2]);
-            pt_vec3 g = pt_v3_cross(pt_v3_sub(p1, p0), pt_v3_sub(p2, p0));
-            if (!pt_isfinite3(g))
+            const double *p0 = P + 3 * (size_t)i[0], *p1 = P + 3 * (size_t)i[1],
+                         *p2 = P + 3 * (size_t)i[2];
+            double e1[3] = {p1[0] - p0[0], p1[1] - p0[1], p1[2] - p0[2]};
+            double e2[3] = {p2[0] - p0[0], p2[1] - p0[1], p2[2] - p0[2]};
+            double g[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2],
+                           e1[0] * e2[1] - e1[1] * e2[0]};
+            if (!isfinite(g[0]) || !isfinite(g[1]) || !isfinite(g[2]))
                 continue;
-            for (int k = 0; k < 3; k++) {
-                acc[3 * i[k]] += g.x;
-                acc[3 * i[k] + 1] += g.y;
-                acc[3 * i[k] + 2] += g.z;
-            }
+            for (int k = 0; k < 3; k++)
+                for (int r = 0; r < 3; r++)
+                    acc[3 * (size_t)i[k] + r] += g[r];
         }
         for (uint32_t v = 0; v < nv; v++) {
             float *n = N + 3 * (size_t)v;
             if (normals && (n[0] != 0.0f || n[1] != 0.0f || n[2] != 0.0f))
                 continue;
-            pt_vec3 a = pt_v3(acc[3 * v], acc[3 * v + 1], acc[3 * v + 2]);
-            float len = pt_v3_len(a);
-            if (!(len > 0.0f) || !isfinite(len)) {
-                /* Huge coordinates can overflow the sum in float: retry scaled. */
-                float m = fmaxf(fabsf(a.x), fmaxf(fabsf(a.y), fabsf(a.z)));
-                if (m > 0.0f && isfinite(m)) {
-                    a = pt_v3_scale(a, 1.0f / m);
-                    len = pt_v3_len(a);
-                }
-            }
-            if (len > 0.0f && isfinite(len)) {
-                n[0] = a.x / len;
-                n[1] = a.y / len;
-                n[2] = a.z / len;
+            const double *a = acc + 3 * (size_t)v;
+            /* Coordinates are capped at PT_SCENE_MAX_COORD (1e15), so a face's
+             * cross product is under ~1e31 and the squared sum cannot overflow. */
+            double len = sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
+            if (len > 0.0 && isfinite(len)) {
+                n[0] = (float)(a[0] / len);
+                n[1] = (float)(a[1] / len);
+                n[2] = (float)(a[2] / len);
             } else {
                 n[0] = 0.0f;
                 n[1] = 0.0f;
@@ -414,6 +450,7 @@ static pt_status hash_scene(const pt_scene *s, char out[65], pt_error *err)
                           s->num_cameras};
     EVP_DigestUpdate(ctx, counts, sizeof counts);
     EVP_DigestUpdate(ctx, s->positions, 3 * sizeof(float) * s->num_vertices);
+    EVP_DigestUpdate(ctx, s->origin, sizeof s->origin);
     EVP_DigestUpdate(ctx, s->normals, 3 * sizeof(float) * s->num_vertices);
     if (s->uvs)
         EVP_DigestUpdate(ctx, s->uvs, 2 * sizeof(float) * s->num_vertices);
@@ -549,6 +586,23 @@ static uint32_t scene_features(const pt_scene *s, int has_uv, pt_error *err, pt_
     return f;
 }
 
+/* The origin positions are stored relative to: the centre of the bounds,
+ * rounded to a multiple of g, the smallest power of two above 4x the largest
+ * extent. Stored coordinates then stay within about 4.5 extents of zero (at
+ * most ~3 bits of float precision from perfectly centred), the origin has a
+ * short mantissa, and a scene whose centre is within two extents of the world
+ * origin keeps origin 0 and its world-space coordinates unchanged. */
+static double rebase_origin(double lo, double hi, double extent)
+{
+    double c = 0.5 * lo + 0.5 * hi;
+    if (!(extent > 0.0))
+        return c; /* every vertex at one coordinate: store zeros */
+    int e;
+    frexp(4.0 * extent, &e);
+    double g = ldexp(1.0, e);
+    return nearbyint(c / g) * g;
+}
+
 pt_status pt_scene_builder_finish(pt_scene_builder *b, const pt_scene_opts *opts, pt_scene **out,
                                   pt_error *err)
 {
@@ -569,10 +623,14 @@ pt_status pt_scene_builder_finish(pt_scene_builder *b, const pt_scene_opts *opts
         st = pt_error_set(err, PT_ERR_NOMEM, "scene: out of memory");
         goto fail;
     }
-    /* Hand the arrays over; the builder no longer owns them. */
+    s->positions = pt_malloc_array((size_t)b->nv * 3, sizeof(float));
+    if (!s->positions) {
+        st = pt_error_set(err, PT_ERR_NOMEM, "scene: out of memory");
+        goto fail;
+    }
+    /* Hand the other arrays over; the builder no longer owns them. */
     s->num_vertices = b->nv;
     s->num_triangles = b->nt;
-    s->positions = b->pos;
     s->normals = b->nrm;
     s->indices = b->idx;
     s->tri_material = b->tmat;
@@ -582,7 +640,7 @@ pt_status pt_scene_builder_finish(pt_scene_builder *b, const pt_scene_opts *opts
     s->num_textures = b->ntex;
     s->cameras = b->cams;
     s->num_cameras = b->ncam;
-    b->pos = b->nrm = NULL;
+    b->nrm = NULL;
     b->idx = b->tmat = NULL;
     b->mats = NULL;
     b->texs = NULL;
@@ -593,27 +651,52 @@ pt_status pt_scene_builder_finish(pt_scene_builder *b, const pt_scene_opts *opts
         b->uv = NULL;
     }
 
-    pt_vec3 lo = pt_v3(INFINITY, INFINITY, INFINITY), hi = pt_v3(-INFINITY, -INFINITY, -INFINITY);
-    for (uint32_t v = 0; v < s->num_vertices; v++) {
-        float *p = s->positions + 3 * (size_t)v;
-        if (scale != 1.0f || tr.x != 0.0f || tr.y != 0.0f || tr.z != 0.0f) {
-            p[0] = p[0] * scale + tr.x;
-            p[1] = p[1] * scale + tr.y;
-            p[2] = p[2] * scale + tr.z;
-            if (!finite_n(p, 3)) {
-                st = pt_error_set(err, PT_ERR_ARG, "vertex %u is not finite after scaling", v);
-                goto fail;
-            }
+    /* opts' scale and translation in double, in place, with the double bounds. */
+    const double sc = scale, t[3] = {tr.x, tr.y, tr.z};
+    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (uint32_t v = 0; v < b->nv; v++) {
+        double *p = b->pos + 3 * (size_t)v;
+        for (int r = 0; r < 3; r++) {
+            p[r] = p[r] * sc + t[r];
+            lo[r] = fmin(lo[r], p[r]);
+            hi[r] = fmax(hi[r], p[r]);
         }
-        lo = pt_v3(fminf(lo.x, p[0]), fminf(lo.y, p[1]), fminf(lo.z, p[2]));
-        hi = pt_v3(fmaxf(hi.x, p[0]), fmaxf(hi.y, p[1]), fmaxf(hi.z, p[2]));
     }
-    s->bounds_min = lo;
-    s->bounds_max = hi;
+    double extent = fmax(hi[0] - lo[0], fmax(hi[1] - lo[1], hi[2] - lo[2]));
+    for (int r = 0; r < 3; r++)
+        s->origin[r] = rebase_origin(lo[r], hi[r], extent);
+
+    /* Stored = float(world - origin); the float bounds are taken from the
+     * stored values so they contain every vertex exactly. */
+    pt_vec3 flo = pt_v3(INFINITY, INFINITY, INFINITY), fhi = pt_v3(-INFINITY, -INFINITY, -INFINITY);
+    for (uint32_t v = 0; v < b->nv; v++) {
+        const double *p = b->pos + 3 * (size_t)v;
+        float *q = s->positions + 3 * (size_t)v;
+        for (int r = 0; r < 3; r++)
+            q[r] = (float)(p[r] - s->origin[r]);
+        if (!finite_n(q, 3)) {
+            st = pt_error_set(err, PT_ERR_ARG, "vertex %u is not finite after scaling", v);
+            goto fail;
+        }
+        flo = pt_v3(fminf(flo.x, q[0]), fminf(flo.y, q[1]), fminf(flo.z, q[2]));
+        fhi = pt_v3(fmaxf(fhi.x, q[0]), fmaxf(fhi.y, q[1]), fmaxf(fhi.z, q[2]));
+    }
+    s->bounds_min = flo;
+    s->bounds_max = fhi;
+    pt_free(b->pos);
+    b->pos = NULL;
     for (uint32_t i = 0; i < s->num_cameras; i++) {
         pt_camera *c = &s->cameras[i];
-        c->position = pt_v3_add(pt_v3_scale(c->position, scale), tr);
+        const double *p = b->cam_pos + 3 * (size_t)i;
+        c->position = pt_v3((float)(p[0] * sc + t[0] - s->origin[0]),
+                            (float)(p[1] * sc + t[1] - s->origin[1]),
+                            (float)(p[2] * sc + t[2] - s->origin[2]));
         c->znear *= scale;
+        if (!pt_isfinite3(c->position) || !isfinite(c->znear)) {
+            st = pt_error_set(err, PT_ERR_ARG, "camera '%.64s' is not finite after scaling",
+                              c->name);
+            goto fail;
+        }
     }
     s->features = scene_features(s, b->has_uv, err, &st);
     if (st != PT_OK)

@@ -9,6 +9,16 @@
  * transformed to world space. Per-vertex arrays are shared by all triangles;
  * tri_material[i] is an index into materials[] for triangle i.
  *
+ * Coordinate spaces: positions, camera positions and bounds are stored in the
+ * "scene space" of world space translated by -origin (world = stored + origin),
+ * so a scene far from the world origin (georeferenced data at 1e5 and beyond)
+ * keeps float's relative precision: the builder keeps world positions in
+ * double and rounds to float only after the shift. origin is 0 for a scene
+ * whose centre is within two extents of the world origin, so ordinary scenes
+ * are stored in world space unchanged. Rendering is translation invariant, so
+ * the accelerator, lights and integrator work in scene space throughout.
+ * Directions (normals, camera axes) are the same in both spaces.
+ *
  * Scenes come from glTF 2.0 files (pt_scene_load, backed by tinygltf in
  * gltf_import.cpp) or are built by code (pt_scene_builder, used by the
  * importer itself and by tests for procedural scenes).
@@ -68,8 +78,8 @@ typedef struct pt_camera {
 typedef struct pt_scene {
     uint32_t num_vertices;
     uint32_t num_triangles;
-    float *positions;          /* 3 per vertex, world space */
-    float *normals;            /* 3 per vertex, world space, unit length */
+    float *positions;          /* 3 per vertex, scene space (world = stored + origin) */
+    float *normals;            /* 3 per vertex, world space (= scene space), unit length */
     float *uvs;                /* 2 per vertex, or NULL when no primitive has TEXCOORD_0 */
     uint32_t *indices;         /* 3 per triangle */
     uint32_t *tri_material;    /* 1 per triangle */
@@ -81,19 +91,26 @@ typedef struct pt_scene {
 
     uint32_t num_cameras;
     pt_camera *cameras;        /* from the file; may be 0 */
-    pt_camera camera;          /* the one to render: chosen, or framed from the bounds */
+    pt_camera camera;          /* the one to render: chosen, or framed from the bounds;
+                                  positions in scene space */
 
-    pt_vec3 bounds_min, bounds_max;
+    pt_vec3 bounds_min, bounds_max; /* scene space: they contain every stored position */
     uint32_t features;         /* PT_FEAT_* */
-    char hash[65];             /* SHA-256 (hex) of the scene's files, or of the built data */
+    char hash[65];             /* SHA-256 (hex) of the scene's files, or of the built data
+                                  (origin included) */
+    double origin[3];          /* world position of scene space's zero: world = stored +
+                                  origin; a multiple of a power of two near the centre
+                                  of the bounds, or 0 (see above) */
 } pt_scene;
 
 typedef void (*pt_warn_fn)(void *user, const char *message);
 
 typedef struct pt_scene_opts {
     const char *camera_name;   /* NULL: first perspective camera, else frame the bounds */
-    float scale;               /* uniform scale applied to world space (0 means 1) */
-    pt_vec3 translate;         /* added to world space after scaling */
+    float scale;               /* uniform scale applied to world space (0 means 1), in double */
+    pt_vec3 translate;         /* added to world space after scaling, in double, before
+                                  the scene is rebased (so it moves origin, not stored
+                                  positions, when it is large) */
     pt_warn_fn warn;           /* each unsupported feature reported once; NULL: stderr */
     void *warn_user;
 } pt_scene_opts;
@@ -147,10 +164,27 @@ pt_status pt_scene_builder_add_mesh(pt_scene_builder *b, const char *what, const
                                     const float *normals, const float *uvs, uint32_t nv,
                                     const uint32_t *indices, uint32_t nt, const float xform[16],
                                     uint32_t material, pt_error *err);
+/* The same with a double-precision world matrix, so that a large translation
+ * (a georeferenced node at 1e5 or more) is not rounded to float before the
+ * scene is rebased. */
+pt_status pt_scene_builder_add_mesh_dxform(pt_scene_builder *b, const char *what,
+                                           const float *positions, const float *normals,
+                                           const float *uvs, uint32_t nv, const uint32_t *indices,
+                                           uint32_t nt, const double xform[16], uint32_t material,
+                                           pt_error *err);
+/* Adds a camera (copied) in world space. Rejects (PT_ERR_FORMAT) non-finite
+ * vectors, a position over PT_SCENE_MAX_COORD, yfov outside (0, pi), aspect
+ * outside [0, 1e6), a negative or non-finite znear. */
 pt_status pt_scene_builder_add_camera(pt_scene_builder *b, const pt_camera *cam, pt_error *err);
-/* Finishes: applies opts' scale/translate, computes bounds, features, hash,
- * chooses the camera. Fails with PT_ERR_FORMAT on zero triangles. The builder
- * is consumed (freed) whether or not it succeeds. */
+/* The same with the world-space position in double (cam->position ignored). */
+pt_status pt_scene_builder_add_camera_at(pt_scene_builder *b, const pt_camera *cam,
+                                         const double position[3], pt_error *err);
+/* Finishes: applies opts' scale/translate (in double), computes the bounds,
+ * rebases the scene (origin, above) and rounds positions to float, then
+ * features, hash, and chooses the camera. Fails with PT_ERR_FORMAT on zero
+ * triangles, PT_ERR_ARG when a scaled coordinate is not finite in float. The
+ * builder is consumed (freed) whether or not it succeeds. While building,
+ * positions take 24 bytes a vertex (double); the float copy is made here. */
 pt_status pt_scene_builder_finish(pt_scene_builder *b, const pt_scene_opts *opts,
                                   pt_scene **out, pt_error *err);
 
