@@ -661,6 +661,12 @@ pt_status pt_scene_builder_finish(pt_scene_builder *b, const pt_scene_opts *opts
             lo[r] = fmin(lo[r], p[r]);
             hi[r] = fmax(hi[r], p[r]);
         }
+        if (!(fabs(p[0]) <= (double)PT_SCENE_MAX_COORD && fabs(p[1]) <= (double)PT_SCENE_MAX_COORD &&
+              fabs(p[2]) <= (double)PT_SCENE_MAX_COORD)) {
+            st = pt_error_set(err, PT_ERR_ARG, "vertex %u is over %g after scaling by %g", v,
+                              (double)PT_SCENE_MAX_COORD, (double)scale);
+            goto fail;
+        }
     }
     double extent = fmax(hi[0] - lo[0], fmax(hi[1] - lo[1], hi[2] - lo[2]));
     for (int r = 0; r < 3; r++)

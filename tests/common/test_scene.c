@@ -1,7 +1,8 @@
 /*
  * test_scene.c - the scene builder (transforms, normals, winding, checks,
  * feature mask, hash), texture lookup (wrap modes, sRGB, bilinear) and the
- * camera choice and framing.
+ * camera choice and framing; rebasing of scenes far from the origin (stored
+ * positions equal the local ones, origin the translation).
  */
 #include "common/scene.h"
 
@@ -441,6 +442,121 @@ static void test_hash_and_nomem(void)
     CHECK(ok);
 }
 
+/* An irregular mesh centred on the origin (bounds -1..1 on every axis, so its
+ * centre is exactly 0) with details far below a float's ULP at 1e5 (8 mm),
+ * each of which + 1e5 still fits a double's 53 bits exactly. */
+static const float k_far_pos[] = {-1, -1, -1, 1, 1, 1, 0.7123f, -0.000123f, 0.25f,
+                                  -0.3333f, 0.5f, 0.002f, 0.001f, 0.0012f, -0.9f, 1, -1, 1};
+static const uint32_t k_far_idx[] = {0, 1, 2, 1, 3, 4, 2, 4, 5, 0, 5, 3};
+
+static pt_scene *far_scene(const float *xf, const double *xd, const pt_scene_opts *o,
+                           const double cam_pos[3])
+{
+    pt_error err = {0};
+    pt_scene_builder *b = builder_with(NULL);
+    if (xd)
+        CHECK(pt_scene_builder_add_mesh_dxform(b, "far", k_far_pos, NULL, NULL, 6, k_far_idx, 4,
+                                               xd, 0, &err) == PT_OK);
+    else
+        CHECK(pt_scene_builder_add_mesh(b, "far", k_far_pos, NULL, NULL, 6, k_far_idx, 4, xf, 0,
+                                        &err) == PT_OK);
+    pt_camera c = {0};
+    c.forward = pt_v3(0, 0, -1);
+    c.up = pt_v3(0, 1, 0);
+    c.right = pt_v3(1, 0, 0);
+    c.yfov = 0.5f;
+    snprintf(c.name, sizeof c.name, "cam");
+    CHECKF(pt_scene_builder_add_camera_at(b, &c, cam_pos, &err) == PT_OK, "%s", err.msg);
+    return finish(b, o);
+}
+
+/* The distance between two adjacent floats around x. */
+static double ulpf(float x)
+{
+    float a = fabsf(x);
+    return (double)(nextafterf(a, INFINITY) - a);
+}
+
+static void test_rebase(void)
+{
+    const double cam0[3] = {0, 0.25, 5};
+    pt_scene *s0 = far_scene(NULL, NULL, NULL, cam0);
+    if (!s0)
+        return;
+    CHECK(s0->origin[0] == 0 && s0->origin[1] == 0 && s0->origin[2] == 0);
+    /* 1e5 is 3125 x 32: mesh + 1e5 is exact in double, so rebasing must give
+     * back the local coordinates bit for bit, by a float xform, a double
+     * xform, and opts.translate. */
+    const float T = 1e5f;
+    const float xf[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, T, -T, T, 1};
+    double xd[16];
+    for (int i = 0; i < 16; i++)
+        xd[i] = xf[i];
+    const double camT[3] = {cam0[0] + T, cam0[1] - T, cam0[2] + T};
+    pt_scene_opts o = {0};
+    o.translate = pt_v3(T, -T, T);
+    pt_scene *v[3] = {far_scene(xf, NULL, NULL, camT), far_scene(NULL, xd, NULL, camT),
+                      far_scene(NULL, NULL, &o, cam0)};
+    for (int k = 0; k < 3; k++) {
+        pt_scene *s = v[k];
+        if (!s)
+            continue;
+        CHECKF(s->origin[0] == T && s->origin[1] == -T && s->origin[2] == T,
+               "variant %d: origin %.17g %.17g %.17g", k, s->origin[0], s->origin[1],
+               s->origin[2]);
+        CHECKF(memcmp(s->positions, s0->positions, 18 * sizeof(float)) == 0,
+               "variant %d: stored positions differ from the local ones", k);
+        CHECKF(memcmp(s->normals, s0->normals, 18 * sizeof(float)) == 0,
+               "variant %d: computed normals differ from the untranslated mesh's", k);
+        CHECK(memcmp(&s->bounds_min, &s0->bounds_min, sizeof s->bounds_min) == 0 &&
+              memcmp(&s->bounds_max, &s0->bounds_max, sizeof s->bounds_max) == 0);
+        CHECK(memcmp(&s->camera.position, &s0->camera.position, sizeof(pt_vec3)) == 0);
+        CHECK(strcmp(s->hash, s0->hash) != 0); /* the origin is part of the built data */
+        pt_scene_free(s);
+    }
+
+    /* A translation that is no multiple of a large power of two: world =
+     * stored + origin within one float ULP of the stored (local) coordinate,
+     * and the origin within the bounds' rounding granule of the translation. */
+    const double U[3] = {123456.789, -98765.4321, 31415.9265};
+    double xu[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, U[0], U[1], U[2], 1};
+    const double camU[3] = {cam0[0] + U[0], cam0[1] + U[1], cam0[2] + U[2]};
+    pt_scene *s = far_scene(NULL, xu, NULL, camU);
+    if (s) {
+        int bad = 0;
+        for (int i = 0; i < 18; i++) {
+            double world = (double)k_far_pos[i] + U[i % 3];
+            double err = fabs((double)s->positions[i] + s->origin[i % 3] - world);
+            bad += !(err <= ulpf(s->positions[i]));
+        }
+        CHECKF(bad == 0, "%d coordinates beyond one float ULP of world - origin", bad);
+        for (int r = 0; r < 3; r++) {
+            /* extent 2: origin is a multiple of 16 nearest the centre. */
+            CHECKF(fabs(s->origin[r] - U[r]) <= 8.0 && fmod(s->origin[r], 16.0) == 0.0,
+                   "origin[%d] %.17g for translation %.17g", r, s->origin[r], U[r]);
+            float c = (&s->camera.position.x)[r];
+            CHECK(fabs((double)c + s->origin[r] - camU[r]) <= ulpf(c));
+        }
+        /* Stored coordinates stay within 4.5 extents (9) of zero, so their ULP
+         * is at most 1e-6, where world-space floats had 8 mm. */
+        for (int i = 0; i < 18; i++)
+            CHECK(fabsf(s->positions[i]) <= 9.0f);
+        pt_scene_free(s);
+    }
+
+    /* opts' scale applies in double before the translation; a scale that
+     * overflows float after rebasing is rejected, not stored as Inf. */
+    pt_scene_opts big = {0};
+    big.scale = 1e30f;
+    pt_scene_builder *b = builder_with(NULL);
+    pt_error err = {0};
+    CHECK(pt_scene_builder_add_mesh(b, "far", k_far_pos, NULL, NULL, 6, k_far_idx, 4, NULL, 0,
+                                    &err) == PT_OK);
+    pt_scene *bad = NULL;
+    CHECK(pt_scene_builder_finish(b, &big, &bad, &err) == PT_ERR_ARG && bad == NULL);
+    pt_scene_free(s0);
+}
+
 int main(void)
 {
     test_defaults();
@@ -452,5 +568,6 @@ int main(void)
     test_texture();
     test_cameras();
     test_hash_and_nomem();
+    test_rebase();
     return check_report();
 }
