@@ -156,6 +156,25 @@ pt_status pt_scene_builder_add_material(pt_scene_builder *b, const pt_material *
                             name);
     if (m->emissive[0] < 0 || m->emissive[1] < 0 || m->emissive[2] < 0)
         return pt_error_set(err, PT_ERR_FORMAT, "material '%.64s': negative emission", name);
+    /* glTF 2.0 (5.22, 5.23) bounds these factors to [0, 1]; outside it the
+     * BSDF gains energy or its roughness mapping breaks, so a file that says
+     * otherwise is rejected rather than silently clamped. */
+    const struct {
+        const char *field;
+        float v;
+    } unit[] = {{"baseColorFactor[0]", m->base_color[0]}, {"baseColorFactor[1]", m->base_color[1]},
+                {"baseColorFactor[2]", m->base_color[2]}, {"baseColorFactor[3]", m->base_color[3]},
+                {"metallicFactor", m->metallic},          {"roughnessFactor", m->roughness},
+                {"specularFactor", m->specular}};
+    for (size_t i = 0; i < sizeof unit / sizeof unit[0]; i++)
+        if (!(unit[i].v >= 0.0f && unit[i].v <= 1.0f))
+            return pt_error_set(err, PT_ERR_FORMAT, "material '%.64s': %s %g is outside [0, 1]",
+                                name, unit[i].field, (double)unit[i].v);
+    for (int i = 0; i < 3; i++)
+        if (m->specular_color[i] < 0.0f)
+            return pt_error_set(err, PT_ERR_FORMAT,
+                                "material '%.64s': specularColorFactor[%d] %g is negative", name,
+                                i, (double)m->specular_color[i]);
     const int32_t tex[3] = {m->base_color_tex, m->metal_rough_tex, m->emissive_tex};
     for (int i = 0; i < 3; i++)
         if (tex[i] < -1 || (tex[i] >= 0 && (uint32_t)tex[i] >= b->ntex))
@@ -211,14 +230,22 @@ pt_status pt_scene_builder_add_camera_at(pt_scene_builder *b, const pt_camera *c
                                         const double position[3], pt_error *err)
 {
     const char *name = cam->name[0] ? cam->name : "(unnamed)";
+    const char *bad = NULL;
     if (!isfinite(position[0]) || !isfinite(position[1]) || !isfinite(position[2]) ||
         fabs(position[0]) > (double)PT_SCENE_MAX_COORD ||
         fabs(position[1]) > (double)PT_SCENE_MAX_COORD ||
-        fabs(position[2]) > (double)PT_SCENE_MAX_COORD || !pt_isfinite3(cam->right) ||
-        !pt_isfinite3(cam->up) || !pt_isfinite3(cam->forward) ||
-        !(cam->yfov > 0.0f && cam->yfov < PT_PI) || !(cam->aspect >= 0.0f && cam->aspect < 1e6f) ||
-        !(cam->znear >= 0.0f) || !isfinite(cam->znear))
-        return pt_error_set(err, PT_ERR_FORMAT, "camera '%.64s': invalid parameters", name);
+        fabs(position[2]) > (double)PT_SCENE_MAX_COORD)
+        bad = "position is not finite or too large";
+    else if (!pt_isfinite3(cam->right) || !pt_isfinite3(cam->up) || !pt_isfinite3(cam->forward))
+        bad = "orientation is not finite";
+    else if (!(cam->yfov > 0.0f && cam->yfov < PT_PI))
+        bad = "yfov is not in (0, pi)";
+    else if (!(cam->aspect >= 0.0f && cam->aspect < 1e6f))
+        bad = "aspectRatio is not in [0, 1e6)";
+    else if (!(cam->znear >= 0.0f) || !isfinite(cam->znear))
+        bad = "znear is negative or not finite";
+    if (bad)
+        return pt_error_set(err, PT_ERR_FORMAT, "camera '%.64s': %s", name, bad);
     if (b->ncam >= 65536)
         return pt_error_set(err, PT_ERR_LIMIT, "camera '%.64s': too many cameras", name);
     if (!reserve((void **)&b->cams, &b->cap_cam, b->ncam + 1, sizeof(pt_camera), 1) ||

@@ -148,7 +148,10 @@ typedef struct pt_scene_builder pt_scene_builder;
 pt_status pt_scene_builder_new(pt_scene_builder **out, pt_error *err);
 void pt_scene_builder_free(pt_scene_builder *b); /* accepts NULL */
 
-/* Adds a material (copied); its index goes to *index. */
+/* Adds a material (copied); its index goes to *index. Rejects (PT_ERR_FORMAT,
+ * naming the material and the field) NaN/Inf factors, negative emission,
+ * base colour, metallic, roughness or specular factors outside [0, 1] (glTF's
+ * range: rejected, not clamped) and a negative specular colour. */
 pt_status pt_scene_builder_add_material(pt_scene_builder *b, const pt_material *m,
                                         uint32_t *index, pt_error *err);
 /* Adds a texture; the builder takes ownership of tex->rgba (pt_malloc'd)
