@@ -173,8 +173,8 @@ pt_status pt_scene_builder_add_material(pt_scene_builder *b, const pt_material *
     for (int i = 0; i < 3; i++)
         if (m->specular_color[i] < 0.0f)
             return pt_error_set(err, PT_ERR_FORMAT,
-                                "material '%.64s': specularColorFactor[%d] %g is negative", name,
-                                i, (double)m->specular_color[i]);
+                                "material '%.64s': specularColorFactor[%d] %g is negative", name, i,
+                                (double)m->specular_color[i]);
     const int32_t tex[3] = {m->base_color_tex, m->metal_rough_tex, m->emissive_tex};
     for (int i = 0; i < 3; i++)
         if (tex[i] < -1 || (tex[i] >= 0 && (uint32_t)tex[i] >= b->ntex))
@@ -227,7 +227,7 @@ fail:
 }
 
 pt_status pt_scene_builder_add_camera_at(pt_scene_builder *b, const pt_camera *cam,
-                                        const double position[3], pt_error *err)
+                                         const double position[3], pt_error *err)
 {
     const char *name = cam->name[0] ? cam->name : "(unnamed)";
     const char *bad = NULL;
@@ -346,9 +346,9 @@ pt_status pt_scene_builder_add_mesh_dxform(pt_scene_builder *b, const char *what
         const float *p = positions + 3 * (size_t)v;
         double q[3];
         for (int r = 0; r < 3; r++) {
-            q[r] = xform ? xform[r] * p[0] + xform[4 + r] * p[1] + xform[8 + r] * p[2] +
-                               xform[12 + r]
-                         : (double)p[r];
+            q[r] = xform
+                       ? xform[r] * p[0] + xform[4 + r] * p[1] + xform[8 + r] * p[2] + xform[12 + r]
+                       : (double)p[r];
             if (!isfinite(q[r]) || fabs(q[r]) > (double)PT_SCENE_MAX_COORD)
                 return pt_error_set(err, PT_ERR_FORMAT,
                                     "%s: vertex %u position (%g, %g, %g) is not finite or over "
@@ -688,7 +688,8 @@ pt_status pt_scene_builder_finish(pt_scene_builder *b, const pt_scene_opts *opts
             lo[r] = fmin(lo[r], p[r]);
             hi[r] = fmax(hi[r], p[r]);
         }
-        if (!(fabs(p[0]) <= (double)PT_SCENE_MAX_COORD && fabs(p[1]) <= (double)PT_SCENE_MAX_COORD &&
+        if (!(fabs(p[0]) <= (double)PT_SCENE_MAX_COORD &&
+              fabs(p[1]) <= (double)PT_SCENE_MAX_COORD &&
               fabs(p[2]) <= (double)PT_SCENE_MAX_COORD)) {
             st = pt_error_set(err, PT_ERR_ARG, "vertex %u is over %g after scaling by %g", v,
                               (double)PT_SCENE_MAX_COORD, (double)scale);
