@@ -13,6 +13,7 @@
 #include <OpenEXR/openexr.h>
 
 #include "common/alloc.h"
+#include "common/fsutil.h"
 
 static atomic_uint temp_serial;
 
@@ -128,36 +129,6 @@ static void stream_init(exr_context_initializer_t *init, exr_stream *s)
     init->free_fn = pt_free;
     init->user_data = s;
     exr_last_msg[0] = '\0';
-}
-
-/* Fsync a directory so a rename in it is durable; some filesystems refuse
- * fsync on directories, which is not a failure. */
-static int fsync_dir_of(const char *path)
-{
-    size_t len = strlen(path);
-    char *dir = pt_malloc(len + 2);
-    if (!dir) {
-        errno = ENOMEM;
-        return -1;
-    }
-    const char *slash = strrchr(path, '/');
-    if (!slash)
-        snprintf(dir, len + 2, ".");
-    else if (slash == path)
-        snprintf(dir, len + 2, "/");
-    else
-        snprintf(dir, len + 2, "%.*s", (int)(slash - path), path);
-    int fd = open(dir, O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-    pt_free(dir);
-    if (fd < 0)
-        return -1;
-    int rc = fsync(fd);
-    int saved = errno;
-    close(fd);
-    errno = saved;
-    if (rc != 0 && (errno == EINVAL || errno == ENOTSUP))
-        rc = 0;
-    return rc;
 }
 
 /* Channel names in the order OpenEXR keeps them (sorted by name, bytewise),
@@ -334,7 +305,7 @@ pt_status pt_exr_write(const char *path, const pt_image *img, const pt_exr_meta 
     pt_free(tmp);
     /* The file is complete and in place; a failed directory fsync is still
      * reported, since the rename may not survive a crash. */
-    if (fsync_dir_of(path) != 0)
+    if (pt_fsync_dir_of(path) != 0)
         return pt_error_errno(err, PT_ERR_IO, "EXR %s: fsync of its directory", path);
     return PT_OK;
 

@@ -1,18 +1,14 @@
 #include "common/image.h"
 
 #include <errno.h>
-#include <fcntl.h>
 #include <math.h>
-#include <stdatomic.h>
 #include <stdio.h>
 #include <string.h>
-#include <unistd.h>
 
 #include <stb/stb_image_write.h>
 
 #include "common/alloc.h"
-
-static atomic_uint temp_serial;
+#include "common/fsutil.h"
 
 /* Caps on image size: 65536 per side and 2^28 pixels (1 GiB per float plane
  * at the cap is already more than any render this farm makes). */
@@ -83,32 +79,32 @@ static unsigned char to_byte(float linear)
     return s >= 255.0f ? 255 : (unsigned char)s;
 }
 
-/* fsync a file by name (stb writes through stdio, so we reopen it), then the
- * directory that holds it so the rename that follows is durable too. */
-static int fsync_path(const char *p, int flags)
-{
-    int fd = open(p, flags | O_CLOEXEC);
-    if (fd < 0)
-        return -1;
-    int rc = fsync(fd);
-    int saved = errno;
-    close(fd);
-    errno = saved;
-    /* Directories on some filesystems refuse fsync; that is not a failure. */
-    if (rc != 0 && (flags & O_DIRECTORY) && (errno == EINVAL || errno == ENOTSUP))
-        rc = 0;
-    return rc;
-}
+/* stb's PNG bytes, gathered in memory for one atomic write. */
+typedef struct png_buf {
+    unsigned char *data;
+    size_t len, cap;
+    int failed;
+} png_buf;
 
-static void dir_of(const char *path, char *dir, size_t cap)
+static void png_append(void *ctx, void *data, int size)
 {
-    const char *slash = strrchr(path, '/');
-    if (!slash)
-        snprintf(dir, cap, ".");
-    else if (slash == path)
-        snprintf(dir, cap, "/");
-    else
-        snprintf(dir, cap, "%.*s", (int)(slash - path), path);
+    png_buf *b = ctx;
+    if (b->failed || size <= 0)
+        return;
+    if (b->len + (size_t)size > b->cap) {
+        size_t cap = b->cap ? b->cap : 4096;
+        while (cap < b->len + (size_t)size)
+            cap *= 2;
+        unsigned char *n = pt_realloc(b->data, cap);
+        if (!n) {
+            b->failed = 1;
+            return;
+        }
+        b->data = n;
+        b->cap = cap;
+    }
+    memcpy(b->data + b->len, data, (size_t)size);
+    b->len += (size_t)size;
 }
 
 pt_status pt_png_write_preview(const char *path, const pt_image *img, pt_error *err)
@@ -118,12 +114,10 @@ pt_status pt_png_write_preview(const char *path, const pt_image *img, pt_error *
         return pt_error_set(err, PT_ERR_ARG, "PNG preview %s: no image or a bad size",
                             path ? path : "(null)");
     size_t n = (size_t)img->width * img->height;
-    size_t plen = strlen(path);
     unsigned char *rgb = pt_malloc_array(n, 3);
-    char *tmp = pt_malloc(plen + 32);
-    char *dir = pt_malloc(plen + 2);
+    png_buf png = {0};
     pt_status st = PT_OK;
-    if (!rgb || !tmp || !dir) {
+    if (!rgb) {
         st = pt_error_set(err, PT_ERR_NOMEM, "PNG preview %s: out of memory", path);
         goto fail;
     }
@@ -132,33 +126,15 @@ pt_status pt_png_write_preview(const char *path, const pt_image *img, pt_error *
         rgb[3 * i + 1] = to_byte(img->g[i]);
         rgb[3 * i + 2] = to_byte(img->b[i]);
     }
-    /* Unique per process (pid) and per call (counter), so two writers of
-     * one path, in this process or another, never share a temp file. */
-    snprintf(tmp, plen + 32, "%s.tmp.%ld.%u", path, (long)getpid(),
-             (unsigned)atomic_fetch_add(&temp_serial, 1));
-    dir_of(path, dir, plen + 2);
-    errno = 0;
-    if (!stbi_write_png(tmp, (int)img->width, (int)img->height, 3, rgb, (int)img->width * 3)) {
-        st = errno ? pt_error_errno(err, PT_ERR_IO, "PNG preview %s: cannot write %s", path, tmp)
-                   : pt_error_set(err, PT_ERR_IO, "PNG preview %s: cannot write %s", path, tmp);
-        unlink(tmp);
+    if (!stbi_write_png_to_func(png_append, &png, (int)img->width, (int)img->height, 3, rgb,
+                                (int)img->width * 3) ||
+        png.failed) {
+        st = pt_error_set(err, PT_ERR_NOMEM, "PNG preview %s: cannot encode", path);
         goto fail;
     }
-    if (fsync_path(tmp, O_RDONLY) != 0) {
-        st = pt_error_errno(err, PT_ERR_IO, "PNG preview %s: fsync %s", path, tmp);
-        unlink(tmp);
-        goto fail;
-    }
-    if (rename(tmp, path) != 0) {
-        st = pt_error_errno(err, PT_ERR_IO, "PNG preview %s: rename from %s", path, tmp);
-        unlink(tmp);
-        goto fail;
-    }
-    if (fsync_path(dir, O_RDONLY | O_DIRECTORY) != 0)
-        st = pt_error_errno(err, PT_ERR_IO, "PNG preview %s: fsync directory %s", path, dir);
+    st = pt_write_file_atomic(path, png.data, png.len, err);
 fail:
-    pt_free(dir);
-    pt_free(tmp);
+    pt_free(png.data);
     pt_free(rgb);
     return st;
 }

@@ -14,6 +14,7 @@
 #include <unistd.h>
 
 #include "common/alloc.h"
+#include "common/fsutil.h"
 #include "common/bundle.h"
 #include "common/scene.h"
 
@@ -36,27 +37,6 @@ void wrk_hash_hex(const uint8_t hash[WRK_HASH_SIZE], char out[65])
 
 /* ---- file helpers ------------------------------------------------------------------- */
 
-static pt_status mkdirs(const char *dir, pt_error *err)
-{
-    char path[2048];
-    size_t n = strlen(dir);
-    if (n == 0 || n >= sizeof path)
-        return pt_error_set(err, PT_ERR_ARG, "cache folder '%s': bad path", dir);
-    memcpy(path, dir, n + 1);
-    for (size_t i = 1; i <= n; i++) {
-        if (path[i] != '/' && path[i] != '\0')
-            continue;
-        char saved = path[i];
-        path[i] = '\0';
-        if (mkdir(path, 0755) != 0 && errno != EEXIST)
-            return pt_error_errno(err, PT_ERR_IO, "cache folder %s: mkdir", path);
-        path[i] = saved;
-    }
-    struct stat sb;
-    if (stat(dir, &sb) != 0 || !S_ISDIR(sb.st_mode))
-        return pt_error_set(err, PT_ERR_IO, "cache folder %s is not a folder", dir);
-    return PT_OK;
-}
 
 /* rm -rf path, not following symbolic links. Best effort. */
 static void remove_tree(const char *path)
@@ -176,7 +156,7 @@ pt_status wrk_cache_open(const char *dir, wrk_cache **out, pt_error *err)
 {
     if (strlen(dir) + 128 >= sizeof((wrk_cache *)0)->dir)
         return pt_error_set(err, PT_ERR_ARG, "cache folder '%s': path too long", dir);
-    pt_status st = mkdirs(dir, err);
+    pt_status st = pt_mkdirs(dir, 0, err);
     if (st != PT_OK)
         return st;
     wrk_cache *c = pt_calloc(1, sizeof *c);
