@@ -1,5 +1,6 @@
 #include "protocol/msg.h"
 
+#include <math.h>
 #include <string.h>
 
 #include "common/alloc.h"
@@ -50,6 +51,33 @@ const char *proto_msg_type_name(uint32_t type)
         return "CANCEL";
     case PROTO_MSG_FETCH:
         return "FETCH";
+    case PROTO_MSG_UPLOAD:
+        return "UPLOAD";
+    case PROTO_MSG_SUBMITTED:
+        return "SUBMITTED";
+    case PROTO_MSG_JOB_LIST:
+        return "JOB_LIST";
+    case PROTO_MSG_JOB_INFO:
+        return "JOB_INFO";
+    case PROTO_MSG_IMAGE:
+        return "IMAGE";
+    }
+    return "unknown";
+}
+
+const char *proto_job_state_name(uint32_t state)
+{
+    switch (state) {
+    case PROTO_JOB_QUEUED:
+        return "queued";
+    case PROTO_JOB_RUNNING:
+        return "running";
+    case PROTO_JOB_DONE:
+        return "done";
+    case PROTO_JOB_CANCELLED:
+        return "cancelled";
+    case PROTO_JOB_FAILED:
+        return "failed";
     }
     return "unknown";
 }
@@ -147,6 +175,13 @@ static void w_rect(proto_writer *w, pt_rect t)
     proto_w_u32(w, t.y0);
     proto_w_u32(w, t.x1);
     proto_w_u32(w, t.y1);
+}
+
+/* An i32 travels as its two's complement bits; converting back this way is
+ * defined for every value, unlike a cast of an unsigned out of int32's range. */
+static int32_t i32_from_bits(uint32_t u)
+{
+    return u <= INT32_MAX ? (int32_t)u : -(int32_t)(UINT32_MAX - u) - 1;
 }
 
 static pt_status bad(pt_error *err, pt_status code, const char *what, const char *problem)
@@ -597,5 +632,235 @@ pt_status proto_msg_decode_heartbeat(const uint8_t *p, size_t len, proto_heartbe
     out->count = count;
     for (uint16_t i = 0; i < count; i++)
         out->task_ids[i] = proto_get_u64(ids + (size_t)i * 8);
+    return PT_OK;
+}
+
+/* ---- JOB_REF (STATUS, WATCH, CANCEL, FETCH, SUBMITTED) ---- */
+
+pt_status proto_msg_encode_job_ref(proto_writer *w, const proto_job_ref *m, pt_error *err)
+{
+    size_t start = w->len;
+    proto_w_u64(w, m->job_id);
+    return w_done(w, start, "JOB_REF", err);
+}
+
+pt_status proto_msg_decode_job_ref(const uint8_t *p, size_t len, proto_job_ref *out, pt_error *err)
+{
+    proto_reader r = proto_reader_make(p, len);
+    uint64_t id = proto_r_u64(&r, "job id");
+    pt_status st = proto_r_finish(&r, "JOB_REF", err);
+    if (st != PT_OK)
+        return st;
+    out->job_id = id;
+    return PT_OK;
+}
+
+/* ---- SUBMIT ---- */
+
+static const char *submit_problem(const proto_submit *m)
+{
+    if ((m->width == 0) != (m->height == 0))
+        return "width and height must both be 0 or both be > 0";
+    if (m->spp == 0)
+        return "samples per pixel is 0";
+    /* Written so that NaN fails too. */
+    if (!(m->target_error >= 0.0) || !isfinite(m->target_error))
+        return "target error not finite and >= 0";
+    if (m->bundle_size == 0)
+        return "bundle size is 0";
+    return NULL;
+}
+
+pt_status proto_msg_encode_submit(proto_writer *w, const proto_submit *m, pt_error *err)
+{
+    size_t start = w->len;
+    const char *why =
+        str_fits(m->name, PROTO_MAX_NAME) ? submit_problem(m) : "name over the length cap";
+    if (why)
+        return bad(err, PT_ERR_ARG, "SUBMIT", why);
+    w_str(w, m->name);
+    proto_w_u32(w, m->width);
+    proto_w_u32(w, m->height);
+    proto_w_u32(w, m->spp);
+    proto_w_u32(w, m->seed);
+    proto_w_u32(w, (uint32_t)m->priority);
+    proto_w_u16(w, m->max_depth);
+    proto_w_u32(w, m->min_spp);
+    proto_w_f64(w, m->target_error);
+    proto_w_u64(w, m->bundle_size);
+    proto_w_bytes(w, m->bundle_hash, PROTO_HASH_SIZE);
+    return w_done(w, start, "SUBMIT", err);
+}
+
+pt_status proto_msg_decode_submit(const uint8_t *p, size_t len, proto_submit *out, pt_error *err)
+{
+    proto_reader r = proto_reader_make(p, len);
+    proto_submit m;
+    r_str(&r, m.name, PROTO_MAX_NAME, "name");
+    m.width = proto_r_u32(&r, "width");
+    m.height = proto_r_u32(&r, "height");
+    m.spp = proto_r_u32(&r, "spp");
+    m.seed = proto_r_u32(&r, "seed");
+    m.priority = i32_from_bits(proto_r_u32(&r, "priority"));
+    m.max_depth = proto_r_u16(&r, "max depth");
+    m.min_spp = proto_r_u32(&r, "min spp");
+    m.target_error = proto_r_f64(&r, "target error");
+    m.bundle_size = proto_r_u64(&r, "bundle size");
+    const uint8_t *hash = proto_r_bytes(&r, PROTO_HASH_SIZE, "bundle hash");
+    pt_status st = proto_r_finish(&r, "SUBMIT", err);
+    if (st != PT_OK)
+        return st;
+    memcpy(m.bundle_hash, hash, PROTO_HASH_SIZE);
+    const char *why = submit_problem(&m);
+    if (why)
+        return bad(err, PT_ERR_PROTO, "SUBMIT", why);
+    *out = m;
+    return PT_OK;
+}
+
+/* ---- JOB_INFO, JOB_LIST ---- */
+
+/* Bytes of a JOB_INFO with every string empty: the least an entry of
+ * JOB_LIST can take, so a count is checked against the bytes present. */
+#define JOB_INFO_FIXED 107u
+
+static const char *job_info_problem(const proto_job_info *m)
+{
+    if (!str_fits(m->name, PROTO_MAX_NAME))
+        return "name over the length cap";
+    if (!str_fits(m->owner, PROTO_MAX_NAME))
+        return "owner over the length cap";
+    if (!str_fits(m->scene, PROTO_MAX_PATH))
+        return "scene over the length cap";
+    if (!str_fits(m->output, PROTO_MAX_PATH))
+        return "output over the length cap";
+    if (!str_fits(m->message, PROTO_MAX_ERROR_TEXT))
+        return "message over the length cap";
+    return NULL;
+}
+
+static void w_job_info(proto_writer *w, const proto_job_info *m)
+{
+    proto_w_u64(w, m->job_id);
+    proto_w_u8(w, m->state);
+    proto_w_u32(w, (uint32_t)m->priority);
+    w_str(w, m->name);
+    w_str(w, m->owner);
+    w_str(w, m->scene);
+    w_str(w, m->output);
+    proto_w_u32(w, m->width);
+    proto_w_u32(w, m->height);
+    proto_w_u32(w, m->spp);
+    proto_w_u64(w, m->samples_done);
+    proto_w_u64(w, m->samples_total);
+    proto_w_u32(w, m->passes_done);
+    proto_w_u32(w, m->passes);
+    proto_w_u32(w, m->tiles_stopped);
+    proto_w_u32(w, m->tiles);
+    proto_w_u32(w, m->workers);
+    proto_w_f64(w, m->seconds);
+    proto_w_f64(w, m->rate);
+    proto_w_f64(w, m->error);
+    proto_w_u64(w, m->submitted);
+    proto_w_u32(w, m->queue_pos);
+    w_str(w, m->message);
+}
+
+/* Reads one JOB_INFO into m (which may be left half-filled on failure). */
+static void r_job_info(proto_reader *r, proto_job_info *m)
+{
+    m->job_id = proto_r_u64(r, "job id");
+    m->state = proto_r_u8(r, "state");
+    m->priority = i32_from_bits(proto_r_u32(r, "priority"));
+    r_str(r, m->name, PROTO_MAX_NAME, "name");
+    r_str(r, m->owner, PROTO_MAX_NAME, "owner");
+    r_str(r, m->scene, PROTO_MAX_PATH, "scene");
+    r_str(r, m->output, PROTO_MAX_PATH, "output");
+    m->width = proto_r_u32(r, "width");
+    m->height = proto_r_u32(r, "height");
+    m->spp = proto_r_u32(r, "spp");
+    m->samples_done = proto_r_u64(r, "samples merged");
+    m->samples_total = proto_r_u64(r, "samples total");
+    m->passes_done = proto_r_u32(r, "passes merged");
+    m->passes = proto_r_u32(r, "passes");
+    m->tiles_stopped = proto_r_u32(r, "tiles stopped");
+    m->tiles = proto_r_u32(r, "tiles");
+    m->workers = proto_r_u32(r, "workers");
+    m->seconds = proto_r_f64(r, "seconds");
+    m->rate = proto_r_f64(r, "rate");
+    m->error = proto_r_f64(r, "error");
+    m->submitted = proto_r_u64(r, "submitted");
+    m->queue_pos = proto_r_u32(r, "queue position");
+    r_str(r, m->message, PROTO_MAX_ERROR_TEXT, "message");
+}
+
+pt_status proto_msg_encode_job_info(proto_writer *w, const proto_job_info *m, pt_error *err)
+{
+    size_t start = w->len;
+    const char *why = job_info_problem(m);
+    if (why)
+        return bad(err, PT_ERR_ARG, "JOB_INFO", why);
+    w_job_info(w, m);
+    return w_done(w, start, "JOB_INFO", err);
+}
+
+pt_status proto_msg_decode_job_info(const uint8_t *p, size_t len, proto_job_info *out,
+                                    pt_error *err)
+{
+    proto_reader r = proto_reader_make(p, len);
+    proto_job_info m;
+    r_job_info(&r, &m);
+    pt_status st = proto_r_finish(&r, "JOB_INFO", err);
+    if (st != PT_OK)
+        return st;
+    *out = m;
+    return PT_OK;
+}
+
+pt_status proto_msg_encode_job_list(proto_writer *w, const proto_job_info *jobs, uint32_t count,
+                                    pt_error *err)
+{
+    size_t start = w->len;
+    if (count > PROTO_MAX_JOBS)
+        return bad(err, PT_ERR_ARG, "JOB_LIST", "job count over the cap");
+    for (uint32_t i = 0; i < count; i++) {
+        const char *why = job_info_problem(&jobs[i]);
+        if (why)
+            return pt_error_set(err, PT_ERR_ARG, "JOB_LIST: job %u: %s", (unsigned)i, why);
+    }
+    proto_w_u32(w, count);
+    for (uint32_t i = 0; i < count; i++)
+        w_job_info(w, &jobs[i]);
+    return w_done(w, start, "JOB_LIST", err);
+}
+
+pt_status proto_msg_decode_job_list(const uint8_t *p, size_t len, proto_job_list *out,
+                                    pt_error *err)
+{
+    proto_reader r = proto_reader_make(p, len);
+    uint32_t count = proto_r_u32(&r, "job count");
+    /* The count is settled before a byte is allocated: its cap, and that the
+     * bytes present could hold that many entries at their smallest. */
+    if (r.status == PT_OK && count > PROTO_MAX_JOBS)
+        proto_r_fail(&r, PT_ERR_PROTO, "over the cap:", "job count");
+    if (r.status == PT_OK && proto_r_left(&r) / JOB_INFO_FIXED < count)
+        proto_r_fail(&r, PT_ERR_PROTO, "more than the bytes hold:", "job count");
+    if (r.status != PT_OK)
+        return proto_r_finish(&r, "JOB_LIST", err);
+    proto_job_info *jobs = NULL;
+    if (count > 0) {
+        jobs = pt_malloc_array(count, sizeof *jobs);
+        if (!jobs)
+            return pt_error_set(err, PT_ERR_NOMEM, "JOB_LIST: %u jobs", (unsigned)count);
+    }
+    for (uint32_t i = 0; i < count && r.status == PT_OK; i++)
+        r_job_info(&r, &jobs[i]);
+    pt_status st = proto_r_finish(&r, "JOB_LIST", err);
+    if (st != PT_OK) {
+        pt_free(jobs);
+        return st;
+    }
+    out->count = count;
+    out->jobs = jobs;
     return PT_OK;
 }

@@ -49,14 +49,19 @@ typedef enum proto_msg_type {
     PROTO_MSG_SCENE_CHUNK = 19,  /* server -> worker */
     PROTO_MSG_RESULT = 20,       /* worker -> server */
     PROTO_MSG_HEARTBEAT = 21,    /* worker -> server */
-    /* client (ptctl): numbers reserved, layouts not defined yet; replies will
-     * take numbers from 48 on */
-    PROTO_MSG_SUBMIT = 32,
+    /* client (ptctl) -> server */
+    PROTO_MSG_SUBMIT = 32, /* then UPLOAD frames with the scene bundle */
     PROTO_MSG_LIST = 33,
     PROTO_MSG_STATUS = 34,
     PROTO_MSG_WATCH = 35,
     PROTO_MSG_CANCEL = 36,
-    PROTO_MSG_FETCH = 37
+    PROTO_MSG_FETCH = 37,
+    PROTO_MSG_UPLOAD = 38, /* SCENE_CHUNK layout: a piece of the submitted bundle */
+    /* server -> client */
+    PROTO_MSG_SUBMITTED = 48, /* JOB_REF layout: the new job's id */
+    PROTO_MSG_JOB_LIST = 49,
+    PROTO_MSG_JOB_INFO = 50,
+    PROTO_MSG_IMAGE = 51 /* SCENE_CHUNK layout: a piece of the job's EXR file */
 } proto_msg_type;
 
 /* 1 when type is one of the values above (the frame decoder refuses others). */
@@ -235,6 +240,144 @@ typedef struct proto_heartbeat {
     uint16_t count;
     uint64_t task_ids[PROTO_MAX_HEARTBEAT_TASKS];
 } proto_heartbeat;
+
+/* ---- client messages ----
+ *
+ * A client (HELLO role PROTO_ROLE_CLIENT) authenticates like a worker, then
+ * sends requests; the server answers each one (or ERROR and closes):
+ *   SUBMIT, UPLOAD...        -> SUBMITTED (once the last UPLOAD byte checked out)
+ *   LIST                     -> JOB_LIST
+ *   STATUS (JOB_REF)         -> JOB_INFO
+ *   WATCH (JOB_REF)          -> JOB_INFO now, then about once a second and when
+ *                               the job ends (state DONE, CANCELLED or FAILED)
+ *   CANCEL (JOB_REF)         -> JOB_INFO (state CANCELLED, or the state it had
+ *                               when it had already ended)
+ *   FETCH (JOB_REF)          -> IMAGE frames, offsets 0.. in order, until total
+ * LIST has an empty payload (size 0).
+ *
+ * UPLOAD and IMAGE use the SCENE_CHUNK layout and decoder: hash is the SHA-256
+ * of the whole file (the bundle announced by SUBMIT; the EXR sent for FETCH),
+ * so the receiver checks what it assembled. */
+
+#define PROTO_MAX_PATH 255u  /* file names in JOB_INFO */
+#define PROTO_MAX_JOBS 4096u /* entries in one JOB_LIST */
+
+/* JOB_REF (STATUS, WATCH, CANCEL, FETCH, SUBMITTED)
+ *   0    8    u64  job id
+ *   size 8 */
+typedef struct proto_job_ref {
+    uint64_t job_id;
+} proto_job_ref;
+
+/* SUBMIT
+ *   0    2+a  str  job name, a <= PROTO_MAX_NAME (may be empty)
+ *   2+a  4    u32  width  \ both 0: the server picks (512 wide, height from
+ *   6+a  4    u32  height /  the camera's aspect); else both > 0
+ *   10+a 4    u32  samples per pixel (> 0)
+ *   14+a 4    u32  seed
+ *   18+a 4    i32  priority (higher runs first; ties by submission order)
+ *   22+a 2    u16  max depth (bounces; 0: the server's default)
+ *   24+a 4    u32  min spp for adaptive sampling (0: one chunk)
+ *   28+a 8    f64  target error for adaptive sampling (0: off; finite, >= 0)
+ *   36+a 8    u64  bundle size in bytes (> 0), sent next in UPLOAD frames
+ *   44+a 32   u8[32] SHA-256 of the bundle
+ *   size 76+a
+ * The decoder checks shape only (width and height both 0 or both > 0, spp > 0,
+ * size > 0, target error finite and >= 0); caps are the server's business. */
+typedef struct proto_submit {
+    char name[PROTO_MAX_NAME + 1];
+    uint32_t width, height, spp, seed;
+    int32_t priority;
+    uint16_t max_depth;
+    uint32_t min_spp;
+    double target_error;
+    uint64_t bundle_size;
+    uint8_t bundle_hash[PROTO_HASH_SIZE];
+} proto_submit;
+
+enum {
+    PROTO_JOB_QUEUED = 1,
+    PROTO_JOB_RUNNING = 2,
+    PROTO_JOB_DONE = 3,
+    PROTO_JOB_CANCELLED = 4,
+    PROTO_JOB_FAILED = 5
+};
+/* Static name ("queued", ...), or "unknown". */
+const char *proto_job_state_name(uint32_t state);
+
+/* JOB_INFO (also each entry of JOB_LIST)
+ *   0    8    u64  job id
+ *   8    1    u8   state (PROTO_JOB_*; any value decodes, see proto_job_state_name)
+ *   9    4    i32  priority
+ *   13   2+a  str  job name, a <= PROTO_MAX_NAME
+ *   ..   2+b  str  owner (the submitting client's HELLO name), b <= PROTO_MAX_NAME
+ *   ..   2+c  str  scene (the bundle's entry file name), c <= PROTO_MAX_PATH
+ *   ..   2+d  str  output file name (in the server's output folder), d <= PROTO_MAX_PATH
+ *   ..   4    u32  width
+ *   ..   4    u32  height
+ *   ..   4    u32  samples per pixel asked for
+ *   ..   8    u64  samples merged
+ *   ..   8    u64  samples total (width x height x spp; adaptive sampling may end sooner)
+ *   ..   4    u32  passes merged for every tile
+ *   ..   4    u32  passes
+ *   ..   4    u32  tiles stopped by adaptive sampling
+ *   ..   4    u32  tiles
+ *   ..   4    u32  workers holding tasks of this job now
+ *   ..   8    f64  render seconds so far (across coordinator restarts)
+ *   ..   8    f64  samples per second (recent)
+ *   ..   8    f64  estimated relative error of the image (negative: unknown)
+ *   ..   8    u64  submitted, Unix seconds
+ *   ..   4    u32  position in the queue (1 = next; 0 when not queued)
+ *   ..   2+e  str  message (why it failed, ...), e <= PROTO_MAX_ERROR_TEXT
+ *   size 107+a+b+c+d+e */
+typedef struct proto_job_info {
+    uint64_t job_id;
+    uint8_t state;
+    int32_t priority;
+    char name[PROTO_MAX_NAME + 1];
+    char owner[PROTO_MAX_NAME + 1];
+    char scene[PROTO_MAX_PATH + 1];
+    char output[PROTO_MAX_PATH + 1];
+    uint32_t width, height, spp;
+    uint64_t samples_done, samples_total;
+    uint32_t passes_done, passes;
+    uint32_t tiles_stopped, tiles;
+    uint32_t workers;
+    double seconds, rate, error;
+    uint64_t submitted;
+    uint32_t queue_pos;
+    char message[PROTO_MAX_ERROR_TEXT + 1];
+} proto_job_info;
+
+/* JOB_LIST
+ *   0    4    u32  N: jobs, N <= PROTO_MAX_JOBS
+ *   4    ...       N JOB_INFO entries, back to back
+ * Decoded, jobs is a pt_malloc'd array of N entries (NULL when N is 0) that
+ * the caller frees with pt_free; N is checked against the bytes present (each
+ * entry needs at least 107 bytes) before anything is allocated. */
+typedef struct proto_job_list {
+    uint32_t count;
+    proto_job_info *jobs;
+} proto_job_list;
+
+pt_status proto_msg_encode_job_ref(proto_writer *w, const proto_job_ref *m, pt_error *err);
+pt_status proto_msg_decode_job_ref(const uint8_t *p, size_t len, proto_job_ref *out, pt_error *err);
+
+pt_status proto_msg_encode_submit(proto_writer *w, const proto_submit *m, pt_error *err);
+pt_status proto_msg_decode_submit(const uint8_t *p, size_t len, proto_submit *out, pt_error *err);
+
+pt_status proto_msg_encode_job_info(proto_writer *w, const proto_job_info *m, pt_error *err);
+pt_status proto_msg_decode_job_info(const uint8_t *p, size_t len, proto_job_info *out,
+                                    pt_error *err);
+
+/* Encodes count entries of jobs. */
+pt_status proto_msg_encode_job_list(proto_writer *w, const proto_job_info *jobs, uint32_t count,
+                                    pt_error *err);
+/* May allocate (see JOB_LIST); PT_ERR_NOMEM when that fails. */
+pt_status proto_msg_decode_job_list(const uint8_t *p, size_t len, proto_job_list *out,
+                                    pt_error *err);
+
+/* ---- encoders and decoders ---- */
 
 pt_status proto_msg_encode_hello(proto_writer *w, const proto_hello *m, pt_error *err);
 pt_status proto_msg_decode_hello(const uint8_t *p, size_t len, proto_hello *out, pt_error *err);

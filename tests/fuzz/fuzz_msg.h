@@ -50,6 +50,10 @@ static inline pt_status fuzz_decode(uint32_t type, const uint8_t *p, size_t len,
         proto_scene_chunk chunk;
         proto_result result;
         proto_heartbeat hb;
+        proto_job_ref ref;
+        proto_submit submit;
+        proto_job_info info;
+        proto_job_list list;
     } u;
     static pt_pixel_acc pixels[64];
     pt_error err = {0}; /* a decoder that fails must fill it */
@@ -99,6 +103,8 @@ static inline pt_status fuzz_decode(uint32_t type, const uint8_t *p, size_t len,
             FUZZ_REENCODE(proto_msg_encode_scene_get, &u.get);
         break;
     case PROTO_MSG_SCENE_CHUNK:
+    case PROTO_MSG_UPLOAD:
+    case PROTO_MSG_IMAGE:
         st = proto_msg_decode_scene_chunk(p, len, &u.chunk, &err);
         if (st == PT_OK) {
             FUZZ_CHECK(u.chunk.data >= p && u.chunk.data + u.chunk.len <= p + len);
@@ -121,6 +127,40 @@ static inline pt_status fuzz_decode(uint32_t type, const uint8_t *p, size_t len,
         if (st == PT_OK)
             FUZZ_REENCODE(proto_msg_encode_heartbeat, &u.hb);
         break;
+    case PROTO_MSG_STATUS:
+    case PROTO_MSG_WATCH:
+    case PROTO_MSG_CANCEL:
+    case PROTO_MSG_FETCH:
+    case PROTO_MSG_SUBMITTED:
+        st = proto_msg_decode_job_ref(p, len, &u.ref, &err);
+        if (st == PT_OK)
+            FUZZ_REENCODE(proto_msg_encode_job_ref, &u.ref);
+        break;
+    case PROTO_MSG_SUBMIT:
+        st = proto_msg_decode_submit(p, len, &u.submit, &err);
+        if (st == PT_OK) {
+            FUZZ_CHECK(u.submit.spp > 0 && u.submit.bundle_size > 0);
+            FUZZ_CHECK((u.submit.width == 0) == (u.submit.height == 0));
+            FUZZ_REENCODE(proto_msg_encode_submit, &u.submit);
+        }
+        break;
+    case PROTO_MSG_JOB_INFO:
+        st = proto_msg_decode_job_info(p, len, &u.info, &err);
+        if (st == PT_OK)
+            FUZZ_REENCODE(proto_msg_encode_job_info, &u.info);
+        break;
+    case PROTO_MSG_JOB_LIST:
+        st = proto_msg_decode_job_list(p, len, &u.list, &err);
+        if (st == PT_OK) {
+            FUZZ_CHECK(u.list.count <= PROTO_MAX_JOBS && (u.list.count == 0) == !u.list.jobs);
+            proto_writer w_;
+            proto_writer_init(&w_, PROTO_MAX_PAYLOAD);
+            FUZZ_CHECK(proto_msg_encode_job_list(&w_, u.list.jobs, u.list.count, NULL) == PT_OK);
+            FUZZ_CHECK(w_.len == len && memcmp(w_.buf, p, len) == 0);
+            proto_writer_fini(&w_);
+            pt_free(u.list.jobs);
+        }
+        break;
     default:
         return PT_ERR_ARG;
     }
@@ -130,11 +170,15 @@ static inline pt_status fuzz_decode(uint32_t type, const uint8_t *p, size_t len,
     return st;
 }
 
-/* The decodable types, indexed by the fuzz_msg selector byte. */
+/* The decodable types, indexed by the fuzz_msg selector byte, in the order
+ * of the samples of tests/protocol/samples.h (gen_corpus writes selector =
+ * sample index). One type per decoder: the other JOB_REF types, UPLOAD and
+ * IMAGE share a decoder with one listed here. */
 static const uint16_t fuzz_types[] = {
-    PROTO_MSG_HELLO,       PROTO_MSG_CHALLENGE,    PROTO_MSG_AUTH,     PROTO_MSG_WELCOME,
-    PROTO_MSG_ERROR,       PROTO_MSG_WORK_REQUEST, PROTO_MSG_TASK,     PROTO_MSG_SCENE_GET,
-    PROTO_MSG_SCENE_CHUNK, PROTO_MSG_RESULT,       PROTO_MSG_HEARTBEAT};
+    PROTO_MSG_HELLO,       PROTO_MSG_CHALLENGE,    PROTO_MSG_AUTH,      PROTO_MSG_WELCOME,
+    PROTO_MSG_ERROR,       PROTO_MSG_WORK_REQUEST, PROTO_MSG_TASK,      PROTO_MSG_SCENE_GET,
+    PROTO_MSG_SCENE_CHUNK, PROTO_MSG_RESULT,       PROTO_MSG_HEARTBEAT, PROTO_MSG_WATCH,
+    PROTO_MSG_SUBMIT,      PROTO_MSG_JOB_INFO,     PROTO_MSG_JOB_LIST};
 #define FUZZ_NTYPES (sizeof fuzz_types / sizeof fuzz_types[0])
 
 #endif

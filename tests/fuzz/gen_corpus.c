@@ -129,13 +129,36 @@ int main(int argc, char **argv)
     frames(&w, 0x04, 2);
     w.len -= 5;
     emit(dir, "fuzz_frame", "stream_cut", w.buf, w.len);
-    /* Empty frames of the reserved client types. */
+    /* Empty frames of the client types (LIST is empty by design; the
+     * others' decoders refuse them). */
     proto_writer_reset(&w);
     proto_w_u8(&w, 0);
-    for (uint16_t t = PROTO_MSG_SUBMIT; t <= PROTO_MSG_FETCH; t++)
-        if (proto_frame_encode(&w, t, NULL, 0, NULL) != PT_OK)
+    for (uint16_t t = PROTO_MSG_SUBMIT; t <= PROTO_MSG_IMAGE; t++)
+        if (proto_msg_type_known(t) && proto_frame_encode(&w, t, NULL, 0, NULL) != PT_OK)
             failures++;
-    emit(dir, "fuzz_frame", "reserved_empty", w.buf, w.len);
+    emit(dir, "fuzz_frame", "client_empty", w.buf, w.len);
+    /* A client session: SUBMIT, UPLOAD (SCENE_CHUNK layout), the JOB_REF
+     * requests, then the server's answers (IMAGE in the SCENE_CHUNK layout). */
+    {
+        static const uint16_t session[][2] = {
+            {12, PROTO_MSG_SUBMIT},   {8, PROTO_MSG_UPLOAD},    {11, PROTO_MSG_SUBMITTED},
+            {11, PROTO_MSG_STATUS},   {11, PROTO_MSG_CANCEL},   {11, PROTO_MSG_FETCH},
+            {13, PROTO_MSG_JOB_INFO}, {14, PROTO_MSG_JOB_LIST}, {8, PROTO_MSG_IMAGE},
+        };
+        proto_writer pw;
+        proto_writer_init(&pw, PROTO_MAX_PAYLOAD);
+        proto_writer_reset(&w);
+        proto_w_u8(&w, 0x0C);
+        for (size_t i = 0; i < sizeof session / sizeof session[0]; i++) {
+            proto_writer_reset(&pw);
+            if (!sample_payload(session[i][0], 1, &pw) ||
+                proto_frame_encode(&w, session[i][1], pw.buf, pw.len, NULL) != PT_OK)
+                failures++;
+        }
+        proto_frame_encode(&w, PROTO_MSG_LIST, NULL, 0, NULL);
+        proto_writer_fini(&pw);
+        emit(dir, "fuzz_frame", "client_session", w.buf, w.len);
+    }
     /* A header declaring a payload over the pre-auth cap. */
     uint8_t h[13] = {1, 'P', 'T', 'F', '1'};
     proto_put_u16(h + 5, PROTO_VERSION);

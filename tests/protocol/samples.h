@@ -10,12 +10,14 @@
 #ifndef PT_TESTS_PROTOCOL_SAMPLES_H
 #define PT_TESTS_PROTOCOL_SAMPLES_H
 
+#include <stdint.h>
 #include <string.h>
 
 #include "protocol/frame.h"
 #include "protocol/msg.h"
 
-#define SAMPLE_COUNT 11
+/* The order is the fuzz_msg selector's (tests/fuzz/fuzz_msg.h, fuzz_types). */
+#define SAMPLE_COUNT 15
 
 static pt_pixel_acc sample_pixels[4 * 3];
 static uint8_t sample_scene_bytes[300];
@@ -89,6 +91,64 @@ static inline proto_heartbeat *sample_heartbeat(int v)
     for (unsigned i = 0; i < m.count; i++)
         m.task_ids[i] = 1000u + i * i;
     return &m;
+}
+
+/* JOB_INFO: v 0 a running job with every string set, v 1 a queued one with
+ * empty strings; v 2 a failed one with strings at their caps (JOB_LIST only). */
+static inline proto_submit sample_submit(int v)
+{
+    proto_submit m;
+    memset(&m, 0, sizeof m);
+    strcpy(m.name, v ? "" : "cornell final");
+    m.width = v ? 0 : 1920;
+    m.height = v ? 0 : 1080;
+    m.spp = v ? 1 : 1024;
+    m.seed = v ? UINT32_MAX : 7;
+    m.priority = v ? INT32_MIN : -3;
+    m.max_depth = v ? 0 : 8;
+    m.min_spp = v ? 0 : 64;
+    m.target_error = v ? 0.0 : 0.01;
+    m.bundle_size = v ? UINT64_MAX : 123456;
+    sample_hash(m.bundle_hash, 3u + (unsigned)v);
+    return m;
+}
+
+static inline proto_job_info sample_job_info(int v)
+{
+    proto_job_info m;
+    memset(&m, 0, sizeof m);
+    m.job_id = v == 1 ? 1 : 0x1122334455667788ull + (uint64_t)v;
+    m.state = v == 0 ? PROTO_JOB_RUNNING : v == 1 ? PROTO_JOB_QUEUED : PROTO_JOB_FAILED;
+    m.priority = v == 0 ? -5 : v == 1 ? INT32_MIN : INT32_MAX;
+    if (v == 0) {
+        strcpy(m.name, "cornell final");
+        strcpy(m.owner, "alice@render-01");
+        strcpy(m.scene, "cornell_box.gltf");
+        strcpy(m.output, "job-12.exr");
+        strcpy(m.message, "");
+    } else if (v == 2) {
+        memset(m.name, 'n', PROTO_MAX_NAME);
+        memset(m.owner, 'o', PROTO_MAX_NAME);
+        memset(m.scene, 's', PROTO_MAX_PATH);
+        memset(m.output, 'x', PROTO_MAX_PATH);
+        memset(m.message, 'm', PROTO_MAX_ERROR_TEXT);
+    }
+    m.width = v == 1 ? 0 : 1920;
+    m.height = v == 1 ? 0 : 1080;
+    m.spp = v == 1 ? 1 : 1024;
+    m.samples_done = v == 0 ? 1234567890ull : 0;
+    m.samples_total = v == 1 ? UINT64_MAX : 1920ull * 1080 * 1024;
+    m.passes_done = v == 0 ? 3 : 0;
+    m.passes = v == 0 ? 64 : 0;
+    m.tiles_stopped = v == 0 ? 7 : 0;
+    m.tiles = v == 0 ? 510 : 0;
+    m.workers = v == 0 ? 4 : 0;
+    m.seconds = v == 0 ? 123.25 : 0.0;
+    m.rate = v == 0 ? 9.75e6 : -0.0;
+    m.error = v == 0 ? 0.0125 : v == 1 ? -1.0 : proto_bits_f64(0x7FF8000000000001ull);
+    m.submitted = v == 0 ? 1700000000u : UINT64_MAX;
+    m.queue_pos = v == 1 ? 2 : 0;
+    return m;
 }
 
 static inline uint16_t sample_payload(int i, int v, proto_writer *w)
@@ -176,6 +236,32 @@ static inline uint16_t sample_payload(int i, int v, proto_writer *w)
     case 10: {
         type = PROTO_MSG_HEARTBEAT;
         st = proto_msg_encode_heartbeat(w, sample_heartbeat(v), NULL);
+        break;
+    }
+    case 11: {
+        proto_job_ref m = {v ? UINT64_MAX : 42};
+        type = v ? PROTO_MSG_SUBMITTED : PROTO_MSG_WATCH;
+        st = proto_msg_encode_job_ref(w, &m, NULL);
+        break;
+    }
+    case 12: {
+        proto_submit m = sample_submit(v);
+        type = PROTO_MSG_SUBMIT;
+        st = proto_msg_encode_submit(w, &m, NULL);
+        break;
+    }
+    case 13: {
+        proto_job_info m = sample_job_info(v);
+        type = PROTO_MSG_JOB_INFO;
+        st = proto_msg_encode_job_info(w, &m, NULL);
+        break;
+    }
+    case 14: {
+        static proto_job_info jobs[3];
+        for (int k = 0; k < 3; k++)
+            jobs[k] = sample_job_info(k);
+        type = PROTO_MSG_JOB_LIST;
+        st = proto_msg_encode_job_list(w, jobs, v ? 0 : 3, NULL);
         break;
     }
     }

@@ -38,6 +38,10 @@ static pt_status decode_any(uint16_t type, const uint8_t *p, size_t len, pt_erro
         proto_scene_chunk chunk;
         proto_result result;
         proto_heartbeat hb;
+        proto_job_ref ref;
+        proto_submit submit;
+        proto_job_info info;
+        proto_job_list list;
     } u, before;
     memset(&u, 0xCD, sizeof u);
     before = u;
@@ -78,6 +82,28 @@ static pt_status decode_any(uint16_t type, const uint8_t *p, size_t len, pt_erro
     case PROTO_MSG_HEARTBEAT:
         st = proto_msg_decode_heartbeat(p, len, &u.hb, err);
         break;
+    case PROTO_MSG_STATUS:
+    case PROTO_MSG_WATCH:
+    case PROTO_MSG_CANCEL:
+    case PROTO_MSG_FETCH:
+    case PROTO_MSG_SUBMITTED:
+        st = proto_msg_decode_job_ref(p, len, &u.ref, err);
+        break;
+    case PROTO_MSG_UPLOAD:
+    case PROTO_MSG_IMAGE:
+        st = proto_msg_decode_scene_chunk(p, len, &u.chunk, err);
+        break;
+    case PROTO_MSG_SUBMIT:
+        st = proto_msg_decode_submit(p, len, &u.submit, err);
+        break;
+    case PROTO_MSG_JOB_INFO:
+        st = proto_msg_decode_job_info(p, len, &u.info, err);
+        break;
+    case PROTO_MSG_JOB_LIST:
+        st = proto_msg_decode_job_list(p, len, &u.list, err);
+        if (st == PT_OK)
+            pt_free(u.list.jobs);
+        break;
     }
     if (st != PT_OK && memcmp(&u, &before, sizeof u) != 0) {
         fprintf(stderr, "type %u: output touched on failure\n", (unsigned)type);
@@ -92,6 +118,27 @@ static int acc_same(const pt_pixel_acc *a, const pt_pixel_acc *b)
         if (proto_f64_bits(a->sum[c]) != proto_f64_bits(b->sum[c]))
             return 0;
     return proto_f64_bits(a->sum_sq) == proto_f64_bits(b->sum_sq) && a->n == b->n;
+}
+
+static int job_info_same(const proto_job_info *a, const proto_job_info *b)
+{
+    return a->job_id == b->job_id && a->state == b->state && a->priority == b->priority &&
+           strcmp(a->name, b->name) == 0 && strcmp(a->owner, b->owner) == 0 &&
+           strcmp(a->scene, b->scene) == 0 && strcmp(a->output, b->output) == 0 &&
+           a->width == b->width && a->height == b->height && a->spp == b->spp &&
+           a->samples_done == b->samples_done && a->samples_total == b->samples_total &&
+           a->passes_done == b->passes_done && a->passes == b->passes &&
+           a->tiles_stopped == b->tiles_stopped && a->tiles == b->tiles &&
+           a->workers == b->workers && proto_f64_bits(a->seconds) == proto_f64_bits(b->seconds) &&
+           proto_f64_bits(a->rate) == proto_f64_bits(b->rate) &&
+           proto_f64_bits(a->error) == proto_f64_bits(b->error) && a->submitted == b->submitted &&
+           a->queue_pos == b->queue_pos && strcmp(a->message, b->message) == 0;
+}
+
+static size_t job_info_size(const proto_job_info *m)
+{
+    return 107 + strlen(m->name) + strlen(m->owner) + strlen(m->scene) + strlen(m->output) +
+           strlen(m->message);
 }
 
 static void check_round_trip(int s, int v, const uint8_t *p, size_t len)
@@ -198,6 +245,45 @@ static void check_round_trip(int s, int v, const uint8_t *p, size_t len)
         CHECK(proto_msg_decode_heartbeat(p, len, &b, &err) == PT_OK);
         CHECK(b.count == a->count);
         CHECK(memcmp(a->task_ids, b.task_ids, 8 * (size_t)a->count) == 0);
+        break;
+    }
+    case 11: {
+        proto_job_ref b;
+        CHECK(len == 8 && proto_msg_decode_job_ref(p, len, &b, &err) == PT_OK);
+        CHECK(b.job_id == (v ? UINT64_MAX : 42));
+        break;
+    }
+    case 12: {
+        proto_submit a = sample_submit(v), b;
+        CHECK(proto_msg_decode_submit(p, len, &b, &err) == PT_OK);
+        CHECK(len == 76 + strlen(a.name));
+        CHECK(strcmp(a.name, b.name) == 0 && a.width == b.width && a.height == b.height);
+        CHECK(a.spp == b.spp && a.seed == b.seed && a.priority == b.priority);
+        CHECK(a.max_depth == b.max_depth && a.min_spp == b.min_spp);
+        CHECK(proto_f64_bits(a.target_error) == proto_f64_bits(b.target_error));
+        CHECK(a.bundle_size == b.bundle_size && memcmp(a.bundle_hash, b.bundle_hash, 32) == 0);
+        break;
+    }
+    case 13: {
+        proto_job_info a = sample_job_info(v), b;
+        CHECK(proto_msg_decode_job_info(p, len, &b, &err) == PT_OK);
+        CHECK(len == job_info_size(&a));
+        CHECK(job_info_same(&a, &b));
+        break;
+    }
+    case 14: {
+        proto_job_list b;
+        CHECK(proto_msg_decode_job_list(p, len, &b, &err) == PT_OK);
+        CHECK(b.count == (v ? 0u : 3u));
+        size_t want = 4;
+        for (uint32_t k = 0; k < b.count; k++) {
+            proto_job_info a = sample_job_info((int)k);
+            want += job_info_size(&a);
+            CHECKF(job_info_same(&a, &b.jobs[k]), "JOB_LIST entry %u", (unsigned)k);
+        }
+        CHECK(len == want);
+        CHECK(v == 0 || b.jobs == NULL);
+        pt_free(b.jobs);
         break;
     }
     }
@@ -642,6 +728,300 @@ static void test_types(void)
     CHECK(52 + (uint64_t)PROTO_MAX_SCENE_CHUNK <= PROTO_MAX_PAYLOAD);
 }
 
+/* ---- client messages ---- */
+
+/* Encodes m with the SUBMIT encoder and checks that the decoder agrees on
+ * a payload written by hand with the same fields. */
+static pt_status submit_check(const proto_submit *m, const char *want)
+{
+    proto_writer w;
+    proto_writer_init(&w, 4096);
+    proto_w_u16(&w, (uint16_t)strlen(m->name));
+    proto_w_bytes(&w, m->name, strlen(m->name));
+    proto_w_u32(&w, m->width);
+    proto_w_u32(&w, m->height);
+    proto_w_u32(&w, m->spp);
+    proto_w_u32(&w, m->seed);
+    proto_w_u32(&w, (uint32_t)m->priority);
+    proto_w_u16(&w, m->max_depth);
+    proto_w_u32(&w, m->min_spp);
+    proto_w_f64(&w, m->target_error);
+    proto_w_u64(&w, m->bundle_size);
+    proto_w_bytes(&w, m->bundle_hash, 32);
+    pt_error err = {0};
+    pt_status st = decode_any(PROTO_MSG_SUBMIT, w.buf, w.len, &err);
+    if (st != PT_OK && want && !strstr(err.msg, want)) {
+        fprintf(stderr, "wanted \"%s\" in \"%s\"\n", want, err.msg);
+        st = PT_ERR_ARG;
+    }
+    proto_writer_reset(&w);
+    pt_status est = proto_msg_encode_submit(&w, m, &err);
+    if ((st == PT_OK) != (est == PT_OK) || (est != PT_OK && (est != PT_ERR_ARG || w.len != 0))) {
+        fprintf(stderr, "SUBMIT: encoder and decoder disagree\n");
+        st = PT_ERR_ARG;
+    }
+    proto_writer_fini(&w);
+    return st;
+}
+
+static void test_submit(void)
+{
+    proto_submit m = sample_submit(0);
+    CHECK(submit_check(&m, NULL) == PT_OK);
+    m.width = 0;
+    CHECK(submit_check(&m, "width") == PT_ERR_PROTO);
+    m.height = 0;
+    CHECK(submit_check(&m, NULL) == PT_OK);
+    m.width = 5;
+    CHECK(submit_check(&m, "width") == PT_ERR_PROTO);
+    m = sample_submit(0);
+    m.spp = 0;
+    CHECK(submit_check(&m, "samples") == PT_ERR_PROTO);
+    m = sample_submit(0);
+    m.bundle_size = 0;
+    CHECK(submit_check(&m, "bundle size") == PT_ERR_PROTO);
+    static const uint64_t bad_errors[] = {
+        0x7FF8000000000000ull, /* NaN */
+        0xFFF8000000000000ull, /* -NaN */
+        0x7FF0000000000000ull, /* +Inf */
+        0xFFF0000000000000ull, /* -Inf */
+        0xBFF0000000000000ull, /* -1 */
+        0x8000000000000001ull, /* the smallest negative subnormal */
+    };
+    for (size_t i = 0; i < sizeof bad_errors / sizeof bad_errors[0]; i++) {
+        m = sample_submit(0);
+        m.target_error = proto_bits_f64(bad_errors[i]);
+        CHECKF(submit_check(&m, "target error") == PT_ERR_PROTO, "error bits %016llx",
+               (unsigned long long)bad_errors[i]);
+    }
+    m = sample_submit(0);
+    m.target_error = -0.0; /* compares equal to 0: off */
+    CHECK(submit_check(&m, NULL) == PT_OK);
+    m.target_error = 1e308;
+    CHECK(submit_check(&m, NULL) == PT_OK);
+    /* Name at its cap, and over it (encoder: no terminator within the cap). */
+    m = sample_submit(0);
+    memset(m.name, 'n', PROTO_MAX_NAME);
+    m.name[PROTO_MAX_NAME] = '\0';
+    CHECK(submit_check(&m, NULL) == PT_OK);
+    proto_writer w;
+    pt_error err = {0};
+    proto_writer_init(&w, 4096);
+    memset(m.name, 'n', sizeof m.name);
+    CHECK(proto_msg_encode_submit(&w, &m, &err) == PT_ERR_ARG && w.len == 0);
+    proto_w_u16(&w, PROTO_MAX_NAME + 1);
+    CHECK(decode_any(PROTO_MSG_SUBMIT, w.buf, w.len, &err) == PT_ERR_PROTO);
+    CHECK(strstr(err.msg, "cap") != NULL);
+    /* A NUL in the name. */
+    proto_writer_reset(&w);
+    m = sample_submit(0);
+    CHECK(proto_msg_encode_submit(&w, &m, &err) == PT_OK);
+    w.buf[3] = 0;
+    CHECK(decode_any(PROTO_MSG_SUBMIT, w.buf, w.len, &err) == PT_ERR_PROTO);
+    CHECK(strstr(err.msg, "NUL") != NULL);
+    proto_writer_fini(&w);
+}
+
+/* A JOB_INFO by hand: string field f (0 name, 1 owner, 2 scene, 3 output,
+ * 4 message) n bytes long, the others empty, every number 0. */
+static void job_info_raw(proto_writer *w, int f, size_t n)
+{
+    proto_w_u64(w, 1);
+    proto_w_u8(w, PROTO_JOB_DONE);
+    proto_w_u32(w, 0);
+    for (int k = 0; k < 4; k++)
+        w_str(w, k == f ? n : 0, 'q');
+    /* width .. queue position: 84 bytes */
+    for (int k = 0; k < 21; k++)
+        proto_w_u32(w, 0);
+    w_str(w, f == 4 ? n : 0, 'q');
+}
+
+static void test_job_info(void)
+{
+    pt_error err = {0};
+    proto_writer w;
+    proto_writer_init(&w, 1u << 16);
+    /* Every string at its cap round-trips; one byte over is refused by both sides. */
+    proto_job_info m = sample_job_info(2);
+    CHECK(proto_msg_encode_job_info(&w, &m, &err) == PT_OK);
+    CHECK(w.len == 107 + 2 * PROTO_MAX_NAME + 2 * PROTO_MAX_PATH + PROTO_MAX_ERROR_TEXT);
+    static proto_job_info b;
+    CHECK(proto_msg_decode_job_info(w.buf, w.len, &b, &err) == PT_OK);
+    CHECK(job_info_same(&m, &b));
+    /* The string fields in payload order, with their caps. */
+    size_t caps[5] = {PROTO_MAX_NAME, PROTO_MAX_NAME, PROTO_MAX_PATH, PROTO_MAX_PATH,
+                      PROTO_MAX_ERROR_TEXT};
+    const char *names[5] = {"name", "owner", "scene", "output", "message"};
+    for (int f = 0; f < 5; f++) {
+        m = sample_job_info(2);
+        char *field[5] = {m.name, m.owner, m.scene, m.output, m.message};
+        field[f][caps[f]] = 'z'; /* no terminator within the cap */
+        proto_writer_reset(&w);
+        CHECKF(proto_msg_encode_job_info(&w, &m, &err) == PT_ERR_ARG && w.len == 0, "%s", names[f]);
+        CHECK(strstr(err.msg, names[f]) != NULL);
+        CHECK(proto_msg_encode_job_list(&w, &m, 1, &err) == PT_ERR_ARG && w.len == 0);
+        /* By hand: string f one byte over its cap, the others empty. */
+        proto_writer_reset(&w);
+        job_info_raw(&w, f, caps[f] + 1);
+        CHECKF(decode_any(PROTO_MSG_JOB_INFO, w.buf, w.len, &err) == PT_ERR_PROTO, "%s", names[f]);
+        CHECKF(strstr(err.msg, names[f]) && strstr(err.msg, "cap"), "%s: %s", names[f], err.msg);
+    }
+    for (int f = 0; f < 5; f++) {
+        proto_writer_reset(&w);
+        job_info_raw(&w, f, caps[f]);
+        CHECKF(decode_any(PROTO_MSG_JOB_INFO, w.buf, w.len, &err) == PT_OK, "%s at its cap",
+               names[f]);
+    }
+    /* Any state value decodes; names for the known ones. */
+    m = sample_job_info(0);
+    m.state = 200;
+    proto_writer_reset(&w);
+    CHECK(proto_msg_encode_job_info(&w, &m, &err) == PT_OK);
+    CHECK(proto_msg_decode_job_info(w.buf, w.len, &b, &err) == PT_OK && b.state == 200);
+    CHECK(strcmp(proto_job_state_name(PROTO_JOB_QUEUED), "queued") == 0);
+    CHECK(strcmp(proto_job_state_name(PROTO_JOB_RUNNING), "running") == 0);
+    CHECK(strcmp(proto_job_state_name(PROTO_JOB_DONE), "done") == 0);
+    CHECK(strcmp(proto_job_state_name(PROTO_JOB_CANCELLED), "cancelled") == 0);
+    CHECK(strcmp(proto_job_state_name(PROTO_JOB_FAILED), "failed") == 0);
+    CHECK(strcmp(proto_job_state_name(0), "unknown") == 0);
+    CHECK(strcmp(proto_job_state_name(6), "unknown") == 0);
+    /* Writer too small: PT_ERR_LIMIT and the writer as it was. */
+    proto_writer_fini(&w);
+    proto_writer_init(&w, 120);
+    proto_w_u32(&w, 0xABCD);
+    m = sample_job_info(0);
+    CHECK(proto_msg_encode_job_info(&w, &m, &err) == PT_ERR_LIMIT);
+    CHECK(w.len == 4 && proto_get_u32(w.buf) == 0xABCD);
+    CHECK(proto_msg_encode_job_list(&w, &m, 1, &err) == PT_ERR_LIMIT && w.len == 4);
+    proto_writer_fini(&w);
+}
+
+/* Decodes a JOB_LIST and reports how many allocations it made. */
+static pt_status job_list_check(const uint8_t *p, size_t len, const char *want, int *allocated)
+{
+    pt_error err = {0};
+    pt_alloc_fail_at(0);
+    pt_status st = decode_any(PROTO_MSG_JOB_LIST, p, len, &err);
+    *allocated = (int)pt_alloc_count();
+    if (st != PT_OK && want && !strstr(err.msg, want)) {
+        fprintf(stderr, "wanted \"%s\" in \"%s\"\n", want, err.msg);
+        return PT_ERR_ARG;
+    }
+    return st;
+}
+
+static void test_job_list(void)
+{
+    pt_error err = {0};
+    int alloc = 0;
+    int64_t live = pt_alloc_live();
+    static proto_job_info jobs[PROTO_MAX_JOBS + 1];
+    for (unsigned i = 0; i <= PROTO_MAX_JOBS; i++)
+        jobs[i] = sample_job_info(2); /* the largest entry */
+    proto_writer w;
+    proto_writer_init(&w, PROTO_MAX_PAYLOAD);
+    /* The largest list fits a frame, and decodes. */
+    CHECK(proto_msg_encode_job_list(&w, jobs, PROTO_MAX_JOBS, &err) == PT_OK);
+    CHECK(w.len <= PROTO_MAX_PAYLOAD);
+    CHECK(job_list_check(w.buf, w.len, NULL, &alloc) == PT_OK && alloc == 1);
+    /* One over the cap: refused by the encoder, and by the decoder from the count alone. */
+    proto_writer_reset(&w);
+    CHECK(proto_msg_encode_job_list(&w, jobs, PROTO_MAX_JOBS + 1, &err) == PT_ERR_ARG);
+    CHECK(w.len == 0);
+    uint8_t head[4];
+    proto_put_u32(head, PROTO_MAX_JOBS + 1);
+    CHECK(job_list_check(head, 4, "cap", &alloc) == PT_ERR_PROTO && alloc == 0);
+    proto_put_u32(head, UINT32_MAX);
+    CHECK(job_list_check(head, 4, "cap", &alloc) == PT_ERR_PROTO && alloc == 0);
+    /* A count that the bytes present cannot hold: refused before allocating. */
+    proto_writer_reset(&w);
+    jobs[0] = sample_job_info(1); /* the smallest entry: 107 bytes */
+    CHECK(proto_msg_encode_job_list(&w, jobs, 1, &err) == PT_OK && w.len == 4 + 107);
+    CHECK(job_list_check(w.buf, w.len, NULL, &alloc) == PT_OK && alloc == 1);
+    proto_put_u32(w.buf, 2);
+    CHECK(job_list_check(w.buf, w.len, "bytes", &alloc) == PT_ERR_PROTO && alloc == 0);
+    proto_put_u32(w.buf, PROTO_MAX_JOBS);
+    CHECK(job_list_check(w.buf, w.len, "bytes", &alloc) == PT_ERR_PROTO && alloc == 0);
+    /* A count the bytes could hold, with entries that do not add up: refused
+     * after allocating, nothing leaked. */
+    proto_writer_reset(&w);
+    jobs[0] = sample_job_info(2);
+    CHECK(proto_msg_encode_job_list(&w, jobs, 1, &err) == PT_OK);
+    proto_put_u32(w.buf, 3);
+    CHECK(job_list_check(w.buf, w.len, "truncated", &alloc) == PT_ERR_PROTO && alloc == 1);
+    proto_put_u32(w.buf, 0);
+    CHECK(job_list_check(w.buf, w.len, "trailing", &alloc) == PT_ERR_PROTO && alloc == 0);
+    CHECK(pt_alloc_live() == live + 1); /* the writer's block */
+    /* An entry refused inside a list (string over its cap). */
+    proto_writer_reset(&w);
+    proto_w_u32(&w, 1);
+    proto_w_u64(&w, 1);
+    proto_w_u8(&w, 1);
+    proto_w_u32(&w, 0);
+    w_str(&w, PROTO_MAX_NAME + 1, 'n');
+    for (int k = 0; k < 40; k++)
+        proto_w_u32(&w, 0);
+    CHECK(job_list_check(w.buf, w.len, "name", &alloc) == PT_ERR_PROTO);
+    CHECK(pt_alloc_live() == live + 1);
+
+    /* The allocation-failure loop over a decode. */
+    proto_writer_reset(&w);
+    for (int k = 0; k < 3; k++)
+        jobs[k] = sample_job_info(k);
+    CHECK(proto_msg_encode_job_list(&w, jobs, 3, &err) == PT_OK);
+    int done = 0;
+    for (uint64_t k = 1; k < 50 && !done; k++) {
+        proto_job_list r;
+        memset(&r, 0xCD, sizeof r);
+        proto_job_list before = r;
+        pt_alloc_fail_at(k);
+        pt_status st = proto_msg_decode_job_list(w.buf, w.len, &r, &err);
+        pt_alloc_fail_at(0);
+        if (st == PT_OK) {
+            CHECK(r.count == 3 && job_info_same(&r.jobs[2], &jobs[2]));
+            pt_free(r.jobs);
+            done = 1;
+        } else {
+            CHECK(st == PT_ERR_NOMEM && memcmp(&r, &before, sizeof r) == 0);
+        }
+        CHECK(pt_alloc_live() == live + 1);
+    }
+    CHECK(done);
+    proto_writer_fini(&w);
+}
+
+static void test_client_types(void)
+{
+    static const uint16_t client[] = {PROTO_MSG_SUBMIT,   PROTO_MSG_LIST,      PROTO_MSG_STATUS,
+                                      PROTO_MSG_WATCH,    PROTO_MSG_CANCEL,    PROTO_MSG_FETCH,
+                                      PROTO_MSG_UPLOAD,   PROTO_MSG_SUBMITTED, PROTO_MSG_JOB_LIST,
+                                      PROTO_MSG_JOB_INFO, PROTO_MSG_IMAGE};
+    for (size_t i = 0; i < sizeof client / sizeof client[0]; i++) {
+        CHECK(proto_msg_type_known(client[i]));
+        CHECK(!proto_msg_type_preauth(client[i]));
+    }
+    CHECK(strcmp(proto_msg_type_name(PROTO_MSG_UPLOAD), "UPLOAD") == 0);
+    CHECK(strcmp(proto_msg_type_name(PROTO_MSG_SUBMITTED), "SUBMITTED") == 0);
+    CHECK(strcmp(proto_msg_type_name(PROTO_MSG_JOB_LIST), "JOB_LIST") == 0);
+    CHECK(strcmp(proto_msg_type_name(PROTO_MSG_JOB_INFO), "JOB_INFO") == 0);
+    CHECK(strcmp(proto_msg_type_name(PROTO_MSG_IMAGE), "IMAGE") == 0);
+    CHECK(!proto_msg_type_known(39) && !proto_msg_type_known(47) && !proto_msg_type_known(52));
+    /* UPLOAD and IMAGE go through the SCENE_CHUNK decoder; JOB_REF types share one. */
+    proto_writer w;
+    pt_error err = {0};
+    proto_writer_init(&w, 4096);
+    CHECK(sample_payload(8, 0, &w) == PROTO_MSG_SCENE_CHUNK);
+    CHECK(decode_any(PROTO_MSG_UPLOAD, w.buf, w.len, &err) == PT_OK);
+    CHECK(decode_any(PROTO_MSG_IMAGE, w.buf, w.len - 1, &err) == PT_ERR_PROTO);
+    proto_writer_reset(&w);
+    proto_job_ref ref = {7};
+    CHECK(proto_msg_encode_job_ref(&w, &ref, &err) == PT_OK && w.len == 8);
+    CHECK(decode_any(PROTO_MSG_CANCEL, w.buf, w.len, &err) == PT_OK);
+    CHECK(decode_any(PROTO_MSG_FETCH, w.buf, 7, &err) == PT_ERR_PROTO);
+    proto_writer_fini(&w);
+}
+
 int main(void)
 {
     test_types();
@@ -650,5 +1030,9 @@ int main(void)
     test_task();
     test_counts();
     test_result();
+    test_submit();
+    test_job_info();
+    test_job_list();
+    test_client_types();
     return check_report();
 }
