@@ -333,7 +333,10 @@ static void merge_held(srv_job *j, uint32_t tile)
     }
 }
 
-srv_outcome srv_job_result(srv_job *j, uint64_t owner, const proto_result *r, pt_error *err)
+/* Checks r against the task it names; need_lease: the owner must hold it.
+ * On SRV_MERGED *lease_index receives the lease (-1 when none was needed). */
+static srv_outcome check_result(const srv_job *j, uint64_t owner, const proto_result *r,
+                                int need_lease, int *lease_index, pt_error *err)
 {
     if (r->job_id != j->id) {
         pt_error_set(err, PT_ERR_PROTO, "result for job %llu, not the running job %llu",
@@ -349,7 +352,7 @@ srv_outcome srv_job_result(srv_job *j, uint64_t owner, const proto_result *r, pt
     if (j->state[t] == T_MERGED || j->state[t] == T_HELD || j->state[t] == T_SKIPPED)
         return SRV_DUPLICATE;
     int li = find_lease(j, t, owner);
-    if (li < 0) {
+    if (li < 0 && need_lease) {
         pt_error_set(err, PT_ERR_PROTO, "result for task %llu, which this peer does not hold",
                      (unsigned long long)t);
         return SRV_NOT_LEASED;
@@ -372,9 +375,33 @@ srv_outcome srv_job_result(srv_job *j, uint64_t owner, const proto_result *r, pt
             return SRV_INVALID;
         }
     }
+    *lease_index = li;
+    return SRV_MERGED;
+}
+
+srv_outcome srv_job_check(const srv_job *j, uint64_t owner, const proto_result *r, pt_error *err)
+{
+    int li;
+    return check_result(j, owner, r, 1, &li, err);
+}
+
+static void drop_lease(srv_job *j, int li)
+{
+    if (li >= 0)
+        j->leases[li] = j->leases[--j->nleases];
+}
+
+static srv_outcome accept_result(srv_job *j, uint64_t owner, const proto_result *r,
+                                 int need_lease, pt_error *err)
+{
+    int li;
+    srv_outcome o = check_result(j, owner, r, need_lease, &li, err);
+    if (o != SRV_MERGED)
+        return o;
+    uint64_t t = r->task_id;
     uint32_t tile = (uint32_t)(t % j->ntiles), chunk = (uint32_t)(t / j->ntiles);
     if (chunk == j->next_chunk[tile]) {
-        j->leases[li] = j->leases[--j->nleases];
+        drop_lease(j, li);
         merge_now(j, t, r->pixels);
         merge_held(j, tile);
         return SRV_MERGED;
@@ -393,11 +420,227 @@ srv_outcome srv_job_result(srv_job *j, uint64_t owner, const proto_result *r, pt
         goto nomem;
     memcpy(copy, r->pixels, (size_t)r->npixels * sizeof *copy);
     j->held[j->nheld++] = (held){t, copy};
-    j->leases[li] = j->leases[--j->nleases];
+    drop_lease(j, li);
     j->state[t] = T_HELD;
     return SRV_MERGED;
 nomem:
     /* Keep the lease: the task is requeued when it expires, nothing is lost. */
     pt_error_set(err, PT_ERR_NOMEM, "out of memory holding task %llu", (unsigned long long)t);
     return SRV_NOT_LEASED;
+}
+
+srv_outcome srv_job_result(srv_job *j, uint64_t owner, const proto_result *r, pt_error *err)
+{
+    return accept_result(j, owner, r, 1, err);
+}
+
+srv_outcome srv_job_replay(srv_job *j, const proto_result *r, pt_error *err)
+{
+    return accept_result(j, 0, r, 0, err);
+}
+
+int srv_job_owner_active(const srv_job *j, uint64_t owner)
+{
+    for (uint32_t i = 0; i < j->nleases; i++)
+        if (j->leases[i].owner == owner)
+            return 1;
+    return 0;
+}
+
+uint32_t srv_job_tiles(const srv_job *j) { return j->ntiles; }
+
+/* ---- checkpoints ---- */
+
+#define CKPT_MAGIC 0x434a5450u /* "PTJC" */
+#define CKPT_VERSION 1u
+
+static void put_acc(proto_writer *w, const pt_pixel_acc *a)
+{
+    proto_w_f64(w, a->sum[0]);
+    proto_w_f64(w, a->sum[1]);
+    proto_w_f64(w, a->sum[2]);
+    proto_w_f64(w, a->sum_sq);
+    proto_w_u32(w, a->n);
+}
+
+static void get_acc(proto_reader *r, pt_pixel_acc *a)
+{
+    a->sum[0] = proto_r_f64(r, "pixel sum");
+    a->sum[1] = proto_r_f64(r, "pixel sum");
+    a->sum[2] = proto_r_f64(r, "pixel sum");
+    a->sum_sq = proto_r_f64(r, "pixel sum of squares");
+    a->n = proto_r_u32(r, "pixel samples");
+    a->pad = 0;
+}
+
+static void put_params(proto_writer *w, const srv_job_params *p)
+{
+    proto_w_u32(w, p->width);
+    proto_w_u32(w, p->height);
+    proto_w_u32(w, p->spp);
+    proto_w_u32(w, p->tile);
+    proto_w_u32(w, p->chunk);
+    proto_w_u32(w, p->seed);
+    proto_w_u32(w, p->max_depth);
+    proto_w_u32(w, p->rr_depth);
+    proto_w_u32(w, p->min_spp);
+    proto_w_f64(w, p->target_error);
+}
+
+static uint32_t tile_merged(const srv_job *j, uint32_t tile)
+{
+    uint32_t m = 0;
+    while (m < j->nchunks && j->state[(uint64_t)m * j->ntiles + tile] == T_MERGED)
+        m++;
+    return m;
+}
+
+pt_status srv_job_save(const srv_job *j, proto_writer *w, pt_error *err)
+{
+    proto_w_u32(w, CKPT_MAGIC);
+    proto_w_u32(w, CKPT_VERSION);
+    proto_w_u64(w, j->id);
+    proto_w_bytes(w, j->hash, 32);
+    put_params(w, &j->p);
+    proto_w_u32(w, j->ntiles);
+    proto_w_u32(w, j->nchunks);
+    for (uint32_t t = 0; t < j->ntiles; t++) {
+        uint32_t m = tile_merged(j, t);
+        proto_w_u32(w, m);
+        proto_w_u8(w, m < j->nchunks && j->state[(uint64_t)m * j->ntiles + t] == T_SKIPPED);
+    }
+    proto_w_u32(w, j->nheld);
+    for (uint32_t i = 0; i < j->nheld; i++) {
+        pt_rect r = task_rect(j, j->held[i].task);
+        uint32_t npx = (r.x1 - r.x0) * (r.y1 - r.y0);
+        proto_w_u64(w, j->held[i].task);
+        for (uint32_t k = 0; k < npx; k++)
+            put_acc(w, &j->held[i].px[k]);
+    }
+    size_t npx = (size_t)j->p.width * j->p.height;
+    for (size_t k = 0; k < npx; k++)
+        put_acc(w, &j->film->px[k]);
+    if (proto_writer_status(w) != PT_OK)
+        return pt_error_set(err, proto_writer_status(w), "checkpoint of job %llu: cannot "
+                            "serialise (%zu pixels)", (unsigned long long)j->id, npx);
+    return PT_OK;
+}
+
+static int acc_sane(const pt_pixel_acc *a, uint32_t max_n)
+{
+    return isfinite(a->sum[0]) && isfinite(a->sum[1]) && isfinite(a->sum[2]) &&
+           isfinite(a->sum_sq) && a->sum_sq >= 0 && a->n <= max_n;
+}
+
+pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *err)
+{
+    if (j->merged || j->nleases || j->nheld)
+        return pt_error_set(err, PT_ERR_ARG, "checkpoint: job %llu is not fresh",
+                            (unsigned long long)j->id);
+    proto_reader r = proto_reader_make(data, len);
+    if (proto_r_u32(&r, "magic") != CKPT_MAGIC || proto_r_u32(&r, "version") != CKPT_VERSION)
+        return pt_error_set(err, PT_ERR_FORMAT, "not a version %u job checkpoint", CKPT_VERSION);
+    uint64_t id = proto_r_u64(&r, "job id");
+    const uint8_t *hash = proto_r_bytes(&r, 32, "scene hash");
+    srv_job_params p;
+    p.width = proto_r_u32(&r, "width");
+    p.height = proto_r_u32(&r, "height");
+    p.spp = proto_r_u32(&r, "spp");
+    p.tile = proto_r_u32(&r, "tile");
+    p.chunk = proto_r_u32(&r, "chunk");
+    p.seed = proto_r_u32(&r, "seed");
+    p.max_depth = proto_r_u32(&r, "max depth");
+    p.rr_depth = proto_r_u32(&r, "rr depth");
+    p.min_spp = proto_r_u32(&r, "min spp");
+    p.target_error = proto_r_f64(&r, "target error");
+    uint32_t ntiles = proto_r_u32(&r, "tiles"), nchunks = proto_r_u32(&r, "chunks");
+    if (r.status != PT_OK)
+        return proto_r_finish(&r, "checkpoint", err);
+    if (id != j->id || memcmp(hash, j->hash, 32) != 0 || p.width != j->p.width ||
+        p.height != j->p.height || p.spp != j->p.spp || p.tile != j->p.tile ||
+        p.chunk != j->p.chunk || p.seed != j->p.seed || p.max_depth != j->p.max_depth ||
+        p.rr_depth != j->p.rr_depth || p.min_spp != j->p.min_spp ||
+        memcmp(&p.target_error, &j->p.target_error, sizeof p.target_error) != 0 ||
+        ntiles != j->ntiles || nchunks != j->nchunks)
+        return pt_error_set(err, PT_ERR_FORMAT, "checkpoint is of another job or other settings "
+                            "(job %llu, %ux%u, %u spp)", (unsigned long long)id, p.width,
+                            p.height, p.spp);
+    for (uint32_t t = 0; t < ntiles; t++) {
+        uint32_t m = proto_r_u32(&r, "tile chunks merged");
+        uint8_t stopped = proto_r_u8(&r, "tile stopped");
+        if (r.status != PT_OK)
+            return proto_r_finish(&r, "checkpoint", err);
+        if (m > nchunks || stopped > 1 || (stopped && m == nchunks))
+            return pt_error_set(err, PT_ERR_FORMAT, "checkpoint: tile %u has %u chunks merged "
+                                "of %u (stopped %u)", t, m, nchunks, stopped);
+        for (uint32_t c = 0; c < m; c++) {
+            j->state[(uint64_t)c * ntiles + t] = T_MERGED;
+            j->merged_in_pass[c]++;
+        }
+        j->merged += m;
+        j->next_chunk[t] = m;
+        if (stopped) {
+            for (uint32_t c = m; c < nchunks; c++) {
+                j->state[(uint64_t)c * ntiles + t] = T_SKIPPED;
+                j->merged_in_pass[c]++;
+            }
+            j->merged += nchunks - m;
+            j->next_chunk[t] = nchunks;
+            j->stopped++;
+        }
+    }
+    uint32_t nheld = proto_r_u32(&r, "held results");
+    if (r.status == PT_OK && nheld > j->ntasks)
+        return pt_error_set(err, PT_ERR_FORMAT, "checkpoint: %u held results", nheld);
+    for (uint32_t i = 0; i < nheld && r.status == PT_OK; i++) {
+        uint64_t t = proto_r_u64(&r, "held task");
+        if (r.status != PT_OK)
+            break;
+        if (t >= j->ntasks || j->state[t] != T_PENDING ||
+            (uint32_t)(t / j->ntiles) <= j->next_chunk[t % j->ntiles])
+            return pt_error_set(err, PT_ERR_FORMAT, "checkpoint: held task %llu is not one that "
+                                "can be held", (unsigned long long)t);
+        pt_rect rc = task_rect(j, t);
+        uint32_t npx = (rc.x1 - rc.x0) * (rc.y1 - rc.y0);
+        if (proto_r_left(&r) < (size_t)npx * PROTO_RESULT_PIXEL_SIZE)
+            return pt_error_set(err, PT_ERR_FORMAT, "checkpoint: truncated held task %llu",
+                                (unsigned long long)t);
+        if (j->nheld == j->held_cap) {
+            uint32_t cap = j->held_cap ? 2 * j->held_cap : 32;
+            held *n = pt_realloc(j->held, (size_t)cap * sizeof *n);
+            if (!n)
+                return pt_error_set(err, PT_ERR_NOMEM, "checkpoint: out of memory");
+            j->held = n;
+            j->held_cap = cap;
+        }
+        pt_pixel_acc *px = pt_malloc_array(npx, sizeof *px);
+        if (!px)
+            return pt_error_set(err, PT_ERR_NOMEM, "checkpoint: out of memory");
+        for (uint32_t k = 0; k < npx; k++)
+            get_acc(&r, &px[k]);
+        j->held[j->nheld++] = (held){t, px};
+        j->state[t] = T_HELD;
+        for (uint32_t k = 0; k < npx; k++)
+            if (!acc_sane(&px[k], j->p.chunk))
+                return pt_error_set(err, PT_ERR_FORMAT, "checkpoint: held task %llu pixel %u "
+                                    "is not finite or has too many samples",
+                                    (unsigned long long)t, k);
+    }
+    size_t npx = (size_t)j->p.width * j->p.height;
+    if (r.status == PT_OK && proto_r_left(&r) != npx * PROTO_RESULT_PIXEL_SIZE)
+        return pt_error_set(err, PT_ERR_FORMAT, "checkpoint: %zu bytes of film, expected %zu",
+                            proto_r_left(&r), npx * PROTO_RESULT_PIXEL_SIZE);
+    for (size_t k = 0; k < npx && r.status == PT_OK; k++) {
+        get_acc(&r, &j->film->px[k]);
+        if (r.status == PT_OK && !acc_sane(&j->film->px[k], j->p.spp))
+            return pt_error_set(err, PT_ERR_FORMAT, "checkpoint: pixel %zu is not finite or has "
+                                "too many samples", k);
+    }
+    pt_status st = proto_r_finish(&r, "checkpoint", err);
+    if (st != PT_OK)
+        return st;
+    j->samples = pt_film_total_samples(j->film);
+    while (j->passes_done < j->nchunks && j->merged_in_pass[j->passes_done] == j->ntiles)
+        j->passes_done++;
+    return PT_OK;
 }

@@ -84,7 +84,31 @@ uint32_t srv_job_expire(srv_job *job, uint64_t now_ms, uint64_t *next_deadline);
 /* Accepts a result (see the file comment); err explains SRV_INVALID. */
 srv_outcome srv_job_result(srv_job *job, uint64_t owner, const proto_result *r, pt_error *err);
 
+/* Checks a result as srv_job_result would, changing nothing: SRV_MERGED when
+ * it would be accepted. Lets the caller log it durably before merging. */
+srv_outcome srv_job_check(const srv_job *job, uint64_t owner, const proto_result *r,
+                          pt_error *err);
+
+/* Accepts a result from the durable log after a restart: like srv_job_result
+ * but without a lease (there are none yet). Duplicates are dropped, so a log
+ * that overlaps the checkpoint is harmless. */
+srv_outcome srv_job_replay(srv_job *job, const proto_result *r, pt_error *err);
+
+/* 1 when owner holds a lease of this job. */
+int srv_job_owner_active(const srv_job *job, uint64_t owner);
+
+/* Checkpoints. srv_job_save appends the merged state (per tile the chunks
+ * merged and whether adaptive sampling stopped it, the held early results, the
+ * film's double sums and counts) to w; leases are not saved (their tasks are
+ * pending again after a load). srv_job_load restores that state into a fresh
+ * job made with the same id, params and scene hash: PT_ERR_FORMAT naming what
+ * does not fit when the bytes are of another job or inconsistent. The result
+ * merges bit-identically to the job that was saved. */
+pt_status srv_job_save(const srv_job *job, proto_writer *w, pt_error *err);
+pt_status srv_job_load(srv_job *job, const uint8_t *data, size_t len, pt_error *err);
+
 /* Progress. */
+uint32_t srv_job_tiles(const srv_job *job);
 uint32_t srv_job_passes(const srv_job *job);       /* chunks per tile */
 uint32_t srv_job_passes_done(const srv_job *job);  /* passes merged for every tile */
 uint64_t srv_job_tasks_total(const srv_job *job);

@@ -3,6 +3,7 @@
  *
  *   ptserve [options] -o OUT.exr SCENE            serve workers that connect
  *   ptserve --local N [options] -o OUT.exr SCENE  and start N of them here
+ *   ptserve --state-dir DIR [options]             a render queue that ptctl fills
  */
 #include <errno.h>
 #include <getopt.h>
@@ -17,14 +18,31 @@ static void usage(FILE *f)
     fprintf(f,
             "usage: ptserve [options] -o OUT.exr SCENE\n"
             "       ptserve --local N [options] -o OUT.exr SCENE\n"
+            "       ptserve --state-dir DIR [--output-dir DIR] [options]\n"
             "\n"
-            "Coordinates a ptfarm render of a glTF 2.0 scene: splits the image into tiles x\n"
-            "sample chunks, leases them to ptworker processes, merges their results in a\n"
-            "fixed order (the image does not depend on how the work was split) and writes\n"
-            "progressive OpenEXR images (R, G, B, samples, variance) plus a PNG preview.\n"
-            "Exits 0 when the image is complete.\n"
+            "Coordinates a ptfarm render: splits each image into tiles x sample chunks,\n"
+            "leases them to ptworker processes, merges their results in a fixed order (the\n"
+            "image does not depend on how the work was split) and writes progressive\n"
+            "OpenEXR images (R, G, B, samples, variance) plus a PNG preview.\n"
             "\n"
-            "options:\n"
+            "With a SCENE it renders that one scene to -o and exits 0 when the image is\n"
+            "complete. With --state-dir and no SCENE it is a long-running render queue:\n"
+            "clients submit jobs with ptctl; jobs run by priority, then submission order;\n"
+            "the queue and a checkpoint of every running job live in the state folder, so\n"
+            "after a crash or kill -9 a restart resumes them with no merged sample lost.\n"
+            "\n"
+            "queue mode:\n"
+            "  --state-dir DIR        the queue, scenes, checkpoints and results logs\n"
+            "  --output-dir DIR       where images are written (default DIR/output), as\n"
+            "                         ID-NAME.exr with NAME reduced to [A-Za-z0-9._-]\n"
+            "  --max-res N            longest image side a client may ask for (default 16384)\n"
+            "  --max-pixels N         width x height a client may ask for (default 16777216)\n"
+            "  --max-spp N            samples per pixel a client may ask for (default 65536)\n"
+            "  --max-scene-mb N       scene upload size limit in MiB (default 512)\n"
+            "  --max-queued N         unfinished jobs per client name (default 64)\n"
+            "  (--tile, --chunk and --max-depth set the defaults of submitted jobs)\n"
+            "\n"
+            "one-job mode:\n"
             "  -o, --output PATH      the EXR to write (required)\n"
             "  --local N              start N ptworker processes on this machine\n"
             "  --worker-threads T     threads per local worker (default: cores / N)\n"
@@ -50,8 +68,10 @@ static void usage(FILE *f)
             "  -q, --quiet            no progress line\n"
             "  -h, --help             this text\n"
             "\n"
-            "exit status: 0 image complete, 1 error (reason on stderr), 2 bad usage,\n"
-            "130 interrupted (the last progressive EXR is valid)\n");
+            "\n"
+            "exit status: 0 image complete (queue mode: stopped by SIGINT/SIGTERM after\n"
+            "checkpointing), 1 error (reason on stderr), 2 bad usage, 130 one-job render\n"
+            "interrupted (the last progressive EXR is valid)\n");
 }
 
 static int parse_u32(const char *opt, const char *s, uint32_t min, uint32_t max, uint32_t *out)
@@ -90,9 +110,15 @@ int main(int argc, char **argv)
     c.job.max_depth = 16;
     c.job.rr_depth = 3;
     c.save_interval = 5.0;
+    c.caps.max_side = 16384;
+    c.caps.max_pixels = 16777216;
+    c.caps.max_spp = 65536;
+    c.caps.max_scene = 512ull << 20;
+    c.caps.max_queued = 64;
     double lease = 20.0, handshake = 10.0;
     enum { O_LOCAL = 256, O_WTHREADS, O_LISTEN, O_TOKEN, O_SPP, O_RES, O_SEED, O_DEPTH,
-           O_TILE, O_CHUNK, O_SAVE, O_LEASE, O_PORTFILE, O_WBIN, O_HANDSHAKE, O_TARGET, O_MINSPP };
+           O_TILE, O_CHUNK, O_SAVE, O_LEASE, O_PORTFILE, O_WBIN, O_HANDSHAKE, O_TARGET, O_MINSPP,
+           O_STATE, O_OUTDIR, O_MAXRES, O_MAXPIX, O_MAXSPP, O_MAXSCENE, O_MAXQUEUED };
     static const struct option opts[] = {
         {"output", required_argument, NULL, 'o'},
         {"local", required_argument, NULL, O_LOCAL},
@@ -112,6 +138,13 @@ int main(int argc, char **argv)
         {"target-error", required_argument, NULL, O_TARGET},
         {"min-spp", required_argument, NULL, O_MINSPP},
         {"worker-bin", required_argument, NULL, O_WBIN},
+        {"state-dir", required_argument, NULL, O_STATE},
+        {"output-dir", required_argument, NULL, O_OUTDIR},
+        {"max-res", required_argument, NULL, O_MAXRES},
+        {"max-pixels", required_argument, NULL, O_MAXPIX},
+        {"max-spp", required_argument, NULL, O_MAXSPP},
+        {"max-scene-mb", required_argument, NULL, O_MAXSCENE},
+        {"max-queued", required_argument, NULL, O_MAXQUEUED},
         {"quiet", no_argument, NULL, 'q'},
         {"help", no_argument, NULL, 'h'},
         {NULL, 0, NULL, 0},
@@ -158,6 +191,23 @@ int main(int argc, char **argv)
         }
         case O_MINSPP: bad = parse_u32("--min-spp", optarg, 2, 1u << 24, &c.job.min_spp); break;
         case O_WBIN: c.worker_bin = optarg; break;
+        case O_STATE: c.state_dir = optarg; break;
+        case O_OUTDIR: c.output_dir = optarg; break;
+        case O_MAXRES: bad = parse_u32("--max-res", optarg, 1, 65536, &c.caps.max_side); break;
+        case O_MAXPIX: {
+            uint32_t v;
+            bad = parse_u32("--max-pixels", optarg, 1, UINT32_MAX, &v);
+            c.caps.max_pixels = v;
+            break;
+        }
+        case O_MAXSPP: bad = parse_u32("--max-spp", optarg, 1, 1u << 24, &c.caps.max_spp); break;
+        case O_MAXSCENE: {
+            uint32_t v;
+            bad = parse_u32("--max-scene-mb", optarg, 1, 2048, &v);
+            c.caps.max_scene = (uint64_t)v << 20;
+            break;
+        }
+        case O_MAXQUEUED: bad = parse_u32("--max-queued", optarg, 1, 100000, &c.caps.max_queued); break;
         case 'q': c.quiet = 1; break;
         case 'h': usage(stdout); return 0;
         default: usage(stderr); return 2;
@@ -165,9 +215,18 @@ int main(int argc, char **argv)
         if (bad)
             return 2;
     }
-    if (optind + 1 != argc || !c.out_path) {
-        fprintf(stderr, "ptserve: need -o OUT.exr and exactly one SCENE\n");
+    if (c.state_dir) {
+        if (optind != argc || c.out_path) {
+            fprintf(stderr, "ptserve: --state-dir runs a queue: no SCENE or -o (submit jobs "
+                    "with ptctl)\n");
+            return 2;
+        }
+    } else if (optind + 1 != argc || !c.out_path) {
+        fprintf(stderr, "ptserve: need -o OUT.exr and exactly one SCENE, or --state-dir DIR\n");
         usage(stderr);
+        return 2;
+    } else if (c.output_dir) {
+        fprintf(stderr, "ptserve: --output-dir is for queue mode (--state-dir)\n");
         return 2;
     }
     if (lease < 0.1) {
@@ -176,7 +235,7 @@ int main(int argc, char **argv)
     }
     if (c.job.min_spp == 0)
         c.job.min_spp = c.job.chunk > 1 ? c.job.chunk : 2;
-    c.scene_path = argv[optind];
+    c.scene_path = c.state_dir ? NULL : argv[optind];
     c.lease_ms = (uint32_t)(lease * 1000.0);
     c.handshake_ms = (uint32_t)(handshake * 1000.0);
     return srv_serve(&c);

@@ -2,6 +2,7 @@
 #include "server/serve.h"
 
 #include <errno.h>
+#include <math.h>
 #include <fcntl.h>
 #include <limits.h>
 #include <signal.h>
@@ -27,6 +28,8 @@
 #include "common/scene.h"
 #include "protocol/frame.h"
 #include "protocol/msg.h"
+#include "common/fsutil.h"
+#include "server/state.h"
 #include "server/writer.h"
 
 extern char **environ;
@@ -37,13 +40,35 @@ enum { C_HELLO, C_AUTH, C_READY };
 #define IN_START (64u * 1024u)
 #define OUT_HIGH (16u << 20)   /* stop reading a peer whose unsent output passes this */
 #define OUT_MAX (256u << 20)   /* a peer that lets this much pile up is dropped */
-#define STALL_MS 30000         /* a partial frame with no progress for this long */
+#define STALL_MS 30000         /* a partial frame or upload with no progress for this long */
 #define CLOSE_GRACE_MS 1000    /* time to flush an ERROR before closing */
+#define WATCH_MS 1000          /* JOB_INFO to watchers this often */
+#define CKPT_MIN_LOG (16u << 20) /* checkpoint once a job's results log passes this */
+#define MAX_FINISHED 1000      /* ended jobs kept in the queue's history */
+#define MAX_FETCH ((size_t)4 << 30)
+
+/* A job of the queue (or the one job of one-job mode). */
+typedef struct sjob {
+    srv_job_rec rec;
+    srv_job *job;          /* NULL until it is first scheduled (and after it ends) */
+    pt_bundle *bundle;     /* loaded when a worker first asks for it */
+    srv_writer *writer;
+    char out_path[PATH_MAX];
+    double seconds_before; /* render seconds of earlier coordinator runs */
+    uint64_t t_started;    /* when this run started rendering it (ms), 0: not yet */
+    uint64_t rejected, rays;
+    uint32_t saved_passes;
+    uint64_t saved_samples, t_last_save;
+    uint64_t rate_t, rate_samples;
+    double rate;
+    struct sjob *next;     /* the queue's order: priority (high first), then id */
+} sjob;
 
 typedef struct conn {
     int fd;
     uint64_t id;
     int state;
+    uint8_t role;
     int closing;
     uint64_t close_at;
     uint8_t *in;
@@ -57,6 +82,15 @@ typedef struct conn {
     uint32_t want;
     uint64_t t_connect, t_progress;
     uint32_t events;
+    /* client */
+    uint64_t watch, watch_t;      /* job watched, last JOB_INFO sent */
+    uint8_t *fetch;               /* the EXR being sent */
+    size_t fetch_len, fetch_off;
+    uint8_t fetch_hash[32];
+    int uploading;
+    proto_submit up;
+    uint8_t *up_buf;
+    size_t up_len, up_cap;
     struct conn *next;
 } conn;
 
@@ -68,15 +102,13 @@ typedef struct server {
     uint64_t next_id;
     uint8_t token[PROTO_TOKEN_MAX];
     size_t token_len;
-    pt_bundle *bundle;
-    uint8_t hash[32];
-    srv_job *job;
-    srv_writer *writer;
-    char scene_hash_hex[65];
-    uint64_t t_start, t_last_save, t_last_print;
-    uint32_t saved_passes;
-    uint64_t saved_samples;
-    uint64_t rejected, rays;
+    sjob *jobs;            /* every job, in queue order */
+    uint32_t njobs;
+    uint64_t next_job_id;
+    sjob *single;          /* one-job mode: the job */
+    srv_state *state;      /* queue mode */
+    char out_dir[PATH_MAX - 512];
+    uint64_t t_start, t_last_print;
     uint64_t bytes_in, bytes_out; /* on the wire, all peers */
     pid_t *children;
     uint32_t nchildren, children_alive;
@@ -151,14 +183,25 @@ static int frame_close(conn *c, size_t mark, pt_status encoded)
     return proto_frame_end(&c->out, mark, NULL) == PT_OK;
 }
 
+static void release_owner_all(server *s, conn *c, int report)
+{
+    if (c->state != C_READY || c->role != PROTO_ROLE_WORKER)
+        return;
+    uint32_t n = 0;
+    for (sjob *j = s->jobs; j; j = j->next)
+        if (j->job)
+            n += srv_job_release_owner(j->job, c->id);
+    if (n && report)
+        logf_(s, "worker %s left; %u leased tasks requeued", c->name, n);
+}
+
 /* Marks c for closing once its output is flushed (or the grace time ends). */
 static void conn_close_soon(server *s, conn *c)
 {
     if (!c->closing) {
         c->closing = 1;
         c->close_at = now_ms() + CLOSE_GRACE_MS;
-        if (s->job && c->state == C_READY)
-            srv_job_release_owner(s->job, c->id);
+        release_owner_all(s, c, 0);
     }
 }
 
@@ -179,15 +222,25 @@ static void conn_send_error(server *s, conn *c, uint16_t code, const char *fmt, 
     conn_close_soon(s, c);
 }
 
+static void upload_drop(conn *c)
+{
+    pt_free(c->up_buf);
+    c->up_buf = NULL;
+    c->up_len = c->up_cap = 0;
+    c->uploading = 0;
+}
+
 static void conn_free(server *s, conn *c)
 {
-    if (s->job && c->state == C_READY && !c->closing) {
-        uint32_t n = srv_job_release_owner(s->job, c->id);
-        if (n)
-            logf_(s, "worker %s left; %u leased tasks requeued", c->name, n);
-    }
-    if (c->state == C_READY && s->nworkers > 0)
+    if (!c->closing)
+        release_owner_all(s, c, 1);
+    if (c->state == C_READY && c->role == PROTO_ROLE_WORKER && s->nworkers > 0)
         s->nworkers--;
+    if (c->uploading)
+        logf_(s, "client %s left during an upload (%zu of %llu bytes); nothing was queued",
+              c->name, c->up_len, (unsigned long long)c->up.bundle_size);
+    upload_drop(c);
+    pt_free(c->fetch);
     epoll_ctl(s->ep, EPOLL_CTL_DEL, c->fd, NULL);
     close(c->fd);
     proto_writer_fini(&c->out);
@@ -248,23 +301,381 @@ static void accept_all(server *s)
     }
 }
 
-/* Leases tasks to every ready worker that asked for some. */
+static int hex_to_bytes(const char *hex, uint8_t *out, size_t n)
+{
+    for (size_t i = 0; i < n; i++) {
+        unsigned v;
+        if (sscanf(hex + 2 * i, "%2x", &v) != 1)
+            return -1;
+        out[i] = (uint8_t)v;
+    }
+    return 0;
+}
+
+/* ---- the queue ------------------------------------------------------------------- */
+
+static int job_active(const sjob *j)
+{
+    return j->rec.state == PROTO_JOB_QUEUED || j->rec.state == PROTO_JOB_RUNNING;
+}
+
+static sjob *find_job(server *s, uint64_t id)
+{
+    for (sjob *j = s->jobs; j; j = j->next)
+        if (j->rec.id == id)
+            return j;
+    return NULL;
+}
+
+/* Queue order: priority (higher first), then submission (lower id first). */
+static void insert_job(server *s, sjob *j)
+{
+    sjob **p = &s->jobs;
+    while (*p && ((*p)->rec.priority > j->rec.priority ||
+                  ((*p)->rec.priority == j->rec.priority && (*p)->rec.id < j->rec.id)))
+        p = &(*p)->next;
+    j->next = *p;
+    *p = j;
+    s->njobs++;
+}
+
+static void free_job_run(sjob *j)
+{
+    srv_writer_free(j->writer);
+    j->writer = NULL;
+    srv_job_free(j->job);
+    j->job = NULL;
+    pt_bundle_free(j->bundle);
+    j->bundle = NULL;
+}
+
+static void free_sjob(sjob *j)
+{
+    free_job_run(j);
+    pt_free(j);
+}
+
+static void hex32(const uint8_t h[32], char out[65])
+{
+    for (int i = 0; i < 32; i++)
+        snprintf(out + 2 * i, 3, "%02x", h[i]);
+}
+
+/* Drops the oldest ended jobs beyond MAX_FINISHED from the history. */
+static void prune_history(server *s)
+{
+    uint32_t ended = 0;
+    for (sjob *j = s->jobs; j; j = j->next)
+        ended += !job_active(j);
+    while (ended > MAX_FINISHED) {
+        sjob **oldest = NULL;
+        for (sjob **p = &s->jobs; *p; p = &(*p)->next)
+            if (!job_active(*p) && (!oldest || (*p)->rec.id < (*oldest)->rec.id))
+                oldest = p;
+        sjob *j = *oldest;
+        *oldest = j->next;
+        free_sjob(j);
+        s->njobs--;
+        ended--;
+    }
+}
+
+/* Writes the queue file (queue mode). */
+static pt_status journal(server *s, pt_error *err)
+{
+    if (!s->state)
+        return PT_OK;
+    srv_job_rec **recs = pt_malloc_array(s->njobs ? s->njobs : 1, sizeof *recs);
+    if (!recs)
+        return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
+    uint32_t n = 0;
+    for (sjob *j = s->jobs; j; j = j->next)
+        recs[n++] = &j->rec;
+    pt_status st = srv_state_save_queue(s->state, recs, n, s->next_job_id, err);
+    pt_free(recs);
+    return st;
+}
+
+static void journal_or_log(server *s)
+{
+    pt_error err = {0};
+    if (journal(s, &err) != PT_OK)
+        logf_(s, "error: cannot write the queue: %s", err.msg);
+}
+
+static double job_seconds(const sjob *j, uint64_t now)
+{
+    if (!job_active(j))
+        return j->rec.seconds;
+    return j->seconds_before + (j->t_started ? (double)(now - j->t_started) / 1000.0 : 0.0);
+}
+
+static uint32_t job_workers(const server *s, const sjob *j)
+{
+    uint32_t n = 0;
+    if (!j->job)
+        return 0;
+    for (const conn *c = s->conns; c; c = c->next)
+        if (c->state == C_READY && c->role == PROTO_ROLE_WORKER &&
+            srv_job_owner_active(j->job, c->id))
+            n++;
+    return n;
+}
+
+static void job_info(const server *s, const sjob *j, proto_job_info *m)
+{
+    uint64_t now = now_ms();
+    const srv_job_rec *r = &j->rec;
+    memset(m, 0, sizeof *m);
+    m->job_id = r->id;
+    m->state = r->state;
+    m->priority = r->priority;
+    snprintf(m->name, sizeof m->name, "%s", r->name);
+    snprintf(m->owner, sizeof m->owner, "%s", r->owner);
+    snprintf(m->scene, sizeof m->scene, "%s", r->scene);
+    snprintf(m->output, sizeof m->output, "%s", r->output);
+    m->width = r->params.width;
+    m->height = r->params.height;
+    m->spp = r->params.spp;
+    m->samples_total = (uint64_t)r->params.width * r->params.height * r->params.spp;
+    m->tiles = ((r->params.width + r->params.tile - 1) / r->params.tile) *
+               ((r->params.height + r->params.tile - 1) / r->params.tile);
+    m->passes = (r->params.spp + r->params.chunk - 1) / r->params.chunk;
+    m->error = -1.0;
+    if (j->job) {
+        m->samples_done = srv_job_samples_merged(j->job);
+        m->passes_done = srv_job_passes_done(j->job);
+        m->tiles_stopped = srv_job_tiles_stopped(j->job);
+        m->workers = job_workers(s, j);
+        const pt_film *f = srv_job_film(j->job);
+        double e = pt_tile_rel_error(f->px, f->width, f->width, f->height);
+        m->error = isfinite(e) ? e : -1.0;
+    } else if (r->state == PROTO_JOB_DONE) {
+        m->samples_done = r->samples_done;
+        m->passes_done = m->passes;
+    } else {
+        m->samples_done = r->samples_done;
+    }
+    m->seconds = job_seconds(j, now);
+    m->rate = j->rate;
+    m->submitted = r->submitted;
+    if (r->state == PROTO_JOB_QUEUED) {
+        uint32_t pos = 0;
+        for (const sjob *q = s->jobs; q; q = q->next) {
+            if (q->rec.state == PROTO_JOB_QUEUED)
+                pos++;
+            if (q == j)
+                break;
+        }
+        m->queue_pos = pos;
+    }
+    snprintf(m->message, sizeof m->message, "%s", r->message);
+}
+
+static void send_job_info(server *s, conn *c, const sjob *j)
+{
+    proto_job_info m;
+    job_info(s, j, &m);
+    size_t mark;
+    if (frame_open(c, PROTO_MSG_JOB_INFO, &mark))
+        frame_close(c, mark, proto_msg_encode_job_info(&c->out, &m, NULL));
+    c->watch_t = now_ms();
+    if (!job_active(j) && c->watch == j->rec.id)
+        c->watch = 0;
+}
+
+/* Sends the job's state to everyone watching it (its end included). */
+static void notify_watchers(server *s, const sjob *j)
+{
+    for (conn *c = s->conns; c; c = c->next)
+        if (c->watch == j->rec.id && !c->closing)
+            send_job_info(s, c, j);
+}
+
+static void save_progress(server *s, sjob *j)
+{
+    pt_image *img = NULL;
+    const pt_film *film = srv_job_film(j->job);
+    if (pt_image_new(film->width, film->height, &img, NULL) != PT_OK) {
+        logf_(s, "out of memory for a progressive image of job %llu; will try again",
+              (unsigned long long)j->rec.id);
+        return;
+    }
+    pt_film_resolve(film, img);
+    pt_exr_meta meta = {0};
+    meta.total_samples = pt_film_total_samples(film);
+    meta.render_seconds = job_seconds(j, now_ms());
+    hex32(j->rec.hash, meta.scene_hash);
+    snprintf(meta.job_id, sizeof meta.job_id, "%llu", (unsigned long long)j->rec.id);
+    srv_writer_submit(j->writer, img, &meta);
+    j->t_last_save = now_ms();
+    j->saved_passes = srv_job_passes_done(j->job);
+    j->saved_samples = meta.total_samples;
+}
+
+static void checkpoint(server *s, sjob *j)
+{
+    if (!s->state || !j->job)
+        return;
+    srv_ckpt_extra x = {job_seconds(j, now_ms()), j->rejected, j->rays};
+    pt_error err = {0};
+    if (srv_state_checkpoint(s->state, j->job, &x, &err) != PT_OK)
+        logf_(s, "error: job %llu: cannot write its checkpoint: %s (its results log still holds "
+              "every merged task)", (unsigned long long)j->rec.id, err.msg);
+}
+
+/* Ends a job: DONE (the final image is written first), CANCELLED or FAILED. */
+static void job_end(server *s, sjob *j, uint8_t state, const char *message)
+{
+    uint64_t now = now_ms();
+    pt_error err = {0};
+    if (state == PROTO_JOB_DONE && j->job) {
+        save_progress(s, j);
+        if (srv_writer_flush(j->writer, &err) != PT_OK) {
+            state = PROTO_JOB_FAILED;
+            char msg[PROTO_MAX_ERROR_TEXT + 1];
+            snprintf(msg, sizeof msg, "cannot write the image: %s", err.msg);
+            job_end(s, j, state, msg);
+            return;
+        }
+    }
+    j->rec.seconds = job_seconds(j, now);
+    if (j->job)
+        j->rec.samples_done = srv_job_samples_merged(j->job);
+    j->rec.state = state;
+    snprintf(j->rec.message, sizeof j->rec.message, "%s", message ? message : "");
+    free_job_run(j);
+    pt_status st = journal(s, &err);
+    if (st != PT_OK)
+        logf_(s, "error: cannot write the queue: %s", err.msg);
+    /* A failed job's files stay for the operator to look at; an ended one's
+     * go once the queue says it ended. */
+    if (s->state && state != PROTO_JOB_FAILED && st == PT_OK)
+        srv_state_forget_job(s->state, j->rec.id);
+    if (state == PROTO_JOB_DONE)
+        logf_(s, "job %llu done: %llu samples in %.1f s; %s", (unsigned long long)j->rec.id,
+              (unsigned long long)j->rec.samples_done, j->rec.seconds, j->out_path);
+    else
+        logf_(s, "job %llu %s%s%s", (unsigned long long)j->rec.id, proto_job_state_name(state),
+              j->rec.message[0] ? ": " : "", j->rec.message);
+    notify_watchers(s, j);
+}
+
+/* Makes a job ready to lease: its task state (restored from its checkpoint
+ * and results log in queue mode) and its image writer. Returns 0 when it
+ * cannot be (the job is marked FAILED, with the reason). */
+static int job_ready(server *s, sjob *j)
+{
+    if (j->job)
+        return 1;
+    pt_error err = {0};
+    pt_status st = srv_job_new(j->rec.id, &j->rec.params, j->rec.hash, &j->job, &err);
+    if (st == PT_OK && s->state) {
+        srv_ckpt_extra x;
+        uint32_t replayed;
+        int torn;
+        st = srv_state_restore(s->state, j->job, &x, &replayed, &torn, &err);
+        if (st == PT_OK) {
+            j->seconds_before = x.seconds;
+            j->rejected = x.rejected;
+            j->rays = x.rays;
+            if (torn)
+                logf_(s, "job %llu: dropped the incomplete last record of its results log (a "
+                      "write cut short by a crash; it was never merged)",
+                      (unsigned long long)j->rec.id);
+            if (srv_job_tasks_merged(j->job) > 0)
+                logf_(s, "job %llu resumed: %llu samples merged (%u from its results log)",
+                      (unsigned long long)j->rec.id,
+                      (unsigned long long)srv_job_samples_merged(j->job), replayed);
+        }
+    }
+    if (st == PT_OK && !j->writer)
+        st = srv_writer_new(j->out_path, &j->writer, &err);
+    if (st != PT_OK) {
+        char msg[PROTO_MAX_ERROR_TEXT + 1];
+        snprintf(msg, sizeof msg, "%s", err.msg);
+        job_end(s, j, PROTO_JOB_FAILED, msg);
+        return 0;
+    }
+    j->saved_passes = srv_job_passes_done(j->job);
+    j->saved_samples = srv_job_samples_merged(j->job);
+    j->t_last_save = now_ms();
+    j->rate_t = now_ms();
+    j->rate_samples = j->saved_samples;
+    return 1;
+}
+
+/* Leases the first task the queue has for owner: the first job in queue order
+ * with a task to hand out, so when the running job has nothing left for an
+ * idle worker (its last pass), the next job starts. */
+static int lease_any(server *s, uint64_t owner, uint64_t now, proto_task *t)
+{
+    for (sjob *j = s->jobs; j; j = j->next) {
+        if (!job_active(j) || !job_ready(s, j))
+            continue;
+        if (!srv_job_lease(j->job, owner, now, s->cfg->lease_ms, t))
+            continue;
+        if (!j->t_started)
+            j->t_started = now;
+        if (j->rec.state == PROTO_JOB_QUEUED) {
+            j->rec.state = PROTO_JOB_RUNNING;
+            journal_or_log(s);
+            if (s->state)
+                logf_(s, "job %llu started (%s, %ux%u, %u spp)", (unsigned long long)j->rec.id,
+                      j->rec.scene, j->rec.params.width, j->rec.params.height,
+                      j->rec.params.spp);
+        }
+        return 1;
+    }
+    return 0;
+}
+
+/* Appends IMAGE frames of a fetch in progress while c's output has room. */
+static void pump_fetch(server *s, conn *c)
+{
+    (void)s;
+    while (c->fetch && !c->closing && c->out.len - c->out_off < OUT_HIGH) {
+        proto_scene_chunk ch;
+        memcpy(ch.hash, c->fetch_hash, 32);
+        ch.offset = c->fetch_off;
+        ch.total = c->fetch_len;
+        size_t left = c->fetch_len - c->fetch_off;
+        ch.len = (uint32_t)(left < PROTO_MAX_SCENE_CHUNK ? left : PROTO_MAX_SCENE_CHUNK);
+        ch.data = c->fetch + c->fetch_off;
+        size_t mark;
+        if (!frame_open(c, PROTO_MSG_IMAGE, &mark) ||
+            !frame_close(c, mark, proto_msg_encode_scene_chunk(&c->out, &ch, NULL))) {
+            conn_send_error(s, c, PROTO_E_LIMIT, "output buffer full");
+            break;
+        }
+        c->fetch_off += ch.len;
+        if (c->fetch_off == c->fetch_len) {
+            pt_free(c->fetch);
+            c->fetch = NULL;
+        }
+    }
+}
+
+/* Leases tasks to every ready worker that asked for some, and feeds fetches. */
 static void hand_out(server *s)
 {
-    if (!s->job)
-        return;
     uint64_t now = now_ms();
+    int dry = 0; /* the queue had nothing to lease: skip the other workers */
     for (conn *c = s->conns; c; c = c->next) {
         if (c->state != C_READY || c->closing)
             continue;
-        while (c->want > 0 && c->out.len - c->out_off < OUT_HIGH) {
+        if (c->fetch)
+            pump_fetch(s, c);
+        while (!dry && c->role == PROTO_ROLE_WORKER && c->want > 0 &&
+               c->out.len - c->out_off < OUT_HIGH) {
             proto_task t;
-            if (!srv_job_lease(s->job, c->id, now, s->cfg->lease_ms, &t))
-                return;
+            if (!lease_any(s, c->id, now, &t)) {
+                dry = 1;
+                break;
+            }
             size_t mark;
             if (!frame_open(c, PROTO_MSG_TASK, &mark) ||
                 !frame_close(c, mark, proto_msg_encode_task(&c->out, &t, NULL))) {
-                srv_job_release_owner(s->job, c->id);
                 conn_send_error(s, c, PROTO_E_LIMIT, "output buffer full");
                 break;
             }
@@ -272,27 +683,6 @@ static void hand_out(server *s)
         }
         conn_update_events(s, c);
     }
-}
-
-static void save_progress(server *s, int final)
-{
-    pt_image *img = NULL;
-    const pt_film *film = srv_job_film(s->job);
-    if (pt_image_new(film->width, film->height, &img, NULL) != PT_OK) {
-        logf_(s, "out of memory for a progressive image; will try again");
-        return;
-    }
-    pt_film_resolve(film, img);
-    pt_exr_meta meta = {0};
-    meta.total_samples = pt_film_total_samples(film);
-    meta.render_seconds = (double)(now_ms() - s->t_start) / 1000.0;
-    snprintf(meta.scene_hash, sizeof meta.scene_hash, "%s", s->scene_hash_hex);
-    snprintf(meta.job_id, sizeof meta.job_id, "%llu", (unsigned long long)srv_job_id(s->job));
-    srv_writer_submit(s->writer, img, &meta);
-    s->t_last_save = now_ms();
-    s->saved_passes = srv_job_passes_done(s->job);
-    s->saved_samples = meta.total_samples;
-    (void)final;
 }
 
 /* ---- messages ---------------------------------------------------------------------- */
@@ -311,17 +701,24 @@ static void on_hello(server *s, conn *c, const proto_frame *f)
                         "coordinator speaks %u)", h.version, PROTO_VERSION);
         return;
     }
-    if (h.role != PROTO_ROLE_WORKER) {
+    if (h.role == PROTO_ROLE_CLIENT && !s->state) {
+        conn_send_error(s, c, PROTO_E_PROTOCOL, "this coordinator renders one scene and keeps "
+                        "no queue (start ptserve with --state-dir for clients)");
+        return;
+    }
+    if (h.role != PROTO_ROLE_WORKER && h.role != PROTO_ROLE_CLIENT) {
         conn_send_error(s, c, PROTO_E_PROTOCOL, "role %u is not served by this coordinator",
                         h.role);
         return;
     }
-    if (strcmp(h.build_id, proto_build_id()) != 0) {
+    /* A client's build does not touch the pixels; a worker's does. */
+    if (h.role == PROTO_ROLE_WORKER && strcmp(h.build_id, proto_build_id()) != 0) {
         conn_send_error(s, c, PROTO_E_BUILD, "worker renderer build %s differs from the "
                         "coordinator's %s; mixed builds would break bit-identical merging",
                         h.build_id, proto_build_id());
         return;
     }
+    c->role = h.role;
     c->threads = h.threads;
     proto_challenge ch;
     if (proto_auth_nonce(ch.nonce, &err) != PT_OK) {
@@ -354,9 +751,11 @@ static void on_auth(server *s, conn *c, const proto_frame *f)
     if (frame_open(c, PROTO_MSG_WELCOME, &mark))
         frame_close(c, mark, proto_msg_encode_welcome(&c->out, &w, NULL));
     c->state = C_READY;
-    s->nworkers++;
-    if (!s->cfg->quiet)
-        logf_(s, "worker %s joined from %s (%u threads)", c->name, c->peer, c->threads);
+    if (c->role == PROTO_ROLE_WORKER) {
+        s->nworkers++;
+        if (!s->cfg->quiet)
+            logf_(s, "worker %s joined from %s (%u threads)", c->name, c->peer, c->threads);
+    }
 }
 
 static void on_scene_get(server *s, conn *c, const proto_frame *f)
@@ -367,22 +766,33 @@ static void on_scene_get(server *s, conn *c, const proto_frame *f)
         conn_send_error(s, c, PROTO_E_PROTOCOL, "bad SCENE_GET: %s", err.msg);
         return;
     }
-    if (!s->bundle || memcmp(g.hash, s->hash, 32) != 0) {
+    sjob *j = s->jobs;
+    while (j && !(job_active(j) && memcmp(g.hash, j->rec.hash, 32) == 0))
+        j = j->next;
+    if (j && !j->bundle && s->state &&
+        srv_state_load_bundle(s->state, j->rec.id, j->rec.hash, &j->bundle, &err) != PT_OK) {
+        char msg[PROTO_MAX_ERROR_TEXT + 1];
+        snprintf(msg, sizeof msg, "%s", err.msg);
+        job_end(s, j, PROTO_JOB_FAILED, msg);
+        j = NULL;
+    }
+    if (!j || !j->bundle) {
         conn_send_error(s, c, PROTO_E_NOT_FOUND, "no scene with that hash");
         return;
     }
-    if (g.offset > s->bundle->size) {
+    const pt_bundle *b = j->bundle;
+    if (g.offset > b->size) {
         conn_send_error(s, c, PROTO_E_PROTOCOL, "scene offset %llu is past its end (%zu)",
-                        (unsigned long long)g.offset, s->bundle->size);
+                        (unsigned long long)g.offset, b->size);
         return;
     }
     proto_scene_chunk ch;
-    memcpy(ch.hash, s->hash, 32);
+    memcpy(ch.hash, j->rec.hash, 32);
     ch.offset = g.offset;
-    ch.total = s->bundle->size;
-    size_t left = s->bundle->size - (size_t)g.offset;
+    ch.total = b->size;
+    size_t left = b->size - (size_t)g.offset;
     ch.len = (uint32_t)(left < PROTO_MAX_SCENE_CHUNK ? left : PROTO_MAX_SCENE_CHUNK);
-    ch.data = s->bundle->data + g.offset;
+    ch.data = b->data + g.offset;
     size_t mark;
     if (!frame_open(c, PROTO_MSG_SCENE_CHUNK, &mark) ||
         !frame_close(c, mark, proto_msg_encode_scene_chunk(&c->out, &ch, NULL)))
@@ -398,15 +808,26 @@ static void on_result(server *s, conn *c, const proto_frame *f)
         conn_send_error(s, c, PROTO_E_PROTOCOL, "bad RESULT: %s", err.msg);
         return;
     }
-    if (!s->job) {
+    sjob *j = find_job(s, r.job_id);
+    if (!j || !job_active(j) || !j->job) {
+        proto_result_fini(&r); /* a job that ended (cancelled): nothing to do */
+        return;
+    }
+    srv_outcome o = srv_job_check(j->job, c->id, &r, &err);
+    /* Durable before merged: the log holds every result the film holds. */
+    if (o == SRV_MERGED && s->state &&
+        srv_state_log_result(s->state, j->rec.id, f->payload, f->len, &err) != PT_OK) {
+        logf_(s, "error: job %llu: %s; result dropped (its task will be rendered again)",
+              (unsigned long long)j->rec.id, err.msg);
         proto_result_fini(&r);
         return;
     }
-    srv_outcome o = srv_job_result(s->job, c->id, &r, &err);
+    if (o == SRV_MERGED)
+        o = srv_job_result(j->job, c->id, &r, &err);
     switch (o) {
     case SRV_MERGED:
-        s->rejected += r.rejected;
-        s->rays += r.rays;
+        j->rejected += r.rejected;
+        j->rays += r.rays;
         break;
     case SRV_DUPLICATE:
         break;
@@ -428,11 +849,384 @@ static void on_heartbeat(server *s, conn *c, const proto_frame *f)
         conn_send_error(s, c, PROTO_E_PROTOCOL, "bad HEARTBEAT: %s", err.msg);
         return;
     }
-    if (!s->job)
-        return;
     uint64_t now = now_ms();
-    for (uint32_t i = 0; i < hb.count; i++)
-        srv_job_heartbeat(s->job, c->id, hb.task_ids[i], now, s->cfg->lease_ms);
+    /* Task ids are per job; extending only leases this owner holds is safe
+     * even when two of its jobs share an id. */
+    for (sjob *j = s->jobs; j; j = j->next)
+        if (j->job && job_active(j))
+            for (uint32_t i = 0; i < hb.count; i++)
+                srv_job_heartbeat(j->job, c->id, hb.task_ids[i], now, s->cfg->lease_ms);
+}
+
+/* ---- client requests --------------------------------------------------------------- */
+
+/* A file name from untrusted text: [A-Za-z0-9._-] kept, the rest '_', no
+ * leading dot, at most 64 characters; "job" when nothing is left. */
+static void sanitise(const char *in, char *out, size_t cap)
+{
+    size_t n = 0;
+    for (const char *p = in; *p && n + 1 < cap && n < 64; p++) {
+        char ch = *p;
+        int ok = (ch >= 'a' && ch <= 'z') || (ch >= 'A' && ch <= 'Z') || (ch >= '0' && ch <= '9') ||
+                 ch == '-' || ch == '_' || (ch == '.' && n > 0);
+        out[n++] = ok ? ch : '_';
+    }
+    out[n] = '\0';
+    if (n == 0)
+        snprintf(out, cap, "job");
+}
+
+static uint32_t owner_unfinished(const server *s, const char *owner)
+{
+    uint32_t n = 0;
+    for (const sjob *j = s->jobs; j; j = j->next)
+        n += job_active(j) && strcmp(j->rec.owner, owner) == 0;
+    return n;
+}
+
+static void on_submit(server *s, conn *c, const proto_frame *f)
+{
+    pt_error err = {0};
+    proto_submit m;
+    if (c->uploading) {
+        conn_send_error(s, c, PROTO_E_PROTOCOL, "SUBMIT during an upload");
+        return;
+    }
+    if (proto_msg_decode_submit(f->payload, f->len, &m, &err) != PT_OK) {
+        conn_send_error(s, c, PROTO_E_PROTOCOL, "bad SUBMIT: %s", err.msg);
+        return;
+    }
+    if (strchr(m.name, '/') || strchr(m.name, '\\') || m.name[0] == '.' || strstr(m.name, "..")) {
+        conn_send_error(s, c, PROTO_E_PROTOCOL, "job name '%s' is not a plain name (no '/', "
+                        "'\\', '..' or leading '.')", m.name);
+        return;
+    }
+    for (const char *p = m.name; *p; p++)
+        if ((unsigned char)*p < 0x20 || *p == 0x7f) {
+            conn_send_error(s, c, PROTO_E_PROTOCOL, "job name has control characters");
+            return;
+        }
+    const srv_caps *cap = &s->cfg->caps;
+    if (m.bundle_size > cap->max_scene) {
+        conn_send_error(s, c, PROTO_E_LIMIT, "scene of %llu bytes is over this server's limit "
+                        "of %llu", (unsigned long long)m.bundle_size,
+                        (unsigned long long)cap->max_scene);
+        return;
+    }
+    if (m.spp > cap->max_spp) {
+        conn_send_error(s, c, PROTO_E_LIMIT, "%u samples per pixel is over this server's limit "
+                        "of %u", m.spp, cap->max_spp);
+        return;
+    }
+    if (m.width > cap->max_side || m.height > cap->max_side ||
+        (uint64_t)m.width * m.height > cap->max_pixels) {
+        conn_send_error(s, c, PROTO_E_LIMIT, "resolution %ux%u is over this server's limit (%u "
+                        "per side, %llu pixels)", m.width, m.height, cap->max_side,
+                        (unsigned long long)cap->max_pixels);
+        return;
+    }
+    if (m.max_depth > 1024 || (m.min_spp && m.min_spp < 2) || m.min_spp > m.spp) {
+        conn_send_error(s, c, PROTO_E_PROTOCOL, "max depth %u or min spp %u is out of range",
+                        m.max_depth, m.min_spp);
+        return;
+    }
+    if (owner_unfinished(s, c->name) >= cap->max_queued) {
+        conn_send_error(s, c, PROTO_E_LIMIT, "%s already has %u unfinished jobs, this "
+                        "server's limit", c->name, cap->max_queued);
+        return;
+    }
+    if (s->njobs >= SRV_MAX_JOBS) {
+        conn_send_error(s, c, PROTO_E_LIMIT, "the queue is full (%u jobs)", SRV_MAX_JOBS);
+        return;
+    }
+    c->up = m;
+    c->uploading = 1;
+    c->up_len = 0;
+    c->t_progress = now_ms();
+}
+
+/* Checks a complete upload, validates the scene by loading it, and queues it. */
+static void finish_submit(server *s, conn *c)
+{
+    pt_error err = {0};
+    const proto_submit *m = &c->up;
+    char hex[65], want[65];
+    pt_sha256_hex(c->up_buf, c->up_len, hex);
+    hex32(m->bundle_hash, want);
+    if (strcmp(hex, want) != 0) {
+        conn_send_error(s, c, PROTO_E_PROTOCOL, "the scene's SHA-256 is %.16s..., not the "
+                        "%.16s... SUBMIT announced", hex, want);
+        return;
+    }
+    pt_bundle *b = NULL;
+    if (pt_bundle_from_bytes(c->up_buf, c->up_len, &b, &err) != PT_OK) {
+        conn_send_error(s, c, PROTO_E_PROTOCOL, "bad scene bundle: %s", err.msg);
+        return;
+    }
+    upload_drop(c);
+    /* Load it once here so a broken scene is refused now, not by every worker. */
+    char tmp[PATH_MAX], entry[PATH_MAX];
+    snprintf(tmp, sizeof tmp, "%s/tmp/upload-%llu", srv_state_dir(s->state),
+             (unsigned long long)c->id);
+    pt_remove_tree(tmp);
+    pt_scene *scene = NULL;
+    pt_status st = pt_bundle_unpack(b, tmp, entry, sizeof entry, &err);
+    if (st == PT_OK) {
+        pt_scene_opts so = {0};
+        st = pt_scene_load(entry, &so, &scene, &err);
+    }
+    pt_remove_tree(tmp);
+    if (st != PT_OK) {
+        pt_bundle_free(b);
+        /* The path is our temp folder's: name the file inside the bundle instead. */
+        const char *msg = err.msg;
+        size_t tl = strlen(tmp);
+        if (strncmp(msg, tmp, tl) == 0 && msg[tl] == '/')
+            msg += tl + 1;
+        conn_send_error(s, c, st == PT_ERR_NOMEM ? PROTO_E_INTERNAL : PROTO_E_PROTOCOL,
+                        "scene refused: %s", msg);
+        return;
+    }
+    sjob *j = pt_calloc(1, sizeof *j);
+    if (!j) {
+        pt_scene_free(scene);
+        pt_bundle_free(b);
+        conn_send_error(s, c, PROTO_E_INTERNAL, "out of memory");
+        return;
+    }
+    srv_job_rec *r = &j->rec;
+    r->id = r->seq = s->next_job_id++;
+    r->state = PROTO_JOB_QUEUED;
+    r->priority = m->priority;
+    snprintf(r->name, sizeof r->name, "%s", m->name);
+    snprintf(r->owner, sizeof r->owner, "%s", c->name);
+    const char *base = strrchr(entry, '/');
+    snprintf(r->scene, sizeof r->scene, "%.255s", base ? base + 1 : entry);
+    r->submitted = (uint64_t)time(NULL);
+    srv_job_params p = s->cfg->job;
+    p.spp = m->spp;
+    p.seed = m->seed;
+    if (m->max_depth)
+        p.max_depth = m->max_depth;
+    p.target_error = m->target_error;
+    p.min_spp = m->min_spp ? m->min_spp : (p.chunk > 1 ? p.chunk : 2);
+    p.width = m->width;
+    p.height = m->height;
+    if (p.width == 0) {
+        float aspect = scene->camera.aspect > 0 ? scene->camera.aspect : 1.0f;
+        p.width = 512;
+        p.height = (uint32_t)(512.0f / aspect + 0.5f);
+        if (p.height == 0)
+            p.height = 1;
+        if (p.height > s->cfg->caps.max_side)
+            p.height = s->cfg->caps.max_side;
+    }
+    uint32_t ntris = scene->num_triangles;
+    pt_scene_free(scene);
+    r->params = p;
+    memcpy(r->hash, m->bundle_hash, 32);
+    r->bundle_size = b->size;
+    char stem[PROTO_MAX_PATH + 1], safe[80];
+    snprintf(stem, sizeof stem, "%s", r->name[0] ? r->name : r->scene);
+    char *dot = strrchr(stem, '.');
+    if (!r->name[0] && dot && dot != stem)
+        *dot = '\0';
+    sanitise(stem, safe, sizeof safe);
+    snprintf(r->output, sizeof r->output, "%llu-%s.exr", (unsigned long long)r->id, safe);
+    snprintf(j->out_path, sizeof j->out_path, "%s/%s", s->out_dir, r->output);
+    srv_job *probe = NULL;
+    if ((st = srv_job_new(r->id, &p, r->hash, &probe, &err)) != PT_OK) {
+        pt_free(j);
+        pt_bundle_free(b);
+        conn_send_error(s, c, PROTO_E_LIMIT, "%s", err.msg);
+        return;
+    }
+    srv_job_free(probe);
+    if ((st = srv_state_save_bundle(s->state, r->id, b->data, b->size, &err)) != PT_OK) {
+        pt_free(j);
+        pt_bundle_free(b);
+        conn_send_error(s, c, PROTO_E_INTERNAL, "cannot store the scene: %s", err.msg);
+        return;
+    }
+    j->bundle = b;
+    insert_job(s, j);
+    prune_history(s);
+    if (journal(s, &err) != PT_OK) {
+        /* Not durable, so not accepted. */
+        for (sjob **q = &s->jobs; *q; q = &(*q)->next)
+            if (*q == j) {
+                *q = j->next;
+                break;
+            }
+        s->njobs--;
+        srv_state_forget_job(s->state, r->id);
+        free_sjob(j);
+        conn_send_error(s, c, PROTO_E_INTERNAL, "cannot write the queue: %s", err.msg);
+        return;
+    }
+    logf_(s, "job %llu queued from %s: %s (%u triangles), %ux%u, %u spp, priority %d",
+          (unsigned long long)r->id, c->name, r->scene, ntris, p.width, p.height, p.spp,
+          r->priority);
+    proto_job_ref ref = {r->id};
+    size_t mark;
+    if (frame_open(c, PROTO_MSG_SUBMITTED, &mark))
+        frame_close(c, mark, proto_msg_encode_job_ref(&c->out, &ref, NULL));
+}
+
+static void on_upload(server *s, conn *c, const proto_frame *f)
+{
+    proto_scene_chunk ch;
+    pt_error err = {0};
+    if (!c->uploading) {
+        conn_send_error(s, c, PROTO_E_PROTOCOL, "UPLOAD without a SUBMIT");
+        return;
+    }
+    if (proto_msg_decode_scene_chunk(f->payload, f->len, &ch, &err) != PT_OK) {
+        conn_send_error(s, c, PROTO_E_PROTOCOL, "bad UPLOAD: %s", err.msg);
+        return;
+    }
+    if (memcmp(ch.hash, c->up.bundle_hash, 32) != 0 || ch.total != c->up.bundle_size ||
+        ch.offset != c->up_len || ch.len == 0) {
+        conn_send_error(s, c, PROTO_E_PROTOCOL, "UPLOAD of %u bytes at %llu of %llu does not "
+                        "continue the announced scene (%zu of %llu bytes so far)", ch.len,
+                        (unsigned long long)ch.offset, (unsigned long long)ch.total, c->up_len,
+                        (unsigned long long)c->up.bundle_size);
+        return;
+    }
+    /* Grow with what arrives, not with what was announced. */
+    if (c->up_len + ch.len > c->up_cap) {
+        size_t cap = c->up_cap ? c->up_cap : (1u << 20);
+        while (cap < c->up_len + ch.len)
+            cap *= 2;
+        if (cap > c->up.bundle_size)
+            cap = (size_t)c->up.bundle_size;
+        uint8_t *n = pt_realloc(c->up_buf, cap);
+        if (!n) {
+            conn_send_error(s, c, PROTO_E_INTERNAL, "out of memory for the scene");
+            return;
+        }
+        c->up_buf = n;
+        c->up_cap = cap;
+    }
+    memcpy(c->up_buf + c->up_len, ch.data, ch.len);
+    c->up_len += ch.len;
+    if (c->up_len == c->up.bundle_size)
+        finish_submit(s, c);
+}
+
+static int read_job_ref(server *s, conn *c, const proto_frame *f, sjob **out)
+{
+    proto_job_ref ref;
+    pt_error err = {0};
+    if (proto_msg_decode_job_ref(f->payload, f->len, &ref, &err) != PT_OK) {
+        conn_send_error(s, c, PROTO_E_PROTOCOL, "bad %s: %s", proto_msg_type_name(f->type),
+                        err.msg);
+        return 0;
+    }
+    *out = find_job(s, ref.job_id);
+    if (!*out) {
+        conn_send_error(s, c, PROTO_E_NOT_FOUND, "no job %llu", (unsigned long long)ref.job_id);
+        return 0;
+    }
+    return 1;
+}
+
+static void on_list(server *s, conn *c, const proto_frame *f)
+{
+    if (f->len != 0) {
+        conn_send_error(s, c, PROTO_E_PROTOCOL, "bad LIST: trailing bytes");
+        return;
+    }
+    uint32_t n = s->njobs < PROTO_MAX_JOBS ? s->njobs : PROTO_MAX_JOBS;
+    proto_job_info *infos = pt_malloc_array(n ? n : 1, sizeof *infos);
+    if (!infos) {
+        conn_send_error(s, c, PROTO_E_INTERNAL, "out of memory");
+        return;
+    }
+    uint32_t k = 0;
+    for (sjob *j = s->jobs; j && k < n; j = j->next)
+        job_info(s, j, &infos[k++]);
+    size_t mark;
+    if (!frame_open(c, PROTO_MSG_JOB_LIST, &mark) ||
+        !frame_close(c, mark, proto_msg_encode_job_list(&c->out, infos, k, NULL)))
+        conn_send_error(s, c, PROTO_E_LIMIT, "output buffer full");
+    pt_free(infos);
+}
+
+static void on_fetch(server *s, conn *c, sjob *j)
+{
+    pt_error err = {0};
+    if (c->fetch) {
+        conn_send_error(s, c, PROTO_E_PROTOCOL, "FETCH while a fetch is in progress");
+        return;
+    }
+    uint8_t *data;
+    size_t len;
+    if (pt_read_file(j->out_path, MAX_FETCH, &data, &len, &err) != PT_OK) {
+        if (err.sys_errno == ENOENT)
+            conn_send_error(s, c, PROTO_E_NOT_FOUND, "job %llu has no image yet (%s)",
+                            (unsigned long long)j->rec.id, proto_job_state_name(j->rec.state));
+        else
+            conn_send_error(s, c, PROTO_E_INTERNAL, "%s", err.msg);
+        return;
+    }
+    if (len == 0) {
+        pt_free(data);
+        conn_send_error(s, c, PROTO_E_INTERNAL, "job %llu: its image file is empty",
+                        (unsigned long long)j->rec.id);
+        return;
+    }
+    char hex[65];
+    pt_sha256_hex(data, len, hex);
+    hex_to_bytes(hex, c->fetch_hash, 32);
+    c->fetch = data;
+    c->fetch_len = len;
+    c->fetch_off = 0;
+    pump_fetch(s, c);
+}
+
+static void dispatch_client(server *s, conn *c, const proto_frame *f)
+{
+    sjob *j;
+    switch (f->type) {
+    case PROTO_MSG_SUBMIT: on_submit(s, c, f); break;
+    case PROTO_MSG_UPLOAD: on_upload(s, c, f); break;
+    case PROTO_MSG_LIST: on_list(s, c, f); break;
+    case PROTO_MSG_STATUS:
+        if (read_job_ref(s, c, f, &j))
+            send_job_info(s, c, j);
+        break;
+    case PROTO_MSG_WATCH:
+        if (read_job_ref(s, c, f, &j)) {
+            c->watch = j->rec.id;
+            send_job_info(s, c, j);
+        }
+        break;
+    case PROTO_MSG_CANCEL:
+        if (read_job_ref(s, c, f, &j)) {
+            if (job_active(j)) {
+                char msg[PROTO_MAX_ERROR_TEXT + 1];
+                snprintf(msg, sizeof msg, "cancelled by %s", c->name);
+                job_end(s, j, PROTO_JOB_CANCELLED, msg);
+            }
+            send_job_info(s, c, j);
+        }
+        break;
+    case PROTO_MSG_FETCH:
+        if (read_job_ref(s, c, f, &j))
+            on_fetch(s, c, j);
+        break;
+    case PROTO_MSG_ERROR: {
+        proto_error_msg m;
+        if (proto_msg_decode_error(f->payload, f->len, &m, NULL) == PT_OK)
+            logf_(s, "client %s reports: %s", c->name, m.text);
+        conn_close_soon(s, c);
+        break;
+    }
+    default:
+        conn_send_error(s, c, PROTO_E_PROTOCOL, "unexpected %s from a client",
+                        proto_msg_type_name(f->type));
+    }
 }
 
 static void dispatch(server *s, conn *c, const proto_frame *f)
@@ -451,6 +1245,10 @@ static void dispatch(server *s, conn *c, const proto_frame *f)
         else
             conn_send_error(s, c, PROTO_E_PROTOCOL, "expected AUTH, got %s",
                             proto_msg_type_name(f->type));
+        return;
+    }
+    if (c->role == PROTO_ROLE_CLIENT) {
+        dispatch_client(s, c, f);
         return;
     }
     switch (f->type) {
@@ -593,45 +1391,79 @@ static void format_eta(double sec, char *buf, size_t n)
 
 static void print_progress(server *s, uint64_t now)
 {
-    const srv_job_params *p = srv_job_params_of(s->job);
+    const sjob *j = s->single;
+    const srv_job_params *p = &j->rec.params;
     double el = (double)(now - s->t_start) / 1000.0;
-    uint64_t done = srv_job_samples_merged(s->job);
+    uint64_t done = srv_job_samples_merged(j->job);
     double total = (double)p->width * p->height * p->spp;
     double rate = el > 0 ? (double)done / el : 0;
     char eta[32];
     format_eta(rate > 0 ? (total - (double)done) / rate : -1, eta, sizeof eta);
     fprintf(stderr, "\rptserve: pass %u/%u  %.1f/%u spp  %.3g samples/s  %u workers  ETA %s\033[K",
-            srv_job_passes_done(s->job), srv_job_passes(s->job),
+            srv_job_passes_done(j->job), srv_job_passes(j->job),
             (double)done / ((double)p->width * p->height), p->spp, rate, s->nworkers, eta);
 }
 
 static void timers(server *s)
 {
     uint64_t now = now_ms();
-    if (s->job && srv_job_expire(s->job, now, NULL) > 0)
-        logf_(s, "leases expired; tasks requeued");
+    for (sjob *j = s->jobs; j; j = j->next)
+        if (j->job && job_active(j) && srv_job_expire(j->job, now, NULL) > 0)
+            logf_(s, "job %llu: leases expired; tasks requeued", (unsigned long long)j->rec.id);
     for (conn *c = s->conns; c; c = c->next) {
         if (c->closing)
             continue;
         if (c->state != C_READY && now - c->t_connect > s->cfg->handshake_ms)
             conn_send_error(s, c, PROTO_E_PROTOCOL, "handshake not finished in %.1f s",
                             s->cfg->handshake_ms / 1000.0);
-        else if (c->in_len > 0 && now - c->t_progress > STALL_MS)
-            conn_send_error(s, c, PROTO_E_PROTOCOL, "partial frame stalled for %d s",
-                            STALL_MS / 1000);
+        else if ((c->in_len > 0 || c->uploading) && now - c->t_progress > STALL_MS)
+            conn_send_error(s, c, PROTO_E_PROTOCOL, "%s stalled for %d s",
+                            c->uploading ? "upload" : "partial frame", STALL_MS / 1000);
     }
-    if (s->job) {
-        uint64_t merged = srv_job_samples_merged(s->job);
-        int pass_done = srv_job_passes_done(s->job) > s->saved_passes;
-        if ((pass_done || merged > s->saved_samples) &&
-            (double)(now - s->t_last_save) >= s->cfg->save_interval * 1000.0 &&
-            !srv_job_complete(s->job))
-            save_progress(s, 0);
-        if (!s->cfg->quiet && now - s->t_last_print >= 1000) {
-            s->t_last_print = now;
-            print_progress(s, now);
+    for (sjob *j = s->jobs; j; j = j->next) {
+        if (!j->job || !job_active(j))
+            continue;
+        uint64_t merged = srv_job_samples_merged(j->job);
+        int pass_done = srv_job_passes_done(j->job) > j->saved_passes;
+        if ((pass_done || merged > j->saved_samples) &&
+            (double)(now - j->t_last_save) >= s->cfg->save_interval * 1000.0 &&
+            !srv_job_complete(j->job))
+            save_progress(s, j);
+        if (now - j->rate_t >= 1000) {
+            j->rate = (double)(merged - j->rate_samples) * 1000.0 / (double)(now - j->rate_t);
+            j->rate_t = now;
+            j->rate_samples = merged;
+        }
+        /* Checkpoint cost stays proportional to what the log has taken in. */
+        if (s->state) {
+            const pt_film *f = srv_job_film(j->job);
+            uint64_t film_bytes = (uint64_t)f->width * f->height * PROTO_RESULT_PIXEL_SIZE;
+            uint64_t limit = film_bytes > CKPT_MIN_LOG ? film_bytes : CKPT_MIN_LOG;
+            if (srv_state_log_bytes(s->state, j->rec.id) >= limit)
+                checkpoint(s, j);
         }
     }
+    for (conn *c = s->conns; c; c = c->next) {
+        if (c->closing || !c->watch || now - c->watch_t < WATCH_MS)
+            continue;
+        sjob *j = find_job(s, c->watch);
+        if (j)
+            send_job_info(s, c, j);
+        else
+            c->watch = 0;
+    }
+    if (s->single && s->single->job && !s->cfg->quiet && now - s->t_last_print >= 1000) {
+        s->t_last_print = now;
+        print_progress(s, now);
+    }
+}
+
+/* Ends the jobs whose every task is merged (queue mode). */
+static void finish_complete(server *s)
+{
+    for (sjob *j = s->jobs; j; j = j->next)
+        if (j != s->single && j->job && job_active(j) && srv_job_complete(j->job))
+            job_end(s, j, PROTO_JOB_DONE, NULL);
 }
 
 /* ---- local workers ----------------------------------------------------------------- */
@@ -742,29 +1574,11 @@ static void stop_children(server *s)
 
 /* ---- setup and the loop ------------------------------------------------------------ */
 
-static int hex_to_bytes(const char *hex, uint8_t *out, size_t n)
-{
-    for (size_t i = 0; i < n; i++) {
-        unsigned v;
-        if (sscanf(hex + 2 * i, "%2x", &v) != 1)
-            return -1;
-        out[i] = (uint8_t)v;
-    }
-    return 0;
-}
 
-static pt_status setup(server *s, pt_error *err)
+static pt_status setup_single(server *s, pt_error *err)
 {
     const srv_config *cfg = s->cfg;
     pt_status st;
-    if (cfg->token_path) {
-        int loose = 0;
-        if ((st = proto_token_load(cfg->token_path, s->token, sizeof s->token, &s->token_len,
-                                   &loose, err)) != PT_OK)
-            return st;
-        if (loose)
-            logf_(s, "warning: %s is readable by other users", cfg->token_path);
-    }
     /* Load once here so a broken scene fails before any worker starts. */
     pt_scene_opts so = {0};
     /* Workers render the scene's first camera: TASK names no camera. */
@@ -781,17 +1595,91 @@ static pt_status setup(server *s, pt_error *err)
     }
     uint32_t ntris = scene->num_triangles;
     pt_scene_free(scene);
-    if ((st = pt_bundle_pack(cfg->scene_path, &s->bundle, err)) != PT_OK)
+    sjob *j = pt_calloc(1, sizeof *j);
+    if (!j)
+        return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
+    insert_job(s, j);
+    s->single = j;
+    if ((st = pt_bundle_pack(cfg->scene_path, &j->bundle, err)) != PT_OK)
         return st;
-    snprintf(s->scene_hash_hex, sizeof s->scene_hash_hex, "%s", s->bundle->hash);
-    hex_to_bytes(s->bundle->hash, s->hash, 32);
-    if ((st = srv_job_new(1, &jp, s->hash, &s->job, err)) != PT_OK)
+    j->rec.id = j->rec.seq = 1;
+    j->rec.state = PROTO_JOB_QUEUED;
+    j->rec.params = jp;
+    hex_to_bytes(j->bundle->hash, j->rec.hash, 32);
+    const char *base = strrchr(cfg->scene_path, '/');
+    snprintf(j->rec.scene, sizeof j->rec.scene, "%s", base ? base + 1 : cfg->scene_path);
+    snprintf(j->out_path, sizeof j->out_path, "%s", cfg->out_path);
+    if (!job_ready(s, j))
+        return pt_error_set(err, PT_ERR_IO, "%s", j->rec.message);
+    if (!cfg->quiet)
+        logf_(s, "%s: %u triangles, %ux%u, %u spp in %u passes of %u, tiles of %u",
+              cfg->scene_path, ntris, jp.width, jp.height, jp.spp, srv_job_passes(j->job),
+              jp.chunk, jp.tile);
+    return PT_OK;
+}
+
+static pt_status setup_queue(server *s, pt_error *err)
+{
+    const srv_config *cfg = s->cfg;
+    pt_status st;
+    if ((st = srv_state_open(cfg->state_dir, &s->state, err)) != PT_OK)
         return st;
-    if ((st = srv_writer_new(cfg->out_path, &s->writer, err)) != PT_OK)
+    if (cfg->output_dir)
+        snprintf(s->out_dir, sizeof s->out_dir, "%s", cfg->output_dir);
+    else
+        snprintf(s->out_dir, sizeof s->out_dir, "%s/output", cfg->state_dir);
+    char tmp[PATH_MAX];
+    snprintf(tmp, sizeof tmp, "%s/tmp", cfg->state_dir);
+    pt_remove_tree(tmp); /* uploads a crash left half-checked */
+    if ((st = pt_mkdirs(s->out_dir, 0, err)) != PT_OK || (st = pt_mkdirs(tmp, 1, err)) != PT_OK)
         return st;
+    srv_job_rec *recs;
+    uint32_t n;
+    if ((st = srv_state_load_queue(s->state, &recs, &n, &s->next_job_id, err)) != PT_OK)
+        return st;
+    uint32_t counts[6] = {0};
+    for (uint32_t i = 0; i < n; i++) {
+        sjob *j = pt_calloc(1, sizeof *j);
+        if (!j) {
+            pt_free(recs);
+            return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
+        }
+        j->rec = recs[i];
+        snprintf(j->out_path, sizeof j->out_path, "%s/%s", s->out_dir, j->rec.output);
+        insert_job(s, j);
+        counts[j->rec.state]++;
+    }
+    pt_free(recs);
+    if (!cfg->quiet || counts[PROTO_JOB_RUNNING] || counts[PROTO_JOB_QUEUED])
+        logf_(s, "state %s: %u jobs queued, %u running, %u ended; images go to %s",
+              cfg->state_dir, counts[PROTO_JOB_QUEUED], counts[PROTO_JOB_RUNNING],
+              counts[PROTO_JOB_DONE] + counts[PROTO_JOB_CANCELLED] + counts[PROTO_JOB_FAILED],
+              s->out_dir);
+    /* Resume the running jobs now: their checkpoints are checked at start. */
+    for (sjob *j = s->jobs; j; j = j->next)
+        if (j->rec.state == PROTO_JOB_RUNNING)
+            job_ready(s, j);
+    return PT_OK;
+}
+
+static pt_status setup(server *s, pt_error *err)
+{
+    const srv_config *cfg = s->cfg;
+    pt_status st;
+    s->next_job_id = 1;
+    if (cfg->token_path) {
+        int loose = 0;
+        if ((st = proto_token_load(cfg->token_path, s->token, sizeof s->token, &s->token_len,
+                                   &loose, err)) != PT_OK)
+            return st;
+        if (loose)
+            logf_(s, "warning: %s is readable by other users", cfg->token_path);
+    }
     s->scratch = pt_malloc_array(PROTO_MAX_TILE_PIXELS, sizeof *s->scratch);
     if (!s->scratch)
         return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
+    if ((st = cfg->scene_path ? setup_single(s, err) : setup_queue(s, err)) != PT_OK)
+        return st;
 
     char host[256];
     uint16_t port = cfg->local_workers ? 0 : 7878;
@@ -810,9 +1698,7 @@ static pt_status setup(server *s, pt_error *err)
             return pt_error_errno(err, PT_ERR_IO, "%s", cfg->port_file);
     }
     if (!cfg->quiet)
-        logf_(s, "%s: %u triangles, %ux%u, %u spp in %u passes of %u, tiles of %u; listening on "
-              "%s:%u%s", cfg->scene_path, ntris, jp.width, jp.height, jp.spp,
-              srv_job_passes(s->job), jp.chunk, jp.tile, host, s->port,
+        logf_(s, "listening on %s:%u%s", host, s->port,
               cfg->token_path ? " (token required)" : "");
 
     s->ep = epoll_create1(EPOLL_CLOEXEC);
@@ -831,10 +1717,69 @@ static pt_status setup(server *s, pt_error *err)
     sigaction(SIGINT, &sa, NULL);
     sigaction(SIGTERM, &sa, NULL);
     signal(SIGPIPE, SIG_IGN);
-    s->t_start = s->t_last_save = s->t_last_print = now_ms();
+    s->t_start = s->t_last_print = now_ms();
     if (cfg->local_workers && (st = spawn_workers(s, err)) != PT_OK)
         return st;
     return PT_OK;
+}
+
+/* One-job mode's ending: the final image and the summary. Returns the exit status. */
+static int finish_single(server *s)
+{
+    const srv_config *cfg = s->cfg;
+    sjob *j = s->single;
+    pt_error err = {0};
+    if (!j->job)
+        return 1;
+    save_progress(s, j);
+    pt_status st = srv_writer_flush(j->writer, &err);
+    if (!cfg->quiet)
+        print_progress(s, now_ms());
+    fputc('\n', stderr);
+    double secs = (double)(now_ms() - s->t_start) / 1000.0;
+    uint64_t samples = srv_job_samples_merged(j->job);
+    const srv_job_params *p = &j->rec.params;
+    if (st != PT_OK) {
+        fprintf(stderr, "ptserve: cannot write %s: %s\n", cfg->out_path, err.msg);
+        return 1;
+    }
+    if (srv_job_complete(j->job)) {
+        uint64_t tasks = srv_job_tasks_total(j->job);
+        fprintf(stderr, "ptserve: done in %.2fs: %llu samples (%.4g samples/s), %llu rejected "
+                "samples (NaN/Inf); wrote %s\n", secs, (unsigned long long)samples,
+                (double)samples / secs, (unsigned long long)j->rejected, cfg->out_path);
+        fprintf(stderr, "ptserve: wire: %llu bytes in, %llu out (scene %zu); %.3f bytes per "
+                "sample, %.0f per task\n", (unsigned long long)s->bytes_in,
+                (unsigned long long)s->bytes_out, j->bundle ? j->bundle->size : 0,
+                (double)(s->bytes_in + s->bytes_out) / (double)samples,
+                (double)(s->bytes_in + s->bytes_out) / (double)tasks);
+        return 0;
+    }
+    if (g_stop) {
+        fprintf(stderr, "ptserve: interrupted after %.2fs; %s holds %llu of %llu samples\n", secs,
+                cfg->out_path, (unsigned long long)samples,
+                (unsigned long long)p->width * p->height * p->spp);
+        return 130;
+    }
+    return 1;
+}
+
+/* Queue mode's ending: every running job checkpointed, its image saved. */
+static void finish_queue(server *s)
+{
+    uint32_t n = 0;
+    for (sjob *j = s->jobs; j; j = j->next) {
+        if (!j->job || !job_active(j))
+            continue;
+        checkpoint(s, j);
+        save_progress(s, j);
+        pt_error err = {0};
+        if (srv_writer_flush(j->writer, &err) != PT_OK)
+            logf_(s, "job %llu: cannot write its image: %s", (unsigned long long)j->rec.id,
+                  err.msg);
+        n++;
+    }
+    logf_(s, "stopped; %u running jobs checkpointed", n);
 }
 
 int srv_serve(const srv_config *cfg)
@@ -844,12 +1789,14 @@ int srv_serve(const srv_config *cfg)
     s.cfg = cfg;
     s.lfd = s.ep = s.sigpipe[0] = s.sigpipe[1] = -1;
     pt_error err = {0};
-    int rc = 1;
+    int rc = 1, children_reported = 0;
     if (setup(&s, &err) != PT_OK) {
         fprintf(stderr, "ptserve: %s\n", err.msg);
         goto done;
     }
-    while (!g_stop && !srv_job_complete(s.job)) {
+    while (!g_stop) {
+        if (s.single && (!s.single->job || srv_job_complete(s.single->job)))
+            break;
         struct epoll_event evs[64];
         int n = epoll_wait(s.ep, evs, 64, 100);
         for (int i = 0; i < n; i++) {
@@ -868,6 +1815,10 @@ int srv_serve(const srv_config *cfg)
                     conn_flush(&s, c);
             }
         }
+        /* Group commit: the results logged in this round reach the disk. */
+        if (s.state && srv_state_sync(s.state, &err) != PT_OK)
+            logf_(&s, "error: %s", err.msg);
+        finish_complete(&s);
         hand_out(&s);
         timers(&s);
         /* Flush, then free closed connections outside their callbacks. */
@@ -888,42 +1839,22 @@ int srv_serve(const srv_config *cfg)
         }
         if (s.nchildren) {
             reap_children(&s, 0);
-            if (s.children_alive == 0 && !srv_job_complete(s.job)) {
+            if (s.children_alive == 0 && s.single && !srv_job_complete(s.single->job)) {
                 fprintf(stderr, "\nptserve: all %u local workers exited before the image was "
                         "complete\n", s.nchildren);
                 break;
             }
+            if (s.children_alive == 0 && !s.single && !children_reported) {
+                logf_(&s, "all %u local workers exited; waiting for remote ones", s.nchildren);
+                children_reported = 1;
+            }
         }
     }
-    if (s.job) {
-        save_progress(&s, 1);
-        pt_status st = srv_writer_flush(s.writer, &err);
-        if (!cfg->quiet)
-            print_progress(&s, now_ms());
-        fputc('\n', stderr);
-        double secs = (double)(now_ms() - s.t_start) / 1000.0;
-        if (st != PT_OK) {
-            fprintf(stderr, "ptserve: cannot write %s: %s\n", cfg->out_path, err.msg);
-        } else if (srv_job_complete(s.job)) {
-            fprintf(stderr, "ptserve: done in %.2fs: %llu samples (%.4g samples/s), %llu rejected "
-                    "samples (NaN/Inf); wrote %s\n", secs,
-                    (unsigned long long)srv_job_samples_merged(s.job),
-                    (double)srv_job_samples_merged(s.job) / secs, (unsigned long long)s.rejected,
-                    cfg->out_path);
-            uint64_t samples = srv_job_samples_merged(s.job), tasks = srv_job_tasks_total(s.job);
-            fprintf(stderr, "ptserve: wire: %llu bytes in, %llu out (scene %zu); %.3f bytes per "
-                    "sample, %.0f per task\n", (unsigned long long)s.bytes_in,
-                    (unsigned long long)s.bytes_out, s.bundle->size,
-                    (double)(s.bytes_in + s.bytes_out) / (double)samples,
-                    (double)(s.bytes_in + s.bytes_out) / (double)tasks);
-            rc = 0;
-        } else if (g_stop) {
-            fprintf(stderr, "ptserve: interrupted after %.2fs; %s holds %llu of %llu samples\n",
-                    secs, cfg->out_path, (unsigned long long)srv_job_samples_merged(s.job),
-                    (unsigned long long)srv_job_params_of(s.job)->width *
-                        srv_job_params_of(s.job)->height * srv_job_params_of(s.job)->spp);
-            rc = 130;
-        }
+    if (s.single) {
+        rc = finish_single(&s);
+    } else if (s.state) {
+        finish_queue(&s);
+        rc = 0;
     }
 done:
     if (s.nchildren)
@@ -933,9 +1864,12 @@ done:
         s.conns = c->next;
         conn_free(&s, c);
     }
-    srv_writer_free(s.writer);
-    srv_job_free(s.job);
-    pt_bundle_free(s.bundle);
+    while (s.jobs) {
+        sjob *j = s.jobs;
+        s.jobs = j->next;
+        free_sjob(j);
+    }
+    srv_state_close(s.state);
     pt_free(s.scratch);
     pt_free(s.children);
     if (s.lfd >= 0)

@@ -6,9 +6,9 @@
  * (server/job.h), serves the scene bundle in chunks, expires leases, and
  * writes progressive EXRs off the loop (server/writer.h). With local_workers
  * it also spawns that many ptworker processes on loopback and reaps them.
- * Runs until the image is complete (exit status 0), interrupted (SIGINT or
- * SIGTERM: the last progressive EXR is left valid; status 130), or it cannot
- * go on (status 1, with the reason on stderr).
+ * In one-job mode it renders one scene and exits; in queue mode it keeps a
+ * render queue that clients (ptctl) fill, durable in a state folder
+ * (server/state.h), and runs until it is stopped.
  */
 #ifndef PT_SERVER_SERVE_H
 #define PT_SERVER_SERVE_H
@@ -19,9 +19,19 @@
 #include "protocol/auth.h"
 #include "server/job.h"
 
+typedef struct srv_caps {
+    uint32_t max_side;      /* longest image side a client may ask for */
+    uint64_t max_pixels;    /* width x height */
+    uint32_t max_spp;
+    uint64_t max_scene;     /* bundle bytes */
+    uint32_t max_queued;    /* unfinished jobs per client name */
+} srv_caps;
+
 typedef struct srv_config {
-    const char *scene_path;
-    const char *out_path;
+    const char *scene_path;    /* one-job mode: render this and exit; NULL: queue mode */
+    const char *out_path;      /* one-job mode: the EXR */
+    const char *state_dir;     /* queue mode: the queue, bundles, checkpoints (server/state.h) */
+    const char *output_dir;    /* queue mode: finished images; NULL: STATE_DIR/output */
     const char *listen;        /* HOST:PORT; NULL: 127.0.0.1:7878, or port 0 with --local */
     const char *token_path;    /* NULL: no token (loopback only) */
     const char *port_file;     /* write the bound port here (tests, scripts) */
@@ -31,10 +41,16 @@ typedef struct srv_config {
     uint32_t handshake_ms;     /* a peer must authenticate within this time */
     uint32_t local_workers;    /* spawn this many ptworker processes */
     uint32_t worker_threads;   /* threads per local worker; 0: cores / local_workers */
-    srv_job_params job;        /* width/height 0: from the camera, 512 wide */
+    srv_job_params job;        /* one-job mode: the job; queue mode: defaults (tile,
+                                * chunk, max depth, rr depth) for submitted jobs.
+                                * width/height 0: from the camera, 512 wide */
+    srv_caps caps;             /* queue mode: what a client may ask for */
     int quiet;
 } srv_config;
 
+/* Runs the coordinator. One-job mode: exit status 0 when the image is
+ * complete, 130 when interrupted, 1 on error. Queue mode: serves until SIGINT
+ * or SIGTERM (then checkpoints the running jobs and exits 0), 1 on error. */
 int srv_serve(const srv_config *cfg);
 
 #endif

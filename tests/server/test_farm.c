@@ -35,133 +35,10 @@
 #include "protocol/msg.h"
 #include "tests/check.h"
 
-extern char **environ;
+#include "tests/server/farm_util.h"
 
-static char tmp[256];
 static const char *SCENE = PT_SOURCE_DIR "/scenes/cornell_box.gltf";
 #define COMMON "--res", "48x32", "--tile", "16", "--chunk", "8", "--seed", "3"
-
-static void sleep_ms(long ms)
-{
-    struct timespec ts = {ms / 1000, (ms % 1000) * 1000000L};
-    nanosleep(&ts, NULL);
-}
-
-static double now_s(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-}
-
-static pid_t spawn(const char *const *argv, const char *log_name)
-{
-    char log[512];
-    snprintf(log, sizeof log, "%s/%s", tmp, log_name);
-    posix_spawn_file_actions_t fa;
-    posix_spawn_file_actions_init(&fa);
-    posix_spawn_file_actions_addopen(&fa, 1, "/dev/null", O_WRONLY, 0);
-    posix_spawn_file_actions_addopen(&fa, 2, log, O_WRONLY | O_CREAT | O_APPEND, 0644);
-    pid_t pid = -1;
-    if (posix_spawn(&pid, argv[0], &fa, NULL, (char *const *)argv, environ) != 0)
-        pid = -1;
-    posix_spawn_file_actions_destroy(&fa);
-    return pid;
-}
-
-/* Waits up to timeout seconds; returns the exit status or -1 (then kills it). */
-static int wait_exit(pid_t pid, double timeout)
-{
-    double end = now_s() + timeout;
-    int st;
-    while (now_s() < end) {
-        pid_t r = waitpid(pid, &st, WNOHANG);
-        if (r == pid)
-            return WIFEXITED(st) ? WEXITSTATUS(st) : 128 + WTERMSIG(st);
-        sleep_ms(20);
-    }
-    kill(pid, SIGKILL);
-    waitpid(pid, &st, 0);
-    fprintf(stderr, "process %d timed out\n", (int)pid);
-    return -1;
-}
-
-static int run(const char *const *argv, const char *log, double timeout)
-{
-    pid_t pid = spawn(argv, log);
-    return pid > 0 ? wait_exit(pid, timeout) : -1;
-}
-
-static char *path(const char *name)
-{
-    static char bufs[8][512];
-    static int k;
-    char *b = bufs[k++ % 8];
-    snprintf(b, 512, "%s/%s", tmp, name);
-    return b;
-}
-
-static int log_has(const char *log, const char *needle)
-{
-    FILE *f = fopen(path(log), "r");
-    if (!f)
-        return 0;
-    static char buf[1 << 20];
-    size_t n = fread(buf, 1, sizeof buf - 1, f);
-    fclose(f);
-    buf[n] = '\0';
-    return strstr(buf, needle) != NULL;
-}
-
-static pt_image *load_exr(const char *name)
-{
-    pt_image *img = NULL;
-    pt_error err = {0};
-    if (pt_exr_read(path(name), &img, NULL, &err) != PT_OK)
-        fprintf(stderr, "%s\n", err.msg);
-    return img;
-}
-
-static int same_pixels(const char *a_name, const char *b_name)
-{
-    pt_image *a = load_exr(a_name), *b = load_exr(b_name);
-    int same = 0;
-    if (a && b && a->width == b->width && a->height == b->height) {
-        size_t n = (size_t)a->width * a->height * sizeof(float);
-        same = !memcmp(a->r, b->r, n) && !memcmp(a->g, b->g, n) && !memcmp(a->b, b->b, n) &&
-               !memcmp(a->samples, b->samples, n);
-    }
-    pt_image_free(a);
-    pt_image_free(b);
-    return same;
-}
-
-static int all_samples(const char *name, float spp)
-{
-    pt_image *a = load_exr(name);
-    int ok = a != NULL;
-    for (uint32_t i = 0; a && i < a->width * a->height; i++)
-        ok &= a->samples[i] == spp;
-    pt_image_free(a);
-    return ok;
-}
-
-static int read_port(void)
-{
-    for (int i = 0; i < 500; i++) {
-        FILE *f = fopen(path("port"), "r");
-        int port = 0;
-        if (f) {
-            if (fscanf(f, "%d", &port) != 1)
-                port = 0;
-            fclose(f);
-        }
-        if (port > 0)
-            return port;
-        sleep_ms(20);
-    }
-    return -1;
-}
 
 /* ---- 1. bit identity ---------------------------------------------------------------- */
 
@@ -292,98 +169,6 @@ static void chaos(void)
 
 /* ---- 3. hostile peers --------------------------------------------------------------- */
 
-static int connect_to(int port)
-{
-    int fd = -1;
-    pt_error err = {0};
-    if (pt_net_connect("127.0.0.1", (uint16_t)port, 2000, &fd, &err) != PT_OK)
-        fprintf(stderr, "%s\n", err.msg);
-    return fd;
-}
-
-/* Reads until the server closes (1) or the timeout passes (0). */
-static int closed_by_server(int fd, int timeout_ms)
-{
-    char buf[4096];
-    double end = now_s() + timeout_ms / 1000.0;
-    while (now_s() < end) {
-        struct pollfd p = {fd, POLLIN, 0};
-        if (poll(&p, 1, 50) == 1) {
-            ssize_t r = recv(fd, buf, sizeof buf, 0);
-            if (r == 0 || (r < 0 && errno != EINTR && errno != EAGAIN))
-                return 1;
-        }
-    }
-    return 0;
-}
-
-static void send_frame(int fd, uint16_t type, const proto_writer *payload)
-{
-    proto_writer w;
-    proto_writer_init(&w, 1 << 20);
-    proto_frame_encode(&w, type, payload ? payload->buf : NULL, payload ? payload->len : 0, NULL);
-    pt_net_write_all(fd, w.buf, w.len, NULL);
-    proto_writer_fini(&w);
-}
-
-static void send_hello(int fd, uint16_t version, const char *build)
-{
-    proto_hello h = {0};
-    h.version = version;
-    h.role = PROTO_ROLE_WORKER;
-    snprintf(h.name, sizeof h.name, "hostile");
-    h.threads = 1;
-    snprintf(h.build_id, sizeof h.build_id, "%s", build);
-    proto_writer p;
-    proto_writer_init(&p, 4096);
-    proto_msg_encode_hello(&p, &h, NULL);
-    send_frame(fd, PROTO_MSG_HELLO, &p);
-    proto_writer_fini(&p);
-}
-
-/* Reads one frame (blocking with a timeout) into buf; returns its type or -1. */
-static int read_frame(int fd, uint8_t *buf, size_t cap, proto_frame *f)
-{
-    size_t len = 0;
-    double end = now_s() + 5;
-    while (now_s() < end) {
-        size_t used;
-        if (len && proto_frame_decode(buf, len, PROTO_MAX_PAYLOAD, f, &used, NULL) == PT_OK)
-            return f->type;
-        struct pollfd p = {fd, POLLIN, 0};
-        if (poll(&p, 1, 50) == 1) {
-            ssize_t r = recv(fd, buf + len, cap - len, 0);
-            if (r <= 0)
-                return -1;
-            len += (size_t)r;
-        }
-    }
-    return -1;
-}
-
-/* Authenticates with the given token; returns the fd or -1. */
-static int authenticate(int port, const char *token)
-{
-    int fd = connect_to(port);
-    send_hello(fd, PROTO_VERSION, proto_build_id());
-    static uint8_t buf[1 << 16];
-    proto_frame f;
-    if (read_frame(fd, buf, sizeof buf, &f) != PROTO_MSG_CHALLENGE) {
-        close(fd);
-        return -1;
-    }
-    proto_challenge ch;
-    proto_msg_decode_challenge(f.payload, f.len, &ch, NULL);
-    proto_auth a;
-    proto_auth_response((const uint8_t *)token, strlen(token), ch.nonce, a.mac, NULL);
-    proto_writer p;
-    proto_writer_init(&p, 4096);
-    proto_msg_encode_auth(&p, &a, NULL);
-    send_frame(fd, PROTO_MSG_AUTH, &p);
-    proto_writer_fini(&p);
-    return fd;
-}
-
 static void hostile(void)
 {
     unlink(path("port"));
@@ -451,22 +236,22 @@ static void hostile(void)
         proto_writer_fini(&w);
     }
 
-    fd = authenticate(port, "not the token");
+    fd = authenticate(port, "not the token", PROTO_ROLE_WORKER);
     CHECK(fd >= 0 && closed_by_server(fd, 3000));
     close(fd);
 
     fd = connect_to(port);
-    send_hello(fd, 99, proto_build_id());
+    send_hello(fd, 99, proto_build_id(), PROTO_ROLE_WORKER);
     CHECK(closed_by_server(fd, 3000));
     close(fd);
 
     fd = connect_to(port);
-    send_hello(fd, PROTO_VERSION, "0000000000000000");
+    send_hello(fd, PROTO_VERSION, "0000000000000000", PROTO_ROLE_WORKER);
     CHECK(closed_by_server(fd, 3000));
     close(fd);
 
     /* Authenticated, then a result for a task it was never leased. */
-    fd = authenticate(port, "correct horse battery staple");
+    fd = authenticate(port, "correct horse battery staple", PROTO_ROLE_WORKER);
     CHECK(fd >= 0);
     if (fd >= 0) {
         static pt_pixel_acc px[256];
@@ -551,7 +336,8 @@ int main(void)
     chaos();
     hostile();
     interrupt();
-    if (check_failed_ == 0) {
+    CHECK(sanitizer_reports() == 0);
+    if (check_failed_ == 0 && !getenv("PT_KEEP_TMP")) {
         char cmd[512];
         snprintf(cmd, sizeof cmd, "rm -rf %s", tmp);
         if (system(cmd) != 0)

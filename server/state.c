@@ -1,0 +1,600 @@
+#define _GNU_SOURCE /* O_CLOEXEC, fdatasync */
+#include "server/state.h"
+
+#include <errno.h>
+#include <fcntl.h>
+#include <limits.h>
+#include <stdio.h>
+#include <string.h>
+#include <sys/file.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include "common/alloc.h"
+#include "common/fsutil.h"
+#include "protocol/frame.h"
+#include "protocol/wire.h"
+
+#define QUEUE_MAGIC 0x31515450u /* "PTQ1" */
+#define CKPT_MAGIC 0x4b435450u  /* "PTCK" */
+#define LOG_MAGIC 0x4c525450u   /* "PTRL" */
+#define STATE_VERSION 1u
+#define LOG_HEADER 16u
+#define MAX_QUEUE_BYTES (256u << 20)
+#define MAX_CKPT_BYTES ((size_t)8 << 30)
+
+typedef struct log_file {
+    uint64_t id;
+    int fd;
+    uint64_t bytes;
+    int dirty;
+} log_file;
+
+struct srv_state {
+    char dir[PATH_MAX - 64];
+    int lock_fd;
+    log_file *logs;
+    uint32_t nlogs, logs_cap;
+};
+
+const char *srv_state_dir(const srv_state *st) { return st->dir; }
+
+static void path_of(const srv_state *st, char *buf, size_t cap, const char *rel)
+{
+    snprintf(buf, cap, "%s/%s", st->dir, rel);
+}
+
+static void job_path(const srv_state *st, uint64_t id, const char *file, char *buf, size_t cap)
+{
+    if (file)
+        snprintf(buf, cap, "%s/jobs/%llu/%s", st->dir, (unsigned long long)id, file);
+    else
+        snprintf(buf, cap, "%s/jobs/%llu", st->dir, (unsigned long long)id);
+}
+
+pt_status srv_state_open(const char *dir, srv_state **out, pt_error *err)
+{
+    if (strlen(dir) >= sizeof ((srv_state *)0)->dir)
+        return pt_error_set(err, PT_ERR_ARG, "state folder %s: path too long", dir);
+    srv_state *st = pt_calloc(1, sizeof *st);
+    if (!st)
+        return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
+    snprintf(st->dir, sizeof st->dir, "%s", dir);
+    st->lock_fd = -1;
+    char p[PATH_MAX];
+    pt_status s;
+    path_of(st, p, sizeof p, "jobs");
+    if ((s = pt_mkdirs(p, 1, err)) != PT_OK)
+        goto fail;
+    path_of(st, p, sizeof p, "lock");
+    st->lock_fd = open(p, O_RDWR | O_CREAT | O_CLOEXEC, 0600);
+    if (st->lock_fd < 0) {
+        s = pt_error_errno(err, PT_ERR_IO, "state folder %s: cannot open its lock file", dir);
+        goto fail;
+    }
+    if (flock(st->lock_fd, LOCK_EX | LOCK_NB) != 0) {
+        s = pt_error_errno(err, PT_ERR_IO, "state folder %s is in use by another ptserve", dir);
+        goto fail;
+    }
+    *out = st;
+    return PT_OK;
+fail:
+    srv_state_close(st);
+    return s;
+}
+
+void srv_state_close(srv_state *st)
+{
+    if (!st)
+        return;
+    for (uint32_t i = 0; i < st->nlogs; i++)
+        if (st->logs[i].fd >= 0) {
+            fdatasync(st->logs[i].fd);
+            close(st->logs[i].fd);
+        }
+    pt_free(st->logs);
+    if (st->lock_fd >= 0)
+        close(st->lock_fd);
+    pt_free(st);
+}
+
+/* ---- common: a whole file with magic, version, body, CRC32C ---------------------- */
+
+static void begin_file(proto_writer *w, uint32_t magic)
+{
+    proto_w_u32(w, magic);
+    proto_w_u32(w, STATE_VERSION);
+}
+
+static pt_status end_file(proto_writer *w, const char *path, pt_error *err)
+{
+    if (proto_writer_status(w) != PT_OK)
+        return pt_error_set(err, proto_writer_status(w), "%s: cannot serialise", path);
+    proto_w_u32(w, proto_crc32c(0, w->buf, w->len));
+    if (proto_writer_status(w) != PT_OK)
+        return pt_error_set(err, proto_writer_status(w), "%s: cannot serialise", path);
+    return pt_write_file_atomic(path, w->buf, w->len, err);
+}
+
+/* Reads path and checks magic, version and checksum; *body and *body_len get
+ * what lies between. *missing = 1 (and PT_OK) when the file does not exist. */
+static pt_status read_checked(const char *path, uint32_t magic, size_t max, uint8_t **data,
+                              const uint8_t **body, size_t *body_len, int *missing,
+                              pt_error *err)
+{
+    size_t len;
+    *missing = 0;
+    *data = NULL;
+    pt_status s = pt_read_file(path, max, data, &len, err);
+    if (s != PT_OK) {
+        if (s == PT_ERR_IO && err && err->sys_errno == ENOENT) {
+            *missing = 1;
+            return PT_OK;
+        }
+        return s;
+    }
+    const char *why = NULL;
+    if (len < 12)
+        why = "truncated (shorter than its header and checksum)";
+    else if (proto_get_u32(*data) != magic)
+        why = "not a ptserve state file of this kind (bad magic)";
+    else if (proto_get_u32(*data + 4) != STATE_VERSION)
+        why = "written by another version of ptserve";
+    else if (proto_crc32c(0, *data, len - 4) != proto_get_u32(*data + len - 4))
+        why = "checksum mismatch: the file is truncated or damaged";
+    if (why) {
+        pt_free(*data);
+        *data = NULL;
+        return pt_error_set(err, PT_ERR_FORMAT, "%s: %s; refusing to use it (move it aside to "
+                            "start without it)", path, why);
+    }
+    *body = *data + 8;
+    *body_len = len - 12;
+    return PT_OK;
+}
+
+/* ---- the queue --------------------------------------------------------------------- */
+
+static void w_str(proto_writer *w, const char *s)
+{
+    size_t n = strlen(s);
+    proto_w_u16(w, (uint16_t)n);
+    proto_w_bytes(w, s, n);
+}
+
+static void r_str(proto_reader *r, char *out, size_t cap, const char *field)
+{
+    uint16_t n = proto_r_u16(r, field);
+    const uint8_t *p = proto_r_bytes(r, n, field);
+    if (!p)
+        return;
+    if (n >= cap || memchr(p, 0, n)) {
+        proto_r_fail(r, PT_ERR_FORMAT, "bad", field);
+        return;
+    }
+    memcpy(out, p, n);
+    out[n] = '\0';
+}
+
+pt_status srv_state_save_queue(srv_state *st, srv_job_rec *const *recs, uint32_t n,
+                               uint64_t next_id, pt_error *err)
+{
+    char path[PATH_MAX];
+    path_of(st, path, sizeof path, "queue");
+    proto_writer w;
+    proto_writer_init(&w, MAX_QUEUE_BYTES);
+    begin_file(&w, QUEUE_MAGIC);
+    proto_w_u64(&w, next_id);
+    proto_w_u32(&w, n);
+    for (uint32_t i = 0; i < n; i++) {
+        const srv_job_rec *j = recs[i];
+        proto_w_u64(&w, j->id);
+        proto_w_u64(&w, j->seq);
+        proto_w_u8(&w, j->state);
+        proto_w_u32(&w, (uint32_t)j->priority);
+        w_str(&w, j->name);
+        w_str(&w, j->owner);
+        w_str(&w, j->scene);
+        w_str(&w, j->output);
+        proto_w_u64(&w, j->submitted);
+        const srv_job_params *p = &j->params;
+        proto_w_u32(&w, p->width);
+        proto_w_u32(&w, p->height);
+        proto_w_u32(&w, p->spp);
+        proto_w_u32(&w, p->tile);
+        proto_w_u32(&w, p->chunk);
+        proto_w_u32(&w, p->seed);
+        proto_w_u32(&w, p->max_depth);
+        proto_w_u32(&w, p->rr_depth);
+        proto_w_u32(&w, p->min_spp);
+        proto_w_f64(&w, p->target_error);
+        proto_w_bytes(&w, j->hash, 32);
+        proto_w_u64(&w, j->bundle_size);
+        proto_w_u64(&w, j->samples_done);
+        proto_w_f64(&w, j->seconds);
+        w_str(&w, j->message);
+    }
+    pt_status s = end_file(&w, path, err);
+    proto_writer_fini(&w);
+    return s;
+}
+
+pt_status srv_state_load_queue(srv_state *st, srv_job_rec **recs, uint32_t *n, uint64_t *next_id,
+                               pt_error *err)
+{
+    char path[PATH_MAX];
+    path_of(st, path, sizeof path, "queue");
+    uint8_t *data;
+    const uint8_t *body;
+    size_t len;
+    int missing;
+    *recs = NULL;
+    *n = 0;
+    *next_id = 1;
+    pt_status s = read_checked(path, QUEUE_MAGIC, MAX_QUEUE_BYTES, &data, &body, &len, &missing,
+                               err);
+    if (s != PT_OK || missing)
+        return s;
+    proto_reader r = proto_reader_make(body, len);
+    uint64_t nid = proto_r_u64(&r, "next job id");
+    uint32_t count = proto_r_u32(&r, "job count");
+    srv_job_rec *out = NULL;
+    if (r.status == PT_OK && (count > SRV_MAX_JOBS || count > proto_r_left(&r) / 64)) {
+        pt_free(data);
+        return pt_error_set(err, PT_ERR_FORMAT, "%s: %u jobs do not fit its %zu bytes", path,
+                            count, len);
+    }
+    if (count) {
+        out = pt_calloc(count, sizeof *out);
+        if (!out) {
+            pt_free(data);
+            return pt_error_set(err, PT_ERR_NOMEM, "%s: out of memory", path);
+        }
+    }
+    for (uint32_t i = 0; i < count && r.status == PT_OK; i++) {
+        srv_job_rec *j = &out[i];
+        j->id = proto_r_u64(&r, "job id");
+        j->seq = proto_r_u64(&r, "job seq");
+        j->state = proto_r_u8(&r, "job state");
+        j->priority = (int32_t)proto_r_u32(&r, "priority");
+        r_str(&r, j->name, sizeof j->name, "name");
+        r_str(&r, j->owner, sizeof j->owner, "owner");
+        r_str(&r, j->scene, sizeof j->scene, "scene");
+        r_str(&r, j->output, sizeof j->output, "output");
+        j->submitted = proto_r_u64(&r, "submitted");
+        srv_job_params *p = &j->params;
+        p->width = proto_r_u32(&r, "width");
+        p->height = proto_r_u32(&r, "height");
+        p->spp = proto_r_u32(&r, "spp");
+        p->tile = proto_r_u32(&r, "tile");
+        p->chunk = proto_r_u32(&r, "chunk");
+        p->seed = proto_r_u32(&r, "seed");
+        p->max_depth = proto_r_u32(&r, "max depth");
+        p->rr_depth = proto_r_u32(&r, "rr depth");
+        p->min_spp = proto_r_u32(&r, "min spp");
+        p->target_error = proto_r_f64(&r, "target error");
+        const uint8_t *h = proto_r_bytes(&r, 32, "scene hash");
+        if (h)
+            memcpy(j->hash, h, 32);
+        j->bundle_size = proto_r_u64(&r, "bundle size");
+        j->samples_done = proto_r_u64(&r, "samples done");
+        j->seconds = proto_r_f64(&r, "seconds");
+        r_str(&r, j->message, sizeof j->message, "message");
+        if (r.status == PT_OK && (j->id == 0 || j->id >= nid || j->state < PROTO_JOB_QUEUED ||
+                                  j->state > PROTO_JOB_FAILED))
+            proto_r_fail(&r, PT_ERR_FORMAT, "bad", "job id or state");
+    }
+    pt_error e2 = {0};
+    s = proto_r_finish(&r, "queue", &e2);
+    pt_free(data);
+    if (s != PT_OK) {
+        pt_free(out);
+        return pt_error_set(err, PT_ERR_FORMAT, "%s: %s; refusing to use it", path, e2.msg);
+    }
+    *recs = out;
+    *n = count;
+    *next_id = nid;
+    return PT_OK;
+}
+
+/* ---- bundles ----------------------------------------------------------------------- */
+
+pt_status srv_state_save_bundle(srv_state *st, uint64_t id, const uint8_t *data, size_t n,
+                                pt_error *err)
+{
+    char p[PATH_MAX];
+    job_path(st, id, NULL, p, sizeof p);
+    pt_status s = pt_mkdirs(p, 1, err);
+    if (s != PT_OK)
+        return s;
+    job_path(st, id, "bundle", p, sizeof p);
+    return pt_write_file_atomic(p, data, n, err);
+}
+
+pt_status srv_state_load_bundle(srv_state *st, uint64_t id, const uint8_t hash[32],
+                                pt_bundle **out, pt_error *err)
+{
+    char p[PATH_MAX];
+    job_path(st, id, "bundle", p, sizeof p);
+    uint8_t *data;
+    size_t len;
+    pt_status s = pt_read_file(p, PT_BUNDLE_MAX_BYTES, &data, &len, err);
+    if (s != PT_OK)
+        return s;
+    char hex[65], want[65];
+    pt_sha256_hex(data, len, hex);
+    for (int i = 0; i < 32; i++)
+        snprintf(want + 2 * i, 3, "%02x", hash[i]);
+    if (strcmp(hex, want) != 0) {
+        pt_free(data);
+        return pt_error_set(err, PT_ERR_FORMAT, "%s: SHA-256 %.16s... differs from the queue's "
+                            "%.16s...: the file is damaged", p, hex, want);
+    }
+    s = pt_bundle_from_bytes(data, len, out, err);
+    pt_free(data);
+    return s;
+}
+
+/* ---- logs -------------------------------------------------------------------------- */
+
+static log_file *find_log(const srv_state *st, uint64_t id)
+{
+    for (uint32_t i = 0; i < st->nlogs; i++)
+        if (st->logs[i].id == id)
+            return &st->logs[i];
+    return NULL;
+}
+
+static void close_log(srv_state *st, uint64_t id)
+{
+    log_file *l = find_log(st, id);
+    if (!l)
+        return;
+    if (l->fd >= 0)
+        close(l->fd);
+    *l = st->logs[--st->nlogs];
+}
+
+/* Opens the job's log for appending, writing its header when it is new. */
+static pt_status open_log(srv_state *st, uint64_t id, log_file **out, pt_error *err)
+{
+    log_file *l = find_log(st, id);
+    if (l) {
+        *out = l;
+        return PT_OK;
+    }
+    if (st->nlogs == st->logs_cap) {
+        uint32_t cap = st->logs_cap ? 2 * st->logs_cap : 8;
+        log_file *n = pt_realloc(st->logs, cap * sizeof *n);
+        if (!n)
+            return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
+        st->logs = n;
+        st->logs_cap = cap;
+    }
+    char p[PATH_MAX];
+    job_path(st, id, "results.log", p, sizeof p);
+    int fd = open(p, O_WRONLY | O_CREAT | O_APPEND | O_CLOEXEC, 0600);
+    if (fd < 0)
+        return pt_error_errno(err, PT_ERR_IO, "%s", p);
+    struct stat sb;
+    if (fstat(fd, &sb) != 0) {
+        close(fd);
+        return pt_error_errno(err, PT_ERR_IO, "%s", p);
+    }
+    uint64_t bytes = (uint64_t)sb.st_size;
+    if (bytes == 0) {
+        uint8_t h[LOG_HEADER];
+        proto_put_u32(h, LOG_MAGIC);
+        proto_put_u32(h + 4, STATE_VERSION);
+        proto_put_u64(h + 8, id);
+        if (write(fd, h, sizeof h) != (ssize_t)sizeof h || fdatasync(fd) != 0 ||
+            pt_fsync_dir_of(p) != 0) {
+            pt_status s = pt_error_errno(err, PT_ERR_IO, "%s: cannot write its header", p);
+            close(fd);
+            return s;
+        }
+        bytes = LOG_HEADER;
+    }
+    l = &st->logs[st->nlogs++];
+    *l = (log_file){id, fd, bytes, 0};
+    *out = l;
+    return PT_OK;
+}
+
+pt_status srv_state_log_result(srv_state *st, uint64_t id, const uint8_t *payload, size_t len,
+                               pt_error *err)
+{
+    log_file *l;
+    pt_status s = open_log(st, id, &l, err);
+    if (s != PT_OK)
+        return s;
+    uint8_t h[8];
+    proto_put_u32(h, (uint32_t)len);
+    proto_put_u32(h + 4, proto_crc32c(0, payload, len));
+    /* One buffer so the record goes out in a single write(): a kill -9 leaves
+     * it whole or cut short at the end, never interleaved. */
+    uint8_t *rec = pt_malloc(len + 8);
+    if (!rec)
+        return pt_error_set(err, PT_ERR_NOMEM, "out of memory for a log record");
+    memcpy(rec, h, 8);
+    memcpy(rec + 8, payload, len);
+    size_t off = 0;
+    while (off < len + 8) {
+        ssize_t w = write(l->fd, rec + off, len + 8 - off);
+        if (w < 0 && errno == EINTR)
+            continue;
+        if (w <= 0) {
+            pt_free(rec);
+            return pt_error_errno(err, PT_ERR_IO, "results log of job %llu",
+                                  (unsigned long long)id);
+        }
+        off += (size_t)w;
+    }
+    pt_free(rec);
+    l->bytes += len + 8;
+    l->dirty = 1;
+    return PT_OK;
+}
+
+uint64_t srv_state_log_bytes(const srv_state *st, uint64_t id)
+{
+    const log_file *l = find_log(st, id);
+    return l ? l->bytes : 0;
+}
+
+pt_status srv_state_sync(srv_state *st, pt_error *err)
+{
+    pt_status s = PT_OK;
+    for (uint32_t i = 0; i < st->nlogs; i++) {
+        if (!st->logs[i].dirty)
+            continue;
+        if (fdatasync(st->logs[i].fd) != 0 && s == PT_OK)
+            s = pt_error_errno(err, PT_ERR_IO, "results log of job %llu: fdatasync",
+                               (unsigned long long)st->logs[i].id);
+        st->logs[i].dirty = 0;
+    }
+    return s;
+}
+
+void srv_state_forget_job(srv_state *st, uint64_t id)
+{
+    close_log(st, id);
+    char p[PATH_MAX];
+    job_path(st, id, NULL, p, sizeof p);
+    pt_remove_tree(p);
+    pt_fsync_dir_of(p);
+}
+
+/* ---- checkpoints ------------------------------------------------------------------- */
+
+pt_status srv_state_checkpoint(srv_state *st, const srv_job *job, const srv_ckpt_extra *x,
+                               pt_error *err)
+{
+    uint64_t id = srv_job_id(job);
+    char p[PATH_MAX];
+    job_path(st, id, NULL, p, sizeof p);
+    pt_status s = pt_mkdirs(p, 1, err);
+    if (s != PT_OK)
+        return s;
+    job_path(st, id, "checkpoint", p, sizeof p);
+    proto_writer w;
+    proto_writer_init(&w, MAX_CKPT_BYTES);
+    begin_file(&w, CKPT_MAGIC);
+    proto_w_f64(&w, x->seconds);
+    proto_w_u64(&w, x->rejected);
+    proto_w_u64(&w, x->rays);
+    if ((s = srv_job_save(job, &w, err)) == PT_OK)
+        s = end_file(&w, p, err);
+    proto_writer_fini(&w);
+    if (s != PT_OK)
+        return s;
+    /* Everything the log held is in the checkpoint now: start it afresh. */
+    log_file *l = find_log(st, id);
+    if (l) {
+        if (ftruncate(l->fd, LOG_HEADER) != 0 || fdatasync(l->fd) != 0)
+            return pt_error_errno(err, PT_ERR_IO, "results log of job %llu: truncate",
+                                  (unsigned long long)id);
+        l->bytes = LOG_HEADER;
+        l->dirty = 0;
+    }
+    return PT_OK;
+}
+
+static pt_status replay_log(srv_state *st, srv_job *job, srv_ckpt_extra *x, uint32_t *replayed,
+                            int *torn, pt_error *err)
+{
+    uint64_t id = srv_job_id(job);
+    char p[PATH_MAX];
+    job_path(st, id, "results.log", p, sizeof p);
+    uint8_t *data;
+    size_t len;
+    pt_status s = pt_read_file(p, (size_t)64 << 30, &data, &len, err);
+    if (s != PT_OK)
+        return (s == PT_ERR_IO && err->sys_errno == ENOENT) ? PT_OK : s;
+    size_t good = 0;
+    if (len < LOG_HEADER) {
+        *torn = len > 0; /* the header write itself was cut short */
+    } else if (proto_get_u32(data) != LOG_MAGIC || proto_get_u32(data + 4) != STATE_VERSION ||
+               proto_get_u64(data + 8) != id) {
+        pt_free(data);
+        return pt_error_set(err, PT_ERR_FORMAT, "%s: not the results log of job %llu (bad "
+                            "header); refusing to use it", p, (unsigned long long)id);
+    } else {
+        good = LOG_HEADER;
+        pt_pixel_acc *buf = pt_malloc_array(PROTO_MAX_TILE_PIXELS, sizeof *buf);
+        if (!buf) {
+            pt_free(data);
+            return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
+        }
+        while (good < len) {
+            if (len - good < 8 || len - good - 8 < proto_get_u32(data + good)) {
+                *torn = 1; /* the last write was cut short by the crash */
+                break;
+            }
+            uint32_t n = proto_get_u32(data + good);
+            const uint8_t *pl = data + good + 8;
+            proto_result r;
+            pt_error e2 = {0};
+            if (proto_crc32c(0, pl, n) != proto_get_u32(data + good + 4) ||
+                proto_msg_decode_result(pl, n, buf, PROTO_MAX_TILE_PIXELS, &r, &e2) != PT_OK) {
+                s = pt_error_set(err, PT_ERR_FORMAT, "%s: record at byte %zu is damaged "
+                                 "(checksum or contents: %s); refusing to use it", p, good,
+                                 e2.msg[0] ? e2.msg : "checksum mismatch");
+                break;
+            }
+            srv_outcome o = srv_job_replay(job, &r, &e2);
+            if (o == SRV_MERGED) {
+                x->rejected += r.rejected;
+                x->rays += r.rays;
+                (*replayed)++;
+            } else if (o != SRV_DUPLICATE) {
+                s = pt_error_set(err, PT_ERR_FORMAT, "%s: record at byte %zu does not fit the "
+                                 "job: %s", p, good, e2.msg);
+                break;
+            }
+            good += 8 + (size_t)n;
+        }
+        pt_free(buf);
+    }
+    pt_free(data);
+    if (s == PT_OK && *torn) {
+        /* Cut the incomplete record off so new records follow whole ones. */
+        if (truncate(p, (off_t)(good >= LOG_HEADER ? good : 0)) != 0)
+            s = pt_error_errno(err, PT_ERR_IO, "%s: truncate", p);
+    }
+    return s;
+}
+
+pt_status srv_state_restore(srv_state *st, srv_job *job, srv_ckpt_extra *extra,
+                            uint32_t *replayed, int *torn, pt_error *err)
+{
+    memset(extra, 0, sizeof *extra);
+    *replayed = 0;
+    *torn = 0;
+    char p[PATH_MAX];
+    job_path(st, srv_job_id(job), "checkpoint", p, sizeof p);
+    uint8_t *data;
+    const uint8_t *body;
+    size_t len;
+    int missing;
+    pt_status s = read_checked(p, CKPT_MAGIC, MAX_CKPT_BYTES, &data, &body, &len, &missing, err);
+    if (s != PT_OK)
+        return s;
+    if (!missing) {
+        if (len < 24) {
+            pt_free(data);
+            return pt_error_set(err, PT_ERR_FORMAT, "%s: truncated header", p);
+        }
+        extra->seconds = proto_get_f64(body);
+        extra->rejected = proto_get_u64(body + 8);
+        extra->rays = proto_get_u64(body + 16);
+        pt_error e2 = {0};
+        s = srv_job_load(job, body + 24, len - 24, &e2);
+        pt_free(data);
+        if (s != PT_OK)
+            return pt_error_set(err, s, "%s: %s; refusing to use it", p, e2.msg);
+        if (!(extra->seconds >= 0) || extra->seconds > 1e12)
+            extra->seconds = 0;
+    }
+    return replay_log(st, job, extra, replayed, torn, err);
+}

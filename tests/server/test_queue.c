@@ -1,0 +1,847 @@
+/*
+ * test_queue.c - ptserve's render queue (--state-dir) with real processes,
+ * real sockets and real files; a raw protocol client plays ptctl.
+ *
+ *  1. Crash-restart: ptserve is killed with SIGKILL at least 5 times during a
+ *     job (each time after more samples were merged) and restarted on the same
+ *     state folder; every restart resumes with at least the samples merged
+ *     before the kill, and the final image is bit-identical to an undisturbed
+ *     standalone render with exact sample counts.
+ *  2. The queue: two clients submit at once; priority, then submission order,
+ *     decide the order jobs run and finish in; queued jobs survive a kill -9;
+ *     cancel during a render frees the workers for the next job; a client's
+ *     unfinished-job cap.
+ *  3. Damaged state: a queue file or checkpoint that is truncated or has a
+ *     flipped byte, and a damaged results log, are refused with an error that
+ *     names the file (ptserve exits for the queue; the job fails for its own
+ *     files while the server keeps serving); a log cut short at its end (a
+ *     crash during a write) is accepted with a warning.
+ *  4. Hostile clients during a render: names with '/' or '..', bundles whose
+ *     files name '../', absurd sizes, a bundle that lies about its length, one
+ *     with the wrong hash, a broken scene, a submit that stops half-way. Each
+ *     is refused; the render completes with exact sample counts.
+ */
+#include "common/alloc.h"
+#include "common/bundle.h"
+#include "tests/check.h"
+#include "tests/server/farm_util.h"
+
+static const char *SCENE = PT_SOURCE_DIR "/scenes/cornell_box.gltf";
+static int g_port;
+static pid_t g_srv = -1;
+
+/* ---- a client -------------------------------------------------------------------- */
+
+typedef struct cli {
+    int fd;
+    uint8_t *buf;
+    size_t len, cap, used; /* used: bytes of the frame returned last */
+} cli;
+
+/* Next frame (payload valid until the next call) or -1 on close/timeout. */
+static int cli_recv(cli *c, proto_frame *f, double timeout)
+{
+    memmove(c->buf, c->buf + c->used, c->len - c->used);
+    c->len -= c->used;
+    c->used = 0;
+    double end = now_s() + timeout;
+    for (;;) {
+        size_t used;
+        if (c->len && proto_frame_decode(c->buf, c->len, PROTO_MAX_PAYLOAD, f, &used, NULL) ==
+                          PT_OK) {
+            c->used = used;
+            return f->type;
+        }
+        if (now_s() > end)
+            return -1;
+        if (c->len == c->cap) {
+            c->cap *= 2;
+            c->buf = realloc(c->buf, c->cap);
+        }
+        struct pollfd p = {c->fd, POLLIN, 0};
+        if (poll(&p, 1, 50) == 1) {
+            ssize_t r = recv(c->fd, c->buf + c->len, c->cap - c->len, 0);
+            if (r <= 0)
+                return -1;
+            c->len += (size_t)r;
+        }
+    }
+}
+
+static void cli_close(cli *c)
+{
+    if (c->fd >= 0)
+        close(c->fd);
+    free(c->buf);
+    c->fd = -1;
+    c->buf = NULL;
+}
+
+/* Connects and authenticates in role (retrying while the server starts). */
+static int cli_open_as(cli *c, int port, uint8_t role)
+{
+    memset(c, 0, sizeof *c);
+    c->cap = 1 << 16;
+    c->buf = malloc(c->cap);
+    for (int tries = 0; tries < 100; tries++) {
+        c->fd = authenticate(port, "", role);
+        if (c->fd >= 0) {
+            proto_frame f;
+            if (cli_recv(c, &f, 5) == PROTO_MSG_WELCOME)
+                return 0;
+            close(c->fd);
+        }
+        c->len = c->used = 0;
+        sleep_ms(100);
+    }
+    c->fd = -1;
+    return -1;
+}
+
+static int cli_open(cli *c, int port)
+{
+    return cli_open_as(c, port, PROTO_ROLE_CLIENT);
+}
+
+static void cli_send(cli *c, uint16_t type, const proto_writer *w)
+{
+    send_frame(c->fd, type, w);
+}
+
+/* As a worker on c, asks for one task; returns its job id, 0 when none came. */
+static uint64_t lease_one(cli *c)
+{
+    proto_writer w;
+    proto_writer_init(&w, 64);
+    proto_work_request r = {1};
+    proto_msg_encode_work_request(&w, &r, NULL);
+    cli_send(c, PROTO_MSG_WORK_REQUEST, &w);
+    proto_writer_fini(&w);
+    proto_frame f;
+    proto_task t;
+    if (cli_recv(c, &f, 5) != PROTO_MSG_TASK || proto_msg_decode_task(f.payload, f.len, &t, NULL) != PT_OK)
+        return 0;
+    return t.job_id;
+}
+
+static void send_ref(cli *c, uint16_t type, uint64_t id)
+{
+    proto_writer w;
+    proto_writer_init(&w, 64);
+    proto_job_ref r = {id};
+    proto_msg_encode_job_ref(&w, &r, NULL);
+    cli_send(c, type, &w);
+    proto_writer_fini(&w);
+}
+
+/* Reads the reply; on ERROR copies its text into err_text and returns -2. */
+static char err_text[PROTO_MAX_ERROR_TEXT + 1];
+static int reply(cli *c, proto_frame *f)
+{
+    int t = cli_recv(c, f, 30);
+    if (t == PROTO_MSG_ERROR) {
+        proto_error_msg m;
+        proto_msg_decode_error(f->payload, f->len, &m, NULL);
+        snprintf(err_text, sizeof err_text, "%s", m.text);
+        return -2;
+    }
+    return t;
+}
+
+/* Sends SUBMIT; spp 0 (which the encoder refuses) is patched into the bytes. */
+static void submit_begin(cli *c, const proto_submit *m)
+{
+    proto_writer w;
+    proto_writer_init(&w, 4096);
+    proto_submit fixed = *m;
+    fixed.spp = m->spp ? m->spp : 1;
+    CHECK(proto_msg_encode_submit(&w, &fixed, NULL) == PT_OK);
+    if (m->spp == 0)
+        proto_put_u32(w.buf + 10 + strlen(m->name), 0);
+    cli_send(c, PROTO_MSG_SUBMIT, &w);
+    proto_writer_fini(&w);
+}
+
+static void upload(cli *c, const uint8_t hash[32], const uint8_t *data, uint64_t total,
+                   uint64_t off, uint32_t n)
+{
+    proto_writer w;
+    proto_writer_init(&w, PROTO_MAX_SCENE_CHUNK + 1024);
+    proto_scene_chunk ch;
+    memcpy(ch.hash, hash, 32);
+    ch.offset = off;
+    ch.total = total;
+    ch.len = n;
+    ch.data = data + off;
+    proto_msg_encode_scene_chunk(&w, &ch, NULL);
+    cli_send(c, PROTO_MSG_UPLOAD, &w);
+    proto_writer_fini(&w);
+}
+
+static void hash_bytes(const uint8_t *d, size_t n, uint8_t out[32])
+{
+    char hex[65];
+    pt_sha256_hex(d, n, hex);
+    for (int i = 0; i < 32; i++) {
+        unsigned v;
+        sscanf(hex + 2 * i, "%2x", &v);
+        out[i] = (uint8_t)v;
+    }
+}
+
+static proto_submit job_of(const char *name, uint32_t w, uint32_t h, uint32_t spp, int32_t prio)
+{
+    proto_submit m;
+    memset(&m, 0, sizeof m);
+    snprintf(m.name, sizeof m.name, "%s", name);
+    m.width = w;
+    m.height = h;
+    m.spp = spp;
+    m.seed = 5;
+    m.priority = prio;
+    return m;
+}
+
+/* Submits data (a bundle) as job m; returns the job id, 0 when refused. */
+static uint64_t submit_bytes(cli *c, proto_submit m, const uint8_t *data, size_t n)
+{
+    m.bundle_size = n;
+    hash_bytes(data, n, m.bundle_hash);
+    submit_begin(c, &m);
+    upload(c, m.bundle_hash, data, n, 0, (uint32_t)n);
+    proto_frame f;
+    if (reply(c, &f) != PROTO_MSG_SUBMITTED)
+        return 0;
+    proto_job_ref r;
+    return proto_msg_decode_job_ref(f.payload, f.len, &r, NULL) == PT_OK ? r.job_id : 0;
+}
+
+static pt_bundle *g_bundle;
+
+static uint64_t submit(int port, proto_submit m)
+{
+    cli c;
+    if (cli_open(&c, port) != 0)
+        return 0;
+    uint64_t id = submit_bytes(&c, m, g_bundle->data, g_bundle->size);
+    if (!id)
+        fprintf(stderr, "submit refused: %s\n", err_text);
+    cli_close(&c);
+    return id;
+}
+
+static int status(int port, uint64_t id, proto_job_info *out)
+{
+    cli c;
+    if (cli_open(&c, port) != 0)
+        return -1;
+    send_ref(&c, PROTO_MSG_STATUS, id);
+    proto_frame f;
+    int t = reply(&c, &f);
+    if (t == PROTO_MSG_JOB_INFO && proto_msg_decode_job_info(f.payload, f.len, out, NULL) != PT_OK)
+        t = -1;
+    cli_close(&c);
+    return t;
+}
+
+/* Waits until job id is in state (or has ended when state is 0). */
+static int wait_state(int port, uint64_t id, int state, double timeout, proto_job_info *out)
+{
+    double end = now_s() + timeout;
+    while (now_s() < end) {
+        if (status(port, id, out) == PROTO_MSG_JOB_INFO &&
+            (out->state == state || (state == 0 && out->state >= PROTO_JOB_DONE)))
+            return 1;
+        sleep_ms(50);
+    }
+    return 0;
+}
+
+static int fetch(int port, uint64_t id, const char *name)
+{
+    cli c;
+    if (cli_open(&c, port) != 0)
+        return -1;
+    send_ref(&c, PROTO_MSG_FETCH, id);
+    uint8_t *img = NULL;
+    uint64_t got = 0, total = 1;
+    uint8_t hash[32];
+    int ok = 0;
+    while (got < total) {
+        proto_frame f;
+        if (reply(&c, &f) != PROTO_MSG_IMAGE)
+            break;
+        proto_scene_chunk ch;
+        if (proto_msg_decode_scene_chunk(f.payload, f.len, &ch, NULL) != PT_OK || ch.offset != got)
+            break;
+        if (!img) {
+            total = ch.total;
+            img = malloc(total);
+            memcpy(hash, ch.hash, 32);
+        }
+        memcpy(img + got, ch.data, ch.len);
+        got += ch.len;
+    }
+    if (img && got == total) {
+        uint8_t h[32];
+        hash_bytes(img, total, h);
+        FILE *f = fopen(path(name), "wb");
+        ok = !memcmp(h, hash, 32) && f && fwrite(img, 1, total, f) == total;
+        if (f)
+            fclose(f);
+    }
+    free(img);
+    cli_close(&c);
+    return ok ? 0 : -1;
+}
+
+/* ---- processes --------------------------------------------------------------------- */
+
+static void start_server(const char *state, const char *log, const char *extra)
+{
+    char listen[64];
+    snprintf(listen, sizeof listen, "127.0.0.1:%d", g_port);
+    unlink(path("port"));
+    const char *argv[] = {PT_BIN_DIR "/ptserve", "--state-dir", path(state), "--listen", listen,
+                          "--port-file", path("port"), "--tile", "16", "--chunk", "8",
+                          "--save-interval", "0.2", "--lease-timeout", "5",
+                          extra ? extra : "--quiet", extra ? "2" : NULL, NULL};
+    g_srv = spawn(argv, log);
+    int port = read_port();
+    CHECK(port > 0);
+    if (g_port == 0)
+        g_port = port;
+}
+
+static void kill_server(int sig)
+{
+    if (g_srv > 0) {
+        kill(g_srv, sig);
+        int st;
+        waitpid(g_srv, &st, 0);
+    }
+    g_srv = -1;
+}
+
+static pid_t start_worker(const char *name)
+{
+    char server[64];
+    snprintf(server, sizeof server, "127.0.0.1:%d", g_port);
+    const char *argv[] = {PT_BIN_DIR "/ptworker", "--server", server, "--threads", "1",
+                          "--cache-dir", path("cache"), "--name", name, NULL};
+    return spawn(argv, "workers.log");
+}
+
+static void stop_worker(pid_t w)
+{
+    kill(w, SIGTERM);
+    wait_exit(w, 30);
+}
+
+/* Lines of log that contain needle, in order: the job ids of "job N done". */
+static int done_order(const char *log, uint64_t *ids, int cap)
+{
+    FILE *f = fopen(path(log), "r");
+    int n = 0;
+    char line[4096];
+    while (f && fgets(line, sizeof line, f) && n < cap) {
+        const char *p = strstr(line, "ptserve: job ");
+        unsigned long long id;
+        if (p && strstr(p, " done:") && sscanf(p, "ptserve: job %llu done:", &id) == 1)
+            ids[n++] = id;
+    }
+    if (f)
+        fclose(f);
+    return n;
+}
+
+/* ---- 1. crash-restart --------------------------------------------------------------- */
+
+static void crash_restart(void)
+{
+    const uint32_t spp = 2048;
+    const char *ref[] = {PT_BIN_DIR "/ptworker", "--scene", SCENE, "--res", "64x48", "--tile",
+                         "16", "--chunk", "8", "--seed", "5", "--spp", "2048", "-o",
+                         path("crash_ref.exr"), "-q", NULL};
+    CHECK(run(ref, "crash_ref.log", 600) == 0);
+    g_port = 0;
+    start_server("state1", "crash.log", NULL);
+    pid_t w1 = start_worker("c1"), w2 = start_worker("c2");
+    uint64_t id = submit(g_port, job_of("crash", 64, 48, spp, 0));
+    CHECK(id > 0);
+    const uint64_t total = 64ull * 48 * spp;
+    int kills = 0, lost = 0;
+    uint64_t last = 0;
+    srand(12345);
+    proto_job_info info;
+    while (kills < 6) {
+        /* Let more samples merge since the restart, then kill at a random moment. */
+        uint64_t goal = last + total / 12;
+        double end = now_s() + 300;
+        while (now_s() < end && status(g_port, id, &info) == PROTO_MSG_JOB_INFO &&
+               info.samples_done < goal && info.state != PROTO_JOB_DONE)
+            sleep_ms(20);
+        if (info.state == PROTO_JOB_DONE)
+            break;
+        sleep_ms(rand() % 150);
+        CHECK(status(g_port, id, &info) == PROTO_MSG_JOB_INFO);
+        uint64_t before = info.samples_done;
+        if (info.state == PROTO_JOB_DONE)
+            break;
+        kill_server(SIGKILL);
+        kills++;
+        start_server("state1", "crash.log", NULL);
+        CHECK(status(g_port, id, &info) == PROTO_MSG_JOB_INFO);
+        if (info.samples_done < before) {
+            lost++;
+            fprintf(stderr, "restart %d: %llu samples merged before the kill, %llu after\n", kills,
+                    (unsigned long long)before, (unsigned long long)info.samples_done);
+        }
+        last = info.samples_done;
+    }
+    CHECKF(kills >= 5, "only %d kills before the job ended", kills);
+    CHECK(lost == 0);
+    CHECK(log_has("crash.log", "resumed"));
+    CHECK(wait_state(g_port, id, PROTO_JOB_DONE, 600, &info));
+    CHECK(info.samples_done == total);
+    CHECK(fetch(g_port, id, "crash.exr") == 0);
+    CHECK(same_pixels("crash_ref.exr", "crash.exr"));
+    CHECK(all_samples("crash.exr", (float)spp));
+    /* The image also lies in the output folder, under a sanitised name. */
+    char out[300];
+    snprintf(out, sizeof out, "state1/output/%s", info.output);
+    CHECK(same_pixels("crash_ref.exr", out));
+    stop_worker(w1);
+    stop_worker(w2);
+    kill_server(SIGTERM);
+}
+
+/* ---- 2. the queue ------------------------------------------------------------------- */
+
+static void queue_order(void)
+{
+    g_port = 0;
+    start_server("state2", "queue.log", NULL);
+    /* Two clients submit at the same time, interleaved on the wire. */
+    cli a, b;
+    CHECK(cli_open(&a, g_port) == 0 && cli_open(&b, g_port) == 0);
+    proto_submit ma = job_of("a", 32, 32, 16, 0), mb = job_of("b", 32, 32, 16, 0);
+    ma.bundle_size = mb.bundle_size = g_bundle->size;
+    hash_bytes(g_bundle->data, g_bundle->size, ma.bundle_hash);
+    memcpy(mb.bundle_hash, ma.bundle_hash, 32);
+    submit_begin(&a, &ma);
+    submit_begin(&b, &mb);
+    uint32_t half = (uint32_t)(g_bundle->size / 2);
+    upload(&a, ma.bundle_hash, g_bundle->data, g_bundle->size, 0, half);
+    upload(&b, mb.bundle_hash, g_bundle->data, g_bundle->size, 0, half);
+    upload(&b, mb.bundle_hash, g_bundle->data, g_bundle->size, half,
+           (uint32_t)(g_bundle->size - half));
+    upload(&a, ma.bundle_hash, g_bundle->data, g_bundle->size, half,
+           (uint32_t)(g_bundle->size - half));
+    proto_frame f;
+    proto_job_ref ra = {0}, rb = {0};
+    CHECK(reply(&a, &f) == PROTO_MSG_SUBMITTED && proto_msg_decode_job_ref(f.payload, f.len, &ra, NULL) == PT_OK);
+    CHECK(reply(&b, &f) == PROTO_MSG_SUBMITTED && proto_msg_decode_job_ref(f.payload, f.len, &rb, NULL) == PT_OK);
+    cli_close(&a);
+    cli_close(&b);
+    CHECK(ra.job_id && rb.job_id && ra.job_id != rb.job_id);
+    uint64_t first = ra.job_id < rb.job_id ? ra.job_id : rb.job_id;
+    uint64_t second = ra.job_id < rb.job_id ? rb.job_id : ra.job_id;
+    uint64_t urgent = submit(g_port, job_of("urgent", 32, 32, 16, 5));
+    CHECK(urgent > 0);
+    proto_job_info info;
+    CHECK(status(g_port, urgent, &info) == PROTO_MSG_JOB_INFO && info.queue_pos == 1);
+    CHECK(status(g_port, first, &info) == PROTO_MSG_JOB_INFO && info.queue_pos == 2);
+    CHECK(status(g_port, second, &info) == PROTO_MSG_JOB_INFO && info.queue_pos == 3);
+
+    /* Queued jobs survive a kill -9, in the same order. */
+    kill_server(SIGKILL);
+    start_server("state2", "queue.log", NULL);
+    cli l;
+    CHECK(cli_open(&l, g_port) == 0);
+    cli_send(&l, PROTO_MSG_LIST, NULL);
+    proto_job_list list = {0};
+    CHECK(reply(&l, &f) == PROTO_MSG_JOB_LIST &&
+          proto_msg_decode_job_list(f.payload, f.len, &list, NULL) == PT_OK);
+    CHECK(list.count == 3);
+    if (list.count == 3) {
+        CHECK(list.jobs[0].job_id == urgent && list.jobs[0].queue_pos == 1);
+        CHECK(list.jobs[1].job_id == first && list.jobs[1].queue_pos == 2);
+        CHECK(list.jobs[2].job_id == second && list.jobs[2].state == PROTO_JOB_QUEUED);
+        CHECK(strcmp(list.jobs[0].name, "urgent") == 0 && list.jobs[0].priority == 5);
+    }
+    pt_free(list.jobs);
+    cli_close(&l);
+
+    /* A worker that holds every task of the urgent job (4 tiles x 2 chunks)
+     * and asks for more is given the next job's: when the running job cannot
+     * use a worker, the next one starts. It never returns a result, so its
+     * leases are requeued when it goes. */
+    cli fw;
+    CHECK(cli_open_as(&fw, g_port, PROTO_ROLE_WORKER) == 0);
+    int held = 0;
+    uint64_t next_job = 0;
+    for (int i = 0; i < 16 && !next_job; i++) {
+        uint64_t job = lease_one(&fw);
+        if (job == urgent)
+            held++;
+        else
+            next_job = job;
+    }
+    CHECK(held == 8 && next_job == first);
+    CHECK(status(g_port, urgent, &info) == PROTO_MSG_JOB_INFO && info.state == PROTO_JOB_RUNNING);
+    CHECK(status(g_port, first, &info) == PROTO_MSG_JOB_INFO && info.state == PROTO_JOB_RUNNING);
+    CHECK(status(g_port, second, &info) == PROTO_MSG_JOB_INFO && info.state == PROTO_JOB_QUEUED);
+    cli_close(&fw);
+
+    /* One worker runs them: priority first, then submission order. */
+    pid_t w = start_worker("q1");
+    CHECK(wait_state(g_port, second, PROTO_JOB_DONE, 120, &info));
+    uint64_t order[8];
+    int n = done_order("queue.log", order, 8);
+    CHECK(n == 3 && order[0] == urgent && order[1] == first && order[2] == second);
+
+    /* Cancel during a render: the workers move on to the next job at once. */
+    uint64_t big = submit(g_port, job_of("big", 64, 48, 65536, 0));
+    CHECK(big > 0);
+    double end = now_s() + 60;
+    while (now_s() < end && status(g_port, big, &info) == PROTO_MSG_JOB_INFO &&
+           info.samples_done == 0)
+        sleep_ms(20);
+    CHECK(info.state == PROTO_JOB_RUNNING && info.samples_done > 0);
+    /* Its latest progressive image can be fetched while it renders. */
+    int fetched = -1;
+    for (end = now_s() + 30; fetched != 0 && now_s() < end; sleep_ms(50))
+        fetched = fetch(g_port, big, "big_progress.exr");
+    CHECK(fetched == 0);
+    pt_image *progress = load_exr("big_progress.exr");
+    CHECK(progress && progress->width == 64 && progress->height == 48);
+    pt_image_free(progress);
+    uint64_t small = submit(g_port, job_of("after", 32, 32, 16, 0));
+    CHECK(status(g_port, small, &info) == PROTO_MSG_JOB_INFO && info.state == PROTO_JOB_QUEUED);
+    CHECK(cli_open(&l, g_port) == 0);
+    send_ref(&l, PROTO_MSG_CANCEL, big);
+    CHECK(reply(&l, &f) == PROTO_MSG_JOB_INFO &&
+          proto_msg_decode_job_info(f.payload, f.len, &info, NULL) == PT_OK &&
+          info.state == PROTO_JOB_CANCELLED);
+    cli_close(&l);
+    CHECK(wait_state(g_port, small, PROTO_JOB_DONE, 120, &info));
+    CHECK(status(g_port, big, &info) == PROTO_MSG_JOB_INFO && info.state == PROTO_JOB_CANCELLED);
+    CHECK(status(g_port, 999, &info) == -2 && strstr(err_text, "no job"));
+    stop_worker(w);
+    kill_server(SIGTERM);
+}
+
+/* ---- 3. damaged state --------------------------------------------------------------- */
+
+static void copy_file(const char *from, const char *to)
+{
+    char cmd[1200];
+    snprintf(cmd, sizeof cmd, "cp -a '%s' '%s'", path(from), path(to));
+    CHECK(system(cmd) == 0);
+}
+
+static void flip_byte(const char *name, long at)
+{
+    FILE *f = fopen(path(name), "r+b");
+    CHECK(f != NULL);
+    if (!f)
+        return;
+    fseek(f, 0, SEEK_END);
+    long size = ftell(f);
+    long off = at < 0 ? size + at : at;
+    fseek(f, off, SEEK_SET);
+    int c = fgetc(f);
+    fseek(f, off, SEEK_SET);
+    fputc(c ^ 0x10, f);
+    fclose(f);
+}
+
+static void cut_file(const char *name, long drop)
+{
+    struct stat sb;
+    CHECK(stat(path(name), &sb) == 0);
+    CHECK(truncate(path(name), sb.st_size - drop) == 0);
+}
+
+/* Starts ptserve on a damaged state folder; returns its exit status when it
+ * exits within a few seconds, or -1 when it keeps running (then stops it). */
+static int start_damaged(const char *log)
+{
+    unlink(path("port"));
+    char listen[64];
+    snprintf(listen, sizeof listen, "127.0.0.1:%d", g_port);
+    const char *argv[] = {PT_BIN_DIR "/ptserve", "--state-dir", path("state3"), "--listen",
+                          listen, "--port-file", path("port"), "--quiet", NULL};
+    g_srv = spawn(argv, log);
+    for (int i = 0; i < 100; i++) {
+        int st;
+        if (waitpid(g_srv, &st, WNOHANG) == g_srv) {
+            g_srv = -1;
+            return WIFEXITED(st) ? WEXITSTATUS(st) : 128;
+        }
+        if (access(path("port"), F_OK) == 0)
+            return -1;
+        sleep_ms(50);
+    }
+    return -1;
+}
+
+static void damaged(void)
+{
+    /* A job with a checkpoint and a results log: run, stop cleanly (checkpoint),
+     * run again until more results are logged, kill -9. */
+    g_port = 0;
+    start_server("state3", "damage.log", NULL);
+    pid_t w = start_worker("d1");
+    uint64_t id = submit(g_port, job_of("damage", 64, 48, 65536, 0));
+    proto_job_info info;
+    double end = now_s() + 60;
+    while (now_s() < end && status(g_port, id, &info) == PROTO_MSG_JOB_INFO &&
+           info.samples_done < 64 * 48 * 16)
+        sleep_ms(20);
+    kill_server(SIGTERM);
+    start_server("state3", "damage.log", NULL);
+    uint64_t base = info.samples_done;
+    end = now_s() + 60;
+    while (now_s() < end && status(g_port, id, &info) == PROTO_MSG_JOB_INFO &&
+           info.samples_done < base + 64 * 48 * 16)
+        sleep_ms(20);
+    kill_server(SIGKILL);
+    stop_worker(w);
+    char job[64], ck[96], lg[96];
+    snprintf(job, sizeof job, "state3/jobs/%llu", (unsigned long long)id);
+    snprintf(ck, sizeof ck, "%s/checkpoint", job);
+    snprintf(lg, sizeof lg, "%s/results.log", job);
+    struct stat sb;
+    CHECK(stat(path(ck), &sb) == 0);
+    CHECK(stat(path(lg), &sb) == 0 && sb.st_size > 1000);
+    copy_file("state3", "state3.good");
+
+    /* The queue file: a flipped byte, then a truncation. ptserve refuses to start. */
+    flip_byte("state3/queue", 30);
+    CHECK(start_damaged("damage_q1.log") == 1);
+    CHECK(log_has("damage_q1.log", "state3/queue") && log_has("damage_q1.log", "checksum"));
+    copy_file("state3.good/queue", "state3/queue");
+    cut_file("state3/queue", 7);
+    CHECK(start_damaged("damage_q2.log") == 1);
+    CHECK(log_has("damage_q2.log", "state3/queue"));
+    copy_file("state3.good/queue", "state3/queue");
+
+    /* The checkpoint and the log: the job fails naming the file; the server serves on. */
+    struct {
+        const char *file;
+        long at, cut;
+        const char *log, *expect;
+    } cases[] = {
+        {ck, 100, 0, "damage_c1.log", "checksum"},
+        {ck, 0, 1000, "damage_c2.log", "truncated"},
+        {lg, 40, 0, "damage_l1.log", "damaged"},
+    };
+    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+        char cmd[1200];
+        snprintf(cmd, sizeof cmd, "rm -rf '%s' && cp -a '%s' '%s'", path("state3"),
+                 path("state3.good"), path("state3"));
+        CHECK(system(cmd) == 0);
+        if (cases[i].cut)
+            cut_file(cases[i].file, cases[i].cut);
+        else
+            flip_byte(cases[i].file, cases[i].at);
+        CHECK(start_damaged(cases[i].log) == -1);
+        CHECK(status(g_port, id, &info) == PROTO_MSG_JOB_INFO);
+        CHECKF(info.state == PROTO_JOB_FAILED && strstr(info.message, cases[i].file + 7) &&
+                   strstr(info.message, cases[i].expect),
+               "case %zu: state %u, message '%s'", i, info.state, info.message);
+        kill_server(SIGTERM);
+    }
+
+    /* A log cut short at its end is what a crash during a write leaves: accepted. */
+    char cmd[1200];
+    snprintf(cmd, sizeof cmd, "rm -rf '%s' && cp -a '%s' '%s'", path("state3"),
+             path("state3.good"), path("state3"));
+    CHECK(system(cmd) == 0);
+    cut_file(lg, 100);
+    CHECK(start_damaged("damage_torn.log") == -1);
+    CHECK(status(g_port, id, &info) == PROTO_MSG_JOB_INFO && info.state == PROTO_JOB_RUNNING);
+    CHECK(info.samples_done > 0);
+    kill_server(SIGTERM);
+    CHECK(log_has("damage_torn.log", "incomplete last record"));
+}
+
+/* ---- 4. hostile clients ------------------------------------------------------------- */
+
+/* A bundle of the given files (name, bytes) in the PTB1 layout. */
+static uint8_t *make_bundle(const char *const *names, const char *const *datas, int n,
+                            size_t *len)
+{
+    proto_writer w;
+    proto_writer_init(&w, 1 << 20);
+    proto_w_u32(&w, 0x31425450u); /* "PTB1" */
+    proto_w_u32(&w, (uint32_t)n);
+    for (int i = 0; i < n; i++) {
+        proto_w_u16(&w, (uint16_t)strlen(names[i]));
+        proto_w_bytes(&w, names[i], strlen(names[i]));
+        proto_w_u64(&w, strlen(datas[i]));
+        proto_w_bytes(&w, datas[i], strlen(datas[i]));
+    }
+    *len = w.len;
+    return w.buf;
+}
+
+static int refused(proto_submit m, const uint8_t *data, size_t n, const char *expect)
+{
+    cli c;
+    if (cli_open(&c, g_port) != 0)
+        return 0;
+    err_text[0] = '\0';
+    uint64_t id = submit_bytes(&c, m, data, n);
+    int ok = id == 0 && strstr(err_text, expect) != NULL;
+    if (!ok)
+        fprintf(stderr, "expected a refusal with '%s', got job %llu / '%s'\n", expect,
+                (unsigned long long)id, err_text);
+    cli_close(&c);
+    return ok;
+}
+
+static void hostile_clients(void)
+{
+    const char *ref[] = {PT_BIN_DIR "/ptworker", "--scene", SCENE, "--res", "64x48", "--tile",
+                         "16", "--chunk", "8", "--seed", "5", "--spp", "256", "-o",
+                         path("hostile_ref.exr"), "-q", NULL};
+    CHECK(run(ref, "hostile_ref.log", 300) == 0);
+    g_port = 0;
+    start_server("state4", "hostile.log", "--max-queued");
+    uint64_t id = submit(g_port, job_of("victim", 64, 48, 256, 0));
+    CHECK(id > 0);
+    const uint8_t *B = g_bundle->data;
+    size_t N = g_bundle->size;
+
+    CHECK(refused(job_of("../../etc/passwd", 64, 48, 16, 0), B, N, "not a plain name"));
+    CHECK(refused(job_of("/etc/passwd", 64, 48, 16, 0), B, N, "not a plain name"));
+    CHECK(refused(job_of(".hidden", 64, 48, 16, 0), B, N, "not a plain name"));
+    CHECK(refused(job_of("wide", 100000, 48, 16, 0), B, N, "resolution"));
+    CHECK(refused(job_of("many", 64, 48, 1u << 24, 0), B, N, "samples per pixel"));
+    CHECK(refused(job_of("zero", 64, 48, 0, 0), B, N, "SUBMIT"));
+
+    /* Bundles: a file named ../x, a lying inner length, the wrong hash, a broken glTF. */
+    const char *n1[] = {"scene.gltf", "../evil.bin"}, *d1[] = {"{}", "x"};
+    size_t len;
+    uint8_t *evil = make_bundle(n1, d1, 2, &len);
+    CHECK(refused(job_of("evil", 0, 0, 16, 0), evil, len, "bad scene bundle"));
+    proto_put_u64(evil + 8 + 2 + strlen(n1[0]), 1u << 30); /* entry claims 1 GiB */
+    CHECK(refused(job_of("liar", 0, 0, 16, 0), evil, len, "bad scene bundle"));
+    free(evil);
+    const char *n2[] = {"scene.gltf"}, *d2[] = {"{\"asset\": {\"version\": \"2.0\"}, \"buffers\": ["};
+    uint8_t *broken = make_bundle(n2, d2, 1, &len);
+    CHECK(refused(job_of("broken", 0, 0, 16, 0), broken, len, "scene refused"));
+    free(broken);
+
+    cli c;
+    proto_frame f;
+    /* The announced size is absurd. */
+    CHECK(cli_open(&c, g_port) == 0);
+    proto_submit m = job_of("huge", 64, 48, 16, 0);
+    m.bundle_size = 1ull << 62;
+    submit_begin(&c, &m);
+    CHECK(reply(&c, &f) == -2 && strstr(err_text, "over this server's limit"));
+    cli_close(&c);
+    /* Uploads that do not continue what SUBMIT announced: a wrong total, a gap. */
+    for (int k = 0; k < 2; k++) {
+        CHECK(cli_open(&c, g_port) == 0);
+        m = job_of("gap", 64, 48, 16, 0);
+        m.bundle_size = N;
+        hash_bytes(B, N, m.bundle_hash);
+        submit_begin(&c, &m);
+        if (k == 0)
+            upload(&c, m.bundle_hash, B, N + 10, 0, (uint32_t)N);
+        else
+            upload(&c, m.bundle_hash, B, N, 1, (uint32_t)N - 1);
+        CHECK(reply(&c, &f) == -2 && strstr(err_text, "does not continue"));
+        cli_close(&c);
+    }
+    /* The bytes do not hash to what SUBMIT announced. */
+    CHECK(cli_open(&c, g_port) == 0);
+    m = job_of("hash", 64, 48, 16, 0);
+    m.bundle_size = N;
+    memset(m.bundle_hash, 0xab, 32);
+    submit_begin(&c, &m);
+    upload(&c, m.bundle_hash, B, N, 0, (uint32_t)N);
+    CHECK(reply(&c, &f) == -2 && strstr(err_text, "SHA-256"));
+    cli_close(&c);
+    /* A submit that stops half-way: the client goes away. */
+    CHECK(cli_open(&c, g_port) == 0);
+    m = job_of("half", 64, 48, 16, 0);
+    m.bundle_size = N;
+    hash_bytes(B, N, m.bundle_hash);
+    submit_begin(&c, &m);
+    upload(&c, m.bundle_hash, B, N, 0, (uint32_t)(N / 2));
+    sleep_ms(100);
+    cli_close(&c);
+    /* A worker's message from a client. */
+    CHECK(cli_open(&c, g_port) == 0);
+    proto_writer w;
+    proto_writer_init(&w, 64);
+    proto_work_request wr = {4};
+    proto_msg_encode_work_request(&w, &wr, NULL);
+    cli_send(&c, PROTO_MSG_WORK_REQUEST, &w);
+    proto_writer_fini(&w);
+    CHECK(reply(&c, &f) == -2 && strstr(err_text, "from a client"));
+    cli_close(&c);
+
+    /* The cap of --max-queued 2: a second unfinished job is taken, a third is not. */
+    uint64_t second = submit(g_port, job_of("second", 32, 32, 16, 0));
+    CHECK(second > 0);
+    CHECK(refused(job_of("third", 64, 48, 16, 0), B, N, "unfinished jobs"));
+    CHECK(cli_open(&c, g_port) == 0);
+    send_ref(&c, PROTO_MSG_CANCEL, second);
+    CHECK(reply(&c, &f) == PROTO_MSG_JOB_INFO);
+    cli_close(&c);
+
+    /* Nothing else was queued, and the victim renders to the end, exactly. */
+    CHECK(cli_open(&c, g_port) == 0);
+    cli_send(&c, PROTO_MSG_LIST, NULL);
+    proto_job_list list = {0};
+    CHECK(reply(&c, &f) == PROTO_MSG_JOB_LIST &&
+          proto_msg_decode_job_list(f.payload, f.len, &list, NULL) == PT_OK && list.count == 2);
+    pt_free(list.jobs);
+    cli_close(&c);
+    pid_t wk = start_worker("h1");
+    proto_job_info info;
+    CHECK(wait_state(g_port, id, PROTO_JOB_DONE, 300, &info));
+    CHECK(fetch(g_port, id, "hostile.exr") == 0);
+    CHECK(same_pixels("hostile_ref.exr", "hostile.exr"));
+    CHECK(all_samples("hostile.exr", 256.0f));
+    CHECK(log_has("hostile.log", "left during an upload"));
+    stop_worker(wk);
+    kill_server(SIGTERM);
+}
+
+int main(void)
+{
+    snprintf(tmp, sizeof tmp, "/tmp/pt_test_queue_XXXXXX");
+    if (!mkdtemp(tmp))
+        return 1;
+    signal(SIGPIPE, SIG_IGN);
+    pt_error err = {0};
+    if (pt_bundle_pack(SCENE, &g_bundle, &err) != PT_OK) {
+        fprintf(stderr, "%s\n", err.msg);
+        return 1;
+    }
+    crash_restart();
+    queue_order();
+    damaged();
+    hostile_clients();
+    pt_bundle_free(g_bundle);
+    if (g_srv > 0)
+        kill_server(SIGKILL);
+    CHECK(sanitizer_reports() == 0);
+    if (check_failed_ == 0 && !getenv("PT_KEEP_TMP")) {
+        char cmd[512];
+        snprintf(cmd, sizeof cmd, "rm -rf %s", tmp);
+        if (system(cmd) != 0)
+            return 1;
+    } else {
+        fprintf(stderr, "logs kept in %s\n", tmp);
+    }
+    return check_report();
+}
