@@ -1,0 +1,86 @@
+#!/usr/bin/env bash
+# ptctl against a real ptserve queue (--state-dir, local workers), end to end:
+# submit (a scene with external buffers and textures, uploaded by ptctl),
+# watch to the end, status --json and list --json, fetch (bit-identical to
+# the standalone render, exact sample counts), cancel (watch then exits 4),
+# and the exit codes a script relies on (3 no such job, 1 refused, 2 usage).
+set -euo pipefail
+bin=${PT_BIN:?}
+src=${PT_SOURCE_DIR:?}
+shared=${PT_SHARED_SCENES:-$src/../shared/scenes}
+tmp=$(mktemp -d /tmp/pt_queue_ctl_XXXXXX)
+srv_pid=
+cleanup() {
+  [ -n "$srv_pid" ] && kill "$srv_pid" 2>/dev/null && wait "$srv_pid" 2>/dev/null || true
+  if [ "${failed:-0}" = 0 ]; then rm -rf "$tmp"; else echo "logs kept in $tmp" >&2; fi
+}
+trap cleanup EXIT
+failed=1
+fail() { echo "FAIL: $*" >&2; exit 1; }
+json() { python3 -c "import json,sys; d=json.load(open(sys.argv[1])); print(eval(sys.argv[2]))" "$@"; }
+
+"$bin/ptserve" --state-dir "$tmp/state" --output-dir "$tmp/out" --listen 127.0.0.1:0 \
+  --port-file "$tmp/port" --local 2 --worker-threads 1 --tile 16 --chunk 8 \
+  --max-queued 3 2> "$tmp/serve.log" &
+srv_pid=$!
+for _ in $(seq 100); do [ -s "$tmp/port" ] && break; sleep 0.05; done
+[ -s "$tmp/port" ] || fail "ptserve did not start: $(cat "$tmp/serve.log")"
+export PTFARM_SERVER=127.0.0.1:$(cat "$tmp/port")
+ctl() { "$bin/ptctl" "$@"; }
+
+# Submit and watch the Cornell box; compare with the standalone render.
+id=$(ctl submit "$src/scenes/cornell_box.gltf" --res 48x32 --spp 64 --seed 7 --name "cornell box")
+[[ "$id" =~ ^[0-9]+$ ]] || fail "submit printed '$id'"
+ctl watch "$id" 2> "$tmp/watch.log" || fail "watch exited $?"
+ctl status "$id" --json > "$tmp/status.json"
+[ "$(json "$tmp/status.json" 'd["state"]')" = done ] || fail "state: $(cat "$tmp/status.json")"
+[ "$(json "$tmp/status.json" 'd["samples_done"]')" = $((48 * 32 * 64)) ] || fail "samples: $(cat "$tmp/status.json")"
+ctl fetch "$id" -o "$tmp/cornell.exr"
+"$bin/ptworker" --scene "$src/scenes/cornell_box.gltf" --res 48x32 --spp 64 --seed 7 \
+  --tile 16 --chunk 8 -q -o "$tmp/cornell_ref.exr"
+"$bin/ptexr-diff" "$tmp/cornell_ref.exr" "$tmp/cornell.exr" || fail "fetched image differs"
+out=$(json "$tmp/status.json" 'd["output"]')
+[[ "$out" == "$id-cornell_box.exr" ]] || fail "output name '$out'"
+[ -f "$tmp/out/$out" ] || fail "no $tmp/out/$out"
+
+# A scene with an external .bin and PNG textures travels whole.
+if [ -f "$shared/ToyCar/ToyCar.gltf" ]; then
+  car=$(ctl submit "$shared/ToyCar/ToyCar.gltf" --res 32x24 --spp 8)
+  ctl watch "$car" 2>/dev/null || fail "ToyCar watch"
+  ctl fetch "$car" -o "$tmp/car.exr"
+  "$bin/ptworker" --scene "$shared/ToyCar/ToyCar.gltf" --res 32x24 --spp 8 --tile 16 --chunk 8 \
+    -q -o "$tmp/car_ref.exr"
+  "$bin/ptexr-diff" "$tmp/car_ref.exr" "$tmp/car.exr" || fail "ToyCar image differs"
+elif [ "${CI:-}" = true ]; then
+  fail "CI needs $shared"
+fi
+
+# list --json names every job, in queue order.
+ctl list --json > "$tmp/list.json"
+[ "$(json "$tmp/list.json" 'len(d)')" -ge 1 ] || fail "list: $(cat "$tmp/list.json")"
+[ "$(json "$tmp/list.json" '[j["id"] for j in d].count('"$id"')')" = 1 ] || fail "list lacks $id"
+
+# Cancel a long job: watch ends with 4, status says cancelled.
+long=$(ctl submit "$src/scenes/cornell_box.gltf" --res 64x48 --spp 65536 --priority 3)
+( sleep 1; ctl cancel "$long" > "$tmp/cancel.out" ) &
+cancel_pid=$!
+set +e
+ctl watch "$long" 2>/dev/null; rc=$?
+set -e
+wait "$cancel_pid"
+[ "$rc" = 4 ] || fail "watch of a cancelled job exited $rc"
+ctl status "$long" --json > "$tmp/long.json"
+[ "$(json "$tmp/long.json" 'd["state"]')" = cancelled ] || fail "cancel: $(cat "$tmp/long.json")"
+
+# Exit codes: no such job 3, refused 1, bad usage 2.
+set +e
+ctl status 999999 2>/dev/null; [ $? = 3 ] || fail "status of a missing job"
+ctl fetch 999999 -o "$tmp/x.exr" 2>/dev/null; [ $? = 3 ] || fail "fetch of a missing job"
+ctl submit "$src/scenes/cornell_box.gltf" --spp 100000 2> "$tmp/refused.log"; rc=$?
+[ $rc = 1 ] && grep -q "samples per pixel" "$tmp/refused.log" || fail "spp cap: $rc $(cat "$tmp/refused.log")"
+ctl submit 2>/dev/null; [ $? = 2 ] || fail "submit without a scene"
+ctl frobnicate 2>/dev/null; [ $? = 2 ] || fail "unknown command"
+set -e
+grep -q "Sanitizer\|runtime error:" "$tmp/serve.log" && fail "sanitizer report"
+failed=0
+echo "ok"
