@@ -2,6 +2,8 @@
 
 #include <errno.h>
 #include <fcntl.h>
+#include <netinet/in.h>
+#include <netinet/tcp.h>
 #include <poll.h>
 #include <pthread.h>
 #include <signal.h>
@@ -91,6 +93,8 @@ struct worker {
     uint8_t token[PROTO_TOKEN_MAX];
     size_t token_len;
     uint32_t slots_max; /* threads + prefetch */
+    uint32_t link_timeout_ms;
+    int link_warned; /* the kernel refused the link-timeout options once; said so */
 
     wrk_cache *cache;
     wrk_scenes *scenes;
@@ -280,6 +284,53 @@ static void *render_thread(void *p)
     return NULL;
 }
 
+/* ---- the link ------------------------------------------------------------------------ */
+
+/*
+ * Makes a dead link fail the connection within about link_timeout_ms, even
+ * when no FIN or RST ever arrives (a cable pulled, a host gone, packets
+ * dropped): without this, Linux retransmits for ~15 minutes and an idle
+ * connection lives forever, so a worker cut off would hold a connection the
+ * coordinator has long given up on and never rejoin.
+ *
+ * TCP_USER_TIMEOUT (RFC 5482; tcp(7)) bounds how long sent data may stay
+ * unacknowledged; heartbeats and results are sent while tasks are held, so a
+ * busy worker notices through it. An idle worker (no tasks: nothing to send)
+ * sends keepalive probes after link/2 of silence, every link/6; with a user
+ * timeout set the kernel aborts once the link has been silent for link_ms
+ * with a probe unanswered, so both cases fail after about link_ms. The peer's
+ * kernel acknowledges data and answers probes even while ptserve is busy, so
+ * a slow coordinator is not mistaken for a dead link.
+ */
+static int set_link_timeout(int fd, uint32_t link_ms)
+{
+    int one = 1;
+    unsigned int user_ms = link_ms;
+    int idle = (int)(link_ms / 2000u), intvl = (int)(link_ms / 6000u), cnt = 3;
+    if (idle < 1)
+        idle = 1;
+    if (intvl < 1)
+        intvl = 1;
+    if (setsockopt(fd, SOL_SOCKET, SO_KEEPALIVE, &one, sizeof one) != 0 ||
+        setsockopt(fd, IPPROTO_TCP, TCP_KEEPIDLE, &idle, sizeof idle) != 0 ||
+        setsockopt(fd, IPPROTO_TCP, TCP_KEEPINTVL, &intvl, sizeof intvl) != 0 ||
+        setsockopt(fd, IPPROTO_TCP, TCP_KEEPCNT, &cnt, sizeof cnt) != 0 ||
+        setsockopt(fd, IPPROTO_TCP, TCP_USER_TIMEOUT, &user_ms, sizeof user_ms) != 0)
+        return -1;
+    return 0;
+}
+
+/* w->reason for a failed send or recv; ETIMEDOUT is the link timeout firing. */
+static void socket_failed(worker *w, const char *call, int e)
+{
+    if (e == ETIMEDOUT)
+        snprintf(w->reason, sizeof w->reason,
+                 "no answer from the server for %.1f s (--link-timeout): link or host down",
+                 w->link_timeout_ms / 1000.0);
+    else
+        snprintf(w->reason, sizeof w->reason, "%s: %s", call, strerror(e));
+}
+
 /* ---- output -------------------------------------------------------------------------- */
 
 /* Sends what the socket takes now. 0, or -1 with w->reason set. */
@@ -293,7 +344,7 @@ static int flush_out(worker *w)
         if (n < 0 && (errno == EAGAIN || errno == EWOULDBLOCK))
             break;
         if (n <= 0) {
-            snprintf(w->reason, sizeof w->reason, "send: %s", strerror(errno));
+            socket_failed(w, "send", n < 0 ? errno : EPIPE);
             return -1;
         }
         w->out_sent += (size_t)n;
@@ -811,7 +862,7 @@ static int read_in(worker *w, int *end)
     if (n < 0 && (errno == EINTR || errno == EAGAIN || errno == EWOULDBLOCK))
         return 0;
     if (n < 0) {
-        snprintf(w->reason, sizeof w->reason, "recv: %s", strerror(errno));
+        socket_failed(w, "recv", errno);
         return -1;
     }
     if (n == 0) {
@@ -891,6 +942,12 @@ static int session(worker *w, int sig_r, int *connected, int *welcomed)
         return g_stop ? END_STOP : END_RETRY;
     }
     *connected = 1;
+    if (set_link_timeout(w->fd, w->link_timeout_ms) != 0 && !w->link_warned) {
+        /* Not fatal: a dead link is then noticed only when TCP gives up. */
+        fprintf(stderr, "ptworker: warning: cannot set the link timeout on the socket: %s\n",
+                strerror(errno));
+        w->link_warned = 1;
+    }
     if (pt_net_set_nonblock(w->fd, &err) != PT_OK) {
         snprintf(w->reason, sizeof w->reason, "%s", err.msg);
         drop_session(w);
@@ -980,6 +1037,11 @@ static int setup(worker *w, const wrk_client_opts *o)
     w->fd = -1;
     w->wake_r = w->wake_w = -1;
     w->slots_max = o->threads + o->prefetch;
+    w->link_timeout_ms = o->link_timeout_ms ? o->link_timeout_ms : WRK_LINK_TIMEOUT_MS;
+    if (w->link_timeout_ms < WRK_LINK_TIMEOUT_MIN_MS)
+        w->link_timeout_ms = WRK_LINK_TIMEOUT_MIN_MS;
+    if (w->link_timeout_ms > WRK_LINK_TIMEOUT_MAX_MS)
+        w->link_timeout_ms = WRK_LINK_TIMEOUT_MAX_MS;
     if (pt_net_split(o->server, w->host, sizeof w->host, &w->port, &err) != PT_OK) {
         fprintf(stderr, "ptworker: --server: %s\n", err.msg);
         return 2;
@@ -1116,9 +1178,10 @@ int wrk_client_run(const wrk_client_opts *o)
 
     if (!g_stop)
         fprintf(stderr,
-                "ptworker: farm worker %s: %u threads, prefetch %u, cache %s, server %s:%u%s\n",
+                "ptworker: farm worker %s: %u threads, prefetch %u, cache %s, server %s:%u%s, "
+                "link timeout %.1f s\n",
                 w->name, o->threads, o->prefetch, wrk_cache_dir(w->cache), w->host, w->port,
-                w->token_len ? " (token)" : "");
+                w->token_len ? " (token)" : "", w->link_timeout_ms / 1000.0);
     w->t_start = now_ms();
     uint32_t delay = BACKOFF_MIN_MS;
     while (!g_stop) {

@@ -12,6 +12,11 @@
  * on-disk cache (worker/cache.h), RESULTs out as render threads finish (they
  * wake the I/O thread through a pipe), and a HEARTBEAT listing every task held
  * every max(200 ms, smallest lease / 3).
+ * A dead link is noticed even when nothing closes the connection (a cable
+ * pulled, a host powered off, a firewall dropping packets): data the
+ * coordinator has not acknowledged for link_timeout_ms fails the connection
+ * (TCP_USER_TIMEOUT), and an idle connection is probed with TCP keepalive so
+ * that it fails within about the same time.
  * A dropped connection, a malformed frame or a message out of place discards
  * every task held (the coordinator requeues them; results of tasks still
  * rendering are dropped when they finish) and reconnects with exponential
@@ -30,10 +35,18 @@ typedef struct wrk_client_opts {
     const char *server; /* "HOST:PORT" */
     uint32_t threads;   /* render threads, 1..PROTO_MAX_SLOTS */
     uint32_t prefetch;  /* tasks asked for beyond threads; threads + prefetch <= PROTO_MAX_SLOTS */
-    const char *token_file; /* NULL: empty token */
-    const char *cache_dir;  /* NULL: wrk_client_default_cache_dir() */
-    const char *name;       /* NULL: "hostname:pid"; at most PROTO_MAX_NAME bytes */
+    const char *token_file;   /* NULL: empty token */
+    const char *cache_dir;    /* NULL: wrk_client_default_cache_dir() */
+    const char *name;         /* NULL: "hostname:pid"; at most PROTO_MAX_NAME bytes */
+    uint32_t link_timeout_ms; /* a silent link fails after this long; 0: WRK_LINK_TIMEOUT_MS */
 } wrk_client_opts;
+
+/* The default link timeout: ptserve's default lease timeout, so a worker cut
+ * off drops its tasks about when the coordinator requeues them. */
+#define WRK_LINK_TIMEOUT_MS 20000u
+/* Bounds of link_timeout_ms (keepalive works in whole seconds). */
+#define WRK_LINK_TIMEOUT_MIN_MS 1000u
+#define WRK_LINK_TIMEOUT_MAX_MS 3600000u
 
 /* Runs the worker until a signal or a fatal refusal. Returns the process exit
  * status: 0 stopped by SIGTERM/SIGINT, 1 refused by the coordinator or a

@@ -34,7 +34,9 @@ static void usage(FILE *f)
             "and sends the results back, until SIGTERM or SIGINT. Scenes are fetched by\n"
             "content hash and kept in the cache folder. A lost connection is retried with\n"
             "backoff (0.2 s doubling to 10 s); a refused token, build or protocol version\n"
-            "ends the worker.\n"
+            "ends the worker. A link that goes silent (cable, host or firewall) counts as\n"
+            "lost after --link-timeout: the worker drops its tasks, which the coordinator\n"
+            "requeues, and reconnects.\n"
             "\n"
             "standalone options:\n"
             "  --scene PATH       the scene to render (required)\n"
@@ -65,11 +67,16 @@ static void usage(FILE *f)
             "                     or ~/.cache/ptfarm); several workers may share one\n"
             "  --name NAME        how the coordinator calls this worker (default HOST:PID,\n"
             "                     at most %u bytes)\n"
+            "  --link-timeout SEC a connection whose sent data stays unacknowledged, or\n"
+            "                     whose idle link answers no keepalive probe, this long is\n"
+            "                     dropped and retried (default %u, %u to %u); keep it near\n"
+            "                     ptserve's --lease-timeout\n"
             "\n"
             "exit status: standalone: 0 image written, 1 render or I/O error;\n"
             "             farm worker: 0 stopped by a signal, 1 refused by the coordinator or\n"
             "             a local error (token file, cache folder); 2 bad usage\n",
-            PROTO_MAX_SLOTS, PROTO_MAX_NAME);
+            PROTO_MAX_SLOTS, PROTO_MAX_NAME, WRK_LINK_TIMEOUT_MS / 1000u,
+            WRK_LINK_TIMEOUT_MIN_MS / 1000u, WRK_LINK_TIMEOUT_MAX_MS / 1000u);
 }
 
 static int parse_u32(const char *opt, const char *s, uint32_t min, uint32_t max, uint32_t *out)
@@ -78,11 +85,26 @@ static int parse_u32(const char *opt, const char *s, uint32_t min, uint32_t max,
     errno = 0;
     unsigned long long v = strtoull(s, &end, 10);
     if (errno || end == s || *end || s[0] == '-' || v < min || v > max) {
-        fprintf(stderr, "ptworker: %s: '%s' is not a whole number in [%u, %u]\n", opt, s, min,
-                max);
+        fprintf(stderr, "ptworker: %s: '%s' is not a whole number in [%u, %u]\n", opt, s, min, max);
         return -1;
     }
     *out = (uint32_t)v;
+    return 0;
+}
+
+/* Seconds, fractions allowed, within the client's bounds; to milliseconds. */
+static int parse_link_timeout(const char *s, uint32_t *ms)
+{
+    char *end;
+    errno = 0;
+    double v = strtod(s, &end);
+    if (errno || end == s || *end || !(v * 1000.0 >= WRK_LINK_TIMEOUT_MIN_MS) ||
+        !(v * 1000.0 <= WRK_LINK_TIMEOUT_MAX_MS)) {
+        fprintf(stderr, "ptworker: --link-timeout: '%s' is not a number of seconds in [%u, %u]\n",
+                s, WRK_LINK_TIMEOUT_MIN_MS / 1000u, WRK_LINK_TIMEOUT_MAX_MS / 1000u);
+        return -1;
+    }
+    *ms = (uint32_t)(v * 1000.0 + 0.5);
     return 0;
 }
 
@@ -113,8 +135,25 @@ int main(int argc, char **argv)
     int has_prefetch = 0;
     /* Which options were given, to refuse mixing the modes. */
     char standalone_opt[40] = "", farm_opt[40] = "";
-    enum { OPT_SCENE = 256, OPT_SPP, OPT_RES, OPT_SEED, OPT_THREADS, OPT_DEPTH, OPT_CAMERA,
-           OPT_TILE, OPT_CHUNK, OPT_TARGET, OPT_MINSPP, OPT_SERVER, OPT_PREFETCH, OPT_TOKEN, OPT_CACHE, OPT_NAME };
+    enum {
+        OPT_SCENE = 256,
+        OPT_SPP,
+        OPT_RES,
+        OPT_SEED,
+        OPT_THREADS,
+        OPT_DEPTH,
+        OPT_CAMERA,
+        OPT_TILE,
+        OPT_CHUNK,
+        OPT_TARGET,
+        OPT_MINSPP,
+        OPT_SERVER,
+        OPT_PREFETCH,
+        OPT_TOKEN,
+        OPT_CACHE,
+        OPT_NAME,
+        OPT_LINK_TIMEOUT
+    };
     static const struct option longopts[] = {
         {"scene", required_argument, NULL, OPT_SCENE},
         {"output", required_argument, NULL, 'o'},
@@ -134,6 +173,7 @@ int main(int argc, char **argv)
         {"token-file", required_argument, NULL, OPT_TOKEN},
         {"cache-dir", required_argument, NULL, OPT_CACHE},
         {"name", required_argument, NULL, OPT_NAME},
+        {"link-timeout", required_argument, NULL, OPT_LINK_TIMEOUT},
         {"help", no_argument, NULL, 'h'},
         {NULL, 0, NULL, 0},
     };
@@ -141,16 +181,36 @@ int main(int argc, char **argv)
     while ((c = getopt_long(argc, argv, "o:qh", longopts, &li)) != -1) {
         int bad = 0;
         switch (c) {
-        case OPT_SCENE: o.scene_path = optarg; break;
-        case 'o': o.out_path = optarg; break;
-        case OPT_SPP: bad = parse_u32("--spp", optarg, 1, 1u << 24, &o.spp); break;
-        case OPT_RES: bad = parse_res(optarg, &o.width, &o.height); break;
-        case OPT_SEED: bad = parse_u32("--seed", optarg, 0, UINT32_MAX, &o.seed); break;
-        case OPT_THREADS: bad = parse_u32("--threads", optarg, 1, 1024, &o.threads); break;
-        case OPT_DEPTH: bad = parse_u32("--max-depth", optarg, 0, 1024, &o.max_depth); break;
-        case OPT_CAMERA: o.camera = optarg; break;
-        case OPT_TILE: bad = parse_u32("--tile", optarg, 1, 4096, &o.tile); break;
-        case OPT_CHUNK: bad = parse_u32("--chunk", optarg, 1, 1u << 24, &o.chunk); break;
+        case OPT_SCENE:
+            o.scene_path = optarg;
+            break;
+        case 'o':
+            o.out_path = optarg;
+            break;
+        case OPT_SPP:
+            bad = parse_u32("--spp", optarg, 1, 1u << 24, &o.spp);
+            break;
+        case OPT_RES:
+            bad = parse_res(optarg, &o.width, &o.height);
+            break;
+        case OPT_SEED:
+            bad = parse_u32("--seed", optarg, 0, UINT32_MAX, &o.seed);
+            break;
+        case OPT_THREADS:
+            bad = parse_u32("--threads", optarg, 1, 1024, &o.threads);
+            break;
+        case OPT_DEPTH:
+            bad = parse_u32("--max-depth", optarg, 0, 1024, &o.max_depth);
+            break;
+        case OPT_CAMERA:
+            o.camera = optarg;
+            break;
+        case OPT_TILE:
+            bad = parse_u32("--tile", optarg, 1, 4096, &o.tile);
+            break;
+        case OPT_CHUNK:
+            bad = parse_u32("--chunk", optarg, 1, 1u << 24, &o.chunk);
+            break;
         case OPT_TARGET: {
             char *end;
             o.target_error = strtod(optarg, &end);
@@ -161,18 +221,37 @@ int main(int argc, char **argv)
             }
             break;
         }
-        case OPT_MINSPP: bad = parse_u32("--min-spp", optarg, 2, 1u << 24, &o.min_spp); break;
-        case 'q': o.quiet = 1; break;
-        case OPT_SERVER: net.server = optarg; break;
+        case OPT_MINSPP:
+            bad = parse_u32("--min-spp", optarg, 2, 1u << 24, &o.min_spp);
+            break;
+        case 'q':
+            o.quiet = 1;
+            break;
+        case OPT_SERVER:
+            net.server = optarg;
+            break;
         case OPT_PREFETCH:
             bad = parse_u32("--prefetch", optarg, 0, PROTO_MAX_SLOTS, &prefetch);
             has_prefetch = 1;
             break;
-        case OPT_TOKEN: net.token_file = optarg; break;
-        case OPT_CACHE: net.cache_dir = optarg; break;
-        case OPT_NAME: net.name = optarg; break;
-        case 'h': usage(stdout); return 0;
-        default: usage(stderr); return 2;
+        case OPT_TOKEN:
+            net.token_file = optarg;
+            break;
+        case OPT_CACHE:
+            net.cache_dir = optarg;
+            break;
+        case OPT_NAME:
+            net.name = optarg;
+            break;
+        case OPT_LINK_TIMEOUT:
+            bad = parse_link_timeout(optarg, &net.link_timeout_ms);
+            break;
+        case 'h':
+            usage(stdout);
+            return 0;
+        default:
+            usage(stderr);
+            return 2;
         }
         if (bad)
             return 2;

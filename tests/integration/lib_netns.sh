@@ -28,8 +28,6 @@
 #   log_count LOG REGEX           number of matching lines (0 when LOG is missing)
 #   wait_pid_timeout PID SECS VAR wait for a child to exit; its status goes to VAR
 #                                 (124 on timeout, the process is then left running)
-#   tcp_bytes_acked NS ADDR PORT  bytes the peer has acknowledged on NS's established TCP
-#                                 connections to ADDR:PORT (summed; 0 when there are none)
 #   fail MSG...                   print "FAIL: MSG" and exit 1
 
 NETNS_PREFIX=""
@@ -155,11 +153,6 @@ wait_pid_timeout() {
   printf -v "$3" '%s' "$_wpt_st"
 }
 
-tcp_bytes_acked() {
-  ip netns exec "$(netns_name "$1")" ss -Htin state established dst "$2:$3" 2>/dev/null |
-    grep -o 'bytes_acked:[0-9]*' | awk -F: '{n += $2} END {print n + 0}'
-}
-
 # Processes first (TERM, then KILL after 3 s), then anything still running inside
 # our namespaces, then the veth pairs (deleting either end deletes the pair) and
 # the namespaces. Every step tolerates what is already gone.
@@ -169,6 +162,7 @@ netns_cleanup() {
   set +e
   for pid in "${NETNS_PIDS[@]}"; do
     kill -TERM "$pid" 2>/dev/null
+    kill -CONT "$pid" 2>/dev/null # a stopped process acts on TERM only once continued
   done
   for ((i = 0; i < 30; i++)); do
     alive=0

@@ -5,18 +5,29 @@
 #                   --veth 10.77.0.4/30--  w2
 #                   --veth 10.77.0.8/30--  w3
 #                   --veth 10.77.0.12/30-- w4  (a worker with the wrong token)
+#                   --veth 10.77.0.16/30-- w5  (an idle worker, its link cut)
 #
 # Each worker talks only to the coordinator's address on its own link; nothing
-# is routed and nothing leaves the namespaces. The test renders a reference with
+# is routed and nothing leaves the namespaces. First, while the reference
+# renders, w5 connects to a listener that never answers and its link is cut:
+# with nothing to send, it must notice the dead link by TCP keepalive within
+# its --link-timeout. Then the test renders a reference with
 # the standalone ptworker, runs the same job on the farm, cuts w1's link in the
 # middle of the render for longer than the lease timeout (its leased tasks must
-# be requeued), restores it (w1 must come back), lets w4 try the wrong token
-# (it must be refused), and requires ptserve to exit 0 with an image that is
-# bit-identical (R, G, B, samples) to the reference.
+# be requeued), restores it, lets w4 try the wrong token (it must be refused),
+# and requires ptserve to exit 0 with an image that is bit-identical (R, G, B,
+# samples) to the reference.
 #
-# w1 "comes back" in one of two ways, and either passes: it reconnects (a second
-# "worker w1 joined"), or TCP keeps its connection through the outage and it
-# goes on rendering on it (the coordinator acknowledges new results from it).
+# Nothing closes w1's connection during the outage: no FIN or RST can cross a
+# link that is down. w1 must notice by itself, through its --link-timeout (its
+# heartbeats stay unacknowledged), drop its tasks and, once the link is back,
+# rejoin on a new connection: ptserve logs "worker w1 joined" a second time
+# while the render still runs, and w1's log says the link timeout fired.
+# So that the render cannot end before w1 is back however fast this machine
+# is, w2 and w3 are held (SIGSTOP) from the requeue of w1's tasks until w1
+# has rejoined; leases of theirs that expire meanwhile are requeued too, and
+# their late results dropped. The farm runs on at most 2 CPUs for the same
+# reason: a machine with many cores would otherwise finish before the cut.
 #
 # Needs root or CAP_SYS_ADMIN for `ip netns`; prints SKIP and passes without
 # them, except with CI=true, where that is a failure. Environment (set by
@@ -37,7 +48,8 @@ res=96x64
 spp=4096
 job=(--res "$res" --spp "$spp" --tile 16 --chunk 8 --seed 3)
 lease=3     # --lease-timeout, seconds
-outage=4    # how long w1's link stays down; must exceed $lease
+link=2      # the workers' --link-timeout, seconds; below $outage, so w1 notices the cut
+outage=4    # how long w1's link stays down; must exceed $lease and $link
 port=7000
 
 say() { printf '[%3ds] %s\n' "$SECONDS" "$*"; }
@@ -55,23 +67,69 @@ NETNS_TMP=$(mktemp -d "${TMPDIR:-/tmp}/ptmultihost.XXXXXX")
 T=$NETNS_TMP
 cd "$T"
 
-# 1. The reference, rendered on this machine alone.
-say "reference: ptworker --scene ${job[*]}"
-"$PT_BIN/ptworker" --scene "$scene" "${job[@]}" -o "$T/ref.exr" -q >"$T/ref.log" 2>&1 ||
-  fail "the reference render failed"
-say "reference done"
-
 # The hosts: one namespace each, a /30 per worker link.
 netns_add srv
 srv_addr=()   # srv_addr[k]: the coordinator's address on worker k's link
 wrk_addr=()
-for k in 1 2 3 4; do
+for k in 1 2 3 4 5; do
   netns_add "w$k"
   srv_addr[k]=10.77.0.$((4 * k - 3))
   wrk_addr[k]=10.77.0.$((4 * k - 2))
   netns_veth srv "veth-w$k" "${srv_addr[k]}/30" "w$k" veth-srv "${wrk_addr[k]}/30"
 done
-say "namespaces: $(netns_name srv), $(netns_name w1) .. $(netns_name w4)"
+say "namespaces: $(netns_name srv), $(netns_name w1) .. $(netns_name w5)"
+
+# 1. An idle worker's dead link. A listener in srv accepts w5 and never
+# answers, so w5 waits for a CHALLENGE with nothing to send; then its link is
+# cut. Only keepalive probes can tell w5 the link is dead, and they must
+# before the handshake timeout (15 s) would.
+idle_port=7001
+idle_srv_pid=""
+netns_spawn idle_srv_pid "$T/idle-listener.log" srv python3 -c '
+import socket, sys, time
+s = socket.socket()
+s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+s.bind((sys.argv[1], int(sys.argv[2])))
+s.listen(1)
+c = s.accept()
+print("accepted", flush=True)
+time.sleep(120)' "${srv_addr[5]}" "$idle_port"
+idle_pid=""
+for ((i = 0; i < 50; i++)); do
+  netns_exec srv ss -Hltn "src ${srv_addr[5]}:$idle_port" | grep -q . && break
+  sleep 0.1
+done
+netns_spawn idle_pid "$T/w5.log" w5 "$PT_BIN/ptworker" --server "${srv_addr[5]}:$idle_port" \
+  --threads 1 --cache-dir "$T/cache-w5" --name w5 --link-timeout "$link"
+wait_for_log "$T/idle-listener.log" '^accepted' 10 1 "$idle_srv_pid" ||
+  fail "w5 did not connect to the silent listener within 10 s"
+netns_link_set w5 veth-srv down
+idle_cut_at=$SECONDS
+say "w5 connected to a silent listener; cut its link"
+# Note when w5 gives up, while the reference renders.
+(wait_for_log "$T/w5.log" 'retrying in' 30 1 && echo $((SECONDS - idle_cut_at)) >"$T/w5.noticed") &
+idle_watch=$!
+
+# The reference, rendered on this machine alone (meanwhile w5's link is dead).
+say "reference: ptworker --scene ${job[*]}"
+"$PT_BIN/ptworker" --scene "$scene" "${job[@]}" -o "$T/ref.exr" -q >"$T/ref.log" 2>&1 ||
+  fail "the reference render failed"
+say "reference done"
+
+# w5 must have given up on its silent link within its link timeout, plus a
+# keepalive probe interval (1 s) and slack for whole seconds and a loaded machine.
+wait "$idle_watch" || fail "w5 did not notice its dead idle link within 30 s"
+noticed=$(<"$T/w5.noticed")
+((noticed <= link + 3)) || fail "w5 noticed its dead idle link only after $noticed s"
+grep -m1 'retrying in' "$T/w5.log" | grep -q -- '(--link-timeout)' ||
+  fail "w5's first failure is not its link timeout: $(grep -m1 'retrying in' "$T/w5.log")"
+kill -TERM "$idle_pid" "$idle_srv_pid"
+say "w5 noticed its dead idle link after ${noticed} s (--link-timeout $link)"
+
+# The farm's processes run on the first two CPUs this test may use.
+cpus=$(python3 -c 'import os; print(",".join(map(str, sorted(os.sched_getaffinity(0))[:2])))') ||
+  fail "cannot read this process's CPU affinity"
+pin=(taskset -c "$cpus")
 
 # 2. The coordinator. It listens on every address of its own namespace: the
 # coordinator's address on each worker's link.
@@ -80,7 +138,7 @@ head -c 32 /dev/urandom | od -An -tx1 | tr -d ' \n' >"$T/bad-tok"
 chmod 600 "$T/tok" "$T/bad-tok"
 srv_log=$T/ptserve.log
 srv_pid=""
-netns_spawn srv_pid "$srv_log" srv "$PT_BIN/ptserve" --listen "0.0.0.0:$port" \
+netns_spawn srv_pid "$srv_log" srv "${pin[@]}" "$PT_BIN/ptserve" --listen "0.0.0.0:$port" \
   --token-file "$T/tok" --port-file "$T/port" --lease-timeout "$lease" --save-interval 1 \
   "${job[@]}" -o "$T/farm.exr" "$scene"
 deadline=$((SECONDS + 10))
@@ -94,9 +152,9 @@ say "ptserve listening on port $(<"$T/port") in $(netns_name srv)"
 # 3. Three workers, one per namespace, each with its own scene cache.
 wrk_pid=()  # set by netns_spawn
 for k in 1 2 3; do
-  netns_spawn "wrk_pid[$k]" "$T/w$k.log" "w$k" "$PT_BIN/ptworker" \
+  netns_spawn "wrk_pid[$k]" "$T/w$k.log" "w$k" "${pin[@]}" "$PT_BIN/ptworker" \
     --server "${srv_addr[k]}:$port" --token-file "$T/tok" --threads 1 \
-    --cache-dir "$T/cache-w$k" --name "w$k"
+    --cache-dir "$T/cache-w$k" --name "w$k" --link-timeout "$link"
 done
 for k in 1 2 3; do
   # The peer address proves the worker came over its own link.
@@ -116,6 +174,7 @@ kill -0 "$srv_pid" 2>/dev/null || fail "the render finished before w1's link cou
 requeued_re='leases expired; tasks requeued|worker w1 left; [1-9][0-9]* leased tasks requeued'
 requeued_before=$(log_count "$srv_log" "$requeued_re")
 joined_re='worker w1 joined from'
+session_re='ptworker: connected to '
 netns_link_set w1 veth-srv down
 cut_at=$SECONDS
 say "cut w1's link (ip link set veth-srv down in $(netns_name w1))"
@@ -136,42 +195,27 @@ say "wrong token refused (ptworker exit status $st)"
 wait_for_log "$srv_log" "$requeued_re" $((outage + lease + 2)) $((requeued_before + 1)) "$srv_pid" ||
   fail "w1's leased tasks were not requeued within $((outage + lease + 2)) s of the cut"
 say "w1's leased tasks were requeued"
+kill -0 "$srv_pid" 2>/dev/null ||
+  fail "the render finished during w1's outage; enlarge the job so w1's rejoin can be checked"
+kill -STOP "${wrk_pid[2]}" "${wrk_pid[3]}"
+say "holding w2 and w3 until w1 has rejoined"
 while ((SECONDS - cut_at < outage)); do sleep 0.1; done
-render_running_at_restore=0
-kill -0 "$srv_pid" 2>/dev/null && render_running_at_restore=1
 netns_link_set w1 veth-srv up
 say "restored w1's link after $((SECONDS - cut_at)) s"
 
-# w1 must come back while the render lasts. Either its connection broke and it
-# reconnected (ptserve logs "worker w1 joined" a second time), or TCP carried
-# the same connection over the outage and w1 went on with new tasks: then the
-# coordinator acknowledges far more of w1's bytes than w1 could have queued
-# during the outage (its threads + prefetch = 2 results of about 10 KB each).
-resumed_min=$((256 * 1024))
-if ((render_running_at_restore)); then
-  acked0=$(tcp_bytes_acked w1 "${srv_addr[1]}" "$port")
-  how=""
-  deadline=$((SECONDS + 20))
-  while [[ -z "$how" ]] && ((SECONDS <= deadline)) && kill -0 "$srv_pid" 2>/dev/null; do
-    if (($(log_count "$srv_log" "$joined_re") >= 2)); then
-      how="rejoined (a new connection)"
-    elif (($(tcp_bytes_acked w1 "${srv_addr[1]}" "$port") - acked0 >= resumed_min)); then
-      how="resumed its connection: ptserve acknowledged $(($(tcp_bytes_acked w1 \
-        "${srv_addr[1]}" "$port") - acked0)) more bytes from it"
-    else
-      sleep 0.2
-    fi
-  done
-  if [[ -n "$how" ]]; then
-    say "w1 came back $((SECONDS - cut_at - outage)) s after its link: $how"
-  elif kill -0 "$srv_pid" 2>/dev/null; then
-    fail "w1 neither rejoined nor resumed work within 20 s of its link coming back"
-  else
-    say "note: the render finished before w1 came back; not checked"
-  fi
-else
-  say "note: the render finished during the outage; w1's return not checked"
-fi
+# w1 must rejoin on a new connection, while the render lasts.
+wait_for_log "$srv_log" "$joined_re" 20 2 "$srv_pid" || {
+  kill -0 "$srv_pid" 2>/dev/null ||
+    fail "the render finished $((SECONDS - cut_at - outage)) s after w1's link came back, before w1 rejoined"
+  fail "w1 did not rejoin within 20 s of its link coming back"
+}
+say "w1 rejoined $((SECONDS - cut_at - outage)) s after its link came back"
+kill -CONT "${wrk_pid[2]}" "${wrk_pid[3]}"
+say "w2 and w3 go on"
+grep -q "no answer from the server for .* (--link-timeout)" "$T/w1.log" ||
+  fail "w1's log does not say its link timeout fired"
+(($(log_count "$T/w1.log" "$session_re") >= 2)) || fail "w1's log shows no second session"
+say "w1's log: link timeout fired, new session"
 
 # 6. ptserve exits 0 when the image is complete, and the image matches the reference.
 wait_pid_timeout "$srv_pid" 600 st
@@ -188,5 +232,6 @@ done
 say "workers stopped"
 tr '\r' '\n' <"$srv_log" | sed 's/\x1b\[K//g' |
   grep -E 'joined|left;|requeued|authentication|dropped|done in' | sed 's/^/    /' || true
+grep -E 'connected to|lost|retrying' "$T/w1.log" | sed 's/^/    /' || true
 "$PT_BIN/ptexr-diff" "$T/ref.exr" "$T/farm.exr" || fail "farm.exr differs from the reference"
 say "PASS: farm.exr is bit-identical to the reference"
