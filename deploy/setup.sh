@@ -4,6 +4,7 @@
 # Run as root, or as a user with sudo.
 #
 #   deploy/setup.sh           build + test dependencies
+#   deploy/setup.sh --build   only what building the programs needs (container images)
 #   deploy/setup.sh --runtime only what the binaries need at run time
 set -euo pipefail
 
@@ -14,18 +15,25 @@ build_pkgs=(
   libtinygltf-dev nlohmann-json3-dev   # glTF 2.0 import
   libstb-dev                           # image decoding for glTF, PNG previews
   libssl-dev                           # SHA-256 scene hashes, HMAC authentication
+)
+test_pkgs=(
   clang libclang-rt-14-dev             # libFuzzer targets, sanitizer runtime
   python3                              # scene generator and test helpers
+  iproute2                             # test_multihost: network namespaces, veth (ip, ss)
+  python3-yaml                         # test_deploy: parses the Kubernetes manifests
+  systemd                              # test_deploy: systemd-analyze verify of the units
 )
 runtime_pkgs=(libembree3-3 libopenexr-3-1-30 libstb0 libssl3)
 
-pkgs=("${build_pkgs[@]}")
-if [[ "${1:-}" == "--runtime" ]]; then
-  pkgs=("${runtime_pkgs[@]}")
-elif [[ -n "${1:-}" ]]; then
-  echo "usage: deploy/setup.sh [--runtime]" >&2
+case "${1:-}" in
+"") pkgs=("${build_pkgs[@]}" "${test_pkgs[@]}") ;;
+--build) pkgs=("${build_pkgs[@]}") ;;
+--runtime) pkgs=("${runtime_pkgs[@]}") ;;
+*)
+  echo "usage: deploy/setup.sh [--build|--runtime]" >&2
   exit 2
-fi
+  ;;
+esac
 
 missing=()
 for p in "${pkgs[@]}"; do
