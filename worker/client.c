@@ -320,13 +320,17 @@ static int set_link_timeout(int fd, uint32_t link_ms)
     return 0;
 }
 
-/* w->reason for a failed send or recv; ETIMEDOUT is the link timeout firing. */
+/* w->reason for a failed send or recv; ETIMEDOUT is the link timeout firing, or
+ * the route's error when this end of the link went down. */
 static void socket_failed(worker *w, const char *call, int e)
 {
     if (e == ETIMEDOUT)
         snprintf(w->reason, sizeof w->reason,
                  "no answer from the server for %.1f s (--link-timeout): link or host down",
                  w->link_timeout_ms / 1000.0);
+    else if (e == ENETUNREACH || e == EHOSTUNREACH)
+        snprintf(w->reason, sizeof w->reason, "%s: %s (the link to the server is down)", call,
+                 strerror(e));
     else
         snprintf(w->reason, sizeof w->reason, "%s: %s", call, strerror(e));
 }

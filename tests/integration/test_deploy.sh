@@ -391,7 +391,10 @@ if command -v dpkg-query >/dev/null && command -v ldd >/dev/null; then
   [[ -n "$runtime" ]] || fail "deploy/setup.sh: no runtime_pkgs=(...) line"
   dpkg-query -W -f='${Package}\t${Depends}, ${Pre-Depends}\n' >"$T/dpkg.tsv"
   # The package that owns each library file (merged /usr: try both spellings).
-  owners=$(ldd "$PT_BIN/ptserve" "$PT_BIN/ptworker" | awk '/=> \// {print $3}' | sort -u |
+  # A sanitizer build loads its runtimes (libasan, libubsan), which a release
+  # image never has: those are left out.
+  owners=$(ldd "$PT_BIN/ptserve" "$PT_BIN/ptworker" | awk '/=> \// {print $3}' |
+    grep -vE '/lib(a|ub|t|l)san\.so' | sort -u |
     while read -r lib; do
       r=$(readlink -f "$lib")
       for cand in "$lib" "$r" "${r#/usr}" "/usr$r"; do

@@ -49,7 +49,7 @@ spp=4096
 job=(--res "$res" --spp "$spp" --tile 16 --chunk 8 --seed 3)
 lease=3     # --lease-timeout, seconds
 link=2      # the workers' --link-timeout, seconds; below $outage, so w1 notices the cut
-outage=4    # how long w1's link stays down; must exceed $lease and $link
+outage=6    # how long w1's link stays down; must exceed $lease and $link with a margin
 port=7000
 
 say() { printf '[%3ds] %s\n' "$SECONDS" "$*"; }
@@ -212,10 +212,13 @@ wait_for_log "$srv_log" "$joined_re" 20 2 "$srv_pid" || {
 say "w1 rejoined $((SECONDS - cut_at - outage)) s after its link came back"
 kill -CONT "${wrk_pid[2]}" "${wrk_pid[3]}"
 say "w2 and w3 go on"
-grep -q "no answer from the server for .* (--link-timeout)" "$T/w1.log" ||
-  fail "w1's log does not say its link timeout fired"
+# The kernel reports the timeout as ETIMEDOUT, or as the route's error when
+# the link's own end went down (the last soft error it saw): both are w1
+# noticing by itself, since nothing from the server can cross.
+grep -qE "no answer from the server for .* \(--link-timeout\)|(recv|send): (Network is unreachable|No route to host)" "$T/w1.log" ||
+  fail "w1's log does not say it noticed the dead link"
 (($(log_count "$T/w1.log" "$session_re") >= 2)) || fail "w1's log shows no second session"
-say "w1's log: link timeout fired, new session"
+say "w1's log: dead link noticed, new session"
 
 # 6. ptserve exits 0 when the image is complete, and the image matches the reference.
 wait_pid_timeout "$srv_pid" 600 st
