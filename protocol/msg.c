@@ -39,6 +39,8 @@ const char *proto_msg_type_name(uint32_t type)
         return "RESULT";
     case PROTO_MSG_HEARTBEAT:
         return "HEARTBEAT";
+    case PROTO_MSG_JOB_END:
+        return "JOB_END";
     case PROTO_MSG_SUBMIT:
         return "SUBMIT";
     case PROTO_MSG_LIST:

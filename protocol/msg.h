@@ -49,6 +49,7 @@ typedef enum proto_msg_type {
     PROTO_MSG_SCENE_CHUNK = 19,  /* server -> worker */
     PROTO_MSG_RESULT = 20,       /* worker -> server */
     PROTO_MSG_HEARTBEAT = 21,    /* worker -> server */
+    PROTO_MSG_JOB_END = 22,      /* server -> worker, JOB_REF layout: drop that job's tasks */
     /* client (ptctl) -> server */
     PROTO_MSG_SUBMIT = 32, /* then UPLOAD frames with the scene bundle */
     PROTO_MSG_LIST = 33,
@@ -240,6 +241,11 @@ typedef struct proto_heartbeat {
     uint16_t count;
     uint64_t task_ids[PROTO_MAX_HEARTBEAT_TASKS];
 } proto_heartbeat;
+
+/* JOB_END (JOB_REF layout, below): the job was cancelled or failed. The worker
+ * drops the tasks of it that it holds and has not started, discards the
+ * results of those still rendering, and asks for work again, so its threads go
+ * to the next job at once. A job it holds nothing of is ignored. */
 
 /* ---- client messages ----
  *

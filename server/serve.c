@@ -525,6 +525,22 @@ static void checkpoint(server *s, sjob *j)
 }
 
 /* Ends a job: DONE (the final image is written first), CANCELLED or FAILED. */
+/* Tells every worker that job j ended before it was done, so each drops the
+ * tasks of it that it has not started and its threads go to the next job at
+ * once (their results would be dropped anyway). */
+static void announce_job_end(server *s, const sjob *j)
+{
+    proto_job_ref ref = {j->rec.id};
+    for (conn *c = s->conns; c; c = c->next) {
+        if (c->role != PROTO_ROLE_WORKER || c->state != C_READY || c->closing)
+            continue;
+        size_t mark;
+        if (frame_open(c, PROTO_MSG_JOB_END, &mark))
+            frame_close(c, mark, proto_msg_encode_job_ref(&c->out, &ref, NULL));
+        conn_update_events(s, c);
+    }
+}
+
 static void job_end(server *s, sjob *j, uint8_t state, const char *message)
 {
     uint64_t now = now_ms();
@@ -542,6 +558,8 @@ static void job_end(server *s, sjob *j, uint8_t state, const char *message)
     j->rec.seconds = job_seconds(j, now);
     if (j->job)
         j->rec.samples_done = srv_job_samples_merged(j->job);
+    if (state != PROTO_JOB_DONE && j->t_started)
+        announce_job_end(s, j);
     j->rec.state = state;
     snprintf(j->rec.message, sizeof j->rec.message, "%s", message ? message : "");
     free_job_run(j);

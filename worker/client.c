@@ -58,7 +58,8 @@ typedef struct done_item {
 
 typedef struct running_slot {
     int active;
-    uint64_t task_id;
+    int dropped; /* its job ended (JOB_END): the result is discarded */
+    uint64_t job_id, task_id;
     uint32_t lease_ms;
     uint64_t epoch;
 } running_slot;
@@ -252,6 +253,8 @@ static void *render_thread(void *p)
             w->q_tail = NULL;
         w->nqueued--;
         slot->active = 1;
+        slot->dropped = 0;
+        slot->job_id = t->t.job_id;
         slot->task_id = t->t.task_id;
         slot->lease_ms = t->t.lease_ms;
         slot->epoch = t->epoch;
@@ -267,14 +270,14 @@ static void *render_thread(void *p)
 
         pthread_mutex_lock(&w->mu);
         slot->active = 0;
-        if (d && d->epoch == w->epoch && !w->stop) {
+        if (d && d->epoch == w->epoch && !w->stop && !slot->dropped) {
             if (w->d_tail)
                 w->d_tail->next = d;
             else
                 w->d_head = d;
             w->d_tail = d;
         } else {
-            done_free(d); /* the connection it came on is gone: the coordinator requeued it */
+            done_free(d); /* its connection is gone (the task was requeued) or its job ended */
         }
         wake_io(w); /* also when d is NULL: a slot is free */
     }
@@ -494,7 +497,7 @@ static int send_heartbeat(worker *w, uint64_t now)
     }
     for (uint32_t i = 0; i < w->o->threads; i++) {
         const running_slot *s = &w->running[i];
-        if (!s->active || s->epoch != w->epoch)
+        if (!s->active || s->dropped || s->epoch != w->epoch)
             continue;
         if (hb.count < PROTO_MAX_HEARTBEAT_TASKS)
             hb.task_ids[hb.count++] = s->task_id;
@@ -799,6 +802,72 @@ static int on_challenge(worker *w, const proto_frame *f)
 }
 
 /* Handles one frame. 0, or -1 (reason set; *end says how to go on). */
+/* Drops every task of job id from list *pp; returns how many. */
+static uint32_t drop_job_tasks(task_item **pp, task_item **tail, uint64_t id)
+{
+    uint32_t n = 0;
+    task_item *last = NULL;
+    while (*pp) {
+        task_item *t = *pp;
+        if (t->t.job_id == id) {
+            *pp = t->next;
+            task_free(t);
+            n++;
+        } else {
+            last = t;
+            pp = &t->next;
+        }
+    }
+    if (tail)
+        *tail = last;
+    return n;
+}
+
+/* JOB_END: the job was cancelled or failed. Its tasks waiting for a scene or
+ * a thread go, those rendering are marked so that their results are dropped,
+ * finished results not yet sent go too; the freed slots are asked for again. */
+static int on_job_end(worker *w, const proto_frame *f)
+{
+    proto_job_ref ref;
+    pt_error err = {0};
+    if (proto_msg_decode_job_ref(f->payload, f->len, &ref, &err) != PT_OK)
+        return fail_proto(w, "bad JOB_END: %s", err.msg);
+    uint32_t pending = drop_job_tasks(&w->pending, NULL, ref.job_id);
+    w->npending -= pending;
+    pthread_mutex_lock(&w->mu);
+    uint32_t queued = drop_job_tasks(&w->q_head, &w->q_tail, ref.job_id);
+    w->nqueued -= queued;
+    uint32_t running = 0;
+    for (uint32_t i = 0; i < w->o->threads; i++) {
+        running_slot *r = &w->running[i];
+        if (r->active && !r->dropped && r->epoch == w->epoch && r->job_id == ref.job_id) {
+            r->dropped = 1;
+            running++;
+        }
+    }
+    uint32_t finished = 0;
+    done_item **dp = &w->d_head, *last = NULL;
+    while (*dp) {
+        done_item *d = *dp;
+        if (d->t.job_id == ref.job_id) {
+            *dp = d->next;
+            done_free(d);
+            finished++;
+        } else {
+            last = d;
+            dp = &d->next;
+        }
+    }
+    w->d_tail = last;
+    pthread_mutex_unlock(&w->mu);
+    if (pending + queued + running + finished > 0)
+        fprintf(stderr,
+                "ptworker: job %llu ended: dropped %u tasks not started, %u rendering, %u "
+                "results not sent\n",
+                (unsigned long long)ref.job_id, pending + queued, running, finished);
+    return request_work(w);
+}
+
 static int dispatch(worker *w, const proto_frame *f, int *end)
 {
     pt_error err = {0};
@@ -838,6 +907,8 @@ static int dispatch(worker *w, const proto_frame *f, int *end)
             return on_task(w, f);
         if (f->type == PROTO_MSG_SCENE_CHUNK)
             return on_scene_chunk(w, f);
+        if (f->type == PROTO_MSG_JOB_END)
+            return on_job_end(w, f);
         break;
     }
     return fail_proto(w, "protocol error: unexpected %s from the server",

@@ -17,6 +17,8 @@
  * coordinator has not acknowledged for link_timeout_ms fails the connection
  * (TCP_USER_TIMEOUT), and an idle connection is probed with TCP keepalive so
  * that it fails within about the same time.
+ * A JOB_END (the job was cancelled or failed) drops that job's tasks not yet
+ * started and the results of those rendering, and asks for work again.
  * A dropped connection, a malformed frame or a message out of place discards
  * every task held (the coordinator requeues them; results of tasks still
  * rendering are dropped when they finish) and reconnects with exponential

@@ -132,6 +132,7 @@ static inline pt_status fuzz_decode(uint32_t type, const uint8_t *p, size_t len,
     case PROTO_MSG_CANCEL:
     case PROTO_MSG_FETCH:
     case PROTO_MSG_SUBMITTED:
+    case PROTO_MSG_JOB_END:
         st = proto_msg_decode_job_ref(p, len, &u.ref, &err);
         if (st == PT_OK)
             FUZZ_REENCODE(proto_msg_encode_job_ref, &u.ref);

@@ -77,7 +77,7 @@ static const uint16_t known_types[] = {
     PROTO_MSG_SCENE_CHUNK, PROTO_MSG_RESULT,       PROTO_MSG_HEARTBEAT, PROTO_MSG_SUBMIT,
     PROTO_MSG_LIST,        PROTO_MSG_STATUS,       PROTO_MSG_WATCH,     PROTO_MSG_CANCEL,
     PROTO_MSG_FETCH,       PROTO_MSG_UPLOAD,       PROTO_MSG_SUBMITTED, PROTO_MSG_JOB_LIST,
-    PROTO_MSG_JOB_INFO,    PROTO_MSG_IMAGE};
+    PROTO_MSG_JOB_INFO,    PROTO_MSG_IMAGE,        PROTO_MSG_JOB_END};
 #define NKNOWN (sizeof known_types / sizeof known_types[0])
 
 static void test_round_trip(void)
@@ -165,7 +165,7 @@ static void test_rejects(void)
     }
 
     /* Unknown types, from the 8th byte on. */
-    static const uint16_t types[] = {0, 6, 15, 22, 31, 39, 47, 52, 0x0101, 0xFFFF};
+    static const uint16_t types[] = {0, 6, 15, 23, 31, 39, 47, 52, 0x0101, 0xFFFF};
     for (size_t i = 0; i < sizeof types / sizeof types[0]; i++) {
         uint8_t b[64];
         size_t m = hand_frame(b, PROTO_VERSION, types[i], pl, 4);

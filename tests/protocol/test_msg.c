@@ -87,6 +87,7 @@ static pt_status decode_any(uint16_t type, const uint8_t *p, size_t len, pt_erro
     case PROTO_MSG_CANCEL:
     case PROTO_MSG_FETCH:
     case PROTO_MSG_SUBMITTED:
+    case PROTO_MSG_JOB_END:
         st = proto_msg_decode_job_ref(p, len, &u.ref, err);
         break;
     case PROTO_MSG_UPLOAD:
@@ -1006,6 +1007,8 @@ static void test_client_types(void)
     CHECK(strcmp(proto_msg_type_name(PROTO_MSG_JOB_LIST), "JOB_LIST") == 0);
     CHECK(strcmp(proto_msg_type_name(PROTO_MSG_JOB_INFO), "JOB_INFO") == 0);
     CHECK(strcmp(proto_msg_type_name(PROTO_MSG_IMAGE), "IMAGE") == 0);
+    CHECK(strcmp(proto_msg_type_name(PROTO_MSG_JOB_END), "JOB_END") == 0);
+    CHECK(proto_msg_type_known(PROTO_MSG_JOB_END) && !proto_msg_type_preauth(PROTO_MSG_JOB_END));
     CHECK(!proto_msg_type_known(39) && !proto_msg_type_known(47) && !proto_msg_type_known(52));
     /* UPLOAD and IMAGE go through the SCENE_CHUNK decoder; JOB_REF types share one. */
     proto_writer w;

@@ -323,13 +323,20 @@ static void kill_server(int sig)
     g_srv = -1;
 }
 
-static pid_t start_worker(const char *name)
+/* A one-thread worker that holds up to 1 + prefetch tasks. */
+static pid_t start_worker_prefetch(const char *name, const char *prefetch)
 {
     char server[64];
     snprintf(server, sizeof server, "127.0.0.1:%d", g_port);
     const char *argv[] = {PT_BIN_DIR "/ptworker", "--server", server, "--threads", "1",
-                          "--cache-dir", path("cache"), "--name", name, NULL};
+                          "--prefetch", prefetch, "--cache-dir", path("cache"), "--name", name,
+                          NULL};
     return spawn(argv, "workers.log");
+}
+
+static pid_t start_worker(const char *name)
+{
+    return start_worker_prefetch(name, "1");
 }
 
 static void stop_worker(pid_t w)
@@ -495,7 +502,9 @@ static void queue_order(void)
     cli_close(&fw);
 
     /* One worker runs them: priority first, then submission order. */
-    pid_t w = start_worker("q1");
+    /* Its tasks take milliseconds and it asks for another as each one ends, so
+     * with 8 queued it always holds some of the running job. */
+    pid_t w = start_worker_prefetch("q1", "8");
     CHECK(wait_state(g_port, second, PROTO_JOB_DONE, 120, &info));
     uint64_t order[8];
     int n = done_order("queue.log", order, 8);
@@ -519,13 +528,25 @@ static void queue_order(void)
     pt_image_free(progress);
     uint64_t small = submit(g_port, job_of("after", 32, 32, 16, 0));
     CHECK(status(g_port, small, &info) == PROTO_MSG_JOB_INFO && info.state == PROTO_JOB_QUEUED);
+    /* A worker holding a task of the job is told that it ended (JOB_END). */
+    CHECK(cli_open_as(&fw, g_port, PROTO_ROLE_WORKER) == 0);
+    CHECK(lease_one(&fw) == big);
     CHECK(cli_open(&l, g_port) == 0);
     send_ref(&l, PROTO_MSG_CANCEL, big);
     CHECK(reply(&l, &f) == PROTO_MSG_JOB_INFO &&
           proto_msg_decode_job_info(f.payload, f.len, &info, NULL) == PT_OK &&
           info.state == PROTO_JOB_CANCELLED);
     cli_close(&l);
+    proto_job_ref ended = {0};
+    CHECK(cli_recv(&fw, &f, 5) == PROTO_MSG_JOB_END &&
+          proto_msg_decode_job_ref(f.payload, f.len, &ended, NULL) == PT_OK && ended.job_id == big);
+    cli_close(&fw);
     CHECK(wait_state(g_port, small, PROTO_JOB_DONE, 120, &info));
+    /* The real worker dropped the tasks of it that it held instead of
+     * rendering them, and went on with the next job. */
+    char dropped[64];
+    snprintf(dropped, sizeof dropped, "job %llu ended: dropped", (unsigned long long)big);
+    CHECK(log_has("workers.log", dropped));
     CHECK(status(g_port, big, &info) == PROTO_MSG_JOB_INFO && info.state == PROTO_JOB_CANCELLED);
     CHECK(status(g_port, 999, &info) == -2 && strstr(err_text, "no job"));
     stop_worker(w);
