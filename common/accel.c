@@ -23,7 +23,6 @@
 /* Waechter & Binder's constants (RTG ch. 6), for a scene of about unit size. */
 #define OFFSET_ORIGIN (1.0f / 32.0f)
 #define OFFSET_FLOAT_SCALE (1.0f / 65536.0f)
-#define OFFSET_INT_SCALE 256.0f
 
 struct pt_accel {
     RTCDevice device;
@@ -194,6 +193,17 @@ int pt_accel_intersect(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, 
     return 1;
 }
 
+/* nextafterf(t, 0) for t > 0 (finite or not), without the library call: a
+ * positive float's successor towards zero is its bit pattern minus one. */
+static inline float below(float t)
+{
+    uint32_t bits;
+    memcpy(&bits, &t, sizeof bits);
+    bits--;
+    memcpy(&t, &bits, sizeof t);
+    return t;
+}
+
 int pt_accel_occluded(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar)
 {
     if (!(tfar > 0.0f))
@@ -205,7 +215,7 @@ int pt_accel_occluded(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar)
      * point the caller offset towards the shading point) must not occlude.
      * Embree's test is closed, so pass the next float below tfar: exactly the
      * open interval, not a hand-picked shortening. */
-    init_ray(&r, o, d, nextafterf(tfar, 0.0f));
+    init_ray(&r, o, d, below(tfar));
     rtcOccluded1(accel->scene, &ctx, &r);
     return r.tfar == -INFINITY;
 }
@@ -245,37 +255,22 @@ void pt_accel_hit_point(const pt_scene *scene, const pt_hit *hit, pt_vec3 *p, pt
  * by an integer number of ULPs proportional to the normal's component
  * (int_scale ULPs for a unit component), so the offset grows with the
  * coordinate's own rounding error; near the origin, where ULPs get arbitrarily
- * small, a fixed absolute offset float_scale * n is used instead. */
-
-static float offset_coord(float p, float n, float origin, float float_scale)
-{
-    if (fabsf(p) < origin)
-        return p + float_scale * n;
-    /* n is unit length; the clamp only keeps a bad n (NaN) from an undefined
-     * float-to-int conversion. */
-    int32_t of = (int32_t)(OFFSET_INT_SCALE * fmaxf(-1.0f, fminf(1.0f, n)));
-    uint32_t bits;
-    memcpy(&bits, &p, sizeof bits);
-    /* Sign-magnitude floats: adding to the bits moves away from zero, so a
-     * negative coordinate moves along +n by subtracting. Unsigned arithmetic
-     * wraps instead of overflowing; finite |p| >= 1/32 stays far from both
-     * ends of the bit range. */
-    bits += (uint32_t)(p < 0.0f ? -of : of);
-    float r;
-    memcpy(&r, &bits, sizeof r);
-    return r;
-}
+ * small, a fixed absolute offset float_scale * n is used instead. The code is
+ * pt_offset_coord in accel.h, inlined into the integrator. */
 
 pt_vec3 pt_offset_ray(pt_vec3 p, pt_vec3 n)
 {
-    return pt_v3(offset_coord(p.x, n.x, OFFSET_ORIGIN, OFFSET_FLOAT_SCALE),
-                 offset_coord(p.y, n.y, OFFSET_ORIGIN, OFFSET_FLOAT_SCALE),
-                 offset_coord(p.z, n.z, OFFSET_ORIGIN, OFFSET_FLOAT_SCALE));
+    pt_offset off = {OFFSET_ORIGIN, OFFSET_FLOAT_SCALE};
+    return pt_offset_apply(off, p, n);
+}
+
+pt_offset pt_accel_offset(const pt_accel *a)
+{
+    pt_offset off = {a->origin, a->float_scale};
+    return off;
 }
 
 pt_vec3 pt_accel_offset_ray(const pt_accel *a, pt_vec3 p, pt_vec3 n)
 {
-    return pt_v3(offset_coord(p.x, n.x, a->origin, a->float_scale),
-                 offset_coord(p.y, n.y, a->origin, a->float_scale),
-                 offset_coord(p.z, n.z, a->origin, a->float_scale));
+    return pt_offset_apply(pt_accel_offset(a), p, n);
 }

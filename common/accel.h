@@ -12,7 +12,9 @@
 #ifndef PT_COMMON_ACCEL_H
 #define PT_COMMON_ACCEL_H
 
+#include <math.h>
 #include <stdint.h>
+#include <string.h>
 
 #include "common/error.h"
 #include "common/scene.h"
@@ -48,5 +50,48 @@ pt_vec3 pt_offset_ray(pt_vec3 p, pt_vec3 n);
  * absolute, so a fixed 1.5e-5 would be 15 % of a 1e-4 scene. Far from the
  * origin both offset by ULPs and agree. The integrator uses this one. */
 pt_vec3 pt_accel_offset_ray(const pt_accel *accel, pt_vec3 p, pt_vec3 n);
+
+/* pt_accel_offset_ray's two constants for a scene, so that the integrator can
+ * inline the offset (pt_offset_apply) instead of calling across modules for
+ * each of the 2-3 offsets of a bounce; the results are the same bits. */
+typedef struct pt_offset {
+    float origin;      /* below this |coordinate|, offset by float_scale * n */
+    float float_scale;
+} pt_offset;
+
+pt_offset pt_accel_offset(const pt_accel *accel);
+
+/* Waechter & Binder's integer scale: a unit normal component moves a
+ * coordinate by 256 ULPs. */
+#define PT_OFFSET_INT_SCALE 256.0f
+
+static inline float pt_offset_coord(float p, float n, float origin, float float_scale)
+{
+    if (fabsf(p) < origin)
+        return p + float_scale * n;
+    /* n is unit length; the clamp (NaN goes to 1) only keeps a bad n from an
+     * undefined float-to-int conversion. Comparisons, not fminf/fmaxf, which
+     * are library calls without -ffinite-math-only. */
+    float c = n < 1.0f ? (n > -1.0f ? n : -1.0f) : 1.0f;
+    int32_t of = (int32_t)(PT_OFFSET_INT_SCALE * c);
+    uint32_t bits;
+    memcpy(&bits, &p, sizeof bits);
+    /* Sign-magnitude floats: adding to the bits moves away from zero, so a
+     * negative coordinate moves along +n by subtracting. Unsigned arithmetic
+     * wraps instead of overflowing; finite |p| >= 1/32 stays far from both
+     * ends of the bit range. */
+    bits += (uint32_t)(p < 0.0f ? -of : of);
+    float r;
+    memcpy(&r, &bits, sizeof r);
+    return r;
+}
+
+/* pt_accel_offset_ray(accel, p, n) given off = pt_accel_offset(accel). */
+static inline pt_vec3 pt_offset_apply(pt_offset off, pt_vec3 p, pt_vec3 n)
+{
+    return pt_v3(pt_offset_coord(p.x, n.x, off.origin, off.float_scale),
+                 pt_offset_coord(p.y, n.y, off.origin, off.float_scale),
+                 pt_offset_coord(p.z, n.z, off.origin, off.float_scale));
+}
 
 #endif

@@ -30,6 +30,14 @@ typedef struct light_entry {
     uint32_t tri;      /* triangle in the scene */
     float pmf;         /* probability of choosing this light */
     float area;        /* world-space area of the triangle */
+    /* What sampling needs of the triangle and its material, copied once so a
+     * sample reads one entry instead of indices, vertices and the material,
+     * and recomputes no normal: tri_geom's results, the same bits. */
+    pt_vec3 v[3];      /* vertices */
+    pt_vec3 normal;    /* unit geometric normal (tri_geom) */
+    pt_vec3 emissive;  /* the material's emissive factor */
+    int double_sided;
+    int textured;      /* emission() must read the emissive texture */
 } light_entry;
 
 struct pt_lights {
@@ -268,8 +276,16 @@ pt_status pt_lights_new(const pt_scene *scene, pt_lights **out, pt_error *err)
         if (!(p > 0.0))
             continue;
         L->tri_to_light[i] = k;
-        L->lights[k].tri = i;
-        L->lights[k].area = area;
+        light_entry *le = &L->lights[k];
+        le->tri = i;
+        le->area = area;
+        float a2;
+        tri_geom(scene, i, le->v, &le->normal, &a2);
+        const pt_material *m = &scene->materials[scene->tri_material[i]];
+        le->emissive = pt_v3(m->emissive[0], m->emissive[1], m->emissive[2]);
+        le->double_sided = m->double_sided;
+        le->textured = m->emissive_tex >= 0 && (uint32_t)m->emissive_tex < scene->num_textures &&
+                       scene->uvs;
         power[k] = p;
         total += p;
         k++;
@@ -313,14 +329,12 @@ uint32_t pt_lights_count(const pt_lights *lights)
 /* pdf_w = pmf / area * d^2 / |cos theta_light| (area to solid angle: dA =
  * d^2 / |cos| dw). 0 on the back of a single-sided light, at a grazing angle,
  * at distance 0, or where the division overflows. */
-static float solid_angle_pdf(float pmf, float area, int double_sided, pt_vec3 p, pt_vec3 x,
-                             pt_vec3 n)
+static inline float solid_angle_pdf_d(float pmf, float area, int double_sided, pt_vec3 d,
+                                      float d2, float dist, pt_vec3 n)
 {
-    pt_vec3 d = pt_v3_sub(x, p);
-    float d2 = pt_v3_dot(d, d);
     if (!(d2 > 0.0f) || !isfinite(d2))
         return 0.0f;
-    float cos_l = -pt_v3_dot(n, d) / sqrtf(d2); /* > 0: p sees the front */
+    float cos_l = -pt_v3_dot(n, d) / dist; /* > 0: p sees the front */
     if (!double_sided && !(cos_l > 0.0f))
         return 0.0f;
     float ac = fabsf(cos_l);
@@ -328,6 +342,15 @@ static float solid_angle_pdf(float pmf, float area, int double_sided, pt_vec3 p,
         return 0.0f;
     float pdf = pmf / area * d2 / ac;
     return isfinite(pdf) ? pdf : 0.0f;
+}
+
+/* The same from p and the light point x; d = x - p, dist = |d|. */
+static float solid_angle_pdf(float pmf, float area, int double_sided, pt_vec3 p, pt_vec3 x,
+                             pt_vec3 n)
+{
+    pt_vec3 d = pt_v3_sub(x, p);
+    float d2 = pt_v3_dot(d, d);
+    return solid_angle_pdf_d(pmf, area, double_sided, d, d2, sqrtf(d2), n);
 }
 
 int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, const float u[3],
@@ -361,23 +384,25 @@ int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, 
     }
     float b0 = 1.0f - b1 - b2;
 
-    pt_vec3 v[3], nl;
-    float area;
-    tri_geom(scene, le->tri, v, &nl, &area);
-    const pt_material *m = &scene->materials[scene->tri_material[le->tri]];
+    const pt_vec3 *v = le->v;
     s->tri = le->tri;
     s->position =
         pt_v3_add(pt_v3_add(pt_v3_scale(v[0], b0), pt_v3_scale(v[1], b1)), pt_v3_scale(v[2], b2));
-    s->normal = nl;
+    s->normal = le->normal;
     pt_vec3 d = pt_v3_sub(s->position, p);
-    s->dist = pt_v3_len(d);
+    float d2 = pt_v3_dot(d, d);
+    s->dist = sqrtf(d2);
     if (!(s->dist > 0.0f) || !isfinite(s->dist))
         return 0;
     s->wi = pt_v3_scale(d, 1.0f / s->dist);
-    s->pdf = solid_angle_pdf(le->pmf, le->area, m->double_sided, p, s->position, nl);
+    s->pdf = solid_angle_pdf_d(le->pmf, le->area, le->double_sided, d, d2, s->dist, le->normal);
     if (!(s->pdf > 0.0f))
         return 0;
-    s->radiance = emission(scene, m, le->tri, b1, b2);
+    if (le->textured)
+        s->radiance = emission(scene, &scene->materials[scene->tri_material[le->tri]], le->tri,
+                               b1, b2);
+    else
+        s->radiance = le->emissive;
     return 1;
 }
 

@@ -24,15 +24,34 @@ enum {
     OFF_RR = 6,
 };
 
+/* Bounces whose sampler seeds a pixel keeps; deeper ones hash theirs per use. */
+#define SEED_CACHE 32u
+
+/* One pixel's sampler state, shared by all of its samples: the seeds of the
+ * pixel jitter's dimensions and, filled as paths first reach each depth, of
+ * every bounce's 8 dimensions (sampler.h: pt_sample_group). Only seeds: the
+ * values stay a pure function of (seed, pixel, index, dimension). */
+typedef struct pixel_ctx {
+    uint32_t px, py;
+    uint32_t seed;
+    uint32_t ngroups; /* bounce[0..ngroups) are filled */
+    pt_sample_group jitter;
+    pt_sample_group bounce[SEED_CACHE];
+} pixel_ctx;
+
+static void pixel_ctx_init(pixel_ctx *pc, const pt_renderer *r, uint32_t px, uint32_t py);
+
 /* The integrator variants: a feature mask fixed at compile time, so that code
  * for features a scene lacks is folded away (see pick_variant). */
-typedef pt_vec3 (*li_fn)(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index,
+typedef pt_vec3 (*li_fn)(const pt_renderer *r, pixel_ctx *pc, uint32_t index,
                          pt_render_stats *stats);
 
 struct pt_renderer {
     const pt_scene *scene;
     pt_accel *accel;
+    pt_offset offset; /* pt_accel_offset(accel) */
     pt_lights *lights;
+    pt_bsdf *mat_bsdf; /* per material: its BSDF when it has no texture */
     pt_render_params params;
     li_fn li;
     const char *variant;
@@ -93,9 +112,40 @@ static inline void surface_at(const pt_scene *s, const pt_hit *hit, surface *sf,
     sf->mat = &s->materials[s->tri_material[hit->tri]];
 }
 
-static inline pt_bsdf material_bsdf(const pt_scene *s, const surface *sf, const uint32_t features)
+/* max(a, b) as fmaxf gives it (a NaN argument is ignored), by comparisons:
+ * fmaxf is a library call without -ffinite-math-only. Only the sign of a
+ * zero result may differ, which no caller can see. */
+static inline float max2(float a, float b)
 {
+    return (a > b || b != b) ? a : b;
+}
+
+/* pt_v3_max_comp(v) > 0, exactly (fmaxf ignores NaNs; so does this). */
+static inline int any_positive(pt_vec3 v)
+{
+    return v.x > 0.0f || v.y > 0.0f || v.z > 0.0f;
+}
+
+/* The BSDF of a material without textures: the work of material_bsdf below,
+ * done once per material (pt_renderer_new) instead of at every hit. */
+static pt_bsdf material_bsdf_untextured(const pt_material *m)
+{
+    return pt_bsdf_setup(pt_v3(m->base_color[0], m->base_color[1], m->base_color[2]),
+                         m->metallic, m->roughness, m->specular,
+                         pt_v3(m->specular_color[0], m->specular_color[1], m->specular_color[2]));
+}
+
+static inline pt_bsdf material_bsdf(const pt_renderer *r, const surface *sf,
+                                    const uint32_t features)
+{
+    const pt_scene *s = r->scene;
     const pt_material *m = sf->mat;
+    if (!(features & PT_FEAT_TEXTURES) || (m->base_color_tex < 0 && m->metal_rough_tex < 0)) {
+        /* pt_bsdf_setup's result for the material's own factors; without
+         * PT_FEAT_GLOSSY only its diffuse (the clamped base colour times
+         * 1 - 0) is read, the same bits as the branch below. */
+        return r->mat_bsdf[m - s->materials];
+    }
     pt_vec3 base = pt_v3(m->base_color[0], m->base_color[1], m->base_color[2]);
     float metallic = m->metallic, roughness = m->roughness;
     if (features & PT_FEAT_TEXTURES) {
@@ -191,15 +241,14 @@ static inline void camera_ray(const pt_renderer *r, uint32_t px, uint32_t py, co
  * throughput-weighted survival (survival probability max(beta), at most 0.95).
  */
 static inline __attribute__((always_inline)) pt_vec3
-li_impl(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index, pt_render_stats *stats,
+li_impl(const pt_renderer *r, pixel_ctx *pc, uint32_t index, pt_render_stats *stats,
         const uint32_t features, const pt_ray_sink *sink)
 {
     const pt_scene *s = r->scene;
-    uint32_t seed = pt_pixel_seed(r->params.seed, px, py);
     float u2[2];
-    pt_sample_2d(seed, index, DIM_PIXEL, u2);
+    pt_sample_group_eval2(&pc->jitter, index, u2);
     pt_vec3 o, d;
-    camera_ray(r, px, py, u2, &o, &d);
+    camera_ray(r, pc->px, pc->py, u2, &o, &d);
 
     pt_vec3 L = pt_v3(0, 0, 0), beta = pt_v3(1, 1, 1);
     pt_vec3 prev_p = o;
@@ -244,27 +293,42 @@ li_impl(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index, pt_rende
             ns = ng; /* interpolated normal faces away from the viewer */
         pt_frame fr = pt_frame_from_normal(ns);
         pt_vec3 wo_l = pt_frame_to_local(&fr, wo);
-        pt_bsdf bsdf = material_bsdf(s, &sf, features);
-        uint32_t dim = DIM_BOUNCE0 + DIM_PER_BOUNCE * depth;
-        /* The light pick and the lobe pick are one pair: one index shuffle. */
-        float picks[2];
-        pt_sample_2d(seed, index, dim + OFF_LIGHT_PICK, picks);
+        pt_bsdf bsdf = material_bsdf(r, &sf, features);
+        /* All 8 numbers of the bounce at once (the light pick and the lobe
+         * pick are one pair: one index shuffle). */
+        float u[DIM_PER_BOUNCE];
+        {
+            pt_sample_group deep;
+            const pt_sample_group *g = &deep;
+            if (depth < SEED_CACHE) {
+                while (pc->ngroups <= depth) {
+                    pt_sample_group_init(&pc->bounce[pc->ngroups], pc->seed,
+                                         DIM_BOUNCE0 + DIM_PER_BOUNCE * pc->ngroups);
+                    pc->ngroups++;
+                }
+                g = &pc->bounce[depth];
+            } else {
+                pt_sample_group_init(&deep, pc->seed, DIM_BOUNCE0 + DIM_PER_BOUNCE * depth);
+            }
+            pt_sample_group_eval(g, index, u);
+        }
 
         if (has_lights) {
             float u3[3];
-            u3[0] = picks[0];
-            pt_sample_2d(seed, index, dim + OFF_LIGHT_POINT, u3 + 1);
+            u3[0] = u[OFF_LIGHT_PICK];
+            u3[1] = u[OFF_LIGHT_POINT];
+            u3[2] = u[OFF_LIGHT_POINT + 1];
             pt_light_sample ls;
             if (pt_lights_sample(r->lights, s, sf.p, u3, &ls) && ls.pdf > 0.0f &&
-                pt_v3_max_comp(ls.radiance) > 0.0f && pt_v3_dot(ls.wi, ng) > 0.0f) {
+                any_positive(ls.radiance) && pt_v3_dot(ls.wi, ng) > 0.0f) {
                 float bpdf;
                 pt_vec3 f = bsdf_eval(&bsdf, wo_l, pt_frame_to_local(&fr, ls.wi), &bpdf, features);
-                if (pt_v3_max_comp(f) > 0.0f) {
-                    pt_vec3 from = pt_accel_offset_ray(r->accel, sf.p, ng);
+                if (any_positive(f)) {
+                    pt_vec3 from = pt_offset_apply(r->offset, sf.p, ng);
                     pt_vec3 nl = ls.normal;
                     if (pt_v3_dot(nl, ls.wi) > 0.0f)
                         nl = pt_v3_neg(nl);
-                    pt_vec3 to = pt_accel_offset_ray(r->accel, ls.position, nl);
+                    pt_vec3 to = pt_offset_apply(r->offset, ls.position, nl);
                     pt_vec3 sd = pt_v3_sub(to, from);
                     float dist = pt_v3_len(sd);
                     rays++;
@@ -281,12 +345,13 @@ li_impl(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index, pt_rende
         }
 
         float u3[3];
-        u3[0] = picks[1];
-        pt_sample_2d(seed, index, dim + OFF_BSDF_DIR, u3 + 1);
+        u3[0] = u[OFF_LIGHT_PICK + 1];
+        u3[1] = u[OFF_BSDF_DIR];
+        u3[2] = u[OFF_BSDF_DIR + 1];
         pt_vec3 wi_l;
         float pdf;
         pt_vec3 weight = bsdf_sample(&bsdf, wo_l, u3, &wi_l, &pdf, features);
-        if (!(pdf > 0.0f) || !(pt_v3_max_comp(weight) > 0.0f))
+        if (!(pdf > 0.0f) || !any_positive(weight))
             break;
         pt_vec3 wi = pt_frame_to_world(&fr, wi_l);
         if (pt_v3_dot(wi, ng) <= 0.0f)
@@ -294,14 +359,17 @@ li_impl(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index, pt_rende
         beta = pt_v3_mul(beta, weight);
 
         if (depth + 1 >= r->params.rr_depth) {
-            float survive = fminf(pt_v3_max_comp(beta), 0.95f);
-            if (!(pt_sample_1d(seed, index, dim + OFF_RR) < survive))
+            /* fminf(pt_v3_max_comp(beta), 0.95f) by comparisons (a NaN max
+             * gives 0.95 as fminf does). */
+            float m = max2(beta.x, max2(beta.y, beta.z));
+            float survive = m < 0.95f ? m : 0.95f;
+            if (!(u[OFF_RR] < survive))
                 break;
             beta = pt_v3_scale(beta, 1.0f / survive);
         }
         prev_p = sf.p;
         prev_pdf = pdf;
-        o = pt_accel_offset_ray(r->accel, sf.p, ng);
+        o = pt_offset_apply(r->offset, sf.p, ng);
         d = wi;
     }
     if (stats)
@@ -311,10 +379,10 @@ li_impl(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index, pt_rende
 
 #define ALL_FEATURES 0xffffffffu
 #define VARIANT(name, feat)                                                                      \
-    static pt_vec3 name(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index,          \
+    static pt_vec3 name(const pt_renderer *r, pixel_ctx *pc, uint32_t index,                     \
                         pt_render_stats *stats)                                                  \
     {                                                                                            \
-        return li_impl(r, px, py, index, stats, (feat), NULL);                                         \
+        return li_impl(r, pc, index, stats, (feat), NULL);                                       \
     }
 #define NO_TEX (uint32_t)(PT_FEAT_TEXTURES | PT_FEAT_EMISSIVE_TEX)
 VARIANT(li_general, ALL_FEATURES)
@@ -356,6 +424,16 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
         goto fail;
     if ((st = pt_lights_new(scene, &r->lights, err)) != PT_OK)
         goto fail;
+    r->offset = pt_accel_offset(r->accel);
+    if (scene->num_materials > 0) {
+        r->mat_bsdf = pt_malloc_array(scene->num_materials, sizeof *r->mat_bsdf);
+        if (!r->mat_bsdf) {
+            st = pt_error_set(err, PT_ERR_NOMEM, "out of memory for the renderer");
+            goto fail;
+        }
+        for (uint32_t i = 0; i < scene->num_materials; i++)
+            r->mat_bsdf[i] = material_bsdf_untextured(&scene->materials[i]);
+    }
     pick_variant(r, scene->features | params->extra_features);
     *out = r;
     return PT_OK;
@@ -368,21 +446,35 @@ void pt_renderer_free(pt_renderer *r)
 {
     if (!r)
         return;
+    pt_free(r->mat_bsdf);
     pt_lights_free(r->lights);
     pt_accel_free(r->accel);
     pt_free(r);
 }
 
+static void pixel_ctx_init(pixel_ctx *pc, const pt_renderer *r, uint32_t px, uint32_t py)
+{
+    pc->px = px;
+    pc->py = py;
+    pc->seed = pt_pixel_seed(r->params.seed, px, py);
+    pc->ngroups = 0;
+    pt_sample_group_init(&pc->jitter, pc->seed, DIM_PIXEL);
+}
+
 pt_vec3 pt_render_sample(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index,
                          pt_render_stats *stats)
 {
-    return r->li(r, px, py, index, stats);
+    pixel_ctx pc;
+    pixel_ctx_init(&pc, r, px, py);
+    return r->li(r, &pc, index, stats);
 }
 
 pt_vec3 pt_render_sample_traced(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index,
                                 const pt_ray_sink *sink)
 {
-    return li_impl(r, px, py, index, NULL, ALL_FEATURES, sink);
+    pixel_ctx pc;
+    pixel_ctx_init(&pc, r, px, py);
+    return li_impl(r, &pc, index, NULL, ALL_FEATURES, sink);
 }
 
 void pt_render_tile(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,
@@ -394,6 +486,8 @@ void pt_render_tile(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1
         for (uint32_t x = tile.x0; x < tile.x1; x++) {
             pt_pixel_acc *a = &out[(size_t)(y - tile.y0) * tw + (x - tile.x0)];
             memset(a, 0, sizeof *a);
+            pixel_ctx pc;
+            pixel_ctx_init(&pc, r, x, y);
             /* Sum each aligned block of PT_SAMPLE_BLOCK samples on its own, then
              * add the block sums in order: the result for [s0,s1) is then the
              * same bits as adding the results of any split at block boundaries. */
@@ -403,7 +497,7 @@ void pt_render_tile(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1
                     b1 = s1;
                 pt_pixel_acc blk = {{0, 0, 0}, 0, 0, 0};
                 for (uint32_t i = b0; i < b1; i++) {
-                    pt_vec3 c = r->li(r, x, y, i, &local);
+                    pt_vec3 c = r->li(r, &pc, i, &local);
                     if (!pt_isfinite3(c)) {
                         local.rejected++;
                         continue;

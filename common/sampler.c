@@ -25,6 +25,8 @@
  */
 #include "common/sampler.h"
 
+#include <string.h>
+
 /*
  * Direction vectors, bit-reversed: bit i of kRevDir[d - 2][k] is row i (most
  * significant output bit first) of column k of Sobol dimension d's generator
@@ -100,24 +102,27 @@ static inline uint32_t lk_permute(uint32_t x, uint32_t seed)
     return x;
 }
 
+/* Sobol dimension 1, bit-reversed. Pascal's triangle mod 2: by Lucas' theorem
+ * column k has row i set iff the bits of i are a subset of those of k, so
+ * reversed output bit i is the parity of the index bits k that contain i: a
+ * superset sum over the 5-bit positions, one butterfly per position bit. */
+static inline uint32_t pascal_rev(uint32_t y)
+{
+    y ^= (y >> 1) & 0x55555555u;
+    y ^= (y >> 2) & 0x33333333u;
+    y ^= (y >> 4) & 0x0f0f0f0fu;
+    y ^= (y >> 8) & 0x00ff00ffu;
+    y ^= (y >> 16) & 0x0000ffffu;
+    return y;
+}
+
 /* Sobol value of dimension d (0..3), bit-reversed. */
 static inline uint32_t sobol_rev(uint32_t index, uint32_t d)
 {
     if (d == 0)
         return index;
-    if (d == 1) {
-        /* Pascal's triangle mod 2: by Lucas' theorem column k has row i set
-         * iff the bits of i are a subset of those of k, so reversed output bit
-         * i is the parity of the index bits k that contain i: a superset sum
-         * over the 5-bit positions, one butterfly per position bit. */
-        uint32_t y = index;
-        y ^= (y >> 1) & 0x55555555u;
-        y ^= (y >> 2) & 0x33333333u;
-        y ^= (y >> 4) & 0x0f0f0f0fu;
-        y ^= (y >> 8) & 0x00ff00ffu;
-        y ^= (y >> 16) & 0x0000ffffu;
-        return y;
-    }
+    if (d == 1)
+        return pascal_rev(index);
     const uint32_t *dir = kRevDir[d - 2];
     uint32_t x = 0;
     for (uint32_t k = 0; index; index >>= 1, k++)
@@ -138,10 +143,11 @@ static inline uint32_t shuffled_index(uint32_t pixel_seed, uint32_t index, uint3
     return reverse_bits(lk_permute(reverse_bits(index), pair_seed));
 }
 
-/* 24 bits to a float in [0, 1): exact, and never rounds up to 1. */
+/* 24 bits to a float in [0, 1): exact, and never rounds up to 1. (Through a
+ * signed int, which the 24 bits fit: SSE2 converts signed ints only.) */
 static inline float to_unit(uint32_t bits)
 {
-    return (float)(bits >> 8) * 0x1p-24f;
+    return (float)(int32_t)(bits >> 8) * 0x1p-24f;
 }
 
 static inline float owen_sample(uint32_t pixel_seed, uint32_t sobol_index, uint32_t dim)
@@ -166,4 +172,93 @@ void pt_sample_2d(uint32_t pixel_seed, uint32_t index, uint32_t dim, float out[2
     uint32_t s = shuffled_index(pixel_seed, index, dim);
     out[0] = owen_sample(pixel_seed, s, dim);
     out[1] = owen_sample(pixel_seed, s, dim + 1);
+}
+
+/* The seeds that shuffled_index and owen_sample hash per call, hashed once;
+ * each pair's shuffle seed is stored twice, once per lane of its dimensions. */
+void pt_sample_group_init(pt_sample_group *g, uint32_t pixel_seed, uint32_t dim0)
+{
+    for (uint32_t k = 0; k < 4; k++)
+        g->shuffle[2 * k] = g->shuffle[2 * k + 1] =
+            pt_hash_combine(pixel_seed ^ SHUFFLE_TAG, (dim0 >> 1) + k);
+    for (uint32_t k = 0; k < 8; k++)
+        g->owen[k] = pt_hash_combine(pixel_seed, dim0 + k);
+}
+
+/*
+ * owen_sample(shuffled_index(...)) for 8 dimensions in 8 lanes of GCC/Clang
+ * vector types: the same integer operations lane by lane, so the results are
+ * the same bits on any instruction set. Lane k shuffles the index with its
+ * pair's seed (the even and odd lane of a pair compute the same shuffle; in
+ * SIMD that is free), takes the Sobol value - the shuffled index itself on
+ * even lanes (Sobol dimension 0), Pascal's matrix on odd lanes (dimension 1) -
+ * and Owen-scrambles it with the lane's seed. Compiled twice (target_clones):
+ * for AVX2, whose 32-bit vector multiply makes each step one instruction,
+ * and for the x86-64 baseline (SSE2, where the compiler splits the lanes in
+ * two halves and emulates the multiply); the loader picks one per CPU.
+ */
+typedef uint32_t v8u __attribute__((vector_size(32)));
+typedef int32_t v8i __attribute__((vector_size(32)));
+typedef float v8f __attribute__((vector_size(32)));
+
+/* In-place steps on a v8u variable; macros, not functions, because passing a
+ * 32-byte vector by value changes the ABI between the two clones. */
+#define V8_REVERSE_BITS(x)                                                                        \
+    do {                                                                                          \
+        x = ((x >> 1) & 0x55555555u) | ((x & 0x55555555u) << 1);                                  \
+        x = ((x >> 2) & 0x33333333u) | ((x & 0x33333333u) << 2);                                  \
+        x = ((x >> 4) & 0x0f0f0f0fu) | ((x & 0x0f0f0f0fu) << 4);                                  \
+        x = ((x >> 8) & 0x00ff00ffu) | ((x & 0x00ff00ffu) << 8);                                  \
+        x = (x >> 16) | (x << 16);                                                                \
+    } while (0)
+#define V8_LK_PERMUTE(x, seed)                                                                    \
+    do {                                                                                          \
+        x += seed;                                                                                \
+        x ^= x * 0x6c50b47cu;                                                                     \
+        x ^= x * 0xb82f1e52u;                                                                     \
+        x ^= x * 0xc7afe638u;                                                                     \
+        x ^= x * 0x8d22f6e6u;                                                                     \
+    } while (0)
+#define V8_PASCAL_REV(y)                                                                          \
+    do {                                                                                          \
+        y ^= (y >> 1) & 0x55555555u;                                                              \
+        y ^= (y >> 2) & 0x33333333u;                                                              \
+        y ^= (y >> 4) & 0x0f0f0f0fu;                                                              \
+        y ^= (y >> 8) & 0x00ff00ffu;                                                              \
+        y ^= (y >> 16) & 0x0000ffffu;                                                             \
+    } while (0)
+
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && defined(__linux__)
+#define PT_SIMD_CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define PT_SIMD_CLONES
+#endif
+
+PT_SIMD_CLONES
+void pt_sample_group_eval(const pt_sample_group *g, uint32_t index, float out[8])
+{
+    v8u shuffle, owen;
+    memcpy(&shuffle, g->shuffle, sizeof shuffle);
+    memcpy(&owen, g->owen, sizeof owen);
+    const v8u odd = {0, ~0u, 0, ~0u, 0, ~0u, 0, ~0u};
+    /* The shuffled index s, in every lane. */
+    v8u s = (v8u){0} + reverse_bits(index);
+    V8_LK_PERMUTE(s, shuffle);
+    V8_REVERSE_BITS(s);
+    /* The Sobol value, bit-reversed: s itself, or Pascal's matrix times s. */
+    v8u p = s;
+    V8_PASCAL_REV(p);
+    v8u x = (s & ~odd) | (p & odd);
+    V8_LK_PERMUTE(x, owen);
+    V8_REVERSE_BITS(x);
+    x >>= 8; /* 24 bits, exactly representable: to_unit */
+    v8f f = __builtin_convertvector((v8i)x, v8f) * 0x1p-24f;
+    memcpy(out, &f, sizeof f);
+}
+
+void pt_sample_group_eval2(const pt_sample_group *g, uint32_t index, float out[2])
+{
+    uint32_t s = reverse_bits(lk_permute(reverse_bits(index), g->shuffle[0]));
+    out[0] = to_unit(reverse_bits(lk_permute(s, g->owen[0])));
+    out[1] = to_unit(reverse_bits(lk_permute(pascal_rev(s), g->owen[1])));
 }
