@@ -220,34 +220,15 @@ int pt_accel_occluded(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar)
     return r.tfar == -INFINITY;
 }
 
-static pt_vec3 vertex(const pt_scene *s, uint32_t i)
+pt_vec3 pt_accel_degenerate_normal(pt_vec3 n)
 {
-    return pt_v3(s->positions[3 * i], s->positions[3 * i + 1], s->positions[3 * i + 2]);
-}
-
-void pt_accel_hit_point(const pt_scene *scene, const pt_hit *hit, pt_vec3 *p, pt_vec3 *ng)
-{
-    const uint32_t *t = &scene->indices[3 * hit->tri];
-    pt_vec3 v0 = vertex(scene, t[0]), v1 = vertex(scene, t[1]), v2 = vertex(scene, t[2]);
-    float b0 = 1.0f - hit->b1 - hit->b2;
-    /* Barycentric interpolation of the vertices: its error is relative to the
-     * vertex magnitudes, where o + t d adds the error of t times |d| (Waechter
-     * & Binder, RTG ch. 6, sec. 6.2.1). */
-    *p = pt_v3_add(pt_v3_add(pt_v3_scale(v0, b0), pt_v3_scale(v1, hit->b1)),
-                   pt_v3_scale(v2, hit->b2));
-    pt_vec3 n = pt_v3_cross(pt_v3_sub(v1, v0), pt_v3_sub(v2, v0));
-    float len = pt_v3_len(n);
-    if (len > 0.0f && isfinite(len)) {
-        *ng = pt_v3_scale(n, 1.0f / len);
-    } else {
-        /* Degenerate (or overflowing) triangle: any unit vector beats a NaN. */
-        double lx = n.x, ly = n.y, lz = n.z;
-        double l = sqrt(lx * lx + ly * ly + lz * lz);
-        if (l > 0.0 && isfinite(l))
-            *ng = pt_v3((float)(lx / l), (float)(ly / l), (float)(lz / l));
-        else
-            *ng = pt_v3(0.0f, 0.0f, 1.0f);
-    }
+    /* In double: a cross product that overflowed in float still has a
+     * direction; any unit vector beats a NaN when there is none. */
+    double lx = n.x, ly = n.y, lz = n.z;
+    double l = sqrt(lx * lx + ly * ly + lz * lz);
+    if (l > 0.0 && isfinite(l))
+        return pt_v3((float)(lx / l), (float)(ly / l), (float)(lz / l));
+    return pt_v3(0.0f, 0.0f, 1.0f);
 }
 
 /* Waechter & Binder, "A Fast and Robust Method for Avoiding Self-Intersection",

@@ -36,8 +36,31 @@ int pt_accel_intersect(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, 
 /* 1 when anything blocks o + t d for t in (0, tfar). */
 int pt_accel_occluded(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar);
 
-/* World-space point and geometric normal (unit, from the winding) of a hit. */
-void pt_accel_hit_point(const pt_scene *scene, const pt_hit *hit, pt_vec3 *p, pt_vec3 *ng);
+/* The unit normal of a degenerate or overflowing triangle's cross product n
+ * (computed in double; (0,0,1) when it has no direction). */
+pt_vec3 pt_accel_degenerate_normal(pt_vec3 n);
+
+/* World-space point and geometric normal (unit, from the winding) of a hit.
+ * Inline: the integrator calls it at every bounce. */
+static inline void pt_accel_hit_point(const pt_scene *scene, const pt_hit *hit, pt_vec3 *p,
+                                      pt_vec3 *ng)
+{
+    const uint32_t *t = &scene->indices[3 * hit->tri];
+    const float *x = scene->positions;
+    pt_vec3 v0 = pt_v3(x[3 * t[0]], x[3 * t[0] + 1], x[3 * t[0] + 2]);
+    pt_vec3 v1 = pt_v3(x[3 * t[1]], x[3 * t[1] + 1], x[3 * t[1] + 2]);
+    pt_vec3 v2 = pt_v3(x[3 * t[2]], x[3 * t[2] + 1], x[3 * t[2] + 2]);
+    float b0 = 1.0f - hit->b1 - hit->b2;
+    /* Barycentric interpolation of the vertices: its error is relative to the
+     * vertex magnitudes, where o + t d adds the error of t times |d| (Waechter
+     * & Binder, RTG ch. 6, sec. 6.2.1). */
+    *p = pt_v3_add(pt_v3_add(pt_v3_scale(v0, b0), pt_v3_scale(v1, hit->b1)),
+                   pt_v3_scale(v2, hit->b2));
+    pt_vec3 n = pt_v3_cross(pt_v3_sub(v1, v0), pt_v3_sub(v2, v0));
+    float len = pt_v3_len(n);
+    *ng = (len > 0.0f && isfinite(len)) ? pt_v3_scale(n, 1.0f / len)
+                                        : pt_accel_degenerate_normal(n);
+}
 
 /* Offsets p along the geometric normal n (towards the side the ray leaves on)
  * so a ray starting there does not hit its own surface (Waechter & Binder),

@@ -22,6 +22,7 @@
 #include <math.h>
 #include <string.h>
 
+#include "common/accel.h"
 #include "common/alloc.h"
 
 typedef struct light_entry {
@@ -30,6 +31,7 @@ typedef struct light_entry {
     uint32_t tri;      /* triangle in the scene */
     float pmf;         /* probability of choosing this light */
     float area;        /* world-space area of the triangle */
+    float pmf_area;    /* pmf / area: the first factor of every solid-angle pdf */
     /* What sampling needs of the triangle and its material, copied once so a
      * sample reads one entry instead of indices, vertices and the material,
      * and recomputes no normal: tri_geom's results, the same bits. */
@@ -64,16 +66,8 @@ static void tri_geom(const pt_scene *s, uint32_t tri, pt_vec3 v[3], pt_vec3 *n, 
     pt_vec3 c = pt_v3_cross(pt_v3_sub(v[1], v[0]), pt_v3_sub(v[2], v[0]));
     float len = pt_v3_len(c);
     *area = 0.5f * len;
-    if (len > 0.0f && isfinite(len)) {
-        *n = pt_v3_scale(c, 1.0f / len);
-    } else {
-        double lx = c.x, ly = c.y, lz = c.z;
-        double l = sqrt(lx * lx + ly * ly + lz * lz);
-        if (l > 0.0 && isfinite(l))
-            *n = pt_v3((float)(lx / l), (float)(ly / l), (float)(lz / l));
-        else
-            *n = pt_v3(0.0f, 0.0f, 1.0f);
-    }
+    *n = (len > 0.0f && isfinite(len)) ? pt_v3_scale(c, 1.0f / len)
+                                       : pt_accel_degenerate_normal(c);
 }
 
 static int emits(const pt_material *m)
@@ -290,8 +284,10 @@ pt_status pt_lights_new(const pt_scene *scene, pt_lights **out, pt_error *err)
         total += p;
         k++;
     }
-    for (uint32_t i = 0; i < n; i++)
+    for (uint32_t i = 0; i < n; i++) {
         L->lights[i].pmf = (float)(power[i] / total);
+        L->lights[i].pmf_area = L->lights[i].pmf / L->lights[i].area;
+    }
     build_alias(L->lights, power, scratch, n, total);
     L->count = n;
 
@@ -329,8 +325,8 @@ uint32_t pt_lights_count(const pt_lights *lights)
 /* pdf_w = pmf / area * d^2 / |cos theta_light| (area to solid angle: dA =
  * d^2 / |cos| dw). 0 on the back of a single-sided light, at a grazing angle,
  * at distance 0, or where the division overflows. */
-static inline float solid_angle_pdf_d(float pmf, float area, int double_sided, pt_vec3 d,
-                                      float d2, float dist, pt_vec3 n)
+static inline float solid_angle_pdf_d(float pmf_area, int double_sided, pt_vec3 d, float d2,
+                                      float dist, pt_vec3 n)
 {
     if (!(d2 > 0.0f) || !isfinite(d2))
         return 0.0f;
@@ -340,17 +336,16 @@ static inline float solid_angle_pdf_d(float pmf, float area, int double_sided, p
     float ac = fabsf(cos_l);
     if (!(ac > 0.0f))
         return 0.0f;
-    float pdf = pmf / area * d2 / ac;
+    float pdf = pmf_area * d2 / ac; /* pmf / area * d2 / ac, the same bits */
     return isfinite(pdf) ? pdf : 0.0f;
 }
 
 /* The same from p and the light point x; d = x - p, dist = |d|. */
-static float solid_angle_pdf(float pmf, float area, int double_sided, pt_vec3 p, pt_vec3 x,
-                             pt_vec3 n)
+static float solid_angle_pdf(float pmf_area, int double_sided, pt_vec3 p, pt_vec3 x, pt_vec3 n)
 {
     pt_vec3 d = pt_v3_sub(x, p);
     float d2 = pt_v3_dot(d, d);
-    return solid_angle_pdf_d(pmf, area, double_sided, d, d2, sqrtf(d2), n);
+    return solid_angle_pdf_d(pmf_area, double_sided, d, d2, sqrtf(d2), n);
 }
 
 int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, const float u[3],
@@ -395,7 +390,7 @@ int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, 
     if (!(s->dist > 0.0f) || !isfinite(s->dist))
         return 0;
     s->wi = pt_v3_scale(d, 1.0f / s->dist);
-    s->pdf = solid_angle_pdf_d(le->pmf, le->area, le->double_sided, d, d2, s->dist, le->normal);
+    s->pdf = solid_angle_pdf_d(le->pmf_area, le->double_sided, d, d2, s->dist, le->normal);
     if (!(s->pdf > 0.0f))
         return 0;
     if (le->textured)
@@ -415,6 +410,6 @@ float pt_lights_pdf(const pt_lights *lights, const pt_scene *scene, uint32_t tri
     if (k == UINT32_MAX)
         return 0.0f;
     const light_entry *le = &lights->lights[k];
-    const pt_material *m = &scene->materials[scene->tri_material[tri]];
-    return solid_angle_pdf(le->pmf, le->area, m->double_sided, p, hit, n_light);
+    (void)scene; /* what it held of the triangle is copied into the entry */
+    return solid_angle_pdf(le->pmf_area, le->double_sided, p, hit, n_light);
 }
