@@ -110,7 +110,8 @@ pt_vec3 pt_sample_cosine_hemisphere(float u1, float u2)
      * so cos and sin of phi are cos and sin of t, swapped in the second case. */
     int wide = fabsf(a) > fabsf(b);
     float r = wide ? a : b;
-    float t = (PT_PI / 4.0f) * (wide ? b / a : a / b);
+    float num = wide ? b : a, den = wide ? a : b; /* selects: wide is random */
+    float t = (PT_PI / 4.0f) * (num / den);
     float c, sn;
     sincos_quarter(t, &sn, &c);
     float x = r * (wide ? c : sn), y = r * (wide ? sn : c);

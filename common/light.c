@@ -362,21 +362,18 @@ int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, 
     double x = (double)u[0] * (double)n;
     uint32_t col = x < (double)n ? (uint32_t)x : n - 1;
     double r = x - (double)col;
-    const light_entry *le = &lights->lights[col];
-    if (!(r < le->alias_prob))
-        le = &lights->lights[le->alias];
+    /* A select, not a branch: the choice is random, so a branch would be
+     * mispredicted half of the time. */
+    const light_entry *c = &lights->lights[col];
+    const light_entry *le = &lights->lights[r < c->alias_prob ? col : c->alias];
 
     /* Heitz 2019, sec. 3: the square is cut along its diagonal and each half
      * sheared onto the triangle; the Jacobian is constant, so the density is
      * uniform in area. */
-    float b1, b2;
-    if (u[2] > u[1]) {
-        b1 = 0.5f * u[1];
-        b2 = u[2] - b1;
-    } else {
-        b2 = 0.5f * u[2];
-        b1 = u[1] - b2;
-    }
+    int upper = u[2] > u[1]; /* random: selects, not branches */
+    float h1 = 0.5f * u[1], h2 = 0.5f * u[2];
+    float b1 = upper ? h1 : u[1] - h2;
+    float b2 = upper ? u[2] - h1 : h2;
     float b0 = 1.0f - b1 - b2;
 
     const pt_vec3 *v = le->v;

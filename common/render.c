@@ -259,6 +259,28 @@ li_impl(const pt_renderer *r, pixel_ctx *pc, uint32_t index, pt_render_stats *st
                            strategy != PT_LIGHT_BSDF_ONLY;
 
     for (uint32_t depth = 0;; depth++) {
+        /* All 8 numbers of the bounce at once (the light pick and the lobe
+         * pick are one pair: one index shuffle), drawn before the ray is
+         * traced: they do not depend on the hit, and the scrambles' long
+         * dependency chain then overlaps the ray query instead of following
+         * it. (A missed ray wastes them; a miss ends the path anyway.) */
+        float u[DIM_PER_BOUNCE];
+        {
+            pt_sample_group deep;
+            const pt_sample_group *g = &deep;
+            if (depth < SEED_CACHE) {
+                while (pc->ngroups <= depth) {
+                    pt_sample_group_init(&pc->bounce[pc->ngroups], pc->seed,
+                                         DIM_BOUNCE0 + DIM_PER_BOUNCE * pc->ngroups);
+                    pc->ngroups++;
+                }
+                g = &pc->bounce[depth];
+            } else {
+                pt_sample_group_init(&deep, pc->seed, DIM_BOUNCE0 + DIM_PER_BOUNCE * depth);
+            }
+            pt_sample_group_eval(g, index, u);
+        }
+
         pt_hit hit;
         rays++;
         if (sink)
@@ -294,25 +316,6 @@ li_impl(const pt_renderer *r, pixel_ctx *pc, uint32_t index, pt_render_stats *st
         pt_frame fr = pt_frame_from_normal(ns);
         pt_vec3 wo_l = pt_frame_to_local(&fr, wo);
         pt_bsdf bsdf = material_bsdf(r, &sf, features);
-        /* All 8 numbers of the bounce at once (the light pick and the lobe
-         * pick are one pair: one index shuffle). */
-        float u[DIM_PER_BOUNCE];
-        {
-            pt_sample_group deep;
-            const pt_sample_group *g = &deep;
-            if (depth < SEED_CACHE) {
-                while (pc->ngroups <= depth) {
-                    pt_sample_group_init(&pc->bounce[pc->ngroups], pc->seed,
-                                         DIM_BOUNCE0 + DIM_PER_BOUNCE * pc->ngroups);
-                    pc->ngroups++;
-                }
-                g = &pc->bounce[depth];
-            } else {
-                pt_sample_group_init(&deep, pc->seed, DIM_BOUNCE0 + DIM_PER_BOUNCE * depth);
-            }
-            pt_sample_group_eval(g, index, u);
-        }
-
         if (has_lights) {
             float u3[3];
             u3[0] = u[OFF_LIGHT_PICK];
