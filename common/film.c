@@ -118,3 +118,11 @@ double pt_tile_rel_error(const pt_pixel_acc *px, uint32_t stride, uint32_t width
     }
     return width && height ? sqrt(sum / ((double)width * height)) : 0.0;
 }
+
+int pt_tile_stops(const pt_pixel_acc *px, uint32_t stride, uint32_t width, uint32_t height,
+                  uint64_t samples, uint32_t min_spp, double target)
+{
+    if (!(target > 0.0) || samples < min_spp)
+        return 0;
+    return pt_tile_rel_error(px, stride, width, height) <= target;
+}

@@ -43,4 +43,11 @@ uint64_t pt_film_total_samples(const pt_film *film);
 #define PT_ADAPTIVE_EPS 1e-2
 double pt_tile_rel_error(const pt_pixel_acc *px, uint32_t stride, uint32_t width, uint32_t height);
 
+/* Adaptive sampling's decision, shared by ptserve, ptworker and ptbench: a
+ * tile whose sums (as for pt_tile_rel_error) hold its first `samples` samples
+ * per pixel stops when samples >= min_spp and its error is at most target.
+ * target <= 0 never stops. Callers do not ask after the last chunk. */
+int pt_tile_stops(const pt_pixel_acc *px, uint32_t stride, uint32_t width, uint32_t height,
+                  uint64_t samples, uint32_t min_spp, double target);
+
 #endif

@@ -1,6 +1,7 @@
 #include "server/job.h"
 
 #include <math.h>
+#include <stdio.h>
 #include <string.h>
 
 #include "common/alloc.h"
@@ -207,6 +208,7 @@ int srv_job_lease(srv_job *j, uint64_t owner, uint64_t now_ms, uint32_t lease_ms
     task->rr_depth = (uint16_t)j->p.rr_depth;
     memcpy(task->scene_hash, j->hash, 32);
     task->lease_ms = lease_ms;
+    snprintf(task->camera, sizeof task->camera, "%s", j->p.camera);
     return 1;
 }
 
@@ -299,12 +301,11 @@ static void merge_now(srv_job *j, uint64_t t, const pt_pixel_acc *px)
     j->merged++;
     j->next_chunk[tile] = chunk + 1;
     j->merged_in_pass[chunk]++;
-    if (j->p.target_error > 0.0 && chunk + 1 < j->nchunks &&
-        (uint64_t)(chunk + 1) * j->p.chunk >= j->p.min_spp) {
-        const pt_pixel_acc *fp = &j->film->px[(size_t)r.y0 * j->p.width + r.x0];
-        if (pt_tile_rel_error(fp, j->p.width, r.x1 - r.x0, r.y1 - r.y0) <= j->p.target_error)
-            stop_tile(j, tile, chunk + 1);
-    }
+    if (chunk + 1 < j->nchunks &&
+        pt_tile_stops(&j->film->px[(size_t)r.y0 * j->p.width + r.x0], j->p.width, r.x1 - r.x0,
+                      r.y1 - r.y0, (uint64_t)(chunk + 1) * j->p.chunk, j->p.min_spp,
+                      j->p.target_error))
+        stop_tile(j, tile, chunk + 1);
     while (j->passes_done < j->nchunks && j->merged_in_pass[j->passes_done] == j->ntiles)
         j->passes_done++;
 }
@@ -452,7 +453,7 @@ uint32_t srv_job_tiles(const srv_job *j) { return j->ntiles; }
 /* ---- checkpoints ---- */
 
 #define CKPT_MAGIC 0x434a5450u /* "PTJC" */
-#define CKPT_VERSION 1u
+#define CKPT_VERSION 2u
 
 static void put_acc(proto_writer *w, const pt_pixel_acc *a)
 {
@@ -485,6 +486,9 @@ static void put_params(proto_writer *w, const srv_job_params *p)
     proto_w_u32(w, p->rr_depth);
     proto_w_u32(w, p->min_spp);
     proto_w_f64(w, p->target_error);
+    size_t n = strlen(p->camera);
+    proto_w_u16(w, (uint16_t)n);
+    proto_w_bytes(w, p->camera, n);
 }
 
 static uint32_t tile_merged(const srv_job *j, uint32_t tile)
@@ -553,6 +557,15 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
     p.rr_depth = proto_r_u32(&r, "rr depth");
     p.min_spp = proto_r_u32(&r, "min spp");
     p.target_error = proto_r_f64(&r, "target error");
+    p.camera[0] = '\0';
+    uint16_t ncam = proto_r_u16(&r, "camera length");
+    if (r.status == PT_OK && ncam > PROTO_MAX_NAME)
+        proto_r_fail(&r, PT_ERR_FORMAT, "too long:", "camera");
+    const uint8_t *cam = proto_r_bytes(&r, ncam, "camera");
+    if (cam) {
+        memcpy(p.camera, cam, ncam);
+        p.camera[ncam] = '\0';
+    }
     uint32_t ntiles = proto_r_u32(&r, "tiles"), nchunks = proto_r_u32(&r, "chunks");
     if (r.status != PT_OK)
         return proto_r_finish(&r, "checkpoint", err);
@@ -561,6 +574,7 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
         p.chunk != j->p.chunk || p.seed != j->p.seed || p.max_depth != j->p.max_depth ||
         p.rr_depth != j->p.rr_depth || p.min_spp != j->p.min_spp ||
         memcmp(&p.target_error, &j->p.target_error, sizeof p.target_error) != 0 ||
+        strcmp(p.camera, j->p.camera) != 0 ||
         ntiles != j->ntiles || nchunks != j->nchunks)
         return pt_error_set(err, PT_ERR_FORMAT, "checkpoint is of another job or other settings "
                             "(job %llu, %ux%u, %u spp)", (unsigned long long)id, p.width,

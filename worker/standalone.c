@@ -69,9 +69,8 @@ static void *render_thread(void *p)
                 pt_pixel_acc_add(&sum[i], &chunk[i]);
             atomic_fetch_add(&j->samples_done, (uint64_t)npx * (s1 - s0));
             /* The coordinator's rule (server/job.c), on the same sums. */
-            if (j->o->target_error > 0.0 && s1 < j->o->spp && s1 >= j->o->min_spp &&
-                pt_tile_rel_error(sum, rc.x1 - rc.x0, rc.x1 - rc.x0, rc.y1 - rc.y0) <=
-                    j->o->target_error) {
+            if (s1 < j->o->spp && pt_tile_stops(sum, rc.x1 - rc.x0, rc.x1 - rc.x0, rc.y1 - rc.y0,
+                                                s1, j->o->min_spp, j->o->target_error)) {
                 atomic_fetch_add(&j->samples_done, (uint64_t)npx * (j->o->spp - s1));
                 atomic_fetch_add(&j->tiles_stopped, 1);
                 break;

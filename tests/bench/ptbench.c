@@ -4,8 +4,11 @@
  *   ptbench SCENE (--reference REF.exr | --constant V) [--spp LIST | --time LIST]
  *           [--res WxH] [--threads T] [--seed S] [--max-depth D] [--reps R]
  *           [--label NAME] [--csv OUT.csv] [--plot OUT.png] [--plot-series IN.csv]...
+ *   ptbench SCENE --reference REF.exr --target-error LIST [--min-spp M] [--max-spp N]
+ *           [--chunk C] [--tile T] [other options as above]
  *   ptbench error IMAGE.exr (REFERENCE.exr | --constant V)
  *   ptbench plot OUT.png IN.csv...
+ *   ptbench gain REFERENCE.exr [TILE]
  *
  * For each sample count of --spp (default 1,2,4,...,256) the whole image is
  * rendered in this process with T threads pulling 16x16 tiles, each tile
@@ -23,6 +26,18 @@
  * The reference must not share the benchmark's random numbers: render it with
  * another --seed, or the first samples of both agree and the error looks smaller
  * than it is. Its own noise adds its MSE to every row.
+ * With --target-error, each row is an adaptive render to that target: every
+ * tile is rendered in chunks of C samples and stops, as ptworker and ptserve
+ * stop it (pt_tile_stops, common/film.h), once it has M samples and its
+ * pt_tile_rel_error is at most the target, else at N samples; the spp column
+ * is then the mean over pixels.
+ * `gain` bounds what any adaptive sampler could win: from a converged
+ * reference's samples and variance channels (luminance) it takes each pixel's
+ * variance per sample s_i^2 and prints, for RMSE and for relMSE, how many times
+ * fewer samples than uniform the best allocation would need for the same error
+ * when it may choose the count of every pixel (n_i proportional to s_i) or only
+ * of every TILE x TILE tile, and the share of uniform sampling's squared error
+ * held by the worst 5 % of tiles. Equal cost per sample is assumed.
  * `error` scores an existing EXR (from any renderer) the same way; `plot`
  * draws the CSVs of earlier runs, one series per label.
  */
@@ -48,7 +63,7 @@
 #define MAX_ROWS 64
 #define MAX_REPS 100
 #define MAX_SERIES_FILES 16
-#define TILE 16u
+#define MAX_TILE 256u
 #define PLOT_W 900
 #define PLOT_H 600
 
@@ -66,8 +81,11 @@ typedef struct pass {
     pt_film *film;
     const pt_rect *tiles;
     uint32_t num_tiles, s0, s1;
+    double target;            /* > 0: adaptive, s1 is the cap */
+    uint32_t chunk, min_spp;  /* adaptive: samples per chunk, before a tile may stop */
     atomic_uint next;
-    pt_pixel_acc *scratch[MAX_THREADS]; /* TILE*TILE each, allocated once */
+    pt_pixel_acc *scratch[MAX_THREADS]; /* tile*tile each, allocated once */
+    pt_pixel_acc *sum[MAX_THREADS];     /* adaptive: the tile's sums so far */
     pt_render_stats stats[MAX_THREADS];
 } pass;
 
@@ -84,9 +102,26 @@ static void *pass_thread(void *p)
         uint32_t t = atomic_fetch_add(&ps->next, 1);
         if (t >= ps->num_tiles)
             break;
-        pt_render_tile(ps->r, ps->tiles[t], ps->s0, ps->s1, ps->scratch[a->id], &ps->stats[a->id]);
-        /* Tiles are disjoint: threads add to the film without a lock. */
-        pt_film_add_tile(ps->film, ps->tiles[t], ps->scratch[a->id]);
+        pt_rect rc = ps->tiles[t];
+        if (!(ps->target > 0.0)) {
+            pt_render_tile(ps->r, rc, ps->s0, ps->s1, ps->scratch[a->id], &ps->stats[a->id]);
+            /* Tiles are disjoint: threads add to the film without a lock. */
+            pt_film_add_tile(ps->film, rc, ps->scratch[a->id]);
+            continue;
+        }
+        /* ptworker's loop (worker/standalone.c): chunk by chunk until the tile stops. */
+        uint32_t w = rc.x1 - rc.x0, npx = w * (rc.y1 - rc.y0);
+        pt_pixel_acc *sum = ps->sum[a->id];
+        memset(sum, 0, npx * sizeof *sum);
+        for (uint32_t s0 = ps->s0; s0 < ps->s1; s0 += ps->chunk) {
+            uint32_t s1 = s0 + ps->chunk < ps->s1 ? s0 + ps->chunk : ps->s1;
+            pt_render_tile(ps->r, rc, s0, s1, ps->scratch[a->id], &ps->stats[a->id]);
+            for (uint32_t i = 0; i < npx; i++)
+                pt_pixel_acc_add(&sum[i], &ps->scratch[a->id][i]);
+            if (s1 < ps->s1 && pt_tile_stops(sum, w, w, rc.y1 - rc.y0, s1, ps->min_spp, ps->target))
+                break;
+        }
+        pt_film_add_tile(ps->film, rc, sum);
     }
     return NULL;
 }
@@ -133,7 +168,9 @@ static pt_render_stats total_stats(const pass *ps, int threads)
 /* ---- results ---------------------------------------------------------------- */
 
 typedef struct row {
-    uint32_t spp;
+    uint32_t spp;    /* uniform: per pixel; adaptive: the cap */
+    double mean_spp; /* samples / pixels */
+    double target;   /* adaptive: the target error, else 0 */
     double seconds;
     pt_render_stats st;
     pt_metrics m;
@@ -163,7 +200,9 @@ static void print_header(void)
 
 static void print_row(const row *r)
 {
-    printf("%8u %10.4f %11.4g %11.4g %11.4e %11.4e %11.4g %9.5f\n", r->spp, r->seconds,
+    if (r->target > 0.0)
+        printf("adaptive %g: ", r->target);
+    printf("%8.2f %10.4f %11.4g %11.4g %11.4e %11.4e %11.4g %9.5f\n", r->mean_spp, r->seconds,
            (double)r->st.samples / r->seconds, (double)r->st.rays / r->seconds, r->m.rmse,
            r->m.rel_mse, efficiency(r), (r->m.mean[0] + r->m.mean[1] + r->m.mean[2]) / 3.0);
 }
@@ -191,14 +230,16 @@ static int write_csv(const char *path, const char *label, const char *scene, uin
         return -1;
     }
     fprintf(f, "label,scene,width,height,threads,seed,spp,seconds,samples_per_s,rays_per_s,"
-               "rmse,relmse,efficiency,mean,nonfinite,rejected\n");
+               "rmse,relmse,efficiency,mean,nonfinite,rejected,target_error,mean_spp\n");
     for (int i = 0; i < n; i++) {
         const row *r = &rows[i];
-        fprintf(f, "%s,%s,%u,%u,%d,%u,%u,%.6g,%.6g,%.6g,%.6e,%.6e,%.6g,%.6g,%llu,%llu\n", label,
+        fprintf(f, "%s,%s,%u,%u,%d,%u,%u,%.6g,%.6g,%.6g,%.6e,%.6e,%.6g,%.6g,%llu,%llu,%.6g,%.6g\n",
+                label,
                 scene, w, h, threads, seed, r->spp, r->seconds, (double)r->st.samples / r->seconds,
                 (double)r->st.rays / r->seconds, r->m.rmse, r->m.rel_mse, efficiency(r),
                 (r->m.mean[0] + r->m.mean[1] + r->m.mean[2]) / 3.0,
-                (unsigned long long)r->m.nonfinite, (unsigned long long)r->st.rejected);
+                (unsigned long long)r->m.nonfinite, (unsigned long long)r->st.rejected, r->target,
+                r->mean_spp);
     }
     if (fclose(f) != 0) {
         fprintf(stderr, "ptbench: %s: %s\n", path, strerror(errno));
@@ -270,6 +311,7 @@ static void usage(FILE *f)
     fprintf(f, "usage: ptbench SCENE (--reference REF.exr | --constant V) [options]\n"
                "       ptbench error IMAGE.exr (REFERENCE.exr | --constant V)\n"
                "       ptbench plot OUT.png IN.csv...\n"
+               "       ptbench gain REFERENCE.exr [TILE]\n"
                "  --spp LIST          sample counts per pixel (default 1,2,4,8,16,32,64,128,256)\n"
                "  --time LIST         time budgets in seconds instead: spp reached in each\n"
                "  --res WxH           image size (default: the reference's, else 128 wide)\n"
@@ -280,7 +322,12 @@ static void usage(FILE *f)
                "  --label NAME        series name in CSV and plot (default: the scene's name)\n"
                "  --csv OUT.csv       write the table\n"
                "  --plot OUT.png      log-log plot of RMSE against seconds\n"
-               "  --plot-series F.csv add an earlier run's CSV to the plot (repeatable)\n");
+               "  --plot-series F.csv add an earlier run's CSV to the plot (repeatable)\n"
+               "  --target-error LIST adaptive rows instead: one render to each target error\n"
+               "  --min-spp M         adaptive: samples before a tile may stop (default: chunk)\n"
+               "  --max-spp N         adaptive: samples at most (default 1024)\n"
+               "  --chunk C           adaptive: samples between decisions (default 16)\n"
+               "  --tile T            tile side in pixels (default 16)\n");
 }
 
 /* ---- subcommands ---------------------------------------------------------------- */
@@ -319,6 +366,78 @@ done:
     return rc;
 }
 
+static int cmp_double_desc(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return (x < y) - (x > y);
+}
+
+/* Uniform MSE over the best MSE for the same samples, per pixel and per tile:
+ * minimising sum_t S_t / n_t (S_t the tile's summed variance per sample, n_t
+ * its spp) under sum_t m_t n_t = N gives n_t ~ sqrt(S_t / m_t). */
+static int cmd_gain(int argc, char **argv)
+{
+    uint32_t ts = 16;
+    if ((argc != 3 && argc != 4) || (argc == 4 && parse_u32(argv[3], 1, MAX_TILE, &ts) != 0)) {
+        usage(stderr);
+        return 2;
+    }
+    pt_error err = {0};
+    pt_image *img = NULL;
+    if (pt_exr_read(argv[2], &img, NULL, &err) != PT_OK) {
+        fprintf(stderr, "ptbench: %s\n", err.msg);
+        return 1;
+    }
+    uint32_t w = img->width, h = img->height, tx = (w + ts - 1) / ts, ty = (h + ts - 1) / ts;
+    double *tile_se = pt_malloc_array((size_t)tx * ty, sizeof *tile_se);
+    if (!tile_se) {
+        pt_image_free(img);
+        fprintf(stderr, "ptbench: out of memory\n");
+        return 1;
+    }
+    printf("ptbench: %s, %ux%u, %u-pixel tiles; samples uniform needs / best allocation's,\n"
+           "at equal error (variance of luminance from the reference, equal cost per sample)\n",
+           argv[2], w, h, ts);
+    for (int rel = 0; rel < 2; rel++) {
+        double px_sum = 0, px_sqrt = 0, t_sum = 0, t_sqrt = 0;
+        for (uint32_t y0 = 0; y0 < h; y0 += ts)
+            for (uint32_t x0 = 0; x0 < w; x0 += ts) {
+                double s = 0;
+                uint32_t m = 0;
+                for (uint32_t y = y0; y < y0 + ts && y < h; y++)
+                    for (uint32_t x = x0; x < x0 + ts && x < w; x++, m++) {
+                        size_t i = (size_t)y * w + x;
+                        double v = (double)img->variance[i] * img->samples[i];
+                        if (rel) {
+                            double mu = 0.2126 * img->r[i] + 0.7152 * img->g[i] + 0.0722 * img->b[i];
+                            v /= mu * mu + PT_METRICS_REL_EPS;
+                        }
+                        v = v > 0 && isfinite(v) ? v : 0;
+                        s += v;
+                        px_sqrt += sqrt(v);
+                    }
+                px_sum += s;
+                t_sqrt += sqrt(m * s);
+                tile_se[(y0 / ts) * tx + x0 / ts] = s;
+            }
+        t_sum = px_sum;
+        double p = (double)w * h;
+        qsort(tile_se, (size_t)tx * ty, sizeof *tile_se, cmp_double_desc);
+        size_t worst = ((size_t)tx * ty + 19) / 20;
+        double top = 0;
+        for (size_t i = 0; i < worst; i++)
+            top += tile_se[i];
+        printf("%-7s per pixel %6.2fx   per tile %6.2fx   worst 5%% of tiles hold %4.1f%% of the "
+               "squared error\n",
+               rel ? "relMSE" : "RMSE", px_sqrt > 0 ? p * px_sum / (px_sqrt * px_sqrt) : 1.0,
+               t_sqrt > 0 ? p * t_sum / (t_sqrt * t_sqrt) : 1.0,
+               t_sum > 0 ? 100.0 * top / t_sum : 0.0);
+    }
+    pt_free(tile_se);
+    pt_image_free(img);
+    return 0;
+}
+
 static int cmd_plot(int argc, char **argv)
 {
     if (argc < 4) {
@@ -347,8 +466,9 @@ typedef struct opts {
     int has_constant;
     double constant;
     double list[MAX_ROWS];
-    int n, time_mode;
+    int n, time_mode, adaptive;
     uint32_t w, h, seed, max_depth, reps;
+    uint32_t min_spp, max_spp, chunk, tile;
     int threads;
 } opts;
 
@@ -359,6 +479,9 @@ static int parse_opts(int argc, char **argv, opts *o)
     o->threads = 2;
     o->reps = 1;
     o->max_depth = 16;
+    o->max_spp = 1024;
+    o->chunk = 16;
+    o->tile = 16;
     o->n = (int)(sizeof default_spp / sizeof default_spp[0]);
     memcpy(o->list, default_spp, sizeof default_spp);
     for (int i = 1; i < argc; i++) {
@@ -380,9 +503,10 @@ static int parse_opts(int argc, char **argv, opts *o)
         } else if (!strcmp(a, "--constant")) {
             o->has_constant = 1;
             bad = parse_double(v, &o->constant);
-        } else if (!strcmp(a, "--spp") || !strcmp(a, "--time")) {
+        } else if (!strcmp(a, "--spp") || !strcmp(a, "--time") || !strcmp(a, "--target-error")) {
             o->time_mode = !strcmp(a, "--time");
-            o->n = parse_list(v, o->time_mode, o->list);
+            o->adaptive = !strcmp(a, "--target-error");
+            o->n = parse_list(v, o->time_mode || o->adaptive, o->list);
             bad = o->n <= 0;
         } else if (!strcmp(a, "--res")) {
             char x;
@@ -397,6 +521,14 @@ static int parse_opts(int argc, char **argv, opts *o)
             bad = parse_u32(v, 1, 1024, &o->max_depth);
         } else if (!strcmp(a, "--reps")) {
             bad = parse_u32(v, 1, MAX_REPS, &o->reps);
+        } else if (!strcmp(a, "--min-spp")) {
+            bad = parse_u32(v, 2, 1u << 24, &o->min_spp);
+        } else if (!strcmp(a, "--max-spp")) {
+            bad = parse_u32(v, 1, 1u << 24, &o->max_spp);
+        } else if (!strcmp(a, "--chunk")) {
+            bad = parse_u32(v, 1, 1u << 24, &o->chunk);
+        } else if (!strcmp(a, "--tile")) {
+            bad = parse_u32(v, 1, MAX_TILE, &o->tile);
         } else if (!strcmp(a, "--label")) {
             o->label = v;
         } else if (!strcmp(a, "--csv")) {
@@ -422,6 +554,8 @@ static int parse_opts(int argc, char **argv, opts *o)
                         "(see --help)\n");
         return -1;
     }
+    if (!o->min_spp) /* ptworker's default */
+        o->min_spp = o->chunk > 1 ? o->chunk : 2;
     return 0;
 }
 
@@ -451,6 +585,7 @@ static int bench_spp(pass *ps, const opts *o, uint32_t spp, row *out)
     }
     qsort(secs, o->reps, sizeof secs[0], cmp_double);
     out->spp = spp;
+    out->target = 0.0;
     out->seconds =
         o->reps % 2 ? secs[o->reps / 2] : 0.5 * (secs[o->reps / 2 - 1] + secs[o->reps / 2]);
     out->st = total_stats(ps, o->threads);
@@ -481,7 +616,36 @@ static int bench_time_once(pass *ps, const opts *o, double budget, row *out)
         el = now() - t0;
     }
     out->spp = s;
+    out->target = 0.0;
     out->seconds = el;
+    out->st = total_stats(ps, o->threads);
+    return 0;
+}
+
+/* One --target-error row: R timed adaptive renders (each the same bits); the
+ * median time. */
+static int bench_adaptive(pass *ps, const opts *o, double target, row *out)
+{
+    double secs[MAX_REPS];
+    ps->target = target;
+    ps->chunk = o->chunk;
+    ps->min_spp = o->min_spp;
+    for (uint32_t k = 0; k < o->reps; k++) {
+        reset(ps, o->threads);
+        double t0 = now();
+        int bad = run_pass(ps, o->threads, 0, o->max_spp);
+        secs[k] = now() - t0;
+        if (bad) {
+            ps->target = 0.0;
+            return -1;
+        }
+    }
+    ps->target = 0.0;
+    qsort(secs, o->reps, sizeof secs[0], cmp_double);
+    out->spp = o->max_spp;
+    out->target = target;
+    out->seconds =
+        o->reps % 2 ? secs[o->reps / 2] : 0.5 * (secs[o->reps / 2 - 1] + secs[o->reps / 2]);
     out->st = total_stats(ps, o->threads);
     return 0;
 }
@@ -541,7 +705,8 @@ static int cmd_bench(int argc, char **argv)
         fprintf(stderr, "ptbench: %s\n", err.msg);
         goto done;
     }
-    uint32_t tx = (o.w + TILE - 1) / TILE, ty = (o.h + TILE - 1) / TILE;
+    const uint32_t ts = o.tile;
+    uint32_t tx = (o.w + ts - 1) / ts, ty = (o.h + ts - 1) / ts;
     tiles = pt_malloc_array((size_t)tx * ty, sizeof *tiles);
     if (!tiles) {
         fprintf(stderr, "ptbench: out of memory\n");
@@ -550,14 +715,15 @@ static int cmd_bench(int argc, char **argv)
     for (uint32_t y = 0; y < ty; y++)
         for (uint32_t x = 0; x < tx; x++)
             tiles[y * tx + x] =
-                (pt_rect){x * TILE, y * TILE, (x + 1) * TILE < o.w ? (x + 1) * TILE : o.w,
-                          (y + 1) * TILE < o.h ? (y + 1) * TILE : o.h};
+                (pt_rect){x * ts, y * ts, (x + 1) * ts < o.w ? (x + 1) * ts : o.w,
+                          (y + 1) * ts < o.h ? (y + 1) * ts : o.h};
     ps.r = r;
     ps.film = film;
     ps.tiles = tiles;
     ps.num_tiles = tx * ty;
     for (int i = 0; i < o.threads; i++)
-        if (!(ps.scratch[i] = pt_malloc_array(TILE * TILE, sizeof(pt_pixel_acc)))) {
+        if (!(ps.scratch[i] = pt_malloc_array(ts * ts, sizeof(pt_pixel_acc))) ||
+            !(ps.sum[i] = pt_malloc_array(ts * ts, sizeof(pt_pixel_acc)))) {
             fprintf(stderr, "ptbench: out of memory\n");
             goto done;
         }
@@ -575,6 +741,9 @@ static int cmd_bench(int argc, char **argv)
     printf("ptbench: %s, %ux%u, %d threads, seed %u, max depth %u, variant %s, %u rep%s\n", o.scene,
            o.w, o.h, o.threads, o.seed, o.max_depth, pt_renderer_variant(r), o.reps,
            o.reps == 1 ? "" : "s");
+    if (o.adaptive)
+        printf("ptbench: adaptive, tile %u, chunk %u, min spp %u, max spp %u\n", o.tile, o.chunk,
+               o.min_spp, o.max_spp);
     if (ref.img)
         printf("ptbench: reference %s\n", o.ref_path);
     else
@@ -596,11 +765,14 @@ static int cmd_bench(int argc, char **argv)
                 reset(&ps, o.threads);
                 bad = run_pass(&ps, o.threads, 0, rw->spp);
             }
+        } else if (o.adaptive) {
+            bad = bench_adaptive(&ps, &o, o.list[i], rw);
         } else {
             bad = bench_spp(&ps, &o, (uint32_t)o.list[i], rw);
         }
         if (bad)
             goto nothreads;
+        rw->mean_spp = (double)pt_film_total_samples(film) / ((double)o.w * o.h);
         pt_film_resolve(film, img);
         if (score(img, &ref, &rw->m, &err) != PT_OK) {
             fprintf(stderr, "ptbench: %s\n", err.msg);
@@ -637,7 +809,8 @@ nothreads:
 done:
     for (int i = 0; i < MAX_THREADS; i++) {
         pt_free(ps.scratch[i]);
-        ps.scratch[i] = NULL;
+        pt_free(ps.sum[i]);
+        ps.scratch[i] = ps.sum[i] = NULL;
     }
     pt_free(tiles);
     pt_image_free(img);
@@ -654,5 +827,7 @@ int main(int argc, char **argv)
         return cmd_error(argc, argv);
     if (argc >= 2 && !strcmp(argv[1], "plot"))
         return cmd_plot(argc, argv);
+    if (argc >= 2 && !strcmp(argv[1], "gain"))
+        return cmd_gain(argc, argv);
     return cmd_bench(argc, argv);
 }
