@@ -371,6 +371,8 @@ pt_status proto_msg_encode_task(proto_writer *w, const proto_task *m, pt_error *
 {
     size_t start = w->len;
     const char *why = task_problem(m);
+    if (!why && !str_fits(m->camera, PROTO_MAX_NAME))
+        why = "camera name over the length cap";
     if (why)
         return bad(err, PT_ERR_ARG, "TASK", why);
     proto_w_u64(w, m->job_id);
@@ -385,6 +387,7 @@ pt_status proto_msg_encode_task(proto_writer *w, const proto_task *m, pt_error *
     proto_w_u16(w, m->rr_depth);
     proto_w_bytes(w, m->scene_hash, PROTO_HASH_SIZE);
     proto_w_u32(w, m->lease_ms);
+    w_str(w, m->camera);
     return w_done(w, start, "TASK", err);
 }
 
@@ -404,6 +407,7 @@ pt_status proto_msg_decode_task(const uint8_t *p, size_t len, proto_task *out, p
     m.rr_depth = proto_r_u16(&r, "rr depth");
     const uint8_t *hash = proto_r_bytes(&r, PROTO_HASH_SIZE, "scene hash");
     m.lease_ms = proto_r_u32(&r, "lease");
+    r_str(&r, m.camera, PROTO_MAX_NAME, "camera");
     pt_status st = proto_r_finish(&r, "TASK", err);
     if (st != PT_OK)
         return st;
@@ -677,7 +681,9 @@ pt_status proto_msg_encode_submit(proto_writer *w, const proto_submit *m, pt_err
 {
     size_t start = w->len;
     const char *why =
-        str_fits(m->name, PROTO_MAX_NAME) ? submit_problem(m) : "name over the length cap";
+        !str_fits(m->name, PROTO_MAX_NAME)     ? "name over the length cap"
+        : !str_fits(m->camera, PROTO_MAX_NAME) ? "camera name over the length cap"
+                                               : submit_problem(m);
     if (why)
         return bad(err, PT_ERR_ARG, "SUBMIT", why);
     w_str(w, m->name);
@@ -691,6 +697,7 @@ pt_status proto_msg_encode_submit(proto_writer *w, const proto_submit *m, pt_err
     proto_w_f64(w, m->target_error);
     proto_w_u64(w, m->bundle_size);
     proto_w_bytes(w, m->bundle_hash, PROTO_HASH_SIZE);
+    w_str(w, m->camera);
     return w_done(w, start, "SUBMIT", err);
 }
 
@@ -709,6 +716,7 @@ pt_status proto_msg_decode_submit(const uint8_t *p, size_t len, proto_submit *ou
     m.target_error = proto_r_f64(&r, "target error");
     m.bundle_size = proto_r_u64(&r, "bundle size");
     const uint8_t *hash = proto_r_bytes(&r, PROTO_HASH_SIZE, "bundle hash");
+    r_str(&r, m.camera, PROTO_MAX_NAME, "camera");
     pt_status st = proto_r_finish(&r, "SUBMIT", err);
     if (st != PT_OK)
         return st;

@@ -170,7 +170,9 @@ typedef struct proto_work_request {
  *   54   2    u16      Russian roulette depth
  *   56   32   u8[32]   scene content hash
  *   88   4    u32      lease in milliseconds (heartbeat before it runs out)
- *   size 92 */
+ *   92   2+c  str      camera name, c <= PROTO_MAX_NAME ("": the scene's first camera,
+ *                      or a view framing the scene when it has none)
+ *   size 94+c */
 typedef struct proto_task {
     uint64_t job_id, task_id;
     pt_rect tile;
@@ -180,6 +182,7 @@ typedef struct proto_task {
     uint16_t max_depth, rr_depth;
     uint8_t scene_hash[PROTO_HASH_SIZE];
     uint32_t lease_ms;
+    char camera[PROTO_MAX_NAME + 1]; /* NUL-terminated; "" the default view */
 } proto_task;
 
 /* SCENE_GET
@@ -287,7 +290,8 @@ typedef struct proto_job_ref {
  *   28+a 8    f64  target error for adaptive sampling (0: off; finite, >= 0)
  *   36+a 8    u64  bundle size in bytes (> 0), sent next in UPLOAD frames
  *   44+a 32   u8[32] SHA-256 of the bundle
- *   size 76+a
+ *   76+a 2+c  str  camera name, c <= PROTO_MAX_NAME ("": the scene's first camera)
+ *   size 78+a+c
  * The decoder checks shape only (width and height both 0 or both > 0, spp > 0,
  * size > 0, target error finite and >= 0); caps are the server's business. */
 typedef struct proto_submit {
@@ -299,6 +303,7 @@ typedef struct proto_submit {
     double target_error;
     uint64_t bundle_size;
     uint8_t bundle_hash[PROTO_HASH_SIZE];
+    char camera[PROTO_MAX_NAME + 1]; /* NUL-terminated; "" the default view */
 } proto_submit;
 
 enum {

@@ -43,6 +43,7 @@ typedef struct srv_job_params {
     uint32_t max_depth, rr_depth;
     double target_error; /* adaptive sampling: 0 = off, else pt_tile_rel_error target */
     uint32_t min_spp;    /* adaptive sampling: no tile stops before this many samples */
+    char camera[PROTO_MAX_NAME + 1]; /* the camera's name; "" the scene's default view */
 } srv_job_params;
 
 #define SRV_MAX_TASKS (64u * 1024u * 1024u)

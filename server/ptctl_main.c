@@ -93,7 +93,8 @@ enum {
     O_DEPTH,
     O_TARGET,
     O_MINSPP,
-    O_WATCH
+    O_WATCH,
+    O_CAMERA
 };
 
 static int bad_usage(const char *cmd, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
@@ -303,6 +304,7 @@ static const char SUBMIT_HELP[] =
     "  --spp N            samples per pixel (default 64)\n"
     "  --res WxH          image size (default: 512 wide, height from the camera)\n"
     "  --seed S           random seed (default 0); same seed, same image\n"
+    "  --camera NAME      the camera to render (default: the scene's first)\n"
     "  --priority P       higher runs first, ties in submission order (default 0;\n"
     "                     may be negative)\n"
     "  --name NAME        the job's name (default: the scene's file name without\n"
@@ -361,6 +363,7 @@ static int cmd_submit(int argc, char **argv, globals *g)
                                          {"target-error", required_argument, NULL, O_TARGET},
                                          {"min-spp", required_argument, NULL, O_MINSPP},
                                          {"watch", no_argument, NULL, O_WATCH},
+                                         {"camera", required_argument, NULL, O_CAMERA},
                                          {NULL, 0, NULL, 0}};
     proto_submit m;
     memset(&m, 0, sizeof m);
@@ -430,6 +433,12 @@ static int cmd_submit(int argc, char **argv, globals *g)
             break;
         case O_WATCH:
             watch = 1;
+            break;
+        case O_CAMERA:
+            if (!optarg[0] || strlen(optarg) > PROTO_MAX_NAME)
+                rc = bad_usage("submit", "--camera: a name of 1 to %u bytes", PROTO_MAX_NAME);
+            else
+                snprintf(m.camera, sizeof m.camera, "%s", optarg);
             break;
         case ':':
             return bad_usage("submit", "%s needs a value", argv[optind - 1]);

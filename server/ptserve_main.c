@@ -53,6 +53,7 @@ static void usage(FILE *f)
             "  --spp N                samples per pixel (default 64)\n"
             "  --res WxH              image size (default 512 wide, height from the camera)\n"
             "  --seed S               random seed (default 0)\n"
+            "  --camera NAME          the camera to render (default: the scene's first)\n"
             "  --max-depth D          maximum bounces (default 16)\n"
             "  --target-error E       adaptive sampling: a tile stops once the RMS relative\n"
             "                         error of its pixel means is <= E (e.g. 0.01); off by default\n"
@@ -118,7 +119,7 @@ int main(int argc, char **argv)
     double lease = 20.0, handshake = 10.0;
     enum { O_LOCAL = 256, O_WTHREADS, O_LISTEN, O_TOKEN, O_SPP, O_RES, O_SEED, O_DEPTH,
            O_TILE, O_CHUNK, O_SAVE, O_LEASE, O_PORTFILE, O_WBIN, O_HANDSHAKE, O_TARGET, O_MINSPP,
-           O_STATE, O_OUTDIR, O_MAXRES, O_MAXPIX, O_MAXSPP, O_MAXSCENE, O_MAXQUEUED };
+           O_STATE, O_OUTDIR, O_MAXRES, O_MAXPIX, O_MAXSPP, O_MAXSCENE, O_MAXQUEUED, O_CAMERA };
     static const struct option opts[] = {
         {"output", required_argument, NULL, 'o'},
         {"local", required_argument, NULL, O_LOCAL},
@@ -128,6 +129,7 @@ int main(int argc, char **argv)
         {"spp", required_argument, NULL, O_SPP},
         {"res", required_argument, NULL, O_RES},
         {"seed", required_argument, NULL, O_SEED},
+        {"camera", required_argument, NULL, O_CAMERA},
         {"max-depth", required_argument, NULL, O_DEPTH},
         {"tile", required_argument, NULL, O_TILE},
         {"chunk", required_argument, NULL, O_CHUNK},
@@ -173,6 +175,13 @@ int main(int argc, char **argv)
             break;
         }
         case O_SEED: bad = parse_u32("--seed", optarg, 0, UINT32_MAX, &c.job.seed); break;
+        case O_CAMERA:
+            if (!optarg[0] || strlen(optarg) > PROTO_MAX_NAME) {
+                fprintf(stderr, "ptserve: --camera: a name of 1 to %u bytes\n", PROTO_MAX_NAME);
+                return 2;
+            }
+            snprintf(c.job.camera, sizeof c.job.camera, "%s", optarg);
+            break;
         case O_DEPTH: bad = parse_u32("--max-depth", optarg, 0, 1024, &c.job.max_depth); break;
         case O_TILE: bad = parse_u32("--tile", optarg, 1, 256, &c.job.tile); break;
         case O_CHUNK: bad = parse_u32("--chunk", optarg, 1, 1u << 24, &c.job.chunk); break;

@@ -991,6 +991,7 @@ static void finish_submit(server *s, conn *c)
     pt_status st = pt_bundle_unpack(b, tmp, entry, sizeof entry, &err);
     if (st == PT_OK) {
         pt_scene_opts so = {0};
+        so.camera_name = m->camera[0] ? m->camera : NULL;
         st = pt_scene_load(entry, &so, &scene, &err);
     }
     pt_remove_tree(tmp);
@@ -1030,6 +1031,7 @@ static void finish_submit(server *s, conn *c)
     p.min_spp = m->min_spp ? m->min_spp : (p.chunk > 1 ? p.chunk : 2);
     p.width = m->width;
     p.height = m->height;
+    snprintf(p.camera, sizeof p.camera, "%s", m->camera);
     if (p.width == 0) {
         float aspect = scene->camera.aspect > 0 ? scene->camera.aspect : 1.0f;
         p.width = 512;
@@ -1599,7 +1601,7 @@ static pt_status setup_single(server *s, pt_error *err)
     pt_status st;
     /* Load once here so a broken scene fails before any worker starts. */
     pt_scene_opts so = {0};
-    /* Workers render the scene's first camera: TASK names no camera. */
+    so.camera_name = cfg->job.camera[0] ? cfg->job.camera : NULL;
     pt_scene *scene = NULL;
     if ((st = pt_scene_load(cfg->scene_path, &so, &scene, err)) != PT_OK)
         return st;

@@ -362,6 +362,7 @@ enum { E_BUILDING, E_READY, E_FAILED };
 struct wrk_scene_ref {
     uint8_t hash[WRK_HASH_SIZE];
     pt_render_params params;
+    char camera[64]; /* pt_camera's name: "" the default view */
     pt_scene *scene;
     pt_renderer *renderer;
     int state;
@@ -475,6 +476,7 @@ static pt_status build(wrk_scene_ref *e, const char *entry_path)
 {
     pt_scene_opts so;
     memset(&so, 0, sizeof so);
+    so.camera_name = e->camera[0] ? e->camera : NULL;
     pt_status st = pt_scene_load(entry_path, &so, &e->scene, &e->err);
     if (st != PT_OK)
         return st;
@@ -493,12 +495,18 @@ static pt_status give_up(wrk_scene_ref *e, pt_error *err)
 }
 
 pt_status wrk_scenes_acquire(wrk_scenes *s, const uint8_t hash[WRK_HASH_SIZE],
-                             const pt_render_params *params, const char *entry_path,
-                             wrk_scene_ref **out, pt_error *err)
+                             const pt_render_params *params, const char *camera,
+                             const char *entry_path, wrk_scene_ref **out, pt_error *err)
 {
+    if (!camera)
+        camera = "";
+    if (strlen(camera) >= sizeof ((wrk_scene_ref *)0)->camera)
+        return pt_error_set(err, PT_ERR_ARG, "camera name '%.64s...' is over %zu bytes", camera,
+                            sizeof ((wrk_scene_ref *)0)->camera - 1);
     pthread_mutex_lock(&s->mu);
     wrk_scene_ref *e = s->head;
-    while (e && !(memcmp(e->hash, hash, WRK_HASH_SIZE) == 0 && same_params(&e->params, params)))
+    while (e && !(memcmp(e->hash, hash, WRK_HASH_SIZE) == 0 && same_params(&e->params, params) &&
+                  strcmp(e->camera, camera) == 0))
         e = e->next;
     if (e) {
         e->refs++;
@@ -521,6 +529,7 @@ pt_status wrk_scenes_acquire(wrk_scenes *s, const uint8_t hash[WRK_HASH_SIZE],
     }
     memcpy(e->hash, hash, WRK_HASH_SIZE);
     e->params = *params;
+    snprintf(e->camera, sizeof e->camera, "%s", camera);
     e->state = E_BUILDING;
     e->refs = 1;
     e->next = s->head;

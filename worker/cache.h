@@ -68,14 +68,15 @@ pt_status wrk_scenes_new(uint32_t max, wrk_scenes **out, pt_error *err);
 /* Frees every entry; none may be in use. Accepts NULL. */
 void wrk_scenes_free(wrk_scenes *s);
 
-/* The renderer for (hash, params), loading entry_path (the scene's entry file)
- * and building it when it is not cached; blocks while another thread builds
+/* The renderer for (hash, params, camera), loading entry_path (the scene's
+ * entry file) with that camera (NULL or "": the scene's default view) and
+ * building it when it is not cached; an unknown camera fails the build; blocks while another thread builds
  * the same key. On failure the error of that build is returned to it and to
  * every thread that waited for it, and the key is forgotten (a later acquire
  * tries again). Release each PT_OK reference with wrk_scenes_release. */
 pt_status wrk_scenes_acquire(wrk_scenes *s, const uint8_t hash[WRK_HASH_SIZE],
-                             const pt_render_params *params, const char *entry_path,
-                             wrk_scene_ref **out, pt_error *err);
+                             const pt_render_params *params, const char *camera,
+                             const char *entry_path, wrk_scene_ref **out, pt_error *err);
 const pt_renderer *wrk_scene_renderer(const wrk_scene_ref *ref);
 void wrk_scenes_release(wrk_scenes *s, wrk_scene_ref *ref); /* accepts NULL */
 

@@ -43,6 +43,41 @@ out=$(json "$tmp/status.json" 'd["output"]')
 [[ "$out" == "$id-cornell_box.exr" ]] || fail "output name '$out'"
 [ -f "$tmp/out/$out" ] || fail "no $tmp/out/$out"
 
+# --camera picks a camera by name, on the farm as in the standalone render: a
+# copy of the Cornell box with a second camera, rendered through it by ptctl
+# and by ptserve --local, bit-identical to the standalone --camera render and
+# unlike the first camera's image.
+python3 - "$src/scenes/cornell_box.gltf" "$tmp/two_cameras.gltf" <<'PY'
+import json, sys
+d = json.load(open(sys.argv[1]))
+d["cameras"].append({"name": "wide", "type": "perspective",
+                     "perspective": {"yfov": 0.9, "aspectRatio": 1.5, "znear": 0.01}})
+d["nodes"].append({"name": "Wide", "camera": len(d["cameras"]) - 1,
+                   "translation": [-0.2, 0.3, 1.1]})
+d["scenes"][d.get("scene", 0)]["nodes"].append(len(d["nodes"]) - 1)
+json.dump(d, open(sys.argv[2], "w"))
+PY
+view=(--res 48x32 --spp 16 --seed 3)
+"$bin/ptworker" --scene "$tmp/two_cameras.gltf" "${view[@]}" --camera wide --tile 16 --chunk 8 \
+  -q -o "$tmp/wide_ref.exr"
+"$bin/ptworker" --scene "$tmp/two_cameras.gltf" "${view[@]}" --tile 16 --chunk 8 -q \
+  -o "$tmp/first_ref.exr"
+! "$bin/ptexr-diff" "$tmp/wide_ref.exr" "$tmp/first_ref.exr" > /dev/null ||
+  fail "the two cameras render the same image"
+wide=$(ctl submit "$tmp/two_cameras.gltf" "${view[@]}" --camera wide)
+ctl watch "$wide" 2>/dev/null || fail "camera job watch"
+ctl fetch "$wide" -o "$tmp/wide.exr"
+"$bin/ptexr-diff" "$tmp/wide_ref.exr" "$tmp/wide.exr" || fail "ptctl --camera image differs"
+"$bin/ptserve" --local 2 --worker-threads 1 "${view[@]}" --camera wide --tile 16 --chunk 8 -q \
+  -o "$tmp/wide_local.exr" "$tmp/two_cameras.gltf" 2> "$tmp/wide_local.log" ||
+  fail "ptserve --local --camera: $(cat "$tmp/wide_local.log")"
+"$bin/ptexr-diff" "$tmp/wide_ref.exr" "$tmp/wide_local.exr" || fail "ptserve --camera image differs"
+set +e
+ctl submit "$tmp/two_cameras.gltf" --camera nosuch 2> "$tmp/nocam.log"; rc=$?
+set -e
+[ $rc = 1 ] && grep -q "no camera named 'nosuch'" "$tmp/nocam.log" ||
+  fail "unknown camera: $rc $(cat "$tmp/nocam.log")"
+
 # A scene with an external .bin and PNG textures travels whole.
 if [ -f "$shared/ToyCar/ToyCar.gltf" ]; then
   car=$(ctl submit "$shared/ToyCar/ToyCar.gltf" --res 32x24 --spp 8)

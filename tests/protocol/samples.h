@@ -57,6 +57,7 @@ static inline proto_task sample_task(int v)
     m.rr_depth = 3;
     sample_hash(m.scene_hash, (unsigned)v);
     m.lease_ms = v ? 0 : 30000;
+    strcpy(m.camera, v ? "" : "Camera.001");
     return m;
 }
 
@@ -110,6 +111,7 @@ static inline proto_submit sample_submit(int v)
     m.target_error = v ? 0.0 : 0.01;
     m.bundle_size = v ? UINT64_MAX : 123456;
     sample_hash(m.bundle_hash, 3u + (unsigned)v);
+    strcpy(m.camera, v ? "" : "close-up");
     return m;
 }
 

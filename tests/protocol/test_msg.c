@@ -191,7 +191,8 @@ static void check_round_trip(int s, int v, const uint8_t *p, size_t len)
     }
     case 6: {
         proto_task a = sample_task(v), b;
-        CHECK(len == 92 && proto_msg_decode_task(p, len, &b, &err) == PT_OK);
+        CHECK(len == 94 + strlen(a.camera) && proto_msg_decode_task(p, len, &b, &err) == PT_OK);
+        CHECK(strcmp(a.camera, b.camera) == 0);
         CHECK(a.job_id == b.job_id && a.task_id == b.task_id);
         CHECK(memcmp(&a.tile, &b.tile, sizeof a.tile) == 0);
         CHECK(a.s0 == b.s0 && a.s1 == b.s1 && a.width == b.width && a.height == b.height);
@@ -257,7 +258,8 @@ static void check_round_trip(int s, int v, const uint8_t *p, size_t len)
     case 12: {
         proto_submit a = sample_submit(v), b;
         CHECK(proto_msg_decode_submit(p, len, &b, &err) == PT_OK);
-        CHECK(len == 76 + strlen(a.name));
+        CHECK(len == 78 + strlen(a.name) + strlen(a.camera));
+        CHECK(strcmp(a.camera, b.camera) == 0);
         CHECK(strcmp(a.name, b.name) == 0 && a.width == b.width && a.height == b.height);
         CHECK(a.spp == b.spp && a.seed == b.seed && a.priority == b.priority);
         CHECK(a.max_depth == b.max_depth && a.min_spp == b.min_spp);
@@ -432,6 +434,7 @@ static proto_writer task_raw(pt_rect t, uint32_t s0, uint32_t s1, uint32_t width
     for (int i = 0; i < 32; i++)
         proto_w_u8(&w, (uint8_t)i);
     proto_w_u32(&w, 1000);
+    proto_w_u16(&w, 0); /* camera: "" */
     return w;
 }
 
@@ -479,6 +482,27 @@ static void test_task(void)
     CHECK(task_check((pt_rect){0, 0, 8, 8}, 16, 16, 64, 64, "s0", &err) == PT_ERR_PROTO);
     CHECK(task_check((pt_rect){0, 0, 8, 8}, 17, 16, 64, 64, "s0", &err) == PT_ERR_PROTO);
     CHECK(task_check((pt_rect){0, 0, 8, 8}, 0, UINT32_MAX, 64, 64, NULL, &err) == PT_OK);
+
+    /* The camera name: at its cap, one over it (refused both ways). */
+    proto_task t = sample_task(0);
+    memset(t.camera, 'c', PROTO_MAX_NAME);
+    t.camera[PROTO_MAX_NAME] = '\0';
+    proto_writer w;
+    proto_writer_init(&w, 1024);
+    CHECK(proto_msg_encode_task(&w, &t, &err) == PT_OK);
+    proto_task back;
+    CHECK(proto_msg_decode_task(w.buf, w.len, &back, &err) == PT_OK &&
+          strcmp(back.camera, t.camera) == 0);
+    proto_writer_reset(&w);
+    proto_writer raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
+    raw.len -= 2;
+    proto_w_u16(&raw, PROTO_MAX_NAME + 1);
+    for (uint32_t i = 0; i <= PROTO_MAX_NAME; i++)
+        proto_w_u8(&raw, 'c');
+    CHECK(decode_any(PROTO_MSG_TASK, raw.buf, raw.len, &err) == PT_ERR_PROTO &&
+          strstr(err.msg, "camera"));
+    proto_writer_fini(&raw);
+    proto_writer_fini(&w);
 }
 
 static void test_counts(void)
@@ -749,6 +773,8 @@ static pt_status submit_check(const proto_submit *m, const char *want)
     proto_w_f64(&w, m->target_error);
     proto_w_u64(&w, m->bundle_size);
     proto_w_bytes(&w, m->bundle_hash, 32);
+    proto_w_u16(&w, (uint16_t)strlen(m->camera));
+    proto_w_bytes(&w, m->camera, strlen(m->camera));
     pt_error err = {0};
     pt_status st = decode_any(PROTO_MSG_SUBMIT, w.buf, w.len, &err);
     if (st != PT_OK && want && !strstr(err.msg, want)) {

@@ -36,7 +36,7 @@ static void fake_result(const proto_task *t, pt_pixel_acc *px, proto_result *r)
 
 static srv_job *make(uint32_t w, uint32_t h, uint32_t spp, uint32_t tile, uint32_t chunk)
 {
-    srv_job_params p = {w, h, spp, tile, chunk, 5, 16, 3, 0.0, 0};
+    srv_job_params p = {w, h, spp, tile, chunk, 5, 16, 3, 0.0, 0, ""};
     srv_job *j = NULL;
     pt_error err = {0};
     CHECKF(srv_job_new(9, &p, HASH, &j, &err) == PT_OK, "%s", err.msg);
@@ -178,7 +178,7 @@ static void bit_identical(void)
  * leased or held are dropped harmlessly. */
 static void adaptive(void)
 {
-    srv_job_params p = {64, 32, 64, 32, 8, 1, 16, 3, 0.01, 16};
+    srv_job_params p = {64, 32, 64, 32, 8, 1, 16, 3, 0.01, 16, ""};
     srv_job *j = NULL;
     CHECK(srv_job_new(2, &p, HASH, &j, NULL) == PT_OK);
     if (!j)
@@ -221,14 +221,14 @@ static void adaptive(void)
 
 static void bad_params(void)
 {
-    srv_job_params p = {0, 10, 4, 16, 4, 0, 4, 3, 0.0, 0};
+    srv_job_params p = {0, 10, 4, 16, 4, 0, 4, 3, 0.0, 0, ""};
     srv_job *j = NULL;
     pt_error err = {0};
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
     p.width = 10;
     p.tile = 1000;
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
-    p = (srv_job_params){16384, 16384, 1u << 24, 16, 1, 0, 4, 3, 0.0, 0};
+    p = (srv_job_params){16384, 16384, 1u << 24, 16, 1, 0, 4, 3, 0.0, 0, ""};
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_LIMIT);
     CHECK(j == NULL);
 }

@@ -190,7 +190,7 @@ static void *race(void *p)
 {
     racer *r = p;
     pthread_barrier_wait(r->barrier);
-    r->st = wrk_scenes_acquire(r->s, r->hash, &r->params, r->entry, &r->ref, &r->err);
+    r->st = wrk_scenes_acquire(r->s, r->hash, &r->params, NULL, r->entry, &r->ref, &r->err);
     return NULL;
 }
 
@@ -250,16 +250,16 @@ static void test_memory(const uint8_t hash[32], const char *entry)
 
     /* Same key again: cached, no build. */
     wrk_scene_ref *a = NULL, *b = NULL, *c = NULL;
-    CHECK(wrk_scenes_acquire(s, hash, &p, entry, &a, &err) == PT_OK);
+    CHECK(wrk_scenes_acquire(s, hash, &p, NULL, entry, &a, &err) == PT_OK);
     CHECK(wrk_scenes_builds(s) == 1);
     /* Other params are another entry. */
     pt_render_params p2 = p, p3 = p;
     p2.seed = 2;
     p3.max_depth = 5;
-    CHECK(wrk_scenes_acquire(s, hash, &p2, entry, &b, &err) == PT_OK);
+    CHECK(wrk_scenes_acquire(s, hash, &p2, NULL, entry, &b, &err) == PT_OK);
     CHECK(wrk_scenes_builds(s) == 2 && b != a);
     /* A third while both are held: over the limit until released. */
-    CHECK(wrk_scenes_acquire(s, hash, &p3, entry, &c, &err) == PT_OK);
+    CHECK(wrk_scenes_acquire(s, hash, &p3, NULL, entry, &c, &err) == PT_OK);
     CHECK(wrk_scenes_builds(s) == 3 && wrk_scenes_count(s) == 3);
     wrk_scenes_release(s, b); /* b is the least recently used now */
     CHECK(wrk_scenes_count(s) == 2);
@@ -267,10 +267,10 @@ static void test_memory(const uint8_t hash[32], const char *entry)
     wrk_scenes_release(s, c);
     CHECK(wrk_scenes_count(s) == 2);
     /* a (p) was kept, b (p2) was evicted. */
-    CHECK(wrk_scenes_acquire(s, hash, &p, entry, &a, &err) == PT_OK);
+    CHECK(wrk_scenes_acquire(s, hash, &p, NULL, entry, &a, &err) == PT_OK);
     CHECK(wrk_scenes_builds(s) == 3);
     wrk_scenes_release(s, a);
-    CHECK(wrk_scenes_acquire(s, hash, &p2, entry, &b, &err) == PT_OK);
+    CHECK(wrk_scenes_acquire(s, hash, &p2, NULL, entry, &b, &err) == PT_OK);
     CHECK(wrk_scenes_builds(s) == 4);
     wrk_scenes_release(s, b);
 
@@ -289,7 +289,7 @@ static void test_memory(const uint8_t hash[32], const char *entry)
     CHECK(wrk_scenes_builds(s) - before >= 1 && wrk_scenes_builds(s) - before <= 2);
     CHECK(wrk_scenes_count(s) == count);
     before = wrk_scenes_builds(s);
-    CHECK(wrk_scenes_acquire(s, other, &p, missing, &a, &err) == PT_ERR_IO);
+    CHECK(wrk_scenes_acquire(s, other, &p, NULL, missing, &a, &err) == PT_ERR_IO);
     CHECK(wrk_scenes_builds(s) == before + 1);
     wrk_scenes_free(s);
 }
