@@ -25,27 +25,34 @@
 #include "common/accel.h"
 #include "common/alloc.h"
 
+/* One column of the alias table: 16 bytes, so that the random read of a
+ * column touches one cache line and four columns share it. */
+typedef struct alias_slot {
+    double prob;    /* keep the column's own light when the residual of u[0] is below */
+    uint32_t alias; /* light taken otherwise */
+    uint32_t pad;
+} alias_slot;
+
+/* What sampling needs of a light triangle, copied once so that a sample reads
+ * one 64-byte, line-aligned entry instead of the index, three vertices and a
+ * recomputed normal (tri_geom's results, the same bits). With many emissive
+ * triangles these reads are cache misses; the entry keeps them to one line. */
 typedef struct light_entry {
-    double alias_prob; /* keep this light when the residual of u[0] is below */
-    uint32_t alias;    /* light taken otherwise */
-    uint32_t tri;      /* triangle in the scene */
-    float pmf;         /* probability of choosing this light */
-    float area;        /* world-space area of the triangle */
-    float pmf_area;    /* pmf / area: the first factor of every solid-angle pdf */
-    /* What sampling needs of the triangle and its material, copied once so a
-     * sample reads one entry instead of indices, vertices and the material,
-     * and recomputes no normal: tri_geom's results, the same bits. */
     pt_vec3 v[3];      /* vertices */
     pt_vec3 normal;    /* unit geometric normal (tri_geom) */
-    pt_vec3 emissive;  /* the material's emissive factor */
-    int double_sided;
-    int textured;      /* emission() must read the emissive texture */
+    float pmf_area;    /* probability of choosing the light / its area */
+    uint32_t tri;      /* triangle in the scene */
+    uint32_t material; /* its material */
+    float pmf;         /* probability of choosing this light */
 } light_entry;
+_Static_assert(sizeof(light_entry) == 64, "a light entry is one cache line");
 
 struct pt_lights {
     uint32_t count;
     uint32_t num_triangles;
-    light_entry *lights;
+    light_entry *lights;    /* count entries, 64-byte aligned inside lights_mem */
+    void *lights_mem;
+    alias_slot *alias;      /* count columns */
     uint32_t *tri_to_light; /* num_triangles entries, UINT32_MAX: not a light; NULL if count 0 */
 };
 
@@ -160,7 +167,7 @@ static double tri_power(const pt_scene *s, uint32_t tri, const pt_vec3 *tex_mean
  * scratch: n uint32. The small list grows up from the front of scratch, the
  * large list down from the back; Vose's update q_g = (q_g + q_l) - 1 keeps
  * the rounding error from accumulating. */
-static void build_alias(light_entry *lights, double *q, uint32_t *scratch, uint32_t n, double total)
+static void build_alias(alias_slot *lights, double *q, uint32_t *scratch, uint32_t n, double total)
 {
     uint32_t ns = 0, nl = 0;
     for (uint32_t i = 0; i < n; i++) {
@@ -173,7 +180,7 @@ static void build_alias(light_entry *lights, double *q, uint32_t *scratch, uint3
     while (ns > 0 && nl > 0) {
         uint32_t l = scratch[--ns];
         uint32_t g = scratch[n - nl];
-        lights[l].alias_prob = q[l];
+        lights[l].prob = q[l];
         lights[l].alias = g;
         q[g] = (q[g] + q[l]) - 1.0;
         if (q[g] < 1.0) { /* g moves from the top of the large list to the small one */
@@ -184,12 +191,12 @@ static void build_alias(light_entry *lights, double *q, uint32_t *scratch, uint3
     /* What is left is 1 up to rounding. */
     while (nl > 0) {
         uint32_t g = scratch[n - nl--];
-        lights[g].alias_prob = 1.0;
+        lights[g].prob = 1.0;
         lights[g].alias = g;
     }
     while (ns > 0) {
         uint32_t l = scratch[--ns];
-        lights[l].alias_prob = 1.0;
+        lights[l].prob = 1.0;
         lights[l].alias = l;
     }
 }
@@ -254,11 +261,15 @@ pt_status pt_lights_new(const pt_scene *scene, pt_lights **out, pt_error *err)
     if (n == 0)
         goto done;
 
-    L->lights = pt_malloc_array(n, sizeof *L->lights);
+    /* One spare entry's room to align the array to a cache line. */
+    L->lights_mem = pt_malloc_array((size_t)n + 1, sizeof *L->lights);
+    if (L->lights_mem)
+        L->lights = (light_entry *)(((uintptr_t)L->lights_mem + 63) & ~(uintptr_t)63);
+    L->alias = pt_malloc_array(n, sizeof *L->alias);
     L->tri_to_light = pt_malloc_array(scene->num_triangles, sizeof *L->tri_to_light);
     power = pt_malloc_array(n, sizeof *power);
     scratch = pt_malloc_array(n, sizeof *scratch);
-    if (!L->lights || !L->tri_to_light || !power || !scratch)
+    if (!L->lights_mem || !L->alias || !L->tri_to_light || !power || !scratch)
         goto nomem;
 
     double total = 0.0;
@@ -272,23 +283,19 @@ pt_status pt_lights_new(const pt_scene *scene, pt_lights **out, pt_error *err)
         L->tri_to_light[i] = k;
         light_entry *le = &L->lights[k];
         le->tri = i;
-        le->area = area;
+        le->material = scene->tri_material[i];
         float a2;
         tri_geom(scene, i, le->v, &le->normal, &a2);
-        const pt_material *m = &scene->materials[scene->tri_material[i]];
-        le->emissive = pt_v3(m->emissive[0], m->emissive[1], m->emissive[2]);
-        le->double_sided = m->double_sided;
-        le->textured = m->emissive_tex >= 0 && (uint32_t)m->emissive_tex < scene->num_textures &&
-                       scene->uvs;
+        le->pmf_area = area; /* divided below */
         power[k] = p;
         total += p;
         k++;
     }
     for (uint32_t i = 0; i < n; i++) {
         L->lights[i].pmf = (float)(power[i] / total);
-        L->lights[i].pmf_area = L->lights[i].pmf / L->lights[i].area;
+        L->lights[i].pmf_area = L->lights[i].pmf / L->lights[i].pmf_area;
     }
-    build_alias(L->lights, power, scratch, n, total);
+    build_alias(L->alias, power, scratch, n, total);
     L->count = n;
 
 done:
@@ -312,7 +319,8 @@ void pt_lights_free(pt_lights *lights)
 {
     if (!lights)
         return;
-    pt_free(lights->lights);
+    pt_free(lights->lights_mem);
+    pt_free(lights->alias);
     pt_free(lights->tri_to_light);
     pt_free(lights);
 }
@@ -364,8 +372,8 @@ int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, 
     double r = x - (double)col;
     /* A select, not a branch: the choice is random, so a branch would be
      * mispredicted half of the time. */
-    const light_entry *c = &lights->lights[col];
-    const light_entry *le = &lights->lights[r < c->alias_prob ? col : c->alias];
+    const alias_slot *c = &lights->alias[col];
+    const light_entry *le = &lights->lights[r < c->prob ? col : c->alias];
 
     /* Heitz 2019, sec. 3: the square is cut along its diagonal and each half
      * sheared onto the triangle; the Jacobian is constant, so the density is
@@ -387,14 +395,11 @@ int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, 
     if (!(s->dist > 0.0f) || !isfinite(s->dist))
         return 0;
     s->wi = pt_v3_scale(d, 1.0f / s->dist);
-    s->pdf = solid_angle_pdf_d(le->pmf_area, le->double_sided, d, d2, s->dist, le->normal);
+    const pt_material *m = &scene->materials[le->material];
+    s->pdf = solid_angle_pdf_d(le->pmf_area, m->double_sided, d, d2, s->dist, le->normal);
     if (!(s->pdf > 0.0f))
         return 0;
-    if (le->textured)
-        s->radiance = emission(scene, &scene->materials[scene->tri_material[le->tri]], le->tri,
-                               b1, b2);
-    else
-        s->radiance = le->emissive;
+    s->radiance = emission(scene, m, le->tri, b1, b2);
     return 1;
 }
 
@@ -407,6 +412,6 @@ float pt_lights_pdf(const pt_lights *lights, const pt_scene *scene, uint32_t tri
     if (k == UINT32_MAX)
         return 0.0f;
     const light_entry *le = &lights->lights[k];
-    (void)scene; /* what it held of the triangle is copied into the entry */
-    return solid_angle_pdf(le->pmf_area, le->double_sided, p, hit, n_light);
+    const pt_material *m = &scene->materials[le->material];
+    return solid_angle_pdf(le->pmf_area, m->double_sided, p, hit, n_light);
 }
