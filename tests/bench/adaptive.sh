@@ -8,10 +8,12 @@
 # load hits both alike, a uniform series (ptbench --spp) and an adaptive series
 # (ptbench --target-error, the rule of ptworker and ptserve) timed in-process
 # (scene load and BVH build excluded). Rows are the median time over REPS; the
-# images are the same bits every repetition. For each uniform row whose RMSE the
-# adaptive series spans, the adaptive time to the same RMSE is interpolated
-# log-log between the two adaptive rows around it, and the ratio
-# uniform / adaptive is printed with the median over those levels.
+# images are the same bits every repetition. Wall time and the CPU time of all
+# render threads are both recorded: on a shared machine the CPU time counts the
+# work and not the waits for a core. For each uniform row whose RMSE (then
+# relMSE) the adaptive series spans, the adaptive time to the same error is
+# interpolated log-log between the two adaptive rows around it, and the ratios
+# uniform / adaptive are printed with their median over those levels.
 #
 # Environment (defaults in brackets):
 #   SCENES      space-separated scene paths [Cornell box, EmissiveStrengthTest]
@@ -45,64 +47,78 @@ CHUNK=${CHUNK:-16}
 OUT=${OUT:-/tmp/ptfarm-adaptive}
 mkdir -p "$OUT"
 
-# median.awk: CSV rows of REPS runs -> one row per key (spp or target) with
-# the median seconds; rmse, relmse and mean_spp are the same every run.
+# CSV rows of REPS runs -> one row per key (spp or target): key, median wall
+# seconds, RMSE, relMSE, mean spp, median CPU seconds (the errors and spp are
+# the same bits every run).
 median_rows() { # KEYCOL FILES...
     local key=$1
     shift
     awk -F, -v key="$key" '
+        function med(arr, m,    a, b, x, v) {
+            for (a = 1; a <= m; a++) v[a] = arr[a]
+            for (a = 2; a <= m; a++) { x = v[a]; for (b = a - 1; b >= 1 && v[b] > x; b--) v[b + 1] = v[b]; v[b + 1] = x }
+            return m % 2 ? v[(m + 1) / 2] : 0.5 * (v[m / 2] + v[m / 2 + 1])
+        }
         FNR == 1 { for (i = 1; i <= NF; i++) col[$i] = i; next }
         {
             k = $col[key]
             if (!(k in n)) { order[++nk] = k }
-            t[k, ++n[k]] = $col["seconds"]
+            n[k]++
+            t[k, n[k]] = $col["seconds"]; c[k, n[k]] = $col["cpu_seconds"]
             rmse[k] = $col["rmse"]; rel[k] = $col["relmse"]; spp[k] = $col["mean_spp"]
         }
         END {
             for (j = 1; j <= nk; j++) {
                 k = order[j]; m = n[k]
-                for (a = 1; a <= m; a++) v[a] = t[k, a]
-                for (a = 2; a <= m; a++) { x = v[a]; for (b = a - 1; b >= 1 && v[b] > x; b--) v[b + 1] = v[b]; v[b + 1] = x }
-                med = m % 2 ? v[(m + 1) / 2] : 0.5 * (v[m / 2] + v[m / 2 + 1])
-                printf "%s %.6g %.6e %.6e %.6g\n", k, med, rmse[k], rel[k], spp[k]
+                delete tv; delete cv
+                for (a = 1; a <= m; a++) { tv[a] = t[k, a]; cv[a] = c[k, a] }
+                printf "%s %.6g %.6e %.6e %.6g %.6g\n", k, med(tv, m), rmse[k], rel[k], spp[k], med(cv, m)
             }
         }' "$@"
 }
 
-# Uniform rows (spp seconds rmse relmse mean_spp) against adaptive rows: the
-# adaptive time to each uniform row's error (column COL: 3 RMSE, 4 relMSE),
-# log-log interpolated; rows outside the adaptive series' range get "-".
+# Uniform rows against adaptive rows (tables as above): for each uniform row's
+# error (column COL: 3 RMSE, 4 relMSE) the adaptive wall and CPU time to the
+# same error, log-log interpolated between the adaptive rows around it; rows
+# outside the adaptive series' range get "-". Ratios are uniform / adaptive.
 compare() { # COL UNIFORM_TABLE ADAPTIVE_TABLE
     awk -v c="$1" '
-        NR == FNR { us[++nu] = $1; ut[nu] = $2; ur[nu] = $c; next }
-        { at[++na] = $2; ar[na] = $c; atg[na] = $1; asp[na] = $5 }
+        function median(arr, m,    a, b, x, v) {
+            for (a = 1; a <= m; a++) v[a] = arr[a]
+            for (a = 2; a <= m; a++) { x = v[a]; for (b = a - 1; b >= 1 && v[b] > x; b--) v[b + 1] = v[b]; v[b + 1] = x }
+            return m % 2 ? v[(m + 1) / 2] : 0.5 * (v[m / 2] + v[m / 2 + 1])
+        }
+        function lerp(y0, y1) { return exp(log(y0) + f * (log(y1) - log(y0))) }
+        NR == FNR { us[++nu] = $1; ut[nu] = $2; ur[nu] = $c; uc[nu] = $6; next }
+        { at[++na] = $2; ar[na] = $c; asp[na] = $5; ac[na] = $6 }
         END {
-            printf "%10s %8s %10s %10s %9s %7s\n", c == 3 ? "RMSE" : "relMSE", "uni spp", "uniform s", "adaptive s", "ad. spp", "ratio"
+            name = c == 3 ? "RMSE" : "relMSE"
+            printf "%10s %7s %9s %9s %7s %9s %9s %7s %8s\n", name, "uni spp", "uni s", "adapt s", "ratio", "uni cpu", "adapt cpu", "ratio", "adapt spp"
             nr = 0
             for (i = 1; i <= nu; i++) {
                 L = ur[i]; found = 0
-                # adaptive rows come in decreasing target order: RMSE falls, time grows
-                for (j = 1; j < na; j++) {
+                # adaptive rows come in decreasing target order: error falls, time grows
+                for (j = 1; j < na; j++)
                     if (ar[j] >= L && ar[j + 1] <= L && ar[j] > ar[j + 1]) {
                         f = (log(L) - log(ar[j])) / (log(ar[j + 1]) - log(ar[j]))
-                        ta = exp(log(at[j]) + f * (log(at[j + 1]) - log(at[j])))
-                        sa = exp(log(asp[j]) + f * (log(asp[j + 1]) - log(asp[j])))
                         found = 1; break
                     }
-                }
-                if (!found) { printf "%10.4e %8s %10.4f %10s %9s %7s\n", L, us[i], ut[i], "-", "-", "-"; continue }
-                r = ut[i] / ta; ratios[++nr] = r
-                printf "%10.4e %8s %10.4f %10.4f %9.1f %6.2fx\n", L, us[i], ut[i], ta, sa, r
+                if (!found) { printf "%10.4e %7s %9.3f %9s %7s %9.3f %9s %7s %8s\n", L, us[i], ut[i], "-", "-", uc[i], "-", "-", "-"; continue }
+                ta = lerp(at[j], at[j + 1]); ca = lerp(ac[j], ac[j + 1]); sa = lerp(asp[j], asp[j + 1])
+                ++nr; rw[nr] = ut[i] / ta; rc[nr] = uc[i] / ca; rs[nr] = us[i] / sa
+                printf "%10.4e %7s %9.3f %9.3f %6.2fx %9.3f %9.3f %6.2fx %8.1f\n", L, us[i], ut[i], ta, rw[nr], uc[i], ca, rc[nr], sa
             }
-            if (nr) {
-                for (a = 2; a <= nr; a++) { x = ratios[a]; for (b = a - 1; b >= 1 && ratios[b] > x; b--) ratios[b + 1] = ratios[b]; ratios[b + 1] = x }
-                med = nr % 2 ? ratios[(nr + 1) / 2] : 0.5 * (ratios[nr / 2] + ratios[nr / 2 + 1])
-                printf "median ratio uniform/adaptive at equal %s: %.2fx over %d levels\n", c == 3 ? "RMSE" : "relMSE", med, nr
-            } else {
-                print "no RMSE level reached by both series: widen TARGETS or UNIFORM"
-            }
+            if (nr)
+                printf "median over %d levels, uniform/adaptive at equal %s: wall %.2fx, CPU %.2fx, samples %.2fx\n", nr, name, median(rw, nr), median(rc, nr), median(rs, nr)
+            else
+                print "no " name " level reached by both series: widen TARGETS or UNIFORM"
         }' "$2" "$3"
 }
+
+# Private copies of the programs: a rebuild during the run cannot touch them.
+mkdir -p "$OUT/bin"
+cp "$BIN/ptbench" "$BIN/ptworker" "$OUT/bin/"
+BIN=$OUT/bin
 
 echo "adaptive.sh: $RES, tile $TILE, $THREADS threads, reference $REF_SPP spp (seed 1), $REPS reps"
 echo "adaptive.sh: uniform spp $UNIFORM; adaptive targets $TARGETS, min spp $MIN_SPP, chunk $CHUNK, cap $MAX_SPP"
@@ -128,7 +144,7 @@ for scene in $SCENES; do
     done
     median_rows spp "$OUT/$name"-uniform-*.csv >"$OUT/$name-uniform.txt"
     median_rows target_error "$OUT/$name"-adaptive-*.csv >"$OUT/$name-adaptive.txt"
-    echo "== $name: medians over $REPS reps (spp/target seconds RMSE relMSE mean_spp)"
+    echo "== $name: medians over $REPS reps (spp|target, wall s, RMSE, relMSE, mean spp, CPU s)"
     sed 's/^/uniform  /' "$OUT/$name-uniform.txt"
     sed 's/^/adaptive /' "$OUT/$name-adaptive.txt"
     echo "== $name: time to equal RMSE"

@@ -74,6 +74,15 @@ static double now(void)
     return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
 }
 
+/* CPU time of all the process's threads: on a shared machine it counts the
+ * work done, not the waits for a core. */
+static double cpu_now(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
 /* ---- rendering ------------------------------------------------------------ */
 
 typedef struct pass {
@@ -170,6 +179,7 @@ static pt_render_stats total_stats(const pass *ps, int threads)
 typedef struct row {
     uint32_t spp;    /* uniform: per pixel; adaptive: the cap */
     double mean_spp; /* samples / pixels */
+    double cpu;      /* CPU seconds of all threads (median) */
     double target;   /* adaptive: the target error, else 0 */
     double seconds;
     pt_render_stats st;
@@ -194,17 +204,17 @@ static double efficiency(const row *r)
 
 static void print_header(void)
 {
-    printf("%8s %10s %11s %11s %11s %11s %11s %9s\n", "spp", "seconds", "samples/s", "rays/s",
-           "RMSE", "relMSE", "efficiency", "mean");
+    printf("%8s %10s %11s %11s %11s %11s %11s %9s %9s\n", "spp", "seconds", "samples/s", "rays/s",
+           "RMSE", "relMSE", "efficiency", "mean", "cpu s");
 }
 
 static void print_row(const row *r)
 {
     if (r->target > 0.0)
         printf("adaptive %g: ", r->target);
-    printf("%8.2f %10.4f %11.4g %11.4g %11.4e %11.4e %11.4g %9.5f\n", r->mean_spp, r->seconds,
+    printf("%8.2f %10.4f %11.4g %11.4g %11.4e %11.4e %11.4g %9.5f %9.4f\n", r->mean_spp, r->seconds,
            (double)r->st.samples / r->seconds, (double)r->st.rays / r->seconds, r->m.rmse,
-           r->m.rel_mse, efficiency(r), (r->m.mean[0] + r->m.mean[1] + r->m.mean[2]) / 3.0);
+           r->m.rel_mse, efficiency(r), (r->m.mean[0] + r->m.mean[1] + r->m.mean[2]) / 3.0, r->cpu);
 }
 
 static const char *basename_of(const char *path)
@@ -230,16 +240,16 @@ static int write_csv(const char *path, const char *label, const char *scene, uin
         return -1;
     }
     fprintf(f, "label,scene,width,height,threads,seed,spp,seconds,samples_per_s,rays_per_s,"
-               "rmse,relmse,efficiency,mean,nonfinite,rejected,target_error,mean_spp\n");
+               "rmse,relmse,efficiency,mean,nonfinite,rejected,target_error,mean_spp,cpu_seconds\n");
     for (int i = 0; i < n; i++) {
         const row *r = &rows[i];
-        fprintf(f, "%s,%s,%u,%u,%d,%u,%u,%.6g,%.6g,%.6g,%.6e,%.6e,%.6g,%.6g,%llu,%llu,%.6g,%.6g\n",
+        fprintf(f, "%s,%s,%u,%u,%d,%u,%u,%.6g,%.6g,%.6g,%.6e,%.6e,%.6g,%.6g,%llu,%llu,%.6g,%.6g,%.6g\n",
                 label,
                 scene, w, h, threads, seed, r->spp, r->seconds, (double)r->st.samples / r->seconds,
                 (double)r->st.rays / r->seconds, r->m.rmse, r->m.rel_mse, efficiency(r),
                 (r->m.mean[0] + r->m.mean[1] + r->m.mean[2]) / 3.0,
                 (unsigned long long)r->m.nonfinite, (unsigned long long)r->st.rejected, r->target,
-                r->mean_spp);
+                r->mean_spp, r->cpu);
     }
     if (fclose(f) != 0) {
         fprintf(stderr, "ptbench: %s: %s\n", path, strerror(errno));
@@ -571,23 +581,29 @@ static int cmp_row_spp(const void *a, const void *b)
     return (x->spp > y->spp) - (x->spp < y->spp);
 }
 
+static double median(double *v, uint32_t n)
+{
+    qsort(v, n, sizeof v[0], cmp_double);
+    return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
 /* One --spp row: R timed renders of [0, spp); the median time; the image of
  * the last (every repetition renders the same bits). */
 static int bench_spp(pass *ps, const opts *o, uint32_t spp, row *out)
 {
-    double secs[MAX_REPS];
+    double secs[MAX_REPS], cpu[MAX_REPS];
     for (uint32_t k = 0; k < o->reps; k++) {
         reset(ps, o->threads);
-        double t0 = now();
+        double t0 = now(), c0 = cpu_now();
         if (run_pass(ps, o->threads, 0, spp) != 0)
             return -1;
         secs[k] = now() - t0;
+        cpu[k] = cpu_now() - c0;
     }
-    qsort(secs, o->reps, sizeof secs[0], cmp_double);
     out->spp = spp;
     out->target = 0.0;
-    out->seconds =
-        o->reps % 2 ? secs[o->reps / 2] : 0.5 * (secs[o->reps / 2 - 1] + secs[o->reps / 2]);
+    out->seconds = median(secs, o->reps);
+    out->cpu = median(cpu, o->reps);
     out->st = total_stats(ps, o->threads);
     return 0;
 }
@@ -598,7 +614,7 @@ static int bench_time_once(pass *ps, const opts *o, double budget, row *out)
 {
     reset(ps, o->threads);
     uint32_t s = 0;
-    double t0 = now(), el = 0.0;
+    double t0 = now(), c0 = cpu_now(), el = 0.0;
     for (;;) {
         uint32_t chunk = s ? s : 1;
         if (s) {
@@ -618,6 +634,7 @@ static int bench_time_once(pass *ps, const opts *o, double budget, row *out)
     out->spp = s;
     out->target = 0.0;
     out->seconds = el;
+    out->cpu = cpu_now() - c0;
     out->st = total_stats(ps, o->threads);
     return 0;
 }
@@ -626,26 +643,26 @@ static int bench_time_once(pass *ps, const opts *o, double budget, row *out)
  * median time. */
 static int bench_adaptive(pass *ps, const opts *o, double target, row *out)
 {
-    double secs[MAX_REPS];
+    double secs[MAX_REPS], cpu[MAX_REPS];
     ps->target = target;
     ps->chunk = o->chunk;
     ps->min_spp = o->min_spp;
     for (uint32_t k = 0; k < o->reps; k++) {
         reset(ps, o->threads);
-        double t0 = now();
+        double t0 = now(), c0 = cpu_now();
         int bad = run_pass(ps, o->threads, 0, o->max_spp);
         secs[k] = now() - t0;
+        cpu[k] = cpu_now() - c0;
         if (bad) {
             ps->target = 0.0;
             return -1;
         }
     }
     ps->target = 0.0;
-    qsort(secs, o->reps, sizeof secs[0], cmp_double);
     out->spp = o->max_spp;
     out->target = target;
-    out->seconds =
-        o->reps % 2 ? secs[o->reps / 2] : 0.5 * (secs[o->reps / 2 - 1] + secs[o->reps / 2]);
+    out->seconds = median(secs, o->reps);
+    out->cpu = median(cpu, o->reps);
     out->st = total_stats(ps, o->threads);
     return 0;
 }
