@@ -5,6 +5,7 @@
 #include <math.h>
 #include <fcntl.h>
 #include <limits.h>
+#include <pthread.h>
 #include <signal.h>
 #include <spawn.h>
 #include <stdarg.h>
@@ -88,15 +89,43 @@ typedef struct conn {
     size_t fetch_len, fetch_off;
     uint8_t fetch_hash[32];
     int uploading;
+    int checking; /* its upload is being checked (a struct check in flight) */
     proto_submit up;
     uint8_t *up_buf;
     size_t up_len, up_cap;
     struct conn *next;
 } conn;
 
+/* A complete upload checked off the event loop, since a big scene takes
+ * seconds: its SHA-256, its bundle, one load of the scene (with the camera
+ * asked for: a broken scene is refused now, not by every worker), and the
+ * bundle stored in the state folder under the job id reserved for it. The
+ * thread hands it back through the server's check pipe. */
+typedef struct check {
+    uint64_t conn_id, job_id;
+    proto_submit m;
+    uint8_t *data; /* the upload (owned), freed once wrapped in bundle */
+    size_t len;
+    srv_state *state;
+    char tmp[PATH_MAX];
+    int wake_fd;
+    pthread_t thread;
+    /* the outcome */
+    int ok;
+    uint16_t code; /* PROTO_E_* of the refusal */
+    char msg[PROTO_MAX_ERROR_TEXT + 1];
+    pt_bundle *bundle;
+    char scene[256]; /* the entry file's name */
+    uint32_t ntris;
+    float aspect;
+    struct check *next;
+} check;
+
 typedef struct server {
     const srv_config *cfg;
     int ep, lfd, sigpipe[2];
+    int checkpipe[2]; /* checks done: their pointers */
+    check *checks;    /* in flight */
     conn *conns;
     uint32_t nconns, nworkers;
     uint64_t next_id;
@@ -963,64 +992,143 @@ static void on_submit(server *s, conn *c, const proto_frame *f)
     c->t_progress = now_ms();
 }
 
-/* Checks a complete upload, validates the scene by loading it, and queues it. */
-static void finish_submit(server *s, conn *c)
+static void check_refuse(check *k, uint16_t code, const char *fmt, ...)
+    __attribute__((format(printf, 3, 4)));
+static void check_refuse(check *k, uint16_t code, const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(k->msg, sizeof k->msg, fmt, ap);
+    va_end(ap);
+    k->code = code;
+    k->ok = 0;
+}
+
+/* The check itself, on its own thread: touches nothing of the server's. */
+static void check_upload(check *k)
 {
     pt_error err = {0};
-    const proto_submit *m = &c->up;
     char hex[65], want[65];
-    pt_sha256_hex(c->up_buf, c->up_len, hex);
-    hex32(m->bundle_hash, want);
+    pt_sha256_hex(k->data, k->len, hex);
+    hex32(k->m.bundle_hash, want);
     if (strcmp(hex, want) != 0) {
-        conn_send_error(s, c, PROTO_E_PROTOCOL, "the scene's SHA-256 is %.16s..., not the "
-                        "%.16s... SUBMIT announced", hex, want);
+        check_refuse(k, PROTO_E_PROTOCOL, "the scene's SHA-256 is %.16s..., not the %.16s... "
+                     "SUBMIT announced", hex, want);
         return;
     }
-    pt_bundle *b = NULL;
-    if (pt_bundle_from_bytes(c->up_buf, c->up_len, &b, &err) != PT_OK) {
-        conn_send_error(s, c, PROTO_E_PROTOCOL, "bad scene bundle: %s", err.msg);
+    pt_status st = pt_bundle_from_bytes(k->data, k->len, &k->bundle, &err);
+    pt_free(k->data);
+    k->data = NULL;
+    if (st != PT_OK) {
+        check_refuse(k, PROTO_E_PROTOCOL, "bad scene bundle: %s", err.msg);
         return;
     }
-    upload_drop(c);
-    /* Load it once here so a broken scene is refused now, not by every worker. */
-    char tmp[PATH_MAX], entry[PATH_MAX];
-    snprintf(tmp, sizeof tmp, "%s/tmp/upload-%llu", srv_state_dir(s->state),
-             (unsigned long long)c->id);
-    pt_remove_tree(tmp);
+    char entry[PATH_MAX];
+    pt_remove_tree(k->tmp);
     pt_scene *scene = NULL;
-    pt_status st = pt_bundle_unpack(b, tmp, entry, sizeof entry, &err);
+    st = pt_bundle_unpack(k->bundle, k->tmp, entry, sizeof entry, &err);
     if (st == PT_OK) {
         pt_scene_opts so = {0};
-        so.camera_name = m->camera[0] ? m->camera : NULL;
+        so.camera_name = k->m.camera[0] ? k->m.camera : NULL;
         st = pt_scene_load(entry, &so, &scene, &err);
     }
-    pt_remove_tree(tmp);
+    pt_remove_tree(k->tmp);
     if (st != PT_OK) {
-        pt_bundle_free(b);
         /* The path is our temp folder's: name the file inside the bundle instead. */
         const char *msg = err.msg;
-        size_t tl = strlen(tmp);
-        if (strncmp(msg, tmp, tl) == 0 && msg[tl] == '/')
+        size_t tl = strlen(k->tmp);
+        if (strncmp(msg, k->tmp, tl) == 0 && msg[tl] == '/')
             msg += tl + 1;
-        conn_send_error(s, c, st == PT_ERR_NOMEM ? PROTO_E_INTERNAL : PROTO_E_PROTOCOL,
-                        "scene refused: %s", msg);
+        check_refuse(k, st == PT_ERR_NOMEM ? PROTO_E_INTERNAL : PROTO_E_PROTOCOL,
+                     "scene refused: %s", msg);
         return;
     }
+    const char *base = strrchr(entry, '/');
+    snprintf(k->scene, sizeof k->scene, "%.255s", base ? base + 1 : entry);
+    k->ntris = scene->num_triangles;
+    k->aspect = scene->camera.aspect;
+    pt_scene_free(scene);
+    st = srv_state_save_bundle(k->state, k->job_id, k->bundle->data, k->bundle->size, &err);
+    if (st != PT_OK) {
+        check_refuse(k, PROTO_E_INTERNAL, "cannot store the scene: %s", err.msg);
+        return;
+    }
+    k->ok = 1;
+}
+
+static void *check_thread(void *arg)
+{
+    check *k = arg;
+    check_upload(k);
+    /* A blocking write of a pointer: atomic (under PIPE_BUF), never lost. */
+    ssize_t r = write(k->wake_fd, &k, sizeof k);
+    (void)r;
+    return NULL;
+}
+
+static void check_free(check *k)
+{
+    pt_free(k->data);
+    pt_bundle_free(k->bundle);
+    pt_free(k);
+}
+
+/* A complete upload: reserves the job id and starts its check. */
+static void finish_submit(server *s, conn *c)
+{
+    check *k = pt_calloc(1, sizeof *k);
+    if (!k) {
+        conn_send_error(s, c, PROTO_E_INTERNAL, "out of memory");
+        return;
+    }
+    k->conn_id = c->id;
+    k->job_id = s->next_job_id++;
+    k->m = c->up;
+    k->data = c->up_buf;
+    k->len = c->up_len;
+    c->up_buf = NULL;
+    upload_drop(c);
+    k->state = s->state;
+    snprintf(k->tmp, sizeof k->tmp, "%s/tmp/upload-%llu", srv_state_dir(s->state),
+             (unsigned long long)k->job_id);
+    k->wake_fd = s->checkpipe[1];
+    if (pthread_create(&k->thread, NULL, check_thread, k) != 0) {
+        check_free(k);
+        conn_send_error(s, c, PROTO_E_INTERNAL, "cannot start checking the scene");
+        return;
+    }
+    k->next = s->checks;
+    s->checks = k;
+    c->checking = 1;
+}
+
+/* A check is done: queues the job, or tells the client why not. */
+static void complete_submit(server *s, conn *c, check *k)
+{
+    pt_error err = {0};
+    pt_status st;
+    const proto_submit *m = &k->m;
+    c->checking = 0;
+    if (!k->ok) {
+        conn_send_error(s, c, k->code, "%s", k->msg);
+        return;
+    }
+    pt_bundle *b = k->bundle;
+    k->bundle = NULL;
     sjob *j = pt_calloc(1, sizeof *j);
     if (!j) {
-        pt_scene_free(scene);
         pt_bundle_free(b);
+        srv_state_forget_job(s->state, k->job_id);
         conn_send_error(s, c, PROTO_E_INTERNAL, "out of memory");
         return;
     }
     srv_job_rec *r = &j->rec;
-    r->id = r->seq = s->next_job_id++;
+    r->id = r->seq = k->job_id;
     r->state = PROTO_JOB_QUEUED;
     r->priority = m->priority;
     snprintf(r->name, sizeof r->name, "%s", m->name);
     snprintf(r->owner, sizeof r->owner, "%s", c->name);
-    const char *base = strrchr(entry, '/');
-    snprintf(r->scene, sizeof r->scene, "%.255s", base ? base + 1 : entry);
+    snprintf(r->scene, sizeof r->scene, "%s", k->scene);
     r->submitted = (uint64_t)time(NULL);
     srv_job_params p = s->cfg->job;
     p.spp = m->spp;
@@ -1033,7 +1141,7 @@ static void finish_submit(server *s, conn *c)
     p.height = m->height;
     snprintf(p.camera, sizeof p.camera, "%s", m->camera);
     if (p.width == 0) {
-        float aspect = scene->camera.aspect > 0 ? scene->camera.aspect : 1.0f;
+        float aspect = k->aspect > 0 ? k->aspect : 1.0f;
         p.width = 512;
         p.height = (uint32_t)(512.0f / aspect + 0.5f);
         if (p.height == 0)
@@ -1041,8 +1149,7 @@ static void finish_submit(server *s, conn *c)
         if (p.height > s->cfg->caps.max_side)
             p.height = s->cfg->caps.max_side;
     }
-    uint32_t ntris = scene->num_triangles;
-    pt_scene_free(scene);
+    uint32_t ntris = k->ntris;
     r->params = p;
     memcpy(r->hash, m->bundle_hash, 32);
     r->bundle_size = b->size;
@@ -1058,16 +1165,11 @@ static void finish_submit(server *s, conn *c)
     if ((st = srv_job_new(r->id, &p, r->hash, &probe, &err)) != PT_OK) {
         pt_free(j);
         pt_bundle_free(b);
+        srv_state_forget_job(s->state, k->job_id);
         conn_send_error(s, c, PROTO_E_LIMIT, "%s", err.msg);
         return;
     }
     srv_job_free(probe);
-    if ((st = srv_state_save_bundle(s->state, r->id, b->data, b->size, &err)) != PT_OK) {
-        pt_free(j);
-        pt_bundle_free(b);
-        conn_send_error(s, c, PROTO_E_INTERNAL, "cannot store the scene: %s", err.msg);
-        return;
-    }
     j->bundle = b;
     insert_job(s, j);
     prune_history(s);
@@ -1132,6 +1234,45 @@ static void on_upload(server *s, conn *c, const proto_frame *f)
     c->up_len += ch.len;
     if (c->up_len == c->up.bundle_size)
         finish_submit(s, c);
+}
+
+/* Completes each check that is done: its client gets the answer or, gone
+ * meanwhile, nothing is queued and the stored bundle goes. */
+static void checks_done(server *s)
+{
+    check *k;
+    while (read(s->checkpipe[0], &k, sizeof k) == (ssize_t)sizeof k) {
+        pthread_join(k->thread, NULL);
+        for (check **q = &s->checks; *q; q = &(*q)->next)
+            if (*q == k) {
+                *q = k->next;
+                break;
+            }
+        conn *c = s->conns;
+        while (c && (c->id != k->conn_id || c->closing))
+            c = c->next;
+        if (c) {
+            complete_submit(s, c, k);
+        } else {
+            if (k->ok)
+                srv_state_forget_job(s->state, k->job_id);
+            logf_(s, "a client left before its scene was checked; nothing was queued");
+        }
+        check_free(k);
+    }
+}
+
+/* At exit: waits for the checks in flight; none of them was queued. */
+static void checks_abandon(server *s)
+{
+    while (s->checks) {
+        check *k = s->checks;
+        s->checks = k->next;
+        pthread_join(k->thread, NULL);
+        if (k->ok)
+            srv_state_forget_job(s->state, k->job_id);
+        check_free(k);
+    }
 }
 
 static int read_job_ref(server *s, conn *c, const proto_frame *f, sjob **out)
@@ -1208,6 +1349,11 @@ static void on_fetch(server *s, conn *c, sjob *j)
 static void dispatch_client(server *s, conn *c, const proto_frame *f)
 {
     sjob *j;
+    if (c->checking) {
+        conn_send_error(s, c, PROTO_E_PROTOCOL, "%s before the answer to its SUBMIT",
+                        proto_msg_type_name(f->type));
+        return;
+    }
     switch (f->type) {
     case PROTO_MSG_SUBMIT: on_submit(s, c, f); break;
     case PROTO_MSG_UPLOAD: on_upload(s, c, f); break;
@@ -1730,6 +1876,12 @@ static pt_status setup(server *s, pt_error *err)
         return pt_error_errno(err, PT_ERR_IO, "pipe2");
     e.data.ptr = &s->sigpipe;
     epoll_ctl(s->ep, EPOLL_CTL_ADD, s->sigpipe[0], &e);
+    /* The threads' end blocks (a pointer is never lost); the loop's does not. */
+    if (pipe2(s->checkpipe, O_CLOEXEC) != 0 ||
+        fcntl(s->checkpipe[0], F_SETFL, fcntl(s->checkpipe[0], F_GETFL) | O_NONBLOCK) != 0)
+        return pt_error_errno(err, PT_ERR_IO, "pipe2");
+    e.data.ptr = &s->checkpipe;
+    epoll_ctl(s->ep, EPOLL_CTL_ADD, s->checkpipe[0], &e);
     g_sigpipe_w = s->sigpipe[1];
     struct sigaction sa;
     memset(&sa, 0, sizeof sa);
@@ -1807,7 +1959,7 @@ int srv_serve(const srv_config *cfg)
     server s;
     memset(&s, 0, sizeof s);
     s.cfg = cfg;
-    s.lfd = s.ep = s.sigpipe[0] = s.sigpipe[1] = -1;
+    s.lfd = s.ep = s.sigpipe[0] = s.sigpipe[1] = s.checkpipe[0] = s.checkpipe[1] = -1;
     pt_error err = {0};
     int rc = 1, children_reported = 0;
     if (setup(&s, &err) != PT_OK) {
@@ -1827,6 +1979,8 @@ int srv_serve(const srv_config *cfg)
                 char buf[16];
                 while (read(s.sigpipe[0], buf, sizeof buf) > 0) {
                 }
+            } else if (p == &s.checkpipe) {
+                checks_done(&s);
             } else {
                 conn *c = p;
                 if (evs[i].events & (EPOLLIN | EPOLLHUP | EPOLLERR))
@@ -1877,6 +2031,10 @@ int srv_serve(const srv_config *cfg)
         rc = 0;
     }
 done:
+    checks_abandon(&s);
+    for (int i = 0; i < 2; i++)
+        if (s.checkpipe[i] >= 0)
+            close(s.checkpipe[i]);
     if (s.nchildren)
         stop_children(&s);
     while (s.conns) {

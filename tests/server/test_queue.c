@@ -297,7 +297,9 @@ static int fetch(int port, uint64_t id, const char *name)
 
 /* ---- processes --------------------------------------------------------------------- */
 
-static void start_server(const char *state, const char *log, const char *extra)
+/* ptserve on state, logging to log; opt and its value (or NULL) are added. */
+static void start_server_opt(const char *state, const char *log, const char *opt,
+                             const char *value)
 {
     char listen[64];
     snprintf(listen, sizeof listen, "127.0.0.1:%d", g_port);
@@ -305,12 +307,18 @@ static void start_server(const char *state, const char *log, const char *extra)
     const char *argv[] = {PT_BIN_DIR "/ptserve", "--state-dir", path(state), "--listen", listen,
                           "--port-file", path("port"), "--tile", "16", "--chunk", "8",
                           "--save-interval", "0.2", "--lease-timeout", "5",
-                          extra ? extra : "--quiet", extra ? "2" : NULL, NULL};
+                          opt ? opt : "--quiet", opt ? value : NULL, NULL};
     g_srv = spawn(argv, log);
     int port = read_port();
     CHECK(port > 0);
     if (g_port == 0)
         g_port = port;
+}
+
+/* extra: NULL, or an option that takes the value 2. */
+static void start_server(const char *state, const char *log, const char *extra)
+{
+    start_server_opt(state, log, extra, "2");
 }
 
 static void kill_server(int sig)
@@ -510,7 +518,11 @@ static void queue_order(void)
     int n = done_order("queue.log", order, 8);
     CHECK(n == 3 && order[0] == urgent && order[1] == first && order[2] == second);
 
-    /* Cancel during a render: the workers move on to the next job at once. */
+    /* Cancel during a render: the workers move on to the next job at once.
+     * With tasks of 512 samples per pixel the worker is always rendering one
+     * and holding the 8 it prefetched when the cancel comes. */
+    kill_server(SIGTERM);
+    start_server_opt("state2", "queue.log", "--chunk", "512");
     uint64_t big = submit(g_port, job_of("big", 64, 48, 65536, 0));
     CHECK(big > 0);
     double end = now_s() + 60;
@@ -837,6 +849,98 @@ static void hostile_clients(void)
     kill_server(SIGTERM);
 }
 
+/* ---- 5. scenes are checked off the event loop --------------------------------------- */
+
+/* Lines of log that contain needle. */
+static int log_count(const char *log, const char *needle)
+{
+    FILE *f = fopen(path(log), "r");
+    int n = 0;
+    char line[4096];
+    while (f && fgets(line, sizeof line, f))
+        n += strstr(line, needle) != NULL;
+    if (f)
+        fclose(f);
+    return n;
+}
+
+/* Waits up to 60 s for n lines of log with needle. */
+static int wait_log_count(const char *log, const char *needle, int n)
+{
+    for (double end = now_s() + 60; now_s() < end; sleep_ms(50))
+        if (log_count(log, needle) >= n)
+            return 1;
+    return 0;
+}
+
+/* Sends SUBMIT and the whole of bundle b as job name. */
+static void send_submission(cli *c, const char *name, const pt_bundle *b)
+{
+    proto_submit m = job_of(name, 64, 48, 16, 0);
+    m.bundle_size = b->size;
+    hash_bytes(b->data, b->size, m.bundle_hash);
+    submit_begin(c, &m);
+    upload(c, m.bundle_hash, b->data, b->size, 0, (uint32_t)b->size);
+}
+
+static void checked_off_loop(void)
+{
+    char big_path[1024];
+    snprintf(big_path, sizeof big_path, "%s/MetalRoughSpheresNoTextures/MetalRoughSpheresNoTextures.glb",
+             PT_SHARED_SCENES);
+    struct stat sb;
+    if (stat(big_path, &sb) != 0) {
+        const char *ci = getenv("CI");
+        CHECKF(!ci || strcmp(ci, "true") != 0, "CI needs %s", big_path);
+        fprintf(stderr, "skipped the off-loop check: no %s\n", big_path);
+        return;
+    }
+    pt_bundle *big = NULL;
+    pt_error err = {0};
+    CHECK(pt_bundle_pack(big_path, &big, &err) == PT_OK);
+    if (!big)
+        return;
+    g_port = 0;
+    start_server("state5", "check.log", NULL);
+    proto_frame f;
+    /* A million triangles take the server a good part of a second to check;
+     * meanwhile another client is answered at once, and the submitter not yet. */
+    cli a, b;
+    CHECK(cli_open(&a, g_port) == 0 && cli_open(&b, g_port) == 0);
+    send_submission(&a, "spheres", big);
+    sleep_ms(30); /* the upload has arrived: its check runs */
+    cli_send(&b, PROTO_MSG_LIST, NULL);
+    CHECK(reply(&b, &f) == PROTO_MSG_JOB_LIST);
+    struct pollfd pa = {a.fd, POLLIN, 0};
+    CHECK(poll(&pa, 1, 0) == 0 && a.len == a.used);
+    proto_job_ref ref = {0};
+    CHECK(reply(&a, &f) == PROTO_MSG_SUBMITTED &&
+          proto_msg_decode_job_ref(f.payload, f.len, &ref, NULL) == PT_OK && ref.job_id > 0);
+    cli_close(&a);
+    /* A request before the answer to a SUBMIT is refused; a submitter that
+     * leaves during its check queues nothing. */
+    CHECK(cli_open(&a, g_port) == 0);
+    send_submission(&a, "eager", big);
+    cli_send(&a, PROTO_MSG_LIST, NULL);
+    CHECK(reply(&a, &f) == -2 && strstr(err_text, "before the answer to its SUBMIT"));
+    cli_close(&a);
+    const char *left = "left before its scene was checked";
+    CHECK(wait_log_count("check.log", left, 1));
+    CHECK(cli_open(&a, g_port) == 0);
+    send_submission(&a, "gone", big);
+    cli_close(&a);
+    CHECK(wait_log_count("check.log", left, 2));
+    cli_send(&b, PROTO_MSG_LIST, NULL);
+    proto_job_list list = {0};
+    CHECK(reply(&b, &f) == PROTO_MSG_JOB_LIST &&
+          proto_msg_decode_job_list(f.payload, f.len, &list, NULL) == PT_OK && list.count == 1 &&
+          list.jobs[0].job_id == ref.job_id);
+    pt_free(list.jobs);
+    cli_close(&b);
+    pt_bundle_free(big);
+    kill_server(SIGTERM);
+}
+
 int main(void)
 {
     snprintf(tmp, sizeof tmp, "/tmp/pt_test_queue_XXXXXX");
@@ -852,6 +956,7 @@ int main(void)
     queue_order();
     damaged();
     hostile_clients();
+    checked_off_loop();
     pt_bundle_free(g_bundle);
     if (g_srv > 0)
         kill_server(SIGKILL);
