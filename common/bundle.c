@@ -9,6 +9,7 @@
 #include <unistd.h>
 
 #include "common/alloc.h"
+#include "common/fsutil.h"
 
 static const uint8_t MAGIC[4] = {'P', 'T', 'B', '1'};
 
@@ -147,45 +148,6 @@ void pt_bundle_free(pt_bundle *b)
     }
 }
 
-static pt_status read_file(const char *path, uint8_t **out, size_t *size, pt_error *err)
-{
-    int fd = open(path, O_RDONLY | O_CLOEXEC);
-    if (fd < 0)
-        return pt_error_errno(err, PT_ERR_IO, "%s", path);
-    struct stat sb;
-    if (fstat(fd, &sb) != 0 || !S_ISREG(sb.st_mode)) {
-        close(fd);
-        return pt_error_set(err, PT_ERR_IO, "%s: not a regular file", path);
-    }
-    if ((uint64_t)sb.st_size > PT_BUNDLE_MAX_BYTES) {
-        close(fd);
-        return pt_error_set(err, PT_ERR_LIMIT, "%s: %lld bytes is over the scene size cap", path,
-                            (long long)sb.st_size);
-    }
-    size_t n = (size_t)sb.st_size, got = 0;
-    uint8_t *buf = pt_malloc(n ? n : 1);
-    if (!buf) {
-        close(fd);
-        return pt_error_set(err, PT_ERR_NOMEM, "%s: out of memory", path);
-    }
-    while (got < n) {
-        ssize_t r = read(fd, buf + got, n - got);
-        if (r < 0 && errno == EINTR)
-            continue;
-        if (r <= 0) {
-            pt_error_errno(err, PT_ERR_IO, "%s: read", path);
-            close(fd);
-            pt_free(buf);
-            return PT_ERR_IO;
-        }
-        got += (size_t)r;
-    }
-    close(fd);
-    *out = buf;
-    *size = n;
-    return PT_OK;
-}
-
 pt_status pt_bundle_pack(const char *scene_path, pt_bundle **out, pt_error *err)
 {
     char **deps = NULL;
@@ -221,7 +183,7 @@ pt_status pt_bundle_pack(const char *scene_path, pt_bundle **out, pt_error *err)
             snprintf(path, sizeof path, "%s", scene_path);
         else
             snprintf(path, sizeof path, "%.*s%s", (int)dirlen, scene_path, names[i]);
-        if ((st = read_file(path, &bufs[i], &sizes[i], err)) != PT_OK)
+        if ((st = pt_read_file(path, PT_BUNDLE_MAX_BYTES, &bufs[i], &sizes[i], err)) != PT_OK)
             goto fail;
         total += 2 + nl + 8 + sizes[i];
         if (total > PT_BUNDLE_MAX_BYTES) {

@@ -96,40 +96,11 @@ int proto_msg_type_preauth(uint32_t type)
 
 /* ---- shared pieces ---- */
 
-/* A str field: u16 length, capped, then bytes without NUL, copied into dst
- * (cap + 1 bytes) and terminated. */
-static void r_str(proto_reader *r, char *dst, size_t cap, const char *field)
-{
-    uint16_t n = proto_r_u16(r, field);
-    if (r->status != PT_OK)
-        return;
-    if (n > cap) {
-        proto_r_fail(r, PT_ERR_PROTO, "over the length cap:", field);
-        return;
-    }
-    const uint8_t *s = proto_r_bytes(r, n, field);
-    if (!s)
-        return;
-    if (memchr(s, 0, n)) {
-        proto_r_fail(r, PT_ERR_PROTO, "NUL byte in", field);
-        return;
-    }
-    memcpy(dst, s, n);
-    dst[n] = '\0';
-}
-
 /* Encoders check a string before writing anything, so a refused message
  * leaves the writer as it was. */
 static int str_fits(const char *s, size_t cap)
 {
     return strnlen(s, cap + 1) <= cap;
-}
-
-static void w_str(proto_writer *w, const char *s)
-{
-    size_t n = strlen(s);
-    proto_w_u16(w, (uint16_t)n);
-    proto_w_bytes(w, s, n);
 }
 
 /* Ends an encoder: on a writer failure, cuts the writer back to where the
@@ -212,9 +183,9 @@ pt_status proto_msg_encode_hello(proto_writer *w, const proto_hello *m, pt_error
         return bad(err, PT_ERR_ARG, "HELLO", why);
     proto_w_u16(w, m->version);
     proto_w_u8(w, m->role);
-    w_str(w, m->name);
+    proto_w_str(w, m->name);
     proto_w_u16(w, m->threads);
-    w_str(w, m->build_id);
+    proto_w_str(w, m->build_id);
     proto_w_u32(w, m->caps);
     return w_done(w, start, "HELLO", err);
 }
@@ -225,9 +196,9 @@ pt_status proto_msg_decode_hello(const uint8_t *p, size_t len, proto_hello *out,
     proto_hello m;
     m.version = proto_r_u16(&r, "version");
     m.role = proto_r_u8(&r, "role");
-    r_str(&r, m.name, PROTO_MAX_NAME, "name");
+    proto_r_str(&r, m.name, PROTO_MAX_NAME, "name");
     m.threads = proto_r_u16(&r, "threads");
-    r_str(&r, m.build_id, PROTO_MAX_BUILD_ID, "build id");
+    proto_r_str(&r, m.build_id, PROTO_MAX_BUILD_ID, "build id");
     m.caps = proto_r_u32(&r, "capabilities");
     pt_status st = proto_r_finish(&r, "HELLO", err);
     if (st != PT_OK)
@@ -286,7 +257,7 @@ pt_status proto_msg_encode_welcome(proto_writer *w, const proto_welcome *m, pt_e
     if (!str_fits(m->build_id, PROTO_MAX_BUILD_ID))
         return bad(err, PT_ERR_ARG, "WELCOME", "build id over the length cap");
     proto_w_u64(w, m->session_id);
-    w_str(w, m->build_id);
+    proto_w_str(w, m->build_id);
     return w_done(w, start, "WELCOME", err);
 }
 
@@ -295,7 +266,7 @@ pt_status proto_msg_decode_welcome(const uint8_t *p, size_t len, proto_welcome *
     proto_reader r = proto_reader_make(p, len);
     proto_welcome m;
     m.session_id = proto_r_u64(&r, "session id");
-    r_str(&r, m.build_id, PROTO_MAX_BUILD_ID, "build id");
+    proto_r_str(&r, m.build_id, PROTO_MAX_BUILD_ID, "build id");
     pt_status st = proto_r_finish(&r, "WELCOME", err);
     if (st != PT_OK)
         return st;
@@ -311,7 +282,7 @@ pt_status proto_msg_encode_error(proto_writer *w, const proto_error_msg *m, pt_e
     if (!str_fits(m->text, PROTO_MAX_ERROR_TEXT))
         return bad(err, PT_ERR_ARG, "ERROR", "text over the length cap");
     proto_w_u16(w, m->code);
-    w_str(w, m->text);
+    proto_w_str(w, m->text);
     return w_done(w, start, "ERROR", err);
 }
 
@@ -320,7 +291,7 @@ pt_status proto_msg_decode_error(const uint8_t *p, size_t len, proto_error_msg *
     proto_reader r = proto_reader_make(p, len);
     proto_error_msg m;
     m.code = proto_r_u16(&r, "code");
-    r_str(&r, m.text, PROTO_MAX_ERROR_TEXT, "text");
+    proto_r_str(&r, m.text, PROTO_MAX_ERROR_TEXT, "text");
     pt_status st = proto_r_finish(&r, "ERROR", err);
     if (st != PT_OK)
         return st;
@@ -387,7 +358,7 @@ pt_status proto_msg_encode_task(proto_writer *w, const proto_task *m, pt_error *
     proto_w_u16(w, m->rr_depth);
     proto_w_bytes(w, m->scene_hash, PROTO_HASH_SIZE);
     proto_w_u32(w, m->lease_ms);
-    w_str(w, m->camera);
+    proto_w_str(w, m->camera);
     return w_done(w, start, "TASK", err);
 }
 
@@ -407,7 +378,7 @@ pt_status proto_msg_decode_task(const uint8_t *p, size_t len, proto_task *out, p
     m.rr_depth = proto_r_u16(&r, "rr depth");
     const uint8_t *hash = proto_r_bytes(&r, PROTO_HASH_SIZE, "scene hash");
     m.lease_ms = proto_r_u32(&r, "lease");
-    r_str(&r, m.camera, PROTO_MAX_NAME, "camera");
+    proto_r_str(&r, m.camera, PROTO_MAX_NAME, "camera");
     pt_status st = proto_r_finish(&r, "TASK", err);
     if (st != PT_OK)
         return st;
@@ -686,7 +657,7 @@ pt_status proto_msg_encode_submit(proto_writer *w, const proto_submit *m, pt_err
                                                : submit_problem(m);
     if (why)
         return bad(err, PT_ERR_ARG, "SUBMIT", why);
-    w_str(w, m->name);
+    proto_w_str(w, m->name);
     proto_w_u32(w, m->width);
     proto_w_u32(w, m->height);
     proto_w_u32(w, m->spp);
@@ -697,7 +668,7 @@ pt_status proto_msg_encode_submit(proto_writer *w, const proto_submit *m, pt_err
     proto_w_f64(w, m->target_error);
     proto_w_u64(w, m->bundle_size);
     proto_w_bytes(w, m->bundle_hash, PROTO_HASH_SIZE);
-    w_str(w, m->camera);
+    proto_w_str(w, m->camera);
     return w_done(w, start, "SUBMIT", err);
 }
 
@@ -705,7 +676,7 @@ pt_status proto_msg_decode_submit(const uint8_t *p, size_t len, proto_submit *ou
 {
     proto_reader r = proto_reader_make(p, len);
     proto_submit m;
-    r_str(&r, m.name, PROTO_MAX_NAME, "name");
+    proto_r_str(&r, m.name, PROTO_MAX_NAME, "name");
     m.width = proto_r_u32(&r, "width");
     m.height = proto_r_u32(&r, "height");
     m.spp = proto_r_u32(&r, "spp");
@@ -716,7 +687,7 @@ pt_status proto_msg_decode_submit(const uint8_t *p, size_t len, proto_submit *ou
     m.target_error = proto_r_f64(&r, "target error");
     m.bundle_size = proto_r_u64(&r, "bundle size");
     const uint8_t *hash = proto_r_bytes(&r, PROTO_HASH_SIZE, "bundle hash");
-    r_str(&r, m.camera, PROTO_MAX_NAME, "camera");
+    proto_r_str(&r, m.camera, PROTO_MAX_NAME, "camera");
     pt_status st = proto_r_finish(&r, "SUBMIT", err);
     if (st != PT_OK)
         return st;
@@ -754,10 +725,10 @@ static void w_job_info(proto_writer *w, const proto_job_info *m)
     proto_w_u64(w, m->job_id);
     proto_w_u8(w, m->state);
     proto_w_u32(w, (uint32_t)m->priority);
-    w_str(w, m->name);
-    w_str(w, m->owner);
-    w_str(w, m->scene);
-    w_str(w, m->output);
+    proto_w_str(w, m->name);
+    proto_w_str(w, m->owner);
+    proto_w_str(w, m->scene);
+    proto_w_str(w, m->output);
     proto_w_u32(w, m->width);
     proto_w_u32(w, m->height);
     proto_w_u32(w, m->spp);
@@ -773,7 +744,7 @@ static void w_job_info(proto_writer *w, const proto_job_info *m)
     proto_w_f64(w, m->error);
     proto_w_u64(w, m->submitted);
     proto_w_u32(w, m->queue_pos);
-    w_str(w, m->message);
+    proto_w_str(w, m->message);
 }
 
 /* Reads one JOB_INFO into m (which may be left half-filled on failure). */
@@ -782,10 +753,10 @@ static void r_job_info(proto_reader *r, proto_job_info *m)
     m->job_id = proto_r_u64(r, "job id");
     m->state = proto_r_u8(r, "state");
     m->priority = i32_from_bits(proto_r_u32(r, "priority"));
-    r_str(r, m->name, PROTO_MAX_NAME, "name");
-    r_str(r, m->owner, PROTO_MAX_NAME, "owner");
-    r_str(r, m->scene, PROTO_MAX_PATH, "scene");
-    r_str(r, m->output, PROTO_MAX_PATH, "output");
+    proto_r_str(r, m->name, PROTO_MAX_NAME, "name");
+    proto_r_str(r, m->owner, PROTO_MAX_NAME, "owner");
+    proto_r_str(r, m->scene, PROTO_MAX_PATH, "scene");
+    proto_r_str(r, m->output, PROTO_MAX_PATH, "output");
     m->width = proto_r_u32(r, "width");
     m->height = proto_r_u32(r, "height");
     m->spp = proto_r_u32(r, "spp");
@@ -801,7 +772,7 @@ static void r_job_info(proto_reader *r, proto_job_info *m)
     m->error = proto_r_f64(r, "error");
     m->submitted = proto_r_u64(r, "submitted");
     m->queue_pos = proto_r_u32(r, "queue position");
-    r_str(r, m->message, PROTO_MAX_ERROR_TEXT, "message");
+    proto_r_str(r, m->message, PROTO_MAX_ERROR_TEXT, "message");
 }
 
 pt_status proto_msg_encode_job_info(proto_writer *w, const proto_job_info *m, pt_error *err)

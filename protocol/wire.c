@@ -127,6 +127,33 @@ void proto_r_fail(proto_reader *r, pt_status code, const char *why, const char *
     r->p = r->end;
 }
 
+void proto_w_str(proto_writer *w, const char *s)
+{
+    size_t n = strlen(s);
+    proto_w_u16(w, (uint16_t)n);
+    proto_w_bytes(w, s, n);
+}
+
+void proto_r_str(proto_reader *r, char *dst, size_t max_len, const char *field)
+{
+    uint16_t n = proto_r_u16(r, field);
+    if (r->status != PT_OK)
+        return;
+    if (n > max_len) {
+        proto_r_fail(r, PT_ERR_PROTO, "over the length cap:", field);
+        return;
+    }
+    const uint8_t *s = proto_r_bytes(r, n, field);
+    if (!s)
+        return;
+    if (memchr(s, 0, n)) {
+        proto_r_fail(r, PT_ERR_PROTO, "NUL byte in", field);
+        return;
+    }
+    memcpy(dst, s, n);
+    dst[n] = '\0';
+}
+
 const uint8_t *proto_r_bytes(proto_reader *r, size_t n, const char *field)
 {
     if (r->status != PT_OK)

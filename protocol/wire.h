@@ -156,6 +156,9 @@ void proto_w_u32(proto_writer *w, uint32_t v);
 void proto_w_u64(proto_writer *w, uint64_t v);
 void proto_w_f32(proto_writer *w, float v);
 void proto_w_f64(proto_writer *w, double v);
+/* A str field: u16 length, then the bytes without a NUL (the caller checks
+ * that s fits its field's cap first). */
+void proto_w_str(proto_writer *w, const char *s);
 
 /* ---- reader ---- */
 
@@ -188,6 +191,9 @@ uint8_t proto_r_u8(proto_reader *r, const char *field);
 uint16_t proto_r_u16(proto_reader *r, const char *field);
 uint32_t proto_r_u32(proto_reader *r, const char *field);
 uint64_t proto_r_u64(proto_reader *r, const char *field);
+/* A str field into dst (max_len + 1 bytes, NUL-terminated); a length over
+ * max_len or a NUL byte inside fails the read. */
+void proto_r_str(proto_reader *r, char *dst, size_t max_len, const char *field);
 float proto_r_f32(proto_reader *r, const char *field);
 double proto_r_f64(proto_reader *r, const char *field);
 

@@ -486,9 +486,7 @@ static void put_params(proto_writer *w, const srv_job_params *p)
     proto_w_u32(w, p->rr_depth);
     proto_w_u32(w, p->min_spp);
     proto_w_f64(w, p->target_error);
-    size_t n = strlen(p->camera);
-    proto_w_u16(w, (uint16_t)n);
-    proto_w_bytes(w, p->camera, n);
+    proto_w_str(w, p->camera);
 }
 
 static uint32_t tile_merged(const srv_job *j, uint32_t tile)
@@ -558,14 +556,7 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
     p.min_spp = proto_r_u32(&r, "min spp");
     p.target_error = proto_r_f64(&r, "target error");
     p.camera[0] = '\0';
-    uint16_t ncam = proto_r_u16(&r, "camera length");
-    if (r.status == PT_OK && ncam > PROTO_MAX_NAME)
-        proto_r_fail(&r, PT_ERR_FORMAT, "too long:", "camera");
-    const uint8_t *cam = proto_r_bytes(&r, ncam, "camera");
-    if (cam) {
-        memcpy(p.camera, cam, ncam);
-        p.camera[ncam] = '\0';
-    }
+    proto_r_str(&r, p.camera, PROTO_MAX_NAME, "camera");
     uint32_t ntiles = proto_r_u32(&r, "tiles"), nchunks = proto_r_u32(&r, "chunks");
     if (r.status != PT_OK)
         return proto_r_finish(&r, "checkpoint", err);

@@ -155,27 +155,6 @@ static pt_status read_checked(const char *path, uint32_t magic, size_t max, uint
 
 /* ---- the queue --------------------------------------------------------------------- */
 
-static void w_str(proto_writer *w, const char *s)
-{
-    size_t n = strlen(s);
-    proto_w_u16(w, (uint16_t)n);
-    proto_w_bytes(w, s, n);
-}
-
-static void r_str(proto_reader *r, char *out, size_t cap, const char *field)
-{
-    uint16_t n = proto_r_u16(r, field);
-    const uint8_t *p = proto_r_bytes(r, n, field);
-    if (!p)
-        return;
-    if (n >= cap || memchr(p, 0, n)) {
-        proto_r_fail(r, PT_ERR_FORMAT, "bad", field);
-        return;
-    }
-    memcpy(out, p, n);
-    out[n] = '\0';
-}
-
 pt_status srv_state_save_queue(srv_state *st, srv_job_rec *const *recs, uint32_t n,
                                uint64_t next_id, pt_error *err)
 {
@@ -192,10 +171,10 @@ pt_status srv_state_save_queue(srv_state *st, srv_job_rec *const *recs, uint32_t
         proto_w_u64(&w, j->seq);
         proto_w_u8(&w, j->state);
         proto_w_u32(&w, (uint32_t)j->priority);
-        w_str(&w, j->name);
-        w_str(&w, j->owner);
-        w_str(&w, j->scene);
-        w_str(&w, j->output);
+        proto_w_str(&w, j->name);
+        proto_w_str(&w, j->owner);
+        proto_w_str(&w, j->scene);
+        proto_w_str(&w, j->output);
         proto_w_u64(&w, j->submitted);
         const srv_job_params *p = &j->params;
         proto_w_u32(&w, p->width);
@@ -208,12 +187,12 @@ pt_status srv_state_save_queue(srv_state *st, srv_job_rec *const *recs, uint32_t
         proto_w_u32(&w, p->rr_depth);
         proto_w_u32(&w, p->min_spp);
         proto_w_f64(&w, p->target_error);
-        w_str(&w, p->camera);
+        proto_w_str(&w, p->camera);
         proto_w_bytes(&w, j->hash, 32);
         proto_w_u64(&w, j->bundle_size);
         proto_w_u64(&w, j->samples_done);
         proto_w_f64(&w, j->seconds);
-        w_str(&w, j->message);
+        proto_w_str(&w, j->message);
     }
     pt_status s = end_file(&w, path, err);
     proto_writer_fini(&w);
@@ -258,10 +237,10 @@ pt_status srv_state_load_queue(srv_state *st, srv_job_rec **recs, uint32_t *n, u
         j->seq = proto_r_u64(&r, "job seq");
         j->state = proto_r_u8(&r, "job state");
         j->priority = (int32_t)proto_r_u32(&r, "priority");
-        r_str(&r, j->name, sizeof j->name, "name");
-        r_str(&r, j->owner, sizeof j->owner, "owner");
-        r_str(&r, j->scene, sizeof j->scene, "scene");
-        r_str(&r, j->output, sizeof j->output, "output");
+        proto_r_str(&r, j->name, sizeof j->name - 1, "name");
+        proto_r_str(&r, j->owner, sizeof j->owner - 1, "owner");
+        proto_r_str(&r, j->scene, sizeof j->scene - 1, "scene");
+        proto_r_str(&r, j->output, sizeof j->output - 1, "output");
         j->submitted = proto_r_u64(&r, "submitted");
         srv_job_params *p = &j->params;
         p->width = proto_r_u32(&r, "width");
@@ -274,14 +253,14 @@ pt_status srv_state_load_queue(srv_state *st, srv_job_rec **recs, uint32_t *n, u
         p->rr_depth = proto_r_u32(&r, "rr depth");
         p->min_spp = proto_r_u32(&r, "min spp");
         p->target_error = proto_r_f64(&r, "target error");
-        r_str(&r, p->camera, sizeof p->camera, "camera");
+        proto_r_str(&r, p->camera, sizeof p->camera - 1, "camera");
         const uint8_t *h = proto_r_bytes(&r, 32, "scene hash");
         if (h)
             memcpy(j->hash, h, 32);
         j->bundle_size = proto_r_u64(&r, "bundle size");
         j->samples_done = proto_r_u64(&r, "samples done");
         j->seconds = proto_r_f64(&r, "seconds");
-        r_str(&r, j->message, sizeof j->message, "message");
+        proto_r_str(&r, j->message, sizeof j->message - 1, "message");
         if (r.status == PT_OK && (j->id == 0 || j->id >= nid || j->state < PROTO_JOB_QUEUED ||
                                   j->state > PROTO_JOB_FAILED))
             proto_r_fail(&r, PT_ERR_FORMAT, "bad", "job id or state");
