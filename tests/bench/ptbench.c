@@ -90,8 +90,8 @@ typedef struct pass {
     pt_film *film;
     const pt_rect *tiles;
     uint32_t num_tiles, s0, s1;
-    double target;            /* > 0: adaptive, s1 is the cap */
-    uint32_t chunk, min_spp;  /* adaptive: samples per chunk, before a tile may stop */
+    double target;           /* > 0: adaptive, s1 is the cap */
+    uint32_t chunk, min_spp; /* adaptive: samples per chunk, before a tile may stop */
     atomic_uint next;
     pt_pixel_acc *scratch[MAX_THREADS]; /* tile*tile each, allocated once */
     pt_pixel_acc *sum[MAX_THREADS];     /* adaptive: the tile's sums so far */
@@ -239,17 +239,18 @@ static int write_csv(const char *path, const char *label, const char *scene, uin
         fprintf(stderr, "ptbench: %s: %s\n", path, strerror(errno));
         return -1;
     }
-    fprintf(f, "label,scene,width,height,threads,seed,spp,seconds,samples_per_s,rays_per_s,"
-               "rmse,relmse,efficiency,mean,nonfinite,rejected,target_error,mean_spp,cpu_seconds\n");
+    fprintf(f,
+            "label,scene,width,height,threads,seed,spp,seconds,samples_per_s,rays_per_s,"
+            "rmse,relmse,efficiency,mean,nonfinite,rejected,target_error,mean_spp,cpu_seconds\n");
     for (int i = 0; i < n; i++) {
         const row *r = &rows[i];
-        fprintf(f, "%s,%s,%u,%u,%d,%u,%u,%.6g,%.6g,%.6g,%.6e,%.6e,%.6g,%.6g,%llu,%llu,%.6g,%.6g,%.6g\n",
-                label,
-                scene, w, h, threads, seed, r->spp, r->seconds, (double)r->st.samples / r->seconds,
-                (double)r->st.rays / r->seconds, r->m.rmse, r->m.rel_mse, efficiency(r),
-                (r->m.mean[0] + r->m.mean[1] + r->m.mean[2]) / 3.0,
-                (unsigned long long)r->m.nonfinite, (unsigned long long)r->st.rejected, r->target,
-                r->mean_spp, r->cpu);
+        fprintf(
+            f, "%s,%s,%u,%u,%d,%u,%u,%.6g,%.6g,%.6g,%.6e,%.6e,%.6g,%.6g,%llu,%llu,%.6g,%.6g,%.6g\n",
+            label, scene, w, h, threads, seed, r->spp, r->seconds,
+            (double)r->st.samples / r->seconds, (double)r->st.rays / r->seconds, r->m.rmse,
+            r->m.rel_mse, efficiency(r), (r->m.mean[0] + r->m.mean[1] + r->m.mean[2]) / 3.0,
+            (unsigned long long)r->m.nonfinite, (unsigned long long)r->st.rejected, r->target,
+            r->mean_spp, r->cpu);
     }
     if (fclose(f) != 0) {
         fprintf(stderr, "ptbench: %s: %s\n", path, strerror(errno));
@@ -419,7 +420,8 @@ static int cmd_gain(int argc, char **argv)
                         size_t i = (size_t)y * w + x;
                         double v = (double)img->variance[i] * img->samples[i];
                         if (rel) {
-                            double mu = 0.2126 * img->r[i] + 0.7152 * img->g[i] + 0.0722 * img->b[i];
+                            double mu =
+                                0.2126 * img->r[i] + 0.7152 * img->g[i] + 0.0722 * img->b[i];
                             v /= mu * mu + PT_METRICS_REL_EPS;
                         }
                         v = v > 0 && isfinite(v) ? v : 0;
@@ -731,9 +733,8 @@ static int cmd_bench(int argc, char **argv)
     }
     for (uint32_t y = 0; y < ty; y++)
         for (uint32_t x = 0; x < tx; x++)
-            tiles[y * tx + x] =
-                (pt_rect){x * ts, y * ts, (x + 1) * ts < o.w ? (x + 1) * ts : o.w,
-                          (y + 1) * ts < o.h ? (y + 1) * ts : o.h};
+            tiles[y * tx + x] = (pt_rect){x * ts, y * ts, (x + 1) * ts < o.w ? (x + 1) * ts : o.w,
+                                          (y + 1) * ts < o.h ? (y + 1) * ts : o.h};
     ps.r = r;
     ps.film = film;
     ps.tiles = tiles;
