@@ -24,8 +24,8 @@ typedef struct pt_accel pt_accel;
 
 typedef struct pt_hit {
     float t;
-    float b1, b2;    /* barycentrics of vertices 1 and 2 (Embree's u, v) */
-    uint32_t tri;    /* triangle index, or UINT32_MAX on a miss */
+    float b1, b2; /* barycentrics of vertices 1 and 2 (Embree's u, v) */
+    uint32_t tri; /* triangle index, or UINT32_MAX on a miss */
 } pt_hit;
 
 pt_status pt_accel_new(const pt_scene *scene, pt_accel **out, pt_error *err);
@@ -58,8 +58,8 @@ static inline void pt_accel_hit_point(const pt_scene *scene, const pt_hit *hit, 
                    pt_v3_scale(v2, hit->b2));
     pt_vec3 n = pt_v3_cross(pt_v3_sub(v1, v0), pt_v3_sub(v2, v0));
     float len = pt_v3_len(n);
-    *ng = (len > 0.0f && isfinite(len)) ? pt_v3_scale(n, 1.0f / len)
-                                        : pt_accel_degenerate_normal(n);
+    *ng =
+        (len > 0.0f && isfinite(len)) ? pt_v3_scale(n, 1.0f / len) : pt_accel_degenerate_normal(n);
 }
 
 /* Offsets p along the geometric normal n (towards the side the ray leaves on)
@@ -78,7 +78,7 @@ pt_vec3 pt_accel_offset_ray(const pt_accel *accel, pt_vec3 p, pt_vec3 n);
  * inline the offset (pt_offset_apply) instead of calling across modules for
  * each of the 2-3 offsets of a bounce; the results are the same bits. */
 typedef struct pt_offset {
-    float origin;      /* below this |coordinate|, offset by float_scale * n */
+    float origin; /* below this |coordinate|, offset by float_scale * n */
     float float_scale;
 } pt_offset;
 

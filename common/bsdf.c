@@ -93,8 +93,8 @@ pt_bsdf pt_bsdf_setup(pt_vec3 base_color, float metallic, float roughness, float
 static inline void sincos_quarter(float t, float *s, float *c)
 {
     float t2 = t * t;
-    *s = t * (1.0f + t2 * (-1.0f / 6.0f + t2 * (1.0f / 120.0f + t2 * (-1.0f / 5040.0f +
-                                                                        t2 * (1.0f / 362880.0f)))));
+    *s = t * (1.0f + t2 * (-1.0f / 6.0f + t2 * (1.0f / 120.0f +
+                                                t2 * (-1.0f / 5040.0f + t2 * (1.0f / 362880.0f)))));
     *c = 1.0f + t2 * (-0.5f + t2 * (1.0f / 24.0f + t2 * (-1.0f / 720.0f + t2 * (1.0f / 40320.0f))));
 }
 

@@ -50,7 +50,7 @@ _Static_assert(sizeof(light_entry) == 64, "a light entry is one cache line");
 struct pt_lights {
     uint32_t count;
     uint32_t num_triangles;
-    light_entry *lights;    /* count entries, 64-byte aligned inside lights_mem */
+    light_entry *lights; /* count entries, 64-byte aligned inside lights_mem */
     void *lights_mem;
     alias_slot *alias;      /* count columns */
     uint32_t *tri_to_light; /* num_triangles entries, UINT32_MAX: not a light; NULL if count 0 */
@@ -73,8 +73,7 @@ static void tri_geom(const pt_scene *s, uint32_t tri, pt_vec3 v[3], pt_vec3 *n, 
     pt_vec3 c = pt_v3_cross(pt_v3_sub(v[1], v[0]), pt_v3_sub(v[2], v[0]));
     float len = pt_v3_len(c);
     *area = 0.5f * len;
-    *n = (len > 0.0f && isfinite(len)) ? pt_v3_scale(c, 1.0f / len)
-                                       : pt_accel_degenerate_normal(c);
+    *n = (len > 0.0f && isfinite(len)) ? pt_v3_scale(c, 1.0f / len) : pt_accel_degenerate_normal(c);
 }
 
 static int emits(const pt_material *m)

@@ -20,7 +20,7 @@ enum {
     DIM_PER_BOUNCE = 8,
     OFF_LIGHT_POINT = 0, /* 2D */
     OFF_BSDF_DIR = 2,    /* 2D */
-    OFF_LIGHT_PICK = 4, /* 2D with the lobe pick */
+    OFF_LIGHT_PICK = 4,  /* 2D with the lobe pick */
     OFF_RR = 6,
 };
 
@@ -67,8 +67,14 @@ void pt_render_params_default(pt_render_params *p)
     p->extra_features = 0;
 }
 
-const pt_render_params *pt_renderer_params(const pt_renderer *r) { return &r->params; }
-const char *pt_renderer_variant(const pt_renderer *r) { return r->variant; }
+const pt_render_params *pt_renderer_params(const pt_renderer *r)
+{
+    return &r->params;
+}
+const char *pt_renderer_variant(const pt_renderer *r)
+{
+    return r->variant;
+}
 
 /* Power heuristic with beta = 2 (Veach 1997, eq. 9.13). */
 static inline float power_heuristic(float pa, float pb)
@@ -84,9 +90,9 @@ static inline pt_vec3 vert(const float *arr, uint32_t i)
 
 /* Everything the integrator needs to know about a surface point. */
 typedef struct surface {
-    pt_vec3 p;       /* world position */
-    pt_vec3 ng;      /* geometric normal from the winding (unflipped) */
-    pt_vec3 ns;      /* shading normal */
+    pt_vec3 p;  /* world position */
+    pt_vec3 ng; /* geometric normal from the winding (unflipped) */
+    pt_vec3 ns; /* shading normal */
     float uv[2];
     const pt_material *mat;
 } surface;
@@ -106,8 +112,8 @@ static inline void surface_at(const pt_scene *s, const pt_hit *hit, surface *sf,
     if ((features & PT_FEAT_TEXTURES) && s->uvs) {
         const float *t = s->uvs;
         sf->uv[0] = b0 * t[2 * tri[0]] + hit->b1 * t[2 * tri[1]] + hit->b2 * t[2 * tri[2]];
-        sf->uv[1] = b0 * t[2 * tri[0] + 1] + hit->b1 * t[2 * tri[1] + 1] +
-                    hit->b2 * t[2 * tri[2] + 1];
+        sf->uv[1] =
+            b0 * t[2 * tri[0] + 1] + hit->b1 * t[2 * tri[1] + 1] + hit->b2 * t[2 * tri[2] + 1];
     }
     sf->mat = &s->materials[s->tri_material[hit->tri]];
 }
@@ -130,8 +136,8 @@ static inline int any_positive(pt_vec3 v)
  * done once per material (pt_renderer_new) instead of at every hit. */
 static pt_bsdf material_bsdf_untextured(const pt_material *m)
 {
-    return pt_bsdf_setup(pt_v3(m->base_color[0], m->base_color[1], m->base_color[2]),
-                         m->metallic, m->roughness, m->specular,
+    return pt_bsdf_setup(pt_v3(m->base_color[0], m->base_color[1], m->base_color[2]), m->metallic,
+                         m->roughness, m->specular,
                          pt_v3(m->specular_color[0], m->specular_color[1], m->specular_color[2]));
 }
 
@@ -229,8 +235,8 @@ static inline void camera_ray(const pt_renderer *r, uint32_t px, uint32_t py, co
     float sx = (2.0f * ((float)px + u[0]) / w - 1.0f) * r->tan_half_fov * (w / h);
     float sy = (1.0f - 2.0f * ((float)py + u[1]) / h) * r->tan_half_fov;
     *o = c->position;
-    *d = pt_v3_norm(pt_v3_add(c->forward, pt_v3_add(pt_v3_scale(c->right, sx),
-                                                    pt_v3_scale(c->up, sy))));
+    *d = pt_v3_norm(
+        pt_v3_add(c->forward, pt_v3_add(pt_v3_scale(c->right, sx), pt_v3_scale(c->up, sy))));
 }
 
 /*
@@ -240,9 +246,10 @@ static inline void camera_ray(const pt_renderer *r, uint32_t px, uint32_t py, co
  * (Veach 1997, sec. 9.2). Russian roulette after rr_depth bounces keeps
  * throughput-weighted survival (survival probability max(beta), at most 0.95).
  */
-static inline __attribute__((always_inline)) pt_vec3
-li_impl(const pt_renderer *r, pixel_ctx *pc, uint32_t index, pt_render_stats *stats,
-        const uint32_t features, const pt_ray_sink *sink)
+static inline __attribute__((always_inline)) pt_vec3 li_impl(const pt_renderer *r, pixel_ctx *pc,
+                                                             uint32_t index, pt_render_stats *stats,
+                                                             const uint32_t features,
+                                                             const pt_ray_sink *sink)
 {
     const pt_scene *s = r->scene;
     float u2[2];
@@ -339,9 +346,11 @@ li_impl(const pt_renderer *r, pixel_ctx *pc, uint32_t index, pt_render_stats *st
                     if (sink && dist > 0.0f)
                         sink->ray(sink->user, from, sdir, dist, 1);
                     if (dist > 0.0f && !pt_accel_occluded(r->accel, from, sdir, dist)) {
-                        float w = (strategy == PT_LIGHT_MIS ? power_heuristic(ls.pdf, bpdf) : 1.0f) /
-                                  ls.pdf;
-                        L = pt_v3_add(L, pt_v3_mul(beta, pt_v3_scale(pt_v3_mul(f, ls.radiance), w)));
+                        float w =
+                            (strategy == PT_LIGHT_MIS ? power_heuristic(ls.pdf, bpdf) : 1.0f) /
+                            ls.pdf;
+                        L = pt_v3_add(L,
+                                      pt_v3_mul(beta, pt_v3_scale(pt_v3_mul(f, ls.radiance), w)));
                     }
                 }
             }
@@ -381,11 +390,11 @@ li_impl(const pt_renderer *r, pixel_ctx *pc, uint32_t index, pt_render_stats *st
 }
 
 #define ALL_FEATURES 0xffffffffu
-#define VARIANT(name, feat)                                                                      \
-    static pt_vec3 name(const pt_renderer *r, pixel_ctx *pc, uint32_t index,                     \
-                        pt_render_stats *stats)                                                  \
-    {                                                                                            \
-        return li_impl(r, pc, index, stats, (feat), NULL);                                       \
+#define VARIANT(name, feat)                                                                        \
+    static pt_vec3 name(const pt_renderer *r, pixel_ctx *pc, uint32_t index,                       \
+                        pt_render_stats *stats)                                                    \
+    {                                                                                              \
+        return li_impl(r, pc, index, stats, (feat), NULL);                                         \
     }
 #define NO_TEX (uint32_t)(PT_FEAT_TEXTURES | PT_FEAT_EMISSIVE_TEX)
 VARIANT(li_general, ALL_FEATURES)
@@ -480,8 +489,8 @@ pt_vec3 pt_render_sample_traced(const pt_renderer *r, uint32_t px, uint32_t py, 
     return li_impl(r, &pc, index, NULL, ALL_FEATURES, sink);
 }
 
-void pt_render_tile(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,
-                    pt_pixel_acc *out, pt_render_stats *stats)
+void pt_render_tile(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel_acc *out,
+                    pt_render_stats *stats)
 {
     pt_render_stats local = {0, 0, 0};
     uint32_t tw = tile.x1 - tile.x0;

@@ -203,29 +203,29 @@ typedef float v8f __attribute__((vector_size(32)));
 
 /* In-place steps on a v8u variable; macros, not functions, because passing a
  * 32-byte vector by value changes the ABI between the two clones. */
-#define V8_REVERSE_BITS(x)                                                                        \
-    do {                                                                                          \
-        x = ((x >> 1) & 0x55555555u) | ((x & 0x55555555u) << 1);                                  \
-        x = ((x >> 2) & 0x33333333u) | ((x & 0x33333333u) << 2);                                  \
-        x = ((x >> 4) & 0x0f0f0f0fu) | ((x & 0x0f0f0f0fu) << 4);                                  \
-        x = ((x >> 8) & 0x00ff00ffu) | ((x & 0x00ff00ffu) << 8);                                  \
-        x = (x >> 16) | (x << 16);                                                                \
+#define V8_REVERSE_BITS(x)                                                                         \
+    do {                                                                                           \
+        x = ((x >> 1) & 0x55555555u) | ((x & 0x55555555u) << 1);                                   \
+        x = ((x >> 2) & 0x33333333u) | ((x & 0x33333333u) << 2);                                   \
+        x = ((x >> 4) & 0x0f0f0f0fu) | ((x & 0x0f0f0f0fu) << 4);                                   \
+        x = ((x >> 8) & 0x00ff00ffu) | ((x & 0x00ff00ffu) << 8);                                   \
+        x = (x >> 16) | (x << 16);                                                                 \
     } while (0)
-#define V8_LK_PERMUTE(x, seed)                                                                    \
-    do {                                                                                          \
-        x += seed;                                                                                \
-        x ^= x * 0x6c50b47cu;                                                                     \
-        x ^= x * 0xb82f1e52u;                                                                     \
-        x ^= x * 0xc7afe638u;                                                                     \
-        x ^= x * 0x8d22f6e6u;                                                                     \
+#define V8_LK_PERMUTE(x, seed)                                                                     \
+    do {                                                                                           \
+        x += seed;                                                                                 \
+        x ^= x * 0x6c50b47cu;                                                                      \
+        x ^= x * 0xb82f1e52u;                                                                      \
+        x ^= x * 0xc7afe638u;                                                                      \
+        x ^= x * 0x8d22f6e6u;                                                                      \
     } while (0)
-#define V8_PASCAL_REV(y)                                                                          \
-    do {                                                                                          \
-        y ^= (y >> 1) & 0x55555555u;                                                              \
-        y ^= (y >> 2) & 0x33333333u;                                                              \
-        y ^= (y >> 4) & 0x0f0f0f0fu;                                                              \
-        y ^= (y >> 8) & 0x00ff00ffu;                                                              \
-        y ^= (y >> 16) & 0x0000ffffu;                                                             \
+#define V8_PASCAL_REV(y)                                                                           \
+    do {                                                                                           \
+        y ^= (y >> 1) & 0x55555555u;                                                               \
+        y ^= (y >> 2) & 0x33333333u;                                                               \
+        y ^= (y >> 4) & 0x0f0f0f0fu;                                                               \
+        y ^= (y >> 8) & 0x00ff00ffu;                                                               \
+        y ^= (y >> 16) & 0x0000ffffu;                                                              \
     } while (0)
 
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && defined(__linux__)
