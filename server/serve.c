@@ -451,6 +451,14 @@ static uint32_t job_workers(const server *s, const sjob *j)
     return n;
 }
 
+/* The estimated relative error of the job's image so far; -1 when unknown. */
+static double job_error(const srv_job *job)
+{
+    const pt_film *f = srv_job_film(job);
+    double e = pt_tile_rel_error(f->px, f->width, f->width, f->height);
+    return isfinite(e) ? e : -1.0;
+}
+
 static void job_info(const server *s, const sjob *j, proto_job_info *m)
 {
     uint64_t now = now_ms();
@@ -476,14 +484,14 @@ static void job_info(const server *s, const sjob *j, proto_job_info *m)
         m->passes_done = srv_job_passes_done(j->job);
         m->tiles_stopped = srv_job_tiles_stopped(j->job);
         m->workers = job_workers(s, j);
-        const pt_film *f = srv_job_film(j->job);
-        double e = pt_tile_rel_error(f->px, f->width, f->width, f->height);
-        m->error = isfinite(e) ? e : -1.0;
+        m->error = job_error(j->job);
     } else if (r->state == PROTO_JOB_DONE) {
         m->samples_done = r->samples_done;
         m->passes_done = m->passes;
+        m->error = r->error;
     } else {
         m->samples_done = r->samples_done;
+        m->error = r->samples_done ? r->error : -1.0;
     }
     m->seconds = job_seconds(j, now);
     m->rate = j->rate;
@@ -585,8 +593,10 @@ static void job_end(server *s, sjob *j, uint8_t state, const char *message)
         }
     }
     j->rec.seconds = job_seconds(j, now);
-    if (j->job)
+    if (j->job) {
         j->rec.samples_done = srv_job_samples_merged(j->job);
+        j->rec.error = job_error(j->job);
+    }
     if (state != PROTO_JOB_DONE && j->t_started)
         announce_job_end(s, j);
     j->rec.state = state;
@@ -1125,6 +1135,7 @@ static void complete_submit(server *s, conn *c, check *k)
     srv_job_rec *r = &j->rec;
     r->id = r->seq = k->job_id;
     r->state = PROTO_JOB_QUEUED;
+    r->error = -1.0;
     r->priority = m->priority;
     snprintf(r->name, sizeof r->name, "%s", m->name);
     snprintf(r->owner, sizeof r->owner, "%s", c->name);
@@ -1770,6 +1781,7 @@ static pt_status setup_single(server *s, pt_error *err)
         return st;
     j->rec.id = j->rec.seq = 1;
     j->rec.state = PROTO_JOB_QUEUED;
+    j->rec.error = -1.0;
     j->rec.params = jp;
     hex_to_bytes(j->bundle->hash, j->rec.hash, 32);
     const char *base = strrchr(cfg->scene_path, '/');

@@ -192,6 +192,7 @@ pt_status srv_state_save_queue(srv_state *st, srv_job_rec *const *recs, uint32_t
         proto_w_u64(&w, j->bundle_size);
         proto_w_u64(&w, j->samples_done);
         proto_w_f64(&w, j->seconds);
+        proto_w_f64(&w, j->error);
         proto_w_str(&w, j->message);
     }
     pt_status s = end_file(&w, path, err);
@@ -260,6 +261,7 @@ pt_status srv_state_load_queue(srv_state *st, srv_job_rec **recs, uint32_t *n, u
         j->bundle_size = proto_r_u64(&r, "bundle size");
         j->samples_done = proto_r_u64(&r, "samples done");
         j->seconds = proto_r_f64(&r, "seconds");
+        j->error = proto_r_f64(&r, "error");
         proto_r_str(&r, j->message, sizeof j->message - 1, "message");
         if (r.status == PT_OK && (j->id == 0 || j->id >= nid || j->state < PROTO_JOB_QUEUED ||
                                   j->state > PROTO_JOB_FAILED))

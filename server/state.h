@@ -47,6 +47,7 @@ typedef struct srv_job_rec {
     uint64_t bundle_size;
     uint64_t samples_done; /* set when the job ends */
     double seconds;        /* render seconds, set when the job ends */
+    double error;          /* estimated relative error when it ended; < 0 unknown */
     char message[PROTO_MAX_ERROR_TEXT + 1];
 } srv_job_rec;
 

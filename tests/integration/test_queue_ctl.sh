@@ -35,6 +35,8 @@ ctl watch "$id" 2> "$tmp/watch.log" || fail "watch exited $?"
 ctl status "$id" --json > "$tmp/status.json"
 [ "$(json "$tmp/status.json" 'd["state"]')" = done ] || fail "state: $(cat "$tmp/status.json")"
 [ "$(json "$tmp/status.json" 'd["samples_done"]')" = $((48 * 32 * 64)) ] || fail "samples: $(cat "$tmp/status.json")"
+# The final error estimate is kept with the finished job.
+[ "$(json "$tmp/status.json" '0 < d["error"] < 1')" = True ] || fail "error: $(cat "$tmp/status.json")"
 ctl fetch "$id" -o "$tmp/cornell.exr"
 "$bin/ptworker" --scene "$src/scenes/cornell_box.gltf" --res 48x32 --spp 64 --seed 7 \
   --tile 16 --chunk 8 -q -o "$tmp/cornell_ref.exr"
