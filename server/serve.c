@@ -2001,6 +2001,14 @@ int srv_serve(const srv_config *cfg)
                     conn_flush(&s, c);
             }
         }
+        /* Leases need no disk: send them before the group commit, so workers
+         * do not wait on it for their next tasks. */
+        if (s.state) {
+            hand_out(&s);
+            for (conn *c = s.conns; c; c = c->next)
+                if (c->out.len > c->out_off && !c->closing)
+                    conn_flush(&s, c);
+        }
         /* Group commit: the results logged in this round reach the disk. */
         if (s.state && srv_state_sync(s.state, &err) != PT_OK)
             logf_(&s, "error: %s", err.msg);
