@@ -43,11 +43,58 @@ uint64_t pt_film_total_samples(const pt_film *film);
 #define PT_ADAPTIVE_EPS 1e-2
 double pt_tile_rel_error(const pt_pixel_acc *px, uint32_t stride, uint32_t width, uint32_t height);
 
+/* The minimum-mean-error rule's measure of a tile: what one more sample per
+ * pixel would take off the mean squared error of its pixel means (R, G and B,
+ * absolute): the mean over its pixels of R_p / (n (n + 1)), with n the
+ * pixel's samples and R_p its error per sample, the mean squared error of its
+ * mean times n.
+ *
+ * R_p is estimated from the pixel's last chunk against the chunks before it:
+ * with m the last chunk's mean (n_l samples) and m' the mean of the samples
+ * before it (n' samples), E[(m - m')^2] = R_p (1/n_l + 1/n') when chunks err
+ * independently, so R_p = mean over R, G, B of (m - m')^2 / (1/n_l + 1/n').
+ * Not from the sum of squares: that gives the variance of one sample, the
+ * error of independent samples, while the samples of a pixel are a scrambled
+ * Sobol sequence whose mean errs less, and by how much depends on the content
+ * (on the Cornell box about 7 times less over the image, more at the light's
+ * edges; docs/bench/adaptive.md). Chunks are nets of that sequence, so their
+ * spread measures the error the sampler makes.
+ *
+ * px holds the tile's sums with its last chunk (stride in pixels), last that
+ * chunk's sums alone (last_stride). A pixel whose last chunk or earlier
+ * samples are empty makes the measure infinite. Pure and deterministic. */
+double pt_tile_gain(const pt_pixel_acc *px, uint32_t stride, const pt_pixel_acc *last,
+                    uint32_t last_stride, uint32_t width, uint32_t height);
+
+/* Adaptive sampling's settings: the two rules (0 = off) and the minimum. */
+typedef struct pt_adaptive {
+    double target_error; /* the equal-error rule (--target-error) */
+    double min_gain;     /* the minimum-mean-error rule (--min-gain) */
+    uint32_t min_spp;    /* no tile stops with fewer samples per pixel */
+} pt_adaptive;
+
 /* Adaptive sampling's decision, shared by ptserve, ptworker and ptbench: a
- * tile whose sums (as for pt_tile_rel_error) hold its first `samples` samples
- * per pixel stops when samples >= min_spp and its error is at most target.
- * target <= 0 never stops. Callers do not ask after the last chunk. */
-int pt_tile_stops(const pt_pixel_acc *px, uint32_t stride, uint32_t width, uint32_t height,
-                  uint64_t samples, uint32_t min_spp, double target);
+ * tile whose sums px (as for pt_tile_gain, with last its last chunk) hold its
+ * first `samples` samples per pixel may stop once samples >= a->min_spp, and
+ * then stops
+ *   - with target_error > 0 (the equal-error rule): when its
+ *     pt_tile_rel_error is at most target_error. Every tile ends near the same
+ *     relative error, so no region is left noisier than the target;
+ *   - with min_gain > 0 (the minimum-mean-error rule): when one more sample
+ *     per pixel would take at most min_gain off its mean squared error, its
+ *     pt_tile_gain. One sample per pixel more or less then changes the
+ *     squared error of every tile by about the same amount, the condition for
+ *     the lowest mean squared error of the image for its samples (Lagrange):
+ *     a tile gets n ~ sqrt(R / min_gain) samples, in proportion to its noise,
+ *     as in Neyman's allocation to strata (Neyman 1934; Cochran, Sampling
+ *     Techniques, 3rd ed., 1977, sec. 5.5), where the equal-error rule gives
+ *     n ~ R. It decides from the second chunk on. The cost of a sample is
+ *     not weighed: rays per sample, the deterministic proxy for it, made the
+ *     renders slower (docs/bench/adaptive.md).
+ * With both set, the tile stops when either rule says so; with neither, never.
+ * Callers do not ask after the last chunk. */
+int pt_tile_stops(const pt_pixel_acc *px, uint32_t stride, const pt_pixel_acc *last,
+                  uint32_t last_stride, uint32_t width, uint32_t height, uint64_t samples,
+                  const pt_adaptive *a);
 
 #endif

@@ -643,6 +643,8 @@ static const char *submit_problem(const proto_submit *m)
     /* Written so that NaN fails too. */
     if (!(m->target_error >= 0.0) || !isfinite(m->target_error))
         return "target error not finite and >= 0";
+    if (!(m->min_gain >= 0.0) || !isfinite(m->min_gain))
+        return "min gain not finite and >= 0";
     if (m->bundle_size == 0)
         return "bundle size is 0";
     return NULL;
@@ -669,6 +671,7 @@ pt_status proto_msg_encode_submit(proto_writer *w, const proto_submit *m, pt_err
     proto_w_u64(w, m->bundle_size);
     proto_w_bytes(w, m->bundle_hash, PROTO_HASH_SIZE);
     proto_w_str(w, m->camera);
+    proto_w_f64(w, m->min_gain);
     return w_done(w, start, "SUBMIT", err);
 }
 
@@ -688,6 +691,7 @@ pt_status proto_msg_decode_submit(const uint8_t *p, size_t len, proto_submit *ou
     m.bundle_size = proto_r_u64(&r, "bundle size");
     const uint8_t *hash = proto_r_bytes(&r, PROTO_HASH_SIZE, "bundle hash");
     proto_r_str(&r, m.camera, PROTO_MAX_NAME, "camera");
+    m.min_gain = proto_r_f64(&r, "min gain");
     pt_status st = proto_r_finish(&r, "SUBMIT", err);
     if (st != PT_OK)
         return st;

@@ -291,9 +291,12 @@ typedef struct proto_job_ref {
  *   36+a 8    u64  bundle size in bytes (> 0), sent next in UPLOAD frames
  *   44+a 32   u8[32] SHA-256 of the bundle
  *   76+a 2+c  str  camera name, c <= PROTO_MAX_NAME ("": the scene's first camera)
- *   size 78+a+c
+ *   78+a+c 8  f64  min gain for adaptive sampling, the lowest-mean-error rule
+ *                  (0: off; finite, >= 0; see pt_tile_stops)
+ *   size 86+a+c
  * The decoder checks shape only (width and height both 0 or both > 0, spp > 0,
- * size > 0, target error finite and >= 0); caps are the server's business. */
+ * size > 0, target error and min gain finite and >= 0); caps, and whether the
+ * two rules may be combined, are the server's business. */
 typedef struct proto_submit {
     char name[PROTO_MAX_NAME + 1];
     uint32_t width, height, spp, seed;
@@ -304,6 +307,7 @@ typedef struct proto_submit {
     uint64_t bundle_size;
     uint8_t bundle_hash[PROTO_HASH_SIZE];
     char camera[PROTO_MAX_NAME + 1]; /* NUL-terminated; "" the default view */
+    double min_gain;
 } proto_submit;
 
 enum {

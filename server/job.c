@@ -63,7 +63,8 @@ pt_status srv_job_new(uint64_t id, const srv_job_params *p, const uint8_t scene_
 {
     if (!p->width || !p->height || !p->spp || !p->tile || !p->chunk || p->width > 65536 ||
         p->height > 65536 || (uint64_t)p->tile * p->tile > PROTO_MAX_TILE_PIXELS ||
-        !(p->target_error >= 0.0) || !isfinite(p->target_error))
+        !(p->target_error >= 0.0) || !isfinite(p->target_error) || !(p->min_gain >= 0.0) ||
+        !isfinite(p->min_gain))
         return pt_error_set(err, PT_ERR_ARG,
                             "job: size %ux%u, %u spp, tile %u, chunk %u is not a valid job",
                             p->width, p->height, p->spp, p->tile, p->chunk);
@@ -301,10 +302,11 @@ static void merge_now(srv_job *j, uint64_t t, const pt_pixel_acc *px)
     j->merged++;
     j->next_chunk[tile] = chunk + 1;
     j->merged_in_pass[chunk]++;
+    pt_adaptive rule = {j->p.target_error, j->p.min_gain, j->p.min_spp};
+    uint32_t tw = r.x1 - r.x0;
     if (chunk + 1 < j->nchunks &&
-        pt_tile_stops(&j->film->px[(size_t)r.y0 * j->p.width + r.x0], j->p.width, r.x1 - r.x0,
-                      r.y1 - r.y0, (uint64_t)(chunk + 1) * j->p.chunk, j->p.min_spp,
-                      j->p.target_error))
+        pt_tile_stops(&j->film->px[(size_t)r.y0 * j->p.width + r.x0], j->p.width, px, tw, tw,
+                      r.y1 - r.y0, (uint64_t)(chunk + 1) * j->p.chunk, &rule))
         stop_tile(j, tile, chunk + 1);
     while (j->passes_done < j->nchunks && j->merged_in_pass[j->passes_done] == j->ntiles)
         j->passes_done++;
@@ -453,7 +455,7 @@ uint32_t srv_job_tiles(const srv_job *j) { return j->ntiles; }
 /* ---- checkpoints ---- */
 
 #define CKPT_MAGIC 0x434a5450u /* "PTJC" */
-#define CKPT_VERSION 2u
+#define CKPT_VERSION 3u
 
 static void put_acc(proto_writer *w, const pt_pixel_acc *a)
 {
@@ -486,6 +488,7 @@ static void put_params(proto_writer *w, const srv_job_params *p)
     proto_w_u32(w, p->rr_depth);
     proto_w_u32(w, p->min_spp);
     proto_w_f64(w, p->target_error);
+    proto_w_f64(w, p->min_gain);
     proto_w_str(w, p->camera);
 }
 
@@ -555,6 +558,7 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
     p.rr_depth = proto_r_u32(&r, "rr depth");
     p.min_spp = proto_r_u32(&r, "min spp");
     p.target_error = proto_r_f64(&r, "target error");
+    p.min_gain = proto_r_f64(&r, "min gain");
     p.camera[0] = '\0';
     proto_r_str(&r, p.camera, PROTO_MAX_NAME, "camera");
     uint32_t ntiles = proto_r_u32(&r, "tiles"), nchunks = proto_r_u32(&r, "chunks");
@@ -565,8 +569,8 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
         p.chunk != j->p.chunk || p.seed != j->p.seed || p.max_depth != j->p.max_depth ||
         p.rr_depth != j->p.rr_depth || p.min_spp != j->p.min_spp ||
         memcmp(&p.target_error, &j->p.target_error, sizeof p.target_error) != 0 ||
-        strcmp(p.camera, j->p.camera) != 0 ||
-        ntiles != j->ntiles || nchunks != j->nchunks)
+        memcmp(&p.min_gain, &j->p.min_gain, sizeof p.min_gain) != 0 ||
+        strcmp(p.camera, j->p.camera) != 0 || ntiles != j->ntiles || nchunks != j->nchunks)
         return pt_error_set(err, PT_ERR_FORMAT, "checkpoint is of another job or other settings "
                             "(job %llu, %ux%u, %u spp)", (unsigned long long)id, p.width,
                             p.height, p.spp);

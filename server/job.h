@@ -18,8 +18,9 @@
  * workers rendered them and in whatever order results arrived.
  *
  * Adaptive sampling: when a tile's chunk c is merged and the tile has at least
- * min_spp samples, its error (pt_tile_rel_error over the film) is compared
- * with target_error; at or below it the tile stops: its later chunks are
+ * min_spp samples, pt_tile_stops decides on the film's sums whether it stops
+ * (pt_tile_rel_error at most target_error, or pt_tile_gain at most
+ * min_gain): its later chunks are then
  * skipped (dropped if already leased or held). The decision depends only on
  * the tile's sums after chunk c, which do not depend on how the work was
  * split, so adaptive images are bit-identical across worker counts too.
@@ -43,6 +44,7 @@ typedef struct srv_job_params {
     uint32_t max_depth, rr_depth;
     double target_error; /* adaptive sampling: 0 = off, else pt_tile_rel_error target */
     uint32_t min_spp;    /* adaptive sampling: no tile stops before this many samples */
+    double min_gain;     /* adaptive sampling: 0 = off, else pt_tile_gain threshold */
     char camera[PROTO_MAX_NAME + 1]; /* the camera's name; "" the scene's default view */
 } srv_job_params;
 

@@ -92,6 +92,7 @@ enum {
     O_NAME,
     O_DEPTH,
     O_TARGET,
+    O_MINGAIN,
     O_MINSPP,
     O_WATCH,
     O_CAMERA
@@ -312,6 +313,11 @@ static const char SUBMIT_HELP[] =
     "  --max-depth D      maximum bounces (default: the server's)\n"
     "  --target-error E   adaptive sampling: a tile stops once the RMS relative error\n"
     "                     of its pixel means is <= E (e.g. 0.01); off by default\n"
+    "  --min-gain G       adaptive sampling for the lowest mean error: a tile stops\n"
+    "                     once one more sample per pixel would lower the mean squared\n"
+    "                     error of its pixels (R, G, B, absolute) by <= G; a tile\n"
+    "                     then gets samples in proportion to its noise (e.g. 1e-6;\n"
+    "                     smaller is longer); off by default; not with --target-error\n"
     "  --min-spp N        adaptive sampling: samples before a tile may stop\n"
     "                     (default: one chunk)\n"
     "  --watch            then follow the job as 'ptctl watch' does (exit status 4\n"
@@ -361,6 +367,7 @@ static int cmd_submit(int argc, char **argv, globals *g)
                                          {"name", required_argument, NULL, O_NAME},
                                          {"max-depth", required_argument, NULL, O_DEPTH},
                                          {"target-error", required_argument, NULL, O_TARGET},
+                                         {"min-gain", required_argument, NULL, O_MINGAIN},
                                          {"min-spp", required_argument, NULL, O_MINSPP},
                                          {"watch", no_argument, NULL, O_WATCH},
                                          {"camera", required_argument, NULL, O_CAMERA},
@@ -428,6 +435,14 @@ static int cmd_submit(int argc, char **argv, globals *g)
                 rc = bad_usage("submit", "--target-error: '%s' is not a number >= 0", optarg);
             break;
         }
+        case O_MINGAIN: {
+            char *end;
+            errno = 0;
+            m.min_gain = strtod(optarg, &end);
+            if (errno || end == optarg || *end || !(m.min_gain >= 0.0) || !isfinite(m.min_gain))
+                rc = bad_usage("submit", "--min-gain: '%s' is not a number >= 0", optarg);
+            break;
+        }
         case O_MINSPP:
             rc = parse_u32("submit", "--min-spp", optarg, 1, UINT32_MAX, &m.min_spp);
             break;
@@ -454,6 +469,9 @@ static int cmd_submit(int argc, char **argv, globals *g)
         return bad_usage("submit", "which scene?");
     if (argc - optind > 1)
         return bad_usage("submit", "one scene at a time ('%s' is extra)", argv[optind + 1]);
+    if (m.target_error > 0.0 && m.min_gain > 0.0)
+        return bad_usage("submit", "--target-error and --min-gain are two adaptive rules; give "
+                                   "one");
     const char *scene = argv[optind];
     m.max_depth = (uint16_t)depth;
     if (name)

@@ -7,6 +7,7 @@
  */
 #include <errno.h>
 #include <getopt.h>
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -57,6 +58,12 @@ static void usage(FILE *f)
             "  --max-depth D          maximum bounces (default 16)\n"
             "  --target-error E       adaptive sampling: a tile stops once the RMS relative\n"
             "                         error of its pixel means is <= E (e.g. 0.01); off by default\n"
+            "  --min-gain G           adaptive sampling for the lowest mean error: a tile\n"
+            "                         stops once one more sample per pixel would lower the\n"
+            "                         mean squared error of its pixels (R, G, B, absolute)\n"
+            "                         by <= G; a tile then gets samples in proportion to its\n"
+            "                         noise (e.g. 1e-6; smaller is longer); off by default;\n"
+            "                         not with --target-error\n"
             "  --min-spp N            adaptive sampling: samples before a tile may stop\n"
             "                         (default: one chunk)\n"
             "  --tile N               tile side in pixels (default 32)\n"
@@ -119,7 +126,8 @@ int main(int argc, char **argv)
     double lease = 20.0, handshake = 10.0;
     enum { O_LOCAL = 256, O_WTHREADS, O_LISTEN, O_TOKEN, O_SPP, O_RES, O_SEED, O_DEPTH,
            O_TILE, O_CHUNK, O_SAVE, O_LEASE, O_PORTFILE, O_WBIN, O_HANDSHAKE, O_TARGET, O_MINSPP,
-           O_STATE, O_OUTDIR, O_MAXRES, O_MAXPIX, O_MAXSPP, O_MAXSCENE, O_MAXQUEUED, O_CAMERA };
+           O_STATE, O_OUTDIR, O_MAXRES, O_MAXPIX, O_MAXSPP, O_MAXSCENE, O_MAXQUEUED, O_CAMERA,
+           O_MINGAIN };
     static const struct option opts[] = {
         {"output", required_argument, NULL, 'o'},
         {"local", required_argument, NULL, O_LOCAL},
@@ -138,6 +146,7 @@ int main(int argc, char **argv)
         {"port-file", required_argument, NULL, O_PORTFILE},
         {"handshake-timeout", required_argument, NULL, O_HANDSHAKE},
         {"target-error", required_argument, NULL, O_TARGET},
+        {"min-gain", required_argument, NULL, O_MINGAIN},
         {"min-spp", required_argument, NULL, O_MINSPP},
         {"worker-bin", required_argument, NULL, O_WBIN},
         {"state-dir", required_argument, NULL, O_STATE},
@@ -198,6 +207,17 @@ int main(int argc, char **argv)
             }
             break;
         }
+        case O_MINGAIN: {
+            char *end;
+            errno = 0;
+            c.job.min_gain = strtod(optarg, &end);
+            if (errno || end == optarg || *end || !(c.job.min_gain > 0.0) ||
+                !isfinite(c.job.min_gain)) {
+                fprintf(stderr, "ptserve: --min-gain: '%s' is not a positive number\n", optarg);
+                return 2;
+            }
+            break;
+        }
         case O_MINSPP: bad = parse_u32("--min-spp", optarg, 2, 1u << 24, &c.job.min_spp); break;
         case O_WBIN: c.worker_bin = optarg; break;
         case O_STATE: c.state_dir = optarg; break;
@@ -236,6 +256,11 @@ int main(int argc, char **argv)
         return 2;
     } else if (c.output_dir) {
         fprintf(stderr, "ptserve: --output-dir is for queue mode (--state-dir)\n");
+        return 2;
+    }
+    if (c.job.target_error > 0.0 && c.job.min_gain > 0.0) {
+        fprintf(stderr, "ptserve: --target-error and --min-gain are two adaptive rules; give "
+                        "one\n");
         return 2;
     }
     if (lease < 0.1) {

@@ -987,6 +987,11 @@ static void on_submit(server *s, conn *c, const proto_frame *f)
                         m.max_depth, m.min_spp);
         return;
     }
+    if (m.target_error > 0.0 && m.min_gain > 0.0) {
+        conn_send_error(s, c, PROTO_E_PROTOCOL, "target error and min gain are two adaptive "
+                        "rules; a job takes one");
+        return;
+    }
     if (owner_unfinished(s, c->name) >= cap->max_queued) {
         conn_send_error(s, c, PROTO_E_LIMIT, "%s already has %u unfinished jobs, this "
                         "server's limit", c->name, cap->max_queued);
@@ -1147,6 +1152,7 @@ static void complete_submit(server *s, conn *c, check *k)
     if (m->max_depth)
         p.max_depth = m->max_depth;
     p.target_error = m->target_error;
+    p.min_gain = m->min_gain;
     p.min_spp = m->min_spp ? m->min_spp : (p.chunk > 1 ? p.chunk : 2);
     p.width = m->width;
     p.height = m->height;

@@ -18,7 +18,7 @@
 #define QUEUE_MAGIC 0x31515450u /* "PTQ1" */
 #define CKPT_MAGIC 0x4b435450u  /* "PTCK" */
 #define LOG_MAGIC 0x4c525450u   /* "PTRL" */
-#define STATE_VERSION 2u
+#define STATE_VERSION 3u
 #define LOG_HEADER 16u
 #define MAX_QUEUE_BYTES (256u << 20)
 #define MAX_CKPT_BYTES ((size_t)8 << 30)
@@ -187,6 +187,7 @@ pt_status srv_state_save_queue(srv_state *st, srv_job_rec *const *recs, uint32_t
         proto_w_u32(&w, p->rr_depth);
         proto_w_u32(&w, p->min_spp);
         proto_w_f64(&w, p->target_error);
+        proto_w_f64(&w, p->min_gain);
         proto_w_str(&w, p->camera);
         proto_w_bytes(&w, j->hash, 32);
         proto_w_u64(&w, j->bundle_size);
@@ -254,6 +255,7 @@ pt_status srv_state_load_queue(srv_state *st, srv_job_rec **recs, uint32_t *n, u
         p->rr_depth = proto_r_u32(&r, "rr depth");
         p->min_spp = proto_r_u32(&r, "min spp");
         p->target_error = proto_r_f64(&r, "target error");
+        p->min_gain = proto_r_f64(&r, "min gain");
         proto_r_str(&r, p->camera, sizeof p->camera - 1, "camera");
         const uint8_t *h = proto_r_bytes(&r, 32, "scene hash");
         if (h)

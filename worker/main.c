@@ -10,6 +10,7 @@
 #include <errno.h>
 #include <getopt.h>
 #include <limits.h>
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -51,6 +52,12 @@ static void usage(FILE *f)
             "  --chunk N          samples per chunk (default 16)\n"
             "  --target-error E   adaptive sampling: a tile stops once the RMS relative\n"
             "                     error of its pixel means is <= E (e.g. 0.01); off by default\n"
+            "  --min-gain G       adaptive sampling for the lowest mean error: a tile stops\n"
+            "                     once one more sample per pixel would lower the mean\n"
+            "                     squared error of its pixels (R, G, B, absolute) by\n"
+            "                     <= G; a tile then gets samples in proportion to its\n"
+            "                     noise (e.g. 1e-6; smaller is longer); off by default;\n"
+            "                     not with --target-error\n"
             "  --min-spp N        adaptive sampling: samples before a tile may stop\n"
             "                     (default: one chunk)\n"
             "  -q, --quiet        no progress line\n"
@@ -146,6 +153,7 @@ int main(int argc, char **argv)
         OPT_TILE,
         OPT_CHUNK,
         OPT_TARGET,
+        OPT_MINGAIN,
         OPT_MINSPP,
         OPT_SERVER,
         OPT_PREFETCH,
@@ -166,6 +174,7 @@ int main(int argc, char **argv)
         {"tile", required_argument, NULL, OPT_TILE},
         {"chunk", required_argument, NULL, OPT_CHUNK},
         {"target-error", required_argument, NULL, OPT_TARGET},
+        {"min-gain", required_argument, NULL, OPT_MINGAIN},
         {"min-spp", required_argument, NULL, OPT_MINSPP},
         {"quiet", no_argument, NULL, 'q'},
         {"server", required_argument, NULL, OPT_SERVER},
@@ -217,6 +226,16 @@ int main(int argc, char **argv)
             if (end == optarg || *end || !(o.target_error > 0.0) || o.target_error > 1e6) {
                 fprintf(stderr, "ptworker: --target-error: '%s' is not a positive number\n",
                         optarg);
+                return 2;
+            }
+            break;
+        }
+        case OPT_MINGAIN: {
+            char *end;
+            errno = 0;
+            o.min_gain = strtod(optarg, &end);
+            if (errno || end == optarg || *end || !(o.min_gain > 0.0) || !isfinite(o.min_gain)) {
+                fprintf(stderr, "ptworker: --min-gain: '%s' is not a positive number\n", optarg);
                 return 2;
             }
             break;
@@ -303,6 +322,11 @@ int main(int argc, char **argv)
     if (!o.scene_path || !o.out_path) {
         fprintf(stderr, "ptworker: --scene and -o are required (or --server HOST:PORT)\n");
         usage(stderr);
+        return 2;
+    }
+    if (o.target_error > 0.0 && o.min_gain > 0.0) {
+        fprintf(stderr, "ptworker: --target-error and --min-gain are two adaptive rules; give "
+                        "one\n");
         return 2;
     }
     if (o.min_spp == 0)

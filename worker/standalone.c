@@ -69,8 +69,9 @@ static void *render_thread(void *p)
                 pt_pixel_acc_add(&sum[i], &chunk[i]);
             atomic_fetch_add(&j->samples_done, (uint64_t)npx * (s1 - s0));
             /* The coordinator's rule (server/job.c), on the same sums. */
-            if (s1 < j->o->spp && pt_tile_stops(sum, rc.x1 - rc.x0, rc.x1 - rc.x0, rc.y1 - rc.y0,
-                                                s1, j->o->min_spp, j->o->target_error)) {
+            pt_adaptive rule = {j->o->target_error, j->o->min_gain, j->o->min_spp};
+            uint32_t tw = rc.x1 - rc.x0;
+            if (s1 < j->o->spp && pt_tile_stops(sum, tw, chunk, tw, tw, rc.y1 - rc.y0, s1, &rule)) {
                 atomic_fetch_add(&j->samples_done, (uint64_t)npx * (j->o->spp - s1));
                 atomic_fetch_add(&j->tiles_stopped, 1);
                 break;
@@ -248,7 +249,7 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
             "(NaN/Inf)\nptworker: wrote %s and %s\n",
             o->scene_path, secs, (double)st.samples / secs, (double)st.rays / secs,
             (unsigned long long)st.rejected, o->out_path, png);
-    if (o->target_error > 0.0)
+    if (o->target_error > 0.0 || o->min_gain > 0.0)
         fprintf(stderr, "ptworker: adaptive sampling stopped %u of %u tiles early; %.2f spp on "
                 "average\n", atomic_load(&j.tiles_stopped), nt,
                 (double)st.samples / ((double)p.width * p.height));

@@ -22,6 +22,7 @@ typedef struct wrk_standalone_opts {
     uint32_t tile;          /* tile side in pixels */
     uint32_t chunk;         /* samples per chunk */
     double target_error;    /* adaptive sampling (0 = off): stop a tile at this error */
+    double min_gain;        /* adaptive sampling (0 = off): pt_tile_stops' min_gain */
     uint32_t min_spp;       /* adaptive sampling: samples before a tile may stop */
     int quiet;
 } wrk_standalone_opts;

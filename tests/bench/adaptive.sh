@@ -5,8 +5,10 @@
 #
 # For each scene: renders a converged reference with ptworker (REF_SPP samples,
 # another seed), then, REPS times and alternating so that a change of machine
-# load hits both alike, a uniform series (ptbench --spp) and an adaptive series
-# (ptbench --target-error, the rule of ptworker and ptserve) timed in-process
+# load hits all alike, a uniform series (ptbench --spp) and an adaptive series
+# per rule of RULES (ptbench --target-error, the equal-error rule; ptbench
+# --min-gain, the minimum-mean-error rule; both as ptworker and ptserve apply
+# them) timed in-process
 # (scene load and BVH build excluded). Rows are the median time over REPS; the
 # images are the same bits every repetition. Wall time and the CPU time of all
 # render threads are both recorded: on a shared machine the CPU time counts the
@@ -20,9 +22,13 @@
 #   RES         image size [256x256]       TILE     tile side [16]
 #   REF_SPP     reference spp [4096]       THREADS  render threads [2]
 #   UNIFORM     uniform spp list [16,32,64,128,256,512]
-#   TARGETS     adaptive target errors [0.3,0.2,0.14,0.1,0.07,0.05,0.035]
+#   RULES       adaptive series to run, "target" and/or "gain" [target gain]
+#   TARGETS     --target-error values [0.3,0.2,0.14,0.1,0.07,0.05,0.035]
+#   GAINS       --min-gain values, decreasing [3e-5,1e-5,3e-6,1e-6,3e-7,1e-7]
 #   MIN_SPP     adaptive --min-spp [16]    MAX_SPP  adaptive cap [2048]
-#   CHUNK       adaptive --chunk [16]
+#   CHUNK       --chunk of the target series [16]
+#   GAIN_CHUNK  --chunk of the gain series [8]: the rule decides from the
+#               second chunk on, so 8 gives it the same 16-spp minimum
 #   OUT         folder for references and CSVs [/tmp/ptfarm-adaptive]; a
 #               reference already there (same scene, size, spp) is reused.
 set -euo pipefail
@@ -40,7 +46,10 @@ TILE=${TILE:-16}
 REF_SPP=${REF_SPP:-4096}
 THREADS=${THREADS:-2}
 UNIFORM=${UNIFORM:-16,32,64,128,256,512}
+RULES=${RULES:-target gain}
 TARGETS=${TARGETS:-0.3,0.2,0.14,0.1,0.07,0.05,0.035}
+GAINS=${GAINS:-3e-5,1e-5,3e-6,1e-6,3e-7,1e-7}
+GAIN_CHUNK=${GAIN_CHUNK:-8}
 MIN_SPP=${MIN_SPP:-16}
 MAX_SPP=${MAX_SPP:-2048}
 CHUNK=${CHUNK:-16}
@@ -121,7 +130,8 @@ cp "$BIN/ptbench" "$BIN/ptworker" "$OUT/bin/"
 BIN=$OUT/bin
 
 echo "adaptive.sh: $RES, tile $TILE, $THREADS threads, reference $REF_SPP spp (seed 1), $REPS reps"
-echo "adaptive.sh: uniform spp $UNIFORM; adaptive targets $TARGETS, min spp $MIN_SPP, chunk $CHUNK, cap $MAX_SPP"
+echo "adaptive.sh: uniform spp $UNIFORM; rules $RULES; min spp $MIN_SPP, cap $MAX_SPP"
+echo "adaptive.sh: target errors $TARGETS (chunk $CHUNK); min gains $GAINS (chunk $GAIN_CHUNK)"
 for scene in $SCENES; do
     name=$(basename "$scene")
     name=${name%.*}
@@ -133,22 +143,33 @@ for scene in $SCENES; do
         [[ -f $ref ]] || { echo "adaptive.sh: no reference for $scene" >&2; exit 1; }
     fi
     common=("$scene" --reference "$ref" --threads "$THREADS" --tile "$TILE")
-    rm -f "$OUT/$name"-uniform-*.csv "$OUT/$name"-adaptive-*.csv
+    rm -f "$OUT/$name"-uniform-*.csv "$OUT/$name"-target-*.csv "$OUT/$name"-gain-*.csv
     for ((k = 1; k <= REPS; k++)); do
         echo "== $name: repetition $k of $REPS"
         "$BIN/ptbench" "${common[@]}" --spp "$UNIFORM" --label uniform \
             --csv "$OUT/$name-uniform-$k.csv" | tail -n +4
-        "$BIN/ptbench" "${common[@]}" --target-error "$TARGETS" --min-spp "$MIN_SPP" \
-            --max-spp "$MAX_SPP" --chunk "$CHUNK" --label adaptive \
-            --csv "$OUT/$name-adaptive-$k.csv" | tail -n +5
+        for rule in $RULES; do
+            case $rule in
+            target) args=(--target-error "$TARGETS" --chunk "$CHUNK") ;;
+            gain) args=(--min-gain "$GAINS" --chunk "$GAIN_CHUNK") ;;
+            *) echo "adaptive.sh: unknown rule '$rule' in RULES" >&2; exit 2 ;;
+            esac
+            "$BIN/ptbench" "${common[@]}" "${args[@]}" --min-spp "$MIN_SPP" \
+                --max-spp "$MAX_SPP" --label "$rule" --csv "$OUT/$name-$rule-$k.csv" | tail -n +5
+        done
     done
     median_rows spp "$OUT/$name"-uniform-*.csv >"$OUT/$name-uniform.txt"
-    median_rows target_error "$OUT/$name"-adaptive-*.csv >"$OUT/$name-adaptive.txt"
-    echo "== $name: medians over $REPS reps (spp|target, wall s, RMSE, relMSE, mean spp, CPU s)"
+    echo "== $name: medians over $REPS reps (spp|target|gain, wall s, RMSE, relMSE, mean spp, CPU s)"
     sed 's/^/uniform  /' "$OUT/$name-uniform.txt"
-    sed 's/^/adaptive /' "$OUT/$name-adaptive.txt"
-    echo "== $name: time to equal RMSE"
-    compare 3 "$OUT/$name-uniform.txt" "$OUT/$name-adaptive.txt"
-    echo "== $name: time to equal relMSE"
-    compare 4 "$OUT/$name-uniform.txt" "$OUT/$name-adaptive.txt"
+    for rule in $RULES; do
+        key=$([[ $rule == target ]] && echo target_error || echo min_gain)
+        median_rows "$key" "$OUT/$name-$rule"-*.csv >"$OUT/$name-$rule.txt"
+        sed "s/^/$rule /" "$OUT/$name-$rule.txt"
+    done
+    for rule in $RULES; do
+        echo "== $name, $rule rule: time to equal RMSE"
+        compare 3 "$OUT/$name-uniform.txt" "$OUT/$name-$rule.txt"
+        echo "== $name, $rule rule: time to equal relMSE"
+        compare 4 "$OUT/$name-uniform.txt" "$OUT/$name-$rule.txt"
+    done
 done

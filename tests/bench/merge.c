@@ -56,7 +56,7 @@ int main(int argc, char **argv)
     }
     if (reps < 1 || reps > 99)
         reps = 5;
-    srv_job_params p = {w, h, 2 * chunk, tile, chunk, 1, 16, 3, 0.0, 0, ""};
+    srv_job_params p = {w, h, 2 * chunk, tile, chunk, 1, 16, 3, 0.0, 0, 0.0, ""};
     uint8_t hash[32] = {0};
     double rates[99], mbs[99];
     size_t total_bytes = 0;

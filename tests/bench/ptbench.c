@@ -4,8 +4,8 @@
  *   ptbench SCENE (--reference REF.exr | --constant V) [--spp LIST | --time LIST]
  *           [--res WxH] [--threads T] [--seed S] [--max-depth D] [--reps R]
  *           [--label NAME] [--csv OUT.csv] [--plot OUT.png] [--plot-series IN.csv]...
- *   ptbench SCENE --reference REF.exr --target-error LIST [--min-spp M] [--max-spp N]
- *           [--chunk C] [--tile T] [other options as above]
+ *   ptbench SCENE --reference REF.exr (--target-error LIST | --min-gain LIST)
+ *           [--min-spp M] [--max-spp N] [--chunk C] [--tile T] [other options as above]
  *   ptbench error IMAGE.exr (REFERENCE.exr | --constant V)
  *   ptbench plot OUT.png IN.csv...
  *   ptbench gain REFERENCE.exr [TILE]
@@ -30,7 +30,9 @@
  * tile is rendered in chunks of C samples and stops, as ptworker and ptserve
  * stop it (pt_tile_stops, common/film.h), once it has M samples and its
  * pt_tile_rel_error is at most the target, else at N samples; the spp column
- * is then the mean over pixels.
+ * is then the mean over pixels. --min-gain does the same with the
+ * minimum-mean-error rule: a tile stops once its pt_tile_gain is at most the
+ * row's value.
  * `gain` bounds what any adaptive sampler could win: from a converged
  * reference's samples and variance channels (luminance) it takes each pixel's
  * variance per sample s_i^2 and prints, for RMSE and for relMSE, how many times
@@ -90,8 +92,8 @@ typedef struct pass {
     pt_film *film;
     const pt_rect *tiles;
     uint32_t num_tiles, s0, s1;
-    double target;           /* > 0: adaptive, s1 is the cap */
-    uint32_t chunk, min_spp; /* adaptive: samples per chunk, before a tile may stop */
+    pt_adaptive rule; /* a rule on: adaptive (pt_tile_stops), s1 is the cap */
+    uint32_t chunk;   /* adaptive: samples per chunk */
     atomic_uint next;
     pt_pixel_acc *scratch[MAX_THREADS]; /* tile*tile each, allocated once */
     pt_pixel_acc *sum[MAX_THREADS];     /* adaptive: the tile's sums so far */
@@ -112,7 +114,7 @@ static void *pass_thread(void *p)
         if (t >= ps->num_tiles)
             break;
         pt_rect rc = ps->tiles[t];
-        if (!(ps->target > 0.0)) {
+        if (!(ps->rule.target_error > 0.0) && !(ps->rule.min_gain > 0.0)) {
             pt_render_tile(ps->r, rc, ps->s0, ps->s1, ps->scratch[a->id], &ps->stats[a->id]);
             /* Tiles are disjoint: threads add to the film without a lock. */
             pt_film_add_tile(ps->film, rc, ps->scratch[a->id]);
@@ -127,7 +129,8 @@ static void *pass_thread(void *p)
             pt_render_tile(ps->r, rc, s0, s1, ps->scratch[a->id], &ps->stats[a->id]);
             for (uint32_t i = 0; i < npx; i++)
                 pt_pixel_acc_add(&sum[i], &ps->scratch[a->id][i]);
-            if (s1 < ps->s1 && pt_tile_stops(sum, w, w, rc.y1 - rc.y0, s1, ps->min_spp, ps->target))
+            if (s1 < ps->s1 &&
+                pt_tile_stops(sum, w, ps->scratch[a->id], w, w, rc.y1 - rc.y0, s1, &ps->rule))
                 break;
         }
         pt_film_add_tile(ps->film, rc, sum);
@@ -181,6 +184,7 @@ typedef struct row {
     double mean_spp; /* samples / pixels */
     double cpu;      /* CPU seconds of all threads (median) */
     double target;   /* adaptive: the target error, else 0 */
+    double min_gain; /* adaptive: the minimum gain, else 0 */
     double seconds;
     pt_render_stats st;
     pt_metrics m;
@@ -212,6 +216,8 @@ static void print_row(const row *r)
 {
     if (r->target > 0.0)
         printf("adaptive %g: ", r->target);
+    if (r->min_gain > 0.0)
+        printf("min gain %g: ", r->min_gain);
     printf("%8.2f %10.4f %11.4g %11.4g %11.4e %11.4e %11.4g %9.5f %9.4f\n", r->mean_spp, r->seconds,
            (double)r->st.samples / r->seconds, (double)r->st.rays / r->seconds, r->m.rmse,
            r->m.rel_mse, efficiency(r), (r->m.mean[0] + r->m.mean[1] + r->m.mean[2]) / 3.0, r->cpu);
@@ -241,16 +247,18 @@ static int write_csv(const char *path, const char *label, const char *scene, uin
     }
     fprintf(f,
             "label,scene,width,height,threads,seed,spp,seconds,samples_per_s,rays_per_s,"
-            "rmse,relmse,efficiency,mean,nonfinite,rejected,target_error,mean_spp,cpu_seconds\n");
+            "rmse,relmse,efficiency,mean,nonfinite,rejected,target_error,mean_spp,cpu_seconds,"
+            "min_gain\n");
     for (int i = 0; i < n; i++) {
         const row *r = &rows[i];
         fprintf(
-            f, "%s,%s,%u,%u,%d,%u,%u,%.6g,%.6g,%.6g,%.6e,%.6e,%.6g,%.6g,%llu,%llu,%.6g,%.6g,%.6g\n",
+            f,
+            "%s,%s,%u,%u,%d,%u,%u,%.6g,%.6g,%.6g,%.6e,%.6e,%.6g,%.6g,%llu,%llu,%.6g,%.6g,%.6g,%.6g\n",
             label, scene, w, h, threads, seed, r->spp, r->seconds,
             (double)r->st.samples / r->seconds, (double)r->st.rays / r->seconds, r->m.rmse,
             r->m.rel_mse, efficiency(r), (r->m.mean[0] + r->m.mean[1] + r->m.mean[2]) / 3.0,
             (unsigned long long)r->m.nonfinite, (unsigned long long)r->st.rejected, r->target,
-            r->mean_spp, r->cpu);
+            r->mean_spp, r->cpu, r->min_gain);
     }
     if (fclose(f) != 0) {
         fprintf(stderr, "ptbench: %s: %s\n", path, strerror(errno));
@@ -335,6 +343,8 @@ static void usage(FILE *f)
                "  --plot OUT.png      log-log plot of RMSE against seconds\n"
                "  --plot-series F.csv add an earlier run's CSV to the plot (repeatable)\n"
                "  --target-error LIST adaptive rows instead: one render to each target error\n"
+               "  --min-gain LIST     adaptive rows with the minimum-mean-error rule: one\n"
+               "                      render to each min gain (ptworker --min-gain)\n"
                "  --min-spp M         adaptive: samples before a tile may stop (default: chunk)\n"
                "  --max-spp N         adaptive: samples at most (default 1024)\n"
                "  --chunk C           adaptive: samples between decisions (default 16)\n"
@@ -478,7 +488,7 @@ typedef struct opts {
     int has_constant;
     double constant;
     double list[MAX_ROWS];
-    int n, time_mode, adaptive;
+    int n, time_mode, adaptive; /* adaptive: 1 --target-error, 2 --min-gain */
     uint32_t w, h, seed, max_depth, reps;
     uint32_t min_spp, max_spp, chunk, tile;
     int threads;
@@ -515,9 +525,10 @@ static int parse_opts(int argc, char **argv, opts *o)
         } else if (!strcmp(a, "--constant")) {
             o->has_constant = 1;
             bad = parse_double(v, &o->constant);
-        } else if (!strcmp(a, "--spp") || !strcmp(a, "--time") || !strcmp(a, "--target-error")) {
+        } else if (!strcmp(a, "--spp") || !strcmp(a, "--time") || !strcmp(a, "--target-error") ||
+                   !strcmp(a, "--min-gain")) {
             o->time_mode = !strcmp(a, "--time");
-            o->adaptive = !strcmp(a, "--target-error");
+            o->adaptive = !strcmp(a, "--target-error") ? 1 : !strcmp(a, "--min-gain") ? 2 : 0;
             o->n = parse_list(v, o->time_mode || o->adaptive, o->list);
             bad = o->n <= 0;
         } else if (!strcmp(a, "--res")) {
@@ -603,7 +614,7 @@ static int bench_spp(pass *ps, const opts *o, uint32_t spp, row *out)
         cpu[k] = cpu_now() - c0;
     }
     out->spp = spp;
-    out->target = 0.0;
+    out->target = out->min_gain = 0.0;
     out->seconds = median(secs, o->reps);
     out->cpu = median(cpu, o->reps);
     out->st = total_stats(ps, o->threads);
@@ -634,21 +645,21 @@ static int bench_time_once(pass *ps, const opts *o, double budget, row *out)
         el = now() - t0;
     }
     out->spp = s;
-    out->target = 0.0;
+    out->target = out->min_gain = 0.0;
     out->seconds = el;
     out->cpu = cpu_now() - c0;
     out->st = total_stats(ps, o->threads);
     return 0;
 }
 
-/* One --target-error row: R timed adaptive renders (each the same bits); the
- * median time. */
-static int bench_adaptive(pass *ps, const opts *o, double target, row *out)
+/* One --target-error or --min-gain row (value): R timed adaptive renders (each
+ * the same bits); the median time. */
+static int bench_adaptive(pass *ps, const opts *o, double value, row *out)
 {
     double secs[MAX_REPS], cpu[MAX_REPS];
-    ps->target = target;
+    double target = o->adaptive == 1 ? value : 0.0, min_gain = o->adaptive == 2 ? value : 0.0;
+    ps->rule = (pt_adaptive){target, min_gain, o->min_spp};
     ps->chunk = o->chunk;
-    ps->min_spp = o->min_spp;
     for (uint32_t k = 0; k < o->reps; k++) {
         reset(ps, o->threads);
         double t0 = now(), c0 = cpu_now();
@@ -656,13 +667,14 @@ static int bench_adaptive(pass *ps, const opts *o, double target, row *out)
         secs[k] = now() - t0;
         cpu[k] = cpu_now() - c0;
         if (bad) {
-            ps->target = 0.0;
+            ps->rule = (pt_adaptive){0.0, 0.0, 0};
             return -1;
         }
     }
-    ps->target = 0.0;
+    ps->rule = (pt_adaptive){0.0, 0.0, 0};
     out->spp = o->max_spp;
     out->target = target;
+    out->min_gain = min_gain;
     out->seconds = median(secs, o->reps);
     out->cpu = median(cpu, o->reps);
     out->st = total_stats(ps, o->threads);

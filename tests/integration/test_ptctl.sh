@@ -55,7 +55,7 @@ for args in "--help" "-h" "help"; do
 done
 run 0 submit --help &&
   has "$tmp/out" "ptctl submit SCENE" --spp --res --seed --priority --name --max-depth \
-    --target-error --min-spp --watch "${globals[@]}" "${statuses[@]}"
+    --target-error --min-gain --min-spp --watch "${globals[@]}" "${statuses[@]}"
 run 0 list --help && has "$tmp/out" "ptctl list" --json "${globals[@]}" "${statuses[@]}"
 run 0 status --help && has "$tmp/out" "ptctl status JOB" --json "${globals[@]}" "${statuses[@]}"
 run 0 watch --help && has "$tmp/out" "ptctl watch JOB" "${globals[@]}" "${statuses[@]}"
@@ -108,6 +108,10 @@ usage_case "--priority" submit a.gltf --priority high
 usage_case "--max-depth" submit a.gltf --max-depth 70000
 usage_case "--target-error" submit a.gltf --target-error -0.1
 usage_case "--target-error" submit a.gltf --target-error nan
+usage_case "--min-gain" submit a.gltf --min-gain -1e-6
+usage_case "--min-gain" submit a.gltf --min-gain inf
+usage_case "--min-gain" submit a.gltf --min-gain 1e-6x
+usage_case "two adaptive rules" submit a.gltf --target-error 0.05 --min-gain 1e-6
 usage_case "--min-spp" submit a.gltf --min-spp x
 usage_case "--name" submit a.gltf --name "$(printf 'n%.0s' {1..65})"
 usage_case "--timeout" --timeout 0 list

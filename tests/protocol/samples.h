@@ -112,6 +112,7 @@ static inline proto_submit sample_submit(int v)
     m.bundle_size = v ? UINT64_MAX : 123456;
     sample_hash(m.bundle_hash, 3u + (unsigned)v);
     strcpy(m.camera, v ? "" : "close-up");
+    m.min_gain = v ? 2.5e-7 : 0.0;
     return m;
 }
 

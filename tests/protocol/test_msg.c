@@ -258,12 +258,13 @@ static void check_round_trip(int s, int v, const uint8_t *p, size_t len)
     case 12: {
         proto_submit a = sample_submit(v), b;
         CHECK(proto_msg_decode_submit(p, len, &b, &err) == PT_OK);
-        CHECK(len == 78 + strlen(a.name) + strlen(a.camera));
+        CHECK(len == 86 + strlen(a.name) + strlen(a.camera));
         CHECK(strcmp(a.camera, b.camera) == 0);
         CHECK(strcmp(a.name, b.name) == 0 && a.width == b.width && a.height == b.height);
         CHECK(a.spp == b.spp && a.seed == b.seed && a.priority == b.priority);
         CHECK(a.max_depth == b.max_depth && a.min_spp == b.min_spp);
         CHECK(proto_f64_bits(a.target_error) == proto_f64_bits(b.target_error));
+        CHECK(proto_f64_bits(a.min_gain) == proto_f64_bits(b.min_gain));
         CHECK(a.bundle_size == b.bundle_size && memcmp(a.bundle_hash, b.bundle_hash, 32) == 0);
         break;
     }
@@ -775,6 +776,7 @@ static pt_status submit_check(const proto_submit *m, const char *want)
     proto_w_bytes(&w, m->bundle_hash, 32);
     proto_w_u16(&w, (uint16_t)strlen(m->camera));
     proto_w_bytes(&w, m->camera, strlen(m->camera));
+    proto_w_f64(&w, m->min_gain);
     pt_error err = {0};
     pt_status st = decode_any(PROTO_MSG_SUBMIT, w.buf, w.len, &err);
     if (st != PT_OK && want && !strstr(err.msg, want)) {
@@ -821,6 +823,15 @@ static void test_submit(void)
         CHECKF(submit_check(&m, "target error") == PT_ERR_PROTO, "error bits %016llx",
                (unsigned long long)bad_errors[i]);
     }
+    for (size_t i = 0; i < sizeof bad_errors / sizeof bad_errors[0]; i++) {
+        m = sample_submit(1);
+        m.min_gain = proto_bits_f64(bad_errors[i]);
+        CHECKF(submit_check(&m, "min gain") == PT_ERR_PROTO, "gain bits %016llx",
+               (unsigned long long)bad_errors[i]);
+    }
+    m = sample_submit(1);
+    m.min_gain = 1e308;
+    CHECK(submit_check(&m, NULL) == PT_OK);
     m = sample_submit(0);
     m.target_error = -0.0; /* compares equal to 0: off */
     CHECK(submit_check(&m, NULL) == PT_OK);

@@ -75,6 +75,32 @@ static void bit_identity(void)
     printf("adaptive: %d pixels stopped early, %d at the full count\n", fewer, full);
     CHECK(fewer > 0);
     pt_image_free(ad);
+
+    /* The minimum-mean-error rule: the same, with counts spread over the tiles. */
+    const char *mg_solo[] = {PT_BIN_DIR "/ptworker", "--scene", SCENE, COMMON, "--spp", "256",
+                             "--min-gain", "1e-6", "-o", path("mg_ref.exr"), "-q", NULL};
+    CHECK(run(mg_solo, "mg_ref.log", 120) == 0);
+    const char *mg_farm[] = {PT_BIN_DIR "/ptserve", "--local", "3", "--worker-threads", "1", COMMON,
+                             "--spp", "256", "--min-gain", "1e-6", "-o", path("mg3.exr"), SCENE,
+                             NULL};
+    CHECK(run(mg_farm, "mg3.log", 120) == 0);
+    CHECKF(same_pixels("mg_ref.exr", "mg3.exr"), "--min-gain --local 3 differs from standalone");
+    CHECKF(!same_pixels("mg_ref.exr", "ad_ref.exr"), "--min-gain renders as --target-error");
+    pt_image *mg = load_exr("mg3.exr");
+    float counts[8];
+    int ncounts = 0;
+    full = 0;
+    for (uint32_t i = 0; mg && i < mg->width * mg->height; i++) {
+        full += mg->samples[i] == 256.0f;
+        int seen = 0;
+        for (int k = 0; k < ncounts; k++)
+            seen |= counts[k] == mg->samples[i];
+        if (!seen && ncounts < 8)
+            counts[ncounts++] = mg->samples[i];
+    }
+    printf("min gain: %d distinct counts, %d pixels at the full count\n", ncounts, full);
+    CHECK(ncounts >= 3 && full > 0 && full < (int)(48 * 32));
+    pt_image_free(mg);
 }
 
 /* ---- 2. chaos ----------------------------------------------------------------------- */

@@ -36,7 +36,7 @@ static void fake_result(const proto_task *t, pt_pixel_acc *px, proto_result *r)
 
 static srv_job *make(uint32_t w, uint32_t h, uint32_t spp, uint32_t tile, uint32_t chunk)
 {
-    srv_job_params p = {w, h, spp, tile, chunk, 5, 16, 3, 0.0, 0, ""};
+    srv_job_params p = {w, h, spp, tile, chunk, 5, 16, 3, 0.0, 0, 0.0, ""};
     srv_job *j = NULL;
     pt_error err = {0};
     CHECKF(srv_job_new(9, &p, HASH, &j, &err) == PT_OK, "%s", err.msg);
@@ -178,7 +178,7 @@ static void bit_identical(void)
  * leased or held are dropped harmlessly. */
 static void adaptive(void)
 {
-    srv_job_params p = {64, 32, 64, 32, 8, 1, 16, 3, 0.01, 16, ""};
+    srv_job_params p = {64, 32, 64, 32, 8, 1, 16, 3, 0.01, 16, 0.0, ""};
     srv_job *j = NULL;
     CHECK(srv_job_new(2, &p, HASH, &j, NULL) == PT_OK);
     if (!j)
@@ -219,16 +219,94 @@ static void adaptive(void)
     srv_job_free(j);
 }
 
+/* Pixels for the min-gain test: tile 0 constant (each chunk agrees with the
+ * past: nothing to gain), tile 1 alternating 0 and 1 chunk by chunk (a chunk
+ * always differs from the past by about 0.5). */
+static void gain_pixels(const proto_task *t, pt_pixel_acc *px, proto_result *r)
+{
+    uint32_t ns = t->s1 - t->s0, chunk = t->s0 / 8;
+    for (uint32_t i = 0; i < 32 * 32; i++) {
+        double v = t->tile.x0 == 0 ? 0.5 : (double)(chunk % 2);
+        px[i] = (pt_pixel_acc){{v * ns, v * ns, v * ns}, v * v * ns, ns, 0};
+    }
+    *r = (proto_result){t->job_id, t->task_id, t->tile, t->s0, t->s1, 0, 0, 32 * 32, px, 0};
+}
+
+/* The minimum-mean-error rule in the coordinator: the quiet tile stops at the
+ * second chunk (the first the rule can judge), the noisy one runs to the end;
+ * a checkpoint taken midway resumes to the same bits, and refuses a job with
+ * another min gain. */
+static void adaptive_min_gain(void)
+{
+    srv_job_params p = {64, 32, 64, 32, 8, 1, 16, 3, 0.0, 8, 1e-5, ""};
+    srv_job *a = NULL, *b = NULL, *c = NULL, *d = NULL;
+    CHECK(srv_job_new(3, &p, HASH, &a, NULL) == PT_OK);
+    CHECK(srv_job_new(3, &p, HASH, &b, NULL) == PT_OK);
+    if (!a || !b)
+        goto done;
+    static pt_pixel_acc px[32 * 32];
+    proto_task t;
+    proto_result r;
+    while (srv_job_lease(a, 1, 0, 1000, &t)) {
+        gain_pixels(&t, px, &r);
+        CHECK(srv_job_result(a, 1, &r, NULL) == SRV_MERGED);
+    }
+    CHECK(srv_job_complete(a));
+    CHECK(srv_job_tiles_stopped(a) == 1);
+    const pt_film *f = srv_job_film(a);
+    CHECK(f->px[0].n == 16 && f->px[32].n == 64);
+
+    /* The same job, saved after 5 results and resumed in another. */
+    proto_task tasks[16];
+    int n = 0;
+    while (n < 16 && srv_job_lease(b, 1, 0, 1000, &tasks[n]))
+        n++;
+    for (int k = 0; k < 5 && k < n; k++) { /* the 5th is of tile 0, stopped by then */
+        gain_pixels(&tasks[k], px, &r);
+        CHECK(srv_job_result(b, 1, &r, NULL) == (k < 4 ? SRV_MERGED : SRV_DUPLICATE));
+    }
+    proto_writer w;
+    proto_writer_init(&w, 1u << 20);
+    CHECK(srv_job_save(b, &w, NULL) == PT_OK);
+    CHECK(srv_job_new(3, &p, HASH, &c, NULL) == PT_OK);
+    CHECK(c && srv_job_load(c, w.buf, w.len, NULL) == PT_OK);
+    for (int k = 5; c && k < n; k++) {
+        gain_pixels(&tasks[k], px, &r);
+        srv_outcome o = srv_job_replay(c, &r, NULL);
+        CHECK(o == SRV_MERGED || o == SRV_DUPLICATE);
+    }
+    CHECK(c && srv_job_complete(c));
+    const pt_film *g = c ? srv_job_film(c) : NULL;
+    CHECK(g && memcmp(f->px, g->px, 64 * 32 * sizeof *f->px) == 0);
+    srv_job_params q = p;
+    q.min_gain = 2e-5;
+    pt_error err = {0};
+    CHECK(srv_job_new(3, &q, HASH, &d, NULL) == PT_OK);
+    CHECK(d && srv_job_load(d, w.buf, w.len, &err) == PT_ERR_FORMAT);
+    proto_writer_fini(&w);
+done:
+    srv_job_free(a);
+    srv_job_free(b);
+    srv_job_free(c);
+    srv_job_free(d);
+}
+
 static void bad_params(void)
 {
-    srv_job_params p = {0, 10, 4, 16, 4, 0, 4, 3, 0.0, 0, ""};
+    srv_job_params p = {0, 10, 4, 16, 4, 0, 4, 3, 0.0, 0, 0.0, ""};
     srv_job *j = NULL;
     pt_error err = {0};
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
     p.width = 10;
     p.tile = 1000;
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
-    p = (srv_job_params){16384, 16384, 1u << 24, 16, 1, 0, 4, 3, 0.0, 0, ""};
+    p = (srv_job_params){16, 16, 4, 16, 4, 0, 4, 3, 0.0, 0, NAN, ""};
+    CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
+    p.min_gain = -1e-6;
+    CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
+    p.min_gain = INFINITY;
+    CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
+    p = (srv_job_params){16384, 16384, 1u << 24, 16, 1, 0, 4, 3, 0.0, 0, 0.0, ""};
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_LIMIT);
     CHECK(j == NULL);
 }
@@ -240,6 +318,7 @@ int main(void)
     leases();
     bit_identical();
     adaptive();
+    adaptive_min_gain();
     bad_params();
     CHECK(pt_alloc_live() == live);
     return check_report();

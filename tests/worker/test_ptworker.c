@@ -75,6 +75,12 @@ int main(void)
     CHECK(run("--scene x.gltf -o y.exr --spp 0") == 2 && stderr_has("--spp"));
     CHECK(run("--scene x.gltf -o y.exr --res 12by4") == 2 && stderr_has("--res"));
     CHECK(run("--scene x.gltf -o y.exr --bogus") == 2);
+    CHECK(run("--scene x.gltf -o y.exr --min-gain 0") == 2 && stderr_has("--min-gain"));
+    CHECK(run("--scene x.gltf -o y.exr --min-gain nan") == 2 && stderr_has("--min-gain"));
+    CHECK(run("--scene x.gltf -o y.exr --min-gain 1e-999") == 2 && stderr_has("--min-gain"));
+    CHECK(run("--scene x.gltf -o y.exr --target-error 0.1 --min-gain 1e-6") == 2 &&
+          stderr_has("two adaptive rules"));
+    CHECK(run("--server 127.0.0.1:1 --min-gain 1e-6") == 2 && stderr_has("standalone option"));
 
     snprintf(args, sizeof args, "--scene %s/missing.gltf -o %s/m.exr", tmpdir, tmpdir);
     CHECK(run(args) == 1 && stderr_has("missing.gltf"));
