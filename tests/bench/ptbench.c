@@ -8,7 +8,7 @@
  *           [--min-spp M] [--max-spp N] [--chunk C] [--tile T] [other options as above]
  *   ptbench error IMAGE.exr (REFERENCE.exr | --constant V)
  *   ptbench plot OUT.png IN.csv...
- *   ptbench gain REFERENCE.exr [TILE]
+ *   ptbench gain REFERENCE.exr [TILE [IMAGE.exr]]
  *
  * For each sample count of --spp (default 1,2,4,...,256) the whole image is
  * rendered in this process with T threads pulling 16x16 tiles, each tile
@@ -39,7 +39,12 @@
  * fewer samples than uniform the best allocation would need for the same error
  * when it may choose the count of every pixel (n_i proportional to s_i) or only
  * of every TILE x TILE tile, and the share of uniform sampling's squared error
- * held by the worst 5 % of tiles. Equal cost per sample is assumed.
+ * held by the worst 5 % of tiles. Equal cost per sample is assumed. That
+ * variance is the error of independent samples; the sampler's scrambled Sobol
+ * samples err less, and unevenly, so with IMAGE (a uniform render of the same
+ * size with another seed) the bound per tile is also taken from IMAGE's
+ * measured squared error (R, G, B, as the metrics count it), assuming that
+ * each tile's error falls as 1/n.
  * `error` scores an existing EXR (from any renderer) the same way; `plot`
  * draws the CSVs of earlier runs, one series per label.
  */
@@ -330,7 +335,7 @@ static void usage(FILE *f)
     fprintf(f, "usage: ptbench SCENE (--reference REF.exr | --constant V) [options]\n"
                "       ptbench error IMAGE.exr (REFERENCE.exr | --constant V)\n"
                "       ptbench plot OUT.png IN.csv...\n"
-               "       ptbench gain REFERENCE.exr [TILE]\n"
+               "       ptbench gain REFERENCE.exr [TILE [IMAGE.exr]]\n"
                "  --spp LIST          sample counts per pixel (default 1,2,4,8,16,32,64,128,256)\n"
                "  --time LIST         time budgets in seconds instead: spp reached in each\n"
                "  --res WxH           image size (default: the reference's, else 128 wide)\n"
@@ -399,14 +404,22 @@ static int cmp_double_desc(const void *a, const void *b)
 static int cmd_gain(int argc, char **argv)
 {
     uint32_t ts = 16;
-    if ((argc != 3 && argc != 4) || (argc == 4 && parse_u32(argv[3], 1, MAX_TILE, &ts) != 0)) {
+    if (argc < 3 || argc > 5 || (argc >= 4 && parse_u32(argv[3], 1, MAX_TILE, &ts) != 0)) {
         usage(stderr);
         return 2;
     }
     pt_error err = {0};
-    pt_image *img = NULL;
-    if (pt_exr_read(argv[2], &img, NULL, &err) != PT_OK) {
+    pt_image *img = NULL, *meas = NULL;
+    if (pt_exr_read(argv[2], &img, NULL, &err) != PT_OK ||
+        (argc == 5 && pt_exr_read(argv[4], &meas, NULL, &err) != PT_OK)) {
         fprintf(stderr, "ptbench: %s\n", err.msg);
+        pt_image_free(img);
+        return 1;
+    }
+    if (meas && (meas->width != img->width || meas->height != img->height)) {
+        fprintf(stderr, "ptbench: %s and %s differ in size\n", argv[2], argv[4]);
+        pt_image_free(meas);
+        pt_image_free(img);
         return 1;
     }
     uint32_t w = img->width, h = img->height, tx = (w + ts - 1) / ts, ty = (h + ts - 1) / ts;
@@ -455,7 +468,34 @@ static int cmd_gain(int argc, char **argv)
                t_sqrt > 0 ? p * t_sum / (t_sqrt * t_sqrt) : 1.0,
                t_sum > 0 ? 100.0 * top / t_sum : 0.0);
     }
+    if (meas)
+        printf("from the measured error of %s (per tile, falling as 1/n):\n", argv[4]);
+    for (int rel = 0; meas && rel < 2; rel++) {
+        double t_sum = 0, t_sqrt = 0;
+        for (uint32_t y0 = 0; y0 < h; y0 += ts)
+            for (uint32_t x0 = 0; x0 < w; x0 += ts) {
+                double s = 0;
+                uint32_t m = 0;
+                for (uint32_t y = y0; y < y0 + ts && y < h; y++)
+                    for (uint32_t x = x0; x < x0 + ts && x < w; x++, m++) {
+                        size_t i = (size_t)y * w + x;
+                        const float *a[3] = {meas->r, meas->g, meas->b};
+                        const float *b[3] = {img->r, img->g, img->b};
+                        for (int c = 0; c < 3; c++) {
+                            double d = (double)a[c][i] - b[c][i], ref = b[c][i];
+                            double v = d * d / (rel ? ref * ref + PT_METRICS_REL_EPS : 1.0);
+                            s += isfinite(v) ? v : 0;
+                        }
+                    }
+                t_sum += s;
+                t_sqrt += sqrt(m * s);
+            }
+        double p = (double)w * h;
+        printf("%-7s per tile %6.2fx\n", rel ? "relMSE" : "RMSE",
+               t_sqrt > 0 ? p * t_sum / (t_sqrt * t_sqrt) : 1.0);
+    }
     pt_free(tile_se);
+    pt_image_free(meas);
     pt_image_free(img);
     return 0;
 }
