@@ -57,8 +57,10 @@ double pt_tile_rel_error(const pt_pixel_acc *px, uint32_t stride, uint32_t width
  * error of independent samples, while the samples of a pixel are a scrambled
  * Sobol sequence whose mean errs less, and by how much depends on the content
  * (on the Cornell box about 7 times less over the image, more at the light's
- * edges; docs/bench/adaptive.md). Chunks are nets of that sequence, so their
- * spread measures the error the sampler makes.
+ * edges; docs/bench/adaptive.md). Chunks of 2^k samples are nets of that
+ * sequence, so their spread measures the error the sampler makes; it is
+ * extrapolated as 1/n, which overstates the error where the sequence keeps
+ * converging faster.
  *
  * px holds the tile's sums with its last chunk (stride in pixels), last that
  * chunk's sums alone (last_stride). A pixel whose last chunk or earlier

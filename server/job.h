@@ -18,12 +18,12 @@
  * workers rendered them and in whatever order results arrived.
  *
  * Adaptive sampling: when a tile's chunk c is merged and the tile has at least
- * min_spp samples, pt_tile_stops decides on the film's sums whether it stops
- * (pt_tile_rel_error at most target_error, or pt_tile_gain at most
- * min_gain): its later chunks are then
- * skipped (dropped if already leased or held). The decision depends only on
- * the tile's sums after chunk c, which do not depend on how the work was
- * split, so adaptive images are bit-identical across worker counts too.
+ * min_spp samples, pt_tile_stops decides from the film's sums and chunk c's
+ * whether it stops (pt_tile_rel_error at most target_error, or pt_tile_gain
+ * at most min_gain): its later chunks are then skipped (dropped if already
+ * leased or held). The decision depends only on the tile's sums after chunk c
+ * and on chunk c, which do not depend on how the work was split, so adaptive
+ * images are bit-identical across worker counts and a resumed job too.
  * Pure code: no sockets, no clock (callers pass now_ms). One owner thread.
  */
 #ifndef PT_SERVER_JOB_H

@@ -250,20 +250,19 @@ static int write_csv(const char *path, const char *label, const char *scene, uin
         fprintf(stderr, "ptbench: %s: %s\n", path, strerror(errno));
         return -1;
     }
-    fprintf(f,
-            "label,scene,width,height,threads,seed,spp,seconds,samples_per_s,rays_per_s,"
-            "rmse,relmse,efficiency,mean,nonfinite,rejected,target_error,mean_spp,cpu_seconds,"
-            "min_gain\n");
+    fprintf(f, "label,scene,width,height,threads,seed,spp,seconds,samples_per_s,rays_per_s,"
+               "rmse,relmse,efficiency,mean,nonfinite,rejected,target_error,mean_spp,cpu_seconds,"
+               "min_gain\n");
     for (int i = 0; i < n; i++) {
         const row *r = &rows[i];
-        fprintf(
-            f,
-            "%s,%s,%u,%u,%d,%u,%u,%.6g,%.6g,%.6g,%.6e,%.6e,%.6g,%.6g,%llu,%llu,%.6g,%.6g,%.6g,%.6g\n",
-            label, scene, w, h, threads, seed, r->spp, r->seconds,
-            (double)r->st.samples / r->seconds, (double)r->st.rays / r->seconds, r->m.rmse,
-            r->m.rel_mse, efficiency(r), (r->m.mean[0] + r->m.mean[1] + r->m.mean[2]) / 3.0,
-            (unsigned long long)r->m.nonfinite, (unsigned long long)r->st.rejected, r->target,
-            r->mean_spp, r->cpu, r->min_gain);
+        fprintf(f,
+                "%s,%s,%u,%u,%d,%u,%u,%.6g,%.6g,%.6g,%.6e,%.6e,%.6g,%.6g,%llu,%llu,%.6g,%.6g,%.6g,"
+                "%.6g\n",
+                label, scene, w, h, threads, seed, r->spp, r->seconds,
+                (double)r->st.samples / r->seconds, (double)r->st.rays / r->seconds, r->m.rmse,
+                r->m.rel_mse, efficiency(r), (r->m.mean[0] + r->m.mean[1] + r->m.mean[2]) / 3.0,
+                (unsigned long long)r->m.nonfinite, (unsigned long long)r->st.rejected, r->target,
+                r->mean_spp, r->cpu, r->min_gain);
     }
     if (fclose(f) != 0) {
         fprintf(stderr, "ptbench: %s: %s\n", path, strerror(errno));

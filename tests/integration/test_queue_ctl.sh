@@ -80,6 +80,18 @@ set -e
 [ $rc = 1 ] && grep -q "no camera named 'nosuch'" "$tmp/nocam.log" ||
   fail "unknown camera: $rc $(cat "$tmp/nocam.log")"
 
+# --min-gain travels in SUBMIT and the queue: the job stops tiles as the
+# standalone render does, to the same bits, with fewer samples than uniform.
+mg=$(ctl submit "$src/scenes/cornell_box.gltf" --res 48x32 --spp 256 --seed 3 --min-gain 1e-6)
+ctl watch "$mg" 2>/dev/null || fail "min-gain job watch"
+ctl fetch "$mg" -o "$tmp/mg.exr"
+ctl status "$mg" --json > "$tmp/mg.json"
+[ "$(json "$tmp/mg.json" 'd["samples_done"] < 48 * 32 * 256')" = True ] ||
+  fail "min-gain job did not stop any tile: $(cat "$tmp/mg.json")"
+"$bin/ptworker" --scene "$src/scenes/cornell_box.gltf" --res 48x32 --spp 256 --seed 3 \
+  --min-gain 1e-6 --tile 16 --chunk 8 -q -o "$tmp/mg_ref.exr"
+"$bin/ptexr-diff" "$tmp/mg_ref.exr" "$tmp/mg.exr" || fail "ptctl --min-gain image differs"
+
 # A scene with an external .bin and PNG textures travels whole.
 if [ -f "$shared/ToyCar/ToyCar.gltf" ]; then
   car=$(ctl submit "$shared/ToyCar/ToyCar.gltf" --res 32x24 --spp 8)

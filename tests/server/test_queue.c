@@ -755,6 +755,10 @@ static void hostile_clients(void)
     CHECK(refused(job_of("wide", 100000, 48, 16, 0), B, N, "resolution"));
     CHECK(refused(job_of("many", 64, 48, 1u << 24, 0), B, N, "samples per pixel"));
     CHECK(refused(job_of("zero", 64, 48, 0, 0), B, N, "SUBMIT"));
+    proto_submit both = job_of("both", 64, 48, 16, 0);
+    both.target_error = 0.05;
+    both.min_gain = 1e-6;
+    CHECK(refused(both, B, N, "two adaptive rules"));
 
     /* Bundles: a file named ../x, a lying inner length, the wrong hash, a broken glTF. */
     const char *n1[] = {"scene.gltf", "../evil.bin"}, *d1[] = {"{}", "x"};
