@@ -56,7 +56,7 @@ double pt_tile_rel_error(const pt_pixel_acc *px, uint32_t stride, uint32_t width
  * Not from the sum of squares: that gives the variance of one sample, the
  * error of independent samples, while the samples of a pixel are a scrambled
  * Sobol sequence whose mean errs less, and by how much depends on the content
- * (on the Cornell box about 7 times less over the image, more at the light's
+ * (on the Cornell box 7 to 8 times less over the image, more at the light's
  * edges; docs/bench/adaptive.md). Chunks of 2^k samples are nets of that
  * sequence, so their spread measures the error the sampler makes; it is
  * extrapolated as 1/n, which overstates the error where the sequence keeps
