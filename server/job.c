@@ -456,6 +456,7 @@ uint32_t srv_job_tiles(const srv_job *j) { return j->ntiles; }
 
 #define CKPT_MAGIC 0x434a5450u /* "PTJC" */
 #define CKPT_VERSION 3u
+#define CKPT_OLDEST_VERSION 2u /* no min gain: read as 0 */
 
 static void put_acc(proto_writer *w, const pt_pixel_acc *a)
 {
@@ -543,8 +544,10 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
         return pt_error_set(err, PT_ERR_ARG, "checkpoint: job %llu is not fresh",
                             (unsigned long long)j->id);
     proto_reader r = proto_reader_make(data, len);
-    if (proto_r_u32(&r, "magic") != CKPT_MAGIC || proto_r_u32(&r, "version") != CKPT_VERSION)
-        return pt_error_set(err, PT_ERR_FORMAT, "not a version %u job checkpoint", CKPT_VERSION);
+    uint32_t magic = proto_r_u32(&r, "magic"), version = proto_r_u32(&r, "version");
+    if (magic != CKPT_MAGIC || version < CKPT_OLDEST_VERSION || version > CKPT_VERSION)
+        return pt_error_set(err, PT_ERR_FORMAT, "not a version %u to %u job checkpoint",
+                            CKPT_OLDEST_VERSION, CKPT_VERSION);
     uint64_t id = proto_r_u64(&r, "job id");
     const uint8_t *hash = proto_r_bytes(&r, 32, "scene hash");
     srv_job_params p;
@@ -558,7 +561,7 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
     p.rr_depth = proto_r_u32(&r, "rr depth");
     p.min_spp = proto_r_u32(&r, "min spp");
     p.target_error = proto_r_f64(&r, "target error");
-    p.min_gain = proto_r_f64(&r, "min gain");
+    p.min_gain = version >= 3 ? proto_r_f64(&r, "min gain") : 0.0;
     p.camera[0] = '\0';
     proto_r_str(&r, p.camera, PROTO_MAX_NAME, "camera");
     uint32_t ntiles = proto_r_u32(&r, "tiles"), nchunks = proto_r_u32(&r, "chunks");

@@ -19,6 +19,9 @@
 #define CKPT_MAGIC 0x4b435450u  /* "PTCK" */
 #define LOG_MAGIC 0x4c525450u   /* "PTRL" */
 #define STATE_VERSION 3u
+/* The oldest format still read: version 2 has no min gain (read as 0, the
+ * rule off), so a state folder survives the upgrade that brought it. */
+#define STATE_OLDEST_VERSION 2u
 #define LOG_HEADER 16u
 #define MAX_QUEUE_BYTES (256u << 20)
 #define MAX_CKPT_BYTES ((size_t)8 << 30)
@@ -116,11 +119,16 @@ static pt_status end_file(proto_writer *w, const char *path, pt_error *err)
     return pt_write_file_atomic(path, w->buf, w->len, err);
 }
 
+static int version_read(uint32_t v)
+{
+    return v >= STATE_OLDEST_VERSION && v <= STATE_VERSION;
+}
+
 /* Reads path and checks magic, version and checksum; *body and *body_len get
  * what lies between. *missing = 1 (and PT_OK) when the file does not exist. */
 static pt_status read_checked(const char *path, uint32_t magic, size_t max, uint8_t **data,
-                              const uint8_t **body, size_t *body_len, int *missing,
-                              pt_error *err)
+                              const uint8_t **body, size_t *body_len, uint32_t *version,
+                              int *missing, pt_error *err)
 {
     size_t len;
     *missing = 0;
@@ -134,12 +142,17 @@ static pt_status read_checked(const char *path, uint32_t magic, size_t max, uint
         return s;
     }
     const char *why = NULL;
+    char vwhy[128];
     if (len < 12)
         why = "truncated (shorter than its header and checksum)";
     else if (proto_get_u32(*data) != magic)
         why = "not a ptserve state file of this kind (bad magic)";
-    else if (proto_get_u32(*data + 4) != STATE_VERSION)
-        why = "written by another version of ptserve";
+    else if (!version_read(proto_get_u32(*data + 4))) {
+        snprintf(vwhy, sizeof vwhy, "written by another version of ptserve (format %u; this "
+                 "one reads %u to %u)", proto_get_u32(*data + 4), STATE_OLDEST_VERSION,
+                 STATE_VERSION);
+        why = vwhy;
+    }
     else if (proto_crc32c(0, *data, len - 4) != proto_get_u32(*data + len - 4))
         why = "checksum mismatch: the file is truncated or damaged";
     if (why) {
@@ -148,6 +161,7 @@ static pt_status read_checked(const char *path, uint32_t magic, size_t max, uint
         return pt_error_set(err, PT_ERR_FORMAT, "%s: %s; refusing to use it (move it aside to "
                             "start without it)", path, why);
     }
+    *version = proto_get_u32(*data + 4);
     *body = *data + 8;
     *body_len = len - 12;
     return PT_OK;
@@ -209,12 +223,13 @@ pt_status srv_state_load_queue(srv_state *st, srv_job_rec **recs, uint32_t *n, u
     uint8_t *data;
     const uint8_t *body;
     size_t len;
+    uint32_t version;
     int missing;
     *recs = NULL;
     *n = 0;
     *next_id = 1;
-    pt_status s = read_checked(path, QUEUE_MAGIC, MAX_QUEUE_BYTES, &data, &body, &len, &missing,
-                               err);
+    pt_status s = read_checked(path, QUEUE_MAGIC, MAX_QUEUE_BYTES, &data, &body, &len, &version,
+                               &missing, err);
     if (s != PT_OK || missing)
         return s;
     proto_reader r = proto_reader_make(body, len);
@@ -255,7 +270,7 @@ pt_status srv_state_load_queue(srv_state *st, srv_job_rec **recs, uint32_t *n, u
         p->rr_depth = proto_r_u32(&r, "rr depth");
         p->min_spp = proto_r_u32(&r, "min spp");
         p->target_error = proto_r_f64(&r, "target error");
-        p->min_gain = proto_r_f64(&r, "min gain");
+        p->min_gain = version >= 3 ? proto_r_f64(&r, "min gain") : 0.0;
         proto_r_str(&r, p->camera, sizeof p->camera - 1, "camera");
         const uint8_t *h = proto_r_bytes(&r, 32, "scene hash");
         if (h)
@@ -499,7 +514,7 @@ static pt_status replay_log(srv_state *st, srv_job *job, srv_ckpt_extra *x, uint
     size_t good = 0;
     if (len < LOG_HEADER) {
         *torn = len > 0; /* the header write itself was cut short */
-    } else if (proto_get_u32(data) != LOG_MAGIC || proto_get_u32(data + 4) != STATE_VERSION ||
+    } else if (proto_get_u32(data) != LOG_MAGIC || !version_read(proto_get_u32(data + 4)) ||
                proto_get_u64(data + 8) != id) {
         pt_free(data);
         return pt_error_set(err, PT_ERR_FORMAT, "%s: not the results log of job %llu (bad "
@@ -562,7 +577,9 @@ pt_status srv_state_restore(srv_state *st, srv_job *job, srv_ckpt_extra *extra,
     const uint8_t *body;
     size_t len;
     int missing;
-    pt_status s = read_checked(p, CKPT_MAGIC, MAX_CKPT_BYTES, &data, &body, &len, &missing, err);
+    uint32_t version;
+    pt_status s = read_checked(p, CKPT_MAGIC, MAX_CKPT_BYTES, &data, &body, &len, &version,
+                               &missing, err);
     if (s != PT_OK)
         return s;
     if (!missing) {

@@ -23,6 +23,7 @@
  */
 #include "common/alloc.h"
 #include "common/bundle.h"
+#include "common/fsutil.h"
 #include "tests/check.h"
 #include "tests/server/farm_util.h"
 
@@ -597,6 +598,48 @@ static void cut_file(const char *name, long drop)
     CHECK(truncate(path(name), sb.st_size - drop) == 0);
 }
 
+/* Rewrites a state file in format 2, the format before the min-gain rule:
+ * drops the 8 bytes of the min gain at `at`, sets the version words at the
+ * given offsets to 2 and, when `crc`, recomputes the trailing CRC32C. */
+static void to_format2(const char *name, long at, const long *vers, int nvers, int crc)
+{
+    uint8_t *d = NULL;
+    size_t n = 0;
+    pt_error e = {0};
+    CHECK(pt_read_file(path(name), 1 << 30, &d, &n, &e) == PT_OK);
+    if (!d)
+        return;
+    CHECK(at >= 0 && (size_t)at + 8 <= n);
+    memmove(d + at, d + at + 8, n - (size_t)at - 8);
+    n -= 8;
+    for (int i = 0; i < nvers; i++)
+        proto_put_u32(d + vers[i], 2);
+    if (crc)
+        proto_put_u32(d + n - 4, proto_crc32c(0, d, n - 4));
+    CHECK(pt_write_file_atomic(path(name), d, n, &e) == PT_OK);
+    pt_free(d);
+}
+
+/* The offset of the min gain in a queue file of one job: after the header,
+ * the next id, the count and the record's fields up to the target error. */
+static long queue_min_gain_at(const char *name)
+{
+    uint8_t *d = NULL;
+    size_t n = 0;
+    pt_error e = {0};
+    CHECK(pt_read_file(path(name), 1 << 20, &d, &n, &e) == PT_OK);
+    if (!d)
+        return -1;
+    CHECK(n > 20 && proto_get_u32(d + 16) == 1);
+    size_t at = 8 + 8 + 4 + 8 + 8 + 1 + 4;
+    for (int i = 0; i < 4 && at + 2 <= n; i++) /* name, owner, scene, output */
+        at += 2 + proto_get_u16(d + at);
+    at += 8 + 9 * 4 + 8; /* submitted, nine u32 parameters, target error */
+    pt_free(d);
+    CHECK(at + 8 < n);
+    return (long)at;
+}
+
 /* Starts ptserve on a damaged state folder; returns its exit status when it
  * exits within a few seconds, or -1 when it keeps running (then stops it). */
 static int start_damaged(const char *log)
@@ -699,6 +742,56 @@ static void damaged(void)
     CHECK(info.samples_done > 0);
     kill_server(SIGTERM);
     CHECK(log_has("damage_torn.log", "incomplete last record"));
+
+    /* A state folder in format 2, from the ptserve before --min-gain: the same job
+     * resumes with the same samples as from the current format. */
+    CHECK(system(cmd) == 0); /* state3.good again */
+    CHECK(start_damaged("migrate_v3.log") == -1);
+    proto_job_info v3;
+    CHECK(status(g_port, id, &v3) == PROTO_MSG_JOB_INFO && v3.samples_done > 0);
+    kill_server(SIGKILL);
+    snprintf(cmd, sizeof cmd, "rm -rf '%s' && cp -a '%s' '%s'", path("state3"),
+             path("state3.good"), path("state3"));
+    CHECK(system(cmd) == 0);
+    const long qv[] = {4}, cv[] = {4, 36};
+    to_format2("state3/queue", queue_min_gain_at("state3/queue"), qv, 1, 1);
+    /* checkpoint: header 8, seconds/rejected/rays 24, magic, version, id, hash,
+     * nine u32 parameters, target error; then the min gain */
+    to_format2(ck, 8 + 24 + 4 + 4 + 8 + 32 + 36 + 8, cv, 2, 1);
+    {
+        uint8_t *d = NULL;
+        size_t n = 0;
+        pt_error e = {0};
+        CHECK(pt_read_file(path(lg), (size_t)1 << 30, &d, &n, &e) == PT_OK && n > 16);
+        if (d) {
+            proto_put_u32(d + 4, 2); /* the results log: only its header's version */
+            CHECK(pt_write_file_atomic(path(lg), d, n, &e) == PT_OK);
+        }
+        pt_free(d);
+    }
+    CHECK(start_damaged("migrate_v2.log") == -1);
+    CHECKF(status(g_port, id, &info) == PROTO_MSG_JOB_INFO && info.state == PROTO_JOB_RUNNING &&
+               info.samples_done == v3.samples_done,
+           "format 2: state %u, %llu samples (format 3: %llu)", info.state,
+           (unsigned long long)info.samples_done, (unsigned long long)v3.samples_done);
+    kill_server(SIGTERM);
+    /* A format this ptserve does not know is refused, naming the file. */
+    const long fv[] = {4};
+    copy_file("state3.good/queue", "state3/queue");
+    {
+        uint8_t *d = NULL;
+        size_t n = 0;
+        pt_error e = {0};
+        CHECK(pt_read_file(path("state3/queue"), 1 << 20, &d, &n, &e) == PT_OK && n > 12);
+        if (d) {
+            proto_put_u32(d + fv[0], 99);
+            proto_put_u32(d + n - 4, proto_crc32c(0, d, n - 4));
+            CHECK(pt_write_file_atomic(path("state3/queue"), d, n, &e) == PT_OK);
+        }
+        pt_free(d);
+    }
+    CHECK(start_damaged("migrate_v99.log") == 1);
+    CHECK(log_has("migrate_v99.log", "state3/queue") && log_has("migrate_v99.log", "format 99"));
 }
 
 /* ---- 4. hostile clients ------------------------------------------------------------- */
