@@ -180,15 +180,24 @@ int main(int argc, char **argv)
         return 1;
     }
 
-    /* Capture the rays of every pixel's first samples (at most 8M rays). */
+    /* Capture the render's rays (at most 16M), tile by tile in the order the
+     * render threads take tiles, each tile's rays in the order the renderer
+     * traces them (pt_render_tile_traced). */
     ray_log log = {0};
-    log.cap = 8u << 20;
+    log.cap = 16u << 20;
     log.rays = pt_malloc_array(log.cap, sizeof *log.rays);
     pt_ray_sink sink = {log_ray, &log};
-    for (uint32_t s = 0; s < spp && log.n < log.cap; s++)
-        for (uint32_t y = 0; y < h && log.n < log.cap; y++)
-            for (uint32_t x = 0; x < w && log.n < log.cap; x++)
-                pt_render_sample_traced(r, x, y, s, &sink);
+    {
+        const uint32_t tile = 16, tx = (w + tile - 1) / tile, ty = (h + tile - 1) / tile;
+        pt_pixel_acc *acc = pt_malloc_array((size_t)tile * tile, sizeof *acc);
+        for (uint32_t t = 0; t < tx * ty && log.n < log.cap; t++) {
+            pt_rect rc = {(t % tx) * tile, (t / tx) * tile, 0, 0};
+            rc.x1 = rc.x0 + tile < w ? rc.x0 + tile : w;
+            rc.y1 = rc.y0 + tile < h ? rc.y0 + tile : h;
+            pt_render_tile_traced(r, rc, 0, spp, acc, &sink);
+        }
+        pt_free(acc);
+    }
     size_t shadow = 0;
     for (size_t i = 0; i < log.n; i++)
         shadow += log.rays[i].occlusion;
