@@ -54,6 +54,8 @@ struct pt_renderer {
     pt_offset offset; /* pt_accel_offset(accel) */
     pt_lights *lights;
     pt_bsdf *mat_bsdf; /* per material: its BSDF when it has no texture */
+    struct tri_rec *tris; /* per triangle (surface_at), in tris_mem */
+    void *tris_mem;
     pt_render_params params;
     li_fn li;     /* one path at a time: pt_render_sample */
     tile_fn tile; /* batched: pt_render_tile */
@@ -101,25 +103,92 @@ typedef struct surface {
     const pt_material *mat;
 } surface;
 
-static inline void surface_at(const pt_scene *s, const pt_hit *hit, surface *sf,
+/*
+ * What the integrator reads of a hit triangle, in one 64-byte, cache-line-
+ * aligned record indexed by Embree's primID, built once per renderer: the
+ * vertices (so the hit point is pt_accel_hit_point's, the same bits), the
+ * unit geometric normal that pt_accel_hit_point would compute at every hit
+ * (computed once by the same code: the same bits), and the material. A flat
+ * triangle - three bit-identical vertex normals, as in every flat-shaded
+ * mesh - also stores that normal, normalised: interpolating three equal unit
+ * normals and normalising gives it back, up to a rounding of the sum, so the
+ * shading normal costs neither the interpolation nor a square root.
+ */
+typedef struct tri_rec {
+    pt_vec3 v0, v1, v2;
+    pt_vec3 ng;
+    pt_vec3 ns;   /* when mat & TRI_FLAT */
+    uint32_t mat; /* material index, and TRI_FLAT */
+} tri_rec;
+#define TRI_FLAT 0x80000000u
+_Static_assert(sizeof(tri_rec) == 64, "tri_rec is one cache line");
+
+static inline void surface_at(const pt_renderer *r, const pt_hit *hit, surface *sf,
                               const uint32_t features)
 {
-    pt_accel_hit_point(s, hit, &sf->p, &sf->ng);
-    const uint32_t *tri = &s->indices[3 * hit->tri];
+    const pt_scene *s = r->scene;
+    const tri_rec *t = &r->tris[hit->tri];
     float b0 = 1.0f - hit->b1 - hit->b2;
-    pt_vec3 n = pt_v3_add(pt_v3_add(pt_v3_scale(vert(s->normals, tri[0]), b0),
-                                    pt_v3_scale(vert(s->normals, tri[1]), hit->b1)),
-                          pt_v3_scale(vert(s->normals, tri[2]), hit->b2));
-    float len = pt_v3_len(n);
-    sf->ns = (len > 0.0f && isfinite(len)) ? pt_v3_scale(n, 1.0f / len) : sf->ng;
+    /* pt_accel_hit_point's expression. */
+    sf->p = pt_v3_add(pt_v3_add(pt_v3_scale(t->v0, b0), pt_v3_scale(t->v1, hit->b1)),
+                      pt_v3_scale(t->v2, hit->b2));
+    sf->ng = t->ng;
+    const uint32_t *tri = &s->indices[3 * hit->tri];
+    if (t->mat & TRI_FLAT) {
+        sf->ns = t->ns;
+    } else {
+        pt_vec3 n = pt_v3_add(pt_v3_add(pt_v3_scale(vert(s->normals, tri[0]), b0),
+                                        pt_v3_scale(vert(s->normals, tri[1]), hit->b1)),
+                              pt_v3_scale(vert(s->normals, tri[2]), hit->b2));
+        float len = pt_v3_len(n);
+        sf->ns = (len > 0.0f && isfinite(len)) ? pt_v3_scale(n, 1.0f / len) : sf->ng;
+    }
     sf->uv[0] = sf->uv[1] = 0.0f;
     if ((features & PT_FEAT_TEXTURES) && s->uvs) {
-        const float *t = s->uvs;
-        sf->uv[0] = b0 * t[2 * tri[0]] + hit->b1 * t[2 * tri[1]] + hit->b2 * t[2 * tri[2]];
-        sf->uv[1] =
-            b0 * t[2 * tri[0] + 1] + hit->b1 * t[2 * tri[1] + 1] + hit->b2 * t[2 * tri[2] + 1];
+        const float *uv = s->uvs;
+        sf->uv[0] = b0 * uv[2 * tri[0]] + hit->b1 * uv[2 * tri[1]] + hit->b2 * uv[2 * tri[2]];
+        sf->uv[1] = b0 * uv[2 * tri[0] + 1] + hit->b1 * uv[2 * tri[1] + 1] +
+                    hit->b2 * uv[2 * tri[2] + 1];
     }
-    sf->mat = &s->materials[s->tri_material[hit->tri]];
+    sf->mat = &s->materials[t->mat & ~TRI_FLAT];
+}
+
+/* The records of a scene's triangles, in a block whose start is aligned to
+ * 64 bytes (*base is what to free). */
+static tri_rec *tri_recs_new(const pt_scene *s, void **base)
+{
+    *base = NULL;
+    if (s->num_triangles == 0)
+        return NULL;
+    size_t n = s->num_triangles;
+    if (n > (SIZE_MAX - 63) / sizeof(tri_rec))
+        return NULL;
+    char *mem = pt_malloc(n * sizeof(tri_rec) + 63);
+    if (!mem)
+        return NULL;
+    tri_rec *recs = (tri_rec *)(mem + ((64 - (uintptr_t)mem % 64) % 64));
+    for (size_t i = 0; i < n; i++) {
+        const uint32_t *tri = &s->indices[3 * i];
+        tri_rec *t = &recs[i];
+        pt_hit hit = {0.0f, 0.0f, 0.0f, (uint32_t)i};
+        pt_vec3 p;
+        pt_accel_hit_point(s, &hit, &p, &t->ng);
+        t->v0 = vert(s->positions, tri[0]);
+        t->v1 = vert(s->positions, tri[1]);
+        t->v2 = vert(s->positions, tri[2]);
+        t->mat = s->tri_material[i] & ~TRI_FLAT;
+        t->ns = t->ng;
+        pt_vec3 n0 = vert(s->normals, tri[0]), n1 = vert(s->normals, tri[1]),
+                n2 = vert(s->normals, tri[2]);
+        float len = pt_v3_len(n0);
+        if (memcmp(&n0, &n1, sizeof n0) == 0 && memcmp(&n0, &n2, sizeof n0) == 0 && len > 0.0f &&
+            isfinite(len)) {
+            t->ns = pt_v3_scale(n0, 1.0f / len);
+            t->mat |= TRI_FLAT;
+        }
+    }
+    *base = mem;
+    return recs;
 }
 
 /* max(a, b) as fmaxf gives it (a NaN argument is ignored), by comparisons:
@@ -323,7 +392,7 @@ static inline __attribute__((always_inline)) uint32_t shade(const pt_renderer *r
     const uint32_t strategy = r->params.light_strategy;
     uint32_t ret = 0;
     surface sf;
-    surface_at(s, hit, &sf, features);
+    surface_at(r, hit, &sf, features);
     pt_vec3 wo = pt_v3_neg(pa->d);
 
     if ((features & PT_FEAT_EMITTERS) && emits(sf.mat)) {
@@ -645,6 +714,10 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
         for (uint32_t i = 0; i < scene->num_materials; i++)
             r->mat_bsdf[i] = material_bsdf_untextured(&scene->materials[i]);
     }
+    if (scene->num_triangles > 0 && !(r->tris = tri_recs_new(scene, &r->tris_mem))) {
+        st = pt_error_set(err, PT_ERR_NOMEM, "out of memory for the renderer");
+        goto fail;
+    }
     r->nee = pt_lights_count(r->lights) > 0 && params->light_strategy != PT_LIGHT_BSDF_ONLY;
     pick_variant(r, scene->features | params->extra_features);
     *out = r;
@@ -659,6 +732,7 @@ void pt_renderer_free(pt_renderer *r)
     if (!r)
         return;
     pt_free(r->mat_bsdf);
+    pt_free(r->tris_mem);
     pt_lights_free(r->lights);
     pt_accel_free(r->accel);
     pt_free(r);
