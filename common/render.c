@@ -312,23 +312,30 @@ static inline void camera_ray(const pt_renderer *r, uint32_t px, uint32_t py, co
         pt_v3_add(c->forward, pt_v3_add(pt_v3_scale(c->right, sx), pt_v3_scale(c->up, sy))));
 }
 
+/* The sampler seeds of bounce `depth` of pc's pixel: kept in pc for the
+ * first SEED_CACHE bounces, hashed into *deep beyond. */
+static inline const pt_sample_group *bounce_group(pixel_ctx *pc, uint32_t depth,
+                                                  pt_sample_group *deep)
+{
+    if (depth >= SEED_CACHE) {
+        pt_sample_group_init(deep, pc->seed, DIM_BOUNCE0 + DIM_PER_BOUNCE * depth);
+        return deep;
+    }
+    while (pc->ngroups <= depth) {
+        pt_sample_group_init(&pc->bounce[pc->ngroups], pc->seed,
+                             DIM_BOUNCE0 + DIM_PER_BOUNCE * pc->ngroups);
+        pc->ngroups++;
+    }
+    return &pc->bounce[depth];
+}
+
 /* The 8 numbers of bounce `depth` of sample `index` (the light pick and the
  * lobe pick are one pair: one index shuffle). */
 static inline void draw_bounce(pixel_ctx *pc, uint32_t depth, uint32_t index,
                                float u[DIM_PER_BOUNCE])
 {
-    if (depth < SEED_CACHE) {
-        while (pc->ngroups <= depth) {
-            pt_sample_group_init(&pc->bounce[pc->ngroups], pc->seed,
-                                 DIM_BOUNCE0 + DIM_PER_BOUNCE * pc->ngroups);
-            pc->ngroups++;
-        }
-        pt_sample_group_eval(&pc->bounce[depth], index, u);
-    } else {
-        pt_sample_group deep;
-        pt_sample_group_init(&deep, pc->seed, DIM_BOUNCE0 + DIM_PER_BOUNCE * depth);
-        pt_sample_group_eval(&deep, index, u);
-    }
+    pt_sample_group deep;
+    pt_sample_group_eval(bounce_group(pc, depth, &deep), index, u);
 }
 
 /* One path between bounces: the ray it traces next and what it carries. */
@@ -547,17 +554,16 @@ static inline __attribute__((always_inline)) uint64_t trace_batch(const pt_rende
                                                                   const pt_ray_sink *sink)
 {
     uint8_t live[BATCH], shadowed[BATCH];
-    float u[BATCH][DIM_PER_BOUNCE];
+    float u[BATCH][DIM_PER_BOUNCE]; /* by position in live[] */
+    const pt_sample_group *groups[BATCH];
+    pt_sample_group deep[BATCH];
+    uint32_t index[BATCH];
     pt_hit hits[BATCH];
     shadow_ray sr[BATCH];
     uint64_t rays = 0;
     for (uint32_t k = 0; k < n; k++)
         live[k] = (uint8_t)k;
     while (n > 0) {
-        for (uint32_t j = 0; j < n; j++) {
-            path *pa = &paths[live[j]];
-            draw_bounce(pa->pc, pa->depth, pa->index, u[live[j]]);
-        }
         rays += n;
         uint32_t nh = 0;
         for (uint32_t j = 0; j < n; j++) {
@@ -567,10 +573,19 @@ static inline __attribute__((always_inline)) uint64_t trace_batch(const pt_rende
             if (pt_accel_intersect(r->accel, paths[k].o, paths[k].d, INFINITY, &hits[k]))
                 live[nh++] = (uint8_t)k;
         }
+        /* The bounce's numbers, for the paths that hit something: a pure
+         * function of (pixel, index, depth), so drawing them after the
+         * query, and in one call for all, changes no value. */
+        for (uint32_t j = 0; j < nh; j++) {
+            path *pa = &paths[live[j]];
+            groups[j] = bounce_group(pa->pc, pa->depth, &deep[j]);
+            index[j] = pa->index;
+        }
+        pt_sample_group_eval_n(groups, index, nh, u);
         uint32_t ns = 0, nc = 0;
         for (uint32_t j = 0; j < nh; j++) {
             uint32_t k = live[j];
-            uint32_t st = shade(r, &paths[k], &hits[k], u[k], &sr[k], features);
+            uint32_t st = shade(r, &paths[k], &hits[k], u[j], &sr[k], features);
             if (st & SHADE_SHADOW)
                 shadowed[ns++] = (uint8_t)k;
             if (st & SHADE_CONTINUE)
