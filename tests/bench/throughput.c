@@ -13,7 +13,14 @@
  * the general integrator variant, so the speed-up of the variant chosen for
  * the scene (render.h: pt_renderer_variant) is measured side by side.
  *
- *   ptbench-throughput SCENE [--threads T] [--res WxH] [--spp N] [--reps R] [--csv FILE]
+ * The log holds the rays in the order the renderer traces them (tiles in
+ * order, each tile's paths in batches: render.c, trace_batch), so the replay
+ * sees the same coherence as the render; --log-order path logs one path at a
+ * time instead, sample by sample over the image, as the first measurements
+ * did.
+ *
+ *   ptbench-throughput SCENE [--threads T] [--res WxH] [--spp N] [--reps R]
+ *                      [--log-order render|path] [--csv FILE]
  */
 #include <pthread.h>
 #include <stdatomic.h>
@@ -132,7 +139,7 @@ static double median(double *v, int n)
 int main(int argc, char **argv)
 {
     const char *scene_path = NULL, *csv = NULL;
-    int threads = 2, reps = 5;
+    int threads = 2, reps = 5, per_path = 0;
     uint32_t w = 256, h = 256, spp = 8;
     for (int i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "--threads") && i + 1 < argc)
@@ -143,11 +150,14 @@ int main(int argc, char **argv)
             spp = (uint32_t)atoi(argv[++i]);
         else if (!strcmp(argv[i], "--reps") && i + 1 < argc)
             reps = atoi(argv[++i]);
+        else if (!strcmp(argv[i], "--log-order") && i + 1 < argc &&
+                 (!strcmp(argv[i + 1], "render") || !strcmp(argv[i + 1], "path")))
+            per_path = !strcmp(argv[++i], "path");
         else if (!strcmp(argv[i], "--csv") && i + 1 < argc)
             csv = argv[++i];
         else if (!strcmp(argv[i], "-h") || !strcmp(argv[i], "--help")) {
             printf("usage: ptbench-throughput SCENE [--threads T] [--res WxH] [--spp N] [--reps R] "
-                   "[--csv FILE]\n");
+                   "[--log-order render|path] [--csv FILE]\n");
             return 0;
         } else if (argv[i][0] != '-' && !scene_path)
             scene_path = argv[i];
@@ -187,7 +197,15 @@ int main(int argc, char **argv)
     log.cap = 16u << 20;
     log.rays = pt_malloc_array(log.cap, sizeof *log.rays);
     pt_ray_sink sink = {log_ray, &log};
-    {
+    if (per_path) {
+        /* --log-order path: one path at a time, sample by sample over the
+         * whole image (the order of the earlier measurements). */
+        pt_pixel_acc acc;
+        for (uint32_t s = 0; s < spp && log.n < log.cap; s++)
+            for (uint32_t y = 0; y < h && log.n < log.cap; y++)
+                for (uint32_t x = 0; x < w && log.n < log.cap; x++)
+                    pt_render_tile_traced(r, (pt_rect){x, y, x + 1, y + 1}, s, s + 1, &acc, &sink);
+    } else {
         const uint32_t tile = 16, tx = (w + tile - 1) / tile, ty = (h + tile - 1) / tile;
         pt_pixel_acc *acc = pt_malloc_array((size_t)tile * tile, sizeof *acc);
         for (uint32_t t = 0; t < tx * ty && log.n < log.cap; t++) {
