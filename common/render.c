@@ -53,7 +53,7 @@ struct pt_renderer {
     pt_accel *accel;
     pt_offset offset; /* pt_accel_offset(accel) */
     pt_lights *lights;
-    pt_bsdf *mat_bsdf; /* per material: its BSDF when it has no texture */
+    pt_bsdf *mat_bsdf;    /* per material: its BSDF when it has no texture */
     struct tri_rec *tris; /* per triangle (surface_at), in tris_mem */
     void *tris_mem;
     pt_render_params params;
@@ -147,8 +147,8 @@ static inline void surface_at(const pt_renderer *r, const pt_hit *hit, surface *
     if ((features & PT_FEAT_TEXTURES) && s->uvs) {
         const float *uv = s->uvs;
         sf->uv[0] = b0 * uv[2 * tri[0]] + hit->b1 * uv[2 * tri[1]] + hit->b2 * uv[2 * tri[2]];
-        sf->uv[1] = b0 * uv[2 * tri[0] + 1] + hit->b1 * uv[2 * tri[1] + 1] +
-                    hit->b2 * uv[2 * tri[2] + 1];
+        sf->uv[1] =
+            b0 * uv[2 * tri[0] + 1] + hit->b1 * uv[2 * tri[1] + 1] + hit->b2 * uv[2 * tri[2] + 1];
     }
     sf->mat = &s->materials[t->mat & ~TRI_FLAT];
 }
@@ -273,8 +273,10 @@ static inline pt_vec3 bsdf_eval(const pt_bsdf *b, pt_vec3 wo, pt_vec3 wi, float 
     return pt_v3_scale(b->diffuse, c);
 }
 
+/* cos_wi, when not NULL, is pt_sample_cosine_hemisphere(u[1], u[2]),
+ * computed beforehand for many paths at once. */
 static inline pt_vec3 bsdf_sample(const pt_bsdf *b, pt_vec3 wo, const float u[3], pt_vec3 *wi,
-                                  float *pdf, const uint32_t features)
+                                  float *pdf, const pt_vec3 *cos_wi, const uint32_t features)
 {
     if (features & PT_FEAT_GLOSSY)
         return pt_bsdf_sample(b, wo, u, wi, pdf);
@@ -283,7 +285,7 @@ static inline pt_vec3 bsdf_sample(const pt_bsdf *b, pt_vec3 wo, const float u[3]
     *wi = pt_v3(0.0f, 0.0f, 1.0f);
     if (!(wo.z > 0.0f))
         return zero;
-    *wi = pt_sample_cosine_hemisphere(u[1], u[2]);
+    *wi = cos_wi ? *cos_wi : pt_sample_cosine_hemisphere(u[1], u[2]);
     if (!(wi->z > 0.0f))
         return zero;
     pt_vec3 f = bsdf_eval(b, wo, *wi, pdf, features);
@@ -390,10 +392,9 @@ static inline void path_start(const pt_renderer *r, pixel_ctx *pc, uint32_t inde
  * are interleaved. Returns SHADE_CONTINUE with pa's next ray when the path
  * goes on.
  */
-static inline __attribute__((always_inline)) uint32_t shade(const pt_renderer *r, path *pa,
-                                                            const pt_hit *hit,
-                                                            const float u[DIM_PER_BOUNCE],
-                                                            shadow_ray *sr, const uint32_t features)
+static inline __attribute__((always_inline)) uint32_t
+shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_BOUNCE],
+      const pt_vec3 *cos_wi, shadow_ray *sr, const uint32_t features)
 {
     const pt_scene *s = r->scene;
     const uint32_t strategy = r->params.light_strategy;
@@ -462,7 +463,7 @@ static inline __attribute__((always_inline)) uint32_t shade(const pt_renderer *r
     u3[2] = u[OFF_BSDF_DIR + 1];
     pt_vec3 wi_l;
     float pdf;
-    pt_vec3 weight = bsdf_sample(&bsdf, wo_l, u3, &wi_l, &pdf, features);
+    pt_vec3 weight = bsdf_sample(&bsdf, wo_l, u3, &wi_l, &pdf, cos_wi, features);
     if (!(pdf > 0.0f) || !any_positive(weight))
         return ret;
     pt_vec3 wi = pt_frame_to_world(&fr, wi_l);
@@ -520,7 +521,7 @@ static inline __attribute__((always_inline)) pt_vec3 li_impl(const pt_renderer *
         if (!pt_accel_intersect(r->accel, pa.o, pa.d, INFINITY, &hit))
             break;
         shadow_ray sr = {{0, 0, 0}, {0, 0, 0}, 0.0f, {0, 0, 0}}; /* set when SHADE_SHADOW */
-        uint32_t st = shade(r, &pa, &hit, u, &sr, features);
+        uint32_t st = shade(r, &pa, &hit, u, NULL, &sr, features);
         if (st & SHADE_SHADOW) {
             rays++;
             trace_shadow(r, &pa, &sr, NULL);
@@ -558,6 +559,7 @@ static inline __attribute__((always_inline)) uint64_t trace_batch(const pt_rende
     const pt_sample_group *groups[BATCH];
     pt_sample_group deep[BATCH];
     uint32_t index[BATCH];
+    pt_vec3 cos_wi[BATCH]; /* by position in live[] */
     pt_hit hits[BATCH];
     shadow_ray sr[BATCH];
     uint64_t rays = 0;
@@ -582,10 +584,16 @@ static inline __attribute__((always_inline)) uint64_t trace_batch(const pt_rende
             index[j] = pa->index;
         }
         pt_sample_group_eval_n(groups, index, nh, u);
+        /* Without glossy lobes every bounce that samples its BSDF samples the
+         * cosine hemisphere with these numbers: all of them at once, in SIMD
+         * lanes (the same bits). */
+        if (!(features & PT_FEAT_GLOSSY))
+            pt_sample_cosine_hemisphere_n(&u[0][OFF_BSDF_DIR], DIM_PER_BOUNCE, nh, cos_wi);
         uint32_t ns = 0, nc = 0;
         for (uint32_t j = 0; j < nh; j++) {
             uint32_t k = live[j];
-            uint32_t st = shade(r, &paths[k], &hits[k], u[j], &sr[k], features);
+            uint32_t st = shade(r, &paths[k], &hits[k], u[j],
+                                (features & PT_FEAT_GLOSSY) ? NULL : &cos_wi[j], &sr[k], features);
             if (st & SHADE_SHADOW)
                 shadowed[ns++] = (uint8_t)k;
             if (st & SHADE_CONTINUE)
