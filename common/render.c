@@ -377,6 +377,24 @@ static inline void path_start(const pt_renderer *r, pixel_ctx *pc, uint32_t inde
     pa->pc = pc;
 }
 
+/* The light sample of a bounce at sf, when NEE runs. Like the hit's surface
+ * (surface_at) it is a pure function of the hit and the bounce's numbers, so
+ * the batched loop computes both for all paths, stage by stage, before
+ * shading any: short loops of independent iterations, which the processor
+ * overlaps. */
+static inline __attribute__((always_inline)) int
+bounce_light(const pt_renderer *r, const surface *sf, const float u[DIM_PER_BOUNCE],
+             pt_light_sample *ls, const uint32_t features)
+{
+    if (!((features & PT_FEAT_EMITTERS) && r->nee))
+        return 0;
+    float u3[3];
+    u3[0] = u[OFF_LIGHT_PICK];
+    u3[1] = u[OFF_LIGHT_POINT];
+    u3[2] = u[OFF_LIGHT_POINT + 1];
+    return pt_lights_sample(r->lights, r->scene, sf->p, u3, ls);
+}
+
 /*
  * One bounce of a path whose ray hit `hit`, with the bounce's numbers u. NEE
  * samples an emissive triangle at every vertex; the BSDF-sampled continuation
@@ -394,19 +412,18 @@ static inline void path_start(const pt_renderer *r, pixel_ctx *pc, uint32_t inde
  */
 static inline __attribute__((always_inline)) uint32_t
 shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_BOUNCE],
-      const pt_vec3 *cos_wi, shadow_ray *sr, const uint32_t features)
+      const surface *sf, const pt_light_sample *ls, int ls_ok, const pt_vec3 *cos_wi,
+      shadow_ray *sr, const uint32_t features)
 {
     const pt_scene *s = r->scene;
     const uint32_t strategy = r->params.light_strategy;
     uint32_t ret = 0;
-    surface sf;
-    surface_at(r, hit, &sf, features);
     pt_vec3 wo = pt_v3_neg(pa->d);
 
-    if ((features & PT_FEAT_EMITTERS) && emits(sf.mat)) {
+    if ((features & PT_FEAT_EMITTERS) && emits(sf->mat)) {
         pt_vec3 le = pt_emitted(s, hit->tri, hit->b1, hit->b2, wo);
         if (pa->prev_pdf > 0.0f && strategy == PT_LIGHT_MIS) {
-            float lp = pt_lights_pdf(r->lights, s, hit->tri, pa->prev_p, sf.p, sf.ng);
+            float lp = pt_lights_pdf(r->lights, s, hit->tri, pa->prev_p, sf->p, sf->ng);
             le = pt_v3_scale(le, power_heuristic(pa->prev_pdf, lp));
         }
         if (pa->prev_pdf == 0.0f || strategy != PT_LIGHT_NEE_ONLY)
@@ -417,41 +434,35 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
 
     /* Shade on the side the ray arrived from; single-sided surfaces are
      * treated as two-sided for scattering (only emission is one-sided). */
-    pt_vec3 ng = sf.ng;
+    pt_vec3 ng = sf->ng;
     if (pt_v3_dot(ng, wo) < 0.0f)
         ng = pt_v3_neg(ng);
-    pt_vec3 ns = sf.ns;
+    pt_vec3 ns = sf->ns;
     if (pt_v3_dot(ns, ng) < 0.0f)
         ns = pt_v3_neg(ns);
     if (pt_v3_dot(ns, wo) <= 0.0f)
         ns = ng; /* interpolated normal faces away from the viewer */
     pt_frame fr = pt_frame_from_normal(ns);
     pt_vec3 wo_l = pt_frame_to_local(&fr, wo);
-    pt_bsdf bsdf = material_bsdf(r, &sf, features);
+    pt_bsdf bsdf = material_bsdf(r, sf, features);
     if ((features & PT_FEAT_EMITTERS) && r->nee) {
-        float u3[3];
-        u3[0] = u[OFF_LIGHT_PICK];
-        u3[1] = u[OFF_LIGHT_POINT];
-        u3[2] = u[OFF_LIGHT_POINT + 1];
-        pt_light_sample ls;
-        if (pt_lights_sample(r->lights, s, sf.p, u3, &ls) && ls.pdf > 0.0f &&
-            any_positive(ls.radiance) && pt_v3_dot(ls.wi, ng) > 0.0f) {
+        if (ls_ok && ls->pdf > 0.0f && any_positive(ls->radiance) && pt_v3_dot(ls->wi, ng) > 0.0f) {
             float bpdf;
-            pt_vec3 f = bsdf_eval(&bsdf, wo_l, pt_frame_to_local(&fr, ls.wi), &bpdf, features);
+            pt_vec3 f = bsdf_eval(&bsdf, wo_l, pt_frame_to_local(&fr, ls->wi), &bpdf, features);
             if (any_positive(f)) {
-                pt_vec3 from = pt_offset_apply(r->offset, sf.p, ng);
-                pt_vec3 nl = ls.normal;
-                if (pt_v3_dot(nl, ls.wi) > 0.0f)
+                pt_vec3 from = pt_offset_apply(r->offset, sf->p, ng);
+                pt_vec3 nl = ls->normal;
+                if (pt_v3_dot(nl, ls->wi) > 0.0f)
                     nl = pt_v3_neg(nl);
-                pt_vec3 to = pt_offset_apply(r->offset, ls.position, nl);
+                pt_vec3 to = pt_offset_apply(r->offset, ls->position, nl);
                 pt_vec3 sd = pt_v3_sub(to, from);
                 float dist = pt_v3_len(sd);
                 sr->from = from;
                 sr->dist = dist;
                 sr->dir = pt_v3_scale(sd, dist > 0.0f ? 1.0f / dist : 0.0f);
                 float w =
-                    (strategy == PT_LIGHT_MIS ? power_heuristic(ls.pdf, bpdf) : 1.0f) / ls.pdf;
-                sr->contrib = pt_v3_mul(pa->beta, pt_v3_scale(pt_v3_mul(f, ls.radiance), w));
+                    (strategy == PT_LIGHT_MIS ? power_heuristic(ls->pdf, bpdf) : 1.0f) / ls->pdf;
+                sr->contrib = pt_v3_mul(pa->beta, pt_v3_scale(pt_v3_mul(f, ls->radiance), w));
                 ret = SHADE_SHADOW;
             }
         }
@@ -481,9 +492,9 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
         beta = pt_v3_scale(beta, 1.0f / survive);
     }
     pa->beta = beta;
-    pa->prev_p = sf.p;
+    pa->prev_p = sf->p;
     pa->prev_pdf = pdf;
-    pa->o = pt_offset_apply(r->offset, sf.p, ng);
+    pa->o = pt_offset_apply(r->offset, sf->p, ng);
     pa->d = wi;
     pa->depth++;
     return ret | SHADE_CONTINUE;
@@ -521,7 +532,11 @@ static inline __attribute__((always_inline)) pt_vec3 li_impl(const pt_renderer *
         if (!pt_accel_intersect(r->accel, pa.o, pa.d, INFINITY, &hit))
             break;
         shadow_ray sr = {{0, 0, 0}, {0, 0, 0}, 0.0f, {0, 0, 0}}; /* set when SHADE_SHADOW */
-        uint32_t st = shade(r, &pa, &hit, u, NULL, &sr, features);
+        surface sf;
+        surface_at(r, &hit, &sf, features);
+        pt_light_sample ls;
+        int ls_ok = bounce_light(r, &sf, u, &ls, features);
+        uint32_t st = shade(r, &pa, &hit, u, &sf, &ls, ls_ok, NULL, &sr, features);
         if (st & SHADE_SHADOW) {
             rays++;
             trace_shadow(r, &pa, &sr, NULL);
@@ -560,6 +575,9 @@ static inline __attribute__((always_inline)) uint64_t trace_batch(const pt_rende
     pt_sample_group deep[BATCH];
     uint32_t index[BATCH];
     pt_vec3 cos_wi[BATCH]; /* by position in live[] */
+    surface sfs[BATCH];
+    pt_light_sample lss[BATCH];
+    int ls_ok[BATCH];
     pt_hit hits[BATCH];
     shadow_ray sr[BATCH];
     uint64_t rays = 0;
@@ -589,10 +607,14 @@ static inline __attribute__((always_inline)) uint64_t trace_batch(const pt_rende
          * lanes (the same bits). */
         if (!(features & PT_FEAT_GLOSSY))
             pt_sample_cosine_hemisphere_n(&u[0][OFF_BSDF_DIR], DIM_PER_BOUNCE, nh, cos_wi);
+        for (uint32_t j = 0; j < nh; j++)
+            surface_at(r, &hits[live[j]], &sfs[j], features);
+        for (uint32_t j = 0; j < nh; j++)
+            ls_ok[j] = bounce_light(r, &sfs[j], u[j], &lss[j], features);
         uint32_t ns = 0, nc = 0;
         for (uint32_t j = 0; j < nh; j++) {
             uint32_t k = live[j];
-            uint32_t st = shade(r, &paths[k], &hits[k], u[j],
+            uint32_t st = shade(r, &paths[k], &hits[k], u[j], &sfs[j], &lss[j], ls_ok[j],
                                 (features & PT_FEAT_GLOSSY) ? NULL : &cos_wi[j], &sr[k], features);
             if (st & SHADE_SHADOW)
                 shadowed[ns++] = (uint8_t)k;
