@@ -143,11 +143,14 @@ void pt_sample_cosine_hemisphere_n(const float *u, size_t stride, uint32_t n, pt
 {
     for (uint32_t k0 = 0; k0 < n; k0 += 8) {
         uint32_t m = n - k0 < 8 ? n - k0 : 8;
-        v8f u1 = {0}, u2 = {0};
-        for (uint32_t l = 0; l < m; l++) {
-            u1[l] = u[(size_t)(k0 + l) * stride];
-            u2[l] = u[(size_t)(k0 + l) * stride + 1];
-        }
+        /* Lanes past n repeat the last pair. Built by an initialiser, not
+         * lane by lane through memory, whose 4-byte stores a 32-byte load
+         * could not forward. */
+        const float *p[8];
+        for (uint32_t l = 0; l < 8; l++)
+            p[l] = &u[(size_t)(k0 + (l < m ? l : m - 1)) * stride];
+        v8f u1 = {p[0][0], p[1][0], p[2][0], p[3][0], p[4][0], p[5][0], p[6][0], p[7][0]};
+        v8f u2 = {p[0][1], p[1][1], p[2][1], p[3][1], p[4][1], p[5][1], p[6][1], p[7][1]};
         v8f a = 2.0f * u1 - 1.0f, b = 2.0f * u2 - 1.0f;
         v8i origin = (a == 0.0f) & (b == 0.0f);
         v8f fa = (v8f)((v8i)a & 0x7fffffff), fb = (v8f)((v8i)b & 0x7fffffff);

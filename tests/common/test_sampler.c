@@ -255,13 +255,18 @@ static void test_groups(void)
         idx[j] = j < 20 ? j : j * 2654435761u;
     }
     for (uint32_t n = 0; n <= N; n++) {
-        memset(out, 0, sizeof out);
-        pt_sample_group_eval_n(gp, idx, n, out);
-        for (uint32_t j = 0; j < N; j++) {
-            float v[8] = {0};
-            if (j < n)
-                pt_sample_group_eval(gp[j], idx[j], v);
-            bad += memcmp(v, out[j], sizeof v) != 0;
+        for (int portable = 0; portable < 2; portable++) {
+            memset(out, 0, sizeof out);
+            if (portable)
+                pt_sample_group_eval_n_portable(gp, idx, n, out);
+            else
+                pt_sample_group_eval_n(gp, idx, n, out);
+            for (uint32_t j = 0; j < N; j++) {
+                float v[8] = {0};
+                if (j < n)
+                    pt_sample_group_eval(gp[j], idx[j], v);
+                bad += memcmp(v, out[j], sizeof v) != 0;
+            }
         }
     }
     CHECKF(bad == 0, "%d pt_sample_group_eval_n results differ from pt_sample_group_eval", bad);
