@@ -555,14 +555,16 @@ static inline __attribute__((always_inline)) pt_vec3 li_impl(const pt_renderer *
 
 /*
  * Traces n paths (all started) to their ends, stage by stage over all live
- * paths: the bounce's numbers, the closest hits, the shading, the shadow
- * rays. Each path does exactly what li_impl does, in the same order, so its
- * L is the same bits; but the loops' iterations are independent paths, so
- * the processor overlaps one path's long dependency chains (the scrambles,
- * the square roots and divisions of the shading) with its neighbours'
- * instead of waiting on each in turn, and the ray queries run back to back.
- * This is a small wavefront (Laine, Karras & Aila 2013, "Megakernels
- * Considered Harmful") kept in a few kilobytes of stack.
+ * paths: the closest hits, the bounce's numbers (one sampler call, SIMD), the
+ * surfaces, the light samples, the cosine directions (Lambert variants, SIMD),
+ * the shading, the shadow rays. Each path does exactly what li_impl does, in
+ * the same order, so its L is the same bits; but the loops' iterations are
+ * independent paths, so the processor overlaps one path's long dependency
+ * chains (the square roots and divisions) with its neighbours' instead of
+ * waiting on each in turn, and the ray queries run back to back. This is a
+ * small wavefront (Laine, Karras & Aila 2013, "Megakernels Considered
+ * Harmful") kept on the stack: about 60 KB with tile_impl's, most of it the
+ * pixels' sampler seeds.
  */
 static inline __attribute__((always_inline)) uint64_t trace_batch(const pt_renderer *r, path *paths,
                                                                   uint32_t n,

@@ -75,6 +75,7 @@ typedef struct shared {
     const pt_accel *accel;
     uint32_t width, height, spp, tile;
     atomic_uint next;
+    atomic_size_t next_ray; /* replay: the next chunk of the log */
     const ray_log *log;
     pt_render_stats stats[64];
     uint64_t hits[64];
@@ -108,15 +109,25 @@ static void *replay_worker(void *p)
 {
     targ *a = p;
     shared *sh = a->sh;
-    size_t n = sh->log->n, lo = n * a->id / a->nthreads, hi = n * (a->id + 1) / a->nthreads;
+    /* Chunks of the log taken in order as threads come free, as the render
+     * takes tiles: a fixed split would leave a thread idle at the end and
+     * understate the rate in wall time. */
+    const size_t chunk = 4096;
+    size_t n = sh->log->n;
     uint64_t hits = 0;
-    for (size_t i = lo; i < hi; i++) {
-        const ray_rec *r = &sh->log->rays[i];
-        if (r->occlusion) {
-            hits += pt_accel_occluded(sh->accel, r->o, r->d, r->tfar);
-        } else {
-            pt_hit h;
-            hits += pt_accel_intersect(sh->accel, r->o, r->d, r->tfar, &h);
+    for (;;) {
+        size_t lo = atomic_fetch_add(&sh->next_ray, chunk);
+        if (lo >= n)
+            break;
+        size_t hi = n - lo < chunk ? n : lo + chunk;
+        for (size_t i = lo; i < hi; i++) {
+            const ray_rec *r = &sh->log->rays[i];
+            if (r->occlusion) {
+                hits += pt_accel_occluded(sh->accel, r->o, r->d, r->tfar);
+            } else {
+                pt_hit h;
+                hits += pt_accel_intersect(sh->accel, r->o, r->d, r->tfar, &h);
+            }
         }
     }
     sh->hits[a->id] = hits;
@@ -236,6 +247,7 @@ int main(int argc, char **argv)
     for (int k = 0; k < reps; k++) {
         shared sh = {.r = r, .accel = accel, .width = w, .height = h, .spp = spp, .tile = 16, .log = &log};
         atomic_init(&sh.next, 0);
+        atomic_init(&sh.next_ray, 0);
         double c0 = cpu_now();
         double t0 = now();
         run_threads(threads, render_worker, &sh);
