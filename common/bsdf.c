@@ -118,6 +118,62 @@ pt_vec3 pt_sample_cosine_hemisphere(float u1, float u2)
     return pt_v3(x, y, sqrtf(maxf(0.0f, 1.0f - x * x - y * y)));
 }
 
+/*
+ * pt_sample_cosine_hemisphere for n pairs in 8 SIMD lanes, in GCC/Clang vector
+ * types: the same float operations lane by lane (IEEE arithmetic, no
+ * contraction: the same bits), the branches of the scalar code as selects.
+ * The square root stays per lane: C has no portable vector square root, and
+ * sqrtf of a float is the same correctly rounded result either way. Compiled
+ * for AVX2 and the x86-64 baseline (target_clones), like the sampler.
+ */
+typedef float v8f __attribute__((vector_size(32)));
+typedef int32_t v8i __attribute__((vector_size(32)));
+
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && defined(__linux__)
+#define PT_SIMD_CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define PT_SIMD_CLONES
+#endif
+
+/* Per lane: m ? a : b. */
+#define V8_SELECT(m, a, b) ((v8f)(((v8i)(a) & (m)) | ((v8i)(b) & ~(m))))
+
+PT_SIMD_CLONES
+void pt_sample_cosine_hemisphere_n(const float *u, size_t stride, uint32_t n, pt_vec3 *out)
+{
+    for (uint32_t k0 = 0; k0 < n; k0 += 8) {
+        uint32_t m = n - k0 < 8 ? n - k0 : 8;
+        /* Lanes past n repeat the last pair. Built by an initialiser, not
+         * lane by lane through memory, whose 4-byte stores a 32-byte load
+         * could not forward. */
+        const float *p[8];
+        for (uint32_t l = 0; l < 8; l++)
+            p[l] = &u[(size_t)(k0 + (l < m ? l : m - 1)) * stride];
+        v8f u1 = {p[0][0], p[1][0], p[2][0], p[3][0], p[4][0], p[5][0], p[6][0], p[7][0]};
+        v8f u2 = {p[0][1], p[1][1], p[2][1], p[3][1], p[4][1], p[5][1], p[6][1], p[7][1]};
+        v8f a = 2.0f * u1 - 1.0f, b = 2.0f * u2 - 1.0f;
+        v8i origin = (a == 0.0f) & (b == 0.0f);
+        v8f fa = (v8f)((v8i)a & 0x7fffffff), fb = (v8f)((v8i)b & 0x7fffffff);
+        v8i wide = fa > fb;
+        v8f r = V8_SELECT(wide, a, b);
+        v8f num = V8_SELECT(wide, b, a), den = V8_SELECT(wide, a, b);
+        /* At the origin den is 0 and t NaN; the lane's result is replaced. */
+        v8f t = (PT_PI / 4.0f) * (num / den);
+        v8f t2 = t * t;
+        v8f sn =
+            t *
+            (1.0f + t2 * (-1.0f / 6.0f +
+                          t2 * (1.0f / 120.0f + t2 * (-1.0f / 5040.0f + t2 * (1.0f / 362880.0f)))));
+        v8f c = 1.0f +
+                t2 * (-0.5f + t2 * (1.0f / 24.0f + t2 * (-1.0f / 720.0f + t2 * (1.0f / 40320.0f))));
+        v8f x = r * V8_SELECT(wide, c, sn), y = r * V8_SELECT(wide, sn, c);
+        v8f w = 1.0f - x * x - y * y;
+        for (uint32_t l = 0; l < m; l++)
+            out[k0 + l] =
+                origin[l] ? pt_v3(0.0f, 0.0f, 1.0f) : pt_v3(x[l], y[l], sqrtf(maxf(0.0f, w[l])));
+    }
+}
+
 float pt_ggx_d(pt_vec3 m, float alpha)
 {
     if (m.z <= 0.0f)

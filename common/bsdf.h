@@ -19,6 +19,8 @@
 #ifndef PT_COMMON_BSDF_H
 #define PT_COMMON_BSDF_H
 
+#include <stddef.h>
+
 #include "common/vec.h"
 
 typedef struct pt_bsdf {
@@ -49,6 +51,9 @@ pt_vec3 pt_bsdf_sample(const pt_bsdf *b, pt_vec3 wo, const float u[3], pt_vec3 *
 
 /* Lower-level pieces, exposed for the statistical tests. */
 pt_vec3 pt_sample_cosine_hemisphere(float u1, float u2); /* pdf = cos/pi */
+/* out[k] = pt_sample_cosine_hemisphere(u[k * stride], u[k * stride + 1]) for
+ * k < n, in SIMD lanes (the same bits). */
+void pt_sample_cosine_hemisphere_n(const float *u, size_t stride, uint32_t n, pt_vec3 *out);
 /* GGX visible normal for view wo (Heitz 2018); isotropic alpha. */
 pt_vec3 pt_ggx_sample_vndf(pt_vec3 wo, float alpha, float u1, float u2);
 float pt_ggx_d(pt_vec3 m, float alpha);

@@ -45,15 +45,21 @@ static void pixel_ctx_init(pixel_ctx *pc, const pt_renderer *r, uint32_t px, uin
  * for features a scene lacks is folded away (see pick_variant). */
 typedef pt_vec3 (*li_fn)(const pt_renderer *r, pixel_ctx *pc, uint32_t index,
                          pt_render_stats *stats);
+typedef void (*tile_fn)(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,
+                        pt_pixel_acc *out, pt_render_stats *stats);
 
 struct pt_renderer {
     const pt_scene *scene;
     pt_accel *accel;
     pt_offset offset; /* pt_accel_offset(accel) */
     pt_lights *lights;
-    pt_bsdf *mat_bsdf; /* per material: its BSDF when it has no texture */
+    pt_bsdf *mat_bsdf;    /* per material: its BSDF when it has no texture */
+    struct tri_rec *tris; /* per triangle (surface_at), in tris_mem */
+    void *tris_mem;
     pt_render_params params;
-    li_fn li;
+    li_fn li;     /* one path at a time: pt_render_sample */
+    tile_fn tile; /* batched: pt_render_tile */
+    int nee;      /* next-event estimation runs: lights exist, the strategy uses them */
     const char *variant;
     float tan_half_fov;
 };
@@ -97,25 +103,92 @@ typedef struct surface {
     const pt_material *mat;
 } surface;
 
-static inline void surface_at(const pt_scene *s, const pt_hit *hit, surface *sf,
+/*
+ * What the integrator reads of a hit triangle, in one 64-byte, cache-line-
+ * aligned record indexed by Embree's primID, built once per renderer: the
+ * vertices (so the hit point is pt_accel_hit_point's, the same bits), the
+ * unit geometric normal that pt_accel_hit_point would compute at every hit
+ * (computed once by the same code: the same bits), and the material. A flat
+ * triangle - three bit-identical vertex normals, as in every flat-shaded
+ * mesh - also stores that normal, normalised: interpolating three equal unit
+ * normals and normalising gives it back, up to a rounding of the sum, so the
+ * shading normal costs neither the interpolation nor a square root.
+ */
+typedef struct tri_rec {
+    pt_vec3 v0, v1, v2;
+    pt_vec3 ng;
+    pt_vec3 ns;   /* when mat & TRI_FLAT */
+    uint32_t mat; /* material index, and TRI_FLAT */
+} tri_rec;
+#define TRI_FLAT 0x80000000u
+_Static_assert(sizeof(tri_rec) == 64, "tri_rec is one cache line");
+
+static inline void surface_at(const pt_renderer *r, const pt_hit *hit, surface *sf,
                               const uint32_t features)
 {
-    pt_accel_hit_point(s, hit, &sf->p, &sf->ng);
-    const uint32_t *tri = &s->indices[3 * hit->tri];
+    const pt_scene *s = r->scene;
+    const tri_rec *t = &r->tris[hit->tri];
     float b0 = 1.0f - hit->b1 - hit->b2;
-    pt_vec3 n = pt_v3_add(pt_v3_add(pt_v3_scale(vert(s->normals, tri[0]), b0),
-                                    pt_v3_scale(vert(s->normals, tri[1]), hit->b1)),
-                          pt_v3_scale(vert(s->normals, tri[2]), hit->b2));
-    float len = pt_v3_len(n);
-    sf->ns = (len > 0.0f && isfinite(len)) ? pt_v3_scale(n, 1.0f / len) : sf->ng;
+    /* pt_accel_hit_point's expression. */
+    sf->p = pt_v3_add(pt_v3_add(pt_v3_scale(t->v0, b0), pt_v3_scale(t->v1, hit->b1)),
+                      pt_v3_scale(t->v2, hit->b2));
+    sf->ng = t->ng;
+    const uint32_t *tri = &s->indices[3 * hit->tri];
+    if (t->mat & TRI_FLAT) {
+        sf->ns = t->ns;
+    } else {
+        pt_vec3 n = pt_v3_add(pt_v3_add(pt_v3_scale(vert(s->normals, tri[0]), b0),
+                                        pt_v3_scale(vert(s->normals, tri[1]), hit->b1)),
+                              pt_v3_scale(vert(s->normals, tri[2]), hit->b2));
+        float len = pt_v3_len(n);
+        sf->ns = (len > 0.0f && isfinite(len)) ? pt_v3_scale(n, 1.0f / len) : sf->ng;
+    }
     sf->uv[0] = sf->uv[1] = 0.0f;
     if ((features & PT_FEAT_TEXTURES) && s->uvs) {
-        const float *t = s->uvs;
-        sf->uv[0] = b0 * t[2 * tri[0]] + hit->b1 * t[2 * tri[1]] + hit->b2 * t[2 * tri[2]];
+        const float *uv = s->uvs;
+        sf->uv[0] = b0 * uv[2 * tri[0]] + hit->b1 * uv[2 * tri[1]] + hit->b2 * uv[2 * tri[2]];
         sf->uv[1] =
-            b0 * t[2 * tri[0] + 1] + hit->b1 * t[2 * tri[1] + 1] + hit->b2 * t[2 * tri[2] + 1];
+            b0 * uv[2 * tri[0] + 1] + hit->b1 * uv[2 * tri[1] + 1] + hit->b2 * uv[2 * tri[2] + 1];
     }
-    sf->mat = &s->materials[s->tri_material[hit->tri]];
+    sf->mat = &s->materials[t->mat & ~TRI_FLAT];
+}
+
+/* The records of a scene's triangles, in a block whose start is aligned to
+ * 64 bytes (*base is what to free). */
+static tri_rec *tri_recs_new(const pt_scene *s, void **base)
+{
+    *base = NULL;
+    if (s->num_triangles == 0)
+        return NULL;
+    size_t n = s->num_triangles;
+    if (n > (SIZE_MAX - 63) / sizeof(tri_rec))
+        return NULL;
+    char *mem = pt_malloc(n * sizeof(tri_rec) + 63);
+    if (!mem)
+        return NULL;
+    tri_rec *recs = (tri_rec *)(mem + ((64 - (uintptr_t)mem % 64) % 64));
+    for (size_t i = 0; i < n; i++) {
+        const uint32_t *tri = &s->indices[3 * i];
+        tri_rec *t = &recs[i];
+        pt_hit hit = {0.0f, 0.0f, 0.0f, (uint32_t)i};
+        pt_vec3 p;
+        pt_accel_hit_point(s, &hit, &p, &t->ng);
+        t->v0 = vert(s->positions, tri[0]);
+        t->v1 = vert(s->positions, tri[1]);
+        t->v2 = vert(s->positions, tri[2]);
+        t->mat = s->tri_material[i] & ~TRI_FLAT;
+        t->ns = t->ng;
+        pt_vec3 n0 = vert(s->normals, tri[0]), n1 = vert(s->normals, tri[1]),
+                n2 = vert(s->normals, tri[2]);
+        float len = pt_v3_len(n0);
+        if (memcmp(&n0, &n1, sizeof n0) == 0 && memcmp(&n0, &n2, sizeof n0) == 0 && len > 0.0f &&
+            isfinite(len)) {
+            t->ns = pt_v3_scale(n0, 1.0f / len);
+            t->mat |= TRI_FLAT;
+        }
+    }
+    *base = mem;
+    return recs;
 }
 
 /* max(a, b) as fmaxf gives it (a NaN argument is ignored), by comparisons:
@@ -200,8 +273,10 @@ static inline pt_vec3 bsdf_eval(const pt_bsdf *b, pt_vec3 wo, pt_vec3 wi, float 
     return pt_v3_scale(b->diffuse, c);
 }
 
+/* cos_wi, when not NULL, is pt_sample_cosine_hemisphere(u[1], u[2]),
+ * computed beforehand for many paths at once. */
 static inline pt_vec3 bsdf_sample(const pt_bsdf *b, pt_vec3 wo, const float u[3], pt_vec3 *wi,
-                                  float *pdf, const uint32_t features)
+                                  float *pdf, const pt_vec3 *cos_wi, const uint32_t features)
 {
     if (features & PT_FEAT_GLOSSY)
         return pt_bsdf_sample(b, wo, u, wi, pdf);
@@ -210,7 +285,7 @@ static inline pt_vec3 bsdf_sample(const pt_bsdf *b, pt_vec3 wo, const float u[3]
     *wi = pt_v3(0.0f, 0.0f, 1.0f);
     if (!(wo.z > 0.0f))
         return zero;
-    *wi = pt_sample_cosine_hemisphere(u[1], u[2]);
+    *wi = cos_wi ? *cos_wi : pt_sample_cosine_hemisphere(u[1], u[2]);
     if (!(wi->z > 0.0f))
         return zero;
     pt_vec3 f = bsdf_eval(b, wo, *wi, pdf, features);
@@ -239,168 +314,406 @@ static inline void camera_ray(const pt_renderer *r, uint32_t px, uint32_t py, co
         pt_v3_add(c->forward, pt_v3_add(pt_v3_scale(c->right, sx), pt_v3_scale(c->up, sy))));
 }
 
-/*
- * One path. NEE samples an emissive triangle at every vertex; the BSDF-sampled
- * continuation that hits an emitter adds its emission weighted by the power
- * heuristic against the light pdf, so each light path is counted once
- * (Veach 1997, sec. 9.2). Russian roulette after rr_depth bounces keeps
- * throughput-weighted survival (survival probability max(beta), at most 0.95).
- */
-static inline __attribute__((always_inline)) pt_vec3 li_impl(const pt_renderer *r, pixel_ctx *pc,
-                                                             uint32_t index, pt_render_stats *stats,
-                                                             const uint32_t features,
-                                                             const pt_ray_sink *sink)
+/* The sampler seeds of bounce `depth` of pc's pixel: kept in pc for the
+ * first SEED_CACHE bounces, hashed into *deep beyond. */
+static inline const pt_sample_group *bounce_group(pixel_ctx *pc, uint32_t depth,
+                                                  pt_sample_group *deep)
 {
-    const pt_scene *s = r->scene;
+    if (depth >= SEED_CACHE) {
+        pt_sample_group_init(deep, pc->seed, DIM_BOUNCE0 + DIM_PER_BOUNCE * depth);
+        return deep;
+    }
+    while (pc->ngroups <= depth) {
+        pt_sample_group_init(&pc->bounce[pc->ngroups], pc->seed,
+                             DIM_BOUNCE0 + DIM_PER_BOUNCE * pc->ngroups);
+        pc->ngroups++;
+    }
+    return &pc->bounce[depth];
+}
+
+/* The 8 numbers of bounce `depth` of sample `index` (the light pick and the
+ * lobe pick are one pair: one index shuffle). */
+static inline void draw_bounce(pixel_ctx *pc, uint32_t depth, uint32_t index,
+                               float u[DIM_PER_BOUNCE])
+{
+    pt_sample_group deep;
+    pt_sample_group_eval(bounce_group(pc, depth, &deep), index, u);
+}
+
+/* One path between bounces: the ray it traces next and what it carries. */
+typedef struct path {
+    pt_vec3 o, d; /* the next closest-hit ray */
+    pt_vec3 L, beta;
+    pt_vec3 prev_p;
+    float prev_pdf; /* 0: the previous vertex was the camera (no MIS) */
+    uint32_t depth;
+    uint32_t index; /* the sample index */
+    pixel_ctx *pc;
+} path;
+
+/* A shadow ray that shade() asks for, and what the path gains when the ray is
+ * unoccluded. Nothing is traced when dist is not positive (it still counts as
+ * a ray, as it always has). */
+typedef struct shadow_ray {
+    pt_vec3 from, dir;
+    float dist;
+    pt_vec3 contrib; /* beta * (f * Le * w), beta before this bounce's weight */
+} shadow_ray;
+
+enum { SHADE_SHADOW = 1u, SHADE_CONTINUE = 2u };
+
+/* The camera ray of sample `index` of pc's pixel. */
+static inline void path_start(const pt_renderer *r, pixel_ctx *pc, uint32_t index, path *pa)
+{
     float u2[2];
     pt_sample_group_eval2(&pc->jitter, index, u2);
-    pt_vec3 o, d;
-    camera_ray(r, pc->px, pc->py, u2, &o, &d);
+    camera_ray(r, pc->px, pc->py, u2, &pa->o, &pa->d);
+    pa->L = pt_v3(0, 0, 0);
+    pa->beta = pt_v3(1, 1, 1);
+    pa->prev_p = pa->o;
+    pa->prev_pdf = 0.0f;
+    pa->depth = 0;
+    pa->index = index;
+    pa->pc = pc;
+}
 
-    pt_vec3 L = pt_v3(0, 0, 0), beta = pt_v3(1, 1, 1);
-    pt_vec3 prev_p = o;
-    float prev_pdf = 0.0f; /* 0: the previous vertex was the camera (no MIS) */
-    uint64_t rays = 0;
+/* The light sample of a bounce at sf, when NEE runs. Like the hit's surface
+ * (surface_at) it is a pure function of the hit and the bounce's numbers, so
+ * the batched loop computes both for all paths, stage by stage, before
+ * shading any: short loops of independent iterations, which the processor
+ * overlaps. */
+static inline __attribute__((always_inline)) int
+bounce_light(const pt_renderer *r, const surface *sf, const float u[DIM_PER_BOUNCE],
+             pt_light_sample *ls, const uint32_t features)
+{
+    if (!((features & PT_FEAT_EMITTERS) && r->nee))
+        return 0;
+    float u3[3];
+    u3[0] = u[OFF_LIGHT_PICK];
+    u3[1] = u[OFF_LIGHT_POINT];
+    u3[2] = u[OFF_LIGHT_POINT + 1];
+    return pt_lights_sample(r->lights, r->scene, sf->p, u3, ls);
+}
+
+/*
+ * One bounce of a path whose ray hit `hit`, with the bounce's numbers u. NEE
+ * samples an emissive triangle at every vertex; the BSDF-sampled continuation
+ * that hits an emitter adds its emission weighted by the power heuristic
+ * against the light pdf, so each light path is counted once (Veach 1997,
+ * sec. 9.2). Russian roulette after rr_depth bounces keeps throughput-weighted
+ * survival (survival probability max(beta), at most 0.95).
+ *
+ * Adds the hit's emission to pa->L; fills *sr and returns SHADE_SHADOW when
+ * the light sample needs a shadow ray, whose contribution the caller adds
+ * after this bounce's emission and before the next one's (trace_shadow), so
+ * that L sums the same terms in the same order however the rays of many paths
+ * are interleaved. Returns SHADE_CONTINUE with pa's next ray when the path
+ * goes on.
+ */
+static inline __attribute__((always_inline)) uint32_t
+shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_BOUNCE],
+      const surface *sf, const pt_light_sample *ls, int ls_ok, const pt_vec3 *cos_wi,
+      shadow_ray *sr, const uint32_t features)
+{
+    const pt_scene *s = r->scene;
     const uint32_t strategy = r->params.light_strategy;
-    const int has_lights = (features & PT_FEAT_EMITTERS) && pt_lights_count(r->lights) > 0 &&
-                           strategy != PT_LIGHT_BSDF_ONLY;
+    uint32_t ret = 0;
+    pt_vec3 wo = pt_v3_neg(pa->d);
 
-    for (uint32_t depth = 0;; depth++) {
-        /* All 8 numbers of the bounce at once (the light pick and the lobe
-         * pick are one pair: one index shuffle), drawn before the ray is
-         * traced: they do not depend on the hit, and the scrambles' long
-         * dependency chain then overlaps the ray query instead of following
-         * it. (A missed ray wastes them; a miss ends the path anyway.) */
-        float u[DIM_PER_BOUNCE];
-        {
-            pt_sample_group deep;
-            const pt_sample_group *g = &deep;
-            if (depth < SEED_CACHE) {
-                while (pc->ngroups <= depth) {
-                    pt_sample_group_init(&pc->bounce[pc->ngroups], pc->seed,
-                                         DIM_BOUNCE0 + DIM_PER_BOUNCE * pc->ngroups);
-                    pc->ngroups++;
-                }
-                g = &pc->bounce[depth];
-            } else {
-                pt_sample_group_init(&deep, pc->seed, DIM_BOUNCE0 + DIM_PER_BOUNCE * depth);
-            }
-            pt_sample_group_eval(g, index, u);
+    if ((features & PT_FEAT_EMITTERS) && emits(sf->mat)) {
+        pt_vec3 le = pt_emitted(s, hit->tri, hit->b1, hit->b2, wo);
+        if (pa->prev_pdf > 0.0f && strategy == PT_LIGHT_MIS) {
+            float lp = pt_lights_pdf(r->lights, s, hit->tri, pa->prev_p, sf->p, sf->ng);
+            le = pt_v3_scale(le, power_heuristic(pa->prev_pdf, lp));
         }
+        if (pa->prev_pdf == 0.0f || strategy != PT_LIGHT_NEE_ONLY)
+            pa->L = pt_v3_add(pa->L, pt_v3_mul(pa->beta, le));
+    }
+    if (pa->depth >= r->params.max_depth)
+        return ret;
 
+    /* Shade on the side the ray arrived from; single-sided surfaces are
+     * treated as two-sided for scattering (only emission is one-sided). */
+    pt_vec3 ng = sf->ng;
+    if (pt_v3_dot(ng, wo) < 0.0f)
+        ng = pt_v3_neg(ng);
+    pt_vec3 ns = sf->ns;
+    if (pt_v3_dot(ns, ng) < 0.0f)
+        ns = pt_v3_neg(ns);
+    if (pt_v3_dot(ns, wo) <= 0.0f)
+        ns = ng; /* interpolated normal faces away from the viewer */
+    pt_frame fr = pt_frame_from_normal(ns);
+    pt_vec3 wo_l = pt_frame_to_local(&fr, wo);
+    pt_bsdf bsdf = material_bsdf(r, sf, features);
+    if ((features & PT_FEAT_EMITTERS) && r->nee) {
+        if (ls_ok && ls->pdf > 0.0f && any_positive(ls->radiance) && pt_v3_dot(ls->wi, ng) > 0.0f) {
+            float bpdf;
+            pt_vec3 f = bsdf_eval(&bsdf, wo_l, pt_frame_to_local(&fr, ls->wi), &bpdf, features);
+            if (any_positive(f)) {
+                pt_vec3 from = pt_offset_apply(r->offset, sf->p, ng);
+                pt_vec3 nl = ls->normal;
+                if (pt_v3_dot(nl, ls->wi) > 0.0f)
+                    nl = pt_v3_neg(nl);
+                pt_vec3 to = pt_offset_apply(r->offset, ls->position, nl);
+                pt_vec3 sd = pt_v3_sub(to, from);
+                float dist = pt_v3_len(sd);
+                sr->from = from;
+                sr->dist = dist;
+                sr->dir = pt_v3_scale(sd, dist > 0.0f ? 1.0f / dist : 0.0f);
+                float w =
+                    (strategy == PT_LIGHT_MIS ? power_heuristic(ls->pdf, bpdf) : 1.0f) / ls->pdf;
+                sr->contrib = pt_v3_mul(pa->beta, pt_v3_scale(pt_v3_mul(f, ls->radiance), w));
+                ret = SHADE_SHADOW;
+            }
+        }
+    }
+
+    float u3[3];
+    u3[0] = u[OFF_LIGHT_PICK + 1];
+    u3[1] = u[OFF_BSDF_DIR];
+    u3[2] = u[OFF_BSDF_DIR + 1];
+    pt_vec3 wi_l;
+    float pdf;
+    pt_vec3 weight = bsdf_sample(&bsdf, wo_l, u3, &wi_l, &pdf, cos_wi, features);
+    if (!(pdf > 0.0f) || !any_positive(weight))
+        return ret;
+    pt_vec3 wi = pt_frame_to_world(&fr, wi_l);
+    if (pt_v3_dot(wi, ng) <= 0.0f)
+        return ret; /* below the geometric surface: reflection only */
+    pt_vec3 beta = pt_v3_mul(pa->beta, weight);
+
+    if (pa->depth + 1 >= r->params.rr_depth) {
+        /* fminf(pt_v3_max_comp(beta), 0.95f) by comparisons (a NaN max
+         * gives 0.95 as fminf does). */
+        float m = max2(beta.x, max2(beta.y, beta.z));
+        float survive = m < 0.95f ? m : 0.95f;
+        if (!(u[OFF_RR] < survive))
+            return ret;
+        beta = pt_v3_scale(beta, 1.0f / survive);
+    }
+    pa->beta = beta;
+    pa->prev_p = sf->p;
+    pa->prev_pdf = pdf;
+    pa->o = pt_offset_apply(r->offset, sf->p, ng);
+    pa->d = wi;
+    pa->depth++;
+    return ret | SHADE_CONTINUE;
+}
+
+/* Traces the shadow ray shade() asked for and adds its contribution. */
+static inline void trace_shadow(const pt_renderer *r, path *pa, const shadow_ray *sr,
+                                const pt_ray_sink *sink)
+{
+    if (!(sr->dist > 0.0f))
+        return;
+    if (sink)
+        sink->ray(sink->user, sr->from, sr->dir, sr->dist, 1);
+    if (!pt_accel_occluded(r->accel, sr->from, sr->dir, sr->dist))
+        pa->L = pt_v3_add(pa->L, sr->contrib);
+}
+
+/* One path, start to end: the reference that the batched tile loop below
+ * must match bit for bit (tested through pt_render_sample). */
+static inline __attribute__((always_inline)) pt_vec3 li_impl(const pt_renderer *r, pixel_ctx *pc,
+                                                             uint32_t index, pt_render_stats *stats,
+                                                             const uint32_t features)
+{
+    path pa;
+    path_start(r, pc, index, &pa);
+    uint64_t rays = 0;
+    for (;;) {
+        /* The bounce's numbers are drawn before the ray is traced: they do
+         * not depend on the hit, and the scrambles' dependency chain then
+         * overlaps the ray query. (A missed ray wastes them.) */
+        float u[DIM_PER_BOUNCE];
+        draw_bounce(pc, pa.depth, index, u);
         pt_hit hit;
         rays++;
-        if (sink)
-            sink->ray(sink->user, o, d, INFINITY, 0);
-        if (!pt_accel_intersect(r->accel, o, d, INFINITY, &hit))
+        if (!pt_accel_intersect(r->accel, pa.o, pa.d, INFINITY, &hit))
             break;
+        shadow_ray sr = {{0, 0, 0}, {0, 0, 0}, 0.0f, {0, 0, 0}}; /* set when SHADE_SHADOW */
         surface sf;
-        surface_at(s, &hit, &sf, features);
-        pt_vec3 wo = pt_v3_neg(d);
-
-        if ((features & PT_FEAT_EMITTERS) && emits(sf.mat)) {
-            pt_vec3 le = pt_emitted(s, hit.tri, hit.b1, hit.b2, wo);
-            if (prev_pdf > 0.0f && strategy == PT_LIGHT_MIS) {
-                float lp = pt_lights_pdf(r->lights, s, hit.tri, prev_p, sf.p, sf.ng);
-                le = pt_v3_scale(le, power_heuristic(prev_pdf, lp));
-            }
-            if (prev_pdf == 0.0f || strategy != PT_LIGHT_NEE_ONLY)
-                L = pt_v3_add(L, pt_v3_mul(beta, le));
+        surface_at(r, &hit, &sf, features);
+        pt_light_sample ls;
+        int ls_ok = bounce_light(r, &sf, u, &ls, features);
+        uint32_t st = shade(r, &pa, &hit, u, &sf, &ls, ls_ok, NULL, &sr, features);
+        if (st & SHADE_SHADOW) {
+            rays++;
+            trace_shadow(r, &pa, &sr, NULL);
         }
-        if (depth >= r->params.max_depth)
+        if (!(st & SHADE_CONTINUE))
             break;
-
-        /* Shade on the side the ray arrived from; single-sided surfaces are
-         * treated as two-sided for scattering (only emission is one-sided). */
-        pt_vec3 ng = sf.ng;
-        if (pt_v3_dot(ng, wo) < 0.0f)
-            ng = pt_v3_neg(ng);
-        pt_vec3 ns = sf.ns;
-        if (pt_v3_dot(ns, ng) < 0.0f)
-            ns = pt_v3_neg(ns);
-        if (pt_v3_dot(ns, wo) <= 0.0f)
-            ns = ng; /* interpolated normal faces away from the viewer */
-        pt_frame fr = pt_frame_from_normal(ns);
-        pt_vec3 wo_l = pt_frame_to_local(&fr, wo);
-        pt_bsdf bsdf = material_bsdf(r, &sf, features);
-        if (has_lights) {
-            float u3[3];
-            u3[0] = u[OFF_LIGHT_PICK];
-            u3[1] = u[OFF_LIGHT_POINT];
-            u3[2] = u[OFF_LIGHT_POINT + 1];
-            pt_light_sample ls;
-            if (pt_lights_sample(r->lights, s, sf.p, u3, &ls) && ls.pdf > 0.0f &&
-                any_positive(ls.radiance) && pt_v3_dot(ls.wi, ng) > 0.0f) {
-                float bpdf;
-                pt_vec3 f = bsdf_eval(&bsdf, wo_l, pt_frame_to_local(&fr, ls.wi), &bpdf, features);
-                if (any_positive(f)) {
-                    pt_vec3 from = pt_offset_apply(r->offset, sf.p, ng);
-                    pt_vec3 nl = ls.normal;
-                    if (pt_v3_dot(nl, ls.wi) > 0.0f)
-                        nl = pt_v3_neg(nl);
-                    pt_vec3 to = pt_offset_apply(r->offset, ls.position, nl);
-                    pt_vec3 sd = pt_v3_sub(to, from);
-                    float dist = pt_v3_len(sd);
-                    rays++;
-                    pt_vec3 sdir = pt_v3_scale(sd, dist > 0.0f ? 1.0f / dist : 0.0f);
-                    if (sink && dist > 0.0f)
-                        sink->ray(sink->user, from, sdir, dist, 1);
-                    if (dist > 0.0f && !pt_accel_occluded(r->accel, from, sdir, dist)) {
-                        float w =
-                            (strategy == PT_LIGHT_MIS ? power_heuristic(ls.pdf, bpdf) : 1.0f) /
-                            ls.pdf;
-                        L = pt_v3_add(L,
-                                      pt_v3_mul(beta, pt_v3_scale(pt_v3_mul(f, ls.radiance), w)));
-                    }
-                }
-            }
-        }
-
-        float u3[3];
-        u3[0] = u[OFF_LIGHT_PICK + 1];
-        u3[1] = u[OFF_BSDF_DIR];
-        u3[2] = u[OFF_BSDF_DIR + 1];
-        pt_vec3 wi_l;
-        float pdf;
-        pt_vec3 weight = bsdf_sample(&bsdf, wo_l, u3, &wi_l, &pdf, features);
-        if (!(pdf > 0.0f) || !any_positive(weight))
-            break;
-        pt_vec3 wi = pt_frame_to_world(&fr, wi_l);
-        if (pt_v3_dot(wi, ng) <= 0.0f)
-            break; /* below the geometric surface: reflection only */
-        beta = pt_v3_mul(beta, weight);
-
-        if (depth + 1 >= r->params.rr_depth) {
-            /* fminf(pt_v3_max_comp(beta), 0.95f) by comparisons (a NaN max
-             * gives 0.95 as fminf does). */
-            float m = max2(beta.x, max2(beta.y, beta.z));
-            float survive = m < 0.95f ? m : 0.95f;
-            if (!(u[OFF_RR] < survive))
-                break;
-            beta = pt_v3_scale(beta, 1.0f / survive);
-        }
-        prev_p = sf.p;
-        prev_pdf = pdf;
-        o = pt_offset_apply(r->offset, sf.p, ng);
-        d = wi;
     }
     if (stats)
         stats->rays += rays;
-    return L;
+    return pa.L;
+}
+
+/* Paths in flight in the tile loop, and the most pixels they come from. */
+#define BATCH 64u
+#define BATCH_PIXELS 16u
+
+/*
+ * Traces n paths (all started) to their ends, stage by stage over all live
+ * paths: the closest hits, the bounce's numbers (one sampler call, SIMD), the
+ * surfaces, the light samples, the cosine directions (Lambert variants, SIMD),
+ * the shading, the shadow rays. Each path does exactly what li_impl does, in
+ * the same order, so its L is the same bits; but the loops' iterations are
+ * independent paths, so the processor overlaps one path's long dependency
+ * chains (the square roots and divisions) with its neighbours' instead of
+ * waiting on each in turn, and the ray queries run back to back. This is a
+ * small wavefront (Laine, Karras & Aila 2013, "Megakernels Considered
+ * Harmful") kept on the stack: about 60 KB with tile_impl's, most of it the
+ * pixels' sampler seeds.
+ */
+static inline __attribute__((always_inline)) uint64_t trace_batch(const pt_renderer *r, path *paths,
+                                                                  uint32_t n,
+                                                                  const uint32_t features,
+                                                                  const pt_ray_sink *sink)
+{
+    uint8_t live[BATCH], shadowed[BATCH];
+    float u[BATCH][DIM_PER_BOUNCE]; /* by position in live[] */
+    const pt_sample_group *groups[BATCH];
+    pt_sample_group deep[BATCH];
+    uint32_t index[BATCH];
+    pt_vec3 cos_wi[BATCH]; /* by position in live[] */
+    surface sfs[BATCH];
+    pt_light_sample lss[BATCH];
+    int ls_ok[BATCH];
+    pt_hit hits[BATCH];
+    shadow_ray sr[BATCH];
+    uint64_t rays = 0;
+    for (uint32_t k = 0; k < n; k++)
+        live[k] = (uint8_t)k;
+    while (n > 0) {
+        rays += n;
+        uint32_t nh = 0;
+        for (uint32_t j = 0; j < n; j++) {
+            uint32_t k = live[j];
+            if (sink)
+                sink->ray(sink->user, paths[k].o, paths[k].d, INFINITY, 0);
+            if (pt_accel_intersect(r->accel, paths[k].o, paths[k].d, INFINITY, &hits[k]))
+                live[nh++] = (uint8_t)k;
+        }
+        /* The bounce's numbers, for the paths that hit something: a pure
+         * function of (pixel, index, depth), so drawing them after the
+         * query, and in one call for all, changes no value. */
+        for (uint32_t j = 0; j < nh; j++) {
+            path *pa = &paths[live[j]];
+            groups[j] = bounce_group(pa->pc, pa->depth, &deep[j]);
+            index[j] = pa->index;
+        }
+        pt_sample_group_eval_n(groups, index, nh, u);
+        /* Without glossy lobes every bounce that samples its BSDF samples the
+         * cosine hemisphere with these numbers: all of them at once, in SIMD
+         * lanes (the same bits). */
+        if (!(features & PT_FEAT_GLOSSY))
+            pt_sample_cosine_hemisphere_n(&u[0][OFF_BSDF_DIR], DIM_PER_BOUNCE, nh, cos_wi);
+        for (uint32_t j = 0; j < nh; j++)
+            surface_at(r, &hits[live[j]], &sfs[j], features);
+        for (uint32_t j = 0; j < nh; j++)
+            ls_ok[j] = bounce_light(r, &sfs[j], u[j], &lss[j], features);
+        uint32_t ns = 0, nc = 0;
+        for (uint32_t j = 0; j < nh; j++) {
+            uint32_t k = live[j];
+            uint32_t st = shade(r, &paths[k], &hits[k], u[j], &sfs[j], &lss[j], ls_ok[j],
+                                (features & PT_FEAT_GLOSSY) ? NULL : &cos_wi[j], &sr[k], features);
+            if (st & SHADE_SHADOW)
+                shadowed[ns++] = (uint8_t)k;
+            if (st & SHADE_CONTINUE)
+                live[nc++] = (uint8_t)k; /* nc <= j: compaction in place */
+        }
+        rays += ns;
+        for (uint32_t j = 0; j < ns; j++)
+            trace_shadow(r, &paths[shadowed[j]], &sr[shadowed[j]], sink);
+        n = nc;
+    }
+    return rays;
+}
+
+/*
+ * Samples [s0, s1) of a tile's pixels. Pixels are taken in row-major groups
+ * and, per aligned block of PT_SAMPLE_BLOCK samples, the block's samples of
+ * the whole group are traced together (trace_batch); then each pixel sums its
+ * block's results in sample order and adds the block sum: the same additions
+ * as one pixel and one sample at a time.
+ */
+static inline __attribute__((always_inline)) void
+tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel_acc *out,
+          pt_render_stats *stats, const uint32_t features, const pt_ray_sink *sink)
+{
+    pt_render_stats local = {0, 0, 0};
+    uint32_t tw = tile.x1 - tile.x0, npix = tw * (tile.y1 - tile.y0);
+    uint32_t span = s1 > s0 ? s1 - s0 : 1;
+    uint32_t group = BATCH / (span < PT_SAMPLE_BLOCK ? span : PT_SAMPLE_BLOCK);
+    if (group > BATCH_PIXELS)
+        group = BATCH_PIXELS;
+    pixel_ctx pcs[BATCH_PIXELS];
+    path paths[BATCH];
+    for (uint32_t p0 = 0; p0 < npix; p0 += group) {
+        uint32_t np = npix - p0 < group ? npix - p0 : group;
+        for (uint32_t g = 0; g < np; g++) {
+            memset(&out[p0 + g], 0, sizeof out[p0 + g]);
+            pixel_ctx_init(&pcs[g], r, tile.x0 + (p0 + g) % tw, tile.y0 + (p0 + g) / tw);
+        }
+        /* Sum each aligned block of PT_SAMPLE_BLOCK samples on its own, then
+         * add the block sums in order: the result for [s0,s1) is then the
+         * same bits as adding the results of any split at block boundaries. */
+        for (uint32_t b0 = s0; b0 < s1;) {
+            uint32_t b1 = (b0 / PT_SAMPLE_BLOCK + 1) * PT_SAMPLE_BLOCK;
+            if (b1 > s1 || b1 < b0)
+                b1 = s1;
+            uint32_t nb = b1 - b0;
+            for (uint32_t g = 0; g < np; g++)
+                for (uint32_t i = 0; i < nb; i++)
+                    path_start(r, &pcs[g], b0 + i, &paths[g * nb + i]);
+            local.rays += trace_batch(r, paths, np * nb, features, sink);
+            for (uint32_t g = 0; g < np; g++) {
+                pt_pixel_acc blk = {{0, 0, 0}, 0, 0, 0};
+                for (uint32_t i = 0; i < nb; i++) {
+                    pt_vec3 c = paths[g * nb + i].L;
+                    if (!pt_isfinite3(c)) {
+                        local.rejected++;
+                        continue;
+                    }
+                    double lum = (double)pt_luminance(c);
+                    blk.sum[0] += c.x;
+                    blk.sum[1] += c.y;
+                    blk.sum[2] += c.z;
+                    blk.sum_sq += lum * lum;
+                    blk.n++;
+                }
+                pt_pixel_acc_add(&out[p0 + g], &blk);
+                local.samples += blk.n;
+            }
+            b0 = b1;
+        }
+    }
+    if (stats) {
+        stats->samples += local.samples;
+        stats->rejected += local.rejected;
+        stats->rays += local.rays;
+    }
 }
 
 #define ALL_FEATURES 0xffffffffu
-#define VARIANT(name, feat)                                                                        \
-    static pt_vec3 name(const pt_renderer *r, pixel_ctx *pc, uint32_t index,                       \
-                        pt_render_stats *stats)                                                    \
+#define VARIANT(li_name, tile_name, feat)                                                          \
+    static pt_vec3 li_name(const pt_renderer *r, pixel_ctx *pc, uint32_t index,                    \
+                           pt_render_stats *stats)                                                 \
     {                                                                                              \
-        return li_impl(r, pc, index, stats, (feat), NULL);                                         \
+        return li_impl(r, pc, index, stats, (feat));                                               \
+    }                                                                                              \
+    static void tile_name(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,            \
+                          pt_pixel_acc *out, pt_render_stats *stats)                               \
+    {                                                                                              \
+        tile_impl(r, tile, s0, s1, out, stats, (feat), NULL);                                      \
     }
 #define NO_TEX (uint32_t)(PT_FEAT_TEXTURES | PT_FEAT_EMISSIVE_TEX)
-VARIANT(li_general, ALL_FEATURES)
-VARIANT(li_untextured, ALL_FEATURES & ~NO_TEX)
-VARIANT(li_lambert, ALL_FEATURES & ~(uint32_t)PT_FEAT_GLOSSY)
-VARIANT(li_lambert_untextured, ALL_FEATURES & ~NO_TEX & ~(uint32_t)PT_FEAT_GLOSSY)
+VARIANT(li_general, tile_general, ALL_FEATURES)
+VARIANT(li_untextured, tile_untextured, ALL_FEATURES & ~NO_TEX)
+VARIANT(li_lambert, tile_lambert, ALL_FEATURES & ~(uint32_t)PT_FEAT_GLOSSY)
+VARIANT(li_lambert_untextured, tile_lambert_untextured,
+        ALL_FEATURES & ~NO_TEX & ~(uint32_t)PT_FEAT_GLOSSY)
 #undef VARIANT
 
 /* The most specialised variant whose assumptions the scene meets. */
@@ -409,9 +722,11 @@ static void pick_variant(pt_renderer *r, uint32_t features)
     int tex = (features & NO_TEX) != 0, glossy = (features & PT_FEAT_GLOSSY) != 0;
     if (glossy) {
         r->li = tex ? li_general : li_untextured;
+        r->tile = tex ? tile_general : tile_untextured;
         r->variant = tex ? "general" : "untextured";
     } else {
         r->li = tex ? li_lambert : li_lambert_untextured;
+        r->tile = tex ? tile_lambert : tile_lambert_untextured;
         r->variant = tex ? "lambert" : "lambert-untextured";
     }
 }
@@ -446,6 +761,11 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
         for (uint32_t i = 0; i < scene->num_materials; i++)
             r->mat_bsdf[i] = material_bsdf_untextured(&scene->materials[i]);
     }
+    if (scene->num_triangles > 0 && !(r->tris = tri_recs_new(scene, &r->tris_mem))) {
+        st = pt_error_set(err, PT_ERR_NOMEM, "out of memory for the renderer");
+        goto fail;
+    }
+    r->nee = pt_lights_count(r->lights) > 0 && params->light_strategy != PT_LIGHT_BSDF_ONLY;
     pick_variant(r, scene->features | params->extra_features);
     *out = r;
     return PT_OK;
@@ -459,6 +779,7 @@ void pt_renderer_free(pt_renderer *r)
     if (!r)
         return;
     pt_free(r->mat_bsdf);
+    pt_free(r->tris_mem);
     pt_lights_free(r->lights);
     pt_accel_free(r->accel);
     pt_free(r);
@@ -481,55 +802,14 @@ pt_vec3 pt_render_sample(const pt_renderer *r, uint32_t px, uint32_t py, uint32_
     return r->li(r, &pc, index, stats);
 }
 
-pt_vec3 pt_render_sample_traced(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index,
-                                const pt_ray_sink *sink)
-{
-    pixel_ctx pc;
-    pixel_ctx_init(&pc, r, px, py);
-    return li_impl(r, &pc, index, NULL, ALL_FEATURES, sink);
-}
-
 void pt_render_tile(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel_acc *out,
                     pt_render_stats *stats)
 {
-    pt_render_stats local = {0, 0, 0};
-    uint32_t tw = tile.x1 - tile.x0;
-    for (uint32_t y = tile.y0; y < tile.y1; y++) {
-        for (uint32_t x = tile.x0; x < tile.x1; x++) {
-            pt_pixel_acc *a = &out[(size_t)(y - tile.y0) * tw + (x - tile.x0)];
-            memset(a, 0, sizeof *a);
-            pixel_ctx pc;
-            pixel_ctx_init(&pc, r, x, y);
-            /* Sum each aligned block of PT_SAMPLE_BLOCK samples on its own, then
-             * add the block sums in order: the result for [s0,s1) is then the
-             * same bits as adding the results of any split at block boundaries. */
-            for (uint32_t b0 = s0; b0 < s1;) {
-                uint32_t b1 = (b0 / PT_SAMPLE_BLOCK + 1) * PT_SAMPLE_BLOCK;
-                if (b1 > s1 || b1 < b0)
-                    b1 = s1;
-                pt_pixel_acc blk = {{0, 0, 0}, 0, 0, 0};
-                for (uint32_t i = b0; i < b1; i++) {
-                    pt_vec3 c = r->li(r, &pc, i, &local);
-                    if (!pt_isfinite3(c)) {
-                        local.rejected++;
-                        continue;
-                    }
-                    double lum = (double)pt_luminance(c);
-                    blk.sum[0] += c.x;
-                    blk.sum[1] += c.y;
-                    blk.sum[2] += c.z;
-                    blk.sum_sq += lum * lum;
-                    blk.n++;
-                }
-                pt_pixel_acc_add(a, &blk);
-                local.samples += blk.n;
-                b0 = b1;
-            }
-        }
-    }
-    if (stats) {
-        stats->samples += local.samples;
-        stats->rejected += local.rejected;
-        stats->rays += local.rays;
-    }
+    r->tile(r, tile, s0, s1, out, stats);
+}
+
+void pt_render_tile_traced(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,
+                           pt_pixel_acc *out, const pt_ray_sink *sink)
+{
+    tile_impl(r, tile, s0, s1, out, NULL, ALL_FEATURES, sink);
 }

@@ -94,7 +94,8 @@ const char *pt_renderer_variant(const pt_renderer *r);
 void pt_render_tile(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,
                     pt_pixel_acc *out, pt_render_stats *stats);
 
-/* Radiance of one camera sample (for tests). */
+/* Radiance of one camera sample, traced alone: the reference that
+ * pt_render_tile's batched paths match bit for bit (for tests). */
 pt_vec3 pt_render_sample(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index,
                          pt_render_stats *stats);
 
@@ -106,8 +107,9 @@ typedef struct pt_ray_sink {
     void *user;
 } pt_ray_sink;
 
-/* pt_render_sample through the general variant, reporting each ray to sink. */
-pt_vec3 pt_render_sample_traced(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index,
-                                const pt_ray_sink *sink);
+/* pt_render_tile through the general variant, reporting each ray to sink in
+ * the order pt_render_tile traces them. */
+void pt_render_tile_traced(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,
+                           pt_pixel_acc *out, const pt_ray_sink *sink);
 
 #endif

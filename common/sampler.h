@@ -53,6 +53,17 @@ void pt_sample_group_init(pt_sample_group *g, uint32_t pixel_seed, uint32_t dim0
 /* out[k] = pt_sample_1d(pixel_seed, index, dim0 + k) for k in 0..7. */
 void pt_sample_group_eval(const pt_sample_group *g, uint32_t index, float out[8]);
 
+/* out[j][k] = pt_sample_1d(seed of g[j], index[j], dim0 of g[j] + k) for
+ * j < n, k in 0..7: pt_sample_group_eval for many samples in one call, two at
+ * a time in SIMD lanes, with GFNI's bit reversal where the processor has it
+ * (the same bits). */
+void pt_sample_group_eval_n(const pt_sample_group *const *g, const uint32_t *index, uint32_t n,
+                            float (*out)[8]);
+/* The same without the GFNI bit reversal that pt_sample_group_eval_n uses
+ * where the processor has it (for tests: both must give the same bits). */
+void pt_sample_group_eval_n_portable(const pt_sample_group *const *g, const uint32_t *index,
+                                     uint32_t n, float (*out)[8]);
+
 /* out[k] = pt_sample_1d(pixel_seed, index, dim0 + k) for k in 0..1: the first
  * pair of the group alone. */
 void pt_sample_group_eval2(const pt_sample_group *g, uint32_t index, float out[2]);

@@ -9,11 +9,20 @@
  * renderer's throughput as a fraction of the ray-query ceiling; everything
  * else the renderer does (sampling, shading, BSDFs, lights, film) is the gap.
  * Repetitions alternate (1) and (2) so both see the same machine load;
- * medians are reported. (3) In the same repetitions, the same render through
+ * medians are reported. The ratio is also given in CPU time (the process's,
+ * all threads), which other programs on a shared machine inflate much less
+ * than wall time when their load changes between (1) and (2). (3) In the same repetitions, the same render through
  * the general integrator variant, so the speed-up of the variant chosen for
  * the scene (render.h: pt_renderer_variant) is measured side by side.
  *
- *   ptbench-throughput SCENE [--threads T] [--res WxH] [--spp N] [--reps R] [--csv FILE]
+ * The log holds the rays in the order the renderer traces them (tiles in
+ * order, each tile's paths in batches: render.c, trace_batch), so the replay
+ * sees the same coherence as the render; --log-order path logs one path at a
+ * time instead, sample by sample over the image, as the first measurements
+ * did.
+ *
+ *   ptbench-throughput SCENE [--threads T] [--res WxH] [--spp N] [--reps R]
+ *                      [--log-order render|path] [--csv FILE]
  */
 #include <pthread.h>
 #include <stdatomic.h>
@@ -45,6 +54,15 @@ static void log_ray(void *user, pt_vec3 o, pt_vec3 d, float tfar, int occlusion)
         l->rays[l->n++] = (ray_rec){o, d, tfar, occlusion};
 }
 
+/* CPU seconds of this process (all its threads): unlike wall time, not
+ * inflated by other programs on a shared machine while a phase runs. */
+static double cpu_now(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
 static double now(void)
 {
     struct timespec ts;
@@ -57,6 +75,7 @@ typedef struct shared {
     const pt_accel *accel;
     uint32_t width, height, spp, tile;
     atomic_uint next;
+    atomic_size_t next_ray; /* replay: the next chunk of the log */
     const ray_log *log;
     pt_render_stats stats[64];
     uint64_t hits[64];
@@ -90,15 +109,25 @@ static void *replay_worker(void *p)
 {
     targ *a = p;
     shared *sh = a->sh;
-    size_t n = sh->log->n, lo = n * a->id / a->nthreads, hi = n * (a->id + 1) / a->nthreads;
+    /* Chunks of the log taken in order as threads come free, as the render
+     * takes tiles: a fixed split would leave a thread idle at the end and
+     * understate the rate in wall time. */
+    const size_t chunk = 4096;
+    size_t n = sh->log->n;
     uint64_t hits = 0;
-    for (size_t i = lo; i < hi; i++) {
-        const ray_rec *r = &sh->log->rays[i];
-        if (r->occlusion) {
-            hits += pt_accel_occluded(sh->accel, r->o, r->d, r->tfar);
-        } else {
-            pt_hit h;
-            hits += pt_accel_intersect(sh->accel, r->o, r->d, r->tfar, &h);
+    for (;;) {
+        size_t lo = atomic_fetch_add(&sh->next_ray, chunk);
+        if (lo >= n)
+            break;
+        size_t hi = n - lo < chunk ? n : lo + chunk;
+        for (size_t i = lo; i < hi; i++) {
+            const ray_rec *r = &sh->log->rays[i];
+            if (r->occlusion) {
+                hits += pt_accel_occluded(sh->accel, r->o, r->d, r->tfar);
+            } else {
+                pt_hit h;
+                hits += pt_accel_intersect(sh->accel, r->o, r->d, r->tfar, &h);
+            }
         }
     }
     sh->hits[a->id] = hits;
@@ -132,7 +161,7 @@ static double median(double *v, int n)
 int main(int argc, char **argv)
 {
     const char *scene_path = NULL, *csv = NULL;
-    int threads = 2, reps = 5;
+    int threads = 2, reps = 5, per_path = 0;
     uint32_t w = 256, h = 256, spp = 8;
     for (int i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "--threads") && i + 1 < argc)
@@ -143,11 +172,14 @@ int main(int argc, char **argv)
             spp = (uint32_t)atoi(argv[++i]);
         else if (!strcmp(argv[i], "--reps") && i + 1 < argc)
             reps = atoi(argv[++i]);
+        else if (!strcmp(argv[i], "--log-order") && i + 1 < argc &&
+                 (!strcmp(argv[i + 1], "render") || !strcmp(argv[i + 1], "path")))
+            per_path = !strcmp(argv[++i], "path");
         else if (!strcmp(argv[i], "--csv") && i + 1 < argc)
             csv = argv[++i];
         else if (!strcmp(argv[i], "-h") || !strcmp(argv[i], "--help")) {
             printf("usage: ptbench-throughput SCENE [--threads T] [--res WxH] [--spp N] [--reps R] "
-                   "[--csv FILE]\n");
+                   "[--log-order render|path] [--csv FILE]\n");
             return 0;
         } else if (argv[i][0] != '-' && !scene_path)
             scene_path = argv[i];
@@ -180,34 +212,59 @@ int main(int argc, char **argv)
         return 1;
     }
 
-    /* Capture the rays of every pixel's first samples (at most 8M rays). */
+    /* Capture the render's rays (at most 16M), tile by tile in the order the
+     * render threads take tiles, each tile's rays in the order the renderer
+     * traces them (pt_render_tile_traced). */
     ray_log log = {0};
-    log.cap = 8u << 20;
+    log.cap = 16u << 20;
     log.rays = pt_malloc_array(log.cap, sizeof *log.rays);
     pt_ray_sink sink = {log_ray, &log};
-    for (uint32_t s = 0; s < spp && log.n < log.cap; s++)
-        for (uint32_t y = 0; y < h && log.n < log.cap; y++)
-            for (uint32_t x = 0; x < w && log.n < log.cap; x++)
-                pt_render_sample_traced(r, x, y, s, &sink);
+    if (per_path) {
+        /* --log-order path: one path at a time, sample by sample over the
+         * whole image (the order of the earlier measurements). */
+        pt_pixel_acc acc;
+        for (uint32_t s = 0; s < spp && log.n < log.cap; s++)
+            for (uint32_t y = 0; y < h && log.n < log.cap; y++)
+                for (uint32_t x = 0; x < w && log.n < log.cap; x++)
+                    pt_render_tile_traced(r, (pt_rect){x, y, x + 1, y + 1}, s, s + 1, &acc, &sink);
+    } else {
+        const uint32_t tile = 16, tx = (w + tile - 1) / tile, ty = (h + tile - 1) / tile;
+        pt_pixel_acc *acc = pt_malloc_array((size_t)tile * tile, sizeof *acc);
+        for (uint32_t t = 0; t < tx * ty && log.n < log.cap; t++) {
+            pt_rect rc = {(t % tx) * tile, (t / tx) * tile, 0, 0};
+            rc.x1 = rc.x0 + tile < w ? rc.x0 + tile : w;
+            rc.y1 = rc.y0 + tile < h ? rc.y0 + tile : h;
+            pt_render_tile_traced(r, rc, 0, spp, acc, &sink);
+        }
+        pt_free(acc);
+    }
     size_t shadow = 0;
     for (size_t i = 0; i < log.n; i++)
         shadow += log.rays[i].occlusion;
 
-    double sps[100], rps[100], eps[100], ratio[100], gsps[100], speedup[100];
+    double sps[100], rps[100], eps[100], ratio[100], gsps[100], speedup[100], cratio[100],
+        csps[100];
     for (int k = 0; k < reps; k++) {
         shared sh = {.r = r, .accel = accel, .width = w, .height = h, .spp = spp, .tile = 16, .log = &log};
         atomic_init(&sh.next, 0);
+        atomic_init(&sh.next_ray, 0);
+        double c0 = cpu_now();
         double t0 = now();
         run_threads(threads, render_worker, &sh);
         double t_render = now() - t0;
+        double c_render = cpu_now() - c0;
         uint64_t samples = 0, rays = 0;
         for (int i = 0; i < threads; i++) {
             samples += sh.stats[i].samples;
             rays += sh.stats[i].rays;
         }
+        c0 = cpu_now();
         t0 = now();
         run_threads(threads, replay_worker, &sh);
         double t_replay = now() - t0;
+        double c_replay = cpu_now() - c0;
+        cratio[k] = (rays / c_render) / (log.n / c_replay);
+        csps[k] = samples / c_render;
         shared sg = {.r = rg, .accel = accel, .width = w, .height = h, .spp = spp, .tile = 16, .log = &log};
         atomic_init(&sg.next, 0);
         t0 = now();
@@ -232,6 +289,9 @@ int main(int argc, char **argv)
     printf("bare ray queries %.4g rays/s (%zu rays replayed, %.0f%% shadow)\n", m_eps, log.n,
            100.0 * shadow / (log.n ? log.n : 1));
     printf("ratio            %.3f of the ray-query ceiling\n", m_ratio);
+    double m_cratio = median(cratio, reps), m_csps = median(csps, reps);
+    printf("ratio (CPU time) %.3f of the ray-query ceiling; %.4g samples per CPU second\n", m_cratio,
+           m_csps);
     double m_g = median(gsps, reps), m_speedup = median(speedup, reps);
     printf("variant          %s: %.4g samples/s vs general %.4g samples/s: speed-up %.3f\n",
            pt_renderer_variant(r), m_sps, m_g, m_speedup);

@@ -658,6 +658,51 @@ static void test_edges(void)
     CHECKF(bad == 0, "%d non-finite or invalid results at the edges", bad);
 }
 
+/* The SIMD cosine-hemisphere sampler gives the scalar one's bits, for every
+ * count (full and partial lanes), on a grid that includes the square's
+ * centre (the disk's origin), its edges and both wedges of the concentric
+ * map, and on random points. */
+static void test_cosine_n(void)
+{
+    enum { N = 700, STRIDE = 3 };
+    static float u[N * STRIDE];
+    static pt_vec3 out[N];
+    uint64_t rng = 12345;
+    for (uint32_t k = 0; k < N; k++) {
+        float a, b;
+        if (k < 17 * 17) {
+            a = (float)(k % 17) / 16.0f;
+            b = (float)(k / 17) / 16.0f;
+            a = a < 1.0f ? a : 0x1.fffffep-1f;
+            b = b < 1.0f ? b : 0x1.fffffep-1f;
+        } else {
+            rng = rng * 6364136223846793005ull + 1442695040888963407ull;
+            a = (float)(rng >> 40) * 0x1p-24f;
+            b = (float)((rng >> 16) & 0xffffff) * 0x1p-24f;
+        }
+        u[k * STRIDE] = a;
+        u[k * STRIDE + 1] = b;
+        u[k * STRIDE + 2] = -1.0f; /* not read */
+    }
+    int bad = 0;
+    for (uint32_t n = 0; n <= 20; n++) {
+        memset(out, 0xff, sizeof out);
+        pt_sample_cosine_hemisphere_n(u, STRIDE, n, out);
+        for (uint32_t k = 0; k < n; k++) {
+            pt_vec3 w = pt_sample_cosine_hemisphere(u[k * STRIDE], u[k * STRIDE + 1]);
+            bad += memcmp(&w, &out[k], sizeof w) != 0;
+        }
+        uint32_t first_bad = 0xffffffffu; /* nothing past n is written */
+        bad += memcmp(&out[n], &first_bad, sizeof first_bad) != 0;
+    }
+    pt_sample_cosine_hemisphere_n(u, STRIDE, N, out);
+    for (uint32_t k = 0; k < N; k++) {
+        pt_vec3 w = pt_sample_cosine_hemisphere(u[k * STRIDE], u[k * STRIDE + 1]);
+        bad += memcmp(&w, &out[k], sizeof w) != 0;
+    }
+    CHECKF(bad == 0, "%d SIMD cosine samples differ from the scalar ones", bad);
+}
+
 int main(int argc, char **argv)
 {
     /* PT_QUICK=1 (or an argument) for a fast run with 10x fewer chi-square
@@ -666,6 +711,7 @@ int main(int argc, char **argv)
     if (argc > 1 || (quick && quick[0] == '1'))
         g_chi2_samples /= 10;
     (void)argv;
+    test_cosine_n();
     test_chi2_survival();
     test_lambert_limit();
     test_edges();

@@ -12,6 +12,9 @@
  *   for bit, and the same pixels rendered by several threads equal one thread's.
  * - The Cornell box renders with no NaN or Inf and no rejected sample.
  * - Every specialised integrator variant gives the general one's bits.
+ * - pt_render_tile, which traces many paths interleaved, gives the bits of
+ *   one path at a time (pt_render_sample) summed in the same order, for every
+ *   variant, light strategy and a range of sample counts.
  */
 #include <math.h>
 #include <pthread.h>
@@ -234,6 +237,70 @@ static void cornell_finite(void)
     pt_scene_free(s);
 }
 
+/* pt_render_tile's pixels against pt_render_sample's, summed as
+ * pt_render_tile documents: per aligned block of PT_SAMPLE_BLOCK in sample
+ * order, then block sums in order. */
+static void batched_as_single(const pt_scene *s, uint32_t extra, uint32_t strategy, uint32_t s0,
+                              uint32_t s1)
+{
+    enum { W = 9, H = 7 };
+    pt_render_params p = {0};
+    pt_render_params_default(&p);
+    p.width = W;
+    p.height = H;
+    p.seed = 11;
+    p.light_strategy = strategy;
+    p.extra_features = extra;
+    pt_renderer *r = NULL;
+    CHECK(pt_renderer_new(s, &p, &r, NULL) == PT_OK);
+    if (!r)
+        return;
+    pt_pixel_acc tile[W * H], ref[W * H];
+    pt_render_stats ts = {0, 0, 0}, rs = {0, 0, 0};
+    pt_rect rect = {1, 2, W, H}; /* not at the origin, rows shorter than the image */
+    pt_render_tile(r, rect, s0, s1, tile, &ts);
+    uint32_t tw = rect.x1 - rect.x0, n = tw * (rect.y1 - rect.y0);
+    memset(ref, 0, sizeof ref);
+    for (uint32_t k = 0; k < n; k++) {
+        for (uint32_t b0 = s0; b0 < s1;) {
+            uint32_t b1 = (b0 / PT_SAMPLE_BLOCK + 1) * PT_SAMPLE_BLOCK;
+            b1 = b1 < s1 ? b1 : s1;
+            pt_pixel_acc blk = {{0, 0, 0}, 0, 0, 0};
+            for (uint32_t i = b0; i < b1; i++) {
+                pt_vec3 c = pt_render_sample(r, rect.x0 + k % tw, rect.y0 + k / tw, i, &rs);
+                if (!pt_isfinite3(c)) {
+                    rs.rejected++;
+                    continue;
+                }
+                double lum = (double)pt_luminance(c);
+                blk.sum[0] += c.x;
+                blk.sum[1] += c.y;
+                blk.sum[2] += c.z;
+                blk.sum_sq += lum * lum;
+                blk.n++;
+            }
+            pt_pixel_acc_add(&ref[k], &blk);
+            rs.samples += blk.n;
+            b0 = b1;
+        }
+    }
+    CHECKF(memcmp(tile, ref, n * sizeof *tile) == 0,
+           "variant %s, strategy %u, samples [%u,%u): tile differs from one path at a time",
+           pt_renderer_variant(r), strategy, s0, s1);
+    CHECK(ts.samples == rs.samples && ts.rejected == rs.rejected && ts.rays == rs.rays);
+    pt_renderer_free(r);
+}
+
+static void batched(const pt_scene *s)
+{
+    const uint32_t ranges[][2] = {{0, 1}, {0, 3}, {5, 21}, {0, 40}, {16, 32}};
+    for (uint32_t k = 0; k < sizeof ranges / sizeof ranges[0]; k++)
+        for (uint32_t strategy = 0; strategy < 3; strategy++) {
+            batched_as_single(s, 0, strategy, ranges[k][0], ranges[k][1]);
+            batched_as_single(s, 0xffffffffu, strategy, ranges[k][0], ranges[k][1]);
+        }
+}
+
 /* Renders a tile with the scene's own variant and with the general one. */
 static void same_as_general(pt_scene *s, const char *want_variant)
 {
@@ -311,18 +378,23 @@ static pt_scene *textured_lambert_scene(void)
 static void variants(void)
 {
     pt_scene *s = load("scenes/cornell_box.gltf", 1.0f);
-    if (s)
+    if (s) {
         same_as_general(s, "lambert-untextured");
+        batched(s);
+    }
     pt_scene_free(s);
     s = textured_lambert_scene();
-    if (s)
+    if (s) {
         same_as_general(s, "lambert");
+        batched(s);
+    }
     pt_scene_free(s);
     /* The shared Cornell box has metals (glTF's default metallic 1): glossy. */
     char path[4096];
     snprintf(path, sizeof path, "%s/CornellBox/cornellBox.gltf", PT_SHARED_SCENES);
     if (pt_scene_load(path, NULL, &s, NULL) == PT_OK) {
         same_as_general(s, "untextured");
+        batched(s);
         pt_scene_free(s);
     } else {
         CHECK(!check_shared_required());

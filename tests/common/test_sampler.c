@@ -241,6 +241,35 @@ static void test_groups(void)
         }
     }
     CHECKF(bad == 0, "%d group values differ from pt_sample_1d", bad);
+
+    /* Many groups and indices in one call, odd and even counts. */
+    enum { N = 37 };
+    pt_sample_group gs[N];
+    const pt_sample_group *gp[N];
+    uint32_t idx[N];
+    float out[N][8];
+    bad = 0;
+    for (uint32_t j = 0; j < N; j++) {
+        pt_sample_group_init(&gs[j], pt_pixel_seed(3, j, 7 * j), 4 + 8 * (j % 5));
+        gp[j] = &gs[j];
+        idx[j] = j < 20 ? j : j * 2654435761u;
+    }
+    for (uint32_t n = 0; n <= N; n++) {
+        for (int portable = 0; portable < 2; portable++) {
+            memset(out, 0, sizeof out);
+            if (portable)
+                pt_sample_group_eval_n_portable(gp, idx, n, out);
+            else
+                pt_sample_group_eval_n(gp, idx, n, out);
+            for (uint32_t j = 0; j < N; j++) {
+                float v[8] = {0};
+                if (j < n)
+                    pt_sample_group_eval(gp[j], idx[j], v);
+                bad += memcmp(v, out[j], sizeof v) != 0;
+            }
+        }
+    }
+    CHECKF(bad == 0, "%d pt_sample_group_eval_n results differ from pt_sample_group_eval", bad);
 }
 
 int main(void)
