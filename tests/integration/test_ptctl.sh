@@ -126,16 +126,18 @@ PTFARM_SERVER=nocolon usage_case "--server" list
 run 1 --server 127.0.0.1:1 submit "$tmp/missing.gltf" && has "$tmp/err" "missing.gltf"
 grep -q "connect" "$tmp/err" && fail "submit of a missing scene tried to connect"
 
-# A port where nothing listens: find one, then every command reports it.
+# A port where nothing listens: find one, then every command reports it. Below
+# 1024, so no test running beside this one can be given it as an ephemeral port
+# between the check and the commands.
 port=""
-for p in $(seq 39000 39100); do
+for p in $(seq 1 1023); do
   if ! (exec 3<>"/dev/tcp/127.0.0.1/$p") 2>/dev/null; then
     port=$p
     break
   fi
 done
 if [[ -z $port ]]; then
-  fail "no closed port found in 39000..39100"
+  fail "no closed port found in 1..1023"
 else
   for args in "list" "status 1" "watch 1" "cancel 1" "fetch 1 -o $tmp/o.exr" \
     "submit $src/scenes/cornell_box.gltf"; do
