@@ -11,9 +11,11 @@
  * Repetitions alternate (1) and (2) so both see the same machine load;
  * medians are reported. The ratio is also given in CPU time (the process's,
  * all threads), which other programs on a shared machine inflate much less
- * than wall time when their load changes between (1) and (2). (3) In the same repetitions, the same render through
- * the general integrator variant, so the speed-up of the variant chosen for
- * the scene (render.h: pt_renderer_variant) is measured side by side.
+ * than wall time when their load changes between (1) and (2). (3) In the
+ * same repetitions, the same render through every less specialised integrator
+ * variant (render.h: pt_render_params.extra_features; up to the general one),
+ * so the speed-up of the variant chosen for the scene (pt_renderer_variant)
+ * over each is measured side by side.
  *
  * The log holds the rays in the order the renderer traces them (tiles in
  * order, each tile's paths in batches: render.c, trace_batch), so the replay
@@ -194,7 +196,8 @@ int main(int argc, char **argv)
     }
     pt_error err = {0};
     pt_scene *scene = NULL;
-    pt_renderer *r = NULL, *rg = NULL;
+    pt_renderer *r = NULL, *alt[3] = {NULL, NULL, NULL};
+    int nalt = 0;
     pt_accel *accel = NULL;
     if (pt_scene_load(scene_path, NULL, &scene, &err) != PT_OK) {
         fprintf(stderr, "ptbench-throughput: %s\n", err.msg);
@@ -204,12 +207,28 @@ int main(int argc, char **argv)
     pt_render_params_default(&p);
     p.width = w;
     p.height = h;
-    pt_render_params pg = p;
-    pg.extra_features = 0xffffffffu;
-    if (pt_renderer_new(scene, &p, &r, &err) != PT_OK || pt_renderer_new(scene, &pg, &rg, &err) != PT_OK ||
-        pt_accel_new(scene, &accel, &err) != PT_OK) {
+    if (pt_renderer_new(scene, &p, &r, &err) != PT_OK || pt_accel_new(scene, &accel, &err) != PT_OK) {
         fprintf(stderr, "ptbench-throughput: %s\n", err.msg);
         return 1;
+    }
+    /* The variants the scene could also run: assume textures, glossy lobes,
+     * then everything (the general one); each distinct one once. */
+    static const uint32_t extras[3] = {PT_FEAT_TEXTURES, PT_FEAT_GLOSSY, 0xffffffffu};
+    for (int e = 0; e < 3; e++) {
+        pt_render_params pe = p;
+        pe.extra_features = extras[e];
+        pt_renderer *v = NULL;
+        if (pt_renderer_new(scene, &pe, &v, &err) != PT_OK) {
+            fprintf(stderr, "ptbench-throughput: %s\n", err.msg);
+            return 1;
+        }
+        int seen = !strcmp(pt_renderer_variant(v), pt_renderer_variant(r));
+        for (int a = 0; a < nalt; a++)
+            seen |= !strcmp(pt_renderer_variant(v), pt_renderer_variant(alt[a]));
+        if (seen)
+            pt_renderer_free(v);
+        else
+            alt[nalt++] = v;
     }
 
     /* Capture the render's rays (at most 16M), tile by tile in the order the
@@ -242,7 +261,7 @@ int main(int argc, char **argv)
     for (size_t i = 0; i < log.n; i++)
         shadow += log.rays[i].occlusion;
 
-    double sps[100], rps[100], eps[100], ratio[100], gsps[100], speedup[100], cratio[100],
+    double sps[100], rps[100], eps[100], ratio[100], asps[3][100], speedup[3][100], cratio[100],
         csps[100];
     for (int k = 0; k < reps; k++) {
         shared sh = {.r = r, .accel = accel, .width = w, .height = h, .spp = spp, .tile = 16, .log = &log};
@@ -265,20 +284,23 @@ int main(int argc, char **argv)
         double c_replay = cpu_now() - c0;
         cratio[k] = (rays / c_render) / (log.n / c_replay);
         csps[k] = samples / c_render;
-        shared sg = {.r = rg, .accel = accel, .width = w, .height = h, .spp = spp, .tile = 16, .log = &log};
-        atomic_init(&sg.next, 0);
-        t0 = now();
-        run_threads(threads, render_worker, &sg);
-        double t_general = now() - t0;
-        uint64_t gsamples = 0;
-        for (int i = 0; i < threads; i++)
-            gsamples += sg.stats[i].samples;
-        gsps[k] = gsamples / t_general;
         sps[k] = samples / t_render;
         rps[k] = rays / t_render;
         eps[k] = log.n / t_replay;
         ratio[k] = rps[k] / eps[k];
-        speedup[k] = sps[k] / gsps[k];
+        for (int a = 0; a < nalt; a++) {
+            shared sg = {.r = alt[a], .accel = accel, .width = w, .height = h, .spp = spp,
+                         .tile = 16, .log = &log};
+            atomic_init(&sg.next, 0);
+            t0 = now();
+            run_threads(threads, render_worker, &sg);
+            double t_alt = now() - t0;
+            uint64_t asamples = 0;
+            for (int i = 0; i < threads; i++)
+                asamples += sg.stats[i].samples;
+            asps[a][k] = asamples / t_alt;
+            speedup[a][k] = sps[k] / asps[a][k];
+        }
     }
     double m_sps = median(sps, reps), m_rps = median(rps, reps), m_eps = median(eps, reps),
            m_ratio = median(ratio, reps);
@@ -292,9 +314,13 @@ int main(int argc, char **argv)
     double m_cratio = median(cratio, reps), m_csps = median(csps, reps);
     printf("ratio (CPU time) %.3f of the ray-query ceiling; %.4g samples per CPU second\n", m_cratio,
            m_csps);
-    double m_g = median(gsps, reps), m_speedup = median(speedup, reps);
-    printf("variant          %s: %.4g samples/s vs general %.4g samples/s: speed-up %.3f\n",
-           pt_renderer_variant(r), m_sps, m_g, m_speedup);
+    printf("variant          %s, chosen for the scene: %.4g samples/s\n", pt_renderer_variant(r),
+           m_sps);
+    for (int a = 0; a < nalt; a++)
+        printf("  against %-18s %.4g samples/s: speed-up %.3f\n", pt_renderer_variant(alt[a]),
+               median(asps[a], reps), median(speedup[a], reps));
+    if (!nalt)
+        printf("  (the general variant: none less specialised)\n");
     if (csv) {
         FILE *f = fopen(csv, "a");
         if (f) {
@@ -306,7 +332,8 @@ int main(int argc, char **argv)
     pt_free(log.rays);
     pt_accel_free(accel);
     pt_renderer_free(r);
-    pt_renderer_free(rg);
+    for (int a = 0; a < nalt; a++)
+        pt_renderer_free(alt[a]);
     pt_scene_free(scene);
     return 0;
 }
