@@ -559,6 +559,29 @@ static inline __attribute__((always_inline)) pt_vec3 li_impl(const pt_renderer *
 #define BATCH 64u
 #define BATCH_PIXELS 16u
 
+/* bounce_light for the n surfaces of a stage (NEE runs), in one call to
+ * pt_lights_sample_n: the same bits. The random reads of many lights' entries
+ * and emission textures are then issued close together, and their cache
+ * misses overlap. With few lights they hit the cache anyway and trace_batch
+ * calls bounce_light per point, which is faster there (the copies and staging
+ * cost more than they save). Not inlined, so that it leaves those variants'
+ * loop as it was. */
+static __attribute__((noinline)) void lights_stage(const pt_renderer *r, uint32_t n,
+                                                   const surface *sfs,
+                                                   const float (*u)[DIM_PER_BOUNCE],
+                                                   pt_light_sample *lss, int *ls_ok)
+{
+    pt_vec3 p[BATCH];
+    float lu[BATCH][3];
+    for (uint32_t j = 0; j < n; j++) {
+        p[j] = sfs[j].p;
+        lu[j][0] = u[j][OFF_LIGHT_PICK];
+        lu[j][1] = u[j][OFF_LIGHT_POINT];
+        lu[j][2] = u[j][OFF_LIGHT_POINT + 1];
+    }
+    pt_lights_sample_n(r->lights, r->scene, n, p, (const float(*)[3])lu, lss, ls_ok);
+}
+
 /*
  * Traces n paths (all started) to their ends, stage by stage over all live
  * paths: the closest hits, the bounce's numbers (one sampler call, SIMD), the
@@ -586,8 +609,6 @@ static inline __attribute__((always_inline)) uint64_t trace_batch(const pt_rende
     surface sfs[BATCH];
     pt_light_sample lss[BATCH];
     int ls_ok[BATCH];
-    pt_vec3 lp[BATCH];   /* the light samples' points and numbers */
-    float lu[BATCH][3];
     pt_hit hits[BATCH];
     shadow_ray sr[BATCH];
     uint64_t rays = 0;
@@ -620,18 +641,7 @@ static inline __attribute__((always_inline)) uint64_t trace_batch(const pt_rende
         for (uint32_t j = 0; j < nh; j++)
             surface_at(r, &hits[live[j]], &sfs[j], features);
         if ((features & PT_FEAT_EMITTERS) && r->nee_n) {
-            /* bounce_light for all in one call (the same bits): the random
-             * reads of many lights' entries and emission textures are issued
-             * close together, so their cache misses overlap. With few lights
-             * they hit the cache anyway, and the per-point calls below are
-             * faster (the copies and staging cost more than they save). */
-            for (uint32_t j = 0; j < nh; j++) {
-                lp[j] = sfs[j].p;
-                lu[j][0] = u[j][OFF_LIGHT_PICK];
-                lu[j][1] = u[j][OFF_LIGHT_POINT];
-                lu[j][2] = u[j][OFF_LIGHT_POINT + 1];
-            }
-            pt_lights_sample_n(r->lights, r->scene, nh, lp, (const float(*)[3])lu, lss, ls_ok);
+            lights_stage(r, nh, sfs, u, lss, ls_ok);
         } else {
             for (uint32_t j = 0; j < nh; j++)
                 ls_ok[j] = bounce_light(r, &sfs[j], u[j], &lss[j], features);
