@@ -22,6 +22,10 @@
 #include <math.h>
 #include <string.h>
 
+#if defined(__SSE__)
+#include <immintrin.h>
+#endif
+
 #include "common/accel.h"
 #include "common/alloc.h"
 
@@ -400,6 +404,123 @@ int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, 
         return 0;
     s->radiance = emission(scene, m, le->tri, b1, b2);
     return 1;
+}
+
+/*
+ * pt_lights_sample for many points, in three steps over 8 at a time: the
+ * light picks and points, then the distances, directions and pdfs in 8 lanes
+ * of GCC/Clang vector types, then the checks and the emission per point. The
+ * picks' reads of the alias table and the light entries, and the emission
+ * textures' reads, come close together for 8 points, so that with many
+ * lights their cache misses overlap. The lanes do pt_lights_sample's float
+ * operations in its order (IEEE arithmetic, no contraction; the square root
+ * and the divisions are correctly rounded either way): the same bits. A lane
+ * whose point the scalar code rejects before a division computes it anyway,
+ * harmlessly (a NaN or an infinity, no traps), and its result is not used.
+ */
+typedef float v8f __attribute__((vector_size(32)));
+typedef int32_t v8i __attribute__((vector_size(32)));
+
+/* The lanes' distances, their reciprocals, the light's cosines and the pdfs'
+ * expression (solid_angle_pdf_d's, unchecked). The square roots take two SSE
+ * instructions where there is SSE (the x86-64 baseline): sqrtf's result. */
+static inline void sample_lanes(const float *restrict d2, const float *restrict ndot,
+                         const float *restrict pmf_area, float *restrict dist,
+                         float *restrict inv, float *restrict cos_out, float *restrict pdf)
+{
+    v8f x, nd, pa, r;
+    memcpy(&x, d2, sizeof x);
+    memcpy(&nd, ndot, sizeof nd);
+    memcpy(&pa, pmf_area, sizeof pa);
+#if defined(__SSE__)
+    float rs[8];
+    _mm_storeu_ps(rs, _mm_sqrt_ps(_mm_loadu_ps(d2)));
+    _mm_storeu_ps(rs + 4, _mm_sqrt_ps(_mm_loadu_ps(d2 + 4)));
+    memcpy(&r, rs, sizeof r);
+#else
+    for (int l = 0; l < 8; l++)
+        r[l] = sqrtf(d2[l]);
+#endif
+    v8f iv = 1.0f / r;
+    v8f cos_l = -nd / r;
+    v8f ac = (v8f)((v8i)cos_l & 0x7fffffff); /* fabsf */
+    v8f q = pa * x / ac;
+    memcpy(dist, &r, sizeof r);
+    memcpy(inv, &iv, sizeof iv);
+    memcpy(cos_out, &cos_l, sizeof cos_l);
+    memcpy(pdf, &q, sizeof q);
+}
+
+void pt_lights_sample_n(const pt_lights *lights, const pt_scene *scene, uint32_t n,
+                        const pt_vec3 *p, const float (*u)[3], pt_light_sample *s, int *ok)
+{
+    if (!lights || lights->count == 0) {
+        for (uint32_t i = 0; i < n; i++)
+            ok[i] = pt_lights_sample(lights, scene, p[i], u[i], &s[i]);
+        return;
+    }
+    uint32_t count = lights->count;
+    for (uint32_t k0 = 0; k0 < n; k0 += 8) {
+        uint32_t m = n - k0 < 8 ? n - k0 : 8;
+        const light_entry *les[8];
+        float b1s[8], b2s[8];
+        pt_vec3 ds[8];
+        float d2[8], ndot[8], pmf_area[8], dist[8], inv[8], cos_l[8], pdf[8];
+        for (uint32_t l = 0; l < 8; l++) {
+            /* Lanes past n repeat the last point. */
+            uint32_t i = k0 + (l < m ? l : m - 1);
+            pt_light_sample *si = &s[k0 + l < n ? k0 + l : i];
+            const float *ui = u[i];
+            double x = (double)ui[0] * (double)count;
+            uint32_t col = x < (double)count ? (uint32_t)x : count - 1;
+            double rr = x - (double)col;
+            const alias_slot *c = &lights->alias[col];
+            const light_entry *le = &lights->lights[rr < c->prob ? col : c->alias];
+            int upper = ui[2] > ui[1];
+            float h1 = 0.5f * ui[1], h2 = 0.5f * ui[2];
+            float b1 = upper ? h1 : ui[1] - h2;
+            float b2 = upper ? ui[2] - h1 : h2;
+            float b0 = 1.0f - b1 - b2;
+            const pt_vec3 *v = le->v;
+            pt_vec3 pos = pt_v3_add(pt_v3_add(pt_v3_scale(v[0], b0), pt_v3_scale(v[1], b1)),
+                                    pt_v3_scale(v[2], b2));
+            pt_vec3 d = pt_v3_sub(pos, p[i]);
+            if (l < m) {
+                memset(si, 0, sizeof *si);
+                si->tri = le->tri;
+                si->position = pos;
+                si->normal = le->normal;
+            }
+            les[l] = le;
+            b1s[l] = b1;
+            b2s[l] = b2;
+            ds[l] = d;
+            d2[l] = pt_v3_dot(d, d);
+            ndot[l] = pt_v3_dot(le->normal, d);
+            pmf_area[l] = le->pmf_area;
+        }
+        sample_lanes(d2, ndot, pmf_area, dist, inv, cos_l, pdf);
+        for (uint32_t l = 0; l < m; l++) {
+            pt_light_sample *si = &s[k0 + l];
+            const light_entry *le = les[l];
+            ok[k0 + l] = 0;
+            si->dist = dist[l];
+            if (!(si->dist > 0.0f) || !isfinite(si->dist))
+                continue;
+            si->wi = pt_v3_scale(ds[l], inv[l]);
+            const pt_material *mat = &scene->materials[le->material];
+            /* solid_angle_pdf_d's checks on the lanes' values. */
+            float q = 0.0f;
+            if (d2[l] > 0.0f && isfinite(d2[l]) && (mat->double_sided || cos_l[l] > 0.0f) &&
+                fabsf(cos_l[l]) > 0.0f)
+                q = isfinite(pdf[l]) ? pdf[l] : 0.0f;
+            si->pdf = q;
+            if (!(q > 0.0f))
+                continue;
+            si->radiance = emission(scene, mat, le->tri, b1s[l], b2s[l]);
+            ok[k0 + l] = 1;
+        }
+    }
 }
 
 float pt_lights_pdf(const pt_lights *lights, const pt_scene *scene, uint32_t tri, pt_vec3 p,

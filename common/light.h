@@ -43,6 +43,11 @@ uint32_t pt_lights_count(const pt_lights *lights);
 int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, const float u[3],
                      pt_light_sample *s);
 
+/* pt_lights_sample(lights, scene, p[i], u[i], &s[i]) into ok[i] for i < n,
+ * the same bits, computed a few points at a time in SIMD lanes. */
+void pt_lights_sample_n(const pt_lights *lights, const pt_scene *scene, uint32_t n,
+                        const pt_vec3 *p, const float (*u)[3], pt_light_sample *s, int *ok);
+
 /* Solid-angle pdf that pt_lights_sample would give for reaching point `hit` on
  * triangle `tri` (normal n_light) from p; 0 when tri is not a light. */
 float pt_lights_pdf(const pt_lights *lights, const pt_scene *scene, uint32_t tri, pt_vec3 p,

@@ -60,6 +60,7 @@ struct pt_renderer {
     li_fn li;     /* one path at a time: pt_render_sample */
     tile_fn tile; /* batched: pt_render_tile */
     int nee;      /* next-event estimation runs: lights exist, the strategy uses them */
+    int nee_n;    /* nee, with lights enough to sample them for a stage at once */
     const char *variant;
     float tan_half_fov;
 };
@@ -549,9 +550,37 @@ static inline __attribute__((always_inline)) pt_vec3 li_impl(const pt_renderer *
     return pa.L;
 }
 
+/* The fewest lights for which trace_batch samples a stage's lights in one
+ * call (pt_lights_sample_n): about where their entries and alias columns
+ * (80 bytes a light) outgrow a 32 KiB level-1 data cache. */
+#define LIGHTS_N_MIN 512u
+
 /* Paths in flight in the tile loop, and the most pixels they come from. */
 #define BATCH 64u
 #define BATCH_PIXELS 16u
+
+/* bounce_light for the n surfaces of a stage (NEE runs), in one call to
+ * pt_lights_sample_n: the same bits. The random reads of many lights' entries
+ * and emission textures are then issued close together, and their cache
+ * misses overlap. With few lights they hit the cache anyway and trace_batch
+ * calls bounce_light per point, which is faster there (the copies and staging
+ * cost more than they save). Not inlined, so that it leaves those variants'
+ * loop as it was. */
+static __attribute__((noinline)) void lights_stage(const pt_renderer *r, uint32_t n,
+                                                   const surface *sfs,
+                                                   const float (*u)[DIM_PER_BOUNCE],
+                                                   pt_light_sample *lss, int *ls_ok)
+{
+    pt_vec3 p[BATCH];
+    float lu[BATCH][3];
+    for (uint32_t j = 0; j < n; j++) {
+        p[j] = sfs[j].p;
+        lu[j][0] = u[j][OFF_LIGHT_PICK];
+        lu[j][1] = u[j][OFF_LIGHT_POINT];
+        lu[j][2] = u[j][OFF_LIGHT_POINT + 1];
+    }
+    pt_lights_sample_n(r->lights, r->scene, n, p, (const float(*)[3])lu, lss, ls_ok);
+}
 
 /*
  * Traces n paths (all started) to their ends, stage by stage over all live
@@ -611,8 +640,12 @@ static inline __attribute__((always_inline)) uint64_t trace_batch(const pt_rende
             pt_sample_cosine_hemisphere_n(&u[0][OFF_BSDF_DIR], DIM_PER_BOUNCE, nh, cos_wi);
         for (uint32_t j = 0; j < nh; j++)
             surface_at(r, &hits[live[j]], &sfs[j], features);
-        for (uint32_t j = 0; j < nh; j++)
-            ls_ok[j] = bounce_light(r, &sfs[j], u[j], &lss[j], features);
+        if ((features & PT_FEAT_EMITTERS) && r->nee_n) {
+            lights_stage(r, nh, sfs, u, lss, ls_ok);
+        } else {
+            for (uint32_t j = 0; j < nh; j++)
+                ls_ok[j] = bounce_light(r, &sfs[j], u[j], &lss[j], features);
+        }
         uint32_t ns = 0, nc = 0;
         for (uint32_t j = 0; j < nh; j++) {
             uint32_t k = live[j];
@@ -766,6 +799,7 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
         goto fail;
     }
     r->nee = pt_lights_count(r->lights) > 0 && params->light_strategy != PT_LIGHT_BSDF_ONLY;
+    r->nee_n = r->nee && pt_lights_count(r->lights) >= LIGHTS_N_MIN;
     pick_variant(r, scene->features | params->extra_features);
     *out = r;
     return PT_OK;

@@ -742,6 +742,64 @@ static void test_sides(void)
 
 /* ---- scenes without emitters, bad input, allocation failure ---------------------------------- */
 
+/* pt_lights_sample_n gives pt_lights_sample's results bit for bit: points all
+ * around the lights (both sides of the single-sided ones, on a light's
+ * vertex, not finite), every length of a batch around its 8-lane steps,
+ * and a scene without lights. */
+static void check_sample_n(const pt_lights *L, const pt_scene *s, const char *what)
+{
+    enum { N = 77 };
+    pt_vec3 p[N];
+    float u[N][3];
+    pt_light_sample a[N], b;
+    int ok[N];
+    int bad = 0, valid = 0;
+    for (int round = 0; round < 40; round++) {
+        for (int i = 0; i < N; i++) {
+            p[i] = pt_v3(4.0f * rnd() - 2.0f, 4.0f * rnd() - 2.0f, 4.0f * rnd() - 2.0f);
+            rnd3(u[i]);
+        }
+        p[3] = pt_v3(-0.6f, -0.5f, 1); /* light 0's first vertex */
+        u[3][1] = u[3][2] = 0.0f;
+        p[5] = pt_v3(NAN, 0, 0);
+        p[6] = pt_v3(INFINITY, 0, 0);
+        p[7] = pt_v3(0.1f, 0.0f, 1.6f); /* behind light 0 */
+        u[8][0] = 0x1.fffffep-1f;
+        for (uint32_t n = 0; n <= N; n += (n < 18 ? 1 : 19)) {
+            memset(a, 0xa5, sizeof a);
+            pt_lights_sample_n(L, s, n, p, (const float(*)[3])u, a, ok);
+            for (uint32_t i = 0; i < n; i++) {
+                int r = pt_lights_sample(L, s, p[i], u[i], &b);
+                bad += r != ok[i] || memcmp(&a[i], &b, sizeof b) != 0;
+                valid += r;
+            }
+        }
+    }
+    CHECKF(bad == 0, "%s: %d batched light samples differ from single ones", what, bad);
+    CHECK(valid > 0 || pt_lights_count(L) == 0);
+}
+
+static void test_sample_n(void)
+{
+    rng_state = 8;
+    tscene t;
+    build_main(&t);
+    pt_lights *L = NULL;
+    CHECK(pt_lights_new(&t.s, &L, NULL) == PT_OK);
+    if (L)
+        check_sample_n(L, &t.s, "main scene");
+    pt_lights_free(L);
+
+    ts_init(&t);
+    uint32_t m = ts_material(&t, 0, 0, 0, 0, -1);
+    ts_tri(&t, pt_v3(0, 0, 1), pt_v3(1, 0, 1), pt_v3(0, 1, 1), m, pt_v3(0, 0, 0));
+    L = NULL;
+    CHECK(pt_lights_new(&t.s, &L, NULL) == PT_OK);
+    if (L)
+        check_sample_n(L, &t.s, "no lights");
+    pt_lights_free(L);
+}
+
 static void test_no_emitters_and_errors(void)
 {
     tscene t;
@@ -810,6 +868,7 @@ int main(void)
     test_solid_angle_pdf();
     test_pdf_consistency();
     test_sides();
+    test_sample_n();
     test_no_emitters_and_errors();
     return check_report();
 }

@@ -333,8 +333,11 @@ static void same_as_general(pt_scene *s, const char *want_variant)
     pt_renderer_free(g);
 }
 
-/* A textured Lambertian floor lit by an emissive quad, built by code. */
-static pt_scene *textured_lambert_scene(void)
+/* A textured Lambertian floor lit by an emissive quad, built by code. With
+ * grid > 1 the quad is grid x grid cells of two triangles, textured in its
+ * emission too: with 512 triangles or more, the renderer samples a stage's
+ * lights in one call (pt_lights_sample_n). */
+static pt_scene *textured_lambert_scene(uint32_t grid)
 {
     pt_scene_builder *b = NULL;
     CHECK(pt_scene_builder_new(&b, NULL) == PT_OK);
@@ -352,15 +355,48 @@ static pt_scene *textured_lambert_scene(void)
     light.metallic = 0.0f;
     light.specular = 0.0f;
     light.emissive[0] = light.emissive[1] = light.emissive[2] = 5.0f;
+    if (grid > 1)
+        light.emissive_tex = (int32_t)ti;
     CHECK(pt_scene_builder_add_material(b, &floor, &mf, NULL) == PT_OK);
     CHECK(pt_scene_builder_add_material(b, &light, &ml, NULL) == PT_OK);
     const float fp[] = {-1, 0, -1, 1, 0, -1, 1, 0, 1, -1, 0, 1};
     const float uv[] = {0, 0, 2, 0, 2, 2, 0, 2};
     const uint32_t idx[] = {0, 2, 1, 0, 3, 2};
     CHECK(pt_scene_builder_add_mesh(b, "floor", fp, NULL, uv, 4, idx, 2, NULL, mf, NULL) == PT_OK);
-    const float lp[] = {-0.3f, 1, -0.3f, 0.3f, 1, -0.3f, 0.3f, 1, 0.3f, -0.3f, 1, 0.3f};
-    const uint32_t lidx[] = {0, 1, 2, 0, 2, 3};
-    CHECK(pt_scene_builder_add_mesh(b, "light", lp, NULL, NULL, 4, lidx, 2, NULL, ml, NULL) == PT_OK);
+    if (grid <= 1) {
+        const float lp[] = {-0.3f, 1, -0.3f, 0.3f, 1, -0.3f, 0.3f, 1, 0.3f, -0.3f, 1, 0.3f};
+        const uint32_t lidx[] = {0, 1, 2, 0, 2, 3};
+        CHECK(pt_scene_builder_add_mesh(b, "light", lp, NULL, NULL, 4, lidx, 2, NULL, ml, NULL) ==
+              PT_OK);
+    } else {
+        uint32_t nv = (grid + 1) * (grid + 1);
+        float *gp = pt_malloc_array(nv, 3 * sizeof(float));
+        float *guv = pt_malloc_array(nv, 2 * sizeof(float));
+        uint32_t *gidx = pt_malloc_array(grid * grid, 6 * sizeof(uint32_t));
+        CHECK(gp && guv && gidx);
+        if (gp && guv && gidx) {
+            for (uint32_t j = 0; j <= grid; j++)
+                for (uint32_t i = 0; i <= grid; i++) {
+                    uint32_t v = j * (grid + 1) + i;
+                    gp[3 * v] = -0.3f + 0.6f * (float)i / (float)grid;
+                    gp[3 * v + 1] = 1.0f;
+                    gp[3 * v + 2] = -0.3f + 0.6f * (float)j / (float)grid;
+                    guv[2 * v] = (float)i / (float)grid;
+                    guv[2 * v + 1] = (float)j / (float)grid;
+                }
+            for (uint32_t j = 0; j < grid; j++)
+                for (uint32_t i = 0; i < grid; i++) {
+                    uint32_t v00 = j * (grid + 1) + i, v10 = v00 + 1, v01 = v00 + grid + 1,
+                             v11 = v01 + 1, *t = &gidx[6 * (j * grid + i)];
+                    t[0] = v00, t[1] = v10, t[2] = v11, t[3] = v00, t[4] = v11, t[5] = v01;
+                }
+            CHECK(pt_scene_builder_add_mesh(b, "light", gp, NULL, guv, nv, gidx, 2 * grid * grid,
+                                            NULL, ml, NULL) == PT_OK);
+        }
+        pt_free(gp);
+        pt_free(guv);
+        pt_free(gidx);
+    }
     pt_camera cam = {0};
     cam.position = pt_v3(0, 0.6f, 2.0f);
     cam.forward = pt_v3_norm(pt_v3(0, -0.4f, -1));
@@ -383,7 +419,13 @@ static void variants(void)
         batched(s);
     }
     pt_scene_free(s);
-    s = textured_lambert_scene();
+    s = textured_lambert_scene(1);
+    if (s) {
+        same_as_general(s, "lambert");
+        batched(s);
+    }
+    pt_scene_free(s);
+    s = textured_lambert_scene(16); /* 512 lights */
     if (s) {
         same_as_general(s, "lambert");
         batched(s);
