@@ -703,19 +703,9 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
             local.rays += trace_batch(r, paths, np * nb, features, sink);
             for (uint32_t g = 0; g < np; g++) {
                 pt_pixel_acc blk = {{0, 0, 0}, 0, 0, 0};
-                for (uint32_t i = 0; i < nb; i++) {
-                    pt_vec3 c = paths[g * nb + i].L;
-                    if (!pt_isfinite3(c)) {
+                for (uint32_t i = 0; i < nb; i++)
+                    if (!pt_pixel_acc_sample(&blk, paths[g * nb + i].L))
                         local.rejected++;
-                        continue;
-                    }
-                    double lum = (double)pt_luminance(c);
-                    blk.sum[0] += c.x;
-                    blk.sum[1] += c.y;
-                    blk.sum[2] += c.z;
-                    blk.sum_sq += lum * lum;
-                    blk.n++;
-                }
                 pt_pixel_acc_add(&out[p0 + g], &blk);
                 local.samples += blk.n;
             }

@@ -44,6 +44,21 @@ static inline void pt_pixel_acc_add(pt_pixel_acc *a, const pt_pixel_acc *b)
     a->n += b->n;
 }
 
+/* Adds one sample's radiance to a; a non-finite sample is left out and
+ * returns 0 (the caller counts it as rejected). */
+static inline int pt_pixel_acc_sample(pt_pixel_acc *a, pt_vec3 c)
+{
+    if (!pt_isfinite3(c))
+        return 0;
+    double lum = (double)pt_luminance(c);
+    a->sum[0] += c.x;
+    a->sum[1] += c.y;
+    a->sum[2] += c.z;
+    a->sum_sq += lum * lum;
+    a->n++;
+    return 1;
+}
+
 #define PT_SAMPLE_BLOCK 16u
 
 typedef struct pt_rect {

@@ -266,19 +266,10 @@ static void batched_as_single(const pt_scene *s, uint32_t extra, uint32_t strate
             uint32_t b1 = (b0 / PT_SAMPLE_BLOCK + 1) * PT_SAMPLE_BLOCK;
             b1 = b1 < s1 ? b1 : s1;
             pt_pixel_acc blk = {{0, 0, 0}, 0, 0, 0};
-            for (uint32_t i = b0; i < b1; i++) {
-                pt_vec3 c = pt_render_sample(r, rect.x0 + k % tw, rect.y0 + k / tw, i, &rs);
-                if (!pt_isfinite3(c)) {
+            for (uint32_t i = b0; i < b1; i++)
+                if (!pt_pixel_acc_sample(
+                        &blk, pt_render_sample(r, rect.x0 + k % tw, rect.y0 + k / tw, i, &rs)))
                     rs.rejected++;
-                    continue;
-                }
-                double lum = (double)pt_luminance(c);
-                blk.sum[0] += c.x;
-                blk.sum[1] += c.y;
-                blk.sum[2] += c.z;
-                blk.sum_sq += lum * lum;
-                blk.n++;
-            }
             pt_pixel_acc_add(&ref[k], &blk);
             rs.samples += blk.n;
             b0 = b1;
