@@ -38,32 +38,6 @@ void wrk_hash_hex(const uint8_t hash[WRK_HASH_SIZE], char out[65])
 /* ---- file helpers ------------------------------------------------------------------- */
 
 
-/* rm -rf path, not following symbolic links. Best effort. */
-static void remove_tree(const char *path)
-{
-    struct stat sb;
-    if (lstat(path, &sb) != 0)
-        return;
-    if (S_ISDIR(sb.st_mode)) {
-        DIR *d = opendir(path);
-        if (d) {
-            struct dirent *e;
-            char child[4096];
-            while ((e = readdir(d)) != NULL) {
-                if (strcmp(e->d_name, ".") == 0 || strcmp(e->d_name, "..") == 0)
-                    continue;
-                int n = snprintf(child, sizeof child, "%s/%s", path, e->d_name);
-                if (n > 0 && (size_t)n < sizeof child)
-                    remove_tree(child);
-            }
-            closedir(d);
-        }
-        rmdir(path);
-    } else {
-        unlink(path);
-    }
-}
-
 static void sync_dir(const char *dir)
 {
     int fd = open(dir, O_RDONLY | O_CLOEXEC);
@@ -86,35 +60,6 @@ static pt_status write_all(int fd, const uint8_t *data, size_t size, const char 
             return pt_error_errno(err, PT_ERR_IO, "%s: write", path);
         done += (size_t)w;
     }
-    return PT_OK;
-}
-
-static pt_status read_file(const char *path, size_t size, uint8_t **out, pt_error *err)
-{
-    int fd = open(path, O_RDONLY | O_CLOEXEC);
-    if (fd < 0)
-        return pt_error_errno(err, PT_ERR_IO, "%s", path);
-    uint8_t *data = pt_malloc(size ? size : 1);
-    if (!data) {
-        close(fd);
-        return pt_error_set(err, PT_ERR_NOMEM, "%s: out of memory for %zu bytes", path, size);
-    }
-    size_t done = 0;
-    while (done < size) {
-        ssize_t r = read(fd, data + done, size - done);
-        if (r < 0 && errno == EINTR)
-            continue;
-        if (r <= 0) {
-            pt_status st = r == 0 ? pt_error_set(err, PT_ERR_IO, "%s: shorter than it was", path)
-                                  : pt_error_errno(err, PT_ERR_IO, "%s: read", path);
-            pt_free(data);
-            close(fd);
-            return st;
-        }
-        done += (size_t)r;
-    }
-    close(fd);
-    *out = data;
     return PT_OK;
 }
 
@@ -147,7 +92,7 @@ static void clean_temps(const char *dir)
             continue; /* alive, or not ours to judge */
         int n = snprintf(path, sizeof path, "%s/%s", dir, name);
         if (n > 0 && (size_t)n < sizeof path)
-            remove_tree(path);
+            pt_remove_tree(path);
     }
     closedir(d);
 }
@@ -214,13 +159,13 @@ static pt_status unpack(wrk_cache *c, const char *hex, const uint8_t *data, size
     memcpy(b.hash, hex, 65);
     pt_status st = pt_bundle_unpack(&b, tmp, entry, sizeof entry, err);
     if (st != PT_OK) {
-        remove_tree(tmp);
+        pt_remove_tree(tmp);
         return st;
     }
     sync_dir(tmp);
     if (rename(tmp, scene_dir) != 0) {
         int e = errno;
-        remove_tree(tmp);
+        pt_remove_tree(tmp);
         if (e != EEXIST && e != ENOTEMPTY) {
             errno = e;
             return pt_error_errno(err, PT_ERR_IO, "%s: rename", scene_dir);
@@ -280,7 +225,7 @@ pt_status wrk_cache_lookup(wrk_cache *c, const uint8_t hash[WRK_HASH_SIZE], char
         if (errno != ENOENT)
             return pt_error_errno(err, PT_ERR_IO, "%s", bundle_path);
         /* A folder without its bundle cannot be checked: start again. */
-        remove_tree(scene_dir);
+        pt_remove_tree(scene_dir);
         return PT_AGAIN;
     }
     pt_status st;
@@ -291,8 +236,8 @@ pt_status wrk_cache_lookup(wrk_cache *c, const uint8_t hash[WRK_HASH_SIZE], char
         why = "not a bundle file of a possible size";
         goto corrupt;
     }
-    size_t size = (size_t)sb.st_size;
-    if ((st = read_file(bundle_path, size, &data, err)) != PT_OK)
+    size_t size;
+    if ((st = pt_read_file(bundle_path, PT_BUNDLE_MAX_BYTES, &data, &size, err)) != PT_OK)
         return st;
     pt_sha256_hex(data, size, got);
     if (strcmp(got, hex) != 0) {
@@ -307,7 +252,7 @@ pt_status wrk_cache_lookup(wrk_cache *c, const uint8_t hash[WRK_HASH_SIZE], char
     if ((st = entry_path_of(scene_dir, data, tmp_entry, sizeof tmp_entry, err)) != PT_OK)
         goto done;
     if (is_dir(scene_dir) && !is_file(tmp_entry))
-        remove_tree(scene_dir); /* tampered with: unpack again */
+        pt_remove_tree(scene_dir); /* tampered with: unpack again */
     if (!is_dir(scene_dir) && (st = unpack(c, hex, data, size, scene_dir, err)) != PT_OK)
         goto done;
     if (strlen(tmp_entry) >= cap) {
@@ -322,7 +267,7 @@ done:
 corrupt:
     pt_free(data);
     unlink(bundle_path);
-    remove_tree(scene_dir);
+    pt_remove_tree(scene_dir);
     return pt_error_set(err, PT_ERR_FORMAT, "cached scene %s: %s; removed", bundle_path, why);
 }
 
@@ -348,7 +293,7 @@ pt_status wrk_cache_store(wrk_cache *c, const uint8_t hash[WRK_HASH_SIZE], const
     if ((st = write_bundle(c, hex, data, size, bundle_path, err)) != PT_OK)
         return st;
     if (is_dir(scene_dir) && !is_file(tmp_entry))
-        remove_tree(scene_dir);
+        pt_remove_tree(scene_dir);
     if (!is_dir(scene_dir) && (st = unpack(c, hex, data, size, scene_dir, err)) != PT_OK)
         return st;
     memcpy(entry, tmp_entry, strlen(tmp_entry) + 1);

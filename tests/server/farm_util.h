@@ -172,6 +172,23 @@ static inline int sanitizer_reports(void)
     return n;
 }
 
+/* The end of a farm test's main: no sanitizer report in any log, then tmp
+ * removed when every check passed (kept, and named, otherwise or with
+ * PT_KEEP_TMP set); returns the exit status. */
+static inline int farm_test_end(void)
+{
+    CHECK(sanitizer_reports() == 0);
+    if (check_failed_ == 0 && !getenv("PT_KEEP_TMP")) {
+        char cmd[512];
+        snprintf(cmd, sizeof cmd, "rm -rf %s", tmp);
+        if (system(cmd) != 0)
+            return 1;
+    } else {
+        fprintf(stderr, "logs kept in %s\n", tmp);
+    }
+    return check_report();
+}
+
 /* ---- a raw protocol peer ---- */
 
 static inline int connect_to(int port)

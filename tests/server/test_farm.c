@@ -362,14 +362,5 @@ int main(void)
     chaos();
     hostile();
     interrupt();
-    CHECK(sanitizer_reports() == 0);
-    if (check_failed_ == 0 && !getenv("PT_KEEP_TMP")) {
-        char cmd[512];
-        snprintf(cmd, sizeof cmd, "rm -rf %s", tmp);
-        if (system(cmd) != 0)
-            return 1;
-    } else {
-        fprintf(stderr, "logs kept in %s\n", tmp);
-    }
-    return check_report();
+    return farm_test_end();
 }

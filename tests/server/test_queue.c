@@ -1057,14 +1057,5 @@ int main(void)
     pt_bundle_free(g_bundle);
     if (g_srv > 0)
         kill_server(SIGKILL);
-    CHECK(sanitizer_reports() == 0);
-    if (check_failed_ == 0 && !getenv("PT_KEEP_TMP")) {
-        char cmd[512];
-        snprintf(cmd, sizeof cmd, "rm -rf %s", tmp);
-        if (system(cmd) != 0)
-            return 1;
-    } else {
-        fprintf(stderr, "logs kept in %s\n", tmp);
-    }
-    return check_report();
+    return farm_test_end();
 }
