@@ -1642,11 +1642,16 @@ static void timers(server *s)
 }
 
 /* Ends the jobs whose every task is merged (queue mode). */
-static void finish_complete(server *s)
+/* Ends the queue's complete jobs; returns how many. */
+static int finish_complete(server *s)
 {
+    int ended = 0;
     for (sjob *j = s->jobs; j; j = j->next)
-        if (j != s->single && j->job && job_active(j) && srv_job_complete(j->job))
+        if (j != s->single && j->job && job_active(j) && srv_job_complete(j->job)) {
             job_end(s, j, PROTO_JOB_DONE, NULL);
+            ended++;
+        }
+    return ended;
 }
 
 /* ---- local workers ----------------------------------------------------------------- */
@@ -2007,19 +2012,19 @@ int srv_serve(const srv_config *cfg)
                     conn_flush(&s, c);
             }
         }
-        /* Leases need no disk: send them before the group commit, so workers
-         * do not wait on it for their next tasks. */
+        hand_out(&s);
         if (s.state) {
-            hand_out(&s);
+            /* Leases need no disk: they leave before the group commit, so
+             * workers do not wait on it for their next tasks. Then the
+             * results logged in this round reach the disk. */
             for (conn *c = s.conns; c; c = c->next)
                 if (c->out.len > c->out_off && !c->closing)
                     conn_flush(&s, c);
+            if (srv_state_sync(s.state, &err) != PT_OK)
+                logf_(&s, "error: %s", err.msg);
+            if (finish_complete(&s))
+                hand_out(&s); /* the workers the ended jobs left waiting */
         }
-        /* Group commit: the results logged in this round reach the disk. */
-        if (s.state && srv_state_sync(s.state, &err) != PT_OK)
-            logf_(&s, "error: %s", err.msg);
-        finish_complete(&s);
-        hand_out(&s);
         timers(&s);
         /* Flush, then free closed connections outside their callbacks. */
         uint64_t now = now_ms();
