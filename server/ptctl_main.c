@@ -527,8 +527,10 @@ typedef struct job_args {
 
 enum { TAKES_JOB = 1, TAKES_JSON = 2, TAKES_OUTPUT = 4 };
 
-static int parse_job_args(const char *cmd, const char *help, int flags, int argc, char **argv,
-                          globals *g, job_args *a, int *help_shown)
+/* Parses the command's arguments, then connects: 0 with *conn set, or the
+ * exit status with *conn NULL (0 too after --help). */
+static int open_job_command(const char *cmd, const char *help, int flags, int argc, char **argv,
+                            globals *g, job_args *a, ctl_conn **conn)
 {
     static const struct option opts[] = {/* the global options, accepted after the command too */
                                          {"server", required_argument, NULL, O_SERVER},
@@ -539,7 +541,7 @@ static int parse_job_args(const char *cmd, const char *help, int flags, int argc
                                          {"output", required_argument, NULL, 'o'},
                                          {NULL, 0, NULL, 0}};
     int c;
-    *help_shown = 0;
+    *conn = NULL;
     optind = 0;
     while ((c = getopt_long(argc, argv, ":ho:", opts, NULL)) != -1) {
         int rc = 0;
@@ -547,7 +549,6 @@ static int parse_job_args(const char *cmd, const char *help, int flags, int argc
         case 'h':
             fputs(help, stdout);
             printf("\n%s\n%s", GLOBAL_HELP, EXIT_HELP);
-            *help_shown = 1;
             return 0;
         case O_JSON:
             if (!(flags & TAKES_JSON))
@@ -578,7 +579,7 @@ static int parse_job_args(const char *cmd, const char *help, int flags, int argc
         return EXIT_USAGE;
     if ((flags & TAKES_OUTPUT) && (!a->output || !*a->output))
         return bad_usage(cmd, "-o OUT.exr is required");
-    return 0;
+    return connect_server(g, conn);
 }
 
 static const char LIST_HELP[] =
@@ -595,12 +596,9 @@ static const char LIST_HELP[] =
 static int cmd_list(int argc, char **argv, globals *g)
 {
     job_args a = {0};
-    int help = 0;
-    int rc = parse_job_args("list", LIST_HELP, TAKES_JSON, argc, argv, g, &a, &help);
-    if (rc || help)
-        return rc;
-    ctl_conn *c = NULL;
-    if ((rc = connect_server(g, &c)))
+    ctl_conn *c;
+    int rc = open_job_command("list", LIST_HELP, TAKES_JSON, argc, argv, g, &a, &c);
+    if (!c)
         return rc;
     pt_error err = {0};
     proto_job_list l;
@@ -717,13 +715,9 @@ static const char STATUS_HELP[] =
 static int cmd_status(int argc, char **argv, globals *g)
 {
     job_args a = {0};
-    int help = 0;
-    int rc =
-        parse_job_args("status", STATUS_HELP, TAKES_JOB | TAKES_JSON, argc, argv, g, &a, &help);
-    if (rc || help)
-        return rc;
-    ctl_conn *c = NULL;
-    if ((rc = connect_server(g, &c)))
+    ctl_conn *c;
+    int rc = open_job_command("status", STATUS_HELP, TAKES_JOB | TAKES_JSON, argc, argv, g, &a, &c);
+    if (!c)
         return rc;
     pt_error err = {0};
     static proto_job_info j;
@@ -753,12 +747,9 @@ static const char WATCH_HELP[] =
 static int cmd_watch(int argc, char **argv, globals *g)
 {
     job_args a = {0};
-    int help = 0;
-    int rc = parse_job_args("watch", WATCH_HELP, TAKES_JOB, argc, argv, g, &a, &help);
-    if (rc || help)
-        return rc;
-    ctl_conn *c = NULL;
-    if ((rc = connect_server(g, &c)))
+    ctl_conn *c;
+    int rc = open_job_command("watch", WATCH_HELP, TAKES_JOB, argc, argv, g, &a, &c);
+    if (!c)
         return rc;
     rc = watch_job(c, a.id);
     ctl_close(c);
@@ -774,12 +765,9 @@ static const char CANCEL_HELP[] =
 static int cmd_cancel(int argc, char **argv, globals *g)
 {
     job_args a = {0};
-    int help = 0;
-    int rc = parse_job_args("cancel", CANCEL_HELP, TAKES_JOB, argc, argv, g, &a, &help);
-    if (rc || help)
-        return rc;
-    ctl_conn *c = NULL;
-    if ((rc = connect_server(g, &c)))
+    ctl_conn *c;
+    int rc = open_job_command("cancel", CANCEL_HELP, TAKES_JOB, argc, argv, g, &a, &c);
+    if (!c)
         return rc;
     pt_error err = {0};
     static proto_job_info j;
@@ -807,13 +795,9 @@ static const char FETCH_HELP[] =
 static int cmd_fetch(int argc, char **argv, globals *g)
 {
     job_args a = {0};
-    int help = 0;
-    int rc =
-        parse_job_args("fetch", FETCH_HELP, TAKES_JOB | TAKES_OUTPUT, argc, argv, g, &a, &help);
-    if (rc || help)
-        return rc;
-    ctl_conn *c = NULL;
-    if ((rc = connect_server(g, &c)))
+    ctl_conn *c;
+    int rc = open_job_command("fetch", FETCH_HELP, TAKES_JOB | TAKES_OUTPUT, argc, argv, g, &a, &c);
+    if (!c)
         return rc;
     pt_error err = {0};
     uint8_t *data = NULL;
