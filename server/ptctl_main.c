@@ -186,6 +186,14 @@ static int fail(const ctl_conn *c, const pt_error *e)
     return EXIT_ERROR;
 }
 
+/* fail() for a request on c, which is then closed. */
+static int fail_close(ctl_conn *c, const pt_error *e)
+{
+    int rc = fail(c, e);
+    ctl_close(c);
+    return rc;
+}
+
 /* Connects and authenticates; 0 with *out set, or the exit status. */
 static int connect_server(const globals *g, ctl_conn **out)
 {
@@ -209,11 +217,8 @@ static int connect_server(const globals *g, ctl_conn **out)
     pt_status st = ctl_connect(&o, &c, &err);
     if (st == PT_ERR_ARG)
         return bad_usage(NULL, "--server: %s", err.msg);
-    if (st != PT_OK) {
-        int rc = fail(c, &err);
-        ctl_close(c);
-        return rc;
-    }
+    if (st != PT_OK)
+        return fail_close(c, &err);
     *out = c;
     return 0;
 }
@@ -505,11 +510,8 @@ static int cmd_submit(int argc, char **argv, globals *g)
     if (t.shown)
         fputc('\n', stderr);
     pt_bundle_free(b);
-    if (st != PT_OK) {
-        rc = fail(conn, &err);
-        ctl_close(conn);
-        return rc;
-    }
+    if (st != PT_OK)
+        return fail_close(conn, &err);
     printf("%llu\n", (unsigned long long)id);
     fflush(stdout);
     if (watch)
@@ -602,11 +604,8 @@ static int cmd_list(int argc, char **argv, globals *g)
         return rc;
     pt_error err = {0};
     proto_job_list l;
-    if (ctl_list(c, &l, &err) != PT_OK) {
-        rc = fail(c, &err);
-        ctl_close(c);
-        return rc;
-    }
+    if (ctl_list(c, &l, &err) != PT_OK)
+        return fail_close(c, &err);
     ctl_close(c);
     if (a.json) {
         fputc('[', stdout);
@@ -721,11 +720,8 @@ static int cmd_status(int argc, char **argv, globals *g)
         return rc;
     pt_error err = {0};
     static proto_job_info j;
-    if (ctl_status(c, a.id, &j, &err) != PT_OK) {
-        rc = fail(c, &err);
-        ctl_close(c);
-        return rc;
-    }
+    if (ctl_status(c, a.id, &j, &err) != PT_OK)
+        return fail_close(c, &err);
     ctl_close(c);
     if (a.json) {
         ctl_json_job(stdout, &j);
@@ -771,11 +767,8 @@ static int cmd_cancel(int argc, char **argv, globals *g)
         return rc;
     pt_error err = {0};
     static proto_job_info j;
-    if (ctl_cancel(c, a.id, &j, &err) != PT_OK) {
-        rc = fail(c, &err);
-        ctl_close(c);
-        return rc;
-    }
+    if (ctl_cancel(c, a.id, &j, &err) != PT_OK)
+        return fail_close(c, &err);
     ctl_close(c);
     printf("%s\n", proto_job_state_name(j.state));
     return fflush(stdout) == 0 ? 0 : EXIT_ERROR;
@@ -807,11 +800,8 @@ static int cmd_fetch(int argc, char **argv, globals *g)
     pt_status st = ctl_fetch(c, a.id, tty ? show_transfer : NULL, &t, &data, &size, &err);
     if (t.shown)
         fputc('\n', stderr);
-    if (st != PT_OK) {
-        rc = fail(c, &err);
-        ctl_close(c);
-        return rc;
-    }
+    if (st != PT_OK)
+        return fail_close(c, &err);
     ctl_close(c);
     st = ctl_write_atomic(a.output, data, size, &err);
     pt_free(data);
