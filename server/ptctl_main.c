@@ -144,6 +144,17 @@ static int parse_u32(const char *cmd, const char *opt, const char *s, uint32_t m
     return 0;
 }
 
+static int parse_nonneg(const char *cmd, const char *opt, const char *s, double *out)
+{
+    char *end;
+    errno = 0;
+    double v = strtod(s, &end);
+    if (errno || end == s || *end || !(v >= 0.0) || !isfinite(v))
+        return bad_usage(cmd, "%s: '%s' is not a number >= 0", opt, s);
+    *out = v;
+    return 0;
+}
+
 static int parse_job(const char *cmd, const char *s, uint64_t *out)
 {
     if (parse_u64(s, UINT64_MAX, out) != 0)
@@ -432,23 +443,12 @@ static int cmd_submit(int argc, char **argv, globals *g)
         case O_DEPTH:
             rc = parse_u32("submit", "--max-depth", optarg, 1, UINT16_MAX, &depth);
             break;
-        case O_TARGET: {
-            char *end;
-            errno = 0;
-            m.target_error = strtod(optarg, &end);
-            if (errno || end == optarg || *end || !(m.target_error >= 0.0) ||
-                !isfinite(m.target_error))
-                rc = bad_usage("submit", "--target-error: '%s' is not a number >= 0", optarg);
+        case O_TARGET:
+            rc = parse_nonneg("submit", "--target-error", optarg, &m.target_error);
             break;
-        }
-        case O_MINGAIN: {
-            char *end;
-            errno = 0;
-            m.min_gain = strtod(optarg, &end);
-            if (errno || end == optarg || *end || !(m.min_gain >= 0.0) || !isfinite(m.min_gain))
-                rc = bad_usage("submit", "--min-gain: '%s' is not a number >= 0", optarg);
+        case O_MINGAIN:
+            rc = parse_nonneg("submit", "--min-gain", optarg, &m.min_gain);
             break;
-        }
         case O_MINSPP:
             rc = parse_u32("submit", "--min-spp", optarg, 1, UINT32_MAX, &m.min_spp);
             break;
