@@ -144,6 +144,17 @@ static int parse_u32(const char *cmd, const char *opt, const char *s, uint32_t m
     return 0;
 }
 
+static int parse_nonneg(const char *cmd, const char *opt, const char *s, double *out)
+{
+    char *end;
+    errno = 0;
+    double v = strtod(s, &end);
+    if (errno || end == s || *end || !(v >= 0.0) || !isfinite(v))
+        return bad_usage(cmd, "%s: '%s' is not a number >= 0", opt, s);
+    *out = v;
+    return 0;
+}
+
 static int parse_job(const char *cmd, const char *s, uint64_t *out)
 {
     if (parse_u64(s, UINT64_MAX, out) != 0)
@@ -186,6 +197,14 @@ static int fail(const ctl_conn *c, const pt_error *e)
     return EXIT_ERROR;
 }
 
+/* fail() for a request on c, which is then closed. */
+static int fail_close(ctl_conn *c, const pt_error *e)
+{
+    int rc = fail(c, e);
+    ctl_close(c);
+    return rc;
+}
+
 /* Connects and authenticates; 0 with *out set, or the exit status. */
 static int connect_server(const globals *g, ctl_conn **out)
 {
@@ -209,11 +228,8 @@ static int connect_server(const globals *g, ctl_conn **out)
     pt_status st = ctl_connect(&o, &c, &err);
     if (st == PT_ERR_ARG)
         return bad_usage(NULL, "--server: %s", err.msg);
-    if (st != PT_OK) {
-        int rc = fail(c, &err);
-        ctl_close(c);
-        return rc;
-    }
+    if (st != PT_OK)
+        return fail_close(c, &err);
     *out = c;
     return 0;
 }
@@ -427,23 +443,12 @@ static int cmd_submit(int argc, char **argv, globals *g)
         case O_DEPTH:
             rc = parse_u32("submit", "--max-depth", optarg, 1, UINT16_MAX, &depth);
             break;
-        case O_TARGET: {
-            char *end;
-            errno = 0;
-            m.target_error = strtod(optarg, &end);
-            if (errno || end == optarg || *end || !(m.target_error >= 0.0) ||
-                !isfinite(m.target_error))
-                rc = bad_usage("submit", "--target-error: '%s' is not a number >= 0", optarg);
+        case O_TARGET:
+            rc = parse_nonneg("submit", "--target-error", optarg, &m.target_error);
             break;
-        }
-        case O_MINGAIN: {
-            char *end;
-            errno = 0;
-            m.min_gain = strtod(optarg, &end);
-            if (errno || end == optarg || *end || !(m.min_gain >= 0.0) || !isfinite(m.min_gain))
-                rc = bad_usage("submit", "--min-gain: '%s' is not a number >= 0", optarg);
+        case O_MINGAIN:
+            rc = parse_nonneg("submit", "--min-gain", optarg, &m.min_gain);
             break;
-        }
         case O_MINSPP:
             rc = parse_u32("submit", "--min-spp", optarg, 1, UINT32_MAX, &m.min_spp);
             break;
@@ -505,11 +510,8 @@ static int cmd_submit(int argc, char **argv, globals *g)
     if (t.shown)
         fputc('\n', stderr);
     pt_bundle_free(b);
-    if (st != PT_OK) {
-        rc = fail(conn, &err);
-        ctl_close(conn);
-        return rc;
-    }
+    if (st != PT_OK)
+        return fail_close(conn, &err);
     printf("%llu\n", (unsigned long long)id);
     fflush(stdout);
     if (watch)
@@ -527,8 +529,10 @@ typedef struct job_args {
 
 enum { TAKES_JOB = 1, TAKES_JSON = 2, TAKES_OUTPUT = 4 };
 
-static int parse_job_args(const char *cmd, const char *help, int flags, int argc, char **argv,
-                          globals *g, job_args *a, int *help_shown)
+/* Parses the command's arguments, then connects: 0 with *conn set, or the
+ * exit status with *conn NULL (0 too after --help). */
+static int open_job_command(const char *cmd, const char *help, int flags, int argc, char **argv,
+                            globals *g, job_args *a, ctl_conn **conn)
 {
     static const struct option opts[] = {/* the global options, accepted after the command too */
                                          {"server", required_argument, NULL, O_SERVER},
@@ -539,7 +543,7 @@ static int parse_job_args(const char *cmd, const char *help, int flags, int argc
                                          {"output", required_argument, NULL, 'o'},
                                          {NULL, 0, NULL, 0}};
     int c;
-    *help_shown = 0;
+    *conn = NULL;
     optind = 0;
     while ((c = getopt_long(argc, argv, ":ho:", opts, NULL)) != -1) {
         int rc = 0;
@@ -547,7 +551,6 @@ static int parse_job_args(const char *cmd, const char *help, int flags, int argc
         case 'h':
             fputs(help, stdout);
             printf("\n%s\n%s", GLOBAL_HELP, EXIT_HELP);
-            *help_shown = 1;
             return 0;
         case O_JSON:
             if (!(flags & TAKES_JSON))
@@ -578,7 +581,7 @@ static int parse_job_args(const char *cmd, const char *help, int flags, int argc
         return EXIT_USAGE;
     if ((flags & TAKES_OUTPUT) && (!a->output || !*a->output))
         return bad_usage(cmd, "-o OUT.exr is required");
-    return 0;
+    return connect_server(g, conn);
 }
 
 static const char LIST_HELP[] =
@@ -595,20 +598,14 @@ static const char LIST_HELP[] =
 static int cmd_list(int argc, char **argv, globals *g)
 {
     job_args a = {0};
-    int help = 0;
-    int rc = parse_job_args("list", LIST_HELP, TAKES_JSON, argc, argv, g, &a, &help);
-    if (rc || help)
-        return rc;
-    ctl_conn *c = NULL;
-    if ((rc = connect_server(g, &c)))
+    ctl_conn *c;
+    int rc = open_job_command("list", LIST_HELP, TAKES_JSON, argc, argv, g, &a, &c);
+    if (!c)
         return rc;
     pt_error err = {0};
     proto_job_list l;
-    if (ctl_list(c, &l, &err) != PT_OK) {
-        rc = fail(c, &err);
-        ctl_close(c);
-        return rc;
-    }
+    if (ctl_list(c, &l, &err) != PT_OK)
+        return fail_close(c, &err);
     ctl_close(c);
     if (a.json) {
         fputc('[', stdout);
@@ -717,21 +714,14 @@ static const char STATUS_HELP[] =
 static int cmd_status(int argc, char **argv, globals *g)
 {
     job_args a = {0};
-    int help = 0;
-    int rc =
-        parse_job_args("status", STATUS_HELP, TAKES_JOB | TAKES_JSON, argc, argv, g, &a, &help);
-    if (rc || help)
-        return rc;
-    ctl_conn *c = NULL;
-    if ((rc = connect_server(g, &c)))
+    ctl_conn *c;
+    int rc = open_job_command("status", STATUS_HELP, TAKES_JOB | TAKES_JSON, argc, argv, g, &a, &c);
+    if (!c)
         return rc;
     pt_error err = {0};
     static proto_job_info j;
-    if (ctl_status(c, a.id, &j, &err) != PT_OK) {
-        rc = fail(c, &err);
-        ctl_close(c);
-        return rc;
-    }
+    if (ctl_status(c, a.id, &j, &err) != PT_OK)
+        return fail_close(c, &err);
     ctl_close(c);
     if (a.json) {
         ctl_json_job(stdout, &j);
@@ -753,12 +743,9 @@ static const char WATCH_HELP[] =
 static int cmd_watch(int argc, char **argv, globals *g)
 {
     job_args a = {0};
-    int help = 0;
-    int rc = parse_job_args("watch", WATCH_HELP, TAKES_JOB, argc, argv, g, &a, &help);
-    if (rc || help)
-        return rc;
-    ctl_conn *c = NULL;
-    if ((rc = connect_server(g, &c)))
+    ctl_conn *c;
+    int rc = open_job_command("watch", WATCH_HELP, TAKES_JOB, argc, argv, g, &a, &c);
+    if (!c)
         return rc;
     rc = watch_job(c, a.id);
     ctl_close(c);
@@ -774,20 +761,14 @@ static const char CANCEL_HELP[] =
 static int cmd_cancel(int argc, char **argv, globals *g)
 {
     job_args a = {0};
-    int help = 0;
-    int rc = parse_job_args("cancel", CANCEL_HELP, TAKES_JOB, argc, argv, g, &a, &help);
-    if (rc || help)
-        return rc;
-    ctl_conn *c = NULL;
-    if ((rc = connect_server(g, &c)))
+    ctl_conn *c;
+    int rc = open_job_command("cancel", CANCEL_HELP, TAKES_JOB, argc, argv, g, &a, &c);
+    if (!c)
         return rc;
     pt_error err = {0};
     static proto_job_info j;
-    if (ctl_cancel(c, a.id, &j, &err) != PT_OK) {
-        rc = fail(c, &err);
-        ctl_close(c);
-        return rc;
-    }
+    if (ctl_cancel(c, a.id, &j, &err) != PT_OK)
+        return fail_close(c, &err);
     ctl_close(c);
     printf("%s\n", proto_job_state_name(j.state));
     return fflush(stdout) == 0 ? 0 : EXIT_ERROR;
@@ -807,13 +788,9 @@ static const char FETCH_HELP[] =
 static int cmd_fetch(int argc, char **argv, globals *g)
 {
     job_args a = {0};
-    int help = 0;
-    int rc =
-        parse_job_args("fetch", FETCH_HELP, TAKES_JOB | TAKES_OUTPUT, argc, argv, g, &a, &help);
-    if (rc || help)
-        return rc;
-    ctl_conn *c = NULL;
-    if ((rc = connect_server(g, &c)))
+    ctl_conn *c;
+    int rc = open_job_command("fetch", FETCH_HELP, TAKES_JOB | TAKES_OUTPUT, argc, argv, g, &a, &c);
+    if (!c)
         return rc;
     pt_error err = {0};
     uint8_t *data = NULL;
@@ -823,11 +800,8 @@ static int cmd_fetch(int argc, char **argv, globals *g)
     pt_status st = ctl_fetch(c, a.id, tty ? show_transfer : NULL, &t, &data, &size, &err);
     if (t.shown)
         fputc('\n', stderr);
-    if (st != PT_OK) {
-        rc = fail(c, &err);
-        ctl_close(c);
-        return rc;
-    }
+    if (st != PT_OK)
+        return fail_close(c, &err);
     ctl_close(c);
     st = ctl_write_atomic(a.output, data, size, &err);
     pt_free(data);
