@@ -13,21 +13,26 @@
 
 static const uint8_t MAGIC[4] = {'P', 'T', 'B', '1'};
 
+void pt_hash_hex(const uint8_t hash[32], char out[65])
+{
+    static const char hex[] = "0123456789abcdef";
+    for (unsigned i = 0; i < 32; i++) {
+        out[2 * i] = hex[hash[i] >> 4];
+        out[2 * i + 1] = hex[hash[i] & 15];
+    }
+    out[64] = '\0';
+}
+
 void pt_sha256_hex(const uint8_t *data, size_t size, char out[65])
 {
     unsigned char md[EVP_MAX_MD_SIZE];
     unsigned int len = 0;
-    static const char hex[] = "0123456789abcdef";
     if (!EVP_Digest(data, size, md, &len, EVP_sha256(), NULL) || len != 32) {
         memset(out, '0', 64);
         out[64] = '\0';
         return;
     }
-    for (unsigned i = 0; i < 32; i++) {
-        out[2 * i] = hex[md[i] >> 4];
-        out[2 * i + 1] = hex[md[i] & 15];
-    }
-    out[64] = '\0';
+    pt_hash_hex(md, out);
 }
 
 /* A name may only lead downwards from the bundle's folder. */

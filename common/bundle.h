@@ -50,6 +50,9 @@ pt_status pt_bundle_unpack(const pt_bundle *b, const char *dir, char *entry_path
 
 void pt_bundle_free(pt_bundle *b); /* accepts NULL */
 
+/* A 32-byte hash as lower-case hex (65 bytes with the NUL). */
+void pt_hash_hex(const uint8_t hash[32], char out[65]);
+
 /* SHA-256 of bytes as lower-case hex (65 bytes with the NUL). */
 void pt_sha256_hex(const uint8_t *data, size_t size, char out[65]);
 

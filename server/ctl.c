@@ -487,12 +487,7 @@ pt_status ctl_fetch(ctl_conn *c, uint64_t job_id, ctl_progress_fn progress, void
             progress(have, total, arg);
     } while (have < total);
     char want[65], got[65];
-    static const char hexd[] = "0123456789abcdef";
-    for (unsigned i = 0; i < PROTO_HASH_SIZE; i++) {
-        want[2 * i] = hexd[hash[i] >> 4];
-        want[2 * i + 1] = hexd[hash[i] & 15];
-    }
-    want[64] = '\0';
+    pt_hash_hex(hash, want);
     pt_sha256_hex(buf, have, got);
     if (strcmp(want, got) != 0) {
         st = pt_error_set(err, PT_ERR_PROTO,

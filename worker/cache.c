@@ -27,12 +27,7 @@ struct wrk_cache {
 
 void wrk_hash_hex(const uint8_t hash[WRK_HASH_SIZE], char out[65])
 {
-    static const char digits[] = "0123456789abcdef";
-    for (uint32_t i = 0; i < WRK_HASH_SIZE; i++) {
-        out[2 * i] = digits[hash[i] >> 4];
-        out[2 * i + 1] = digits[hash[i] & 15];
-    }
-    out[64] = '\0';
+    pt_hash_hex(hash, out);
 }
 
 /* ---- file helpers ------------------------------------------------------------------- */
