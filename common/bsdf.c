@@ -24,6 +24,8 @@
  */
 #include "common/bsdf.h"
 
+#include "common/simd.h"
+
 #define DIELECTRIC_F0 0.04f /* glTF's ((1 - ior) / (1 + ior))^2 for ior 1.5 */
 #define MIN_LOBE_PROB 0.05f
 
@@ -122,6 +124,9 @@ pt_vec3 pt_sample_cosine_hemisphere(float u1, float u2)
     return pt_v3(x, y, sqrtf(maxf(0.0f, 1.0f - x * x - y * y)));
 }
 
+/* Per lane: m ? a : b. */
+#define V8_SELECT(m, a, b) ((v8f)(((v8i)(a) & (m)) | ((v8i)(b) & ~(m))))
+
 /*
  * pt_sample_cosine_hemisphere for n pairs in 8 SIMD lanes, in GCC/Clang vector
  * types: the same float operations lane by lane (IEEE arithmetic, no
@@ -130,18 +135,6 @@ pt_vec3 pt_sample_cosine_hemisphere(float u1, float u2)
  * sqrtf of a float is the same correctly rounded result either way. Compiled
  * for AVX2 and the x86-64 baseline (target_clones), like the sampler.
  */
-typedef float v8f __attribute__((vector_size(32)));
-typedef int32_t v8i __attribute__((vector_size(32)));
-
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && defined(__linux__)
-#define PT_SIMD_CLONES __attribute__((target_clones("avx2", "default")))
-#else
-#define PT_SIMD_CLONES
-#endif
-
-/* Per lane: m ? a : b. */
-#define V8_SELECT(m, a, b) ((v8f)(((v8i)(a) & (m)) | ((v8i)(b) & ~(m))))
-
 PT_SIMD_CLONES
 void pt_sample_cosine_hemisphere_n(const float *u, size_t stride, uint32_t n, pt_vec3 *out)
 {

@@ -28,6 +28,7 @@
 
 #include "common/accel.h"
 #include "common/alloc.h"
+#include "common/simd.h"
 
 /* One column of the alias table: 16 bytes, so that the random read of a
  * column touches one cache line and four columns share it. */
@@ -429,9 +430,6 @@ int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, 
  * whose point the scalar code rejects before a division computes it anyway,
  * harmlessly (a NaN or an infinity, no traps), and its result is not used.
  */
-typedef float v8f __attribute__((vector_size(32)));
-typedef int32_t v8i __attribute__((vector_size(32)));
-
 /* The lanes' distances, their reciprocals, the light's cosines and the pdfs'
  * expression (solid_angle_pdf_d's, unchecked). The square roots take two SSE
  * instructions where there is SSE (the x86-64 baseline): sqrtf's result. */

@@ -27,6 +27,8 @@
 
 #include <string.h>
 
+#include "common/simd.h"
+
 /*
  * Direction vectors, bit-reversed: bit i of kRevDir[d - 2][k] is row i (most
  * significant output bit first) of column k of Sobol dimension d's generator
@@ -215,16 +217,6 @@ void pt_sample_group_init(pt_sample_group *g, uint32_t pixel_seed, uint32_t dim0
  * and for the x86-64 baseline (SSE2, where the compiler splits the lanes in
  * two halves and emulates the multiply); the loader picks one per CPU.
  */
-typedef uint32_t v8u __attribute__((vector_size(32)));
-typedef int32_t v8i __attribute__((vector_size(32)));
-typedef float v8f __attribute__((vector_size(32)));
-
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && defined(__linux__)
-#define PT_SIMD_CLONES __attribute__((target_clones("avx2", "default")))
-#else
-#define PT_SIMD_CLONES
-#endif
-
 PT_SIMD_CLONES
 void pt_sample_group_eval(const pt_sample_group *g, uint32_t index, float out[8])
 {
