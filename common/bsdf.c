@@ -24,6 +24,8 @@
  */
 #include "common/bsdf.h"
 
+#include "common/simd.h"
+
 #define DIELECTRIC_F0 0.04f /* glTF's ((1 - ior) / (1 + ior))^2 for ior 1.5 */
 #define MIN_LOBE_PROB 0.05f
 
@@ -89,14 +91,18 @@ pt_bsdf pt_bsdf_setup(pt_vec3 base_color, float metallic, float roughness, float
 /* sin and cos of t in [-pi/4, pi/4] by their Taylor polynomials (to t^9 and
  * t^8; the first omitted terms are below 2e-9 and 3e-8 there, under half an
  * ulp of the results), evaluated in Horner form: a few ulps like sinf/cosf,
- * without the library call and its range reduction. */
-static inline void sincos_quarter(float t, float *s, float *c)
-{
-    float t2 = t * t;
-    *s = t * (1.0f + t2 * (-1.0f / 6.0f + t2 * (1.0f / 120.0f +
-                                                t2 * (-1.0f / 5040.0f + t2 * (1.0f / 362880.0f)))));
-    *c = 1.0f + t2 * (-0.5f + t2 * (1.0f / 24.0f + t2 * (-1.0f / 720.0f + t2 * (1.0f / 40320.0f))));
-}
+ * without the library call and its range reduction. A macro, so that the
+ * scalar code (t a float) and the lanes below (t a v8f) evaluate the same
+ * polynomials: the same bits. */
+#define SINCOS_QUARTER(t, s, c)                                                                    \
+    do {                                                                                           \
+        __typeof__(t) t2_ = (t) * (t);                                                             \
+        s = (t) * (1.0f + t2_ * (-1.0f / 6.0f +                                                    \
+                                 t2_ * (1.0f / 120.0f +                                            \
+                                        t2_ * (-1.0f / 5040.0f + t2_ * (1.0f / 362880.0f)))));     \
+        c = 1.0f + t2_ * (-0.5f + t2_ * (1.0f / 24.0f +                                            \
+                                         t2_ * (-1.0f / 720.0f + t2_ * (1.0f / 40320.0f))));       \
+    } while (0)
 
 pt_vec3 pt_sample_cosine_hemisphere(float u1, float u2)
 {
@@ -113,10 +119,13 @@ pt_vec3 pt_sample_cosine_hemisphere(float u1, float u2)
     float num = wide ? b : a, den = wide ? a : b; /* selects: wide is random */
     float t = (PT_PI / 4.0f) * (num / den);
     float c, sn;
-    sincos_quarter(t, &sn, &c);
+    SINCOS_QUARTER(t, sn, c);
     float x = r * (wide ? c : sn), y = r * (wide ? sn : c);
     return pt_v3(x, y, sqrtf(maxf(0.0f, 1.0f - x * x - y * y)));
 }
+
+/* Per lane: m ? a : b. */
+#define V8_SELECT(m, a, b) ((v8f)(((v8i)(a) & (m)) | ((v8i)(b) & ~(m))))
 
 /*
  * pt_sample_cosine_hemisphere for n pairs in 8 SIMD lanes, in GCC/Clang vector
@@ -126,18 +135,6 @@ pt_vec3 pt_sample_cosine_hemisphere(float u1, float u2)
  * sqrtf of a float is the same correctly rounded result either way. Compiled
  * for AVX2 and the x86-64 baseline (target_clones), like the sampler.
  */
-typedef float v8f __attribute__((vector_size(32)));
-typedef int32_t v8i __attribute__((vector_size(32)));
-
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && defined(__linux__)
-#define PT_SIMD_CLONES __attribute__((target_clones("avx2", "default")))
-#else
-#define PT_SIMD_CLONES
-#endif
-
-/* Per lane: m ? a : b. */
-#define V8_SELECT(m, a, b) ((v8f)(((v8i)(a) & (m)) | ((v8i)(b) & ~(m))))
-
 PT_SIMD_CLONES
 void pt_sample_cosine_hemisphere_n(const float *u, size_t stride, uint32_t n, pt_vec3 *out)
 {
@@ -159,13 +156,8 @@ void pt_sample_cosine_hemisphere_n(const float *u, size_t stride, uint32_t n, pt
         v8f num = V8_SELECT(wide, b, a), den = V8_SELECT(wide, a, b);
         /* At the origin den is 0 and t NaN; the lane's result is replaced. */
         v8f t = (PT_PI / 4.0f) * (num / den);
-        v8f t2 = t * t;
-        v8f sn =
-            t *
-            (1.0f + t2 * (-1.0f / 6.0f +
-                          t2 * (1.0f / 120.0f + t2 * (-1.0f / 5040.0f + t2 * (1.0f / 362880.0f)))));
-        v8f c = 1.0f +
-                t2 * (-0.5f + t2 * (1.0f / 24.0f + t2 * (-1.0f / 720.0f + t2 * (1.0f / 40320.0f))));
+        v8f sn, c;
+        SINCOS_QUARTER(t, sn, c);
         v8f x = r * V8_SELECT(wide, c, sn), y = r * V8_SELECT(wide, sn, c);
         v8f w = 1.0f - x * x - y * y;
         for (uint32_t l = 0; l < m; l++)

@@ -28,6 +28,7 @@
 
 #include "common/accel.h"
 #include "common/alloc.h"
+#include "common/simd.h"
 
 /* One column of the alias table: 16 bytes, so that the random read of a
  * column touches one cache line and four columns share it. */
@@ -359,14 +360,11 @@ static float solid_angle_pdf(float pmf_area, int double_sided, pt_vec3 p, pt_vec
     return solid_angle_pdf_d(pmf_area, double_sided, d, d2, sqrtf(d2), n);
 }
 
-int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, const float u[3],
-                     pt_light_sample *s)
+/* The light and the point on it that u picks (pt_lights_sample's first
+ * step), with the point's barycentrics of vertices 1 and 2. */
+static inline const light_entry *pick_point(const pt_lights *lights, const float u[3], pt_vec3 *pos,
+                                            float *b1_out, float *b2_out)
 {
-    memset(s, 0, sizeof *s);
-    s->tri = UINT32_MAX;
-    if (!lights || lights->count == 0)
-        return 0;
-
     /* One number picks a column and, with its residual, the column's own
      * light or its alias. In double: u[0] * n is exact for n < 2^29. */
     uint32_t n = lights->count;
@@ -386,11 +384,25 @@ int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, 
     float b1 = upper ? h1 : u[1] - h2;
     float b2 = upper ? u[2] - h1 : h2;
     float b0 = 1.0f - b1 - b2;
-
     const pt_vec3 *v = le->v;
-    s->tri = le->tri;
-    s->position =
+    *pos =
         pt_v3_add(pt_v3_add(pt_v3_scale(v[0], b0), pt_v3_scale(v[1], b1)), pt_v3_scale(v[2], b2));
+    *b1_out = b1;
+    *b2_out = b2;
+    return le;
+}
+
+int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, const float u[3],
+                     pt_light_sample *s)
+{
+    memset(s, 0, sizeof *s);
+    s->tri = UINT32_MAX;
+    if (!lights || lights->count == 0)
+        return 0;
+
+    float b1, b2;
+    const light_entry *le = pick_point(lights, u, &s->position, &b1, &b2);
+    s->tri = le->tri;
     s->normal = le->normal;
     pt_vec3 d = pt_v3_sub(s->position, p);
     float d2 = pt_v3_dot(d, d);
@@ -418,9 +430,6 @@ int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, 
  * whose point the scalar code rejects before a division computes it anyway,
  * harmlessly (a NaN or an infinity, no traps), and its result is not used.
  */
-typedef float v8f __attribute__((vector_size(32)));
-typedef int32_t v8i __attribute__((vector_size(32)));
-
 /* The lanes' distances, their reciprocals, the light's cosines and the pdfs'
  * expression (solid_angle_pdf_d's, unchecked). The square roots take two SSE
  * instructions where there is SSE (the x86-64 baseline): sqrtf's result. */
@@ -459,7 +468,6 @@ void pt_lights_sample_n(const pt_lights *lights, const pt_scene *scene, uint32_t
             ok[i] = pt_lights_sample(lights, scene, p[i], u[i], &s[i]);
         return;
     }
-    uint32_t count = lights->count;
     for (uint32_t k0 = 0; k0 < n; k0 += 8) {
         uint32_t m = n - k0 < 8 ? n - k0 : 8;
         const light_entry *les[8];
@@ -470,20 +478,9 @@ void pt_lights_sample_n(const pt_lights *lights, const pt_scene *scene, uint32_t
             /* Lanes past n repeat the last point. */
             uint32_t i = k0 + (l < m ? l : m - 1);
             pt_light_sample *si = &s[k0 + l < n ? k0 + l : i];
-            const float *ui = u[i];
-            double x = (double)ui[0] * (double)count;
-            uint32_t col = x < (double)count ? (uint32_t)x : count - 1;
-            double rr = x - (double)col;
-            const alias_slot *c = &lights->alias[col];
-            const light_entry *le = &lights->lights[rr < c->prob ? col : c->alias];
-            int upper = ui[2] > ui[1];
-            float h1 = 0.5f * ui[1], h2 = 0.5f * ui[2];
-            float b1 = upper ? h1 : ui[1] - h2;
-            float b2 = upper ? ui[2] - h1 : h2;
-            float b0 = 1.0f - b1 - b2;
-            const pt_vec3 *v = le->v;
-            pt_vec3 pos = pt_v3_add(pt_v3_add(pt_v3_scale(v[0], b0), pt_v3_scale(v[1], b1)),
-                                    pt_v3_scale(v[2], b2));
+            pt_vec3 pos;
+            float b1, b2;
+            const light_entry *le = pick_point(lights, u[i], &pos, &b1, &b2);
             pt_vec3 d = pt_v3_sub(pos, p[i]);
             if (l < m) {
                 memset(si, 0, sizeof *si);

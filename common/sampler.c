@@ -27,6 +27,8 @@
 
 #include <string.h>
 
+#include "common/simd.h"
+
 /*
  * Direction vectors, bit-reversed: bit i of kRevDir[d - 2][k] is row i (most
  * significant output bit first) of column k of Sobol dimension d's generator
@@ -76,13 +78,39 @@ uint32_t pt_hash_combine(uint32_t seed, uint32_t v)
     return pt_hash_u32(seed ^ (pt_hash_u32(v) + 0x9e3779b9u + (seed << 6) + (seed >> 2)));
 }
 
+/* In-place steps on a uint32_t, v8u or v16u variable, so that the scalar
+ * functions below and the SIMD lanes further on do the same operations;
+ * macros, not functions, because passing a 32-byte vector by value changes
+ * the ABI between the two clones. */
+#define REVERSE_BITS(x)                                                                            \
+    do {                                                                                           \
+        x = ((x >> 1) & 0x55555555u) | ((x & 0x55555555u) << 1);                                   \
+        x = ((x >> 2) & 0x33333333u) | ((x & 0x33333333u) << 2);                                   \
+        x = ((x >> 4) & 0x0f0f0f0fu) | ((x & 0x0f0f0f0fu) << 4);                                   \
+        x = ((x >> 8) & 0x00ff00ffu) | ((x & 0x00ff00ffu) << 8);                                   \
+        x = (x >> 16) | (x << 16);                                                                 \
+    } while (0)
+#define LK_PERMUTE(x, seed)                                                                        \
+    do {                                                                                           \
+        x += seed;                                                                                 \
+        x ^= x * 0x6c50b47cu;                                                                      \
+        x ^= x * 0xb82f1e52u;                                                                      \
+        x ^= x * 0xc7afe638u;                                                                      \
+        x ^= x * 0x8d22f6e6u;                                                                      \
+    } while (0)
+#define PASCAL_REV(y)                                                                              \
+    do {                                                                                           \
+        y ^= (y >> 1) & 0x55555555u;                                                               \
+        y ^= (y >> 2) & 0x33333333u;                                                               \
+        y ^= (y >> 4) & 0x0f0f0f0fu;                                                               \
+        y ^= (y >> 8) & 0x00ff00ffu;                                                               \
+        y ^= (y >> 16) & 0x0000ffffu;                                                              \
+    } while (0)
+
 static inline uint32_t reverse_bits(uint32_t x)
 {
-    x = ((x >> 1) & 0x55555555u) | ((x & 0x55555555u) << 1);
-    x = ((x >> 2) & 0x33333333u) | ((x & 0x33333333u) << 2);
-    x = ((x >> 4) & 0x0f0f0f0fu) | ((x & 0x0f0f0f0fu) << 4);
-    x = ((x >> 8) & 0x00ff00ffu) | ((x & 0x00ff00ffu) << 8);
-    return (x >> 16) | (x << 16);
+    REVERSE_BITS(x);
+    return x;
 }
 
 /*
@@ -94,11 +122,7 @@ static inline uint32_t reverse_bits(uint32_t x)
  */
 static inline uint32_t lk_permute(uint32_t x, uint32_t seed)
 {
-    x += seed;
-    x ^= x * 0x6c50b47cu;
-    x ^= x * 0xb82f1e52u;
-    x ^= x * 0xc7afe638u;
-    x ^= x * 0x8d22f6e6u;
+    LK_PERMUTE(x, seed);
     return x;
 }
 
@@ -108,11 +132,7 @@ static inline uint32_t lk_permute(uint32_t x, uint32_t seed)
  * superset sum over the 5-bit positions, one butterfly per position bit. */
 static inline uint32_t pascal_rev(uint32_t y)
 {
-    y ^= (y >> 1) & 0x55555555u;
-    y ^= (y >> 2) & 0x33333333u;
-    y ^= (y >> 4) & 0x0f0f0f0fu;
-    y ^= (y >> 8) & 0x00ff00ffu;
-    y ^= (y >> 16) & 0x0000ffffu;
+    PASCAL_REV(y);
     return y;
 }
 
@@ -197,43 +217,6 @@ void pt_sample_group_init(pt_sample_group *g, uint32_t pixel_seed, uint32_t dim0
  * and for the x86-64 baseline (SSE2, where the compiler splits the lanes in
  * two halves and emulates the multiply); the loader picks one per CPU.
  */
-typedef uint32_t v8u __attribute__((vector_size(32)));
-typedef int32_t v8i __attribute__((vector_size(32)));
-typedef float v8f __attribute__((vector_size(32)));
-
-/* In-place steps on a v8u (or v16u) variable; macros, not functions, because passing a
- * 32-byte vector by value changes the ABI between the two clones. */
-#define V8_REVERSE_BITS(x)                                                                         \
-    do {                                                                                           \
-        x = ((x >> 1) & 0x55555555u) | ((x & 0x55555555u) << 1);                                   \
-        x = ((x >> 2) & 0x33333333u) | ((x & 0x33333333u) << 2);                                   \
-        x = ((x >> 4) & 0x0f0f0f0fu) | ((x & 0x0f0f0f0fu) << 4);                                   \
-        x = ((x >> 8) & 0x00ff00ffu) | ((x & 0x00ff00ffu) << 8);                                   \
-        x = (x >> 16) | (x << 16);                                                                 \
-    } while (0)
-#define V8_LK_PERMUTE(x, seed)                                                                     \
-    do {                                                                                           \
-        x += seed;                                                                                 \
-        x ^= x * 0x6c50b47cu;                                                                      \
-        x ^= x * 0xb82f1e52u;                                                                      \
-        x ^= x * 0xc7afe638u;                                                                      \
-        x ^= x * 0x8d22f6e6u;                                                                      \
-    } while (0)
-#define V8_PASCAL_REV(y)                                                                           \
-    do {                                                                                           \
-        y ^= (y >> 1) & 0x55555555u;                                                               \
-        y ^= (y >> 2) & 0x33333333u;                                                               \
-        y ^= (y >> 4) & 0x0f0f0f0fu;                                                               \
-        y ^= (y >> 8) & 0x00ff00ffu;                                                               \
-        y ^= (y >> 16) & 0x0000ffffu;                                                              \
-    } while (0)
-
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && defined(__linux__)
-#define PT_SIMD_CLONES __attribute__((target_clones("avx2", "default")))
-#else
-#define PT_SIMD_CLONES
-#endif
-
 PT_SIMD_CLONES
 void pt_sample_group_eval(const pt_sample_group *g, uint32_t index, float out[8])
 {
@@ -243,14 +226,14 @@ void pt_sample_group_eval(const pt_sample_group *g, uint32_t index, float out[8]
     const v8u odd = {0, ~0u, 0, ~0u, 0, ~0u, 0, ~0u};
     /* The shuffled index s, in every lane. */
     v8u s = (v8u){0} + reverse_bits(index);
-    V8_LK_PERMUTE(s, shuffle);
-    V8_REVERSE_BITS(s);
+    LK_PERMUTE(s, shuffle);
+    REVERSE_BITS(s);
     /* The Sobol value, bit-reversed: s itself, or Pascal's matrix times s. */
     v8u p = s;
-    V8_PASCAL_REV(p);
+    PASCAL_REV(p);
     v8u x = (s & ~odd) | (p & odd);
-    V8_LK_PERMUTE(x, owen);
-    V8_REVERSE_BITS(x);
+    LK_PERMUTE(x, owen);
+    REVERSE_BITS(x);
     x >>= 8; /* 24 bits, exactly representable: to_unit */
     v8f f = __builtin_convertvector((v8i)x, v8f) * 0x1p-24f;
     memcpy(out, &f, sizeof f);
@@ -288,12 +271,12 @@ typedef float v16f __attribute__((vector_size(64)));
                                             13, 14, 15);                                           \
         uint32_t r0 = reverse_bits(index[k]), r1 = reverse_bits(index[k2]);                        \
         v16u s = {r0, r0, r0, r0, r0, r0, r0, r0, r1, r1, r1, r1, r1, r1, r1, r1};                 \
-        V8_LK_PERMUTE(s, shuffle);                                                                 \
+        LK_PERMUTE(s, shuffle);                                                                    \
         REVERSE(s);                                                                                \
         v16u p = s;                                                                                \
-        V8_PASCAL_REV(p);                                                                          \
+        PASCAL_REV(p);                                                                             \
         v16u x = (s & ~odd) | (p & odd);                                                           \
-        V8_LK_PERMUTE(x, owen);                                                                    \
+        LK_PERMUTE(x, owen);                                                                       \
         REVERSE(x);                                                                                \
         x >>= 8;                                                                                   \
         v16f f = __builtin_convertvector((v16i)x, v16f) * 0x1p-24f;                                \
@@ -318,7 +301,7 @@ static void eval_n_generic(const pt_sample_group *const *g, const uint32_t *inde
 {
     const v16u odd = {0, ~0u, 0, ~0u, 0, ~0u, 0, ~0u, 0, ~0u, 0, ~0u, 0, ~0u, 0, ~0u};
     for (uint32_t k = 0; k < n; k += 2)
-        EVAL_N_BODY(V8_REVERSE_BITS);
+        EVAL_N_BODY(REVERSE_BITS);
 }
 
 #if PT_GFNI
@@ -327,7 +310,7 @@ static void eval_n_generic(const pt_sample_group *const *g, const uint32_t *inde
 /* A 32-bit bit reversal in two instructions: GF2P8AFFINEQB with the matrix
  * 0x8040201008040201 (the anti-diagonal) reverses the bits of every byte,
  * then a byte shuffle reverses the bytes of every 32-bit lane. The same
- * result as V8_REVERSE_BITS, so the same values. */
+ * result as REVERSE_BITS, so the same values. */
 #define V16_REVERSE_BITS_GFNI(x)                                                                   \
     do {                                                                                           \
         x = (v16u)_mm512_shuffle_epi8(_mm512_gf2p8affine_epi64_epi8((__m512i)x, bitrev8, 0),       \

@@ -46,6 +46,8 @@ static void *render_thread(void *p)
     thread_arg *a = p;
     job *j = a->j;
     uint32_t max_px = j->o->tile * j->o->tile;
+    /* The coordinator's rule (server/job.c), on the same sums. */
+    const pt_adaptive rule = {j->o->target_error, j->o->min_gain, j->o->min_spp};
     pt_pixel_acc *chunk = pt_malloc_array(max_px, sizeof *chunk);
     pt_pixel_acc *sum = pt_malloc_array(max_px, sizeof *sum);
     if (!chunk || !sum) {
@@ -60,7 +62,7 @@ static void *render_thread(void *p)
         if (t >= j->num_tiles)
             break;
         pt_rect rc = j->tiles[t];
-        uint32_t npx = (rc.x1 - rc.x0) * (rc.y1 - rc.y0);
+        uint32_t tw = rc.x1 - rc.x0, npx = tw * (rc.y1 - rc.y0);
         memset(sum, 0, npx * sizeof *sum);
         for (uint32_t s0 = 0; s0 < j->o->spp; s0 += j->o->chunk) {
             uint32_t s1 = s0 + j->o->chunk < j->o->spp ? s0 + j->o->chunk : j->o->spp;
@@ -68,9 +70,6 @@ static void *render_thread(void *p)
             for (uint32_t i = 0; i < npx; i++)
                 pt_pixel_acc_add(&sum[i], &chunk[i]);
             atomic_fetch_add(&j->samples_done, (uint64_t)npx * (s1 - s0));
-            /* The coordinator's rule (server/job.c), on the same sums. */
-            pt_adaptive rule = {j->o->target_error, j->o->min_gain, j->o->min_spp};
-            uint32_t tw = rc.x1 - rc.x0;
             if (s1 < j->o->spp && pt_tile_stops(sum, tw, chunk, tw, tw, rc.y1 - rc.y0, s1, &rule)) {
                 atomic_fetch_add(&j->samples_done, (uint64_t)npx * (j->o->spp - s1));
                 atomic_fetch_add(&j->tiles_stopped, 1);

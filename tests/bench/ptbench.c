@@ -397,6 +397,41 @@ static int cmp_double_desc(const void *a, const void *b)
     return (x < y) - (x > y);
 }
 
+/* The summed squared error (rel: relative) of the tile of size ts at (x0, y0)
+ * of the reference img, and in *m its pixels: from img's variance per
+ * sample, adding each pixel's square root to *px_sqrt, or with meas from
+ * meas's difference from img (px_sqrt unused). */
+static double tile_error(const pt_image *img, const pt_image *meas, int rel, uint32_t x0,
+                         uint32_t y0, uint32_t ts, uint32_t *m, double *px_sqrt)
+{
+    uint32_t w = img->width, h = img->height;
+    double s = 0;
+    *m = 0;
+    for (uint32_t y = y0; y < y0 + ts && y < h; y++)
+        for (uint32_t x = x0; x < x0 + ts && x < w; x++, (*m)++) {
+            size_t i = (size_t)y * w + x;
+            if (meas) {
+                const float *a[3] = {meas->r, meas->g, meas->b};
+                const float *b[3] = {img->r, img->g, img->b};
+                for (int c = 0; c < 3; c++) {
+                    double d = (double)a[c][i] - b[c][i], ref = b[c][i];
+                    double v = d * d / (rel ? ref * ref + PT_METRICS_REL_EPS : 1.0);
+                    s += isfinite(v) ? v : 0;
+                }
+                continue;
+            }
+            double v = (double)img->variance[i] * img->samples[i];
+            if (rel) {
+                double mu = 0.2126 * img->r[i] + 0.7152 * img->g[i] + 0.0722 * img->b[i];
+                v /= mu * mu + PT_METRICS_REL_EPS;
+            }
+            v = v > 0 && isfinite(v) ? v : 0;
+            s += v;
+            *px_sqrt += sqrt(v);
+        }
+    return s;
+}
+
 /* Uniform MSE over the best MSE for the same samples, per pixel and per tile:
  * minimising sum_t S_t / n_t (S_t the tile's summed variance per sample, n_t
  * its spp) under sum_t m_t n_t = N gives n_t ~ sqrt(S_t / m_t). */
@@ -432,29 +467,15 @@ static int cmd_gain(int argc, char **argv)
            "at equal error (variance of luminance from the reference, equal cost per sample)\n",
            argv[2], w, h, ts);
     for (int rel = 0; rel < 2; rel++) {
-        double px_sum = 0, px_sqrt = 0, t_sum = 0, t_sqrt = 0;
+        double px_sum = 0, px_sqrt = 0, t_sqrt = 0; /* px_sum is also the tiles' sum */
         for (uint32_t y0 = 0; y0 < h; y0 += ts)
             for (uint32_t x0 = 0; x0 < w; x0 += ts) {
-                double s = 0;
-                uint32_t m = 0;
-                for (uint32_t y = y0; y < y0 + ts && y < h; y++)
-                    for (uint32_t x = x0; x < x0 + ts && x < w; x++, m++) {
-                        size_t i = (size_t)y * w + x;
-                        double v = (double)img->variance[i] * img->samples[i];
-                        if (rel) {
-                            double mu =
-                                0.2126 * img->r[i] + 0.7152 * img->g[i] + 0.0722 * img->b[i];
-                            v /= mu * mu + PT_METRICS_REL_EPS;
-                        }
-                        v = v > 0 && isfinite(v) ? v : 0;
-                        s += v;
-                        px_sqrt += sqrt(v);
-                    }
+                uint32_t m;
+                double s = tile_error(img, NULL, rel, x0, y0, ts, &m, &px_sqrt);
                 px_sum += s;
                 t_sqrt += sqrt(m * s);
                 tile_se[(y0 / ts) * tx + x0 / ts] = s;
             }
-        t_sum = px_sum;
         double p = (double)w * h;
         qsort(tile_se, (size_t)tx * ty, sizeof *tile_se, cmp_double_desc);
         size_t worst = ((size_t)tx * ty + 19) / 20;
@@ -464,8 +485,8 @@ static int cmd_gain(int argc, char **argv)
         printf("%-7s per pixel %6.2fx   per tile %6.2fx   worst 5%% of tiles hold %4.1f%% of the "
                "squared error\n",
                rel ? "relMSE" : "RMSE", px_sqrt > 0 ? p * px_sum / (px_sqrt * px_sqrt) : 1.0,
-               t_sqrt > 0 ? p * t_sum / (t_sqrt * t_sqrt) : 1.0,
-               t_sum > 0 ? 100.0 * top / t_sum : 0.0);
+               t_sqrt > 0 ? p * px_sum / (t_sqrt * t_sqrt) : 1.0,
+               px_sum > 0 ? 100.0 * top / px_sum : 0.0);
     }
     if (meas)
         printf("from the measured error of %s (per tile, falling as 1/n):\n", argv[4]);
@@ -473,19 +494,8 @@ static int cmd_gain(int argc, char **argv)
         double t_sum = 0, t_sqrt = 0;
         for (uint32_t y0 = 0; y0 < h; y0 += ts)
             for (uint32_t x0 = 0; x0 < w; x0 += ts) {
-                double s = 0;
-                uint32_t m = 0;
-                for (uint32_t y = y0; y < y0 + ts && y < h; y++)
-                    for (uint32_t x = x0; x < x0 + ts && x < w; x++, m++) {
-                        size_t i = (size_t)y * w + x;
-                        const float *a[3] = {meas->r, meas->g, meas->b};
-                        const float *b[3] = {img->r, img->g, img->b};
-                        for (int c = 0; c < 3; c++) {
-                            double d = (double)a[c][i] - b[c][i], ref = b[c][i];
-                            double v = d * d / (rel ? ref * ref + PT_METRICS_REL_EPS : 1.0);
-                            s += isfinite(v) ? v : 0;
-                        }
-                    }
+                uint32_t m;
+                double s = tile_error(img, meas, rel, x0, y0, ts, &m, NULL);
                 t_sum += s;
                 t_sqrt += sqrt(m * s);
             }
