@@ -477,7 +477,7 @@ static void get_acc(proto_reader *r, pt_pixel_acc *a)
     a->pad = 0;
 }
 
-static void put_params(proto_writer *w, const srv_job_params *p)
+void srv_job_params_write(proto_writer *w, const srv_job_params *p)
 {
     proto_w_u32(w, p->width);
     proto_w_u32(w, p->height);
@@ -491,6 +491,23 @@ static void put_params(proto_writer *w, const srv_job_params *p)
     proto_w_f64(w, p->target_error);
     proto_w_f64(w, p->min_gain);
     proto_w_str(w, p->camera);
+}
+
+void srv_job_params_read(proto_reader *r, srv_job_params *p, uint32_t version)
+{
+    p->width = proto_r_u32(r, "width");
+    p->height = proto_r_u32(r, "height");
+    p->spp = proto_r_u32(r, "spp");
+    p->tile = proto_r_u32(r, "tile");
+    p->chunk = proto_r_u32(r, "chunk");
+    p->seed = proto_r_u32(r, "seed");
+    p->max_depth = proto_r_u32(r, "max depth");
+    p->rr_depth = proto_r_u32(r, "rr depth");
+    p->min_spp = proto_r_u32(r, "min spp");
+    p->target_error = proto_r_f64(r, "target error");
+    p->min_gain = version >= 3 ? proto_r_f64(r, "min gain") : 0.0;
+    p->camera[0] = '\0';
+    proto_r_str(r, p->camera, PROTO_MAX_NAME, "camera");
 }
 
 static uint32_t tile_merged(const srv_job *j, uint32_t tile)
@@ -507,7 +524,7 @@ pt_status srv_job_save(const srv_job *j, proto_writer *w, pt_error *err)
     proto_w_u32(w, CKPT_VERSION);
     proto_w_u64(w, j->id);
     proto_w_bytes(w, j->hash, 32);
-    put_params(w, &j->p);
+    srv_job_params_write(w, &j->p);
     proto_w_u32(w, j->ntiles);
     proto_w_u32(w, j->nchunks);
     for (uint32_t t = 0; t < j->ntiles; t++) {
@@ -551,19 +568,7 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
     uint64_t id = proto_r_u64(&r, "job id");
     const uint8_t *hash = proto_r_bytes(&r, 32, "scene hash");
     srv_job_params p;
-    p.width = proto_r_u32(&r, "width");
-    p.height = proto_r_u32(&r, "height");
-    p.spp = proto_r_u32(&r, "spp");
-    p.tile = proto_r_u32(&r, "tile");
-    p.chunk = proto_r_u32(&r, "chunk");
-    p.seed = proto_r_u32(&r, "seed");
-    p.max_depth = proto_r_u32(&r, "max depth");
-    p.rr_depth = proto_r_u32(&r, "rr depth");
-    p.min_spp = proto_r_u32(&r, "min spp");
-    p.target_error = proto_r_f64(&r, "target error");
-    p.min_gain = version >= 3 ? proto_r_f64(&r, "min gain") : 0.0;
-    p.camera[0] = '\0';
-    proto_r_str(&r, p.camera, PROTO_MAX_NAME, "camera");
+    srv_job_params_read(&r, &p, version);
     uint32_t ntiles = proto_r_u32(&r, "tiles"), nchunks = proto_r_u32(&r, "chunks");
     if (r.status != PT_OK)
         return proto_r_finish(&r, "checkpoint", err);
