@@ -92,6 +92,11 @@ srv_outcome srv_job_result(srv_job *job, uint64_t owner, const proto_result *r, 
 srv_outcome srv_job_check(const srv_job *job, uint64_t owner, const proto_result *r,
                           pt_error *err);
 
+/* srv_job_result for a result that srv_job_check accepted, the job unchanged
+ * since: merges or holds it without checking its task and pixels again. */
+srv_outcome srv_job_result_checked(srv_job *job, uint64_t owner, const proto_result *r,
+                                   pt_error *err);
+
 /* Accepts a result from the durable log after a restart: like srv_job_result
  * but without a lease (there are none yet). Duplicates are dropped, so a log
  * that overlaps the checkpoint is harmless. */

@@ -880,7 +880,7 @@ static void on_result(server *s, conn *c, const proto_frame *f)
         return;
     }
     if (o == SRV_MERGED)
-        o = srv_job_result(j->job, c->id, &r, &err);
+        o = srv_job_result_checked(j->job, c->id, &r, &err);
     switch (o) {
     case SRV_MERGED:
         j->rejected += r.rejected;
