@@ -336,6 +336,12 @@ static void merge_held(srv_job *j, uint32_t tile)
     }
 }
 
+static int acc_sane(const pt_pixel_acc *a, uint32_t max_n)
+{
+    return isfinite(a->sum[0]) && isfinite(a->sum[1]) && isfinite(a->sum[2]) &&
+           isfinite(a->sum_sq) && a->sum_sq >= 0 && a->n <= max_n;
+}
+
 /* Checks r against the task it names; need_lease: the owner must hold it.
  * On SRV_MERGED *lease_index receives the lease (-1 when none was needed). */
 static srv_outcome check_result(const srv_job *j, uint64_t owner, const proto_result *r,
@@ -371,8 +377,7 @@ static srv_outcome check_result(const srv_job *j, uint64_t owner, const proto_re
     }
     for (uint32_t i = 0; i < r->npixels; i++) {
         const pt_pixel_acc *a = &r->pixels[i];
-        if (!isfinite(a->sum[0]) || !isfinite(a->sum[1]) || !isfinite(a->sum[2]) ||
-            !isfinite(a->sum_sq) || a->sum_sq < 0 || a->n > s1 - s0) {
+        if (!acc_sane(a, s1 - s0)) {
             pt_error_set(err, PT_ERR_PROTO, "result for task %llu: pixel %u is not finite or has "
                          "%u samples of %u", (unsigned long long)t, i, a->n, s1 - s0);
             return SRV_INVALID;
@@ -394,13 +399,9 @@ static void drop_lease(srv_job *j, int li)
         j->leases[li] = j->leases[--j->nleases];
 }
 
-static srv_outcome accept_result(srv_job *j, uint64_t owner, const proto_result *r,
-                                 int need_lease, pt_error *err)
+/* Merges or holds r, which check_result accepted; li: its lease or -1. */
+static srv_outcome merge_checked(srv_job *j, int li, const proto_result *r, pt_error *err)
 {
-    int li;
-    srv_outcome o = check_result(j, owner, r, need_lease, &li, err);
-    if (o != SRV_MERGED)
-        return o;
     uint64_t t = r->task_id;
     uint32_t tile = (uint32_t)(t % j->ntiles), chunk = (uint32_t)(t / j->ntiles);
     if (chunk == j->next_chunk[tile]) {
@@ -432,9 +433,22 @@ nomem:
     return SRV_NOT_LEASED;
 }
 
+static srv_outcome accept_result(srv_job *j, uint64_t owner, const proto_result *r, int need_lease,
+                                 pt_error *err)
+{
+    int li;
+    srv_outcome o = check_result(j, owner, r, need_lease, &li, err);
+    return o == SRV_MERGED ? merge_checked(j, li, r, err) : o;
+}
+
 srv_outcome srv_job_result(srv_job *j, uint64_t owner, const proto_result *r, pt_error *err)
 {
     return accept_result(j, owner, r, 1, err);
+}
+
+srv_outcome srv_job_result_checked(srv_job *j, uint64_t owner, const proto_result *r, pt_error *err)
+{
+    return merge_checked(j, find_lease(j, r->task_id, owner), r, err);
 }
 
 srv_outcome srv_job_replay(srv_job *j, const proto_result *r, pt_error *err)
@@ -477,7 +491,7 @@ static void get_acc(proto_reader *r, pt_pixel_acc *a)
     a->pad = 0;
 }
 
-static void put_params(proto_writer *w, const srv_job_params *p)
+void srv_job_params_write(proto_writer *w, const srv_job_params *p)
 {
     proto_w_u32(w, p->width);
     proto_w_u32(w, p->height);
@@ -491,6 +505,23 @@ static void put_params(proto_writer *w, const srv_job_params *p)
     proto_w_f64(w, p->target_error);
     proto_w_f64(w, p->min_gain);
     proto_w_str(w, p->camera);
+}
+
+void srv_job_params_read(proto_reader *r, srv_job_params *p, uint32_t version)
+{
+    p->width = proto_r_u32(r, "width");
+    p->height = proto_r_u32(r, "height");
+    p->spp = proto_r_u32(r, "spp");
+    p->tile = proto_r_u32(r, "tile");
+    p->chunk = proto_r_u32(r, "chunk");
+    p->seed = proto_r_u32(r, "seed");
+    p->max_depth = proto_r_u32(r, "max depth");
+    p->rr_depth = proto_r_u32(r, "rr depth");
+    p->min_spp = proto_r_u32(r, "min spp");
+    p->target_error = proto_r_f64(r, "target error");
+    p->min_gain = version >= 3 ? proto_r_f64(r, "min gain") : 0.0;
+    p->camera[0] = '\0';
+    proto_r_str(r, p->camera, PROTO_MAX_NAME, "camera");
 }
 
 static uint32_t tile_merged(const srv_job *j, uint32_t tile)
@@ -507,7 +538,7 @@ pt_status srv_job_save(const srv_job *j, proto_writer *w, pt_error *err)
     proto_w_u32(w, CKPT_VERSION);
     proto_w_u64(w, j->id);
     proto_w_bytes(w, j->hash, 32);
-    put_params(w, &j->p);
+    srv_job_params_write(w, &j->p);
     proto_w_u32(w, j->ntiles);
     proto_w_u32(w, j->nchunks);
     for (uint32_t t = 0; t < j->ntiles; t++) {
@@ -532,12 +563,6 @@ pt_status srv_job_save(const srv_job *j, proto_writer *w, pt_error *err)
     return PT_OK;
 }
 
-static int acc_sane(const pt_pixel_acc *a, uint32_t max_n)
-{
-    return isfinite(a->sum[0]) && isfinite(a->sum[1]) && isfinite(a->sum[2]) &&
-           isfinite(a->sum_sq) && a->sum_sq >= 0 && a->n <= max_n;
-}
-
 pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *err)
 {
     if (j->merged || j->nleases || j->nheld)
@@ -551,19 +576,7 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
     uint64_t id = proto_r_u64(&r, "job id");
     const uint8_t *hash = proto_r_bytes(&r, 32, "scene hash");
     srv_job_params p;
-    p.width = proto_r_u32(&r, "width");
-    p.height = proto_r_u32(&r, "height");
-    p.spp = proto_r_u32(&r, "spp");
-    p.tile = proto_r_u32(&r, "tile");
-    p.chunk = proto_r_u32(&r, "chunk");
-    p.seed = proto_r_u32(&r, "seed");
-    p.max_depth = proto_r_u32(&r, "max depth");
-    p.rr_depth = proto_r_u32(&r, "rr depth");
-    p.min_spp = proto_r_u32(&r, "min spp");
-    p.target_error = proto_r_f64(&r, "target error");
-    p.min_gain = version >= 3 ? proto_r_f64(&r, "min gain") : 0.0;
-    p.camera[0] = '\0';
-    proto_r_str(&r, p.camera, PROTO_MAX_NAME, "camera");
+    srv_job_params_read(&r, &p, version);
     uint32_t ntiles = proto_r_u32(&r, "tiles"), nchunks = proto_r_u32(&r, "chunks");
     if (r.status != PT_OK)
         return proto_r_finish(&r, "checkpoint", err);

@@ -92,6 +92,11 @@ srv_outcome srv_job_result(srv_job *job, uint64_t owner, const proto_result *r, 
 srv_outcome srv_job_check(const srv_job *job, uint64_t owner, const proto_result *r,
                           pt_error *err);
 
+/* srv_job_result for a result that srv_job_check accepted, the job unchanged
+ * since: merges or holds it without checking its task and pixels again. */
+srv_outcome srv_job_result_checked(srv_job *job, uint64_t owner, const proto_result *r,
+                                   pt_error *err);
+
 /* Accepts a result from the durable log after a restart: like srv_job_result
  * but without a lease (there are none yet). Duplicates are dropped, so a log
  * that overlaps the checkpoint is harmless. */
@@ -99,6 +104,14 @@ srv_outcome srv_job_replay(srv_job *job, const proto_result *r, pt_error *err);
 
 /* 1 when owner holds a lease of this job. */
 int srv_job_owner_active(const srv_job *job, uint64_t owner);
+
+/* The params block as the checkpoint and the state folder's queue file both
+ * store it: nine u32 (width, height, spp, tile, chunk, seed, max depth, rr
+ * depth, min spp), f64 target error, f64 min gain (from format version 3; read
+ * as 0 before), str camera. srv_job_params_read reads a block of the given
+ * format version; a failure is left in r's status. */
+void srv_job_params_write(proto_writer *w, const srv_job_params *p);
+void srv_job_params_read(proto_reader *r, srv_job_params *p, uint32_t version);
 
 /* Checkpoints. srv_job_save appends the merged state (per tile the chunks
  * merged and whether adaptive sampling stopped it, the held early results, the

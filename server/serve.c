@@ -880,7 +880,7 @@ static void on_result(server *s, conn *c, const proto_frame *f)
         return;
     }
     if (o == SRV_MERGED)
-        o = srv_job_result(j->job, c->id, &r, &err);
+        o = srv_job_result_checked(j->job, c->id, &r, &err);
     switch (o) {
     case SRV_MERGED:
         j->rejected += r.rejected;
@@ -1363,6 +1363,15 @@ static void on_fetch(server *s, conn *c, sjob *j)
     pump_fetch(s, c);
 }
 
+/* An ERROR from the peer (who: "client" or "worker"): logged, then closed. */
+static void on_peer_error(server *s, conn *c, const proto_frame *f, const char *who)
+{
+    proto_error_msg m;
+    if (proto_msg_decode_error(f->payload, f->len, &m, NULL) == PT_OK)
+        logf_(s, "%s %s reports: %s", who, c->name, m.text);
+    conn_close_soon(s, c);
+}
+
 static void dispatch_client(server *s, conn *c, const proto_frame *f)
 {
     sjob *j;
@@ -1399,13 +1408,9 @@ static void dispatch_client(server *s, conn *c, const proto_frame *f)
         if (read_job_ref(s, c, f, &j))
             on_fetch(s, c, j);
         break;
-    case PROTO_MSG_ERROR: {
-        proto_error_msg m;
-        if (proto_msg_decode_error(f->payload, f->len, &m, NULL) == PT_OK)
-            logf_(s, "client %s reports: %s", c->name, m.text);
-        conn_close_soon(s, c);
+    case PROTO_MSG_ERROR:
+        on_peer_error(s, c, f, "client");
         break;
-    }
     default:
         conn_send_error(s, c, PROTO_E_PROTOCOL, "unexpected %s from a client",
                         proto_msg_type_name(f->type));
@@ -1450,13 +1455,9 @@ static void dispatch(server *s, conn *c, const proto_frame *f)
     case PROTO_MSG_SCENE_GET: on_scene_get(s, c, f); break;
     case PROTO_MSG_RESULT: on_result(s, c, f); break;
     case PROTO_MSG_HEARTBEAT: on_heartbeat(s, c, f); break;
-    case PROTO_MSG_ERROR: {
-        proto_error_msg m;
-        if (proto_msg_decode_error(f->payload, f->len, &m, NULL) == PT_OK)
-            logf_(s, "worker %s reports: %s", c->name, m.text);
-        conn_close_soon(s, c);
+    case PROTO_MSG_ERROR:
+        on_peer_error(s, c, f, "worker");
         break;
-    }
     default:
         conn_send_error(s, c, PROTO_E_PROTOCOL, "unexpected %s from a worker",
                         proto_msg_type_name(f->type));
