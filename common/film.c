@@ -127,8 +127,18 @@ double pt_tile_gain(const pt_pixel_acc *px, uint32_t stride, const pt_pixel_acc 
         for (uint32_t x = 0; x < width; x++) {
             const pt_pixel_acc *a = &px[(size_t)y * stride + x];
             const pt_pixel_acc *l = &last[(size_t)y * last_stride + x];
-            if (l->n == 0 || a->n <= l->n)
+            if (l->n == 0 || a->n < l->n)
                 return INFINITY;
+            if (a->n == l->n) {
+                /* The first chunk: no earlier samples to hold it against. A
+                 * pixel whose samples are all exactly 0 (radiance is never
+                 * negative, so zero sums and a zero luminance sum of squares
+                 * mean that) has no error by any estimate; any other has no
+                 * estimate yet. */
+                if (a->sum[0] != 0.0 || a->sum[1] != 0.0 || a->sum[2] != 0.0 || a->sum_sq != 0.0)
+                    return INFINITY;
+                continue;
+            }
             double nl = l->n, np = (double)(a->n - l->n), n = a->n, d2 = 0.0;
             for (int c = 0; c < 3; c++) {
                 double d = l->sum[c] / nl - (a->sum[c] - l->sum[c]) / np;

@@ -31,6 +31,10 @@
 #               second chunk on, so 8 gives it the same 16-spp minimum
 #   OUT         folder for references and CSVs [/tmp/ptfarm-adaptive]; a
 #               reference already there (same scene, size, spp) is reused.
+#   BASE        another build's BIN_DIR (e.g. the main branch's) [none]: its
+#               ptbench runs every adaptive series too, in the same
+#               repetitions, reported as "RULE-base" against the same uniform
+#               rows, so that two builds compare side by side.
 set -euo pipefail
 
 if [[ $# -lt 1 || $# -gt 2 || ! -x "$1/ptbench" || ! -x "$1/ptworker" ]]; then
@@ -54,6 +58,7 @@ MIN_SPP=${MIN_SPP:-16}
 MAX_SPP=${MAX_SPP:-2048}
 CHUNK=${CHUNK:-16}
 OUT=${OUT:-/tmp/ptfarm-adaptive}
+BASE=${BASE:-}
 mkdir -p "$OUT"
 
 # CSV rows of REPS runs -> one row per key (spp or target): key, median wall
@@ -128,6 +133,13 @@ compare() { # COL UNIFORM_TABLE ADAPTIVE_TABLE
 mkdir -p "$OUT/bin"
 cp "$BIN/ptbench" "$BIN/ptworker" "$OUT/bin/"
 BIN=$OUT/bin
+SERIES=$RULES
+if [[ -n $BASE ]]; then
+    [[ -x $BASE/ptbench ]] || { echo "adaptive.sh: no ptbench in BASE=$BASE" >&2; exit 2; }
+    mkdir -p "$OUT/base"
+    cp "$BASE/ptbench" "$OUT/base/"
+    for rule in $RULES; do SERIES="$SERIES $rule-base"; done
+fi
 
 echo "adaptive.sh: $RES, tile $TILE, $THREADS threads, reference $REF_SPP spp (seed 1), $REPS reps"
 echo "adaptive.sh: uniform spp $UNIFORM; rules $RULES; min spp $MIN_SPP, cap $MAX_SPP"
@@ -143,30 +155,33 @@ for scene in $SCENES; do
         [[ -f $ref ]] || { echo "adaptive.sh: no reference for $scene" >&2; exit 1; }
     fi
     common=("$scene" --reference "$ref" --threads "$THREADS" --tile "$TILE")
-    rm -f "$OUT/$name"-uniform-*.csv "$OUT/$name"-target-*.csv "$OUT/$name"-gain-*.csv
+    rm -f "$OUT/$name"-uniform-*.csv "$OUT/$name"-target*.csv "$OUT/$name"-gain*.csv
     for ((k = 1; k <= REPS; k++)); do
         echo "== $name: repetition $k of $REPS"
         "$BIN/ptbench" "${common[@]}" --spp "$UNIFORM" --label uniform \
             --csv "$OUT/$name-uniform-$k.csv" | tail -n +4
-        for rule in $RULES; do
-            case $rule in
+        for series in $SERIES; do
+            bench=$BIN/ptbench
+            [[ $series == *-base ]] && bench=$OUT/base/ptbench
+            case ${series%-base} in
             target) args=(--target-error "$TARGETS" --chunk "$CHUNK") ;;
             gain) args=(--min-gain "$GAINS" --chunk "$GAIN_CHUNK") ;;
-            *) echo "adaptive.sh: unknown rule '$rule' in RULES" >&2; exit 2 ;;
+            *) echo "adaptive.sh: unknown rule '$series' in RULES" >&2; exit 2 ;;
             esac
-            "$BIN/ptbench" "${common[@]}" "${args[@]}" --min-spp "$MIN_SPP" \
-                --max-spp "$MAX_SPP" --label "$rule" --csv "$OUT/$name-$rule-$k.csv" | tail -n +5
+            "$bench" "${common[@]}" "${args[@]}" --min-spp "$MIN_SPP" \
+                --max-spp "$MAX_SPP" --label "$series" --csv "$OUT/$name-$series-$k.csv" |
+                tail -n +5
         done
     done
     median_rows spp "$OUT/$name"-uniform-*.csv >"$OUT/$name-uniform.txt"
     echo "== $name: medians over $REPS reps (spp|target|gain, wall s, RMSE, relMSE, mean spp, CPU s)"
     sed 's/^/uniform  /' "$OUT/$name-uniform.txt"
-    for rule in $RULES; do
-        key=$([[ $rule == target ]] && echo target_error || echo min_gain)
-        median_rows "$key" "$OUT/$name-$rule"-*.csv >"$OUT/$name-$rule.txt"
+    for rule in $SERIES; do
+        key=$([[ ${rule%-base} == target ]] && echo target_error || echo min_gain)
+        median_rows "$key" "$OUT/$name-$rule"-[0-9]*.csv >"$OUT/$name-$rule.txt"
         sed "s/^/$rule /" "$OUT/$name-$rule.txt"
     done
-    for rule in $RULES; do
+    for rule in $SERIES; do
         echo "== $name, $rule rule: time to equal RMSE"
         compare 3 "$OUT/$name-uniform.txt" "$OUT/$name-$rule.txt"
         echo "== $name, $rule rule: time to equal relMSE"

@@ -4,6 +4,7 @@
  *   ptbench SCENE (--reference REF.exr | --constant V) [--spp LIST | --time LIST]
  *           [--res WxH] [--threads T] [--seed S] [--max-depth D] [--reps R]
  *           [--label NAME] [--csv OUT.csv] [--plot OUT.png] [--plot-series IN.csv]...
+ *   ptbench SCENE --reference REF.exr --spp LIST --bound [--min-spp M] [--tile T] [...]
  *   ptbench SCENE --reference REF.exr (--target-error LIST | --min-gain LIST)
  *           [--min-spp M] [--max-spp N] [--chunk C] [--tile T] [other options as above]
  *   ptbench error IMAGE.exr (REFERENCE.exr | --constant V)
@@ -45,6 +46,9 @@
  * size with another seed) the bound per tile is also taken from IMAGE's
  * measured squared error (R, G, B, as the metrics count it), assuming that
  * each tile's error falls as 1/n.
+ * --bound adds the same bound in CPU time after each --spp row, from that
+ * render's squared error and each tile's CPU time (print_bound): the
+ * samples an adaptive rule saves are not all as costly (black background).
  * `error` scores an existing EXR (from any renderer) the same way; `plot`
  * draws the CSVs of earlier runs, one series per label.
  */
@@ -90,6 +94,14 @@ static double cpu_now(void)
     return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
 }
 
+/* CPU time of the calling thread: the cost of one tile. */
+static double thread_cpu_now(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
 /* ---- rendering ------------------------------------------------------------ */
 
 typedef struct pass {
@@ -103,6 +115,7 @@ typedef struct pass {
     pt_pixel_acc *scratch[MAX_THREADS]; /* tile*tile each, allocated once */
     pt_pixel_acc *sum[MAX_THREADS];     /* adaptive: the tile's sums so far */
     pt_render_stats stats[MAX_THREADS];
+    double *tile_cpu; /* --bound: per tile, the CPU seconds of its uniform renders */
 } pass;
 
 typedef struct pass_arg {
@@ -120,7 +133,10 @@ static void *pass_thread(void *p)
             break;
         pt_rect rc = ps->tiles[t];
         if (!(ps->rule.target_error > 0.0) && !(ps->rule.min_gain > 0.0)) {
+            double c0 = ps->tile_cpu ? thread_cpu_now() : 0.0;
             pt_render_tile(ps->r, rc, ps->s0, ps->s1, ps->scratch[a->id], &ps->stats[a->id]);
+            if (ps->tile_cpu)
+                ps->tile_cpu[t] += thread_cpu_now() - c0;
             /* Tiles are disjoint: threads add to the film without a lock. */
             pt_film_add_tile(ps->film, rc, ps->scratch[a->id]);
             continue;
@@ -352,7 +368,9 @@ static void usage(FILE *f)
                "  --min-spp M         adaptive: samples before a tile may stop (default: chunk)\n"
                "  --max-spp N         adaptive: samples at most (default 1024)\n"
                "  --chunk C           adaptive: samples between decisions (default 16)\n"
-               "  --tile T            tile side in pixels (default 16)\n");
+               "  --tile T            tile side in pixels (default 16)\n"
+               "  --bound             after each --spp row, what the best allocation to tiles\n"
+               "                      could win in CPU time (with --min-spp: above that floor)\n");
 }
 
 /* ---- subcommands ---------------------------------------------------------------- */
@@ -538,6 +556,7 @@ typedef struct opts {
     double constant;
     double list[MAX_ROWS];
     int n, time_mode, adaptive; /* adaptive: 1 --target-error, 2 --min-gain */
+    int bound;                  /* --bound: print_bound after each --spp row */
     uint32_t w, h, seed, max_depth, reps;
     uint32_t min_spp, max_spp, chunk, tile;
     int threads;
@@ -562,6 +581,9 @@ static int parse_opts(int argc, char **argv, opts *o)
         if (!strcmp(a, "-h") || !strcmp(a, "--help")) {
             usage(stdout);
             exit(0);
+        } else if (!strcmp(a, "--bound")) {
+            o->bound = 1;
+            continue;
         } else if (a[0] != '-') {
             if (o->scene)
                 bad = 1;
@@ -626,7 +648,11 @@ static int parse_opts(int argc, char **argv, opts *o)
                         "(see --help)\n");
         return -1;
     }
-    if (!o->min_spp) /* ptworker's default */
+    if (o->bound && (!o->ref_path || o->time_mode || o->adaptive)) {
+        fprintf(stderr, "ptbench: --bound needs --reference and --spp rows (see --help)\n");
+        return -1;
+    }
+    if (!o->min_spp && !o->bound) /* ptworker's default; --bound: no floor unless asked */
         o->min_spp = o->chunk > 1 ? o->chunk : 2;
     return 0;
 }
@@ -730,6 +756,100 @@ static int bench_adaptive(pass *ps, const opts *o, double value, row *out)
     return 0;
 }
 
+/* --bound: what the best allocation of samples to tiles could win in time, from
+ * a uniform render of spp samples (img, against the reference ref) and the CPU
+ * seconds tile_cpu[t] of its tiles (summed over reps renders). Tile t's squared
+ * error (R, G, B as the metrics count them; rel: relative) is taken to fall as
+ * R_t / n, with R_t its squared error times spp, and its cost as c_t n, with
+ * c_t its CPU seconds per sample per pixel. Spending n_t samples per pixel on
+ * tile t costs sum_t c_t n_t for the error sum_t R_t / n_t; the least cost for
+ * uniform sampling's error is at n_t ~ sqrt(R_t / c_t) (Lagrange, as Neyman's
+ * allocation to strata of unequal cost: Cochran, Sampling Techniques, 3rd
+ * ed., 1977, sec. 5.5), uniform / best = sum c * sum R / (sum sqrt(R c))^2.
+ * Printed with it: the time that the samples' optimum n_t ~ sqrt(R_t / m_t)
+ * (m_t pixels, equal cost) takes, which is what a rule blind to cost aims at;
+ * with min_spp, the best allocation that gives every tile at least min_spp
+ * samples (n_t = max(min_spp, lambda sqrt(R_t / c_t)), lambda by bisection to
+ * uniform sampling's error); and the share of tiles without error. */
+static int print_bound(const pt_image *img, const pt_image *ref, const pt_rect *tiles,
+                       uint32_t num_tiles, const double *tile_cpu, uint32_t reps, uint32_t spp,
+                       uint32_t min_spp)
+{
+    double *R = pt_malloc_array(num_tiles, sizeof *R);
+    if (!R) {
+        fprintf(stderr, "ptbench: out of memory\n");
+        return -1;
+    }
+    for (int rel = 0; rel < 2; rel++) {
+        double sum_c = 0, sum_r = 0, sum_rc = 0, sum_rm = 0, sum_crm = 0, zero_c = 0;
+        uint32_t zero = 0;
+        for (uint32_t t = 0; t < num_tiles; t++) {
+            pt_rect rc = tiles[t];
+            double se = 0, m = (double)(rc.x1 - rc.x0) * (rc.y1 - rc.y0);
+            for (uint32_t y = rc.y0; y < rc.y1; y++)
+                for (uint32_t x = rc.x0; x < rc.x1; x++) {
+                    size_t i = (size_t)y * img->width + x;
+                    const float *a[3] = {img->r, img->g, img->b}, *b[3] = {ref->r, ref->g, ref->b};
+                    for (int c = 0; c < 3; c++) {
+                        double d = (double)a[c][i] - b[c][i], r = b[c][i];
+                        double v = d * d / (rel ? r * r + PT_METRICS_REL_EPS : 1.0);
+                        se += isfinite(v) ? v : 0;
+                    }
+                }
+            double c = tile_cpu[t] / reps / spp;
+            R[t] = se * spp;
+            sum_c += c;
+            sum_r += R[t];
+            sum_rc += sqrt(R[t] * c);
+            sum_rm += sqrt(R[t] * m);
+            sum_crm += c * sqrt(R[t] / m);
+            if (R[t] == 0) {
+                zero++;
+                zero_c += c;
+            }
+        }
+        const char *name = rel ? "relMSE" : "RMSE";
+        if (!(sum_r > 0 && sum_c > 0)) {
+            printf("bound %s: no error to allocate\n", name);
+            continue;
+        }
+        double e_u = sum_r / spp, t_u = sum_c * spp;
+        printf("bound %-6s %4u spp: CPU %.2fx at n ~ sqrt(R/c), %.2fx at n ~ sqrt(R) (samples "
+               "%.2fx)",
+               name, spp, sum_c * sum_r / (sum_rc * sum_rc), sum_c * sum_r / (sum_rm * sum_crm),
+               (double)img->width * img->height * sum_r / (sum_rm * sum_rm));
+        if (min_spp) {
+            /* The error falls as lambda grows. The floor only adds samples, so
+             * lambda without it (lam) reaches e_u already; at lam * e^-40 every
+             * tile is at the floor, which errs more than e_u unless the floor
+             * alone is as good as uniform sampling. */
+            double lam = sum_rc / e_u, lo = log(lam) - 40.0, hi = log(lam), t_m = 0;
+            if (sum_r / min_spp <= e_u)
+                hi = lo;
+            for (int it = 0; it < 200 && hi > lo; it++) {
+                double mid = 0.5 * (lo + hi), l = exp(mid), e = 0;
+                for (uint32_t t = 0; t < num_tiles; t++) {
+                    double c = tile_cpu[t] / reps / spp, n = l * sqrt(R[t] / c);
+                    e += R[t] / (n > min_spp ? n : min_spp);
+                }
+                if (e > e_u)
+                    lo = mid;
+                else
+                    hi = mid;
+            }
+            for (uint32_t t = 0; t < num_tiles; t++) {
+                double c = tile_cpu[t] / reps / spp, n = exp(hi) * sqrt(R[t] / c);
+                t_m += c * (n > min_spp ? n : min_spp);
+            }
+            printf(", %.2fx with >= %u spp", t_u / t_m, min_spp);
+        }
+        printf("; tiles without error: %u of %u, %.0f%% of the CPU time\n", zero, num_tiles,
+               100.0 * zero_c / sum_c);
+    }
+    pt_free(R);
+    return 0;
+}
+
 static int cmd_bench(int argc, char **argv)
 {
     opts o;
@@ -800,6 +920,10 @@ static int cmd_bench(int argc, char **argv)
     ps.film = film;
     ps.tiles = tiles;
     ps.num_tiles = tx * ty;
+    if (o.bound && !(ps.tile_cpu = pt_malloc_array(ps.num_tiles, sizeof *ps.tile_cpu))) {
+        fprintf(stderr, "ptbench: out of memory\n");
+        goto done;
+    }
     for (int i = 0; i < o.threads; i++)
         if (!(ps.scratch[i] = pt_malloc_array(ts * ts, sizeof(pt_pixel_acc))) ||
             !(ps.sum[i] = pt_malloc_array(ts * ts, sizeof(pt_pixel_acc)))) {
@@ -847,6 +971,8 @@ static int cmd_bench(int argc, char **argv)
         } else if (o.adaptive) {
             bad = bench_adaptive(&ps, &o, o.list[i], rw);
         } else {
+            if (ps.tile_cpu)
+                memset(ps.tile_cpu, 0, ps.num_tiles * sizeof *ps.tile_cpu);
             bad = bench_spp(&ps, &o, (uint32_t)o.list[i], rw);
         }
         if (bad)
@@ -858,6 +984,9 @@ static int cmd_bench(int argc, char **argv)
             goto done;
         }
         print_row(rw);
+        if (ps.tile_cpu && print_bound(img, refimg, tiles, ps.num_tiles, ps.tile_cpu, o.reps,
+                                       (uint32_t)o.list[i], o.min_spp) != 0)
+            goto done;
         fflush(stdout);
         if (rw->m.nonfinite || rw->st.rejected)
             fprintf(stderr, "ptbench: %llu non-finite values in the image, %llu rejected samples\n",
@@ -891,6 +1020,8 @@ done:
         pt_free(ps.sum[i]);
         ps.scratch[i] = ps.sum[i] = NULL;
     }
+    pt_free(ps.tile_cpu);
+    ps.tile_cpu = NULL;
     pt_free(tiles);
     pt_image_free(img);
     pt_image_free(refimg);

@@ -284,6 +284,27 @@ static void test_tile_gain_math(void)
     pt_pixel_acc empty[2] = {{{0}, 0, 0, 0}, last[1]};
     CHECK(isinf(pt_tile_gain(tile, 2, empty, 2, 2, 1)));
     CHECK(pt_tile_gain(tile, 2, last, 2, 0, 0) == 0.0);
+    /* The first chunk alone: 0 when every sample is exactly 0 (sums and the
+     * luminance sum of squares), else no estimate; a single non-zero sum of
+     * any kind is enough to wait for the second chunk. */
+    pt_pixel_acc black[2] = {{{0, 0, 0}, 0, 8, 0}, {{0, 0, 0}, 0, 8, 0}};
+    CHECK(pt_tile_gain(black, 2, black, 2, 2, 1) == 0.0);
+    for (int k = 0; k < 4; k++) {
+        pt_pixel_acc one[2] = {black[0], black[1]};
+        if (k < 3)
+            one[1].sum[k] = 1e-300;
+        else
+            one[1].sum_sq = 1e-300;
+        CHECK(isinf(pt_tile_gain(one, 2, one, 2, 2, 1)));
+    }
+    /* Black pixels count 0 beside pixels that have an estimate. */
+    pt_pixel_acc mixed[2] = {tile[0], {{0, 0, 0}, 0, 8, 0}};
+    pt_pixel_acc mixed_last[2] = {last[0], {{0, 0, 0}, 0, 8, 0}};
+    want = 0.5 * (1.5 / 72.0);
+    CHECK(fabs(pt_tile_gain(mixed, 2, mixed_last, 2, 2, 1) - want) <= 1e-15 * want);
+    /* An empty first chunk is still no estimate. */
+    pt_pixel_acc none[2] = {{{0, 0, 0}, 0, 0, 0}, black[1]};
+    CHECK(isinf(pt_tile_gain(none, 2, none, 2, 2, 1)));
 }
 
 /* pt_tile_stops: the minimum, each rule alone, their thresholds inclusive,
@@ -305,6 +326,13 @@ static void test_tile_stops_rules(void)
     pt_adaptive target = {0.01, 0.0, 8};
     CHECK(pt_tile_stops(tile, 2, last, 2, 2, 1, 8, &target));
     CHECK(!pt_tile_stops(tile, 2, last, 2, 2, 1, 4, &target));
+    /* A black tile stops at its first chunk with the minimum at one chunk,
+     * not under it. */
+    pt_pixel_acc black[2] = {{{0, 0, 0}, 0, 8, 0}, {{0, 0, 0}, 0, 8, 0}};
+    pt_adaptive tiny = {0.0, 1e-300, 8};
+    CHECK(pt_tile_stops(black, 2, black, 2, 2, 1, 8, &tiny));
+    tiny.min_spp = 16;
+    CHECK(!pt_tile_stops(black, 2, black, 2, 2, 1, 8, &tiny));
 }
 
 /*

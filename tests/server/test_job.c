@@ -220,22 +220,27 @@ static void adaptive(void)
 }
 
 /* Pixels for the min-gain test: tile 0 constant (each chunk agrees with the
- * past: nothing to gain), tile 1 alternating 0 and 1 chunk by chunk (a chunk
- * always differs from the past by about 0.5). */
-static void gain_pixels(const proto_task *t, pt_pixel_acc *px, proto_result *r)
+ * past: nothing to gain; black with black0), tile 1 alternating 1 and 0 chunk
+ * by chunk (a chunk always differs from the past by about 0.5). */
+static void gain_pixels_of(const proto_task *t, pt_pixel_acc *px, proto_result *r, int black0)
 {
     uint32_t ns = t->s1 - t->s0, chunk = t->s0 / 8;
     for (uint32_t i = 0; i < 32 * 32; i++) {
-        double v = t->tile.x0 == 0 ? 0.5 : (double)(chunk % 2);
+        double v = t->tile.x0 == 0 ? (black0 ? 0.0 : 0.5) : (double)((chunk + 1) % 2);
         px[i] = (pt_pixel_acc){{v * ns, v * ns, v * ns}, v * v * ns, ns, 0};
     }
     *r = (proto_result){t->job_id, t->task_id, t->tile, t->s0, t->s1, 0, 0, 32 * 32, px, 0};
 }
 
+static void gain_pixels(const proto_task *t, pt_pixel_acc *px, proto_result *r)
+{
+    gain_pixels_of(t, px, r, 0);
+}
+
 /* The minimum-mean-error rule in the coordinator: the quiet tile stops at the
- * second chunk (the first the rule can judge), the noisy one runs to the end;
- * a checkpoint taken midway resumes to the same bits, and refuses a job with
- * another min gain. */
+ * second chunk (the first the rule can judge, as it is not black), the noisy
+ * one runs to the end; a checkpoint taken midway resumes to the same bits, and
+ * refuses a job with another min gain. */
 static void adaptive_min_gain(void)
 {
     srv_job_params p = {64, 32, 64, 32, 8, 1, 16, 3, 0.0, 8, 1e-5, ""};
@@ -291,6 +296,34 @@ done:
     srv_job_free(d);
 }
 
+/* A tile whose samples are all exactly 0 (black background) stops after its
+ * first chunk when min_spp allows it (pt_tile_gain counts it 0 from the
+ * first chunk); the noisy tile still runs to the end. */
+static void adaptive_min_gain_black(void)
+{
+    srv_job_params p = {64, 32, 64, 32, 8, 1, 16, 3, 0.0, 8, 1e-5, ""};
+    srv_job *j = NULL;
+    CHECK(srv_job_new(3, &p, HASH, &j, NULL) == PT_OK);
+    if (!j)
+        return;
+    static pt_pixel_acc px[32 * 32];
+    proto_task t;
+    proto_result r;
+    int dup = 0;
+    while (srv_job_lease(j, 1, 0, 1000, &t)) {
+        gain_pixels_of(&t, px, &r, 1);
+        srv_outcome o = srv_job_result(j, 1, &r, NULL);
+        dup += o == SRV_DUPLICATE;
+        CHECK(o == SRV_MERGED || o == SRV_DUPLICATE);
+    }
+    CHECK(srv_job_complete(j));
+    CHECK(srv_job_tiles_stopped(j) == 1);
+    const pt_film *f = srv_job_film(j);
+    CHECK(f->px[0].n == 8 && f->px[32].n == 64);
+    CHECK(f->px[0].sum[0] == 0.0 && f->px[0].sum_sq == 0.0);
+    srv_job_free(j);
+}
+
 static void bad_params(void)
 {
     srv_job_params p = {0, 10, 4, 16, 4, 0, 4, 3, 0.0, 0, 0.0, ""};
@@ -319,6 +352,7 @@ int main(void)
     bit_identical();
     adaptive();
     adaptive_min_gain();
+    adaptive_min_gain_black();
     bad_params();
     CHECK(pt_alloc_live() == live);
     return check_report();
