@@ -361,7 +361,7 @@ typedef struct shadow_ray {
     pt_vec3 contrib; /* beta * (f * Le * w), beta before this bounce's weight */
 } shadow_ray;
 
-enum { SHADE_SHADOW = 1u, SHADE_CONTINUE = 2u };
+enum { SHADE_SHADOW = 1u, SHADE_CONTINUE = 2u }; /* bits 0 and 1: the batch counts with them */
 
 /* The camera ray of sample `index` of pc's pixel. */
 static inline void path_start(const pt_renderer *r, pixel_ctx *pc, uint32_t index, path *pa)
@@ -891,12 +891,14 @@ static inline __attribute__((always_inline)) uint64_t trace_batch(const pt_rende
             for (uint32_t j0 = 0; j0 < nh; j0 += 8)
                 shade_lanes(r, paths, live, j0, nh - j0 < 8 ? nh - j0 : 8, sl,
                             (const float(*)[DIM_PER_BOUNCE])u, nee, sr, &flags[j0]);
+            /* Without branches on the flags, which are random: each path is
+             * written to both lists and counted where its flag is set. */
             for (uint32_t j = 0; j < nh; j++) {
-                uint32_t k = live[j];
-                if (flags[j] & SHADE_SHADOW)
-                    shadowed[ns++] = (uint8_t)k;
-                if (flags[j] & SHADE_CONTINUE)
-                    live[nc++] = (uint8_t)k; /* nc <= j: compaction in place */
+                uint8_t k = live[j];
+                shadowed[ns] = k;
+                ns += flags[j] & SHADE_SHADOW;
+                live[nc] = k; /* nc <= j: compaction in place */
+                nc += (flags[j] & SHADE_CONTINUE) >> 1;
             }
             rays += ns;
             for (uint32_t j = 0; j < ns; j++)
