@@ -450,6 +450,7 @@ void pt_lights_pick_n(const pt_lights *lights, const pt_scene *scene, uint32_t n
  * computes it anyway, harmlessly (a NaN or an infinity, no traps), and its
  * result is not used.
  */
+PT_SIMD_CLONES
 void pt_lights_sample_n(const pt_lights *lights, const pt_scene *scene, uint32_t n,
                         const pt_vec3 *p, const float (*u)[3], pt_light_sample *s, int *ok)
 {

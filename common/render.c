@@ -817,7 +817,8 @@ static __attribute__((noinline)) void lights_stage(const pt_renderer *r, uint32_
  * waiting on each in turn, and the ray queries run back to back. This is a
  * small wavefront (Laine, Karras & Aila 2013, "Megakernels Considered
  * Harmful") kept on the stack: about 70 KB with tile_impl's, most of it the
- * pixels' sampler seeds.
+ * pixels' sampler seeds. sl holds the Lambert variants' lanes (NULL in the
+ * others).
  */
 static inline __attribute__((always_inline)) uint64_t trace_batch(const pt_renderer *r, path *paths,
                                                                   uint32_t n, stage_lanes *sl,
@@ -940,7 +941,7 @@ static inline __attribute__((always_inline)) uint64_t trace_batch(const pt_rende
  */
 static inline __attribute__((always_inline)) void
 tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel_acc *out,
-          pt_render_stats *stats, const uint32_t features, const pt_ray_sink *sink)
+          pt_render_stats *stats, stage_lanes *sl, const uint32_t features, const pt_ray_sink *sink)
 {
     pt_render_stats local = {0, 0, 0};
     uint32_t tw = tile.x1 - tile.x0, npix = tw * (tile.y1 - tile.y0);
@@ -950,12 +951,6 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
         group = BATCH_PIXELS;
     pixel_ctx pcs[BATCH_PIXELS];
     path paths[BATCH];
-    /* The Lambert variants' shading lanes. Lanes past a stage's paths compute
-     * on zeros or an earlier stage's values, not on what the stack held
-     * (which could be slow denormals). */
-    stage_lanes sl;
-    if (!(features & PT_FEAT_GLOSSY))
-        memset(&sl, 0, sizeof sl);
     for (uint32_t p0 = 0; p0 < npix; p0 += group) {
         uint32_t np = npix - p0 < group ? npix - p0 : group;
         for (uint32_t g = 0; g < np; g++) {
@@ -973,7 +968,7 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
             for (uint32_t g = 0; g < np; g++)
                 for (uint32_t i = 0; i < nb; i++)
                     path_start(r, &pcs[g], b0 + i, &paths[g * nb + i]);
-            local.rays += trace_batch(r, paths, np * nb, &sl, features, sink);
+            local.rays += trace_batch(r, paths, np * nb, sl, features, sink);
             for (uint32_t g = 0; g < np; g++) {
                 pt_pixel_acc blk = {{0, 0, 0}, 0, 0, 0};
                 for (uint32_t i = 0; i < nb; i++)
@@ -1002,7 +997,16 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
     static void tile_name(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,            \
                           pt_pixel_acc *out, pt_render_stats *stats)                               \
     {                                                                                              \
-        tile_impl(r, tile, s0, s1, out, stats, (feat), NULL);                                      \
+        if ((feat)&PT_FEAT_GLOSSY) {                                                               \
+            tile_impl(r, tile, s0, s1, out, stats, NULL, (feat), NULL);                            \
+        } else {                                                                                   \
+            /* Lanes past a stage's paths compute on zeros or an earlier                           \
+             * stage's values, not on what the stack held (which could be                          \
+             * slow denormals). */                                                                 \
+            stage_lanes sl;                                                                        \
+            memset(&sl, 0, sizeof sl);                                                             \
+            tile_impl(r, tile, s0, s1, out, stats, &sl, (feat), NULL);                             \
+        }                                                                                          \
     }
 #define NO_TEX (uint32_t)(PT_FEAT_TEXTURES | PT_FEAT_EMISSIVE_TEX)
 VARIANT(li_general, tile_general, ALL_FEATURES)
@@ -1108,5 +1112,5 @@ void pt_render_tile(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1
 void pt_render_tile_traced(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,
                            pt_pixel_acc *out, const pt_ray_sink *sink)
 {
-    tile_impl(r, tile, s0, s1, out, NULL, ALL_FEATURES, sink);
+    tile_impl(r, tile, s0, s1, out, NULL, NULL, ALL_FEATURES, sink);
 }
