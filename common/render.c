@@ -901,28 +901,24 @@ static inline __attribute__((always_inline)) uint64_t trace_batch(const pt_rende
                 live[nc] = k; /* nc <= j: compaction in place */
                 nc += (flags[j] & SHADE_CONTINUE) >> 1;
             }
-            rays += ns;
-            for (uint32_t j = 0; j < ns; j++)
-                trace_shadow(r, &paths[shadowed[j]], &sr[shadowed[j]], sink);
-            n = nc;
-            continue;
-        }
-        for (uint32_t j = 0; j < nh; j++)
-            surface_at(r, &hits[live[j]], &sfs[j], features);
-        if ((features & PT_FEAT_EMITTERS) && r->nee_n) {
-            lights_stage(r, nh, sfs, u, lss, ls_ok);
         } else {
             for (uint32_t j = 0; j < nh; j++)
-                ls_ok[j] = bounce_light(r, &sfs[j], u[j], &lss[j], features);
-        }
-        for (uint32_t j = 0; j < nh; j++) {
-            uint32_t k = live[j];
-            uint32_t st =
-                shade(r, &paths[k], &hits[k], u[j], &sfs[j], &lss[j], ls_ok[j], &sr[k], features);
-            if (st & SHADE_SHADOW)
-                shadowed[ns++] = (uint8_t)k;
-            if (st & SHADE_CONTINUE)
-                live[nc++] = (uint8_t)k; /* nc <= j: compaction in place */
+                surface_at(r, &hits[live[j]], &sfs[j], features);
+            if ((features & PT_FEAT_EMITTERS) && r->nee_n) {
+                lights_stage(r, nh, sfs, u, lss, ls_ok);
+            } else {
+                for (uint32_t j = 0; j < nh; j++)
+                    ls_ok[j] = bounce_light(r, &sfs[j], u[j], &lss[j], features);
+            }
+            for (uint32_t j = 0; j < nh; j++) {
+                uint32_t k = live[j];
+                uint32_t st = shade(r, &paths[k], &hits[k], u[j], &sfs[j], &lss[j], ls_ok[j],
+                                    &sr[k], features);
+                if (st & SHADE_SHADOW)
+                    shadowed[ns++] = (uint8_t)k;
+                if (st & SHADE_CONTINUE)
+                    live[nc++] = (uint8_t)k; /* nc <= j: compaction in place */
+            }
         }
         rays += ns;
         for (uint32_t j = 0; j < ns; j++)
