@@ -24,6 +24,8 @@
  */
 #include "common/bsdf.h"
 
+#include <string.h>
+
 #include "common/simd.h"
 
 #define DIELECTRIC_F0 0.04f /* glTF's ((1 - ior) / (1 + ior))^2 for ior 1.5 */
@@ -124,19 +126,16 @@ pt_vec3 pt_sample_cosine_hemisphere(float u1, float u2)
     return pt_v3(x, y, sqrtf(maxf(0.0f, 1.0f - x * x - y * y)));
 }
 
-/* Per lane: m ? a : b. */
-#define V8_SELECT(m, a, b) ((v8f)(((v8i)(a) & (m)) | ((v8i)(b) & ~(m))))
-
 /*
  * pt_sample_cosine_hemisphere for n pairs in 8 SIMD lanes, in GCC/Clang vector
  * types: the same float operations lane by lane (IEEE arithmetic, no
  * contraction: the same bits), the branches of the scalar code as selects.
- * The square root stays per lane: C has no portable vector square root, and
- * sqrtf of a float is the same correctly rounded result either way. Compiled
+ * The square root is correctly rounded either way (pt_v8_sqrt). Compiled
  * for AVX2 and the x86-64 baseline (target_clones), like the sampler.
  */
 PT_SIMD_CLONES
-void pt_sample_cosine_hemisphere_n(const float *u, size_t stride, uint32_t n, pt_vec3 *out)
+void pt_sample_cosine_hemisphere_n(const float *u, size_t stride, uint32_t n, float *xs, float *ys,
+                                   float *zs)
 {
     for (uint32_t k0 = 0; k0 < n; k0 += 8) {
         uint32_t m = n - k0 < 8 ? n - k0 : 8;
@@ -160,9 +159,23 @@ void pt_sample_cosine_hemisphere_n(const float *u, size_t stride, uint32_t n, pt
         SINCOS_QUARTER(t, sn, c);
         v8f x = r * V8_SELECT(wide, c, sn), y = r * V8_SELECT(wide, sn, c);
         v8f w = 1.0f - x * x - y * y;
-        for (uint32_t l = 0; l < m; l++)
-            out[k0 + l] =
-                origin[l] ? pt_v3(0.0f, 0.0f, 1.0f) : pt_v3(x[l], y[l], sqrtf(maxf(0.0f, w[l])));
+        w = V8_SELECT(0.0f > w, (v8f){0}, w); /* maxf(0, w): a NaN w stays */
+        v8f z;
+        pt_v8_sqrt(&z, &w);
+        x = (v8f)((v8i)x & ~origin);
+        y = (v8f)((v8i)y & ~origin);
+        z = V8_SELECT(origin, (v8f){0} + 1.0f, z);
+        if (m == 8) {
+            memcpy(&xs[k0], &x, sizeof x);
+            memcpy(&ys[k0], &y, sizeof y);
+            memcpy(&zs[k0], &z, sizeof z);
+        } else {
+            for (uint32_t l = 0; l < m; l++) {
+                xs[k0 + l] = x[l];
+                ys[k0 + l] = y[l];
+                zs[k0 + l] = z[l];
+            }
+        }
     }
 }
 

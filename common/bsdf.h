@@ -51,9 +51,11 @@ pt_vec3 pt_bsdf_sample(const pt_bsdf *b, pt_vec3 wo, const float u[3], pt_vec3 *
 
 /* Lower-level pieces, exposed for the statistical tests. */
 pt_vec3 pt_sample_cosine_hemisphere(float u1, float u2); /* pdf = cos/pi */
-/* out[k] = pt_sample_cosine_hemisphere(u[k * stride], u[k * stride + 1]) for
- * k < n, in SIMD lanes (the same bits). */
-void pt_sample_cosine_hemisphere_n(const float *u, size_t stride, uint32_t n, pt_vec3 *out);
+/* (x[k], y[k], z[k]) = pt_sample_cosine_hemisphere(u[k * stride],
+ * u[k * stride + 1]) for k < n, in SIMD lanes (the same bits); nothing past
+ * n is written. Coordinates in three arrays, as the shading lanes read them. */
+void pt_sample_cosine_hemisphere_n(const float *u, size_t stride, uint32_t n, float *x, float *y,
+                                   float *z);
 /* GGX visible normal for view wo (Heitz 2018); isotropic alpha. */
 pt_vec3 pt_ggx_sample_vndf(pt_vec3 wo, float alpha, float u1, float u2);
 float pt_ggx_d(pt_vec3 m, float alpha);

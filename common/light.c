@@ -22,13 +22,9 @@
 #include <math.h>
 #include <string.h>
 
-#if defined(__SSE__)
-#include <immintrin.h>
-#endif
-
 #include "common/accel.h"
 #include "common/alloc.h"
-#include "common/simd.h"
+#include "common/light_lanes.h"
 
 /* One column of the alias table: 16 bytes, so that the random read of a
  * column touches one cache line and four columns share it. */
@@ -418,48 +414,43 @@ int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, 
     return 1;
 }
 
+void pt_lights_pick_n(const pt_lights *lights, const pt_scene *scene, uint32_t n, const float *pick,
+                      const float *point, size_t stride, pt_light_picks *out)
+{
+    for (uint32_t j = 0; j < n; j++) {
+        const float u[3] = {pick[j * stride], point[j * stride], point[j * stride + 1]};
+        pt_vec3 pos;
+        float b1, b2;
+        const light_entry *le = pick_point(lights, u, &pos, &b1, &b2);
+        const pt_material *m = &scene->materials[le->material];
+        /* The emission of every pick, also of those that the checks will
+         * reject: without a branch on the checks, which the lanes make. */
+        pt_vec3 e = emission(scene, m, le->tri, b1, b2);
+        out->pos[0][j] = pos.x;
+        out->pos[1][j] = pos.y;
+        out->pos[2][j] = pos.z;
+        out->normal[0][j] = le->normal.x;
+        out->normal[1][j] = le->normal.y;
+        out->normal[2][j] = le->normal.z;
+        out->pmf_area[j] = le->pmf_area;
+        out->two_sided[j] = m->double_sided ? -1 : 0;
+        out->radiance[0][j] = e.x;
+        out->radiance[1][j] = e.y;
+        out->radiance[2][j] = e.z;
+    }
+}
+
 /*
  * pt_lights_sample for many points, in three steps over 8 at a time: the
  * light picks and points, then the distances, directions and pdfs in 8 lanes
- * of GCC/Clang vector types, then the checks and the emission per point. The
- * picks' reads of the alias table and the light entries, and the emission
- * textures' reads, come close together for 8 points, so that with many
- * lights their cache misses overlap. The lanes do pt_lights_sample's float
- * operations in its order (IEEE arithmetic, no contraction; the square root
- * and the divisions are correctly rounded either way): the same bits. A lane
- * whose point the scalar code rejects before a division computes it anyway,
- * harmlessly (a NaN or an infinity, no traps), and its result is not used.
+ * (pt_light_lanes_pdf), then the emission per point. The picks' reads of the
+ * alias table and the light entries, and the emission textures' reads, come
+ * close together for 8 points, so that with many lights their cache misses
+ * overlap. A lane whose point the scalar code rejects before a division
+ * computes it anyway, harmlessly (a NaN or an infinity, no traps), and its
+ * result is not used.
  */
-/* The lanes' distances, their reciprocals, the light's cosines and the pdfs'
- * expression (solid_angle_pdf_d's, unchecked). The square roots take two SSE
- * instructions where there is SSE (the x86-64 baseline): sqrtf's result. */
-static inline void sample_lanes(const float *restrict d2, const float *restrict ndot,
-                         const float *restrict pmf_area, float *restrict dist,
-                         float *restrict inv, float *restrict cos_out, float *restrict pdf)
-{
-    v8f x, nd, pa, r;
-    memcpy(&x, d2, sizeof x);
-    memcpy(&nd, ndot, sizeof nd);
-    memcpy(&pa, pmf_area, sizeof pa);
-#if defined(__SSE__)
-    float rs[8];
-    _mm_storeu_ps(rs, _mm_sqrt_ps(_mm_loadu_ps(d2)));
-    _mm_storeu_ps(rs + 4, _mm_sqrt_ps(_mm_loadu_ps(d2 + 4)));
-    memcpy(&r, rs, sizeof r);
-#else
-    for (int l = 0; l < 8; l++)
-        r[l] = sqrtf(d2[l]);
-#endif
-    v8f iv = 1.0f / r;
-    v8f cos_l = -nd / r;
-    v8f ac = (v8f)((v8i)cos_l & 0x7fffffff); /* fabsf */
-    v8f q = pa * x / ac;
-    memcpy(dist, &r, sizeof r);
-    memcpy(inv, &iv, sizeof iv);
-    memcpy(cos_out, &cos_l, sizeof cos_l);
-    memcpy(pdf, &q, sizeof q);
-}
-
+PT_SIMD_CLONES
 void pt_lights_sample_n(const pt_lights *lights, const pt_scene *scene, uint32_t n,
                         const pt_vec3 *p, const float (*u)[3], pt_light_sample *s, int *ok)
 {
@@ -473,7 +464,8 @@ void pt_lights_sample_n(const pt_lights *lights, const pt_scene *scene, uint32_t
         const light_entry *les[8];
         float b1s[8], b2s[8];
         pt_vec3 ds[8];
-        float d2[8], ndot[8], pmf_area[8], dist[8], inv[8], cos_l[8], pdf[8];
+        float d2[8], ndot[8], pmf_area[8];
+        int32_t two_sided[8];
         for (uint32_t l = 0; l < 8; l++) {
             /* Lanes past n repeat the last point. */
             uint32_t i = k0 + (l < m ? l : m - 1);
@@ -495,8 +487,15 @@ void pt_lights_sample_n(const pt_lights *lights, const pt_scene *scene, uint32_t
             d2[l] = pt_v3_dot(d, d);
             ndot[l] = pt_v3_dot(le->normal, d);
             pmf_area[l] = le->pmf_area;
+            two_sided[l] = scene->materials[le->material].double_sided ? -1 : 0;
         }
-        sample_lanes(d2, ndot, pmf_area, dist, inv, cos_l, pdf);
+        v8f vd2, vndot, vpa, dist, inv, pdf;
+        v8i vts, vok;
+        memcpy(&vd2, d2, sizeof vd2);
+        memcpy(&vndot, ndot, sizeof vndot);
+        memcpy(&vpa, pmf_area, sizeof vpa);
+        memcpy(&vts, two_sided, sizeof vts);
+        pt_light_lanes_pdf(&vd2, &vndot, &vpa, &vts, &dist, &inv, &pdf, &vok);
         for (uint32_t l = 0; l < m; l++) {
             pt_light_sample *si = &s[k0 + l];
             const light_entry *le = les[l];
@@ -505,16 +504,11 @@ void pt_lights_sample_n(const pt_lights *lights, const pt_scene *scene, uint32_t
             if (!(si->dist > 0.0f) || !isfinite(si->dist))
                 continue;
             si->wi = pt_v3_scale(ds[l], inv[l]);
-            const pt_material *mat = &scene->materials[le->material];
-            /* solid_angle_pdf_d's checks on the lanes' values. */
-            float q = 0.0f;
-            if (d2[l] > 0.0f && isfinite(d2[l]) && (mat->double_sided || cos_l[l] > 0.0f) &&
-                fabsf(cos_l[l]) > 0.0f)
-                q = isfinite(pdf[l]) ? pdf[l] : 0.0f;
-            si->pdf = q;
-            if (!(q > 0.0f))
+            si->pdf = pdf[l];
+            if (!vok[l])
                 continue;
-            si->radiance = emission(scene, mat, le->tri, b1s[l], b2s[l]);
+            si->radiance =
+                emission(scene, &scene->materials[le->material], le->tri, b1s[l], b2s[l]);
             ok[k0 + l] = 1;
         }
     }

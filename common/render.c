@@ -7,7 +7,9 @@
 #include "common/alloc.h"
 #include "common/bsdf.h"
 #include "common/light.h"
+#include "common/light_lanes.h"
 #include "common/sampler.h"
+#include "common/simd.h"
 
 /*
  * Sample dimensions. Pixel jitter uses dims 0-1; bounce k uses the 8 dims
@@ -274,10 +276,8 @@ static inline pt_vec3 bsdf_eval(const pt_bsdf *b, pt_vec3 wo, pt_vec3 wi, float 
     return pt_v3_scale(b->diffuse, c);
 }
 
-/* cos_wi, when not NULL, is pt_sample_cosine_hemisphere(u[1], u[2]),
- * computed beforehand for many paths at once. */
 static inline pt_vec3 bsdf_sample(const pt_bsdf *b, pt_vec3 wo, const float u[3], pt_vec3 *wi,
-                                  float *pdf, const pt_vec3 *cos_wi, const uint32_t features)
+                                  float *pdf, const uint32_t features)
 {
     if (features & PT_FEAT_GLOSSY)
         return pt_bsdf_sample(b, wo, u, wi, pdf);
@@ -286,7 +286,7 @@ static inline pt_vec3 bsdf_sample(const pt_bsdf *b, pt_vec3 wo, const float u[3]
     *wi = pt_v3(0.0f, 0.0f, 1.0f);
     if (!(wo.z > 0.0f))
         return zero;
-    *wi = cos_wi ? *cos_wi : pt_sample_cosine_hemisphere(u[1], u[2]);
+    *wi = pt_sample_cosine_hemisphere(u[1], u[2]);
     if (!(wi->z > 0.0f))
         return zero;
     pt_vec3 f = bsdf_eval(b, wo, *wi, pdf, features);
@@ -361,7 +361,7 @@ typedef struct shadow_ray {
     pt_vec3 contrib; /* beta * (f * Le * w), beta before this bounce's weight */
 } shadow_ray;
 
-enum { SHADE_SHADOW = 1u, SHADE_CONTINUE = 2u };
+enum { SHADE_SHADOW = 1u, SHADE_CONTINUE = 2u }; /* bits 0 and 1: the batch counts with them */
 
 /* The camera ray of sample `index` of pc's pixel. */
 static inline void path_start(const pt_renderer *r, pixel_ctx *pc, uint32_t index, path *pa)
@@ -396,6 +396,27 @@ bounce_light(const pt_renderer *r, const surface *sf, const float u[DIM_PER_BOUN
     return pt_lights_sample(r->lights, r->scene, sf->p, u3, ls);
 }
 
+/* shade()'s first step: the hit's emission into pa->L, weighted by the
+ * power heuristic against the light pdf when the path got here by sampling
+ * its BSDF (Veach 1997, sec. 9.2). */
+static inline __attribute__((always_inline)) void shade_emission(const pt_renderer *r, path *pa,
+                                                                 const pt_hit *hit,
+                                                                 const surface *sf,
+                                                                 const uint32_t features)
+{
+    const pt_scene *s = r->scene;
+    const uint32_t strategy = r->params.light_strategy;
+    if (!((features & PT_FEAT_EMITTERS) && emits(sf->mat)))
+        return;
+    pt_vec3 le = pt_emitted(s, hit->tri, hit->b1, hit->b2, pt_v3_neg(pa->d));
+    if (pa->prev_pdf > 0.0f && strategy == PT_LIGHT_MIS) {
+        float lp = pt_lights_pdf(r->lights, s, hit->tri, pa->prev_p, sf->p, sf->ng);
+        le = pt_v3_scale(le, power_heuristic(pa->prev_pdf, lp));
+    }
+    if (pa->prev_pdf == 0.0f || strategy != PT_LIGHT_NEE_ONLY)
+        pa->L = pt_v3_add(pa->L, pt_v3_mul(pa->beta, le));
+}
+
 /*
  * One bounce of a path whose ray hit `hit`, with the bounce's numbers u. NEE
  * samples an emissive triangle at every vertex; the BSDF-sampled continuation
@@ -413,23 +434,14 @@ bounce_light(const pt_renderer *r, const surface *sf, const float u[DIM_PER_BOUN
  */
 static inline __attribute__((always_inline)) uint32_t
 shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_BOUNCE],
-      const surface *sf, const pt_light_sample *ls, int ls_ok, const pt_vec3 *cos_wi,
-      shadow_ray *sr, const uint32_t features)
+      const surface *sf, const pt_light_sample *ls, int ls_ok, shadow_ray *sr,
+      const uint32_t features)
 {
-    const pt_scene *s = r->scene;
     const uint32_t strategy = r->params.light_strategy;
     uint32_t ret = 0;
     pt_vec3 wo = pt_v3_neg(pa->d);
 
-    if ((features & PT_FEAT_EMITTERS) && emits(sf->mat)) {
-        pt_vec3 le = pt_emitted(s, hit->tri, hit->b1, hit->b2, wo);
-        if (pa->prev_pdf > 0.0f && strategy == PT_LIGHT_MIS) {
-            float lp = pt_lights_pdf(r->lights, s, hit->tri, pa->prev_p, sf->p, sf->ng);
-            le = pt_v3_scale(le, power_heuristic(pa->prev_pdf, lp));
-        }
-        if (pa->prev_pdf == 0.0f || strategy != PT_LIGHT_NEE_ONLY)
-            pa->L = pt_v3_add(pa->L, pt_v3_mul(pa->beta, le));
-    }
+    shade_emission(r, pa, hit, sf, features);
     if (pa->depth >= r->params.max_depth)
         return ret;
 
@@ -475,7 +487,7 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     u3[2] = u[OFF_BSDF_DIR + 1];
     pt_vec3 wi_l;
     float pdf;
-    pt_vec3 weight = bsdf_sample(&bsdf, wo_l, u3, &wi_l, &pdf, cos_wi, features);
+    pt_vec3 weight = bsdf_sample(&bsdf, wo_l, u3, &wi_l, &pdf, features);
     if (!(pdf > 0.0f) || !any_positive(weight))
         return ret;
     pt_vec3 wi = pt_frame_to_world(&fr, wi_l);
@@ -513,6 +525,220 @@ static inline void trace_shadow(const pt_renderer *r, path *pa, const shadow_ray
         pa->L = pt_v3_add(pa->L, sr->contrib);
 }
 
+/* Paths in flight in the tile loop, and the most pixels they come from. */
+#define BATCH 64u
+#define BATCH_PIXELS 16u
+_Static_assert(BATCH <= PT_LIGHT_PICKS && BATCH % 8 == 0, "a stage's light picks fit");
+
+/*
+ * The Lambert variants' shading (no PT_FEAT_GLOSSY), 8 paths per step in SIMD
+ * lanes: everything shade() does after the hit's emission - the light
+ * sample's distance, direction and pdf (pt_lights_sample's arithmetic,
+ * pt_light_lanes_pdf), the normal flips, the frame (Duff et al. 2017), the
+ * Lambert eval, the power heuristic, the shadow ray with its offsets
+ * (Waechter & Binder) and contribution, the cosine-sampled continuation,
+ * Russian roulette and the next ray - with shade()'s float operations in its
+ * order (IEEE arithmetic, no contraction; the square roots and divisions are
+ * correctly rounded either way) and its branches as masks: every path gets
+ * the same bits as li_impl gives it. A lane that the scalar code would reject
+ * early computes on harmlessly (NaNs or infinities, no traps) and is masked.
+ *
+ * The inputs are a stage's structure of arrays, by position in live[],
+ * filled where they are computed (surface_at, the light picks, the cosine
+ * sampler), so that only the paths' own state is gathered per lane. Moving
+ * one stage alone into lanes measured no faster: the copies into and out of
+ * lanes cost what the lanes saved (docs/bench/throughput.md).
+ */
+typedef struct stage_lanes {
+    float p[3][BATCH];       /* hit point */
+    float ng[3][BATCH];      /* geometric normal, unflipped */
+    float ns[3][BATCH];      /* shading normal */
+    float diffuse[3][BATCH]; /* Lambert albedo (material_bsdf) */
+    float cos_wi[3][BATCH];  /* pt_sample_cosine_hemisphere of the bounce's numbers */
+    pt_light_picks lights;   /* when NEE runs */
+} stage_lanes;
+
+/* Lanes j0..j0+7 of an array (of floats, or with V8I_LOAD of int32s). */
+#define V8_LANES(arr, j0)                                                                          \
+    {                                                                                              \
+        (arr)[j0], (arr)[(j0) + 1], (arr)[(j0) + 2], (arr)[(j0) + 3], (arr)[(j0) + 4],             \
+            (arr)[(j0) + 5], (arr)[(j0) + 6], (arr)[(j0) + 7]                                      \
+    }
+#define V8_LOAD(arr, j0) ((v8f)V8_LANES(arr, j0))
+#define V8I_LOAD(arr, j0) ((v8i)V8_LANES(arr, j0))
+#define V8_SPLAT(x) ((v8f){0} + (x))
+#define V8_NEG_IF(m, x) ((v8f)((v8i)(x) ^ ((m) & (int32_t)0x80000000)))
+#define V8_DOT(ax, ay, az, bx, by, bz) ((ax) * (bx) + (ay) * (by) + (az) * (bz))
+/* any_positive, per lane */
+#define V8_ANY_POS(x, y, z) (((x) > 0.0f) | ((y) > 0.0f) | ((z) > 0.0f))
+
+/* pt_offset_coord in lanes. */
+static inline __attribute__((always_inline)) void offset8(pt_offset off, const v8f *p, const v8f *n,
+                                                          v8f *out)
+{
+    v8f c = V8_SELECT(*n < 1.0f, V8_SELECT(*n > -1.0f, *n, V8_SPLAT(-1.0f)), V8_SPLAT(1.0f));
+    v8i of = __builtin_convertvector(PT_OFFSET_INT_SCALE * c, v8i);
+    v8u bits = (v8u)*p + (v8u)((-of & (*p < 0.0f)) | (of & ~(*p < 0.0f)));
+    v8f near = *p + off.float_scale * *n;
+    v8f ap = (v8f)((v8i)*p & 0x7fffffff);
+    *out = V8_SELECT(ap < off.origin, near, (v8f)bits);
+}
+
+/* Lanes j0..j0+7 of a stage (m < 8: lanes past m repeat the last path and
+ * are not written): each path's shadow ray into sr[k] and its next ray, for
+ * k = live[j0 + l]; flags[l] gets shade()'s SHADE_ bits. nee: NEE runs
+ * (r->nee, and the scene has emitters). Compiled for AVX2 and the baseline. */
+PT_SIMD_CLONES
+static void shade_lanes(const pt_renderer *r, path *paths, const uint8_t *live, uint32_t j0,
+                        uint32_t m, const stage_lanes *sl, const float (*u)[DIM_PER_BOUNCE],
+                        int nee, shadow_ray *sr, uint8_t *flags)
+{
+    path *pp[8];
+    const float *ul[8];
+    for (uint32_t l = 0; l < 8; l++) {
+        uint32_t j = j0 + (l < m ? l : m - 1);
+        pp[l] = &paths[live[j]];
+        ul[l] = u[j];
+    }
+#define GATHER(f) {pp[0]->f, pp[1]->f, pp[2]->f, pp[3]->f, pp[4]->f, pp[5]->f, pp[6]->f, pp[7]->f}
+    v8f wox = -(v8f)GATHER(d.x), woy = -(v8f)GATHER(d.y), woz = -(v8f)GATHER(d.z);
+    v8f btx = GATHER(beta.x), bty = GATHER(beta.y), btz = GATHER(beta.z);
+    v8u depth = GATHER(depth);
+#undef GATHER
+    v8f urr = {ul[0][OFF_RR], ul[1][OFF_RR], ul[2][OFF_RR], ul[3][OFF_RR],
+               ul[4][OFF_RR], ul[5][OFF_RR], ul[6][OFF_RR], ul[7][OFF_RR]};
+    v8f px = V8_LOAD(sl->p[0], j0), py = V8_LOAD(sl->p[1], j0), pz = V8_LOAD(sl->p[2], j0);
+    v8f ngx = V8_LOAD(sl->ng[0], j0), ngy = V8_LOAD(sl->ng[1], j0), ngz = V8_LOAD(sl->ng[2], j0);
+    v8f nsx = V8_LOAD(sl->ns[0], j0), nsy = V8_LOAD(sl->ns[1], j0), nsz = V8_LOAD(sl->ns[2], j0);
+    v8f dfx = V8_LOAD(sl->diffuse[0], j0), dfy = V8_LOAD(sl->diffuse[1], j0),
+        dfz = V8_LOAD(sl->diffuse[2], j0);
+    v8i go = (v8i)(depth < (v8u){0} + r->params.max_depth);
+
+    /* shade()'s normal flips: ng towards wo, ns into ng's side, ng when ns
+     * faces away from the viewer. */
+    v8i flip = V8_DOT(ngx, ngy, ngz, wox, woy, woz) < 0.0f;
+    ngx = V8_NEG_IF(flip, ngx);
+    ngy = V8_NEG_IF(flip, ngy);
+    ngz = V8_NEG_IF(flip, ngz);
+    flip = V8_DOT(nsx, nsy, nsz, ngx, ngy, ngz) < 0.0f;
+    nsx = V8_NEG_IF(flip, nsx);
+    nsy = V8_NEG_IF(flip, nsy);
+    nsz = V8_NEG_IF(flip, nsz);
+    v8i away = V8_DOT(nsx, nsy, nsz, wox, woy, woz) <= 0.0f;
+    nsx = V8_SELECT(away, ngx, nsx);
+    nsy = V8_SELECT(away, ngy, nsy);
+    nsz = V8_SELECT(away, ngz, nsz);
+    /* pt_frame_from_normal(ns) */
+    v8f sign = (v8f)(((v8i)nsz & (int32_t)0x80000000) | 0x3f800000); /* copysignf(1, z) */
+    v8f fa = -1.0f / (sign + nsz);
+    v8f fb = nsx * nsy * fa;
+    v8f tx = 1.0f + sign * nsx * nsx * fa, ty = sign * fb, tz = -sign * nsx;
+    v8f bx = fb, by = sign + nsy * nsy * fa, bz = -nsy;
+    v8f wolz = V8_DOT(wox, woy, woz, nsx, nsy, nsz);
+    v8f ox, oy, oz; /* the shadow ray's and the next ray's origin */
+    offset8(r->offset, &px, &ngx, &ox);
+    offset8(r->offset, &py, &ngy, &oy);
+    offset8(r->offset, &pz, &ngz, &oz);
+
+    v8i shadow = {0};
+    v8f sdx = {0}, sdy = {0}, sdz = {0}, sdist = {0}, cx = {0}, cy = {0}, cz = {0};
+    if (nee) {
+        const pt_light_picks *lp = &sl->lights;
+        v8f lpx = V8_LOAD(lp->pos[0], j0), lpy = V8_LOAD(lp->pos[1], j0),
+            lpz = V8_LOAD(lp->pos[2], j0);
+        v8f lnx = V8_LOAD(lp->normal[0], j0), lny = V8_LOAD(lp->normal[1], j0),
+            lnz = V8_LOAD(lp->normal[2], j0);
+        v8f lrx = V8_LOAD(lp->radiance[0], j0), lry = V8_LOAD(lp->radiance[1], j0),
+            lrz = V8_LOAD(lp->radiance[2], j0);
+        v8f pmf_area = V8_LOAD(lp->pmf_area, j0);
+        v8i two_sided = V8I_LOAD(lp->two_sided, j0);
+        /* pt_lights_sample: d = x - p. */
+        v8f dx = lpx - px, dy = lpy - py, dz = lpz - pz;
+        v8f d2 = V8_DOT(dx, dy, dz, dx, dy, dz), ndot = V8_DOT(lnx, lny, lnz, dx, dy, dz);
+        v8f ldist, inv, lpdf;
+        v8i lok;
+        pt_light_lanes_pdf(&d2, &ndot, &pmf_area, &two_sided, &ldist, &inv, &lpdf, &lok);
+        v8f wix = dx * inv, wiy = dy * inv, wiz = dz * inv;
+        shadow =
+            go & lok & V8_ANY_POS(lrx, lry, lrz) & (V8_DOT(wix, wiy, wiz, ngx, ngy, ngz) > 0.0f);
+        /* bsdf_eval at the light's direction in the frame. */
+        v8f wilz = V8_DOT(wix, wiy, wiz, nsx, nsy, nsz);
+        v8f ce = wilz * PT_INV_PI;
+        v8f fx = dfx * ce, fy = dfy * ce, fz = dfz * ce;
+        shadow &= (wolz > 0.0f) & (wilz > 0.0f) & V8_ANY_POS(fx, fy, fz);
+        v8i back = V8_DOT(lnx, lny, lnz, wix, wiy, wiz) > 0.0f;
+        lnx = V8_NEG_IF(back, lnx);
+        lny = V8_NEG_IF(back, lny);
+        lnz = V8_NEG_IF(back, lnz);
+        v8f tox, toy, toz;
+        offset8(r->offset, &lpx, &lnx, &tox);
+        offset8(r->offset, &lpy, &lny, &toy);
+        offset8(r->offset, &lpz, &lnz, &toz);
+        sdx = tox - ox;
+        sdy = toy - oy;
+        sdz = toz - oz;
+        v8f sd2 = V8_DOT(sdx, sdy, sdz, sdx, sdy, sdz);
+        pt_v8_sqrt(&sdist, &sd2);
+        v8f sinv = (v8f)((v8i)(1.0f / sdist) & (sdist > 0.0f));
+        sdx = sdx * sinv;
+        sdy = sdy * sinv;
+        sdz = sdz * sinv;
+        v8f w = V8_SPLAT(1.0f);
+        if (r->params.light_strategy == PT_LIGHT_MIS) {
+            /* power_heuristic(lpdf, ce) */
+            v8f ha = lpdf * lpdf, hb = ce * ce;
+            w = (v8f)((v8i)(ha / (ha + hb)) & (ha + hb > 0.0f));
+        }
+        w = w / lpdf;
+        cx = btx * ((fx * lrx) * w);
+        cy = bty * ((fy * lry) * w);
+        cz = btz * ((fz * lrz) * w);
+    }
+
+    /* bsdf_sample with the cosine direction, and the checks after it. */
+    v8f cwx = V8_LOAD(sl->cos_wi[0], j0), cwy = V8_LOAD(sl->cos_wi[1], j0),
+        cwz = V8_LOAD(sl->cos_wi[2], j0);
+    v8f pdf = cwz * PT_INV_PI;
+    v8f ipdf = 1.0f / pdf;
+    v8f wx = dfx * pdf * ipdf, wy = dfy * pdf * ipdf, wz = dfz * pdf * ipdf;
+    v8i cont = go & (wolz > 0.0f) & (cwz > 0.0f) & (pdf > 0.0f) & V8_ANY_POS(wx, wy, wz);
+    v8f dx = tx * cwx + bx * cwy + nsx * cwz, dy = ty * cwx + by * cwy + nsy * cwz,
+        dz = tz * cwx + bz * cwy + nsz * cwz; /* pt_frame_to_world */
+    cont &= V8_DOT(dx, dy, dz, ngx, ngy, ngz) > 0.0f;
+    btx = btx * wx;
+    bty = bty * wy;
+    btz = btz * wz;
+    /* Russian roulette: max2(x, max2(y, z)), capped at 0.95. */
+    v8f mx = V8_SELECT((bty > btz) | (btz != btz), bty, btz);
+    mx = V8_SELECT((btx > mx) | (mx != mx), btx, mx);
+    v8f survive = V8_SELECT(mx < 0.95f, mx, V8_SPLAT(0.95f));
+    v8i roulette = (v8i)(depth + 1u >= (v8u){0} + r->params.rr_depth);
+    cont &= ~roulette | (urr < survive);
+    v8f isurv = 1.0f / survive;
+    btx = V8_SELECT(roulette, btx * isurv, btx);
+    bty = V8_SELECT(roulette, bty * isurv, bty);
+    btz = V8_SELECT(roulette, btz * isurv, btz);
+
+    /* Written whatever the masks, without branches on them (they are
+     * random): a shadow ray is read only under SHADE_SHADOW, and a path that
+     * ends is read no more except for its L, which is not written here. */
+    for (uint32_t l = 0; l < m; l++) {
+        path *pa = pp[l];
+        shadow_ray *s = &sr[live[j0 + l]];
+        s->from = pt_v3(ox[l], oy[l], oz[l]);
+        s->dir = pt_v3(sdx[l], sdy[l], sdz[l]);
+        s->dist = sdist[l];
+        s->contrib = pt_v3(cx[l], cy[l], cz[l]);
+        pa->beta = pt_v3(btx[l], bty[l], btz[l]);
+        pa->prev_p = pt_v3(px[l], py[l], pz[l]);
+        pa->prev_pdf = pdf[l];
+        pa->o = pt_v3(ox[l], oy[l], oz[l]);
+        pa->d = pt_v3(dx[l], dy[l], dz[l]);
+        pa->depth++;
+        flags[l] = (uint8_t)((shadow[l] & SHADE_SHADOW) | (cont[l] & SHADE_CONTINUE));
+    }
+}
+
 /* One path, start to end: the reference that the batched tile loop below
  * must match bit for bit (tested through pt_render_sample). */
 static inline __attribute__((always_inline)) pt_vec3 li_impl(const pt_renderer *r, pixel_ctx *pc,
@@ -537,7 +763,7 @@ static inline __attribute__((always_inline)) pt_vec3 li_impl(const pt_renderer *
         surface_at(r, &hit, &sf, features);
         pt_light_sample ls;
         int ls_ok = bounce_light(r, &sf, u, &ls, features);
-        uint32_t st = shade(r, &pa, &hit, u, &sf, &ls, ls_ok, NULL, &sr, features);
+        uint32_t st = shade(r, &pa, &hit, u, &sf, &ls, ls_ok, &sr, features);
         if (st & SHADE_SHADOW) {
             rays++;
             trace_shadow(r, &pa, &sr, NULL);
@@ -554,10 +780,6 @@ static inline __attribute__((always_inline)) pt_vec3 li_impl(const pt_renderer *
  * call (pt_lights_sample_n): about where their entries and alias columns
  * (80 bytes a light) outgrow a 32 KiB level-1 data cache. */
 #define LIGHTS_N_MIN 512u
-
-/* Paths in flight in the tile loop, and the most pixels they come from. */
-#define BATCH 64u
-#define BATCH_PIXELS 16u
 
 /* bounce_light for the n surfaces of a stage (NEE runs), in one call to
  * pt_lights_sample_n: the same bits. The random reads of many lights' entries
@@ -585,18 +807,21 @@ static __attribute__((noinline)) void lights_stage(const pt_renderer *r, uint32_
 /*
  * Traces n paths (all started) to their ends, stage by stage over all live
  * paths: the closest hits, the bounce's numbers (one sampler call, SIMD), the
- * surfaces, the light samples, the cosine directions (Lambert variants, SIMD),
- * the shading, the shadow rays. Each path does exactly what li_impl does, in
+ * surfaces, the light samples, the shading, the shadow rays. The Lambert
+ * variants shade in SIMD lanes, 8 paths a step (shade_lanes), from the cosine
+ * directions, surfaces and light picks of the stage written straight into
+ * lanes. Each path does exactly what li_impl does, in
  * the same order, so its L is the same bits; but the loops' iterations are
  * independent paths, so the processor overlaps one path's long dependency
  * chains (the square roots and divisions) with its neighbours' instead of
  * waiting on each in turn, and the ray queries run back to back. This is a
  * small wavefront (Laine, Karras & Aila 2013, "Megakernels Considered
- * Harmful") kept on the stack: about 60 KB with tile_impl's, most of it the
- * pixels' sampler seeds.
+ * Harmful") kept on the stack: about 70 KB with tile_impl's, most of it the
+ * pixels' sampler seeds. sl holds the Lambert variants' lanes (NULL in the
+ * others).
  */
 static inline __attribute__((always_inline)) uint64_t trace_batch(const pt_renderer *r, path *paths,
-                                                                  uint32_t n,
+                                                                  uint32_t n, stage_lanes *sl,
                                                                   const uint32_t features,
                                                                   const pt_ray_sink *sink)
 {
@@ -605,7 +830,7 @@ static inline __attribute__((always_inline)) uint64_t trace_batch(const pt_rende
     const pt_sample_group *groups[BATCH];
     pt_sample_group deep[BATCH];
     uint32_t index[BATCH];
-    pt_vec3 cos_wi[BATCH]; /* by position in live[] */
+    uint8_t flags[BATCH];
     surface sfs[BATCH];
     pt_light_sample lss[BATCH];
     int ls_ok[BATCH];
@@ -633,28 +858,67 @@ static inline __attribute__((always_inline)) uint64_t trace_batch(const pt_rende
             index[j] = pa->index;
         }
         pt_sample_group_eval_n(groups, index, nh, u);
-        /* Without glossy lobes every bounce that samples its BSDF samples the
-         * cosine hemisphere with these numbers: all of them at once, in SIMD
-         * lanes (the same bits). */
-        if (!(features & PT_FEAT_GLOSSY))
-            pt_sample_cosine_hemisphere_n(&u[0][OFF_BSDF_DIR], DIM_PER_BOUNCE, nh, cos_wi);
-        for (uint32_t j = 0; j < nh; j++)
-            surface_at(r, &hits[live[j]], &sfs[j], features);
-        if ((features & PT_FEAT_EMITTERS) && r->nee_n) {
-            lights_stage(r, nh, sfs, u, lss, ls_ok);
+        uint32_t ns = 0, nc = 0;
+        if (!(features & PT_FEAT_GLOSSY)) {
+            /* Lambert: every bounce that samples its BSDF samples the cosine
+             * hemisphere with these numbers, all at once in lanes; the
+             * surfaces and light picks go into lanes too, then the shading
+             * (shade_lanes). Only the hits' emission stays per path. */
+            pt_sample_cosine_hemisphere_n(&u[0][OFF_BSDF_DIR], DIM_PER_BOUNCE, nh, sl->cos_wi[0],
+                                          sl->cos_wi[1], sl->cos_wi[2]);
+            for (uint32_t j = 0; j < nh; j++) {
+                uint32_t k = live[j];
+                surface sf;
+                surface_at(r, &hits[k], &sf, features);
+                shade_emission(r, &paths[k], &hits[k], &sf, features);
+                pt_bsdf b = material_bsdf(r, &sf, features);
+                sl->p[0][j] = sf.p.x;
+                sl->p[1][j] = sf.p.y;
+                sl->p[2][j] = sf.p.z;
+                sl->ng[0][j] = sf.ng.x;
+                sl->ng[1][j] = sf.ng.y;
+                sl->ng[2][j] = sf.ng.z;
+                sl->ns[0][j] = sf.ns.x;
+                sl->ns[1][j] = sf.ns.y;
+                sl->ns[2][j] = sf.ns.z;
+                sl->diffuse[0][j] = b.diffuse.x;
+                sl->diffuse[1][j] = b.diffuse.y;
+                sl->diffuse[2][j] = b.diffuse.z;
+            }
+            int nee = (features & PT_FEAT_EMITTERS) && r->nee;
+            if (nee)
+                pt_lights_pick_n(r->lights, r->scene, nh, &u[0][OFF_LIGHT_PICK],
+                                 &u[0][OFF_LIGHT_POINT], DIM_PER_BOUNCE, &sl->lights);
+            for (uint32_t j0 = 0; j0 < nh; j0 += 8)
+                shade_lanes(r, paths, live, j0, nh - j0 < 8 ? nh - j0 : 8, sl,
+                            (const float(*)[DIM_PER_BOUNCE])u, nee, sr, &flags[j0]);
+            /* Without branches on the flags, which are random: each path is
+             * written to both lists and counted where its flag is set. */
+            for (uint32_t j = 0; j < nh; j++) {
+                uint8_t k = live[j];
+                shadowed[ns] = k;
+                ns += flags[j] & SHADE_SHADOW;
+                live[nc] = k; /* nc <= j: compaction in place */
+                nc += (flags[j] & SHADE_CONTINUE) >> 1;
+            }
         } else {
             for (uint32_t j = 0; j < nh; j++)
-                ls_ok[j] = bounce_light(r, &sfs[j], u[j], &lss[j], features);
-        }
-        uint32_t ns = 0, nc = 0;
-        for (uint32_t j = 0; j < nh; j++) {
-            uint32_t k = live[j];
-            uint32_t st = shade(r, &paths[k], &hits[k], u[j], &sfs[j], &lss[j], ls_ok[j],
-                                (features & PT_FEAT_GLOSSY) ? NULL : &cos_wi[j], &sr[k], features);
-            if (st & SHADE_SHADOW)
-                shadowed[ns++] = (uint8_t)k;
-            if (st & SHADE_CONTINUE)
-                live[nc++] = (uint8_t)k; /* nc <= j: compaction in place */
+                surface_at(r, &hits[live[j]], &sfs[j], features);
+            if ((features & PT_FEAT_EMITTERS) && r->nee_n) {
+                lights_stage(r, nh, sfs, u, lss, ls_ok);
+            } else {
+                for (uint32_t j = 0; j < nh; j++)
+                    ls_ok[j] = bounce_light(r, &sfs[j], u[j], &lss[j], features);
+            }
+            for (uint32_t j = 0; j < nh; j++) {
+                uint32_t k = live[j];
+                uint32_t st = shade(r, &paths[k], &hits[k], u[j], &sfs[j], &lss[j], ls_ok[j],
+                                    &sr[k], features);
+                if (st & SHADE_SHADOW)
+                    shadowed[ns++] = (uint8_t)k;
+                if (st & SHADE_CONTINUE)
+                    live[nc++] = (uint8_t)k; /* nc <= j: compaction in place */
+            }
         }
         rays += ns;
         for (uint32_t j = 0; j < ns; j++)
@@ -673,7 +937,7 @@ static inline __attribute__((always_inline)) uint64_t trace_batch(const pt_rende
  */
 static inline __attribute__((always_inline)) void
 tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel_acc *out,
-          pt_render_stats *stats, const uint32_t features, const pt_ray_sink *sink)
+          pt_render_stats *stats, stage_lanes *sl, const uint32_t features, const pt_ray_sink *sink)
 {
     pt_render_stats local = {0, 0, 0};
     uint32_t tw = tile.x1 - tile.x0, npix = tw * (tile.y1 - tile.y0);
@@ -700,7 +964,7 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
             for (uint32_t g = 0; g < np; g++)
                 for (uint32_t i = 0; i < nb; i++)
                     path_start(r, &pcs[g], b0 + i, &paths[g * nb + i]);
-            local.rays += trace_batch(r, paths, np * nb, features, sink);
+            local.rays += trace_batch(r, paths, np * nb, sl, features, sink);
             for (uint32_t g = 0; g < np; g++) {
                 pt_pixel_acc blk = {{0, 0, 0}, 0, 0, 0};
                 for (uint32_t i = 0; i < nb; i++)
@@ -729,7 +993,16 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
     static void tile_name(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,            \
                           pt_pixel_acc *out, pt_render_stats *stats)                               \
     {                                                                                              \
-        tile_impl(r, tile, s0, s1, out, stats, (feat), NULL);                                      \
+        if ((feat)&PT_FEAT_GLOSSY) {                                                               \
+            tile_impl(r, tile, s0, s1, out, stats, NULL, (feat), NULL);                            \
+        } else {                                                                                   \
+            /* Lanes past a stage's paths compute on zeros or an earlier                           \
+             * stage's values, not on what the stack held (which could be                          \
+             * slow denormals). */                                                                 \
+            stage_lanes sl;                                                                        \
+            memset(&sl, 0, sizeof sl);                                                             \
+            tile_impl(r, tile, s0, s1, out, stats, &sl, (feat), NULL);                             \
+        }                                                                                          \
     }
 #define NO_TEX (uint32_t)(PT_FEAT_TEXTURES | PT_FEAT_EMISSIVE_TEX)
 VARIANT(li_general, tile_general, ALL_FEATURES)
@@ -835,5 +1108,5 @@ void pt_render_tile(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1
 void pt_render_tile_traced(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,
                            pt_pixel_acc *out, const pt_ray_sink *sink)
 {
-    tile_impl(r, tile, s0, s1, out, NULL, ALL_FEATURES, sink);
+    tile_impl(r, tile, s0, s1, out, NULL, NULL, ALL_FEATURES, sink);
 }

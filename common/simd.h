@@ -1,22 +1,49 @@
 /*
  * simd.h - the 8-lane vector types (GCC/Clang vector extensions) of the
- * sampler's, the cosine map's and the light sampler's SIMD loops, and the
- * attribute that compiles such a loop for AVX2 and for the x86-64 baseline,
- * the loader picking one per CPU (target_clones).
+ * sampler's, the cosine map's, the light sampler's and the Lambert shading's
+ * SIMD loops; the attribute that compiles such a loop for AVX2 and for the
+ * x86-64 baseline, the loader picking one per CPU (target_clones); the lanes'
+ * select and square root.
  */
 #ifndef PT_COMMON_SIMD_H
 #define PT_COMMON_SIMD_H
 
 #include <stdint.h>
+#include <string.h>
+
+#if defined(__SSE__)
+#include <immintrin.h>
+#endif
 
 typedef uint32_t v8u __attribute__((vector_size(32)));
 typedef int32_t v8i __attribute__((vector_size(32)));
 typedef float v8f __attribute__((vector_size(32)));
+
+/* Per lane: m ? a : b (m a v8i mask of all-ones or zero lanes). */
+#define V8_SELECT(m, a, b) ((v8f)(((v8i)(a) & (m)) | ((v8i)(b) & ~(m))))
 
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && defined(__linux__)
 #define PT_SIMD_CLONES __attribute__((target_clones("avx2", "default")))
 #else
 #define PT_SIMD_CLONES
 #endif
+
+/* *r = sqrtf of each lane of *x: correctly rounded, so the same bits as the
+ * scalar code's. Two SSE instructions where there is SSE (the x86-64
+ * baseline), as C has no portable vector square root. Vectors go by pointer:
+ * passed by value they would have another ABI in the AVX2 clones. */
+static inline __attribute__((always_inline)) void pt_v8_sqrt(v8f *r, const v8f *x)
+{
+#if defined(__SSE__)
+    float xs[8], rs[8];
+    memcpy(xs, x, sizeof xs);
+    _mm_storeu_ps(rs, _mm_sqrt_ps(_mm_loadu_ps(xs)));
+    _mm_storeu_ps(rs + 4, _mm_sqrt_ps(_mm_loadu_ps(xs + 4)));
+    memcpy(r, rs, sizeof rs);
+#else
+    for (int l = 0; l < 8; l++)
+        (*r)[l] = __builtin_sqrtf((*x)[l]);
+#endif
+}
 
 #endif

@@ -666,7 +666,7 @@ static void test_cosine_n(void)
 {
     enum { N = 700, STRIDE = 3 };
     static float u[N * STRIDE];
-    static pt_vec3 out[N];
+    static float out[3][N]; /* x, y, z */
     uint64_t rng = 12345;
     for (uint32_t k = 0; k < N; k++) {
         float a, b;
@@ -687,18 +687,21 @@ static void test_cosine_n(void)
     int bad = 0;
     for (uint32_t n = 0; n <= 20; n++) {
         memset(out, 0xff, sizeof out);
-        pt_sample_cosine_hemisphere_n(u, STRIDE, n, out);
+        pt_sample_cosine_hemisphere_n(u, STRIDE, n, out[0], out[1], out[2]);
         for (uint32_t k = 0; k < n; k++) {
             pt_vec3 w = pt_sample_cosine_hemisphere(u[k * STRIDE], u[k * STRIDE + 1]);
-            bad += memcmp(&w, &out[k], sizeof w) != 0;
+            pt_vec3 o = pt_v3(out[0][k], out[1][k], out[2][k]);
+            bad += memcmp(&w, &o, sizeof w) != 0;
         }
         uint32_t first_bad = 0xffffffffu; /* nothing past n is written */
-        bad += memcmp(&out[n], &first_bad, sizeof first_bad) != 0;
+        for (int c = 0; c < 3; c++)
+            bad += memcmp(&out[c][n], &first_bad, sizeof first_bad) != 0;
     }
-    pt_sample_cosine_hemisphere_n(u, STRIDE, N, out);
+    pt_sample_cosine_hemisphere_n(u, STRIDE, N, out[0], out[1], out[2]);
     for (uint32_t k = 0; k < N; k++) {
         pt_vec3 w = pt_sample_cosine_hemisphere(u[k * STRIDE], u[k * STRIDE + 1]);
-        bad += memcmp(&w, &out[k], sizeof w) != 0;
+        pt_vec3 o = pt_v3(out[0][k], out[1][k], out[2][k]);
+        bad += memcmp(&w, &o, sizeof w) != 0;
     }
     CHECKF(bad == 0, "%d SIMD cosine samples differ from the scalar ones", bad);
 }

@@ -241,7 +241,7 @@ static void cornell_finite(void)
  * pt_render_tile documents: per aligned block of PT_SAMPLE_BLOCK in sample
  * order, then block sums in order. */
 static void batched_as_single(const pt_scene *s, uint32_t extra, uint32_t strategy, uint32_t s0,
-                              uint32_t s1)
+                              uint32_t s1, uint32_t max_depth)
 {
     enum { W = 9, H = 7 };
     pt_render_params p = {0};
@@ -251,6 +251,8 @@ static void batched_as_single(const pt_scene *s, uint32_t extra, uint32_t strate
     p.seed = 11;
     p.light_strategy = strategy;
     p.extra_features = extra;
+    if (max_depth)
+        p.max_depth = max_depth;
     pt_renderer *r = NULL;
     CHECK(pt_renderer_new(s, &p, &r, NULL) == PT_OK);
     if (!r)
@@ -282,13 +284,14 @@ static void batched_as_single(const pt_scene *s, uint32_t extra, uint32_t strate
     pt_renderer_free(r);
 }
 
-static void batched(const pt_scene *s)
+/* max_depth 0: the default. */
+static void batched(const pt_scene *s, uint32_t max_depth)
 {
     const uint32_t ranges[][2] = {{0, 1}, {0, 3}, {5, 21}, {0, 40}, {16, 32}};
     for (uint32_t k = 0; k < sizeof ranges / sizeof ranges[0]; k++)
         for (uint32_t strategy = 0; strategy < 3; strategy++) {
-            batched_as_single(s, 0, strategy, ranges[k][0], ranges[k][1]);
-            batched_as_single(s, 0xffffffffu, strategy, ranges[k][0], ranges[k][1]);
+            batched_as_single(s, 0, strategy, ranges[k][0], ranges[k][1], max_depth);
+            batched_as_single(s, 0xffffffffu, strategy, ranges[k][0], ranges[k][1], max_depth);
         }
 }
 
@@ -402,24 +405,82 @@ static pt_scene *textured_lambert_scene(uint32_t grid)
     return s;
 }
 
+/*
+ * Lambert surfaces that reach the shading lanes' rarer masks: a floor and a
+ * back wall whose vertex normals lean far from the geometric ones (the
+ * shading normal flipped, or replaced when it faces away from the viewer),
+ * lit by a vertical single-sided light that half of the floor sees from
+ * behind (light samples rejected) and by a horizontal double-sided light
+ * that the floor sees from behind (accepted).
+ */
+static pt_scene *lanes_edge_scene(void)
+{
+    pt_scene_builder *b = NULL;
+    CHECK(pt_scene_builder_new(&b, NULL) == PT_OK);
+    pt_material grey = pt_material_default();
+    grey.metallic = 0.0f;
+    grey.specular = 0.0f;
+    pt_material one = grey, two = grey;
+    one.emissive[0] = 4.0f, one.emissive[1] = 3.0f, one.emissive[2] = 2.0f;
+    two.emissive[0] = two.emissive[1] = two.emissive[2] = 2.0f;
+    two.double_sided = 1;
+    uint32_t mg = 0, m1 = 0, m2 = 0;
+    CHECK(pt_scene_builder_add_material(b, &grey, &mg, NULL) == PT_OK);
+    CHECK(pt_scene_builder_add_material(b, &one, &m1, NULL) == PT_OK);
+    CHECK(pt_scene_builder_add_material(b, &two, &m2, NULL) == PT_OK);
+    const float fp[] = {-1, 0, -1, 1, 0, -1, 1, 0, 1, -1, 0, 1};
+    const float fn[] = {0.9f, 0.3f, 0, -0.9f, 0.3f, 0, 0, 0.2f, 0.95f, 0, -0.3f, -0.9f};
+    const uint32_t quad[] = {0, 2, 1, 0, 3, 2};
+    CHECK(pt_scene_builder_add_mesh(b, "floor", fp, fn, NULL, 4, quad, 2, NULL, mg, NULL) == PT_OK);
+    const float wp[] = {-1, 0, -1, 1, 0, -1, 1, 1.5f, -1, -1, 1.5f, -1};
+    const float wn[] = {0.7f, 0, 0.7f, -0.7f, 0, -0.7f, 0, 0.95f, 0.3f, 0, -0.6f, 0.8f};
+    const uint32_t wquad[] = {0, 1, 2, 0, 2, 3};
+    CHECK(pt_scene_builder_add_mesh(b, "wall", wp, wn, NULL, 4, wquad, 2, NULL, mg, NULL) == PT_OK);
+    /* Facing +x (cross of its edges). */
+    const float lp[] = {0, 0.2f, -0.4f, 0, 0.8f, -0.4f, 0, 0.8f, 0.4f, 0, 0.2f, 0.4f};
+    const uint32_t lq[] = {0, 1, 2, 0, 2, 3};
+    CHECK(pt_scene_builder_add_mesh(b, "light", lp, NULL, NULL, 4, lq, 2, NULL, m1, NULL) == PT_OK);
+    const float tp[] = {0.3f, 1.2f, -0.3f, 0.8f, 1.2f, -0.3f, 0.8f, 1.2f, 0.2f, 0.3f, 1.2f, 0.2f};
+    CHECK(pt_scene_builder_add_mesh(b, "top", tp, NULL, NULL, 4, lq, 2, NULL, m2, NULL) == PT_OK);
+    pt_camera cam = {0};
+    cam.position = pt_v3(0.3f, 0.7f, 2.2f);
+    cam.forward = pt_v3_norm(pt_v3(-0.1f, -0.3f, -1));
+    cam.right = pt_v3_norm(pt_v3_cross(cam.forward, pt_v3(0, 1, 0)));
+    cam.up = pt_v3_cross(cam.right, cam.forward);
+    cam.yfov = 1.0f;
+    snprintf(cam.name, sizeof cam.name, "cam");
+    CHECK(pt_scene_builder_add_camera(b, &cam, NULL) == PT_OK);
+    pt_scene *s = NULL;
+    pt_error err = {0};
+    CHECKF(pt_scene_builder_finish(b, NULL, &s, &err) == PT_OK, "%s", err.msg);
+    return s;
+}
+
 static void variants(void)
 {
     pt_scene *s = load("scenes/cornell_box.gltf", 1.0f);
     if (s) {
         same_as_general(s, "lambert-untextured");
-        batched(s);
+        batched(s, 0);
+    }
+    pt_scene_free(s);
+    s = lanes_edge_scene();
+    if (s) {
+        same_as_general(s, "lambert-untextured");
+        batched(s, 0);
+        batched(s, 2); /* paths that end at max_depth */
     }
     pt_scene_free(s);
     s = textured_lambert_scene(1);
     if (s) {
         same_as_general(s, "lambert");
-        batched(s);
+        batched(s, 0);
     }
     pt_scene_free(s);
     s = textured_lambert_scene(16); /* 512 lights */
     if (s) {
         same_as_general(s, "lambert");
-        batched(s);
+        batched(s, 0);
     }
     pt_scene_free(s);
     /* The shared Cornell box has metals (glTF's default metallic 1): glossy. */
@@ -427,7 +488,7 @@ static void variants(void)
     snprintf(path, sizeof path, "%s/CornellBox/cornellBox.gltf", PT_SHARED_SCENES);
     if (pt_scene_load(path, NULL, &s, NULL) == PT_OK) {
         same_as_general(s, "untextured");
-        batched(s);
+        batched(s, 0);
         pt_scene_free(s);
     } else {
         CHECK(!check_shared_required());
