@@ -558,6 +558,14 @@ typedef struct stage_lanes {
     pt_light_picks lights;   /* when NEE runs */
 } stage_lanes;
 
+/* Stores v as lane j of a stage array. */
+static inline void lane_put(float a[3][BATCH], uint32_t j, pt_vec3 v)
+{
+    a[0][j] = v.x;
+    a[1][j] = v.y;
+    a[2][j] = v.z;
+}
+
 /* Lanes j0..j0+7 of an array (of floats, or with V8I_LOAD of int32s). */
 #define V8_LANES(arr, j0)                                                                          \
     {                                                                                              \
@@ -872,18 +880,10 @@ static inline __attribute__((always_inline)) uint64_t trace_batch(const pt_rende
                 surface_at(r, &hits[k], &sf, features);
                 shade_emission(r, &paths[k], &hits[k], &sf, features);
                 pt_bsdf b = material_bsdf(r, &sf, features);
-                sl->p[0][j] = sf.p.x;
-                sl->p[1][j] = sf.p.y;
-                sl->p[2][j] = sf.p.z;
-                sl->ng[0][j] = sf.ng.x;
-                sl->ng[1][j] = sf.ng.y;
-                sl->ng[2][j] = sf.ng.z;
-                sl->ns[0][j] = sf.ns.x;
-                sl->ns[1][j] = sf.ns.y;
-                sl->ns[2][j] = sf.ns.z;
-                sl->diffuse[0][j] = b.diffuse.x;
-                sl->diffuse[1][j] = b.diffuse.y;
-                sl->diffuse[2][j] = b.diffuse.z;
+                lane_put(sl->p, j, sf.p);
+                lane_put(sl->ng, j, sf.ng);
+                lane_put(sl->ns, j, sf.ns);
+                lane_put(sl->diffuse, j, b.diffuse);
             }
             int nee = (features & PT_FEAT_EMITTERS) && r->nee;
             if (nee)

@@ -327,6 +327,24 @@ static void same_as_general(pt_scene *s, const char *want_variant)
     pt_renderer_free(g);
 }
 
+/* Adds a camera "cam" (up completes the right-handed frame) and finishes b. */
+static pt_scene *finish_with_camera(pt_scene_builder *b, pt_vec3 position, pt_vec3 forward,
+                                    pt_vec3 right, float yfov)
+{
+    pt_camera cam = {0};
+    cam.position = position;
+    cam.forward = forward;
+    cam.right = right;
+    cam.up = pt_v3_cross(right, forward);
+    cam.yfov = yfov;
+    snprintf(cam.name, sizeof cam.name, "cam");
+    CHECK(pt_scene_builder_add_camera(b, &cam, NULL) == PT_OK);
+    pt_scene *s = NULL;
+    pt_error err = {0};
+    CHECKF(pt_scene_builder_finish(b, NULL, &s, &err) == PT_OK, "%s", err.msg);
+    return s;
+}
+
 /* A textured Lambertian floor lit by an emissive quad, built by code. With
  * grid > 1 the quad is grid x grid cells of two triangles, textured in its
  * emission too: with 512 triangles or more, the renderer samples a stage's
@@ -391,18 +409,8 @@ static pt_scene *textured_lambert_scene(uint32_t grid)
         pt_free(guv);
         pt_free(gidx);
     }
-    pt_camera cam = {0};
-    cam.position = pt_v3(0, 0.6f, 2.0f);
-    cam.forward = pt_v3_norm(pt_v3(0, -0.4f, -1));
-    cam.right = pt_v3(1, 0, 0);
-    cam.up = pt_v3_cross(cam.right, cam.forward);
-    cam.yfov = 0.9f;
-    snprintf(cam.name, sizeof cam.name, "cam");
-    CHECK(pt_scene_builder_add_camera(b, &cam, NULL) == PT_OK);
-    pt_scene *s = NULL;
-    pt_error err = {0};
-    CHECKF(pt_scene_builder_finish(b, NULL, &s, &err) == PT_OK, "%s", err.msg);
-    return s;
+    return finish_with_camera(b, pt_v3(0, 0.6f, 2.0f), pt_v3_norm(pt_v3(0, -0.4f, -1)),
+                              pt_v3(1, 0, 0), 0.9f);
 }
 
 /*
@@ -442,18 +450,9 @@ static pt_scene *lanes_edge_scene(void)
     CHECK(pt_scene_builder_add_mesh(b, "light", lp, NULL, NULL, 4, lq, 2, NULL, m1, NULL) == PT_OK);
     const float tp[] = {0.3f, 1.2f, -0.3f, 0.8f, 1.2f, -0.3f, 0.8f, 1.2f, 0.2f, 0.3f, 1.2f, 0.2f};
     CHECK(pt_scene_builder_add_mesh(b, "top", tp, NULL, NULL, 4, lq, 2, NULL, m2, NULL) == PT_OK);
-    pt_camera cam = {0};
-    cam.position = pt_v3(0.3f, 0.7f, 2.2f);
-    cam.forward = pt_v3_norm(pt_v3(-0.1f, -0.3f, -1));
-    cam.right = pt_v3_norm(pt_v3_cross(cam.forward, pt_v3(0, 1, 0)));
-    cam.up = pt_v3_cross(cam.right, cam.forward);
-    cam.yfov = 1.0f;
-    snprintf(cam.name, sizeof cam.name, "cam");
-    CHECK(pt_scene_builder_add_camera(b, &cam, NULL) == PT_OK);
-    pt_scene *s = NULL;
-    pt_error err = {0};
-    CHECKF(pt_scene_builder_finish(b, NULL, &s, &err) == PT_OK, "%s", err.msg);
-    return s;
+    pt_vec3 fwd = pt_v3_norm(pt_v3(-0.1f, -0.3f, -1));
+    return finish_with_camera(b, pt_v3(0.3f, 0.7f, 2.2f), fwd,
+                              pt_v3_norm(pt_v3_cross(fwd, pt_v3(0, 1, 0))), 1.0f);
 }
 
 static void variants(void)
