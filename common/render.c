@@ -64,6 +64,7 @@ struct pt_renderer {
     int nee;      /* next-event estimation runs: lights exist, the strategy uses them */
     int nee_n;    /* nee, with lights enough to sample them for a stage at once */
     const char *variant;
+    int lanes; /* the Lambert variants shade in lanes (shade_lanes) */
     float tan_half_fov;
 };
 
@@ -74,6 +75,7 @@ void pt_render_params_default(pt_render_params *p)
     p->rr_depth = 3;
     p->light_strategy = PT_LIGHT_MIS;
     p->extra_features = 0;
+    p->scalar_shading = 0;
 }
 
 const pt_render_params *pt_renderer_params(const pt_renderer *r)
@@ -83,6 +85,11 @@ const pt_render_params *pt_renderer_params(const pt_renderer *r)
 const char *pt_renderer_variant(const pt_renderer *r)
 {
     return r->variant;
+}
+
+int pt_renderer_lanes(const pt_renderer *r)
+{
+    return r->lanes;
 }
 
 /* Power heuristic with beta = 2 (Veach 1997, eq. 9.13). */
@@ -276,8 +283,10 @@ static inline pt_vec3 bsdf_eval(const pt_bsdf *b, pt_vec3 wo, pt_vec3 wi, float 
     return pt_v3_scale(b->diffuse, c);
 }
 
+/* cos_wi, when not NULL, is pt_sample_cosine_hemisphere(u[1], u[2]),
+ * computed ahead for many paths in lanes (Lambert variants only). */
 static inline pt_vec3 bsdf_sample(const pt_bsdf *b, pt_vec3 wo, const float u[3], pt_vec3 *wi,
-                                  float *pdf, const uint32_t features)
+                                  float *pdf, const pt_vec3 *cos_wi, const uint32_t features)
 {
     if (features & PT_FEAT_GLOSSY)
         return pt_bsdf_sample(b, wo, u, wi, pdf);
@@ -286,7 +295,7 @@ static inline pt_vec3 bsdf_sample(const pt_bsdf *b, pt_vec3 wo, const float u[3]
     *wi = pt_v3(0.0f, 0.0f, 1.0f);
     if (!(wo.z > 0.0f))
         return zero;
-    *wi = pt_sample_cosine_hemisphere(u[1], u[2]);
+    *wi = cos_wi ? *cos_wi : pt_sample_cosine_hemisphere(u[1], u[2]);
     if (!(wi->z > 0.0f))
         return zero;
     pt_vec3 f = bsdf_eval(b, wo, *wi, pdf, features);
@@ -434,8 +443,8 @@ static inline __attribute__((always_inline)) void shade_emission(const pt_render
  */
 static inline __attribute__((always_inline)) uint32_t
 shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_BOUNCE],
-      const surface *sf, const pt_light_sample *ls, int ls_ok, shadow_ray *sr,
-      const uint32_t features)
+      const surface *sf, const pt_light_sample *ls, int ls_ok, const pt_vec3 *cos_wi,
+      shadow_ray *sr, const uint32_t features)
 {
     const uint32_t strategy = r->params.light_strategy;
     uint32_t ret = 0;
@@ -487,7 +496,7 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     u3[2] = u[OFF_BSDF_DIR + 1];
     pt_vec3 wi_l;
     float pdf;
-    pt_vec3 weight = bsdf_sample(&bsdf, wo_l, u3, &wi_l, &pdf, features);
+    pt_vec3 weight = bsdf_sample(&bsdf, wo_l, u3, &wi_l, &pdf, cos_wi, features);
     if (!(pdf > 0.0f) || !any_positive(weight))
         return ret;
     pt_vec3 wi = pt_frame_to_world(&fr, wi_l);
@@ -771,7 +780,7 @@ static inline __attribute__((always_inline)) pt_vec3 li_impl(const pt_renderer *
         surface_at(r, &hit, &sf, features);
         pt_light_sample ls;
         int ls_ok = bounce_light(r, &sf, u, &ls, features);
-        uint32_t st = shade(r, &pa, &hit, u, &sf, &ls, ls_ok, &sr, features);
+        uint32_t st = shade(r, &pa, &hit, u, &sf, &ls, ls_ok, NULL, &sr, features);
         if (st & SHADE_SHADOW) {
             rays++;
             trace_shadow(r, &pa, &sr, NULL);
@@ -867,7 +876,7 @@ static inline __attribute__((always_inline)) uint64_t trace_batch(const pt_rende
         }
         pt_sample_group_eval_n(groups, index, nh, u);
         uint32_t ns = 0, nc = 0;
-        if (!(features & PT_FEAT_GLOSSY)) {
+        if (!(features & PT_FEAT_GLOSSY) && sl) {
             /* Lambert: every bounce that samples its BSDF samples the cosine
              * hemisphere with these numbers, all at once in lanes; the
              * surfaces and light picks go into lanes too, then the shading
@@ -902,6 +911,12 @@ static inline __attribute__((always_inline)) uint64_t trace_batch(const pt_rende
                 nc += (flags[j] & SHADE_CONTINUE) >> 1;
             }
         } else {
+            /* Lambert shaded per path (where lanes are slow): the cosine
+             * directions still all at once. */
+            float cw[3][BATCH];
+            if (!(features & PT_FEAT_GLOSSY))
+                pt_sample_cosine_hemisphere_n(&u[0][OFF_BSDF_DIR], DIM_PER_BOUNCE, nh, cw[0], cw[1],
+                                              cw[2]);
             for (uint32_t j = 0; j < nh; j++)
                 surface_at(r, &hits[live[j]], &sfs[j], features);
             if ((features & PT_FEAT_EMITTERS) && r->nee_n) {
@@ -912,7 +927,12 @@ static inline __attribute__((always_inline)) uint64_t trace_batch(const pt_rende
             }
             for (uint32_t j = 0; j < nh; j++) {
                 uint32_t k = live[j];
-                uint32_t st = shade(r, &paths[k], &hits[k], u[j], &sfs[j], &lss[j], ls_ok[j],
+                pt_vec3 c, *cp = NULL;
+                if (!(features & PT_FEAT_GLOSSY)) {
+                    c = pt_v3(cw[0][j], cw[1][j], cw[2][j]);
+                    cp = &c;
+                }
+                uint32_t st = shade(r, &paths[k], &hits[k], u[j], &sfs[j], &lss[j], ls_ok[j], cp,
                                     &sr[k], features);
                 if (st & SHADE_SHADOW)
                     shadowed[ns++] = (uint8_t)k;
@@ -993,7 +1013,7 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
     static void tile_name(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,            \
                           pt_pixel_acc *out, pt_render_stats *stats)                               \
     {                                                                                              \
-        if ((feat)&PT_FEAT_GLOSSY) {                                                               \
+        if (((feat)&PT_FEAT_GLOSSY) || !r->lanes) {                                                \
             tile_impl(r, tile, s0, s1, out, stats, NULL, (feat), NULL);                            \
         } else {                                                                                   \
             /* Lanes past a stage's paths compute on zeros or an earlier                           \
@@ -1064,6 +1084,11 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
     r->nee = pt_lights_count(r->lights) > 0 && params->light_strategy != PT_LIGHT_BSDF_ONLY;
     r->nee_n = r->nee && pt_lights_count(r->lights) >= LIGHTS_N_MIN;
     pick_variant(r, scene->features | params->extra_features);
+    /* Without fast lanes (an x86-64 processor without AVX2 runs shade_lanes'
+     * baseline clone, which does the lanes one by one) the per-path shading
+     * is faster: docs/bench/throughput.md, "Fourth round". */
+    r->lanes = !((scene->features | params->extra_features) & PT_FEAT_GLOSSY) &&
+               !params->scalar_shading && pt_simd_lanes_fast();
     *out = r;
     return PT_OK;
 fail:

@@ -78,6 +78,9 @@ typedef struct pt_render_params {
     uint32_t extra_features; /* PT_FEAT_* assumed present besides the scene's own, which
                                 picks a less specialised integrator (0xffffffff: the
                                 general one); for tests and benchmarks; default 0 */
+    uint32_t scalar_shading; /* 1: the Lambert variants shade one path at a time, as
+                                they do where SIMD lanes are slow (pt_simd_lanes_fast);
+                                the same bits; for tests and benchmarks; default 0 */
 } pt_render_params;
 
 typedef struct pt_render_stats {
@@ -102,6 +105,10 @@ const pt_render_params *pt_renderer_params(const pt_renderer *r);
 /* The integrator variant chosen for the scene ("general", "lambert", ...).
  * Every variant gives the same bits as the general one; it only skips work. */
 const char *pt_renderer_variant(const pt_renderer *r);
+
+/* 1 when the variant shades 8 paths at a time in SIMD lanes (the Lambert
+ * variants, on a processor where the lanes are fast). */
+int pt_renderer_lanes(const pt_renderer *r);
 
 /* Renders samples [s0, s1) of every pixel of tile and writes one pt_pixel_acc
  * per pixel (row-major over the tile, (x1-x0)*(y1-y0) entries, overwritten).

@@ -24,9 +24,30 @@ typedef float v8f __attribute__((vector_size(32)));
 
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && defined(__linux__)
 #define PT_SIMD_CLONES __attribute__((target_clones("avx2", "default")))
+#define PT_SIMD_HAVE_CLONES 1
 #else
 #define PT_SIMD_CLONES
+#define PT_SIMD_HAVE_CLONES 0
 #endif
+
+/* Whether 8-lane loops run in whole vector registers here. On x86-64 that
+ * takes AVX2: the clone the loader picks, or a build for it; the baseline
+ * (SSE2) does much of a long loop's lanes one by one. Other processors are
+ * taken to have their vector unit (AArch64's NEON is in its baseline). */
+static inline int pt_simd_lanes_fast(void)
+{
+#if defined(__x86_64__) && PT_SIMD_HAVE_CLONES
+    return __builtin_cpu_supports("avx2");
+#elif defined(__x86_64__)
+#if defined(__AVX2__)
+    return 1;
+#else
+    return 0;
+#endif
+#else
+    return 1;
+#endif
+}
 
 /* *r = sqrtf of each lane of *x: correctly rounded, so the same bits as the
  * scalar code's. Two SSE instructions where there is SSE (the x86-64

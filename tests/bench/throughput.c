@@ -15,7 +15,8 @@
  * same repetitions, the same render through every less specialised integrator
  * variant (render.h: pt_render_params.extra_features; up to the general one),
  * so the speed-up of the variant chosen for the scene (pt_renderer_variant)
- * over each is measured side by side.
+ * over each is measured side by side; a variant that shades in SIMD lanes
+ * (pt_renderer_lanes) also against itself shading one path at a time.
  *
  * The log holds the rays in the order the renderer traces them (tiles in
  * order, each tile's paths in batches: render.c, trace_batch), so the replay
@@ -196,7 +197,8 @@ int main(int argc, char **argv)
     }
     pt_error err = {0};
     pt_scene *scene = NULL;
-    pt_renderer *r = NULL, *alt[3] = {NULL, NULL, NULL};
+    pt_renderer *r = NULL, *alt[4] = {NULL, NULL, NULL, NULL};
+    const char *alt_name[4];
     int nalt = 0;
     pt_accel *accel = NULL;
     if (pt_scene_load(scene_path, NULL, &scene, &err) != PT_OK) {
@@ -225,10 +227,23 @@ int main(int argc, char **argv)
         int seen = !strcmp(pt_renderer_variant(v), pt_renderer_variant(r));
         for (int a = 0; a < nalt; a++)
             seen |= !strcmp(pt_renderer_variant(v), pt_renderer_variant(alt[a]));
-        if (seen)
+        if (seen) {
             pt_renderer_free(v);
-        else
+        } else {
+            alt_name[nalt] = pt_renderer_variant(v);
             alt[nalt++] = v;
+        }
+    }
+    /* A variant that shades in SIMD lanes, also one path at a time (what it
+     * does where lanes are slow). */
+    if (pt_renderer_lanes(r)) {
+        pt_render_params ps = p;
+        ps.scalar_shading = 1;
+        if (pt_renderer_new(scene, &ps, &alt[nalt], &err) != PT_OK) {
+            fprintf(stderr, "ptbench-throughput: %s\n", err.msg);
+            return 1;
+        }
+        alt_name[nalt++] = "per-path shading";
     }
 
     /* Capture the render's rays (at most 16M), tile by tile in the order the
@@ -261,7 +276,7 @@ int main(int argc, char **argv)
     for (size_t i = 0; i < log.n; i++)
         shadow += log.rays[i].occlusion;
 
-    double sps[100], rps[100], eps[100], ratio[100], asps[3][100], speedup[3][100], cratio[100],
+    double sps[100], rps[100], eps[100], ratio[100], asps[4][100], speedup[4][100], cratio[100],
         csps[100];
     for (int k = 0; k < reps; k++) {
         shared sh = {.r = r, .accel = accel, .width = w, .height = h, .spp = spp, .tile = 16, .log = &log};
@@ -314,10 +329,10 @@ int main(int argc, char **argv)
     double m_cratio = median(cratio, reps), m_csps = median(csps, reps);
     printf("ratio (CPU time) %.3f of the ray-query ceiling; %.4g samples per CPU second\n", m_cratio,
            m_csps);
-    printf("variant          %s, chosen for the scene: %.4g samples/s\n", pt_renderer_variant(r),
-           m_sps);
+    printf("variant          %s%s, chosen for the scene: %.4g samples/s\n", pt_renderer_variant(r),
+           pt_renderer_lanes(r) ? " (SIMD lanes)" : "", m_sps);
     for (int a = 0; a < nalt; a++)
-        printf("  against %-18s %.4g samples/s: speed-up %.3f\n", pt_renderer_variant(alt[a]),
+        printf("  against %-18s %.4g samples/s: speed-up %.3f\n", alt_name[a],
                median(asps[a], reps), median(speedup[a], reps));
     if (!nalt)
         printf("  (the general variant: none less specialised)\n");

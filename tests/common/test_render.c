@@ -23,6 +23,7 @@
 #include "common/alloc.h"
 #include "common/render.h"
 #include "common/scene.h"
+#include "common/simd.h"
 #include "tests/check.h"
 
 static pt_scene *load(const char *rel, float scale)
@@ -240,8 +241,8 @@ static void cornell_finite(void)
 /* pt_render_tile's pixels against pt_render_sample's, summed as
  * pt_render_tile documents: per aligned block of PT_SAMPLE_BLOCK in sample
  * order, then block sums in order. */
-static void batched_as_single(const pt_scene *s, uint32_t extra, uint32_t strategy, uint32_t s0,
-                              uint32_t s1, uint32_t max_depth)
+static void batched_as_single(const pt_scene *s, uint32_t extra, uint32_t scalar, uint32_t strategy,
+                              uint32_t s0, uint32_t s1, uint32_t max_depth)
 {
     enum { W = 9, H = 7 };
     pt_render_params p = {0};
@@ -251,12 +252,15 @@ static void batched_as_single(const pt_scene *s, uint32_t extra, uint32_t strate
     p.seed = 11;
     p.light_strategy = strategy;
     p.extra_features = extra;
+    p.scalar_shading = scalar;
     if (max_depth)
         p.max_depth = max_depth;
     pt_renderer *r = NULL;
     CHECK(pt_renderer_new(s, &p, &r, NULL) == PT_OK);
     if (!r)
         return;
+    int lambert = strncmp(pt_renderer_variant(r), "lambert", 7) == 0;
+    CHECK(pt_renderer_lanes(r) == (lambert && !scalar && pt_simd_lanes_fast()));
     pt_pixel_acc tile[W * H], ref[W * H];
     pt_render_stats ts = {0, 0, 0}, rs = {0, 0, 0};
     pt_rect rect = {1, 2, W, H}; /* not at the origin, rows shorter than the image */
@@ -278,8 +282,8 @@ static void batched_as_single(const pt_scene *s, uint32_t extra, uint32_t strate
         }
     }
     CHECKF(memcmp(tile, ref, n * sizeof *tile) == 0,
-           "variant %s, strategy %u, samples [%u,%u): tile differs from one path at a time",
-           pt_renderer_variant(r), strategy, s0, s1);
+           "variant %s (%s), strategy %u, samples [%u,%u): tile differs from one path at a time",
+           pt_renderer_variant(r), pt_renderer_lanes(r) ? "lanes" : "per path", strategy, s0, s1);
     CHECK(ts.samples == rs.samples && ts.rejected == rs.rejected && ts.rays == rs.rays);
     pt_renderer_free(r);
 }
@@ -290,8 +294,11 @@ static void batched(const pt_scene *s, uint32_t max_depth)
     const uint32_t ranges[][2] = {{0, 1}, {0, 3}, {5, 21}, {0, 40}, {16, 32}};
     for (uint32_t k = 0; k < sizeof ranges / sizeof ranges[0]; k++)
         for (uint32_t strategy = 0; strategy < 3; strategy++) {
-            batched_as_single(s, 0, strategy, ranges[k][0], ranges[k][1], max_depth);
-            batched_as_single(s, 0xffffffffu, strategy, ranges[k][0], ranges[k][1], max_depth);
+            /* The scene's variant, in lanes where they are fast and per path
+             * (as where they are not), and the general one. */
+            batched_as_single(s, 0, 0, strategy, ranges[k][0], ranges[k][1], max_depth);
+            batched_as_single(s, 0, 1, strategy, ranges[k][0], ranges[k][1], max_depth);
+            batched_as_single(s, 0xffffffffu, 0, strategy, ranges[k][0], ranges[k][1], max_depth);
         }
 }
 
