@@ -426,17 +426,11 @@ void pt_lights_pick_n(const pt_lights *lights, const pt_scene *scene, uint32_t n
         /* The emission of every pick, also of those that the checks will
          * reject: without a branch on the checks, which the lanes make. */
         pt_vec3 e = emission(scene, m, le->tri, b1, b2);
-        out->pos[0][j] = pos.x;
-        out->pos[1][j] = pos.y;
-        out->pos[2][j] = pos.z;
-        out->normal[0][j] = le->normal.x;
-        out->normal[1][j] = le->normal.y;
-        out->normal[2][j] = le->normal.z;
+        PT_LANE_PUT3(out->pos, j, pos);
+        PT_LANE_PUT3(out->normal, j, le->normal);
         out->pmf_area[j] = le->pmf_area;
         out->two_sided[j] = m->double_sided ? -1 : 0;
-        out->radiance[0][j] = e.x;
-        out->radiance[1][j] = e.y;
-        out->radiance[2][j] = e.z;
+        PT_LANE_PUT3(out->radiance, j, e);
     }
 }
 

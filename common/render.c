@@ -567,14 +567,6 @@ typedef struct stage_lanes {
     pt_light_picks lights;   /* when NEE runs */
 } stage_lanes;
 
-/* Stores v as lane j of a stage array. */
-static inline void lane_put(float a[3][BATCH], uint32_t j, pt_vec3 v)
-{
-    a[0][j] = v.x;
-    a[1][j] = v.y;
-    a[2][j] = v.z;
-}
-
 /* Lanes j0..j0+7 of an array (of floats, or with V8I_LOAD of int32s). */
 #define V8_LANES(arr, j0)                                                                          \
     {                                                                                              \
@@ -889,10 +881,10 @@ static inline __attribute__((always_inline)) uint64_t trace_batch(const pt_rende
                 surface_at(r, &hits[k], &sf, features);
                 shade_emission(r, &paths[k], &hits[k], &sf, features);
                 pt_bsdf b = material_bsdf(r, &sf, features);
-                lane_put(sl->p, j, sf.p);
-                lane_put(sl->ng, j, sf.ng);
-                lane_put(sl->ns, j, sf.ns);
-                lane_put(sl->diffuse, j, b.diffuse);
+                PT_LANE_PUT3(sl->p, j, sf.p);
+                PT_LANE_PUT3(sl->ng, j, sf.ng);
+                PT_LANE_PUT3(sl->ns, j, sf.ns);
+                PT_LANE_PUT3(sl->diffuse, j, b.diffuse);
             }
             int nee = (features & PT_FEAT_EMITTERS) && r->nee;
             if (nee)
@@ -1083,12 +1075,12 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
     }
     r->nee = pt_lights_count(r->lights) > 0 && params->light_strategy != PT_LIGHT_BSDF_ONLY;
     r->nee_n = r->nee && pt_lights_count(r->lights) >= LIGHTS_N_MIN;
-    pick_variant(r, scene->features | params->extra_features);
+    uint32_t features = scene->features | params->extra_features;
+    pick_variant(r, features);
     /* Without fast lanes (an x86-64 processor without AVX2 runs shade_lanes'
      * baseline clone, which does the lanes one by one) the per-path shading
      * is faster: docs/bench/throughput.md, "Fourth round". */
-    r->lanes = !((scene->features | params->extra_features) & PT_FEAT_GLOSSY) &&
-               !params->scalar_shading && pt_simd_lanes_fast();
+    r->lanes = !(features & PT_FEAT_GLOSSY) && !params->scalar_shading && pt_simd_lanes_fast();
     *out = r;
     return PT_OK;
 fail:

@@ -19,6 +19,10 @@ typedef uint32_t v8u __attribute__((vector_size(32)));
 typedef int32_t v8i __attribute__((vector_size(32)));
 typedef float v8f __attribute__((vector_size(32)));
 
+/* Stores a 3-vector v (x, y, z members) as slot j of a structure of arrays
+ * a[3][N], the layout the lanes load 8 slots of at a time. */
+#define PT_LANE_PUT3(a, j, v) ((a)[0][j] = (v).x, (a)[1][j] = (v).y, (a)[2][j] = (v).z)
+
 /* Per lane: m ? a : b (m a v8i mask of all-ones or zero lanes). */
 #define V8_SELECT(m, a, b) ((v8f)(((v8i)(a) & (m)) | ((v8i)(b) & ~(m))))
 

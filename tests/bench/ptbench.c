@@ -415,6 +415,19 @@ static int cmp_double_desc(const void *a, const void *b)
     return (x < y) - (x > y);
 }
 
+/* Adds to *s pixel i's squared error of meas against ref in R, G and B, as
+ * the metrics count it (rel: relative), a value that is not finite counting 0. */
+static void add_pixel_sq_error(const pt_image *meas, const pt_image *ref, size_t i, int rel,
+                               double *s)
+{
+    const float *a[3] = {meas->r, meas->g, meas->b}, *b[3] = {ref->r, ref->g, ref->b};
+    for (int c = 0; c < 3; c++) {
+        double d = (double)a[c][i] - b[c][i], r = b[c][i];
+        double v = d * d / (rel ? r * r + PT_METRICS_REL_EPS : 1.0);
+        *s += isfinite(v) ? v : 0;
+    }
+}
+
 /* The summed squared error (rel: relative) of the tile of size ts at (x0, y0)
  * of the reference img, and in *m its pixels: from img's variance per
  * sample, adding each pixel's square root to *px_sqrt, or with meas from
@@ -429,13 +442,7 @@ static double tile_error(const pt_image *img, const pt_image *meas, int rel, uin
         for (uint32_t x = x0; x < x0 + ts && x < w; x++, (*m)++) {
             size_t i = (size_t)y * w + x;
             if (meas) {
-                const float *a[3] = {meas->r, meas->g, meas->b};
-                const float *b[3] = {img->r, img->g, img->b};
-                for (int c = 0; c < 3; c++) {
-                    double d = (double)a[c][i] - b[c][i], ref = b[c][i];
-                    double v = d * d / (rel ? ref * ref + PT_METRICS_REL_EPS : 1.0);
-                    s += isfinite(v) ? v : 0;
-                }
+                add_pixel_sq_error(meas, img, i, rel, &s);
                 continue;
             }
             double v = (double)img->variance[i] * img->samples[i];
@@ -787,15 +794,8 @@ static int print_bound(const pt_image *img, const pt_image *ref, const pt_rect *
             pt_rect rc = tiles[t];
             double se = 0, m = (double)(rc.x1 - rc.x0) * (rc.y1 - rc.y0);
             for (uint32_t y = rc.y0; y < rc.y1; y++)
-                for (uint32_t x = rc.x0; x < rc.x1; x++) {
-                    size_t i = (size_t)y * img->width + x;
-                    const float *a[3] = {img->r, img->g, img->b}, *b[3] = {ref->r, ref->g, ref->b};
-                    for (int c = 0; c < 3; c++) {
-                        double d = (double)a[c][i] - b[c][i], r = b[c][i];
-                        double v = d * d / (rel ? r * r + PT_METRICS_REL_EPS : 1.0);
-                        se += isfinite(v) ? v : 0;
-                    }
-                }
+                for (uint32_t x = rc.x0; x < rc.x1; x++)
+                    add_pixel_sq_error(img, ref, (size_t)y * img->width + x, rel, &se);
             double c = tile_cpu[t] / reps / spp;
             R[t] = se * spp;
             sum_c += c;
