@@ -387,10 +387,10 @@ static srv_outcome check_result(const srv_job *j, uint64_t owner, const proto_re
     return SRV_MERGED;
 }
 
-srv_outcome srv_job_check(const srv_job *j, uint64_t owner, const proto_result *r, pt_error *err)
+srv_outcome srv_job_check(const srv_job *j, uint64_t owner, const proto_result *r, int *lease_index,
+                          pt_error *err)
 {
-    int li;
-    return check_result(j, owner, r, 1, &li, err);
+    return check_result(j, owner, r, 1, lease_index, err);
 }
 
 static void drop_lease(srv_job *j, int li)
@@ -446,9 +446,10 @@ srv_outcome srv_job_result(srv_job *j, uint64_t owner, const proto_result *r, pt
     return accept_result(j, owner, r, 1, err);
 }
 
-srv_outcome srv_job_result_checked(srv_job *j, uint64_t owner, const proto_result *r, pt_error *err)
+srv_outcome srv_job_result_checked(srv_job *j, int lease_index, const proto_result *r,
+                                   pt_error *err)
 {
-    return merge_checked(j, find_lease(j, r->task_id, owner), r, err);
+    return merge_checked(j, lease_index, r, err);
 }
 
 srv_outcome srv_job_replay(srv_job *j, const proto_result *r, pt_error *err)
@@ -470,7 +471,8 @@ uint32_t srv_job_tiles(const srv_job *j) { return j->ntiles; }
 
 #define CKPT_MAGIC 0x434a5450u /* "PTJC" */
 #define CKPT_VERSION 3u
-#define CKPT_OLDEST_VERSION 2u /* no min gain: read as 0 */
+#define CKPT_OLDEST_VERSION 2u   /* no min gain: read as 0 */
+#define CKPT_MIN_GAIN_VERSION 3u /* the first with the min gain */
 
 static void put_acc(proto_writer *w, const pt_pixel_acc *a)
 {
@@ -507,7 +509,7 @@ void srv_job_params_write(proto_writer *w, const srv_job_params *p)
     proto_w_str(w, p->camera);
 }
 
-void srv_job_params_read(proto_reader *r, srv_job_params *p, uint32_t version)
+void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain)
 {
     p->width = proto_r_u32(r, "width");
     p->height = proto_r_u32(r, "height");
@@ -519,7 +521,7 @@ void srv_job_params_read(proto_reader *r, srv_job_params *p, uint32_t version)
     p->rr_depth = proto_r_u32(r, "rr depth");
     p->min_spp = proto_r_u32(r, "min spp");
     p->target_error = proto_r_f64(r, "target error");
-    p->min_gain = version >= 3 ? proto_r_f64(r, "min gain") : 0.0;
+    p->min_gain = has_min_gain ? proto_r_f64(r, "min gain") : 0.0;
     p->camera[0] = '\0';
     proto_r_str(r, p->camera, PROTO_MAX_NAME, "camera");
 }
@@ -576,7 +578,7 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
     uint64_t id = proto_r_u64(&r, "job id");
     const uint8_t *hash = proto_r_bytes(&r, 32, "scene hash");
     srv_job_params p;
-    srv_job_params_read(&r, &p, version);
+    srv_job_params_read(&r, &p, version >= CKPT_MIN_GAIN_VERSION);
     uint32_t ntiles = proto_r_u32(&r, "tiles"), nchunks = proto_r_u32(&r, "chunks");
     if (r.status != PT_OK)
         return proto_r_finish(&r, "checkpoint", err);

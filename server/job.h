@@ -88,13 +88,15 @@ uint32_t srv_job_expire(srv_job *job, uint64_t now_ms, uint64_t *next_deadline);
 srv_outcome srv_job_result(srv_job *job, uint64_t owner, const proto_result *r, pt_error *err);
 
 /* Checks a result as srv_job_result would, changing nothing: SRV_MERGED when
- * it would be accepted. Lets the caller log it durably before merging. */
+ * it would be accepted, with *lease_index the lease it answers (an index valid
+ * while the job is unchanged). Lets the caller log it durably before merging. */
 srv_outcome srv_job_check(const srv_job *job, uint64_t owner, const proto_result *r,
-                          pt_error *err);
+                          int *lease_index, pt_error *err);
 
-/* srv_job_result for a result that srv_job_check accepted, the job unchanged
- * since: merges or holds it without checking its task and pixels again. */
-srv_outcome srv_job_result_checked(srv_job *job, uint64_t owner, const proto_result *r,
+/* srv_job_result for a result that srv_job_check accepted (lease_index: what
+ * it gave), the job unchanged since: merges or holds it without looking up its
+ * lease or checking its task and pixels again. */
+srv_outcome srv_job_result_checked(srv_job *job, int lease_index, const proto_result *r,
                                    pt_error *err);
 
 /* Accepts a result from the durable log after a restart: like srv_job_result
@@ -107,11 +109,12 @@ int srv_job_owner_active(const srv_job *job, uint64_t owner);
 
 /* The params block as the checkpoint and the state folder's queue file both
  * store it: nine u32 (width, height, spp, tile, chunk, seed, max depth, rr
- * depth, min spp), f64 target error, f64 min gain (from format version 3; read
- * as 0 before), str camera. srv_job_params_read reads a block of the given
- * format version; a failure is left in r's status. */
+ * depth, min spp), f64 target error, f64 min gain (in the formats that have
+ * it; read as 0 from older ones), str camera. srv_job_params_read reads a
+ * block with or without the min gain, as its file's format version says; a
+ * failure is left in r's status. */
 void srv_job_params_write(proto_writer *w, const srv_job_params *p);
-void srv_job_params_read(proto_reader *r, srv_job_params *p, uint32_t version);
+void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain);
 
 /* Checkpoints. srv_job_save appends the merged state (per tile the chunks
  * merged and whether adaptive sampling stopped it, the held early results, the

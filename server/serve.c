@@ -870,7 +870,8 @@ static void on_result(server *s, conn *c, const proto_frame *f)
         proto_result_fini(&r); /* a job that ended (cancelled): nothing to do */
         return;
     }
-    srv_outcome o = srv_job_check(j->job, c->id, &r, &err);
+    int lease_index;
+    srv_outcome o = srv_job_check(j->job, c->id, &r, &lease_index, &err);
     /* Durable before merged: the log holds every result the film holds. */
     if (o == SRV_MERGED && s->state &&
         srv_state_log_result(s->state, j->rec.id, f->payload, f->len, &err) != PT_OK) {
@@ -880,7 +881,7 @@ static void on_result(server *s, conn *c, const proto_frame *f)
         return;
     }
     if (o == SRV_MERGED)
-        o = srv_job_result_checked(j->job, c->id, &r, &err);
+        o = srv_job_result_checked(j->job, lease_index, &r, &err);
     switch (o) {
     case SRV_MERGED:
         j->rejected += r.rejected;
@@ -1642,8 +1643,7 @@ static void timers(server *s)
     }
 }
 
-/* Ends the jobs whose every task is merged (queue mode). */
-/* Ends the queue's complete jobs; returns how many. */
+/* Ends the queue's jobs whose every task is merged; returns how many. */
 static int finish_complete(server *s)
 {
     int ended = 0;

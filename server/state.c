@@ -22,6 +22,7 @@
 /* The oldest format still read: version 2 has no min gain (read as 0, the
  * rule off), so a state folder survives the upgrade that brought it. */
 #define STATE_OLDEST_VERSION 2u
+#define STATE_MIN_GAIN_VERSION 3u /* the first with the min gain */
 #define LOG_HEADER 16u
 #define MAX_QUEUE_BYTES (256u << 20)
 #define MAX_CKPT_BYTES ((size_t)8 << 30)
@@ -125,7 +126,8 @@ static int version_read(uint32_t v)
 }
 
 /* Reads path and checks magic, version and checksum; *body and *body_len get
- * what lies between. *missing = 1 (and PT_OK) when the file does not exist. */
+ * what lies between, *version (when not NULL) the format version. *missing =
+ * 1 (and PT_OK) when the file does not exist. */
 static pt_status read_checked(const char *path, uint32_t magic, size_t max, uint8_t **data,
                               const uint8_t **body, size_t *body_len, uint32_t *version,
                               int *missing, pt_error *err)
@@ -161,7 +163,8 @@ static pt_status read_checked(const char *path, uint32_t magic, size_t max, uint
         return pt_error_set(err, PT_ERR_FORMAT, "%s: %s; refusing to use it (move it aside to "
                             "start without it)", path, why);
     }
-    *version = proto_get_u32(*data + 4);
+    if (version)
+        *version = proto_get_u32(*data + 4);
     *body = *data + 8;
     *body_len = len - 12;
     return PT_OK;
@@ -247,7 +250,7 @@ pt_status srv_state_load_queue(srv_state *st, srv_job_rec **recs, uint32_t *n, u
         proto_r_str(&r, j->scene, sizeof j->scene - 1, "scene");
         proto_r_str(&r, j->output, sizeof j->output - 1, "output");
         j->submitted = proto_r_u64(&r, "submitted");
-        srv_job_params_read(&r, &j->params, version);
+        srv_job_params_read(&r, &j->params, version >= STATE_MIN_GAIN_VERSION);
         const uint8_t *h = proto_r_bytes(&r, 32, "scene hash");
         if (h)
             memcpy(j->hash, h, 32);
@@ -553,9 +556,9 @@ pt_status srv_state_restore(srv_state *st, srv_job *job, srv_ckpt_extra *extra,
     const uint8_t *body;
     size_t len;
     int missing;
-    uint32_t version;
-    pt_status s = read_checked(p, CKPT_MAGIC, MAX_CKPT_BYTES, &data, &body, &len, &version,
-                               &missing, err);
+    /* The checkpoint body carries its own version (srv_job_restore). */
+    pt_status s = read_checked(p, CKPT_MAGIC, MAX_CKPT_BYTES, &data, &body, &len, NULL, &missing,
+                               err);
     if (s != PT_OK)
         return s;
     if (!missing) {

@@ -25,11 +25,6 @@ struct wrk_cache {
     uint64_t counter; /* makes each temporary's name unique within the process */
 };
 
-void wrk_hash_hex(const uint8_t hash[WRK_HASH_SIZE], char out[65])
-{
-    pt_hash_hex(hash, out);
-}
-
 /* ---- file helpers ------------------------------------------------------------------- */
 
 
@@ -213,7 +208,7 @@ pt_status wrk_cache_lookup(wrk_cache *c, const uint8_t hash[WRK_HASH_SIZE], char
                            pt_error *err)
 {
     char hex[65], bundle_path[2200], scene_dir[2200], got[65];
-    wrk_hash_hex(hash, hex);
+    pt_hash_hex(hash, hex);
     paths(c, hex, bundle_path, sizeof bundle_path, scene_dir, sizeof scene_dir);
     struct stat sb;
     if (stat(bundle_path, &sb) != 0) {
@@ -270,7 +265,7 @@ pt_status wrk_cache_store(wrk_cache *c, const uint8_t hash[WRK_HASH_SIZE], const
                           size_t size, char *entry, size_t cap, pt_error *err)
 {
     char hex[65], got[65], bundle_path[2200], scene_dir[2200], tmp_entry[4096];
-    wrk_hash_hex(hash, hex);
+    pt_hash_hex(hash, hex);
     if (size == 0 || size > PT_BUNDLE_MAX_BYTES)
         return pt_error_set(err, PT_ERR_LIMIT, "scene %.12s: %zu bytes", hex, size);
     pt_sha256_hex(data, size, got);

@@ -55,8 +55,6 @@ pt_status wrk_cache_lookup(wrk_cache *c, const uint8_t hash[WRK_HASH_SIZE], char
 pt_status wrk_cache_store(wrk_cache *c, const uint8_t hash[WRK_HASH_SIZE], const uint8_t *data,
                           size_t size, char *entry, size_t cap, pt_error *err);
 
-/* Lower-case hex of a content hash (65 bytes with the NUL). */
-void wrk_hash_hex(const uint8_t hash[WRK_HASH_SIZE], char out[65]);
 
 /* ---- in memory ---------------------------------------------------------------------- */
 

@@ -626,7 +626,7 @@ static int on_task(worker *w, const proto_frame *f)
         } else {
             if (st != PT_AGAIN)
                 fprintf(stderr, "ptworker: %s; fetching it again\n", err.msg);
-            wrk_hash_hex(s->hash, hex);
+            pt_hash_hex(s->hash, hex);
             fprintf(stderr, "ptworker: fetching scene %.16s\n", hex);
             if (send_scene_get(w, s->hash, 0) != 0) {
                 pt_free(t);
@@ -658,7 +658,7 @@ static int on_scene_chunk(worker *w, const proto_frame *f)
     if (proto_msg_decode_scene_chunk(f->payload, f->len, &c, &err) != PT_OK)
         return fail_proto(w, "bad SCENE_CHUNK: %s", err.msg);
     char hex[65];
-    wrk_hash_hex(c.hash, hex);
+    pt_hash_hex(c.hash, hex);
     scene_rec *s = scene_find(w, c.hash, 0);
     if (!s || !s->fetching)
         return fail_proto(w, "SCENE_CHUNK for scene %.16s, not asked for", hex);

@@ -598,10 +598,11 @@ static void cut_file(const char *name, long drop)
     CHECK(truncate(path(name), sb.st_size - drop) == 0);
 }
 
-/* Rewrites a state file in format 2, the format before the min-gain rule:
- * drops the 8 bytes of the min gain at `at`, sets the version words at the
- * given offsets to 2 and, when `crc`, recomputes the trailing CRC32C. */
-static void to_format2(const char *name, long at, const long *vers, int nvers, int crc)
+/* Rewrites a state file as format `version`: drops the 8 bytes of the min
+ * gain at `at` (none when at < 0), sets the version words at the given
+ * offsets and, when `crc`, recomputes the trailing CRC32C. */
+static void set_format(const char *name, long at, const long *vers, int nvers, uint32_t version,
+                       int crc)
 {
     uint8_t *d = NULL;
     size_t n = 0;
@@ -609,15 +610,25 @@ static void to_format2(const char *name, long at, const long *vers, int nvers, i
     CHECK(pt_read_file(path(name), 1 << 30, &d, &n, &e) == PT_OK);
     if (!d)
         return;
-    CHECK(at >= 0 && (size_t)at + 8 <= n);
-    memmove(d + at, d + at + 8, n - (size_t)at - 8);
-    n -= 8;
-    for (int i = 0; i < nvers; i++)
-        proto_put_u32(d + vers[i], 2);
+    if (at >= 0) {
+        CHECK((size_t)at + 8 <= n);
+        memmove(d + at, d + at + 8, n - (size_t)at - 8);
+        n -= 8;
+    }
+    for (int i = 0; i < nvers; i++) {
+        CHECK((size_t)vers[i] + 4 + (crc ? 4 : 0) <= n);
+        proto_put_u32(d + vers[i], version);
+    }
     if (crc)
         proto_put_u32(d + n - 4, proto_crc32c(0, d, n - 4));
     CHECK(pt_write_file_atomic(path(name), d, n, &e) == PT_OK);
     pt_free(d);
+}
+
+/* The format before the min-gain rule (see set_format). */
+static void to_format2(const char *name, long at, const long *vers, int nvers, int crc)
+{
+    set_format(name, at, vers, nvers, 2, crc);
 }
 
 /* The offset of the min gain in a queue file of one job: after the header,
@@ -758,17 +769,7 @@ static void damaged(void)
     /* checkpoint: header 8, seconds/rejected/rays 24, magic, version, id, hash,
      * nine u32 parameters, target error; then the min gain */
     to_format2(ck, 8 + 24 + 4 + 4 + 8 + 32 + 36 + 8, cv, 2, 1);
-    {
-        uint8_t *d = NULL;
-        size_t n = 0;
-        pt_error e = {0};
-        CHECK(pt_read_file(path(lg), (size_t)1 << 30, &d, &n, &e) == PT_OK && n > 16);
-        if (d) {
-            proto_put_u32(d + 4, 2); /* the results log: only its header's version */
-            CHECK(pt_write_file_atomic(path(lg), d, n, &e) == PT_OK);
-        }
-        pt_free(d);
-    }
+    to_format2(lg, -1, qv, 1, 0); /* the results log: only its header's version */
     CHECK(start_damaged("migrate_v2.log") == -1);
     CHECKF(status(g_port, id, &info) == PROTO_MSG_JOB_INFO && info.state == PROTO_JOB_RUNNING &&
                info.samples_done == v3.samples_done,
@@ -778,18 +779,7 @@ static void damaged(void)
     /* A format this ptserve does not know is refused, naming the file. */
     const long fv[] = {4};
     copy_file("state3.good/queue", "state3/queue");
-    {
-        uint8_t *d = NULL;
-        size_t n = 0;
-        pt_error e = {0};
-        CHECK(pt_read_file(path("state3/queue"), 1 << 20, &d, &n, &e) == PT_OK && n > 12);
-        if (d) {
-            proto_put_u32(d + fv[0], 99);
-            proto_put_u32(d + n - 4, proto_crc32c(0, d, n - 4));
-            CHECK(pt_write_file_atomic(path("state3/queue"), d, n, &e) == PT_OK);
-        }
-        pt_free(d);
-    }
+    set_format("state3/queue", -1, fv, 1, 99, 1);
     CHECK(start_damaged("migrate_v99.log") == 1);
     CHECK(log_has("migrate_v99.log", "state3/queue") && log_has("migrate_v99.log", "format 99"));
 }
