@@ -20,7 +20,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#include "common/error.h"
+#include "common/base/error.h"
 #include "protocol/msg.h"
 
 #define PROTO_TOKEN_MAX 4096u

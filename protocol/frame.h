@@ -24,7 +24,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#include "common/error.h"
+#include "common/base/error.h"
 #include "protocol/wire.h"
 
 #define PROTO_MAGIC "PTF1"

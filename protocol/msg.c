@@ -3,7 +3,7 @@
 #include <math.h>
 #include <string.h>
 
-#include "common/alloc.h"
+#include "common/base/alloc.h"
 
 #ifndef PT_BUILD_ID
 #error "PT_BUILD_ID must come from ptcore's compile definitions"

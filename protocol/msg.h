@@ -30,8 +30,8 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#include "common/error.h"
-#include "common/render.h"
+#include "common/base/error.h"
+#include "common/render/tile.h"
 #include "protocol/wire.h"
 
 /* Frame types. Gaps are room for growth within each group. */

@@ -2,7 +2,7 @@
 
 #include <assert.h>
 
-#include "common/alloc.h"
+#include "common/base/alloc.h"
 
 void proto_writer_init(proto_writer *w, size_t max)
 {

@@ -23,7 +23,7 @@
 #include <stdint.h>
 #include <string.h>
 
-#include "common/error.h"
+#include "common/base/error.h"
 
 /* ---- raw little-endian codecs (p must hold the bytes) ---- */
 

@@ -31,9 +31,9 @@
 
 #include <stdint.h>
 
-#include "common/error.h"
-#include "common/film.h"
-#include "common/render.h"
+#include "common/base/error.h"
+#include "common/render/film.h"
+#include "common/render/render.h"
 #include "protocol/msg.h"
 
 typedef struct srv_job_params {

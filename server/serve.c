@@ -22,14 +22,16 @@
 #include <netinet/in.h>
 #include <arpa/inet.h>
 
-#include "common/alloc.h"
-#include "common/bundle.h"
-#include "common/film.h"
-#include "common/net.h"
-#include "common/scene.h"
+#include "common/base/alloc.h"
+#include "common/scene/bundle.h"
+#include "common/render/film.h"
+#include "common/base/net.h"
+#include "common/scene/scene.h"
 #include "protocol/frame.h"
 #include "protocol/msg.h"
-#include "common/fsutil.h"
+#include "common/base/fsutil.h"
+#include "common/base/hash.h"
+#include "common/render/adaptive.h"
 #include "server/state.h"
 #include "server/writer.h"
 

@@ -10,8 +10,9 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
-#include "common/alloc.h"
-#include "common/fsutil.h"
+#include "common/base/alloc.h"
+#include "common/base/fsutil.h"
+#include "common/base/hash.h"
 #include "protocol/frame.h"
 #include "protocol/wire.h"
 

@@ -27,8 +27,8 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#include "common/bundle.h"
-#include "common/error.h"
+#include "common/scene/bundle.h"
+#include "common/base/error.h"
 #include "protocol/msg.h"
 #include "server/job.h"
 

@@ -11,9 +11,9 @@
 #ifndef PT_SERVER_WRITER_H
 #define PT_SERVER_WRITER_H
 
-#include "common/error.h"
-#include "common/exr.h"
-#include "common/image.h"
+#include "common/base/error.h"
+#include "common/image/exr.h"
+#include "common/image/image.h"
 
 typedef struct srv_writer srv_writer;
 

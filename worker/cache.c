@@ -13,10 +13,11 @@
 #include <sys/types.h>
 #include <unistd.h>
 
-#include "common/alloc.h"
-#include "common/fsutil.h"
-#include "common/bundle.h"
-#include "common/scene.h"
+#include "common/base/alloc.h"
+#include "common/base/fsutil.h"
+#include "common/scene/bundle.h"
+#include "common/scene/scene.h"
+#include "common/base/hash.h"
 
 #define TMP_PREFIX ".tmp-"
 

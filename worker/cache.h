@@ -25,8 +25,8 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#include "common/error.h"
-#include "common/render.h"
+#include "common/base/error.h"
+#include "common/render/render.h"
 
 #define WRK_HASH_SIZE 32u
 

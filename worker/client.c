@@ -16,10 +16,11 @@
 #include <time.h>
 #include <unistd.h>
 
-#include "common/alloc.h"
-#include "common/bundle.h"
-#include "common/net.h"
-#include "common/render.h"
+#include "common/base/alloc.h"
+#include "common/scene/bundle.h"
+#include "common/base/net.h"
+#include "common/render/render.h"
+#include "common/base/hash.h"
 #include "protocol/auth.h"
 #include "protocol/frame.h"
 #include "protocol/msg.h"

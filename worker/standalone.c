@@ -8,12 +8,13 @@
 #include <time.h>
 #include <unistd.h>
 
-#include "common/alloc.h"
-#include "common/exr.h"
-#include "common/film.h"
-#include "common/image.h"
-#include "common/render.h"
-#include "common/scene.h"
+#include "common/base/alloc.h"
+#include "common/image/exr.h"
+#include "common/render/film.h"
+#include "common/image/image.h"
+#include "common/render/render.h"
+#include "common/scene/scene.h"
+#include "common/render/adaptive.h"
 
 typedef struct job {
     const wrk_standalone_opts *o;

@@ -15,7 +15,7 @@
 #include <string.h>
 #include <time.h>
 
-#include "common/alloc.h"
+#include "common/base/alloc.h"
 #include "protocol/frame.h"
 #include "protocol/msg.h"
 #include "server/job.h"

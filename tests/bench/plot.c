@@ -7,7 +7,7 @@
 
 #include <stb_image_write.h>
 
-#include "common/alloc.h"
+#include "common/base/alloc.h"
 
 /* ---- the font: 5x7 cells, '#' is ink, rows top to bottom ---------------- */
 

@@ -19,7 +19,7 @@
 
 #include <stdint.h>
 
-#include "common/error.h"
+#include "common/base/error.h"
 
 #define PLOT_MAX_SERIES 12
 #define PLOT_MAX_POINTS 256

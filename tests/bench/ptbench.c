@@ -17,7 +17,7 @@
  * render alone is measured (scene load, acceleration build and scratch
  * allocation excluded; thread start included), the median over R repetitions
  * reported. The film is resolved to an image and scored against the reference
- * (common/metrics.h: RMSE, relMSE); efficiency = 1 / (MSE * seconds), which a
+ * (common/image/metrics.h: RMSE, relMSE); efficiency = 1 / (MSE * seconds), which a
  * Monte Carlo estimator keeps constant as samples grow, so it compares
  * renderers independently of how long each ran.
  * With --time, each budget in seconds is filled by rendering the whole image
@@ -29,7 +29,7 @@
  * than it is. Its own noise adds its MSE to every row.
  * With --target-error, each row is an adaptive render to that target: every
  * tile is rendered in chunks of C samples and stops, as ptworker and ptserve
- * stop it (pt_tile_stops, common/film.h), once it has M samples and its
+ * stop it (pt_tile_stops, common/render/film.h), once it has M samples and its
  * pt_tile_rel_error is at most the target, else at N samples; the spp column
  * is then the mean over pixels. --min-gain does the same with the
  * minimum-mean-error rule: a tile stops once its pt_tile_gain is at most the
@@ -61,13 +61,14 @@
 #include <string.h>
 #include <time.h>
 
-#include "common/alloc.h"
-#include "common/exr.h"
-#include "common/film.h"
-#include "common/image.h"
-#include "common/metrics.h"
-#include "common/render.h"
-#include "common/scene.h"
+#include "common/base/alloc.h"
+#include "common/image/exr.h"
+#include "common/render/film.h"
+#include "common/image/image.h"
+#include "common/image/metrics.h"
+#include "common/render/render.h"
+#include "common/scene/scene.h"
+#include "common/render/adaptive.h"
 #include "tests/bench/plot.h"
 
 #define MAX_THREADS 64

@@ -34,10 +34,10 @@
 #include <string.h>
 #include <time.h>
 
-#include "common/accel.h"
-#include "common/alloc.h"
-#include "common/render.h"
-#include "common/scene.h"
+#include "common/scene/accel.h"
+#include "common/base/alloc.h"
+#include "common/render/render.h"
+#include "common/scene/scene.h"
 
 typedef struct ray_rec {
     pt_vec3 o, d;

@@ -16,7 +16,7 @@
  */
 #include <string.h>
 
-#include "common/alloc.h"
+#include "common/base/alloc.h"
 #include "protocol/frame.h"
 #include "protocol/msg.h"
 #include "tests/check.h"

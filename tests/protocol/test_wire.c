@@ -5,7 +5,7 @@
 #include <math.h>
 #include <string.h>
 
-#include "common/alloc.h"
+#include "common/base/alloc.h"
 #include "protocol/wire.h"
 #include "tests/check.h"
 

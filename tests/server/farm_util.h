@@ -21,8 +21,8 @@
 #include <time.h>
 #include <unistd.h>
 
-#include "common/exr.h"
-#include "common/net.h"
+#include "common/image/exr.h"
+#include "common/base/net.h"
 #include "protocol/auth.h"
 #include "protocol/frame.h"
 #include "protocol/msg.h"

@@ -21,9 +21,10 @@
  *     with the wrong hash, a broken scene, a submit that stops half-way. Each
  *     is refused; the render completes with exact sample counts.
  */
-#include "common/alloc.h"
-#include "common/bundle.h"
-#include "common/fsutil.h"
+#include "common/base/alloc.h"
+#include "common/scene/bundle.h"
+#include "common/base/fsutil.h"
+#include "common/base/hash.h"
 #include "tests/check.h"
 #include "tests/server/farm_util.h"
 

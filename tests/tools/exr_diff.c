@@ -9,7 +9,7 @@
 #include <stdio.h>
 #include <string.h>
 
-#include "common/exr.h"
+#include "common/image/exr.h"
 
 int main(int argc, char **argv)
 {

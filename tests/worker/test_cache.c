@@ -17,9 +17,10 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
-#include "common/alloc.h"
-#include "common/bundle.h"
-#include "common/render.h"
+#include "common/base/alloc.h"
+#include "common/scene/bundle.h"
+#include "common/render/render.h"
+#include "common/base/hash.h"
 #include "tests/check.h"
 #include "worker/cache.h"
 

@@ -12,8 +12,8 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
-#include "common/exr.h"
-#include "common/image.h"
+#include "common/image/exr.h"
+#include "common/image/image.h"
 #include "tests/check.h"
 
 static char tmpdir[256];

@@ -127,7 +127,7 @@ def to_diffuse(mat):
 
 def frame_camera(scene, aspect):
     """The view ptfarm takes for a file without a camera (pt_scene_frame_camera
-    in common/scene.c), computed in glTF axes and mapped to Blender's."""
+    in common/scene/scene.c), computed in glTF axes and mapped to Blender's."""
     lo = [math.inf] * 3
     hi = [-math.inf] * 3
     for ob in scene.objects:

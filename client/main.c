@@ -1,0 +1,872 @@
+/*
+ * ptctl_main.c - ptctl, the command-line client of the ptserve render queue.
+ *
+ *   ptctl [--server HOST:PORT] [--token-file PATH] [--timeout SEC] COMMAND [ARGS]
+ *
+ * Commands: submit, list, status, watch, cancel, fetch (usage() and each
+ * command's --help say what they do). One connection per run; the wire work
+ * is in client/ctl.c. Exit status, relied on by scripts: 0 success, 1 error
+ * (connection, refusal, I/O; the reason on stderr), 2 bad usage, 3 no such
+ * job, 4 a watched job ended cancelled or failed. Only results go to stdout
+ * (a job id, a state, a table or JSON); progress and errors go to stderr.
+ */
+#include <errno.h>
+#include <getopt.h>
+#include <limits.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "common/base/alloc.h"
+#include "common/scene/bundle.h"
+#include "protocol/auth.h"
+#include "client/ctl.h"
+
+enum { EXIT_ERROR = 1, EXIT_USAGE = 2, EXIT_NO_JOB = 3, EXIT_JOB_FAILED = 4 };
+
+/* Big transfers show progress on a terminal. */
+#define PROGRESS_MIN_BYTES ((uint64_t)4 << 20)
+/* Without a terminal, watch prints a line at most this often. */
+#define WATCH_LOG_INTERVAL_S 5.0
+
+static const char GLOBAL_HELP[] =
+    "options (before or after the command):\n"
+    "  --server HOST:PORT  the coordinator ([V6]:PORT for IPv6; default $PTFARM_SERVER,\n"
+    "                      else " CTL_DEFAULT_SERVER ")\n"
+    "  --token-file PATH   the farm's shared token (default $PTFARM_TOKEN_FILE, else\n"
+    "                      none: for a coordinator that requires no token)\n"
+    "  --timeout SEC       for connecting and for each reply (default 30)\n"
+    "  -h, --help          help\n";
+
+static const char EXIT_HELP[] =
+    "exit status:\n"
+    "  0  success\n"
+    "  1  error: connection, refused by the server, I/O (the reason is on stderr)\n"
+    "  2  bad usage\n"
+    "  3  no such job\n"
+    "  4  watch (or submit --watch) saw the job end cancelled or failed\n";
+
+static void usage(FILE *f)
+{
+    fprintf(f,
+            "usage: ptctl [--server HOST:PORT] [--token-file PATH] [--timeout SEC] COMMAND [ARGS]\n"
+            "\n"
+            "Client of the ptserve render queue: submits scenes, follows and cancels\n"
+            "jobs, fetches their images.\n"
+            "\n"
+            "commands:\n"
+            "  submit SCENE [options]  queue a render of SCENE; prints the job id\n"
+            "  list [--json]           the jobs the server knows\n"
+            "  status JOB [--json]     everything about one job\n"
+            "  watch JOB               follow a job's progress until it ends\n"
+            "  cancel JOB              cancel a job; prints the state it ends in\n"
+            "  fetch JOB -o OUT.exr    download a job's image\n"
+            "'ptctl COMMAND --help' describes each one.\n"
+            "\n"
+            "%s\n%s",
+            GLOBAL_HELP, EXIT_HELP);
+}
+
+/* ---- options ---- */
+
+typedef struct globals {
+    const char *server;
+    const char *token_file;
+    int timeout_ms;
+} globals;
+
+enum {
+    O_SERVER = 1000,
+    O_TOKEN,
+    O_TIMEOUT,
+    O_JSON,
+    O_SPP,
+    O_RES,
+    O_SEED,
+    O_PRIORITY,
+    O_NAME,
+    O_DEPTH,
+    O_TARGET,
+    O_MINGAIN,
+    O_MINSPP,
+    O_WATCH,
+    O_CAMERA
+};
+
+static int bad_usage(const char *cmd, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+
+static int bad_usage(const char *cmd, const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    fputs("ptctl: ", stderr);
+    vfprintf(stderr, fmt, ap);
+    va_end(ap);
+    fprintf(stderr, "\ntry 'ptctl %s%s--help'\n", cmd ? cmd : "", cmd ? " " : "");
+    return EXIT_USAGE;
+}
+
+/* After getopt_long returned '?': optopt is the short option at fault, or 0
+ * for a long one, which is then the argument just passed. */
+static int unknown_option(const char *cmd, char **argv)
+{
+    if (optopt)
+        return bad_usage(cmd, "unknown option '-%c'", optopt);
+    return bad_usage(cmd, "unknown option '%s'", argv[optind - 1]);
+}
+
+static int parse_u64(const char *s, uint64_t max, uint64_t *out)
+{
+    char *end;
+    errno = 0;
+    if (!*s || *s == '-' || *s == '+' || *s == ' ')
+        return -1;
+    unsigned long long v = strtoull(s, &end, 10);
+    if (errno || end == s || *end || v > max)
+        return -1;
+    *out = v;
+    return 0;
+}
+
+static int parse_u32(const char *cmd, const char *opt, const char *s, uint32_t min, uint32_t max,
+                     uint32_t *out)
+{
+    uint64_t v;
+    if (parse_u64(s, max, &v) != 0 || v < min)
+        return bad_usage(cmd, "%s: '%s' is not a whole number in [%lu, %lu]", opt, s,
+                         (unsigned long)min, (unsigned long)max);
+    *out = (uint32_t)v;
+    return 0;
+}
+
+static int parse_nonneg(const char *cmd, const char *opt, const char *s, double *out)
+{
+    char *end;
+    errno = 0;
+    double v = strtod(s, &end);
+    if (errno || end == s || *end || !(v >= 0.0) || !isfinite(v))
+        return bad_usage(cmd, "%s: '%s' is not a number >= 0", opt, s);
+    *out = v;
+    return 0;
+}
+
+static int parse_job(const char *cmd, const char *s, uint64_t *out)
+{
+    if (parse_u64(s, UINT64_MAX, out) != 0)
+        return bad_usage(cmd, "'%s' is not a job id (a whole number)", s);
+    return 0;
+}
+
+static int parse_global(const char *cmd, int c, const char *arg, globals *g)
+{
+    switch (c) {
+    case O_SERVER:
+        g->server = arg;
+        return 0;
+    case O_TOKEN:
+        g->token_file = arg;
+        return 0;
+    case O_TIMEOUT: {
+        char *end;
+        errno = 0;
+        double v = strtod(arg, &end);
+        if (errno || end == arg || *end || !(v >= 0.001) || !(v <= 86400.0))
+            return bad_usage(cmd, "--timeout: '%s' is not a number of seconds in (0, 86400]", arg);
+        g->timeout_ms = (int)(v * 1000.0 + 0.5);
+        return 0;
+    }
+    }
+    return bad_usage(cmd, "unknown option");
+}
+
+/* ---- connecting, and what failures exit with ---- */
+
+static int fail(const ctl_conn *c, const pt_error *e)
+{
+    uint16_t code = ctl_server_code(c);
+    if (code) {
+        fprintf(stderr, "ptctl: server: %s\n", ctl_server_text(c));
+        return code == PROTO_E_NOT_FOUND ? EXIT_NO_JOB : EXIT_ERROR;
+    }
+    fprintf(stderr, "ptctl: %s\n", e->msg[0] ? e->msg : pt_status_str(e->code));
+    return EXIT_ERROR;
+}
+
+/* fail() for a request on c, which is then closed. */
+static int fail_close(ctl_conn *c, const pt_error *e)
+{
+    int rc = fail(c, e);
+    ctl_close(c);
+    return rc;
+}
+
+/* Connects and authenticates; 0 with *out set, or the exit status. */
+static int connect_server(const globals *g, ctl_conn **out)
+{
+    static uint8_t token[PROTO_TOKEN_MAX];
+    size_t token_len = 0;
+    pt_error err = {0};
+    if (g->token_file) {
+        int loose = 0;
+        if (proto_token_load(g->token_file, token, sizeof token, &token_len, &loose, &err) !=
+            PT_OK) {
+            fprintf(stderr, "ptctl: %s\n", err.msg);
+            return EXIT_ERROR;
+        }
+        if (loose)
+            fprintf(stderr, "ptctl: warning: %s is readable by other users\n", g->token_file);
+    }
+    char name[PROTO_MAX_NAME + 1];
+    ctl_default_name(name);
+    ctl_opts o = {g->server, token, token_len, g->timeout_ms, name};
+    ctl_conn *c = NULL;
+    pt_status st = ctl_connect(&o, &c, &err);
+    if (st == PT_ERR_ARG)
+        return bad_usage(NULL, "--server: %s", err.msg);
+    if (st != PT_OK)
+        return fail_close(c, &err);
+    *out = c;
+    return 0;
+}
+
+/* ---- progress ---- */
+
+typedef struct transfer {
+    const char *verb;
+    int shown;
+} transfer;
+
+static void show_transfer(uint64_t done, uint64_t total, void *arg)
+{
+    transfer *t = arg;
+    fprintf(stderr, "\rptctl: %s %.1f of %.1f MiB (%3.0f%%)", t->verb, done / 1048576.0,
+            total / 1048576.0, total ? 100.0 * (double)done / (double)total : 100.0);
+    t->shown = 1;
+}
+
+static double now_s(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + ts.tv_nsec * 1e-9;
+}
+
+/* Follows job id on c until a JOB_INFO with a terminal state; the exit status. */
+static int watch_job(ctl_conn *c, uint64_t id)
+{
+    pt_error err = {0};
+    if (ctl_watch_begin(c, id, &err) != PT_OK)
+        return fail(c, &err);
+    int tty = isatty(STDERR_FILENO);
+    double last = -1e9;
+    size_t prev = 0;
+    static proto_job_info j;
+    for (;;) {
+        if (ctl_watch_next(c, &j, &err) != PT_OK) {
+            if (tty && prev)
+                fputc('\n', stderr);
+            return fail(c, &err);
+        }
+        if (j.job_id != id) {
+            if (tty && prev)
+                fputc('\n', stderr);
+            fprintf(stderr, "ptctl: the server sent job %llu while job %llu was watched\n",
+                    (unsigned long long)j.job_id, (unsigned long long)id);
+            return EXIT_ERROR;
+        }
+        char line[256];
+        ctl_progress_line(&j, line, sizeof line);
+        int ended = ctl_job_ended(j.state);
+        if (tty) {
+            size_t n = strlen(line);
+            /* Blanks over the rest of a longer previous line. */
+            fprintf(stderr, "\r%s%*s", line, prev > n ? (int)(prev - n) : 0, "");
+            prev = n;
+            if (ended)
+                fputc('\n', stderr);
+        } else if (ended || now_s() - last >= WATCH_LOG_INTERVAL_S) {
+            fprintf(stderr, "%s\n", line);
+            last = now_s();
+        }
+        fflush(stderr);
+        if (!ended)
+            continue;
+        if (j.state == PROTO_JOB_DONE)
+            return 0;
+        char msg[PROTO_MAX_ERROR_TEXT + 1];
+        ctl_printable(j.message, msg, sizeof msg);
+        fprintf(stderr, "ptctl: job %llu %s%s%s\n", (unsigned long long)id,
+                proto_job_state_name(j.state), msg[0] ? ": " : "", msg);
+        return EXIT_JOB_FAILED;
+    }
+}
+
+/* ---- commands ---- */
+
+typedef int (*command_fn)(int argc, char **argv, globals *g);
+
+static const char SUBMIT_HELP[] =
+    "usage: ptctl submit SCENE [options]\n"
+    "\n"
+    "Queues a render of SCENE (.gltf or .glb): the scene and every file it references\n"
+    "are packed into one bundle and uploaded. Prints the new job's id alone on\n"
+    "stdout. Upload progress goes to stderr when it is a terminal.\n"
+    "\n"
+    "options:\n"
+    "  --spp N            samples per pixel (default 64)\n"
+    "  --res WxH          image size (default: 512 wide, height from the camera)\n"
+    "  --seed S           random seed (default 0); same seed, same image\n"
+    "  --camera NAME      the camera to render (default: the scene's first)\n"
+    "  --priority P       higher runs first, ties in submission order (default 0;\n"
+    "                     may be negative)\n"
+    "  --name NAME        the job's name (default: the scene's file name without\n"
+    "                     extension; at most 64 bytes)\n"
+    "  --max-depth D      maximum bounces (default: the server's)\n"
+    "  --target-error E   adaptive sampling: a tile stops once the RMS relative error\n"
+    "                     of its pixel means is <= E (e.g. 0.01); off by default\n"
+    "  --min-gain G       adaptive sampling for the lowest mean error: a tile stops\n"
+    "                     once one more sample per pixel would lower the mean squared\n"
+    "                     error of its pixels (R, G, B, absolute) by <= G; a tile\n"
+    "                     then gets samples in proportion to its noise (e.g. 1e-6;\n"
+    "                     smaller is longer); judged from the second chunk on, a\n"
+    "                     tile of black samples only from the first; off by\n"
+    "                     default; not with --target-error\n"
+    "  --min-spp N        adaptive sampling: samples before a tile may stop\n"
+    "                     (default: one chunk)\n"
+    "  --watch            then follow the job as 'ptctl watch' does (exit status 4\n"
+    "                     when it ends cancelled or failed)\n";
+
+/* The default job name: the scene's file name without its extension, cut to
+ * the cap on a UTF-8 character boundary, made plain for the server (no
+ * leading '.', no "..", no '\\' or control characters). */
+static void default_job_name(const char *scene, char out[PROTO_MAX_NAME + 1])
+{
+    const char *base = strrchr(scene, '/');
+    base = base ? base + 1 : scene;
+    size_t n = strlen(base);
+    const char *dot = strrchr(base, '.');
+    if (dot && dot != base)
+        n = (size_t)(dot - base);
+    if (n > PROTO_MAX_NAME) {
+        n = PROTO_MAX_NAME;
+        while (n > 0 && ((unsigned char)base[n] & 0xC0) == 0x80)
+            n--;
+    }
+    while (n > 0 && *base == '.') {
+        base++;
+        n--;
+    }
+    for (size_t i = 0; i < n; i++) {
+        unsigned char ch = (unsigned char)base[i];
+        int dots = ch == '.' && i + 1 < n && base[i + 1] == '.';
+        out[i] = ch < 0x20 || ch == 0x7F || ch == '\\' || dots ? '_' : (char)ch;
+    }
+    out[n] = '\0';
+    if (n == 0)
+        snprintf(out, PROTO_MAX_NAME + 1, "scene");
+}
+
+static int cmd_submit(int argc, char **argv, globals *g)
+{
+    static const struct option opts[] = {/* the global options, accepted after the command too */
+                                         {"server", required_argument, NULL, O_SERVER},
+                                         {"token-file", required_argument, NULL, O_TOKEN},
+                                         {"timeout", required_argument, NULL, O_TIMEOUT},
+                                         {"help", no_argument, NULL, 'h'},
+                                         {"spp", required_argument, NULL, O_SPP},
+                                         {"res", required_argument, NULL, O_RES},
+                                         {"seed", required_argument, NULL, O_SEED},
+                                         {"priority", required_argument, NULL, O_PRIORITY},
+                                         {"name", required_argument, NULL, O_NAME},
+                                         {"max-depth", required_argument, NULL, O_DEPTH},
+                                         {"target-error", required_argument, NULL, O_TARGET},
+                                         {"min-gain", required_argument, NULL, O_MINGAIN},
+                                         {"min-spp", required_argument, NULL, O_MINSPP},
+                                         {"watch", no_argument, NULL, O_WATCH},
+                                         {"camera", required_argument, NULL, O_CAMERA},
+                                         {NULL, 0, NULL, 0}};
+    proto_submit m;
+    memset(&m, 0, sizeof m);
+    m.spp = 64;
+    const char *name = NULL;
+    int watch = 0;
+    uint32_t depth = 0;
+    int c;
+    optind = 0;
+    while ((c = getopt_long(argc, argv, ":h", opts, NULL)) != -1) {
+        int rc = 0;
+        switch (c) {
+        case 'h':
+            fputs(SUBMIT_HELP, stdout);
+            printf("\n%s\n%s", GLOBAL_HELP, EXIT_HELP);
+            return 0;
+        case O_SPP:
+            rc = parse_u32("submit", "--spp", optarg, 1, UINT32_MAX, &m.spp);
+            break;
+        case O_RES: {
+            const char *x = strchr(optarg, 'x');
+            char wbuf[32];
+            if (!x || (size_t)(x - optarg) >= sizeof wbuf) {
+                rc = bad_usage("submit", "--res: '%s' is not WIDTHxHEIGHT", optarg);
+                break;
+            }
+            memcpy(wbuf, optarg, (size_t)(x - optarg));
+            wbuf[x - optarg] = '\0';
+            rc = parse_u32("submit", "--res width", wbuf, 1, UINT32_MAX, &m.width);
+            if (!rc)
+                rc = parse_u32("submit", "--res height", x + 1, 1, UINT32_MAX, &m.height);
+            break;
+        }
+        case O_SEED:
+            rc = parse_u32("submit", "--seed", optarg, 0, UINT32_MAX, &m.seed);
+            break;
+        case O_PRIORITY: {
+            char *end;
+            errno = 0;
+            long long v = strtoll(optarg, &end, 10);
+            if (errno || end == optarg || *end || v < INT32_MIN || v > INT32_MAX)
+                rc = bad_usage("submit", "--priority: '%s' is not a whole number in [%ld, %ld]",
+                               optarg, (long)INT32_MIN, (long)INT32_MAX);
+            else
+                m.priority = (int32_t)v;
+            break;
+        }
+        case O_NAME:
+            name = optarg;
+            if (strlen(name) > PROTO_MAX_NAME)
+                rc = bad_usage("submit", "--name: longer than %u bytes", PROTO_MAX_NAME);
+            break;
+        case O_DEPTH:
+            rc = parse_u32("submit", "--max-depth", optarg, 1, UINT16_MAX, &depth);
+            break;
+        case O_TARGET:
+            rc = parse_nonneg("submit", "--target-error", optarg, &m.target_error);
+            break;
+        case O_MINGAIN:
+            rc = parse_nonneg("submit", "--min-gain", optarg, &m.min_gain);
+            break;
+        case O_MINSPP:
+            rc = parse_u32("submit", "--min-spp", optarg, 1, UINT32_MAX, &m.min_spp);
+            break;
+        case O_WATCH:
+            watch = 1;
+            break;
+        case O_CAMERA:
+            if (!optarg[0] || strlen(optarg) > PROTO_MAX_NAME)
+                rc = bad_usage("submit", "--camera: a name of 1 to %u bytes", PROTO_MAX_NAME);
+            else
+                snprintf(m.camera, sizeof m.camera, "%s", optarg);
+            break;
+        case ':':
+            return bad_usage("submit", "%s needs a value", argv[optind - 1]);
+        case '?':
+            return unknown_option("submit", argv);
+        default:
+            rc = parse_global("submit", c, optarg, g);
+        }
+        if (rc)
+            return rc;
+    }
+    if (optind >= argc)
+        return bad_usage("submit", "which scene?");
+    if (argc - optind > 1)
+        return bad_usage("submit", "one scene at a time ('%s' is extra)", argv[optind + 1]);
+    if (m.target_error > 0.0 && m.min_gain > 0.0)
+        return bad_usage("submit", "--target-error and --min-gain are two adaptive rules; give "
+                                   "one");
+    const char *scene = argv[optind];
+    m.max_depth = (uint16_t)depth;
+    if (name)
+        snprintf(m.name, sizeof m.name, "%s", name);
+    else
+        default_job_name(scene, m.name);
+
+    pt_error err = {0};
+    pt_bundle *b = NULL;
+    if (pt_bundle_pack(scene, &b, &err) != PT_OK) {
+        fprintf(stderr, "ptctl: %s\n", err.msg);
+        return EXIT_ERROR;
+    }
+    m.bundle_size = b->size;
+    if (ctl_hex_to_hash(b->hash, m.bundle_hash) != 0) {
+        fprintf(stderr, "ptctl: %s: bad bundle hash\n", scene);
+        pt_bundle_free(b);
+        return EXIT_ERROR;
+    }
+    ctl_conn *conn = NULL;
+    int rc = connect_server(g, &conn);
+    if (rc) {
+        pt_bundle_free(b);
+        return rc;
+    }
+    transfer t = {"uploading", 0};
+    int show = isatty(STDERR_FILENO) && b->size >= PROGRESS_MIN_BYTES;
+    uint64_t id = 0;
+    pt_status st = ctl_submit(conn, &m, b, show ? show_transfer : NULL, &t, &id, &err);
+    if (t.shown)
+        fputc('\n', stderr);
+    pt_bundle_free(b);
+    if (st != PT_OK)
+        return fail_close(conn, &err);
+    printf("%llu\n", (unsigned long long)id);
+    fflush(stdout);
+    if (watch)
+        rc = watch_job(conn, id);
+    ctl_close(conn);
+    return rc;
+}
+
+/* The shared parser of the commands that take JOB and maybe --json / -o. */
+typedef struct job_args {
+    uint64_t id;
+    int json;
+    const char *output;
+} job_args;
+
+enum { TAKES_JOB = 1, TAKES_JSON = 2, TAKES_OUTPUT = 4 };
+
+/* Parses the command's arguments, then connects: 0 with *conn set, or the
+ * exit status with *conn NULL (0 too after --help). */
+static int open_job_command(const char *cmd, const char *help, int flags, int argc, char **argv,
+                            globals *g, job_args *a, ctl_conn **conn)
+{
+    static const struct option opts[] = {/* the global options, accepted after the command too */
+                                         {"server", required_argument, NULL, O_SERVER},
+                                         {"token-file", required_argument, NULL, O_TOKEN},
+                                         {"timeout", required_argument, NULL, O_TIMEOUT},
+                                         {"help", no_argument, NULL, 'h'},
+                                         {"json", no_argument, NULL, O_JSON},
+                                         {"output", required_argument, NULL, 'o'},
+                                         {NULL, 0, NULL, 0}};
+    int c;
+    *conn = NULL;
+    optind = 0;
+    while ((c = getopt_long(argc, argv, ":ho:", opts, NULL)) != -1) {
+        int rc = 0;
+        switch (c) {
+        case 'h':
+            fputs(help, stdout);
+            printf("\n%s\n%s", GLOBAL_HELP, EXIT_HELP);
+            return 0;
+        case O_JSON:
+            if (!(flags & TAKES_JSON))
+                return bad_usage(cmd, "unknown option '--json'");
+            a->json = 1;
+            break;
+        case 'o':
+            if (!(flags & TAKES_OUTPUT))
+                return bad_usage(cmd, "unknown option '%s'", argv[optind - 1]);
+            a->output = optarg;
+            break;
+        case ':':
+            return bad_usage(cmd, "%s needs a value", argv[optind - 1]);
+        case '?':
+            return unknown_option(cmd, argv);
+        default:
+            rc = parse_global(cmd, c, optarg, g);
+        }
+        if (rc)
+            return rc;
+    }
+    int want = (flags & TAKES_JOB) ? 1 : 0;
+    if (argc - optind < want)
+        return bad_usage(cmd, "which job?");
+    if (argc - optind > want)
+        return bad_usage(cmd, "unexpected argument '%s'", argv[optind + want]);
+    if (want && parse_job(cmd, argv[optind], &a->id))
+        return EXIT_USAGE;
+    if ((flags & TAKES_OUTPUT) && (!a->output || !*a->output))
+        return bad_usage(cmd, "-o OUT.exr is required");
+    return connect_server(g, conn);
+}
+
+static const char LIST_HELP[] =
+    "usage: ptctl list [--json]\n"
+    "\n"
+    "The jobs the server knows, queued, running and ended: id, state, priority,\n"
+    "name, owner, progress (samples per pixel done of those asked, percent) and\n"
+    "position in the queue.\n"
+    "\n"
+    "options:\n"
+    "  --json             a JSON array of job objects instead of a table (the\n"
+    "                     fields of 'ptctl status --json')\n";
+
+static int cmd_list(int argc, char **argv, globals *g)
+{
+    job_args a = {0};
+    ctl_conn *c;
+    int rc = open_job_command("list", LIST_HELP, TAKES_JSON, argc, argv, g, &a, &c);
+    if (!c)
+        return rc;
+    pt_error err = {0};
+    proto_job_list l;
+    if (ctl_list(c, &l, &err) != PT_OK)
+        return fail_close(c, &err);
+    ctl_close(c);
+    if (a.json) {
+        fputc('[', stdout);
+        for (uint32_t i = 0; i < l.count; i++) {
+            fputs(i ? ",\n " : "", stdout);
+            ctl_json_job(stdout, &l.jobs[i]);
+        }
+        fputs("]\n", stdout);
+    } else {
+        /* Name and owner columns as wide as their longest entry, within reason. */
+        int wn = 4, wo = 5;
+        for (uint32_t i = 0; i < l.count; i++) {
+            int n = (int)strlen(l.jobs[i].name), o = (int)strlen(l.jobs[i].owner);
+            wn = n > wn ? n : wn;
+            wo = o > wo ? o : wo;
+        }
+        wn = wn > 32 ? 32 : wn;
+        wo = wo > 32 ? 32 : wo;
+        printf("%-8s %-9s %5s  %-*s  %-*s  %-21s %s\n", "ID", "STATE", "PRI", wn, "NAME", wo,
+               "OWNER", "PROGRESS", "QUEUE");
+        for (uint32_t i = 0; i < l.count; i++) {
+            const proto_job_info *j = &l.jobs[i];
+            char name[PROTO_MAX_NAME + 1], owner[PROTO_MAX_NAME + 1], prog[48], queue[16];
+            ctl_printable(j->name, name, sizeof name);
+            ctl_printable(j->owner, owner, sizeof owner);
+            uint64_t px = (uint64_t)j->width * j->height;
+            snprintf(prog, sizeof prog, "%llu/%lu spp %5.1f%%",
+                     (unsigned long long)(px ? j->samples_done / px : 0), (unsigned long)j->spp,
+                     100.0 * ctl_job_fraction(j));
+            if (j->queue_pos)
+                snprintf(queue, sizeof queue, "%lu", (unsigned long)j->queue_pos);
+            else
+                snprintf(queue, sizeof queue, "-");
+            printf("%-8llu %-9s %5ld  %-*.*s  %-*.*s  %-21s %s\n", (unsigned long long)j->job_id,
+                   proto_job_state_name(j->state), (long)j->priority, wn, wn, name, wo, wo, owner,
+                   prog, queue);
+        }
+    }
+    pt_free(l.jobs);
+    if (fflush(stdout) != 0) {
+        fprintf(stderr, "ptctl: cannot write the list: %s\n", strerror(errno));
+        return EXIT_ERROR;
+    }
+    return 0;
+}
+
+static void print_status(const proto_job_info *j)
+{
+    char s[PROTO_MAX_ERROR_TEXT + 1], d[32];
+    printf("job        %llu\n", (unsigned long long)j->job_id);
+    ctl_printable(j->name, s, sizeof s);
+    printf("name       %s\n", s);
+    printf("state      %s\n", proto_job_state_name(j->state));
+    if (j->queue_pos)
+        printf("queue      position %lu\n", (unsigned long)j->queue_pos);
+    printf("priority   %ld\n", (long)j->priority);
+    ctl_printable(j->owner, s, sizeof s);
+    printf("owner      %s\n", s);
+    ctl_printable(j->scene, s, sizeof s);
+    printf("scene      %s\n", s);
+    ctl_printable(j->output, s, sizeof s);
+    printf("output     %s\n", s);
+    printf("size       %lux%lu\n", (unsigned long)j->width, (unsigned long)j->height);
+    uint64_t px = (uint64_t)j->width * j->height;
+    printf("spp        %.1f of %lu\n", px ? (double)j->samples_done / (double)px : 0.0,
+           (unsigned long)j->spp);
+    printf("samples    %llu of %llu (%.1f%%)\n", (unsigned long long)j->samples_done,
+           (unsigned long long)j->samples_total, 100.0 * ctl_job_fraction(j));
+    printf("passes     %lu of %lu\n", (unsigned long)j->passes_done, (unsigned long)j->passes);
+    printf("tiles      %lu (%lu stopped by adaptive sampling)\n", (unsigned long)j->tiles,
+           (unsigned long)j->tiles_stopped);
+    printf("workers    %lu\n", (unsigned long)j->workers);
+    ctl_format_duration(j->seconds, d, sizeof d);
+    printf("time       %s\n", d);
+    if (j->rate > 0.0 && isfinite(j->rate))
+        printf("rate       %.0f samples/s\n", j->rate);
+    else
+        printf("rate       -\n");
+    if (j->error >= 0.0 && isfinite(j->error))
+        printf("error      %.3g%% (estimated relative)\n", 100.0 * j->error);
+    else
+        printf("error      unknown\n");
+    time_t t = (time_t)j->submitted;
+    struct tm tm;
+    char when[64] = "-";
+    if (j->submitted <= (uint64_t)INT64_MAX && localtime_r(&t, &tm))
+        strftime(when, sizeof when, "%Y-%m-%d %H:%M:%S %z", &tm);
+    printf("submitted  %s\n", when);
+    if (j->message[0]) {
+        ctl_printable(j->message, s, sizeof s);
+        printf("message    %s\n", s);
+    }
+}
+
+static const char STATUS_HELP[] =
+    "usage: ptctl status JOB [--json]\n"
+    "\n"
+    "Everything the server reports about job JOB: state, queue position, priority,\n"
+    "owner, scene, output file, size, samples done and asked, passes, tiles stopped\n"
+    "by adaptive sampling, workers, render time, samples/s, estimated error,\n"
+    "submission time and message.\n"
+    "\n"
+    "options:\n"
+    "  --json             one JSON object instead (error: null when unknown)\n";
+
+static int cmd_status(int argc, char **argv, globals *g)
+{
+    job_args a = {0};
+    ctl_conn *c;
+    int rc = open_job_command("status", STATUS_HELP, TAKES_JOB | TAKES_JSON, argc, argv, g, &a, &c);
+    if (!c)
+        return rc;
+    pt_error err = {0};
+    static proto_job_info j;
+    if (ctl_status(c, a.id, &j, &err) != PT_OK)
+        return fail_close(c, &err);
+    ctl_close(c);
+    if (a.json) {
+        ctl_json_job(stdout, &j);
+        fputc('\n', stdout);
+    } else {
+        print_status(&j);
+    }
+    return fflush(stdout) == 0 ? 0 : EXIT_ERROR;
+}
+
+static const char WATCH_HELP[] =
+    "usage: ptctl watch JOB\n"
+    "\n"
+    "Follows job JOB until it ends: a progress line on stderr (bar, samples per\n"
+    "pixel done of those asked, percent, samples/s, workers, ETA, estimated error),\n"
+    "redrawn in place on a terminal, else printed at most every 5 s. Exit status 0\n"
+    "when the job is done, 4 when it was cancelled or failed.\n";
+
+static int cmd_watch(int argc, char **argv, globals *g)
+{
+    job_args a = {0};
+    ctl_conn *c;
+    int rc = open_job_command("watch", WATCH_HELP, TAKES_JOB, argc, argv, g, &a, &c);
+    if (!c)
+        return rc;
+    rc = watch_job(c, a.id);
+    ctl_close(c);
+    return rc;
+}
+
+static const char CANCEL_HELP[] =
+    "usage: ptctl cancel JOB\n"
+    "\n"
+    "Cancels job JOB, queued or running, and prints the state it ends in on stdout:\n"
+    "'cancelled', or the state it had already ended in ('done', 'failed').\n";
+
+static int cmd_cancel(int argc, char **argv, globals *g)
+{
+    job_args a = {0};
+    ctl_conn *c;
+    int rc = open_job_command("cancel", CANCEL_HELP, TAKES_JOB, argc, argv, g, &a, &c);
+    if (!c)
+        return rc;
+    pt_error err = {0};
+    static proto_job_info j;
+    if (ctl_cancel(c, a.id, &j, &err) != PT_OK)
+        return fail_close(c, &err);
+    ctl_close(c);
+    printf("%s\n", proto_job_state_name(j.state));
+    return fflush(stdout) == 0 ? 0 : EXIT_ERROR;
+}
+
+static const char FETCH_HELP[] =
+    "usage: ptctl fetch JOB -o OUT.exr\n"
+    "\n"
+    "Downloads job JOB's image (the EXR the server wrote last) and writes it to\n"
+    "OUT.exr atomically: a temporary file in the same folder, synced, renamed\n"
+    "over OUT.exr. The SHA-256 of the bytes received is checked against the\n"
+    "server's. Download progress goes to stderr when it is a terminal.\n"
+    "\n"
+    "options:\n"
+    "  -o, --output PATH  the file to write (required)\n";
+
+static int cmd_fetch(int argc, char **argv, globals *g)
+{
+    job_args a = {0};
+    ctl_conn *c;
+    int rc = open_job_command("fetch", FETCH_HELP, TAKES_JOB | TAKES_OUTPUT, argc, argv, g, &a, &c);
+    if (!c)
+        return rc;
+    pt_error err = {0};
+    uint8_t *data = NULL;
+    size_t size = 0;
+    transfer t = {"downloading", 0};
+    int tty = isatty(STDERR_FILENO);
+    pt_status st = ctl_fetch(c, a.id, tty ? show_transfer : NULL, &t, &data, &size, &err);
+    if (t.shown)
+        fputc('\n', stderr);
+    if (st != PT_OK)
+        return fail_close(c, &err);
+    ctl_close(c);
+    st = ctl_write_atomic(a.output, data, size, &err);
+    pt_free(data);
+    if (st != PT_OK) {
+        fprintf(stderr, "ptctl: %s\n", err.msg);
+        return EXIT_ERROR;
+    }
+    return 0;
+}
+
+static const struct {
+    const char *name;
+    command_fn fn;
+} commands[] = {
+    {"submit", cmd_submit}, {"list", cmd_list},     {"status", cmd_status},
+    {"watch", cmd_watch},   {"cancel", cmd_cancel}, {"fetch", cmd_fetch},
+};
+
+int main(int argc, char **argv)
+{
+    globals g = {0};
+    g.server = getenv("PTFARM_SERVER");
+    if (!g.server || !*g.server)
+        g.server = CTL_DEFAULT_SERVER;
+    g.token_file = getenv("PTFARM_TOKEN_FILE");
+    if (g.token_file && !*g.token_file)
+        g.token_file = NULL;
+    g.timeout_ms = CTL_DEFAULT_TIMEOUT_MS;
+
+    static const struct option opts[] = {/* before the command */
+                                         {"server", required_argument, NULL, O_SERVER},
+                                         {"token-file", required_argument, NULL, O_TOKEN},
+                                         {"timeout", required_argument, NULL, O_TIMEOUT},
+                                         {"help", no_argument, NULL, 'h'},
+                                         {NULL, 0, NULL, 0}};
+    int c;
+    /* '+': stop at the command; what follows is the command's. */
+    while ((c = getopt_long(argc, argv, "+:h", opts, NULL)) != -1) {
+        int rc = 0;
+        switch (c) {
+        case 'h':
+            usage(stdout);
+            return 0;
+        case ':':
+            return bad_usage(NULL, "%s needs a value", argv[optind - 1]);
+        case '?':
+            return unknown_option(NULL, argv);
+        default:
+            rc = parse_global(NULL, c, optarg, &g);
+        }
+        if (rc)
+            return rc;
+    }
+    if (optind >= argc) {
+        usage(stderr);
+        return EXIT_USAGE;
+    }
+    const char *cmd = argv[optind];
+    if (strcmp(cmd, "help") == 0) {
+        usage(stdout);
+        return 0;
+    }
+    for (size_t i = 0; i < sizeof commands / sizeof commands[0]; i++)
+        if (strcmp(cmd, commands[i].name) == 0)
+            return commands[i].fn(argc - optind, argv + optind, &g);
+    return bad_usage(NULL, "unknown command '%s'", cmd);
+}

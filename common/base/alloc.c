@@ -1,0 +1,80 @@
+#include "common/base/alloc.h"
+
+#include <stdatomic.h>
+#include <stdlib.h>
+#include <string.h>
+
+static atomic_uint_fast64_t alloc_count;
+static atomic_uint_fast64_t fail_at;
+static atomic_int_fast64_t live;
+
+static int should_fail(void)
+{
+    uint64_t n = atomic_fetch_add(&alloc_count, 1) + 1;
+    uint64_t f = atomic_load(&fail_at);
+    return f != 0 && n >= f;
+}
+
+void *pt_malloc(size_t size)
+{
+    if (should_fail())
+        return NULL;
+    void *p = malloc(size ? size : 1);
+    if (p)
+        atomic_fetch_add(&live, 1);
+    return p;
+}
+
+void *pt_calloc(size_t n, size_t size)
+{
+    if (should_fail())
+        return NULL;
+    void *p = calloc(n ? n : 1, size ? size : 1);
+    if (p)
+        atomic_fetch_add(&live, 1);
+    return p;
+}
+
+void *pt_malloc_array(size_t n, size_t size)
+{
+    size_t total;
+    if (__builtin_mul_overflow(n, size, &total))
+        return NULL;
+    return pt_malloc(total);
+}
+
+void *pt_realloc(void *p, size_t size)
+{
+    if (!p)
+        return pt_malloc(size);
+    if (should_fail())
+        return NULL;
+    return realloc(p, size ? size : 1);
+}
+
+void pt_free(void *p)
+{
+    if (p) {
+        atomic_fetch_sub(&live, 1);
+        free(p);
+    }
+}
+
+char *pt_strdup(const char *s)
+{
+    size_t n = strlen(s) + 1;
+    char *d = pt_malloc(n);
+    if (d)
+        memcpy(d, s, n);
+    return d;
+}
+
+void pt_alloc_fail_at(uint64_t n)
+{
+    atomic_store(&alloc_count, 0);
+    atomic_store(&fail_at, n);
+}
+
+uint64_t pt_alloc_count(void) { return atomic_load(&alloc_count); }
+
+int64_t pt_alloc_live(void) { return atomic_load(&live); }

@@ -1,0 +1,177 @@
+#define _GNU_SOURCE /* O_DIRECTORY, O_CLOEXEC */
+#include "common/base/fsutil.h"
+
+#include <dirent.h>
+#include <errno.h>
+#include <fcntl.h>
+#include <limits.h>
+#include <stdatomic.h>
+#include <stdio.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include "common/base/alloc.h"
+
+int pt_fsync_dir_of(const char *path)
+{
+    char dir[PATH_MAX];
+    const char *slash = strrchr(path, '/');
+    if (!slash)
+        snprintf(dir, sizeof dir, ".");
+    else if (slash == path)
+        snprintf(dir, sizeof dir, "/");
+    else if ((size_t)(slash - path) < sizeof dir)
+        snprintf(dir, sizeof dir, "%.*s", (int)(slash - path), path);
+    else {
+        errno = ENAMETOOLONG;
+        return -1;
+    }
+    int fd = open(dir, O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+    if (fd < 0)
+        return -1;
+    int rc = fsync(fd);
+    int saved = errno;
+    close(fd);
+    errno = saved;
+    if (rc != 0 && (errno == EINVAL || errno == ENOTSUP))
+        rc = 0;
+    return rc;
+}
+
+pt_status pt_write_file_atomic(const char *path, const void *data, size_t n, pt_error *err)
+{
+    /* Unique per process and per call, so two writers of one path never
+     * share a temp file. */
+    static atomic_uint serial;
+    char tmp[PATH_MAX];
+    if ((size_t)snprintf(tmp, sizeof tmp, "%s.tmp.%ld.%u", path, (long)getpid(),
+                         atomic_fetch_add(&serial, 1)) >= sizeof tmp)
+        return pt_error_set(err, PT_ERR_IO, "%s: path too long", path);
+    int fd = open(tmp, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+    if (fd < 0)
+        return pt_error_errno(err, PT_ERR_IO, "%s: cannot create %s", path, tmp);
+    const uint8_t *p = data;
+    size_t left = n;
+    while (left > 0) {
+        ssize_t w = write(fd, p, left);
+        if (w < 0 && errno == EINTR)
+            continue;
+        if (w <= 0) {
+            pt_status st = pt_error_errno(err, PT_ERR_IO, "%s: write", path);
+            close(fd);
+            unlink(tmp);
+            return st;
+        }
+        p += w;
+        left -= (size_t)w;
+    }
+    if (fsync(fd) != 0) {
+        pt_status st = pt_error_errno(err, PT_ERR_IO, "%s: fsync", path);
+        close(fd);
+        unlink(tmp);
+        return st;
+    }
+    close(fd);
+    if (rename(tmp, path) != 0) {
+        pt_status st = pt_error_errno(err, PT_ERR_IO, "%s: rename from %s", path, tmp);
+        unlink(tmp);
+        return st;
+    }
+    if (pt_fsync_dir_of(path) != 0)
+        return pt_error_errno(err, PT_ERR_IO, "%s: fsync of its folder", path);
+    return PT_OK;
+}
+
+pt_status pt_read_file(const char *path, size_t max, uint8_t **out, size_t *len, pt_error *err)
+{
+    int fd = open(path, O_RDONLY | O_CLOEXEC);
+    if (fd < 0)
+        return pt_error_errno(err, PT_ERR_IO, "%s", path);
+    struct stat sb;
+    if (fstat(fd, &sb) != 0 || !S_ISREG(sb.st_mode)) {
+        close(fd);
+        return pt_error_set(err, PT_ERR_IO, "%s: not a regular file", path);
+    }
+    if ((uint64_t)sb.st_size > max) {
+        close(fd);
+        return pt_error_set(err, PT_ERR_LIMIT, "%s: %lld bytes is over the limit of %zu", path,
+                            (long long)sb.st_size, max);
+    }
+    size_t size = (size_t)sb.st_size;
+    uint8_t *buf = pt_malloc(size ? size : 1);
+    if (!buf) {
+        close(fd);
+        return pt_error_set(err, PT_ERR_NOMEM, "%s: out of memory for %zu bytes", path, size);
+    }
+    size_t got = 0;
+    while (got < size) {
+        ssize_t r = read(fd, buf + got, size - got);
+        if (r < 0 && errno == EINTR)
+            continue;
+        if (r <= 0) {
+            pt_status st = r < 0 ? pt_error_errno(err, PT_ERR_IO, "%s: read", path)
+                                 : pt_error_set(err, PT_ERR_IO, "%s: shrank while read", path);
+            close(fd);
+            pt_free(buf);
+            return st;
+        }
+        got += (size_t)r;
+    }
+    close(fd);
+    *out = buf;
+    *len = size;
+    return PT_OK;
+}
+
+pt_status pt_mkdirs(const char *path, int private_, pt_error *err)
+{
+    char p[PATH_MAX];
+    if ((size_t)snprintf(p, sizeof p, "%s", path) >= sizeof p)
+        return pt_error_set(err, PT_ERR_IO, "%s: path too long", path);
+    mode_t mode = private_ ? 0700 : 0755;
+    for (char *s = p + 1;; s++) {
+        if (*s == '/' || *s == '\0') {
+            char c = *s;
+            *s = '\0';
+            if (mkdir(p, mode) != 0 && errno != EEXIST)
+                return pt_error_errno(err, PT_ERR_IO, "%s: mkdir", p);
+            *s = c;
+            if (c == '\0')
+                break;
+        }
+    }
+    struct stat sb;
+    if (stat(p, &sb) != 0 || !S_ISDIR(sb.st_mode))
+        return pt_error_set(err, PT_ERR_IO, "%s: not a folder", path);
+    return PT_OK;
+}
+
+int pt_remove_tree(const char *path)
+{
+    struct stat sb;
+    if (lstat(path, &sb) != 0)
+        return errno == ENOENT ? 0 : -1;
+    if (!S_ISDIR(sb.st_mode))
+        return unlink(path);
+    DIR *d = opendir(path);
+    if (!d)
+        return -1;
+    int rc = 0;
+    struct dirent *e;
+    while ((e = readdir(d)) != NULL) {
+        if (strcmp(e->d_name, ".") == 0 || strcmp(e->d_name, "..") == 0)
+            continue;
+        char child[PATH_MAX];
+        if ((size_t)snprintf(child, sizeof child, "%s/%s", path, e->d_name) >= sizeof child) {
+            rc = -1;
+            continue;
+        }
+        if (pt_remove_tree(child) != 0)
+            rc = -1;
+    }
+    closedir(d);
+    if (rmdir(path) != 0)
+        rc = -1;
+    return rc;
+}

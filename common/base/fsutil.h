@@ -1,0 +1,38 @@
+/*
+ * fsutil.h - durable file operations shared by the coordinator, the worker
+ * cache and the image writers.
+ *
+ * "Durable" means: after the call returns PT_OK, a crash of the process or of
+ * the machine leaves either the old or the new contents in place, never a mix
+ * (temp file in the same folder, fsync, rename, fsync of the folder).
+ */
+#ifndef PT_COMMON_BASE_FSUTIL_H
+#define PT_COMMON_BASE_FSUTIL_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "common/base/error.h"
+
+/* fsync of the folder that holds path, so a rename or create in it survives a
+ * crash. Filesystems that refuse fsync on folders are not a failure. Returns
+ * 0, or -1 with errno set. */
+int pt_fsync_dir_of(const char *path);
+
+/* Replaces path with the n bytes of data, durably (see above), mode 0644
+ * before umask. PT_ERR_IO naming path. */
+pt_status pt_write_file_atomic(const char *path, const void *data, size_t n, pt_error *err);
+
+/* Reads the whole file into a pt_malloc'd buffer (*out, *len; free with
+ * pt_free). PT_ERR_IO naming path when it cannot be read, PT_ERR_LIMIT when
+ * it is larger than max bytes, PT_ERR_NOMEM. */
+pt_status pt_read_file(const char *path, size_t max, uint8_t **out, size_t *len, pt_error *err);
+
+/* mkdir -p with mode 0755 (0700 with private), each component created if missing. */
+pt_status pt_mkdirs(const char *path, int private_, pt_error *err);
+
+/* rm -r of a folder this program created (files and folders below it; links
+ * are removed, not followed). Missing is fine. Returns 0, or -1 with errno. */
+int pt_remove_tree(const char *path);
+
+#endif

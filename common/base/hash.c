@@ -1,0 +1,49 @@
+#include "common/base/hash.h"
+
+#include <openssl/evp.h>
+#include <string.h>
+
+void pt_hash_hex(const uint8_t hash[32], char out[65])
+{
+    static const char hex[] = "0123456789abcdef";
+    for (unsigned i = 0; i < 32; i++) {
+        out[2 * i] = hex[hash[i] >> 4];
+        out[2 * i + 1] = hex[hash[i] & 15];
+    }
+    out[64] = '\0';
+}
+
+void pt_sha256_hex(const uint8_t *data, size_t size, char out[65])
+{
+    unsigned char md[EVP_MAX_MD_SIZE];
+    unsigned int len = 0;
+    if (!EVP_Digest(data, size, md, &len, EVP_sha256(), NULL) || len != 32) {
+        memset(out, '0', 64);
+        out[64] = '\0';
+        return;
+    }
+    pt_hash_hex(md, out);
+}
+
+static int hex_digit(char ch)
+{
+    if (ch >= '0' && ch <= '9')
+        return ch - '0';
+    if (ch >= 'a' && ch <= 'f')
+        return ch - 'a' + 10;
+    if (ch >= 'A' && ch <= 'F')
+        return ch - 'A' + 10;
+    return -1;
+}
+
+int pt_hex_decode(const char *hex, uint8_t *out, size_t n)
+{
+    if (strnlen(hex, 2 * n + 1) != 2 * n)
+        return -1;
+    for (size_t i = 0; i < n; i++)
+        if (hex_digit(hex[2 * i]) < 0 || hex_digit(hex[2 * i + 1]) < 0)
+            return -1;
+    for (size_t i = 0; i < n; i++)
+        out[i] = (uint8_t)(hex_digit(hex[2 * i]) << 4 | hex_digit(hex[2 * i + 1]));
+    return 0;
+}

@@ -1,0 +1,31 @@
+/*
+ * hash.h - SHA-256 and the hex text of hashes.
+ *
+ * Scenes and bundles are named by the SHA-256 of their bytes (OpenSSL's
+ * libcrypto), written as 64 lower-case hex digits; peers send the 32 raw
+ * bytes. Every conversion between the two is here, so that the coordinator,
+ * the worker cache and ptctl agree on one spelling. Pure functions: any
+ * thread may call them.
+ */
+#ifndef PT_COMMON_BASE_HASH_H
+#define PT_COMMON_BASE_HASH_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#define PT_HASH_SIZE 32u /* bytes of a SHA-256 */
+#define PT_HASH_HEX 65u  /* its hex text with the NUL */
+
+/* A 32-byte hash as lower-case hex (65 bytes with the NUL). */
+void pt_hash_hex(const uint8_t hash[32], char out[65]);
+
+/* SHA-256 of bytes as lower-case hex (65 bytes with the NUL). A failure of
+ * the digest (it has none for in-memory bytes) gives 64 zeros. */
+void pt_sha256_hex(const uint8_t *data, size_t size, char out[65]);
+
+/* Decodes exactly 2n hex digits (either case) of hex into n bytes. Returns 0,
+ * or -1, leaving out untouched, when hex is shorter or longer than 2n digits
+ * or holds a character that is not a hex digit. */
+int pt_hex_decode(const char *hex, uint8_t *out, size_t n);
+
+#endif

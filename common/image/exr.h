@@ -1,0 +1,35 @@
+/*
+ * exr.h - OpenEXR output and input through OpenEXRCore (OpenEXR 3's C API).
+ *
+ * Channels written: R, G, B (mean radiance), "samples" (per-pixel sample count)
+ * and "variance" (variance of the pixel mean, luminance), all FLOAT, scanline,
+ * ZIP compression. Header attributes: "ptfarm.samples" (total samples, as a
+ * decimal string), "ptfarm.renderSeconds" (double), "ptfarm.sceneHash"
+ * (string), "ptfarm.jobId" (string), and the standard "software" string.
+ * Writes are atomic: a temp file in the same folder, fsync, rename, so a
+ * reader never sees a torn file.
+ */
+#ifndef PT_COMMON_IMAGE_EXR_H
+#define PT_COMMON_IMAGE_EXR_H
+
+#include <stdint.h>
+
+#include "common/base/error.h"
+#include "common/image/image.h"
+
+typedef struct pt_exr_meta {
+    uint64_t total_samples;
+    double render_seconds;
+    char scene_hash[65];
+    char job_id[64];
+    char software[64]; /* "ptfarm <version>" when empty on write */
+} pt_exr_meta;
+
+pt_status pt_exr_write(const char *path, const pt_image *img, const pt_exr_meta *meta,
+                       pt_error *err);
+
+/* Reads a file written by pt_exr_write (or any scanline/tiled EXR with R, G,
+ * B; samples and variance planes are zero when absent). meta may be NULL. */
+pt_status pt_exr_read(const char *path, pt_image **out, pt_exr_meta *meta, pt_error *err);
+
+#endif

@@ -1,0 +1,140 @@
+#include "common/image/image.h"
+
+#include <errno.h>
+#include <math.h>
+#include <stdio.h>
+#include <string.h>
+
+#include <stb/stb_image_write.h>
+
+#include "common/base/alloc.h"
+#include "common/base/fsutil.h"
+
+/* Caps on image size: 65536 per side and 2^28 pixels (1 GiB per float plane
+ * at the cap is already more than any render this farm makes). */
+#define IMAGE_MAX_SIDE 65536u
+#define IMAGE_MAX_PIXELS (1u << 28)
+
+/* The struct and the five planes live in one block, struct first, planes
+ * after it rounded up to the alignment of double so the floats are aligned. */
+pt_status pt_image_new(uint32_t width, uint32_t height, pt_image **out, pt_error *err)
+{
+    if (width == 0 || height == 0)
+        return pt_error_set(err, PT_ERR_ARG, "image size %ux%u: both sides must be > 0", width,
+                            height);
+    uint64_t pixels = (uint64_t)width * height;
+    if (width > IMAGE_MAX_SIDE || height > IMAGE_MAX_SIDE || pixels > IMAGE_MAX_PIXELS)
+        return pt_error_set(err, PT_ERR_LIMIT,
+                            "image size %ux%u is over the cap (%u per side, %u pixels)", width,
+                            height, IMAGE_MAX_SIDE, IMAGE_MAX_PIXELS);
+    size_t head = (sizeof(pt_image) + sizeof(double) - 1) / sizeof(double) * sizeof(double);
+    size_t planes, total;
+    if (__builtin_mul_overflow((size_t)pixels, 5 * sizeof(float), &planes) ||
+        __builtin_add_overflow(head, planes, &total))
+        return pt_error_set(err, PT_ERR_LIMIT, "image size %ux%u overflows memory", width, height);
+    unsigned char *block = pt_calloc(1, total);
+    if (!block)
+        return pt_error_set(err, PT_ERR_NOMEM, "image %ux%u: out of memory", width, height);
+    pt_image *img = (pt_image *)block;
+    float *p = (float *)(block + head);
+    img->width = width;
+    img->height = height;
+    img->r = p;
+    img->g = p + pixels;
+    img->b = p + 2 * pixels;
+    img->samples = p + 3 * pixels;
+    img->variance = p + 4 * pixels;
+    *out = img;
+    return PT_OK;
+}
+
+void pt_image_free(pt_image *img)
+{
+    pt_free(img);
+}
+
+/* IEC 61966-2-1:1999, section 5.2 (encoding) and its inverse. */
+float pt_srgb_to_linear(float c)
+{
+    if (c <= 0.04045f)
+        return c / 12.92f;
+    return powf((c + 0.055f) / 1.055f, 2.4f);
+}
+
+float pt_linear_to_srgb(float c)
+{
+    if (c <= 0.0031308f)
+        return c * 12.92f;
+    return 1.055f * powf(c, 1.0f / 2.4f) - 0.055f;
+}
+
+/* Clamped to [0,1] first (NaN goes to 0), then rounded to nearest. */
+static unsigned char to_byte(float linear)
+{
+    if (!(linear > 0.0f))
+        return 0;
+    if (linear >= 1.0f)
+        return 255;
+    float s = pt_linear_to_srgb(linear) * 255.0f + 0.5f;
+    return s >= 255.0f ? 255 : (unsigned char)s;
+}
+
+/* stb's PNG bytes, gathered in memory for one atomic write. */
+typedef struct png_buf {
+    unsigned char *data;
+    size_t len, cap;
+    int failed;
+} png_buf;
+
+static void png_append(void *ctx, void *data, int size)
+{
+    png_buf *b = ctx;
+    if (b->failed || size <= 0)
+        return;
+    if (b->len + (size_t)size > b->cap) {
+        size_t cap = b->cap ? b->cap : 4096;
+        while (cap < b->len + (size_t)size)
+            cap *= 2;
+        unsigned char *n = pt_realloc(b->data, cap);
+        if (!n) {
+            b->failed = 1;
+            return;
+        }
+        b->data = n;
+        b->cap = cap;
+    }
+    memcpy(b->data + b->len, data, (size_t)size);
+    b->len += (size_t)size;
+}
+
+pt_status pt_png_write_preview(const char *path, const pt_image *img, pt_error *err)
+{
+    if (!path || !img || img->width == 0 || img->height == 0 || img->width > IMAGE_MAX_SIDE ||
+        img->height > IMAGE_MAX_SIDE)
+        return pt_error_set(err, PT_ERR_ARG, "PNG preview %s: no image or a bad size",
+                            path ? path : "(null)");
+    size_t n = (size_t)img->width * img->height;
+    unsigned char *rgb = pt_malloc_array(n, 3);
+    png_buf png = {0};
+    pt_status st = PT_OK;
+    if (!rgb) {
+        st = pt_error_set(err, PT_ERR_NOMEM, "PNG preview %s: out of memory", path);
+        goto fail;
+    }
+    for (size_t i = 0; i < n; i++) {
+        rgb[3 * i + 0] = to_byte(img->r[i]);
+        rgb[3 * i + 1] = to_byte(img->g[i]);
+        rgb[3 * i + 2] = to_byte(img->b[i]);
+    }
+    if (!stbi_write_png_to_func(png_append, &png, (int)img->width, (int)img->height, 3, rgb,
+                                (int)img->width * 3) ||
+        png.failed) {
+        st = pt_error_set(err, PT_ERR_NOMEM, "PNG preview %s: cannot encode", path);
+        goto fail;
+    }
+    st = pt_write_file_atomic(path, png.data, png.len, err);
+fail:
+    pt_free(png.data);
+    pt_free(rgb);
+    return st;
+}

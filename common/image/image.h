@@ -1,0 +1,34 @@
+/*
+ * image.h - a finished (or progressive) image: planar float channels.
+ *
+ * r, g, b: mean linear Rec.709 radiance per pixel; samples: the pixel's sample
+ * count; variance: the variance of the pixel mean (luminance), i.e. the sample
+ * variance divided by the count. Row 0 is the top row.
+ * Also writes an 8-bit sRGB PNG preview (stb_image_write).
+ */
+#ifndef PT_COMMON_IMAGE_IMAGE_H
+#define PT_COMMON_IMAGE_IMAGE_H
+
+#include <stdint.h>
+
+#include "common/base/error.h"
+
+typedef struct pt_image {
+    uint32_t width, height;
+    float *r, *g, *b;
+    float *samples;
+    float *variance;
+} pt_image;
+
+/* Allocates a zeroed image with all five planes. */
+pt_status pt_image_new(uint32_t width, uint32_t height, pt_image **out, pt_error *err);
+void pt_image_free(pt_image *img); /* accepts NULL */
+
+/* Writes an sRGB PNG of r,g,b (clamped, exposure 1), atomically (temp + rename). */
+pt_status pt_png_write_preview(const char *path, const pt_image *img, pt_error *err);
+
+/* sRGB transfer functions (IEC 61966-2-1). */
+float pt_srgb_to_linear(float c);
+float pt_linear_to_srgb(float c);
+
+#endif

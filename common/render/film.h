@@ -1,0 +1,36 @@
+/*
+ * film.h - the whole image's per-pixel double sums and counts.
+ *
+ * Memory O(width x height), independent of how many tasks are merged. Tiles
+ * are added with pt_film_add_tile; adding the same partial sums in the same
+ * order gives bit-identical pixels. pt_film_resolve turns sums into a pt_image
+ * (mean RGB, sample count, variance of the mean). Not thread-safe: one owner.
+ */
+#ifndef PT_COMMON_RENDER_FILM_H
+#define PT_COMMON_RENDER_FILM_H
+
+#include <stdint.h>
+
+#include "common/base/error.h"
+#include "common/image/image.h"
+#include "common/render/render.h"
+
+typedef struct pt_film {
+    uint32_t width, height;
+    pt_pixel_acc *px; /* width*height, row-major */
+} pt_film;
+
+pt_status pt_film_new(uint32_t width, uint32_t height, pt_film **out, pt_error *err);
+void pt_film_free(pt_film *film); /* accepts NULL */
+
+/* Adds a tile's partial sums (row-major over tile, as pt_render_tile writes them). */
+void pt_film_add_tile(pt_film *film, pt_rect tile, const pt_pixel_acc *acc);
+
+/* Writes mean, count and variance of the mean into img (same size). Pixels
+ * with no samples are 0; variance needs n >= 2 (else 0). */
+void pt_film_resolve(const pt_film *film, pt_image *img);
+
+/* Total samples over all pixels. */
+uint64_t pt_film_total_samples(const pt_film *film);
+
+#endif

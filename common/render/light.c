@@ -1,0 +1,522 @@
+/*
+ * light.c - emissive triangles as lights: power-proportional choice through an
+ * alias table, uniform area sampling, conversion to solid angle.
+ *
+ * Power of a light triangle (only the ratios matter):
+ *     area x luminance(emissive factor (x) mean of the emissive texture)
+ *          x (2 if double-sided) x pi
+ * The texture term is the mean of the whole texture in linear RGB, computed
+ * once per texture, not the mean over the triangle's UV footprint: it makes
+ * the choice a little less proportional to the true power on textured
+ * emitters, which costs variance, never bias (the pdf is the one used to
+ * choose). Triangles with zero or non-finite power (black emission, zero
+ * area) are left out: they could never be chosen.
+ *
+ * Choice: Vose 1991, "A Linear Algorithm for Generating Random Numbers with a
+ * Given Distribution" (IEEE TSE 17(9)): Walker's alias method built in O(n).
+ * Point: Heitz 2019, "A Low-Distortion Map Between Triangle and Square"
+ * (HAL hal-02073696), which keeps the stratification of the sampler's points.
+ */
+#include "common/render/light.h"
+
+#include <math.h>
+#include <string.h>
+
+#include "common/scene/accel.h"
+#include "common/base/alloc.h"
+#include "common/render/light_lanes.h"
+
+/* One column of the alias table: 16 bytes, so that the random read of a
+ * column touches one cache line and four columns share it. */
+typedef struct alias_slot {
+    double prob;    /* keep the column's own light when the residual of u[0] is below */
+    uint32_t alias; /* light taken otherwise */
+    uint32_t pad;
+} alias_slot;
+
+/* What sampling needs of a light triangle, copied once so that a sample reads
+ * one 64-byte, line-aligned entry instead of the index, three vertices and a
+ * recomputed normal (tri_geom's results, the same bits). With many emissive
+ * triangles these reads are cache misses; the entry keeps them to one line. */
+typedef struct light_entry {
+    pt_vec3 v[3];      /* vertices */
+    pt_vec3 normal;    /* unit geometric normal (tri_geom) */
+    float pmf_area;    /* probability of choosing the light / its area */
+    uint32_t tri;      /* triangle in the scene */
+    uint32_t material; /* its material */
+    float pmf;         /* probability of choosing this light */
+} light_entry;
+_Static_assert(sizeof(light_entry) == 64, "a light entry is one cache line");
+
+struct pt_lights {
+    uint32_t count;
+    uint32_t num_triangles;
+    light_entry *lights; /* count entries, 64-byte aligned inside lights_mem */
+    void *lights_mem;
+    alias_slot *alias;      /* count columns */
+    uint32_t *tri_to_light; /* num_triangles entries, UINT32_MAX: not a light; NULL if count 0 */
+};
+
+static pt_vec3 vertex(const pt_scene *s, uint32_t i)
+{
+    return pt_v3(s->positions[3 * i], s->positions[3 * i + 1], s->positions[3 * i + 2]);
+}
+
+/* Vertices, unit geometric normal (from the winding) and area of triangle
+ * tri. The normal is computed exactly as pt_accel_hit_point does, so a hit's
+ * ng and a sample's normal agree to the bit. */
+static void tri_geom(const pt_scene *s, uint32_t tri, pt_vec3 v[3], pt_vec3 *n, float *area)
+{
+    const uint32_t *t = &s->indices[3 * tri];
+    v[0] = vertex(s, t[0]);
+    v[1] = vertex(s, t[1]);
+    v[2] = vertex(s, t[2]);
+    pt_vec3 c = pt_v3_cross(pt_v3_sub(v[1], v[0]), pt_v3_sub(v[2], v[0]));
+    float len = pt_v3_len(c);
+    *area = 0.5f * len;
+    *n = (len > 0.0f && isfinite(len)) ? pt_v3_scale(c, 1.0f / len) : pt_accel_degenerate_normal(c);
+}
+
+static int emits(const pt_material *m)
+{
+    return m->emissive[0] > 0.0f || m->emissive[1] > 0.0f || m->emissive[2] > 0.0f;
+}
+
+/* Emission of tri at barycentrics (b1, b2), ignoring the side. */
+static pt_vec3 emission(const pt_scene *s, const pt_material *m, uint32_t tri, float b1, float b2)
+{
+    pt_vec3 e = pt_v3(m->emissive[0], m->emissive[1], m->emissive[2]);
+    if (m->emissive_tex >= 0 && (uint32_t)m->emissive_tex < s->num_textures && s->uvs) {
+        const uint32_t *t = &s->indices[3 * tri];
+        const float *uv = s->uvs;
+        float b0 = 1.0f - b1 - b2;
+        float u = b0 * uv[2 * t[0]] + b1 * uv[2 * t[1]] + b2 * uv[2 * t[2]];
+        float v = b0 * uv[2 * t[0] + 1] + b1 * uv[2 * t[1] + 1] + b2 * uv[2 * t[2] + 1];
+        float c[4];
+        pt_texture_sample(&s->textures[m->emissive_tex], u, v, c);
+        e = pt_v3_mul(e, pt_v3(c[0], c[1], c[2]));
+    }
+    return e;
+}
+
+pt_vec3 pt_emitted(const pt_scene *scene, uint32_t tri, float b1, float b2, pt_vec3 w_out)
+{
+    const pt_material *m = &scene->materials[scene->tri_material[tri]];
+    if (!emits(m))
+        return pt_v3(0.0f, 0.0f, 0.0f);
+    if (!m->double_sided) {
+        pt_vec3 v[3], n;
+        float area;
+        tri_geom(scene, tri, v, &n, &area);
+        if (!(pt_v3_dot(n, w_out) > 0.0f))
+            return pt_v3(0.0f, 0.0f, 0.0f);
+    }
+    return emission(scene, m, tri, b1, b2);
+}
+
+/* Mean linear RGB of a texture, read at texel centres through the same lookup
+ * the renderer uses (bilinear at a centre is that texel). Huge textures are
+ * read on a strided grid of about 2^20 texels: this is an estimate anyway. */
+static pt_vec3 texture_mean(const pt_texture *tex)
+{
+    uint64_t texels = (uint64_t)tex->width * tex->height;
+    uint32_t step = 1;
+    while ((texels / ((uint64_t)step * step)) > (1u << 20))
+        step++;
+    double sum[3] = {0, 0, 0};
+    uint64_t n = 0;
+    for (uint32_t y = step / 2; y < tex->height; y += step) {
+        for (uint32_t x = step / 2; x < tex->width; x += step) {
+            float c[4];
+            pt_texture_sample(tex, ((float)x + 0.5f) / (float)tex->width,
+                              ((float)y + 0.5f) / (float)tex->height, c);
+            sum[0] += c[0];
+            sum[1] += c[1];
+            sum[2] += c[2];
+            n++;
+        }
+    }
+    if (n == 0)
+        return pt_v3(0.0f, 0.0f, 0.0f);
+    return pt_v3((float)(sum[0] / (double)n), (float)(sum[1] / (double)n),
+                 (float)(sum[2] / (double)n));
+}
+
+/* Power of triangle tri (see the top of the file); 0 when it is not a light. */
+static double tri_power(const pt_scene *s, uint32_t tri, const pt_vec3 *tex_mean, float *area_out)
+{
+    const pt_material *m = &s->materials[s->tri_material[tri]];
+    *area_out = 0.0f;
+    if (!emits(m))
+        return 0.0;
+    pt_vec3 v[3], n;
+    float area;
+    tri_geom(s, tri, v, &n, &area);
+    pt_vec3 e = pt_v3(m->emissive[0], m->emissive[1], m->emissive[2]);
+    if (m->emissive_tex >= 0 && s->uvs)
+        e = pt_v3_mul(e, tex_mean[m->emissive_tex]);
+    double p = (double)area * (double)pt_luminance(e) * (m->double_sided ? 2.0 : 1.0) *
+               3.14159265358979323846;
+    if (!(p > 0.0) || !isfinite(p))
+        return 0.0;
+    *area_out = area;
+    return p;
+}
+
+/* Vose's alias table over lights[0..n) from power[] (total > 0).
+ * scratch: n uint32. The small list grows up from the front of scratch, the
+ * large list down from the back; Vose's update q_g = (q_g + q_l) - 1 keeps
+ * the rounding error from accumulating. */
+static void build_alias(alias_slot *lights, double *q, uint32_t *scratch, uint32_t n, double total)
+{
+    uint32_t ns = 0, nl = 0;
+    for (uint32_t i = 0; i < n; i++) {
+        q[i] = q[i] * (double)n / total;
+        if (q[i] < 1.0)
+            scratch[ns++] = i;
+        else
+            scratch[n - 1 - nl++] = i;
+    }
+    while (ns > 0 && nl > 0) {
+        uint32_t l = scratch[--ns];
+        uint32_t g = scratch[n - nl];
+        lights[l].prob = q[l];
+        lights[l].alias = g;
+        q[g] = (q[g] + q[l]) - 1.0;
+        if (q[g] < 1.0) { /* g moves from the top of the large list to the small one */
+            nl--;
+            scratch[ns++] = g;
+        }
+    }
+    /* What is left is 1 up to rounding. */
+    while (nl > 0) {
+        uint32_t g = scratch[n - nl--];
+        lights[g].prob = 1.0;
+        lights[g].alias = g;
+    }
+    while (ns > 0) {
+        uint32_t l = scratch[--ns];
+        lights[l].prob = 1.0;
+        lights[l].alias = l;
+    }
+}
+
+pt_status pt_lights_new(const pt_scene *scene, pt_lights **out, pt_error *err)
+{
+    pt_status st = PT_OK;
+    pt_vec3 *tex_mean = NULL;
+    double *power = NULL;
+    uint32_t *scratch = NULL;
+    if (!scene || !out)
+        return pt_error_set(err, PT_ERR_ARG, "pt_lights_new: NULL argument");
+
+    pt_lights *L = pt_calloc(1, sizeof *L);
+    if (!L)
+        return pt_error_set(err, PT_ERR_NOMEM, "pt_lights_new: out of memory");
+    L->num_triangles = scene->num_triangles;
+
+    /* Check what we will index, and the mean of each emissive texture. */
+    int any_tex = 0;
+    for (uint32_t i = 0; i < scene->num_materials; i++) {
+        const pt_material *m = &scene->materials[i];
+        if (!emits(m) || m->emissive_tex < 0)
+            continue;
+        if ((uint32_t)m->emissive_tex >= scene->num_textures) {
+            st = pt_error_set(err, PT_ERR_FORMAT, "material %u (%s): emissive texture %d of %u", i,
+                              m->name, (int)m->emissive_tex, scene->num_textures);
+            goto fail;
+        }
+        const pt_texture *t = &scene->textures[m->emissive_tex];
+        if (t->width == 0 || t->height == 0 || !t->rgba) {
+            st = pt_error_set(err, PT_ERR_FORMAT, "texture %d: empty", (int)m->emissive_tex);
+            goto fail;
+        }
+        any_tex = 1;
+    }
+    if (any_tex) {
+        tex_mean = pt_malloc_array(scene->num_textures, sizeof *tex_mean);
+        if (!tex_mean)
+            goto nomem;
+        /* NaN: not computed yet; each texture is read once. */
+        for (uint32_t i = 0; i < scene->num_textures; i++)
+            tex_mean[i] = pt_v3(NAN, NAN, NAN);
+        for (uint32_t i = 0; i < scene->num_materials; i++) {
+            const pt_material *m = &scene->materials[i];
+            if (emits(m) && m->emissive_tex >= 0 && isnan(tex_mean[m->emissive_tex].x))
+                tex_mean[m->emissive_tex] = texture_mean(&scene->textures[m->emissive_tex]);
+        }
+    }
+
+    uint32_t n = 0;
+    for (uint32_t i = 0; i < scene->num_triangles; i++) {
+        if (scene->tri_material[i] >= scene->num_materials) {
+            st = pt_error_set(err, PT_ERR_FORMAT, "triangle %u: material %u of %u", i,
+                              scene->tri_material[i], scene->num_materials);
+            goto fail;
+        }
+        float area;
+        if (tri_power(scene, i, tex_mean, &area) > 0.0)
+            n++;
+    }
+    if (n == 0)
+        goto done;
+
+    /* One spare entry's room to align the array to a cache line. */
+    L->lights_mem = pt_malloc_array((size_t)n + 1, sizeof *L->lights);
+    if (L->lights_mem)
+        L->lights = (light_entry *)(((uintptr_t)L->lights_mem + 63) & ~(uintptr_t)63);
+    L->alias = pt_malloc_array(n, sizeof *L->alias);
+    L->tri_to_light = pt_malloc_array(scene->num_triangles, sizeof *L->tri_to_light);
+    power = pt_malloc_array(n, sizeof *power);
+    scratch = pt_malloc_array(n, sizeof *scratch);
+    if (!L->lights_mem || !L->alias || !L->tri_to_light || !power || !scratch)
+        goto nomem;
+
+    double total = 0.0;
+    uint32_t k = 0;
+    for (uint32_t i = 0; i < scene->num_triangles; i++) {
+        float area;
+        double p = tri_power(scene, i, tex_mean, &area);
+        L->tri_to_light[i] = UINT32_MAX;
+        if (!(p > 0.0))
+            continue;
+        L->tri_to_light[i] = k;
+        light_entry *le = &L->lights[k];
+        le->tri = i;
+        le->material = scene->tri_material[i];
+        float a2;
+        tri_geom(scene, i, le->v, &le->normal, &a2);
+        le->pmf_area = area; /* divided below */
+        power[k] = p;
+        total += p;
+        k++;
+    }
+    for (uint32_t i = 0; i < n; i++) {
+        L->lights[i].pmf = (float)(power[i] / total);
+        L->lights[i].pmf_area = L->lights[i].pmf / L->lights[i].pmf_area;
+    }
+    build_alias(L->alias, power, scratch, n, total);
+    L->count = n;
+
+done:
+    pt_free(scratch);
+    pt_free(power);
+    pt_free(tex_mean);
+    *out = L;
+    return PT_OK;
+
+nomem:
+    st = pt_error_set(err, PT_ERR_NOMEM, "pt_lights_new: out of memory");
+fail:
+    pt_free(scratch);
+    pt_free(power);
+    pt_free(tex_mean);
+    pt_lights_free(L);
+    return st;
+}
+
+void pt_lights_free(pt_lights *lights)
+{
+    if (!lights)
+        return;
+    pt_free(lights->lights_mem);
+    pt_free(lights->alias);
+    pt_free(lights->tri_to_light);
+    pt_free(lights);
+}
+
+uint32_t pt_lights_count(const pt_lights *lights)
+{
+    return lights ? lights->count : 0;
+}
+
+/* pdf_w = pmf / area * d^2 / |cos theta_light| (area to solid angle: dA =
+ * d^2 / |cos| dw). 0 on the back of a single-sided light, at a grazing angle,
+ * at distance 0, or where the division overflows. */
+static inline float solid_angle_pdf_d(float pmf_area, int double_sided, pt_vec3 d, float d2,
+                                      float dist, pt_vec3 n)
+{
+    if (!(d2 > 0.0f) || !isfinite(d2))
+        return 0.0f;
+    float cos_l = -pt_v3_dot(n, d) / dist; /* > 0: p sees the front */
+    if (!double_sided && !(cos_l > 0.0f))
+        return 0.0f;
+    float ac = fabsf(cos_l);
+    if (!(ac > 0.0f))
+        return 0.0f;
+    float pdf = pmf_area * d2 / ac; /* pmf / area * d2 / ac, the same bits */
+    return isfinite(pdf) ? pdf : 0.0f;
+}
+
+/* The same from p and the light point x; d = x - p, dist = |d|. */
+static float solid_angle_pdf(float pmf_area, int double_sided, pt_vec3 p, pt_vec3 x, pt_vec3 n)
+{
+    pt_vec3 d = pt_v3_sub(x, p);
+    float d2 = pt_v3_dot(d, d);
+    return solid_angle_pdf_d(pmf_area, double_sided, d, d2, sqrtf(d2), n);
+}
+
+/* The light and the point on it that u picks (pt_lights_sample's first
+ * step), with the point's barycentrics of vertices 1 and 2. */
+static inline const light_entry *pick_point(const pt_lights *lights, const float u[3], pt_vec3 *pos,
+                                            float *b1_out, float *b2_out)
+{
+    /* One number picks a column and, with its residual, the column's own
+     * light or its alias. In double: u[0] * n is exact for n < 2^29. */
+    uint32_t n = lights->count;
+    double x = (double)u[0] * (double)n;
+    uint32_t col = x < (double)n ? (uint32_t)x : n - 1;
+    double r = x - (double)col;
+    /* A select, not a branch: the choice is random, so a branch would be
+     * mispredicted half of the time. */
+    const alias_slot *c = &lights->alias[col];
+    const light_entry *le = &lights->lights[r < c->prob ? col : c->alias];
+
+    /* Heitz 2019, sec. 3: the square is cut along its diagonal and each half
+     * sheared onto the triangle; the Jacobian is constant, so the density is
+     * uniform in area. */
+    int upper = u[2] > u[1]; /* random: selects, not branches */
+    float h1 = 0.5f * u[1], h2 = 0.5f * u[2];
+    float b1 = upper ? h1 : u[1] - h2;
+    float b2 = upper ? u[2] - h1 : h2;
+    float b0 = 1.0f - b1 - b2;
+    const pt_vec3 *v = le->v;
+    *pos =
+        pt_v3_add(pt_v3_add(pt_v3_scale(v[0], b0), pt_v3_scale(v[1], b1)), pt_v3_scale(v[2], b2));
+    *b1_out = b1;
+    *b2_out = b2;
+    return le;
+}
+
+int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, const float u[3],
+                     pt_light_sample *s)
+{
+    memset(s, 0, sizeof *s);
+    s->tri = UINT32_MAX;
+    if (!lights || lights->count == 0)
+        return 0;
+
+    float b1, b2;
+    const light_entry *le = pick_point(lights, u, &s->position, &b1, &b2);
+    s->tri = le->tri;
+    s->normal = le->normal;
+    pt_vec3 d = pt_v3_sub(s->position, p);
+    float d2 = pt_v3_dot(d, d);
+    s->dist = sqrtf(d2);
+    if (!(s->dist > 0.0f) || !isfinite(s->dist))
+        return 0;
+    s->wi = pt_v3_scale(d, 1.0f / s->dist);
+    const pt_material *m = &scene->materials[le->material];
+    s->pdf = solid_angle_pdf_d(le->pmf_area, m->double_sided, d, d2, s->dist, le->normal);
+    if (!(s->pdf > 0.0f))
+        return 0;
+    s->radiance = emission(scene, m, le->tri, b1, b2);
+    return 1;
+}
+
+void pt_lights_pick_n(const pt_lights *lights, const pt_scene *scene, uint32_t n, const float *pick,
+                      const float *point, size_t stride, pt_light_picks *out)
+{
+    for (uint32_t j = 0; j < n; j++) {
+        const float u[3] = {pick[j * stride], point[j * stride], point[j * stride + 1]};
+        pt_vec3 pos;
+        float b1, b2;
+        const light_entry *le = pick_point(lights, u, &pos, &b1, &b2);
+        const pt_material *m = &scene->materials[le->material];
+        /* The emission of every pick, also of those that the checks will
+         * reject: without a branch on the checks, which the lanes make. */
+        pt_vec3 e = emission(scene, m, le->tri, b1, b2);
+        PT_LANE_PUT3(out->pos, j, pos);
+        PT_LANE_PUT3(out->normal, j, le->normal);
+        out->pmf_area[j] = le->pmf_area;
+        out->two_sided[j] = m->double_sided ? -1 : 0;
+        PT_LANE_PUT3(out->radiance, j, e);
+    }
+}
+
+/*
+ * pt_lights_sample for many points, in three steps over 8 at a time: the
+ * light picks and points, then the distances, directions and pdfs in 8 lanes
+ * (pt_light_lanes_pdf), then the emission per point. The picks' reads of the
+ * alias table and the light entries, and the emission textures' reads, come
+ * close together for 8 points, so that with many lights their cache misses
+ * overlap. A lane whose point the scalar code rejects before a division
+ * computes it anyway, harmlessly (a NaN or an infinity, no traps), and its
+ * result is not used.
+ */
+PT_SIMD_CLONES
+void pt_lights_sample_n(const pt_lights *lights, const pt_scene *scene, uint32_t n,
+                        const pt_vec3 *p, const float (*u)[3], pt_light_sample *s, int *ok)
+{
+    if (!lights || lights->count == 0) {
+        for (uint32_t i = 0; i < n; i++)
+            ok[i] = pt_lights_sample(lights, scene, p[i], u[i], &s[i]);
+        return;
+    }
+    for (uint32_t k0 = 0; k0 < n; k0 += 8) {
+        uint32_t m = n - k0 < 8 ? n - k0 : 8;
+        const light_entry *les[8];
+        float b1s[8], b2s[8];
+        pt_vec3 ds[8];
+        float d2[8], ndot[8], pmf_area[8];
+        int32_t two_sided[8];
+        for (uint32_t l = 0; l < 8; l++) {
+            /* Lanes past n repeat the last point. */
+            uint32_t i = k0 + (l < m ? l : m - 1);
+            pt_light_sample *si = &s[k0 + l < n ? k0 + l : i];
+            pt_vec3 pos;
+            float b1, b2;
+            const light_entry *le = pick_point(lights, u[i], &pos, &b1, &b2);
+            pt_vec3 d = pt_v3_sub(pos, p[i]);
+            if (l < m) {
+                memset(si, 0, sizeof *si);
+                si->tri = le->tri;
+                si->position = pos;
+                si->normal = le->normal;
+            }
+            les[l] = le;
+            b1s[l] = b1;
+            b2s[l] = b2;
+            ds[l] = d;
+            d2[l] = pt_v3_dot(d, d);
+            ndot[l] = pt_v3_dot(le->normal, d);
+            pmf_area[l] = le->pmf_area;
+            two_sided[l] = scene->materials[le->material].double_sided ? -1 : 0;
+        }
+        v8f vd2, vndot, vpa, dist, inv, pdf;
+        v8i vts, vok;
+        memcpy(&vd2, d2, sizeof vd2);
+        memcpy(&vndot, ndot, sizeof vndot);
+        memcpy(&vpa, pmf_area, sizeof vpa);
+        memcpy(&vts, two_sided, sizeof vts);
+        pt_light_lanes_pdf(&vd2, &vndot, &vpa, &vts, &dist, &inv, &pdf, &vok);
+        for (uint32_t l = 0; l < m; l++) {
+            pt_light_sample *si = &s[k0 + l];
+            const light_entry *le = les[l];
+            ok[k0 + l] = 0;
+            si->dist = dist[l];
+            if (!(si->dist > 0.0f) || !isfinite(si->dist))
+                continue;
+            si->wi = pt_v3_scale(ds[l], inv[l]);
+            si->pdf = pdf[l];
+            if (!vok[l])
+                continue;
+            si->radiance =
+                emission(scene, &scene->materials[le->material], le->tri, b1s[l], b2s[l]);
+            ok[k0 + l] = 1;
+        }
+    }
+}
+
+float pt_lights_pdf(const pt_lights *lights, const pt_scene *scene, uint32_t tri, pt_vec3 p,
+                    pt_vec3 hit, pt_vec3 n_light)
+{
+    if (!lights || lights->count == 0 || tri >= lights->num_triangles)
+        return 0.0f;
+    uint32_t k = lights->tri_to_light[tri];
+    if (k == UINT32_MAX)
+        return 0.0f;
+    const light_entry *le = &lights->lights[k];
+    const pt_material *m = &scene->materials[le->material];
+    return solid_angle_pdf(le->pmf_area, m->double_sided, p, hit, n_light);
+}

@@ -1,0 +1,60 @@
+/*
+ * light.h - emissive triangles as lights for next-event estimation.
+ *
+ * Every triangle whose material emits (emissive factor > 0) becomes a light.
+ * Lights are chosen in proportion to power (area x luminance of the emission,
+ * with the emissive texture's mean luminance when it has one) through an alias
+ * table (Walker 1977 / Vose 1991), then a point is sampled uniformly by area and
+ * the pdf converted to solid angle: pdf_w = pdf_A * d^2 / |cos theta_light|.
+ * Single-sided emitters emit on the side of their geometric normal (counter-
+ * clockwise winding); double-sided ones on both sides.
+ * Immutable after pt_lights_new; thread-safe for reading.
+ */
+#ifndef PT_COMMON_RENDER_LIGHT_H
+#define PT_COMMON_RENDER_LIGHT_H
+
+#include <stdint.h>
+
+#include "common/base/error.h"
+#include "common/scene/scene.h"
+#include "common/math/vec.h"
+
+typedef struct pt_lights pt_lights;
+
+typedef struct pt_light_sample {
+    pt_vec3 position;   /* on the light */
+    pt_vec3 normal;     /* geometric normal of the light triangle */
+    pt_vec3 wi;         /* unit direction from the shading point to position */
+    float dist;         /* distance to position */
+    pt_vec3 radiance;   /* emitted radiance towards the shading point (0 if back side) */
+    float pdf;          /* solid-angle pdf (including the choice of triangle); 0 = impossible */
+    uint32_t tri;       /* triangle index in the scene */
+} pt_light_sample;
+
+/* Builds the light list. A scene without emitters gives a valid, empty set. */
+pt_status pt_lights_new(const pt_scene *scene, pt_lights **out, pt_error *err);
+void pt_lights_free(pt_lights *lights); /* accepts NULL */
+
+uint32_t pt_lights_count(const pt_lights *lights);
+
+/* Samples a light point seen from p. u: 3 numbers in [0,1) (u[0] picks the
+ * triangle, u[1..2] the point). Returns 0 when there are no lights or the
+ * sample is impossible (then s->pdf is 0). */
+int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, const float u[3],
+                     pt_light_sample *s);
+
+/* pt_lights_sample(lights, scene, p[i], u[i], &s[i]) into ok[i] for i < n,
+ * the same bits, computed a few points at a time in SIMD lanes. */
+void pt_lights_sample_n(const pt_lights *lights, const pt_scene *scene, uint32_t n,
+                        const pt_vec3 *p, const float (*u)[3], pt_light_sample *s, int *ok);
+
+/* Solid-angle pdf that pt_lights_sample would give for reaching point `hit` on
+ * triangle `tri` (normal n_light) from p; 0 when tri is not a light. */
+float pt_lights_pdf(const pt_lights *lights, const pt_scene *scene, uint32_t tri, pt_vec3 p,
+                    pt_vec3 hit, pt_vec3 n_light);
+
+/* Emitted radiance of triangle tri at barycentrics (b1, b2) towards direction
+ * w_out (unit, away from the light); 0 on the back of a single-sided emitter. */
+pt_vec3 pt_emitted(const pt_scene *scene, uint32_t tri, float b1, float b2, pt_vec3 w_out);
+
+#endif

@@ -1,0 +1,1129 @@
+#include "common/render/render.h"
+
+#include <math.h>
+#include <string.h>
+
+#include "common/scene/accel.h"
+#include "common/base/alloc.h"
+#include "common/render/bsdf.h"
+#include "common/render/light.h"
+#include "common/render/light_lanes.h"
+#include "common/render/sampler.h"
+#include "common/math/simd.h"
+
+/*
+ * Sample dimensions. Pixel jitter uses dims 0-1; bounce k uses the 8 dims
+ * starting at DIM_BOUNCE0 + 8k. 2D values start at even dimensions, so each
+ * is one stratified pair of the sampler (sampler.h).
+ */
+enum {
+    DIM_PIXEL = 0,
+    DIM_BOUNCE0 = 4,
+    DIM_PER_BOUNCE = 8,
+    OFF_LIGHT_POINT = 0, /* 2D */
+    OFF_BSDF_DIR = 2,    /* 2D */
+    OFF_LIGHT_PICK = 4,  /* 2D with the lobe pick */
+    OFF_RR = 6,
+};
+
+/* Bounces whose sampler seeds a pixel keeps; deeper ones hash theirs per use. */
+#define SEED_CACHE 32u
+
+/* One pixel's sampler state, shared by all of its samples: the seeds of the
+ * pixel jitter's dimensions and, filled as paths first reach each depth, of
+ * every bounce's 8 dimensions (sampler.h: pt_sample_group). Only seeds: the
+ * values stay a pure function of (seed, pixel, index, dimension). */
+typedef struct pixel_ctx {
+    uint32_t px, py;
+    uint32_t seed;
+    uint32_t ngroups; /* bounce[0..ngroups) are filled */
+    pt_sample_group jitter;
+    pt_sample_group bounce[SEED_CACHE];
+} pixel_ctx;
+
+static void pixel_ctx_init(pixel_ctx *pc, const pt_renderer *r, uint32_t px, uint32_t py);
+
+/* The integrator variants: a feature mask fixed at compile time, so that code
+ * for features a scene lacks is folded away (see pick_variant). */
+typedef pt_vec3 (*li_fn)(const pt_renderer *r, pixel_ctx *pc, uint32_t index,
+                         pt_render_stats *stats);
+typedef void (*tile_fn)(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,
+                        pt_pixel_acc *out, pt_render_stats *stats);
+
+struct pt_renderer {
+    const pt_scene *scene;
+    pt_accel *accel;
+    pt_offset offset; /* pt_accel_offset(accel) */
+    pt_lights *lights;
+    pt_bsdf *mat_bsdf;    /* per material: its BSDF when it has no texture */
+    struct tri_rec *tris; /* per triangle (surface_at), in tris_mem */
+    void *tris_mem;
+    pt_render_params params;
+    li_fn li;     /* one path at a time: pt_render_sample */
+    tile_fn tile; /* batched: pt_render_tile */
+    int nee;      /* next-event estimation runs: lights exist, the strategy uses them */
+    int nee_n;    /* nee, with lights enough to sample them for a stage at once */
+    const char *variant;
+    int lanes; /* the Lambert variants shade in lanes (shade_lanes) */
+    float tan_half_fov;
+};
+
+void pt_render_params_default(pt_render_params *p)
+{
+    p->seed = 0;
+    p->max_depth = 16;
+    p->rr_depth = 3;
+    p->light_strategy = PT_LIGHT_MIS;
+    p->extra_features = 0;
+    p->scalar_shading = 0;
+}
+
+const pt_render_params *pt_renderer_params(const pt_renderer *r)
+{
+    return &r->params;
+}
+const char *pt_renderer_variant(const pt_renderer *r)
+{
+    return r->variant;
+}
+
+int pt_renderer_lanes(const pt_renderer *r)
+{
+    return r->lanes;
+}
+
+/* Power heuristic with beta = 2 (Veach 1997, eq. 9.13). */
+static inline float power_heuristic(float pa, float pb)
+{
+    float a = pa * pa, b = pb * pb;
+    return a + b > 0.0f ? a / (a + b) : 0.0f;
+}
+
+static inline pt_vec3 vert(const float *arr, uint32_t i)
+{
+    return pt_v3(arr[3 * i], arr[3 * i + 1], arr[3 * i + 2]);
+}
+
+/* Everything the integrator needs to know about a surface point. */
+typedef struct surface {
+    pt_vec3 p;  /* world position */
+    pt_vec3 ng; /* geometric normal from the winding (unflipped) */
+    pt_vec3 ns; /* shading normal */
+    float uv[2];
+    const pt_material *mat;
+} surface;
+
+/*
+ * What the integrator reads of a hit triangle, in one 64-byte, cache-line-
+ * aligned record indexed by Embree's primID, built once per renderer: the
+ * vertices (so the hit point is pt_accel_hit_point's, the same bits), the
+ * unit geometric normal that pt_accel_hit_point would compute at every hit
+ * (computed once by the same code: the same bits), and the material. A flat
+ * triangle - three bit-identical vertex normals, as in every flat-shaded
+ * mesh - also stores that normal, normalised: interpolating three equal unit
+ * normals and normalising gives it back, up to a rounding of the sum, so the
+ * shading normal costs neither the interpolation nor a square root.
+ */
+typedef struct tri_rec {
+    pt_vec3 v0, v1, v2;
+    pt_vec3 ng;
+    pt_vec3 ns;   /* when mat & TRI_FLAT */
+    uint32_t mat; /* material index, and TRI_FLAT */
+} tri_rec;
+#define TRI_FLAT 0x80000000u
+_Static_assert(sizeof(tri_rec) == 64, "tri_rec is one cache line");
+
+static inline void surface_at(const pt_renderer *r, const pt_hit *hit, surface *sf,
+                              const uint32_t features)
+{
+    const pt_scene *s = r->scene;
+    const tri_rec *t = &r->tris[hit->tri];
+    float b0 = 1.0f - hit->b1 - hit->b2;
+    /* pt_accel_hit_point's expression. */
+    sf->p = pt_v3_add(pt_v3_add(pt_v3_scale(t->v0, b0), pt_v3_scale(t->v1, hit->b1)),
+                      pt_v3_scale(t->v2, hit->b2));
+    sf->ng = t->ng;
+    const uint32_t *tri = &s->indices[3 * hit->tri];
+    if (t->mat & TRI_FLAT) {
+        sf->ns = t->ns;
+    } else {
+        pt_vec3 n = pt_v3_add(pt_v3_add(pt_v3_scale(vert(s->normals, tri[0]), b0),
+                                        pt_v3_scale(vert(s->normals, tri[1]), hit->b1)),
+                              pt_v3_scale(vert(s->normals, tri[2]), hit->b2));
+        float len = pt_v3_len(n);
+        sf->ns = (len > 0.0f && isfinite(len)) ? pt_v3_scale(n, 1.0f / len) : sf->ng;
+    }
+    sf->uv[0] = sf->uv[1] = 0.0f;
+    if ((features & PT_FEAT_TEXTURES) && s->uvs) {
+        const float *uv = s->uvs;
+        sf->uv[0] = b0 * uv[2 * tri[0]] + hit->b1 * uv[2 * tri[1]] + hit->b2 * uv[2 * tri[2]];
+        sf->uv[1] =
+            b0 * uv[2 * tri[0] + 1] + hit->b1 * uv[2 * tri[1] + 1] + hit->b2 * uv[2 * tri[2] + 1];
+    }
+    sf->mat = &s->materials[t->mat & ~TRI_FLAT];
+}
+
+/* The records of a scene's triangles, in a block whose start is aligned to
+ * 64 bytes (*base is what to free). */
+static tri_rec *tri_recs_new(const pt_scene *s, void **base)
+{
+    *base = NULL;
+    if (s->num_triangles == 0)
+        return NULL;
+    size_t n = s->num_triangles;
+    if (n > (SIZE_MAX - 63) / sizeof(tri_rec))
+        return NULL;
+    char *mem = pt_malloc(n * sizeof(tri_rec) + 63);
+    if (!mem)
+        return NULL;
+    tri_rec *recs = (tri_rec *)(mem + ((64 - (uintptr_t)mem % 64) % 64));
+    for (size_t i = 0; i < n; i++) {
+        const uint32_t *tri = &s->indices[3 * i];
+        tri_rec *t = &recs[i];
+        pt_hit hit = {0.0f, 0.0f, 0.0f, (uint32_t)i};
+        pt_vec3 p;
+        pt_accel_hit_point(s, &hit, &p, &t->ng);
+        t->v0 = vert(s->positions, tri[0]);
+        t->v1 = vert(s->positions, tri[1]);
+        t->v2 = vert(s->positions, tri[2]);
+        t->mat = s->tri_material[i] & ~TRI_FLAT;
+        t->ns = t->ng;
+        pt_vec3 n0 = vert(s->normals, tri[0]), n1 = vert(s->normals, tri[1]),
+                n2 = vert(s->normals, tri[2]);
+        float len = pt_v3_len(n0);
+        if (memcmp(&n0, &n1, sizeof n0) == 0 && memcmp(&n0, &n2, sizeof n0) == 0 && len > 0.0f &&
+            isfinite(len)) {
+            t->ns = pt_v3_scale(n0, 1.0f / len);
+            t->mat |= TRI_FLAT;
+        }
+    }
+    *base = mem;
+    return recs;
+}
+
+/* max(a, b) as fmaxf gives it (a NaN argument is ignored), by comparisons:
+ * fmaxf is a library call without -ffinite-math-only. Only the sign of a
+ * zero result may differ, which no caller can see. */
+static inline float max2(float a, float b)
+{
+    return (a > b || b != b) ? a : b;
+}
+
+/* pt_v3_max_comp(v) > 0, exactly (fmaxf ignores NaNs; so does this). */
+static inline int any_positive(pt_vec3 v)
+{
+    return v.x > 0.0f || v.y > 0.0f || v.z > 0.0f;
+}
+
+/* The BSDF of a material without textures: the work of material_bsdf below,
+ * done once per material (pt_renderer_new) instead of at every hit. */
+static pt_bsdf material_bsdf_untextured(const pt_material *m)
+{
+    return pt_bsdf_setup(pt_v3(m->base_color[0], m->base_color[1], m->base_color[2]), m->metallic,
+                         m->roughness, m->specular,
+                         pt_v3(m->specular_color[0], m->specular_color[1], m->specular_color[2]));
+}
+
+static inline pt_bsdf material_bsdf(const pt_renderer *r, const surface *sf,
+                                    const uint32_t features)
+{
+    const pt_scene *s = r->scene;
+    const pt_material *m = sf->mat;
+    if (!(features & PT_FEAT_TEXTURES) || (m->base_color_tex < 0 && m->metal_rough_tex < 0)) {
+        /* pt_bsdf_setup's result for the material's own factors; without
+         * PT_FEAT_GLOSSY only its diffuse (the clamped base colour times
+         * 1 - 0) is read, the same bits as the branch below. */
+        return r->mat_bsdf[m - s->materials];
+    }
+    pt_vec3 base = pt_v3(m->base_color[0], m->base_color[1], m->base_color[2]);
+    float metallic = m->metallic, roughness = m->roughness;
+    if (features & PT_FEAT_TEXTURES) {
+        float t[4];
+        if (m->base_color_tex >= 0) {
+            pt_texture_sample(&s->textures[m->base_color_tex], sf->uv[0], sf->uv[1], t);
+            base = pt_v3_mul(base, pt_v3(t[0], t[1], t[2]));
+        }
+        if (m->metal_rough_tex >= 0) {
+            pt_texture_sample(&s->textures[m->metal_rough_tex], sf->uv[0], sf->uv[1], t);
+            roughness *= t[1];
+            metallic *= t[2];
+        }
+    }
+    if (!(features & PT_FEAT_GLOSSY)) {
+        /* pt_bsdf_setup's diffuse for metallic 0: the clamped base times 1. */
+        pt_bsdf b;
+        memset(&b, 0, sizeof b);
+        b.diffuse = pt_v3(fminf(fmaxf(base.x, 0.0f), 1.0f), fminf(fmaxf(base.y, 0.0f), 1.0f),
+                          fminf(fmaxf(base.z, 0.0f), 1.0f));
+        return b;
+    }
+    return pt_bsdf_setup(base, metallic, roughness, m->specular,
+                         pt_v3(m->specular_color[0], m->specular_color[1], m->specular_color[2]));
+}
+
+/*
+ * Lambert-only scenes (no PT_FEAT_GLOSSY: every material has metallic 0 and
+ * specularFactor 0): the glTF BSDF is diffuse / pi with a Fresnel weight of
+ * exactly 1 and the diffuse lobe always chosen. These repeat pt_bsdf_eval and
+ * pt_bsdf_sample's arithmetic for that case operation for operation
+ * ((1 - 0) * cos = cos exactly), so the pixels are bit-identical to the
+ * general integrator's; they skip the lobe choice, Fresnel and GGX terms.
+ */
+static inline pt_vec3 bsdf_eval(const pt_bsdf *b, pt_vec3 wo, pt_vec3 wi, float *pdf,
+                                const uint32_t features)
+{
+    if (features & PT_FEAT_GLOSSY)
+        return pt_bsdf_eval(b, wo, wi, pdf);
+    if (!(wo.z > 0.0f) || !(wi.z > 0.0f)) {
+        *pdf = 0.0f;
+        return pt_v3(0.0f, 0.0f, 0.0f);
+    }
+    float c = wi.z * PT_INV_PI;
+    *pdf = c;
+    return pt_v3_scale(b->diffuse, c);
+}
+
+/* cos_wi, when not NULL, is pt_sample_cosine_hemisphere(u[1], u[2]),
+ * computed ahead for many paths in lanes (Lambert variants only). */
+static inline pt_vec3 bsdf_sample(const pt_bsdf *b, pt_vec3 wo, const float u[3], pt_vec3 *wi,
+                                  float *pdf, const pt_vec3 *cos_wi, const uint32_t features)
+{
+    if (features & PT_FEAT_GLOSSY)
+        return pt_bsdf_sample(b, wo, u, wi, pdf);
+    pt_vec3 zero = pt_v3(0.0f, 0.0f, 0.0f);
+    *pdf = 0.0f;
+    *wi = pt_v3(0.0f, 0.0f, 1.0f);
+    if (!(wo.z > 0.0f))
+        return zero;
+    *wi = cos_wi ? *cos_wi : pt_sample_cosine_hemisphere(u[1], u[2]);
+    if (!(wi->z > 0.0f))
+        return zero;
+    pt_vec3 f = bsdf_eval(b, wo, *wi, pdf, features);
+    if (!(*pdf > 0.0f)) {
+        *pdf = 0.0f;
+        return zero;
+    }
+    return pt_v3_scale(f, 1.0f / *pdf);
+}
+
+static inline int emits(const pt_material *m)
+{
+    return m->emissive[0] > 0.0f || m->emissive[1] > 0.0f || m->emissive[2] > 0.0f;
+}
+
+static inline void camera_ray(const pt_renderer *r, uint32_t px, uint32_t py, const float u[2],
+                              pt_vec3 *o, pt_vec3 *d)
+{
+    const pt_camera *c = &r->scene->camera;
+    float w = (float)r->params.width, h = (float)r->params.height;
+    /* Box filter: a uniform point in the pixel; y grows downwards in the image. */
+    float sx = (2.0f * ((float)px + u[0]) / w - 1.0f) * r->tan_half_fov * (w / h);
+    float sy = (1.0f - 2.0f * ((float)py + u[1]) / h) * r->tan_half_fov;
+    *o = c->position;
+    *d = pt_v3_norm(
+        pt_v3_add(c->forward, pt_v3_add(pt_v3_scale(c->right, sx), pt_v3_scale(c->up, sy))));
+}
+
+/* The sampler seeds of bounce `depth` of pc's pixel: kept in pc for the
+ * first SEED_CACHE bounces, hashed into *deep beyond. */
+static inline const pt_sample_group *bounce_group(pixel_ctx *pc, uint32_t depth,
+                                                  pt_sample_group *deep)
+{
+    if (depth >= SEED_CACHE) {
+        pt_sample_group_init(deep, pc->seed, DIM_BOUNCE0 + DIM_PER_BOUNCE * depth);
+        return deep;
+    }
+    while (pc->ngroups <= depth) {
+        pt_sample_group_init(&pc->bounce[pc->ngroups], pc->seed,
+                             DIM_BOUNCE0 + DIM_PER_BOUNCE * pc->ngroups);
+        pc->ngroups++;
+    }
+    return &pc->bounce[depth];
+}
+
+/* The 8 numbers of bounce `depth` of sample `index` (the light pick and the
+ * lobe pick are one pair: one index shuffle). */
+static inline void draw_bounce(pixel_ctx *pc, uint32_t depth, uint32_t index,
+                               float u[DIM_PER_BOUNCE])
+{
+    pt_sample_group deep;
+    pt_sample_group_eval(bounce_group(pc, depth, &deep), index, u);
+}
+
+/* One path between bounces: the ray it traces next and what it carries. */
+typedef struct path {
+    pt_vec3 o, d; /* the next closest-hit ray */
+    pt_vec3 L, beta;
+    pt_vec3 prev_p;
+    float prev_pdf; /* 0: the previous vertex was the camera (no MIS) */
+    uint32_t depth;
+    uint32_t index; /* the sample index */
+    pixel_ctx *pc;
+} path;
+
+/* A shadow ray that shade() asks for, and what the path gains when the ray is
+ * unoccluded. Nothing is traced when dist is not positive (it still counts as
+ * a ray, as it always has). */
+typedef struct shadow_ray {
+    pt_vec3 from, dir;
+    float dist;
+    pt_vec3 contrib; /* beta * (f * Le * w), beta before this bounce's weight */
+} shadow_ray;
+
+enum { SHADE_SHADOW = 1u, SHADE_CONTINUE = 2u }; /* bits 0 and 1: the batch counts with them */
+
+/* The camera ray of sample `index` of pc's pixel. */
+static inline void path_start(const pt_renderer *r, pixel_ctx *pc, uint32_t index, path *pa)
+{
+    float u2[2];
+    pt_sample_group_eval2(&pc->jitter, index, u2);
+    camera_ray(r, pc->px, pc->py, u2, &pa->o, &pa->d);
+    pa->L = pt_v3(0, 0, 0);
+    pa->beta = pt_v3(1, 1, 1);
+    pa->prev_p = pa->o;
+    pa->prev_pdf = 0.0f;
+    pa->depth = 0;
+    pa->index = index;
+    pa->pc = pc;
+}
+
+/* The light sample of a bounce at sf, when NEE runs. Like the hit's surface
+ * (surface_at) it is a pure function of the hit and the bounce's numbers, so
+ * the batched loop computes both for all paths, stage by stage, before
+ * shading any: short loops of independent iterations, which the processor
+ * overlaps. */
+static inline __attribute__((always_inline)) int
+bounce_light(const pt_renderer *r, const surface *sf, const float u[DIM_PER_BOUNCE],
+             pt_light_sample *ls, const uint32_t features)
+{
+    if (!((features & PT_FEAT_EMITTERS) && r->nee))
+        return 0;
+    float u3[3];
+    u3[0] = u[OFF_LIGHT_PICK];
+    u3[1] = u[OFF_LIGHT_POINT];
+    u3[2] = u[OFF_LIGHT_POINT + 1];
+    return pt_lights_sample(r->lights, r->scene, sf->p, u3, ls);
+}
+
+/* shade()'s first step: the hit's emission into pa->L, weighted by the
+ * power heuristic against the light pdf when the path got here by sampling
+ * its BSDF (Veach 1997, sec. 9.2). */
+static inline __attribute__((always_inline)) void shade_emission(const pt_renderer *r, path *pa,
+                                                                 const pt_hit *hit,
+                                                                 const surface *sf,
+                                                                 const uint32_t features)
+{
+    const pt_scene *s = r->scene;
+    const uint32_t strategy = r->params.light_strategy;
+    if (!((features & PT_FEAT_EMITTERS) && emits(sf->mat)))
+        return;
+    pt_vec3 le = pt_emitted(s, hit->tri, hit->b1, hit->b2, pt_v3_neg(pa->d));
+    if (pa->prev_pdf > 0.0f && strategy == PT_LIGHT_MIS) {
+        float lp = pt_lights_pdf(r->lights, s, hit->tri, pa->prev_p, sf->p, sf->ng);
+        le = pt_v3_scale(le, power_heuristic(pa->prev_pdf, lp));
+    }
+    if (pa->prev_pdf == 0.0f || strategy != PT_LIGHT_NEE_ONLY)
+        pa->L = pt_v3_add(pa->L, pt_v3_mul(pa->beta, le));
+}
+
+/*
+ * One bounce of a path whose ray hit `hit`, with the bounce's numbers u. NEE
+ * samples an emissive triangle at every vertex; the BSDF-sampled continuation
+ * that hits an emitter adds its emission weighted by the power heuristic
+ * against the light pdf, so each light path is counted once (Veach 1997,
+ * sec. 9.2). Russian roulette after rr_depth bounces keeps throughput-weighted
+ * survival (survival probability max(beta), at most 0.95).
+ *
+ * Adds the hit's emission to pa->L; fills *sr and returns SHADE_SHADOW when
+ * the light sample needs a shadow ray, whose contribution the caller adds
+ * after this bounce's emission and before the next one's (trace_shadow), so
+ * that L sums the same terms in the same order however the rays of many paths
+ * are interleaved. Returns SHADE_CONTINUE with pa's next ray when the path
+ * goes on.
+ */
+static inline __attribute__((always_inline)) uint32_t
+shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_BOUNCE],
+      const surface *sf, const pt_light_sample *ls, int ls_ok, const pt_vec3 *cos_wi,
+      shadow_ray *sr, const uint32_t features)
+{
+    const uint32_t strategy = r->params.light_strategy;
+    uint32_t ret = 0;
+    pt_vec3 wo = pt_v3_neg(pa->d);
+
+    shade_emission(r, pa, hit, sf, features);
+    if (pa->depth >= r->params.max_depth)
+        return ret;
+
+    /* Shade on the side the ray arrived from; single-sided surfaces are
+     * treated as two-sided for scattering (only emission is one-sided). */
+    pt_vec3 ng = sf->ng;
+    if (pt_v3_dot(ng, wo) < 0.0f)
+        ng = pt_v3_neg(ng);
+    pt_vec3 ns = sf->ns;
+    if (pt_v3_dot(ns, ng) < 0.0f)
+        ns = pt_v3_neg(ns);
+    if (pt_v3_dot(ns, wo) <= 0.0f)
+        ns = ng; /* interpolated normal faces away from the viewer */
+    pt_frame fr = pt_frame_from_normal(ns);
+    pt_vec3 wo_l = pt_frame_to_local(&fr, wo);
+    pt_bsdf bsdf = material_bsdf(r, sf, features);
+    if ((features & PT_FEAT_EMITTERS) && r->nee) {
+        if (ls_ok && ls->pdf > 0.0f && any_positive(ls->radiance) && pt_v3_dot(ls->wi, ng) > 0.0f) {
+            float bpdf;
+            pt_vec3 f = bsdf_eval(&bsdf, wo_l, pt_frame_to_local(&fr, ls->wi), &bpdf, features);
+            if (any_positive(f)) {
+                pt_vec3 from = pt_offset_apply(r->offset, sf->p, ng);
+                pt_vec3 nl = ls->normal;
+                if (pt_v3_dot(nl, ls->wi) > 0.0f)
+                    nl = pt_v3_neg(nl);
+                pt_vec3 to = pt_offset_apply(r->offset, ls->position, nl);
+                pt_vec3 sd = pt_v3_sub(to, from);
+                float dist = pt_v3_len(sd);
+                sr->from = from;
+                sr->dist = dist;
+                sr->dir = pt_v3_scale(sd, dist > 0.0f ? 1.0f / dist : 0.0f);
+                float w =
+                    (strategy == PT_LIGHT_MIS ? power_heuristic(ls->pdf, bpdf) : 1.0f) / ls->pdf;
+                sr->contrib = pt_v3_mul(pa->beta, pt_v3_scale(pt_v3_mul(f, ls->radiance), w));
+                ret = SHADE_SHADOW;
+            }
+        }
+    }
+
+    float u3[3];
+    u3[0] = u[OFF_LIGHT_PICK + 1];
+    u3[1] = u[OFF_BSDF_DIR];
+    u3[2] = u[OFF_BSDF_DIR + 1];
+    pt_vec3 wi_l;
+    float pdf;
+    pt_vec3 weight = bsdf_sample(&bsdf, wo_l, u3, &wi_l, &pdf, cos_wi, features);
+    if (!(pdf > 0.0f) || !any_positive(weight))
+        return ret;
+    pt_vec3 wi = pt_frame_to_world(&fr, wi_l);
+    if (pt_v3_dot(wi, ng) <= 0.0f)
+        return ret; /* below the geometric surface: reflection only */
+    pt_vec3 beta = pt_v3_mul(pa->beta, weight);
+
+    if (pa->depth + 1 >= r->params.rr_depth) {
+        /* fminf(pt_v3_max_comp(beta), 0.95f) by comparisons (a NaN max
+         * gives 0.95 as fminf does). */
+        float m = max2(beta.x, max2(beta.y, beta.z));
+        float survive = m < 0.95f ? m : 0.95f;
+        if (!(u[OFF_RR] < survive))
+            return ret;
+        beta = pt_v3_scale(beta, 1.0f / survive);
+    }
+    pa->beta = beta;
+    pa->prev_p = sf->p;
+    pa->prev_pdf = pdf;
+    pa->o = pt_offset_apply(r->offset, sf->p, ng);
+    pa->d = wi;
+    pa->depth++;
+    return ret | SHADE_CONTINUE;
+}
+
+/* Traces the shadow ray shade() asked for and adds its contribution. */
+static inline void trace_shadow(const pt_renderer *r, path *pa, const shadow_ray *sr,
+                                const pt_ray_sink *sink)
+{
+    if (!(sr->dist > 0.0f))
+        return;
+    if (sink)
+        sink->ray(sink->user, sr->from, sr->dir, sr->dist, 1);
+    if (!pt_accel_occluded(r->accel, sr->from, sr->dir, sr->dist))
+        pa->L = pt_v3_add(pa->L, sr->contrib);
+}
+
+/* Paths in flight in the tile loop, and the most pixels they come from. */
+#define BATCH 64u
+#define BATCH_PIXELS 16u
+_Static_assert(BATCH <= PT_LIGHT_PICKS && BATCH % 8 == 0, "a stage's light picks fit");
+
+/*
+ * The Lambert variants' shading (no PT_FEAT_GLOSSY), 8 paths per step in SIMD
+ * lanes: everything shade() does after the hit's emission - the light
+ * sample's distance, direction and pdf (pt_lights_sample's arithmetic,
+ * pt_light_lanes_pdf), the normal flips, the frame (Duff et al. 2017), the
+ * Lambert eval, the power heuristic, the shadow ray with its offsets
+ * (Waechter & Binder) and contribution, the cosine-sampled continuation,
+ * Russian roulette and the next ray - with shade()'s float operations in its
+ * order (IEEE arithmetic, no contraction; the square roots and divisions are
+ * correctly rounded either way) and its branches as masks: every path gets
+ * the same bits as li_impl gives it. A lane that the scalar code would reject
+ * early computes on harmlessly (NaNs or infinities, no traps) and is masked.
+ *
+ * The inputs are a stage's structure of arrays, by position in live[],
+ * filled where they are computed (surface_at, the light picks, the cosine
+ * sampler), so that only the paths' own state is gathered per lane. Moving
+ * one stage alone into lanes measured no faster: the copies into and out of
+ * lanes cost what the lanes saved (docs/bench/throughput.md).
+ */
+typedef struct stage_lanes {
+    float p[3][BATCH];       /* hit point */
+    float ng[3][BATCH];      /* geometric normal, unflipped */
+    float ns[3][BATCH];      /* shading normal */
+    float diffuse[3][BATCH]; /* Lambert albedo (material_bsdf) */
+    float cos_wi[3][BATCH];  /* pt_sample_cosine_hemisphere of the bounce's numbers */
+    pt_light_picks lights;   /* when NEE runs */
+} stage_lanes;
+
+/* Lanes j0..j0+7 of an array (of floats, or with V8I_LOAD of int32s). */
+#define V8_LANES(arr, j0)                                                                          \
+    {                                                                                              \
+        (arr)[j0], (arr)[(j0) + 1], (arr)[(j0) + 2], (arr)[(j0) + 3], (arr)[(j0) + 4],             \
+            (arr)[(j0) + 5], (arr)[(j0) + 6], (arr)[(j0) + 7]                                      \
+    }
+#define V8_LOAD(arr, j0) ((v8f)V8_LANES(arr, j0))
+#define V8I_LOAD(arr, j0) ((v8i)V8_LANES(arr, j0))
+#define V8_SPLAT(x) ((v8f){0} + (x))
+#define V8_NEG_IF(m, x) ((v8f)((v8i)(x) ^ ((m) & (int32_t)0x80000000)))
+#define V8_DOT(ax, ay, az, bx, by, bz) ((ax) * (bx) + (ay) * (by) + (az) * (bz))
+/* any_positive, per lane */
+#define V8_ANY_POS(x, y, z) (((x) > 0.0f) | ((y) > 0.0f) | ((z) > 0.0f))
+
+/* pt_offset_coord in lanes. */
+static inline __attribute__((always_inline)) void offset8(pt_offset off, const v8f *p, const v8f *n,
+                                                          v8f *out)
+{
+    v8f c = V8_SELECT(*n < 1.0f, V8_SELECT(*n > -1.0f, *n, V8_SPLAT(-1.0f)), V8_SPLAT(1.0f));
+    v8i of = __builtin_convertvector(PT_OFFSET_INT_SCALE * c, v8i);
+    v8u bits = (v8u)*p + (v8u)((-of & (*p < 0.0f)) | (of & ~(*p < 0.0f)));
+    v8f near = *p + off.float_scale * *n;
+    v8f ap = (v8f)((v8i)*p & 0x7fffffff);
+    *out = V8_SELECT(ap < off.origin, near, (v8f)bits);
+}
+
+/* Lanes j0..j0+7 of a stage (m < 8: lanes past m repeat the last path and
+ * are not written): each path's shadow ray into sr[k] and its next ray, for
+ * k = live[j0 + l]; flags[l] gets shade()'s SHADE_ bits. nee: NEE runs
+ * (r->nee, and the scene has emitters). Compiled for AVX2 and the baseline. */
+PT_SIMD_CLONES
+static void shade_lanes(const pt_renderer *r, path *paths, const uint8_t *live, uint32_t j0,
+                        uint32_t m, const stage_lanes *sl, const float (*u)[DIM_PER_BOUNCE],
+                        int nee, shadow_ray *sr, uint8_t *flags)
+{
+    path *pp[8];
+    const float *ul[8];
+    for (uint32_t l = 0; l < 8; l++) {
+        uint32_t j = j0 + (l < m ? l : m - 1);
+        pp[l] = &paths[live[j]];
+        ul[l] = u[j];
+    }
+#define GATHER(f) {pp[0]->f, pp[1]->f, pp[2]->f, pp[3]->f, pp[4]->f, pp[5]->f, pp[6]->f, pp[7]->f}
+    v8f wox = -(v8f)GATHER(d.x), woy = -(v8f)GATHER(d.y), woz = -(v8f)GATHER(d.z);
+    v8f btx = GATHER(beta.x), bty = GATHER(beta.y), btz = GATHER(beta.z);
+    v8u depth = GATHER(depth);
+#undef GATHER
+    v8f urr = {ul[0][OFF_RR], ul[1][OFF_RR], ul[2][OFF_RR], ul[3][OFF_RR],
+               ul[4][OFF_RR], ul[5][OFF_RR], ul[6][OFF_RR], ul[7][OFF_RR]};
+    v8f px = V8_LOAD(sl->p[0], j0), py = V8_LOAD(sl->p[1], j0), pz = V8_LOAD(sl->p[2], j0);
+    v8f ngx = V8_LOAD(sl->ng[0], j0), ngy = V8_LOAD(sl->ng[1], j0), ngz = V8_LOAD(sl->ng[2], j0);
+    v8f nsx = V8_LOAD(sl->ns[0], j0), nsy = V8_LOAD(sl->ns[1], j0), nsz = V8_LOAD(sl->ns[2], j0);
+    v8f dfx = V8_LOAD(sl->diffuse[0], j0), dfy = V8_LOAD(sl->diffuse[1], j0),
+        dfz = V8_LOAD(sl->diffuse[2], j0);
+    v8i go = (v8i)(depth < (v8u){0} + r->params.max_depth);
+
+    /* shade()'s normal flips: ng towards wo, ns into ng's side, ng when ns
+     * faces away from the viewer. */
+    v8i flip = V8_DOT(ngx, ngy, ngz, wox, woy, woz) < 0.0f;
+    ngx = V8_NEG_IF(flip, ngx);
+    ngy = V8_NEG_IF(flip, ngy);
+    ngz = V8_NEG_IF(flip, ngz);
+    flip = V8_DOT(nsx, nsy, nsz, ngx, ngy, ngz) < 0.0f;
+    nsx = V8_NEG_IF(flip, nsx);
+    nsy = V8_NEG_IF(flip, nsy);
+    nsz = V8_NEG_IF(flip, nsz);
+    v8i away = V8_DOT(nsx, nsy, nsz, wox, woy, woz) <= 0.0f;
+    nsx = V8_SELECT(away, ngx, nsx);
+    nsy = V8_SELECT(away, ngy, nsy);
+    nsz = V8_SELECT(away, ngz, nsz);
+    /* pt_frame_from_normal(ns) */
+    v8f sign = (v8f)(((v8i)nsz & (int32_t)0x80000000) | 0x3f800000); /* copysignf(1, z) */
+    v8f fa = -1.0f / (sign + nsz);
+    v8f fb = nsx * nsy * fa;
+    v8f tx = 1.0f + sign * nsx * nsx * fa, ty = sign * fb, tz = -sign * nsx;
+    v8f bx = fb, by = sign + nsy * nsy * fa, bz = -nsy;
+    v8f wolz = V8_DOT(wox, woy, woz, nsx, nsy, nsz);
+    v8f ox, oy, oz; /* the shadow ray's and the next ray's origin */
+    offset8(r->offset, &px, &ngx, &ox);
+    offset8(r->offset, &py, &ngy, &oy);
+    offset8(r->offset, &pz, &ngz, &oz);
+
+    v8i shadow = {0};
+    v8f sdx = {0}, sdy = {0}, sdz = {0}, sdist = {0}, cx = {0}, cy = {0}, cz = {0};
+    if (nee) {
+        const pt_light_picks *lp = &sl->lights;
+        v8f lpx = V8_LOAD(lp->pos[0], j0), lpy = V8_LOAD(lp->pos[1], j0),
+            lpz = V8_LOAD(lp->pos[2], j0);
+        v8f lnx = V8_LOAD(lp->normal[0], j0), lny = V8_LOAD(lp->normal[1], j0),
+            lnz = V8_LOAD(lp->normal[2], j0);
+        v8f lrx = V8_LOAD(lp->radiance[0], j0), lry = V8_LOAD(lp->radiance[1], j0),
+            lrz = V8_LOAD(lp->radiance[2], j0);
+        v8f pmf_area = V8_LOAD(lp->pmf_area, j0);
+        v8i two_sided = V8I_LOAD(lp->two_sided, j0);
+        /* pt_lights_sample: d = x - p. */
+        v8f dx = lpx - px, dy = lpy - py, dz = lpz - pz;
+        v8f d2 = V8_DOT(dx, dy, dz, dx, dy, dz), ndot = V8_DOT(lnx, lny, lnz, dx, dy, dz);
+        v8f ldist, inv, lpdf;
+        v8i lok;
+        pt_light_lanes_pdf(&d2, &ndot, &pmf_area, &two_sided, &ldist, &inv, &lpdf, &lok);
+        v8f wix = dx * inv, wiy = dy * inv, wiz = dz * inv;
+        shadow =
+            go & lok & V8_ANY_POS(lrx, lry, lrz) & (V8_DOT(wix, wiy, wiz, ngx, ngy, ngz) > 0.0f);
+        /* bsdf_eval at the light's direction in the frame. */
+        v8f wilz = V8_DOT(wix, wiy, wiz, nsx, nsy, nsz);
+        v8f ce = wilz * PT_INV_PI;
+        v8f fx = dfx * ce, fy = dfy * ce, fz = dfz * ce;
+        shadow &= (wolz > 0.0f) & (wilz > 0.0f) & V8_ANY_POS(fx, fy, fz);
+        v8i back = V8_DOT(lnx, lny, lnz, wix, wiy, wiz) > 0.0f;
+        lnx = V8_NEG_IF(back, lnx);
+        lny = V8_NEG_IF(back, lny);
+        lnz = V8_NEG_IF(back, lnz);
+        v8f tox, toy, toz;
+        offset8(r->offset, &lpx, &lnx, &tox);
+        offset8(r->offset, &lpy, &lny, &toy);
+        offset8(r->offset, &lpz, &lnz, &toz);
+        sdx = tox - ox;
+        sdy = toy - oy;
+        sdz = toz - oz;
+        v8f sd2 = V8_DOT(sdx, sdy, sdz, sdx, sdy, sdz);
+        pt_v8_sqrt(&sdist, &sd2);
+        v8f sinv = (v8f)((v8i)(1.0f / sdist) & (sdist > 0.0f));
+        sdx = sdx * sinv;
+        sdy = sdy * sinv;
+        sdz = sdz * sinv;
+        v8f w = V8_SPLAT(1.0f);
+        if (r->params.light_strategy == PT_LIGHT_MIS) {
+            /* power_heuristic(lpdf, ce) */
+            v8f ha = lpdf * lpdf, hb = ce * ce;
+            w = (v8f)((v8i)(ha / (ha + hb)) & (ha + hb > 0.0f));
+        }
+        w = w / lpdf;
+        cx = btx * ((fx * lrx) * w);
+        cy = bty * ((fy * lry) * w);
+        cz = btz * ((fz * lrz) * w);
+    }
+
+    /* bsdf_sample with the cosine direction, and the checks after it. */
+    v8f cwx = V8_LOAD(sl->cos_wi[0], j0), cwy = V8_LOAD(sl->cos_wi[1], j0),
+        cwz = V8_LOAD(sl->cos_wi[2], j0);
+    v8f pdf = cwz * PT_INV_PI;
+    v8f ipdf = 1.0f / pdf;
+    v8f wx = dfx * pdf * ipdf, wy = dfy * pdf * ipdf, wz = dfz * pdf * ipdf;
+    v8i cont = go & (wolz > 0.0f) & (cwz > 0.0f) & (pdf > 0.0f) & V8_ANY_POS(wx, wy, wz);
+    v8f dx = tx * cwx + bx * cwy + nsx * cwz, dy = ty * cwx + by * cwy + nsy * cwz,
+        dz = tz * cwx + bz * cwy + nsz * cwz; /* pt_frame_to_world */
+    cont &= V8_DOT(dx, dy, dz, ngx, ngy, ngz) > 0.0f;
+    btx = btx * wx;
+    bty = bty * wy;
+    btz = btz * wz;
+    /* Russian roulette: max2(x, max2(y, z)), capped at 0.95. */
+    v8f mx = V8_SELECT((bty > btz) | (btz != btz), bty, btz);
+    mx = V8_SELECT((btx > mx) | (mx != mx), btx, mx);
+    v8f survive = V8_SELECT(mx < 0.95f, mx, V8_SPLAT(0.95f));
+    v8i roulette = (v8i)(depth + 1u >= (v8u){0} + r->params.rr_depth);
+    cont &= ~roulette | (urr < survive);
+    v8f isurv = 1.0f / survive;
+    btx = V8_SELECT(roulette, btx * isurv, btx);
+    bty = V8_SELECT(roulette, bty * isurv, bty);
+    btz = V8_SELECT(roulette, btz * isurv, btz);
+
+    /* Written whatever the masks, without branches on them (they are
+     * random): a shadow ray is read only under SHADE_SHADOW, and a path that
+     * ends is read no more except for its L, which is not written here. */
+    for (uint32_t l = 0; l < m; l++) {
+        path *pa = pp[l];
+        shadow_ray *s = &sr[live[j0 + l]];
+        s->from = pt_v3(ox[l], oy[l], oz[l]);
+        s->dir = pt_v3(sdx[l], sdy[l], sdz[l]);
+        s->dist = sdist[l];
+        s->contrib = pt_v3(cx[l], cy[l], cz[l]);
+        pa->beta = pt_v3(btx[l], bty[l], btz[l]);
+        pa->prev_p = pt_v3(px[l], py[l], pz[l]);
+        pa->prev_pdf = pdf[l];
+        pa->o = pt_v3(ox[l], oy[l], oz[l]);
+        pa->d = pt_v3(dx[l], dy[l], dz[l]);
+        pa->depth++;
+        flags[l] = (uint8_t)((shadow[l] & SHADE_SHADOW) | (cont[l] & SHADE_CONTINUE));
+    }
+}
+
+/* One path, start to end: the reference that the batched tile loop below
+ * must match bit for bit (tested through pt_render_sample). */
+static inline __attribute__((always_inline)) pt_vec3 li_impl(const pt_renderer *r, pixel_ctx *pc,
+                                                             uint32_t index, pt_render_stats *stats,
+                                                             const uint32_t features)
+{
+    path pa;
+    path_start(r, pc, index, &pa);
+    uint64_t rays = 0;
+    for (;;) {
+        /* The bounce's numbers are drawn before the ray is traced: they do
+         * not depend on the hit, and the scrambles' dependency chain then
+         * overlaps the ray query. (A missed ray wastes them.) */
+        float u[DIM_PER_BOUNCE];
+        draw_bounce(pc, pa.depth, index, u);
+        pt_hit hit;
+        rays++;
+        if (!pt_accel_intersect(r->accel, pa.o, pa.d, INFINITY, &hit))
+            break;
+        shadow_ray sr = {{0, 0, 0}, {0, 0, 0}, 0.0f, {0, 0, 0}}; /* set when SHADE_SHADOW */
+        surface sf;
+        surface_at(r, &hit, &sf, features);
+        pt_light_sample ls;
+        int ls_ok = bounce_light(r, &sf, u, &ls, features);
+        uint32_t st = shade(r, &pa, &hit, u, &sf, &ls, ls_ok, NULL, &sr, features);
+        if (st & SHADE_SHADOW) {
+            rays++;
+            trace_shadow(r, &pa, &sr, NULL);
+        }
+        if (!(st & SHADE_CONTINUE))
+            break;
+    }
+    if (stats)
+        stats->rays += rays;
+    return pa.L;
+}
+
+/* The fewest lights for which trace_batch samples a stage's lights in one
+ * call (pt_lights_sample_n): about where their entries and alias columns
+ * (80 bytes a light) outgrow a 32 KiB level-1 data cache. */
+#define LIGHTS_N_MIN 512u
+
+/* bounce_light for the n surfaces of a stage (NEE runs), in one call to
+ * pt_lights_sample_n: the same bits. The random reads of many lights' entries
+ * and emission textures are then issued close together, and their cache
+ * misses overlap. With few lights they hit the cache anyway and trace_batch
+ * calls bounce_light per point, which is faster there (the copies and staging
+ * cost more than they save). Not inlined, so that it leaves those variants'
+ * loop as it was. */
+static __attribute__((noinline)) void lights_stage(const pt_renderer *r, uint32_t n,
+                                                   const surface *sfs,
+                                                   const float (*u)[DIM_PER_BOUNCE],
+                                                   pt_light_sample *lss, int *ls_ok)
+{
+    pt_vec3 p[BATCH];
+    float lu[BATCH][3];
+    for (uint32_t j = 0; j < n; j++) {
+        p[j] = sfs[j].p;
+        lu[j][0] = u[j][OFF_LIGHT_PICK];
+        lu[j][1] = u[j][OFF_LIGHT_POINT];
+        lu[j][2] = u[j][OFF_LIGHT_POINT + 1];
+    }
+    pt_lights_sample_n(r->lights, r->scene, n, p, (const float(*)[3])lu, lss, ls_ok);
+}
+
+/*
+ * Traces n paths (all started) to their ends, stage by stage over all live
+ * paths: the closest hits, the bounce's numbers (one sampler call, SIMD), the
+ * surfaces, the light samples, the shading, the shadow rays. The Lambert
+ * variants shade in SIMD lanes, 8 paths a step (shade_lanes), from the cosine
+ * directions, surfaces and light picks of the stage written straight into
+ * lanes. Each path does exactly what li_impl does, in
+ * the same order, so its L is the same bits; but the loops' iterations are
+ * independent paths, so the processor overlaps one path's long dependency
+ * chains (the square roots and divisions) with its neighbours' instead of
+ * waiting on each in turn, and the ray queries run back to back. This is a
+ * small wavefront (Laine, Karras & Aila 2013, "Megakernels Considered
+ * Harmful") kept on the stack: about 70 KB with tile_impl's, most of it the
+ * pixels' sampler seeds. sl holds the Lambert variants' lanes (NULL in the
+ * others).
+ */
+static inline __attribute__((always_inline)) uint64_t trace_batch(const pt_renderer *r, path *paths,
+                                                                  uint32_t n, stage_lanes *sl,
+                                                                  const uint32_t features,
+                                                                  const pt_ray_sink *sink)
+{
+    uint8_t live[BATCH], shadowed[BATCH];
+    float u[BATCH][DIM_PER_BOUNCE]; /* by position in live[] */
+    const pt_sample_group *groups[BATCH];
+    pt_sample_group deep[BATCH];
+    uint32_t index[BATCH];
+    uint8_t flags[BATCH];
+    surface sfs[BATCH];
+    pt_light_sample lss[BATCH];
+    int ls_ok[BATCH];
+    pt_hit hits[BATCH];
+    shadow_ray sr[BATCH];
+    uint64_t rays = 0;
+    for (uint32_t k = 0; k < n; k++)
+        live[k] = (uint8_t)k;
+    while (n > 0) {
+        rays += n;
+        uint32_t nh = 0;
+        for (uint32_t j = 0; j < n; j++) {
+            uint32_t k = live[j];
+            if (sink)
+                sink->ray(sink->user, paths[k].o, paths[k].d, INFINITY, 0);
+            if (pt_accel_intersect(r->accel, paths[k].o, paths[k].d, INFINITY, &hits[k]))
+                live[nh++] = (uint8_t)k;
+        }
+        /* The bounce's numbers, for the paths that hit something: a pure
+         * function of (pixel, index, depth), so drawing them after the
+         * query, and in one call for all, changes no value. */
+        for (uint32_t j = 0; j < nh; j++) {
+            path *pa = &paths[live[j]];
+            groups[j] = bounce_group(pa->pc, pa->depth, &deep[j]);
+            index[j] = pa->index;
+        }
+        pt_sample_group_eval_n(groups, index, nh, u);
+        uint32_t ns = 0, nc = 0;
+        if (!(features & PT_FEAT_GLOSSY) && sl) {
+            /* Lambert: every bounce that samples its BSDF samples the cosine
+             * hemisphere with these numbers, all at once in lanes; the
+             * surfaces and light picks go into lanes too, then the shading
+             * (shade_lanes). Only the hits' emission stays per path. */
+            pt_sample_cosine_hemisphere_n(&u[0][OFF_BSDF_DIR], DIM_PER_BOUNCE, nh, sl->cos_wi[0],
+                                          sl->cos_wi[1], sl->cos_wi[2]);
+            for (uint32_t j = 0; j < nh; j++) {
+                uint32_t k = live[j];
+                surface sf;
+                surface_at(r, &hits[k], &sf, features);
+                shade_emission(r, &paths[k], &hits[k], &sf, features);
+                pt_bsdf b = material_bsdf(r, &sf, features);
+                PT_LANE_PUT3(sl->p, j, sf.p);
+                PT_LANE_PUT3(sl->ng, j, sf.ng);
+                PT_LANE_PUT3(sl->ns, j, sf.ns);
+                PT_LANE_PUT3(sl->diffuse, j, b.diffuse);
+            }
+            int nee = (features & PT_FEAT_EMITTERS) && r->nee;
+            if (nee)
+                pt_lights_pick_n(r->lights, r->scene, nh, &u[0][OFF_LIGHT_PICK],
+                                 &u[0][OFF_LIGHT_POINT], DIM_PER_BOUNCE, &sl->lights);
+            for (uint32_t j0 = 0; j0 < nh; j0 += 8)
+                shade_lanes(r, paths, live, j0, nh - j0 < 8 ? nh - j0 : 8, sl,
+                            (const float(*)[DIM_PER_BOUNCE])u, nee, sr, &flags[j0]);
+            /* Without branches on the flags, which are random: each path is
+             * written to both lists and counted where its flag is set. */
+            for (uint32_t j = 0; j < nh; j++) {
+                uint8_t k = live[j];
+                shadowed[ns] = k;
+                ns += flags[j] & SHADE_SHADOW;
+                live[nc] = k; /* nc <= j: compaction in place */
+                nc += (flags[j] & SHADE_CONTINUE) >> 1;
+            }
+        } else {
+            /* Lambert shaded per path (where lanes are slow): the cosine
+             * directions still all at once. */
+            float cw[3][BATCH];
+            if (!(features & PT_FEAT_GLOSSY))
+                pt_sample_cosine_hemisphere_n(&u[0][OFF_BSDF_DIR], DIM_PER_BOUNCE, nh, cw[0], cw[1],
+                                              cw[2]);
+            for (uint32_t j = 0; j < nh; j++)
+                surface_at(r, &hits[live[j]], &sfs[j], features);
+            if ((features & PT_FEAT_EMITTERS) && r->nee_n) {
+                lights_stage(r, nh, sfs, u, lss, ls_ok);
+            } else {
+                for (uint32_t j = 0; j < nh; j++)
+                    ls_ok[j] = bounce_light(r, &sfs[j], u[j], &lss[j], features);
+            }
+            for (uint32_t j = 0; j < nh; j++) {
+                uint32_t k = live[j];
+                pt_vec3 c, *cp = NULL;
+                if (!(features & PT_FEAT_GLOSSY)) {
+                    c = pt_v3(cw[0][j], cw[1][j], cw[2][j]);
+                    cp = &c;
+                }
+                uint32_t st = shade(r, &paths[k], &hits[k], u[j], &sfs[j], &lss[j], ls_ok[j], cp,
+                                    &sr[k], features);
+                if (st & SHADE_SHADOW)
+                    shadowed[ns++] = (uint8_t)k;
+                if (st & SHADE_CONTINUE)
+                    live[nc++] = (uint8_t)k; /* nc <= j: compaction in place */
+            }
+        }
+        rays += ns;
+        for (uint32_t j = 0; j < ns; j++)
+            trace_shadow(r, &paths[shadowed[j]], &sr[shadowed[j]], sink);
+        n = nc;
+    }
+    return rays;
+}
+
+/*
+ * Samples [s0, s1) of a tile's pixels. Pixels are taken in row-major groups
+ * and, per aligned block of PT_SAMPLE_BLOCK samples, the block's samples of
+ * the whole group are traced together (trace_batch); then each pixel sums its
+ * block's results in sample order and adds the block sum: the same additions
+ * as one pixel and one sample at a time.
+ */
+static inline __attribute__((always_inline)) void
+tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel_acc *out,
+          pt_render_stats *stats, stage_lanes *sl, const uint32_t features, const pt_ray_sink *sink)
+{
+    pt_render_stats local = {0, 0, 0};
+    uint32_t tw = tile.x1 - tile.x0, npix = tw * (tile.y1 - tile.y0);
+    uint32_t span = s1 > s0 ? s1 - s0 : 1;
+    uint32_t group = BATCH / (span < PT_SAMPLE_BLOCK ? span : PT_SAMPLE_BLOCK);
+    if (group > BATCH_PIXELS)
+        group = BATCH_PIXELS;
+    pixel_ctx pcs[BATCH_PIXELS];
+    path paths[BATCH];
+    for (uint32_t p0 = 0; p0 < npix; p0 += group) {
+        uint32_t np = npix - p0 < group ? npix - p0 : group;
+        for (uint32_t g = 0; g < np; g++) {
+            memset(&out[p0 + g], 0, sizeof out[p0 + g]);
+            pixel_ctx_init(&pcs[g], r, tile.x0 + (p0 + g) % tw, tile.y0 + (p0 + g) / tw);
+        }
+        /* Sum each aligned block of PT_SAMPLE_BLOCK samples on its own, then
+         * add the block sums in order: the result for [s0,s1) is then the
+         * same bits as adding the results of any split at block boundaries. */
+        for (uint32_t b0 = s0; b0 < s1;) {
+            uint32_t b1 = (b0 / PT_SAMPLE_BLOCK + 1) * PT_SAMPLE_BLOCK;
+            if (b1 > s1 || b1 < b0)
+                b1 = s1;
+            uint32_t nb = b1 - b0;
+            for (uint32_t g = 0; g < np; g++)
+                for (uint32_t i = 0; i < nb; i++)
+                    path_start(r, &pcs[g], b0 + i, &paths[g * nb + i]);
+            local.rays += trace_batch(r, paths, np * nb, sl, features, sink);
+            for (uint32_t g = 0; g < np; g++) {
+                pt_pixel_acc blk = {{0, 0, 0}, 0, 0, 0};
+                for (uint32_t i = 0; i < nb; i++)
+                    if (!pt_pixel_acc_sample(&blk, paths[g * nb + i].L))
+                        local.rejected++;
+                pt_pixel_acc_add(&out[p0 + g], &blk);
+                local.samples += blk.n;
+            }
+            b0 = b1;
+        }
+    }
+    if (stats) {
+        stats->samples += local.samples;
+        stats->rejected += local.rejected;
+        stats->rays += local.rays;
+    }
+}
+
+#define ALL_FEATURES 0xffffffffu
+#define VARIANT(li_name, tile_name, feat)                                                          \
+    static pt_vec3 li_name(const pt_renderer *r, pixel_ctx *pc, uint32_t index,                    \
+                           pt_render_stats *stats)                                                 \
+    {                                                                                              \
+        return li_impl(r, pc, index, stats, (feat));                                               \
+    }                                                                                              \
+    static void tile_name(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,            \
+                          pt_pixel_acc *out, pt_render_stats *stats)                               \
+    {                                                                                              \
+        if (((feat)&PT_FEAT_GLOSSY) || !r->lanes) {                                                \
+            tile_impl(r, tile, s0, s1, out, stats, NULL, (feat), NULL);                            \
+        } else {                                                                                   \
+            /* Lanes past a stage's paths compute on zeros or an earlier                           \
+             * stage's values, not on what the stack held (which could be                          \
+             * slow denormals). */                                                                 \
+            stage_lanes sl;                                                                        \
+            memset(&sl, 0, sizeof sl);                                                             \
+            tile_impl(r, tile, s0, s1, out, stats, &sl, (feat), NULL);                             \
+        }                                                                                          \
+    }
+#define NO_TEX (uint32_t)(PT_FEAT_TEXTURES | PT_FEAT_EMISSIVE_TEX)
+VARIANT(li_general, tile_general, ALL_FEATURES)
+VARIANT(li_untextured, tile_untextured, ALL_FEATURES & ~NO_TEX)
+VARIANT(li_lambert, tile_lambert, ALL_FEATURES & ~(uint32_t)PT_FEAT_GLOSSY)
+VARIANT(li_lambert_untextured, tile_lambert_untextured,
+        ALL_FEATURES & ~NO_TEX & ~(uint32_t)PT_FEAT_GLOSSY)
+#undef VARIANT
+
+/* The most specialised variant whose assumptions the scene meets. */
+static void pick_variant(pt_renderer *r, uint32_t features)
+{
+    int tex = (features & NO_TEX) != 0, glossy = (features & PT_FEAT_GLOSSY) != 0;
+    if (glossy) {
+        r->li = tex ? li_general : li_untextured;
+        r->tile = tex ? tile_general : tile_untextured;
+        r->variant = tex ? "general" : "untextured";
+    } else {
+        r->li = tex ? li_lambert : li_lambert_untextured;
+        r->tile = tex ? tile_lambert : tile_lambert_untextured;
+        r->variant = tex ? "lambert" : "lambert-untextured";
+    }
+}
+
+pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params, pt_renderer **out,
+                          pt_error *err)
+{
+    if (params->width == 0 || params->height == 0)
+        return pt_error_set(err, PT_ERR_ARG, "image size %ux%u is empty", params->width,
+                            params->height);
+    if (!(scene->camera.yfov > 0.0f && scene->camera.yfov < PT_PI))
+        return pt_error_set(err, PT_ERR_ARG, "camera field of view %g rad is not in (0, pi)",
+                            (double)scene->camera.yfov);
+    pt_renderer *r = pt_calloc(1, sizeof *r);
+    if (!r)
+        return pt_error_set(err, PT_ERR_NOMEM, "out of memory for the renderer");
+    pt_status st;
+    r->scene = scene;
+    r->params = *params;
+    r->tan_half_fov = tanf(0.5f * scene->camera.yfov);
+    if ((st = pt_accel_new(scene, &r->accel, err)) != PT_OK)
+        goto fail;
+    if ((st = pt_lights_new(scene, &r->lights, err)) != PT_OK)
+        goto fail;
+    r->offset = pt_accel_offset(r->accel);
+    if (scene->num_materials > 0) {
+        r->mat_bsdf = pt_malloc_array(scene->num_materials, sizeof *r->mat_bsdf);
+        if (!r->mat_bsdf) {
+            st = pt_error_set(err, PT_ERR_NOMEM, "out of memory for the renderer");
+            goto fail;
+        }
+        for (uint32_t i = 0; i < scene->num_materials; i++)
+            r->mat_bsdf[i] = material_bsdf_untextured(&scene->materials[i]);
+    }
+    if (scene->num_triangles > 0 && !(r->tris = tri_recs_new(scene, &r->tris_mem))) {
+        st = pt_error_set(err, PT_ERR_NOMEM, "out of memory for the renderer");
+        goto fail;
+    }
+    r->nee = pt_lights_count(r->lights) > 0 && params->light_strategy != PT_LIGHT_BSDF_ONLY;
+    r->nee_n = r->nee && pt_lights_count(r->lights) >= LIGHTS_N_MIN;
+    uint32_t features = scene->features | params->extra_features;
+    pick_variant(r, features);
+    /* Without fast lanes (an x86-64 processor without AVX2 runs shade_lanes'
+     * baseline clone, which does the lanes one by one) the per-path shading
+     * is faster: docs/bench/throughput.md, "Fourth round". */
+    r->lanes = !(features & PT_FEAT_GLOSSY) && !params->scalar_shading && pt_simd_lanes_fast();
+    *out = r;
+    return PT_OK;
+fail:
+    pt_renderer_free(r);
+    return st;
+}
+
+void pt_renderer_free(pt_renderer *r)
+{
+    if (!r)
+        return;
+    pt_free(r->mat_bsdf);
+    pt_free(r->tris_mem);
+    pt_lights_free(r->lights);
+    pt_accel_free(r->accel);
+    pt_free(r);
+}
+
+static void pixel_ctx_init(pixel_ctx *pc, const pt_renderer *r, uint32_t px, uint32_t py)
+{
+    pc->px = px;
+    pc->py = py;
+    pc->seed = pt_pixel_seed(r->params.seed, px, py);
+    pc->ngroups = 0;
+    pt_sample_group_init(&pc->jitter, pc->seed, DIM_PIXEL);
+}
+
+pt_vec3 pt_render_sample(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index,
+                         pt_render_stats *stats)
+{
+    pixel_ctx pc;
+    pixel_ctx_init(&pc, r, px, py);
+    return r->li(r, &pc, index, stats);
+}
+
+void pt_render_tile(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel_acc *out,
+                    pt_render_stats *stats)
+{
+    r->tile(r, tile, s0, s1, out, stats);
+}
+
+void pt_render_tile_traced(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,
+                           pt_pixel_acc *out, const pt_ray_sink *sink)
+{
+    tile_impl(r, tile, s0, s1, out, NULL, NULL, ALL_FEATURES, sink);
+}

@@ -1,0 +1,114 @@
+/*
+ * render.h - the integrator and the unit of work a worker runs.
+ *
+ * Unidirectional path tracing: next-event estimation on emissive triangles and
+ * BSDF sampling, combined by multiple importance sampling with the power
+ * heuristic (Veach 1997, ch. 9); Russian roulette on throughput after
+ * rr_depth bounces. Every random number is pt_sample_*(pixel seed, sample
+ * index, dimension), so a pixel's samples [a,b) are the same numbers however
+ * the range is split. pt_render_tile sums each aligned block of
+ * PT_SAMPLE_BLOCK samples in sample order in double, then adds the block sums
+ * in order: rendering [0,64) equals the in-order sum (pt_pixel_acc_add from
+ * zero) of [0,16)+[16,32)+... bit for bit, and in general any split of a range
+ * at block boundaries merged in order gives the same bits. (Floating-point
+ * addition is not associative, so a split inside a block, or merging chunks of
+ * several blocks each, is only equal to rounding; the farm therefore fixes the
+ * chunk size per job.)
+ * A sample with a NaN or Inf component is not accumulated; it is counted.
+ * The renderer is immutable after pt_renderer_new; pt_render_tile is
+ * thread-safe and allocates nothing.
+ */
+#ifndef PT_COMMON_RENDER_RENDER_H
+#define PT_COMMON_RENDER_RENDER_H
+
+#include <stdint.h>
+
+#include "common/base/error.h"
+#include "common/render/tile.h"
+#include "common/scene/scene.h"
+
+/* Adds one sample's radiance to a; a non-finite sample is left out and
+ * returns 0 (the caller counts it as rejected). */
+static inline int pt_pixel_acc_sample(pt_pixel_acc *a, pt_vec3 c)
+{
+    if (!pt_isfinite3(c))
+        return 0;
+    double lum = (double)pt_luminance(c);
+    a->sum[0] += c.x;
+    a->sum[1] += c.y;
+    a->sum[2] += c.z;
+    a->sum_sq += lum * lum;
+    a->n++;
+    return 1;
+}
+
+/* How emitters are reached: both strategies weighted by MIS (the default),
+ * or one alone (unweighted), which tests use to check each is unbiased. */
+enum { PT_LIGHT_MIS = 0, PT_LIGHT_NEE_ONLY = 1, PT_LIGHT_BSDF_ONLY = 2 };
+
+typedef struct pt_render_params {
+    uint32_t width, height;
+    uint32_t seed;
+    uint32_t max_depth;  /* maximum scattering events (bounces) per path; default 16 */
+    uint32_t rr_depth;   /* Russian roulette from this many bounces on; default 3 */
+    uint32_t light_strategy; /* PT_LIGHT_*; default PT_LIGHT_MIS */
+    uint32_t extra_features; /* PT_FEAT_* assumed present besides the scene's own, which
+                                picks a less specialised integrator (0xffffffff: the
+                                general one); for tests and benchmarks; default 0 */
+    uint32_t scalar_shading; /* 1: the Lambert variants shade one path at a time, as
+                                they do where SIMD lanes are slow (pt_simd_lanes_fast);
+                                the same bits; for tests and benchmarks; default 0 */
+} pt_render_params;
+
+typedef struct pt_render_stats {
+    uint64_t samples;    /* accepted samples */
+    uint64_t rejected;   /* NaN/Inf samples dropped */
+    uint64_t rays;       /* closest-hit + shadow rays traced */
+} pt_render_stats;
+
+typedef struct pt_renderer pt_renderer;
+
+/* Fills defaults (max_depth 16, rr_depth 3, seed 0, MIS) into p, keeping width/height. */
+void pt_render_params_default(pt_render_params *p);
+
+/* Builds the acceleration structure and lights for a scene, and picks the
+ * integrator variant specialised to scene->features. The scene must outlive
+ * the renderer. */
+pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
+                          pt_renderer **out, pt_error *err);
+void pt_renderer_free(pt_renderer *r); /* accepts NULL */
+const pt_render_params *pt_renderer_params(const pt_renderer *r);
+
+/* The integrator variant chosen for the scene ("general", "lambert", ...).
+ * Every variant gives the same bits as the general one; it only skips work. */
+const char *pt_renderer_variant(const pt_renderer *r);
+
+/* 1 when the variant shades 8 paths at a time in SIMD lanes (the Lambert
+ * variants, on a processor where the lanes are fast). */
+int pt_renderer_lanes(const pt_renderer *r);
+
+/* Renders samples [s0, s1) of every pixel of tile and writes one pt_pixel_acc
+ * per pixel (row-major over the tile, (x1-x0)*(y1-y0) entries, overwritten).
+ * stats (may be NULL) is added to. */
+void pt_render_tile(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,
+                    pt_pixel_acc *out, pt_render_stats *stats);
+
+/* Radiance of one camera sample, traced alone: the reference that
+ * pt_render_tile's batched paths match bit for bit (for tests). */
+pt_vec3 pt_render_sample(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index,
+                         pt_render_stats *stats);
+
+/* Receives every ray one sample traces, for benchmarks that replay the same
+ * rays through bare Embree (the ray-query ceiling). occlusion: 1 for shadow
+ * rays (any hit in (0, tfar)), 0 for closest-hit rays. */
+typedef struct pt_ray_sink {
+    void (*ray)(void *user, pt_vec3 o, pt_vec3 d, float tfar, int occlusion);
+    void *user;
+} pt_ray_sink;
+
+/* pt_render_tile through the general variant, reporting each ray to sink in
+ * the order pt_render_tile traces them. */
+void pt_render_tile_traced(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,
+                           pt_pixel_acc *out, const pt_ray_sink *sink);
+
+#endif

@@ -1,0 +1,42 @@
+/*
+ * tile.h - the unit of work's plain data: a rectangle of pixels and the
+ * per-pixel partial sums a task returns.
+ *
+ * Shared vocabulary of the renderer (pt_render_tile writes these), the film
+ * (which adds them), the adaptive-sampling rule, the wire format (protocol/
+ * encodes them) and the coordinator. Plain structs and one inline function,
+ * no dependency beyond <stdint.h>, so protocol/ can use them without knowing
+ * the scene model. Any thread may use them.
+ */
+#ifndef PT_COMMON_RENDER_TILE_H
+#define PT_COMMON_RENDER_TILE_H
+
+#include <stdint.h>
+
+/* Per-pixel partial sums of a range of samples. */
+typedef struct pt_pixel_acc {
+    double sum[3];  /* sum of the RGB samples */
+    double sum_sq;  /* sum of squared luminance of the samples (error estimate) */
+    uint32_t n;     /* samples accumulated (rejected ones excluded) */
+    uint32_t pad;
+} pt_pixel_acc;
+
+/* a += b (the order of calls fixes the floating-point result). */
+static inline void pt_pixel_acc_add(pt_pixel_acc *a, const pt_pixel_acc *b)
+{
+    a->sum[0] += b->sum[0];
+    a->sum[1] += b->sum[1];
+    a->sum[2] += b->sum[2];
+    a->sum_sq += b->sum_sq;
+    a->n += b->n;
+}
+
+/* A range of samples is summed in aligned blocks of this many, each in sample
+ * order, then block by block (render.h): the unit that keeps splits exact. */
+#define PT_SAMPLE_BLOCK 16u
+
+typedef struct pt_rect {
+    uint32_t x0, y0, x1, y1; /* pixels [x0,x1) x [y0,y1), y down from the top row */
+} pt_rect;
+
+#endif

@@ -1,0 +1,257 @@
+/*
+ * accel.c - ray queries through Embree 3.
+ *
+ * One RTCDevice and one RTCScene per pt_accel, with one triangle geometry.
+ * The vertex and index data are copied into buffers that Embree allocates
+ * (rtcSetNewGeometryBuffer): Embree reads vertices with 16-byte loads and so
+ * needs the last vertex padded, which the scene's tightly packed arrays are
+ * not. The scene is built in robust mode (watertight traversal; no triangle
+ * is skipped through an edge or vertex crack) with high build quality: it is
+ * built once per scene and then traced billions of times.
+ *
+ * Queries (rtcIntersect1 / rtcOccluded1 on a committed scene) are thread-safe.
+ */
+#include "common/scene/accel.h"
+
+#include <math.h>
+#include <string.h>
+
+#include <embree3/rtcore.h>
+
+#include "common/base/alloc.h"
+
+/* Waechter & Binder's constants (RTG ch. 6), for a scene of about unit size. */
+#define OFFSET_ORIGIN (1.0f / 32.0f)
+#define OFFSET_FLOAT_SCALE (1.0f / 65536.0f)
+
+struct pt_accel {
+    RTCDevice device;
+    RTCScene scene;
+    float origin, float_scale; /* pt_accel_offset_ray's constants for this scene */
+};
+
+/* Static text for an Embree error, and the status it maps to. */
+static pt_status rtc_status(enum RTCError e, const char **msg)
+{
+    switch (e) {
+    case RTC_ERROR_NONE:
+        *msg = "no error";
+        return PT_OK;
+    case RTC_ERROR_OUT_OF_MEMORY:
+        *msg = "out of memory";
+        return PT_ERR_NOMEM;
+    case RTC_ERROR_INVALID_ARGUMENT:
+        *msg = "invalid argument";
+        return PT_ERR_ARG;
+    case RTC_ERROR_INVALID_OPERATION:
+        *msg = "invalid operation";
+        return PT_ERR_ARG;
+    case RTC_ERROR_UNSUPPORTED_CPU:
+        *msg = "unsupported CPU";
+        return PT_ERR_LIMIT;
+    case RTC_ERROR_CANCELLED:
+        *msg = "build cancelled";
+        return PT_ERR_LIMIT;
+    case RTC_ERROR_UNKNOWN:
+    default:
+        *msg = "unknown error";
+        return PT_ERR_LIMIT;
+    }
+}
+
+/* Reports the device's pending error (if any) as a pt_error naming `step`. */
+static pt_status check_device(RTCDevice device, const char *step, pt_error *err)
+{
+    const char *msg;
+    enum RTCError e = rtcGetDeviceError(device);
+    pt_status st = rtc_status(e, &msg);
+    if (st != PT_OK)
+        return pt_error_set(err, st, "embree: %s: %s", step, msg);
+    return PT_OK;
+}
+
+pt_status pt_accel_new(const pt_scene *scene, pt_accel **out, pt_error *err)
+{
+    pt_status st;
+    if (!scene || !out)
+        return pt_error_set(err, PT_ERR_ARG, "pt_accel_new: NULL argument");
+    if (scene->num_triangles > 0 && (!scene->positions || !scene->indices))
+        return pt_error_set(err, PT_ERR_ARG, "pt_accel_new: scene has triangles but no arrays");
+
+    pt_accel *a = pt_calloc(1, sizeof *a);
+    if (!a)
+        return pt_error_set(err, PT_ERR_NOMEM, "pt_accel_new: out of memory");
+
+    a->device = rtcNewDevice("");
+    if (!a->device) {
+        st = check_device(NULL, "rtcNewDevice", err);
+        if (st == PT_OK)
+            st = pt_error_set(err, PT_ERR_LIMIT, "embree: rtcNewDevice failed");
+        goto fail;
+    }
+    a->scene = rtcNewScene(a->device);
+    if ((st = check_device(a->device, "rtcNewScene", err)) != PT_OK)
+        goto fail;
+    rtcSetSceneFlags(a->scene, RTC_SCENE_FLAG_ROBUST);
+    rtcSetSceneBuildQuality(a->scene, RTC_BUILD_QUALITY_HIGH);
+
+    if (scene->num_triangles > 0) {
+        RTCGeometry g = rtcNewGeometry(a->device, RTC_GEOMETRY_TYPE_TRIANGLE);
+        if ((st = check_device(a->device, "rtcNewGeometry", err)) != PT_OK)
+            goto fail;
+        rtcSetGeometryBuildQuality(g, RTC_BUILD_QUALITY_HIGH);
+        float *vb = rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
+                                            3 * sizeof(float), scene->num_vertices);
+        uint32_t *ib = rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
+                                               3 * sizeof(uint32_t), scene->num_triangles);
+        if (!vb || !ib) {
+            rtcReleaseGeometry(g);
+            if ((st = check_device(a->device, "vertex/index buffers", err)) == PT_OK)
+                st = pt_error_set(err, PT_ERR_NOMEM, "embree: vertex/index buffers: out of memory");
+            goto fail;
+        }
+        memcpy(vb, scene->positions, (size_t)scene->num_vertices * 3 * sizeof(float));
+        memcpy(ib, scene->indices, (size_t)scene->num_triangles * 3 * sizeof(uint32_t));
+        rtcCommitGeometry(g);
+        rtcAttachGeometry(a->scene, g); /* geometry id 0: primID is the triangle index */
+        rtcReleaseGeometry(g);
+        if ((st = check_device(a->device, "geometry", err)) != PT_OK)
+            goto fail;
+    }
+    rtcCommitScene(a->scene);
+    {
+        /* The scene's coordinate magnitude, rounded up to a power of two so the
+         * scaled constants are exact. */
+        float m = fmaxf(pt_v3_max_comp(pt_v3(fabsf(scene->bounds_min.x), fabsf(scene->bounds_min.y),
+                                             fabsf(scene->bounds_min.z))),
+                        pt_v3_max_comp(pt_v3(fabsf(scene->bounds_max.x), fabsf(scene->bounds_max.y),
+                                             fabsf(scene->bounds_max.z))));
+        int e = 0;
+        if (m > 0.0f && isfinite(m))
+            frexpf(m, &e);
+        a->origin = ldexpf(OFFSET_ORIGIN, e);
+        a->float_scale = ldexpf(OFFSET_FLOAT_SCALE, e);
+    }
+    if ((st = check_device(a->device, "rtcCommitScene", err)) != PT_OK)
+        goto fail;
+    *out = a;
+    return PT_OK;
+
+fail:
+    pt_accel_free(a);
+    return st;
+}
+
+void pt_accel_free(pt_accel *accel)
+{
+    if (!accel)
+        return;
+    if (accel->scene)
+        rtcReleaseScene(accel->scene);
+    if (accel->device)
+        rtcReleaseDevice(accel->device);
+    pt_free(accel);
+}
+
+static void init_ray(struct RTCRay *r, pt_vec3 o, pt_vec3 d, float tfar)
+{
+    r->org_x = o.x;
+    r->org_y = o.y;
+    r->org_z = o.z;
+    r->tnear = 0.0f;
+    r->dir_x = d.x;
+    r->dir_y = d.y;
+    r->dir_z = d.z;
+    r->time = 0.0f;
+    r->tfar = tfar;
+    r->mask = 0xffffffffu;
+    r->id = 0;
+    r->flags = 0;
+}
+
+int pt_accel_intersect(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, pt_hit *hit)
+{
+    hit->tri = UINT32_MAX;
+    /* Embree accepts hits with tnear <= t <= tfar. tnear = 0: a hit at exactly
+     * t = 0 is a measure-zero event once origins are offset (pt_offset_ray). */
+    if (!(tfar > 0.0f))
+        return 0;
+    struct RTCIntersectContext ctx;
+    rtcInitIntersectContext(&ctx);
+    struct RTCRayHit rh;
+    init_ray(&rh.ray, o, d, tfar);
+    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+    rh.hit.primID = RTC_INVALID_GEOMETRY_ID;
+    rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+    rtcIntersect1(accel->scene, &ctx, &rh);
+    if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID)
+        return 0;
+    hit->t = rh.ray.tfar;
+    hit->b1 = rh.hit.u;
+    hit->b2 = rh.hit.v;
+    hit->tri = rh.hit.primID;
+    return 1;
+}
+
+/* nextafterf(t, 0) for t > 0 (finite or not), without the library call: a
+ * positive float's successor towards zero is its bit pattern minus one. */
+static inline float below(float t)
+{
+    uint32_t bits;
+    memcpy(&bits, &t, sizeof bits);
+    bits--;
+    memcpy(&t, &bits, sizeof t);
+    return t;
+}
+
+int pt_accel_occluded(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar)
+{
+    if (!(tfar > 0.0f))
+        return 0;
+    struct RTCIntersectContext ctx;
+    rtcInitIntersectContext(&ctx);
+    struct RTCRay r;
+    /* The contract is the half-open [0, tfar): the end point itself (a light
+     * point the caller offset towards the shading point) must not occlude.
+     * Embree's test is closed, so pass the next float below tfar: exactly the
+     * open interval, not a hand-picked shortening. */
+    init_ray(&r, o, d, below(tfar));
+    rtcOccluded1(accel->scene, &ctx, &r);
+    return r.tfar == -INFINITY;
+}
+
+pt_vec3 pt_accel_degenerate_normal(pt_vec3 n)
+{
+    /* In double: a cross product that overflowed in float still has a
+     * direction; any unit vector beats a NaN when there is none. */
+    double lx = n.x, ly = n.y, lz = n.z;
+    double l = sqrt(lx * lx + ly * ly + lz * lz);
+    if (l > 0.0 && isfinite(l))
+        return pt_v3((float)(lx / l), (float)(ly / l), (float)(lz / l));
+    return pt_v3(0.0f, 0.0f, 1.0f);
+}
+
+/* Waechter & Binder, "A Fast and Robust Method for Avoiding Self-Intersection",
+ * Ray Tracing Gems (2019) ch. 6. Far from the origin each coordinate is moved
+ * by an integer number of ULPs proportional to the normal's component
+ * (int_scale ULPs for a unit component), so the offset grows with the
+ * coordinate's own rounding error; near the origin, where ULPs get arbitrarily
+ * small, a fixed absolute offset float_scale * n is used instead. The code is
+ * pt_offset_coord in accel.h, inlined into the integrator. */
+
+pt_vec3 pt_offset_ray(pt_vec3 p, pt_vec3 n)
+{
+    pt_offset off = {OFFSET_ORIGIN, OFFSET_FLOAT_SCALE};
+    return pt_offset_apply(off, p, n);
+}
+
+pt_offset pt_accel_offset(const pt_accel *a)
+{
+    pt_offset off = {a->origin, a->float_scale};
+    return off;
+}
+
+pt_vec3 pt_accel_offset_ray(const pt_accel *a, pt_vec3 p, pt_vec3 n)
+{
+    return pt_offset_apply(pt_accel_offset(a), p, n);
+}

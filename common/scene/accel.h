@@ -1,0 +1,120 @@
+/*
+ * accel.h - ray queries through Embree 3 (robust mode).
+ *
+ * One pt_accel per scene, built once and shared by render threads (queries are
+ * thread-safe). Hits return the triangle, barycentrics and distance; the hit
+ * point is then rebuilt from the triangle's vertices (pt_accel_hit_point),
+ * which is more accurate than o + t*d, and rays leave surfaces through
+ * pt_offset_ray (Waechter & Binder, "A Fast and Robust Method for Avoiding
+ * Self-Intersection", Ray Tracing Gems ch. 6), which scales the offset with
+ * the magnitude of the coordinates instead of a hand-picked epsilon.
+ */
+#ifndef PT_COMMON_SCENE_ACCEL_H
+#define PT_COMMON_SCENE_ACCEL_H
+
+#include <math.h>
+#include <stdint.h>
+#include <string.h>
+
+#include "common/base/error.h"
+#include "common/scene/scene.h"
+#include "common/math/vec.h"
+
+typedef struct pt_accel pt_accel;
+
+typedef struct pt_hit {
+    float t;
+    float b1, b2; /* barycentrics of vertices 1 and 2 (Embree's u, v) */
+    uint32_t tri; /* triangle index, or UINT32_MAX on a miss */
+} pt_hit;
+
+pt_status pt_accel_new(const pt_scene *scene, pt_accel **out, pt_error *err);
+void pt_accel_free(pt_accel *accel); /* accepts NULL */
+
+/* Closest hit along o + t d for t in (0, tfar]. Returns 1 on a hit. */
+int pt_accel_intersect(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, pt_hit *hit);
+/* 1 when anything blocks o + t d for t in (0, tfar). */
+int pt_accel_occluded(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar);
+
+/* The unit normal of a degenerate or overflowing triangle's cross product n
+ * (computed in double; (0,0,1) when it has no direction). */
+pt_vec3 pt_accel_degenerate_normal(pt_vec3 n);
+
+/* World-space point and geometric normal (unit, from the winding) of a hit.
+ * Inline: the integrator calls it at every bounce. */
+static inline void pt_accel_hit_point(const pt_scene *scene, const pt_hit *hit, pt_vec3 *p,
+                                      pt_vec3 *ng)
+{
+    const uint32_t *t = &scene->indices[3 * hit->tri];
+    const float *x = scene->positions;
+    pt_vec3 v0 = pt_v3(x[3 * t[0]], x[3 * t[0] + 1], x[3 * t[0] + 2]);
+    pt_vec3 v1 = pt_v3(x[3 * t[1]], x[3 * t[1] + 1], x[3 * t[1] + 2]);
+    pt_vec3 v2 = pt_v3(x[3 * t[2]], x[3 * t[2] + 1], x[3 * t[2] + 2]);
+    float b0 = 1.0f - hit->b1 - hit->b2;
+    /* Barycentric interpolation of the vertices: its error is relative to the
+     * vertex magnitudes, where o + t d adds the error of t times |d| (Waechter
+     * & Binder, RTG ch. 6, sec. 6.2.1). */
+    *p = pt_v3_add(pt_v3_add(pt_v3_scale(v0, b0), pt_v3_scale(v1, hit->b1)),
+                   pt_v3_scale(v2, hit->b2));
+    pt_vec3 n = pt_v3_cross(pt_v3_sub(v1, v0), pt_v3_sub(v2, v0));
+    float len = pt_v3_len(n);
+    *ng =
+        (len > 0.0f && isfinite(len)) ? pt_v3_scale(n, 1.0f / len) : pt_accel_degenerate_normal(n);
+}
+
+/* Offsets p along the geometric normal n (towards the side the ray leaves on)
+ * so a ray starting there does not hit its own surface (Waechter & Binder),
+ * with the paper's constants, which suit scenes of about unit size. */
+pt_vec3 pt_offset_ray(pt_vec3 p, pt_vec3 n);
+
+/* The same with the near-origin constants (1/32 and 1/65536 in the paper)
+ * scaled by the power of two just above the scene's largest coordinate: near
+ * the origin a hit point's error is relative to the scene's coordinates, not
+ * absolute, so a fixed 1.5e-5 would be 15 % of a 1e-4 scene. Far from the
+ * origin both offset by ULPs and agree. The integrator uses this one. */
+pt_vec3 pt_accel_offset_ray(const pt_accel *accel, pt_vec3 p, pt_vec3 n);
+
+/* pt_accel_offset_ray's two constants for a scene, so that the integrator can
+ * inline the offset (pt_offset_apply) instead of calling across modules for
+ * each of the 2-3 offsets of a bounce; the results are the same bits. */
+typedef struct pt_offset {
+    float origin; /* below this |coordinate|, offset by float_scale * n */
+    float float_scale;
+} pt_offset;
+
+pt_offset pt_accel_offset(const pt_accel *accel);
+
+/* Waechter & Binder's integer scale: a unit normal component moves a
+ * coordinate by 256 ULPs. */
+#define PT_OFFSET_INT_SCALE 256.0f
+
+static inline float pt_offset_coord(float p, float n, float origin, float float_scale)
+{
+    if (fabsf(p) < origin)
+        return p + float_scale * n;
+    /* n is unit length; the clamp (NaN goes to 1) only keeps a bad n from an
+     * undefined float-to-int conversion. Comparisons, not fminf/fmaxf, which
+     * are library calls without -ffinite-math-only. */
+    float c = n < 1.0f ? (n > -1.0f ? n : -1.0f) : 1.0f;
+    int32_t of = (int32_t)(PT_OFFSET_INT_SCALE * c);
+    uint32_t bits;
+    memcpy(&bits, &p, sizeof bits);
+    /* Sign-magnitude floats: adding to the bits moves away from zero, so a
+     * negative coordinate moves along +n by subtracting. Unsigned arithmetic
+     * wraps instead of overflowing; finite |p| >= 1/32 stays far from both
+     * ends of the bit range. */
+    bits += (uint32_t)(p < 0.0f ? -of : of);
+    float r;
+    memcpy(&r, &bits, sizeof r);
+    return r;
+}
+
+/* pt_accel_offset_ray(accel, p, n) given off = pt_accel_offset(accel). */
+static inline pt_vec3 pt_offset_apply(pt_offset off, pt_vec3 p, pt_vec3 n)
+{
+    return pt_v3(pt_offset_coord(p.x, n.x, off.origin, off.float_scale),
+                 pt_offset_coord(p.y, n.y, off.origin, off.float_scale),
+                 pt_offset_coord(p.z, n.z, off.origin, off.float_scale));
+}
+
+#endif

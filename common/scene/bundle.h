@@ -1,0 +1,63 @@
+/*
+ * bundle.h - a scene and every file it references, as one byte string.
+ *
+ * The coordinator packs a scene (the .gltf/.glb entry file plus the external
+ * buffers and images it names) into a bundle; workers fetch it by the SHA-256
+ * of its bytes, cache it on disk and unpack it into a folder of their own.
+ * Layout (little-endian):
+ *
+ *   offset  size  type   meaning
+ *   0       4     bytes  magic "PTB1"
+ *   4       4     u32    number of files, 1..PT_BUNDLE_MAX_FILES
+ *   8       ...          each file: u16 name length, name bytes, u64 size, data
+ *
+ * File 0 is the entry file. Names are relative paths ('/'-separated) that must
+ * not be empty, absolute, contain "." or ".." components, backslashes, NUL or
+ * control characters, or be longer than PT_BUNDLE_MAX_NAME: unpacking can
+ * never write outside its folder. Every length is checked against the bytes
+ * present before it is used.
+ */
+#ifndef PT_COMMON_SCENE_BUNDLE_H
+#define PT_COMMON_SCENE_BUNDLE_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "common/base/error.h"
+
+#define PT_BUNDLE_MAX_FILES 4096u
+#define PT_BUNDLE_MAX_NAME 255u
+#define PT_BUNDLE_MAX_BYTES (2ull << 30)
+
+typedef struct pt_bundle {
+    uint8_t *data;
+    size_t size;
+    char hash[65]; /* SHA-256 of data, lower-case hex */
+} pt_bundle;
+
+/* Packs the scene at path with every external file it references (found by
+ * pt_gltf_dependencies). On success *out is a new bundle (pt_bundle_free). */
+pt_status pt_bundle_pack(const char *scene_path, pt_bundle **out, pt_error *err);
+
+/* Wraps bytes received from a peer (copied) after checking the layout. */
+pt_status pt_bundle_from_bytes(const uint8_t *data, size_t size, pt_bundle **out, pt_error *err);
+
+/* Writes the files under dir (created if missing) and puts the entry file's
+ * path in entry_path. Checks the layout and names first; writes nothing on a
+ * malformed bundle. */
+pt_status pt_bundle_unpack(const pt_bundle *b, const char *dir, char *entry_path,
+                           size_t entry_cap, pt_error *err);
+
+void pt_bundle_free(pt_bundle *b); /* accepts NULL */
+
+/* Checks a bundle's layout and file names; PT_ERR_FORMAT naming the problem. */
+pt_status pt_bundle_check(const uint8_t *data, size_t size, pt_error *err);
+
+/* The external files a .gltf/.glb names (buffers and images that are not
+ * data: URIs), percent-decoded, relative to the scene's folder, in the order
+ * of the JSON arrays, without duplicates. *names is a pt_malloc'd array of
+ * pt_malloc'd strings; free with pt_gltf_dependencies_free. */
+pt_status pt_gltf_dependencies(const char *path, char ***names, uint32_t *count, pt_error *err);
+void pt_gltf_dependencies_free(char **names, uint32_t count);
+
+#endif

@@ -1,0 +1,985 @@
+// gltf_import.cpp - pt_scene_load: glTF 2.0 (.gltf and .glb) to a pt_scene,
+// through tinygltf for the JSON and GLB containers.
+//
+// tinygltf parses; everything it hands back is treated as untrusted. Every
+// accessor read is bounds-checked here (glTF 2.0 spec, 3.6.2 "Accessors" and
+// 3.6.2.4 "Data Alignment": offset + stride * (count - 1) + element size must
+// lie within the buffer view, and the view within its buffer), with
+// overflow-checked arithmetic; every index into a glTF array (nodes, meshes,
+// accessors, textures, images, cameras) is checked before use. Geometry goes
+// through pt_scene_builder, which validates coordinates and indices again.
+//
+// Images: tinygltf is told not to decode anything (a loader callback that
+// only keeps data: URI bytes) and not to read external images; the importer
+// decodes, with stb_image from the system's libstb, only the images that a
+// material actually uses as base colour, metal-rough or emissive texture,
+// to RGBA8 (1-4 channels and 16-bit data are converted by stb_image).
+//
+// Materials follow the core metallic-roughness model (spec 3.9.2) with
+// KHR_materials_emissive_strength and KHR_materials_specular; what the
+// renderer does not support is reported once per kind through opts->warn.
+//
+// scene->hash: SHA-256 of the entry file's bytes, then each external
+// buffer and image file in the order of the JSON arrays (a data: URI or a GLB
+// chunk is already inside the entry file).
+
+#define TINYGLTF_IMPLEMENTATION
+#define TINYGLTF_NO_STB_IMAGE_WRITE
+#define TINYGLTF_NO_EXTERNAL_IMAGE
+// stb_image's implementation lives in libstb.so; tinygltf only includes the
+// header (STB_IMAGE_IMPLEMENTATION is deliberately left undefined).
+#include <tiny_gltf.h>
+
+#include <stb_image.h>
+
+#include <openssl/evp.h>
+
+#include <array>
+#include <cerrno>
+#include <cmath>
+#include <cstdarg>
+#include <cstdio>
+#include <cstring>
+#include <fstream>
+#include <map>
+#include <new>
+#include <set>
+#include <string>
+#include <vector>
+
+extern "C" {
+#include "common/base/alloc.h"
+#include "common/scene/gltf_import.h"
+#include "common/scene/scene.h"
+}
+
+namespace
+{
+
+const uint64_t kMaxFileBytes = 1ull << 30; // tinygltf takes an unsigned int length
+const int kMaxNodeDepth = 128;
+const uint64_t kMaxNodeVisits = 1u << 22;
+
+// A failure that already carries its pt_error; thrown to unwind the importer.
+struct load_failure {
+    pt_status st;
+};
+
+struct importer {
+    std::string path; // as given, for messages
+    std::string base; // folder of the entry file, for relative URIs
+    const pt_scene_opts *opts;
+    pt_error *err;
+    tinygltf::Model model;
+    pt_scene_builder *b = nullptr;
+    std::set<std::string> warned;
+    std::vector<std::vector<unsigned char>> data_uri_images; // by image index
+    std::map<std::string, std::vector<unsigned char>> files; // external files read for the hash
+    std::map<std::pair<int, int>, uint32_t> tex_map;         // (gltf texture, srgb) -> builder
+    uint32_t default_material = UINT32_MAX;
+    uint64_t node_visits = 0;
+
+    [[noreturn]] void fail(pt_status st, const char *fmt, ...) __attribute__((format(printf, 3, 4)))
+    {
+        char msg[448];
+        va_list ap;
+        va_start(ap, fmt);
+        vsnprintf(msg, sizeof msg, fmt, ap);
+        va_end(ap);
+        pt_error_set(err, st, "%s: %s", path.c_str(), msg);
+        throw load_failure{st};
+    }
+
+    void warn_once(const std::string &key, const std::string &msg)
+    {
+        if (!warned.insert(key).second)
+            return;
+        std::string full = path + ": " + msg;
+        if (opts && opts->warn)
+            opts->warn(opts->warn_user, full.c_str());
+        else
+            fprintf(stderr, "warning: %s\n", full.c_str());
+    }
+
+    void check_builder(pt_status st, pt_error *e)
+    {
+        if (st == PT_OK)
+            return;
+        // Prefix the builder's message with the file name.
+        pt_error inner = *e;
+        fail(st, "%s", inner.msg);
+    }
+};
+
+struct image_loader_ctx {
+    std::vector<std::vector<unsigned char>> *data_uri_images;
+};
+
+// tinygltf's image callback. Keeps the bytes of data: URI images for later
+// decoding; for images in buffer views it does not touch the bytes, because
+// tinygltf hands us &buffer[byteOffset] without checking the view's range.
+bool keep_image_bytes(tinygltf::Image *image, const int idx, std::string *, std::string *, int, int,
+                      const unsigned char *bytes, int size, void *user)
+{
+    auto *ctx = static_cast<image_loader_ctx *>(user);
+    if (idx < 0)
+        return false;
+    if (ctx->data_uri_images->size() <= size_t(idx))
+        ctx->data_uri_images->resize(size_t(idx) + 1);
+    if (image->bufferView < 0 && bytes && size > 0)
+        (*ctx->data_uri_images)[size_t(idx)].assign(bytes, bytes + size);
+    return true;
+}
+
+bool read_file(const std::string &p, std::vector<unsigned char> &out, int *os_errno)
+{
+    errno = 0;
+    FILE *f = fopen(p.c_str(), "rb");
+    if (!f) {
+        *os_errno = errno;
+        return false;
+    }
+    bool ok = true;
+    unsigned char chunk[65536];
+    size_t n;
+    while ((n = fread(chunk, 1, sizeof chunk, f)) > 0) {
+        if (out.size() + n > kMaxFileBytes) {
+            *os_errno = EFBIG;
+            ok = false;
+            break;
+        }
+        out.insert(out.end(), chunk, chunk + n);
+    }
+    if (ok && ferror(f)) {
+        *os_errno = EIO;
+        ok = false;
+    }
+    fclose(f);
+    return ok;
+}
+
+int hexval(char c)
+{
+    if (c >= '0' && c <= '9')
+        return c - '0';
+    if (c >= 'a' && c <= 'f')
+        return c - 'a' + 10;
+    if (c >= 'A' && c <= 'F')
+        return c - 'A' + 10;
+    return -1;
+}
+
+// RFC 3986 percent-decoding of a relative URI.
+std::string uri_decode(const std::string &s)
+{
+    std::string out;
+    for (size_t i = 0; i < s.size(); i++) {
+        if (s[i] == '%' && i + 2 < s.size() && hexval(s[i + 1]) >= 0 && hexval(s[i + 2]) >= 0) {
+            out += char(hexval(s[i + 1]) * 16 + hexval(s[i + 2]));
+            i += 2;
+        } else {
+            out += s[i];
+        }
+    }
+    return out;
+}
+
+bool is_data_uri(const std::string &u)
+{
+    return u.compare(0, 5, "data:") == 0;
+}
+
+bool add_ok(uint64_t a, uint64_t b, uint64_t *r)
+{
+    return !__builtin_add_overflow(a, b, r);
+}
+bool mul_ok(uint64_t a, uint64_t b, uint64_t *r)
+{
+    return !__builtin_mul_overflow(a, b, r);
+}
+
+int comp_size(int ct)
+{
+    switch (ct) {
+    case TINYGLTF_COMPONENT_TYPE_BYTE:
+    case TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE:
+        return 1;
+    case TINYGLTF_COMPONENT_TYPE_SHORT:
+    case TINYGLTF_COMPONENT_TYPE_UNSIGNED_SHORT:
+        return 2;
+    case TINYGLTF_COMPONENT_TYPE_UNSIGNED_INT:
+    case TINYGLTF_COMPONENT_TYPE_FLOAT:
+        return 4;
+    default:
+        return 0;
+    }
+}
+
+int type_comps(int t)
+{
+    switch (t) {
+    case TINYGLTF_TYPE_SCALAR:
+        return 1;
+    case TINYGLTF_TYPE_VEC2:
+        return 2;
+    case TINYGLTF_TYPE_VEC3:
+        return 3;
+    case TINYGLTF_TYPE_VEC4:
+        return 4;
+    default:
+        return 0;
+    }
+}
+
+// The bytes of accessor `ai`, checked: a pointer to element 0 and the stride,
+// or data == nullptr for an accessor without a buffer view (all zeros).
+struct view_span {
+    const unsigned char *data;
+    uint64_t stride;
+    uint64_t count;
+    int ctype;
+    bool normalized;
+};
+
+view_span accessor_span(importer &im, int ai, const char *what, int want_type, uint64_t max_count)
+{
+    const tinygltf::Model &m = im.model;
+    if (ai < 0 || size_t(ai) >= m.accessors.size())
+        im.fail(PT_ERR_FORMAT, "accessor %d (%s): no such accessor (%zu accessors)", ai, what,
+                m.accessors.size());
+    const tinygltf::Accessor &a = m.accessors[size_t(ai)];
+    if (a.sparse.isSparse)
+        im.fail(PT_ERR_FORMAT, "accessor %d (%s): sparse accessors are not supported", ai, what);
+    int cs = comp_size(a.componentType), nc = type_comps(a.type);
+    if (cs == 0 || nc != type_comps(want_type))
+        im.fail(PT_ERR_FORMAT, "accessor %d (%s): unexpected type %d / component type %d", ai, what,
+                a.type, a.componentType);
+    if (a.count == 0)
+        im.fail(PT_ERR_FORMAT, "accessor %d (%s): count is 0", ai, what);
+    if (uint64_t(a.count) > max_count)
+        im.fail(PT_ERR_LIMIT, "accessor %d (%s): count %zu is over the cap %llu", ai, what, a.count,
+                (unsigned long long)max_count);
+    view_span s{nullptr, uint64_t(cs) * uint64_t(nc), uint64_t(a.count), a.componentType,
+                a.normalized};
+    if (a.bufferView < 0)
+        return s; // glTF 3.6.2.1: no buffer view means zeros
+    if (size_t(a.bufferView) >= m.bufferViews.size())
+        im.fail(PT_ERR_FORMAT, "accessor %d (%s): bufferView %d out of range (%zu views)", ai, what,
+                a.bufferView, m.bufferViews.size());
+    const tinygltf::BufferView &v = m.bufferViews[size_t(a.bufferView)];
+    if (v.buffer < 0 || size_t(v.buffer) >= m.buffers.size())
+        im.fail(PT_ERR_FORMAT, "accessor %d (%s): bufferView %d names buffer %d, out of range", ai,
+                what, a.bufferView, v.buffer);
+    const std::vector<unsigned char> &buf = m.buffers[size_t(v.buffer)].data;
+    uint64_t elem = s.stride, view_end, last, end;
+    if (!add_ok(v.byteOffset, v.byteLength, &view_end) || view_end > buf.size())
+        im.fail(PT_ERR_FORMAT,
+                "accessor %d (%s): bufferView %d (offset %zu, length %zu) is outside buffer %d "
+                "(%zu bytes)",
+                ai, what, a.bufferView, v.byteOffset, v.byteLength, v.buffer, buf.size());
+    if (v.byteStride != 0) {
+        if (v.byteStride < elem)
+            im.fail(PT_ERR_FORMAT,
+                    "accessor %d (%s): bufferView %d stride %zu is under the %llu "
+                    "bytes of an element",
+                    ai, what, a.bufferView, v.byteStride, (unsigned long long)elem);
+        s.stride = v.byteStride;
+    }
+    if (!mul_ok(s.stride, s.count - 1, &last) || !add_ok(last, a.byteOffset, &last) ||
+        !add_ok(last, elem, &end) || end > v.byteLength)
+        im.fail(PT_ERR_FORMAT,
+                "accessor %d (%s): %llu elements at offset %zu, stride %llu run past the end of "
+                "bufferView %d (%zu bytes)",
+                ai, what, (unsigned long long)s.count, a.byteOffset, (unsigned long long)s.stride,
+                a.bufferView, v.byteLength);
+    s.data = buf.data() + v.byteOffset + a.byteOffset;
+    return s;
+}
+
+float read_comp(const unsigned char *p, int ct, bool normalized)
+{
+    switch (ct) {
+    case TINYGLTF_COMPONENT_TYPE_FLOAT: {
+        float f;
+        memcpy(&f, p, 4);
+        return f;
+    }
+    case TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE:
+        return normalized ? p[0] / 255.0f : float(p[0]);
+    case TINYGLTF_COMPONENT_TYPE_BYTE: {
+        float f = float(int8_t(p[0]));
+        return normalized ? std::fmax(f / 127.0f, -1.0f) : f;
+    }
+    case TINYGLTF_COMPONENT_TYPE_UNSIGNED_SHORT: {
+        uint16_t u = uint16_t(p[0] | p[1] << 8);
+        return normalized ? u / 65535.0f : float(u);
+    }
+    case TINYGLTF_COMPONENT_TYPE_SHORT: {
+        float f = float(int16_t(uint16_t(p[0] | p[1] << 8)));
+        return normalized ? std::fmax(f / 32767.0f, -1.0f) : f;
+    }
+    default: {
+        uint32_t u =
+            uint32_t(p[0]) | uint32_t(p[1]) << 8 | uint32_t(p[2]) << 16 | uint32_t(p[3]) << 24;
+        return float(u);
+    }
+    }
+}
+
+// Reads a float attribute (POSITION, NORMAL float only; TEXCOORD_0 float or
+// normalized unsigned byte/short, glTF 3.7.2.1).
+void read_floats(importer &im, int ai, const char *what, int type, bool allow_norm,
+                 std::vector<float> &out)
+{
+    view_span s = accessor_span(im, ai, what, type, PT_SCENE_MAX_TRIANGLES * 3ull);
+    int nc = type_comps(type);
+    bool ok = s.ctype == TINYGLTF_COMPONENT_TYPE_FLOAT ||
+              (allow_norm && s.normalized &&
+               (s.ctype == TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE ||
+                s.ctype == TINYGLTF_COMPONENT_TYPE_UNSIGNED_SHORT));
+    if (!ok)
+        im.fail(PT_ERR_FORMAT, "accessor %d (%s): component type %d is not supported", ai, what,
+                s.ctype);
+    out.assign(size_t(s.count) * size_t(nc), 0.0f);
+    if (!s.data)
+        return;
+    int cs = comp_size(s.ctype);
+    for (uint64_t i = 0; i < s.count; i++) {
+        const unsigned char *e = s.data + i * s.stride;
+        for (int c = 0; c < nc; c++)
+            out[size_t(i) * size_t(nc) + size_t(c)] = read_comp(e + c * cs, s.ctype, s.normalized);
+    }
+}
+
+void read_indices(importer &im, int ai, const char *what, std::vector<uint32_t> &out)
+{
+    view_span s = accessor_span(im, ai, what, TINYGLTF_TYPE_SCALAR, PT_SCENE_MAX_TRIANGLES * 3ull);
+    if (s.ctype != TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE &&
+        s.ctype != TINYGLTF_COMPONENT_TYPE_UNSIGNED_SHORT &&
+        s.ctype != TINYGLTF_COMPONENT_TYPE_UNSIGNED_INT)
+        im.fail(PT_ERR_FORMAT, "accessor %d (%s): index component type %d is not u8/u16/u32", ai,
+                what, s.ctype);
+    out.assign(size_t(s.count), 0);
+    if (!s.data)
+        return;
+    for (uint64_t i = 0; i < s.count; i++) {
+        const unsigned char *p = s.data + i * s.stride;
+        uint32_t v;
+        if (s.ctype == TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE)
+            v = p[0];
+        else if (s.ctype == TINYGLTF_COMPONENT_TYPE_UNSIGNED_SHORT)
+            v = uint32_t(p[0] | p[1] << 8);
+        else
+            v = uint32_t(p[0]) | uint32_t(p[1]) << 8 | uint32_t(p[2]) << 16 | uint32_t(p[3]) << 24;
+        out[size_t(i)] = v;
+    }
+}
+
+// Column-major 4x4 products and the node's local matrix (spec 3.5.3:
+// matrix, or T * R * S with R from the unit quaternion (x, y, z, w)).
+typedef std::array<double, 16> mat4;
+
+mat4 mat_mul(const mat4 &a, const mat4 &b)
+{
+    mat4 r{};
+    for (int c = 0; c < 4; c++)
+        for (int rr = 0; rr < 4; rr++) {
+            double s = 0;
+            for (int k = 0; k < 4; k++)
+                s += a[size_t(k * 4 + rr)] * b[size_t(c * 4 + k)];
+            r[size_t(c * 4 + rr)] = s;
+        }
+    return r;
+}
+
+mat4 identity()
+{
+    mat4 m{};
+    m[0] = m[5] = m[10] = m[15] = 1.0;
+    return m;
+}
+
+mat4 local_matrix(importer &im, const tinygltf::Node &n, int ni)
+{
+    mat4 m = identity();
+    if (!n.matrix.empty()) {
+        if (n.matrix.size() != 16)
+            im.fail(PT_ERR_FORMAT, "node %d: matrix has %zu numbers, not 16", ni, n.matrix.size());
+        for (size_t i = 0; i < 16; i++)
+            m[i] = n.matrix[i];
+    } else {
+        double t[3] = {0, 0, 0}, s[3] = {1, 1, 1}, q[4] = {0, 0, 0, 1};
+        if (!n.translation.empty() && n.translation.size() != 3)
+            im.fail(PT_ERR_FORMAT, "node %d: translation needs 3 numbers", ni);
+        if (!n.scale.empty() && n.scale.size() != 3)
+            im.fail(PT_ERR_FORMAT, "node %d: scale needs 3 numbers", ni);
+        if (!n.rotation.empty() && n.rotation.size() != 4)
+            im.fail(PT_ERR_FORMAT, "node %d: rotation needs 4 numbers", ni);
+        for (size_t i = 0; i < n.translation.size(); i++)
+            t[i] = n.translation[i];
+        for (size_t i = 0; i < n.scale.size(); i++)
+            s[i] = n.scale[i];
+        for (size_t i = 0; i < n.rotation.size(); i++)
+            q[i] = n.rotation[i];
+        double ql = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+        if (ql > 0 && std::isfinite(ql))
+            for (double &c : q)
+                c /= ql;
+        double x = q[0], y = q[1], z = q[2], w = q[3];
+        double r[9] = {1 - 2 * (y * y + z * z), 2 * (x * y + z * w),     2 * (x * z - y * w),
+                       2 * (x * y - z * w),     1 - 2 * (x * x + z * z), 2 * (y * z + x * w),
+                       2 * (x * z + y * w),     2 * (y * z - x * w),     1 - 2 * (x * x + y * y)};
+        for (int c = 0; c < 3; c++)
+            for (int rr = 0; rr < 3; rr++)
+                m[size_t(c * 4 + rr)] = r[c * 3 + rr] * s[c];
+        m[12] = t[0];
+        m[13] = t[1];
+        m[14] = t[2];
+    }
+    for (double v : m)
+        if (!std::isfinite(v))
+            im.fail(PT_ERR_FORMAT, "node %d: transform is not finite", ni);
+    return m;
+}
+
+const char *name_or(const std::string &s, const char *dflt)
+{
+    return s.empty() ? dflt : s.c_str();
+}
+
+int wrap_mode(int gl)
+{
+    switch (gl) {
+    case TINYGLTF_TEXTURE_WRAP_CLAMP_TO_EDGE:
+        return PT_WRAP_CLAMP;
+    case TINYGLTF_TEXTURE_WRAP_MIRRORED_REPEAT:
+        return PT_WRAP_MIRROR;
+    default:
+        return PT_WRAP_REPEAT;
+    }
+}
+
+// The encoded bytes of image `ii`, wherever they live.
+std::pair<const unsigned char *, size_t> image_bytes(importer &im, int ii, const char *ctx)
+{
+    const tinygltf::Model &m = im.model;
+    const tinygltf::Image &img = m.images[size_t(ii)];
+    if (img.bufferView >= 0) {
+        if (size_t(img.bufferView) >= m.bufferViews.size())
+            im.fail(PT_ERR_FORMAT, "%s: image %d: bufferView %d out of range", ctx, ii,
+                    img.bufferView);
+        const tinygltf::BufferView &v = m.bufferViews[size_t(img.bufferView)];
+        if (v.buffer < 0 || size_t(v.buffer) >= m.buffers.size())
+            im.fail(PT_ERR_FORMAT, "%s: image %d: buffer %d out of range", ctx, ii, v.buffer);
+        const std::vector<unsigned char> &buf = m.buffers[size_t(v.buffer)].data;
+        uint64_t end;
+        if (!add_ok(v.byteOffset, v.byteLength, &end) || end > buf.size() || v.byteLength == 0)
+            im.fail(PT_ERR_FORMAT, "%s: image %d: bufferView %d is outside its buffer", ctx, ii,
+                    img.bufferView);
+        return {buf.data() + v.byteOffset, v.byteLength};
+    }
+    if (is_data_uri(img.uri) || img.uri.empty()) {
+        if (size_t(ii) >= im.data_uri_images.size() || im.data_uri_images[size_t(ii)].empty())
+            im.fail(PT_ERR_FORMAT, "%s: image %d has no data", ctx, ii);
+        const auto &d = im.data_uri_images[size_t(ii)];
+        return {d.data(), d.size()};
+    }
+    auto it = im.files.find(uri_decode(img.uri));
+    if (it == im.files.end())
+        im.fail(PT_ERR_IO, "%s: image %d ('%s') could not be read", ctx, ii, img.uri.c_str());
+    return {it->second.data(), it->second.size()};
+}
+
+// Builder texture for glTF texture `ti` used as `slot` of material `mi`.
+int32_t texture_for(importer &im, int mi, const char *slot, const tinygltf::TextureInfo &info,
+                    bool srgb)
+{
+    if (info.index < 0)
+        return -1;
+    const tinygltf::Model &m = im.model;
+    const char *mname = name_or(m.materials[size_t(mi)].name, "");
+    char ctx[200];
+    snprintf(ctx, sizeof ctx, "material %d ('%.64s') %s: texture %d", mi, mname, slot, info.index);
+    if (size_t(info.index) >= m.textures.size())
+        im.fail(PT_ERR_FORMAT, "%s: no such texture (%zu textures)", ctx, m.textures.size());
+    if (info.texCoord != 0)
+        im.warn_once("texcoord", std::string(ctx) + " uses TEXCOORD_" +
+                                     std::to_string(info.texCoord) +
+                                     "; TEXCOORD_0 is used instead");
+    if (info.extensions.count("KHR_texture_transform"))
+        im.warn_once("KHR_texture_transform",
+                     std::string(ctx) + " uses KHR_texture_transform, which is ignored");
+    auto key = std::make_pair(info.index, srgb ? 1 : 0);
+    auto found = im.tex_map.find(key);
+    if (found != im.tex_map.end())
+        return int32_t(found->second);
+    const tinygltf::Texture &t = m.textures[size_t(info.index)];
+    if (t.source < 0 || size_t(t.source) >= m.images.size())
+        im.fail(PT_ERR_FORMAT, "%s points at image %d, which does not exist (%zu images)", ctx,
+                t.source, m.images.size());
+    auto bytes = image_bytes(im, t.source, ctx);
+    if (bytes.second > size_t(INT32_MAX))
+        im.fail(PT_ERR_LIMIT, "%s: image %d is too large", ctx, t.source);
+    int w = 0, h = 0, comp = 0;
+    if (!stbi_info_from_memory(bytes.first, int(bytes.second), &w, &h, &comp))
+        im.fail(PT_ERR_FORMAT, "%s: image %d cannot be decoded: %s", ctx, t.source,
+                stbi_failure_reason());
+    if (w <= 0 || h <= 0 || uint32_t(w) > PT_SCENE_MAX_TEXTURE_DIM ||
+        uint32_t(h) > PT_SCENE_MAX_TEXTURE_DIM)
+        im.fail(PT_ERR_LIMIT, "%s: image %d is %dx%d (at most %u a side)", ctx, t.source, w, h,
+                PT_SCENE_MAX_TEXTURE_DIM);
+    const tinygltf::Sampler *smp = nullptr;
+    if (t.sampler >= 0) {
+        if (size_t(t.sampler) >= m.samplers.size())
+            im.fail(PT_ERR_FORMAT, "%s: sampler %d out of range", ctx, t.sampler);
+        smp = &m.samplers[size_t(t.sampler)];
+    }
+    unsigned char *px = stbi_load_from_memory(bytes.first, int(bytes.second), &w, &h, &comp, 4);
+    if (!px)
+        im.fail(PT_ERR_FORMAT, "%s: image %d cannot be decoded: %s", ctx, t.source,
+                stbi_failure_reason());
+    size_t n = size_t(w) * size_t(h) * 4;
+    pt_texture tex{};
+    tex.width = uint32_t(w);
+    tex.height = uint32_t(h);
+    tex.rgba = static_cast<uint8_t *>(pt_malloc(n));
+    if (!tex.rgba) {
+        stbi_image_free(px);
+        im.fail(PT_ERR_NOMEM, "%s: out of memory", ctx);
+    }
+    memcpy(tex.rgba, px, n);
+    stbi_image_free(px);
+    tex.srgb = srgb ? 1 : 0;
+    tex.wrap_s = tex.wrap_t = PT_WRAP_REPEAT;
+    if (smp) {
+        tex.wrap_s = wrap_mode(smp->wrapS);
+        tex.wrap_t = wrap_mode(smp->wrapT);
+    }
+    uint32_t idx = 0;
+    pt_error e{};
+    im.check_builder(pt_scene_builder_add_texture(im.b, &tex, &idx, &e), &e);
+    im.tex_map[key] = idx;
+    return int32_t(idx);
+}
+
+double ext_number(const tinygltf::Value &obj, const char *key, double dflt)
+{
+    if (!obj.IsObject() || !obj.Has(key))
+        return dflt;
+    const tinygltf::Value &v = obj.Get(key);
+    return v.IsNumber() ? v.GetNumberAsDouble() : dflt;
+}
+
+void add_materials(importer &im)
+{
+    const tinygltf::Model &m = im.model;
+    static const std::set<std::string> handled = {"KHR_materials_emissive_strength",
+                                                  "KHR_materials_specular"};
+    for (size_t i = 0; i < m.materials.size(); i++) {
+        const tinygltf::Material &g = m.materials[i];
+        int mi = int(i);
+        pt_material pm = pt_material_default();
+        snprintf(pm.name, sizeof pm.name, "%s",
+                 g.name.empty() ? ("material " + std::to_string(i)).c_str() : g.name.c_str());
+        const auto &pbr = g.pbrMetallicRoughness;
+        for (size_t c = 0; c < 4 && c < pbr.baseColorFactor.size(); c++)
+            pm.base_color[c] = float(pbr.baseColorFactor[c]);
+        pm.metallic = float(pbr.metallicFactor);
+        pm.roughness = float(pbr.roughnessFactor);
+        double strength = 1.0;
+        auto es = g.extensions.find("KHR_materials_emissive_strength");
+        if (es != g.extensions.end())
+            strength = ext_number(es->second, "emissiveStrength", 1.0);
+        for (size_t c = 0; c < 3; c++)
+            pm.emissive[c] =
+                c < g.emissiveFactor.size() ? float(g.emissiveFactor[c] * strength) : 0.0f;
+        auto sp = g.extensions.find("KHR_materials_specular");
+        if (sp != g.extensions.end()) {
+            pm.specular = float(ext_number(sp->second, "specularFactor", 1.0));
+            if (sp->second.IsObject() && sp->second.Has("specularColorFactor")) {
+                const tinygltf::Value &a = sp->second.Get("specularColorFactor");
+                for (int c = 0; c < 3 && a.IsArray() && size_t(c) < a.ArrayLen(); c++)
+                    if (a.Get(c).IsNumber())
+                        pm.specular_color[c] = float(a.Get(c).GetNumberAsDouble());
+            }
+            if (sp->second.IsObject() &&
+                (sp->second.Has("specularTexture") || sp->second.Has("specularColorTexture")))
+                im.warn_once("specular-texture",
+                             "material " + std::to_string(i) +
+                                 ": KHR_materials_specular textures are ignored");
+        }
+        pm.double_sided = g.doubleSided ? 1 : 0;
+        for (const auto &e : g.extensions)
+            if (!handled.count(e.first))
+                im.warn_once("ext:" + e.first, "material " + std::to_string(i) + " ('" + g.name +
+                                                   "') uses " + e.first + ", which is ignored");
+        if (g.normalTexture.index >= 0)
+            im.warn_once("normalTexture",
+                         "normal textures are ignored (material " + std::to_string(i) + ")");
+        if (g.occlusionTexture.index >= 0)
+            im.warn_once("occlusionTexture",
+                         "occlusion textures are ignored (material " + std::to_string(i) + ")");
+        if (g.alphaMode == "BLEND" || g.alphaMode == "MASK")
+            im.warn_once("alpha:" + g.alphaMode, "alphaMode " + g.alphaMode +
+                                                     " is rendered as OPAQUE (material " +
+                                                     std::to_string(i) + ")");
+        pm.base_color_tex = texture_for(im, mi, "baseColorTexture", pbr.baseColorTexture, true);
+        pm.metal_rough_tex =
+            texture_for(im, mi, "metallicRoughnessTexture", pbr.metallicRoughnessTexture, false);
+        pm.emissive_tex = texture_for(im, mi, "emissiveTexture", g.emissiveTexture, true);
+        uint32_t idx;
+        pt_error e{};
+        pt_status st = pt_scene_builder_add_material(im.b, &pm, &idx, &e);
+        if (st != PT_OK)
+            im.fail(st, "material %d: %s", mi, e.msg);
+    }
+}
+
+uint32_t material_index(importer &im, int mat, const char *what)
+{
+    if (mat >= 0) {
+        if (size_t(mat) >= im.model.materials.size())
+            im.fail(PT_ERR_FORMAT, "%s: material %d out of range (%zu materials)", what, mat,
+                    im.model.materials.size());
+        return uint32_t(mat);
+    }
+    if (im.default_material == UINT32_MAX) {
+        pt_material d = pt_material_default();
+        pt_error e{};
+        uint32_t idx;
+        im.check_builder(pt_scene_builder_add_material(im.b, &d, &idx, &e), &e);
+        im.default_material = idx;
+    }
+    return im.default_material;
+}
+
+void add_primitive(importer &im, int mesh, int pi, const mat4 &world)
+{
+    const tinygltf::Primitive &p = im.model.meshes[size_t(mesh)].primitives[size_t(pi)];
+    char what[96];
+    snprintf(what, sizeof what, "mesh %d primitive %d", mesh, pi);
+    int mode = p.mode < 0 ? TINYGLTF_MODE_TRIANGLES : p.mode;
+    if (mode != TINYGLTF_MODE_TRIANGLES && mode != TINYGLTF_MODE_TRIANGLE_STRIP &&
+        mode != TINYGLTF_MODE_TRIANGLE_FAN) {
+        im.warn_once("mode" + std::to_string(mode), std::string(what) + ": primitive mode " +
+                                                        std::to_string(mode) +
+                                                        " (points or lines) is not rendered");
+        return;
+    }
+    if (!p.targets.empty())
+        im.warn_once("morph", std::string(what) + ": morph targets are ignored");
+    for (const auto &a : p.attributes)
+        if (a.first != "POSITION" && a.first != "NORMAL" && a.first != "TEXCOORD_0" &&
+            a.first != "TANGENT" && a.first.compare(0, 9, "TEXCOORD_") != 0 &&
+            a.first.compare(0, 1, "_") != 0)
+            im.warn_once("attr:" + a.first,
+                         std::string(what) + ": attribute " + a.first + " is ignored");
+    auto pos_it = p.attributes.find("POSITION");
+    if (pos_it == p.attributes.end())
+        im.fail(PT_ERR_FORMAT, "%s: no POSITION attribute", what);
+    char w2[160];
+    std::vector<float> pos, nrm, uv;
+    snprintf(w2, sizeof w2, "POSITION of %s", what);
+    read_floats(im, pos_it->second, w2, TINYGLTF_TYPE_VEC3, false, pos);
+    uint64_t nv = pos.size() / 3;
+    auto n_it = p.attributes.find("NORMAL");
+    if (n_it != p.attributes.end()) {
+        snprintf(w2, sizeof w2, "NORMAL of %s", what);
+        read_floats(im, n_it->second, w2, TINYGLTF_TYPE_VEC3, false, nrm);
+        if (nrm.size() / 3 != nv)
+            im.fail(PT_ERR_FORMAT, "accessor %d (%s): %zu normals for %llu positions", n_it->second,
+                    w2, nrm.size() / 3, (unsigned long long)nv);
+    }
+    auto t_it = p.attributes.find("TEXCOORD_0");
+    if (t_it != p.attributes.end()) {
+        snprintf(w2, sizeof w2, "TEXCOORD_0 of %s", what);
+        read_floats(im, t_it->second, w2, TINYGLTF_TYPE_VEC2, true, uv);
+        if (uv.size() / 2 != nv)
+            im.fail(PT_ERR_FORMAT, "accessor %d (%s): %zu texcoords for %llu positions",
+                    t_it->second, w2, uv.size() / 2, (unsigned long long)nv);
+    }
+    std::vector<uint32_t> idx;
+    if (p.indices >= 0) {
+        snprintf(w2, sizeof w2, "indices of %s", what);
+        read_indices(im, p.indices, w2, idx);
+        for (size_t i = 0; i < idx.size(); i++)
+            if (idx[i] >= nv)
+                im.fail(PT_ERR_FORMAT,
+                        "accessor %d (%s): index %u at %zu out of range (%llu "
+                        "vertices)",
+                        p.indices, w2, idx[i], i, (unsigned long long)nv);
+    } else {
+        idx.resize(size_t(nv));
+        for (size_t i = 0; i < idx.size(); i++)
+            idx[i] = uint32_t(i);
+    }
+    // Strips and fans to a triangle list (spec 3.7.2.1, primitive modes).
+    std::vector<uint32_t> tri;
+    if (mode == TINYGLTF_MODE_TRIANGLES) {
+        if (idx.size() % 3 != 0)
+            im.fail(PT_ERR_FORMAT, "%s: %zu indices is not a multiple of 3", what, idx.size());
+        tri.swap(idx);
+    } else {
+        for (size_t i = 2; i < idx.size(); i++) {
+            if (mode == TINYGLTF_MODE_TRIANGLE_STRIP) {
+                bool odd = i % 2 == 1;
+                tri.push_back(idx[odd ? i - 1 : i - 2]);
+                tri.push_back(idx[odd ? i - 2 : i - 1]);
+            } else {
+                tri.push_back(idx[0]);
+                tri.push_back(idx[i - 1]);
+            }
+            tri.push_back(idx[i]);
+        }
+    }
+    uint32_t mat = material_index(im, p.material, what);
+    float xf[16];
+    for (size_t i = 0; i < 16; i++)
+        xf[i] = float(world[i]);
+    pt_error e{};
+    pt_status st =
+        pt_scene_builder_add_mesh(im.b, what, pos.data(), nrm.empty() ? nullptr : nrm.data(),
+                                  uv.empty() ? nullptr : uv.data(), uint32_t(nv), tri.data(),
+                                  uint32_t(tri.size() / 3), xf, mat, &e);
+    im.check_builder(st, &e);
+}
+
+void add_camera(importer &im, int ni, int ci, const mat4 &w)
+{
+    const tinygltf::Model &m = im.model;
+    if (ci < 0 || size_t(ci) >= m.cameras.size())
+        im.fail(PT_ERR_FORMAT, "node %d: camera %d out of range (%zu cameras)", ni, ci,
+                m.cameras.size());
+    const tinygltf::Camera &c = m.cameras[size_t(ci)];
+    const tinygltf::Node &n = m.nodes[size_t(ni)];
+    if (c.type != "perspective") {
+        im.warn_once("camera:" + c.type, "camera " + std::to_string(ci) + " is " + c.type +
+                                             "; only perspective cameras are supported, ignored");
+        return;
+    }
+    pt_camera pc{};
+    std::string name = !c.name.empty()   ? c.name
+                       : !n.name.empty() ? n.name
+                                         : "camera " + std::to_string(ci);
+    snprintf(pc.name, sizeof pc.name, "%s", name.c_str());
+    pc.position = pt_v3(float(w[12]), float(w[13]), float(w[14]));
+    pt_vec3 fwd = pt_v3(float(-w[8]), float(-w[9]), float(-w[10]));
+    pt_vec3 up = pt_v3(float(w[4]), float(w[5]), float(w[6]));
+    pc.forward = pt_v3_norm(fwd);
+    pc.right = pt_v3_norm(pt_v3_cross(pc.forward, up));
+    pc.up = pt_v3_cross(pc.right, pc.forward);
+    pc.yfov = float(c.perspective.yfov);
+    pc.aspect = float(c.perspective.aspectRatio);
+    pc.znear = float(c.perspective.znear);
+    if (!(pt_v3_len(pc.right) > 0.5f))
+        im.fail(PT_ERR_FORMAT, "node %d: camera %d ('%s') has a degenerate transform", ni, ci,
+                pc.name);
+    pt_error e{};
+    pt_status st = pt_scene_builder_add_camera(im.b, &pc, &e);
+    if (st != PT_OK)
+        im.fail(st, "node %d: %s", ni, e.msg);
+}
+
+void visit(importer &im, int ni, const mat4 &parent, int depth, std::vector<char> &on_path)
+{
+    const tinygltf::Model &m = im.model;
+    if (ni < 0 || size_t(ni) >= m.nodes.size())
+        im.fail(PT_ERR_FORMAT, "node %d out of range (%zu nodes)", ni, m.nodes.size());
+    if (depth > kMaxNodeDepth)
+        im.fail(PT_ERR_LIMIT, "node %d: hierarchy deeper than %d", ni, kMaxNodeDepth);
+    if (on_path[size_t(ni)])
+        im.fail(PT_ERR_FORMAT, "node %d: the node hierarchy has a cycle", ni);
+    if (++im.node_visits > kMaxNodeVisits)
+        im.fail(PT_ERR_LIMIT, "node %d: more than %llu node instances", ni,
+                (unsigned long long)kMaxNodeVisits);
+    on_path[size_t(ni)] = 1;
+    const tinygltf::Node &n = m.nodes[size_t(ni)];
+    mat4 w = mat_mul(parent, local_matrix(im, n, ni));
+    if (n.skin >= 0)
+        im.warn_once("skin", "node " + std::to_string(ni) + ": skins are ignored");
+    if (n.mesh >= 0) {
+        if (size_t(n.mesh) >= m.meshes.size())
+            im.fail(PT_ERR_FORMAT, "node %d: mesh %d out of range (%zu meshes)", ni, n.mesh,
+                    m.meshes.size());
+        const tinygltf::Mesh &mesh = m.meshes[size_t(n.mesh)];
+        for (size_t p = 0; p < mesh.primitives.size(); p++)
+            add_primitive(im, n.mesh, int(p), w);
+    }
+    if (n.camera >= 0)
+        add_camera(im, ni, n.camera, w);
+    for (int c : n.children)
+        visit(im, c, w, depth + 1, on_path);
+    on_path[size_t(ni)] = 0;
+}
+
+// Reads the external buffer and image files (for the hash and for decoding),
+// in the order of the JSON arrays, and hashes them after the entry file.
+void hash_files(importer &im, const std::vector<unsigned char> &entry)
+{
+    EVP_MD_CTX *ctx = EVP_MD_CTX_new();
+    if (!ctx)
+        im.fail(PT_ERR_NOMEM, "out of memory");
+    struct guard {
+        EVP_MD_CTX *c;
+        ~guard() { EVP_MD_CTX_free(c); }
+    } g{ctx};
+    EVP_DigestInit_ex(ctx, EVP_sha256(), nullptr);
+    EVP_DigestUpdate(ctx, entry.data(), entry.size());
+    std::vector<std::string> uris;
+    for (const auto &buf : im.model.buffers)
+        if (!buf.uri.empty() && !is_data_uri(buf.uri))
+            uris.push_back(uri_decode(buf.uri));
+    size_t nbuf = uris.size();
+    for (const auto &img : im.model.images)
+        if (img.bufferView < 0 && !img.uri.empty() && !is_data_uri(img.uri))
+            uris.push_back(uri_decode(img.uri));
+    for (size_t i = 0; i < uris.size(); i++) {
+        if (im.files.count(uris[i]))
+            continue; // hashed once, like the bundle stores it once
+        std::vector<unsigned char> bytes;
+        int e = 0;
+        if (!read_file(im.base + uris[i], bytes, &e)) {
+            if (i < nbuf)
+                im.fail(PT_ERR_IO, "buffer file '%s': %s", uris[i].c_str(), strerror(e));
+            im.warn_once("img:" + uris[i],
+                         "image file '" + uris[i] + "' cannot be read: " + strerror(e));
+            continue;
+        }
+        EVP_DigestUpdate(ctx, bytes.data(), bytes.size());
+        im.files.emplace(uris[i], std::move(bytes));
+    }
+    unsigned char md[EVP_MAX_MD_SIZE];
+    unsigned int len = 0;
+    EVP_DigestFinal_ex(ctx, md, &len);
+    char hex[65] = {0};
+    for (unsigned int i = 0; i < len && i < 32; i++)
+        snprintf(hex + 2 * i, 3, "%02x", md[i]);
+    pt_scene_builder_set_hash(im.b, hex);
+    // Buffers are in the model already; keep only the image files.
+    std::set<std::string> image_uris(uris.begin() + long(nbuf), uris.end());
+    for (size_t i = 0; i < nbuf; i++)
+        if (!image_uris.count(uris[i]))
+            im.files.erase(uris[i]);
+}
+
+void parse(importer &im, const std::vector<unsigned char> &bytes)
+{
+    tinygltf::TinyGLTF loader;
+    image_loader_ctx ictx{&im.data_uri_images};
+    loader.SetImageLoader(keep_image_bytes, &ictx);
+    std::string terr, twarn;
+    bool ok, glb = false;
+    if (bytes.empty())
+        im.fail(PT_ERR_FORMAT, "file is empty");
+    bool glb_name = im.path.size() >= 4 && im.path.compare(im.path.size() - 4, 4, ".glb") == 0;
+    if ((bytes.size() >= 4 && memcmp(bytes.data(), "glTF", 4) == 0) || glb_name) {
+        if (bytes.size() < 20)
+            im.fail(PT_ERR_FORMAT, "GLB header truncated (%zu bytes)", bytes.size());
+        glb = true;
+        ok = loader.LoadBinaryFromMemory(&im.model, &terr, &twarn, bytes.data(),
+                                         unsigned(bytes.size()), im.base);
+    } else {
+        ok = loader.LoadASCIIFromString(&im.model, &terr, &twarn,
+                                        reinterpret_cast<const char *>(bytes.data()),
+                                        unsigned(bytes.size()), im.base);
+    }
+    // tinygltf's messages end in newlines; keep the first line or two.
+    auto tidy = [](std::string s) {
+        for (char &c : s)
+            if (c == '\n' || c == '\r')
+                c = ' ';
+        while (!s.empty() && s.back() == ' ')
+            s.pop_back();
+        if (s.size() > 300)
+            s.resize(300);
+        return s;
+    };
+    if (!ok) {
+        std::string msg = tidy(terr.empty() ? twarn : terr);
+        // External images are not read by tinygltf, so a missing file is a buffer.
+        bool io = msg.find("not found") != std::string::npos ||
+                  msg.find("Failed to open") != std::string::npos;
+        const char *what = io    ? "buffer file cannot be read"
+                           : glb ? "invalid or truncated GLB"
+                                 : "invalid glTF JSON";
+        im.fail(io ? PT_ERR_IO : PT_ERR_FORMAT, "%s: %s", what, msg.c_str());
+    }
+    if (!twarn.empty())
+        im.warn_once("tinygltf:" + twarn, "tinygltf: " + tidy(twarn));
+}
+
+void import(importer &im)
+{
+    std::vector<unsigned char> bytes;
+    int e = 0;
+    if (!read_file(im.path, bytes, &e)) {
+        errno = e;
+        pt_error_errno(im.err, e == EFBIG ? PT_ERR_LIMIT : PT_ERR_IO, "%s", im.path.c_str());
+        throw load_failure{im.err ? im.err->code : PT_ERR_IO};
+    }
+    parse(im, bytes);
+    tinygltf::Model &m = im.model;
+    hash_files(im, bytes);
+    if (!m.lights.empty())
+        im.warn_once("lights", std::to_string(m.lights.size()) +
+                                   " KHR_lights_punctual lights are ignored (only emissive "
+                                   "triangles emit)");
+    if (!m.skins.empty())
+        im.warn_once("skin", "skins are ignored");
+    for (const auto &r : m.extensionsRequired)
+        if (r != "KHR_materials_emissive_strength" && r != "KHR_materials_specular")
+            im.warn_once("req:" + r, "required extension " + r + " is not supported");
+    add_materials(im);
+    std::vector<char> on_path(m.nodes.size(), 0);
+    if (!m.scenes.empty()) {
+        int si = m.defaultScene >= 0 ? m.defaultScene : 0;
+        if (size_t(si) >= m.scenes.size())
+            im.fail(PT_ERR_FORMAT, "scene %d out of range (%zu scenes)", si, m.scenes.size());
+        for (int ni : m.scenes[size_t(si)].nodes)
+            visit(im, ni, identity(), 0, on_path);
+    } else {
+        im.fail(PT_ERR_FORMAT, "no scenes: nothing to render");
+    }
+}
+
+} // namespace
+
+extern "C" pt_status pt_scene_load(const char *path, const pt_scene_opts *opts, pt_scene **out,
+                                   pt_error *err)
+{
+    if (!path || !out)
+        return pt_error_set(err, PT_ERR_ARG, "pt_scene_load: no path");
+    pt_scene_builder *b = nullptr;
+    pt_status st = pt_scene_builder_new(&b, err);
+    if (st != PT_OK)
+        return st;
+    try {
+        importer im;
+        im.path = path;
+        im.opts = opts;
+        im.err = err;
+        im.b = b;
+        size_t slash = im.path.rfind('/');
+        im.base = slash == std::string::npos ? std::string() : im.path.substr(0, slash + 1);
+        import(im);
+    } catch (const load_failure &f) {
+        pt_scene_builder_free(b);
+        return f.st;
+    } catch (const std::bad_alloc &) {
+        pt_scene_builder_free(b);
+        return pt_error_set(err, PT_ERR_NOMEM, "%s: out of memory", path);
+    } catch (const std::exception &ex) {
+        pt_scene_builder_free(b);
+        return pt_error_set(err, PT_ERR_FORMAT, "%s: %s", path, ex.what());
+    } catch (...) {
+        pt_scene_builder_free(b);
+        return pt_error_set(err, PT_ERR_FORMAT, "%s: unexpected error", path);
+    }
+    pt_error e{};
+    pt_scene *s = nullptr;
+    st = pt_scene_builder_finish(b, opts, &s, &e);
+    if (st != PT_OK)
+        return pt_error_set(err, st, "%s: %s", path, e.msg);
+    *out = s;
+    return PT_OK;
+}

@@ -1,0 +1,822 @@
+/*
+ * scene.c - the scene builder (shared by the glTF importer and procedural
+ * scenes), texture lookup, default camera and material.
+ *
+ * Every mesh goes through pt_scene_builder_add_mesh, so the validation
+ * (finite coordinates under PT_SCENE_MAX_COORD, indices in range, caps) is the
+ * same whatever the source. Normals are transformed by the inverse transpose
+ * of the upper 3x3 (computed as the cofactor matrix times sign(det), which has
+ * the same direction); a transform with a negative determinant mirrors space,
+ * so the triangle winding is flipped to keep the geometric normal on the side
+ * the shading normals point to.
+ *
+ * Rebasing: world-space positions (node transform, then opts' scale and
+ * translation) are kept in double until pt_scene_builder_finish, which moves
+ * the scene next to the origin before rounding to float. A float's ULP at 1e5
+ * is 8 mm, so georeferenced data stored as world-space floats would lose its
+ * detail and push the ray offsets (Waechter & Binder, 256 ULPs) to metres;
+ * stored relative to a nearby origin, positions keep float's full relative
+ * precision whatever the translation, and rendering is translation invariant,
+ * so nothing downstream needs to know (world = stored + scene->origin).
+ */
+#include "common/scene/scene.h"
+
+#include <math.h>
+#include <pthread.h>
+#include <stdio.h>
+#include <string.h>
+
+#include <openssl/evp.h>
+
+#include "common/base/alloc.h"
+#include "common/scene/gltf_import.h"
+
+/* Vertices are not capped by the file's triangle count alone: unreferenced
+ * vertices still cost memory. Three per triangle is the most a sane mesh needs. */
+#define PT_SCENE_MAX_VERTICES (3u * PT_SCENE_MAX_TRIANGLES)
+
+struct pt_scene_builder {
+    double *pos; /* world space, before opts' scale/translate; float only at finish */
+    float *nrm, *uv;
+    uint32_t nv, cap_pos, cap_nrm, cap_uv;
+    int has_uv;
+    uint32_t *idx, *tmat;
+    uint32_t nt, cap_idx, cap_tmat;
+    pt_material *mats;
+    uint32_t nmat, cap_mat;
+    pt_texture *texs;
+    uint32_t ntex, cap_tex;
+    pt_camera *cams;
+    double *cam_pos; /* 3 per camera: the world-space position in double */
+    uint32_t ncam, cap_cam, cap_cam_pos;
+    int hash_set;
+    char hash[65];
+};
+
+/* Grows *p (elements of `elem` bytes, `per` per item) to hold `need` items. */
+static int reserve(void **p, uint32_t *cap, uint32_t need, size_t elem, size_t per)
+{
+    if (need <= *cap)
+        return 1;
+    uint64_t n = (uint64_t)*cap * 2;
+    if (n < need)
+        n = need;
+    if (n < 16)
+        n = 16;
+    if (n > UINT32_MAX)
+        n = UINT32_MAX;
+    size_t bytes;
+    if (__builtin_mul_overflow((size_t)n, elem * per, &bytes))
+        return 0;
+    void *q = pt_realloc(*p, bytes);
+    if (!q)
+        return 0;
+    *p = q;
+    *cap = (uint32_t)n;
+    return 1;
+}
+
+pt_material pt_material_default(void)
+{
+    pt_material m;
+    memset(&m, 0, sizeof m);
+    for (int i = 0; i < 4; i++)
+        m.base_color[i] = 1.0f;
+    m.base_color_tex = -1;
+    m.metallic = 1.0f;
+    m.roughness = 1.0f;
+    m.metal_rough_tex = -1;
+    m.emissive_tex = -1;
+    m.specular = 1.0f;
+    for (int i = 0; i < 3; i++)
+        m.specular_color[i] = 1.0f;
+    m.double_sided = 0;
+    snprintf(m.name, sizeof m.name, "default");
+    return m;
+}
+
+pt_status pt_scene_builder_new(pt_scene_builder **out, pt_error *err)
+{
+    pt_scene_builder *b = pt_calloc(1, sizeof *b);
+    if (!b)
+        return pt_error_set(err, PT_ERR_NOMEM, "scene builder: out of memory");
+    *out = b;
+    return PT_OK;
+}
+
+static void free_textures(pt_texture *t, uint32_t n)
+{
+    for (uint32_t i = 0; i < n; i++)
+        pt_free(t[i].rgba);
+    pt_free(t);
+}
+
+void pt_scene_builder_free(pt_scene_builder *b)
+{
+    if (!b)
+        return;
+    pt_free(b->pos);
+    pt_free(b->nrm);
+    pt_free(b->uv);
+    pt_free(b->idx);
+    pt_free(b->tmat);
+    pt_free(b->mats);
+    free_textures(b->texs, b->ntex);
+    pt_free(b->cams);
+    pt_free(b->cam_pos);
+    pt_free(b);
+}
+
+void pt_scene_builder_set_hash(pt_scene_builder *b, const char *hex)
+{
+    snprintf(b->hash, sizeof b->hash, "%s", hex);
+    b->hash_set = 1;
+}
+
+uint32_t pt_scene_builder_num_materials(const pt_scene_builder *b)
+{
+    return b->nmat;
+}
+
+static int finite_n(const float *v, int n)
+{
+    for (int i = 0; i < n; i++)
+        if (!isfinite(v[i]))
+            return 0;
+    return 1;
+}
+
+pt_status pt_scene_builder_add_material(pt_scene_builder *b, const pt_material *m, uint32_t *index,
+                                        pt_error *err)
+{
+    const char *name = m->name[0] ? m->name : "(unnamed)";
+    if (!finite_n(m->base_color, 4) || !isfinite(m->metallic) || !isfinite(m->roughness) ||
+        !finite_n(m->emissive, 3) || !isfinite(m->specular) || !finite_n(m->specular_color, 3))
+        return pt_error_set(err, PT_ERR_FORMAT, "material '%.64s': factor is NaN or infinite",
+                            name);
+    if (m->emissive[0] < 0 || m->emissive[1] < 0 || m->emissive[2] < 0)
+        return pt_error_set(err, PT_ERR_FORMAT, "material '%.64s': negative emission", name);
+    /* glTF 2.0 (5.22, 5.23) bounds these factors to [0, 1]; outside it the
+     * BSDF gains energy or its roughness mapping breaks, so a file that says
+     * otherwise is rejected rather than silently clamped. */
+    const struct {
+        const char *field;
+        float v;
+    } unit[] = {{"baseColorFactor[0]", m->base_color[0]}, {"baseColorFactor[1]", m->base_color[1]},
+                {"baseColorFactor[2]", m->base_color[2]}, {"baseColorFactor[3]", m->base_color[3]},
+                {"metallicFactor", m->metallic},          {"roughnessFactor", m->roughness},
+                {"specularFactor", m->specular}};
+    for (size_t i = 0; i < sizeof unit / sizeof unit[0]; i++)
+        if (!(unit[i].v >= 0.0f && unit[i].v <= 1.0f))
+            return pt_error_set(err, PT_ERR_FORMAT, "material '%.64s': %s %g is outside [0, 1]",
+                                name, unit[i].field, (double)unit[i].v);
+    for (int i = 0; i < 3; i++)
+        if (m->specular_color[i] < 0.0f)
+            return pt_error_set(err, PT_ERR_FORMAT,
+                                "material '%.64s': specularColorFactor[%d] %g is negative", name, i,
+                                (double)m->specular_color[i]);
+    const int32_t tex[3] = {m->base_color_tex, m->metal_rough_tex, m->emissive_tex};
+    for (int i = 0; i < 3; i++)
+        if (tex[i] < -1 || (tex[i] >= 0 && (uint32_t)tex[i] >= b->ntex))
+            return pt_error_set(err, PT_ERR_ARG, "material '%.64s': texture %d out of range", name,
+                                (int)tex[i]);
+    if (!reserve((void **)&b->mats, &b->cap_mat, b->nmat + 1, sizeof(pt_material), 1))
+        return pt_error_set(err, PT_ERR_NOMEM, "material '%.64s': out of memory", name);
+    pt_material *d = &b->mats[b->nmat];
+    *d = *m;
+    /* Zero the bytes after the name's end so the scene hash sees only the name. */
+    size_t len = strnlen(m->name, sizeof m->name - 1);
+    memset(d->name + len, 0, sizeof d->name - len);
+    *index = b->nmat++;
+    return PT_OK;
+}
+
+pt_status pt_scene_builder_add_texture(pt_scene_builder *b, const pt_texture *tex, uint32_t *index,
+                                       pt_error *err)
+{
+    pt_status st;
+    if (!tex->rgba) {
+        return pt_error_set(err, PT_ERR_ARG, "texture %u: no pixels", b->ntex);
+    }
+    if (tex->width == 0 || tex->height == 0 || tex->width > PT_SCENE_MAX_TEXTURE_DIM ||
+        tex->height > PT_SCENE_MAX_TEXTURE_DIM) {
+        st = pt_error_set(err, PT_ERR_LIMIT, "texture %u: %ux%u pixels (at most %u a side)",
+                          b->ntex, tex->width, tex->height, PT_SCENE_MAX_TEXTURE_DIM);
+        goto fail;
+    }
+    if (tex->wrap_s < PT_WRAP_REPEAT || tex->wrap_s > PT_WRAP_MIRROR ||
+        tex->wrap_t < PT_WRAP_REPEAT || tex->wrap_t > PT_WRAP_MIRROR) {
+        st = pt_error_set(err, PT_ERR_ARG, "texture %u: bad wrap mode", b->ntex);
+        goto fail;
+    }
+    if (b->ntex >= INT32_MAX) {
+        st = pt_error_set(err, PT_ERR_LIMIT, "too many textures");
+        goto fail;
+    }
+    if (!reserve((void **)&b->texs, &b->cap_tex, b->ntex + 1, sizeof(pt_texture), 1)) {
+        st = pt_error_set(err, PT_ERR_NOMEM, "texture %u: out of memory", b->ntex);
+        goto fail;
+    }
+    b->texs[b->ntex] = *tex;
+    b->texs[b->ntex].srgb = tex->srgb ? 1 : 0;
+    *index = b->ntex++;
+    return PT_OK;
+fail:
+    pt_free(tex->rgba);
+    return st;
+}
+
+pt_status pt_scene_builder_add_camera_at(pt_scene_builder *b, const pt_camera *cam,
+                                         const double position[3], pt_error *err)
+{
+    const char *name = cam->name[0] ? cam->name : "(unnamed)";
+    const char *bad = NULL;
+    if (!isfinite(position[0]) || !isfinite(position[1]) || !isfinite(position[2]) ||
+        fabs(position[0]) > (double)PT_SCENE_MAX_COORD ||
+        fabs(position[1]) > (double)PT_SCENE_MAX_COORD ||
+        fabs(position[2]) > (double)PT_SCENE_MAX_COORD)
+        bad = "position is not finite or too large";
+    else if (!pt_isfinite3(cam->right) || !pt_isfinite3(cam->up) || !pt_isfinite3(cam->forward))
+        bad = "orientation is not finite";
+    else if (!(cam->yfov > 0.0f && cam->yfov < PT_PI))
+        bad = "yfov is not in (0, pi)";
+    else if (!(cam->aspect >= 0.0f && cam->aspect < 1e6f))
+        bad = "aspectRatio is not in [0, 1e6)";
+    else if (!(cam->znear >= 0.0f) || !isfinite(cam->znear))
+        bad = "znear is negative or not finite";
+    if (bad)
+        return pt_error_set(err, PT_ERR_FORMAT, "camera '%.64s': %s", name, bad);
+    if (b->ncam >= 65536)
+        return pt_error_set(err, PT_ERR_LIMIT, "camera '%.64s': too many cameras", name);
+    if (!reserve((void **)&b->cams, &b->cap_cam, b->ncam + 1, sizeof(pt_camera), 1) ||
+        !reserve((void **)&b->cam_pos, &b->cap_cam_pos, b->ncam + 1, sizeof(double), 3))
+        return pt_error_set(err, PT_ERR_NOMEM, "camera '%.64s': out of memory", name);
+    memcpy(&b->cam_pos[3 * (size_t)b->ncam], position, 3 * sizeof(double));
+    pt_camera *d = &b->cams[b->ncam++];
+    *d = *cam;
+    size_t len = strnlen(cam->name, sizeof cam->name - 1);
+    memset(d->name + len, 0, sizeof d->name - len);
+    return PT_OK;
+}
+
+pt_status pt_scene_builder_add_camera(pt_scene_builder *b, const pt_camera *cam, pt_error *err)
+{
+    const double p[3] = {cam->position.x, cam->position.y, cam->position.z};
+    return pt_scene_builder_add_camera_at(b, cam, p, err);
+}
+
+/* 3x3 cofactor matrix of the column-major 4x4's upper-left block, as rows
+ * c[r][k] so that n' = c * n, and the determinant. cof(A) = det(A) inv(A)^T. */
+static double normal_matrix(const double *m, double c[3][3])
+{
+    double a[3][3]; /* a[row][col] */
+    for (int r = 0; r < 3; r++)
+        for (int k = 0; k < 3; k++)
+            a[r][k] = m ? m[k * 4 + r] : (r == k);
+    for (int r = 0; r < 3; r++) {
+        for (int k = 0; k < 3; k++) {
+            int r1 = (r + 1) % 3, r2 = (r + 2) % 3, k1 = (k + 1) % 3, k2 = (k + 2) % 3;
+            c[r][k] = a[r1][k1] * a[r2][k2] - a[r1][k2] * a[r2][k1];
+        }
+    }
+    return a[0][0] * c[0][0] + a[0][1] * c[0][1] + a[0][2] * c[0][2];
+}
+
+pt_status pt_scene_builder_add_mesh(pt_scene_builder *b, const char *what, const float *positions,
+                                    const float *normals, const float *uvs, uint32_t nv,
+                                    const uint32_t *indices, uint32_t nt, const float xform[16],
+                                    uint32_t material, pt_error *err)
+{
+    double xd[16];
+    if (xform)
+        for (int i = 0; i < 16; i++)
+            xd[i] = xform[i];
+    return pt_scene_builder_add_mesh_dxform(b, what, positions, normals, uvs, nv, indices, nt,
+                                            xform ? xd : NULL, material, err);
+}
+
+pt_status pt_scene_builder_add_mesh_dxform(pt_scene_builder *b, const char *what,
+                                           const float *positions, const float *normals,
+                                           const float *uvs, uint32_t nv, const uint32_t *indices,
+                                           uint32_t nt, const double xform[16], uint32_t material,
+                                           pt_error *err)
+{
+    double *acc = NULL;
+    pt_status st = PT_OK;
+    if (!what)
+        what = "mesh";
+    if (material >= b->nmat)
+        return pt_error_set(err, PT_ERR_ARG, "%s: material %u out of range", what, material);
+    if (nt == 0)
+        return PT_OK;
+    if (!positions)
+        return pt_error_set(err, PT_ERR_ARG, "%s: no positions", what);
+    if (!indices && (uint64_t)nv != 3 * (uint64_t)nt)
+        return pt_error_set(err, PT_ERR_FORMAT,
+                            "%s: non-indexed mesh with %u vertices for %u triangles", what, nv, nt);
+    if (nt > PT_SCENE_MAX_TRIANGLES - b->nt)
+        return pt_error_set(err, PT_ERR_LIMIT, "%s: over %u triangles in the scene", what,
+                            PT_SCENE_MAX_TRIANGLES);
+    if (nv > PT_SCENE_MAX_VERTICES - b->nv)
+        return pt_error_set(err, PT_ERR_LIMIT, "%s: over %u vertices in the scene", what,
+                            PT_SCENE_MAX_VERTICES);
+    if (indices) {
+        for (uint64_t i = 0; i < 3 * (uint64_t)nt; i++)
+            if (indices[i] >= nv)
+                return pt_error_set(err, PT_ERR_FORMAT,
+                                    "%s: index %u of triangle %u out of range (%u vertices)", what,
+                                    indices[i], (uint32_t)(i / 3), nv);
+    }
+    uint32_t nv_all = b->nv + nv, nt_all = b->nt + nt;
+    if (!reserve((void **)&b->pos, &b->cap_pos, nv_all, sizeof(double), 3) ||
+        !reserve((void **)&b->nrm, &b->cap_nrm, nv_all, sizeof(float), 3) ||
+        !reserve((void **)&b->uv, &b->cap_uv, nv_all, sizeof(float), 2) ||
+        !reserve((void **)&b->idx, &b->cap_idx, nt_all, sizeof(uint32_t), 3) ||
+        !reserve((void **)&b->tmat, &b->cap_tmat, nt_all, sizeof(uint32_t), 1))
+        return pt_error_set(err, PT_ERR_NOMEM, "%s: out of memory", what);
+
+    double c[3][3];
+    double det = normal_matrix(xform, c);
+    double nsign = det < 0 ? -1.0 : 1.0;
+    double *P = b->pos + 3 * (size_t)b->nv;
+    float *N = b->nrm + 3 * (size_t)b->nv;
+    float *UV = b->uv + 2 * (size_t)b->nv;
+    int need_geo = normals == NULL;
+    for (uint32_t v = 0; v < nv; v++) {
+        const float *p = positions + 3 * (size_t)v;
+        double q[3];
+        for (int r = 0; r < 3; r++) {
+            q[r] = xform
+                       ? xform[r] * p[0] + xform[4 + r] * p[1] + xform[8 + r] * p[2] + xform[12 + r]
+                       : (double)p[r];
+            if (!isfinite(q[r]) || fabs(q[r]) > (double)PT_SCENE_MAX_COORD)
+                return pt_error_set(err, PT_ERR_FORMAT,
+                                    "%s: vertex %u position (%g, %g, %g) is not finite or over "
+                                    "%g in world space",
+                                    what, v, (double)p[0], (double)p[1], (double)p[2],
+                                    (double)PT_SCENE_MAX_COORD);
+            P[3 * v + r] = q[r];
+        }
+        if (normals) {
+            const float *n = normals + 3 * (size_t)v;
+            if (!finite_n(n, 3))
+                return pt_error_set(err, PT_ERR_FORMAT, "%s: vertex %u normal is not finite", what,
+                                    v);
+            double m[3], len2 = 0;
+            for (int r = 0; r < 3; r++) {
+                m[r] = nsign * (c[r][0] * n[0] + c[r][1] * n[1] + c[r][2] * n[2]);
+                len2 += m[r] * m[r];
+            }
+            double len = sqrt(len2);
+            if (len > 0 && isfinite(len)) {
+                for (int r = 0; r < 3; r++)
+                    N[3 * v + r] = (float)(m[r] / len);
+            } else {
+                N[3 * v] = N[3 * v + 1] = N[3 * v + 2] = 0.0f; /* marks a fallback */
+                need_geo = 1;
+            }
+        }
+        if (uvs) {
+            const float *t = uvs + 2 * (size_t)v;
+            if (!finite_n(t, 2))
+                return pt_error_set(err, PT_ERR_FORMAT, "%s: vertex %u TEXCOORD is not finite",
+                                    what, v);
+            UV[2 * v] = t[0];
+            UV[2 * v + 1] = t[1];
+        } else {
+            UV[2 * v] = UV[2 * v + 1] = 0.0f;
+        }
+    }
+    uint32_t *I = b->idx + 3 * (size_t)b->nt;
+    for (uint32_t t = 0; t < nt; t++) {
+        uint32_t i0 = indices ? indices[3 * t] : 3 * t;
+        uint32_t i1 = indices ? indices[3 * t + 1] : 3 * t + 1;
+        uint32_t i2 = indices ? indices[3 * t + 2] : 3 * t + 2;
+        if (det < 0) {
+            uint32_t s = i1;
+            i1 = i2;
+            i2 = s;
+        }
+        I[3 * t] = b->nv + i0;
+        I[3 * t + 1] = b->nv + i1;
+        I[3 * t + 2] = b->nv + i2;
+        b->tmat[b->nt + t] = material;
+    }
+    if (need_geo) {
+        /* Area-weighted vertex normals: the cross product's length is twice
+         * the triangle's area, so summing unnormalised cross products weights
+         * each face by its area. Degenerate faces add nothing. In double, from
+         * the double world-space positions: edges of a mesh far from the
+         * origin keep their precision, so a translation does not change the
+         * normals. */
+        acc = pt_calloc((size_t)nv * 3, sizeof(double));
+        if (!acc) {
+            st = pt_error_set(err, PT_ERR_NOMEM, "%s: out of memory", what);
+            goto fail;
+        }
+        for (uint32_t t = 0; t < nt; t++) {
+            uint32_t i[3] = {I[3 * t] - b->nv, I[3 * t + 1] - b->nv, I[3 * t + 2] - b->nv};
+            const double *p0 = P + 3 * (size_t)i[0], *p1 = P + 3 * (size_t)i[1],
+                         *p2 = P + 3 * (size_t)i[2];
+            double e1[3] = {p1[0] - p0[0], p1[1] - p0[1], p1[2] - p0[2]};
+            double e2[3] = {p2[0] - p0[0], p2[1] - p0[1], p2[2] - p0[2]};
+            double g[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2],
+                           e1[0] * e2[1] - e1[1] * e2[0]};
+            if (!isfinite(g[0]) || !isfinite(g[1]) || !isfinite(g[2]))
+                continue;
+            for (int k = 0; k < 3; k++)
+                for (int r = 0; r < 3; r++)
+                    acc[3 * (size_t)i[k] + r] += g[r];
+        }
+        for (uint32_t v = 0; v < nv; v++) {
+            float *n = N + 3 * (size_t)v;
+            if (normals && (n[0] != 0.0f || n[1] != 0.0f || n[2] != 0.0f))
+                continue;
+            const double *a = acc + 3 * (size_t)v;
+            /* Coordinates are capped at PT_SCENE_MAX_COORD (1e15), so a face's
+             * cross product is under ~1e31 and the squared sum cannot overflow. */
+            double len = sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
+            if (len > 0.0 && isfinite(len)) {
+                n[0] = (float)(a[0] / len);
+                n[1] = (float)(a[1] / len);
+                n[2] = (float)(a[2] / len);
+            } else {
+                n[0] = 0.0f;
+                n[1] = 0.0f;
+                n[2] = 1.0f;
+            }
+        }
+    }
+    if (uvs)
+        b->has_uv = 1;
+    b->nv = nv_all;
+    b->nt = nt_all;
+fail:
+    pt_free(acc);
+    return st;
+}
+
+static void hex_digest(EVP_MD_CTX *ctx, char out[65])
+{
+    unsigned char md[EVP_MAX_MD_SIZE];
+    unsigned int len = 0;
+    EVP_DigestFinal_ex(ctx, md, &len);
+    for (unsigned int i = 0; i < len && i < 32; i++)
+        snprintf(out + 2 * i, 3, "%02x", md[i]);
+}
+
+/* SHA-256 (FIPS 180-4) of the built data, for scenes made by code. */
+static pt_status hash_scene(const pt_scene *s, char out[65], pt_error *err)
+{
+    EVP_MD_CTX *ctx = EVP_MD_CTX_new();
+    if (!ctx || EVP_DigestInit_ex(ctx, EVP_sha256(), NULL) != 1) {
+        EVP_MD_CTX_free(ctx);
+        return pt_error_set(err, PT_ERR_NOMEM, "scene hash: cannot start SHA-256");
+    }
+    uint32_t counts[5] = {s->num_vertices, s->num_triangles, s->num_materials, s->num_textures,
+                          s->num_cameras};
+    EVP_DigestUpdate(ctx, counts, sizeof counts);
+    EVP_DigestUpdate(ctx, s->positions, 3 * sizeof(float) * s->num_vertices);
+    EVP_DigestUpdate(ctx, s->origin, sizeof s->origin);
+    EVP_DigestUpdate(ctx, s->normals, 3 * sizeof(float) * s->num_vertices);
+    if (s->uvs)
+        EVP_DigestUpdate(ctx, s->uvs, 2 * sizeof(float) * s->num_vertices);
+    EVP_DigestUpdate(ctx, s->indices, 3 * sizeof(uint32_t) * s->num_triangles);
+    EVP_DigestUpdate(ctx, s->tri_material, sizeof(uint32_t) * s->num_triangles);
+    EVP_DigestUpdate(ctx, s->materials, sizeof(pt_material) * s->num_materials);
+    for (uint32_t i = 0; i < s->num_textures; i++) {
+        const pt_texture *t = &s->textures[i];
+        int32_t h[5] = {(int32_t)t->width, (int32_t)t->height, t->srgb, t->wrap_s, t->wrap_t};
+        EVP_DigestUpdate(ctx, h, sizeof h);
+        EVP_DigestUpdate(ctx, t->rgba, (size_t)t->width * t->height * 4);
+    }
+    for (uint32_t i = 0; i < s->num_cameras; i++) {
+        const pt_camera *c = &s->cameras[i];
+        float f[15] = {c->position.x, c->position.y, c->position.z, c->right.x, c->right.y,
+                       c->right.z,    c->up.x,       c->up.y,       c->up.z,    c->forward.x,
+                       c->forward.y,  c->forward.z,  c->yfov,       c->aspect,  c->znear};
+        EVP_DigestUpdate(ctx, f, sizeof f);
+        EVP_DigestUpdate(ctx, c->name, sizeof c->name);
+    }
+    hex_digest(ctx, out);
+    EVP_MD_CTX_free(ctx);
+    return PT_OK;
+}
+
+void pt_scene_frame_camera(pt_scene *scene, float aspect)
+{
+    pt_camera c;
+    memset(&c, 0, sizeof c);
+    pt_vec3 lo = scene->bounds_min, hi = scene->bounds_max;
+    pt_vec3 centre = pt_v3_scale(pt_v3_add(lo, hi), 0.5f);
+    float radius = 0.5f * pt_v3_len(pt_v3_sub(hi, lo));
+    if (!(radius > 0.0f) || !isfinite(radius))
+        radius = 1.0f;
+    c.yfov = 40.0f * PT_PI / 180.0f;
+    c.aspect = aspect > 0.0f && isfinite(aspect) ? aspect : 0.0f;
+    /* The narrower of the two fields of view must hold the bounding sphere:
+     * distance = r / sin(fov/2). With no aspect known the image is taken as square. */
+    float a = c.aspect > 0.0f ? c.aspect : 1.0f;
+    float half = 0.5f * c.yfov;
+    if (a < 1.0f)
+        half = atanf(a * tanf(half));
+    float dist = radius / sinf(half) * 1.05f;
+    /* From +Z, a little above, so the top of the scene shows. */
+    pt_vec3 dir = pt_v3_norm(pt_v3(0.0f, 0.25f, 1.0f));
+    c.position = pt_v3_add(centre, pt_v3_scale(dir, dist));
+    c.forward = pt_v3_neg(dir);
+    c.right = pt_v3_norm(pt_v3_cross(c.forward, pt_v3(0.0f, 1.0f, 0.0f)));
+    c.up = pt_v3_cross(c.right, c.forward);
+    c.znear = dist * 1e-4f;
+    snprintf(c.name, sizeof c.name, "(framed)");
+    scene->camera = c;
+}
+
+void pt_scene_free(pt_scene *s)
+{
+    if (!s)
+        return;
+    pt_free(s->positions);
+    pt_free(s->normals);
+    pt_free(s->uvs);
+    pt_free(s->indices);
+    pt_free(s->tri_material);
+    pt_free(s->materials);
+    free_textures(s->textures, s->num_textures);
+    pt_free(s->cameras);
+    pt_free(s);
+}
+
+static pt_status choose_camera(pt_scene *s, const char *name, pt_error *err)
+{
+    if (name) {
+        for (uint32_t i = 0; i < s->num_cameras; i++) {
+            if (strcmp(s->cameras[i].name, name) == 0) {
+                s->camera = s->cameras[i];
+                return PT_OK;
+            }
+        }
+        char list[400];
+        size_t n = 0;
+        list[0] = 0;
+        for (uint32_t i = 0; i < s->num_cameras && n + 1 < sizeof list; i++) {
+            int w =
+                snprintf(list + n, sizeof list - n, "%s'%s'", i ? ", " : "", s->cameras[i].name);
+            if (w < 0)
+                break;
+            n += (size_t)w;
+        }
+        if (n >= sizeof list)
+            snprintf(list + sizeof list - 5, 5, "...");
+        if (s->num_cameras == 0)
+            return pt_error_set(err, PT_ERR_ARG,
+                                "no camera named '%.64s': the scene has no cameras", name);
+        return pt_error_set(err, PT_ERR_ARG, "no camera named '%.64s'; cameras: %s", name, list);
+    }
+    if (s->num_cameras > 0)
+        s->camera = s->cameras[0];
+    else
+        pt_scene_frame_camera(s, 0.0f);
+    return PT_OK;
+}
+
+static uint32_t scene_features(const pt_scene *s, int has_uv, pt_error *err, pt_status *st)
+{
+    uint8_t *used = pt_calloc(s->num_materials, 1);
+    uint32_t f = has_uv ? PT_FEAT_UVS : 0;
+    if (!used) {
+        *st = pt_error_set(err, PT_ERR_NOMEM, "scene: out of memory");
+        return 0;
+    }
+    for (uint32_t t = 0; t < s->num_triangles; t++)
+        used[s->tri_material[t]] = 1;
+    for (uint32_t i = 0; i < s->num_materials; i++) {
+        const pt_material *m = &s->materials[i];
+        if (!used[i])
+            continue;
+        if (m->base_color_tex >= 0 || m->metal_rough_tex >= 0)
+            f |= PT_FEAT_TEXTURES;
+        /* Pure Lambert only without any GGX lobe: not metallic (factor and
+         * texture) and no dielectric specular (KHR_materials_specular = 0). */
+        if (!(m->metallic == 0.0f && m->metal_rough_tex < 0 && m->specular == 0.0f))
+            f |= PT_FEAT_GLOSSY;
+        if (m->emissive[0] > 0.0f || m->emissive[1] > 0.0f || m->emissive[2] > 0.0f) {
+            f |= PT_FEAT_EMITTERS;
+            if (m->emissive_tex >= 0)
+                f |= PT_FEAT_EMISSIVE_TEX;
+        }
+        if (!m->double_sided)
+            f |= PT_FEAT_SINGLE_SIDED;
+    }
+    pt_free(used);
+    *st = PT_OK;
+    return f;
+}
+
+/* The origin positions are stored relative to: the centre of the bounds,
+ * rounded to a multiple of g, the smallest power of two above 4x the largest
+ * extent. Stored coordinates then stay within about 4.5 extents of zero (at
+ * most ~3 bits of float precision from perfectly centred), the origin has a
+ * short mantissa, and a scene whose centre is within two extents of the world
+ * origin keeps origin 0 and its world-space coordinates unchanged. */
+static double rebase_origin(double lo, double hi, double extent)
+{
+    double c = 0.5 * lo + 0.5 * hi;
+    if (!(extent > 0.0))
+        return c; /* every vertex at one coordinate: store zeros */
+    int e;
+    frexp(4.0 * extent, &e);
+    double g = ldexp(1.0, e);
+    return nearbyint(c / g) * g;
+}
+
+pt_status pt_scene_builder_finish(pt_scene_builder *b, const pt_scene_opts *opts, pt_scene **out,
+                                  pt_error *err)
+{
+    pt_status st;
+    pt_scene *s = NULL;
+    float scale = opts && opts->scale != 0.0f ? opts->scale : 1.0f;
+    pt_vec3 tr = opts ? opts->translate : pt_v3(0, 0, 0);
+    if (b->nt == 0) {
+        st = pt_error_set(err, PT_ERR_FORMAT, "no triangles");
+        goto fail;
+    }
+    if (!(scale > 0.0f) || !isfinite(scale) || !pt_isfinite3(tr)) {
+        st = pt_error_set(err, PT_ERR_ARG, "scale %g / translation is invalid", (double)scale);
+        goto fail;
+    }
+    s = pt_calloc(1, sizeof *s);
+    if (!s) {
+        st = pt_error_set(err, PT_ERR_NOMEM, "scene: out of memory");
+        goto fail;
+    }
+    s->positions = pt_malloc_array((size_t)b->nv * 3, sizeof(float));
+    if (!s->positions) {
+        st = pt_error_set(err, PT_ERR_NOMEM, "scene: out of memory");
+        goto fail;
+    }
+    /* Hand the other arrays over; the builder no longer owns them. */
+    s->num_vertices = b->nv;
+    s->num_triangles = b->nt;
+    s->normals = b->nrm;
+    s->indices = b->idx;
+    s->tri_material = b->tmat;
+    s->materials = b->mats;
+    s->num_materials = b->nmat;
+    s->textures = b->texs;
+    s->num_textures = b->ntex;
+    s->cameras = b->cams;
+    s->num_cameras = b->ncam;
+    b->nrm = NULL;
+    b->idx = b->tmat = NULL;
+    b->mats = NULL;
+    b->texs = NULL;
+    b->ntex = 0;
+    b->cams = NULL;
+    if (b->has_uv) {
+        s->uvs = b->uv;
+        b->uv = NULL;
+    }
+
+    /* opts' scale and translation in double, in place, with the double bounds. */
+    const double sc = scale, t[3] = {tr.x, tr.y, tr.z};
+    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (uint32_t v = 0; v < b->nv; v++) {
+        double *p = b->pos + 3 * (size_t)v;
+        for (int r = 0; r < 3; r++) {
+            p[r] = p[r] * sc + t[r];
+            lo[r] = fmin(lo[r], p[r]);
+            hi[r] = fmax(hi[r], p[r]);
+        }
+        if (!(fabs(p[0]) <= (double)PT_SCENE_MAX_COORD &&
+              fabs(p[1]) <= (double)PT_SCENE_MAX_COORD &&
+              fabs(p[2]) <= (double)PT_SCENE_MAX_COORD)) {
+            st = pt_error_set(err, PT_ERR_ARG, "vertex %u is over %g after scaling by %g", v,
+                              (double)PT_SCENE_MAX_COORD, (double)scale);
+            goto fail;
+        }
+    }
+    double extent = fmax(hi[0] - lo[0], fmax(hi[1] - lo[1], hi[2] - lo[2]));
+    for (int r = 0; r < 3; r++)
+        s->origin[r] = rebase_origin(lo[r], hi[r], extent);
+
+    /* Stored = float(world - origin); the float bounds are taken from the
+     * stored values so they contain every vertex exactly. */
+    pt_vec3 flo = pt_v3(INFINITY, INFINITY, INFINITY), fhi = pt_v3(-INFINITY, -INFINITY, -INFINITY);
+    for (uint32_t v = 0; v < b->nv; v++) {
+        const double *p = b->pos + 3 * (size_t)v;
+        float *q = s->positions + 3 * (size_t)v;
+        for (int r = 0; r < 3; r++)
+            q[r] = (float)(p[r] - s->origin[r]);
+        if (!finite_n(q, 3)) {
+            st = pt_error_set(err, PT_ERR_ARG, "vertex %u is not finite after scaling", v);
+            goto fail;
+        }
+        flo = pt_v3(fminf(flo.x, q[0]), fminf(flo.y, q[1]), fminf(flo.z, q[2]));
+        fhi = pt_v3(fmaxf(fhi.x, q[0]), fmaxf(fhi.y, q[1]), fmaxf(fhi.z, q[2]));
+    }
+    s->bounds_min = flo;
+    s->bounds_max = fhi;
+    pt_free(b->pos);
+    b->pos = NULL;
+    for (uint32_t i = 0; i < s->num_cameras; i++) {
+        pt_camera *c = &s->cameras[i];
+        const double *p = b->cam_pos + 3 * (size_t)i;
+        c->position = pt_v3((float)(p[0] * sc + t[0] - s->origin[0]),
+                            (float)(p[1] * sc + t[1] - s->origin[1]),
+                            (float)(p[2] * sc + t[2] - s->origin[2]));
+        c->znear *= scale;
+        if (!pt_isfinite3(c->position) || !isfinite(c->znear)) {
+            st = pt_error_set(err, PT_ERR_ARG, "camera '%.64s' is not finite after scaling",
+                              c->name);
+            goto fail;
+        }
+    }
+    s->features = scene_features(s, b->has_uv, err, &st);
+    if (st != PT_OK)
+        goto fail;
+    if (b->hash_set) {
+        memcpy(s->hash, b->hash, sizeof s->hash);
+    } else if ((st = hash_scene(s, s->hash, err)) != PT_OK) {
+        goto fail;
+    }
+    if ((st = choose_camera(s, opts ? opts->camera_name : NULL, err)) != PT_OK)
+        goto fail;
+    pt_scene_builder_free(b);
+    *out = s;
+    return PT_OK;
+fail:
+    pt_scene_free(s);
+    pt_scene_builder_free(b);
+    return st;
+}
+
+/* ---- textures ------------------------------------------------------------------------ */
+
+static float srgb_lut[256];
+static pthread_once_t srgb_once = PTHREAD_ONCE_INIT;
+
+/* IEC 61966-2-1 sRGB transfer function, decoding direction. */
+static void srgb_init(void)
+{
+    for (int i = 0; i < 256; i++) {
+        double c = i / 255.0;
+        srgb_lut[i] = (float)(c <= 0.04045 ? c / 12.92 : pow((c + 0.055) / 1.055, 2.4));
+    }
+}
+
+static int wrap_index(int i, int n, int mode)
+{
+    switch (mode) {
+    case PT_WRAP_CLAMP:
+        return i < 0 ? 0 : (i >= n ? n - 1 : i);
+    case PT_WRAP_MIRROR: {
+        int p = i % (2 * n);
+        if (p < 0)
+            p += 2 * n;
+        return p < n ? p : 2 * n - 1 - p;
+    }
+    default: {
+        int p = i % n;
+        return p < 0 ? p + n : p;
+    }
+    }
+}
+
+/* Brings u into a small range before it meets an int, so huge or NaN
+ * coordinates cannot overflow the conversion. */
+static float reduce_coord(float u, int mode)
+{
+    if (!isfinite(u))
+        return 0.0f;
+    switch (mode) {
+    case PT_WRAP_CLAMP:
+        return fminf(fmaxf(u, -1.0f), 2.0f);
+    case PT_WRAP_MIRROR:
+        return u - 2.0f * floorf(0.5f * u);
+    default:
+        return u - floorf(u);
+    }
+}
+
+void pt_texture_sample(const pt_texture *tex, float u, float v, float out[4])
+{
+    pthread_once(&srgb_once, srgb_init);
+    int w = (int)tex->width, h = (int)tex->height;
+    /* Texel centres at (i + 0.5) / w; v = 0 is the top row (glTF UVs). */
+    float x = reduce_coord(u, tex->wrap_s) * (float)w - 0.5f;
+    float y = reduce_coord(v, tex->wrap_t) * (float)h - 0.5f;
+    float fx0 = floorf(x), fy0 = floorf(y);
+    float fx = x - fx0, fy = y - fy0;
+    int x0 = (int)fx0, y0 = (int)fy0;
+    int xs[2] = {wrap_index(x0, w, tex->wrap_s), wrap_index(x0 + 1, w, tex->wrap_s)};
+    int ys[2] = {wrap_index(y0, h, tex->wrap_t), wrap_index(y0 + 1, h, tex->wrap_t)};
+    float wt[4] = {(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy};
+    out[0] = out[1] = out[2] = out[3] = 0.0f;
+    for (int k = 0; k < 4; k++) {
+        const uint8_t *px = tex->rgba + 4 * ((size_t)ys[k >> 1] * (size_t)w + (size_t)xs[k & 1]);
+        for (int c = 0; c < 3; c++)
+            out[c] += wt[k] * (tex->srgb ? srgb_lut[px[c]] : (float)px[c] * (1.0f / 255.0f));
+        out[3] += wt[k] * (float)px[3] * (1.0f / 255.0f);
+    }
+}

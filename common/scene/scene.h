@@ -1,0 +1,194 @@
+/*
+ * scene.h - the renderer's scene: world-space triangles, materials, textures,
+ * cameras, and the feature mask that lets the integrator skip what a scene
+ * does not need.
+ *
+ * A pt_scene is immutable after it is built and may be shared by any number of
+ * render threads. It owns all of its memory (freed by pt_scene_free).
+ * Geometry is flattened: every mesh instance of the glTF default scene is
+ * transformed to world space. Per-vertex arrays are shared by all triangles;
+ * tri_material[i] is an index into materials[] for triangle i.
+ *
+ * Coordinate spaces: positions, camera positions and bounds are stored in the
+ * "scene space" of world space translated by -origin (world = stored + origin),
+ * so a scene far from the world origin (georeferenced data at 1e5 and beyond)
+ * keeps float's relative precision: the builder keeps world positions in
+ * double and rounds to float only after the shift. origin is 0 for a scene
+ * whose centre is within two extents of the world origin, so ordinary scenes
+ * are stored in world space unchanged. Rendering is translation invariant, so
+ * the accelerator, lights and integrator work in scene space throughout.
+ * Directions (normals, camera axes) are the same in both spaces.
+ *
+ * Scenes come from glTF 2.0 files (pt_scene_load, backed by tinygltf in
+ * gltf_import.cpp) or are built by code (pt_scene_builder, used by the
+ * importer itself and by tests for procedural scenes).
+ * Colours are linear Rec.709. Textures are kept as RGBA8; sRGB ones are decoded
+ * to linear at lookup (pt_texture_sample).
+ */
+#ifndef PT_COMMON_SCENE_SCENE_H
+#define PT_COMMON_SCENE_SCENE_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "common/base/error.h"
+#include "common/math/vec.h"
+
+/* Feature mask bits: what a scene needs from the integrator. */
+enum {
+    PT_FEAT_TEXTURES = 1u << 0,      /* some material reads a base-colour or metal-rough texture */
+    PT_FEAT_GLOSSY = 1u << 1,        /* some material has a non-zero specular (GGX) lobe */
+    PT_FEAT_EMITTERS = 1u << 2,      /* there is at least one emissive triangle */
+    PT_FEAT_EMISSIVE_TEX = 1u << 3,  /* some emissive material has an emissive texture */
+    PT_FEAT_SINGLE_SIDED = 1u << 4,  /* some material is not doubleSided */
+    PT_FEAT_UVS = 1u << 5,           /* the scene has texture coordinates */
+};
+
+enum { PT_WRAP_REPEAT = 0, PT_WRAP_CLAMP = 1, PT_WRAP_MIRROR = 2 };
+
+typedef struct pt_texture {
+    uint32_t width, height;
+    uint8_t *rgba;     /* width*height*4 bytes, row 0 at the top (v = 0) */
+    int srgb;          /* 1: colour data in sRGB, decoded to linear at lookup */
+    int wrap_s, wrap_t;/* PT_WRAP_* */
+} pt_texture;
+
+typedef struct pt_material {
+    float base_color[4];     /* linear RGBA factor */
+    int32_t base_color_tex;  /* texture index or -1 */
+    float metallic, roughness;
+    int32_t metal_rough_tex; /* G = roughness, B = metallic (linear), or -1 */
+    float emissive[3];       /* linear radiance: emissiveFactor x KHR_materials_emissive_strength */
+    int32_t emissive_tex;    /* sRGB texture or -1 */
+    float specular;          /* KHR_materials_specular specularFactor (default 1) */
+    float specular_color[3]; /* KHR_materials_specular specularColorFactor (default 1,1,1) */
+    int double_sided;
+    char name[64];
+} pt_material;
+
+typedef struct pt_camera {
+    pt_vec3 position;
+    pt_vec3 right, up, forward; /* world-space orthonormal basis; looks along +forward (glTF -Z) */
+    float yfov;                 /* radians */
+    float aspect;               /* width/height from the file, 0 when the image decides */
+    float znear;
+    char name[64];
+} pt_camera;
+
+typedef struct pt_scene {
+    uint32_t num_vertices;
+    uint32_t num_triangles;
+    float *positions;          /* 3 per vertex, scene space (world = stored + origin) */
+    float *normals;            /* 3 per vertex, world space (= scene space), unit length */
+    float *uvs;                /* 2 per vertex, or NULL when no primitive has TEXCOORD_0 */
+    uint32_t *indices;         /* 3 per triangle */
+    uint32_t *tri_material;    /* 1 per triangle */
+
+    uint32_t num_materials;
+    pt_material *materials;
+    uint32_t num_textures;
+    pt_texture *textures;
+
+    uint32_t num_cameras;
+    pt_camera *cameras;        /* from the file; may be 0 */
+    pt_camera camera;          /* the one to render: chosen, or framed from the bounds;
+                                  positions in scene space */
+
+    pt_vec3 bounds_min, bounds_max; /* scene space: they contain every stored position */
+    uint32_t features;         /* PT_FEAT_* */
+    char hash[65];             /* SHA-256 (hex) of the scene's files, or of the built data
+                                  (origin included) */
+    double origin[3];          /* world position of scene space's zero: world = stored +
+                                  origin; a multiple of a power of two near the centre
+                                  of the bounds, or 0 (see above) */
+} pt_scene;
+
+typedef void (*pt_warn_fn)(void *user, const char *message);
+
+typedef struct pt_scene_opts {
+    const char *camera_name;   /* NULL: first perspective camera, else frame the bounds */
+    float scale;               /* uniform scale applied to world space (0 means 1), in double */
+    pt_vec3 translate;         /* added to world space after scaling, in double, before
+                                  the scene is rebased (so it moves origin, not stored
+                                  positions, when it is large) */
+    pt_warn_fn warn;           /* each unsupported feature reported once; NULL: stderr */
+    void *warn_user;
+} pt_scene_opts;
+
+/* Hard caps on what a file may ask for. */
+#define PT_SCENE_MAX_TRIANGLES (64u * 1024u * 1024u)
+#define PT_SCENE_MAX_TEXTURE_DIM 16384u
+#define PT_SCENE_MAX_COORD 1e15f
+
+/* Loads a .gltf or .glb. Returns PT_ERR_IO, PT_ERR_FORMAT (message names the
+ * file and the element: "scene.gltf: accessor 3: index 912 out of range"),
+ * PT_ERR_LIMIT or PT_ERR_NOMEM. opts may be NULL. On success *out is a new
+ * scene; on failure it is untouched and nothing leaks. */
+pt_status pt_scene_load(const char *path, const pt_scene_opts *opts, pt_scene **out,
+                        pt_error *err);
+
+/* Frees the scene and all it owns. Accepts NULL. */
+void pt_scene_free(pt_scene *scene);
+
+/* Bilinear lookup with wrap modes; returns linear RGBA (sRGB decoded). */
+void pt_texture_sample(const pt_texture *tex, float u, float v, float out[4]);
+
+/* Sets scene->camera to a default view that frames the bounds, for an image
+ * aspect of `aspect` (width/height). */
+void pt_scene_frame_camera(pt_scene *scene, float aspect);
+
+/* A default material: white base colour, metallic 1, roughness 1 (glTF defaults),
+ * specular 1, single-sided. */
+pt_material pt_material_default(void);
+
+/* ---- building scenes by code ---------------------------------------------------------- */
+
+typedef struct pt_scene_builder pt_scene_builder;
+
+pt_status pt_scene_builder_new(pt_scene_builder **out, pt_error *err);
+void pt_scene_builder_free(pt_scene_builder *b); /* accepts NULL */
+
+/* Adds a material (copied); its index goes to *index. Rejects (PT_ERR_FORMAT,
+ * naming the material and the field) NaN/Inf factors, negative emission,
+ * base colour, metallic, roughness or specular factors outside [0, 1] (glTF's
+ * range: rejected, not clamped) and a negative specular colour. */
+pt_status pt_scene_builder_add_material(pt_scene_builder *b, const pt_material *m,
+                                        uint32_t *index, pt_error *err);
+/* Adds a texture; the builder takes ownership of tex->rgba (pt_malloc'd)
+ * even on failure. */
+pt_status pt_scene_builder_add_texture(pt_scene_builder *b, const pt_texture *tex,
+                                       uint32_t *index, pt_error *err);
+/* Adds a triangle mesh. positions: 3*nv floats; normals: 3*nv or NULL (then
+ * computed, area-weighted); uvs: 2*nv or NULL; indices: 3*nt, or NULL for
+ * non-indexed (nv must then be 3*nt). xform: column-major 4x4 world matrix or
+ * NULL for identity. Checks indices against nv, coordinates for NaN/Inf and
+ * |x| <= PT_SCENE_MAX_COORD; `what` names the mesh in error messages. */
+pt_status pt_scene_builder_add_mesh(pt_scene_builder *b, const char *what, const float *positions,
+                                    const float *normals, const float *uvs, uint32_t nv,
+                                    const uint32_t *indices, uint32_t nt, const float xform[16],
+                                    uint32_t material, pt_error *err);
+/* The same with a double-precision world matrix, so that a large translation
+ * (a georeferenced node at 1e5 or more) is not rounded to float before the
+ * scene is rebased. */
+pt_status pt_scene_builder_add_mesh_dxform(pt_scene_builder *b, const char *what,
+                                           const float *positions, const float *normals,
+                                           const float *uvs, uint32_t nv, const uint32_t *indices,
+                                           uint32_t nt, const double xform[16], uint32_t material,
+                                           pt_error *err);
+/* Adds a camera (copied) in world space. Rejects (PT_ERR_FORMAT) non-finite
+ * vectors, a position over PT_SCENE_MAX_COORD, yfov outside (0, pi), aspect
+ * outside [0, 1e6), a negative or non-finite znear. */
+pt_status pt_scene_builder_add_camera(pt_scene_builder *b, const pt_camera *cam, pt_error *err);
+/* The same with the world-space position in double (cam->position ignored). */
+pt_status pt_scene_builder_add_camera_at(pt_scene_builder *b, const pt_camera *cam,
+                                         const double position[3], pt_error *err);
+/* Finishes: applies opts' scale/translate (in double), computes the bounds,
+ * rebases the scene (origin, above) and rounds positions to float, then
+ * features, hash, and chooses the camera. Fails with PT_ERR_FORMAT on zero
+ * triangles, PT_ERR_ARG when a scaled coordinate is not finite in float. The
+ * builder is consumed (freed) whether or not it succeeds. While building,
+ * positions take 24 bytes a vertex (double); the float copy is made here. */
+pt_status pt_scene_builder_finish(pt_scene_builder *b, const pt_scene_opts *opts,
+                                  pt_scene **out, pt_error *err);
+
+#endif

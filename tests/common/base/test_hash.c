@@ -1,0 +1,46 @@
+/* Tests for common/base/hash.c: SHA-256 text and hex in both directions. */
+#include "common/base/hash.h"
+
+#include <string.h>
+
+#include "tests/check.h"
+
+static void test_sha256(void)
+{
+    char out[PT_HASH_HEX];
+    /* FIPS 180-2, appendix B.1: SHA-256("abc"). */
+    pt_sha256_hex((const uint8_t *)"abc", 3, out);
+    CHECK(!strcmp(out, "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad"));
+    pt_sha256_hex(NULL, 0, out);
+    CHECK(!strcmp(out, "e3b0c44298fc1c149afbf4c8996fb92427ae41e4649b934ca495991b7852b855"));
+}
+
+static void test_hex_round_trip(void)
+{
+    uint8_t h[PT_HASH_SIZE], back[PT_HASH_SIZE];
+    for (unsigned i = 0; i < PT_HASH_SIZE; i++)
+        h[i] = (uint8_t)(i * 37 + 5);
+    char text[PT_HASH_HEX];
+    pt_hash_hex(h, text);
+    CHECK(strlen(text) == 64);
+    CHECK(pt_hex_decode(text, back, sizeof back) == 0 && !memcmp(h, back, sizeof h));
+}
+
+static void test_hex_decode_rejects(void)
+{
+    uint8_t b[2] = {0xaa, 0xbb};
+    CHECK(pt_hex_decode("00fF", b, 2) == 0 && b[0] == 0x00 && b[1] == 0xff);
+    b[0] = 0xaa;
+    CHECK(pt_hex_decode("00f", b, 2) == -1 && b[0] == 0xaa);   /* short */
+    CHECK(pt_hex_decode("00ff0", b, 2) == -1 && b[0] == 0xaa); /* long */
+    CHECK(pt_hex_decode("0g11", b, 2) == -1 && b[0] == 0xaa);  /* not hex, untouched */
+    CHECK(pt_hex_decode("", b, 0) == 0);
+}
+
+int main(void)
+{
+    test_sha256();
+    test_hex_round_trip();
+    test_hex_decode_rejects();
+    return check_report();
+}

@@ -1,0 +1,154 @@
+/*
+ * test_bundle.c - packing a scene with its files, and refusing hostile bundles.
+ */
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include "common/base/alloc.h"
+#include "common/scene/bundle.h"
+#include "common/scene/scene.h"
+#include "tests/check.h"
+
+static char tmp[256];
+
+static void write_text(const char *name, const char *text)
+{
+    char path[512];
+    snprintf(path, sizeof path, "%s/%s", tmp, name);
+    FILE *f = fopen(path, "wb");
+    fputs(text, f);
+    fclose(f);
+}
+
+/* A bundle by hand: files given as name/data pairs. */
+static size_t make_bundle(uint8_t *buf, uint32_t count, const char **names, const char **datas)
+{
+    uint8_t *p = buf;
+    memcpy(p, "PTB1", 4);
+    p[4] = (uint8_t)count;
+    p[5] = p[6] = p[7] = 0;
+    p += 8;
+    for (uint32_t i = 0; i < count; i++) {
+        size_t nl = strlen(names[i]), dl = strlen(datas[i]);
+        p[0] = (uint8_t)nl;
+        p[1] = (uint8_t)(nl >> 8);
+        memcpy(p + 2, names[i], nl);
+        p += 2 + nl;
+        for (int k = 0; k < 8; k++)
+            p[k] = (uint8_t)((uint64_t)dl >> (8 * k));
+        p += 8;
+        memcpy(p, datas[i], dl);
+        p += dl;
+    }
+    return (size_t)(p - buf);
+}
+
+static void hostile(void)
+{
+    uint8_t buf[1024];
+    pt_error err = {0};
+    const char *good_names[] = {"a.gltf", "sub/b.bin"}, *datas[] = {"{}", "xyz"};
+    size_t n = make_bundle(buf, 2, good_names, datas);
+    CHECK(pt_bundle_check(buf, n, &err) == PT_OK);
+    /* Every proper prefix is refused, never read past. */
+    int refused = 0;
+    for (size_t k = 0; k < n; k++)
+        refused += pt_bundle_check(buf, k, NULL) == PT_ERR_FORMAT;
+    CHECK(refused == (int)n);
+    uint8_t big[1100];
+    memcpy(big, buf, n);
+    big[n] = 0;
+    CHECK(pt_bundle_check(big, n + 1, &err) == PT_ERR_FORMAT && strstr(err.msg, "trailing"));
+
+    const char *bad[] = {"../x", "/etc/passwd", "a/../../x", "a//b", "./a", "a\\b", "", "a/.."};
+    for (size_t i = 0; i < sizeof bad / sizeof *bad; i++) {
+        const char *names[] = {"a.gltf", bad[i]};
+        size_t m = make_bundle(buf, 2, names, datas);
+        CHECKF(pt_bundle_check(buf, m, &err) == PT_ERR_FORMAT && strstr(err.msg, "name"),
+               "name '%s' accepted", bad[i]);
+    }
+    /* A size that lies about the bytes present. */
+    n = make_bundle(buf, 2, good_names, datas);
+    buf[n - 3 - 8] = 200;
+    CHECK(pt_bundle_check(buf, n, &err) == PT_ERR_FORMAT && strstr(err.msg, "declares"));
+    /* Zero files, and absurd counts. */
+    n = make_bundle(buf, 0, good_names, datas);
+    CHECK(pt_bundle_check(buf, n, &err) == PT_ERR_FORMAT);
+    n = make_bundle(buf, 2, good_names, datas);
+    buf[7] = 0xff;
+    CHECK(pt_bundle_check(buf, n, &err) == PT_ERR_FORMAT);
+    memcpy(buf, "XXXX", 4);
+    CHECK(pt_bundle_check(buf, n, &err) == PT_ERR_FORMAT);
+}
+
+static void pack_refuses_escape(void)
+{
+    write_text("escape.gltf", "{\"asset\":{\"version\":\"2.0\"},\"buffers\":[{\"uri\":\"../secret.bin\","
+                              "\"byteLength\":4}]}");
+    char path[512];
+    snprintf(path, sizeof path, "%s/escape.gltf", tmp);
+    pt_bundle *b = NULL;
+    pt_error err = {0};
+    CHECK(pt_bundle_pack(path, &b, &err) == PT_ERR_FORMAT && strstr(err.msg, "secret.bin"));
+    CHECK(b == NULL);
+    write_text("missing.gltf", "{\"asset\":{\"version\":\"2.0\"},\"images\":[{\"uri\":\"no%20such.png\"}]}");
+    snprintf(path, sizeof path, "%s/missing.gltf", tmp);
+    CHECK(pt_bundle_pack(path, &b, &err) == PT_ERR_IO && strstr(err.msg, "no such.png"));
+}
+
+static void round_trip(const char *scene_path, uint32_t expect_files)
+{
+    pt_bundle *b = NULL;
+    pt_error err = {0};
+    CHECKF(pt_bundle_pack(scene_path, &b, &err) == PT_OK, "%s", err.msg);
+    if (!b)
+        return;
+    CHECK(pt_bundle_check(b->data, b->size, &err) == PT_OK);
+    uint32_t files = (uint32_t)b->data[4] | (uint32_t)b->data[5] << 8;
+    CHECKF(files == expect_files, "%s: %u files, expected %u", scene_path, files, expect_files);
+    pt_bundle *c = NULL;
+    CHECK(pt_bundle_from_bytes(b->data, b->size, &c, &err) == PT_OK);
+    CHECK(c && strcmp(b->hash, c->hash) == 0 && strlen(b->hash) == 64);
+    char dir[512], entry[4096];
+    snprintf(dir, sizeof dir, "%s/unpacked%u", tmp, expect_files);
+    CHECKF(pt_bundle_unpack(c, dir, entry, sizeof entry, &err) == PT_OK, "%s", err.msg);
+    pt_scene *a = NULL, *u = NULL;
+    CHECKF(pt_scene_load(scene_path, NULL, &a, &err) == PT_OK, "%s", err.msg);
+    CHECKF(pt_scene_load(entry, NULL, &u, &err) == PT_OK, "%s", err.msg);
+    if (a && u) {
+        CHECK(a->num_triangles == u->num_triangles);
+        CHECKF(strcmp(a->hash, u->hash) == 0, "scene hash changed by packing");
+    }
+    pt_scene_free(a);
+    pt_scene_free(u);
+    pt_bundle_free(b);
+    pt_bundle_free(c);
+}
+
+int main(void)
+{
+    snprintf(tmp, sizeof tmp, "/tmp/pt_test_bundle_XXXXXX");
+    if (!mkdtemp(tmp))
+        return 1;
+    int64_t live0 = pt_alloc_live();
+    hostile();
+    pack_refuses_escape();
+    round_trip(PT_SOURCE_DIR "/scenes/cornell_box.gltf", 1);
+    struct stat sb;
+    if (stat(PT_SHARED_SCENES, &sb) == 0) {
+        round_trip(PT_SHARED_SCENES "/ToyCar/ToyCar.gltf", 10);
+        round_trip(PT_SHARED_SCENES "/DamagedHelmet/DamagedHelmet.glb", 1);
+    } else {
+        printf("shared scenes not found; skipping the asset round trips\n");
+        CHECK(!check_shared_required());
+    }
+    CHECK(pt_alloc_live() == live0);
+    char cmd[512];
+    snprintf(cmd, sizeof cmd, "rm -rf %s", tmp);
+    if (system(cmd) != 0)
+        return 1;
+    return check_report();
+}

@@ -1,0 +1,634 @@
+/*
+ * test_gltf.c - pt_scene_load on the shared public assets (triangle counts,
+ * emissive strengths, cameras, warnings), on hostile files generated at run
+ * time in a temporary folder, and under allocation failure.
+ */
+#include "common/scene/scene.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <stb_image_write.h>
+
+#include "common/base/alloc.h"
+#include "tests/check.h"
+
+static char tmp[256];
+
+typedef struct warnings {
+    int count;
+    char text[4096];
+} warnings;
+
+static void collect(void *user, const char *msg)
+{
+    warnings *w = user;
+    w->count++;
+    size_t n = strlen(w->text);
+    snprintf(w->text + n, sizeof w->text - n, "%s\n", msg);
+}
+
+static void write_file(const char *name, const void *data, size_t len)
+{
+    char p[512];
+    snprintf(p, sizeof p, "%s/%s", tmp, name);
+    FILE *f = fopen(p, "wb");
+    if (!f) {
+        perror(p);
+        exit(1);
+    }
+    if (len)
+        fwrite(data, 1, len, f);
+    fclose(f);
+}
+
+static const char *tpath(const char *name)
+{
+    static char p[512];
+    snprintf(p, sizeof p, "%s/%s", tmp, name);
+    return p;
+}
+
+/* Loads, expecting failure: code as given (0: any error) and a message that
+ * names the file and contains `word`. */
+static void expect_fail(const char *name, pt_status code, const char *word)
+{
+    pt_error err = {0};
+    pt_scene *s = NULL;
+    pt_scene_opts o = {0};
+    warnings w = {0};
+    o.warn = collect;
+    o.warn_user = &w;
+    int64_t live = pt_alloc_live();
+    pt_status st = pt_scene_load(tpath(name), &o, &s, &err);
+    if (getenv("PT_TEST_VERBOSE"))
+        printf("%s -> %s\n", name, err.msg);
+    CHECKF(st != PT_OK && s == NULL, "%s loaded", name);
+    if (code)
+        CHECKF(st == code, "%s: status %d, expected %d (%s)", name, (int)st, (int)code, err.msg);
+    CHECKF(strstr(err.msg, name) != NULL, "%s: message does not name the file: %s", name, err.msg);
+    CHECKF(strstr(err.msg, word) != NULL, "%s: message lacks '%s': %s", name, word, err.msg);
+    CHECKF(pt_alloc_live() == live, "%s: leaked %lld blocks", name,
+           (long long)(pt_alloc_live() - live));
+    pt_scene_free(s);
+}
+
+/* ---- a tiny valid scene and its hostile variants ----------------------------------- */
+
+/* bin: 3 float3 positions (36 bytes), then 3 u16 indices (6 bytes), then 2 pad, then 3
+ * float2 uvs (24 bytes): 68 bytes. */
+static size_t make_bin(unsigned char *bin, float p0x, uint16_t i2)
+{
+    float pos[9] = {p0x, 0, 0, 1, 0, 0, 0, 1, 0};
+    uint16_t idx[4] = {0, 1, i2, 0};
+    float uv[6] = {0, 0, 1, 0, 0, 1};
+    memcpy(bin, pos, 36);
+    memcpy(bin + 36, idx, 8);
+    memcpy(bin + 44, uv, 24);
+    return 68;
+}
+
+static const char *k_views = "\"bufferViews\":[{\"buffer\":0,\"byteOffset\":0,\"byteLength\":36},"
+                             "{\"buffer\":0,\"byteOffset\":36,\"byteLength\":6},"
+                             "{\"buffer\":0,\"byteOffset\":44,\"byteLength\":24}]";
+
+/* A .gltf with the given pieces substituted. */
+static void make_gltf(const char *name, const char *bin_uri, const char *pos_acc, const char *views,
+                      const char *nodes, const char *extra)
+{
+    char json[8192];
+    snprintf(json, sizeof json,
+             "{\"asset\":{\"version\":\"2.0\"},\"scene\":0,\"scenes\":[{\"nodes\":[0]}],"
+             "\"nodes\":%s,"
+             "\"meshes\":[{\"primitives\":[{\"attributes\":{\"POSITION\":0,\"TEXCOORD_0\":2},"
+             "\"indices\":1,\"material\":0}]}],"
+             "\"buffers\":[{\"uri\":\"%s\",\"byteLength\":68}],%s,"
+             "\"accessors\":[%s,"
+             "{\"bufferView\":1,\"componentType\":5123,\"count\":3,\"type\":\"SCALAR\"},"
+             "{\"bufferView\":2,\"componentType\":5126,\"count\":3,\"type\":\"VEC2\"}],"
+             "\"materials\":[{\"name\":\"m0\",\"pbrMetallicRoughness\":{\"metallicFactor\":0}}]"
+             "%s}",
+             nodes, bin_uri, views, pos_acc, extra);
+    write_file(name, json, strlen(json));
+}
+
+static const char *k_pos_ok =
+    "{\"bufferView\":0,\"componentType\":5126,\"count\":3,\"type\":\"VEC3\"}";
+static const char *k_nodes_ok = "[{\"mesh\":0,\"translation\":[0,0,1]}]";
+
+static void test_small_valid(void)
+{
+    unsigned char bin[68];
+    make_bin(bin, 0.0f, 2);
+    write_file("tri.bin", bin, sizeof bin);
+    /* A 2x2 PNG: red, green / blue, white; used as base colour with CLAMP / MIRROR. */
+    unsigned char px[16] = {255, 0, 0, 255, 0, 255, 0, 255, 0, 0, 255, 255, 255, 255, 255, 255};
+    CHECK(stbi_write_png(tpath("tex.png"), 2, 2, 4, px, 8) != 0);
+    make_gltf(
+        "tri.gltf", "tri.bin", k_pos_ok, k_views,
+        "[{\"mesh\":0,\"translation\":[0,0,1],\"children\":[1]},{\"camera\":0}]",
+        ",\"textures\":[{\"source\":0,\"sampler\":0}],\"images\":[{\"uri\":\"tex.png\"}],"
+        "\"samplers\":[{\"wrapS\":33071,\"wrapT\":33648}],"
+        "\"cameras\":[{\"type\":\"perspective\",\"perspective\":{\"yfov\":0.5,\"znear\":0.1}}]");
+    /* Same material, now textured (tri.gltf's material 0 has no texture). */
+    char json[8192];
+    FILE *f = fopen(tpath("tri.gltf"), "rb");
+    size_t n = fread(json, 1, sizeof json - 1, f);
+    fclose(f);
+    json[n] = 0;
+    char *m = strstr(json, "\"metallicFactor\":0}");
+    CHECK(m != NULL);
+    if (m) {
+        char out[8192];
+        snprintf(out, sizeof out, "%.*s\"metallicFactor\":0,\"baseColorTexture\":{\"index\":0}}%s",
+                 (int)(m - json), json, m + strlen("\"metallicFactor\":0}"));
+        write_file("tritex.gltf", out, strlen(out));
+    }
+
+    pt_error err = {0};
+    pt_scene *s = NULL;
+    CHECKF(pt_scene_load(tpath("tritex.gltf"), NULL, &s, &err) == PT_OK, "%s", err.msg);
+    if (s) {
+        CHECK(s->num_triangles == 1 && s->num_vertices == 3);
+        CHECK(fabsf(s->positions[2] - 1.0f) < 1e-6f); /* translated by the node */
+        CHECK(fabsf(s->normals[2] - 1.0f) < 1e-6f);   /* computed: +Z */
+        CHECK(s->uvs && s->uvs[2] == 1.0f);
+        CHECK(s->num_textures == 1);
+        if (s->num_textures == 1) {
+            CHECK(s->textures[0].width == 2 && s->textures[0].srgb == 1);
+            CHECK(s->textures[0].wrap_s == PT_WRAP_CLAMP &&
+                  s->textures[0].wrap_t == PT_WRAP_MIRROR);
+            CHECK(s->textures[0].rgba[4] == 0 && s->textures[0].rgba[5] == 255);
+        }
+        CHECK(s->features & PT_FEAT_TEXTURES);
+        CHECK(s->features & PT_FEAT_UVS);
+        CHECK(s->num_cameras == 1 && strcmp(s->camera.name, "camera 0") == 0);
+        CHECK(s->camera.position.z == 1.0f && s->camera.forward.z == -1.0f);
+        CHECK(strlen(s->hash) == 64);
+    }
+    pt_scene *s2 = NULL;
+    CHECKF(pt_scene_load(tpath("tri.gltf"), NULL, &s2, &err) == PT_OK, "%s", err.msg);
+    if (s2) {
+        /* The texture no material uses is neither decoded nor flagged. */
+        CHECK(s2->num_textures == 0 && !(s2->features & PT_FEAT_TEXTURES));
+        CHECK(!(s2->features & PT_FEAT_GLOSSY) == 0); /* specular 1 by default: glossy */
+        if (s)
+            CHECK(strcmp(s->hash, s2->hash) != 0);
+    }
+    pt_scene_free(s);
+    pt_scene_free(s2);
+
+    /* Allocation failure: every failing allocation gives PT_ERR_NOMEM and no leak. */
+    int64_t live = pt_alloc_live();
+    int ok = 0;
+    for (uint64_t i = 1; i < 10000 && !ok; i++) {
+        pt_scene *t = NULL;
+        pt_error e = {0};
+        pt_alloc_fail_at(i);
+        pt_status st = pt_scene_load(tpath("tritex.gltf"), NULL, &t, &e);
+        pt_alloc_fail_at(0);
+        if (st == PT_OK) {
+            ok = 1;
+            CHECK(t && t->num_triangles == 1);
+            pt_scene_free(t);
+        } else {
+            CHECKF(st == PT_ERR_NOMEM, "fail at %llu: %d %s", (unsigned long long)i, (int)st,
+                   e.msg);
+            CHECK(t == NULL);
+        }
+        CHECKF(pt_alloc_live() == live, "fail at %llu leaked %lld", (unsigned long long)i,
+               (long long)(pt_alloc_live() - live));
+    }
+    CHECK(ok);
+}
+
+/* Packs a .glb (glTF 2.0 spec 4.4): header, JSON chunk, BIN chunk. */
+static size_t make_glb(unsigned char *out, size_t cap)
+{
+    unsigned char bin[68];
+    make_bin(bin, 0.0f, 2);
+    char json[2048];
+    int jl = snprintf(json, sizeof json,
+                      "{\"asset\":{\"version\":\"2.0\"},\"scene\":0,\"scenes\":[{\"nodes\":[0]}],"
+                      "\"nodes\":[{\"mesh\":0}],\"meshes\":[{\"primitives\":[{\"attributes\":"
+                      "{\"POSITION\":0},\"indices\":1}]}],\"buffers\":[{\"byteLength\":68}],%s,"
+                      "\"accessors\":[%s,{\"bufferView\":1,\"componentType\":5123,\"count\":3,"
+                      "\"type\":\"SCALAR\"}]}",
+                      k_views, k_pos_ok);
+    while (jl % 4)
+        json[jl++] = ' ';
+    uint32_t total = 12 + 8 + (uint32_t)jl + 8 + 68;
+    if (total > cap)
+        return 0;
+    uint32_t h[3] = {0x46546C67u, 2, total}, jh[2] = {(uint32_t)jl, 0x4E4F534Au},
+             bh[2] = {68, 0x004E4942u};
+    size_t o = 0;
+    memcpy(out + o, h, 12), o += 12;
+    memcpy(out + o, jh, 8), o += 8;
+    memcpy(out + o, json, (size_t)jl), o += (size_t)jl;
+    memcpy(out + o, bh, 8), o += 8;
+    memcpy(out + o, bin, 68), o += 68;
+    return o;
+}
+
+static void test_hostile(void)
+{
+    unsigned char bin[68];
+    char buf[1024];
+
+    make_gltf("nobin.gltf", "missing.bin", k_pos_ok, k_views, k_nodes_ok, "");
+    expect_fail("nobin.gltf", PT_ERR_IO, "buffer");
+    expect_fail("nobin.gltf", PT_ERR_IO, "missing.bin");
+
+    make_gltf("accrange.gltf", "tri.bin",
+              "{\"bufferView\":0,\"componentType\":5126,\"count\":100,\"type\":\"VEC3\"}", k_views,
+              k_nodes_ok, "");
+    expect_fail("accrange.gltf", PT_ERR_FORMAT, "accessor 0 (POSITION of mesh 0 primitive 0)");
+
+    make_gltf("accoff.gltf", "tri.bin",
+              "{\"bufferView\":0,\"byteOffset\":4,\"componentType\":5126,\"count\":3,"
+              "\"type\":\"VEC3\"}",
+              k_views, k_nodes_ok, "");
+    expect_fail("accoff.gltf", PT_ERR_FORMAT, "accessor 0");
+
+    make_gltf("huge.gltf", "tri.bin",
+              "{\"bufferView\":0,\"componentType\":5126,\"count\":4000000000,\"type\":\"VEC3\"}",
+              k_views, k_nodes_ok, "");
+    expect_fail("huge.gltf", PT_ERR_LIMIT, "accessor 0");
+
+    make_gltf("bvrange.gltf", "tri.bin",
+              "{\"bufferView\":7,\"componentType\":5126,\"count\":3,\"type\":\"VEC3\"}", k_views,
+              k_nodes_ok, "");
+    expect_fail("bvrange.gltf", PT_ERR_FORMAT, "bufferView");
+
+    make_gltf("bvpast.gltf", "tri.bin", k_pos_ok,
+              "\"bufferViews\":[{\"buffer\":0,\"byteOffset\":40,\"byteLength\":36},"
+              "{\"buffer\":0,\"byteOffset\":36,\"byteLength\":6},"
+              "{\"buffer\":0,\"byteOffset\":44,\"byteLength\":24}]",
+              k_nodes_ok, "");
+    expect_fail("bvpast.gltf", PT_ERR_FORMAT, "bufferView 0");
+
+    make_gltf("bvbuf.gltf", "tri.bin", k_pos_ok,
+              "\"bufferViews\":[{\"buffer\":3,\"byteOffset\":0,\"byteLength\":36},"
+              "{\"buffer\":0,\"byteOffset\":36,\"byteLength\":6},"
+              "{\"buffer\":0,\"byteOffset\":44,\"byteLength\":24}]",
+              k_nodes_ok, "");
+    expect_fail("bvbuf.gltf", 0, "buffer");
+
+    make_bin(bin, 0.0f, 9);
+    write_file("badidx.bin", bin, sizeof bin);
+    make_gltf("badidx.gltf", "badidx.bin", k_pos_ok, k_views, k_nodes_ok, "");
+    expect_fail("badidx.gltf", PT_ERR_FORMAT, "index 9");
+
+    make_bin(bin, NAN, 2);
+    write_file("nan.bin", bin, sizeof bin);
+    make_gltf("nan.gltf", "nan.bin", k_pos_ok, k_views, k_nodes_ok, "");
+    expect_fail("nan.gltf", PT_ERR_FORMAT, "position");
+
+    make_bin(bin, 1e30f, 2);
+    write_file("far.bin", bin, sizeof bin);
+    make_gltf("far.gltf", "far.bin", k_pos_ok, k_views, k_nodes_ok, "");
+    expect_fail("far.gltf", PT_ERR_FORMAT, "position");
+
+    /* A node scale that pushes a sane vertex past the cap. */
+    make_gltf("farscale.gltf", "tri.bin", k_pos_ok, k_views, "[{\"mesh\":0,\"scale\":[1e20,1,1]}]",
+              "");
+    expect_fail("farscale.gltf", PT_ERR_FORMAT, "position");
+
+    make_gltf("notri.gltf", "tri.bin", k_pos_ok, k_views, "[{}]", "");
+    expect_fail("notri.gltf", PT_ERR_FORMAT, "no triangles");
+
+    make_gltf("cycle.gltf", "tri.bin", k_pos_ok, k_views,
+              "[{\"mesh\":0,\"children\":[1]},{\"children\":[0]}]", "");
+    expect_fail("cycle.gltf", PT_ERR_FORMAT, "cycle");
+
+    make_gltf("noderange.gltf", "tri.bin", k_pos_ok, k_views, "[{\"mesh\":0,\"children\":[5]}]",
+              "");
+    expect_fail("noderange.gltf", 0, "node");
+
+    make_gltf("meshrange.gltf", "tri.bin", k_pos_ok, k_views, "[{\"mesh\":4}]", "");
+    expect_fail("meshrange.gltf", 0, "mesh");
+
+    /* A material uses a texture whose image does not exist. */
+    snprintf(buf, sizeof buf, ",\"textures\":[{\"source\":3}],\"images\":[]");
+    make_gltf("noimg.gltf", "tri.bin", k_pos_ok, k_views, k_nodes_ok, buf);
+    {
+        /* Patch the material to use texture 0 as its emissive texture. */
+        char json[8192];
+        FILE *f = fopen(tpath("noimg.gltf"), "rb");
+        size_t n = fread(json, 1, sizeof json - 1, f);
+        fclose(f);
+        json[n] = 0;
+        char *m = strstr(json, "\"name\":\"m0\",");
+        if (m) {
+            char out[8192];
+            snprintf(out, sizeof out, "%.*s\"name\":\"m0\",\"emissiveTexture\":{\"index\":0},%s",
+                     (int)(m - json), json, m + strlen("\"name\":\"m0\","));
+            write_file("noimg.gltf", out, strlen(out));
+        }
+    }
+    expect_fail("noimg.gltf", PT_ERR_FORMAT, "image 3");
+    /* ... and the material and texture are named. */
+    {
+        pt_error err = {0};
+        pt_scene *s = NULL;
+        pt_scene_load(tpath("noimg.gltf"), NULL, &s, &err);
+        CHECKF(strstr(err.msg, "material 0 ('m0')") && strstr(err.msg, "texture 0"), "%s", err.msg);
+        pt_scene_free(s);
+    }
+
+    make_gltf("badimg.gltf", "tri.bin", k_pos_ok, k_views, k_nodes_ok,
+              ",\"textures\":[{\"source\":0}],\"images\":[{\"uri\":\"tri.bin\"}]");
+    {
+        char json[8192];
+        FILE *f = fopen(tpath("badimg.gltf"), "rb");
+        size_t n = fread(json, 1, sizeof json - 1, f);
+        fclose(f);
+        json[n] = 0;
+        char *m = strstr(json, "\"name\":\"m0\",");
+        if (m) {
+            char out[8192];
+            snprintf(out, sizeof out, "%.*s\"name\":\"m0\",\"emissiveTexture\":{\"index\":0},%s",
+                     (int)(m - json), json, m + strlen("\"name\":\"m0\","));
+            write_file("badimg.gltf", out, strlen(out));
+        }
+    }
+    expect_fail("badimg.gltf", PT_ERR_FORMAT, "image 0");
+
+    /* An image in a buffer view that lies outside its buffer, used by a material. */
+    make_gltf("imgview.gltf", "tri.bin", k_pos_ok,
+              "\"bufferViews\":[{\"buffer\":0,\"byteOffset\":0,\"byteLength\":36},"
+              "{\"buffer\":0,\"byteOffset\":36,\"byteLength\":6},"
+              "{\"buffer\":0,\"byteOffset\":44,\"byteLength\":24},"
+              "{\"buffer\":0,\"byteOffset\":60,\"byteLength\":100}]",
+              k_nodes_ok,
+              ",\"textures\":[{\"source\":0}],"
+              "\"images\":[{\"bufferView\":3,\"mimeType\":\"image/png\"}]");
+    {
+        char json[8192];
+        FILE *f = fopen(tpath("imgview.gltf"), "rb");
+        size_t n = fread(json, 1, sizeof json - 1, f);
+        fclose(f);
+        json[n] = 0;
+        char *m = strstr(json, "\"name\":\"m0\",");
+        if (m) {
+            char out[8192];
+            snprintf(out, sizeof out, "%.*s\"name\":\"m0\",\"emissiveTexture\":{\"index\":0},%s",
+                     (int)(m - json), json, m + strlen("\"name\":\"m0\","));
+            write_file("imgview.gltf", out, strlen(out));
+        }
+    }
+    expect_fail("imgview.gltf", PT_ERR_FORMAT, "bufferView 3");
+
+    write_file("empty.gltf", "", 0);
+    expect_fail("empty.gltf", PT_ERR_FORMAT, "empty");
+
+    unsigned char garbage[512];
+    uint32_t x = 12345;
+    for (size_t i = 0; i < sizeof garbage; i++) {
+        x = x * 1664525u + 1013904223u;
+        garbage[i] = (unsigned char)(x >> 24);
+    }
+    write_file("garbage.gltf", garbage, sizeof garbage);
+    expect_fail("garbage.gltf", PT_ERR_FORMAT, "JSON");
+    write_file("garbage.glb", "glTF\x02\0\0\0\xff\xff\xff\xff", 12);
+    expect_fail("garbage.glb", PT_ERR_FORMAT, "GLB");
+
+    write_file("json.gltf", "{\"asset\":{\"version\":\"2.0\"},\"scenes\":\"x\"", 39);
+    expect_fail("json.gltf", PT_ERR_FORMAT, "json.gltf");
+
+    expect_fail("does-not-exist.gltf", PT_ERR_IO, "does-not-exist");
+
+    /* A valid GLB, then every interesting truncation of it. */
+    unsigned char glb[4096];
+    size_t gl = make_glb(glb, sizeof glb);
+    CHECK(gl > 0);
+    write_file("ok.glb", glb, gl);
+    {
+        pt_error err = {0};
+        pt_scene *s = NULL;
+        CHECKF(pt_scene_load(tpath("ok.glb"), NULL, &s, &err) == PT_OK, "%s", err.msg);
+        CHECK(s && s->num_triangles == 1 && s->uvs == NULL);
+        pt_scene_free(s);
+    }
+    size_t cuts[] = {3, 11, 12, 19, 20, 40, gl - 80, gl - 68, gl - 30, gl - 1};
+    for (size_t i = 0; i < sizeof cuts / sizeof cuts[0]; i++) {
+        char name[64];
+        snprintf(name, sizeof name, "cut%zu.glb", cuts[i]);
+        write_file(name, glb, cuts[i]);
+        expect_fail(name, PT_ERR_FORMAT, "GLB");
+    }
+}
+
+/* ---- the shared public assets ------------------------------------------------------ */
+
+typedef struct asset {
+    const char *path;
+    uint32_t triangles;
+} asset;
+
+static const asset k_assets[] = {
+    {"DamagedHelmet/DamagedHelmet.glb", 15452},
+    {"EmissiveStrengthTest/EmissiveStrengthTest.glb", 90},
+    {"MetalRoughSpheresNoTextures/MetalRoughSpheresNoTextures.glb", 1040409},
+    {"ToyCar/ToyCar.gltf", 108936},
+    {"LightsPunctualLamp/LightsPunctualLamp.gltf", 6000},
+    {"StainedGlassLamp/StainedGlassLamp.gltf", 35132},
+    {"TransmissionTest/TransmissionTest.glb", 128775},
+    {"CornellBox/cornellBox.gltf", 16732},
+    {"Cameras/Cameras.gltf", 2},
+};
+
+static pt_scene *load_shared(const char *rel, const char *camera, warnings *w, pt_status *st,
+                             pt_error *err)
+{
+    char p[1024];
+    snprintf(p, sizeof p, "%s/%s", PT_SHARED_SCENES, rel);
+    pt_scene_opts o = {0};
+    o.camera_name = camera;
+    o.warn = collect;
+    o.warn_user = w;
+    pt_scene *s = NULL;
+    *st = pt_scene_load(p, &o, &s, err);
+    return s;
+}
+
+static int cmp_float(const void *a, const void *b)
+{
+    float x = *(const float *)a, y = *(const float *)b;
+    return (x > y) - (x < y);
+}
+
+static void check_asset(const asset *a)
+{
+    warnings w = {0};
+    pt_error err = {0};
+    pt_status st;
+    pt_scene *s = load_shared(a->path, NULL, &w, &st, &err);
+    CHECKF(st == PT_OK && s, "%s: %s", a->path, err.msg);
+    if (!s)
+        return;
+    if (getenv("PT_TEST_VERBOSE"))
+        printf("%s: %u triangles, features %#x, camera '%s'\n%s", a->path, s->num_triangles,
+               s->features, s->camera.name, w.text);
+    CHECKF(s->num_triangles == a->triangles, "%s: %u triangles, expected %u", a->path,
+           s->num_triangles, a->triangles);
+    CHECK(strlen(s->hash) == 64);
+    CHECK(pt_isfinite3(s->bounds_min) && pt_isfinite3(s->bounds_max));
+    CHECK(s->camera.yfov > 0.0f && s->camera.yfov < PT_PI);
+    /* Every normal is unit length, and no index or material is out of range. */
+    int bad = 0;
+    for (uint32_t v = 0; v < s->num_vertices; v++) {
+        const float *n = s->normals + 3 * (size_t)v;
+        float l = sqrtf(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+        bad += !(fabsf(l - 1.0f) < 1e-3f);
+    }
+    for (uint32_t t = 0; t < s->num_triangles; t++) {
+        bad += s->tri_material[t] >= s->num_materials;
+        for (int k = 0; k < 3; k++)
+            bad += s->indices[3 * (size_t)t + k] >= s->num_vertices;
+    }
+    CHECKF(bad == 0, "%s: %d bad normals/indices", a->path, bad);
+
+    if (strstr(a->path, "EmissiveStrength")) {
+        float lum[16];
+        int n = 0;
+        for (uint32_t i = 0; i < s->num_materials && n < 16; i++) {
+            const float *e = s->materials[i].emissive;
+            if (e[0] > 0 || e[1] > 0 || e[2] > 0)
+                lum[n++] = pt_luminance(pt_v3(e[0], e[1], e[2]));
+        }
+        CHECKF(n == 5, "%d emissive materials", n);
+        qsort(lum, (size_t)n, sizeof lum[0], cmp_float);
+        for (int i = 1; i < n; i++)
+            CHECKF(fabsf(lum[i] / lum[0] - (float)(1 << i)) < 1e-3f, "ratio %d: %g", i,
+                   (double)(lum[i] / lum[0]));
+        CHECK(s->features & PT_FEAT_EMITTERS);
+    }
+    if (strstr(a->path, "Cornell")) {
+        CHECKF(fabsf(s->camera.position.x) < 1e-3f && fabsf(s->camera.position.y) < 1e-3f &&
+                   fabsf(s->camera.position.z - 19.99f) < 0.01f,
+               "camera at %g %g %g", (double)s->camera.position.x, (double)s->camera.position.y,
+               (double)s->camera.position.z);
+        CHECK(fabsf(s->camera.forward.z + 1.0f) < 1e-4f);
+        CHECK(fabsf(s->camera.aspect - 4.0f / 3.0f) < 1e-4f);
+        CHECK(s->features & PT_FEAT_EMITTERS);
+        CHECK(!(s->features & PT_FEAT_SINGLE_SIDED));
+        /* The light panel is HDR: 10, not clamped. */
+        int hdr = 0;
+        for (uint32_t i = 0; i < s->num_materials; i++)
+            hdr |= s->materials[i].emissive[0] == 10.0f;
+        CHECK(hdr);
+    }
+    if (strstr(a->path, "MetalRough")) {
+        CHECK(s->uvs == NULL && !(s->features & PT_FEAT_UVS));
+        CHECK(s->features & PT_FEAT_GLOSSY);
+        CHECK(!(s->features & PT_FEAT_TEXTURES));
+        CHECK(s->num_cameras == 0);
+    }
+    if (strstr(a->path, "DamagedHelmet")) {
+        CHECK(s->features & PT_FEAT_TEXTURES);
+        CHECK(s->features & PT_FEAT_EMISSIVE_TEX);
+        CHECK(s->num_textures == 3); /* base colour, metal-rough, emissive; normal/AO skipped */
+        CHECK(strstr(w.text, "normal textures are ignored") != NULL);
+    }
+    if (strstr(a->path, "LightsPunctual")) {
+        CHECK(strstr(w.text, "KHR_lights_punctual") != NULL);
+        CHECK(strstr(w.text, "KHR_materials_transmission") != NULL);
+        CHECK(strstr(w.text, "BLEND") != NULL);
+    }
+    if (strstr(a->path, "ToyCar")) {
+        CHECK(s->num_cameras == 8);
+        CHECK(strstr(w.text, "KHR_texture_transform") != NULL);
+        CHECK(strstr(w.text, "KHR_materials_clearcoat") != NULL);
+        CHECK(strstr(w.text, "KHR_materials_sheen") != NULL);
+    }
+    if (strstr(a->path, "Cameras")) {
+        CHECK(strstr(w.text, "orthographic") != NULL);
+        CHECK(s->num_cameras == 1);
+        CHECK(fabsf(s->camera.position.z - 3.0f) < 1e-5f);
+    }
+    /* Each warning once: no line repeats. */
+    char *copy = strdup(w.text), *save = NULL;
+    int dup = 0;
+    for (char *line = strtok_r(copy, "\n", &save); line; line = strtok_r(NULL, "\n", &save)) {
+        const char *first = strstr(w.text, line);
+        dup += first && strstr(first + strlen(line), line) != NULL;
+    }
+    free(copy);
+    CHECKF(dup == 0, "%s: repeated warnings:\n%s", a->path, w.text);
+    pt_scene_free(s);
+}
+
+static void test_cameras(void)
+{
+    warnings w = {0};
+    pt_error err = {0};
+    pt_status st;
+    pt_scene *all = load_shared("ToyCar/ToyCar.gltf", NULL, &w, &st, &err);
+    pt_scene *s = load_shared("ToyCar/ToyCar.gltf", "Camera003", &w, &st, &err);
+    CHECKF(st == PT_OK && s, "%s", err.msg);
+    if (s && all) {
+        CHECK(strcmp(s->camera.name, "Camera003") == 0);
+        CHECK(s->camera.position.x == all->cameras[2].position.x &&
+              s->camera.position.z == all->cameras[2].position.z);
+        CHECK(strcmp(all->camera.name, "Camera001") == 0);
+        CHECK(s->camera.aspect == 0.0f); /* aspectRatio left out: the image decides */
+    }
+    pt_scene_free(s);
+    pt_scene_free(all);
+    s = load_shared("ToyCar/ToyCar.gltf", "NoSuchCamera", &w, &st, &err);
+    CHECK(st == PT_ERR_ARG && s == NULL);
+    CHECKF(strstr(err.msg, "NoSuchCamera") && strstr(err.msg, "Camera008"), "%s", err.msg);
+    pt_scene_free(s);
+}
+
+/* The project's own scenes (scenes/): they must load, emit, and carry a camera or not. */
+static void test_project_scenes(void)
+{
+    const char *names[2] = {"scenes/cornell_box.gltf", "scenes/furnace.gltf"};
+    for (int i = 0; i < 2; i++) {
+        char p[1024];
+        snprintf(p, sizeof p, "%s/%s", PT_SOURCE_DIR, names[i]);
+        pt_scene *s = NULL;
+        pt_error err = {0};
+        CHECKF(pt_scene_load(p, NULL, &s, &err) == PT_OK, "%s", err.msg);
+        if (s) {
+            CHECK(s->num_triangles > 0 && (s->features & PT_FEAT_EMITTERS));
+            CHECK(strlen(s->hash) == 64);
+        }
+        pt_scene_free(s);
+    }
+}
+
+int main(void)
+{
+    snprintf(tmp, sizeof tmp, "/tmp/pt_test_gltf_XXXXXX");
+    if (!mkdtemp(tmp))
+        return 1;
+    test_small_valid();
+    test_hostile();
+    test_project_scenes();
+
+    struct stat sb;
+    if (stat(PT_SHARED_SCENES, &sb) != 0) {
+        if (check_shared_required()) {
+            CHECKF(0, "shared scenes missing at %s", PT_SHARED_SCENES);
+        } else {
+            printf("skipping shared assets: %s not found\n", PT_SHARED_SCENES);
+        }
+    } else {
+        for (size_t i = 0; i < sizeof k_assets / sizeof k_assets[0]; i++)
+            check_asset(&k_assets[i]);
+        test_cameras();
+    }
+    char cmd[512];
+    snprintf(cmd, sizeof cmd, "rm -rf '%s'", tmp);
+    if (system(cmd) != 0)
+        fprintf(stderr, "could not remove %s\n", tmp);
+    return check_report();
+}
