@@ -5,6 +5,9 @@
  * "Durable" means: after the call returns PT_OK, a crash of the process or of
  * the machine leaves either the old or the new contents in place, never a mix
  * (temp file in the same folder, fsync, rename, fsync of the folder).
+ *
+ * Threads: any thread may call them; two writers of the same path race as
+ * rename(2) does (the last one wins, whole).
  */
 #ifndef PT_COMMON_BASE_FSUTIL_H
 #define PT_COMMON_BASE_FSUTIL_H

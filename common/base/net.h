@@ -5,6 +5,8 @@
  * close-on-exec with SO_REUSEADDR; connecting sockets get TCP_NODELAY (frames
  * are small and latency matters more than packet count). No protocol here:
  * framing and messages are in protocol/.
+ *
+ * Threads: any thread may call them; a socket belongs to its caller.
  */
 #ifndef PT_COMMON_BASE_NET_H
 #define PT_COMMON_BASE_NET_H

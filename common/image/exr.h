@@ -8,6 +8,9 @@
  * (string), "ptfarm.jobId" (string), and the standard "software" string.
  * Writes are atomic: a temp file in the same folder, fsync, rename, so a
  * reader never sees a torn file.
+ *
+ * Threads: any thread may call them on its own images and paths (the
+ * coordinator's writer thread, a worker's main thread, the tests).
  */
 #ifndef PT_COMMON_IMAGE_EXR_H
 #define PT_COMMON_IMAGE_EXR_H

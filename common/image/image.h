@@ -5,6 +5,9 @@
  * count; variance: the variance of the pixel mean (luminance), i.e. the sample
  * variance divided by the count. Row 0 is the top row.
  * Also writes an 8-bit sRGB PNG preview (stb_image_write).
+ *
+ * Threads: an image belongs to one thread at a time; the functions keep no
+ * state of their own.
  */
 #ifndef PT_COMMON_IMAGE_IMAGE_H
 #define PT_COMMON_IMAGE_IMAGE_H

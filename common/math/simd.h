@@ -4,6 +4,8 @@
  * SIMD loops; the attribute that compiles such a loop for AVX2 and for the
  * x86-64 baseline, the loader picking one per CPU (target_clones); the lanes'
  * select and square root.
+ *
+ * Threads: types and pure inline functions; any thread.
  */
 #ifndef PT_COMMON_MATH_SIMD_H
 #define PT_COMMON_MATH_SIMD_H

@@ -5,6 +5,8 @@
  * glTF's: right-handed, +Y up, metres (but any scale must work). Shading frames
  * are built with the branchless orthonormal basis of Duff et al. 2017,
  * "Building an Orthonormal Basis, Revisited" (JCGT 6(1)).
+ *
+ * Threads: pure inline functions; any thread.
  */
 #ifndef PT_COMMON_MATH_VEC_H
 #define PT_COMMON_MATH_VEC_H

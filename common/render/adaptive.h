@@ -39,8 +39,7 @@ double pt_tile_rel_error(const pt_pixel_acc *px, uint32_t stride, uint32_t width
  * Not from the sum of squares: that gives the variance of one sample, the
  * error of independent samples, while the samples of a pixel are a scrambled
  * Sobol sequence whose mean errs less, and by how much depends on the content
- * (on the Cornell box 7 to 8 times less over the image, more at the light's
- * edges; docs/bench/adaptive.md). Chunks of 2^k samples are nets of that
+ * (docs/bench/adaptive.md measures by how much). Chunks of 2^k samples are nets of that
  * sequence, so their spread measures the error the sampler makes; it is
  * extrapolated as 1/n, which overstates the error where the sequence keeps
  * converging faster.
@@ -80,7 +79,7 @@ typedef struct pt_adaptive {
  *     tile whose samples are all exactly 0 (pt_tile_gain). The cost of a
  *     sample is not weighed: rays per sample, the deterministic proxy for it,
  *     made the renders slower, and the best allocation by measured cost would
- *     win 2 to 3 % (docs/bench/adaptive.md).
+ *     win little over this rule (docs/bench/adaptive.md).
  * With both set, the tile stops when either rule says so; with neither, never.
  * Callers do not ask after the last chunk. */
 int pt_tile_stops(const pt_pixel_acc *px, uint32_t stride, const pt_pixel_acc *last,

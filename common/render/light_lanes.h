@@ -9,6 +9,8 @@
  * (pt_light_lanes_pdf) with pt_lights_sample's float operations in its order:
  * the same bits (IEEE arithmetic without contraction; square roots and
  * divisions are correctly rounded either way). Not part of the public API.
+ *
+ * Threads: pure functions over caller-owned arrays; any render thread.
  */
 #ifndef PT_COMMON_RENDER_LIGHT_LANES_H
 #define PT_COMMON_RENDER_LIGHT_LANES_H

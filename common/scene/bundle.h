@@ -16,6 +16,10 @@
  * control characters, or be longer than PT_BUNDLE_MAX_NAME: unpacking can
  * never write outside its folder. Every length is checked against the bytes
  * present before it is used.
+ *
+ * Threads: any thread may call them; a pt_bundle is immutable once built and
+ * may be read by several threads (the coordinator's loop and its upload
+ * verification thread).
  */
 #ifndef PT_COMMON_SCENE_BUNDLE_H
 #define PT_COMMON_SCENE_BUNDLE_H

@@ -6,6 +6,9 @@
  * buffer and image in the order of the JSON arrays) rather than the built
  * data, so that a scene and its bundle agree; it hands that hash to the
  * builder before finishing it.
+ *
+ * Threads: the importer is reentrant (it keeps no global state); one call
+ * builds one scene on the calling thread.
  */
 #ifndef PT_COMMON_SCENE_GLTF_IMPORT_H
 #define PT_COMMON_SCENE_GLTF_IMPORT_H
