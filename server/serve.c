@@ -51,8 +51,8 @@ enum { C_HELLO, C_AUTH, C_READY };
 #define MAX_FETCH ((size_t)4 << 30)
 
 /* A job of the queue (or the one job of one-job mode). */
-typedef struct sjob {
-    srv_job_rec rec;
+typedef struct srv_entry {
+    srv_job_record rec;
     srv_job *job;          /* NULL until it is first scheduled (and after it ends) */
     pt_bundle *bundle;     /* loaded when a worker first asks for it */
     srv_writer *writer;
@@ -64,8 +64,8 @@ typedef struct sjob {
     uint64_t saved_samples, t_last_save;
     uint64_t rate_t, rate_samples;
     double rate;
-    struct sjob *next;     /* the queue's order: priority (high first), then id */
-} sjob;
+    struct srv_entry *next;     /* the queue's order: priority (high first), then id */
+} srv_entry;
 
 typedef struct conn {
     int fd;
@@ -91,19 +91,19 @@ typedef struct conn {
     size_t fetch_len, fetch_off;
     uint8_t fetch_hash[32];
     int uploading;
-    int checking; /* its upload is being checked (a struct check in flight) */
+    int verifying; /* its upload is being verified (a srv_upload in flight) */
     proto_submit up;
     uint8_t *up_buf;
     size_t up_len, up_cap;
     struct conn *next;
 } conn;
 
-/* A complete upload checked off the event loop, since a big scene takes
+/* A complete upload verified off the event loop, since a big scene takes
  * seconds: its SHA-256, its bundle, one load of the scene (with the camera
  * asked for: a broken scene is refused now, not by every worker), and the
  * bundle stored in the state folder under the job id reserved for it. The
- * thread hands it back through the server's check pipe. */
-typedef struct check {
+ * thread hands it back through the server's verification pipe. */
+typedef struct srv_upload {
     uint64_t conn_id, job_id;
     proto_submit m;
     uint8_t *data; /* the upload (owned), freed once wrapped in bundle */
@@ -120,23 +120,23 @@ typedef struct check {
     char scene[256]; /* the entry file's name */
     uint32_t ntris;
     float aspect;
-    struct check *next;
-} check;
+    struct srv_upload *next;
+} srv_upload;
 
 typedef struct server {
     const srv_config *cfg;
     int ep, lfd, sigpipe[2];
-    int checkpipe[2]; /* checks done: their pointers */
-    check *checks;    /* in flight */
+    int verifypipe[2]; /* verifications done: their pointers */
+    srv_upload *verifications;    /* in flight */
     conn *conns;
     uint32_t nconns, nworkers;
     uint64_t next_id;
     uint8_t token[PROTO_TOKEN_MAX];
     size_t token_len;
-    sjob *jobs;            /* every job, in queue order */
+    srv_entry *jobs;            /* every job, in queue order */
     uint32_t njobs;
     uint64_t next_job_id;
-    sjob *single;          /* one-job mode: the job */
+    srv_entry *single;          /* one-job mode: the job */
     srv_state *state;      /* queue mode */
     char out_dir[PATH_MAX - 512];
     uint64_t t_start, t_last_print;
@@ -219,7 +219,7 @@ static void release_owner_all(server *s, conn *c, int report)
     if (c->state != C_READY || c->role != PROTO_ROLE_WORKER)
         return;
     uint32_t n = 0;
-    for (sjob *j = s->jobs; j; j = j->next)
+    for (srv_entry *j = s->jobs; j; j = j->next)
         if (j->job)
             n += srv_job_release_owner(j->job, c->id);
     if (n && report)
@@ -332,36 +332,25 @@ static void accept_all(server *s)
     }
 }
 
-static int hex_to_bytes(const char *hex, uint8_t *out, size_t n)
-{
-    for (size_t i = 0; i < n; i++) {
-        unsigned v;
-        if (sscanf(hex + 2 * i, "%2x", &v) != 1)
-            return -1;
-        out[i] = (uint8_t)v;
-    }
-    return 0;
-}
-
 /* ---- the queue ------------------------------------------------------------------- */
 
-static int job_active(const sjob *j)
+static int job_active(const srv_entry *j)
 {
     return j->rec.state == PROTO_JOB_QUEUED || j->rec.state == PROTO_JOB_RUNNING;
 }
 
-static sjob *find_job(server *s, uint64_t id)
+static srv_entry *find_job(server *s, uint64_t id)
 {
-    for (sjob *j = s->jobs; j; j = j->next)
+    for (srv_entry *j = s->jobs; j; j = j->next)
         if (j->rec.id == id)
             return j;
     return NULL;
 }
 
 /* Queue order: priority (higher first), then submission (lower id first). */
-static void insert_job(server *s, sjob *j)
+static void insert_job(server *s, srv_entry *j)
 {
-    sjob **p = &s->jobs;
+    srv_entry **p = &s->jobs;
     while (*p && ((*p)->rec.priority > j->rec.priority ||
                   ((*p)->rec.priority == j->rec.priority && (*p)->rec.id < j->rec.id)))
         p = &(*p)->next;
@@ -370,7 +359,7 @@ static void insert_job(server *s, sjob *j)
     s->njobs++;
 }
 
-static void free_job_run(sjob *j)
+static void free_job_run(srv_entry *j)
 {
     srv_writer_free(j->writer);
     j->writer = NULL;
@@ -380,32 +369,26 @@ static void free_job_run(sjob *j)
     j->bundle = NULL;
 }
 
-static void free_sjob(sjob *j)
+static void free_entry(srv_entry *j)
 {
     free_job_run(j);
     pt_free(j);
-}
-
-static void hex32(const uint8_t h[32], char out[65])
-{
-    for (int i = 0; i < 32; i++)
-        snprintf(out + 2 * i, 3, "%02x", h[i]);
 }
 
 /* Drops the oldest ended jobs beyond MAX_FINISHED from the history. */
 static void prune_history(server *s)
 {
     uint32_t ended = 0;
-    for (sjob *j = s->jobs; j; j = j->next)
+    for (srv_entry *j = s->jobs; j; j = j->next)
         ended += !job_active(j);
     while (ended > MAX_FINISHED) {
-        sjob **oldest = NULL;
-        for (sjob **p = &s->jobs; *p; p = &(*p)->next)
+        srv_entry **oldest = NULL;
+        for (srv_entry **p = &s->jobs; *p; p = &(*p)->next)
             if (!job_active(*p) && (!oldest || (*p)->rec.id < (*oldest)->rec.id))
                 oldest = p;
-        sjob *j = *oldest;
+        srv_entry *j = *oldest;
         *oldest = j->next;
-        free_sjob(j);
+        free_entry(j);
         s->njobs--;
         ended--;
     }
@@ -416,11 +399,11 @@ static pt_status journal(server *s, pt_error *err)
 {
     if (!s->state)
         return PT_OK;
-    srv_job_rec **recs = pt_malloc_array(s->njobs ? s->njobs : 1, sizeof *recs);
+    srv_job_record **recs = pt_malloc_array(s->njobs ? s->njobs : 1, sizeof *recs);
     if (!recs)
         return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
     uint32_t n = 0;
-    for (sjob *j = s->jobs; j; j = j->next)
+    for (srv_entry *j = s->jobs; j; j = j->next)
         recs[n++] = &j->rec;
     pt_status st = srv_state_save_queue(s->state, recs, n, s->next_job_id, err);
     pt_free(recs);
@@ -434,14 +417,14 @@ static void journal_or_log(server *s)
         logf_(s, "error: cannot write the queue: %s", err.msg);
 }
 
-static double job_seconds(const sjob *j, uint64_t now)
+static double job_seconds(const srv_entry *j, uint64_t now)
 {
     if (!job_active(j))
         return j->rec.seconds;
     return j->seconds_before + (j->t_started ? (double)(now - j->t_started) / 1000.0 : 0.0);
 }
 
-static uint32_t job_workers(const server *s, const sjob *j)
+static uint32_t job_workers(const server *s, const srv_entry *j)
 {
     uint32_t n = 0;
     if (!j->job)
@@ -461,10 +444,10 @@ static double job_error(const srv_job *job)
     return isfinite(e) ? e : -1.0;
 }
 
-static void job_info(const server *s, const sjob *j, proto_job_info *m)
+static void job_info(const server *s, const srv_entry *j, proto_job_info *m)
 {
     uint64_t now = now_ms();
-    const srv_job_rec *r = &j->rec;
+    const srv_job_record *r = &j->rec;
     memset(m, 0, sizeof *m);
     m->job_id = r->id;
     m->state = r->state;
@@ -477,9 +460,8 @@ static void job_info(const server *s, const sjob *j, proto_job_info *m)
     m->height = r->params.height;
     m->spp = r->params.spp;
     m->samples_total = (uint64_t)r->params.width * r->params.height * r->params.spp;
-    m->tiles = ((r->params.width + r->params.tile - 1) / r->params.tile) *
-               ((r->params.height + r->params.tile - 1) / r->params.tile);
-    m->passes = (r->params.spp + r->params.chunk - 1) / r->params.chunk;
+    m->tiles = srv_job_params_tiles(&r->params);
+    m->passes = srv_job_params_passes(&r->params);
     m->error = -1.0;
     if (j->job) {
         m->samples_done = srv_job_samples_merged(j->job);
@@ -500,7 +482,7 @@ static void job_info(const server *s, const sjob *j, proto_job_info *m)
     m->submitted = r->submitted;
     if (r->state == PROTO_JOB_QUEUED) {
         uint32_t pos = 0;
-        for (const sjob *q = s->jobs; q; q = q->next) {
+        for (const srv_entry *q = s->jobs; q; q = q->next) {
             if (q->rec.state == PROTO_JOB_QUEUED)
                 pos++;
             if (q == j)
@@ -511,7 +493,7 @@ static void job_info(const server *s, const sjob *j, proto_job_info *m)
     snprintf(m->message, sizeof m->message, "%s", r->message);
 }
 
-static void send_job_info(server *s, conn *c, const sjob *j)
+static void send_job_info(server *s, conn *c, const srv_entry *j)
 {
     proto_job_info m;
     job_info(s, j, &m);
@@ -524,14 +506,14 @@ static void send_job_info(server *s, conn *c, const sjob *j)
 }
 
 /* Sends the job's state to everyone watching it (its end included). */
-static void notify_watchers(server *s, const sjob *j)
+static void notify_watchers(server *s, const srv_entry *j)
 {
     for (conn *c = s->conns; c; c = c->next)
         if (c->watch == j->rec.id && !c->closing)
             send_job_info(s, c, j);
 }
 
-static void save_progress(server *s, sjob *j)
+static void save_progress(server *s, srv_entry *j)
 {
     pt_image *img = NULL;
     const pt_film *film = srv_job_film(j->job);
@@ -544,7 +526,7 @@ static void save_progress(server *s, sjob *j)
     pt_exr_meta meta = {0};
     meta.total_samples = pt_film_total_samples(film);
     meta.render_seconds = job_seconds(j, now_ms());
-    hex32(j->rec.hash, meta.scene_hash);
+    pt_hash_hex(j->rec.hash, meta.scene_hash);
     snprintf(meta.job_id, sizeof meta.job_id, "%llu", (unsigned long long)j->rec.id);
     srv_writer_submit(j->writer, img, &meta);
     j->t_last_save = now_ms();
@@ -552,7 +534,7 @@ static void save_progress(server *s, sjob *j)
     j->saved_samples = meta.total_samples;
 }
 
-static void checkpoint(server *s, sjob *j)
+static void checkpoint(server *s, srv_entry *j)
 {
     if (!s->state || !j->job)
         return;
@@ -567,7 +549,7 @@ static void checkpoint(server *s, sjob *j)
 /* Tells every worker that job j ended before it was done, so each drops the
  * tasks of it that it has not started and its threads go to the next job at
  * once (their results would be dropped anyway). */
-static void announce_job_end(server *s, const sjob *j)
+static void announce_job_end(server *s, const srv_entry *j)
 {
     proto_job_ref ref = {j->rec.id};
     for (conn *c = s->conns; c; c = c->next) {
@@ -580,7 +562,7 @@ static void announce_job_end(server *s, const sjob *j)
     }
 }
 
-static void job_end(server *s, sjob *j, uint8_t state, const char *message)
+static void job_end(server *s, srv_entry *j, uint8_t state, const char *message)
 {
     uint64_t now = now_ms();
     pt_error err = {0};
@@ -623,7 +605,7 @@ static void job_end(server *s, sjob *j, uint8_t state, const char *message)
 /* Makes a job ready to lease: its task state (restored from its checkpoint
  * and results log in queue mode) and its image writer. Returns 0 when it
  * cannot be (the job is marked FAILED, with the reason). */
-static int job_ready(server *s, sjob *j)
+static int job_ready(server *s, srv_entry *j)
 {
     if (j->job)
         return 1;
@@ -669,7 +651,7 @@ static int job_ready(server *s, sjob *j)
  * idle worker (its last pass), the next job starts. */
 static int lease_any(server *s, uint64_t owner, uint64_t now, proto_task *t)
 {
-    for (sjob *j = s->jobs; j; j = j->next) {
+    for (srv_entry *j = s->jobs; j; j = j->next) {
         if (!job_active(j) || !job_ready(s, j))
             continue;
         if (!srv_job_lease(j->job, owner, now, s->cfg->lease_ms, t))
@@ -825,7 +807,7 @@ static void on_scene_get(server *s, conn *c, const proto_frame *f)
         conn_send_error(s, c, PROTO_E_PROTOCOL, "bad SCENE_GET: %s", err.msg);
         return;
     }
-    sjob *j = s->jobs;
+    srv_entry *j = s->jobs;
     while (j && !(job_active(j) && memcmp(g.hash, j->rec.hash, 32) == 0))
         j = j->next;
     if (j && !j->bundle && s->state &&
@@ -867,13 +849,13 @@ static void on_result(server *s, conn *c, const proto_frame *f)
         conn_send_error(s, c, PROTO_E_PROTOCOL, "bad RESULT: %s", err.msg);
         return;
     }
-    sjob *j = find_job(s, r.job_id);
+    srv_entry *j = find_job(s, r.job_id);
     if (!j || !job_active(j) || !j->job) {
         proto_result_fini(&r); /* a job that ended (cancelled): nothing to do */
         return;
     }
     int lease_index;
-    srv_outcome o = srv_job_check(j->job, c->id, &r, &lease_index, &err);
+    srv_outcome o = srv_job_validate(j->job, c->id, &r, &lease_index, &err);
     /* Durable before merged: the log holds every result the film holds. */
     if (o == SRV_MERGED && s->state &&
         srv_state_log_result(s->state, j->rec.id, f->payload, f->len, &err) != PT_OK) {
@@ -883,7 +865,7 @@ static void on_result(server *s, conn *c, const proto_frame *f)
         return;
     }
     if (o == SRV_MERGED)
-        o = srv_job_result_checked(j->job, lease_index, &r, &err);
+        o = srv_job_result_validated(j->job, lease_index, &r, &err);
     switch (o) {
     case SRV_MERGED:
         j->rejected += r.rejected;
@@ -912,7 +894,7 @@ static void on_heartbeat(server *s, conn *c, const proto_frame *f)
     uint64_t now = now_ms();
     /* Task ids are per job; extending only leases this owner holds is safe
      * even when two of its jobs share an id. */
-    for (sjob *j = s->jobs; j; j = j->next)
+    for (srv_entry *j = s->jobs; j; j = j->next)
         if (j->job && job_active(j))
             for (uint32_t i = 0; i < hb.count; i++)
                 srv_job_heartbeat(j->job, c->id, hb.task_ids[i], now, s->cfg->lease_ms);
@@ -939,7 +921,7 @@ static void sanitise(const char *in, char *out, size_t cap)
 static uint32_t owner_unfinished(const server *s, const char *owner)
 {
     uint32_t n = 0;
-    for (const sjob *j = s->jobs; j; j = j->next)
+    for (const srv_entry *j = s->jobs; j; j = j->next)
         n += job_active(j) && strcmp(j->rec.owner, owner) == 0;
     return n;
 }
@@ -1010,9 +992,9 @@ static void on_submit(server *s, conn *c, const proto_frame *f)
     c->t_progress = now_ms();
 }
 
-static void check_refuse(check *k, uint16_t code, const char *fmt, ...)
+static void verify_refuse(srv_upload *k, uint16_t code, const char *fmt, ...)
     __attribute__((format(printf, 3, 4)));
-static void check_refuse(check *k, uint16_t code, const char *fmt, ...)
+static void verify_refuse(srv_upload *k, uint16_t code, const char *fmt, ...)
 {
     va_list ap;
     va_start(ap, fmt);
@@ -1022,15 +1004,15 @@ static void check_refuse(check *k, uint16_t code, const char *fmt, ...)
     k->ok = 0;
 }
 
-/* The check itself, on its own thread: touches nothing of the server's. */
-static void check_upload(check *k)
+/* The verification itself, on its own thread: touches nothing of the server's. */
+static void verify_upload(srv_upload *k)
 {
     pt_error err = {0};
     char hex[65], want[65];
     pt_sha256_hex(k->data, k->len, hex);
-    hex32(k->m.bundle_hash, want);
+    pt_hash_hex(k->m.bundle_hash, want);
     if (strcmp(hex, want) != 0) {
-        check_refuse(k, PROTO_E_PROTOCOL, "the scene's SHA-256 is %.16s..., not the %.16s... "
+        verify_refuse(k, PROTO_E_PROTOCOL, "the scene's SHA-256 is %.16s..., not the %.16s... "
                      "SUBMIT announced", hex, want);
         return;
     }
@@ -1038,7 +1020,7 @@ static void check_upload(check *k)
     pt_free(k->data);
     k->data = NULL;
     if (st != PT_OK) {
-        check_refuse(k, PROTO_E_PROTOCOL, "bad scene bundle: %s", err.msg);
+        verify_refuse(k, PROTO_E_PROTOCOL, "bad scene bundle: %s", err.msg);
         return;
     }
     char entry[PATH_MAX];
@@ -1057,7 +1039,7 @@ static void check_upload(check *k)
         size_t tl = strlen(k->tmp);
         if (strncmp(msg, k->tmp, tl) == 0 && msg[tl] == '/')
             msg += tl + 1;
-        check_refuse(k, st == PT_ERR_NOMEM ? PROTO_E_INTERNAL : PROTO_E_PROTOCOL,
+        verify_refuse(k, st == PT_ERR_NOMEM ? PROTO_E_INTERNAL : PROTO_E_PROTOCOL,
                      "scene refused: %s", msg);
         return;
     }
@@ -1068,33 +1050,33 @@ static void check_upload(check *k)
     pt_scene_free(scene);
     st = srv_state_save_bundle(k->state, k->job_id, k->bundle->data, k->bundle->size, &err);
     if (st != PT_OK) {
-        check_refuse(k, PROTO_E_INTERNAL, "cannot store the scene: %s", err.msg);
+        verify_refuse(k, PROTO_E_INTERNAL, "cannot store the scene: %s", err.msg);
         return;
     }
     k->ok = 1;
 }
 
-static void *check_thread(void *arg)
+static void *verify_thread(void *arg)
 {
-    check *k = arg;
-    check_upload(k);
+    srv_upload *k = arg;
+    verify_upload(k);
     /* A blocking write of a pointer: atomic (under PIPE_BUF), never lost. */
     ssize_t r = write(k->wake_fd, &k, sizeof k);
     (void)r;
     return NULL;
 }
 
-static void check_free(check *k)
+static void upload_free(srv_upload *k)
 {
     pt_free(k->data);
     pt_bundle_free(k->bundle);
     pt_free(k);
 }
 
-/* A complete upload: reserves the job id and starts its check. */
+/* A complete upload: reserves the job id and starts its verification. */
 static void finish_submit(server *s, conn *c)
 {
-    check *k = pt_calloc(1, sizeof *k);
+    srv_upload *k = pt_calloc(1, sizeof *k);
     if (!k) {
         conn_send_error(s, c, PROTO_E_INTERNAL, "out of memory");
         return;
@@ -1109,38 +1091,38 @@ static void finish_submit(server *s, conn *c)
     k->state = s->state;
     snprintf(k->tmp, sizeof k->tmp, "%s/tmp/upload-%llu", srv_state_dir(s->state),
              (unsigned long long)k->job_id);
-    k->wake_fd = s->checkpipe[1];
-    if (pthread_create(&k->thread, NULL, check_thread, k) != 0) {
-        check_free(k);
+    k->wake_fd = s->verifypipe[1];
+    if (pthread_create(&k->thread, NULL, verify_thread, k) != 0) {
+        upload_free(k);
         conn_send_error(s, c, PROTO_E_INTERNAL, "cannot start checking the scene");
         return;
     }
-    k->next = s->checks;
-    s->checks = k;
-    c->checking = 1;
+    k->next = s->verifications;
+    s->verifications = k;
+    c->verifying = 1;
 }
 
-/* A check is done: queues the job, or tells the client why not. */
-static void complete_submit(server *s, conn *c, check *k)
+/* A verification is done: queues the job, or tells the client why not. */
+static void complete_submit(server *s, conn *c, srv_upload *k)
 {
     pt_error err = {0};
     pt_status st;
     const proto_submit *m = &k->m;
-    c->checking = 0;
+    c->verifying = 0;
     if (!k->ok) {
         conn_send_error(s, c, k->code, "%s", k->msg);
         return;
     }
     pt_bundle *b = k->bundle;
     k->bundle = NULL;
-    sjob *j = pt_calloc(1, sizeof *j);
+    srv_entry *j = pt_calloc(1, sizeof *j);
     if (!j) {
         pt_bundle_free(b);
         srv_state_forget_job(s->state, k->job_id);
         conn_send_error(s, c, PROTO_E_INTERNAL, "out of memory");
         return;
     }
-    srv_job_rec *r = &j->rec;
+    srv_job_record *r = &j->rec;
     r->id = r->seq = k->job_id;
     r->state = PROTO_JOB_QUEUED;
     r->error = -1.0;
@@ -1195,14 +1177,14 @@ static void complete_submit(server *s, conn *c, check *k)
     prune_history(s);
     if (journal(s, &err) != PT_OK) {
         /* Not durable, so not accepted. */
-        for (sjob **q = &s->jobs; *q; q = &(*q)->next)
+        for (srv_entry **q = &s->jobs; *q; q = &(*q)->next)
             if (*q == j) {
                 *q = j->next;
                 break;
             }
         s->njobs--;
         srv_state_forget_job(s->state, r->id);
-        free_sjob(j);
+        free_entry(j);
         conn_send_error(s, c, PROTO_E_INTERNAL, "cannot write the queue: %s", err.msg);
         return;
     }
@@ -1256,14 +1238,14 @@ static void on_upload(server *s, conn *c, const proto_frame *f)
         finish_submit(s, c);
 }
 
-/* Completes each check that is done: its client gets the answer or, gone
+/* Completes each verification that is done: its client gets the answer or, gone
  * meanwhile, nothing is queued and the stored bundle goes. */
-static void checks_done(server *s)
+static void verifications_done(server *s)
 {
-    check *k;
-    while (read(s->checkpipe[0], &k, sizeof k) == (ssize_t)sizeof k) {
+    srv_upload *k;
+    while (read(s->verifypipe[0], &k, sizeof k) == (ssize_t)sizeof k) {
         pthread_join(k->thread, NULL);
-        for (check **q = &s->checks; *q; q = &(*q)->next)
+        for (srv_upload **q = &s->verifications; *q; q = &(*q)->next)
             if (*q == k) {
                 *q = k->next;
                 break;
@@ -1278,24 +1260,24 @@ static void checks_done(server *s)
                 srv_state_forget_job(s->state, k->job_id);
             logf_(s, "a client left before its scene was checked; nothing was queued");
         }
-        check_free(k);
+        upload_free(k);
     }
 }
 
-/* At exit: waits for the checks in flight; none of them was queued. */
-static void checks_abandon(server *s)
+/* At exit: waits for the verifications in flight; none of them was queued. */
+static void verifications_abandon(server *s)
 {
-    while (s->checks) {
-        check *k = s->checks;
-        s->checks = k->next;
+    while (s->verifications) {
+        srv_upload *k = s->verifications;
+        s->verifications = k->next;
         pthread_join(k->thread, NULL);
         if (k->ok)
             srv_state_forget_job(s->state, k->job_id);
-        check_free(k);
+        upload_free(k);
     }
 }
 
-static int read_job_ref(server *s, conn *c, const proto_frame *f, sjob **out)
+static int read_job_ref(server *s, conn *c, const proto_frame *f, srv_entry **out)
 {
     proto_job_ref ref;
     pt_error err = {0};
@@ -1325,7 +1307,7 @@ static void on_list(server *s, conn *c, const proto_frame *f)
         return;
     }
     uint32_t k = 0;
-    for (sjob *j = s->jobs; j && k < n; j = j->next)
+    for (srv_entry *j = s->jobs; j && k < n; j = j->next)
         job_info(s, j, &infos[k++]);
     size_t mark;
     if (!frame_open(c, PROTO_MSG_JOB_LIST, &mark) ||
@@ -1334,7 +1316,7 @@ static void on_list(server *s, conn *c, const proto_frame *f)
     pt_free(infos);
 }
 
-static void on_fetch(server *s, conn *c, sjob *j)
+static void on_fetch(server *s, conn *c, srv_entry *j)
 {
     pt_error err = {0};
     if (c->fetch) {
@@ -1359,7 +1341,7 @@ static void on_fetch(server *s, conn *c, sjob *j)
     }
     char hex[65];
     pt_sha256_hex(data, len, hex);
-    hex_to_bytes(hex, c->fetch_hash, 32);
+    pt_hex_decode(hex, c->fetch_hash, 32);
     c->fetch = data;
     c->fetch_len = len;
     c->fetch_off = 0;
@@ -1377,8 +1359,8 @@ static void on_peer_error(server *s, conn *c, const proto_frame *f, const char *
 
 static void dispatch_client(server *s, conn *c, const proto_frame *f)
 {
-    sjob *j;
-    if (c->checking) {
+    srv_entry *j;
+    if (c->verifying) {
         conn_send_error(s, c, PROTO_E_PROTOCOL, "%s before the answer to its SUBMIT",
                         proto_msg_type_name(f->type));
         return;
@@ -1578,7 +1560,7 @@ static void format_eta(double sec, char *buf, size_t n)
 
 static void print_progress(server *s, uint64_t now)
 {
-    const sjob *j = s->single;
+    const srv_entry *j = s->single;
     const srv_job_params *p = &j->rec.params;
     double el = (double)(now - s->t_start) / 1000.0;
     uint64_t done = srv_job_samples_merged(j->job);
@@ -1594,7 +1576,7 @@ static void print_progress(server *s, uint64_t now)
 static void timers(server *s)
 {
     uint64_t now = now_ms();
-    for (sjob *j = s->jobs; j; j = j->next)
+    for (srv_entry *j = s->jobs; j; j = j->next)
         if (j->job && job_active(j) && srv_job_expire(j->job, now, NULL) > 0)
             logf_(s, "job %llu: leases expired; tasks requeued", (unsigned long long)j->rec.id);
     for (conn *c = s->conns; c; c = c->next) {
@@ -1607,7 +1589,7 @@ static void timers(server *s)
             conn_send_error(s, c, PROTO_E_PROTOCOL, "%s stalled for %d s",
                             c->uploading ? "upload" : "partial frame", STALL_MS / 1000);
     }
-    for (sjob *j = s->jobs; j; j = j->next) {
+    for (srv_entry *j = s->jobs; j; j = j->next) {
         if (!j->job || !job_active(j))
             continue;
         uint64_t merged = srv_job_samples_merged(j->job);
@@ -1633,7 +1615,7 @@ static void timers(server *s)
     for (conn *c = s->conns; c; c = c->next) {
         if (c->closing || !c->watch || now - c->watch_t < WATCH_MS)
             continue;
-        sjob *j = find_job(s, c->watch);
+        srv_entry *j = find_job(s, c->watch);
         if (j)
             send_job_info(s, c, j);
         else
@@ -1649,7 +1631,7 @@ static void timers(server *s)
 static int finish_complete(server *s)
 {
     int ended = 0;
-    for (sjob *j = s->jobs; j; j = j->next)
+    for (srv_entry *j = s->jobs; j; j = j->next)
         if (j != s->single && j->job && job_active(j) && srv_job_complete(j->job)) {
             job_end(s, j, PROTO_JOB_DONE, NULL);
             ended++;
@@ -1786,7 +1768,7 @@ static pt_status setup_single(server *s, pt_error *err)
     }
     uint32_t ntris = scene->num_triangles;
     pt_scene_free(scene);
-    sjob *j = pt_calloc(1, sizeof *j);
+    srv_entry *j = pt_calloc(1, sizeof *j);
     if (!j)
         return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
     insert_job(s, j);
@@ -1797,7 +1779,7 @@ static pt_status setup_single(server *s, pt_error *err)
     j->rec.state = PROTO_JOB_QUEUED;
     j->rec.error = -1.0;
     j->rec.params = jp;
-    hex_to_bytes(j->bundle->hash, j->rec.hash, 32);
+    pt_hex_decode(j->bundle->hash, j->rec.hash, 32);
     const char *base = strrchr(cfg->scene_path, '/');
     snprintf(j->rec.scene, sizeof j->rec.scene, "%s", base ? base + 1 : cfg->scene_path);
     snprintf(j->out_path, sizeof j->out_path, "%s", cfg->out_path);
@@ -1822,16 +1804,16 @@ static pt_status setup_queue(server *s, pt_error *err)
         snprintf(s->out_dir, sizeof s->out_dir, "%s/output", cfg->state_dir);
     char tmp[PATH_MAX];
     snprintf(tmp, sizeof tmp, "%s/tmp", cfg->state_dir);
-    pt_remove_tree(tmp); /* uploads a crash left half-checked */
+    pt_remove_tree(tmp); /* uploads a crash left half-verified */
     if ((st = pt_mkdirs(s->out_dir, 0, err)) != PT_OK || (st = pt_mkdirs(tmp, 1, err)) != PT_OK)
         return st;
-    srv_job_rec *recs;
+    srv_job_record *recs;
     uint32_t n;
     if ((st = srv_state_load_queue(s->state, &recs, &n, &s->next_job_id, err)) != PT_OK)
         return st;
     uint32_t counts[6] = {0};
     for (uint32_t i = 0; i < n; i++) {
-        sjob *j = pt_calloc(1, sizeof *j);
+        srv_entry *j = pt_calloc(1, sizeof *j);
         if (!j) {
             pt_free(recs);
             return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
@@ -1848,7 +1830,7 @@ static pt_status setup_queue(server *s, pt_error *err)
               counts[PROTO_JOB_DONE] + counts[PROTO_JOB_CANCELLED] + counts[PROTO_JOB_FAILED],
               s->out_dir);
     /* Resume the running jobs now: their checkpoints are checked at start. */
-    for (sjob *j = s->jobs; j; j = j->next)
+    for (srv_entry *j = s->jobs; j; j = j->next)
         if (j->rec.state == PROTO_JOB_RUNNING)
             job_ready(s, j);
     return PT_OK;
@@ -1903,11 +1885,11 @@ static pt_status setup(server *s, pt_error *err)
     e.data.ptr = &s->sigpipe;
     epoll_ctl(s->ep, EPOLL_CTL_ADD, s->sigpipe[0], &e);
     /* The threads' end blocks (a pointer is never lost); the loop's does not. */
-    if (pipe2(s->checkpipe, O_CLOEXEC) != 0 ||
-        fcntl(s->checkpipe[0], F_SETFL, fcntl(s->checkpipe[0], F_GETFL) | O_NONBLOCK) != 0)
+    if (pipe2(s->verifypipe, O_CLOEXEC) != 0 ||
+        fcntl(s->verifypipe[0], F_SETFL, fcntl(s->verifypipe[0], F_GETFL) | O_NONBLOCK) != 0)
         return pt_error_errno(err, PT_ERR_IO, "pipe2");
-    e.data.ptr = &s->checkpipe;
-    epoll_ctl(s->ep, EPOLL_CTL_ADD, s->checkpipe[0], &e);
+    e.data.ptr = &s->verifypipe;
+    epoll_ctl(s->ep, EPOLL_CTL_ADD, s->verifypipe[0], &e);
     g_sigpipe_w = s->sigpipe[1];
     struct sigaction sa;
     memset(&sa, 0, sizeof sa);
@@ -1925,7 +1907,7 @@ static pt_status setup(server *s, pt_error *err)
 static int finish_single(server *s)
 {
     const srv_config *cfg = s->cfg;
-    sjob *j = s->single;
+    srv_entry *j = s->single;
     pt_error err = {0};
     if (!j->job)
         return 1;
@@ -1966,7 +1948,7 @@ static int finish_single(server *s)
 static void finish_queue(server *s)
 {
     uint32_t n = 0;
-    for (sjob *j = s->jobs; j; j = j->next) {
+    for (srv_entry *j = s->jobs; j; j = j->next) {
         if (!j->job || !job_active(j))
             continue;
         checkpoint(s, j);
@@ -1985,7 +1967,7 @@ int srv_serve(const srv_config *cfg)
     server s;
     memset(&s, 0, sizeof s);
     s.cfg = cfg;
-    s.lfd = s.ep = s.sigpipe[0] = s.sigpipe[1] = s.checkpipe[0] = s.checkpipe[1] = -1;
+    s.lfd = s.ep = s.sigpipe[0] = s.sigpipe[1] = s.verifypipe[0] = s.verifypipe[1] = -1;
     pt_error err = {0};
     int rc = 1, children_reported = 0;
     if (setup(&s, &err) != PT_OK) {
@@ -2005,8 +1987,8 @@ int srv_serve(const srv_config *cfg)
                 char buf[16];
                 while (read(s.sigpipe[0], buf, sizeof buf) > 0) {
                 }
-            } else if (p == &s.checkpipe) {
-                checks_done(&s);
+            } else if (p == &s.verifypipe) {
+                verifications_done(&s);
             } else {
                 conn *c = p;
                 if (evs[i].events & (EPOLLIN | EPOLLHUP | EPOLLERR))
@@ -2065,10 +2047,10 @@ int srv_serve(const srv_config *cfg)
         rc = 0;
     }
 done:
-    checks_abandon(&s);
+    verifications_abandon(&s);
     for (int i = 0; i < 2; i++)
-        if (s.checkpipe[i] >= 0)
-            close(s.checkpipe[i]);
+        if (s.verifypipe[i] >= 0)
+            close(s.verifypipe[i]);
     if (s.nchildren)
         stop_children(&s);
     while (s.conns) {
@@ -2077,9 +2059,9 @@ done:
         conn_free(&s, c);
     }
     while (s.jobs) {
-        sjob *j = s.jobs;
+        srv_entry *j = s.jobs;
         s.jobs = j->next;
-        free_sjob(j);
+        free_entry(j);
     }
     srv_state_close(s.state);
     pt_free(s.scratch);

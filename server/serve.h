@@ -9,6 +9,8 @@
  * In one-job mode it renders one scene and exits; in queue mode it keeps a
  * render queue that clients (ptctl) fill, durable in a state folder
  * (server/state.h), and runs until it is stopped.
+ * Threads: srv_serve runs the loop on the calling thread; call it once at a
+ * time per process (it installs SIGINT and SIGTERM handlers).
  */
 #ifndef PT_SERVER_SERVE_H
 #define PT_SERVER_SERVE_H
