@@ -2,75 +2,194 @@
 #include "server/serve.h"
 
 #include <errno.h>
-#include <math.h>
 #include <fcntl.h>
 #include <limits.h>
+#include <math.h>
 #include <pthread.h>
 #include <signal.h>
 #include <spawn.h>
 #include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/epoll.h>
 #include <sys/socket.h>
-#include <sys/stat.h>
+#include <sys/types.h>
 #include <sys/wait.h>
 #include <time.h>
 #include <unistd.h>
 
-#include <netinet/in.h>
 #include <arpa/inet.h>
+#include <netinet/in.h>
 
 #include "common/base/alloc.h"
-#include "common/scene/bundle.h"
-#include "common/render/film.h"
-#include "common/base/net.h"
-#include "common/scene/scene.h"
-#include "protocol/frame.h"
-#include "protocol/msg.h"
+#include "common/base/error.h"
 #include "common/base/fsutil.h"
 #include "common/base/hash.h"
+#include "common/base/net.h"
 #include "common/render/adaptive.h"
+#include "common/render/film.h"
+#include "common/scene/bundle.h"
+#include "common/scene/scene.h"
+#include "protocol/auth.h"
+#include "protocol/frame.h"
+#include "protocol/msg.h"
+#include "server/job.h"
 #include "server/state.h"
 #include "server/writer.h"
 
-extern char **environ;
+/* ---- local.h ------------------------------------------------------------- */
 
-enum { C_HELLO, C_AUTH, C_READY };
+/*
+ * local.h - ptworker processes this coordinator starts itself (--local N).
+ *
+ * srv_local_start spawns N ptworker children (the one beside this program,
+ * or cfg->worker_bin) that connect to 127.0.0.1:PORT with the token file, if
+ * any, and share a cache folder made for them under $TMPDIR; their stdout
+ * goes to /dev/null. srv_local_reap collects the ones that exited (logging
+ * how); srv_local_stop sends SIGTERM to the rest, waits for them and removes
+ * the cache. The children are ordinary workers to the loop: nothing here
+ * knows about connections or jobs.
+ *
+ * Threads: called only from the event-loop thread.
+ */
 
-#define MAX_CONNS 1024
-#define IN_START (64u * 1024u)
-#define OUT_HIGH (16u << 20)   /* stop reading a peer whose unsent output passes this */
-#define OUT_MAX (256u << 20)   /* a peer that lets this much pile up is dropped */
-#define STALL_MS 30000         /* a partial frame or upload with no progress for this long */
-#define CLOSE_GRACE_MS 1000    /* time to flush an ERROR before closing */
-#define WATCH_MS 1000          /* JOB_INFO to watchers this often */
-#define CKPT_MIN_LOG (16u << 20) /* checkpoint once a job's results log passes this */
-#define MAX_FINISHED 1000      /* ended jobs kept in the queue's history */
-#define MAX_FETCH ((size_t)4 << 30)
+typedef struct srv_local {
+    pid_t *children; /* 0 once reaped */
+    uint32_t nchildren, alive;
+    char cache_dir[256];
+} srv_local;
 
-/* A job of the queue (or the one job of one-job mode). */
-typedef struct srv_entry {
-    srv_job_record rec;
-    srv_job *job;          /* NULL until it is first scheduled (and after it ends) */
-    pt_bundle *bundle;     /* loaded when a worker first asks for it */
-    srv_writer *writer;
-    char out_path[PATH_MAX];
-    double seconds_before; /* render seconds of earlier coordinator runs */
-    uint64_t t_started;    /* when this run started rendering it (ms), 0: not yet */
-    uint64_t rejected, rays;
-    uint32_t saved_passes;
-    uint64_t saved_samples, t_last_save;
-    uint64_t rate_t, rate_samples;
-    double rate;
-    struct srv_entry *next;     /* the queue's order: priority (high first), then id */
-} srv_entry;
+/* Starts cfg->local_workers ptworkers serving 127.0.0.1:port. PT_ERR_IO
+ * naming the program or folder that failed; the children started so far stay
+ * in l for srv_local_stop. */
+pt_status srv_local_start(srv_local *l, const srv_config *cfg, uint16_t port, pt_error *err);
 
-typedef struct conn {
+/* Collects the children that exited: without waiting, logging each, or
+ * (wait_all) waiting for every one, silently. */
+void srv_local_reap(srv_local *l, int wait_all);
+
+/* Stops and reaps every child, removes the cache folder and frees l's
+ * memory. Accepts an l that started nothing. */
+void srv_local_stop(srv_local *l);
+
+/* ---- core.h -------------------------------------------------------------- */
+
+/*
+ * core.h - the coordinator's shared state and its two small helpers.
+ *
+ * srv_server is what every server module's functions take: the event loop's
+ * connections (server/loop.h), the queue of jobs (server/queue.h), the upload
+ * verifications in flight (server/upload.h), the local worker processes
+ * (server/local.h) and the mode chosen at setup (server/mode.h). Each group
+ * of fields belongs to the module named beside it; the others only read it,
+ * or change it through that module's functions.
+ *
+ * The mode is data: a srv_mode, chosen once, says how the loop ends, what it
+ * does after each round of leases, what a timer tick prints and what happens
+ * when the local workers are gone, so no module asks which mode it is in.
+ *
+ * Threads: srv_server is touched only by the event-loop thread. srv_now_ms
+ * and srv_log may be called from any thread.
+ */
+
+typedef struct srv_server srv_server;
+typedef struct srv_conn srv_conn;     /* server/loop.h */
+typedef struct srv_entry srv_entry;   /* server/queue.h */
+typedef struct srv_upload srv_upload; /* server/upload.h */
+
+/* One way of running the coordinator (server/mode.c has the two). */
+typedef struct srv_mode {
+    const char *name;
+    int serves_clients; /* a client (ptctl) may connect */
+    int logs_starts;    /* log each job as it starts (the queue's; one job logs its setup) */
+    /* Loads or restores the jobs before the loop listens. */
+    pt_status (*setup)(srv_server *s, pt_error *err);
+    /* 1 when the loop is over (besides a stop signal). */
+    int (*over)(const srv_server *s);
+    /* After each round's leases: what must reach the disk, jobs that ended. */
+    void (*after_leases)(srv_server *s);
+    /* Once per loop round after the timers; now in ms (srv_now_ms). */
+    void (*tick)(srv_server *s, uint64_t now);
+    /* Every local worker has exited: returns 1 to end the loop. */
+    int (*local_gone)(srv_server *s);
+    /* After the loop: saves what must be saved; returns the exit status. */
+    int (*finish)(srv_server *s);
+} srv_mode;
+
+struct srv_server {
+    const srv_config *cfg;
+    const srv_mode *mode;
+    uint64_t t_start, t_last_print;
+
+    /* the loop (server/loop.c) */
+    int ep, lfd, sigpipe[2];
+    uint16_t port;
+    srv_conn *conns;
+    uint32_t nconns, nworkers;
+    uint64_t next_conn_id;
+    uint8_t token[PROTO_TOKEN_MAX];
+    size_t token_len;
+    uint64_t bytes_in, bytes_out; /* on the wire, all peers */
+
+    /* the queue (server/queue.c) */
+    srv_entry *jobs; /* every job, in queue order */
+    uint32_t njobs;
+    uint64_t next_job_id;
+    srv_entry *single; /* one-job mode: the job */
+    srv_state *state;  /* queue mode: the state folder; NULL in one-job mode */
+    char out_dir[PATH_MAX - 512];
+
+    /* upload verification (server/upload.c) */
+    int verifypipe[2];         /* verifications done: their pointers */
+    srv_upload *verifications; /* in flight */
+
+    /* worker messages (server/workers.c) */
+    pt_pixel_acc *scratch; /* RESULT decode buffer */
+
+    /* local workers (server/local.c) */
+    srv_local local;
+    int local_gone_logged;
+};
+
+/* Monotonic milliseconds. */
+uint64_t srv_now_ms(void);
+
+/* One line on stderr, "ptserve: " first (over a progress line, if any). */
+void srv_log(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
+
+/* ---- loop.h -------------------------------------------------------------- */
+
+/*
+ * loop.h - the event loop: non-blocking sockets under one epoll, and the
+ * connections (workers and clients) it serves.
+ *
+ * Owns every srv_conn: its input buffer (IN_START bytes, grown only to the
+ * frame its header declares, which the decoder has checked against the cap:
+ * PROTO_MAX_PAYLOAD_PREAUTH before authentication, PROTO_MAX_PAYLOAD after),
+ * its output (a writer capped at OUT_MAX; a peer whose unsent output passes
+ * OUT_HIGH is not read from, which is backpressure), the handshake (HELLO,
+ * CHALLENGE, AUTH, WELCOME) and its timeout, and the stalled-frame timeout.
+ * A whole frame from a ready peer goes to server/workers.h or
+ * server/requests.h by the peer's role. A protocol error is answered with
+ * ERROR, then the peer is closed once that is flushed (or after a grace
+ * time); a connection is freed only by srv_loop_sweep, never inside its own
+ * callback, so a handler may close the peer it is serving.
+ *
+ * Threads: called only from the event-loop thread; the signal handler only
+ * sets a flag and writes to a pipe.
+ */
+
+#define SRV_OUT_HIGH (16u << 20) /* stop reading a peer whose unsent output passes this */
+
+enum { SRV_C_HELLO, SRV_C_AUTH, SRV_C_READY };
+
+struct srv_conn {
     int fd;
     uint64_t id;
-    int state;
+    int state; /* SRV_C_* */
     uint8_t role;
     int closing;
     uint64_t close_at;
@@ -82,12 +201,12 @@ typedef struct conn {
     char name[PROTO_MAX_NAME + 1];
     char peer[64];
     uint16_t threads;
-    uint32_t want;
+    uint32_t want; /* worker: free slots it asked tasks for */
     uint64_t t_connect, t_progress;
     uint32_t events;
-    /* client */
-    uint64_t watch, watch_t;      /* job watched, last JOB_INFO sent */
-    uint8_t *fetch;               /* the EXR being sent */
+    /* client (server/requests.c) */
+    uint64_t watch, watch_t; /* job watched, last JOB_INFO sent */
+    uint8_t *fetch;          /* the EXR being sent */
     size_t fetch_len, fetch_off;
     uint8_t fetch_hash[32];
     int uploading;
@@ -95,20 +214,194 @@ typedef struct conn {
     proto_submit up;
     uint8_t *up_buf;
     size_t up_len, up_cap;
-    struct conn *next;
-} conn;
+    srv_conn *next;
+};
 
-/* A complete upload verified off the event loop, since a big scene takes
- * seconds: its SHA-256, its bundle, one load of the scene (with the camera
- * asked for: a broken scene is refused now, not by every worker), and the
- * bundle stored in the state folder under the job id reserved for it. The
- * thread hands it back through the server's verification pipe. */
-typedef struct srv_upload {
+/* Listens (cfg->listen, loopback only without a token), opens the epoll
+ * set with the listening socket, the signal pipe and the verification pipe
+ * (server/upload.h makes it first), installs the SIGINT and SIGTERM
+ * handlers, and writes cfg->port_file. */
+pt_status srv_loop_open(srv_server *s, pt_error *err);
+
+/* Frees every connection and closes what srv_loop_open opened. */
+void srv_loop_close(srv_server *s);
+
+/* The signal that stopped the loop (SIGINT, SIGTERM), 0 while none has. */
+int srv_loop_stopped(void);
+
+/* Waits up to timeout_ms for events and serves them: accepts, reads and
+ * dispatches frames, flushes output, completes verifications. */
+void srv_loop_poll(srv_server *s, int timeout_ms);
+
+/* Handshake and stalled-frame timeouts. */
+void srv_loop_timers(srv_server *s, uint64_t now);
+
+/* Sends what each open connection has queued (before a slow disk sync). */
+void srv_loop_flush_all(srv_server *s);
+
+/* Flushes, processes input left by backpressure, frees the connections
+ * closed since the last sweep and sets each one's epoll interest. */
+void srv_loop_sweep(srv_server *s);
+
+/* Frames one message into c's output: srv_conn_frame_open, the encoder's
+ * status, srv_conn_frame_close. A failed encoder leaves no partial frame.
+ * Each returns 1 on success. */
+int srv_conn_frame_open(srv_conn *c, uint16_t type, size_t *mark);
+int srv_conn_frame_close(srv_conn *c, size_t mark, pt_status encoded);
+
+/* 1 while c's unsent output is under SRV_OUT_HIGH. */
+int srv_conn_has_room(const srv_conn *c);
+
+/* Sets c's epoll interest from its output and closing state. */
+void srv_conn_update_events(srv_server *s, srv_conn *c);
+
+/* Logs, sends ERROR(code, text) and closes c once that is flushed. */
+void srv_conn_send_error(srv_server *s, srv_conn *c, uint16_t code, const char *fmt, ...)
+    __attribute__((format(printf, 4, 5)));
+
+/* Closes c once its output is flushed (or the grace time ends). */
+void srv_conn_close_soon(srv_server *s, srv_conn *c);
+
+/* An ERROR from the peer (who: "client" or "worker"): logged, then closed. */
+void srv_conn_peer_error(srv_server *s, srv_conn *c, const proto_frame *f, const char *who);
+
+/* The open connection with this id, NULL when there is none. */
+srv_conn *srv_conn_find(srv_server *s, uint64_t id);
+
+/* ---- queue.h ------------------------------------------------------------- */
+
+/*
+ * queue.h - the jobs a coordinator serves, in order, and their scheduling.
+ *
+ * Owns every srv_entry: a job as the coordinator serves it (its durable
+ * record, its srv_job once it is first scheduled, its bundle, its image
+ * writer, its timings). The list is in queue order: priority (higher first),
+ * then submission (lower id first). A worker's free slot gets the first task
+ * of the first job in that order that has one to hand out, so a higher
+ * priority job takes the farm from its next task on, and idle workers start
+ * on the next job during the running one's last pass. Leases expire; a job
+ * ends DONE (its final image written first), CANCELLED or FAILED, and
+ * workers are told at once of one that ended early (JOB_END). Progressive
+ * images are saved at most every cfg->save_interval seconds, checkpoints
+ * when a results log grows past max(16 MiB, the film's size).
+ *
+ * Durable steps (the queue file, results logs, checkpoints, bundles) use the
+ * state folder (server/state.h); with none (one-job mode) they are skipped.
+ *
+ * Threads: called only from the event-loop thread.
+ */
+
+/* A job of the queue (or the one job of one-job mode). */
+struct srv_entry {
+    srv_job_record rec;
+    srv_job *job;      /* NULL until it is first scheduled (and after it ends) */
+    pt_bundle *bundle; /* loaded when a worker first asks for it */
+    srv_writer *writer;
+    char out_path[PATH_MAX];
+    double seconds_before; /* render seconds of earlier coordinator runs */
+    uint64_t t_started;    /* when this run started rendering it (ms), 0: not yet */
+    uint64_t rejected, rays;
+    uint32_t saved_passes;
+    uint64_t saved_samples, t_last_save;
+    uint64_t rate_t, rate_samples;
+    double rate;
+    srv_entry *next; /* the queue's order */
+};
+
+/* 1 while j is QUEUED or RUNNING. */
+int srv_entry_active(const srv_entry *j);
+
+/* Render seconds of j, over every coordinator run, at now (ms). */
+double srv_entry_seconds(const srv_entry *j, uint64_t now);
+
+/* Frees j and what it holds; accepts NULL. */
+void srv_entry_free(srv_entry *j);
+
+/* Makes j ready to lease: its srv_job (restored from its checkpoint and
+ * results log when there is a state folder) and its image writer. Returns 0
+ * when it cannot be (j is then ended FAILED, with the reason). */
+int srv_entry_ready(srv_server *s, srv_entry *j);
+
+/* Hands j's film, resolved, to its writer (a progressive or final image). */
+void srv_entry_save_image(srv_entry *j);
+
+/* Writes j's checkpoint when there is a state folder (errors are logged). */
+void srv_entry_checkpoint(srv_server *s, srv_entry *j);
+
+/* The job with id, NULL when there is none. */
+srv_entry *srv_queue_find(srv_server *s, uint64_t id);
+
+/* The active job whose scene has this SHA-256, its bundle loaded (a bundle
+ * that does not load fails the job); NULL when there is none. */
+srv_entry *srv_queue_find_scene(srv_server *s, const uint8_t hash[32]);
+
+/* Puts j in its place in the queue order / takes it out again. */
+void srv_queue_insert(srv_server *s, srv_entry *j);
+void srv_queue_unlink(srv_server *s, srv_entry *j);
+
+/* Drops the oldest ended jobs beyond the history's cap. */
+void srv_queue_prune(srv_server *s);
+
+/* Writes the queue file (every job's record); PT_OK with no state folder. */
+pt_status srv_queue_journal(srv_server *s, pt_error *err);
+
+/* Logs an accepted RESULT payload of j durably before it is merged; PT_OK
+ * with no state folder. */
+pt_status srv_queue_log_result(srv_server *s, const srv_entry *j, const uint8_t *payload,
+                               size_t len, pt_error *err);
+
+/* JOB_INFO of j as a client sees it now. */
+void srv_queue_info(const srv_server *s, const srv_entry *j, proto_job_info *m);
+
+/* Ends j: DONE (the final image is written first; FAILED when it cannot
+ * be), CANCELLED or FAILED with message (may be NULL). Journals it, tells
+ * the workers when it ended early and its watchers always. */
+void srv_queue_end_job(srv_server *s, srv_entry *j, uint8_t state, const char *message);
+
+/* Ends the jobs whose every task is merged; returns how many. */
+int srv_queue_end_complete(srv_server *s);
+
+/* Leases tasks to every ready worker that asked for some (and feeds the
+ * clients' fetches, server/requests.h, while going over the connections). */
+void srv_queue_hand_out(srv_server *s);
+
+/* Requeues every task leased to c (a worker that is leaving); report: log
+ * how many. Nothing for a peer that is not a ready worker. */
+void srv_queue_release_owner(srv_server *s, const srv_conn *c, int report);
+
+/* Lease expiry; then, per running job, the progressive save, the rate and
+ * the checkpoint trigger. now in ms (srv_now_ms). */
+void srv_queue_expire(srv_server *s, uint64_t now);
+void srv_queue_tick(srv_server *s, uint64_t now);
+
+/* Frees every job and closes the state folder. */
+void srv_queue_free(srv_server *s);
+
+/* ---- upload.h ------------------------------------------------------------ */
+
+/*
+ * upload.h - upload verification: a submitted scene checked off the loop.
+ *
+ * A complete upload is verified on a thread of its own, since a big scene
+ * takes seconds: its SHA-256 against the one SUBMIT announced, its bundle,
+ * one load of the scene in a temporary folder (with the camera asked for, so
+ * a broken scene is refused now, not by every worker), and the bundle stored
+ * in the state folder under the job id reserved for it. The thread writes
+ * the srv_upload's pointer to the verification pipe; the loop then hands the
+ * outcome to server/requests.h, which queues the job or refuses it. The
+ * server never opens a path a client names.
+ *
+ * Threads: every function here is called from the event-loop thread. The
+ * verification thread touches only its srv_upload and, through
+ * srv_state_save_bundle, the state folder (server/state.h says it may).
+ */
+
+struct srv_upload {
     uint64_t conn_id, job_id;
     proto_submit m;
     uint8_t *data; /* the upload (owned), freed once wrapped in bundle */
     size_t len;
-    srv_state *state;
+    const srv_state *state;
     char tmp[PATH_MAX];
     int wake_fd;
     pthread_t thread;
@@ -120,36 +413,282 @@ typedef struct srv_upload {
     char scene[256]; /* the entry file's name */
     uint32_t ntris;
     float aspect;
-    struct srv_upload *next;
-} srv_upload;
+    srv_upload *next;
+};
 
-typedef struct server {
-    const srv_config *cfg;
-    int ep, lfd, sigpipe[2];
-    int verifypipe[2]; /* verifications done: their pointers */
-    srv_upload *verifications;    /* in flight */
-    conn *conns;
-    uint32_t nconns, nworkers;
-    uint64_t next_id;
-    uint8_t token[PROTO_TOKEN_MAX];
-    size_t token_len;
-    srv_entry *jobs;            /* every job, in queue order */
-    uint32_t njobs;
-    uint64_t next_job_id;
-    srv_entry *single;          /* one-job mode: the job */
-    srv_state *state;      /* queue mode */
-    char out_dir[PATH_MAX - 512];
-    uint64_t t_start, t_last_print;
-    uint64_t bytes_in, bytes_out; /* on the wire, all peers */
-    pid_t *children;
-    uint32_t nchildren, children_alive;
-    char cache_dir[256];
-    pt_pixel_acc *scratch; /* RESULT decode buffer */
-    uint16_t port;
-} server;
+/* Makes the verification pipe (s->verifypipe; its read end non-blocking). */
+pt_status srv_upload_open(srv_server *s, pt_error *err);
+
+/* c's upload is complete: reserves the job id and starts its verification
+ * (c is answered now only when it cannot start). */
+void srv_upload_start(srv_server *s, srv_conn *c);
+
+/* Completes each verification that is done (server/requests.h answers the
+ * client); a client gone meanwhile gets nothing queued, its bundle removed. */
+void srv_upload_collect(srv_server *s);
+
+/* At exit: waits for the verifications in flight (none of them is queued)
+ * and closes the pipe. */
+void srv_upload_close(srv_server *s);
+
+/* ---- workers.h ----------------------------------------------------------- */
+
+/*
+ * workers.h - what a connected, authenticated worker asks and sends.
+ *
+ * WORK_REQUEST adds free slots (capped at PROTO_MAX_SLOTS) that the queue
+ * fills with tasks (server/queue.h); SCENE_GET is answered with a chunk of
+ * the bundle of the active job with that hash; HEARTBEAT extends the
+ * worker's leases; RESULT is decoded into s->scratch, validated against the
+ * job's lease (srv_job_validate), logged durably (when there is a state
+ * folder) and only then merged, so the results log holds every result the
+ * film holds. A result that is malformed or inconsistent with its task is
+ * the worker's fault (ERROR, closed); a late or duplicate one is dropped.
+ *
+ * Threads: called only from the event-loop thread.
+ */
+
+/* Serves one whole frame from a ready worker. */
+void srv_workers_dispatch(srv_server *s, srv_conn *c, const proto_frame *f);
+
+/* ---- requests.h ---------------------------------------------------------- */
+
+/*
+ * requests.h - what a connected, authenticated client (ptctl) asks.
+ *
+ * SUBMIT is checked against the caps (resolution, spp, scene size, the
+ * unfinished jobs of one client name, the queue's size) and the job name
+ * must be a plain name; UPLOAD chunks must continue the announced scene
+ * exactly, and the buffer grows with what arrives, not with what was
+ * announced. A complete upload goes to verification (server/upload.h); its
+ * outcome comes back to srv_requests_verified, which queues the job (durable
+ * before it is acknowledged with SUBMITTED) or refuses it. A client sends
+ * nothing else until that answer. LIST, STATUS, WATCH (JOB_INFO now, then
+ * every second and at the job's end), CANCEL and FETCH (the image file in
+ * IMAGE chunks while the client's output has room) are served here. Images
+ * are written only as ID-NAME.exr, NAME reduced to [A-Za-z0-9._-].
+ *
+ * Threads: called only from the event-loop thread.
+ */
+
+/* Serves one whole frame from a ready client. */
+void srv_requests_dispatch(srv_server *s, srv_conn *c, const proto_frame *f);
+
+/* Queues the job of a verified upload of c's, or sends c the refusal. */
+void srv_requests_verified(srv_server *s, srv_conn *c, srv_upload *k);
+
+/* Sends j's JOB_INFO to every client watching it (its end included). */
+void srv_requests_notify_watchers(srv_server *s, const srv_entry *j);
+
+/* Appends IMAGE frames of c's fetch in progress while c's output has room. */
+void srv_requests_pump_fetch(srv_server *s, srv_conn *c);
+
+/* JOB_INFO to each watcher whose last one is a second old; now in ms. */
+void srv_requests_tick(srv_server *s, uint64_t now);
+
+/* Frees c's upload buffer and ends its upload. */
+void srv_requests_drop_upload(srv_conn *c);
+
+/* c is being freed: logs an upload it left unfinished, frees its upload and
+ * its fetch. */
+void srv_requests_conn_gone(srv_conn *c);
+
+/* ---- mode.h -------------------------------------------------------------- */
+
+/*
+ * mode.h - the coordinator's two modes, as data (srv_mode, server/core.h).
+ *
+ * One job (cfg->scene_path set): the scene is loaded once to refuse a broken
+ * one before any worker starts, packed into a bundle and rendered to
+ * cfg->out_path; no clients, no state folder; a progress line each second;
+ * the loop ends when the image is complete, on a signal, or when every local
+ * worker has exited first; the exit status is 0 (complete), 130
+ * (interrupted) or 1.
+ *
+ * Queue (cfg->state_dir set): the queue is loaded from the state folder and
+ * its running jobs resumed from their checkpoints and results logs; clients
+ * fill it; each round's results are fdatasync'd after the leases are sent
+ * (group commit) and complete jobs end at once; on a signal every running
+ * job is checkpointed and its image saved, and the exit status is 0.
+ *
+ * Threads: called only from the event-loop thread.
+ */
+
+extern const srv_mode srv_mode_one_job;
+extern const srv_mode srv_mode_queue;
+
+/* The mode cfg asks for. */
+const srv_mode *srv_mode_for(const srv_config *cfg);
+
+/* ---- core ---------------------------------------------------------------- */
+
+uint64_t srv_now_ms(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (uint64_t)ts.tv_sec * 1000u + (uint64_t)ts.tv_nsec / 1000000u;
+}
+
+void srv_log(const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    fputs("\rptserve: ", stderr);
+    vfprintf(stderr, fmt, ap);
+    fputs("\033[K\n", stderr);
+    va_end(ap);
+}
+
+/* ---- local --------------------------------------------------------------- */
+
+extern char **environ;
+
+pt_status srv_local_start(srv_local *l, const srv_config *cfg, uint16_t port, pt_error *err)
+{
+    char bin[PATH_MAX];
+    if (cfg->worker_bin) {
+        snprintf(bin, sizeof bin, "%s", cfg->worker_bin);
+    } else {
+        ssize_t n = readlink("/proc/self/exe", bin, sizeof bin - 16);
+        if (n <= 0)
+            return pt_error_errno(err, PT_ERR_IO, "cannot find this program's folder");
+        bin[n] = '\0';
+        char *slash = strrchr(bin, '/');
+        snprintf(slash + 1, sizeof bin - (size_t)(slash + 1 - bin), "ptworker");
+    }
+    if (access(bin, X_OK) != 0)
+        return pt_error_errno(err, PT_ERR_IO, "%s", bin);
+    const char *tmp = getenv("TMPDIR");
+    snprintf(l->cache_dir, sizeof l->cache_dir, "%s/ptserve-cache-XXXXXX",
+             tmp && *tmp ? tmp : "/tmp");
+    if (!mkdtemp(l->cache_dir))
+        return pt_error_errno(err, PT_ERR_IO, "%s", l->cache_dir);
+    uint32_t threads = cfg->worker_threads;
+    if (threads == 0) {
+        long cores = sysconf(_SC_NPROCESSORS_ONLN);
+        threads = cores > 0 ? (uint32_t)cores / cfg->local_workers : 1;
+        if (threads == 0)
+            threads = 1;
+    }
+    l->children = pt_calloc(cfg->local_workers, sizeof *l->children);
+    if (!l->children)
+        return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
+    char server_arg[64], threads_arg[16], name_arg[32];
+    snprintf(server_arg, sizeof server_arg, "127.0.0.1:%u", port);
+    snprintf(threads_arg, sizeof threads_arg, "%u", threads);
+    for (uint32_t i = 0; i < cfg->local_workers; i++) {
+        snprintf(name_arg, sizeof name_arg, "local-%u", i + 1);
+        const char *argv[16];
+        int a = 0;
+        argv[a++] = bin;
+        argv[a++] = "--server";
+        argv[a++] = server_arg;
+        argv[a++] = "--threads";
+        argv[a++] = threads_arg;
+        argv[a++] = "--cache-dir";
+        argv[a++] = l->cache_dir;
+        argv[a++] = "--name";
+        argv[a++] = name_arg;
+        if (cfg->token_path) {
+            argv[a++] = "--token-file";
+            argv[a++] = cfg->token_path;
+        }
+        argv[a] = NULL;
+        posix_spawn_file_actions_t fa;
+        posix_spawn_file_actions_init(&fa);
+        posix_spawn_file_actions_addopen(&fa, 1, "/dev/null", O_WRONLY, 0);
+        pid_t pid;
+        int rc = posix_spawn(&pid, bin, &fa, NULL, (char *const *)argv, environ);
+        posix_spawn_file_actions_destroy(&fa);
+        if (rc != 0) {
+            errno = rc;
+            return pt_error_errno(err, PT_ERR_IO, "cannot start %s", bin);
+        }
+        l->children[l->nchildren++] = pid;
+        l->alive++;
+    }
+    if (!cfg->quiet)
+        srv_log("started %u local workers with %u threads each", cfg->local_workers, threads);
+    return PT_OK;
+}
+
+void srv_local_reap(srv_local *l, int wait_all)
+{
+    for (uint32_t i = 0; i < l->nchildren; i++) {
+        if (l->children[i] <= 0)
+            continue;
+        int st;
+        pid_t r = waitpid(l->children[i], &st, wait_all ? 0 : WNOHANG);
+        if (r == l->children[i]) {
+            if (!wait_all) {
+                if (WIFEXITED(st))
+                    srv_log("local worker %u exited with status %d", i + 1, WEXITSTATUS(st));
+                else if (WIFSIGNALED(st))
+                    srv_log("local worker %u killed by signal %d", i + 1, WTERMSIG(st));
+            }
+            l->children[i] = 0;
+            l->alive--;
+        }
+    }
+}
+
+void srv_local_stop(srv_local *l)
+{
+    if (l->nchildren == 0) {
+        pt_free(l->children);
+        l->children = NULL;
+        return;
+    }
+    for (uint32_t i = 0; i < l->nchildren; i++)
+        if (l->children[i] > 0)
+            kill(l->children[i], SIGTERM);
+    srv_local_reap(l, 1);
+    if (l->cache_dir[0]) {
+        /* The cache holds only what the workers unpacked from our bundle. */
+        char cmd[512];
+        snprintf(cmd, sizeof cmd, "rm -rf '%s'", l->cache_dir);
+        if (system(cmd) != 0)
+            srv_log("could not remove %s", l->cache_dir);
+    }
+    pt_free(l->children);
+    l->children = NULL;
+}
+
+/* ---- loop ---------------------------------------------------------------- */
+
+#define MAX_CONNS 1024
+#define IN_START (64u * 1024u)
+#define OUT_MAX (256u << 20) /* a peer that lets this much pile up is dropped */
+#define STALL_MS 30000       /* a partial frame or upload with no progress for this long */
+#define CLOSE_GRACE_MS 1000  /* time to flush an ERROR before closing */
 
 static volatile sig_atomic_t g_stop;
 static int g_sigpipe_w = -1;
+
+/* The payload length a frame header declares, read field by field in the
+ * order of protocol/frame.h's table (frame.h has no accessor for it). The
+ * decoder has already refused a header whose length is over the cap. */
+static uint32_t frame_declared_len(const uint8_t *header)
+{
+    proto_reader r = proto_reader_make(header, PROTO_FRAME_HEADER);
+    proto_r_bytes(&r, 4, "magic");
+    proto_r_u16(&r, "version");
+    proto_r_u16(&r, "type");
+    return proto_r_u32(&r, "length");
+}
+
+int srv_conn_has_room(const srv_conn *c)
+{
+    return c->out.len - c->out_off < SRV_OUT_HIGH;
+}
+
+srv_conn *srv_conn_find(srv_server *s, uint64_t id)
+{
+    srv_conn *c = s->conns;
+    while (c && (c->id != id || c->closing))
+        c = c->next;
+    return c;
+}
 
 static void on_signal(int sig)
 {
@@ -163,31 +702,10 @@ static void on_signal(int sig)
     }
 }
 
-static uint64_t now_ms(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (uint64_t)ts.tv_sec * 1000u + (uint64_t)ts.tv_nsec / 1000000u;
-}
-
-static void logf_(const server *s, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
-static void logf_(const server *s, const char *fmt, ...)
-{
-    (void)s;
-    va_list ap;
-    va_start(ap, fmt);
-    fputs("\rptserve: ", stderr);
-    vfprintf(stderr, fmt, ap);
-    fputs("\033[K\n", stderr);
-    va_end(ap);
-}
-
-/* ---- connections ------------------------------------------------------------------- */
-
-static void conn_update_events(server *s, conn *c)
+void srv_conn_update_events(srv_server *s, srv_conn *c)
 {
     uint32_t ev = 0;
-    if (!c->closing && c->out.len - c->out_off < OUT_HIGH)
+    if (!c->closing && srv_conn_has_room(c))
         ev |= EPOLLIN;
     if (c->out.len > c->out_off)
         ev |= EPOLLOUT;
@@ -198,14 +716,12 @@ static void conn_update_events(server *s, conn *c)
     }
 }
 
-/* Frames one message into c's output: begin, the encoder's status, end. A
- * failed encoder leaves no partial frame behind. Returns 1 when queued. */
-static int frame_open(conn *c, uint16_t type, size_t *mark)
+int srv_conn_frame_open(srv_conn *c, uint16_t type, size_t *mark)
 {
     return proto_frame_begin(&c->out, type, mark, NULL) == PT_OK;
 }
 
-static int frame_close(conn *c, size_t mark, pt_status encoded)
+int srv_conn_frame_close(srv_conn *c, size_t mark, pt_status encoded)
 {
     if (encoded != PT_OK) {
         proto_frame_cancel(&c->out, mark);
@@ -214,31 +730,16 @@ static int frame_close(conn *c, size_t mark, pt_status encoded)
     return proto_frame_end(&c->out, mark, NULL) == PT_OK;
 }
 
-static void release_owner_all(server *s, conn *c, int report)
-{
-    if (c->state != C_READY || c->role != PROTO_ROLE_WORKER)
-        return;
-    uint32_t n = 0;
-    for (srv_entry *j = s->jobs; j; j = j->next)
-        if (j->job)
-            n += srv_job_release_owner(j->job, c->id);
-    if (n && report)
-        logf_(s, "worker %s left; %u leased tasks requeued", c->name, n);
-}
-
-/* Marks c for closing once its output is flushed (or the grace time ends). */
-static void conn_close_soon(server *s, conn *c)
+void srv_conn_close_soon(srv_server *s, srv_conn *c)
 {
     if (!c->closing) {
         c->closing = 1;
-        c->close_at = now_ms() + CLOSE_GRACE_MS;
-        release_owner_all(s, c, 0);
+        c->close_at = srv_now_ms() + CLOSE_GRACE_MS;
+        srv_queue_release_owner(s, c, 0);
     }
 }
 
-static void conn_send_error(server *s, conn *c, uint16_t code, const char *fmt, ...)
-    __attribute__((format(printf, 4, 5)));
-static void conn_send_error(server *s, conn *c, uint16_t code, const char *fmt, ...)
+void srv_conn_send_error(srv_server *s, srv_conn *c, uint16_t code, const char *fmt, ...)
 {
     proto_error_msg m;
     m.code = code;
@@ -246,32 +747,20 @@ static void conn_send_error(server *s, conn *c, uint16_t code, const char *fmt, 
     va_start(ap, fmt);
     vsnprintf(m.text, sizeof m.text, fmt, ap);
     va_end(ap);
-    logf_(s, "peer %s%s%s: %s; closing", c->peer, c->name[0] ? " " : "", c->name, m.text);
+    srv_log("peer %s%s%s: %s; closing", c->peer, c->name[0] ? " " : "", c->name, m.text);
     size_t mark;
-    if (frame_open(c, PROTO_MSG_ERROR, &mark))
-        frame_close(c, mark, proto_msg_encode_error(&c->out, &m, NULL));
-    conn_close_soon(s, c);
+    if (srv_conn_frame_open(c, PROTO_MSG_ERROR, &mark))
+        srv_conn_frame_close(c, mark, proto_msg_encode_error(&c->out, &m, NULL));
+    srv_conn_close_soon(s, c);
 }
 
-static void upload_drop(conn *c)
-{
-    pt_free(c->up_buf);
-    c->up_buf = NULL;
-    c->up_len = c->up_cap = 0;
-    c->uploading = 0;
-}
-
-static void conn_free(server *s, conn *c)
+static void conn_free(srv_server *s, srv_conn *c)
 {
     if (!c->closing)
-        release_owner_all(s, c, 1);
-    if (c->state == C_READY && c->role == PROTO_ROLE_WORKER && s->nworkers > 0)
+        srv_queue_release_owner(s, c, 1);
+    if (c->state == SRV_C_READY && c->role == PROTO_ROLE_WORKER && s->nworkers > 0)
         s->nworkers--;
-    if (c->uploading)
-        logf_(s, "client %s left during an upload (%zu of %llu bytes); nothing was queued",
-              c->name, c->up_len, (unsigned long long)c->up.bundle_size);
-    upload_drop(c);
-    pt_free(c->fetch);
+    srv_requests_conn_gone(c);
     epoll_ctl(s->ep, EPOLL_CTL_DEL, c->fd, NULL);
     close(c->fd);
     proto_writer_fini(&c->out);
@@ -280,7 +769,7 @@ static void conn_free(server *s, conn *c)
     s->nconns--;
 }
 
-static void accept_all(server *s)
+static void accept_all(srv_server *s)
 {
     for (;;) {
         struct sockaddr_storage ss;
@@ -290,10 +779,10 @@ static void accept_all(server *s)
             return;
         if (s->nconns >= MAX_CONNS) {
             close(fd);
-            logf_(s, "refused a connection: %u peers already", s->nconns);
+            srv_log("refused a connection: %u peers already", s->nconns);
             continue;
         }
-        conn *c = pt_calloc(1, sizeof *c);
+        srv_conn *c = pt_calloc(1, sizeof *c);
         if (c)
             c->in = pt_malloc(IN_START);
         if (!c || !c->in) {
@@ -303,9 +792,9 @@ static void accept_all(server *s)
             continue;
         }
         c->fd = fd;
-        c->id = ++s->next_id;
+        c->id = ++s->next_conn_id;
         c->in_cap = IN_START;
-        c->t_connect = c->t_progress = now_ms();
+        c->t_connect = c->t_progress = srv_now_ms();
         proto_writer_init(&c->out, OUT_MAX);
         char host[INET6_ADDRSTRLEN] = "?";
         uint16_t port = 0;
@@ -332,14 +821,354 @@ static void accept_all(server *s)
     }
 }
 
-/* ---- the queue ------------------------------------------------------------------- */
+static void on_hello(srv_server *s, srv_conn *c, const proto_frame *f)
+{
+    proto_hello h;
+    pt_error err = {0};
+    if (proto_msg_decode_hello(f->payload, f->len, &h, &err) != PT_OK) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "bad HELLO: %s", err.msg);
+        return;
+    }
+    snprintf(c->name, sizeof c->name, "%s", h.name);
+    if (h.version != PROTO_VERSION) {
+        srv_conn_send_error(s, c, PROTO_E_VERSION,
+                            "protocol version %u is not supported (this "
+                            "coordinator speaks %u)",
+                            h.version, PROTO_VERSION);
+        return;
+    }
+    if (h.role == PROTO_ROLE_CLIENT && !s->mode->serves_clients) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL,
+                            "this coordinator renders one scene and keeps "
+                            "no queue (start ptserve with --state-dir for clients)");
+        return;
+    }
+    if (h.role != PROTO_ROLE_WORKER && h.role != PROTO_ROLE_CLIENT) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "role %u is not served by this coordinator",
+                            h.role);
+        return;
+    }
+    /* A client's build does not touch the pixels; a worker's does. */
+    if (h.role == PROTO_ROLE_WORKER && strcmp(h.build_id, proto_build_id()) != 0) {
+        srv_conn_send_error(s, c, PROTO_E_BUILD,
+                            "worker renderer build %s differs from the "
+                            "coordinator's %s; mixed builds would break bit-identical merging",
+                            h.build_id, proto_build_id());
+        return;
+    }
+    c->role = h.role;
+    c->threads = h.threads;
+    proto_challenge ch;
+    if (proto_auth_nonce(ch.nonce, &err) != PT_OK) {
+        srv_conn_send_error(s, c, PROTO_E_INTERNAL, "cannot make a nonce: %s", err.msg);
+        return;
+    }
+    memcpy(c->nonce, ch.nonce, sizeof c->nonce);
+    size_t mark;
+    if (srv_conn_frame_open(c, PROTO_MSG_CHALLENGE, &mark))
+        srv_conn_frame_close(c, mark, proto_msg_encode_challenge(&c->out, &ch, NULL));
+    c->state = SRV_C_AUTH;
+}
 
-static int job_active(const srv_entry *j)
+static void on_auth(srv_server *s, srv_conn *c, const proto_frame *f)
+{
+    proto_auth a;
+    pt_error err = {0};
+    if (proto_msg_decode_auth(f->payload, f->len, &a, &err) != PT_OK) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "bad AUTH: %s", err.msg);
+        return;
+    }
+    if (proto_auth_verify(s->token, s->token_len, c->nonce, a.mac, &err) != PT_OK) {
+        srv_conn_send_error(s, c, PROTO_E_AUTH, "authentication failed (wrong token)");
+        return;
+    }
+    proto_welcome w;
+    w.session_id = c->id;
+    snprintf(w.build_id, sizeof w.build_id, "%s", proto_build_id());
+    size_t mark;
+    if (srv_conn_frame_open(c, PROTO_MSG_WELCOME, &mark))
+        srv_conn_frame_close(c, mark, proto_msg_encode_welcome(&c->out, &w, NULL));
+    c->state = SRV_C_READY;
+    if (c->role == PROTO_ROLE_WORKER) {
+        s->nworkers++;
+        if (!s->cfg->quiet)
+            srv_log("worker %s joined from %s (%u threads)", c->name, c->peer, c->threads);
+    }
+}
+
+void srv_conn_peer_error(srv_server *s, srv_conn *c, const proto_frame *f, const char *who)
+{
+    proto_error_msg m;
+    if (proto_msg_decode_error(f->payload, f->len, &m, NULL) == PT_OK)
+        srv_log("%s %s reports: %s", who, c->name, m.text);
+    srv_conn_close_soon(s, c);
+}
+
+static void dispatch(srv_server *s, srv_conn *c, const proto_frame *f)
+{
+    if (c->state == SRV_C_HELLO) {
+        if (f->type == PROTO_MSG_HELLO)
+            on_hello(s, c, f);
+        else
+            srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "expected HELLO, got %s",
+                                proto_msg_type_name(f->type));
+        return;
+    }
+    if (c->state == SRV_C_AUTH) {
+        if (f->type == PROTO_MSG_AUTH)
+            on_auth(s, c, f);
+        else
+            srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "expected AUTH, got %s",
+                                proto_msg_type_name(f->type));
+        return;
+    }
+    if (c->role == PROTO_ROLE_CLIENT)
+        srv_requests_dispatch(s, c, f);
+    else
+        srv_workers_dispatch(s, c, f);
+}
+
+/* Decodes and dispatches the whole frames buffered in c->in, while the peer's
+ * output is under the high-water mark (backpressure). */
+static void conn_process(srv_server *s, srv_conn *c)
+{
+    size_t off = 0;
+    while (!c->closing && srv_conn_has_room(c)) {
+        proto_frame f;
+        size_t used;
+        pt_error err = {0};
+        uint32_t cap = c->state == SRV_C_READY ? PROTO_MAX_PAYLOAD : PROTO_MAX_PAYLOAD_PREAUTH;
+        pt_status st = proto_frame_decode(c->in + off, c->in_len - off, cap, &f, &used, &err);
+        if (st == PT_AGAIN)
+            break;
+        if (st != PT_OK) {
+            srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "%s", err.msg);
+            break;
+        }
+        dispatch(s, c, &f);
+        off += used;
+    }
+    if (off > 0) {
+        memmove(c->in, c->in + off, c->in_len - off);
+        c->in_len -= off;
+    }
+}
+
+static void conn_read(srv_server *s, srv_conn *c)
+{
+    while (!c->closing && srv_conn_has_room(c)) {
+        uint32_t cap = c->state == SRV_C_READY ? PROTO_MAX_PAYLOAD : PROTO_MAX_PAYLOAD_PREAUTH;
+        /* Grow the input buffer to the declared frame (the decoder has already
+         * refused a length over the cap once the header was present). */
+        if (c->in_len >= PROTO_FRAME_HEADER) {
+            size_t need = PROTO_FRAME_OVERHEAD + (size_t)frame_declared_len(c->in);
+            if (need > c->in_cap && need <= PROTO_FRAME_OVERHEAD + (size_t)cap) {
+                uint8_t *n = pt_realloc(c->in, need);
+                if (!n) {
+                    srv_conn_send_error(s, c, PROTO_E_LIMIT, "out of memory for a frame");
+                    return;
+                }
+                c->in = n;
+                c->in_cap = need;
+            }
+        }
+        if (c->in_len == c->in_cap) {
+            srv_conn_send_error(s, c, PROTO_E_LIMIT, "frame larger than the input buffer");
+            return;
+        }
+        ssize_t r = recv(c->fd, c->in + c->in_len, c->in_cap - c->in_len, 0);
+        if (r == 0 || (r < 0 && errno != EINTR && errno != EAGAIN && errno != EWOULDBLOCK)) {
+            srv_conn_close_soon(s, c);
+            c->close_at = 0;
+            return;
+        }
+        if (r < 0) {
+            if (errno == EINTR)
+                continue;
+            return;
+        }
+        c->in_len += (size_t)r;
+        s->bytes_in += (uint64_t)r;
+        c->t_progress = srv_now_ms();
+        conn_process(s, c);
+    }
+}
+
+static void conn_flush(srv_server *s, srv_conn *c)
+{
+    while (c->out.len > c->out_off) {
+        ssize_t w = send(c->fd, c->out.buf + c->out_off, c->out.len - c->out_off,
+                         MSG_NOSIGNAL | MSG_DONTWAIT);
+        if (w < 0) {
+            if (errno == EINTR)
+                continue;
+            if (errno != EAGAIN && errno != EWOULDBLOCK) {
+                srv_conn_close_soon(s, c);
+                c->close_at = 0;
+            }
+            break;
+        }
+        c->out_off += (size_t)w;
+        s->bytes_out += (uint64_t)w;
+    }
+    if (c->out_off == c->out.len) {
+        proto_writer_reset(&c->out);
+        c->out_off = 0;
+    } else if (c->out_off > (1u << 20) && c->out_off > c->out.len / 2) {
+        memmove(c->out.buf, c->out.buf + c->out_off, c->out.len - c->out_off);
+        c->out.len -= c->out_off;
+        c->out_off = 0;
+    }
+    if (c->closing && c->out.len == c->out_off)
+        c->close_at = 0;
+}
+
+int srv_loop_stopped(void)
+{
+    return g_stop;
+}
+
+pt_status srv_loop_open(srv_server *s, pt_error *err)
+{
+    const srv_config *cfg = s->cfg;
+    pt_status st;
+    char host[256];
+    uint16_t port = cfg->local_workers ? 0 : 7878;
+    snprintf(host, sizeof host, "127.0.0.1");
+    if (cfg->listen && (st = pt_net_split(cfg->listen, host, sizeof host, &port, err)) != PT_OK)
+        return st;
+    if (!cfg->token_path && !pt_net_host_is_loopback(host)) {
+        srv_log("no --token-file: listening on loopback only (127.0.0.1), not '%s'", host);
+        snprintf(host, sizeof host, "127.0.0.1");
+    }
+    if ((st = pt_net_listen(host, port, &s->lfd, &s->port, err)) != PT_OK)
+        return st;
+    if (cfg->port_file) {
+        FILE *f = fopen(cfg->port_file, "w");
+        if (!f || fprintf(f, "%u\n", s->port) < 0 || fclose(f) != 0)
+            return pt_error_errno(err, PT_ERR_IO, "%s", cfg->port_file);
+    }
+    if (!cfg->quiet)
+        srv_log("listening on %s:%u%s", host, s->port, cfg->token_path ? " (token required)" : "");
+
+    s->ep = epoll_create1(EPOLL_CLOEXEC);
+    if (s->ep < 0)
+        return pt_error_errno(err, PT_ERR_IO, "epoll_create1");
+    struct epoll_event e = {.events = EPOLLIN, .data.ptr = NULL};
+    epoll_ctl(s->ep, EPOLL_CTL_ADD, s->lfd, &e);
+    if (pipe2(s->sigpipe, O_NONBLOCK | O_CLOEXEC) != 0)
+        return pt_error_errno(err, PT_ERR_IO, "pipe2");
+    e.data.ptr = &s->sigpipe;
+    epoll_ctl(s->ep, EPOLL_CTL_ADD, s->sigpipe[0], &e);
+    if ((st = srv_upload_open(s, err)) != PT_OK)
+        return st;
+    e.data.ptr = &s->verifypipe;
+    epoll_ctl(s->ep, EPOLL_CTL_ADD, s->verifypipe[0], &e);
+    g_sigpipe_w = s->sigpipe[1];
+    struct sigaction sa;
+    memset(&sa, 0, sizeof sa);
+    sa.sa_handler = on_signal;
+    sigaction(SIGINT, &sa, NULL);
+    sigaction(SIGTERM, &sa, NULL);
+    signal(SIGPIPE, SIG_IGN);
+    return PT_OK;
+}
+
+void srv_loop_close(srv_server *s)
+{
+    while (s->conns) {
+        srv_conn *c = s->conns;
+        s->conns = c->next;
+        conn_free(s, c);
+    }
+    if (s->lfd >= 0)
+        close(s->lfd);
+    if (s->ep >= 0)
+        close(s->ep);
+    s->lfd = s->ep = -1;
+    g_sigpipe_w = -1;
+    if (s->sigpipe[0] >= 0) {
+        close(s->sigpipe[0]);
+        close(s->sigpipe[1]);
+        s->sigpipe[0] = s->sigpipe[1] = -1;
+    }
+}
+
+void srv_loop_poll(srv_server *s, int timeout_ms)
+{
+    struct epoll_event evs[64];
+    int n = epoll_wait(s->ep, evs, 64, timeout_ms);
+    for (int i = 0; i < n; i++) {
+        void *p = evs[i].data.ptr;
+        if (p == NULL) {
+            accept_all(s);
+        } else if (p == &s->sigpipe) {
+            char buf[16];
+            while (read(s->sigpipe[0], buf, sizeof buf) > 0) {
+            }
+        } else if (p == &s->verifypipe) {
+            srv_upload_collect(s);
+        } else {
+            srv_conn *c = p;
+            if (evs[i].events & (EPOLLIN | EPOLLHUP | EPOLLERR))
+                conn_read(s, c);
+            if (evs[i].events & EPOLLOUT)
+                conn_flush(s, c);
+        }
+    }
+}
+
+void srv_loop_timers(srv_server *s, uint64_t now)
+{
+    for (srv_conn *c = s->conns; c; c = c->next) {
+        if (c->closing)
+            continue;
+        if (c->state != SRV_C_READY && now - c->t_connect > s->cfg->handshake_ms)
+            srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "handshake not finished in %.1f s",
+                                s->cfg->handshake_ms / 1000.0);
+        else if ((c->in_len > 0 || c->uploading) && now - c->t_progress > STALL_MS)
+            srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "%s stalled for %d s",
+                                c->uploading ? "upload" : "partial frame", STALL_MS / 1000);
+    }
+}
+
+void srv_loop_flush_all(srv_server *s)
+{
+    for (srv_conn *c = s->conns; c; c = c->next)
+        if (c->out.len > c->out_off && !c->closing)
+            conn_flush(s, c);
+}
+
+void srv_loop_sweep(srv_server *s)
+{
+    uint64_t now = srv_now_ms();
+    for (srv_conn **pc = &s->conns; *pc;) {
+        srv_conn *c = *pc;
+        if (c->out.len > c->out_off)
+            conn_flush(s, c);
+        if (c->in_len > 0 && !c->closing)
+            conn_process(s, c);
+        if (c->closing && (c->close_at == 0 || now >= c->close_at)) {
+            *pc = c->next;
+            conn_free(s, c);
+            continue;
+        }
+        srv_conn_update_events(s, c);
+        pc = &c->next;
+    }
+}
+
+/* ---- queue --------------------------------------------------------------- */
+
+#define CKPT_MIN_LOG (16u << 20) /* checkpoint once a job's results log passes this */
+#define MAX_FINISHED 1000        /* ended jobs kept in the queue's history */
+
+int srv_entry_active(const srv_entry *j)
 {
     return j->rec.state == PROTO_JOB_QUEUED || j->rec.state == PROTO_JOB_RUNNING;
 }
 
-static srv_entry *find_job(server *s, uint64_t id)
+srv_entry *srv_queue_find(srv_server *s, uint64_t id)
 {
     for (srv_entry *j = s->jobs; j; j = j->next)
         if (j->rec.id == id)
@@ -347,8 +1176,7 @@ static srv_entry *find_job(server *s, uint64_t id)
     return NULL;
 }
 
-/* Queue order: priority (higher first), then submission (lower id first). */
-static void insert_job(server *s, srv_entry *j)
+void srv_queue_insert(srv_server *s, srv_entry *j)
 {
     srv_entry **p = &s->jobs;
     while (*p && ((*p)->rec.priority > j->rec.priority ||
@@ -359,7 +1187,7 @@ static void insert_job(server *s, srv_entry *j)
     s->njobs++;
 }
 
-static void free_job_run(srv_entry *j)
+static void free_run(srv_entry *j)
 {
     srv_writer_free(j->writer);
     j->writer = NULL;
@@ -369,33 +1197,33 @@ static void free_job_run(srv_entry *j)
     j->bundle = NULL;
 }
 
-static void free_entry(srv_entry *j)
+void srv_entry_free(srv_entry *j)
 {
-    free_job_run(j);
+    if (!j)
+        return;
+    free_run(j);
     pt_free(j);
 }
 
-/* Drops the oldest ended jobs beyond MAX_FINISHED from the history. */
-static void prune_history(server *s)
+void srv_queue_prune(srv_server *s)
 {
     uint32_t ended = 0;
     for (srv_entry *j = s->jobs; j; j = j->next)
-        ended += !job_active(j);
+        ended += !srv_entry_active(j);
     while (ended > MAX_FINISHED) {
         srv_entry **oldest = NULL;
         for (srv_entry **p = &s->jobs; *p; p = &(*p)->next)
-            if (!job_active(*p) && (!oldest || (*p)->rec.id < (*oldest)->rec.id))
+            if (!srv_entry_active(*p) && (!oldest || (*p)->rec.id < (*oldest)->rec.id))
                 oldest = p;
         srv_entry *j = *oldest;
         *oldest = j->next;
-        free_entry(j);
+        srv_entry_free(j);
         s->njobs--;
         ended--;
     }
 }
 
-/* Writes the queue file (queue mode). */
-static pt_status journal(server *s, pt_error *err)
+pt_status srv_queue_journal(srv_server *s, pt_error *err)
 {
     if (!s->state)
         return PT_OK;
@@ -410,27 +1238,27 @@ static pt_status journal(server *s, pt_error *err)
     return st;
 }
 
-static void journal_or_log(server *s)
+static void journal_or_log(srv_server *s)
 {
     pt_error err = {0};
-    if (journal(s, &err) != PT_OK)
-        logf_(s, "error: cannot write the queue: %s", err.msg);
+    if (srv_queue_journal(s, &err) != PT_OK)
+        srv_log("error: cannot write the queue: %s", err.msg);
 }
 
-static double job_seconds(const srv_entry *j, uint64_t now)
+double srv_entry_seconds(const srv_entry *j, uint64_t now)
 {
-    if (!job_active(j))
+    if (!srv_entry_active(j))
         return j->rec.seconds;
     return j->seconds_before + (j->t_started ? (double)(now - j->t_started) / 1000.0 : 0.0);
 }
 
-static uint32_t job_workers(const server *s, const srv_entry *j)
+static uint32_t job_workers(const srv_server *s, const srv_entry *j)
 {
     uint32_t n = 0;
     if (!j->job)
         return 0;
-    for (const conn *c = s->conns; c; c = c->next)
-        if (c->state == C_READY && c->role == PROTO_ROLE_WORKER &&
+    for (const srv_conn *c = s->conns; c; c = c->next)
+        if (c->state == SRV_C_READY && c->role == PROTO_ROLE_WORKER &&
             srv_job_owner_active(j->job, c->id))
             n++;
     return n;
@@ -444,9 +1272,9 @@ static double job_error(const srv_job *job)
     return isfinite(e) ? e : -1.0;
 }
 
-static void job_info(const server *s, const srv_entry *j, proto_job_info *m)
+void srv_queue_info(const srv_server *s, const srv_entry *j, proto_job_info *m)
 {
-    uint64_t now = now_ms();
+    uint64_t now = srv_now_ms();
     const srv_job_record *r = &j->rec;
     memset(m, 0, sizeof *m);
     m->job_id = r->id;
@@ -477,7 +1305,7 @@ static void job_info(const server *s, const srv_entry *j, proto_job_info *m)
         m->samples_done = r->samples_done;
         m->error = r->samples_done ? r->error : -1.0;
     }
-    m->seconds = job_seconds(j, now);
+    m->seconds = srv_entry_seconds(j, now);
     m->rate = j->rate;
     m->submitted = r->submitted;
     if (r->state == PROTO_JOB_QUEUED) {
@@ -493,90 +1321,70 @@ static void job_info(const server *s, const srv_entry *j, proto_job_info *m)
     snprintf(m->message, sizeof m->message, "%s", r->message);
 }
 
-static void send_job_info(server *s, conn *c, const srv_entry *j)
-{
-    proto_job_info m;
-    job_info(s, j, &m);
-    size_t mark;
-    if (frame_open(c, PROTO_MSG_JOB_INFO, &mark))
-        frame_close(c, mark, proto_msg_encode_job_info(&c->out, &m, NULL));
-    c->watch_t = now_ms();
-    if (!job_active(j) && c->watch == j->rec.id)
-        c->watch = 0;
-}
-
-/* Sends the job's state to everyone watching it (its end included). */
-static void notify_watchers(server *s, const srv_entry *j)
-{
-    for (conn *c = s->conns; c; c = c->next)
-        if (c->watch == j->rec.id && !c->closing)
-            send_job_info(s, c, j);
-}
-
-static void save_progress(server *s, srv_entry *j)
+void srv_entry_save_image(srv_entry *j)
 {
     pt_image *img = NULL;
     const pt_film *film = srv_job_film(j->job);
     if (pt_image_new(film->width, film->height, &img, NULL) != PT_OK) {
-        logf_(s, "out of memory for a progressive image of job %llu; will try again",
-              (unsigned long long)j->rec.id);
+        srv_log("out of memory for a progressive image of job %llu; will try again",
+                (unsigned long long)j->rec.id);
         return;
     }
     pt_film_resolve(film, img);
     pt_exr_meta meta = {0};
     meta.total_samples = pt_film_total_samples(film);
-    meta.render_seconds = job_seconds(j, now_ms());
+    meta.render_seconds = srv_entry_seconds(j, srv_now_ms());
     pt_hash_hex(j->rec.hash, meta.scene_hash);
     snprintf(meta.job_id, sizeof meta.job_id, "%llu", (unsigned long long)j->rec.id);
     srv_writer_submit(j->writer, img, &meta);
-    j->t_last_save = now_ms();
+    j->t_last_save = srv_now_ms();
     j->saved_passes = srv_job_passes_done(j->job);
     j->saved_samples = meta.total_samples;
 }
 
-static void checkpoint(server *s, srv_entry *j)
+void srv_entry_checkpoint(srv_server *s, srv_entry *j)
 {
     if (!s->state || !j->job)
         return;
-    srv_ckpt_extra x = {job_seconds(j, now_ms()), j->rejected, j->rays};
+    srv_ckpt_extra x = {srv_entry_seconds(j, srv_now_ms()), j->rejected, j->rays};
     pt_error err = {0};
     if (srv_state_checkpoint(s->state, j->job, &x, &err) != PT_OK)
-        logf_(s, "error: job %llu: cannot write its checkpoint: %s (its results log still holds "
-              "every merged task)", (unsigned long long)j->rec.id, err.msg);
+        srv_log("error: job %llu: cannot write its checkpoint: %s (its results log still holds "
+                "every merged task)",
+                (unsigned long long)j->rec.id, err.msg);
 }
 
-/* Ends a job: DONE (the final image is written first), CANCELLED or FAILED. */
 /* Tells every worker that job j ended before it was done, so each drops the
  * tasks of it that it has not started and its threads go to the next job at
  * once (their results would be dropped anyway). */
-static void announce_job_end(server *s, const srv_entry *j)
+static void announce_job_end(srv_server *s, const srv_entry *j)
 {
     proto_job_ref ref = {j->rec.id};
-    for (conn *c = s->conns; c; c = c->next) {
-        if (c->role != PROTO_ROLE_WORKER || c->state != C_READY || c->closing)
+    for (srv_conn *c = s->conns; c; c = c->next) {
+        if (c->role != PROTO_ROLE_WORKER || c->state != SRV_C_READY || c->closing)
             continue;
         size_t mark;
-        if (frame_open(c, PROTO_MSG_JOB_END, &mark))
-            frame_close(c, mark, proto_msg_encode_job_ref(&c->out, &ref, NULL));
-        conn_update_events(s, c);
+        if (srv_conn_frame_open(c, PROTO_MSG_JOB_END, &mark))
+            srv_conn_frame_close(c, mark, proto_msg_encode_job_ref(&c->out, &ref, NULL));
+        srv_conn_update_events(s, c);
     }
 }
 
-static void job_end(server *s, srv_entry *j, uint8_t state, const char *message)
+void srv_queue_end_job(srv_server *s, srv_entry *j, uint8_t state, const char *message)
 {
-    uint64_t now = now_ms();
+    uint64_t now = srv_now_ms();
     pt_error err = {0};
     if (state == PROTO_JOB_DONE && j->job) {
-        save_progress(s, j);
+        srv_entry_save_image(j);
         if (srv_writer_flush(j->writer, &err) != PT_OK) {
             state = PROTO_JOB_FAILED;
             char msg[PROTO_MAX_ERROR_TEXT + 1];
             snprintf(msg, sizeof msg, "cannot write the image: %s", err.msg);
-            job_end(s, j, state, msg);
+            srv_queue_end_job(s, j, state, msg);
             return;
         }
     }
-    j->rec.seconds = job_seconds(j, now);
+    j->rec.seconds = srv_entry_seconds(j, now);
     if (j->job) {
         j->rec.samples_done = srv_job_samples_merged(j->job);
         j->rec.error = job_error(j->job);
@@ -585,27 +1393,24 @@ static void job_end(server *s, srv_entry *j, uint8_t state, const char *message)
         announce_job_end(s, j);
     j->rec.state = state;
     snprintf(j->rec.message, sizeof j->rec.message, "%s", message ? message : "");
-    free_job_run(j);
-    pt_status st = journal(s, &err);
+    free_run(j);
+    pt_status st = srv_queue_journal(s, &err);
     if (st != PT_OK)
-        logf_(s, "error: cannot write the queue: %s", err.msg);
+        srv_log("error: cannot write the queue: %s", err.msg);
     /* A failed job's files stay for the operator to look at; an ended one's
      * go once the queue says it ended. */
     if (s->state && state != PROTO_JOB_FAILED && st == PT_OK)
         srv_state_forget_job(s->state, j->rec.id);
     if (state == PROTO_JOB_DONE)
-        logf_(s, "job %llu done: %llu samples in %.1f s; %s", (unsigned long long)j->rec.id,
-              (unsigned long long)j->rec.samples_done, j->rec.seconds, j->out_path);
+        srv_log("job %llu done: %llu samples in %.1f s; %s", (unsigned long long)j->rec.id,
+                (unsigned long long)j->rec.samples_done, j->rec.seconds, j->out_path);
     else
-        logf_(s, "job %llu %s%s%s", (unsigned long long)j->rec.id, proto_job_state_name(state),
-              j->rec.message[0] ? ": " : "", j->rec.message);
-    notify_watchers(s, j);
+        srv_log("job %llu %s%s%s", (unsigned long long)j->rec.id, proto_job_state_name(state),
+                j->rec.message[0] ? ": " : "", j->rec.message);
+    srv_requests_notify_watchers(s, j);
 }
 
-/* Makes a job ready to lease: its task state (restored from its checkpoint
- * and results log in queue mode) and its image writer. Returns 0 when it
- * cannot be (the job is marked FAILED, with the reason). */
-static int job_ready(server *s, srv_entry *j)
+int srv_entry_ready(srv_server *s, srv_entry *j)
 {
     if (j->job)
         return 1;
@@ -621,13 +1426,13 @@ static int job_ready(server *s, srv_entry *j)
             j->rejected = x.rejected;
             j->rays = x.rays;
             if (torn)
-                logf_(s, "job %llu: dropped the incomplete last record of its results log (a "
-                      "write cut short by a crash; it was never merged)",
-                      (unsigned long long)j->rec.id);
+                srv_log("job %llu: dropped the incomplete last record of its results log (a "
+                        "write cut short by a crash; it was never merged)",
+                        (unsigned long long)j->rec.id);
             if (srv_job_tasks_merged(j->job) > 0)
-                logf_(s, "job %llu resumed: %llu samples merged (%u from its results log)",
-                      (unsigned long long)j->rec.id,
-                      (unsigned long long)srv_job_samples_merged(j->job), replayed);
+                srv_log("job %llu resumed: %llu samples merged (%u from its results log)",
+                        (unsigned long long)j->rec.id,
+                        (unsigned long long)srv_job_samples_merged(j->job), replayed);
         }
     }
     if (st == PT_OK && !j->writer)
@@ -635,13 +1440,13 @@ static int job_ready(server *s, srv_entry *j)
     if (st != PT_OK) {
         char msg[PROTO_MAX_ERROR_TEXT + 1];
         snprintf(msg, sizeof msg, "%s", err.msg);
-        job_end(s, j, PROTO_JOB_FAILED, msg);
+        srv_queue_end_job(s, j, PROTO_JOB_FAILED, msg);
         return 0;
     }
     j->saved_passes = srv_job_passes_done(j->job);
     j->saved_samples = srv_job_samples_merged(j->job);
-    j->t_last_save = now_ms();
-    j->rate_t = now_ms();
+    j->t_last_save = srv_now_ms();
+    j->rate_t = srv_now_ms();
     j->rate_samples = j->saved_samples;
     return 1;
 }
@@ -649,10 +1454,10 @@ static int job_ready(server *s, srv_entry *j)
 /* Leases the first task the queue has for owner: the first job in queue order
  * with a task to hand out, so when the running job has nothing left for an
  * idle worker (its last pass), the next job starts. */
-static int lease_any(server *s, uint64_t owner, uint64_t now, proto_task *t)
+static int lease_any(srv_server *s, uint64_t owner, uint64_t now, proto_task *t)
 {
     for (srv_entry *j = s->jobs; j; j = j->next) {
-        if (!job_active(j) || !job_ready(s, j))
+        if (!srv_entry_active(j) || !srv_entry_ready(s, j))
             continue;
         if (!srv_job_lease(j->job, owner, now, s->cfg->lease_ms, t))
             continue;
@@ -661,336 +1466,147 @@ static int lease_any(server *s, uint64_t owner, uint64_t now, proto_task *t)
         if (j->rec.state == PROTO_JOB_QUEUED) {
             j->rec.state = PROTO_JOB_RUNNING;
             journal_or_log(s);
-            if (s->state)
-                logf_(s, "job %llu started (%s, %ux%u, %u spp)", (unsigned long long)j->rec.id,
-                      j->rec.scene, j->rec.params.width, j->rec.params.height,
-                      j->rec.params.spp);
+            if (s->mode->logs_starts)
+                srv_log("job %llu started (%s, %ux%u, %u spp)", (unsigned long long)j->rec.id,
+                        j->rec.scene, j->rec.params.width, j->rec.params.height, j->rec.params.spp);
         }
         return 1;
     }
     return 0;
 }
 
-/* Appends IMAGE frames of a fetch in progress while c's output has room. */
-static void pump_fetch(server *s, conn *c)
+void srv_queue_hand_out(srv_server *s)
 {
-    (void)s;
-    while (c->fetch && !c->closing && c->out.len - c->out_off < OUT_HIGH) {
-        proto_scene_chunk ch;
-        memcpy(ch.hash, c->fetch_hash, 32);
-        ch.offset = c->fetch_off;
-        ch.total = c->fetch_len;
-        size_t left = c->fetch_len - c->fetch_off;
-        ch.len = (uint32_t)(left < PROTO_MAX_SCENE_CHUNK ? left : PROTO_MAX_SCENE_CHUNK);
-        ch.data = c->fetch + c->fetch_off;
-        size_t mark;
-        if (!frame_open(c, PROTO_MSG_IMAGE, &mark) ||
-            !frame_close(c, mark, proto_msg_encode_scene_chunk(&c->out, &ch, NULL))) {
-            conn_send_error(s, c, PROTO_E_LIMIT, "output buffer full");
-            break;
-        }
-        c->fetch_off += ch.len;
-        if (c->fetch_off == c->fetch_len) {
-            pt_free(c->fetch);
-            c->fetch = NULL;
-        }
-    }
-}
-
-/* Leases tasks to every ready worker that asked for some, and feeds fetches. */
-static void hand_out(server *s)
-{
-    uint64_t now = now_ms();
+    uint64_t now = srv_now_ms();
     int dry = 0; /* the queue had nothing to lease: skip the other workers */
-    for (conn *c = s->conns; c; c = c->next) {
-        if (c->state != C_READY || c->closing)
+    for (srv_conn *c = s->conns; c; c = c->next) {
+        if (c->state != SRV_C_READY || c->closing)
             continue;
         if (c->fetch)
-            pump_fetch(s, c);
-        while (!dry && c->role == PROTO_ROLE_WORKER && c->want > 0 &&
-               c->out.len - c->out_off < OUT_HIGH) {
+            srv_requests_pump_fetch(s, c);
+        while (!dry && c->role == PROTO_ROLE_WORKER && c->want > 0 && srv_conn_has_room(c)) {
             proto_task t;
             if (!lease_any(s, c->id, now, &t)) {
                 dry = 1;
                 break;
             }
             size_t mark;
-            if (!frame_open(c, PROTO_MSG_TASK, &mark) ||
-                !frame_close(c, mark, proto_msg_encode_task(&c->out, &t, NULL))) {
-                conn_send_error(s, c, PROTO_E_LIMIT, "output buffer full");
+            if (!srv_conn_frame_open(c, PROTO_MSG_TASK, &mark) ||
+                !srv_conn_frame_close(c, mark, proto_msg_encode_task(&c->out, &t, NULL))) {
+                srv_conn_send_error(s, c, PROTO_E_LIMIT, "output buffer full");
                 break;
             }
             c->want--;
         }
-        conn_update_events(s, c);
+        srv_conn_update_events(s, c);
     }
 }
 
-/* ---- messages ---------------------------------------------------------------------- */
-
-static void on_hello(server *s, conn *c, const proto_frame *f)
+void srv_queue_release_owner(srv_server *s, const srv_conn *c, int report)
 {
-    proto_hello h;
-    pt_error err = {0};
-    if (proto_msg_decode_hello(f->payload, f->len, &h, &err) != PT_OK) {
-        conn_send_error(s, c, PROTO_E_PROTOCOL, "bad HELLO: %s", err.msg);
+    if (c->state != SRV_C_READY || c->role != PROTO_ROLE_WORKER)
         return;
-    }
-    snprintf(c->name, sizeof c->name, "%s", h.name);
-    if (h.version != PROTO_VERSION) {
-        conn_send_error(s, c, PROTO_E_VERSION, "protocol version %u is not supported (this "
-                        "coordinator speaks %u)", h.version, PROTO_VERSION);
-        return;
-    }
-    if (h.role == PROTO_ROLE_CLIENT && !s->state) {
-        conn_send_error(s, c, PROTO_E_PROTOCOL, "this coordinator renders one scene and keeps "
-                        "no queue (start ptserve with --state-dir for clients)");
-        return;
-    }
-    if (h.role != PROTO_ROLE_WORKER && h.role != PROTO_ROLE_CLIENT) {
-        conn_send_error(s, c, PROTO_E_PROTOCOL, "role %u is not served by this coordinator",
-                        h.role);
-        return;
-    }
-    /* A client's build does not touch the pixels; a worker's does. */
-    if (h.role == PROTO_ROLE_WORKER && strcmp(h.build_id, proto_build_id()) != 0) {
-        conn_send_error(s, c, PROTO_E_BUILD, "worker renderer build %s differs from the "
-                        "coordinator's %s; mixed builds would break bit-identical merging",
-                        h.build_id, proto_build_id());
-        return;
-    }
-    c->role = h.role;
-    c->threads = h.threads;
-    proto_challenge ch;
-    if (proto_auth_nonce(ch.nonce, &err) != PT_OK) {
-        conn_send_error(s, c, PROTO_E_INTERNAL, "cannot make a nonce: %s", err.msg);
-        return;
-    }
-    memcpy(c->nonce, ch.nonce, sizeof c->nonce);
-    size_t mark;
-    if (frame_open(c, PROTO_MSG_CHALLENGE, &mark))
-        frame_close(c, mark, proto_msg_encode_challenge(&c->out, &ch, NULL));
-    c->state = C_AUTH;
+    uint32_t n = 0;
+    for (srv_entry *j = s->jobs; j; j = j->next)
+        if (j->job)
+            n += srv_job_release_owner(j->job, c->id);
+    if (n && report)
+        srv_log("worker %s left; %u leased tasks requeued", c->name, n);
 }
 
-static void on_auth(server *s, conn *c, const proto_frame *f)
+int srv_queue_end_complete(srv_server *s)
 {
-    proto_auth a;
-    pt_error err = {0};
-    if (proto_msg_decode_auth(f->payload, f->len, &a, &err) != PT_OK) {
-        conn_send_error(s, c, PROTO_E_PROTOCOL, "bad AUTH: %s", err.msg);
-        return;
-    }
-    if (proto_auth_verify(s->token, s->token_len, c->nonce, a.mac, &err) != PT_OK) {
-        conn_send_error(s, c, PROTO_E_AUTH, "authentication failed (wrong token)");
-        return;
-    }
-    proto_welcome w;
-    w.session_id = c->id;
-    snprintf(w.build_id, sizeof w.build_id, "%s", proto_build_id());
-    size_t mark;
-    if (frame_open(c, PROTO_MSG_WELCOME, &mark))
-        frame_close(c, mark, proto_msg_encode_welcome(&c->out, &w, NULL));
-    c->state = C_READY;
-    if (c->role == PROTO_ROLE_WORKER) {
-        s->nworkers++;
-        if (!s->cfg->quiet)
-            logf_(s, "worker %s joined from %s (%u threads)", c->name, c->peer, c->threads);
-    }
+    int ended = 0;
+    for (srv_entry *j = s->jobs; j; j = j->next)
+        if (j->job && srv_entry_active(j) && srv_job_complete(j->job)) {
+            srv_queue_end_job(s, j, PROTO_JOB_DONE, NULL);
+            ended++;
+        }
+    return ended;
 }
 
-static void on_scene_get(server *s, conn *c, const proto_frame *f)
+void srv_queue_unlink(srv_server *s, srv_entry *j)
 {
-    proto_scene_get g;
+    for (srv_entry **q = &s->jobs; *q; q = &(*q)->next)
+        if (*q == j) {
+            *q = j->next;
+            s->njobs--;
+            return;
+        }
+}
+
+srv_entry *srv_queue_find_scene(srv_server *s, const uint8_t hash[32])
+{
     pt_error err = {0};
-    if (proto_msg_decode_scene_get(f->payload, f->len, &g, &err) != PT_OK) {
-        conn_send_error(s, c, PROTO_E_PROTOCOL, "bad SCENE_GET: %s", err.msg);
-        return;
-    }
     srv_entry *j = s->jobs;
-    while (j && !(job_active(j) && memcmp(g.hash, j->rec.hash, 32) == 0))
+    while (j && !(srv_entry_active(j) && memcmp(hash, j->rec.hash, 32) == 0))
         j = j->next;
     if (j && !j->bundle && s->state &&
         srv_state_load_bundle(s->state, j->rec.id, j->rec.hash, &j->bundle, &err) != PT_OK) {
         char msg[PROTO_MAX_ERROR_TEXT + 1];
         snprintf(msg, sizeof msg, "%s", err.msg);
-        job_end(s, j, PROTO_JOB_FAILED, msg);
+        srv_queue_end_job(s, j, PROTO_JOB_FAILED, msg);
         j = NULL;
     }
-    if (!j || !j->bundle) {
-        conn_send_error(s, c, PROTO_E_NOT_FOUND, "no scene with that hash");
-        return;
-    }
-    const pt_bundle *b = j->bundle;
-    if (g.offset > b->size) {
-        conn_send_error(s, c, PROTO_E_PROTOCOL, "scene offset %llu is past its end (%zu)",
-                        (unsigned long long)g.offset, b->size);
-        return;
-    }
-    proto_scene_chunk ch;
-    memcpy(ch.hash, j->rec.hash, 32);
-    ch.offset = g.offset;
-    ch.total = b->size;
-    size_t left = b->size - (size_t)g.offset;
-    ch.len = (uint32_t)(left < PROTO_MAX_SCENE_CHUNK ? left : PROTO_MAX_SCENE_CHUNK);
-    ch.data = b->data + g.offset;
-    size_t mark;
-    if (!frame_open(c, PROTO_MSG_SCENE_CHUNK, &mark) ||
-        !frame_close(c, mark, proto_msg_encode_scene_chunk(&c->out, &ch, NULL)))
-        conn_send_error(s, c, PROTO_E_LIMIT, "output buffer full");
+    return j && j->bundle ? j : NULL;
 }
 
-static void on_result(server *s, conn *c, const proto_frame *f)
+pt_status srv_queue_log_result(srv_server *s, const srv_entry *j, const uint8_t *payload,
+                               size_t len, pt_error *err)
 {
-    proto_result r;
-    pt_error err = {0};
-    if (proto_msg_decode_result(f->payload, f->len, s->scratch, PROTO_MAX_TILE_PIXELS, &r, &err) !=
-        PT_OK) {
-        conn_send_error(s, c, PROTO_E_PROTOCOL, "bad RESULT: %s", err.msg);
-        return;
-    }
-    srv_entry *j = find_job(s, r.job_id);
-    if (!j || !job_active(j) || !j->job) {
-        proto_result_fini(&r); /* a job that ended (cancelled): nothing to do */
-        return;
-    }
-    int lease_index;
-    srv_outcome o = srv_job_validate(j->job, c->id, &r, &lease_index, &err);
-    /* Durable before merged: the log holds every result the film holds. */
-    if (o == SRV_MERGED && s->state &&
-        srv_state_log_result(s->state, j->rec.id, f->payload, f->len, &err) != PT_OK) {
-        logf_(s, "error: job %llu: %s; result dropped (its task will be rendered again)",
-              (unsigned long long)j->rec.id, err.msg);
-        proto_result_fini(&r);
-        return;
-    }
-    if (o == SRV_MERGED)
-        o = srv_job_result_validated(j->job, lease_index, &r, &err);
-    switch (o) {
-    case SRV_MERGED:
-        j->rejected += r.rejected;
-        j->rays += r.rays;
-        break;
-    case SRV_DUPLICATE:
-        break;
-    case SRV_NOT_LEASED:
-        logf_(s, "worker %s: %s; dropped", c->name, err.msg);
-        break;
-    case SRV_INVALID:
-        conn_send_error(s, c, PROTO_E_PROTOCOL, "%s", err.msg);
-        break;
-    }
-    proto_result_fini(&r);
+    if (!s->state)
+        return PT_OK;
+    return srv_state_log_result(s->state, j->rec.id, payload, len, err);
 }
 
-static void on_heartbeat(server *s, conn *c, const proto_frame *f)
+void srv_queue_expire(srv_server *s, uint64_t now)
 {
-    static proto_heartbeat hb; /* large; the loop is single-threaded */
-    pt_error err = {0};
-    if (proto_msg_decode_heartbeat(f->payload, f->len, &hb, &err) != PT_OK) {
-        conn_send_error(s, c, PROTO_E_PROTOCOL, "bad HEARTBEAT: %s", err.msg);
-        return;
-    }
-    uint64_t now = now_ms();
-    /* Task ids are per job; extending only leases this owner holds is safe
-     * even when two of its jobs share an id. */
     for (srv_entry *j = s->jobs; j; j = j->next)
-        if (j->job && job_active(j))
-            for (uint32_t i = 0; i < hb.count; i++)
-                srv_job_heartbeat(j->job, c->id, hb.task_ids[i], now, s->cfg->lease_ms);
+        if (j->job && srv_entry_active(j) && srv_job_expire(j->job, now, NULL) > 0)
+            srv_log("job %llu: leases expired; tasks requeued", (unsigned long long)j->rec.id);
 }
 
-/* ---- client requests --------------------------------------------------------------- */
-
-/* A file name from untrusted text: [A-Za-z0-9._-] kept, the rest '_', no
- * leading dot, at most 64 characters; "job" when nothing is left. */
-static void sanitise(const char *in, char *out, size_t cap)
+void srv_queue_tick(srv_server *s, uint64_t now)
 {
-    size_t n = 0;
-    for (const char *p = in; *p && n + 1 < cap && n < 64; p++) {
-        char ch = *p;
-        int ok = (ch >= 'a' && ch <= 'z') || (ch >= 'A' && ch <= 'Z') || (ch >= '0' && ch <= '9') ||
-                 ch == '-' || ch == '_' || (ch == '.' && n > 0);
-        out[n++] = ok ? ch : '_';
-    }
-    out[n] = '\0';
-    if (n == 0)
-        snprintf(out, cap, "job");
-}
-
-static uint32_t owner_unfinished(const server *s, const char *owner)
-{
-    uint32_t n = 0;
-    for (const srv_entry *j = s->jobs; j; j = j->next)
-        n += job_active(j) && strcmp(j->rec.owner, owner) == 0;
-    return n;
-}
-
-static void on_submit(server *s, conn *c, const proto_frame *f)
-{
-    pt_error err = {0};
-    proto_submit m;
-    if (c->uploading) {
-        conn_send_error(s, c, PROTO_E_PROTOCOL, "SUBMIT during an upload");
-        return;
-    }
-    if (proto_msg_decode_submit(f->payload, f->len, &m, &err) != PT_OK) {
-        conn_send_error(s, c, PROTO_E_PROTOCOL, "bad SUBMIT: %s", err.msg);
-        return;
-    }
-    if (strchr(m.name, '/') || strchr(m.name, '\\') || m.name[0] == '.' || strstr(m.name, "..")) {
-        conn_send_error(s, c, PROTO_E_PROTOCOL, "job name '%s' is not a plain name (no '/', "
-                        "'\\', '..' or leading '.')", m.name);
-        return;
-    }
-    for (const char *p = m.name; *p; p++)
-        if ((unsigned char)*p < 0x20 || *p == 0x7f) {
-            conn_send_error(s, c, PROTO_E_PROTOCOL, "job name has control characters");
-            return;
+    for (srv_entry *j = s->jobs; j; j = j->next) {
+        if (!j->job || !srv_entry_active(j))
+            continue;
+        uint64_t merged = srv_job_samples_merged(j->job);
+        int pass_done = srv_job_passes_done(j->job) > j->saved_passes;
+        if ((pass_done || merged > j->saved_samples) &&
+            (double)(now - j->t_last_save) >= s->cfg->save_interval * 1000.0 &&
+            !srv_job_complete(j->job))
+            srv_entry_save_image(j);
+        if (now - j->rate_t >= 1000) {
+            j->rate = (double)(merged - j->rate_samples) * 1000.0 / (double)(now - j->rate_t);
+            j->rate_t = now;
+            j->rate_samples = merged;
         }
-    const srv_caps *cap = &s->cfg->caps;
-    if (m.bundle_size > cap->max_scene) {
-        conn_send_error(s, c, PROTO_E_LIMIT, "scene of %llu bytes is over this server's limit "
-                        "of %llu", (unsigned long long)m.bundle_size,
-                        (unsigned long long)cap->max_scene);
-        return;
+        /* Checkpoint cost stays proportional to what the log has taken in. */
+        if (s->state) {
+            const pt_film *f = srv_job_film(j->job);
+            uint64_t film_bytes = (uint64_t)f->width * f->height * PROTO_RESULT_PIXEL_SIZE;
+            uint64_t limit = film_bytes > CKPT_MIN_LOG ? film_bytes : CKPT_MIN_LOG;
+            if (srv_state_log_bytes(s->state, j->rec.id) >= limit)
+                srv_entry_checkpoint(s, j);
+        }
     }
-    if (m.spp > cap->max_spp) {
-        conn_send_error(s, c, PROTO_E_LIMIT, "%u samples per pixel is over this server's limit "
-                        "of %u", m.spp, cap->max_spp);
-        return;
-    }
-    if (m.width > cap->max_side || m.height > cap->max_side ||
-        (uint64_t)m.width * m.height > cap->max_pixels) {
-        conn_send_error(s, c, PROTO_E_LIMIT, "resolution %ux%u is over this server's limit (%u "
-                        "per side, %llu pixels)", m.width, m.height, cap->max_side,
-                        (unsigned long long)cap->max_pixels);
-        return;
-    }
-    if (m.max_depth > 1024 || (m.min_spp && m.min_spp < 2) || m.min_spp > m.spp) {
-        conn_send_error(s, c, PROTO_E_PROTOCOL, "max depth %u or min spp %u is out of range",
-                        m.max_depth, m.min_spp);
-        return;
-    }
-    if (m.target_error > 0.0 && m.min_gain > 0.0) {
-        conn_send_error(s, c, PROTO_E_PROTOCOL, "target error and min gain are two adaptive "
-                        "rules; a job takes one");
-        return;
-    }
-    if (owner_unfinished(s, c->name) >= cap->max_queued) {
-        conn_send_error(s, c, PROTO_E_LIMIT, "%s already has %u unfinished jobs, this "
-                        "server's limit", c->name, cap->max_queued);
-        return;
-    }
-    if (s->njobs >= SRV_MAX_JOBS) {
-        conn_send_error(s, c, PROTO_E_LIMIT, "the queue is full (%u jobs)", SRV_MAX_JOBS);
-        return;
-    }
-    c->up = m;
-    c->uploading = 1;
-    c->up_len = 0;
-    c->t_progress = now_ms();
 }
+
+void srv_queue_free(srv_server *s)
+{
+    while (s->jobs) {
+        srv_entry *j = s->jobs;
+        s->jobs = j->next;
+        srv_entry_free(j);
+    }
+    s->njobs = 0;
+    s->single = NULL;
+    srv_state_close(s->state);
+    s->state = NULL;
+}
+
+/* ---- upload -------------------------------------------------------------- */
 
 static void verify_refuse(srv_upload *k, uint16_t code, const char *fmt, ...)
     __attribute__((format(printf, 3, 4)));
@@ -1012,8 +1628,10 @@ static void verify_upload(srv_upload *k)
     pt_sha256_hex(k->data, k->len, hex);
     pt_hash_hex(k->m.bundle_hash, want);
     if (strcmp(hex, want) != 0) {
-        verify_refuse(k, PROTO_E_PROTOCOL, "the scene's SHA-256 is %.16s..., not the %.16s... "
-                     "SUBMIT announced", hex, want);
+        verify_refuse(k, PROTO_E_PROTOCOL,
+                      "the scene's SHA-256 is %.16s..., not the %.16s... "
+                      "SUBMIT announced",
+                      hex, want);
         return;
     }
     pt_status st = pt_bundle_from_bytes(k->data, k->len, &k->bundle, &err);
@@ -1040,7 +1658,7 @@ static void verify_upload(srv_upload *k)
         if (strncmp(msg, k->tmp, tl) == 0 && msg[tl] == '/')
             msg += tl + 1;
         verify_refuse(k, st == PT_ERR_NOMEM ? PROTO_E_INTERNAL : PROTO_E_PROTOCOL,
-                     "scene refused: %s", msg);
+                      "scene refused: %s", msg);
         return;
     }
     const char *base = strrchr(entry, '/');
@@ -1073,12 +1691,11 @@ static void upload_free(srv_upload *k)
     pt_free(k);
 }
 
-/* A complete upload: reserves the job id and starts its verification. */
-static void finish_submit(server *s, conn *c)
+void srv_upload_start(srv_server *s, srv_conn *c)
 {
     srv_upload *k = pt_calloc(1, sizeof *k);
     if (!k) {
-        conn_send_error(s, c, PROTO_E_INTERNAL, "out of memory");
+        srv_conn_send_error(s, c, PROTO_E_INTERNAL, "out of memory");
         return;
     }
     k->conn_id = c->id;
@@ -1087,14 +1704,14 @@ static void finish_submit(server *s, conn *c)
     k->data = c->up_buf;
     k->len = c->up_len;
     c->up_buf = NULL;
-    upload_drop(c);
+    srv_requests_drop_upload(c);
     k->state = s->state;
     snprintf(k->tmp, sizeof k->tmp, "%s/tmp/upload-%llu", srv_state_dir(s->state),
              (unsigned long long)k->job_id);
     k->wake_fd = s->verifypipe[1];
     if (pthread_create(&k->thread, NULL, verify_thread, k) != 0) {
         upload_free(k);
-        conn_send_error(s, c, PROTO_E_INTERNAL, "cannot start checking the scene");
+        srv_conn_send_error(s, c, PROTO_E_INTERNAL, "cannot start checking the scene");
         return;
     }
     k->next = s->verifications;
@@ -1102,15 +1719,342 @@ static void finish_submit(server *s, conn *c)
     c->verifying = 1;
 }
 
-/* A verification is done: queues the job, or tells the client why not. */
-static void complete_submit(server *s, conn *c, srv_upload *k)
+void srv_upload_collect(srv_server *s)
+{
+    srv_upload *k;
+    while (read(s->verifypipe[0], &k, sizeof k) == (ssize_t)sizeof k) {
+        pthread_join(k->thread, NULL);
+        for (srv_upload **q = &s->verifications; *q; q = &(*q)->next)
+            if (*q == k) {
+                *q = k->next;
+                break;
+            }
+        srv_conn *c = srv_conn_find(s, k->conn_id);
+        if (c) {
+            srv_requests_verified(s, c, k);
+        } else {
+            if (k->ok)
+                srv_state_forget_job(s->state, k->job_id);
+            srv_log("a client left before its scene was checked; nothing was queued");
+        }
+        upload_free(k);
+    }
+}
+
+void srv_upload_close(srv_server *s)
+{
+    while (s->verifications) {
+        srv_upload *k = s->verifications;
+        s->verifications = k->next;
+        pthread_join(k->thread, NULL);
+        if (k->ok)
+            srv_state_forget_job(s->state, k->job_id);
+        upload_free(k);
+    }
+    for (int i = 0; i < 2; i++)
+        if (s->verifypipe[i] >= 0)
+            close(s->verifypipe[i]);
+    s->verifypipe[0] = s->verifypipe[1] = -1;
+}
+
+pt_status srv_upload_open(srv_server *s, pt_error *err)
+{
+    /* The threads' end blocks (a pointer is never lost); the loop's does not. */
+    if (pipe2(s->verifypipe, O_CLOEXEC) != 0 ||
+        fcntl(s->verifypipe[0], F_SETFL, fcntl(s->verifypipe[0], F_GETFL) | O_NONBLOCK) != 0)
+        return pt_error_errno(err, PT_ERR_IO, "pipe2");
+    return PT_OK;
+}
+
+/* ---- workers ------------------------------------------------------------- */
+
+static void on_scene_get(srv_server *s, srv_conn *c, const proto_frame *f)
+{
+    proto_scene_get g;
+    pt_error err = {0};
+    if (proto_msg_decode_scene_get(f->payload, f->len, &g, &err) != PT_OK) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "bad SCENE_GET: %s", err.msg);
+        return;
+    }
+    srv_entry *j = srv_queue_find_scene(s, g.hash);
+    if (!j) {
+        srv_conn_send_error(s, c, PROTO_E_NOT_FOUND, "no scene with that hash");
+        return;
+    }
+    const pt_bundle *b = j->bundle;
+    if (g.offset > b->size) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "scene offset %llu is past its end (%zu)",
+                            (unsigned long long)g.offset, b->size);
+        return;
+    }
+    proto_scene_chunk ch;
+    memcpy(ch.hash, j->rec.hash, 32);
+    ch.offset = g.offset;
+    ch.total = b->size;
+    size_t left = b->size - (size_t)g.offset;
+    ch.len = (uint32_t)(left < PROTO_MAX_SCENE_CHUNK ? left : PROTO_MAX_SCENE_CHUNK);
+    ch.data = b->data + g.offset;
+    size_t mark;
+    if (!srv_conn_frame_open(c, PROTO_MSG_SCENE_CHUNK, &mark) ||
+        !srv_conn_frame_close(c, mark, proto_msg_encode_scene_chunk(&c->out, &ch, NULL)))
+        srv_conn_send_error(s, c, PROTO_E_LIMIT, "output buffer full");
+}
+
+static void on_result(srv_server *s, srv_conn *c, const proto_frame *f)
+{
+    proto_result r;
+    pt_error err = {0};
+    if (proto_msg_decode_result(f->payload, f->len, s->scratch, PROTO_MAX_TILE_PIXELS, &r, &err) !=
+        PT_OK) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "bad RESULT: %s", err.msg);
+        return;
+    }
+    srv_entry *j = srv_queue_find(s, r.job_id);
+    if (!j || !srv_entry_active(j) || !j->job) {
+        proto_result_fini(&r); /* a job that ended (cancelled): nothing to do */
+        return;
+    }
+    int lease_index;
+    srv_outcome o = srv_job_validate(j->job, c->id, &r, &lease_index, &err);
+    /* Durable before merged: the log holds every result the film holds. */
+    if (o == SRV_MERGED && srv_queue_log_result(s, j, f->payload, f->len, &err) != PT_OK) {
+        srv_log("error: job %llu: %s; result dropped (its task will be rendered again)",
+                (unsigned long long)j->rec.id, err.msg);
+        proto_result_fini(&r);
+        return;
+    }
+    if (o == SRV_MERGED)
+        o = srv_job_result_validated(j->job, lease_index, &r, &err);
+    switch (o) {
+    case SRV_MERGED:
+        j->rejected += r.rejected;
+        j->rays += r.rays;
+        break;
+    case SRV_DUPLICATE:
+        break;
+    case SRV_NOT_LEASED:
+        srv_log("worker %s: %s; dropped", c->name, err.msg);
+        break;
+    case SRV_INVALID:
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "%s", err.msg);
+        break;
+    }
+    proto_result_fini(&r);
+}
+
+static void on_heartbeat(srv_server *s, srv_conn *c, const proto_frame *f)
+{
+    static proto_heartbeat hb; /* large; the loop is single-threaded */
+    pt_error err = {0};
+    if (proto_msg_decode_heartbeat(f->payload, f->len, &hb, &err) != PT_OK) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "bad HEARTBEAT: %s", err.msg);
+        return;
+    }
+    uint64_t now = srv_now_ms();
+    /* Task ids are per job; extending only leases this owner holds is safe
+     * even when two of its jobs share an id. */
+    for (srv_entry *j = s->jobs; j; j = j->next)
+        if (j->job && srv_entry_active(j))
+            for (uint32_t i = 0; i < hb.count; i++)
+                srv_job_heartbeat(j->job, c->id, hb.task_ids[i], now, s->cfg->lease_ms);
+}
+
+void srv_workers_dispatch(srv_server *s, srv_conn *c, const proto_frame *f)
+{
+    switch (f->type) {
+    case PROTO_MSG_WORK_REQUEST: {
+        proto_work_request w;
+        pt_error err = {0};
+        if (proto_msg_decode_work_request(f->payload, f->len, &w, &err) != PT_OK) {
+            srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "bad WORK_REQUEST: %s", err.msg);
+            return;
+        }
+        c->want += w.slots;
+        if (c->want > PROTO_MAX_SLOTS)
+            c->want = PROTO_MAX_SLOTS;
+        break;
+    }
+    case PROTO_MSG_SCENE_GET:
+        on_scene_get(s, c, f);
+        break;
+    case PROTO_MSG_RESULT:
+        on_result(s, c, f);
+        break;
+    case PROTO_MSG_HEARTBEAT:
+        on_heartbeat(s, c, f);
+        break;
+    case PROTO_MSG_ERROR:
+        srv_conn_peer_error(s, c, f, "worker");
+        break;
+    default:
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "unexpected %s from a worker",
+                            proto_msg_type_name(f->type));
+    }
+}
+
+/* ---- requests ------------------------------------------------------------ */
+
+#define WATCH_MS 1000 /* JOB_INFO to watchers this often */
+#define MAX_FETCH ((size_t)4 << 30)
+
+static void send_job_info(srv_server *s, srv_conn *c, const srv_entry *j)
+{
+    proto_job_info m;
+    srv_queue_info(s, j, &m);
+    size_t mark;
+    if (srv_conn_frame_open(c, PROTO_MSG_JOB_INFO, &mark))
+        srv_conn_frame_close(c, mark, proto_msg_encode_job_info(&c->out, &m, NULL));
+    c->watch_t = srv_now_ms();
+    if (!srv_entry_active(j) && c->watch == j->rec.id)
+        c->watch = 0;
+}
+
+void srv_requests_notify_watchers(srv_server *s, const srv_entry *j)
+{
+    for (srv_conn *c = s->conns; c; c = c->next)
+        if (c->watch == j->rec.id && !c->closing)
+            send_job_info(s, c, j);
+}
+
+void srv_requests_pump_fetch(srv_server *s, srv_conn *c)
+{
+    while (c->fetch && !c->closing && srv_conn_has_room(c)) {
+        proto_scene_chunk ch;
+        memcpy(ch.hash, c->fetch_hash, 32);
+        ch.offset = c->fetch_off;
+        ch.total = c->fetch_len;
+        size_t left = c->fetch_len - c->fetch_off;
+        ch.len = (uint32_t)(left < PROTO_MAX_SCENE_CHUNK ? left : PROTO_MAX_SCENE_CHUNK);
+        ch.data = c->fetch + c->fetch_off;
+        size_t mark;
+        if (!srv_conn_frame_open(c, PROTO_MSG_IMAGE, &mark) ||
+            !srv_conn_frame_close(c, mark, proto_msg_encode_scene_chunk(&c->out, &ch, NULL))) {
+            srv_conn_send_error(s, c, PROTO_E_LIMIT, "output buffer full");
+            break;
+        }
+        c->fetch_off += ch.len;
+        if (c->fetch_off == c->fetch_len) {
+            pt_free(c->fetch);
+            c->fetch = NULL;
+        }
+    }
+}
+
+/* A file name from untrusted text: [A-Za-z0-9._-] kept, the rest '_', no
+ * leading dot, at most 64 characters; "job" when nothing is left. */
+static void sanitise(const char *in, char *out, size_t cap)
+{
+    size_t n = 0;
+    for (const char *p = in; *p && n + 1 < cap && n < 64; p++) {
+        char ch = *p;
+        int ok = (ch >= 'a' && ch <= 'z') || (ch >= 'A' && ch <= 'Z') || (ch >= '0' && ch <= '9') ||
+                 ch == '-' || ch == '_' || (ch == '.' && n > 0);
+        out[n++] = ok ? ch : '_';
+    }
+    out[n] = '\0';
+    if (n == 0)
+        snprintf(out, cap, "job");
+}
+
+static uint32_t owner_unfinished(const srv_server *s, const char *owner)
+{
+    uint32_t n = 0;
+    for (const srv_entry *j = s->jobs; j; j = j->next)
+        n += srv_entry_active(j) && strcmp(j->rec.owner, owner) == 0;
+    return n;
+}
+
+static void on_submit(srv_server *s, srv_conn *c, const proto_frame *f)
+{
+    pt_error err = {0};
+    proto_submit m;
+    if (c->uploading) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "SUBMIT during an upload");
+        return;
+    }
+    if (proto_msg_decode_submit(f->payload, f->len, &m, &err) != PT_OK) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "bad SUBMIT: %s", err.msg);
+        return;
+    }
+    if (strchr(m.name, '/') || strchr(m.name, '\\') || m.name[0] == '.' || strstr(m.name, "..")) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL,
+                            "job name '%s' is not a plain name (no '/', "
+                            "'\\', '..' or leading '.')",
+                            m.name);
+        return;
+    }
+    for (const char *p = m.name; *p; p++)
+        if ((unsigned char)*p < 0x20 || *p == 0x7f) {
+            srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "job name has control characters");
+            return;
+        }
+    const srv_caps *cap = &s->cfg->caps;
+    if (m.bundle_size > cap->max_scene) {
+        srv_conn_send_error(s, c, PROTO_E_LIMIT,
+                            "scene of %llu bytes is over this server's limit "
+                            "of %llu",
+                            (unsigned long long)m.bundle_size, (unsigned long long)cap->max_scene);
+        return;
+    }
+    if (m.spp > cap->max_spp) {
+        srv_conn_send_error(s, c, PROTO_E_LIMIT,
+                            "%u samples per pixel is over this server's limit "
+                            "of %u",
+                            m.spp, cap->max_spp);
+        return;
+    }
+    if (m.width > cap->max_side || m.height > cap->max_side ||
+        (uint64_t)m.width * m.height > cap->max_pixels) {
+        srv_conn_send_error(s, c, PROTO_E_LIMIT,
+                            "resolution %ux%u is over this server's limit (%u "
+                            "per side, %llu pixels)",
+                            m.width, m.height, cap->max_side, (unsigned long long)cap->max_pixels);
+        return;
+    }
+    if (m.max_depth > 1024 || (m.min_spp && m.min_spp < 2) || m.min_spp > m.spp) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "max depth %u or min spp %u is out of range",
+                            m.max_depth, m.min_spp);
+        return;
+    }
+    if (m.target_error > 0.0 && m.min_gain > 0.0) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL,
+                            "target error and min gain are two adaptive "
+                            "rules; a job takes one");
+        return;
+    }
+    if (owner_unfinished(s, c->name) >= cap->max_queued) {
+        srv_conn_send_error(s, c, PROTO_E_LIMIT,
+                            "%s already has %u unfinished jobs, this "
+                            "server's limit",
+                            c->name, cap->max_queued);
+        return;
+    }
+    if (s->njobs >= SRV_MAX_JOBS) {
+        srv_conn_send_error(s, c, PROTO_E_LIMIT, "the queue is full (%u jobs)", SRV_MAX_JOBS);
+        return;
+    }
+    c->up = m;
+    c->uploading = 1;
+    c->up_len = 0;
+    c->t_progress = srv_now_ms();
+}
+
+void srv_requests_drop_upload(srv_conn *c)
+{
+    pt_free(c->up_buf);
+    c->up_buf = NULL;
+    c->up_len = c->up_cap = 0;
+    c->uploading = 0;
+}
+
+void srv_requests_verified(srv_server *s, srv_conn *c, srv_upload *k)
 {
     pt_error err = {0};
     pt_status st;
     const proto_submit *m = &k->m;
     c->verifying = 0;
     if (!k->ok) {
-        conn_send_error(s, c, k->code, "%s", k->msg);
+        srv_conn_send_error(s, c, k->code, "%s", k->msg);
         return;
     }
     pt_bundle *b = k->bundle;
@@ -1119,7 +2063,7 @@ static void complete_submit(server *s, conn *c, srv_upload *k)
     if (!j) {
         pt_bundle_free(b);
         srv_state_forget_job(s->state, k->job_id);
-        conn_send_error(s, c, PROTO_E_INTERNAL, "out of memory");
+        srv_conn_send_error(s, c, PROTO_E_INTERNAL, "out of memory");
         return;
     }
     srv_job_record *r = &j->rec;
@@ -1168,53 +2112,49 @@ static void complete_submit(server *s, conn *c, srv_upload *k)
         pt_free(j);
         pt_bundle_free(b);
         srv_state_forget_job(s->state, k->job_id);
-        conn_send_error(s, c, PROTO_E_LIMIT, "%s", err.msg);
+        srv_conn_send_error(s, c, PROTO_E_LIMIT, "%s", err.msg);
         return;
     }
     srv_job_free(probe);
     j->bundle = b;
-    insert_job(s, j);
-    prune_history(s);
-    if (journal(s, &err) != PT_OK) {
+    srv_queue_insert(s, j);
+    srv_queue_prune(s);
+    if (srv_queue_journal(s, &err) != PT_OK) {
         /* Not durable, so not accepted. */
-        for (srv_entry **q = &s->jobs; *q; q = &(*q)->next)
-            if (*q == j) {
-                *q = j->next;
-                break;
-            }
-        s->njobs--;
+        srv_queue_unlink(s, j);
         srv_state_forget_job(s->state, r->id);
-        free_entry(j);
-        conn_send_error(s, c, PROTO_E_INTERNAL, "cannot write the queue: %s", err.msg);
+        srv_entry_free(j);
+        srv_conn_send_error(s, c, PROTO_E_INTERNAL, "cannot write the queue: %s", err.msg);
         return;
     }
-    logf_(s, "job %llu queued from %s: %s (%u triangles), %ux%u, %u spp, priority %d",
-          (unsigned long long)r->id, c->name, r->scene, ntris, p.width, p.height, p.spp,
-          r->priority);
+    srv_log("job %llu queued from %s: %s (%u triangles), %ux%u, %u spp, priority %d",
+            (unsigned long long)r->id, c->name, r->scene, ntris, p.width, p.height, p.spp,
+            r->priority);
     proto_job_ref ref = {r->id};
     size_t mark;
-    if (frame_open(c, PROTO_MSG_SUBMITTED, &mark))
-        frame_close(c, mark, proto_msg_encode_job_ref(&c->out, &ref, NULL));
+    if (srv_conn_frame_open(c, PROTO_MSG_SUBMITTED, &mark))
+        srv_conn_frame_close(c, mark, proto_msg_encode_job_ref(&c->out, &ref, NULL));
 }
 
-static void on_upload(server *s, conn *c, const proto_frame *f)
+static void on_upload(srv_server *s, srv_conn *c, const proto_frame *f)
 {
     proto_scene_chunk ch;
     pt_error err = {0};
     if (!c->uploading) {
-        conn_send_error(s, c, PROTO_E_PROTOCOL, "UPLOAD without a SUBMIT");
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "UPLOAD without a SUBMIT");
         return;
     }
     if (proto_msg_decode_scene_chunk(f->payload, f->len, &ch, &err) != PT_OK) {
-        conn_send_error(s, c, PROTO_E_PROTOCOL, "bad UPLOAD: %s", err.msg);
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "bad UPLOAD: %s", err.msg);
         return;
     }
     if (memcmp(ch.hash, c->up.bundle_hash, 32) != 0 || ch.total != c->up.bundle_size ||
         ch.offset != c->up_len || ch.len == 0) {
-        conn_send_error(s, c, PROTO_E_PROTOCOL, "UPLOAD of %u bytes at %llu of %llu does not "
-                        "continue the announced scene (%zu of %llu bytes so far)", ch.len,
-                        (unsigned long long)ch.offset, (unsigned long long)ch.total, c->up_len,
-                        (unsigned long long)c->up.bundle_size);
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL,
+                            "UPLOAD of %u bytes at %llu of %llu does not "
+                            "continue the announced scene (%zu of %llu bytes so far)",
+                            ch.len, (unsigned long long)ch.offset, (unsigned long long)ch.total,
+                            c->up_len, (unsigned long long)c->up.bundle_size);
         return;
     }
     /* Grow with what arrives, not with what was announced. */
@@ -1226,7 +2166,7 @@ static void on_upload(server *s, conn *c, const proto_frame *f)
             cap = (size_t)c->up.bundle_size;
         uint8_t *n = pt_realloc(c->up_buf, cap);
         if (!n) {
-            conn_send_error(s, c, PROTO_E_INTERNAL, "out of memory for the scene");
+            srv_conn_send_error(s, c, PROTO_E_INTERNAL, "out of memory for the scene");
             return;
         }
         c->up_buf = n;
@@ -1235,108 +2175,69 @@ static void on_upload(server *s, conn *c, const proto_frame *f)
     memcpy(c->up_buf + c->up_len, ch.data, ch.len);
     c->up_len += ch.len;
     if (c->up_len == c->up.bundle_size)
-        finish_submit(s, c);
+        srv_upload_start(s, c);
 }
 
-/* Completes each verification that is done: its client gets the answer or, gone
- * meanwhile, nothing is queued and the stored bundle goes. */
-static void verifications_done(server *s)
-{
-    srv_upload *k;
-    while (read(s->verifypipe[0], &k, sizeof k) == (ssize_t)sizeof k) {
-        pthread_join(k->thread, NULL);
-        for (srv_upload **q = &s->verifications; *q; q = &(*q)->next)
-            if (*q == k) {
-                *q = k->next;
-                break;
-            }
-        conn *c = s->conns;
-        while (c && (c->id != k->conn_id || c->closing))
-            c = c->next;
-        if (c) {
-            complete_submit(s, c, k);
-        } else {
-            if (k->ok)
-                srv_state_forget_job(s->state, k->job_id);
-            logf_(s, "a client left before its scene was checked; nothing was queued");
-        }
-        upload_free(k);
-    }
-}
-
-/* At exit: waits for the verifications in flight; none of them was queued. */
-static void verifications_abandon(server *s)
-{
-    while (s->verifications) {
-        srv_upload *k = s->verifications;
-        s->verifications = k->next;
-        pthread_join(k->thread, NULL);
-        if (k->ok)
-            srv_state_forget_job(s->state, k->job_id);
-        upload_free(k);
-    }
-}
-
-static int read_job_ref(server *s, conn *c, const proto_frame *f, srv_entry **out)
+static int read_job_ref(srv_server *s, srv_conn *c, const proto_frame *f, srv_entry **out)
 {
     proto_job_ref ref;
     pt_error err = {0};
     if (proto_msg_decode_job_ref(f->payload, f->len, &ref, &err) != PT_OK) {
-        conn_send_error(s, c, PROTO_E_PROTOCOL, "bad %s: %s", proto_msg_type_name(f->type),
-                        err.msg);
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "bad %s: %s", proto_msg_type_name(f->type),
+                            err.msg);
         return 0;
     }
-    *out = find_job(s, ref.job_id);
+    *out = srv_queue_find(s, ref.job_id);
     if (!*out) {
-        conn_send_error(s, c, PROTO_E_NOT_FOUND, "no job %llu", (unsigned long long)ref.job_id);
+        srv_conn_send_error(s, c, PROTO_E_NOT_FOUND, "no job %llu", (unsigned long long)ref.job_id);
         return 0;
     }
     return 1;
 }
 
-static void on_list(server *s, conn *c, const proto_frame *f)
+static void on_list(srv_server *s, srv_conn *c, const proto_frame *f)
 {
     if (f->len != 0) {
-        conn_send_error(s, c, PROTO_E_PROTOCOL, "bad LIST: trailing bytes");
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "bad LIST: trailing bytes");
         return;
     }
     uint32_t n = s->njobs < PROTO_MAX_JOBS ? s->njobs : PROTO_MAX_JOBS;
     proto_job_info *infos = pt_malloc_array(n ? n : 1, sizeof *infos);
     if (!infos) {
-        conn_send_error(s, c, PROTO_E_INTERNAL, "out of memory");
+        srv_conn_send_error(s, c, PROTO_E_INTERNAL, "out of memory");
         return;
     }
     uint32_t k = 0;
     for (srv_entry *j = s->jobs; j && k < n; j = j->next)
-        job_info(s, j, &infos[k++]);
+        srv_queue_info(s, j, &infos[k++]);
     size_t mark;
-    if (!frame_open(c, PROTO_MSG_JOB_LIST, &mark) ||
-        !frame_close(c, mark, proto_msg_encode_job_list(&c->out, infos, k, NULL)))
-        conn_send_error(s, c, PROTO_E_LIMIT, "output buffer full");
+    if (!srv_conn_frame_open(c, PROTO_MSG_JOB_LIST, &mark) ||
+        !srv_conn_frame_close(c, mark, proto_msg_encode_job_list(&c->out, infos, k, NULL)))
+        srv_conn_send_error(s, c, PROTO_E_LIMIT, "output buffer full");
     pt_free(infos);
 }
 
-static void on_fetch(server *s, conn *c, srv_entry *j)
+static void on_fetch(srv_server *s, srv_conn *c, srv_entry *j)
 {
     pt_error err = {0};
     if (c->fetch) {
-        conn_send_error(s, c, PROTO_E_PROTOCOL, "FETCH while a fetch is in progress");
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "FETCH while a fetch is in progress");
         return;
     }
     uint8_t *data;
     size_t len;
     if (pt_read_file(j->out_path, MAX_FETCH, &data, &len, &err) != PT_OK) {
         if (err.sys_errno == ENOENT)
-            conn_send_error(s, c, PROTO_E_NOT_FOUND, "job %llu has no image yet (%s)",
-                            (unsigned long long)j->rec.id, proto_job_state_name(j->rec.state));
+            srv_conn_send_error(s, c, PROTO_E_NOT_FOUND, "job %llu has no image yet (%s)",
+                                (unsigned long long)j->rec.id, proto_job_state_name(j->rec.state));
         else
-            conn_send_error(s, c, PROTO_E_INTERNAL, "%s", err.msg);
+            srv_conn_send_error(s, c, PROTO_E_INTERNAL, "%s", err.msg);
         return;
     }
     if (len == 0) {
         pt_free(data);
-        conn_send_error(s, c, PROTO_E_INTERNAL, "job %llu: its image file is empty",
-                        (unsigned long long)j->rec.id);
+        srv_conn_send_error(s, c, PROTO_E_INTERNAL, "job %llu: its image file is empty",
+                            (unsigned long long)j->rec.id);
         return;
     }
     char hex[65];
@@ -1345,30 +2246,27 @@ static void on_fetch(server *s, conn *c, srv_entry *j)
     c->fetch = data;
     c->fetch_len = len;
     c->fetch_off = 0;
-    pump_fetch(s, c);
+    srv_requests_pump_fetch(s, c);
 }
 
-/* An ERROR from the peer (who: "client" or "worker"): logged, then closed. */
-static void on_peer_error(server *s, conn *c, const proto_frame *f, const char *who)
-{
-    proto_error_msg m;
-    if (proto_msg_decode_error(f->payload, f->len, &m, NULL) == PT_OK)
-        logf_(s, "%s %s reports: %s", who, c->name, m.text);
-    conn_close_soon(s, c);
-}
-
-static void dispatch_client(server *s, conn *c, const proto_frame *f)
+void srv_requests_dispatch(srv_server *s, srv_conn *c, const proto_frame *f)
 {
     srv_entry *j;
     if (c->verifying) {
-        conn_send_error(s, c, PROTO_E_PROTOCOL, "%s before the answer to its SUBMIT",
-                        proto_msg_type_name(f->type));
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "%s before the answer to its SUBMIT",
+                            proto_msg_type_name(f->type));
         return;
     }
     switch (f->type) {
-    case PROTO_MSG_SUBMIT: on_submit(s, c, f); break;
-    case PROTO_MSG_UPLOAD: on_upload(s, c, f); break;
-    case PROTO_MSG_LIST: on_list(s, c, f); break;
+    case PROTO_MSG_SUBMIT:
+        on_submit(s, c, f);
+        break;
+    case PROTO_MSG_UPLOAD:
+        on_upload(s, c, f);
+        break;
+    case PROTO_MSG_LIST:
+        on_list(s, c, f);
+        break;
     case PROTO_MSG_STATUS:
         if (read_job_ref(s, c, f, &j))
             send_job_info(s, c, j);
@@ -1381,10 +2279,10 @@ static void dispatch_client(server *s, conn *c, const proto_frame *f)
         break;
     case PROTO_MSG_CANCEL:
         if (read_job_ref(s, c, f, &j)) {
-            if (job_active(j)) {
+            if (srv_entry_active(j)) {
                 char msg[PROTO_MAX_ERROR_TEXT + 1];
                 snprintf(msg, sizeof msg, "cancelled by %s", c->name);
-                job_end(s, j, PROTO_JOB_CANCELLED, msg);
+                srv_queue_end_job(s, j, PROTO_JOB_CANCELLED, msg);
             }
             send_job_info(s, c, j);
         }
@@ -1394,157 +2292,40 @@ static void dispatch_client(server *s, conn *c, const proto_frame *f)
             on_fetch(s, c, j);
         break;
     case PROTO_MSG_ERROR:
-        on_peer_error(s, c, f, "client");
+        srv_conn_peer_error(s, c, f, "client");
         break;
     default:
-        conn_send_error(s, c, PROTO_E_PROTOCOL, "unexpected %s from a client",
-                        proto_msg_type_name(f->type));
-    }
-}
-
-static void dispatch(server *s, conn *c, const proto_frame *f)
-{
-    if (c->state == C_HELLO) {
-        if (f->type == PROTO_MSG_HELLO)
-            on_hello(s, c, f);
-        else
-            conn_send_error(s, c, PROTO_E_PROTOCOL, "expected HELLO, got %s",
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "unexpected %s from a client",
                             proto_msg_type_name(f->type));
-        return;
     }
-    if (c->state == C_AUTH) {
-        if (f->type == PROTO_MSG_AUTH)
-            on_auth(s, c, f);
+}
+
+void srv_requests_tick(srv_server *s, uint64_t now)
+{
+    for (srv_conn *c = s->conns; c; c = c->next) {
+        if (c->closing || !c->watch || now - c->watch_t < WATCH_MS)
+            continue;
+        srv_entry *j = srv_queue_find(s, c->watch);
+        if (j)
+            send_job_info(s, c, j);
         else
-            conn_send_error(s, c, PROTO_E_PROTOCOL, "expected AUTH, got %s",
-                            proto_msg_type_name(f->type));
-        return;
-    }
-    if (c->role == PROTO_ROLE_CLIENT) {
-        dispatch_client(s, c, f);
-        return;
-    }
-    switch (f->type) {
-    case PROTO_MSG_WORK_REQUEST: {
-        proto_work_request w;
-        pt_error err = {0};
-        if (proto_msg_decode_work_request(f->payload, f->len, &w, &err) != PT_OK) {
-            conn_send_error(s, c, PROTO_E_PROTOCOL, "bad WORK_REQUEST: %s", err.msg);
-            return;
-        }
-        c->want += w.slots;
-        if (c->want > PROTO_MAX_SLOTS)
-            c->want = PROTO_MAX_SLOTS;
-        break;
-    }
-    case PROTO_MSG_SCENE_GET: on_scene_get(s, c, f); break;
-    case PROTO_MSG_RESULT: on_result(s, c, f); break;
-    case PROTO_MSG_HEARTBEAT: on_heartbeat(s, c, f); break;
-    case PROTO_MSG_ERROR:
-        on_peer_error(s, c, f, "worker");
-        break;
-    default:
-        conn_send_error(s, c, PROTO_E_PROTOCOL, "unexpected %s from a worker",
-                        proto_msg_type_name(f->type));
+            c->watch = 0;
     }
 }
 
-/* Decodes and dispatches the whole frames buffered in c->in, while the peer's
- * output is under the high-water mark (backpressure). */
-static void conn_process(server *s, conn *c)
+void srv_requests_conn_gone(srv_conn *c)
 {
-    size_t off = 0;
-    while (!c->closing && c->out.len - c->out_off < OUT_HIGH) {
-        proto_frame f;
-        size_t used;
-        pt_error err = {0};
-        uint32_t cap = c->state == C_READY ? PROTO_MAX_PAYLOAD : PROTO_MAX_PAYLOAD_PREAUTH;
-        pt_status st = proto_frame_decode(c->in + off, c->in_len - off, cap, &f, &used, &err);
-        if (st == PT_AGAIN)
-            break;
-        if (st != PT_OK) {
-            conn_send_error(s, c, PROTO_E_PROTOCOL, "%s", err.msg);
-            break;
-        }
-        dispatch(s, c, &f);
-        off += used;
-    }
-    if (off > 0) {
-        memmove(c->in, c->in + off, c->in_len - off);
-        c->in_len -= off;
-    }
+    if (c->uploading)
+        srv_log("client %s left during an upload (%zu of %llu bytes); nothing was queued", c->name,
+                c->up_len, (unsigned long long)c->up.bundle_size);
+    srv_requests_drop_upload(c);
+    pt_free(c->fetch);
+    c->fetch = NULL;
 }
 
-static void conn_read(server *s, conn *c)
-{
-    while (!c->closing && c->out.len - c->out_off < OUT_HIGH) {
-        uint32_t cap = c->state == C_READY ? PROTO_MAX_PAYLOAD : PROTO_MAX_PAYLOAD_PREAUTH;
-        /* Grow the input buffer to the declared frame (the decoder has already
-         * refused a length over the cap once the header was present). */
-        if (c->in_len >= PROTO_FRAME_HEADER) {
-            size_t need = PROTO_FRAME_OVERHEAD + (size_t)proto_get_u32(c->in + 8);
-            if (need > c->in_cap && need <= PROTO_FRAME_OVERHEAD + (size_t)cap) {
-                uint8_t *n = pt_realloc(c->in, need);
-                if (!n) {
-                    conn_send_error(s, c, PROTO_E_LIMIT, "out of memory for a frame");
-                    return;
-                }
-                c->in = n;
-                c->in_cap = need;
-            }
-        }
-        if (c->in_len == c->in_cap) {
-            conn_send_error(s, c, PROTO_E_LIMIT, "frame larger than the input buffer");
-            return;
-        }
-        ssize_t r = recv(c->fd, c->in + c->in_len, c->in_cap - c->in_len, 0);
-        if (r == 0 || (r < 0 && errno != EINTR && errno != EAGAIN && errno != EWOULDBLOCK)) {
-            conn_close_soon(s, c);
-            c->close_at = 0;
-            return;
-        }
-        if (r < 0) {
-            if (errno == EINTR)
-                continue;
-            return;
-        }
-        c->in_len += (size_t)r;
-        s->bytes_in += (uint64_t)r;
-        c->t_progress = now_ms();
-        conn_process(s, c);
-    }
-}
+/* ---- mode ---------------------------------------------------------------- */
 
-static void conn_flush(server *s, conn *c)
-{
-    while (c->out.len > c->out_off) {
-        ssize_t w = send(c->fd, c->out.buf + c->out_off, c->out.len - c->out_off,
-                         MSG_NOSIGNAL | MSG_DONTWAIT);
-        if (w < 0) {
-            if (errno == EINTR)
-                continue;
-            if (errno != EAGAIN && errno != EWOULDBLOCK) {
-                conn_close_soon(s, c);
-                c->close_at = 0;
-            }
-            break;
-        }
-        c->out_off += (size_t)w;
-        s->bytes_out += (uint64_t)w;
-    }
-    if (c->out_off == c->out.len) {
-        proto_writer_reset(&c->out);
-        c->out_off = 0;
-    } else if (c->out_off > (1u << 20) && c->out_off > c->out.len / 2) {
-        memmove(c->out.buf, c->out.buf + c->out_off, c->out.len - c->out_off);
-        c->out.len -= c->out_off;
-        c->out_off = 0;
-    }
-    if (c->closing && c->out.len == c->out_off)
-        c->close_at = 0;
-}
-
-/* ---- timers ------------------------------------------------------------------------ */
+/* ---- one job ----------------------------------------------------------------------- */
 
 static void format_eta(double sec, char *buf, size_t n)
 {
@@ -1558,7 +2339,7 @@ static void format_eta(double sec, char *buf, size_t n)
         snprintf(buf, n, "%.0fs", sec);
 }
 
-static void print_progress(server *s, uint64_t now)
+static void print_progress(srv_server *s, uint64_t now)
 {
     const srv_entry *j = s->single;
     const srv_job_params *p = &j->rec.params;
@@ -1573,182 +2354,7 @@ static void print_progress(server *s, uint64_t now)
             (double)done / ((double)p->width * p->height), p->spp, rate, s->nworkers, eta);
 }
 
-static void timers(server *s)
-{
-    uint64_t now = now_ms();
-    for (srv_entry *j = s->jobs; j; j = j->next)
-        if (j->job && job_active(j) && srv_job_expire(j->job, now, NULL) > 0)
-            logf_(s, "job %llu: leases expired; tasks requeued", (unsigned long long)j->rec.id);
-    for (conn *c = s->conns; c; c = c->next) {
-        if (c->closing)
-            continue;
-        if (c->state != C_READY && now - c->t_connect > s->cfg->handshake_ms)
-            conn_send_error(s, c, PROTO_E_PROTOCOL, "handshake not finished in %.1f s",
-                            s->cfg->handshake_ms / 1000.0);
-        else if ((c->in_len > 0 || c->uploading) && now - c->t_progress > STALL_MS)
-            conn_send_error(s, c, PROTO_E_PROTOCOL, "%s stalled for %d s",
-                            c->uploading ? "upload" : "partial frame", STALL_MS / 1000);
-    }
-    for (srv_entry *j = s->jobs; j; j = j->next) {
-        if (!j->job || !job_active(j))
-            continue;
-        uint64_t merged = srv_job_samples_merged(j->job);
-        int pass_done = srv_job_passes_done(j->job) > j->saved_passes;
-        if ((pass_done || merged > j->saved_samples) &&
-            (double)(now - j->t_last_save) >= s->cfg->save_interval * 1000.0 &&
-            !srv_job_complete(j->job))
-            save_progress(s, j);
-        if (now - j->rate_t >= 1000) {
-            j->rate = (double)(merged - j->rate_samples) * 1000.0 / (double)(now - j->rate_t);
-            j->rate_t = now;
-            j->rate_samples = merged;
-        }
-        /* Checkpoint cost stays proportional to what the log has taken in. */
-        if (s->state) {
-            const pt_film *f = srv_job_film(j->job);
-            uint64_t film_bytes = (uint64_t)f->width * f->height * PROTO_RESULT_PIXEL_SIZE;
-            uint64_t limit = film_bytes > CKPT_MIN_LOG ? film_bytes : CKPT_MIN_LOG;
-            if (srv_state_log_bytes(s->state, j->rec.id) >= limit)
-                checkpoint(s, j);
-        }
-    }
-    for (conn *c = s->conns; c; c = c->next) {
-        if (c->closing || !c->watch || now - c->watch_t < WATCH_MS)
-            continue;
-        srv_entry *j = find_job(s, c->watch);
-        if (j)
-            send_job_info(s, c, j);
-        else
-            c->watch = 0;
-    }
-    if (s->single && s->single->job && !s->cfg->quiet && now - s->t_last_print >= 1000) {
-        s->t_last_print = now;
-        print_progress(s, now);
-    }
-}
-
-/* Ends the queue's jobs whose every task is merged; returns how many. */
-static int finish_complete(server *s)
-{
-    int ended = 0;
-    for (srv_entry *j = s->jobs; j; j = j->next)
-        if (j != s->single && j->job && job_active(j) && srv_job_complete(j->job)) {
-            job_end(s, j, PROTO_JOB_DONE, NULL);
-            ended++;
-        }
-    return ended;
-}
-
-/* ---- local workers ----------------------------------------------------------------- */
-
-static pt_status spawn_workers(server *s, pt_error *err)
-{
-    const srv_config *cfg = s->cfg;
-    char bin[PATH_MAX];
-    if (cfg->worker_bin) {
-        snprintf(bin, sizeof bin, "%s", cfg->worker_bin);
-    } else {
-        ssize_t n = readlink("/proc/self/exe", bin, sizeof bin - 16);
-        if (n <= 0)
-            return pt_error_errno(err, PT_ERR_IO, "cannot find this program's folder");
-        bin[n] = '\0';
-        char *slash = strrchr(bin, '/');
-        snprintf(slash + 1, sizeof bin - (size_t)(slash + 1 - bin), "ptworker");
-    }
-    if (access(bin, X_OK) != 0)
-        return pt_error_errno(err, PT_ERR_IO, "%s", bin);
-    const char *tmp = getenv("TMPDIR");
-    snprintf(s->cache_dir, sizeof s->cache_dir, "%s/ptserve-cache-XXXXXX", tmp && *tmp ? tmp : "/tmp");
-    if (!mkdtemp(s->cache_dir))
-        return pt_error_errno(err, PT_ERR_IO, "%s", s->cache_dir);
-    uint32_t threads = cfg->worker_threads;
-    if (threads == 0) {
-        long cores = sysconf(_SC_NPROCESSORS_ONLN);
-        threads = cores > 0 ? (uint32_t)cores / cfg->local_workers : 1;
-        if (threads == 0)
-            threads = 1;
-    }
-    s->children = pt_calloc(cfg->local_workers, sizeof *s->children);
-    if (!s->children)
-        return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
-    char server_arg[64], threads_arg[16], name_arg[32];
-    snprintf(server_arg, sizeof server_arg, "127.0.0.1:%u", s->port);
-    snprintf(threads_arg, sizeof threads_arg, "%u", threads);
-    for (uint32_t i = 0; i < cfg->local_workers; i++) {
-        snprintf(name_arg, sizeof name_arg, "local-%u", i + 1);
-        const char *argv[16];
-        int a = 0;
-        argv[a++] = bin;
-        argv[a++] = "--server";
-        argv[a++] = server_arg;
-        argv[a++] = "--threads";
-        argv[a++] = threads_arg;
-        argv[a++] = "--cache-dir";
-        argv[a++] = s->cache_dir;
-        argv[a++] = "--name";
-        argv[a++] = name_arg;
-        if (cfg->token_path) {
-            argv[a++] = "--token-file";
-            argv[a++] = cfg->token_path;
-        }
-        argv[a] = NULL;
-        posix_spawn_file_actions_t fa;
-        posix_spawn_file_actions_init(&fa);
-        posix_spawn_file_actions_addopen(&fa, 1, "/dev/null", O_WRONLY, 0);
-        pid_t pid;
-        int rc = posix_spawn(&pid, bin, &fa, NULL, (char *const *)argv, environ);
-        posix_spawn_file_actions_destroy(&fa);
-        if (rc != 0) {
-            errno = rc;
-            return pt_error_errno(err, PT_ERR_IO, "cannot start %s", bin);
-        }
-        s->children[s->nchildren++] = pid;
-        s->children_alive++;
-    }
-    if (!cfg->quiet)
-        logf_(s, "started %u local workers with %u threads each", cfg->local_workers, threads);
-    return PT_OK;
-}
-
-static void reap_children(server *s, int wait_all)
-{
-    for (uint32_t i = 0; i < s->nchildren; i++) {
-        if (s->children[i] <= 0)
-            continue;
-        int st;
-        pid_t r = waitpid(s->children[i], &st, wait_all ? 0 : WNOHANG);
-        if (r == s->children[i]) {
-            if (!wait_all) {
-                if (WIFEXITED(st))
-                    logf_(s, "local worker %u exited with status %d", i + 1, WEXITSTATUS(st));
-                else if (WIFSIGNALED(st))
-                    logf_(s, "local worker %u killed by signal %d", i + 1, WTERMSIG(st));
-            }
-            s->children[i] = 0;
-            s->children_alive--;
-        }
-    }
-}
-
-static void stop_children(server *s)
-{
-    for (uint32_t i = 0; i < s->nchildren; i++)
-        if (s->children[i] > 0)
-            kill(s->children[i], SIGTERM);
-    reap_children(s, 1);
-    if (s->cache_dir[0]) {
-        /* The cache holds only what the workers unpacked from our bundle. */
-        char cmd[512];
-        snprintf(cmd, sizeof cmd, "rm -rf '%s'", s->cache_dir);
-        if (system(cmd) != 0)
-            logf_(s, "could not remove %s", s->cache_dir);
-    }
-}
-
-/* ---- setup and the loop ------------------------------------------------------------ */
-
-
-static pt_status setup_single(server *s, pt_error *err)
+static pt_status setup_single(srv_server *s, pt_error *err)
 {
     const srv_config *cfg = s->cfg;
     pt_status st;
@@ -1771,7 +2377,7 @@ static pt_status setup_single(server *s, pt_error *err)
     srv_entry *j = pt_calloc(1, sizeof *j);
     if (!j)
         return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
-    insert_job(s, j);
+    srv_queue_insert(s, j);
     s->single = j;
     if ((st = pt_bundle_pack(cfg->scene_path, &j->bundle, err)) != PT_OK)
         return st;
@@ -1783,16 +2389,101 @@ static pt_status setup_single(server *s, pt_error *err)
     const char *base = strrchr(cfg->scene_path, '/');
     snprintf(j->rec.scene, sizeof j->rec.scene, "%s", base ? base + 1 : cfg->scene_path);
     snprintf(j->out_path, sizeof j->out_path, "%s", cfg->out_path);
-    if (!job_ready(s, j))
+    if (!srv_entry_ready(s, j))
         return pt_error_set(err, PT_ERR_IO, "%s", j->rec.message);
     if (!cfg->quiet)
-        logf_(s, "%s: %u triangles, %ux%u, %u spp in %u passes of %u, tiles of %u",
-              cfg->scene_path, ntris, jp.width, jp.height, jp.spp, srv_job_passes(j->job),
-              jp.chunk, jp.tile);
+        srv_log("%s: %u triangles, %ux%u, %u spp in %u passes of %u, tiles of %u", cfg->scene_path,
+                ntris, jp.width, jp.height, jp.spp, srv_job_passes(j->job), jp.chunk, jp.tile);
     return PT_OK;
 }
 
-static pt_status setup_queue(server *s, pt_error *err)
+/* The final image and the summary. Returns the exit status. */
+static int finish_single(srv_server *s)
+{
+    const srv_config *cfg = s->cfg;
+    srv_entry *j = s->single;
+    pt_error err = {0};
+    if (!j->job)
+        return 1;
+    srv_entry_save_image(j);
+    pt_status st = srv_writer_flush(j->writer, &err);
+    if (!cfg->quiet)
+        print_progress(s, srv_now_ms());
+    fputc('\n', stderr);
+    double secs = (double)(srv_now_ms() - s->t_start) / 1000.0;
+    uint64_t samples = srv_job_samples_merged(j->job);
+    const srv_job_params *p = &j->rec.params;
+    if (st != PT_OK) {
+        fprintf(stderr, "ptserve: cannot write %s: %s\n", cfg->out_path, err.msg);
+        return 1;
+    }
+    if (srv_job_complete(j->job)) {
+        uint64_t tasks = srv_job_tasks_total(j->job);
+        fprintf(stderr,
+                "ptserve: done in %.2fs: %llu samples (%.4g samples/s), %llu rejected "
+                "samples (NaN/Inf); wrote %s\n",
+                secs, (unsigned long long)samples, (double)samples / secs,
+                (unsigned long long)j->rejected, cfg->out_path);
+        fprintf(stderr,
+                "ptserve: wire: %llu bytes in, %llu out (scene %zu); %.3f bytes per "
+                "sample, %.0f per task\n",
+                (unsigned long long)s->bytes_in, (unsigned long long)s->bytes_out,
+                j->bundle ? j->bundle->size : 0,
+                (double)(s->bytes_in + s->bytes_out) / (double)samples,
+                (double)(s->bytes_in + s->bytes_out) / (double)tasks);
+        return 0;
+    }
+    if (srv_loop_stopped()) {
+        fprintf(stderr, "ptserve: interrupted after %.2fs; %s holds %llu of %llu samples\n", secs,
+                cfg->out_path, (unsigned long long)samples,
+                (unsigned long long)p->width * p->height * p->spp);
+        return 130;
+    }
+    return 1;
+}
+
+static int single_over(const srv_server *s)
+{
+    return !s->single->job || srv_job_complete(s->single->job);
+}
+
+static void single_after_leases(srv_server *s)
+{
+    (void)s; /* nothing is durable, and the loop ends with the job */
+}
+
+static void single_tick(srv_server *s, uint64_t now)
+{
+    if (s->single->job && !s->cfg->quiet && now - s->t_last_print >= 1000) {
+        s->t_last_print = now;
+        print_progress(s, now);
+    }
+}
+
+static int single_local_gone(srv_server *s)
+{
+    if (srv_job_complete(s->single->job))
+        return 0;
+    fprintf(stderr, "\nptserve: all %u local workers exited before the image was complete\n",
+            s->local.nchildren);
+    return 1;
+}
+
+const srv_mode srv_mode_one_job = {
+    .name = "one job",
+    .serves_clients = 0,
+    .logs_starts = 0,
+    .setup = setup_single,
+    .over = single_over,
+    .after_leases = single_after_leases,
+    .tick = single_tick,
+    .local_gone = single_local_gone,
+    .finish = finish_single,
+};
+
+/* ---- the queue --------------------------------------------------------------------- */
+
+static pt_status setup_queue(srv_server *s, pt_error *err)
 {
     const srv_config *cfg = s->cfg;
     pt_status st;
@@ -1820,23 +2511,95 @@ static pt_status setup_queue(server *s, pt_error *err)
         }
         j->rec = recs[i];
         snprintf(j->out_path, sizeof j->out_path, "%s/%s", s->out_dir, j->rec.output);
-        insert_job(s, j);
+        srv_queue_insert(s, j);
         counts[j->rec.state]++;
     }
     pt_free(recs);
     if (!cfg->quiet || counts[PROTO_JOB_RUNNING] || counts[PROTO_JOB_QUEUED])
-        logf_(s, "state %s: %u jobs queued, %u running, %u ended; images go to %s",
-              cfg->state_dir, counts[PROTO_JOB_QUEUED], counts[PROTO_JOB_RUNNING],
-              counts[PROTO_JOB_DONE] + counts[PROTO_JOB_CANCELLED] + counts[PROTO_JOB_FAILED],
-              s->out_dir);
+        srv_log("state %s: %u jobs queued, %u running, %u ended; images go to %s", cfg->state_dir,
+                counts[PROTO_JOB_QUEUED], counts[PROTO_JOB_RUNNING],
+                counts[PROTO_JOB_DONE] + counts[PROTO_JOB_CANCELLED] + counts[PROTO_JOB_FAILED],
+                s->out_dir);
     /* Resume the running jobs now: their checkpoints are checked at start. */
     for (srv_entry *j = s->jobs; j; j = j->next)
         if (j->rec.state == PROTO_JOB_RUNNING)
-            job_ready(s, j);
+            srv_entry_ready(s, j);
     return PT_OK;
 }
 
-static pt_status setup(server *s, pt_error *err)
+/* Every running job checkpointed, its image saved. */
+static int finish_queue(srv_server *s)
+{
+    uint32_t n = 0;
+    for (srv_entry *j = s->jobs; j; j = j->next) {
+        if (!j->job || !srv_entry_active(j))
+            continue;
+        srv_entry_checkpoint(s, j);
+        srv_entry_save_image(j);
+        pt_error err = {0};
+        if (srv_writer_flush(j->writer, &err) != PT_OK)
+            srv_log("job %llu: cannot write its image: %s", (unsigned long long)j->rec.id, err.msg);
+        n++;
+    }
+    srv_log("stopped; %u running jobs checkpointed", n);
+    return 0;
+}
+
+static int queue_over(const srv_server *s)
+{
+    (void)s; /* until a signal */
+    return 0;
+}
+
+static void queue_after_leases(srv_server *s)
+{
+    pt_error err = {0};
+    /* Leases need no disk: they leave before the group commit, so workers do
+     * not wait on it for their next tasks. Then the results logged in this
+     * round reach the disk. */
+    srv_loop_flush_all(s);
+    if (srv_state_sync(s->state, &err) != PT_OK)
+        srv_log("error: %s", err.msg);
+    if (srv_queue_end_complete(s))
+        srv_queue_hand_out(s); /* the workers the ended jobs left waiting */
+}
+
+static void queue_tick(srv_server *s, uint64_t now)
+{
+    (void)s;
+    (void)now;
+}
+
+static int queue_local_gone(srv_server *s)
+{
+    if (!s->local_gone_logged) {
+        srv_log("all %u local workers exited; waiting for remote ones", s->local.nchildren);
+        s->local_gone_logged = 1;
+    }
+    return 0;
+}
+
+const srv_mode srv_mode_queue = {
+    .name = "queue",
+    .serves_clients = 1,
+    .logs_starts = 1,
+    .setup = setup_queue,
+    .over = queue_over,
+    .after_leases = queue_after_leases,
+    .tick = queue_tick,
+    .local_gone = queue_local_gone,
+    .finish = finish_queue,
+};
+
+const srv_mode *srv_mode_for(const srv_config *cfg)
+{
+    return cfg->scene_path ? &srv_mode_one_job : &srv_mode_queue;
+}
+
+/* Everything before the loop: the token, the decode buffer, the mode's jobs,
+ * the listening socket and the local workers, in that order (a broken scene
+ * or state folder fails before anything listens or starts). */
+static pt_status setup(srv_server *s, pt_error *err)
 {
     const srv_config *cfg = s->cfg;
     pt_status st;
@@ -1847,233 +2610,65 @@ static pt_status setup(server *s, pt_error *err)
                                    &loose, err)) != PT_OK)
             return st;
         if (loose)
-            logf_(s, "warning: %s is readable by other users", cfg->token_path);
+            srv_log("warning: %s is readable by other users", cfg->token_path);
     }
     s->scratch = pt_malloc_array(PROTO_MAX_TILE_PIXELS, sizeof *s->scratch);
     if (!s->scratch)
         return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
-    if ((st = cfg->scene_path ? setup_single(s, err) : setup_queue(s, err)) != PT_OK)
+    if ((st = s->mode->setup(s, err)) != PT_OK)
         return st;
-
-    char host[256];
-    uint16_t port = cfg->local_workers ? 0 : 7878;
-    snprintf(host, sizeof host, "127.0.0.1");
-    if (cfg->listen && (st = pt_net_split(cfg->listen, host, sizeof host, &port, err)) != PT_OK)
+    if ((st = srv_loop_open(s, err)) != PT_OK)
         return st;
-    if (!cfg->token_path && !pt_net_host_is_loopback(host)) {
-        logf_(s, "no --token-file: listening on loopback only (127.0.0.1), not '%s'", host);
-        snprintf(host, sizeof host, "127.0.0.1");
-    }
-    if ((st = pt_net_listen(host, port, &s->lfd, &s->port, err)) != PT_OK)
-        return st;
-    if (cfg->port_file) {
-        FILE *f = fopen(cfg->port_file, "w");
-        if (!f || fprintf(f, "%u\n", s->port) < 0 || fclose(f) != 0)
-            return pt_error_errno(err, PT_ERR_IO, "%s", cfg->port_file);
-    }
-    if (!cfg->quiet)
-        logf_(s, "listening on %s:%u%s", host, s->port,
-              cfg->token_path ? " (token required)" : "");
-
-    s->ep = epoll_create1(EPOLL_CLOEXEC);
-    if (s->ep < 0)
-        return pt_error_errno(err, PT_ERR_IO, "epoll_create1");
-    struct epoll_event e = {.events = EPOLLIN, .data.ptr = NULL};
-    epoll_ctl(s->ep, EPOLL_CTL_ADD, s->lfd, &e);
-    if (pipe2(s->sigpipe, O_NONBLOCK | O_CLOEXEC) != 0)
-        return pt_error_errno(err, PT_ERR_IO, "pipe2");
-    e.data.ptr = &s->sigpipe;
-    epoll_ctl(s->ep, EPOLL_CTL_ADD, s->sigpipe[0], &e);
-    /* The threads' end blocks (a pointer is never lost); the loop's does not. */
-    if (pipe2(s->verifypipe, O_CLOEXEC) != 0 ||
-        fcntl(s->verifypipe[0], F_SETFL, fcntl(s->verifypipe[0], F_GETFL) | O_NONBLOCK) != 0)
-        return pt_error_errno(err, PT_ERR_IO, "pipe2");
-    e.data.ptr = &s->verifypipe;
-    epoll_ctl(s->ep, EPOLL_CTL_ADD, s->verifypipe[0], &e);
-    g_sigpipe_w = s->sigpipe[1];
-    struct sigaction sa;
-    memset(&sa, 0, sizeof sa);
-    sa.sa_handler = on_signal;
-    sigaction(SIGINT, &sa, NULL);
-    sigaction(SIGTERM, &sa, NULL);
-    signal(SIGPIPE, SIG_IGN);
-    s->t_start = s->t_last_print = now_ms();
-    if (cfg->local_workers && (st = spawn_workers(s, err)) != PT_OK)
+    s->t_start = s->t_last_print = srv_now_ms();
+    if (cfg->local_workers && (st = srv_local_start(&s->local, cfg, s->port, err)) != PT_OK)
         return st;
     return PT_OK;
 }
 
-/* One-job mode's ending: the final image and the summary. Returns the exit status. */
-static int finish_single(server *s)
+/* The timers, once per round: leases, connections, jobs, watchers, then
+ * what the mode shows. */
+static void timers(srv_server *s)
 {
-    const srv_config *cfg = s->cfg;
-    srv_entry *j = s->single;
-    pt_error err = {0};
-    if (!j->job)
-        return 1;
-    save_progress(s, j);
-    pt_status st = srv_writer_flush(j->writer, &err);
-    if (!cfg->quiet)
-        print_progress(s, now_ms());
-    fputc('\n', stderr);
-    double secs = (double)(now_ms() - s->t_start) / 1000.0;
-    uint64_t samples = srv_job_samples_merged(j->job);
-    const srv_job_params *p = &j->rec.params;
-    if (st != PT_OK) {
-        fprintf(stderr, "ptserve: cannot write %s: %s\n", cfg->out_path, err.msg);
-        return 1;
-    }
-    if (srv_job_complete(j->job)) {
-        uint64_t tasks = srv_job_tasks_total(j->job);
-        fprintf(stderr, "ptserve: done in %.2fs: %llu samples (%.4g samples/s), %llu rejected "
-                "samples (NaN/Inf); wrote %s\n", secs, (unsigned long long)samples,
-                (double)samples / secs, (unsigned long long)j->rejected, cfg->out_path);
-        fprintf(stderr, "ptserve: wire: %llu bytes in, %llu out (scene %zu); %.3f bytes per "
-                "sample, %.0f per task\n", (unsigned long long)s->bytes_in,
-                (unsigned long long)s->bytes_out, j->bundle ? j->bundle->size : 0,
-                (double)(s->bytes_in + s->bytes_out) / (double)samples,
-                (double)(s->bytes_in + s->bytes_out) / (double)tasks);
-        return 0;
-    }
-    if (g_stop) {
-        fprintf(stderr, "ptserve: interrupted after %.2fs; %s holds %llu of %llu samples\n", secs,
-                cfg->out_path, (unsigned long long)samples,
-                (unsigned long long)p->width * p->height * p->spp);
-        return 130;
-    }
-    return 1;
-}
-
-/* Queue mode's ending: every running job checkpointed, its image saved. */
-static void finish_queue(server *s)
-{
-    uint32_t n = 0;
-    for (srv_entry *j = s->jobs; j; j = j->next) {
-        if (!j->job || !job_active(j))
-            continue;
-        checkpoint(s, j);
-        save_progress(s, j);
-        pt_error err = {0};
-        if (srv_writer_flush(j->writer, &err) != PT_OK)
-            logf_(s, "job %llu: cannot write its image: %s", (unsigned long long)j->rec.id,
-                  err.msg);
-        n++;
-    }
-    logf_(s, "stopped; %u running jobs checkpointed", n);
+    uint64_t now = srv_now_ms();
+    srv_queue_expire(s, now);
+    srv_loop_timers(s, now);
+    srv_queue_tick(s, now);
+    srv_requests_tick(s, now);
+    s->mode->tick(s, now);
 }
 
 int srv_serve(const srv_config *cfg)
 {
-    server s;
+    srv_server s;
     memset(&s, 0, sizeof s);
     s.cfg = cfg;
+    s.mode = srv_mode_for(cfg);
     s.lfd = s.ep = s.sigpipe[0] = s.sigpipe[1] = s.verifypipe[0] = s.verifypipe[1] = -1;
     pt_error err = {0};
-    int rc = 1, children_reported = 0;
+    int rc = 1;
     if (setup(&s, &err) != PT_OK) {
         fprintf(stderr, "ptserve: %s\n", err.msg);
         goto done;
     }
-    while (!g_stop) {
-        if (s.single && (!s.single->job || srv_job_complete(s.single->job)))
-            break;
-        struct epoll_event evs[64];
-        int n = epoll_wait(s.ep, evs, 64, 100);
-        for (int i = 0; i < n; i++) {
-            void *p = evs[i].data.ptr;
-            if (p == NULL) {
-                accept_all(&s);
-            } else if (p == &s.sigpipe) {
-                char buf[16];
-                while (read(s.sigpipe[0], buf, sizeof buf) > 0) {
-                }
-            } else if (p == &s.verifypipe) {
-                verifications_done(&s);
-            } else {
-                conn *c = p;
-                if (evs[i].events & (EPOLLIN | EPOLLHUP | EPOLLERR))
-                    conn_read(&s, c);
-                if (evs[i].events & EPOLLOUT)
-                    conn_flush(&s, c);
-            }
-        }
-        hand_out(&s);
-        if (s.state) {
-            /* Leases need no disk: they leave before the group commit, so
-             * workers do not wait on it for their next tasks. Then the
-             * results logged in this round reach the disk. */
-            for (conn *c = s.conns; c; c = c->next)
-                if (c->out.len > c->out_off && !c->closing)
-                    conn_flush(&s, c);
-            if (srv_state_sync(s.state, &err) != PT_OK)
-                logf_(&s, "error: %s", err.msg);
-            if (finish_complete(&s))
-                hand_out(&s); /* the workers the ended jobs left waiting */
-        }
+    while (!srv_loop_stopped() && !s.mode->over(&s)) {
+        srv_loop_poll(&s, 100);
+        srv_queue_hand_out(&s);
+        s.mode->after_leases(&s);
         timers(&s);
         /* Flush, then free closed connections outside their callbacks. */
-        uint64_t now = now_ms();
-        for (conn **pc = &s.conns; *pc;) {
-            conn *c = *pc;
-            if (c->out.len > c->out_off)
-                conn_flush(&s, c);
-            if (c->in_len > 0 && !c->closing)
-                conn_process(&s, c);
-            if (c->closing && (c->close_at == 0 || now >= c->close_at)) {
-                *pc = c->next;
-                conn_free(&s, c);
-                continue;
-            }
-            conn_update_events(&s, c);
-            pc = &c->next;
-        }
-        if (s.nchildren) {
-            reap_children(&s, 0);
-            if (s.children_alive == 0 && s.single && !srv_job_complete(s.single->job)) {
-                fprintf(stderr, "\nptserve: all %u local workers exited before the image was "
-                        "complete\n", s.nchildren);
+        srv_loop_sweep(&s);
+        if (s.local.nchildren) {
+            srv_local_reap(&s.local, 0);
+            if (s.local.alive == 0 && s.mode->local_gone(&s))
                 break;
-            }
-            if (s.children_alive == 0 && !s.single && !children_reported) {
-                logf_(&s, "all %u local workers exited; waiting for remote ones", s.nchildren);
-                children_reported = 1;
-            }
         }
     }
-    if (s.single) {
-        rc = finish_single(&s);
-    } else if (s.state) {
-        finish_queue(&s);
-        rc = 0;
-    }
+    rc = s.mode->finish(&s);
 done:
-    verifications_abandon(&s);
-    for (int i = 0; i < 2; i++)
-        if (s.verifypipe[i] >= 0)
-            close(s.verifypipe[i]);
-    if (s.nchildren)
-        stop_children(&s);
-    while (s.conns) {
-        conn *c = s.conns;
-        s.conns = c->next;
-        conn_free(&s, c);
-    }
-    while (s.jobs) {
-        srv_entry *j = s.jobs;
-        s.jobs = j->next;
-        free_entry(j);
-    }
-    srv_state_close(s.state);
+    srv_upload_close(&s);
+    srv_local_stop(&s.local);
+    srv_loop_close(&s);
+    srv_queue_free(&s);
     pt_free(s.scratch);
-    pt_free(s.children);
-    if (s.lfd >= 0)
-        close(s.lfd);
-    if (s.ep >= 0)
-        close(s.ep);
-    g_sigpipe_w = -1;
-    if (s.sigpipe[0] >= 0) {
-        close(s.sigpipe[0]);
-        close(s.sigpipe[1]);
-    }
     return rc;
 }
