@@ -7,17 +7,13 @@
 #include <math.h>
 #include <pthread.h>
 #include <signal.h>
-#include <spawn.h>
 #include <stdarg.h>
 #include <stddef.h>
 #include <stdint.h>
 #include <stdio.h>
-#include <stdlib.h>
 #include <string.h>
 #include <sys/epoll.h>
 #include <sys/socket.h>
-#include <sys/types.h>
-#include <sys/wait.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -25,7 +21,6 @@
 #include <netinet/in.h>
 
 #include "common/base/alloc.h"
-#include "common/base/error.h"
 #include "common/base/fsutil.h"
 #include "common/base/hash.h"
 #include "common/base/net.h"
@@ -33,132 +28,13 @@
 #include "common/render/film.h"
 #include "common/scene/bundle.h"
 #include "common/scene/scene.h"
-#include "protocol/auth.h"
 #include "protocol/frame.h"
 #include "protocol/msg.h"
+#include "server/core.h"
 #include "server/job.h"
+#include "server/local.h"
 #include "server/state.h"
 #include "server/writer.h"
-
-/* ---- local.h ------------------------------------------------------------- */
-
-/*
- * local.h - ptworker processes this coordinator starts itself (--local N).
- *
- * srv_local_start spawns N ptworker children (the one beside this program,
- * or cfg->worker_bin) that connect to 127.0.0.1:PORT with the token file, if
- * any, and share a cache folder made for them under $TMPDIR; their stdout
- * goes to /dev/null. srv_local_reap collects the ones that exited (logging
- * how); srv_local_stop sends SIGTERM to the rest, waits for them and removes
- * the cache. The children are ordinary workers to the loop: nothing here
- * knows about connections or jobs.
- *
- * Threads: called only from the event-loop thread.
- */
-
-typedef struct srv_local {
-    pid_t *children; /* 0 once reaped */
-    uint32_t nchildren, alive;
-    char cache_dir[256];
-} srv_local;
-
-/* Starts cfg->local_workers ptworkers serving 127.0.0.1:port. PT_ERR_IO
- * naming the program or folder that failed; the children started so far stay
- * in l for srv_local_stop. */
-pt_status srv_local_start(srv_local *l, const srv_config *cfg, uint16_t port, pt_error *err);
-
-/* Collects the children that exited: without waiting, logging each, or
- * (wait_all) waiting for every one, silently. */
-void srv_local_reap(srv_local *l, int wait_all);
-
-/* Stops and reaps every child, removes the cache folder and frees l's
- * memory. Accepts an l that started nothing. */
-void srv_local_stop(srv_local *l);
-
-/* ---- core.h -------------------------------------------------------------- */
-
-/*
- * core.h - the coordinator's shared state and its two small helpers.
- *
- * srv_server is what every server module's functions take: the event loop's
- * connections (server/loop.h), the queue of jobs (server/queue.h), the upload
- * verifications in flight (server/upload.h), the local worker processes
- * (server/local.h) and the mode chosen at setup (server/mode.h). Each group
- * of fields belongs to the module named beside it; the others only read it,
- * or change it through that module's functions.
- *
- * The mode is data: a srv_mode, chosen once, says how the loop ends, what it
- * does after each round of leases, what a timer tick prints and what happens
- * when the local workers are gone, so no module asks which mode it is in.
- *
- * Threads: srv_server is touched only by the event-loop thread. srv_now_ms
- * and srv_log may be called from any thread.
- */
-
-typedef struct srv_server srv_server;
-typedef struct srv_conn srv_conn;     /* server/loop.h */
-typedef struct srv_entry srv_entry;   /* server/queue.h */
-typedef struct srv_upload srv_upload; /* server/upload.h */
-
-/* One way of running the coordinator (server/mode.c has the two). */
-typedef struct srv_mode {
-    const char *name;
-    int serves_clients; /* a client (ptctl) may connect */
-    int logs_starts;    /* log each job as it starts (the queue's; one job logs its setup) */
-    /* Loads or restores the jobs before the loop listens. */
-    pt_status (*setup)(srv_server *s, pt_error *err);
-    /* 1 when the loop is over (besides a stop signal). */
-    int (*over)(const srv_server *s);
-    /* After each round's leases: what must reach the disk, jobs that ended. */
-    void (*after_leases)(srv_server *s);
-    /* Once per loop round after the timers; now in ms (srv_now_ms). */
-    void (*tick)(srv_server *s, uint64_t now);
-    /* Every local worker has exited: returns 1 to end the loop. */
-    int (*local_gone)(srv_server *s);
-    /* After the loop: saves what must be saved; returns the exit status. */
-    int (*finish)(srv_server *s);
-} srv_mode;
-
-struct srv_server {
-    const srv_config *cfg;
-    const srv_mode *mode;
-    uint64_t t_start, t_last_print;
-
-    /* the loop (server/loop.c) */
-    int ep, lfd, sigpipe[2];
-    uint16_t port;
-    srv_conn *conns;
-    uint32_t nconns, nworkers;
-    uint64_t next_conn_id;
-    uint8_t token[PROTO_TOKEN_MAX];
-    size_t token_len;
-    uint64_t bytes_in, bytes_out; /* on the wire, all peers */
-
-    /* the queue (server/queue.c) */
-    srv_entry *jobs; /* every job, in queue order */
-    uint32_t njobs;
-    uint64_t next_job_id;
-    srv_entry *single; /* one-job mode: the job */
-    srv_state *state;  /* queue mode: the state folder; NULL in one-job mode */
-    char out_dir[PATH_MAX - 512];
-
-    /* upload verification (server/upload.c) */
-    int verifypipe[2];         /* verifications done: their pointers */
-    srv_upload *verifications; /* in flight */
-
-    /* worker messages (server/workers.c) */
-    pt_pixel_acc *scratch; /* RESULT decode buffer */
-
-    /* local workers (server/local.c) */
-    srv_local local;
-    int local_gone_logged;
-};
-
-/* Monotonic milliseconds. */
-uint64_t srv_now_ms(void);
-
-/* One line on stderr, "ptserve: " first (over a progress line, if any). */
-void srv_log(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
 
 /* ---- loop.h -------------------------------------------------------------- */
 
@@ -519,140 +395,6 @@ extern const srv_mode srv_mode_queue;
 
 /* The mode cfg asks for. */
 const srv_mode *srv_mode_for(const srv_config *cfg);
-
-/* ---- core ---------------------------------------------------------------- */
-
-uint64_t srv_now_ms(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (uint64_t)ts.tv_sec * 1000u + (uint64_t)ts.tv_nsec / 1000000u;
-}
-
-void srv_log(const char *fmt, ...)
-{
-    va_list ap;
-    va_start(ap, fmt);
-    fputs("\rptserve: ", stderr);
-    vfprintf(stderr, fmt, ap);
-    fputs("\033[K\n", stderr);
-    va_end(ap);
-}
-
-/* ---- local --------------------------------------------------------------- */
-
-extern char **environ;
-
-pt_status srv_local_start(srv_local *l, const srv_config *cfg, uint16_t port, pt_error *err)
-{
-    char bin[PATH_MAX];
-    if (cfg->worker_bin) {
-        snprintf(bin, sizeof bin, "%s", cfg->worker_bin);
-    } else {
-        ssize_t n = readlink("/proc/self/exe", bin, sizeof bin - 16);
-        if (n <= 0)
-            return pt_error_errno(err, PT_ERR_IO, "cannot find this program's folder");
-        bin[n] = '\0';
-        char *slash = strrchr(bin, '/');
-        snprintf(slash + 1, sizeof bin - (size_t)(slash + 1 - bin), "ptworker");
-    }
-    if (access(bin, X_OK) != 0)
-        return pt_error_errno(err, PT_ERR_IO, "%s", bin);
-    const char *tmp = getenv("TMPDIR");
-    snprintf(l->cache_dir, sizeof l->cache_dir, "%s/ptserve-cache-XXXXXX",
-             tmp && *tmp ? tmp : "/tmp");
-    if (!mkdtemp(l->cache_dir))
-        return pt_error_errno(err, PT_ERR_IO, "%s", l->cache_dir);
-    uint32_t threads = cfg->worker_threads;
-    if (threads == 0) {
-        long cores = sysconf(_SC_NPROCESSORS_ONLN);
-        threads = cores > 0 ? (uint32_t)cores / cfg->local_workers : 1;
-        if (threads == 0)
-            threads = 1;
-    }
-    l->children = pt_calloc(cfg->local_workers, sizeof *l->children);
-    if (!l->children)
-        return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
-    char server_arg[64], threads_arg[16], name_arg[32];
-    snprintf(server_arg, sizeof server_arg, "127.0.0.1:%u", port);
-    snprintf(threads_arg, sizeof threads_arg, "%u", threads);
-    for (uint32_t i = 0; i < cfg->local_workers; i++) {
-        snprintf(name_arg, sizeof name_arg, "local-%u", i + 1);
-        const char *argv[16];
-        int a = 0;
-        argv[a++] = bin;
-        argv[a++] = "--server";
-        argv[a++] = server_arg;
-        argv[a++] = "--threads";
-        argv[a++] = threads_arg;
-        argv[a++] = "--cache-dir";
-        argv[a++] = l->cache_dir;
-        argv[a++] = "--name";
-        argv[a++] = name_arg;
-        if (cfg->token_path) {
-            argv[a++] = "--token-file";
-            argv[a++] = cfg->token_path;
-        }
-        argv[a] = NULL;
-        posix_spawn_file_actions_t fa;
-        posix_spawn_file_actions_init(&fa);
-        posix_spawn_file_actions_addopen(&fa, 1, "/dev/null", O_WRONLY, 0);
-        pid_t pid;
-        int rc = posix_spawn(&pid, bin, &fa, NULL, (char *const *)argv, environ);
-        posix_spawn_file_actions_destroy(&fa);
-        if (rc != 0) {
-            errno = rc;
-            return pt_error_errno(err, PT_ERR_IO, "cannot start %s", bin);
-        }
-        l->children[l->nchildren++] = pid;
-        l->alive++;
-    }
-    if (!cfg->quiet)
-        srv_log("started %u local workers with %u threads each", cfg->local_workers, threads);
-    return PT_OK;
-}
-
-void srv_local_reap(srv_local *l, int wait_all)
-{
-    for (uint32_t i = 0; i < l->nchildren; i++) {
-        if (l->children[i] <= 0)
-            continue;
-        int st;
-        pid_t r = waitpid(l->children[i], &st, wait_all ? 0 : WNOHANG);
-        if (r == l->children[i]) {
-            if (!wait_all) {
-                if (WIFEXITED(st))
-                    srv_log("local worker %u exited with status %d", i + 1, WEXITSTATUS(st));
-                else if (WIFSIGNALED(st))
-                    srv_log("local worker %u killed by signal %d", i + 1, WTERMSIG(st));
-            }
-            l->children[i] = 0;
-            l->alive--;
-        }
-    }
-}
-
-void srv_local_stop(srv_local *l)
-{
-    if (l->nchildren == 0) {
-        pt_free(l->children);
-        l->children = NULL;
-        return;
-    }
-    for (uint32_t i = 0; i < l->nchildren; i++)
-        if (l->children[i] > 0)
-            kill(l->children[i], SIGTERM);
-    srv_local_reap(l, 1);
-    if (l->cache_dir[0]) {
-        /* The cache holds only what the workers unpacked from our bundle. */
-        char cmd[512];
-        snprintf(cmd, sizeof cmd, "rm -rf '%s'", l->cache_dir);
-        if (system(cmd) != 0)
-            srv_log("could not remove %s", l->cache_dir);
-    }
-    pt_free(l->children);
-    l->children = NULL;
-}
 
 /* ---- loop ---------------------------------------------------------------- */
 
