@@ -167,6 +167,48 @@ void srv_requests_drop_upload(srv_conn *c)
     c->uploading = 0;
 }
 
+/* A submitted job's params: the server's defaults (tile, chunk, max and RR
+ * depth) with what the client asked for; no width: 512 wide at the camera's
+ * aspect, the height within the cap. */
+static void submitted_params(const srv_config *cfg, const srv_upload *k, srv_job_params *out)
+{
+    const proto_submit *m = &k->m;
+    srv_job_params p = cfg->job;
+    p.spp = m->spp;
+    p.seed = m->seed;
+    if (m->max_depth)
+        p.max_depth = m->max_depth;
+    p.target_error = m->target_error;
+    p.min_gain = m->min_gain;
+    p.min_spp = m->min_spp ? m->min_spp : (p.chunk > 1 ? p.chunk : 2);
+    p.width = m->width;
+    p.height = m->height;
+    snprintf(p.camera, sizeof p.camera, "%s", m->camera);
+    if (p.width == 0) {
+        float aspect = k->aspect > 0 ? k->aspect : 1.0f;
+        p.width = 512;
+        p.height = (uint32_t)(512.0f / aspect + 0.5f);
+        if (p.height == 0)
+            p.height = 1;
+        if (p.height > cfg->caps.max_side)
+            p.height = cfg->caps.max_side;
+    }
+    *out = p;
+}
+
+/* The image's file name in the output folder: ID-NAME.exr, NAME the job's
+ * name or else the scene's without its extension, sanitised. */
+static void output_name(srv_job_record *r)
+{
+    char stem[PROTO_MAX_PATH + 1], safe[80];
+    snprintf(stem, sizeof stem, "%s", r->name[0] ? r->name : r->scene);
+    char *dot = strrchr(stem, '.');
+    if (!r->name[0] && dot && dot != stem)
+        *dot = '\0';
+    sanitise(stem, safe, sizeof safe);
+    snprintf(r->output, sizeof r->output, "%llu-%s.exr", (unsigned long long)r->id, safe);
+}
+
 void srv_requests_verified(srv_server *s, srv_conn *c, srv_upload *k)
 {
     pt_error err = {0};
@@ -195,37 +237,13 @@ void srv_requests_verified(srv_server *s, srv_conn *c, srv_upload *k)
     snprintf(r->owner, sizeof r->owner, "%s", c->name);
     snprintf(r->scene, sizeof r->scene, "%s", k->scene);
     r->submitted = (uint64_t)time(NULL);
-    srv_job_params p = s->cfg->job;
-    p.spp = m->spp;
-    p.seed = m->seed;
-    if (m->max_depth)
-        p.max_depth = m->max_depth;
-    p.target_error = m->target_error;
-    p.min_gain = m->min_gain;
-    p.min_spp = m->min_spp ? m->min_spp : (p.chunk > 1 ? p.chunk : 2);
-    p.width = m->width;
-    p.height = m->height;
-    snprintf(p.camera, sizeof p.camera, "%s", m->camera);
-    if (p.width == 0) {
-        float aspect = k->aspect > 0 ? k->aspect : 1.0f;
-        p.width = 512;
-        p.height = (uint32_t)(512.0f / aspect + 0.5f);
-        if (p.height == 0)
-            p.height = 1;
-        if (p.height > s->cfg->caps.max_side)
-            p.height = s->cfg->caps.max_side;
-    }
+    srv_job_params p;
+    submitted_params(s->cfg, k, &p);
     uint32_t ntris = k->ntris;
     r->params = p;
     memcpy(r->hash, m->bundle_hash, 32);
     r->bundle_size = b->size;
-    char stem[PROTO_MAX_PATH + 1], safe[80];
-    snprintf(stem, sizeof stem, "%s", r->name[0] ? r->name : r->scene);
-    char *dot = strrchr(stem, '.');
-    if (!r->name[0] && dot && dot != stem)
-        *dot = '\0';
-    sanitise(stem, safe, sizeof safe);
-    snprintf(r->output, sizeof r->output, "%llu-%s.exr", (unsigned long long)r->id, safe);
+    output_name(r);
     snprintf(j->out_path, sizeof j->out_path, "%s/%s", s->out_dir, r->output);
     srv_job *probe = NULL;
     if ((st = srv_job_new(r->id, &p, r->hash, &probe, &err)) != PT_OK) {
