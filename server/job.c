@@ -59,6 +59,16 @@ static void task_samples(const srv_job *j, uint64_t id, uint32_t *s0, uint32_t *
     *s1 = *s0 + j->p.chunk < j->p.spp ? *s0 + j->p.chunk : j->p.spp;
 }
 
+uint32_t srv_job_params_tiles(const srv_job_params *p)
+{
+    return ((p->width + p->tile - 1) / p->tile) * ((p->height + p->tile - 1) / p->tile);
+}
+
+uint32_t srv_job_params_passes(const srv_job_params *p)
+{
+    return (p->spp + p->chunk - 1) / p->chunk;
+}
+
 pt_status srv_job_new(uint64_t id, const srv_job_params *p, const uint8_t scene_hash[32],
                       srv_job **out, pt_error *err)
 {
@@ -78,8 +88,8 @@ pt_status srv_job_new(uint64_t id, const srv_job_params *p, const uint8_t scene_
     memcpy(j->hash, scene_hash, 32);
     j->tiles_x = (p->width + p->tile - 1) / p->tile;
     j->tiles_y = (p->height + p->tile - 1) / p->tile;
-    j->ntiles = j->tiles_x * j->tiles_y;
-    j->nchunks = (p->spp + p->chunk - 1) / p->chunk;
+    j->ntiles = srv_job_params_tiles(p);
+    j->nchunks = srv_job_params_passes(p);
     j->ntasks = (uint64_t)j->ntiles * j->nchunks;
     if (j->ntasks > SRV_MAX_TASKS) {
         st = pt_error_set(err, PT_ERR_LIMIT, "job: %llu tasks is over the cap of %u",
@@ -345,7 +355,7 @@ static int acc_sane(const pt_pixel_acc *a, uint32_t max_n)
 
 /* Checks r against the task it names; need_lease: the owner must hold it.
  * On SRV_MERGED *lease_index receives the lease (-1 when none was needed). */
-static srv_outcome check_result(const srv_job *j, uint64_t owner, const proto_result *r,
+static srv_outcome validate_result(const srv_job *j, uint64_t owner, const proto_result *r,
                                 int need_lease, int *lease_index, pt_error *err)
 {
     if (r->job_id != j->id) {
@@ -388,10 +398,10 @@ static srv_outcome check_result(const srv_job *j, uint64_t owner, const proto_re
     return SRV_MERGED;
 }
 
-srv_outcome srv_job_check(const srv_job *j, uint64_t owner, const proto_result *r, int *lease_index,
-                          pt_error *err)
+srv_outcome srv_job_validate(const srv_job *j, uint64_t owner, const proto_result *r,
+                             int *lease_index, pt_error *err)
 {
-    return check_result(j, owner, r, 1, lease_index, err);
+    return validate_result(j, owner, r, 1, lease_index, err);
 }
 
 static void drop_lease(srv_job *j, int li)
@@ -400,8 +410,8 @@ static void drop_lease(srv_job *j, int li)
         j->leases[li] = j->leases[--j->nleases];
 }
 
-/* Merges or holds r, which check_result accepted; li: its lease or -1. */
-static srv_outcome merge_checked(srv_job *j, int li, const proto_result *r, pt_error *err)
+/* Merges or holds r, which validate_result accepted; li: its lease or -1. */
+static srv_outcome merge_validated(srv_job *j, int li, const proto_result *r, pt_error *err)
 {
     uint64_t t = r->task_id;
     uint32_t tile = (uint32_t)(t % j->ntiles), chunk = (uint32_t)(t / j->ntiles);
@@ -438,8 +448,8 @@ static srv_outcome accept_result(srv_job *j, uint64_t owner, const proto_result 
                                  pt_error *err)
 {
     int li;
-    srv_outcome o = check_result(j, owner, r, need_lease, &li, err);
-    return o == SRV_MERGED ? merge_checked(j, li, r, err) : o;
+    srv_outcome o = validate_result(j, owner, r, need_lease, &li, err);
+    return o == SRV_MERGED ? merge_validated(j, li, r, err) : o;
 }
 
 srv_outcome srv_job_result(srv_job *j, uint64_t owner, const proto_result *r, pt_error *err)
@@ -447,10 +457,10 @@ srv_outcome srv_job_result(srv_job *j, uint64_t owner, const proto_result *r, pt
     return accept_result(j, owner, r, 1, err);
 }
 
-srv_outcome srv_job_result_checked(srv_job *j, int lease_index, const proto_result *r,
-                                   pt_error *err)
+srv_outcome srv_job_result_validated(srv_job *j, int lease_index, const proto_result *r,
+                                     pt_error *err)
 {
-    return merge_checked(j, lease_index, r, err);
+    return merge_validated(j, lease_index, r, err);
 }
 
 srv_outcome srv_job_replay(srv_job *j, const proto_result *r, pt_error *err)

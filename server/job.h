@@ -24,7 +24,9 @@
  * leased or held). The decision depends only on the tile's sums after chunk c
  * and on chunk c, which do not depend on how the work was split, so adaptive
  * images are bit-identical across worker counts and a resumed job too.
- * Pure code: no sockets, no clock (callers pass now_ms). One owner thread.
+ * Pure code: no sockets, no clock (callers pass now_ms). Threads: a job is
+ * used by one thread at a time (the event loop's); the params functions below
+ * are pure and may be called from any thread.
  */
 #ifndef PT_SERVER_JOB_H
 #define PT_SERVER_JOB_H
@@ -87,17 +89,18 @@ uint32_t srv_job_expire(srv_job *job, uint64_t now_ms, uint64_t *next_deadline);
 /* Accepts a result (see the file comment); err explains SRV_INVALID. */
 srv_outcome srv_job_result(srv_job *job, uint64_t owner, const proto_result *r, pt_error *err);
 
-/* Checks a result as srv_job_result would, changing nothing: SRV_MERGED when
- * it would be accepted, with *lease_index the lease it answers (an index valid
- * while the job is unchanged). Lets the caller log it durably before merging. */
-srv_outcome srv_job_check(const srv_job *job, uint64_t owner, const proto_result *r,
-                          int *lease_index, pt_error *err);
+/* Result validation: judges a result as srv_job_result would, changing
+ * nothing: SRV_MERGED when it would be accepted, with *lease_index the lease it
+ * answers (an index valid while the job is unchanged). Lets the caller log it
+ * durably before merging. */
+srv_outcome srv_job_validate(const srv_job *job, uint64_t owner, const proto_result *r,
+                             int *lease_index, pt_error *err);
 
-/* srv_job_result for a result that srv_job_check accepted (lease_index: what
+/* srv_job_result for a result that srv_job_validate accepted (lease_index: what
  * it gave), the job unchanged since: merges or holds it without looking up its
- * lease or checking its task and pixels again. */
-srv_outcome srv_job_result_checked(srv_job *job, int lease_index, const proto_result *r,
-                                   pt_error *err);
+ * lease or validating its task and pixels again. */
+srv_outcome srv_job_result_validated(srv_job *job, int lease_index, const proto_result *r,
+                                     pt_error *err);
 
 /* Accepts a result from the durable log after a restart: like srv_job_result
  * but without a lease (there are none yet). Duplicates are dropped, so a log
@@ -125,6 +128,11 @@ void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain);
  * merges bit-identically to the job that was saved. */
 pt_status srv_job_save(const srv_job *job, proto_writer *w, pt_error *err);
 pt_status srv_job_load(srv_job *job, const uint8_t *data, size_t len, pt_error *err);
+
+/* Tiles and passes (chunks per tile) of a job with params p, before or
+ * without a srv_job: what srv_job_tiles and srv_job_passes of one would say. */
+uint32_t srv_job_params_tiles(const srv_job_params *p);
+uint32_t srv_job_params_passes(const srv_job_params *p);
 
 /* Progress. */
 uint32_t srv_job_tiles(const srv_job *job);

@@ -9,6 +9,13 @@
  * In one-job mode it renders one scene and exits; in queue mode it keeps a
  * render queue that clients (ptctl) fill, durable in a state folder
  * (server/state.h), and runs until it is stopped.
+ *
+ * serve.c only sets up and dispatches; the parts are server/loop.h (sockets,
+ * connections, handshake), queue.h (jobs and leases), workers.h and
+ * requests.h (what workers and clients send), upload.h (scene verification
+ * off the loop), local.h (local workers) and mode.h (the two modes as data).
+ * Threads: srv_serve runs the loop on the calling thread; call it once at a
+ * time per process (it installs SIGINT and SIGTERM handlers).
  */
 #ifndef PT_SERVER_SERVE_H
 #define PT_SERVER_SERVE_H

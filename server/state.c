@@ -129,7 +129,7 @@ static int version_read(uint32_t v)
 /* Reads path and checks magic, version and checksum; *body and *body_len get
  * what lies between, *version (when not NULL) the format version. *missing =
  * 1 (and PT_OK) when the file does not exist. */
-static pt_status read_checked(const char *path, uint32_t magic, size_t max, uint8_t **data,
+static pt_status read_intact(const char *path, uint32_t magic, size_t max, uint8_t **data,
                               const uint8_t **body, size_t *body_len, uint32_t *version,
                               int *missing, pt_error *err)
 {
@@ -173,7 +173,7 @@ static pt_status read_checked(const char *path, uint32_t magic, size_t max, uint
 
 /* ---- the queue --------------------------------------------------------------------- */
 
-pt_status srv_state_save_queue(srv_state *st, srv_job_rec *const *recs, uint32_t n,
+pt_status srv_state_save_queue(srv_state *st, srv_job_record *const *recs, uint32_t n,
                                uint64_t next_id, pt_error *err)
 {
     char path[PATH_MAX];
@@ -184,7 +184,7 @@ pt_status srv_state_save_queue(srv_state *st, srv_job_rec *const *recs, uint32_t
     proto_w_u64(&w, next_id);
     proto_w_u32(&w, n);
     for (uint32_t i = 0; i < n; i++) {
-        const srv_job_rec *j = recs[i];
+        const srv_job_record *j = recs[i];
         proto_w_u64(&w, j->id);
         proto_w_u64(&w, j->seq);
         proto_w_u8(&w, j->state);
@@ -207,7 +207,7 @@ pt_status srv_state_save_queue(srv_state *st, srv_job_rec *const *recs, uint32_t
     return s;
 }
 
-pt_status srv_state_load_queue(srv_state *st, srv_job_rec **recs, uint32_t *n, uint64_t *next_id,
+pt_status srv_state_load_queue(srv_state *st, srv_job_record **recs, uint32_t *n, uint64_t *next_id,
                                pt_error *err)
 {
     char path[PATH_MAX];
@@ -220,14 +220,14 @@ pt_status srv_state_load_queue(srv_state *st, srv_job_rec **recs, uint32_t *n, u
     *recs = NULL;
     *n = 0;
     *next_id = 1;
-    pt_status s = read_checked(path, QUEUE_MAGIC, MAX_QUEUE_BYTES, &data, &body, &len, &version,
+    pt_status s = read_intact(path, QUEUE_MAGIC, MAX_QUEUE_BYTES, &data, &body, &len, &version,
                                &missing, err);
     if (s != PT_OK || missing)
         return s;
     proto_reader r = proto_reader_make(body, len);
     uint64_t nid = proto_r_u64(&r, "next job id");
     uint32_t count = proto_r_u32(&r, "job count");
-    srv_job_rec *out = NULL;
+    srv_job_record *out = NULL;
     if (r.status == PT_OK && (count > SRV_MAX_JOBS || count > proto_r_left(&r) / 64)) {
         pt_free(data);
         return pt_error_set(err, PT_ERR_FORMAT, "%s: %u jobs do not fit its %zu bytes", path,
@@ -241,7 +241,7 @@ pt_status srv_state_load_queue(srv_state *st, srv_job_rec **recs, uint32_t *n, u
         }
     }
     for (uint32_t i = 0; i < count && r.status == PT_OK; i++) {
-        srv_job_rec *j = &out[i];
+        srv_job_record *j = &out[i];
         j->id = proto_r_u64(&r, "job id");
         j->seq = proto_r_u64(&r, "job seq");
         j->state = proto_r_u8(&r, "job state");
@@ -279,7 +279,7 @@ pt_status srv_state_load_queue(srv_state *st, srv_job_rec **recs, uint32_t *n, u
 
 /* ---- bundles ----------------------------------------------------------------------- */
 
-pt_status srv_state_save_bundle(srv_state *st, uint64_t id, const uint8_t *data, size_t n,
+pt_status srv_state_save_bundle(const srv_state *st, uint64_t id, const uint8_t *data, size_t n,
                                 pt_error *err)
 {
     char p[PATH_MAX];
@@ -303,8 +303,7 @@ pt_status srv_state_load_bundle(srv_state *st, uint64_t id, const uint8_t hash[3
         return s;
     char hex[65], want[65];
     pt_sha256_hex(data, len, hex);
-    for (int i = 0; i < 32; i++)
-        snprintf(want + 2 * i, 3, "%02x", hash[i]);
+    pt_hash_hex(hash, want);
     if (strcmp(hex, want) != 0) {
         pt_free(data);
         return pt_error_set(err, PT_ERR_FORMAT, "%s: SHA-256 %.16s... differs from the queue's "
@@ -558,7 +557,7 @@ pt_status srv_state_restore(srv_state *st, srv_job *job, srv_ckpt_extra *extra,
     size_t len;
     int missing;
     /* The checkpoint body carries its own version (srv_job_restore). */
-    pt_status s = read_checked(p, CKPT_MAGIC, MAX_CKPT_BYTES, &data, &body, &len, NULL, &missing,
+    pt_status s = read_intact(p, CKPT_MAGIC, MAX_CKPT_BYTES, &data, &body, &len, NULL, &missing,
                                err);
     if (s != PT_OK)
         return s;

@@ -20,6 +20,9 @@
  * dropped with a warning: it was never merged. Anything else that does not
  * check out (a bad magic, checksum, length, or contents) is refused with an
  * error that names the file; it is never used silently.
+ *
+ * Threads: called only from the event-loop thread, except srv_state_dir and
+ * srv_state_save_bundle, which any thread may call between open and close.
  */
 #ifndef PT_SERVER_STATE_H
 #define PT_SERVER_STATE_H
@@ -32,8 +35,8 @@
 #include "protocol/msg.h"
 #include "server/job.h"
 
-/* One job's record in the queue file. */
-typedef struct srv_job_rec {
+/* One job's durable record: its entry in the queue file. */
+typedef struct srv_job_record {
     uint64_t id, seq;  /* seq: submission order */
     uint8_t state;     /* PROTO_JOB_* */
     int32_t priority;
@@ -49,7 +52,7 @@ typedef struct srv_job_rec {
     double seconds;        /* render seconds, set when the job ends */
     double error;          /* estimated relative error when it ended; < 0 unknown */
     char message[PROTO_MAX_ERROR_TEXT + 1];
-} srv_job_rec;
+} srv_job_record;
 
 #define SRV_MAX_JOBS 100000u /* records in one queue file */
 
@@ -62,13 +65,16 @@ void srv_state_close(srv_state *st); /* accepts NULL */
 const char *srv_state_dir(const srv_state *st);
 
 /* The queue. A missing file is an empty queue (*n = 0, ids from 1). */
-pt_status srv_state_load_queue(srv_state *st, srv_job_rec **recs, uint32_t *n, uint64_t *next_id,
+pt_status srv_state_load_queue(srv_state *st, srv_job_record **recs, uint32_t *n, uint64_t *next_id,
                                pt_error *err);
-pt_status srv_state_save_queue(srv_state *st, srv_job_rec *const *recs, uint32_t n,
+pt_status srv_state_save_queue(srv_state *st, srv_job_record *const *recs, uint32_t n,
                                uint64_t next_id, pt_error *err);
 
-/* The bundle of job id: saved durably; loaded with its SHA-256 checked. */
-pt_status srv_state_save_bundle(srv_state *st, uint64_t id, const uint8_t *data, size_t n,
+/* The bundle of job id: saved durably; loaded with its SHA-256 checked.
+ * srv_state_save_bundle reads only the folder's name, fixed at open, and
+ * writes only job id's folder, so the upload verification thread may call it
+ * (as may srv_state_dir) while the loop uses st. */
+pt_status srv_state_save_bundle(const srv_state *st, uint64_t id, const uint8_t *data, size_t n,
                                 pt_error *err);
 pt_status srv_state_load_bundle(srv_state *st, uint64_t id, const uint8_t hash[32],
                                 pt_bundle **out, pt_error *err);

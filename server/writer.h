@@ -7,6 +7,8 @@
  * kept: an older one not yet written is dropped, so a slow disk never makes
  * the loop wait or memory grow, and the files on disk only move forward.
  * srv_writer_flush waits until everything submitted has been written.
+ * Threads: one owner thread (the event loop's) calls every function; the
+ * writer's own thread is internal.
  */
 #ifndef PT_SERVER_WRITER_H
 #define PT_SERVER_WRITER_H

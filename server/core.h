@@ -1,0 +1,97 @@
+/*
+ * core.h - the coordinator's shared state and its two small helpers.
+ *
+ * srv_server is what every server module's functions take: the event loop's
+ * connections (server/loop.h), the queue of jobs (server/queue.h), the upload
+ * verifications in flight (server/upload.h), the local worker processes
+ * (server/local.h) and the mode chosen at setup (server/mode.h). Each group
+ * of fields belongs to the module named beside it; the others only read it,
+ * or change it through that module's functions.
+ *
+ * The mode is data: a srv_mode, chosen once, says how the loop ends, what it
+ * does after each round of leases, what a timer tick prints and what happens
+ * when the local workers are gone, so no module asks which mode it is in.
+ *
+ * Threads: srv_server is touched only by the event-loop thread. srv_now_ms
+ * and srv_log may be called from any thread.
+ */
+#ifndef PT_SERVER_CORE_H
+#define PT_SERVER_CORE_H
+
+#include <limits.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include "common/base/error.h"
+#include "common/render/film.h"
+#include "protocol/auth.h"
+#include "server/local.h"
+#include "server/serve.h"
+#include "server/state.h"
+
+typedef struct srv_server srv_server;
+typedef struct srv_conn srv_conn;     /* server/loop.h */
+typedef struct srv_entry srv_entry;   /* server/queue.h */
+typedef struct srv_upload srv_upload; /* server/upload.h */
+
+/* One way of running the coordinator (server/mode.c has the two). */
+typedef struct srv_mode {
+    const char *name;
+    int serves_clients; /* a client (ptctl) may connect */
+    int logs_starts;    /* log each job as it starts (the queue's; one job logs its setup) */
+    /* Loads or restores the jobs before the loop listens. */
+    pt_status (*setup)(srv_server *s, pt_error *err);
+    /* 1 when the loop is over (besides a stop signal). */
+    int (*over)(const srv_server *s);
+    /* After each round's leases: what must reach the disk, jobs that ended. */
+    void (*after_leases)(srv_server *s);
+    /* Once per loop round after the timers; now in ms (srv_now_ms). */
+    void (*tick)(srv_server *s, uint64_t now);
+    /* Every local worker has exited: returns 1 to end the loop. */
+    int (*local_gone)(srv_server *s);
+    /* After the loop: saves what must be saved; returns the exit status. */
+    int (*finish)(srv_server *s);
+} srv_mode;
+
+struct srv_server {
+    const srv_config *cfg;
+    const srv_mode *mode;
+    uint64_t t_start, t_last_print;
+
+    /* the loop (server/loop.c) */
+    int ep, lfd, sigpipe[2];
+    uint16_t port;
+    srv_conn *conns;
+    uint32_t nconns, nworkers;
+    uint64_t next_conn_id;
+    uint8_t token[PROTO_TOKEN_MAX];
+    size_t token_len;
+    uint64_t bytes_in, bytes_out; /* on the wire, all peers */
+
+    /* the queue (server/queue.c) */
+    srv_entry *jobs; /* every job, in queue order */
+    uint32_t njobs;
+    uint64_t next_job_id;
+    srv_entry *single; /* one-job mode: the job */
+    srv_state *state;  /* queue mode: the state folder; NULL in one-job mode */
+    char out_dir[PATH_MAX - 512];
+
+    /* upload verification (server/upload.c) */
+    int verifypipe[2];         /* verifications done: their pointers */
+    srv_upload *verifications; /* in flight */
+
+    /* worker messages (server/workers.c) */
+    pt_pixel_acc *scratch; /* RESULT decode buffer */
+
+    /* local workers (server/local.c) */
+    srv_local local;
+    int local_gone_logged;
+};
+
+/* Monotonic milliseconds. */
+uint64_t srv_now_ms(void);
+
+/* One line on stderr, "ptserve: " first (over a progress line, if any). */
+void srv_log(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
+
+#endif

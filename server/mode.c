@@ -1,0 +1,283 @@
+#include "server/mode.h"
+
+#include <stdio.h>
+#include <string.h>
+
+#include "common/base/alloc.h"
+#include "common/base/fsutil.h"
+#include "common/base/hash.h"
+#include "common/scene/bundle.h"
+#include "common/scene/scene.h"
+#include "server/loop.h"
+#include "server/queue.h"
+
+/* ---- one job ----------------------------------------------------------------------- */
+
+static void format_eta(double sec, char *buf, size_t n)
+{
+    if (!(sec >= 0) || sec > 360000)
+        snprintf(buf, n, "--");
+    else if (sec >= 3600)
+        snprintf(buf, n, "%dh%02dm", (int)(sec / 3600), (int)(sec / 60) % 60);
+    else if (sec >= 60)
+        snprintf(buf, n, "%dm%02ds", (int)(sec / 60), (int)sec % 60);
+    else
+        snprintf(buf, n, "%.0fs", sec);
+}
+
+static void print_progress(srv_server *s, uint64_t now)
+{
+    const srv_entry *j = s->single;
+    const srv_job_params *p = &j->rec.params;
+    double el = (double)(now - s->t_start) / 1000.0;
+    uint64_t done = srv_job_samples_merged(j->job);
+    double total = (double)p->width * p->height * p->spp;
+    double rate = el > 0 ? (double)done / el : 0;
+    char eta[32];
+    format_eta(rate > 0 ? (total - (double)done) / rate : -1, eta, sizeof eta);
+    fprintf(stderr, "\rptserve: pass %u/%u  %.1f/%u spp  %.3g samples/s  %u workers  ETA %s\033[K",
+            srv_job_passes_done(j->job), srv_job_passes(j->job),
+            (double)done / ((double)p->width * p->height), p->spp, rate, s->nworkers, eta);
+}
+
+static pt_status setup_single(srv_server *s, pt_error *err)
+{
+    const srv_config *cfg = s->cfg;
+    pt_status st;
+    /* Load once here so a broken scene fails before any worker starts. */
+    pt_scene_opts so = {0};
+    so.camera_name = cfg->job.camera[0] ? cfg->job.camera : NULL;
+    pt_scene *scene = NULL;
+    if ((st = pt_scene_load(cfg->scene_path, &so, &scene, err)) != PT_OK)
+        return st;
+    srv_job_params jp = cfg->job;
+    if (jp.width == 0) {
+        float aspect = scene->camera.aspect > 0 ? scene->camera.aspect : 1.0f;
+        jp.width = 512;
+        jp.height = (uint32_t)(512.0f / aspect + 0.5f);
+        if (jp.height == 0)
+            jp.height = 1;
+    }
+    uint32_t ntris = scene->num_triangles;
+    pt_scene_free(scene);
+    srv_entry *j = pt_calloc(1, sizeof *j);
+    if (!j)
+        return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
+    srv_queue_insert(s, j);
+    s->single = j;
+    if ((st = pt_bundle_pack(cfg->scene_path, &j->bundle, err)) != PT_OK)
+        return st;
+    j->rec.id = j->rec.seq = 1;
+    j->rec.state = PROTO_JOB_QUEUED;
+    j->rec.error = -1.0;
+    j->rec.params = jp;
+    pt_hex_decode(j->bundle->hash, j->rec.hash, 32);
+    const char *base = strrchr(cfg->scene_path, '/');
+    snprintf(j->rec.scene, sizeof j->rec.scene, "%s", base ? base + 1 : cfg->scene_path);
+    snprintf(j->out_path, sizeof j->out_path, "%s", cfg->out_path);
+    if (!srv_entry_ready(s, j))
+        return pt_error_set(err, PT_ERR_IO, "%s", j->rec.message);
+    if (!cfg->quiet)
+        srv_log("%s: %u triangles, %ux%u, %u spp in %u passes of %u, tiles of %u", cfg->scene_path,
+                ntris, jp.width, jp.height, jp.spp, srv_job_passes(j->job), jp.chunk, jp.tile);
+    return PT_OK;
+}
+
+/* The final image and the summary. Returns the exit status. */
+static int finish_single(srv_server *s)
+{
+    const srv_config *cfg = s->cfg;
+    srv_entry *j = s->single;
+    pt_error err = {0};
+    if (!j->job)
+        return 1;
+    srv_entry_save_image(j);
+    pt_status st = srv_writer_flush(j->writer, &err);
+    if (!cfg->quiet)
+        print_progress(s, srv_now_ms());
+    fputc('\n', stderr);
+    double secs = (double)(srv_now_ms() - s->t_start) / 1000.0;
+    uint64_t samples = srv_job_samples_merged(j->job);
+    const srv_job_params *p = &j->rec.params;
+    if (st != PT_OK) {
+        fprintf(stderr, "ptserve: cannot write %s: %s\n", cfg->out_path, err.msg);
+        return 1;
+    }
+    if (srv_job_complete(j->job)) {
+        uint64_t tasks = srv_job_tasks_total(j->job);
+        fprintf(stderr,
+                "ptserve: done in %.2fs: %llu samples (%.4g samples/s), %llu rejected "
+                "samples (NaN/Inf); wrote %s\n",
+                secs, (unsigned long long)samples, (double)samples / secs,
+                (unsigned long long)j->rejected, cfg->out_path);
+        fprintf(stderr,
+                "ptserve: wire: %llu bytes in, %llu out (scene %zu); %.3f bytes per "
+                "sample, %.0f per task\n",
+                (unsigned long long)s->bytes_in, (unsigned long long)s->bytes_out,
+                j->bundle ? j->bundle->size : 0,
+                (double)(s->bytes_in + s->bytes_out) / (double)samples,
+                (double)(s->bytes_in + s->bytes_out) / (double)tasks);
+        return 0;
+    }
+    if (srv_loop_stopped()) {
+        fprintf(stderr, "ptserve: interrupted after %.2fs; %s holds %llu of %llu samples\n", secs,
+                cfg->out_path, (unsigned long long)samples,
+                (unsigned long long)p->width * p->height * p->spp);
+        return 130;
+    }
+    return 1;
+}
+
+static int single_over(const srv_server *s)
+{
+    return !s->single->job || srv_job_complete(s->single->job);
+}
+
+static void single_after_leases(srv_server *s)
+{
+    (void)s; /* nothing is durable, and the loop ends with the job */
+}
+
+static void single_tick(srv_server *s, uint64_t now)
+{
+    if (s->single->job && !s->cfg->quiet && now - s->t_last_print >= 1000) {
+        s->t_last_print = now;
+        print_progress(s, now);
+    }
+}
+
+static int single_local_gone(srv_server *s)
+{
+    if (srv_job_complete(s->single->job))
+        return 0;
+    fprintf(stderr, "\nptserve: all %u local workers exited before the image was complete\n",
+            s->local.nchildren);
+    return 1;
+}
+
+const srv_mode srv_mode_one_job = {
+    .name = "one job",
+    .serves_clients = 0,
+    .logs_starts = 0,
+    .setup = setup_single,
+    .over = single_over,
+    .after_leases = single_after_leases,
+    .tick = single_tick,
+    .local_gone = single_local_gone,
+    .finish = finish_single,
+};
+
+/* ---- the queue --------------------------------------------------------------------- */
+
+static pt_status setup_queue(srv_server *s, pt_error *err)
+{
+    const srv_config *cfg = s->cfg;
+    pt_status st;
+    if ((st = srv_state_open(cfg->state_dir, &s->state, err)) != PT_OK)
+        return st;
+    if (cfg->output_dir)
+        snprintf(s->out_dir, sizeof s->out_dir, "%s", cfg->output_dir);
+    else
+        snprintf(s->out_dir, sizeof s->out_dir, "%s/output", cfg->state_dir);
+    char tmp[PATH_MAX];
+    snprintf(tmp, sizeof tmp, "%s/tmp", cfg->state_dir);
+    pt_remove_tree(tmp); /* uploads a crash left half-verified */
+    if ((st = pt_mkdirs(s->out_dir, 0, err)) != PT_OK || (st = pt_mkdirs(tmp, 1, err)) != PT_OK)
+        return st;
+    srv_job_record *recs;
+    uint32_t n;
+    if ((st = srv_state_load_queue(s->state, &recs, &n, &s->next_job_id, err)) != PT_OK)
+        return st;
+    uint32_t counts[6] = {0};
+    for (uint32_t i = 0; i < n; i++) {
+        srv_entry *j = pt_calloc(1, sizeof *j);
+        if (!j) {
+            pt_free(recs);
+            return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
+        }
+        j->rec = recs[i];
+        snprintf(j->out_path, sizeof j->out_path, "%s/%s", s->out_dir, j->rec.output);
+        srv_queue_insert(s, j);
+        counts[j->rec.state]++;
+    }
+    pt_free(recs);
+    if (!cfg->quiet || counts[PROTO_JOB_RUNNING] || counts[PROTO_JOB_QUEUED])
+        srv_log("state %s: %u jobs queued, %u running, %u ended; images go to %s", cfg->state_dir,
+                counts[PROTO_JOB_QUEUED], counts[PROTO_JOB_RUNNING],
+                counts[PROTO_JOB_DONE] + counts[PROTO_JOB_CANCELLED] + counts[PROTO_JOB_FAILED],
+                s->out_dir);
+    /* Resume the running jobs now: their checkpoints are checked at start. */
+    for (srv_entry *j = s->jobs; j; j = j->next)
+        if (j->rec.state == PROTO_JOB_RUNNING)
+            srv_entry_ready(s, j);
+    return PT_OK;
+}
+
+/* Every running job checkpointed, its image saved. */
+static int finish_queue(srv_server *s)
+{
+    uint32_t n = 0;
+    for (srv_entry *j = s->jobs; j; j = j->next) {
+        if (!j->job || !srv_entry_active(j))
+            continue;
+        srv_entry_checkpoint(s, j);
+        srv_entry_save_image(j);
+        pt_error err = {0};
+        if (srv_writer_flush(j->writer, &err) != PT_OK)
+            srv_log("job %llu: cannot write its image: %s", (unsigned long long)j->rec.id, err.msg);
+        n++;
+    }
+    srv_log("stopped; %u running jobs checkpointed", n);
+    return 0;
+}
+
+static int queue_over(const srv_server *s)
+{
+    (void)s; /* until a signal */
+    return 0;
+}
+
+static void queue_after_leases(srv_server *s)
+{
+    pt_error err = {0};
+    /* Leases need no disk: they leave before the group commit, so workers do
+     * not wait on it for their next tasks. Then the results logged in this
+     * round reach the disk. */
+    srv_loop_flush_all(s);
+    if (srv_state_sync(s->state, &err) != PT_OK)
+        srv_log("error: %s", err.msg);
+    if (srv_queue_end_complete(s))
+        srv_queue_hand_out(s); /* the workers the ended jobs left waiting */
+}
+
+static void queue_tick(srv_server *s, uint64_t now)
+{
+    (void)s;
+    (void)now;
+}
+
+static int queue_local_gone(srv_server *s)
+{
+    if (!s->local_gone_logged) {
+        srv_log("all %u local workers exited; waiting for remote ones", s->local.nchildren);
+        s->local_gone_logged = 1;
+    }
+    return 0;
+}
+
+const srv_mode srv_mode_queue = {
+    .name = "queue",
+    .serves_clients = 1,
+    .logs_starts = 1,
+    .setup = setup_queue,
+    .over = queue_over,
+    .after_leases = queue_after_leases,
+    .tick = queue_tick,
+    .local_gone = queue_local_gone,
+    .finish = finish_queue,
+};
+
+const srv_mode *srv_mode_for(const srv_config *cfg)
+{
+    return cfg->scene_path ? &srv_mode_one_job : &srv_mode_queue;
+}

@@ -1,0 +1,458 @@
+#include "server/queue.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <string.h>
+
+#include "common/base/alloc.h"
+#include "common/base/hash.h"
+#include "common/render/adaptive.h"
+#include "common/render/film.h"
+#include "server/loop.h"
+#include "server/requests.h"
+
+#define CKPT_MIN_LOG (16u << 20) /* checkpoint once a job's results log passes this */
+#define MAX_FINISHED 1000        /* ended jobs kept in the queue's history */
+
+int srv_entry_active(const srv_entry *j)
+{
+    return j->rec.state == PROTO_JOB_QUEUED || j->rec.state == PROTO_JOB_RUNNING;
+}
+
+srv_entry *srv_queue_find(srv_server *s, uint64_t id)
+{
+    for (srv_entry *j = s->jobs; j; j = j->next)
+        if (j->rec.id == id)
+            return j;
+    return NULL;
+}
+
+void srv_queue_insert(srv_server *s, srv_entry *j)
+{
+    srv_entry **p = &s->jobs;
+    while (*p && ((*p)->rec.priority > j->rec.priority ||
+                  ((*p)->rec.priority == j->rec.priority && (*p)->rec.id < j->rec.id)))
+        p = &(*p)->next;
+    j->next = *p;
+    *p = j;
+    s->njobs++;
+}
+
+static void free_run(srv_entry *j)
+{
+    srv_writer_free(j->writer);
+    j->writer = NULL;
+    srv_job_free(j->job);
+    j->job = NULL;
+    pt_bundle_free(j->bundle);
+    j->bundle = NULL;
+}
+
+void srv_entry_free(srv_entry *j)
+{
+    if (!j)
+        return;
+    free_run(j);
+    pt_free(j);
+}
+
+void srv_queue_prune(srv_server *s)
+{
+    uint32_t ended = 0;
+    for (srv_entry *j = s->jobs; j; j = j->next)
+        ended += !srv_entry_active(j);
+    while (ended > MAX_FINISHED) {
+        srv_entry **oldest = NULL;
+        for (srv_entry **p = &s->jobs; *p; p = &(*p)->next)
+            if (!srv_entry_active(*p) && (!oldest || (*p)->rec.id < (*oldest)->rec.id))
+                oldest = p;
+        srv_entry *j = *oldest;
+        *oldest = j->next;
+        srv_entry_free(j);
+        s->njobs--;
+        ended--;
+    }
+}
+
+pt_status srv_queue_journal(srv_server *s, pt_error *err)
+{
+    if (!s->state)
+        return PT_OK;
+    srv_job_record **recs = pt_malloc_array(s->njobs ? s->njobs : 1, sizeof *recs);
+    if (!recs)
+        return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
+    uint32_t n = 0;
+    for (srv_entry *j = s->jobs; j; j = j->next)
+        recs[n++] = &j->rec;
+    pt_status st = srv_state_save_queue(s->state, recs, n, s->next_job_id, err);
+    pt_free(recs);
+    return st;
+}
+
+static void journal_or_log(srv_server *s)
+{
+    pt_error err = {0};
+    if (srv_queue_journal(s, &err) != PT_OK)
+        srv_log("error: cannot write the queue: %s", err.msg);
+}
+
+double srv_entry_seconds(const srv_entry *j, uint64_t now)
+{
+    if (!srv_entry_active(j))
+        return j->rec.seconds;
+    return j->seconds_before + (j->t_started ? (double)(now - j->t_started) / 1000.0 : 0.0);
+}
+
+static uint32_t job_workers(const srv_server *s, const srv_entry *j)
+{
+    uint32_t n = 0;
+    if (!j->job)
+        return 0;
+    for (const srv_conn *c = s->conns; c; c = c->next)
+        if (c->state == SRV_C_READY && c->role == PROTO_ROLE_WORKER &&
+            srv_job_owner_active(j->job, c->id))
+            n++;
+    return n;
+}
+
+/* The estimated relative error of the job's image so far; -1 when unknown. */
+static double job_error(const srv_job *job)
+{
+    const pt_film *f = srv_job_film(job);
+    double e = pt_tile_rel_error(f->px, f->width, f->width, f->height);
+    return isfinite(e) ? e : -1.0;
+}
+
+void srv_queue_info(const srv_server *s, const srv_entry *j, proto_job_info *m)
+{
+    uint64_t now = srv_now_ms();
+    const srv_job_record *r = &j->rec;
+    memset(m, 0, sizeof *m);
+    m->job_id = r->id;
+    m->state = r->state;
+    m->priority = r->priority;
+    snprintf(m->name, sizeof m->name, "%s", r->name);
+    snprintf(m->owner, sizeof m->owner, "%s", r->owner);
+    snprintf(m->scene, sizeof m->scene, "%s", r->scene);
+    snprintf(m->output, sizeof m->output, "%s", r->output);
+    m->width = r->params.width;
+    m->height = r->params.height;
+    m->spp = r->params.spp;
+    m->samples_total = (uint64_t)r->params.width * r->params.height * r->params.spp;
+    m->tiles = srv_job_params_tiles(&r->params);
+    m->passes = srv_job_params_passes(&r->params);
+    m->error = -1.0;
+    if (j->job) {
+        m->samples_done = srv_job_samples_merged(j->job);
+        m->passes_done = srv_job_passes_done(j->job);
+        m->tiles_stopped = srv_job_tiles_stopped(j->job);
+        m->workers = job_workers(s, j);
+        m->error = job_error(j->job);
+    } else if (r->state == PROTO_JOB_DONE) {
+        m->samples_done = r->samples_done;
+        m->passes_done = m->passes;
+        m->error = r->error;
+    } else {
+        m->samples_done = r->samples_done;
+        m->error = r->samples_done ? r->error : -1.0;
+    }
+    m->seconds = srv_entry_seconds(j, now);
+    m->rate = j->rate;
+    m->submitted = r->submitted;
+    if (r->state == PROTO_JOB_QUEUED) {
+        uint32_t pos = 0;
+        for (const srv_entry *q = s->jobs; q; q = q->next) {
+            if (q->rec.state == PROTO_JOB_QUEUED)
+                pos++;
+            if (q == j)
+                break;
+        }
+        m->queue_pos = pos;
+    }
+    snprintf(m->message, sizeof m->message, "%s", r->message);
+}
+
+void srv_entry_save_image(srv_entry *j)
+{
+    pt_image *img = NULL;
+    const pt_film *film = srv_job_film(j->job);
+    if (pt_image_new(film->width, film->height, &img, NULL) != PT_OK) {
+        srv_log("out of memory for a progressive image of job %llu; will try again",
+                (unsigned long long)j->rec.id);
+        return;
+    }
+    pt_film_resolve(film, img);
+    pt_exr_meta meta = {0};
+    meta.total_samples = pt_film_total_samples(film);
+    meta.render_seconds = srv_entry_seconds(j, srv_now_ms());
+    pt_hash_hex(j->rec.hash, meta.scene_hash);
+    snprintf(meta.job_id, sizeof meta.job_id, "%llu", (unsigned long long)j->rec.id);
+    srv_writer_submit(j->writer, img, &meta);
+    j->t_last_save = srv_now_ms();
+    j->saved_passes = srv_job_passes_done(j->job);
+    j->saved_samples = meta.total_samples;
+}
+
+void srv_entry_checkpoint(srv_server *s, srv_entry *j)
+{
+    if (!s->state || !j->job)
+        return;
+    srv_ckpt_extra x = {srv_entry_seconds(j, srv_now_ms()), j->rejected, j->rays};
+    pt_error err = {0};
+    if (srv_state_checkpoint(s->state, j->job, &x, &err) != PT_OK)
+        srv_log("error: job %llu: cannot write its checkpoint: %s (its results log still holds "
+                "every merged task)",
+                (unsigned long long)j->rec.id, err.msg);
+}
+
+/* Tells every worker that job j ended before it was done, so each drops the
+ * tasks of it that it has not started and its threads go to the next job at
+ * once (their results would be dropped anyway). */
+static void announce_job_end(srv_server *s, const srv_entry *j)
+{
+    proto_job_ref ref = {j->rec.id};
+    for (srv_conn *c = s->conns; c; c = c->next) {
+        if (c->role != PROTO_ROLE_WORKER || c->state != SRV_C_READY || c->closing)
+            continue;
+        size_t mark;
+        if (srv_conn_frame_open(c, PROTO_MSG_JOB_END, &mark))
+            srv_conn_frame_close(c, mark, proto_msg_encode_job_ref(&c->out, &ref, NULL));
+        srv_conn_update_events(s, c);
+    }
+}
+
+void srv_queue_end_job(srv_server *s, srv_entry *j, uint8_t state, const char *message)
+{
+    uint64_t now = srv_now_ms();
+    pt_error err = {0};
+    if (state == PROTO_JOB_DONE && j->job) {
+        srv_entry_save_image(j);
+        if (srv_writer_flush(j->writer, &err) != PT_OK) {
+            state = PROTO_JOB_FAILED;
+            char msg[PROTO_MAX_ERROR_TEXT + 1];
+            snprintf(msg, sizeof msg, "cannot write the image: %s", err.msg);
+            srv_queue_end_job(s, j, state, msg);
+            return;
+        }
+    }
+    j->rec.seconds = srv_entry_seconds(j, now);
+    if (j->job) {
+        j->rec.samples_done = srv_job_samples_merged(j->job);
+        j->rec.error = job_error(j->job);
+    }
+    if (state != PROTO_JOB_DONE && j->t_started)
+        announce_job_end(s, j);
+    j->rec.state = state;
+    snprintf(j->rec.message, sizeof j->rec.message, "%s", message ? message : "");
+    free_run(j);
+    pt_status st = srv_queue_journal(s, &err);
+    if (st != PT_OK)
+        srv_log("error: cannot write the queue: %s", err.msg);
+    /* A failed job's files stay for the operator to look at; an ended one's
+     * go once the queue says it ended. */
+    if (s->state && state != PROTO_JOB_FAILED && st == PT_OK)
+        srv_state_forget_job(s->state, j->rec.id);
+    if (state == PROTO_JOB_DONE)
+        srv_log("job %llu done: %llu samples in %.1f s; %s", (unsigned long long)j->rec.id,
+                (unsigned long long)j->rec.samples_done, j->rec.seconds, j->out_path);
+    else
+        srv_log("job %llu %s%s%s", (unsigned long long)j->rec.id, proto_job_state_name(state),
+                j->rec.message[0] ? ": " : "", j->rec.message);
+    srv_requests_notify_watchers(s, j);
+}
+
+int srv_entry_ready(srv_server *s, srv_entry *j)
+{
+    if (j->job)
+        return 1;
+    pt_error err = {0};
+    pt_status st = srv_job_new(j->rec.id, &j->rec.params, j->rec.hash, &j->job, &err);
+    if (st == PT_OK && s->state) {
+        srv_ckpt_extra x;
+        uint32_t replayed;
+        int torn;
+        st = srv_state_restore(s->state, j->job, &x, &replayed, &torn, &err);
+        if (st == PT_OK) {
+            j->seconds_before = x.seconds;
+            j->rejected = x.rejected;
+            j->rays = x.rays;
+            if (torn)
+                srv_log("job %llu: dropped the incomplete last record of its results log (a "
+                        "write cut short by a crash; it was never merged)",
+                        (unsigned long long)j->rec.id);
+            if (srv_job_tasks_merged(j->job) > 0)
+                srv_log("job %llu resumed: %llu samples merged (%u from its results log)",
+                        (unsigned long long)j->rec.id,
+                        (unsigned long long)srv_job_samples_merged(j->job), replayed);
+        }
+    }
+    if (st == PT_OK && !j->writer)
+        st = srv_writer_new(j->out_path, &j->writer, &err);
+    if (st != PT_OK) {
+        char msg[PROTO_MAX_ERROR_TEXT + 1];
+        snprintf(msg, sizeof msg, "%s", err.msg);
+        srv_queue_end_job(s, j, PROTO_JOB_FAILED, msg);
+        return 0;
+    }
+    j->saved_passes = srv_job_passes_done(j->job);
+    j->saved_samples = srv_job_samples_merged(j->job);
+    j->t_last_save = srv_now_ms();
+    j->rate_t = srv_now_ms();
+    j->rate_samples = j->saved_samples;
+    return 1;
+}
+
+/* Leases the first task the queue has for owner: the first job in queue order
+ * with a task to hand out, so when the running job has nothing left for an
+ * idle worker (its last pass), the next job starts. */
+static int lease_any(srv_server *s, uint64_t owner, uint64_t now, proto_task *t)
+{
+    for (srv_entry *j = s->jobs; j; j = j->next) {
+        if (!srv_entry_active(j) || !srv_entry_ready(s, j))
+            continue;
+        if (!srv_job_lease(j->job, owner, now, s->cfg->lease_ms, t))
+            continue;
+        if (!j->t_started)
+            j->t_started = now;
+        if (j->rec.state == PROTO_JOB_QUEUED) {
+            j->rec.state = PROTO_JOB_RUNNING;
+            journal_or_log(s);
+            if (s->mode->logs_starts)
+                srv_log("job %llu started (%s, %ux%u, %u spp)", (unsigned long long)j->rec.id,
+                        j->rec.scene, j->rec.params.width, j->rec.params.height, j->rec.params.spp);
+        }
+        return 1;
+    }
+    return 0;
+}
+
+void srv_queue_hand_out(srv_server *s)
+{
+    uint64_t now = srv_now_ms();
+    int dry = 0; /* the queue had nothing to lease: skip the other workers */
+    for (srv_conn *c = s->conns; c; c = c->next) {
+        if (c->state != SRV_C_READY || c->closing)
+            continue;
+        if (c->fetch)
+            srv_requests_pump_fetch(s, c);
+        while (!dry && c->role == PROTO_ROLE_WORKER && c->want > 0 && srv_conn_has_room(c)) {
+            proto_task t;
+            if (!lease_any(s, c->id, now, &t)) {
+                dry = 1;
+                break;
+            }
+            size_t mark;
+            if (!srv_conn_frame_open(c, PROTO_MSG_TASK, &mark) ||
+                !srv_conn_frame_close(c, mark, proto_msg_encode_task(&c->out, &t, NULL))) {
+                srv_conn_send_error(s, c, PROTO_E_LIMIT, "output buffer full");
+                break;
+            }
+            c->want--;
+        }
+        srv_conn_update_events(s, c);
+    }
+}
+
+void srv_queue_release_owner(srv_server *s, const srv_conn *c, int report)
+{
+    if (c->state != SRV_C_READY || c->role != PROTO_ROLE_WORKER)
+        return;
+    uint32_t n = 0;
+    for (srv_entry *j = s->jobs; j; j = j->next)
+        if (j->job)
+            n += srv_job_release_owner(j->job, c->id);
+    if (n && report)
+        srv_log("worker %s left; %u leased tasks requeued", c->name, n);
+}
+
+int srv_queue_end_complete(srv_server *s)
+{
+    int ended = 0;
+    for (srv_entry *j = s->jobs; j; j = j->next)
+        if (j->job && srv_entry_active(j) && srv_job_complete(j->job)) {
+            srv_queue_end_job(s, j, PROTO_JOB_DONE, NULL);
+            ended++;
+        }
+    return ended;
+}
+
+void srv_queue_unlink(srv_server *s, srv_entry *j)
+{
+    for (srv_entry **q = &s->jobs; *q; q = &(*q)->next)
+        if (*q == j) {
+            *q = j->next;
+            s->njobs--;
+            return;
+        }
+}
+
+srv_entry *srv_queue_find_scene(srv_server *s, const uint8_t hash[32])
+{
+    pt_error err = {0};
+    srv_entry *j = s->jobs;
+    while (j && !(srv_entry_active(j) && memcmp(hash, j->rec.hash, 32) == 0))
+        j = j->next;
+    if (j && !j->bundle && s->state &&
+        srv_state_load_bundle(s->state, j->rec.id, j->rec.hash, &j->bundle, &err) != PT_OK) {
+        char msg[PROTO_MAX_ERROR_TEXT + 1];
+        snprintf(msg, sizeof msg, "%s", err.msg);
+        srv_queue_end_job(s, j, PROTO_JOB_FAILED, msg);
+        j = NULL;
+    }
+    return j && j->bundle ? j : NULL;
+}
+
+pt_status srv_queue_log_result(srv_server *s, const srv_entry *j, const uint8_t *payload,
+                               size_t len, pt_error *err)
+{
+    if (!s->state)
+        return PT_OK;
+    return srv_state_log_result(s->state, j->rec.id, payload, len, err);
+}
+
+void srv_queue_expire(srv_server *s, uint64_t now)
+{
+    for (srv_entry *j = s->jobs; j; j = j->next)
+        if (j->job && srv_entry_active(j) && srv_job_expire(j->job, now, NULL) > 0)
+            srv_log("job %llu: leases expired; tasks requeued", (unsigned long long)j->rec.id);
+}
+
+void srv_queue_tick(srv_server *s, uint64_t now)
+{
+    for (srv_entry *j = s->jobs; j; j = j->next) {
+        if (!j->job || !srv_entry_active(j))
+            continue;
+        uint64_t merged = srv_job_samples_merged(j->job);
+        int pass_done = srv_job_passes_done(j->job) > j->saved_passes;
+        if ((pass_done || merged > j->saved_samples) &&
+            (double)(now - j->t_last_save) >= s->cfg->save_interval * 1000.0 &&
+            !srv_job_complete(j->job))
+            srv_entry_save_image(j);
+        if (now - j->rate_t >= 1000) {
+            j->rate = (double)(merged - j->rate_samples) * 1000.0 / (double)(now - j->rate_t);
+            j->rate_t = now;
+            j->rate_samples = merged;
+        }
+        /* Checkpoint cost stays proportional to what the log has taken in. */
+        if (s->state) {
+            const pt_film *f = srv_job_film(j->job);
+            uint64_t film_bytes = (uint64_t)f->width * f->height * PROTO_RESULT_PIXEL_SIZE;
+            uint64_t limit = film_bytes > CKPT_MIN_LOG ? film_bytes : CKPT_MIN_LOG;
+            if (srv_state_log_bytes(s->state, j->rec.id) >= limit)
+                srv_entry_checkpoint(s, j);
+        }
+    }
+}
+
+void srv_queue_free(srv_server *s)
+{
+    while (s->jobs) {
+        srv_entry *j = s->jobs;
+        s->jobs = j->next;
+        srv_entry_free(j);
+    }
+    s->njobs = 0;
+    s->single = NULL;
+    srv_state_close(s->state);
+    s->state = NULL;
+}

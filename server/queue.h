@@ -1,0 +1,121 @@
+/*
+ * queue.h - the jobs a coordinator serves, in order, and their scheduling.
+ *
+ * Owns every srv_entry: a job as the coordinator serves it (its durable
+ * record, its srv_job once it is first scheduled, its bundle, its image
+ * writer, its timings). The list is in queue order: priority (higher first),
+ * then submission (lower id first). A worker's free slot gets the first task
+ * of the first job in that order that has one to hand out, so a higher
+ * priority job takes the farm from its next task on, and idle workers start
+ * on the next job during the running one's last pass. Leases expire; a job
+ * ends DONE (its final image written first), CANCELLED or FAILED, and
+ * workers are told at once of one that ended early (JOB_END). Progressive
+ * images are saved at most every cfg->save_interval seconds, checkpoints
+ * when a results log grows past max(16 MiB, the film's size).
+ *
+ * Durable steps (the queue file, results logs, checkpoints, bundles) use the
+ * state folder (server/state.h); with none (one-job mode) they are skipped.
+ *
+ * Threads: called only from the event-loop thread.
+ */
+#ifndef PT_SERVER_QUEUE_H
+#define PT_SERVER_QUEUE_H
+
+#include <limits.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include "common/scene/bundle.h"
+#include "protocol/msg.h"
+#include "server/core.h"
+#include "server/job.h"
+#include "server/state.h"
+#include "server/writer.h"
+
+/* A job of the queue (or the one job of one-job mode). */
+struct srv_entry {
+    srv_job_record rec;
+    srv_job *job;      /* NULL until it is first scheduled (and after it ends) */
+    pt_bundle *bundle; /* loaded when a worker first asks for it */
+    srv_writer *writer;
+    char out_path[PATH_MAX];
+    double seconds_before; /* render seconds of earlier coordinator runs */
+    uint64_t t_started;    /* when this run started rendering it (ms), 0: not yet */
+    uint64_t rejected, rays;
+    uint32_t saved_passes;
+    uint64_t saved_samples, t_last_save;
+    uint64_t rate_t, rate_samples;
+    double rate;
+    srv_entry *next; /* the queue's order */
+};
+
+/* 1 while j is QUEUED or RUNNING. */
+int srv_entry_active(const srv_entry *j);
+
+/* Render seconds of j, over every coordinator run, at now (ms). */
+double srv_entry_seconds(const srv_entry *j, uint64_t now);
+
+/* Frees j and what it holds; accepts NULL. */
+void srv_entry_free(srv_entry *j);
+
+/* Makes j ready to lease: its srv_job (restored from its checkpoint and
+ * results log when there is a state folder) and its image writer. Returns 0
+ * when it cannot be (j is then ended FAILED, with the reason). */
+int srv_entry_ready(srv_server *s, srv_entry *j);
+
+/* Hands j's film, resolved, to its writer (a progressive or final image). */
+void srv_entry_save_image(srv_entry *j);
+
+/* Writes j's checkpoint when there is a state folder (errors are logged). */
+void srv_entry_checkpoint(srv_server *s, srv_entry *j);
+
+/* The job with id, NULL when there is none. */
+srv_entry *srv_queue_find(srv_server *s, uint64_t id);
+
+/* The active job whose scene has this SHA-256, its bundle loaded (a bundle
+ * that does not load fails the job); NULL when there is none. */
+srv_entry *srv_queue_find_scene(srv_server *s, const uint8_t hash[32]);
+
+/* Puts j in its place in the queue order / takes it out again. */
+void srv_queue_insert(srv_server *s, srv_entry *j);
+void srv_queue_unlink(srv_server *s, srv_entry *j);
+
+/* Drops the oldest ended jobs beyond the history's cap. */
+void srv_queue_prune(srv_server *s);
+
+/* Writes the queue file (every job's record); PT_OK with no state folder. */
+pt_status srv_queue_journal(srv_server *s, pt_error *err);
+
+/* Logs an accepted RESULT payload of j durably before it is merged; PT_OK
+ * with no state folder. */
+pt_status srv_queue_log_result(srv_server *s, const srv_entry *j, const uint8_t *payload,
+                               size_t len, pt_error *err);
+
+/* JOB_INFO of j as a client sees it now. */
+void srv_queue_info(const srv_server *s, const srv_entry *j, proto_job_info *m);
+
+/* Ends j: DONE (the final image is written first; FAILED when it cannot
+ * be), CANCELLED or FAILED with message (may be NULL). Journals it, tells
+ * the workers when it ended early and its watchers always. */
+void srv_queue_end_job(srv_server *s, srv_entry *j, uint8_t state, const char *message);
+
+/* Ends the jobs whose every task is merged; returns how many. */
+int srv_queue_end_complete(srv_server *s);
+
+/* Leases tasks to every ready worker that asked for some (and feeds the
+ * clients' fetches, server/requests.h, while going over the connections). */
+void srv_queue_hand_out(srv_server *s);
+
+/* Requeues every task leased to c (a worker that is leaving); report: log
+ * how many. Nothing for a peer that is not a ready worker. */
+void srv_queue_release_owner(srv_server *s, const srv_conn *c, int report);
+
+/* Lease expiry; then, per running job, the progressive save, the rate and
+ * the checkpoint trigger. now in ms (srv_now_ms). */
+void srv_queue_expire(srv_server *s, uint64_t now);
+void srv_queue_tick(srv_server *s, uint64_t now);
+
+/* Frees every job and closes the state folder. */
+void srv_queue_free(srv_server *s);
+
+#endif

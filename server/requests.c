@@ -1,0 +1,462 @@
+#include "server/requests.h"
+
+#include <errno.h>
+#include <stdio.h>
+#include <string.h>
+#include <time.h>
+
+#include "common/base/alloc.h"
+#include "common/base/fsutil.h"
+#include "common/base/hash.h"
+#include "protocol/msg.h"
+#include "server/job.h"
+#include "server/loop.h"
+#include "server/queue.h"
+#include "server/upload.h"
+
+#define WATCH_MS 1000 /* JOB_INFO to watchers this often */
+#define MAX_FETCH ((size_t)4 << 30)
+
+static void send_job_info(srv_server *s, srv_conn *c, const srv_entry *j)
+{
+    proto_job_info m;
+    srv_queue_info(s, j, &m);
+    size_t mark;
+    if (srv_conn_frame_open(c, PROTO_MSG_JOB_INFO, &mark))
+        srv_conn_frame_close(c, mark, proto_msg_encode_job_info(&c->out, &m, NULL));
+    c->watch_t = srv_now_ms();
+    if (!srv_entry_active(j) && c->watch == j->rec.id)
+        c->watch = 0;
+}
+
+void srv_requests_notify_watchers(srv_server *s, const srv_entry *j)
+{
+    for (srv_conn *c = s->conns; c; c = c->next)
+        if (c->watch == j->rec.id && !c->closing)
+            send_job_info(s, c, j);
+}
+
+void srv_requests_pump_fetch(srv_server *s, srv_conn *c)
+{
+    while (c->fetch && !c->closing && srv_conn_has_room(c)) {
+        proto_scene_chunk ch;
+        memcpy(ch.hash, c->fetch_hash, 32);
+        ch.offset = c->fetch_off;
+        ch.total = c->fetch_len;
+        size_t left = c->fetch_len - c->fetch_off;
+        ch.len = (uint32_t)(left < PROTO_MAX_SCENE_CHUNK ? left : PROTO_MAX_SCENE_CHUNK);
+        ch.data = c->fetch + c->fetch_off;
+        size_t mark;
+        if (!srv_conn_frame_open(c, PROTO_MSG_IMAGE, &mark) ||
+            !srv_conn_frame_close(c, mark, proto_msg_encode_scene_chunk(&c->out, &ch, NULL))) {
+            srv_conn_send_error(s, c, PROTO_E_LIMIT, "output buffer full");
+            break;
+        }
+        c->fetch_off += ch.len;
+        if (c->fetch_off == c->fetch_len) {
+            pt_free(c->fetch);
+            c->fetch = NULL;
+        }
+    }
+}
+
+/* A file name from untrusted text: [A-Za-z0-9._-] kept, the rest '_', no
+ * leading dot, at most 64 characters; "job" when nothing is left. */
+static void sanitise(const char *in, char *out, size_t cap)
+{
+    size_t n = 0;
+    for (const char *p = in; *p && n + 1 < cap && n < 64; p++) {
+        char ch = *p;
+        int ok = (ch >= 'a' && ch <= 'z') || (ch >= 'A' && ch <= 'Z') || (ch >= '0' && ch <= '9') ||
+                 ch == '-' || ch == '_' || (ch == '.' && n > 0);
+        out[n++] = ok ? ch : '_';
+    }
+    out[n] = '\0';
+    if (n == 0)
+        snprintf(out, cap, "job");
+}
+
+static uint32_t owner_unfinished(const srv_server *s, const char *owner)
+{
+    uint32_t n = 0;
+    for (const srv_entry *j = s->jobs; j; j = j->next)
+        n += srv_entry_active(j) && strcmp(j->rec.owner, owner) == 0;
+    return n;
+}
+
+static void on_submit(srv_server *s, srv_conn *c, const proto_frame *f)
+{
+    pt_error err = {0};
+    proto_submit m;
+    if (c->uploading) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "SUBMIT during an upload");
+        return;
+    }
+    if (proto_msg_decode_submit(f->payload, f->len, &m, &err) != PT_OK) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "bad SUBMIT: %s", err.msg);
+        return;
+    }
+    if (strchr(m.name, '/') || strchr(m.name, '\\') || m.name[0] == '.' || strstr(m.name, "..")) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL,
+                            "job name '%s' is not a plain name (no '/', "
+                            "'\\', '..' or leading '.')",
+                            m.name);
+        return;
+    }
+    for (const char *p = m.name; *p; p++)
+        if ((unsigned char)*p < 0x20 || *p == 0x7f) {
+            srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "job name has control characters");
+            return;
+        }
+    const srv_caps *cap = &s->cfg->caps;
+    if (m.bundle_size > cap->max_scene) {
+        srv_conn_send_error(s, c, PROTO_E_LIMIT,
+                            "scene of %llu bytes is over this server's limit "
+                            "of %llu",
+                            (unsigned long long)m.bundle_size, (unsigned long long)cap->max_scene);
+        return;
+    }
+    if (m.spp > cap->max_spp) {
+        srv_conn_send_error(s, c, PROTO_E_LIMIT,
+                            "%u samples per pixel is over this server's limit "
+                            "of %u",
+                            m.spp, cap->max_spp);
+        return;
+    }
+    if (m.width > cap->max_side || m.height > cap->max_side ||
+        (uint64_t)m.width * m.height > cap->max_pixels) {
+        srv_conn_send_error(s, c, PROTO_E_LIMIT,
+                            "resolution %ux%u is over this server's limit (%u "
+                            "per side, %llu pixels)",
+                            m.width, m.height, cap->max_side, (unsigned long long)cap->max_pixels);
+        return;
+    }
+    if (m.max_depth > 1024 || (m.min_spp && m.min_spp < 2) || m.min_spp > m.spp) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "max depth %u or min spp %u is out of range",
+                            m.max_depth, m.min_spp);
+        return;
+    }
+    if (m.target_error > 0.0 && m.min_gain > 0.0) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL,
+                            "target error and min gain are two adaptive "
+                            "rules; a job takes one");
+        return;
+    }
+    if (owner_unfinished(s, c->name) >= cap->max_queued) {
+        srv_conn_send_error(s, c, PROTO_E_LIMIT,
+                            "%s already has %u unfinished jobs, this "
+                            "server's limit",
+                            c->name, cap->max_queued);
+        return;
+    }
+    if (s->njobs >= SRV_MAX_JOBS) {
+        srv_conn_send_error(s, c, PROTO_E_LIMIT, "the queue is full (%u jobs)", SRV_MAX_JOBS);
+        return;
+    }
+    c->up = m;
+    c->uploading = 1;
+    c->up_len = 0;
+    c->t_progress = srv_now_ms();
+}
+
+void srv_requests_drop_upload(srv_conn *c)
+{
+    pt_free(c->up_buf);
+    c->up_buf = NULL;
+    c->up_len = c->up_cap = 0;
+    c->uploading = 0;
+}
+
+/* A submitted job's params: the server's defaults (tile, chunk, max and RR
+ * depth) with what the client asked for; no width: 512 wide at the camera's
+ * aspect, the height within the cap. */
+static void submitted_params(const srv_config *cfg, const srv_upload *k, srv_job_params *out)
+{
+    const proto_submit *m = &k->m;
+    srv_job_params p = cfg->job;
+    p.spp = m->spp;
+    p.seed = m->seed;
+    if (m->max_depth)
+        p.max_depth = m->max_depth;
+    p.target_error = m->target_error;
+    p.min_gain = m->min_gain;
+    p.min_spp = m->min_spp ? m->min_spp : (p.chunk > 1 ? p.chunk : 2);
+    p.width = m->width;
+    p.height = m->height;
+    snprintf(p.camera, sizeof p.camera, "%s", m->camera);
+    if (p.width == 0) {
+        float aspect = k->aspect > 0 ? k->aspect : 1.0f;
+        p.width = 512;
+        p.height = (uint32_t)(512.0f / aspect + 0.5f);
+        if (p.height == 0)
+            p.height = 1;
+        if (p.height > cfg->caps.max_side)
+            p.height = cfg->caps.max_side;
+    }
+    *out = p;
+}
+
+/* The image's file name in the output folder: ID-NAME.exr, NAME the job's
+ * name or else the scene's without its extension, sanitised. */
+static void output_name(srv_job_record *r)
+{
+    char stem[PROTO_MAX_PATH + 1], safe[80];
+    snprintf(stem, sizeof stem, "%s", r->name[0] ? r->name : r->scene);
+    char *dot = strrchr(stem, '.');
+    if (!r->name[0] && dot && dot != stem)
+        *dot = '\0';
+    sanitise(stem, safe, sizeof safe);
+    snprintf(r->output, sizeof r->output, "%llu-%s.exr", (unsigned long long)r->id, safe);
+}
+
+void srv_requests_verified(srv_server *s, srv_conn *c, srv_upload *k)
+{
+    pt_error err = {0};
+    pt_status st;
+    const proto_submit *m = &k->m;
+    c->verifying = 0;
+    if (!k->ok) {
+        srv_conn_send_error(s, c, k->code, "%s", k->msg);
+        return;
+    }
+    pt_bundle *b = k->bundle;
+    k->bundle = NULL;
+    srv_entry *j = pt_calloc(1, sizeof *j);
+    if (!j) {
+        pt_bundle_free(b);
+        srv_state_forget_job(s->state, k->job_id);
+        srv_conn_send_error(s, c, PROTO_E_INTERNAL, "out of memory");
+        return;
+    }
+    srv_job_record *r = &j->rec;
+    r->id = r->seq = k->job_id;
+    r->state = PROTO_JOB_QUEUED;
+    r->error = -1.0;
+    r->priority = m->priority;
+    snprintf(r->name, sizeof r->name, "%s", m->name);
+    snprintf(r->owner, sizeof r->owner, "%s", c->name);
+    snprintf(r->scene, sizeof r->scene, "%s", k->scene);
+    r->submitted = (uint64_t)time(NULL);
+    srv_job_params p;
+    submitted_params(s->cfg, k, &p);
+    uint32_t ntris = k->ntris;
+    r->params = p;
+    memcpy(r->hash, m->bundle_hash, 32);
+    r->bundle_size = b->size;
+    output_name(r);
+    snprintf(j->out_path, sizeof j->out_path, "%s/%s", s->out_dir, r->output);
+    srv_job *probe = NULL;
+    if ((st = srv_job_new(r->id, &p, r->hash, &probe, &err)) != PT_OK) {
+        pt_free(j);
+        pt_bundle_free(b);
+        srv_state_forget_job(s->state, k->job_id);
+        srv_conn_send_error(s, c, PROTO_E_LIMIT, "%s", err.msg);
+        return;
+    }
+    srv_job_free(probe);
+    j->bundle = b;
+    srv_queue_insert(s, j);
+    srv_queue_prune(s);
+    if (srv_queue_journal(s, &err) != PT_OK) {
+        /* Not durable, so not accepted. */
+        srv_queue_unlink(s, j);
+        srv_state_forget_job(s->state, r->id);
+        srv_entry_free(j);
+        srv_conn_send_error(s, c, PROTO_E_INTERNAL, "cannot write the queue: %s", err.msg);
+        return;
+    }
+    srv_log("job %llu queued from %s: %s (%u triangles), %ux%u, %u spp, priority %d",
+            (unsigned long long)r->id, c->name, r->scene, ntris, p.width, p.height, p.spp,
+            r->priority);
+    proto_job_ref ref = {r->id};
+    size_t mark;
+    if (srv_conn_frame_open(c, PROTO_MSG_SUBMITTED, &mark))
+        srv_conn_frame_close(c, mark, proto_msg_encode_job_ref(&c->out, &ref, NULL));
+}
+
+static void on_upload(srv_server *s, srv_conn *c, const proto_frame *f)
+{
+    proto_scene_chunk ch;
+    pt_error err = {0};
+    if (!c->uploading) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "UPLOAD without a SUBMIT");
+        return;
+    }
+    if (proto_msg_decode_scene_chunk(f->payload, f->len, &ch, &err) != PT_OK) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "bad UPLOAD: %s", err.msg);
+        return;
+    }
+    if (memcmp(ch.hash, c->up.bundle_hash, 32) != 0 || ch.total != c->up.bundle_size ||
+        ch.offset != c->up_len || ch.len == 0) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL,
+                            "UPLOAD of %u bytes at %llu of %llu does not "
+                            "continue the announced scene (%zu of %llu bytes so far)",
+                            ch.len, (unsigned long long)ch.offset, (unsigned long long)ch.total,
+                            c->up_len, (unsigned long long)c->up.bundle_size);
+        return;
+    }
+    /* Grow with what arrives, not with what was announced. */
+    if (c->up_len + ch.len > c->up_cap) {
+        size_t cap = c->up_cap ? c->up_cap : (1u << 20);
+        while (cap < c->up_len + ch.len)
+            cap *= 2;
+        if (cap > c->up.bundle_size)
+            cap = (size_t)c->up.bundle_size;
+        uint8_t *n = pt_realloc(c->up_buf, cap);
+        if (!n) {
+            srv_conn_send_error(s, c, PROTO_E_INTERNAL, "out of memory for the scene");
+            return;
+        }
+        c->up_buf = n;
+        c->up_cap = cap;
+    }
+    memcpy(c->up_buf + c->up_len, ch.data, ch.len);
+    c->up_len += ch.len;
+    if (c->up_len == c->up.bundle_size)
+        srv_upload_start(s, c);
+}
+
+static int read_job_ref(srv_server *s, srv_conn *c, const proto_frame *f, srv_entry **out)
+{
+    proto_job_ref ref;
+    pt_error err = {0};
+    if (proto_msg_decode_job_ref(f->payload, f->len, &ref, &err) != PT_OK) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "bad %s: %s", proto_msg_type_name(f->type),
+                            err.msg);
+        return 0;
+    }
+    *out = srv_queue_find(s, ref.job_id);
+    if (!*out) {
+        srv_conn_send_error(s, c, PROTO_E_NOT_FOUND, "no job %llu", (unsigned long long)ref.job_id);
+        return 0;
+    }
+    return 1;
+}
+
+static void on_list(srv_server *s, srv_conn *c, const proto_frame *f)
+{
+    if (f->len != 0) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "bad LIST: trailing bytes");
+        return;
+    }
+    uint32_t n = s->njobs < PROTO_MAX_JOBS ? s->njobs : PROTO_MAX_JOBS;
+    proto_job_info *infos = pt_malloc_array(n ? n : 1, sizeof *infos);
+    if (!infos) {
+        srv_conn_send_error(s, c, PROTO_E_INTERNAL, "out of memory");
+        return;
+    }
+    uint32_t k = 0;
+    for (srv_entry *j = s->jobs; j && k < n; j = j->next)
+        srv_queue_info(s, j, &infos[k++]);
+    size_t mark;
+    if (!srv_conn_frame_open(c, PROTO_MSG_JOB_LIST, &mark) ||
+        !srv_conn_frame_close(c, mark, proto_msg_encode_job_list(&c->out, infos, k, NULL)))
+        srv_conn_send_error(s, c, PROTO_E_LIMIT, "output buffer full");
+    pt_free(infos);
+}
+
+static void on_fetch(srv_server *s, srv_conn *c, srv_entry *j)
+{
+    pt_error err = {0};
+    if (c->fetch) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "FETCH while a fetch is in progress");
+        return;
+    }
+    uint8_t *data;
+    size_t len;
+    if (pt_read_file(j->out_path, MAX_FETCH, &data, &len, &err) != PT_OK) {
+        if (err.sys_errno == ENOENT)
+            srv_conn_send_error(s, c, PROTO_E_NOT_FOUND, "job %llu has no image yet (%s)",
+                                (unsigned long long)j->rec.id, proto_job_state_name(j->rec.state));
+        else
+            srv_conn_send_error(s, c, PROTO_E_INTERNAL, "%s", err.msg);
+        return;
+    }
+    if (len == 0) {
+        pt_free(data);
+        srv_conn_send_error(s, c, PROTO_E_INTERNAL, "job %llu: its image file is empty",
+                            (unsigned long long)j->rec.id);
+        return;
+    }
+    char hex[65];
+    pt_sha256_hex(data, len, hex);
+    pt_hex_decode(hex, c->fetch_hash, 32);
+    c->fetch = data;
+    c->fetch_len = len;
+    c->fetch_off = 0;
+    srv_requests_pump_fetch(s, c);
+}
+
+void srv_requests_dispatch(srv_server *s, srv_conn *c, const proto_frame *f)
+{
+    srv_entry *j;
+    if (c->verifying) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "%s before the answer to its SUBMIT",
+                            proto_msg_type_name(f->type));
+        return;
+    }
+    switch (f->type) {
+    case PROTO_MSG_SUBMIT:
+        on_submit(s, c, f);
+        break;
+    case PROTO_MSG_UPLOAD:
+        on_upload(s, c, f);
+        break;
+    case PROTO_MSG_LIST:
+        on_list(s, c, f);
+        break;
+    case PROTO_MSG_STATUS:
+        if (read_job_ref(s, c, f, &j))
+            send_job_info(s, c, j);
+        break;
+    case PROTO_MSG_WATCH:
+        if (read_job_ref(s, c, f, &j)) {
+            c->watch = j->rec.id;
+            send_job_info(s, c, j);
+        }
+        break;
+    case PROTO_MSG_CANCEL:
+        if (read_job_ref(s, c, f, &j)) {
+            if (srv_entry_active(j)) {
+                char msg[PROTO_MAX_ERROR_TEXT + 1];
+                snprintf(msg, sizeof msg, "cancelled by %s", c->name);
+                srv_queue_end_job(s, j, PROTO_JOB_CANCELLED, msg);
+            }
+            send_job_info(s, c, j);
+        }
+        break;
+    case PROTO_MSG_FETCH:
+        if (read_job_ref(s, c, f, &j))
+            on_fetch(s, c, j);
+        break;
+    case PROTO_MSG_ERROR:
+        srv_conn_peer_error(s, c, f, "client");
+        break;
+    default:
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "unexpected %s from a client",
+                            proto_msg_type_name(f->type));
+    }
+}
+
+void srv_requests_tick(srv_server *s, uint64_t now)
+{
+    for (srv_conn *c = s->conns; c; c = c->next) {
+        if (c->closing || !c->watch || now - c->watch_t < WATCH_MS)
+            continue;
+        srv_entry *j = srv_queue_find(s, c->watch);
+        if (j)
+            send_job_info(s, c, j);
+        else
+            c->watch = 0;
+    }
+}
+
+void srv_requests_conn_gone(srv_conn *c)
+{
+    if (c->uploading)
+        srv_log("client %s left during an upload (%zu of %llu bytes); nothing was queued", c->name,
+                c->up_len, (unsigned long long)c->up.bundle_size);
+    srv_requests_drop_upload(c);
+    pt_free(c->fetch);
+    c->fetch = NULL;
+}

@@ -1,0 +1,174 @@
+#define _GNU_SOURCE /* pipe2 */
+#include "server/upload.h"
+
+#include <fcntl.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "common/base/alloc.h"
+#include "common/base/fsutil.h"
+#include "common/base/hash.h"
+#include "common/scene/scene.h"
+#include "server/loop.h"
+#include "server/requests.h"
+#include "server/state.h"
+
+static void verify_refuse(srv_upload *k, uint16_t code, const char *fmt, ...)
+    __attribute__((format(printf, 3, 4)));
+static void verify_refuse(srv_upload *k, uint16_t code, const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(k->msg, sizeof k->msg, fmt, ap);
+    va_end(ap);
+    k->code = code;
+    k->ok = 0;
+}
+
+/* The verification itself, on its own thread: touches nothing of the server's. */
+static void verify_upload(srv_upload *k)
+{
+    pt_error err = {0};
+    char hex[65], want[65];
+    pt_sha256_hex(k->data, k->len, hex);
+    pt_hash_hex(k->m.bundle_hash, want);
+    if (strcmp(hex, want) != 0) {
+        verify_refuse(k, PROTO_E_PROTOCOL,
+                      "the scene's SHA-256 is %.16s..., not the %.16s... "
+                      "SUBMIT announced",
+                      hex, want);
+        return;
+    }
+    pt_status st = pt_bundle_from_bytes(k->data, k->len, &k->bundle, &err);
+    pt_free(k->data);
+    k->data = NULL;
+    if (st != PT_OK) {
+        verify_refuse(k, PROTO_E_PROTOCOL, "bad scene bundle: %s", err.msg);
+        return;
+    }
+    char entry[PATH_MAX];
+    pt_remove_tree(k->tmp);
+    pt_scene *scene = NULL;
+    st = pt_bundle_unpack(k->bundle, k->tmp, entry, sizeof entry, &err);
+    if (st == PT_OK) {
+        pt_scene_opts so = {0};
+        so.camera_name = k->m.camera[0] ? k->m.camera : NULL;
+        st = pt_scene_load(entry, &so, &scene, &err);
+    }
+    pt_remove_tree(k->tmp);
+    if (st != PT_OK) {
+        /* The path is our temp folder's: name the file inside the bundle instead. */
+        const char *msg = err.msg;
+        size_t tl = strlen(k->tmp);
+        if (strncmp(msg, k->tmp, tl) == 0 && msg[tl] == '/')
+            msg += tl + 1;
+        verify_refuse(k, st == PT_ERR_NOMEM ? PROTO_E_INTERNAL : PROTO_E_PROTOCOL,
+                      "scene refused: %s", msg);
+        return;
+    }
+    const char *base = strrchr(entry, '/');
+    snprintf(k->scene, sizeof k->scene, "%.255s", base ? base + 1 : entry);
+    k->ntris = scene->num_triangles;
+    k->aspect = scene->camera.aspect;
+    pt_scene_free(scene);
+    st = srv_state_save_bundle(k->state, k->job_id, k->bundle->data, k->bundle->size, &err);
+    if (st != PT_OK) {
+        verify_refuse(k, PROTO_E_INTERNAL, "cannot store the scene: %s", err.msg);
+        return;
+    }
+    k->ok = 1;
+}
+
+static void *verify_thread(void *arg)
+{
+    srv_upload *k = arg;
+    verify_upload(k);
+    /* A blocking write of a pointer: atomic (under PIPE_BUF), never lost. */
+    ssize_t r = write(k->wake_fd, &k, sizeof k);
+    (void)r;
+    return NULL;
+}
+
+static void upload_free(srv_upload *k)
+{
+    pt_free(k->data);
+    pt_bundle_free(k->bundle);
+    pt_free(k);
+}
+
+void srv_upload_start(srv_server *s, srv_conn *c)
+{
+    srv_upload *k = pt_calloc(1, sizeof *k);
+    if (!k) {
+        srv_conn_send_error(s, c, PROTO_E_INTERNAL, "out of memory");
+        return;
+    }
+    k->conn_id = c->id;
+    k->job_id = s->next_job_id++;
+    k->m = c->up;
+    k->data = c->up_buf;
+    k->len = c->up_len;
+    c->up_buf = NULL;
+    srv_requests_drop_upload(c);
+    k->state = s->state;
+    snprintf(k->tmp, sizeof k->tmp, "%s/tmp/upload-%llu", srv_state_dir(s->state),
+             (unsigned long long)k->job_id);
+    k->wake_fd = s->verifypipe[1];
+    if (pthread_create(&k->thread, NULL, verify_thread, k) != 0) {
+        upload_free(k);
+        srv_conn_send_error(s, c, PROTO_E_INTERNAL, "cannot start checking the scene");
+        return;
+    }
+    k->next = s->verifications;
+    s->verifications = k;
+    c->verifying = 1;
+}
+
+void srv_upload_collect(srv_server *s)
+{
+    srv_upload *k;
+    while (read(s->verifypipe[0], &k, sizeof k) == (ssize_t)sizeof k) {
+        pthread_join(k->thread, NULL);
+        for (srv_upload **q = &s->verifications; *q; q = &(*q)->next)
+            if (*q == k) {
+                *q = k->next;
+                break;
+            }
+        srv_conn *c = srv_conn_find(s, k->conn_id);
+        if (c) {
+            srv_requests_verified(s, c, k);
+        } else {
+            if (k->ok)
+                srv_state_forget_job(s->state, k->job_id);
+            srv_log("a client left before its scene was checked; nothing was queued");
+        }
+        upload_free(k);
+    }
+}
+
+void srv_upload_close(srv_server *s)
+{
+    while (s->verifications) {
+        srv_upload *k = s->verifications;
+        s->verifications = k->next;
+        pthread_join(k->thread, NULL);
+        if (k->ok)
+            srv_state_forget_job(s->state, k->job_id);
+        upload_free(k);
+    }
+    for (int i = 0; i < 2; i++)
+        if (s->verifypipe[i] >= 0)
+            close(s->verifypipe[i]);
+    s->verifypipe[0] = s->verifypipe[1] = -1;
+}
+
+pt_status srv_upload_open(srv_server *s, pt_error *err)
+{
+    /* The threads' end blocks (a pointer is never lost); the loop's does not. */
+    if (pipe2(s->verifypipe, O_CLOEXEC) != 0 ||
+        fcntl(s->verifypipe[0], F_SETFL, fcntl(s->verifypipe[0], F_GETFL) | O_NONBLOCK) != 0)
+        return pt_error_errno(err, PT_ERR_IO, "pipe2");
+    return PT_OK;
+}

@@ -1,0 +1,64 @@
+/*
+ * upload.h - upload verification: a submitted scene checked off the loop.
+ *
+ * A complete upload is verified on a thread of its own, since a big scene
+ * takes seconds: its SHA-256 against the one SUBMIT announced, its bundle,
+ * one load of the scene in a temporary folder (with the camera asked for, so
+ * a broken scene is refused now, not by every worker), and the bundle stored
+ * in the state folder under the job id reserved for it. The thread writes
+ * the srv_upload's pointer to the verification pipe; the loop then hands the
+ * outcome to server/requests.h, which queues the job or refuses it. The
+ * server never opens a path a client names.
+ *
+ * Threads: every function here is called from the event-loop thread. The
+ * verification thread touches only its srv_upload and, through
+ * srv_state_save_bundle, the state folder (server/state.h says it may).
+ */
+#ifndef PT_SERVER_UPLOAD_H
+#define PT_SERVER_UPLOAD_H
+
+#include <limits.h>
+#include <pthread.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include "common/scene/bundle.h"
+#include "protocol/msg.h"
+#include "server/core.h"
+
+struct srv_upload {
+    uint64_t conn_id, job_id;
+    proto_submit m;
+    uint8_t *data; /* the upload (owned), freed once wrapped in bundle */
+    size_t len;
+    const srv_state *state;
+    char tmp[PATH_MAX];
+    int wake_fd;
+    pthread_t thread;
+    /* the outcome */
+    int ok;
+    uint16_t code; /* PROTO_E_* of the refusal */
+    char msg[PROTO_MAX_ERROR_TEXT + 1];
+    pt_bundle *bundle;
+    char scene[256]; /* the entry file's name */
+    uint32_t ntris;
+    float aspect;
+    srv_upload *next;
+};
+
+/* Makes the verification pipe (s->verifypipe; its read end non-blocking). */
+pt_status srv_upload_open(srv_server *s, pt_error *err);
+
+/* c's upload is complete: reserves the job id and starts its verification
+ * (c is answered now only when it cannot start). */
+void srv_upload_start(srv_server *s, srv_conn *c);
+
+/* Completes each verification that is done (server/requests.h answers the
+ * client); a client gone meanwhile gets nothing queued, its bundle removed. */
+void srv_upload_collect(srv_server *s);
+
+/* At exit: waits for the verifications in flight (none of them is queued)
+ * and closes the pipe. */
+void srv_upload_close(srv_server *s);
+
+#endif
