@@ -23,6 +23,7 @@
 #include <unistd.h>
 
 #include "common/base/alloc.h"
+#include "common/base/clock.h"
 #include "common/scene/bundle.h"
 #include "protocol/auth.h"
 #include "client/ctl.h"
@@ -249,13 +250,6 @@ static void show_transfer(uint64_t done, uint64_t total, void *arg)
     t->shown = 1;
 }
 
-static double now_s(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + ts.tv_nsec * 1e-9;
-}
-
 /* Follows job id on c until a JOB_INFO with a terminal state; the exit status. */
 static int watch_job(ctl_conn *c, uint64_t id)
 {
@@ -289,9 +283,9 @@ static int watch_job(ctl_conn *c, uint64_t id)
             prev = n;
             if (ended)
                 fputc('\n', stderr);
-        } else if (ended || now_s() - last >= WATCH_LOG_INTERVAL_S) {
+        } else if (ended || pt_now_s() - last >= WATCH_LOG_INTERVAL_S) {
             fprintf(stderr, "%s\n", line);
-            last = now_s();
+            last = pt_now_s();
         }
         fflush(stderr);
         if (!ended)

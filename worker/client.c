@@ -17,6 +17,7 @@
 #include <unistd.h>
 
 #include "common/base/alloc.h"
+#include "common/base/clock.h"
 #include "common/scene/bundle.h"
 #include "common/base/net.h"
 #include "common/render/render.h"
@@ -148,13 +149,6 @@ static void on_signal(int sig)
         (void)r;
     }
     errno = e;
-}
-
-static uint64_t now_ms(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (uint64_t)ts.tv_sec * 1000u + (uint64_t)ts.tv_nsec / 1000000u;
 }
 
 static int make_pipe(int fds[2])
@@ -602,8 +596,8 @@ static int on_task(worker *w, const proto_frame *f)
     w->requested--;
     /* A shorter lease than those held so far brings the next heartbeat closer. */
     uint32_t interval = t->t.lease_ms / 3 > HEARTBEAT_MIN_MS ? t->t.lease_ms / 3 : HEARTBEAT_MIN_MS;
-    if (now_ms() + interval < w->t_heartbeat)
-        w->t_heartbeat = now_ms() + interval;
+    if (pt_now_ms() + interval < w->t_heartbeat)
+        w->t_heartbeat = pt_now_ms() + interval;
     pthread_mutex_lock(&w->mu);
     t->epoch = w->epoch;
     pthread_mutex_unlock(&w->mu);
@@ -898,7 +892,7 @@ static int dispatch(worker *w, const proto_frame *f, int *end)
                 return fail_proto(w, "bad WELCOME: %s", err.msg);
             }
             w->state = S_READY;
-            w->t_heartbeat = now_ms() + HEARTBEAT_MIN_MS;
+            w->t_heartbeat = pt_now_ms() + HEARTBEAT_MIN_MS;
             fprintf(stderr, "ptworker: connected to %s:%u as %s (%u threads)\n", w->host, w->port,
                     w->name, w->o->threads);
             return 0;
@@ -1031,7 +1025,7 @@ static int session(worker *w, int sig_r, int *connected, int *welcomed)
         return END_RETRY;
     }
     w->state = S_HELLO;
-    w->t_connect = now_ms();
+    w->t_connect = pt_now_ms();
     int end = END_RETRY;
     if (send_hello(w) != 0 || flush_out(w) != 0)
         goto out;
@@ -1040,7 +1034,7 @@ static int session(worker *w, int sig_r, int *connected, int *welcomed)
             end = END_STOP;
             goto out;
         }
-        uint64_t now = now_ms();
+        uint64_t now = pt_now_ms();
         if (w->state == S_READY) {
             *welcomed = 1;
             if (collect_results(w) != 0 || request_work(w) != 0)
@@ -1094,9 +1088,9 @@ out:
 /* Sleeps ms, or less when a signal arrives. */
 static void backoff_sleep(int sig_r, uint32_t ms)
 {
-    uint64_t until = now_ms() + ms;
+    uint64_t until = pt_now_ms() + ms;
     while (!g_stop) {
-        uint64_t now = now_ms();
+        uint64_t now = pt_now_ms();
         if (now >= until)
             break;
         struct pollfd p = {sig_r, POLLIN, 0};
@@ -1259,7 +1253,7 @@ int wrk_client_run(const wrk_client_opts *o)
                 "link timeout %.1f s\n",
                 w->name, o->threads, o->prefetch, wrk_cache_dir(w->cache), w->host, w->port,
                 w->token_len ? " (token)" : "", w->link_timeout_ms / 1000.0);
-    w->t_start = now_ms();
+    w->t_start = pt_now_ms();
     uint32_t delay = BACKOFF_MIN_MS;
     while (!g_stop) {
         int welcomed = 0, connected = 0;
@@ -1284,7 +1278,7 @@ int wrk_client_run(const wrk_client_opts *o)
         delay = delay * 2 > BACKOFF_MAX_MS ? BACKOFF_MAX_MS : delay * 2;
     }
 
-    double secs = (double)(now_ms() - w->t_start) / 1000.0;
+    double secs = (double)(pt_now_ms() - w->t_start) / 1000.0;
     fprintf(stderr, "ptworker: %s: %llu tasks done, %llu samples, %.4g samples/s over %.1f s",
             rc == 0 ? "stopped" : "giving up", (unsigned long long)w->tasks_done,
             (unsigned long long)w->samples, secs > 0 ? (double)w->samples / secs : 0.0, secs);

@@ -13,19 +13,12 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <time.h>
 
 #include "common/base/alloc.h"
+#include "common/base/clock.h"
 #include "protocol/frame.h"
 #include "protocol/msg.h"
 #include "server/job.h"
-
-static double now(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-}
 
 static int cmp(const void *a, const void *b)
 {
@@ -88,7 +81,7 @@ int main(int argc, char **argv)
         }
         total_bytes = wr.len;
         pt_pixel_acc *scratch = pt_malloc_array(PROTO_MAX_TILE_PIXELS, sizeof *scratch);
-        double t0 = now();
+        double t0 = pt_now_s();
         size_t off = 0;
         uint64_t merged = 0;
         while (off < wr.len) {
@@ -104,7 +97,7 @@ int main(int argc, char **argv)
             proto_result_fini(&res);
             off += used;
         }
-        double dt = now() - t0;
+        double dt = pt_now_s() - t0;
         if (merged != ntasks || !srv_job_complete(job)) {
             fprintf(stderr, "ptbench-merge: merged %llu of %llu\n", (unsigned long long)merged,
                     (unsigned long long)ntasks);

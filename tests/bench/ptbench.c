@@ -59,9 +59,9 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <time.h>
 
 #include "common/base/alloc.h"
+#include "common/base/clock.h"
 #include "common/image/exr.h"
 #include "common/render/film.h"
 #include "common/image/image.h"
@@ -78,30 +78,6 @@
 #define MAX_TILE 256u
 #define PLOT_W 900
 #define PLOT_H 600
-
-static double now(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-}
-
-/* CPU time of all the process's threads: on a shared machine it counts the
- * work done, not the waits for a core. */
-static double cpu_now(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-}
-
-/* CPU time of the calling thread: the cost of one tile. */
-static double thread_cpu_now(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-}
 
 /* ---- rendering ------------------------------------------------------------ */
 
@@ -134,10 +110,10 @@ static void *pass_thread(void *p)
             break;
         pt_rect rc = ps->tiles[t];
         if (!(ps->rule.target_error > 0.0) && !(ps->rule.min_gain > 0.0)) {
-            double c0 = ps->tile_cpu ? thread_cpu_now() : 0.0;
+            double c0 = ps->tile_cpu ? pt_thread_cpu_s() : 0.0;
             pt_render_tile(ps->r, rc, ps->s0, ps->s1, ps->scratch[a->id], &ps->stats[a->id]);
             if (ps->tile_cpu)
-                ps->tile_cpu[t] += thread_cpu_now() - c0;
+                ps->tile_cpu[t] += pt_thread_cpu_s() - c0;
             /* Tiles are disjoint: threads add to the film without a lock. */
             pt_film_add_tile(ps->film, rc, ps->scratch[a->id]);
             continue;
@@ -690,11 +666,11 @@ static int bench_spp(pass *ps, const opts *o, uint32_t spp, row *out)
     double secs[MAX_REPS], cpu[MAX_REPS];
     for (uint32_t k = 0; k < o->reps; k++) {
         reset(ps, o->threads);
-        double t0 = now(), c0 = cpu_now();
+        double t0 = pt_now_s(), c0 = pt_cpu_s();
         if (run_pass(ps, o->threads, 0, spp) != 0)
             return -1;
-        secs[k] = now() - t0;
-        cpu[k] = cpu_now() - c0;
+        secs[k] = pt_now_s() - t0;
+        cpu[k] = pt_cpu_s() - c0;
     }
     out->spp = spp;
     out->target = out->min_gain = 0.0;
@@ -710,7 +686,7 @@ static int bench_time_once(pass *ps, const opts *o, double budget, row *out)
 {
     reset(ps, o->threads);
     uint32_t s = 0;
-    double t0 = now(), c0 = cpu_now(), el = 0.0;
+    double t0 = pt_now_s(), c0 = pt_cpu_s(), el = 0.0;
     for (;;) {
         uint32_t chunk = s ? s : 1;
         if (s) {
@@ -725,12 +701,12 @@ static int bench_time_once(pass *ps, const opts *o, double budget, row *out)
         if (run_pass(ps, o->threads, s, s + chunk) != 0)
             return -1;
         s += chunk;
-        el = now() - t0;
+        el = pt_now_s() - t0;
     }
     out->spp = s;
     out->target = out->min_gain = 0.0;
     out->seconds = el;
-    out->cpu = cpu_now() - c0;
+    out->cpu = pt_cpu_s() - c0;
     out->st = total_stats(ps, o->threads);
     return 0;
 }
@@ -745,10 +721,10 @@ static int bench_adaptive(pass *ps, const opts *o, double value, row *out)
     ps->chunk = o->chunk;
     for (uint32_t k = 0; k < o->reps; k++) {
         reset(ps, o->threads);
-        double t0 = now(), c0 = cpu_now();
+        double t0 = pt_now_s(), c0 = pt_cpu_s();
         int bad = run_pass(ps, o->threads, 0, o->max_spp);
-        secs[k] = now() - t0;
-        cpu[k] = cpu_now() - c0;
+        secs[k] = pt_now_s() - t0;
+        cpu[k] = pt_cpu_s() - c0;
         if (bad) {
             ps->rule = (pt_adaptive){0.0, 0.0, 0};
             return -1;

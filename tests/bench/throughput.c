@@ -32,10 +32,10 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <time.h>
 
 #include "common/scene/accel.h"
 #include "common/base/alloc.h"
+#include "common/base/clock.h"
 #include "common/render/render.h"
 #include "common/scene/scene.h"
 
@@ -55,22 +55,6 @@ static void log_ray(void *user, pt_vec3 o, pt_vec3 d, float tfar, int occlusion)
     ray_log *l = user;
     if (l->n < l->cap)
         l->rays[l->n++] = (ray_rec){o, d, tfar, occlusion};
-}
-
-/* CPU seconds of this process (all its threads): unlike wall time, not
- * inflated by other programs on a shared machine while a phase runs. */
-static double cpu_now(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-}
-
-static double now(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
 }
 
 typedef struct shared {
@@ -282,21 +266,21 @@ int main(int argc, char **argv)
         shared sh = {.r = r, .accel = accel, .width = w, .height = h, .spp = spp, .tile = 16, .log = &log};
         atomic_init(&sh.next, 0);
         atomic_init(&sh.next_ray, 0);
-        double c0 = cpu_now();
-        double t0 = now();
+        double c0 = pt_cpu_s();
+        double t0 = pt_now_s();
         run_threads(threads, render_worker, &sh);
-        double t_render = now() - t0;
-        double c_render = cpu_now() - c0;
+        double t_render = pt_now_s() - t0;
+        double c_render = pt_cpu_s() - c0;
         uint64_t samples = 0, rays = 0;
         for (int i = 0; i < threads; i++) {
             samples += sh.stats[i].samples;
             rays += sh.stats[i].rays;
         }
-        c0 = cpu_now();
-        t0 = now();
+        c0 = pt_cpu_s();
+        t0 = pt_now_s();
         run_threads(threads, replay_worker, &sh);
-        double t_replay = now() - t0;
-        double c_replay = cpu_now() - c0;
+        double t_replay = pt_now_s() - t0;
+        double c_replay = pt_cpu_s() - c0;
         cratio[k] = (rays / c_render) / (log.n / c_replay);
         csps[k] = samples / c_render;
         sps[k] = samples / t_render;
@@ -307,9 +291,9 @@ int main(int argc, char **argv)
             shared sg = {.r = alt[a], .accel = accel, .width = w, .height = h, .spp = spp,
                          .tile = 16, .log = &log};
             atomic_init(&sg.next, 0);
-            t0 = now();
+            t0 = pt_now_s();
             run_threads(threads, render_worker, &sg);
-            double t_alt = now() - t0;
+            double t_alt = pt_now_s() - t0;
             uint64_t asamples = 0;
             for (int i = 0; i < threads; i++)
                 asamples += sg.stats[i].samples;
