@@ -573,30 +573,9 @@ done:
     return st;
 }
 
-static int hex_digit(char ch)
-{
-    if (ch >= '0' && ch <= '9')
-        return ch - '0';
-    if (ch >= 'a' && ch <= 'f')
-        return ch - 'a' + 10;
-    if (ch >= 'A' && ch <= 'F')
-        return ch - 'A' + 10;
-    return -1;
-}
-
 int ctl_hex_to_hash(const char *hex, uint8_t out[PROTO_HASH_SIZE])
 {
-    uint8_t h[PROTO_HASH_SIZE];
-    if (strlen(hex) != 2 * PROTO_HASH_SIZE)
-        return -1;
-    for (unsigned i = 0; i < PROTO_HASH_SIZE; i++) {
-        int a = hex_digit(hex[2 * i]), b = hex_digit(hex[2 * i + 1]);
-        if (a < 0 || b < 0)
-            return -1;
-        h[i] = (uint8_t)(a << 4 | b);
-    }
-    memcpy(out, h, sizeof h);
-    return 0;
+    return pt_hex_decode(hex, out, PROTO_HASH_SIZE);
 }
 
 void ctl_default_name(char out[PROTO_MAX_NAME + 1])

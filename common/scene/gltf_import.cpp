@@ -49,6 +49,7 @@
 
 extern "C" {
 #include "common/base/alloc.h"
+#include "common/base/hash.h"
 #include "common/scene/gltf_import.h"
 #include "common/scene/scene.h"
 }
@@ -848,12 +849,11 @@ void hash_files(importer &im, const std::vector<unsigned char> &entry)
         EVP_DigestUpdate(ctx, bytes.data(), bytes.size());
         im.files.emplace(uris[i], std::move(bytes));
     }
-    unsigned char md[EVP_MAX_MD_SIZE];
-    unsigned int len = 0;
-    EVP_DigestFinal_ex(ctx, md, &len);
-    char hex[65] = {0};
-    for (unsigned int i = 0; i < len && i < 32; i++)
-        snprintf(hex + 2 * i, 3, "%02x", md[i]);
+    // Zeroed first: a failed digest reads as 64 zeros, as pt_sha256_hex's does.
+    unsigned char md[EVP_MAX_MD_SIZE] = {0};
+    EVP_DigestFinal_ex(ctx, md, nullptr);
+    char hex[PT_HASH_HEX];
+    pt_hash_hex(md, hex);
     pt_scene_builder_set_hash(im.b, hex);
     // Buffers are in the model already; keep only the image files.
     std::set<std::string> image_uris(uris.begin() + long(nbuf), uris.end());
