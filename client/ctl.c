@@ -15,6 +15,7 @@
 #include <unistd.h>
 
 #include "common/base/alloc.h"
+#include "common/base/fsutil.h"
 #include "common/base/net.h"
 #include "common/base/hash.h"
 #include "protocol/auth.h"
@@ -508,69 +509,8 @@ fail:
 
 pt_status ctl_write_atomic(const char *path, const uint8_t *data, size_t size, pt_error *err)
 {
-    size_t plen = strlen(path);
-    if (plen == 0 || path[plen - 1] == '/')
-        return pt_error_set(err, PT_ERR_ARG, "'%s' is not a file name", path);
-    const char *slash = strrchr(path, '/');
-    size_t dlen = slash ? (size_t)(slash - path) : 0;
-    char *tmp = pt_malloc(plen + 32);
-    char *dir = pt_malloc(dlen + 2);
-    if (!tmp || !dir) {
-        pt_free(tmp);
-        pt_free(dir);
-        return pt_error_set(err, PT_ERR_NOMEM, "temporary name for %s", path);
-    }
-    /* A hidden temporary beside the target, so rename never crosses a file system. */
-    if (slash)
-        snprintf(tmp, plen + 32, "%.*s/.%s.XXXXXX", (int)dlen, path, slash + 1);
-    else
-        snprintf(tmp, plen + 32, ".%s.XXXXXX", path);
-    if (slash && dlen == 0)
-        snprintf(dir, dlen + 2, "/");
-    else if (slash)
-        snprintf(dir, dlen + 2, "%.*s", (int)dlen, path);
-    else
-        snprintf(dir, dlen + 2, ".");
-    pt_status st = PT_OK;
-    int fd = mkstemp(tmp);
-    if (fd < 0) {
-        st = pt_error_errno(err, PT_ERR_IO, "cannot create a temporary file for %s", path);
-        goto done;
-    }
-    /* mkstemp makes 0600; an image is as readable as any new file would be. */
-    mode_t mask = umask(0);
-    umask(mask);
-    fchmod(fd, 0666 & ~mask);
-    for (size_t off = 0; off < size;) {
-        ssize_t k = write(fd, data + off, size - off);
-        if (k < 0 && errno == EINTR)
-            continue;
-        if (k <= 0) {
-            st = pt_error_errno(err, PT_ERR_IO, "cannot write %s", tmp);
-            break;
-        }
-        off += (size_t)k;
-    }
-    if (st == PT_OK && fsync(fd) != 0)
-        st = pt_error_errno(err, PT_ERR_IO, "cannot sync %s", tmp);
-    if (close(fd) != 0 && st == PT_OK)
-        st = pt_error_errno(err, PT_ERR_IO, "cannot close %s", tmp);
-    if (st == PT_OK && rename(tmp, path) != 0)
-        st = pt_error_errno(err, PT_ERR_IO, "cannot rename %s to %s", tmp, path);
-    if (st != PT_OK) {
-        unlink(tmp);
-        goto done;
-    }
-    /* The rename itself is durable once the folder is synced. */
-    int dfd = open(dir, O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-    if (dfd >= 0) {
-        fsync(dfd);
-        close(dfd);
-    }
-done:
-    pt_free(tmp);
-    pt_free(dir);
-    return st;
+    /* An image is as readable as any new file of the user's would be. */
+    return pt_write_file_atomic_mode(path, data, size, 0666, err);
 }
 
 int ctl_hex_to_hash(const char *hex, uint8_t out[PROTO_HASH_SIZE])

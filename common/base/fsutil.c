@@ -41,6 +41,15 @@ int pt_fsync_dir_of(const char *path)
 
 pt_status pt_write_file_atomic(const char *path, const void *data, size_t n, pt_error *err)
 {
+    return pt_write_file_atomic_mode(path, data, n, 0644, err);
+}
+
+pt_status pt_write_file_atomic_mode(const char *path, const void *data, size_t n, unsigned mode,
+                                    pt_error *err)
+{
+    size_t plen = strlen(path);
+    if (plen == 0 || path[plen - 1] == '/')
+        return pt_error_set(err, PT_ERR_ARG, "'%s' is not a file name", path);
     /* Unique per process and per call, so two writers of one path never
      * share a temp file. */
     static atomic_uint serial;
@@ -48,7 +57,7 @@ pt_status pt_write_file_atomic(const char *path, const void *data, size_t n, pt_
     if ((size_t)snprintf(tmp, sizeof tmp, "%s.tmp.%ld.%u", path, (long)getpid(),
                          atomic_fetch_add(&serial, 1)) >= sizeof tmp)
         return pt_error_set(err, PT_ERR_IO, "%s: path too long", path);
-    int fd = open(tmp, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+    int fd = open(tmp, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, (mode_t)mode);
     if (fd < 0)
         return pt_error_errno(err, PT_ERR_IO, "%s: cannot create %s", path, tmp);
     const uint8_t *p = data;
@@ -72,7 +81,11 @@ pt_status pt_write_file_atomic(const char *path, const void *data, size_t n, pt_
         unlink(tmp);
         return st;
     }
-    close(fd);
+    if (close(fd) != 0) {
+        pt_status st = pt_error_errno(err, PT_ERR_IO, "%s: close", path);
+        unlink(tmp);
+        return st;
+    }
     if (rename(tmp, path) != 0) {
         pt_status st = pt_error_errno(err, PT_ERR_IO, "%s: rename from %s", path, tmp);
         unlink(tmp);
