@@ -53,6 +53,7 @@
  * draws the CSVs of earlier runs, one series per label.
  */
 #include <errno.h>
+#include <float.h>
 #include <math.h>
 #include <pthread.h>
 #include <stdatomic.h>
@@ -62,6 +63,7 @@
 
 #include "common/base/alloc.h"
 #include "common/base/clock.h"
+#include "common/base/opt.h"
 #include "common/image/exr.h"
 #include "common/render/film.h"
 #include "common/image/image.h"
@@ -75,7 +77,6 @@
 #define MAX_ROWS 64
 #define MAX_REPS 100
 #define MAX_SERIES_FILES 16
-#define MAX_TILE 256u
 #define PLOT_W 900
 #define PLOT_H 600
 
@@ -274,28 +275,6 @@ static void plot_init(plot *p)
 
 /* ---- argument parsing --------------------------------------------------------- */
 
-static int parse_u32(const char *s, uint32_t lo, uint32_t hi, uint32_t *out)
-{
-    char *end;
-    errno = 0;
-    unsigned long v = strtoul(s, &end, 10);
-    if (errno || end == s || *end || s[0] == '-' || v < lo || v > hi)
-        return -1;
-    *out = (uint32_t)v;
-    return 0;
-}
-
-static int parse_double(const char *s, double *out)
-{
-    char *end;
-    errno = 0;
-    double v = strtod(s, &end);
-    if (errno || end == s || *end || !isfinite(v))
-        return -1;
-    *out = v;
-    return 0;
-}
-
 /* "1,2,4" -> values; each in [lo, hi]; at most MAX_ROWS. Returns the count or -1. */
 static int parse_list(const char *s, int as_double, double *out)
 {
@@ -309,11 +288,12 @@ static int parse_list(const char *s, int as_double, double *out)
         if (n == MAX_ROWS)
             return -1;
         if (as_double) {
-            if (parse_double(tok, &out[n]) != 0 || out[n] <= 0)
+            if (pt_opt_double("list", tok, -DBL_MAX, DBL_MAX, &out[n], NULL) != PT_OK ||
+                out[n] <= 0)
                 return -1;
         } else {
             uint32_t v;
-            if (parse_u32(tok, 1, 1u << 24, &v) != 0)
+            if (pt_opt_u32("list", tok, 1, 1u << 24, &v, NULL) != PT_OK)
                 return -1;
             out[n] = v;
         }
@@ -362,7 +342,8 @@ static int cmd_error(int argc, char **argv)
     pt_image *img = NULL, *refimg = NULL;
     reference ref = {NULL, 0.0};
     int rc = 1;
-    if (argc == 5 && parse_double(argv[4], &ref.value) != 0) {
+    if (argc == 5 &&
+        pt_opt_double("--constant", argv[4], -DBL_MAX, DBL_MAX, &ref.value, NULL) != PT_OK) {
         fprintf(stderr, "ptbench: --constant: '%s' is not a finite number\n", argv[4]);
         return 2;
     }
@@ -440,7 +421,8 @@ static double tile_error(const pt_image *img, const pt_image *meas, int rel, uin
 static int cmd_gain(int argc, char **argv)
 {
     uint32_t ts = 16;
-    if (argc < 3 || argc > 5 || (argc >= 4 && parse_u32(argv[3], 1, MAX_TILE, &ts) != 0)) {
+    if (argc < 3 || argc > 5 ||
+        (argc >= 4 && pt_opt_u32("TILE", argv[3], 1, PT_TILE_MAX, &ts, NULL) != PT_OK)) {
         usage(stderr);
         return 2;
     }
@@ -579,7 +561,7 @@ static int parse_opts(int argc, char **argv, opts *o)
             o->ref_path = v;
         } else if (!strcmp(a, "--constant")) {
             o->has_constant = 1;
-            bad = parse_double(v, &o->constant);
+            bad = pt_opt_double(a, v, -DBL_MAX, DBL_MAX, &o->constant, NULL) != PT_OK;
         } else if (!strcmp(a, "--spp") || !strcmp(a, "--time") || !strcmp(a, "--target-error") ||
                    !strcmp(a, "--min-gain")) {
             o->time_mode = !strcmp(a, "--time");
@@ -587,26 +569,24 @@ static int parse_opts(int argc, char **argv, opts *o)
             o->n = parse_list(v, o->time_mode || o->adaptive, o->list);
             bad = o->n <= 0;
         } else if (!strcmp(a, "--res")) {
-            char x;
-            bad = sscanf(v, "%u%c%u", &o->w, &x, &o->h) != 3 || x != 'x' || !o->w || !o->h ||
-                  o->w > 16384 || o->h > 16384;
+            bad = pt_opt_res(a, v, 16384, &o->w, &o->h, NULL) != PT_OK;
         } else if (!strcmp(a, "--threads")) {
-            bad = parse_u32(v, 1, MAX_THREADS, &t);
+            bad = pt_opt_u32(a, v, 1, MAX_THREADS, &t, NULL) != PT_OK;
             o->threads = (int)t;
         } else if (!strcmp(a, "--seed")) {
-            bad = parse_u32(v, 0, UINT32_MAX, &o->seed);
+            bad = pt_opt_u32(a, v, 0, UINT32_MAX, &o->seed, NULL) != PT_OK;
         } else if (!strcmp(a, "--max-depth")) {
-            bad = parse_u32(v, 1, 1024, &o->max_depth);
+            bad = pt_opt_u32(a, v, 1, 1024, &o->max_depth, NULL) != PT_OK;
         } else if (!strcmp(a, "--reps")) {
-            bad = parse_u32(v, 1, MAX_REPS, &o->reps);
+            bad = pt_opt_u32(a, v, 1, MAX_REPS, &o->reps, NULL) != PT_OK;
         } else if (!strcmp(a, "--min-spp")) {
-            bad = parse_u32(v, 2, 1u << 24, &o->min_spp);
+            bad = pt_opt_u32(a, v, 2, 1u << 24, &o->min_spp, NULL) != PT_OK;
         } else if (!strcmp(a, "--max-spp")) {
-            bad = parse_u32(v, 1, 1u << 24, &o->max_spp);
+            bad = pt_opt_u32(a, v, 1, 1u << 24, &o->max_spp, NULL) != PT_OK;
         } else if (!strcmp(a, "--chunk")) {
-            bad = parse_u32(v, 1, 1u << 24, &o->chunk);
+            bad = pt_opt_u32(a, v, 1, 1u << 24, &o->chunk, NULL) != PT_OK;
         } else if (!strcmp(a, "--tile")) {
-            bad = parse_u32(v, 1, MAX_TILE, &o->tile);
+            bad = pt_opt_u32(a, v, 1, PT_TILE_MAX, &o->tile, NULL) != PT_OK;
         } else if (!strcmp(a, "--label")) {
             o->label = v;
         } else if (!strcmp(a, "--csv")) {
