@@ -116,11 +116,9 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
     p.width = o->width;
     p.height = o->height;
     if (p.width == 0) {
+        /* The --res cap bounds a height from an extreme aspect too. */
         p.width = 512;
-        float aspect = scene->camera.aspect > 0 ? scene->camera.aspect : 1.0f;
-        p.height = (uint32_t)(512.0f / aspect + 0.5f);
-        if (p.height == 0)
-            p.height = 1;
+        p.height = pt_camera_height(scene->camera.aspect, p.width, 16384);
     }
     p.seed = o->seed;
     p.max_depth = o->max_depth;

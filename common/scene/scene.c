@@ -498,6 +498,15 @@ static pt_status hash_scene(const pt_scene *s, char out[65], pt_error *err)
     return PT_OK;
 }
 
+uint32_t pt_camera_height(float aspect, uint32_t width, uint32_t max_height)
+{
+    float a = aspect > 0.0f ? aspect : 1.0f; /* NaN too */
+    float h = (float)width / a + 0.5f;
+    /* Compared before the cast: a float past UINT32_MAX does not convert. */
+    uint32_t n = h < (float)max_height ? (uint32_t)h : max_height;
+    return n > 0 ? n : 1;
+}
+
 void pt_scene_frame_camera(pt_scene *scene, float aspect)
 {
     pt_camera c;

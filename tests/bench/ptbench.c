@@ -845,10 +845,8 @@ static int cmd_bench(int argc, char **argv)
         goto done;
     }
     if (!o.w) {
-        float aspect = scene->camera.aspect > 0 ? scene->camera.aspect : 1.0f;
         o.w = 128;
-        o.h = (uint32_t)(128.0f / aspect + 0.5f);
-        o.h = o.h ? o.h : 1;
+        o.h = pt_camera_height(scene->camera.aspect, o.w, 16384);
     }
     pt_render_params p = {0};
     pt_render_params_default(&p);
