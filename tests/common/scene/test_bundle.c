@@ -8,6 +8,7 @@
 #include <unistd.h>
 
 #include "common/base/alloc.h"
+#include "common/base/fsutil.h"
 #include "common/scene/bundle.h"
 #include "common/scene/scene.h"
 #include "tests/check.h"
@@ -146,9 +147,7 @@ int main(void)
         CHECK(!check_shared_required());
     }
     CHECK(pt_alloc_live() == live0);
-    char cmd[512];
-    snprintf(cmd, sizeof cmd, "rm -rf %s", tmp);
-    if (system(cmd) != 0)
+    if (pt_remove_tree(tmp) != 0)
         return 1;
     return check_report();
 }
