@@ -27,6 +27,11 @@ int pt_fsync_dir_of(const char *path)
         errno = ENAMETOOLONG;
         return -1;
     }
+    return pt_fsync_dir(dir);
+}
+
+int pt_fsync_dir(const char *dir)
+{
     int fd = open(dir, O_RDONLY | O_DIRECTORY | O_CLOEXEC);
     if (fd < 0)
         return -1;
@@ -60,20 +65,11 @@ pt_status pt_write_file_atomic_mode(const char *path, const void *data, size_t n
     int fd = open(tmp, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, (mode_t)mode);
     if (fd < 0)
         return pt_error_errno(err, PT_ERR_IO, "%s: cannot create %s", path, tmp);
-    const uint8_t *p = data;
-    size_t left = n;
-    while (left > 0) {
-        ssize_t w = write(fd, p, left);
-        if (w < 0 && errno == EINTR)
-            continue;
-        if (w <= 0) {
-            pt_status st = pt_error_errno(err, PT_ERR_IO, "%s: write", path);
-            close(fd);
-            unlink(tmp);
-            return st;
-        }
-        p += w;
-        left -= (size_t)w;
+    if (pt_write_all(fd, data, n) != 0) {
+        pt_status st = pt_error_errno(err, PT_ERR_IO, "%s: write", path);
+        close(fd);
+        unlink(tmp);
+        return st;
     }
     if (fsync(fd) != 0) {
         pt_status st = pt_error_errno(err, PT_ERR_IO, "%s: fsync", path);
@@ -94,6 +90,26 @@ pt_status pt_write_file_atomic_mode(const char *path, const void *data, size_t n
     if (pt_fsync_dir_of(path) != 0)
         return pt_error_errno(err, PT_ERR_IO, "%s: fsync of its folder", path);
     return PT_OK;
+}
+
+int pt_write_all(int fd, const void *data, size_t n)
+{
+    const uint8_t *p = data;
+    while (n > 0) {
+        /* At most 1 GiB a call: larger counts are cut short (Linux) or
+         * refused (past SSIZE_MAX) anyway. */
+        ssize_t w = write(fd, p, n < ((size_t)1 << 30) ? n : ((size_t)1 << 30));
+        if (w < 0 && errno == EINTR)
+            continue;
+        if (w <= 0) {
+            if (w == 0)
+                errno = EIO; /* no progress and no reason: do not spin */
+            return -1;
+        }
+        p += w;
+        n -= (size_t)w;
+    }
+    return 0;
 }
 
 pt_status pt_read_file(const char *path, size_t max, uint8_t **out, size_t *len, pt_error *err)

@@ -19,6 +19,15 @@
  * 0, or -1 with errno set. */
 int pt_fsync_dir_of(const char *path);
 
+/* fsync of the folder dir itself (after files were created in it), with the
+ * same tolerance. Returns 0, or -1 with errno set. */
+int pt_fsync_dir(const char *dir);
+
+/* Writes the n bytes of data to fd, whatever the short writes and EINTR.
+ * Returns 0, or -1 with errno set (EIO when write made no progress); how
+ * much was written is then unknown. */
+int pt_write_all(int fd, const void *data, size_t n);
+
 /* Replaces path with the n bytes of data, durably (see above), mode 0644
  * before umask. PT_ERR_ARG when path is empty or ends in '/'; PT_ERR_IO naming
  * path (no temporary file is left behind), also when the folder's fsync fails

@@ -249,17 +249,10 @@ static pt_status write_entry(void *user, uint32_t index, const char *name, size_
     int fd = open(path, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC | O_NOFOLLOW, 0644);
     if (fd < 0)
         return pt_error_errno(err, PT_ERR_IO, "%s", path);
-    uint64_t done = 0;
-    while (done < size) {
-        ssize_t w = write(fd, data + done, (size_t)(size - done));
-        if (w < 0 && errno == EINTR)
-            continue;
-        if (w <= 0) {
-            pt_error_errno(err, PT_ERR_IO, "%s: write", path);
-            close(fd);
-            return PT_ERR_IO;
-        }
-        done += (uint64_t)w;
+    if (pt_write_all(fd, data, (size_t)size) != 0) {
+        pt_error_errno(err, PT_ERR_IO, "%s: write", path);
+        close(fd);
+        return PT_ERR_IO;
     }
     if (close(fd) != 0)
         return pt_error_errno(err, PT_ERR_IO, "%s: close", path);

@@ -3,6 +3,8 @@
 #include "common/base/fsutil.h"
 
 #include <dirent.h>
+#include <errno.h>
+#include <fcntl.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -68,6 +70,36 @@ static void test_write_atomic(const char *dir)
     CHECK(file_is(path, "img"));
 }
 
+static void test_write_all_and_sync(const char *dir)
+{
+    char path[300], sub[300];
+    snprintf(path, sizeof path, "%s/all.bin", dir);
+    static uint8_t big[3 << 20];
+    for (size_t i = 0; i < sizeof big; i++)
+        big[i] = (uint8_t)(i * 31);
+    int fd = open(path, O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    CHECK(fd >= 0 && pt_write_all(fd, big, sizeof big) == 0 && pt_write_all(fd, big, 0) == 0);
+    close(fd);
+    struct stat sb;
+    CHECK(stat(path, &sb) == 0 && sb.st_size == (off_t)sizeof big);
+    /* A descriptor that cannot be written: -1 with the reason. */
+    fd = open(path, O_RDONLY);
+    errno = 0;
+    CHECK(fd >= 0 && pt_write_all(fd, "x", 1) == -1 && errno == EBADF);
+    close(fd);
+    CHECK(unlink(path) == 0);
+
+    CHECK(pt_fsync_dir(dir) == 0);
+    CHECK(pt_fsync_dir_of(path) == 0); /* the folder of a file, present or not */
+    snprintf(sub, sizeof sub, "%s/none", dir);
+    errno = 0;
+    CHECK(pt_fsync_dir(sub) == -1 && errno == ENOENT);
+    CHECK(pt_write_file_atomic(path, "x", 1, NULL) == PT_OK);
+    errno = 0;
+    CHECK(pt_fsync_dir(path) == -1 && errno == ENOTDIR);
+    CHECK(unlink(path) == 0);
+}
+
 static void test_remove_tree(const char *dir)
 {
     char p[300];
@@ -90,6 +122,7 @@ int main(void)
         return 1;
     }
     test_write_atomic(dir);
+    test_write_all_and_sync(dir);
     test_remove_tree(dir);
     CHECK(pt_remove_tree(dir) == 0 && access(dir, F_OK) != 0);
     return check_report();
