@@ -20,6 +20,16 @@ typedef struct pt_image {
     float *variance;
 } pt_image;
 
+/* The largest image any module makes, reads or writes (an image, the film
+ * that resolves into it, an EXR): pixels per side, and pixels in all. */
+#define PT_IMAGE_MAX_SIDE 65536u
+#define PT_IMAGE_MAX_PIXELS (1u << 28)
+
+/* PT_OK when width x height is a possible image: PT_ERR_ARG when a side is
+ * 0, PT_ERR_LIMIT over the caps above; err names it as `what` ("image",
+ * "film") with the size. Pure: any thread may call it. */
+pt_status pt_image_check_size(const char *what, uint32_t width, uint32_t height, pt_error *err);
+
 /* Allocates a zeroed image with all five planes. */
 pt_status pt_image_new(uint32_t width, uint32_t height, pt_image **out, pt_error *err);
 void pt_image_free(pt_image *img); /* accepts NULL */
