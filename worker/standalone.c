@@ -81,16 +81,6 @@ static void *render_thread(void *p)
     return NULL;
 }
 
-/* "out.exr" -> "out.png"; any other name gets ".png" appended. */
-static void preview_path(const char *exr, char *buf, size_t n)
-{
-    size_t len = strlen(exr);
-    if (len > 4 && strcmp(exr + len - 4, ".exr") == 0)
-        snprintf(buf, n, "%.*s.png", (int)(len - 4), exr);
-    else
-        snprintf(buf, n, "%s.png", exr);
-}
-
 int wrk_standalone_run(const wrk_standalone_opts *o)
 {
     pt_error err = {0};
@@ -217,7 +207,7 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
         goto done;
     }
     char png[4096];
-    preview_path(o->out_path, png, sizeof png);
+    pt_png_preview_path(o->out_path, png, sizeof png);
     if (pt_png_write_preview(png, img, &err) != PT_OK) {
         fprintf(stderr, "\nptworker: %s\n", err.msg);
         goto done;

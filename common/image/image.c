@@ -113,6 +113,15 @@ static void png_append(void *ctx, void *data, int size)
     b->len += (size_t)size;
 }
 
+void pt_png_preview_path(const char *exr_path, char *out, size_t n)
+{
+    size_t len = strlen(exr_path);
+    if (len > 4 && strcmp(exr_path + len - 4, ".exr") == 0)
+        snprintf(out, n, "%.*s.png", (int)(len - 4), exr_path);
+    else
+        snprintf(out, n, "%s.png", exr_path);
+}
+
 pt_status pt_png_write_preview(const char *path, const pt_image *img, pt_error *err)
 {
     if (!path || !img || img->width == 0 || img->height == 0 || img->width > PT_IMAGE_MAX_SIDE ||

@@ -1,6 +1,6 @@
 /* Tests for common/image/image.c: the size caps that the image, the film and
  * the EXR reader share, at their boundaries, and that pt_image_new and
- * pt_film_new apply them alike. */
+ * pt_film_new apply them alike; the preview's name beside an EXR. */
 #include "common/image/image.h"
 
 #include <string.h>
@@ -47,8 +47,30 @@ static void test_new_applies_it(void)
     CHECK(pt_alloc_live() == live);
 }
 
+static void preview_is(const char *exr, const char *want)
+{
+    char out[64];
+    pt_png_preview_path(exr, out, sizeof out);
+    CHECKF(!strcmp(out, want), "'%s': '%s', want '%s'", exr, out, want);
+}
+
+static void test_preview_path(void)
+{
+    preview_is("out.exr", "out.png");
+    preview_is("dir/x.y.exr", "dir/x.y.png");
+    preview_is(".exr", ".exr.png"); /* no name before the extension */
+    preview_is("a.exr", "a.png");
+    preview_is("out.EXR", "out.EXR.png");
+    preview_is("out", "out.png");
+    preview_is("out.exr.bak", "out.exr.bak.png");
+    char small[6];
+    pt_png_preview_path("image.exr", small, sizeof small);
+    CHECK(!strcmp(small, "image"));
+}
+
 int main(void)
 {
+    test_preview_path();
     test_check_size();
     test_new_applies_it();
     return check_report();
