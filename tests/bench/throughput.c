@@ -36,6 +36,7 @@
 #include "common/scene/accel.h"
 #include "common/base/alloc.h"
 #include "common/base/clock.h"
+#include "common/base/opt.h"
 #include "common/render/render.h"
 #include "common/scene/scene.h"
 
@@ -148,17 +149,19 @@ static double median(double *v, int n)
 int main(int argc, char **argv)
 {
     const char *scene_path = NULL, *csv = NULL;
-    int threads = 2, reps = 5, per_path = 0;
-    uint32_t w = 256, h = 256, spp = 8;
-    for (int i = 1; i < argc; i++) {
+    int per_path = 0;
+    uint32_t w = 256, h = 256, spp = 8, nthreads = 2, nreps = 5;
+    pt_status opt = PT_OK;
+    pt_error opt_err = {0};
+    for (int i = 1; i < argc && opt == PT_OK; i++) {
         if (!strcmp(argv[i], "--threads") && i + 1 < argc)
-            threads = atoi(argv[++i]);
-        else if (!strcmp(argv[i], "--res") && i + 1 < argc && sscanf(argv[i + 1], "%ux%u", &w, &h) == 2)
-            i++;
+            opt = pt_opt_u32("--threads", argv[++i], 1, 64, &nthreads, &opt_err);
+        else if (!strcmp(argv[i], "--res") && i + 1 < argc)
+            opt = pt_opt_res("--res", argv[++i], 16384, &w, &h, &opt_err);
         else if (!strcmp(argv[i], "--spp") && i + 1 < argc)
-            spp = (uint32_t)atoi(argv[++i]);
+            opt = pt_opt_u32("--spp", argv[++i], 1, 1u << 24, &spp, &opt_err);
         else if (!strcmp(argv[i], "--reps") && i + 1 < argc)
-            reps = atoi(argv[++i]);
+            opt = pt_opt_u32("--reps", argv[++i], 1, 100, &nreps, &opt_err);
         else if (!strcmp(argv[i], "--log-order") && i + 1 < argc &&
                  (!strcmp(argv[i + 1], "render") || !strcmp(argv[i + 1], "path")))
             per_path = !strcmp(argv[++i], "path");
@@ -175,10 +178,15 @@ int main(int argc, char **argv)
             return 2;
         }
     }
-    if (!scene_path || threads < 1 || threads > 64 || reps < 1 || reps > 100 || spp < 1 || !w || !h) {
+    if (opt != PT_OK) {
+        fprintf(stderr, "ptbench-throughput: %s (see --help)\n", opt_err.msg);
+        return 2;
+    }
+    if (!scene_path) {
         fprintf(stderr, "ptbench-throughput: need a SCENE and sane options (see --help)\n");
         return 2;
     }
+    int threads = (int)nthreads, reps = (int)nreps;
     pt_error err = {0};
     pt_scene *scene = NULL;
     pt_renderer *r = NULL, *alt[4] = {NULL, NULL, NULL, NULL};
