@@ -15,6 +15,7 @@
 #include <unistd.h>
 
 #include "common/base/alloc.h"
+#include "common/base/fsutil.h"
 #include "common/base/net.h"
 #include "common/base/hash.h"
 #include "protocol/auth.h"
@@ -28,8 +29,7 @@ struct ctl_conn {
     char addr[300]; /* "host:port", for messages */
     int timeout_ms;
     uint32_t cap; /* payload cap: pre-authentication until WELCOME */
-    uint8_t *in;  /* received bytes; [in_start, in_len) not yet decoded */
-    size_t in_len, in_cap, in_start;
+    proto_frame_reader in;
     proto_writer out;
     uint16_t server_code;
     char server_text[PROTO_MAX_ERROR_TEXT + 1];
@@ -57,7 +57,7 @@ void ctl_close(ctl_conn *c)
         return;
     if (c->fd >= 0)
         close(c->fd);
-    pt_free(c->in);
+    proto_frame_reader_fini(&c->in);
     proto_writer_fini(&c->out);
     pt_free(c);
 }
@@ -89,47 +89,27 @@ static pt_status flush_out(ctl_conn *c, pt_error *err)
     return PT_OK;
 }
 
-/* Frames one message (the encoder runs between begin and end) and sends it. */
-#define SEND_MSG(c, type, encode_call, err)                                                        \
-    do {                                                                                           \
-        size_t mark_;                                                                              \
-        pt_status st_ = proto_frame_begin(&(c)->out, (type), &mark_, (err));                       \
-        if (st_ != PT_OK)                                                                          \
-            return st_;                                                                            \
-        st_ = (encode_call);                                                                       \
-        if (st_ != PT_OK) {                                                                        \
-            proto_frame_cancel(&(c)->out, mark_);                                                  \
-            return st_;                                                                            \
-        }                                                                                          \
-        st_ = proto_frame_end(&(c)->out, mark_, (err));                                            \
-        if (st_ != PT_OK)                                                                          \
-            return st_;                                                                            \
-        st_ = flush_out((c), (err));                                                               \
-        if (st_ != PT_OK)                                                                          \
-            return st_;                                                                            \
-    } while (0)
+/* Ends the frame begun at mark with the encoder's status (proto_frame_finish)
+ * and sends it. */
+static pt_status send_frame(ctl_conn *c, size_t mark, pt_status encoded, pt_error *err)
+{
+    pt_status st = proto_frame_finish(&c->out, mark, encoded, err);
+    return st == PT_OK ? flush_out(c, err) : st;
+}
 
-/* Reads more bytes into c->in; grows the buffer (up to IN_MAX) when full. */
+/* Reads more bytes into c->in, which grows to the frame being received. */
 static pt_status read_more(ctl_conn *c, pt_error *err)
 {
-    if (c->in_len == c->in_cap) {
-        /* The decoder has judged the header against the cap, so a frame
-         * needing more than IN_MAX cannot be waited for. */
-        size_t ncap = c->in_cap ? c->in_cap * 2 : IN_START;
-        if (ncap > IN_MAX)
-            ncap = IN_MAX;
-        if (ncap <= c->in_cap)
-            return pt_error_set(err, PT_ERR_PROTO, "%s: frame over the input buffer", c->addr);
-        uint8_t *nb = pt_realloc(c->in, ncap);
-        if (!nb)
-            return pt_error_set(err, PT_ERR_NOMEM, "input buffer of %zu bytes", ncap);
-        c->in = nb;
-        c->in_cap = ncap;
-    }
+    uint8_t *p;
+    size_t room;
+    pt_error e = {0};
+    pt_status st = proto_frame_reader_space(&c->in, &p, &room, &e);
+    if (st != PT_OK)
+        return pt_error_set(err, st, "%s: %s", c->addr, e.msg);
     for (;;) {
-        ssize_t n = recv(c->fd, c->in + c->in_len, c->in_cap - c->in_len, 0);
+        ssize_t n = recv(c->fd, p, room, 0);
         if (n > 0) {
-            c->in_len += (size_t)n;
+            proto_frame_reader_commit(&c->in, (size_t)n);
             return PT_OK;
         }
         if (n == 0)
@@ -147,19 +127,11 @@ static pt_status read_more(ctl_conn *c, pt_error *err)
  * ERROR frame is recorded (code, text) and returned as PT_ERR_PROTO. */
 static pt_status recv_frame(ctl_conn *c, proto_frame *f, pt_error *err)
 {
-    if (c->in_start > 0) {
-        memmove(c->in, c->in + c->in_start, c->in_len - c->in_start);
-        c->in_len -= c->in_start;
-        c->in_start = 0;
-    }
     for (;;) {
-        size_t used = 0;
         pt_error e = {0};
-        pt_status st = proto_frame_decode(c->in, c->in_len, c->cap, f, &used, &e);
-        if (st == PT_OK) {
-            c->in_start = used;
+        pt_status st = proto_frame_reader_next(&c->in, c->cap, f, &e);
+        if (st == PT_OK)
             break;
-        }
         if (st != PT_AGAIN)
             return pt_error_set(err, PT_ERR_PROTO, "%s sent a bad frame: %s", c->addr, e.msg);
         st = read_more(c, err);
@@ -222,11 +194,16 @@ static pt_status handshake(ctl_conn *c, const ctl_opts *o, pt_error *err)
     h.threads = 0;
     snprintf(h.build_id, sizeof h.build_id, "%s", proto_build_id());
     h.caps = 0;
-    SEND_MSG(c, PROTO_MSG_HELLO, proto_msg_encode_hello(&c->out, &h, err), err);
+    size_t mark;
+    pt_status st = proto_frame_begin(&c->out, PROTO_MSG_HELLO, &mark, err);
+    if (st == PT_OK)
+        st = send_frame(c, mark, proto_msg_encode_hello(&c->out, &h, err), err);
+    if (st != PT_OK)
+        return st;
 
     proto_frame f;
     pt_error e = {0};
-    pt_status st = recv_type(c, PROTO_MSG_CHALLENGE, &f, err);
+    st = recv_type(c, PROTO_MSG_CHALLENGE, &f, err);
     if (st != PT_OK)
         return st;
     proto_challenge ch;
@@ -236,7 +213,11 @@ static pt_status handshake(ctl_conn *c, const ctl_opts *o, pt_error *err)
     st = proto_auth_response(o->token, o->token_len, ch.nonce, a.mac, err);
     if (st != PT_OK)
         return st;
-    SEND_MSG(c, PROTO_MSG_AUTH, proto_msg_encode_auth(&c->out, &a, err), err);
+    st = proto_frame_begin(&c->out, PROTO_MSG_AUTH, &mark, err);
+    if (st == PT_OK)
+        st = send_frame(c, mark, proto_msg_encode_auth(&c->out, &a, err), err);
+    if (st != PT_OK)
+        return st;
 
     st = recv_type(c, PROTO_MSG_WELCOME, &f, err);
     if (st != PT_OK)
@@ -261,6 +242,7 @@ pt_status ctl_attach(int fd, const char *addr, const ctl_opts *o, ctl_conn **out
     snprintf(c->addr, sizeof c->addr, "%s", addr);
     c->timeout_ms = o->timeout_ms > 0 ? o->timeout_ms : CTL_DEFAULT_TIMEOUT_MS;
     c->cap = PROTO_MAX_PAYLOAD_PREAUTH;
+    proto_frame_reader_init(&c->in, IN_START, IN_MAX);
     /* One UPLOAD frame at most is queued at a time. */
     proto_writer_init(&c->out, (size_t)PROTO_MAX_SCENE_CHUNK + 4096);
     pt_status st = set_timeouts(fd, c->timeout_ms, err);
@@ -299,8 +281,11 @@ pt_status ctl_connect(const ctl_opts *o, ctl_conn **out, pt_error *err)
 static pt_status send_job_ref(ctl_conn *c, uint16_t type, uint64_t job_id, pt_error *err)
 {
     proto_job_ref r = {job_id};
-    SEND_MSG(c, type, proto_msg_encode_job_ref(&c->out, &r, err), err);
-    return PT_OK;
+    size_t mark;
+    pt_status st = proto_frame_begin(&c->out, type, &mark, err);
+    if (st == PT_OK)
+        st = send_frame(c, mark, proto_msg_encode_job_ref(&c->out, &r, err), err);
+    return st;
 }
 
 static pt_status recv_job_info(ctl_conn *c, proto_job_info *out, pt_error *err)
@@ -376,7 +361,12 @@ pt_status ctl_submit(ctl_conn *c, const proto_submit *m, const pt_bundle *b,
 {
     if (m->bundle_size != b->size)
         return pt_error_set(err, PT_ERR_ARG, "SUBMIT: bundle size differs from the bundle's");
-    SEND_MSG(c, PROTO_MSG_SUBMIT, proto_msg_encode_submit(&c->out, m, err), err);
+    size_t mark;
+    pt_status st = proto_frame_begin(&c->out, PROTO_MSG_SUBMIT, &mark, err);
+    if (st == PT_OK)
+        st = send_frame(c, mark, proto_msg_encode_submit(&c->out, m, err), err);
+    if (st != PT_OK)
+        return st;
     proto_scene_chunk ch;
     memcpy(ch.hash, m->bundle_hash, PROTO_HASH_SIZE);
     ch.total = b->size;
@@ -387,17 +377,12 @@ pt_status ctl_submit(ctl_conn *c, const proto_submit *m, const pt_bundle *b,
         ch.offset = off;
         ch.len = (uint32_t)n;
         ch.data = b->data + off;
-        pt_status st = check_refusal(c, err);
+        st = check_refusal(c, err);
         if (st != PT_OK)
             return st;
-        size_t mark;
         st = proto_frame_begin(&c->out, PROTO_MSG_UPLOAD, &mark, err);
-        if (st == PT_OK && (st = proto_msg_encode_scene_chunk(&c->out, &ch, err)) != PT_OK)
-            proto_frame_cancel(&c->out, mark);
         if (st == PT_OK)
-            st = proto_frame_end(&c->out, mark, err);
-        if (st == PT_OK)
-            st = flush_out(c, err);
+            st = send_frame(c, mark, proto_msg_encode_scene_chunk(&c->out, &ch, err), err);
         if (st != PT_OK) {
             /* A server that refused mid-upload has said why before closing. */
             pt_error e2 = {0};
@@ -411,7 +396,7 @@ pt_status ctl_submit(ctl_conn *c, const proto_submit *m, const pt_bundle *b,
             progress(off, b->size, arg);
     }
     proto_frame f;
-    pt_status st = recv_type(c, PROTO_MSG_SUBMITTED, &f, err);
+    st = recv_type(c, PROTO_MSG_SUBMITTED, &f, err);
     if (st != PT_OK)
         return st;
     proto_job_ref r;
@@ -508,95 +493,13 @@ fail:
 
 pt_status ctl_write_atomic(const char *path, const uint8_t *data, size_t size, pt_error *err)
 {
-    size_t plen = strlen(path);
-    if (plen == 0 || path[plen - 1] == '/')
-        return pt_error_set(err, PT_ERR_ARG, "'%s' is not a file name", path);
-    const char *slash = strrchr(path, '/');
-    size_t dlen = slash ? (size_t)(slash - path) : 0;
-    char *tmp = pt_malloc(plen + 32);
-    char *dir = pt_malloc(dlen + 2);
-    if (!tmp || !dir) {
-        pt_free(tmp);
-        pt_free(dir);
-        return pt_error_set(err, PT_ERR_NOMEM, "temporary name for %s", path);
-    }
-    /* A hidden temporary beside the target, so rename never crosses a file system. */
-    if (slash)
-        snprintf(tmp, plen + 32, "%.*s/.%s.XXXXXX", (int)dlen, path, slash + 1);
-    else
-        snprintf(tmp, plen + 32, ".%s.XXXXXX", path);
-    if (slash && dlen == 0)
-        snprintf(dir, dlen + 2, "/");
-    else if (slash)
-        snprintf(dir, dlen + 2, "%.*s", (int)dlen, path);
-    else
-        snprintf(dir, dlen + 2, ".");
-    pt_status st = PT_OK;
-    int fd = mkstemp(tmp);
-    if (fd < 0) {
-        st = pt_error_errno(err, PT_ERR_IO, "cannot create a temporary file for %s", path);
-        goto done;
-    }
-    /* mkstemp makes 0600; an image is as readable as any new file would be. */
-    mode_t mask = umask(0);
-    umask(mask);
-    fchmod(fd, 0666 & ~mask);
-    for (size_t off = 0; off < size;) {
-        ssize_t k = write(fd, data + off, size - off);
-        if (k < 0 && errno == EINTR)
-            continue;
-        if (k <= 0) {
-            st = pt_error_errno(err, PT_ERR_IO, "cannot write %s", tmp);
-            break;
-        }
-        off += (size_t)k;
-    }
-    if (st == PT_OK && fsync(fd) != 0)
-        st = pt_error_errno(err, PT_ERR_IO, "cannot sync %s", tmp);
-    if (close(fd) != 0 && st == PT_OK)
-        st = pt_error_errno(err, PT_ERR_IO, "cannot close %s", tmp);
-    if (st == PT_OK && rename(tmp, path) != 0)
-        st = pt_error_errno(err, PT_ERR_IO, "cannot rename %s to %s", tmp, path);
-    if (st != PT_OK) {
-        unlink(tmp);
-        goto done;
-    }
-    /* The rename itself is durable once the folder is synced. */
-    int dfd = open(dir, O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-    if (dfd >= 0) {
-        fsync(dfd);
-        close(dfd);
-    }
-done:
-    pt_free(tmp);
-    pt_free(dir);
-    return st;
-}
-
-static int hex_digit(char ch)
-{
-    if (ch >= '0' && ch <= '9')
-        return ch - '0';
-    if (ch >= 'a' && ch <= 'f')
-        return ch - 'a' + 10;
-    if (ch >= 'A' && ch <= 'F')
-        return ch - 'A' + 10;
-    return -1;
+    /* An image is as readable as any new file of the user's would be. */
+    return pt_write_file_atomic_mode(path, data, size, 0666, err);
 }
 
 int ctl_hex_to_hash(const char *hex, uint8_t out[PROTO_HASH_SIZE])
 {
-    uint8_t h[PROTO_HASH_SIZE];
-    if (strlen(hex) != 2 * PROTO_HASH_SIZE)
-        return -1;
-    for (unsigned i = 0; i < PROTO_HASH_SIZE; i++) {
-        int a = hex_digit(hex[2 * i]), b = hex_digit(hex[2 * i + 1]);
-        if (a < 0 || b < 0)
-            return -1;
-        h[i] = (uint8_t)(a << 4 | b);
-    }
-    memcpy(out, h, sizeof h);
-    return 0;
+    return pt_hex_decode(hex, out, PROTO_HASH_SIZE);
 }
 
 void ctl_default_name(char out[PROTO_MAX_NAME + 1])

@@ -97,12 +97,13 @@ pt_status ctl_fetch(ctl_conn *c, uint64_t job_id, ctl_progress_fn progress, void
 
 /* ---- helpers ---- */
 
-/* Writes data to path atomically: a temporary file in the same folder,
- * fsync, rename over path, fsync of the folder. Readers see the old file or
- * the whole new one; a failure leaves no temporary file behind. */
+/* Writes data to path atomically and durably (pt_write_file_atomic_mode),
+ * mode 0666 before umask. Readers see the old file or the whole new one; a
+ * failure, the folder's fsync included, leaves no temporary file behind. */
 pt_status ctl_write_atomic(const char *path, const uint8_t *data, size_t size, pt_error *err);
 
-/* 64 hex digits (either case) to 32 bytes. 0 on success, -1 if malformed. */
+/* 64 hex digits (either case) to 32 bytes: pt_hex_decode for a scene hash.
+ * 0 on success, -1 if malformed (out untouched). */
 int ctl_hex_to_hash(const char *hex, uint8_t out[PROTO_HASH_SIZE]);
 
 /* "user@host" of this process, cut to PROTO_MAX_NAME bytes. */

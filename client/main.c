@@ -11,6 +11,7 @@
  * (a job id, a state, a table or JSON); progress and errors go to stderr.
  */
 #include <errno.h>
+#include <float.h>
 #include <getopt.h>
 #include <limits.h>
 #include <math.h>
@@ -23,6 +24,8 @@
 #include <unistd.h>
 
 #include "common/base/alloc.h"
+#include "common/base/clock.h"
+#include "common/base/opt.h"
 #include "common/scene/bundle.h"
 #include "protocol/auth.h"
 #include "client/ctl.h"
@@ -120,44 +123,15 @@ static int unknown_option(const char *cmd, char **argv)
     return bad_usage(cmd, "unknown option '%s'", argv[optind - 1]);
 }
 
-static int parse_u64(const char *s, uint64_t max, uint64_t *out)
+/* An option's value through common/base/opt.h: 0, or the bad-usage exit status. */
+static int bad_value(const char *cmd, pt_status st, const pt_error *err)
 {
-    char *end;
-    errno = 0;
-    if (!*s || *s == '-' || *s == '+' || *s == ' ')
-        return -1;
-    unsigned long long v = strtoull(s, &end, 10);
-    if (errno || end == s || *end || v > max)
-        return -1;
-    *out = v;
-    return 0;
-}
-
-static int parse_u32(const char *cmd, const char *opt, const char *s, uint32_t min, uint32_t max,
-                     uint32_t *out)
-{
-    uint64_t v;
-    if (parse_u64(s, max, &v) != 0 || v < min)
-        return bad_usage(cmd, "%s: '%s' is not a whole number in [%lu, %lu]", opt, s,
-                         (unsigned long)min, (unsigned long)max);
-    *out = (uint32_t)v;
-    return 0;
-}
-
-static int parse_nonneg(const char *cmd, const char *opt, const char *s, double *out)
-{
-    char *end;
-    errno = 0;
-    double v = strtod(s, &end);
-    if (errno || end == s || *end || !(v >= 0.0) || !isfinite(v))
-        return bad_usage(cmd, "%s: '%s' is not a number >= 0", opt, s);
-    *out = v;
-    return 0;
+    return st == PT_OK ? 0 : bad_usage(cmd, "%s", err->msg);
 }
 
 static int parse_job(const char *cmd, const char *s, uint64_t *out)
 {
-    if (parse_u64(s, UINT64_MAX, out) != 0)
+    if (pt_opt_u64("job", s, UINT64_MAX, out, NULL) != PT_OK)
         return bad_usage(cmd, "'%s' is not a job id (a whole number)", s);
     return 0;
 }
@@ -172,13 +146,12 @@ static int parse_global(const char *cmd, int c, const char *arg, globals *g)
         g->token_file = arg;
         return 0;
     case O_TIMEOUT: {
-        char *end;
-        errno = 0;
-        double v = strtod(arg, &end);
-        if (errno || end == arg || *end || !(v >= 0.001) || !(v <= 86400.0))
-            return bad_usage(cmd, "--timeout: '%s' is not a number of seconds in (0, 86400]", arg);
-        g->timeout_ms = (int)(v * 1000.0 + 0.5);
-        return 0;
+        pt_error err = {0};
+        double v = 0;
+        int rc = bad_value(cmd, pt_opt_seconds("--timeout", arg, 0.001, 86400.0, &v, &err), &err);
+        if (!rc)
+            g->timeout_ms = (int)(v * 1000.0 + 0.5);
+        return rc;
     }
     }
     return bad_usage(cmd, "unknown option");
@@ -249,13 +222,6 @@ static void show_transfer(uint64_t done, uint64_t total, void *arg)
     t->shown = 1;
 }
 
-static double now_s(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + ts.tv_nsec * 1e-9;
-}
-
 /* Follows job id on c until a JOB_INFO with a terminal state; the exit status. */
 static int watch_job(ctl_conn *c, uint64_t id)
 {
@@ -289,9 +255,9 @@ static int watch_job(ctl_conn *c, uint64_t id)
             prev = n;
             if (ended)
                 fputc('\n', stderr);
-        } else if (ended || now_s() - last >= WATCH_LOG_INTERVAL_S) {
+        } else if (ended || pt_now_s() - last >= WATCH_LOG_INTERVAL_S) {
             fprintf(stderr, "%s\n", line);
-            last = now_s();
+            last = pt_now_s();
         }
         fflush(stderr);
         if (!ended)
@@ -400,58 +366,42 @@ static int cmd_submit(int argc, char **argv, globals *g)
     optind = 0;
     while ((c = getopt_long(argc, argv, ":h", opts, NULL)) != -1) {
         int rc = 0;
+        pt_status st = PT_OK;
+        pt_error err = {0};
         switch (c) {
         case 'h':
             fputs(SUBMIT_HELP, stdout);
             printf("\n%s\n%s", GLOBAL_HELP, EXIT_HELP);
             return 0;
         case O_SPP:
-            rc = parse_u32("submit", "--spp", optarg, 1, UINT32_MAX, &m.spp);
+            st = pt_opt_u32("--spp", optarg, 1, UINT32_MAX, &m.spp, &err);
             break;
-        case O_RES: {
-            const char *x = strchr(optarg, 'x');
-            char wbuf[32];
-            if (!x || (size_t)(x - optarg) >= sizeof wbuf) {
-                rc = bad_usage("submit", "--res: '%s' is not WIDTHxHEIGHT", optarg);
-                break;
-            }
-            memcpy(wbuf, optarg, (size_t)(x - optarg));
-            wbuf[x - optarg] = '\0';
-            rc = parse_u32("submit", "--res width", wbuf, 1, UINT32_MAX, &m.width);
-            if (!rc)
-                rc = parse_u32("submit", "--res height", x + 1, 1, UINT32_MAX, &m.height);
+        case O_RES:
+            /* The server judges the size against its own caps. */
+            st = pt_opt_res("--res", optarg, UINT32_MAX, &m.width, &m.height, &err);
             break;
-        }
         case O_SEED:
-            rc = parse_u32("submit", "--seed", optarg, 0, UINT32_MAX, &m.seed);
+            st = pt_opt_u32("--seed", optarg, 0, UINT32_MAX, &m.seed, &err);
             break;
-        case O_PRIORITY: {
-            char *end;
-            errno = 0;
-            long long v = strtoll(optarg, &end, 10);
-            if (errno || end == optarg || *end || v < INT32_MIN || v > INT32_MAX)
-                rc = bad_usage("submit", "--priority: '%s' is not a whole number in [%ld, %ld]",
-                               optarg, (long)INT32_MIN, (long)INT32_MAX);
-            else
-                m.priority = (int32_t)v;
+        case O_PRIORITY:
+            st = pt_opt_i32("--priority", optarg, INT32_MIN, INT32_MAX, &m.priority, &err);
             break;
-        }
         case O_NAME:
             name = optarg;
             if (strlen(name) > PROTO_MAX_NAME)
                 rc = bad_usage("submit", "--name: longer than %u bytes", PROTO_MAX_NAME);
             break;
         case O_DEPTH:
-            rc = parse_u32("submit", "--max-depth", optarg, 1, UINT16_MAX, &depth);
+            st = pt_opt_u32("--max-depth", optarg, 1, UINT16_MAX, &depth, &err);
             break;
         case O_TARGET:
-            rc = parse_nonneg("submit", "--target-error", optarg, &m.target_error);
+            st = pt_opt_double("--target-error", optarg, 0.0, DBL_MAX, &m.target_error, &err);
             break;
         case O_MINGAIN:
-            rc = parse_nonneg("submit", "--min-gain", optarg, &m.min_gain);
+            st = pt_opt_double("--min-gain", optarg, 0.0, DBL_MAX, &m.min_gain, &err);
             break;
         case O_MINSPP:
-            rc = parse_u32("submit", "--min-spp", optarg, 1, UINT32_MAX, &m.min_spp);
+            st = pt_opt_u32("--min-spp", optarg, 1, UINT32_MAX, &m.min_spp, &err);
             break;
         case O_WATCH:
             watch = 1;
@@ -469,6 +419,8 @@ static int cmd_submit(int argc, char **argv, globals *g)
         default:
             rc = parse_global("submit", c, optarg, g);
         }
+        if (!rc)
+            rc = bad_value("submit", st, &err);
         if (rc)
             return rc;
     }

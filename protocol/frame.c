@@ -1,7 +1,9 @@
 #include "protocol/frame.h"
 
 #include <assert.h>
+#include <string.h>
 
+#include "common/base/alloc.h"
 #include "protocol/msg.h"
 
 /* The byte-wise table is built by the preprocessor, so it is constant data
@@ -129,4 +131,93 @@ pt_status proto_frame_encode(proto_writer *w, uint16_t type, const void *payload
         return st;
     proto_w_bytes(w, payload, len);
     return proto_frame_end(w, mark, err);
+}
+
+pt_status proto_frame_finish(proto_writer *w, size_t mark, pt_status encoded, pt_error *err)
+{
+    if (encoded != PT_OK) {
+        proto_frame_cancel(w, mark);
+        return encoded;
+    }
+    return proto_frame_end(w, mark, err);
+}
+
+uint32_t proto_frame_payload_len(const uint8_t header[PROTO_FRAME_HEADER])
+{
+    return proto_get_u32(header + 8);
+}
+
+/* ---- proto_frame_reader ---- */
+
+void proto_frame_reader_init(proto_frame_reader *r, size_t initial, size_t max)
+{
+    assert(initial > 0 && initial <= max);
+    memset(r, 0, sizeof *r);
+    r->initial = initial;
+    r->max = max;
+}
+
+void proto_frame_reader_fini(proto_frame_reader *r)
+{
+    pt_free(r->buf);
+    r->buf = NULL;
+    r->start = r->len = r->cap = 0;
+}
+
+void proto_frame_reader_reset(proto_frame_reader *r)
+{
+    r->start = r->len = 0;
+}
+
+pt_status proto_frame_reader_space(proto_frame_reader *r, uint8_t **p, size_t *room, pt_error *err)
+{
+    if (r->start > 0) {
+        memmove(r->buf, r->buf + r->start, r->len - r->start);
+        r->len -= r->start;
+        r->start = 0;
+    }
+    /* Room for one more byte at least, and for the whole frame once its
+     * header is here: the decoder has judged the declared length against the
+     * cap by then, so this never waits on a length it would refuse. */
+    size_t need = r->len + 1;
+    if (r->len >= PROTO_FRAME_HEADER) {
+        size_t frame = PROTO_FRAME_OVERHEAD + (size_t)proto_frame_payload_len(r->buf);
+        if (frame > need)
+            need = frame;
+    }
+    if (need > r->cap) {
+        if (need > r->max)
+            return pt_error_set(err, PT_ERR_LIMIT, "frame of %zu bytes over the input buffer's %zu",
+                                need, r->max);
+        size_t ncap = r->cap ? r->cap : r->initial;
+        while (ncap < need)
+            ncap = ncap > r->max / 2 ? r->max : ncap * 2;
+        uint8_t *nb = pt_realloc(r->buf, ncap);
+        if (!nb)
+            return pt_error_set(err, PT_ERR_NOMEM, "input buffer of %zu bytes", ncap);
+        r->buf = nb;
+        r->cap = ncap;
+    }
+    *p = r->buf + r->len;
+    *room = r->cap - r->len;
+    return PT_OK;
+}
+
+void proto_frame_reader_commit(proto_frame_reader *r, size_t n)
+{
+    assert(n <= r->cap - r->len);
+    r->len += n;
+}
+
+pt_status proto_frame_reader_next(proto_frame_reader *r, uint32_t max_payload, proto_frame *f,
+                                  pt_error *err)
+{
+    if (r->start == r->len)
+        return PT_AGAIN;
+    size_t used = 0;
+    pt_status st =
+        proto_frame_decode(r->buf + r->start, r->len - r->start, max_payload, f, &used, err);
+    if (st == PT_OK)
+        r->start += used;
+    return st;
 }

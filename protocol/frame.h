@@ -16,7 +16,12 @@
  * waited for (Redis's multibulk length check). Caps: PROTO_MAX_PAYLOAD_PREAUTH
  * until the peer has authenticated, PROTO_MAX_PAYLOAD after.
  * CRC32C is the Castagnoli polynomial (reflected 0x82F63B78, RFC 3720 B.4),
- * table-driven one byte at a time. Thread-safety: reentrant, no state.
+ * table-driven one byte at a time.
+ * proto_frame_reader is the one input buffer of every peer (coordinator,
+ * worker, ptctl): received bytes go in, whole frames come out; it grows to
+ * the frame being received, never past the maximum fixed at init.
+ * Thread-safety: the functions are reentrant; a reader belongs to the one
+ * thread that reads its connection.
  */
 #ifndef PT_PROTOCOL_FRAME_H
 #define PT_PROTOCOL_FRAME_H
@@ -77,5 +82,78 @@ pt_status proto_frame_encode(proto_writer *w, uint16_t type, const void *payload
 pt_status proto_frame_begin(proto_writer *w, uint16_t type, size_t *mark, pt_error *err);
 pt_status proto_frame_end(proto_writer *w, size_t mark, pt_error *err);
 void proto_frame_cancel(proto_writer *w, size_t mark);
+
+/* Ends the frame begun at mark given the status of the encoder that wrote its
+ * payload: proto_frame_end when encoded is PT_OK; otherwise proto_frame_cancel
+ * and returns encoded (the encoder has filled err). So one message is framed
+ * with no macro and no partial frame left on any path:
+ *     st = proto_frame_begin(w, PROTO_MSG_HELLO, &mark, err);
+ *     if (st == PT_OK)
+ *         st = proto_frame_finish(w, mark, proto_msg_encode_hello(w, &h, err), err); */
+pt_status proto_frame_finish(proto_writer *w, size_t mark, pt_status encoded, pt_error *err);
+
+/* The payload length L declared by a frame header (offset 8 above), from its
+ * first PROTO_FRAME_HEADER bytes; nothing is checked (proto_frame_decode
+ * judges it against the cap). The frame's whole size is
+ * PROTO_FRAME_OVERHEAD + L. Pure. */
+uint32_t proto_frame_payload_len(const uint8_t header[PROTO_FRAME_HEADER]);
+
+/* ---- proto_frame_reader: received bytes in, whole frames out ---------------
+ *
+ *   proto_frame_reader_init(&r, 64 << 10, PROTO_FRAME_OVERHEAD + PROTO_MAX_PAYLOAD);
+ *   for (;;) {
+ *       while ((st = proto_frame_reader_next(&r, cap, &f, err)) == PT_OK)
+ *           handle(&f);                  // f's payload is borrowed until the next call
+ *       if (st != PT_AGAIN) ...;         // a bad frame: PT_ERR_PROTO
+ *       if (proto_frame_reader_space(&r, &p, &room, err) != PT_OK) ...;
+ *       n = recv(fd, p, room, 0);
+ *       proto_frame_reader_commit(&r, n);
+ *   }
+ */
+typedef struct proto_frame_reader {
+    uint8_t *buf;   /* owned; NULL until the first proto_frame_reader_space */
+    size_t start;   /* bytes [0, start) are consumed frames */
+    size_t len;     /* bytes [start, len) wait to be decoded */
+    size_t cap;     /* bytes allocated */
+    size_t initial; /* the first allocation */
+    size_t max;     /* cap never passes this */
+} proto_frame_reader;
+
+/* An empty reader that first allocates initial bytes and never holds more
+ * than max (at least PROTO_FRAME_OVERHEAD + the largest payload it is to
+ * accept, and initial <= max). Allocates nothing. */
+void proto_frame_reader_init(proto_frame_reader *r, size_t initial, size_t max);
+
+/* Frees the buffer; r is then empty as after init. Accepts a reader never used. */
+void proto_frame_reader_fini(proto_frame_reader *r);
+
+/* Forgets every byte held (a new connection), keeping the buffer. */
+void proto_frame_reader_reset(proto_frame_reader *r);
+
+/* Bytes received and not yet decoded. */
+static inline size_t proto_frame_reader_pending(const proto_frame_reader *r)
+{
+    return r->len - r->start;
+}
+
+/* Where to receive the next bytes: *p and the *room bytes free there (> 0).
+ * Moves the undecoded bytes to the front, and grows the buffer (doubling, up
+ * to max) when it is full or when the frame whose header it holds needs
+ * more. PT_ERR_NOMEM (nothing lost), or PT_ERR_LIMIT when max bytes are
+ * held, which cannot happen while max fits the largest accepted frame.
+ * Invalidates the payload of every frame returned so far. */
+pt_status proto_frame_reader_space(proto_frame_reader *r, uint8_t **p, size_t *room, pt_error *err);
+
+/* Records that n bytes were written at the *p of the last
+ * proto_frame_reader_space (n <= its *room). */
+void proto_frame_reader_commit(proto_frame_reader *r, size_t n);
+
+/* Decodes the next frame held (proto_frame_decode with max_payload) and
+ * consumes it: PT_OK with *f, its payload borrowed from the reader until the
+ * next proto_frame_reader_space, _reset or _fini; PT_AGAIN when no whole
+ * frame is held yet; PT_ERR_PROTO as proto_frame_decode (the reader is then
+ * unchanged; the connection is to be closed). */
+pt_status proto_frame_reader_next(proto_frame_reader *r, uint32_t max_payload, proto_frame *f,
+                                  pt_error *err);
 
 #endif

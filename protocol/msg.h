@@ -79,7 +79,7 @@ const char *proto_msg_type_name(uint32_t type);
 #define PROTO_MAX_SLOTS 1024u               /* WORK_REQUEST slots */
 #define PROTO_MAX_HEARTBEAT_TASKS 1024u     /* task ids in one HEARTBEAT */
 #define PROTO_MAX_SCENE_CHUNK (1u << 20)    /* data bytes in one SCENE_CHUNK */
-#define PROTO_MAX_TILE_PIXELS (256u * 256u) /* pixels in one TASK / RESULT tile */
+#define PROTO_MAX_TILE_PIXELS (PT_TILE_MAX * PT_TILE_MAX) /* pixels in one TASK / RESULT tile */
 #define PROTO_HASH_SIZE 32u                 /* scene content hash (SHA-256) */
 #define PROTO_NONCE_SIZE 32u
 #define PROTO_MAC_SIZE 32u          /* HMAC-SHA256 */

@@ -28,32 +28,6 @@ struct wrk_cache {
 
 /* ---- file helpers ------------------------------------------------------------------- */
 
-
-static void sync_dir(const char *dir)
-{
-    int fd = open(dir, O_RDONLY | O_CLOEXEC);
-    if (fd >= 0) {
-        fsync(fd); /* best effort: some file systems refuse fsync on folders */
-        close(fd);
-    }
-}
-
-static pt_status write_all(int fd, const uint8_t *data, size_t size, const char *path,
-                           pt_error *err)
-{
-    size_t done = 0;
-    while (done < size) {
-        size_t n = size - done < (1u << 30) ? size - done : (1u << 30);
-        ssize_t w = write(fd, data + done, n);
-        if (w < 0 && errno == EINTR)
-            continue;
-        if (w <= 0)
-            return pt_error_errno(err, PT_ERR_IO, "%s: write", path);
-        done += (size_t)w;
-    }
-    return PT_OK;
-}
-
 /* A temporary's name in the cache folder: .tmp-<hex>-<pid>-<n><suffix>. */
 static void temp_path(wrk_cache *c, const char *hex, const char *suffix, char *out, size_t cap)
 {
@@ -153,7 +127,7 @@ static pt_status unpack(wrk_cache *c, const char *hex, const uint8_t *data, size
         pt_remove_tree(tmp);
         return st;
     }
-    sync_dir(tmp);
+    (void)pt_fsync_dir(tmp); /* best effort, as for the folder below */
     if (rename(tmp, scene_dir) != 0) {
         int e = errno;
         pt_remove_tree(tmp);
@@ -162,7 +136,7 @@ static pt_status unpack(wrk_cache *c, const char *hex, const uint8_t *data, size
             return pt_error_errno(err, PT_ERR_IO, "%s: rename", scene_dir);
         }
     }
-    sync_dir(c->dir);
+    (void)pt_fsync_dir(c->dir);
     return PT_OK;
 }
 
@@ -174,7 +148,9 @@ static pt_status write_bundle(wrk_cache *c, const char *hex, const uint8_t *data
     int fd = open(tmp, O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
     if (fd < 0)
         return pt_error_errno(err, PT_ERR_IO, "%s", tmp);
-    pt_status st = write_all(fd, data, size, tmp, err);
+    pt_status st = PT_OK;
+    if (pt_write_all(fd, data, size) != 0)
+        st = pt_error_errno(err, PT_ERR_IO, "%s: write", tmp);
     if (st == PT_OK && fsync(fd) != 0)
         st = pt_error_errno(err, PT_ERR_IO, "%s: fsync", tmp);
     if (close(fd) != 0 && st == PT_OK)

@@ -17,6 +17,7 @@
 #include <unistd.h>
 
 #include "common/base/alloc.h"
+#include "common/base/clock.h"
 #include "common/scene/bundle.h"
 #include "common/base/net.h"
 #include "common/render/render.h"
@@ -31,6 +32,7 @@
 #define CONNECT_TIMEOUT_MS 5000
 #define HANDSHAKE_TIMEOUT_MS 15000
 #define HEARTBEAT_MIN_MS 200
+#define IN_START ((size_t)64 << 10)
 #define IN_MAX ((size_t)PROTO_MAX_PAYLOAD + PROTO_FRAME_OVERHEAD)
 #define OUT_MAX ((size_t)32 << 20)
 /* Finished results wait in the done list while this much output is unsent:
@@ -118,8 +120,7 @@ struct worker {
     int wake_r;
     int fd;
     int state;
-    uint8_t *in;
-    size_t in_start, in_len, in_cap;
+    proto_frame_reader in;
     proto_writer out;
     size_t out_sent;
     uint32_t requested; /* slots asked for, TASKs not yet received */
@@ -148,13 +149,6 @@ static void on_signal(int sig)
         (void)r;
     }
     errno = e;
-}
-
-static uint64_t now_ms(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (uint64_t)ts.tv_sec * 1000u + (uint64_t)ts.tv_nsec / 1000000u;
 }
 
 static int make_pipe(int fds[2])
@@ -376,28 +370,16 @@ static size_t out_pending(const worker *w)
     return w->out.len - w->out_sent;
 }
 
-/* Frames one message: the encoder is called between begin and end. */
-#define SEND_MSG(w, type, encode_call)                                                             \
-    do {                                                                                           \
-        size_t mark_;                                                                              \
-        pt_error e_ = {0};                                                                         \
-        if (proto_frame_begin(&(w)->out, (type), &mark_, &e_) != PT_OK) {                          \
-            snprintf((w)->reason, sizeof(w)->reason, "cannot queue %s: %s",                        \
-                     proto_msg_type_name(type), e_.msg);                                           \
-            return -1;                                                                             \
-        }                                                                                          \
-        if ((encode_call) != PT_OK) {                                                              \
-            proto_frame_cancel(&(w)->out, mark_);                                                  \
-            snprintf((w)->reason, sizeof(w)->reason, "cannot encode %s",                           \
-                     proto_msg_type_name(type));                                                   \
-            return -1;                                                                             \
-        }                                                                                          \
-        if (proto_frame_end(&(w)->out, mark_, &e_) != PT_OK) {                                     \
-            snprintf((w)->reason, sizeof(w)->reason, "cannot queue %s: %s",                        \
-                     proto_msg_type_name(type), e_.msg);                                           \
-            return -1;                                                                             \
-        }                                                                                          \
-    } while (0)
+/* The end of framing one message into w->out (proto_frame_begin, then
+ * proto_frame_finish with the encoder's status): 0, or -1 with the reason. */
+static int queued(worker *w, uint16_t type, pt_status st, const pt_error *e)
+{
+    if (st == PT_OK)
+        return 0;
+    snprintf(w->reason, sizeof w->reason, "cannot queue %s: %s", proto_msg_type_name(type),
+             e->msg[0] ? e->msg : pt_status_str(st));
+    return -1;
+}
 
 static int send_hello(worker *w)
 {
@@ -409,8 +391,12 @@ static int send_hello(worker *w)
     h.threads = (uint16_t)w->o->threads;
     snprintf(h.build_id, sizeof h.build_id, "%s", proto_build_id());
     h.caps = 0;
-    SEND_MSG(w, PROTO_MSG_HELLO, proto_msg_encode_hello(&w->out, &h, NULL));
-    return 0;
+    size_t mark;
+    pt_error e = {0};
+    pt_status st = proto_frame_begin(&w->out, PROTO_MSG_HELLO, &mark, &e);
+    if (st == PT_OK)
+        st = proto_frame_finish(&w->out, mark, proto_msg_encode_hello(&w->out, &h, &e), &e);
+    return queued(w, PROTO_MSG_HELLO, st, &e);
 }
 
 static int send_scene_get(worker *w, const uint8_t *hash, uint64_t offset)
@@ -418,8 +404,12 @@ static int send_scene_get(worker *w, const uint8_t *hash, uint64_t offset)
     proto_scene_get g;
     memcpy(g.hash, hash, PROTO_HASH_SIZE);
     g.offset = offset;
-    SEND_MSG(w, PROTO_MSG_SCENE_GET, proto_msg_encode_scene_get(&w->out, &g, NULL));
-    return 0;
+    size_t mark;
+    pt_error e = {0};
+    pt_status st = proto_frame_begin(&w->out, PROTO_MSG_SCENE_GET, &mark, &e);
+    if (st == PT_OK)
+        st = proto_frame_finish(&w->out, mark, proto_msg_encode_scene_get(&w->out, &g, &e), &e);
+    return queued(w, PROTO_MSG_SCENE_GET, st, &e);
 }
 
 /* Tells the coordinator why we hang up (best effort; it closes after ERROR too). */
@@ -429,13 +419,8 @@ static void send_error(worker *w, uint16_t code, const char *text)
     m.code = code;
     snprintf(m.text, sizeof m.text, "%s", text);
     size_t mark;
-    if (proto_frame_begin(&w->out, PROTO_MSG_ERROR, &mark, NULL) != PT_OK)
-        return;
-    if (proto_msg_encode_error(&w->out, &m, NULL) != PT_OK) {
-        proto_frame_cancel(&w->out, mark);
-        return;
-    }
-    if (proto_frame_end(&w->out, mark, NULL) == PT_OK)
+    if (proto_frame_begin(&w->out, PROTO_MSG_ERROR, &mark, NULL) == PT_OK &&
+        proto_frame_finish(&w->out, mark, proto_msg_encode_error(&w->out, &m, NULL), NULL) == PT_OK)
         flush_out(w);
 }
 
@@ -474,7 +459,13 @@ static int request_work(worker *w)
     if (slots > PROTO_MAX_SLOTS)
         slots = PROTO_MAX_SLOTS;
     proto_work_request r = {(uint16_t)slots};
-    SEND_MSG(w, PROTO_MSG_WORK_REQUEST, proto_msg_encode_work_request(&w->out, &r, NULL));
+    size_t mark;
+    pt_error e = {0};
+    pt_status st = proto_frame_begin(&w->out, PROTO_MSG_WORK_REQUEST, &mark, &e);
+    if (st == PT_OK)
+        st = proto_frame_finish(&w->out, mark, proto_msg_encode_work_request(&w->out, &r, &e), &e);
+    if (queued(w, PROTO_MSG_WORK_REQUEST, st, &e) != 0)
+        return -1;
     w->requested += slots;
     return 0;
 }
@@ -516,8 +507,12 @@ static int send_heartbeat(worker *w, uint64_t now)
     w->t_heartbeat = now + interval;
     if (hb.count == 0)
         return 0; /* nothing to keep alive */
-    SEND_MSG(w, PROTO_MSG_HEARTBEAT, proto_msg_encode_heartbeat(&w->out, &hb, NULL));
-    return 0;
+    size_t mark;
+    pt_error e = {0};
+    pt_status st = proto_frame_begin(&w->out, PROTO_MSG_HEARTBEAT, &mark, &e);
+    if (st == PT_OK)
+        st = proto_frame_finish(&w->out, mark, proto_msg_encode_heartbeat(&w->out, &hb, &e), &e);
+    return queued(w, PROTO_MSG_HEARTBEAT, st, &e);
 }
 
 static void enqueue(worker *w, task_item *t)
@@ -602,8 +597,8 @@ static int on_task(worker *w, const proto_frame *f)
     w->requested--;
     /* A shorter lease than those held so far brings the next heartbeat closer. */
     uint32_t interval = t->t.lease_ms / 3 > HEARTBEAT_MIN_MS ? t->t.lease_ms / 3 : HEARTBEAT_MIN_MS;
-    if (now_ms() + interval < w->t_heartbeat)
-        w->t_heartbeat = now_ms() + interval;
+    if (pt_now_ms() + interval < w->t_heartbeat)
+        w->t_heartbeat = pt_now_ms() + interval;
     pthread_mutex_lock(&w->mu);
     t->epoch = w->epoch;
     pthread_mutex_unlock(&w->mu);
@@ -758,21 +753,14 @@ static int collect_results(worker *w)
         r.pixels = d->pixels;
         r.owns_pixels = 0;
         uint64_t samples = d->stats.samples;
-        int bad = 0;
         size_t mark;
         pt_error e = {0};
-        if (proto_frame_begin(&w->out, PROTO_MSG_RESULT, &mark, &e) != PT_OK)
-            bad = 1;
-        else if (proto_msg_encode_result(&w->out, &r, &e) != PT_OK) {
-            proto_frame_cancel(&w->out, mark);
-            bad = 1;
-        } else if (proto_frame_end(&w->out, mark, &e) != PT_OK)
-            bad = 1;
+        pt_status st = proto_frame_begin(&w->out, PROTO_MSG_RESULT, &mark, &e);
+        if (st == PT_OK)
+            st = proto_frame_finish(&w->out, mark, proto_msg_encode_result(&w->out, &r, &e), &e);
         done_free(d);
-        if (bad) {
-            snprintf(w->reason, sizeof w->reason, "cannot queue RESULT: %s", e.msg);
+        if (queued(w, PROTO_MSG_RESULT, st, &e) != 0)
             return -1;
-        }
         w->tasks_done++;
         w->samples += samples;
     }
@@ -798,7 +786,12 @@ static int on_challenge(worker *w, const proto_frame *f)
         snprintf(w->reason, sizeof w->reason, "cannot answer the challenge: %s", err.msg);
         return -1;
     }
-    SEND_MSG(w, PROTO_MSG_AUTH, proto_msg_encode_auth(&w->out, &a, NULL));
+    size_t mark;
+    st = proto_frame_begin(&w->out, PROTO_MSG_AUTH, &mark, &err);
+    if (st == PT_OK)
+        st = proto_frame_finish(&w->out, mark, proto_msg_encode_auth(&w->out, &a, &err), &err);
+    if (queued(w, PROTO_MSG_AUTH, st, &err) != 0)
+        return -1;
     w->state = S_AUTH;
     return 0;
 }
@@ -898,7 +891,7 @@ static int dispatch(worker *w, const proto_frame *f, int *end)
                 return fail_proto(w, "bad WELCOME: %s", err.msg);
             }
             w->state = S_READY;
-            w->t_heartbeat = now_ms() + HEARTBEAT_MIN_MS;
+            w->t_heartbeat = pt_now_ms() + HEARTBEAT_MIN_MS;
             fprintf(stderr, "ptworker: connected to %s:%u as %s (%u threads)\n", w->host, w->port,
                     w->name, w->o->threads);
             return 0;
@@ -920,22 +913,14 @@ static int dispatch(worker *w, const proto_frame *f, int *end)
 /* Reads what is there and handles every whole frame. 0, or -1. */
 static int read_in(worker *w, int *end)
 {
-    if (w->in_start > 0) {
-        memmove(w->in, w->in + w->in_start, w->in_len - w->in_start);
-        w->in_len -= w->in_start;
-        w->in_start = 0;
+    uint8_t *p;
+    size_t room;
+    pt_error err = {0};
+    if (proto_frame_reader_space(&w->in, &p, &room, &err) != PT_OK) {
+        snprintf(w->reason, sizeof w->reason, "input: %s", err.msg);
+        return -1;
     }
-    if (w->in_cap - w->in_len < 65536 && w->in_cap < IN_MAX) {
-        size_t cap = w->in_cap * 2 < IN_MAX ? w->in_cap * 2 : IN_MAX;
-        uint8_t *nb = pt_realloc(w->in, cap);
-        if (!nb) {
-            snprintf(w->reason, sizeof w->reason, "out of memory for input");
-            return -1;
-        }
-        w->in = nb;
-        w->in_cap = cap;
-    }
-    ssize_t n = recv(w->fd, w->in + w->in_len, w->in_cap - w->in_len, MSG_DONTWAIT);
+    ssize_t n = recv(w->fd, p, room, MSG_DONTWAIT);
     if (n < 0 && (errno == EINTR || errno == EAGAIN || errno == EWOULDBLOCK))
         return 0;
     if (n < 0) {
@@ -946,22 +931,17 @@ static int read_in(worker *w, int *end)
         snprintf(w->reason, sizeof w->reason, "the server closed the connection");
         return -1;
     }
-    w->in_len += (size_t)n;
-    while (w->in_start < w->in_len) {
+    proto_frame_reader_commit(&w->in, (size_t)n);
+    for (;;) {
         proto_frame f;
-        size_t used;
-        pt_error err = {0};
         uint32_t cap = w->state == S_READY ? PROTO_MAX_PAYLOAD : PROTO_MAX_PAYLOAD_PREAUTH;
-        pt_status st =
-            proto_frame_decode(w->in + w->in_start, w->in_len - w->in_start, cap, &f, &used, &err);
+        pt_status st = proto_frame_reader_next(&w->in, cap, &f, &err);
         if (st == PT_AGAIN)
             break;
-        if (st != PT_OK) {
+        if (st != PT_OK)
             return fail_proto(w, "malformed frame from the server: %s", err.msg);
-        }
         if (dispatch(w, &f, end) != 0)
             return -1;
-        w->in_start += used;
     }
     return 0;
 }
@@ -1001,7 +981,7 @@ static void drop_session(worker *w)
     for (scene_rec *s = w->scenes_known; s; s = s->next)
         fetch_reset(s);
     w->requested = 0;
-    w->in_start = w->in_len = 0;
+    proto_frame_reader_reset(&w->in);
     proto_writer_reset(&w->out);
     w->out_sent = 0;
 }
@@ -1031,7 +1011,7 @@ static int session(worker *w, int sig_r, int *connected, int *welcomed)
         return END_RETRY;
     }
     w->state = S_HELLO;
-    w->t_connect = now_ms();
+    w->t_connect = pt_now_ms();
     int end = END_RETRY;
     if (send_hello(w) != 0 || flush_out(w) != 0)
         goto out;
@@ -1040,7 +1020,7 @@ static int session(worker *w, int sig_r, int *connected, int *welcomed)
             end = END_STOP;
             goto out;
         }
-        uint64_t now = now_ms();
+        uint64_t now = pt_now_ms();
         if (w->state == S_READY) {
             *welcomed = 1;
             if (collect_results(w) != 0 || request_work(w) != 0)
@@ -1094,9 +1074,9 @@ out:
 /* Sleeps ms, or less when a signal arrives. */
 static void backoff_sleep(int sig_r, uint32_t ms)
 {
-    uint64_t until = now_ms() + ms;
+    uint64_t until = pt_now_ms() + ms;
     while (!g_stop) {
-        uint64_t now = now_ms();
+        uint64_t now = pt_now_ms();
         if (now >= until)
             break;
         struct pollfd p = {sig_r, POLLIN, 0};
@@ -1158,10 +1138,9 @@ static int setup(worker *w, const wrk_client_opts *o)
         fprintf(stderr, "ptworker: %s\n", err.msg);
         return 1;
     }
-    w->in_cap = 65536;
-    w->in = pt_malloc(w->in_cap);
+    proto_frame_reader_init(&w->in, IN_START, IN_MAX);
     w->running = pt_calloc(o->threads, sizeof *w->running);
-    if (!w->in || !w->running) {
+    if (!w->running) {
         fprintf(stderr, "ptworker: out of memory\n");
         return 1;
     }
@@ -1259,7 +1238,7 @@ int wrk_client_run(const wrk_client_opts *o)
                 "link timeout %.1f s\n",
                 w->name, o->threads, o->prefetch, wrk_cache_dir(w->cache), w->host, w->port,
                 w->token_len ? " (token)" : "", w->link_timeout_ms / 1000.0);
-    w->t_start = now_ms();
+    w->t_start = pt_now_ms();
     uint32_t delay = BACKOFF_MIN_MS;
     while (!g_stop) {
         int welcomed = 0, connected = 0;
@@ -1284,7 +1263,7 @@ int wrk_client_run(const wrk_client_opts *o)
         delay = delay * 2 > BACKOFF_MAX_MS ? BACKOFF_MAX_MS : delay * 2;
     }
 
-    double secs = (double)(now_ms() - w->t_start) / 1000.0;
+    double secs = (double)(pt_now_ms() - w->t_start) / 1000.0;
     fprintf(stderr, "ptworker: %s: %llu tasks done, %llu samples, %.4g samples/s over %.1f s",
             rc == 0 ? "stopped" : "giving up", (unsigned long long)w->tasks_done,
             (unsigned long long)w->samples, secs > 0 ? (double)w->samples / secs : 0.0, secs);
@@ -1314,7 +1293,7 @@ int wrk_client_run(const wrk_client_opts *o)
     wrk_scenes_free(w->scenes);
     wrk_cache_close(w->cache);
     proto_writer_fini(&w->out);
-    pt_free(w->in);
+    proto_frame_reader_fini(&w->in);
     pt_free(w->running);
     close(w->wake_r);
     close(w->wake_w);

@@ -8,6 +8,7 @@
  * belongs to one of them, and mixing them is bad usage (exit status 2).
  */
 #include <errno.h>
+#include <float.h>
 #include <getopt.h>
 #include <limits.h>
 #include <math.h>
@@ -17,6 +18,8 @@
 
 #include <unistd.h>
 
+#include "common/base/opt.h"
+#include "common/render/tile.h"
 #include "protocol/msg.h"
 #include "worker/client.h"
 #include "worker/standalone.h"
@@ -87,47 +90,24 @@ static void usage(FILE *f)
             WRK_LINK_TIMEOUT_MIN_MS / 1000u, WRK_LINK_TIMEOUT_MAX_MS / 1000u);
 }
 
-static int parse_u32(const char *opt, const char *s, uint32_t min, uint32_t max, uint32_t *out)
+/* An option's value through common/base/opt.h: -1 after saying why. */
+static int bad_value(pt_status st, const pt_error *err)
 {
-    char *end;
-    errno = 0;
-    unsigned long long v = strtoull(s, &end, 10);
-    if (errno || end == s || *end || s[0] == '-' || v < min || v > max) {
-        fprintf(stderr, "ptworker: %s: '%s' is not a whole number in [%u, %u]\n", opt, s, min, max);
-        return -1;
-    }
-    *out = (uint32_t)v;
-    return 0;
+    if (st == PT_OK)
+        return 0;
+    fprintf(stderr, "ptworker: %s\n", err->msg);
+    return -1;
 }
 
-/* Seconds, fractions allowed, within the client's bounds; to milliseconds. */
-static int parse_link_timeout(const char *s, uint32_t *ms)
+/* --link-timeout: seconds, fractions allowed, within the client's bounds; to milliseconds. */
+static int parse_link_timeout(const char *s, uint32_t *ms, pt_error *err)
 {
-    char *end;
-    errno = 0;
-    double v = strtod(s, &end);
-    if (errno || end == s || *end || !(v * 1000.0 >= WRK_LINK_TIMEOUT_MIN_MS) ||
-        !(v * 1000.0 <= WRK_LINK_TIMEOUT_MAX_MS)) {
-        fprintf(stderr, "ptworker: --link-timeout: '%s' is not a number of seconds in [%u, %u]\n",
-                s, WRK_LINK_TIMEOUT_MIN_MS / 1000u, WRK_LINK_TIMEOUT_MAX_MS / 1000u);
+    double sec = 0;
+    if (bad_value(pt_opt_seconds("--link-timeout", s, WRK_LINK_TIMEOUT_MIN_MS / 1000.0,
+                                 WRK_LINK_TIMEOUT_MAX_MS / 1000.0, &sec, err),
+                  err))
         return -1;
-    }
-    *ms = (uint32_t)(v * 1000.0 + 0.5);
-    return 0;
-}
-
-static int parse_res(const char *s, uint32_t *w, uint32_t *h)
-{
-    char buf[64];
-    const char *x = strchr(s, 'x');
-    if (!x || (size_t)(x - s) >= sizeof buf) {
-        fprintf(stderr, "ptworker: --res: '%s' is not WIDTHxHEIGHT\n", s);
-        return -1;
-    }
-    memcpy(buf, s, (size_t)(x - s));
-    buf[x - s] = '\0';
-    if (parse_u32("--res width", buf, 1, 16384, w) || parse_u32("--res height", x + 1, 1, 16384, h))
-        return -1;
+    *ms = (uint32_t)(sec * 1000.0 + 0.5);
     return 0;
 }
 
@@ -188,6 +168,7 @@ int main(int argc, char **argv)
         {NULL, 0, NULL, 0},
     };
     int c, li = 0;
+    pt_error err = {0};
     while ((c = getopt_long(argc, argv, "o:qh", longopts, &li)) != -1) {
         int bad = 0;
         switch (c) {
@@ -198,51 +179,39 @@ int main(int argc, char **argv)
             o.out_path = optarg;
             break;
         case OPT_SPP:
-            bad = parse_u32("--spp", optarg, 1, 1u << 24, &o.spp);
+            bad = bad_value(pt_opt_u32("--spp", optarg, 1, 1u << 24, &o.spp, &err), &err);
             break;
         case OPT_RES:
-            bad = parse_res(optarg, &o.width, &o.height);
+            bad = bad_value(pt_opt_res("--res", optarg, 16384, &o.width, &o.height, &err), &err);
             break;
         case OPT_SEED:
-            bad = parse_u32("--seed", optarg, 0, UINT32_MAX, &o.seed);
+            bad = bad_value(pt_opt_u32("--seed", optarg, 0, UINT32_MAX, &o.seed, &err), &err);
             break;
         case OPT_THREADS:
-            bad = parse_u32("--threads", optarg, 1, 1024, &o.threads);
+            bad = bad_value(pt_opt_u32("--threads", optarg, 1, 1024, &o.threads, &err), &err);
             break;
         case OPT_DEPTH:
-            bad = parse_u32("--max-depth", optarg, 0, 1024, &o.max_depth);
+            bad = bad_value(pt_opt_u32("--max-depth", optarg, 0, 1024, &o.max_depth, &err), &err);
             break;
         case OPT_CAMERA:
             o.camera = optarg;
             break;
         case OPT_TILE:
-            bad = parse_u32("--tile", optarg, 1, 4096, &o.tile);
+            bad = bad_value(pt_opt_u32("--tile", optarg, 1, PT_TILE_MAX, &o.tile, &err), &err);
             break;
         case OPT_CHUNK:
-            bad = parse_u32("--chunk", optarg, 1, 1u << 24, &o.chunk);
+            bad = bad_value(pt_opt_u32("--chunk", optarg, 1, 1u << 24, &o.chunk, &err), &err);
             break;
-        case OPT_TARGET: {
-            char *end;
-            o.target_error = strtod(optarg, &end);
-            if (end == optarg || *end || !(o.target_error > 0.0) || o.target_error > 1e6) {
-                fprintf(stderr, "ptworker: --target-error: '%s' is not a positive number\n",
-                        optarg);
-                return 2;
-            }
+        case OPT_TARGET:
+            bad = bad_value(pt_opt_positive("--target-error", optarg, 1e6, &o.target_error, &err),
+                            &err);
             break;
-        }
-        case OPT_MINGAIN: {
-            char *end;
-            errno = 0;
-            o.min_gain = strtod(optarg, &end);
-            if (errno || end == optarg || *end || !(o.min_gain > 0.0) || !isfinite(o.min_gain)) {
-                fprintf(stderr, "ptworker: --min-gain: '%s' is not a positive number\n", optarg);
-                return 2;
-            }
+        case OPT_MINGAIN:
+            bad =
+                bad_value(pt_opt_positive("--min-gain", optarg, DBL_MAX, &o.min_gain, &err), &err);
             break;
-        }
         case OPT_MINSPP:
-            bad = parse_u32("--min-spp", optarg, 2, 1u << 24, &o.min_spp);
+            bad = bad_value(pt_opt_u32("--min-spp", optarg, 2, 1u << 24, &o.min_spp, &err), &err);
             break;
         case 'q':
             o.quiet = 1;
@@ -251,7 +220,8 @@ int main(int argc, char **argv)
             net.server = optarg;
             break;
         case OPT_PREFETCH:
-            bad = parse_u32("--prefetch", optarg, 0, PROTO_MAX_SLOTS, &prefetch);
+            bad = bad_value(pt_opt_u32("--prefetch", optarg, 0, PROTO_MAX_SLOTS, &prefetch, &err),
+                            &err);
             has_prefetch = 1;
             break;
         case OPT_TOKEN:
@@ -264,7 +234,7 @@ int main(int argc, char **argv)
             net.name = optarg;
             break;
         case OPT_LINK_TIMEOUT:
-            bad = parse_link_timeout(optarg, &net.link_timeout_ms);
+            bad = parse_link_timeout(optarg, &net.link_timeout_ms, &err);
             break;
         case 'h':
             usage(stdout);

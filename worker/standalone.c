@@ -9,6 +9,7 @@
 #include <unistd.h>
 
 #include "common/base/alloc.h"
+#include "common/base/clock.h"
 #include "common/image/exr.h"
 #include "common/render/film.h"
 #include "common/image/image.h"
@@ -34,13 +35,6 @@ typedef struct thread_arg {
     job *j;
     uint32_t index;
 } thread_arg;
-
-static double now_seconds(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-}
 
 static void *render_thread(void *p)
 {
@@ -87,28 +81,6 @@ static void *render_thread(void *p)
     return NULL;
 }
 
-static void format_eta(double s, char *buf, size_t n)
-{
-    if (!(s >= 0) || s > 360000)
-        snprintf(buf, n, "--");
-    else if (s >= 3600)
-        snprintf(buf, n, "%dh%02dm", (int)(s / 3600), (int)(s / 60) % 60);
-    else if (s >= 60)
-        snprintf(buf, n, "%dm%02ds", (int)(s / 60), (int)s % 60);
-    else
-        snprintf(buf, n, "%.0fs", s);
-}
-
-/* "out.exr" -> "out.png"; any other name gets ".png" appended. */
-static void preview_path(const char *exr, char *buf, size_t n)
-{
-    size_t len = strlen(exr);
-    if (len > 4 && strcmp(exr + len - 4, ".exr") == 0)
-        snprintf(buf, n, "%.*s.png", (int)(len - 4), exr);
-    else
-        snprintf(buf, n, "%s.png", exr);
-}
-
 int wrk_standalone_run(const wrk_standalone_opts *o)
 {
     pt_error err = {0};
@@ -121,7 +93,7 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
     thread_arg *args = NULL;
     pt_render_stats *tstats = NULL;
     int rc = 1;
-    double t0 = now_seconds();
+    double t0 = pt_now_s();
 
     pt_scene_opts so = {0};
     so.camera_name = o->camera;
@@ -134,11 +106,9 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
     p.width = o->width;
     p.height = o->height;
     if (p.width == 0) {
+        /* The --res cap bounds a height from an extreme aspect too. */
         p.width = 512;
-        float aspect = scene->camera.aspect > 0 ? scene->camera.aspect : 1.0f;
-        p.height = (uint32_t)(512.0f / aspect + 0.5f);
-        if (p.height == 0)
-            p.height = 1;
+        p.height = pt_camera_height(scene->camera.aspect, p.width, 16384);
     }
     p.seed = o->seed;
     p.max_depth = o->max_depth;
@@ -148,7 +118,7 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
         fprintf(stderr, "ptworker: %s\n", err.msg);
         goto done;
     }
-    double t_load = now_seconds() - t0;
+    double t_load = pt_now_s() - t0;
 
     uint32_t tx = (p.width + o->tile - 1) / o->tile, ty = (p.height + o->tile - 1) / o->tile;
     uint32_t nt = tx * ty;
@@ -183,7 +153,7 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
     if (!o->quiet)
         fprintf(stderr, "ptworker: %s: %u triangles, %ux%u, %u spp, %u threads (loaded in %.2fs)\n",
                 o->scene_path, scene->num_triangles, p.width, p.height, o->spp, nthreads, t_load);
-    double t_render = now_seconds();
+    double t_render = pt_now_s();
     uint32_t started = 0;
     for (; started < nthreads; started++) {
         args[started] = (thread_arg){&j, started};
@@ -200,13 +170,13 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
     while (atomic_load(&j.running) > 0) {
         struct timespec ts = {0, 100 * 1000 * 1000};
         nanosleep(&ts, NULL);
-        double el = now_seconds() - t_render;
+        double el = pt_now_s() - t_render;
         if (!o->quiet && el - last_print >= 1.0) {
             last_print = el;
             uint64_t done_s = atomic_load(&j.samples_done);
             double rate = done_s / el;
             char eta[32];
-            format_eta(rate > 0 ? (double)(total - done_s) / rate : -1, eta, sizeof eta);
+            pt_format_eta(rate > 0 ? (double)(total - done_s) / rate : -1, eta, sizeof eta);
             fprintf(stderr, "\rptworker: %5.1f%%  %.2f spp  %.3g samples/s  ETA %s   ",
                     100.0 * (double)done_s / (double)total,
                     (double)done_s / ((double)p.width * p.height), rate, eta);
@@ -214,7 +184,7 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
     }
     for (uint32_t i = 0; i < started; i++)
         pthread_join(threads[i], NULL);
-    double secs = now_seconds() - t_render;
+    double secs = pt_now_s() - t_render;
     if (atomic_load(&j.tiles_done) != nt) {
         fprintf(stderr, "\nptworker: %u of %u tiles failed (out of memory)\n",
                 nt - atomic_load(&j.tiles_done), nt);
@@ -237,7 +207,7 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
         goto done;
     }
     char png[4096];
-    preview_path(o->out_path, png, sizeof png);
+    pt_png_preview_path(o->out_path, png, sizeof png);
     if (pt_png_write_preview(png, img, &err) != PT_OK) {
         fprintf(stderr, "\nptworker: %s\n", err.msg);
         goto done;

@@ -27,6 +27,11 @@ int pt_fsync_dir_of(const char *path)
         errno = ENAMETOOLONG;
         return -1;
     }
+    return pt_fsync_dir(dir);
+}
+
+int pt_fsync_dir(const char *dir)
+{
     int fd = open(dir, O_RDONLY | O_DIRECTORY | O_CLOEXEC);
     if (fd < 0)
         return -1;
@@ -41,6 +46,15 @@ int pt_fsync_dir_of(const char *path)
 
 pt_status pt_write_file_atomic(const char *path, const void *data, size_t n, pt_error *err)
 {
+    return pt_write_file_atomic_mode(path, data, n, 0644, err);
+}
+
+pt_status pt_write_file_atomic_mode(const char *path, const void *data, size_t n, unsigned mode,
+                                    pt_error *err)
+{
+    size_t plen = strlen(path);
+    if (plen == 0 || path[plen - 1] == '/')
+        return pt_error_set(err, PT_ERR_ARG, "'%s' is not a file name", path);
     /* Unique per process and per call, so two writers of one path never
      * share a temp file. */
     static atomic_uint serial;
@@ -48,23 +62,14 @@ pt_status pt_write_file_atomic(const char *path, const void *data, size_t n, pt_
     if ((size_t)snprintf(tmp, sizeof tmp, "%s.tmp.%ld.%u", path, (long)getpid(),
                          atomic_fetch_add(&serial, 1)) >= sizeof tmp)
         return pt_error_set(err, PT_ERR_IO, "%s: path too long", path);
-    int fd = open(tmp, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+    int fd = open(tmp, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, (mode_t)mode);
     if (fd < 0)
         return pt_error_errno(err, PT_ERR_IO, "%s: cannot create %s", path, tmp);
-    const uint8_t *p = data;
-    size_t left = n;
-    while (left > 0) {
-        ssize_t w = write(fd, p, left);
-        if (w < 0 && errno == EINTR)
-            continue;
-        if (w <= 0) {
-            pt_status st = pt_error_errno(err, PT_ERR_IO, "%s: write", path);
-            close(fd);
-            unlink(tmp);
-            return st;
-        }
-        p += w;
-        left -= (size_t)w;
+    if (pt_write_all(fd, data, n) != 0) {
+        pt_status st = pt_error_errno(err, PT_ERR_IO, "%s: write", path);
+        close(fd);
+        unlink(tmp);
+        return st;
     }
     if (fsync(fd) != 0) {
         pt_status st = pt_error_errno(err, PT_ERR_IO, "%s: fsync", path);
@@ -72,7 +77,11 @@ pt_status pt_write_file_atomic(const char *path, const void *data, size_t n, pt_
         unlink(tmp);
         return st;
     }
-    close(fd);
+    if (close(fd) != 0) {
+        pt_status st = pt_error_errno(err, PT_ERR_IO, "%s: close", path);
+        unlink(tmp);
+        return st;
+    }
     if (rename(tmp, path) != 0) {
         pt_status st = pt_error_errno(err, PT_ERR_IO, "%s: rename from %s", path, tmp);
         unlink(tmp);
@@ -81,6 +90,26 @@ pt_status pt_write_file_atomic(const char *path, const void *data, size_t n, pt_
     if (pt_fsync_dir_of(path) != 0)
         return pt_error_errno(err, PT_ERR_IO, "%s: fsync of its folder", path);
     return PT_OK;
+}
+
+int pt_write_all(int fd, const void *data, size_t n)
+{
+    const uint8_t *p = data;
+    while (n > 0) {
+        /* At most 1 GiB a call: larger counts are cut short (Linux) or
+         * refused (past SSIZE_MAX) anyway. */
+        ssize_t w = write(fd, p, n < ((size_t)1 << 30) ? n : ((size_t)1 << 30));
+        if (w < 0 && errno == EINTR)
+            continue;
+        if (w <= 0) {
+            if (w == 0)
+                errno = EIO; /* no progress and no reason: do not spin */
+            return -1;
+        }
+        p += w;
+        n -= (size_t)w;
+    }
+    return 0;
 }
 
 pt_status pt_read_file(const char *path, size_t max, uint8_t **out, size_t *len, pt_error *err)

@@ -22,9 +22,25 @@
  * 0, or -1 with errno set. */
 int pt_fsync_dir_of(const char *path);
 
+/* fsync of the folder dir itself (after files were created in it), with the
+ * same tolerance. Returns 0, or -1 with errno set. */
+int pt_fsync_dir(const char *dir);
+
+/* Writes the n bytes of data to fd, whatever the short writes and EINTR.
+ * Returns 0, or -1 with errno set (EIO when write made no progress); how
+ * much was written is then unknown. */
+int pt_write_all(int fd, const void *data, size_t n);
+
 /* Replaces path with the n bytes of data, durably (see above), mode 0644
- * before umask. PT_ERR_IO naming path. */
+ * before umask. PT_ERR_ARG when path is empty or ends in '/'; PT_ERR_IO naming
+ * path (no temporary file is left behind), also when the folder's fsync fails
+ * after the rename. */
 pt_status pt_write_file_atomic(const char *path, const void *data, size_t n, pt_error *err);
+
+/* pt_write_file_atomic with the new file's mode before umask (e.g. 0666 for a
+ * file handed to the user, as readable as any new file of theirs). */
+pt_status pt_write_file_atomic_mode(const char *path, const void *data, size_t n, unsigned mode,
+                                    pt_error *err);
 
 /* Reads the whole file into a pt_malloc'd buffer (*out, *len; free with
  * pt_free). PT_ERR_IO naming path when it cannot be read, PT_ERR_LIMIT when

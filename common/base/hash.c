@@ -25,7 +25,7 @@ void pt_sha256_hex(const uint8_t *data, size_t size, char out[65])
     pt_hash_hex(md, out);
 }
 
-static int hex_digit(char ch)
+int pt_hex_digit(char ch)
 {
     if (ch >= '0' && ch <= '9')
         return ch - '0';
@@ -41,9 +41,9 @@ int pt_hex_decode(const char *hex, uint8_t *out, size_t n)
     if (strnlen(hex, 2 * n + 1) != 2 * n)
         return -1;
     for (size_t i = 0; i < n; i++)
-        if (hex_digit(hex[2 * i]) < 0 || hex_digit(hex[2 * i + 1]) < 0)
+        if (pt_hex_digit(hex[2 * i]) < 0 || pt_hex_digit(hex[2 * i + 1]) < 0)
             return -1;
     for (size_t i = 0; i < n; i++)
-        out[i] = (uint8_t)(hex_digit(hex[2 * i]) << 4 | hex_digit(hex[2 * i + 1]));
+        out[i] = (uint8_t)(pt_hex_digit(hex[2 * i]) << 4 | pt_hex_digit(hex[2 * i + 1]));
     return 0;
 }

@@ -23,6 +23,9 @@ void pt_hash_hex(const uint8_t hash[32], char out[65]);
  * the digest (it has none for in-memory bytes) gives 64 zeros. */
 void pt_sha256_hex(const uint8_t *data, size_t size, char out[65]);
 
+/* The value of one hex digit (either case), or -1 for any other character. */
+int pt_hex_digit(char ch);
+
 /* Decodes exactly 2n hex digits (either case) of hex into n bytes. Returns 0,
  * or -1, leaving out untouched, when hex is shorter or longer than 2n digits
  * or holds a character that is not a hex digit. */

@@ -17,10 +17,6 @@
 
 static atomic_uint temp_serial;
 
-/* The largest data window pt_exr_read accepts; pt_image_new enforces the
- * pixel cap as well. */
-#define EXR_MAX_SIDE 65536
-
 /*
  * Our own stream over a file descriptor for both directions: writing through
  * it lets us fsync the temp file before the rename, and reading through it
@@ -237,8 +233,8 @@ static exr_result_t write_chunks(exr_context_t ctx, const pt_image *img)
 pt_status pt_exr_write(const char *path, const pt_image *img, const pt_exr_meta *meta,
                        pt_error *err)
 {
-    if (!path || !img || img->width == 0 || img->height == 0 || img->width > EXR_MAX_SIDE ||
-        img->height > EXR_MAX_SIDE)
+    if (!path || !img || img->width == 0 || img->height == 0 || img->width > PT_IMAGE_MAX_SIDE ||
+        img->height > PT_IMAGE_MAX_SIDE)
         return pt_error_set(err, PT_ERR_ARG, "EXR %s: no image or a bad size",
                             path ? path : "(null)");
     size_t cap = strlen(path) + 32;
@@ -442,8 +438,8 @@ pt_status pt_exr_read(const char *path, pt_image **out, pt_exr_meta *meta, pt_er
     stream_init(&init, &s);
     init.read_fn = stream_read;
     init.size_fn = stream_size;
-    init.max_image_width = EXR_MAX_SIDE;
-    init.max_image_height = EXR_MAX_SIDE;
+    init.max_image_width = PT_IMAGE_MAX_SIDE;
+    init.max_image_height = PT_IMAGE_MAX_SIDE;
     /* A truncated file is an error, not something to guess around. */
     init.flags = EXR_CONTEXT_FLAG_DISABLE_CHUNK_RECONSTRUCTION;
 
@@ -483,7 +479,7 @@ pt_status pt_exr_read(const char *path, pt_image **out, pt_exr_meta *meta, pt_er
         goto fail;
     }
     int64_t w = (int64_t)dw.max.x - dw.min.x + 1, h = (int64_t)dw.max.y - dw.min.y + 1;
-    if (w < 1 || h < 1 || w > EXR_MAX_SIDE || h > EXR_MAX_SIDE) {
+    if (w < 1 || h < 1 || w > PT_IMAGE_MAX_SIDE || h > PT_IMAGE_MAX_SIDE) {
         st = pt_error_set(err, w < 1 || h < 1 ? PT_ERR_FORMAT : PT_ERR_LIMIT,
                           "EXR %s: data window %" PRId64 "x%" PRId64 " is empty or over the cap",
                           path, w, h);

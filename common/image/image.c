@@ -12,21 +12,27 @@
 
 /* Caps on image size: 65536 per side and 2^28 pixels (1 GiB per float plane
  * at the cap is already more than any render this farm makes). */
-#define IMAGE_MAX_SIDE 65536u
-#define IMAGE_MAX_PIXELS (1u << 28)
+pt_status pt_image_check_size(const char *what, uint32_t width, uint32_t height, pt_error *err)
+{
+    if (width == 0 || height == 0)
+        return pt_error_set(err, PT_ERR_ARG, "%s size %ux%u: both sides must be > 0", what, width,
+                            height);
+    if (width > PT_IMAGE_MAX_SIDE || height > PT_IMAGE_MAX_SIDE ||
+        (uint64_t)width * height > PT_IMAGE_MAX_PIXELS)
+        return pt_error_set(err, PT_ERR_LIMIT,
+                            "%s size %ux%u is over the cap (%u per side, %u pixels)", what, width,
+                            height, PT_IMAGE_MAX_SIDE, PT_IMAGE_MAX_PIXELS);
+    return PT_OK;
+}
 
 /* The struct and the five planes live in one block, struct first, planes
  * after it rounded up to the alignment of double so the floats are aligned. */
 pt_status pt_image_new(uint32_t width, uint32_t height, pt_image **out, pt_error *err)
 {
-    if (width == 0 || height == 0)
-        return pt_error_set(err, PT_ERR_ARG, "image size %ux%u: both sides must be > 0", width,
-                            height);
+    pt_status st = pt_image_check_size("image", width, height, err);
+    if (st != PT_OK)
+        return st;
     uint64_t pixels = (uint64_t)width * height;
-    if (width > IMAGE_MAX_SIDE || height > IMAGE_MAX_SIDE || pixels > IMAGE_MAX_PIXELS)
-        return pt_error_set(err, PT_ERR_LIMIT,
-                            "image size %ux%u is over the cap (%u per side, %u pixels)", width,
-                            height, IMAGE_MAX_SIDE, IMAGE_MAX_PIXELS);
     size_t head = (sizeof(pt_image) + sizeof(double) - 1) / sizeof(double) * sizeof(double);
     size_t planes, total;
     if (__builtin_mul_overflow((size_t)pixels, 5 * sizeof(float), &planes) ||
@@ -107,10 +113,19 @@ static void png_append(void *ctx, void *data, int size)
     b->len += (size_t)size;
 }
 
+void pt_png_preview_path(const char *exr_path, char *out, size_t n)
+{
+    size_t len = strlen(exr_path);
+    if (len > 4 && strcmp(exr_path + len - 4, ".exr") == 0)
+        snprintf(out, n, "%.*s.png", (int)(len - 4), exr_path);
+    else
+        snprintf(out, n, "%s.png", exr_path);
+}
+
 pt_status pt_png_write_preview(const char *path, const pt_image *img, pt_error *err)
 {
-    if (!path || !img || img->width == 0 || img->height == 0 || img->width > IMAGE_MAX_SIDE ||
-        img->height > IMAGE_MAX_SIDE)
+    if (!path || !img || img->width == 0 || img->height == 0 || img->width > PT_IMAGE_MAX_SIDE ||
+        img->height > PT_IMAGE_MAX_SIDE)
         return pt_error_set(err, PT_ERR_ARG, "PNG preview %s: no image or a bad size",
                             path ? path : "(null)");
     size_t n = (size_t)img->width * img->height;

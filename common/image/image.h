@@ -12,6 +12,7 @@
 #ifndef PT_COMMON_IMAGE_IMAGE_H
 #define PT_COMMON_IMAGE_IMAGE_H
 
+#include <stddef.h>
 #include <stdint.h>
 
 #include "common/base/error.h"
@@ -23,9 +24,24 @@ typedef struct pt_image {
     float *variance;
 } pt_image;
 
+/* The largest image any module makes, reads or writes (an image, the film
+ * that resolves into it, an EXR): pixels per side, and pixels in all. */
+#define PT_IMAGE_MAX_SIDE 65536u
+#define PT_IMAGE_MAX_PIXELS (1u << 28)
+
+/* PT_OK when width x height is a possible image: PT_ERR_ARG when a side is
+ * 0, PT_ERR_LIMIT over the caps above; err names it as `what` ("image",
+ * "film") with the size. Pure: any thread may call it. */
+pt_status pt_image_check_size(const char *what, uint32_t width, uint32_t height, pt_error *err);
+
 /* Allocates a zeroed image with all five planes. */
 pt_status pt_image_new(uint32_t width, uint32_t height, pt_image **out, pt_error *err);
 void pt_image_free(pt_image *img); /* accepts NULL */
+
+/* The name of the PNG preview written beside the EXR exr_path, into out (n
+ * bytes, cut to fit): "out.exr" -> "out.png"; any other name gets ".png"
+ * appended. Every program names its preview so. */
+void pt_png_preview_path(const char *exr_path, char *out, size_t n);
 
 /* Writes an sRGB PNG of r,g,b (clamped, exposure 1), atomically (temp + rename). */
 pt_status pt_png_write_preview(const char *path, const pt_image *img, pt_error *err);

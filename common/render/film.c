@@ -5,20 +5,13 @@
 
 #include "common/base/alloc.h"
 
-/* The same caps as pt_image_new: a film is always resolved into an image. */
-#define FILM_MAX_SIDE 65536u
-#define FILM_MAX_PIXELS (1u << 28)
-
 pt_status pt_film_new(uint32_t width, uint32_t height, pt_film **out, pt_error *err)
 {
-    if (width == 0 || height == 0)
-        return pt_error_set(err, PT_ERR_ARG, "film size %ux%u: both sides must be > 0", width,
-                            height);
+    /* The image's caps: a film is always resolved into an image. */
+    pt_status st = pt_image_check_size("film", width, height, err);
+    if (st != PT_OK)
+        return st;
     uint64_t pixels = (uint64_t)width * height;
-    if (width > FILM_MAX_SIDE || height > FILM_MAX_SIDE || pixels > FILM_MAX_PIXELS)
-        return pt_error_set(err, PT_ERR_LIMIT,
-                            "film size %ux%u is over the cap (%u per side, %u pixels)", width,
-                            height, FILM_MAX_SIDE, FILM_MAX_PIXELS);
     pt_film *film = pt_malloc(sizeof *film);
     pt_pixel_acc *px = pt_calloc((size_t)pixels, sizeof *px);
     if (!film || !px) {

@@ -35,6 +35,11 @@ static inline void pt_pixel_acc_add(pt_pixel_acc *a, const pt_pixel_acc *b)
  * order, then block by block (render.h): the unit that keeps splits exact. */
 #define PT_SAMPLE_BLOCK 16u
 
+/* The largest tile side in pixels that any program accepts (ptserve and
+ * ptworker --tile, ptbench): its square is the wire's cap on the pixels of a
+ * TASK or RESULT (PROTO_MAX_TILE_PIXELS), so a farm tile always fits. */
+#define PT_TILE_MAX 256u
+
 typedef struct pt_rect {
     uint32_t x0, y0, x1, y1; /* pixels [x0,x1) x [y0,y1), y down from the top row */
 } pt_rect;

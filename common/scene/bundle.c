@@ -221,20 +221,6 @@ typedef struct unpack_ctx {
     size_t entry_cap;
 } unpack_ctx;
 
-static pt_status mkdirs(char *path, pt_error *err)
-{
-    for (char *s = path + 1; *s; s++) {
-        if (*s != '/')
-            continue;
-        *s = '\0';
-        int rc = mkdir(path, 0755);
-        *s = '/';
-        if (rc != 0 && errno != EEXIST)
-            return pt_error_errno(err, PT_ERR_IO, "%s: mkdir", path);
-    }
-    return PT_OK;
-}
-
 static pt_status write_entry(void *user, uint32_t index, const char *name, size_t name_len,
                              const uint8_t *data, uint64_t size, pt_error *err)
 {
@@ -243,23 +229,24 @@ static pt_status write_entry(void *user, uint32_t index, const char *name, size_
     int n = snprintf(path, sizeof path, "%s/%.*s", c->dir, (int)name_len, name);
     if (n < 0 || (size_t)n >= sizeof path)
         return pt_error_set(err, PT_ERR_LIMIT, "scene bundle: path too long under %s", c->dir);
-    pt_status st = mkdirs(path, err);
+    /* The file's folders first: the unpack folder and any below it (none
+     * to make for a file directly under "/"). */
+    char *slash = strrchr(path, '/');
+    pt_status st = PT_OK;
+    if (slash > path) {
+        *slash = '\0';
+        st = pt_mkdirs(path, 0, err);
+        *slash = '/';
+    }
     if (st != PT_OK)
         return st;
     int fd = open(path, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC | O_NOFOLLOW, 0644);
     if (fd < 0)
         return pt_error_errno(err, PT_ERR_IO, "%s", path);
-    uint64_t done = 0;
-    while (done < size) {
-        ssize_t w = write(fd, data + done, (size_t)(size - done));
-        if (w < 0 && errno == EINTR)
-            continue;
-        if (w <= 0) {
-            pt_error_errno(err, PT_ERR_IO, "%s: write", path);
-            close(fd);
-            return PT_ERR_IO;
-        }
-        done += (uint64_t)w;
+    if (pt_write_all(fd, data, (size_t)size) != 0) {
+        pt_error_errno(err, PT_ERR_IO, "%s: write", path);
+        close(fd);
+        return PT_ERR_IO;
     }
     if (close(fd) != 0)
         return pt_error_errno(err, PT_ERR_IO, "%s: close", path);

@@ -15,34 +15,18 @@
 extern "C" {
 #include "common/base/alloc.h"
 #include "common/scene/bundle.h"
+#include "common/scene/uri.h"
 }
 
 namespace {
 
 const size_t kMaxJson = 256u << 20;
 
-int hexval(char c)
-{
-    if (c >= '0' && c <= '9')
-        return c - '0';
-    if (c >= 'a' && c <= 'f')
-        return c - 'a' + 10;
-    if (c >= 'A' && c <= 'F')
-        return c - 'A' + 10;
-    return -1;
-}
-
+// The importer decodes with the same function (common/scene/uri.h).
 std::string percent_decode(const std::string &s)
 {
-    std::string out;
-    for (size_t i = 0; i < s.size(); i++) {
-        if (s[i] == '%' && i + 2 < s.size() && hexval(s[i + 1]) >= 0 && hexval(s[i + 2]) >= 0) {
-            out += static_cast<char>(hexval(s[i + 1]) * 16 + hexval(s[i + 2]));
-            i += 2;
-        } else {
-            out += s[i];
-        }
-    }
+    std::string out(s.size(), '\0');
+    out.resize(pt_uri_decode(s.data(), s.size(), &out[0]));
     return out;
 }
 

@@ -49,8 +49,10 @@
 
 extern "C" {
 #include "common/base/alloc.h"
+#include "common/base/hash.h"
 #include "common/scene/gltf_import.h"
 #include "common/scene/scene.h"
+#include "common/scene/uri.h"
 }
 
 namespace
@@ -158,29 +160,13 @@ bool read_file(const std::string &p, std::vector<unsigned char> &out, int *os_er
     return ok;
 }
 
-int hexval(char c)
-{
-    if (c >= '0' && c <= '9')
-        return c - '0';
-    if (c >= 'a' && c <= 'f')
-        return c - 'a' + 10;
-    if (c >= 'A' && c <= 'F')
-        return c - 'A' + 10;
-    return -1;
-}
-
 // RFC 3986 percent-decoding of a relative URI.
+// The bundle packer decodes with the same function (gltf_deps.cpp), so a
+// bundle carries the files the importer opens.
 std::string uri_decode(const std::string &s)
 {
-    std::string out;
-    for (size_t i = 0; i < s.size(); i++) {
-        if (s[i] == '%' && i + 2 < s.size() && hexval(s[i + 1]) >= 0 && hexval(s[i + 2]) >= 0) {
-            out += char(hexval(s[i + 1]) * 16 + hexval(s[i + 2]));
-            i += 2;
-        } else {
-            out += s[i];
-        }
-    }
+    std::string out(s.size(), '\0');
+    out.resize(pt_uri_decode(s.data(), s.size(), &out[0]));
     return out;
 }
 
@@ -848,12 +834,11 @@ void hash_files(importer &im, const std::vector<unsigned char> &entry)
         EVP_DigestUpdate(ctx, bytes.data(), bytes.size());
         im.files.emplace(uris[i], std::move(bytes));
     }
-    unsigned char md[EVP_MAX_MD_SIZE];
-    unsigned int len = 0;
-    EVP_DigestFinal_ex(ctx, md, &len);
-    char hex[65] = {0};
-    for (unsigned int i = 0; i < len && i < 32; i++)
-        snprintf(hex + 2 * i, 3, "%02x", md[i]);
+    // Zeroed first: a failed digest reads as 64 zeros, as pt_sha256_hex's does.
+    unsigned char md[EVP_MAX_MD_SIZE] = {0};
+    EVP_DigestFinal_ex(ctx, md, nullptr);
+    char hex[PT_HASH_HEX];
+    pt_hash_hex(md, hex);
     pt_scene_builder_set_hash(im.b, hex);
     // Buffers are in the model already; keep only the image files.
     std::set<std::string> image_uris(uris.begin() + long(nbuf), uris.end());

@@ -29,6 +29,7 @@
 #include <openssl/evp.h>
 
 #include "common/base/alloc.h"
+#include "common/base/hash.h"
 #include "common/scene/gltf_import.h"
 
 /* Vertices are not capped by the file's triangle count alone: unreferenced
@@ -456,15 +457,6 @@ fail:
     return st;
 }
 
-static void hex_digest(EVP_MD_CTX *ctx, char out[65])
-{
-    unsigned char md[EVP_MAX_MD_SIZE];
-    unsigned int len = 0;
-    EVP_DigestFinal_ex(ctx, md, &len);
-    for (unsigned int i = 0; i < len && i < 32; i++)
-        snprintf(out + 2 * i, 3, "%02x", md[i]);
-}
-
 /* SHA-256 (FIPS 180-4) of the built data, for scenes made by code. */
 static pt_status hash_scene(const pt_scene *s, char out[65], pt_error *err)
 {
@@ -498,9 +490,21 @@ static pt_status hash_scene(const pt_scene *s, char out[65], pt_error *err)
         EVP_DigestUpdate(ctx, f, sizeof f);
         EVP_DigestUpdate(ctx, c->name, sizeof c->name);
     }
-    hex_digest(ctx, out);
+    /* Zeroed first: a failed digest reads as 64 zeros, as pt_sha256_hex's does. */
+    unsigned char md[EVP_MAX_MD_SIZE] = {0};
+    EVP_DigestFinal_ex(ctx, md, NULL);
     EVP_MD_CTX_free(ctx);
+    pt_hash_hex(md, out);
     return PT_OK;
+}
+
+uint32_t pt_camera_height(float aspect, uint32_t width, uint32_t max_height)
+{
+    float a = aspect > 0.0f ? aspect : 1.0f; /* NaN too */
+    float h = (float)width / a + 0.5f;
+    /* Compared before the cast: a float past UINT32_MAX does not convert. */
+    uint32_t n = h < (float)max_height ? (uint32_t)h : max_height;
+    return n > 0 ? n : 1;
 }
 
 void pt_scene_frame_camera(pt_scene *scene, float aspect)

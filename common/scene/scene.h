@@ -137,6 +137,14 @@ void pt_texture_sample(const pt_texture *tex, float u, float v, float out[4]);
  * aspect of `aspect` (width/height). */
 void pt_scene_frame_camera(pt_scene *scene, float aspect);
 
+/* The image height for an image `width` pixels wide seen through a camera of
+ * `aspect` (pt_camera.aspect, width/height): width / aspect rounded to
+ * nearest, in float as every program has computed it, so that a default size
+ * is the same everywhere. An aspect of 0 (the image decides), negative or NaN
+ * gives a square image. The result is clamped to [1, max_height], so
+ * a near-zero aspect cannot overflow. Pure: any thread may call it. */
+uint32_t pt_camera_height(float aspect, uint32_t width, uint32_t max_height);
+
 /* A default material: white base colour, metallic 1, roughness 1 (glTF defaults),
  * specular 1, single-sided. */
 pt_material pt_material_default(void);

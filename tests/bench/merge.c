@@ -10,22 +10,17 @@
  *
  *   ptbench-merge [--res WxH] [--tile N] [--chunk N] [--reps R] [--core-rate S]
  */
+#include <float.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <time.h>
 
 #include "common/base/alloc.h"
+#include "common/base/clock.h"
+#include "common/base/opt.h"
 #include "protocol/frame.h"
 #include "protocol/msg.h"
 #include "server/job.h"
-
-static double now(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-}
 
 static int cmp(const void *a, const void *b)
 {
@@ -37,25 +32,29 @@ int main(int argc, char **argv)
 {
     uint32_t w = 1024, h = 1024, tile = 32, chunk = 16, reps = 5;
     double core_rate = 7e5;
-    for (int i = 1; i < argc; i++) {
-        if (!strcmp(argv[i], "--res") && i + 1 < argc && sscanf(argv[i + 1], "%ux%u", &w, &h) == 2)
-            i++;
+    pt_status opt = PT_OK;
+    pt_error opt_err = {0};
+    for (int i = 1; i < argc && opt == PT_OK; i++) {
+        if (!strcmp(argv[i], "--res") && i + 1 < argc)
+            opt = pt_opt_res("--res", argv[++i], 16384, &w, &h, &opt_err);
         else if (!strcmp(argv[i], "--tile") && i + 1 < argc)
-            tile = (uint32_t)atoi(argv[++i]);
+            opt = pt_opt_u32("--tile", argv[++i], 1, PT_TILE_MAX, &tile, &opt_err);
         else if (!strcmp(argv[i], "--chunk") && i + 1 < argc)
-            chunk = (uint32_t)atoi(argv[++i]);
+            opt = pt_opt_u32("--chunk", argv[++i], 1, 1u << 24, &chunk, &opt_err);
         else if (!strcmp(argv[i], "--reps") && i + 1 < argc)
-            reps = (uint32_t)atoi(argv[++i]);
+            opt = pt_opt_u32("--reps", argv[++i], 1, 99, &reps, &opt_err);
         else if (!strcmp(argv[i], "--core-rate") && i + 1 < argc)
-            core_rate = atof(argv[++i]);
+            opt = pt_opt_positive("--core-rate", argv[++i], DBL_MAX, &core_rate, &opt_err);
         else {
             printf("usage: ptbench-merge [--res WxH] [--tile N] [--chunk N] [--reps R] "
                    "[--core-rate SAMPLES_PER_S]\n");
             return strcmp(argv[i], "--help") && strcmp(argv[i], "-h") ? 2 : 0;
         }
     }
-    if (reps < 1 || reps > 99)
-        reps = 5;
+    if (opt != PT_OK) {
+        fprintf(stderr, "ptbench-merge: %s\n", opt_err.msg);
+        return 2;
+    }
     srv_job_params p = {w, h, 2 * chunk, tile, chunk, 1, 16, 3, 0.0, 0, 0.0, ""};
     uint8_t hash[32] = {0};
     double rates[99], mbs[99];
@@ -88,7 +87,7 @@ int main(int argc, char **argv)
         }
         total_bytes = wr.len;
         pt_pixel_acc *scratch = pt_malloc_array(PROTO_MAX_TILE_PIXELS, sizeof *scratch);
-        double t0 = now();
+        double t0 = pt_now_s();
         size_t off = 0;
         uint64_t merged = 0;
         while (off < wr.len) {
@@ -104,7 +103,7 @@ int main(int argc, char **argv)
             proto_result_fini(&res);
             off += used;
         }
-        double dt = now() - t0;
+        double dt = pt_now_s() - t0;
         if (merged != ntasks || !srv_job_complete(job)) {
             fprintf(stderr, "ptbench-merge: merged %llu of %llu\n", (unsigned long long)merged,
                     (unsigned long long)ntasks);

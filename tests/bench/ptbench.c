@@ -53,15 +53,17 @@
  * draws the CSVs of earlier runs, one series per label.
  */
 #include <errno.h>
+#include <float.h>
 #include <math.h>
 #include <pthread.h>
 #include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <time.h>
 
 #include "common/base/alloc.h"
+#include "common/base/clock.h"
+#include "common/base/opt.h"
 #include "common/image/exr.h"
 #include "common/render/film.h"
 #include "common/image/image.h"
@@ -75,33 +77,8 @@
 #define MAX_ROWS 64
 #define MAX_REPS 100
 #define MAX_SERIES_FILES 16
-#define MAX_TILE 256u
 #define PLOT_W 900
 #define PLOT_H 600
-
-static double now(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-}
-
-/* CPU time of all the process's threads: on a shared machine it counts the
- * work done, not the waits for a core. */
-static double cpu_now(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-}
-
-/* CPU time of the calling thread: the cost of one tile. */
-static double thread_cpu_now(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-}
 
 /* ---- rendering ------------------------------------------------------------ */
 
@@ -134,10 +111,10 @@ static void *pass_thread(void *p)
             break;
         pt_rect rc = ps->tiles[t];
         if (!(ps->rule.target_error > 0.0) && !(ps->rule.min_gain > 0.0)) {
-            double c0 = ps->tile_cpu ? thread_cpu_now() : 0.0;
+            double c0 = ps->tile_cpu ? pt_thread_cpu_s() : 0.0;
             pt_render_tile(ps->r, rc, ps->s0, ps->s1, ps->scratch[a->id], &ps->stats[a->id]);
             if (ps->tile_cpu)
-                ps->tile_cpu[t] += thread_cpu_now() - c0;
+                ps->tile_cpu[t] += pt_thread_cpu_s() - c0;
             /* Tiles are disjoint: threads add to the film without a lock. */
             pt_film_add_tile(ps->film, rc, ps->scratch[a->id]);
             continue;
@@ -298,28 +275,6 @@ static void plot_init(plot *p)
 
 /* ---- argument parsing --------------------------------------------------------- */
 
-static int parse_u32(const char *s, uint32_t lo, uint32_t hi, uint32_t *out)
-{
-    char *end;
-    errno = 0;
-    unsigned long v = strtoul(s, &end, 10);
-    if (errno || end == s || *end || s[0] == '-' || v < lo || v > hi)
-        return -1;
-    *out = (uint32_t)v;
-    return 0;
-}
-
-static int parse_double(const char *s, double *out)
-{
-    char *end;
-    errno = 0;
-    double v = strtod(s, &end);
-    if (errno || end == s || *end || !isfinite(v))
-        return -1;
-    *out = v;
-    return 0;
-}
-
 /* "1,2,4" -> values; each in [lo, hi]; at most MAX_ROWS. Returns the count or -1. */
 static int parse_list(const char *s, int as_double, double *out)
 {
@@ -333,11 +288,12 @@ static int parse_list(const char *s, int as_double, double *out)
         if (n == MAX_ROWS)
             return -1;
         if (as_double) {
-            if (parse_double(tok, &out[n]) != 0 || out[n] <= 0)
+            if (pt_opt_double("list", tok, -DBL_MAX, DBL_MAX, &out[n], NULL) != PT_OK ||
+                out[n] <= 0)
                 return -1;
         } else {
             uint32_t v;
-            if (parse_u32(tok, 1, 1u << 24, &v) != 0)
+            if (pt_opt_u32("list", tok, 1, 1u << 24, &v, NULL) != PT_OK)
                 return -1;
             out[n] = v;
         }
@@ -386,7 +342,8 @@ static int cmd_error(int argc, char **argv)
     pt_image *img = NULL, *refimg = NULL;
     reference ref = {NULL, 0.0};
     int rc = 1;
-    if (argc == 5 && parse_double(argv[4], &ref.value) != 0) {
+    if (argc == 5 &&
+        pt_opt_double("--constant", argv[4], -DBL_MAX, DBL_MAX, &ref.value, NULL) != PT_OK) {
         fprintf(stderr, "ptbench: --constant: '%s' is not a finite number\n", argv[4]);
         return 2;
     }
@@ -464,7 +421,8 @@ static double tile_error(const pt_image *img, const pt_image *meas, int rel, uin
 static int cmd_gain(int argc, char **argv)
 {
     uint32_t ts = 16;
-    if (argc < 3 || argc > 5 || (argc >= 4 && parse_u32(argv[3], 1, MAX_TILE, &ts) != 0)) {
+    if (argc < 3 || argc > 5 ||
+        (argc >= 4 && pt_opt_u32("TILE", argv[3], 1, PT_TILE_MAX, &ts, NULL) != PT_OK)) {
         usage(stderr);
         return 2;
     }
@@ -603,7 +561,7 @@ static int parse_opts(int argc, char **argv, opts *o)
             o->ref_path = v;
         } else if (!strcmp(a, "--constant")) {
             o->has_constant = 1;
-            bad = parse_double(v, &o->constant);
+            bad = pt_opt_double(a, v, -DBL_MAX, DBL_MAX, &o->constant, NULL) != PT_OK;
         } else if (!strcmp(a, "--spp") || !strcmp(a, "--time") || !strcmp(a, "--target-error") ||
                    !strcmp(a, "--min-gain")) {
             o->time_mode = !strcmp(a, "--time");
@@ -611,26 +569,24 @@ static int parse_opts(int argc, char **argv, opts *o)
             o->n = parse_list(v, o->time_mode || o->adaptive, o->list);
             bad = o->n <= 0;
         } else if (!strcmp(a, "--res")) {
-            char x;
-            bad = sscanf(v, "%u%c%u", &o->w, &x, &o->h) != 3 || x != 'x' || !o->w || !o->h ||
-                  o->w > 16384 || o->h > 16384;
+            bad = pt_opt_res(a, v, 16384, &o->w, &o->h, NULL) != PT_OK;
         } else if (!strcmp(a, "--threads")) {
-            bad = parse_u32(v, 1, MAX_THREADS, &t);
+            bad = pt_opt_u32(a, v, 1, MAX_THREADS, &t, NULL) != PT_OK;
             o->threads = (int)t;
         } else if (!strcmp(a, "--seed")) {
-            bad = parse_u32(v, 0, UINT32_MAX, &o->seed);
+            bad = pt_opt_u32(a, v, 0, UINT32_MAX, &o->seed, NULL) != PT_OK;
         } else if (!strcmp(a, "--max-depth")) {
-            bad = parse_u32(v, 1, 1024, &o->max_depth);
+            bad = pt_opt_u32(a, v, 1, 1024, &o->max_depth, NULL) != PT_OK;
         } else if (!strcmp(a, "--reps")) {
-            bad = parse_u32(v, 1, MAX_REPS, &o->reps);
+            bad = pt_opt_u32(a, v, 1, MAX_REPS, &o->reps, NULL) != PT_OK;
         } else if (!strcmp(a, "--min-spp")) {
-            bad = parse_u32(v, 2, 1u << 24, &o->min_spp);
+            bad = pt_opt_u32(a, v, 2, 1u << 24, &o->min_spp, NULL) != PT_OK;
         } else if (!strcmp(a, "--max-spp")) {
-            bad = parse_u32(v, 1, 1u << 24, &o->max_spp);
+            bad = pt_opt_u32(a, v, 1, 1u << 24, &o->max_spp, NULL) != PT_OK;
         } else if (!strcmp(a, "--chunk")) {
-            bad = parse_u32(v, 1, 1u << 24, &o->chunk);
+            bad = pt_opt_u32(a, v, 1, 1u << 24, &o->chunk, NULL) != PT_OK;
         } else if (!strcmp(a, "--tile")) {
-            bad = parse_u32(v, 1, MAX_TILE, &o->tile);
+            bad = pt_opt_u32(a, v, 1, PT_TILE_MAX, &o->tile, NULL) != PT_OK;
         } else if (!strcmp(a, "--label")) {
             o->label = v;
         } else if (!strcmp(a, "--csv")) {
@@ -690,11 +646,11 @@ static int bench_spp(pass *ps, const opts *o, uint32_t spp, row *out)
     double secs[MAX_REPS], cpu[MAX_REPS];
     for (uint32_t k = 0; k < o->reps; k++) {
         reset(ps, o->threads);
-        double t0 = now(), c0 = cpu_now();
+        double t0 = pt_now_s(), c0 = pt_cpu_s();
         if (run_pass(ps, o->threads, 0, spp) != 0)
             return -1;
-        secs[k] = now() - t0;
-        cpu[k] = cpu_now() - c0;
+        secs[k] = pt_now_s() - t0;
+        cpu[k] = pt_cpu_s() - c0;
     }
     out->spp = spp;
     out->target = out->min_gain = 0.0;
@@ -710,7 +666,7 @@ static int bench_time_once(pass *ps, const opts *o, double budget, row *out)
 {
     reset(ps, o->threads);
     uint32_t s = 0;
-    double t0 = now(), c0 = cpu_now(), el = 0.0;
+    double t0 = pt_now_s(), c0 = pt_cpu_s(), el = 0.0;
     for (;;) {
         uint32_t chunk = s ? s : 1;
         if (s) {
@@ -725,12 +681,12 @@ static int bench_time_once(pass *ps, const opts *o, double budget, row *out)
         if (run_pass(ps, o->threads, s, s + chunk) != 0)
             return -1;
         s += chunk;
-        el = now() - t0;
+        el = pt_now_s() - t0;
     }
     out->spp = s;
     out->target = out->min_gain = 0.0;
     out->seconds = el;
-    out->cpu = cpu_now() - c0;
+    out->cpu = pt_cpu_s() - c0;
     out->st = total_stats(ps, o->threads);
     return 0;
 }
@@ -745,10 +701,10 @@ static int bench_adaptive(pass *ps, const opts *o, double value, row *out)
     ps->chunk = o->chunk;
     for (uint32_t k = 0; k < o->reps; k++) {
         reset(ps, o->threads);
-        double t0 = now(), c0 = cpu_now();
+        double t0 = pt_now_s(), c0 = pt_cpu_s();
         int bad = run_pass(ps, o->threads, 0, o->max_spp);
-        secs[k] = now() - t0;
-        cpu[k] = cpu_now() - c0;
+        secs[k] = pt_now_s() - t0;
+        cpu[k] = pt_cpu_s() - c0;
         if (bad) {
             ps->rule = (pt_adaptive){0.0, 0.0, 0};
             return -1;
@@ -889,10 +845,8 @@ static int cmd_bench(int argc, char **argv)
         goto done;
     }
     if (!o.w) {
-        float aspect = scene->camera.aspect > 0 ? scene->camera.aspect : 1.0f;
         o.w = 128;
-        o.h = (uint32_t)(128.0f / aspect + 0.5f);
-        o.h = o.h ? o.h : 1;
+        o.h = pt_camera_height(scene->camera.aspect, o.w, 16384);
     }
     pt_render_params p = {0};
     pt_render_params_default(&p);

@@ -32,10 +32,11 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <time.h>
 
 #include "common/scene/accel.h"
 #include "common/base/alloc.h"
+#include "common/base/clock.h"
+#include "common/base/opt.h"
 #include "common/render/render.h"
 #include "common/scene/scene.h"
 
@@ -55,22 +56,6 @@ static void log_ray(void *user, pt_vec3 o, pt_vec3 d, float tfar, int occlusion)
     ray_log *l = user;
     if (l->n < l->cap)
         l->rays[l->n++] = (ray_rec){o, d, tfar, occlusion};
-}
-
-/* CPU seconds of this process (all its threads): unlike wall time, not
- * inflated by other programs on a shared machine while a phase runs. */
-static double cpu_now(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-}
-
-static double now(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
 }
 
 typedef struct shared {
@@ -164,17 +149,19 @@ static double median(double *v, int n)
 int main(int argc, char **argv)
 {
     const char *scene_path = NULL, *csv = NULL;
-    int threads = 2, reps = 5, per_path = 0;
-    uint32_t w = 256, h = 256, spp = 8;
-    for (int i = 1; i < argc; i++) {
+    int per_path = 0;
+    uint32_t w = 256, h = 256, spp = 8, nthreads = 2, nreps = 5;
+    pt_status opt = PT_OK;
+    pt_error opt_err = {0};
+    for (int i = 1; i < argc && opt == PT_OK; i++) {
         if (!strcmp(argv[i], "--threads") && i + 1 < argc)
-            threads = atoi(argv[++i]);
-        else if (!strcmp(argv[i], "--res") && i + 1 < argc && sscanf(argv[i + 1], "%ux%u", &w, &h) == 2)
-            i++;
+            opt = pt_opt_u32("--threads", argv[++i], 1, 64, &nthreads, &opt_err);
+        else if (!strcmp(argv[i], "--res") && i + 1 < argc)
+            opt = pt_opt_res("--res", argv[++i], 16384, &w, &h, &opt_err);
         else if (!strcmp(argv[i], "--spp") && i + 1 < argc)
-            spp = (uint32_t)atoi(argv[++i]);
+            opt = pt_opt_u32("--spp", argv[++i], 1, 1u << 24, &spp, &opt_err);
         else if (!strcmp(argv[i], "--reps") && i + 1 < argc)
-            reps = atoi(argv[++i]);
+            opt = pt_opt_u32("--reps", argv[++i], 1, 100, &nreps, &opt_err);
         else if (!strcmp(argv[i], "--log-order") && i + 1 < argc &&
                  (!strcmp(argv[i + 1], "render") || !strcmp(argv[i + 1], "path")))
             per_path = !strcmp(argv[++i], "path");
@@ -191,10 +178,15 @@ int main(int argc, char **argv)
             return 2;
         }
     }
-    if (!scene_path || threads < 1 || threads > 64 || reps < 1 || reps > 100 || spp < 1 || !w || !h) {
+    if (opt != PT_OK) {
+        fprintf(stderr, "ptbench-throughput: %s (see --help)\n", opt_err.msg);
+        return 2;
+    }
+    if (!scene_path) {
         fprintf(stderr, "ptbench-throughput: need a SCENE and sane options (see --help)\n");
         return 2;
     }
+    int threads = (int)nthreads, reps = (int)nreps;
     pt_error err = {0};
     pt_scene *scene = NULL;
     pt_renderer *r = NULL, *alt[4] = {NULL, NULL, NULL, NULL};
@@ -282,21 +274,21 @@ int main(int argc, char **argv)
         shared sh = {.r = r, .accel = accel, .width = w, .height = h, .spp = spp, .tile = 16, .log = &log};
         atomic_init(&sh.next, 0);
         atomic_init(&sh.next_ray, 0);
-        double c0 = cpu_now();
-        double t0 = now();
+        double c0 = pt_cpu_s();
+        double t0 = pt_now_s();
         run_threads(threads, render_worker, &sh);
-        double t_render = now() - t0;
-        double c_render = cpu_now() - c0;
+        double t_render = pt_now_s() - t0;
+        double c_render = pt_cpu_s() - c0;
         uint64_t samples = 0, rays = 0;
         for (int i = 0; i < threads; i++) {
             samples += sh.stats[i].samples;
             rays += sh.stats[i].rays;
         }
-        c0 = cpu_now();
-        t0 = now();
+        c0 = pt_cpu_s();
+        t0 = pt_now_s();
         run_threads(threads, replay_worker, &sh);
-        double t_replay = now() - t0;
-        double c_replay = cpu_now() - c0;
+        double t_replay = pt_now_s() - t0;
+        double c_replay = pt_cpu_s() - c0;
         cratio[k] = (rays / c_render) / (log.n / c_replay);
         csps[k] = samples / c_render;
         sps[k] = samples / t_render;
@@ -307,9 +299,9 @@ int main(int argc, char **argv)
             shared sg = {.r = alt[a], .accel = accel, .width = w, .height = h, .spp = spp,
                          .tile = 16, .log = &log};
             atomic_init(&sg.next, 0);
-            t0 = now();
+            t0 = pt_now_s();
             run_threads(threads, render_worker, &sg);
-            double t_alt = now() - t0;
+            double t_alt = pt_now_s() - t0;
             uint64_t asamples = 0;
             for (int i = 0; i < threads; i++)
                 asamples += sg.stats[i].samples;

@@ -10,6 +10,10 @@
  *   unknown type, a length over the cap pre- and post-authentication refused
  *   from the 12 header bytes alone, a flipped bit anywhere.
  * - Encoder errors and an allocation-failure loop.
+ * - proto_frame_finish on both paths; proto_frame_payload_len.
+ * - proto_frame_reader: frames fed byte by byte and many at once, growth from
+ *   a tiny buffer to a large frame, the cap, a bad frame, reset, and an
+ *   allocation failure that loses nothing.
  */
 #include <string.h>
 
@@ -388,6 +392,132 @@ static void test_encoder_errors(void)
     CHECK(ok_seen);
 }
 
+static void test_finish_and_len(void)
+{
+    proto_writer w;
+    proto_writer_init(&w, 1 << 16);
+    pt_error err = {0};
+    size_t mark = 0;
+    /* A failed encoder: the header goes, its status comes back. */
+    CHECK(proto_frame_begin(&w, PROTO_MSG_HELLO, &mark, &err) == PT_OK && w.len == 12);
+    CHECK(proto_frame_finish(&w, mark, PT_ERR_ARG, &err) == PT_ERR_ARG && w.len == 0);
+    /* A good one: a whole frame, whose header declares its payload. */
+    static const uint8_t payload[5] = {1, 2, 3, 4, 5};
+    CHECK(proto_frame_begin(&w, PROTO_MSG_HELLO, &mark, &err) == PT_OK);
+    proto_w_bytes(&w, payload, sizeof payload);
+    CHECK(proto_frame_finish(&w, mark, PT_OK, &err) == PT_OK && w.len == 16 + sizeof payload);
+    CHECK(proto_frame_payload_len(w.buf) == sizeof payload);
+    proto_frame f;
+    size_t used = 0;
+    CHECK(proto_frame_decode(w.buf, w.len, PROTO_MAX_PAYLOAD, &f, &used, &err) == PT_OK &&
+          used == w.len && f.len == 5 && !memcmp(f.payload, payload, 5));
+    uint8_t h[12] = {'P', 'T', 'F', '1', 1, 0, 1, 0, 0x78, 0x56, 0x34, 0x12};
+    CHECK(proto_frame_payload_len(h) == 0x12345678u);
+    proto_writer_fini(&w);
+}
+
+/* Puts n bytes into r through proto_frame_reader_space, at most step at a time. */
+static int reader_put(proto_frame_reader *r, const uint8_t *p, size_t n, size_t step, pt_error *err)
+{
+    while (n > 0) {
+        uint8_t *dst;
+        size_t room;
+        if (proto_frame_reader_space(r, &dst, &room, err) != PT_OK)
+            return -1;
+        size_t k = n < step ? n : step;
+        k = k < room ? k : room;
+        memcpy(dst, p, k);
+        proto_frame_reader_commit(r, k);
+        p += k;
+        n -= k;
+    }
+    return 0;
+}
+
+static void test_reader(void)
+{
+    pt_error err = {0};
+    int64_t live = pt_alloc_live();
+    static uint8_t big[300000], stream[400000];
+    for (size_t i = 0; i < sizeof big; i++)
+        big[i] = (uint8_t)(i * 7 + 1);
+    /* Three frames: empty, small, large. */
+    size_t n = hand_frame(stream, 1, PROTO_MSG_WORK_REQUEST, NULL, 0);
+    n += hand_frame(stream + n, 1, PROTO_MSG_HELLO, big, 100);
+    n += hand_frame(stream + n, 1, PROTO_MSG_RESULT, big, sizeof big);
+    const uint32_t want_len[3] = {0, 100, sizeof big};
+
+    /* Byte by byte from a 16-byte buffer, and all at once from a larger one. */
+    const size_t steps[2] = {1, sizeof stream}, initial[2] = {16, 4096};
+    for (int t = 0; t < 2; t++) {
+        proto_frame_reader r;
+        proto_frame_reader_init(&r, initial[t], PROTO_FRAME_OVERHEAD + PROTO_MAX_PAYLOAD);
+        proto_frame f;
+        CHECK(proto_frame_reader_next(&r, PROTO_MAX_PAYLOAD, &f, &err) == PT_AGAIN);
+        int got = 0, bad = 0;
+        size_t off = 0;
+        while (off < n && !bad) {
+            size_t k = steps[t] < n - off ? steps[t] : n - off;
+            bad = reader_put(&r, stream + off, k, k, &err) != 0;
+            off += k;
+            pt_status st;
+            while ((st = proto_frame_reader_next(&r, PROTO_MAX_PAYLOAD, &f, &err)) == PT_OK) {
+                bad |=
+                    got >= 3 || f.len != want_len[got] || (f.len && memcmp(f.payload, big, f.len));
+                got++;
+            }
+            bad |= st != PT_AGAIN;
+        }
+        CHECKF(!bad && got == 3, "step %zu: %d frames", steps[t], got);
+        CHECK(proto_frame_reader_pending(&r) == 0);
+        /* Grown to the large frame, not far past it. */
+        CHECKF(r.cap >= 16 + sizeof big && r.cap < 2 * (16 + sizeof big) + 4096, "cap %zu", r.cap);
+        proto_frame_reader_fini(&r);
+        proto_frame_reader_fini(&r); /* twice is harmless */
+    }
+
+    /* A cap: a frame larger than the reader may hold is refused by space, not waited for. */
+    proto_frame_reader r;
+    proto_frame_reader_init(&r, 64, 1024);
+    proto_frame f;
+    CHECK(reader_put(&r, stream + 16 + 116, 12, 12, &err) == 0);
+    CHECK(proto_frame_reader_next(&r, PROTO_MAX_PAYLOAD, &f, &err) == PT_AGAIN);
+    uint8_t *dst;
+    size_t room;
+    CHECK(proto_frame_reader_space(&r, &dst, &room, &err) == PT_ERR_LIMIT);
+    CHECK(strstr(err.msg, "over the input buffer") != NULL);
+    /* With the connection's cap below it, the decoder refuses it first. */
+    CHECK(proto_frame_reader_next(&r, 1000, &f, &err) == PT_ERR_PROTO);
+    CHECK(proto_frame_reader_pending(&r) == 12);
+
+    /* A bad frame: PT_ERR_PROTO, the reader unchanged; reset forgets it. */
+    proto_frame_reader_reset(&r);
+    CHECK(proto_frame_reader_pending(&r) == 0);
+    uint8_t junk[16] = "PTF2............";
+    CHECK(reader_put(&r, junk, sizeof junk, 16, &err) == 0);
+    CHECK(proto_frame_reader_next(&r, PROTO_MAX_PAYLOAD, &f, &err) == PT_ERR_PROTO);
+    CHECK(proto_frame_reader_pending(&r) == 16);
+    proto_frame_reader_reset(&r);
+    CHECK(reader_put(&r, stream, 16, 16, &err) == 0);
+    CHECK(proto_frame_reader_next(&r, PROTO_MAX_PAYLOAD, &f, &err) == PT_OK && f.len == 0);
+    CHECK(proto_frame_reader_next(&r, PROTO_MAX_PAYLOAD, &f, &err) == PT_AGAIN);
+    proto_frame_reader_fini(&r);
+
+    /* Allocation failure while growing: PT_ERR_NOMEM, the bytes held kept. */
+    proto_frame_reader_init(&r, 16, PROTO_FRAME_OVERHEAD + PROTO_MAX_PAYLOAD);
+    size_t third = 16 + 116;
+    CHECK(reader_put(&r, stream + third, 16, 16, &err) == 0);
+    pt_alloc_fail_at(1);
+    CHECK(proto_frame_reader_space(&r, &dst, &room, &err) == PT_ERR_NOMEM);
+    pt_alloc_fail_at(0);
+    CHECK(proto_frame_reader_pending(&r) == 16 && r.cap == 16);
+    CHECK(reader_put(&r, stream + third + 16, n - third - 16, 65536, &err) == 0);
+    CHECK(proto_frame_reader_next(&r, PROTO_MAX_PAYLOAD, &f, &err) == PT_OK &&
+          f.len == sizeof big && !memcmp(f.payload, big, sizeof big));
+    proto_frame_reader_fini(&r);
+    CHECK(pt_alloc_live() == live);
+}
+
 int main(void)
 {
     test_crc();
@@ -395,5 +525,7 @@ int main(void)
     test_rejects();
     test_stream();
     test_encoder_errors();
+    test_finish_and_len();
+    test_reader();
     return check_report();
 }

@@ -18,6 +18,7 @@
 #include <unistd.h>
 
 #include "common/base/alloc.h"
+#include "common/base/fsutil.h"
 #include "common/scene/bundle.h"
 #include "common/render/render.h"
 #include "common/base/hash.h"
@@ -111,9 +112,7 @@ static void test_disk(const pt_bundle *b, const uint8_t hash[32])
     CHECK(wrk_cache_lookup(c, hash, small, sizeof small, &err) == PT_ERR_LIMIT);
 
     /* The folder gone (or emptied): unpacked again from the bundle. */
-    char cmd[1200];
-    snprintf(cmd, sizeof cmd, "rm -rf '%s'", scene_dir);
-    CHECK(system(cmd) == 0 && !exists(scene_dir));
+    CHECK(pt_remove_tree(scene_dir) == 0 && !exists(scene_dir));
     CHECK(wrk_cache_lookup(c, hash, entry2, sizeof entry2, &err) == PT_OK);
     CHECK(exists(entry2) && strcmp(entry, entry2) == 0);
     CHECK(unlink(entry2) == 0);
@@ -149,8 +148,9 @@ static void test_disk(const pt_bundle *b, const uint8_t hash[32])
     snprintf(live_tmp, sizeof live_tmp, "%s/.tmp-%s-%ld-7.bundle", cache_dir, b->hash,
              (long)getppid());
     CHECK(mkdir(dead_tmp, 0755) == 0);
-    snprintf(cmd, sizeof cmd, "%s/half.bin", dead_tmp);
-    FILE *f = fopen(cmd, "w");
+    char half[1200];
+    snprintf(half, sizeof half, "%s/half.bin", dead_tmp);
+    FILE *f = fopen(half, "w");
     if (f)
         fclose(f);
     f = fopen(live_tmp, "w");
@@ -325,9 +325,7 @@ int main(void)
     pt_bundle_free(b);
     CHECKF(pt_alloc_live() == live, "%lld blocks leaked", (long long)(pt_alloc_live() - live));
 
-    char cmd[600];
-    snprintf(cmd, sizeof cmd, "rm -rf '%s'", tmp);
-    if (system(cmd) != 0)
+    if (pt_remove_tree(tmp) != 0)
         fprintf(stderr, "could not remove %s\n", tmp);
     return check_report();
 }

@@ -12,6 +12,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include "common/base/fsutil.h"
 #include "common/image/exr.h"
 #include "common/image/image.h"
 #include "tests/check.h"
@@ -124,9 +125,7 @@ int main(void)
     struct stat sb;
     CHECK(stat(png, &sb) == 0 && sb.st_size > 100);
 
-    char cmd[1024];
-    snprintf(cmd, sizeof cmd, "rm -rf %s", tmpdir);
-    if (system(cmd) != 0)
+    if (pt_remove_tree(tmpdir) != 0)
         fprintf(stderr, "could not remove %s\n", tmpdir);
     return check_report();
 }

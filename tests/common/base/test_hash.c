@@ -37,8 +37,25 @@ static void test_hex_decode_rejects(void)
     CHECK(pt_hex_decode("", b, 0) == 0);
 }
 
+static void test_hex_digit(void)
+{
+    const char *digits = "0123456789abcdef", *upper = "ABCDEF";
+    for (int i = 0; i < 16; i++)
+        CHECK(pt_hex_digit(digits[i]) == i);
+    for (int i = 0; i < 6; i++)
+        CHECK(pt_hex_digit(upper[i]) == 10 + i);
+    int others = 0;
+    for (int c = -128; c < 128; c++)
+        others += pt_hex_digit((char)c) < 0;
+    CHECK(others == 256 - 22);
+    CHECK(pt_hex_digit('g') == -1 && pt_hex_digit('/') == -1 && pt_hex_digit(':') == -1 &&
+          pt_hex_digit('@') == -1 && pt_hex_digit('G') == -1 && pt_hex_digit('`') == -1 &&
+          pt_hex_digit('\0') == -1);
+}
+
 int main(void)
 {
+    test_hex_digit();
     test_sha256();
     test_hex_round_trip();
     test_hex_decode_rejects();

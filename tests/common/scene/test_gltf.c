@@ -15,6 +15,7 @@
 #include <stb_image_write.h>
 
 #include "common/base/alloc.h"
+#include "common/base/fsutil.h"
 #include "tests/check.h"
 
 static char tmp[256];
@@ -626,9 +627,7 @@ int main(void)
             check_asset(&k_assets[i]);
         test_cameras();
     }
-    char cmd[512];
-    snprintf(cmd, sizeof cmd, "rm -rf '%s'", tmp);
-    if (system(cmd) != 0)
+    if (pt_remove_tree(tmp) != 0)
         fprintf(stderr, "could not remove %s\n", tmp);
     return check_report();
 }

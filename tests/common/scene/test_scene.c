@@ -557,8 +557,31 @@ static void test_rebase(void)
     pt_scene_free(s0);
 }
 
+/* The default image height from a camera's aspect: rounding, the square
+ * fallback and the clamp that keeps an extreme aspect from overflowing. */
+static void test_camera_height(void)
+{
+    CHECK(pt_camera_height(16.0f / 9.0f, 512, 16384) == 288);
+    CHECK(pt_camera_height(1.5f, 512, 16384) == 341);  /* 341.33 */
+    CHECK(pt_camera_height(0.75f, 512, 16384) == 683); /* 682.67 */
+    CHECK(pt_camera_height(2.0f, 3, 16384) == 2);      /* 1.5 rounds up */
+    CHECK(pt_camera_height(0.0f, 512, 16384) == 512);
+    CHECK(pt_camera_height(-1.0f, 128, 16384) == 128);
+    CHECK(pt_camera_height(NAN, 128, 16384) == 128);
+    CHECK(pt_camera_height(1e6f, 512, 16384) == 1); /* 0.0005 rounds to 0: at least 1 */
+    CHECK(pt_camera_height(INFINITY, 512, 16384) == 1);
+    CHECK(pt_camera_height(0.01f, 512, 16384) == 16384);
+    CHECK(pt_camera_height(1e-30f, 512, UINT32_MAX) == UINT32_MAX);
+    CHECK(pt_camera_height(1e-30f, 512, 1000) == 1000);
+    CHECK(pt_camera_height(1.0f, 0, 100) == 1);
+    /* Bit for bit the expression the programs used. */
+    for (float a = 0.1f; a < 10.0f; a *= 1.37f)
+        CHECK(pt_camera_height(a, 512, UINT32_MAX) == (uint32_t)(512.0f / a + 0.5f));
+}
+
 int main(void)
 {
+    test_camera_height();
     test_defaults();
     test_transform();
     test_computed_normals();

@@ -1,0 +1,129 @@
+/* Tests for common/base/fsutil.c: the atomic write (modes, reject paths, no
+ * temporary left behind) and the folder removal. */
+#include "common/base/fsutil.h"
+
+#include <dirent.h>
+#include <errno.h>
+#include <fcntl.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include "tests/check.h"
+
+static int count_entries(const char *dir)
+{
+    DIR *d = opendir(dir);
+    if (!d)
+        return -1;
+    int n = 0;
+    for (struct dirent *e; (e = readdir(d));)
+        n += strcmp(e->d_name, ".") != 0 && strcmp(e->d_name, "..") != 0;
+    closedir(d);
+    return n;
+}
+
+static int file_is(const char *path, const char *want)
+{
+    char buf[64] = {0};
+    FILE *f = fopen(path, "rb");
+    if (!f)
+        return 0;
+    size_t n = fread(buf, 1, sizeof buf - 1, f);
+    fclose(f);
+    return n == strlen(want) && memcmp(buf, want, n) == 0;
+}
+
+static void test_write_atomic(const char *dir)
+{
+    char path[256], bad[300];
+    snprintf(path, sizeof path, "%s/state.bin", dir);
+    pt_error err = {0};
+    CHECK(pt_write_file_atomic(path, "first", 5, &err) == PT_OK && file_is(path, "first"));
+    CHECK(pt_write_file_atomic(path, "second!", 7, &err) == PT_OK && file_is(path, "second!"));
+    CHECK(pt_write_file_atomic(path, "", 0, &err) == PT_OK && file_is(path, ""));
+    CHECK(count_entries(dir) == 1);
+    struct stat sb;
+    CHECK(stat(path, &sb) == 0 && (sb.st_mode & 0777) == 0644);
+
+    /* The mode is the caller's, less the umask. */
+    umask(002);
+    CHECK(pt_write_file_atomic_mode(path, "img", 3, 0666, &err) == PT_OK && file_is(path, "img"));
+    CHECK(stat(path, &sb) == 0 && (sb.st_mode & 0777) == 0664);
+    umask(022);
+    CHECK(pt_write_file_atomic_mode(path, "img", 3, 0600, &err) == PT_OK);
+    CHECK(stat(path, &sb) == 0 && (sb.st_mode & 0777) == 0600);
+
+    /* Reject paths: not a file name, a missing folder, a folder as the target. */
+    CHECK(pt_write_file_atomic("", "x", 1, &err) == PT_ERR_ARG);
+    snprintf(bad, sizeof bad, "%s/", dir);
+    CHECK(pt_write_file_atomic_mode(bad, "x", 1, 0666, &err) == PT_ERR_ARG);
+    CHECK(strstr(err.msg, "not a file name") != NULL);
+    snprintf(bad, sizeof bad, "%s/missing/out.exr", dir);
+    CHECK(pt_write_file_atomic(bad, "x", 1, &err) == PT_ERR_IO && strstr(err.msg, "missing"));
+    snprintf(bad, sizeof bad, "%s/sub", dir);
+    CHECK(mkdir(bad, 0755) == 0);
+    CHECK(pt_write_file_atomic(bad, "x", 1, &err) == PT_ERR_IO);
+    CHECK(count_entries(dir) == 2); /* state.bin and sub: no temporary left */
+    CHECK(file_is(path, "img"));
+}
+
+static void test_write_all_and_sync(const char *dir)
+{
+    char path[300], sub[300];
+    snprintf(path, sizeof path, "%s/all.bin", dir);
+    static uint8_t big[3 << 20];
+    for (size_t i = 0; i < sizeof big; i++)
+        big[i] = (uint8_t)(i * 31);
+    int fd = open(path, O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    CHECK(fd >= 0 && pt_write_all(fd, big, sizeof big) == 0 && pt_write_all(fd, big, 0) == 0);
+    close(fd);
+    struct stat sb;
+    CHECK(stat(path, &sb) == 0 && sb.st_size == (off_t)sizeof big);
+    /* A descriptor that cannot be written: -1 with the reason. */
+    fd = open(path, O_RDONLY);
+    errno = 0;
+    CHECK(fd >= 0 && pt_write_all(fd, "x", 1) == -1 && errno == EBADF);
+    close(fd);
+    CHECK(unlink(path) == 0);
+
+    CHECK(pt_fsync_dir(dir) == 0);
+    CHECK(pt_fsync_dir_of(path) == 0); /* the folder of a file, present or not */
+    snprintf(sub, sizeof sub, "%s/none", dir);
+    errno = 0;
+    CHECK(pt_fsync_dir(sub) == -1 && errno == ENOENT);
+    CHECK(pt_write_file_atomic(path, "x", 1, NULL) == PT_OK);
+    errno = 0;
+    CHECK(pt_fsync_dir(path) == -1 && errno == ENOTDIR);
+    CHECK(unlink(path) == 0);
+}
+
+static void test_remove_tree(const char *dir)
+{
+    char p[300];
+    snprintf(p, sizeof p, "%s/t/a/b", dir);
+    pt_error err = {0};
+    CHECK(pt_mkdirs(p, 0, &err) == PT_OK);
+    snprintf(p, sizeof p, "%s/t/a/b/f", dir);
+    CHECK(pt_write_file_atomic(p, "x", 1, &err) == PT_OK);
+    snprintf(p, sizeof p, "%s/t", dir);
+    CHECK(pt_remove_tree(p) == 0 && access(p, F_OK) != 0);
+    CHECK(pt_remove_tree(p) == 0); /* missing is fine */
+}
+
+int main(void)
+{
+    umask(022);
+    char dir[] = "/tmp/test_fsutil_XXXXXX";
+    if (!mkdtemp(dir)) {
+        perror("mkdtemp");
+        return 1;
+    }
+    test_write_atomic(dir);
+    test_write_all_and_sync(dir);
+    test_remove_tree(dir);
+    CHECK(pt_remove_tree(dir) == 0 && access(dir, F_OK) != 0);
+    return check_report();
+}
