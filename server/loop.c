@@ -99,7 +99,7 @@ void srv_conn_close_soon(srv_server *s, srv_conn *c)
 {
     if (!c->closing) {
         c->closing = 1;
-        c->close_at = srv_now_ms() + CLOSE_GRACE_MS;
+        c->close_at = pt_now_ms() + CLOSE_GRACE_MS;
         srv_queue_release_owner(s, c, 0);
     }
 }
@@ -159,7 +159,7 @@ static void accept_all(srv_server *s)
         c->fd = fd;
         c->id = ++s->next_conn_id;
         c->in_cap = IN_START;
-        c->t_connect = c->t_progress = srv_now_ms();
+        c->t_connect = c->t_progress = pt_now_ms();
         proto_writer_init(&c->out, OUT_MAX);
         char host[INET6_ADDRSTRLEN] = "?";
         uint16_t port = 0;
@@ -354,7 +354,7 @@ static void conn_read(srv_server *s, srv_conn *c)
         }
         c->in_len += (size_t)r;
         s->bytes_in += (uint64_t)r;
-        c->t_progress = srv_now_ms();
+        c->t_progress = pt_now_ms();
         conn_process(s, c);
     }
 }
@@ -506,7 +506,7 @@ void srv_loop_flush_all(srv_server *s)
 
 void srv_loop_sweep(srv_server *s)
 {
-    uint64_t now = srv_now_ms();
+    uint64_t now = pt_now_ms();
     for (srv_conn **pc = &s->conns; *pc;) {
         srv_conn *c = *pc;
         if (c->out.len > c->out_off)

@@ -13,18 +13,6 @@
 
 /* ---- one job ----------------------------------------------------------------------- */
 
-static void format_eta(double sec, char *buf, size_t n)
-{
-    if (!(sec >= 0) || sec > 360000)
-        snprintf(buf, n, "--");
-    else if (sec >= 3600)
-        snprintf(buf, n, "%dh%02dm", (int)(sec / 3600), (int)(sec / 60) % 60);
-    else if (sec >= 60)
-        snprintf(buf, n, "%dm%02ds", (int)(sec / 60), (int)sec % 60);
-    else
-        snprintf(buf, n, "%.0fs", sec);
-}
-
 static void print_progress(srv_server *s, uint64_t now)
 {
     const srv_entry *j = s->single;
@@ -34,7 +22,7 @@ static void print_progress(srv_server *s, uint64_t now)
     double total = (double)p->width * p->height * p->spp;
     double rate = el > 0 ? (double)done / el : 0;
     char eta[32];
-    format_eta(rate > 0 ? (total - (double)done) / rate : -1, eta, sizeof eta);
+    pt_format_eta(rate > 0 ? (total - (double)done) / rate : -1, eta, sizeof eta);
     fprintf(stderr, "\rptserve: pass %u/%u  %.1f/%u spp  %.3g samples/s  %u workers  ETA %s\033[K",
             srv_job_passes_done(j->job), srv_job_passes(j->job),
             (double)done / ((double)p->width * p->height), p->spp, rate, s->nworkers, eta);
@@ -94,9 +82,9 @@ static int finish_single(srv_server *s)
     srv_entry_save_image(j);
     pt_status st = srv_writer_flush(j->writer, &err);
     if (!cfg->quiet)
-        print_progress(s, srv_now_ms());
+        print_progress(s, pt_now_ms());
     fputc('\n', stderr);
-    double secs = (double)(srv_now_ms() - s->t_start) / 1000.0;
+    double secs = (double)(pt_now_ms() - s->t_start) / 1000.0;
     uint64_t samples = srv_job_samples_merged(j->job);
     const srv_job_params *p = &j->rec.params;
     if (st != PT_OK) {

@@ -24,7 +24,7 @@ static void send_job_info(srv_server *s, srv_conn *c, const srv_entry *j)
     size_t mark;
     if (srv_conn_frame_open(c, PROTO_MSG_JOB_INFO, &mark))
         srv_conn_frame_close(c, mark, proto_msg_encode_job_info(&c->out, &m, NULL));
-    c->watch_t = srv_now_ms();
+    c->watch_t = pt_now_ms();
     if (!srv_entry_active(j) && c->watch == j->rec.id)
         c->watch = 0;
 }
@@ -156,7 +156,7 @@ static void on_submit(srv_server *s, srv_conn *c, const proto_frame *f)
     c->up = m;
     c->uploading = 1;
     c->up_len = 0;
-    c->t_progress = srv_now_ms();
+    c->t_progress = pt_now_ms();
 }
 
 void srv_requests_drop_upload(srv_conn *c)

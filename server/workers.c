@@ -90,7 +90,7 @@ static void on_heartbeat(srv_server *s, srv_conn *c, const proto_frame *f)
         srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "bad HEARTBEAT: %s", err.msg);
         return;
     }
-    uint64_t now = srv_now_ms();
+    uint64_t now = pt_now_ms();
     /* Task ids are per job; extending only leases this owner holds is safe
      * even when two of its jobs share an id. */
     for (srv_entry *j = s->jobs; j; j = j->next)
