@@ -81,20 +81,6 @@ void srv_conn_update_events(srv_server *s, srv_conn *c)
     }
 }
 
-int srv_conn_frame_open(srv_conn *c, uint16_t type, size_t *mark)
-{
-    return proto_frame_begin(&c->out, type, mark, NULL) == PT_OK;
-}
-
-int srv_conn_frame_close(srv_conn *c, size_t mark, pt_status encoded)
-{
-    if (encoded != PT_OK) {
-        proto_frame_cancel(&c->out, mark);
-        return 0;
-    }
-    return proto_frame_end(&c->out, mark, NULL) == PT_OK;
-}
-
 void srv_conn_close_soon(srv_server *s, srv_conn *c)
 {
     if (!c->closing) {
@@ -114,8 +100,8 @@ void srv_conn_send_error(srv_server *s, srv_conn *c, uint16_t code, const char *
     va_end(ap);
     srv_log("peer %s%s%s: %s; closing", c->peer, c->name[0] ? " " : "", c->name, m.text);
     size_t mark;
-    if (srv_conn_frame_open(c, PROTO_MSG_ERROR, &mark))
-        srv_conn_frame_close(c, mark, proto_msg_encode_error(&c->out, &m, NULL));
+    if (proto_frame_begin(&c->out, PROTO_MSG_ERROR, &mark, NULL) == PT_OK)
+        proto_frame_finish(&c->out, mark, proto_msg_encode_error(&c->out, &m, NULL), NULL);
     srv_conn_close_soon(s, c);
 }
 
@@ -230,8 +216,8 @@ static void on_hello(srv_server *s, srv_conn *c, const proto_frame *f)
     }
     memcpy(c->nonce, ch.nonce, sizeof c->nonce);
     size_t mark;
-    if (srv_conn_frame_open(c, PROTO_MSG_CHALLENGE, &mark))
-        srv_conn_frame_close(c, mark, proto_msg_encode_challenge(&c->out, &ch, NULL));
+    if (proto_frame_begin(&c->out, PROTO_MSG_CHALLENGE, &mark, NULL) == PT_OK)
+        proto_frame_finish(&c->out, mark, proto_msg_encode_challenge(&c->out, &ch, NULL), NULL);
     c->state = SRV_C_AUTH;
 }
 
@@ -251,8 +237,8 @@ static void on_auth(srv_server *s, srv_conn *c, const proto_frame *f)
     w.session_id = c->id;
     snprintf(w.build_id, sizeof w.build_id, "%s", proto_build_id());
     size_t mark;
-    if (srv_conn_frame_open(c, PROTO_MSG_WELCOME, &mark))
-        srv_conn_frame_close(c, mark, proto_msg_encode_welcome(&c->out, &w, NULL));
+    if (proto_frame_begin(&c->out, PROTO_MSG_WELCOME, &mark, NULL) == PT_OK)
+        proto_frame_finish(&c->out, mark, proto_msg_encode_welcome(&c->out, &w, NULL), NULL);
     c->state = SRV_C_READY;
     if (c->role == PROTO_ROLE_WORKER) {
         s->nworkers++;

@@ -88,12 +88,6 @@ void srv_loop_flush_all(srv_server *s);
  * closed since the last sweep and sets each one's epoll interest. */
 void srv_loop_sweep(srv_server *s);
 
-/* Frames one message into c's output: srv_conn_frame_open, the encoder's
- * status, srv_conn_frame_close. A failed encoder leaves no partial frame.
- * Each returns 1 on success. */
-int srv_conn_frame_open(srv_conn *c, uint16_t type, size_t *mark);
-int srv_conn_frame_close(srv_conn *c, size_t mark, pt_status encoded);
-
 /* 1 while c's unsent output is under SRV_OUT_HIGH. */
 int srv_conn_has_room(const srv_conn *c);
 

@@ -215,8 +215,8 @@ static void announce_job_end(srv_server *s, const srv_entry *j)
         if (c->role != PROTO_ROLE_WORKER || c->state != SRV_C_READY || c->closing)
             continue;
         size_t mark;
-        if (srv_conn_frame_open(c, PROTO_MSG_JOB_END, &mark))
-            srv_conn_frame_close(c, mark, proto_msg_encode_job_ref(&c->out, &ref, NULL));
+        if (proto_frame_begin(&c->out, PROTO_MSG_JOB_END, &mark, NULL) == PT_OK)
+            proto_frame_finish(&c->out, mark, proto_msg_encode_job_ref(&c->out, &ref, NULL), NULL);
         srv_conn_update_events(s, c);
     }
 }
@@ -342,8 +342,11 @@ void srv_queue_hand_out(srv_server *s)
                 break;
             }
             size_t mark;
-            if (!srv_conn_frame_open(c, PROTO_MSG_TASK, &mark) ||
-                !srv_conn_frame_close(c, mark, proto_msg_encode_task(&c->out, &t, NULL))) {
+            pt_status st = proto_frame_begin(&c->out, PROTO_MSG_TASK, &mark, NULL);
+            if (st == PT_OK)
+                st = proto_frame_finish(&c->out, mark, proto_msg_encode_task(&c->out, &t, NULL),
+                                        NULL);
+            if (st != PT_OK) {
                 srv_conn_send_error(s, c, PROTO_E_LIMIT, "output buffer full");
                 break;
             }

@@ -22,8 +22,8 @@ static void send_job_info(srv_server *s, srv_conn *c, const srv_entry *j)
     proto_job_info m;
     srv_queue_info(s, j, &m);
     size_t mark;
-    if (srv_conn_frame_open(c, PROTO_MSG_JOB_INFO, &mark))
-        srv_conn_frame_close(c, mark, proto_msg_encode_job_info(&c->out, &m, NULL));
+    if (proto_frame_begin(&c->out, PROTO_MSG_JOB_INFO, &mark, NULL) == PT_OK)
+        proto_frame_finish(&c->out, mark, proto_msg_encode_job_info(&c->out, &m, NULL), NULL);
     c->watch_t = pt_now_ms();
     if (!srv_entry_active(j) && c->watch == j->rec.id)
         c->watch = 0;
@@ -47,8 +47,11 @@ void srv_requests_pump_fetch(srv_server *s, srv_conn *c)
         ch.len = (uint32_t)(left < PROTO_MAX_SCENE_CHUNK ? left : PROTO_MAX_SCENE_CHUNK);
         ch.data = c->fetch + c->fetch_off;
         size_t mark;
-        if (!srv_conn_frame_open(c, PROTO_MSG_IMAGE, &mark) ||
-            !srv_conn_frame_close(c, mark, proto_msg_encode_scene_chunk(&c->out, &ch, NULL))) {
+        pt_status st = proto_frame_begin(&c->out, PROTO_MSG_IMAGE, &mark, NULL);
+        if (st == PT_OK)
+            st = proto_frame_finish(&c->out, mark, proto_msg_encode_scene_chunk(&c->out, &ch, NULL),
+                                    NULL);
+        if (st != PT_OK) {
             srv_conn_send_error(s, c, PROTO_E_LIMIT, "output buffer full");
             break;
         }
@@ -270,8 +273,8 @@ void srv_requests_verified(srv_server *s, srv_conn *c, srv_upload *k)
             r->priority);
     proto_job_ref ref = {r->id};
     size_t mark;
-    if (srv_conn_frame_open(c, PROTO_MSG_SUBMITTED, &mark))
-        srv_conn_frame_close(c, mark, proto_msg_encode_job_ref(&c->out, &ref, NULL));
+    if (proto_frame_begin(&c->out, PROTO_MSG_SUBMITTED, &mark, NULL) == PT_OK)
+        proto_frame_finish(&c->out, mark, proto_msg_encode_job_ref(&c->out, &ref, NULL), NULL);
 }
 
 static void on_upload(srv_server *s, srv_conn *c, const proto_frame *f)
@@ -349,8 +352,11 @@ static void on_list(srv_server *s, srv_conn *c, const proto_frame *f)
     for (srv_entry *j = s->jobs; j && k < n; j = j->next)
         srv_queue_info(s, j, &infos[k++]);
     size_t mark;
-    if (!srv_conn_frame_open(c, PROTO_MSG_JOB_LIST, &mark) ||
-        !srv_conn_frame_close(c, mark, proto_msg_encode_job_list(&c->out, infos, k, NULL)))
+    pt_status st = proto_frame_begin(&c->out, PROTO_MSG_JOB_LIST, &mark, NULL);
+    if (st == PT_OK)
+        st = proto_frame_finish(&c->out, mark, proto_msg_encode_job_list(&c->out, infos, k, NULL),
+                                NULL);
+    if (st != PT_OK)
         srv_conn_send_error(s, c, PROTO_E_LIMIT, "output buffer full");
     pt_free(infos);
 }

@@ -35,8 +35,11 @@ static void on_scene_get(srv_server *s, srv_conn *c, const proto_frame *f)
     ch.len = (uint32_t)(left < PROTO_MAX_SCENE_CHUNK ? left : PROTO_MAX_SCENE_CHUNK);
     ch.data = b->data + g.offset;
     size_t mark;
-    if (!srv_conn_frame_open(c, PROTO_MSG_SCENE_CHUNK, &mark) ||
-        !srv_conn_frame_close(c, mark, proto_msg_encode_scene_chunk(&c->out, &ch, NULL)))
+    pt_status st = proto_frame_begin(&c->out, PROTO_MSG_SCENE_CHUNK, &mark, NULL);
+    if (st == PT_OK)
+        st = proto_frame_finish(&c->out, mark, proto_msg_encode_scene_chunk(&c->out, &ch, NULL),
+                                NULL);
+    if (st != PT_OK)
         srv_conn_send_error(s, c, PROTO_E_LIMIT, "output buffer full");
 }
 
