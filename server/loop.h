@@ -2,9 +2,10 @@
  * loop.h - the event loop: non-blocking sockets under one epoll, and the
  * connections (workers and clients) it serves.
  *
- * Owns every srv_conn: its input buffer (IN_START bytes, grown only to the
- * frame its header declares, which the decoder has checked against the cap:
- * PROTO_MAX_PAYLOAD_PREAUTH before authentication, PROTO_MAX_PAYLOAD after),
+ * Owns every srv_conn: its input (a proto_frame_reader of IN_START bytes,
+ * grown only to the frame its header declares once the decoder has checked
+ * that length against the cap: PROTO_MAX_PAYLOAD_PREAUTH before
+ * authentication, PROTO_MAX_PAYLOAD after),
  * its output (a writer capped at OUT_MAX; a peer whose unsent output passes
  * OUT_HIGH is not read from, which is backpressure), the handshake (HELLO,
  * CHALLENGE, AUTH, WELCOME) and its timeout, and the stalled-frame timeout.
@@ -38,8 +39,7 @@ struct srv_conn {
     uint8_t role;
     int closing;
     uint64_t close_at;
-    uint8_t *in;
-    size_t in_len, in_cap;
+    proto_frame_reader in;
     proto_writer out;
     size_t out_off;
     uint8_t nonce[PROTO_NONCE_SIZE];
