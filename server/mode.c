@@ -40,11 +40,10 @@ static pt_status setup_single(srv_server *s, pt_error *err)
         return st;
     srv_job_params jp = cfg->job;
     if (jp.width == 0) {
-        float aspect = scene->camera.aspect > 0 ? scene->camera.aspect : 1.0f;
+        /* 512 wide at the camera's aspect, as a submitted job (server/requests.c);
+         * the height within --res's cap. */
         jp.width = 512;
-        jp.height = (uint32_t)(512.0f / aspect + 0.5f);
-        if (jp.height == 0)
-            jp.height = 1;
+        jp.height = pt_camera_height(scene->camera.aspect, jp.width, SRV_MAX_RES);
     }
     uint32_t ntris = scene->num_triangles;
     pt_scene_free(scene);

@@ -8,6 +8,7 @@
 #include "common/base/alloc.h"
 #include "common/base/fsutil.h"
 #include "common/base/hash.h"
+#include "common/scene/scene.h"
 #include "protocol/msg.h"
 #include "server/job.h"
 #include "server/loop.h"
@@ -188,13 +189,8 @@ static void submitted_params(const srv_config *cfg, const srv_upload *k, srv_job
     p.height = m->height;
     snprintf(p.camera, sizeof p.camera, "%s", m->camera);
     if (p.width == 0) {
-        float aspect = k->aspect > 0 ? k->aspect : 1.0f;
         p.width = 512;
-        p.height = (uint32_t)(512.0f / aspect + 0.5f);
-        if (p.height == 0)
-            p.height = 1;
-        if (p.height > cfg->caps.max_side)
-            p.height = cfg->caps.max_side;
+        p.height = pt_camera_height(k->aspect, p.width, cfg->caps.max_side);
     }
     *out = p;
 }
