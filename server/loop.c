@@ -70,6 +70,14 @@ void srv_conn_update_events(srv_server *s, srv_conn *c)
     }
 }
 
+int srv_conn_queued(srv_server *s, srv_conn *c, pt_status st)
+{
+    if (st == PT_OK)
+        return 1;
+    srv_conn_send_error(s, c, PROTO_E_LIMIT, "output buffer full");
+    return 0;
+}
+
 void srv_conn_close_soon(srv_server *s, srv_conn *c)
 {
     if (!c->closing) {

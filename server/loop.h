@@ -98,6 +98,12 @@ void srv_conn_update_events(srv_server *s, srv_conn *c);
 void srv_conn_send_error(srv_server *s, srv_conn *c, uint16_t code, const char *fmt, ...)
     __attribute__((format(printf, 4, 5)));
 
+/* The end of sending one message that a peer must get (a task, a chunk, a
+ * list): st is proto_frame_begin's status, then proto_frame_finish's. Returns
+ * 1 when the message is queued in c's output; otherwise c is sent ERROR
+ * "output buffer full" and closed (srv_conn_send_error), and it returns 0. */
+int srv_conn_queued(srv_server *s, srv_conn *c, pt_status st);
+
 /* Closes c once its output is flushed (or the grace time ends). */
 void srv_conn_close_soon(srv_server *s, srv_conn *c);
 

@@ -346,10 +346,8 @@ void srv_queue_hand_out(srv_server *s)
             if (st == PT_OK)
                 st = proto_frame_finish(&c->out, mark, proto_msg_encode_task(&c->out, &t, NULL),
                                         NULL);
-            if (st != PT_OK) {
-                srv_conn_send_error(s, c, PROTO_E_LIMIT, "output buffer full");
+            if (!srv_conn_queued(s, c, st))
                 break;
-            }
             c->want--;
         }
         srv_conn_update_events(s, c);

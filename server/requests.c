@@ -52,10 +52,8 @@ void srv_requests_pump_fetch(srv_server *s, srv_conn *c)
         if (st == PT_OK)
             st = proto_frame_finish(&c->out, mark, proto_msg_encode_scene_chunk(&c->out, &ch, NULL),
                                     NULL);
-        if (st != PT_OK) {
-            srv_conn_send_error(s, c, PROTO_E_LIMIT, "output buffer full");
+        if (!srv_conn_queued(s, c, st))
             break;
-        }
         c->fetch_off += ch.len;
         if (c->fetch_off == c->fetch_len) {
             pt_free(c->fetch);
@@ -352,8 +350,7 @@ static void on_list(srv_server *s, srv_conn *c, const proto_frame *f)
     if (st == PT_OK)
         st = proto_frame_finish(&c->out, mark, proto_msg_encode_job_list(&c->out, infos, k, NULL),
                                 NULL);
-    if (st != PT_OK)
-        srv_conn_send_error(s, c, PROTO_E_LIMIT, "output buffer full");
+    srv_conn_queued(s, c, st);
     pt_free(infos);
 }
 

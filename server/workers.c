@@ -39,8 +39,7 @@ static void on_scene_get(srv_server *s, srv_conn *c, const proto_frame *f)
     if (st == PT_OK)
         st = proto_frame_finish(&c->out, mark, proto_msg_encode_scene_chunk(&c->out, &ch, NULL),
                                 NULL);
-    if (st != PT_OK)
-        srv_conn_send_error(s, c, PROTO_E_LIMIT, "output buffer full");
+    srv_conn_queued(s, c, st);
 }
 
 static void on_result(srv_server *s, srv_conn *c, const proto_frame *f)
