@@ -1,5 +1,5 @@
 /*
- * core.h - the coordinator's shared state and its two small helpers.
+ * core.h - the coordinator's shared state and its log line.
  *
  * srv_server is what every server module's functions take: the event loop's
  * connections (server/loop.h), the queue of jobs (server/queue.h), the upload
@@ -12,8 +12,8 @@
  * does after each round of leases, what a timer tick prints and what happens
  * when the local workers are gone, so no module asks which mode it is in.
  *
- * Threads: srv_server is touched only by the event-loop thread. srv_now_ms
- * and srv_log may be called from any thread.
+ * Threads: srv_server is touched only by the event-loop thread. srv_log
+ * may be called from any thread. Times are pt_now_ms (common/base/clock.h).
  */
 #ifndef PT_SERVER_CORE_H
 #define PT_SERVER_CORE_H
@@ -22,6 +22,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "common/base/clock.h"
 #include "common/base/error.h"
 #include "common/render/film.h"
 #include "protocol/auth.h"
@@ -45,7 +46,7 @@ typedef struct srv_mode {
     int (*over)(const srv_server *s);
     /* After each round's leases: what must reach the disk, jobs that ended. */
     void (*after_leases)(srv_server *s);
-    /* Once per loop round after the timers; now in ms (srv_now_ms). */
+    /* Once per loop round after the timers; now in ms (pt_now_ms). */
     void (*tick)(srv_server *s, uint64_t now);
     /* Every local worker has exited: returns 1 to end the loop. */
     int (*local_gone)(srv_server *s);
@@ -87,9 +88,6 @@ struct srv_server {
     srv_local local;
     int local_gone_logged;
 };
-
-/* Monotonic milliseconds. */
-uint64_t srv_now_ms(void);
 
 /* One line on stderr, "ptserve: " first (over a progress line, if any). */
 void srv_log(const char *fmt, ...) __attribute__((format(printf, 1, 2)));

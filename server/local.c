@@ -12,6 +12,7 @@
 #include <unistd.h>
 
 #include "common/base/alloc.h"
+#include "common/base/fsutil.h"
 #include "server/core.h"
 
 extern char **environ;
@@ -118,9 +119,7 @@ void srv_local_stop(srv_local *l)
     srv_local_reap(l, 1);
     if (l->cache_dir[0]) {
         /* The cache holds only what the workers unpacked from our bundle. */
-        char cmd[512];
-        snprintf(cmd, sizeof cmd, "rm -rf '%s'", l->cache_dir);
-        if (system(cmd) != 0)
+        if (pt_remove_tree(l->cache_dir) != 0)
             srv_log("could not remove %s", l->cache_dir);
     }
     pt_free(l->children);

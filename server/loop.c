@@ -23,24 +23,13 @@
 
 #define MAX_CONNS 1024
 #define IN_START (64u * 1024u)
+#define IN_MAX (PROTO_FRAME_OVERHEAD + PROTO_MAX_PAYLOAD) /* the largest frame after AUTH */
 #define OUT_MAX (256u << 20) /* a peer that lets this much pile up is dropped */
 #define STALL_MS 30000       /* a partial frame or upload with no progress for this long */
 #define CLOSE_GRACE_MS 1000  /* time to flush an ERROR before closing */
 
 static volatile sig_atomic_t g_stop;
 static int g_sigpipe_w = -1;
-
-/* The payload length a frame header declares, read field by field in the
- * order of protocol/frame.h's table (frame.h has no accessor for it). The
- * decoder has already refused a header whose length is over the cap. */
-static uint32_t frame_declared_len(const uint8_t *header)
-{
-    proto_reader r = proto_reader_make(header, PROTO_FRAME_HEADER);
-    proto_r_bytes(&r, 4, "magic");
-    proto_r_u16(&r, "version");
-    proto_r_u16(&r, "type");
-    return proto_r_u32(&r, "length");
-}
 
 int srv_conn_has_room(const srv_conn *c)
 {
@@ -81,25 +70,19 @@ void srv_conn_update_events(srv_server *s, srv_conn *c)
     }
 }
 
-int srv_conn_frame_open(srv_conn *c, uint16_t type, size_t *mark)
+int srv_conn_queued(srv_server *s, srv_conn *c, pt_status st)
 {
-    return proto_frame_begin(&c->out, type, mark, NULL) == PT_OK;
-}
-
-int srv_conn_frame_close(srv_conn *c, size_t mark, pt_status encoded)
-{
-    if (encoded != PT_OK) {
-        proto_frame_cancel(&c->out, mark);
-        return 0;
-    }
-    return proto_frame_end(&c->out, mark, NULL) == PT_OK;
+    if (st == PT_OK)
+        return 1;
+    srv_conn_send_error(s, c, PROTO_E_LIMIT, "output buffer full");
+    return 0;
 }
 
 void srv_conn_close_soon(srv_server *s, srv_conn *c)
 {
     if (!c->closing) {
         c->closing = 1;
-        c->close_at = srv_now_ms() + CLOSE_GRACE_MS;
+        c->close_at = pt_now_ms() + CLOSE_GRACE_MS;
         srv_queue_release_owner(s, c, 0);
     }
 }
@@ -114,8 +97,8 @@ void srv_conn_send_error(srv_server *s, srv_conn *c, uint16_t code, const char *
     va_end(ap);
     srv_log("peer %s%s%s: %s; closing", c->peer, c->name[0] ? " " : "", c->name, m.text);
     size_t mark;
-    if (srv_conn_frame_open(c, PROTO_MSG_ERROR, &mark))
-        srv_conn_frame_close(c, mark, proto_msg_encode_error(&c->out, &m, NULL));
+    if (proto_frame_begin(&c->out, PROTO_MSG_ERROR, &mark, NULL) == PT_OK)
+        proto_frame_finish(&c->out, mark, proto_msg_encode_error(&c->out, &m, NULL), NULL);
     srv_conn_close_soon(s, c);
 }
 
@@ -129,7 +112,7 @@ static void conn_free(srv_server *s, srv_conn *c)
     epoll_ctl(s->ep, EPOLL_CTL_DEL, c->fd, NULL);
     close(c->fd);
     proto_writer_fini(&c->out);
-    pt_free(c->in);
+    proto_frame_reader_fini(&c->in);
     pt_free(c);
     s->nconns--;
 }
@@ -148,9 +131,13 @@ static void accept_all(srv_server *s)
             continue;
         }
         srv_conn *c = pt_calloc(1, sizeof *c);
+        uint8_t *room_at;
+        size_t room;
         if (c)
-            c->in = pt_malloc(IN_START);
-        if (!c || !c->in) {
+            proto_frame_reader_init(&c->in, IN_START, IN_MAX);
+        /* The input buffer is taken now: a peer it cannot be had for is
+         * refused at once rather than told later. */
+        if (!c || proto_frame_reader_space(&c->in, &room_at, &room, NULL) != PT_OK) {
             if (c)
                 pt_free(c);
             close(fd);
@@ -158,8 +145,7 @@ static void accept_all(srv_server *s)
         }
         c->fd = fd;
         c->id = ++s->next_conn_id;
-        c->in_cap = IN_START;
-        c->t_connect = c->t_progress = srv_now_ms();
+        c->t_connect = c->t_progress = pt_now_ms();
         proto_writer_init(&c->out, OUT_MAX);
         char host[INET6_ADDRSTRLEN] = "?";
         uint16_t port = 0;
@@ -174,7 +160,7 @@ static void accept_all(srv_server *s)
         struct epoll_event e = {.events = EPOLLIN, .data.ptr = c};
         if (epoll_ctl(s->ep, EPOLL_CTL_ADD, fd, &e) != 0) {
             proto_writer_fini(&c->out);
-            pt_free(c->in);
+            proto_frame_reader_fini(&c->in);
             pt_free(c);
             close(fd);
             continue;
@@ -230,8 +216,8 @@ static void on_hello(srv_server *s, srv_conn *c, const proto_frame *f)
     }
     memcpy(c->nonce, ch.nonce, sizeof c->nonce);
     size_t mark;
-    if (srv_conn_frame_open(c, PROTO_MSG_CHALLENGE, &mark))
-        srv_conn_frame_close(c, mark, proto_msg_encode_challenge(&c->out, &ch, NULL));
+    if (proto_frame_begin(&c->out, PROTO_MSG_CHALLENGE, &mark, NULL) == PT_OK)
+        proto_frame_finish(&c->out, mark, proto_msg_encode_challenge(&c->out, &ch, NULL), NULL);
     c->state = SRV_C_AUTH;
 }
 
@@ -251,8 +237,8 @@ static void on_auth(srv_server *s, srv_conn *c, const proto_frame *f)
     w.session_id = c->id;
     snprintf(w.build_id, sizeof w.build_id, "%s", proto_build_id());
     size_t mark;
-    if (srv_conn_frame_open(c, PROTO_MSG_WELCOME, &mark))
-        srv_conn_frame_close(c, mark, proto_msg_encode_welcome(&c->out, &w, NULL));
+    if (proto_frame_begin(&c->out, PROTO_MSG_WELCOME, &mark, NULL) == PT_OK)
+        proto_frame_finish(&c->out, mark, proto_msg_encode_welcome(&c->out, &w, NULL), NULL);
     c->state = SRV_C_READY;
     if (c->role == PROTO_ROLE_WORKER) {
         s->nworkers++;
@@ -293,17 +279,20 @@ static void dispatch(srv_server *s, srv_conn *c, const proto_frame *f)
         srv_workers_dispatch(s, c, f);
 }
 
+/* The payload cap of c's next frame: tighter until it has authenticated. */
+static uint32_t conn_cap(const srv_conn *c)
+{
+    return c->state == SRV_C_READY ? PROTO_MAX_PAYLOAD : PROTO_MAX_PAYLOAD_PREAUTH;
+}
+
 /* Decodes and dispatches the whole frames buffered in c->in, while the peer's
  * output is under the high-water mark (backpressure). */
 static void conn_process(srv_server *s, srv_conn *c)
 {
-    size_t off = 0;
     while (!c->closing && srv_conn_has_room(c)) {
         proto_frame f;
-        size_t used;
         pt_error err = {0};
-        uint32_t cap = c->state == SRV_C_READY ? PROTO_MAX_PAYLOAD : PROTO_MAX_PAYLOAD_PREAUTH;
-        pt_status st = proto_frame_decode(c->in + off, c->in_len - off, cap, &f, &used, &err);
+        pt_status st = proto_frame_reader_next(&c->in, conn_cap(c), &f, &err);
         if (st == PT_AGAIN)
             break;
         if (st != PT_OK) {
@@ -311,37 +300,31 @@ static void conn_process(srv_server *s, srv_conn *c)
             break;
         }
         dispatch(s, c, &f);
-        off += used;
-    }
-    if (off > 0) {
-        memmove(c->in, c->in + off, c->in_len - off);
-        c->in_len -= off;
     }
 }
 
 static void conn_read(srv_server *s, srv_conn *c)
 {
-    while (!c->closing && srv_conn_has_room(c)) {
-        uint32_t cap = c->state == SRV_C_READY ? PROTO_MAX_PAYLOAD : PROTO_MAX_PAYLOAD_PREAUTH;
-        /* Grow the input buffer to the declared frame (the decoder has already
-         * refused a length over the cap once the header was present). */
-        if (c->in_len >= PROTO_FRAME_HEADER) {
-            size_t need = PROTO_FRAME_OVERHEAD + (size_t)frame_declared_len(c->in);
-            if (need > c->in_cap && need <= PROTO_FRAME_OVERHEAD + (size_t)cap) {
-                uint8_t *n = pt_realloc(c->in, need);
-                if (!n) {
-                    srv_conn_send_error(s, c, PROTO_E_LIMIT, "out of memory for a frame");
-                    return;
-                }
-                c->in = n;
-                c->in_cap = need;
-            }
+    for (;;) {
+        /* The frames held go first, so the decoder has judged the header of
+         * the next one against conn_cap before the reader grows to the
+         * length it declares: a length over the cap is refused before
+         * anything is waited for or allocated. */
+        conn_process(s, c);
+        if (c->closing || !srv_conn_has_room(c))
+            return;
+        uint8_t *p;
+        size_t room;
+        pt_status st = proto_frame_reader_space(&c->in, &p, &room, NULL);
+        if (st == PT_ERR_NOMEM) {
+            srv_conn_send_error(s, c, PROTO_E_LIMIT, "out of memory for a frame");
+            return;
         }
-        if (c->in_len == c->in_cap) {
+        if (st != PT_OK) {
             srv_conn_send_error(s, c, PROTO_E_LIMIT, "frame larger than the input buffer");
             return;
         }
-        ssize_t r = recv(c->fd, c->in + c->in_len, c->in_cap - c->in_len, 0);
+        ssize_t r = recv(c->fd, p, room, 0);
         if (r == 0 || (r < 0 && errno != EINTR && errno != EAGAIN && errno != EWOULDBLOCK)) {
             srv_conn_close_soon(s, c);
             c->close_at = 0;
@@ -352,10 +335,9 @@ static void conn_read(srv_server *s, srv_conn *c)
                 continue;
             return;
         }
-        c->in_len += (size_t)r;
+        proto_frame_reader_commit(&c->in, (size_t)r);
         s->bytes_in += (uint64_t)r;
-        c->t_progress = srv_now_ms();
-        conn_process(s, c);
+        c->t_progress = pt_now_ms();
     }
 }
 
@@ -491,7 +473,8 @@ void srv_loop_timers(srv_server *s, uint64_t now)
         if (c->state != SRV_C_READY && now - c->t_connect > s->cfg->handshake_ms)
             srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "handshake not finished in %.1f s",
                                 s->cfg->handshake_ms / 1000.0);
-        else if ((c->in_len > 0 || c->uploading) && now - c->t_progress > STALL_MS)
+        else if ((proto_frame_reader_pending(&c->in) > 0 || c->uploading) &&
+                 now - c->t_progress > STALL_MS)
             srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "%s stalled for %d s",
                                 c->uploading ? "upload" : "partial frame", STALL_MS / 1000);
     }
@@ -506,12 +489,12 @@ void srv_loop_flush_all(srv_server *s)
 
 void srv_loop_sweep(srv_server *s)
 {
-    uint64_t now = srv_now_ms();
+    uint64_t now = pt_now_ms();
     for (srv_conn **pc = &s->conns; *pc;) {
         srv_conn *c = *pc;
         if (c->out.len > c->out_off)
             conn_flush(s, c);
-        if (c->in_len > 0 && !c->closing)
+        if (proto_frame_reader_pending(&c->in) > 0 && !c->closing)
             conn_process(s, c);
         if (c->closing && (c->close_at == 0 || now >= c->close_at)) {
             *pc = c->next;

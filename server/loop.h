@@ -2,9 +2,10 @@
  * loop.h - the event loop: non-blocking sockets under one epoll, and the
  * connections (workers and clients) it serves.
  *
- * Owns every srv_conn: its input buffer (IN_START bytes, grown only to the
- * frame its header declares, which the decoder has checked against the cap:
- * PROTO_MAX_PAYLOAD_PREAUTH before authentication, PROTO_MAX_PAYLOAD after),
+ * Owns every srv_conn: its input (a proto_frame_reader of IN_START bytes,
+ * grown only to the frame its header declares once the decoder has checked
+ * that length against the cap: PROTO_MAX_PAYLOAD_PREAUTH before
+ * authentication, PROTO_MAX_PAYLOAD after),
  * its output (a writer capped at OUT_MAX; a peer whose unsent output passes
  * OUT_HIGH is not read from, which is backpressure), the handshake (HELLO,
  * CHALLENGE, AUTH, WELCOME) and its timeout, and the stalled-frame timeout.
@@ -38,8 +39,7 @@ struct srv_conn {
     uint8_t role;
     int closing;
     uint64_t close_at;
-    uint8_t *in;
-    size_t in_len, in_cap;
+    proto_frame_reader in;
     proto_writer out;
     size_t out_off;
     uint8_t nonce[PROTO_NONCE_SIZE];
@@ -88,12 +88,6 @@ void srv_loop_flush_all(srv_server *s);
  * closed since the last sweep and sets each one's epoll interest. */
 void srv_loop_sweep(srv_server *s);
 
-/* Frames one message into c's output: srv_conn_frame_open, the encoder's
- * status, srv_conn_frame_close. A failed encoder leaves no partial frame.
- * Each returns 1 on success. */
-int srv_conn_frame_open(srv_conn *c, uint16_t type, size_t *mark);
-int srv_conn_frame_close(srv_conn *c, size_t mark, pt_status encoded);
-
 /* 1 while c's unsent output is under SRV_OUT_HIGH. */
 int srv_conn_has_room(const srv_conn *c);
 
@@ -103,6 +97,12 @@ void srv_conn_update_events(srv_server *s, srv_conn *c);
 /* Logs, sends ERROR(code, text) and closes c once that is flushed. */
 void srv_conn_send_error(srv_server *s, srv_conn *c, uint16_t code, const char *fmt, ...)
     __attribute__((format(printf, 4, 5)));
+
+/* The end of sending one message that a peer must get (a task, a chunk, a
+ * list): st is proto_frame_begin's status, then proto_frame_finish's. Returns
+ * 1 when the message is queued in c's output; otherwise c is sent ERROR
+ * "output buffer full" and closed (srv_conn_send_error), and it returns 0. */
+int srv_conn_queued(srv_server *s, srv_conn *c, pt_status st);
 
 /* Closes c once its output is flushed (or the grace time ends). */
 void srv_conn_close_soon(srv_server *s, srv_conn *c);

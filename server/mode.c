@@ -13,18 +13,6 @@
 
 /* ---- one job ----------------------------------------------------------------------- */
 
-static void format_eta(double sec, char *buf, size_t n)
-{
-    if (!(sec >= 0) || sec > 360000)
-        snprintf(buf, n, "--");
-    else if (sec >= 3600)
-        snprintf(buf, n, "%dh%02dm", (int)(sec / 3600), (int)(sec / 60) % 60);
-    else if (sec >= 60)
-        snprintf(buf, n, "%dm%02ds", (int)(sec / 60), (int)sec % 60);
-    else
-        snprintf(buf, n, "%.0fs", sec);
-}
-
 static void print_progress(srv_server *s, uint64_t now)
 {
     const srv_entry *j = s->single;
@@ -34,7 +22,7 @@ static void print_progress(srv_server *s, uint64_t now)
     double total = (double)p->width * p->height * p->spp;
     double rate = el > 0 ? (double)done / el : 0;
     char eta[32];
-    format_eta(rate > 0 ? (total - (double)done) / rate : -1, eta, sizeof eta);
+    pt_format_eta(rate > 0 ? (total - (double)done) / rate : -1, eta, sizeof eta);
     fprintf(stderr, "\rptserve: pass %u/%u  %.1f/%u spp  %.3g samples/s  %u workers  ETA %s\033[K",
             srv_job_passes_done(j->job), srv_job_passes(j->job),
             (double)done / ((double)p->width * p->height), p->spp, rate, s->nworkers, eta);
@@ -52,11 +40,10 @@ static pt_status setup_single(srv_server *s, pt_error *err)
         return st;
     srv_job_params jp = cfg->job;
     if (jp.width == 0) {
-        float aspect = scene->camera.aspect > 0 ? scene->camera.aspect : 1.0f;
+        /* 512 wide at the camera's aspect, as a submitted job (server/requests.c);
+         * the height within --res's cap. */
         jp.width = 512;
-        jp.height = (uint32_t)(512.0f / aspect + 0.5f);
-        if (jp.height == 0)
-            jp.height = 1;
+        jp.height = pt_camera_height(scene->camera.aspect, jp.width, SRV_MAX_RES);
     }
     uint32_t ntris = scene->num_triangles;
     pt_scene_free(scene);
@@ -94,9 +81,9 @@ static int finish_single(srv_server *s)
     srv_entry_save_image(j);
     pt_status st = srv_writer_flush(j->writer, &err);
     if (!cfg->quiet)
-        print_progress(s, srv_now_ms());
+        print_progress(s, pt_now_ms());
     fputc('\n', stderr);
-    double secs = (double)(srv_now_ms() - s->t_start) / 1000.0;
+    double secs = (double)(pt_now_ms() - s->t_start) / 1000.0;
     uint64_t samples = srv_job_samples_merged(j->job);
     const srv_job_params *p = &j->rec.params;
     if (st != PT_OK) {

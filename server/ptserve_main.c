@@ -5,13 +5,13 @@
  *   ptserve --local N [options] -o OUT.exr SCENE  and start N of them here
  *   ptserve --state-dir DIR [options]             a render queue that ptctl fills
  */
-#include <errno.h>
+#include <float.h>
 #include <getopt.h>
-#include <math.h>
 #include <stdio.h>
-#include <stdlib.h>
 #include <string.h>
 
+#include "common/base/opt.h"
+#include "common/render/tile.h"
 #include "server/serve.h"
 
 static void usage(FILE *f)
@@ -83,32 +83,6 @@ static void usage(FILE *f)
             "interrupted (the last progressive EXR is valid)\n");
 }
 
-static int parse_u32(const char *opt, const char *s, uint32_t min, uint32_t max, uint32_t *out)
-{
-    char *end;
-    errno = 0;
-    unsigned long long v = strtoull(s, &end, 10);
-    if (errno || end == s || *end || s[0] == '-' || v < min || v > max) {
-        fprintf(stderr, "ptserve: %s: '%s' is not a whole number in [%u, %u]\n", opt, s, min, max);
-        return -1;
-    }
-    *out = (uint32_t)v;
-    return 0;
-}
-
-static int parse_seconds(const char *opt, const char *s, double *out)
-{
-    char *end;
-    errno = 0;
-    double v = strtod(s, &end);
-    if (errno || end == s || *end || !(v >= 0.0) || v > 86400.0) {
-        fprintf(stderr, "ptserve: %s: '%s' is not a number of seconds in [0, 86400]\n", opt, s);
-        return -1;
-    }
-    *out = v;
-    return 0;
-}
-
 int main(int argc, char **argv)
 {
     srv_config c;
@@ -161,30 +135,30 @@ int main(int argc, char **argv)
         {"help", no_argument, NULL, 'h'},
         {NULL, 0, NULL, 0},
     };
+    pt_error err = {0};
     int ch;
     while ((ch = getopt_long(argc, argv, "o:qh", opts, NULL)) != -1) {
-        int bad = 0;
+        pt_status st = PT_OK;
+        uint32_t v;
         switch (ch) {
         case 'o': c.out_path = optarg; break;
-        case O_LOCAL: bad = parse_u32("--local", optarg, 1, 256, &c.local_workers); break;
-        case O_WTHREADS: bad = parse_u32("--worker-threads", optarg, 1, 1024, &c.worker_threads); break;
+        case O_LOCAL:
+            st = pt_opt_u32("--local", optarg, 1, 256, &c.local_workers, &err);
+            break;
+        case O_WTHREADS:
+            st = pt_opt_u32("--worker-threads", optarg, 1, 1024, &c.worker_threads, &err);
+            break;
         case O_LISTEN: c.listen = optarg; break;
         case O_TOKEN: c.token_path = optarg; break;
-        case O_SPP: bad = parse_u32("--spp", optarg, 1, 1u << 24, &c.job.spp); break;
-        case O_RES: {
-            const char *x = strchr(optarg, 'x');
-            char w[32];
-            if (!x || (size_t)(x - optarg) >= sizeof w) {
-                fprintf(stderr, "ptserve: --res: '%s' is not WIDTHxHEIGHT\n", optarg);
-                return 2;
-            }
-            memcpy(w, optarg, (size_t)(x - optarg));
-            w[x - optarg] = '\0';
-            bad = parse_u32("--res width", w, 1, 16384, &c.job.width) ||
-                  parse_u32("--res height", x + 1, 1, 16384, &c.job.height);
+        case O_SPP:
+            st = pt_opt_u32("--spp", optarg, 1, 1u << 24, &c.job.spp, &err);
             break;
-        }
-        case O_SEED: bad = parse_u32("--seed", optarg, 0, UINT32_MAX, &c.job.seed); break;
+        case O_RES:
+            st = pt_opt_res("--res", optarg, SRV_MAX_RES, &c.job.width, &c.job.height, &err);
+            break;
+        case O_SEED:
+            st = pt_opt_u32("--seed", optarg, 0, UINT32_MAX, &c.job.seed, &err);
+            break;
         case O_CAMERA:
             if (!optarg[0] || strlen(optarg) > PROTO_MAX_NAME) {
                 fprintf(stderr, "ptserve: --camera: a name of 1 to %u bytes\n", PROTO_MAX_NAME);
@@ -192,58 +166,62 @@ int main(int argc, char **argv)
             }
             snprintf(c.job.camera, sizeof c.job.camera, "%s", optarg);
             break;
-        case O_DEPTH: bad = parse_u32("--max-depth", optarg, 0, 1024, &c.job.max_depth); break;
-        case O_TILE: bad = parse_u32("--tile", optarg, 1, 256, &c.job.tile); break;
-        case O_CHUNK: bad = parse_u32("--chunk", optarg, 1, 1u << 24, &c.job.chunk); break;
-        case O_SAVE: bad = parse_seconds("--save-interval", optarg, &c.save_interval); break;
-        case O_LEASE: bad = parse_seconds("--lease-timeout", optarg, &lease); break;
+        case O_DEPTH:
+            st = pt_opt_u32("--max-depth", optarg, 0, 1024, &c.job.max_depth, &err);
+            break;
+        case O_TILE:
+            st = pt_opt_u32("--tile", optarg, 1, PT_TILE_MAX, &c.job.tile, &err);
+            break;
+        case O_CHUNK:
+            st = pt_opt_u32("--chunk", optarg, 1, 1u << 24, &c.job.chunk, &err);
+            break;
+        case O_SAVE:
+            st = pt_opt_seconds("--save-interval", optarg, 0, 86400, &c.save_interval, &err);
+            break;
+        case O_LEASE:
+            st = pt_opt_seconds("--lease-timeout", optarg, 0, 86400, &lease, &err);
+            break;
         case O_PORTFILE: c.port_file = optarg; break;
-        case O_HANDSHAKE: bad = parse_seconds("--handshake-timeout", optarg, &handshake); break;
-        case O_TARGET: {
-            char *end;
-            c.job.target_error = strtod(optarg, &end);
-            if (end == optarg || *end || !(c.job.target_error > 0.0) || c.job.target_error > 1e6) {
-                fprintf(stderr, "ptserve: --target-error: '%s' is not a positive number\n", optarg);
-                return 2;
-            }
+        case O_HANDSHAKE:
+            st = pt_opt_seconds("--handshake-timeout", optarg, 0, 86400, &handshake, &err);
             break;
-        }
-        case O_MINGAIN: {
-            char *end;
-            errno = 0;
-            c.job.min_gain = strtod(optarg, &end);
-            if (errno || end == optarg || *end || !(c.job.min_gain > 0.0) ||
-                !isfinite(c.job.min_gain)) {
-                fprintf(stderr, "ptserve: --min-gain: '%s' is not a positive number\n", optarg);
-                return 2;
-            }
+        case O_TARGET:
+            st = pt_opt_positive("--target-error", optarg, 1e6, &c.job.target_error, &err);
             break;
-        }
-        case O_MINSPP: bad = parse_u32("--min-spp", optarg, 2, 1u << 24, &c.job.min_spp); break;
+        case O_MINGAIN:
+            st = pt_opt_positive("--min-gain", optarg, DBL_MAX, &c.job.min_gain, &err);
+            break;
+        case O_MINSPP:
+            st = pt_opt_u32("--min-spp", optarg, 2, 1u << 24, &c.job.min_spp, &err);
+            break;
         case O_WBIN: c.worker_bin = optarg; break;
         case O_STATE: c.state_dir = optarg; break;
         case O_OUTDIR: c.output_dir = optarg; break;
-        case O_MAXRES: bad = parse_u32("--max-res", optarg, 1, 65536, &c.caps.max_side); break;
-        case O_MAXPIX: {
-            uint32_t v;
-            bad = parse_u32("--max-pixels", optarg, 1, UINT32_MAX, &v);
-            c.caps.max_pixels = v;
+        case O_MAXRES:
+            st = pt_opt_u32("--max-res", optarg, 1, 65536, &c.caps.max_side, &err);
             break;
-        }
-        case O_MAXSPP: bad = parse_u32("--max-spp", optarg, 1, 1u << 24, &c.caps.max_spp); break;
-        case O_MAXSCENE: {
-            uint32_t v;
-            bad = parse_u32("--max-scene-mb", optarg, 1, 2048, &v);
-            c.caps.max_scene = (uint64_t)v << 20;
+        case O_MAXPIX:
+            if ((st = pt_opt_u32("--max-pixels", optarg, 1, UINT32_MAX, &v, &err)) == PT_OK)
+                c.caps.max_pixels = v;
             break;
-        }
-        case O_MAXQUEUED: bad = parse_u32("--max-queued", optarg, 1, 100000, &c.caps.max_queued); break;
+        case O_MAXSPP:
+            st = pt_opt_u32("--max-spp", optarg, 1, 1u << 24, &c.caps.max_spp, &err);
+            break;
+        case O_MAXSCENE:
+            if ((st = pt_opt_u32("--max-scene-mb", optarg, 1, 2048, &v, &err)) == PT_OK)
+                c.caps.max_scene = (uint64_t)v << 20;
+            break;
+        case O_MAXQUEUED:
+            st = pt_opt_u32("--max-queued", optarg, 1, 100000, &c.caps.max_queued, &err);
+            break;
         case 'q': c.quiet = 1; break;
         case 'h': usage(stdout); return 0;
         default: usage(stderr); return 2;
         }
-        if (bad)
+        if (st != PT_OK) {
+            fprintf(stderr, "ptserve: %s\n", err.msg);
             return 2;
+        }
     }
     if (c.state_dir) {
         if (optind != argc || c.out_path) {

@@ -125,7 +125,7 @@ static double job_error(const srv_job *job)
 
 void srv_queue_info(const srv_server *s, const srv_entry *j, proto_job_info *m)
 {
-    uint64_t now = srv_now_ms();
+    uint64_t now = pt_now_ms();
     const srv_job_record *r = &j->rec;
     memset(m, 0, sizeof *m);
     m->job_id = r->id;
@@ -184,11 +184,11 @@ void srv_entry_save_image(srv_entry *j)
     pt_film_resolve(film, img);
     pt_exr_meta meta = {0};
     meta.total_samples = pt_film_total_samples(film);
-    meta.render_seconds = srv_entry_seconds(j, srv_now_ms());
+    meta.render_seconds = srv_entry_seconds(j, pt_now_ms());
     pt_hash_hex(j->rec.hash, meta.scene_hash);
     snprintf(meta.job_id, sizeof meta.job_id, "%llu", (unsigned long long)j->rec.id);
     srv_writer_submit(j->writer, img, &meta);
-    j->t_last_save = srv_now_ms();
+    j->t_last_save = pt_now_ms();
     j->saved_passes = srv_job_passes_done(j->job);
     j->saved_samples = meta.total_samples;
 }
@@ -197,7 +197,7 @@ void srv_entry_checkpoint(srv_server *s, srv_entry *j)
 {
     if (!s->state || !j->job)
         return;
-    srv_ckpt_extra x = {srv_entry_seconds(j, srv_now_ms()), j->rejected, j->rays};
+    srv_ckpt_extra x = {srv_entry_seconds(j, pt_now_ms()), j->rejected, j->rays};
     pt_error err = {0};
     if (srv_state_checkpoint(s->state, j->job, &x, &err) != PT_OK)
         srv_log("error: job %llu: cannot write its checkpoint: %s (its results log still holds "
@@ -215,15 +215,15 @@ static void announce_job_end(srv_server *s, const srv_entry *j)
         if (c->role != PROTO_ROLE_WORKER || c->state != SRV_C_READY || c->closing)
             continue;
         size_t mark;
-        if (srv_conn_frame_open(c, PROTO_MSG_JOB_END, &mark))
-            srv_conn_frame_close(c, mark, proto_msg_encode_job_ref(&c->out, &ref, NULL));
+        if (proto_frame_begin(&c->out, PROTO_MSG_JOB_END, &mark, NULL) == PT_OK)
+            proto_frame_finish(&c->out, mark, proto_msg_encode_job_ref(&c->out, &ref, NULL), NULL);
         srv_conn_update_events(s, c);
     }
 }
 
 void srv_queue_end_job(srv_server *s, srv_entry *j, uint8_t state, const char *message)
 {
-    uint64_t now = srv_now_ms();
+    uint64_t now = pt_now_ms();
     pt_error err = {0};
     if (state == PROTO_JOB_DONE && j->job) {
         srv_entry_save_image(j);
@@ -296,8 +296,8 @@ int srv_entry_ready(srv_server *s, srv_entry *j)
     }
     j->saved_passes = srv_job_passes_done(j->job);
     j->saved_samples = srv_job_samples_merged(j->job);
-    j->t_last_save = srv_now_ms();
-    j->rate_t = srv_now_ms();
+    j->t_last_save = pt_now_ms();
+    j->rate_t = pt_now_ms();
     j->rate_samples = j->saved_samples;
     return 1;
 }
@@ -328,7 +328,7 @@ static int lease_any(srv_server *s, uint64_t owner, uint64_t now, proto_task *t)
 
 void srv_queue_hand_out(srv_server *s)
 {
-    uint64_t now = srv_now_ms();
+    uint64_t now = pt_now_ms();
     int dry = 0; /* the queue had nothing to lease: skip the other workers */
     for (srv_conn *c = s->conns; c; c = c->next) {
         if (c->state != SRV_C_READY || c->closing)
@@ -342,11 +342,12 @@ void srv_queue_hand_out(srv_server *s)
                 break;
             }
             size_t mark;
-            if (!srv_conn_frame_open(c, PROTO_MSG_TASK, &mark) ||
-                !srv_conn_frame_close(c, mark, proto_msg_encode_task(&c->out, &t, NULL))) {
-                srv_conn_send_error(s, c, PROTO_E_LIMIT, "output buffer full");
+            pt_status st = proto_frame_begin(&c->out, PROTO_MSG_TASK, &mark, NULL);
+            if (st == PT_OK)
+                st = proto_frame_finish(&c->out, mark, proto_msg_encode_task(&c->out, &t, NULL),
+                                        NULL);
+            if (!srv_conn_queued(s, c, st))
                 break;
-            }
             c->want--;
         }
         srv_conn_update_events(s, c);

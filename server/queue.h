@@ -111,7 +111,7 @@ void srv_queue_hand_out(srv_server *s);
 void srv_queue_release_owner(srv_server *s, const srv_conn *c, int report);
 
 /* Lease expiry; then, per running job, the progressive save, the rate and
- * the checkpoint trigger. now in ms (srv_now_ms). */
+ * the checkpoint trigger. now in ms (pt_now_ms). */
 void srv_queue_expire(srv_server *s, uint64_t now);
 void srv_queue_tick(srv_server *s, uint64_t now);
 

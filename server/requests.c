@@ -8,6 +8,7 @@
 #include "common/base/alloc.h"
 #include "common/base/fsutil.h"
 #include "common/base/hash.h"
+#include "common/scene/scene.h"
 #include "protocol/msg.h"
 #include "server/job.h"
 #include "server/loop.h"
@@ -22,9 +23,9 @@ static void send_job_info(srv_server *s, srv_conn *c, const srv_entry *j)
     proto_job_info m;
     srv_queue_info(s, j, &m);
     size_t mark;
-    if (srv_conn_frame_open(c, PROTO_MSG_JOB_INFO, &mark))
-        srv_conn_frame_close(c, mark, proto_msg_encode_job_info(&c->out, &m, NULL));
-    c->watch_t = srv_now_ms();
+    if (proto_frame_begin(&c->out, PROTO_MSG_JOB_INFO, &mark, NULL) == PT_OK)
+        proto_frame_finish(&c->out, mark, proto_msg_encode_job_info(&c->out, &m, NULL), NULL);
+    c->watch_t = pt_now_ms();
     if (!srv_entry_active(j) && c->watch == j->rec.id)
         c->watch = 0;
 }
@@ -47,11 +48,12 @@ void srv_requests_pump_fetch(srv_server *s, srv_conn *c)
         ch.len = (uint32_t)(left < PROTO_MAX_SCENE_CHUNK ? left : PROTO_MAX_SCENE_CHUNK);
         ch.data = c->fetch + c->fetch_off;
         size_t mark;
-        if (!srv_conn_frame_open(c, PROTO_MSG_IMAGE, &mark) ||
-            !srv_conn_frame_close(c, mark, proto_msg_encode_scene_chunk(&c->out, &ch, NULL))) {
-            srv_conn_send_error(s, c, PROTO_E_LIMIT, "output buffer full");
+        pt_status st = proto_frame_begin(&c->out, PROTO_MSG_IMAGE, &mark, NULL);
+        if (st == PT_OK)
+            st = proto_frame_finish(&c->out, mark, proto_msg_encode_scene_chunk(&c->out, &ch, NULL),
+                                    NULL);
+        if (!srv_conn_queued(s, c, st))
             break;
-        }
         c->fetch_off += ch.len;
         if (c->fetch_off == c->fetch_len) {
             pt_free(c->fetch);
@@ -156,7 +158,7 @@ static void on_submit(srv_server *s, srv_conn *c, const proto_frame *f)
     c->up = m;
     c->uploading = 1;
     c->up_len = 0;
-    c->t_progress = srv_now_ms();
+    c->t_progress = pt_now_ms();
 }
 
 void srv_requests_drop_upload(srv_conn *c)
@@ -185,13 +187,8 @@ static void submitted_params(const srv_config *cfg, const srv_upload *k, srv_job
     p.height = m->height;
     snprintf(p.camera, sizeof p.camera, "%s", m->camera);
     if (p.width == 0) {
-        float aspect = k->aspect > 0 ? k->aspect : 1.0f;
         p.width = 512;
-        p.height = (uint32_t)(512.0f / aspect + 0.5f);
-        if (p.height == 0)
-            p.height = 1;
-        if (p.height > cfg->caps.max_side)
-            p.height = cfg->caps.max_side;
+        p.height = pt_camera_height(k->aspect, p.width, cfg->caps.max_side);
     }
     *out = p;
 }
@@ -270,8 +267,8 @@ void srv_requests_verified(srv_server *s, srv_conn *c, srv_upload *k)
             r->priority);
     proto_job_ref ref = {r->id};
     size_t mark;
-    if (srv_conn_frame_open(c, PROTO_MSG_SUBMITTED, &mark))
-        srv_conn_frame_close(c, mark, proto_msg_encode_job_ref(&c->out, &ref, NULL));
+    if (proto_frame_begin(&c->out, PROTO_MSG_SUBMITTED, &mark, NULL) == PT_OK)
+        proto_frame_finish(&c->out, mark, proto_msg_encode_job_ref(&c->out, &ref, NULL), NULL);
 }
 
 static void on_upload(srv_server *s, srv_conn *c, const proto_frame *f)
@@ -349,9 +346,11 @@ static void on_list(srv_server *s, srv_conn *c, const proto_frame *f)
     for (srv_entry *j = s->jobs; j && k < n; j = j->next)
         srv_queue_info(s, j, &infos[k++]);
     size_t mark;
-    if (!srv_conn_frame_open(c, PROTO_MSG_JOB_LIST, &mark) ||
-        !srv_conn_frame_close(c, mark, proto_msg_encode_job_list(&c->out, infos, k, NULL)))
-        srv_conn_send_error(s, c, PROTO_E_LIMIT, "output buffer full");
+    pt_status st = proto_frame_begin(&c->out, PROTO_MSG_JOB_LIST, &mark, NULL);
+    if (st == PT_OK)
+        st = proto_frame_finish(&c->out, mark, proto_msg_encode_job_list(&c->out, infos, k, NULL),
+                                NULL);
+    srv_conn_queued(s, c, st);
     pt_free(infos);
 }
 

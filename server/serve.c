@@ -35,7 +35,7 @@ static pt_status setup(srv_server *s, pt_error *err)
         return st;
     if ((st = srv_loop_open(s, err)) != PT_OK)
         return st;
-    s->t_start = s->t_last_print = srv_now_ms();
+    s->t_start = s->t_last_print = pt_now_ms();
     if (cfg->local_workers && (st = srv_local_start(&s->local, cfg, s->port, err)) != PT_OK)
         return st;
     return PT_OK;
@@ -45,7 +45,7 @@ static pt_status setup(srv_server *s, pt_error *err)
  * what the mode shows. */
 static void timers(srv_server *s)
 {
-    uint64_t now = srv_now_ms();
+    uint64_t now = pt_now_ms();
     srv_queue_expire(s, now);
     srv_loop_timers(s, now);
     srv_queue_tick(s, now);

@@ -57,6 +57,18 @@ static void job_path(const srv_state *st, uint64_t id, const char *file, char *b
         snprintf(buf, cap, "%s/jobs/%llu", st->dir, (unsigned long long)id);
 }
 
+/* The path of a job's file (job_path) once the job's folder exists: it is
+ * made, private, on the first file written to it. */
+static pt_status job_file(const srv_state *st, uint64_t id, const char *file, char *buf, size_t cap,
+                          pt_error *err)
+{
+    job_path(st, id, NULL, buf, cap);
+    pt_status s = pt_mkdirs(buf, 1, err);
+    if (s == PT_OK)
+        job_path(st, id, file, buf, cap);
+    return s;
+}
+
 pt_status srv_state_open(const char *dir, srv_state **out, pt_error *err)
 {
     if (strlen(dir) >= sizeof ((srv_state *)0)->dir)
@@ -283,11 +295,9 @@ pt_status srv_state_save_bundle(const srv_state *st, uint64_t id, const uint8_t 
                                 pt_error *err)
 {
     char p[PATH_MAX];
-    job_path(st, id, NULL, p, sizeof p);
-    pt_status s = pt_mkdirs(p, 1, err);
+    pt_status s = job_file(st, id, "bundle", p, sizeof p, err);
     if (s != PT_OK)
         return s;
-    job_path(st, id, "bundle", p, sizeof p);
     return pt_write_file_atomic(p, data, n, err);
 }
 
@@ -451,11 +461,9 @@ pt_status srv_state_checkpoint(srv_state *st, const srv_job *job, const srv_ckpt
 {
     uint64_t id = srv_job_id(job);
     char p[PATH_MAX];
-    job_path(st, id, NULL, p, sizeof p);
-    pt_status s = pt_mkdirs(p, 1, err);
+    pt_status s = job_file(st, id, "checkpoint", p, sizeof p, err);
     if (s != PT_OK)
         return s;
-    job_path(st, id, "checkpoint", p, sizeof p);
     proto_writer w;
     proto_writer_init(&w, MAX_CKPT_BYTES);
     begin_file(&w, CKPT_MAGIC);

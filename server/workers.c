@@ -35,9 +35,11 @@ static void on_scene_get(srv_server *s, srv_conn *c, const proto_frame *f)
     ch.len = (uint32_t)(left < PROTO_MAX_SCENE_CHUNK ? left : PROTO_MAX_SCENE_CHUNK);
     ch.data = b->data + g.offset;
     size_t mark;
-    if (!srv_conn_frame_open(c, PROTO_MSG_SCENE_CHUNK, &mark) ||
-        !srv_conn_frame_close(c, mark, proto_msg_encode_scene_chunk(&c->out, &ch, NULL)))
-        srv_conn_send_error(s, c, PROTO_E_LIMIT, "output buffer full");
+    pt_status st = proto_frame_begin(&c->out, PROTO_MSG_SCENE_CHUNK, &mark, NULL);
+    if (st == PT_OK)
+        st = proto_frame_finish(&c->out, mark, proto_msg_encode_scene_chunk(&c->out, &ch, NULL),
+                                NULL);
+    srv_conn_queued(s, c, st);
 }
 
 static void on_result(srv_server *s, srv_conn *c, const proto_frame *f)
@@ -90,7 +92,7 @@ static void on_heartbeat(srv_server *s, srv_conn *c, const proto_frame *f)
         srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "bad HEARTBEAT: %s", err.msg);
         return;
     }
-    uint64_t now = srv_now_ms();
+    uint64_t now = pt_now_ms();
     /* Task ids are per job; extending only leases this owner holds is safe
      * even when two of its jobs share an id. */
     for (srv_entry *j = s->jobs; j; j = j->next)

@@ -2,7 +2,6 @@
 
 #include <pthread.h>
 #include <stdio.h>
-#include <string.h>
 
 #include "common/base/alloc.h"
 
@@ -58,11 +57,7 @@ pt_status srv_writer_new(const char *exr_path, srv_writer **out, pt_error *err)
     if (!w)
         return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
     snprintf(w->exr, sizeof w->exr, "%s", exr_path);
-    size_t n = strlen(exr_path);
-    if (n > 4 && strcmp(exr_path + n - 4, ".exr") == 0)
-        snprintf(w->png, sizeof w->png, "%.*s.png", (int)(n - 4), exr_path);
-    else
-        snprintf(w->png, sizeof w->png, "%s.png", exr_path);
+    pt_png_preview_path(exr_path, w->png, sizeof w->png);
     pthread_mutex_init(&w->mu, NULL);
     pthread_cond_init(&w->cv, NULL);
     if (pthread_create(&w->thread, NULL, writer_main, w) != 0) {

@@ -21,8 +21,10 @@
 #include <time.h>
 #include <unistd.h>
 
-#include "common/image/exr.h"
+#include "common/base/clock.h"
+#include "common/base/fsutil.h"
 #include "common/base/net.h"
+#include "common/image/exr.h"
 #include "protocol/auth.h"
 #include "protocol/frame.h"
 #include "protocol/msg.h"
@@ -35,13 +37,6 @@ static inline void sleep_ms(long ms)
 {
     struct timespec ts = {ms / 1000, (ms % 1000) * 1000000L};
     nanosleep(&ts, NULL);
-}
-
-static inline double now_s(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
 }
 
 static inline pid_t spawn(const char *const *argv, const char *log_name)
@@ -62,9 +57,9 @@ static inline pid_t spawn(const char *const *argv, const char *log_name)
 /* Waits up to timeout seconds; returns the exit status or -1 (then kills it). */
 static inline int wait_exit(pid_t pid, double timeout)
 {
-    double end = now_s() + timeout;
+    double end = pt_now_s() + timeout;
     int st;
-    while (now_s() < end) {
+    while (pt_now_s() < end) {
         pid_t r = waitpid(pid, &st, WNOHANG);
         if (r == pid)
             return WIFEXITED(st) ? WEXITSTATUS(st) : 128 + WTERMSIG(st);
@@ -179,9 +174,7 @@ static inline int farm_test_end(void)
 {
     CHECK(sanitizer_reports() == 0);
     if (check_failed_ == 0 && !getenv("PT_KEEP_TMP")) {
-        char cmd[512];
-        snprintf(cmd, sizeof cmd, "rm -rf %s", tmp);
-        if (system(cmd) != 0)
+        if (pt_remove_tree(tmp) != 0)
             return 1;
     } else {
         fprintf(stderr, "logs kept in %s\n", tmp);
@@ -204,8 +197,8 @@ static inline int connect_to(int port)
 static inline int closed_by_server(int fd, int timeout_ms)
 {
     char buf[4096];
-    double end = now_s() + timeout_ms / 1000.0;
-    while (now_s() < end) {
+    double end = pt_now_s() + timeout_ms / 1000.0;
+    while (pt_now_s() < end) {
         struct pollfd p = {fd, POLLIN, 0};
         if (poll(&p, 1, 50) == 1) {
             ssize_t r = recv(fd, buf, sizeof buf, 0);
@@ -244,8 +237,8 @@ static inline void send_hello(int fd, uint16_t version, const char *build, uint8
 static inline int read_frame(int fd, uint8_t *buf, size_t cap, proto_frame *f)
 {
     size_t len = 0;
-    double end = now_s() + 5;
-    while (now_s() < end) {
+    double end = pt_now_s() + 5;
+    while (pt_now_s() < end) {
         size_t used;
         if (len && proto_frame_decode(buf, len, PROTO_MAX_PAYLOAD, f, &used, NULL) == PT_OK)
             return f->type;

@@ -150,8 +150,8 @@ static int chaos_run(uint32_t spp)
     srand(12345);
     int kills = 0, polls = 0, bad_reads = 0, decreases = 0, status = -1;
     float *last = NULL;
-    double end = now_s() + 600;
-    while (now_s() < end) {
+    double end = pt_now_s() + 600;
+    while (pt_now_s() < end) {
         int st;
         if (waitpid(srv, &st, WNOHANG) == srv) {
             status = WIFEXITED(st) ? WEXITSTATUS(st) : -1;

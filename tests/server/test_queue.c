@@ -46,7 +46,7 @@ static int cli_recv(cli *c, proto_frame *f, double timeout)
     memmove(c->buf, c->buf + c->used, c->len - c->used);
     c->len -= c->used;
     c->used = 0;
-    double end = now_s() + timeout;
+    double end = pt_now_s() + timeout;
     for (;;) {
         size_t used;
         if (c->len && proto_frame_decode(c->buf, c->len, PROTO_MAX_PAYLOAD, f, &used, NULL) ==
@@ -54,7 +54,7 @@ static int cli_recv(cli *c, proto_frame *f, double timeout)
             c->used = used;
             return f->type;
         }
-        if (now_s() > end)
+        if (pt_now_s() > end)
             return -1;
         if (c->len == c->cap) {
             c->cap *= 2;
@@ -249,8 +249,8 @@ static int status(int port, uint64_t id, proto_job_info *out)
 /* Waits until job id is in state (or has ended when state is 0). */
 static int wait_state(int port, uint64_t id, int state, double timeout, proto_job_info *out)
 {
-    double end = now_s() + timeout;
-    while (now_s() < end) {
+    double end = pt_now_s() + timeout;
+    while (pt_now_s() < end) {
         if (status(port, id, out) == PROTO_MSG_JOB_INFO &&
             (out->state == state || (state == 0 && out->state >= PROTO_JOB_DONE)))
             return 1;
@@ -394,8 +394,8 @@ static void crash_restart(void)
     while (kills < 6) {
         /* Let more samples merge since the restart, then kill at a random moment. */
         uint64_t goal = last + total / 12;
-        double end = now_s() + 300;
-        while (now_s() < end && status(g_port, id, &info) == PROTO_MSG_JOB_INFO &&
+        double end = pt_now_s() + 300;
+        while (pt_now_s() < end && status(g_port, id, &info) == PROTO_MSG_JOB_INFO &&
                info.samples_done < goal && info.state != PROTO_JOB_DONE)
             sleep_ms(20);
         if (info.state == PROTO_JOB_DONE)
@@ -527,14 +527,14 @@ static void queue_order(void)
     start_server_opt("state2", "queue.log", "--chunk", "512");
     uint64_t big = submit(g_port, job_of("big", 64, 48, 65536, 0));
     CHECK(big > 0);
-    double end = now_s() + 60;
-    while (now_s() < end && status(g_port, big, &info) == PROTO_MSG_JOB_INFO &&
+    double end = pt_now_s() + 60;
+    while (pt_now_s() < end && status(g_port, big, &info) == PROTO_MSG_JOB_INFO &&
            info.samples_done == 0)
         sleep_ms(20);
     CHECK(info.state == PROTO_JOB_RUNNING && info.samples_done > 0);
     /* Its latest progressive image can be fetched while it renders. */
     int fetched = -1;
-    for (end = now_s() + 30; fetched != 0 && now_s() < end; sleep_ms(50))
+    for (end = pt_now_s() + 30; fetched != 0 && pt_now_s() < end; sleep_ms(50))
         fetched = fetch(g_port, big, "big_progress.exr");
     CHECK(fetched == 0);
     pt_image *progress = load_exr("big_progress.exr");
@@ -684,15 +684,15 @@ static void damaged(void)
     pid_t w = start_worker("d1");
     uint64_t id = submit(g_port, job_of("damage", 64, 48, 65536, 0));
     proto_job_info info;
-    double end = now_s() + 60;
-    while (now_s() < end && status(g_port, id, &info) == PROTO_MSG_JOB_INFO &&
+    double end = pt_now_s() + 60;
+    while (pt_now_s() < end && status(g_port, id, &info) == PROTO_MSG_JOB_INFO &&
            info.samples_done < 64 * 48 * 16)
         sleep_ms(20);
     kill_server(SIGTERM);
     start_server("state3", "damage.log", NULL);
     uint64_t base = info.samples_done;
-    end = now_s() + 60;
-    while (now_s() < end && status(g_port, id, &info) == PROTO_MSG_JOB_INFO &&
+    end = pt_now_s() + 60;
+    while (pt_now_s() < end && status(g_port, id, &info) == PROTO_MSG_JOB_INFO &&
            info.samples_done < base + 64 * 48 * 16)
         sleep_ms(20);
     kill_server(SIGKILL);
@@ -955,7 +955,7 @@ static int log_count(const char *log, const char *needle)
 /* Waits up to 60 s for n lines of log with needle. */
 static int wait_log_count(const char *log, const char *needle, int n)
 {
-    for (double end = now_s() + 60; now_s() < end; sleep_ms(50))
+    for (double end = pt_now_s() + 60; pt_now_s() < end; sleep_ms(50))
         if (log_count(log, needle) >= n)
             return 1;
     return 0;
