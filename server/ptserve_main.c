@@ -12,6 +12,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "common/base/version.h"
 #include "server/serve.h"
 
 static void usage(FILE *f)
@@ -76,6 +77,7 @@ static void usage(FILE *f)
             "  --worker-bin PATH      the ptworker to start with --local (default: beside ptserve)\n"
             "  -q, --quiet            no progress line\n"
             "  -h, --help             this text\n"
+            "  --version              the version and renderer build id\n"
             "\n"
             "\n"
             "exit status: 0 image complete (queue mode: stopped by SIGINT/SIGTERM after\n"
@@ -159,6 +161,7 @@ int main(int argc, char **argv)
         {"max-queued", required_argument, NULL, O_MAXQUEUED},
         {"quiet", no_argument, NULL, 'q'},
         {"help", no_argument, NULL, 'h'},
+        {"version", no_argument, NULL, 'V'},
         {NULL, 0, NULL, 0},
     };
     int ch;
@@ -240,6 +243,7 @@ int main(int argc, char **argv)
         case O_MAXQUEUED: bad = parse_u32("--max-queued", optarg, 1, 100000, &c.caps.max_queued); break;
         case 'q': c.quiet = 1; break;
         case 'h': usage(stdout); return 0;
+        case 'V': return pt_version_print("ptserve");
         default: usage(stderr); return 2;
         }
         if (bad)

@@ -16,6 +16,7 @@
 #include <time.h>
 
 #include "common/base/alloc.h"
+#include "common/base/version.h"
 #include "protocol/frame.h"
 #include "protocol/msg.h"
 #include "server/job.h"
@@ -48,9 +49,11 @@ int main(int argc, char **argv)
             reps = (uint32_t)atoi(argv[++i]);
         else if (!strcmp(argv[i], "--core-rate") && i + 1 < argc)
             core_rate = atof(argv[++i]);
+        else if (!strcmp(argv[i], "--version"))
+            return pt_version_print("ptbench-merge");
         else {
             printf("usage: ptbench-merge [--res WxH] [--tile N] [--chunk N] [--reps R] "
-                   "[--core-rate SAMPLES_PER_S]\n");
+                   "[--core-rate SAMPLES_PER_S] [--version]\n");
             return strcmp(argv[i], "--help") && strcmp(argv[i], "-h") ? 2 : 0;
         }
     }
