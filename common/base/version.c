@@ -7,14 +7,8 @@
 #ifndef PT_VERSION
 #error "PT_VERSION must come from ptbase's compile definitions"
 #endif
-#ifndef PT_BUILD_ID
-#error "PT_BUILD_ID must come from ptbase's compile definitions"
-#endif
 
-const char *pt_build_id(void)
-{
-    return PT_BUILD_ID;
-}
+/* pt_build_id() is in the build's generated/build_id.c (cmake/build_id.cmake). */
 
 int pt_version_print(const char *prog)
 {
