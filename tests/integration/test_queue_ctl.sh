@@ -102,6 +102,9 @@ if [ -f "$shared/ToyCar/ToyCar.gltf" ]; then
   "$bin/ptexr-diff" "$tmp/car_ref.exr" "$tmp/car.exr" || fail "ToyCar image differs"
 elif [ "${CI:-}" = true ]; then
   fail "CI needs $shared"
+else
+  echo "skipped: the ToyCar upload ($shared/ToyCar not found)"
+  skipped=1
 fi
 
 # list --json names every job, in queue order.
@@ -132,4 +135,6 @@ ctl frobnicate 2>/dev/null; [ $? = 2 ] || fail "unknown command"
 set -e
 grep -q "Sanitizer\|runtime error:" "$tmp/serve.log" && fail "sanitizer report"
 failed=0
+# 77: ctest counts the test as skipped, not passed, when a part could not run.
+[ "${skipped:-0}" = 1 ] && exit 77
 echo "ok"

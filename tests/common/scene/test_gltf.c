@@ -619,7 +619,7 @@ int main(void)
         if (check_shared_required()) {
             CHECKF(0, "shared scenes missing at %s", PT_SHARED_SCENES);
         } else {
-            printf("skipping shared assets: %s not found\n", PT_SHARED_SCENES);
+            CHECK_SKIP("shared assets: %s not found", PT_SHARED_SCENES);
         }
     } else {
         for (size_t i = 0; i < sizeof k_assets / sizeof k_assets[0]; i++)
