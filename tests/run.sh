@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Builds ptfarm twice and runs the whole test suite on both builds:
 #   build/       Release, warnings as errors
-#   build-asan/  AddressSanitizer + UndefinedBehaviorSanitizer (no recover)
+#   build-asan/  AddressSanitizer + UndefinedBehaviorSanitizer (no recover),
+#                with assert() on (NDEBUG undefined)
 # then, when clang is present, runs each libFuzzer target for a bounded time.
 # Exits non-zero when any step fails. Environment:
 #   PT_JOBS          parallel build jobs (default: number of cores)
