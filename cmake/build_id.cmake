@@ -49,6 +49,7 @@ build type: ${CMAKE_BUILD_TYPE}
 c flags: ${CMAKE_C_FLAGS} ${CMAKE_C_FLAGS_${bt}}
 cxx flags: ${CMAKE_CXX_FLAGS} ${CMAKE_CXX_FLAGS_${bt}}
 sanitize: ${PT_SANITIZE}
+tsan: ${PT_TSAN}
 embree: ${embree_VERSION}
 ")
     pt_build_id_glob(sources ${PROJECT_SOURCE_DIR})

@@ -175,7 +175,7 @@ static void test_small_valid(void)
     if (s2) {
         /* The texture no material uses is neither decoded nor flagged. */
         CHECK(s2->num_textures == 0 && !(s2->features & PT_FEAT_TEXTURES));
-        CHECK(!(s2->features & PT_FEAT_GLOSSY) == 0); /* specular 1 by default: glossy */
+        CHECK((s2->features & PT_FEAT_GLOSSY) != 0); /* specular 1 by default: glossy */
         if (s)
             CHECK(strcmp(s->hash, s2->hash) != 0);
     }
