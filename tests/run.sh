@@ -7,8 +7,11 @@
 #                "threads" (worker render threads, the coordinator's
 #                upload-check and writer threads, the farm end to end)
 # then, when clang is present, runs each libFuzzer target for a bounded time.
-# Prints the time of each step at the end and exits non-zero when any step
-# failed. Environment:
+# Before building it checks the sources: clang-format over the C and C++
+# files (tests/check_format.sh) and shellcheck over the scripts
+# (tests/check_shell.sh); a failed check does not stop the builds and tests,
+# but fails the run at the end. Prints the time of each step at the end and
+# exits non-zero when any step failed. Environment:
 #   PT_JOBS          parallel build jobs (default: number of cores)
 #   PT_FUZZ_SECONDS  seconds per fuzzer (default 20; 0 skips fuzzing)
 #   PT_SKIP_ASAN=1   skip the ASan + UBSan build (for quick local runs)
@@ -46,6 +49,12 @@ print_times() {
 # The times come at the end, also when a step fails.
 trap print_times EXIT
 
+failed_checks=()
+step "format check (clang-format)"
+tests/check_format.sh || failed_checks+=("format check: tests/check_format.sh")
+step "shell script check (shellcheck)"
+tests/check_shell.sh || failed_checks+=("shell script check: tests/check_shell.sh")
+
 step "release build"
 cmake -S . -B build -DCMAKE_BUILD_TYPE=Release -DPT_WERROR=ON >/dev/null
 cmake --build build -j "$jobs"
@@ -77,5 +86,9 @@ fi
 if [[ "$fuzz_seconds" != 0 && -x tests/fuzz/run_fuzzers.sh ]] && command -v clang >/dev/null; then
   step "fuzzers (${fuzz_seconds}s each)"
   tests/fuzz/run_fuzzers.sh "$fuzz_seconds"
+fi
+if ((${#failed_checks[@]})); then
+  printf '\n=== FAILED: %s ===\n' "${failed_checks[@]}"
+  exit 1
 fi
 step "all tests passed"

@@ -41,6 +41,7 @@ say() { printf '[%3ds] %s\n' "$SECONDS" "$*"; }
 
 T=$(mktemp -d "${TMPDIR:-/tmp}/ptdeploy.XXXXXX")
 bg_pids=()
+# shellcheck disable=SC2317  # shellcheck 0.9 takes this EXIT trap for dead code
 cleanup() {
   local st=$? pid
   trap - EXIT
