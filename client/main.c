@@ -26,6 +26,7 @@
 #include "common/base/alloc.h"
 #include "common/base/clock.h"
 #include "common/base/opt.h"
+#include "common/base/version.h"
 #include "common/scene/bundle.h"
 #include "protocol/auth.h"
 #include "client/ctl.h"
@@ -69,7 +70,8 @@ static void usage(FILE *f)
             "  watch JOB               follow a job's progress until it ends\n"
             "  cancel JOB              cancel a job; prints the state it ends in\n"
             "  fetch JOB -o OUT.exr    download a job's image\n"
-            "'ptctl COMMAND --help' describes each one.\n"
+            "'ptctl COMMAND --help' describes each one; 'ptctl --version' prints the\n"
+            "version and renderer build id.\n"
             "\n"
             "%s\n%s",
             GLOBAL_HELP, EXIT_HELP);
@@ -789,6 +791,7 @@ int main(int argc, char **argv)
                                          {"token-file", required_argument, NULL, O_TOKEN},
                                          {"timeout", required_argument, NULL, O_TIMEOUT},
                                          {"help", no_argument, NULL, 'h'},
+                                         {"version", no_argument, NULL, 'V'},
                                          {NULL, 0, NULL, 0}};
     int c;
     /* '+': stop at the command; what follows is the command's. */
@@ -798,6 +801,8 @@ int main(int argc, char **argv)
         case 'h':
             usage(stdout);
             return 0;
+        case 'V':
+            return pt_version_print("ptctl");
         case ':':
             return bad_usage(NULL, "%s needs a value", argv[optind - 1]);
         case '?':

@@ -22,6 +22,8 @@ test_pkgs=(
   iproute2                             # test_multihost: network namespaces, veth (ip, ss)
   python3-yaml                         # test_deploy: parses the Kubernetes manifests
   systemd                              # test_deploy: systemd-analyze verify of the units
+  clang-format                         # tests/check_format.sh: C and C++ formatting
+  shellcheck                           # tests/check_shell.sh: the shell scripts
 )
 runtime_pkgs=(libembree3-3 libopenexr-3-1-30 libstb0 libssl3)
 

@@ -4,14 +4,11 @@
 #include <string.h>
 
 #include "common/base/alloc.h"
-
-#ifndef PT_BUILD_ID
-#error "PT_BUILD_ID must come from ptcore's compile definitions"
-#endif
+#include "common/base/version.h"
 
 const char *proto_build_id(void)
 {
-    return PT_BUILD_ID;
+    return pt_build_id();
 }
 
 const char *proto_msg_type_name(uint32_t type)

@@ -98,8 +98,9 @@ enum {
     PROTO_E_INTERNAL = 7   /* the sender failed for its own reasons */
 };
 
-/* The renderer build id of this binary (PT_BUILD_ID of ptcore): workers of
- * another build would break bit-identical merging, so HELLO carries it. */
+/* The renderer build id of this binary (pt_build_id, common/base/version.h):
+ * workers of another build would break bit-identical merging, so HELLO
+ * carries it. */
 const char *proto_build_id(void);
 
 /* HELLO

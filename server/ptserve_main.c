@@ -12,6 +12,7 @@
 
 #include "common/base/opt.h"
 #include "common/render/tile.h"
+#include "common/base/version.h"
 #include "server/serve.h"
 
 static void usage(FILE *f)
@@ -76,6 +77,7 @@ static void usage(FILE *f)
             "  --worker-bin PATH      the ptworker to start with --local (default: beside ptserve)\n"
             "  -q, --quiet            no progress line\n"
             "  -h, --help             this text\n"
+            "  --version              the version and renderer build id\n"
             "\n"
             "\n"
             "exit status: 0 image complete (queue mode: stopped by SIGINT/SIGTERM after\n"
@@ -133,6 +135,7 @@ int main(int argc, char **argv)
         {"max-queued", required_argument, NULL, O_MAXQUEUED},
         {"quiet", no_argument, NULL, 'q'},
         {"help", no_argument, NULL, 'h'},
+        {"version", no_argument, NULL, 'V'},
         {NULL, 0, NULL, 0},
     };
     pt_error err = {0};
@@ -216,6 +219,7 @@ int main(int argc, char **argv)
             break;
         case 'q': c.quiet = 1; break;
         case 'h': usage(stdout); return 0;
+        case 'V': return pt_version_print("ptserve");
         default: usage(stderr); return 2;
         }
         if (st != PT_OK) {

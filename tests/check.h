@@ -2,8 +2,11 @@
  * check.h - the tiny test harness every test executable uses.
  *
  * CHECK(cond) records a failure with file:line and goes on; CHECKF adds a
- * printf-style explanation. A test's main returns check_report(), which prints
- * "N passed, N failed" and returns non-zero on any failure.
+ * printf-style explanation; CHECK_SKIP says that a part of the test cannot run
+ * here (an optional asset is absent outside CI). A test's main returns
+ * check_report(), which prints "N passed, N failed" and returns 1 on any
+ * failure, else CHECK_SKIP_STATUS when a part was skipped (ctest's
+ * SKIP_RETURN_CODE: the test shows as not run rather than passed), else 0.
  */
 #ifndef PT_TESTS_CHECK_H
 #define PT_TESTS_CHECK_H
@@ -11,7 +14,9 @@
 #include <stdio.h>
 #include <stdlib.h>
 
-static int check_passed_, check_failed_;
+#define CHECK_SKIP_STATUS 77
+
+static int check_passed_, check_failed_, check_skipped_;
 
 #define CHECK(cond)                                                                  \
     do {                                                                             \
@@ -35,6 +40,14 @@ static int check_passed_, check_failed_;
         }                                                                            \
     } while (0)
 
+#define CHECK_SKIP(...)                 \
+    do {                                \
+        check_skipped_++;               \
+        printf("skipped: ");            \
+        printf(__VA_ARGS__);            \
+        putchar('\n');                  \
+    } while (0)
+
 /* Shared assets are required in CI (CI=true); elsewhere they may be absent. */
 static inline int check_shared_required(void)
 {
@@ -44,8 +57,13 @@ static inline int check_shared_required(void)
 
 static inline int check_report(void)
 {
-    printf("%d passed, %d failed\n", check_passed_, check_failed_);
-    return check_failed_ ? 1 : 0;
+    printf("%d passed, %d failed", check_passed_, check_failed_);
+    if (check_skipped_)
+        printf(", %d parts skipped", check_skipped_);
+    putchar('\n');
+    if (check_failed_)
+        return 1;
+    return check_skipped_ ? CHECK_SKIP_STATUS : 0;
 }
 
 #endif

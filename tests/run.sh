@@ -1,18 +1,59 @@
 #!/usr/bin/env bash
-# Builds ptfarm twice and runs the whole test suite on both builds:
-#   build/       Release, warnings as errors
-#   build-asan/  AddressSanitizer + UndefinedBehaviorSanitizer (no recover)
+# Builds ptfarm three times and runs the test suite on each build:
+#   build/       Release, warnings as errors: the whole suite
+#   build-asan/  AddressSanitizer + UndefinedBehaviorSanitizer (no recover),
+#                with assert() on (NDEBUG undefined): the whole suite
+#   build-tsan/  ThreadSanitizer (clang), assert() on: the tests labelled
+#                "threads" (worker render threads, the coordinator's
+#                upload-check and writer threads, the farm end to end)
 # then, when clang is present, runs each libFuzzer target for a bounded time.
-# Exits non-zero when any step fails. Environment:
+# Before building it checks the sources: clang-format over the C and C++
+# files (tests/check_format.sh) and shellcheck over the scripts
+# (tests/check_shell.sh); a failed check does not stop the builds and tests,
+# but fails the run at the end. Prints the time of each step at the end and
+# exits non-zero when any step failed. Environment:
 #   PT_JOBS          parallel build jobs (default: number of cores)
 #   PT_FUZZ_SECONDS  seconds per fuzzer (default 20; 0 skips fuzzing)
-#   PT_SKIP_ASAN=1   skip the sanitizer build (for quick local runs)
+#   PT_SKIP_ASAN=1   skip the ASan + UBSan build (for quick local runs)
+#   PT_SKIP_TSAN=1   skip the ThreadSanitizer build (for quick local runs)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 jobs=${PT_JOBS:-$(nproc)}
 fuzz_seconds=${PT_FUZZ_SECONDS:-20}
 
-step() { printf '\n=== %s ===\n' "$*"; }
+step_names=()
+step_secs=()
+step_name=""
+step_start=$SECONDS
+step_end() {
+  if [[ -n $step_name ]]; then
+    step_names+=("$step_name")
+    step_secs+=($((SECONDS - step_start)))
+  fi
+  step_name=""
+}
+step() {
+  step_end
+  step_name="$*"
+  step_start=$SECONDS
+  printf '\n=== %s ===\n' "$*"
+}
+print_times() {
+  step_end
+  local i
+  printf '\nstep times (%d s in all):\n' "$SECONDS"
+  for i in "${!step_names[@]}"; do
+    printf '  %5d s  %s\n' "${step_secs[$i]}" "${step_names[$i]}"
+  done
+}
+# The times come at the end, also when a step fails.
+trap print_times EXIT
+
+failed_checks=()
+step "format check (clang-format)"
+tests/check_format.sh || failed_checks+=("format check: tests/check_format.sh")
+step "shell script check (shellcheck)"
+tests/check_shell.sh || failed_checks+=("shell script check: tests/check_shell.sh")
 
 step "release build"
 cmake -S . -B build -DCMAKE_BUILD_TYPE=Release -DPT_WERROR=ON >/dev/null
@@ -29,8 +70,25 @@ if [[ "${PT_SKIP_ASAN:-0}" != 1 ]]; then
     ctest --test-dir build-asan --output-on-failure -j "$jobs"
 fi
 
+# clang: GCC 12's ThreadSanitizer instruments the resolvers of target_clones
+# functions (common/math/simd.h), which the loader runs before the TSan
+# runtime exists, and every program crashes at start.
+if [[ "${PT_SKIP_TSAN:-0}" != 1 ]]; then
+  step "thread sanitizer build (TSan)"
+  CC=clang CXX=clang++ cmake -S . -B build-tsan -DCMAKE_BUILD_TYPE=RelWithDebInfo -DPT_TSAN=ON \
+    -DPT_WERROR=ON >/dev/null
+  cmake --build build-tsan -j "$jobs"
+  step "tests (thread sanitizer, label threads)"
+  TSAN_OPTIONS="halt_on_error=1:second_deadlock_stack=1:suppressions=$PWD/tests/tsan.supp" \
+    ctest --test-dir build-tsan -L threads --output-on-failure -j "$jobs"
+fi
+
 if [[ "$fuzz_seconds" != 0 && -x tests/fuzz/run_fuzzers.sh ]] && command -v clang >/dev/null; then
   step "fuzzers (${fuzz_seconds}s each)"
   tests/fuzz/run_fuzzers.sh "$fuzz_seconds"
+fi
+if ((${#failed_checks[@]})); then
+  printf '\n=== FAILED: %s ===\n' "${failed_checks[@]}"
+  exit 1
 fi
 step "all tests passed"

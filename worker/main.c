@@ -20,6 +20,7 @@
 
 #include "common/base/opt.h"
 #include "common/render/tile.h"
+#include "common/base/version.h"
 #include "protocol/msg.h"
 #include "worker/client.h"
 #include "worker/standalone.h"
@@ -66,6 +67,7 @@ static void usage(FILE *f)
             "                     (default: one chunk)\n"
             "  -q, --quiet        no progress line\n"
             "  -h, --help         this text\n"
+            "  --version          the version and renderer build id\n"
             "\n"
             "farm worker options:\n"
             "  --server HOST:PORT the coordinator to work for ([V6]:PORT for IPv6)\n"
@@ -165,6 +167,7 @@ int main(int argc, char **argv)
         {"name", required_argument, NULL, OPT_NAME},
         {"link-timeout", required_argument, NULL, OPT_LINK_TIMEOUT},
         {"help", no_argument, NULL, 'h'},
+        {"version", no_argument, NULL, 'V'},
         {NULL, 0, NULL, 0},
     };
     int c, li = 0;
@@ -239,6 +242,8 @@ int main(int argc, char **argv)
         case 'h':
             usage(stdout);
             return 0;
+        case 'V':
+            return pt_version_print("ptworker");
         default:
             usage(stderr);
             return 2;

@@ -21,7 +21,7 @@ now() { date +%s.%N; }
 median() { sort -g | awk '{a[NR]=$1} END {print (NR % 2) ? a[(NR+1)/2] : (a[NR/2] + a[NR/2+1]) / 2}'; }
 
 : > "$out/solo"; : > "$out/farm"
-for i in $(seq "$runs"); do
+for _ in $(seq "$runs"); do
   t0=$(now); "$bin/ptworker" --scene "$scene" --threads 2 "${common[@]}" -o "$out/solo.exr" 2>/dev/null; t1=$(now)
   awk -v a="$t0" -v b="$t1" 'BEGIN {print b - a}' >> "$out/solo"
   t0=$(now); "$bin/ptserve" --local 2 --worker-threads 1 "${common[@]}" -o "$out/farm.exr" "$scene" 2>/dev/null; t1=$(now)

@@ -18,6 +18,7 @@
 #include "common/base/alloc.h"
 #include "common/base/clock.h"
 #include "common/base/opt.h"
+#include "common/base/version.h"
 #include "protocol/frame.h"
 #include "protocol/msg.h"
 #include "server/job.h"
@@ -45,9 +46,11 @@ int main(int argc, char **argv)
             opt = pt_opt_u32("--reps", argv[++i], 1, 99, &reps, &opt_err);
         else if (!strcmp(argv[i], "--core-rate") && i + 1 < argc)
             opt = pt_opt_positive("--core-rate", argv[++i], DBL_MAX, &core_rate, &opt_err);
+        else if (!strcmp(argv[i], "--version"))
+            return pt_version_print("ptbench-merge");
         else {
             printf("usage: ptbench-merge [--res WxH] [--tile N] [--chunk N] [--reps R] "
-                   "[--core-rate SAMPLES_PER_S]\n");
+                   "[--core-rate SAMPLES_PER_S] [--version]\n");
             return strcmp(argv[i], "--help") && strcmp(argv[i], "-h") ? 2 : 0;
         }
     }

@@ -64,6 +64,7 @@
 #include "common/base/alloc.h"
 #include "common/base/clock.h"
 #include "common/base/opt.h"
+#include "common/base/version.h"
 #include "common/image/exr.h"
 #include "common/render/film.h"
 #include "common/image/image.h"
@@ -327,7 +328,8 @@ static void usage(FILE *f)
                "  --chunk C           adaptive: samples between decisions (default 16)\n"
                "  --tile T            tile side in pixels (default 16)\n"
                "  --bound             after each --spp row, what the best allocation to tiles\n"
-               "                      could win in CPU time (with --min-spp: above that floor)\n");
+               "                      could win in CPU time (with --min-spp: above that floor)\n"
+               "  --version           the version and renderer build id\n");
 }
 
 /* ---- subcommands ---------------------------------------------------------------- */
@@ -547,6 +549,8 @@ static int parse_opts(int argc, char **argv, opts *o)
         if (!strcmp(a, "-h") || !strcmp(a, "--help")) {
             usage(stdout);
             exit(0);
+        } else if (!strcmp(a, "--version")) {
+            exit(pt_version_print("ptbench"));
         } else if (!strcmp(a, "--bound")) {
             o->bound = 1;
             continue;

@@ -37,6 +37,7 @@
 #include "common/base/alloc.h"
 #include "common/base/clock.h"
 #include "common/base/opt.h"
+#include "common/base/version.h"
 #include "common/render/render.h"
 #include "common/scene/scene.h"
 
@@ -169,9 +170,11 @@ int main(int argc, char **argv)
             csv = argv[++i];
         else if (!strcmp(argv[i], "-h") || !strcmp(argv[i], "--help")) {
             printf("usage: ptbench-throughput SCENE [--threads T] [--res WxH] [--spp N] [--reps R] "
-                   "[--log-order render|path] [--csv FILE]\n");
+                   "[--log-order render|path] [--csv FILE] [--version]\n");
             return 0;
-        } else if (argv[i][0] != '-' && !scene_path)
+        } else if (!strcmp(argv[i], "--version"))
+            return pt_version_print("ptbench-throughput");
+        else if (argv[i][0] != '-' && !scene_path)
             scene_path = argv[i];
         else {
             fprintf(stderr, "ptbench-throughput: bad argument '%s' (see --help)\n", argv[i]);

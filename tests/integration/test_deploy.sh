@@ -41,6 +41,7 @@ say() { printf '[%3ds] %s\n' "$SECONDS" "$*"; }
 
 T=$(mktemp -d "${TMPDIR:-/tmp}/ptdeploy.XXXXXX")
 bg_pids=()
+# shellcheck disable=SC2317  # shellcheck 0.9 takes this EXIT trap for dead code
 cleanup() {
   local st=$? pid
   trap - EXIT
@@ -132,6 +133,7 @@ if command -v systemd-analyze >/dev/null; then
   say "systemd: both units verify cleanly"
 else
   say "systemd: skipping systemd-analyze verify (systemd-analyze not installed)"
+  skipped=1
 fi
 
 # 3. Kubernetes manifests.
@@ -428,6 +430,10 @@ EOF
   say "container: two Debian 12 stages; the runtime packages cover every library loaded"
 else
   say "container: two Debian 12 stages (no dpkg here: runtime libraries not checked)"
+  skipped=1
 fi
 
 say "PASS: deploy recipes"
+# 77: ctest counts the test as skipped, not passed, when a part could not run.
+[[ ${skipped:-0} == 1 ]] && exit 77
+exit 0

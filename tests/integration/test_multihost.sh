@@ -29,8 +29,8 @@
 # their late results dropped. The farm runs on at most 2 CPUs for the same
 # reason: a machine with many cores would otherwise finish before the cut.
 #
-# Needs root or CAP_SYS_ADMIN for `ip netns`; prints SKIP and passes without
-# them, except with CI=true, where that is a failure. Environment (set by
+# Needs root or CAP_SYS_ADMIN for `ip netns`; prints SKIP and exits 77 (ctest:
+# skipped) without them, except with CI=true, where that is a failure. Environment (set by
 # ctest): PT_BIN (the build's bin folder), PT_SOURCE_DIR.
 set -euo pipefail
 

@@ -11,7 +11,7 @@ shared=${PT_SHARED_SCENES:-$src/../shared/scenes}
 tmp=$(mktemp -d /tmp/pt_queue_ctl_XXXXXX)
 srv_pid=
 cleanup() {
-  [ -n "$srv_pid" ] && kill "$srv_pid" 2>/dev/null && wait "$srv_pid" 2>/dev/null || true
+  if [ -n "$srv_pid" ] && kill "$srv_pid" 2>/dev/null; then wait "$srv_pid" 2>/dev/null || true; fi
   if [ "${failed:-0}" = 0 ]; then rm -rf "$tmp"; else echo "logs kept in $tmp" >&2; fi
 }
 trap cleanup EXIT
@@ -25,7 +25,8 @@ json() { python3 -c "import json,sys; d=json.load(open(sys.argv[1])); print(eval
 srv_pid=$!
 for _ in $(seq 100); do [ -s "$tmp/port" ] && break; sleep 0.05; done
 [ -s "$tmp/port" ] || fail "ptserve did not start: $(cat "$tmp/serve.log")"
-export PTFARM_SERVER=127.0.0.1:$(cat "$tmp/port")
+PTFARM_SERVER=127.0.0.1:$(cat "$tmp/port")
+export PTFARM_SERVER
 ctl() { "$bin/ptctl" "$@"; }
 
 # Submit and watch the Cornell box; compare with the standalone render.
@@ -33,7 +34,7 @@ id=$(ctl submit "$src/scenes/cornell_box.gltf" --res 48x32 --spp 64 --seed 7 --n
 [[ "$id" =~ ^[0-9]+$ ]] || fail "submit printed '$id'"
 ctl watch "$id" 2> "$tmp/watch.log" || fail "watch exited $?"
 ctl status "$id" --json > "$tmp/status.json"
-[ "$(json "$tmp/status.json" 'd["state"]')" = done ] || fail "state: $(cat "$tmp/status.json")"
+[ "$(json "$tmp/status.json" 'd["state"]')" = "done" ] || fail "state: $(cat "$tmp/status.json")"
 [ "$(json "$tmp/status.json" 'd["samples_done"]')" = $((48 * 32 * 64)) ] || fail "samples: $(cat "$tmp/status.json")"
 # The final error estimate is kept with the finished job.
 [ "$(json "$tmp/status.json" '0 < d["error"] < 1')" = True ] || fail "error: $(cat "$tmp/status.json")"
@@ -77,8 +78,9 @@ ctl fetch "$wide" -o "$tmp/wide.exr"
 set +e
 ctl submit "$tmp/two_cameras.gltf" --camera nosuch 2> "$tmp/nocam.log"; rc=$?
 set -e
-[ $rc = 1 ] && grep -q "no camera named 'nosuch'" "$tmp/nocam.log" ||
+if [ $rc != 1 ] || ! grep -q "no camera named 'nosuch'" "$tmp/nocam.log"; then
   fail "unknown camera: $rc $(cat "$tmp/nocam.log")"
+fi
 
 # --min-gain travels in SUBMIT and the queue: the job stops tiles as the
 # standalone render does, to the same bits, with fewer samples than uniform.
@@ -102,6 +104,9 @@ if [ -f "$shared/ToyCar/ToyCar.gltf" ]; then
   "$bin/ptexr-diff" "$tmp/car_ref.exr" "$tmp/car.exr" || fail "ToyCar image differs"
 elif [ "${CI:-}" = true ]; then
   fail "CI needs $shared"
+else
+  echo "skipped: the ToyCar upload ($shared/ToyCar not found)"
+  skipped=1
 fi
 
 # list --json names every job, in queue order.
@@ -126,10 +131,14 @@ set +e
 ctl status 999999 2>/dev/null; [ $? = 3 ] || fail "status of a missing job"
 ctl fetch 999999 -o "$tmp/x.exr" 2>/dev/null; [ $? = 3 ] || fail "fetch of a missing job"
 ctl submit "$src/scenes/cornell_box.gltf" --spp 100000 2> "$tmp/refused.log"; rc=$?
-[ $rc = 1 ] && grep -q "samples per pixel" "$tmp/refused.log" || fail "spp cap: $rc $(cat "$tmp/refused.log")"
+if [ $rc != 1 ] || ! grep -q "samples per pixel" "$tmp/refused.log"; then
+  fail "spp cap: $rc $(cat "$tmp/refused.log")"
+fi
 ctl submit 2>/dev/null; [ $? = 2 ] || fail "submit without a scene"
 ctl frobnicate 2>/dev/null; [ $? = 2 ] || fail "unknown command"
 set -e
 grep -q "Sanitizer\|runtime error:" "$tmp/serve.log" && fail "sanitizer report"
 failed=0
+# 77: ctest counts the test as skipped, not passed, when a part could not run.
+[ "${skipped:-0}" = 1 ] && exit 77
 echo "ok"

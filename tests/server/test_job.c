@@ -309,11 +309,9 @@ static void adaptive_min_gain_black(void)
     static pt_pixel_acc px[32 * 32];
     proto_task t;
     proto_result r;
-    int dup = 0;
     while (srv_job_lease(j, 1, 0, 1000, &t)) {
         gain_pixels_of(&t, px, &r, 1);
         srv_outcome o = srv_job_result(j, 1, &r, NULL);
-        dup += o == SRV_DUPLICATE;
         CHECK(o == SRV_MERGED || o == SRV_DUPLICATE);
     }
     CHECK(srv_job_complete(j));

@@ -9,12 +9,16 @@
 #include <stdio.h>
 #include <string.h>
 
+#include "common/base/version.h"
 #include "common/image/exr.h"
 
 int main(int argc, char **argv)
 {
+    if (argc == 2 && !strcmp(argv[1], "--version"))
+        return pt_version_print("ptexr-diff");
     if (argc != 3 || !strcmp(argv[1], "-h") || !strcmp(argv[1], "--help")) {
-        fprintf(argc == 3 ? stdout : stderr, "usage: ptexr-diff A.exr B.exr\n");
+        fprintf(argc == 3 ? stdout : stderr, "usage: ptexr-diff A.exr B.exr\n"
+                                             "       ptexr-diff --version\n");
         return argc == 3 ? 0 : 2;
     }
     pt_image *a = NULL, *b = NULL;

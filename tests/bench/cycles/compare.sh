@@ -106,7 +106,7 @@ for entry in $SCENES; do
                     tt=$(run_cy "$scene" "$spp" "$rep" "$img"); own=$cyref; other=$ptref; rn=cycles
                 fi
                 printf '%s\t%s\t%s\t%s\t%s\t%s\t%s\t%s\t%s\n' "$name" "$rn" "$spp" "$rep" "$rep" \
-                    ${tt% *} ${tt#* } "$(rmse "$img" "$own")" "$(rmse "$img" "$other")" >>"$OUT/runs.tsv"
+                    "${tt% *}" "${tt#* }" "$(rmse "$img" "$own")" "$(rmse "$img" "$other")" >>"$OUT/runs.tsv"
                 tail -n 1 "$OUT/runs.tsv" >&2
             done
             rep=$((rep + 1))

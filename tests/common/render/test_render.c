@@ -497,6 +497,7 @@ static void variants(void)
         batched(s, 0);
         pt_scene_free(s);
     } else {
+        CHECK_SKIP("the shared Cornell box: %s not found", path);
         CHECK(!check_shared_required());
     }
 }

@@ -671,7 +671,7 @@ static void million_triangles(void)
     snprintf(path, sizeof path, "%s/MetalRoughSpheresNoTextures/MetalRoughSpheresNoTextures.glb",
              PT_SHARED_SCENES);
     if (access(path, R_OK) != 0) {
-        printf("MetalRoughSpheresNoTextures: not found, skipped\n");
+        CHECK_SKIP("MetalRoughSpheresNoTextures: not found");
         CHECKF(!check_shared_required(), "%s is required in CI", path);
         return;
     }
