@@ -16,8 +16,8 @@
 
 #include "common/base/alloc.h"
 #include "common/base/fsutil.h"
-#include "common/base/net.h"
 #include "common/base/hash.h"
+#include "common/base/net.h"
 #include "protocol/auth.h"
 #include "protocol/frame.h"
 

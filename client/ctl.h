@@ -28,8 +28,8 @@
 #include <stdint.h>
 #include <stdio.h>
 
-#include "common/scene/bundle.h"
 #include "common/base/error.h"
+#include "common/scene/bundle.h"
 #include "protocol/msg.h"
 
 #define CTL_DEFAULT_SERVER "127.0.0.1:7878"

@@ -23,13 +23,13 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "client/ctl.h"
 #include "common/base/alloc.h"
 #include "common/base/clock.h"
 #include "common/base/opt.h"
 #include "common/base/version.h"
 #include "common/scene/bundle.h"
 #include "protocol/auth.h"
-#include "client/ctl.h"
 
 enum { EXIT_ERROR = 1, EXIT_USAGE = 2, EXIT_NO_JOB = 3, EXIT_JOB_FAILED = 4 };
 

@@ -650,10 +650,9 @@ static const char *submit_problem(const proto_submit *m)
 pt_status proto_msg_encode_submit(proto_writer *w, const proto_submit *m, pt_error *err)
 {
     size_t start = w->len;
-    const char *why =
-        !str_fits(m->name, PROTO_MAX_NAME)     ? "name over the length cap"
-        : !str_fits(m->camera, PROTO_MAX_NAME) ? "camera name over the length cap"
-                                               : submit_problem(m);
+    const char *why = !str_fits(m->name, PROTO_MAX_NAME)     ? "name over the length cap"
+                      : !str_fits(m->camera, PROTO_MAX_NAME) ? "camera name over the length cap"
+                                                             : submit_problem(m);
     if (why)
         return bad(err, PT_ERR_ARG, "SUBMIT", why);
     proto_w_str(w, m->name);

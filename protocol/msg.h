@@ -76,11 +76,11 @@ const char *proto_msg_type_name(uint32_t type);
 #define PROTO_MAX_NAME 64u
 #define PROTO_MAX_BUILD_ID 64u
 #define PROTO_MAX_ERROR_TEXT 1024u
-#define PROTO_MAX_SLOTS 1024u               /* WORK_REQUEST slots */
-#define PROTO_MAX_HEARTBEAT_TASKS 1024u     /* task ids in one HEARTBEAT */
-#define PROTO_MAX_SCENE_CHUNK (1u << 20)    /* data bytes in one SCENE_CHUNK */
+#define PROTO_MAX_SLOTS 1024u                             /* WORK_REQUEST slots */
+#define PROTO_MAX_HEARTBEAT_TASKS 1024u                   /* task ids in one HEARTBEAT */
+#define PROTO_MAX_SCENE_CHUNK (1u << 20)                  /* data bytes in one SCENE_CHUNK */
 #define PROTO_MAX_TILE_PIXELS (PT_TILE_MAX * PT_TILE_MAX) /* pixels in one TASK / RESULT tile */
-#define PROTO_HASH_SIZE 32u                 /* scene content hash (SHA-256) */
+#define PROTO_HASH_SIZE 32u                               /* scene content hash (SHA-256) */
 #define PROTO_NONCE_SIZE 32u
 #define PROTO_MAC_SIZE 32u          /* HMAC-SHA256 */
 #define PROTO_RESULT_PIXEL_SIZE 36u /* bytes per pixel in RESULT */

@@ -24,12 +24,12 @@ struct srv_job {
     uint8_t hash[32];
     uint32_t tiles_x, tiles_y, ntiles, nchunks;
     uint64_t ntasks;
-    uint8_t *state;        /* T_* per task */
-    uint32_t *next_chunk;  /* per tile: the chunk to merge next */
+    uint8_t *state;           /* T_* per task */
+    uint32_t *next_chunk;     /* per tile: the chunk to merge next */
     uint32_t *merged_in_pass; /* per chunk: tiles merged */
     uint32_t passes_done;
-    uint64_t cursor;       /* every id below it has been handed out at least once */
-    uint64_t *requeue;     /* FIFO ring of task ids */
+    uint64_t cursor;   /* every id below it has been handed out at least once */
+    uint64_t *requeue; /* FIFO ring of task ids */
     uint64_t rq_head, rq_len, rq_cap;
     lease *leases;
     uint32_t nleases, leases_cap;
@@ -129,17 +129,50 @@ void srv_job_free(srv_job *j)
     pt_free(j);
 }
 
-uint64_t srv_job_id(const srv_job *j) { return j->id; }
-const srv_job_params *srv_job_params_of(const srv_job *j) { return &j->p; }
-uint32_t srv_job_passes(const srv_job *j) { return j->nchunks; }
-uint32_t srv_job_passes_done(const srv_job *j) { return j->passes_done; }
-uint64_t srv_job_tasks_total(const srv_job *j) { return j->ntasks; }
-uint64_t srv_job_tasks_merged(const srv_job *j) { return j->merged; }
-uint64_t srv_job_samples_merged(const srv_job *j) { return j->samples; }
-uint32_t srv_job_leases(const srv_job *j) { return j->nleases; }
-uint32_t srv_job_tiles_stopped(const srv_job *j) { return j->stopped; }
-int srv_job_complete(const srv_job *j) { return j->merged == j->ntasks; }
-const pt_film *srv_job_film(const srv_job *j) { return j->film; }
+uint64_t srv_job_id(const srv_job *j)
+{
+    return j->id;
+}
+const srv_job_params *srv_job_params_of(const srv_job *j)
+{
+    return &j->p;
+}
+uint32_t srv_job_passes(const srv_job *j)
+{
+    return j->nchunks;
+}
+uint32_t srv_job_passes_done(const srv_job *j)
+{
+    return j->passes_done;
+}
+uint64_t srv_job_tasks_total(const srv_job *j)
+{
+    return j->ntasks;
+}
+uint64_t srv_job_tasks_merged(const srv_job *j)
+{
+    return j->merged;
+}
+uint64_t srv_job_samples_merged(const srv_job *j)
+{
+    return j->samples;
+}
+uint32_t srv_job_leases(const srv_job *j)
+{
+    return j->nleases;
+}
+uint32_t srv_job_tiles_stopped(const srv_job *j)
+{
+    return j->stopped;
+}
+int srv_job_complete(const srv_job *j)
+{
+    return j->merged == j->ntasks;
+}
+const pt_film *srv_job_film(const srv_job *j)
+{
+    return j->film;
+}
 
 static int requeue_push(srv_job *j, uint64_t task)
 {
@@ -173,8 +206,7 @@ static void requeue_lease(srv_job *j, uint32_t i)
         j->cursor = t;
 }
 
-int srv_job_lease(srv_job *j, uint64_t owner, uint64_t now_ms, uint32_t lease_ms,
-                  proto_task *task)
+int srv_job_lease(srv_job *j, uint64_t owner, uint64_t now_ms, uint32_t lease_ms, proto_task *task)
 {
     uint64_t t = UINT64_MAX;
     while (j->rq_len > 0) {
@@ -356,7 +388,7 @@ static int acc_sane(const pt_pixel_acc *a, uint32_t max_n)
 /* Checks r against the task it names; need_lease: the owner must hold it.
  * On SRV_MERGED *lease_index receives the lease (-1 when none was needed). */
 static srv_outcome validate_result(const srv_job *j, uint64_t owner, const proto_result *r,
-                                int need_lease, int *lease_index, pt_error *err)
+                                   int need_lease, int *lease_index, pt_error *err)
 {
     if (r->job_id != j->id) {
         pt_error_set(err, PT_ERR_PROTO, "result for job %llu, not the running job %llu",
@@ -382,15 +414,18 @@ static srv_outcome validate_result(const srv_job *j, uint64_t owner, const proto
     task_samples(j, t, &s0, &s1);
     if (memcmp(&rc, &r->tile, sizeof rc) != 0 || r->s0 != s0 || r->s1 != s1 ||
         r->npixels != (rc.x1 - rc.x0) * (rc.y1 - rc.y0)) {
-        pt_error_set(err, PT_ERR_PROTO, "result for task %llu does not match the task's tile or samples",
+        pt_error_set(err, PT_ERR_PROTO,
+                     "result for task %llu does not match the task's tile or samples",
                      (unsigned long long)t);
         return SRV_INVALID;
     }
     for (uint32_t i = 0; i < r->npixels; i++) {
         const pt_pixel_acc *a = &r->pixels[i];
         if (!acc_sane(a, s1 - s0)) {
-            pt_error_set(err, PT_ERR_PROTO, "result for task %llu: pixel %u is not finite or has "
-                         "%u samples of %u", (unsigned long long)t, i, a->n, s1 - s0);
+            pt_error_set(err, PT_ERR_PROTO,
+                         "result for task %llu: pixel %u is not finite or has "
+                         "%u samples of %u",
+                         (unsigned long long)t, i, a->n, s1 - s0);
             return SRV_INVALID;
         }
     }
@@ -476,7 +511,10 @@ int srv_job_owner_active(const srv_job *j, uint64_t owner)
     return 0;
 }
 
-uint32_t srv_job_tiles(const srv_job *j) { return j->ntiles; }
+uint32_t srv_job_tiles(const srv_job *j)
+{
+    return j->ntiles;
+}
 
 /* ---- checkpoints ---- */
 
@@ -571,8 +609,10 @@ pt_status srv_job_save(const srv_job *j, proto_writer *w, pt_error *err)
     for (size_t k = 0; k < npx; k++)
         put_acc(w, &j->film->px[k]);
     if (proto_writer_status(w) != PT_OK)
-        return pt_error_set(err, proto_writer_status(w), "checkpoint of job %llu: cannot "
-                            "serialise (%zu pixels)", (unsigned long long)j->id, npx);
+        return pt_error_set(err, proto_writer_status(w),
+                            "checkpoint of job %llu: cannot "
+                            "serialise (%zu pixels)",
+                            (unsigned long long)j->id, npx);
     return PT_OK;
 }
 
@@ -600,17 +640,20 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
         memcmp(&p.target_error, &j->p.target_error, sizeof p.target_error) != 0 ||
         memcmp(&p.min_gain, &j->p.min_gain, sizeof p.min_gain) != 0 ||
         strcmp(p.camera, j->p.camera) != 0 || ntiles != j->ntiles || nchunks != j->nchunks)
-        return pt_error_set(err, PT_ERR_FORMAT, "checkpoint is of another job or other settings "
-                            "(job %llu, %ux%u, %u spp)", (unsigned long long)id, p.width,
-                            p.height, p.spp);
+        return pt_error_set(err, PT_ERR_FORMAT,
+                            "checkpoint is of another job or other settings "
+                            "(job %llu, %ux%u, %u spp)",
+                            (unsigned long long)id, p.width, p.height, p.spp);
     for (uint32_t t = 0; t < ntiles; t++) {
         uint32_t m = proto_r_u32(&r, "tile chunks merged");
         uint8_t stopped = proto_r_u8(&r, "tile stopped");
         if (r.status != PT_OK)
             return proto_r_finish(&r, "checkpoint", err);
         if (m > nchunks || stopped > 1 || (stopped && m == nchunks))
-            return pt_error_set(err, PT_ERR_FORMAT, "checkpoint: tile %u has %u chunks merged "
-                                "of %u (stopped %u)", t, m, nchunks, stopped);
+            return pt_error_set(err, PT_ERR_FORMAT,
+                                "checkpoint: tile %u has %u chunks merged "
+                                "of %u (stopped %u)",
+                                t, m, nchunks, stopped);
         for (uint32_t c = 0; c < m; c++) {
             j->state[(uint64_t)c * ntiles + t] = T_MERGED;
             j->merged_in_pass[c]++;
@@ -636,8 +679,10 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
             break;
         if (t >= j->ntasks || j->state[t] != T_PENDING ||
             (uint32_t)(t / j->ntiles) <= j->next_chunk[t % j->ntiles])
-            return pt_error_set(err, PT_ERR_FORMAT, "checkpoint: held task %llu is not one that "
-                                "can be held", (unsigned long long)t);
+            return pt_error_set(err, PT_ERR_FORMAT,
+                                "checkpoint: held task %llu is not one that "
+                                "can be held",
+                                (unsigned long long)t);
         pt_rect rc = task_rect(j, t);
         uint32_t npx = (rc.x1 - rc.x0) * (rc.y1 - rc.y0);
         if (proto_r_left(&r) < (size_t)npx * PROTO_RESULT_PIXEL_SIZE)
@@ -660,7 +705,8 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
         j->state[t] = T_HELD;
         for (uint32_t k = 0; k < npx; k++)
             if (!acc_sane(&px[k], j->p.chunk))
-                return pt_error_set(err, PT_ERR_FORMAT, "checkpoint: held task %llu pixel %u "
+                return pt_error_set(err, PT_ERR_FORMAT,
+                                    "checkpoint: held task %llu pixel %u "
                                     "is not finite or has too many samples",
                                     (unsigned long long)t, k);
     }
@@ -671,8 +717,10 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
     for (size_t k = 0; k < npx && r.status == PT_OK; k++) {
         get_acc(&r, &j->film->px[k]);
         if (r.status == PT_OK && !acc_sane(&j->film->px[k], j->p.spp))
-            return pt_error_set(err, PT_ERR_FORMAT, "checkpoint: pixel %zu is not finite or has "
-                                "too many samples", k);
+            return pt_error_set(err, PT_ERR_FORMAT,
+                                "checkpoint: pixel %zu is not finite or has "
+                                "too many samples",
+                                k);
     }
     pt_status st = proto_r_finish(&r, "checkpoint", err);
     if (st != PT_OK)

@@ -44,19 +44,19 @@ typedef struct srv_job_params {
     uint32_t tile, chunk;
     uint32_t seed;
     uint32_t max_depth, rr_depth;
-    double target_error; /* adaptive sampling: 0 = off, else pt_tile_rel_error target */
-    uint32_t min_spp;    /* adaptive sampling: no tile stops before this many samples */
-    double min_gain;     /* adaptive sampling: 0 = off, else pt_tile_gain threshold */
+    double target_error;             /* adaptive sampling: 0 = off, else pt_tile_rel_error target */
+    uint32_t min_spp;                /* adaptive sampling: no tile stops before this many samples */
+    double min_gain;                 /* adaptive sampling: 0 = off, else pt_tile_gain threshold */
     char camera[PROTO_MAX_NAME + 1]; /* the camera's name; "" the scene's default view */
 } srv_job_params;
 
 #define SRV_MAX_TASKS (64u * 1024u * 1024u)
 
 typedef enum srv_outcome {
-    SRV_MERGED = 0,   /* accepted (merged now or held until its turn) */
-    SRV_DUPLICATE,    /* already accepted: dropped, harmless */
-    SRV_NOT_LEASED,   /* no live lease of this owner for the task: dropped */
-    SRV_INVALID       /* malformed or inconsistent with the task: the peer is at fault */
+    SRV_MERGED = 0, /* accepted (merged now or held until its turn) */
+    SRV_DUPLICATE,  /* already accepted: dropped, harmless */
+    SRV_NOT_LEASED, /* no live lease of this owner for the task: dropped */
+    SRV_INVALID     /* malformed or inconsistent with the task: the peer is at fault */
 } srv_outcome;
 
 typedef struct srv_job srv_job;
@@ -136,8 +136,8 @@ uint32_t srv_job_params_passes(const srv_job_params *p);
 
 /* Progress. */
 uint32_t srv_job_tiles(const srv_job *job);
-uint32_t srv_job_passes(const srv_job *job);       /* chunks per tile */
-uint32_t srv_job_passes_done(const srv_job *job);  /* passes merged for every tile */
+uint32_t srv_job_passes(const srv_job *job);      /* chunks per tile */
+uint32_t srv_job_passes_done(const srv_job *job); /* passes merged for every tile */
 uint64_t srv_job_tasks_total(const srv_job *job);
 uint64_t srv_job_tasks_merged(const srv_job *job);
 uint64_t srv_job_samples_merged(const srv_job *job);

@@ -11,78 +11,79 @@
 #include <string.h>
 
 #include "common/base/opt.h"
-#include "common/render/tile.h"
 #include "common/base/version.h"
+#include "common/render/tile.h"
 #include "server/serve.h"
 
 static void usage(FILE *f)
 {
-    fprintf(f,
-            "usage: ptserve [options] -o OUT.exr SCENE\n"
-            "       ptserve --local N [options] -o OUT.exr SCENE\n"
-            "       ptserve --state-dir DIR [--output-dir DIR] [options]\n"
-            "\n"
-            "Coordinates a ptfarm render: splits each image into tiles x sample chunks,\n"
-            "leases them to ptworker processes, merges their results in a fixed order (the\n"
-            "image does not depend on how the work was split) and writes progressive\n"
-            "OpenEXR images (R, G, B, samples, variance) plus a PNG preview.\n"
-            "\n"
-            "With a SCENE it renders that one scene to -o and exits 0 when the image is\n"
-            "complete. With --state-dir and no SCENE it is a long-running render queue:\n"
-            "clients submit jobs with ptctl; jobs run by priority, then submission order;\n"
-            "the queue and a checkpoint of every running job live in the state folder, so\n"
-            "after a crash or kill -9 a restart resumes them with no merged sample lost.\n"
-            "\n"
-            "queue mode:\n"
-            "  --state-dir DIR        the queue, scenes, checkpoints and results logs\n"
-            "  --output-dir DIR       where images are written (default DIR/output), as\n"
-            "                         ID-NAME.exr with NAME reduced to [A-Za-z0-9._-]\n"
-            "  --max-res N            longest image side a client may ask for (default 16384)\n"
-            "  --max-pixels N         width x height a client may ask for (default 16777216)\n"
-            "  --max-spp N            samples per pixel a client may ask for (default 65536)\n"
-            "  --max-scene-mb N       scene upload size limit in MiB (default 512)\n"
-            "  --max-queued N         unfinished jobs per client name (default 64)\n"
-            "  (--tile, --chunk and --max-depth set the defaults of submitted jobs)\n"
-            "\n"
-            "one-job mode:\n"
-            "  -o, --output PATH      the EXR to write (required)\n"
-            "  --local N              start N ptworker processes on this machine\n"
-            "  --worker-threads T     threads per local worker (default: cores / N)\n"
-            "  --listen HOST:PORT     where workers connect (default 127.0.0.1:7878; with\n"
-            "                         --local, a free loopback port)\n"
-            "  --token-file PATH      shared secret workers must prove (HMAC challenge);\n"
-            "                         without it ptserve listens on loopback only\n"
-            "  --spp N                samples per pixel (default 64)\n"
-            "  --res WxH              image size (default 512 wide, height from the camera)\n"
-            "  --seed S               random seed (default 0)\n"
-            "  --camera NAME          the camera to render (default: the scene's first)\n"
-            "  --max-depth D          maximum bounces (default 16)\n"
-            "  --target-error E       adaptive sampling: a tile stops once the RMS relative\n"
-            "                         error of its pixel means is <= E (e.g. 0.01); off by default\n"
-            "  --min-gain G           adaptive sampling for the lowest mean error: a tile\n"
-            "                         stops once one more sample per pixel would lower the\n"
-            "                         mean squared error of its pixels (R, G, B, absolute)\n"
-            "                         by <= G; a tile then gets samples in proportion to its\n"
-            "                         noise (e.g. 1e-6; smaller is longer); judged from the\n"
-            "                         second chunk on, a tile of black samples only from\n"
-            "                         the first; off by default; not with --target-error\n"
-            "  --min-spp N            adaptive sampling: samples before a tile may stop\n"
-            "                         (default: one chunk)\n"
-            "  --tile N               tile side in pixels (default 32)\n"
-            "  --chunk N              samples per task (default 16)\n"
-            "  --save-interval SEC    progressive saves at most this often (default 5)\n"
-            "  --lease-timeout SEC    requeue a task whose worker is silent this long (default 20)\n"
-            "  --handshake-timeout SEC  drop a peer that has not authenticated by then (default 10)\n"
-            "  --port-file PATH       write the port listened on to PATH\n"
-            "  --worker-bin PATH      the ptworker to start with --local (default: beside ptserve)\n"
-            "  -q, --quiet            no progress line\n"
-            "  -h, --help             this text\n"
-            "  --version              the version and renderer build id\n"
-            "\n"
-            "\n"
-            "exit status: 0 image complete (queue mode: stopped by SIGINT/SIGTERM after\n"
-            "checkpointing), 1 error (reason on stderr), 2 bad usage, 130 one-job render\n"
-            "interrupted (the last progressive EXR is valid)\n");
+    fprintf(
+        f,
+        "usage: ptserve [options] -o OUT.exr SCENE\n"
+        "       ptserve --local N [options] -o OUT.exr SCENE\n"
+        "       ptserve --state-dir DIR [--output-dir DIR] [options]\n"
+        "\n"
+        "Coordinates a ptfarm render: splits each image into tiles x sample chunks,\n"
+        "leases them to ptworker processes, merges their results in a fixed order (the\n"
+        "image does not depend on how the work was split) and writes progressive\n"
+        "OpenEXR images (R, G, B, samples, variance) plus a PNG preview.\n"
+        "\n"
+        "With a SCENE it renders that one scene to -o and exits 0 when the image is\n"
+        "complete. With --state-dir and no SCENE it is a long-running render queue:\n"
+        "clients submit jobs with ptctl; jobs run by priority, then submission order;\n"
+        "the queue and a checkpoint of every running job live in the state folder, so\n"
+        "after a crash or kill -9 a restart resumes them with no merged sample lost.\n"
+        "\n"
+        "queue mode:\n"
+        "  --state-dir DIR        the queue, scenes, checkpoints and results logs\n"
+        "  --output-dir DIR       where images are written (default DIR/output), as\n"
+        "                         ID-NAME.exr with NAME reduced to [A-Za-z0-9._-]\n"
+        "  --max-res N            longest image side a client may ask for (default 16384)\n"
+        "  --max-pixels N         width x height a client may ask for (default 16777216)\n"
+        "  --max-spp N            samples per pixel a client may ask for (default 65536)\n"
+        "  --max-scene-mb N       scene upload size limit in MiB (default 512)\n"
+        "  --max-queued N         unfinished jobs per client name (default 64)\n"
+        "  (--tile, --chunk and --max-depth set the defaults of submitted jobs)\n"
+        "\n"
+        "one-job mode:\n"
+        "  -o, --output PATH      the EXR to write (required)\n"
+        "  --local N              start N ptworker processes on this machine\n"
+        "  --worker-threads T     threads per local worker (default: cores / N)\n"
+        "  --listen HOST:PORT     where workers connect (default 127.0.0.1:7878; with\n"
+        "                         --local, a free loopback port)\n"
+        "  --token-file PATH      shared secret workers must prove (HMAC challenge);\n"
+        "                         without it ptserve listens on loopback only\n"
+        "  --spp N                samples per pixel (default 64)\n"
+        "  --res WxH              image size (default 512 wide, height from the camera)\n"
+        "  --seed S               random seed (default 0)\n"
+        "  --camera NAME          the camera to render (default: the scene's first)\n"
+        "  --max-depth D          maximum bounces (default 16)\n"
+        "  --target-error E       adaptive sampling: a tile stops once the RMS relative\n"
+        "                         error of its pixel means is <= E (e.g. 0.01); off by default\n"
+        "  --min-gain G           adaptive sampling for the lowest mean error: a tile\n"
+        "                         stops once one more sample per pixel would lower the\n"
+        "                         mean squared error of its pixels (R, G, B, absolute)\n"
+        "                         by <= G; a tile then gets samples in proportion to its\n"
+        "                         noise (e.g. 1e-6; smaller is longer); judged from the\n"
+        "                         second chunk on, a tile of black samples only from\n"
+        "                         the first; off by default; not with --target-error\n"
+        "  --min-spp N            adaptive sampling: samples before a tile may stop\n"
+        "                         (default: one chunk)\n"
+        "  --tile N               tile side in pixels (default 32)\n"
+        "  --chunk N              samples per task (default 16)\n"
+        "  --save-interval SEC    progressive saves at most this often (default 5)\n"
+        "  --lease-timeout SEC    requeue a task whose worker is silent this long (default 20)\n"
+        "  --handshake-timeout SEC  drop a peer that has not authenticated by then (default 10)\n"
+        "  --port-file PATH       write the port listened on to PATH\n"
+        "  --worker-bin PATH      the ptworker to start with --local (default: beside ptserve)\n"
+        "  -q, --quiet            no progress line\n"
+        "  -h, --help             this text\n"
+        "  --version              the version and renderer build id\n"
+        "\n"
+        "\n"
+        "exit status: 0 image complete (queue mode: stopped by SIGINT/SIGTERM after\n"
+        "checkpointing), 1 error (reason on stderr), 2 bad usage, 130 one-job render\n"
+        "interrupted (the last progressive EXR is valid)\n");
 }
 
 int main(int argc, char **argv)
@@ -101,10 +102,34 @@ int main(int argc, char **argv)
     c.caps.max_scene = 512ull << 20;
     c.caps.max_queued = 64;
     double lease = 20.0, handshake = 10.0;
-    enum { O_LOCAL = 256, O_WTHREADS, O_LISTEN, O_TOKEN, O_SPP, O_RES, O_SEED, O_DEPTH,
-           O_TILE, O_CHUNK, O_SAVE, O_LEASE, O_PORTFILE, O_WBIN, O_HANDSHAKE, O_TARGET, O_MINSPP,
-           O_STATE, O_OUTDIR, O_MAXRES, O_MAXPIX, O_MAXSPP, O_MAXSCENE, O_MAXQUEUED, O_CAMERA,
-           O_MINGAIN };
+    enum {
+        O_LOCAL = 256,
+        O_WTHREADS,
+        O_LISTEN,
+        O_TOKEN,
+        O_SPP,
+        O_RES,
+        O_SEED,
+        O_DEPTH,
+        O_TILE,
+        O_CHUNK,
+        O_SAVE,
+        O_LEASE,
+        O_PORTFILE,
+        O_WBIN,
+        O_HANDSHAKE,
+        O_TARGET,
+        O_MINSPP,
+        O_STATE,
+        O_OUTDIR,
+        O_MAXRES,
+        O_MAXPIX,
+        O_MAXSPP,
+        O_MAXSCENE,
+        O_MAXQUEUED,
+        O_CAMERA,
+        O_MINGAIN
+    };
     static const struct option opts[] = {
         {"output", required_argument, NULL, 'o'},
         {"local", required_argument, NULL, O_LOCAL},
@@ -144,15 +169,21 @@ int main(int argc, char **argv)
         pt_status st = PT_OK;
         uint32_t v;
         switch (ch) {
-        case 'o': c.out_path = optarg; break;
+        case 'o':
+            c.out_path = optarg;
+            break;
         case O_LOCAL:
             st = pt_opt_u32("--local", optarg, 1, 256, &c.local_workers, &err);
             break;
         case O_WTHREADS:
             st = pt_opt_u32("--worker-threads", optarg, 1, 1024, &c.worker_threads, &err);
             break;
-        case O_LISTEN: c.listen = optarg; break;
-        case O_TOKEN: c.token_path = optarg; break;
+        case O_LISTEN:
+            c.listen = optarg;
+            break;
+        case O_TOKEN:
+            c.token_path = optarg;
+            break;
         case O_SPP:
             st = pt_opt_u32("--spp", optarg, 1, 1u << 24, &c.job.spp, &err);
             break;
@@ -184,7 +215,9 @@ int main(int argc, char **argv)
         case O_LEASE:
             st = pt_opt_seconds("--lease-timeout", optarg, 0, 86400, &lease, &err);
             break;
-        case O_PORTFILE: c.port_file = optarg; break;
+        case O_PORTFILE:
+            c.port_file = optarg;
+            break;
         case O_HANDSHAKE:
             st = pt_opt_seconds("--handshake-timeout", optarg, 0, 86400, &handshake, &err);
             break;
@@ -197,9 +230,15 @@ int main(int argc, char **argv)
         case O_MINSPP:
             st = pt_opt_u32("--min-spp", optarg, 2, 1u << 24, &c.job.min_spp, &err);
             break;
-        case O_WBIN: c.worker_bin = optarg; break;
-        case O_STATE: c.state_dir = optarg; break;
-        case O_OUTDIR: c.output_dir = optarg; break;
+        case O_WBIN:
+            c.worker_bin = optarg;
+            break;
+        case O_STATE:
+            c.state_dir = optarg;
+            break;
+        case O_OUTDIR:
+            c.output_dir = optarg;
+            break;
         case O_MAXRES:
             st = pt_opt_u32("--max-res", optarg, 1, 65536, &c.caps.max_side, &err);
             break;
@@ -217,10 +256,17 @@ int main(int argc, char **argv)
         case O_MAXQUEUED:
             st = pt_opt_u32("--max-queued", optarg, 1, 100000, &c.caps.max_queued, &err);
             break;
-        case 'q': c.quiet = 1; break;
-        case 'h': usage(stdout); return 0;
-        case 'V': return pt_version_print("ptserve");
-        default: usage(stderr); return 2;
+        case 'q':
+            c.quiet = 1;
+            break;
+        case 'h':
+            usage(stdout);
+            return 0;
+        case 'V':
+            return pt_version_print("ptserve");
+        default:
+            usage(stderr);
+            return 2;
         }
         if (st != PT_OK) {
             fprintf(stderr, "ptserve: %s\n", err.msg);
@@ -230,7 +276,7 @@ int main(int argc, char **argv)
     if (c.state_dir) {
         if (optind != argc || c.out_path) {
             fprintf(stderr, "ptserve: --state-dir runs a queue: no SCENE or -o (submit jobs "
-                    "with ptctl)\n");
+                            "with ptctl)\n");
             return 2;
         }
     } else if (optind + 1 != argc || !c.out_path) {

@@ -42,7 +42,10 @@ struct srv_state {
     uint32_t nlogs, logs_cap;
 };
 
-const char *srv_state_dir(const srv_state *st) { return st->dir; }
+const char *srv_state_dir(const srv_state *st)
+{
+    return st->dir;
+}
 
 static void path_of(const srv_state *st, char *buf, size_t cap, const char *rel)
 {
@@ -71,7 +74,7 @@ static pt_status job_file(const srv_state *st, uint64_t id, const char *file, ch
 
 pt_status srv_state_open(const char *dir, srv_state **out, pt_error *err)
 {
-    if (strlen(dir) >= sizeof ((srv_state *)0)->dir)
+    if (strlen(dir) >= sizeof((srv_state *)0)->dir)
         return pt_error_set(err, PT_ERR_ARG, "state folder %s: path too long", dir);
     srv_state *st = pt_calloc(1, sizeof *st);
     if (!st)
@@ -142,8 +145,8 @@ static int version_read(uint32_t v)
  * what lies between, *version (when not NULL) the format version. *missing =
  * 1 (and PT_OK) when the file does not exist. */
 static pt_status read_intact(const char *path, uint32_t magic, size_t max, uint8_t **data,
-                              const uint8_t **body, size_t *body_len, uint32_t *version,
-                              int *missing, pt_error *err)
+                             const uint8_t **body, size_t *body_len, uint32_t *version,
+                             int *missing, pt_error *err)
 {
     size_t len;
     *missing = 0;
@@ -163,18 +166,20 @@ static pt_status read_intact(const char *path, uint32_t magic, size_t max, uint8
     else if (proto_get_u32(*data) != magic)
         why = "not a ptserve state file of this kind (bad magic)";
     else if (!version_read(proto_get_u32(*data + 4))) {
-        snprintf(vwhy, sizeof vwhy, "written by another version of ptserve (format %u; this "
-                 "one reads %u to %u)", proto_get_u32(*data + 4), STATE_OLDEST_VERSION,
-                 STATE_VERSION);
+        snprintf(vwhy, sizeof vwhy,
+                 "written by another version of ptserve (format %u; this "
+                 "one reads %u to %u)",
+                 proto_get_u32(*data + 4), STATE_OLDEST_VERSION, STATE_VERSION);
         why = vwhy;
-    }
-    else if (proto_crc32c(0, *data, len - 4) != proto_get_u32(*data + len - 4))
+    } else if (proto_crc32c(0, *data, len - 4) != proto_get_u32(*data + len - 4))
         why = "checksum mismatch: the file is truncated or damaged";
     if (why) {
         pt_free(*data);
         *data = NULL;
-        return pt_error_set(err, PT_ERR_FORMAT, "%s: %s; refusing to use it (move it aside to "
-                            "start without it)", path, why);
+        return pt_error_set(err, PT_ERR_FORMAT,
+                            "%s: %s; refusing to use it (move it aside to "
+                            "start without it)",
+                            path, why);
     }
     if (version)
         *version = proto_get_u32(*data + 4);
@@ -233,7 +238,7 @@ pt_status srv_state_load_queue(srv_state *st, srv_job_record **recs, uint32_t *n
     *n = 0;
     *next_id = 1;
     pt_status s = read_intact(path, QUEUE_MAGIC, MAX_QUEUE_BYTES, &data, &body, &len, &version,
-                               &missing, err);
+                              &missing, err);
     if (s != PT_OK || missing)
         return s;
     proto_reader r = proto_reader_make(body, len);
@@ -242,8 +247,8 @@ pt_status srv_state_load_queue(srv_state *st, srv_job_record **recs, uint32_t *n
     srv_job_record *out = NULL;
     if (r.status == PT_OK && (count > SRV_MAX_JOBS || count > proto_r_left(&r) / 64)) {
         pt_free(data);
-        return pt_error_set(err, PT_ERR_FORMAT, "%s: %u jobs do not fit its %zu bytes", path,
-                            count, len);
+        return pt_error_set(err, PT_ERR_FORMAT, "%s: %u jobs do not fit its %zu bytes", path, count,
+                            len);
     }
     if (count) {
         out = pt_calloc(count, sizeof *out);
@@ -301,8 +306,8 @@ pt_status srv_state_save_bundle(const srv_state *st, uint64_t id, const uint8_t 
     return pt_write_file_atomic(p, data, n, err);
 }
 
-pt_status srv_state_load_bundle(srv_state *st, uint64_t id, const uint8_t hash[32],
-                                pt_bundle **out, pt_error *err)
+pt_status srv_state_load_bundle(srv_state *st, uint64_t id, const uint8_t hash[32], pt_bundle **out,
+                                pt_error *err)
 {
     char p[PATH_MAX];
     job_path(st, id, "bundle", p, sizeof p);
@@ -316,8 +321,10 @@ pt_status srv_state_load_bundle(srv_state *st, uint64_t id, const uint8_t hash[3
     pt_hash_hex(hash, want);
     if (strcmp(hex, want) != 0) {
         pt_free(data);
-        return pt_error_set(err, PT_ERR_FORMAT, "%s: SHA-256 %.16s... differs from the queue's "
-                            "%.16s...: the file is damaged", p, hex, want);
+        return pt_error_set(err, PT_ERR_FORMAT,
+                            "%s: SHA-256 %.16s... differs from the queue's "
+                            "%.16s...: the file is damaged",
+                            p, hex, want);
     }
     s = pt_bundle_from_bytes(data, len, out, err);
     pt_free(data);
@@ -504,8 +511,10 @@ static pt_status replay_log(srv_state *st, srv_job *job, srv_ckpt_extra *x, uint
     } else if (proto_get_u32(data) != LOG_MAGIC || !version_read(proto_get_u32(data + 4)) ||
                proto_get_u64(data + 8) != id) {
         pt_free(data);
-        return pt_error_set(err, PT_ERR_FORMAT, "%s: not the results log of job %llu (bad "
-                            "header); refusing to use it", p, (unsigned long long)id);
+        return pt_error_set(err, PT_ERR_FORMAT,
+                            "%s: not the results log of job %llu (bad "
+                            "header); refusing to use it",
+                            p, (unsigned long long)id);
     } else {
         good = LOG_HEADER;
         pt_pixel_acc *buf = pt_malloc_array(PROTO_MAX_TILE_PIXELS, sizeof *buf);
@@ -524,9 +533,10 @@ static pt_status replay_log(srv_state *st, srv_job *job, srv_ckpt_extra *x, uint
             pt_error e2 = {0};
             if (proto_crc32c(0, pl, n) != proto_get_u32(data + good + 4) ||
                 proto_msg_decode_result(pl, n, buf, PROTO_MAX_TILE_PIXELS, &r, &e2) != PT_OK) {
-                s = pt_error_set(err, PT_ERR_FORMAT, "%s: record at byte %zu is damaged "
-                                 "(checksum or contents: %s); refusing to use it", p, good,
-                                 e2.msg[0] ? e2.msg : "checksum mismatch");
+                s = pt_error_set(err, PT_ERR_FORMAT,
+                                 "%s: record at byte %zu is damaged "
+                                 "(checksum or contents: %s); refusing to use it",
+                                 p, good, e2.msg[0] ? e2.msg : "checksum mismatch");
                 break;
             }
             srv_outcome o = srv_job_replay(job, &r, &e2);
@@ -535,8 +545,10 @@ static pt_status replay_log(srv_state *st, srv_job *job, srv_ckpt_extra *x, uint
                 x->rays += r.rays;
                 (*replayed)++;
             } else if (o != SRV_DUPLICATE) {
-                s = pt_error_set(err, PT_ERR_FORMAT, "%s: record at byte %zu does not fit the "
-                                 "job: %s", p, good, e2.msg);
+                s = pt_error_set(err, PT_ERR_FORMAT,
+                                 "%s: record at byte %zu does not fit the "
+                                 "job: %s",
+                                 p, good, e2.msg);
                 break;
             }
             good += 8 + (size_t)n;
@@ -552,8 +564,8 @@ static pt_status replay_log(srv_state *st, srv_job *job, srv_ckpt_extra *x, uint
     return s;
 }
 
-pt_status srv_state_restore(srv_state *st, srv_job *job, srv_ckpt_extra *extra,
-                            uint32_t *replayed, int *torn, pt_error *err)
+pt_status srv_state_restore(srv_state *st, srv_job *job, srv_ckpt_extra *extra, uint32_t *replayed,
+                            int *torn, pt_error *err)
 {
     memset(extra, 0, sizeof *extra);
     *replayed = 0;
@@ -565,8 +577,8 @@ pt_status srv_state_restore(srv_state *st, srv_job *job, srv_ckpt_extra *extra,
     size_t len;
     int missing;
     /* The checkpoint body carries its own version (srv_job_restore). */
-    pt_status s = read_intact(p, CKPT_MAGIC, MAX_CKPT_BYTES, &data, &body, &len, NULL, &missing,
-                               err);
+    pt_status s =
+        read_intact(p, CKPT_MAGIC, MAX_CKPT_BYTES, &data, &body, &len, NULL, &missing, err);
     if (s != PT_OK)
         return s;
     if (!missing) {

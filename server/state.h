@@ -30,15 +30,15 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#include "common/scene/bundle.h"
 #include "common/base/error.h"
+#include "common/scene/bundle.h"
 #include "protocol/msg.h"
 #include "server/job.h"
 
 /* One job's durable record: its entry in the queue file. */
 typedef struct srv_job_record {
-    uint64_t id, seq;  /* seq: submission order */
-    uint8_t state;     /* PROTO_JOB_* */
+    uint64_t id, seq; /* seq: submission order */
+    uint8_t state;    /* PROTO_JOB_* */
     int32_t priority;
     char name[PROTO_MAX_NAME + 1];
     char owner[PROTO_MAX_NAME + 1];
@@ -46,7 +46,7 @@ typedef struct srv_job_record {
     char output[PROTO_MAX_PATH + 1]; /* the EXR's name in the output folder */
     uint64_t submitted;              /* Unix seconds */
     srv_job_params params;
-    uint8_t hash[32];                /* SHA-256 of the bundle */
+    uint8_t hash[32]; /* SHA-256 of the bundle */
     uint64_t bundle_size;
     uint64_t samples_done; /* set when the job ends */
     double seconds;        /* render seconds, set when the job ends */
@@ -76,8 +76,8 @@ pt_status srv_state_save_queue(srv_state *st, srv_job_record *const *recs, uint3
  * (as may srv_state_dir) while the loop uses st. */
 pt_status srv_state_save_bundle(const srv_state *st, uint64_t id, const uint8_t *data, size_t n,
                                 pt_error *err);
-pt_status srv_state_load_bundle(srv_state *st, uint64_t id, const uint8_t hash[32],
-                                pt_bundle **out, pt_error *err);
+pt_status srv_state_load_bundle(srv_state *st, uint64_t id, const uint8_t hash[32], pt_bundle **out,
+                                pt_error *err);
 
 /* Counters a checkpoint carries beside the job's merged state. */
 typedef struct srv_ckpt_extra {
@@ -94,8 +94,8 @@ pt_status srv_state_checkpoint(srv_state *st, const srv_job *job, const srv_ckpt
  * checkpoint, when there is one, and its results log. *extra receives the
  * checkpoint's counters plus the replayed results'; *replayed the number of
  * log records merged; *torn 1 when an incomplete last record was dropped. */
-pt_status srv_state_restore(srv_state *st, srv_job *job, srv_ckpt_extra *extra,
-                            uint32_t *replayed, int *torn, pt_error *err);
+pt_status srv_state_restore(srv_state *st, srv_job *job, srv_ckpt_extra *extra, uint32_t *replayed,
+                            int *torn, pt_error *err);
 
 /* Appends one accepted RESULT payload to the job's log (opened on first use).
  * Written before the result is merged; srv_state_sync makes it durable. */

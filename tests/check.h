@@ -18,34 +18,34 @@
 
 static int check_passed_, check_failed_, check_skipped_;
 
-#define CHECK(cond)                                                                  \
-    do {                                                                             \
-        if (cond) {                                                                  \
-            check_passed_++;                                                         \
-        } else {                                                                     \
-            check_failed_++;                                                         \
-            fprintf(stderr, "%s:%d: CHECK failed: %s\n", __FILE__, __LINE__, #cond); \
-        }                                                                            \
+#define CHECK(cond)                                                                                \
+    do {                                                                                           \
+        if (cond) {                                                                                \
+            check_passed_++;                                                                       \
+        } else {                                                                                   \
+            check_failed_++;                                                                       \
+            fprintf(stderr, "%s:%d: CHECK failed: %s\n", __FILE__, __LINE__, #cond);               \
+        }                                                                                          \
     } while (0)
 
-#define CHECKF(cond, ...)                                                            \
-    do {                                                                             \
-        if (cond) {                                                                  \
-            check_passed_++;                                                         \
-        } else {                                                                     \
-            check_failed_++;                                                         \
-            fprintf(stderr, "%s:%d: CHECK failed: %s: ", __FILE__, __LINE__, #cond); \
-            fprintf(stderr, __VA_ARGS__);                                            \
-            fputc('\n', stderr);                                                     \
-        }                                                                            \
+#define CHECKF(cond, ...)                                                                          \
+    do {                                                                                           \
+        if (cond) {                                                                                \
+            check_passed_++;                                                                       \
+        } else {                                                                                   \
+            check_failed_++;                                                                       \
+            fprintf(stderr, "%s:%d: CHECK failed: %s: ", __FILE__, __LINE__, #cond);               \
+            fprintf(stderr, __VA_ARGS__);                                                          \
+            fputc('\n', stderr);                                                                   \
+        }                                                                                          \
     } while (0)
 
-#define CHECK_SKIP(...)                 \
-    do {                                \
-        check_skipped_++;               \
-        printf("skipped: ");            \
-        printf(__VA_ARGS__);            \
-        putchar('\n');                  \
+#define CHECK_SKIP(...)                                                                            \
+    do {                                                                                           \
+        check_skipped_++;                                                                          \
+        printf("skipped: ");                                                                       \
+        printf(__VA_ARGS__);                                                                       \
+        putchar('\n');                                                                             \
     } while (0)
 
 /* Shared assets are required in CI (CI=true); elsewhere they may be absent. */

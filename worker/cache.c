@@ -15,9 +15,9 @@
 
 #include "common/base/alloc.h"
 #include "common/base/fsutil.h"
+#include "common/base/hash.h"
 #include "common/scene/bundle.h"
 #include "common/scene/scene.h"
-#include "common/base/hash.h"
 
 #define TMP_PREFIX ".tmp-"
 
@@ -412,9 +412,9 @@ pt_status wrk_scenes_acquire(wrk_scenes *s, const uint8_t hash[WRK_HASH_SIZE],
 {
     if (!camera)
         camera = "";
-    if (strlen(camera) >= sizeof ((wrk_scene_ref *)0)->camera)
+    if (strlen(camera) >= sizeof((wrk_scene_ref *)0)->camera)
         return pt_error_set(err, PT_ERR_ARG, "camera name '%.64s...' is over %zu bytes", camera,
-                            sizeof ((wrk_scene_ref *)0)->camera - 1);
+                            sizeof((wrk_scene_ref *)0)->camera - 1);
     pthread_mutex_lock(&s->mu);
     wrk_scene_ref *e = s->head;
     while (e && !(memcmp(e->hash, hash, WRK_HASH_SIZE) == 0 && same_params(&e->params, params) &&

@@ -55,7 +55,6 @@ pt_status wrk_cache_lookup(wrk_cache *c, const uint8_t hash[WRK_HASH_SIZE], char
 pt_status wrk_cache_store(wrk_cache *c, const uint8_t hash[WRK_HASH_SIZE], const uint8_t *data,
                           size_t size, char *entry, size_t cap, pt_error *err);
 
-
 /* ---- in memory ---------------------------------------------------------------------- */
 
 typedef struct wrk_scenes wrk_scenes;
@@ -68,10 +67,10 @@ void wrk_scenes_free(wrk_scenes *s);
 
 /* The renderer for (hash, params, camera), loading entry_path (the scene's
  * entry file) with that camera (NULL or "": the scene's default view) and
- * building it when it is not cached; an unknown camera fails the build; blocks while another thread builds
- * the same key. On failure the error of that build is returned to it and to
- * every thread that waited for it, and the key is forgotten (a later acquire
- * tries again). Release each PT_OK reference with wrk_scenes_release. */
+ * building it when it is not cached; an unknown camera fails the build; blocks while another thread
+ * builds the same key. On failure the error of that build is returned to it and to every thread
+ * that waited for it, and the key is forgotten (a later acquire tries again). Release each PT_OK
+ * reference with wrk_scenes_release. */
 pt_status wrk_scenes_acquire(wrk_scenes *s, const uint8_t hash[WRK_HASH_SIZE],
                              const pt_render_params *params, const char *camera,
                              const char *entry_path, wrk_scene_ref **out, pt_error *err);

@@ -18,10 +18,10 @@
 
 #include "common/base/alloc.h"
 #include "common/base/clock.h"
-#include "common/scene/bundle.h"
+#include "common/base/hash.h"
 #include "common/base/net.h"
 #include "common/render/render.h"
-#include "common/base/hash.h"
+#include "common/scene/bundle.h"
 #include "protocol/auth.h"
 #include "protocol/frame.h"
 #include "protocol/msg.h"
@@ -217,8 +217,7 @@ static void render_one(worker *w, const task_item *t, done_item *d)
         return;
     }
     wrk_scene_ref *ref = NULL;
-    d->st = wrk_scenes_acquire(w->scenes, k->scene_hash, &p, k->camera, t->entry, &ref,
-                               &d->err);
+    d->st = wrk_scenes_acquire(w->scenes, k->scene_hash, &p, k->camera, t->entry, &ref, &d->err);
     if (d->st != PT_OK)
         return;
     pt_render_tile(wrk_scene_renderer(ref), k->tile, k->s0, k->s1, d->pixels, &d->stats);

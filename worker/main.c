@@ -19,8 +19,8 @@
 #include <unistd.h>
 
 #include "common/base/opt.h"
-#include "common/render/tile.h"
 #include "common/base/version.h"
+#include "common/render/tile.h"
 #include "protocol/msg.h"
 #include "worker/client.h"
 #include "worker/standalone.h"

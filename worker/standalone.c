@@ -11,11 +11,11 @@
 #include "common/base/alloc.h"
 #include "common/base/clock.h"
 #include "common/image/exr.h"
-#include "common/render/film.h"
 #include "common/image/image.h"
+#include "common/render/adaptive.h"
+#include "common/render/film.h"
 #include "common/render/render.h"
 #include "common/scene/scene.h"
-#include "common/render/adaptive.h"
 
 typedef struct job {
     const wrk_standalone_opts *o;
@@ -25,7 +25,7 @@ typedef struct job {
     uint32_t num_tiles;
     atomic_uint next_tile;
     atomic_uint tiles_done;
-    atomic_uint running; /* render threads not yet finished */
+    atomic_uint running;       /* render threads not yet finished */
     atomic_uint tiles_stopped; /* by adaptive sampling */
     atomic_uint_fast64_t samples_done;
     pt_render_stats *thread_stats; /* one per thread, summed at the end */
@@ -220,8 +220,10 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
             o->scene_path, secs, (double)st.samples / secs, (double)st.rays / secs,
             (unsigned long long)st.rejected, o->out_path, png);
     if (o->target_error > 0.0 || o->min_gain > 0.0)
-        fprintf(stderr, "ptworker: adaptive sampling stopped %u of %u tiles early; %.2f spp on "
-                "average\n", atomic_load(&j.tiles_stopped), nt,
+        fprintf(stderr,
+                "ptworker: adaptive sampling stopped %u of %u tiles early; %.2f spp on "
+                "average\n",
+                atomic_load(&j.tiles_stopped), nt,
                 (double)st.samples / ((double)p.width * p.height));
     rc = 0;
 done:

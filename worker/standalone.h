@@ -12,18 +12,18 @@
 
 typedef struct wrk_standalone_opts {
     const char *scene_path;
-    const char *out_path;   /* .exr; a .png preview is written beside it */
-    const char *camera;     /* NULL: the scene's first camera */
+    const char *out_path; /* .exr; a .png preview is written beside it */
+    const char *camera;   /* NULL: the scene's first camera */
     uint32_t spp;
     uint32_t width, height; /* 0: from the camera's aspect, 512 wide */
     uint32_t seed;
-    uint32_t threads;       /* 0: all cores */
+    uint32_t threads; /* 0: all cores */
     uint32_t max_depth;
-    uint32_t tile;          /* tile side in pixels */
-    uint32_t chunk;         /* samples per chunk */
-    double target_error;    /* adaptive sampling (0 = off): stop a tile at this error */
-    double min_gain;        /* adaptive sampling (0 = off): pt_tile_stops' min_gain */
-    uint32_t min_spp;       /* adaptive sampling: samples before a tile may stop */
+    uint32_t tile;       /* tile side in pixels */
+    uint32_t chunk;      /* samples per chunk */
+    double target_error; /* adaptive sampling (0 = off): stop a tile at this error */
+    double min_gain;     /* adaptive sampling (0 = off): pt_tile_stops' min_gain */
+    uint32_t min_spp;    /* adaptive sampling: samples before a tile may stop */
     int quiet;
 } wrk_standalone_opts;
 

@@ -75,6 +75,12 @@ void pt_alloc_fail_at(uint64_t n)
     atomic_store(&fail_at, n);
 }
 
-uint64_t pt_alloc_count(void) { return atomic_load(&alloc_count); }
+uint64_t pt_alloc_count(void)
+{
+    return atomic_load(&alloc_count);
+}
 
-int64_t pt_alloc_live(void) { return atomic_load(&live); }
+int64_t pt_alloc_live(void)
+{
+    return atomic_load(&live);
+}

@@ -37,15 +37,24 @@ pt_status pt_error_errno(pt_error *err, pt_status code, const char *fmt, ...)
 const char *pt_status_str(pt_status code)
 {
     switch (code) {
-    case PT_OK: return "ok";
-    case PT_AGAIN: return "again";
-    case PT_ERR_NOMEM: return "out of memory";
-    case PT_ERR_IO: return "I/O error";
-    case PT_ERR_PROTO: return "protocol error";
-    case PT_ERR_LIMIT: return "over a limit";
-    case PT_ERR_FORMAT: return "malformed input";
-    case PT_ERR_AUTH: return "authentication failed";
-    case PT_ERR_ARG: return "invalid argument";
+    case PT_OK:
+        return "ok";
+    case PT_AGAIN:
+        return "again";
+    case PT_ERR_NOMEM:
+        return "out of memory";
+    case PT_ERR_IO:
+        return "I/O error";
+    case PT_ERR_PROTO:
+        return "protocol error";
+    case PT_ERR_LIMIT:
+        return "over a limit";
+    case PT_ERR_FORMAT:
+        return "malformed input";
+    case PT_ERR_AUTH:
+        return "authentication failed";
+    case PT_ERR_ARG:
+        return "invalid argument";
     }
     return "unknown status";
 }

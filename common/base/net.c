@@ -89,8 +89,9 @@ pt_status pt_net_listen(const char *host, uint16_t port, int *fd_out, uint16_t *
     }
     freeaddrinfo(res);
     if (fd < 0)
-        return err && err->code != PT_OK ? err->code
-                                         : pt_error_set(err, PT_ERR_IO, "cannot listen on port %u", port);
+        return err && err->code != PT_OK
+                   ? err->code
+                   : pt_error_set(err, PT_ERR_IO, "cannot listen on port %u", port);
     if ((st = pt_net_set_nonblock(fd, err)) != PT_OK) {
         close(fd);
         return st;
@@ -152,8 +153,9 @@ pt_status pt_net_connect(const char *host, uint16_t port, int timeout_ms, int *f
     }
     freeaddrinfo(res);
     if (st != PT_OK)
-        return err && err->code != PT_OK ? err->code
-                                         : pt_error_set(err, PT_ERR_IO, "cannot connect to %s:%u", host, port);
+        return err && err->code != PT_OK
+                   ? err->code
+                   : pt_error_set(err, PT_ERR_IO, "cannot connect to %s:%u", host, port);
     *fd_out = fd;
     return PT_OK;
 }

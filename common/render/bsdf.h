@@ -24,11 +24,12 @@
 #include "common/math/vec.h"
 
 typedef struct pt_bsdf {
-    pt_vec3 diffuse;   /* Lambert albedo (already x (1 - metallic)), 0 when absent */
-    pt_vec3 f0;        /* specular reflectance at normal incidence */
-    float spec_weight; /* specular strength (0 = no GGX lobe at all) */
-    float alpha;       /* GGX alpha = roughness^2, clamped to >= PT_BSDF_MIN_ALPHA */
-    float dielectric_f0; /* scalar F0 of the dielectric layer (0.04 * specular), for the diffuse weight */
+    pt_vec3 diffuse;     /* Lambert albedo (already x (1 - metallic)), 0 when absent */
+    pt_vec3 f0;          /* specular reflectance at normal incidence */
+    float spec_weight;   /* specular strength (0 = no GGX lobe at all) */
+    float alpha;         /* GGX alpha = roughness^2, clamped to >= PT_BSDF_MIN_ALPHA */
+    float dielectric_f0; /* scalar F0 of the dielectric layer (0.04 * specular), for the diffuse
+                            weight */
 } pt_bsdf;
 
 /* Below this alpha the lobe is treated as this smooth; avoids a delta lobe

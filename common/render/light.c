@@ -22,9 +22,9 @@
 #include <math.h>
 #include <string.h>
 
-#include "common/scene/accel.h"
 #include "common/base/alloc.h"
 #include "common/render/light_lanes.h"
+#include "common/scene/accel.h"
 
 /* One column of the alias table: 16 bytes, so that the random read of a
  * column touches one cache line and four columns share it. */

@@ -16,19 +16,19 @@
 #include <stdint.h>
 
 #include "common/base/error.h"
-#include "common/scene/scene.h"
 #include "common/math/vec.h"
+#include "common/scene/scene.h"
 
 typedef struct pt_lights pt_lights;
 
 typedef struct pt_light_sample {
-    pt_vec3 position;   /* on the light */
-    pt_vec3 normal;     /* geometric normal of the light triangle */
-    pt_vec3 wi;         /* unit direction from the shading point to position */
-    float dist;         /* distance to position */
-    pt_vec3 radiance;   /* emitted radiance towards the shading point (0 if back side) */
-    float pdf;          /* solid-angle pdf (including the choice of triangle); 0 = impossible */
-    uint32_t tri;       /* triangle index in the scene */
+    pt_vec3 position; /* on the light */
+    pt_vec3 normal;   /* geometric normal of the light triangle */
+    pt_vec3 wi;       /* unit direction from the shading point to position */
+    float dist;       /* distance to position */
+    pt_vec3 radiance; /* emitted radiance towards the shading point (0 if back side) */
+    float pdf;        /* solid-angle pdf (including the choice of triangle); 0 = impossible */
+    uint32_t tri;     /* triangle index in the scene */
 } pt_light_sample;
 
 /* Builds the light list. A scene without emitters gives a valid, empty set. */

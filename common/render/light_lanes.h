@@ -18,8 +18,8 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#include "common/render/light.h"
 #include "common/math/simd.h"
+#include "common/render/light.h"
 
 /* The most picks one pt_light_picks holds. */
 #define PT_LIGHT_PICKS 64u

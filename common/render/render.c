@@ -3,13 +3,13 @@
 #include <math.h>
 #include <string.h>
 
-#include "common/scene/accel.h"
 #include "common/base/alloc.h"
+#include "common/math/simd.h"
 #include "common/render/bsdf.h"
 #include "common/render/light.h"
 #include "common/render/light_lanes.h"
 #include "common/render/sampler.h"
-#include "common/math/simd.h"
+#include "common/scene/accel.h"
 
 /*
  * Sample dimensions. Pixel jitter uses dims 0-1; bounce k uses the 8 dims

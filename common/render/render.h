@@ -49,8 +49,8 @@ enum { PT_LIGHT_MIS = 0, PT_LIGHT_NEE_ONLY = 1, PT_LIGHT_BSDF_ONLY = 2 };
 typedef struct pt_render_params {
     uint32_t width, height;
     uint32_t seed;
-    uint32_t max_depth;  /* maximum scattering events (bounces) per path; default 16 */
-    uint32_t rr_depth;   /* Russian roulette from this many bounces on; default 3 */
+    uint32_t max_depth;      /* maximum scattering events (bounces) per path; default 16 */
+    uint32_t rr_depth;       /* Russian roulette from this many bounces on; default 3 */
     uint32_t light_strategy; /* PT_LIGHT_*; default PT_LIGHT_MIS */
     uint32_t extra_features; /* PT_FEAT_* assumed present besides the scene's own, which
                                 picks a less specialised integrator (0xffffffff: the
@@ -61,9 +61,9 @@ typedef struct pt_render_params {
 } pt_render_params;
 
 typedef struct pt_render_stats {
-    uint64_t samples;    /* accepted samples */
-    uint64_t rejected;   /* NaN/Inf samples dropped */
-    uint64_t rays;       /* closest-hit + shadow rays traced */
+    uint64_t samples;  /* accepted samples */
+    uint64_t rejected; /* NaN/Inf samples dropped */
+    uint64_t rays;     /* closest-hit + shadow rays traced */
 } pt_render_stats;
 
 typedef struct pt_renderer pt_renderer;
@@ -74,8 +74,8 @@ void pt_render_params_default(pt_render_params *p);
 /* Builds the acceleration structure and lights for a scene, and picks the
  * integrator variant specialised to scene->features. The scene must outlive
  * the renderer. */
-pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
-                          pt_renderer **out, pt_error *err);
+pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params, pt_renderer **out,
+                          pt_error *err);
 void pt_renderer_free(pt_renderer *r); /* accepts NULL */
 const pt_render_params *pt_renderer_params(const pt_renderer *r);
 
@@ -90,8 +90,8 @@ int pt_renderer_lanes(const pt_renderer *r);
 /* Renders samples [s0, s1) of every pixel of tile and writes one pt_pixel_acc
  * per pixel (row-major over the tile, (x1-x0)*(y1-y0) entries, overwritten).
  * stats (may be NULL) is added to. */
-void pt_render_tile(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,
-                    pt_pixel_acc *out, pt_render_stats *stats);
+void pt_render_tile(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel_acc *out,
+                    pt_render_stats *stats);
 
 /* Radiance of one camera sample, traced alone: the reference that
  * pt_render_tile's batched paths match bit for bit (for tests). */

@@ -15,9 +15,9 @@
 
 /* Per-pixel partial sums of a range of samples. */
 typedef struct pt_pixel_acc {
-    double sum[3];  /* sum of the RGB samples */
-    double sum_sq;  /* sum of squared luminance of the samples (error estimate) */
-    uint32_t n;     /* samples accumulated (rejected ones excluded) */
+    double sum[3]; /* sum of the RGB samples */
+    double sum_sq; /* sum of squared luminance of the samples (error estimate) */
+    uint32_t n;    /* samples accumulated (rejected ones excluded) */
     uint32_t pad;
 } pt_pixel_acc;
 

@@ -17,8 +17,8 @@
 #include <string.h>
 
 #include "common/base/error.h"
-#include "common/scene/scene.h"
 #include "common/math/vec.h"
+#include "common/scene/scene.h"
 
 typedef struct pt_accel pt_accel;
 

@@ -65,7 +65,8 @@ static pt_status walk(const uint8_t *data, size_t size, entry_fn fn, void *user,
     const uint8_t *p = data + 8, *end = data + size;
     for (uint32_t i = 0; i < count; i++) {
         if (end - p < 2)
-            return pt_error_set(err, PT_ERR_FORMAT, "scene bundle: file %u: truncated name length", i);
+            return pt_error_set(err, PT_ERR_FORMAT, "scene bundle: file %u: truncated name length",
+                                i);
         size_t nl = (size_t)p[0] | (size_t)p[1] << 8;
         p += 2;
         if ((size_t)(end - p) < nl)
@@ -73,8 +74,8 @@ static pt_status walk(const uint8_t *data, size_t size, entry_fn fn, void *user,
         const char *name = (const char *)p;
         if (!name_ok(name, nl))
             return pt_error_set(err, PT_ERR_FORMAT,
-                                "scene bundle: file %u: name '%.*s' is not a plain relative path", i,
-                                (int)(nl > 64 ? 64 : nl), name);
+                                "scene bundle: file %u: name '%.*s' is not a plain relative path",
+                                i, (int)(nl > 64 ? 64 : nl), name);
         p += nl;
         if (end - p < 8)
             return pt_error_set(err, PT_ERR_FORMAT, "scene bundle: file %u: truncated size", i);
@@ -82,8 +83,8 @@ static pt_status walk(const uint8_t *data, size_t size, entry_fn fn, void *user,
         p += 8;
         if ((uint64_t)(end - p) < fs)
             return pt_error_set(err, PT_ERR_FORMAT,
-                                "scene bundle: file %u ('%.*s'): declares %llu bytes, %zu present", i,
-                                (int)nl, name, (unsigned long long)fs, (size_t)(end - p));
+                                "scene bundle: file %u ('%.*s'): declares %llu bytes, %zu present",
+                                i, (int)nl, name, (unsigned long long)fs, (size_t)(end - p));
         if (fn) {
             pt_status st = fn(user, i, name, nl, p, fs, err);
             if (st != PT_OK)
@@ -92,7 +93,8 @@ static pt_status walk(const uint8_t *data, size_t size, entry_fn fn, void *user,
         p += fs;
     }
     if (p != end)
-        return pt_error_set(err, PT_ERR_FORMAT, "scene bundle: %zu trailing bytes", (size_t)(end - p));
+        return pt_error_set(err, PT_ERR_FORMAT, "scene bundle: %zu trailing bytes",
+                            (size_t)(end - p));
     return PT_OK;
 }
 
@@ -258,8 +260,8 @@ static pt_status write_entry(void *user, uint32_t index, const char *name, size_
     return PT_OK;
 }
 
-pt_status pt_bundle_unpack(const pt_bundle *b, const char *dir, char *entry_path,
-                           size_t entry_cap, pt_error *err)
+pt_status pt_bundle_unpack(const pt_bundle *b, const char *dir, char *entry_path, size_t entry_cap,
+                           pt_error *err)
 {
     pt_status st = pt_bundle_check(b->data, b->size, err);
     if (st != PT_OK)

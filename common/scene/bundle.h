@@ -49,8 +49,8 @@ pt_status pt_bundle_from_bytes(const uint8_t *data, size_t size, pt_bundle **out
 /* Writes the files under dir (created if missing) and puts the entry file's
  * path in entry_path. Checks the layout and names first; writes nothing on a
  * malformed bundle. */
-pt_status pt_bundle_unpack(const pt_bundle *b, const char *dir, char *entry_path,
-                           size_t entry_cap, pt_error *err);
+pt_status pt_bundle_unpack(const pt_bundle *b, const char *dir, char *entry_path, size_t entry_cap,
+                           pt_error *err);
 
 void pt_bundle_free(pt_bundle *b); /* accepts NULL */
 

@@ -18,7 +18,8 @@ extern "C" {
 #include "common/scene/uri.h"
 }
 
-namespace {
+namespace
+{
 
 const size_t kMaxJson = 256u << 20;
 
@@ -45,10 +46,12 @@ pt_status json_text(const char *path, std::string &json, pt_error *err)
     if (bytes.size() >= 12 && std::memcmp(bytes.data(), "glTF", 4) == 0) {
         const unsigned char *p = reinterpret_cast<const unsigned char *>(bytes.data());
         if (bytes.size() < 20)
-            return pt_error_set(err, PT_ERR_FORMAT, "%s: GLB truncated before its JSON chunk", path);
+            return pt_error_set(err, PT_ERR_FORMAT, "%s: GLB truncated before its JSON chunk",
+                                path);
         uint32_t len = le32(p + 12), type = le32(p + 16);
         if (type != 0x4E4F534Au || len > bytes.size() - 20)
-            return pt_error_set(err, PT_ERR_FORMAT, "%s: GLB JSON chunk is missing or truncated", path);
+            return pt_error_set(err, PT_ERR_FORMAT, "%s: GLB JSON chunk is missing or truncated",
+                                path);
         json.assign(bytes.data() + 20, len);
     } else {
         json.swap(bytes);

@@ -36,26 +36,26 @@
 
 /* Feature mask bits: what a scene needs from the integrator. */
 enum {
-    PT_FEAT_TEXTURES = 1u << 0,      /* some material reads a base-colour or metal-rough texture */
-    PT_FEAT_GLOSSY = 1u << 1,        /* some material has a non-zero specular (GGX) lobe */
-    PT_FEAT_EMITTERS = 1u << 2,      /* there is at least one emissive triangle */
-    PT_FEAT_EMISSIVE_TEX = 1u << 3,  /* some emissive material has an emissive texture */
-    PT_FEAT_SINGLE_SIDED = 1u << 4,  /* some material is not doubleSided */
-    PT_FEAT_UVS = 1u << 5,           /* the scene has texture coordinates */
+    PT_FEAT_TEXTURES = 1u << 0,     /* some material reads a base-colour or metal-rough texture */
+    PT_FEAT_GLOSSY = 1u << 1,       /* some material has a non-zero specular (GGX) lobe */
+    PT_FEAT_EMITTERS = 1u << 2,     /* there is at least one emissive triangle */
+    PT_FEAT_EMISSIVE_TEX = 1u << 3, /* some emissive material has an emissive texture */
+    PT_FEAT_SINGLE_SIDED = 1u << 4, /* some material is not doubleSided */
+    PT_FEAT_UVS = 1u << 5,          /* the scene has texture coordinates */
 };
 
 enum { PT_WRAP_REPEAT = 0, PT_WRAP_CLAMP = 1, PT_WRAP_MIRROR = 2 };
 
 typedef struct pt_texture {
     uint32_t width, height;
-    uint8_t *rgba;     /* width*height*4 bytes, row 0 at the top (v = 0) */
-    int srgb;          /* 1: colour data in sRGB, decoded to linear at lookup */
-    int wrap_s, wrap_t;/* PT_WRAP_* */
+    uint8_t *rgba;      /* width*height*4 bytes, row 0 at the top (v = 0) */
+    int srgb;           /* 1: colour data in sRGB, decoded to linear at lookup */
+    int wrap_s, wrap_t; /* PT_WRAP_* */
 } pt_texture;
 
 typedef struct pt_material {
-    float base_color[4];     /* linear RGBA factor */
-    int32_t base_color_tex;  /* texture index or -1 */
+    float base_color[4];    /* linear RGBA factor */
+    int32_t base_color_tex; /* texture index or -1 */
     float metallic, roughness;
     int32_t metal_rough_tex; /* G = roughness, B = metallic (linear), or -1 */
     float emissive[3];       /* linear radiance: emissiveFactor x KHR_materials_emissive_strength */
@@ -78,11 +78,11 @@ typedef struct pt_camera {
 typedef struct pt_scene {
     uint32_t num_vertices;
     uint32_t num_triangles;
-    float *positions;          /* 3 per vertex, scene space (world = stored + origin) */
-    float *normals;            /* 3 per vertex, world space (= scene space), unit length */
-    float *uvs;                /* 2 per vertex, or NULL when no primitive has TEXCOORD_0 */
-    uint32_t *indices;         /* 3 per triangle */
-    uint32_t *tri_material;    /* 1 per triangle */
+    float *positions;       /* 3 per vertex, scene space (world = stored + origin) */
+    float *normals;         /* 3 per vertex, world space (= scene space), unit length */
+    float *uvs;             /* 2 per vertex, or NULL when no primitive has TEXCOORD_0 */
+    uint32_t *indices;      /* 3 per triangle */
+    uint32_t *tri_material; /* 1 per triangle */
 
     uint32_t num_materials;
     pt_material *materials;
@@ -90,28 +90,28 @@ typedef struct pt_scene {
     pt_texture *textures;
 
     uint32_t num_cameras;
-    pt_camera *cameras;        /* from the file; may be 0 */
-    pt_camera camera;          /* the one to render: chosen, or framed from the bounds;
-                                  positions in scene space */
+    pt_camera *cameras; /* from the file; may be 0 */
+    pt_camera camera;   /* the one to render: chosen, or framed from the bounds;
+                           positions in scene space */
 
     pt_vec3 bounds_min, bounds_max; /* scene space: they contain every stored position */
-    uint32_t features;         /* PT_FEAT_* */
-    char hash[65];             /* SHA-256 (hex) of the scene's files, or of the built data
-                                  (origin included) */
-    double origin[3];          /* world position of scene space's zero: world = stored +
-                                  origin; a multiple of a power of two near the centre
-                                  of the bounds, or 0 (see above) */
+    uint32_t features;              /* PT_FEAT_* */
+    char hash[65];                  /* SHA-256 (hex) of the scene's files, or of the built data
+                                       (origin included) */
+    double origin[3];               /* world position of scene space's zero: world = stored +
+                                       origin; a multiple of a power of two near the centre
+                                       of the bounds, or 0 (see above) */
 } pt_scene;
 
 typedef void (*pt_warn_fn)(void *user, const char *message);
 
 typedef struct pt_scene_opts {
-    const char *camera_name;   /* NULL: first perspective camera, else frame the bounds */
-    float scale;               /* uniform scale applied to world space (0 means 1), in double */
-    pt_vec3 translate;         /* added to world space after scaling, in double, before
-                                  the scene is rebased (so it moves origin, not stored
-                                  positions, when it is large) */
-    pt_warn_fn warn;           /* each unsupported feature reported once; NULL: stderr */
+    const char *camera_name; /* NULL: first perspective camera, else frame the bounds */
+    float scale;             /* uniform scale applied to world space (0 means 1), in double */
+    pt_vec3 translate;       /* added to world space after scaling, in double, before
+                                the scene is rebased (so it moves origin, not stored
+                                positions, when it is large) */
+    pt_warn_fn warn;         /* each unsupported feature reported once; NULL: stderr */
     void *warn_user;
 } pt_scene_opts;
 
@@ -124,8 +124,7 @@ typedef struct pt_scene_opts {
  * file and the element: "scene.gltf: accessor 3: index 912 out of range"),
  * PT_ERR_LIMIT or PT_ERR_NOMEM. opts may be NULL. On success *out is a new
  * scene; on failure it is untouched and nothing leaks. */
-pt_status pt_scene_load(const char *path, const pt_scene_opts *opts, pt_scene **out,
-                        pt_error *err);
+pt_status pt_scene_load(const char *path, const pt_scene_opts *opts, pt_scene **out, pt_error *err);
 
 /* Frees the scene and all it owns. Accepts NULL. */
 void pt_scene_free(pt_scene *scene);
@@ -160,12 +159,12 @@ void pt_scene_builder_free(pt_scene_builder *b); /* accepts NULL */
  * naming the material and the field) NaN/Inf factors, negative emission,
  * base colour, metallic, roughness or specular factors outside [0, 1] (glTF's
  * range: rejected, not clamped) and a negative specular colour. */
-pt_status pt_scene_builder_add_material(pt_scene_builder *b, const pt_material *m,
-                                        uint32_t *index, pt_error *err);
+pt_status pt_scene_builder_add_material(pt_scene_builder *b, const pt_material *m, uint32_t *index,
+                                        pt_error *err);
 /* Adds a texture; the builder takes ownership of tex->rgba (pt_malloc'd)
  * even on failure. */
-pt_status pt_scene_builder_add_texture(pt_scene_builder *b, const pt_texture *tex,
-                                       uint32_t *index, pt_error *err);
+pt_status pt_scene_builder_add_texture(pt_scene_builder *b, const pt_texture *tex, uint32_t *index,
+                                       pt_error *err);
 /* Adds a triangle mesh. positions: 3*nv floats; normals: 3*nv or NULL (then
  * computed, area-weighted); uvs: 2*nv or NULL; indices: 3*nt, or NULL for
  * non-indexed (nv must then be 3*nt). xform: column-major 4x4 world matrix or
@@ -196,7 +195,7 @@ pt_status pt_scene_builder_add_camera_at(pt_scene_builder *b, const pt_camera *c
  * triangles, PT_ERR_ARG when a scaled coordinate is not finite in float. The
  * builder is consumed (freed) whether or not it succeeds. While building,
  * positions take 24 bytes a vertex (double); the float copy is made here. */
-pt_status pt_scene_builder_finish(pt_scene_builder *b, const pt_scene_opts *opts,
-                                  pt_scene **out, pt_error *err);
+pt_status pt_scene_builder_finish(pt_scene_builder *b, const pt_scene_opts *opts, pt_scene **out,
+                                  pt_error *err);
 
 #endif

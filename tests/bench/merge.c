@@ -97,10 +97,10 @@ int main(int argc, char **argv)
             proto_frame f;
             size_t used;
             proto_result res;
-            if (proto_frame_decode(wr.buf + off, wr.len - off, PROTO_MAX_PAYLOAD, &f, &used, NULL) !=
-                    PT_OK ||
-                proto_msg_decode_result(f.payload, f.len, scratch, PROTO_MAX_TILE_PIXELS, &res, NULL) !=
-                    PT_OK)
+            if (proto_frame_decode(wr.buf + off, wr.len - off, PROTO_MAX_PAYLOAD, &f, &used,
+                                   NULL) != PT_OK ||
+                proto_msg_decode_result(f.payload, f.len, scratch, PROTO_MAX_TILE_PIXELS, &res,
+                                        NULL) != PT_OK)
                 break;
             merged += srv_job_result(job, 1, &res, NULL) == SRV_MERGED;
             proto_result_fini(&res);

@@ -66,12 +66,12 @@
 #include "common/base/opt.h"
 #include "common/base/version.h"
 #include "common/image/exr.h"
-#include "common/render/film.h"
 #include "common/image/image.h"
 #include "common/image/metrics.h"
+#include "common/render/adaptive.h"
+#include "common/render/film.h"
 #include "common/render/render.h"
 #include "common/scene/scene.h"
-#include "common/render/adaptive.h"
 #include "tests/bench/plot.h"
 
 #define MAX_THREADS 64

@@ -33,12 +33,12 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "common/scene/accel.h"
 #include "common/base/alloc.h"
 #include "common/base/clock.h"
 #include "common/base/opt.h"
 #include "common/base/version.h"
 #include "common/render/render.h"
+#include "common/scene/accel.h"
 #include "common/scene/scene.h"
 
 typedef struct ray_rec {
@@ -79,7 +79,8 @@ static void *render_worker(void *p)
 {
     targ *a = p;
     shared *sh = a->sh;
-    uint32_t tx = (sh->width + sh->tile - 1) / sh->tile, ty = (sh->height + sh->tile - 1) / sh->tile;
+    uint32_t tx = (sh->width + sh->tile - 1) / sh->tile,
+             ty = (sh->height + sh->tile - 1) / sh->tile;
     pt_pixel_acc *acc = pt_malloc_array((size_t)sh->tile * sh->tile, sizeof *acc);
     for (;;) {
         uint32_t t = atomic_fetch_add(&sh->next, 1);
@@ -204,7 +205,8 @@ int main(int argc, char **argv)
     pt_render_params_default(&p);
     p.width = w;
     p.height = h;
-    if (pt_renderer_new(scene, &p, &r, &err) != PT_OK || pt_accel_new(scene, &accel, &err) != PT_OK) {
+    if (pt_renderer_new(scene, &p, &r, &err) != PT_OK ||
+        pt_accel_new(scene, &accel, &err) != PT_OK) {
         fprintf(stderr, "ptbench-throughput: %s\n", err.msg);
         return 1;
     }
@@ -274,7 +276,8 @@ int main(int argc, char **argv)
     double sps[100], rps[100], eps[100], ratio[100], asps[4][100], speedup[4][100], cratio[100],
         csps[100];
     for (int k = 0; k < reps; k++) {
-        shared sh = {.r = r, .accel = accel, .width = w, .height = h, .spp = spp, .tile = 16, .log = &log};
+        shared sh = {
+            .r = r, .accel = accel, .width = w, .height = h, .spp = spp, .tile = 16, .log = &log};
         atomic_init(&sh.next, 0);
         atomic_init(&sh.next_ray, 0);
         double c0 = pt_cpu_s();
@@ -299,8 +302,13 @@ int main(int argc, char **argv)
         eps[k] = log.n / t_replay;
         ratio[k] = rps[k] / eps[k];
         for (int a = 0; a < nalt; a++) {
-            shared sg = {.r = alt[a], .accel = accel, .width = w, .height = h, .spp = spp,
-                         .tile = 16, .log = &log};
+            shared sg = {.r = alt[a],
+                         .accel = accel,
+                         .width = w,
+                         .height = h,
+                         .spp = spp,
+                         .tile = 16,
+                         .log = &log};
             atomic_init(&sg.next, 0);
             t0 = pt_now_s();
             run_threads(threads, render_worker, &sg);
@@ -322,8 +330,8 @@ int main(int argc, char **argv)
            100.0 * shadow / (log.n ? log.n : 1));
     printf("ratio            %.3f of the ray-query ceiling\n", m_ratio);
     double m_cratio = median(cratio, reps), m_csps = median(csps, reps);
-    printf("ratio (CPU time) %.3f of the ray-query ceiling; %.4g samples per CPU second\n", m_cratio,
-           m_csps);
+    printf("ratio (CPU time) %.3f of the ray-query ceiling; %.4g samples per CPU second\n",
+           m_cratio, m_csps);
     printf("variant          %s%s, chosen for the scene: %.4g samples/s\n", pt_renderer_variant(r),
            pt_renderer_lanes(r) ? " (SIMD lanes)" : "", m_sps);
     for (int a = 0; a < nalt; a++)
@@ -334,8 +342,8 @@ int main(int argc, char **argv)
     if (csv) {
         FILE *f = fopen(csv, "a");
         if (f) {
-            fprintf(f, "%s,%u,%u,%u,%d,%.6g,%.6g,%.6g,%.4f\n", scene_path, w, h, spp, threads, m_sps,
-                    m_rps, m_eps, m_ratio);
+            fprintf(f, "%s,%u,%u,%u,%d,%.6g,%.6g,%.6g,%.4f\n", scene_path, w, h, spp, threads,
+                    m_sps, m_rps, m_eps, m_ratio);
             fclose(f);
         }
     }

@@ -26,13 +26,13 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include "client/ctl.h"
 #include "common/base/alloc.h"
-#include "common/scene/bundle.h"
 #include "common/base/hash.h"
+#include "common/scene/bundle.h"
 #include "protocol/auth.h"
 #include "protocol/frame.h"
 #include "protocol/msg.h"
-#include "client/ctl.h"
 #include "tests/check.h"
 
 static const uint8_t TOKEN[] = "s3cret-token";

@@ -28,8 +28,8 @@
 #include <time.h>
 #include <unistd.h>
 
-#include "common/image/exr.h"
 #include "common/base/net.h"
+#include "common/image/exr.h"
 #include "protocol/auth.h"
 #include "protocol/frame.h"
 #include "protocol/msg.h"
@@ -44,26 +44,38 @@ static const char *SCENE = PT_SOURCE_DIR "/scenes/cornell_box.gltf";
 
 static void bit_identity(void)
 {
-    const char *standalone[] = {PT_BIN_DIR "/ptworker", "--scene", SCENE, COMMON, "--spp", "32",
-                                "-o", path("ref.exr"), "-q", NULL};
+    const char *standalone[] = {
+        PT_BIN_DIR "/ptworker", "--scene", SCENE, COMMON, "--spp", "32", "-o",
+        path("ref.exr"),        "-q",      NULL};
     CHECK(run(standalone, "ref.log", 120) == 0);
     const char *local1[] = {PT_BIN_DIR "/ptserve", "--local", "1", COMMON, "--spp", "32", "-o",
-                            path("l1.exr"), SCENE, NULL};
+                            path("l1.exr"),        SCENE,     NULL};
     CHECK(run(local1, "l1.log", 120) == 0);
-    const char *local3[] = {PT_BIN_DIR "/ptserve", "--local", "3", "--worker-threads", "1", COMMON,
-                            "--spp", "32", "-o", path("l3.exr"), SCENE, NULL};
+    const char *local3[] = {
+        PT_BIN_DIR "/ptserve", "--local", "3", "--worker-threads", "1", COMMON, "--spp", "32", "-o",
+        path("l3.exr"),        SCENE,     NULL};
     CHECK(run(local3, "l3.log", 120) == 0);
     CHECKF(same_pixels("ref.exr", "l1.exr"), "--local 1 differs from the standalone render");
     CHECKF(same_pixels("ref.exr", "l3.exr"), "--local 3 differs from the standalone render");
     CHECK(all_samples("l3.exr", 32.0f));
 
     /* Adaptive sampling decides from the same sums in both: still identical. */
-    const char *ad_solo[] = {PT_BIN_DIR "/ptworker", "--scene", SCENE, COMMON, "--spp", "256",
-                             "--target-error", "0.05", "-o", path("ad_ref.exr"), "-q", NULL};
+    const char *ad_solo[] = {PT_BIN_DIR "/ptworker",
+                             "--scene",
+                             SCENE,
+                             COMMON,
+                             "--spp",
+                             "256",
+                             "--target-error",
+                             "0.05",
+                             "-o",
+                             path("ad_ref.exr"),
+                             "-q",
+                             NULL};
     CHECK(run(ad_solo, "ad_ref.log", 120) == 0);
-    const char *ad_farm[] = {PT_BIN_DIR "/ptserve", "--local", "3", "--worker-threads", "1", COMMON,
-                             "--spp", "256", "--target-error", "0.05", "-o", path("ad3.exr"),
-                             SCENE, NULL};
+    const char *ad_farm[] = {
+        PT_BIN_DIR "/ptserve", "--local", "3",  "--worker-threads", "1",   COMMON, "--spp", "256",
+        "--target-error",      "0.05",    "-o", path("ad3.exr"),    SCENE, NULL};
     CHECK(run(ad_farm, "ad3.log", 120) == 0);
     CHECKF(same_pixels("ad_ref.exr", "ad3.exr"), "adaptive --local 3 differs from standalone");
     pt_image *ad = load_exr("ad3.exr");
@@ -77,12 +89,22 @@ static void bit_identity(void)
     pt_image_free(ad);
 
     /* The minimum-mean-error rule: the same, with counts spread over the tiles. */
-    const char *mg_solo[] = {PT_BIN_DIR "/ptworker", "--scene", SCENE, COMMON, "--spp", "256",
-                             "--min-gain", "1e-6", "-o", path("mg_ref.exr"), "-q", NULL};
-    CHECK(run(mg_solo, "mg_ref.log", 120) == 0);
-    const char *mg_farm[] = {PT_BIN_DIR "/ptserve", "--local", "3", "--worker-threads", "1", COMMON,
-                             "--spp", "256", "--min-gain", "1e-6", "-o", path("mg3.exr"), SCENE,
+    const char *mg_solo[] = {PT_BIN_DIR "/ptworker",
+                             "--scene",
+                             SCENE,
+                             COMMON,
+                             "--spp",
+                             "256",
+                             "--min-gain",
+                             "1e-6",
+                             "-o",
+                             path("mg_ref.exr"),
+                             "-q",
                              NULL};
+    CHECK(run(mg_solo, "mg_ref.log", 120) == 0);
+    const char *mg_farm[] = {
+        PT_BIN_DIR "/ptserve", "--local", "3",  "--worker-threads", "1",   COMMON, "--spp", "256",
+        "--min-gain",          "1e-6",    "-o", path("mg3.exr"),    SCENE, NULL};
     CHECK(run(mg_farm, "mg3.log", 120) == 0);
     CHECKF(same_pixels("mg_ref.exr", "mg3.exr"), "--min-gain --local 3 differs from standalone");
     CHECKF(!same_pixels("mg_ref.exr", "ad_ref.exr"), "--min-gain renders as --target-error");
@@ -109,8 +131,9 @@ static pid_t start_worker(int port, const char *token, const char *name)
 {
     char server[64];
     snprintf(server, sizeof server, "127.0.0.1:%d", port);
-    const char *argv[] = {PT_BIN_DIR "/ptworker", "--server", server, "--threads", "1",
-                          "--token-file", token, "--cache-dir", path("cache"), "--name", name, NULL};
+    const char *argv[] = {
+        PT_BIN_DIR "/ptworker", "--server",    server,   "--threads", "1", "--token-file", token,
+        "--cache-dir",          path("cache"), "--name", name,        NULL};
     return spawn(argv, "workers.log");
 }
 
@@ -129,14 +152,28 @@ static int chaos_run(uint32_t spp)
     char spp_text[16];
     snprintf(spp_text, sizeof spp_text, "%u", spp);
     const char *ref[] = {PT_BIN_DIR "/ptworker", "--scene", SCENE, COMMON, "--spp", spp_text, "-o",
-                         path("chaos_ref.exr"), "-q", NULL};
+                         path("chaos_ref.exr"),  "-q",      NULL};
     CHECK(run(ref, "chaos_ref.log", 300) == 0);
     unlink(path("port"));
     unlink(path("chaos.exr")); /* a run before this one left its image */
-    const char *serve[] = {PT_BIN_DIR "/ptserve", "--listen", "127.0.0.1:0", "--port-file",
-                           path("port"), "--token-file", path("token"), COMMON, "--spp", spp_text,
-                           "--save-interval", "0.1", "--lease-timeout", "5", "-o",
-                           path("chaos.exr"), SCENE, NULL};
+    const char *serve[] = {PT_BIN_DIR "/ptserve",
+                           "--listen",
+                           "127.0.0.1:0",
+                           "--port-file",
+                           path("port"),
+                           "--token-file",
+                           path("token"),
+                           COMMON,
+                           "--spp",
+                           spp_text,
+                           "--save-interval",
+                           "0.1",
+                           "--lease-timeout",
+                           "5",
+                           "-o",
+                           path("chaos.exr"),
+                           SCENE,
+                           NULL};
     pid_t srv = spawn(serve, "chaos.log");
     int port = read_port();
     CHECK(port > 0);
@@ -217,9 +254,22 @@ static void chaos(void)
 static void hostile(void)
 {
     unlink(path("port"));
-    const char *serve[] = {PT_BIN_DIR "/ptserve", "--listen", "127.0.0.1:0", "--port-file",
-                           path("port"), "--token-file", path("token"), "--handshake-timeout",
-                           "1", COMMON, "--spp", "1024", "-o", path("hostile.exr"), SCENE, NULL};
+    const char *serve[] = {PT_BIN_DIR "/ptserve",
+                           "--listen",
+                           "127.0.0.1:0",
+                           "--port-file",
+                           path("port"),
+                           "--token-file",
+                           path("token"),
+                           "--handshake-timeout",
+                           "1",
+                           COMMON,
+                           "--spp",
+                           "1024",
+                           "-o",
+                           path("hostile.exr"),
+                           SCENE,
+                           NULL};
     pid_t srv = spawn(serve, "hostile.log");
     int port = read_port();
     CHECK(port > 0);
@@ -329,25 +379,40 @@ static void hostile(void)
     wait_exit(w1, 10);
     wait_exit(w2, 10);
     CHECKF(status == 0, "ptserve exit status %d", status);
-    const char *ref[] = {PT_BIN_DIR "/ptworker", "--scene", SCENE, COMMON, "--spp", "1024", "-o",
-                         path("hostile_ref.exr"), "-q", NULL};
+    const char *ref[] = {PT_BIN_DIR "/ptworker",  "--scene", SCENE, COMMON, "--spp", "1024", "-o",
+                         path("hostile_ref.exr"), "-q",      NULL};
     CHECK(run(ref, "hostile_ref.log", 120) == 0);
     CHECKF(same_pixels("hostile_ref.exr", "hostile.exr"), "hostile peers changed the image");
-    const char *reasons[] = {"bad magic", "over", "CRC", "authentication failed",
-                             "protocol version 99", "build 0000000000000000", "does not hold",
+    const char *reasons[] = {"bad magic",
+                             "over",
+                             "CRC",
+                             "authentication failed",
+                             "protocol version 99",
+                             "build 0000000000000000",
+                             "does not hold",
                              "handshake not finished"};
     for (size_t i = 0; i < sizeof reasons / sizeof *reasons; i++)
-        CHECKF(log_has("hostile.log", reasons[i]), "no logged reason containing '%s'",
-               reasons[i]);
+        CHECKF(log_has("hostile.log", reasons[i]), "no logged reason containing '%s'", reasons[i]);
 }
 
 /* ---- 4. Ctrl-C --------------------------------------------------------------------- */
 
 static void interrupt(void)
 {
-    const char *serve[] = {PT_BIN_DIR "/ptserve", "--local", "2", "--worker-threads", "1", COMMON,
-                           "--spp", "100000", "--save-interval", "0.1", "-o", path("int.exr"),
-                           SCENE, NULL};
+    const char *serve[] = {PT_BIN_DIR "/ptserve",
+                           "--local",
+                           "2",
+                           "--worker-threads",
+                           "1",
+                           COMMON,
+                           "--spp",
+                           "100000",
+                           "--save-interval",
+                           "0.1",
+                           "-o",
+                           path("int.exr"),
+                           SCENE,
+                           NULL};
     pid_t srv = spawn(serve, "int.log");
     struct stat sb;
     for (int i = 0; i < 1000 && stat(path("int.exr"), &sb) != 0; i++)

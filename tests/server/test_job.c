@@ -212,8 +212,8 @@ static void adaptive(void)
     CHECK(srv_job_tiles_stopped(j) == 1);
     CHECK(dup == 0); /* held chunks of the stopped tile were dropped before their turn */
     const pt_film *f = srv_job_film(j);
-    CHECK(f->px[0].n == 16);       /* tile 0: stopped at min_spp */
-    CHECK(f->px[32].n == 64);      /* tile 1: all chunks */
+    CHECK(f->px[0].n == 16);  /* tile 0: stopped at min_spp */
+    CHECK(f->px[32].n == 64); /* tile 1: all chunks */
     CHECK(srv_job_samples_merged(j) == 32ull * 32 * 16 + 32ull * 32 * 64);
     CHECK(srv_job_passes_done(j) == srv_job_passes(j));
     srv_job_free(j);

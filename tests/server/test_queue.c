@@ -22,9 +22,9 @@
  *     is refused; the render completes with exact sample counts.
  */
 #include "common/base/alloc.h"
-#include "common/scene/bundle.h"
 #include "common/base/fsutil.h"
 #include "common/base/hash.h"
+#include "common/scene/bundle.h"
 #include "tests/check.h"
 #include "tests/server/farm_util.h"
 
@@ -49,8 +49,8 @@ static int cli_recv(cli *c, proto_frame *f, double timeout)
     double end = pt_now_s() + timeout;
     for (;;) {
         size_t used;
-        if (c->len && proto_frame_decode(c->buf, c->len, PROTO_MAX_PAYLOAD, f, &used, NULL) ==
-                          PT_OK) {
+        if (c->len &&
+            proto_frame_decode(c->buf, c->len, PROTO_MAX_PAYLOAD, f, &used, NULL) == PT_OK) {
             c->used = used;
             return f->type;
         }
@@ -121,7 +121,8 @@ static uint64_t lease_one(cli *c)
     proto_writer_fini(&w);
     proto_frame f;
     proto_task t;
-    if (cli_recv(c, &f, 5) != PROTO_MSG_TASK || proto_msg_decode_task(f.payload, f.len, &t, NULL) != PT_OK)
+    if (cli_recv(c, &f, 5) != PROTO_MSG_TASK ||
+        proto_msg_decode_task(f.payload, f.len, &t, NULL) != PT_OK)
         return 0;
     return t.job_id;
 }
@@ -300,16 +301,29 @@ static int fetch(int port, uint64_t id, const char *name)
 /* ---- processes --------------------------------------------------------------------- */
 
 /* ptserve on state, logging to log; opt and its value (or NULL) are added. */
-static void start_server_opt(const char *state, const char *log, const char *opt,
-                             const char *value)
+static void start_server_opt(const char *state, const char *log, const char *opt, const char *value)
 {
     char listen[64];
     snprintf(listen, sizeof listen, "127.0.0.1:%d", g_port);
     unlink(path("port"));
-    const char *argv[] = {PT_BIN_DIR "/ptserve", "--state-dir", path(state), "--listen", listen,
-                          "--port-file", path("port"), "--tile", "16", "--chunk", "8",
-                          "--save-interval", "0.2", "--lease-timeout", "5",
-                          opt ? opt : "--quiet", opt ? value : NULL, NULL};
+    const char *argv[] = {PT_BIN_DIR "/ptserve",
+                          "--state-dir",
+                          path(state),
+                          "--listen",
+                          listen,
+                          "--port-file",
+                          path("port"),
+                          "--tile",
+                          "16",
+                          "--chunk",
+                          "8",
+                          "--save-interval",
+                          "0.2",
+                          "--lease-timeout",
+                          "5",
+                          opt ? opt : "--quiet",
+                          opt ? value : NULL,
+                          NULL};
     g_srv = spawn(argv, log);
     int port = read_port();
     CHECK(port > 0);
@@ -338,9 +352,9 @@ static pid_t start_worker_prefetch(const char *name, const char *prefetch)
 {
     char server[64];
     snprintf(server, sizeof server, "127.0.0.1:%d", g_port);
-    const char *argv[] = {PT_BIN_DIR "/ptworker", "--server", server, "--threads", "1",
-                          "--prefetch", prefetch, "--cache-dir", path("cache"), "--name", name,
-                          NULL};
+    const char *argv[] = {
+        PT_BIN_DIR "/ptworker", "--server",    server,   "--threads", "1", "--prefetch", prefetch,
+        "--cache-dir",          path("cache"), "--name", name,        NULL};
     return spawn(argv, "workers.log");
 }
 
@@ -377,9 +391,23 @@ static int done_order(const char *log, uint64_t *ids, int cap)
 static void crash_restart(void)
 {
     const uint32_t spp = 2048;
-    const char *ref[] = {PT_BIN_DIR "/ptworker", "--scene", SCENE, "--res", "64x48", "--tile",
-                         "16", "--chunk", "8", "--seed", "5", "--spp", "2048", "-o",
-                         path("crash_ref.exr"), "-q", NULL};
+    const char *ref[] = {PT_BIN_DIR "/ptworker",
+                         "--scene",
+                         SCENE,
+                         "--res",
+                         "64x48",
+                         "--tile",
+                         "16",
+                         "--chunk",
+                         "8",
+                         "--seed",
+                         "5",
+                         "--spp",
+                         "2048",
+                         "-o",
+                         path("crash_ref.exr"),
+                         "-q",
+                         NULL};
     CHECK(run(ref, "crash_ref.log", 600) == 0);
     g_port = 0;
     start_server("state1", "crash.log", NULL);
@@ -457,8 +485,10 @@ static void queue_order(void)
            (uint32_t)(g_bundle->size - half));
     proto_frame f;
     proto_job_ref ra = {0}, rb = {0};
-    CHECK(reply(&a, &f) == PROTO_MSG_SUBMITTED && proto_msg_decode_job_ref(f.payload, f.len, &ra, NULL) == PT_OK);
-    CHECK(reply(&b, &f) == PROTO_MSG_SUBMITTED && proto_msg_decode_job_ref(f.payload, f.len, &rb, NULL) == PT_OK);
+    CHECK(reply(&a, &f) == PROTO_MSG_SUBMITTED &&
+          proto_msg_decode_job_ref(f.payload, f.len, &ra, NULL) == PT_OK);
+    CHECK(reply(&b, &f) == PROTO_MSG_SUBMITTED &&
+          proto_msg_decode_job_ref(f.payload, f.len, &rb, NULL) == PT_OK);
     cli_close(&a);
     cli_close(&b);
     CHECK(ra.job_id && rb.job_id && ra.job_id != rb.job_id);
@@ -659,8 +689,8 @@ static int start_damaged(const char *log)
     unlink(path("port"));
     char listen[64];
     snprintf(listen, sizeof listen, "127.0.0.1:%d", g_port);
-    const char *argv[] = {PT_BIN_DIR "/ptserve", "--state-dir", path("state3"), "--listen",
-                          listen, "--port-file", path("port"), "--quiet", NULL};
+    const char *argv[] = {PT_BIN_DIR "/ptserve", "--state-dir", path("state3"), "--listen", listen,
+                          "--port-file",         path("port"),  "--quiet",      NULL};
     g_srv = spawn(argv, log);
     for (int i = 0; i < 100; i++) {
         int st;
@@ -745,8 +775,8 @@ static void damaged(void)
 
     /* A log cut short at its end is what a crash during a write leaves: accepted. */
     char cmd[1200];
-    snprintf(cmd, sizeof cmd, "rm -rf '%s' && cp -a '%s' '%s'", path("state3"),
-             path("state3.good"), path("state3"));
+    snprintf(cmd, sizeof cmd, "rm -rf '%s' && cp -a '%s' '%s'", path("state3"), path("state3.good"),
+             path("state3"));
     CHECK(system(cmd) == 0);
     cut_file(lg, 100);
     CHECK(start_damaged("damage_torn.log") == -1);
@@ -762,8 +792,8 @@ static void damaged(void)
     proto_job_info v3;
     CHECK(status(g_port, id, &v3) == PROTO_MSG_JOB_INFO && v3.samples_done > 0);
     kill_server(SIGKILL);
-    snprintf(cmd, sizeof cmd, "rm -rf '%s' && cp -a '%s' '%s'", path("state3"),
-             path("state3.good"), path("state3"));
+    snprintf(cmd, sizeof cmd, "rm -rf '%s' && cp -a '%s' '%s'", path("state3"), path("state3.good"),
+             path("state3"));
     CHECK(system(cmd) == 0);
     const long qv[] = {4}, cv[] = {4, 36};
     to_format2("state3/queue", queue_min_gain_at("state3/queue"), qv, 1, 1);
@@ -788,8 +818,7 @@ static void damaged(void)
 /* ---- 4. hostile clients ------------------------------------------------------------- */
 
 /* A bundle of the given files (name, bytes) in the PTB1 layout. */
-static uint8_t *make_bundle(const char *const *names, const char *const *datas, int n,
-                            size_t *len)
+static uint8_t *make_bundle(const char *const *names, const char *const *datas, int n, size_t *len)
 {
     proto_writer w;
     proto_writer_init(&w, 1 << 20);
@@ -822,9 +851,23 @@ static int refused(proto_submit m, const uint8_t *data, size_t n, const char *ex
 
 static void hostile_clients(void)
 {
-    const char *ref[] = {PT_BIN_DIR "/ptworker", "--scene", SCENE, "--res", "64x48", "--tile",
-                         "16", "--chunk", "8", "--seed", "5", "--spp", "256", "-o",
-                         path("hostile_ref.exr"), "-q", NULL};
+    const char *ref[] = {PT_BIN_DIR "/ptworker",
+                         "--scene",
+                         SCENE,
+                         "--res",
+                         "64x48",
+                         "--tile",
+                         "16",
+                         "--chunk",
+                         "8",
+                         "--seed",
+                         "5",
+                         "--spp",
+                         "256",
+                         "-o",
+                         path("hostile_ref.exr"),
+                         "-q",
+                         NULL};
     CHECK(run(ref, "hostile_ref.log", 300) == 0);
     g_port = 0;
     start_server("state4", "hostile.log", "--max-queued");
@@ -852,7 +895,8 @@ static void hostile_clients(void)
     proto_put_u64(evil + 8 + 2 + strlen(n1[0]), 1u << 30); /* entry claims 1 GiB */
     CHECK(refused(job_of("liar", 0, 0, 16, 0), evil, len, "bad scene bundle"));
     free(evil);
-    const char *n2[] = {"scene.gltf"}, *d2[] = {"{\"asset\": {\"version\": \"2.0\"}, \"buffers\": ["};
+    const char *n2[] = {"scene.gltf"},
+               *d2[] = {"{\"asset\": {\"version\": \"2.0\"}, \"buffers\": ["};
     uint8_t *broken = make_bundle(n2, d2, 1, &len);
     CHECK(refused(job_of("broken", 0, 0, 16, 0), broken, len, "scene refused"));
     free(broken);
@@ -974,8 +1018,8 @@ static void send_submission(cli *c, const char *name, const pt_bundle *b)
 static void checked_off_loop(void)
 {
     char big_path[1024];
-    snprintf(big_path, sizeof big_path, "%s/MetalRoughSpheresNoTextures/MetalRoughSpheresNoTextures.glb",
-             PT_SHARED_SCENES);
+    snprintf(big_path, sizeof big_path,
+             "%s/MetalRoughSpheresNoTextures/MetalRoughSpheresNoTextures.glb", PT_SHARED_SCENES);
     struct stat sb;
     if (stat(big_path, &sb) != 0) {
         const char *ci = getenv("CI");

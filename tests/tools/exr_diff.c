@@ -31,12 +31,13 @@ int main(int argc, char **argv)
     }
     int rc = 0;
     if (a->width != b->width || a->height != b->height) {
-        fprintf(stderr, "ptexr-diff: sizes differ: %ux%u vs %ux%u\n", a->width, a->height,
-                b->width, b->height);
+        fprintf(stderr, "ptexr-diff: sizes differ: %ux%u vs %ux%u\n", a->width, a->height, b->width,
+                b->height);
         rc = 2;
     } else {
         size_t n = (size_t)a->width * a->height, diff = 0, first = 0;
-        const float *pa[4] = {a->r, a->g, a->b, a->samples}, *pb[4] = {b->r, b->g, b->b, b->samples};
+        const float *pa[4] = {a->r, a->g, a->b, a->samples},
+                    *pb[4] = {b->r, b->g, b->b, b->samples};
         for (size_t i = 0; i < n; i++) {
             int d = 0;
             for (int c = 0; c < 4; c++)
@@ -46,10 +47,11 @@ int main(int argc, char **argv)
         }
         if (diff) {
             size_t x = first % a->width, y = first / a->width;
-            printf("%zu of %zu pixels differ; first at (%zu, %zu): RGB %.9g %.9g %.9g (%g samples) vs "
-                   "%.9g %.9g %.9g (%g samples)\n", diff, n, x, y, a->r[first], a->g[first],
-                   a->b[first], a->samples[first], b->r[first], b->g[first], b->b[first],
-                   b->samples[first]);
+            printf(
+                "%zu of %zu pixels differ; first at (%zu, %zu): RGB %.9g %.9g %.9g (%g samples) vs "
+                "%.9g %.9g %.9g (%g samples)\n",
+                diff, n, x, y, a->r[first], a->g[first], a->b[first], a->samples[first],
+                b->r[first], b->g[first], b->b[first], b->samples[first]);
             rc = 1;
         } else {
             printf("identical: %ux%u, R G B samples bit for bit\n", a->width, a->height);

@@ -19,9 +19,9 @@
 
 #include "common/base/alloc.h"
 #include "common/base/fsutil.h"
-#include "common/scene/bundle.h"
-#include "common/render/render.h"
 #include "common/base/hash.h"
+#include "common/render/render.h"
+#include "common/scene/bundle.h"
 #include "tests/check.h"
 #include "worker/cache.h"
 

@@ -6,8 +6,8 @@
 #include <string.h>
 
 #include "common/base/alloc.h"
-#include "common/render/film.h"
 #include "common/render/adaptive.h"
+#include "common/render/film.h"
 #include "tests/check.h"
 
 /* A deterministic stream of doubles in [0, 1) (splitmix64). */

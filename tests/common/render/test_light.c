@@ -48,7 +48,6 @@ static void rnd3(float u[3])
     u[2] = rnd();
 }
 
-
 /* Pearson's chi-square test of observed counts against expected counts.
  * Bins expecting fewer than 5 are pooled into one (and that pool, if still
  * under 5, into the smallest bin) so the chi-square approximation holds.

@@ -21,9 +21,9 @@
 #include <string.h>
 
 #include "common/base/alloc.h"
+#include "common/math/simd.h"
 #include "common/render/render.h"
 #include "common/scene/scene.h"
-#include "common/math/simd.h"
 #include "tests/check.h"
 
 static pt_scene *load(const char *rel, float scale)
@@ -62,7 +62,7 @@ static pt_renderer *renderer(const pt_scene *s, uint32_t w, uint32_t h, uint32_t
 static double pixel_sigma(const pt_pixel_acc *a)
 {
     double n = a->n, mean = pt_luminance(pt_v3((float)(a->sum[0] / n), (float)(a->sum[1] / n),
-                                              (float)(a->sum[2] / n)));
+                                               (float)(a->sum[2] / n)));
     double var = (a->sum_sq - n * mean * mean) / (n - 1.0);
     return sqrt(fmax(var, 0.0) / n);
 }
@@ -128,10 +128,12 @@ static void nee_vs_bsdf(void)
     double ma = 0, mb = 0, mm = 0, va = 0, vb = 0, vm = 0;
     int outliers = 0;
     for (uint32_t i = 0; i < W * H; i++) {
-        double xa = pt_luminance(pt_v3((float)(pa[i].sum[0] / pa[i].n), (float)(pa[i].sum[1] / pa[i].n),
-                                       (float)(pa[i].sum[2] / pa[i].n)));
-        double xb = pt_luminance(pt_v3((float)(pb[i].sum[0] / pb[i].n), (float)(pb[i].sum[1] / pb[i].n),
-                                       (float)(pb[i].sum[2] / pb[i].n)));
+        double xa =
+            pt_luminance(pt_v3((float)(pa[i].sum[0] / pa[i].n), (float)(pa[i].sum[1] / pa[i].n),
+                               (float)(pa[i].sum[2] / pa[i].n)));
+        double xb =
+            pt_luminance(pt_v3((float)(pb[i].sum[0] / pb[i].n), (float)(pb[i].sum[1] / pb[i].n),
+                               (float)(pb[i].sum[2] / pb[i].n)));
         double sa = pixel_sigma(&pa[i]), sb = pixel_sigma(&pb[i]);
         if (fabs(xa - xb) > 5.0 * sqrt(sa * sa + sb * sb) + 1e-6)
             outliers++;
@@ -146,8 +148,8 @@ static void nee_vs_bsdf(void)
     mb /= 4096.0 * W * H;
     mm /= 256.0 * W * H;
     double sab = sqrt(va + vb) / (W * H), sam = sqrt(va + vm) / (W * H);
-    printf("direct light, image mean: NEE %.5f, BSDF %.5f, MIS %.5f (sigma %.2e, %.2e)\n", ma,
-           mb, mm, sab, sam);
+    printf("direct light, image mean: NEE %.5f, BSDF %.5f, MIS %.5f (sigma %.2e, %.2e)\n", ma, mb,
+           mm, sab, sam);
     CHECKF(outliers == 0, "%d pixels where NEE and BSDF sampling differ beyond 5 sigma", outliers);
     CHECKF(fabs(ma - mb) < 4.0 * sab, "NEE %.5f vs BSDF %.5f beyond 4 sigma (%.2e)", ma, mb, sab);
     CHECKF(fabs(ma - mm) < 4.0 * sam, "NEE %.5f vs MIS %.5f beyond 4 sigma (%.2e)", ma, mm, sam);
@@ -365,7 +367,8 @@ static pt_scene *textured_lambert_scene(uint32_t grid)
     floor.specular = 0.0f;
     floor.double_sided = 1;
     pt_texture tex = {2, 2, pt_malloc(16), 1, PT_WRAP_REPEAT, PT_WRAP_REPEAT};
-    const uint8_t texels[16] = {255, 40, 40, 255, 40, 255, 40, 255, 40, 40, 255, 255, 200, 200, 200, 255};
+    const uint8_t texels[16] = {255, 40, 40,  255, 40,  255, 40,  255,
+                                40,  40, 255, 255, 200, 200, 200, 255};
     memcpy(tex.rgba, texels, 16);
     uint32_t ti = 0, mf = 0, ml = 0;
     CHECK(pt_scene_builder_add_texture(b, &tex, &ti, NULL) == PT_OK);

@@ -30,9 +30,9 @@
 #include <string.h>
 #include <unistd.h>
 
-#include "common/scene/accel.h"
 #include "common/base/alloc.h"
 #include "common/render/render.h"
+#include "common/scene/accel.h"
 #include "common/scene/scene.h"
 #include "tests/check.h"
 

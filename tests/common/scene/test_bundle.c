@@ -87,15 +87,17 @@ static void hostile(void)
 
 static void pack_refuses_escape(void)
 {
-    write_text("escape.gltf", "{\"asset\":{\"version\":\"2.0\"},\"buffers\":[{\"uri\":\"../secret.bin\","
-                              "\"byteLength\":4}]}");
+    write_text("escape.gltf",
+               "{\"asset\":{\"version\":\"2.0\"},\"buffers\":[{\"uri\":\"../secret.bin\","
+               "\"byteLength\":4}]}");
     char path[512];
     snprintf(path, sizeof path, "%s/escape.gltf", tmp);
     pt_bundle *b = NULL;
     pt_error err = {0};
     CHECK(pt_bundle_pack(path, &b, &err) == PT_ERR_FORMAT && strstr(err.msg, "secret.bin"));
     CHECK(b == NULL);
-    write_text("missing.gltf", "{\"asset\":{\"version\":\"2.0\"},\"images\":[{\"uri\":\"no%20such.png\"}]}");
+    write_text("missing.gltf",
+               "{\"asset\":{\"version\":\"2.0\"},\"images\":[{\"uri\":\"no%20such.png\"}]}");
     snprintf(path, sizeof path, "%s/missing.gltf", tmp);
     CHECK(pt_bundle_pack(path, &b, &err) == PT_ERR_IO && strstr(err.msg, "no such.png"));
 }

@@ -445,8 +445,9 @@ static void test_hash_and_nomem(void)
 /* An irregular mesh centred on the origin (bounds -1..1 on every axis, so its
  * centre is exactly 0) with details far below a float's ULP at 1e5 (8 mm),
  * each of which + 1e5 still fits a double's 53 bits exactly. */
-static const float k_far_pos[] = {-1, -1, -1, 1, 1, 1, 0.7123f, -0.000123f, 0.25f,
-                                  -0.3333f, 0.5f, 0.002f, 0.001f, 0.0012f, -0.9f, 1, -1, 1};
+static const float k_far_pos[] = {-1,      -1,         -1,    1,        1,    1,
+                                  0.7123f, -0.000123f, 0.25f, -0.3333f, 0.5f, 0.002f,
+                                  0.001f,  0.0012f,    -0.9f, 1,        -1,   1};
 static const uint32_t k_far_idx[] = {0, 1, 2, 1, 3, 4, 2, 4, 5, 0, 5, 3};
 
 static pt_scene *far_scene(const float *xf, const double *xd, const pt_scene_opts *o,
@@ -455,8 +456,8 @@ static pt_scene *far_scene(const float *xf, const double *xd, const pt_scene_opt
     pt_error err = {0};
     pt_scene_builder *b = builder_with(NULL);
     if (xd)
-        CHECK(pt_scene_builder_add_mesh_dxform(b, "far", k_far_pos, NULL, NULL, 6, k_far_idx, 4,
-                                               xd, 0, &err) == PT_OK);
+        CHECK(pt_scene_builder_add_mesh_dxform(b, "far", k_far_pos, NULL, NULL, 6, k_far_idx, 4, xd,
+                                               0, &err) == PT_OK);
     else
         CHECK(pt_scene_builder_add_mesh(b, "far", k_far_pos, NULL, NULL, 6, k_far_idx, 4, xf, 0,
                                         &err) == PT_OK);
@@ -502,8 +503,7 @@ static void test_rebase(void)
         if (!s)
             continue;
         CHECKF(s->origin[0] == T && s->origin[1] == -T && s->origin[2] == T,
-               "variant %d: origin %.17g %.17g %.17g", k, s->origin[0], s->origin[1],
-               s->origin[2]);
+               "variant %d: origin %.17g %.17g %.17g", k, s->origin[0], s->origin[1], s->origin[2]);
         CHECKF(memcmp(s->positions, s0->positions, 18 * sizeof(float)) == 0,
                "variant %d: stored positions differ from the local ones", k);
         CHECKF(memcmp(s->normals, s0->normals, 18 * sizeof(float)) == 0,
