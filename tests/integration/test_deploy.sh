@@ -96,15 +96,24 @@ done
 exec_words() { # the ExecStart command of a unit, one word a line
   sed -n 's/^ExecStart=//p' "$1" | tr ' ' '\n' | grep -v '^$'
 }
+# Whether word $1 is among the rest. In bash, not `printf | grep -q`: grep
+# quits at the first match, printf can then die of SIGPIPE, and pipefail
+# fails a check that held.
+has_word() {
+  local w=$1 x
+  shift
+  for x in "$@"; do [[ $x == "$w" ]] && return 0; done
+  return 1
+}
 mapfile -t words < <(exec_words "$deploy/systemd/ptserve.service")
 [[ "${words[0]}" == /usr/local/bin/ptserve ]] || fail "ptserve.service does not start /usr/local/bin/ptserve"
-printf '%s\n' "${words[@]}" | grep -qx -- --state-dir || fail "ptserve.service: no --state-dir"
-printf '%s\n' "${words[@]}" | grep -qx -- --token-file || fail "ptserve.service: no --token-file"
+has_word --state-dir "${words[@]}" || fail "ptserve.service: no --state-dir"
+has_word --token-file "${words[@]}" || fail "ptserve.service: no --token-file"
 check_options ptserve ptserve.service "${words[@]}"
 mapfile -t words < <(exec_words "$deploy/systemd/ptworker@.service")
 [[ "${words[0]}" == /usr/local/bin/ptworker ]] ||
   fail "ptworker@.service does not start /usr/local/bin/ptworker"
-printf '%s\n' "${words[@]}" | grep -qx -- --token-file || fail "ptworker@.service: no --token-file"
+has_word --token-file "${words[@]}" || fail "ptworker@.service: no --token-file"
 check_options ptworker ptworker@.service "${words[@]}"
 for u in "${units[@]}"; do
   for key in DynamicUser=yes NoNewPrivileges=yes ProtectSystem=strict Restart=on-failure; do
