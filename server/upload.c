@@ -27,6 +27,29 @@ static void verify_refuse(srv_upload *k, uint16_t code, const char *fmt, ...)
     k->ok = 0;
 }
 
+/* Removes every "dir/" from msg and calls dir itself "upload", so that a
+ * message about the unpacked bundle names its files as the bundle does
+ * ("scene.gltf: ..."), never by this server's paths. The loader names
+ * external files by their URIs only (common/scene/gltf_import.cpp); this
+ * covers the entry file and anything that names the folder. */
+static void strip_folder(char *msg, const char *dir)
+{
+    static const char name[] = "upload";
+    size_t dl = strlen(dir);
+    char *p = msg;
+    if (dl <= sizeof name)
+        return;
+    while ((p = strstr(p, dir)) != NULL) {
+        if (p[dl] == '/') {
+            memmove(p, p + dl + 1, strlen(p + dl + 1) + 1);
+        } else {
+            memcpy(p, name, sizeof name - 1);
+            memmove(p + sizeof name - 1, p + dl, strlen(p + dl) + 1);
+            p += sizeof name - 1;
+        }
+    }
+}
+
 /* The verification itself, on its own thread: touches nothing of the server's. */
 static void verify_upload(srv_upload *k)
 {
@@ -59,13 +82,10 @@ static void verify_upload(srv_upload *k)
     }
     pt_remove_tree(k->tmp);
     if (st != PT_OK) {
-        /* The path is our temp folder's: name the file inside the bundle instead. */
-        const char *msg = err.msg;
-        size_t tl = strlen(k->tmp);
-        if (strncmp(msg, k->tmp, tl) == 0 && msg[tl] == '/')
-            msg += tl + 1;
+        /* The client learns of its own files only: names inside the bundle. */
+        strip_folder(err.msg, k->tmp);
         verify_refuse(k, st == PT_ERR_NOMEM ? PROTO_E_INTERNAL : PROTO_E_PROTOCOL,
-                      "scene refused: %s", msg);
+                      "scene refused: %s", err.msg);
         return;
     }
     const char *base = strrchr(entry, '/');

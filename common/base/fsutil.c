@@ -112,11 +112,10 @@ int pt_write_all(int fd, const void *data, size_t n)
     return 0;
 }
 
-pt_status pt_read_file(const char *path, size_t max, uint8_t **out, size_t *len, pt_error *err)
+/* Reads the open fd (a regular file of at most max bytes) whole; closes it. */
+static pt_status read_fd(int fd, const char *path, size_t max, uint8_t **out, size_t *len,
+                         pt_error *err)
 {
-    int fd = open(path, O_RDONLY | O_CLOEXEC);
-    if (fd < 0)
-        return pt_error_errno(err, PT_ERR_IO, "%s", path);
     struct stat sb;
     if (fstat(fd, &sb) != 0 || !S_ISREG(sb.st_mode)) {
         close(fd);
@@ -151,6 +150,73 @@ pt_status pt_read_file(const char *path, size_t max, uint8_t **out, size_t *len,
     *out = buf;
     *len = size;
     return PT_OK;
+}
+
+pt_status pt_read_file(const char *path, size_t max, uint8_t **out, size_t *len, pt_error *err)
+{
+    int fd = open(path, O_RDONLY | O_CLOEXEC);
+    if (fd < 0)
+        return pt_error_errno(err, PT_ERR_IO, "%s", path);
+    return read_fd(fd, path, max, out, len, err);
+}
+
+pt_status pt_read_file_beneath(int dirfd, const char *rel, size_t max, uint8_t **out, size_t *len,
+                               pt_error *err)
+{
+    if (rel[0] == '/')
+        return pt_error_set(err, PT_ERR_FORMAT, "%s: an absolute path", rel);
+    char part[NAME_MAX + 1];
+    int at = dirfd;
+    const char *p = rel;
+    pt_status st = PT_OK;
+    for (;;) {
+        const char *slash = strchr(p, '/');
+        size_t n = slash ? (size_t)(slash - p) : strlen(p);
+        if (n > NAME_MAX) {
+            st = pt_error_set(err, PT_ERR_IO, "%s: a name is too long", rel);
+            break;
+        }
+        memcpy(part, p, n);
+        part[n] = '\0';
+        if (n == 2 && part[0] == '.' && part[1] == '.') {
+            st = pt_error_set(err, PT_ERR_FORMAT, "%s: leads out of its folder", rel);
+            break;
+        }
+        if (slash && (n == 0 || (n == 1 && part[0] == '.'))) {
+            p = slash + 1;
+            continue;
+        }
+        int flags = O_RDONLY | O_CLOEXEC | O_NOFOLLOW | (slash ? O_DIRECTORY : O_NONBLOCK);
+        int fd = n ? openat(at, part, flags) : -1;
+        if (fd < 0) {
+            int e = n ? errno : EISDIR;
+            if (e == ELOOP || e == ENOTDIR || e == EISDIR)
+                st = pt_error_set(err, PT_ERR_FORMAT, "%s: %s", rel,
+                                  e == ELOOP     ? "a symbolic link"
+                                  : e == ENOTDIR ? "a symbolic link or a file on the way"
+                                                 : "not a file below its folder");
+            else
+                st = pt_error_set(err, PT_ERR_IO, "%s: %s", rel, strerror(e));
+            break;
+        }
+        if (at != dirfd)
+            close(at);
+        at = -1;
+        if (slash) {
+            at = fd;
+            p = slash + 1;
+            continue;
+        }
+        struct stat sb;
+        if (fstat(fd, &sb) != 0 || !S_ISREG(sb.st_mode)) {
+            close(fd);
+            return pt_error_set(err, PT_ERR_FORMAT, "%s: not a regular file", rel);
+        }
+        return read_fd(fd, rel, max, out, len, err);
+    }
+    if (at != dirfd && at >= 0)
+        close(at);
+    return st;
 }
 
 pt_status pt_mkdirs(const char *path, int private_, pt_error *err)

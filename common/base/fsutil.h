@@ -47,6 +47,19 @@ pt_status pt_write_file_atomic_mode(const char *path, const void *data, size_t n
  * it is larger than max bytes, PT_ERR_NOMEM. */
 pt_status pt_read_file(const char *path, size_t max, uint8_t **out, size_t *len, pt_error *err);
 
+/* pt_read_file for rel, a relative name ('/'-separated) below the folder
+ * dirfd, that never leaves that folder: each folder on the way is opened
+ * with O_NOFOLLOW|O_DIRECTORY from the one before, and the file itself with
+ * O_NOFOLLOW|O_NONBLOCK, so a symbolic link anywhere is refused, and so is
+ * a name that is not a regular file (a FIFO does not block, /dev/zero is not
+ * read). "." and empty components are skipped; ".." is refused (callers
+ * check names first: pt_uri_path_refusal). Messages name rel, never the
+ * folder. PT_ERR_FORMAT for a link, a non-folder on the way, a file that is
+ * not regular, "..", or an absolute rel; PT_ERR_LIMIT over max bytes (checked
+ * before reading); PT_ERR_IO when missing or unreadable; PT_ERR_NOMEM. */
+pt_status pt_read_file_beneath(int dirfd, const char *rel, size_t max, uint8_t **out, size_t *len,
+                               pt_error *err);
+
 /* mkdir -p with mode 0755 (0700 with private), each component created if missing. */
 pt_status pt_mkdirs(const char *path, int private_, pt_error *err);
 

@@ -91,9 +91,14 @@ extern "C" pt_status pt_gltf_dependencies(const char *path, char ***names, uint3
                     std::string uri = u->get<std::string>();
                     if (uri.compare(0, 5, "data:") != 0) {
                         std::string name = percent_decode(uri);
-                        if (name.empty() || name.find('\0') != std::string::npos)
-                            return pt_error_set(err, PT_ERR_FORMAT, "%s: %s[%zu].uri is empty",
-                                                path, key, i);
+                        // The importer refuses the same names (uri.h): say so now,
+                        // before anything is sent.
+                        const char *why = pt_uri_path_refusal(name.data(), name.size());
+                        if (why)
+                            return pt_error_set(err, PT_ERR_FORMAT,
+                                                "%s: %s[%zu].uri '%.200s' %s: a scene may only "
+                                                "name files inside its folder",
+                                                path, key, i, uri.c_str(), why);
                         bool dup = false;
                         for (const auto &f : found)
                             dup = dup || f == name;

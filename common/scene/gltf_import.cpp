@@ -19,6 +19,16 @@
 // KHR_materials_emissive_strength and KHR_materials_specular; what the
 // renderer does not support is reported once per kind through opts->warn.
 //
+// External files: every buffer and image URI is a name below the entry
+// file's folder and nothing else (pt_uri_path_refusal: no absolute path, no
+// "..", no backslash, no NUL), read by pt_read_file_beneath from that
+// folder's descriptor, which refuses a symbolic link anywhere on the way and
+// anything but a regular file, and checks the size cap before reading.
+// tinygltf reads buffers through FsCallbacks that go there too, and is given
+// no base folder, so its messages name the URI, never a path of this machine.
+// The coordinator loads scenes that clients send (server/upload.c), so this
+// is what keeps a client from making it open a file of its choosing.
+//
 // scene->hash: SHA-256 of the entry file's bytes, then each external
 // buffer and image file in the order of the JSON arrays (a data: URI or a GLB
 // chunk is already inside the entry file).
@@ -40,15 +50,18 @@
 #include <cstdarg>
 #include <cstdio>
 #include <cstring>
+#include <fcntl.h>
 #include <fstream>
 #include <map>
 #include <new>
 #include <set>
 #include <string>
+#include <unistd.h>
 #include <vector>
 
 extern "C" {
 #include "common/base/alloc.h"
+#include "common/base/fsutil.h"
 #include "common/base/hash.h"
 #include "common/scene/gltf_import.h"
 #include "common/scene/scene.h"
@@ -80,6 +93,18 @@ struct importer {
     std::map<std::pair<int, int>, uint32_t> tex_map;         // (gltf texture, srgb) -> builder
     uint32_t default_material = UINT32_MAX;
     uint64_t node_visits = 0;
+    int dirfd = -1;          // the entry file's folder, opened on first use
+    pt_status fs_st = PT_OK; // the first failure of a read tinygltf asked for
+    std::string fs_msg;      // and its message (names the URI only)
+
+    importer() = default;
+    importer(const importer &) = delete;
+    importer &operator=(const importer &) = delete;
+    ~importer()
+    {
+        if (dirfd >= 0)
+            close(dirfd);
+    }
 
     [[noreturn]] void fail(pt_status st, const char *fmt, ...) __attribute__((format(printf, 3, 4)))
     {
@@ -158,6 +183,102 @@ bool read_file(const std::string &p, std::vector<unsigned char> &out, int *os_er
     }
     fclose(f);
     return ok;
+}
+
+// A URI or file name as a message may show it: printable ASCII, the rest as
+// \xNN, at most 120 bytes.
+std::string shown(const std::string &s)
+{
+    std::string out;
+    for (unsigned char c : s) {
+        if (out.size() >= 120) {
+            out += "...";
+            break;
+        }
+        if (c >= 0x20 && c < 0x7f && c != '\\') {
+            out += char(c);
+        } else {
+            char hex[8];
+            snprintf(hex, sizeof hex, "\\x%02x", c);
+            out += hex;
+        }
+    }
+    return out;
+}
+
+// Reads the external file a decoded URI names, below the entry file's folder
+// only (see the top of this file). On failure, *msg is "'name': why", naming
+// nothing but the name as the scene wrote it (escaped).
+pt_status read_inside(importer &im, const std::string &name, std::vector<unsigned char> &out,
+                      std::string *msg)
+{
+    const char *why = pt_uri_path_refusal(name.data(), name.size());
+    if (why) {
+        *msg = "'" + shown(name) + "' " + why;
+        return PT_ERR_FORMAT;
+    }
+    if (im.dirfd < 0) {
+        im.dirfd =
+            open(im.base.empty() ? "." : im.base.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+        if (im.dirfd < 0) {
+            *msg = "'" + shown(name) + "': the scene's folder cannot be opened: " + strerror(errno);
+            return PT_ERR_IO;
+        }
+    }
+    uint8_t *data = nullptr;
+    size_t len = 0;
+    pt_error e{};
+    pt_status st = pt_read_file_beneath(im.dirfd, name.c_str(), kMaxFileBytes, &data, &len, &e);
+    if (st != PT_OK) {
+        // e.msg is "<name>: why"; show the name escaped.
+        const char *rest = e.msg;
+        if (strncmp(rest, name.c_str(), name.size()) == 0 && rest[name.size()] == ':')
+            rest += name.size() + 1;
+        *msg = "'" + shown(name) + "':" + rest;
+        return st;
+    }
+    try {
+        out.assign(data, data + len);
+    } catch (...) {
+        pt_free(data);
+        throw;
+    }
+    pt_free(data);
+    return PT_OK;
+}
+
+// tinygltf's file callbacks (it reads the buffers): every name goes through
+// read_inside. Given an empty base folder, tinygltf asks for the decoded URI
+// itself; saying every file exists keeps it from trying "./" + URI, and the
+// real answer comes from the read.
+bool fs_exists(const std::string &, void *)
+{
+    return true;
+}
+std::string fs_expand(const std::string &path, void *)
+{
+    return path;
+}
+bool fs_read(std::vector<unsigned char> *out, std::string *err, const std::string &name, void *user)
+{
+    auto *im = static_cast<importer *>(user);
+    std::string msg;
+    pt_status st = read_inside(*im, name, *out, &msg);
+    if (st == PT_OK)
+        return true;
+    if (im->fs_st == PT_OK) {
+        im->fs_st = st;
+        im->fs_msg = msg;
+    }
+    if (err)
+        *err = "refused";
+    return false;
+}
+bool fs_write(std::string *err, const std::string &, const std::vector<unsigned char> &, void *)
+{
+    if (err)
+        *err = "writing is not allowed";
+    return false;
 }
 
 // RFC 3986 percent-decoding of a relative URI.
@@ -823,12 +944,14 @@ void hash_files(importer &im, const std::vector<unsigned char> &entry)
         if (im.files.count(uris[i]))
             continue; // hashed once, like the bundle stores it once
         std::vector<unsigned char> bytes;
-        int e = 0;
-        if (!read_file(im.base + uris[i], bytes, &e)) {
-            if (i < nbuf)
-                im.fail(PT_ERR_IO, "buffer file '%s': %s", uris[i].c_str(), strerror(e));
-            im.warn_once("img:" + uris[i],
-                         "image file '" + uris[i] + "' cannot be read: " + strerror(e));
+        std::string msg;
+        pt_status st = read_inside(im, uris[i], bytes, &msg);
+        if (st != PT_OK) {
+            // A missing image is a warning (the material keeps its factors);
+            // a name that leads out of the folder, a link or a device is not.
+            if (i < nbuf || st != PT_ERR_IO)
+                im.fail(st, "%s file %s", i < nbuf ? "buffer" : "image", msg.c_str());
+            im.warn_once("img:" + uris[i], "image file " + msg);
             continue;
         }
         EVP_DigestUpdate(ctx, bytes.data(), bytes.size());
@@ -852,6 +975,8 @@ void parse(importer &im, const std::vector<unsigned char> &bytes)
     tinygltf::TinyGLTF loader;
     image_loader_ctx ictx{&im.data_uri_images};
     loader.SetImageLoader(keep_image_bytes, &ictx);
+    tinygltf::FsCallbacks fs = {fs_exists, fs_expand, fs_read, fs_write, &im};
+    loader.SetFsCallbacks(fs);
     std::string terr, twarn;
     bool ok, glb = false;
     if (bytes.empty())
@@ -862,11 +987,11 @@ void parse(importer &im, const std::vector<unsigned char> &bytes)
             im.fail(PT_ERR_FORMAT, "GLB header truncated (%zu bytes)", bytes.size());
         glb = true;
         ok = loader.LoadBinaryFromMemory(&im.model, &terr, &twarn, bytes.data(),
-                                         unsigned(bytes.size()), im.base);
+                                         unsigned(bytes.size()), "");
     } else {
         ok = loader.LoadASCIIFromString(&im.model, &terr, &twarn,
                                         reinterpret_cast<const char *>(bytes.data()),
-                                        unsigned(bytes.size()), im.base);
+                                        unsigned(bytes.size()), "");
     }
     // tinygltf's messages end in newlines; keep the first line or two.
     auto tidy = [](std::string s) {
@@ -879,6 +1004,8 @@ void parse(importer &im, const std::vector<unsigned char> &bytes)
             s.resize(300);
         return s;
     };
+    if (!ok && im.fs_st != PT_OK)
+        im.fail(im.fs_st, "buffer file %s", im.fs_msg.c_str());
     if (!ok) {
         std::string msg = tidy(terr.empty() ? twarn : terr);
         // External images are not read by tinygltf, so a missing file is a buffer.

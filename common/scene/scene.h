@@ -123,7 +123,10 @@ typedef struct pt_scene_opts {
 /* Loads a .gltf or .glb. Returns PT_ERR_IO, PT_ERR_FORMAT (message names the
  * file and the element: "scene.gltf: accessor 3: index 912 out of range"),
  * PT_ERR_LIMIT or PT_ERR_NOMEM. opts may be NULL. On success *out is a new
- * scene; on failure it is untouched and nothing leaks. */
+ * scene; on failure it is untouched and nothing leaks. External buffers and
+ * images are read only from below the folder of path: a URI that is absolute
+ * or has a ".." component, a symbolic link on the way, or a file that is not
+ * regular is PT_ERR_FORMAT, and messages name such a file by its URI only. */
 pt_status pt_scene_load(const char *path, const pt_scene_opts *opts, pt_scene **out, pt_error *err);
 
 /* Frees the scene and all it owns. Accepts NULL. */

@@ -17,3 +17,24 @@ size_t pt_uri_decode(const char *uri, size_t n, char *out)
     }
     return k;
 }
+
+const char *pt_uri_path_refusal(const char *name, size_t n)
+{
+    if (n == 0)
+        return "is empty";
+    if (name[0] == '/')
+        return "is an absolute path";
+    size_t start = 0;
+    for (size_t i = 0; i <= n; i++) {
+        if (i < n && name[i] == '\0')
+            return "holds a NUL byte";
+        if (i < n && name[i] == '\\')
+            return "holds a backslash";
+        if (i == n || name[i] == '/') {
+            if (i - start == 2 && name[start] == '.' && name[start + 1] == '.')
+                return "leads out of the scene's folder ('..')";
+            start = i + 1;
+        }
+    }
+    return NULL;
+}

@@ -9,7 +9,13 @@
  * importer opens, so both call this one function. The rule: "%XY" with two
  * hex digits (either case) is the byte 0xXY, "%00" included; a '%' not
  * followed by two hex digits, and every other byte ('+' too: it is not a
- * space in a path), is kept as it is. Pure: any thread may call it.
+ * space in a path), is kept as it is.
+ *
+ * Both also apply one rule to the decoded name, pt_uri_path_refusal: a URI
+ * names a file inside the scene's folder or nothing. The coordinator loads
+ * scenes that clients send, so a name that leads out of the folder
+ * ("../x", "/etc/passwd", "a/../../x", "%2e%2e/x") must never reach open().
+ * Pure: any thread may call them.
  */
 #ifndef PT_COMMON_SCENE_URI_H
 #define PT_COMMON_SCENE_URI_H
@@ -21,5 +27,13 @@
  * bytes (from "%00") and is not NUL-terminated: callers that need a C string
  * must refuse an embedded NUL. uri and out may not overlap. */
 size_t pt_uri_decode(const char *uri, size_t n, char *out);
+
+/* Why the n bytes of a decoded URI do not name a file below the scene's
+ * folder, as a static phrase ("is an absolute path"), or NULL when they do.
+ * Refused: an empty name, a NUL byte, a backslash (a separator elsewhere),
+ * a leading '/', and any ".." component. "." and empty components are
+ * harmless and allowed ("./a.png" is common). Symbolic links are not seen
+ * here: the importer's reads refuse them (pt_read_file_beneath). */
+const char *pt_uri_path_refusal(const char *name, size_t n);
 
 #endif

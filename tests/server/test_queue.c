@@ -20,6 +20,10 @@
  *     files name '../', absurd sizes, a bundle that lies about its length, one
  *     with the wrong hash, a broken scene, a submit that stops half-way. Each
  *     is refused; the render completes with exact sample counts.
+ *  6. Files outside the upload: scenes whose buffer or image names a file of
+ *     the server's ("../../..", an absolute path, /dev/zero) are refused
+ *     without opening it, and the reply shows neither its bytes, its size nor
+ *     a path of the server; the next good submit is served.
  */
 #include "common/base/alloc.h"
 #include "common/base/fsutil.h"
@@ -1073,6 +1077,142 @@ static void checked_off_loop(void)
     kill_server(SIGTERM);
 }
 
+/* ---- 6. files outside the upload ---------------------------------------------------- */
+
+/* A bundle of n files with explicit sizes (binary data allowed). */
+static uint8_t *make_bundle_n(const char *const *names, const uint8_t *const *datas,
+                              const size_t *sizes, int n, size_t *len)
+{
+    proto_writer w;
+    proto_writer_init(&w, 1 << 20);
+    proto_w_u32(&w, 0x31425450u); /* "PTB1" */
+    proto_w_u32(&w, (uint32_t)n);
+    for (int i = 0; i < n; i++) {
+        proto_w_u16(&w, (uint16_t)strlen(names[i]));
+        proto_w_bytes(&w, names[i], strlen(names[i]));
+        proto_w_u64(&w, sizes[i]);
+        proto_w_bytes(&w, datas[i], sizes[i]);
+    }
+    *len = w.len;
+    return w.buf;
+}
+
+/* One triangle: buffer bin_uri (68 bytes: positions, u16 indices at 36, uvs
+ * at 44), its material's base colour image img_uri (or none). */
+static void outside_scene(char *json, size_t cap, const char *bin_uri, const char *img_uri)
+{
+    char img[1024] = "";
+    if (img_uri)
+        snprintf(img, sizeof img,
+                 ",\"textures\":[{\"source\":0}],\"images\":[{\"uri\":\"%s\"}],"
+                 "\"materials\":[{\"pbrMetallicRoughness\":{\"baseColorTexture\":{\"index\":0}}}]",
+                 img_uri);
+    snprintf(json, cap,
+             "{\"asset\":{\"version\":\"2.0\"},\"scene\":0,\"scenes\":[{\"nodes\":[0]}],"
+             "\"nodes\":[{\"mesh\":0}],\"meshes\":[{\"primitives\":[{\"attributes\":"
+             "{\"POSITION\":0,\"TEXCOORD_0\":2},\"indices\":1%s}]}],"
+             "\"buffers\":[{\"uri\":\"%s\",\"byteLength\":68}],\"bufferViews\":["
+             "{\"buffer\":0,\"byteOffset\":0,\"byteLength\":36},"
+             "{\"buffer\":0,\"byteOffset\":36,\"byteLength\":6},"
+             "{\"buffer\":0,\"byteOffset\":44,\"byteLength\":24}],\"accessors\":["
+             "{\"bufferView\":0,\"componentType\":5126,\"count\":3,\"type\":\"VEC3\"},"
+             "{\"bufferView\":1,\"componentType\":5123,\"count\":3,\"type\":\"SCALAR\"},"
+             "{\"bufferView\":2,\"componentType\":5126,\"count\":3,\"type\":\"VEC2\"}]%s}",
+             img_uri ? ",\"material\":0" : "", bin_uri, img);
+}
+
+/* Submits a bundle of scene.gltf (json) and, when bin is given, tri.bin;
+ * expects a refusal containing `expect`, and a reply that shows none of the
+ * secrets' bytes, nor `leaks` (a size, an index), nor the server's paths
+ * (its state folder, the upload's folder). The URI the client wrote may be
+ * quoted: it names nothing the client does not know. */
+static void refused_outside(const char *what, const char *json, const uint8_t *bin,
+                            const char *expect, const char *leaks)
+{
+    const char *names[] = {"scene.gltf", "tri.bin"};
+    const uint8_t *datas[] = {(const uint8_t *)json, bin};
+    size_t sizes[] = {strlen(json), 68}, len;
+    uint8_t *b = make_bundle_n(names, datas, sizes, bin ? 2 : 1, &len);
+    cli c;
+    CHECK(cli_open(&c, g_port) == 0);
+    err_text[0] = '\0';
+    uint64_t id = submit_bytes(&c, job_of(what, 32, 32, 4, 0), b, len);
+    cli_close(&c);
+    free(b);
+    CHECKF(id == 0 && strstr(err_text, "scene refused") && strstr(err_text, expect),
+           "%s: job %llu, '%s'", what, (unsigned long long)id, err_text);
+    const char *never[] = {"PTFARM", "root:", "state6", "upload-", leaks};
+    for (size_t i = 0; i < sizeof never / sizeof *never; i++)
+        CHECKF(!strstr(err_text, never[i]), "%s: the reply shows '%s': %s", what, never[i],
+               err_text);
+}
+
+/* A client names files of the server's in its scene: "../../x", an absolute
+ * path, /dev/zero as an image. The coordinator's check opens none of them
+ * (README: "the server never opens a path a client names"), its reply
+ * shows neither the file's bytes, nor its size, nor a path of the server,
+ * and the next good submit is served. */
+static void outside_files(void)
+{
+    /* Two secrets beside the state folder: 70 bytes (a 68-byte buffer would
+     * be told its size), and 68 bytes whose u16 at 36 an index error would
+     * print. */
+    const char *s70 = "PTFARM-SECRET-0123456789-PTFARM-SECRET-0123456789-PTFARM-SECRET-01234\n";
+    const char *s68 = "PTFARM-SECRET-0123456789-PTFARM-SECR"
+                      "ZZ"
+                      "ZZ-PTFARM-SECRET-0123456789ab\n";
+    CHECK(strlen(s70) == 70 && strlen(s68) == 68);
+    FILE *f = fopen(path("secret70.txt"), "wb");
+    CHECK(f && fwrite(s70, 1, 70, f) == 70 && fclose(f) == 0);
+    f = fopen(path("secret68.txt"), "wb");
+    CHECK(f && fwrite(s68, 1, 68, f) == 68 && fclose(f) == 0);
+    unsigned zz = 'Z' | 'Z' << 8; /* the index the 68-byte secret holds */
+    char zz_text[16];
+    snprintf(zz_text, sizeof zz_text, "%u", zz);
+
+    g_port = 0;
+    start_server("state6", "outside.log", NULL);
+    /* From state6/tmp/upload-N, more "../" than needed reach '/', then tmp. */
+    char up70[1024], up68[1024], abs70[512];
+    snprintf(abs70, sizeof abs70, "%s", path("secret70.txt"));
+    snprintf(up70, sizeof up70, "../../../../../../../../../../../../../../../..%s", abs70);
+    snprintf(up68, sizeof up68, "../../../../../../../../../../../../../../../..%s",
+             path("secret68.txt"));
+    char json[4096];
+    outside_scene(json, sizeof json, up70, NULL);
+    refused_outside("up70", json, NULL, "leads out", " 70");
+    outside_scene(json, sizeof json, up68, NULL);
+    refused_outside("up68", json, NULL, "leads out", zz_text);
+    outside_scene(json, sizeof json, abs70, NULL);
+    refused_outside("abs70", json, NULL, "absolute", " 70");
+
+    /* An image on a device: refused before a byte is read. */
+    unsigned char bin[68] = {0};
+    float pos[9] = {0, 0, 0, 1, 0, 0, 0, 1, 0};
+    uint16_t idx[3] = {0, 1, 2};
+    memcpy(bin, pos, 36);
+    memcpy(bin + 36, idx, 6);
+    outside_scene(json, sizeof json, "tri.bin", "/dev/zero");
+    refused_outside("zero", json, bin, "absolute", "1073741824");
+    outside_scene(json, sizeof json, "tri.bin", "%2e%2e/%2e%2e/%2e%2e/%2e%2e/etc/passwd");
+    refused_outside("passwd", json, bin, "leads out", ":0:0:");
+
+    /* The same bundle with the image inside it is taken, and the server serves on. */
+    outside_scene(json, sizeof json, "tri.bin", NULL);
+    const char *names[] = {"scene.gltf", "tri.bin"};
+    const uint8_t *datas[] = {(const uint8_t *)json, bin};
+    size_t sizes[] = {strlen(json), 68}, len;
+    uint8_t *good = make_bundle_n(names, datas, sizes, 2, &len);
+    cli c;
+    CHECK(cli_open(&c, g_port) == 0);
+    uint64_t id = submit_bytes(&c, job_of("inside", 32, 32, 4, 0), good, len);
+    CHECKF(id > 0, "the good scene was refused: %s", err_text);
+    cli_close(&c);
+    free(good);
+    CHECK(submit(g_port, job_of("cornell", 32, 32, 4, 0)) > 0);
+    kill_server(SIGTERM);
+}
+
 int main(void)
 {
     snprintf(tmp, sizeof tmp, "/tmp/pt_test_queue_XXXXXX");
@@ -1089,6 +1229,7 @@ int main(void)
     damaged();
     hostile_clients();
     checked_off_loop();
+    outside_files();
     pt_bundle_free(g_bundle);
     if (g_srv > 0)
         kill_server(SIGKILL);

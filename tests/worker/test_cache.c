@@ -6,7 +6,8 @@
  * bundle, and removing the temporaries of a dead process but not a live one.
  * In memory: two threads asking for the same (scene, params) at once build it
  * once and share it; failures reach every waiter; unused entries are evicted
- * down to the limit; nothing leaks.
+ * down to the limit; nothing leaks. A bundle whose scene names a file outside
+ * it is refused when the scene is built.
  */
 #include <dirent.h>
 #include <pthread.h>
@@ -295,6 +296,84 @@ static void test_memory(const uint8_t hash[32], const char *entry)
     wrk_scenes_free(s);
 }
 
+/* A one-file bundle (PTB1, bundle.h) of scene.gltf holding json. */
+static uint8_t *one_file_bundle(const char *json, size_t *len)
+{
+    const char *name = "scene.gltf";
+    size_t nl = strlen(name), jl = strlen(json), n = 8 + 2 + nl + 8 + jl;
+    uint8_t *b = malloc(n);
+    if (!b)
+        return NULL;
+    memcpy(b, "PTB1", 4);
+    b[4] = 1, b[5] = b[6] = b[7] = 0;
+    b[8] = (uint8_t)nl, b[9] = 0;
+    memcpy(b + 10, name, nl);
+    for (int i = 0; i < 8; i++)
+        b[10 + nl + i] = (uint8_t)((uint64_t)jl >> (8 * i));
+    memcpy(b + 18 + nl, json, jl);
+    *len = n;
+    return b;
+}
+
+/* A bundle from the coordinator whose scene names a file outside it: the
+ * worker's load refuses it, without reading the file. The file outside is a
+ * valid triangle buffer, so a load that opened it would succeed. */
+static void test_outside(void)
+{
+    float pos[9] = {0, 0, 0, 1, 0, 0, 0, 1, 0};
+    uint16_t idx[3] = {0, 1, 2};
+    uint8_t bin[44] = {0};
+    memcpy(bin, pos, 36);
+    memcpy(bin + 36, idx, 6);
+    char secret[600];
+    snprintf(secret, sizeof secret, "%s/outside.bin", tmp);
+    CHECK(pt_write_file_atomic(secret, bin, sizeof bin, NULL) == PT_OK);
+    const char *ups = "../../../../../../../../../../../../../../../..";
+    for (int k = 0; k < 2; k++) {
+        char uri[1200], json[4096];
+        snprintf(uri, sizeof uri, "%s%s", k == 0 ? ups : "", secret);
+        snprintf(json, sizeof json,
+                 "{\"asset\":{\"version\":\"2.0\"},\"scene\":0,\"scenes\":[{\"nodes\":[0]}],"
+                 "\"nodes\":[{\"mesh\":0}],\"meshes\":[{\"primitives\":[{\"attributes\":"
+                 "{\"POSITION\":0},\"indices\":1}]}],"
+                 "\"buffers\":[{\"uri\":\"%s\",\"byteLength\":44}],\"bufferViews\":["
+                 "{\"buffer\":0,\"byteOffset\":0,\"byteLength\":36},"
+                 "{\"buffer\":0,\"byteOffset\":36,\"byteLength\":6}],\"accessors\":["
+                 "{\"bufferView\":0,\"componentType\":5126,\"count\":3,\"type\":\"VEC3\"},"
+                 "{\"bufferView\":1,\"componentType\":5123,\"count\":3,\"type\":\"SCALAR\"}]}",
+                 uri);
+        size_t len = 0;
+        uint8_t *data = one_file_bundle(json, &len);
+        CHECK(data != NULL);
+        if (!data)
+            return;
+        char hex[65], entry[4096];
+        uint8_t hash[32];
+        pt_sha256_hex(data, len, hex);
+        hex_to_hash(hex, hash);
+        wrk_cache *c = NULL;
+        pt_error err = {0};
+        CHECK(wrk_cache_open(cache_dir, &c, &err) == PT_OK);
+        CHECKF(c && wrk_cache_store(c, hash, data, len, entry, sizeof entry, &err) == PT_OK, "%s",
+               err.msg);
+        wrk_cache_close(c);
+        free(data);
+        wrk_scenes *s = NULL;
+        CHECK(wrk_scenes_new(2, &s, &err) == PT_OK);
+        pt_render_params p;
+        memset(&p, 0, sizeof p);
+        p.width = 16;
+        p.height = 12;
+        pt_render_params_default(&p);
+        wrk_scene_ref *r = NULL;
+        pt_status st = s ? wrk_scenes_acquire(s, hash, &p, NULL, entry, &r, &err) : PT_ERR_ARG;
+        CHECKF(st == PT_ERR_FORMAT && r == NULL, "%s: status %d (%s)", uri, (int)st, err.msg);
+        CHECKF(strstr(err.msg, k == 0 ? "leads out" : "absolute"), "%s", err.msg);
+        wrk_scenes_release(s, r);
+        wrk_scenes_free(s);
+    }
+}
+
 int main(void)
 {
     const char *t = getenv("TMPDIR");
@@ -319,6 +398,7 @@ int main(void)
         CHECK(c && wrk_cache_lookup(c, hash, entry, sizeof entry, &err) == PT_OK);
         wrk_cache_close(c);
         test_memory(hash, entry);
+        test_outside();
     } else {
         fprintf(stderr, "%s\n", err.msg);
     }

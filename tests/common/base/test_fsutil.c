@@ -1,5 +1,6 @@
 /* Tests for common/base/fsutil.c: the atomic write (modes, reject paths, no
- * temporary left behind) and the folder removal. */
+ * temporary left behind), the folder removal, and the read confined below a
+ * folder (no link anywhere, regular files only, the cap before reading). */
 #include "common/base/fsutil.h"
 
 #include <dirent.h>
@@ -11,6 +12,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include "common/base/alloc.h"
 #include "tests/check.h"
 
 static int count_entries(const char *dir)
@@ -113,6 +115,63 @@ static void test_remove_tree(const char *dir)
     CHECK(pt_remove_tree(p) == 0); /* missing is fine */
 }
 
+/* pt_read_file_beneath from dir/in: what lies below is read; a link (to a
+ * file or a folder, inside or out), "..", an absolute name, a FIFO, a folder
+ * and an oversized file are refused, and no message names dir. */
+static void test_read_beneath(const char *dir)
+{
+    char p[300], q[300];
+    pt_error err = {0};
+    snprintf(p, sizeof p, "%s/in/sub", dir);
+    CHECK(pt_mkdirs(p, 0, &err) == PT_OK);
+    snprintf(p, sizeof p, "%s/in/sub/a.bin", dir);
+    CHECK(pt_write_file_atomic(p, "inside", 6, &err) == PT_OK);
+    snprintf(p, sizeof p, "%s/secret", dir);
+    CHECK(pt_write_file_atomic(p, "SECRET", 6, &err) == PT_OK);
+    snprintf(q, sizeof q, "%s/in/up.bin", dir);
+    CHECK(symlink("../secret", q) == 0);
+    snprintf(q, sizeof q, "%s/in/same.bin", dir);
+    CHECK(symlink("sub/a.bin", q) == 0);
+    snprintf(q, sizeof q, "%s/in/out", dir);
+    CHECK(symlink(dir, q) == 0);
+    snprintf(q, sizeof q, "%s/in/fifo", dir);
+    CHECK(mkfifo(q, 0600) == 0);
+    snprintf(q, sizeof q, "%s/in", dir);
+    int fd = open(q, O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+    CHECK(fd >= 0);
+
+    uint8_t *data = NULL;
+    size_t len = 0;
+    const char *good[] = {"sub/a.bin", "./sub/a.bin", "sub//a.bin"};
+    for (size_t i = 0; i < sizeof good / sizeof *good; i++) {
+        data = NULL;
+        CHECKF(pt_read_file_beneath(fd, good[i], 100, &data, &len, &err) == PT_OK && len == 6 &&
+                   memcmp(data, "inside", 6) == 0,
+               "%s: %s", good[i], err.msg);
+        pt_free(data);
+    }
+    char abs[300];
+    snprintf(abs, sizeof abs, "%s/secret", dir);
+    const char *bad[] = {"up.bin", "same.bin", "out/secret", "../secret", "sub/../../secret",
+                         abs,      "fifo",     "sub",        "sub/",      "/dev/zero",
+                         "."};
+    alarm(30); /* the FIFO must not block */
+    for (size_t i = 0; i < sizeof bad / sizeof *bad; i++) {
+        data = NULL;
+        err.msg[0] = '\0';
+        pt_status st = pt_read_file_beneath(fd, bad[i], 100, &data, &len, &err);
+        CHECKF(st == PT_ERR_FORMAT && data == NULL, "%s: %d %s", bad[i], (int)st, err.msg);
+        CHECKF(strncmp(err.msg, bad[i], strlen(bad[i])) == 0, "%s: %s", bad[i], err.msg);
+        CHECKF(!strstr(err.msg + strlen(bad[i]), dir) && !strstr(err.msg, "SECRET"), "%s: %s",
+               bad[i], err.msg);
+    }
+    alarm(0);
+    CHECK(pt_read_file_beneath(fd, "sub/a.bin", 5, &data, &len, &err) == PT_ERR_LIMIT);
+    CHECK(pt_read_file_beneath(fd, "sub/none", 100, &data, &len, &err) == PT_ERR_IO &&
+          strstr(err.msg, "sub/none"));
+    close(fd);
+}
+
 int main(void)
 {
     umask(022);
@@ -124,6 +183,7 @@ int main(void)
     test_write_atomic(dir);
     test_write_all_and_sync(dir);
     test_remove_tree(dir);
+    test_read_beneath(dir);
     CHECK(pt_remove_tree(dir) == 0 && access(dir, F_OK) != 0);
     return check_report();
 }

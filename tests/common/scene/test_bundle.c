@@ -94,8 +94,25 @@ static void pack_refuses_escape(void)
     snprintf(path, sizeof path, "%s/escape.gltf", tmp);
     pt_bundle *b = NULL;
     pt_error err = {0};
+    pt_status st;
     CHECK(pt_bundle_pack(path, &b, &err) == PT_ERR_FORMAT && strstr(err.msg, "secret.bin"));
     CHECK(b == NULL);
+    /* The importer's rule, with its reason, before any file is read. */
+    const char *uris[][2] = {{"/etc/passwd", "absolute"},
+                             {"sub/../../secret.bin", "'..'"},
+                             {"%2e%2e/secret.bin", "'..'"},
+                             {"a%5cb.bin", "backslash"},
+                             {"a%00b.bin", "NUL"}};
+    for (size_t i = 0; i < sizeof uris / sizeof *uris; i++) {
+        char json[256];
+        snprintf(json, sizeof json,
+                 "{\"asset\":{\"version\":\"2.0\"},\"images\":[{\"uri\":\"%s\"}]}", uris[i][0]);
+        write_text("escape.gltf", json);
+        snprintf(path, sizeof path, "%s/escape.gltf", tmp);
+        st = pt_bundle_pack(path, &b, &err);
+        CHECKF(st == PT_ERR_FORMAT && strstr(err.msg, uris[i][1]) && b == NULL, "%s: %d %s",
+               uris[i][0], (int)st, err.msg);
+    }
     write_text("missing.gltf",
                "{\"asset\":{\"version\":\"2.0\"},\"images\":[{\"uri\":\"no%20such.png\"}]}");
     snprintf(path, sizeof path, "%s/missing.gltf", tmp);

@@ -207,6 +207,125 @@ static void test_small_valid(void)
     CHECK(ok);
 }
 
+/* A one-triangle .gltf whose material's base colour is image img_uri. */
+static void make_textured(const char *name, const char *bin_uri, const char *img_uri)
+{
+    char json[8192];
+    snprintf(json, sizeof json,
+             "{\"asset\":{\"version\":\"2.0\"},\"scene\":0,\"scenes\":[{\"nodes\":[0]}],"
+             "\"nodes\":%s,"
+             "\"meshes\":[{\"primitives\":[{\"attributes\":{\"POSITION\":0,\"TEXCOORD_0\":2},"
+             "\"indices\":1,\"material\":0}]}],"
+             "\"buffers\":[{\"uri\":\"%s\",\"byteLength\":68}],%s,"
+             "\"accessors\":[%s,"
+             "{\"bufferView\":1,\"componentType\":5123,\"count\":3,\"type\":\"SCALAR\"},"
+             "{\"bufferView\":2,\"componentType\":5126,\"count\":3,\"type\":\"VEC2\"}],"
+             "\"textures\":[{\"source\":0}],\"images\":[{\"uri\":\"%s\"}],"
+             "\"materials\":[{\"pbrMetallicRoughness\":{\"baseColorTexture\":{\"index\":0}}}]}",
+             k_nodes_ok, bin_uri, k_views, k_pos_ok, img_uri);
+    write_file(name, json, strlen(json));
+}
+
+/* The secret outside the scene's folder: 70 bytes, so a scene that names it
+ * as its 68-byte buffer would be told the size if it were opened. */
+static const char k_secret[] =
+    "PTFARM-SECRET-0123456789-PTFARM-SECRET-0123456789-PTFARM-SECRET-01234\n";
+
+/* Loads confine/<name>, expecting PT_ERR_FORMAT with `word` in the message,
+ * and a message that holds neither the secret's bytes nor its size, and no
+ * path of this machine beyond the scene's own (which a caller strips). */
+static void expect_confined(const char *name, const char *word, int uri_is_path)
+{
+    char rel[128];
+    snprintf(rel, sizeof rel, "confine/%s", name);
+    pt_error err = {0};
+    pt_scene *s = NULL;
+    pt_scene_opts o = {0};
+    warnings w = {0};
+    o.warn = collect;
+    o.warn_user = &w;
+    int64_t live = pt_alloc_live();
+    pt_status st = pt_scene_load(tpath(rel), &o, &s, &err);
+    if (getenv("PT_TEST_VERBOSE"))
+        printf("%s -> %s\n", rel, err.msg);
+    CHECKF(st == PT_ERR_FORMAT && s == NULL, "%s: status %d (%s)", rel, (int)st, err.msg);
+    const char *msg = err.msg;
+    if (strncmp(msg, tpath(rel), strlen(tpath(rel))) == 0)
+        msg += strlen(tpath(rel));
+    CHECKF(strstr(msg, word) != NULL, "%s: message lacks '%s': %s", rel, word, err.msg);
+    CHECKF(strstr(msg, "PTFARM") == NULL, "%s: message shows the secret: %s", rel, err.msg);
+    CHECKF(strstr(msg, "70") == NULL, "%s: message shows the secret's size: %s", rel, err.msg);
+    CHECKF(uri_is_path || strstr(msg, tmp) == NULL, "%s: message shows a path: %s", rel, err.msg);
+    CHECKF(strstr(w.text, "PTFARM") == NULL, "%s: warning shows the secret: %s", rel, w.text);
+    CHECKF(pt_alloc_live() == live, "%s: leaked", rel);
+    pt_scene_free(s);
+}
+
+/* Every external file is read from below the scene's folder, or not at all:
+ * no "..", no absolute path, no link, nothing but a regular file. */
+static void test_confined(void)
+{
+    char p[512], target[512];
+    snprintf(p, sizeof p, "%s/confine/sub", tmp);
+    CHECK(pt_mkdirs(p, 0, NULL) == PT_OK);
+    write_file("secret.txt", k_secret, strlen(k_secret));
+    CHECK(strlen(k_secret) == 70);
+    unsigned char bin[68];
+    make_bin(bin, 0.0f, 2);
+    write_file("confine/tri.bin", bin, sizeof bin);
+    unsigned char px[16] = {255, 0, 0, 255, 0, 255, 0, 255, 0, 0, 255, 255, 255, 255, 255, 255};
+    CHECK(stbi_write_png(tpath("confine/sub/tex.png"), 2, 2, 4, px, 8) != 0);
+    CHECK(symlink("../secret.txt", tpath("confine/link.bin")) == 0);
+    snprintf(target, sizeof target, "%s", tmp);
+    CHECK(symlink(target, tpath("confine/ldir")) == 0);
+    CHECK(symlink("tex.png", tpath("confine/sub/texlink.png")) == 0); /* inside, still a link */
+    CHECK(mkfifo(tpath("confine/fifo.png"), 0600) == 0);
+    alarm(60); /* a FIFO opened for reading would block here */
+
+    /* Buffers: tinygltf's reads. */
+    make_gltf("confine/up.gltf", "../secret.txt", k_pos_ok, k_views, k_nodes_ok, "");
+    expect_confined("up.gltf", "'../secret.txt'", 0);
+    char abs_uri[512];
+    snprintf(abs_uri, sizeof abs_uri, "%s/secret.txt", tmp);
+    make_gltf("confine/abs.gltf", abs_uri, k_pos_ok, k_views, k_nodes_ok, "");
+    expect_confined("abs.gltf", "absolute", 1);
+    make_gltf("confine/deep.gltf", "sub/../../secret.txt", k_pos_ok, k_views, k_nodes_ok, "");
+    expect_confined("deep.gltf", "..", 0);
+    make_gltf("confine/pct.gltf", "%2e%2e/secret.txt", k_pos_ok, k_views, k_nodes_ok, "");
+    expect_confined("pct.gltf", "..", 0);
+    make_gltf("confine/bslash.gltf", "..%5csecret.txt", k_pos_ok, k_views, k_nodes_ok, "");
+    expect_confined("bslash.gltf", "backslash", 0);
+    make_gltf("confine/link.gltf", "link.bin", k_pos_ok, k_views, k_nodes_ok, "");
+    expect_confined("link.gltf", "symbolic link", 0);
+    make_gltf("confine/ldir.gltf", "ldir/secret.txt", k_pos_ok, k_views, k_nodes_ok, "");
+    expect_confined("ldir.gltf", "symbolic link", 0);
+    make_gltf("confine/dev.gltf", "/dev/zero", k_pos_ok, k_views, k_nodes_ok, "");
+    expect_confined("dev.gltf", "absolute", 1);
+
+    /* Images: the importer's own reads. */
+    make_textured("confine/img_up.gltf", "tri.bin", "../secret.txt");
+    expect_confined("img_up.gltf", "'../secret.txt'", 0);
+    make_textured("confine/img_zero.gltf", "tri.bin", "/dev/zero");
+    expect_confined("img_zero.gltf", "absolute", 1);
+    make_textured("confine/img_fifo.gltf", "tri.bin", "fifo.png");
+    expect_confined("img_fifo.gltf", "not a regular file", 0);
+    make_textured("confine/img_link.gltf", "tri.bin", "sub/texlink.png");
+    expect_confined("img_link.gltf", "symbolic link", 0);
+    make_textured("confine/img_ldir.gltf", "tri.bin", "ldir/secret.txt");
+    expect_confined("img_ldir.gltf", "symbolic link", 0);
+    make_textured("confine/img_dir.gltf", "tri.bin", "sub");
+    expect_confined("img_dir.gltf", "not a regular file", 0);
+    alarm(0);
+
+    /* What stays allowed: a nested file, "./", percent-encoding inside. */
+    make_textured("confine/ok.gltf", "./tri.bin", "sub/tex%2epng");
+    pt_error err = {0};
+    pt_scene *s = NULL;
+    CHECKF(pt_scene_load(tpath("confine/ok.gltf"), NULL, &s, &err) == PT_OK, "%s", err.msg);
+    CHECK(s && s->num_triangles == 1 && s->num_textures == 1);
+    pt_scene_free(s);
+}
+
 /* Packs a .glb (glTF 2.0 spec 4.4): header, JSON chunk, BIN chunk. */
 static size_t make_glb(unsigned char *out, size_t cap)
 {
@@ -613,6 +732,7 @@ int main(void)
         return 1;
     test_small_valid();
     test_hostile();
+    test_confined();
     test_project_scenes();
 
     struct stat sb;

@@ -1,5 +1,6 @@
 /* Tests for common/scene/uri.c: the percent-decoding that the bundle packer
- * and the glTF importer share, fed the strings where decoders differ. */
+ * and the glTF importer share, fed the strings where decoders differ, and the
+ * rule that keeps a decoded name inside the scene's folder. */
 #include "common/scene/uri.h"
 
 #include <string.h>
@@ -40,5 +41,18 @@ int main(void)
     /* Only n bytes are read: a "%41" cut after its '%' stays a '%'. */
     char out[8];
     CHECK(pt_uri_decode("a%41", 2, out) == 2 && memcmp(out, "a%", 2) == 0);
+
+    /* The rule both readers apply to a decoded name. */
+    const char *ok[] = {"a.bin", "sub/tex.png", "./a.png", "a//b", "a/./b", "..a", "a..", "a/..b"};
+    for (size_t i = 0; i < sizeof ok / sizeof *ok; i++)
+        CHECKF(pt_uri_path_refusal(ok[i], strlen(ok[i])) == NULL, "'%s' refused", ok[i]);
+    const char *bad[] = {"",       "..",       "../x",  "a/../../x", "a/..", "/etc/passwd",
+                         "/a.bin", "a\\..\\x", "..\\x", "./../x"};
+    for (size_t i = 0; i < sizeof bad / sizeof *bad; i++)
+        CHECKF(pt_uri_path_refusal(bad[i], strlen(bad[i])) != NULL, "'%s' accepted", bad[i]);
+    CHECK(pt_uri_path_refusal("a\0/etc", 6) != NULL); /* from "a%00/etc" */
+    char dec[16];
+    size_t k = pt_uri_decode("%2e%2e/x", 8, dec); /* decoded first, then judged */
+    CHECK(pt_uri_path_refusal(dec, k) != NULL);
     return check_report();
 }
