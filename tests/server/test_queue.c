@@ -821,8 +821,9 @@ static void damaged(void)
 
 /* ---- 4. hostile clients ------------------------------------------------------------- */
 
-/* A bundle of the given files (name, bytes) in the PTB1 layout. */
-static uint8_t *make_bundle(const char *const *names, const char *const *datas, int n, size_t *len)
+/* A bundle of n files (name, bytes, size; binary data allowed) in the PTB1 layout. */
+static uint8_t *make_bundle_n(const char *const *names, const uint8_t *const *datas,
+                              const size_t *sizes, int n, size_t *len)
 {
     proto_writer w;
     proto_writer_init(&w, 1 << 20);
@@ -831,11 +832,25 @@ static uint8_t *make_bundle(const char *const *names, const char *const *datas, 
     for (int i = 0; i < n; i++) {
         proto_w_u16(&w, (uint16_t)strlen(names[i]));
         proto_w_bytes(&w, names[i], strlen(names[i]));
-        proto_w_u64(&w, strlen(datas[i]));
-        proto_w_bytes(&w, datas[i], strlen(datas[i]));
+        proto_w_u64(&w, sizes[i]);
+        proto_w_bytes(&w, datas[i], sizes[i]);
     }
     *len = w.len;
     return w.buf;
+}
+
+/* The same for text files, their sizes by strlen. */
+static uint8_t *make_bundle(const char *const *names, const char *const *datas, int n, size_t *len)
+{
+    const uint8_t *bytes[8];
+    size_t sizes[8];
+    if (n > 8)
+        return NULL;
+    for (int i = 0; i < n; i++) {
+        bytes[i] = (const uint8_t *)datas[i];
+        sizes[i] = strlen(datas[i]);
+    }
+    return make_bundle_n(names, bytes, sizes, n, len);
 }
 
 static int refused(proto_submit m, const uint8_t *data, size_t n, const char *expect)
@@ -1078,24 +1093,6 @@ static void checked_off_loop(void)
 }
 
 /* ---- 6. files outside the upload ---------------------------------------------------- */
-
-/* A bundle of n files with explicit sizes (binary data allowed). */
-static uint8_t *make_bundle_n(const char *const *names, const uint8_t *const *datas,
-                              const size_t *sizes, int n, size_t *len)
-{
-    proto_writer w;
-    proto_writer_init(&w, 1 << 20);
-    proto_w_u32(&w, 0x31425450u); /* "PTB1" */
-    proto_w_u32(&w, (uint32_t)n);
-    for (int i = 0; i < n; i++) {
-        proto_w_u16(&w, (uint16_t)strlen(names[i]));
-        proto_w_bytes(&w, names[i], strlen(names[i]));
-        proto_w_u64(&w, sizes[i]);
-        proto_w_bytes(&w, datas[i], sizes[i]);
-    }
-    *len = w.len;
-    return w.buf;
-}
 
 /* One triangle: buffer bin_uri (68 bytes: positions, u16 indices at 36, uvs
  * at 44), its material's base colour image img_uri (or none). */

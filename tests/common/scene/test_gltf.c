@@ -97,9 +97,10 @@ static const char *k_views = "\"bufferViews\":[{\"buffer\":0,\"byteOffset\":0,\"
                              "{\"buffer\":0,\"byteOffset\":36,\"byteLength\":6},"
                              "{\"buffer\":0,\"byteOffset\":44,\"byteLength\":24}]";
 
-/* A .gltf with the given pieces substituted. */
-static void make_gltf(const char *name, const char *bin_uri, const char *pos_acc, const char *views,
-                      const char *nodes, const char *extra)
+/* A .gltf with the given pieces substituted; tail holds the materials and
+ * whatever follows them. */
+static void make_gltf_tail(const char *name, const char *bin_uri, const char *pos_acc,
+                           const char *views, const char *nodes, const char *tail)
 {
     char json[8192];
     snprintf(json, sizeof json,
@@ -111,10 +112,20 @@ static void make_gltf(const char *name, const char *bin_uri, const char *pos_acc
              "\"accessors\":[%s,"
              "{\"bufferView\":1,\"componentType\":5123,\"count\":3,\"type\":\"SCALAR\"},"
              "{\"bufferView\":2,\"componentType\":5126,\"count\":3,\"type\":\"VEC2\"}],"
-             "\"materials\":[{\"name\":\"m0\",\"pbrMetallicRoughness\":{\"metallicFactor\":0}}]"
              "%s}",
-             nodes, bin_uri, views, pos_acc, extra);
+             nodes, bin_uri, views, pos_acc, tail);
     write_file(name, json, strlen(json));
+}
+
+/* A .gltf with the given pieces substituted and one untextured material. */
+static void make_gltf(const char *name, const char *bin_uri, const char *pos_acc, const char *views,
+                      const char *nodes, const char *extra)
+{
+    char tail[4096];
+    snprintf(tail, sizeof tail,
+             "\"materials\":[{\"name\":\"m0\",\"pbrMetallicRoughness\":{\"metallicFactor\":0}}]%s",
+             extra);
+    make_gltf_tail(name, bin_uri, pos_acc, views, nodes, tail);
 }
 
 static const char *k_pos_ok =
@@ -210,20 +221,12 @@ static void test_small_valid(void)
 /* A one-triangle .gltf whose material's base colour is image img_uri. */
 static void make_textured(const char *name, const char *bin_uri, const char *img_uri)
 {
-    char json[8192];
-    snprintf(json, sizeof json,
-             "{\"asset\":{\"version\":\"2.0\"},\"scene\":0,\"scenes\":[{\"nodes\":[0]}],"
-             "\"nodes\":%s,"
-             "\"meshes\":[{\"primitives\":[{\"attributes\":{\"POSITION\":0,\"TEXCOORD_0\":2},"
-             "\"indices\":1,\"material\":0}]}],"
-             "\"buffers\":[{\"uri\":\"%s\",\"byteLength\":68}],%s,"
-             "\"accessors\":[%s,"
-             "{\"bufferView\":1,\"componentType\":5123,\"count\":3,\"type\":\"SCALAR\"},"
-             "{\"bufferView\":2,\"componentType\":5126,\"count\":3,\"type\":\"VEC2\"}],"
+    char tail[1024];
+    snprintf(tail, sizeof tail,
              "\"textures\":[{\"source\":0}],\"images\":[{\"uri\":\"%s\"}],"
-             "\"materials\":[{\"pbrMetallicRoughness\":{\"baseColorTexture\":{\"index\":0}}}]}",
-             k_nodes_ok, bin_uri, k_views, k_pos_ok, img_uri);
-    write_file(name, json, strlen(json));
+             "\"materials\":[{\"pbrMetallicRoughness\":{\"baseColorTexture\":{\"index\":0}}}]",
+             img_uri);
+    make_gltf_tail(name, bin_uri, k_pos_ok, k_views, k_nodes_ok, tail);
 }
 
 /* The secret outside the scene's folder: 70 bytes, so a scene that names it
