@@ -18,6 +18,7 @@
 #include "common/base/fsutil.h"
 #include "common/base/hash.h"
 #include "common/base/net.h"
+#include "common/base/text.h"
 #include "protocol/auth.h"
 #include "protocol/frame.h"
 
@@ -146,7 +147,9 @@ static pt_status recv_frame(ctl_conn *c, proto_frame *f, pt_error *err)
         return pt_error_set(err, PT_ERR_PROTO, "%s sent a bad ERROR: %s", c->addr, e.msg);
     c->server_code = m.code ? m.code : PROTO_E_INTERNAL;
     snprintf(c->server_text, sizeof c->server_text, "%s", m.text[0] ? m.text : "(no reason)");
-    return pt_error_set(err, PT_ERR_PROTO, "server: %s", c->server_text);
+    char text[sizeof err->msg - 16];
+    return pt_error_set(err, PT_ERR_PROTO, "server: %s",
+                        pt_text_shown(c->server_text, text, sizeof text));
 }
 
 static pt_status unexpected(ctl_conn *c, const proto_frame *f, const char *waiting, pt_error *err)

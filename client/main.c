@@ -27,6 +27,7 @@
 #include "common/base/alloc.h"
 #include "common/base/clock.h"
 #include "common/base/opt.h"
+#include "common/base/text.h"
 #include "common/base/version.h"
 #include "common/scene/bundle.h"
 #include "protocol/auth.h"
@@ -165,7 +166,9 @@ static int fail(const ctl_conn *c, const pt_error *e)
 {
     uint16_t code = ctl_server_code(c);
     if (code) {
-        fprintf(stderr, "ptctl: server: %s\n", ctl_server_text(c));
+        char text[PT_TEXT_ESCAPED_SIZE(PROTO_MAX_ERROR_TEXT)];
+        fprintf(stderr, "ptctl: server: %s\n",
+                pt_text_shown(ctl_server_text(c), text, sizeof text));
         return code == PROTO_E_NOT_FOUND ? EXIT_NO_JOB : EXIT_ERROR;
     }
     fprintf(stderr, "ptctl: %s\n", e->msg[0] ? e->msg : pt_status_str(e->code));

@@ -6,6 +6,7 @@
 
 #include "common/base/alloc.h"
 #include "common/base/hash.h"
+#include "common/base/text.h"
 #include "common/render/adaptive.h"
 #include "common/render/film.h"
 #include "server/loop.h"
@@ -255,9 +256,11 @@ void srv_queue_end_job(srv_server *s, srv_entry *j, uint8_t state, const char *m
     if (state == PROTO_JOB_DONE)
         srv_log("job %llu done: %llu samples in %.1f s; %s", (unsigned long long)j->rec.id,
                 (unsigned long long)j->rec.samples_done, j->rec.seconds, j->out_path);
-    else
+    else {
+        char text[PT_TEXT_ESCAPED_SIZE(PROTO_MAX_ERROR_TEXT)];
         srv_log("job %llu %s%s%s", (unsigned long long)j->rec.id, proto_job_state_name(state),
-                j->rec.message[0] ? ": " : "", j->rec.message);
+                j->rec.message[0] ? ": " : "", pt_text_shown(j->rec.message, text, sizeof text));
+    }
     srv_requests_notify_watchers(s, j);
 }
 
@@ -317,9 +320,12 @@ static int lease_any(srv_server *s, uint64_t owner, uint64_t now, proto_task *t)
         if (j->rec.state == PROTO_JOB_QUEUED) {
             j->rec.state = PROTO_JOB_RUNNING;
             journal_or_log(s);
-            if (s->mode->logs_starts)
+            if (s->mode->logs_starts) {
+                char scene[PT_TEXT_ESCAPED_SIZE(PROTO_MAX_PATH)];
                 srv_log("job %llu started (%s, %ux%u, %u spp)", (unsigned long long)j->rec.id,
-                        j->rec.scene, j->rec.params.width, j->rec.params.height, j->rec.params.spp);
+                        pt_text_shown(j->rec.scene, scene, sizeof scene), j->rec.params.width,
+                        j->rec.params.height, j->rec.params.spp);
+            }
         }
         return 1;
     }
@@ -362,8 +368,10 @@ void srv_queue_release_owner(srv_server *s, const srv_conn *c, int report)
     for (srv_entry *j = s->jobs; j; j = j->next)
         if (j->job)
             n += srv_job_release_owner(j->job, c->id);
+    char name[PT_TEXT_ESCAPED_SIZE(PROTO_MAX_NAME)];
     if (n && report)
-        srv_log("worker %s left; %u leased tasks requeued", c->name, n);
+        srv_log("worker %s left; %u leased tasks requeued",
+                pt_text_shown(c->name, name, sizeof name), n);
 }
 
 int srv_queue_end_complete(srv_server *s)

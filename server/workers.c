@@ -3,6 +3,7 @@
 #include <stdio.h>
 #include <string.h>
 
+#include "common/base/text.h"
 #include "protocol/msg.h"
 #include "server/job.h"
 #include "server/loop.h"
@@ -74,9 +75,12 @@ static void on_result(srv_server *s, srv_conn *c, const proto_frame *f)
         break;
     case SRV_DUPLICATE:
         break;
-    case SRV_NOT_LEASED:
-        srv_log("worker %s: %s; dropped", c->name, err.msg);
+    case SRV_NOT_LEASED: {
+        char name[PT_TEXT_ESCAPED_SIZE(PROTO_MAX_NAME)], text[PT_TEXT_ESCAPED_SIZE(sizeof err.msg)];
+        srv_log("worker %s: %s; dropped", pt_text_shown(c->name, name, sizeof name),
+                pt_text_shown(err.msg, text, sizeof text));
         break;
+    }
     case SRV_INVALID:
         srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "%s", err.msg);
         break;

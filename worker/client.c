@@ -20,6 +20,7 @@
 #include "common/base/clock.h"
 #include "common/base/hash.h"
 #include "common/base/net.h"
+#include "common/base/text.h"
 #include "common/render/render.h"
 #include "common/scene/bundle.h"
 #include "protocol/auth.h"
@@ -870,11 +871,13 @@ static int dispatch(worker *w, const proto_frame *f, int *end)
         if (proto_msg_decode_error(f->payload, f->len, &m, &err) != PT_OK) {
             return fail_proto(w, "bad ERROR: %s", err.msg);
         }
+        char text[1024]; /* the server's words, escaped; a long reason is cut */
+        pt_text_shown(m.text, text, sizeof text);
         if (fatal_code(m.code)) {
-            fprintf(stderr, "ptworker: refused by %s:%u: %s\n", w->host, w->port, m.text);
+            fprintf(stderr, "ptworker: refused by %s:%u: %s\n", w->host, w->port, text);
             *end = END_FATAL;
         } else {
-            snprintf(w->reason, sizeof w->reason, "server said: %s (code %u)", m.text, m.code);
+            snprintf(w->reason, sizeof w->reason, "server said: %s (code %u)", text, m.code);
         }
         return -1;
     }
