@@ -7,6 +7,7 @@
 #include "common/base/alloc.h"
 #include "common/base/hash.h"
 #include "common/base/text.h"
+#include "common/image/exr.h"
 #include "common/render/adaptive.h"
 #include "common/render/film.h"
 #include "server/loop.h"
@@ -264,6 +265,29 @@ void srv_queue_end_job(srv_server *s, srv_entry *j, uint8_t state, const char *m
     srv_requests_notify_watchers(s, j);
 }
 
+/* The render seconds job j had when it was last recorded: its checkpoint's
+ * (ckpt), or its last saved image's when that is later. A checkpoint is
+ * written only once the results log has grown (srv_queue_tick) or at a clean
+ * stop, but the image every save interval, so after a kill -9 the image is
+ * usually the newer record. Results log records carry no time, so the time
+ * between the later of the two and a crash is not counted. An image of
+ * another job or scene (a reused output name) is not trusted. */
+static double resumed_seconds(const srv_entry *j, double ckpt)
+{
+    pt_image *img = NULL;
+    pt_exr_meta meta;
+    if (pt_exr_read(j->out_path, &img, &meta, NULL) != PT_OK)
+        return ckpt;
+    pt_image_free(img);
+    char id[64], hash[65];
+    snprintf(id, sizeof id, "%llu", (unsigned long long)j->rec.id);
+    pt_hash_hex(j->rec.hash, hash);
+    if (strcmp(meta.job_id, id) != 0 || strcmp(meta.scene_hash, hash) != 0 ||
+        !(meta.render_seconds > ckpt) || meta.render_seconds > 1e12)
+        return ckpt;
+    return meta.render_seconds;
+}
+
 int srv_entry_ready(srv_server *s, srv_entry *j)
 {
     if (j->job)
@@ -276,7 +300,7 @@ int srv_entry_ready(srv_server *s, srv_entry *j)
         int torn;
         st = srv_state_restore(s->state, j->job, &x, &replayed, &torn, &err);
         if (st == PT_OK) {
-            j->seconds_before = x.seconds;
+            j->seconds_before = resumed_seconds(j, x.seconds);
             j->rejected = x.rejected;
             j->rays = x.rays;
             if (torn)

@@ -6,7 +6,9 @@
  *     job (each time after more samples were merged) and restarted on the same
  *     state folder; every restart resumes with at least the samples merged
  *     before the kill, and the final image is bit-identical to an undisturbed
- *     standalone render with exact sample counts.
+ *     standalone render with exact sample counts; the job's render seconds
+ *     (status, final log line, image) never fall below what its image showed
+ *     before a kill.
  *  2. The queue: two clients submit at once; priority, then submission order,
  *     decide the order jobs run and finish in; queued jobs survive a kill -9;
  *     cancel during a render frees the workers for the next job; a client's
@@ -390,6 +392,45 @@ static int done_order(const char *log, uint64_t *ids, int cap)
     return n;
 }
 
+/* The ptfarm.renderSeconds of the image at file; -1 when it cannot be read. */
+static double image_seconds_of(const char *file)
+{
+    pt_image *img = NULL;
+    pt_exr_meta meta;
+    if (pt_exr_read(file, &img, &meta, NULL) != PT_OK)
+        return -1;
+    pt_image_free(img);
+    return meta.render_seconds;
+}
+
+/* The same for a job's image in state1's output folder; 0 before its first save. */
+static double image_seconds(const char *output)
+{
+    char file[1024];
+    snprintf(file, sizeof file, "%s/state1/output/%s", tmp, output);
+    double s = image_seconds_of(file);
+    return s > 0 ? s : 0;
+}
+
+/* The seconds of log's last "job id done: N samples in S s" line; -1 if none. */
+static double done_seconds(const char *log, uint64_t id)
+{
+    FILE *f = fopen(path(log), "r");
+    double secs = -1;
+    char line[4096];
+    while (f && fgets(line, sizeof line, f)) {
+        const char *p = strstr(line, "ptserve: job ");
+        unsigned long long jid, n;
+        double v;
+        if (p && sscanf(p, "ptserve: job %llu done: %llu samples in %lf s", &jid, &n, &v) == 3 &&
+            jid == id)
+            secs = v;
+    }
+    if (f)
+        fclose(f);
+    return secs;
+}
+
 /* ---- 1. crash-restart --------------------------------------------------------------- */
 
 static void crash_restart(void)
@@ -421,6 +462,7 @@ static void crash_restart(void)
     const uint64_t total = 64ull * 48 * spp;
     int kills = 0, lost = 0;
     uint64_t last = 0;
+    double secs_before = 0; /* the most render seconds an image showed before a kill */
     srand(12345);
     proto_job_info info;
     while (kills < 6) {
@@ -437,10 +479,15 @@ static void crash_restart(void)
         uint64_t before = info.samples_done;
         if (info.state == PROTO_JOB_DONE)
             break;
+        double img_secs = image_seconds(info.output);
         kill_server(SIGKILL);
         kills++;
         start_server("state1", "crash.log", NULL);
         CHECK(status(g_port, id, &info) == PROTO_MSG_JOB_INFO);
+        /* The job's time goes on from what its image recorded before the kill. */
+        CHECKF(info.seconds >= img_secs, "restart %d: %.3f s after, the image had %.3f s", kills,
+               info.seconds, img_secs);
+        secs_before = img_secs > secs_before ? img_secs : secs_before;
         if (info.samples_done < before) {
             lost++;
             fprintf(stderr, "restart %d: %llu samples merged before the kill, %llu after\n", kills,
@@ -456,6 +503,14 @@ static void crash_restart(void)
     CHECK(fetch(g_port, id, "crash.exr") == 0);
     CHECK(same_pixels("crash_ref.exr", "crash.exr"));
     CHECK(all_samples("crash.exr", (float)spp));
+    /* The reported time is the job's total over every run, not the last run's. */
+    CHECKF(info.seconds >= secs_before, "%.3f s in all, %.3f s before a kill", info.seconds,
+           secs_before);
+    CHECKF(image_seconds_of(path("crash.exr")) >= secs_before,
+           "the image says %.3f s, %.3f s before", image_seconds_of(path("crash.exr")),
+           secs_before);
+    CHECKF(done_seconds("crash.log", id) + 0.05 >= secs_before, "the log says %.1f s, %.3f before",
+           done_seconds("crash.log", id), secs_before);
     /* The image also lies in the output folder, under a sanitised name. */
     char out[300];
     snprintf(out, sizeof out, "state1/output/%s", info.output);
