@@ -26,7 +26,8 @@ for want in '^renderer +[0-9.e+]+ samples/s, [0-9.e+]+ rays/s$' \
     grep -Eq "$want" "$tmp/out.txt" || fail "no line matching '$want'"
 done
 ratio=$(awk '/^ratio +[0-9]/ {print $2}' "$tmp/out.txt")
-awk -v r="$ratio" 'BEGIN { exit !(r > 0 && r < 10) }' || fail "ratio $ratio is not a sane fraction"
+# A positive number: its size is a speed, which the load of the machine sets.
+awk -v r="$ratio" 'BEGIN { exit !(r > 0) }' || fail "ratio $ratio is not a positive number"
 # The lanes line comes exactly when the variant says it shades in lanes.
 if grep -q '^variant .*(SIMD lanes)' "$tmp/out.txt"; then
     grep -q '^  against per-path shading ' "$tmp/out.txt" || fail "lanes without the per-path line"
