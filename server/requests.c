@@ -380,9 +380,7 @@ static void on_fetch(srv_server *s, srv_conn *c, srv_entry *j)
                             (unsigned long long)j->rec.id);
         return;
     }
-    char hex[65];
-    pt_sha256_hex(data, len, hex);
-    pt_hex_decode(hex, c->fetch_hash, 32);
+    pt_sha256(data, len, c->fetch_hash);
     c->fetch = data;
     c->fetch_len = len;
     c->fetch_off = 0;

@@ -13,15 +13,19 @@ void pt_hash_hex(const uint8_t hash[32], char out[65])
     out[64] = '\0';
 }
 
-void pt_sha256_hex(const uint8_t *data, size_t size, char out[65])
+void pt_sha256(const uint8_t *data, size_t size, uint8_t out[32])
 {
     unsigned char md[EVP_MAX_MD_SIZE];
     unsigned int len = 0;
-    if (!EVP_Digest(data, size, md, &len, EVP_sha256(), NULL) || len != 32) {
-        memset(out, '0', 64);
-        out[64] = '\0';
-        return;
-    }
+    if (!EVP_Digest(data, size, md, &len, EVP_sha256(), NULL) || len != 32)
+        memset(md, 0, 32);
+    memcpy(out, md, 32);
+}
+
+void pt_sha256_hex(const uint8_t *data, size_t size, char out[65])
+{
+    uint8_t md[32];
+    pt_sha256(data, size, md);
     pt_hash_hex(md, out);
 }
 

@@ -19,8 +19,12 @@
 /* A 32-byte hash as lower-case hex (65 bytes with the NUL). */
 void pt_hash_hex(const uint8_t hash[32], char out[65]);
 
-/* SHA-256 of bytes as lower-case hex (65 bytes with the NUL). A failure of
- * the digest (it has none for in-memory bytes) gives 64 zeros. */
+/* SHA-256 of bytes, the 32 raw bytes as peers send them. A failure of the
+ * digest (it has none for in-memory bytes) gives 32 zero bytes. */
+void pt_sha256(const uint8_t *data, size_t size, uint8_t out[32]);
+
+/* SHA-256 of bytes as lower-case hex (65 bytes with the NUL): pt_sha256 then
+ * pt_hash_hex, so a failure gives 64 zeros. */
 void pt_sha256_hex(const uint8_t *data, size_t size, char out[65]);
 
 /* The value of one hex digit (either case), or -1 for any other character. */

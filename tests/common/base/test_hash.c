@@ -11,6 +11,9 @@ static void test_sha256(void)
     /* FIPS 180-2, appendix B.1: SHA-256("abc"). */
     pt_sha256_hex((const uint8_t *)"abc", 3, out);
     CHECK(!strcmp(out, "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad"));
+    uint8_t raw[PT_HASH_SIZE], back[PT_HASH_SIZE];
+    pt_sha256((const uint8_t *)"abc", 3, raw);
+    CHECK(pt_hex_decode(out, back, sizeof back) == 0 && !memcmp(raw, back, sizeof raw));
     pt_sha256_hex(NULL, 0, out);
     CHECK(!strcmp(out, "e3b0c44298fc1c149afbf4c8996fb92427ae41e4649b934ca495991b7852b855"));
 }
