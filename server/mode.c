@@ -6,6 +6,7 @@
 #include "common/base/alloc.h"
 #include "common/base/fsutil.h"
 #include "common/base/hash.h"
+#include "common/render/tile.h"
 #include "common/scene/bundle.h"
 #include "common/scene/scene.h"
 #include "server/loop.h"
@@ -43,7 +44,7 @@ static pt_status setup_single(srv_server *s, pt_error *err)
         /* 512 wide at the camera's aspect, as a submitted job (server/requests.c);
          * the height within --res's cap. */
         jp.width = 512;
-        jp.height = pt_camera_height(scene->camera.aspect, jp.width, SRV_MAX_RES);
+        jp.height = pt_camera_height(scene->camera.aspect, jp.width, PT_RENDER_MAX_SIDE);
     }
     uint32_t ntris = scene->num_triangles;
     pt_scene_free(scene);

@@ -96,7 +96,7 @@ int main(int argc, char **argv)
     c.job.max_depth = 16;
     c.job.rr_depth = 3;
     c.save_interval = 5.0;
-    c.caps.max_side = 16384;
+    c.caps.max_side = PT_RENDER_MAX_SIDE;
     c.caps.max_pixels = 16777216;
     c.caps.max_spp = 65536;
     c.caps.max_scene = 512ull << 20;
@@ -188,7 +188,7 @@ int main(int argc, char **argv)
             st = pt_opt_u32("--spp", optarg, 1, 1u << 24, &c.job.spp, &err);
             break;
         case O_RES:
-            st = pt_opt_res("--res", optarg, SRV_MAX_RES, &c.job.width, &c.job.height, &err);
+            st = pt_opt_res("--res", optarg, PT_RENDER_MAX_SIDE, &c.job.width, &c.job.height, &err);
             break;
         case O_SEED:
             st = pt_opt_u32("--seed", optarg, 0, UINT32_MAX, &c.job.seed, &err);

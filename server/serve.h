@@ -26,10 +26,6 @@
 #include "protocol/auth.h"
 #include "server/job.h"
 
-/* The longest side of a one-job image (--res, and the default height from the
- * camera); queue mode's is srv_caps.max_side. */
-#define SRV_MAX_RES 16384u
-
 typedef struct srv_caps {
     uint32_t max_side;   /* longest image side a client may ask for */
     uint64_t max_pixels; /* width x height */

@@ -185,7 +185,8 @@ int main(int argc, char **argv)
             bad = bad_value(pt_opt_u32("--spp", optarg, 1, 1u << 24, &o.spp, &err), &err);
             break;
         case OPT_RES:
-            bad = bad_value(pt_opt_res("--res", optarg, 16384, &o.width, &o.height, &err), &err);
+            bad = bad_value(
+                pt_opt_res("--res", optarg, PT_RENDER_MAX_SIDE, &o.width, &o.height, &err), &err);
             break;
         case OPT_SEED:
             bad = bad_value(pt_opt_u32("--seed", optarg, 0, UINT32_MAX, &o.seed, &err), &err);

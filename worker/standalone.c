@@ -15,6 +15,7 @@
 #include "common/render/adaptive.h"
 #include "common/render/film.h"
 #include "common/render/render.h"
+#include "common/render/tile.h"
 #include "common/scene/scene.h"
 
 typedef struct job {
@@ -108,7 +109,7 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
     if (p.width == 0) {
         /* The --res cap bounds a height from an extreme aspect too. */
         p.width = 512;
-        p.height = pt_camera_height(scene->camera.aspect, p.width, 16384);
+        p.height = pt_camera_height(scene->camera.aspect, p.width, PT_RENDER_MAX_SIDE);
     }
     p.seed = o->seed;
     p.max_depth = o->max_depth;

@@ -40,6 +40,10 @@ static inline void pt_pixel_acc_add(pt_pixel_acc *a, const pt_pixel_acc *b)
  * TASK or RESULT (PROTO_MAX_TILE_PIXELS), so a farm tile always fits. */
 #define PT_TILE_MAX 256u
 
+/* The longest image side the programs render by default and accept for
+ * --res: ptworker, one-job ptserve, and the default of ptserve --max-res. */
+#define PT_RENDER_MAX_SIDE 16384u
+
 typedef struct pt_rect {
     uint32_t x0, y0, x1, y1; /* pixels [x0,x1) x [y0,y1), y down from the top row */
 } pt_rect;
