@@ -128,6 +128,24 @@ static void make_gltf(const char *name, const char *bin_uri, const char *pos_acc
     make_gltf_tail(name, bin_uri, pos_acc, views, nodes, tail);
 }
 
+/* Gives material m0 of a .gltf written by make_gltf texture 0 as its
+ * emissive texture, so that the texture is used and its image loaded. */
+static void use_texture_as_emission(const char *name)
+{
+    char json[8192];
+    FILE *f = fopen(tpath(name), "rb");
+    size_t n = fread(json, 1, sizeof json - 1, f);
+    fclose(f);
+    json[n] = 0;
+    char *m = strstr(json, "\"name\":\"m0\",");
+    if (m) {
+        char out[8192];
+        snprintf(out, sizeof out, "%.*s\"name\":\"m0\",\"emissiveTexture\":{\"index\":0},%s",
+                 (int)(m - json), json, m + strlen("\"name\":\"m0\","));
+        write_file(name, out, strlen(out));
+    }
+}
+
 static const char *k_pos_ok =
     "{\"bufferView\":0,\"componentType\":5126,\"count\":3,\"type\":\"VEC3\"}";
 static const char *k_nodes_ok = "[{\"mesh\":0,\"translation\":[0,0,1]}]";
@@ -439,21 +457,7 @@ static void test_hostile(void)
     /* A material uses a texture whose image does not exist. */
     snprintf(buf, sizeof buf, ",\"textures\":[{\"source\":3}],\"images\":[]");
     make_gltf("noimg.gltf", "tri.bin", k_pos_ok, k_views, k_nodes_ok, buf);
-    {
-        /* Patch the material to use texture 0 as its emissive texture. */
-        char json[8192];
-        FILE *f = fopen(tpath("noimg.gltf"), "rb");
-        size_t n = fread(json, 1, sizeof json - 1, f);
-        fclose(f);
-        json[n] = 0;
-        char *m = strstr(json, "\"name\":\"m0\",");
-        if (m) {
-            char out[8192];
-            snprintf(out, sizeof out, "%.*s\"name\":\"m0\",\"emissiveTexture\":{\"index\":0},%s",
-                     (int)(m - json), json, m + strlen("\"name\":\"m0\","));
-            write_file("noimg.gltf", out, strlen(out));
-        }
-    }
+    use_texture_as_emission("noimg.gltf");
     expect_fail("noimg.gltf", PT_ERR_FORMAT, "image 3");
     /* ... and the material and texture are named. */
     {
@@ -466,20 +470,7 @@ static void test_hostile(void)
 
     make_gltf("badimg.gltf", "tri.bin", k_pos_ok, k_views, k_nodes_ok,
               ",\"textures\":[{\"source\":0}],\"images\":[{\"uri\":\"tri.bin\"}]");
-    {
-        char json[8192];
-        FILE *f = fopen(tpath("badimg.gltf"), "rb");
-        size_t n = fread(json, 1, sizeof json - 1, f);
-        fclose(f);
-        json[n] = 0;
-        char *m = strstr(json, "\"name\":\"m0\",");
-        if (m) {
-            char out[8192];
-            snprintf(out, sizeof out, "%.*s\"name\":\"m0\",\"emissiveTexture\":{\"index\":0},%s",
-                     (int)(m - json), json, m + strlen("\"name\":\"m0\","));
-            write_file("badimg.gltf", out, strlen(out));
-        }
-    }
+    use_texture_as_emission("badimg.gltf");
     expect_fail("badimg.gltf", PT_ERR_FORMAT, "image 0");
 
     /* An image in a buffer view that lies outside its buffer, used by a material. */
@@ -491,20 +482,7 @@ static void test_hostile(void)
               k_nodes_ok,
               ",\"textures\":[{\"source\":0}],"
               "\"images\":[{\"bufferView\":3,\"mimeType\":\"image/png\"}]");
-    {
-        char json[8192];
-        FILE *f = fopen(tpath("imgview.gltf"), "rb");
-        size_t n = fread(json, 1, sizeof json - 1, f);
-        fclose(f);
-        json[n] = 0;
-        char *m = strstr(json, "\"name\":\"m0\",");
-        if (m) {
-            char out[8192];
-            snprintf(out, sizeof out, "%.*s\"name\":\"m0\",\"emissiveTexture\":{\"index\":0},%s",
-                     (int)(m - json), json, m + strlen("\"name\":\"m0\","));
-            write_file("imgview.gltf", out, strlen(out));
-        }
-    }
+    use_texture_as_emission("imgview.gltf");
     expect_fail("imgview.gltf", PT_ERR_FORMAT, "bufferView 3");
 
     write_file("empty.gltf", "", 0);
