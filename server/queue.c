@@ -274,11 +274,9 @@ void srv_queue_end_job(srv_server *s, srv_entry *j, uint8_t state, const char *m
  * another job or scene (a reused output name) is not trusted. */
 static double resumed_seconds(const srv_entry *j, double ckpt)
 {
-    pt_image *img = NULL;
     pt_exr_meta meta;
-    if (pt_exr_read(j->out_path, &img, &meta, NULL) != PT_OK)
+    if (pt_exr_read(j->out_path, NULL, &meta, NULL) != PT_OK)
         return ckpt;
-    pt_image_free(img);
     char id[64], hash[65];
     snprintf(id, sizeof id, "%llu", (unsigned long long)j->rec.id);
     pt_hash_hex(j->rec.hash, hash);

@@ -427,7 +427,7 @@ static exr_result_t read_chunks(exr_const_context_t ctx, int32_t min_y, pt_image
 
 pt_status pt_exr_read(const char *path, pt_image **out, pt_exr_meta *meta, pt_error *err)
 {
-    if (!path || !out)
+    if (!path)
         return pt_error_set(err, PT_ERR_ARG, "EXR read: no path");
     pt_status st = PT_OK;
     exr_context_t ctx = NULL;
@@ -510,11 +510,11 @@ pt_status pt_exr_read(const char *path, pt_image **out, pt_exr_meta *meta, pt_er
         goto fail;
     }
     pt_error ierr = {0};
-    if ((st = pt_image_new((uint32_t)w, (uint32_t)h, &img, &ierr)) != PT_OK) {
+    if (out && (st = pt_image_new((uint32_t)w, (uint32_t)h, &img, &ierr)) != PT_OK) {
         pt_error_set(err, st, "EXR %s: %s", path, ierr.msg);
         goto fail;
     }
-    if ((rv = read_chunks(ctx, dw.min.y, img)) != EXR_ERR_SUCCESS) {
+    if (out && (rv = read_chunks(ctx, dw.min.y, img)) != EXR_ERR_SUCCESS) {
         st = exr_fail(err, &s, rv, path, "cannot decode the pixels");
         goto fail;
     }
@@ -522,7 +522,8 @@ pt_status pt_exr_read(const char *path, pt_image **out, pt_exr_meta *meta, pt_er
         read_meta(ctx, meta);
     exr_finish(&ctx);
     close(s.fd);
-    *out = img;
+    if (out)
+        *out = img;
     return PT_OK;
 
 fail:

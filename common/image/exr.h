@@ -32,7 +32,9 @@ pt_status pt_exr_write(const char *path, const pt_image *img, const pt_exr_meta 
                        pt_error *err);
 
 /* Reads a file written by pt_exr_write (or any scanline/tiled EXR with R, G,
- * B; samples and variance planes are zero when absent). meta may be NULL. */
+ * B; samples and variance planes are zero when absent). meta may be NULL.
+ * out NULL reads the header alone (meta, after the same checks of the
+ * layout), decoding no pixel. */
 pt_status pt_exr_read(const char *path, pt_image **out, pt_exr_meta *meta, pt_error *err);
 
 #endif

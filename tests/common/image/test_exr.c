@@ -233,6 +233,12 @@ static void test_round_trip(void)
         CHECK(!strcmp(back.scene_hash, m.scene_hash) && strlen(back.scene_hash) == 64);
         CHECK(!strcmp(back.job_id, m.job_id));
         CHECK(!strcmp(back.software, m.software));
+        /* The header alone: the same attributes, no pixels decoded. */
+        pt_exr_meta head;
+        memset(&head, 0, sizeof head);
+        CHECK(pt_exr_read(path("rt.exr"), NULL, &head, &err) == PT_OK);
+        CHECK(head.render_seconds == m.render_seconds && !strcmp(head.job_id, m.job_id) &&
+              !strcmp(head.scene_hash, m.scene_hash));
         pt_image_free(a);
         pt_image_free(b);
     }
