@@ -96,10 +96,9 @@ void srv_conn_send_error(srv_server *s, srv_conn *c, uint16_t code, const char *
     va_start(ap, fmt);
     vsnprintf(m.text, sizeof m.text, fmt, ap);
     va_end(ap);
-    char name[PT_TEXT_ESCAPED_SIZE(PROTO_MAX_NAME)],
-        text[PT_TEXT_ESCAPED_SIZE(PROTO_MAX_ERROR_TEXT)];
-    srv_log("peer %s%s%s: %s; closing", c->peer, c->name[0] ? " " : "",
-            pt_text_shown(c->name, name, sizeof name), pt_text_shown(m.text, text, sizeof text));
+    char text[PT_TEXT_ESCAPED_SIZE(PROTO_MAX_ERROR_TEXT)];
+    srv_log("peer %s%s%s: %s; closing", c->peer, c->name[0] ? " " : "", c->shown,
+            pt_text_shown(m.text, text, sizeof text));
     size_t mark;
     if (proto_frame_begin(&c->out, PROTO_MSG_ERROR, &mark, NULL) == PT_OK)
         proto_frame_finish(&c->out, mark, proto_msg_encode_error(&c->out, &m, NULL), NULL);
@@ -185,6 +184,7 @@ static void on_hello(srv_server *s, srv_conn *c, const proto_frame *f)
         return;
     }
     snprintf(c->name, sizeof c->name, "%s", h.name);
+    pt_text_shown(c->name, c->shown, sizeof c->shown);
     if (h.version != PROTO_VERSION) {
         srv_conn_send_error(s, c, PROTO_E_VERSION,
                             "protocol version %u is not supported (this "
@@ -247,9 +247,7 @@ static void on_auth(srv_server *s, srv_conn *c, const proto_frame *f)
     if (c->role == PROTO_ROLE_WORKER) {
         s->nworkers++;
         if (!s->cfg->quiet) {
-            char name[PT_TEXT_ESCAPED_SIZE(PROTO_MAX_NAME)];
-            srv_log("worker %s joined from %s (%u threads)",
-                    pt_text_shown(c->name, name, sizeof name), c->peer, c->threads);
+            srv_log("worker %s joined from %s (%u threads)", c->shown, c->peer, c->threads);
         }
     }
 }
@@ -257,11 +255,9 @@ static void on_auth(srv_server *s, srv_conn *c, const proto_frame *f)
 void srv_conn_peer_error(srv_server *s, srv_conn *c, const proto_frame *f, const char *who)
 {
     proto_error_msg m;
-    char name[PT_TEXT_ESCAPED_SIZE(PROTO_MAX_NAME)],
-        text[PT_TEXT_ESCAPED_SIZE(PROTO_MAX_ERROR_TEXT)];
+    char text[PT_TEXT_ESCAPED_SIZE(PROTO_MAX_ERROR_TEXT)];
     if (proto_msg_decode_error(f->payload, f->len, &m, NULL) == PT_OK)
-        srv_log("%s %s reports: %s", who, pt_text_shown(c->name, name, sizeof name),
-                pt_text_shown(m.text, text, sizeof text));
+        srv_log("%s %s reports: %s", who, c->shown, pt_text_shown(m.text, text, sizeof text));
     srv_conn_close_soon(s, c);
 }
 

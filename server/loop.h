@@ -24,6 +24,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "common/base/text.h"
 #include "protocol/frame.h"
 #include "protocol/msg.h"
 #include "server/core.h"
@@ -44,6 +45,7 @@ struct srv_conn {
     size_t out_off;
     uint8_t nonce[PROTO_NONCE_SIZE];
     char name[PROTO_MAX_NAME + 1];
+    char shown[PT_TEXT_ESCAPED_SIZE(PROTO_MAX_NAME)]; /* name escaped for logs, set with it */
     char peer[64];
     uint16_t threads;
     uint32_t want; /* worker: free slots it asked tasks for */

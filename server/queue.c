@@ -390,10 +390,8 @@ void srv_queue_release_owner(srv_server *s, const srv_conn *c, int report)
     for (srv_entry *j = s->jobs; j; j = j->next)
         if (j->job)
             n += srv_job_release_owner(j->job, c->id);
-    char name[PT_TEXT_ESCAPED_SIZE(PROTO_MAX_NAME)];
     if (n && report)
-        srv_log("worker %s left; %u leased tasks requeued",
-                pt_text_shown(c->name, name, sizeof name), n);
+        srv_log("worker %s left; %u leased tasks requeued", c->shown, n);
 }
 
 int srv_queue_end_complete(srv_server *s)

@@ -263,11 +263,10 @@ void srv_requests_verified(srv_server *s, srv_conn *c, srv_upload *k)
         srv_conn_send_error(s, c, PROTO_E_INTERNAL, "cannot write the queue: %s", err.msg);
         return;
     }
-    char name[PT_TEXT_ESCAPED_SIZE(PROTO_MAX_NAME)], scene[PT_TEXT_ESCAPED_SIZE(PROTO_MAX_PATH)];
+    char scene[PT_TEXT_ESCAPED_SIZE(PROTO_MAX_PATH)];
     srv_log("job %llu queued from %s: %s (%u triangles), %ux%u, %u spp, priority %d",
-            (unsigned long long)r->id, pt_text_shown(c->name, name, sizeof name),
-            pt_text_shown(r->scene, scene, sizeof scene), ntris, p.width, p.height, p.spp,
-            r->priority);
+            (unsigned long long)r->id, c->shown, pt_text_shown(r->scene, scene, sizeof scene),
+            ntris, p.width, p.height, p.spp, r->priority);
     proto_job_ref ref = {r->id};
     size_t mark;
     if (proto_frame_begin(&c->out, PROTO_MSG_SUBMITTED, &mark, NULL) == PT_OK)
@@ -453,11 +452,9 @@ void srv_requests_tick(srv_server *s, uint64_t now)
 
 void srv_requests_conn_gone(srv_conn *c)
 {
-    char name[PT_TEXT_ESCAPED_SIZE(PROTO_MAX_NAME)];
     if (c->uploading)
-        srv_log("client %s left during an upload (%zu of %llu bytes); nothing was queued",
-                pt_text_shown(c->name, name, sizeof name), c->up_len,
-                (unsigned long long)c->up.bundle_size);
+        srv_log("client %s left during an upload (%zu of %llu bytes); nothing was queued", c->shown,
+                c->up_len, (unsigned long long)c->up.bundle_size);
     srv_requests_drop_upload(c);
     pt_free(c->fetch);
     c->fetch = NULL;

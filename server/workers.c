@@ -76,9 +76,8 @@ static void on_result(srv_server *s, srv_conn *c, const proto_frame *f)
     case SRV_DUPLICATE:
         break;
     case SRV_NOT_LEASED: {
-        char name[PT_TEXT_ESCAPED_SIZE(PROTO_MAX_NAME)], text[PT_TEXT_ESCAPED_SIZE(sizeof err.msg)];
-        srv_log("worker %s: %s; dropped", pt_text_shown(c->name, name, sizeof name),
-                pt_text_shown(err.msg, text, sizeof text));
+        char text[PT_TEXT_ESCAPED_SIZE(sizeof err.msg)];
+        srv_log("worker %s: %s; dropped", c->shown, pt_text_shown(err.msg, text, sizeof text));
         break;
     }
     case SRV_INVALID:
