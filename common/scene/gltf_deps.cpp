@@ -99,6 +99,7 @@ extern "C" pt_status pt_gltf_dependencies(const char *path, char ***names, uint3
                                                 "%s: %s[%zu].uri '%.200s' %s: a scene may only "
                                                 "name files inside its folder",
                                                 path, key, i, uri.c_str(), why);
+                        name.resize(pt_uri_path_clean(&name[0], name.size()));
                         bool dup = false;
                         for (const auto &f : found)
                             dup = dup || f == name;

@@ -1,5 +1,7 @@
 #include "common/scene/uri.h"
 
+#include <string.h>
+
 #include "common/base/hash.h"
 
 size_t pt_uri_decode(const char *uri, size_t n, char *out)
@@ -37,4 +39,22 @@ const char *pt_uri_path_refusal(const char *name, size_t n)
         }
     }
     return NULL;
+}
+
+size_t pt_uri_path_clean(char *name, size_t n)
+{
+    size_t out = 0, start = 0;
+    for (size_t i = 0; i <= n; i++) {
+        if (i < n && name[i] != '/')
+            continue;
+        size_t len = i - start;
+        if (len > 0 && !(len == 1 && name[start] == '.')) {
+            if (out > 0)
+                name[out++] = '/';
+            memmove(name + out, name + start, len);
+            out += len;
+        }
+        start = i + 1;
+    }
+    return out;
 }

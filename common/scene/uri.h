@@ -36,4 +36,12 @@ size_t pt_uri_decode(const char *uri, size_t n, char *out);
  * here: the importer's reads refuse them (pt_read_file_beneath). */
 const char *pt_uri_path_refusal(const char *name, size_t n);
 
+/* The file a name that pt_uri_path_refusal allows stands for, written as
+ * the bundle stores it: "." and empty components dropped, in place
+ * ("./a.png" and "sub//b.bin" become "a.png" and "sub/b.bin"). Returns the
+ * new length (at most n). Two URIs that name one file so get one bundle
+ * entry, and the bundle's stricter name rule, which has no "." components,
+ * holds for every scene the importer would load. */
+size_t pt_uri_path_clean(char *name, size_t n);
+
 #endif

@@ -54,5 +54,18 @@ int main(void)
     char dec[16];
     size_t k = pt_uri_decode("%2e%2e/x", 8, dec); /* decoded first, then judged */
     CHECK(pt_uri_path_refusal(dec, k) != NULL);
+
+    /* The name a bundle stores: "." and empty components gone. */
+    const char *clean[][2] = {
+        {"./a.png", "a.png"}, {"a//b", "a/b"},    {"a/./b", "a/b"}, {".//./sub/x", "sub/x"},
+        {"sub/", "sub"},      {"a.bin", "a.bin"}, {"./.", ""},      {"..a/./.b", "..a/.b"}};
+    for (size_t i = 0; i < sizeof clean / sizeof *clean; i++) {
+        char name[32];
+        size_t n = strlen(clean[i][0]);
+        memcpy(name, clean[i][0], n);
+        size_t m = pt_uri_path_clean(name, n);
+        CHECKF(m == strlen(clean[i][1]) && memcmp(name, clean[i][1], m) == 0, "'%s': '%.*s'",
+               clean[i][0], (int)m, name);
+    }
     return check_report();
 }
