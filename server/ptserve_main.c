@@ -57,7 +57,7 @@ static void usage(FILE *f)
         "  --res WxH              image size (default 512 wide, height from the camera)\n"
         "  --seed S               random seed (default 0)\n"
         "  --camera NAME          the camera to render (default: the scene's first)\n"
-        "  --max-depth D          maximum bounces (default 16)\n"
+        "  --max-depth D          bounce cap (default 1024); Russian roulette ends paths\n"
         "  --target-error E       adaptive sampling: a tile stops once the RMS relative\n"
         "                         error of its pixel means is <= E (e.g. 0.01); off by default\n"
         "  --min-gain G           adaptive sampling for the lowest mean error: a tile\n"
@@ -93,7 +93,7 @@ int main(int argc, char **argv)
     c.job.spp = 64;
     c.job.tile = 32;
     c.job.chunk = 16;
-    c.job.max_depth = 16;
+    c.job.max_depth = PT_RENDER_DEFAULT_MAX_DEPTH;
     c.job.rr_depth = 3;
     c.save_interval = 5.0;
     c.caps.max_side = PT_RENDER_MAX_SIDE;

@@ -20,6 +20,7 @@
 
 #include "common/base/opt.h"
 #include "common/base/version.h"
+#include "common/render/render.h"
 #include "common/render/tile.h"
 #include "protocol/msg.h"
 #include "worker/client.h"
@@ -50,7 +51,7 @@ static void usage(FILE *f)
             "  --res WxH          image size (default 512 wide, height from the camera)\n"
             "  --seed S           random seed (default 0); same seed, same image\n"
             "  --threads T        render threads (default: all cores; both modes)\n"
-            "  --max-depth D      maximum bounces (default 16)\n"
+            "  --max-depth D      bounce cap (default 1024); Russian roulette ends paths\n"
             "  --camera NAME      the camera to render (default: the scene's first)\n"
             "  --tile N           tile side in pixels (default 32)\n"
             "  --chunk N          samples per chunk (default 16)\n"
@@ -117,7 +118,7 @@ int main(int argc, char **argv)
 {
     wrk_standalone_opts o = {0};
     o.spp = 64;
-    o.max_depth = 16;
+    o.max_depth = PT_RENDER_DEFAULT_MAX_DEPTH;
     o.tile = 32;
     o.chunk = 16;
     wrk_client_opts net = {0};

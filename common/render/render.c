@@ -71,7 +71,7 @@ struct pt_renderer {
 void pt_render_params_default(pt_render_params *p)
 {
     p->seed = 0;
-    p->max_depth = 16;
+    p->max_depth = PT_RENDER_DEFAULT_MAX_DEPTH;
     p->rr_depth = 3;
     p->light_strategy = PT_LIGHT_MIS;
     p->extra_features = 0;

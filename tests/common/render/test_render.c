@@ -6,6 +6,9 @@
  *   Each pixel must lie within 5 sigma of it (sigma: the pixel's own standard
  *   error from its samples) and the image mean within 0.5 %, at scales 1, 1e-4
  *   and 1e4.
+ * - The same furnace at albedo 0.8 with the default parameters: Russian
+ *   roulette, not the bounce cap, ends paths, so the mean is E / (1 - 0.8)
+ *   within 0.5 % (a cap of 16 bounces read 2.3 % low).
  * - Direct light by NEE alone and by BSDF sampling alone agree within their
  *   combined standard error.
  * - Determinism: [0,64) equals the in-order sum of four 16-sample chunks bit
@@ -102,6 +105,50 @@ static void furnace(float scale)
     CHECK(st.rejected == 0);
     printf("furnace scale %g: mean %.5f (exact %.5f), standard error %.2e\n", (double)scale, mean,
            expected, sqrt(var_sum) / (W * H));
+    pt_free(acc);
+    pt_renderer_free(r);
+    pt_scene_free(s);
+}
+
+/* The default parameters are unbiased: at albedo 0.8 a path survives 16
+ * bounces with probability 0.8^17 = 2.3 %, which a bounce cap would lose. */
+static void furnace_defaults(void)
+{
+    pt_scene *s = load("scenes/furnace.gltf", 1.0f);
+    CHECK(s != NULL);
+    if (!s)
+        return;
+    for (uint32_t i = 0; i < s->num_materials; i++)
+        for (int c = 0; c < 3; c++)
+            if (s->materials[i].base_color[c] > 0.0f)
+                s->materials[i].base_color[c] = 0.8f;
+    const uint32_t W = 32, H = 32, SPP = 1024;
+    pt_render_params p = {0};
+    pt_render_params_default(&p);
+    p.width = W;
+    p.height = H;
+    pt_renderer *r = NULL;
+    pt_error err = {0};
+    CHECKF(pt_renderer_new(s, &p, &r, &err) == PT_OK, "%s", err.msg);
+    pt_pixel_acc *acc = pt_malloc_array(W * H, sizeof *acc);
+    pt_render_stats st = {0, 0, 0};
+    pt_rect all = {0, 0, W, H};
+    if (r && acc)
+        pt_render_tile(r, all, 0, SPP, acc, &st);
+    double sum = 0, var_sum = 0;
+    for (uint32_t i = 0; r && acc && i < W * H; i++) {
+        double sig = pixel_sigma(&acc[i]);
+        sum += acc[i].sum[1] / acc[i].n;
+        var_sum += sig * sig;
+    }
+    const double expected = 0.5 / (1.0 - 0.8);
+    double mean = sum / (W * H), se = sqrt(var_sum) / (W * H);
+    CHECKF(fabs(mean - expected) < 0.005 * expected, "defaults: image mean %.5f, expected %.5f",
+           mean, expected);
+    /* 0.5 % is beyond 5 standard errors, so a 2.3 % bias cannot hide in noise. */
+    CHECKF(5.0 * se < 0.005 * expected, "defaults: standard error %.5f too large", se);
+    printf("furnace albedo 0.8, default parameters: mean %.5f (exact %.5f), standard error %.2e\n",
+           mean, expected, se);
     pt_free(acc);
     pt_renderer_free(r);
     pt_scene_free(s);
@@ -510,6 +557,7 @@ int main(void)
     furnace(1.0f);
     furnace(1e-4f);
     furnace(1e4f);
+    furnace_defaults();
     nee_vs_bsdf();
     determinism();
     cornell_finite();
