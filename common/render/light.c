@@ -16,6 +16,19 @@
  * Given Distribution" (IEEE TSE 17(9)): Walker's alias method built in O(n).
  * Point: Heitz 2019, "A Low-Distortion Map Between Triangle and Square"
  * (HAL hal-02073696), which keeps the stratification of the sampler's points.
+ *
+ * Punctual lights (scene.h) are chosen among themselves by a cumulative
+ * table, and against the triangles by the two classes' total power, on the
+ * triangles' scale (flux): a point light of intensity I emits 4 pi I; a spot
+ * light about 2 pi (1 - (cos inner + cos outer) / 2) I, the solid angle of the
+ * cone halfway through its falloff; a directional light of irradiance E
+ * lights at most the scene's bounding sphere's cross-section, pi R^2 E. These
+ * are estimates: a poor one costs variance, never bias, since the sample is
+ * divided by the probability it was chosen with. Falloffs follow the
+ * extension's README: a spot's angular attenuation is
+ * saturate(cos * scale + offset)^2, scale = 1 / max(0.001, cos inner - cos
+ * outer), offset = -cos outer * scale; a range r windows 1 / d^2 by
+ * clamp(1 - (d / r)^4, 0, 1).
  */
 #include "common/render/light.h"
 
@@ -55,6 +68,12 @@ struct pt_lights {
     void *lights_mem;
     alias_slot *alias;      /* count columns */
     uint32_t *tri_to_light; /* num_triangles entries, UINT32_MAX: not a light; NULL if count 0 */
+    /* punctual lights */
+    uint32_t npunct;
+    const pt_punctual *punct; /* the scene's */
+    double *punct_cdf;        /* npunct + 1: cumulative power among them, 0 to 1 */
+    float *punct_pmf;         /* the probability of choosing each, class included */
+    double p_tri;             /* the probability of choosing the triangles' class */
 };
 
 static pt_vec3 vertex(const pt_scene *s, uint32_t i)
@@ -163,6 +182,21 @@ static double tri_power(const pt_scene *s, uint32_t tri, const pt_vec3 *tex_mean
     return p;
 }
 
+/* The estimated flux of a punctual light (the top of the file); 0 when it
+ * could never light anything. radius: of the scene's bounding sphere. */
+static double punctual_power(const pt_punctual *l, double radius)
+{
+    const double pi = 3.14159265358979323846;
+    double lum = pt_luminance(l->intensity), p;
+    if (l->type == PT_PUNCTUAL_DIRECTIONAL)
+        p = pi * radius * radius * lum;
+    else if (l->type == PT_PUNCTUAL_SPOT)
+        p = 2.0 * pi * (1.0 - 0.5 * ((double)l->cos_inner + (double)l->cos_outer)) * lum;
+    else
+        p = 4.0 * pi * lum;
+    return p > 0.0 && isfinite(p) ? p : 0.0;
+}
+
 /* Vose's alias table over lights[0..n) from power[] (total > 0).
  * scratch: n uint32. The small list grows up from the front of scratch, the
  * large list down from the back; Vose's update q_g = (q_g + q_l) - 1 keeps
@@ -247,6 +281,26 @@ pt_status pt_lights_new(const pt_scene *scene, pt_lights **out, pt_error *err)
         }
     }
 
+    /* Punctual lights: their power, and the triangles' share. */
+    double punct_total = 0.0;
+    if (scene->num_punctual > 0) {
+        L->punct_cdf = pt_malloc_array((size_t)scene->num_punctual + 1, sizeof *L->punct_cdf);
+        L->punct_pmf = pt_malloc_array(scene->num_punctual, sizeof *L->punct_pmf);
+        if (!L->punct_cdf || !L->punct_pmf)
+            goto nomem;
+        pt_vec3 ext = pt_v3_sub(scene->bounds_max, scene->bounds_min);
+        double radius = 0.5 * (double)pt_v3_len(ext);
+        L->punct_cdf[0] = 0.0;
+        for (uint32_t i = 0; i < scene->num_punctual; i++) {
+            punct_total += punctual_power(&scene->punctual[i], radius);
+            L->punct_cdf[i + 1] = punct_total;
+        }
+        if (punct_total > 0.0) {
+            L->npunct = scene->num_punctual;
+            L->punct = scene->punctual;
+        }
+    }
+
     uint32_t n = 0;
     for (uint32_t i = 0; i < scene->num_triangles; i++) {
         if (scene->tri_material[i] >= scene->num_materials) {
@@ -258,8 +312,10 @@ pt_status pt_lights_new(const pt_scene *scene, pt_lights **out, pt_error *err)
         if (tri_power(scene, i, tex_mean, &area) > 0.0)
             n++;
     }
-    if (n == 0)
-        goto done;
+    if (n == 0) {
+        L->p_tri = 0.0;
+        goto punctual;
+    }
 
     /* One spare entry's room to align the array to a cache line. */
     L->lights_mem = pt_malloc_array((size_t)n + 1, sizeof *L->lights);
@@ -291,14 +347,24 @@ pt_status pt_lights_new(const pt_scene *scene, pt_lights **out, pt_error *err)
         total += p;
         k++;
     }
+    /* Without punctual lights p_tri is 1 and the pmfs are the bits they
+     * were before there were any. */
+    L->p_tri = L->npunct ? total / (total + punct_total) : 1.0;
     for (uint32_t i = 0; i < n; i++) {
-        L->lights[i].pmf = (float)(power[i] / total);
+        L->lights[i].pmf = (float)(L->npunct ? power[i] / total * L->p_tri : power[i] / total);
         L->lights[i].pmf_area = L->lights[i].pmf / L->lights[i].pmf_area;
     }
     build_alias(L->alias, power, scratch, n, total);
     L->count = n;
 
-done:
+punctual:
+    for (uint32_t i = 0; i < L->npunct; i++) {
+        L->punct_cdf[i + 1] /= punct_total;
+        L->punct_pmf[i] = (float)((1.0 - L->p_tri) * (L->punct_cdf[i + 1] - L->punct_cdf[i]));
+    }
+    if (L->npunct)
+        L->punct_cdf[L->npunct] = 1.0;
+
     pt_free(scratch);
     pt_free(power);
     pt_free(tex_mean);
@@ -322,12 +388,64 @@ void pt_lights_free(pt_lights *lights)
     pt_free(lights->lights_mem);
     pt_free(lights->alias);
     pt_free(lights->tri_to_light);
+    pt_free(lights->punct_cdf);
+    pt_free(lights->punct_pmf);
     pt_free(lights);
 }
 
 uint32_t pt_lights_count(const pt_lights *lights)
 {
     return lights ? lights->count : 0;
+}
+
+uint32_t pt_lights_punctual_count(const pt_lights *lights)
+{
+    return lights ? lights->npunct : 0;
+}
+
+/* A sample of the punctual light that v (in [0,1)) picks, seen from p. */
+static int sample_punctual(const pt_lights *lights, pt_vec3 p, double v, pt_light_sample *s)
+{
+    uint32_t lo = 0, hi = lights->npunct - 1; /* the first i with v < cdf[i + 1] */
+    while (lo < hi) {
+        uint32_t mid = lo + (hi - lo) / 2;
+        if (v < lights->punct_cdf[mid + 1])
+            hi = mid;
+        else
+            lo = mid + 1;
+    }
+    const pt_punctual *l = &lights->punct[lo];
+    s->pdf = lights->punct_pmf[lo];
+    if (!(s->pdf > 0.0f))
+        return 0;
+    if (l->type == PT_PUNCTUAL_DIRECTIONAL) {
+        s->delta = PT_LIGHT_FAR;
+        s->wi = pt_v3_neg(l->direction);
+        s->dist = INFINITY;
+        s->radiance = l->intensity;
+        return 1;
+    }
+    s->delta = PT_LIGHT_AT;
+    s->position = l->position;
+    pt_vec3 d = pt_v3_sub(l->position, p);
+    float d2 = pt_v3_dot(d, d);
+    s->dist = sqrtf(d2);
+    if (!(s->dist > 0.0f) || !isfinite(s->dist))
+        return 0;
+    s->wi = pt_v3_scale(d, 1.0f / s->dist);
+    float atten = 1.0f / d2;
+    if (l->range > 0.0f) {
+        float x = s->dist / l->range, x4 = (x * x) * (x * x);
+        atten *= x4 < 1.0f ? 1.0f - x4 : 0.0f;
+    }
+    if (l->type == PT_PUNCTUAL_SPOT) {
+        float scale = 1.0f / fmaxf(0.001f, l->cos_inner - l->cos_outer);
+        float a = -pt_v3_dot(l->direction, s->wi) * scale - l->cos_outer * scale;
+        a = a < 0.0f ? 0.0f : a > 1.0f ? 1.0f : a;
+        atten *= a * a;
+    }
+    s->radiance = pt_v3_scale(l->intensity, atten);
+    return isfinite(atten) && atten > 0.0f;
 }
 
 /* pdf_w = pmf / area * d^2 / |cos theta_light| (area to solid angle: dA =
@@ -393,8 +511,21 @@ int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, 
 {
     memset(s, 0, sizeof *s);
     s->tri = UINT32_MAX;
-    if (!lights || lights->count == 0)
+    if (!lights || (lights->count == 0 && lights->npunct == 0))
         return 0;
+    float ut[3];
+    if (lights->npunct > 0) {
+        /* The class first, then the light within it, from one number. */
+        double u0 = u[0];
+        if (!(u0 < lights->p_tri)) {
+            s->tri = UINT32_MAX;
+            return sample_punctual(lights, p, (u0 - lights->p_tri) / (1.0 - lights->p_tri), s);
+        }
+        ut[0] = (float)(u0 / lights->p_tri);
+        ut[1] = u[1];
+        ut[2] = u[2];
+        u = ut;
+    }
 
     float b1, b2;
     const light_entry *le = pick_point(lights, u, &s->position, &b1, &b2);

@@ -1,5 +1,6 @@
 /*
- * light.h - emissive triangles as lights for next-event estimation.
+ * light.h - the lights of next-event estimation: emissive triangles and
+ * punctual lights (scene.h, pt_punctual).
  *
  * Every triangle whose material emits (emissive factor > 0) becomes a light.
  * Lights are chosen in proportion to power (area x luminance of the emission,
@@ -8,6 +9,14 @@
  * the pdf converted to solid angle: pdf_w = pdf_A * d^2 / |cos theta_light|.
  * Single-sided emitters emit on the side of their geometric normal (counter-
  * clockwise winding); double-sided ones on both sides.
+ *
+ * Punctual lights join the same choice: one number picks the class
+ * (triangles or punctual lights) by the classes' total power, then the light
+ * within it by its own power, so each light is chosen in proportion to its
+ * estimated power (light.c says how it is estimated). A punctual sample is a
+ * delta: its pdf is the probability of choosing it, and BSDF sampling never
+ * finds it, so it takes no MIS weight. A scene without punctual lights does
+ * not draw the class: its samples are the bits they were before.
  * Immutable after pt_lights_new; thread-safe for reading.
  */
 #ifndef PT_COMMON_RENDER_LIGHT_H
@@ -21,21 +30,29 @@
 
 typedef struct pt_lights pt_lights;
 
+enum { PT_LIGHT_AREA = 0, PT_LIGHT_AT = 1, PT_LIGHT_FAR = 2 };
+
 typedef struct pt_light_sample {
     pt_vec3 position; /* on the light */
     pt_vec3 normal;   /* geometric normal of the light triangle */
     pt_vec3 wi;       /* unit direction from the shading point to position */
     float dist;       /* distance to position */
     pt_vec3 radiance; /* emitted radiance towards the shading point (0 if back side) */
-    float pdf;        /* solid-angle pdf (including the choice of triangle); 0 = impossible */
-    uint32_t tri;     /* triangle index in the scene */
+    float pdf;        /* solid-angle pdf (including the choice of triangle); 0 = impossible;
+                         for a punctual light the probability of choosing it */
+    uint32_t tri;     /* triangle index in the scene; UINT32_MAX for a punctual light */
+    int delta;        /* PT_LIGHT_AREA, or a punctual light: PT_LIGHT_AT (at position,
+                         radiance is the irradiance it gives facing it) or PT_LIGHT_FAR
+                         (directional: dist infinite, radiance is its irradiance) */
 } pt_light_sample;
 
 /* Builds the light list. A scene without emitters gives a valid, empty set. */
 pt_status pt_lights_new(const pt_scene *scene, pt_lights **out, pt_error *err);
 void pt_lights_free(pt_lights *lights); /* accepts NULL */
 
+/* Emissive triangles that can be chosen / punctual lights. */
 uint32_t pt_lights_count(const pt_lights *lights);
+uint32_t pt_lights_punctual_count(const pt_lights *lights);
 
 /* Samples a light point seen from p. u: 3 numbers in [0,1) (u[0] picks the
  * triangle, u[1..2] the point). Returns 0 when there are no lights or the
@@ -44,7 +61,8 @@ int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, 
                      pt_light_sample *s);
 
 /* pt_lights_sample(lights, scene, p[i], u[i], &s[i]) into ok[i] for i < n,
- * the same bits, computed a few points at a time in SIMD lanes. */
+ * the same bits, computed a few points at a time in SIMD lanes. Triangles
+ * only: not for a set with punctual lights. */
 void pt_lights_sample_n(const pt_lights *lights, const pt_scene *scene, uint32_t n,
                         const pt_vec3 *p, const float (*u)[3], pt_light_sample *s, int *ok);
 

@@ -396,7 +396,7 @@ static inline __attribute__((always_inline)) int
 bounce_light(const pt_renderer *r, const surface *sf, const float u[DIM_PER_BOUNCE],
              pt_light_sample *ls, const uint32_t features)
 {
-    if (!((features & PT_FEAT_EMITTERS) && r->nee))
+    if (!((features & (PT_FEAT_EMITTERS | PT_FEAT_PUNCTUAL)) && r->nee))
         return 0;
     float u3[3];
     u3[0] = u[OFF_LIGHT_PICK];
@@ -467,11 +467,28 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     pt_frame fr = pt_frame_from_normal(ns);
     pt_vec3 wo_l = pt_frame_to_local(&fr, wo);
     pt_bsdf bsdf = material_bsdf(r, sf, features);
-    if ((features & PT_FEAT_EMITTERS) && r->nee) {
+    if ((features & (PT_FEAT_EMITTERS | PT_FEAT_PUNCTUAL)) && r->nee) {
         if (ls_ok && ls->pdf > 0.0f && any_positive(ls->radiance) && pt_v3_dot(ls->wi, ng) > 0.0f) {
             float bpdf;
             pt_vec3 f = bsdf_eval(&bsdf, wo_l, pt_frame_to_local(&fr, ls->wi), &bpdf, features);
-            if (any_positive(f)) {
+            if ((features & PT_FEAT_PUNCTUAL) && ls->delta != PT_LIGHT_AREA && any_positive(f)) {
+                /* A punctual light: BSDF sampling cannot find it, so no MIS;
+                 * ls->radiance is the irradiance it gives, f holds the cosine. */
+                pt_vec3 from = pt_offset_apply(r->offset, sf->p, ng);
+                sr->from = from;
+                if (ls->delta == PT_LIGHT_FAR) {
+                    sr->dir = ls->wi;
+                    sr->dist = INFINITY;
+                } else {
+                    pt_vec3 sd = pt_v3_sub(ls->position, from);
+                    float dist = pt_v3_len(sd);
+                    sr->dist = dist;
+                    sr->dir = pt_v3_scale(sd, dist > 0.0f ? 1.0f / dist : 0.0f);
+                }
+                sr->contrib =
+                    pt_v3_mul(pa->beta, pt_v3_scale(pt_v3_mul(f, ls->radiance), 1.0f / ls->pdf));
+                ret = SHADE_SHADOW;
+            } else if (any_positive(f)) {
                 pt_vec3 from = pt_offset_apply(r->offset, sf->p, ng);
                 pt_vec3 nl = ls->normal;
                 if (pt_v3_dot(nl, ls->wi) > 0.0f)
@@ -1017,18 +1034,24 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
         }                                                                                          \
     }
 #define NO_TEX (uint32_t)(PT_FEAT_TEXTURES | PT_FEAT_EMISSIVE_TEX)
+/* Lights besides emissive triangles: only the general variant has their code. */
+#define OTHER_LIGHTS (uint32_t) PT_FEAT_PUNCTUAL
 VARIANT(li_general, tile_general, ALL_FEATURES)
-VARIANT(li_untextured, tile_untextured, ALL_FEATURES & ~NO_TEX)
-VARIANT(li_lambert, tile_lambert, ALL_FEATURES & ~(uint32_t)PT_FEAT_GLOSSY)
+VARIANT(li_untextured, tile_untextured, ALL_FEATURES & ~NO_TEX & ~OTHER_LIGHTS)
+VARIANT(li_lambert, tile_lambert, ALL_FEATURES & ~(uint32_t)PT_FEAT_GLOSSY & ~OTHER_LIGHTS)
 VARIANT(li_lambert_untextured, tile_lambert_untextured,
-        ALL_FEATURES & ~NO_TEX & ~(uint32_t)PT_FEAT_GLOSSY)
+        ALL_FEATURES & ~NO_TEX & ~(uint32_t)PT_FEAT_GLOSSY & ~OTHER_LIGHTS)
 #undef VARIANT
 
 /* The most specialised variant whose assumptions the scene meets. */
 static void pick_variant(pt_renderer *r, uint32_t features)
 {
     int tex = (features & NO_TEX) != 0, glossy = (features & PT_FEAT_GLOSSY) != 0;
-    if (glossy) {
+    if (features & OTHER_LIGHTS) {
+        r->li = li_general;
+        r->tile = tile_general;
+        r->variant = "general";
+    } else if (glossy) {
         r->li = tex ? li_general : li_untextured;
         r->tile = tex ? tile_general : tile_untextured;
         r->variant = tex ? "general" : "untextured";
@@ -1073,14 +1096,18 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
         st = pt_error_set(err, PT_ERR_NOMEM, "out of memory for the renderer");
         goto fail;
     }
-    r->nee = pt_lights_count(r->lights) > 0 && params->light_strategy != PT_LIGHT_BSDF_ONLY;
-    r->nee_n = r->nee && pt_lights_count(r->lights) >= LIGHTS_N_MIN;
+    uint32_t npunct = pt_lights_punctual_count(r->lights);
+    r->nee =
+        pt_lights_count(r->lights) + npunct > 0 && params->light_strategy != PT_LIGHT_BSDF_ONLY;
+    /* The stage-wide light sampling and the lanes know only triangles. */
+    r->nee_n = r->nee && pt_lights_count(r->lights) >= LIGHTS_N_MIN && npunct == 0;
     uint32_t features = scene->features | params->extra_features;
     pick_variant(r, features);
     /* Without fast lanes (an x86-64 processor without AVX2 runs shade_lanes'
      * baseline clone, which does the lanes one by one) the per-path shading
      * is faster: docs/bench/throughput.md, "Fourth round". */
-    r->lanes = !(features & PT_FEAT_GLOSSY) && !params->scalar_shading && pt_simd_lanes_fast();
+    r->lanes = !(features & (PT_FEAT_GLOSSY | OTHER_LIGHTS)) && !params->scalar_shading &&
+               pt_simd_lanes_fast();
     *out = r;
     return PT_OK;
 fail:

@@ -18,6 +18,7 @@
 // Materials follow the core metallic-roughness model (spec 3.9.2) with
 // KHR_materials_emissive_strength and KHR_materials_specular; what the
 // renderer does not support is reported once per kind through opts->warn.
+// KHR_lights_punctual lights become pt_punctual lights (scene.h: units).
 //
 // External files: every buffer and image URI is a name below the entry
 // file's folder and nothing else (pt_uri_path_refusal: no absolute path, no
@@ -887,6 +888,75 @@ void add_camera(importer &im, int ni, int ci, const mat4 &w)
         im.fail(st, "node %d: %s", ni, e.msg);
 }
 
+// A node's KHR_lights_punctual light: placed at the node's origin, shining
+// down its -Z; scale changes neither the cone nor the intensity (the
+// extension's README, "Defining Lights").
+void add_light(importer &im, int ni, const tinygltf::Value &ext, const mat4 &w)
+{
+    const tinygltf::Model &m = im.model;
+    if (!ext.IsObject() || !ext.Has("light") || !ext.Get("light").IsNumber())
+        im.fail(PT_ERR_FORMAT, "node %d: KHR_lights_punctual has no light index", ni);
+    double li = ext.Get("light").GetNumberAsDouble();
+    if (!(li >= 0.0) || li >= double(m.lights.size()) || li != double(int(li)))
+        im.fail(PT_ERR_FORMAT, "node %d: light %g out of range (%zu lights)", ni, li,
+                m.lights.size());
+    const tinygltf::Light &l = m.lights[size_t(li)];
+    pt_punctual p{};
+    std::string name = !l.name.empty()                     ? l.name
+                       : !m.nodes[size_t(ni)].name.empty() ? m.nodes[size_t(ni)].name
+                                                           : "light " + std::to_string(int(li));
+    snprintf(p.name, sizeof p.name, "%s", name.c_str());
+    if (l.type == "point")
+        p.type = PT_PUNCTUAL_POINT;
+    else if (l.type == "spot")
+        p.type = PT_PUNCTUAL_SPOT;
+    else if (l.type == "directional")
+        p.type = PT_PUNCTUAL_DIRECTIONAL;
+    else
+        im.fail(PT_ERR_FORMAT, "light %d ('%s'): type '%.32s' is not point, spot or directional",
+                int(li), p.name, l.type.c_str());
+    double c[3] = {1.0, 1.0, 1.0};
+    if (!l.color.empty()) {
+        if (l.color.size() != 3)
+            im.fail(PT_ERR_FORMAT, "light %d ('%s'): color has %zu numbers, not 3", int(li), p.name,
+                    l.color.size());
+        for (int k = 0; k < 3; k++)
+            c[k] = l.color[size_t(k)];
+    }
+    for (int k = 0; k < 3; k++)
+        if (!(c[k] >= 0.0 && c[k] <= 1.0))
+            im.fail(PT_ERR_FORMAT, "light %d ('%s'): color is not in [0, 1]", int(li), p.name);
+    if (!(l.intensity >= 0.0) || !std::isfinite(l.intensity))
+        im.fail(PT_ERR_FORMAT, "light %d ('%s'): intensity is negative or not finite", int(li),
+                p.name);
+    p.intensity =
+        pt_v3(float(c[0] * l.intensity), float(c[1] * l.intensity), float(c[2] * l.intensity));
+    p.range = float(l.range);
+    double d[3] = {-w[8], -w[9], -w[10]};
+    double len = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+    if (!(len > 0.0) || !std::isfinite(len))
+        im.fail(PT_ERR_FORMAT, "node %d: light '%s' has a degenerate transform", ni, p.name);
+    p.direction = pt_v3(float(d[0] / len), float(d[1] / len), float(d[2] / len));
+    if (p.type == PT_PUNCTUAL_SPOT) {
+        double inner = l.spot.innerConeAngle, outer = l.spot.outerConeAngle;
+        if (!(inner >= 0.0 && inner < outer && outer <= 1.5707963267948966 + 1e-6))
+            im.fail(PT_ERR_FORMAT,
+                    "light %d ('%s'): spot cone angles %g, %g are not 0 <= inner < outer <= pi/2",
+                    int(li), p.name, inner, outer);
+        p.cos_inner = float(std::cos(inner));
+        p.cos_outer = float(std::cos(outer));
+        if (!(p.cos_inner > p.cos_outer)) // angles too close to tell apart in float
+            p.cos_inner = std::nextafter(p.cos_outer, 2.0f);
+        if (p.cos_outer < 0.0f)
+            p.cos_outer = 0.0f;
+    }
+    const double pos[3] = {w[12], w[13], w[14]};
+    pt_error e{};
+    pt_status st = pt_scene_builder_add_punctual(im.b, &p, pos, &e);
+    if (st != PT_OK)
+        im.fail(st, "node %d: %s", ni, e.msg);
+}
+
 void visit(importer &im, int ni, const mat4 &parent, int depth, std::vector<char> &on_path)
 {
     const tinygltf::Model &m = im.model;
@@ -914,6 +984,9 @@ void visit(importer &im, int ni, const mat4 &parent, int depth, std::vector<char
     }
     if (n.camera >= 0)
         add_camera(im, ni, n.camera, w);
+    auto lx = n.extensions.find("KHR_lights_punctual");
+    if (lx != n.extensions.end())
+        add_light(im, ni, lx->second, w);
     for (int c : n.children)
         visit(im, c, w, depth + 1, on_path);
     on_path[size_t(ni)] = 0;
@@ -1032,14 +1105,11 @@ void import(importer &im)
     parse(im, bytes);
     tinygltf::Model &m = im.model;
     hash_files(im, bytes);
-    if (!m.lights.empty())
-        im.warn_once("lights", std::to_string(m.lights.size()) +
-                                   " KHR_lights_punctual lights are ignored (only emissive "
-                                   "triangles emit)");
     if (!m.skins.empty())
         im.warn_once("skin", "skins are ignored");
     for (const auto &r : m.extensionsRequired)
-        if (r != "KHR_materials_emissive_strength" && r != "KHR_materials_specular")
+        if (r != "KHR_materials_emissive_strength" && r != "KHR_materials_specular" &&
+            r != "KHR_lights_punctual")
             im.warn_once("req:" + r, "required extension " + r + " is not supported");
     add_materials(im);
     std::vector<char> on_path(m.nodes.size(), 0);

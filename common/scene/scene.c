@@ -50,6 +50,9 @@ struct pt_scene_builder {
     pt_camera *cams;
     double *cam_pos; /* 3 per camera: the world-space position in double */
     uint32_t ncam, cap_cam, cap_cam_pos;
+    pt_punctual *puns;
+    double *pun_pos; /* 3 per light: the world-space position in double */
+    uint32_t npun, cap_pun, cap_pun_pos;
     int hash_set;
     char hash[65];
 };
@@ -125,6 +128,8 @@ void pt_scene_builder_free(pt_scene_builder *b)
     free_textures(b->texs, b->ntex);
     pt_free(b->cams);
     pt_free(b->cam_pos);
+    pt_free(b->puns);
+    pt_free(b->pun_pos);
     pt_free(b);
 }
 
@@ -256,6 +261,46 @@ pt_status pt_scene_builder_add_camera_at(pt_scene_builder *b, const pt_camera *c
     pt_camera *d = &b->cams[b->ncam++];
     *d = *cam;
     size_t len = strnlen(cam->name, sizeof cam->name - 1);
+    memset(d->name + len, 0, sizeof d->name - len);
+    return PT_OK;
+}
+
+pt_status pt_scene_builder_add_punctual(pt_scene_builder *b, const pt_punctual *p,
+                                        const double position[3], pt_error *err)
+{
+    const char *name = p->name[0] ? p->name : "(unnamed)";
+    const char *bad = NULL;
+    float dlen = pt_v3_len(p->direction);
+    if (!isfinite(position[0]) || !isfinite(position[1]) || !isfinite(position[2]) ||
+        fabs(position[0]) > (double)PT_SCENE_MAX_COORD ||
+        fabs(position[1]) > (double)PT_SCENE_MAX_COORD ||
+        fabs(position[2]) > (double)PT_SCENE_MAX_COORD)
+        bad = "position is not finite or too large";
+    else if (p->type < PT_PUNCTUAL_POINT || p->type > PT_PUNCTUAL_DIRECTIONAL)
+        bad = "type is not point, spot or directional";
+    else if (!pt_isfinite3(p->direction) || !(fabsf(dlen - 1.0f) < 1e-3f))
+        bad = "direction is not a unit vector";
+    else if (!pt_isfinite3(p->intensity) || !(p->intensity.x >= 0.0f) ||
+             !(p->intensity.y >= 0.0f) || !(p->intensity.z >= 0.0f) ||
+             !(pt_luminance(p->intensity) < 1e30f))
+        bad = "colour x intensity is negative, not finite or over 1e30";
+    else if (!(p->range >= 0.0f) || !isfinite(p->range))
+        bad = "range is negative or not finite";
+    else if (p->type == PT_PUNCTUAL_SPOT &&
+             !(p->cos_outer >= -1e-6f && p->cos_inner > p->cos_outer && p->cos_inner <= 1.0f))
+        bad = "spot cone angles are not 0 <= inner < outer <= pi/2";
+    if (bad)
+        return pt_error_set(err, PT_ERR_FORMAT, "light '%.64s': %s", name, bad);
+    if (b->npun >= 65536)
+        return pt_error_set(err, PT_ERR_LIMIT, "light '%.64s': more than 65536 lights", name);
+    if (!reserve((void **)&b->puns, &b->cap_pun, b->npun + 1, sizeof(pt_punctual), 1) ||
+        !reserve((void **)&b->pun_pos, &b->cap_pun_pos, b->npun + 1, sizeof(double), 3))
+        return pt_error_set(err, PT_ERR_NOMEM, "light '%.64s': out of memory", name);
+    memcpy(&b->pun_pos[3 * (size_t)b->npun], position, 3 * sizeof(double));
+    pt_punctual *d = &b->puns[b->npun++];
+    *d = *p;
+    d->direction = pt_v3_scale(p->direction, 1.0f / dlen);
+    size_t len = strnlen(p->name, sizeof p->name - 1);
     memset(d->name + len, 0, sizeof d->name - len);
     return PT_OK;
 }
@@ -490,6 +535,18 @@ static pt_status hash_scene(const pt_scene *s, char out[65], pt_error *err)
         EVP_DigestUpdate(ctx, f, sizeof f);
         EVP_DigestUpdate(ctx, c->name, sizeof c->name);
     }
+    /* Lights only when there are any: a scene without keeps its hash. */
+    if (s->num_punctual > 0)
+        EVP_DigestUpdate(ctx, &s->num_punctual, sizeof s->num_punctual);
+    for (uint32_t i = 0; i < s->num_punctual; i++) {
+        const pt_punctual *l = &s->punctual[i];
+        float f[13] = {l->position.x,  l->position.y,  l->position.z,  l->direction.x,
+                       l->direction.y, l->direction.z, l->intensity.x, l->intensity.y,
+                       l->intensity.z, l->range,       l->cos_inner,   l->cos_outer,
+                       (float)l->type};
+        EVP_DigestUpdate(ctx, f, sizeof f);
+        EVP_DigestUpdate(ctx, l->name, sizeof l->name);
+    }
     /* Zeroed first: a failed digest reads as 64 zeros, as pt_sha256_hex's does. */
     unsigned char md[EVP_MAX_MD_SIZE] = {0};
     EVP_DigestFinal_ex(ctx, md, NULL);
@@ -548,6 +605,7 @@ void pt_scene_free(pt_scene *s)
     pt_free(s->materials);
     free_textures(s->textures, s->num_textures);
     pt_free(s->cameras);
+    pt_free(s->punctual);
     pt_free(s);
 }
 
@@ -671,6 +729,9 @@ pt_status pt_scene_builder_finish(pt_scene_builder *b, const pt_scene_opts *opts
     s->num_textures = b->ntex;
     s->cameras = b->cams;
     s->num_cameras = b->ncam;
+    s->punctual = b->puns;
+    s->num_punctual = b->npun;
+    b->puns = NULL;
     b->nrm = NULL;
     b->idx = b->tmat = NULL;
     b->mats = NULL;
@@ -736,9 +797,26 @@ pt_status pt_scene_builder_finish(pt_scene_builder *b, const pt_scene_opts *opts
             goto fail;
         }
     }
+    for (uint32_t i = 0; i < s->num_punctual; i++) {
+        pt_punctual *l = &s->punctual[i];
+        const double *p = b->pun_pos + 3 * (size_t)i;
+        l->position = pt_v3((float)(p[0] * sc + t[0] - s->origin[0]),
+                            (float)(p[1] * sc + t[1] - s->origin[1]),
+                            (float)(p[2] * sc + t[2] - s->origin[2]));
+        if (l->type != PT_PUNCTUAL_DIRECTIONAL)
+            l->intensity = pt_v3_scale(l->intensity, (float)(sc * sc));
+        l->range *= scale;
+        if (!pt_isfinite3(l->position) || !pt_isfinite3(l->intensity) || !isfinite(l->range)) {
+            st =
+                pt_error_set(err, PT_ERR_ARG, "light '%.64s' is not finite after scaling", l->name);
+            goto fail;
+        }
+    }
     s->features = scene_features(s, b->has_uv, err, &st);
     if (st != PT_OK)
         goto fail;
+    if (s->num_punctual > 0)
+        s->features |= PT_FEAT_PUNCTUAL;
     if (b->hash_set) {
         memcpy(s->hash, b->hash, sizeof s->hash);
     } else if ((st = hash_scene(s, s->hash, err)) != PT_OK) {

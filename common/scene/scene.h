@@ -42,6 +42,7 @@ enum {
     PT_FEAT_EMISSIVE_TEX = 1u << 3, /* some emissive material has an emissive texture */
     PT_FEAT_SINGLE_SIDED = 1u << 4, /* some material is not doubleSided */
     PT_FEAT_UVS = 1u << 5,          /* the scene has texture coordinates */
+    PT_FEAT_PUNCTUAL = 1u << 6,     /* there is at least one punctual light */
 };
 
 enum { PT_WRAP_REPEAT = 0, PT_WRAP_CLAMP = 1, PT_WRAP_MIRROR = 2 };
@@ -75,6 +76,30 @@ typedef struct pt_camera {
     char name[64];
 } pt_camera;
 
+/* A punctual light (KHR_lights_punctual): a point, a spot or a directional
+ * light, placed by its node (it shines down the node's local -Z).
+ *
+ * Units: the file's number is used as the radiometric value on the scale of
+ * emission, with no photometric factor: a point or spot light of intensity I
+ * (colour x intensity) gives irradiance I / d^2 at distance d, facing it, as
+ * an emitter of radiance L and area A seen head-on from afar gives L A / d^2;
+ * a directional light of intensity E gives irradiance E. The extension names
+ * candela and lux, but an emissive factor has no unit in glTF, so converting
+ * only the lights (by 683 lm/W, or 4 pi) would light a scene's lamps and its
+ * emissive surfaces on different scales. */
+enum { PT_PUNCTUAL_POINT = 0, PT_PUNCTUAL_SPOT = 1, PT_PUNCTUAL_DIRECTIONAL = 2 };
+
+typedef struct pt_punctual {
+    int type;          /* PT_PUNCTUAL_* */
+    pt_vec3 position;  /* scene space (point, spot) */
+    pt_vec3 direction; /* unit: where the light travels (the node's -Z) */
+    pt_vec3 intensity; /* linear colour x intensity (see above) */
+    float range;       /* 0: infinite; else the distance where it reaches zero */
+    float cos_inner;   /* spot: cosines of innerConeAngle and outerConeAngle */
+    float cos_outer;
+    char name[64];
+} pt_punctual;
+
 typedef struct pt_scene {
     uint32_t num_vertices;
     uint32_t num_triangles;
@@ -93,6 +118,9 @@ typedef struct pt_scene {
     pt_camera *cameras; /* from the file; may be 0 */
     pt_camera camera;   /* the one to render: chosen, or framed from the bounds;
                            positions in scene space */
+
+    uint32_t num_punctual;
+    pt_punctual *punctual; /* positions in scene space; may be 0 */
 
     pt_vec3 bounds_min, bounds_max; /* scene space: they contain every stored position */
     uint32_t features;              /* PT_FEAT_* */
@@ -192,8 +220,17 @@ pt_status pt_scene_builder_add_camera(pt_scene_builder *b, const pt_camera *cam,
 /* The same with the world-space position in double (cam->position ignored). */
 pt_status pt_scene_builder_add_camera_at(pt_scene_builder *b, const pt_camera *cam,
                                          const double position[3], pt_error *err);
+/* Adds a punctual light (copied) with its world-space position in double
+ * (p->position ignored). Rejects (PT_ERR_FORMAT, naming the light) a
+ * non-finite or too large position, a direction that is not unit length, a
+ * negative or non-finite intensity or range, and spot cones outside
+ * 0 <= inner < outer <= pi/2 (given as cosines). */
+pt_status pt_scene_builder_add_punctual(pt_scene_builder *b, const pt_punctual *p,
+                                        const double position[3], pt_error *err);
 /* Finishes: applies opts' scale/translate (in double), computes the bounds,
- * rebases the scene (origin, above) and rounds positions to float, then
+ * rebases the scene (origin, above) and rounds positions to float (a
+ * point or spot light's intensity is scaled by scale^2 and its range by
+ * scale, so the irradiance it gives a scaled scene is unchanged), then
  * features, hash, and chooses the camera. Fails with PT_ERR_FORMAT on zero
  * triangles, PT_ERR_ARG when a scaled coordinate is not finite in float. The
  * builder is consumed (freed) whether or not it succeeds. While building,

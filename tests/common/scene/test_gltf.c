@@ -376,6 +376,56 @@ static size_t make_glb(unsigned char *out, size_t cap)
     return o;
 }
 
+/* A one-triangle scene whose second node holds KHR_lights_punctual light
+ * `index` of the one-light array `light` (JSON). */
+static void make_lit(const char *name, int index, const char *light)
+{
+    char nodes[256], extra[1024];
+    snprintf(nodes, sizeof nodes,
+             "[{\"mesh\":0,\"children\":[1]},{\"rotation\":[-0.7071068,0,0,0.7071068],"
+             "\"translation\":[0,2,0],\"extensions\":{\"KHR_lights_punctual\":{\"light\":%d}}}]",
+             index);
+    snprintf(extra, sizeof extra, ",\"extensions\":{\"KHR_lights_punctual\":{\"lights\":[%s]}}",
+             light);
+    make_gltf(name, "tri.bin", k_pos_ok, k_views, nodes, extra);
+}
+
+/* Punctual lights: one that loads where its node puts it, and what is refused. */
+static void test_lights(void)
+{
+    make_lit("lit.gltf", 0,
+             "{\"type\":\"spot\",\"color\":[1,0.5,0.25],\"intensity\":8,\"range\":5,"
+             "\"spot\":{\"innerConeAngle\":0.2,\"outerConeAngle\":0.6},\"name\":\"key\"}");
+    pt_scene *s = NULL;
+    pt_error err = {0};
+    CHECKF(pt_scene_load(tpath("lit.gltf"), NULL, &s, &err) == PT_OK, "%s", err.msg);
+    if (s) {
+        CHECK(s->num_punctual == 1 && (s->features & PT_FEAT_PUNCTUAL));
+        const pt_punctual *l = &s->punctual[0];
+        CHECK(l->type == PT_PUNCTUAL_SPOT && !strcmp(l->name, "key"));
+        CHECK(l->intensity.x == 8.0f && l->intensity.y == 4.0f && l->intensity.z == 2.0f);
+        CHECK(l->range == 5.0f);
+        CHECK(fabsf(l->cos_inner - cosf(0.2f)) < 1e-6f && fabsf(l->cos_outer - cosf(0.6f)) < 1e-6f);
+        /* Rotated -90 deg about x: its -Z shines down -Y, from (0, 2, 0). */
+        CHECK(fabsf(l->direction.y + 1.0f) < 1e-6f && fabsf(l->direction.z) < 1e-6f);
+        CHECK(fabsf(l->position.y + (float)s->origin[1] - 2.0f) < 1e-6f);
+    }
+    pt_scene_free(s);
+    make_lit("laser.gltf", 0, "{\"type\":\"laser\"}");
+    expect_fail("laser.gltf", PT_ERR_FORMAT, "not point, spot or directional");
+    make_lit("lightidx.gltf", 3, "{\"type\":\"point\"}");
+    expect_fail("lightidx.gltf", PT_ERR_FORMAT, "light 3 out of range");
+    make_lit("lightneg.gltf", 0, "{\"type\":\"point\",\"intensity\":-1}");
+    expect_fail("lightneg.gltf", PT_ERR_FORMAT, "intensity");
+    make_lit("lightcol.gltf", 0, "{\"type\":\"point\",\"color\":[2,0,0]}");
+    expect_fail("lightcol.gltf", PT_ERR_FORMAT, "color");
+    make_lit("lightcone.gltf", 0,
+             "{\"type\":\"spot\",\"spot\":{\"innerConeAngle\":1,\"outerConeAngle\":0.5}}");
+    expect_fail("lightcone.gltf", PT_ERR_FORMAT, "cone");
+    make_lit("lightbig.gltf", 0, "{\"type\":\"point\",\"intensity\":1e38}");
+    expect_fail("lightbig.gltf", PT_ERR_FORMAT, "light");
+}
+
 static void test_hostile(void)
 {
     unsigned char bin[68];
@@ -638,7 +688,25 @@ static void check_asset(const asset *a)
         CHECK(strstr(w.text, "normal textures are ignored") != NULL);
     }
     if (strstr(a->path, "LightsPunctual")) {
-        CHECK(strstr(w.text, "KHR_lights_punctual") != NULL);
+        /* Its five point lights are imported, not ignored. */
+        CHECK(strstr(w.text, "KHR_lights_punctual") == NULL);
+        CHECK(s->num_punctual == 5 && (s->features & PT_FEAT_PUNCTUAL));
+        int found = 0;
+        for (uint32_t i = 0; i < s->num_punctual; i++) {
+            const pt_punctual *l = &s->punctual[i];
+            CHECK(l->type == PT_PUNCTUAL_POINT);
+            /* "Point.004": colour (1, 0.628, 0.501) x 180, at its node's origin. */
+            if (!strcmp(l->name, "Point.004")) {
+                found = 1;
+                CHECK(fabsf(l->intensity.x - 180.0f) < 1e-3f);
+                CHECK(fabsf(l->intensity.y - 0.6278365f * 180.0f) < 1e-3f);
+                CHECK(fabsf(l->position.x + (float)s->origin[0] - 0.29202104f) < 1e-5f);
+                CHECK(fabsf(l->position.z + (float)s->origin[2] - 1.558916f) < 1e-5f);
+                /* Down the node's -Z: the matrix turns -Z into -Y. */
+                CHECK(fabsf(l->direction.y + 1.0f) < 1e-6f);
+            }
+        }
+        CHECK(found);
         CHECK(strstr(w.text, "KHR_materials_transmission") != NULL);
         CHECK(strstr(w.text, "BLEND") != NULL);
     }
@@ -713,6 +781,7 @@ int main(void)
         return 1;
     test_small_valid();
     test_hostile();
+    test_lights();
     test_confined();
     test_project_scenes();
 
