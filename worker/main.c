@@ -71,6 +71,12 @@ static void usage(FILE *f)
             "                     first; off by default; not with --target-error\n"
             "  --min-spp N        adaptive sampling: samples before a tile may stop\n"
             "                     (default: one chunk)\n"
+            "  --env PATH         environment light: an equirectangular map, Radiance .hdr\n"
+            "                     or OpenEXR (R, G, B); row 0 is straight up (+Y), the\n"
+            "                     middle column the -Z direction\n"
+            "  --env-strength S   the map's factor (default 1)\n"
+            "  --env-rotate DEG   turn the map about +Y (default 0)\n"
+            "  --background R,G,B a uniform environment of this radiance instead\n"
             "  -q, --quiet        no progress line\n"
             "  -h, --help         this text\n"
             "  --version          the version and renderer build id\n"
@@ -126,7 +132,9 @@ int main(int argc, char **argv)
     o.max_depth = PT_RENDER_DEFAULT_MAX_DEPTH;
     o.tile = 32;
     o.chunk = 16;
+    o.env_strength = 1.0f;
     wrk_client_opts net = {0};
+    double dv, rgb[3];
     uint32_t prefetch = 0;
     int has_prefetch = 0;
     /* Which options were given, to refuse mixing the modes. */
@@ -144,6 +152,10 @@ int main(int argc, char **argv)
         OPT_TARGET,
         OPT_MINGAIN,
         OPT_MINSPP,
+        OPT_ENV,
+        OPT_ENV_STRENGTH,
+        OPT_ENV_ROTATE,
+        OPT_BACKGROUND,
         OPT_SERVER,
         OPT_PREFETCH,
         OPT_TOKEN,
@@ -165,6 +177,10 @@ int main(int argc, char **argv)
         {"target-error", required_argument, NULL, OPT_TARGET},
         {"min-gain", required_argument, NULL, OPT_MINGAIN},
         {"min-spp", required_argument, NULL, OPT_MINSPP},
+        {"env", required_argument, NULL, OPT_ENV},
+        {"env-strength", required_argument, NULL, OPT_ENV_STRENGTH},
+        {"env-rotate", required_argument, NULL, OPT_ENV_ROTATE},
+        {"background", required_argument, NULL, OPT_BACKGROUND},
         {"quiet", no_argument, NULL, 'q'},
         {"server", required_argument, NULL, OPT_SERVER},
         {"prefetch", required_argument, NULL, OPT_PREFETCH},
@@ -222,6 +238,23 @@ int main(int argc, char **argv)
             break;
         case OPT_MINSPP:
             bad = bad_value(pt_opt_u32("--min-spp", optarg, 2, 1u << 24, &o.min_spp, &err), &err);
+            break;
+        case OPT_ENV:
+            o.env_path = optarg;
+            break;
+        case OPT_ENV_STRENGTH:
+            bad = bad_value(pt_opt_double("--env-strength", optarg, 0.0, 1e20, &dv, &err), &err);
+            o.env_strength = (float)dv;
+            break;
+        case OPT_ENV_ROTATE:
+            bad = bad_value(pt_opt_double("--env-rotate", optarg, -1e6, 1e6, &dv, &err), &err);
+            o.env_rotate = (float)dv;
+            break;
+        case OPT_BACKGROUND:
+            bad = bad_value(pt_opt_rgb("--background", optarg, 1e20, rgb, &err), &err);
+            o.has_background = 1;
+            for (int k = 0; k < 3; k++)
+                o.background[k] = (float)rgb[k];
             break;
         case 'q':
             o.quiet = 1;
@@ -310,6 +343,10 @@ int main(int argc, char **argv)
     if (o.target_error > 0.0 && o.min_gain > 0.0) {
         fprintf(stderr, "ptworker: --target-error and --min-gain are two adaptive rules; give "
                         "one\n");
+        return 2;
+    }
+    if (o.env_path && o.has_background) {
+        fprintf(stderr, "ptworker: --env and --background are two environments; give one\n");
         return 2;
     }
     if (o.min_spp == 0)

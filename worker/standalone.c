@@ -10,9 +10,11 @@
 
 #include "common/base/alloc.h"
 #include "common/base/clock.h"
+#include "common/image/envmap.h"
 #include "common/image/exr.h"
 #include "common/image/image.h"
 #include "common/render/adaptive.h"
+#include "common/render/env.h"
 #include "common/render/film.h"
 #include "common/render/render.h"
 #include "common/render/tile.h"
@@ -88,6 +90,7 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
     pt_scene *scene = NULL;
     pt_renderer *r = NULL;
     pt_film *film = NULL;
+    pt_env *env = NULL;
     pt_image *img = NULL;
     pt_rect *tiles = NULL;
     pthread_t *threads = NULL;
@@ -113,6 +116,25 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
     }
     p.seed = o->seed;
     p.max_depth = o->max_depth;
+    if (o->env_path) {
+        pt_envmap map;
+        if (pt_envmap_read(o->env_path, &map, &err) != PT_OK) {
+            fprintf(stderr, "ptworker: --env: %s\n", err.msg);
+            goto done;
+        }
+        pt_status est = pt_env_new(&map, o->env_strength, o->env_rotate, &env, &err);
+        pt_envmap_free(&map);
+        if (est != PT_OK) {
+            fprintf(stderr, "ptworker: --env: %s\n", err.msg);
+            goto done;
+        }
+    } else if (o->has_background &&
+               pt_env_uniform(pt_v3(o->background[0], o->background[1], o->background[2]), &env,
+                              &err) != PT_OK) {
+        fprintf(stderr, "ptworker: --background: %s\n", err.msg);
+        goto done;
+    }
+    p.env = env;
     if (pt_renderer_new(scene, &p, &r, &err) != PT_OK ||
         pt_film_new(p.width, p.height, &film, &err) != PT_OK ||
         pt_image_new(p.width, p.height, &img, &err) != PT_OK) {
@@ -235,6 +257,7 @@ done:
     pt_image_free(img);
     pt_film_free(film);
     pt_renderer_free(r);
+    pt_env_free(env);
     pt_scene_free(scene);
     return rc;
 }

@@ -19,11 +19,16 @@ typedef struct wrk_standalone_opts {
     uint32_t seed;
     uint32_t threads; /* 0: all cores */
     uint32_t max_depth;
-    uint32_t tile;       /* tile side in pixels */
-    uint32_t chunk;      /* samples per chunk */
-    double target_error; /* adaptive sampling (0 = off): stop a tile at this error */
-    double min_gain;     /* adaptive sampling (0 = off): pt_tile_stops' min_gain */
-    uint32_t min_spp;    /* adaptive sampling: samples before a tile may stop */
+    uint32_t tile;        /* tile side in pixels */
+    uint32_t chunk;       /* samples per chunk */
+    double target_error;  /* adaptive sampling (0 = off): stop a tile at this error */
+    double min_gain;      /* adaptive sampling (0 = off): pt_tile_stops' min_gain */
+    uint32_t min_spp;     /* adaptive sampling: samples before a tile may stop */
+    const char *env_path; /* environment map (.hdr, .exr) or NULL */
+    float env_strength;   /* its factor (1 by default) */
+    float env_rotate;     /* degrees about +Y */
+    int has_background;   /* a uniform environment of background[] (not with env_path) */
+    float background[3];
     int quiet;
 } wrk_standalone_opts;
 

@@ -142,3 +142,26 @@ pt_status pt_opt_res(const char *opt, const char *text, uint32_t max_side, uint3
     *h = vh;
     return PT_OK;
 }
+
+pt_status pt_opt_rgb(const char *opt, const char *text, double max, double out[3], pt_error *err)
+{
+    char part[64];
+    const char *p = text;
+    double v[3];
+    for (int k = 0; k < 3; k++) {
+        const char *end = k < 2 ? strchr(p, ',') : p + strlen(p);
+        size_t n = end ? (size_t)(end - p) : 0;
+        if (!end || n == 0 || n >= sizeof part)
+            goto bad;
+        memcpy(part, p, n);
+        part[n] = '\0';
+        if (read_double(part, &v[k]) != 0 || !(v[k] >= 0.0 && v[k] <= max))
+            goto bad;
+        p = end + 1;
+    }
+    memcpy(out, v, sizeof v);
+    return PT_OK;
+bad:
+    return pt_error_set(err, PT_ERR_ARG, "%s: '%s' is not R,G,B (three numbers in [0, %g])", opt,
+                        text, max);
+}

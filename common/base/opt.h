@@ -52,4 +52,8 @@ pt_status pt_opt_seconds(const char *opt, const char *text, double min, double m
 pt_status pt_opt_res(const char *opt, const char *text, uint32_t max_side, uint32_t *w, uint32_t *h,
                      pt_error *err);
 
+/* text as R,G,B, three real numbers in [0, max], into out. PT_ERR_ARG
+ * otherwise: "OPT: 'TEXT' is not R,G,B (three numbers in [0, MAX])". */
+pt_status pt_opt_rgb(const char *opt, const char *text, double max, double out[3], pt_error *err);
+
 #endif

@@ -36,6 +36,7 @@
 #include <string.h>
 
 #include "common/base/alloc.h"
+#include "common/render/env.h"
 #include "common/render/light_lanes.h"
 #include "common/scene/accel.h"
 
@@ -74,6 +75,9 @@ struct pt_lights {
     double *punct_cdf;        /* npunct + 1: cumulative power among them, 0 to 1 */
     float *punct_pmf;         /* the probability of choosing each, class included */
     double p_tri;             /* the probability of choosing the triangles' class */
+    const pt_env *env;        /* NULL: none (or black) */
+    double c_env;             /* u0 >= c_env chooses the environment (1: never) */
+    float p_env;              /* the probability of choosing it */
 };
 
 static pt_vec3 vertex(const pt_scene *s, uint32_t i)
@@ -237,6 +241,12 @@ static void build_alias(alias_slot *lights, double *q, uint32_t *scratch, uint32
 
 pt_status pt_lights_new(const pt_scene *scene, pt_lights **out, pt_error *err)
 {
+    return pt_lights_new_env(scene, NULL, out, err);
+}
+
+pt_status pt_lights_new_env(const pt_scene *scene, const pt_env *env, pt_lights **out,
+                            pt_error *err)
+{
     pt_status st = PT_OK;
     pt_vec3 *tex_mean = NULL;
     double *power = NULL;
@@ -281,15 +291,24 @@ pt_status pt_lights_new(const pt_scene *scene, pt_lights **out, pt_error *err)
         }
     }
 
-    /* Punctual lights: their power, and the triangles' share. */
-    double punct_total = 0.0;
+    /* Punctual lights and the environment: their power, and the triangles'
+     * share. */
+    double punct_total = 0.0, env_power = 0.0;
+    pt_vec3 ext = pt_v3_sub(scene->bounds_max, scene->bounds_min);
+    double radius = 0.5 * (double)pt_v3_len(ext);
+    if (env) {
+        env_power = 4.0 * 3.14159265358979323846 * 3.14159265358979323846 * radius * radius *
+                    pt_env_mean_luminance(env);
+        if (env_power > 0.0 && isfinite(env_power))
+            L->env = env;
+        else
+            env_power = 0.0;
+    }
     if (scene->num_punctual > 0) {
         L->punct_cdf = pt_malloc_array((size_t)scene->num_punctual + 1, sizeof *L->punct_cdf);
         L->punct_pmf = pt_malloc_array(scene->num_punctual, sizeof *L->punct_pmf);
         if (!L->punct_cdf || !L->punct_pmf)
             goto nomem;
-        pt_vec3 ext = pt_v3_sub(scene->bounds_max, scene->bounds_min);
-        double radius = 0.5 * (double)pt_v3_len(ext);
         L->punct_cdf[0] = 0.0;
         for (uint32_t i = 0; i < scene->num_punctual; i++) {
             punct_total += punctual_power(&scene->punctual[i], radius);
@@ -302,6 +321,7 @@ pt_status pt_lights_new(const pt_scene *scene, pt_lights **out, pt_error *err)
     }
 
     uint32_t n = 0;
+    double total = 0.0; /* the triangles' power */
     for (uint32_t i = 0; i < scene->num_triangles; i++) {
         if (scene->tri_material[i] >= scene->num_materials) {
             st = pt_error_set(err, PT_ERR_FORMAT, "triangle %u: material %u of %u", i,
@@ -314,7 +334,7 @@ pt_status pt_lights_new(const pt_scene *scene, pt_lights **out, pt_error *err)
     }
     if (n == 0) {
         L->p_tri = 0.0;
-        goto punctual;
+        goto others;
     }
 
     /* One spare entry's room to align the array to a cache line. */
@@ -328,7 +348,6 @@ pt_status pt_lights_new(const pt_scene *scene, pt_lights **out, pt_error *err)
     if (!L->lights_mem || !L->alias || !L->tri_to_light || !power || !scratch)
         goto nomem;
 
-    double total = 0.0;
     uint32_t k = 0;
     for (uint32_t i = 0; i < scene->num_triangles; i++) {
         float area;
@@ -347,23 +366,33 @@ pt_status pt_lights_new(const pt_scene *scene, pt_lights **out, pt_error *err)
         total += p;
         k++;
     }
-    /* Without punctual lights p_tri is 1 and the pmfs are the bits they
-     * were before there were any. */
-    L->p_tri = L->npunct ? total / (total + punct_total) : 1.0;
+    /* Without other lights p_tri is 1 and the pmfs are the bits they were
+     * before there were any. */
+    int others = L->npunct || L->env;
+    L->p_tri = others ? total / (total + punct_total + env_power) : 1.0;
     for (uint32_t i = 0; i < n; i++) {
-        L->lights[i].pmf = (float)(L->npunct ? power[i] / total * L->p_tri : power[i] / total);
+        L->lights[i].pmf = (float)(others ? power[i] / total * L->p_tri : power[i] / total);
         L->lights[i].pmf_area = L->lights[i].pmf / L->lights[i].pmf_area;
     }
     build_alias(L->alias, power, scratch, n, total);
     L->count = n;
 
-punctual:
+others : {
+    double all = total + punct_total + env_power;
+    double p_punct = L->npunct ? punct_total / all : 0.0;
     for (uint32_t i = 0; i < L->npunct; i++) {
         L->punct_cdf[i + 1] /= punct_total;
-        L->punct_pmf[i] = (float)((1.0 - L->p_tri) * (L->punct_cdf[i + 1] - L->punct_cdf[i]));
+        L->punct_pmf[i] = (float)(p_punct * (L->punct_cdf[i + 1] - L->punct_cdf[i]));
     }
     if (L->npunct)
         L->punct_cdf[L->npunct] = 1.0;
+    L->c_env = L->env ? L->p_tri + p_punct : 1.0;
+    L->p_env = L->env ? (float)(env_power / all) : 0.0f;
+    if (L->env && !(L->p_env > 0.0f)) {
+        L->env = NULL; /* too faint to choose in float: as if none */
+        L->c_env = 1.0;
+    }
+}
 
     pt_free(scratch);
     pt_free(power);
@@ -401,6 +430,32 @@ uint32_t pt_lights_count(const pt_lights *lights)
 uint32_t pt_lights_punctual_count(const pt_lights *lights)
 {
     return lights ? lights->npunct : 0;
+}
+
+int pt_lights_has_env(const pt_lights *lights)
+{
+    return lights && lights->env;
+}
+
+float pt_lights_env_pdf(const pt_lights *lights, pt_vec3 dir)
+{
+    if (!lights || !lights->env)
+        return 0.0f;
+    return lights->p_env * pt_env_pdf(lights->env, dir);
+}
+
+/* A sample of the environment from u[1..2]: a direction and the radiance
+ * from it, not a delta (MIS weighs it against BSDF sampling). */
+static int sample_env(const pt_lights *lights, const float u[3], pt_light_sample *s)
+{
+    s->delta = PT_LIGHT_ENV;
+    s->tri = UINT32_MAX;
+    s->dist = INFINITY;
+    float pdf;
+    if (!pt_env_sample(lights->env, &u[1], &s->wi, &s->radiance, &pdf))
+        return 0;
+    s->pdf = lights->p_env * pdf;
+    return s->pdf > 0.0f && isfinite(s->pdf);
 }
 
 /* A sample of the punctual light that v (in [0,1)) picks, seen from p. */
@@ -511,15 +566,18 @@ int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, 
 {
     memset(s, 0, sizeof *s);
     s->tri = UINT32_MAX;
-    if (!lights || (lights->count == 0 && lights->npunct == 0))
+    if (!lights || (lights->count == 0 && lights->npunct == 0 && !lights->env))
         return 0;
     float ut[3];
-    if (lights->npunct > 0) {
+    if (lights->npunct > 0 || lights->env) {
         /* The class first, then the light within it, from one number. */
         double u0 = u[0];
+        if (!(u0 < lights->c_env))
+            return sample_env(lights, u, s);
         if (!(u0 < lights->p_tri)) {
             s->tri = UINT32_MAX;
-            return sample_punctual(lights, p, (u0 - lights->p_tri) / (1.0 - lights->p_tri), s);
+            return sample_punctual(lights, p,
+                                   (u0 - lights->p_tri) / (lights->c_env - lights->p_tri), s);
         }
         ut[0] = (float)(u0 / lights->p_tri);
         ut[1] = u[1];

@@ -1,6 +1,6 @@
 /*
  * light.h - the lights of next-event estimation: emissive triangles and
- * punctual lights (scene.h, pt_punctual).
+ * punctual lights (scene.h, pt_punctual), and the environment (env.h).
  *
  * Every triangle whose material emits (emissive factor > 0) becomes a light.
  * Lights are chosen in proportion to power (area x luminance of the emission,
@@ -10,13 +10,15 @@
  * Single-sided emitters emit on the side of their geometric normal (counter-
  * clockwise winding); double-sided ones on both sides.
  *
- * Punctual lights join the same choice: one number picks the class
- * (triangles or punctual lights) by the classes' total power, then the light
- * within it by its own power, so each light is chosen in proportion to its
- * estimated power (light.c says how it is estimated). A punctual sample is a
- * delta: its pdf is the probability of choosing it, and BSDF sampling never
- * finds it, so it takes no MIS weight. A scene without punctual lights does
- * not draw the class: its samples are the bits they were before.
+ * Punctual lights and the environment join the same choice: one number picks
+ * the class (triangles, punctual lights, environment) by the classes' total
+ * power, then the light within it by its own power (the environment: a
+ * direction by its map's distribution, env.h), so each light is chosen in
+ * proportion to its estimated power (light.c says how it is estimated). A
+ * punctual sample is a delta: its pdf is the probability of choosing it, and
+ * BSDF sampling never finds it, so it takes no MIS weight; an environment
+ * sample is weighed by MIS like a triangle's. A scene with triangles alone
+ * does not draw the class: its samples are the bits they were before.
  * Immutable after pt_lights_new; thread-safe for reading.
  */
 #ifndef PT_COMMON_RENDER_LIGHT_H
@@ -30,7 +32,9 @@
 
 typedef struct pt_lights pt_lights;
 
-enum { PT_LIGHT_AREA = 0, PT_LIGHT_AT = 1, PT_LIGHT_FAR = 2 };
+enum { PT_LIGHT_AREA = 0, PT_LIGHT_AT = 1, PT_LIGHT_FAR = 2, PT_LIGHT_ENV = 3 };
+
+typedef struct pt_env pt_env; /* common/render/env.h */
 
 typedef struct pt_light_sample {
     pt_vec3 position; /* on the light */
@@ -41,18 +45,29 @@ typedef struct pt_light_sample {
     float pdf;        /* solid-angle pdf (including the choice of triangle); 0 = impossible;
                          for a punctual light the probability of choosing it */
     uint32_t tri;     /* triangle index in the scene; UINT32_MAX for a punctual light */
-    int delta;        /* PT_LIGHT_AREA, or a punctual light: PT_LIGHT_AT (at position,
+    int delta;        /* PT_LIGHT_AREA; a punctual light: PT_LIGHT_AT (at position,
                          radiance is the irradiance it gives facing it) or PT_LIGHT_FAR
-                         (directional: dist infinite, radiance is its irradiance) */
+                         (directional: dist infinite, radiance is its irradiance); or
+                         PT_LIGHT_ENV (the environment along wi: dist infinite, radiance
+                         and a solid-angle pdf, weighed by MIS) */
 } pt_light_sample;
 
 /* Builds the light list. A scene without emitters gives a valid, empty set. */
 pt_status pt_lights_new(const pt_scene *scene, pt_lights **out, pt_error *err);
+/* The same with an environment (may be NULL) as a third class; it must
+ * outlive the set. */
+pt_status pt_lights_new_env(const pt_scene *scene, const pt_env *env, pt_lights **out,
+                            pt_error *err);
 void pt_lights_free(pt_lights *lights); /* accepts NULL */
 
 /* Emissive triangles that can be chosen / punctual lights. */
 uint32_t pt_lights_count(const pt_lights *lights);
 uint32_t pt_lights_punctual_count(const pt_lights *lights);
+/* 1 when the environment can be chosen. */
+int pt_lights_has_env(const pt_lights *lights);
+/* The solid-angle pdf with which pt_lights_sample gives direction dir of the
+ * environment, its class's share included; 0 without one. */
+float pt_lights_env_pdf(const pt_lights *lights, pt_vec3 dir);
 
 /* Samples a light point seen from p. u: 3 numbers in [0,1) (u[0] picks the
  * triangle, u[1..2] the point). Returns 0 when there are no lights or the

@@ -6,6 +6,7 @@
 #include "common/base/alloc.h"
 #include "common/math/simd.h"
 #include "common/render/bsdf.h"
+#include "common/render/env.h"
 #include "common/render/light.h"
 #include "common/render/light_lanes.h"
 #include "common/render/sampler.h"
@@ -76,6 +77,7 @@ void pt_render_params_default(pt_render_params *p)
     p->light_strategy = PT_LIGHT_MIS;
     p->extra_features = 0;
     p->scalar_shading = 0;
+    p->env = NULL;
 }
 
 const pt_render_params *pt_renderer_params(const pt_renderer *r)
@@ -91,6 +93,9 @@ int pt_renderer_lanes(const pt_renderer *r)
 {
     return r->lanes;
 }
+
+/* Features with lights that next-event estimation samples. */
+#define NEE_LIGHTS (uint32_t)(PT_FEAT_EMITTERS | PT_FEAT_PUNCTUAL | PT_FEAT_ENV)
 
 /* Power heuristic with beta = 2 (Veach 1997, eq. 9.13). */
 static inline float power_heuristic(float pa, float pb)
@@ -396,7 +401,7 @@ static inline __attribute__((always_inline)) int
 bounce_light(const pt_renderer *r, const surface *sf, const float u[DIM_PER_BOUNCE],
              pt_light_sample *ls, const uint32_t features)
 {
-    if (!((features & (PT_FEAT_EMITTERS | PT_FEAT_PUNCTUAL)) && r->nee))
+    if (!((features & NEE_LIGHTS) && r->nee))
         return 0;
     float u3[3];
     u3[0] = u[OFF_LIGHT_PICK];
@@ -422,6 +427,23 @@ static inline __attribute__((always_inline)) void shade_emission(const pt_render
         float lp = pt_lights_pdf(r->lights, s, hit->tri, pa->prev_p, sf->p, sf->ng);
         le = pt_v3_scale(le, power_heuristic(pa->prev_pdf, lp));
     }
+    if (pa->prev_pdf == 0.0f || strategy != PT_LIGHT_NEE_ONLY)
+        pa->L = pt_v3_add(pa->L, pt_v3_mul(pa->beta, le));
+}
+
+/* A ray of the path that left the scene: the environment's radiance along
+ * it, weighed by the power heuristic against the environment's NEE pdf when
+ * the path got here by sampling its BSDF (as shade_emission weighs an
+ * emitter). A camera ray sees the environment as it is. */
+static inline __attribute__((always_inline)) void shade_miss(const pt_renderer *r, path *pa,
+                                                             const uint32_t features)
+{
+    if (!(features & PT_FEAT_ENV) || !r->params.env)
+        return;
+    const uint32_t strategy = r->params.light_strategy;
+    pt_vec3 le = pt_env_eval(r->params.env, pa->d);
+    if (pa->prev_pdf > 0.0f && strategy == PT_LIGHT_MIS)
+        le = pt_v3_scale(le, power_heuristic(pa->prev_pdf, pt_lights_env_pdf(r->lights, pa->d)));
     if (pa->prev_pdf == 0.0f || strategy != PT_LIGHT_NEE_ONLY)
         pa->L = pt_v3_add(pa->L, pt_v3_mul(pa->beta, le));
 }
@@ -467,26 +489,32 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     pt_frame fr = pt_frame_from_normal(ns);
     pt_vec3 wo_l = pt_frame_to_local(&fr, wo);
     pt_bsdf bsdf = material_bsdf(r, sf, features);
-    if ((features & (PT_FEAT_EMITTERS | PT_FEAT_PUNCTUAL)) && r->nee) {
+    if ((features & NEE_LIGHTS) && r->nee) {
         if (ls_ok && ls->pdf > 0.0f && any_positive(ls->radiance) && pt_v3_dot(ls->wi, ng) > 0.0f) {
             float bpdf;
             pt_vec3 f = bsdf_eval(&bsdf, wo_l, pt_frame_to_local(&fr, ls->wi), &bpdf, features);
-            if ((features & PT_FEAT_PUNCTUAL) && ls->delta != PT_LIGHT_AREA && any_positive(f)) {
+            if ((features & (PT_FEAT_PUNCTUAL | PT_FEAT_ENV)) && ls->delta != PT_LIGHT_AREA &&
+                any_positive(f)) {
                 /* A punctual light: BSDF sampling cannot find it, so no MIS;
-                 * ls->radiance is the irradiance it gives, f holds the cosine. */
+                 * ls->radiance is the irradiance it gives, f holds the cosine.
+                 * The environment: weighed against BSDF sampling like an
+                 * emitter. Both but a point or spot light are at infinity. */
                 pt_vec3 from = pt_offset_apply(r->offset, sf->p, ng);
                 sr->from = from;
-                if (ls->delta == PT_LIGHT_FAR) {
-                    sr->dir = ls->wi;
-                    sr->dist = INFINITY;
-                } else {
+                if (ls->delta == PT_LIGHT_AT) {
                     pt_vec3 sd = pt_v3_sub(ls->position, from);
                     float dist = pt_v3_len(sd);
                     sr->dist = dist;
                     sr->dir = pt_v3_scale(sd, dist > 0.0f ? 1.0f / dist : 0.0f);
+                } else {
+                    sr->dir = ls->wi;
+                    sr->dist = INFINITY;
                 }
-                sr->contrib =
-                    pt_v3_mul(pa->beta, pt_v3_scale(pt_v3_mul(f, ls->radiance), 1.0f / ls->pdf));
+                float w = 1.0f / ls->pdf;
+                if ((features & PT_FEAT_ENV) && ls->delta == PT_LIGHT_ENV &&
+                    strategy == PT_LIGHT_MIS)
+                    w = power_heuristic(ls->pdf, bpdf) / ls->pdf;
+                sr->contrib = pt_v3_mul(pa->beta, pt_v3_scale(pt_v3_mul(f, ls->radiance), w));
                 ret = SHADE_SHADOW;
             } else if (any_positive(f)) {
                 pt_vec3 from = pt_offset_apply(r->offset, sf->p, ng);
@@ -782,8 +810,10 @@ static inline __attribute__((always_inline)) pt_vec3 li_impl(const pt_renderer *
         draw_bounce(pc, pa.depth, index, u);
         pt_hit hit;
         rays++;
-        if (!pt_accel_intersect(r->accel, pa.o, pa.d, INFINITY, &hit))
+        if (!pt_accel_intersect(r->accel, pa.o, pa.d, INFINITY, &hit)) {
+            shade_miss(r, &pa, features);
             break;
+        }
         shadow_ray sr = {{0, 0, 0}, {0, 0, 0}, 0.0f, {0, 0, 0}}; /* set when SHADE_SHADOW */
         surface sf;
         surface_at(r, &hit, &sf, features);
@@ -874,6 +904,8 @@ static inline __attribute__((always_inline)) uint64_t trace_batch(const pt_rende
                 sink->ray(sink->user, paths[k].o, paths[k].d, INFINITY, 0);
             if (pt_accel_intersect(r->accel, paths[k].o, paths[k].d, INFINITY, &hits[k]))
                 live[nh++] = (uint8_t)k;
+            else
+                shade_miss(r, &paths[k], features);
         }
         /* The bounce's numbers, for the paths that hit something: a pure
          * function of (pixel, index, depth), so drawing them after the
@@ -1035,7 +1067,7 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
     }
 #define NO_TEX (uint32_t)(PT_FEAT_TEXTURES | PT_FEAT_EMISSIVE_TEX)
 /* Lights besides emissive triangles: only the general variant has their code. */
-#define OTHER_LIGHTS (uint32_t) PT_FEAT_PUNCTUAL
+#define OTHER_LIGHTS (uint32_t)(PT_FEAT_PUNCTUAL | PT_FEAT_ENV)
 VARIANT(li_general, tile_general, ALL_FEATURES)
 VARIANT(li_untextured, tile_untextured, ALL_FEATURES & ~NO_TEX & ~OTHER_LIGHTS)
 VARIANT(li_lambert, tile_lambert, ALL_FEATURES & ~(uint32_t)PT_FEAT_GLOSSY & ~OTHER_LIGHTS)
@@ -1080,7 +1112,7 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
     r->tan_half_fov = tanf(0.5f * scene->camera.yfov);
     if ((st = pt_accel_new(scene, &r->accel, err)) != PT_OK)
         goto fail;
-    if ((st = pt_lights_new(scene, &r->lights, err)) != PT_OK)
+    if ((st = pt_lights_new_env(scene, params->env, &r->lights, err)) != PT_OK)
         goto fail;
     r->offset = pt_accel_offset(r->accel);
     if (scene->num_materials > 0) {
@@ -1096,12 +1128,14 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
         st = pt_error_set(err, PT_ERR_NOMEM, "out of memory for the renderer");
         goto fail;
     }
-    uint32_t npunct = pt_lights_punctual_count(r->lights);
+    uint32_t others = pt_lights_punctual_count(r->lights) + (uint32_t)pt_lights_has_env(r->lights);
     r->nee =
-        pt_lights_count(r->lights) + npunct > 0 && params->light_strategy != PT_LIGHT_BSDF_ONLY;
+        pt_lights_count(r->lights) + others > 0 && params->light_strategy != PT_LIGHT_BSDF_ONLY;
     /* The stage-wide light sampling and the lanes know only triangles. */
-    r->nee_n = r->nee && pt_lights_count(r->lights) >= LIGHTS_N_MIN && npunct == 0;
+    r->nee_n = r->nee && pt_lights_count(r->lights) >= LIGHTS_N_MIN && others == 0;
     uint32_t features = scene->features | params->extra_features;
+    if (params->env)
+        features |= PT_FEAT_ENV;
     pick_variant(r, features);
     /* Without fast lanes (an x86-64 processor without AVX2 runs shade_lanes'
      * baseline clone, which does the lanes one by one) the per-path shading

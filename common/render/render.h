@@ -27,6 +27,8 @@
 #include "common/render/tile.h"
 #include "common/scene/scene.h"
 
+typedef struct pt_env pt_env; /* common/render/env.h */
+
 /* Adds one sample's radiance to a; a non-finite sample is left out and
  * returns 0 (the caller counts it as rejected). */
 static inline int pt_pixel_acc_sample(pt_pixel_acc *a, pt_vec3 c)
@@ -64,6 +66,8 @@ typedef struct pt_render_params {
     uint32_t extra_features; /* PT_FEAT_* assumed present besides the scene's own, which
                                 picks a less specialised integrator (0xffffffff: the
                                 general one); for tests and benchmarks; default 0 */
+    const pt_env *env;       /* the environment light (env.h) or NULL; it must outlive the
+                                renderer; default NULL */
     uint32_t scalar_shading; /* 1: the Lambert variants shade one path at a time, as
                                 they do where SIMD lanes are slow (pt_simd_lanes_fast);
                                 the same bits; for tests and benchmarks; default 0 */

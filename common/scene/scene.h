@@ -43,6 +43,7 @@ enum {
     PT_FEAT_SINGLE_SIDED = 1u << 4, /* some material is not doubleSided */
     PT_FEAT_UVS = 1u << 5,          /* the scene has texture coordinates */
     PT_FEAT_PUNCTUAL = 1u << 6,     /* there is at least one punctual light */
+    PT_FEAT_ENV = 1u << 7,          /* an environment light (set by the renderer, not the file) */
 };
 
 enum { PT_WRAP_REPEAT = 0, PT_WRAP_CLAMP = 1, PT_WRAP_MIRROR = 2 };

@@ -120,6 +120,44 @@ int main(void)
     }
     pt_image_free(a);
     pt_image_free(b);
+    /* The environment options: bad maps and mixes refused with the reason. */
+    snprintf(args, sizeof args, "--scene %s -o %s/e.exr --env %s/missing.hdr", cornell, tmpdir,
+             tmpdir);
+    CHECK(run(args) == 1 && stderr_has("--env") && stderr_has("missing.hdr"));
+    snprintf(args, sizeof args, "--scene %s -o %s/e.exr --env %s", cornell, tmpdir, broken);
+    CHECK(run(args) == 1 && stderr_has("not an environment map"));
+    snprintf(args, sizeof args, "--scene %s -o %s/e.exr --env %s --background 1,1,1", cornell,
+             tmpdir, broken);
+    CHECK(run(args) == 2 && stderr_has("give one"));
+    CHECK(run("--scene x.gltf -o y.exr --background 1,2") == 2 && stderr_has("R,G,B"));
+    CHECK(run("--scene x.gltf -o y.exr --background 1,2,nan") == 2 && stderr_has("R,G,B"));
+    CHECK(run("--scene x.gltf -o y.exr --env-strength -1") == 2 && stderr_has("--env-strength"));
+    CHECK(run("--server 127.0.0.1:1 --env x.hdr") == 2 && stderr_has("standalone option"));
+    /* A uniform sky through the box's open side: brighter, the same bits on
+     * one thread and two. */
+    for (int t = 1; t <= 2; t++) {
+        snprintf(args, sizeof args,
+                 "--scene %s -o %s/sky%d.exr --res 40x30 --spp 8 --threads %d --tile 16 "
+                 "--background 0.5,0.6,0.7",
+                 cornell, tmpdir, t, t);
+        CHECK(run(args) == 0);
+    }
+    pt_image *s1 = read_exr("sky1.exr", NULL), *s2 = read_exr("sky2.exr", NULL),
+             *t1 = read_exr("t1.exr", NULL);
+    CHECK(s1 && s2 && t1);
+    if (s1 && s2 && t1) {
+        CHECKF(same_pixels(s1, s2), "1 and 2 threads differ under a background");
+        double with = 0, without = 0;
+        for (uint32_t i = 0; i < 40 * 30; i++) {
+            with += s1->b[i];
+            without += t1->b[i];
+        }
+        CHECKF(with > without * 1.01, "the background adds no light: %g vs %g", with, without);
+    }
+    pt_image_free(s1);
+    pt_image_free(s2);
+    pt_image_free(t1);
+
     char png[512];
     snprintf(png, sizeof png, "%s/t1.png", tmpdir);
     struct stat sb;

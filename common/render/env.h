@@ -1,0 +1,63 @@
+/*
+ * env.h - the environment light: radiance from every direction that leaves
+ * the scene, from an equirectangular map (common/image/envmap.h) or one
+ * uniform colour, with importance sampling for next-event estimation.
+ *
+ * Orientation (glTF is +Y up and defines none for maps): row 0 of the map is
+ * straight up (+Y), the last row straight down; the map's centre column is
+ * the -Z direction, the one a glTF camera looks along by default, and u grows
+ * towards +X, so a view down -Z shows the map's middle the right way round.
+ * rotate_deg turns the environment about +Y (positive: counter-clockwise
+ * seen from above, as a glTF node's rotation about Y would). In terms of the
+ * polar angle theta from +Y and phi = atan2(x, -z):
+ *     u = 1/2 + (phi - rotate) / (2 pi)  (wrapped to [0, 1)),  v = theta / pi.
+ *
+ * Radiance is the map's texel under the direction (nearest texel, no
+ * filtering) times strength, so the sampled density is exactly proportional
+ * to luminance x sin(theta) within each texel: a piecewise-constant 2-D
+ * distribution over (u, v), a marginal over rows and a conditional per row
+ * (Pharr, Jakob & Humphreys, "Physically Based Rendering", 3rd ed., 13.6.7
+ * and 14.2.4). Its solid-angle pdf is pdf(u, v) / (2 pi^2 sin theta). A
+ * tiny hot sun (66 % of a map's energy in 52 texels) is then found by NEE
+ * with its share of the samples, not by chance.
+ *
+ * A uniform colour (--background) is a 64 x 32 map of that colour, whose
+ * density, luminance x sin(theta), is close to uniform over the sphere.
+ *
+ * Immutable after creation; any number of render threads may read it.
+ */
+#ifndef PT_COMMON_RENDER_ENV_H
+#define PT_COMMON_RENDER_ENV_H
+
+#include <stdint.h>
+
+#include "common/base/error.h"
+#include "common/image/envmap.h"
+#include "common/math/vec.h"
+
+typedef struct pt_env pt_env;
+
+/* Builds the environment from a map (copied; the caller keeps map).
+ * strength: a finite factor >= 0; rotate_deg: finite. */
+pt_status pt_env_new(const pt_envmap *map, float strength, float rotate_deg, pt_env **out,
+                     pt_error *err);
+/* A uniform environment of radiance color (each component finite, >= 0). */
+pt_status pt_env_uniform(pt_vec3 color, pt_env **out, pt_error *err);
+void pt_env_free(pt_env *env); /* accepts NULL */
+
+/* Radiance arriving from direction dir (unit), i.e. seen looking along dir. */
+pt_vec3 pt_env_eval(const pt_env *env, pt_vec3 dir);
+
+/* Samples a direction by the map's distribution from u (2 numbers in
+ * [0,1)): *dir, the radiance from it and the solid-angle pdf. Returns 0 when
+ * the environment is black or the sample is impossible (pdf 0). */
+int pt_env_sample(const pt_env *env, const float u[2], pt_vec3 *dir, pt_vec3 *radiance, float *pdf);
+
+/* The solid-angle pdf pt_env_sample gives dir. */
+float pt_env_pdf(const pt_env *env, pt_vec3 dir);
+
+/* The mean radiance over the sphere (luminance, weighted by solid angle):
+ * the flux it sends into a sphere of radius R is 4 pi^2 R^2 times this. */
+double pt_env_mean_luminance(const pt_env *env);
+
+#endif
