@@ -321,6 +321,16 @@ static inline void camera_ray(const pt_renderer *r, uint32_t px, uint32_t py, co
 {
     const pt_camera *c = &r->scene->camera;
     float w = (float)r->params.width, h = (float)r->params.height;
+    if (c->ortho) {
+        /* Parallel rays from the camera's plane: ymag is half the image's
+         * height, and the width follows the image's aspect, as a
+         * perspective camera's yfov does. */
+        float ox = (2.0f * ((float)px + u[0]) / w - 1.0f) * c->ymag * (w / h);
+        float oy = (1.0f - 2.0f * ((float)py + u[1]) / h) * c->ymag;
+        *o = pt_v3_add(c->position, pt_v3_add(pt_v3_scale(c->right, ox), pt_v3_scale(c->up, oy)));
+        *d = c->forward;
+        return;
+    }
     /* Box filter: a uniform point in the pixel; y grows downwards in the image. */
     float sx = (2.0f * ((float)px + u[0]) / w - 1.0f) * r->tan_half_fov * (w / h);
     float sy = (1.0f - 2.0f * ((float)py + u[1]) / h) * r->tan_half_fov;
@@ -1100,7 +1110,7 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
     if (params->width == 0 || params->height == 0)
         return pt_error_set(err, PT_ERR_ARG, "image size %ux%u is empty", params->width,
                             params->height);
-    if (!(scene->camera.yfov > 0.0f && scene->camera.yfov < PT_PI))
+    if (!scene->camera.ortho && !(scene->camera.yfov > 0.0f && scene->camera.yfov < PT_PI))
         return pt_error_set(err, PT_ERR_ARG, "camera field of view %g rad is not in (0, pi)",
                             (double)scene->camera.yfov);
     pt_renderer *r = pt_calloc(1, sizeof *r);

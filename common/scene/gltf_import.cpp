@@ -860,9 +860,9 @@ void add_camera(importer &im, int ni, int ci, const mat4 &w)
                 m.cameras.size());
     const tinygltf::Camera &c = m.cameras[size_t(ci)];
     const tinygltf::Node &n = m.nodes[size_t(ni)];
-    if (c.type != "perspective") {
-        im.warn_once("camera:" + c.type, "camera " + std::to_string(ci) + " is " + c.type +
-                                             "; only perspective cameras are supported, ignored");
+    if (c.type != "perspective" && c.type != "orthographic") {
+        im.warn_once("camera:" + c.type, "camera " + std::to_string(ci) + " is '" + c.type +
+                                             "', not perspective or orthographic; ignored");
         return;
     }
     pt_camera pc{};
@@ -876,9 +876,21 @@ void add_camera(importer &im, int ni, int ci, const mat4 &w)
     pc.forward = pt_v3_norm(fwd);
     pc.right = pt_v3_norm(pt_v3_cross(pc.forward, up));
     pc.up = pt_v3_cross(pc.right, pc.forward);
-    pc.yfov = float(c.perspective.yfov);
-    pc.aspect = float(c.perspective.aspectRatio);
-    pc.znear = float(c.perspective.znear);
+    if (c.type == "orthographic") {
+        // xmag and ymag are half the view's width and height (glTF 2.0,
+        // 3.10.3); a negative one mirrors in a projection matrix, which a
+        // ray tracer does not need, so their sizes are used.
+        pc.ortho = 1;
+        pc.xmag = float(std::fabs(c.orthographic.xmag));
+        pc.ymag = float(std::fabs(c.orthographic.ymag));
+        pc.yfov = 0.0f;
+        pc.aspect = pc.ymag > 0.0f ? pc.xmag / pc.ymag : 0.0f;
+        pc.znear = float(c.orthographic.znear);
+    } else {
+        pc.yfov = float(c.perspective.yfov);
+        pc.aspect = float(c.perspective.aspectRatio);
+        pc.znear = float(c.perspective.znear);
+    }
     if (!(pt_v3_len(pc.right) > 0.5f))
         im.fail(PT_ERR_FORMAT, "node %d: camera %d ('%s') has a degenerate transform", ni, ci,
                 pc.name);

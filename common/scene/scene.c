@@ -244,8 +244,11 @@ pt_status pt_scene_builder_add_camera_at(pt_scene_builder *b, const pt_camera *c
         bad = "position is not finite or too large";
     else if (!pt_isfinite3(cam->right) || !pt_isfinite3(cam->up) || !pt_isfinite3(cam->forward))
         bad = "orientation is not finite";
-    else if (!(cam->yfov > 0.0f && cam->yfov < PT_PI))
+    else if (!cam->ortho && !(cam->yfov > 0.0f && cam->yfov < PT_PI))
         bad = "yfov is not in (0, pi)";
+    else if (cam->ortho && !(cam->xmag > 0.0f && cam->xmag <= PT_SCENE_MAX_COORD &&
+                             cam->ymag > 0.0f && cam->ymag <= PT_SCENE_MAX_COORD))
+        bad = "xmag and ymag are not in (0, 1e15]";
     else if (!(cam->aspect >= 0.0f && cam->aspect < 1e6f))
         bad = "aspectRatio is not in [0, 1e6)";
     else if (!(cam->znear >= 0.0f) || !isfinite(cam->znear))
@@ -534,6 +537,10 @@ static pt_status hash_scene(const pt_scene *s, char out[65], pt_error *err)
                        c->forward.y,  c->forward.z,  c->yfov,       c->aspect,  c->znear};
         EVP_DigestUpdate(ctx, f, sizeof f);
         EVP_DigestUpdate(ctx, c->name, sizeof c->name);
+        if (c->ortho) { /* only then: a perspective camera keeps its hash */
+            float o[2] = {c->xmag, c->ymag};
+            EVP_DigestUpdate(ctx, o, sizeof o);
+        }
     }
     /* Lights only when there are any: a scene without keeps its hash. */
     if (s->num_punctual > 0)
@@ -791,6 +798,8 @@ pt_status pt_scene_builder_finish(pt_scene_builder *b, const pt_scene_opts *opts
                             (float)(p[1] * sc + t[1] - s->origin[1]),
                             (float)(p[2] * sc + t[2] - s->origin[2]));
         c->znear *= scale;
+        c->xmag *= scale;
+        c->ymag *= scale;
         if (!pt_isfinite3(c->position) || !isfinite(c->znear)) {
             st = pt_error_set(err, PT_ERR_ARG, "camera '%.64s' is not finite after scaling",
                               c->name);

@@ -71,7 +71,9 @@ typedef struct pt_material {
 typedef struct pt_camera {
     pt_vec3 position;
     pt_vec3 right, up, forward; /* world-space orthonormal basis; looks along +forward (glTF -Z) */
-    float yfov;                 /* radians */
+    float yfov;                 /* radians; 0 for an orthographic camera */
+    int ortho;                  /* 1: orthographic: parallel rays along forward */
+    float xmag, ymag;           /* orthographic: half the view's width and height */
     float aspect;               /* width/height from the file, 0 when the image decides */
     float znear;
     char name[64];

@@ -717,9 +717,15 @@ static void check_asset(const asset *a)
         CHECK(strstr(w.text, "KHR_materials_sheen") != NULL);
     }
     if (strstr(a->path, "Cameras")) {
-        CHECK(strstr(w.text, "orthographic") != NULL);
-        CHECK(s->num_cameras == 1);
-        CHECK(fabsf(s->camera.position.z - 3.0f) < 1e-5f);
+        /* Its perspective and its orthographic camera (xmag = ymag = 1). */
+        CHECK(strstr(w.text, "orthographic") == NULL);
+        CHECK(s->num_cameras == 2);
+        CHECK(fabsf(s->camera.position.z - 3.0f) < 1e-5f && !s->camera.ortho);
+        if (s->num_cameras == 2) {
+            const pt_camera *o = &s->cameras[1];
+            CHECK(o->ortho && o->xmag == 1.0f && o->ymag == 1.0f && o->aspect == 1.0f);
+            CHECK(fabsf(o->forward.z + 1.0f) < 1e-6f);
+        }
     }
     /* Each warning once: no line repeats. */
     char *copy = strdup(w.text), *save = NULL;
