@@ -133,6 +133,25 @@ int main(void)
     CHECK(run("--scene x.gltf -o y.exr --background 1,2,nan") == 2 && stderr_has("R,G,B"));
     CHECK(run("--scene x.gltf -o y.exr --env-strength -1") == 2 && stderr_has("--env-strength"));
     CHECK(run("--server 127.0.0.1:1 --env x.hdr") == 2 && stderr_has("standalone option"));
+    /* A scene with no light is refused with the way to light it, and
+     * renders with a background. */
+    char dark[512];
+    snprintf(dark, sizeof dark, "%s/dark.gltf", tmpdir);
+    f = fopen(dark, "w");
+    fputs("{\"asset\":{\"version\":\"2.0\"},\"scene\":0,\"scenes\":[{\"nodes\":[0]}],"
+          "\"nodes\":[{\"mesh\":0}],\"meshes\":[{\"primitives\":[{\"attributes\":"
+          "{\"POSITION\":0}}]}],\"accessors\":[{\"bufferView\":0,\"componentType\":5126,"
+          "\"count\":3,\"type\":\"VEC3\",\"min\":[0,0,0],\"max\":[1,1,0]}],"
+          "\"bufferViews\":[{\"buffer\":0,\"byteLength\":36}],\"buffers\":[{\"byteLength\":36,"
+          "\"uri\":\"data:application/octet-stream;base64,"
+          "AAAAAAAAAAAAAAAAAACAPwAAAAAAAAAAAAAAAAAAgD8AAAAA\"}]}",
+          f);
+    fclose(f);
+    snprintf(args, sizeof args, "--scene %s -o %s/dark.exr --res 8x8 --spp 1 -q", dark, tmpdir);
+    CHECK(run(args) == 1 && stderr_has("has no light") && stderr_has("--env"));
+    snprintf(args, sizeof args, "--scene %s -o %s/dark.exr --res 8x8 --spp 1 -q --background 1,1,1",
+             dark, tmpdir);
+    CHECK(run(args) == 0);
     /* A uniform sky through the box's open side: brighter, the same bits on
      * one thread and two. */
     for (int t = 1; t <= 2; t++) {
