@@ -56,7 +56,8 @@ typedef void (*ctl_progress_fn)(uint64_t done, uint64_t total, void *arg);
 /* Connects to o->server and authenticates. On success *out is a new
  * connection (ctl_close). PT_ERR_ARG for a malformed address, PT_ERR_IO for
  * the network (err names the address), PT_ERR_PROTO for a refusal or a
- * server that breaks the protocol. On a refusal *out is still set (NULL
+ * server that breaks the protocol, PT_ERR_AUTH for a server that cannot
+ * prove the token in WELCOME. On a refusal *out is still set (NULL
  * otherwise) so that the caller can read the server's code; close it too. */
 pt_status ctl_connect(const ctl_opts *o, ctl_conn **out, pt_error *err);
 /* The same over a socket that is already connected (taken over: ctl_close

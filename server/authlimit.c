@@ -94,8 +94,8 @@ uint64_t srv_authlimit_failed(srv_authlimit *l, const char *addr, const char *wh
     e->last = now;
     if (e->fails < SRV_AUTHLIMIT_FREE) {
         if (may_log(l, now))
-            srv_log("peer %s %s: authentication failed (wrong token), %u in a row", addr, who,
-                    e->fails);
+            srv_log("peer %s%s%s: authentication failed (wrong token), %u in a row", addr,
+                    who[0] ? " " : "", who, e->fails);
         return 0;
     }
     uint32_t k = e->fails - SRV_AUTHLIMIT_FREE;
@@ -104,9 +104,9 @@ uint64_t srv_authlimit_failed(srv_authlimit *l, const char *addr, const char *wh
         ms = SRV_AUTHLIMIT_MAX_MS;
     e->blocked_until = now + ms;
     if (may_log(l, now)) {
-        srv_log("peer %s %s: %u failed authentications in a row; refusing %s for %.0f s "
+        srv_log("peer %s%s%s: %u failed authentications in a row; refusing %s for %.0f s "
                 "(%u handshakes refused since the last such line)",
-                addr, who, e->fails, addr, (double)ms / 1000.0, e->refused);
+                addr, who[0] ? " " : "", who, e->fails, addr, (double)ms / 1000.0, e->refused);
         e->refused = 0;
     }
     return ms;
