@@ -553,6 +553,7 @@ static void identities(void)
     proto_job_ref r = {b1};
     proto_msg_encode_job_ref(&w, &r, NULL);
     peer_send(p, PROTO_MSG_CANCEL, &w);
+    proto_writer_fini(&w);
     proto_frame f;
     CHECK(peer_recv(p, &f, 10) == PROTO_MSG_ERROR && p->code == PROTO_E_DENIED);
     close(p->fd);
