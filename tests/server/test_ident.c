@@ -300,6 +300,7 @@ static void backoff(void)
     close(p->fd);
 
     int failed = 0, blocked = 0, other = 0;
+    double t0 = pt_now_s();
     for (int i = 0; i < 50; i++) {
         int t = handshake(p, "127.0.0.1", port, "a-wrong-guess-of-the-token", "guesser",
                           PROTO_ROLE_CLIENT);
@@ -312,6 +313,8 @@ static void backoff(void)
             other++;
         close(p->fd);
     }
+    fprintf(stderr, "backoff: 50 wrong answers in %.3f s: %d checked and failed, %d refused\n",
+            pt_now_s() - t0, failed, blocked);
     /* 5 free failures, then one more per block that ran out during the
      * burst (1, 2, 4... s): however slow the machine, a burst under a
      * minute leaves at most 5 + 6. */
