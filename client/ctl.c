@@ -214,6 +214,8 @@ static pt_status handshake(ctl_conn *c, const ctl_opts *o, pt_error *err)
         return bad_reply(c, "CHALLENGE", &e, err);
     proto_auth a;
     st = proto_auth_response(o->token, o->token_len, ch.nonce, a.mac, err);
+    if (st == PT_OK)
+        st = proto_auth_nonce(a.nonce, err);
     if (st != PT_OK)
         return st;
     st = proto_frame_begin(&c->out, PROTO_MSG_AUTH, &mark, err);
@@ -228,6 +230,13 @@ static pt_status handshake(ctl_conn *c, const ctl_opts *o, pt_error *err)
     proto_welcome w;
     if (proto_msg_decode_welcome(f.payload, f.len, &w, &e) != PT_OK)
         return bad_reply(c, "WELCOME", &e, err);
+    /* Nothing is sent to a listener that cannot prove it holds the token:
+     * a scene submitted to it would leak, a cancel would be lost. */
+    if (proto_auth_check_server(o->token, o->token_len, ch.nonce, a.nonce, w.proof, &e) != PT_OK)
+        return pt_error_set(err, PT_ERR_AUTH,
+                            "%s: the coordinator does not know the token (its WELCOME proof is "
+                            "wrong); nothing was sent to it",
+                            c->addr);
     snprintf(c->server_build, sizeof c->server_build, "%s", w.build_id);
     c->cap = PROTO_MAX_PAYLOAD;
     return PT_OK;

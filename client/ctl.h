@@ -4,7 +4,10 @@
  *
  * A ctl_conn is one blocking TCP connection to a ptserve in queue mode,
  * authenticated like a worker (HELLO with role PROTO_ROLE_CLIENT, CHALLENGE,
- * AUTH, WELCOME; protocol/msg.h, protocol/auth.h). Each request waits for its
+ * AUTH, WELCOME; protocol/msg.h, protocol/auth.h), mutually: a WELCOME whose
+ * proof does not show that the server holds the token ends the connection
+ * with PT_ERR_AUTH ("the coordinator does not know the token") before any
+ * request is sent. Each request waits for its
  * reply; a reply that does not come within the connection's timeout is an
  * error (SO_RCVTIMEO / SO_SNDTIMEO on the socket). Frames received are capped
  * like the worker's: PROTO_MAX_PAYLOAD_PREAUTH until WELCOME, PROTO_MAX_PAYLOAD
@@ -41,7 +44,7 @@ typedef struct ctl_conn ctl_conn;
 
 typedef struct ctl_opts {
     const char *server;   /* "HOST:PORT" (pt_net_split forms) */
-    const uint8_t *token; /* the farm token; may be empty (token_len 0) */
+    const uint8_t *token; /* the shared or a per-client token; may be empty (token_len 0) */
     size_t token_len;
     int timeout_ms;   /* connect, and each reply (> 0) */
     const char *name; /* HELLO name, at most PROTO_MAX_NAME bytes ("user@host") */
@@ -53,7 +56,8 @@ typedef void (*ctl_progress_fn)(uint64_t done, uint64_t total, void *arg);
 /* Connects to o->server and authenticates. On success *out is a new
  * connection (ctl_close). PT_ERR_ARG for a malformed address, PT_ERR_IO for
  * the network (err names the address), PT_ERR_PROTO for a refusal or a
- * server that breaks the protocol. On a refusal *out is still set (NULL
+ * server that breaks the protocol, PT_ERR_AUTH for a server that cannot
+ * prove the token in WELCOME. On a refusal *out is still set (NULL
  * otherwise) so that the caller can read the server's code; close it too. */
 pt_status ctl_connect(const ctl_opts *o, ctl_conn **out, pt_error *err);
 /* The same over a socket that is already connected (taken over: ctl_close

@@ -43,8 +43,11 @@ static const char GLOBAL_HELP[] =
     "options (before or after the command):\n"
     "  --server HOST:PORT  the coordinator ([V6]:PORT for IPv6; default $PTFARM_SERVER,\n"
     "                      else " CTL_DEFAULT_SERVER ")\n"
-    "  --token-file PATH   the farm's shared token (default $PTFARM_TOKEN_FILE, else\n"
-    "                      none: for a coordinator that requires no token)\n"
+    "  --token-file PATH   your token: the farm's shared (admin) token, or your own\n"
+    "                      from the coordinator's --clients-file (default\n"
+    "                      $PTFARM_TOKEN_FILE, else none: for a coordinator that\n"
+    "                      requires no token); at least 16 bytes, mode 0600, made with\n"
+    "                      " PROTO_TOKEN_HOWTO "\n"
     "  --timeout SEC       for connecting and for each reply (default 30)\n"
     "  -h, --help          help\n";
 
@@ -189,15 +192,10 @@ static int connect_server(const globals *g, ctl_conn **out)
     static uint8_t token[PROTO_TOKEN_MAX];
     size_t token_len = 0;
     pt_error err = {0};
-    if (g->token_file) {
-        int loose = 0;
-        if (proto_token_load(g->token_file, token, sizeof token, &token_len, &loose, &err) !=
-            PT_OK) {
-            fprintf(stderr, "ptctl: %s\n", err.msg);
-            return EXIT_ERROR;
-        }
-        if (loose)
-            fprintf(stderr, "ptctl: warning: %s is readable by other users\n", g->token_file);
+    if (g->token_file &&
+        proto_token_load(g->token_file, token, sizeof token, &token_len, &err) != PT_OK) {
+        fprintf(stderr, "ptctl: %s\n", err.msg);
+        return EXIT_ERROR;
     }
     char name[PROTO_MAX_NAME + 1];
     ctl_default_name(name);

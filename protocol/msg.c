@@ -232,6 +232,7 @@ pt_status proto_msg_encode_auth(proto_writer *w, const proto_auth *m, pt_error *
 {
     size_t start = w->len;
     proto_w_bytes(w, m->mac, PROTO_MAC_SIZE);
+    proto_w_bytes(w, m->nonce, PROTO_NONCE_SIZE);
     return w_done(w, start, "AUTH", err);
 }
 
@@ -239,10 +240,12 @@ pt_status proto_msg_decode_auth(const uint8_t *p, size_t len, proto_auth *out, p
 {
     proto_reader r = proto_reader_make(p, len);
     const uint8_t *mac = proto_r_bytes(&r, PROTO_MAC_SIZE, "mac");
+    const uint8_t *nonce = proto_r_bytes(&r, PROTO_NONCE_SIZE, "nonce");
     pt_status st = proto_r_finish(&r, "AUTH", err);
     if (st != PT_OK)
         return st;
     memcpy(out->mac, mac, PROTO_MAC_SIZE);
+    memcpy(out->nonce, nonce, PROTO_NONCE_SIZE);
     return PT_OK;
 }
 
@@ -254,6 +257,7 @@ pt_status proto_msg_encode_welcome(proto_writer *w, const proto_welcome *m, pt_e
     if (!str_fits(m->build_id, PROTO_MAX_BUILD_ID))
         return bad(err, PT_ERR_ARG, "WELCOME", "build id over the length cap");
     proto_w_u64(w, m->session_id);
+    proto_w_bytes(w, m->proof, PROTO_MAC_SIZE);
     proto_w_str(w, m->build_id);
     return w_done(w, start, "WELCOME", err);
 }
@@ -263,10 +267,12 @@ pt_status proto_msg_decode_welcome(const uint8_t *p, size_t len, proto_welcome *
     proto_reader r = proto_reader_make(p, len);
     proto_welcome m;
     m.session_id = proto_r_u64(&r, "session id");
+    const uint8_t *proof = proto_r_bytes(&r, PROTO_MAC_SIZE, "proof");
     proto_r_str(&r, m.build_id, PROTO_MAX_BUILD_ID, "build id");
     pt_status st = proto_r_finish(&r, "WELCOME", err);
     if (st != PT_OK)
         return st;
+    memcpy(m.proof, proof, PROTO_MAC_SIZE);
     *out = m;
     return PT_OK;
 }

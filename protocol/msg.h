@@ -95,7 +95,8 @@ enum {
     PROTO_E_BUILD = 4,     /* renderer build id differs from the server's */
     PROTO_E_LIMIT = 5,     /* a cap was exceeded */
     PROTO_E_NOT_FOUND = 6, /* unknown scene hash, job or task */
-    PROTO_E_INTERNAL = 7   /* the sender failed for its own reasons */
+    PROTO_E_INTERNAL = 7,  /* the sender failed for its own reasons */
+    PROTO_E_DENIED = 8     /* not allowed for this peer's identity (another's job) */
 };
 
 /* The renderer build id of this binary (pt_build_id, common/base/version.h):
@@ -122,20 +123,28 @@ typedef struct proto_hello {
 } proto_hello;
 
 /* CHALLENGE: 0 32 u8[32] nonce (random, fresh per connection). size 32
- * AUTH:      0 32 u8[32] HMAC-SHA256 over the nonce (protocol/auth.h). size 32 */
+ * AUTH (mutual: the peer proves the token, and asks the server to prove it)
+ *   0    32   u8[32]  HMAC-SHA256 over the server's nonce (protocol/auth.h)
+ *   32   32   u8[32]  the peer's own nonce (random, fresh per connection)
+ *   size 64 */
 typedef struct proto_challenge {
     uint8_t nonce[PROTO_NONCE_SIZE];
 } proto_challenge;
 typedef struct proto_auth {
     uint8_t mac[PROTO_MAC_SIZE];
+    uint8_t nonce[PROTO_NONCE_SIZE];
 } proto_auth;
 
 /* WELCOME
- *   0    8    u64  session id
- *   8    2+a  str  server's renderer build id, a <= PROTO_MAX_BUILD_ID
- *   size 10+a */
+ *   0    8    u64     session id
+ *   8    32   u8[32]  the server's proof: HMAC-SHA256 over both nonces under the
+ *                     token the peer authenticated with (proto_auth_server_proof);
+ *                     the peer checks it before it sends anything else
+ *   40   2+a  str     server's renderer build id, a <= PROTO_MAX_BUILD_ID
+ *   size 42+a */
 typedef struct proto_welcome {
     uint64_t session_id;
+    uint8_t proof[PROTO_MAC_SIZE];
     char build_id[PROTO_MAX_BUILD_ID + 1];
 } proto_welcome;
 
@@ -326,7 +335,8 @@ const char *proto_job_state_name(uint32_t state);
  *   8    1    u8   state (PROTO_JOB_*; any value decodes, see proto_job_state_name)
  *   9    4    i32  priority
  *   13   2+a  str  job name, a <= PROTO_MAX_NAME
- *   ..   2+b  str  owner (the submitting client's HELLO name), b <= PROTO_MAX_NAME
+ *   ..   2+b  str  owner (the submitting client's identity: its --clients-file NAME, else its HELLO
+ * name), b <= PROTO_MAX_NAME
  *   ..   2+c  str  scene (the bundle's entry file name), c <= PROTO_MAX_PATH
  *   ..   2+d  str  output file name (in the server's output folder), d <= PROTO_MAX_PATH
  *   ..   4    u32  width

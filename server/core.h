@@ -26,6 +26,8 @@
 #include "common/base/error.h"
 #include "common/render/film.h"
 #include "protocol/auth.h"
+#include "server/authlimit.h"
+#include "server/clients.h"
 #include "server/local.h"
 #include "server/serve.h"
 #include "server/state.h"
@@ -67,6 +69,8 @@ struct srv_server {
     uint64_t next_conn_id;
     uint8_t token[PROTO_TOKEN_MAX];
     size_t token_len;
+    srv_clients *clients;         /* --clients-file (server/clients.h); NULL: none */
+    srv_authlimit authlimit;      /* failed handshakes per address (server/authlimit.h) */
     uint64_t bytes_in, bytes_out; /* on the wire, all peers */
 
     /* the queue (server/queue.c) */

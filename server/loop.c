@@ -175,10 +175,46 @@ static void accept_all(srv_server *s)
     }
 }
 
+/* Sends ERROR(code, text) and closes c, without a log line: for refusals
+ * that server/authlimit.h logs within its own limits. */
+static void handshake_refuse(srv_server *s, srv_conn *c, uint16_t code, const char *fmt, ...)
+    __attribute__((format(printf, 4, 5)));
+static void handshake_refuse(srv_server *s, srv_conn *c, uint16_t code, const char *fmt, ...)
+{
+    proto_error_msg m;
+    m.code = code;
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(m.text, sizeof m.text, fmt, ap);
+    va_end(ap);
+    size_t mark;
+    if (proto_frame_begin(&c->out, PROTO_MSG_ERROR, &mark, NULL) == PT_OK)
+        proto_frame_finish(&c->out, mark, proto_msg_encode_error(&c->out, &m, NULL), NULL);
+    srv_conn_close_soon(s, c);
+}
+
+/* 1 (and c refused) while c's address is blocked for failed
+ * authentications; nothing is computed for it. PROTO_E_LIMIT, not _AUTH: a
+ * worker with the right token behind the same address retries later. */
+static int handshake_blocked(srv_server *s, srv_conn *c)
+{
+    char addr[SRV_AUTHLIMIT_ADDR];
+    srv_authlimit_addr(c->peer, addr);
+    uint64_t ms = srv_authlimit_blocked(&s->authlimit, addr, pt_now_ms());
+    if (ms == 0)
+        return 0;
+    handshake_refuse(s, c, PROTO_E_LIMIT,
+                     "too many failed authentications from %s, retry in %llu s", addr,
+                     (unsigned long long)((ms + 999) / 1000));
+    return 1;
+}
+
 static void on_hello(srv_server *s, srv_conn *c, const proto_frame *f)
 {
     proto_hello h;
     pt_error err = {0};
+    if (handshake_blocked(s, c))
+        return;
     if (proto_msg_decode_hello(f->payload, f->len, &h, &err) != PT_OK) {
         srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "bad HELLO: %s", err.msg);
         return;
@@ -225,6 +261,21 @@ static void on_hello(srv_server *s, srv_conn *c, const proto_frame *f)
     c->state = SRV_C_AUTH;
 }
 
+/* Which token a's MAC proves: the shared one (an admin), else a
+ * --clients-file entry's (*ident its NAME). 1 with *key, *key_len set (the
+ * token for WELCOME's proof), 0 when none. */
+static int auth_match(srv_server *s, srv_conn *c, const proto_auth *a, const uint8_t **key,
+                      size_t *key_len, const char **ident)
+{
+    *ident = NULL;
+    if (proto_auth_verify(s->token, s->token_len, c->nonce, a->mac, NULL) == PT_OK) {
+        *key = s->token;
+        *key_len = s->token_len;
+        return 1;
+    }
+    return s->clients && srv_clients_match(s->clients, c->nonce, a->mac, ident, key, key_len) >= 0;
+}
+
 static void on_auth(srv_server *s, srv_conn *c, const proto_frame *f)
 {
     proto_auth a;
@@ -233,17 +284,47 @@ static void on_auth(srv_server *s, srv_conn *c, const proto_frame *f)
         srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "bad AUTH: %s", err.msg);
         return;
     }
-    if (proto_auth_verify(s->token, s->token_len, c->nonce, a.mac, &err) != PT_OK) {
-        srv_conn_send_error(s, c, PROTO_E_AUTH, "authentication failed (wrong token)");
+    /* Blocked since its HELLO (parallel handshakes from one address). */
+    if (handshake_blocked(s, c))
+        return;
+    const uint8_t *key;
+    size_t key_len;
+    const char *ident;
+    if (!auth_match(s, c, &a, &key, &key_len, &ident)) {
+        char addr[SRV_AUTHLIMIT_ADDR];
+        srv_authlimit_addr(c->peer, addr);
+        srv_authlimit_failed(&s->authlimit, addr, c->shown, pt_now_ms());
+        handshake_refuse(s, c, PROTO_E_AUTH, "authentication failed (wrong token)");
+        return;
+    }
+    /* Workers get leases and scenes: only the shared token may join as one. */
+    if (ident && c->role == PROTO_ROLE_WORKER) {
+        srv_conn_send_error(s, c, PROTO_E_AUTH,
+                            "the token of client %s cannot join as a worker; workers "
+                            "use the shared token (--token-file)",
+                            ident);
         return;
     }
     proto_welcome w;
     w.session_id = c->id;
     snprintf(w.build_id, sizeof w.build_id, "%s", proto_build_id());
+    if (proto_auth_server_proof(key, key_len, c->nonce, a.nonce, w.proof, &err) != PT_OK) {
+        srv_conn_send_error(s, c, PROTO_E_INTERNAL, "cannot prove the token: %s", err.msg);
+        return;
+    }
     size_t mark;
     if (proto_frame_begin(&c->out, PROTO_MSG_WELCOME, &mark, NULL) == PT_OK)
         proto_frame_finish(&c->out, mark, proto_msg_encode_welcome(&c->out, &w, NULL), NULL);
     c->state = SRV_C_READY;
+    c->admin = ident == NULL;
+    if (ident && strcmp(ident, c->name) != 0) {
+        char id_shown[PT_TEXT_ESCAPED_SIZE(PROTO_MAX_NAME)];
+        pt_text_shown(ident, id_shown, sizeof id_shown);
+        if (!s->cfg->quiet)
+            srv_log("client %s from %s authenticated as %s", c->shown, c->peer, id_shown);
+        snprintf(c->name, sizeof c->name, "%s", ident);
+        memcpy(c->shown, id_shown, sizeof c->shown);
+    }
     if (c->role == PROTO_ROLE_WORKER) {
         s->nworkers++;
         if (!s->cfg->quiet) {

@@ -44,10 +44,13 @@ struct srv_conn {
     proto_writer out;
     size_t out_off;
     uint8_t nonce[PROTO_NONCE_SIZE];
+    /* The HELLO name until WELCOME; from then on the peer's identity: the
+     * NAME of the --clients-file token it proved, else the HELLO name. */
     char name[PROTO_MAX_NAME + 1];
     char shown[PT_TEXT_ESCAPED_SIZE(PROTO_MAX_NAME)]; /* name escaped for logs, set with it */
     char peer[64];
     uint16_t threads;
+    int admin;     /* proved the shared token (every peer, without --clients-file) */
     uint32_t want; /* worker: free slots it asked tasks for */
     uint64_t t_connect, t_progress;
     uint32_t events;

@@ -42,7 +42,13 @@ static void usage(FILE *f)
         "  --max-pixels N         width x height a client may ask for (default 16777216)\n"
         "  --max-spp N            samples per pixel a client may ask for (default 65536)\n"
         "  --max-scene-mb N       scene upload size limit in MiB (default 512)\n"
-        "  --max-queued N         unfinished jobs per client name (default 64)\n"
+        "  --max-queued N         unfinished jobs per client identity (default 64)\n"
+        "  --clients-file PATH    per-client tokens, one 'NAME TOKEN' a line (# comments):\n"
+        "                         a client proving one of them is NAME, whatever name it\n"
+        "                         declares, and may cancel only its own jobs; the shared\n"
+        "                         token (--token-file, required with this) is the admin's\n"
+        "                         and the workers'. Without it every client is an admin\n"
+        "                         (docs/OPERATIONS.md, \"Clients and admins\")\n"
         "  (--tile, --chunk and --max-depth set the defaults of submitted jobs)\n"
         "\n"
         "one-job mode:\n"
@@ -51,8 +57,13 @@ static void usage(FILE *f)
         "  --worker-threads T     threads per local worker (default: cores / N)\n"
         "  --listen HOST:PORT     where workers connect (default 127.0.0.1:7878; with\n"
         "                         --local, a free loopback port)\n"
-        "  --token-file PATH      shared secret workers must prove (HMAC challenge);\n"
-        "                         without it ptserve listens on loopback only\n"
+        "  --token-file PATH      shared secret workers and clients must prove (mutual\n"
+        "                         HMAC challenge); without it ptserve listens on loopback\n"
+        "                         only. At least 16 bytes, mode 0600 (refused otherwise);\n"
+        "                         make one with:\n"
+        "                           " PROTO_TOKEN_HOWTO "\n"
+        "                         After 5 wrong answers from one address, its handshakes\n"
+        "                         are refused for 1 s, doubling per failure up to 60 s\n"
         "  --spp N                samples per pixel (default 64)\n"
         "  --res WxH              image size (default 512 wide, height from the camera)\n"
         "  --seed S               random seed (default 0)\n"
@@ -128,7 +139,8 @@ int main(int argc, char **argv)
         O_MAXSCENE,
         O_MAXQUEUED,
         O_CAMERA,
-        O_MINGAIN
+        O_MINGAIN,
+        O_CLIENTS
     };
     static const struct option opts[] = {
         {"output", required_argument, NULL, 'o'},
@@ -136,6 +148,7 @@ int main(int argc, char **argv)
         {"worker-threads", required_argument, NULL, O_WTHREADS},
         {"listen", required_argument, NULL, O_LISTEN},
         {"token-file", required_argument, NULL, O_TOKEN},
+        {"clients-file", required_argument, NULL, O_CLIENTS},
         {"spp", required_argument, NULL, O_SPP},
         {"res", required_argument, NULL, O_RES},
         {"seed", required_argument, NULL, O_SEED},
@@ -183,6 +196,9 @@ int main(int argc, char **argv)
             break;
         case O_TOKEN:
             c.token_path = optarg;
+            break;
+        case O_CLIENTS:
+            c.clients_path = optarg;
             break;
         case O_SPP:
             st = pt_opt_u32("--spp", optarg, 1, 1u << 24, &c.job.spp, &err);
@@ -285,6 +301,11 @@ int main(int argc, char **argv)
         return 2;
     } else if (c.output_dir) {
         fprintf(stderr, "ptserve: --output-dir is for queue mode (--state-dir)\n");
+        return 2;
+    }
+    if (c.clients_path && (!c.token_path || !c.state_dir)) {
+        fprintf(stderr, "ptserve: --clients-file needs --token-file (the admin and worker token) "
+                        "and --state-dir (clients use the queue)\n");
         return 2;
     }
     if (c.job.target_error > 0.0 && c.job.min_gain > 0.0) {

@@ -79,6 +79,8 @@ static void sanitise(const char *in, char *out, size_t cap)
         snprintf(out, cap, "job");
 }
 
+/* Unfinished jobs of one identity (c->name after WELCOME: the
+ * --clients-file NAME, not whatever a HELLO declared). */
 static uint32_t owner_unfinished(const srv_server *s, const char *owner)
 {
     uint32_t n = 0;
@@ -386,6 +388,20 @@ static void on_fetch(srv_server *s, srv_conn *c, srv_entry *j)
     srv_requests_pump_fetch(s, c);
 }
 
+/* 1 when c may change job j (cancel it): c owns it or is an admin (every
+ * client is, without --clients-file). Otherwise c is told whose job it is
+ * and closed, and it returns 0. */
+static int may_change(srv_server *s, srv_conn *c, const srv_entry *j, const char *verb)
+{
+    if (c->admin || strcmp(j->rec.owner, c->name) == 0)
+        return 1;
+    srv_conn_send_error(s, c, PROTO_E_DENIED,
+                        "job %llu belongs to %s: only its owner or an admin (the shared "
+                        "token) may %s it, and you are %s",
+                        (unsigned long long)j->rec.id, j->rec.owner, verb, c->name);
+    return 0;
+}
+
 void srv_requests_dispatch(srv_server *s, srv_conn *c, const proto_frame *f)
 {
     srv_entry *j;
@@ -415,7 +431,7 @@ void srv_requests_dispatch(srv_server *s, srv_conn *c, const proto_frame *f)
         }
         break;
     case PROTO_MSG_CANCEL:
-        if (read_job_ref(s, c, f, &j)) {
+        if (read_job_ref(s, c, f, &j) && may_change(s, c, j, "cancel")) {
             if (srv_entry_active(j)) {
                 char msg[PROTO_MAX_ERROR_TEXT + 1];
                 snprintf(msg, sizeof msg, "cancelled by %s", c->name);

@@ -2,14 +2,16 @@
  * requests.h - what a connected, authenticated client (ptctl) asks.
  *
  * SUBMIT is checked against the caps (resolution, spp, scene size, the
- * unfinished jobs of one client name, the queue's size) and the job name
+ * unfinished jobs of one client identity, the queue's size) and the job name
  * must be a plain name; UPLOAD chunks must continue the announced scene
  * exactly, and the buffer grows with what arrives, not with what was
  * announced. A complete upload goes to verification (server/upload.h); its
  * outcome comes back to srv_requests_verified, which queues the job (durable
  * before it is acknowledged with SUBMITTED) or refuses it. A client sends
  * nothing else until that answer. LIST, STATUS, WATCH (JOB_INFO now, then
- * every second and at the job's end), CANCEL and FETCH (the image file in
+ * every second and at the job's end), CANCEL (by the job's owner or an
+ * admin only; a job's owner is its submitter's identity, server/loop.h's
+ * srv_conn name, and admin its admin flag) and FETCH (the image file in
  * IMAGE chunks while the client's output has room) are served here. Images
  * are written only as ID-NAME.exr, NAME reduced to [A-Za-z0-9._-].
  *

@@ -20,13 +20,16 @@ static pt_status setup(srv_server *s, pt_error *err)
     const srv_config *cfg = s->cfg;
     pt_status st;
     s->next_job_id = 1;
-    if (cfg->token_path) {
-        int loose = 0;
-        if ((st = proto_token_load(cfg->token_path, s->token, sizeof s->token, &s->token_len,
-                                   &loose, err)) != PT_OK)
+    if (cfg->token_path && (st = proto_token_load(cfg->token_path, s->token, sizeof s->token,
+                                                  &s->token_len, err)) != PT_OK)
+        return st;
+    if (cfg->clients_path) {
+        if ((st = srv_clients_load(cfg->clients_path, s->token, s->token_len, &s->clients, err)) !=
+            PT_OK)
             return st;
-        if (loose)
-            srv_log("warning: %s is readable by other users", cfg->token_path);
+        if (!cfg->quiet)
+            srv_log("%u client tokens from %s: clients cancel only their own jobs",
+                    srv_clients_count(s->clients), cfg->clients_path);
     }
     s->scratch = pt_malloc_array(PROTO_MAX_TILE_PIXELS, sizeof *s->scratch);
     if (!s->scratch)
@@ -85,6 +88,7 @@ done:
     srv_local_stop(&s.local);
     srv_loop_close(&s);
     srv_queue_free(&s);
+    srv_clients_free(s.clients);
     pt_free(s.scratch);
     return rc;
 }

@@ -97,7 +97,9 @@ struct worker {
     char name[PROTO_MAX_NAME + 1];
     uint8_t token[PROTO_TOKEN_MAX];
     size_t token_len;
-    uint32_t slots_max; /* threads + prefetch */
+    uint8_t server_nonce[PROTO_NONCE_SIZE]; /* this session's CHALLENGE */
+    uint8_t own_nonce[PROTO_NONCE_SIZE];    /* sent in AUTH; WELCOME's proof covers it */
+    uint32_t slots_max;                     /* threads + prefetch */
     uint32_t link_timeout_ms;
     int link_warned; /* the kernel refused the link-timeout options once; said so */
 
@@ -782,6 +784,8 @@ static int on_challenge(worker *w, const proto_frame *f)
     proto_auth a;
     /* Without --token-file the token is empty: a loopback-only coordinator's. */
     pt_status st = proto_auth_response(w->token, w->token_len, ch.nonce, a.mac, &err);
+    if (st == PT_OK)
+        st = proto_auth_nonce(a.nonce, &err);
     if (st != PT_OK) {
         snprintf(w->reason, sizeof w->reason, "cannot answer the challenge: %s", err.msg);
         return -1;
@@ -792,7 +796,35 @@ static int on_challenge(worker *w, const proto_frame *f)
         st = proto_frame_finish(&w->out, mark, proto_msg_encode_auth(&w->out, &a, &err), &err);
     if (queued(w, PROTO_MSG_AUTH, st, &err) != 0)
         return -1;
+    memcpy(w->server_nonce, ch.nonce, PROTO_NONCE_SIZE);
+    memcpy(w->own_nonce, a.nonce, PROTO_NONCE_SIZE);
     w->state = S_AUTH;
+    return 0;
+}
+
+/* WELCOME: the coordinator must prove that it holds the token too, before
+ * this worker asks it for work (a listener that does not know the token
+ * could hand out scenes to render or swallow results). 0, or -1 with *end
+ * set. */
+static int on_welcome(worker *w, const proto_frame *f, int *end)
+{
+    pt_error err = {0};
+    proto_welcome wm;
+    if (proto_msg_decode_welcome(f->payload, f->len, &wm, &err) != PT_OK)
+        return fail_proto(w, "bad WELCOME: %s", err.msg);
+    if (proto_auth_check_server(w->token, w->token_len, w->server_nonce, w->own_nonce, wm.proof,
+                                &err) != PT_OK) {
+        fprintf(stderr,
+                "ptworker: %s:%u: the coordinator does not know the token (its WELCOME "
+                "proof is wrong); sending it nothing\n",
+                w->host, w->port);
+        *end = END_FATAL;
+        return -1;
+    }
+    w->state = S_READY;
+    w->t_heartbeat = pt_now_ms() + HEARTBEAT_MIN_MS;
+    fprintf(stderr, "ptworker: connected to %s:%u as %s (%u threads)\n", w->host, w->port, w->name,
+            w->o->threads);
     return 0;
 }
 
@@ -887,17 +919,8 @@ static int dispatch(worker *w, const proto_frame *f, int *end)
             return on_challenge(w, f);
         break;
     case S_AUTH:
-        if (f->type == PROTO_MSG_WELCOME) {
-            proto_welcome wm;
-            if (proto_msg_decode_welcome(f->payload, f->len, &wm, &err) != PT_OK) {
-                return fail_proto(w, "bad WELCOME: %s", err.msg);
-            }
-            w->state = S_READY;
-            w->t_heartbeat = pt_now_ms() + HEARTBEAT_MIN_MS;
-            fprintf(stderr, "ptworker: connected to %s:%u as %s (%u threads)\n", w->host, w->port,
-                    w->name, w->o->threads);
-            return 0;
-        }
+        if (f->type == PROTO_MSG_WELCOME)
+            return on_welcome(w, f, end);
         break;
     case S_READY:
         if (f->type == PROTO_MSG_TASK)
@@ -1120,15 +1143,10 @@ static int setup(worker *w, const wrk_client_opts *o)
         size_t room = sizeof w->name - 1 - strlen(pid);
         snprintf(w->name, sizeof w->name, "%.*s%s", (int)room, host, pid);
     }
-    if (o->token_file) {
-        int loose = 0;
-        if (proto_token_load(o->token_file, w->token, sizeof w->token, &w->token_len, &loose,
-                             &err) != PT_OK) {
-            fprintf(stderr, "ptworker: %s\n", err.msg);
-            return 1;
-        }
-        if (loose)
-            fprintf(stderr, "ptworker: warning: %s is readable by other users\n", o->token_file);
+    if (o->token_file &&
+        proto_token_load(o->token_file, w->token, sizeof w->token, &w->token_len, &err) != PT_OK) {
+        fprintf(stderr, "ptworker: %s\n", err.msg);
+        return 1;
     }
     char dir[2048];
     if (o->cache_dir)

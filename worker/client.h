@@ -6,7 +6,9 @@
  * a bounded local queue and render each with pt_render_tile, start to end.
  *
  * Session: HELLO -> CHALLENGE -> AUTH (HMAC of the nonce under the token,
- * protocol/auth.h) -> WELCOME, then WORK_REQUEST for free slots
+ * and a nonce of the worker's, protocol/auth.h) -> WELCOME, whose proof over
+ * both nonces must show that the coordinator knows the token too (else the
+ * process ends with status 1 and sends it nothing), then WORK_REQUEST for free slots
  * (T + prefetch - tasks waiting for a scene, queued, running and requested),
  * TASKs in, scenes fetched by content hash with SCENE_GET/SCENE_CHUNK into the
  * on-disk cache (worker/cache.h), RESULTs out as render threads finish (they

@@ -35,7 +35,7 @@
 #include "protocol/msg.h"
 #include "tests/check.h"
 
-static const uint8_t TOKEN[] = "s3cret-token";
+static const uint8_t TOKEN[] = "s3cret-token-of-the-farm";
 #define TOKEN_LEN (sizeof TOKEN - 1)
 
 /* ---- the fake server (runs in the child; exits non-zero on a broken expectation) ---- */
@@ -112,8 +112,10 @@ static void fake_error(fake *s, uint16_t code, const char *text)
     FAKE_SEND(s, PROTO_MSG_ERROR, proto_msg_encode_error, &m);
 }
 
-/* The server side of the handshake; 0 when the client proved the token. */
-static int fake_handshake(fake *s)
+/* The server side of the handshake; 0 when the client proved the token.
+ * With impostor set, the fake does not know the token and answers AUTH with
+ * a WELCOME whose proof is made under another one. */
+static int fake_handshake(fake *s, int impostor)
 {
     proto_frame f;
     FAKE_EXPECT(fake_recv(s, &f) == 0 && f.type == PROTO_MSG_HELLO);
@@ -127,12 +129,16 @@ static int fake_handshake(fake *s)
     FAKE_EXPECT(fake_recv(s, &f) == 0 && f.type == PROTO_MSG_AUTH);
     proto_auth a;
     FAKE_EXPECT(proto_msg_decode_auth(f.payload, f.len, &a, NULL) == PT_OK);
-    if (proto_auth_verify(TOKEN, TOKEN_LEN, ch.nonce, a.mac, NULL) != PT_OK) {
+    if (!impostor && proto_auth_verify(TOKEN, TOKEN_LEN, ch.nonce, a.mac, NULL) != PT_OK) {
         fake_error(s, PROTO_E_AUTH, "authentication failed (wrong token)");
         return -1;
     }
     proto_welcome w;
     w.session_id = 9;
+    static const uint8_t guess[] = "a-guess-at-the-farm-token";
+    FAKE_EXPECT(proto_auth_server_proof(impostor ? guess : TOKEN,
+                                        impostor ? sizeof guess - 1 : TOKEN_LEN, ch.nonce, a.nonce,
+                                        w.proof, NULL) == PT_OK);
     snprintf(w.build_id, sizeof w.build_id, "%s", proto_build_id());
     FAKE_SEND(s, PROTO_MSG_WELCOME, proto_msg_encode_welcome, &w);
     return 0;
@@ -150,7 +156,8 @@ enum {
     SC_FETCH_HUGE,
     SC_FETCH_EMPTY,
     SC_FETCH_WRONG_TYPE,
-    SC_NOT_FOUND
+    SC_NOT_FOUND,
+    SC_IMPOSTOR /* does not know the token: a wrong WELCOME proof */
 };
 
 #define BUNDLE_SIZE ((size_t)(5u << 19) + 123) /* 2.5 MiB and a bit: three chunks */
@@ -253,8 +260,14 @@ static void fake_submit(fake *s, int refuse)
 static void fake_run(int fd, int sc)
 {
     fake s = {fd, NULL, 0, 0, 0};
-    if (fake_handshake(&s) != 0)
+    if (fake_handshake(&s, sc == SC_IMPOSTOR) != 0)
         _exit(0);
+    if (sc == SC_IMPOSTOR) {
+        /* The client must send nothing more: the next read sees its close. */
+        proto_frame f;
+        FAKE_EXPECT(fake_recv(&s, &f) != 0);
+        _exit(0);
+    }
     proto_frame f;
     switch (sc) {
     case SC_SUBMIT:
@@ -331,6 +344,15 @@ static void test_handshake(void)
     CHECK(strstr(ctl_server_text(c), "wrong token") != NULL);
     CHECK(strstr(err.msg, "server: authentication failed") != NULL);
     ctl_close(c);
+    CHECK(fake_exit(pid) == 0);
+
+    /* A server that cannot prove the token: refused by the client, which
+     * sends it nothing after AUTH. */
+    o = opts_with(TOKEN, TOKEN_LEN);
+    pid = start_fake(SC_IMPOSTOR, &fd);
+    c = NULL;
+    CHECK(ctl_attach(fd, "fake", &o, &c, &err) == PT_ERR_AUTH && c == NULL);
+    CHECKF(strstr(err.msg, "does not know the token") != NULL, "%s", err.msg);
     CHECK(fake_exit(pid) == 0);
 
     /* An empty token is what a coordinator without one expects. */

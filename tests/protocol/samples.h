@@ -175,6 +175,7 @@ static inline uint16_t sample_payload(int i, int v, proto_writer *w)
     case 2: {
         proto_auth m;
         sample_hash(m.mac, 23u + (unsigned)v);
+        sample_hash(m.nonce, 29u + (unsigned)v);
         type = PROTO_MSG_AUTH;
         st = proto_msg_encode_auth(w, &m, NULL);
         break;
@@ -183,6 +184,7 @@ static inline uint16_t sample_payload(int i, int v, proto_writer *w)
         proto_welcome m;
         memset(&m, 0, sizeof m);
         m.session_id = v ? 0 : 0x8877665544332211ull;
+        sample_hash(m.proof, 31u + (unsigned)v);
         strcpy(m.build_id, v ? "x" : "fedcba9876543210");
         type = PROTO_MSG_WELCOME;
         st = proto_msg_encode_welcome(w, &m, NULL);

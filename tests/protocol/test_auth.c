@@ -7,8 +7,11 @@
  * - verify accepts the right MAC and refuses a one-bit change at every bit, a
  *   wrong token and another nonce.
  * - Nonces are fresh.
- * - Token files: trailing white space stripped, empty and over-long refused,
- *   at the limits, loose permissions flagged, not-a-file and missing refused.
+ * - Token files: trailing white space stripped; empty, short (under 16 bytes)
+ *   and over-long refused, at the limits; any permission for group or others
+ *   refused with the mode and the chmod; not-a-file and missing refused.
+ * - The server's WELCOME proof: its formula, apart from the peer's response,
+ *   bound to both nonces and the token.
  */
 #include <fcntl.h>
 #include <stdlib.h>
@@ -132,67 +135,98 @@ static void test_token_file(void)
     }
     static uint8_t buf[PROTO_TOKEN_MAX + 16], content[PROTO_TOKEN_MAX + 8192];
     size_t len = 0;
-    int loose = -1;
     pt_error err = {0};
     const char *p;
 
-    p = write_file("t1", "s3cret \t\r\n\n", 11, 0600);
-    CHECK(proto_token_load(p, buf, sizeof buf, &len, &loose, &err) == PT_OK);
-    CHECK(len == 6 && memcmp(buf, "s3cret", 6) == 0 && loose == 0);
+    p = write_file("t1", "s3cret-s3cret-16 \t\r\n\n", 21, 0600);
+    CHECK(proto_token_load(p, buf, sizeof buf, &len, &err) == PT_OK);
+    CHECK(len == 16 && memcmp(buf, "s3cret-s3cret-16", 16) == 0);
     /* Leading and inner white space is part of the token. */
-    p = write_file("t2", " a b\n", 5, 0600);
-    CHECK(proto_token_load(p, buf, sizeof buf, &len, NULL, &err) == PT_OK);
-    CHECK(len == 4 && memcmp(buf, " a b", 4) == 0);
-    /* Loose permissions: loaded, flagged. */
-    p = write_file("t3", "tok\n", 4, 0640);
-    CHECK(proto_token_load(p, buf, sizeof buf, &len, &loose, &err) == PT_OK && loose == 1);
-    p = write_file("t3", "tok\n", 4, 0604);
-    CHECK(proto_token_load(p, buf, sizeof buf, &len, &loose, &err) == PT_OK && loose == 1);
-    p = write_file("t3", "tok\n", 4, 0400);
-    CHECK(proto_token_load(p, buf, sizeof buf, &len, &loose, &err) == PT_OK && loose == 0);
+    p = write_file("t2", " a b c d e f g h i\n", 19, 0600);
+    CHECK(proto_token_load(p, buf, sizeof buf, &len, &err) == PT_OK);
+    CHECK(len == 18 && memcmp(buf, " a b c d e f g h i", 18) == 0);
 
-    /* Empty and white space only: refused, outputs untouched. */
+    /* Group or others may read, write or even execute it: refused with the
+     * mode and the chmod that fixes it; outputs untouched. 0400 is fine. */
+    static const mode_t loose[] = {0640, 0604, 0620, 0602, 0610, 0601, 0644, 0666};
+    for (size_t i = 0; i < sizeof loose / sizeof loose[0]; i++) {
+        p = write_file("t3", "0123456789abcdefgh\n", 19, loose[i]);
+        len = 77;
+        CHECK(proto_token_load(p, buf, sizeof buf, &len, &err) == PT_ERR_AUTH && len == 77);
+        char mode[16];
+        snprintf(mode, sizeof mode, "%04o", (unsigned)loose[i]);
+        CHECKF(strstr(err.msg, mode) && strstr(err.msg, "chmod 600") && strstr(err.msg, "t3"), "%s",
+               err.msg);
+    }
+    p = write_file("t3", "0123456789abcdefgh\n", 19, 0400);
+    CHECK(proto_token_load(p, buf, sizeof buf, &len, &err) == PT_OK && len == 18);
+
+    /* Empty, white space only and short: refused, with how to make a good one. */
     len = 77;
-    loose = 5;
     p = write_file("e1", "", 0, 0600);
-    CHECK(proto_token_load(p, buf, sizeof buf, &len, &loose, &err) == PT_ERR_FORMAT);
+    CHECK(proto_token_load(p, buf, sizeof buf, &len, &err) == PT_ERR_FORMAT);
     p = write_file("e2", " \n\r\n\t", 5, 0600);
-    CHECK(proto_token_load(p, buf, sizeof buf, &len, &loose, &err) == PT_ERR_FORMAT);
-    CHECK(strstr(err.msg, "empty") != NULL && strstr(err.msg, "e2") != NULL);
-    CHECK(len == 77 && loose == 5);
+    CHECK(proto_token_load(p, buf, sizeof buf, &len, &err) == PT_ERR_FORMAT);
+    CHECK(strstr(err.msg, "too short") != NULL && strstr(err.msg, "e2") != NULL);
+    p = write_file("e3", "x\n", 2, 0600);
+    CHECK(proto_token_load(p, buf, sizeof buf, &len, &err) == PT_ERR_FORMAT);
+    CHECKF(strstr(err.msg, "1 bytes") && strstr(err.msg, "head -c 32 /dev/urandom | base64"), "%s",
+           err.msg);
+    /* One under the minimum, and the minimum. */
+    p = write_file("e4", "0123456789abcde\n", 16, 0600);
+    CHECK(proto_token_load(p, buf, sizeof buf, &len, &err) == PT_ERR_FORMAT);
+    CHECK(len == 77);
+    p = write_file("e4", "0123456789abcdef\n", 17, 0600);
+    CHECK(proto_token_load(p, buf, sizeof buf, &len, &err) == PT_OK && len == PROTO_TOKEN_MIN);
+    CHECK(proto_token_check(PROTO_TOKEN_MIN - 1, "x", &err) == PT_ERR_FORMAT);
+    CHECK(proto_token_check(PROTO_TOKEN_MAX + 1, "x", &err) == PT_ERR_LIMIT);
 
     /* The size limit: 4096 bytes fit (with trailing new lines), 4097 do not. */
     memset(content, 'k', sizeof content);
     content[PROTO_TOKEN_MAX] = '\n';
     content[PROTO_TOKEN_MAX + 1] = '\n';
     p = write_file("l1", content, PROTO_TOKEN_MAX + 2, 0600);
-    CHECK(proto_token_load(p, buf, sizeof buf, &len, NULL, &err) == PT_OK);
+    CHECK(proto_token_load(p, buf, sizeof buf, &len, &err) == PT_OK);
     CHECK(len == PROTO_TOKEN_MAX);
     /* ...but not into a smaller buffer. */
     len = 77;
-    CHECK(proto_token_load(p, buf, 100, &len, NULL, &err) == PT_ERR_LIMIT && len == 77);
+    CHECK(proto_token_load(p, buf, 100, &len, &err) == PT_ERR_LIMIT && len == 77);
     memset(content, 'k', sizeof content);
     p = write_file("l2", content, PROTO_TOKEN_MAX + 1, 0600);
-    CHECK(proto_token_load(p, buf, sizeof buf, &len, NULL, &err) == PT_ERR_LIMIT);
+    CHECK(proto_token_load(p, buf, sizeof buf, &len, &err) == PT_ERR_LIMIT);
     p = write_file("l3", content, sizeof content, 0600);
-    CHECK(proto_token_load(p, buf, sizeof buf, &len, NULL, &err) == PT_ERR_LIMIT);
+    CHECK(proto_token_load(p, buf, sizeof buf, &len, &err) == PT_ERR_LIMIT);
 
     /* Not a regular file, and no file. */
-    CHECK(proto_token_load(dir, buf, sizeof buf, &len, NULL, &err) == PT_ERR_IO);
+    CHECK(proto_token_load(dir, buf, sizeof buf, &len, &err) == PT_ERR_IO);
     char missing[600];
     snprintf(missing, sizeof missing, "%s/none", dir);
-    CHECK(proto_token_load(missing, buf, sizeof buf, &len, NULL, &err) == PT_ERR_IO);
+    CHECK(proto_token_load(missing, buf, sizeof buf, &len, &err) == PT_ERR_IO);
     CHECK(err.sys_errno != 0 && strstr(err.msg, "none") != NULL);
 
+    /* proto_secret_read: the whole file, NUL-terminated; the same mode rule. */
+    uint8_t *data = NULL;
+    size_t n = 0;
+    p = write_file("s1", "alice 0123456789abcdef\n", 23, 0600);
+    CHECK(proto_secret_read(p, "clients file", 100, &data, &n, &err) == PT_OK);
+    CHECK(n == 23 && data && data[23] == '\0' && memcmp(data, "alice", 5) == 0);
+    proto_secret_free(data, n + 1);
+    CHECK(proto_secret_read(p, "clients file", 22, &data, &n, &err) == PT_ERR_LIMIT);
+    p = write_file("s1", "alice 0123456789abcdef\n", 23, 0660);
+    CHECK(proto_secret_read(p, "clients file", 100, &data, &n, &err) == PT_ERR_AUTH);
+    CHECK(strstr(err.msg, "clients file") && strstr(err.msg, "0660"));
+
     /* The loaded token authenticates like the bytes it holds. */
-    p = write_file("t4", "farm-token\n", 11, 0600);
-    CHECK(proto_token_load(p, buf, sizeof buf, &len, NULL, &err) == PT_OK);
+    p = write_file("t4", "farm-token-farm-token\n", 22, 0600);
+    CHECK(proto_token_load(p, buf, sizeof buf, &len, &err) == PT_OK);
     uint8_t nonce[32] = {1}, a[32], b[32];
     CHECK(proto_auth_response(buf, len, nonce, a, &err) == PT_OK);
-    CHECK(proto_auth_response((const uint8_t *)"farm-token", 10, nonce, b, &err) == PT_OK);
+    CHECK(proto_auth_response((const uint8_t *)"farm-token-farm-token", 21, nonce, b, &err) ==
+          PT_OK);
     CHECK(memcmp(a, b, 32) == 0);
 
-    static const char *names[] = {"t1", "t2", "t3", "t4", "e1", "e2", "l1", "l2", "l3"};
+    static const char *names[] = {"t1", "t2", "t3", "t4", "e1", "e2",
+                                  "e3", "e4", "l1", "l2", "l3", "s1"};
     for (size_t i = 0; i < sizeof names / sizeof names[0]; i++) {
         char path[600];
         snprintf(path, sizeof path, "%s/%s", dir, names[i]);
@@ -201,10 +235,51 @@ static void test_token_file(void)
     rmdir(dir);
 }
 
+/* The server's proof in WELCOME: HMAC(token, "ptfarm-welcome-v2" || Ns || Np),
+ * apart from the peer's response (another label), checked in both nonces. */
+static void test_server_proof(void)
+{
+    const uint8_t *token = (const uint8_t *)"0123456789abcdef-farm";
+    size_t tlen = 21;
+    uint8_t ns[32], np[32], proof[32], want[32], resp[32];
+    for (int i = 0; i < 32; i++) {
+        ns[i] = (uint8_t)i;
+        np[i] = (uint8_t)(0x80 + i);
+    }
+    pt_error err = {0};
+    CHECK(proto_auth_server_proof(token, tlen, ns, np, proof, &err) == PT_OK);
+    uint8_t msg[17 + 64];
+    memcpy(msg, "ptfarm-welcome-v2", 17);
+    memcpy(msg + 17, ns, 32);
+    memcpy(msg + 49, np, 32);
+    CHECK(proto_auth_hmac_sha256(token, tlen, msg, sizeof msg, want, &err) == PT_OK);
+    CHECK(memcmp(proof, want, 32) == 0);
+    CHECK(proto_auth_check_server(token, tlen, ns, np, proof, &err) == PT_OK);
+    /* Not the peer's response to the same nonce: no reflection. */
+    CHECK(proto_auth_response(token, tlen, ns, resp, &err) == PT_OK);
+    CHECK(memcmp(resp, proof, 32) != 0);
+    CHECK(proto_auth_check_server(token, tlen, ns, np, resp, &err) == PT_ERR_AUTH);
+    /* Another token, swapped nonces, one bit anywhere: refused. */
+    CHECK(proto_auth_check_server((const uint8_t *)"0123456789abcdef-farX", tlen, ns, np, proof,
+                                  &err) == PT_ERR_AUTH);
+    CHECK(proto_auth_check_server(token, tlen, np, ns, proof, &err) == PT_ERR_AUTH);
+    for (int bit = 0; bit < 256; bit++) {
+        uint8_t bad[32];
+        memcpy(bad, proof, 32);
+        bad[bit / 8] ^= (uint8_t)(1u << (bit % 8));
+        CHECK(proto_auth_check_server(token, tlen, ns, np, bad, &err) == PT_ERR_AUTH);
+    }
+    uint8_t np2[32];
+    memcpy(np2, np, 32);
+    np2[31] ^= 1;
+    CHECK(proto_auth_check_server(token, tlen, ns, np2, proof, &err) == PT_ERR_AUTH);
+}
+
 int main(void)
 {
     test_rfc4231();
     test_response();
     test_token_file();
+    test_server_proof();
     return check_report();
 }

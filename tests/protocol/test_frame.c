@@ -157,7 +157,7 @@ static void test_rejects(void)
           PT_AGAIN);
 
     /* Unsupported versions, from the 6th byte on. */
-    static const uint16_t versions[] = {0, 2, 0x0100, 0xFFFF};
+    static const uint16_t versions[] = {0, PROTO_VERSION - 1, PROTO_VERSION + 1, 0x0100, 0xFFFF};
     for (size_t i = 0; i < 4; i++) {
         uint8_t b[64];
         size_t m = hand_frame(b, versions[i], PROTO_MSG_AUTH, pl, 4);
@@ -442,9 +442,9 @@ static void test_reader(void)
     for (size_t i = 0; i < sizeof big; i++)
         big[i] = (uint8_t)(i * 7 + 1);
     /* Three frames: empty, small, large. */
-    size_t n = hand_frame(stream, 1, PROTO_MSG_WORK_REQUEST, NULL, 0);
-    n += hand_frame(stream + n, 1, PROTO_MSG_HELLO, big, 100);
-    n += hand_frame(stream + n, 1, PROTO_MSG_RESULT, big, sizeof big);
+    size_t n = hand_frame(stream, PROTO_VERSION, PROTO_MSG_WORK_REQUEST, NULL, 0);
+    n += hand_frame(stream + n, PROTO_VERSION, PROTO_MSG_HELLO, big, 100);
+    n += hand_frame(stream + n, PROTO_VERSION, PROTO_MSG_RESULT, big, sizeof big);
     const uint32_t want_len[3] = {0, 100, sizeof big};
 
     /* Byte by byte from a 16-byte buffer, and all at once from a larger one. */

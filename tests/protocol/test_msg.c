@@ -163,14 +163,15 @@ static void check_round_trip(int s, int v, const uint8_t *p, size_t len)
     }
     case 2: {
         proto_auth b;
-        CHECK(len == 32 && proto_msg_decode_auth(p, len, &b, &err) == PT_OK);
-        CHECK(memcmp(b.mac, p, 32) == 0);
+        CHECK(len == 64 && proto_msg_decode_auth(p, len, &b, &err) == PT_OK);
+        CHECK(memcmp(b.mac, p, 32) == 0 && memcmp(b.nonce, p + 32, 32) == 0);
         break;
     }
     case 3: {
         proto_welcome b;
         CHECK(proto_msg_decode_welcome(p, len, &b, &err) == PT_OK);
-        CHECK(len == 10 + strlen(b.build_id));
+        CHECK(len == 42 + strlen(b.build_id));
+        CHECK(memcmp(b.proof, p + 8, 32) == 0);
         CHECK(b.session_id == (v ? 0 : 0x8877665544332211ull));
         CHECK(strcmp(b.build_id, v ? "x" : "fedcba9876543210") == 0);
         break;

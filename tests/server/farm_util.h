@@ -268,6 +268,7 @@ static inline int authenticate(int port, const char *token, uint8_t role)
     proto_msg_decode_challenge(f.payload, f.len, &ch, NULL);
     proto_auth a;
     proto_auth_response((const uint8_t *)token, strlen(token), ch.nonce, a.mac, NULL);
+    proto_auth_nonce(a.nonce, NULL);
     proto_writer p;
     proto_writer_init(&p, 4096);
     proto_msg_encode_auth(&p, &a, NULL);

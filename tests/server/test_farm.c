@@ -305,7 +305,8 @@ static void hostile(void)
     CHECK(closed_by_server(fd, 3000));
     close(fd);
 
-    uint8_t hdr[12] = {'P', 'T', 'F', '1', 1, 0, PROTO_MSG_HELLO, 0, 0xff, 0xff, 0xff, 0xff};
+    uint8_t hdr[12] = {'P',  'T',  'F',  '1', (uint8_t)PROTO_VERSION, 0, PROTO_MSG_HELLO, 0,
+                       0xff, 0xff, 0xff, 0xff};
     fd = connect_to(port);
     pt_net_write_all(fd, hdr, sizeof hdr, NULL);
     CHECK(closed_by_server(fd, 3000));
