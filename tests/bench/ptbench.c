@@ -65,10 +65,12 @@
 #include "common/base/clock.h"
 #include "common/base/opt.h"
 #include "common/base/version.h"
+#include "common/image/envmap.h"
 #include "common/image/exr.h"
 #include "common/image/image.h"
 #include "common/image/metrics.h"
 #include "common/render/adaptive.h"
+#include "common/render/env.h"
 #include "common/render/film.h"
 #include "common/render/render.h"
 #include "common/scene/scene.h"
@@ -314,7 +316,10 @@ static void usage(FILE *f)
                "  --res WxH           image size (default: the reference's, else 128 wide)\n"
                "  --threads T         render threads (default 2)\n"
                "  --seed S            random seed (default 0; render the reference with another)\n"
-               "  --max-depth D       maximum bounces (default 16)\n"
+               "  --max-depth D       maximum bounces (default 16, as Cycles is set in\n"
+               "                      tests/bench/cycles)\n"
+               "  --env PATH          environment map, as ptworker's (--env-strength S,\n"
+               "                      --env-rotate DEG)\n"
                "  --reps R            repetitions; the median time is reported (default 1)\n"
                "  --label NAME        series name in CSV and plot (default: the scene's name)\n"
                "  --csv OUT.csv       write the table\n"
@@ -528,6 +533,8 @@ typedef struct opts {
     uint32_t w, h, seed, max_depth, reps;
     uint32_t min_spp, max_spp, chunk, tile;
     int threads;
+    const char *env_path; /* --env, as ptworker's */
+    double env_strength, env_rotate;
 } opts;
 
 static int parse_opts(int argc, char **argv, opts *o)
@@ -537,6 +544,7 @@ static int parse_opts(int argc, char **argv, opts *o)
     o->threads = 2;
     o->reps = 1;
     o->max_depth = 16;
+    o->env_strength = 1.0;
     o->max_spp = 1024;
     o->chunk = 16;
     o->tile = 16;
@@ -591,6 +599,12 @@ static int parse_opts(int argc, char **argv, opts *o)
             bad = pt_opt_u32(a, v, 1, 1u << 24, &o->chunk, NULL) != PT_OK;
         } else if (!strcmp(a, "--tile")) {
             bad = pt_opt_u32(a, v, 1, PT_TILE_MAX, &o->tile, NULL) != PT_OK;
+        } else if (!strcmp(a, "--env")) {
+            o->env_path = v;
+        } else if (!strcmp(a, "--env-strength")) {
+            bad = pt_opt_double(a, v, 0.0, 1e20, &o->env_strength, NULL) != PT_OK;
+        } else if (!strcmp(a, "--env-rotate")) {
+            bad = pt_opt_double(a, v, -1e6, 1e6, &o->env_rotate, NULL) != PT_OK;
         } else if (!strcmp(a, "--label")) {
             o->label = v;
         } else if (!strcmp(a, "--csv")) {
@@ -819,6 +833,7 @@ static int cmd_bench(int argc, char **argv)
     pt_error err = {0};
     pt_scene *scene = NULL;
     pt_renderer *r = NULL;
+    pt_env *env = NULL;
     pt_film *film = NULL;
     pt_image *img = NULL, *refimg = NULL;
     pt_rect *tiles = NULL;
@@ -858,6 +873,19 @@ static int cmd_bench(int argc, char **argv)
     p.height = o.h;
     p.seed = o.seed;
     p.max_depth = o.max_depth;
+    if (o.env_path) {
+        pt_envmap map;
+        pt_status est = pt_envmap_read(o.env_path, &map, &err);
+        if (est == PT_OK) {
+            est = pt_env_new(&map, (float)o.env_strength, (float)o.env_rotate, &env, &err);
+            pt_envmap_free(&map);
+        }
+        if (est != PT_OK) {
+            fprintf(stderr, "ptbench: --env: %s\n", err.msg);
+            goto done;
+        }
+        p.env = env;
+    }
     if (pt_renderer_new(scene, &p, &r, &err) != PT_OK ||
         pt_film_new(o.w, o.h, &film, &err) != PT_OK ||
         pt_image_new(o.w, o.h, &img, &err) != PT_OK) {
@@ -986,6 +1014,7 @@ done:
     pt_image_free(refimg);
     pt_film_free(film);
     pt_renderer_free(r);
+    pt_env_free(env);
     pt_scene_free(scene);
     return rc;
 }
