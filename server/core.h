@@ -68,6 +68,7 @@ struct srv_server {
     uint8_t token[PROTO_TOKEN_MAX];
     size_t token_len;
     uint64_t bytes_in, bytes_out; /* on the wire, all peers */
+    struct srv_guard *guard;      /* limits on peers: memory, slots, rates, refusals */
 
     /* the queue (server/queue.c) */
     srv_entry *jobs; /* every job, in queue order */
