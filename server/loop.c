@@ -65,8 +65,7 @@ typedef struct refusal_log {
 struct srv_guard {
     srv_peer_limits lim; /* the configuration's, defaults filled in */
     uint64_t in_held;    /* input buffer bytes past each connection's IN_START */
-    uint32_t nparked;
-    srv_conn **hs; /* the connections in the handshake: nhs of lim.max_handshakes */
+    srv_conn **hs;       /* the connections in the handshake: nhs of lim.max_handshakes */
     uint32_t nhs;
     refusal_log refused[REFUSE_N];
 };
@@ -289,18 +288,16 @@ static void conn_park(srv_server *s, srv_conn *c)
     if (!c->parked) {
         c->parked = 1;
         c->t_parked = pt_now_ms();
-        s->guard->nparked++;
     }
     srv_conn_update_events(s, c);
 }
 
 /* Reads c again; the time it was parked is not held against its frame. */
-static void conn_unpark(srv_server *s, srv_conn *c, uint64_t now)
+static void conn_unpark(srv_conn *c, uint64_t now)
 {
     if (!c->parked)
         return;
     c->parked = 0;
-    s->guard->nparked--;
     uint64_t waited = now - c->t_parked;
     c->t_frame += waited;
     if (c->t_upload)
@@ -369,6 +366,9 @@ static pt_status guard_open(srv_server *s, pt_error *err)
         l->frame_grace_ms = SRV_DEFAULT_FRAME_GRACE_MS;
     if (!l->min_rate)
         l->min_rate = SRV_DEFAULT_MIN_RATE;
+    /* --local's workers all connect from loopback at once. */
+    l->max_handshakes += s->cfg->local_workers;
+    l->max_handshakes_ip += s->cfg->local_workers;
     /* A peer's largest frame must fit what may be held, or it would wait for ever. */
     if (l->max_input_mem < IN_MAX)
         return pt_error_set(err, PT_ERR_ARG,
@@ -403,8 +403,6 @@ static void conn_free(srv_server *s, srv_conn *c)
     epoll_ctl(s->ep, EPOLL_CTL_DEL, c->fd, NULL);
     close(c->fd);
     handshake_leave(s, c);
-    if (c->parked)
-        s->guard->nparked--;
     s->guard->in_held -= in_counted(c->in.cap);
     proto_writer_fini(&c->out);
     proto_frame_reader_fini(&c->in);
@@ -865,7 +863,7 @@ void srv_loop_sweep(srv_server *s)
             continue;
         }
         if (c->parked && in_fits(s, c))
-            conn_unpark(s, c, now);
+            conn_unpark(c, now);
         srv_conn_update_events(s, c);
         pc = &c->next;
     }
