@@ -29,7 +29,8 @@
 #define IN_MAX (PROTO_FRAME_OVERHEAD + ROLE_MAX_PAYLOAD) /* the largest frame after AUTH */
 #define OUT_MAX (256u << 20) /* a peer that lets this much pile up is dropped */
 #define CLOSE_GRACE_MS 1000  /* time to flush an ERROR before closing */
-#define REFUSAL_LOG_MS 10000 /* one line per reason at most this often */
+#define REFUSAL_LOG_MS 10000 /* the window of refusals logged one by one */
+#define REFUSAL_BURST 5      /* lines per reason and window; then one with the count */
 
 _Static_assert(ROLE_MAX_PAYLOAD <= PROTO_MAX_PAYLOAD, "a role's frames fit the protocol's cap");
 _Static_assert(IN_START >= PROTO_FRAME_OVERHEAD + PROTO_MAX_PAYLOAD_PREAUTH,
@@ -55,8 +56,9 @@ static const char *const refusal_why[REFUSE_N] = {
 };
 
 typedef struct refusal_log {
-    uint64_t t_logged; /* the last line; 0: none yet */
-    uint32_t count;    /* refusals since, not logged yet */
+    uint64_t t_window; /* its window began */
+    uint32_t logged;   /* lines in it */
+    uint32_t count;    /* refusals in it not logged yet */
     int many;          /* they came from more than one address */
     char host[48];     /* the address of the first of them */
 } refusal_log;
@@ -154,18 +156,42 @@ void srv_conn_send_error(srv_server *s, srv_conn *c, uint16_t code, const char *
 
 /* ---- limits on peers: slots, memory, rates (loop.h) ---- */
 
-/* Counts one refusal for why from host, and logs it at once when it is the
- * first for a while; the rest wait for refusals_flush, so a flood of
- * connections costs a line per REFUSAL_LOG_MS, not a line each. */
+/* Logs the refusals of each reason counted and not logged in its window,
+ * once the window is over (or at once with all: at exit), and starts a new
+ * window for the reasons it logged. */
+static void refusals_flush(srv_server *s, uint64_t now, int all)
+{
+    for (int why = 0; why < REFUSE_N; why++) {
+        refusal_log *l = &s->guard->refused[why];
+        if (l->count == 0 || (!all && now - l->t_window < REFUSAL_LOG_MS))
+            continue;
+        srv_log("refused %u more connection%s from %s%s in the last %.0f s: %s", l->count,
+                l->count == 1 ? "" : "s", l->host, l->many ? " and other addresses" : "",
+                (double)(now - l->t_window) / 1000.0, refusal_why[why]);
+        l->count = 0;
+        l->logged = 0;
+        l->t_window = now;
+    }
+}
+
+/* Counts one refusal for why from host: the first REFUSAL_BURST of a
+ * REFUSAL_LOG_MS window are logged one by one, with their detail; the rest
+ * only counted, for refusals_flush's one line. A flood of connections thus
+ * costs a few lines per reason every REFUSAL_LOG_MS, not a line each. */
 static void note_refusal(srv_server *s, int why, const char *host, const char *detail)
 {
     refusal_log *l = &s->guard->refused[why];
     uint64_t now = pt_now_ms();
-    if (l->count == 0 && (l->t_logged == 0 || now - l->t_logged >= REFUSAL_LOG_MS)) {
+    if (now - l->t_window >= REFUSAL_LOG_MS) {
+        refusals_flush(s, now, 0);
+        l->logged = 0;
+        l->t_window = now;
+    }
+    if (l->logged < REFUSAL_BURST) {
         char text[PT_TEXT_ESCAPED_SIZE(PROTO_MAX_ERROR_TEXT)];
         srv_log("refused a connection from %s: %s%s%s", host, refusal_why[why], detail ? ": " : "",
                 detail ? pt_text_shown(detail, text, sizeof text) : "");
-        l->t_logged = now;
+        l->logged++;
         return;
     }
     if (l->count == 0) {
@@ -175,22 +201,6 @@ static void note_refusal(srv_server *s, int why, const char *host, const char *d
         l->many = 1;
     }
     l->count++;
-}
-
-/* Logs the refusals counted and not yet logged, once REFUSAL_LOG_MS has
- * passed since the last line of their reason (or at once with all: at exit). */
-static void refusals_flush(srv_server *s, uint64_t now, int all)
-{
-    for (int why = 0; why < REFUSE_N; why++) {
-        refusal_log *l = &s->guard->refused[why];
-        if (l->count == 0 || (!all && now - l->t_logged < REFUSAL_LOG_MS))
-            continue;
-        srv_log("refused %u connection%s from %s%s in the last %.0f s: %s", l->count,
-                l->count == 1 ? "" : "s", l->host, l->many ? " and other addresses" : "",
-                (double)(now - l->t_logged) / 1000.0, refusal_why[why]);
-        l->count = 0;
-        l->t_logged = now;
-    }
 }
 
 /* Refuses a connection already accepted: ERROR(text) to the peer, one
@@ -444,8 +454,8 @@ static void accept_all(srv_server *s)
         char host[48];
         uint8_t addr[16];
         uint16_t port = peer_address(&ss, host, sizeof host, addr);
-        /* Refused before anything is allocated, and logged at most once
-         * per REFUSAL_LOG_MS per reason. */
+        /* Refused before anything is allocated, and logged by
+         * note_refusal's rule, not a line each. */
         int why = accept_refusal(s, addr);
         if (why >= 0) {
             close(fd);

@@ -20,8 +20,9 @@
  *   most SRV_MAX_CONNS x IN_START + max_input_mem.
  * - slots: at most max_handshakes connections in the handshake, at most
  *   max_handshakes_ip of them from one address, SRV_MAX_CONNS -
- *   max_handshakes authenticated. Refusals are logged at most once per 10 s
- *   per reason, with the count of those not logged.
+ *   max_handshakes authenticated. Refusals (and handshakes that fail on a
+ *   bad frame or time out) are logged one by one up to 5 per reason in
+ *   10 s, then as one line with the count of the others.
  * - rate: a frame in progress must be whole within max(frame_grace,
  *   its size / min_rate) of its first byte, an upload within max(grace,
  *   bundle size / min_rate) of its SUBMIT, and nothing may stall for
