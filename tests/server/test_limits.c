@@ -7,9 +7,10 @@
  *   ptworker still renders the job to the end meanwhile;
  * - slots: a flood of silent connections from 127.0.0.2 neither keeps an
  *   honest peer on 127.0.0.1 from authenticating nor floods the log;
- * - rate: a peer dripping a frame a byte at a time is closed once the rule
- *   (max(grace, size / min rate)) says so, while a slower-than-the-network
- *   but legitimate sender above the minimum rate keeps its connection.
+ * - rate: a peer dripping a frame a byte at a time, and a client dripping
+ *   an upload in small whole frames, are closed once the rule (max(grace,
+ *   size / min rate)) says so, while a slower-than-the-network but
+ *   legitimate sender above the minimum rate keeps its connection.
  * Thresholds are set small on the command line so each part runs in
  * seconds; the bounds checked leave wide margins, so no result depends on
  * the machine's speed.
@@ -409,6 +410,49 @@ static uint8_t *valid_result(size_t *len)
 }
 
 #define MIN_RATE_KIB 32
+#define UPLOAD_SIZE (256u << 10)
+
+/* A client announces a 256 KiB scene, then sends it in whole UPLOAD frames
+ * of 512 bytes every 100 ms (5 KiB/s): no frame is slow and nothing
+ * stalls, but the upload must be whole within max(1 s, 256 / 32 = 8 s). */
+static void upload_drip_closed(int port)
+{
+    int fd = authenticate(port, "", PROTO_ROLE_CLIENT);
+    static uint8_t buf[1 << 16];
+    proto_frame f;
+    CHECK(fd >= 0 && read_frame(fd, buf, sizeof buf, &f) == PROTO_MSG_WELCOME);
+    if (fd < 0)
+        return;
+    proto_submit m = {0};
+    snprintf(m.name, sizeof m.name, "drip");
+    m.spp = 16;
+    m.bundle_size = UPLOAD_SIZE;
+    proto_writer p;
+    proto_writer_init(&p, 1 << 16);
+    CHECK(proto_msg_encode_submit(&p, &m, NULL) == PT_OK);
+    send_frame(fd, PROTO_MSG_SUBMIT, &p);
+    static uint8_t zeros[512];
+    double t0 = pt_now_s(), closed_at = 0;
+    uint64_t off = 0;
+    while (!closed_at && off < UPLOAD_SIZE && pt_now_s() - t0 < 30) {
+        proto_scene_chunk ch = {.offset = off, .total = UPLOAD_SIZE, .len = sizeof zeros};
+        ch.data = zeros;
+        proto_writer_reset(&p);
+        CHECK(proto_msg_encode_scene_chunk(&p, &ch, NULL) == PT_OK);
+        send_frame(fd, PROTO_MSG_UPLOAD, &p);
+        off += sizeof zeros;
+        if (closed_by_server(fd, 100))
+            closed_at = pt_now_s();
+    }
+    proto_writer_fini(&p);
+    double allowed = (double)UPLOAD_SIZE / (MIN_RATE_KIB * 1024.0);
+    fprintf(stderr, "rate: the upload drip (%llu of %u bytes) closed after %.1f s (rule: %.1f s)\n",
+            (unsigned long long)off, UPLOAD_SIZE, closed_at ? closed_at - t0 : -1.0, allowed);
+    CHECKF(closed_at > 0 && off < UPLOAD_SIZE, "an upload at 5 KiB/s was kept");
+    CHECKF(closed_at == 0 || closed_at - t0 >= allowed - 0.5, "the upload was closed too early");
+    CHECK(wait_log("rate.log", "upload of 262144 bytes too slow", 5));
+    close(fd);
+}
 
 static void drip_closed(void)
 {
@@ -474,6 +518,7 @@ static void drip_closed(void)
     close(drip);
     close(slow);
     pt_free(frame);
+    upload_drip_closed(port);
     stop_serve(srv);
 }
 
