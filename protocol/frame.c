@@ -169,29 +169,40 @@ void proto_frame_reader_reset(proto_frame_reader *r)
     r->start = r->len = 0;
 }
 
-pt_status proto_frame_reader_space(proto_frame_reader *r, uint8_t **p, size_t *room, pt_error *err)
+size_t proto_frame_reader_need(const proto_frame_reader *r)
+{
+    size_t held = r->len - r->start;
+    size_t need = held + 1;
+    if (held >= PROTO_FRAME_HEADER) {
+        size_t frame = PROTO_FRAME_OVERHEAD + (size_t)proto_frame_payload_len(r->buf + r->start);
+        if (frame > need)
+            need = frame;
+    }
+    return need;
+}
+
+/* Moves the undecoded bytes to the front of the buffer. */
+static void compact(proto_frame_reader *r)
 {
     if (r->start > 0) {
         memmove(r->buf, r->buf + r->start, r->len - r->start);
         r->len -= r->start;
         r->start = 0;
     }
+}
+
+pt_status proto_frame_reader_space(proto_frame_reader *r, uint8_t **p, size_t *room, pt_error *err)
+{
+    compact(r);
     /* Room for one more byte at least, and for the whole frame once its
      * header is here: the decoder has judged the declared length against the
      * cap by then, so this never waits on a length it would refuse. */
-    size_t need = r->len + 1;
-    if (r->len >= PROTO_FRAME_HEADER) {
-        size_t frame = PROTO_FRAME_OVERHEAD + (size_t)proto_frame_payload_len(r->buf);
-        if (frame > need)
-            need = frame;
-    }
+    size_t need = proto_frame_reader_need(r);
     if (need > r->cap) {
         if (need > r->max)
             return pt_error_set(err, PT_ERR_LIMIT, "frame of %zu bytes over the input buffer's %zu",
                                 need, r->max);
-        size_t ncap = r->cap ? r->cap : r->initial;
-        while (ncap < need)
-            ncap = ncap > r->max / 2 ? r->max : ncap * 2;
+        size_t ncap = need > r->initial ? need : r->initial;
         uint8_t *nb = pt_realloc(r->buf, ncap);
         if (!nb)
             return pt_error_set(err, PT_ERR_NOMEM, "input buffer of %zu bytes", ncap);
@@ -201,6 +212,18 @@ pt_status proto_frame_reader_space(proto_frame_reader *r, uint8_t **p, size_t *r
     *p = r->buf + r->len;
     *room = r->cap - r->len;
     return PT_OK;
+}
+
+void proto_frame_reader_shrink(proto_frame_reader *r)
+{
+    if (r->cap <= r->initial || proto_frame_reader_need(r) > r->initial)
+        return;
+    compact(r);
+    uint8_t *nb = pt_realloc(r->buf, r->initial);
+    if (nb) {
+        r->buf = nb;
+        r->cap = r->initial;
+    }
 }
 
 void proto_frame_reader_commit(proto_frame_reader *r, size_t n)

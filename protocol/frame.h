@@ -19,7 +19,9 @@
  * table-driven one byte at a time.
  * proto_frame_reader is the one input buffer of every peer (coordinator,
  * worker, ptctl): received bytes go in, whole frames come out; it grows to
- * the frame being received, never past the maximum fixed at init.
+ * exactly the frame being received, never past the maximum fixed at init,
+ * and proto_frame_reader_shrink gives the memory back once that frame is
+ * consumed (a server counts what its peers hold: server/loop.h).
  * Thread-safety: the functions are reentrant; a reader belongs to the one
  * thread that reads its connection.
  */
@@ -136,13 +138,27 @@ static inline size_t proto_frame_reader_pending(const proto_frame_reader *r)
     return r->len - r->start;
 }
 
+/* The capacity the next proto_frame_reader_space needs: room for the bytes
+ * held plus one, and for the whole frame once its header is held (its
+ * declared length is not checked here: call proto_frame_reader_next first).
+ * At most the bytes held plus 1 plus PROTO_FRAME_OVERHEAD + 2^32 - 1. Pure. */
+size_t proto_frame_reader_need(const proto_frame_reader *r);
+
 /* Where to receive the next bytes: *p and the *room bytes free there (> 0).
- * Moves the undecoded bytes to the front, and grows the buffer (doubling, up
- * to max) when it is full or when the frame whose header it holds needs
- * more. PT_ERR_NOMEM (nothing lost), or PT_ERR_LIMIT when max bytes are
- * held, which cannot happen while max fits the largest accepted frame.
- * Invalidates the payload of every frame returned so far. */
+ * Moves the undecoded bytes to the front, and grows the buffer when
+ * proto_frame_reader_need passes its capacity: to exactly that need (the
+ * frame's size; no doubling, so what a peer holds is what its frame
+ * declares), at least initial, at most max. PT_ERR_NOMEM (nothing lost), or PT_ERR_LIMIT when max
+ * bytes are held, which cannot happen while max fits the largest accepted frame. Invalidates the
+ * payload of every frame returned so far. */
 pt_status proto_frame_reader_space(proto_frame_reader *r, uint8_t **p, size_t *room, pt_error *err);
+
+/* Gives memory back: when the buffer is larger than initial and what it
+ * holds, with the frame whose header it holds, fits in initial bytes, the
+ * held bytes move to the front and the buffer is cut to initial. Keeps the
+ * buffer as it was when the allocator refuses. Invalidates the payload of
+ * every frame returned so far. */
+void proto_frame_reader_shrink(proto_frame_reader *r);
 
 /* Records that n bytes were written at the *p of the last
  * proto_frame_reader_space (n <= its *room). */

@@ -72,6 +72,7 @@ struct srv_server {
     srv_clients *clients;         /* --clients-file (server/clients.h); NULL: none */
     srv_authlimit authlimit;      /* failed handshakes per address (server/authlimit.h) */
     uint64_t bytes_in, bytes_out; /* on the wire, all peers */
+    struct srv_guard *guard;      /* limits on peers: memory, slots, rates, refusals */
 
     /* the queue (server/queue.c) */
     srv_entry *jobs; /* every job, in queue order */

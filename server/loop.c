@@ -22,12 +22,55 @@
 #include "server/upload.h"
 #include "server/workers.h"
 
-#define MAX_CONNS 1024
 #define IN_START (64u * 1024u)
-#define IN_MAX (PROTO_FRAME_OVERHEAD + PROTO_MAX_PAYLOAD) /* the largest frame after AUTH */
+#define ROLE_MAX_PAYLOAD                                                                           \
+    (SRV_WORKER_MAX_PAYLOAD > SRV_CLIENT_MAX_PAYLOAD ? SRV_WORKER_MAX_PAYLOAD                      \
+                                                     : SRV_CLIENT_MAX_PAYLOAD)
+#define IN_MAX (PROTO_FRAME_OVERHEAD + ROLE_MAX_PAYLOAD) /* the largest frame after AUTH */
 #define OUT_MAX (256u << 20) /* a peer that lets this much pile up is dropped */
-#define STALL_MS 30000       /* a partial frame or upload with no progress for this long */
 #define CLOSE_GRACE_MS 1000  /* time to flush an ERROR before closing */
+#define REFUSAL_LOG_MS 10000 /* the window of refusals logged one by one */
+#define REFUSAL_BURST 5      /* lines per reason and window; then one with the count */
+
+_Static_assert(ROLE_MAX_PAYLOAD <= PROTO_MAX_PAYLOAD, "a role's frames fit the protocol's cap");
+_Static_assert(IN_START >= PROTO_FRAME_OVERHEAD + PROTO_MAX_PAYLOAD_PREAUTH,
+               "a handshake frame fits the first buffer");
+
+/* Why a connection was refused; one rate-limited log line each. */
+enum {
+    REFUSE_FULL,
+    REFUSE_HANDSHAKES,
+    REFUSE_ADDRESS,
+    REFUSE_AUTHED,
+    REFUSE_LATE,
+    REFUSE_GARBAGE,
+    REFUSE_N
+};
+static const char *const refusal_why[REFUSE_N] = {
+    "every connection slot is taken",
+    "too many unauthenticated connections",
+    "too many unauthenticated connections from that address",
+    "too many authenticated peers",
+    "handshake not finished in time",
+    "bad frame before authentication",
+};
+
+typedef struct refusal_log {
+    uint64_t t_window; /* its window began */
+    uint32_t logged;   /* lines in it */
+    uint32_t count;    /* refusals in it not logged yet */
+    int many;          /* they came from more than one address */
+    char host[48];     /* the address of the first of them */
+} refusal_log;
+
+/* The loop's limits on peers (loop.h) and what it counts against them. */
+struct srv_guard {
+    srv_peer_limits lim; /* the configuration's, defaults filled in */
+    uint64_t in_held;    /* input buffer bytes past each connection's IN_START */
+    srv_conn **hs;       /* the connections in the handshake: nhs of lim.max_handshakes */
+    uint32_t nhs;
+    refusal_log refused[REFUSE_N];
+};
 
 static volatile sig_atomic_t g_stop;
 static int g_sigpipe_w = -1;
@@ -60,7 +103,7 @@ static void on_signal(int sig)
 void srv_conn_update_events(srv_server *s, srv_conn *c)
 {
     uint32_t ev = 0;
-    if (!c->closing && srv_conn_has_room(c))
+    if (!c->closing && !c->parked && srv_conn_has_room(c))
         ev |= EPOLLIN;
     if (c->out.len > c->out_off)
         ev |= EPOLLOUT;
@@ -88,6 +131,15 @@ void srv_conn_close_soon(srv_server *s, srv_conn *c)
     }
 }
 
+/* Queues ERROR(m) for c and closes it once that is flushed; logs nothing. */
+static void send_error_msg(srv_server *s, srv_conn *c, const proto_error_msg *m)
+{
+    size_t mark;
+    if (proto_frame_begin(&c->out, PROTO_MSG_ERROR, &mark, NULL) == PT_OK)
+        proto_frame_finish(&c->out, mark, proto_msg_encode_error(&c->out, m, NULL), NULL);
+    srv_conn_close_soon(s, c);
+}
+
 void srv_conn_send_error(srv_server *s, srv_conn *c, uint16_t code, const char *fmt, ...)
 {
     proto_error_msg m;
@@ -99,10 +151,256 @@ void srv_conn_send_error(srv_server *s, srv_conn *c, uint16_t code, const char *
     char text[PT_TEXT_ESCAPED_SIZE(PROTO_MAX_ERROR_TEXT)];
     srv_log("peer %s%s%s: %s; closing", c->peer, c->name[0] ? " " : "", c->shown,
             pt_text_shown(m.text, text, sizeof text));
-    size_t mark;
-    if (proto_frame_begin(&c->out, PROTO_MSG_ERROR, &mark, NULL) == PT_OK)
-        proto_frame_finish(&c->out, mark, proto_msg_encode_error(&c->out, &m, NULL), NULL);
-    srv_conn_close_soon(s, c);
+    send_error_msg(s, c, &m);
+}
+
+/* ---- limits on peers: slots, memory, rates (loop.h) ---- */
+
+/* Logs the refusals of each reason counted and not logged in its window,
+ * once the window is over (or at once with all: at exit), and starts a new
+ * window for the reasons it logged. */
+static void refusals_flush(srv_server *s, uint64_t now, int all)
+{
+    for (int why = 0; why < REFUSE_N; why++) {
+        refusal_log *l = &s->guard->refused[why];
+        if (l->count == 0 || (!all && now - l->t_window < REFUSAL_LOG_MS))
+            continue;
+        srv_log("refused %u more connection%s from %s%s in the last %.0f s: %s", l->count,
+                l->count == 1 ? "" : "s", l->host, l->many ? " and other addresses" : "",
+                (double)(now - l->t_window) / 1000.0, refusal_why[why]);
+        l->count = 0;
+        l->logged = 0;
+        l->t_window = now;
+    }
+}
+
+/* Counts one refusal for why from host: the first REFUSAL_BURST of a
+ * REFUSAL_LOG_MS window are logged one by one, with their detail; the rest
+ * only counted, for refusals_flush's one line. A flood of connections thus
+ * costs a few lines per reason every REFUSAL_LOG_MS, not a line each. */
+static void note_refusal(srv_server *s, int why, const char *host, const char *detail)
+{
+    refusal_log *l = &s->guard->refused[why];
+    uint64_t now = pt_now_ms();
+    if (now - l->t_window >= REFUSAL_LOG_MS) {
+        refusals_flush(s, now, 0);
+        l->logged = 0;
+        l->t_window = now;
+    }
+    if (l->logged < REFUSAL_BURST) {
+        char text[PT_TEXT_ESCAPED_SIZE(PROTO_MAX_ERROR_TEXT)];
+        srv_log("refused a connection from %s: %s%s%s", host, refusal_why[why], detail ? ": " : "",
+                detail ? pt_text_shown(detail, text, sizeof text) : "");
+        l->logged++;
+        return;
+    }
+    if (l->count == 0) {
+        snprintf(l->host, sizeof l->host, "%s", host);
+        l->many = 0;
+    } else if (strcmp(l->host, host) != 0) {
+        l->many = 1;
+    }
+    l->count++;
+}
+
+/* Refuses a connection already accepted: ERROR(text) to the peer, one
+ * rate-limited log line (note_refusal), closed once that is flushed. */
+static void conn_refuse(srv_server *s, srv_conn *c, uint16_t code, int why, const char *text)
+{
+    proto_error_msg m;
+    m.code = code;
+    snprintf(m.text, sizeof m.text, "%s", text);
+    note_refusal(s, why, c->host, text);
+    send_error_msg(s, c, &m);
+}
+
+/* Which of accept's checks refuses a new connection from addr, or -1. */
+static int accept_refusal(const srv_server *s, const uint8_t addr[16])
+{
+    const struct srv_guard *g = s->guard;
+    if (s->nconns >= SRV_MAX_CONNS)
+        return REFUSE_FULL;
+    if (g->nhs >= g->lim.max_handshakes)
+        return REFUSE_HANDSHAKES;
+    uint32_t same = 0;
+    for (uint32_t i = 0; i < g->nhs; i++)
+        same += memcmp(g->hs[i]->addr, addr, 16) == 0;
+    return same >= g->lim.max_handshakes_ip ? REFUSE_ADDRESS : -1;
+}
+
+/* c gives back its handshake slot (authenticated, or gone). */
+static void handshake_leave(srv_server *s, srv_conn *c)
+{
+    struct srv_guard *g = s->guard;
+    if (!c->handshaking)
+        return;
+    c->handshaking = 0;
+    for (uint32_t i = 0; i < g->nhs; i++) {
+        if (g->hs[i] == c) {
+            g->hs[i] = g->hs[--g->nhs];
+            break;
+        }
+    }
+}
+
+/* Checks a frame c sends in the handshake before it is dispatched: an AUTH
+ * is refused while the authenticated peers fill their slots (so the
+ * handshake slots stay free for the next peer). Returns 1 to dispatch. */
+static int handshake_admits(srv_server *s, srv_conn *c, const proto_frame *f)
+{
+    const struct srv_guard *g = s->guard;
+    if (c->state != SRV_C_AUTH || f->type != PROTO_MSG_AUTH)
+        return 1;
+    if (s->nconns - g->nhs < SRV_MAX_CONNS - g->lim.max_handshakes)
+        return 1;
+    conn_refuse(s, c, PROTO_E_LIMIT, REFUSE_AUTHED, "too many peers connected; try again later");
+    return 0;
+}
+
+/* Input bytes a buffer of cap bytes counts against max_input_mem: what it
+ * holds past the IN_START every connection has. */
+static uint64_t in_counted(size_t cap)
+{
+    return cap > IN_START ? cap - IN_START : 0;
+}
+
+/* Records that c's input buffer went from before bytes to its capacity now. */
+static void in_account(srv_server *s, const srv_conn *c, size_t before)
+{
+    struct srv_guard *g = s->guard;
+    g->in_held -= in_counted(before);
+    g->in_held += in_counted(c->in.cap);
+}
+
+/* 1 when c's input buffer may grow to what its next frame needs. */
+static int in_fits(const srv_server *s, const srv_conn *c)
+{
+    const struct srv_guard *g = s->guard;
+    size_t need = proto_frame_reader_need(&c->in);
+    if (need <= c->in.cap)
+        return 1;
+    uint64_t more = in_counted(need) - in_counted(c->in.cap);
+    return g->in_held + more <= g->lim.max_input_mem;
+}
+
+/* Cuts c's input buffer back to IN_START once its big frame is consumed. */
+static void in_shrink(srv_server *s, srv_conn *c)
+{
+    size_t before = c->in.cap;
+    proto_frame_reader_shrink(&c->in);
+    in_account(s, c, before);
+}
+
+/* Stops reading c until in_fits (backpressure on memory: TCP holds the
+ * rest of its frame at the peer). */
+static void conn_park(srv_server *s, srv_conn *c)
+{
+    if (!c->parked) {
+        c->parked = 1;
+        c->t_parked = pt_now_ms();
+    }
+    srv_conn_update_events(s, c);
+}
+
+/* Reads c again; the time it was parked is not held against its frame. */
+static void conn_unpark(srv_conn *c, uint64_t now)
+{
+    if (!c->parked)
+        return;
+    c->parked = 0;
+    uint64_t waited = now - c->t_parked;
+    c->t_frame += waited;
+    if (c->t_upload)
+        c->t_upload += waited;
+    c->t_progress = now;
+}
+
+/* The time a transfer of size bytes may take: the grace, or longer at the
+ * minimum rate. */
+static uint64_t allowed_ms(const srv_peer_limits *l, uint64_t size)
+{
+    uint64_t at_rate = size * 1000u / l->min_rate;
+    return at_rate > l->frame_grace_ms ? at_rate : l->frame_grace_ms;
+}
+
+/* The rate rule (loop.h): closes c, logging why, when its frame in
+ * progress or its upload is too slow or stalled. A parked peer is not
+ * judged: the loop is the one not reading it. */
+static void conn_check_rate(srv_server *s, srv_conn *c, uint64_t now)
+{
+    const srv_peer_limits *l = &s->guard->lim;
+    if (c->parked)
+        return;
+    size_t held = proto_frame_reader_pending(&c->in);
+    uint64_t size = 0;
+    if (held >= PROTO_FRAME_HEADER)
+        size = PROTO_FRAME_OVERHEAD + (uint64_t)proto_frame_payload_len(c->in.buf + c->in.start);
+    double kib_s = l->min_rate / 1024.0;
+    /* Until its header is here a frame's size is unknown: the grace alone. */
+    if (held > 0 && (size == 0 || held < size) && now - c->t_frame > allowed_ms(l, size)) {
+        srv_conn_send_error(s, c, PROTO_E_LIMIT,
+                            "frame of %llu bytes too slow: %zu received in %.1f s (the minimum is "
+                            "%.1f KiB/s after %.1f s)",
+                            (unsigned long long)size, held, (now - c->t_frame) / 1000.0, kib_s,
+                            l->frame_grace_ms / 1000.0);
+    } else if (c->uploading && c->t_upload &&
+               now - c->t_upload > allowed_ms(l, c->up.bundle_size)) {
+        srv_conn_send_error(s, c, PROTO_E_LIMIT,
+                            "upload of %llu bytes too slow: %zu received in %.1f s (the minimum "
+                            "is %.1f KiB/s after %.1f s)",
+                            (unsigned long long)c->up.bundle_size, c->up_len,
+                            (now - c->t_upload) / 1000.0, kib_s, l->frame_grace_ms / 1000.0);
+    } else if ((held > 0 || c->uploading) && now - c->t_progress > l->frame_grace_ms) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "%s stalled for %.1f s",
+                            c->uploading ? "upload" : "partial frame",
+                            (now - c->t_progress) / 1000.0);
+    }
+}
+
+/* Fills the defaults of the limits and checks them. */
+static pt_status guard_open(srv_server *s, pt_error *err)
+{
+    struct srv_guard *g = pt_calloc(1, sizeof *g);
+    if (!g)
+        return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
+    s->guard = g;
+    g->lim = s->cfg->limits;
+    srv_peer_limits *l = &g->lim;
+    if (!l->max_input_mem)
+        l->max_input_mem = SRV_DEFAULT_MAX_INPUT_MEM;
+    if (!l->max_handshakes)
+        l->max_handshakes = SRV_DEFAULT_MAX_HANDSHAKES;
+    if (!l->max_handshakes_ip)
+        l->max_handshakes_ip = SRV_DEFAULT_MAX_HANDSHAKES_IP;
+    if (!l->frame_grace_ms)
+        l->frame_grace_ms = SRV_DEFAULT_FRAME_GRACE_MS;
+    if (!l->min_rate)
+        l->min_rate = SRV_DEFAULT_MIN_RATE;
+    /* --local's workers all connect from loopback at once. */
+    l->max_handshakes += s->cfg->local_workers;
+    l->max_handshakes_ip += s->cfg->local_workers;
+    /* A peer's largest frame must fit what may be held, or it would wait for ever. */
+    if (l->max_input_mem < IN_MAX)
+        return pt_error_set(err, PT_ERR_ARG,
+                            "input memory limit of %llu bytes under one frame's %u",
+                            (unsigned long long)l->max_input_mem, (unsigned)IN_MAX);
+    if (l->max_handshakes >= SRV_MAX_CONNS)
+        return pt_error_set(err, PT_ERR_ARG, "%u handshakes at once leave no slot of %u for peers",
+                            l->max_handshakes, SRV_MAX_CONNS);
+    g->hs = pt_calloc(l->max_handshakes, sizeof *g->hs);
+    if (!g->hs)
+        return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
+    return PT_OK;
+}
+
+static void guard_close(srv_server *s)
+{
+    if (s->guard) {
+        refusals_flush(s, pt_now_ms(), 1);
+        pt_free(s->guard->hs);
+    }
+    pt_free(s->guard);
+    s->guard = NULL;
 }
 
 static void conn_free(srv_server *s, srv_conn *c)
@@ -114,10 +412,35 @@ static void conn_free(srv_server *s, srv_conn *c)
     srv_requests_conn_gone(c);
     epoll_ctl(s->ep, EPOLL_CTL_DEL, c->fd, NULL);
     close(c->fd);
+    handshake_leave(s, c);
+    s->guard->in_held -= in_counted(c->in.cap);
     proto_writer_fini(&c->out);
     proto_frame_reader_fini(&c->in);
     pt_free(c);
     s->nconns--;
+}
+
+/* The address of ss as text (host) and as 16 bytes, IPv4 as ::ffff:a.b.c.d;
+ * returns the port. */
+static uint16_t peer_address(const struct sockaddr_storage *ss, char *host, size_t n,
+                             uint8_t addr[16])
+{
+    memset(addr, 0, 16);
+    snprintf(host, n, "?");
+    if (ss->ss_family == AF_INET) {
+        const struct sockaddr_in *a = (const struct sockaddr_in *)ss;
+        inet_ntop(AF_INET, &a->sin_addr, host, (socklen_t)n);
+        addr[10] = addr[11] = 0xff;
+        memcpy(addr + 12, &a->sin_addr, 4);
+        return ntohs(a->sin_port);
+    }
+    if (ss->ss_family == AF_INET6) {
+        const struct sockaddr_in6 *a = (const struct sockaddr_in6 *)ss;
+        inet_ntop(AF_INET6, &a->sin6_addr, host, (socklen_t)n);
+        memcpy(addr, &a->sin6_addr, 16);
+        return ntohs(a->sin6_port);
+    }
+    return 0;
 }
 
 static void accept_all(srv_server *s)
@@ -128,9 +451,15 @@ static void accept_all(srv_server *s)
         int fd = accept4(s->lfd, (struct sockaddr *)&ss, &sl, SOCK_NONBLOCK | SOCK_CLOEXEC);
         if (fd < 0)
             return;
-        if (s->nconns >= MAX_CONNS) {
+        char host[48];
+        uint8_t addr[16];
+        uint16_t port = peer_address(&ss, host, sizeof host, addr);
+        /* Refused before anything is allocated, and logged by
+         * note_refusal's rule, not a line each. */
+        int why = accept_refusal(s, addr);
+        if (why >= 0) {
             close(fd);
-            srv_log("refused a connection: %u peers already", s->nconns);
+            note_refusal(s, why, host, NULL);
             continue;
         }
         srv_conn *c = pt_calloc(1, sizeof *c);
@@ -150,15 +479,8 @@ static void accept_all(srv_server *s)
         c->id = ++s->next_conn_id;
         c->t_connect = c->t_progress = pt_now_ms();
         proto_writer_init(&c->out, OUT_MAX);
-        char host[INET6_ADDRSTRLEN] = "?";
-        uint16_t port = 0;
-        if (ss.ss_family == AF_INET) {
-            inet_ntop(AF_INET, &((struct sockaddr_in *)&ss)->sin_addr, host, sizeof host);
-            port = ntohs(((struct sockaddr_in *)&ss)->sin_port);
-        } else if (ss.ss_family == AF_INET6) {
-            inet_ntop(AF_INET6, &((struct sockaddr_in6 *)&ss)->sin6_addr, host, sizeof host);
-            port = ntohs(((struct sockaddr_in6 *)&ss)->sin6_port);
-        }
+        snprintf(c->host, sizeof c->host, "%s", host);
+        memcpy(c->addr, addr, sizeof c->addr);
         snprintf(c->peer, sizeof c->peer, "%s:%u", host, port);
         struct epoll_event e = {.events = EPOLLIN, .data.ptr = c};
         if (epoll_ctl(s->ep, EPOLL_CTL_ADD, fd, &e) != 0) {
@@ -172,6 +494,8 @@ static void accept_all(srv_server *s)
         c->next = s->conns;
         s->conns = c;
         s->nconns++;
+        c->handshaking = 1;
+        s->guard->hs[s->guard->nhs++] = c;
     }
 }
 
@@ -366,10 +690,13 @@ static void dispatch(srv_server *s, srv_conn *c, const proto_frame *f)
         srv_workers_dispatch(s, c, f);
 }
 
-/* The payload cap of c's next frame: tighter until it has authenticated. */
+/* The payload cap of c's next frame: tighter until it has authenticated,
+ * then the largest its role sends (loop.h). */
 static uint32_t conn_cap(const srv_conn *c)
 {
-    return c->state == SRV_C_READY ? PROTO_MAX_PAYLOAD : PROTO_MAX_PAYLOAD_PREAUTH;
+    if (c->state != SRV_C_READY)
+        return PROTO_MAX_PAYLOAD_PREAUTH;
+    return c->role == PROTO_ROLE_WORKER ? SRV_WORKER_MAX_PAYLOAD : SRV_CLIENT_MAX_PAYLOAD;
 }
 
 /* Decodes and dispatches the whole frames buffered in c->in, while the peer's
@@ -383,10 +710,25 @@ static void conn_process(srv_server *s, srv_conn *c)
         if (st == PT_AGAIN)
             break;
         if (st != PT_OK) {
-            srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "%s", err.msg);
+            if (c->state == SRV_C_READY)
+                srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "%s", err.msg);
+            else
+                conn_refuse(s, c, PROTO_E_PROTOCOL, REFUSE_GARBAGE, err.msg);
             break;
         }
+        /* The next frame's clock starts as this one ends. */
+        uint64_t now = pt_now_ms();
+        c->t_frame = now;
+        if (c->handshaking && !handshake_admits(s, c, &f))
+            break;
+        int was_uploading = c->uploading;
         dispatch(s, c, &f);
+        if (c->handshaking && c->state == SRV_C_READY)
+            handshake_leave(s, c);
+        if (c->uploading && !was_uploading)
+            c->t_upload = now;
+        else if (!c->uploading)
+            c->t_upload = 0;
     }
 }
 
@@ -400,9 +742,15 @@ static void conn_read(srv_server *s, srv_conn *c)
         conn_process(s, c);
         if (c->closing || !srv_conn_has_room(c))
             return;
+        if (!in_fits(s, c)) {
+            conn_park(s, c);
+            return;
+        }
         uint8_t *p;
         size_t room;
+        size_t before = c->in.cap;
         pt_status st = proto_frame_reader_space(&c->in, &p, &room, NULL);
+        in_account(s, c, before);
         if (st == PT_ERR_NOMEM) {
             srv_conn_send_error(s, c, PROTO_E_LIMIT, "out of memory for a frame");
             return;
@@ -420,11 +768,15 @@ static void conn_read(srv_server *s, srv_conn *c)
         if (r < 0) {
             if (errno == EINTR)
                 continue;
+            in_shrink(s, c);
             return;
         }
+        uint64_t now = pt_now_ms();
+        if (proto_frame_reader_pending(&c->in) == 0)
+            c->t_frame = now;
         proto_frame_reader_commit(&c->in, (size_t)r);
         s->bytes_in += (uint64_t)r;
-        c->t_progress = pt_now_ms();
+        c->t_progress = now;
     }
 }
 
@@ -475,6 +827,8 @@ pt_status srv_loop_open(srv_server *s, pt_error *err)
         srv_log("no --token-file: listening on loopback only (127.0.0.1), not '%s'", host);
         snprintf(host, sizeof host, "127.0.0.1");
     }
+    if ((st = guard_open(s, err)) != PT_OK)
+        return st;
     if ((st = pt_net_listen(host, port, &s->lfd, &s->port, err)) != PT_OK)
         return st;
     if (cfg->port_file) {
@@ -526,6 +880,7 @@ void srv_loop_close(srv_server *s)
         close(s->sigpipe[1]);
         s->sigpipe[0] = s->sigpipe[1] = -1;
     }
+    guard_close(s);
 }
 
 void srv_loop_poll(srv_server *s, int timeout_ms)
@@ -544,8 +899,14 @@ void srv_loop_poll(srv_server *s, int timeout_ms)
             srv_upload_collect(s);
         } else {
             srv_conn *c = p;
-            if (evs[i].events & (EPOLLIN | EPOLLHUP | EPOLLERR))
+            /* A parked peer is not read; one that hung up meanwhile can
+             * never finish its frame (and would wake epoll every round). */
+            if (c->parked && (evs[i].events & (EPOLLHUP | EPOLLERR)) && !c->closing) {
+                srv_conn_close_soon(s, c);
+                c->close_at = 0;
+            } else if (evs[i].events & (EPOLLIN | EPOLLHUP | EPOLLERR)) {
                 conn_read(s, c);
+            }
             if (evs[i].events & EPOLLOUT)
                 conn_flush(s, c);
         }
@@ -557,14 +918,16 @@ void srv_loop_timers(srv_server *s, uint64_t now)
     for (srv_conn *c = s->conns; c; c = c->next) {
         if (c->closing)
             continue;
-        if (c->state != SRV_C_READY && now - c->t_connect > s->cfg->handshake_ms)
-            srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "handshake not finished in %.1f s",
-                                s->cfg->handshake_ms / 1000.0);
-        else if ((proto_frame_reader_pending(&c->in) > 0 || c->uploading) &&
-                 now - c->t_progress > STALL_MS)
-            srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "%s stalled for %d s",
-                                c->uploading ? "upload" : "partial frame", STALL_MS / 1000);
+        if (c->state != SRV_C_READY && now - c->t_connect > s->cfg->handshake_ms) {
+            char text[64];
+            snprintf(text, sizeof text, "handshake not finished in %.1f s",
+                     s->cfg->handshake_ms / 1000.0);
+            conn_refuse(s, c, PROTO_E_PROTOCOL, REFUSE_LATE, text);
+        } else {
+            conn_check_rate(s, c, now);
+        }
     }
+    refusals_flush(s, now, 0);
 }
 
 void srv_loop_flush_all(srv_server *s)
@@ -581,13 +944,17 @@ void srv_loop_sweep(srv_server *s)
         srv_conn *c = *pc;
         if (c->out.len > c->out_off)
             conn_flush(s, c);
-        if (proto_frame_reader_pending(&c->in) > 0 && !c->closing)
+        if (proto_frame_reader_pending(&c->in) > 0 && !c->closing) {
             conn_process(s, c);
+            in_shrink(s, c);
+        }
         if (c->closing && (c->close_at == 0 || now >= c->close_at)) {
             *pc = c->next;
             conn_free(s, c);
             continue;
         }
+        if (c->parked && in_fits(s, c))
+            conn_unpark(c, now);
         srv_conn_update_events(s, c);
         pc = &c->next;
     }

@@ -5,10 +5,29 @@
  * Owns every srv_conn: its input (a proto_frame_reader of IN_START bytes,
  * grown only to the frame its header declares once the decoder has checked
  * that length against the cap: PROTO_MAX_PAYLOAD_PREAUTH before
- * authentication, PROTO_MAX_PAYLOAD after),
- * its output (a writer capped at OUT_MAX; a peer whose unsent output passes
- * OUT_HIGH is not read from, which is backpressure), the handshake (HELLO,
- * CHALLENGE, AUTH, WELCOME) and its timeout, and the stalled-frame timeout.
+ * authentication, then the role's SRV_WORKER_MAX_PAYLOAD or
+ * SRV_CLIENT_MAX_PAYLOAD, and cut back to IN_START once that frame is
+ * consumed), its output (a writer capped at OUT_MAX; a peer whose unsent
+ * output passes OUT_HIGH is not read from, which is backpressure), the
+ * handshake (HELLO, CHALLENGE, AUTH, WELCOME) and its timeout.
+ *
+ * Limits on peers (srv_peer_limits, server/serve.h; hostile peers are
+ * stopped by these, honest ones only slowed):
+ * - memory: input buffers grown past IN_START hold at most max_input_mem in
+ *   all. A peer whose next frame would pass it is parked: not read (no
+ *   EPOLLIN, TCP pushes back on it) until a frame ends or a peer goes, and
+ *   not judged by the rate rule meanwhile. Total input memory is thus at
+ *   most SRV_MAX_CONNS x IN_START + max_input_mem.
+ * - slots: at most max_handshakes connections in the handshake, at most
+ *   max_handshakes_ip of them from one address, SRV_MAX_CONNS -
+ *   max_handshakes authenticated. Refusals (and handshakes that fail on a
+ *   bad frame or time out) are logged one by one up to 5 per reason in
+ *   10 s, then as one line with the count of the others.
+ * - rate: a frame in progress must be whole within max(frame_grace,
+ *   its size / min_rate) of its first byte, an upload within max(grace,
+ *   bundle size / min_rate) of its SUBMIT, and nothing may stall for
+ *   frame_grace; a peer that fails is sent ERROR and closed, with the
+ *   reason logged.
  * A whole frame from a ready peer goes to server/workers.h or
  * server/requests.h by the peer's role. A protocol error is answered with
  * ERROR, then the peer is closed once that is flushed (or after a grace
@@ -31,6 +50,27 @@
 
 #define SRV_OUT_HIGH (16u << 20) /* stop reading a peer whose unsent output passes this */
 
+/* Connection slots: SRV_MAX_CONNS in all, of which at most max_handshakes
+ * (srv_peer_limits, server/serve.h) are not yet authenticated; the others
+ * are kept for authenticated peers, so a flood of handshakes never locks a
+ * worker out. */
+#define SRV_MAX_CONNS 1024u
+
+/* The largest payload each role sends once authenticated (the frame cap):
+ * a worker's RESULT of a PT_TILE_MAX x PT_TILE_MAX tile, 60 bytes of header
+ * and 36 per pixel (2,359,356 bytes; HEARTBEAT, WORK_REQUEST, SCENE_GET and
+ * ERROR are smaller); a client's UPLOAD chunk, 52 bytes of header and
+ * PROTO_MAX_SCENE_CHUNK of data (SUBMIT and the rest are smaller). */
+#define SRV_WORKER_MAX_PAYLOAD (60u + PROTO_RESULT_PIXEL_SIZE * PROTO_MAX_TILE_PIXELS)
+#define SRV_CLIENT_MAX_PAYLOAD (52u + PROTO_MAX_SCENE_CHUNK)
+
+/* Defaults of srv_peer_limits (server/serve.h): a field left 0 takes these. */
+#define SRV_DEFAULT_MAX_INPUT_MEM (512ull << 20)
+#define SRV_DEFAULT_MAX_HANDSHAKES 64u
+#define SRV_DEFAULT_MAX_HANDSHAKES_IP 8u
+#define SRV_DEFAULT_FRAME_GRACE_MS 30000u
+#define SRV_DEFAULT_MIN_RATE (16u << 10)
+
 enum { SRV_C_HELLO, SRV_C_AUTH, SRV_C_READY };
 
 struct srv_conn {
@@ -49,6 +89,13 @@ struct srv_conn {
     char name[PROTO_MAX_NAME + 1];
     char shown[PT_TEXT_ESCAPED_SIZE(PROTO_MAX_NAME)]; /* name escaped for logs, set with it */
     char peer[64];
+    char host[48];    /* the peer's address alone, for refusals */
+    uint8_t addr[16]; /* the same as bytes (IPv4 as ::ffff:a.b.c.d): per-address caps */
+    int handshaking;  /* holds one of the max_handshakes slots */
+    int parked;       /* not read: its next frame waits for input memory */
+    uint64_t t_parked;
+    uint64_t t_frame;  /* the first byte of the frame in progress arrived */
+    uint64_t t_upload; /* its upload (c->uploading) began */
     uint16_t threads;
     int admin;     /* proved the shared token (every peer, without --clients-file) */
     uint32_t want; /* worker: free slots it asked tasks for */
@@ -83,14 +130,15 @@ int srv_loop_stopped(void);
  * dispatches frames, flushes output, completes verifications. */
 void srv_loop_poll(srv_server *s, int timeout_ms);
 
-/* Handshake and stalled-frame timeouts. */
+/* Handshake, stall and rate timeouts; the refusals not yet logged. */
 void srv_loop_timers(srv_server *s, uint64_t now);
 
 /* Sends what each open connection has queued (before a slow disk sync). */
 void srv_loop_flush_all(srv_server *s);
 
 /* Flushes, processes input left by backpressure, frees the connections
- * closed since the last sweep and sets each one's epoll interest. */
+ * closed since the last sweep, reads again from parked peers whose frame
+ * now fits and sets each one's epoll interest. */
 void srv_loop_sweep(srv_server *s);
 
 /* 1 while c's unsent output is under SRV_OUT_HIGH. */

@@ -86,6 +86,21 @@ static void usage(FILE *f)
         "  --lease-timeout SEC    requeue a task whose worker is silent this long (default 20)\n"
         "  --handshake-timeout SEC  drop a peer that has not authenticated by then (default 10)\n"
         "  --port-file PATH       write the port listened on to PATH\n"
+        "\n"
+        "limits on peers (either mode; docs/OPERATIONS.md, \"Limits\"):\n"
+        "  --max-input-mb N       input buffers past 64 KiB each, all peers together\n"
+        "                         (default 512); a peer whose next frame would pass it\n"
+        "                         is not read until memory frees (a frame is at most\n"
+        "                         2.25 MiB from a worker, 1 MiB from a client)\n"
+        "  --max-handshakes N     connections not yet authenticated (default 64; the\n"
+        "                         rest of the 1024 slots are for authenticated peers)\n"
+        "  --max-handshakes-per-ip N  of those, from one address (default 8)\n"
+        "  --frame-grace SEC      a frame or an upload may take this long whatever its\n"
+        "                         size; a peer silent this long mid-frame is closed\n"
+        "                         (default 30)\n"
+        "  --min-rate KIB         past the grace, a frame or upload must average this\n"
+        "                         many KiB/s from its first byte, or the peer is closed\n"
+        "                         (default 16)\n"
         "  --worker-bin PATH      the ptworker to start with --local (default: beside ptserve)\n"
         "  -q, --quiet            no progress line\n"
         "  -h, --help             this text\n"
@@ -112,7 +127,7 @@ int main(int argc, char **argv)
     c.caps.max_spp = 65536;
     c.caps.max_scene = 512ull << 20;
     c.caps.max_queued = 64;
-    double lease = 20.0, handshake = 10.0;
+    double lease = 20.0, handshake = 10.0, grace = 30.0;
     enum {
         O_LOCAL = 256,
         O_WTHREADS,
@@ -140,7 +155,12 @@ int main(int argc, char **argv)
         O_MAXQUEUED,
         O_CAMERA,
         O_MINGAIN,
-        O_CLIENTS
+        O_CLIENTS,
+        O_MAXINPUT,
+        O_MAXHS,
+        O_MAXHSIP,
+        O_GRACE,
+        O_MINRATE
     };
     static const struct option opts[] = {
         {"output", required_argument, NULL, 'o'},
@@ -171,6 +191,11 @@ int main(int argc, char **argv)
         {"max-spp", required_argument, NULL, O_MAXSPP},
         {"max-scene-mb", required_argument, NULL, O_MAXSCENE},
         {"max-queued", required_argument, NULL, O_MAXQUEUED},
+        {"max-input-mb", required_argument, NULL, O_MAXINPUT},
+        {"max-handshakes", required_argument, NULL, O_MAXHS},
+        {"max-handshakes-per-ip", required_argument, NULL, O_MAXHSIP},
+        {"frame-grace", required_argument, NULL, O_GRACE},
+        {"min-rate", required_argument, NULL, O_MINRATE},
         {"quiet", no_argument, NULL, 'q'},
         {"help", no_argument, NULL, 'h'},
         {"version", no_argument, NULL, 'V'},
@@ -272,6 +297,24 @@ int main(int argc, char **argv)
         case O_MAXQUEUED:
             st = pt_opt_u32("--max-queued", optarg, 1, 100000, &c.caps.max_queued, &err);
             break;
+        case O_MAXINPUT:
+            if ((st = pt_opt_u32("--max-input-mb", optarg, 3, 1u << 20, &v, &err)) == PT_OK)
+                c.limits.max_input_mem = (uint64_t)v << 20;
+            break;
+        case O_MAXHS:
+            st = pt_opt_u32("--max-handshakes", optarg, 1, 512, &c.limits.max_handshakes, &err);
+            break;
+        case O_MAXHSIP:
+            st = pt_opt_u32("--max-handshakes-per-ip", optarg, 1, 512, &c.limits.max_handshakes_ip,
+                            &err);
+            break;
+        case O_GRACE:
+            st = pt_opt_seconds("--frame-grace", optarg, 0.1, 3600, &grace, &err);
+            break;
+        case O_MINRATE:
+            if ((st = pt_opt_u32("--min-rate", optarg, 1, 1u << 20, &v, &err)) == PT_OK)
+                c.limits.min_rate = v << 10;
+            break;
         case 'q':
             c.quiet = 1;
             break;
@@ -322,5 +365,6 @@ int main(int argc, char **argv)
     c.scene_path = c.state_dir ? NULL : argv[optind];
     c.lease_ms = (uint32_t)(lease * 1000.0);
     c.handshake_ms = (uint32_t)(handshake * 1000.0);
+    c.limits.frame_grace_ms = (uint32_t)(grace * 1000.0);
     return srv_serve(&c);
 }

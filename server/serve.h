@@ -34,6 +34,15 @@ typedef struct srv_caps {
     uint32_t max_queued; /* unfinished jobs per client identity */
 } srv_caps;
 
+/* What the loop lets peers hold (server/loop.h); 0 in a field: its default. */
+typedef struct srv_peer_limits {
+    uint64_t max_input_mem;     /* input buffer bytes grown past the first, all peers */
+    uint32_t max_handshakes;    /* connections not yet authenticated */
+    uint32_t max_handshakes_ip; /* of those, from one address */
+    uint32_t frame_grace_ms;    /* a frame or upload may take this long whatever its size */
+    uint32_t min_rate;          /* bytes/s a frame or upload must average past the grace */
+} srv_peer_limits;
+
 typedef struct srv_config {
     const char *scene_path;   /* one-job mode: render this and exit; NULL: queue mode */
     const char *out_path;     /* one-job mode: the EXR */
@@ -53,6 +62,7 @@ typedef struct srv_config {
                               * chunk, max depth, rr depth) for submitted jobs.
                               * width/height 0: from the camera, 512 wide */
     srv_caps caps;           /* queue mode: what a client may ask for */
+    srv_peer_limits limits;  /* memory, connections and rates of peers */
     int quiet;
 } srv_config;
 
