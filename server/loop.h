@@ -48,7 +48,9 @@ struct srv_conn {
     char shown[PT_TEXT_ESCAPED_SIZE(PROTO_MAX_NAME)]; /* name escaped for logs, set with it */
     char peer[64];
     uint16_t threads;
-    uint32_t want; /* worker: free slots it asked tasks for */
+    uint32_t want;      /* worker: free slots it asked tasks for */
+    uint32_t misses;    /* worker: deadline misses since its last result (workers.h) */
+    uint64_t missed_at; /* when the last one was counted */
     uint64_t t_connect, t_progress;
     uint32_t events;
     /* client (server/requests.c) */

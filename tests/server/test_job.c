@@ -69,7 +69,7 @@ static void leases(void)
     /* Heartbeat keeps owner 1's lease; owner 2's expires. */
     srv_job_heartbeat(j, 1, a.task_id, 90, 100);
     srv_job_heartbeat(j, 1, b.task_id, 90, 100); /* not its lease: ignored */
-    CHECK(srv_job_expire(j, 150, NULL) == 1);
+    CHECK(srv_job_expire(j, 150, NULL, NULL, NULL) == 1);
     CHECK(srv_job_leases(j) == 1);
     /* The requeued task is handed out before new ones. */
     CHECK(srv_job_lease(j, 3, 150, 100, &c) == 1 && c.task_id == b.task_id);
