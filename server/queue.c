@@ -246,7 +246,8 @@ void srv_queue_end_job(srv_server *s, srv_entry *j, uint8_t state, const char *m
     if (state != PROTO_JOB_DONE && j->t_started)
         announce_job_end(s, j);
     j->rec.state = state;
-    snprintf(j->rec.message, sizeof j->rec.message, "%s", message ? message : "");
+    if (message || state != PROTO_JOB_DONE) /* a done job keeps a note (server/workers.h) */
+        snprintf(j->rec.message, sizeof j->rec.message, "%s", message ? message : "");
     free_run(j);
     pt_status st = srv_queue_journal(s, &err);
     if (st != PT_OK)
