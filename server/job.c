@@ -29,7 +29,7 @@ typedef struct held {
 
 /* A verification in progress: the task's first result (owner[0], hash[0]),
  * a second worker's (stage 1 on), a third's when those two differ. */
-enum { C_WANT_B = 0, C_LEASED_B, C_WANT_C, C_LEASED_C, C_FREE };
+enum { C_WANT_B = 0, C_LEASED_B, C_WANT_C, C_LEASED_C };
 
 typedef struct check {
     uint64_t task;
@@ -476,10 +476,14 @@ uint32_t srv_job_expire(srv_job *j, uint64_t now_ms, uint64_t *next_deadline, sr
         uint64_t d = l->deadline < hard ? l->deadline : hard;
         if (d <= now_ms) {
             uint64_t owner = l->owner, task = l->task;
+            /* Before the job's first result a slow start (a big scene to
+             * fetch and load) cannot be told from hoarding: no miss then,
+             * unless the owner stopped heartbeating. */
+            int miss = l->deadline <= now_ms || j->t_high > 0.0;
             requeue_lease(j, i);
             n++;
             j->vs.expired++;
-            if (missed)
+            if (missed && miss)
                 missed(ctx, owner, task);
         } else {
             if (d < next)

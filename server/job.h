@@ -155,7 +155,9 @@ void srv_job_heartbeat(srv_job *job, uint64_t owner, uint64_t task_id, uint64_t 
 uint32_t srv_job_release_owner(srv_job *job, uint64_t owner);
 
 /* Requeues leases whose heartbeat or hard deadline passed (a verification
- * copy's goes back to its check), calling missed (may be NULL) for each.
+ * copy's goes back to its check), calling missed (may be NULL) for each that
+ * missed its heartbeat deadline or a hard deadline derived from observed
+ * times (not the allowance before the job's first result).
  * Returns how many; *next_deadline (may be NULL) receives the earliest
  * remaining deadline or UINT64_MAX. */
 uint32_t srv_job_expire(srv_job *job, uint64_t now_ms, uint64_t *next_deadline, srv_miss_fn missed,

@@ -287,7 +287,7 @@ static int wait_log(const char *log, const char *needle, double timeout)
 static void hoarder(void)
 {
     static peer h;
-    const char *extra[] = {"--lease-timeout", "0.5", "--verify-fraction", "0", NULL};
+    const char *extra[] = {"--lease-timeout", "1", "--verify-fraction", "0", NULL};
     pid_t srv = start_server("4096", "64", "hoard.exr", "hoard.log", extra);
     int port = read_port();
     CHECK(port > 0);
@@ -311,8 +311,8 @@ static void hoarder(void)
     CHECKF(h.closed, "the hoarder was never closed");
     CHECKF(strstr(h.error, "blocked") != NULL, "the hoarder was told: '%s'", h.error);
     if (t_requeue > 0)
-        printf("hoarder: first requeue %.2f s after the stall (lease timeout 0.5 s; before any "
-               "result the allowance is 10 x 0.5 s)\n",
+        printf("hoarder: first requeue %.2f s after the stall (lease timeout 1 s; before any "
+               "result the allowance is 10 x 1 s)\n",
                t_requeue - t_stall);
     peer_close(&h);
     CHECK(wait_log("hoard.log", "worker hoarder from 127.0.0.1", 10));
