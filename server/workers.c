@@ -163,7 +163,6 @@ static void on_verdict(srv_server *s, srv_entry *j, const srv_verdict *v)
         break;
     case SRV_V_LIAR: {
         srv_conn *liar = srv_conn_find(s, v->liar);
-        srv_conn *honest = srv_conn_find(s, v->honest);
         char why[96];
         snprintf(why, sizeof why, "its result for task %llu of job %llu differs from two others",
                  (unsigned long long)v->task, (unsigned long long)j->rec.id);
@@ -176,7 +175,6 @@ static void on_verdict(srv_server *s, srv_entry *j, const srv_verdict *v)
             srv_log("job %llu: connection %llu (gone) lied: %s", (unsigned long long)j->rec.id,
                     (unsigned long long)v->liar, why);
         }
-        (void)honest;
         break;
     }
     }
