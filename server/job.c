@@ -207,7 +207,14 @@ uint32_t srv_job_tiles_stopped(const srv_job *j)
 }
 int srv_job_complete(const srv_job *j)
 {
-    return j->merged == j->ntasks;
+    if (j->merged != j->ntasks)
+        return 0;
+    /* A mismatch means one of two merged results may be false: the job is
+     * not done until a third render says whose (and blocks that worker). */
+    for (uint32_t i = 0; i < j->nchecks; i++)
+        if (j->checks[i].stage >= C_WANT_C)
+            return 0;
+    return 1;
 }
 const pt_film *srv_job_film(const srv_job *j)
 {

@@ -242,6 +242,9 @@ uint64_t srv_job_tasks_merged(const srv_job *job);
 uint64_t srv_job_samples_merged(const srv_job *job);
 uint32_t srv_job_tiles_stopped(const srv_job *job); /* tiles adaptive sampling stopped early */
 uint32_t srv_job_leases(const srv_job *job);
+/* 1 when every task is merged (or skipped) and no verification mismatch
+ * waits for its third render; checks that have not found a mismatch are
+ * dropped with the job. */
 int srv_job_complete(const srv_job *job);
 const pt_film *srv_job_film(const srv_job *job);
 

@@ -203,6 +203,8 @@ static void on_result(srv_server *s, srv_conn *c, const proto_frame *f)
         proto_result_fini(&r);
         c->misses = 0;
         on_verdict(s, j, &v);
+        if (srv_entry_active(j) && j->job && srv_job_complete(j->job))
+            verify_summary(j);
         return;
     }
     /* Durable before merged: the log holds every result the film holds. */

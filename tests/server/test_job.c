@@ -510,12 +510,14 @@ static void verification(void)
     CHECK(srv_job_validate(j, 2, &r, &li, &err) == SRV_CHECK);
     srv_job_check(j, li, &r, &verdict);
     CHECK(verdict.kind == SRV_V_MISMATCH);
+    CHECK(!srv_job_complete(j));                  /* not until a third render decides */
     CHECK(srv_job_lease(j, 2, 0, 1000, &v) == 0); /* neither of the two decides */
     CHECK(srv_job_lease(j, 3, 0, 1000, &v) == 1 && v.task_id == 1);
     fake_result(&v, px, &r);
     CHECK(srv_job_validate(j, 3, &r, &li, &err) == SRV_CHECK);
     srv_job_check(j, li, &r, &verdict);
     CHECK(verdict.kind == SRV_V_LIAR && verdict.liar == 1 && verdict.honest == 2);
+    CHECK(srv_job_complete(j));
     uint64_t merged = 0, samples = 0;
     srv_job_forget_owner(j, 1, &merged, &samples);
     CHECK(merged == 1 && samples == 2 * 256 * 8); /* task 0 verified, task 1 not */
