@@ -17,6 +17,8 @@
  *     it comes back.
  *  e. --verify-fraction 1 with honest workers only: every task rendered
  *     twice, every copy matches, the image is bit-identical.
+ *  f. The liar in queue mode: `ptctl status` of the job, once done, says
+ *     how many of the liar's results were merged unverified.
  *
  * With PT_LEASE_MEASURE set it only measures, at the default lease timeout,
  * how long a stalled lease (a peer that holds a task and heartbeats) takes to
@@ -215,6 +217,15 @@ static pid_t start_worker(int port, const char *name)
     return spawn(argv, "workers.log");
 }
 
+/* Stops a worker this test started (pid <= 0: none was). */
+static void stop(pid_t pid)
+{
+    if (pid > 0) {
+        kill(pid, SIGTERM);
+        wait_exit(pid, 10);
+    }
+}
+
 static void write_token(void)
 {
     FILE *f = fopen(path("token"), "w");
@@ -323,10 +334,8 @@ static void hoarder(void)
     peer_close(&h);
     int st = wait_exit(srv, 300);
     CHECKF(st == 0, "ptserve exit status %d", st);
-    kill(w1, SIGTERM);
-    kill(w2, SIGTERM);
-    wait_exit(w1, 10);
-    wait_exit(w2, 10);
+    stop(w1);
+    stop(w2);
     reference("4096", "64", "hoard_ref.exr");
     CHECKF(same_pixels("hoard_ref.exr", "hoard.exr"), "the hoarder changed the image");
     CHECK(all_samples("hoard.exr", 4096.0f));
@@ -357,8 +366,7 @@ static void backup(void)
     CHECK(took < 300);
     CHECK(log_has("backup.log", "1 backup copies"));
     peer_close(&s);
-    kill(w, SIGTERM);
-    wait_exit(w, 10);
+    stop(w);
     reference("64", "8", "backup_ref.exr");
     CHECKF(same_pixels("backup_ref.exr", "backup.exr"), "the backup changed the image");
 }
@@ -403,14 +411,40 @@ static void garbage(void)
     int st = wait_exit(srv, 300);
     CHECKF(st == 0, "ptserve exit status %d", st);
     CHECK(log_has("garbage.log", "4 results refused"));
-    kill(w, SIGTERM);
-    wait_exit(w, 10);
+    stop(w);
     reference("64", "8", "garbage_ref.exr");
     CHECKF(same_pixels("garbage_ref.exr", "garbage.exr"), "garbage changed the image");
     CHECK(all_samples("garbage.exr", 64.0f));
 }
 
 /* ---- d. the liar ---- */
+
+/* The liar's loop: answers every task at once with 0.5 everywhere until it
+ * is closed. The honest workers start only once it has lied 8 times, so the
+ * verification copies of its first lies are what they render first (those
+ * go before new tasks), and a mismatch holds the job until it is decided:
+ * the liar is caught however fast the machine renders. */
+static uint32_t lie(peer *l, int port, pid_t *w1, pid_t *w2)
+{
+    double end = pt_now_s() + 300;
+    uint32_t lies = 0;
+    *w1 = *w2 = -1;
+    while (!l->closed && pt_now_s() < end) {
+        peer_ask(l, 4);
+        l->ntasks = l->next = 0;
+        peer_read(l, 50);
+        for (uint32_t i = 0; i < l->ntasks; i++) {
+            pt_pixel_acc px = {{0.5, 0.5, 0.5}, 0.25, l->tasks[i].s1 - l->tasks[i].s0, 0};
+            peer_result(l, &l->tasks[i], px, 0);
+            lies++;
+        }
+        if (*w1 < 0 && lies >= 8) {
+            *w1 = start_worker(port, "good1");
+            *w2 = start_worker(port, "good2");
+        }
+    }
+    return lies;
+}
 
 static void liar(void)
 {
@@ -419,22 +453,9 @@ static void liar(void)
     pid_t srv = start_server("256", "8", "liar.exr", "liar.log", extra);
     int port = read_port();
     CHECK(port > 0);
-    pid_t w1 = start_worker(port, "good1"), w2 = start_worker(port, "good2");
     CHECK(peer_open(&l, port, "liar"));
-    /* It renders nothing: correct counts, every sum 0.5. */
-    double end = pt_now_s() + 300;
-    uint32_t lies = 0;
-    while (!l.closed && pt_now_s() < end) {
-        peer_ask(&l, 4);
-        l.ntasks = l.next = 0;
-        peer_read(&l, 50);
-        for (uint32_t i = 0; i < l.ntasks; i++) {
-            uint32_t spp = l.tasks[i].s1 - l.tasks[i].s0;
-            pt_pixel_acc px = {{0.5, 0.5, 0.5}, 0.25, spp, 0};
-            peer_result(&l, &l.tasks[i], px, 0);
-            lies++;
-        }
-    }
+    pid_t w1, w2;
+    uint32_t lies = lie(&l, port, &w1, &w2);
     CHECKF(l.closed, "the liar was never closed");
     CHECKF(strstr(l.error, "blocked") != NULL, "the liar was told '%s'", l.error);
     printf("liar: closed after %u false results\n", lies);
@@ -446,10 +467,8 @@ static void liar(void)
     peer_close(&l);
     int st = wait_exit(srv, 300);
     CHECKF(st == 0, "ptserve exit status %d", st);
-    kill(w1, SIGTERM);
-    kill(w2, SIGTERM);
-    wait_exit(w1, 10);
-    wait_exit(w2, 10);
+    stop(w1);
+    stop(w2);
 }
 
 /* ---- e. verification leaves the image alone ---- */
@@ -464,12 +483,71 @@ static void verify_clean(void)
     int st = wait_exit(srv, 300);
     CHECKF(st == 0, "ptserve exit status %d", st);
     CHECK(log_has("verify.log", "0 mismatched, 0 liars"));
-    kill(w1, SIGTERM);
-    kill(w2, SIGTERM);
-    wait_exit(w1, 10);
-    wait_exit(w2, 10);
+    stop(w1);
+    stop(w2);
     reference("64", "8", "verify_ref.exr");
     CHECKF(same_pixels("verify_ref.exr", "verify.exr"), "verification changed the image");
+}
+
+/* ---- f. the liar's note in queue mode ---- */
+
+/* Runs a shell command; its stdout (at most size - 1 bytes) in out. */
+static int capture(const char *cmd, char *out, size_t size)
+{
+    FILE *p = popen(cmd, "r");
+    size_t n = p ? fread(out, 1, size - 1, p) : 0;
+    out[n] = '\0';
+    return p ? pclose(p) : -1;
+}
+
+static void liar_queue(void)
+{
+    static peer l;
+    unlink(path("port"));
+    const char *argv[] = {PT_BIN_DIR "/ptserve",
+                          "--state-dir",
+                          path("state"),
+                          "--listen",
+                          "127.0.0.1:0",
+                          "--port-file",
+                          path("port"),
+                          "--token-file",
+                          path("token"),
+                          "--verify-fraction",
+                          "1",
+                          "-q",
+                          NULL};
+    pid_t srv = spawn(argv, "queue.log");
+    int port = read_port();
+    CHECK(port > 0);
+    CHECK(peer_open(&l, port, "liar"));
+    char cmd[2048], out[8192];
+    snprintf(cmd, sizeof cmd,
+             "%s/ptctl --server 127.0.0.1:%d --token-file %s submit %s --res 48x32 --spp 256",
+             PT_BIN_DIR, port, path("token"), SCENE);
+    CHECK(capture(cmd, out, sizeof out) == 0);
+    long job = strtol(out, NULL, 10);
+    CHECK(job > 0);
+    pid_t w1, w2;
+    lie(&l, port, &w1, &w2);
+    double end = pt_now_s() + 300;
+    CHECKF(strstr(l.error, "blocked") != NULL, "the liar was told '%s'", l.error);
+    peer_close(&l);
+    snprintf(cmd, sizeof cmd, "%s/ptctl --server 127.0.0.1:%d --token-file %s status %ld",
+             PT_BIN_DIR, port, path("token"), job);
+    int done = 0;
+    while (!done && pt_now_s() < end) {
+        capture(cmd, out, sizeof out);
+        done = strstr(out, "done") != NULL;
+        if (!done)
+            sleep_ms(100);
+    }
+    CHECKF(done && strstr(out, "merged unverified") != NULL, "ptctl status says:\n%s", out);
+    if (srv > 0)
+        kill(srv, SIGTERM);
+    CHECK(wait_exit(srv, 30) == 0);
+    stop(w1);
+    stop(w2);
 }
 
 /* Counts "leases expired" lines in a log. */
@@ -513,10 +591,10 @@ static void measure(void)
         printf("measure: stalled lease requeued after %.2f s\n", pt_now_s() - t0);
         peer_close(&p);
     }
-    kill(srv, SIGTERM);
+    if (srv > 0)
+        kill(srv, SIGTERM);
     wait_exit(srv, 30);
-    kill(w, SIGTERM);
-    wait_exit(w, 10);
+    stop(w);
 }
 
 int main(void)
@@ -534,5 +612,6 @@ int main(void)
     garbage();
     liar();
     verify_clean();
+    liar_queue();
     return farm_test_end();
 }
