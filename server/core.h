@@ -26,6 +26,7 @@
 #include "common/base/error.h"
 #include "common/render/film.h"
 #include "protocol/auth.h"
+#include "protocol/msg.h"
 #include "server/authlimit.h"
 #include "server/clients.h"
 #include "server/local.h"
@@ -36,6 +37,14 @@ typedef struct srv_server srv_server;
 typedef struct srv_conn srv_conn;     /* server/loop.h */
 typedef struct srv_entry srv_entry;   /* server/queue.h */
 typedef struct srv_upload srv_upload; /* server/upload.h */
+
+/* A worker refused for the coordinator's life (server/workers.h). */
+#define SRV_MAX_BLOCKED 256
+typedef struct srv_blocked {
+    char name[PROTO_MAX_NAME + 1];
+    char addr[64]; /* "" when its address is not blocked (loopback) */
+    char why[96];
+} srv_blocked;
 
 /* One way of running the coordinator (server/mode.c has the two). */
 typedef struct srv_mode {
@@ -88,6 +97,9 @@ struct srv_server {
 
     /* worker messages (server/workers.c) */
     pt_pixel_acc *scratch; /* RESULT decode buffer */
+    srv_blocked blocked[SRV_MAX_BLOCKED];
+    uint32_t nblocked;
+    uint64_t verify_seed; /* picks the tasks verified (server/job.h), made at the first lease */
 
     /* local workers (server/local.c) */
     srv_local local;

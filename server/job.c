@@ -5,18 +5,46 @@
 #include <string.h>
 
 #include "common/base/alloc.h"
+#include "common/base/hash.h"
 #include "common/render/adaptive.h"
 
 enum { T_PENDING = 0, T_LEASED = 1, T_HELD = 2, T_MERGED = 3, T_SKIPPED = 4 };
 
+/* A lease's kind: the task's first copy, a backup copy of a straggler, or a
+ * verification copy of a task already merged. */
+enum { L_TASK = 0, L_BACKUP = 1, L_VERIFY = 2 };
+
 typedef struct lease {
-    uint64_t task, owner, deadline;
+    uint64_t task, owner;
+    uint64_t start;    /* when it was handed out (ms) */
+    uint64_t deadline; /* heartbeat deadline: start or last heartbeat + lease_ms */
+    uint32_t check;    /* L_VERIFY: its check's index */
+    uint8_t kind;      /* L_* */
 } lease;
 
 typedef struct held {
-    uint64_t task;
+    uint64_t task, owner;
     pt_pixel_acc *px;
 } held;
+
+/* A verification in progress: the task's first result (owner[0], hash[0]),
+ * a second worker's (stage 1 on), a third's when those two differ. */
+enum { C_WANT_B = 0, C_LEASED_B, C_WANT_C, C_LEASED_C };
+
+typedef struct check {
+    uint64_t task;
+    uint64_t owner[2];
+    uint8_t hash[2][32];
+    uint8_t stage; /* C_* */
+} check;
+
+/* Per worker connection (owner), what it delivered to this job. */
+typedef struct owner_stat {
+    uint64_t owner, merged, verified, samples;
+} owner_stat;
+
+#define TIMES 256 /* observed task times kept (a ring) for the deadline quantile */
+#define CHECK_SCAN 64
 
 struct srv_job {
     uint64_t id;
@@ -38,6 +66,16 @@ struct srv_job {
     uint64_t merged, samples;
     uint32_t stopped;
     pt_film *film;
+    /* deadlines, backups and verification (srv_job_set_policy) */
+    srv_lease_policy pol;
+    double times[TIMES]; /* ms per pixel-sample of merged results */
+    uint32_t ntimes, times_at;
+    double t_high, t_mid; /* the quantile and the median of times, 0 before any */
+    check *checks;
+    uint32_t nchecks, checks_cap;
+    owner_stat *owners;
+    uint32_t nowners, owners_cap;
+    srv_verify_stats vs;
 };
 
 static pt_rect task_rect(const srv_job *j, uint64_t id)
@@ -120,6 +158,8 @@ void srv_job_free(srv_job *j)
     for (uint32_t i = 0; i < j->nheld; i++)
         pt_free(j->held[i].px);
     pt_free(j->held);
+    pt_free(j->checks);
+    pt_free(j->owners);
     pt_free(j->leases);
     pt_free(j->requeue);
     pt_free(j->state);
@@ -167,7 +207,14 @@ uint32_t srv_job_tiles_stopped(const srv_job *j)
 }
 int srv_job_complete(const srv_job *j)
 {
-    return j->merged == j->ntasks;
+    if (j->merged != j->ntasks)
+        return 0;
+    /* A mismatch means one of two merged results may be false: the job is
+     * not done until a third render says whose (and blocks that worker). */
+    for (uint32_t i = 0; i < j->nchecks; i++)
+        if (j->checks[i].stage >= C_WANT_C)
+            return 0;
+    return 1;
 }
 const pt_film *srv_job_film(const srv_job *j)
 {
@@ -193,22 +240,161 @@ static int requeue_push(srv_job *j, uint64_t task)
     return 0;
 }
 
-/* Drops lease i and makes its task pending again. If the requeue list cannot
- * grow, the cursor is moved back instead, which also finds the task again. */
+/* Pixel-samples of task t: what its time is measured against. */
+static double task_work(const srv_job *j, uint64_t t)
+{
+    pt_rect r = task_rect(j, t);
+    uint32_t s0, s1;
+    task_samples(j, t, &s0, &s1);
+    return (double)(r.x1 - r.x0) * (r.y1 - r.y0) * (s1 - s0);
+}
+
+/* Live first or backup copies of task t (verification copies aside). */
+static uint32_t task_copies(const srv_job *j, uint64_t t)
+{
+    uint32_t n = 0;
+    for (uint32_t i = 0; i < j->nleases; i++)
+        n += j->leases[i].task == t && j->leases[i].kind != L_VERIFY;
+    return n;
+}
+
+/* Removes lease i (the last one takes its place). */
+static void remove_lease(srv_job *j, uint32_t i)
+{
+    j->leases[i] = j->leases[--j->nleases];
+}
+
+/* Drops lease i. A task's copy makes the task pending again when it was its
+ * last copy; a verification copy gives its check back to the waiting ones.
+ * If the requeue list cannot grow, the cursor is moved back instead, which
+ * also finds the task again. */
 static void requeue_lease(srv_job *j, uint32_t i)
 {
-    uint64_t t = j->leases[i].task;
-    j->leases[i] = j->leases[--j->nleases];
-    if (j->state[t] != T_LEASED)
+    lease l = j->leases[i];
+    remove_lease(j, i);
+    if (l.kind == L_VERIFY) {
+        check *c = &j->checks[l.check];
+        if (c->stage == C_LEASED_B || c->stage == C_LEASED_C)
+            c->stage--;
         return;
-    j->state[t] = T_PENDING;
-    if (requeue_push(j, t) != 0 && t < j->cursor)
-        j->cursor = t;
+    }
+    if (j->state[l.task] != T_LEASED || task_copies(j, l.task) > 0)
+        return;
+    j->state[l.task] = T_PENDING;
+    if (requeue_push(j, l.task) != 0 && l.task < j->cursor)
+        j->cursor = l.task;
+}
+
+/* Drops every first or backup copy of task t (its result was accepted, or
+ * adaptive sampling skipped it). */
+static void drop_copies(srv_job *j, uint64_t t)
+{
+    for (uint32_t i = 0; i < j->nleases;)
+        if (j->leases[i].task == t && j->leases[i].kind != L_VERIFY)
+            remove_lease(j, i);
+        else
+            i++;
+}
+
+void srv_job_set_policy(srv_job *j, const srv_lease_policy *pol)
+{
+    j->pol = *pol;
+}
+
+/* How long after its start lease l may run, in ms; UINT64_MAX for no limit. */
+static uint64_t allowance(const srv_job *j, const lease *l)
+{
+    if (!j->pol.floor_ms)
+        return UINT64_MAX;
+    if (j->t_high <= 0.0)
+        return j->pol.first_ms > j->pol.floor_ms ? j->pol.first_ms : j->pol.floor_ms;
+    double a = j->pol.factor * j->t_high * task_work(j, l->task);
+    if (!(a < 1e15))
+        a = 1e15;
+    return a > (double)j->pol.floor_ms ? (uint64_t)a : j->pol.floor_ms;
+}
+
+/* Owner's entry of the per-owner table (made when missing); NULL without memory. */
+static owner_stat *owner_entry(srv_job *j, uint64_t owner)
+{
+    for (uint32_t i = 0; i < j->nowners; i++)
+        if (j->owners[i].owner == owner)
+            return &j->owners[i];
+    if (j->nowners == j->owners_cap) {
+        uint32_t cap = j->owners_cap ? 2 * j->owners_cap : 16;
+        owner_stat *n = pt_realloc(j->owners, (size_t)cap * sizeof *n);
+        if (!n)
+            return NULL;
+        j->owners = n;
+        j->owners_cap = cap;
+    }
+    owner_stat *o = &j->owners[j->nowners++];
+    memset(o, 0, sizeof *o);
+    o->owner = owner;
+    return o;
+}
+
+static int grow_leases(srv_job *j)
+{
+    if (j->nleases < j->leases_cap)
+        return 0;
+    uint32_t cap = j->leases_cap ? 2 * j->leases_cap : 64;
+    lease *n = pt_realloc(j->leases, (size_t)cap * sizeof *n);
+    if (!n)
+        return -1;
+    j->leases = n;
+    j->leases_cap = cap;
+    return 0;
+}
+
+/* A check owner may answer: the first waiting one whose results so far are
+ * not owner's (only the first CHECK_SCAN are looked at, so a long list of
+ * checks that only one worker could take costs little). -1 when none. */
+static int verify_pick(const srv_job *j, uint64_t owner)
+{
+    uint32_t seen = 0;
+    for (uint32_t i = 0; i < j->nchecks && seen < CHECK_SCAN; i++) {
+        const check *c = &j->checks[i];
+        if (c->stage != C_WANT_B && c->stage != C_WANT_C)
+            continue;
+        seen++;
+        if (c->owner[0] == owner || (c->stage == C_WANT_C && c->owner[1] == owner))
+            continue;
+        return (int)i;
+    }
+    return -1;
+}
+
+/* The straggler owner should get a backup copy of: the oldest first copy,
+ * not owner's, older than backup_factor x the median time for its size,
+ * that has no backup yet. UINT64_MAX when none (or nothing was observed). */
+static uint64_t backup_pick(const srv_job *j, uint64_t owner, uint64_t now_ms)
+{
+    if (j->pol.backup_factor <= 0.0 || j->t_mid <= 0.0)
+        return UINT64_MAX;
+    uint64_t best = UINT64_MAX, best_start = UINT64_MAX;
+    for (uint32_t i = 0; i < j->nleases; i++) {
+        const lease *l = &j->leases[i];
+        if (l->kind != L_TASK || l->owner == owner || l->start >= best_start)
+            continue;
+        double age = (double)(now_ms - l->start);
+        if (now_ms < l->start || age < j->pol.backup_factor * j->t_mid * task_work(j, l->task))
+            continue;
+        if (task_copies(j, l->task) != 1)
+            continue;
+        best = l->task;
+        best_start = l->start;
+    }
+    return best;
 }
 
 int srv_job_lease(srv_job *j, uint64_t owner, uint64_t now_ms, uint32_t lease_ms, proto_task *task)
 {
     uint64_t t = UINT64_MAX;
+    uint8_t kind = L_TASK;
+    int ci = -1;
+    if (grow_leases(j) != 0)
+        return 0;
     while (j->rq_len > 0) {
         uint64_t c = j->requeue[j->rq_head];
         j->rq_head = (j->rq_head + 1) % j->rq_cap;
@@ -218,27 +404,26 @@ int srv_job_lease(srv_job *j, uint64_t owner, uint64_t now_ms, uint32_t lease_ms
             break;
         }
     }
+    if (t == UINT64_MAX && (ci = verify_pick(j, owner)) >= 0) {
+        t = j->checks[ci].task;
+        kind = L_VERIFY;
+        j->checks[ci].stage++;
+    }
     if (t == UINT64_MAX) {
         while (j->cursor < j->ntasks && j->state[j->cursor] != T_PENDING)
             j->cursor++;
-        if (j->cursor == j->ntasks)
-            return 0;
-        t = j->cursor++;
+        if (j->cursor < j->ntasks)
+            t = j->cursor++;
     }
-    if (j->nleases == j->leases_cap) {
-        uint32_t cap = j->leases_cap ? 2 * j->leases_cap : 64;
-        lease *n = pt_realloc(j->leases, (size_t)cap * sizeof *n);
-        if (!n) {
-            j->state[t] = T_PENDING;
-            if (requeue_push(j, t) != 0 && t < j->cursor)
-                j->cursor = t;
+    if (t == UINT64_MAX) {
+        if ((t = backup_pick(j, owner, now_ms)) == UINT64_MAX)
             return 0;
-        }
-        j->leases = n;
-        j->leases_cap = cap;
+        kind = L_BACKUP;
+        j->vs.backups++;
     }
-    j->state[t] = T_LEASED;
-    j->leases[j->nleases++] = (lease){t, owner, now_ms + lease_ms};
+    if (kind != L_VERIFY)
+        j->state[t] = T_LEASED;
+    j->leases[j->nleases++] = (lease){t, owner, now_ms, now_ms + lease_ms, (uint32_t)ci, kind};
 
     memset(task, 0, sizeof *task);
     task->job_id = j->id;
@@ -286,17 +471,30 @@ uint32_t srv_job_release_owner(srv_job *j, uint64_t owner)
     return n;
 }
 
-uint32_t srv_job_expire(srv_job *j, uint64_t now_ms, uint64_t *next_deadline)
+uint32_t srv_job_expire(srv_job *j, uint64_t now_ms, uint64_t *next_deadline, srv_miss_fn missed,
+                        void *ctx)
 {
     uint32_t n = 0;
     uint64_t next = UINT64_MAX;
     for (uint32_t i = 0; i < j->nleases;) {
-        if (j->leases[i].deadline <= now_ms) {
+        lease *l = &j->leases[i];
+        uint64_t a = allowance(j, l);
+        uint64_t hard = a > UINT64_MAX - l->start ? UINT64_MAX : l->start + a;
+        uint64_t d = l->deadline < hard ? l->deadline : hard;
+        if (d <= now_ms) {
+            uint64_t owner = l->owner, task = l->task;
+            /* Before the job's first result a slow start (a big scene to
+             * fetch and load) cannot be told from hoarding: no miss then,
+             * unless the owner stopped heartbeating. */
+            int miss = l->deadline <= now_ms || j->t_high > 0.0;
             requeue_lease(j, i);
             n++;
+            j->vs.expired++;
+            if (missed && miss)
+                missed(ctx, owner, task);
         } else {
-            if (j->leases[i].deadline < next)
-                next = j->leases[i].deadline;
+            if (d < next)
+                next = d;
             i++;
         }
     }
@@ -312,11 +510,7 @@ static void stop_tile(srv_job *j, uint32_t tile, uint32_t from)
     for (uint32_t c = from; c < j->nchunks; c++) {
         uint64_t t = (uint64_t)c * j->ntiles + tile;
         if (j->state[t] == T_LEASED) {
-            for (uint32_t i = 0; i < j->nleases; i++)
-                if (j->leases[i].task == t) {
-                    j->leases[i] = j->leases[--j->nleases];
-                    break;
-                }
+            drop_copies(j, t);
         } else if (j->state[t] == T_HELD) {
             for (uint32_t i = 0; i < j->nheld; i++)
                 if (j->held[i].task == t) {
@@ -385,8 +579,44 @@ static int acc_sane(const pt_pixel_acc *a, uint32_t max_n)
            isfinite(a->sum_sq) && a->sum_sq >= 0 && a->n <= max_n;
 }
 
+/* Each pixel's count must be the task's samples less those rejected (a NaN
+ * or Inf sample is not counted, render.h), the rejections must add up to
+ * what the result reports, and the sums must be finite, non-negative and at
+ * most n x SRV_MAX_SAMPLE_RADIANCE (sum_sq: the luminance squared, which is
+ * at most the largest channel squared). A pixel with no samples then has
+ * zero sums. */
+static int pixels_plausible(const proto_result *r, uint32_t samples, pt_error *err)
+{
+    uint64_t missing = 0;
+    for (uint32_t i = 0; i < r->npixels; i++) {
+        const pt_pixel_acc *a = &r->pixels[i];
+        double cap = SRV_MAX_SAMPLE_RADIANCE * a->n;
+        if (a->n > samples || !(a->sum[0] >= 0.0 && a->sum[0] <= cap) ||
+            !(a->sum[1] >= 0.0 && a->sum[1] <= cap) || !(a->sum[2] >= 0.0 && a->sum[2] <= cap) ||
+            !(a->sum_sq >= 0.0 && a->sum_sq <= cap * SRV_MAX_SAMPLE_RADIANCE)) {
+            pt_error_set(err, PT_ERR_PROTO,
+                         "result for task %llu: pixel %u (%u samples of %u, sums %.3g %.3g %.3g) "
+                         "is not a plausible render",
+                         (unsigned long long)r->task_id, i, a->n, samples, a->sum[0], a->sum[1],
+                         a->sum[2]);
+            return 0;
+        }
+        missing += samples - a->n;
+    }
+    if (missing != r->rejected) {
+        pt_error_set(err, PT_ERR_PROTO,
+                     "result for task %llu: its pixels lack %llu of their %u samples each, but it "
+                     "reports %llu rejected",
+                     (unsigned long long)r->task_id, (unsigned long long)missing, samples,
+                     (unsigned long long)r->rejected);
+        return 0;
+    }
+    return 1;
+}
+
 /* Checks r against the task it names; need_lease: the owner must hold it.
- * On SRV_MERGED *lease_index receives the lease (-1 when none was needed). */
+ * On SRV_MERGED or SRV_CHECK *lease_index receives the lease (-1 when none
+ * was needed). */
 static srv_outcome validate_result(const srv_job *j, uint64_t owner, const proto_result *r,
                                    int need_lease, int *lease_index, pt_error *err)
 {
@@ -401,9 +631,10 @@ static srv_outcome validate_result(const srv_job *j, uint64_t owner, const proto
         return SRV_INVALID;
     }
     uint64_t t = r->task_id;
-    if (j->state[t] == T_MERGED || j->state[t] == T_HELD || j->state[t] == T_SKIPPED)
-        return SRV_DUPLICATE;
     int li = find_lease(j, t, owner);
+    int verify = li >= 0 && j->leases[li].kind == L_VERIFY;
+    if (!verify && (j->state[t] == T_MERGED || j->state[t] == T_HELD || j->state[t] == T_SKIPPED))
+        return SRV_DUPLICATE;
     if (li < 0 && need_lease) {
         pt_error_set(err, PT_ERR_PROTO, "result for task %llu, which this peer does not hold",
                      (unsigned long long)t);
@@ -419,18 +650,10 @@ static srv_outcome validate_result(const srv_job *j, uint64_t owner, const proto
                      (unsigned long long)t);
         return SRV_INVALID;
     }
-    for (uint32_t i = 0; i < r->npixels; i++) {
-        const pt_pixel_acc *a = &r->pixels[i];
-        if (!acc_sane(a, s1 - s0)) {
-            pt_error_set(err, PT_ERR_PROTO,
-                         "result for task %llu: pixel %u is not finite or has "
-                         "%u samples of %u",
-                         (unsigned long long)t, i, a->n, s1 - s0);
-            return SRV_INVALID;
-        }
-    }
+    if (!pixels_plausible(r, s1 - s0, err))
+        return SRV_INVALID;
     *lease_index = li;
-    return SRV_MERGED;
+    return verify ? SRV_CHECK : SRV_MERGED;
 }
 
 srv_outcome srv_job_validate(const srv_job *j, uint64_t owner, const proto_result *r,
@@ -439,19 +662,126 @@ srv_outcome srv_job_validate(const srv_job *j, uint64_t owner, const proto_resul
     return validate_result(j, owner, r, 1, lease_index, err);
 }
 
-static void drop_lease(srv_job *j, int li)
+/* The deterministic pick of verification copies: splitmix64 (Steele et al.
+ * 2014) of the seed, job and task, as a uniform number in [0, 1). */
+static int verify_picked(const srv_job *j, uint64_t t)
 {
-    if (li >= 0)
-        j->leases[li] = j->leases[--j->nleases];
+    if (!(j->pol.verify_fraction > 0.0))
+        return 0;
+    uint64_t z = j->pol.verify_seed ^ (j->id * 0xD1B54A32D192ED03ull) ^ t;
+    z += 0x9E3779B97F4A7C15ull;
+    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+    z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+    z ^= z >> 31;
+    return (double)(z >> 11) * 0x1.0p-53 < j->pol.verify_fraction;
+}
+
+static void pixels_hash(const proto_result *r, uint8_t out[32])
+{
+    /* pt_pixel_acc has no implicit padding and the decoder zeroes pad, so
+     * the bytes are the result's values and nothing else. */
+    pt_sha256((const uint8_t *)r->pixels, (size_t)r->npixels * sizeof *r->pixels, out);
+}
+
+static void add_check(srv_job *j, uint64_t t, uint64_t owner, const proto_result *r)
+{
+    if (j->nchecks == j->checks_cap) {
+        uint32_t cap = j->checks_cap ? 2 * j->checks_cap : 32;
+        check *n = pt_realloc(j->checks, (size_t)cap * sizeof *n);
+        if (!n)
+            return; /* this task goes unverified; nothing else is lost */
+        j->checks = n;
+        j->checks_cap = cap;
+    }
+    check *c = &j->checks[j->nchecks++];
+    memset(c, 0, sizeof *c);
+    c->task = t;
+    c->owner[0] = owner;
+    pixels_hash(r, c->hash[0]);
+    c->stage = C_WANT_B;
+    j->vs.picked++;
+}
+
+/* Ends check i: its leases go, the last check takes its place. */
+static void free_check(srv_job *j, uint32_t i)
+{
+    for (uint32_t k = 0; k < j->nleases;)
+        if (j->leases[k].kind == L_VERIFY && j->leases[k].check == i)
+            remove_lease(j, k);
+        else
+            k++;
+    uint32_t last = --j->nchecks;
+    if (i == last)
+        return;
+    j->checks[i] = j->checks[last];
+    for (uint32_t k = 0; k < j->nleases; k++)
+        if (j->leases[k].kind == L_VERIFY && j->leases[k].check == last)
+            j->leases[k].check = i;
+}
+
+/* Learns how long a task took (ms per pixel-sample) and the quantiles the
+ * deadlines and backups use. */
+static void observe(srv_job *j, double ms_per_sample)
+{
+    j->times[j->times_at] = ms_per_sample;
+    j->times_at = (j->times_at + 1) % TIMES;
+    if (j->ntimes < TIMES)
+        j->ntimes++;
+    double v[TIMES];
+    uint32_t n = j->ntimes;
+    memcpy(v, j->times, n * sizeof *v);
+    for (uint32_t i = 1; i < n; i++) { /* insertion sort: n <= 256, once per result */
+        double x = v[i];
+        uint32_t k = i;
+        while (k > 0 && v[k - 1] > x) {
+            v[k] = v[k - 1];
+            k--;
+        }
+        v[k] = x;
+    }
+    j->t_high = v[(uint32_t)(SRV_DEADLINE_QUANTILE * (n - 1) + 0.5)];
+    j->t_mid = v[(n - 1) / 2];
+    /* A zero time (a task done within the clock's millisecond) still says
+     * that something was observed. */
+    if (j->t_high <= 0.0)
+        j->t_high = 1e-12;
+    if (j->t_mid <= 0.0)
+        j->t_mid = 1e-12;
+}
+
+/* What an accepted result of lease li (or -1: a replay) teaches: the task's
+ * time, who delivered it, and whether it is picked for verification. Then
+ * every copy's lease goes: the first result wins. */
+static void accepted(srv_job *j, int li, const proto_result *r, uint64_t now_ms)
+{
+    uint64_t t = r->task_id;
+    if (li < 0)
+        return;
+    lease l = j->leases[li];
+    uint32_t copies = task_copies(j, t);
+    if (copies > 1)
+        j->vs.backup_samples += (uint64_t)task_work(j, t) * (copies - 1);
+    drop_copies(j, t);
+    if (now_ms >= l.start && now_ms > 0)
+        observe(j, (double)(now_ms - l.start) / task_work(j, t));
+    owner_stat *o = owner_entry(j, l.owner);
+    if (o) {
+        o->merged++;
+        for (uint32_t i = 0; i < r->npixels; i++)
+            o->samples += r->pixels[i].n;
+    }
+    if (verify_picked(j, t))
+        add_check(j, t, l.owner, r);
 }
 
 /* Merges or holds r, which validate_result accepted; li: its lease or -1. */
-static srv_outcome merge_validated(srv_job *j, int li, const proto_result *r, pt_error *err)
+static srv_outcome merge_validated(srv_job *j, int li, const proto_result *r, uint64_t now_ms,
+                                   pt_error *err)
 {
     uint64_t t = r->task_id;
     uint32_t tile = (uint32_t)(t % j->ntiles), chunk = (uint32_t)(t / j->ntiles);
     if (chunk == j->next_chunk[tile]) {
-        drop_lease(j, li);
+        accepted(j, li, r, now_ms);
         merge_now(j, t, r->pixels);
         merge_held(j, tile);
         return SRV_MERGED;
@@ -469,8 +799,8 @@ static srv_outcome merge_validated(srv_job *j, int li, const proto_result *r, pt
     if (!copy)
         goto nomem;
     memcpy(copy, r->pixels, (size_t)r->npixels * sizeof *copy);
-    j->held[j->nheld++] = (held){t, copy};
-    drop_lease(j, li);
+    j->held[j->nheld++] = (held){t, li >= 0 ? j->leases[li].owner : 0, copy};
+    accepted(j, li, r, now_ms);
     j->state[t] = T_HELD;
     return SRV_MERGED;
 nomem:
@@ -484,7 +814,12 @@ static srv_outcome accept_result(srv_job *j, uint64_t owner, const proto_result 
 {
     int li;
     srv_outcome o = validate_result(j, owner, r, need_lease, &li, err);
-    return o == SRV_MERGED ? merge_validated(j, li, r, err) : o;
+    if (o == SRV_CHECK) {
+        srv_verdict v;
+        srv_job_check(j, li, r, &v);
+        return SRV_CHECK;
+    }
+    return o == SRV_MERGED ? merge_validated(j, li, r, 0, err) : o;
 }
 
 srv_outcome srv_job_result(srv_job *j, uint64_t owner, const proto_result *r, pt_error *err)
@@ -493,14 +828,99 @@ srv_outcome srv_job_result(srv_job *j, uint64_t owner, const proto_result *r, pt
 }
 
 srv_outcome srv_job_result_validated(srv_job *j, int lease_index, const proto_result *r,
-                                     pt_error *err)
+                                     uint64_t now_ms, pt_error *err)
 {
-    return merge_validated(j, lease_index, r, err);
+    return merge_validated(j, lease_index, r, now_ms, err);
 }
 
 srv_outcome srv_job_replay(srv_job *j, const proto_result *r, pt_error *err)
 {
     return accept_result(j, 0, r, 0, err);
+}
+
+void srv_job_check(srv_job *j, int li, const proto_result *r, srv_verdict *v)
+{
+    lease l = j->leases[li];
+    remove_lease(j, (uint32_t)li);
+    memset(v, 0, sizeof *v);
+    v->task = l.task;
+    v->kind = SRV_V_UNRESOLVED;
+    j->vs.samples += (uint64_t)task_work(j, l.task);
+    check *c = &j->checks[l.check];
+    uint8_t h[32];
+    pixels_hash(r, h);
+    if (c->stage == C_LEASED_B) {
+        if (memcmp(h, c->hash[0], 32) == 0) {
+            owner_stat *o = owner_entry(j, c->owner[0]);
+            if (o)
+                o->verified++;
+            v->kind = SRV_V_MATCH;
+            v->honest = c->owner[0];
+            j->vs.matched++;
+            free_check(j, l.check);
+        } else {
+            c->owner[1] = l.owner;
+            memcpy(c->hash[1], h, 32);
+            c->stage = C_WANT_C;
+            v->kind = SRV_V_MISMATCH;
+            j->vs.mismatched++;
+        }
+        return;
+    }
+    if (memcmp(h, c->hash[0], 32) == 0) {
+        v->kind = SRV_V_LIAR;
+        v->liar = c->owner[1];
+        v->honest = c->owner[0];
+    } else if (memcmp(h, c->hash[1], 32) == 0) {
+        v->kind = SRV_V_LIAR;
+        v->liar = c->owner[0];
+        v->honest = c->owner[1];
+    }
+    j->vs.liars += v->kind == SRV_V_LIAR;
+    free_check(j, l.check);
+}
+
+void srv_job_forget_owner(srv_job *j, uint64_t owner, uint64_t *merged, uint64_t *samples)
+{
+    srv_job_release_owner(j, owner);
+    for (uint32_t i = 0; i < j->nheld;) {
+        if (j->held[i].owner != owner) {
+            i++;
+            continue;
+        }
+        uint64_t t = j->held[i].task;
+        pt_free(j->held[i].px);
+        j->held[i] = j->held[--j->nheld];
+        j->state[t] = T_PENDING;
+        if (requeue_push(j, t) != 0 && t < j->cursor)
+            j->cursor = t;
+    }
+    for (uint32_t i = 0; i < j->nchecks;) {
+        check *c = &j->checks[i];
+        if (c->owner[0] == owner) {
+            free_check(j, i);
+            continue;
+        }
+        /* Its answer as the second render counts for nothing: ask again. */
+        if ((c->stage == C_WANT_C || c->stage == C_LEASED_C) && c->owner[1] == owner)
+            c->stage -= 2;
+        i++;
+    }
+    owner_stat *o = owner_entry(j, owner);
+    if (merged)
+        *merged = o ? o->merged - o->verified : 0;
+    if (samples)
+        *samples = o ? o->samples : 0;
+}
+
+srv_verify_stats srv_job_verify_stats(const srv_job *j)
+{
+    return j->vs;
+}
+
+void srv_job_refused(srv_job *j)
+{
+    j->vs.refused++;
 }
 
 int srv_job_owner_active(const srv_job *j, uint64_t owner)
@@ -701,7 +1121,7 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
             return pt_error_set(err, PT_ERR_NOMEM, "checkpoint: out of memory");
         for (uint32_t k = 0; k < npx; k++)
             get_acc(&r, &px[k]);
-        j->held[j->nheld++] = (held){t, px};
+        j->held[j->nheld++] = (held){t, 0, px};
         j->state[t] = T_HELD;
         for (uint32_t k = 0; k < npx; k++)
             if (!acc_sane(&px[k], j->p.chunk))

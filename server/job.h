@@ -6,12 +6,29 @@
  * tile, so handing out ids in increasing order hands out pass 0 (chunk 0 of
  * every tile), then pass 1, and the progressive image improves evenly.
  *
- * Tasks are leased to an owner (a connection) until a deadline that
- * heartbeats extend; an expired lease or a lost owner puts the task back in a
- * requeue list that is served first. A result is accepted only from the owner
- * of a live lease for exactly that task (tile, sample range, pixel count,
- * finite sums, n <= samples), so merging is idempotent: a duplicate or late
+ * Tasks are leased to an owner (a connection). A lease has two deadlines: a
+ * heartbeat deadline (lease_ms after it was handed out or last heartbeat),
+ * which says the owner is alive, and a hard deadline that heartbeats do not
+ * move: start + max(floor, factor x the job's observed time per pixel-sample
+ * (a high quantile of its recent results) x the task's pixel-samples), or
+ * start + first_ms while no result of the job has been seen (see
+ * srv_lease_policy). An expired lease or a lost owner puts the task back in a
+ * requeue list that is served first. When nothing is left to hand out, an
+ * idle owner gets a backup copy of the oldest straggler (a lease older than
+ * backup_factor x the median for its size): the first result wins and the
+ * other copy's lease is dropped. A result is accepted only from the owner of
+ * a live lease for exactly that task (tile, sample range, pixel count, and
+ * plausible pixels: finite non-negative sums under SRV_MAX_SAMPLE_RADIANCE
+ * per sample, each pixel's count the task's samples less the samples the
+ * result reports rejected), so merging is idempotent: a duplicate or late
  * result changes nothing.
+ *
+ * Verification: a merged result is, with probability verify_fraction (a hash
+ * of the task id and a per-run seed, so the pick is deterministic and unknown
+ * to workers), leased again to another owner as a verification copy, whose
+ * result is compared bit for bit (SHA-256 of the pixels) with the first and
+ * never merged. On a mismatch a third owner renders it; the one of the first
+ * two that differs from the third is the liar (srv_job_check).
  *
  * Chunks of a tile are added to the film in chunk order (early arrivals are
  * held), in double, so the final pixels are bit-identical however many
@@ -56,10 +73,58 @@ typedef enum srv_outcome {
     SRV_MERGED = 0, /* accepted (merged now or held until its turn) */
     SRV_DUPLICATE,  /* already accepted: dropped, harmless */
     SRV_NOT_LEASED, /* no live lease of this owner for the task: dropped */
-    SRV_INVALID     /* malformed or inconsistent with the task: the peer is at fault */
+    SRV_INVALID,    /* malformed or inconsistent with the task: the peer is at fault */
+    SRV_CHECK       /* the answer to a verification copy: srv_job_check, never merged */
 } srv_outcome;
 
 typedef struct srv_job srv_job;
+
+/* A per-sample radiance no scene reaches (emission, base colour and textures
+ * are bounded and non-negative, see common/scene/scene.c); a pixel sum over n
+ * samples above n times this is refused as garbage. Well under what a double
+ * sum of float samples can hold, and 1e20 times the brightest emitter of the
+ * sample scenes. */
+#define SRV_MAX_SAMPLE_RADIANCE 1e20
+
+/* How leases end and which tasks are rendered twice. All zero (a new job's):
+ * no hard deadline, no backups, no verification. */
+typedef struct srv_lease_policy {
+    uint32_t floor_ms;      /* no hard deadline sooner than this after the start; 0: none */
+    uint32_t first_ms;      /* the allowance while no result of the job was observed */
+    double factor;          /* hard deadline: factor x the observed quantile x the task's size */
+    double backup_factor;   /* backup copy of a lease older than this x the median; 0: none */
+    double verify_fraction; /* [0, 1]: the share of merged tasks rendered again */
+    uint64_t verify_seed;   /* picks them with the task id */
+} srv_lease_policy;
+
+#define SRV_DEADLINE_QUANTILE 0.9 /* of the observed times per pixel-sample */
+
+/* What a verification copy's result said (srv_job_check). */
+typedef enum srv_verdict_kind {
+    SRV_V_MATCH = 0, /* same bits as the first result: both verified */
+    SRV_V_MISMATCH,  /* differs: a third copy is leased to decide */
+    SRV_V_LIAR,      /* the third agreed with one: liar differs, honest agrees */
+    SRV_V_UNRESOLVED /* three different results: nobody can be told apart */
+} srv_verdict_kind;
+
+typedef struct srv_verdict {
+    srv_verdict_kind kind;
+    uint64_t task, liar, honest;
+} srv_verdict;
+
+/* Verification's cost and findings so far. */
+typedef struct srv_verify_stats {
+    uint64_t picked; /* merged tasks picked for a verification copy */
+    uint64_t matched, mismatched, liars;
+    uint64_t samples;        /* pixel-samples rendered for verification copies */
+    uint64_t backups;        /* backup copies handed out */
+    uint64_t backup_samples; /* pixel-samples of backup copies that lost */
+    uint64_t expired;        /* leases that passed a deadline */
+    uint64_t refused;        /* results refused as invalid (srv_job_refused) */
+} srv_verify_stats;
+
+/* Callback of srv_job_expire for each lease that passed a deadline. */
+typedef void (*srv_miss_fn)(void *ctx, uint64_t owner, uint64_t task);
 
 /* scene_hash: 32 raw bytes. PT_ERR_ARG for sizes that make no sense,
  * PT_ERR_LIMIT over SRV_MAX_TASKS. */
@@ -70,37 +135,71 @@ void srv_job_free(srv_job *job); /* accepts NULL */
 uint64_t srv_job_id(const srv_job *job);
 const srv_job_params *srv_job_params_of(const srv_job *job);
 
-/* Leases the next task to owner until now_ms + lease_ms and describes it in
- * *task. Returns 0 when nothing is left to hand out right now. */
+/* Sets the deadline, backup and verification policy (any time; deadlines of
+ * live leases follow the new one). */
+void srv_job_set_policy(srv_job *job, const srv_lease_policy *pol);
+
+/* Leases the next task to owner (heartbeat deadline now_ms + lease_ms) and
+ * describes it in *task: a requeued task first, then a verification copy
+ * owner may render (not of its own result), then the next in pass order, then
+ * a backup copy of a straggler. Returns 0 when nothing is left for owner. */
 int srv_job_lease(srv_job *job, uint64_t owner, uint64_t now_ms, uint32_t lease_ms,
                   proto_task *task);
 
-/* Extends owner's lease of task_id (ignored when it holds none). */
+/* Moves owner's heartbeat deadline for task_id (ignored when it holds none);
+ * never its hard deadline. */
 void srv_job_heartbeat(srv_job *job, uint64_t owner, uint64_t task_id, uint64_t now_ms,
                        uint32_t lease_ms);
 
 /* Requeues every task leased to owner (it disconnected). Returns how many. */
 uint32_t srv_job_release_owner(srv_job *job, uint64_t owner);
 
-/* Requeues leases whose deadline passed. Returns how many; *next_deadline
- * (may be NULL) receives the earliest remaining deadline or UINT64_MAX. */
-uint32_t srv_job_expire(srv_job *job, uint64_t now_ms, uint64_t *next_deadline);
+/* Requeues leases whose heartbeat or hard deadline passed (a verification
+ * copy's goes back to its check), calling missed (may be NULL) for each that
+ * missed its heartbeat deadline or a hard deadline derived from observed
+ * times (not the allowance before the job's first result).
+ * Returns how many; *next_deadline (may be NULL) receives the earliest
+ * remaining deadline or UINT64_MAX. */
+uint32_t srv_job_expire(srv_job *job, uint64_t now_ms, uint64_t *next_deadline, srv_miss_fn missed,
+                        void *ctx);
 
-/* Accepts a result (see the file comment); err explains SRV_INVALID. */
+/* Judges the answer to a verification copy that srv_job_validate called
+ * SRV_CHECK (lease_index: what it gave), the job unchanged since; drops that
+ * lease and fills *v. */
+void srv_job_check(srv_job *job, int lease_index, const proto_result *r, srv_verdict *v);
+
+/* A worker found lying or blocked: drops every lease of owner (requeued),
+ * its held results (their tasks are pending again: never merged) and the
+ * checks of its results or that wait on it. *merged / *samples (may be NULL)
+ * receive how many of its results were merged and not verified, and their
+ * pixel-samples: those stay in the film. */
+void srv_job_forget_owner(srv_job *job, uint64_t owner, uint64_t *merged, uint64_t *samples);
+
+/* Verification's cost and findings so far. */
+srv_verify_stats srv_job_verify_stats(const srv_job *job);
+
+/* Counts a result the caller refused (SRV_INVALID) in the stats. */
+void srv_job_refused(srv_job *job);
+
+/* Accepts a result (see the file comment); err explains SRV_INVALID. The
+ * answer to a verification copy is judged (srv_job_check) and SRV_CHECK
+ * returned; the verdict is not passed on (tests). */
 srv_outcome srv_job_result(srv_job *job, uint64_t owner, const proto_result *r, pt_error *err);
 
 /* Result validation: judges a result as srv_job_result would, changing
  * nothing: SRV_MERGED when it would be accepted, with *lease_index the lease it
- * answers (an index valid while the job is unchanged). Lets the caller log it
- * durably before merging. */
+ * answers (an index valid while the job is unchanged); SRV_CHECK, likewise,
+ * for a valid answer to a verification copy (for srv_job_check). Lets the
+ * caller log it durably before merging. */
 srv_outcome srv_job_validate(const srv_job *job, uint64_t owner, const proto_result *r,
                              int *lease_index, pt_error *err);
 
 /* srv_job_result for a result that srv_job_validate accepted (lease_index: what
  * it gave), the job unchanged since: merges or holds it without looking up its
- * lease or validating its task and pixels again. */
+ * lease or validating its task and pixels again. now_ms: when it arrived, so
+ * that the task's time is learnt for the deadlines (0: learn nothing). */
 srv_outcome srv_job_result_validated(srv_job *job, int lease_index, const proto_result *r,
-                                     pt_error *err);
+                                     uint64_t now_ms, pt_error *err);
 
 /* Accepts a result from the durable log after a restart: like srv_job_result
  * but without a lease (there are none yet). Duplicates are dropped, so a log
@@ -143,6 +242,9 @@ uint64_t srv_job_tasks_merged(const srv_job *job);
 uint64_t srv_job_samples_merged(const srv_job *job);
 uint32_t srv_job_tiles_stopped(const srv_job *job); /* tiles adaptive sampling stopped early */
 uint32_t srv_job_leases(const srv_job *job);
+/* 1 when every task is merged (or skipped) and no verification mismatch
+ * waits for its third render; checks that have not found a mismatch are
+ * dropped with the job. */
 int srv_job_complete(const srv_job *job);
 const pt_film *srv_job_film(const srv_job *job);
 

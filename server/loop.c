@@ -571,6 +571,8 @@ static void on_hello(srv_server *s, srv_conn *c, const proto_frame *f)
                             h.build_id, proto_build_id());
         return;
     }
+    if (h.role == PROTO_ROLE_WORKER && srv_workers_refused(s, c))
+        return;
     c->role = h.role;
     c->threads = h.threads;
     proto_challenge ch;

@@ -97,8 +97,10 @@ struct srv_conn {
     uint64_t t_frame;  /* the first byte of the frame in progress arrived */
     uint64_t t_upload; /* its upload (c->uploading) began */
     uint16_t threads;
-    int admin;     /* proved the shared token (every peer, without --clients-file) */
-    uint32_t want; /* worker: free slots it asked tasks for */
+    int admin;          /* proved the shared token (every peer, without --clients-file) */
+    uint32_t want;      /* worker: free slots it asked tasks for */
+    uint32_t misses;    /* worker: deadline misses since its last result (workers.h) */
+    uint64_t missed_at; /* when the last one was counted */
     uint64_t t_connect, t_progress;
     uint32_t events;
     /* client (server/requests.c) */

@@ -83,7 +83,11 @@ static void usage(FILE *f)
         "  --tile N               tile side in pixels (default 32)\n"
         "  --chunk N              samples per task (default 16)\n"
         "  --save-interval SEC    progressive saves at most this often (default 5)\n"
-        "  --lease-timeout SEC    requeue a task whose worker is silent this long (default 20)\n"
+        "  --lease-timeout SEC    requeue a task whose worker is silent this long (default 20);\n"
+        "                         also the shortest hard deadline of a lease\n"
+        "  --verify-fraction F    render this share of tasks twice on different workers and\n"
+        "                         compare bit for bit; a worker found lying is blocked\n"
+        "                         (default 0.02, 0: off)\n"
         "  --handshake-timeout SEC  drop a peer that has not authenticated by then (default 10)\n"
         "  --port-file PATH       write the port listened on to PATH\n"
         "\n"
@@ -122,6 +126,7 @@ int main(int argc, char **argv)
     c.job.max_depth = PT_RENDER_DEFAULT_MAX_DEPTH;
     c.job.rr_depth = 3;
     c.save_interval = 5.0;
+    c.verify_fraction = 0.02;
     c.caps.max_side = PT_RENDER_MAX_SIDE;
     c.caps.max_pixels = 16777216;
     c.caps.max_spp = 65536;
@@ -160,7 +165,8 @@ int main(int argc, char **argv)
         O_MAXHS,
         O_MAXHSIP,
         O_GRACE,
-        O_MINRATE
+        O_MINRATE,
+        O_VERIFY
     };
     static const struct option opts[] = {
         {"output", required_argument, NULL, 'o'},
@@ -182,6 +188,7 @@ int main(int argc, char **argv)
         {"handshake-timeout", required_argument, NULL, O_HANDSHAKE},
         {"target-error", required_argument, NULL, O_TARGET},
         {"min-gain", required_argument, NULL, O_MINGAIN},
+        {"verify-fraction", required_argument, NULL, O_VERIFY},
         {"min-spp", required_argument, NULL, O_MINSPP},
         {"worker-bin", required_argument, NULL, O_WBIN},
         {"state-dir", required_argument, NULL, O_STATE},
@@ -264,6 +271,9 @@ int main(int argc, char **argv)
             break;
         case O_TARGET:
             st = pt_opt_positive("--target-error", optarg, 1e6, &c.job.target_error, &err);
+            break;
+        case O_VERIFY:
+            st = pt_opt_double("--verify-fraction", optarg, 0.0, 1.0, &c.verify_fraction, &err);
             break;
         case O_MINGAIN:
             st = pt_opt_positive("--min-gain", optarg, DBL_MAX, &c.job.min_gain, &err);

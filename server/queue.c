@@ -12,6 +12,7 @@
 #include "common/render/film.h"
 #include "server/loop.h"
 #include "server/requests.h"
+#include "server/workers.h"
 
 #define CKPT_MIN_LOG (16u << 20) /* checkpoint once a job's results log passes this */
 #define MAX_FINISHED 1000        /* ended jobs kept in the queue's history */
@@ -245,7 +246,8 @@ void srv_queue_end_job(srv_server *s, srv_entry *j, uint8_t state, const char *m
     if (state != PROTO_JOB_DONE && j->t_started)
         announce_job_end(s, j);
     j->rec.state = state;
-    snprintf(j->rec.message, sizeof j->rec.message, "%s", message ? message : "");
+    if (message || state != PROTO_JOB_DONE) /* a done job keeps a note (server/workers.h) */
+        snprintf(j->rec.message, sizeof j->rec.message, "%s", message ? message : "");
     free_run(j);
     pt_status st = srv_queue_journal(s, &err);
     if (st != PT_OK)
@@ -330,11 +332,38 @@ int srv_entry_ready(srv_server *s, srv_entry *j)
 /* Leases the first task the queue has for owner: the first job in queue order
  * with a task to hand out, so when the running job has nothing left for an
  * idle worker (its last pass), the next job starts. */
+/* The lease policy of every job (server/job.h): hard deadlines no sooner
+ * than the lease timeout, FIRST_FACTOR times it before a job's first result
+ * (the first tasks of a worker also load the scene), DEADLINE_FACTOR times
+ * the observed quantile for a task's size after; backup copies of leases
+ * BACKUP_FACTOR times older than the median. */
+#define FIRST_FACTOR 10u
+#define DEADLINE_FACTOR 8.0
+#define BACKUP_FACTOR 3.0
+
+static void set_policy(srv_server *s, srv_entry *j)
+{
+    if (!s->verify_seed) {
+        uint8_t b[PROTO_NONCE_SIZE];
+        if (proto_auth_nonce(b, NULL) == PT_OK)
+            memcpy(&s->verify_seed, b, sizeof s->verify_seed);
+        s->verify_seed |= 1; /* made once, even without randomness */
+    }
+    uint64_t first = (uint64_t)s->cfg->lease_ms * FIRST_FACTOR;
+    srv_lease_policy pol = {
+        s->cfg->lease_ms,        first > UINT32_MAX ? UINT32_MAX : (uint32_t)first,
+        DEADLINE_FACTOR,         BACKUP_FACTOR,
+        s->cfg->verify_fraction, s->verify_seed};
+    srv_job_set_policy(j->job, &pol);
+}
+
 static int lease_any(srv_server *s, uint64_t owner, uint64_t now, proto_task *t)
 {
     for (srv_entry *j = s->jobs; j; j = j->next) {
         if (!srv_entry_active(j) || !srv_entry_ready(s, j))
             continue;
+        if (!j->t_started)
+            set_policy(s, j);
         if (!srv_job_lease(j->job, owner, now, s->cfg->lease_ms, t))
             continue;
         if (!j->t_started)
@@ -439,11 +468,29 @@ pt_status srv_queue_log_result(srv_server *s, const srv_entry *j, const uint8_t 
     return srv_state_log_result(s->state, j->rec.id, payload, len, err);
 }
 
+typedef struct expiry {
+    srv_server *s;
+    uint64_t now;
+} expiry;
+
+static void on_missed(void *ctx, uint64_t owner, uint64_t task)
+{
+    expiry *e = ctx;
+    (void)task;
+    srv_workers_missed(e->s, owner, e->now);
+}
+
 void srv_queue_expire(srv_server *s, uint64_t now)
 {
-    for (srv_entry *j = s->jobs; j; j = j->next)
-        if (j->job && srv_entry_active(j) && srv_job_expire(j->job, now, NULL) > 0)
-            srv_log("job %llu: leases expired; tasks requeued", (unsigned long long)j->rec.id);
+    expiry e = {s, now};
+    for (srv_entry *j = s->jobs; j; j = j->next) {
+        uint32_t n;
+        if (j->job && srv_entry_active(j) && (n = srv_job_expire(j->job, now, NULL, on_missed, &e)))
+            srv_log("job %llu: %u leases expired; tasks requeued", (unsigned long long)j->rec.id,
+                    n);
+    }
+    /* Blocking requeues leases of every job: only once none is being walked. */
+    srv_workers_enforce(s);
 }
 
 void srv_queue_tick(srv_server *s, uint64_t now)

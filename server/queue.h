@@ -7,11 +7,16 @@
  * then submission (lower id first). A worker's free slot gets the first task
  * of the first job in that order that has one to hand out, so a higher
  * priority job takes the farm from its next task on, and idle workers start
- * on the next job during the running one's last pass. Leases expire; a job
- * ends DONE (its final image written first), CANCELLED or FAILED, and
- * workers are told at once of one that ended early (JOB_END). Progressive
- * images are saved at most every cfg->save_interval seconds, checkpoints
- * when a results log grows past max(16 MiB, the film's size).
+ * on the next job during the running one's last pass, after the backup
+ * copies of its stragglers. Each job leases under one policy (server/job.h:
+ * hard deadlines from cfg->lease_ms and the job's observed task times,
+ * backups, cfg->verify_fraction with a seed drawn once per run); a lease
+ * past a deadline is requeued and counts a miss for its worker
+ * (server/workers.h blocks repeat offenders). A job ends DONE (its final
+ * image written first), CANCELLED or FAILED, and workers are told at once of
+ * one that ended early (JOB_END). Progressive images are saved at most every
+ * cfg->save_interval seconds, checkpoints when a results log grows past
+ * max(16 MiB, the film's size).
  *
  * Durable steps (the queue file, results logs, checkpoints, bundles) use the
  * state folder (server/state.h); with none (one-job mode) they are skipped.
@@ -110,8 +115,9 @@ void srv_queue_hand_out(srv_server *s);
  * how many. Nothing for a peer that is not a ready worker. */
 void srv_queue_release_owner(srv_server *s, const srv_conn *c, int report);
 
-/* Lease expiry; then, per running job, the progressive save, the rate and
- * the checkpoint trigger. now in ms (pt_now_ms). */
+/* Lease expiry (misses counted, then srv_workers_enforce); then, per running
+ * job, the progressive save, the rate and the checkpoint trigger. now in ms
+ * (pt_now_ms). */
 void srv_queue_expire(srv_server *s, uint64_t now);
 void srv_queue_tick(srv_server *s, uint64_t now);
 

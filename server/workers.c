@@ -43,6 +43,143 @@ static void on_scene_get(srv_server *s, srv_conn *c, const proto_frame *f)
     srv_conn_queued(s, c, st);
 }
 
+/* The address part of a peer's "host:port". */
+static void peer_host(const srv_conn *c, char *out, size_t size)
+{
+    snprintf(out, size, "%s", c->peer);
+    char *colon = strrchr(out, ':');
+    if (colon)
+        *colon = '\0';
+}
+
+static int loopback(const char *host)
+{
+    return strncmp(host, "127.", 4) == 0 || strcmp(host, "::1") == 0 ||
+           strncmp(host, "::ffff:127.", 11) == 0;
+}
+
+int srv_workers_refused(srv_server *s, srv_conn *c)
+{
+    char host[64];
+    peer_host(c, host, sizeof host);
+    for (uint32_t i = 0; i < s->nblocked; i++) {
+        const srv_blocked *b = &s->blocked[i];
+        int by_name = strcmp(b->name, c->name) == 0;
+        if (by_name || (b->addr[0] && strcmp(b->addr, host) == 0)) {
+            srv_conn_send_error(s, c, PROTO_E_AUTH, "worker %s is blocked: %s",
+                                by_name ? "name" : "address", b->why);
+            return 1;
+        }
+    }
+    return 0;
+}
+
+void srv_workers_block(srv_server *s, srv_conn *c, const char *why)
+{
+    char text[PT_TEXT_ESCAPED_SIZE(96)];
+    if (s->nblocked < SRV_MAX_BLOCKED) {
+        srv_blocked *b = &s->blocked[s->nblocked++];
+        snprintf(b->name, sizeof b->name, "%s", c->name);
+        char host[64];
+        peer_host(c, host, sizeof host);
+        snprintf(b->addr, sizeof b->addr, "%s", loopback(host) ? "" : host);
+        snprintf(b->why, sizeof b->why, "%s", why);
+    } else {
+        srv_log("the list of blocked workers is full (%u); worker %s is closed but not "
+                "remembered",
+                SRV_MAX_BLOCKED, c->shown);
+    }
+    srv_log("worker %s from %s blocked: %s", c->shown, c->peer,
+            pt_text_shown(why, text, sizeof text));
+    for (srv_entry *j = s->jobs; j; j = j->next) {
+        if (!j->job || !srv_entry_active(j))
+            continue;
+        uint64_t merged = 0, samples = 0;
+        srv_job_forget_owner(j->job, c->id, &merged, &samples);
+        if (merged == 0)
+            continue;
+        /* Merged sums cannot be taken out of the film bit-exactly: say so. */
+        snprintf(j->rec.message, sizeof j->rec.message,
+                 "worker %.64s blocked (%.80s): %llu of its results (of %llu samples) were "
+                 "merged unverified",
+                 c->name, why, (unsigned long long)merged, (unsigned long long)samples);
+        srv_log("job %llu: %llu results of blocked worker %s were merged unverified (%llu "
+                "samples)",
+                (unsigned long long)j->rec.id, (unsigned long long)merged, c->shown,
+                (unsigned long long)samples);
+    }
+    srv_conn_send_error(s, c, PROTO_E_AUTH, "this worker is blocked: %s", why);
+}
+
+void srv_workers_missed(srv_server *s, uint64_t owner, uint64_t now)
+{
+    srv_conn *c = srv_conn_find(s, owner);
+    if (!c || c->closing || c->missed_at == now)
+        return;
+    c->missed_at = now;
+    c->misses++;
+}
+
+void srv_workers_enforce(srv_server *s)
+{
+    for (srv_conn *c = s->conns; c; c = c->next)
+        if (c->state == SRV_C_READY && c->role == PROTO_ROLE_WORKER && !c->closing &&
+            c->misses >= SRV_MAX_MISSES) {
+            char why[96];
+            snprintf(why, sizeof why, "missed lease deadlines %u times in a row", c->misses);
+            srv_workers_block(s, c, why);
+        }
+}
+
+/* Logs what verification cost and found, once, when job j is complete. */
+static void verify_summary(const srv_entry *j)
+{
+    srv_verify_stats v = srv_job_verify_stats(j->job);
+    uint64_t total = srv_job_samples_merged(j->job);
+    srv_log("job %llu: verified %llu of %llu tasks (%llu matched, %llu mismatched, %llu liars): "
+            "%llu extra samples, %.2f%% of %llu; %llu backup copies, %llu expired leases, %llu "
+            "results refused",
+            (unsigned long long)j->rec.id, (unsigned long long)v.picked,
+            (unsigned long long)srv_job_tasks_total(j->job), (unsigned long long)v.matched,
+            (unsigned long long)v.mismatched, (unsigned long long)v.liars,
+            (unsigned long long)(v.samples + v.backup_samples),
+            total ? 100.0 * (double)(v.samples + v.backup_samples) / (double)total : 0.0,
+            (unsigned long long)total, (unsigned long long)v.backups, (unsigned long long)v.expired,
+            (unsigned long long)v.refused);
+}
+
+static void on_verdict(srv_server *s, srv_entry *j, const srv_verdict *v)
+{
+    switch (v->kind) {
+    case SRV_V_MATCH:
+        break;
+    case SRV_V_MISMATCH:
+        srv_log("job %llu: task %llu: a verification copy differs; a third render decides",
+                (unsigned long long)j->rec.id, (unsigned long long)v->task);
+        break;
+    case SRV_V_UNRESOLVED:
+        srv_log("job %llu: task %llu: three renders differ; no worker can be blamed",
+                (unsigned long long)j->rec.id, (unsigned long long)v->task);
+        break;
+    case SRV_V_LIAR: {
+        srv_conn *liar = srv_conn_find(s, v->liar);
+        char why[96];
+        snprintf(why, sizeof why, "its result for task %llu of job %llu differs from two others",
+                 (unsigned long long)v->task, (unsigned long long)j->rec.id);
+        if (liar && !liar->closing)
+            srv_workers_block(s, liar, why);
+        else {
+            for (srv_entry *e = s->jobs; e; e = e->next)
+                if (e->job && srv_entry_active(e))
+                    srv_job_forget_owner(e->job, v->liar, NULL, NULL);
+            srv_log("job %llu: connection %llu (gone) lied: %s", (unsigned long long)j->rec.id,
+                    (unsigned long long)v->liar, why);
+        }
+        break;
+    }
+    }
+}
+
 static void on_result(srv_server *s, srv_conn *c, const proto_frame *f)
 {
     proto_result r;
@@ -59,6 +196,17 @@ static void on_result(srv_server *s, srv_conn *c, const proto_frame *f)
     }
     int lease_index;
     srv_outcome o = srv_job_validate(j->job, c->id, &r, &lease_index, &err);
+    if (o == SRV_CHECK) {
+        /* A verification copy: compared, never logged or merged. */
+        srv_verdict v;
+        srv_job_check(j->job, lease_index, &r, &v);
+        proto_result_fini(&r);
+        c->misses = 0;
+        on_verdict(s, j, &v);
+        if (srv_entry_active(j) && j->job && srv_job_complete(j->job))
+            verify_summary(j);
+        return;
+    }
     /* Durable before merged: the log holds every result the film holds. */
     if (o == SRV_MERGED && srv_queue_log_result(s, j, f->payload, f->len, &err) != PT_OK) {
         srv_log("error: job %llu: %s; result dropped (its task will be rendered again)",
@@ -67,13 +215,17 @@ static void on_result(srv_server *s, srv_conn *c, const proto_frame *f)
         return;
     }
     if (o == SRV_MERGED)
-        o = srv_job_result_validated(j->job, lease_index, &r, &err);
+        o = srv_job_result_validated(j->job, lease_index, &r, pt_now_ms(), &err);
     switch (o) {
     case SRV_MERGED:
+        c->misses = 0;
         j->rejected += r.rejected;
         j->rays += r.rays;
+        if (srv_job_complete(j->job))
+            verify_summary(j);
         break;
     case SRV_DUPLICATE:
+        c->misses = 0; /* late, but rendered: it is working */
         break;
     case SRV_NOT_LEASED: {
         char text[PT_TEXT_ESCAPED_SIZE(sizeof err.msg)];
@@ -81,7 +233,10 @@ static void on_result(srv_server *s, srv_conn *c, const proto_frame *f)
         break;
     }
     case SRV_INVALID:
+        srv_job_refused(j->job);
         srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "%s", err.msg);
+        break;
+    case SRV_CHECK:
         break;
     }
     proto_result_fini(&r);
@@ -96,7 +251,7 @@ static void on_heartbeat(srv_server *s, srv_conn *c, const proto_frame *f)
         return;
     }
     uint64_t now = pt_now_ms();
-    /* Task ids are per job; extending only leases this owner holds is safe
+    /* Task ids are per job; touching only leases this owner holds is safe
      * even when two of its jobs share an id. */
     for (srv_entry *j = s->jobs; j; j = j->next)
         if (j->job && srv_entry_active(j))

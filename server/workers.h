@@ -3,12 +3,22 @@
  *
  * WORK_REQUEST adds free slots (capped at PROTO_MAX_SLOTS) that the queue
  * fills with tasks (server/queue.h); SCENE_GET is answered with a chunk of
- * the bundle of the active job with that hash; HEARTBEAT extends the
- * worker's leases; RESULT is decoded into s->scratch, validated against the
- * job's lease (srv_job_validate), logged durably (when there is a state
- * folder) and only then merged, so the results log holds every result the
- * film holds. A result that is malformed or inconsistent with its task is
- * the worker's fault (ERROR, closed); a late or duplicate one is dropped.
+ * the bundle of the active job with that hash; HEARTBEAT moves the heartbeat
+ * deadline of the worker's leases (never their hard deadline, server/job.h);
+ * RESULT is decoded into s->scratch, validated against the job's lease
+ * (srv_job_validate), logged durably (when there is a state folder) and only
+ * then merged, so the results log holds every result the film holds. A
+ * result that is malformed, implausible or inconsistent with its task is the
+ * worker's fault (ERROR, closed); a late or duplicate one is dropped. The
+ * answer to a verification copy is compared, never logged or merged.
+ *
+ * Blocking: a worker that misses deadlines in SRV_MAX_MISSES expiry rounds
+ * with no result in between, or whose result a verification shows false, is
+ * blocked: its leases and held results are requeued, it is sent ERROR and
+ * closed, and a worker of that name, or from that address (loopback aside:
+ * the coordinator's own local workers share it), is refused at HELLO for the
+ * coordinator's life. Each block is logged with its reason; a job that had
+ * results of a liar merged says how many in its message.
  *
  * Threads: called only from the event-loop thread.
  */
@@ -18,7 +28,24 @@
 #include "protocol/frame.h"
 #include "server/core.h"
 
+#define SRV_MAX_MISSES 3
+
 /* Serves one whole frame from a ready worker. */
 void srv_workers_dispatch(srv_server *s, srv_conn *c, const proto_frame *f);
+
+/* A lease of worker connection owner passed a deadline at now (ms): counts a
+ * miss, one per expiry round. Blocks nobody (the caller may be iterating a
+ * job); srv_workers_enforce does. */
+void srv_workers_missed(srv_server *s, uint64_t owner, uint64_t now);
+
+/* Blocks each worker with SRV_MAX_MISSES misses. */
+void srv_workers_enforce(srv_server *s);
+
+/* Blocks worker c (see the file comment) for why, logged and sent to it. */
+void srv_workers_block(srv_server *s, srv_conn *c, const char *why);
+
+/* At HELLO: 1 when c (its name set, its role a worker) is blocked; it was
+ * then sent ERROR and is closing. */
+int srv_workers_refused(srv_server *s, srv_conn *c);
 
 #endif

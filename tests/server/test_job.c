@@ -69,7 +69,7 @@ static void leases(void)
     /* Heartbeat keeps owner 1's lease; owner 2's expires. */
     srv_job_heartbeat(j, 1, a.task_id, 90, 100);
     srv_job_heartbeat(j, 1, b.task_id, 90, 100); /* not its lease: ignored */
-    CHECK(srv_job_expire(j, 150, NULL) == 1);
+    CHECK(srv_job_expire(j, 150, NULL, NULL, NULL) == 1);
     CHECK(srv_job_leases(j) == 1);
     /* The requeued task is handed out before new ones. */
     CHECK(srv_job_lease(j, 3, 150, 100, &c) == 1 && c.task_id == b.task_id);
@@ -342,6 +342,218 @@ static void bad_params(void)
     CHECK(j == NULL);
 }
 
+/* ---- deadlines, backups, plausibility, verification ---- */
+
+typedef struct misses {
+    uint64_t owner[16];
+    int n;
+} misses;
+
+static void on_miss(void *ctx, uint64_t owner, uint64_t task)
+{
+    misses *m = ctx;
+    (void)task;
+    if (m->n < 16)
+        m->owner[m->n++] = owner;
+}
+
+/* Leases and answers a task of j for owner at t0, done at t1 (ms). */
+static srv_outcome render(srv_job *j, uint64_t owner, uint64_t t0, uint64_t t1, proto_task *t)
+{
+    static pt_pixel_acc px[PROTO_MAX_TILE_PIXELS];
+    proto_result r;
+    CHECK(srv_job_lease(j, owner, t0, 100000, t) == 1);
+    fake_result(t, px, &r);
+    int li;
+    pt_error err = {0};
+    srv_outcome o = srv_job_validate(j, owner, &r, &li, &err);
+    return o == SRV_MERGED ? srv_job_result_validated(j, li, &r, t1, &err) : o;
+}
+
+static void hard_deadlines(void)
+{
+    srv_job *j = make(64, 16, 64, 16, 8); /* 4 tiles x 8 chunks, 2048 samples a task */
+    srv_lease_policy pol = {100, 1000, 8.0, 0.0, 0.0, 0};
+    srv_job_set_policy(j, &pol);
+    proto_task a, b, c;
+    misses m = {{0}, 0};
+    /* Before any result: the first allowance, heartbeats or not, and no
+     * miss counted (a slow start is not hoarding); a silent owner's is. */
+    CHECK(srv_job_lease(j, 1, 0, 100000, &a) == 1);
+    srv_job_heartbeat(j, 1, a.task_id, 900, 100000);
+    CHECK(srv_job_expire(j, 999, NULL, on_miss, &m) == 0 && m.n == 0);
+    CHECK(srv_job_expire(j, 1000, NULL, on_miss, &m) == 1 && m.n == 0);
+    CHECK(srv_job_lease(j, 1, 1000, 500, &a) == 1);
+    CHECK(srv_job_expire(j, 1500, NULL, on_miss, &m) == 1 && m.n == 1 && m.owner[0] == 1);
+    /* A result taking 20 ms: 8 x 20 ms = 160 ms beats the floor. */
+    CHECK(render(j, 2, 1000, 1020, &b) == SRV_MERGED);
+    CHECK(srv_job_lease(j, 3, 2000, 100000, &c) == 1);
+    srv_job_heartbeat(j, 3, c.task_id, 2150, 100000);
+    uint64_t next = 0;
+    CHECK(srv_job_expire(j, 2159, &next, on_miss, &m) == 0 && next == 2160);
+    CHECK(srv_job_expire(j, 2160, NULL, on_miss, &m) == 1 && m.n == 2 && m.owner[1] == 3);
+    /* The floor holds when tasks are fast. */
+    for (int i = 0; i < 20; i++)
+        CHECK(render(j, 2, 3000, 3001, &b) == SRV_MERGED);
+    CHECK(srv_job_lease(j, 3, 4000, 100000, &c) == 1);
+    CHECK(srv_job_expire(j, 4099, NULL, NULL, NULL) == 0);
+    CHECK(srv_job_expire(j, 4100, NULL, NULL, NULL) == 1);
+    /* No policy: heartbeats alone, as before. */
+    srv_lease_policy none = {0};
+    srv_job_set_policy(j, &none);
+    CHECK(srv_job_lease(j, 3, 5000, 1000, &c) == 1);
+    CHECK(srv_job_expire(j, 5999, NULL, NULL, NULL) == 0);
+    srv_job_heartbeat(j, 3, c.task_id, 5999, 1000);
+    CHECK(srv_job_expire(j, 6500, NULL, NULL, NULL) == 0);
+    srv_job_free(j);
+}
+
+static void backups(void)
+{
+    static pt_pixel_acc px[256];
+    srv_job *j = make(16, 16, 16, 16, 8); /* two tasks */
+    srv_lease_policy pol = {100000, 100000, 8.0, 3.0, 0.0, 0};
+    srv_job_set_policy(j, &pol);
+    proto_task a, b, c;
+    CHECK(srv_job_lease(j, 1, 0, 100000, &a) == 1 && a.task_id == 0);
+    CHECK(render(j, 2, 0, 10, &b) == SRV_MERGED && b.task_id == 1);
+    CHECK(srv_job_lease(j, 2, 29, 100000, &c) == 0); /* 29 ms < 3 x 10 ms */
+    CHECK(srv_job_lease(j, 1, 40, 100000, &c) == 0); /* never its own task */
+    CHECK(srv_job_lease(j, 2, 40, 100000, &c) == 1 && c.task_id == 0);
+    CHECK(srv_job_lease(j, 3, 40, 100000, &c) == 0); /* one backup a task */
+    CHECK(srv_job_leases(j) == 2);
+    /* The first copy expiring leaves the backup: the task stays leased. */
+    srv_lease_policy tight = {50, 50, 8.0, 3.0, 0.0, 0};
+    srv_job_set_policy(j, &tight);
+    CHECK(srv_job_expire(j, 85, NULL, NULL, NULL) == 1 && srv_job_leases(j) == 1);
+    CHECK(srv_job_lease(j, 4, 85, 100000, &c) == 0);
+    srv_job_set_policy(j, &pol);
+    /* The backup's result wins; the first copy's is a harmless duplicate. */
+    proto_result r;
+    fake_result(&a, px, &r);
+    pt_error err = {0};
+    CHECK(srv_job_result(j, 2, &r, &err) == SRV_MERGED);
+    CHECK(srv_job_result(j, 1, &r, &err) == SRV_DUPLICATE);
+    CHECK(srv_job_leases(j) == 0 && srv_job_complete(j));
+    CHECK(srv_job_verify_stats(j).backups == 1);
+    srv_job_free(j);
+}
+
+static void plausible(void)
+{
+    static pt_pixel_acc px[256];
+    srv_job *j = make(16, 16, 16, 16, 8);
+    proto_task t;
+    proto_result r;
+    pt_error err = {0};
+    CHECK(srv_job_lease(j, 1, 0, 1000, &t) == 1);
+    struct {
+        double sum, sum_sq;
+        uint32_t n, rejected;
+        srv_outcome want;
+    } cases[] = {
+        {1e38, 1.0, 8, 0, SRV_INVALID},    {-1e-30, 0.0, 8, 0, SRV_INVALID},
+        {0.0, 0.0, 0, 0, SRV_INVALID},     {0.5, 0.5, 7, 0, SRV_INVALID},
+        {0.5, -1.0, 8, 0, SRV_INVALID},    {0.5, 0.5, 9, 0, SRV_INVALID},
+        {1.0, 0.0, 0, 8, SRV_INVALID}, /* no samples, yet a sum */
+        {1.6e21, 1e30, 8, 0, SRV_INVALID}, {0.5, 0.5, 7, 1, SRV_MERGED},
+    };
+    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+        fake_result(&t, px, &r);
+        px[5].sum[1] = cases[i].sum;
+        px[5].sum_sq = cases[i].sum_sq;
+        px[5].n = cases[i].n;
+        r.rejected = cases[i].rejected;
+        srv_outcome o = srv_job_result(j, 1, &r, &err);
+        CHECKF(o == cases[i].want, "case %zu: outcome %d (%s)", i, (int)o, err.msg);
+    }
+    CHECK(srv_job_samples_merged(j) == 256 * 8 - 1);
+    srv_job_free(j);
+}
+
+static void verification(void)
+{
+    static pt_pixel_acc px[256];
+    srv_job *j = make(16, 16, 16, 16, 8);
+    srv_lease_policy pol = {0, 0, 0.0, 0.0, 1.0, 42};
+    srv_job_set_policy(j, &pol);
+    proto_task t, v;
+    proto_result r;
+    pt_error err = {0};
+    srv_verdict verdict;
+    int li;
+    CHECK(srv_job_lease(j, 1, 0, 1000, &t) == 1 && t.task_id == 0);
+    fake_result(&t, px, &r);
+    CHECK(srv_job_result(j, 1, &r, &err) == SRV_MERGED);
+    pt_pixel_acc film0 = srv_job_film(j)->px[3];
+    /* Owner 1 never verifies itself; owner 2 gets task 1, then the copy. */
+    CHECK(srv_job_lease(j, 1, 0, 1000, &v) == 1 && v.task_id == 1);
+    CHECK(srv_job_lease(j, 2, 0, 1000, &v) == 1 && v.task_id == 0);
+    fake_result(&v, px, &r);
+    CHECK(srv_job_validate(j, 2, &r, &li, &err) == SRV_CHECK);
+    srv_job_check(j, li, &r, &verdict);
+    CHECK(verdict.kind == SRV_V_MATCH && verdict.honest == 1);
+    CHECK(memcmp(&srv_job_film(j)->px[3], &film0, sizeof film0) == 0);
+    CHECK(srv_job_result(j, 2, &r, &err) == SRV_DUPLICATE); /* the lease is gone */
+    /* Owner 1 answers task 1 with 0.5 everywhere; 2 disagrees, 3 decides. */
+    CHECK(srv_job_lease(j, 1, 0, 1000, &v) == 0);
+    fake_result(&v, px, &r);
+    r.task_id = 1;
+    r.s0 = 8;
+    r.s1 = 16;
+    for (int i = 0; i < 256; i++)
+        px[i] = (pt_pixel_acc){{0.5, 0.5, 0.5}, 0.25, 8, 0};
+    CHECK(srv_job_result(j, 1, &r, &err) == SRV_MERGED);
+    CHECK(srv_job_complete(j));
+    CHECK(srv_job_lease(j, 2, 0, 1000, &v) == 1 && v.task_id == 1);
+    fake_result(&v, px, &r);
+    CHECK(srv_job_validate(j, 2, &r, &li, &err) == SRV_CHECK);
+    srv_job_check(j, li, &r, &verdict);
+    CHECK(verdict.kind == SRV_V_MISMATCH);
+    CHECK(!srv_job_complete(j));                  /* not until a third render decides */
+    CHECK(srv_job_lease(j, 2, 0, 1000, &v) == 0); /* neither of the two decides */
+    CHECK(srv_job_lease(j, 3, 0, 1000, &v) == 1 && v.task_id == 1);
+    fake_result(&v, px, &r);
+    CHECK(srv_job_validate(j, 3, &r, &li, &err) == SRV_CHECK);
+    srv_job_check(j, li, &r, &verdict);
+    CHECK(verdict.kind == SRV_V_LIAR && verdict.liar == 1 && verdict.honest == 2);
+    CHECK(srv_job_complete(j));
+    uint64_t merged = 0, samples = 0;
+    srv_job_forget_owner(j, 1, &merged, &samples);
+    CHECK(merged == 1 && samples == 2 * 256 * 8); /* task 0 verified, task 1 not */
+    srv_verify_stats vs = srv_job_verify_stats(j);
+    CHECK(vs.picked == 2 && vs.matched == 1 && vs.mismatched == 1 && vs.liars == 1);
+    CHECK(vs.samples == 3 * 256 * 8);
+    srv_job_free(j);
+
+    /* A liar's held (not yet merged) results go back to pending. */
+    j = make(16, 16, 24, 16, 8);
+    proto_task t0, t1;
+    CHECK(srv_job_lease(j, 1, 0, 1000, &t0) == 1 && srv_job_lease(j, 5, 0, 1000, &t1) == 1);
+    fake_result(&t1, px, &r);
+    CHECK(srv_job_result(j, 5, &r, &err) == SRV_MERGED); /* held: chunk 1 before 0 */
+    srv_job_forget_owner(j, 5, NULL, NULL);
+    fake_result(&t0, px, &r);
+    CHECK(srv_job_result(j, 1, &r, &err) == SRV_MERGED);
+    CHECK(srv_job_tasks_merged(j) == 1);
+    CHECK(srv_job_lease(j, 1, 0, 1000, &t1) == 1 && t1.task_id == 1);
+    srv_job_free(j);
+
+    /* The pick is a function of the seed and the task: about the fraction. */
+    j = make(512, 512, 64, 16, 8); /* 8192 tasks */
+    srv_lease_policy f = {0, 0, 0.0, 0.0, 0.02, 7};
+    srv_job_set_policy(j, &f);
+    proto_task x;
+    while (srv_job_lease(j, 1, 0, 1000, &x)) {
+        fake_result(&x, px, &r);
+        srv_job_result(j, 1, &r, &err);
+    }
+    uint64_t picked = srv_job_verify_stats(j).picked;
+    /* Binomial(8192, 0.02): mean 164, sd 12.7; 5 sd either side. */
+    CHECKF(picked > 100 && picked < 228, "%llu picked", (unsigned long long)picked);
+    srv_job_free(j);
+}
+
 int main(void)
 {
     int64_t live = pt_alloc_live();
@@ -352,6 +564,10 @@ int main(void)
     adaptive_min_gain();
     adaptive_min_gain_black();
     bad_params();
+    hard_deadlines();
+    backups();
+    plausible();
+    verification();
     CHECK(pt_alloc_live() == live);
     return check_report();
 }
