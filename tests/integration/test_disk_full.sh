@@ -32,7 +32,7 @@ if [ "${PT_DISK_NS:-}" != 1 ]; then
 fi
 
 tmp=$(mktemp -d /tmp/pt_disk_full_XXXXXX)
-srv_pid= wrk_pid=
+srv_pid='' wrk_pid=''
 cleanup() {
   for p in $wrk_pid $srv_pid; do
     kill -CONT "$p" 2>/dev/null || true
@@ -79,7 +79,8 @@ work() {
 status() { "$bin/ptctl" status "$id" --json > "$tmp/status.json" 2>/dev/null; }
 # Polls until the Python expression over the job's status (d) holds, or fails.
 wait_for() { # $1: expression, $2: what it means
-  for _ in $(seq 1200); do
+  local end=$((SECONDS + 120))
+  while [ "$SECONDS" -lt "$end" ]; do
     if status && [ "$(json "$tmp/status.json" "$1")" = True ]; then return 0; fi
     sleep 0.05
   done
@@ -115,7 +116,7 @@ kill -9 "$srv_pid"
 wait "$srv_pid" 2>/dev/null || true
 kill -9 "$wrk_pid"
 wait "$wrk_pid" 2>/dev/null || true
-srv_pid= wrk_pid=
+srv_pid='' wrk_pid=''
 serve "$tmp/serve2.log"
 grep -q "damaged\|refus" "$tmp/serve2.log" && fail "the job was refused after the restart"
 work
