@@ -60,11 +60,11 @@ if ! mount -t tmpfs -o size=32m tmpfs "$tmp/state" || ! mount -t tmpfs -o size=4
   exit 77
 fi
 
-view=(--res 64x48 --spp 1024 --seed 5)
+view=(--res 64x48 --spp 2048 --seed 5)
 serve() { # $1: log file
   rm -f "$tmp/port"
   "$bin/ptserve" --state-dir "$tmp/state" --output-dir "$tmp/out" --listen 127.0.0.1:0 \
-    --port-file "$tmp/port" --tile 16 --chunk 16 --save-interval 0.2 -q 2>> "$1" &
+    --port-file "$tmp/port" --tile 16 --chunk 32 --save-interval 0.2 -q 2>> "$1" &
   srv_pid=$!
   for _ in $(seq 200); do [ -s "$tmp/port" ] && break; sleep 0.05; done
   [ -s "$tmp/port" ] || fail "ptserve did not start"
@@ -97,6 +97,8 @@ work
 wait_for 'd["samples_done"] > 0' "the first samples"
 # The worker is held while both folders fill, so that the job is not done.
 kill -STOP "$wrk_pid"
+status
+[ "$(json "$tmp/status.json" 'd["state"]')" = running ] || fail "the job ended before the folders filled"
 fill "$tmp/state"
 fill "$tmp/out"
 kill -CONT "$wrk_pid"
@@ -138,9 +140,9 @@ grep -q "resumed: the state folder takes its writes again" "$tmp/serve2.log" ||
 # Space returns to the output folder: the image is written, the job done.
 rm "$tmp/out/filler"
 wait_for 'd["state"] == "done"' "the job done"
-[ "$(json "$tmp/status.json" 'd["samples_done"]')" = $((64 * 48 * 1024)) ] ||
+[ "$(json "$tmp/status.json" 'd["samples_done"]')" = $((64 * 48 * 2048)) ] ||
   fail "samples: $(cat "$tmp/status.json")"
-"$bin/ptworker" --scene "$src/scenes/cornell_box.gltf" "${view[@]}" --tile 16 --chunk 16 \
+"$bin/ptworker" --scene "$src/scenes/cornell_box.gltf" "${view[@]}" --tile 16 --chunk 32 \
   --threads 2 -q -o "$tmp/ref.exr"
 "$bin/ptctl" fetch "$id" -o "$tmp/fetched.exr"
 "$bin/ptexr-diff" "$tmp/ref.exr" "$tmp/fetched.exr" || fail "the image differs from a clean render"

@@ -47,14 +47,14 @@ for v in victim_exr victim_png victim_tmp; do
   [ "$(cat "$tmp/$v")" = "precious $v" ] || fail "ptserve wrote through a link into $v"
 done
 for f in 1-links.exr 1-links.png; do
-  [ -f "$tmp/out/$f" ] && [ ! -L "$tmp/out/$f" ] || fail "$f is not a regular file"
+  if [ ! -f "$tmp/out/$f" ] || [ -L "$tmp/out/$f" ]; then fail "$f is not a regular file"; fi
 done
 
 # ptctl fetch: a link at the destination is replaced, its target untouched.
 ln -s "$tmp/victim_fetch" "$tmp/dl/img.exr"
 "$bin/ptctl" fetch "$id" -o "$tmp/dl/img.exr" || fail "fetch exited $?"
 [ "$(cat "$tmp/victim_fetch")" = "precious victim_fetch" ] || fail "fetch wrote through a link"
-[ -f "$tmp/dl/img.exr" ] && [ ! -L "$tmp/dl/img.exr" ] || fail "the fetched image is not a file"
+if [ ! -f "$tmp/dl/img.exr" ] || [ -L "$tmp/dl/img.exr" ]; then fail "the fetched image is a link"; fi
 cmp -s "$tmp/dl/img.exr" "$tmp/out/1-links.exr" || fail "the fetched image differs"
 
 # The server does not read an image through a link planted in the output
