@@ -4,6 +4,7 @@
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
+#include <sys/stat.h>
 
 #include "common/base/alloc.h"
 #include "common/base/hash.h"
@@ -385,7 +386,11 @@ void srv_queue_end_job(srv_server *s, srv_entry *j, uint8_t state, const char *m
 static double resumed_seconds(const srv_entry *j, double ckpt)
 {
     pt_exr_meta meta;
-    if (pt_exr_read(j->out_path, NULL, &meta, NULL) != PT_OK)
+    struct stat sb;
+    /* Only a regular file: a link or a FIFO planted in the output folder is
+     * not read (a FIFO would block the loop). */
+    if (lstat(j->out_path, &sb) != 0 || !S_ISREG(sb.st_mode) ||
+        pt_exr_read(j->out_path, NULL, &meta, NULL) != PT_OK)
         return ckpt;
     char id[64], hash[65];
     snprintf(id, sizeof id, "%llu", (unsigned long long)j->rec.id);

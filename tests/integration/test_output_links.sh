@@ -8,9 +8,11 @@ set -euo pipefail
 bin=${PT_BIN:?}
 src=${PT_SOURCE_DIR:?}
 tmp=$(mktemp -d /tmp/pt_output_links_XXXXXX)
-srv_pid=
+srv_pid='' wrk_pid=''
 cleanup() {
-  if [ -n "$srv_pid" ] && kill "$srv_pid" 2>/dev/null; then wait "$srv_pid" 2>/dev/null || true; fi
+  for p in $srv_pid $wrk_pid; do
+    if kill -9 "$p" 2>/dev/null; then wait "$p" 2>/dev/null || true; fi
+  done
   if [ "${failed:-0}" = 0 ]; then rm -rf "$tmp"; else echo "logs kept in $tmp" >&2; fi
 }
 trap cleanup EXIT
@@ -70,5 +72,33 @@ set -e
 grep -q "not a regular file" "$tmp/fetch.err" || fail "refusal: $(cat "$tmp/fetch.err")"
 grep -q "$tmp/out" "$tmp/fetch.err" && fail "the refusal names a server path: $(cat "$tmp/fetch.err")"
 "$bin/ptctl" status "$id" > /dev/null || fail "the server stopped serving"
+
+# A restart does not open what is planted at a running job's image name: a
+# FIFO there would block the coordinator before it serves anyone.
+kill "$srv_pid"
+wait "$srv_pid" 2>/dev/null || true
+srv_pid=''
+serve2() {
+  rm -f "$tmp/port"
+  "$bin/ptserve" --state-dir "$tmp/state2" --output-dir "$tmp/out2" --listen 127.0.0.1:0 \
+    --port-file "$tmp/port" --tile 16 --chunk 8 --save-interval 0 -q 2>> "$tmp/serve2.log" &
+  srv_pid=$!
+  for _ in $(seq 200); do [ -s "$tmp/port" ] && break; sleep 0.05; done
+  [ -s "$tmp/port" ] || fail "ptserve did not start"
+  PTFARM_SERVER=127.0.0.1:$(cat "$tmp/port")
+}
+serve2
+id=$("$bin/ptctl" submit "$src/scenes/cornell_box.gltf" --res 32x32 --spp 65536 --name fifo)
+"$bin/ptworker" --server "$PTFARM_SERVER" --threads 1 --cache-dir "$tmp/cache" 2> /dev/null &
+wrk_pid=$!
+for _ in $(seq 600); do [ -f "$tmp/out2/$id-fifo.exr" ] && break; sleep 0.05; done
+[ -f "$tmp/out2/$id-fifo.exr" ] || fail "no progressive image"
+kill -9 "$srv_pid" "$wrk_pid"
+wait "$srv_pid" "$wrk_pid" 2>/dev/null || true
+srv_pid=''
+rm "$tmp/out2/$id-fifo.exr"
+mkfifo "$tmp/out2/$id-fifo.exr"
+serve2
+timeout 20 "$bin/ptctl" status "$id" > /dev/null || fail "a FIFO at the image's name blocked the restart"
 failed=0
 echo "PASS"
