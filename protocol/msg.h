@@ -255,7 +255,8 @@ typedef struct proto_heartbeat {
     uint64_t task_ids[PROTO_MAX_HEARTBEAT_TASKS];
 } proto_heartbeat;
 
-/* JOB_END (JOB_REF layout, below): the job was cancelled or failed. The worker
+/* JOB_END (JOB_REF layout, below): the job was cancelled or failed, or is
+ * paused (its state folder cannot be written; its tasks come again later). The worker
  * drops the tasks of it that it holds and has not started, discards the
  * results of those still rendering, and asks for work again, so its threads go
  * to the next job at once. A job it holds nothing of is ignored. */

@@ -208,9 +208,9 @@ static int finish_queue(srv_server *s)
     for (srv_entry *j = s->jobs; j; j = j->next) {
         if (!j->job || !srv_entry_active(j))
             continue;
-        srv_entry_checkpoint(s, j);
-        srv_entry_save_image(j);
         pt_error err = {0};
+        srv_entry_checkpoint(s, j, &err); /* logged; the results log holds the rest */
+        srv_entry_save_image(j);
         if (srv_writer_flush(j->writer, &err) != PT_OK)
             srv_log("job %llu: cannot write its image: %s", (unsigned long long)j->rec.id, err.msg);
         n++;

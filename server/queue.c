@@ -1,8 +1,10 @@
 #include "server/queue.h"
 
+#include <errno.h>
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
+#include <sys/stat.h>
 
 #include "common/base/alloc.h"
 #include "common/base/hash.h"
@@ -16,6 +18,10 @@
 
 #define CKPT_MIN_LOG (16u << 20) /* checkpoint once a job's results log passes this */
 #define MAX_FINISHED 1000        /* ended jobs kept in the queue's history */
+/* A write to a folder that failed (full, over quota) is tried again this
+ * often: often enough that a farm resumes soon after space is freed, rarely
+ * enough that a full disk costs nothing. */
+#define DISK_RETRY_MS 3000
 
 int srv_entry_active(const srv_entry *j)
 {
@@ -43,6 +49,9 @@ void srv_queue_insert(srv_server *s, srv_entry *j)
 
 static void free_run(srv_entry *j)
 {
+    pt_free(j->pending_rec);
+    j->pending_rec = NULL;
+    j->paused = j->pending_ckpt = j->final_pending = 0;
     srv_writer_free(j->writer);
     j->writer = NULL;
     srv_job_free(j->job);
@@ -92,11 +101,17 @@ pt_status srv_queue_journal(srv_server *s, pt_error *err)
     return st;
 }
 
-static void journal_or_log(srv_server *s)
+/* Writes the queue file; a failure is logged when the file was saved before
+ * (once per streak: srv_queue_tick tries again until it succeeds). */
+static pt_status journal_or_log(srv_server *s)
 {
     pt_error err = {0};
-    if (srv_queue_journal(s, &err) != PT_OK)
-        srv_log("error: cannot write the queue: %s", err.msg);
+    int was_unsaved = s->state && srv_state_queue_unsaved(s->state);
+    pt_status st = srv_queue_journal(s, &err);
+    if (st != PT_OK && !was_unsaved)
+        srv_log("error: cannot write the queue: %s; trying again every %d s", err.msg,
+                DISK_RETRY_MS / 1000);
+    return st;
 }
 
 double srv_entry_seconds(const srv_entry *j, uint64_t now)
@@ -172,7 +187,16 @@ void srv_queue_info(const srv_server *s, const srv_entry *j, proto_job_info *m)
         }
         m->queue_pos = pos;
     }
-    snprintf(m->message, sizeof m->message, "%s", r->message);
+    if (j->paused)
+        snprintf(m->message, sizeof m->message, "paused: %s; retrying", j->pause_reason);
+    else if (j->final_pending)
+        snprintf(m->message, sizeof m->message, "writing: cannot write the image: %s; retrying",
+                 j->out_reason);
+    else if (j->save_fails_logged)
+        snprintf(m->message, sizeof m->message,
+                 "rendering; cannot save the progressive image: %s; retrying", j->out_reason);
+    else
+        snprintf(m->message, sizeof m->message, "%s", r->message);
 }
 
 void srv_entry_save_image(srv_entry *j)
@@ -196,16 +220,22 @@ void srv_entry_save_image(srv_entry *j)
     j->saved_samples = meta.total_samples;
 }
 
-void srv_entry_checkpoint(srv_server *s, srv_entry *j)
+static pt_status checkpoint_quiet(srv_server *s, srv_entry *j, pt_error *err)
 {
     if (!s->state || !j->job)
-        return;
+        return PT_OK;
     srv_ckpt_extra x = {srv_entry_seconds(j, pt_now_ms()), j->rejected, j->rays};
-    pt_error err = {0};
-    if (srv_state_checkpoint(s->state, j->job, &x, &err) != PT_OK)
+    return srv_state_checkpoint(s->state, j->job, &x, err);
+}
+
+pt_status srv_entry_checkpoint(srv_server *s, srv_entry *j, pt_error *err)
+{
+    pt_status st = checkpoint_quiet(s, j, err);
+    if (st != PT_OK)
         srv_log("error: job %llu: cannot write its checkpoint: %s (its results log still holds "
                 "every merged task)",
-                (unsigned long long)j->rec.id, err.msg);
+                (unsigned long long)j->rec.id, err->msg);
+    return st;
 }
 
 /* Tells every worker that job j ended before it was done, so each drops the
@@ -224,6 +254,75 @@ static void announce_job_end(srv_server *s, const srv_entry *j)
     }
 }
 
+/* What a client is shown of a failed write: "state folder full (No space
+ * left on device)". Never the error's text, which names server paths. */
+static void disk_reason(const char *folder, const pt_error *err, char *out, size_t cap)
+{
+    int e = err->sys_errno;
+    const char *what = e == ENOSPC ? "full" : e == EDQUOT ? "over its quota" : "cannot be written";
+    snprintf(out, cap, "%s %s (%s)", folder, what, e ? strerror(e) : pt_status_str(err->code));
+}
+
+/* The state folder cannot take j's writes: no task of j is leased until the
+ * failed write succeeds (srv_queue_tick tries it again). Its leases are
+ * requeued and the workers told to drop its tasks (JOB_END), since results
+ * that cannot be logged could not be merged. Logged once per pause. */
+static void pause_job(srv_server *s, srv_entry *j, const char *what, const pt_error *err)
+{
+    uint64_t now = pt_now_ms();
+    j->t_retry = now + DISK_RETRY_MS;
+    if (j->paused)
+        return;
+    j->paused = 1;
+    j->t_paused = now;
+    disk_reason("state folder", err, j->pause_reason, sizeof j->pause_reason);
+    uint32_t n = 0;
+    if (j->job)
+        for (const srv_conn *c = s->conns; c; c = c->next)
+            if (c->role == PROTO_ROLE_WORKER)
+                n += srv_job_release_owner(j->job, c->id);
+    if (j->t_started)
+        announce_job_end(s, j);
+    srv_log("job %llu paused: %s: %s; %u leased tasks requeued; trying again every %d s",
+            (unsigned long long)j->rec.id, what, err->msg, n, DISK_RETRY_MS / 1000);
+}
+
+/* Tries the write that paused j again; resumes j when it succeeds. */
+static void retry_paused(srv_server *s, srv_entry *j, uint64_t now)
+{
+    if (now < j->t_retry)
+        return;
+    j->t_retry = now + DISK_RETRY_MS;
+    pt_error err = {0};
+    if (j->pending_rec) {
+        if (srv_state_log_result(s->state, j->rec.id, j->pending_rec, j->pending_len, &err) !=
+            PT_OK)
+            return;
+        /* Logged: merge it as a restart's replay would (its lease is gone;
+         * should its task have been merged meanwhile, it is a duplicate). */
+        proto_result r;
+        if (proto_msg_decode_result(j->pending_rec, j->pending_len, s->scratch,
+                                    PROTO_MAX_TILE_PIXELS, &r, &err) == PT_OK) {
+            if (srv_job_replay(j->job, &r, &err) == SRV_MERGED) {
+                j->rejected += r.rejected;
+                j->rays += r.rays;
+            }
+            proto_result_fini(&r);
+        }
+        pt_free(j->pending_rec);
+        j->pending_rec = NULL;
+    }
+    if (j->pending_ckpt) {
+        if (checkpoint_quiet(s, j, &err) != PT_OK)
+            return;
+        j->pending_ckpt = 0;
+    }
+    j->paused = 0;
+    j->pause_reason[0] = '\0';
+    srv_log("job %llu resumed: the state folder takes its writes again (paused %.1f s)",
+            (unsigned long long)j->rec.id, (double)(now - j->t_paused) / 1000.0);
+}
+
 void srv_queue_end_job(srv_server *s, srv_entry *j, uint8_t state, const char *message)
 {
     uint64_t now = pt_now_ms();
@@ -231,12 +330,26 @@ void srv_queue_end_job(srv_server *s, srv_entry *j, uint8_t state, const char *m
     if (state == PROTO_JOB_DONE && j->job) {
         srv_entry_save_image(j);
         if (srv_writer_flush(j->writer, &err) != PT_OK) {
+            if (err.code == PT_ERR_IO) {
+                /* A full output folder: every sample stays merged, the job
+                 * stays RUNNING ("writing") and the image is tried again. */
+                j->t_retry = now + DISK_RETRY_MS;
+                disk_reason("output folder", &err, j->out_reason, sizeof j->out_reason);
+                if (!j->final_pending)
+                    srv_log("job %llu: rendered, but cannot write its image: %s; its samples are "
+                            "kept and the image is tried again every %d s",
+                            (unsigned long long)j->rec.id, err.msg, DISK_RETRY_MS / 1000);
+                j->final_pending = 1;
+                return;
+            }
             state = PROTO_JOB_FAILED;
             char msg[PROTO_MAX_ERROR_TEXT + 1];
             snprintf(msg, sizeof msg, "cannot write the image: %s", err.msg);
             srv_queue_end_job(s, j, state, msg);
             return;
         }
+        if (j->final_pending)
+            srv_log("job %llu: its image is written at last", (unsigned long long)j->rec.id);
     }
     j->rec.seconds = srv_entry_seconds(j, now);
     if (j->job) {
@@ -249,9 +362,7 @@ void srv_queue_end_job(srv_server *s, srv_entry *j, uint8_t state, const char *m
     if (message || state != PROTO_JOB_DONE) /* a done job keeps a note (server/workers.h) */
         snprintf(j->rec.message, sizeof j->rec.message, "%s", message ? message : "");
     free_run(j);
-    pt_status st = srv_queue_journal(s, &err);
-    if (st != PT_OK)
-        srv_log("error: cannot write the queue: %s", err.msg);
+    pt_status st = journal_or_log(s);
     /* A failed job's files stay for the operator to look at; an ended one's
      * go once the queue says it ended. */
     if (s->state && state != PROTO_JOB_FAILED && st == PT_OK)
@@ -277,7 +388,11 @@ void srv_queue_end_job(srv_server *s, srv_entry *j, uint8_t state, const char *m
 static double resumed_seconds(const srv_entry *j, double ckpt)
 {
     pt_exr_meta meta;
-    if (pt_exr_read(j->out_path, NULL, &meta, NULL) != PT_OK)
+    struct stat sb;
+    /* Only a regular file: a link or a FIFO planted in the output folder is
+     * not read (a FIFO would block the loop). */
+    if (lstat(j->out_path, &sb) != 0 || !S_ISREG(sb.st_mode) ||
+        pt_exr_read(j->out_path, NULL, &meta, NULL) != PT_OK)
         return ckpt;
     char id[64], hash[65];
     snprintf(id, sizeof id, "%llu", (unsigned long long)j->rec.id);
@@ -360,7 +475,7 @@ static void set_policy(srv_server *s, srv_entry *j)
 static int lease_any(srv_server *s, uint64_t owner, uint64_t now, proto_task *t)
 {
     for (srv_entry *j = s->jobs; j; j = j->next) {
-        if (!srv_entry_active(j) || !srv_entry_ready(s, j))
+        if (!srv_entry_active(j) || j->paused || !srv_entry_ready(s, j))
             continue;
         if (!j->t_started)
             set_policy(s, j);
@@ -427,7 +542,7 @@ int srv_queue_end_complete(srv_server *s)
 {
     int ended = 0;
     for (srv_entry *j = s->jobs; j; j = j->next)
-        if (j->job && srv_entry_active(j) && srv_job_complete(j->job)) {
+        if (j->job && srv_entry_active(j) && !j->final_pending && srv_job_complete(j->job)) {
             srv_queue_end_job(s, j, PROTO_JOB_DONE, NULL);
             ended++;
         }
@@ -460,12 +575,24 @@ srv_entry *srv_queue_find_scene(srv_server *s, const uint8_t hash[32])
     return j && j->bundle ? j : NULL;
 }
 
-pt_status srv_queue_log_result(srv_server *s, const srv_entry *j, const uint8_t *payload,
-                               size_t len, pt_error *err)
+pt_status srv_queue_log_result(srv_server *s, srv_entry *j, const uint8_t *payload, size_t len,
+                               pt_error *err)
 {
     if (!s->state)
         return PT_OK;
-    return srv_state_log_result(s->state, j->rec.id, payload, len, err);
+    if (j->paused)
+        return pt_error_set(err, PT_ERR_IO, "job %llu is paused", (unsigned long long)j->rec.id);
+    pt_status st = srv_state_log_result(s->state, j->rec.id, payload, len, err);
+    if (st != PT_ERR_IO)
+        return st;
+    /* Kept for the retry: logged and merged once the folder takes writes. */
+    j->pending_rec = pt_malloc(len ? len : 1);
+    if (j->pending_rec) {
+        memcpy(j->pending_rec, payload, len);
+        j->pending_len = len;
+    }
+    pause_job(s, j, "cannot write its results log", err);
+    return st;
 }
 
 typedef struct expiry {
@@ -493,11 +620,44 @@ void srv_queue_expire(srv_server *s, uint64_t now)
     srv_workers_enforce(s);
 }
 
+/* The progressive saves' outcome, logged once per streak of failures. */
+static void note_saves(srv_entry *j)
+{
+    unsigned long fails;
+    pt_error err = {0};
+    if (srv_writer_last(j->writer, &fails, &err) != PT_OK) {
+        if (!j->save_fails_logged)
+            srv_log("job %llu: cannot save its progressive image: %s; its samples are kept and "
+                    "the save is tried again",
+                    (unsigned long long)j->rec.id, err.msg);
+        disk_reason("output folder", &err, j->out_reason, sizeof j->out_reason);
+        j->save_fails_logged = fails;
+    } else if (j->save_fails_logged) {
+        srv_log("job %llu: its progressive image is saved again", (unsigned long long)j->rec.id);
+        j->save_fails_logged = 0;
+    }
+}
+
 void srv_queue_tick(srv_server *s, uint64_t now)
 {
+    static uint64_t queue_retry; /* one loop per process */
+    if (s->state && srv_state_queue_unsaved(s->state) && now >= queue_retry) {
+        queue_retry = now + DISK_RETRY_MS;
+        pt_error err = {0};
+        if (srv_queue_journal(s, &err) == PT_OK)
+            srv_log("the queue file is written again");
+    }
     for (srv_entry *j = s->jobs; j; j = j->next) {
         if (!j->job || !srv_entry_active(j))
             continue;
+        if (j->paused)
+            retry_paused(s, j, now);
+        if (j->final_pending) {
+            if (now >= j->t_retry)
+                srv_queue_end_job(s, j, PROTO_JOB_DONE, NULL);
+            continue;
+        }
+        note_saves(j);
         uint64_t merged = srv_job_samples_merged(j->job);
         int pass_done = srv_job_passes_done(j->job) > j->saved_passes;
         if ((pass_done || merged > j->saved_samples) &&
@@ -510,12 +670,21 @@ void srv_queue_tick(srv_server *s, uint64_t now)
             j->rate_samples = merged;
         }
         /* Checkpoint cost stays proportional to what the log has taken in. */
-        if (s->state) {
+        if (s->state && !j->paused) {
             const pt_film *f = srv_job_film(j->job);
             uint64_t film_bytes = (uint64_t)f->width * f->height * PROTO_RESULT_PIXEL_SIZE;
             uint64_t limit = film_bytes > CKPT_MIN_LOG ? film_bytes : CKPT_MIN_LOG;
-            if (srv_state_log_bytes(s->state, j->rec.id) >= limit)
-                srv_entry_checkpoint(s, j);
+            pt_error err = {0};
+            if (srv_state_log_bytes(s->state, j->rec.id) >= limit &&
+                checkpoint_quiet(s, j, &err) != PT_OK) {
+                if (err.code == PT_ERR_IO) {
+                    j->pending_ckpt = 1;
+                    pause_job(s, j, "cannot write its checkpoint", &err);
+                } else {
+                    srv_log("error: job %llu: cannot write its checkpoint: %s",
+                            (unsigned long long)j->rec.id, err.msg);
+                }
+            }
         }
     }
 }

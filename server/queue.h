@@ -51,7 +51,21 @@ struct srv_entry {
     uint64_t saved_samples, t_last_save;
     uint64_t rate_t, rate_samples;
     double rate;
-    srv_entry *next; /* the queue's order */
+    /* A folder that cannot be written (full, over quota, failing): while
+     * paused, none of the job's tasks is leased, and every few seconds the
+     * write that failed is tried again (pending_rec: the result its results
+     * log could not take, merged once it is logged; pending_ckpt: its
+     * checkpoint); the job resumes by itself when it succeeds. */
+    int paused;
+    char pause_reason[160]; /* shown by ptctl status: "state folder full (...)" */
+    uint8_t *pending_rec;
+    size_t pending_len;
+    int pending_ckpt;
+    uint64_t t_paused, t_retry;      /* ms */
+    int final_pending;               /* complete, but its final image is not written yet */
+    char out_reason[160];            /* why the last image write failed ("" when none) */
+    unsigned long save_fails_logged; /* progressive saves failed in a row, logged once */
+    srv_entry *next;                 /* the queue's order */
 };
 
 /* 1 while j is QUEUED or RUNNING. */
@@ -71,8 +85,9 @@ int srv_entry_ready(srv_server *s, srv_entry *j);
 /* Hands j's film, resolved, to its writer (a progressive or final image). */
 void srv_entry_save_image(srv_entry *j);
 
-/* Writes j's checkpoint when there is a state folder (errors are logged). */
-void srv_entry_checkpoint(srv_server *s, srv_entry *j);
+/* Writes j's checkpoint when there is a state folder; an error is logged
+ * and returned. */
+pt_status srv_entry_checkpoint(srv_server *s, srv_entry *j, pt_error *err);
 
 /* The job with id, NULL when there is none. */
 srv_entry *srv_queue_find(srv_server *s, uint64_t id);
@@ -92,15 +107,19 @@ void srv_queue_prune(srv_server *s);
 pt_status srv_queue_journal(srv_server *s, pt_error *err);
 
 /* Logs an accepted RESULT payload of j durably before it is merged; PT_OK
- * with no state folder. */
-pt_status srv_queue_log_result(srv_server *s, const srv_entry *j, const uint8_t *payload,
-                               size_t len, pt_error *err);
+ * with no state folder. When the log cannot take it, j is paused (its leases
+ * requeued, the workers told to drop its tasks, the reason logged once) and
+ * the payload kept to be logged and merged by a later srv_queue_tick; the
+ * caller must not merge it. Also fails, quietly, while j is paused. */
+pt_status srv_queue_log_result(srv_server *s, srv_entry *j, const uint8_t *payload, size_t len,
+                               pt_error *err);
 
 /* JOB_INFO of j as a client sees it now. */
 void srv_queue_info(const srv_server *s, const srv_entry *j, proto_job_info *m);
 
-/* Ends j: DONE (the final image is written first; FAILED when it cannot
- * be), CANCELLED or FAILED with message (may be NULL). Journals it, tells
+/* Ends j: DONE (the final image is written first; when it cannot be, j stays
+ * RUNNING with final_pending set, the reason shown, and srv_queue_tick tries
+ * again every few seconds), CANCELLED or FAILED with message (may be NULL). Journals it, tells
  * the workers when it ended early and its watchers always. */
 void srv_queue_end_job(srv_server *s, srv_entry *j, uint8_t state, const char *message);
 
@@ -116,8 +135,9 @@ void srv_queue_hand_out(srv_server *s);
 void srv_queue_release_owner(srv_server *s, const srv_conn *c, int report);
 
 /* Lease expiry (misses counted, then srv_workers_enforce); then, per running
- * job, the progressive save, the rate and the checkpoint trigger. now in ms
- * (pt_now_ms). */
+ * job, the progressive save (a failure logged once per streak), the rate, the
+ * checkpoint trigger, and the retries of a paused job's writes, of a final
+ * image and of the queue file. now in ms (pt_now_ms). */
 void srv_queue_expire(srv_server *s, uint64_t now);
 void srv_queue_tick(srv_server *s, uint64_t now);
 

@@ -367,10 +367,16 @@ static void on_fetch(srv_server *s, srv_conn *c, srv_entry *j)
     }
     uint8_t *data;
     size_t len;
-    if (pt_read_file(j->out_path, MAX_FETCH, &data, &len, &err) != PT_OK) {
+    /* Not through a link planted in the output folder, a regular file only. */
+    if (pt_read_file_nofollow(j->out_path, MAX_FETCH, &data, &len, &err) != PT_OK) {
         if (err.sys_errno == ENOENT)
             srv_conn_send_error(s, c, PROTO_E_NOT_FOUND, "job %llu has no image yet (%s)",
                                 (unsigned long long)j->rec.id, proto_job_state_name(j->rec.state));
+        else if (err.code == PT_ERR_FORMAT)
+            srv_conn_send_error(s, c, PROTO_E_INTERNAL,
+                                "job %llu: its image in the output folder is not a regular file "
+                                "(a link?); not sent",
+                                (unsigned long long)j->rec.id);
         else
             srv_conn_send_error(s, c, PROTO_E_INTERNAL, "%s", err.msg);
         return;

@@ -31,8 +31,9 @@
 typedef struct log_file {
     uint64_t id;
     int fd;
-    uint64_t bytes;
+    uint64_t bytes; /* the log's length: its whole records end here */
     int dirty;
+    int cut; /* a write was cut short and the cut back to bytes failed */
 } log_file;
 
 struct srv_state {
@@ -40,6 +41,7 @@ struct srv_state {
     int lock_fd;
     log_file *logs;
     uint32_t nlogs, logs_cap;
+    int queue_unsaved; /* the last queue file write failed */
 };
 
 const char *srv_state_dir(const srv_state *st)
@@ -87,7 +89,7 @@ pt_status srv_state_open(const char *dir, srv_state **out, pt_error *err)
     if ((s = pt_mkdirs(p, 1, err)) != PT_OK)
         goto fail;
     path_of(st, p, sizeof p, "lock");
-    st->lock_fd = open(p, O_RDWR | O_CREAT | O_CLOEXEC, 0600);
+    st->lock_fd = open(p, O_RDWR | O_CREAT | O_NOFOLLOW | O_CLOEXEC, 0600);
     if (st->lock_fd < 0) {
         s = pt_error_errno(err, PT_ERR_IO, "state folder %s: cannot open its lock file", dir);
         goto fail;
@@ -221,7 +223,13 @@ pt_status srv_state_save_queue(srv_state *st, srv_job_record *const *recs, uint3
     }
     pt_status s = end_file(&w, path, err);
     proto_writer_fini(&w);
+    st->queue_unsaved = s != PT_OK;
     return s;
+}
+
+int srv_state_queue_unsaved(const srv_state *st)
+{
+    return st->queue_unsaved;
 }
 
 pt_status srv_state_load_queue(srv_state *st, srv_job_record **recs, uint32_t *n, uint64_t *next_id,
@@ -369,7 +377,7 @@ static pt_status open_log(srv_state *st, uint64_t id, log_file **out, pt_error *
     }
     char p[PATH_MAX];
     job_path(st, id, "results.log", p, sizeof p);
-    int fd = open(p, O_WRONLY | O_CREAT | O_APPEND | O_CLOEXEC, 0600);
+    int fd = open(p, O_WRONLY | O_CREAT | O_APPEND | O_NOFOLLOW | O_CLOEXEC, 0600);
     if (fd < 0)
         return pt_error_errno(err, PT_ERR_IO, "%s", p);
     struct stat sb;
@@ -378,23 +386,46 @@ static pt_status open_log(srv_state *st, uint64_t id, log_file **out, pt_error *
         return pt_error_errno(err, PT_ERR_IO, "%s", p);
     }
     uint64_t bytes = (uint64_t)sb.st_size;
+    if (bytes > 0 && bytes < LOG_HEADER && ftruncate(fd, 0) == 0)
+        bytes = 0; /* a header a full disk cut short: the log held nothing */
+    if (bytes > 0 && bytes < LOG_HEADER) {
+        pt_status s = pt_error_errno(err, PT_ERR_IO, "%s: cannot cut its partial header", p);
+        close(fd);
+        return s;
+    }
     if (bytes == 0) {
         uint8_t h[LOG_HEADER];
         proto_put_u32(h, LOG_MAGIC);
         proto_put_u32(h + 4, STATE_VERSION);
         proto_put_u64(h + 8, id);
-        if (write(fd, h, sizeof h) != (ssize_t)sizeof h || fdatasync(fd) != 0 ||
-            pt_fsync_dir_of(p) != 0) {
+        if (pt_write_all(fd, h, sizeof h) != 0 || fdatasync(fd) != 0 || pt_fsync_dir_of(p) != 0) {
             pt_status s = pt_error_errno(err, PT_ERR_IO, "%s: cannot write its header", p);
+            /* Records must not follow a header cut short: leave the log empty
+             * (it holds nothing yet) for the next try. Should that fail too,
+             * the next open finds a short file and refuses it (below). */
+            int cut = ftruncate(fd, 0);
+            (void)cut;
             close(fd);
             return s;
         }
         bytes = LOG_HEADER;
     }
     l = &st->logs[st->nlogs++];
-    *l = (log_file){id, fd, bytes, 0};
+    *l = (log_file){id, fd, bytes, 0, 0};
     *out = l;
     return PT_OK;
+}
+
+/* Truncates the log to its known length (l->bytes), dropping a partial
+ * record; clears l->cut on success. Returns 0, or -1 with errno kept. */
+static int cut_back(log_file *l)
+{
+    int saved = errno;
+    if (ftruncate(l->fd, (off_t)l->bytes) != 0)
+        return -1;
+    l->cut = 0;
+    errno = saved;
+    return 0;
 }
 
 pt_status srv_state_log_result(srv_state *st, uint64_t id, const uint8_t *payload, size_t len,
@@ -414,17 +445,23 @@ pt_status srv_state_log_result(srv_state *st, uint64_t id, const uint8_t *payloa
         return pt_error_set(err, PT_ERR_NOMEM, "out of memory for a log record");
     memcpy(rec, h, 8);
     memcpy(rec + 8, payload, len);
-    size_t off = 0;
-    while (off < len + 8) {
-        ssize_t w = write(l->fd, rec + off, len + 8 - off);
-        if (w < 0 && errno == EINTR)
-            continue;
-        if (w <= 0) {
-            pt_free(rec);
-            return pt_error_errno(err, PT_ERR_IO, "results log of job %llu",
-                                  (unsigned long long)id);
-        }
-        off += (size_t)w;
+    /* A write cut short (a full disk, a quota) leaves part of a record at the
+     * end; the next record would follow it and the log would read as damaged
+     * in its middle. So the log is cut back to its last whole record before
+     * anything else is appended, and stays unwritten while that fails. */
+    if (l->cut && cut_back(l) != 0) {
+        s = pt_error_errno(err, PT_ERR_IO,
+                           "results log of job %llu: cannot cut it back to its last whole record",
+                           (unsigned long long)id);
+        pt_free(rec);
+        return s;
+    }
+    if (pt_write_all(l->fd, rec, len + 8) != 0) {
+        s = pt_error_errno(err, PT_ERR_IO, "results log of job %llu", (unsigned long long)id);
+        pt_free(rec);
+        l->cut = 1;
+        cut_back(l);
+        return s;
     }
     pt_free(rec);
     l->bytes += len + 8;
@@ -490,6 +527,7 @@ pt_status srv_state_checkpoint(srv_state *st, const srv_job *job, const srv_ckpt
                                   (unsigned long long)id);
         l->bytes = LOG_HEADER;
         l->dirty = 0;
+        l->cut = 0;
     }
     return PT_OK;
 }
@@ -531,7 +569,15 @@ static pt_status replay_log(srv_state *st, srv_job *job, srv_ckpt_extra *x, uint
             const uint8_t *pl = data + good + 8;
             proto_result r;
             pt_error e2 = {0};
-            if (proto_crc32c(0, pl, n) != proto_get_u32(data + good + 4) ||
+            int crc_ok = proto_crc32c(0, pl, n) == proto_get_u32(data + good + 4);
+            if (!crc_ok && good + 8 + (size_t)n == len) {
+                /* The last record, whole in length but not in content: the
+                 * file grew before its data reached the disk (a crash or a
+                 * full disk during the write). It was never merged. */
+                *torn = 1;
+                break;
+            }
+            if (!crc_ok ||
                 proto_msg_decode_result(pl, n, buf, PROTO_MAX_TILE_PIXELS, &r, &e2) != PT_OK) {
                 s = pt_error_set(err, PT_ERR_FORMAT,
                                  "%s: record at byte %zu is damaged "

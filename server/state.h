@@ -16,10 +16,13 @@
  * merged; the log is fdatasync'd in groups for power loss). After a restart the
  * job is rebuilt from the checkpoint, then the log is replayed; replay is
  * idempotent, so a crash between writing a checkpoint and emptying the log is
- * harmless. An incomplete last log record (a write cut short by the crash) is
- * dropped with a warning: it was never merged. Anything else that does not
- * check out (a bad magic, checksum, length, or contents) is refused with an
- * error that names the file; it is never used silently.
+ * harmless. A write cut short (a full disk) is cut back at once to the last
+ * whole record, so later records never follow a partial one. An incomplete or
+ * unchecked last record (cut short by a crash, or by a full disk when the cut
+ * back also failed) is dropped at the next start with a warning: it was never
+ * merged. Anything else that does not check out (a bad magic, checksum,
+ * length, or contents before the last record) is refused with an error that
+ * names the file; it is never used silently.
  *
  * Threads: called only from the event-loop thread, except srv_state_dir and
  * srv_state_save_bundle, which any thread may call between open and close.
@@ -69,6 +72,9 @@ pt_status srv_state_load_queue(srv_state *st, srv_job_record **recs, uint32_t *n
                                pt_error *err);
 pt_status srv_state_save_queue(srv_state *st, srv_job_record *const *recs, uint32_t n,
                                uint64_t next_id, pt_error *err);
+/* 1 when the last srv_state_save_queue failed (the file on disk is older than
+ * the queue): the caller tries again until it succeeds. */
+int srv_state_queue_unsaved(const srv_state *st);
 
 /* The bundle of job id: saved durably; loaded with its SHA-256 checked.
  * srv_state_save_bundle reads only the folder's name, fixed at open, and
@@ -98,7 +104,10 @@ pt_status srv_state_restore(srv_state *st, srv_job *job, srv_ckpt_extra *extra, 
                             int *torn, pt_error *err);
 
 /* Appends one accepted RESULT payload to the job's log (opened on first use).
- * Written before the result is merged; srv_state_sync makes it durable. */
+ * Written before the result is merged; srv_state_sync makes it durable. On
+ * failure (PT_ERR_IO, err->sys_errno ENOSPC, EDQUOT, EIO...) the log is left
+ * as it was, ending with its last whole record (a partial write is cut
+ * back), and the result must not be merged. */
 pt_status srv_state_log_result(srv_state *st, uint64_t id, const uint8_t *payload, size_t len,
                                pt_error *err);
 /* Bytes in the job's log now (0 when it has none). */

@@ -190,8 +190,8 @@ static void on_result(srv_server *s, srv_conn *c, const proto_frame *f)
         return;
     }
     srv_entry *j = srv_queue_find(s, r.job_id);
-    if (!j || !srv_entry_active(j) || !j->job) {
-        proto_result_fini(&r); /* a job that ended (cancelled): nothing to do */
+    if (!j || !srv_entry_active(j) || !j->job || j->paused) {
+        proto_result_fini(&r); /* a job that ended (cancelled) or paused: nothing to do */
         return;
     }
     int lease_index;
@@ -209,9 +209,7 @@ static void on_result(srv_server *s, srv_conn *c, const proto_frame *f)
     }
     /* Durable before merged: the log holds every result the film holds. */
     if (o == SRV_MERGED && srv_queue_log_result(s, j, f->payload, f->len, &err) != PT_OK) {
-        srv_log("error: job %llu: %s; result dropped (its task will be rendered again)",
-                (unsigned long long)j->rec.id, err.msg);
-        proto_result_fini(&r);
+        proto_result_fini(&r); /* not merged; the failure is logged once, by the queue */
         return;
     }
     if (o == SRV_MERGED)

@@ -13,7 +13,7 @@ struct srv_writer {
     pt_image *pending;
     pt_exr_meta meta;
     int busy, stop;
-    unsigned long written;
+    unsigned long written, failures;
     pt_status last;
     pt_error last_err;
 };
@@ -43,8 +43,12 @@ static void *writer_main(void *p)
         w->busy = 0;
         w->last = st;
         w->last_err = err;
-        if (st == PT_OK)
+        if (st == PT_OK) {
             w->written++;
+            w->failures = 0;
+        } else {
+            w->failures++;
+        }
         pthread_cond_broadcast(&w->cv);
     }
     pthread_mutex_unlock(&w->mu);
@@ -88,6 +92,18 @@ pt_status srv_writer_flush(srv_writer *w, pt_error *err)
     pt_status st = w->last;
     if (st != PT_OK && err)
         *err = w->last_err;
+    pthread_mutex_unlock(&w->mu);
+    return st;
+}
+
+pt_status srv_writer_last(srv_writer *w, unsigned long *failures, pt_error *err)
+{
+    pthread_mutex_lock(&w->mu);
+    pt_status st = w->last;
+    if (st != PT_OK && err)
+        *err = w->last_err;
+    if (failures)
+        *failures = w->failures;
     pthread_mutex_unlock(&w->mu);
     return st;
 }

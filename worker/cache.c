@@ -145,7 +145,7 @@ static pt_status write_bundle(wrk_cache *c, const char *hex, const uint8_t *data
 {
     char tmp[2200];
     temp_path(c, hex, ".bundle", tmp, sizeof tmp);
-    int fd = open(tmp, O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
+    int fd = open(tmp, O_WRONLY | O_CREAT | O_EXCL | O_NOFOLLOW | O_CLOEXEC, 0644);
     if (fd < 0)
         return pt_error_errno(err, PT_ERR_IO, "%s", tmp);
     pt_status st = PT_OK;

@@ -5,9 +5,9 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <limits.h>
-#include <stdatomic.h>
 #include <stdio.h>
 #include <string.h>
+#include <sys/random.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -52,41 +52,99 @@ pt_status pt_write_file_atomic(const char *path, const void *data, size_t n, pt_
 pt_status pt_write_file_atomic_mode(const char *path, const void *data, size_t n, unsigned mode,
                                     pt_error *err)
 {
+    pt_temp t;
+    pt_status st = pt_temp_open(path, mode, &t, err);
+    if (st != PT_OK)
+        return st;
+    if (pt_write_all(t.fd, data, n) != 0) {
+        st = pt_error_errno(err, PT_ERR_IO, "%s: write", path);
+        pt_temp_abort(&t);
+        return st;
+    }
+    return pt_temp_commit(&t, path, err);
+}
+
+/* 16 hex digits from the kernel's random source, so that the temporary's name
+ * cannot be guessed (and a link planted at it in advance). */
+static int random_hex16(char out[17])
+{
+    uint8_t r[8];
+    size_t got = 0;
+    while (got < sizeof r) {
+        ssize_t n = getrandom(r + got, sizeof r - got, 0);
+        if (n < 0 && errno == EINTR)
+            continue;
+        if (n <= 0)
+            return -1;
+        got += (size_t)n;
+    }
+    static const char hex[] = "0123456789abcdef";
+    for (size_t i = 0; i < sizeof r; i++) {
+        out[2 * i] = hex[r[i] >> 4];
+        out[2 * i + 1] = hex[r[i] & 15];
+    }
+    out[16] = '\0';
+    return 0;
+}
+
+pt_status pt_temp_open(const char *path, unsigned mode, pt_temp *t, pt_error *err)
+{
+    t->fd = -1;
+    t->path[0] = '\0';
     size_t plen = strlen(path);
     if (plen == 0 || path[plen - 1] == '/')
         return pt_error_set(err, PT_ERR_ARG, "'%s' is not a file name", path);
-    /* Unique per process and per call, so two writers of one path never
-     * share a temp file. */
-    static atomic_uint serial;
-    char tmp[PATH_MAX];
-    if ((size_t)snprintf(tmp, sizeof tmp, "%s.tmp.%ld.%u", path, (long)getpid(),
-                         atomic_fetch_add(&serial, 1)) >= sizeof tmp)
-        return pt_error_set(err, PT_ERR_IO, "%s: path too long", path);
-    int fd = open(tmp, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, (mode_t)mode);
-    if (fd < 0)
-        return pt_error_errno(err, PT_ERR_IO, "%s: cannot create %s", path, tmp);
-    if (pt_write_all(fd, data, n) != 0) {
-        pt_status st = pt_error_errno(err, PT_ERR_IO, "%s: write", path);
-        close(fd);
-        unlink(tmp);
+    for (int tries = 0; tries < 16; tries++) {
+        char r[17];
+        if (random_hex16(r) != 0)
+            return pt_error_errno(err, PT_ERR_IO, "%s: no random bytes for a temporary name", path);
+        if ((size_t)snprintf(t->path, sizeof t->path, "%s.tmp-%s", path, r) >= sizeof t->path)
+            return pt_error_set(err, PT_ERR_IO, "%s: path too long", path);
+        t->fd = open(t->path, O_WRONLY | O_CREAT | O_EXCL | O_NOFOLLOW | O_CLOEXEC, (mode_t)mode);
+        if (t->fd >= 0)
+            return PT_OK;
+        if (errno != EEXIST)
+            break;
+    }
+    pt_status st = pt_error_errno(err, PT_ERR_IO, "%s: cannot create its temporary file", path);
+    t->path[0] = '\0';
+    return st;
+}
+
+void pt_temp_abort(pt_temp *t)
+{
+    int saved = errno;
+    if (t->fd >= 0)
+        close(t->fd);
+    t->fd = -1;
+    if (t->path[0])
+        unlink(t->path);
+    t->path[0] = '\0';
+    errno = saved;
+}
+
+pt_status pt_temp_commit(pt_temp *t, const char *path, pt_error *err)
+{
+    pt_status st;
+    if (fsync(t->fd) != 0) {
+        st = pt_error_errno(err, PT_ERR_IO, "%s: fsync", path);
+        pt_temp_abort(t);
         return st;
     }
-    if (fsync(fd) != 0) {
-        pt_status st = pt_error_errno(err, PT_ERR_IO, "%s: fsync", path);
-        close(fd);
-        unlink(tmp);
+    int rc = close(t->fd);
+    t->fd = -1;
+    if (rc != 0) {
+        st = pt_error_errno(err, PT_ERR_IO, "%s: close", path);
+        pt_temp_abort(t);
         return st;
     }
-    if (close(fd) != 0) {
-        pt_status st = pt_error_errno(err, PT_ERR_IO, "%s: close", path);
-        unlink(tmp);
+    /* rename replaces a link at path rather than following it. */
+    if (rename(t->path, path) != 0) {
+        st = pt_error_errno(err, PT_ERR_IO, "%s: rename", path);
+        pt_temp_abort(t);
         return st;
     }
-    if (rename(tmp, path) != 0) {
-        pt_status st = pt_error_errno(err, PT_ERR_IO, "%s: rename from %s", path, tmp);
-        unlink(tmp);
-        return st;
-    }
+    t->path[0] = '\0';
     if (pt_fsync_dir_of(path) != 0)
         return pt_error_errno(err, PT_ERR_IO, "%s: fsync of its folder", path);
     return PT_OK;
@@ -157,6 +215,23 @@ pt_status pt_read_file(const char *path, size_t max, uint8_t **out, size_t *len,
     int fd = open(path, O_RDONLY | O_CLOEXEC);
     if (fd < 0)
         return pt_error_errno(err, PT_ERR_IO, "%s", path);
+    return read_fd(fd, path, max, out, len, err);
+}
+
+pt_status pt_read_file_nofollow(const char *path, size_t max, uint8_t **out, size_t *len,
+                                pt_error *err)
+{
+    int fd = open(path, O_RDONLY | O_CLOEXEC | O_NOFOLLOW | O_NONBLOCK);
+    if (fd < 0) {
+        if (errno == ELOOP)
+            return pt_error_set(err, PT_ERR_FORMAT, "%s: a symbolic link; not read", path);
+        return pt_error_errno(err, PT_ERR_IO, "%s", path);
+    }
+    struct stat sb;
+    if (fstat(fd, &sb) != 0 || !S_ISREG(sb.st_mode)) {
+        close(fd);
+        return pt_error_set(err, PT_ERR_FORMAT, "%s: not a regular file; not read", path);
+    }
     return read_fd(fd, path, max, out, len, err);
 }
 

@@ -6,6 +6,13 @@
  * the machine leaves either the old or the new contents in place, never a mix
  * (temp file in the same folder, fsync, rename, fsync of the folder).
  *
+ * Every file this project writes into place goes through pt_temp_open and
+ * pt_temp_commit (or pt_write_file_atomic, built on them): the temporary is
+ * created with O_CREAT|O_EXCL|O_NOFOLLOW under an unpredictable name (random
+ * bytes from getrandom), so a link or file planted in the folder is never
+ * opened, and the final rename(2) replaces whatever is at the destination,
+ * a symbolic link included, instead of writing through it.
+ *
  * Threads: any thread may call them; two writers of the same path race as
  * rename(2) does (the last one wins, whole).
  */
@@ -31,6 +38,27 @@ int pt_fsync_dir(const char *dir);
  * much was written is then unknown. */
 int pt_write_all(int fd, const void *data, size_t n);
 
+/* A temporary file being written beside its destination. */
+typedef struct pt_temp {
+    int fd; /* open for writing; -1 once committed or aborted */
+    char path[4096];
+} pt_temp;
+
+/* Creates "<path>.tmp-<16 random hex digits>" with O_WRONLY|O_CREAT|O_EXCL|
+ * O_NOFOLLOW|O_CLOEXEC and mode (before umask), trying new names when one
+ * exists. PT_ERR_ARG when path is empty or ends in '/'; PT_ERR_IO naming
+ * path (err->sys_errno kept: ENOSPC, EDQUOT, EACCES...). */
+pt_status pt_temp_open(const char *path, unsigned mode, pt_temp *t, pt_error *err);
+
+/* fsync and close t, rename it to path (replacing a file or a link there,
+ * never following it), fsync of the folder. On failure t is removed and
+ * PT_ERR_IO names path (errno kept), also when only the folder's fsync
+ * failed after the rename. t is closed in every case. */
+pt_status pt_temp_commit(pt_temp *t, const char *path, pt_error *err);
+
+/* Closes and removes t (a write that failed); accepts one already closed. */
+void pt_temp_abort(pt_temp *t);
+
 /* Replaces path with the n bytes of data, durably (see above), mode 0644
  * before umask. PT_ERR_ARG when path is empty or ends in '/'; PT_ERR_IO naming
  * path (no temporary file is left behind), also when the folder's fsync fails
@@ -46,6 +74,14 @@ pt_status pt_write_file_atomic_mode(const char *path, const void *data, size_t n
  * pt_free). PT_ERR_IO naming path when it cannot be read, PT_ERR_LIMIT when
  * it is larger than max bytes, PT_ERR_NOMEM. */
 pt_status pt_read_file(const char *path, size_t max, uint8_t **out, size_t *len, pt_error *err);
+
+/* pt_read_file that does not follow a symbolic link at path's last component
+ * and reads a regular file only (a FIFO does not block): PT_ERR_FORMAT for a
+ * link or another kind of file, else as pt_read_file (errno kept on
+ * PT_ERR_IO, so ENOENT can be told apart). For files in a folder that others
+ * may write to, such as the output folder. */
+pt_status pt_read_file_nofollow(const char *path, size_t max, uint8_t **out, size_t *len,
+                                pt_error *err);
 
 /* pt_read_file for rel, a relative name ('/'-separated) below the folder
  * dirfd, that never leaves that folder: each folder on the way is opened

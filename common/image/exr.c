@@ -3,7 +3,6 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <inttypes.h>
-#include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -14,8 +13,6 @@
 
 #include "common/base/alloc.h"
 #include "common/base/fsutil.h"
-
-static atomic_uint temp_serial;
 
 /*
  * Our own stream over a file descriptor for both directions: writing through
@@ -237,31 +234,22 @@ pt_status pt_exr_write(const char *path, const pt_image *img, const pt_exr_meta 
         img->height > PT_IMAGE_MAX_SIDE)
         return pt_error_set(err, PT_ERR_ARG, "EXR %s: no image or a bad size",
                             path ? path : "(null)");
-    size_t cap = strlen(path) + 32;
-    char *tmp = pt_malloc(cap);
-    if (!tmp)
-        return pt_error_set(err, PT_ERR_NOMEM, "EXR %s: out of memory", path);
-    /* Unique per process (pid) and per call (counter), so two writers of
-     * one path, in this process or another, never share a temp file. */
-    snprintf(tmp, cap, "%s.tmp.%ld.%u", path, (long)getpid(),
-             (unsigned)atomic_fetch_add(&temp_serial, 1));
-
     pt_status st = PT_OK;
     exr_context_t ctx = NULL;
     exr_stream s = {.fd = -1};
     exr_context_initializer_t init;
     exr_result_t rv;
-    int created = 0;
+    pt_temp tmp;
     stream_init(&init, &s);
     init.write_fn = stream_write;
 
-    s.fd = open(tmp, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-    if (s.fd < 0) {
-        st = pt_error_errno(err, PT_ERR_IO, "EXR %s: cannot create %s", path, tmp);
-        goto fail;
-    }
-    created = 1;
-    if ((rv = exr_start_write(&ctx, tmp, EXR_WRITE_FILE_DIRECTLY, &init)) != EXR_ERR_SUCCESS) {
+    /* An unpredictable name opened exclusively, never through a link
+     * (common/base/fsutil.h), so a file planted in the output folder is not
+     * written to. */
+    if ((st = pt_temp_open(path, 0644, &tmp, err)) != PT_OK)
+        return st;
+    s.fd = tmp.fd;
+    if ((rv = exr_start_write(&ctx, tmp.path, EXR_WRITE_FILE_DIRECTLY, &init)) != EXR_ERR_SUCCESS) {
         st = exr_fail(err, &s, rv, path, "cannot start writing");
         goto fail;
     }
@@ -284,35 +272,14 @@ pt_status pt_exr_write(const char *path, const pt_image *img, const pt_exr_meta 
         st = exr_fail(err, &s, rv, path, "cannot finish");
         goto fail;
     }
-    if (fsync(s.fd) != 0) {
-        st = pt_error_errno(err, PT_ERR_IO, "EXR %s: fsync %s", path, tmp);
-        goto fail;
-    }
-    int rc = close(s.fd);
-    s.fd = -1;
-    if (rc != 0) {
-        st = pt_error_errno(err, PT_ERR_IO, "EXR %s: close %s", path, tmp);
-        goto fail;
-    }
-    if (rename(tmp, path) != 0) {
-        st = pt_error_errno(err, PT_ERR_IO, "EXR %s: rename from %s", path, tmp);
-        goto fail;
-    }
-    pt_free(tmp);
-    /* The file is complete and in place; a failed directory fsync is still
-     * reported, since the rename may not survive a crash. */
-    if (pt_fsync_dir_of(path) != 0)
-        return pt_error_errno(err, PT_ERR_IO, "EXR %s: fsync of its directory", path);
-    return PT_OK;
+    /* fsync, rename over whatever is at path (a link is replaced, not
+     * followed), fsync of the folder; the temporary goes on failure. */
+    return pt_temp_commit(&tmp, path, err);
 
 fail:
     if (ctx)
         exr_finish(&ctx);
-    if (s.fd >= 0)
-        close(s.fd);
-    if (created)
-        unlink(tmp);
-    pt_free(tmp);
+    pt_temp_abort(&tmp);
     return st;
 }
 

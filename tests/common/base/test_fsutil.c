@@ -1,6 +1,8 @@
 /* Tests for common/base/fsutil.c: the atomic write (modes, reject paths, no
- * temporary left behind), the folder removal, and the read confined below a
- * folder (no link anywhere, regular files only, the cap before reading). */
+ * temporary left behind, links planted in the folder never written through),
+ * the folder removal, the read that follows no link, and the read confined
+ * below a folder (no link anywhere, regular files only, the cap before
+ * reading). */
 #include "common/base/fsutil.h"
 
 #include <dirent.h>
@@ -172,6 +174,63 @@ static void test_read_beneath(const char *dir)
     close(fd);
 }
 
+/* A folder others can write to (an output folder): links planted at the
+ * destination and at the names temporaries used to have are not followed,
+ * and temporaries are named unpredictably and created exclusively. */
+static void test_planted_links(const char *dir)
+{
+    char sub[256], victim[256], path[300], link2[400];
+    snprintf(sub, sizeof sub, "%s/out", dir);
+    snprintf(victim, sizeof victim, "%s/victim", dir);
+    CHECK(mkdir(sub, 0755) == 0);
+    pt_error err = {0};
+    CHECK(pt_write_file_atomic(victim, "precious", 8, &err) == PT_OK);
+    snprintf(path, sizeof path, "%s/1-img.exr", sub);
+    CHECK(symlink(victim, path) == 0);
+    /* The old scheme's names: path.tmp.PID.N for the first few N. */
+    for (int i = 0; i < 4; i++) {
+        snprintf(link2, sizeof link2, "%s.tmp.%ld.%d", path, (long)getpid(), i);
+        CHECK(symlink(victim, link2) == 0);
+    }
+    CHECK(pt_write_file_atomic(path, "image", 5, &err) == PT_OK);
+    CHECK(file_is(victim, "precious"));
+    struct stat sb;
+    CHECKF(lstat(path, &sb) == 0 && S_ISREG(sb.st_mode), "the link was written through");
+    CHECK(file_is(path, "image"));
+    CHECK(count_entries(sub) == 5); /* the image and the four planted links */
+
+    /* Two temporaries of one path have different, random names; the
+     * file is created exclusively and never through a link. */
+    pt_temp a, b;
+    CHECK(pt_temp_open(path, 0644, &a, &err) == PT_OK);
+    CHECK(pt_temp_open(path, 0644, &b, &err) == PT_OK);
+    CHECK(strcmp(a.path, b.path) != 0 && strncmp(a.path, path, strlen(path)) == 0);
+    CHECK(strlen(a.path) == strlen(path) + 5 + 16);
+    char bpath[sizeof b.path];
+    snprintf(bpath, sizeof bpath, "%s", b.path);
+    CHECK(access(bpath, F_OK) == 0);
+    pt_temp_abort(&b);
+    CHECK(access(bpath, F_OK) != 0);
+    CHECK(pt_write_all(a.fd, "temp", 4) == 0);
+    CHECK(pt_temp_commit(&a, path, &err) == PT_OK && file_is(path, "temp"));
+    CHECK(count_entries(sub) == 5);
+
+    /* The read that follows no link: a link and a FIFO are refused. */
+    uint8_t *data = NULL;
+    size_t len = 0;
+    CHECK(pt_read_file_nofollow(path, 100, &data, &len, &err) == PT_OK && len == 4);
+    pt_free(data);
+    CHECK(pt_read_file_nofollow(link2, 100, &data, &len, &err) == PT_ERR_FORMAT &&
+          strstr(err.msg, "link"));
+    snprintf(link2, sizeof link2, "%s/fifo", sub);
+    CHECK(mkfifo(link2, 0600) == 0);
+    CHECK(pt_read_file_nofollow(link2, 100, &data, &len, &err) == PT_ERR_FORMAT);
+    snprintf(link2, sizeof link2, "%s/none", sub);
+    CHECK(pt_read_file_nofollow(link2, 100, &data, &len, &err) == PT_ERR_IO &&
+          err.sys_errno == ENOENT);
+    CHECK(file_is(victim, "precious"));
+}
+
 int main(void)
 {
     umask(022);
@@ -184,6 +243,7 @@ int main(void)
     test_write_all_and_sync(dir);
     test_remove_tree(dir);
     test_read_beneath(dir);
+    test_planted_links(dir);
     CHECK(pt_remove_tree(dir) == 0 && access(dir, F_OK) != 0);
     return check_report();
 }

@@ -1,0 +1,235 @@
+/*
+ * test_state.c - the state folder's results log when writes fail or are cut
+ * short: a short write (a full disk, here RLIMIT_FSIZE) is cut back to the
+ * last whole record so later records follow whole ones; a torn last record
+ * (incomplete, or whole in length with a bad checksum) is dropped at restore
+ * and cut off; damage before the last record is still refused; a queue file
+ * that cannot be written is reported as unsaved until one is.
+ */
+#include <fcntl.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/resource.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include "common/base/alloc.h"
+#include "common/base/fsutil.h"
+#include "protocol/wire.h"
+#include "server/job.h"
+#include "server/state.h"
+#include "tests/check.h"
+
+static const uint8_t HASH[32] = {7, 7, 7};
+static const srv_job_params PARAMS = {64, 32, 32, 32, 16, 5, 8, 3, 0.0, 0, 0.0, ""};
+#define JOB_ID 4u
+
+/* The RESULT payload of task t of a PARAMS job, with synthetic pixels. */
+static void payload_of(srv_job *job, uint64_t t, proto_writer *w)
+{
+    static pt_pixel_acc px[32 * 32];
+    proto_task task;
+    /* Lease every task up to t so that the description is the job's own. */
+    do {
+        CHECK(srv_job_lease(job, 1, 0, 1000000, &task) == 1);
+    } while (task.task_id != t);
+    uint32_t n = (task.tile.x1 - task.tile.x0) * (task.tile.y1 - task.tile.y0);
+    for (uint32_t i = 0; i < n; i++)
+        px[i] = (pt_pixel_acc){{0.25 * (double)(t + 1), 0.5, 0.125 * i}, 1.0, task.s1 - task.s0, 0};
+    proto_result r = {JOB_ID, t, task.tile, task.s0, task.s1, 0, 0, n, px, 0};
+    proto_writer_init(w, (size_t)1 << 20);
+    CHECK(proto_msg_encode_result(w, &r, NULL) == PT_OK);
+}
+
+/* Opens the state folder dir with job JOB_ID's folder made (as its bundle's
+ * save would). */
+static srv_state *open_state(const char *dir)
+{
+    srv_state *st = NULL;
+    pt_error err = {0};
+    CHECKF(srv_state_open(dir, &st, &err) == PT_OK, "%s", err.msg);
+    char p[512];
+    snprintf(p, sizeof p, "%s/jobs/%u", dir, JOB_ID);
+    CHECK(pt_mkdirs(p, 1, &err) == PT_OK);
+    return st;
+}
+
+static srv_job *fresh_job(void)
+{
+    srv_job *job = NULL;
+    pt_error err = {0};
+    CHECKF(srv_job_new(JOB_ID, &PARAMS, HASH, &job, &err) == PT_OK, "%s", err.msg);
+    return job;
+}
+
+/* Logs tasks [0, n) of a fresh job; returns the log's size after each in sizes. */
+static void log_tasks(srv_state *st, uint32_t n, uint64_t *sizes)
+{
+    srv_job *src = fresh_job();
+    pt_error err = {0};
+    for (uint32_t t = 0; t < n; t++) {
+        proto_writer w;
+        payload_of(src, t, &w);
+        CHECKF(srv_state_log_result(st, JOB_ID, w.buf, w.len, &err) == PT_OK, "%s", err.msg);
+        proto_writer_fini(&w);
+        sizes[t] = srv_state_log_bytes(st, JOB_ID);
+    }
+    CHECK(srv_state_sync(st, &err) == PT_OK);
+    srv_job_free(src);
+}
+
+/* Restores the job from dir; returns the status, with the counts. */
+static pt_status restore(const char *dir, uint32_t *replayed, int *torn, pt_error *err)
+{
+    srv_state *st = NULL;
+    CHECK(srv_state_open(dir, &st, err) == PT_OK);
+    srv_job *job = fresh_job();
+    srv_ckpt_extra x;
+    pt_status s = srv_state_restore(st, job, &x, replayed, torn, err);
+    srv_job_free(job);
+    srv_state_close(st);
+    return s;
+}
+
+static off_t size_of(const char *path)
+{
+    struct stat sb;
+    return stat(path, &sb) == 0 ? sb.st_size : -1;
+}
+
+static void test_short_write_cut_back(const char *dir)
+{
+    char log[512];
+    snprintf(log, sizeof log, "%s/jobs/%u/results.log", dir, JOB_ID);
+    pt_error err = {0};
+    srv_state *st = open_state(dir);
+    uint64_t sizes[3];
+    log_tasks(st, 2, sizes);
+    CHECK(size_of(log) == (off_t)sizes[1]);
+
+    /* The file may grow by half a record only: the write is cut short. */
+    srv_job *src = fresh_job();
+    proto_writer w;
+    for (uint64_t t = 0; t < 2; t++) { /* lease past tasks 0 and 1 */
+        proto_task task;
+        CHECK(srv_job_lease(src, 1, 0, 1000000, &task) == 1);
+    }
+    payload_of(src, 2, &w);
+    struct rlimit old, lim;
+    CHECK(getrlimit(RLIMIT_FSIZE, &old) == 0);
+    lim = old;
+    lim.rlim_cur = (rlim_t)(sizes[1] + w.len / 2);
+    signal(SIGXFSZ, SIG_IGN);
+    CHECK(setrlimit(RLIMIT_FSIZE, &lim) == 0);
+    pt_status s = srv_state_log_result(st, JOB_ID, w.buf, w.len, &err);
+    CHECK(setrlimit(RLIMIT_FSIZE, &old) == 0);
+    CHECKF(s == PT_ERR_IO, "a cut-short write reported %d", s);
+    CHECKF(size_of(log) == (off_t)sizes[1], "the log holds %lld bytes, not %llu",
+           (long long)size_of(log), (unsigned long long)sizes[1]);
+    CHECK(srv_state_log_bytes(st, JOB_ID) == sizes[1]);
+    /* Space again: the record goes after the last whole one. */
+    CHECKF(srv_state_log_result(st, JOB_ID, w.buf, w.len, &err) == PT_OK, "%s", err.msg);
+    CHECK(srv_state_sync(st, &err) == PT_OK);
+    proto_writer_fini(&w);
+    srv_job_free(src);
+    srv_state_close(st);
+
+    uint32_t replayed = 0;
+    int torn = 0;
+    CHECKF(restore(dir, &replayed, &torn, &err) == PT_OK, "%s", err.msg);
+    CHECKF(replayed == 3 && torn == 0, "%u replayed, torn %d", replayed, torn);
+    pt_remove_tree(dir);
+}
+
+/* Appends bytes to path. */
+static void append(const char *path, const void *data, size_t n)
+{
+    int fd = open(path, O_WRONLY | O_APPEND);
+    CHECK(fd >= 0 && pt_write_all(fd, data, n) == 0);
+    close(fd);
+}
+
+static void test_torn_tail(const char *dir)
+{
+    char log[512];
+    snprintf(log, sizeof log, "%s/jobs/%u/results.log", dir, JOB_ID);
+    pt_error err = {0};
+    uint64_t sizes[3];
+
+    /* An incomplete last record: dropped, cut off, the job restored. */
+    srv_state *st = open_state(dir);
+    log_tasks(st, 3, sizes);
+    srv_state_close(st);
+    CHECK(truncate(log, (off_t)(sizes[2] - 10)) == 0);
+    uint32_t replayed = 0;
+    int torn = 0;
+    CHECKF(restore(dir, &replayed, &torn, &err) == PT_OK, "%s", err.msg);
+    CHECK(replayed == 2 && torn == 1);
+    CHECK(size_of(log) == (off_t)sizes[1]);
+
+    /* A last record whole in length but not in content (the file grew
+     * before the data reached the disk): dropped too. */
+    uint8_t *data;
+    size_t len;
+    CHECK(pt_read_file(log, 1 << 24, &data, &len, &err) == PT_OK);
+    uint32_t rec = (uint32_t)(sizes[1] - sizes[0]); /* one record's size */
+    uint8_t *zeros = pt_calloc(1, rec);
+    memcpy(zeros, data + sizes[0], 8); /* its length and checksum, no data */
+    append(log, zeros, rec);
+    pt_free(zeros);
+    CHECKF(restore(dir, &replayed, &torn, &err) == PT_OK, "%s", err.msg);
+    CHECK(replayed == 2 && torn == 1);
+    CHECK(size_of(log) == (off_t)sizes[1]);
+
+    /* Damage before the last record is refused, naming the file. */
+    data[16 + 20] ^= 0x5a; /* inside the first of two records */
+    CHECK(pt_write_file_atomic(log, data, len, &err) == PT_OK);
+    pt_status s = restore(dir, &replayed, &torn, &err);
+    CHECKF(s == PT_ERR_FORMAT && strstr(err.msg, "results.log") && strstr(err.msg, "damaged"),
+           "%d %s", s, err.msg);
+    pt_free(data);
+    pt_remove_tree(dir);
+}
+
+static void test_queue_unsaved(const char *dir)
+{
+    srv_state *st = NULL;
+    pt_error err = {0};
+    CHECK(srv_state_open(dir, &st, &err) == PT_OK);
+    srv_job_record rec = {0};
+    rec.id = 1;
+    rec.state = PROTO_JOB_QUEUED;
+    rec.params = PARAMS;
+    srv_job_record *recs[1] = {&rec};
+    CHECK(srv_state_save_queue(st, recs, 1, 2, &err) == PT_OK && !srv_state_queue_unsaved(st));
+    /* A queue file that cannot be written (here: no room for one byte). */
+    struct rlimit old, lim;
+    CHECK(getrlimit(RLIMIT_FSIZE, &old) == 0);
+    lim = old;
+    lim.rlim_cur = 16;
+    CHECK(setrlimit(RLIMIT_FSIZE, &lim) == 0);
+    CHECK(srv_state_save_queue(st, recs, 1, 2, &err) == PT_ERR_IO);
+    CHECK(setrlimit(RLIMIT_FSIZE, &old) == 0);
+    CHECK(srv_state_queue_unsaved(st));
+    CHECK(srv_state_save_queue(st, recs, 1, 2, &err) == PT_OK && !srv_state_queue_unsaved(st));
+    srv_state_close(st);
+    pt_remove_tree(dir);
+}
+
+int main(void)
+{
+    umask(022);
+    signal(SIGXFSZ, SIG_IGN);
+    char dir[] = "/tmp/test_state_XXXXXX";
+    if (!mkdtemp(dir)) {
+        perror("mkdtemp");
+        return 1;
+    }
+    test_short_write_cut_back(dir);
+    test_torn_tail(dir);
+    test_queue_unsaved(dir);
+    pt_remove_tree(dir);
+    return check_report();
+}
