@@ -59,6 +59,35 @@ static void bit_identity(void)
     CHECKF(same_pixels("ref.exr", "l3.exr"), "--local 3 differs from the standalone render");
     CHECK(all_samples("l3.exr", 32.0f));
 
+    /* Punctual lights (five point lights, NEE choosing among them and the
+     * emissive triangles): the farm's image is the standalone one's too. */
+    struct stat sb;
+    const char *lamp = PT_SHARED_SCENES "/LightsPunctualLamp/LightsPunctualLamp.gltf";
+    if (stat(lamp, &sb) == 0) {
+        const char *lamp_solo[] = {
+            PT_BIN_DIR "/ptworker", "--scene", lamp, COMMON, "--spp", "32", "-o",
+            path("lamp_ref.exr"),   "-q",      NULL};
+        CHECK(run(lamp_solo, "lamp_ref.log", 120) == 0);
+        const char *lamp_farm[] = {PT_BIN_DIR "/ptserve",
+                                   "--local",
+                                   "3",
+                                   "--worker-threads",
+                                   "1",
+                                   COMMON,
+                                   "--spp",
+                                   "32",
+                                   "-o",
+                                   path("lamp3.exr"),
+                                   lamp,
+                                   NULL};
+        CHECK(run(lamp_farm, "lamp3.log", 120) == 0);
+        CHECKF(same_pixels("lamp_ref.exr", "lamp3.exr"),
+               "punctual lights: --local 3 differs from the standalone render");
+    } else {
+        CHECK_SKIP("shared scenes not found; the punctual-light farm render");
+        CHECK(!check_shared_required());
+    }
+
     /* Adaptive sampling decides from the same sums in both: still identical. */
     const char *ad_solo[] = {PT_BIN_DIR "/ptworker",
                              "--scene",
