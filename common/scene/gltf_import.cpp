@@ -1092,14 +1092,12 @@ void parse(importer &im, const std::vector<unsigned char> &bytes)
     if (!ok && im.fs_st != PT_OK)
         im.fail(im.fs_st, "buffer file %s", im.fs_msg.c_str());
     if (!ok) {
+        // Every file tinygltf reads goes through fs_read, whose failures are
+        // reported just above; what is left is the content's fault (its
+        // "not found" means a JSON object, never a file: fs_exists says yes).
         std::string msg = tidy(terr.empty() ? twarn : terr);
-        // External images are not read by tinygltf, so a missing file is a buffer.
-        bool io = msg.find("not found") != std::string::npos ||
-                  msg.find("Failed to open") != std::string::npos;
-        const char *what = io    ? "buffer file cannot be read"
-                           : glb ? "invalid or truncated GLB"
-                                 : "invalid glTF JSON";
-        im.fail(io ? PT_ERR_IO : PT_ERR_FORMAT, "%s: %s", what, msg.c_str());
+        im.fail(PT_ERR_FORMAT, "%s: %s", glb ? "invalid or truncated GLB" : "invalid glTF JSON",
+                msg.c_str());
     }
     if (!twarn.empty())
         im.warn_once("tinygltf:" + twarn, "tinygltf: " + tidy(twarn));

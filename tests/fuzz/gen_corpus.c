@@ -1,7 +1,7 @@
 /*
  * gen_corpus.c - writes or checks the seed corpus of the fuzz targets.
  *
- *   gen_corpus write DIR   writes the files of DIR/fuzz_frame and DIR/fuzz_msg
+ *   gen_corpus write DIR   writes the files of DIR/<target> for every target
  *   gen_corpus check DIR   fails unless every generated file is in DIR with
  *                          the same bytes (other files, such as crash inputs
  *                          added by hand, are allowed)
@@ -9,7 +9,13 @@
  * The seeds are the sample messages of tests/protocol/samples.h: for
  * fuzz_msg a selector byte (see fuzz_msg.c) and a payload; for fuzz_frame a
  * mode byte (see fuzz_frame.c) and frames, alone, in one stream, and a few
- * broken ones. ctest runs "check", so a change to the wire format that
+ * broken ones. For the decoders of files: small glTF scenes (a data: URI
+ * buffer, an external buffer and image, a .glb, a name leading out of the
+ * folder) for fuzz_gltf; bundles packed from such scenes, and hostile ones,
+ * for fuzz_bundle; and for the state folder's targets (fuzz_state.h) real
+ * queue files, checkpoints and results logs written by server/state.c in a
+ * scratch folder: fresh, with held early results, finished, cut short,
+ * unsealed. ctest runs "check", so a change to the wire format that
  * forgets the corpus fails the suite; rerun "write" to refresh it.
  */
 #include <errno.h>
@@ -18,12 +24,20 @@
 #include <string.h>
 #include <sys/stat.h>
 
+#include "common/base/alloc.h"
+#include "common/base/fsutil.h"
+#include "common/scene/bundle.h"
 #include "protocol/frame.h"
 #include "protocol/msg.h"
+#include "protocol/wire.h"
+#include "server/state.h"
+#include "tests/fuzz/fuzz_state.h"
 #include "tests/protocol/samples.h"
 
 static int write_mode;
 static int failures;
+static const char *const file_targets[] = {"fuzz_gltf", "fuzz_bundle", "fuzz_checkpoint",
+                                           "fuzz_queue", "fuzz_results_log"};
 
 static void emit(const char *dir, const char *target, const char *name, const uint8_t *data,
                  size_t len)
@@ -65,6 +79,481 @@ static void frames(proto_writer *w, uint8_t mode, int variant_mask)
                     failures++;
 }
 
+/* ---- the files: glTF scenes, bundles, the state folder ----------------------------- */
+
+/* Appends to a growing byte string (aborting the generator when out of memory). */
+typedef struct bytes {
+    uint8_t *p;
+    size_t len, cap;
+} bytes;
+
+static void put(bytes *b, const void *data, size_t n)
+{
+    if (b->len + n > b->cap) {
+        size_t cap = b->cap ? b->cap : 256;
+        while (cap < b->len + n)
+            cap *= 2;
+        uint8_t *np = realloc(b->p, cap);
+        if (!np)
+            abort();
+        b->p = np;
+        b->cap = cap;
+    }
+    memcpy(b->p + b->len, data, n);
+    b->len += n;
+}
+
+static void puts_(bytes *b, const char *s)
+{
+    put(b, s, strlen(s));
+}
+
+/* A 2x2 RGBA PNG (red, green / blue, white), made once with zlib: fixed
+ * bytes, so the corpus does not depend on the system's PNG encoder. */
+static const uint8_t k_png[75] = {
+    0x89, 0x50, 0x4e, 0x47, 0x0d, 0x0a, 0x1a, 0x0a, 0x00, 0x00, 0x00, 0x0d, 0x49, 0x48, 0x44,
+    0x52, 0x00, 0x00, 0x00, 0x02, 0x00, 0x00, 0x00, 0x02, 0x08, 0x06, 0x00, 0x00, 0x00, 0x72,
+    0xb6, 0x0d, 0x24, 0x00, 0x00, 0x00, 0x12, 0x49, 0x44, 0x41, 0x54, 0x78, 0xda, 0x63, 0xf8,
+    0xcf, 0xc0, 0xf0, 0x1f, 0x0c, 0x81, 0x34, 0x18, 0x00, 0x00, 0x49, 0xc8, 0x09, 0xf7, 0x03,
+    0xd9, 0x64, 0xf1, 0x00, 0x00, 0x00, 0x00, 0x49, 0x45, 0x4e, 0x44, 0xae, 0x42, 0x60, 0x82};
+
+/* A 2x1 binary PPM: the other image format stb_image reads without zlib. */
+static const char k_ppm[] = "P6\n2 1\n255\n\xff\x80\x00\x00\x80\xff";
+
+/* The triangle's buffer: 3 float3 positions (36 bytes), 3 u16 indices and 2
+ * bytes of padding (8), 3 float2 uvs (24): 68 bytes, little-endian. */
+#define TRI_BIN 68
+static void tri_bin(uint8_t *out)
+{
+    static const float pos[9] = {0, 0, 0, 1, 0, 0, 0, 1, 0};
+    static const float uv[6] = {0, 0, 1, 0, 0, 1};
+    static const uint16_t idx[4] = {0, 1, 2, 0};
+    for (int i = 0; i < 9; i++)
+        proto_put_f32(out + 4 * i, pos[i]);
+    for (int i = 0; i < 4; i++)
+        proto_put_u16(out + 36 + 2 * i, idx[i]);
+    for (int i = 0; i < 6; i++)
+        proto_put_f32(out + 44 + 4 * i, uv[i]);
+}
+
+static void base64(bytes *b, const uint8_t *p, size_t n)
+{
+    static const char tab[] = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    for (size_t i = 0; i < n; i += 3) {
+        uint32_t v = (uint32_t)p[i] << 16 | (i + 1 < n ? (uint32_t)p[i + 1] << 8 : 0) |
+                     (i + 2 < n ? p[i + 2] : 0);
+        char q[4] = {tab[v >> 18 & 63], tab[v >> 12 & 63], i + 1 < n ? tab[v >> 6 & 63] : '=',
+                     i + 2 < n ? tab[v & 63] : '='};
+        put(b, q, 4);
+    }
+}
+
+/* The JSON of a one-triangle scene; buffer_uri NULL for a GLB's own chunk,
+ * image: an "images" entry or NULL for an untextured material. */
+static void tri_json(bytes *b, const char *buffer_uri, uint32_t buffer_len, const char *views,
+                     const char *image, const char *nodes_and_cameras)
+{
+    puts_(b, "{\"asset\":{\"version\":\"2.0\"},\"scene\":0,\"scenes\":[{\"nodes\":[0]}],");
+    puts_(b, nodes_and_cameras);
+    puts_(b, ",\"meshes\":[{\"primitives\":[{\"attributes\":{\"POSITION\":0,\"TEXCOORD_0\":2},"
+             "\"indices\":1,\"material\":0}]}],\"buffers\":[{");
+    if (buffer_uri) {
+        puts_(b, "\"uri\":\"");
+        puts_(b, buffer_uri);
+        puts_(b, "\",");
+    }
+    char num[64];
+    snprintf(num, sizeof num, "\"byteLength\":%u}],", buffer_len);
+    puts_(b, num);
+    puts_(b, views);
+    puts_(b, ",\"accessors\":["
+             "{\"bufferView\":0,\"componentType\":5126,\"count\":3,\"type\":\"VEC3\","
+             "\"min\":[0,0,0],\"max\":[1,1,0]},"
+             "{\"bufferView\":1,\"componentType\":5123,\"count\":3,\"type\":\"SCALAR\"},"
+             "{\"bufferView\":2,\"componentType\":5126,\"count\":3,\"type\":\"VEC2\"}],");
+    if (image) {
+        puts_(b, "\"images\":[");
+        puts_(b, image);
+        puts_(b, "],\"samplers\":[{\"wrapS\":33071,\"wrapT\":33648,\"magFilter\":9729}],"
+                 "\"textures\":[{\"source\":0,\"sampler\":0}],"
+                 "\"materials\":[{\"name\":\"m0\",\"pbrMetallicRoughness\":{"
+                 "\"baseColorTexture\":{\"index\":0,\"extensions\":{\"KHR_texture_transform\":"
+                 "{\"scale\":[2,2]}}},\"metallicRoughnessTexture\":{\"index\":0},"
+                 "\"metallicFactor\":0.5,\"roughnessFactor\":0.25},"
+                 "\"emissiveTexture\":{\"index\":0},\"emissiveFactor\":[1,1,1],"
+                 "\"doubleSided\":true}]}");
+    } else {
+        puts_(b, "\"materials\":[{\"name\":\"lamp\",\"pbrMetallicRoughness\":{"
+                 "\"baseColorFactor\":[0.8,0.5,0.2,1],\"metallicFactor\":0},"
+                 "\"emissiveFactor\":[1,0.5,0.25],\"extensions\":{"
+                 "\"KHR_materials_emissive_strength\":{\"emissiveStrength\":4},"
+                 "\"KHR_materials_specular\":{\"specularFactor\":0.5,"
+                 "\"specularColorFactor\":[1,0.9,0.8]}}}]}");
+    }
+}
+
+static const char k_views[] = "\"bufferViews\":[{\"buffer\":0,\"byteOffset\":0,\"byteLength\":36},"
+                              "{\"buffer\":0,\"byteOffset\":36,\"byteLength\":6},"
+                              "{\"buffer\":0,\"byteOffset\":44,\"byteLength\":24,"
+                              "\"byteStride\":8}]";
+static const char k_nodes[] = "\"nodes\":[{\"mesh\":0,\"translation\":[0,0,1],"
+                              "\"rotation\":[0,0,0.3826834,0.9238795],\"children\":[1,2]},"
+                              "{\"camera\":0,\"translation\":[0.5,0.5,3]},"
+                              "{\"camera\":1,\"matrix\":[1,0,0,0,0,1,0,0,0,0,1,0,0,0,5,1]}],"
+                              "\"cameras\":[{\"name\":\"cam\",\"type\":\"perspective\","
+                              "\"perspective\":{\"yfov\":0.6,\"znear\":0.1,\"aspectRatio\":1.5}},"
+                              "{\"name\":\"ortho\",\"type\":\"orthographic\",\"orthographic\":"
+                              "{\"xmag\":1,\"ymag\":1,\"znear\":0.1,\"zfar\":10}}]";
+#define GLTF_SEP "\n#ptfuzz#\n" /* fuzz_gltf.c's part separator */
+
+static void gen_gltf(const char *dir)
+{
+    uint8_t bin[TRI_BIN];
+    tri_bin(bin);
+    bytes b = {0};
+
+    /* The buffer inline as a data: URI; emissive strength and specular. */
+    bytes uri = {0};
+    puts_(&uri, "data:application/octet-stream;base64,");
+    base64(&uri, bin, sizeof bin);
+    put(&uri, "", 1);
+    tri_json(&b, (const char *)uri.p, TRI_BIN, k_views, NULL, k_nodes);
+    emit(dir, "fuzz_gltf", "tri_datauri.gltf", b.p, b.len);
+    free(uri.p);
+
+    /* External buffer and PNG texture; then the same asking for a camera,
+     * with a PPM image, and with a name that leads out of the folder. */
+    static const struct {
+        const char *name, *buffer, *image, *camera;
+        const uint8_t *img;
+        size_t img_len;
+    } ext[] = {
+        {"tri_bin_png", "b.bin", "{\"uri\":\"i.png\"}", NULL, k_png, sizeof k_png},
+        {"tri_bin_ppm_cam", "./b%2ebin", "{\"uri\":\"i.png\",\"mimeType\":\"image/png\"}", "cam",
+         (const uint8_t *)k_ppm, sizeof k_ppm - 1},
+        {"tri_escape", "../b.bin", "{\"uri\":\"/etc/passwd\"}", "ortho", k_png, sizeof k_png},
+    };
+    for (size_t i = 0; i < sizeof ext / sizeof ext[0]; i++) {
+        b.len = 0;
+        tri_json(&b, ext[i].buffer, TRI_BIN, k_views, ext[i].image, k_nodes);
+        puts_(&b, GLTF_SEP);
+        put(&b, bin, sizeof bin);
+        puts_(&b, GLTF_SEP);
+        put(&b, ext[i].img, ext[i].img_len);
+        if (ext[i].camera) {
+            puts_(&b, GLTF_SEP);
+            puts_(&b, ext[i].camera);
+        }
+        emit(dir, "fuzz_gltf", ext[i].name, b.p, b.len);
+    }
+
+    /* A .glb (glTF 2.0 spec 4.4): header, JSON chunk, BIN chunk holding the
+     * triangle and the PNG, which a bufferView names as the texture. */
+    bytes json = {0};
+    char views[512];
+    snprintf(views, sizeof views,
+             "\"bufferViews\":[{\"buffer\":0,\"byteOffset\":0,\"byteLength\":36},"
+             "{\"buffer\":0,\"byteOffset\":36,\"byteLength\":6},"
+             "{\"buffer\":0,\"byteOffset\":44,\"byteLength\":24},"
+             "{\"buffer\":0,\"byteOffset\":%u,\"byteLength\":%zu}]",
+             TRI_BIN, sizeof k_png);
+    uint32_t binlen = (uint32_t)(TRI_BIN + sizeof k_png + 3) & ~3u;
+    tri_json(&json, NULL, binlen, views, "{\"bufferView\":3,\"mimeType\":\"image/png\"}",
+             "\"nodes\":[{\"mesh\":0,\"scale\":[2,2,2]}]");
+    while (json.len % 4)
+        puts_(&json, " ");
+    uint8_t h[12];
+    b.len = 0;
+    proto_put_u32(h, 0x46546C67u); /* "glTF" */
+    proto_put_u32(h + 4, 2);
+    proto_put_u32(h + 8, (uint32_t)(12 + 8 + json.len + 8 + binlen));
+    put(&b, h, 12);
+    proto_put_u32(h, (uint32_t)json.len);
+    proto_put_u32(h + 4, 0x4E4F534Au); /* "JSON" */
+    put(&b, h, 8);
+    put(&b, json.p, json.len);
+    proto_put_u32(h, binlen);
+    proto_put_u32(h + 4, 0x004E4942u); /* "BIN\0" */
+    put(&b, h, 8);
+    put(&b, bin, sizeof bin);
+    put(&b, k_png, sizeof k_png);
+    static const uint8_t zero[4] = {0};
+    put(&b, zero, binlen - TRI_BIN - sizeof k_png);
+    emit(dir, "fuzz_gltf", "tri.glb", b.p, b.len);
+    free(json.p);
+    free(b.p);
+}
+
+/* Writes tmp/name with data (the generator's own scratch files). */
+static void scratch(const char *tmp, const char *name, const void *data, size_t len)
+{
+    char path[4096];
+    snprintf(path, sizeof path, "%s/%s", tmp, name);
+    pt_error err = {0};
+    if (pt_write_file_atomic(path, data, len, &err) != PT_OK) {
+        fprintf(stderr, "%s\n", err.msg);
+        failures++;
+    }
+}
+
+static void gen_bundle(const char *dir, const char *tmp)
+{
+    uint8_t bin[TRI_BIN];
+    tri_bin(bin);
+    bytes b = {0};
+    pt_error err = {0};
+    char path[4096];
+    snprintf(path, sizeof path, "%s/sub/tex", tmp);
+    pt_mkdirs(path, 0, &err);
+    scratch(tmp, "sub/b.bin", bin, sizeof bin);
+    scratch(tmp, "sub/tex/i x.png", k_png, sizeof k_png);
+    tri_json(&b, "sub/b.bin", TRI_BIN, k_views, "{\"uri\":\"sub/tex/i%20x.png\"}", k_nodes);
+    scratch(tmp, "nested.gltf", b.p, b.len);
+    b.len = 0;
+    tri_json(&b, "b.bin", TRI_BIN, k_views, NULL, k_nodes);
+    scratch(tmp, "b.bin", bin, sizeof bin);
+    scratch(tmp, "flat.gltf", b.p, b.len);
+    free(b.p);
+
+    static const char *const packed[] = {"nested.gltf", "flat.gltf"};
+    for (size_t i = 0; i < 2; i++) {
+        snprintf(path, sizeof path, "%s/%s", tmp, packed[i]);
+        pt_bundle *bun = NULL;
+        if (pt_bundle_pack(path, &bun, &err) != PT_OK) {
+            fprintf(stderr, "%s\n", err.msg);
+            failures++;
+            continue;
+        }
+        emit(dir, "fuzz_bundle", packed[i], bun->data, bun->size);
+        pt_bundle_free(bun);
+    }
+    /* Names that must be refused, and files where folders must go. */
+    static const char *const hostile[][2] = {
+        {"../up.gltf", "{}"},
+        {"a/./b", "{}"},
+        {"a", "{}"},
+    };
+    for (size_t i = 0; i < sizeof hostile / sizeof hostile[0]; i++) {
+        proto_writer w;
+        proto_writer_init(&w, 1 << 20);
+        proto_w_bytes(&w, "PTB1", 4);
+        proto_w_u32(&w, i == 2 ? 2 : 1);
+        for (int k = 0; k < (i == 2 ? 2 : 1); k++) {
+            const char *name = k ? "a/b.bin" : hostile[i][0];
+            proto_w_u16(&w, (uint16_t)strlen(name));
+            proto_w_bytes(&w, name, strlen(name));
+            proto_w_u64(&w, strlen(hostile[i][1]));
+            proto_w_bytes(&w, hostile[i][1], strlen(hostile[i][1]));
+        }
+        static const char *const names[] = {"escape", "dot", "file_then_folder"};
+        emit(dir, "fuzz_bundle", names[i], w.buf, w.len);
+        proto_writer_fini(&w);
+    }
+}
+
+/* Reads tmp/rel whole and emits it behind a mode byte, with cut bytes off
+ * the end and, when flip is not 0, one bit of byte flip changed. */
+static void emit_state_file(const char *dir, const char *target, const char *name, const char *tmp,
+                            const char *rel, uint8_t mode, size_t cut, size_t flip)
+{
+    char path[4096];
+    snprintf(path, sizeof path, "%s/%s", tmp, rel);
+    uint8_t *data = NULL;
+    size_t len = 0;
+    pt_error err = {0};
+    if (pt_read_file(path, (size_t)1 << 30, &data, &len, &err) != PT_OK || len < cut ||
+        len <= flip) {
+        fprintf(stderr, "%s\n", err.msg);
+        failures++;
+        pt_free(data);
+        return;
+    }
+    uint8_t *out = malloc(len + 1);
+    if (!out)
+        abort();
+    out[0] = mode;
+    memcpy(out + 1, data, len);
+    if (flip)
+        out[1 + flip] ^= 0x20;
+    emit(dir, target, name, out, len + 1 - cut);
+    free(out);
+    pt_free(data);
+}
+
+/* Deterministic pixels for a task; varied, so that adaptive sampling has
+ * some tiles to stop and some to go on with. */
+static void fake_result(const proto_task *t, pt_pixel_acc *px, proto_result *r)
+{
+    uint32_t n = (t->tile.x1 - t->tile.x0) * (t->tile.y1 - t->tile.y0);
+    uint32_t ns = t->s1 - t->s0;
+    for (uint32_t i = 0; i < n; i++) {
+        double v = (t->tile.x0 == 0 ? 0.5 : (double)((i * 37 + t->task_id * 11) % 17) / 8.0);
+        px[i] = (pt_pixel_acc){{v * ns, v * 0.5 * ns, v * 0.25 * ns}, v * v * ns * 1.1, ns, 0};
+    }
+    memset(r, 0, sizeof *r);
+    r->job_id = t->job_id;
+    r->task_id = t->task_id;
+    r->tile = t->tile;
+    r->s0 = t->s0;
+    r->s1 = t->s1;
+    r->rejected = t->task_id & 1;
+    r->rays = 1000 + t->task_id;
+    r->npixels = n;
+    r->pixels = px;
+}
+
+/* Validates, logs, then merges a task's result, as the coordinator does; a
+ * task of a tile that adaptive sampling stopped is dropped unlogged. */
+static void log_and_merge(srv_state *st, srv_job *job, const proto_task *t)
+{
+    static pt_pixel_acc px[64];
+    proto_result r;
+    fake_result(t, px, &r);
+    pt_error err = {0};
+    int lease = -1;
+    srv_outcome o = srv_job_validate(job, 1, &r, &lease, &err);
+    if (o == SRV_NOT_LEASED || o == SRV_DUPLICATE)
+        return;
+    proto_writer w;
+    proto_writer_init(&w, PROTO_MAX_PAYLOAD);
+    if (o != SRV_MERGED || proto_msg_encode_result(&w, &r, &err) != PT_OK ||
+        srv_state_log_result(st, FUZZ_JOB_ID, w.buf, w.len, &err) != PT_OK ||
+        srv_job_result_validated(job, lease, &r, &err) != SRV_MERGED) {
+        fprintf(stderr, "task %llu: %s\n", (unsigned long long)t->task_id, err.msg);
+        failures++;
+    }
+    proto_writer_fini(&w);
+}
+
+static void gen_state(const char *dir, const char *tmp)
+{
+    pt_error err = {0};
+    char sdir[4096];
+    snprintf(sdir, sizeof sdir, "%s/state", tmp);
+    srv_state *st = NULL;
+    if (srv_state_open(sdir, &st, &err) != PT_OK) {
+        fprintf(stderr, "%s\n", err.msg);
+        failures++;
+        return;
+    }
+    /* The queue: empty, then three jobs in every kind of state. */
+    if (srv_state_save_queue(st, NULL, 0, 1, &err) != PT_OK)
+        failures++;
+    emit_state_file(dir, "fuzz_queue", "queue_empty", sdir, "queue", FUZZ_MODE_SEAL, 0, 0);
+    srv_job_record recs[3];
+    memset(recs, 0, sizeof recs);
+    for (int i = 0; i < 3; i++) {
+        srv_job_record *j = &recs[i];
+        j->id = (uint64_t)(2 * i + 1);
+        j->seq = (uint64_t)i;
+        j->state = (uint8_t)(PROTO_JOB_QUEUED + 2 * i);
+        j->priority = i - 1;
+        snprintf(j->name, sizeof j->name, "job %d", i);
+        snprintf(j->owner, sizeof j->owner, "client\x1b[%d", i);
+        snprintf(j->scene, sizeof j->scene, "scene.gltf");
+        snprintf(j->output, sizeof j->output, "%d-job.exr", i);
+        j->submitted = 1700000000u + (uint64_t)i;
+        j->params = FUZZ_JOB_PARAMS[i & 1];
+        memcpy(j->hash, FUZZ_JOB_HASH, 32);
+        j->bundle_size = 1234;
+        j->samples_done = (uint64_t)i * 1000;
+        j->seconds = 1.5 * i;
+        j->error = i == 2 ? -1 : 0.01 * i;
+        if (i == 2)
+            snprintf(j->message, sizeof j->message, "scene refused: accessor 3");
+    }
+    srv_job_record *ptrs[3] = {&recs[0], &recs[1], &recs[2]};
+    if (srv_state_save_queue(st, ptrs, 3, 9, &err) != PT_OK)
+        failures++;
+    emit_state_file(dir, "fuzz_queue", "queue_3jobs", sdir, "queue", FUZZ_MODE_SEAL, 0, 0);
+    emit_state_file(dir, "fuzz_queue", "queue_3jobs_damaged", sdir, "queue", 0, 0, 100);
+    emit_state_file(dir, "fuzz_queue", "queue_3jobs_cut", sdir, "queue", 0, 7, 0);
+    emit_state_file(dir, "fuzz_queue", "queue_3jobs_cut_sealed", sdir, "queue", FUZZ_MODE_SEAL, 7,
+                    0);
+
+    /* Each job: a fresh checkpoint; a log with early arrivals held; the
+     * checkpoint after them; the finished job's checkpoint. */
+    for (uint8_t p = 0; p < 2; p++) {
+        srv_job *job = NULL;
+        if (srv_job_new(FUZZ_JOB_ID, &FUZZ_JOB_PARAMS[p], FUZZ_JOB_HASH, &job, &err) != PT_OK) {
+            failures++;
+            continue;
+        }
+        srv_ckpt_extra x = {12.5, 3, 100000};
+        char name[64], rel[64];
+        snprintf(rel, sizeof rel, "jobs/%u/checkpoint", FUZZ_JOB_ID);
+        uint8_t sealed = (uint8_t)(FUZZ_MODE_SEAL | p);
+        if (srv_state_checkpoint(st, job, &x, &err) != PT_OK)
+            failures++;
+        snprintf(name, sizeof name, "ckpt%u_fresh", p);
+        emit_state_file(dir, "fuzz_checkpoint", name, sdir, rel, sealed, 0, 0);
+
+        proto_task tasks[32];
+        uint32_t nt = 0;
+        while (nt < 32 && srv_job_lease(job, 1, 0, 1000, &tasks[nt]))
+            nt++;
+        uint32_t tiles = srv_job_tiles(job);
+        /* Chunk 1 of tile 0 before chunk 0 (held), every chunk 0, chunk 2 of
+         * tile 1 (held). */
+        log_and_merge(st, job, &tasks[tiles]);
+        for (uint32_t t = 0; t < tiles; t++)
+            log_and_merge(st, job, &tasks[t]);
+        log_and_merge(st, job, &tasks[2 * tiles + 1]);
+        snprintf(rel, sizeof rel, "jobs/%u/results.log", FUZZ_JOB_ID);
+        snprintf(name, sizeof name, "log%u", p);
+        emit_state_file(dir, "fuzz_results_log", name, sdir, rel, sealed, 0, 0);
+        snprintf(name, sizeof name, "log%u_torn", p);
+        emit_state_file(dir, "fuzz_results_log", name, sdir, rel, sealed, 9, 0);
+        snprintf(name, sizeof name, "log%u_damaged", p);
+        emit_state_file(dir, "fuzz_results_log", name, sdir, rel, p, 0, 100);
+
+        x.seconds = 30.25;
+        if (srv_state_checkpoint(st, job, &x, &err) != PT_OK)
+            failures++;
+        snprintf(rel, sizeof rel, "jobs/%u/checkpoint", FUZZ_JOB_ID);
+        snprintf(name, sizeof name, "ckpt%u_held", p);
+        emit_state_file(dir, "fuzz_checkpoint", name, sdir, rel, sealed, 0, 0);
+        snprintf(name, sizeof name, "ckpt%u_damaged", p);
+        emit_state_file(dir, "fuzz_checkpoint", name, sdir, rel, p, 0, 100);
+        snprintf(name, sizeof name, "ckpt%u_cut_sealed", p);
+        emit_state_file(dir, "fuzz_checkpoint", name, sdir, rel, sealed, 50, 0);
+        snprintf(rel, sizeof rel, "jobs/%u/results.log", FUZZ_JOB_ID);
+        snprintf(name, sizeof name, "log%u_header", p);
+        emit_state_file(dir, "fuzz_results_log", name, sdir, rel, sealed, 0, 0);
+
+        for (uint32_t k = tiles; k < nt; k++)
+            if (k != tiles && k != 2 * tiles + 1)
+                log_and_merge(st, job, &tasks[k]);
+        if (!srv_job_complete(job) || srv_job_tiles_stopped(job) != (p ? 2u : 0u)) {
+            fprintf(stderr, "job %u: not complete, or %u tiles stopped\n", p,
+                    srv_job_tiles_stopped(job));
+            failures++;
+        }
+        if (srv_state_checkpoint(st, job, &x, &err) != PT_OK)
+            failures++;
+        snprintf(rel, sizeof rel, "jobs/%u/checkpoint", FUZZ_JOB_ID);
+        snprintf(name, sizeof name, "ckpt%u_done", p);
+        emit_state_file(dir, "fuzz_checkpoint", name, sdir, rel, sealed, 0, 0);
+        srv_job_free(job);
+        srv_state_forget_job(st, FUZZ_JOB_ID);
+    }
+    srv_state_close(st);
+}
+
+static void gen_files(const char *dir)
+{
+    char tmp[] = "/tmp/ptfuzz-gen.XXXXXX";
+    if (!mkdtemp(tmp)) {
+        perror(tmp);
+        failures++;
+        return;
+    }
+    gen_gltf(dir);
+    gen_bundle(dir, tmp);
+    gen_state(dir, tmp);
+    pt_remove_tree(tmp);
+}
+
 int main(int argc, char **argv)
 {
     if (argc != 3 || (strcmp(argv[1], "write") && strcmp(argv[1], "check"))) {
@@ -80,6 +569,10 @@ int main(int argc, char **argv)
         mkdir(path, 0755);
         snprintf(path, sizeof path, "%s/fuzz_msg", dir);
         mkdir(path, 0755);
+        for (size_t i = 0; i < sizeof file_targets / sizeof file_targets[0]; i++) {
+            snprintf(path, sizeof path, "%s/%s", dir, file_targets[i]);
+            mkdir(path, 0755);
+        }
     }
     proto_writer w;
     proto_writer_init(&w, PROTO_MAX_PAYLOAD);
@@ -173,6 +666,7 @@ int main(int argc, char **argv)
     emit(dir, "fuzz_frame", "bad_crc", w.buf, w.len);
 
     proto_writer_fini(&w);
+    gen_files(dir);
     if (failures)
         fprintf(stderr, "%d corpus problems\n", failures);
     else

@@ -56,6 +56,8 @@ static int run_file(const char *path)
     }
     memcpy(exact, buf, len);
     free(buf);
+    if (getenv("PT_FUZZ_VERBOSE")) /* the targets then print their verdicts */
+        fprintf(stderr, "%s\n", path);
     LLVMFuzzerTestOneInput(exact, len);
     free(exact);
     return 1;

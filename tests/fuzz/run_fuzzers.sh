@@ -1,10 +1,15 @@
 #!/usr/bin/env bash
-# Builds (when needed) and runs each libFuzzer target of the protocol for a
-# bounded time:   tests/fuzz/run_fuzzers.sh SECONDS [TARGET...]
+# Builds (when needed) and runs each libFuzzer target for a bounded time:
+#   tests/fuzz/run_fuzzers.sh SECONDS [TARGET...]
+# Targets: fuzz_frame and fuzz_msg (the protocol), fuzz_gltf (the glTF
+# loader), fuzz_bundle (scene bundles), fuzz_queue, fuzz_checkpoint and
+# fuzz_results_log (the state folder's files), fuzz_exr (the OpenEXR reader);
+# all of them by default.
 # Build: build-fuzz/ (Debug, clang, -DPT_FUZZ=ON), or $PT_FUZZ_BUILD.
-# Each target starts from its committed seeds (tests/fuzz/corpus/<target>) and
-# writes what it discovers to <build>/fuzz-corpus/<target>, never to the
-# source tree; a crash is saved as <build>/fuzz-artifacts/<target>-crash-*
+# Each target starts from its committed seeds (tests/fuzz/corpus/<target>;
+# fuzz_gltf also from scenes/), with tests/fuzz/<target>.dict when there is
+# one, and writes what it discovers to <build>/fuzz-corpus/<target>, never to
+# the source tree; a crash is saved as <build>/fuzz-artifacts/<target>-crash-*
 # and fails the script. To keep a crash as a regression seed, copy it into
 # tests/fuzz/corpus/<target>/ once fixed.
 # Environment: PT_JOBS (build jobs, default nproc), PT_FUZZ_MAX_LEN (default 16384: room for a HEARTBEAT past its cap).
@@ -13,7 +18,9 @@ cd "$(dirname "$0")/../.."
 seconds=${1:?usage: run_fuzzers.sh SECONDS [TARGET...]}
 shift
 targets=("$@")
-[[ ${#targets[@]} -gt 0 ]] || targets=(fuzz_frame fuzz_msg)
+[[ ${#targets[@]} -gt 0 ]] ||
+  targets=(fuzz_frame fuzz_msg fuzz_gltf fuzz_bundle fuzz_queue fuzz_checkpoint fuzz_results_log
+    fuzz_exr)
 build=${PT_FUZZ_BUILD:-build-fuzz}
 jobs=${PT_JOBS:-$(nproc)}
 max_len=${PT_FUZZ_MAX_LEN:-16384}
@@ -30,11 +37,15 @@ status=0
 for t in "${targets[@]}"; do
   mkdir -p "$build/fuzz-corpus/$t"
   echo "== $t: ${seconds}s"
+  extra=()
+  [[ -f tests/fuzz/$t.dict ]] && extra+=("-dict=tests/fuzz/$t.dict")
+  seeds=("tests/fuzz/corpus/$t")
+  [[ $t == fuzz_gltf ]] && seeds+=(scenes)
   if ! ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1 \
       "$build/bin/$t" -max_total_time="$seconds" -timeout=10 -rss_limit_mb=2048 \
-      -max_len="$max_len" -print_final_stats=1 \
+      -max_len="$max_len" -print_final_stats=1 "${extra[@]}" \
       -artifact_prefix="$build/fuzz-artifacts/$t-" \
-      "$build/fuzz-corpus/$t" "tests/fuzz/corpus/$t"; then
+      "$build/fuzz-corpus/$t" "${seeds[@]}"; then
     echo "== $t: FAILED (see $build/fuzz-artifacts/)" >&2
     status=1
   fi

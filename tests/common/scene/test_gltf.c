@@ -551,6 +551,15 @@ static void test_hostile(void)
 
     write_file("json.gltf", "{\"asset\":{\"version\":\"2.0\"},\"scenes\":\"x\"", 39);
     expect_fail("json.gltf", PT_ERR_FORMAT, "json.gltf");
+    /* tinygltf says "not found" of missing JSON objects too: that is the
+     * content's fault, not a file that cannot be read (found by fuzz_gltf). */
+    static const char no_asset[] = "{\"scenes\":[]}";
+    write_file("noasset.gltf", no_asset, sizeof no_asset - 1);
+    expect_fail("noasset.gltf", PT_ERR_FORMAT, "invalid glTF JSON");
+    static const char ortho[] = "{\"asset\":{\"version\":\"2.0\"},\"cameras\":[{\"type\":"
+                                "\"orthographic\"}]}";
+    write_file("ortho.gltf", ortho, sizeof ortho - 1);
+    expect_fail("ortho.gltf", PT_ERR_FORMAT, "invalid glTF JSON");
 
     expect_fail("does-not-exist.gltf", PT_ERR_IO, "does-not-exist");
 

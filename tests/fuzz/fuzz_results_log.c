@@ -1,0 +1,118 @@
+/*
+ * fuzz_results_log.c - libFuzzer target for a job's results log as the
+ * coordinator replays it after a restart (server/state.c: header, records of
+ * length, CRC32C and RESULT payload, the incomplete last record; each record
+ * decoded by proto_msg_decode_result and merged by srv_job_replay).
+ *
+ * Input: a mode byte (fuzz_state.h: which job, sealed or not), then the log
+ * file. The harness writes it as jobs/1/results.log of a real state folder,
+ * with no checkpoint, and calls srv_state_restore on a fresh job, twice.
+ * Invariants: a refusal names its cause; nothing is left allocated; the
+ * second restore, of what the first left on disk (an incomplete record cut
+ * off), gives the same verdict, the same records replayed, no incomplete
+ * record, and a job that saves (srv_job_save) to the same bytes.
+ */
+#include <stddef.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "common/base/alloc.h"
+#include "server/state.h"
+#include "tests/fuzz/fuzz_state.h"
+#include "tests/fuzz/fuzz_util.h"
+
+int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
+
+static srv_state *state;
+static char job_dir[700];
+
+static void close_state(void)
+{
+    srv_state_close(state);
+}
+
+static void open_state(void)
+{
+    if (state)
+        return;
+    char dir[600];
+    snprintf(dir, sizeof dir, "%s/state", fuzz_dir());
+    pt_error err = {0};
+    FUZZ_CHECK(srv_state_open(dir, &state, &err) == PT_OK);
+    snprintf(job_dir, sizeof job_dir, "%s/jobs/%u", dir, FUZZ_JOB_ID);
+    FUZZ_CHECK(pt_mkdirs(job_dir, 1, &err) == PT_OK);
+    atexit(close_state);
+}
+
+/* srv_job_save of job into a new buffer. */
+static uint8_t *save(const srv_job *job, size_t *len)
+{
+    proto_writer w;
+    proto_writer_init(&w, (size_t)1 << 30);
+    FUZZ_CHECK(srv_job_save(job, &w, NULL) == PT_OK && proto_writer_status(&w) == PT_OK);
+    uint8_t *out = malloc(w.len ? w.len : 1);
+    FUZZ_CHECK(out != NULL);
+    memcpy(out, w.buf, w.len);
+    *len = w.len;
+    proto_writer_fini(&w);
+    return out;
+}
+
+typedef struct restored {
+    pt_status st;
+    uint32_t replayed;
+    int torn;
+    srv_ckpt_extra x;
+    uint8_t *saved; /* srv_job_save of the job when st is PT_OK */
+    size_t saved_len;
+} restored;
+
+static restored restore(const srv_job_params *p)
+{
+    restored r = {0};
+    srv_job *job = NULL;
+    FUZZ_CHECK(srv_job_new(FUZZ_JOB_ID, p, FUZZ_JOB_HASH, &job, NULL) == PT_OK);
+    pt_error err = {0};
+    r.st = srv_state_restore(state, job, &r.x, &r.replayed, &r.torn, &err);
+    fuzz_note("restore", r.st, &err);
+    FUZZ_CHECK(r.st == PT_OK || (r.st == err.code && err.msg[0]));
+    if (r.st == PT_OK) {
+        FUZZ_CHECK(srv_job_tasks_merged(job) <= srv_job_tasks_total(job));
+        r.saved = save(job, &r.saved_len);
+    }
+    srv_job_free(job);
+    return r;
+}
+
+int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
+{
+    if (size < 1)
+        return 0;
+    open_state();
+    uint8_t mode = data[0];
+    const srv_job_params *p = &FUZZ_JOB_PARAMS[mode & FUZZ_MODE_ADAPTIVE];
+    size_t n = size - 1;
+    uint8_t *file = malloc(n ? n : 1);
+    FUZZ_CHECK(file != NULL);
+    memcpy(file, data + 1, n);
+    if (mode & FUZZ_MODE_SEAL)
+        fuzz_seal_log(file, n);
+    fuzz_write(job_dir, "results.log", file, n);
+    free(file);
+    fuzz_unlink(job_dir, "checkpoint");
+
+    int64_t live = pt_alloc_live();
+    restored a = restore(p);
+    restored b = restore(p);
+    FUZZ_CHECK(a.st == b.st);
+    if (a.st == PT_OK) {
+        FUZZ_CHECK(b.torn == 0 && a.replayed == b.replayed);
+        FUZZ_CHECK(a.x.rejected == b.x.rejected && a.x.rays == b.x.rays);
+        FUZZ_CHECK(a.saved_len == b.saved_len && memcmp(a.saved, b.saved, a.saved_len) == 0);
+    }
+    free(a.saved);
+    free(b.saved);
+    FUZZ_CHECK(pt_alloc_live() == live);
+    return 0;
+}
