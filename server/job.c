@@ -605,8 +605,8 @@ static int pixels_plausible(const proto_result *r, uint32_t samples, pt_error *e
     }
     if (missing != r->rejected) {
         pt_error_set(err, PT_ERR_PROTO,
-                     "result for task %llu: its pixels lack %llu of their %u samples each, but it "
-                     "reports %llu rejected",
+                     "result for task %llu: its pixels lack %llu samples in all (of %u each), but "
+                     "it reports %llu rejected",
                      (unsigned long long)r->task_id, (unsigned long long)missing, samples,
                      (unsigned long long)r->rejected);
         return 0;
