@@ -3,7 +3,8 @@
 #   tests/fuzz/run_fuzzers.sh SECONDS [TARGET...]
 # Targets: fuzz_frame and fuzz_msg (the protocol), fuzz_gltf (the glTF
 # loader), fuzz_bundle (scene bundles), fuzz_queue, fuzz_checkpoint and
-# fuzz_results_log (the state folder's files), fuzz_exr (the OpenEXR reader);
+# fuzz_results_log (the state folder's files), fuzz_exr (the OpenEXR reader),
+# fuzz_envmap (the environment map's Radiance decoder and sampler);
 # all of them by default.
 # Build: build-fuzz/ (Debug, clang, -DPT_FUZZ=ON), or $PT_FUZZ_BUILD.
 # Each target starts from its committed seeds (tests/fuzz/corpus/<target>;
@@ -20,7 +21,7 @@ shift
 targets=("$@")
 [[ ${#targets[@]} -gt 0 ]] ||
   targets=(fuzz_frame fuzz_msg fuzz_gltf fuzz_bundle fuzz_queue fuzz_checkpoint fuzz_results_log
-    fuzz_exr)
+    fuzz_exr fuzz_envmap)
 build=${PT_FUZZ_BUILD:-build-fuzz}
 jobs=${PT_JOBS:-$(nproc)}
 max_len=${PT_FUZZ_MAX_LEN:-16384}
