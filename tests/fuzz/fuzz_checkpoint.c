@@ -19,45 +19,11 @@
 
 #include "common/base/alloc.h"
 #include "server/state.h"
+#include "tests/fuzz/fuzz_job_state.h"
 #include "tests/fuzz/fuzz_state.h"
 #include "tests/fuzz/fuzz_util.h"
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
-
-static srv_state *state;
-static char job_dir[700];
-
-static void close_state(void)
-{
-    srv_state_close(state);
-}
-
-static void open_state(void)
-{
-    if (state)
-        return;
-    char dir[600];
-    snprintf(dir, sizeof dir, "%s/state", fuzz_dir());
-    pt_error err = {0};
-    FUZZ_CHECK(srv_state_open(dir, &state, &err) == PT_OK);
-    snprintf(job_dir, sizeof job_dir, "%s/jobs/%u", dir, FUZZ_JOB_ID);
-    FUZZ_CHECK(pt_mkdirs(job_dir, 1, &err) == PT_OK);
-    atexit(close_state);
-}
-
-/* srv_job_save of job into a new buffer. */
-static uint8_t *save(const srv_job *job, size_t *len)
-{
-    proto_writer w;
-    proto_writer_init(&w, (size_t)1 << 30);
-    FUZZ_CHECK(srv_job_save(job, &w, NULL) == PT_OK && proto_writer_status(&w) == PT_OK);
-    uint8_t *out = malloc(w.len ? w.len : 1);
-    FUZZ_CHECK(out != NULL);
-    memcpy(out, w.buf, w.len);
-    *len = w.len;
-    proto_writer_fini(&w);
-    return out;
-}
 
 static srv_job *fresh(const srv_job_params *p)
 {
