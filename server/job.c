@@ -68,7 +68,8 @@ struct srv_job {
     pt_film *film;
     /* deadlines, backups and verification (srv_job_set_policy) */
     srv_lease_policy pol;
-    double times[TIMES]; /* ms per pixel-sample of merged results */
+    double times[TIMES];  /* ms per pixel-sample of merged results, in arrival order */
+    double sorted[TIMES]; /* the same ntimes values, ascending */
     uint32_t ntimes, times_at;
     double t_high, t_mid; /* the quantile and the median of times, 0 before any */
     check *checks;
@@ -721,24 +722,39 @@ static void free_check(srv_job *j, uint32_t i)
 
 /* Learns how long a task took (ms per pixel-sample) and the quantiles the
  * deadlines and backups use. */
+/* The first index of sorted[0, n) whose value is not below x. */
+static uint32_t lower_bound(const double *sorted, uint32_t n, double x)
+{
+    uint32_t lo = 0, hi = n;
+    while (lo < hi) {
+        uint32_t mid = lo + (hi - lo) / 2;
+        if (sorted[mid] < x)
+            lo = mid + 1;
+        else
+            hi = mid;
+    }
+    return lo;
+}
+
 static void observe(srv_job *j, double ms_per_sample)
 {
+    /* The window stays sorted as it slides: the value leaving the ring is
+     * taken out and the new one put in, two moves of at most 2 KiB, where
+     * sorting the window again cost tens of microseconds of the event loop
+     * per result. */
+    uint32_t n = j->ntimes;
+    if (n == TIMES) {
+        uint32_t k = lower_bound(j->sorted, n, j->times[j->times_at]);
+        memmove(&j->sorted[k], &j->sorted[k + 1], (n - k - 1) * sizeof *j->sorted);
+        n--;
+    }
+    uint32_t k = lower_bound(j->sorted, n, ms_per_sample);
+    memmove(&j->sorted[k + 1], &j->sorted[k], (n - k) * sizeof *j->sorted);
+    j->sorted[k] = ms_per_sample;
+    j->ntimes = ++n;
     j->times[j->times_at] = ms_per_sample;
     j->times_at = (j->times_at + 1) % TIMES;
-    if (j->ntimes < TIMES)
-        j->ntimes++;
-    double v[TIMES];
-    uint32_t n = j->ntimes;
-    memcpy(v, j->times, n * sizeof *v);
-    for (uint32_t i = 1; i < n; i++) { /* insertion sort: n <= 256, once per result */
-        double x = v[i];
-        uint32_t k = i;
-        while (k > 0 && v[k - 1] > x) {
-            v[k] = v[k - 1];
-            k--;
-        }
-        v[k] = x;
-    }
+    const double *v = j->sorted;
     j->t_high = v[(uint32_t)(SRV_DEADLINE_QUANTILE * (n - 1) + 0.5)];
     j->t_mid = v[(n - 1) / 2];
     /* A zero time (a task done within the clock's millisecond) still says
