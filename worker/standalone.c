@@ -10,7 +10,6 @@
 
 #include "common/base/alloc.h"
 #include "common/base/clock.h"
-#include "common/image/envmap.h"
 #include "common/image/exr.h"
 #include "common/image/image.h"
 #include "common/render/adaptive.h"
@@ -117,14 +116,7 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
     p.seed = o->seed;
     p.max_depth = o->max_depth;
     if (o->env_path) {
-        pt_envmap map;
-        if (pt_envmap_read(o->env_path, &map, &err) != PT_OK) {
-            fprintf(stderr, "ptworker: --env: %s\n", err.msg);
-            goto done;
-        }
-        pt_status est = pt_env_new(&map, o->env_strength, o->env_rotate, &env, &err);
-        pt_envmap_free(&map);
-        if (est != PT_OK) {
+        if (pt_env_load(o->env_path, o->env_strength, o->env_rotate, &env, &err) != PT_OK) {
             fprintf(stderr, "ptworker: --env: %s\n", err.msg);
             goto done;
         }

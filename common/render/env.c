@@ -106,6 +106,18 @@ pt_status pt_env_new(const pt_envmap *map, float strength, float rotate_deg, pt_
     return PT_OK;
 }
 
+pt_status pt_env_load(const char *path, float strength, float rotate_deg, pt_env **out,
+                      pt_error *err)
+{
+    pt_envmap map;
+    pt_status st = pt_envmap_read(path, &map, err);
+    if (st != PT_OK)
+        return st;
+    st = pt_env_new(&map, strength, rotate_deg, out, err);
+    pt_envmap_free(&map);
+    return st;
+}
+
 pt_status pt_env_uniform(pt_vec3 color, pt_env **out, pt_error *err)
 {
     if (!pt_isfinite3(color) || !(color.x >= 0.0f) || !(color.y >= 0.0f) || !(color.z >= 0.0f))

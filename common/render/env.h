@@ -41,6 +41,10 @@ typedef struct pt_env pt_env;
  * strength: a finite factor >= 0; rotate_deg: finite. */
 pt_status pt_env_new(const pt_envmap *map, float strength, float rotate_deg, pt_env **out,
                      pt_error *err);
+/* Reads the map at path (pt_envmap_read) and builds the environment from
+ * it, as pt_env_new does; the map itself is not kept. */
+pt_status pt_env_load(const char *path, float strength, float rotate_deg, pt_env **out,
+                      pt_error *err);
 /* A uniform environment of radiance color (each component finite, >= 0). */
 pt_status pt_env_uniform(pt_vec3 color, pt_env **out, pt_error *err);
 void pt_env_free(pt_env *env); /* accepts NULL */

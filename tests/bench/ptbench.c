@@ -65,7 +65,6 @@
 #include "common/base/clock.h"
 #include "common/base/opt.h"
 #include "common/base/version.h"
-#include "common/image/envmap.h"
 #include "common/image/exr.h"
 #include "common/image/image.h"
 #include "common/image/metrics.h"
@@ -874,13 +873,8 @@ static int cmd_bench(int argc, char **argv)
     p.seed = o.seed;
     p.max_depth = o.max_depth;
     if (o.env_path) {
-        pt_envmap map;
-        pt_status est = pt_envmap_read(o.env_path, &map, &err);
-        if (est == PT_OK) {
-            est = pt_env_new(&map, (float)o.env_strength, (float)o.env_rotate, &env, &err);
-            pt_envmap_free(&map);
-        }
-        if (est != PT_OK) {
+        if (pt_env_load(o.env_path, (float)o.env_strength, (float)o.env_rotate, &env, &err) !=
+            PT_OK) {
             fprintf(stderr, "ptbench: --env: %s\n", err.msg);
             goto done;
         }
