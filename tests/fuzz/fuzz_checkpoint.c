@@ -25,29 +25,11 @@
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
 
-static srv_job *fresh(const srv_job_params *p)
-{
-    srv_job *job = NULL;
-    FUZZ_CHECK(srv_job_new(FUZZ_JOB_ID, p, FUZZ_JOB_HASH, &job, NULL) == PT_OK);
-    return job;
-}
-
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {
     if (size < 1)
         return 0;
-    open_state();
-    uint8_t mode = data[0];
-    const srv_job_params *p = &FUZZ_JOB_PARAMS[mode & FUZZ_MODE_ADAPTIVE];
-    size_t n = size - 1;
-    uint8_t *file = malloc(n ? n : 1);
-    FUZZ_CHECK(file != NULL);
-    memcpy(file, data + 1, n);
-    if (mode & FUZZ_MODE_SEAL)
-        fuzz_seal_file(file, n);
-    fuzz_write(job_dir, "checkpoint", file, n);
-    free(file);
-    fuzz_unlink(job_dir, "results.log");
+    const srv_job_params *p = write_input(data, size, "checkpoint", "results.log", fuzz_seal_file);
 
     int64_t live = pt_alloc_live();
     srv_job *job = fresh(p);

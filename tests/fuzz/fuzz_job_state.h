@@ -38,6 +38,35 @@ static void open_state(void)
     atexit(close_state);
 }
 
+/* A fresh job of the fuzzed id with params p. */
+static srv_job *fresh(const srv_job_params *p)
+{
+    srv_job *job = NULL;
+    FUZZ_CHECK(srv_job_new(FUZZ_JOB_ID, p, FUZZ_JOB_HASH, &job, NULL) == PT_OK);
+    return job;
+}
+
+/* Writes an input (a mode byte, then the file) as `name` in the job's
+ * folder, its checksums rewritten by seal when the mode asks, and removes
+ * the job's `other` file so that a restore reads this one alone. Returns
+ * the params of the job the mode picks. size >= 1. */
+static const srv_job_params *write_input(const uint8_t *data, size_t size, const char *name,
+                                         const char *other, void (*seal)(uint8_t *, size_t))
+{
+    open_state();
+    uint8_t mode = data[0];
+    size_t n = size - 1;
+    uint8_t *file = malloc(n ? n : 1);
+    FUZZ_CHECK(file != NULL);
+    memcpy(file, data + 1, n);
+    if (mode & FUZZ_MODE_SEAL)
+        seal(file, n);
+    fuzz_write(job_dir, name, file, n);
+    free(file);
+    fuzz_unlink(job_dir, other);
+    return &FUZZ_JOB_PARAMS[mode & FUZZ_MODE_ADAPTIVE];
+}
+
 /* srv_job_save of job into a new buffer (free it with free). */
 static uint8_t *save(const srv_job *job, size_t *len)
 {

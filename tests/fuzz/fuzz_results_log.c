@@ -37,8 +37,7 @@ typedef struct restored {
 static restored restore(const srv_job_params *p)
 {
     restored r = {0};
-    srv_job *job = NULL;
-    FUZZ_CHECK(srv_job_new(FUZZ_JOB_ID, p, FUZZ_JOB_HASH, &job, NULL) == PT_OK);
+    srv_job *job = fresh(p);
     pt_error err = {0};
     r.st = srv_state_restore(state, job, &r.x, &r.replayed, &r.torn, &err);
     fuzz_note("restore", r.st, &err);
@@ -55,18 +54,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {
     if (size < 1)
         return 0;
-    open_state();
-    uint8_t mode = data[0];
-    const srv_job_params *p = &FUZZ_JOB_PARAMS[mode & FUZZ_MODE_ADAPTIVE];
-    size_t n = size - 1;
-    uint8_t *file = malloc(n ? n : 1);
-    FUZZ_CHECK(file != NULL);
-    memcpy(file, data + 1, n);
-    if (mode & FUZZ_MODE_SEAL)
-        fuzz_seal_log(file, n);
-    fuzz_write(job_dir, "results.log", file, n);
-    free(file);
-    fuzz_unlink(job_dir, "checkpoint");
+    const srv_job_params *p = write_input(data, size, "results.log", "checkpoint", fuzz_seal_log);
 
     int64_t live = pt_alloc_live();
     restored a = restore(p);
