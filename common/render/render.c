@@ -11,6 +11,7 @@
 #include "common/render/light_lanes.h"
 #include "common/render/sampler.h"
 #include "common/scene/accel.h"
+#include "common/scene/alpha.h"
 
 /*
  * Sample dimensions. Pixel jitter uses dims 0-1; bounce k uses the 8 dims
@@ -25,7 +26,15 @@ enum {
     OFF_BSDF_DIR = 2,    /* 2D */
     OFF_LIGHT_PICK = 4,  /* 2D with the lobe pick */
     OFF_RR = 6,
+    OFF_ALPHA = 7, /* the pass-through of MASK/BLEND surfaces (alpha.h), for the
+                      bounce's closest-hit ray and its shadow ray */
 };
+
+/* pt_alpha_key salts: the closest-hit ray of a bounce and its shadow ray
+ * draw from the same number, and a surface that both cross must get two
+ * independent decisions (a shadow ray back through the BLEND surface that
+ * the camera ray passed must pass with 1 - alpha, not surely). */
+enum { ALPHA_SALT_RAY = 0, ALPHA_SALT_SHADOW = 1 };
 
 /* Bounces whose sampler seeds a pixel keeps; deeper ones hash theirs per use. */
 #define SEED_CACHE 32u
@@ -64,6 +73,7 @@ struct pt_renderer {
     tile_fn tile; /* batched: pt_render_tile */
     int nee;      /* next-event estimation runs: lights exist, the strategy uses them */
     int nee_n;    /* nee, with lights enough to sample them for a stage at once */
+    int alpha;    /* the scene has MASK/BLEND materials: rays pass through them */
     const char *variant;
     int lanes; /* the Lambert variants shade in lanes (shade_lanes) */
     float tan_half_fov;
@@ -365,6 +375,42 @@ static inline void draw_bounce(pixel_ctx *pc, uint32_t depth, uint32_t index,
     pt_sample_group_eval(bounce_group(pc, depth, &deep), index, u);
 }
 
+/* The closest hit of a path's ray, through the MASK/BLEND surfaces it
+ * passes (their emission and BSDF are then not applied: the ray never meets
+ * them) when the scene has any; u_alpha is the bounce's OFF_ALPHA number. */
+static inline __attribute__((always_inline)) int closest_hit(const pt_renderer *r, pt_vec3 o,
+                                                             pt_vec3 d, float u_alpha, pt_hit *hit,
+                                                             const uint32_t features)
+{
+    if ((features & PT_FEAT_ALPHA) && r->alpha)
+        return pt_accel_intersect_alpha(r->accel, o, d, INFINITY,
+                                        pt_alpha_key(u_alpha, ALPHA_SALT_RAY), hit);
+    return pt_accel_intersect(r->accel, o, d, INFINITY, hit);
+}
+
+/* The share of an emissive MASK/BLEND triangle present at a light sample
+ * (alpha.h: 0 or 1 for MASK, alpha for BLEND). A ray that samples the BSDF
+ * meets the surface, and so its emission, with that probability; NEE weighs
+ * the sample by it, so the two strategies estimate the same emission
+ * (alpha * Le) and their MIS weights, which assume the same integrand, stay
+ * right. The sample's barycentrics, which the light sample does not keep,
+ * are solved from its position (they pick a texel only). */
+static float light_coverage(const pt_renderer *r, const pt_light_sample *ls)
+{
+    const tri_rec *t = &r->tris[ls->tri];
+    pt_vec3 e1 = pt_v3_sub(t->v1, t->v0), e2 = pt_v3_sub(t->v2, t->v0);
+    pt_vec3 q = pt_v3_sub(ls->position, t->v0);
+    float d11 = pt_v3_dot(e1, e1), d12 = pt_v3_dot(e1, e2), d22 = pt_v3_dot(e2, e2);
+    float q1 = pt_v3_dot(q, e1), q2 = pt_v3_dot(q, e2);
+    float den = d11 * d22 - d12 * d12;
+    float b1 = 0.0f, b2 = 0.0f;
+    if (den > 0.0f) {
+        b1 = (d22 * q1 - d12 * q2) / den;
+        b2 = (d11 * q2 - d12 * q1) / den;
+    }
+    return pt_alpha_coverage(r->scene, ls->tri, b1, b2);
+}
+
 /* One path between bounces: the ray it traces next and what it carries. */
 typedef struct path {
     pt_vec3 o, d; /* the next closest-hit ray */
@@ -382,7 +428,8 @@ typedef struct path {
 typedef struct shadow_ray {
     pt_vec3 from, dir;
     float dist;
-    pt_vec3 contrib; /* beta * (f * Le * w), beta before this bounce's weight */
+    pt_vec3 contrib;    /* beta * (f * Le * w), beta before this bounce's weight */
+    uint32_t alpha_key; /* pass-through key (PT_FEAT_ALPHA) */
 } shadow_ray;
 
 enum { SHADE_SHADOW = 1u, SHADE_CONTINUE = 2u }; /* bits 0 and 1: the batch counts with them */
@@ -500,7 +547,13 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     pt_vec3 wo_l = pt_frame_to_local(&fr, wo);
     pt_bsdf bsdf = material_bsdf(r, sf, features);
     if ((features & NEE_LIGHTS) && r->nee) {
-        if (ls_ok && ls->pdf > 0.0f && any_positive(ls->radiance) && pt_v3_dot(ls->wi, ng) > 0.0f) {
+        pt_vec3 lrad = ls_ok ? ls->radiance : pt_v3(0.0f, 0.0f, 0.0f);
+        if ((features & PT_FEAT_ALPHA) && r->alpha && ls_ok && ls->delta == PT_LIGHT_AREA &&
+            pt_alpha_tri(r->scene, ls->tri))
+            lrad = pt_v3_scale(lrad, light_coverage(r, ls));
+        if (features & PT_FEAT_ALPHA)
+            sr->alpha_key = pt_alpha_key(u[OFF_ALPHA], ALPHA_SALT_SHADOW);
+        if (ls_ok && ls->pdf > 0.0f && any_positive(lrad) && pt_v3_dot(ls->wi, ng) > 0.0f) {
             float bpdf;
             pt_vec3 f = bsdf_eval(&bsdf, wo_l, pt_frame_to_local(&fr, ls->wi), &bpdf, features);
             if ((features & (PT_FEAT_PUNCTUAL | PT_FEAT_ENV)) && ls->delta != PT_LIGHT_AREA &&
@@ -524,7 +577,7 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
                 if ((features & PT_FEAT_ENV) && ls->delta == PT_LIGHT_ENV &&
                     strategy == PT_LIGHT_MIS)
                     w = power_heuristic(ls->pdf, bpdf) / ls->pdf;
-                sr->contrib = pt_v3_mul(pa->beta, pt_v3_scale(pt_v3_mul(f, ls->radiance), w));
+                sr->contrib = pt_v3_mul(pa->beta, pt_v3_scale(pt_v3_mul(f, lrad), w));
                 ret = SHADE_SHADOW;
             } else if (any_positive(f)) {
                 pt_vec3 from = pt_offset_apply(r->offset, sf->p, ng);
@@ -539,7 +592,7 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
                 sr->dir = pt_v3_scale(sd, dist > 0.0f ? 1.0f / dist : 0.0f);
                 float w =
                     (strategy == PT_LIGHT_MIS ? power_heuristic(ls->pdf, bpdf) : 1.0f) / ls->pdf;
-                sr->contrib = pt_v3_mul(pa->beta, pt_v3_scale(pt_v3_mul(f, ls->radiance), w));
+                sr->contrib = pt_v3_mul(pa->beta, pt_v3_scale(pt_v3_mul(f, lrad), w));
                 ret = SHADE_SHADOW;
             }
         }
@@ -577,15 +630,24 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     return ret | SHADE_CONTINUE;
 }
 
-/* Traces the shadow ray shade() asked for and adds its contribution. */
-static inline void trace_shadow(const pt_renderer *r, path *pa, const shadow_ray *sr,
-                                const pt_ray_sink *sink)
+/* Traces the shadow ray shade() asked for and adds its contribution. MASK
+ * and BLEND surfaces on the way block it only where the ray meets them
+ * (stochastically for BLEND: transmittance 1 - alpha on average), as a
+ * BSDF-sampled ray towards the same light would pass them. */
+static inline __attribute__((always_inline)) void trace_shadow(const pt_renderer *r, path *pa,
+                                                               const shadow_ray *sr,
+                                                               const pt_ray_sink *sink,
+                                                               const uint32_t features)
 {
     if (!(sr->dist > 0.0f))
         return;
     if (sink)
         sink->ray(sink->user, sr->from, sr->dir, sr->dist, 1);
-    if (!pt_accel_occluded(r->accel, sr->from, sr->dir, sr->dist))
+    int blocked =
+        (features & PT_FEAT_ALPHA) && r->alpha
+            ? pt_accel_occluded_alpha(r->accel, sr->from, sr->dir, sr->dist, sr->alpha_key)
+            : pt_accel_occluded(r->accel, sr->from, sr->dir, sr->dist);
+    if (!blocked)
         pa->L = pt_v3_add(pa->L, sr->contrib);
 }
 
@@ -820,11 +882,11 @@ static inline __attribute__((always_inline)) pt_vec3 li_impl(const pt_renderer *
         draw_bounce(pc, pa.depth, index, u);
         pt_hit hit;
         rays++;
-        if (!pt_accel_intersect(r->accel, pa.o, pa.d, INFINITY, &hit)) {
+        if (!closest_hit(r, pa.o, pa.d, u[OFF_ALPHA], &hit, features)) {
             shade_miss(r, &pa, features);
             break;
         }
-        shadow_ray sr = {{0, 0, 0}, {0, 0, 0}, 0.0f, {0, 0, 0}}; /* set when SHADE_SHADOW */
+        shadow_ray sr = {{0, 0, 0}, {0, 0, 0}, 0.0f, {0, 0, 0}, 0}; /* set when SHADE_SHADOW */
         surface sf;
         surface_at(r, &hit, &sf, features);
         pt_light_sample ls;
@@ -832,7 +894,7 @@ static inline __attribute__((always_inline)) pt_vec3 li_impl(const pt_renderer *
         uint32_t st = shade(r, &pa, &hit, u, &sf, &ls, ls_ok, NULL, &sr, features);
         if (st & SHADE_SHADOW) {
             rays++;
-            trace_shadow(r, &pa, &sr, NULL);
+            trace_shadow(r, &pa, &sr, NULL, features);
         }
         if (!(st & SHADE_CONTINUE))
             break;
@@ -905,27 +967,44 @@ static inline __attribute__((always_inline)) uint64_t trace_batch(const pt_rende
     uint64_t rays = 0;
     for (uint32_t k = 0; k < n; k++)
         live[k] = (uint8_t)k;
+    /* With MASK/BLEND surfaces the query needs the bounce's OFF_ALPHA
+     * number, so the numbers are drawn before it, for every live path. */
+    const int alpha = (features & PT_FEAT_ALPHA) && r->alpha;
     while (n > 0) {
         rays += n;
         uint32_t nh = 0;
+        if (alpha) {
+            for (uint32_t j = 0; j < n; j++) {
+                path *pa = &paths[live[j]];
+                groups[j] = bounce_group(pa->pc, pa->depth, &deep[j]);
+                index[j] = pa->index;
+            }
+            pt_sample_group_eval_n(groups, index, n, u);
+        }
         for (uint32_t j = 0; j < n; j++) {
             uint32_t k = live[j];
             if (sink)
                 sink->ray(sink->user, paths[k].o, paths[k].d, INFINITY, 0);
-            if (pt_accel_intersect(r->accel, paths[k].o, paths[k].d, INFINITY, &hits[k]))
+            if (closest_hit(r, paths[k].o, paths[k].d, alpha ? u[j][OFF_ALPHA] : 0.0f, &hits[k],
+                            features)) {
+                if (alpha && nh != j) /* u follows live[]'s compaction */
+                    memcpy(u[nh], u[j], sizeof u[nh]);
                 live[nh++] = (uint8_t)k;
-            else
+            } else {
                 shade_miss(r, &paths[k], features);
+            }
         }
         /* The bounce's numbers, for the paths that hit something: a pure
          * function of (pixel, index, depth), so drawing them after the
          * query, and in one call for all, changes no value. */
-        for (uint32_t j = 0; j < nh; j++) {
-            path *pa = &paths[live[j]];
-            groups[j] = bounce_group(pa->pc, pa->depth, &deep[j]);
-            index[j] = pa->index;
+        if (!alpha) {
+            for (uint32_t j = 0; j < nh; j++) {
+                path *pa = &paths[live[j]];
+                groups[j] = bounce_group(pa->pc, pa->depth, &deep[j]);
+                index[j] = pa->index;
+            }
+            pt_sample_group_eval_n(groups, index, nh, u);
         }
-        pt_sample_group_eval_n(groups, index, nh, u);
         uint32_t ns = 0, nc = 0;
         if (!(features & PT_FEAT_GLOSSY) && sl) {
             /* Lambert: every bounce that samples its BSDF samples the cosine
@@ -993,7 +1072,7 @@ static inline __attribute__((always_inline)) uint64_t trace_batch(const pt_rende
         }
         rays += ns;
         for (uint32_t j = 0; j < ns; j++)
-            trace_shadow(r, &paths[shadowed[j]], &sr[shadowed[j]], sink);
+            trace_shadow(r, &paths[shadowed[j]], &sr[shadowed[j]], sink, features);
         n = nc;
     }
     return rays;
@@ -1078,18 +1157,20 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
 #define NO_TEX (uint32_t)(PT_FEAT_TEXTURES | PT_FEAT_EMISSIVE_TEX)
 /* Lights besides emissive triangles: only the general variant has their code. */
 #define OTHER_LIGHTS (uint32_t)(PT_FEAT_PUNCTUAL | PT_FEAT_ENV)
+/* Features that only the general variant has code for. */
+#define GENERAL_ONLY (uint32_t)(OTHER_LIGHTS | PT_FEAT_ALPHA)
 VARIANT(li_general, tile_general, ALL_FEATURES)
-VARIANT(li_untextured, tile_untextured, ALL_FEATURES & ~NO_TEX & ~OTHER_LIGHTS)
-VARIANT(li_lambert, tile_lambert, ALL_FEATURES & ~(uint32_t)PT_FEAT_GLOSSY & ~OTHER_LIGHTS)
+VARIANT(li_untextured, tile_untextured, ALL_FEATURES & ~NO_TEX & ~GENERAL_ONLY)
+VARIANT(li_lambert, tile_lambert, ALL_FEATURES & ~(uint32_t)PT_FEAT_GLOSSY & ~GENERAL_ONLY)
 VARIANT(li_lambert_untextured, tile_lambert_untextured,
-        ALL_FEATURES & ~NO_TEX & ~(uint32_t)PT_FEAT_GLOSSY & ~OTHER_LIGHTS)
+        ALL_FEATURES & ~NO_TEX & ~(uint32_t)PT_FEAT_GLOSSY & ~GENERAL_ONLY)
 #undef VARIANT
 
 /* The most specialised variant whose assumptions the scene meets. */
 static void pick_variant(pt_renderer *r, uint32_t features)
 {
     int tex = (features & NO_TEX) != 0, glossy = (features & PT_FEAT_GLOSSY) != 0;
-    if (features & OTHER_LIGHTS) {
+    if (features & GENERAL_ONLY) {
         r->li = li_general;
         r->tile = tile_general;
         r->variant = "general";
@@ -1144,13 +1225,14 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
     /* The stage-wide light sampling and the lanes know only triangles. */
     r->nee_n = r->nee && pt_lights_count(r->lights) >= LIGHTS_N_MIN && others == 0;
     uint32_t features = scene->features | params->extra_features;
+    r->alpha = (scene->features & PT_FEAT_ALPHA) != 0;
     if (params->env)
         features |= PT_FEAT_ENV;
     pick_variant(r, features);
     /* Without fast lanes (an x86-64 processor without AVX2 runs shade_lanes'
      * baseline clone, which does the lanes one by one) the per-path shading
      * is faster: docs/bench/throughput.md, "Fourth round". */
-    r->lanes = !(features & (PT_FEAT_GLOSSY | OTHER_LIGHTS)) && !params->scalar_shading &&
+    r->lanes = !(features & (PT_FEAT_GLOSSY | GENERAL_ONLY)) && !params->scalar_shading &&
                pt_simd_lanes_fast();
     *out = r;
     return PT_OK;

@@ -727,10 +727,14 @@ void add_materials(importer &im)
         if (g.occlusionTexture.index >= 0)
             im.warn_once("occlusionTexture",
                          "occlusion textures are ignored (material " + std::to_string(i) + ")");
-        if (g.alphaMode == "BLEND" || g.alphaMode == "MASK")
-            im.warn_once("alpha:" + g.alphaMode, "alphaMode " + g.alphaMode +
-                                                     " is rendered as OPAQUE (material " +
-                                                     std::to_string(i) + ")");
+        if (g.alphaMode == "MASK")
+            pm.alpha_mode = PT_ALPHA_MASK;
+        else if (g.alphaMode == "BLEND")
+            pm.alpha_mode = PT_ALPHA_BLEND;
+        else if (!g.alphaMode.empty() && g.alphaMode != "OPAQUE")
+            im.fail(PT_ERR_FORMAT, "material %d: alphaMode '%s' is not OPAQUE, MASK or BLEND", mi,
+                    shown(g.alphaMode).c_str());
+        pm.alpha_cutoff = float(g.alphaCutoff);
         pm.base_color_tex = texture_for(im, mi, "baseColorTexture", pbr.baseColorTexture, true);
         pm.metal_rough_tex =
             texture_for(im, mi, "metallicRoughnessTexture", pbr.metallicRoughnessTexture, false);

@@ -95,6 +95,8 @@ pt_material pt_material_default(void)
     for (int i = 0; i < 3; i++)
         m.specular_color[i] = 1.0f;
     m.double_sided = 0;
+    m.alpha_mode = PT_ALPHA_OPAQUE;
+    m.alpha_cutoff = 0.5f;
     snprintf(m.name, sizeof m.name, "default");
     return m;
 }
@@ -181,6 +183,15 @@ pt_status pt_scene_builder_add_material(pt_scene_builder *b, const pt_material *
             return pt_error_set(err, PT_ERR_FORMAT,
                                 "material '%.64s': specularColorFactor[%d] %g is negative", name, i,
                                 (double)m->specular_color[i]);
+    if (m->alpha_mode != PT_ALPHA_OPAQUE && m->alpha_mode != PT_ALPHA_MASK &&
+        m->alpha_mode != PT_ALPHA_BLEND)
+        return pt_error_set(err, PT_ERR_ARG, "material '%.64s': alpha mode %d is unknown", name,
+                            m->alpha_mode);
+    /* glTF 2.0 (5.19): alphaCutoff has minimum 0 and no maximum (above 1 a
+     * MASK material is nowhere present). */
+    if (!(m->alpha_cutoff >= 0.0f) || !isfinite(m->alpha_cutoff))
+        return pt_error_set(err, PT_ERR_FORMAT, "material '%.64s': alphaCutoff %g is not >= 0",
+                            name, (double)m->alpha_cutoff);
     const int32_t tex[3] = {m->base_color_tex, m->metal_rough_tex, m->emissive_tex};
     for (int i = 0; i < 3; i++)
         if (tex[i] < -1 || (tex[i] >= 0 && (uint32_t)tex[i] >= b->ntex))
@@ -676,6 +687,8 @@ static uint32_t scene_features(const pt_scene *s, int has_uv, pt_error *err, pt_
         }
         if (!m->double_sided)
             f |= PT_FEAT_SINGLE_SIDED;
+        if (m->alpha_mode != PT_ALPHA_OPAQUE)
+            f |= PT_FEAT_ALPHA;
     }
     pt_free(used);
     *st = PT_OK;

@@ -44,7 +44,12 @@ enum {
     PT_FEAT_UVS = 1u << 5,          /* the scene has texture coordinates */
     PT_FEAT_PUNCTUAL = 1u << 6,     /* there is at least one punctual light */
     PT_FEAT_ENV = 1u << 7,          /* an environment light (set by the renderer, not the file) */
+    PT_FEAT_ALPHA = 1u << 10,       /* some material's alphaMode is MASK or BLEND */
 };
+
+/* glTF alphaMode (common/scene/alpha.h). OPAQUE is 0, so a material
+ * initialised with zeros is opaque. */
+enum { PT_ALPHA_OPAQUE = 0, PT_ALPHA_MASK = 1, PT_ALPHA_BLEND = 2 };
 
 enum { PT_WRAP_REPEAT = 0, PT_WRAP_CLAMP = 1, PT_WRAP_MIRROR = 2 };
 
@@ -65,6 +70,8 @@ typedef struct pt_material {
     float specular;          /* KHR_materials_specular specularFactor (default 1) */
     float specular_color[3]; /* KHR_materials_specular specularColorFactor (default 1,1,1) */
     int double_sided;
+    int alpha_mode;     /* PT_ALPHA_* (default OPAQUE) */
+    float alpha_cutoff; /* MASK: covered where alpha >= this (glTF default 0.5) */
     char name[64];
 } pt_material;
 
@@ -179,7 +186,7 @@ void pt_scene_frame_camera(pt_scene *scene, float aspect);
 uint32_t pt_camera_height(float aspect, uint32_t width, uint32_t max_height);
 
 /* A default material: white base colour, metallic 1, roughness 1 (glTF defaults),
- * specular 1, single-sided. */
+ * specular 1, single-sided, OPAQUE with alpha cutoff 0.5. */
 pt_material pt_material_default(void);
 
 /* ---- building scenes by code ---------------------------------------------------------- */
@@ -192,7 +199,8 @@ void pt_scene_builder_free(pt_scene_builder *b); /* accepts NULL */
 /* Adds a material (copied); its index goes to *index. Rejects (PT_ERR_FORMAT,
  * naming the material and the field) NaN/Inf factors, negative emission,
  * base colour, metallic, roughness or specular factors outside [0, 1] (glTF's
- * range: rejected, not clamped) and a negative specular colour. */
+ * range: rejected, not clamped), a negative specular colour, an unknown
+ * alpha mode and a negative or non-finite alpha cutoff. */
 pt_status pt_scene_builder_add_material(pt_scene_builder *b, const pt_material *m, uint32_t *index,
                                         pt_error *err);
 /* Adds a texture; the builder takes ownership of tex->rgba (pt_malloc'd)

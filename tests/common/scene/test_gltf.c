@@ -717,7 +717,9 @@ static void check_asset(const asset *a)
         }
         CHECK(found);
         CHECK(strstr(w.text, "KHR_materials_transmission") != NULL);
-        CHECK(strstr(w.text, "BLEND") != NULL);
+        /* Its BLEND material is rendered, not warned about. */
+        CHECK(strstr(w.text, "BLEND") == NULL && strstr(w.text, "alphaMode") == NULL);
+        CHECK(s->features & PT_FEAT_ALPHA);
     }
     if (strstr(a->path, "ToyCar")) {
         CHECK(s->num_cameras == 8);
@@ -789,6 +791,51 @@ static void test_project_scenes(void)
     }
 }
 
+/* alphaMode and alphaCutoff: read into the material (cutoff default 0.5),
+ * PT_FEAT_ALPHA only when a material is MASK or BLEND, no warning; an
+ * unknown mode or a negative cutoff is refused naming the field. */
+static void test_alpha_modes(void)
+{
+    unsigned char bin[68];
+    make_bin(bin, 0.0f, 2);
+    write_file("alpha.bin", bin, sizeof bin);
+    const struct {
+        const char *name, *fields;
+        int mode;
+        float cutoff;
+    } ok[] = {
+        {"a_opaque.gltf", "\"alphaMode\":\"OPAQUE\",\"alphaCutoff\":0.9", PT_ALPHA_OPAQUE, 0.9f},
+        {"a_mask.gltf", "\"alphaMode\":\"MASK\",\"alphaCutoff\":0.25", PT_ALPHA_MASK, 0.25f},
+        {"a_mask_default.gltf", "\"alphaMode\":\"MASK\"", PT_ALPHA_MASK, 0.5f},
+        {"a_blend.gltf", "\"alphaMode\":\"BLEND\"", PT_ALPHA_BLEND, 0.5f}};
+    char tail[512];
+    for (size_t i = 0; i < sizeof ok / sizeof ok[0]; i++) {
+        snprintf(tail, sizeof tail, "\"materials\":[{\"name\":\"m0\",%s}]", ok[i].fields);
+        make_gltf_tail(ok[i].name, "alpha.bin", k_pos_ok, k_views, k_nodes_ok, tail);
+        pt_scene_opts o = {0};
+        warnings w = {0};
+        o.warn = collect;
+        o.warn_user = &w;
+        pt_error err = {0};
+        pt_scene *s = NULL;
+        CHECKF(pt_scene_load(tpath(ok[i].name), &o, &s, &err) == PT_OK, "%s", err.msg);
+        if (!s)
+            continue;
+        CHECK(s->num_materials == 1 && s->materials[0].alpha_mode == ok[i].mode);
+        CHECK(s->materials[0].alpha_cutoff == ok[i].cutoff);
+        CHECK(!(s->features & PT_FEAT_ALPHA) == (ok[i].mode == PT_ALPHA_OPAQUE));
+        CHECKF(strstr(w.text, "alpha") == NULL, "%s: %s", ok[i].name, w.text);
+        pt_scene_free(s);
+    }
+    make_gltf_tail("a_bad_mode.gltf", "alpha.bin", k_pos_ok, k_views, k_nodes_ok,
+                   "\"materials\":[{\"name\":\"m0\",\"alphaMode\":\"CLIP\"}]");
+    expect_fail("a_bad_mode.gltf", PT_ERR_FORMAT, "alphaMode 'CLIP'");
+    make_gltf_tail("a_bad_cutoff.gltf", "alpha.bin", k_pos_ok, k_views, k_nodes_ok,
+                   "\"materials\":[{\"name\":\"m0\",\"alphaMode\":\"MASK\","
+                   "\"alphaCutoff\":-0.5}]");
+    expect_fail("a_bad_cutoff.gltf", PT_ERR_FORMAT, "alphaCutoff");
+}
+
 int main(void)
 {
     snprintf(tmp, sizeof tmp, "/tmp/pt_test_gltf_XXXXXX");
@@ -798,6 +845,7 @@ int main(void)
     test_hostile();
     test_lights();
     test_confined();
+    test_alpha_modes();
     test_project_scenes();
 
     struct stat sb;
