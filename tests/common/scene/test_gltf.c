@@ -716,7 +716,9 @@ static void check_asset(const asset *a)
             }
         }
         CHECK(found);
-        CHECK(strstr(w.text, "KHR_materials_transmission") != NULL);
+        /* Its glass shade is imported (KHR_materials_transmission), not ignored. */
+        CHECK(strstr(w.text, "KHR_materials_transmission") == NULL);
+        CHECK(s->features & PT_FEAT_TRANSMISSION);
         CHECK(strstr(w.text, "BLEND") != NULL);
     }
     if (strstr(a->path, "ToyCar")) {
