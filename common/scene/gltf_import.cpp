@@ -12,11 +12,13 @@
 // Images: tinygltf is told not to decode anything (a loader callback that
 // only keeps data: URI bytes) and not to read external images; the importer
 // decodes, with stb_image from the system's libstb, only the images that a
-// material actually uses as base colour, metal-rough or emissive texture,
-// to RGBA8 (1-4 channels and 16-bit data are converted by stb_image).
+// material actually uses as base colour, metal-rough, emissive or
+// transmission texture, to RGBA8 (1-4 channels and 16-bit data are converted
+// by stb_image).
 //
 // Materials follow the core metallic-roughness model (spec 3.9.2) with
-// KHR_materials_emissive_strength and KHR_materials_specular; what the
+// KHR_materials_emissive_strength, KHR_materials_specular and glass
+// (KHR_materials_transmission, _ior, _volume: add_transmission); what the
 // renderer does not support is reported once per kind through opts->warn.
 // KHR_lights_punctual lights become pt_punctual lights (scene.h: units).
 //
