@@ -61,7 +61,10 @@ pt_glass pt_glass_setup(pt_vec3 base_color, float metallic, float roughness, flo
     g.weight = (1.0f - metallic) * transmission;
     g.eta = eta >= 0.0f && isfinite(eta) ? eta : 1.5f; /* 0: F = 1 */
     float a = roughness * roughness;
-    g.alpha = a < PT_GLASS_SMOOTH_ALPHA ? 0.0f : a;
+    /* At eta 1 the interface does nothing (F = 0, no bending) whatever its
+     * roughness, and Walter's half vector wo + eta wi is 0 for the one
+     * direction light takes: treat it as smooth, as pbrt-v4 does. */
+    g.alpha = a < PT_GLASS_SMOOTH_ALPHA || g.eta == 1.0f ? 0.0f : a;
     g.thin = thin != 0;
     int opaque = pt_v3_max_comp(g.base.diffuse) > 0.0f || g.base.spec_weight > 0.0f;
     if (!(g.weight > 0.0f))

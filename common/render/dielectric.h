@@ -17,7 +17,7 @@
  *    refract choice is by the Fresnel of the sampled normal, as pbrt-v4's
  *    DielectricBxDF does. Transmitted radiance is scaled by 1 / eta^2
  *    (Veach 1997, sec. 5.2: radiance, not importance, is carried).
- *  - smooth (alpha below PT_GLASS_SMOOTH_ALPHA): two delta lobes, mirror
+ *  - smooth (alpha below PT_GLASS_SMOOTH_ALPHA, or eta 1): two delta lobes, mirror
  *    reflection with probability F and refraction with 1 - F, weight 1 each
  *    (1 / eta^2 for the refraction). eval and pdf never see them: the
  *    integrator finds lights through them by sampling only.

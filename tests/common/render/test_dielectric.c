@@ -346,6 +346,18 @@ static void energy(void)
                         min_albedo_rough05 = a - 5.0 * se;
                 }
     printf("rough 0.5 glass: smallest albedo %.4f\n", min_albedo_rough05);
+    /* ior 1 (air in TransmissionRoughnessTest): invisible whatever the
+     * roughness, light passes straight on with weight 1. */
+    for (int t = 0; t < 2; t++) {
+        pt_glass g = glass(0.7f, 1.0f, t);
+        pt_vec3 wo = incidence(35.0f), wi;
+        float u[3] = {0.3f, 0.6f, 0.2f}, pdf;
+        int delta;
+        pt_vec3 w = pt_glass_sample(&g, wo, u, &wi, &pdf, &delta);
+        CHECK(delta && pdf == 1.0f && w.x == 1.0f && w.y == 1.0f);
+        CHECK(fabsf(wi.x + wo.x) < 1e-6f && fabsf(wi.y + wo.y) < 1e-6f &&
+              fabsf(wi.z + wo.z) < 1e-6f);
+    }
 }
 
 /* ---- scenes ------------------------------------------------------------- */
