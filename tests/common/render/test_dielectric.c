@@ -12,7 +12,8 @@
  *   function's. Significance 0.01 split over the tests.
  * - Energy: the interface's albedo, R + T without the 1 / eta^2 radiance
  *   scaling (which a path undoes when it leaves), is <= 1 within 5 standard
- *   errors at every incidence, from both sides; exactly 1 when smooth.
+ *   errors at every incidence, from both sides; exactly 1 when smooth. At
+ *   ior 1 any roughness passes light straight on with weight 1.
  * - Furnace: a closed smooth glass sphere (flat facets, ior 1.5, no
  *   absorption) under a uniform environment E is invisible: with Russian
  *   roulette off every sample reads E up to rounding; with it on, the mean
@@ -31,7 +32,10 @@
  *   NEE only and BSDF sampling only (NEE through a rough BTDF works).
  * - Shared assets: TransmissionTest, TransmissionRoughnessTest and
  *   AttenuationTest load without warnings about what is now supported,
- *   have the feature bits, and render with no NaN/Inf samples.
+ *   with the extensions' values (an ior of 2.42, absorbing blocks) and the
+ *   feature bits, and render with no NaN/Inf samples.
+ * - The builder refuses out-of-range transmission, ior, thickness,
+ *   attenuation colour and texture index.
  */
 #include <math.h>
 #include <stdio.h>
@@ -748,8 +752,20 @@ static void shared_assets(void)
                    !strstr(w.text, "_volume,"),
                "%s warns: %s", names[i], w.text);
         CHECK(s->features & PT_FEAT_TRANSMISSION);
+        /* The extensions' values arrive: TransmissionRoughnessTest's diamond
+         * row (ior 2.42, thicknessFactor 0.005), AttenuationTest's absorbing
+         * blocks. */
+        int diamond = 0, absorbs = 0;
+        for (uint32_t k = 0; k < s->num_materials; k++) {
+            const pt_material *m = &s->materials[k];
+            diamond |= m->transmission == 1.0f && fabsf(m->ior - 2.42f) < 1e-6f &&
+                       fabsf(m->thickness - 0.005f) < 1e-7f;
+            absorbs |= pt_material_absorbs(m);
+        }
+        if (i == 1)
+            CHECK(diamond);
         if (i == 2)
-            CHECK(s->features & PT_FEAT_VOLUME);
+            CHECK(absorbs && (s->features & PT_FEAT_VOLUME));
         pt_env *env = NULL;
         CHECK(pt_env_uniform(pt_v3(1, 1, 1), &env, &err) == PT_OK);
         pt_render_params p;
