@@ -6,6 +6,7 @@
 #include "common/base/alloc.h"
 #include "common/math/simd.h"
 #include "common/render/bsdf.h"
+#include "common/render/dielectric.h"
 #include "common/render/env.h"
 #include "common/render/light.h"
 #include "common/render/light_lanes.h"
@@ -416,7 +417,8 @@ typedef struct path {
     pt_vec3 o, d; /* the next closest-hit ray */
     pt_vec3 L, beta;
     pt_vec3 prev_p;
-    float prev_pdf; /* 0: the previous vertex was the camera (no MIS) */
+    float prev_pdf; /* 0: the previous vertex was the camera or a delta lobe (no MIS) */
+    int32_t medium; /* the absorbing material whose volume the path is in, or -1 */
     uint32_t depth;
     uint32_t index; /* the sample index */
     pixel_ctx *pc;
@@ -444,6 +446,7 @@ static inline void path_start(const pt_renderer *r, pixel_ctx *pc, uint32_t inde
     pa->beta = pt_v3(1, 1, 1);
     pa->prev_p = pa->o;
     pa->prev_pdf = 0.0f;
+    pa->medium = -1;
     pa->depth = 0;
     pa->index = index;
     pa->pc = pc;
@@ -506,6 +509,209 @@ static inline __attribute__((always_inline)) void shade_miss(const pt_renderer *
 }
 
 /*
+ * Glass and media (PT_FEAT_TRANSMISSION, PT_FEAT_VOLUME; general variant
+ * only). A path knows one medium: the absorbing material whose closed mesh
+ * it is inside (path.medium), set when it refracts in through the side the
+ * winding's normal points away from (the front: closed meshes are wound
+ * outwards) and cleared when it refracts out through a back face. Media do
+ * not nest: glass inside glass, or a mesh that is not closed, gives wrong
+ * absorption but never NaN. Inside, every segment of length t scales beta by
+ * Beer-Lambert's c^(t / d) per channel (KHR_materials_volume:
+ * sigma = -ln(c) / d). The outside is air (n = 1).
+ */
+static inline pt_vec3 medium_transmittance(const pt_scene *s, int32_t medium, float t)
+{
+    pt_vec3 tr = pt_v3(1.0f, 1.0f, 1.0f);
+    if (medium < 0)
+        return tr;
+    const pt_material *m = &s->materials[medium];
+    float x = t / m->attenuation_distance; /* t may be +inf: c^inf = 0 for c < 1 */
+    float *out[3] = {&tr.x, &tr.y, &tr.z};
+    for (int c = 0; c < 3; c++) {
+        float col = m->attenuation_color[c];
+        if (col < 1.0f)
+            *out[c] = col > 0.0f ? expf(logf(col) * x) : 0.0f;
+    }
+    return tr;
+}
+
+/* The path's segment of length t ended (a hit, or +inf on a miss). */
+static inline __attribute__((always_inline)) void medium_segment(const pt_renderer *r, path *pa,
+                                                                 float t, const uint32_t features)
+{
+    if ((features & PT_FEAT_VOLUME) && pa->medium >= 0)
+        pa->beta = pt_v3_mul(pa->beta, medium_transmittance(r->scene, pa->medium, t));
+}
+
+static inline int transmits(const pt_material *m)
+{
+    return m->transmission > 0.0f;
+}
+
+/* The medium on the far side of a transmissive surface of material index mi
+ * hit from the front (or not): entering an absorbing closed mesh, or leaving
+ * it; a thin wall changes nothing. */
+static inline int32_t medium_across(const pt_scene *s, int32_t current, uint32_t mi, int front,
+                                    int thin)
+{
+    if (thin)
+        return current;
+    if (!front)
+        return -1;
+    return pt_material_absorbs(&s->materials[mi]) ? (int32_t)mi : -1;
+}
+
+/* The glass BSDF at sf for a ray arriving from the front or the back. */
+static pt_glass glass_at(const pt_renderer *r, const surface *sf, int front,
+                         const uint32_t features)
+{
+    const pt_scene *s = r->scene;
+    const pt_material *m = sf->mat;
+    pt_vec3 base = pt_v3(m->base_color[0], m->base_color[1], m->base_color[2]);
+    float metallic = m->metallic, roughness = m->roughness, trans = m->transmission;
+    if (features & PT_FEAT_TEXTURES) {
+        float t[4];
+        if (m->base_color_tex >= 0) {
+            pt_texture_sample(&s->textures[m->base_color_tex], sf->uv[0], sf->uv[1], t);
+            base = pt_v3_mul(base, pt_v3(t[0], t[1], t[2]));
+        }
+        if (m->metal_rough_tex >= 0) {
+            pt_texture_sample(&s->textures[m->metal_rough_tex], sf->uv[0], sf->uv[1], t);
+            roughness *= t[1];
+            metallic *= t[2];
+        }
+        if (m->transmission_tex >= 0) {
+            pt_texture_sample(&s->textures[m->transmission_tex], sf->uv[0], sf->uv[1], t);
+            trans *= t[0];
+        }
+    }
+    int thin = !(m->thickness > 0.0f);
+    /* Seen from the back of a closed mesh the ray is inside: n_far / n_near
+     * is 1 / ior. A thin wall has air on both sides. */
+    float eta = m->ior == 0.0f ? 0.0f : (thin || front ? m->ior : 1.0f / m->ior);
+    return pt_glass_setup(base, metallic, roughness, m->specular,
+                          pt_v3(m->specular_color[0], m->specular_color[1], m->specular_color[2]),
+                          trans, eta, thin);
+}
+
+/*
+ * shade() for a transmissive material. As shade(), with these differences:
+ * directions on both sides of the surface are valid (a shadow ray or the
+ * next ray leaves from the side it goes to, offset along that side's
+ * normal); a direction is kept only when the shading frame and the geometric
+ * normal put it on the same side (no light leaks through interpolated
+ * normals); next-event estimation weighs only the non-delta lobes, and after
+ * a smooth interface's delta lobe prev_pdf is 0, so the emitter or the
+ * environment that the path then finds counts in full (Veach 1997, sec.
+ * 9.2: a delta lobe has no light-sampling rival). A shadow ray inside an
+ * absorbing medium carries its transmittance.
+ */
+static __attribute__((noinline)) uint32_t
+shade_glass(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_BOUNCE],
+            const surface *sf, const pt_light_sample *ls, int ls_ok, shadow_ray *sr,
+            const uint32_t features)
+{
+    const pt_scene *s = r->scene;
+    const uint32_t strategy = r->params.light_strategy;
+    uint32_t ret = 0;
+    pt_vec3 wo = pt_v3_neg(pa->d);
+
+    shade_emission(r, pa, hit, sf, features);
+    if (pa->depth >= r->params.max_depth)
+        return ret;
+
+    int front = pt_v3_dot(sf->ng, wo) > 0.0f;
+    pt_vec3 ng = front ? sf->ng : pt_v3_neg(sf->ng);
+    pt_vec3 ns = sf->ns;
+    if (pt_v3_dot(ns, ng) < 0.0f)
+        ns = pt_v3_neg(ns);
+    if (pt_v3_dot(ns, wo) <= 0.0f)
+        ns = ng;
+    pt_frame fr = pt_frame_from_normal(ns);
+    pt_vec3 wo_l = pt_frame_to_local(&fr, wo);
+    uint32_t mi = (uint32_t)(sf->mat - s->materials);
+    int thin = !(sf->mat->thickness > 0.0f);
+    pt_glass g = glass_at(r, sf, front, features);
+
+    if ((features & NEE_LIGHTS) && r->nee && ls_ok && ls->pdf > 0.0f &&
+        any_positive(ls->radiance)) {
+        float side = pt_v3_dot(ls->wi, ng);
+        pt_vec3 wil = pt_frame_to_local(&fr, ls->wi);
+        float bpdf = 0.0f;
+        pt_vec3 f = pt_v3(0.0f, 0.0f, 0.0f);
+        if (side != 0.0f && (side > 0.0f) == (wil.z > 0.0f))
+            f = pt_glass_eval(&g, wo_l, wil, &bpdf);
+        if (any_positive(f)) {
+            pt_vec3 nside = side > 0.0f ? ng : pt_v3_neg(ng);
+            int32_t med = side > 0.0f ? pa->medium : medium_across(s, pa->medium, mi, front, thin);
+            pt_vec3 from = pt_offset_apply(r->offset, sf->p, nside);
+            float w;
+            sr->from = from;
+            if (ls->delta == PT_LIGHT_AREA) {
+                pt_vec3 nl = ls->normal;
+                if (pt_v3_dot(nl, ls->wi) > 0.0f)
+                    nl = pt_v3_neg(nl);
+                pt_vec3 to = pt_offset_apply(r->offset, ls->position, nl);
+                pt_vec3 sd = pt_v3_sub(to, from);
+                float dist = pt_v3_len(sd);
+                sr->dist = dist;
+                sr->dir = pt_v3_scale(sd, dist > 0.0f ? 1.0f / dist : 0.0f);
+                w = (strategy == PT_LIGHT_MIS ? power_heuristic(ls->pdf, bpdf) : 1.0f) / ls->pdf;
+            } else if (ls->delta == PT_LIGHT_AT) {
+                pt_vec3 sd = pt_v3_sub(ls->position, from);
+                float dist = pt_v3_len(sd);
+                sr->dist = dist;
+                sr->dir = pt_v3_scale(sd, dist > 0.0f ? 1.0f / dist : 0.0f);
+                w = 1.0f / ls->pdf;
+            } else {
+                sr->dir = ls->wi;
+                sr->dist = INFINITY;
+                w = 1.0f / ls->pdf;
+                if (ls->delta == PT_LIGHT_ENV && strategy == PT_LIGHT_MIS)
+                    w = power_heuristic(ls->pdf, bpdf) / ls->pdf;
+            }
+            pt_vec3 c = pt_v3_mul(pa->beta, pt_v3_scale(pt_v3_mul(f, ls->radiance), w));
+            if (features & PT_FEAT_VOLUME)
+                c = pt_v3_mul(c, medium_transmittance(s, med, sr->dist));
+            sr->contrib = c;
+            ret = SHADE_SHADOW;
+        }
+    }
+
+    float u3[3];
+    u3[0] = u[OFF_LIGHT_PICK + 1];
+    u3[1] = u[OFF_BSDF_DIR];
+    u3[2] = u[OFF_BSDF_DIR + 1];
+    pt_vec3 wi_l;
+    float pdf;
+    int delta;
+    pt_vec3 weight = pt_glass_sample(&g, wo_l, u3, &wi_l, &pdf, &delta);
+    if (!(pdf > 0.0f) || !any_positive(weight))
+        return ret;
+    pt_vec3 wi = pt_frame_to_world(&fr, wi_l);
+    float side = pt_v3_dot(wi, ng);
+    if (side == 0.0f || (side > 0.0f) != (wi_l.z > 0.0f))
+        return ret;
+    pt_vec3 beta = pt_v3_mul(pa->beta, weight);
+    if (pa->depth + 1 >= r->params.rr_depth) {
+        float m = max2(beta.x, max2(beta.y, beta.z));
+        float survive = m < 0.95f ? m : 0.95f;
+        if (!(u[OFF_RR] < survive))
+            return ret;
+        beta = pt_v3_scale(beta, 1.0f / survive);
+    }
+    if (side < 0.0f)
+        pa->medium = medium_across(s, pa->medium, mi, front, thin);
+    pa->beta = beta;
+    pa->prev_p = sf->p;
+    pa->prev_pdf = delta ? 0.0f : pdf;
+    pa->o = pt_offset_apply(r->offset, sf->p, side > 0.0f ? ng : pt_v3_neg(ng));
+    pa->d = wi;
+    pa->depth++;
+    return ret | SHADE_CONTINUE;
+}
+
+/*
  * One bounce of a path whose ray hit `hit`, with the bounce's numbers u. NEE
  * samples an emissive triangle at every vertex; the BSDF-sampled continuation
  * that hits an emitter adds its emission weighted by the power heuristic
@@ -525,6 +731,8 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
       const surface *sf, const pt_light_sample *ls, int ls_ok, const pt_vec3 *cos_wi,
       shadow_ray *sr, const uint32_t features)
 {
+    if ((features & PT_FEAT_TRANSMISSION) && transmits(sf->mat))
+        return shade_glass(r, pa, hit, u, sf, ls, ls_ok, sr, features);
     const uint32_t strategy = r->params.light_strategy;
     uint32_t ret = 0;
     pt_vec3 wo = pt_v3_neg(pa->d);
@@ -883,9 +1091,11 @@ static inline __attribute__((always_inline)) pt_vec3 li_impl(const pt_renderer *
         pt_hit hit;
         rays++;
         if (!closest_hit(r, pa.o, pa.d, u[OFF_ALPHA], &hit, features)) {
+            medium_segment(r, &pa, INFINITY, features);
             shade_miss(r, &pa, features);
             break;
         }
+        medium_segment(r, &pa, hit.t, features);
         shadow_ray sr = {{0, 0, 0}, {0, 0, 0}, 0.0f, {0, 0, 0}, 0}; /* set when SHADE_SHADOW */
         surface sf;
         surface_at(r, &hit, &sf, features);
@@ -987,10 +1197,12 @@ static inline __attribute__((always_inline)) uint64_t trace_batch(const pt_rende
                 sink->ray(sink->user, paths[k].o, paths[k].d, INFINITY, 0);
             if (closest_hit(r, paths[k].o, paths[k].d, alpha ? u[j][OFF_ALPHA] : 0.0f, &hits[k],
                             features)) {
+                medium_segment(r, &paths[k], hits[k].t, features);
                 if (alpha && nh != j) /* u follows live[]'s compaction */
                     memcpy(u[nh], u[j], sizeof u[nh]);
                 live[nh++] = (uint8_t)k;
             } else {
+                medium_segment(r, &paths[k], INFINITY, features);
                 shade_miss(r, &paths[k], features);
             }
         }
@@ -1157,8 +1369,10 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
 #define NO_TEX (uint32_t)(PT_FEAT_TEXTURES | PT_FEAT_EMISSIVE_TEX)
 /* Lights besides emissive triangles: only the general variant has their code. */
 #define OTHER_LIGHTS (uint32_t)(PT_FEAT_PUNCTUAL | PT_FEAT_ENV)
+/* Glass and media: likewise only in the general variant. */
+#define GLASS (uint32_t)(PT_FEAT_TRANSMISSION | PT_FEAT_VOLUME)
 /* Features that only the general variant has code for. */
-#define GENERAL_ONLY (uint32_t)(OTHER_LIGHTS | PT_FEAT_ALPHA)
+#define GENERAL_ONLY (uint32_t)(OTHER_LIGHTS | PT_FEAT_ALPHA | GLASS)
 VARIANT(li_general, tile_general, ALL_FEATURES)
 VARIANT(li_untextured, tile_untextured, ALL_FEATURES & ~NO_TEX & ~GENERAL_ONLY)
 VARIANT(li_lambert, tile_lambert, ALL_FEATURES & ~(uint32_t)PT_FEAT_GLOSSY & ~GENERAL_ONLY)

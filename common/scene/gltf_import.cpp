@@ -12,11 +12,13 @@
 // Images: tinygltf is told not to decode anything (a loader callback that
 // only keeps data: URI bytes) and not to read external images; the importer
 // decodes, with stb_image from the system's libstb, only the images that a
-// material actually uses as base colour, metal-rough or emissive texture,
-// to RGBA8 (1-4 channels and 16-bit data are converted by stb_image).
+// material actually uses as base colour, metal-rough, emissive or
+// transmission texture, to RGBA8 (1-4 channels and 16-bit data are converted
+// by stb_image).
 //
 // Materials follow the core metallic-roughness model (spec 3.9.2) with
-// KHR_materials_emissive_strength and KHR_materials_specular; what the
+// KHR_materials_emissive_strength, KHR_materials_specular and glass
+// (KHR_materials_transmission, _ior, _volume: add_transmission); what the
 // renderer does not support is reported once per kind through opts->warn.
 // KHR_lights_punctual lights become pt_punctual lights (scene.h: units).
 //
@@ -678,11 +680,72 @@ double ext_number(const tinygltf::Value &obj, const char *key, double dflt)
     return v.IsNumber() ? v.GetNumberAsDouble() : dflt;
 }
 
+// A TextureInfo from an extension's JSON object (tinygltf parses only the
+// core material's), or index -1.
+tinygltf::TextureInfo ext_texture(const tinygltf::Value &obj, const char *key)
+{
+    tinygltf::TextureInfo info;
+    if (!obj.IsObject() || !obj.Has(key))
+        return info;
+    const tinygltf::Value &t = obj.Get(key);
+    if (!t.IsObject())
+        return info;
+    if (t.Has("index") && t.Get("index").IsNumber())
+        info.index = int(t.Get("index").GetNumberAsDouble());
+    if (t.Has("texCoord") && t.Get("texCoord").IsNumber())
+        info.texCoord = int(t.Get("texCoord").GetNumberAsDouble());
+    if (t.Has("extensions") && t.Get("extensions").IsObject()) {
+        const tinygltf::Value &e = t.Get("extensions");
+        for (const auto &k : e.Keys())
+            info.extensions[k] = e.Get(k);
+    }
+    return info;
+}
+
+// KHR_materials_transmission, KHR_materials_ior and KHR_materials_volume
+// into pm (scene.h: the fields; an infinite attenuationDistance is 0 there).
+// The volume's thickness texture is ignored: thickness only decides thin or
+// not, and the renderer traces the mesh itself.
+void add_transmission(importer &im, int mi, const tinygltf::Material &g, pt_material &pm)
+{
+    auto tr = g.extensions.find("KHR_materials_transmission");
+    if (tr != g.extensions.end()) {
+        pm.transmission = float(ext_number(tr->second, "transmissionFactor", 0.0));
+        pm.transmission_tex = texture_for(im, mi, "transmissionTexture",
+                                          ext_texture(tr->second, "transmissionTexture"), false);
+    }
+    auto io = g.extensions.find("KHR_materials_ior");
+    if (io != g.extensions.end())
+        pm.ior = float(ext_number(io->second, "ior", 1.5));
+    if (pm.ior != 1.5f && pm.transmission == 0.0f)
+        im.warn_once("ior-opaque", "material " + std::to_string(mi) +
+                                       ": KHR_materials_ior is used only for transmission; "
+                                       "opaque materials keep ior 1.5");
+    auto vo = g.extensions.find("KHR_materials_volume");
+    if (vo != g.extensions.end()) {
+        pm.thickness = float(ext_number(vo->second, "thicknessFactor", 0.0));
+        double d = ext_number(vo->second, "attenuationDistance", 0.0);
+        pm.attenuation_distance = std::isinf(d) && d > 0 ? 0.0f : float(d);
+        if (vo->second.IsObject() && vo->second.Has("attenuationColor")) {
+            const tinygltf::Value &a = vo->second.Get("attenuationColor");
+            for (int c = 0; c < 3 && a.IsArray() && size_t(c) < a.ArrayLen(); c++)
+                if (a.Get(c).IsNumber())
+                    pm.attenuation_color[c] = float(a.Get(c).GetNumberAsDouble());
+        }
+        if (vo->second.IsObject() && vo->second.Has("thicknessTexture"))
+            im.warn_once("thickness-texture",
+                         "material " + std::to_string(mi) +
+                             ": KHR_materials_volume thicknessTexture is ignored (the mesh "
+                             "itself is traced)");
+    }
+}
+
 void add_materials(importer &im)
 {
     const tinygltf::Model &m = im.model;
-    static const std::set<std::string> handled = {"KHR_materials_emissive_strength",
-                                                  "KHR_materials_specular"};
+    static const std::set<std::string> handled = {
+        "KHR_materials_emissive_strength", "KHR_materials_specular", "KHR_materials_transmission",
+        "KHR_materials_ior", "KHR_materials_volume"};
     for (size_t i = 0; i < m.materials.size(); i++) {
         const tinygltf::Material &g = m.materials[i];
         int mi = int(i);
@@ -716,6 +779,7 @@ void add_materials(importer &im)
                              "material " + std::to_string(i) +
                                  ": KHR_materials_specular textures are ignored");
         }
+        add_transmission(im, mi, g, pm);
         pm.double_sided = g.doubleSided ? 1 : 0;
         for (const auto &e : g.extensions)
             if (!handled.count(e.first))
@@ -1123,7 +1187,8 @@ void import(importer &im)
         im.warn_once("skin", "skins are ignored");
     for (const auto &r : m.extensionsRequired)
         if (r != "KHR_materials_emissive_strength" && r != "KHR_materials_specular" &&
-            r != "KHR_lights_punctual")
+            r != "KHR_lights_punctual" && r != "KHR_materials_transmission" &&
+            r != "KHR_materials_ior" && r != "KHR_materials_volume")
             im.warn_once("req:" + r, "required extension " + r + " is not supported");
     add_materials(im);
     std::vector<char> on_path(m.nodes.size(), 0);

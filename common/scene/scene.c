@@ -94,6 +94,10 @@ pt_material pt_material_default(void)
     m.specular = 1.0f;
     for (int i = 0; i < 3; i++)
         m.specular_color[i] = 1.0f;
+    m.transmission_tex = -1;
+    m.ior = 1.5f;
+    for (int i = 0; i < 3; i++)
+        m.attenuation_color[i] = 1.0f;
     m.double_sided = 0;
     m.alpha_mode = PT_ALPHA_OPAQUE;
     m.alpha_cutoff = 0.5f;
@@ -154,6 +158,41 @@ static int finite_n(const float *v, int n)
     return 1;
 }
 
+/* The transmission and volume fields, checked only when the material
+ * transmits (a zero-filled material stays valid). KHR_materials_ior allows
+ * ior 0 (F0 = 1) as well as >= 1. */
+static pt_status check_transmission(const pt_scene_builder *b, const pt_material *m,
+                                    const char *name, pt_error *err)
+{
+    if (!(m->transmission >= 0.0f && m->transmission <= 1.0f))
+        return pt_error_set(err, PT_ERR_FORMAT,
+                            "material '%.64s': transmissionFactor %g is outside [0, 1]", name,
+                            (double)m->transmission);
+    if (m->transmission == 0.0f)
+        return PT_OK;
+    if (!(m->ior == 0.0f || (m->ior >= 1.0f && isfinite(m->ior))))
+        return pt_error_set(err, PT_ERR_FORMAT, "material '%.64s': ior %g is not 0 or >= 1", name,
+                            (double)m->ior);
+    if (!(m->thickness >= 0.0f && isfinite(m->thickness)))
+        return pt_error_set(err, PT_ERR_FORMAT,
+                            "material '%.64s': thicknessFactor %g is negative or not finite", name,
+                            (double)m->thickness);
+    if (!(m->attenuation_distance >= 0.0f))
+        return pt_error_set(err, PT_ERR_FORMAT,
+                            "material '%.64s': attenuationDistance %g is not positive", name,
+                            (double)m->attenuation_distance);
+    for (int i = 0; i < 3; i++)
+        if (!(m->attenuation_color[i] >= 0.0f && m->attenuation_color[i] <= 1.0f))
+            return pt_error_set(err, PT_ERR_FORMAT,
+                                "material '%.64s': attenuationColor[%d] %g is outside [0, 1]", name,
+                                i, (double)m->attenuation_color[i]);
+    if (m->transmission_tex < -1 ||
+        (m->transmission_tex >= 0 && (uint32_t)m->transmission_tex >= b->ntex))
+        return pt_error_set(err, PT_ERR_ARG, "material '%.64s': texture %d out of range", name,
+                            (int)m->transmission_tex);
+    return PT_OK;
+}
+
 pt_status pt_scene_builder_add_material(pt_scene_builder *b, const pt_material *m, uint32_t *index,
                                         pt_error *err)
 {
@@ -192,6 +231,9 @@ pt_status pt_scene_builder_add_material(pt_scene_builder *b, const pt_material *
     if (!(m->alpha_cutoff >= 0.0f) || !isfinite(m->alpha_cutoff))
         return pt_error_set(err, PT_ERR_FORMAT, "material '%.64s': alphaCutoff %g is not >= 0",
                             name, (double)m->alpha_cutoff);
+    pt_status st = check_transmission(b, m, name, err);
+    if (st != PT_OK)
+        return st;
     const int32_t tex[3] = {m->base_color_tex, m->metal_rough_tex, m->emissive_tex};
     for (int i = 0; i < 3; i++)
         if (tex[i] < -1 || (tex[i] >= 0 && (uint32_t)tex[i] >= b->ntex))
@@ -689,6 +731,14 @@ static uint32_t scene_features(const pt_scene *s, int has_uv, pt_error *err, pt_
             f |= PT_FEAT_SINGLE_SIDED;
         if (m->alpha_mode != PT_ALPHA_OPAQUE)
             f |= PT_FEAT_ALPHA;
+        if (m->transmission > 0.0f) {
+            /* The glass BSDF has GGX lobes: the Lambert paths must not run. */
+            f |= PT_FEAT_TRANSMISSION | PT_FEAT_GLOSSY;
+            if (m->transmission_tex >= 0)
+                f |= PT_FEAT_TEXTURES;
+            if (pt_material_absorbs(m))
+                f |= PT_FEAT_VOLUME;
+        }
     }
     pt_free(used);
     *st = PT_OK;

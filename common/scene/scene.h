@@ -46,6 +46,10 @@ enum {
     PT_FEAT_ENV = 1u << 7,          /* an environment light (set by the renderer, not the file) */
     PT_FEAT_ALPHA = 1u << 10,       /* some material's alphaMode is MASK or BLEND */
 };
+/* Glass: some material transmits (KHR_materials_transmission; it sets
+ * PT_FEAT_GLOSSY too), and some transmitting material absorbs inside its
+ * closed mesh (KHR_materials_volume, pt_material_absorbs). */
+enum { PT_FEAT_TRANSMISSION = 1u << 11, PT_FEAT_VOLUME = 1u << 12 };
 
 /* glTF alphaMode (common/scene/alpha.h). OPAQUE is 0, so a material
  * initialised with zeros is opaque. */
@@ -69,6 +73,15 @@ typedef struct pt_material {
     int32_t emissive_tex;    /* sRGB texture or -1 */
     float specular;          /* KHR_materials_specular specularFactor (default 1) */
     float specular_color[3]; /* KHR_materials_specular specularColorFactor (default 1,1,1) */
+    /* KHR_materials_transmission, _ior, _volume (all ignored while
+     * transmission is 0: the texture only scales the factor). */
+    float transmission;         /* transmissionFactor in [0, 1] (default 0) */
+    int32_t transmission_tex;   /* R = transmission (linear), or -1 */
+    float ior;                  /* index of refraction, >= 1 (default 1.5), or 0: F0 = 1 */
+    float thickness;            /* thicknessFactor >= 0: 0 is thin-walled (the default), else the
+                                   mesh is a closed volume; its value is not otherwise used */
+    float attenuation_color[3]; /* in [0, 1] (default 1,1,1) */
+    float attenuation_distance; /* > 0; 0 (or +inf in glTF) means no absorption */
     int double_sided;
     int alpha_mode;     /* PT_ALPHA_* (default OPAQUE) */
     float alpha_cutoff; /* MASK: covered where alpha >= this (glTF default 0.5) */
@@ -184,6 +197,16 @@ void pt_scene_frame_camera(pt_scene *scene, float aspect);
  * gives a square image. The result is clamped to [1, max_height], so
  * a near-zero aspect cannot overflow. Pure: any thread may call it. */
 uint32_t pt_camera_height(float aspect, uint32_t width, uint32_t max_height);
+
+/* Whether m absorbs inside its volume (Beer-Lambert): it transmits, is not
+ * thin-walled, and has a finite attenuation distance with a colour below 1. */
+static inline int pt_material_absorbs(const pt_material *m)
+{
+    return m->transmission > 0.0f && m->thickness > 0.0f && m->attenuation_distance > 0.0f &&
+           m->attenuation_distance < 3.4e38f &&
+           (m->attenuation_color[0] < 1.0f || m->attenuation_color[1] < 1.0f ||
+            m->attenuation_color[2] < 1.0f);
+}
 
 /* A default material: white base colour, metallic 1, roughness 1 (glTF defaults),
  * specular 1, single-sided, OPAQUE with alpha cutoff 0.5. */

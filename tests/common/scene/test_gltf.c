@@ -716,8 +716,10 @@ static void check_asset(const asset *a)
             }
         }
         CHECK(found);
-        CHECK(strstr(w.text, "KHR_materials_transmission") != NULL);
-        /* Its BLEND material is rendered, not warned about. */
+        /* Its glass shade is imported (KHR_materials_transmission), not ignored;
+         * its BLEND material is rendered, not warned about. */
+        CHECK(strstr(w.text, "KHR_materials_transmission") == NULL);
+        CHECK(s->features & PT_FEAT_TRANSMISSION);
         CHECK(strstr(w.text, "BLEND") == NULL && strstr(w.text, "alphaMode") == NULL);
         CHECK(s->features & PT_FEAT_ALPHA);
     }
