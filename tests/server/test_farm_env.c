@@ -10,7 +10,8 @@
  *  2. Queue: `ptctl submit --env ...` while a worker renders; maps that are
  *     cut short, not images, 0 x 0, 1e38 (RGBE), NaN and 1e38 (EXR) are
  *     refused at upload with the reason, as is a scene with no light, while
- *     the running job goes on; then the coordinator is killed with SIGKILL
+ *     the running job goes on; so is a SUBMIT naming any other file as its map
+ *     or a map its bundle lacks; then the coordinator is killed with SIGKILL
  *     mid-job and restarted, and the environment job and a --background job
  *     queued behind it finish bit-identical to their standalone renders.
  */
@@ -18,6 +19,7 @@
 
 #include "common/base/alloc.h"
 #include "common/image/image.h"
+#include "common/scene/bundle.h"
 #include "tests/check.h"
 #include "tests/server/farm_util.h"
 
@@ -29,6 +31,7 @@ static const char *MAP = PT_SHARED_SCENES "/../envs/studio_small_03_1k.hdr";
 
 static int have_map;
 static char listen_addr[64];
+static int g_port;
 
 /* A triangle and nothing that emits: it would render black. */
 static void write_dark_scene(void)
@@ -236,6 +239,52 @@ static void one_job(void)
     CHECK(run(queue_env, "queue_env.log", 60) == 2 && log_has("queue_env.log", "ptctl submit"));
 }
 
+/* A raw SUBMIT of bundle b naming env_name as its map (and the upload when
+ * SUBMIT is accepted); the text of the ERROR it gets, or "" for none. */
+static const char *raw_submit(const pt_bundle *b, const char *env_name)
+{
+    static char text[PROTO_MAX_ERROR_TEXT + 1];
+    static uint8_t buf[1 << 16];
+    text[0] = '\0';
+    int fd = authenticate(g_port, "", PROTO_ROLE_CLIENT);
+    proto_frame f;
+    if (fd < 0 || read_frame(fd, buf, sizeof buf, &f) != PROTO_MSG_WELCOME) {
+        if (fd >= 0)
+            close(fd);
+        return "no WELCOME";
+    }
+    proto_submit m;
+    memset(&m, 0, sizeof m);
+    snprintf(m.name, sizeof m.name, "raw");
+    m.width = m.height = 8;
+    m.spp = 1;
+    m.bundle_size = b->size;
+    for (int i = 0; i < 32; i++) {
+        unsigned v = 0;
+        sscanf(b->hash + 2 * i, "%2x", &v);
+        m.bundle_hash[i] = (uint8_t)v;
+    }
+    proto_env_none(&m.env);
+    snprintf(m.env.name, sizeof m.env.name, "%s", env_name);
+    proto_writer w;
+    proto_writer_init(&w, 1 << 21);
+    CHECK(proto_msg_encode_submit(&w, &m, NULL) == PT_OK);
+    send_frame(fd, PROTO_MSG_SUBMIT, &w);
+    proto_writer_reset(&w);
+    proto_scene_chunk ch = {{0}, 0, b->size, (uint32_t)b->size, b->data};
+    memcpy(ch.hash, m.bundle_hash, 32);
+    CHECK(proto_msg_encode_scene_chunk(&w, &ch, NULL) == PT_OK);
+    send_frame(fd, PROTO_MSG_UPLOAD, &w);
+    proto_writer_fini(&w);
+    if (read_frame(fd, buf, sizeof buf, &f) == PROTO_MSG_ERROR) {
+        proto_error_msg e;
+        if (proto_msg_decode_error(f.payload, f.len, &e, NULL) == PT_OK)
+            snprintf(text, sizeof text, "%s", e.text);
+    }
+    close(fd);
+    return text;
+}
+
 /* ---- 2. queue ----------------------------------------------------------------------- */
 
 static pid_t g_srv = -1;
@@ -261,6 +310,7 @@ static void start_server(void)
     g_srv = spawn(argv, "serve.log");
     int port = read_port();
     CHECK(port > 0);
+    g_port = port;
     snprintf(listen_addr, sizeof listen_addr, "127.0.0.1:%d", port);
 }
 
@@ -393,6 +443,19 @@ static void queue(void)
         CHECKF(strstr(slurp("submit_bad.log"), "/state/") == NULL, "%s: %s", BAD[i][0],
                slurp("submit_bad.log"));
     }
+    /* A map named outside the bundle's own place, and one the bundle lacks:
+     * refused, nothing opened. */
+    pt_bundle *plain = NULL;
+    CHECK(pt_bundle_pack(SCENE, &plain, NULL) == PT_OK);
+    if (plain) {
+        const char *t = raw_submit(plain, "../../etc/passwd");
+        CHECKF(strstr(t, "must be the bundle's") != NULL, "outside name: '%s'", t);
+        t = raw_submit(plain, "scene.bin");
+        CHECKF(strstr(t, "must be the bundle's") != NULL, "other file: '%s'", t);
+        t = raw_submit(plain, PT_BUNDLE_ENV_NAME);
+        CHECKF(strstr(t, "holds no") != NULL, "absent map: '%s'", t);
+    }
+    pt_bundle_free(plain);
     const char *missing[] = {"submit", SCENE, "--env", path("missing.hdr"), NULL};
     CHECK(submit("submit_missing.log", missing) == 0);
     CHECK(strstr(slurp("submit_missing.log"), "missing.hdr") != NULL);
