@@ -35,7 +35,9 @@
 #include "protocol/wire.h"
 
 #define PROTO_MAGIC "PTF1"
-#define PROTO_VERSION 2u /* 2: mutual authentication (AUTH and WELCOME, protocol/msg.h) */
+#define PROTO_VERSION                                                                              \
+    3u /* 2: mutual authentication (AUTH and WELCOME, protocol/msg.h);                             \
+           3: the environment light in SUBMIT and TASK (ENV) */
 #define PROTO_FRAME_HEADER 12u
 #define PROTO_FRAME_TRAILER 4u
 #define PROTO_FRAME_OVERHEAD (PROTO_FRAME_HEADER + PROTO_FRAME_TRAILER)

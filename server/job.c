@@ -439,6 +439,7 @@ int srv_job_lease(srv_job *j, uint64_t owner, uint64_t now_ms, uint32_t lease_ms
     memcpy(task->scene_hash, j->hash, 32);
     task->lease_ms = lease_ms;
     snprintf(task->camera, sizeof task->camera, "%s", j->p.camera);
+    task->env = j->p.env;
     return 1;
 }
 
@@ -955,9 +956,10 @@ uint32_t srv_job_tiles(const srv_job *j)
 /* ---- checkpoints ---- */
 
 #define CKPT_MAGIC 0x434a5450u /* "PTJC" */
-#define CKPT_VERSION 3u
+#define CKPT_VERSION 4u
 #define CKPT_OLDEST_VERSION 2u   /* no min gain: read as 0 */
 #define CKPT_MIN_GAIN_VERSION 3u /* the first with the min gain */
+#define CKPT_ENV_VERSION 4u      /* the first with the environment (older: none) */
 
 static void put_acc(proto_writer *w, const pt_pixel_acc *a)
 {
@@ -992,9 +994,15 @@ void srv_job_params_write(proto_writer *w, const srv_job_params *p)
     proto_w_f64(w, p->target_error);
     proto_w_f64(w, p->min_gain);
     proto_w_str(w, p->camera);
+    proto_w_str(w, p->env.name);
+    proto_w_f32(w, p->env.strength);
+    proto_w_f32(w, p->env.rotate_deg);
+    proto_w_u8(w, p->env.background);
+    for (int k = 0; k < 3; k++)
+        proto_w_f32(w, p->env.rgb[k]);
 }
 
-void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain)
+void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, int has_env)
 {
     p->width = proto_r_u32(r, "width");
     p->height = proto_r_u32(r, "height");
@@ -1009,6 +1017,15 @@ void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain)
     p->min_gain = has_min_gain ? proto_r_f64(r, "min gain") : 0.0;
     p->camera[0] = '\0';
     proto_r_str(r, p->camera, PROTO_MAX_NAME, "camera");
+    proto_env_none(&p->env);
+    if (!has_env)
+        return;
+    proto_r_str(r, p->env.name, PROTO_MAX_PATH, "environment map name");
+    p->env.strength = proto_r_f32(r, "environment strength");
+    p->env.rotate_deg = proto_r_f32(r, "environment rotation");
+    p->env.background = proto_r_u8(r, "environment background flag");
+    for (int k = 0; k < 3; k++)
+        p->env.rgb[k] = proto_r_f32(r, "background colour");
 }
 
 static uint32_t tile_merged(const srv_job *j, uint32_t tile)
@@ -1065,7 +1082,7 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
     uint64_t id = proto_r_u64(&r, "job id");
     const uint8_t *hash = proto_r_bytes(&r, 32, "scene hash");
     srv_job_params p;
-    srv_job_params_read(&r, &p, version >= CKPT_MIN_GAIN_VERSION);
+    srv_job_params_read(&r, &p, version >= CKPT_MIN_GAIN_VERSION, version >= CKPT_ENV_VERSION);
     uint32_t ntiles = proto_r_u32(&r, "tiles"), nchunks = proto_r_u32(&r, "chunks");
     if (r.status != PT_OK)
         return proto_r_finish(&r, "checkpoint", err);
@@ -1075,7 +1092,8 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
         p.rr_depth != j->p.rr_depth || p.min_spp != j->p.min_spp ||
         memcmp(&p.target_error, &j->p.target_error, sizeof p.target_error) != 0 ||
         memcmp(&p.min_gain, &j->p.min_gain, sizeof p.min_gain) != 0 ||
-        strcmp(p.camera, j->p.camera) != 0 || ntiles != j->ntiles || nchunks != j->nchunks)
+        strcmp(p.camera, j->p.camera) != 0 || !proto_env_same(&p.env, &j->p.env) ||
+        ntiles != j->ntiles || nchunks != j->nchunks)
         return pt_error_set(err, PT_ERR_FORMAT,
                             "checkpoint is of another job or other settings "
                             "(job %llu, %ux%u, %u spp)",

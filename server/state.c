@@ -19,11 +19,13 @@
 #define QUEUE_MAGIC 0x31515450u /* "PTQ1" */
 #define CKPT_MAGIC 0x4b435450u  /* "PTCK" */
 #define LOG_MAGIC 0x4c525450u   /* "PTRL" */
-#define STATE_VERSION 3u
+#define STATE_VERSION 4u
 /* The oldest format still read: version 2 has no min gain (read as 0, the
- * rule off), so a state folder survives the upgrade that brought it. */
+ * rule off), version 3 no environment (read as none), so a state folder
+ * survives the upgrades that brought them. */
 #define STATE_OLDEST_VERSION 2u
 #define STATE_MIN_GAIN_VERSION 3u /* the first with the min gain */
+#define STATE_ENV_VERSION 4u      /* the first with the environment */
 #define LOG_HEADER 16u
 #define MAX_QUEUE_BYTES (256u << 20)
 #define MAX_CKPT_BYTES ((size_t)8 << 30)
@@ -276,7 +278,8 @@ pt_status srv_state_load_queue(srv_state *st, srv_job_record **recs, uint32_t *n
         proto_r_str(&r, j->scene, sizeof j->scene - 1, "scene");
         proto_r_str(&r, j->output, sizeof j->output - 1, "output");
         j->submitted = proto_r_u64(&r, "submitted");
-        srv_job_params_read(&r, &j->params, version >= STATE_MIN_GAIN_VERSION);
+        srv_job_params_read(&r, &j->params, version >= STATE_MIN_GAIN_VERSION,
+                            version >= STATE_ENV_VERSION);
         const uint8_t *h = proto_r_bytes(&r, 32, "scene hash");
         if (h)
             memcpy(j->hash, h, 32);

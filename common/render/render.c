@@ -1494,3 +1494,14 @@ void pt_render_tile_traced(const pt_renderer *r, pt_rect tile, uint32_t s0, uint
 {
     tile_impl(r, tile, s0, s1, out, NULL, NULL, ALL_FEATURES, sink);
 }
+
+pt_status pt_render_check_lit(const pt_scene *scene, int has_env, const char *name, pt_error *err)
+{
+    if ((scene->features & (PT_FEAT_EMITTERS | PT_FEAT_PUNCTUAL)) || has_env)
+        return PT_OK;
+    return pt_error_set(err, PT_ERR_ARG,
+                        "%s has no light: no emissive material and no KHR_lights_punctual "
+                        "light; light it with --env MAP.hdr (an environment map) or --background "
+                        "R,G,B (a uniform sky)",
+                        name);
+}

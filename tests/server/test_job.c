@@ -36,7 +36,8 @@ static void fake_result(const proto_task *t, pt_pixel_acc *px, proto_result *r)
 
 static srv_job *make(uint32_t w, uint32_t h, uint32_t spp, uint32_t tile, uint32_t chunk)
 {
-    srv_job_params p = {w, h, spp, tile, chunk, 5, 16, 3, 0.0, 0, 0.0, ""};
+    srv_job_params p = {
+        w, h, spp, tile, chunk, 5, 16, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}};
     srv_job *j = NULL;
     pt_error err = {0};
     CHECKF(srv_job_new(9, &p, HASH, &j, &err) == PT_OK, "%s", err.msg);
@@ -178,7 +179,8 @@ static void bit_identical(void)
  * leased or held are dropped harmlessly. */
 static void adaptive(void)
 {
-    srv_job_params p = {64, 32, 64, 32, 8, 1, 16, 3, 0.01, 16, 0.0, ""};
+    srv_job_params p = {
+        64, 32, 64, 32, 8, 1, 16, 3, 0.01, 16, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}};
     srv_job *j = NULL;
     CHECK(srv_job_new(2, &p, HASH, &j, NULL) == PT_OK);
     if (!j)
@@ -243,7 +245,8 @@ static void gain_pixels(const proto_task *t, pt_pixel_acc *px, proto_result *r)
  * refuses a job with another min gain. */
 static void adaptive_min_gain(void)
 {
-    srv_job_params p = {64, 32, 64, 32, 8, 1, 16, 3, 0.0, 8, 1e-5, ""};
+    srv_job_params p = {
+        64, 32, 64, 32, 8, 1, 16, 3, 0.0, 8, 1e-5, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}};
     srv_job *a = NULL, *b = NULL, *c = NULL, *d = NULL;
     CHECK(srv_job_new(3, &p, HASH, &a, NULL) == PT_OK);
     CHECK(srv_job_new(3, &p, HASH, &b, NULL) == PT_OK);
@@ -288,6 +291,28 @@ static void adaptive_min_gain(void)
     pt_error err = {0};
     CHECK(srv_job_new(3, &q, HASH, &d, NULL) == PT_OK);
     CHECK(d && srv_job_load(d, w.buf, w.len, &err) == PT_ERR_FORMAT);
+    srv_job_free(d);
+    d = NULL;
+    /* Another environment is another job too: a map, or a turned one. */
+    q = p;
+    snprintf(q.env.name, sizeof q.env.name, ".ptfarm/environment");
+    CHECK(srv_job_new(3, &q, HASH, &d, NULL) == PT_OK);
+    CHECK(d && srv_job_load(d, w.buf, w.len, &err) == PT_ERR_FORMAT);
+    srv_job_free(d);
+    d = NULL;
+    q = p;
+    q.env.rotate_deg = 1.0f;
+    CHECK(srv_job_new(3, &q, HASH, &d, NULL) == PT_OK);
+    CHECK(d && srv_job_load(d, w.buf, w.len, &err) == PT_ERR_FORMAT);
+    srv_job_free(d);
+    d = NULL;
+    /* A version 3 checkpoint (before the environment: the same bytes less
+     * the ENV block after the camera) loads as a job with none. */
+    size_t at = 4 + 4 + 8 + 32 + 9 * 4 + 2 * 8 + 2 + strlen(p.camera);
+    proto_put_u32(w.buf + 4, 3);
+    memmove(w.buf + at, w.buf + at + 23, w.len - at - 23);
+    CHECK(srv_job_new(3, &p, HASH, &d, NULL) == PT_OK);
+    CHECKF(d && srv_job_load(d, w.buf, w.len - 23, &err) == PT_OK, "%s", err.msg);
     proto_writer_fini(&w);
 done:
     srv_job_free(a);
@@ -301,7 +326,8 @@ done:
  * first chunk); the noisy tile still runs to the end. */
 static void adaptive_min_gain_black(void)
 {
-    srv_job_params p = {64, 32, 64, 32, 8, 1, 16, 3, 0.0, 8, 1e-5, ""};
+    srv_job_params p = {
+        64, 32, 64, 32, 8, 1, 16, 3, 0.0, 8, 1e-5, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}};
     srv_job *j = NULL;
     CHECK(srv_job_new(3, &p, HASH, &j, NULL) == PT_OK);
     if (!j)
@@ -324,20 +350,22 @@ static void adaptive_min_gain_black(void)
 
 static void bad_params(void)
 {
-    srv_job_params p = {0, 10, 4, 16, 4, 0, 4, 3, 0.0, 0, 0.0, ""};
+    srv_job_params p = {0, 10, 4, 16, 4, 0, 4, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}};
     srv_job *j = NULL;
     pt_error err = {0};
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
     p.width = 10;
     p.tile = 1000;
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
-    p = (srv_job_params){16, 16, 4, 16, 4, 0, 4, 3, 0.0, 0, NAN, ""};
+    p = (srv_job_params){
+        16, 16, 4, 16, 4, 0, 4, 3, 0.0, 0, NAN, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}};
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
     p.min_gain = -1e-6;
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
     p.min_gain = INFINITY;
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
-    p = (srv_job_params){16384, 16384, 1u << 24, 16, 1, 0, 4, 3, 0.0, 0, 0.0, ""};
+    p = (srv_job_params){
+        16384, 16384, 1u << 24, 16, 1, 0, 4, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}};
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_LIMIT);
     CHECK(j == NULL);
 }

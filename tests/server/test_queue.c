@@ -715,6 +715,31 @@ static void set_format(const char *name, long at, const long *vers, int nvers, u
     pt_free(d);
 }
 
+/* Removes the len bytes at offset at of a file of the state folder (and
+ * seals its CRC32C when crc), leaving its version as it is. */
+static void cut_bytes(const char *name, long at, size_t len, int crc)
+{
+    uint8_t *d = NULL;
+    size_t n = 0;
+    pt_error e = {0};
+    CHECK(pt_read_file(path(name), 1 << 30, &d, &n, &e) == PT_OK);
+    if (!d)
+        return;
+    CHECK(at >= 0 && (size_t)at + len + 4 <= n);
+    if (at >= 0 && (size_t)at + len + 4 <= n) {
+        memmove(d + at, d + at + len, n - (size_t)at - len);
+        n -= len;
+        if (crc)
+            proto_put_u32(d + n - 4, proto_crc32c(0, d, n - 4));
+        CHECK(pt_write_file_atomic(path(name), d, n, &e) == PT_OK);
+    }
+    pt_free(d);
+}
+
+/* The environment block of a job params block with no map (str "", f32
+ * strength, f32 rotation, u8 flag, f32 x3): what format 4 added. */
+#define ENV_BLOCK_NONE 23u
+
 /* The format before the min-gain rule (see set_format). */
 static void to_format2(const char *name, long at, const long *vers, int nvers, int crc)
 {
@@ -844,28 +869,44 @@ static void damaged(void)
     kill_server(SIGTERM);
     CHECK(log_has("damage_torn.log", "incomplete last record"));
 
-    /* A state folder in format 2, from the ptserve before --min-gain: the same job
-     * resumes with the same samples as from the current format. */
+    /* State folders in format 3 (before the environment light) and 2 (before
+     * --min-gain as well): the same job resumes with the same samples as from
+     * the current format. */
     CHECK(system(cmd) == 0); /* state3.good again */
-    CHECK(start_damaged("migrate_v3.log") == -1);
-    proto_job_info v3;
-    CHECK(status(g_port, id, &v3) == PROTO_MSG_JOB_INFO && v3.samples_done > 0);
+    CHECK(start_damaged("migrate_v4.log") == -1);
+    proto_job_info v4;
+    CHECK(status(g_port, id, &v4) == PROTO_MSG_JOB_INFO && v4.samples_done > 0);
     kill_server(SIGKILL);
-    snprintf(cmd, sizeof cmd, "rm -rf '%s' && cp -a '%s' '%s'", path("state3"), path("state3.good"),
-             path("state3"));
-    CHECK(system(cmd) == 0);
     const long qv[] = {4}, cv[] = {4, 36};
-    to_format2("state3/queue", queue_min_gain_at("state3/queue"), qv, 1, 1);
     /* checkpoint: header 8, seconds/rejected/rays 24, magic, version, id, hash,
-     * nine u32 parameters, target error; then the min gain */
-    to_format2(ck, 8 + 24 + 4 + 4 + 8 + 32 + 36 + 8, cv, 2, 1);
-    to_format2(lg, -1, qv, 1, 0); /* the results log: only its header's version */
-    CHECK(start_damaged("migrate_v2.log") == -1);
-    CHECKF(status(g_port, id, &info) == PROTO_MSG_JOB_INFO && info.state == PROTO_JOB_RUNNING &&
-               info.samples_done == v3.samples_done,
-           "format 2: state %u, %llu samples (format 3: %llu)", info.state,
-           (unsigned long long)info.samples_done, (unsigned long long)v3.samples_done);
-    kill_server(SIGTERM);
+     * nine u32 parameters, target error; then the min gain, the camera ("")
+     * and the environment */
+    const long ck_gain = 8 + 24 + 4 + 4 + 8 + 32 + 36 + 8;
+    for (uint32_t format = 3; format >= 2; format--) {
+        snprintf(cmd, sizeof cmd, "rm -rf '%s' && cp -a '%s' '%s'", path("state3"),
+                 path("state3.good"), path("state3"));
+        CHECK(system(cmd) == 0);
+        long q_gain = queue_min_gain_at("state3/queue");
+        cut_bytes("state3/queue", q_gain + 8 + 2, ENV_BLOCK_NONE, 1);
+        cut_bytes(ck, ck_gain + 8 + 2, ENV_BLOCK_NONE, 1);
+        if (format == 3) {
+            set_format("state3/queue", -1, qv, 1, 3, 1);
+            set_format(ck, -1, cv, 2, 3, 1);
+            set_format(lg, -1, qv, 1, 3, 0); /* the results log: only its header's version */
+        } else {
+            to_format2("state3/queue", q_gain, qv, 1, 1);
+            to_format2(ck, ck_gain, cv, 2, 1);
+            to_format2(lg, -1, qv, 1, 0);
+        }
+        char log[32];
+        snprintf(log, sizeof log, "migrate_v%u.log", format);
+        CHECK(start_damaged(log) == -1);
+        CHECKF(status(g_port, id, &info) == PROTO_MSG_JOB_INFO && info.state == PROTO_JOB_RUNNING &&
+                   info.samples_done == v4.samples_done,
+               "format %u: state %u, %llu samples (format 4: %llu)", format, info.state,
+               (unsigned long long)info.samples_done, (unsigned long long)v4.samples_done);
+        kill_server(SIGTERM);
+    }
     /* A format this ptserve does not know is refused, naming the file. */
     const long fv[] = {4};
     copy_file("state3.good/queue", "state3/queue");
@@ -1083,6 +1124,9 @@ static int wait_log_count(const char *log, const char *needle, int n)
 static void send_submission(cli *c, const char *name, const pt_bundle *b)
 {
     proto_submit m = job_of(name, 64, 48, 16, 0);
+    /* The spheres have no light of their own: a uniform sky lights them. */
+    m.env.background = 1;
+    m.env.rgb[0] = m.env.rgb[1] = m.env.rgb[2] = 1.0f;
     m.bundle_size = b->size;
     hash_bytes(b->data, b->size, m.bundle_hash);
     submit_begin(c, &m);
@@ -1257,7 +1301,11 @@ static void outside_files(void)
     uint8_t *good = make_bundle_n(names, datas, sizes, 2, &len);
     cli c;
     CHECK(cli_open(&c, g_port) == 0);
-    uint64_t id = submit_bytes(&c, job_of("inside", 32, 32, 4, 0), good, len);
+    /* Lit by a uniform sky: a scene with no light is refused (test_farm_env). */
+    proto_submit inside = job_of("inside", 32, 32, 4, 0);
+    inside.env.background = 1;
+    inside.env.rgb[0] = inside.env.rgb[1] = inside.env.rgb[2] = 1.0f;
+    uint64_t id = submit_bytes(&c, inside, good, len);
     CHECKF(id > 0, "the good scene was refused: %s", err_text);
     cli_close(&c);
     free(good);
