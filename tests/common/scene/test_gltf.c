@@ -693,8 +693,20 @@ static void check_asset(const asset *a)
     if (strstr(a->path, "DamagedHelmet")) {
         CHECK(s->features & PT_FEAT_TEXTURES);
         CHECK(s->features & PT_FEAT_EMISSIVE_TEX);
-        CHECK(s->num_textures == 3); /* base colour, metal-rough, emissive; normal/AO skipped */
-        CHECK(strstr(w.text, "normal textures are ignored") != NULL);
+        /* base colour, metal-rough, emissive, normal; AO skipped */
+        CHECK(s->num_textures == 4);
+        CHECK(strstr(w.text, "normal") == NULL);
+        /* No TANGENT in the file: generated, unit and perpendicular to the normals. */
+        CHECK((s->features & PT_FEAT_NORMAL_MAP) && s->tangents != NULL);
+        int nbad = 0;
+        for (uint32_t v = 0; s->tangents && v < s->num_vertices; v++) {
+            const float *t = &s->tangents[4 * v], *n = &s->normals[3 * v];
+            float len = sqrtf(t[0] * t[0] + t[1] * t[1] + t[2] * t[2]);
+            nbad += fabsf(len - 1.0f) > 1e-4f ||
+                    fabsf(t[0] * n[0] + t[1] * n[1] + t[2] * n[2]) > 1e-4f ||
+                    !(t[3] == 1.0f || t[3] == -1.0f);
+        }
+        CHECKF(nbad == 0, "%d bad tangents", nbad);
     }
     if (strstr(a->path, "LightsPunctual")) {
         /* Its five point lights are imported, not ignored. */
@@ -721,7 +733,7 @@ static void check_asset(const asset *a)
     }
     if (strstr(a->path, "ToyCar")) {
         CHECK(s->num_cameras == 8);
-        CHECK(strstr(w.text, "KHR_texture_transform") != NULL);
+        CHECK(strstr(w.text, "KHR_texture_transform") == NULL); /* supported */
         CHECK(strstr(w.text, "KHR_materials_clearcoat") != NULL);
         CHECK(strstr(w.text, "KHR_materials_sheen") != NULL);
     }
