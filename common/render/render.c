@@ -174,39 +174,59 @@ static void normal_map(const pt_scene *s, const pt_hit *hit, surface *sf)
 /*
  * The shading normal n bent towards the geometric normal ng (both on wo's
  * side) just enough that the mirror reflection of wo about it stays above the
- * geometric surface, by at least min(0.9 ng.wo, 0.01): Cycles'
- * ensure_valid_reflection (intern/cycles/kernel/geom/... "Normal bending",
- * Blender 2.8x and later; derivation in its comments). A normal map may tilt
- * n so far that wo lies below n's hemisphere or its reflection below the
- * surface: the BSDF would then return black (the "black spots" of normal
- * maps) or send light through the surface. Bent, the normal keeps n's azimuth
- * and the nearest elevation that is valid, so the map's detail survives and
- * wo.ns > 0. Rays are still kept on the lobe's side of the geometric surface
- * by shade() (reflection only: wi.ng > 0 for NEE and continuation).
+ * geometric surface by t = min(0.9 ng.wo, 0.01) in cosine: Cycles'
+ * ensure_valid_reflection (Blender 2.90 and later, kernel/geom; the
+ * derivation is in its comments). A normal map may tilt n so far that wo
+ * lies below n's hemisphere or its reflection below the surface: the BSDF
+ * would then return black (the "black spots" of normal maps) or send light
+ * through the surface. Bent, the normal keeps n's azimuth about ng and takes
+ * the elevation at which wo's reflection grazes the surface at t, so the
+ * map's detail survives and wo.ns > 0. Rays are still kept on the lobe's side
+ * of the geometric surface by shade() (reflection only: wi.ng > 0 for NEE and
+ * the continuation), so nothing leaks.
+ *
+ * In the frame z = ng, x = n's part orthogonal to ng, with wo = (ix, ., iz),
+ * the unit n' = (sqrt(1 - y), 0, sqrt(y)) whose reflection has z = t solves
+ * 4 a y^2 - 4 c y + (t + iz)^2 = 0 with a = ix^2 + iz^2, c = a + iz t: the
+ * roots y = (c +- b) / (2 a), b = sqrt(ix^2 (a - t^2)). Squaring admits a
+ * false root: keep those in (0, 1] whose reflection is really above the
+ * surface, the shallower of two (the nearer to n).
  */
 static pt_vec3 valid_reflection(pt_vec3 ng, pt_vec3 wo, pt_vec3 n)
 {
     float ndi = pt_v3_dot(n, wo);
     pt_vec3 refl = pt_v3_sub(pt_v3_scale(n, 2.0f * ndi), wo);
     float iz = pt_v3_dot(ng, wo);
-    float thr = fminf(0.9f * iz, 0.01f);
-    if (pt_v3_dot(ng, refl) >= thr)
+    float t = fminf(0.9f * iz, 0.01f);
+    if (pt_v3_dot(ng, refl) >= t)
         return n;
-    /* Frame: z = ng, x = n's part orthogonal to ng. */
     pt_vec3 xv = pt_v3_sub(n, pt_v3_scale(ng, pt_v3_dot(n, ng)));
     float xl = pt_v3_len(xv);
-    if (!(xl > 1e-12f))
+    if (!(xl > 1e-12f) || !isfinite(xl))
         return ng;
     xv = pt_v3_scale(xv, 1.0f / xl);
     float ix = pt_v3_dot(wo, xv);
-    /* Solve 4 a nz^4 - 2 b' nz^2 + c' = 0 for the root on the right branch
-     * (Cycles: a = ix^2 + iz^2, b = sqrt(ix^2 (a - thr^2)), c = iz thr + a). */
-    float ix2 = ix * ix, iz2 = iz * iz, a = ix2 + iz2;
-    float b = sqrtf(fmaxf(ix2 * (a - thr * thr), 0.0f));
-    float c = iz * thr + a;
-    float nz2 = (ix < 0.0f ? 0.5f * (a + b) : 0.5f * (a - b)) / c;
-    float nz = sqrtf(fminf(fmaxf(nz2, 0.0f), 1.0f)),
-          nx = sqrtf(fminf(fmaxf(1.0f - nz2, 0.0f), 1.0f));
+    float ix2 = ix * ix, a = ix2 + iz * iz;
+    float b = sqrtf(fmaxf(ix2 * (a - t * t), 0.0f));
+    float c = a + iz * t;
+    float y1 = 0.5f * (c + b) / a, y2 = 0.5f * (c - b) / a;
+    int ok1 = y1 > 1e-5f && y1 <= 1.0f + 1e-5f, ok2 = y2 > 1e-5f && y2 <= 1.0f + 1e-5f;
+    float nx, nz;
+    if (ok1 && ok2) {
+        float x1 = sqrtf(fmaxf(1.0f - y1, 0.0f)), z1 = sqrtf(y1);
+        float x2 = sqrtf(fmaxf(1.0f - y2, 0.0f)), z2 = sqrtf(y2);
+        float r1 = 2.0f * (x1 * ix + z1 * iz) * z1 - iz, r2 = 2.0f * (x2 * ix + z2 * iz) * z2 - iz;
+        int v1 = r1 >= 1e-5f, v2 = r2 >= 1e-5f;
+        int pick1 = (v1 && v2) ? r1 < r2 : r1 > r2;
+        nx = pick1 ? x1 : x2;
+        nz = pick1 ? z1 : z2;
+    } else if (ok1 || ok2) {
+        float y = ok1 ? y1 : y2;
+        nx = sqrtf(fmaxf(1.0f - y, 0.0f));
+        nz = sqrtf(fminf(y, 1.0f));
+    } else {
+        return ng;
+    }
     pt_vec3 r = pt_v3_add(pt_v3_scale(xv, nx), pt_v3_scale(ng, nz));
     return isfinite(r.x) && isfinite(r.y) && isfinite(r.z) ? r : ng;
 }
