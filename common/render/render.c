@@ -167,6 +167,12 @@ static void normal_map(const pt_scene *s, const pt_hit *hit, surface *sf)
     len = pt_v3_len(nm);
     if (!(len > 1e-12f) || !isfinite(len))
         return;
+    /* Kept on the side of the winding's normal where the interpolated normal
+     * is, so that shade()'s flip towards the viewer (by ng) puts it where the
+     * interpolated normal would go, even when a file's normals disagree
+     * with its winding. */
+    if (pt_v3_dot(n, sf->ng) < 0.0f)
+        len = -len;
     sf->ns = pt_v3_scale(nm, 1.0f / len);
     sf->mapped = 1;
 }

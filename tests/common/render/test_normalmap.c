@@ -63,6 +63,7 @@ typedef struct plane_setup {
     pt_vec3 to_light; /* unit, towards the directional light */
     float color[3];   /* COLOR_0 (all vertices); 0: none */
     int two_tone;     /* base colour texture black | white, offset 0.5 when 2 */
+    int against;      /* vertex normals -z, against the winding's +z */
 } plane_setup;
 
 static pt_scene *build_plane(const plane_setup *su)
@@ -128,8 +129,9 @@ static pt_scene *build_plane(const plane_setup *su)
     }
     pt_mesh_extra ex = {NULL, su->tangents ? tan : NULL, su->color[0] > 0.0f ? col : NULL};
     const uint32_t idx[6] = {0, 1, 2, 0, 2, 3};
-    CHECKF(pt_scene_builder_add_mesh_extra(b, "plane", pos, NULL, uv, &ex, 4, idx, 2, NULL, mi,
-                                           &err) == PT_OK,
+    const float down[12] = {0, 0, -1, 0, 0, -1, 0, 0, -1, 0, 0, -1};
+    CHECKF(pt_scene_builder_add_mesh_extra(b, "plane", pos, su->against ? down : NULL, uv, &ex, 4,
+                                           idx, 2, NULL, mi, &err) == PT_OK,
            "%s", err.msg);
     pt_punctual l;
     memset(&l, 0, sizeof l);
@@ -277,6 +279,26 @@ static void bent_and_leak(void)
         pt_vec3 got = render_plane(s);
         expect_close("80-degree map, bent normal", got.y, f * nz);
         pt_scene_free(s);
+    }
+    /* Vertex normals against the winding, seen from above: the back of a
+     * double-sided surface, whose frame (t, w n x t, n) turns whole (glTF
+     * 3.9.3 flips the normal of back faces): the map's normal read in
+     * (x, -y, -z) and turned, (-nx, ny, nz). */
+    {
+        plane_setup sa;
+        memset(&sa, 0, sizeof sa);
+        texel_for(30, 0.9, sa.c);
+        sa.scale = 1.0f;
+        sa.tangents = 1;
+        sa.against = 1;
+        double n[3];
+        mapped(sa.c, 1.0, n);
+        sa.to_light = pt_v3_norm(pt_v3((float)-n[0], (float)n[1], (float)n[2]));
+        pt_scene *sb = build_plane(&sa);
+        if (sb) {
+            expect_close("normals against the winding, light along n", render_plane(sb).y, f);
+            pt_scene_free(sb);
+        }
     }
     /* 10 degrees below the horizon, on the side the map tilts to. */
     double a = 100.0 * PI_D / 180.0;
