@@ -120,14 +120,133 @@ static inline pt_vec3 vert(const float *arr, uint32_t i)
     return pt_v3(arr[3 * i], arr[3 * i + 1], arr[3 * i + 2]);
 }
 
+/* xyz of a 4-float-per-vertex array (tangents). */
+static inline pt_vec3 vert4(const float *arr, uint32_t i)
+{
+    return pt_v3(arr[4 * i], arr[4 * i + 1], arr[4 * i + 2]);
+}
+
 /* Everything the integrator needs to know about a surface point. */
 typedef struct surface {
     pt_vec3 p;  /* world position */
     pt_vec3 ng; /* geometric normal from the winding (unflipped) */
-    pt_vec3 ns; /* shading normal */
+    pt_vec3 ns; /* shading normal (normal-mapped when mapped) */
     float uv[2];
+    float uv1[2];  /* TEXCOORD_1 (PT_FEAT_TEXTURES; 0 without the set) */
+    pt_vec3 color; /* COLOR_0 (PT_FEAT_VERTEX_COLOR) */
+    int mapped;    /* ns comes from a normal map (PT_FEAT_NORMAL_MAP) */
     const pt_material *mat;
 } surface;
+
+/* The UV that slot x reads: its coordinate set, transformed. */
+static inline void slot_uv(const surface *sf, const pt_tex_xform *x, float out[2])
+{
+    pt_tex_xform_apply(x, x->texcoord ? sf->uv1 : sf->uv, out);
+}
+
+/*
+ * Tangent-space normal mapping (glTF 2.0, 3.9.3): the interpolated tangent,
+ * made orthogonal to the interpolated normal n (Gram-Schmidt), the bitangent
+ * w cross(n, t) with the handedness w, and the texel's
+ * normalize((2 c - 1) * (scale, scale, 1)) in that frame. The result may face
+ * away from the viewer or the geometric normal; shade() bends it back
+ * (valid_reflection). A degenerate frame leaves ns as it was.
+ */
+static void normal_map(const pt_scene *s, const pt_hit *hit, surface *sf)
+{
+    const pt_material *m = sf->mat;
+    const uint32_t *tri = &s->indices[3 * hit->tri];
+    const float *T = s->tangents;
+    float b0 = 1.0f - hit->b1 - hit->b2;
+    pt_vec3 t = pt_v3_add(
+        pt_v3_add(pt_v3_scale(vert4(T, tri[0]), b0), pt_v3_scale(vert4(T, tri[1]), hit->b1)),
+        pt_v3_scale(vert4(T, tri[2]), hit->b2));
+    float w = b0 * T[4 * tri[0] + 3] + hit->b1 * T[4 * tri[1] + 3] + hit->b2 * T[4 * tri[2] + 3];
+    pt_vec3 n = sf->ns;
+    t = pt_v3_sub(t, pt_v3_scale(n, pt_v3_dot(n, t)));
+    float len = pt_v3_len(t);
+    if (!(len > 1e-12f) || !isfinite(len))
+        return;
+    t = pt_v3_scale(t, 1.0f / len);
+    pt_vec3 bt = pt_v3_scale(pt_v3_cross(n, t), w < 0.0f ? -1.0f : 1.0f);
+    float uv[2], c[4];
+    slot_uv(sf, &m->tex_xf[PT_SLOT_NORMAL], uv);
+    pt_texture_sample(&s->textures[m->normal_tex], uv[0], uv[1], c);
+    float x = (2.0f * c[0] - 1.0f) * m->normal_scale, y = (2.0f * c[1] - 1.0f) * m->normal_scale,
+          z = 2.0f * c[2] - 1.0f;
+    pt_vec3 nm = pt_v3_add(pt_v3_add(pt_v3_scale(t, x), pt_v3_scale(bt, y)), pt_v3_scale(n, z));
+    len = pt_v3_len(nm);
+    if (!(len > 1e-12f) || !isfinite(len))
+        return;
+    /* Kept on the side of the winding's normal where the interpolated normal
+     * is, so that shade()'s flip towards the viewer (by ng) puts it where the
+     * interpolated normal would go, even when a file's normals disagree
+     * with its winding. */
+    if (pt_v3_dot(n, sf->ng) < 0.0f)
+        len = -len;
+    sf->ns = pt_v3_scale(nm, 1.0f / len);
+    sf->mapped = 1;
+}
+
+/*
+ * The shading normal n bent towards the geometric normal ng (both on wo's
+ * side) just enough that the mirror reflection of wo about it stays above the
+ * geometric surface by t = min(0.9 ng.wo, 0.01) in cosine: Cycles'
+ * ensure_valid_reflection (Blender 2.90 and later, kernel/geom; the
+ * derivation is in its comments). A normal map may tilt n so far that wo
+ * lies below n's hemisphere or its reflection below the surface: the BSDF
+ * would then return black (the "black spots" of normal maps) or send light
+ * through the surface. Bent, the normal keeps n's azimuth about ng and takes
+ * the elevation at which wo's reflection grazes the surface at t, so the
+ * map's detail survives and wo.ns > 0. Rays are still kept on the lobe's side
+ * of the geometric surface by shade() (reflection only: wi.ng > 0 for NEE and
+ * the continuation), so nothing leaks.
+ *
+ * In the frame z = ng, x = n's part orthogonal to ng, with wo = (ix, ., iz),
+ * the unit n' = (sqrt(1 - y), 0, sqrt(y)) whose reflection has z = t solves
+ * 4 a y^2 - 4 c y + (t + iz)^2 = 0 with a = ix^2 + iz^2, c = a + iz t: the
+ * roots y = (c +- b) / (2 a), b = sqrt(ix^2 (a - t^2)). Squaring admits a
+ * false root: keep those in (0, 1] whose reflection is really above the
+ * surface, the shallower of two (the nearer to n).
+ */
+static pt_vec3 valid_reflection(pt_vec3 ng, pt_vec3 wo, pt_vec3 n)
+{
+    float ndi = pt_v3_dot(n, wo);
+    pt_vec3 refl = pt_v3_sub(pt_v3_scale(n, 2.0f * ndi), wo);
+    float iz = pt_v3_dot(ng, wo);
+    float t = fminf(0.9f * iz, 0.01f);
+    if (pt_v3_dot(ng, refl) >= t)
+        return n;
+    pt_vec3 xv = pt_v3_sub(n, pt_v3_scale(ng, pt_v3_dot(n, ng)));
+    float xl = pt_v3_len(xv);
+    if (!(xl > 1e-12f) || !isfinite(xl))
+        return ng;
+    xv = pt_v3_scale(xv, 1.0f / xl);
+    float ix = pt_v3_dot(wo, xv);
+    float ix2 = ix * ix, a = ix2 + iz * iz;
+    float b = sqrtf(fmaxf(ix2 * (a - t * t), 0.0f));
+    float c = a + iz * t;
+    float y1 = 0.5f * (c + b) / a, y2 = 0.5f * (c - b) / a;
+    int ok1 = y1 > 1e-5f && y1 <= 1.0f + 1e-5f, ok2 = y2 > 1e-5f && y2 <= 1.0f + 1e-5f;
+    float nx, nz;
+    if (ok1 && ok2) {
+        float x1 = sqrtf(fmaxf(1.0f - y1, 0.0f)), z1 = sqrtf(y1);
+        float x2 = sqrtf(fmaxf(1.0f - y2, 0.0f)), z2 = sqrtf(y2);
+        float r1 = 2.0f * (x1 * ix + z1 * iz) * z1 - iz, r2 = 2.0f * (x2 * ix + z2 * iz) * z2 - iz;
+        int v1 = r1 >= 1e-5f, v2 = r2 >= 1e-5f;
+        int pick1 = (v1 && v2) ? r1 < r2 : r1 > r2;
+        nx = pick1 ? x1 : x2;
+        nz = pick1 ? z1 : z2;
+    } else if (ok1 || ok2) {
+        float y = ok1 ? y1 : y2;
+        nx = sqrtf(fmaxf(1.0f - y, 0.0f));
+        nz = sqrtf(fminf(y, 1.0f));
+    } else {
+        return ng;
+    }
+    pt_vec3 r = pt_v3_add(pt_v3_scale(xv, nx), pt_v3_scale(ng, nz));
+    return isfinite(r.x) && isfinite(r.y) && isfinite(r.z) ? r : ng;
+}
 
 /*
  * What the integrator reads of a hit triangle, in one 64-byte, cache-line-
@@ -177,6 +296,40 @@ static inline void surface_at(const pt_renderer *r, const pt_hit *hit, surface *
             b0 * uv[2 * tri[0] + 1] + hit->b1 * uv[2 * tri[1] + 1] + hit->b2 * uv[2 * tri[2] + 1];
     }
     sf->mat = &s->materials[t->mat & ~TRI_FLAT];
+    if (features & PT_FEAT_TEXTURES) {
+        sf->uv1[0] = sf->uv1[1] = 0.0f;
+        if (s->uvs1) {
+            const float *uv = s->uvs1;
+            sf->uv1[0] = b0 * uv[2 * tri[0]] + hit->b1 * uv[2 * tri[1]] + hit->b2 * uv[2 * tri[2]];
+            sf->uv1[1] = b0 * uv[2 * tri[0] + 1] + hit->b1 * uv[2 * tri[1] + 1] +
+                         hit->b2 * uv[2 * tri[2] + 1];
+        }
+    }
+    if ((features & PT_FEAT_VERTEX_COLOR) && s->colors) {
+        const float *c = s->colors;
+        sf->color = pt_v3(
+            b0 * c[4 * tri[0]] + hit->b1 * c[4 * tri[1]] + hit->b2 * c[4 * tri[2]],
+            b0 * c[4 * tri[0] + 1] + hit->b1 * c[4 * tri[1] + 1] + hit->b2 * c[4 * tri[2] + 1],
+            b0 * c[4 * tri[0] + 2] + hit->b1 * c[4 * tri[1] + 2] + hit->b2 * c[4 * tri[2] + 2]);
+    }
+    if (features & PT_FEAT_NORMAL_MAP) {
+        sf->mapped = 0;
+        if (sf->mat->normal_tex >= 0 && s->tangents) {
+            if (!(features & PT_FEAT_TEXTURES) || !s->uvs) {
+                /* normal_map reads the UVs; set them even where no other
+                 * texture needs them. */
+                const float *uv = s->uvs;
+                sf->uv[0] = sf->uv[1] = 0.0f;
+                if (uv) {
+                    sf->uv[0] =
+                        b0 * uv[2 * tri[0]] + hit->b1 * uv[2 * tri[1]] + hit->b2 * uv[2 * tri[2]];
+                    sf->uv[1] = b0 * uv[2 * tri[0] + 1] + hit->b1 * uv[2 * tri[1] + 1] +
+                                hit->b2 * uv[2 * tri[2] + 1];
+                }
+            }
+            normal_map(s, hit, sf);
+        }
+    }
 }
 
 /* The records of a scene's triangles, in a block whose start is aligned to
@@ -245,7 +398,9 @@ static inline pt_bsdf material_bsdf(const pt_renderer *r, const surface *sf,
 {
     const pt_scene *s = r->scene;
     const pt_material *m = sf->mat;
-    if (!(features & PT_FEAT_TEXTURES) || (m->base_color_tex < 0 && m->metal_rough_tex < 0)) {
+    const int vcol = (features & PT_FEAT_VERTEX_COLOR) && s->colors;
+    if ((!(features & PT_FEAT_TEXTURES) || (m->base_color_tex < 0 && m->metal_rough_tex < 0)) &&
+        !vcol) {
         /* pt_bsdf_setup's result for the material's own factors; without
          * PT_FEAT_GLOSSY only its diffuse (the clamped base colour times
          * 1 - 0) is read, the same bits as the branch below. */
@@ -255,16 +410,21 @@ static inline pt_bsdf material_bsdf(const pt_renderer *r, const surface *sf,
     float metallic = m->metallic, roughness = m->roughness;
     if (features & PT_FEAT_TEXTURES) {
         float t[4];
+        float uv[2];
         if (m->base_color_tex >= 0) {
-            pt_texture_sample(&s->textures[m->base_color_tex], sf->uv[0], sf->uv[1], t);
+            slot_uv(sf, &m->tex_xf[PT_SLOT_BASE], uv);
+            pt_texture_sample(&s->textures[m->base_color_tex], uv[0], uv[1], t);
             base = pt_v3_mul(base, pt_v3(t[0], t[1], t[2]));
         }
         if (m->metal_rough_tex >= 0) {
-            pt_texture_sample(&s->textures[m->metal_rough_tex], sf->uv[0], sf->uv[1], t);
+            slot_uv(sf, &m->tex_xf[PT_SLOT_METAL_ROUGH], uv);
+            pt_texture_sample(&s->textures[m->metal_rough_tex], uv[0], uv[1], t);
             roughness *= t[1];
             metallic *= t[2];
         }
     }
+    if (vcol)
+        base = pt_v3_mul(base, sf->color); /* COLOR_0 multiplies the base colour (3.9.2) */
     if (!(features & PT_FEAT_GLOSSY)) {
         /* pt_bsdf_setup's diffuse for metallic 0: the clamped base times 1. */
         pt_bsdf b;
@@ -571,20 +731,26 @@ static pt_glass glass_at(const pt_renderer *r, const surface *sf, int front,
     float metallic = m->metallic, roughness = m->roughness, trans = m->transmission;
     if (features & PT_FEAT_TEXTURES) {
         float t[4];
+        float uv[2];
         if (m->base_color_tex >= 0) {
-            pt_texture_sample(&s->textures[m->base_color_tex], sf->uv[0], sf->uv[1], t);
+            slot_uv(sf, &m->tex_xf[PT_SLOT_BASE], uv);
+            pt_texture_sample(&s->textures[m->base_color_tex], uv[0], uv[1], t);
             base = pt_v3_mul(base, pt_v3(t[0], t[1], t[2]));
         }
         if (m->metal_rough_tex >= 0) {
-            pt_texture_sample(&s->textures[m->metal_rough_tex], sf->uv[0], sf->uv[1], t);
+            slot_uv(sf, &m->tex_xf[PT_SLOT_METAL_ROUGH], uv);
+            pt_texture_sample(&s->textures[m->metal_rough_tex], uv[0], uv[1], t);
             roughness *= t[1];
             metallic *= t[2];
         }
         if (m->transmission_tex >= 0) {
-            pt_texture_sample(&s->textures[m->transmission_tex], sf->uv[0], sf->uv[1], t);
+            slot_uv(sf, &m->tex_xf[PT_SLOT_TRANSMISSION], uv);
+            pt_texture_sample(&s->textures[m->transmission_tex], uv[0], uv[1], t);
             trans *= t[0];
         }
     }
+    if ((features & PT_FEAT_VERTEX_COLOR) && s->colors)
+        base = pt_v3_mul(base, sf->color); /* COLOR_0 multiplies the base colour (3.9.2) */
     int thin = !(m->thickness > 0.0f);
     /* Seen from the back of a closed mesh the ray is inside: n_far / n_near
      * is 1 / ior. A thin wall has air on both sides. */
@@ -747,10 +913,20 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     if (pt_v3_dot(ng, wo) < 0.0f)
         ng = pt_v3_neg(ng);
     pt_vec3 ns = sf->ns;
-    if (pt_v3_dot(ns, ng) < 0.0f)
-        ns = pt_v3_neg(ns);
-    if (pt_v3_dot(ns, wo) <= 0.0f)
-        ns = ng; /* interpolated normal faces away from the viewer */
+    if ((features & PT_FEAT_NORMAL_MAP) && sf->mapped) {
+        /* A mapped normal may lie anywhere: turn it with the side the ray
+         * sees (as ng was), then bend it until wo's reflection is valid. */
+        if (pt_v3_dot(sf->ng, wo) < 0.0f)
+            ns = pt_v3_neg(ns);
+        ns = valid_reflection(ng, wo, ns);
+        if (pt_v3_dot(ns, wo) <= 0.0f)
+            ns = ng;
+    } else {
+        if (pt_v3_dot(ns, ng) < 0.0f)
+            ns = pt_v3_neg(ns);
+        if (pt_v3_dot(ns, wo) <= 0.0f)
+            ns = ng; /* interpolated normal faces away from the viewer */
+    }
     pt_frame fr = pt_frame_from_normal(ns);
     pt_vec3 wo_l = pt_frame_to_local(&fr, wo);
     pt_bsdf bsdf = material_bsdf(r, sf, features);
@@ -1371,8 +1547,10 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
 #define OTHER_LIGHTS (uint32_t)(PT_FEAT_PUNCTUAL | PT_FEAT_ENV)
 /* Glass and media: likewise only in the general variant. */
 #define GLASS (uint32_t)(PT_FEAT_TRANSMISSION | PT_FEAT_VOLUME)
+/* The material features beyond the core's (normal maps, vertex colours). */
+#define SURFACE_EXTRAS (uint32_t)(PT_FEAT_NORMAL_MAP | PT_FEAT_VERTEX_COLOR)
 /* Features that only the general variant has code for. */
-#define GENERAL_ONLY (uint32_t)(OTHER_LIGHTS | PT_FEAT_ALPHA | GLASS)
+#define GENERAL_ONLY (uint32_t)(OTHER_LIGHTS | PT_FEAT_ALPHA | GLASS | SURFACE_EXTRAS)
 VARIANT(li_general, tile_general, ALL_FEATURES)
 VARIANT(li_untextured, tile_untextured, ALL_FEATURES & ~NO_TEX & ~GENERAL_ONLY)
 VARIANT(li_lambert, tile_lambert, ALL_FEATURES & ~(uint32_t)PT_FEAT_GLOSSY & ~GENERAL_ONLY)
