@@ -108,8 +108,8 @@ typedef struct pt_material {
     float attenuation_color[3]; /* in [0, 1] (default 1,1,1) */
     float attenuation_distance; /* > 0; 0 (or +inf in glTF) means no absorption */
     int double_sided;
-    int alpha_mode;     /* PT_ALPHA_* (default OPAQUE) */
-    float alpha_cutoff; /* MASK: covered where alpha >= this (glTF default 0.5) */
+    int alpha_mode;                     /* PT_ALPHA_* (default OPAQUE) */
+    float alpha_cutoff;                 /* MASK: covered where alpha >= this (glTF default 0.5) */
     int32_t normal_tex;                 /* linear tangent-space normal texture or -1 */
     float normal_scale;                 /* normalTexture.scale: scales the map's x and y */
     pt_tex_xform tex_xf[PT_SLOT_COUNT]; /* per slot (PT_SLOT_*) */
