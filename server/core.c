@@ -12,3 +12,13 @@ void srv_log(const char *fmt, ...)
     fputs("\033[K\n", stderr);
     va_end(ap);
 }
+
+void srv_histogram_add(srv_histogram *h, double seconds)
+{
+    double bound = 0.001;
+    for (int i = 0; i < SRV_HIST_BUCKETS; i++, bound *= 2.0)
+        if (seconds <= bound)
+            h->buckets[i]++;
+    h->count++;
+    h->sum += seconds;
+}

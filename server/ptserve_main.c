@@ -91,6 +91,14 @@ static void usage(FILE *f)
         "  --handshake-timeout SEC  drop a peer that has not authenticated by then (default 10)\n"
         "  --port-file PATH       write the port listened on to PATH\n"
         "\n"
+        "dashboard (either mode; docs/OPERATIONS.md, \"Dashboard\"):\n"
+        "  --http HOST:PORT       serve the web dashboard, a JSON API (/api/jobs,\n"
+        "                         /api/workers) and Prometheus /metrics there; off by\n"
+        "                         default. Loopback only without --token-file; with one,\n"
+        "                         every request needs 'Authorization: Bearer TOKEN' or a\n"
+        "                         login (the shared token, or a --clients-file token)\n"
+        "  --http-port-file PATH  write the dashboard's port to PATH\n"
+        "\n"
         "limits on peers (either mode; docs/OPERATIONS.md, \"Limits\"):\n"
         "  --max-input-mb N       input buffers past 64 KiB each, all peers together\n"
         "                         (default 512); a peer whose next frame would pass it\n"
@@ -166,7 +174,9 @@ int main(int argc, char **argv)
         O_MAXHSIP,
         O_GRACE,
         O_MINRATE,
-        O_VERIFY
+        O_VERIFY,
+        O_HTTP,
+        O_HTTPPORT
     };
     static const struct option opts[] = {
         {"output", required_argument, NULL, 'o'},
@@ -203,6 +213,8 @@ int main(int argc, char **argv)
         {"max-handshakes-per-ip", required_argument, NULL, O_MAXHSIP},
         {"frame-grace", required_argument, NULL, O_GRACE},
         {"min-rate", required_argument, NULL, O_MINRATE},
+        {"http", required_argument, NULL, O_HTTP},
+        {"http-port-file", required_argument, NULL, O_HTTPPORT},
         {"quiet", no_argument, NULL, 'q'},
         {"help", no_argument, NULL, 'h'},
         {"version", no_argument, NULL, 'V'},
@@ -324,6 +336,12 @@ int main(int argc, char **argv)
         case O_MINRATE:
             if ((st = pt_opt_u32("--min-rate", optarg, 1, 1u << 20, &v, &err)) == PT_OK)
                 c.limits.min_rate = v << 10;
+            break;
+        case O_HTTP:
+            c.http = optarg;
+            break;
+        case O_HTTPPORT:
+            c.http_port_file = optarg;
             break;
         case 'q':
             c.quiet = 1;
