@@ -25,6 +25,8 @@ test_pkgs=(
   systemd                              # test_deploy: systemd-analyze verify of the units
   clang-format                         # tests/check_format.sh: C and C++ formatting
   shellcheck                           # tests/check_shell.sh: the shell scripts
+  curl prometheus                      # test_http*: the dashboard's API, promtool check metrics
+  chromium                             # test_http_browser: the job page in a headless browser
 )
 runtime_pkgs=(libembree3-3 libopenexr-3-1-30 libstb0 libssl3 libmicrohttpd12)
 

@@ -15,8 +15,8 @@ void srv_log(const char *fmt, ...)
 
 void srv_histogram_add(srv_histogram *h, double seconds)
 {
-    double bound = 0.001;
-    for (int i = 0; i < SRV_HIST_BUCKETS; i++, bound *= 2.0)
+    double bound = SRV_HIST_FIRST;
+    for (int i = 0; i < SRV_HIST_BUCKETS; i++, bound *= SRV_HIST_FACTOR)
         if (seconds <= bound)
             h->buckets[i]++;
     h->count++;

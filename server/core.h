@@ -66,7 +66,9 @@ typedef struct srv_mode {
 } srv_mode;
 
 /* Totals since the coordinator started, for /metrics (server/http.h). */
-#define SRV_HIST_BUCKETS 12 /* 1 ms .. 2 s doubling, then +Inf */
+#define SRV_HIST_BUCKETS 12 /* 10 us .. 42 s, x4 apart (SRV_HIST_FIRST), then +Inf */
+#define SRV_HIST_FIRST 1e-5
+#define SRV_HIST_FACTOR 4.0
 typedef struct srv_histogram {
     uint64_t count, buckets[SRV_HIST_BUCKETS]; /* buckets: observations <= the bound */
     double sum;                                /* seconds */
@@ -74,7 +76,9 @@ typedef struct srv_histogram {
 typedef struct srv_counters {
     uint64_t samples_merged, tasks_leased, tasks_requeued, tasks_expired, results_rejected;
     uint64_t state_write_errors;
-    srv_histogram merge, save; /* a RESULT's merge; a checkpoint or image hand-off */
+    /* Loop time: a RESULT's merge, a progressive image resolved and handed to
+     * its writer, a checkpoint written. */
+    srv_histogram merge, save, checkpoint;
 } srv_counters;
 
 /* Adds one observation of seconds to h. */

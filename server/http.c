@@ -846,6 +846,80 @@ static enum MHD_Result serve_api(srv_http *h, struct MHD_Connection *conn, const
     return ret;
 }
 
+/* ---- /metrics: the Prometheus text format (version 0.0.4) ---- */
+
+static void metric_head(FILE *f, const char *name, const char *type, const char *help)
+{
+    fprintf(f, "# HELP %s %s\n# TYPE %s %s\n", name, help, name, type);
+}
+
+static void metric_counter(FILE *f, const char *name, const char *help, uint64_t v)
+{
+    metric_head(f, name, "counter", help);
+    fprintf(f, "%s %llu\n", name, (unsigned long long)v);
+}
+
+static void metric_gauge(FILE *f, const char *name, const char *help, double v)
+{
+    metric_head(f, name, "gauge", help);
+    fprintf(f, "%s %.17g\n", name, v);
+}
+
+static void metric_histogram(FILE *f, const char *name, const char *help, const srv_histogram *h)
+{
+    metric_head(f, name, "histogram", help);
+    double bound = SRV_HIST_FIRST;
+    for (int i = 0; i < SRV_HIST_BUCKETS; i++, bound *= SRV_HIST_FACTOR)
+        fprintf(f, "%s_bucket{le=\"%g\"} %llu\n", name, bound, (unsigned long long)h->buckets[i]);
+    fprintf(f, "%s_bucket{le=\"+Inf\"} %llu\n%s_sum %.17g\n%s_count %llu\n", name,
+            (unsigned long long)h->count, name, h->sum, name, (unsigned long long)h->count);
+}
+
+static void metrics_text(FILE *f, const snap *p)
+{
+    static const srv_counters none;
+    const srv_counters *c = p ? &p->counters : &none;
+    uint32_t by_state[6] = {0}, threads = 0;
+    for (uint32_t i = 0; p && i < p->njobs; i++)
+        if (p->jobs[i].info.state < 6)
+            by_state[p->jobs[i].info.state]++;
+    for (uint32_t i = 0; p && i < p->nworkers; i++)
+        threads += p->workers[i].threads;
+    metric_head(f, "ptfarm_jobs", "gauge", "Jobs the coordinator knows, by state.");
+    for (uint32_t st = PROTO_JOB_QUEUED; st <= PROTO_JOB_FAILED; st++)
+        fprintf(f, "ptfarm_jobs{state=\"%s\"} %u\n", proto_job_state_name(st), by_state[st]);
+    metric_counter(f, "ptfarm_samples_merged_total", "Samples merged into job images.",
+                   c->samples_merged);
+    metric_counter(f, "ptfarm_tasks_leased_total", "Tasks leased to workers.", c->tasks_leased);
+    metric_counter(f, "ptfarm_tasks_requeued_total",
+                   "Leased tasks put back because their worker left or their job paused.",
+                   c->tasks_requeued);
+    metric_counter(f, "ptfarm_tasks_expired_total", "Leases past their deadline, requeued.",
+                   c->tasks_expired);
+    metric_counter(f, "ptfarm_results_rejected_total",
+                   "Results refused as invalid or not leased to their sender.",
+                   c->results_rejected);
+    metric_counter(f, "ptfarm_state_write_errors_total",
+                   "Failed writes to the state folder (queue file, results logs, checkpoints).",
+                   c->state_write_errors);
+    metric_gauge(f, "ptfarm_workers_connected", "Authenticated workers connected.",
+                 p ? p->nworkers : 0);
+    metric_gauge(f, "ptfarm_worker_threads", "Render threads of the connected workers.", threads);
+    metric_gauge(f, "ptfarm_clients_connected", "Authenticated clients (ptctl) connected.",
+                 p ? p->nclients : 0);
+    metric_counter(f, "ptfarm_received_bytes_total", "Bytes received from workers and clients.",
+                   p ? p->bytes_in : 0);
+    metric_counter(f, "ptfarm_sent_bytes_total", "Bytes sent to workers and clients.",
+                   p ? p->bytes_out : 0);
+    metric_histogram(f, "ptfarm_merge_seconds", "Event-loop time merging one result.", &c->merge);
+    metric_histogram(f, "ptfarm_image_save_seconds",
+                     "Event-loop time resolving a progressive image for its writer.", &c->save);
+    metric_histogram(f, "ptfarm_checkpoint_seconds", "Time writing one job checkpoint.",
+                     &c->checkpoint);
+    metric_gauge(f, "ptfarm_uptime_seconds", "Seconds since the coordinator started.",
+                 p ? p->uptime_s : 0.0);
+}
+
 static enum MHD_Result serve_login(srv_http *h, struct MHD_Connection *conn, req *r)
 {
     who w = {0};
@@ -911,6 +985,17 @@ static enum MHD_Result on_request(void *cls, struct MHD_Connection *conn, const 
     }
     if (strncmp(url, "/api/", 5) == 0)
         return serve_api(h, conn, &w, method, url, r);
+    if (strcmp(url, "/metrics") == 0) {
+        char *buf = NULL;
+        size_t len = 0;
+        FILE *f = open_memstream(&buf, &len);
+        if (!f)
+            return MHD_NO;
+        snap *p = snap_get(h);
+        metrics_text(f, p);
+        snap_put(h, p);
+        return respond_stream(conn, f, &buf, &len, "text/plain; version=0.0.4; charset=utf-8");
+    }
     if (strcmp(method, "GET") && strcmp(method, "HEAD"))
         return respond_error(conn, 405, "GET only");
     if (a)
