@@ -86,6 +86,7 @@ function jobPage() {
   $("view").onchange = loadImage;
   $("exposure").oninput = loadImage;
   $("image").onload = () => { document.body.dataset.loaded = $("image").src; };
+  loadImage(); // at once, so the page's load event waits for the first image
   if (window.EventSource) {
     const es = new EventSource(`/api/jobs/${id}/events`);
     es.onmessage = (ev) => show(JSON.parse(ev.data));
