@@ -2,6 +2,7 @@
 #include "server/http.h"
 
 #include <errno.h>
+#include <fcntl.h>
 #include <math.h>
 #include <microhttpd.h>
 #include <openssl/crypto.h>
@@ -9,6 +10,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -86,7 +88,8 @@ struct srv_http {
     session sessions[SRV_HTTP_SESSIONS];
     /* the loop's own */
     uint64_t t_pub, version, sig;
-    int stopping; /* under mu: event streams end */
+    int stopping;  /* under mu: event streams end */
+    int rendering; /* under mu: PNGs being made (at most SRV_HTTP_RENDERS) */
 };
 
 static void snap_unref_locked(snap *p)
@@ -606,7 +609,7 @@ static uint8_t tone(float v, float scale)
 /* The job's current image as a PNG: view "rgb" (exposure in stops), "samples"
  * (samples per pixel over the most any pixel has) or "error" (the relative
  * standard error of each pixel, 0 to 20 %). */
-static enum MHD_Result serve_png(struct MHD_Connection *conn, const snap_job *j)
+static enum MHD_Result make_png(struct MHD_Connection *conn, const snap_job *j)
 {
     const char *view = MHD_lookup_connection_value(conn, MHD_GET_ARGUMENT_KIND, "view");
     if (!view)
@@ -655,27 +658,36 @@ static enum MHD_Result serve_png(struct MHD_Connection *conn, const snap_job *j)
     return ret;
 }
 
+/* make_png holds a whole float image: only SRV_HTTP_RENDERS at a time. */
+static enum MHD_Result serve_png(srv_http *h, struct MHD_Connection *conn, const snap_job *j)
+{
+    pthread_mutex_lock(&h->mu);
+    int ok = h->rendering < (int)SRV_HTTP_RENDERS;
+    h->rendering += ok;
+    pthread_mutex_unlock(&h->mu);
+    if (!ok)
+        return respond_error(conn, 503, "busy making other images; try again");
+    enum MHD_Result ret = make_png(conn, j);
+    pthread_mutex_lock(&h->mu);
+    h->rendering--;
+    pthread_mutex_unlock(&h->mu);
+    return ret;
+}
+
 static enum MHD_Result serve_exr(struct MHD_Connection *conn, const snap_job *j)
 {
-    FILE *f = j->exr[0] ? fopen(j->exr, "rb") : NULL;
-    if (!f)
+    /* Sent from the open file: a rename by the writer meanwhile leaves this
+     * copy whole, and no image is held in memory. */
+    int fd = j->exr[0] ? open(j->exr, O_RDONLY | O_CLOEXEC) : -1;
+    struct stat st;
+    if (fd < 0 || fstat(fd, &st) != 0 || !S_ISREG(st.st_mode)) {
+        if (fd >= 0)
+            close(fd);
         return respond_error(conn, 404, "no image yet");
-    char *buf = NULL;
-    size_t len = 0;
-    FILE *m = open_memstream(&buf, &len);
-    char chunk[65536];
-    size_t got;
-    while (m && (got = fread(chunk, 1, sizeof chunk, f)) > 0)
-        fwrite(chunk, 1, got, m);
-    int bad = ferror(f);
-    fclose(f);
-    if (!m || fclose(m) != 0 || bad) {
-        free(buf);
-        return respond_error(conn, 500, "cannot read the image");
     }
-    struct MHD_Response *r = MHD_create_response_from_buffer(len, buf, MHD_RESPMEM_MUST_FREE);
+    struct MHD_Response *r = MHD_create_response_from_fd((uint64_t)st.st_size, fd);
     if (!r) {
-        free(buf);
+        close(fd);
         return MHD_NO;
     }
     char disp[128];
@@ -836,7 +848,7 @@ static enum MHD_Result serve_api(srv_http *h, struct MHD_Connection *conn, const
             ret = respond_stream(conn, f, &buf, &len, "application/json");
         }
     } else if (strcmp(rest, "/image.png") == 0) {
-        ret = serve_png(conn, j);
+        ret = serve_png(h, conn, j);
     } else if (strcmp(rest, "/image.exr") == 0) {
         ret = serve_exr(conn, j);
     } else {

@@ -46,6 +46,7 @@
 #define SRV_HTTP_TIMEOUT_S 30u
 #define SRV_HTTP_ACTIONS 32u
 #define SRV_HTTP_ACTION_WAIT_MS 5000u
+#define SRV_HTTP_RENDERS 2u /* PNGs made at once (each reads the whole EXR); then 503 */
 #define SRV_HTTP_SESSIONS 256u
 #define SRV_HTTP_SESSION_S (12u * 3600u) /* a login lasts this long */
 
