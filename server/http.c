@@ -128,14 +128,15 @@ static const snap_job *snap_find(const snap *p, uint64_t id)
 
 /* ---- the loop's side ---- */
 
-/* Something a viewer would see changed: jobs, their progress, the peers. */
+/* What a viewer would see change at once: jobs and their states and
+ * priorities, peers. Progress alone waits for the next second, since each
+ * snapshot computes every running job's error estimate over its film. */
 static uint64_t loop_signature(const srv_server *s)
 {
-    uint64_t sig = (uint64_t)s->nconns * 1000003u + s->njobs + s->counters.samples_merged * 31u +
-                   s->counters.tasks_leased * 7u;
+    uint64_t sig = (uint64_t)s->nconns * 1000003u + s->njobs;
     for (const srv_entry *j = s->jobs; j; j = j->next)
-        sig = sig * 1099511628211ull + j->rec.state * 17u + (uint64_t)(uint32_t)j->rec.priority +
-              (j->writer ? srv_writer_count(j->writer) : 0);
+        sig = sig * 1099511628211ull + j->rec.id * 31u + j->rec.state * 17u +
+              (uint64_t)(uint32_t)j->rec.priority;
     return sig;
 }
 
@@ -446,7 +447,7 @@ static enum MHD_Result do_action(srv_http *h, struct MHD_Connection *conn, const
     struct timespec until;
     clock_gettime(CLOCK_REALTIME, &until);
     until.tv_sec += SRV_HTTP_ACTION_WAIT_MS / 1000;
-    while (a->state != ACT_DONE)
+    while (a->state != ACT_DONE && !h->stopping)
         if (pthread_cond_timedwait(&h->cv, &h->mu, &until) == ETIMEDOUT)
             break;
     if (a->state != ACT_DONE) {

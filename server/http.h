@@ -59,7 +59,8 @@ typedef struct srv_http srv_http;
 pt_status srv_http_start(srv_server *s, srv_http **out, pt_error *err);
 
 /* Publishes a new snapshot when one is due (a second since the last, or a
- * quarter of a second after the loop changed something); force: now. */
+ * quarter of a second after a job, its state or priority, or a peer came or
+ * went); force: now. */
 void srv_http_publish(srv_server *s, srv_http *h, int force);
 
 /* Runs the actions waiting and answers them. */

@@ -78,7 +78,8 @@ function jobPage() {
       `ETA ${eta(j)}, error ${j.error === null ? "-" : (100 * j.error).toFixed(2) + "%"}, by ${j.owner}`;
     $("info").textContent = JSON.stringify(j, null, 1);
     document.body.dataset.samples = j.samples_done;
-    if (msg.images !== images || j.samples_done !== lastSamples) {
+    // A new image only when the coordinator has saved one (--save-interval).
+    if (msg.images !== images) {
       images = msg.images; lastSamples = j.samples_done;
       loadImage();
     }
