@@ -277,6 +277,7 @@ typedef struct req {
     char token[PROTO_TOKEN_MAX + 1]; /* the login form's field */
     size_t token_len;
     char priority[24];
+    size_t body; /* bytes of body so far (at most SRV_HTTP_BODY) */
     int too_big;
 } req;
 
@@ -975,13 +976,17 @@ static enum MHD_Result on_request(void *cls, struct MHD_Connection *conn, const 
         return MHD_YES;
     }
     if (*data_len) {
-        if (!r->pp || MHD_post_process(r->pp, data, *data_len) != MHD_YES)
+        r->body += *data_len;
+        if (r->too_big || r->body > SRV_HTTP_BODY || !r->pp ||
+            MHD_post_process(r->pp, data, *data_len) != MHD_YES)
             r->too_big = 1;
         *data_len = 0;
         return MHD_YES;
     }
     if (r->too_big)
-        return respond_error(conn, 413, "request body: only small form fields");
+        return respond_error(
+            conn, 413,
+            "request body: form fields (application/x-www-form-urlencoded) of at most 16 KiB");
     if (strcmp(url, "/login") == 0) {
         if (strcmp(method, "POST") == 0)
             return serve_login(h, conn, r);

@@ -2,9 +2,9 @@
  * http.h - the coordinator's web dashboard and HTTP API (ptserve --http).
  *
  * libmicrohttpd serves it from its own threads (one per connection, at most
- * SRV_HTTP_MAX_CONNS, each request's headers and body within
- * SRV_HTTP_MEMORY bytes, an idle connection closed after
- * SRV_HTTP_TIMEOUT_S). Those threads never touch the loop's structures:
+ * SRV_HTTP_MAX_CONNS, each request's buffers within SRV_HTTP_MEMORY bytes and
+ * its body (form fields only) within SRV_HTTP_BODY, an idle connection
+ * closed after SRV_HTTP_TIMEOUT_S). Those threads never touch the loop's structures:
  * - the loop publishes a snapshot (srv_http_publish: every job's JOB_INFO,
  *   its image path and how many images were written, the workers, the
  *   counters) under the module's mutex about once a second and soon after a
@@ -43,6 +43,7 @@
 
 #define SRV_HTTP_MAX_CONNS 64u
 #define SRV_HTTP_MEMORY (64u << 10)
+#define SRV_HTTP_BODY (16u << 10) /* a request body: form fields only; then 413 */
 #define SRV_HTTP_TIMEOUT_S 30u
 #define SRV_HTTP_ACTIONS 32u
 #define SRV_HTTP_ACTION_WAIT_MS 5000u
