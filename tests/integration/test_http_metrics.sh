@@ -67,15 +67,21 @@ done
 grep -q '^# TYPE ptfarm_merge_seconds histogram$' "$tmp/metrics" || fail "merge histogram type"
 
 # A worker killed mid-job: its leases come back (requeued) and are counted.
+# An extra worker that asks for 8 tasks beyond its thread, so it holds
+# some whenever it dies.
+"$bin/ptworker" --server "$PTFARM_SERVER" --token-file "$tmp/token" --threads 1 --prefetch 8 \
+  --name extra --cache-dir "$tmp/cache" 2> "$tmp/extra.log" &
+extra=$!
 long=$("$bin/ptctl" submit "$src/scenes/cornell_box.gltf" --res 48x32 --spp 65536 --name long)
 for _ in $(seq 200); do
   curl -sS "${auth[@]}" "$url" > "$tmp/metrics2"
-  [ "$(metric ptfarm_tasks_leased_total "$tmp/metrics2")" -gt $((leased + 20)) ] && break
+  [ "$(metric ptfarm_workers_connected "$tmp/metrics2")" = 3 ] &&
+    [ "$(metric ptfarm_tasks_leased_total "$tmp/metrics2")" -gt $((leased + 50)) ] && break
   sleep 0.05
 done
-worker=$(pgrep -P "$srv_pid" | head -1) # a local worker: a child of this ptserve
-[ -n "$worker" ] || fail "no local worker process"
-kill -KILL "$worker"
+[ "$(metric ptfarm_workers_connected "$tmp/metrics2")" = 3 ] || fail "the extra worker did not join"
+kill -KILL "$extra"
+wait "$extra" 2> /dev/null || true
 for _ in $(seq 200); do
   curl -sS "${auth[@]}" "$url" > "$tmp/metrics2"
   [ "$(metric ptfarm_tasks_requeued_total "$tmp/metrics2")" -gt 0 ] && break
