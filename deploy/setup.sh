@@ -15,6 +15,7 @@ build_pkgs=(
   libtinygltf-dev nlohmann-json3-dev   # glTF 2.0 import
   libstb-dev                           # image decoding for glTF, PNG previews
   libssl-dev                           # SHA-256 scene hashes, HMAC authentication
+  libmicrohttpd-dev                    # ptserve --http: the dashboard, API, /metrics
 )
 test_pkgs=(
   clang libclang-rt-14-dev             # libFuzzer targets, sanitizer runtime
@@ -24,8 +25,10 @@ test_pkgs=(
   systemd                              # test_deploy: systemd-analyze verify of the units
   clang-format                         # tests/check_format.sh: C and C++ formatting
   shellcheck                           # tests/check_shell.sh: the shell scripts
+  curl prometheus                      # test_http*: the dashboard's API, promtool check metrics
+  chromium                             # test_http_browser: the job page in a headless browser
 )
-runtime_pkgs=(libembree3-3 libopenexr-3-1-30 libstb0 libssl3)
+runtime_pkgs=(libembree3-3 libopenexr-3-1-30 libstb0 libssl3 libmicrohttpd12)
 
 case "${1:-}" in
 "") pkgs=("${build_pkgs[@]}" "${test_pkgs[@]}") ;;

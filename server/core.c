@@ -12,3 +12,13 @@ void srv_log(const char *fmt, ...)
     fputs("\033[K\n", stderr);
     va_end(ap);
 }
+
+void srv_histogram_add(srv_histogram *h, double seconds)
+{
+    double bound = SRV_HIST_FIRST;
+    for (int i = 0; i < SRV_HIST_BUCKETS; i++, bound *= SRV_HIST_FACTOR)
+        if (seconds <= bound)
+            h->buckets[i]++;
+    h->count++;
+    h->sum += seconds;
+}

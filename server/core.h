@@ -65,6 +65,25 @@ typedef struct srv_mode {
     int (*finish)(srv_server *s);
 } srv_mode;
 
+/* Totals since the coordinator started, for /metrics (server/http.h). */
+#define SRV_HIST_BUCKETS 12 /* 10 us .. 42 s, x4 apart (SRV_HIST_FIRST), then +Inf */
+#define SRV_HIST_FIRST 1e-5
+#define SRV_HIST_FACTOR 4.0
+typedef struct srv_histogram {
+    uint64_t count, buckets[SRV_HIST_BUCKETS]; /* buckets: observations <= the bound */
+    double sum;                                /* seconds */
+} srv_histogram;
+typedef struct srv_counters {
+    uint64_t samples_merged, tasks_leased, tasks_requeued, tasks_expired, results_rejected;
+    uint64_t state_write_errors;
+    /* Loop time: a RESULT's merge, a progressive image resolved and handed to
+     * its writer, a checkpoint written. */
+    srv_histogram merge, save, checkpoint;
+} srv_counters;
+
+/* Adds one observation of seconds to h. */
+void srv_histogram_add(srv_histogram *h, double seconds);
+
 struct srv_server {
     const srv_config *cfg;
     const srv_mode *mode;
@@ -82,6 +101,8 @@ struct srv_server {
     srv_authlimit authlimit;      /* failed handshakes per address (server/authlimit.h) */
     uint64_t bytes_in, bytes_out; /* on the wire, all peers */
     struct srv_guard *guard;      /* limits on peers: memory, slots, rates, refusals */
+    srv_counters counters;        /* counted where they happen; read by server/http.c */
+    struct srv_http *http;        /* --http: the dashboard (server/http.h); NULL: none */
 
     /* the queue (server/queue.c) */
     srv_entry *jobs; /* every job, in queue order */

@@ -103,6 +103,14 @@ static void usage(FILE *f)
         "  --handshake-timeout SEC  drop a peer that has not authenticated by then (default 10)\n"
         "  --port-file PATH       write the port listened on to PATH\n"
         "\n"
+        "dashboard (either mode; docs/OPERATIONS.md, \"Dashboard\"):\n"
+        "  --http HOST:PORT       serve the web dashboard, a JSON API (/api/jobs,\n"
+        "                         /api/workers) and Prometheus /metrics there; off by\n"
+        "                         default. Loopback only without --token-file; with one,\n"
+        "                         every request needs 'Authorization: Bearer TOKEN' or a\n"
+        "                         login (the shared token, or a --clients-file token)\n"
+        "  --http-port-file PATH  write the dashboard's port to PATH\n"
+        "\n"
         "limits on peers (either mode; docs/OPERATIONS.md, \"Limits\"):\n"
         "  --max-input-mb N       input buffers past 64 KiB each, all peers together\n"
         "                         (default 512); a peer whose next frame would pass it\n"
@@ -184,7 +192,9 @@ int main(int argc, char **argv)
         O_ENV,
         O_ENVSTRENGTH,
         O_ENVROTATE,
-        O_BACKGROUND
+        O_BACKGROUND,
+        O_HTTP,
+        O_HTTPPORT
     };
     static const struct option opts[] = {
         {"output", required_argument, NULL, 'o'},
@@ -225,6 +235,8 @@ int main(int argc, char **argv)
         {"env-strength", required_argument, NULL, O_ENVSTRENGTH},
         {"env-rotate", required_argument, NULL, O_ENVROTATE},
         {"background", required_argument, NULL, O_BACKGROUND},
+        {"http", required_argument, NULL, O_HTTP},
+        {"http-port-file", required_argument, NULL, O_HTTPPORT},
         {"quiet", no_argument, NULL, 'q'},
         {"help", no_argument, NULL, 'h'},
         {"version", no_argument, NULL, 'V'},
@@ -368,6 +380,12 @@ int main(int argc, char **argv)
                 for (int k = 0; k < 3; k++)
                     c.job.env.rgb[k] = (float)rgb[k];
             }
+            break;
+        case O_HTTP:
+            c.http = optarg;
+            break;
+        case O_HTTPPORT:
+            c.http_port_file = optarg;
             break;
         case 'q':
             c.quiet = 1;

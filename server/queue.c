@@ -108,6 +108,8 @@ static pt_status journal_or_log(srv_server *s)
     pt_error err = {0};
     int was_unsaved = s->state && srv_state_queue_unsaved(s->state);
     pt_status st = srv_queue_journal(s, &err);
+    if (st != PT_OK)
+        s->counters.state_write_errors++;
     if (st != PT_OK && !was_unsaved)
         srv_log("error: cannot write the queue: %s; trying again every %d s", err.msg,
                 DISK_RETRY_MS / 1000);
@@ -225,7 +227,12 @@ static pt_status checkpoint_quiet(srv_server *s, srv_entry *j, pt_error *err)
     if (!s->state || !j->job)
         return PT_OK;
     srv_ckpt_extra x = {srv_entry_seconds(j, pt_now_ms()), j->rejected, j->rays};
-    return srv_state_checkpoint(s->state, j->job, &x, err);
+    double t0 = pt_now_s();
+    pt_status st = srv_state_checkpoint(s->state, j->job, &x, err);
+    srv_histogram_add(&s->counters.checkpoint, pt_now_s() - t0);
+    if (st != PT_OK)
+        s->counters.state_write_errors++;
+    return st;
 }
 
 pt_status srv_entry_checkpoint(srv_server *s, srv_entry *j, pt_error *err)
@@ -281,6 +288,7 @@ static void pause_job(srv_server *s, srv_entry *j, const char *what, const pt_er
         for (const srv_conn *c = s->conns; c; c = c->next)
             if (c->role == PROTO_ROLE_WORKER)
                 n += srv_job_release_owner(j->job, c->id);
+    s->counters.tasks_requeued += n;
     if (j->t_started)
         announce_job_end(s, j);
     srv_log("job %llu paused: %s: %s; %u leased tasks requeued; trying again every %d s",
@@ -481,6 +489,7 @@ static int lease_any(srv_server *s, uint64_t owner, uint64_t now, proto_task *t)
             set_policy(s, j);
         if (!srv_job_lease(j->job, owner, now, s->cfg->lease_ms, t))
             continue;
+        s->counters.tasks_leased++;
         if (!j->t_started)
             j->t_started = now;
         if (j->rec.state == PROTO_JOB_QUEUED) {
@@ -534,6 +543,7 @@ void srv_queue_release_owner(srv_server *s, const srv_conn *c, int report)
     for (srv_entry *j = s->jobs; j; j = j->next)
         if (j->job)
             n += srv_job_release_owner(j->job, c->id);
+    s->counters.tasks_requeued += n;
     if (n && report)
         srv_log("worker %s left; %u leased tasks requeued", c->shown, n);
 }
@@ -583,6 +593,8 @@ pt_status srv_queue_log_result(srv_server *s, srv_entry *j, const uint8_t *paylo
     if (j->paused)
         return pt_error_set(err, PT_ERR_IO, "job %llu is paused", (unsigned long long)j->rec.id);
     pt_status st = srv_state_log_result(s->state, j->rec.id, payload, len, err);
+    if (st != PT_OK)
+        s->counters.state_write_errors++;
     if (st != PT_ERR_IO)
         return st;
     /* Kept for the retry: logged and merged once the folder takes writes. */
@@ -612,9 +624,12 @@ void srv_queue_expire(srv_server *s, uint64_t now)
     expiry e = {s, now};
     for (srv_entry *j = s->jobs; j; j = j->next) {
         uint32_t n;
-        if (j->job && srv_entry_active(j) && (n = srv_job_expire(j->job, now, NULL, on_missed, &e)))
+        if (j->job && srv_entry_active(j) &&
+            (n = srv_job_expire(j->job, now, NULL, on_missed, &e))) {
+            s->counters.tasks_expired += n;
             srv_log("job %llu: %u leases expired; tasks requeued", (unsigned long long)j->rec.id,
                     n);
+        }
     }
     /* Blocking requeues leases of every job: only once none is being walked. */
     srv_workers_enforce(s);
@@ -662,8 +677,11 @@ void srv_queue_tick(srv_server *s, uint64_t now)
         int pass_done = srv_job_passes_done(j->job) > j->saved_passes;
         if ((pass_done || merged > j->saved_samples) &&
             (double)(now - j->t_last_save) >= s->cfg->save_interval * 1000.0 &&
-            !srv_job_complete(j->job))
+            !srv_job_complete(j->job)) {
+            double t0 = pt_now_s();
             srv_entry_save_image(j);
+            srv_histogram_add(&s->counters.save, pt_now_s() - t0);
+        }
         if (now - j->rate_t >= 1000) {
             j->rate = (double)(merged - j->rate_samples) * 1000.0 / (double)(now - j->rate_t);
             j->rate_t = now;

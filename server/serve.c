@@ -5,6 +5,7 @@
 
 #include "common/base/alloc.h"
 #include "server/core.h"
+#include "server/http.h"
 #include "server/local.h"
 #include "server/loop.h"
 #include "server/mode.h"
@@ -39,6 +40,8 @@ static pt_status setup(srv_server *s, pt_error *err)
     if ((st = srv_loop_open(s, err)) != PT_OK)
         return st;
     s->t_start = s->t_last_print = pt_now_ms();
+    if (cfg->http && (st = srv_http_start(s, &s->http, err)) != PT_OK)
+        return st;
     if (cfg->local_workers && (st = srv_local_start(&s->local, cfg, s->port, err)) != PT_OK)
         return st;
     return PT_OK;
@@ -74,6 +77,8 @@ int srv_serve(const srv_config *cfg)
         srv_queue_hand_out(&s);
         s.mode->after_leases(&s);
         timers(&s);
+        srv_http_drain(&s, s.http); /* the dashboard's actions, then its snapshot */
+        srv_http_publish(&s, s.http, 0);
         /* Flush, then free closed connections outside their callbacks. */
         srv_loop_sweep(&s);
         if (s.local.nchildren) {
@@ -84,6 +89,7 @@ int srv_serve(const srv_config *cfg)
     }
     rc = s.mode->finish(&s);
 done:
+    srv_http_stop(s.http);
     srv_upload_close(&s);
     srv_local_stop(&s.local);
     srv_loop_close(&s);

@@ -44,16 +44,18 @@ typedef struct srv_peer_limits {
 } srv_peer_limits;
 
 typedef struct srv_config {
-    const char *scene_path;   /* one-job mode: render this and exit; NULL: queue mode */
-    const char *out_path;     /* one-job mode: the EXR */
-    const char *state_dir;    /* queue mode: the queue, bundles, checkpoints (server/state.h) */
-    const char *output_dir;   /* queue mode: finished images; NULL: STATE_DIR/output */
-    const char *listen;       /* HOST:PORT; NULL: 127.0.0.1:7878, or port 0 with --local */
-    const char *token_path;   /* NULL: no token (loopback only) */
-    const char *clients_path; /* per-client tokens (server/clients.h); needs token_path */
-    const char *port_file;    /* write the bound port here (tests, scripts) */
-    const char *worker_bin;   /* NULL: ptworker beside this program */
-    double save_interval;     /* seconds between progressive saves, at most this often */
+    const char *scene_path;     /* one-job mode: render this and exit; NULL: queue mode */
+    const char *out_path;       /* one-job mode: the EXR */
+    const char *state_dir;      /* queue mode: the queue, bundles, checkpoints (server/state.h) */
+    const char *output_dir;     /* queue mode: finished images; NULL: STATE_DIR/output */
+    const char *listen;         /* HOST:PORT; NULL: 127.0.0.1:7878, or port 0 with --local */
+    const char *token_path;     /* NULL: no token (loopback only) */
+    const char *clients_path;   /* per-client tokens (server/clients.h); needs token_path */
+    const char *port_file;      /* write the bound port here (tests, scripts) */
+    const char *http;           /* the dashboard's HOST:PORT (server/http.h); NULL: none */
+    const char *http_port_file; /* write its bound port here */
+    const char *worker_bin;     /* NULL: ptworker beside this program */
+    double save_interval;       /* seconds between progressive saves, at most this often */
     uint32_t lease_ms;
     double verify_fraction;  /* share of tasks rendered twice and compared (server/job.h) */
     uint32_t handshake_ms;   /* a peer must authenticate within this time */

@@ -212,8 +212,13 @@ static void on_result(srv_server *s, srv_conn *c, const proto_frame *f)
         proto_result_fini(&r); /* not merged; the failure is logged once, by the queue */
         return;
     }
-    if (o == SRV_MERGED)
+    if (o == SRV_MERGED) {
+        uint64_t before = srv_job_samples_merged(j->job);
+        double t0 = pt_now_s();
         o = srv_job_result_validated(j->job, lease_index, &r, pt_now_ms(), &err);
+        srv_histogram_add(&s->counters.merge, pt_now_s() - t0);
+        s->counters.samples_merged += srv_job_samples_merged(j->job) - before;
+    }
     switch (o) {
     case SRV_MERGED:
         c->misses = 0;
@@ -226,11 +231,13 @@ static void on_result(srv_server *s, srv_conn *c, const proto_frame *f)
         c->misses = 0; /* late, but rendered: it is working */
         break;
     case SRV_NOT_LEASED: {
+        s->counters.results_rejected++;
         char text[PT_TEXT_ESCAPED_SIZE(sizeof err.msg)];
         srv_log("worker %s: %s; dropped", c->shown, pt_text_shown(err.msg, text, sizeof text));
         break;
     }
     case SRV_INVALID:
+        s->counters.results_rejected++;
         srv_job_refused(j->job);
         srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "%s", err.msg);
         break;

@@ -153,3 +153,21 @@ fail:
     pt_free(rgb);
     return st;
 }
+
+pt_status pt_png_encode_rgb8(const uint8_t *rgb, uint32_t width, uint32_t height, uint8_t **out,
+                             size_t *len, pt_error *err)
+{
+    if (!rgb || width == 0 || height == 0 || width > PT_IMAGE_MAX_SIDE ||
+        height > PT_IMAGE_MAX_SIDE)
+        return pt_error_set(err, PT_ERR_ARG, "PNG: no pixels or a bad size");
+    png_buf png = {0};
+    if (!stbi_write_png_to_func(png_append, &png, (int)width, (int)height, 3, rgb,
+                                (int)width * 3) ||
+        png.failed) {
+        pt_free(png.data);
+        return pt_error_set(err, PT_ERR_NOMEM, "PNG: cannot encode %ux%u", width, height);
+    }
+    *out = png.data;
+    *len = png.len;
+    return PT_OK;
+}

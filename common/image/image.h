@@ -46,6 +46,11 @@ void pt_png_preview_path(const char *exr_path, char *out, size_t n);
 /* Writes an sRGB PNG of r,g,b (clamped, exposure 1), atomically (temp + rename). */
 pt_status pt_png_write_preview(const char *path, const pt_image *img, pt_error *err);
 
+/* PNG bytes of width x height 8-bit RGB pixels (rows top first), in memory:
+ * *out is pt_malloc'd (pt_free), *len its size; both untouched on failure. */
+pt_status pt_png_encode_rgb8(const uint8_t *rgb, uint32_t width, uint32_t height, uint8_t **out,
+                             size_t *len, pt_error *err);
+
 /* sRGB transfer functions (IEC 61966-2-1). */
 float pt_srgb_to_linear(float c);
 float pt_linear_to_srgb(float c);

@@ -1,0 +1,159 @@
+#!/usr/bin/env bash
+# ptserve --http against a real queue with a real worker, over real HTTP
+# (curl): the JSON API has ptctl --json's shapes, actions reach the loop,
+# and the rules on who may ask hold: 401 without a token, a bearer token or
+# a login cookie (HttpOnly, SameSite=Strict), 403 for another client's job,
+# 404 for URLs that name files, 413 for big bodies; without --token-file the
+# dashboard stays on loopback.
+set -euo pipefail
+bin=${PT_BIN:?}
+src=${PT_SOURCE_DIR:?}
+command -v curl > /dev/null || { echo "SKIP: no curl"; exit 77; }
+tmp=$(mktemp -d /tmp/pt_http_XXXXXX)
+srv_pid=
+cleanup() {
+  if [ -n "$srv_pid" ] && kill "$srv_pid" 2>/dev/null; then wait "$srv_pid" 2>/dev/null || true; fi
+  if [ "${failed:-0}" = 0 ]; then rm -rf "$tmp"; else echo "logs kept in $tmp" >&2; fi
+}
+trap cleanup EXIT
+failed=1
+fail() { echo "FAIL: $*" >&2; exit 1; }
+json() { python3 -c "import json,sys; d=json.load(open(sys.argv[1])); print(eval(sys.argv[2]))" "$@"; }
+
+umask 077
+head -c 32 /dev/urandom | base64 > "$tmp/admin.token"
+head -c 32 /dev/urandom | base64 > "$tmp/alice.token"
+head -c 32 /dev/urandom | base64 > "$tmp/bob.token"
+printf 'alice %s\nbob %s\n' "$(cat "$tmp/alice.token")" "$(cat "$tmp/bob.token")" > "$tmp/clients"
+"$bin/ptserve" --state-dir "$tmp/state" --listen 127.0.0.1:0 --port-file "$tmp/port" \
+  --token-file "$tmp/admin.token" --clients-file "$tmp/clients" \
+  --http 127.0.0.1:0 --http-port-file "$tmp/hport" \
+  --local 1 --worker-threads 1 --tile 16 --chunk 8 2> "$tmp/serve.log" &
+srv_pid=$!
+for _ in $(seq 200); do [ -s "$tmp/hport" ] && [ -s "$tmp/port" ] && break; sleep 0.05; done
+[ -s "$tmp/hport" ] || fail "ptserve did not start: $(cat "$tmp/serve.log")"
+PTFARM_SERVER=127.0.0.1:$(cat "$tmp/port")
+export PTFARM_SERVER
+web=http://127.0.0.1:$(cat "$tmp/hport")
+as() { # as WHO curl-args...: a request with WHO's bearer token
+  local who=$1; shift
+  curl -sS -H "Authorization: Bearer $(cat "$tmp/$who.token")" "$@"
+}
+code() { curl -sS -o /dev/null -w '%{http_code}' "$@"; }
+
+# Alice submits a long job and a short one; bob one of his own.
+long=$(PTFARM_TOKEN_FILE=$tmp/alice.token "$bin/ptctl" submit "$src/scenes/cornell_box.gltf" \
+  --res 32x24 --spp 65536 --name "alice long")
+short=$(PTFARM_TOKEN_FILE=$tmp/alice.token "$bin/ptctl" submit "$src/scenes/cornell_box.gltf" \
+  --res 32x24 --spp 16 --name "alice short" --priority 9)
+bobs=$(PTFARM_TOKEN_FILE=$tmp/bob.token "$bin/ptctl" submit "$src/scenes/cornell_box.gltf" \
+  --res 32x24 --spp 65536 --name "bob's")
+
+# Without a token: 401 everywhere but the login page and its style.
+for u in /api/jobs "/api/jobs/$long" /api/workers / /job /workers /app.js /metrics; do
+  [ "$(code "$web$u")" = 401 ] || fail "$u without a token: not 401"
+done
+[ "$(code -H 'Authorization: Bearer not-the-token-at-all' "$web/api/jobs")" = 401 ] ||
+  fail "a wrong bearer token is not 401"
+[ "$(code "$web/login")" = 200 ] || fail "/login"
+[ "$(code "$web/style.css")" = 200 ] || fail "/style.css"
+
+# The short job ends; its JSON over HTTP is ptctl's, field for field (the
+# snapshot follows within about a second).
+PTFARM_TOKEN_FILE=$tmp/alice.token "$bin/ptctl" watch "$short" 2> /dev/null || fail "watch"
+PTFARM_TOKEN_FILE=$tmp/alice.token "$bin/ptctl" status "$short" --json > "$tmp/ctl.json"
+for _ in $(seq 100); do
+  as alice "$web/api/jobs/$short" > "$tmp/http.json"
+  cmp -s "$tmp/ctl.json" "$tmp/http.json" && break
+  sleep 0.1
+done
+cmp "$tmp/ctl.json" "$tmp/http.json" || fail "/api/jobs/$short differs from ptctl status --json"
+PTFARM_TOKEN_FILE=$tmp/admin.token "$bin/ptctl" list --json > "$tmp/ctl_list.json"
+same_list() {
+  python3 - "$tmp/ctl_list.json" "$tmp/http_list.json" <<'PY'
+import json, sys
+a, b = json.load(open(sys.argv[1])), json.load(open(sys.argv[2]))
+assert [j["id"] for j in a] == [j["id"] for j in b], (a, b)
+assert all(set(x) == set(y) for x, y in zip(a, b))
+PY
+}
+for _ in $(seq 100); do # the snapshot follows the loop within a second
+  as admin "$web/api/jobs" > "$tmp/http_list.json"
+  same_list 2> /dev/null && break
+  sleep 0.1
+done
+same_list || fail "/api/jobs shape"
+as admin "$web/api/workers" > "$tmp/workers.json"
+[ "$(json "$tmp/workers.json" 'len(d) == 1 and d[0]["name"] == "local-1" and d[0]["threads"] == 1')" = True ] ||
+  fail "workers: $(cat "$tmp/workers.json")"
+[ "$(code -H "Authorization: Bearer $(cat "$tmp/bob.token")" "$web/api/jobs/999")" = 404 ] ||
+  fail "no such job: not 404"
+
+# Actions: bob may not touch alice's job (403), alice may; the admin may
+# touch anyone's. Priority reorders the queue.
+[ "$(code -X POST -H "Authorization: Bearer $(cat "$tmp/bob.token")" "$web/api/jobs/$long/cancel")" = 403 ] ||
+  fail "bob cancelling alice's job: not 403"
+[ "$(code -X POST -H "Authorization: Bearer $(cat "$tmp/bob.token")" -d priority=3 \
+  "$web/api/jobs/$long/priority")" = 403 ] || fail "bob's priority on alice's job: not 403"
+[ "$(code -X GET -H "Authorization: Bearer $(cat "$tmp/alice.token")" "$web/api/jobs/$long/cancel")" = 405 ] ||
+  fail "GET cancel: not 405"
+[ "$(code -X POST -H "Authorization: Bearer $(cat "$tmp/alice.token")" -d priority=high \
+  "$web/api/jobs/$long/priority")" = 400 ] || fail "a bad priority: not 400"
+as alice -X POST -d priority=7 "$web/api/jobs/$long/priority" > "$tmp/prio.json"
+[ "$(json "$tmp/prio.json" 'd["priority"]')" = 7 ] || fail "priority: $(cat "$tmp/prio.json")"
+PTFARM_TOKEN_FILE=$tmp/alice.token "$bin/ptctl" status "$long" --json > "$tmp/long.json"
+[ "$(json "$tmp/long.json" 'd["priority"]')" = 7 ] || fail "priority not in the queue"
+as alice -X POST "$web/api/jobs/$long/cancel" > "$tmp/cancel.json"
+[ "$(json "$tmp/cancel.json" 'd["state"]')" = cancelled ] || fail "cancel: $(cat "$tmp/cancel.json")"
+as admin -X POST "$web/api/jobs/$bobs/cancel" > "$tmp/cancel2.json"
+[ "$(json "$tmp/cancel2.json" 'd["state"]')" = cancelled ] || fail "admin cancel: $(cat "$tmp/cancel2.json")"
+grep -q "job $long cancelled: cancelled by alice (web)" "$tmp/serve.log" || fail "cancel not logged"
+
+# The login form: a wrong token is refused; a right one sets a session
+# cookie (HttpOnly, SameSite=Strict) that then opens the pages and the API.
+[ "$(code -X POST --data-urlencode "token=wrong token" "$web/login")" = 401 ] ||
+  fail "a wrong login: not 401"
+curl -sS -D "$tmp/login.h" -o /dev/null -c "$tmp/jar" -X POST \
+  --data-urlencode "token=$(cat "$tmp/bob.token")" "$web/login"
+grep -qi '^HTTP/1.1 303' "$tmp/login.h" || fail "login: $(cat "$tmp/login.h")"
+grep -i '^set-cookie:' "$tmp/login.h" | grep -i httponly | grep -qi 'samesite=strict' ||
+  fail "cookie flags: $(cat "$tmp/login.h")"
+[ "$(code -b "$tmp/jar" "$web/api/jobs")" = 200 ] || fail "the session cookie is not accepted"
+[ "$(code -b "$tmp/jar" "$web/")" = 200 ] || fail "the queue page with a session"
+[ "$(code -b "$tmp/jar" -X POST "$web/api/jobs/$short/cancel")" = 403 ] ||
+  fail "bob's session on alice's job: not 403"
+[ "$(code -b 'ptfarm_session=0000000000000000000000000000000000000000000000000000000000000000' \
+  "$web/api/jobs")" = 401 ] || fail "a made-up session: not 401"
+
+# URLs never reach files; bodies are small.
+for u in /../../etc/passwd /index.html /web/app.js /api/jobs/1/../../etc/passwd; do
+  c=$(as admin -o /dev/null -w '%{http_code}' --path-as-is "$web$u")
+  [ "$c" = 404 ] || fail "$u: $c, not 404"
+done
+head -c 200000 /dev/zero | tr '\0' a > "$tmp/big"
+c=$(as admin -o /dev/null -w '%{http_code}' -X POST --data-binary "priority=@$tmp/big" \
+  "$web/api/jobs/$long/priority" || true)
+[ "$c" = 413 ] || [ "$c" = 000 ] || fail "a big body: $c"
+
+# The image views and the EXR download.
+for v in rgb samples error; do
+  as alice -o "$tmp/$v.png" "$web/api/jobs/$short/image.png?view=$v&exposure=1"
+  [ "$(head -c 8 "$tmp/$v.png" | od -An -tx1 | tr -d ' \n')" = 89504e470d0a1a0a ] || fail "$v: not a PNG"
+done
+as alice -o "$tmp/dl.exr" "$web/api/jobs/$short/image.exr"
+cmp "$tmp/dl.exr" "$tmp/state/output/$short-alice_short.exr" || fail "EXR download differs"
+# The server still serves (nothing above broke it).
+[ "$(code -H "Authorization: Bearer $(cat "$tmp/admin.token")" "$web/api/jobs")" = 200 ] ||
+  fail "after the bad requests"
+kill "$srv_pid"; wait "$srv_pid" || true; srv_pid=
+
+# Without a token the dashboard stays on loopback, whatever --http says.
+"$bin/ptserve" --state-dir "$tmp/state2" --listen 127.0.0.1:0 --http 0.0.0.0:0 \
+  --http-port-file "$tmp/hport2" 2> "$tmp/serve2.log" &
+srv_pid=$!
+for _ in $(seq 200); do [ -s "$tmp/hport2" ] && break; sleep 0.05; done
+grep -q "dashboard listens on loopback only" "$tmp/serve2.log" || fail "$(cat "$tmp/serve2.log")"
+grep -q "dashboard on http://127.0.0.1:" "$tmp/serve2.log" || fail "$(cat "$tmp/serve2.log")"
+[ "$(code "http://127.0.0.1:$(cat "$tmp/hport2")/api/jobs")" = 200 ] || fail "loopback, no token"
+failed=0
+echo "PASS"
