@@ -4,7 +4,9 @@
 # and the rules on who may ask hold: 401 without a token, a bearer token or
 # a login cookie (HttpOnly, SameSite=Strict), 403 for another client's job,
 # 404 for URLs that name files, 413 for big bodies; without --token-file the
-# dashboard stays on loopback.
+# dashboard stays on loopback. Hostile requests (a 100 KB header, bad cookies,
+# slow clients holding connections) get clear codes while a job renders on,
+# and a job rendered through them is bit-identical to a standalone render.
 set -euo pipefail
 bin=${PT_BIN:?}
 src=${PT_SOURCE_DIR:?}
@@ -135,6 +137,52 @@ c=$(as admin -o /dev/null -w '%{http_code}' -X POST --data-binary "priority=@$tm
   "$web/api/jobs/$long/priority" || true)
 [ "$c" = 413 ] || [ "$c" = 000 ] || fail "a big body: $c"
 
+# A job that renders while the hostile requests below arrive.
+fire=$(PTFARM_TOKEN_FILE=$tmp/admin.token "$bin/ptctl" submit "$src/scenes/cornell_box.gltf" \
+  --res 32x24 --spp 65536 --name "under fire")
+# Hostile HTTP: an oversized header, a malformed and an oversized cookie,
+# and slow clients that open connections and never finish a request (from
+# another loopback address, so the per-address cap they hit is theirs).
+c=$(as admin -o /dev/null -w '%{http_code}' -H "X-Big: $(head -c 100000 /dev/zero | tr '\0' a)" \
+  "$web/api/jobs" || true)
+case $c in 4* | 000) ;; *) fail "a 100 KB header: $c" ;; esac
+for cookie in 'ptfarm_session=%00%0a../../x; ptfarm_session=' \
+  "ptfarm_session=$(head -c 8000 /dev/zero | tr '\0' f)"; do
+  c=$(code -b "$cookie" "$web/api/jobs" || true)
+  case $c in 400 | 401 | 413 | 431 | 000) ;; *) fail "a bad cookie: $c" ;; esac
+done
+python3 - "$(cat "$tmp/hport")" > "$tmp/slow.log" 2>&1 <<'PY' &
+import socket, sys, time
+held = []
+for _ in range(48):
+    try:
+        s = socket.socket()
+        s.bind(("127.0.0.2", 0))
+        s.connect(("127.0.0.1", int(sys.argv[1])))
+        s.sendall(b"GET /api/jobs HTTP/1.1\r\nHost: x\r\n")  # never ends the request
+        held.append(s)
+    except OSError:
+        pass
+print(len(held), flush=True)
+time.sleep(4)
+PY
+slow_pid=$!
+sleep 1
+for _ in 1 2 3; do
+  [ "$(code -H "Authorization: Bearer $(cat "$tmp/admin.token")" --max-time 10 "$web/api/jobs")" = 200 ] ||
+    fail "a request while slow clients hold connections"
+done
+wait "$slow_pid" || true
+# The render went on through all of it: the job still gains samples.
+s0=$(as admin "$web/api/jobs/$fire" | python3 -c 'import json,sys; print(json.load(sys.stdin)["samples_done"])')
+for _ in $(seq 200); do
+  s1=$(as admin "$web/api/jobs/$fire" | python3 -c 'import json,sys; print(json.load(sys.stdin)["samples_done"])')
+  [ "$s1" -gt "$s0" ] && break
+  sleep 0.1
+done
+[ "$s1" -gt "$s0" ] || fail "the job stopped gaining samples ($s0)"
+as admin -X POST "$web/api/jobs/$fire/cancel" > /dev/null
+
 # The image views and the EXR download.
 for v in rgb samples error; do
   as alice -o "$tmp/$v.png" "$web/api/jobs/$short/image.png?view=$v&exposure=1"
@@ -142,6 +190,12 @@ for v in rgb samples error; do
 done
 as alice -o "$tmp/dl.exr" "$web/api/jobs/$short/image.exr"
 cmp "$tmp/dl.exr" "$tmp/state/output/$short-alice_short.exr" || fail "EXR download differs"
+# The short job, rendered through all of the above, is bit-identical to a
+# standalone render of the same job.
+"$bin/ptworker" --scene "$src/scenes/cornell_box.gltf" --res 32x24 --spp 16 --threads 1 -q \
+  -o "$tmp/ref.exr" 2> "$tmp/ref.log" || fail "standalone: $(cat "$tmp/ref.log")"
+"$bin/ptexr-diff" "$tmp/ref.exr" "$tmp/dl.exr" > "$tmp/diff.log" 2>&1 ||
+  fail "the farm's image differs from a standalone render: $(cat "$tmp/diff.log")"
 # The server still serves (nothing above broke it).
 [ "$(code -H "Authorization: Bearer $(cat "$tmp/admin.token")" "$web/api/jobs")" = 200 ] ||
   fail "after the bad requests"
