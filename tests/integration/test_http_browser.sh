@@ -66,11 +66,15 @@ grep -q 'running, ' "$tmp/job.html" || fail "no running summary: $(grep summary 
 [ "$(head -c 8 "$tmp/second.png" | od -An -tx1 | tr -d ' \n')" = 89504e470d0a1a0a ] || fail "not a PNG"
 ! cmp -s "$tmp/first.png" "$tmp/second.png" || fail "the image did not change between dumps"
 
-# A screenshot renders the page with its image (not only the DOM).
+# A screenshot renders the page with its image (not only the DOM). With
+# PT_SCREENSHOT_OUT set, it is kept there at a readable size (the README's).
+size=500,400
+[ -z "${PT_SCREENSHOT_OUT:-}" ] || size=960,720
 (cd "$tmp" && HOME=$tmp timeout 60 "$browser" --headless --no-sandbox --disable-gpu --no-first-run \
-  --user-data-dir="$tmp/profile" --timeout=3000 --window-size=500,400 \
+  --user-data-dir="$tmp/profile" --timeout=3000 --window-size=$size \
   --screenshot="$tmp/job.png" "$web/job?id=$id" 2>> "$tmp/browser.log") || true
 [ -s "$tmp/job.png" ] || fail "no screenshot"
+[ -z "${PT_SCREENSHOT_OUT:-}" ] || cp "$tmp/job.png" "$PT_SCREENSHOT_OUT"
 
 # The queue and workers pages fill their tables from the API.
 dom "$web/" 3000 > "$tmp/queue.html" || true
