@@ -104,7 +104,8 @@ enum {
     O_MINGAIN,
     O_MINSPP,
     O_WATCH,
-    O_CAMERA
+    O_CAMERA,
+    O_TRANSPARENT
 };
 
 static int bad_usage(const char *cmd, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
@@ -307,6 +308,8 @@ static const char SUBMIT_HELP[] =
     "                     default; not with --target-error\n"
     "  --min-spp N        adaptive sampling: samples before a tile may stop\n"
     "                     (default: one chunk)\n"
+    "  --transparent      camera rays that leave the scene add nothing, and the EXR\n"
+    "                     gets an A channel (coverage; RGB premultiplied by it)\n"
     "  --watch            then follow the job as 'ptctl watch' does (exit status 4\n"
     "                     when it ends cancelled or failed)\n";
 
@@ -358,6 +361,7 @@ static int cmd_submit(int argc, char **argv, globals *g)
                                          {"min-spp", required_argument, NULL, O_MINSPP},
                                          {"watch", no_argument, NULL, O_WATCH},
                                          {"camera", required_argument, NULL, O_CAMERA},
+                                         {"transparent", no_argument, NULL, O_TRANSPARENT},
                                          {NULL, 0, NULL, 0}};
     proto_submit m;
     memset(&m, 0, sizeof m);
@@ -405,6 +409,9 @@ static int cmd_submit(int argc, char **argv, globals *g)
             break;
         case O_MINSPP:
             st = pt_opt_u32("--min-spp", optarg, 1, UINT32_MAX, &m.min_spp, &err);
+            break;
+        case O_TRANSPARENT:
+            m.film_flags |= PROTO_FILM_TRANSPARENT;
             break;
         case O_WATCH:
             watch = 1;
@@ -634,6 +641,9 @@ static void print_status(const proto_job_info *j)
     printf("tiles      %lu (%lu stopped by adaptive sampling)\n", (unsigned long)j->tiles,
            (unsigned long)j->tiles_stopped);
     printf("workers    %lu\n", (unsigned long)j->workers);
+    if (j->capped > 0)
+        printf("depth cap  %llu paths reached it; raise --max-depth if this matters\n",
+               (unsigned long long)j->capped);
     ctl_format_duration(j->seconds, d, sizeof d);
     printf("time       %s\n", d);
     if (j->rate > 0.0 && isfinite(j->rate))

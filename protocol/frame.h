@@ -35,7 +35,9 @@
 #include "protocol/wire.h"
 
 #define PROTO_MAGIC "PTF1"
-#define PROTO_VERSION 2u /* 2: mutual authentication (AUTH and WELCOME, protocol/msg.h) */
+/* 2: mutual authentication (AUTH and WELCOME, protocol/msg.h); 3: film flags in TASK
+ * and SUBMIT, coverage and depth-cap counts in RESULT and JOB_INFO */
+#define PROTO_VERSION 3u
 #define PROTO_FRAME_HEADER 12u
 #define PROTO_FRAME_TRAILER 4u
 #define PROTO_FRAME_OVERHEAD (PROTO_FRAME_HEADER + PROTO_FRAME_TRAILER)

@@ -338,6 +338,8 @@ static const char *task_problem(const proto_task *m)
         return "tile outside the image";
     if (m->s0 >= m->s1)
         return "sample range s0 >= s1";
+    if (m->film_flags & ~PROTO_FILM_KNOWN)
+        return "unknown film flags";
     return NULL;
 }
 
@@ -362,6 +364,7 @@ pt_status proto_msg_encode_task(proto_writer *w, const proto_task *m, pt_error *
     proto_w_bytes(w, m->scene_hash, PROTO_HASH_SIZE);
     proto_w_u32(w, m->lease_ms);
     proto_w_str(w, m->camera);
+    proto_w_u32(w, m->film_flags);
     return w_done(w, start, "TASK", err);
 }
 
@@ -382,6 +385,7 @@ pt_status proto_msg_decode_task(const uint8_t *p, size_t len, proto_task *out, p
     const uint8_t *hash = proto_r_bytes(&r, PROTO_HASH_SIZE, "scene hash");
     m.lease_ms = proto_r_u32(&r, "lease");
     proto_r_str(&r, m.camera, PROTO_MAX_NAME, "camera");
+    m.film_flags = proto_r_u32(&r, "film flags");
     pt_status st = proto_r_finish(&r, "TASK", err);
     if (st != PT_OK)
         return st;
@@ -480,6 +484,16 @@ static const char *result_problem(const proto_result *m)
     return NULL;
 }
 
+/* The pixel's count and hits, checked as the decoder checks them. */
+static const char *result_pixel_problem(uint32_t n, uint32_t hits, uint32_t nmax)
+{
+    if (n > nmax)
+        return "sample count over s1 - s0";
+    if (hits > n)
+        return "camera hits over the sample count";
+    return NULL;
+}
+
 pt_status proto_msg_encode_result(proto_writer *w, const proto_result *m, pt_error *err)
 {
     size_t start = w->len;
@@ -488,8 +502,8 @@ pt_status proto_msg_encode_result(proto_writer *w, const proto_result *m, pt_err
         return bad(err, PT_ERR_ARG, "RESULT", why);
     uint32_t nmax = m->s1 - m->s0;
     for (uint32_t i = 0; i < m->npixels; i++)
-        if (m->pixels[i].n > nmax)
-            return bad(err, PT_ERR_ARG, "RESULT", "pixel sample count over s1 - s0");
+        if ((why = result_pixel_problem(m->pixels[i].n, m->pixels[i].hits, nmax)) != NULL)
+            return pt_error_set(err, PT_ERR_ARG, "RESULT: pixel %u %s", (unsigned)i, why);
     proto_w_u64(w, m->job_id);
     proto_w_u64(w, m->task_id);
     w_rect(w, m->tile);
@@ -497,6 +511,7 @@ pt_status proto_msg_encode_result(proto_writer *w, const proto_result *m, pt_err
     proto_w_u32(w, m->s1);
     proto_w_u64(w, m->rejected);
     proto_w_u64(w, m->rays);
+    proto_w_u64(w, m->capped);
     proto_w_u32(w, m->npixels);
     /* One reservation for all pixels: a 64k-pixel tile is 2.4 MB. */
     uint8_t *q = proto_w_reserve(w, (size_t)m->npixels * PROTO_RESULT_PIXEL_SIZE);
@@ -509,6 +524,7 @@ pt_status proto_msg_encode_result(proto_writer *w, const proto_result *m, pt_err
         proto_put_f64(q + 16, a->sum[2]);
         proto_put_f64(q + 24, a->sum_sq);
         proto_put_u32(q + 32, a->n);
+        proto_put_u32(q + 36, a->hits);
     }
     return w_done(w, start, "RESULT", err);
 }
@@ -525,6 +541,7 @@ pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *bu
     m.s1 = proto_r_u32(&r, "s1");
     m.rejected = proto_r_u64(&r, "rejected");
     m.rays = proto_r_u64(&r, "rays");
+    m.capped = proto_r_u64(&r, "paths capped");
     m.npixels = proto_r_u32(&r, "pixel count");
     m.pixels = NULL;
     m.owns_pixels = 0;
@@ -545,10 +562,12 @@ pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *bu
                             proto_r_left(&r) - body);
     const uint8_t *q = r.p;
     uint32_t nmax = m.s1 - m.s0;
-    for (uint32_t i = 0; i < m.npixels; i++)
-        if (proto_get_u32(q + (size_t)i * PROTO_RESULT_PIXEL_SIZE + 32) > nmax)
-            return pt_error_set(err, PT_ERR_PROTO, "RESULT: pixel %u sample count over s1 - s0",
-                                (unsigned)i);
+    for (uint32_t i = 0; i < m.npixels; i++) {
+        const uint8_t *pq = q + (size_t)i * PROTO_RESULT_PIXEL_SIZE;
+        why = result_pixel_problem(proto_get_u32(pq + 32), proto_get_u32(pq + 36), nmax);
+        if (why)
+            return pt_error_set(err, PT_ERR_PROTO, "RESULT: pixel %u %s", (unsigned)i, why);
+    }
     pt_pixel_acc *px = buf;
     if (buf) {
         if (m.npixels > buf_cap)
@@ -566,7 +585,7 @@ pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *bu
         px[i].sum[2] = proto_get_f64(q + 16);
         px[i].sum_sq = proto_get_f64(q + 24);
         px[i].n = proto_get_u32(q + 32);
-        px[i].pad = 0;
+        px[i].hits = proto_get_u32(q + 36);
     }
     m.pixels = px;
     *out = m;
@@ -650,6 +669,8 @@ static const char *submit_problem(const proto_submit *m)
         return "min gain not finite and >= 0";
     if (m->bundle_size == 0)
         return "bundle size is 0";
+    if (m->film_flags & ~PROTO_FILM_KNOWN)
+        return "unknown film flags";
     return NULL;
 }
 
@@ -674,6 +695,7 @@ pt_status proto_msg_encode_submit(proto_writer *w, const proto_submit *m, pt_err
     proto_w_bytes(w, m->bundle_hash, PROTO_HASH_SIZE);
     proto_w_str(w, m->camera);
     proto_w_f64(w, m->min_gain);
+    proto_w_u32(w, m->film_flags);
     return w_done(w, start, "SUBMIT", err);
 }
 
@@ -694,6 +716,7 @@ pt_status proto_msg_decode_submit(const uint8_t *p, size_t len, proto_submit *ou
     const uint8_t *hash = proto_r_bytes(&r, PROTO_HASH_SIZE, "bundle hash");
     proto_r_str(&r, m.camera, PROTO_MAX_NAME, "camera");
     m.min_gain = proto_r_f64(&r, "min gain");
+    m.film_flags = proto_r_u32(&r, "film flags");
     pt_status st = proto_r_finish(&r, "SUBMIT", err);
     if (st != PT_OK)
         return st;
@@ -709,7 +732,7 @@ pt_status proto_msg_decode_submit(const uint8_t *p, size_t len, proto_submit *ou
 
 /* Bytes of a JOB_INFO with every string empty: the least an entry of
  * JOB_LIST can take, so a count is checked against the bytes present. */
-#define JOB_INFO_FIXED 107u
+#define JOB_INFO_FIXED 115u
 
 static const char *job_info_problem(const proto_job_info *m)
 {
@@ -751,6 +774,7 @@ static void w_job_info(proto_writer *w, const proto_job_info *m)
     proto_w_u64(w, m->submitted);
     proto_w_u32(w, m->queue_pos);
     proto_w_str(w, m->message);
+    proto_w_u64(w, m->capped);
 }
 
 /* Reads one JOB_INFO into m (which may be left half-filled on failure). */
@@ -779,6 +803,7 @@ static void r_job_info(proto_reader *r, proto_job_info *m)
     m->submitted = proto_r_u64(r, "submitted");
     m->queue_pos = proto_r_u32(r, "queue position");
     proto_r_str(r, m->message, PROTO_MAX_ERROR_TEXT, "message");
+    m->capped = proto_r_u64(r, "paths capped");
 }
 
 pt_status proto_msg_encode_job_info(proto_writer *w, const proto_job_info *m, pt_error *err)

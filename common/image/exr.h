@@ -2,7 +2,8 @@
  * exr.h - OpenEXR output and input through OpenEXRCore (OpenEXR 3's C API).
  *
  * Channels written: R, G, B (mean radiance), "samples" (per-pixel sample count)
- * and "variance" (variance of the pixel mean, luminance), all FLOAT, scanline,
+ * and "variance" (variance of the pixel mean, luminance), and A (coverage; RGB
+ * premultiplied by it) when the image has_alpha, all FLOAT, scanline,
  * ZIP compression. Header attributes: "ptfarm.samples" (total samples, as a
  * decimal string), "ptfarm.renderSeconds" (double), "ptfarm.sceneHash"
  * (string), "ptfarm.jobId" (string), and the standard "software" string.
@@ -32,7 +33,8 @@ pt_status pt_exr_write(const char *path, const pt_image *img, const pt_exr_meta 
                        pt_error *err);
 
 /* Reads a file written by pt_exr_write (or any scanline/tiled EXR with R, G,
- * B; samples and variance planes are zero when absent). meta may be NULL.
+ * B; samples, variance and A planes are zero when absent, has_alpha says
+ * whether A was there). meta may be NULL.
  * out NULL reads the header alone (meta, after the same checks of the
  * layout), decoding no pixel. */
 pt_status pt_exr_read(const char *path, pt_image **out, pt_exr_meta *meta, pt_error *err);

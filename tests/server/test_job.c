@@ -36,7 +36,7 @@ static void fake_result(const proto_task *t, pt_pixel_acc *px, proto_result *r)
 
 static srv_job *make(uint32_t w, uint32_t h, uint32_t spp, uint32_t tile, uint32_t chunk)
 {
-    srv_job_params p = {w, h, spp, tile, chunk, 5, 16, 3, 0.0, 0, 0.0, ""};
+    srv_job_params p = {w, h, spp, tile, chunk, 5, 16, 3, 0.0, 0, 0.0, "", 0};
     srv_job *j = NULL;
     pt_error err = {0};
     CHECKF(srv_job_new(9, &p, HASH, &j, &err) == PT_OK, "%s", err.msg);
@@ -178,7 +178,7 @@ static void bit_identical(void)
  * leased or held are dropped harmlessly. */
 static void adaptive(void)
 {
-    srv_job_params p = {64, 32, 64, 32, 8, 1, 16, 3, 0.01, 16, 0.0, ""};
+    srv_job_params p = {64, 32, 64, 32, 8, 1, 16, 3, 0.01, 16, 0.0, "", 0};
     srv_job *j = NULL;
     CHECK(srv_job_new(2, &p, HASH, &j, NULL) == PT_OK);
     if (!j)
@@ -203,7 +203,7 @@ static void adaptive(void)
             double sq = tile == 0 ? ns * 0.25 : 2.0 * v * v * ns;
             px[i] = (pt_pixel_acc){{sum, sum, sum}, sq, ns, 0};
         }
-        proto_result r = {t.job_id, t.task_id, t.tile, t.s0, t.s1, 0, 0, 32 * 32, px, 0};
+        proto_result r = {t.job_id, t.task_id, t.tile, t.s0, t.s1, 0, 0, 0, 32 * 32, px, 0};
         srv_outcome o = srv_job_result(j, 1, &r, NULL);
         dup += o == SRV_DUPLICATE;
         CHECK(o == SRV_MERGED || o == SRV_DUPLICATE);
@@ -229,7 +229,7 @@ static void gain_pixels_of(const proto_task *t, pt_pixel_acc *px, proto_result *
         double v = t->tile.x0 == 0 ? (black0 ? 0.0 : 0.5) : (double)((chunk + 1) % 2);
         px[i] = (pt_pixel_acc){{v * ns, v * ns, v * ns}, v * v * ns, ns, 0};
     }
-    *r = (proto_result){t->job_id, t->task_id, t->tile, t->s0, t->s1, 0, 0, 32 * 32, px, 0};
+    *r = (proto_result){t->job_id, t->task_id, t->tile, t->s0, t->s1, 0, 0, 0, 32 * 32, px, 0};
 }
 
 static void gain_pixels(const proto_task *t, pt_pixel_acc *px, proto_result *r)
@@ -243,7 +243,7 @@ static void gain_pixels(const proto_task *t, pt_pixel_acc *px, proto_result *r)
  * refuses a job with another min gain. */
 static void adaptive_min_gain(void)
 {
-    srv_job_params p = {64, 32, 64, 32, 8, 1, 16, 3, 0.0, 8, 1e-5, ""};
+    srv_job_params p = {64, 32, 64, 32, 8, 1, 16, 3, 0.0, 8, 1e-5, "", 0};
     srv_job *a = NULL, *b = NULL, *c = NULL, *d = NULL;
     CHECK(srv_job_new(3, &p, HASH, &a, NULL) == PT_OK);
     CHECK(srv_job_new(3, &p, HASH, &b, NULL) == PT_OK);
@@ -301,7 +301,7 @@ done:
  * first chunk); the noisy tile still runs to the end. */
 static void adaptive_min_gain_black(void)
 {
-    srv_job_params p = {64, 32, 64, 32, 8, 1, 16, 3, 0.0, 8, 1e-5, ""};
+    srv_job_params p = {64, 32, 64, 32, 8, 1, 16, 3, 0.0, 8, 1e-5, "", 0};
     srv_job *j = NULL;
     CHECK(srv_job_new(3, &p, HASH, &j, NULL) == PT_OK);
     if (!j)
@@ -324,20 +324,20 @@ static void adaptive_min_gain_black(void)
 
 static void bad_params(void)
 {
-    srv_job_params p = {0, 10, 4, 16, 4, 0, 4, 3, 0.0, 0, 0.0, ""};
+    srv_job_params p = {0, 10, 4, 16, 4, 0, 4, 3, 0.0, 0, 0.0, "", 0};
     srv_job *j = NULL;
     pt_error err = {0};
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
     p.width = 10;
     p.tile = 1000;
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
-    p = (srv_job_params){16, 16, 4, 16, 4, 0, 4, 3, 0.0, 0, NAN, ""};
+    p = (srv_job_params){16, 16, 4, 16, 4, 0, 4, 3, 0.0, 0, NAN, "", 0};
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
     p.min_gain = -1e-6;
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
     p.min_gain = INFINITY;
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
-    p = (srv_job_params){16384, 16384, 1u << 24, 16, 1, 0, 4, 3, 0.0, 0, 0.0, ""};
+    p = (srv_job_params){16384, 16384, 1u << 24, 16, 1, 0, 4, 3, 0.0, 0, 0.0, "", 0};
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_LIMIT);
     CHECK(j == NULL);
 }

@@ -23,7 +23,7 @@
 #include "tests/check.h"
 
 static const uint8_t HASH[32] = {7, 7, 7};
-static const srv_job_params PARAMS = {64, 32, 32, 32, 16, 5, 8, 3, 0.0, 0, 0.0, ""};
+static const srv_job_params PARAMS = {64, 32, 32, 32, 16, 5, 8, 3, 0.0, 0, 0.0, "", 0};
 #define JOB_ID 4u
 
 /* The RESULT payload of task t of a PARAMS job, with synthetic pixels. */
@@ -38,7 +38,7 @@ static void payload_of(srv_job *job, uint64_t t, proto_writer *w)
     uint32_t n = (task.tile.x1 - task.tile.x0) * (task.tile.y1 - task.tile.y0);
     for (uint32_t i = 0; i < n; i++)
         px[i] = (pt_pixel_acc){{0.25 * (double)(t + 1), 0.5, 0.125 * i}, 1.0, task.s1 - task.s0, 0};
-    proto_result r = {JOB_ID, t, task.tile, task.s0, task.s1, 0, 0, n, px, 0};
+    proto_result r = {JOB_ID, t, task.tile, task.s0, task.s1, 0, 0, 0, n, px, 0};
     proto_writer_init(w, (size_t)1 << 20);
     CHECK(proto_msg_encode_result(w, &r, NULL) == PT_OK);
 }
