@@ -554,6 +554,55 @@ static void verification(void)
     srv_job_free(j);
 }
 
+/* The film flags reach every task; the depth-cap counts of accepted results
+ * are summed (a duplicate's not, an implausible one refused) and, with the
+ * camera hits, kept by a checkpoint, which a job of other film flags refuses. */
+static void film_and_cap(void)
+{
+    srv_job_params p = {32, 32, 16, 16, 8, 5, 2, 3, 0.0, 0, 0.0, "", PROTO_FILM_TRANSPARENT};
+    srv_job *j = NULL, *k = NULL, *o = NULL;
+    pt_error err = {0};
+    CHECK(srv_job_new(4, &p, HASH, &j, &err) == PT_OK);
+    if (!j)
+        return;
+    static pt_pixel_acc px[16 * 16];
+    proto_task t;
+    proto_result r;
+    uint64_t want = 0;
+    for (uint32_t i = 0; srv_job_lease(j, 1, 0, 1000, &t); i++) {
+        CHECK(t.film_flags == PROTO_FILM_TRANSPARENT);
+        fake_result(&t, px, &r);
+        for (uint32_t q = 0; q < r.npixels; q++)
+            px[q].hits = q % (px[q].n + 1);
+        r.capped = (uint64_t)r.npixels * (t.s1 - t.s0) + 1; /* more than its paths */
+        CHECK(srv_job_result(j, 1, &r, &err) == SRV_INVALID && strstr(err.msg, "depth cap"));
+        r.capped = i + 1;
+        CHECK(srv_job_result(j, 1, &r, &err) == SRV_MERGED);
+        want += i + 1;
+        CHECK(srv_job_result(j, 1, &r, &err) == SRV_DUPLICATE);
+        if (i == 2)
+            break; /* the rest stay leased: the checkpoint has partial state */
+    }
+    CHECK(srv_job_paths_capped(j) == want);
+    proto_writer w;
+    proto_writer_init(&w, 1u << 24);
+    CHECK(srv_job_save(j, &w, &err) == PT_OK);
+    CHECK(srv_job_new(4, &p, HASH, &k, &err) == PT_OK);
+    CHECKF(k && srv_job_load(k, w.buf, w.len, &err) == PT_OK, "%s", err.msg);
+    if (k) {
+        CHECK(srv_job_paths_capped(k) == want);
+        const pt_film *a = srv_job_film(j), *b = srv_job_film(k);
+        CHECK(memcmp(a->px, b->px, 32 * 32 * sizeof *a->px) == 0);
+    }
+    p.film_flags = 0;
+    CHECK(srv_job_new(4, &p, HASH, &o, &err) == PT_OK);
+    CHECK(o && srv_job_load(o, w.buf, w.len, &err) == PT_ERR_FORMAT);
+    proto_writer_fini(&w);
+    srv_job_free(o);
+    srv_job_free(k);
+    srv_job_free(j);
+}
+
 int main(void)
 {
     int64_t live = pt_alloc_live();
@@ -568,6 +617,7 @@ int main(void)
     backups();
     plausible();
     verification();
+    film_and_cap();
     CHECK(pt_alloc_live() == live);
     return check_report();
 }
