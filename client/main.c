@@ -105,6 +105,10 @@ enum {
     O_MINSPP,
     O_WATCH,
     O_CAMERA,
+    O_ENV,
+    O_ENVSTRENGTH,
+    O_ENVROTATE,
+    O_BACKGROUND,
     O_TRANSPARENT
 };
 
@@ -308,6 +312,17 @@ static const char SUBMIT_HELP[] =
     "                     default; not with --target-error\n"
     "  --min-spp N        adaptive sampling: samples before a tile may stop\n"
     "                     (default: one chunk)\n"
+    "  --env PATH         environment light: an equirectangular map (Radiance .hdr\n"
+    "                     or OpenEXR, row 0 straight up, the middle column -Z); rays\n"
+    "                     leaving the scene see it. Uploaded inside the scene's\n"
+    "                     bundle; the server decodes it before queueing the job and\n"
+    "                     refuses a file that is not a map or holds NaN, Inf or\n"
+    "                     absurd values\n"
+    "  --env-strength S   the map's factor (default 1)\n"
+    "  --env-rotate DEG   turn the map about +Y (default 0)\n"
+    "  --background R,G,B a uniform environment of this radiance instead\n"
+    "                     (a scene with no emitter, no KHR_lights_punctual light and\n"
+    "                     neither of these is refused: it would render black)\n"
     "  --transparent      camera rays that leave the scene add nothing, and the EXR\n"
     "                     gets an A channel (coverage; RGB premultiplied by it)\n"
     "  --watch            then follow the job as 'ptctl watch' does (exit status 4\n"
@@ -361,11 +376,18 @@ static int cmd_submit(int argc, char **argv, globals *g)
                                          {"min-spp", required_argument, NULL, O_MINSPP},
                                          {"watch", no_argument, NULL, O_WATCH},
                                          {"camera", required_argument, NULL, O_CAMERA},
+                                         {"env", required_argument, NULL, O_ENV},
+                                         {"env-strength", required_argument, NULL, O_ENVSTRENGTH},
+                                         {"env-rotate", required_argument, NULL, O_ENVROTATE},
+                                         {"background", required_argument, NULL, O_BACKGROUND},
                                          {"transparent", no_argument, NULL, O_TRANSPARENT},
                                          {NULL, 0, NULL, 0}};
     proto_submit m;
     memset(&m, 0, sizeof m);
     m.spp = 64;
+    proto_env_none(&m.env);
+    const char *env_path = NULL;
+    double dv = 0.0, rgb[3];
     const char *name = NULL;
     int watch = 0;
     uint32_t depth = 0;
@@ -422,6 +444,25 @@ static int cmd_submit(int argc, char **argv, globals *g)
             else
                 snprintf(m.camera, sizeof m.camera, "%s", optarg);
             break;
+        case O_ENV:
+            env_path = optarg;
+            break;
+        case O_ENVSTRENGTH:
+            /* ptworker --scene's ranges: the same job renders the same there. */
+            st = pt_opt_double("--env-strength", optarg, 0.0, 1e20, &dv, &err);
+            m.env.strength = (float)dv;
+            break;
+        case O_ENVROTATE:
+            st = pt_opt_double("--env-rotate", optarg, -1e6, 1e6, &dv, &err);
+            m.env.rotate_deg = (float)dv;
+            break;
+        case O_BACKGROUND:
+            if ((st = pt_opt_rgb("--background", optarg, 1e20, rgb, &err)) == PT_OK) {
+                m.env.background = 1;
+                for (int k = 0; k < 3; k++)
+                    m.env.rgb[k] = (float)rgb[k];
+            }
+            break;
         case ':':
             return bad_usage("submit", "%s needs a value", argv[optind - 1]);
         case '?':
@@ -441,6 +482,10 @@ static int cmd_submit(int argc, char **argv, globals *g)
     if (m.target_error > 0.0 && m.min_gain > 0.0)
         return bad_usage("submit", "--target-error and --min-gain are two adaptive rules; give "
                                    "one");
+    if (env_path && m.env.background)
+        return bad_usage("submit", "--env and --background are two environments; give one");
+    if (env_path)
+        snprintf(m.env.name, sizeof m.env.name, "%s", PT_BUNDLE_ENV_NAME);
     const char *scene = argv[optind];
     m.max_depth = (uint16_t)depth;
     if (name)
@@ -450,7 +495,7 @@ static int cmd_submit(int argc, char **argv, globals *g)
 
     pt_error err = {0};
     pt_bundle *b = NULL;
-    if (pt_bundle_pack(scene, &b, &err) != PT_OK) {
+    if (pt_bundle_pack_env(scene, env_path, &b, &err) != PT_OK) {
         fprintf(stderr, "ptctl: %s\n", err.msg);
         return EXIT_ERROR;
     }

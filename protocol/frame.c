@@ -19,13 +19,59 @@
 
 static const uint32_t crc_table[256] = {CRC_64(0), CRC_64(64), CRC_64(128), CRC_64(192)};
 
-uint32_t proto_crc32c(uint32_t crc, const void *data, size_t n)
+uint32_t proto_crc32c_table(uint32_t crc, const void *data, size_t n)
 {
     const uint8_t *p = data;
     crc = ~crc;
     while (n--)
         crc = (crc >> 8) ^ crc_table[(crc ^ *p++) & 0xffu];
     return ~crc;
+}
+
+#if defined(__x86_64__) && defined(__GNUC__)
+/* SSE4.2's CRC32 instruction computes this very polynomial (Castagnoli,
+ * reflected), 8 bytes a step: about 20 times the table's speed, which the
+ * coordinator's loop spends most of its time on per result (issue 16). The
+ * instruction takes the CRC register as it is, so the ~ at each end is the
+ * same as the table's. */
+__attribute__((target("sse4.2"))) uint32_t proto_crc32c_hw(uint32_t crc, const void *data, size_t n)
+{
+    const uint8_t *p = data;
+    uint64_t c = ~crc;
+    for (; n && ((uintptr_t)p & 7u); n--)
+        c = __builtin_ia32_crc32qi((uint32_t)c, *p++);
+    for (; n >= 8; n -= 8, p += 8) {
+        uint64_t v;
+        memcpy(&v, p, 8);
+        c = __builtin_ia32_crc32di(c, v);
+    }
+    for (; n; n--)
+        c = __builtin_ia32_crc32qi((uint32_t)c, *p++);
+    return ~(uint32_t)c;
+}
+
+int proto_crc32c_hw_available(void)
+{
+    /* The runtime's CPU model is filled by a constructor before main; reading
+     * it is a load and a test, cheaper than a cached pointer's first-use race. */
+    return __builtin_cpu_supports("sse4.2");
+}
+#else
+uint32_t proto_crc32c_hw(uint32_t crc, const void *data, size_t n)
+{
+    return proto_crc32c_table(crc, data, n);
+}
+
+int proto_crc32c_hw_available(void)
+{
+    return 0;
+}
+#endif
+
+uint32_t proto_crc32c(uint32_t crc, const void *data, size_t n)
+{
+    return proto_crc32c_hw_available() ? proto_crc32c_hw(crc, data, n)
+                                       : proto_crc32c_table(crc, data, n);
 }
 
 pt_status proto_frame_decode(const uint8_t *buf, size_t len, uint32_t max_payload, proto_frame *out,

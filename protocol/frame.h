@@ -35,8 +35,9 @@
 #include "protocol/wire.h"
 
 #define PROTO_MAGIC "PTF1"
-/* 2: mutual authentication (AUTH and WELCOME, protocol/msg.h); 3: film flags in TASK
- * and SUBMIT, coverage and depth-cap counts in RESULT and JOB_INFO */
+/* 2: mutual authentication (AUTH and WELCOME, protocol/msg.h); 3: the environment light
+ * in SUBMIT and TASK (ENV), film flags in TASK and SUBMIT, coverage and depth-cap counts
+ * in RESULT and JOB_INFO */
 #define PROTO_VERSION 3u
 #define PROTO_FRAME_HEADER 12u
 #define PROTO_FRAME_TRAILER 4u
@@ -52,8 +53,16 @@ typedef struct proto_frame {
     const uint8_t *payload;
 } proto_frame;
 
-/* CRC32C of n bytes, continuing from crc (start with 0). check("123456789") = 0xE3069283. */
+/* CRC32C of n bytes, continuing from crc (start with 0). check("123456789") = 0xE3069283.
+ * With the processor's CRC32 instruction (x86-64 SSE4.2) where it has one,
+ * else from a byte table: the same values either way. */
 uint32_t proto_crc32c(uint32_t crc, const void *data, size_t n);
+
+/* The two ways, for tests and benchmarks: the table, and the instruction
+ * (call it only when proto_crc32c_hw_available() says so). */
+uint32_t proto_crc32c_table(uint32_t crc, const void *data, size_t n);
+uint32_t proto_crc32c_hw(uint32_t crc, const void *data, size_t n);
+int proto_crc32c_hw_available(void);
 
 /* Decodes the frame at the start of buf[0, len).
  *   PT_OK:        *out describes a whole frame (its payload borrowed from buf)

@@ -327,6 +327,65 @@ pt_status proto_msg_decode_work_request(const uint8_t *p, size_t len, proto_work
     return PT_OK;
 }
 
+/* ---- ENV (in SUBMIT and TASK) ---- */
+
+void proto_env_none(proto_env *e)
+{
+    memset(e, 0, sizeof *e);
+    e->strength = 1.0f;
+}
+
+int proto_env_any(const proto_env *e)
+{
+    return e->name[0] != '\0' || e->background;
+}
+
+int proto_env_same(const proto_env *a, const proto_env *b)
+{
+    /* Bits, not values: the image depends on the bits, and NaN never gets here. */
+    return strcmp(a->name, b->name) == 0 && a->background == b->background &&
+           memcmp(&a->strength, &b->strength, sizeof a->strength) == 0 &&
+           memcmp(&a->rotate_deg, &b->rotate_deg, sizeof a->rotate_deg) == 0 &&
+           memcmp(a->rgb, b->rgb, sizeof a->rgb) == 0;
+}
+
+/* Shape of an ENV block; NULL when fine. Written so that NaN fails too. */
+static const char *env_problem(const proto_env *e)
+{
+    if (!(e->strength >= 0.0f) || !isfinite(e->strength))
+        return "environment strength not finite and >= 0";
+    if (!isfinite(e->rotate_deg))
+        return "environment rotation not finite";
+    if (e->background > 1)
+        return "environment background flag not 0 or 1";
+    for (int k = 0; k < 3; k++)
+        if (!(e->rgb[k] >= 0.0f) || !isfinite(e->rgb[k]))
+            return "background colour not finite and >= 0";
+    if (e->background && e->name[0])
+        return "a map and a uniform background are two environments";
+    return NULL;
+}
+
+static void w_env(proto_writer *w, const proto_env *e)
+{
+    proto_w_str(w, e->name);
+    proto_w_f32(w, e->strength);
+    proto_w_f32(w, e->rotate_deg);
+    proto_w_u8(w, e->background);
+    for (int k = 0; k < 3; k++)
+        proto_w_f32(w, e->rgb[k]);
+}
+
+static void r_env(proto_reader *r, proto_env *e)
+{
+    proto_r_str(r, e->name, PROTO_MAX_PATH, "environment map name");
+    e->strength = proto_r_f32(r, "environment strength");
+    e->rotate_deg = proto_r_f32(r, "environment rotation");
+    e->background = proto_r_u8(r, "environment background flag");
+    for (int k = 0; k < 3; k++)
+        e->rgb[k] = proto_r_f32(r, "background colour");
+}
+
 /* ---- TASK ---- */
 
 static const char *task_problem(const proto_task *m)
@@ -340,7 +399,7 @@ static const char *task_problem(const proto_task *m)
         return "sample range s0 >= s1";
     if (m->film_flags & ~PROTO_FILM_KNOWN)
         return "unknown film flags";
-    return NULL;
+    return env_problem(&m->env);
 }
 
 pt_status proto_msg_encode_task(proto_writer *w, const proto_task *m, pt_error *err)
@@ -349,6 +408,8 @@ pt_status proto_msg_encode_task(proto_writer *w, const proto_task *m, pt_error *
     const char *why = task_problem(m);
     if (!why && !str_fits(m->camera, PROTO_MAX_NAME))
         why = "camera name over the length cap";
+    if (!why && !str_fits(m->env.name, PROTO_MAX_PATH))
+        why = "environment map name over the length cap";
     if (why)
         return bad(err, PT_ERR_ARG, "TASK", why);
     proto_w_u64(w, m->job_id);
@@ -364,6 +425,7 @@ pt_status proto_msg_encode_task(proto_writer *w, const proto_task *m, pt_error *
     proto_w_bytes(w, m->scene_hash, PROTO_HASH_SIZE);
     proto_w_u32(w, m->lease_ms);
     proto_w_str(w, m->camera);
+    w_env(w, &m->env);
     proto_w_u32(w, m->film_flags);
     return w_done(w, start, "TASK", err);
 }
@@ -385,6 +447,7 @@ pt_status proto_msg_decode_task(const uint8_t *p, size_t len, proto_task *out, p
     const uint8_t *hash = proto_r_bytes(&r, PROTO_HASH_SIZE, "scene hash");
     m.lease_ms = proto_r_u32(&r, "lease");
     proto_r_str(&r, m.camera, PROTO_MAX_NAME, "camera");
+    r_env(&r, &m.env);
     m.film_flags = proto_r_u32(&r, "film flags");
     pt_status st = proto_r_finish(&r, "TASK", err);
     if (st != PT_OK)
@@ -671,7 +734,7 @@ static const char *submit_problem(const proto_submit *m)
         return "bundle size is 0";
     if (m->film_flags & ~PROTO_FILM_KNOWN)
         return "unknown film flags";
-    return NULL;
+    return env_problem(&m->env);
 }
 
 pt_status proto_msg_encode_submit(proto_writer *w, const proto_submit *m, pt_error *err)
@@ -679,7 +742,9 @@ pt_status proto_msg_encode_submit(proto_writer *w, const proto_submit *m, pt_err
     size_t start = w->len;
     const char *why = !str_fits(m->name, PROTO_MAX_NAME)     ? "name over the length cap"
                       : !str_fits(m->camera, PROTO_MAX_NAME) ? "camera name over the length cap"
-                                                             : submit_problem(m);
+                      : !str_fits(m->env.name, PROTO_MAX_PATH)
+                          ? "environment map name over the length cap"
+                          : submit_problem(m);
     if (why)
         return bad(err, PT_ERR_ARG, "SUBMIT", why);
     proto_w_str(w, m->name);
@@ -695,6 +760,7 @@ pt_status proto_msg_encode_submit(proto_writer *w, const proto_submit *m, pt_err
     proto_w_bytes(w, m->bundle_hash, PROTO_HASH_SIZE);
     proto_w_str(w, m->camera);
     proto_w_f64(w, m->min_gain);
+    w_env(w, &m->env);
     proto_w_u32(w, m->film_flags);
     return w_done(w, start, "SUBMIT", err);
 }
@@ -716,6 +782,7 @@ pt_status proto_msg_decode_submit(const uint8_t *p, size_t len, proto_submit *ou
     const uint8_t *hash = proto_r_bytes(&r, PROTO_HASH_SIZE, "bundle hash");
     proto_r_str(&r, m.camera, PROTO_MAX_NAME, "camera");
     m.min_gain = proto_r_f64(&r, "min gain");
+    r_env(&r, &m.env);
     m.film_flags = proto_r_u32(&r, "film flags");
     pt_status st = proto_r_finish(&r, "SUBMIT", err);
     if (st != PT_OK)

@@ -74,6 +74,7 @@ const char *proto_msg_type_name(uint32_t type);
 
 /* Caps (bytes for strings, entries for lists). */
 #define PROTO_MAX_NAME 64u
+#define PROTO_MAX_PATH 255u /* file names in JOB_INFO and ENV */
 #define PROTO_MAX_BUILD_ID 64u
 #define PROTO_MAX_ERROR_TEXT 1024u
 #define PROTO_MAX_SLOTS 1024u                             /* WORK_REQUEST slots */
@@ -169,6 +170,31 @@ typedef struct proto_work_request {
     uint16_t slots;
 } proto_work_request;
 
+/* ENV (inside SUBMIT and TASK): the job's environment light, the light that
+ * rays leaving the scene see (common/render/env.h)
+ *   0    2+e  str  the map's file name in the bundle, relative to the entry
+ *                  file's folder, e <= PROTO_MAX_PATH ("": no map); the
+ *                  coordinator accepts only PT_BUNDLE_ENV_NAME
+ *   2+e  4    f32  strength: the map's factor (finite, >= 0)
+ *   6+e  4    f32  rotation about +Y in degrees (finite)
+ *   10+e 1    u8   1: a uniform environment of the colour below (then no map), else 0
+ *   11+e 12   f32×3 that colour, linear RGB radiance (each finite, >= 0)
+ *   size 23+e
+ * No map and no colour: no environment (strength and rotation unused). */
+typedef struct proto_env {
+    char name[PROTO_MAX_PATH + 1]; /* NUL-terminated; "" no map */
+    float strength, rotate_deg;
+    uint8_t background; /* 1: uniform, of rgb */
+    float rgb[3];
+} proto_env;
+
+/* The default: no environment, strength 1, no rotation. */
+void proto_env_none(proto_env *e);
+/* 1 when e lights anything (a map or a uniform colour). */
+int proto_env_any(const proto_env *e);
+/* 1 when a and b are the same environment, bit for bit. */
+int proto_env_same(const proto_env *a, const proto_env *b);
+
 /* TASK
  *   0    8    u64      job id
  *   8    8    u64      task id (unique within the job)
@@ -187,8 +213,9 @@ typedef struct proto_work_request {
  *   88   4    u32      lease in milliseconds (heartbeat before it runs out)
  *   92   2+c  str      camera name, c <= PROTO_MAX_NAME ("": the scene's first camera,
  *                      or a view framing the scene when it has none)
- *   94+c 4    u32      film flags (PROTO_FILM_*; unknown bits refused)
- *   size 98+c */
+ *   94+c 23+e ENV      the environment light (ENV layout, above)
+ *   117+c+e 4 u32      film flags (PROTO_FILM_*; unknown bits refused)
+ *   size 121+c+e */
 typedef struct proto_task {
     uint64_t job_id, task_id;
     pt_rect tile;
@@ -199,7 +226,8 @@ typedef struct proto_task {
     uint8_t scene_hash[PROTO_HASH_SIZE];
     uint32_t lease_ms;
     char camera[PROTO_MAX_NAME + 1]; /* NUL-terminated; "" the default view */
-    uint32_t film_flags;             /* PROTO_FILM_* */
+    proto_env env;
+    uint32_t film_flags; /* PROTO_FILM_* */
 } proto_task;
 
 /* SCENE_GET
@@ -290,7 +318,6 @@ typedef struct proto_heartbeat {
  * of the whole file (the bundle announced by SUBMIT; the EXR sent for FETCH),
  * so the receiver checks what it assembled. */
 
-#define PROTO_MAX_PATH 255u  /* file names in JOB_INFO */
 #define PROTO_MAX_JOBS 4096u /* entries in one JOB_LIST */
 
 /* JOB_REF (STATUS, WATCH, CANCEL, FETCH, SUBMITTED)
@@ -315,8 +342,10 @@ typedef struct proto_job_ref {
  *   76+a 2+c  str  camera name, c <= PROTO_MAX_NAME ("": the scene's first camera)
  *   78+a+c 8  f64  min gain for adaptive sampling, the lowest-mean-error rule
  *                  (0: off; finite, >= 0; see pt_tile_stops)
- *   86+a+c 4  u32  film flags (PROTO_FILM_*; unknown bits refused)
- *   size 90+a+c
+ *   86+a+c 23+e ENV the environment light (ENV layout, above); a map named
+ *                  here travels in the bundle
+ *   109+a+c+e 4 u32 film flags (PROTO_FILM_*; unknown bits refused)
+ *   size 113+a+c+e
  * The decoder checks shape only (width and height both 0 or both > 0, spp > 0,
  * size > 0, target error and min gain finite and >= 0); caps, and whether the
  * two rules may be combined, are the server's business. */
@@ -331,6 +360,7 @@ typedef struct proto_submit {
     uint8_t bundle_hash[PROTO_HASH_SIZE];
     char camera[PROTO_MAX_NAME + 1]; /* NUL-terminated; "" the default view */
     double min_gain;
+    proto_env env;
     uint32_t film_flags; /* PROTO_FILM_* */
 } proto_submit;
 

@@ -444,6 +444,7 @@ int srv_job_lease(srv_job *j, uint64_t owner, uint64_t now_ms, uint32_t lease_ms
     memcpy(task->scene_hash, j->hash, 32);
     task->lease_ms = lease_ms;
     snprintf(task->camera, sizeof task->camera, "%s", j->p.camera);
+    task->env = j->p.env;
     task->film_flags = j->p.film_flags;
     return 1;
 }
@@ -972,10 +973,12 @@ uint32_t srv_job_tiles(const srv_job *j)
 #define CKPT_VERSION 4u
 #define CKPT_OLDEST_VERSION 2u   /* no min gain: read as 0 */
 #define CKPT_MIN_GAIN_VERSION 3u /* the first with the min gain */
-/* The first with the film flags, the depth-cap count and each pixel's camera
- * hits; older pixels read as fully covered (their jobs are never transparent,
- * so the count is not shown). */
-#define CKPT_FILM_VERSION 4u
+/* The first with the environment (older: none), and the first with the film
+ * flags, the depth-cap count and each pixel's camera hits; older pixels read
+ * as fully covered (their jobs are never transparent, so the count is not
+ * shown). One format version brought both: srv_job_params_read takes one flag. */
+#define CKPT_ENV_VERSION 4u
+#define CKPT_FILM_VERSION CKPT_ENV_VERSION
 
 /* A pixel as the checkpoint stores it: RESULT's pixel layout (msg.h). */
 static void put_acc(proto_writer *w, const pt_pixel_acc *a)
@@ -1012,10 +1015,16 @@ void srv_job_params_write(proto_writer *w, const srv_job_params *p)
     proto_w_f64(w, p->target_error);
     proto_w_f64(w, p->min_gain);
     proto_w_str(w, p->camera);
+    proto_w_str(w, p->env.name);
+    proto_w_f32(w, p->env.strength);
+    proto_w_f32(w, p->env.rotate_deg);
+    proto_w_u8(w, p->env.background);
+    for (int k = 0; k < 3; k++)
+        proto_w_f32(w, p->env.rgb[k]);
     proto_w_u32(w, p->film_flags);
 }
 
-void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, int has_film)
+void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, int has_env_film)
 {
     p->width = proto_r_u32(r, "width");
     p->height = proto_r_u32(r, "height");
@@ -1030,7 +1039,17 @@ void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, i
     p->min_gain = has_min_gain ? proto_r_f64(r, "min gain") : 0.0;
     p->camera[0] = '\0';
     proto_r_str(r, p->camera, PROTO_MAX_NAME, "camera");
-    p->film_flags = has_film ? proto_r_u32(r, "film flags") : 0;
+    proto_env_none(&p->env);
+    p->film_flags = 0;
+    if (!has_env_film)
+        return;
+    proto_r_str(r, p->env.name, PROTO_MAX_PATH, "environment map name");
+    p->env.strength = proto_r_f32(r, "environment strength");
+    p->env.rotate_deg = proto_r_f32(r, "environment rotation");
+    p->env.background = proto_r_u8(r, "environment background flag");
+    for (int k = 0; k < 3; k++)
+        p->env.rgb[k] = proto_r_f32(r, "background colour");
+    p->film_flags = proto_r_u32(r, "film flags");
     if (r->status == PT_OK && (p->film_flags & ~PROTO_FILM_KNOWN))
         proto_r_fail(r, PT_ERR_FORMAT, "unknown", "film flags");
 }
@@ -1092,7 +1111,7 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
     srv_job_params p;
     int film = version >= CKPT_FILM_VERSION;
     size_t acc_size = film ? PROTO_RESULT_PIXEL_SIZE : PROTO_RESULT_PIXEL_SIZE - 4;
-    srv_job_params_read(&r, &p, version >= CKPT_MIN_GAIN_VERSION, film);
+    srv_job_params_read(&r, &p, version >= CKPT_MIN_GAIN_VERSION, version >= CKPT_ENV_VERSION);
     uint64_t capped = film ? proto_r_u64(&r, "paths capped") : 0;
     uint32_t ntiles = proto_r_u32(&r, "tiles"), nchunks = proto_r_u32(&r, "chunks");
     if (r.status != PT_OK)
@@ -1103,8 +1122,8 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
         p.rr_depth != j->p.rr_depth || p.min_spp != j->p.min_spp ||
         memcmp(&p.target_error, &j->p.target_error, sizeof p.target_error) != 0 ||
         memcmp(&p.min_gain, &j->p.min_gain, sizeof p.min_gain) != 0 ||
-        strcmp(p.camera, j->p.camera) != 0 || p.film_flags != j->p.film_flags ||
-        ntiles != j->ntiles || nchunks != j->nchunks)
+        strcmp(p.camera, j->p.camera) != 0 || !proto_env_same(&p.env, &j->p.env) ||
+        p.film_flags != j->p.film_flags || ntiles != j->ntiles || nchunks != j->nchunks)
         return pt_error_set(err, PT_ERR_FORMAT,
                             "checkpoint is of another job or other settings "
                             "(job %llu, %ux%u, %u spp)",

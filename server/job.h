@@ -65,7 +65,8 @@ typedef struct srv_job_params {
     uint32_t min_spp;                /* adaptive sampling: no tile stops before this many samples */
     double min_gain;                 /* adaptive sampling: 0 = off, else pt_tile_gain threshold */
     char camera[PROTO_MAX_NAME + 1]; /* the camera's name; "" the scene's default view */
-    uint32_t film_flags;             /* PROTO_FILM_* (transparent: the EXR gets A) */
+    proto_env env;       /* the environment light; its map is a file of the job's bundle */
+    uint32_t film_flags; /* PROTO_FILM_* (transparent: the EXR gets A) */
 } srv_job_params;
 
 #define SRV_MAX_TASKS (64u * 1024u * 1024u)
@@ -213,12 +214,15 @@ int srv_job_owner_active(const srv_job *job, uint64_t owner);
 /* The params block as the checkpoint and the state folder's queue file both
  * store it: nine u32 (width, height, spp, tile, chunk, seed, max depth, rr
  * depth, min spp), f64 target error, f64 min gain (in the formats that have
- * it; read as 0 from older ones), str camera, u32 film flags (likewise; an
- * unknown bit is a format error). srv_job_params_read reads a block with or
- * without the min gain and the film flags, as its file's format version says;
- * a failure is left in r's status. */
+ * it; read as 0 from older ones), str camera, then (in the formats that have
+ * them: no environment and no film flags from older ones) the environment: str
+ * map name, f32 strength, f32 rotation, u8 background flag, f32 x3 colour; and
+ * u32 film flags (an unknown bit is a format error). srv_job_params_read reads
+ * a block with or without the min gain and with or without both the
+ * environment and the film flags (one format version brought both), as its
+ * file's format version says; a failure is left in r's status. */
 void srv_job_params_write(proto_writer *w, const srv_job_params *p);
-void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, int has_film);
+void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, int has_env_film);
 
 /* Checkpoints. srv_job_save appends the merged state (per tile the chunks
  * merged and whether adaptive sampling stopped it, the held early results, the

@@ -6,6 +6,8 @@
 #include "common/base/alloc.h"
 #include "common/base/fsutil.h"
 #include "common/base/hash.h"
+#include "common/render/env.h"
+#include "common/render/render.h"
 #include "common/render/tile.h"
 #include "common/scene/bundle.h"
 #include "common/scene/scene.h"
@@ -47,13 +49,28 @@ static pt_status setup_single(srv_server *s, pt_error *err)
         jp.height = pt_camera_height(scene->camera.aspect, jp.width, PT_RENDER_MAX_SIDE);
     }
     uint32_t ntris = scene->num_triangles;
+    /* A map is decoded once here, as an upload's is, so a bad one fails now
+     * with its reason, not on every worker. */
+    if (cfg->env_path) {
+        pt_env *env = NULL;
+        if ((st = pt_env_load(cfg->env_path, jp.env.strength, jp.env.rotate_deg, &env, err)) !=
+            PT_OK) {
+            pt_scene_free(scene);
+            return st;
+        }
+        pt_env_free(env);
+        snprintf(jp.env.name, sizeof jp.env.name, "%s", PT_BUNDLE_ENV_NAME);
+    }
+    st = pt_render_check_lit(scene, proto_env_any(&jp.env), cfg->scene_path, err);
     pt_scene_free(scene);
+    if (st != PT_OK)
+        return st;
     srv_entry *j = pt_calloc(1, sizeof *j);
     if (!j)
         return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
     srv_queue_insert(s, j);
     s->single = j;
-    if ((st = pt_bundle_pack(cfg->scene_path, &j->bundle, err)) != PT_OK)
+    if ((st = pt_bundle_pack_env(cfg->scene_path, cfg->env_path, &j->bundle, err)) != PT_OK)
         return st;
     j->rec.id = j->rec.seq = 1;
     j->rec.state = PROTO_JOB_QUEUED;

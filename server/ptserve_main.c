@@ -49,7 +49,9 @@ static void usage(FILE *f)
         "                         token (--token-file, required with this) is the admin's\n"
         "                         and the workers'. Without it every client is an admin\n"
         "                         (docs/OPERATIONS.md, \"Clients and admins\")\n"
-        "  (--tile, --chunk and --max-depth set the defaults of submitted jobs)\n"
+        "  (--tile, --chunk and --max-depth set the defaults of submitted jobs; a\n"
+        "  job's --env or --background is given to ptctl submit, and its map is\n"
+        "  uploaded with the scene and checked before the job is queued)\n"
         "\n"
         "one-job mode:\n"
         "  -o, --output PATH      the EXR to write (required)\n"
@@ -80,6 +82,16 @@ static void usage(FILE *f)
         "                         the first; off by default; not with --target-error\n"
         "  --min-spp N            adaptive sampling: samples before a tile may stop\n"
         "                         (default: one chunk)\n"
+        "  --env PATH             environment light: an equirectangular map (Radiance\n"
+        "                         .hdr or OpenEXR, row 0 straight up, the middle column\n"
+        "                         -Z); rays leaving the scene see it. It travels to the\n"
+        "                         workers inside the scene bundle; refused at start when\n"
+        "                         it cannot be read or holds NaN, Inf or absurd values\n"
+        "  --env-strength S       the map's factor (default 1)\n"
+        "  --env-rotate DEG       turn the map about +Y (default 0)\n"
+        "  --background R,G,B     a uniform environment of this radiance instead\n"
+        "                         (a scene with no emitter, no KHR_lights_punctual light\n"
+        "                         and neither of these is refused: it would render black)\n"
         "  --transparent          camera rays that leave the scene add nothing, and the\n"
         "                         EXR gets an A channel (coverage; RGB premultiplied);\n"
         "                         one-job mode (queued jobs: ptctl submit --transparent)\n"
@@ -135,7 +147,9 @@ int main(int argc, char **argv)
     c.caps.max_spp = 65536;
     c.caps.max_scene = 512ull << 20;
     c.caps.max_queued = 64;
-    double lease = 20.0, handshake = 10.0, grace = 30.0;
+    double lease = 20.0, handshake = 10.0, grace = 30.0, dv = 0.0, rgb[3];
+    int env_opts = 0; /* --env-strength or --env-rotate given */
+    proto_env_none(&c.job.env);
     enum {
         O_LOCAL = 256,
         O_WTHREADS,
@@ -170,6 +184,10 @@ int main(int argc, char **argv)
         O_GRACE,
         O_MINRATE,
         O_VERIFY,
+        O_ENV,
+        O_ENVSTRENGTH,
+        O_ENVROTATE,
+        O_BACKGROUND,
         O_TRANSPARENT
     };
     static const struct option opts[] = {
@@ -208,6 +226,10 @@ int main(int argc, char **argv)
         {"max-handshakes-per-ip", required_argument, NULL, O_MAXHSIP},
         {"frame-grace", required_argument, NULL, O_GRACE},
         {"min-rate", required_argument, NULL, O_MINRATE},
+        {"env", required_argument, NULL, O_ENV},
+        {"env-strength", required_argument, NULL, O_ENVSTRENGTH},
+        {"env-rotate", required_argument, NULL, O_ENVROTATE},
+        {"background", required_argument, NULL, O_BACKGROUND},
         {"quiet", no_argument, NULL, 'q'},
         {"help", no_argument, NULL, 'h'},
         {"version", no_argument, NULL, 'V'},
@@ -333,6 +355,28 @@ int main(int argc, char **argv)
             if ((st = pt_opt_u32("--min-rate", optarg, 1, 1u << 20, &v, &err)) == PT_OK)
                 c.limits.min_rate = v << 10;
             break;
+        case O_ENV:
+            c.env_path = optarg;
+            break;
+        case O_ENVSTRENGTH:
+            /* The ranges of ptworker --scene's options, so the same job is
+             * accepted by both. */
+            st = pt_opt_double("--env-strength", optarg, 0.0, 1e20, &dv, &err);
+            c.job.env.strength = (float)dv;
+            env_opts = 1;
+            break;
+        case O_ENVROTATE:
+            st = pt_opt_double("--env-rotate", optarg, -1e6, 1e6, &dv, &err);
+            c.job.env.rotate_deg = (float)dv;
+            env_opts = 1;
+            break;
+        case O_BACKGROUND:
+            if ((st = pt_opt_rgb("--background", optarg, 1e20, rgb, &err)) == PT_OK) {
+                c.job.env.background = 1;
+                for (int k = 0; k < 3; k++)
+                    c.job.env.rgb[k] = (float)rgb[k];
+            }
+            break;
         case 'q':
             c.quiet = 1;
             break;
@@ -362,6 +406,15 @@ int main(int argc, char **argv)
         return 2;
     } else if (c.output_dir) {
         fprintf(stderr, "ptserve: --output-dir is for queue mode (--state-dir)\n");
+        return 2;
+    }
+    if (c.state_dir && (c.env_path || c.job.env.background || env_opts)) {
+        fprintf(stderr, "ptserve: --env, --env-strength, --env-rotate and --background are a "
+                        "job's: in queue mode give them to ptctl submit\n");
+        return 2;
+    }
+    if (c.env_path && c.job.env.background) {
+        fprintf(stderr, "ptserve: --env and --background are two environments; give one\n");
         return 2;
     }
     if (c.clients_path && (!c.token_path || !c.state_dir)) {

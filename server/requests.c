@@ -147,6 +147,24 @@ static void on_submit(srv_server *s, srv_conn *c, const proto_frame *f)
                             "rules; a job takes one");
         return;
     }
+    /* The map must be the one file the bundle keeps for it: the server opens
+     * no other path a client names (server/upload.c decodes it). */
+    if (m.env.name[0] && strcmp(m.env.name, PT_BUNDLE_ENV_NAME) != 0) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL,
+                            "environment map '%s': a submitted map must be the bundle's "
+                            "'" PT_BUNDLE_ENV_NAME "' (ptctl submit --env puts it there)",
+                            m.env.name);
+        return;
+    }
+    /* ptworker --scene's and ptserve's ranges for the same options. */
+    if (m.env.strength > 1e20f || m.env.rotate_deg < -1e6f || m.env.rotate_deg > 1e6f ||
+        m.env.rgb[0] > 1e20f || m.env.rgb[1] > 1e20f || m.env.rgb[2] > 1e20f) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL,
+                            "environment strength %g, rotation %g or background colour is out "
+                            "of range (strength and colour <= 1e20, |rotation| <= 1e6)",
+                            (double)m.env.strength, (double)m.env.rotate_deg);
+        return;
+    }
     if (owner_unfinished(s, c->name) >= cap->max_queued) {
         srv_conn_send_error(s, c, PROTO_E_LIMIT,
                             "%s already has %u unfinished jobs, this "
@@ -190,6 +208,7 @@ static void submitted_params(const srv_config *cfg, const srv_upload *k, srv_job
     p.width = m->width;
     p.height = m->height;
     snprintf(p.camera, sizeof p.camera, "%s", m->camera);
+    p.env = m->env;
     if (p.width == 0) {
         p.width = 512;
         p.height = pt_camera_height(k->aspect, p.width, cfg->caps.max_side);

@@ -65,6 +65,8 @@ typedef struct srv_config {
     srv_caps caps;           /* queue mode: what a client may ask for */
     srv_peer_limits limits;  /* memory, connections and rates of peers */
     int quiet;
+    const char *env_path; /* one-job mode: the environment map packed with the scene
+                           * (job.env then names it PT_BUNDLE_ENV_NAME); NULL: none */
 } srv_config;
 
 /* Runs the coordinator. One-job mode: exit status 0 when the image is

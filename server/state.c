@@ -21,13 +21,17 @@
 #define LOG_MAGIC 0x4c525450u   /* "PTRL" */
 #define STATE_VERSION 4u
 /* The oldest format still read: version 2 has no min gain (read as 0, the
- * rule off), so a state folder survives the upgrade that brought it. */
+ * rule off), versions 2 and 3 no environment and no film flags (read as
+ * none) and protocol 2's RESULT in the log, so a state folder survives the
+ * upgrades that brought them. */
 #define STATE_OLDEST_VERSION 2u
 #define STATE_MIN_GAIN_VERSION 3u /* the first with the min gain */
-/* The first with the film flags in the queue file's job params and protocol
- * 3's RESULT (the depth-cap count, each pixel's camera hits) in the log; an
- * older log is read through log_upgrade_record and rewritten. */
-#define STATE_FILM_VERSION 4u
+/* The first with the environment and the film flags in the queue file's job
+ * params, and with protocol 3's RESULT (the depth-cap count, each pixel's
+ * camera hits) in the log; an older log is read through log_upgrade_record and
+ * rewritten. One format version brought both. */
+#define STATE_ENV_VERSION 4u
+#define STATE_FILM_VERSION STATE_ENV_VERSION
 #define LOG_HEADER 16u
 #define MAX_QUEUE_BYTES (256u << 20)
 #define MAX_CKPT_BYTES ((size_t)8 << 30)
@@ -282,7 +286,7 @@ pt_status srv_state_load_queue(srv_state *st, srv_job_record **recs, uint32_t *n
         proto_r_str(&r, j->output, sizeof j->output - 1, "output");
         j->submitted = proto_r_u64(&r, "submitted");
         srv_job_params_read(&r, &j->params, version >= STATE_MIN_GAIN_VERSION,
-                            version >= STATE_FILM_VERSION);
+                            version >= STATE_ENV_VERSION);
         const uint8_t *h = proto_r_bytes(&r, 32, "scene hash");
         if (h)
             memcpy(j->hash, h, 32);

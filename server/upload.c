@@ -10,6 +10,8 @@
 #include "common/base/alloc.h"
 #include "common/base/fsutil.h"
 #include "common/base/hash.h"
+#include "common/render/env.h"
+#include "common/render/render.h"
 #include "common/scene/scene.h"
 #include "server/loop.h"
 #include "server/requests.h"
@@ -71,21 +73,46 @@ static void verify_upload(srv_upload *k)
         verify_refuse(k, PROTO_E_PROTOCOL, "bad scene bundle: %s", err.msg);
         return;
     }
-    char entry[PATH_MAX];
+    const proto_env *ev = &k->m.env;
+    /* SUBMIT named PT_BUNDLE_ENV_NAME (server/requests.c); it is read at the
+     * bundle's top, which is the entry file's folder, where workers look. */
+    if (ev->name[0] &&
+        (!pt_bundle_has_file(k->bundle, ev->name, NULL) || !pt_bundle_entry_at_top(k->bundle))) {
+        verify_refuse(k, PROTO_E_PROTOCOL,
+                      "environment map refused: the bundle holds no '%s' beside its entry file",
+                      ev->name);
+        return;
+    }
+    char entry[PATH_MAX], env_path[PATH_MAX + 32];
     pt_remove_tree(k->tmp);
     pt_scene *scene = NULL;
+    const char *what = "scene refused";
     st = pt_bundle_unpack(k->bundle, k->tmp, entry, sizeof entry, &err);
     if (st == PT_OK) {
         pt_scene_opts so = {0};
         so.camera_name = k->m.camera[0] ? k->m.camera : NULL;
         st = pt_scene_load(entry, &so, &scene, &err);
     }
+    if (st == PT_OK && ev->name[0]) {
+        /* Decoded whole, every texel checked (common/image/envmap.h), so a
+         * missing, truncated, non-image or absurd map is refused here, not
+         * by every worker. The file is the bundle's own, just unpacked. */
+        pt_env *env = NULL;
+        snprintf(env_path, sizeof env_path, "%s/%s", k->tmp, ev->name);
+        st = pt_env_load(env_path, ev->strength, ev->rotate_deg, &env, &err);
+        pt_env_free(env);
+        if (st != PT_OK)
+            what = "environment map refused";
+    }
+    if (st == PT_OK && (st = pt_render_check_lit(scene, proto_env_any(ev), entry, &err)) != PT_OK)
+        what = "scene refused";
     pt_remove_tree(k->tmp);
     if (st != PT_OK) {
+        pt_scene_free(scene);
         /* The client learns of its own files only: names inside the bundle. */
         strip_folder(err.msg, k->tmp);
-        verify_refuse(k, st == PT_ERR_NOMEM ? PROTO_E_INTERNAL : PROTO_E_PROTOCOL,
-                      "scene refused: %s", err.msg);
+        verify_refuse(k, st == PT_ERR_NOMEM ? PROTO_E_INTERNAL : PROTO_E_PROTOCOL, "%s: %s", what,
+                      err.msg);
         return;
     }
     const char *base = strrchr(entry, '/');

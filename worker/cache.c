@@ -16,6 +16,7 @@
 #include "common/base/alloc.h"
 #include "common/base/fsutil.h"
 #include "common/base/hash.h"
+#include "common/render/env.h"
 #include "common/scene/bundle.h"
 #include "common/scene/scene.h"
 
@@ -275,6 +276,8 @@ struct wrk_scene_ref {
     uint8_t hash[WRK_HASH_SIZE];
     pt_render_params params;
     char camera[64]; /* pt_camera's name: "" the default view */
+    proto_env env;   /* the key's environment; proto_env_none when there is none */
+    pt_env *envobj;  /* built from it, NULL for none; outlives renderer */
     pt_scene *scene;
     pt_renderer *renderer;
     int state;
@@ -316,6 +319,7 @@ static void entry_free(wrk_scene_ref *e)
     if (!e)
         return;
     pt_renderer_free(e->renderer);
+    pt_env_free(e->envobj);
     pt_scene_free(e->scene);
     pt_free(e);
 }
@@ -383,15 +387,41 @@ static int same_params(const pt_render_params *a, const pt_render_params *b)
            a->light_strategy == b->light_strategy && a->transparent == b->transparent;
 }
 
+/* The environment of e, built once: the map from the scene's folder (the
+ * bundle's file PT_BUNDLE_ENV_NAME beside the entry file), or a uniform one. */
+static pt_status build_env(wrk_scene_ref *e, const char *entry_path)
+{
+    const proto_env *v = &e->env;
+    if (v->background)
+        return pt_env_uniform(pt_v3(v->rgb[0], v->rgb[1], v->rgb[2]), &e->envobj, &e->err);
+    if (!v->name[0])
+        return PT_OK;
+    if (strcmp(v->name, PT_BUNDLE_ENV_NAME) != 0)
+        return pt_error_set(&e->err, PT_ERR_ARG,
+                            "environment map '%.64s' is not the bundle's " PT_BUNDLE_ENV_NAME,
+                            v->name);
+    const char *slash = strrchr(entry_path, '/');
+    int dirlen = slash ? (int)(slash - entry_path) : 1;
+    char path[4096];
+    int n = snprintf(path, sizeof path, "%.*s/%s", dirlen, slash ? entry_path : ".", v->name);
+    if (n < 0 || (size_t)n >= sizeof path)
+        return pt_error_set(&e->err, PT_ERR_LIMIT, "%s: environment map path too long", entry_path);
+    return pt_env_load(path, v->strength, v->rotate_deg, &e->envobj, &e->err);
+}
+
 /* Loading and building, outside the lock. */
 static pt_status build(wrk_scene_ref *e, const char *entry_path)
 {
     pt_scene_opts so;
     memset(&so, 0, sizeof so);
     so.camera_name = e->camera[0] ? e->camera : NULL;
-    pt_status st = pt_scene_load(entry_path, &so, &e->scene, &e->err);
+    pt_status st = build_env(e, entry_path);
     if (st != PT_OK)
         return st;
+    st = pt_scene_load(entry_path, &so, &e->scene, &e->err);
+    if (st != PT_OK)
+        return st;
+    e->params.env = e->envobj;
     return pt_renderer_new(e->scene, &e->params, &e->renderer, &e->err);
 }
 
@@ -410,6 +440,20 @@ pt_status wrk_scenes_acquire(wrk_scenes *s, const uint8_t hash[WRK_HASH_SIZE],
                              const pt_render_params *params, const char *camera,
                              const char *entry_path, wrk_scene_ref **out, pt_error *err)
 {
+    return wrk_scenes_acquire_env(s, hash, params, camera, NULL, entry_path, out, err);
+}
+
+pt_status wrk_scenes_acquire_env(wrk_scenes *s, const uint8_t hash[WRK_HASH_SIZE],
+                                 const pt_render_params *params, const char *camera,
+                                 const proto_env *env, const char *entry_path, wrk_scene_ref **out,
+                                 pt_error *err)
+{
+    /* One key for "no environment", however the fields unused then were set. */
+    proto_env key;
+    if (env && proto_env_any(env))
+        key = *env;
+    else
+        proto_env_none(&key);
     if (!camera)
         camera = "";
     if (strlen(camera) >= sizeof((wrk_scene_ref *)0)->camera)
@@ -418,7 +462,7 @@ pt_status wrk_scenes_acquire(wrk_scenes *s, const uint8_t hash[WRK_HASH_SIZE],
     pthread_mutex_lock(&s->mu);
     wrk_scene_ref *e = s->head;
     while (e && !(memcmp(e->hash, hash, WRK_HASH_SIZE) == 0 && same_params(&e->params, params) &&
-                  strcmp(e->camera, camera) == 0))
+                  strcmp(e->camera, camera) == 0 && proto_env_same(&e->env, &key)))
         e = e->next;
     if (e) {
         e->refs++;
@@ -441,6 +485,8 @@ pt_status wrk_scenes_acquire(wrk_scenes *s, const uint8_t hash[WRK_HASH_SIZE],
     }
     memcpy(e->hash, hash, WRK_HASH_SIZE);
     e->params = *params;
+    e->params.env = NULL;
+    e->env = key;
     snprintf(e->camera, sizeof e->camera, "%s", camera);
     e->state = E_BUILDING;
     e->refs = 1;

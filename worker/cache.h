@@ -14,8 +14,9 @@
  * The disk cache is used by one thread at a time (the I/O thread).
  *
  * In memory (wrk_scenes): loaded scenes with their renderer, keyed by scene
- * hash + render parameters, at most `max` of them kept while unused (least
- * recently used evicted). Thread-safe: the first thread that asks for a key
+ * hash + render parameters + camera + environment (whose pt_env, built once
+ * from the map in the scene's folder, lives and dies with the entry), at most `max` of them kept
+ * while unused (least recently used evicted). Thread-safe: the first thread that asks for a key
  * loads and builds it outside the lock while later askers wait for it, so a
  * scene is built once however many render threads want it at the same time.
  */
@@ -27,6 +28,7 @@
 
 #include "common/base/error.h"
 #include "common/render/render.h"
+#include "protocol/msg.h"
 
 #define WRK_HASH_SIZE 32u
 
@@ -74,6 +76,14 @@ void wrk_scenes_free(wrk_scenes *s);
 pt_status wrk_scenes_acquire(wrk_scenes *s, const uint8_t hash[WRK_HASH_SIZE],
                              const pt_render_params *params, const char *camera,
                              const char *entry_path, wrk_scene_ref **out, pt_error *err);
+/* As wrk_scenes_acquire, with the job's environment light (NULL: none). A
+ * map is read from the scene's folder (entry_path's), and only under the one
+ * name a bundle keeps for it (PT_BUNDLE_ENV_NAME: PT_ERR_ARG for another);
+ * params->env is ignored (the entry's own pt_env is used). */
+pt_status wrk_scenes_acquire_env(wrk_scenes *s, const uint8_t hash[WRK_HASH_SIZE],
+                                 const pt_render_params *params, const char *camera,
+                                 const proto_env *env, const char *entry_path, wrk_scene_ref **out,
+                                 pt_error *err);
 const pt_renderer *wrk_scene_renderer(const wrk_scene_ref *ref);
 void wrk_scenes_release(wrk_scenes *s, wrk_scene_ref *ref); /* accepts NULL */
 

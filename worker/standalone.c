@@ -128,13 +128,9 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
     }
     p.env = env;
     p.transparent = o->transparent ? 1u : 0u;
-    if (!(scene->features & (PT_FEAT_EMITTERS | PT_FEAT_PUNCTUAL)) && !env) {
+    if (pt_render_check_lit(scene, env != NULL, o->scene_path, &err) != PT_OK) {
         /* It would render black: say how to light it instead. */
-        fprintf(stderr,
-                "ptworker: %s has no light: no emissive material and no KHR_lights_punctual "
-                "light; light it with --env MAP.hdr (an environment map) or --background "
-                "R,G,B (a uniform sky)\n",
-                o->scene_path);
+        fprintf(stderr, "ptworker: %s\n", err.msg);
         goto done;
     }
     if (pt_renderer_new(scene, &p, &r, &err) != PT_OK ||

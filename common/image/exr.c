@@ -456,6 +456,17 @@ pt_status pt_exr_read(const char *path, pt_image **out, pt_exr_meta *meta, pt_er
                           path, w, h);
         goto fail;
     }
+    /* Deflate, the strongest of the lossless codecs, expands a byte to at
+     * most 1032; at 6 bytes a pixel (half R, G, B) that is 172 pixels a
+     * byte. A header claiming more pixels than its file can hold is refused
+     * before the allocation, so that a few hundred hostile bytes cannot make
+     * the reader ask for gigabytes (a map arrives from clients). */
+    if (out && (uint64_t)w * (uint64_t)h > (uint64_t)s.size * PT_EXR_MAX_PIXELS_PER_BYTE + 65536) {
+        st = pt_error_set(err, PT_ERR_FORMAT,
+                          "EXR %s: %" PRId64 "x%" PRId64 " pixels cannot be in %" PRId64 " bytes",
+                          path, w, h, s.size);
+        goto fail;
+    }
     const exr_attr_chlist_t *chl = NULL;
     if ((rv = exr_get_channels(ctx, 0, &chl)) != EXR_ERR_SUCCESS || !chl) {
         st = rv ? exr_fail(err, &s, rv, path, "no channel list")

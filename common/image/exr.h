@@ -32,11 +32,18 @@ typedef struct pt_exr_meta {
 pt_status pt_exr_write(const char *path, const pt_image *img, const pt_exr_meta *meta,
                        pt_error *err);
 
+/* The most pixels pt_exr_read decodes per byte of file: more than a
+ * lossless codec can pack (see exr.c), so a header that claims them is
+ * refused before any pixel memory is taken. */
+#define PT_EXR_MAX_PIXELS_PER_BYTE 256u
+
 /* Reads a file written by pt_exr_write (or any scanline/tiled EXR with R, G,
  * B; samples, variance and A planes are zero when absent, has_alpha says
  * whether A was there). meta may be NULL.
  * out NULL reads the header alone (meta, after the same checks of the
- * layout), decoding no pixel. */
+ * layout), decoding no pixel. A data window of more than
+ * PT_EXR_MAX_PIXELS_PER_BYTE pixels per byte of the file (plus 65536) is
+ * PT_ERR_FORMAT. */
 pt_status pt_exr_read(const char *path, pt_image **out, pt_exr_meta *meta, pt_error *err);
 
 #endif

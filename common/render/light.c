@@ -110,13 +110,11 @@ static pt_vec3 emission(const pt_scene *s, const pt_material *m, uint32_t tri, f
 {
     pt_vec3 e = pt_v3(m->emissive[0], m->emissive[1], m->emissive[2]);
     if (m->emissive_tex >= 0 && (uint32_t)m->emissive_tex < s->num_textures && s->uvs) {
-        const uint32_t *t = &s->indices[3 * tri];
-        const float *uv = s->uvs;
-        float b0 = 1.0f - b1 - b2;
-        float u = b0 * uv[2 * t[0]] + b1 * uv[2 * t[1]] + b2 * uv[2 * t[2]];
-        float v = b0 * uv[2 * t[0] + 1] + b1 * uv[2 * t[1] + 1] + b2 * uv[2 * t[2] + 1];
-        float c[4];
-        pt_texture_sample(&s->textures[m->emissive_tex], u, v, c);
+        /* Its coordinate set and KHR_texture_transform (an identity on
+         * TEXCOORD_0 gives the plain interpolation's bits). */
+        float uv[2], c[4];
+        pt_scene_slot_uv(s, m, PT_SLOT_EMISSIVE, tri, b1, b2, uv);
+        pt_texture_sample(&s->textures[m->emissive_tex], uv[0], uv[1], c);
         e = pt_v3_mul(e, pt_v3(c[0], c[1], c[2]));
     }
     return e;

@@ -6,11 +6,13 @@
 #include "common/base/alloc.h"
 #include "common/math/simd.h"
 #include "common/render/bsdf.h"
+#include "common/render/dielectric.h"
 #include "common/render/env.h"
 #include "common/render/light.h"
 #include "common/render/light_lanes.h"
 #include "common/render/sampler.h"
 #include "common/scene/accel.h"
+#include "common/scene/alpha.h"
 
 /*
  * Sample dimensions. Pixel jitter uses dims 0-1; bounce k uses the 8 dims
@@ -25,7 +27,15 @@ enum {
     OFF_BSDF_DIR = 2,    /* 2D */
     OFF_LIGHT_PICK = 4,  /* 2D with the lobe pick */
     OFF_RR = 6,
+    OFF_ALPHA = 7, /* the pass-through of MASK/BLEND surfaces (alpha.h), for the
+                      bounce's closest-hit ray and its shadow ray */
 };
+
+/* pt_alpha_key salts: the closest-hit ray of a bounce and its shadow ray
+ * draw from the same number, and a surface that both cross must get two
+ * independent decisions (a shadow ray back through the BLEND surface that
+ * the camera ray passed must pass with 1 - alpha, not surely). */
+enum { ALPHA_SALT_RAY = 0, ALPHA_SALT_SHADOW = 1 };
 
 /* Bounces whose sampler seeds a pixel keeps; deeper ones hash theirs per use. */
 #define SEED_CACHE 32u
@@ -64,6 +74,7 @@ struct pt_renderer {
     tile_fn tile; /* batched: pt_render_tile */
     int nee;      /* next-event estimation runs: lights exist, the strategy uses them */
     int nee_n;    /* nee, with lights enough to sample them for a stage at once */
+    int alpha;    /* the scene has MASK/BLEND materials: rays pass through them */
     const char *variant;
     int lanes; /* the Lambert variants shade in lanes (shade_lanes) */
     float tan_half_fov;
@@ -110,14 +121,133 @@ static inline pt_vec3 vert(const float *arr, uint32_t i)
     return pt_v3(arr[3 * i], arr[3 * i + 1], arr[3 * i + 2]);
 }
 
+/* xyz of a 4-float-per-vertex array (tangents). */
+static inline pt_vec3 vert4(const float *arr, uint32_t i)
+{
+    return pt_v3(arr[4 * i], arr[4 * i + 1], arr[4 * i + 2]);
+}
+
 /* Everything the integrator needs to know about a surface point. */
 typedef struct surface {
     pt_vec3 p;  /* world position */
     pt_vec3 ng; /* geometric normal from the winding (unflipped) */
-    pt_vec3 ns; /* shading normal */
+    pt_vec3 ns; /* shading normal (normal-mapped when mapped) */
     float uv[2];
+    float uv1[2];  /* TEXCOORD_1 (PT_FEAT_TEXTURES; 0 without the set) */
+    pt_vec3 color; /* COLOR_0 (PT_FEAT_VERTEX_COLOR) */
+    int mapped;    /* ns comes from a normal map (PT_FEAT_NORMAL_MAP) */
     const pt_material *mat;
 } surface;
+
+/* The UV that slot x reads: its coordinate set, transformed. */
+static inline void slot_uv(const surface *sf, const pt_tex_xform *x, float out[2])
+{
+    pt_tex_xform_apply(x, x->texcoord ? sf->uv1 : sf->uv, out);
+}
+
+/*
+ * Tangent-space normal mapping (glTF 2.0, 3.9.3): the interpolated tangent,
+ * made orthogonal to the interpolated normal n (Gram-Schmidt), the bitangent
+ * w cross(n, t) with the handedness w, and the texel's
+ * normalize((2 c - 1) * (scale, scale, 1)) in that frame. The result may face
+ * away from the viewer or the geometric normal; shade() bends it back
+ * (valid_reflection). A degenerate frame leaves ns as it was.
+ */
+static void normal_map(const pt_scene *s, const pt_hit *hit, surface *sf)
+{
+    const pt_material *m = sf->mat;
+    const uint32_t *tri = &s->indices[3 * hit->tri];
+    const float *T = s->tangents;
+    float b0 = 1.0f - hit->b1 - hit->b2;
+    pt_vec3 t = pt_v3_add(
+        pt_v3_add(pt_v3_scale(vert4(T, tri[0]), b0), pt_v3_scale(vert4(T, tri[1]), hit->b1)),
+        pt_v3_scale(vert4(T, tri[2]), hit->b2));
+    float w = b0 * T[4 * tri[0] + 3] + hit->b1 * T[4 * tri[1] + 3] + hit->b2 * T[4 * tri[2] + 3];
+    pt_vec3 n = sf->ns;
+    t = pt_v3_sub(t, pt_v3_scale(n, pt_v3_dot(n, t)));
+    float len = pt_v3_len(t);
+    if (!(len > 1e-12f) || !isfinite(len))
+        return;
+    t = pt_v3_scale(t, 1.0f / len);
+    pt_vec3 bt = pt_v3_scale(pt_v3_cross(n, t), w < 0.0f ? -1.0f : 1.0f);
+    float uv[2], c[4];
+    slot_uv(sf, &m->tex_xf[PT_SLOT_NORMAL], uv);
+    pt_texture_sample(&s->textures[m->normal_tex], uv[0], uv[1], c);
+    float x = (2.0f * c[0] - 1.0f) * m->normal_scale, y = (2.0f * c[1] - 1.0f) * m->normal_scale,
+          z = 2.0f * c[2] - 1.0f;
+    pt_vec3 nm = pt_v3_add(pt_v3_add(pt_v3_scale(t, x), pt_v3_scale(bt, y)), pt_v3_scale(n, z));
+    len = pt_v3_len(nm);
+    if (!(len > 1e-12f) || !isfinite(len))
+        return;
+    /* Kept on the side of the winding's normal where the interpolated normal
+     * is, so that shade()'s flip towards the viewer (by ng) puts it where the
+     * interpolated normal would go, even when a file's normals disagree
+     * with its winding. */
+    if (pt_v3_dot(n, sf->ng) < 0.0f)
+        len = -len;
+    sf->ns = pt_v3_scale(nm, 1.0f / len);
+    sf->mapped = 1;
+}
+
+/*
+ * The shading normal n bent towards the geometric normal ng (both on wo's
+ * side) just enough that the mirror reflection of wo about it stays above the
+ * geometric surface by t = min(0.9 ng.wo, 0.01) in cosine: Cycles'
+ * ensure_valid_reflection (Blender 2.90 and later, kernel/geom; the
+ * derivation is in its comments). A normal map may tilt n so far that wo
+ * lies below n's hemisphere or its reflection below the surface: the BSDF
+ * would then return black (the "black spots" of normal maps) or send light
+ * through the surface. Bent, the normal keeps n's azimuth about ng and takes
+ * the elevation at which wo's reflection grazes the surface at t, so the
+ * map's detail survives and wo.ns > 0. Rays are still kept on the lobe's side
+ * of the geometric surface by shade() (reflection only: wi.ng > 0 for NEE and
+ * the continuation), so nothing leaks.
+ *
+ * In the frame z = ng, x = n's part orthogonal to ng, with wo = (ix, ., iz),
+ * the unit n' = (sqrt(1 - y), 0, sqrt(y)) whose reflection has z = t solves
+ * 4 a y^2 - 4 c y + (t + iz)^2 = 0 with a = ix^2 + iz^2, c = a + iz t: the
+ * roots y = (c +- b) / (2 a), b = sqrt(ix^2 (a - t^2)). Squaring admits a
+ * false root: keep those in (0, 1] whose reflection is really above the
+ * surface, the shallower of two (the nearer to n).
+ */
+static pt_vec3 valid_reflection(pt_vec3 ng, pt_vec3 wo, pt_vec3 n)
+{
+    float ndi = pt_v3_dot(n, wo);
+    pt_vec3 refl = pt_v3_sub(pt_v3_scale(n, 2.0f * ndi), wo);
+    float iz = pt_v3_dot(ng, wo);
+    float t = fminf(0.9f * iz, 0.01f);
+    if (pt_v3_dot(ng, refl) >= t)
+        return n;
+    pt_vec3 xv = pt_v3_sub(n, pt_v3_scale(ng, pt_v3_dot(n, ng)));
+    float xl = pt_v3_len(xv);
+    if (!(xl > 1e-12f) || !isfinite(xl))
+        return ng;
+    xv = pt_v3_scale(xv, 1.0f / xl);
+    float ix = pt_v3_dot(wo, xv);
+    float ix2 = ix * ix, a = ix2 + iz * iz;
+    float b = sqrtf(fmaxf(ix2 * (a - t * t), 0.0f));
+    float c = a + iz * t;
+    float y1 = 0.5f * (c + b) / a, y2 = 0.5f * (c - b) / a;
+    int ok1 = y1 > 1e-5f && y1 <= 1.0f + 1e-5f, ok2 = y2 > 1e-5f && y2 <= 1.0f + 1e-5f;
+    float nx, nz;
+    if (ok1 && ok2) {
+        float x1 = sqrtf(fmaxf(1.0f - y1, 0.0f)), z1 = sqrtf(y1);
+        float x2 = sqrtf(fmaxf(1.0f - y2, 0.0f)), z2 = sqrtf(y2);
+        float r1 = 2.0f * (x1 * ix + z1 * iz) * z1 - iz, r2 = 2.0f * (x2 * ix + z2 * iz) * z2 - iz;
+        int v1 = r1 >= 1e-5f, v2 = r2 >= 1e-5f;
+        int pick1 = (v1 && v2) ? r1 < r2 : r1 > r2;
+        nx = pick1 ? x1 : x2;
+        nz = pick1 ? z1 : z2;
+    } else if (ok1 || ok2) {
+        float y = ok1 ? y1 : y2;
+        nx = sqrtf(fmaxf(1.0f - y, 0.0f));
+        nz = sqrtf(fminf(y, 1.0f));
+    } else {
+        return ng;
+    }
+    pt_vec3 r = pt_v3_add(pt_v3_scale(xv, nx), pt_v3_scale(ng, nz));
+    return isfinite(r.x) && isfinite(r.y) && isfinite(r.z) ? r : ng;
+}
 
 /*
  * What the integrator reads of a hit triangle, in one 64-byte, cache-line-
@@ -167,6 +297,40 @@ static inline void surface_at(const pt_renderer *r, const pt_hit *hit, surface *
             b0 * uv[2 * tri[0] + 1] + hit->b1 * uv[2 * tri[1] + 1] + hit->b2 * uv[2 * tri[2] + 1];
     }
     sf->mat = &s->materials[t->mat & ~TRI_FLAT];
+    if (features & PT_FEAT_TEXTURES) {
+        sf->uv1[0] = sf->uv1[1] = 0.0f;
+        if (s->uvs1) {
+            const float *uv = s->uvs1;
+            sf->uv1[0] = b0 * uv[2 * tri[0]] + hit->b1 * uv[2 * tri[1]] + hit->b2 * uv[2 * tri[2]];
+            sf->uv1[1] = b0 * uv[2 * tri[0] + 1] + hit->b1 * uv[2 * tri[1] + 1] +
+                         hit->b2 * uv[2 * tri[2] + 1];
+        }
+    }
+    if ((features & PT_FEAT_VERTEX_COLOR) && s->colors) {
+        const float *c = s->colors;
+        sf->color = pt_v3(
+            b0 * c[4 * tri[0]] + hit->b1 * c[4 * tri[1]] + hit->b2 * c[4 * tri[2]],
+            b0 * c[4 * tri[0] + 1] + hit->b1 * c[4 * tri[1] + 1] + hit->b2 * c[4 * tri[2] + 1],
+            b0 * c[4 * tri[0] + 2] + hit->b1 * c[4 * tri[1] + 2] + hit->b2 * c[4 * tri[2] + 2]);
+    }
+    if (features & PT_FEAT_NORMAL_MAP) {
+        sf->mapped = 0;
+        if (sf->mat->normal_tex >= 0 && s->tangents) {
+            if (!(features & PT_FEAT_TEXTURES) || !s->uvs) {
+                /* normal_map reads the UVs; set them even where no other
+                 * texture needs them. */
+                const float *uv = s->uvs;
+                sf->uv[0] = sf->uv[1] = 0.0f;
+                if (uv) {
+                    sf->uv[0] =
+                        b0 * uv[2 * tri[0]] + hit->b1 * uv[2 * tri[1]] + hit->b2 * uv[2 * tri[2]];
+                    sf->uv[1] = b0 * uv[2 * tri[0] + 1] + hit->b1 * uv[2 * tri[1] + 1] +
+                                hit->b2 * uv[2 * tri[2] + 1];
+                }
+            }
+            normal_map(s, hit, sf);
+        }
+    }
 }
 
 /* The records of a scene's triangles, in a block whose start is aligned to
@@ -235,7 +399,9 @@ static inline pt_bsdf material_bsdf(const pt_renderer *r, const surface *sf,
 {
     const pt_scene *s = r->scene;
     const pt_material *m = sf->mat;
-    if (!(features & PT_FEAT_TEXTURES) || (m->base_color_tex < 0 && m->metal_rough_tex < 0)) {
+    const int vcol = (features & PT_FEAT_VERTEX_COLOR) && s->colors;
+    if ((!(features & PT_FEAT_TEXTURES) || (m->base_color_tex < 0 && m->metal_rough_tex < 0)) &&
+        !vcol) {
         /* pt_bsdf_setup's result for the material's own factors; without
          * PT_FEAT_GLOSSY only its diffuse (the clamped base colour times
          * 1 - 0) is read, the same bits as the branch below. */
@@ -245,16 +411,21 @@ static inline pt_bsdf material_bsdf(const pt_renderer *r, const surface *sf,
     float metallic = m->metallic, roughness = m->roughness;
     if (features & PT_FEAT_TEXTURES) {
         float t[4];
+        float uv[2];
         if (m->base_color_tex >= 0) {
-            pt_texture_sample(&s->textures[m->base_color_tex], sf->uv[0], sf->uv[1], t);
+            slot_uv(sf, &m->tex_xf[PT_SLOT_BASE], uv);
+            pt_texture_sample(&s->textures[m->base_color_tex], uv[0], uv[1], t);
             base = pt_v3_mul(base, pt_v3(t[0], t[1], t[2]));
         }
         if (m->metal_rough_tex >= 0) {
-            pt_texture_sample(&s->textures[m->metal_rough_tex], sf->uv[0], sf->uv[1], t);
+            slot_uv(sf, &m->tex_xf[PT_SLOT_METAL_ROUGH], uv);
+            pt_texture_sample(&s->textures[m->metal_rough_tex], uv[0], uv[1], t);
             roughness *= t[1];
             metallic *= t[2];
         }
     }
+    if (vcol)
+        base = pt_v3_mul(base, sf->color); /* COLOR_0 multiplies the base colour (3.9.2) */
     if (!(features & PT_FEAT_GLOSSY)) {
         /* pt_bsdf_setup's diffuse for metallic 0: the clamped base times 1. */
         pt_bsdf b;
@@ -366,12 +537,49 @@ static inline void draw_bounce(pixel_ctx *pc, uint32_t depth, uint32_t index,
     pt_sample_group_eval(bounce_group(pc, depth, &deep), index, u);
 }
 
+/* The closest hit of a path's ray, through the MASK/BLEND surfaces it
+ * passes (their emission and BSDF are then not applied: the ray never meets
+ * them) when the scene has any; u_alpha is the bounce's OFF_ALPHA number. */
+static inline __attribute__((always_inline)) int closest_hit(const pt_renderer *r, pt_vec3 o,
+                                                             pt_vec3 d, float u_alpha, pt_hit *hit,
+                                                             const uint32_t features)
+{
+    if ((features & PT_FEAT_ALPHA) && r->alpha)
+        return pt_accel_intersect_alpha(r->accel, o, d, INFINITY,
+                                        pt_alpha_key(u_alpha, ALPHA_SALT_RAY), hit);
+    return pt_accel_intersect(r->accel, o, d, INFINITY, hit);
+}
+
+/* The share of an emissive MASK/BLEND triangle present at a light sample
+ * (alpha.h: 0 or 1 for MASK, alpha for BLEND). A ray that samples the BSDF
+ * meets the surface, and so its emission, with that probability; NEE weighs
+ * the sample by it, so the two strategies estimate the same emission
+ * (alpha * Le) and their MIS weights, which assume the same integrand, stay
+ * right. The sample's barycentrics, which the light sample does not keep,
+ * are solved from its position (they pick a texel only). */
+static float light_coverage(const pt_renderer *r, const pt_light_sample *ls)
+{
+    const tri_rec *t = &r->tris[ls->tri];
+    pt_vec3 e1 = pt_v3_sub(t->v1, t->v0), e2 = pt_v3_sub(t->v2, t->v0);
+    pt_vec3 q = pt_v3_sub(ls->position, t->v0);
+    float d11 = pt_v3_dot(e1, e1), d12 = pt_v3_dot(e1, e2), d22 = pt_v3_dot(e2, e2);
+    float q1 = pt_v3_dot(q, e1), q2 = pt_v3_dot(q, e2);
+    float den = d11 * d22 - d12 * d12;
+    float b1 = 0.0f, b2 = 0.0f;
+    if (den > 0.0f) {
+        b1 = (d22 * q1 - d12 * q2) / den;
+        b2 = (d11 * q2 - d12 * q1) / den;
+    }
+    return pt_alpha_coverage(r->scene, ls->tri, b1, b2);
+}
+
 /* One path between bounces: the ray it traces next and what it carries. */
 typedef struct path {
     pt_vec3 o, d; /* the next closest-hit ray */
     pt_vec3 L, beta;
     pt_vec3 prev_p;
-    float prev_pdf; /* 0: the previous vertex was the camera (no MIS) */
+    float prev_pdf; /* 0: the previous vertex was the camera or a delta lobe (no MIS) */
+    int32_t medium; /* the absorbing material whose volume the path is in, or -1 */
     uint32_t depth;
     uint32_t index;   /* the sample index */
     uint32_t escaped; /* 1: the camera ray left the scene (the sample does not cover the pixel) */
@@ -384,7 +592,8 @@ typedef struct path {
 typedef struct shadow_ray {
     pt_vec3 from, dir;
     float dist;
-    pt_vec3 contrib; /* beta * (f * Le * w), beta before this bounce's weight */
+    pt_vec3 contrib;    /* beta * (f * Le * w), beta before this bounce's weight */
+    uint32_t alpha_key; /* pass-through key (PT_FEAT_ALPHA) */
 } shadow_ray;
 
 enum { SHADE_SHADOW = 1u, SHADE_CONTINUE = 2u }; /* bits 0 and 1: the batch counts with them */
@@ -399,6 +608,7 @@ static inline void path_start(const pt_renderer *r, pixel_ctx *pc, uint32_t inde
     pa->beta = pt_v3(1, 1, 1);
     pa->prev_p = pa->o;
     pa->prev_pdf = 0.0f;
+    pa->medium = -1;
     pa->depth = 0;
     pa->index = index;
     pa->escaped = 0;
@@ -469,6 +679,215 @@ static inline __attribute__((always_inline)) void shade_miss(const pt_renderer *
 }
 
 /*
+ * Glass and media (PT_FEAT_TRANSMISSION, PT_FEAT_VOLUME; general variant
+ * only). A path knows one medium: the absorbing material whose closed mesh
+ * it is inside (path.medium), set when it refracts in through the side the
+ * winding's normal points away from (the front: closed meshes are wound
+ * outwards) and cleared when it refracts out through a back face. Media do
+ * not nest: glass inside glass, or a mesh that is not closed, gives wrong
+ * absorption but never NaN. Inside, every segment of length t scales beta by
+ * Beer-Lambert's c^(t / d) per channel (KHR_materials_volume:
+ * sigma = -ln(c) / d). The outside is air (n = 1).
+ */
+static inline pt_vec3 medium_transmittance(const pt_scene *s, int32_t medium, float t)
+{
+    pt_vec3 tr = pt_v3(1.0f, 1.0f, 1.0f);
+    if (medium < 0)
+        return tr;
+    const pt_material *m = &s->materials[medium];
+    float x = t / m->attenuation_distance; /* t may be +inf: c^inf = 0 for c < 1 */
+    float *out[3] = {&tr.x, &tr.y, &tr.z};
+    for (int c = 0; c < 3; c++) {
+        float col = m->attenuation_color[c];
+        if (col < 1.0f)
+            *out[c] = col > 0.0f ? expf(logf(col) * x) : 0.0f;
+    }
+    return tr;
+}
+
+/* The path's segment of length t ended (a hit, or +inf on a miss). */
+static inline __attribute__((always_inline)) void medium_segment(const pt_renderer *r, path *pa,
+                                                                 float t, const uint32_t features)
+{
+    if ((features & PT_FEAT_VOLUME) && pa->medium >= 0)
+        pa->beta = pt_v3_mul(pa->beta, medium_transmittance(r->scene, pa->medium, t));
+}
+
+static inline int transmits(const pt_material *m)
+{
+    return m->transmission > 0.0f;
+}
+
+/* The medium on the far side of a transmissive surface of material index mi
+ * hit from the front (or not): entering an absorbing closed mesh, or leaving
+ * it; a thin wall changes nothing. */
+static inline int32_t medium_across(const pt_scene *s, int32_t current, uint32_t mi, int front,
+                                    int thin)
+{
+    if (thin)
+        return current;
+    if (!front)
+        return -1;
+    return pt_material_absorbs(&s->materials[mi]) ? (int32_t)mi : -1;
+}
+
+/* The glass BSDF at sf for a ray arriving from the front or the back. */
+static pt_glass glass_at(const pt_renderer *r, const surface *sf, int front,
+                         const uint32_t features)
+{
+    const pt_scene *s = r->scene;
+    const pt_material *m = sf->mat;
+    pt_vec3 base = pt_v3(m->base_color[0], m->base_color[1], m->base_color[2]);
+    float metallic = m->metallic, roughness = m->roughness, trans = m->transmission;
+    if (features & PT_FEAT_TEXTURES) {
+        float t[4];
+        float uv[2];
+        if (m->base_color_tex >= 0) {
+            slot_uv(sf, &m->tex_xf[PT_SLOT_BASE], uv);
+            pt_texture_sample(&s->textures[m->base_color_tex], uv[0], uv[1], t);
+            base = pt_v3_mul(base, pt_v3(t[0], t[1], t[2]));
+        }
+        if (m->metal_rough_tex >= 0) {
+            slot_uv(sf, &m->tex_xf[PT_SLOT_METAL_ROUGH], uv);
+            pt_texture_sample(&s->textures[m->metal_rough_tex], uv[0], uv[1], t);
+            roughness *= t[1];
+            metallic *= t[2];
+        }
+        if (m->transmission_tex >= 0) {
+            slot_uv(sf, &m->tex_xf[PT_SLOT_TRANSMISSION], uv);
+            pt_texture_sample(&s->textures[m->transmission_tex], uv[0], uv[1], t);
+            trans *= t[0];
+        }
+    }
+    if ((features & PT_FEAT_VERTEX_COLOR) && s->colors)
+        base = pt_v3_mul(base, sf->color); /* COLOR_0 multiplies the base colour (3.9.2) */
+    int thin = !(m->thickness > 0.0f);
+    /* Seen from the back of a closed mesh the ray is inside: n_far / n_near
+     * is 1 / ior. A thin wall has air on both sides. */
+    float eta = m->ior == 0.0f ? 0.0f : (thin || front ? m->ior : 1.0f / m->ior);
+    return pt_glass_setup(base, metallic, roughness, m->specular,
+                          pt_v3(m->specular_color[0], m->specular_color[1], m->specular_color[2]),
+                          trans, eta, thin);
+}
+
+/*
+ * shade() for a transmissive material. As shade(), with these differences:
+ * directions on both sides of the surface are valid (a shadow ray or the
+ * next ray leaves from the side it goes to, offset along that side's
+ * normal); a direction is kept only when the shading frame and the geometric
+ * normal put it on the same side (no light leaks through interpolated
+ * normals); next-event estimation weighs only the non-delta lobes, and after
+ * a smooth interface's delta lobe prev_pdf is 0, so the emitter or the
+ * environment that the path then finds counts in full (Veach 1997, sec.
+ * 9.2: a delta lobe has no light-sampling rival). A shadow ray inside an
+ * absorbing medium carries its transmittance.
+ */
+static __attribute__((noinline)) uint32_t
+shade_glass(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_BOUNCE],
+            const surface *sf, const pt_light_sample *ls, int ls_ok, shadow_ray *sr,
+            const uint32_t features)
+{
+    const pt_scene *s = r->scene;
+    const uint32_t strategy = r->params.light_strategy;
+    uint32_t ret = 0;
+    pt_vec3 wo = pt_v3_neg(pa->d);
+
+    shade_emission(r, pa, hit, sf, features);
+    if (pa->depth >= r->params.max_depth)
+        return ret;
+
+    int front = pt_v3_dot(sf->ng, wo) > 0.0f;
+    pt_vec3 ng = front ? sf->ng : pt_v3_neg(sf->ng);
+    pt_vec3 ns = sf->ns;
+    if (pt_v3_dot(ns, ng) < 0.0f)
+        ns = pt_v3_neg(ns);
+    if (pt_v3_dot(ns, wo) <= 0.0f)
+        ns = ng;
+    pt_frame fr = pt_frame_from_normal(ns);
+    pt_vec3 wo_l = pt_frame_to_local(&fr, wo);
+    uint32_t mi = (uint32_t)(sf->mat - s->materials);
+    int thin = !(sf->mat->thickness > 0.0f);
+    pt_glass g = glass_at(r, sf, front, features);
+
+    if ((features & NEE_LIGHTS) && r->nee && ls_ok && ls->pdf > 0.0f &&
+        any_positive(ls->radiance)) {
+        float side = pt_v3_dot(ls->wi, ng);
+        pt_vec3 wil = pt_frame_to_local(&fr, ls->wi);
+        float bpdf = 0.0f;
+        pt_vec3 f = pt_v3(0.0f, 0.0f, 0.0f);
+        if (side != 0.0f && (side > 0.0f) == (wil.z > 0.0f))
+            f = pt_glass_eval(&g, wo_l, wil, &bpdf);
+        if (any_positive(f)) {
+            pt_vec3 nside = side > 0.0f ? ng : pt_v3_neg(ng);
+            int32_t med = side > 0.0f ? pa->medium : medium_across(s, pa->medium, mi, front, thin);
+            pt_vec3 from = pt_offset_apply(r->offset, sf->p, nside);
+            float w;
+            sr->from = from;
+            if (ls->delta == PT_LIGHT_AREA) {
+                pt_vec3 nl = ls->normal;
+                if (pt_v3_dot(nl, ls->wi) > 0.0f)
+                    nl = pt_v3_neg(nl);
+                pt_vec3 to = pt_offset_apply(r->offset, ls->position, nl);
+                pt_vec3 sd = pt_v3_sub(to, from);
+                float dist = pt_v3_len(sd);
+                sr->dist = dist;
+                sr->dir = pt_v3_scale(sd, dist > 0.0f ? 1.0f / dist : 0.0f);
+                w = (strategy == PT_LIGHT_MIS ? power_heuristic(ls->pdf, bpdf) : 1.0f) / ls->pdf;
+            } else if (ls->delta == PT_LIGHT_AT) {
+                pt_vec3 sd = pt_v3_sub(ls->position, from);
+                float dist = pt_v3_len(sd);
+                sr->dist = dist;
+                sr->dir = pt_v3_scale(sd, dist > 0.0f ? 1.0f / dist : 0.0f);
+                w = 1.0f / ls->pdf;
+            } else {
+                sr->dir = ls->wi;
+                sr->dist = INFINITY;
+                w = 1.0f / ls->pdf;
+                if (ls->delta == PT_LIGHT_ENV && strategy == PT_LIGHT_MIS)
+                    w = power_heuristic(ls->pdf, bpdf) / ls->pdf;
+            }
+            pt_vec3 c = pt_v3_mul(pa->beta, pt_v3_scale(pt_v3_mul(f, ls->radiance), w));
+            if (features & PT_FEAT_VOLUME)
+                c = pt_v3_mul(c, medium_transmittance(s, med, sr->dist));
+            sr->contrib = c;
+            ret = SHADE_SHADOW;
+        }
+    }
+
+    float u3[3];
+    u3[0] = u[OFF_LIGHT_PICK + 1];
+    u3[1] = u[OFF_BSDF_DIR];
+    u3[2] = u[OFF_BSDF_DIR + 1];
+    pt_vec3 wi_l;
+    float pdf;
+    int delta;
+    pt_vec3 weight = pt_glass_sample(&g, wo_l, u3, &wi_l, &pdf, &delta);
+    if (!(pdf > 0.0f) || !any_positive(weight))
+        return ret;
+    pt_vec3 wi = pt_frame_to_world(&fr, wi_l);
+    float side = pt_v3_dot(wi, ng);
+    if (side == 0.0f || (side > 0.0f) != (wi_l.z > 0.0f))
+        return ret;
+    pt_vec3 beta = pt_v3_mul(pa->beta, weight);
+    if (pa->depth + 1 >= r->params.rr_depth) {
+        float m = max2(beta.x, max2(beta.y, beta.z));
+        float survive = m < 0.95f ? m : 0.95f;
+        if (!(u[OFF_RR] < survive))
+            return ret;
+        beta = pt_v3_scale(beta, 1.0f / survive);
+    }
+    if (side < 0.0f)
+        pa->medium = medium_across(s, pa->medium, mi, front, thin);
+    pa->beta = beta;
+    pa->prev_p = sf->p;
+    pa->prev_pdf = delta ? 0.0f : pdf;
+    pa->o = pt_offset_apply(r->offset, sf->p, side > 0.0f ? ng : pt_v3_neg(ng));
+    pa->d = wi;
+    pa->depth++;
+    return ret | SHADE_CONTINUE;
+}
+
+/*
  * One bounce of a path whose ray hit `hit`, with the bounce's numbers u. NEE
  * samples an emissive triangle at every vertex; the BSDF-sampled continuation
  * that hits an emitter adds its emission weighted by the power heuristic
@@ -488,6 +907,8 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
       const surface *sf, const pt_light_sample *ls, int ls_ok, const pt_vec3 *cos_wi,
       shadow_ray *sr, const uint32_t features)
 {
+    if ((features & PT_FEAT_TRANSMISSION) && transmits(sf->mat))
+        return shade_glass(r, pa, hit, u, sf, ls, ls_ok, sr, features);
     const uint32_t strategy = r->params.light_strategy;
     uint32_t ret = 0;
     pt_vec3 wo = pt_v3_neg(pa->d);
@@ -502,15 +923,31 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     if (pt_v3_dot(ng, wo) < 0.0f)
         ng = pt_v3_neg(ng);
     pt_vec3 ns = sf->ns;
-    if (pt_v3_dot(ns, ng) < 0.0f)
-        ns = pt_v3_neg(ns);
-    if (pt_v3_dot(ns, wo) <= 0.0f)
-        ns = ng; /* interpolated normal faces away from the viewer */
+    if ((features & PT_FEAT_NORMAL_MAP) && sf->mapped) {
+        /* A mapped normal may lie anywhere: turn it with the side the ray
+         * sees (as ng was), then bend it until wo's reflection is valid. */
+        if (pt_v3_dot(sf->ng, wo) < 0.0f)
+            ns = pt_v3_neg(ns);
+        ns = valid_reflection(ng, wo, ns);
+        if (pt_v3_dot(ns, wo) <= 0.0f)
+            ns = ng;
+    } else {
+        if (pt_v3_dot(ns, ng) < 0.0f)
+            ns = pt_v3_neg(ns);
+        if (pt_v3_dot(ns, wo) <= 0.0f)
+            ns = ng; /* interpolated normal faces away from the viewer */
+    }
     pt_frame fr = pt_frame_from_normal(ns);
     pt_vec3 wo_l = pt_frame_to_local(&fr, wo);
     pt_bsdf bsdf = material_bsdf(r, sf, features);
     if ((features & NEE_LIGHTS) && r->nee) {
-        if (ls_ok && ls->pdf > 0.0f && any_positive(ls->radiance) && pt_v3_dot(ls->wi, ng) > 0.0f) {
+        pt_vec3 lrad = ls_ok ? ls->radiance : pt_v3(0.0f, 0.0f, 0.0f);
+        if ((features & PT_FEAT_ALPHA) && r->alpha && ls_ok && ls->delta == PT_LIGHT_AREA &&
+            pt_alpha_tri(r->scene, ls->tri))
+            lrad = pt_v3_scale(lrad, light_coverage(r, ls));
+        if (features & PT_FEAT_ALPHA)
+            sr->alpha_key = pt_alpha_key(u[OFF_ALPHA], ALPHA_SALT_SHADOW);
+        if (ls_ok && ls->pdf > 0.0f && any_positive(lrad) && pt_v3_dot(ls->wi, ng) > 0.0f) {
             float bpdf;
             pt_vec3 f = bsdf_eval(&bsdf, wo_l, pt_frame_to_local(&fr, ls->wi), &bpdf, features);
             if ((features & (PT_FEAT_PUNCTUAL | PT_FEAT_ENV)) && ls->delta != PT_LIGHT_AREA &&
@@ -534,7 +971,7 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
                 if ((features & PT_FEAT_ENV) && ls->delta == PT_LIGHT_ENV &&
                     strategy == PT_LIGHT_MIS)
                     w = power_heuristic(ls->pdf, bpdf) / ls->pdf;
-                sr->contrib = pt_v3_mul(pa->beta, pt_v3_scale(pt_v3_mul(f, ls->radiance), w));
+                sr->contrib = pt_v3_mul(pa->beta, pt_v3_scale(pt_v3_mul(f, lrad), w));
                 ret = SHADE_SHADOW;
             } else if (any_positive(f)) {
                 pt_vec3 from = pt_offset_apply(r->offset, sf->p, ng);
@@ -549,7 +986,7 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
                 sr->dir = pt_v3_scale(sd, dist > 0.0f ? 1.0f / dist : 0.0f);
                 float w =
                     (strategy == PT_LIGHT_MIS ? power_heuristic(ls->pdf, bpdf) : 1.0f) / ls->pdf;
-                sr->contrib = pt_v3_mul(pa->beta, pt_v3_scale(pt_v3_mul(f, ls->radiance), w));
+                sr->contrib = pt_v3_mul(pa->beta, pt_v3_scale(pt_v3_mul(f, lrad), w));
                 ret = SHADE_SHADOW;
             }
         }
@@ -587,15 +1024,24 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     return ret | SHADE_CONTINUE;
 }
 
-/* Traces the shadow ray shade() asked for and adds its contribution. */
-static inline void trace_shadow(const pt_renderer *r, path *pa, const shadow_ray *sr,
-                                const pt_ray_sink *sink)
+/* Traces the shadow ray shade() asked for and adds its contribution. MASK
+ * and BLEND surfaces on the way block it only where the ray meets them
+ * (stochastically for BLEND: transmittance 1 - alpha on average), as a
+ * BSDF-sampled ray towards the same light would pass them. */
+static inline __attribute__((always_inline)) void trace_shadow(const pt_renderer *r, path *pa,
+                                                               const shadow_ray *sr,
+                                                               const pt_ray_sink *sink,
+                                                               const uint32_t features)
 {
     if (!(sr->dist > 0.0f))
         return;
     if (sink)
         sink->ray(sink->user, sr->from, sr->dir, sr->dist, 1);
-    if (!pt_accel_occluded(r->accel, sr->from, sr->dir, sr->dist))
+    int blocked =
+        (features & PT_FEAT_ALPHA) && r->alpha
+            ? pt_accel_occluded_alpha(r->accel, sr->from, sr->dir, sr->dist, sr->alpha_key)
+            : pt_accel_occluded(r->accel, sr->from, sr->dir, sr->dist);
+    if (!blocked)
         pa->L = pt_v3_add(pa->L, sr->contrib);
 }
 
@@ -830,12 +1276,14 @@ static inline __attribute__((always_inline)) pt_vec3 li_impl(const pt_renderer *
         draw_bounce(pc, pa.depth, index, u);
         pt_hit hit;
         rays++;
-        if (!pt_accel_intersect(r->accel, pa.o, pa.d, INFINITY, &hit)) {
+        if (!closest_hit(r, pa.o, pa.d, u[OFF_ALPHA], &hit, features)) {
+            medium_segment(r, &pa, INFINITY, features);
             shade_miss(r, &pa, features);
             break;
         }
+        medium_segment(r, &pa, hit.t, features);
         capped += pa.depth >= r->params.max_depth; /* shade() ends it: it may not scatter */
-        shadow_ray sr = {{0, 0, 0}, {0, 0, 0}, 0.0f, {0, 0, 0}}; /* set when SHADE_SHADOW */
+        shadow_ray sr = {{0, 0, 0}, {0, 0, 0}, 0.0f, {0, 0, 0}, 0}; /* set when SHADE_SHADOW */
         surface sf;
         surface_at(r, &hit, &sf, features);
         pt_light_sample ls;
@@ -843,7 +1291,7 @@ static inline __attribute__((always_inline)) pt_vec3 li_impl(const pt_renderer *
         uint32_t st = shade(r, &pa, &hit, u, &sf, &ls, ls_ok, NULL, &sr, features);
         if (st & SHADE_SHADOW) {
             rays++;
-            trace_shadow(r, &pa, &sr, NULL);
+            trace_shadow(r, &pa, &sr, NULL, features);
         }
         if (!(st & SHADE_CONTINUE))
             break;
@@ -920,29 +1368,47 @@ trace_batch(const pt_renderer *r, path *paths, uint32_t n, stage_lanes *sl, cons
     uint64_t rays = 0, ncapped = 0;
     for (uint32_t k = 0; k < n; k++)
         live[k] = (uint8_t)k;
+    /* With MASK/BLEND surfaces the query needs the bounce's OFF_ALPHA
+     * number, so the numbers are drawn before it, for every live path. */
+    const int alpha = (features & PT_FEAT_ALPHA) && r->alpha;
     while (n > 0) {
         rays += n;
         uint32_t nh = 0;
+        if (alpha) {
+            for (uint32_t j = 0; j < n; j++) {
+                path *pa = &paths[live[j]];
+                groups[j] = bounce_group(pa->pc, pa->depth, &deep[j]);
+                index[j] = pa->index;
+            }
+            pt_sample_group_eval_n(groups, index, n, u);
+        }
         for (uint32_t j = 0; j < n; j++) {
             uint32_t k = live[j];
             if (sink)
                 sink->ray(sink->user, paths[k].o, paths[k].d, INFINITY, 0);
-            if (pt_accel_intersect(r->accel, paths[k].o, paths[k].d, INFINITY, &hits[k])) {
+            if (closest_hit(r, paths[k].o, paths[k].d, alpha ? u[j][OFF_ALPHA] : 0.0f, &hits[k],
+                            features)) {
+                medium_segment(r, &paths[k], hits[k].t, features);
+                if (alpha && nh != j) /* u follows live[]'s compaction */
+                    memcpy(u[nh], u[j], sizeof u[nh]);
                 live[nh++] = (uint8_t)k;
                 ncapped += paths[k].depth >= r->params.max_depth;
             } else {
+                medium_segment(r, &paths[k], INFINITY, features);
                 shade_miss(r, &paths[k], features);
             }
         }
         /* The bounce's numbers, for the paths that hit something: a pure
          * function of (pixel, index, depth), so drawing them after the
          * query, and in one call for all, changes no value. */
-        for (uint32_t j = 0; j < nh; j++) {
-            path *pa = &paths[live[j]];
-            groups[j] = bounce_group(pa->pc, pa->depth, &deep[j]);
-            index[j] = pa->index;
+        if (!alpha) {
+            for (uint32_t j = 0; j < nh; j++) {
+                path *pa = &paths[live[j]];
+                groups[j] = bounce_group(pa->pc, pa->depth, &deep[j]);
+                index[j] = pa->index;
+            }
+            pt_sample_group_eval_n(groups, index, nh, u);
         }
-        pt_sample_group_eval_n(groups, index, nh, u);
         uint32_t ns = 0, nc = 0;
         if (!(features & PT_FEAT_GLOSSY) && sl) {
             /* Lambert: every bounce that samples its BSDF samples the cosine
@@ -1010,7 +1476,7 @@ trace_batch(const pt_renderer *r, path *paths, uint32_t n, stage_lanes *sl, cons
         }
         rays += ns;
         for (uint32_t j = 0; j < ns; j++)
-            trace_shadow(r, &paths[shadowed[j]], &sr[shadowed[j]], sink);
+            trace_shadow(r, &paths[shadowed[j]], &sr[shadowed[j]], sink, features);
         n = nc;
     }
     *capped += ncapped;
@@ -1101,18 +1567,24 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
 #define NO_TEX (uint32_t)(PT_FEAT_TEXTURES | PT_FEAT_EMISSIVE_TEX)
 /* Lights besides emissive triangles: only the general variant has their code. */
 #define OTHER_LIGHTS (uint32_t)(PT_FEAT_PUNCTUAL | PT_FEAT_ENV)
+/* Glass and media: likewise only in the general variant. */
+#define GLASS (uint32_t)(PT_FEAT_TRANSMISSION | PT_FEAT_VOLUME)
+/* The material features beyond the core's (normal maps, vertex colours). */
+#define SURFACE_EXTRAS (uint32_t)(PT_FEAT_NORMAL_MAP | PT_FEAT_VERTEX_COLOR)
+/* Features that only the general variant has code for. */
+#define GENERAL_ONLY (uint32_t)(OTHER_LIGHTS | PT_FEAT_ALPHA | GLASS | SURFACE_EXTRAS)
 VARIANT(li_general, tile_general, ALL_FEATURES)
-VARIANT(li_untextured, tile_untextured, ALL_FEATURES & ~NO_TEX & ~OTHER_LIGHTS)
-VARIANT(li_lambert, tile_lambert, ALL_FEATURES & ~(uint32_t)PT_FEAT_GLOSSY & ~OTHER_LIGHTS)
+VARIANT(li_untextured, tile_untextured, ALL_FEATURES & ~NO_TEX & ~GENERAL_ONLY)
+VARIANT(li_lambert, tile_lambert, ALL_FEATURES & ~(uint32_t)PT_FEAT_GLOSSY & ~GENERAL_ONLY)
 VARIANT(li_lambert_untextured, tile_lambert_untextured,
-        ALL_FEATURES & ~NO_TEX & ~(uint32_t)PT_FEAT_GLOSSY & ~OTHER_LIGHTS)
+        ALL_FEATURES & ~NO_TEX & ~(uint32_t)PT_FEAT_GLOSSY & ~GENERAL_ONLY)
 #undef VARIANT
 
 /* The most specialised variant whose assumptions the scene meets. */
 static void pick_variant(pt_renderer *r, uint32_t features)
 {
     int tex = (features & NO_TEX) != 0, glossy = (features & PT_FEAT_GLOSSY) != 0;
-    if (features & OTHER_LIGHTS) {
+    if (features & GENERAL_ONLY) {
         r->li = li_general;
         r->tile = tile_general;
         r->variant = "general";
@@ -1167,13 +1639,14 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
     /* The stage-wide light sampling and the lanes know only triangles. */
     r->nee_n = r->nee && pt_lights_count(r->lights) >= LIGHTS_N_MIN && others == 0;
     uint32_t features = scene->features | params->extra_features;
+    r->alpha = (scene->features & PT_FEAT_ALPHA) != 0;
     if (params->env)
         features |= PT_FEAT_ENV;
     pick_variant(r, features);
     /* Without fast lanes (an x86-64 processor without AVX2 runs shade_lanes'
      * baseline clone, which does the lanes one by one) the per-path shading
      * is faster: docs/bench/throughput.md, "Fourth round". */
-    r->lanes = !(features & (PT_FEAT_GLOSSY | OTHER_LIGHTS)) && !params->scalar_shading &&
+    r->lanes = !(features & (PT_FEAT_GLOSSY | GENERAL_ONLY)) && !params->scalar_shading &&
                pt_simd_lanes_fast();
     *out = r;
     return PT_OK;
@@ -1220,4 +1693,15 @@ void pt_render_tile_traced(const pt_renderer *r, pt_rect tile, uint32_t s0, uint
                            pt_pixel_acc *out, const pt_ray_sink *sink)
 {
     tile_impl(r, tile, s0, s1, out, NULL, NULL, ALL_FEATURES, sink);
+}
+
+pt_status pt_render_check_lit(const pt_scene *scene, int has_env, const char *name, pt_error *err)
+{
+    if ((scene->features & (PT_FEAT_EMITTERS | PT_FEAT_PUNCTUAL)) || has_env)
+        return PT_OK;
+    return pt_error_set(err, PT_ERR_ARG,
+                        "%s has no light: no emissive material and no KHR_lights_punctual "
+                        "light; light it with --env MAP.hdr (an environment map) or --background "
+                        "R,G,B (a uniform sky)",
+                        name);
 }

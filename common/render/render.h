@@ -107,6 +107,13 @@ const char *pt_renderer_variant(const pt_renderer *r);
  * variants, on a processor where the lanes are fast). */
 int pt_renderer_lanes(const pt_renderer *r);
 
+/* PT_OK when the scene has a light source (an emissive triangle, a punctual
+ * light) or has_env (an environment map or uniform background is given);
+ * else PT_ERR_ARG with a message naming the scene (name) that says how to
+ * light it, since it would render black. Standalone, one-job and queue mode
+ * all refuse with this one message. */
+pt_status pt_render_check_lit(const pt_scene *scene, int has_env, const char *name, pt_error *err);
+
 /* Renders samples [s0, s1) of every pixel of tile and writes one pt_pixel_acc
  * per pixel (row-major over the tile, (x1-x0)*(y1-y0) entries, overwritten).
  * stats (may be NULL) is added to. */

@@ -10,6 +10,17 @@
  * built once per scene and then traced billions of times.
  *
  * Queries (rtcIntersect1 / rtcOccluded1 on a committed scene) are thread-safe.
+ *
+ * Alpha (PT_FEAT_ALPHA): only a scene with MASK or BLEND materials gets
+ * Embree filter functions, so every other scene traverses exactly as before.
+ * The filter is called for each candidate hit and rejects the ones where the
+ * ray passes through the surface (pt_alpha_hit), and Embree goes on to the
+ * next candidate. Every query passes an alpha_ctx, an RTCIntersectContext
+ * with the scene and the pass-through key after it: the filter recovers it
+ * from the context pointer it is given (Embree's documented way of passing
+ * data to filters). The decision is a pure function of (key, triangle), so
+ * the answer does not depend on the order in which Embree visits candidates
+ * or on a triangle split into several BVH leaves being tested more than once.
  */
 #include "common/scene/accel.h"
 
@@ -19,6 +30,7 @@
 #include <embree3/rtcore.h>
 
 #include "common/base/alloc.h"
+#include "common/scene/alpha.h"
 
 /* Waechter & Binder's constants (RTG ch. 6), for a scene of about unit size. */
 #define OFFSET_ORIGIN (1.0f / 32.0f)
@@ -28,7 +40,52 @@ struct pt_accel {
     RTCDevice device;
     RTCScene scene;
     float origin, float_scale; /* pt_accel_offset_ray's constants for this scene */
+    const pt_scene *alpha;     /* the scene, when it has alpha filters; else NULL */
 };
+
+/* What a query passes to the alpha filter. rtc comes first: Embree hands the
+ * filter the address of rtc, which is the address of the whole. */
+typedef struct alpha_ctx {
+    struct RTCIntersectContext rtc;
+    const pt_scene *scene; /* NULL: the query ignores alpha */
+    uint32_t key;
+} alpha_ctx;
+
+/* Field i of an RTCHitN of N hits: Embree's RTCHitN_u/v/primID, which its
+ * header defines for C++ only. The layout is a structure of arrays of N
+ * entries each: Ng.x, Ng.y, Ng.z, u, v, primID, ... (rtcore_ray.h). */
+static inline float hitn_float(const struct RTCHitN *hit, unsigned n, unsigned field, unsigned i)
+{
+    float f;
+    memcpy(&f, (const char *)hit + 4 * ((size_t)field * n + i), sizeof f);
+    return f;
+}
+
+static inline uint32_t hitn_prim(const struct RTCHitN *hit, unsigned n, unsigned i)
+{
+    uint32_t v;
+    memcpy(&v, (const char *)hit + 4 * ((size_t)5 * n + i), sizeof v);
+    return v;
+}
+
+/* The intersection and occlusion filter of a scene with alpha materials:
+ * drops the candidate hits that the ray passes through. */
+static void alpha_filter(const struct RTCFilterFunctionNArguments *args)
+{
+    const alpha_ctx *c = (const alpha_ctx *)args->context;
+    if (!c->scene)
+        return;
+    for (unsigned i = 0; i < args->N; i++) {
+        if (args->valid[i] == 0)
+            continue;
+        uint32_t tri = hitn_prim(args->hit, args->N, i);
+        if (!pt_alpha_tri(c->scene, tri))
+            continue;
+        if (!pt_alpha_hit(c->scene, tri, hitn_float(args->hit, args->N, 3, i),
+                          hitn_float(args->hit, args->N, 4, i), c->key))
+            args->valid[i] = 0;
+    }
+}
 
 /* Static text for an Embree error, and the status it maps to. */
 static pt_status rtc_status(enum RTCError e, const char **msg)
@@ -112,6 +169,18 @@ pt_status pt_accel_new(const pt_scene *scene, pt_accel **out, pt_error *err)
         }
         memcpy(vb, scene->positions, (size_t)scene->num_vertices * 3 * sizeof(float));
         memcpy(ib, scene->indices, (size_t)scene->num_triangles * 3 * sizeof(uint32_t));
+        if (scene->features & PT_FEAT_ALPHA) {
+            if (!rtcGetDeviceProperty(a->device, RTC_DEVICE_PROPERTY_FILTER_FUNCTION_SUPPORTED)) {
+                rtcReleaseGeometry(g);
+                st = pt_error_set(err, PT_ERR_LIMIT,
+                                  "embree: this build has no filter functions, which alpha "
+                                  "MASK and BLEND materials need");
+                goto fail;
+            }
+            rtcSetGeometryIntersectFilterFunction(g, alpha_filter);
+            rtcSetGeometryOccludedFilterFunction(g, alpha_filter);
+            a->alpha = scene;
+        }
         rtcCommitGeometry(g);
         rtcAttachGeometry(a->scene, g); /* geometry id 0: primID is the triangle index */
         rtcReleaseGeometry(g);
@@ -169,21 +238,25 @@ static void init_ray(struct RTCRay *r, pt_vec3 o, pt_vec3 d, float tfar)
     r->flags = 0;
 }
 
-int pt_accel_intersect(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, pt_hit *hit)
+/* The closest hit; scene NULL ignores alpha. */
+static inline int intersect(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar,
+                            const pt_scene *scene, uint32_t key, pt_hit *hit)
 {
     hit->tri = UINT32_MAX;
     /* Embree accepts hits with tnear <= t <= tfar. tnear = 0: a hit at exactly
      * t = 0 is a measure-zero event once origins are offset (pt_offset_ray). */
     if (!(tfar > 0.0f))
         return 0;
-    struct RTCIntersectContext ctx;
-    rtcInitIntersectContext(&ctx);
+    alpha_ctx ctx;
+    rtcInitIntersectContext(&ctx.rtc);
+    ctx.scene = scene;
+    ctx.key = key;
     struct RTCRayHit rh;
     init_ray(&rh.ray, o, d, tfar);
     rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
     rh.hit.primID = RTC_INVALID_GEOMETRY_ID;
     rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
-    rtcIntersect1(accel->scene, &ctx, &rh);
+    rtcIntersect1(accel->scene, &ctx.rtc, &rh);
     if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID)
         return 0;
     hit->t = rh.ray.tfar;
@@ -191,6 +264,17 @@ int pt_accel_intersect(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, 
     hit->b2 = rh.hit.v;
     hit->tri = rh.hit.primID;
     return 1;
+}
+
+int pt_accel_intersect(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, pt_hit *hit)
+{
+    return intersect(accel, o, d, tfar, NULL, 0, hit);
+}
+
+int pt_accel_intersect_alpha(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, uint32_t key,
+                             pt_hit *hit)
+{
+    return intersect(accel, o, d, tfar, accel->alpha, key, hit);
 }
 
 /* nextafterf(t, 0) for t > 0 (finite or not), without the library call: a
@@ -204,20 +288,33 @@ static inline float below(float t)
     return t;
 }
 
-int pt_accel_occluded(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar)
+static inline int occluded(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar,
+                           const pt_scene *scene, uint32_t key)
 {
     if (!(tfar > 0.0f))
         return 0;
-    struct RTCIntersectContext ctx;
-    rtcInitIntersectContext(&ctx);
+    alpha_ctx ctx;
+    rtcInitIntersectContext(&ctx.rtc);
+    ctx.scene = scene;
+    ctx.key = key;
     struct RTCRay r;
     /* The contract is the half-open [0, tfar): the end point itself (a light
      * point the caller offset towards the shading point) must not occlude.
      * Embree's test is closed, so pass the next float below tfar: exactly the
      * open interval, not a hand-picked shortening. */
     init_ray(&r, o, d, below(tfar));
-    rtcOccluded1(accel->scene, &ctx, &r);
+    rtcOccluded1(accel->scene, &ctx.rtc, &r);
     return r.tfar == -INFINITY;
+}
+
+int pt_accel_occluded(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar)
+{
+    return occluded(accel, o, d, tfar, NULL, 0);
+}
+
+int pt_accel_occluded_alpha(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, uint32_t key)
+{
+    return occluded(accel, o, d, tfar, accel->alpha, key);
 }
 
 pt_vec3 pt_accel_degenerate_normal(pt_vec3 n)

@@ -35,6 +35,16 @@ void pt_accel_free(pt_accel *accel); /* accepts NULL */
 int pt_accel_intersect(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, pt_hit *hit);
 /* 1 when anything blocks o + t d for t in (0, tfar). */
 int pt_accel_occluded(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar);
+/* Both ignore alpha: every triangle is opaque. */
+
+/* The same with glTF alpha (common/scene/alpha.h): MASK and BLEND surfaces
+ * that the ray passes through (pt_alpha_hit with this key) are not hit and
+ * do not block. For a scene without PT_FEAT_ALPHA they are the functions
+ * above. The scene given to pt_accel_new must outlive the accel when it has
+ * alpha materials (its filters read the materials and textures). */
+int pt_accel_intersect_alpha(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, uint32_t key,
+                             pt_hit *hit);
+int pt_accel_occluded_alpha(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, uint32_t key);
 
 /* The unit normal of a degenerate or overflowing triangle's cross product n
  * (computed in double; (0,0,1) when it has no direction). */

@@ -133,14 +133,65 @@ void pt_bundle_free(pt_bundle *b)
     }
 }
 
+typedef struct find_ctx {
+    const char *name;
+    size_t len;
+    int found, entry_top;
+    uint64_t size;
+} find_ctx;
+
+static pt_status find_entry(void *user, uint32_t index, const char *name, size_t name_len,
+                            const uint8_t *data, uint64_t size, pt_error *err)
+{
+    (void)data;
+    (void)err;
+    find_ctx *c = user;
+    if (index == 0)
+        c->entry_top = memchr(name, '/', name_len) == NULL;
+    if (c->name && name_len == c->len && memcmp(name, c->name, name_len) == 0) {
+        c->found = 1;
+        c->size = size;
+    }
+    return PT_OK;
+}
+
+int pt_bundle_has_file(const pt_bundle *b, const char *name, uint64_t *size)
+{
+    find_ctx c = {name, strlen(name), 0, 0, 0};
+    if (walk(b->data, b->size, find_entry, &c, NULL) != PT_OK || !c.found)
+        return 0;
+    if (size)
+        *size = c.size;
+    return 1;
+}
+
+int pt_bundle_entry_at_top(const pt_bundle *b)
+{
+    find_ctx c = {NULL, 0, 0, 0, 0};
+    return walk(b->data, b->size, find_entry, &c, NULL) == PT_OK && c.entry_top;
+}
+
+/* 1 when name lies in the folder kept for the files ptfarm adds (the map). */
+static int name_reserved(const char *name)
+{
+    size_t n = strlen(PT_BUNDLE_RESERVED_DIR);
+    return strncmp(name, PT_BUNDLE_RESERVED_DIR, n) == 0 && (name[n] == '/' || name[n] == '\0');
+}
+
 pt_status pt_bundle_pack(const char *scene_path, pt_bundle **out, pt_error *err)
+{
+    return pt_bundle_pack_env(scene_path, NULL, out, err);
+}
+
+pt_status pt_bundle_pack_env(const char *scene_path, const char *env_path, pt_bundle **out,
+                             pt_error *err)
 {
     char **deps = NULL;
     uint32_t ndeps = 0;
     pt_status st = pt_gltf_dependencies(scene_path, &deps, &ndeps, err);
     if (st != PT_OK)
         return st;
-    uint32_t nfiles = ndeps + 1;
+    uint32_t nfiles = ndeps + 1 + (env_path != NULL);
     uint8_t **bufs = pt_calloc(nfiles, sizeof *bufs);
     size_t *sizes = pt_calloc(nfiles, sizeof *sizes);
     const char **names = pt_calloc(nfiles, sizeof *names);
@@ -155,8 +206,11 @@ pt_status pt_bundle_pack(const char *scene_path, pt_bundle **out, pt_error *err)
     names[0] = slash ? slash + 1 : scene_path;
     for (uint32_t i = 0; i < ndeps; i++)
         names[i + 1] = deps[i];
+    if (env_path)
+        names[nfiles - 1] = PT_BUNDLE_ENV_NAME;
     size_t total = 8;
     for (uint32_t i = 0; i < nfiles; i++) {
+        int is_env = env_path && i == nfiles - 1;
         size_t nl = strlen(names[i]);
         if (!name_ok(names[i], nl)) {
             st = pt_error_set(err, PT_ERR_FORMAT,
@@ -164,7 +218,16 @@ pt_status pt_bundle_pack(const char *scene_path, pt_bundle **out, pt_error *err)
                               scene_path, names[i]);
             goto fail;
         }
-        if (i == 0)
+        if (!is_env && name_reserved(names[i])) {
+            st = pt_error_set(err, PT_ERR_FORMAT,
+                              "%s: references '%s'; the folder '" PT_BUNDLE_RESERVED_DIR
+                              "' is reserved for the files ptfarm adds (the environment map)",
+                              scene_path, names[i]);
+            goto fail;
+        }
+        if (is_env)
+            snprintf(path, sizeof path, "%s", env_path);
+        else if (i == 0)
             snprintf(path, sizeof path, "%s", scene_path);
         else
             snprintf(path, sizeof path, "%.*s%s", (int)dirlen, scene_path, names[i]);

@@ -12,11 +12,13 @@
 // Images: tinygltf is told not to decode anything (a loader callback that
 // only keeps data: URI bytes) and not to read external images; the importer
 // decodes, with stb_image from the system's libstb, only the images that a
-// material actually uses as base colour, metal-rough or emissive texture,
-// to RGBA8 (1-4 channels and 16-bit data are converted by stb_image).
+// material actually uses as base colour, metal-rough, emissive or
+// transmission texture, to RGBA8 (1-4 channels and 16-bit data are converted
+// by stb_image).
 //
 // Materials follow the core metallic-roughness model (spec 3.9.2) with
-// KHR_materials_emissive_strength and KHR_materials_specular; what the
+// KHR_materials_emissive_strength, KHR_materials_specular and glass
+// (KHR_materials_transmission, _ior, _volume: add_transmission); what the
 // renderer does not support is reported once per kind through opts->warn.
 // KHR_lights_punctual lights become pt_punctual lights (scene.h: units).
 //
@@ -598,30 +600,66 @@ std::pair<const unsigned char *, size_t> image_bytes(importer &im, int ii, const
     return {it->second.data(), it->second.size()};
 }
 
-// Builder texture for glTF texture `ti` used as `slot` of material `mi`.
-int32_t texture_for(importer &im, int mi, const char *slot, const tinygltf::TextureInfo &info,
-                    bool srgb)
+double ext_number(const tinygltf::Value &obj, const char *key, double dflt);
+
+// The numbers of array `key` of obj into out[0..n) where present and numeric.
+void ext_numbers(const tinygltf::Value &obj, const char *key, float *out, int n)
 {
-    if (info.index < 0)
+    if (!obj.IsObject() || !obj.Has(key))
+        return;
+    const tinygltf::Value &a = obj.Get(key);
+    for (int c = 0; c < n && a.IsArray() && size_t(c) < a.ArrayLen(); c++)
+        if (a.Get(c).IsNumber())
+            out[c] = float(a.Get(c).GetNumberAsDouble());
+}
+
+// A textureInfo's coordinate set and KHR_texture_transform (whose texCoord,
+// when given, overrides the textureInfo's).
+pt_tex_xform slot_transform(importer &im, const char *ctx, int tex_coord,
+                            const tinygltf::ExtensionMap &ext)
+{
+    pt_tex_xform x = pt_tex_xform_identity();
+    auto tt = ext.find("KHR_texture_transform");
+    if (tt != ext.end()) {
+        float off[2] = {0.0f, 0.0f}, sc[2] = {1.0f, 1.0f};
+        ext_numbers(tt->second, "offset", off, 2);
+        ext_numbers(tt->second, "scale", sc, 2);
+        float rot = float(ext_number(tt->second, "rotation", 0.0));
+        tex_coord = int(ext_number(tt->second, "texCoord", double(tex_coord)));
+        if (!std::isfinite(off[0]) || !std::isfinite(off[1]) || !std::isfinite(sc[0]) ||
+            !std::isfinite(sc[1]) || !std::isfinite(rot))
+            im.fail(PT_ERR_FORMAT, "%s: KHR_texture_transform has a non-finite number", ctx);
+        x = pt_tex_xform_make(off, rot, sc, 0);
+    }
+    if (tex_coord == 1) {
+        x.texcoord = 1;
+    } else if (tex_coord != 0) {
+        im.warn_once("texcoord", std::string(ctx) + " uses TEXCOORD_" + std::to_string(tex_coord) +
+                                     "; TEXCOORD_0 is used instead (sets 0 and 1 are read)");
+    }
+    return x;
+}
+
+// Builder texture for glTF texture `index` used as `slot` of material `mi`,
+// and the slot's coordinate set and transform into *xf.
+int32_t texture_for(importer &im, int mi, const char *slot, int index, int tex_coord,
+                    const tinygltf::ExtensionMap &ext, bool srgb, pt_tex_xform *xf)
+{
+    *xf = pt_tex_xform_identity();
+    if (index < 0)
         return -1;
     const tinygltf::Model &m = im.model;
     const char *mname = name_or(m.materials[size_t(mi)].name, "");
     char ctx[200];
-    snprintf(ctx, sizeof ctx, "material %d ('%.64s') %s: texture %d", mi, mname, slot, info.index);
-    if (size_t(info.index) >= m.textures.size())
+    snprintf(ctx, sizeof ctx, "material %d ('%.64s') %s: texture %d", mi, mname, slot, index);
+    if (size_t(index) >= m.textures.size())
         im.fail(PT_ERR_FORMAT, "%s: no such texture (%zu textures)", ctx, m.textures.size());
-    if (info.texCoord != 0)
-        im.warn_once("texcoord", std::string(ctx) + " uses TEXCOORD_" +
-                                     std::to_string(info.texCoord) +
-                                     "; TEXCOORD_0 is used instead");
-    if (info.extensions.count("KHR_texture_transform"))
-        im.warn_once("KHR_texture_transform",
-                     std::string(ctx) + " uses KHR_texture_transform, which is ignored");
-    auto key = std::make_pair(info.index, srgb ? 1 : 0);
+    *xf = slot_transform(im, ctx, tex_coord, ext);
+    auto key = std::make_pair(index, srgb ? 1 : 0);
     auto found = im.tex_map.find(key);
     if (found != im.tex_map.end())
         return int32_t(found->second);
-    const tinygltf::Texture &t = m.textures[size_t(info.index)];
+    const tinygltf::Texture &t = m.textures[size_t(index)];
     if (t.source < 0 || size_t(t.source) >= m.images.size())
         im.fail(PT_ERR_FORMAT, "%s points at image %d, which does not exist (%zu images)", ctx,
                 t.source, m.images.size());
@@ -662,6 +700,8 @@ int32_t texture_for(importer &im, int mi, const char *slot, const tinygltf::Text
     if (smp) {
         tex.wrap_s = wrap_mode(smp->wrapS);
         tex.wrap_t = wrap_mode(smp->wrapT);
+        // The magFilter decides (scene.h, pt_texture_sample).
+        tex.nearest = smp->magFilter == TINYGLTF_TEXTURE_FILTER_NEAREST ? 1 : 0;
     }
     uint32_t idx = 0;
     pt_error e{};
@@ -678,11 +718,73 @@ double ext_number(const tinygltf::Value &obj, const char *key, double dflt)
     return v.IsNumber() ? v.GetNumberAsDouble() : dflt;
 }
 
+// A TextureInfo from an extension's JSON object (tinygltf parses only the
+// core material's), or index -1.
+tinygltf::TextureInfo ext_texture(const tinygltf::Value &obj, const char *key)
+{
+    tinygltf::TextureInfo info;
+    if (!obj.IsObject() || !obj.Has(key))
+        return info;
+    const tinygltf::Value &t = obj.Get(key);
+    if (!t.IsObject())
+        return info;
+    if (t.Has("index") && t.Get("index").IsNumber())
+        info.index = int(t.Get("index").GetNumberAsDouble());
+    if (t.Has("texCoord") && t.Get("texCoord").IsNumber())
+        info.texCoord = int(t.Get("texCoord").GetNumberAsDouble());
+    if (t.Has("extensions") && t.Get("extensions").IsObject()) {
+        const tinygltf::Value &e = t.Get("extensions");
+        for (const auto &k : e.Keys())
+            info.extensions[k] = e.Get(k);
+    }
+    return info;
+}
+
+// KHR_materials_transmission, KHR_materials_ior and KHR_materials_volume
+// into pm (scene.h: the fields; an infinite attenuationDistance is 0 there).
+// The volume's thickness texture is ignored: thickness only decides thin or
+// not, and the renderer traces the mesh itself.
+void add_transmission(importer &im, int mi, const tinygltf::Material &g, pt_material &pm)
+{
+    auto tr = g.extensions.find("KHR_materials_transmission");
+    if (tr != g.extensions.end()) {
+        pm.transmission = float(ext_number(tr->second, "transmissionFactor", 0.0));
+        const tinygltf::TextureInfo tt = ext_texture(tr->second, "transmissionTexture");
+        pm.transmission_tex = texture_for(im, mi, "transmissionTexture", tt.index, tt.texCoord,
+                                          tt.extensions, false, &pm.tex_xf[PT_SLOT_TRANSMISSION]);
+    }
+    auto io = g.extensions.find("KHR_materials_ior");
+    if (io != g.extensions.end())
+        pm.ior = float(ext_number(io->second, "ior", 1.5));
+    if (pm.ior != 1.5f && pm.transmission == 0.0f)
+        im.warn_once("ior-opaque", "material " + std::to_string(mi) +
+                                       ": KHR_materials_ior is used only for transmission; "
+                                       "opaque materials keep ior 1.5");
+    auto vo = g.extensions.find("KHR_materials_volume");
+    if (vo != g.extensions.end()) {
+        pm.thickness = float(ext_number(vo->second, "thicknessFactor", 0.0));
+        double d = ext_number(vo->second, "attenuationDistance", 0.0);
+        pm.attenuation_distance = std::isinf(d) && d > 0 ? 0.0f : float(d);
+        if (vo->second.IsObject() && vo->second.Has("attenuationColor")) {
+            const tinygltf::Value &a = vo->second.Get("attenuationColor");
+            for (int c = 0; c < 3 && a.IsArray() && size_t(c) < a.ArrayLen(); c++)
+                if (a.Get(c).IsNumber())
+                    pm.attenuation_color[c] = float(a.Get(c).GetNumberAsDouble());
+        }
+        if (vo->second.IsObject() && vo->second.Has("thicknessTexture"))
+            im.warn_once("thickness-texture",
+                         "material " + std::to_string(mi) +
+                             ": KHR_materials_volume thicknessTexture is ignored (the mesh "
+                             "itself is traced)");
+    }
+}
+
 void add_materials(importer &im)
 {
     const tinygltf::Model &m = im.model;
-    static const std::set<std::string> handled = {"KHR_materials_emissive_strength",
-                                                  "KHR_materials_specular"};
+    static const std::set<std::string> handled = {
+        "KHR_materials_emissive_strength", "KHR_materials_specular", "KHR_materials_transmission",
+        "KHR_materials_ior", "KHR_materials_volume"};
     for (size_t i = 0; i < m.materials.size(); i++) {
         const tinygltf::Material &g = m.materials[i];
         int mi = int(i);
@@ -716,25 +818,36 @@ void add_materials(importer &im)
                              "material " + std::to_string(i) +
                                  ": KHR_materials_specular textures are ignored");
         }
+        add_transmission(im, mi, g, pm);
         pm.double_sided = g.doubleSided ? 1 : 0;
         for (const auto &e : g.extensions)
             if (!handled.count(e.first))
                 im.warn_once("ext:" + e.first, "material " + std::to_string(i) + " ('" + g.name +
                                                    "') uses " + e.first + ", which is ignored");
-        if (g.normalTexture.index >= 0)
-            im.warn_once("normalTexture",
-                         "normal textures are ignored (material " + std::to_string(i) + ")");
         if (g.occlusionTexture.index >= 0)
             im.warn_once("occlusionTexture",
                          "occlusion textures are ignored (material " + std::to_string(i) + ")");
-        if (g.alphaMode == "BLEND" || g.alphaMode == "MASK")
-            im.warn_once("alpha:" + g.alphaMode, "alphaMode " + g.alphaMode +
-                                                     " is rendered as OPAQUE (material " +
-                                                     std::to_string(i) + ")");
-        pm.base_color_tex = texture_for(im, mi, "baseColorTexture", pbr.baseColorTexture, true);
-        pm.metal_rough_tex =
-            texture_for(im, mi, "metallicRoughnessTexture", pbr.metallicRoughnessTexture, false);
-        pm.emissive_tex = texture_for(im, mi, "emissiveTexture", g.emissiveTexture, true);
+        if (g.alphaMode == "MASK")
+            pm.alpha_mode = PT_ALPHA_MASK;
+        else if (g.alphaMode == "BLEND")
+            pm.alpha_mode = PT_ALPHA_BLEND;
+        else if (!g.alphaMode.empty() && g.alphaMode != "OPAQUE")
+            im.fail(PT_ERR_FORMAT, "material %d: alphaMode '%s' is not OPAQUE, MASK or BLEND", mi,
+                    shown(g.alphaMode).c_str());
+        pm.alpha_cutoff = float(g.alphaCutoff);
+        const tinygltf::TextureInfo &bt = pbr.baseColorTexture, &mt = pbr.metallicRoughnessTexture,
+                                    &et = g.emissiveTexture;
+        const tinygltf::NormalTextureInfo &nt = g.normalTexture;
+        pm.base_color_tex = texture_for(im, mi, "baseColorTexture", bt.index, bt.texCoord,
+                                        bt.extensions, true, &pm.tex_xf[PT_SLOT_BASE]);
+        pm.metal_rough_tex = texture_for(im, mi, "metallicRoughnessTexture", mt.index, mt.texCoord,
+                                         mt.extensions, false, &pm.tex_xf[PT_SLOT_METAL_ROUGH]);
+        pm.emissive_tex = texture_for(im, mi, "emissiveTexture", et.index, et.texCoord,
+                                      et.extensions, true, &pm.tex_xf[PT_SLOT_EMISSIVE]);
+        // Normal textures hold vectors: linear, whatever the image says.
+        pm.normal_tex = texture_for(im, mi, "normalTexture", nt.index, nt.texCoord, nt.extensions,
+                                    false, &pm.tex_xf[PT_SLOT_NORMAL]);
+        pm.normal_scale = float(nt.scale);
         uint32_t idx;
         pt_error e{};
         pt_status st = pt_scene_builder_add_material(im.b, &pm, &idx, &e);
@@ -779,7 +892,7 @@ void add_primitive(importer &im, int mesh, int pi, const mat4 &world)
     for (const auto &a : p.attributes)
         if (a.first != "POSITION" && a.first != "NORMAL" && a.first != "TEXCOORD_0" &&
             a.first != "TANGENT" && a.first.compare(0, 9, "TEXCOORD_") != 0 &&
-            a.first.compare(0, 1, "_") != 0)
+            a.first != "COLOR_0" && a.first.compare(0, 1, "_") != 0)
             im.warn_once("attr:" + a.first,
                          std::string(what) + ": attribute " + a.first + " is ignored");
     auto pos_it = p.attributes.find("POSITION");
@@ -805,6 +918,45 @@ void add_primitive(importer &im, int mesh, int pi, const mat4 &world)
         if (uv.size() / 2 != nv)
             im.fail(PT_ERR_FORMAT, "accessor %d (%s): %zu texcoords for %llu positions",
                     t_it->second, w2, uv.size() / 2, (unsigned long long)nv);
+    }
+    // TEXCOORD_1, TANGENT and COLOR_0 (glTF 3.7.2.1: COLOR_0 is a VEC3 or VEC4 of
+    // floats or normalized unsigned bytes or shorts; TANGENT a VEC4 of floats).
+    std::vector<float> uv1, tan, col;
+    auto u1_it = p.attributes.find("TEXCOORD_1");
+    if (u1_it != p.attributes.end()) {
+        snprintf(w2, sizeof w2, "TEXCOORD_1 of %s", what);
+        read_floats(im, u1_it->second, w2, TINYGLTF_TYPE_VEC2, true, uv1);
+        if (uv1.size() / 2 != nv)
+            im.fail(PT_ERR_FORMAT, "accessor %d (%s): %zu texcoords for %llu positions",
+                    u1_it->second, w2, uv1.size() / 2, (unsigned long long)nv);
+    }
+    auto tg_it = p.attributes.find("TANGENT");
+    if (tg_it != p.attributes.end()) {
+        snprintf(w2, sizeof w2, "TANGENT of %s", what);
+        read_floats(im, tg_it->second, w2, TINYGLTF_TYPE_VEC4, false, tan);
+        if (tan.size() / 4 != nv)
+            im.fail(PT_ERR_FORMAT, "accessor %d (%s): %zu tangents for %llu positions",
+                    tg_it->second, w2, tan.size() / 4, (unsigned long long)nv);
+        // w is +-1 by the spec; files round it, so its sign is what counts.
+        for (size_t i = 3; i < tan.size(); i += 4)
+            tan[i] = tan[i] < 0.0f ? -1.0f : 1.0f;
+    }
+    auto c_it = p.attributes.find("COLOR_0");
+    if (c_it != p.attributes.end()) {
+        snprintf(w2, sizeof w2, "COLOR_0 of %s", what);
+        int ai = c_it->second;
+        bool vec3 = ai >= 0 && size_t(ai) < im.model.accessors.size() &&
+                    im.model.accessors[size_t(ai)].type == TINYGLTF_TYPE_VEC3;
+        std::vector<float> raw;
+        read_floats(im, ai, w2, vec3 ? TINYGLTF_TYPE_VEC3 : TINYGLTF_TYPE_VEC4, true, raw);
+        int nc = vec3 ? 3 : 4;
+        if (raw.size() / size_t(nc) != nv)
+            im.fail(PT_ERR_FORMAT, "accessor %d (%s): %zu colours for %llu positions", ai, w2,
+                    raw.size() / size_t(nc), (unsigned long long)nv);
+        col.assign(size_t(nv) * 4, 1.0f);
+        for (size_t v = 0; v < size_t(nv); v++)
+            for (int c = 0; c < nc; c++)
+                col[v * 4 + size_t(c)] = raw[v * size_t(nc) + size_t(c)];
     }
     std::vector<uint32_t> idx;
     if (p.indices >= 0) {
@@ -842,13 +994,18 @@ void add_primitive(importer &im, int mesh, int pi, const mat4 &world)
     }
     uint32_t mat = material_index(im, p.material, what);
     float xf[16];
-    for (size_t i = 0; i < 16; i++)
+    double xd[16];
+    for (size_t i = 0; i < 16; i++) {
         xf[i] = float(world[i]);
+        xd[i] = xf[i]; // the float matrix, as pt_scene_builder_add_mesh has always used
+    }
+    pt_mesh_extra ex{uv1.empty() ? nullptr : uv1.data(), tan.empty() ? nullptr : tan.data(),
+                     col.empty() ? nullptr : col.data()};
     pt_error e{};
     pt_status st =
-        pt_scene_builder_add_mesh(im.b, what, pos.data(), nrm.empty() ? nullptr : nrm.data(),
-                                  uv.empty() ? nullptr : uv.data(), uint32_t(nv), tri.data(),
-                                  uint32_t(tri.size() / 3), xf, mat, &e);
+        pt_scene_builder_add_mesh_extra(im.b, what, pos.data(), nrm.empty() ? nullptr : nrm.data(),
+                                        uv.empty() ? nullptr : uv.data(), &ex, uint32_t(nv),
+                                        tri.data(), uint32_t(tri.size() / 3), xd, mat, &e);
     im.check_builder(st, &e);
 }
 
@@ -1119,7 +1276,8 @@ void import(importer &im)
         im.warn_once("skin", "skins are ignored");
     for (const auto &r : m.extensionsRequired)
         if (r != "KHR_materials_emissive_strength" && r != "KHR_materials_specular" &&
-            r != "KHR_lights_punctual")
+            r != "KHR_lights_punctual" && r != "KHR_materials_transmission" &&
+            r != "KHR_materials_ior" && r != "KHR_materials_volume" && r != "KHR_texture_transform")
             im.warn_once("req:" + r, "required extension " + r + " is not supported");
     add_materials(im);
     std::vector<char> on_path(m.nodes.size(), 0);

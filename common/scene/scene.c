@@ -31,6 +31,7 @@
 #include "common/base/alloc.h"
 #include "common/base/hash.h"
 #include "common/scene/gltf_import.h"
+#include "common/scene/tangent.h"
 
 /* Vertices are not capped by the file's triangle count alone: unreferenced
  * vertices still cost memory. Three per triangle is the most a sane mesh needs. */
@@ -41,6 +42,10 @@ struct pt_scene_builder {
     float *nrm, *uv;
     uint32_t nv, cap_pos, cap_nrm, cap_uv;
     int has_uv;
+    /* The optional attributes (pt_mesh_extra): NULL until a mesh has one,
+     * then kept for every vertex, with defaults for meshes without it. */
+    float *uv1, *tan, *col;
+    uint32_t cap_uv1, cap_tan, cap_col;
     uint32_t *idx, *tmat;
     uint32_t nt, cap_idx, cap_tmat;
     pt_material *mats;
@@ -94,7 +99,17 @@ pt_material pt_material_default(void)
     m.specular = 1.0f;
     for (int i = 0; i < 3; i++)
         m.specular_color[i] = 1.0f;
+    m.transmission_tex = -1;
+    m.ior = 1.5f;
+    for (int i = 0; i < 3; i++)
+        m.attenuation_color[i] = 1.0f;
     m.double_sided = 0;
+    m.alpha_mode = PT_ALPHA_OPAQUE;
+    m.alpha_cutoff = 0.5f;
+    m.normal_tex = -1;
+    m.normal_scale = 1.0f;
+    for (int i = 0; i < PT_SLOT_COUNT; i++)
+        m.tex_xf[i] = pt_tex_xform_identity();
     snprintf(m.name, sizeof m.name, "default");
     return m;
 }
@@ -122,6 +137,9 @@ void pt_scene_builder_free(pt_scene_builder *b)
     pt_free(b->pos);
     pt_free(b->nrm);
     pt_free(b->uv);
+    pt_free(b->uv1);
+    pt_free(b->tan);
+    pt_free(b->col);
     pt_free(b->idx);
     pt_free(b->tmat);
     pt_free(b->mats);
@@ -150,6 +168,41 @@ static int finite_n(const float *v, int n)
         if (!isfinite(v[i]))
             return 0;
     return 1;
+}
+
+/* The transmission and volume fields, checked only when the material
+ * transmits (a zero-filled material stays valid). KHR_materials_ior allows
+ * ior 0 (F0 = 1) as well as >= 1. */
+static pt_status check_transmission(const pt_scene_builder *b, const pt_material *m,
+                                    const char *name, pt_error *err)
+{
+    if (!(m->transmission >= 0.0f && m->transmission <= 1.0f))
+        return pt_error_set(err, PT_ERR_FORMAT,
+                            "material '%.64s': transmissionFactor %g is outside [0, 1]", name,
+                            (double)m->transmission);
+    if (m->transmission == 0.0f)
+        return PT_OK;
+    if (!(m->ior == 0.0f || (m->ior >= 1.0f && isfinite(m->ior))))
+        return pt_error_set(err, PT_ERR_FORMAT, "material '%.64s': ior %g is not 0 or >= 1", name,
+                            (double)m->ior);
+    if (!(m->thickness >= 0.0f && isfinite(m->thickness)))
+        return pt_error_set(err, PT_ERR_FORMAT,
+                            "material '%.64s': thicknessFactor %g is negative or not finite", name,
+                            (double)m->thickness);
+    if (!(m->attenuation_distance >= 0.0f))
+        return pt_error_set(err, PT_ERR_FORMAT,
+                            "material '%.64s': attenuationDistance %g is not positive", name,
+                            (double)m->attenuation_distance);
+    for (int i = 0; i < 3; i++)
+        if (!(m->attenuation_color[i] >= 0.0f && m->attenuation_color[i] <= 1.0f))
+            return pt_error_set(err, PT_ERR_FORMAT,
+                                "material '%.64s': attenuationColor[%d] %g is outside [0, 1]", name,
+                                i, (double)m->attenuation_color[i]);
+    if (m->transmission_tex < -1 ||
+        (m->transmission_tex >= 0 && (uint32_t)m->transmission_tex >= b->ntex))
+        return pt_error_set(err, PT_ERR_ARG, "material '%.64s': texture %d out of range", name,
+                            (int)m->transmission_tex);
+    return PT_OK;
 }
 
 pt_status pt_scene_builder_add_material(pt_scene_builder *b, const pt_material *m, uint32_t *index,
@@ -181,8 +234,29 @@ pt_status pt_scene_builder_add_material(pt_scene_builder *b, const pt_material *
             return pt_error_set(err, PT_ERR_FORMAT,
                                 "material '%.64s': specularColorFactor[%d] %g is negative", name, i,
                                 (double)m->specular_color[i]);
-    const int32_t tex[3] = {m->base_color_tex, m->metal_rough_tex, m->emissive_tex};
-    for (int i = 0; i < 3; i++)
+    if (m->alpha_mode != PT_ALPHA_OPAQUE && m->alpha_mode != PT_ALPHA_MASK &&
+        m->alpha_mode != PT_ALPHA_BLEND)
+        return pt_error_set(err, PT_ERR_ARG, "material '%.64s': alpha mode %d is unknown", name,
+                            m->alpha_mode);
+    /* glTF 2.0 (5.19): alphaCutoff has minimum 0 and no maximum (above 1 a
+     * MASK material is nowhere present). */
+    if (!(m->alpha_cutoff >= 0.0f) || !isfinite(m->alpha_cutoff))
+        return pt_error_set(err, PT_ERR_FORMAT, "material '%.64s': alphaCutoff %g is not >= 0",
+                            name, (double)m->alpha_cutoff);
+    pt_status st = check_transmission(b, m, name, err);
+    if (st != PT_OK)
+        return st;
+    if (!isfinite(m->normal_scale))
+        return pt_error_set(err, PT_ERR_FORMAT, "material '%.64s': normal scale is not finite",
+                            name);
+    for (int i = 0; i < PT_SLOT_COUNT; i++)
+        if (!finite_n(m->tex_xf[i].m, 6) || m->tex_xf[i].texcoord < 0 || m->tex_xf[i].texcoord > 1)
+            return pt_error_set(err, PT_ERR_FORMAT,
+                                "material '%.64s': texture transform %d is not finite or its "
+                                "texCoord is not 0 or 1",
+                                name, i);
+    const int32_t tex[4] = {m->base_color_tex, m->metal_rough_tex, m->emissive_tex, m->normal_tex};
+    for (int i = 0; i < 4; i++)
         if (tex[i] < -1 || (tex[i] >= 0 && (uint32_t)tex[i] >= b->ntex))
             return pt_error_set(err, PT_ERR_ARG, "material '%.64s': texture %d out of range", name,
                                 (int)tex[i]);
@@ -350,6 +424,41 @@ pt_status pt_scene_builder_add_mesh_dxform(pt_scene_builder *b, const char *what
                                            uint32_t nt, const double xform[16], uint32_t material,
                                            pt_error *err)
 {
+    return pt_scene_builder_add_mesh_extra(b, what, positions, normals, uvs, NULL, nv, indices, nt,
+                                           xform, material, err);
+}
+
+static pt_status add_vertex_extra(pt_scene_builder *b, const char *what, const pt_mesh_extra *x,
+                                  uint32_t v, const double xform[16], double nsign, pt_error *err);
+
+/* Makes room in an optional attribute array (per floats a vertex) for
+ * nv_all vertices when this mesh has it or an earlier one had: allocated on
+ * first use with dflt for the vertices before this mesh. Returns 0 when out
+ * of memory. */
+static int extra_reserve(float **arr, uint32_t *cap, uint32_t nv_old, uint32_t nv_all, int per,
+                         const float *given, const float *dflt)
+{
+    if (!given && !*arr)
+        return 1;
+    int fresh = *arr == NULL;
+    if (!reserve((void **)arr, cap, nv_all, sizeof(float), (size_t)per))
+        return 0;
+    if (fresh)
+        for (uint32_t v = 0; v < nv_old; v++)
+            memcpy(*arr + (size_t)per * v, dflt, sizeof(float) * (size_t)per);
+    return 1;
+}
+
+pt_status pt_scene_builder_add_mesh_extra(pt_scene_builder *b, const char *what,
+                                          const float *positions, const float *normals,
+                                          const float *uvs, const pt_mesh_extra *extra, uint32_t nv,
+                                          const uint32_t *indices, uint32_t nt,
+                                          const double xform[16], uint32_t material, pt_error *err)
+{
+    static const pt_mesh_extra none = {NULL, NULL, NULL};
+    static const float zero4[4] = {0, 0, 0, 0}, one4[4] = {1, 1, 1, 1};
+    if (!extra)
+        extra = &none;
     double *acc = NULL;
     pt_status st = PT_OK;
     if (!what)
@@ -381,7 +490,10 @@ pt_status pt_scene_builder_add_mesh_dxform(pt_scene_builder *b, const char *what
         !reserve((void **)&b->nrm, &b->cap_nrm, nv_all, sizeof(float), 3) ||
         !reserve((void **)&b->uv, &b->cap_uv, nv_all, sizeof(float), 2) ||
         !reserve((void **)&b->idx, &b->cap_idx, nt_all, sizeof(uint32_t), 3) ||
-        !reserve((void **)&b->tmat, &b->cap_tmat, nt_all, sizeof(uint32_t), 1))
+        !reserve((void **)&b->tmat, &b->cap_tmat, nt_all, sizeof(uint32_t), 1) ||
+        !extra_reserve(&b->uv1, &b->cap_uv1, b->nv, nv_all, 2, extra->uvs1, zero4) ||
+        !extra_reserve(&b->tan, &b->cap_tan, b->nv, nv_all, 4, extra->tangents, zero4) ||
+        !extra_reserve(&b->col, &b->cap_col, b->nv, nv_all, 4, extra->colors, one4))
         return pt_error_set(err, PT_ERR_NOMEM, "%s: out of memory", what);
 
     double c[3][3];
@@ -435,6 +547,8 @@ pt_status pt_scene_builder_add_mesh_dxform(pt_scene_builder *b, const char *what
         } else {
             UV[2 * v] = UV[2 * v + 1] = 0.0f;
         }
+        if ((st = add_vertex_extra(b, what, extra, v, xform, nsign, err)) != PT_OK)
+            return st;
     }
     uint32_t *I = b->idx + 3 * (size_t)b->nt;
     for (uint32_t t = 0; t < nt; t++) {
@@ -505,6 +619,66 @@ fail:
     return st;
 }
 
+/* Vertex v of the mesh being added (stored at b->nv + v): its optional
+ * attributes from extra, or their defaults where the builder keeps the array.
+ * A tangent is a direction on the surface, so it goes through the upper 3x3
+ * of xform itself (not the normal matrix); a mirroring transform (nsign -1)
+ * reverses the handedness, since M(n x t) = det(M) M^-T (n x t). A zero
+ * tangent means "generate" (pt_scene_builder_finish). */
+static pt_status add_vertex_extra(pt_scene_builder *b, const char *what, const pt_mesh_extra *x,
+                                  uint32_t v, const double xform[16], double nsign, pt_error *err)
+{
+    size_t o = (size_t)b->nv + v;
+    if (b->uv1) {
+        float *d = b->uv1 + 2 * o;
+        d[0] = d[1] = 0.0f;
+        if (x->uvs1) {
+            const float *t = x->uvs1 + 2 * (size_t)v;
+            if (!finite_n(t, 2))
+                return pt_error_set(err, PT_ERR_FORMAT, "%s: vertex %u TEXCOORD_1 is not finite",
+                                    what, v);
+            d[0] = t[0];
+            d[1] = t[1];
+        }
+    }
+    if (b->col) {
+        float *d = b->col + 4 * o;
+        d[0] = d[1] = d[2] = d[3] = 1.0f;
+        if (x->colors) {
+            const float *c = x->colors + 4 * (size_t)v;
+            if (!finite_n(c, 4))
+                return pt_error_set(err, PT_ERR_FORMAT, "%s: vertex %u COLOR_0 is not finite", what,
+                                    v);
+            memcpy(d, c, 4 * sizeof(float));
+        }
+    }
+    if (b->tan) {
+        float *d = b->tan + 4 * o;
+        d[0] = d[1] = d[2] = d[3] = 0.0f;
+        if (x->tangents) {
+            const float *t = x->tangents + 4 * (size_t)v;
+            if (!finite_n(t, 4) || !(t[3] == 1.0f || t[3] == -1.0f))
+                return pt_error_set(err, PT_ERR_FORMAT,
+                                    "%s: vertex %u TANGENT is not finite or its w is not +-1", what,
+                                    v);
+            double m[3], len2 = 0.0;
+            for (int r = 0; r < 3; r++) {
+                m[r] = xform ? xform[r] * t[0] + xform[4 + r] * t[1] + xform[8 + r] * t[2]
+                             : (double)t[r];
+                len2 += m[r] * m[r];
+            }
+            double len = sqrt(len2);
+            /* A zero tangent stays zero: generated at finish. */
+            if (len > 0.0 && isfinite(len)) {
+                for (int r = 0; r < 3; r++)
+                    d[r] = (float)(m[r] / len);
+                d[3] = (float)(t[3] * nsign);
+            }
+        }
+    }
+    return PT_OK;
+}
+
 /* SHA-256 (FIPS 180-4) of the built data, for scenes made by code. */
 static pt_status hash_scene(const pt_scene *s, char out[65], pt_error *err)
 {
@@ -521,6 +695,13 @@ static pt_status hash_scene(const pt_scene *s, char out[65], pt_error *err)
     EVP_DigestUpdate(ctx, s->normals, 3 * sizeof(float) * s->num_vertices);
     if (s->uvs)
         EVP_DigestUpdate(ctx, s->uvs, 2 * sizeof(float) * s->num_vertices);
+    /* The optional attributes only when present: other scenes keep their hash. */
+    if (s->uvs1)
+        EVP_DigestUpdate(ctx, s->uvs1, 2 * sizeof(float) * s->num_vertices);
+    if (s->tangents)
+        EVP_DigestUpdate(ctx, s->tangents, 4 * sizeof(float) * s->num_vertices);
+    if (s->colors)
+        EVP_DigestUpdate(ctx, s->colors, 4 * sizeof(float) * s->num_vertices);
     EVP_DigestUpdate(ctx, s->indices, 3 * sizeof(uint32_t) * s->num_triangles);
     EVP_DigestUpdate(ctx, s->tri_material, sizeof(uint32_t) * s->num_triangles);
     EVP_DigestUpdate(ctx, s->materials, sizeof(pt_material) * s->num_materials);
@@ -528,6 +709,8 @@ static pt_status hash_scene(const pt_scene *s, char out[65], pt_error *err)
         const pt_texture *t = &s->textures[i];
         int32_t h[5] = {(int32_t)t->width, (int32_t)t->height, t->srgb, t->wrap_s, t->wrap_t};
         EVP_DigestUpdate(ctx, h, sizeof h);
+        if (t->nearest)
+            EVP_DigestUpdate(ctx, &t->nearest, sizeof t->nearest);
         EVP_DigestUpdate(ctx, t->rgba, (size_t)t->width * t->height * 4);
     }
     for (uint32_t i = 0; i < s->num_cameras; i++) {
@@ -607,6 +790,9 @@ void pt_scene_free(pt_scene *s)
     pt_free(s->positions);
     pt_free(s->normals);
     pt_free(s->uvs);
+    pt_free(s->uvs1);
+    pt_free(s->tangents);
+    pt_free(s->colors);
     pt_free(s->indices);
     pt_free(s->tri_material);
     pt_free(s->materials);
@@ -676,6 +862,18 @@ static uint32_t scene_features(const pt_scene *s, int has_uv, pt_error *err, pt_
         }
         if (!m->double_sided)
             f |= PT_FEAT_SINGLE_SIDED;
+        if (m->alpha_mode != PT_ALPHA_OPAQUE)
+            f |= PT_FEAT_ALPHA;
+        if (m->transmission > 0.0f) {
+            /* The glass BSDF has GGX lobes: the Lambert paths must not run. */
+            f |= PT_FEAT_TRANSMISSION | PT_FEAT_GLOSSY;
+            if (m->transmission_tex >= 0)
+                f |= PT_FEAT_TEXTURES;
+            if (pt_material_absorbs(m))
+                f |= PT_FEAT_VOLUME;
+        }
+        if (m->normal_tex >= 0)
+            f |= PT_FEAT_NORMAL_MAP;
     }
     pt_free(used);
     *st = PT_OK;
@@ -697,6 +895,60 @@ static double rebase_origin(double lo, double hi, double extent)
     frexp(4.0 * extent, &e);
     double g = ldexp(1.0, e);
     return nearbyint(c / g) * g;
+}
+
+/* The optional attributes go to the scene where something reads them:
+ * TEXCOORD_1 and COLOR_0 when some mesh had them, tangents when some
+ * material has a normal texture (then generated where missing, from the
+ * normal texture's coordinate set). Sets PT_FEAT_NORMAL_MAP and
+ * PT_FEAT_VERTEX_COLOR. */
+static pt_status finish_extra(pt_scene_builder *b, pt_scene *s, pt_error *err)
+{
+    s->uvs1 = b->uv1;
+    b->uv1 = NULL;
+    if (b->col) {
+        s->colors = b->col;
+        b->col = NULL;
+        s->features |= PT_FEAT_VERTEX_COLOR;
+    }
+    if (!(s->features & PT_FEAT_NORMAL_MAP))
+        return PT_OK;
+    if (!b->tan) {
+        b->tan = pt_calloc((size_t)s->num_vertices * 4, sizeof(float));
+        if (!b->tan)
+            return pt_error_set(err, PT_ERR_NOMEM, "scene: out of memory for tangents");
+    }
+    s->tangents = b->tan;
+    b->tan = NULL;
+    uint8_t *use = pt_malloc(s->num_triangles);
+    if (!use)
+        return pt_error_set(err, PT_ERR_NOMEM, "scene: out of memory for tangents");
+    pt_status st = PT_OK;
+    for (int set = 0; set < 2 && st == PT_OK; set++) {
+        const float *uv = set ? s->uvs1 : s->uvs;
+        int any = 0;
+        for (uint32_t t = 0; t < s->num_triangles; t++) {
+            const pt_material *m = &s->materials[s->tri_material[t]];
+            use[t] = m->normal_tex >= 0 && m->tex_xf[PT_SLOT_NORMAL].texcoord == set;
+            any |= use[t];
+        }
+        /* Without that UV set every vertex gets a frame from its normal. */
+        if (any && uv)
+            st = pt_tangents_generate(s->positions, s->normals, uv, s->indices, s->num_triangles,
+                                      use, s->num_vertices, s->tangents, err);
+        else if (any) {
+            float *flat = pt_calloc((size_t)s->num_vertices * 2, sizeof(float));
+            if (!flat) {
+                st = pt_error_set(err, PT_ERR_NOMEM, "scene: out of memory for tangents");
+                break;
+            }
+            st = pt_tangents_generate(s->positions, s->normals, flat, s->indices, s->num_triangles,
+                                      use, s->num_vertices, s->tangents, err);
+            pt_free(flat);
+        }
+    }
+    pt_free(use);
+    return st;
 }
 
 pt_status pt_scene_builder_finish(pt_scene_builder *b, const pt_scene_opts *opts, pt_scene **out,
@@ -826,6 +1078,8 @@ pt_status pt_scene_builder_finish(pt_scene_builder *b, const pt_scene_opts *opts
         goto fail;
     if (s->num_punctual > 0)
         s->features |= PT_FEAT_PUNCTUAL;
+    if ((st = finish_extra(b, s, err)) != PT_OK)
+        goto fail;
     if (b->hash_set) {
         memcpy(s->hash, b->hash, sizeof s->hash);
     } else if ((st = hash_scene(s, s->hash, err)) != PT_OK) {
@@ -894,6 +1148,16 @@ void pt_texture_sample(const pt_texture *tex, float u, float v, float out[4])
 {
     pthread_once(&srgb_once, srgb_init);
     int w = (int)tex->width, h = (int)tex->height;
+    if (tex->nearest) {
+        /* The texel whose square holds (u, v): index floor(u w), wrapped. */
+        int xi = wrap_index((int)floorf(reduce_coord(u, tex->wrap_s) * (float)w), w, tex->wrap_s);
+        int yi = wrap_index((int)floorf(reduce_coord(v, tex->wrap_t) * (float)h), h, tex->wrap_t);
+        const uint8_t *px = tex->rgba + 4 * ((size_t)yi * (size_t)w + (size_t)xi);
+        for (int c = 0; c < 3; c++)
+            out[c] = tex->srgb ? srgb_lut[px[c]] : (float)px[c] * (1.0f / 255.0f);
+        out[3] = (float)px[3] * (1.0f / 255.0f);
+        return;
+    }
     /* Texel centres at (i + 0.5) / w; v = 0 is the top row (glTF UVs). */
     float x = reduce_coord(u, tex->wrap_s) * (float)w - 0.5f;
     float y = reduce_coord(v, tex->wrap_t) * (float)h - 0.5f;
@@ -910,4 +1174,51 @@ void pt_texture_sample(const pt_texture *tex, float u, float v, float out[4])
             out[c] += wt[k] * (tex->srgb ? srgb_lut[px[c]] : (float)px[c] * (1.0f / 255.0f));
         out[3] += wt[k] * (float)px[3] * (1.0f / 255.0f);
     }
+}
+
+pt_tex_xform pt_tex_xform_identity(void)
+{
+    pt_tex_xform x;
+    memset(&x, 0, sizeof x);
+    x.m[0] = x.m[4] = 1.0f;
+    return x;
+}
+
+pt_tex_xform pt_tex_xform_make(const float offset[2], float rotation, const float scale[2],
+                               int32_t texcoord)
+{
+    /* KHR_texture_transform's README: T * R * S, with R = [cos sin; -sin cos]
+     * (rows) so that a positive rotation turns the image counter-clockwise
+     * as displayed (v points down): uv' = (cos sx u + sin sy v + ox,
+     * -sin sx u + cos sy v + oy), in double and rounded once. The sample
+     * asset TextureTransformTest confirms the sense (its arrows point at the
+     * green markers; the other sense points at the red one). */
+    double c = cos((double)rotation), sn = sin((double)rotation);
+    pt_tex_xform x;
+    memset(&x, 0, sizeof x);
+    x.m[0] = (float)(c * scale[0]);
+    x.m[1] = (float)(sn * scale[1]);
+    x.m[2] = offset[0];
+    x.m[3] = (float)(-sn * scale[0]);
+    x.m[4] = (float)(c * scale[1]);
+    x.m[5] = offset[1];
+    x.texcoord = texcoord;
+    x.active = !(x.m[0] == 1.0f && x.m[1] == 0.0f && x.m[2] == 0.0f && x.m[3] == 0.0f &&
+                 x.m[4] == 1.0f && x.m[5] == 0.0f);
+    return x;
+}
+
+void pt_scene_slot_uv(const pt_scene *s, const pt_material *m, int slot, uint32_t tri, float b1,
+                      float b2, float out[2])
+{
+    const pt_tex_xform *x = &m->tex_xf[slot];
+    const float *uv = x->texcoord ? s->uvs1 : s->uvs;
+    float t[2] = {0.0f, 0.0f};
+    if (uv) {
+        const uint32_t *i = &s->indices[3 * (size_t)tri];
+        float b0 = 1.0f - b1 - b2;
+        t[0] = b0 * uv[2 * i[0]] + b1 * uv[2 * i[1]] + b2 * uv[2 * i[2]];
+        t[1] = b0 * uv[2 * i[0] + 1] + b1 * uv[2 * i[1] + 1] + b2 * uv[2 * i[2] + 1];
+    }
+    pt_tex_xform_apply(x, t, out);
 }

@@ -44,7 +44,18 @@ enum {
     PT_FEAT_UVS = 1u << 5,          /* the scene has texture coordinates */
     PT_FEAT_PUNCTUAL = 1u << 6,     /* there is at least one punctual light */
     PT_FEAT_ENV = 1u << 7,          /* an environment light (set by the renderer, not the file) */
+    PT_FEAT_ALPHA = 1u << 10,       /* some material's alphaMode is MASK or BLEND */
+    PT_FEAT_NORMAL_MAP = 1u << 8,   /* some material has a normal texture (tangents exist) */
+    PT_FEAT_VERTEX_COLOR = 1u << 9, /* the scene has COLOR_0 vertex colours */
 };
+/* Glass: some material transmits (KHR_materials_transmission; it sets
+ * PT_FEAT_GLOSSY too), and some transmitting material absorbs inside its
+ * closed mesh (KHR_materials_volume, pt_material_absorbs). */
+enum { PT_FEAT_TRANSMISSION = 1u << 11, PT_FEAT_VOLUME = 1u << 12 };
+
+/* glTF alphaMode (common/scene/alpha.h). OPAQUE is 0, so a material
+ * initialised with zeros is opaque. */
+enum { PT_ALPHA_OPAQUE = 0, PT_ALPHA_MASK = 1, PT_ALPHA_BLEND = 2 };
 
 enum { PT_WRAP_REPEAT = 0, PT_WRAP_CLAMP = 1, PT_WRAP_MIRROR = 2 };
 
@@ -53,7 +64,30 @@ typedef struct pt_texture {
     uint8_t *rgba;      /* width*height*4 bytes, row 0 at the top (v = 0) */
     int srgb;           /* 1: colour data in sRGB, decoded to linear at lookup */
     int wrap_s, wrap_t; /* PT_WRAP_* */
+    int nearest;        /* 1: the sampler's magFilter is NEAREST (see pt_texture_sample) */
 } pt_texture;
+
+/* A material's texture slots, each with its KHR_texture_transform and its
+ * texture coordinate set (glTF textureInfo.texCoord: 0 or 1). */
+enum {
+    PT_SLOT_BASE = 0,
+    PT_SLOT_METAL_ROUGH,
+    PT_SLOT_EMISSIVE,
+    PT_SLOT_NORMAL,
+    PT_SLOT_TRANSMISSION,
+    PT_SLOT_COUNT
+};
+
+/* uv' = (m[0] u + m[1] v + m[2], m[3] u + m[4] v + m[5]): the extension's
+ * T * R * S (offset, rotation, scale) as the top two rows of its 3x3 matrix.
+ * active: 0 for the identity (m is then not read), so that lookups skip it
+ * and give the same bits as before the extension, and a zeroed pt_tex_xform
+ * is the identity on TEXCOORD_0. */
+typedef struct pt_tex_xform {
+    float m[6];
+    int32_t texcoord; /* 0: TEXCOORD_0, 1: TEXCOORD_1 */
+    int32_t active;
+} pt_tex_xform;
 
 typedef struct pt_material {
     float base_color[4];    /* linear RGBA factor */
@@ -64,7 +98,21 @@ typedef struct pt_material {
     int32_t emissive_tex;    /* sRGB texture or -1 */
     float specular;          /* KHR_materials_specular specularFactor (default 1) */
     float specular_color[3]; /* KHR_materials_specular specularColorFactor (default 1,1,1) */
+    /* KHR_materials_transmission, _ior, _volume (all ignored while
+     * transmission is 0: the texture only scales the factor). */
+    float transmission;         /* transmissionFactor in [0, 1] (default 0) */
+    int32_t transmission_tex;   /* R = transmission (linear), or -1 */
+    float ior;                  /* index of refraction, >= 1 (default 1.5), or 0: F0 = 1 */
+    float thickness;            /* thicknessFactor >= 0: 0 is thin-walled (the default), else the
+                                   mesh is a closed volume; its value is not otherwise used */
+    float attenuation_color[3]; /* in [0, 1] (default 1,1,1) */
+    float attenuation_distance; /* > 0; 0 (or +inf in glTF) means no absorption */
     int double_sided;
+    int alpha_mode;                     /* PT_ALPHA_* (default OPAQUE) */
+    float alpha_cutoff;                 /* MASK: covered where alpha >= this (glTF default 0.5) */
+    int32_t normal_tex;                 /* linear tangent-space normal texture or -1 */
+    float normal_scale;                 /* normalTexture.scale: scales the map's x and y */
+    pt_tex_xform tex_xf[PT_SLOT_COUNT]; /* per slot (PT_SLOT_*) */
     char name[64];
 } pt_material;
 
@@ -109,6 +157,12 @@ typedef struct pt_scene {
     float *positions;       /* 3 per vertex, scene space (world = stored + origin) */
     float *normals;         /* 3 per vertex, world space (= scene space), unit length */
     float *uvs;             /* 2 per vertex, or NULL when no primitive has TEXCOORD_0 */
+    float *uvs1;            /* 2 per vertex (TEXCOORD_1), or NULL when no primitive has it */
+    float *tangents;        /* 4 per vertex, or NULL when no material has a normal texture:
+                               xyz unit, world space, w = +-1 the handedness (bitangent =
+                               w cross(normal, xyz)); given by TANGENT or generated */
+    float *colors;          /* 4 per vertex (COLOR_0, linear RGBA), or NULL when no primitive
+                               has it; (1,1,1,1) for vertices of a primitive without it */
     uint32_t *indices;      /* 3 per triangle */
     uint32_t *tri_material; /* 1 per triangle */
 
@@ -163,8 +217,38 @@ pt_status pt_scene_load(const char *path, const pt_scene_opts *opts, pt_scene **
 /* Frees the scene and all it owns. Accepts NULL. */
 void pt_scene_free(pt_scene *scene);
 
-/* Bilinear lookup with wrap modes; returns linear RGBA (sRGB decoded). */
+/* Lookup with the texture's wrap modes (per axis) and filter: bilinear, or
+ * the nearest texel when tex->nearest. Without ray footprints the renderer
+ * cannot tell magnification from minification, so the magFilter decides
+ * (a pixel-art texture asks for NEAREST there) and minification is left to
+ * the pixel's own supersampling. Returns linear RGBA (sRGB decoded). */
 void pt_texture_sample(const pt_texture *tex, float u, float v, float out[4]);
+
+/* The identity transform on TEXCOORD_0. */
+pt_tex_xform pt_tex_xform_identity(void);
+
+/* The transform of KHR_texture_transform: offset, then rotation (radians,
+ * counter-clockwise in UV space as the extension defines), then scale. */
+pt_tex_xform pt_tex_xform_make(const float offset[2], float rotation, const float scale[2],
+                               int32_t texcoord);
+
+/* Applies x to uv (!x->active: uv unchanged, bit for bit). */
+static inline void pt_tex_xform_apply(const pt_tex_xform *x, const float uv[2], float out[2])
+{
+    if (!x->active) {
+        out[0] = uv[0];
+        out[1] = uv[1];
+        return;
+    }
+    out[0] = x->m[0] * uv[0] + x->m[1] * uv[1] + x->m[2];
+    out[1] = x->m[3] * uv[0] + x->m[4] * uv[1] + x->m[5];
+}
+
+/* The UV at which material m's texture in `slot` is read on triangle tri at
+ * barycentrics (b1, b2): its coordinate set interpolated, then transformed.
+ * (0, 0) when the scene lacks that set. */
+void pt_scene_slot_uv(const pt_scene *s, const pt_material *m, int slot, uint32_t tri, float b1,
+                      float b2, float out[2]);
 
 /* Sets scene->camera to a default view that frames the bounds, for an image
  * aspect of `aspect` (width/height). */
@@ -178,8 +262,18 @@ void pt_scene_frame_camera(pt_scene *scene, float aspect);
  * a near-zero aspect cannot overflow. Pure: any thread may call it. */
 uint32_t pt_camera_height(float aspect, uint32_t width, uint32_t max_height);
 
+/* Whether m absorbs inside its volume (Beer-Lambert): it transmits, is not
+ * thin-walled, and has a finite attenuation distance with a colour below 1. */
+static inline int pt_material_absorbs(const pt_material *m)
+{
+    return m->transmission > 0.0f && m->thickness > 0.0f && m->attenuation_distance > 0.0f &&
+           m->attenuation_distance < 3.4e38f &&
+           (m->attenuation_color[0] < 1.0f || m->attenuation_color[1] < 1.0f ||
+            m->attenuation_color[2] < 1.0f);
+}
+
 /* A default material: white base colour, metallic 1, roughness 1 (glTF defaults),
- * specular 1, single-sided. */
+ * specular 1, single-sided, OPAQUE with alpha cutoff 0.5. */
 pt_material pt_material_default(void);
 
 /* ---- building scenes by code ---------------------------------------------------------- */
@@ -192,13 +286,26 @@ void pt_scene_builder_free(pt_scene_builder *b); /* accepts NULL */
 /* Adds a material (copied); its index goes to *index. Rejects (PT_ERR_FORMAT,
  * naming the material and the field) NaN/Inf factors, negative emission,
  * base colour, metallic, roughness or specular factors outside [0, 1] (glTF's
- * range: rejected, not clamped) and a negative specular colour. */
+ * range: rejected, not clamped), a negative specular colour, an unknown
+ * alpha mode and a negative or non-finite alpha cutoff. */
 pt_status pt_scene_builder_add_material(pt_scene_builder *b, const pt_material *m, uint32_t *index,
                                         pt_error *err);
 /* Adds a texture; the builder takes ownership of tex->rgba (pt_malloc'd)
  * even on failure. */
 pt_status pt_scene_builder_add_texture(pt_scene_builder *b, const pt_texture *tex, uint32_t *index,
                                        pt_error *err);
+/* Vertex attributes beyond position, normal and TEXCOORD_0; any may be NULL.
+ * uvs1: 2 per vertex (TEXCOORD_1). tangents: 4 per vertex in the mesh's
+ * space (glTF TANGENT: xyz, w = +-1), transformed with the mesh (a
+ * mirroring transform flips w); vertices without one get tangents generated
+ * at finish when a material needs them (tangent.h). colors: 4 per vertex
+ * (COLOR_0, linear RGBA; a VEC3 is given with alpha 1). */
+typedef struct pt_mesh_extra {
+    const float *uvs1;
+    const float *tangents;
+    const float *colors;
+} pt_mesh_extra;
+
 /* Adds a triangle mesh. positions: 3*nv floats; normals: 3*nv or NULL (then
  * computed, area-weighted); uvs: 2*nv or NULL; indices: 3*nt, or NULL for
  * non-indexed (nv must then be 3*nt). xform: column-major 4x4 world matrix or
@@ -216,6 +323,13 @@ pt_status pt_scene_builder_add_mesh_dxform(pt_scene_builder *b, const char *what
                                            const float *uvs, uint32_t nv, const uint32_t *indices,
                                            uint32_t nt, const double xform[16], uint32_t material,
                                            pt_error *err);
+/* The same with the attributes of `extra` (may be NULL). Rejects non-finite
+ * values in them (PT_ERR_FORMAT) and a tangent w that is not +-1. */
+pt_status pt_scene_builder_add_mesh_extra(pt_scene_builder *b, const char *what,
+                                          const float *positions, const float *normals,
+                                          const float *uvs, const pt_mesh_extra *extra, uint32_t nv,
+                                          const uint32_t *indices, uint32_t nt,
+                                          const double xform[16], uint32_t material, pt_error *err);
 /* Adds a camera (copied) in world space. Rejects (PT_ERR_FORMAT) non-finite
  * vectors, a position over PT_SCENE_MAX_COORD, yfov outside (0, pi), aspect
  * outside [0, 1e6), a negative or non-finite znear. */

@@ -55,7 +55,8 @@ for args in "--help" "-h" "help"; do
 done
 run 0 submit --help &&
   has "$tmp/out" "ptctl submit SCENE" --spp --res --seed --priority --name --max-depth \
-    --target-error --min-gain --min-spp --transparent --watch "${globals[@]}" "${statuses[@]}"
+    --target-error --min-gain --min-spp --env --env-strength --env-rotate --background \
+    --transparent --watch "${globals[@]}" "${statuses[@]}"
 run 0 list --help && has "$tmp/out" "ptctl list" --json "${globals[@]}" "${statuses[@]}"
 run 0 status --help && has "$tmp/out" "ptctl status JOB" --json "${globals[@]}" "${statuses[@]}"
 run 0 watch --help && has "$tmp/out" "ptctl watch JOB" "${globals[@]}" "${statuses[@]}"
@@ -113,6 +114,12 @@ usage_case "--min-gain" submit a.gltf --min-gain inf
 usage_case "--min-gain" submit a.gltf --min-gain 1e-6x
 usage_case "two adaptive rules" submit a.gltf --target-error 0.05 --min-gain 1e-6
 usage_case "--min-spp" submit a.gltf --min-spp x
+usage_case "two environments" submit a.gltf --env a.hdr --background 1,1,1
+usage_case "--background" submit a.gltf --background 1,2
+usage_case "--background" submit a.gltf --background 1,1,nan
+usage_case "--env-strength" submit a.gltf --env-strength -1
+usage_case "--env-rotate" submit a.gltf --env-rotate inf
+usage_case "needs a value" submit a.gltf --env
 usage_case "--name" submit a.gltf --name "$(printf 'n%.0s' {1..65})"
 usage_case "--timeout" --timeout 0 list
 usage_case "--timeout" --timeout abc list

@@ -58,6 +58,18 @@ static inline proto_task sample_task(int v)
     sample_hash(m.scene_hash, (unsigned)v);
     m.lease_ms = v ? 0 : 30000;
     strcpy(m.camera, v ? "" : "Camera.001");
+    /* v 0: a uniform background; v 1: a map, strengthened and turned. */
+    proto_env_none(&m.env);
+    if (v) {
+        strcpy(m.env.name, ".ptfarm/environment");
+        m.env.strength = 2.5f;
+        m.env.rotate_deg = -90.0f;
+    } else {
+        m.env.background = 1;
+        m.env.rgb[0] = 0.5f;
+        m.env.rgb[1] = 0.25f;
+        m.env.rgb[2] = 1e-3f;
+    }
     m.film_flags = v ? PROTO_FILM_TRANSPARENT : 0;
     return m;
 }
@@ -115,6 +127,13 @@ static inline proto_submit sample_submit(int v)
     sample_hash(m.bundle_hash, 3u + (unsigned)v);
     strcpy(m.camera, v ? "" : "close-up");
     m.min_gain = v ? 2.5e-7 : 0.0;
+    /* v 0: a map; v 1: none. */
+    proto_env_none(&m.env);
+    if (!v) {
+        strcpy(m.env.name, ".ptfarm/environment");
+        m.env.strength = 0.75f;
+        m.env.rotate_deg = 180.0f;
+    }
     m.film_flags = v ? PROTO_FILM_TRANSPARENT : 0;
     return m;
 }

@@ -14,6 +14,7 @@
  * - RESULT into a caller's buffer and a decoder-allocated one; the allocation
  *   failure loop without leaks; no allocation for a payload refused early.
  */
+#include <math.h>
 #include <string.h>
 
 #include "common/base/alloc.h"
@@ -194,8 +195,10 @@ static void check_round_trip(int s, int v, const uint8_t *p, size_t len)
     }
     case 6: {
         proto_task a = sample_task(v), b;
-        CHECK(len == 98 + strlen(a.camera) && proto_msg_decode_task(p, len, &b, &err) == PT_OK);
+        CHECK(len == 121 + strlen(a.camera) + strlen(a.env.name) &&
+              proto_msg_decode_task(p, len, &b, &err) == PT_OK);
         CHECK(strcmp(a.camera, b.camera) == 0 && a.film_flags == b.film_flags);
+        CHECK(proto_env_same(&a.env, &b.env));
         CHECK(a.job_id == b.job_id && a.task_id == b.task_id);
         CHECK(memcmp(&a.tile, &b.tile, sizeof a.tile) == 0);
         CHECK(a.s0 == b.s0 && a.s1 == b.s1 && a.width == b.width && a.height == b.height);
@@ -262,8 +265,9 @@ static void check_round_trip(int s, int v, const uint8_t *p, size_t len)
     case 12: {
         proto_submit a = sample_submit(v), b;
         CHECK(proto_msg_decode_submit(p, len, &b, &err) == PT_OK);
-        CHECK(len == 90 + strlen(a.name) + strlen(a.camera));
+        CHECK(len == 113 + strlen(a.name) + strlen(a.camera) + strlen(a.env.name));
         CHECK(strcmp(a.camera, b.camera) == 0 && a.film_flags == b.film_flags);
+        CHECK(proto_env_same(&a.env, &b.env));
         CHECK(strcmp(a.name, b.name) == 0 && a.width == b.width && a.height == b.height);
         CHECK(a.spp == b.spp && a.seed == b.seed && a.priority == b.priority);
         CHECK(a.max_depth == b.max_depth && a.min_spp == b.min_spp);
@@ -419,6 +423,17 @@ static void test_strings(void)
     proto_writer_fini(&w);
 }
 
+/* An ENV block by hand: no environment. */
+static void w_env_none(proto_writer *w)
+{
+    proto_w_u16(w, 0);
+    proto_w_f32(w, 1.0f);
+    proto_w_f32(w, 0.0f);
+    proto_w_u8(w, 0);
+    for (int k = 0; k < 3; k++)
+        proto_w_f32(w, 0.0f);
+}
+
 static proto_writer task_raw(pt_rect t, uint32_t s0, uint32_t s1, uint32_t width, uint32_t height)
 {
     proto_writer w;
@@ -440,6 +455,7 @@ static proto_writer task_raw(pt_rect t, uint32_t s0, uint32_t s1, uint32_t width
         proto_w_u8(&w, (uint8_t)i);
     proto_w_u32(&w, 1000);
     proto_w_u16(&w, 0); /* camera: "" */
+    w_env_none(&w);
     proto_w_u32(&w, 0); /* film flags */
     return w;
 }
@@ -489,6 +505,38 @@ static void test_task(void)
     CHECK(task_check((pt_rect){0, 0, 8, 8}, 17, 16, 64, 64, "s0", &err) == PT_ERR_PROTO);
     CHECK(task_check((pt_rect){0, 0, 8, 8}, 0, UINT32_MAX, 64, 64, NULL, &err) == PT_OK);
 
+    /* The environment: a bad field refused by the decoder and the encoder. */
+    for (int k = 0; k < 4; k++) {
+        proto_task e = sample_task(k & 1);
+        if (k == 0)
+            e.env.rgb[2] = NAN;
+        else if (k == 1)
+            e.env.strength = INFINITY;
+        else if (k == 2)
+            e.env.background = 3;
+        else
+            e.env.background = 1; /* and the map it names: two environments */
+        proto_writer ew;
+        proto_writer_init(&ew, 1024);
+        CHECKF(proto_msg_encode_task(&ew, &e, &err) == PT_ERR_ARG && ew.len == 0, "env case %d", k);
+        proto_task good = sample_task(k & 1);
+        CHECK(proto_msg_encode_task(&ew, &good, &err) == PT_OK);
+        /* Patch the bad value into the good bytes: the ENV block, then the
+         * film flags, end the message. */
+        uint8_t *env_at = ew.buf + ew.len - 4 - 23 - strlen(good.env.name);
+        if (k == 0)
+            proto_put_u32(env_at + 19, 0x7FC00000u); /* rgb[2], the name empty */
+        else if (k == 1)
+            proto_put_u32(env_at + 2 + strlen(good.env.name), 0x7F800000u);
+        else if (k == 2)
+            env_at[2 + strlen(good.env.name) + 8] = 3;
+        if (k < 3)
+            CHECKF(decode_any(PROTO_MSG_TASK, ew.buf, ew.len, &err) == PT_ERR_PROTO &&
+                       strstr(err.msg, "TASK") != NULL,
+                   "env case %d: %s", k, err.msg);
+        proto_writer_fini(&ew);
+    }
+
     /* The camera name: at its cap, one over it (refused both ways). */
     proto_task t = sample_task(0);
     memset(t.camera, 'c', PROTO_MAX_NAME);
@@ -501,7 +549,7 @@ static void test_task(void)
           strcmp(back.camera, t.camera) == 0);
     proto_writer_reset(&w);
     proto_writer raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
-    raw.len -= 6;
+    raw.len -= 2 + 23 + 4; /* the empty camera, the ENV block and the film flags */
     proto_w_u16(&raw, PROTO_MAX_NAME + 1);
     for (uint32_t i = 0; i <= PROTO_MAX_NAME; i++)
         proto_w_u8(&raw, 'c');
@@ -818,6 +866,13 @@ static pt_status submit_check(const proto_submit *m, const char *want)
     proto_w_u16(&w, (uint16_t)strlen(m->camera));
     proto_w_bytes(&w, m->camera, strlen(m->camera));
     proto_w_f64(&w, m->min_gain);
+    proto_w_u16(&w, (uint16_t)strlen(m->env.name));
+    proto_w_bytes(&w, m->env.name, strlen(m->env.name));
+    proto_w_f32(&w, m->env.strength);
+    proto_w_f32(&w, m->env.rotate_deg);
+    proto_w_u8(&w, m->env.background);
+    for (int k = 0; k < 3; k++)
+        proto_w_f32(&w, m->env.rgb[k]);
     proto_w_u32(&w, m->film_flags);
     pt_error err = {0};
     pt_status st = decode_any(PROTO_MSG_SUBMIT, w.buf, w.len, &err);
@@ -896,6 +951,51 @@ static void test_submit(void)
     proto_w_u16(&w, PROTO_MAX_NAME + 1);
     CHECK(decode_any(PROTO_MSG_SUBMIT, w.buf, w.len, &err) == PT_ERR_PROTO);
     CHECK(strstr(err.msg, "cap") != NULL);
+    /* The environment: each field's bad values refused both ways, by name. */
+    static const uint32_t bad_floats[] = {0x7FC00000u, 0xFFC00000u, 0x7F800000u, 0xFF800000u};
+    for (size_t i = 0; i < sizeof bad_floats / sizeof bad_floats[0]; i++) {
+        m = sample_submit(0);
+        m.env.strength = proto_bits_f32(bad_floats[i]);
+        CHECK(submit_check(&m, "environment strength") == PT_ERR_PROTO);
+        m = sample_submit(0);
+        m.env.rotate_deg = proto_bits_f32(bad_floats[i]);
+        CHECK(submit_check(&m, "environment rotation") == PT_ERR_PROTO);
+        m = sample_submit(1);
+        m.env.background = 1;
+        m.env.rgb[i % 3] = proto_bits_f32(bad_floats[i]);
+        CHECK(submit_check(&m, "background colour") == PT_ERR_PROTO);
+    }
+    m = sample_submit(0);
+    m.env.strength = -1.0f;
+    CHECK(submit_check(&m, "environment strength") == PT_ERR_PROTO);
+    m.env.strength = 0.0f; /* black, but well formed */
+    CHECK(submit_check(&m, NULL) == PT_OK);
+    m.env.rotate_deg = -1e30f;
+    CHECK(submit_check(&m, NULL) == PT_OK);
+    m = sample_submit(1);
+    m.env.background = 2;
+    CHECK(submit_check(&m, "background flag") == PT_ERR_PROTO);
+    m.env.background = 1;
+    m.env.rgb[1] = -0.5f;
+    CHECK(submit_check(&m, "background colour") == PT_ERR_PROTO);
+    m.env.rgb[1] = 0.5f;
+    CHECK(submit_check(&m, NULL) == PT_OK);
+    strcpy(m.env.name, ".ptfarm/environment");
+    CHECK(submit_check(&m, "two environments") == PT_ERR_PROTO);
+    /* The map's name at its cap, and over it. */
+    m = sample_submit(0);
+    memset(m.env.name, 'e', PROTO_MAX_PATH);
+    m.env.name[PROTO_MAX_PATH] = '\0';
+    CHECK(submit_check(&m, NULL) == PT_OK);
+    memset(m.env.name, 'e', sizeof m.env.name);
+    proto_writer_reset(&w);
+    CHECK(proto_msg_encode_submit(&w, &m, &err) == PT_ERR_ARG && w.len == 0);
+    /* Cut inside the ENV block: refused as truncated. */
+    m = sample_submit(0);
+    CHECK(proto_msg_encode_submit(&w, &m, &err) == PT_OK);
+    CHECK(decode_any(PROTO_MSG_SUBMIT, w.buf, w.len - 4 - 1, &err) == PT_ERR_PROTO);
+    CHECK(strstr(err.msg, "background colour") != NULL);
+    proto_writer_reset(&w);
     /* A NUL in the name. */
     proto_writer_reset(&w);
     m = sample_submit(0);

@@ -715,7 +715,8 @@ static void set_format(const char *name, long at, const long *vers, int nvers, u
     pt_free(d);
 }
 
-/* ---- format 4 to format 3: what the ptserve before the film flags wrote ---- */
+/* ---- format 4 to format 3: what the ptserve before the environment light and
+ * the film flags wrote ---- */
 
 /* Reads the state file name into *d (n bytes); 0 when it cannot. */
 static int read_state(const char *name, uint8_t **d, size_t *n)
@@ -749,7 +750,8 @@ static void write_v3(const char *name, proto_writer *w, const long *vers, int nv
 }
 
 /* The job params block up to the camera (nine u32, two f64, str), copied; the
- * film flags after it dropped. Returns the width, height and tile side. */
+ * environment (str, f32 x2, u8, f32 x3) and the film flags after it dropped.
+ * Returns the width, height and tile side. */
 static void copy_params_v3(proto_writer *w, const uint8_t *d, size_t *at, uint32_t wht[3])
 {
     wht[0] = proto_get_u32(d + *at);
@@ -758,10 +760,12 @@ static void copy_params_v3(proto_writer *w, const uint8_t *d, size_t *at, uint32
     proto_w_bytes(w, d + *at, 9 * 4 + 16);
     *at += 9 * 4 + 16;
     copy_str(w, d, at);
-    *at += 4; /* film flags */
+    *at += 2 + proto_get_u16(d + *at) + 4 + 4 + 1 + 12; /* the environment */
+    *at += 4;                                           /* film flags */
 }
 
-/* The queue file: each record without its film flags and depth-cap count. */
+/* The queue file: each record without its environment, film flags and
+ * depth-cap count. */
 static void queue_to_v3(const char *name)
 {
     uint8_t *d;
@@ -792,7 +796,8 @@ static void queue_to_v3(const char *name)
     pt_free(d);
 }
 
-/* A checkpoint: no film flags, no depth-cap count, 36-byte pixels. */
+/* A checkpoint: no environment, no film flags, no depth-cap count, 36-byte
+ * pixels. */
 static void checkpoint_to_v3(const char *name)
 {
     uint8_t *d;
@@ -994,43 +999,41 @@ static void damaged(void)
     kill_server(SIGTERM);
     CHECK(log_has("damage_torn.log", "incomplete last record"));
 
-    /* A state folder in format 2, from the ptserve before --min-gain: the same job
-     * resumes with the same samples as from the current format. */
+    /* State folders in format 3 (before the environment light and the film
+     * flags) and 2 (before --min-gain as well): the same job resumes with the
+     * same samples as from the current format. */
     CHECK(system(cmd) == 0); /* state3.good again */
-    CHECK(start_damaged("migrate_v3.log") == -1);
-    proto_job_info v3;
-    CHECK(status(g_port, id, &v3) == PROTO_MSG_JOB_INFO && v3.samples_done > 0);
+    CHECK(start_damaged("migrate_v4.log") == -1);
+    proto_job_info v4;
+    CHECK(status(g_port, id, &v4) == PROTO_MSG_JOB_INFO && v4.samples_done > 0);
     kill_server(SIGKILL);
-    snprintf(cmd, sizeof cmd, "rm -rf '%s' && cp -a '%s' '%s'", path("state3"), path("state3.good"),
-             path("state3"));
-    CHECK(system(cmd) == 0);
-    /* Format 3, from the ptserve before the film flags: its results log is read
-     * in the old RESULT layout (and rewritten), the same samples again. */
-    queue_to_v3("state3/queue");
-    checkpoint_to_v3(ck);
-    log_to_v3(lg);
-    CHECK(start_damaged("migrate_v3old.log") == -1);
-    CHECKF(status(g_port, id, &info) == PROTO_MSG_JOB_INFO && info.state == PROTO_JOB_RUNNING &&
-               info.samples_done == v3.samples_done,
-           "format 3: state %u, %llu samples (format 4: %llu)", info.state,
-           (unsigned long long)info.samples_done, (unsigned long long)v3.samples_done);
-    kill_server(SIGKILL);
-    CHECK(system(cmd) == 0);
-    queue_to_v3("state3/queue");
-    checkpoint_to_v3(ck);
-    log_to_v3(lg);
     const long qv[] = {4}, cv[] = {4, 36};
-    to_format2("state3/queue", queue_min_gain_at("state3/queue"), qv, 1, 1);
     /* checkpoint: header 8, seconds/rejected/rays 24, magic, version, id, hash,
      * nine u32 parameters, target error; then the min gain */
-    to_format2(ck, 8 + 24 + 4 + 4 + 8 + 32 + 36 + 8, cv, 2, 1);
-    to_format2(lg, -1, qv, 1, 0); /* the results log: only its header's version */
-    CHECK(start_damaged("migrate_v2.log") == -1);
-    CHECKF(status(g_port, id, &info) == PROTO_MSG_JOB_INFO && info.state == PROTO_JOB_RUNNING &&
-               info.samples_done == v3.samples_done,
-           "format 2: state %u, %llu samples (format 3: %llu)", info.state,
-           (unsigned long long)info.samples_done, (unsigned long long)v3.samples_done);
-    kill_server(SIGTERM);
+    const long ck_gain = 8 + 24 + 4 + 4 + 8 + 32 + 36 + 8;
+    for (uint32_t format = 3; format >= 2; format--) {
+        snprintf(cmd, sizeof cmd, "rm -rf '%s' && cp -a '%s' '%s'", path("state3"),
+                 path("state3.good"), path("state3"));
+        CHECK(system(cmd) == 0);
+        /* Format 3: no environment, no film flags, and the results log in
+         * protocol 2's RESULT layout (read so, and rewritten). */
+        queue_to_v3("state3/queue");
+        checkpoint_to_v3(ck);
+        log_to_v3(lg);
+        if (format == 2) {
+            to_format2("state3/queue", queue_min_gain_at("state3/queue"), qv, 1, 1);
+            to_format2(ck, ck_gain, cv, 2, 1);
+            to_format2(lg, -1, qv, 1, 0); /* the results log: only its header's version */
+        }
+        char log[32];
+        snprintf(log, sizeof log, "migrate_v%u.log", format);
+        CHECK(start_damaged(log) == -1);
+        CHECKF(status(g_port, id, &info) == PROTO_MSG_JOB_INFO && info.state == PROTO_JOB_RUNNING &&
+                   info.samples_done == v4.samples_done,
+               "format %u: state %u, %llu samples (format 4: %llu)", format, info.state,
+               (unsigned long long)info.samples_done, (unsigned long long)v4.samples_done);
+        kill_server(SIGTERM);
+    }
     /* A format this ptserve does not know is refused, naming the file. */
     const long fv[] = {4};
     copy_file("state3.good/queue", "state3/queue");
@@ -1248,6 +1251,9 @@ static int wait_log_count(const char *log, const char *needle, int n)
 static void send_submission(cli *c, const char *name, const pt_bundle *b)
 {
     proto_submit m = job_of(name, 64, 48, 16, 0);
+    /* The spheres have no light of their own: a uniform sky lights them. */
+    m.env.background = 1;
+    m.env.rgb[0] = m.env.rgb[1] = m.env.rgb[2] = 1.0f;
     m.bundle_size = b->size;
     hash_bytes(b->data, b->size, m.bundle_hash);
     submit_begin(c, &m);
@@ -1422,7 +1428,11 @@ static void outside_files(void)
     uint8_t *good = make_bundle_n(names, datas, sizes, 2, &len);
     cli c;
     CHECK(cli_open(&c, g_port) == 0);
-    uint64_t id = submit_bytes(&c, job_of("inside", 32, 32, 4, 0), good, len);
+    /* Lit by a uniform sky: a scene with no light is refused (test_farm_env). */
+    proto_submit inside = job_of("inside", 32, 32, 4, 0);
+    inside.env.background = 1;
+    inside.env.rgb[0] = inside.env.rgb[1] = inside.env.rgb[2] = 1.0f;
+    uint64_t id = submit_bytes(&c, inside, good, len);
     CHECKF(id > 0, "the good scene was refused: %s", err_text);
     cli_close(&c);
     free(good);

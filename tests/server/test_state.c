@@ -17,13 +17,15 @@
 
 #include "common/base/alloc.h"
 #include "common/base/fsutil.h"
+#include "protocol/frame.h"
 #include "protocol/wire.h"
 #include "server/job.h"
 #include "server/state.h"
 #include "tests/check.h"
 
 static const uint8_t HASH[32] = {7, 7, 7};
-static const srv_job_params PARAMS = {64, 32, 32, 32, 16, 5, 8, 3, 0.0, 0, 0.0, "", 0};
+static const srv_job_params PARAMS = {
+    64, 32, 32, 32, 16, 5, 8, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}, 0};
 #define JOB_ID 4u
 
 /* The RESULT payload of task t of a PARAMS job, with synthetic pixels. */
@@ -218,6 +220,69 @@ static void test_queue_unsaved(const char *dir)
     pt_remove_tree(dir);
 }
 
+/* The queue file keeps a job's environment (version 4), and a version 3
+ * file, from before it, still loads: its jobs have none. */
+static void test_queue_env_versions(const char *dir)
+{
+    srv_state *st = NULL;
+    pt_error err = {0};
+    CHECK(srv_state_open(dir, &st, &err) == PT_OK);
+    srv_job_record rec = {0}, *recs[1] = {&rec}, *got = NULL;
+    rec.id = 1;
+    rec.state = PROTO_JOB_QUEUED;
+    snprintf(rec.name, sizeof rec.name, "sky");
+    rec.params = PARAMS;
+    snprintf(rec.params.env.name, sizeof rec.params.env.name, ".ptfarm/environment");
+    rec.params.env.strength = 2.0f;
+    rec.params.env.rotate_deg = -30.0f;
+    uint32_t n = 0;
+    uint64_t next = 0;
+    CHECK(srv_state_save_queue(st, recs, 1, 2, &err) == PT_OK);
+    CHECK(srv_state_load_queue(st, &got, &n, &next, &err) == PT_OK && n == 1);
+    CHECK(got && proto_env_same(&got->params.env, &rec.params.env));
+    pt_free(got);
+    got = NULL;
+    rec.params.env = PARAMS.env;
+    rec.params.env.background = 1;
+    rec.params.env.rgb[1] = 0.5f;
+    CHECK(srv_state_save_queue(st, recs, 1, 2, &err) == PT_OK);
+    CHECK(srv_state_load_queue(st, &got, &n, &next, &err) == PT_OK && n == 1);
+    CHECK(got && proto_env_same(&got->params.env, &rec.params.env));
+    pt_free(got);
+    got = NULL;
+
+    /* Version 3: the same record without the ENV block (23 bytes with no map
+     * name) and the film flags (4), which sit after the camera, and without
+     * the depth-cap count (8), the record's last field. */
+    rec.params.env = PARAMS.env;
+    CHECK(srv_state_save_queue(st, recs, 1, 2, &err) == PT_OK);
+    char qp[512];
+    snprintf(qp, sizeof qp, "%s/queue", dir);
+    uint8_t *f = NULL;
+    size_t len = 0;
+    CHECK(pt_read_file(qp, 1 << 20, &f, &len, &err) == PT_OK);
+    size_t at = 8 + 8 + 4 + 8 + 8 + 1 + 4 + (2 + strlen(rec.name)) + 2 + 2 + 2 + 8 + 9 * 4 + 2 * 8 +
+                2 + strlen(rec.params.camera);
+    if (f && len > at + 27 + 12) {
+        memmove(f + at, f + at + 27, len - at - 27);
+        len -= 27;
+        memmove(f + len - 12, f + len - 4, 4); /* the capped count before the CRC */
+        len -= 8;
+        proto_put_u32(f + 4, 3);
+        proto_put_u32(f + len - 4, proto_crc32c(0, f, len - 4));
+        CHECK(pt_write_file_atomic(qp, f, len, &err) == PT_OK);
+        CHECKF(srv_state_load_queue(st, &got, &n, &next, &err) == PT_OK && n == 1, "%s", err.msg);
+        proto_env none;
+        proto_env_none(&none);
+        CHECK(got && proto_env_same(&got->params.env, &none) && strcmp(got->name, "sky") == 0 &&
+              got->params.spp == PARAMS.spp);
+        pt_free(got);
+    }
+    pt_free(f);
+    srv_state_close(st);
+    pt_remove_tree(dir);
+}
+
 int main(void)
 {
     umask(022);
@@ -230,6 +295,7 @@ int main(void)
     test_short_write_cut_back(dir);
     test_torn_tail(dir);
     test_queue_unsaved(dir);
+    test_queue_env_versions(dir);
     pt_remove_tree(dir);
     return check_report();
 }

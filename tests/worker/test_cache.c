@@ -252,6 +252,7 @@ static void test_memory(const uint8_t hash[32], const char *entry)
 
     /* Same key again: cached, no build. */
     wrk_scene_ref *a = NULL, *b = NULL, *c = NULL;
+    uint64_t before0;
     CHECK(wrk_scenes_acquire(s, hash, &p, NULL, entry, &a, &err) == PT_OK);
     CHECK(wrk_scenes_builds(s) == 1);
     /* Other params are another entry. */
@@ -275,6 +276,33 @@ static void test_memory(const uint8_t hash[32], const char *entry)
     CHECK(wrk_scenes_acquire(s, hash, &p2, NULL, entry, &b, &err) == PT_OK);
     CHECK(wrk_scenes_builds(s) == 4);
     wrk_scenes_release(s, b);
+
+    /* The environment is part of the key: no environment (however its unused
+     * fields are set) is one entry, a uniform one another, built once; a map
+     * under any name but the bundle's own is refused without a file opened. */
+    before0 = wrk_scenes_builds(s);
+    proto_env none, zeroed, sky, stray;
+    proto_env_none(&none);
+    memset(&zeroed, 0, sizeof zeroed);
+    sky = none;
+    sky.background = 1;
+    sky.rgb[0] = sky.rgb[1] = sky.rgb[2] = 0.5f;
+    stray = none;
+    snprintf(stray.name, sizeof stray.name, "../../etc/passwd");
+    CHECK(wrk_scenes_acquire_env(s, hash, &p, NULL, &none, entry, &a, &err) == PT_OK);
+    CHECK(pt_renderer_params(wrk_scene_renderer(a))->env == NULL);
+    CHECK(wrk_scenes_acquire_env(s, hash, &p, NULL, &zeroed, entry, &b, &err) == PT_OK);
+    CHECK(a == b && wrk_scenes_builds(s) == before0);
+    wrk_scenes_release(s, b);
+    CHECK(wrk_scenes_acquire_env(s, hash, &p, NULL, &sky, entry, &b, &err) == PT_OK);
+    CHECK(wrk_scenes_acquire_env(s, hash, &p, NULL, &sky, entry, &c, &err) == PT_OK);
+    CHECK(b == c && b != a && wrk_scenes_builds(s) == before0 + 1);
+    CHECK(pt_renderer_params(wrk_scene_renderer(b))->env != NULL);
+    wrk_scenes_release(s, a);
+    wrk_scenes_release(s, b);
+    wrk_scenes_release(s, c);
+    CHECK(wrk_scenes_acquire_env(s, hash, &p, NULL, &stray, entry, &a, &err) == PT_ERR_ARG);
+    CHECK(strstr(err.msg, "not the bundle's") != NULL);
 
     /* A build that fails: both racers get the error, nothing is kept, and a
      * later acquire tries again. */

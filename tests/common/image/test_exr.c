@@ -543,6 +543,26 @@ static void test_hostile(void)
         spit(path("cut.exr"), good, len - back);
         expect_read_fails("cut.exr", "a copy missing its last bytes");
     }
+    /* A data window far larger than the file can hold: refused before the
+     * pixels are allocated (the old reader asked for 5 GiB here). */
+    static const char dwin[] = "dataWindow\0box2i\0";
+    unsigned char *big = malloc(len);
+    size_t wat = 0;
+    while (big && wat + sizeof dwin + 20 <= len && memcmp(good + wat, dwin, sizeof dwin - 1) != 0)
+        wat++;
+    CHECK(big && wat + sizeof dwin + 20 <= len);
+    if (big && wat + sizeof dwin + 20 <= len) {
+        memcpy(big, good, len);
+        const int32_t window[4] = {0, 0, 16383, 16383}; /* xmin, ymin, xmax, ymax */
+        memcpy(big + wat + sizeof dwin - 1 + 4, window, sizeof window);
+        spit(path("big.exr"), big, len);
+        img = NULL;
+        pt_status st = pt_exr_read(path("big.exr"), &img, NULL, &err);
+        CHECKF(st == PT_ERR_FORMAT && img == NULL && strstr(err.msg, "cannot be in") != NULL,
+               "a 16384x16384 window in %zu bytes: %d %s", len, (int)st, err.msg);
+        unlink(path("big.exr"));
+    }
+    free(big);
     /* Garbage, and garbage behind a valid magic number and version. */
     unsigned char junk[4096];
     for (int t = 0; t < 20; t++) {

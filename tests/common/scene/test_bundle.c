@@ -193,6 +193,58 @@ static void round_trip(const char *scene_path, uint32_t expect_files)
 }
 
 /* Files in folders below the unpack folder: each folder made on the way. */
+/* An environment map rides as the last file, .ptfarm/environment, beside the
+ * entry; a scene of its own naming a file in .ptfarm/ is refused, map or not. */
+static void pack_env(void)
+{
+    write_text("sky.hdr", "not decoded here");
+    char scene[512], map[512], dir[512], entry[1024], p[1024];
+    snprintf(scene, sizeof scene, "%s/scenes/cornell_box.gltf", PT_SOURCE_DIR);
+    snprintf(map, sizeof map, "%s/sky.hdr", tmp);
+    pt_bundle *b = NULL, *plain = NULL;
+    pt_error err = {0};
+    CHECKF(pt_bundle_pack_env(scene, map, &b, &err) == PT_OK, "%s", err.msg);
+    CHECK(pt_bundle_pack(scene, &plain, &err) == PT_OK);
+    if (!b || !plain)
+        goto done;
+    uint64_t size = 0;
+    CHECK(pt_bundle_has_file(b, PT_BUNDLE_ENV_NAME, &size) && size == 16);
+    CHECK(!pt_bundle_has_file(plain, PT_BUNDLE_ENV_NAME, NULL));
+    CHECK(pt_bundle_has_file(b, "cornell_box.gltf", NULL) &&
+          !pt_bundle_has_file(b, ".ptfarm", NULL));
+    CHECK(pt_bundle_entry_at_top(b) && pt_bundle_entry_at_top(plain));
+    CHECK(b->data[4] == plain->data[4] + 1 && strcmp(b->hash, plain->hash) != 0);
+    snprintf(dir, sizeof dir, "%s/env_unpacked", tmp);
+    CHECKF(pt_bundle_unpack(b, dir, entry, sizeof entry, &err) == PT_OK, "%s", err.msg);
+    struct stat sb;
+    snprintf(p, sizeof p, "%s/" PT_BUNDLE_ENV_NAME, dir);
+    CHECK(stat(p, &sb) == 0 && S_ISREG(sb.st_mode) && sb.st_size == 16);
+    /* A missing map names itself. */
+    pt_bundle *c = NULL;
+    snprintf(map, sizeof map, "%s/nosuch.hdr", tmp);
+    CHECK(pt_bundle_pack_env(scene, map, &c, &err) == PT_ERR_IO && strstr(err.msg, "nosuch.hdr"));
+    CHECK(c == NULL);
+    /* The reserved folder is the map's alone. */
+    const char *uris[] = {".ptfarm/environment", ".ptfarm/x.bin", ".ptfarm"};
+    for (size_t i = 0; i < sizeof uris / sizeof *uris; i++) {
+        char json[256];
+        snprintf(json, sizeof json,
+                 "{\"asset\":{\"version\":\"2.0\"},\"buffers\":[{\"uri\":\"%s\","
+                 "\"byteLength\":4}]}",
+                 uris[i]);
+        write_text("reserved.gltf", json);
+        snprintf(p, sizeof p, "%s/reserved.gltf", tmp);
+        CHECKF(pt_bundle_pack(p, &c, &err) == PT_ERR_FORMAT && strstr(err.msg, "reserved") &&
+                   c == NULL,
+               "%s: %s", uris[i], err.msg);
+        snprintf(map, sizeof map, "%s/sky.hdr", tmp);
+        CHECK(pt_bundle_pack_env(p, map, &c, &err) == PT_ERR_FORMAT && c == NULL);
+    }
+done:
+    pt_bundle_free(b);
+    pt_bundle_free(plain);
+}
+
 static void unpack_nested(void)
 {
     uint8_t buf[1024];
@@ -227,6 +279,7 @@ int main(void)
     pack_refuses_escape();
     unpack_nested();
     pack_dot_names();
+    pack_env();
     round_trip(PT_SOURCE_DIR "/scenes/cornell_box.gltf", 1);
     struct stat sb;
     if (stat(PT_SHARED_SCENES, &sb) == 0) {

@@ -584,6 +584,118 @@ static void test_hostile(void)
     }
 }
 
+/* TEXCOORD_1, TANGENT, COLOR_0 (normalized bytes), a NEAREST sampler, a
+ * normal texture with its scale and a KHR_texture_transform that moves the
+ * base colour to TEXCOORD_1, in a file that requires the extension, under a
+ * node that mirrors x (so the tangent's x and its w flip). */
+static void test_attributes(void)
+{
+    unsigned char bin[144];
+    memset(bin, 0, sizeof bin);
+    const float pos[9] = {0, 0, 0, 1, 0, 0, 0, 1, 0};
+    const float uv0[6] = {0, 0, 1, 0, 0, 1};
+    const float uv1[6] = {0.25f, 0.5f, 0.75f, 0.5f, 0.25f, 1.0f};
+    const float tan[12] = {1, 0, 0, 1, 1, 0, 0, 1, 1, 0, 0, 1};
+    const uint8_t col[12] = {255, 0, 0, 255, 0, 255, 0, 255, 0, 0, 255, 128};
+    memcpy(bin, pos, 36);
+    memcpy(bin + 36, uv0, 24);
+    memcpy(bin + 60, uv1, 24);
+    memcpy(bin + 84, tan, 48);
+    memcpy(bin + 132, col, 12);
+    write_file("attr.bin", bin, sizeof bin);
+    unsigned char px[16] = {255, 0, 0, 255, 0, 255, 0, 255, 0, 0, 255, 255, 255, 255, 255, 255};
+    CHECK(stbi_write_png(tpath("attr.png"), 2, 2, 4, px, 8) != 0);
+    const char *json =
+        "{\"asset\":{\"version\":\"2.0\"},"
+        "\"extensionsUsed\":[\"KHR_texture_transform\"],"
+        "\"extensionsRequired\":[\"KHR_texture_transform\"],"
+        "\"buffers\":[{\"uri\":\"attr.bin\",\"byteLength\":144}],"
+        "\"bufferViews\":[{\"buffer\":0,\"byteOffset\":0,\"byteLength\":36},"
+        "{\"buffer\":0,\"byteOffset\":36,\"byteLength\":24},"
+        "{\"buffer\":0,\"byteOffset\":60,\"byteLength\":24},"
+        "{\"buffer\":0,\"byteOffset\":84,\"byteLength\":48},"
+        "{\"buffer\":0,\"byteOffset\":132,\"byteLength\":12}],"
+        "\"accessors\":["
+        "{\"bufferView\":0,\"componentType\":5126,\"count\":3,\"type\":\"VEC3\","
+        "\"min\":[0,0,0],\"max\":[1,1,0]},"
+        "{\"bufferView\":1,\"componentType\":5126,\"count\":3,\"type\":\"VEC2\"},"
+        "{\"bufferView\":2,\"componentType\":5126,\"count\":3,\"type\":\"VEC2\"},"
+        "{\"bufferView\":3,\"componentType\":5126,\"count\":3,\"type\":\"VEC4\"},"
+        "{\"bufferView\":4,\"componentType\":5121,\"normalized\":true,\"count\":3,"
+        "\"type\":\"VEC4\"}],"
+        "\"meshes\":[{\"primitives\":[{\"attributes\":{\"POSITION\":0,\"TEXCOORD_0\":1,"
+        "\"TEXCOORD_1\":2,\"TANGENT\":3,\"COLOR_0\":4},\"material\":0}]}],"
+        "\"materials\":[{\"pbrMetallicRoughness\":{\"metallicFactor\":0,"
+        "\"baseColorTexture\":{\"index\":0,\"extensions\":{\"KHR_texture_transform\":"
+        "{\"offset\":[0.5,0],\"texCoord\":1}}}},"
+        "\"normalTexture\":{\"index\":1,\"scale\":0.5}}],"
+        "\"textures\":[{\"source\":0,\"sampler\":0},{\"source\":0}],"
+        "\"images\":[{\"uri\":\"attr.png\"}],"
+        "\"samplers\":[{\"magFilter\":9728,\"minFilter\":9728}],"
+        "\"nodes\":[{\"mesh\":0,\"scale\":[-1,1,1]}],\"scenes\":[{\"nodes\":[0]}]}";
+    write_file("attr.gltf", json, strlen(json));
+    warnings w = {0};
+    pt_scene_opts o = {0};
+    o.warn = collect;
+    o.warn_user = &w;
+    pt_error err = {0};
+    pt_scene *s = NULL;
+    CHECKF(pt_scene_load(tpath("attr.gltf"), &o, &s, &err) == PT_OK, "%s", err.msg);
+    CHECKF(w.count == 0, "warnings: %s", w.text);
+    if (!s)
+        return;
+    CHECK(s->uvs1 && s->tangents && s->colors);
+    CHECK((s->features & PT_FEAT_NORMAL_MAP) && (s->features & PT_FEAT_VERTEX_COLOR));
+    if (s->uvs1 && s->tangents && s->colors) {
+        /* The mirror flips the winding: find vertex 1 (x = -1) wherever it went. */
+        for (uint32_t v = 0; v < 3; v++) {
+            float x = s->positions[3 * v] + (float)s->origin[0];
+            if (x < -0.5f) {
+                CHECK(s->uvs1[2 * v] == 0.75f && s->uvs1[2 * v + 1] == 0.5f);
+                CHECK(s->colors[4 * v] == 0.0f && s->colors[4 * v + 1] == 1.0f);
+            }
+            CHECKF(s->tangents[4 * v] == -1.0f && s->tangents[4 * v + 3] == -1.0f,
+                   "tangent %g w %g", (double)s->tangents[4 * v], (double)s->tangents[4 * v + 3]);
+        }
+        int half = 0;
+        for (uint32_t v = 0; v < 3; v++)
+            half += fabsf(s->colors[4 * v + 3] - 128.0f / 255.0f) < 1e-6f;
+        CHECK(half == 1);
+    }
+    const pt_material *m = &s->materials[0];
+    CHECK(m->normal_tex >= 0 && m->normal_scale == 0.5f);
+    CHECK(m->tex_xf[PT_SLOT_BASE].active && m->tex_xf[PT_SLOT_BASE].texcoord == 1 &&
+          m->tex_xf[PT_SLOT_BASE].m[2] == 0.5f);
+    CHECK(!m->tex_xf[PT_SLOT_NORMAL].active && m->tex_xf[PT_SLOT_NORMAL].texcoord == 0);
+    /* The base colour (sRGB) has the NEAREST sampler; the normal texture
+     * (linear, no sampler) filters. */
+    CHECK(m->base_color_tex >= 0 && s->textures[m->base_color_tex].nearest == 1 &&
+          s->textures[m->base_color_tex].srgb == 1);
+    CHECK(s->textures[m->normal_tex].nearest == 0 && s->textures[m->normal_tex].srgb == 0);
+    pt_scene_free(s);
+
+    /* Allocation failure on the new paths (the optional attributes, the
+     * tangents): PT_ERR_NOMEM and no leak, whichever allocation fails. */
+    int64_t live = pt_alloc_live();
+    int ok = 0;
+    for (uint64_t i = 1; i < 10000 && !ok; i++) {
+        pt_scene *t = NULL;
+        pt_error e = {0};
+        pt_alloc_fail_at(i);
+        pt_status st = pt_scene_load(tpath("attr.gltf"), &o, &t, &e);
+        pt_alloc_fail_at(0);
+        if (st == PT_OK) {
+            ok = 1;
+            pt_scene_free(t);
+        } else {
+            CHECKF(st == PT_ERR_NOMEM, "fail at %llu: %d %s", (unsigned long long)i, (int)st,
+                   e.msg);
+        }
+    }
+    CHECK(ok);
+    CHECK(pt_alloc_live() == live);
+}
+
 /* ---- the shared public assets ------------------------------------------------------ */
 
 typedef struct asset {
@@ -601,6 +713,9 @@ static const asset k_assets[] = {
     {"TransmissionTest/TransmissionTest.glb", 128775},
     {"CornellBox/cornellBox.gltf", 16732},
     {"Cameras/Cameras.gltf", 2},
+    {"SheenChair/SheenChair.gltf", 39936},
+    {"TextureTransformTest/TextureTransformTest.gltf", 24},
+    {"NormalTangentMirrorTest/NormalTangentMirrorTest.glb", 5240},
 };
 
 static pt_scene *load_shared(const char *rel, const char *camera, warnings *w, pt_status *st,
@@ -693,8 +808,41 @@ static void check_asset(const asset *a)
     if (strstr(a->path, "DamagedHelmet")) {
         CHECK(s->features & PT_FEAT_TEXTURES);
         CHECK(s->features & PT_FEAT_EMISSIVE_TEX);
-        CHECK(s->num_textures == 3); /* base colour, metal-rough, emissive; normal/AO skipped */
-        CHECK(strstr(w.text, "normal textures are ignored") != NULL);
+        /* base colour, metal-rough, emissive, normal; AO skipped */
+        CHECK(s->num_textures == 4);
+        CHECK(strstr(w.text, "normal textures") == NULL);
+        /* No TANGENT in the file: generated, unit and perpendicular to the normals. */
+        CHECK((s->features & PT_FEAT_NORMAL_MAP) && s->tangents != NULL);
+        int nbad = 0;
+        for (uint32_t v = 0; s->tangents && v < s->num_vertices; v++) {
+            const float *t = &s->tangents[4 * v], *n = &s->normals[3 * v];
+            float len = sqrtf(t[0] * t[0] + t[1] * t[1] + t[2] * t[2]);
+            nbad += fabsf(len - 1.0f) > 1e-4f ||
+                    fabsf(t[0] * n[0] + t[1] * n[1] + t[2] * n[2]) > 1e-4f ||
+                    !(t[3] == 1.0f || t[3] == -1.0f);
+        }
+        CHECKF(nbad == 0, "%d bad tangents", nbad);
+    }
+    if (strstr(a->path, "SheenChair")) {
+        /* It requires KHR_texture_transform: loaded, its transforms kept. */
+        CHECK(strstr(w.text, "KHR_texture_transform") == NULL);
+        CHECK(strstr(w.text, "KHR_materials_sheen") != NULL);
+        CHECK(s->features & PT_FEAT_NORMAL_MAP);
+        int active = 0;
+        for (uint32_t i = 0; i < s->num_materials; i++)
+            active += s->materials[i].tex_xf[PT_SLOT_BASE].active;
+        CHECK(active >= 2);
+    }
+    if (strstr(a->path, "TextureTransformTest")) {
+        CHECK(w.count == 0);
+        int active = 0;
+        for (uint32_t i = 0; i < s->num_materials; i++)
+            active += s->materials[i].tex_xf[PT_SLOT_BASE].active;
+        CHECK(active == 6); /* offsets U, V, UV, rotation, scale, all */
+    }
+    if (strstr(a->path, "NormalTangentMirror")) {
+        CHECK((s->features & PT_FEAT_NORMAL_MAP) && s->tangents != NULL);
+        CHECK(strstr(w.text, "normal textures") == NULL);
     }
     if (strstr(a->path, "LightsPunctual")) {
         /* Its five point lights are imported, not ignored. */
@@ -716,12 +864,16 @@ static void check_asset(const asset *a)
             }
         }
         CHECK(found);
-        CHECK(strstr(w.text, "KHR_materials_transmission") != NULL);
-        CHECK(strstr(w.text, "BLEND") != NULL);
+        /* Its glass shade is imported (KHR_materials_transmission), not ignored;
+         * its BLEND material is rendered, not warned about. */
+        CHECK(strstr(w.text, "KHR_materials_transmission") == NULL);
+        CHECK(s->features & PT_FEAT_TRANSMISSION);
+        CHECK(strstr(w.text, "BLEND") == NULL && strstr(w.text, "alphaMode") == NULL);
+        CHECK(s->features & PT_FEAT_ALPHA);
     }
     if (strstr(a->path, "ToyCar")) {
         CHECK(s->num_cameras == 8);
-        CHECK(strstr(w.text, "KHR_texture_transform") != NULL);
+        CHECK(strstr(w.text, "KHR_texture_transform") == NULL); /* supported */
         CHECK(strstr(w.text, "KHR_materials_clearcoat") != NULL);
         CHECK(strstr(w.text, "KHR_materials_sheen") != NULL);
     }
@@ -789,15 +941,62 @@ static void test_project_scenes(void)
     }
 }
 
+/* alphaMode and alphaCutoff: read into the material (cutoff default 0.5),
+ * PT_FEAT_ALPHA only when a material is MASK or BLEND, no warning; an
+ * unknown mode or a negative cutoff is refused naming the field. */
+static void test_alpha_modes(void)
+{
+    unsigned char bin[68];
+    make_bin(bin, 0.0f, 2);
+    write_file("alpha.bin", bin, sizeof bin);
+    const struct {
+        const char *name, *fields;
+        int mode;
+        float cutoff;
+    } ok[] = {
+        {"a_opaque.gltf", "\"alphaMode\":\"OPAQUE\",\"alphaCutoff\":0.9", PT_ALPHA_OPAQUE, 0.9f},
+        {"a_mask.gltf", "\"alphaMode\":\"MASK\",\"alphaCutoff\":0.25", PT_ALPHA_MASK, 0.25f},
+        {"a_mask_default.gltf", "\"alphaMode\":\"MASK\"", PT_ALPHA_MASK, 0.5f},
+        {"a_blend.gltf", "\"alphaMode\":\"BLEND\"", PT_ALPHA_BLEND, 0.5f}};
+    char tail[512];
+    for (size_t i = 0; i < sizeof ok / sizeof ok[0]; i++) {
+        snprintf(tail, sizeof tail, "\"materials\":[{\"name\":\"m0\",%s}]", ok[i].fields);
+        make_gltf_tail(ok[i].name, "alpha.bin", k_pos_ok, k_views, k_nodes_ok, tail);
+        pt_scene_opts o = {0};
+        warnings w = {0};
+        o.warn = collect;
+        o.warn_user = &w;
+        pt_error err = {0};
+        pt_scene *s = NULL;
+        CHECKF(pt_scene_load(tpath(ok[i].name), &o, &s, &err) == PT_OK, "%s", err.msg);
+        if (!s)
+            continue;
+        CHECK(s->num_materials == 1 && s->materials[0].alpha_mode == ok[i].mode);
+        CHECK(s->materials[0].alpha_cutoff == ok[i].cutoff);
+        CHECK(!(s->features & PT_FEAT_ALPHA) == (ok[i].mode == PT_ALPHA_OPAQUE));
+        CHECKF(strstr(w.text, "alpha") == NULL, "%s: %s", ok[i].name, w.text);
+        pt_scene_free(s);
+    }
+    make_gltf_tail("a_bad_mode.gltf", "alpha.bin", k_pos_ok, k_views, k_nodes_ok,
+                   "\"materials\":[{\"name\":\"m0\",\"alphaMode\":\"CLIP\"}]");
+    expect_fail("a_bad_mode.gltf", PT_ERR_FORMAT, "alphaMode 'CLIP'");
+    make_gltf_tail("a_bad_cutoff.gltf", "alpha.bin", k_pos_ok, k_views, k_nodes_ok,
+                   "\"materials\":[{\"name\":\"m0\",\"alphaMode\":\"MASK\","
+                   "\"alphaCutoff\":-0.5}]");
+    expect_fail("a_bad_cutoff.gltf", PT_ERR_FORMAT, "alphaCutoff");
+}
+
 int main(void)
 {
     snprintf(tmp, sizeof tmp, "/tmp/pt_test_gltf_XXXXXX");
     if (!mkdtemp(tmp))
         return 1;
     test_small_valid();
+    test_attributes();
     test_hostile();
     test_lights();
     test_confined();
+    test_alpha_modes();
     test_project_scenes();
 
     struct stat sb;

@@ -1,0 +1,247 @@
+/*
+ * dielectric.c - glass (dielectric.h): the opaque share, a rough or smooth
+ * dielectric interface, and their one-sample mixture.
+ *
+ * The rough interface follows Walter et al. 2007 in the form of pbrt-v4's
+ * DielectricBxDF (Pharr, Jakob & Humphreys, "Physically Based Rendering",
+ * 4th ed., sec. 9.7): with wo above and eta = n_below / n_above,
+ *  reflection (wi.z > 0): wm = normalize(wo + wi),
+ *    f cos_i = F D G2 / (4 cos_o),  pdf = Dv(wm) / (4 wo.wm) F;
+ *  transmission (wi.z < 0): wm = normalize(wo + eta wi), turned up,
+ *    f cos_i = (1 - F) D G2 |wi.wm wo.wm| / (cos_o (wi.wm + wo.wm / eta)^2) / eta^2,
+ *    pdf = Dv(wm) |wi.wm| / (wi.wm + wo.wm / eta)^2 (1 - F),
+ * F = F(wo.wm), Dv the visible-normal density (bsdf.h: pt_ggx_vndf_pdf), and
+ * microfacets that face away from wo or wi contribute nothing. G2 is Smith's
+ * height-correlated masking-shadowing (Heitz 2014, eq. 99) with |cos|.
+ */
+#include "common/render/dielectric.h"
+
+#include <math.h>
+
+static inline float clamp01(float x)
+{
+    return x < 0.0f ? 0.0f : (x > 1.0f ? 1.0f : x);
+}
+
+float pt_fresnel_dielectric(float cos_i, float eta)
+{
+    cos_i = clamp01(cos_i);
+    float s2 = (1.0f - cos_i * cos_i) / (eta * eta);
+    if (!(s2 < 1.0f))
+        return 1.0f; /* total internal reflection (or a bad eta) */
+    float ct = sqrtf(1.0f - s2);
+    float rs = (cos_i - eta * ct) / (cos_i + eta * ct);
+    float rp = (eta * cos_i - ct) / (eta * cos_i + ct);
+    return 0.5f * (rs * rs + rp * rp);
+}
+
+pt_glass pt_glass_setup(pt_vec3 base_color, float metallic, float roughness, float specular,
+                        pt_vec3 specular_color, float transmission, float eta, int thin)
+{
+    pt_glass g;
+    g.base = pt_bsdf_setup(base_color, metallic, roughness, specular, specular_color);
+    /* pt_bsdf_setup's clamps, repeated for the shares. */
+    metallic = clamp01(metallic == metallic ? metallic : 0.0f);
+    roughness = clamp01(roughness == roughness ? roughness : 1.0f);
+    specular = clamp01(specular == specular ? specular : 1.0f);
+    transmission = clamp01(transmission == transmission ? transmission : 0.0f);
+    pt_vec3 base = pt_v3(clamp01(base_color.x), clamp01(base_color.y), clamp01(base_color.z));
+    /* Scale the opaque dielectric by 1 - T: its diffuse, and its share of
+     * the GGX lobe's F0 and F90 (bsdf.c: F0 = mix(s f0_d, base, m), F90 =
+     * (1 - m) s + m). The diffuse's own Fresnel weight is a ratio and stays. */
+    float keep = 1.0f - transmission;
+    float dm = (1.0f - metallic) * keep;
+    g.base.diffuse = pt_v3_scale(g.base.diffuse, keep);
+    pt_vec3 f0d = pt_v3(fminf(fmaxf(specular_color.x * 0.04f, 0.0f), 1.0f) * specular,
+                        fminf(fmaxf(specular_color.y * 0.04f, 0.0f), 1.0f) * specular,
+                        fminf(fmaxf(specular_color.z * 0.04f, 0.0f), 1.0f) * specular);
+    g.base.f0 = pt_v3_add(pt_v3_scale(f0d, dm), pt_v3_scale(base, metallic));
+    g.base.spec_weight = dm * specular + metallic;
+    g.tint = base;
+    g.weight = (1.0f - metallic) * transmission;
+    g.eta = eta >= 0.0f && isfinite(eta) ? eta : 1.5f; /* 0: F = 1 */
+    float a = roughness * roughness;
+    /* At eta 1 the interface does nothing (F = 0, no bending) whatever its
+     * roughness, and Walter's half vector wo + eta wi is 0 for the one
+     * direction light takes: treat it as smooth, as pbrt-v4 does. */
+    g.alpha = a < PT_GLASS_SMOOTH_ALPHA || g.eta == 1.0f ? 0.0f : a;
+    g.thin = thin != 0;
+    int opaque = pt_v3_max_comp(g.base.diffuse) > 0.0f || g.base.spec_weight > 0.0f;
+    if (!(g.weight > 0.0f))
+        g.pick = 0.0f;
+    else if (!opaque)
+        g.pick = 1.0f;
+    else
+        g.pick = fminf(fmaxf(g.weight, 0.1f), 0.9f);
+    return g;
+}
+
+/* s(w) = |z| sqrt(1 + a^2 tan^2) (bsdf.c), for G2 with |cos|. */
+static inline float lambda_root(pt_vec3 w, float alpha)
+{
+    return sqrtf(w.z * w.z + alpha * alpha * (w.x * w.x + w.y * w.y));
+}
+
+/* G2(wo, wi) = 2 |zo| |zi| / (|zi| s_o + |zo| s_i). */
+static inline float g2(pt_vec3 wo, pt_vec3 wi, float alpha)
+{
+    float zo = fabsf(wo.z), zi = fabsf(wi.z);
+    float den = zi * lambda_root(wo, alpha) + zo * lambda_root(wi, alpha);
+    return den > 0.0f ? 2.0f * zo * zi / den : 0.0f;
+}
+
+static inline pt_vec3 reflect(pt_vec3 w, pt_vec3 m)
+{
+    return pt_v3_sub(pt_v3_scale(m, 2.0f * pt_v3_dot(w, m)), w);
+}
+
+/* Refraction of w (on m's side) through a surface of normal m, eta =
+ * n_other / n_this. Returns 0 under total internal reflection. */
+static inline int refract(pt_vec3 w, pt_vec3 m, float eta, pt_vec3 *out)
+{
+    float ci = pt_v3_dot(w, m);
+    float s2 = (1.0f - ci * ci) / (eta * eta);
+    if (!(s2 < 1.0f))
+        return 0;
+    float ct = sqrtf(1.0f - s2);
+    *out = pt_v3_add(pt_v3_scale(w, -1.0f / eta), pt_v3_scale(m, ci / eta - ct));
+    return 1;
+}
+
+/* The rough interface at (wo, wi), wo.z > 0: f |cos wi| without the tint,
+ * its pdf (within the interface), and whether wi is transmission. */
+static float rough_eval(const pt_glass *g, pt_vec3 wo, pt_vec3 wi, float *pdf, int *trans)
+{
+    *pdf = 0.0f;
+    *trans = wi.z < 0.0f;
+    if (!(wo.z > 0.0f) || wi.z == 0.0f || !(wi.z == wi.z))
+        return 0.0f;
+    /* The thin wall's transmission is the reflection mirrored below. */
+    pt_vec3 wr = (*trans && g->thin) ? pt_v3(wi.x, wi.y, -wi.z) : wi;
+    int refr = *trans && !g->thin;
+    pt_vec3 wm = refr ? pt_v3_add(wo, pt_v3_scale(wi, g->eta)) : pt_v3_add(wo, wr);
+    float len = pt_v3_len(wm);
+    if (!(len > 0.0f))
+        return 0.0f;
+    wm = pt_v3_scale(wm, 1.0f / len);
+    if (wm.z < 0.0f)
+        wm = pt_v3_neg(wm);
+    float dwo = pt_v3_dot(wo, wm), dwi = pt_v3_dot(wr, wm);
+    /* Microfacets seen from their back side by wo or wi. */
+    if (!(dwo > 0.0f) || dwi * wr.z < 0.0f)
+        return 0.0f;
+    float d = pt_ggx_d(wm, g->alpha);
+    float vpdf = pt_ggx_vndf_pdf(wo, wm, g->alpha);
+    float F = pt_fresnel_dielectric(dwo, g->eta);
+    float G = g2(wo, wr, g->alpha);
+    if (!refr) {
+        float p = *trans ? 1.0f - F : F;
+        *pdf = vpdf / (4.0f * dwo) * p;
+        return p * d * G / (4.0f * wo.z);
+    }
+    float t = dwi + dwo / g->eta;
+    float den = t * t;
+    if (!(den > 0.0f))
+        return 0.0f;
+    *pdf = vpdf * fabsf(dwi) / den * (1.0f - F);
+    return (1.0f - F) * d * G * fabsf(dwi * dwo) / (wo.z * den) / (g->eta * g->eta);
+}
+
+pt_vec3 pt_glass_eval(const pt_glass *g, pt_vec3 wo, pt_vec3 wi, float *pdf)
+{
+    pt_vec3 f = pt_v3(0.0f, 0.0f, 0.0f);
+    float p = 0.0f;
+    if (!(wo.z > 0.0f)) {
+        *pdf = 0.0f;
+        return f;
+    }
+    if (g->pick < 1.0f && wi.z > 0.0f) {
+        float pb;
+        f = pt_bsdf_eval(&g->base, wo, wi, &pb);
+        p = (1.0f - g->pick) * pb;
+    }
+    if (g->pick > 0.0f && g->alpha > 0.0f) {
+        float pd;
+        int trans;
+        float fd = rough_eval(g, wo, wi, &pd, &trans) * g->weight;
+        pt_vec3 c = trans ? pt_v3_scale(g->tint, fd) : pt_v3(fd, fd, fd);
+        f = pt_v3_add(f, c);
+        p += g->pick * pd;
+    }
+    *pdf = p;
+    return f;
+}
+
+/* The smooth interface's delta lobes. */
+static pt_vec3 smooth_sample(const pt_glass *g, pt_vec3 wo, float uc, pt_vec3 *wi, float *prob)
+{
+    float F = pt_fresnel_dielectric(wo.z, g->eta);
+    if (uc < F) {
+        *wi = pt_v3(-wo.x, -wo.y, wo.z);
+        *prob = F;
+        return pt_v3(1.0f, 1.0f, 1.0f);
+    }
+    *prob = 1.0f - F;
+    if (g->thin) {
+        *wi = pt_v3_neg(wo);
+        return g->tint;
+    }
+    if (!refract(wo, pt_v3(0.0f, 0.0f, 1.0f), g->eta, wi)) {
+        *prob = 0.0f; /* F was 1: not reached */
+        return pt_v3(0.0f, 0.0f, 0.0f);
+    }
+    return pt_v3_scale(g->tint, 1.0f / (g->eta * g->eta));
+}
+
+pt_vec3 pt_glass_sample(const pt_glass *g, pt_vec3 wo, const float u[3], pt_vec3 *wi, float *pdf,
+                        int *delta)
+{
+    pt_vec3 zero = pt_v3(0.0f, 0.0f, 0.0f);
+    *pdf = 0.0f;
+    *delta = 0;
+    *wi = pt_v3(0.0f, 0.0f, 1.0f);
+    if (!(wo.z > 0.0f))
+        return zero;
+    /* One number picks the share and then, rescaled, the lobe within it. */
+    const float below1 = 0x1.fffffep-1f;
+    if (u[0] < g->pick) {
+        float uc = fminf(u[0] / g->pick, below1);
+        if (g->alpha == 0.0f) {
+            float prob;
+            pt_vec3 w = smooth_sample(g, wo, uc, wi, &prob);
+            if (!(prob > 0.0f))
+                return zero;
+            *delta = 1;
+            *pdf = g->pick * prob;
+            return pt_v3_scale(w, g->weight / g->pick);
+        }
+        pt_vec3 wm = pt_ggx_sample_vndf(wo, g->alpha, u[1], u[2]);
+        float dwo = pt_v3_dot(wo, wm);
+        float F = pt_fresnel_dielectric(dwo, g->eta);
+        if (uc < F) {
+            *wi = reflect(wo, wm);
+            if (!(wi->z > 0.0f))
+                return zero;
+        } else if (g->thin) {
+            pt_vec3 r = reflect(wo, wm);
+            if (!(r.z > 0.0f))
+                return zero;
+            *wi = pt_v3(r.x, r.y, -r.z);
+        } else if (!refract(wo, wm, g->eta, wi) || !(wi->z < 0.0f)) {
+            return zero;
+        }
+    } else {
+        float ub[3] = {fminf((u[0] - g->pick) / (1.0f - g->pick), below1), u[1], u[2]};
+        float pb;
+        pt_bsdf_sample(&g->base, wo, ub, wi, &pb);
+        if (!(pb > 0.0f))
+            return zero;
+    }
+    /* The mixture's f cos / pdf, so sampling and pt_glass_eval agree (MIS). */
+    pt_vec3 f = pt_glass_eval(g, wo, *wi, pdf);
+    if (!(*pdf > 0.0f)) {
+        *pdf = 0.0f;
+        return zero;
+    }
+    return pt_v3_scale(f, 1.0f / *pdf);
+}

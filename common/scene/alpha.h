@@ -1,0 +1,66 @@
+/*
+ * alpha.h - glTF alpha coverage (alphaMode MASK and BLEND) at a point of a
+ * triangle, and the stochastic pass-through that the ray queries apply.
+ *
+ * glTF 2.0 (3.9.2): alpha = baseColorFactor.a x baseColorTexture.a (x the
+ * COLOR_0 alpha when the primitive has one). OPAQUE ignores it; MASK draws
+ * the surface where alpha >= alphaCutoff and nothing elsewhere; BLEND covers
+ * a fraction alpha of what is behind. A path tracer renders BLEND without
+ * sorting or a second pass by stochastic transparency: a ray meets the
+ * surface with probability alpha and passes through it with 1 - alpha, so
+ * the expected radiance is alpha * L_surface + (1 - alpha) * L_behind
+ * (Enderton et al. 2010, "Stochastic Transparency"; Cycles and pbrt-v4 do
+ * the same for shadow and camera rays alike).
+ *
+ * The random number of a pass-through comes from the caller as a 32-bit key
+ * (from the keyed sampler: pixel, sample index, dimension) and is hashed with
+ * the triangle's index, so the several surfaces one ray crosses get
+ * independent numbers, and the answer for a (key, triangle) pair is the same
+ * however often, and in whatever order, the accelerator asks for it.
+ * Pure functions over an immutable scene: any thread may call them.
+ */
+#ifndef PT_COMMON_SCENE_ALPHA_H
+#define PT_COMMON_SCENE_ALPHA_H
+
+#include <stdint.h>
+
+#include "common/scene/scene.h"
+
+/* glTF alpha value at barycentrics (b1, b2) of triangle tri (vertices 1 and
+ * 2, as pt_hit gives them), before the mode is applied: the base colour
+ * factor's alpha times the base colour texture's alpha at the interpolated
+ * TEXCOORD_0. */
+float pt_alpha_value(const pt_scene *s, uint32_t tri, float b1, float b2);
+
+/* The fraction of the surface present at that point: 1 for OPAQUE, 0 or 1
+ * for MASK (alpha >= alphaCutoff), alpha for BLEND. */
+float pt_alpha_coverage(const pt_scene *s, uint32_t tri, float b1, float b2);
+
+/* 1 when a ray with pass-through key `key` meets the surface at that point,
+ * 0 when it passes through: always 1 for OPAQUE, the cutoff for MASK, and
+ * for BLEND 1 with probability alpha over uniformly distributed keys, from
+ * a hash of (key, tri). */
+int pt_alpha_hit(const pt_scene *s, uint32_t tri, float b1, float b2, uint32_t key);
+
+/* 1 when triangle tri's material is MASK or BLEND (quick test before the
+ * lookups). */
+static inline int pt_alpha_tri(const pt_scene *s, uint32_t tri)
+{
+    return s->materials[s->tri_material[tri]].alpha_mode != PT_ALPHA_OPAQUE;
+}
+
+/* The key of a pass-through decision from a sample value u in [0, 1) and a
+ * salt that tells apart the rays that draw from the same u (a bounce's
+ * closest-hit ray, 0, and its shadow ray, 1): a surface crossed by both must
+ * not get the same decision twice. Floats in [0, 1) have their top bit clear,
+ * so shifting keeps every pair distinct. */
+static inline uint32_t pt_alpha_key(float u, uint32_t salt)
+{
+    union {
+        float f;
+        uint32_t u;
+    } b = {u};
+    return (b.u << 1) | (salt & 1u);
+}
+
+#endif

@@ -1,0 +1,445 @@
+/*
+ * test_texture.c - texture lookups (wrap modes per axis, NEAREST and LINEAR
+ * filters), KHR_texture_transform and texture coordinate sets, and the
+ * tangents generated for normal maps (common/scene/tangent.c).
+ *
+ * Lookups are compared with texel values computed here by hand: a linear
+ * (non-sRGB) 4 x 2 texture whose red channel holds a distinct byte per
+ * texel, read at chosen UVs whose texel and weights follow from the
+ * convention (texel i covers [i/w, (i+1)/w), its centre at (i + 0.5)/w; v = 0
+ * is the top row). Tolerance 1e-6: one float rounding of a weighted sum.
+ *
+ * Tangents: on planes and on a latitude-longitude sphere the generated
+ * tangent must be dP/du made orthogonal to the normal (analytic), with the
+ * handedness that a mirrored UV layout implies; on the shared asset
+ * NormalTangentMirrorTest, which supplies TANGENT, regenerating must agree
+ * with the file within 0.25 degrees at every vertex and in every w, and on
+ * LightsPunctualLamp (also with TANGENT) within 0.1 degrees at the median
+ * and at the 90th percentile, with every w equal (MikkTSpace splits some
+ * seam vertices that the per-vertex mean cannot: tangent.h).
+ */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+
+#include "common/base/alloc.h"
+#include "common/scene/scene.h"
+#include "common/scene/tangent.h"
+#include "tests/check.h"
+
+#define PI_D 3.14159265358979323846
+
+/* Red bytes of the 4 x 2 texture, row 0 (top) first. */
+static const uint8_t k_red[2][4] = {{10, 50, 90, 130}, {170, 210, 250, 30}};
+
+static pt_texture make_tex(int ws, int wt, int nearest)
+{
+    pt_texture t;
+    memset(&t, 0, sizeof t);
+    t.width = 4;
+    t.height = 2;
+    t.rgba = pt_malloc(32);
+    for (int y = 0; y < 2; y++)
+        for (int x = 0; x < 4; x++) {
+            uint8_t *p = t.rgba + 4 * (y * 4 + x);
+            p[0] = k_red[y][x];
+            p[1] = (uint8_t)(x * 60);
+            p[2] = 0;
+            p[3] = 255;
+        }
+    t.wrap_s = ws;
+    t.wrap_t = wt;
+    t.nearest = nearest;
+    return t;
+}
+
+static double texel(int x, int y)
+{
+    return k_red[y][x] / 255.0;
+}
+
+static float red_at(const pt_texture *t, float u, float v)
+{
+    float o[4];
+    pt_texture_sample(t, u, v, o);
+    return o[0];
+}
+
+static void expect(const char *what, double got, double want)
+{
+    CHECKF(fabs(got - want) <= 1e-6, "%s: %.8g, expected %.8g", what, got, want);
+}
+
+static void test_nearest(void)
+{
+    pt_texture t = make_tex(PT_WRAP_REPEAT, PT_WRAP_REPEAT, 1);
+    /* Anywhere inside a texel's square gives that texel, unfiltered (a
+     * LINEAR lookup there would blend with the neighbour). */
+    expect("nearest (0.3/4, top)", red_at(&t, 0.3f / 4, 0.2f), texel(0, 0));
+    expect("nearest (1.9/4, top)", red_at(&t, 1.9f / 4, 0.4f), texel(1, 0));
+    expect("nearest (2.1/4, bottom)", red_at(&t, 2.1f / 4, 0.6f), texel(2, 1));
+    /* REPEAT: u = -0.1 is texel floor(-0.4) = -1 -> 3; v = 1.2 is row 0. */
+    expect("nearest repeat u<0", red_at(&t, -0.1f, 0.25f), texel(3, 0));
+    expect("nearest repeat v>1", red_at(&t, 0.1f, 1.2f), texel(0, 0));
+    /* CLAMP_TO_EDGE: beyond the edge, the edge texel. */
+    t.wrap_s = t.wrap_t = PT_WRAP_CLAMP;
+    expect("nearest clamp u>1", red_at(&t, 1.7f, 0.75f), texel(3, 1));
+    expect("nearest clamp u<0 v<0", red_at(&t, -3.0f, -0.5f), texel(0, 0));
+    /* MIRRORED_REPEAT: u = 1.1 reads 0.9 (texel 3), 1.3 reads 0.7 (texel
+     * 2), -0.1 reads 0.1 (texel 0), 2.1 reads 0.1 again. */
+    t.wrap_s = t.wrap_t = PT_WRAP_MIRROR;
+    expect("nearest mirror 1.1", red_at(&t, 1.1f, 0.25f), texel(3, 0));
+    expect("nearest mirror 1.3", red_at(&t, 1.3f, 0.25f), texel(2, 0));
+    expect("nearest mirror -0.1", red_at(&t, -0.1f, 0.25f), texel(0, 0));
+    expect("nearest mirror 2.1", red_at(&t, 2.1f, 0.25f), texel(0, 0));
+    expect("nearest mirror v 1.2", red_at(&t, 0.1f, 1.2f), texel(0, 1));
+    /* Per axis: u repeats while v clamps. */
+    t.wrap_s = PT_WRAP_REPEAT;
+    t.wrap_t = PT_WRAP_CLAMP;
+    expect("nearest repeat s, clamp t", red_at(&t, 1.1f, 5.0f), texel(0, 1));
+    /* sRGB: the byte decoded by the sRGB curve, exactly one texel. */
+    t.srgb = 1;
+    float o[4];
+    pt_texture_sample(&t, 0.3f / 4, 0.2f, o);
+    double c = 10 / 255.0;
+    expect("nearest sRGB", o[0], c / 12.92);
+    pt_free(t.rgba);
+}
+
+static void test_linear(void)
+{
+    pt_texture t = make_tex(PT_WRAP_REPEAT, PT_WRAP_CLAMP, 0);
+    float vc = 0.25f; /* the top row's centre: no vertical blend */
+    /* A quarter of the way from texel 1's centre to texel 2's. */
+    expect("linear 1.75/4", red_at(&t, 1.75f / 4, vc), 0.75 * texel(1, 0) + 0.25 * texel(2, 0));
+    /* u = 0 sits between texel 3 (wrapped) and texel 0 under REPEAT. */
+    expect("linear repeat at u=0", red_at(&t, 0.0f, vc), 0.5 * texel(3, 0) + 0.5 * texel(0, 0));
+    /* v = 0.5 is midway between the rows' centres. */
+    expect("linear between rows", red_at(&t, 0.5f / 4, 0.5f),
+           0.5 * texel(0, 0) + 0.5 * texel(0, 1));
+    /* CLAMP in t: v = 0 (top edge) blends the top row with itself. */
+    expect("linear clamp v=0", red_at(&t, 0.5f / 4, 0.0f), texel(0, 0));
+    t.wrap_s = PT_WRAP_CLAMP;
+    expect("linear clamp u=0", red_at(&t, 0.0f, vc), texel(0, 0));
+    expect("linear clamp u=1", red_at(&t, 1.0f, vc), texel(3, 0));
+    /* MIRROR: at u = 1 the texel beyond the edge is texel 3 itself; at
+     * u = 0 likewise texel 0. */
+    t.wrap_s = PT_WRAP_MIRROR;
+    expect("linear mirror u=1", red_at(&t, 1.0f, vc), texel(3, 0));
+    expect("linear mirror u=0", red_at(&t, 0.0f, vc), texel(0, 0));
+    /* u = 1 + 0.125: mirrored to 0.875 = texel 3's centre (3.5/4). */
+    expect("linear mirror u=1.125", red_at(&t, 1.125f, vc), texel(3, 0));
+    pt_free(t.rgba);
+}
+
+static void apply(const pt_tex_xform *x, float u, float v, float out[2])
+{
+    const float uv[2] = {u, v};
+    pt_tex_xform_apply(x, uv, out);
+}
+
+static void test_transform(void)
+{
+    float o[2];
+    /* The identity is not applied: the same bits, even for -0 and NaN. */
+    pt_tex_xform id = pt_tex_xform_identity();
+    CHECK(!id.active && id.texcoord == 0);
+    apply(&id, -0.0f, NAN, o);
+    CHECK(signbit(o[0]) && isnan(o[1]));
+    pt_tex_xform zero;
+    memset(&zero, 0, sizeof zero); /* a zeroed transform is the identity too */
+    apply(&zero, 0.3f, 0.7f, o);
+    CHECK(o[0] == 0.3f && o[1] == 0.7f);
+
+    /* The issue's check: an offset of 0.5 swaps the halves of a two-tone
+     * (black | white) texture. */
+    pt_texture two;
+    memset(&two, 0, sizeof two);
+    two.width = 2;
+    two.height = 1;
+    two.nearest = 1;
+    uint8_t px[8] = {0, 0, 0, 255, 255, 255, 255, 255};
+    two.rgba = px;
+    const float off[2] = {0.5f, 0.0f}, one[2] = {1.0f, 1.0f};
+    pt_tex_xform x = pt_tex_xform_make(off, 0.0f, one, 0);
+    CHECK(x.active);
+    for (int i = 0; i < 8; i++) {
+        float u = (i + 0.5f) / 8.0f;
+        apply(&x, u, 0.5f, o);
+        float c[4];
+        pt_texture_sample(&two, o[0], o[1], c);
+        CHECKF(c[0] == (u < 0.5f ? 1.0f : 0.0f), "offset 0.5 at u=%g reads %g", (double)u,
+               (double)c[0]);
+    }
+    /* Scale then rotation then offset (T * R * S): rotation pi/2 sends
+     * (u, v) to (v, -u) (the sense TextureTransformTest's markers show). */
+    const float sc[2] = {2.0f, 3.0f}, of2[2] = {0.25f, -0.5f};
+    x = pt_tex_xform_make(of2, (float)(PI_D / 2), sc, 1);
+    CHECK(x.active && x.texcoord == 1);
+    apply(&x, 0.1f, 0.2f, o);
+    /* S: (0.2, 0.6); R: (0.6, -0.2); T: (0.85, -0.7). */
+    CHECKF(fabsf(o[0] - 0.85f) < 1e-6f && fabsf(o[1] + 0.7f) < 1e-6f, "TRS gives %g %g",
+           (double)o[0], (double)o[1]);
+    /* A general angle against the matrix written out. */
+    double a = 0.3;
+    x = pt_tex_xform_make(of2, (float)a, sc, 0);
+    apply(&x, 0.4f, -0.3f, o);
+    double wu = cos(a) * 2 * 0.4 + sin(a) * 3 * -0.3 + 0.25;
+    double wv = -sin(a) * 2 * 0.4 + cos(a) * 3 * -0.3 - 0.5;
+    CHECK(fabs(o[0] - wu) < 1e-6 && fabs(o[1] - wv) < 1e-6);
+}
+
+/* A quad's triangle with TEXCOORD_0 and TEXCOORD_1; the slot reads the set
+ * its texCoord names, transformed. */
+static void test_slot_uv(void)
+{
+    pt_scene_builder *b = NULL;
+    pt_error err = {0};
+    CHECK(pt_scene_builder_new(&b, &err) == PT_OK);
+    pt_material m = pt_material_default();
+    const float of[2] = {0.5f, 0.0f}, one[2] = {1.0f, 1.0f};
+    m.tex_xf[PT_SLOT_BASE] = pt_tex_xform_make(of, 0.0f, one, 1);
+    m.tex_xf[PT_SLOT_EMISSIVE].texcoord = 1; /* set 1, no transform */
+    uint32_t mi;
+    CHECK(pt_scene_builder_add_material(b, &m, &mi, &err) == PT_OK);
+    const float pos[9] = {0, 0, 0, 1, 0, 0, 0, 1, 0};
+    const float uv0[6] = {0, 0, 1, 0, 0, 1};
+    const float uv1[6] = {0.1f, 0.2f, 0.3f, 0.2f, 0.1f, 0.6f};
+    pt_mesh_extra ex = {uv1, NULL, NULL};
+    CHECKF(pt_scene_builder_add_mesh_extra(b, "tri", pos, NULL, uv0, &ex, 3, NULL, 1, NULL, mi,
+                                           &err) == PT_OK,
+           "%s", err.msg);
+    /* A second mesh without TEXCOORD_1 gets zeros there. */
+    const float pos2[9] = {0, 0, 1, 1, 0, 1, 0, 1, 1};
+    CHECK(pt_scene_builder_add_mesh(b, "tri2", pos2, NULL, uv0, 3, NULL, 1, NULL, mi, &err) ==
+          PT_OK);
+    pt_scene *s = NULL;
+    CHECKF(pt_scene_builder_finish(b, NULL, &s, &err) == PT_OK, "%s", err.msg);
+    if (!s)
+        return;
+    CHECK(s->uvs1 != NULL && s->tangents == NULL && s->colors == NULL);
+    CHECK(!(s->features & (PT_FEAT_NORMAL_MAP | PT_FEAT_VERTEX_COLOR)));
+    float o[2];
+    /* b1 = 0.5, b2 = 0.25: uv1 = 0.25 * (0.1, 0.2) + 0.5 * (0.3, 0.2) + 0.25 * (0.1, 0.6). */
+    pt_scene_slot_uv(s, &s->materials[0], PT_SLOT_BASE, 0, 0.5f, 0.25f, o);
+    CHECKF(fabsf(o[0] - (0.2f + 0.5f)) < 1e-6f && fabsf(o[1] - 0.3f) < 1e-6f, "slot uv %g %g",
+           (double)o[0], (double)o[1]);
+    pt_scene_slot_uv(s, &s->materials[0], PT_SLOT_EMISSIVE, 0, 0.5f, 0.25f, o);
+    CHECK(fabsf(o[0] - 0.2f) < 1e-6f && fabsf(o[1] - 0.3f) < 1e-6f);
+    pt_scene_slot_uv(s, &s->materials[0], PT_SLOT_METAL_ROUGH, 0, 0.5f, 0.25f, o);
+    CHECK(fabsf(o[0] - 0.5f) < 1e-6f && fabsf(o[1] - 0.25f) < 1e-6f); /* set 0 */
+    pt_scene_slot_uv(s, &s->materials[0], PT_SLOT_EMISSIVE, 1, 0.5f, 0.25f, o);
+    CHECK(o[0] == 0.0f && o[1] == 0.0f);
+    pt_scene_free(s);
+
+    /* Rejects: a texCoord other than 0 and 1, a non-finite transform, a
+     * tangent whose w is not +-1, a non-finite colour. */
+    CHECK(pt_scene_builder_new(&b, &err) == PT_OK);
+    m = pt_material_default();
+    m.tex_xf[PT_SLOT_NORMAL].texcoord = 2;
+    CHECK(pt_scene_builder_add_material(b, &m, &mi, &err) == PT_ERR_FORMAT);
+    m = pt_material_default();
+    m.tex_xf[PT_SLOT_BASE].m[2] = INFINITY;
+    CHECK(pt_scene_builder_add_material(b, &m, &mi, &err) == PT_ERR_FORMAT);
+    m = pt_material_default();
+    m.normal_tex = 0; /* no texture yet */
+    CHECK(pt_scene_builder_add_material(b, &m, &mi, &err) == PT_ERR_ARG);
+    m = pt_material_default();
+    CHECK(pt_scene_builder_add_material(b, &m, &mi, &err) == PT_OK);
+    const float tan_bad[12] = {1, 0, 0, 0.5f, 1, 0, 0, 1, 1, 0, 0, 1};
+    pt_mesh_extra e2 = {NULL, tan_bad, NULL};
+    CHECK(pt_scene_builder_add_mesh_extra(b, "t", pos, NULL, uv0, &e2, 3, NULL, 1, NULL, mi,
+                                          &err) == PT_ERR_FORMAT);
+    CHECK(strstr(err.msg, "TANGENT") != NULL);
+    const float col_bad[12] = {1, 1, 1, 1, NAN, 1, 1, 1, 1, 1, 1, 1};
+    pt_mesh_extra e3 = {NULL, NULL, col_bad};
+    CHECK(pt_scene_builder_add_mesh_extra(b, "c", pos, NULL, uv0, &e3, 3, NULL, 1, NULL, mi,
+                                          &err) == PT_ERR_FORMAT);
+    CHECK(strstr(err.msg, "COLOR_0") != NULL);
+    pt_scene_builder_free(b);
+}
+
+static double angle_deg(const float *a, const float *b)
+{
+    double d = (double)a[0] * b[0] + (double)a[1] * b[1] + (double)a[2] * b[2];
+    return acos(d > 1.0 ? 1.0 : (d < -1.0 ? -1.0 : d)) * 180.0 / PI_D;
+}
+
+/* A 2 x 2 plane at z = 0 (normal +z) with u = su x, v = -y (v points down
+ * in the image, so +y is the image's up): the tangent is sign(su) x and the
+ * bitangent +y, so w = +1 for su > 0 and -1 for a mirrored layout. */
+static void test_plane_tangents(void)
+{
+    for (int mirror = 0; mirror < 2; mirror++) {
+        float su = mirror ? -1.0f : 1.0f;
+        const float pos[12] = {-1, -1, 0, 1, -1, 0, 1, 1, 0, -1, 1, 0};
+        const float nrm[12] = {0, 0, 1, 0, 0, 1, 0, 0, 1, 0, 0, 1};
+        float uv[8];
+        for (int i = 0; i < 4; i++) {
+            uv[2 * i] = su * pos[3 * i];
+            uv[2 * i + 1] = -pos[3 * i + 1];
+        }
+        const uint32_t idx[6] = {0, 1, 2, 0, 2, 3};
+        float tan[16] = {0};
+        pt_error err = {0};
+        CHECK(pt_tangents_generate(pos, nrm, uv, idx, 2, NULL, 4, tan, &err) == PT_OK);
+        for (int v = 0; v < 4; v++) {
+            const float want[3] = {su, 0, 0};
+            CHECKF(angle_deg(&tan[4 * v], want) < 1e-4 && tan[4 * v + 3] == su,
+                   "mirror %d vertex %d: tangent %g %g %g w %g", mirror, v, (double)tan[4 * v],
+                   (double)tan[4 * v + 1], (double)tan[4 * v + 2], (double)tan[4 * v + 3]);
+        }
+    }
+    /* Degenerate UVs (all zero): a unit tangent perpendicular to the normal. */
+    const float pos[9] = {0, 0, 0, 1, 0, 0, 0, 1, 0}, nrm[9] = {0, 0, 1, 0, 0, 1, 0, 0, 1};
+    const float uv[6] = {0};
+    const uint32_t idx[3] = {0, 1, 2};
+    float tan[12] = {0};
+    pt_error err = {0};
+    CHECK(pt_tangents_generate(pos, nrm, uv, idx, 1, NULL, 3, tan, &err) == PT_OK);
+    CHECK(fabsf(tan[2]) < 1e-6f && fabsf(tan[0] * tan[0] + tan[1] * tan[1] - 1.0f) < 1e-6f &&
+          tan[3] == 1.0f);
+    /* A given tangent is kept; a triangle not in use[] leaves its vertices. */
+    float keep[12] = {0, 1, 0, -1};
+    uint8_t use0 = 0;
+    CHECK(pt_tangents_generate(pos, nrm, uv, idx, 1, &use0, 3, keep, &err) == PT_OK);
+    CHECK(keep[1] == 1.0f && keep[3] == -1.0f && keep[4] == 0.0f && keep[7] == 0.0f);
+}
+
+/* A latitude-longitude sphere (u = phi / 2 pi, v = theta / pi from the
+ * north pole): away from the poles the tangent is dP/du, the direction of
+ * increasing phi, (-sin phi, cos phi, 0); the bitangent points north
+ * (decreasing v), and cross(n, t) is north too, so w = +1. */
+static void test_sphere_tangents(void)
+{
+    enum { NU = 48, NV = 24 };
+    uint32_t nv = (NU + 1) * (NV + 1), nt = 2 * NU * NV;
+    float *pos = pt_malloc_array(nv, 3 * sizeof(float));
+    float *nrm = pt_malloc_array(nv, 3 * sizeof(float));
+    float *uv = pt_malloc_array(nv, 2 * sizeof(float));
+    float *tan = pt_calloc(nv, 4 * sizeof(float));
+    uint32_t *idx = pt_malloc_array(nt, 3 * sizeof(uint32_t));
+    for (uint32_t j = 0; j <= NV; j++)
+        for (uint32_t i = 0; i <= NU; i++) {
+            uint32_t k = j * (NU + 1) + i;
+            double phi = 2 * PI_D * i / NU, th = PI_D * j / NV;
+            nrm[3 * k] = pos[3 * k] = (float)(sin(th) * cos(phi));
+            nrm[3 * k + 1] = pos[3 * k + 1] = (float)(sin(th) * sin(phi));
+            nrm[3 * k + 2] = pos[3 * k + 2] = (float)cos(th);
+            uv[2 * k] = (float)i / NU;
+            uv[2 * k + 1] = (float)j / NV;
+        }
+    uint32_t t = 0;
+    for (uint32_t j = 0; j < NV; j++)
+        for (uint32_t i = 0; i < NU; i++) {
+            uint32_t a = j * (NU + 1) + i, b = a + 1, c = a + NU + 1, d = c + 1;
+            /* Outward winding: a, c, d and a, d, b. */
+            uint32_t q[6] = {a, c, d, a, d, b};
+            memcpy(&idx[3 * t], q, sizeof q);
+            t += 2;
+        }
+    pt_error err = {0};
+    CHECK(pt_tangents_generate(pos, nrm, uv, idx, nt, NULL, nv, tan, &err) == PT_OK);
+    double worst = 0.0, worst_seam = 0.0;
+    int wbad = 0;
+    for (uint32_t j = 1; j < NV; j++)
+        for (uint32_t i = 0; i <= NU; i++) {
+            uint32_t k = j * (NU + 1) + i;
+            double phi = 2 * PI_D * i / NU;
+            const float want[3] = {(float)-sin(phi), (float)cos(phi), 0.0f};
+            double a = angle_deg(&tan[4 * k], want);
+            if (i == 0 || i == NU)
+                worst_seam = fmax(worst_seam, a);
+            else
+                worst = fmax(worst, a);
+            wbad += tan[4 * k + 3] != 1.0f;
+        }
+    /* Each triangle's dP/du is a chord, turned by half the grid step (3.75
+     * degrees) from the tangent at its ends: inside, the two neighbours'
+     * chords cancel to within 0.05 degrees (the diagonal split is not
+     * symmetric); on the UV seam a vertex has only
+     * one side's (as MikkTSpace, which does not weld across seams). */
+    CHECKF(worst < 0.05 && worst_seam < 3.76 && wbad == 0,
+           "sphere tangents: worst %g deg (seam %g), %d bad w", worst, worst_seam, wbad);
+    pt_free(pos);
+    pt_free(nrm);
+    pt_free(uv);
+    pt_free(tan);
+    pt_free(idx);
+}
+
+static int cmp_double(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return (x > y) - (x < y);
+}
+
+/* Regenerates the tangents of a shared asset that supplies TANGENT and
+ * compares: angle quantiles (degrees) and the number of w that differ. */
+static void compare_asset(const char *rel, double max_median, double max_p90, double max_all)
+{
+    char p[1024];
+    snprintf(p, sizeof p, "%s/%s", PT_SHARED_SCENES, rel);
+    pt_scene *s = NULL;
+    pt_error err = {0};
+    pt_scene_opts o = {0};
+    o.warn = NULL;
+    CHECKF(pt_scene_load(p, &o, &s, &err) == PT_OK, "%s: %s", rel, err.msg);
+    if (!s)
+        return;
+    CHECK(s->tangents != NULL && s->uvs != NULL);
+    if (!s->tangents || !s->uvs) {
+        pt_scene_free(s);
+        return;
+    }
+    uint32_t nv = s->num_vertices;
+    float *g = pt_calloc(nv, 4 * sizeof(float));
+    double *ang = pt_malloc_array(nv, sizeof(double));
+    CHECK(pt_tangents_generate(s->positions, s->normals, s->uvs, s->indices, s->num_triangles, NULL,
+                               nv, g, &err) == PT_OK);
+    uint32_t n = 0, wbad = 0;
+    for (uint32_t v = 0; v < nv; v++) {
+        if (g[4 * v + 3] == 0.0f)
+            continue; /* no triangle uses it */
+        ang[n++] = angle_deg(&s->tangents[4 * v], &g[4 * v]);
+        wbad += s->tangents[4 * v + 3] != g[4 * v + 3];
+    }
+    qsort(ang, n, sizeof(double), cmp_double);
+    double med = ang[n / 2], p90 = ang[(size_t)n * 9 / 10], mx = ang[n - 1];
+    printf("%s: %u vertices, generated vs TANGENT: median %.4f, p90 %.4f, p99 %.4f, max %.4f "
+           "deg; %u w differ\n",
+           rel, n, med, p90, ang[(size_t)n * 99 / 100], mx, wbad);
+    CHECKF(n > 0 && med <= max_median && p90 <= max_p90 && mx <= max_all && wbad == 0,
+           "%s: median %g p90 %g max %g, %u w differ", rel, med, p90, mx, wbad);
+    pt_free(g);
+    pt_free(ang);
+    pt_scene_free(s);
+}
+
+static void test_shared_tangents(void)
+{
+    struct stat sb;
+    if (stat(PT_SHARED_SCENES, &sb) != 0) {
+        if (check_shared_required())
+            CHECKF(0, "shared scenes missing at %s", PT_SHARED_SCENES);
+        else
+            CHECK_SKIP("shared assets: %s not found", PT_SHARED_SCENES);
+        return;
+    }
+    compare_asset("NormalTangentMirrorTest/NormalTangentMirrorTest.glb", 0.25, 0.25, 0.25);
+    compare_asset("LightsPunctualLamp/LightsPunctualLamp.gltf", 0.1, 0.1, 90.0);
+}
+
+int main(void)
+{
+    test_nearest();
+    test_linear();
+    test_transform();
+    test_slot_uv();
+    test_plane_tangents();
+    test_sphere_tangents();
+    test_shared_tangents();
+    return check_report();
+}
