@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # ptctl submit --transparent against a real ptserve queue (--state-dir, local
-# workers): the fetched image has the A channel and is bit-identical (R, G, B,
-# samples, A) to the standalone --transparent render; a job whose paths reach
+# workers), under a uniform --background that escaping camera rays would see:
+# the fetched image has the A channel and is bit-identical (R, G, B, samples,
+# A) to the standalone --transparent render, so the film flags and the
+# environment both reach the workers; a job whose paths reach
 # the depth cap (the closed white furnace with --max-depth 2) shows the exact
 # count in `ptctl status`, which says nothing of it otherwise.
 set -euo pipefail
@@ -26,7 +28,7 @@ PTFARM_SERVER=127.0.0.1:$(cat "$tmp/port")
 export PTFARM_SERVER
 ctl() { "$bin/ptctl" "$@"; }
 
-view=(--res 64x16 --spp 16 --seed 5)
+view=(--res 64x16 --spp 16 --seed 5 --background "0.25,0.5,1")
 id=$(ctl submit "$src/scenes/cornell_box.gltf" "${view[@]}" --transparent)
 ctl watch "$id" 2> /dev/null || fail "watch exited $?"
 ctl fetch "$id" -o "$tmp/farm.exr"
@@ -44,7 +46,9 @@ ctl fetch "$opaque" -o "$tmp/opaque.exr"
 set +e
 "$bin/ptexr-diff" "$tmp/ref.exr" "$tmp/opaque.exr" > "$tmp/diff2.txt"; rc=$?
 set -e
-[ "$rc" = 1 ] && grep -q "A channel" "$tmp/diff2.txt" || fail "opaque job: $(cat "$tmp/diff2.txt")"
+if [ "$rc" != 1 ] || ! grep -q "A channel" "$tmp/diff2.txt"; then
+  fail "opaque job: $(cat "$tmp/diff2.txt")"
+fi
 
 cap=$(ctl submit "$src/scenes/furnace.gltf" --res 8x8 --spp 16 --max-depth 2)
 ctl watch "$cap" 2> /dev/null || fail "watch exited $?"

@@ -3,27 +3,34 @@
  * real programs (ptworker, ptserve --local) as processes.
  *
  *  1. `ptworker --transparent` on the Cornell box seen wider than its
- *     opening (camera rays escape at the sides): the EXR has an A channel,
- *     0 with RGB exactly 0 where every camera ray escaped, 1 where none did,
- *     fractions on the box's silhouette; without the flag, no A channel.
- *  2. `ptserve --local 3 --transparent` gives the same R, G, B, samples and
- *     A bits as the standalone render.
+ *     opening (camera rays escape at the sides), under a uniform --background:
+ *     the EXR has an A channel, 0 with RGB exactly 0 where every camera ray
+ *     escaped, 1 where none did, fractions on the box's silhouette; without
+ *     the flag, no A channel and the background where the rays escape.
+ *  2. `ptserve --local 3 --transparent --background` gives the same R, G, B,
+ *     samples and A bits as the standalone render: the flag and the
+ *     environment both reach the workers, and an escaping camera ray gives
+ *     RGB 0 and A 0 on the farm too.
  *  3. The white furnace (a closed sphere) with --max-depth 2: every path
  *     reaches the cap (Russian roulette starts at 3 bounces), so ptworker and
  *     one-job ptserve both report exactly W x H x spp capped paths.
  */
+#include <math.h>
+
 #include "tests/check.h"
 #include "tests/server/farm_util.h"
 
 #define VIEW "--res", "64x16", "--tile", "16", "--chunk", "8", "--seed", "5", "--spp", "16"
+/* A sky that a camera ray leaving the scene would see without --transparent. */
+#define SKY "--background", "0.25,0.5,1"
 
 static const char *CORNELL = PT_SOURCE_DIR "/scenes/cornell_box.gltf";
 static const char *FURNACE = PT_SOURCE_DIR "/scenes/furnace.gltf";
 
 static void transparent(void)
 {
-    const char *solo[] = {PT_BIN_DIR "/ptworker", "--scene", CORNELL, VIEW, "--transparent", "-o",
-                          path("solo.exr"),       "-q",      NULL};
+    const char *solo[] = {PT_BIN_DIR "/ptworker", "--scene", CORNELL,          VIEW, SKY,
+                          "--transparent",        "-o",      path("solo.exr"), "-q", NULL};
     CHECK(run(solo, "solo.log", 120) == 0);
     pt_image *img = load_exr("solo.exr");
     CHECK(img && img->has_alpha == 1);
@@ -45,18 +52,39 @@ static void transparent(void)
     printf("transparent Cornell box: %d pixels empty, %d covered, %d on the silhouette\n", empty,
            full, part);
     CHECK(empty > 0 && full > 0 && part > 0 && bad == 0);
-    pt_image_free(img);
 
-    const char *opaque[] = {PT_BIN_DIR "/ptworker", "--scene", CORNELL, VIEW, "-o",
+    /* Without the flag the pixels no camera ray covered show the sky. */
+    const char *opaque[] = {PT_BIN_DIR "/ptworker", "--scene", CORNELL, VIEW, SKY, "-o",
                             path("opaque.exr"),     "-q",      NULL};
     CHECK(run(opaque, "opaque.log", 120) == 0);
-    img = load_exr("opaque.exr");
-    CHECK(img && img->has_alpha == 0);
+    pt_image *op = load_exr("opaque.exr");
+    CHECK(op && op->has_alpha == 0);
+    int sky = 0, notsky = 0;
+    for (uint32_t i = 0; img && op && i < img->width * img->height; i++) {
+        if (img->a[i] != 0.0f)
+            continue;
+        int is = fabsf(op->r[i] - 0.25f) < 1e-4f && fabsf(op->g[i] - 0.5f) < 1e-4f &&
+                 fabsf(op->b[i] - 1.0f) < 1e-4f;
+        sky += is;
+        notsky += !is;
+    }
+    CHECKF(sky == empty && notsky == 0, "opaque: %d of %d uncovered pixels show the sky", sky,
+           empty);
+    pt_image_free(op);
     pt_image_free(img);
 
-    const char *farm[] = {
-        PT_BIN_DIR "/ptserve", "--local", "3", "--worker-threads", "1", VIEW, "--transparent", "-o",
-        path("farm.exr"),      CORNELL,   NULL};
+    const char *farm[] = {PT_BIN_DIR "/ptserve",
+                          "--local",
+                          "3",
+                          "--worker-threads",
+                          "1",
+                          VIEW,
+                          SKY,
+                          "--transparent",
+                          "-o",
+                          path("farm.exr"),
+                          CORNELL,
+                          NULL};
     CHECK(run(farm, "farm.log", 120) == 0);
     CHECKF(same_pixels("solo.exr", "farm.exr"), "--transparent: --local 3 differs (RGB)");
     pt_image *a = load_exr("solo.exr"), *b = load_exr("farm.exr");
@@ -64,6 +92,16 @@ static void transparent(void)
     if (a && b)
         CHECKF(memcmp(a->a, b->a, (size_t)a->width * a->height * sizeof(float)) == 0,
                "--transparent: --local 3 differs (A)");
+    int farm_empty = 0, farm_bad = 0;
+    for (uint32_t i = 0; b && b->has_alpha && i < b->width * b->height; i++) {
+        if (b->a[i] != 0.0f)
+            continue;
+        farm_empty++;
+        farm_bad += b->r[i] != 0.0f || b->g[i] != 0.0f || b->b[i] != 0.0f;
+    }
+    CHECKF(farm_empty == empty && farm_bad == 0,
+           "--transparent on the farm: %d pixels empty (%d standalone), %d of them not black",
+           farm_empty, empty, farm_bad);
     pt_image_free(a);
     pt_image_free(b);
 }
