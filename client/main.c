@@ -108,7 +108,8 @@ enum {
     O_ENV,
     O_ENVSTRENGTH,
     O_ENVROTATE,
-    O_BACKGROUND
+    O_BACKGROUND,
+    O_TRANSPARENT
 };
 
 static int bad_usage(const char *cmd, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
@@ -322,6 +323,8 @@ static const char SUBMIT_HELP[] =
     "  --background R,G,B a uniform environment of this radiance instead\n"
     "                     (a scene with no emitter, no KHR_lights_punctual light and\n"
     "                     neither of these is refused: it would render black)\n"
+    "  --transparent      camera rays that leave the scene add nothing, and the EXR\n"
+    "                     gets an A channel (coverage; RGB premultiplied by it)\n"
     "  --watch            then follow the job as 'ptctl watch' does (exit status 4\n"
     "                     when it ends cancelled or failed)\n";
 
@@ -377,6 +380,7 @@ static int cmd_submit(int argc, char **argv, globals *g)
                                          {"env-strength", required_argument, NULL, O_ENVSTRENGTH},
                                          {"env-rotate", required_argument, NULL, O_ENVROTATE},
                                          {"background", required_argument, NULL, O_BACKGROUND},
+                                         {"transparent", no_argument, NULL, O_TRANSPARENT},
                                          {NULL, 0, NULL, 0}};
     proto_submit m;
     memset(&m, 0, sizeof m);
@@ -427,6 +431,9 @@ static int cmd_submit(int argc, char **argv, globals *g)
             break;
         case O_MINSPP:
             st = pt_opt_u32("--min-spp", optarg, 1, UINT32_MAX, &m.min_spp, &err);
+            break;
+        case O_TRANSPARENT:
+            m.film_flags |= PROTO_FILM_TRANSPARENT;
             break;
         case O_WATCH:
             watch = 1;
@@ -679,6 +686,9 @@ static void print_status(const proto_job_info *j)
     printf("tiles      %lu (%lu stopped by adaptive sampling)\n", (unsigned long)j->tiles,
            (unsigned long)j->tiles_stopped);
     printf("workers    %lu\n", (unsigned long)j->workers);
+    if (j->capped > 0)
+        printf("depth cap  %llu paths reached it; raise --max-depth if this matters\n",
+               (unsigned long long)j->capped);
     ctl_format_duration(j->seconds, d, sizeof d);
     printf("time       %s\n", d);
     if (j->rate > 0.0 && isfinite(j->rate))

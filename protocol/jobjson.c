@@ -143,8 +143,11 @@ void proto_json_job(FILE *f, const proto_job_info *j)
         proto_json_double(f, j->error);
     else
         fputs("null", f);
-    fprintf(f, ", \"submitted\": %llu, \"queue_position\": %lu, \"message\": ",
-            (unsigned long long)j->submitted, (unsigned long)j->queue_pos);
+    fprintf(f,
+            ", \"paths_capped\": %llu, \"submitted\": %llu, \"queue_position\": %lu, "
+            "\"message\": ",
+            (unsigned long long)j->capped, (unsigned long long)j->submitted,
+            (unsigned long)j->queue_pos);
     proto_json_string(f, j->message);
     fputc('}', f);
 }

@@ -397,6 +397,8 @@ static const char *task_problem(const proto_task *m)
         return "tile outside the image";
     if (m->s0 >= m->s1)
         return "sample range s0 >= s1";
+    if (m->film_flags & ~PROTO_FILM_KNOWN)
+        return "unknown film flags";
     return env_problem(&m->env);
 }
 
@@ -424,6 +426,7 @@ pt_status proto_msg_encode_task(proto_writer *w, const proto_task *m, pt_error *
     proto_w_u32(w, m->lease_ms);
     proto_w_str(w, m->camera);
     w_env(w, &m->env);
+    proto_w_u32(w, m->film_flags);
     return w_done(w, start, "TASK", err);
 }
 
@@ -445,6 +448,7 @@ pt_status proto_msg_decode_task(const uint8_t *p, size_t len, proto_task *out, p
     m.lease_ms = proto_r_u32(&r, "lease");
     proto_r_str(&r, m.camera, PROTO_MAX_NAME, "camera");
     r_env(&r, &m.env);
+    m.film_flags = proto_r_u32(&r, "film flags");
     pt_status st = proto_r_finish(&r, "TASK", err);
     if (st != PT_OK)
         return st;
@@ -543,6 +547,16 @@ static const char *result_problem(const proto_result *m)
     return NULL;
 }
 
+/* The pixel's count and hits, checked as the decoder checks them. */
+static const char *result_pixel_problem(uint32_t n, uint32_t hits, uint32_t nmax)
+{
+    if (n > nmax)
+        return "sample count over s1 - s0";
+    if (hits > n)
+        return "camera hits over the sample count";
+    return NULL;
+}
+
 pt_status proto_msg_encode_result(proto_writer *w, const proto_result *m, pt_error *err)
 {
     size_t start = w->len;
@@ -551,8 +565,8 @@ pt_status proto_msg_encode_result(proto_writer *w, const proto_result *m, pt_err
         return bad(err, PT_ERR_ARG, "RESULT", why);
     uint32_t nmax = m->s1 - m->s0;
     for (uint32_t i = 0; i < m->npixels; i++)
-        if (m->pixels[i].n > nmax)
-            return bad(err, PT_ERR_ARG, "RESULT", "pixel sample count over s1 - s0");
+        if ((why = result_pixel_problem(m->pixels[i].n, m->pixels[i].hits, nmax)) != NULL)
+            return pt_error_set(err, PT_ERR_ARG, "RESULT: pixel %u %s", (unsigned)i, why);
     proto_w_u64(w, m->job_id);
     proto_w_u64(w, m->task_id);
     w_rect(w, m->tile);
@@ -560,6 +574,7 @@ pt_status proto_msg_encode_result(proto_writer *w, const proto_result *m, pt_err
     proto_w_u32(w, m->s1);
     proto_w_u64(w, m->rejected);
     proto_w_u64(w, m->rays);
+    proto_w_u64(w, m->capped);
     proto_w_u32(w, m->npixels);
     /* One reservation for all pixels: a 64k-pixel tile is 2.4 MB. */
     uint8_t *q = proto_w_reserve(w, (size_t)m->npixels * PROTO_RESULT_PIXEL_SIZE);
@@ -572,6 +587,7 @@ pt_status proto_msg_encode_result(proto_writer *w, const proto_result *m, pt_err
         proto_put_f64(q + 16, a->sum[2]);
         proto_put_f64(q + 24, a->sum_sq);
         proto_put_u32(q + 32, a->n);
+        proto_put_u32(q + 36, a->hits);
     }
     return w_done(w, start, "RESULT", err);
 }
@@ -588,6 +604,7 @@ pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *bu
     m.s1 = proto_r_u32(&r, "s1");
     m.rejected = proto_r_u64(&r, "rejected");
     m.rays = proto_r_u64(&r, "rays");
+    m.capped = proto_r_u64(&r, "paths capped");
     m.npixels = proto_r_u32(&r, "pixel count");
     m.pixels = NULL;
     m.owns_pixels = 0;
@@ -608,10 +625,12 @@ pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *bu
                             proto_r_left(&r) - body);
     const uint8_t *q = r.p;
     uint32_t nmax = m.s1 - m.s0;
-    for (uint32_t i = 0; i < m.npixels; i++)
-        if (proto_get_u32(q + (size_t)i * PROTO_RESULT_PIXEL_SIZE + 32) > nmax)
-            return pt_error_set(err, PT_ERR_PROTO, "RESULT: pixel %u sample count over s1 - s0",
-                                (unsigned)i);
+    for (uint32_t i = 0; i < m.npixels; i++) {
+        const uint8_t *pq = q + (size_t)i * PROTO_RESULT_PIXEL_SIZE;
+        why = result_pixel_problem(proto_get_u32(pq + 32), proto_get_u32(pq + 36), nmax);
+        if (why)
+            return pt_error_set(err, PT_ERR_PROTO, "RESULT: pixel %u %s", (unsigned)i, why);
+    }
     pt_pixel_acc *px = buf;
     if (buf) {
         if (m.npixels > buf_cap)
@@ -629,7 +648,7 @@ pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *bu
         px[i].sum[2] = proto_get_f64(q + 16);
         px[i].sum_sq = proto_get_f64(q + 24);
         px[i].n = proto_get_u32(q + 32);
-        px[i].pad = 0;
+        px[i].hits = proto_get_u32(q + 36);
     }
     m.pixels = px;
     *out = m;
@@ -713,6 +732,8 @@ static const char *submit_problem(const proto_submit *m)
         return "min gain not finite and >= 0";
     if (m->bundle_size == 0)
         return "bundle size is 0";
+    if (m->film_flags & ~PROTO_FILM_KNOWN)
+        return "unknown film flags";
     return env_problem(&m->env);
 }
 
@@ -740,6 +761,7 @@ pt_status proto_msg_encode_submit(proto_writer *w, const proto_submit *m, pt_err
     proto_w_str(w, m->camera);
     proto_w_f64(w, m->min_gain);
     w_env(w, &m->env);
+    proto_w_u32(w, m->film_flags);
     return w_done(w, start, "SUBMIT", err);
 }
 
@@ -761,6 +783,7 @@ pt_status proto_msg_decode_submit(const uint8_t *p, size_t len, proto_submit *ou
     proto_r_str(&r, m.camera, PROTO_MAX_NAME, "camera");
     m.min_gain = proto_r_f64(&r, "min gain");
     r_env(&r, &m.env);
+    m.film_flags = proto_r_u32(&r, "film flags");
     pt_status st = proto_r_finish(&r, "SUBMIT", err);
     if (st != PT_OK)
         return st;
@@ -776,7 +799,7 @@ pt_status proto_msg_decode_submit(const uint8_t *p, size_t len, proto_submit *ou
 
 /* Bytes of a JOB_INFO with every string empty: the least an entry of
  * JOB_LIST can take, so a count is checked against the bytes present. */
-#define JOB_INFO_FIXED 107u
+#define JOB_INFO_FIXED 115u
 
 static const char *job_info_problem(const proto_job_info *m)
 {
@@ -818,6 +841,7 @@ static void w_job_info(proto_writer *w, const proto_job_info *m)
     proto_w_u64(w, m->submitted);
     proto_w_u32(w, m->queue_pos);
     proto_w_str(w, m->message);
+    proto_w_u64(w, m->capped);
 }
 
 /* Reads one JOB_INFO into m (which may be left half-filled on failure). */
@@ -846,6 +870,7 @@ static void r_job_info(proto_reader *r, proto_job_info *m)
     m->submitted = proto_r_u64(r, "submitted");
     m->queue_pos = proto_r_u32(r, "queue position");
     proto_r_str(r, m->message, PROTO_MAX_ERROR_TEXT, "message");
+    m->capped = proto_r_u64(r, "paths capped");
 }
 
 pt_status proto_msg_encode_job_info(proto_writer *w, const proto_job_info *m, pt_error *err)

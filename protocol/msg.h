@@ -83,8 +83,13 @@ const char *proto_msg_type_name(uint32_t type);
 #define PROTO_MAX_TILE_PIXELS (PT_TILE_MAX * PT_TILE_MAX) /* pixels in one TASK / RESULT tile */
 #define PROTO_HASH_SIZE 32u                               /* scene content hash (SHA-256) */
 #define PROTO_NONCE_SIZE 32u
-#define PROTO_MAC_SIZE 32u          /* HMAC-SHA256 */
-#define PROTO_RESULT_PIXEL_SIZE 36u /* bytes per pixel in RESULT */
+#define PROTO_MAC_SIZE 32u           /* HMAC-SHA256 */
+#define PROTO_RESULT_PIXEL_SIZE 40u  /* bytes per pixel in RESULT */
+#define PROTO_RESULT_HEADER_SIZE 68u /* bytes of RESULT before its pixels */
+
+/* Film flags (TASK, SUBMIT). Decoders refuse a bit not defined here. */
+#define PROTO_FILM_TRANSPARENT 1u /* camera rays that escape add nothing; the EXR gets A */
+#define PROTO_FILM_KNOWN PROTO_FILM_TRANSPARENT
 
 enum { PROTO_ROLE_WORKER = 1, PROTO_ROLE_CLIENT = 2 };
 
@@ -208,8 +213,9 @@ int proto_env_same(const proto_env *a, const proto_env *b);
  *   88   4    u32      lease in milliseconds (heartbeat before it runs out)
  *   92   2+c  str      camera name, c <= PROTO_MAX_NAME ("": the scene's first camera,
  *                      or a view framing the scene when it has none)
- *   94+c 23+e ENV      the environment light (ENV layout, below)
- *   size 117+c+e */
+ *   94+c 23+e ENV      the environment light (ENV layout, above)
+ *   117+c+e 4 u32      film flags (PROTO_FILM_*; unknown bits refused)
+ *   size 121+c+e */
 typedef struct proto_task {
     uint64_t job_id, task_id;
     pt_rect tile;
@@ -221,6 +227,7 @@ typedef struct proto_task {
     uint32_t lease_ms;
     char camera[PROTO_MAX_NAME + 1]; /* NUL-terminated; "" the default view */
     proto_env env;
+    uint32_t film_flags; /* PROTO_FILM_* */
 } proto_task;
 
 /* SCENE_GET
@@ -255,20 +262,24 @@ typedef struct proto_scene_chunk {
  *   36   4    u32   s1 (s0 < s1)
  *   40   8    u64   samples rejected (NaN/Inf) over the tile
  *   48   8    u64   rays traced
- *   56   4    u32   N: pixels; must equal (x1-x0)*(y1-y0) and be <= PROTO_MAX_TILE_PIXELS
- *   60   36N        pixels, row-major over the tile, each:
+ *   56   8    u64   paths ended by the depth cap (pt_render_stats.capped)
+ *   64   4    u32   N: pixels; must equal (x1-x0)*(y1-y0) and be <= PROTO_MAX_TILE_PIXELS
+ *   68   40N        pixels, row-major over the tile, each:
  *                     +0   8  f64  sum R
  *                     +8   8  f64  sum G
  *                     +16  8  f64  sum B
  *                     +24  8  f64  sum of squared luminance
  *                     +32  4  u32  n: samples accumulated, n <= s1 - s0
- *   size 60+36N
+ *                     +36  4  u32  hits: of those, samples whose camera ray hit the
+ *                                  scene, hits <= n (the coverage is hits / n)
+ *   size 68+40N (PROTO_RESULT_HEADER_SIZE + PROTO_RESULT_PIXEL_SIZE x N)
  * The floats are not checked (finiteness is the server's business). */
 typedef struct proto_result {
     uint64_t job_id, task_id;
     pt_rect tile;
     uint32_t s0, s1;
     uint64_t rejected, rays;
+    uint64_t capped; /* paths ended by the depth cap */
     uint32_t npixels;
     pt_pixel_acc *pixels; /* npixels entries */
     int owns_pixels;      /* 1 when the decoder allocated pixels */
@@ -333,7 +344,8 @@ typedef struct proto_job_ref {
  *                  (0: off; finite, >= 0; see pt_tile_stops)
  *   86+a+c 23+e ENV the environment light (ENV layout, above); a map named
  *                  here travels in the bundle
- *   size 109+a+c+e
+ *   109+a+c+e 4 u32 film flags (PROTO_FILM_*; unknown bits refused)
+ *   size 113+a+c+e
  * The decoder checks shape only (width and height both 0 or both > 0, spp > 0,
  * size > 0, target error and min gain finite and >= 0); caps, and whether the
  * two rules may be combined, are the server's business. */
@@ -349,6 +361,7 @@ typedef struct proto_submit {
     char camera[PROTO_MAX_NAME + 1]; /* NUL-terminated; "" the default view */
     double min_gain;
     proto_env env;
+    uint32_t film_flags; /* PROTO_FILM_* */
 } proto_submit;
 
 enum {
@@ -386,7 +399,8 @@ const char *proto_job_state_name(uint32_t state);
  *   ..   8    u64  submitted, Unix seconds
  *   ..   4    u32  position in the queue (1 = next; 0 when not queued)
  *   ..   2+e  str  message (why it failed, ...), e <= PROTO_MAX_ERROR_TEXT
- *   size 107+a+b+c+d+e */
+ *   ..   8    u64  paths ended by the depth cap, over the results merged
+ *   size 115+a+b+c+d+e */
 typedef struct proto_job_info {
     uint64_t job_id;
     uint8_t state;
@@ -404,6 +418,7 @@ typedef struct proto_job_info {
     uint64_t submitted;
     uint32_t queue_pos;
     char message[PROTO_MAX_ERROR_TEXT + 1];
+    uint64_t capped; /* paths ended by the depth cap */
 } proto_job_info;
 
 /* JOB_LIST
@@ -411,7 +426,7 @@ typedef struct proto_job_info {
  *   4    ...       N JOB_INFO entries, back to back
  * Decoded, jobs is a pt_malloc'd array of N entries (NULL when N is 0) that
  * the caller frees with pt_free; N is checked against the bytes present (each
- * entry needs at least 107 bytes) before anything is allocated. */
+ * entry needs at least 115 bytes) before anything is allocated. */
 typedef struct proto_job_list {
     uint32_t count;
     proto_job_info *jobs;

@@ -64,6 +64,7 @@ struct srv_job {
     held *held;
     uint32_t nheld, held_cap;
     uint64_t merged, samples;
+    uint64_t capped; /* paths ended by the depth cap, over the results accepted */
     uint32_t stopped;
     pt_film *film;
     /* deadlines, backups and verification (srv_job_set_policy) */
@@ -197,6 +198,10 @@ uint64_t srv_job_tasks_merged(const srv_job *j)
 uint64_t srv_job_samples_merged(const srv_job *j)
 {
     return j->samples;
+}
+uint64_t srv_job_paths_capped(const srv_job *j)
+{
+    return j->capped;
 }
 uint32_t srv_job_leases(const srv_job *j)
 {
@@ -440,6 +445,7 @@ int srv_job_lease(srv_job *j, uint64_t owner, uint64_t now_ms, uint32_t lease_ms
     task->lease_ms = lease_ms;
     snprintf(task->camera, sizeof task->camera, "%s", j->p.camera);
     task->env = j->p.env;
+    task->film_flags = j->p.film_flags;
     return 1;
 }
 
@@ -578,7 +584,7 @@ static void merge_held(srv_job *j, uint32_t tile)
 static int acc_sane(const pt_pixel_acc *a, uint32_t max_n)
 {
     return isfinite(a->sum[0]) && isfinite(a->sum[1]) && isfinite(a->sum[2]) &&
-           isfinite(a->sum_sq) && a->sum_sq >= 0 && a->n <= max_n;
+           isfinite(a->sum_sq) && a->sum_sq >= 0 && a->n <= max_n && a->hits <= a->n;
 }
 
 /* Each pixel's count must be the task's samples less those rejected (a NaN
@@ -611,6 +617,12 @@ static int pixels_plausible(const proto_result *r, uint32_t samples, pt_error *e
                      "it reports %llu rejected",
                      (unsigned long long)r->task_id, (unsigned long long)missing, samples,
                      (unsigned long long)r->rejected);
+        return 0;
+    }
+    if (r->capped > (uint64_t)r->npixels * samples) {
+        pt_error_set(err, PT_ERR_PROTO,
+                     "result for task %llu: %llu paths at the depth cap, more than its samples",
+                     (unsigned long long)r->task_id, (unsigned long long)r->capped);
         return 0;
     }
     return 1;
@@ -680,8 +692,8 @@ static int verify_picked(const srv_job *j, uint64_t t)
 
 static void pixels_hash(const proto_result *r, uint8_t out[32])
 {
-    /* pt_pixel_acc has no implicit padding and the decoder zeroes pad, so
-     * the bytes are the result's values and nothing else. */
+    /* pt_pixel_acc has no implicit padding, so the bytes are the result's
+     * values (camera hits included) and nothing else. */
     pt_sha256((const uint8_t *)r->pixels, (size_t)r->npixels * sizeof *r->pixels, out);
 }
 
@@ -799,6 +811,7 @@ static srv_outcome merge_validated(srv_job *j, int li, const proto_result *r, ui
     uint32_t tile = (uint32_t)(t % j->ntiles), chunk = (uint32_t)(t / j->ntiles);
     if (chunk == j->next_chunk[tile]) {
         accepted(j, li, r, now_ms);
+        j->capped += r->capped;
         merge_now(j, t, r->pixels);
         merge_held(j, tile);
         return SRV_MERGED;
@@ -818,6 +831,7 @@ static srv_outcome merge_validated(srv_job *j, int li, const proto_result *r, ui
     memcpy(copy, r->pixels, (size_t)r->npixels * sizeof *copy);
     j->held[j->nheld++] = (held){t, li >= 0 ? j->leases[li].owner : 0, copy};
     accepted(j, li, r, now_ms);
+    j->capped += r->capped;
     j->state[t] = T_HELD;
     return SRV_MERGED;
 nomem:
@@ -959,8 +973,14 @@ uint32_t srv_job_tiles(const srv_job *j)
 #define CKPT_VERSION 4u
 #define CKPT_OLDEST_VERSION 2u   /* no min gain: read as 0 */
 #define CKPT_MIN_GAIN_VERSION 3u /* the first with the min gain */
-#define CKPT_ENV_VERSION 4u      /* the first with the environment (older: none) */
+/* The first with the environment (older: none), and the first with the film
+ * flags, the depth-cap count and each pixel's camera hits; older pixels read
+ * as fully covered (their jobs are never transparent, so the count is not
+ * shown). One format version brought both: srv_job_params_read takes one flag. */
+#define CKPT_ENV_VERSION 4u
+#define CKPT_FILM_VERSION CKPT_ENV_VERSION
 
+/* A pixel as the checkpoint stores it: RESULT's pixel layout (msg.h). */
 static void put_acc(proto_writer *w, const pt_pixel_acc *a)
 {
     proto_w_f64(w, a->sum[0]);
@@ -968,16 +988,17 @@ static void put_acc(proto_writer *w, const pt_pixel_acc *a)
     proto_w_f64(w, a->sum[2]);
     proto_w_f64(w, a->sum_sq);
     proto_w_u32(w, a->n);
+    proto_w_u32(w, a->hits);
 }
 
-static void get_acc(proto_reader *r, pt_pixel_acc *a)
+static void get_acc(proto_reader *r, pt_pixel_acc *a, int has_hits)
 {
     a->sum[0] = proto_r_f64(r, "pixel sum");
     a->sum[1] = proto_r_f64(r, "pixel sum");
     a->sum[2] = proto_r_f64(r, "pixel sum");
     a->sum_sq = proto_r_f64(r, "pixel sum of squares");
     a->n = proto_r_u32(r, "pixel samples");
-    a->pad = 0;
+    a->hits = has_hits ? proto_r_u32(r, "pixel camera hits") : a->n;
 }
 
 void srv_job_params_write(proto_writer *w, const srv_job_params *p)
@@ -1000,9 +1021,10 @@ void srv_job_params_write(proto_writer *w, const srv_job_params *p)
     proto_w_u8(w, p->env.background);
     for (int k = 0; k < 3; k++)
         proto_w_f32(w, p->env.rgb[k]);
+    proto_w_u32(w, p->film_flags);
 }
 
-void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, int has_env)
+void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, int has_env_film)
 {
     p->width = proto_r_u32(r, "width");
     p->height = proto_r_u32(r, "height");
@@ -1018,7 +1040,8 @@ void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, i
     p->camera[0] = '\0';
     proto_r_str(r, p->camera, PROTO_MAX_NAME, "camera");
     proto_env_none(&p->env);
-    if (!has_env)
+    p->film_flags = 0;
+    if (!has_env_film)
         return;
     proto_r_str(r, p->env.name, PROTO_MAX_PATH, "environment map name");
     p->env.strength = proto_r_f32(r, "environment strength");
@@ -1026,6 +1049,9 @@ void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, i
     p->env.background = proto_r_u8(r, "environment background flag");
     for (int k = 0; k < 3; k++)
         p->env.rgb[k] = proto_r_f32(r, "background colour");
+    p->film_flags = proto_r_u32(r, "film flags");
+    if (r->status == PT_OK && (p->film_flags & ~PROTO_FILM_KNOWN))
+        proto_r_fail(r, PT_ERR_FORMAT, "unknown", "film flags");
 }
 
 static uint32_t tile_merged(const srv_job *j, uint32_t tile)
@@ -1043,6 +1069,7 @@ pt_status srv_job_save(const srv_job *j, proto_writer *w, pt_error *err)
     proto_w_u64(w, j->id);
     proto_w_bytes(w, j->hash, 32);
     srv_job_params_write(w, &j->p);
+    proto_w_u64(w, j->capped);
     proto_w_u32(w, j->ntiles);
     proto_w_u32(w, j->nchunks);
     for (uint32_t t = 0; t < j->ntiles; t++) {
@@ -1082,7 +1109,10 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
     uint64_t id = proto_r_u64(&r, "job id");
     const uint8_t *hash = proto_r_bytes(&r, 32, "scene hash");
     srv_job_params p;
+    int film = version >= CKPT_FILM_VERSION;
+    size_t acc_size = film ? PROTO_RESULT_PIXEL_SIZE : PROTO_RESULT_PIXEL_SIZE - 4;
     srv_job_params_read(&r, &p, version >= CKPT_MIN_GAIN_VERSION, version >= CKPT_ENV_VERSION);
+    uint64_t capped = film ? proto_r_u64(&r, "paths capped") : 0;
     uint32_t ntiles = proto_r_u32(&r, "tiles"), nchunks = proto_r_u32(&r, "chunks");
     if (r.status != PT_OK)
         return proto_r_finish(&r, "checkpoint", err);
@@ -1093,7 +1123,7 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
         memcmp(&p.target_error, &j->p.target_error, sizeof p.target_error) != 0 ||
         memcmp(&p.min_gain, &j->p.min_gain, sizeof p.min_gain) != 0 ||
         strcmp(p.camera, j->p.camera) != 0 || !proto_env_same(&p.env, &j->p.env) ||
-        ntiles != j->ntiles || nchunks != j->nchunks)
+        p.film_flags != j->p.film_flags || ntiles != j->ntiles || nchunks != j->nchunks)
         return pt_error_set(err, PT_ERR_FORMAT,
                             "checkpoint is of another job or other settings "
                             "(job %llu, %ux%u, %u spp)",
@@ -1139,7 +1169,7 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
                                 (unsigned long long)t);
         pt_rect rc = task_rect(j, t);
         uint32_t npx = (rc.x1 - rc.x0) * (rc.y1 - rc.y0);
-        if (proto_r_left(&r) < (size_t)npx * PROTO_RESULT_PIXEL_SIZE)
+        if (proto_r_left(&r) < (size_t)npx * acc_size)
             return pt_error_set(err, PT_ERR_FORMAT, "checkpoint: truncated held task %llu",
                                 (unsigned long long)t);
         if (j->nheld == j->held_cap) {
@@ -1154,7 +1184,7 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
         if (!px)
             return pt_error_set(err, PT_ERR_NOMEM, "checkpoint: out of memory");
         for (uint32_t k = 0; k < npx; k++)
-            get_acc(&r, &px[k]);
+            get_acc(&r, &px[k], film);
         j->held[j->nheld++] = (held){t, 0, px};
         j->state[t] = T_HELD;
         for (uint32_t k = 0; k < npx; k++)
@@ -1165,11 +1195,11 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
                                     (unsigned long long)t, k);
     }
     size_t npx = (size_t)j->p.width * j->p.height;
-    if (r.status == PT_OK && proto_r_left(&r) != npx * PROTO_RESULT_PIXEL_SIZE)
+    if (r.status == PT_OK && proto_r_left(&r) != npx * acc_size)
         return pt_error_set(err, PT_ERR_FORMAT, "checkpoint: %zu bytes of film, expected %zu",
-                            proto_r_left(&r), npx * PROTO_RESULT_PIXEL_SIZE);
+                            proto_r_left(&r), npx * acc_size);
     for (size_t k = 0; k < npx && r.status == PT_OK; k++) {
-        get_acc(&r, &j->film->px[k]);
+        get_acc(&r, &j->film->px[k], film);
         if (r.status == PT_OK && !acc_sane(&j->film->px[k], j->p.spp))
             return pt_error_set(err, PT_ERR_FORMAT,
                                 "checkpoint: pixel %zu is not finite or has "
@@ -1180,6 +1210,7 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
     if (st != PT_OK)
         return st;
     j->samples = pt_film_total_samples(j->film);
+    j->capped = capped;
     while (j->passes_done < j->nchunks && j->merged_in_pass[j->passes_done] == j->ntiles)
         j->passes_done++;
     return PT_OK;

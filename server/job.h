@@ -65,7 +65,8 @@ typedef struct srv_job_params {
     uint32_t min_spp;                /* adaptive sampling: no tile stops before this many samples */
     double min_gain;                 /* adaptive sampling: 0 = off, else pt_tile_gain threshold */
     char camera[PROTO_MAX_NAME + 1]; /* the camera's name; "" the scene's default view */
-    proto_env env; /* the environment light; its map is a file of the job's bundle */
+    proto_env env;       /* the environment light; its map is a file of the job's bundle */
+    uint32_t film_flags; /* PROTO_FILM_* (transparent: the EXR gets A) */
 } srv_job_params;
 
 #define SRV_MAX_TASKS (64u * 1024u * 1024u)
@@ -214,12 +215,14 @@ int srv_job_owner_active(const srv_job *job, uint64_t owner);
  * store it: nine u32 (width, height, spp, tile, chunk, seed, max depth, rr
  * depth, min spp), f64 target error, f64 min gain (in the formats that have
  * it; read as 0 from older ones), str camera, then (in the formats that have
- * it; no environment from older ones) the environment: str map name, f32
- * strength, f32 rotation, u8 background flag, f32 x3 colour. srv_job_params_read
- * reads a block with or without the min gain and the environment, as its
+ * them: no environment and no film flags from older ones) the environment: str
+ * map name, f32 strength, f32 rotation, u8 background flag, f32 x3 colour; and
+ * u32 film flags (an unknown bit is a format error). srv_job_params_read reads
+ * a block with or without the min gain and with or without both the
+ * environment and the film flags (one format version brought both), as its
  * file's format version says; a failure is left in r's status. */
 void srv_job_params_write(proto_writer *w, const srv_job_params *p);
-void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, int has_env);
+void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, int has_env_film);
 
 /* Checkpoints. srv_job_save appends the merged state (per tile the chunks
  * merged and whether adaptive sampling stopped it, the held early results, the
@@ -243,6 +246,8 @@ uint32_t srv_job_passes_done(const srv_job *job); /* passes merged for every til
 uint64_t srv_job_tasks_total(const srv_job *job);
 uint64_t srv_job_tasks_merged(const srv_job *job);
 uint64_t srv_job_samples_merged(const srv_job *job);
+/* Paths that the results accepted so far report ended by the depth cap. */
+uint64_t srv_job_paths_capped(const srv_job *job);
 uint32_t srv_job_tiles_stopped(const srv_job *job); /* tiles adaptive sampling stopped early */
 uint32_t srv_job_leases(const srv_job *job);
 /* 1 when every task is merged (or skipped) and no verification mismatch

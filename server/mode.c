@@ -115,6 +115,11 @@ static int finish_single(srv_server *s)
                 "samples (NaN/Inf); wrote %s\n",
                 secs, (unsigned long long)samples, (double)samples / secs,
                 (unsigned long long)j->rejected, cfg->out_path);
+        if (srv_job_paths_capped(j->job) > 0)
+            fprintf(stderr,
+                    "ptserve: %llu paths reached the depth cap of %u; raise --max-depth if this "
+                    "matters\n",
+                    (unsigned long long)srv_job_paths_capped(j->job), cfg->job.max_depth);
         fprintf(stderr,
                 "ptserve: wire: %llu bytes in, %llu out (scene %zu); %.3f bytes per "
                 "sample, %.0f per task\n",

@@ -92,6 +92,9 @@ static void usage(FILE *f)
         "  --background R,G,B     a uniform environment of this radiance instead\n"
         "                         (a scene with no emitter, no KHR_lights_punctual light\n"
         "                         and neither of these is refused: it would render black)\n"
+        "  --transparent          camera rays that leave the scene add nothing, and the\n"
+        "                         EXR gets an A channel (coverage; RGB premultiplied);\n"
+        "                         one-job mode (queued jobs: ptctl submit --transparent)\n"
         "  --tile N               tile side in pixels (default 32)\n"
         "  --chunk N              samples per task (default 16)\n"
         "  --save-interval SEC    progressive saves at most this often (default 5)\n"
@@ -194,7 +197,8 @@ int main(int argc, char **argv)
         O_ENVROTATE,
         O_BACKGROUND,
         O_HTTP,
-        O_HTTPPORT
+        O_HTTPPORT,
+        O_TRANSPARENT
     };
     static const struct option opts[] = {
         {"output", required_argument, NULL, 'o'},
@@ -218,6 +222,7 @@ int main(int argc, char **argv)
         {"min-gain", required_argument, NULL, O_MINGAIN},
         {"verify-fraction", required_argument, NULL, O_VERIFY},
         {"min-spp", required_argument, NULL, O_MINSPP},
+        {"transparent", no_argument, NULL, O_TRANSPARENT},
         {"worker-bin", required_argument, NULL, O_WBIN},
         {"state-dir", required_argument, NULL, O_STATE},
         {"output-dir", required_argument, NULL, O_OUTDIR},
@@ -314,6 +319,9 @@ int main(int argc, char **argv)
             break;
         case O_MINSPP:
             st = pt_opt_u32("--min-spp", optarg, 2, 1u << 24, &c.job.min_spp, &err);
+            break;
+        case O_TRANSPARENT:
+            c.job.film_flags |= PROTO_FILM_TRANSPARENT;
             break;
         case O_WBIN:
             c.worker_bin = optarg;
@@ -430,6 +438,11 @@ int main(int argc, char **argv)
     if (c.clients_path && (!c.token_path || !c.state_dir)) {
         fprintf(stderr, "ptserve: --clients-file needs --token-file (the admin and worker token) "
                         "and --state-dir (clients use the queue)\n");
+        return 2;
+    }
+    if (c.state_dir && (c.job.film_flags & PROTO_FILM_TRANSPARENT)) {
+        fprintf(stderr, "ptserve: --transparent is for one-job mode; a queued job asks for it "
+                        "with ptctl submit --transparent\n");
         return 2;
     }
     if (c.job.target_error > 0.0 && c.job.min_gain > 0.0) {

@@ -168,6 +168,7 @@ void srv_queue_info(const srv_server *s, const srv_entry *j, proto_job_info *m)
         m->tiles_stopped = srv_job_tiles_stopped(j->job);
         m->workers = job_workers(s, j);
         m->error = job_error(j->job);
+        m->capped = srv_job_paths_capped(j->job);
     } else if (r->state == PROTO_JOB_DONE) {
         m->samples_done = r->samples_done;
         m->passes_done = m->passes;
@@ -176,6 +177,8 @@ void srv_queue_info(const srv_server *s, const srv_entry *j, proto_job_info *m)
         m->samples_done = r->samples_done;
         m->error = r->samples_done ? r->error : -1.0;
     }
+    if (!j->job)
+        m->capped = r->capped;
     m->seconds = srv_entry_seconds(j, now);
     m->rate = j->rate;
     m->submitted = r->submitted;
@@ -211,6 +214,7 @@ void srv_entry_save_image(srv_entry *j)
         return;
     }
     pt_film_resolve(film, img);
+    img->has_alpha = (srv_job_params_of(j->job)->film_flags & PROTO_FILM_TRANSPARENT) != 0;
     pt_exr_meta meta = {0};
     meta.total_samples = pt_film_total_samples(film);
     meta.render_seconds = srv_entry_seconds(j, pt_now_ms());
@@ -363,6 +367,7 @@ void srv_queue_end_job(srv_server *s, srv_entry *j, uint8_t state, const char *m
     if (j->job) {
         j->rec.samples_done = srv_job_samples_merged(j->job);
         j->rec.error = job_error(j->job);
+        j->rec.capped = srv_job_paths_capped(j->job);
     }
     if (state != PROTO_JOB_DONE && j->t_started)
         announce_job_end(s, j);

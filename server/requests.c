@@ -203,6 +203,7 @@ static void submitted_params(const srv_config *cfg, const srv_upload *k, srv_job
         p.max_depth = m->max_depth;
     p.target_error = m->target_error;
     p.min_gain = m->min_gain;
+    p.film_flags = m->film_flags;
     p.min_spp = m->min_spp ? m->min_spp : (p.chunk > 1 ? p.chunk : 2);
     p.width = m->width;
     p.height = m->height;

@@ -21,11 +21,17 @@
 #define LOG_MAGIC 0x4c525450u   /* "PTRL" */
 #define STATE_VERSION 4u
 /* The oldest format still read: version 2 has no min gain (read as 0, the
- * rule off), version 3 no environment (read as none), so a state folder
- * survives the upgrades that brought them. */
+ * rule off), versions 2 and 3 no environment and no film flags (read as
+ * none) and protocol 2's RESULT in the log, so a state folder survives the
+ * upgrades that brought them. */
 #define STATE_OLDEST_VERSION 2u
 #define STATE_MIN_GAIN_VERSION 3u /* the first with the min gain */
-#define STATE_ENV_VERSION 4u      /* the first with the environment */
+/* The first with the environment and the film flags in the queue file's job
+ * params, and with protocol 3's RESULT (the depth-cap count, each pixel's
+ * camera hits) in the log; an older log is read through log_upgrade_record and
+ * rewritten. One format version brought both. */
+#define STATE_ENV_VERSION 4u
+#define STATE_FILM_VERSION STATE_ENV_VERSION
 #define LOG_HEADER 16u
 #define MAX_QUEUE_BYTES (256u << 20)
 #define MAX_CKPT_BYTES ((size_t)8 << 30)
@@ -222,6 +228,7 @@ pt_status srv_state_save_queue(srv_state *st, srv_job_record *const *recs, uint3
         proto_w_f64(&w, j->seconds);
         proto_w_f64(&w, j->error);
         proto_w_str(&w, j->message);
+        proto_w_u64(&w, j->capped);
     }
     pt_status s = end_file(&w, path, err);
     proto_writer_fini(&w);
@@ -288,6 +295,7 @@ pt_status srv_state_load_queue(srv_state *st, srv_job_record **recs, uint32_t *n
         j->seconds = proto_r_f64(&r, "seconds");
         j->error = proto_r_f64(&r, "error");
         proto_r_str(&r, j->message, sizeof j->message - 1, "message");
+        j->capped = version >= STATE_FILM_VERSION ? proto_r_u64(&r, "paths capped") : 0;
         if (r.status == PT_OK && (j->id == 0 || j->id >= nid || j->state < PROTO_JOB_QUEUED ||
                                   j->state > PROTO_JOB_FAILED))
             proto_r_fail(&r, PT_ERR_FORMAT, "bad", "job id or state");
@@ -535,6 +543,27 @@ pt_status srv_state_checkpoint(srv_state *st, const srv_job *job, const srv_ckpt
     return PT_OK;
 }
 
+/* A RESULT payload of protocol 2 (a log before STATE_FILM_VERSION: 60 bytes
+ * of header, 36 per pixel) in protocol 3's layout (msg.h) into out, which
+ * holds the largest RESULT: no paths capped (not counted then), every sample a
+ * camera hit (those jobs are not transparent). Returns its length, or 0 when
+ * pl is not of that shape (the decoder then names the fault). */
+static size_t log_upgrade_record(const uint8_t *pl, size_t n, uint8_t *out)
+{
+    if (n < 60 || (n - 60) % 36 != 0 || (n - 60) / 36 > PROTO_MAX_TILE_PIXELS)
+        return 0;
+    size_t npx = (n - 60) / 36;
+    memcpy(out, pl, 56);
+    proto_put_u64(out + 56, 0);
+    memcpy(out + 64, pl + 56, 4);
+    for (size_t i = 0; i < npx; i++) {
+        uint8_t *q = out + PROTO_RESULT_HEADER_SIZE + i * PROTO_RESULT_PIXEL_SIZE;
+        memcpy(q, pl + 60 + i * 36, 36);
+        memcpy(q + 36, pl + 60 + i * 36 + 32, 4);
+    }
+    return PROTO_RESULT_HEADER_SIZE + npx * PROTO_RESULT_PIXEL_SIZE;
+}
+
 static pt_status replay_log(srv_state *st, srv_job *job, srv_ckpt_extra *x, uint32_t *replayed,
                             int *torn, pt_error *err)
 {
@@ -547,6 +576,13 @@ static pt_status replay_log(srv_state *st, srv_job *job, srv_ckpt_extra *x, uint
     if (s != PT_OK)
         return (s == PT_ERR_IO && err->sys_errno == ENOENT) ? PT_OK : s;
     size_t good = 0;
+    /* An older log's records are upgraded as they are read, and the whole log
+     * is rewritten in this layout once replayed, so that records appended
+     * later never follow records of another layout. */
+    uint8_t *upbuf = NULL;
+    proto_writer up;
+    proto_writer_init(&up, (size_t)64 << 30);
+    int old = 0;
     if (len < LOG_HEADER) {
         *torn = len > 0; /* the header write itself was cut short */
     } else if (proto_get_u32(data) != LOG_MAGIC || !version_read(proto_get_u32(data + 4)) ||
@@ -558,8 +594,19 @@ static pt_status replay_log(srv_state *st, srv_job *job, srv_ckpt_extra *x, uint
                             p, (unsigned long long)id);
     } else {
         good = LOG_HEADER;
+        old = proto_get_u32(data + 4) < STATE_FILM_VERSION;
+        if (old) {
+            upbuf = pt_malloc(PROTO_RESULT_HEADER_SIZE +
+                              (size_t)PROTO_RESULT_PIXEL_SIZE * PROTO_MAX_TILE_PIXELS);
+            proto_w_u32(&up, LOG_MAGIC);
+            proto_w_u32(&up, STATE_VERSION);
+            proto_w_u64(&up, id);
+        }
         pt_pixel_acc *buf = pt_malloc_array(PROTO_MAX_TILE_PIXELS, sizeof *buf);
-        if (!buf) {
+        if (!buf || (old && !upbuf)) {
+            pt_free(buf);
+            pt_free(upbuf);
+            proto_writer_fini(&up);
             pt_free(data);
             return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
         }
@@ -580,8 +627,17 @@ static pt_status replay_log(srv_state *st, srv_job *job, srv_ckpt_extra *x, uint
                 *torn = 1;
                 break;
             }
+            size_t rn = n;
+            if (crc_ok && old) {
+                rn = log_upgrade_record(pl, n, upbuf);
+                pl = rn ? upbuf : pl;
+                rn = rn ? rn : n;
+                proto_w_u32(&up, (uint32_t)rn);
+                proto_w_u32(&up, proto_crc32c(0, pl, rn));
+                proto_w_bytes(&up, pl, rn);
+            }
             if (!crc_ok ||
-                proto_msg_decode_result(pl, n, buf, PROTO_MAX_TILE_PIXELS, &r, &e2) != PT_OK) {
+                proto_msg_decode_result(pl, rn, buf, PROTO_MAX_TILE_PIXELS, &r, &e2) != PT_OK) {
                 s = pt_error_set(err, PT_ERR_FORMAT,
                                  "%s: record at byte %zu is damaged "
                                  "(checksum or contents: %s); refusing to use it",
@@ -603,8 +659,18 @@ static pt_status replay_log(srv_state *st, srv_job *job, srv_ckpt_extra *x, uint
             good += 8 + (size_t)n;
         }
         pt_free(buf);
+        pt_free(upbuf);
     }
     pt_free(data);
+    if (s == PT_OK && old) {
+        /* Whole records only: a torn last one is left out. */
+        s = proto_writer_status(&up) != PT_OK
+                ? pt_error_set(err, proto_writer_status(&up), "%s: cannot upgrade", p)
+                : pt_write_file_atomic(p, up.buf, up.len, err);
+        proto_writer_fini(&up);
+        return s;
+    }
+    proto_writer_fini(&up);
     if (s == PT_OK && *torn) {
         /* Cut the incomplete record off so new records follow whole ones. */
         if (truncate(p, (off_t)(good >= LOG_HEADER ? good : 0)) != 0)

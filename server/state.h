@@ -55,6 +55,7 @@ typedef struct srv_job_record {
     double seconds;        /* render seconds, set when the job ends */
     double error;          /* estimated relative error when it ended; < 0 unknown */
     char message[PROTO_MAX_ERROR_TEXT + 1];
+    uint64_t capped; /* paths ended by the depth cap, set when the job ends */
 } srv_job_record;
 
 #define SRV_MAX_JOBS 100000u /* records in one queue file */

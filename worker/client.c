@@ -213,6 +213,7 @@ static void render_one(worker *w, const task_item *t, done_item *d)
     p.max_depth = k->max_depth;
     p.rr_depth = k->rr_depth;
     p.light_strategy = PT_LIGHT_MIS;
+    p.transparent = (k->film_flags & PROTO_FILM_TRANSPARENT) ? 1u : 0u;
     size_t npx = (size_t)(k->tile.x1 - k->tile.x0) * (k->tile.y1 - k->tile.y0);
     d->pixels = pt_malloc_array(npx, sizeof *d->pixels);
     if (!d->pixels) {
@@ -752,6 +753,7 @@ static int collect_results(worker *w)
         r.s1 = d->t.s1;
         r.rejected = d->stats.rejected;
         r.rays = d->stats.rays;
+        r.capped = d->stats.capped;
         r.npixels = (d->t.tile.x1 - d->t.tile.x0) * (d->t.tile.y1 - d->t.tile.y0);
         r.pixels = d->pixels;
         r.owns_pixels = 0;

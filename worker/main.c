@@ -77,6 +77,9 @@ static void usage(FILE *f)
             "  --env-strength S   the map's factor (default 1)\n"
             "  --env-rotate DEG   turn the map about +Y (default 0)\n"
             "  --background R,G,B a uniform environment of this radiance instead\n"
+            "  --transparent      camera rays that leave the scene add nothing (the\n"
+            "                     environment still lights the scene), and the EXR gets\n"
+            "                     an A channel: the pixel's coverage, RGB premultiplied\n"
             "  -q, --quiet        no progress line\n"
             "  -h, --help         this text\n"
             "  --version          the version and renderer build id\n"
@@ -157,6 +160,7 @@ int main(int argc, char **argv)
         OPT_ENV_STRENGTH,
         OPT_ENV_ROTATE,
         OPT_BACKGROUND,
+        OPT_TRANSPARENT,
         OPT_SERVER,
         OPT_PREFETCH,
         OPT_TOKEN,
@@ -182,6 +186,7 @@ int main(int argc, char **argv)
         {"env-strength", required_argument, NULL, OPT_ENV_STRENGTH},
         {"env-rotate", required_argument, NULL, OPT_ENV_ROTATE},
         {"background", required_argument, NULL, OPT_BACKGROUND},
+        {"transparent", no_argument, NULL, OPT_TRANSPARENT},
         {"quiet", no_argument, NULL, 'q'},
         {"server", required_argument, NULL, OPT_SERVER},
         {"prefetch", required_argument, NULL, OPT_PREFETCH},
@@ -256,6 +261,9 @@ int main(int argc, char **argv)
             o.has_background = 1;
             for (int k = 0; k < 3; k++)
                 o.background[k] = (float)rgb[k];
+            break;
+        case OPT_TRANSPARENT:
+            o.transparent = 1;
             break;
         case 'q':
             o.quiet = 1;

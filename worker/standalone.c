@@ -127,6 +127,7 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
         goto done;
     }
     p.env = env;
+    p.transparent = o->transparent ? 1u : 0u;
     if (pt_render_check_lit(scene, env != NULL, o->scene_path, &err) != PT_OK) {
         /* It would render black: say how to light it instead. */
         fprintf(stderr, "ptworker: %s\n", err.msg);
@@ -211,13 +212,15 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
         goto done;
     }
 
-    pt_render_stats st = {0, 0, 0};
+    pt_render_stats st = {0};
     for (uint32_t i = 0; i < nthreads; i++) {
         st.samples += tstats[i].samples;
         st.rejected += tstats[i].rejected;
         st.rays += tstats[i].rays;
+        st.capped += tstats[i].capped;
     }
     pt_film_resolve(film, img);
+    img->has_alpha = p.transparent;
     pt_exr_meta meta = {0};
     meta.total_samples = pt_film_total_samples(film);
     meta.render_seconds = secs;
@@ -245,6 +248,11 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
                 "average\n",
                 atomic_load(&j.tiles_stopped), nt,
                 (double)st.samples / ((double)p.width * p.height));
+    if (st.capped > 0)
+        fprintf(stderr,
+                "ptworker: %llu paths reached the depth cap of %u; raise --max-depth if this "
+                "matters\n",
+                (unsigned long long)st.capped, p.max_depth);
     rc = 0;
 done:
     pt_free(tstats);

@@ -29,6 +29,7 @@ typedef struct wrk_standalone_opts {
     float env_rotate;     /* degrees about +Y */
     int has_background;   /* a uniform environment of background[] (not with env_path) */
     float background[3];
+    int transparent; /* escaped camera rays add nothing; the EXR gets A (coverage) */
     int quiet;
 } wrk_standalone_opts;
 

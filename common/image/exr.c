@@ -126,10 +126,12 @@ static void stream_init(exr_context_initializer_t *init, exr_stream *s)
 
 /* Channel names in the order OpenEXR keeps them (sorted by name, bytewise),
  * and the plane each one comes from. */
-static const char *const channel_names[5] = {"B", "G", "R", "samples", "variance"};
+static const char *const channel_names[6] = {"A", "B", "G", "R", "samples", "variance"};
 
 static float *plane_of(const pt_image *img, const char *name)
 {
+    if (!strcmp(name, "A"))
+        return img->a;
     if (!strcmp(name, "R"))
         return img->r;
     if (!strcmp(name, "G"))
@@ -151,11 +153,13 @@ static exr_result_t define_part(exr_context_t ctx, const pt_image *img, const pt
     if (rv == EXR_ERR_SUCCESS)
         rv = exr_initialize_required_attr_simple(ctx, part, (int32_t)img->width,
                                                  (int32_t)img->height, EXR_COMPRESSION_ZIP);
-    for (int c = 0; c < 5 && rv == EXR_ERR_SUCCESS; c++) {
-        /* Colour is perceptually logarithmic, counts and variances are not;
-         * the flag only guides lossy codecs, and ZIP is lossless. */
+    /* A (coverage) only for a transparent film: without it, the file is as
+     * it always was. */
+    for (int c = img->has_alpha ? 0 : 1; c < 6 && rv == EXR_ERR_SUCCESS; c++) {
+        /* Colour is perceptually logarithmic, alpha, counts and variances are
+         * not; the flag only guides lossy codecs, and ZIP is lossless. */
         exr_perceptual_treatment_t pt =
-            c < 3 ? EXR_PERCEPTUALLY_LOGARITHMIC : EXR_PERCEPTUALLY_LINEAR;
+            c >= 1 && c < 4 ? EXR_PERCEPTUALLY_LOGARITHMIC : EXR_PERCEPTUALLY_LINEAR;
         rv = exr_add_channel(ctx, part, channel_names[c], EXR_PIXEL_FLOAT, pt, 1, 1);
     }
     char software[80], samples[24];
@@ -470,13 +474,15 @@ pt_status pt_exr_read(const char *path, pt_image **out, pt_exr_meta *meta, pt_er
         goto fail;
     }
     int have_rgb = 0;
+    uint32_t has_alpha = 0;
     for (int i = 0; i < chl->num_channels; i++) {
         const exr_attr_chlist_entry_t *e = &chl->entries[i];
         const char *name = e->name.str ? e->name.str : "";
         int ours = !strcmp(name, "R") || !strcmp(name, "G") || !strcmp(name, "B") ||
-                   !strcmp(name, "samples") || !strcmp(name, "variance");
+                   !strcmp(name, "samples") || !strcmp(name, "variance") || !strcmp(name, "A");
         if (!ours)
             continue;
+        has_alpha |= !strcmp(name, "A");
         if (e->x_sampling != 1 || e->y_sampling != 1) {
             st = pt_error_set(err, PT_ERR_FORMAT, "EXR %s: channel %s is subsampled", path, name);
             goto fail;
@@ -492,6 +498,8 @@ pt_status pt_exr_read(const char *path, pt_image **out, pt_exr_meta *meta, pt_er
         pt_error_set(err, st, "EXR %s: %s", path, ierr.msg);
         goto fail;
     }
+    if (img)
+        img->has_alpha = has_alpha;
     if (out && (rv = read_chunks(ctx, dw.min.y, img)) != EXR_ERR_SUCCESS) {
         st = exr_fail(err, &s, rv, path, "cannot decode the pixels");
         goto fail;

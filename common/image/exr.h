@@ -2,7 +2,8 @@
  * exr.h - OpenEXR output and input through OpenEXRCore (OpenEXR 3's C API).
  *
  * Channels written: R, G, B (mean radiance), "samples" (per-pixel sample count)
- * and "variance" (variance of the pixel mean, luminance), all FLOAT, scanline,
+ * and "variance" (variance of the pixel mean, luminance), and A (coverage; RGB
+ * premultiplied by it) when the image has_alpha, all FLOAT, scanline,
  * ZIP compression. Header attributes: "ptfarm.samples" (total samples, as a
  * decimal string), "ptfarm.renderSeconds" (double), "ptfarm.sceneHash"
  * (string), "ptfarm.jobId" (string), and the standard "software" string.
@@ -37,7 +38,8 @@ pt_status pt_exr_write(const char *path, const pt_image *img, const pt_exr_meta 
 #define PT_EXR_MAX_PIXELS_PER_BYTE 256u
 
 /* Reads a file written by pt_exr_write (or any scanline/tiled EXR with R, G,
- * B; samples and variance planes are zero when absent). meta may be NULL.
+ * B; samples, variance and A planes are zero when absent, has_alpha says
+ * whether A was there). meta may be NULL.
  * out NULL reads the header alone (meta, after the same checks of the
  * layout), decoding no pixel. A data window of more than
  * PT_EXR_MAX_PIXELS_PER_BYTE pixels per byte of the file (plus 65536) is

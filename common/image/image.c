@@ -35,7 +35,7 @@ pt_status pt_image_new(uint32_t width, uint32_t height, pt_image **out, pt_error
     uint64_t pixels = (uint64_t)width * height;
     size_t head = (sizeof(pt_image) + sizeof(double) - 1) / sizeof(double) * sizeof(double);
     size_t planes, total;
-    if (__builtin_mul_overflow((size_t)pixels, 5 * sizeof(float), &planes) ||
+    if (__builtin_mul_overflow((size_t)pixels, 6 * sizeof(float), &planes) ||
         __builtin_add_overflow(head, planes, &total))
         return pt_error_set(err, PT_ERR_LIMIT, "image size %ux%u overflows memory", width, height);
     unsigned char *block = pt_calloc(1, total);
@@ -50,6 +50,7 @@ pt_status pt_image_new(uint32_t width, uint32_t height, pt_image **out, pt_error
     img->b = p + 2 * pixels;
     img->samples = p + 3 * pixels;
     img->variance = p + 4 * pixels;
+    img->a = p + 5 * pixels;
     *out = img;
     return PT_OK;
 }

@@ -3,7 +3,10 @@
  *
  * r, g, b: mean linear Rec.709 radiance per pixel; samples: the pixel's sample
  * count; variance: the variance of the pixel mean (luminance), i.e. the sample
- * variance divided by the count. Row 0 is the top row.
+ * variance divided by the count; a: the pixel's coverage (the fraction of its
+ * camera samples whose camera ray hit the scene), meaningful and written as
+ * the EXR's A channel only when has_alpha is 1 (a transparent film, whose RGB
+ * is then premultiplied by it). Row 0 is the top row.
  * Also writes an 8-bit sRGB PNG preview (stb_image_write).
  *
  * Threads: an image belongs to one thread at a time; the functions keep no
@@ -22,6 +25,8 @@ typedef struct pt_image {
     float *r, *g, *b;
     float *samples;
     float *variance;
+    float *a;           /* always allocated; see has_alpha */
+    uint32_t has_alpha; /* 1: a holds the coverage and the EXR has an A channel */
 } pt_image;
 
 /* The largest image any module makes, reads or writes (an image, the film
@@ -34,7 +39,7 @@ typedef struct pt_image {
  * "film") with the size. Pure: any thread may call it. */
 pt_status pt_image_check_size(const char *what, uint32_t width, uint32_t height, pt_error *err);
 
-/* Allocates a zeroed image with all five planes. */
+/* Allocates a zeroed image with all six planes (has_alpha 0). */
 pt_status pt_image_new(uint32_t width, uint32_t height, pt_image **out, pt_error *err);
 void pt_image_free(pt_image *img); /* accepts NULL */
 

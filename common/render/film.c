@@ -65,6 +65,7 @@ void pt_film_resolve(const pt_film *film, pt_image *img)
             img->r[i] = img->g[i] = img->b[i] = 0.0f;
             img->samples[i] = 0.0f;
             img->variance[i] = 0.0f;
+            img->a[i] = 0.0f;
             continue;
         }
         double n = (double)a->n;
@@ -81,6 +82,7 @@ void pt_film_resolve(const pt_film *film, pt_image *img)
         img->b[i] = (float)b;
         img->samples[i] = (float)a->n;
         img->variance[i] = (float)var;
+        img->a[i] = (float)((double)a->hits / n);
     }
 }
 

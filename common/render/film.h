@@ -26,8 +26,9 @@ void pt_film_free(pt_film *film); /* accepts NULL */
 /* Adds a tile's partial sums (row-major over tile, as pt_render_tile writes them). */
 void pt_film_add_tile(pt_film *film, pt_rect tile, const pt_pixel_acc *acc);
 
-/* Writes mean, count and variance of the mean into img (same size). Pixels
- * with no samples are 0; variance needs n >= 2 (else 0). */
+/* Writes mean, count, variance of the mean and coverage (hits / n, into
+ * img->a; img->has_alpha is the caller's) into img (same size). Pixels with
+ * no samples are 0; variance needs n >= 2 (else 0). */
 void pt_film_resolve(const pt_film *film, pt_image *img);
 
 /* Total samples over all pixels. */

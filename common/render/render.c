@@ -57,7 +57,7 @@ static void pixel_ctx_init(pixel_ctx *pc, const pt_renderer *r, uint32_t px, uin
 /* The integrator variants: a feature mask fixed at compile time, so that code
  * for features a scene lacks is folded away (see pick_variant). */
 typedef pt_vec3 (*li_fn)(const pt_renderer *r, pixel_ctx *pc, uint32_t index,
-                         pt_render_stats *stats);
+                         pt_render_stats *stats, int *covered);
 typedef void (*tile_fn)(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,
                         pt_pixel_acc *out, pt_render_stats *stats);
 
@@ -89,6 +89,7 @@ void pt_render_params_default(pt_render_params *p)
     p->extra_features = 0;
     p->scalar_shading = 0;
     p->env = NULL;
+    p->transparent = 0;
 }
 
 const pt_render_params *pt_renderer_params(const pt_renderer *r)
@@ -580,7 +581,8 @@ typedef struct path {
     float prev_pdf; /* 0: the previous vertex was the camera or a delta lobe (no MIS) */
     int32_t medium; /* the absorbing material whose volume the path is in, or -1 */
     uint32_t depth;
-    uint32_t index; /* the sample index */
+    uint32_t index;   /* the sample index */
+    uint32_t escaped; /* 1: the camera ray left the scene (the sample does not cover the pixel) */
     pixel_ctx *pc;
 } path;
 
@@ -609,6 +611,7 @@ static inline void path_start(const pt_renderer *r, pixel_ctx *pc, uint32_t inde
     pa->medium = -1;
     pa->depth = 0;
     pa->index = index;
+    pa->escaped = 0;
     pa->pc = pc;
 }
 
@@ -654,10 +657,17 @@ static inline __attribute__((always_inline)) void shade_emission(const pt_render
 /* A ray of the path that left the scene: the environment's radiance along
  * it, weighed by the power heuristic against the environment's NEE pdf when
  * the path got here by sampling its BSDF (as shade_emission weighs an
- * emitter). A camera ray sees the environment as it is. */
+ * emitter). A camera ray sees the environment as it is, or nothing on a
+ * transparent film. Only a camera ray misses at depth 0 (a path traces again
+ * only after a bounce), so depth 0 marks the sample as not covering. */
 static inline __attribute__((always_inline)) void shade_miss(const pt_renderer *r, path *pa,
                                                              const uint32_t features)
 {
+    if (pa->depth == 0) {
+        pa->escaped = 1;
+        if (r->params.transparent)
+            return;
+    }
     if (!(features & PT_FEAT_ENV) || !r->params.env)
         return;
     const uint32_t strategy = r->params.light_strategy;
@@ -1253,11 +1263,11 @@ static void shade_lanes(const pt_renderer *r, path *paths, const uint8_t *live, 
  * must match bit for bit (tested through pt_render_sample). */
 static inline __attribute__((always_inline)) pt_vec3 li_impl(const pt_renderer *r, pixel_ctx *pc,
                                                              uint32_t index, pt_render_stats *stats,
-                                                             const uint32_t features)
+                                                             int *covered, const uint32_t features)
 {
     path pa;
     path_start(r, pc, index, &pa);
-    uint64_t rays = 0;
+    uint64_t rays = 0, capped = 0;
     for (;;) {
         /* The bounce's numbers are drawn before the ray is traced: they do
          * not depend on the hit, and the scrambles' dependency chain then
@@ -1272,6 +1282,7 @@ static inline __attribute__((always_inline)) pt_vec3 li_impl(const pt_renderer *
             break;
         }
         medium_segment(r, &pa, hit.t, features);
+        capped += pa.depth >= r->params.max_depth; /* shade() ends it: it may not scatter */
         shadow_ray sr = {{0, 0, 0}, {0, 0, 0}, 0.0f, {0, 0, 0}, 0}; /* set when SHADE_SHADOW */
         surface sf;
         surface_at(r, &hit, &sf, features);
@@ -1285,8 +1296,12 @@ static inline __attribute__((always_inline)) pt_vec3 li_impl(const pt_renderer *
         if (!(st & SHADE_CONTINUE))
             break;
     }
-    if (stats)
+    if (stats) {
         stats->rays += rays;
+        stats->capped += capped;
+    }
+    if (covered)
+        *covered = !pa.escaped;
     return pa.L;
 }
 
@@ -1332,12 +1347,12 @@ static __attribute__((noinline)) void lights_stage(const pt_renderer *r, uint32_
  * small wavefront (Laine, Karras & Aila 2013, "Megakernels Considered
  * Harmful") kept on the stack: about 70 KB with tile_impl's, most of it the
  * pixels' sampler seeds. sl holds the Lambert variants' lanes (NULL in the
- * others).
+ * others). Adds to *capped the paths that hit a surface at max_depth (which
+ * shade() and shade_lanes end there).
  */
-static inline __attribute__((always_inline)) uint64_t trace_batch(const pt_renderer *r, path *paths,
-                                                                  uint32_t n, stage_lanes *sl,
-                                                                  const uint32_t features,
-                                                                  const pt_ray_sink *sink)
+static inline __attribute__((always_inline)) uint64_t
+trace_batch(const pt_renderer *r, path *paths, uint32_t n, stage_lanes *sl, const uint32_t features,
+            const pt_ray_sink *sink, uint64_t *capped)
 {
     uint8_t live[BATCH], shadowed[BATCH];
     float u[BATCH][DIM_PER_BOUNCE]; /* by position in live[] */
@@ -1350,7 +1365,7 @@ static inline __attribute__((always_inline)) uint64_t trace_batch(const pt_rende
     int ls_ok[BATCH];
     pt_hit hits[BATCH];
     shadow_ray sr[BATCH];
-    uint64_t rays = 0;
+    uint64_t rays = 0, ncapped = 0;
     for (uint32_t k = 0; k < n; k++)
         live[k] = (uint8_t)k;
     /* With MASK/BLEND surfaces the query needs the bounce's OFF_ALPHA
@@ -1377,6 +1392,7 @@ static inline __attribute__((always_inline)) uint64_t trace_batch(const pt_rende
                 if (alpha && nh != j) /* u follows live[]'s compaction */
                     memcpy(u[nh], u[j], sizeof u[nh]);
                 live[nh++] = (uint8_t)k;
+                ncapped += paths[k].depth >= r->params.max_depth;
             } else {
                 medium_segment(r, &paths[k], INFINITY, features);
                 shade_miss(r, &paths[k], features);
@@ -1463,6 +1479,7 @@ static inline __attribute__((always_inline)) uint64_t trace_batch(const pt_rende
             trace_shadow(r, &paths[shadowed[j]], &sr[shadowed[j]], sink, features);
         n = nc;
     }
+    *capped += ncapped;
     return rays;
 }
 
@@ -1477,7 +1494,7 @@ static inline __attribute__((always_inline)) void
 tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel_acc *out,
           pt_render_stats *stats, stage_lanes *sl, const uint32_t features, const pt_ray_sink *sink)
 {
-    pt_render_stats local = {0, 0, 0};
+    pt_render_stats local = {0};
     uint32_t tw = tile.x1 - tile.x0, npix = tw * (tile.y1 - tile.y0);
     uint32_t span = s1 > s0 ? s1 - s0 : 1;
     uint32_t group = BATCH / (span < PT_SAMPLE_BLOCK ? span : PT_SAMPLE_BLOCK);
@@ -1502,12 +1519,16 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
             for (uint32_t g = 0; g < np; g++)
                 for (uint32_t i = 0; i < nb; i++)
                     path_start(r, &pcs[g], b0 + i, &paths[g * nb + i]);
-            local.rays += trace_batch(r, paths, np * nb, sl, features, sink);
+            local.rays += trace_batch(r, paths, np * nb, sl, features, sink, &local.capped);
             for (uint32_t g = 0; g < np; g++) {
                 pt_pixel_acc blk = {{0, 0, 0}, 0, 0, 0};
-                for (uint32_t i = 0; i < nb; i++)
-                    if (!pt_pixel_acc_sample(&blk, paths[g * nb + i].L))
+                for (uint32_t i = 0; i < nb; i++) {
+                    const path *pa = &paths[g * nb + i];
+                    if (!pt_pixel_acc_sample(&blk, pa->L))
                         local.rejected++;
+                    else
+                        blk.hits += !pa->escaped;
+                }
                 pt_pixel_acc_add(&out[p0 + g], &blk);
                 local.samples += blk.n;
             }
@@ -1518,15 +1539,16 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
         stats->samples += local.samples;
         stats->rejected += local.rejected;
         stats->rays += local.rays;
+        stats->capped += local.capped;
     }
 }
 
 #define ALL_FEATURES 0xffffffffu
 #define VARIANT(li_name, tile_name, feat)                                                          \
     static pt_vec3 li_name(const pt_renderer *r, pixel_ctx *pc, uint32_t index,                    \
-                           pt_render_stats *stats)                                                 \
+                           pt_render_stats *stats, int *covered)                                   \
     {                                                                                              \
-        return li_impl(r, pc, index, stats, (feat));                                               \
+        return li_impl(r, pc, index, stats, covered, (feat));                                      \
     }                                                                                              \
     static void tile_name(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,            \
                           pt_pixel_acc *out, pt_render_stats *stats)                               \
@@ -1654,11 +1676,11 @@ static void pixel_ctx_init(pixel_ctx *pc, const pt_renderer *r, uint32_t px, uin
 }
 
 pt_vec3 pt_render_sample(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index,
-                         pt_render_stats *stats)
+                         pt_render_stats *stats, int *covered)
 {
     pixel_ctx pc;
     pixel_ctx_init(&pc, r, px, py);
-    return r->li(r, &pc, index, stats);
+    return r->li(r, &pc, index, stats, covered);
 }
 
 void pt_render_tile(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel_acc *out,

@@ -71,12 +71,18 @@ typedef struct pt_render_params {
     uint32_t scalar_shading; /* 1: the Lambert variants shade one path at a time, as
                                 they do where SIMD lanes are slow (pt_simd_lanes_fast);
                                 the same bits; for tests and benchmarks; default 0 */
+    uint32_t transparent;    /* 1: a camera ray that escapes adds nothing (the environment
+                                still lights the scene through bounces and NEE), so RGB is
+                                premultiplied by the coverage, pt_pixel_acc.hits / n
+                                (Cycles' "film transparent"); default 0 */
 } pt_render_params;
 
 typedef struct pt_render_stats {
     uint64_t samples;  /* accepted samples */
     uint64_t rejected; /* NaN/Inf samples dropped */
     uint64_t rays;     /* closest-hit + shadow rays traced */
+    uint64_t capped;   /* paths ended by max_depth (a hit they could not scatter from),
+                          not by Russian roulette, absorption or escape */
 } pt_render_stats;
 
 typedef struct pt_renderer pt_renderer;
@@ -115,9 +121,10 @@ void pt_render_tile(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1
                     pt_render_stats *stats);
 
 /* Radiance of one camera sample, traced alone: the reference that
- * pt_render_tile's batched paths match bit for bit (for tests). */
+ * pt_render_tile's batched paths match bit for bit (for tests). *covered (when
+ * not NULL) gets 1 when its camera ray hit the scene (it counts in hits). */
 pt_vec3 pt_render_sample(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index,
-                         pt_render_stats *stats);
+                         pt_render_stats *stats, int *covered);
 
 /* Receives every ray one sample traces, for benchmarks that replay the same
  * rays through bare Embree (the ray-query ceiling). occlusion: 1 for shadow

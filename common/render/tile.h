@@ -18,7 +18,9 @@ typedef struct pt_pixel_acc {
     double sum[3]; /* sum of the RGB samples */
     double sum_sq; /* sum of squared luminance of the samples (error estimate) */
     uint32_t n;    /* samples accumulated (rejected ones excluded) */
-    uint32_t pad;
+    uint32_t hits; /* of those n, the samples whose camera ray hit the scene
+                      (hits <= n); hits / n is the pixel's coverage, the alpha
+                      of a transparent film. An integer, so it merges exactly. */
 } pt_pixel_acc;
 
 /* a += b (the order of calls fixes the floating-point result). */
@@ -29,6 +31,7 @@ static inline void pt_pixel_acc_add(pt_pixel_acc *a, const pt_pixel_acc *b)
     a->sum[2] += b->sum[2];
     a->sum_sq += b->sum_sq;
     a->n += b->n;
+    a->hits += b->hits;
 }
 
 /* A range of samples is summed in aligned blocks of this many, each in sample

@@ -169,7 +169,7 @@ static void reset(pass *ps, int threads)
 
 static pt_render_stats total_stats(const pass *ps, int threads)
 {
-    pt_render_stats st = {0, 0, 0};
+    pt_render_stats st = {0};
     for (int i = 0; i < threads; i++) {
         st.samples += ps->stats[i].samples;
         st.rejected += ps->stats[i].rejected;

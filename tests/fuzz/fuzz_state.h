@@ -32,7 +32,7 @@ static const uint8_t FUZZ_JOB_HASH[32] = {0x50, 0x54, 0x46, 0x5a, 7};
  * from 32 samples on, with a named camera and an environment map (4 tiles, 4
  * passes). */
 static const srv_job_params FUZZ_JOB_PARAMS[2] = {
-    {12, 8, 48, 4, 16, 7, 8, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}},
+    {12, 8, 48, 4, 16, 7, 8, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}, 0},
     {8,
      8,
      64,
@@ -45,7 +45,8 @@ static const srv_job_params FUZZ_JOB_PARAMS[2] = {
      32,
      0.001,
      "cam",
-     {".ptfarm/environment", 2.0f, 30.0f, 0, {0, 0, 0}}},
+     {".ptfarm/environment", 2.0f, 30.0f, 0, {0, 0, 0}},
+     PROTO_FILM_TRANSPARENT},
 };
 
 /* Rewrites the trailing CRC32C of a whole-file format (queue, checkpoint). */

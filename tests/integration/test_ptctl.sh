@@ -55,8 +55,8 @@ for args in "--help" "-h" "help"; do
 done
 run 0 submit --help &&
   has "$tmp/out" "ptctl submit SCENE" --spp --res --seed --priority --name --max-depth \
-    --target-error --min-gain --min-spp --env --env-strength --env-rotate --background --watch \
-    "${globals[@]}" "${statuses[@]}"
+    --target-error --min-gain --min-spp --env --env-strength --env-rotate --background \
+    --transparent --watch "${globals[@]}" "${statuses[@]}"
 run 0 list --help && has "$tmp/out" "ptctl list" --json "${globals[@]}" "${statuses[@]}"
 run 0 status --help && has "$tmp/out" "ptctl status JOB" --json "${globals[@]}" "${statuses[@]}"
 run 0 watch --help && has "$tmp/out" "ptctl watch JOB" "${globals[@]}" "${statuses[@]}"

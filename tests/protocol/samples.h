@@ -70,6 +70,7 @@ static inline proto_task sample_task(int v)
         m.env.rgb[1] = 0.25f;
         m.env.rgb[2] = 1e-3f;
     }
+    m.film_flags = v ? PROTO_FILM_TRANSPARENT : 0;
     return m;
 }
 
@@ -83,7 +84,7 @@ static inline proto_result sample_result(int v)
         sample_pixels[i].sum[2] = i == 5 ? proto_bits_f64(0x7FF8000000000123ull) : 1e-310;
         sample_pixels[i].sum_sq = i * 3.0;
         sample_pixels[i].n = i % 9;
-        sample_pixels[i].pad = 0;
+        sample_pixels[i].hits = i % 9 - i % 9 % 2; /* <= n, some below */
     }
     m.job_id = 3;
     m.task_id = v ? 99 : 17;
@@ -92,6 +93,7 @@ static inline proto_result sample_result(int v)
     m.s1 = 16;
     m.rejected = v ? 0 : 5;
     m.rays = v ? 1 : 123456789012ull;
+    m.capped = v ? 0 : 0x0102030405060708ull;
     m.npixels = v ? 1 : 12;
     m.pixels = sample_pixels;
     return m;
@@ -132,6 +134,7 @@ static inline proto_submit sample_submit(int v)
         m.env.strength = 0.75f;
         m.env.rotate_deg = 180.0f;
     }
+    m.film_flags = v ? PROTO_FILM_TRANSPARENT : 0;
     return m;
 }
 
@@ -170,6 +173,7 @@ static inline proto_job_info sample_job_info(int v)
     m.error = v == 0 ? 0.0125 : v == 1 ? -1.0 : proto_bits_f64(0x7FF8000000000001ull);
     m.submitted = v == 0 ? 1700000000u : UINT64_MAX;
     m.queue_pos = v == 1 ? 2 : 0;
+    m.capped = v == 0 ? 12 : v == 2 ? UINT64_MAX : 0;
     return m;
 }
 

@@ -119,7 +119,8 @@ static int acc_same(const pt_pixel_acc *a, const pt_pixel_acc *b)
     for (int c = 0; c < 3; c++)
         if (proto_f64_bits(a->sum[c]) != proto_f64_bits(b->sum[c]))
             return 0;
-    return proto_f64_bits(a->sum_sq) == proto_f64_bits(b->sum_sq) && a->n == b->n;
+    return proto_f64_bits(a->sum_sq) == proto_f64_bits(b->sum_sq) && a->n == b->n &&
+           a->hits == b->hits;
 }
 
 static int job_info_same(const proto_job_info *a, const proto_job_info *b)
@@ -134,12 +135,13 @@ static int job_info_same(const proto_job_info *a, const proto_job_info *b)
            a->workers == b->workers && proto_f64_bits(a->seconds) == proto_f64_bits(b->seconds) &&
            proto_f64_bits(a->rate) == proto_f64_bits(b->rate) &&
            proto_f64_bits(a->error) == proto_f64_bits(b->error) && a->submitted == b->submitted &&
-           a->queue_pos == b->queue_pos && strcmp(a->message, b->message) == 0;
+           a->queue_pos == b->queue_pos && strcmp(a->message, b->message) == 0 &&
+           a->capped == b->capped;
 }
 
 static size_t job_info_size(const proto_job_info *m)
 {
-    return 107 + strlen(m->name) + strlen(m->owner) + strlen(m->scene) + strlen(m->output) +
+    return 115 + strlen(m->name) + strlen(m->owner) + strlen(m->scene) + strlen(m->output) +
            strlen(m->message);
 }
 
@@ -193,9 +195,9 @@ static void check_round_trip(int s, int v, const uint8_t *p, size_t len)
     }
     case 6: {
         proto_task a = sample_task(v), b;
-        CHECK(len == 117 + strlen(a.camera) + strlen(a.env.name) &&
+        CHECK(len == 121 + strlen(a.camera) + strlen(a.env.name) &&
               proto_msg_decode_task(p, len, &b, &err) == PT_OK);
-        CHECK(strcmp(a.camera, b.camera) == 0);
+        CHECK(strcmp(a.camera, b.camera) == 0 && a.film_flags == b.film_flags);
         CHECK(proto_env_same(&a.env, &b.env));
         CHECK(a.job_id == b.job_id && a.task_id == b.task_id);
         CHECK(memcmp(&a.tile, &b.tile, sizeof a.tile) == 0);
@@ -222,14 +224,15 @@ static void check_round_trip(int s, int v, const uint8_t *p, size_t len)
     case 9: {
         proto_result a = sample_result(v), b;
         CHECK(proto_msg_decode_result(p, len, NULL, 0, &b, &err) == PT_OK);
-        CHECK(len == 60 + 36 * (size_t)a.npixels);
+        CHECK(len == 68 + 40 * (size_t)a.npixels);
         CHECK(a.job_id == b.job_id && a.task_id == b.task_id && a.s0 == b.s0 && a.s1 == b.s1);
         CHECK(memcmp(&a.tile, &b.tile, sizeof a.tile) == 0);
         CHECK(a.rejected == b.rejected && a.rays == b.rays && a.npixels == b.npixels);
+        CHECK(a.capped == b.capped);
         CHECK(b.owns_pixels == 1);
         int same = 1;
         for (uint32_t i = 0; i < a.npixels; i++)
-            same &= acc_same(&a.pixels[i], &b.pixels[i]) && b.pixels[i].pad == 0;
+            same &= acc_same(&a.pixels[i], &b.pixels[i]);
         CHECK(same);
         proto_result_fini(&b);
         CHECK(b.pixels == NULL);
@@ -262,8 +265,8 @@ static void check_round_trip(int s, int v, const uint8_t *p, size_t len)
     case 12: {
         proto_submit a = sample_submit(v), b;
         CHECK(proto_msg_decode_submit(p, len, &b, &err) == PT_OK);
-        CHECK(len == 109 + strlen(a.name) + strlen(a.camera) + strlen(a.env.name));
-        CHECK(strcmp(a.camera, b.camera) == 0);
+        CHECK(len == 113 + strlen(a.name) + strlen(a.camera) + strlen(a.env.name));
+        CHECK(strcmp(a.camera, b.camera) == 0 && a.film_flags == b.film_flags);
         CHECK(proto_env_same(&a.env, &b.env));
         CHECK(strcmp(a.name, b.name) == 0 && a.width == b.width && a.height == b.height);
         CHECK(a.spp == b.spp && a.seed == b.seed && a.priority == b.priority);
@@ -453,6 +456,7 @@ static proto_writer task_raw(pt_rect t, uint32_t s0, uint32_t s1, uint32_t width
     proto_w_u32(&w, 1000);
     proto_w_u16(&w, 0); /* camera: "" */
     w_env_none(&w);
+    proto_w_u32(&w, 0); /* film flags */
     return w;
 }
 
@@ -517,8 +521,9 @@ static void test_task(void)
         CHECKF(proto_msg_encode_task(&ew, &e, &err) == PT_ERR_ARG && ew.len == 0, "env case %d", k);
         proto_task good = sample_task(k & 1);
         CHECK(proto_msg_encode_task(&ew, &good, &err) == PT_OK);
-        /* Patch the bad value into the good bytes: the ENV block is last. */
-        uint8_t *env_at = ew.buf + ew.len - 23 - strlen(good.env.name);
+        /* Patch the bad value into the good bytes: the ENV block, then the
+         * film flags, end the message. */
+        uint8_t *env_at = ew.buf + ew.len - 4 - 23 - strlen(good.env.name);
         if (k == 0)
             proto_put_u32(env_at + 19, 0x7FC00000u); /* rgb[2], the name empty */
         else if (k == 1)
@@ -544,12 +549,29 @@ static void test_task(void)
           strcmp(back.camera, t.camera) == 0);
     proto_writer_reset(&w);
     proto_writer raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
-    raw.len -= 2 + 23; /* the empty camera and the ENV block */
+    raw.len -= 2 + 23 + 4; /* the empty camera, the ENV block and the film flags */
     proto_w_u16(&raw, PROTO_MAX_NAME + 1);
     for (uint32_t i = 0; i <= PROTO_MAX_NAME; i++)
         proto_w_u8(&raw, 'c');
+    proto_w_u32(&raw, 0);
     CHECK(decode_any(PROTO_MSG_TASK, raw.buf, raw.len, &err) == PT_ERR_PROTO &&
           strstr(err.msg, "camera"));
+    proto_writer_fini(&raw);
+
+    /* Film flags: the transparent bit travels; an unknown bit is refused both ways. */
+    t = sample_task(1);
+    CHECK(t.film_flags == PROTO_FILM_TRANSPARENT);
+    proto_writer_reset(&w);
+    CHECK(proto_msg_encode_task(&w, &t, &err) == PT_OK);
+    CHECK(proto_msg_decode_task(w.buf, w.len, &back, &err) == PT_OK &&
+          back.film_flags == PROTO_FILM_TRANSPARENT);
+    t.film_flags = 2;
+    proto_writer_reset(&w);
+    CHECK(proto_msg_encode_task(&w, &t, &err) == PT_ERR_ARG && w.len == 0);
+    raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
+    proto_put_u32(raw.buf + raw.len - 4, 0x80000000u);
+    CHECK(decode_any(PROTO_MSG_TASK, raw.buf, raw.len, &err) == PT_ERR_PROTO &&
+          strstr(err.msg, "film flags"));
     proto_writer_fini(&raw);
     proto_writer_fini(&w);
 }
@@ -643,7 +665,7 @@ static void test_counts(void)
 /* A RESULT header for tile t claiming n pixels, followed by `have` pixels
  * whose sample count is pixel_n. */
 static proto_writer result_raw(pt_rect t, uint32_t s0, uint32_t s1, uint32_t n, uint32_t have,
-                               uint32_t pixel_n)
+                               uint32_t pixel_n, uint32_t pixel_hits)
 {
     proto_writer w;
     proto_writer_init(&w, PROTO_MAX_PAYLOAD);
@@ -657,19 +679,22 @@ static proto_writer result_raw(pt_rect t, uint32_t s0, uint32_t s1, uint32_t n, 
     proto_w_u32(&w, s1);
     proto_w_u64(&w, 0);
     proto_w_u64(&w, 0);
+    proto_w_u64(&w, 0);
     proto_w_u32(&w, n);
     for (uint32_t i = 0; i < have; i++) {
         for (int k = 0; k < 4; k++)
             proto_w_f64(&w, 1.0);
         proto_w_u32(&w, pixel_n);
+        proto_w_u32(&w, pixel_hits);
     }
     return w;
 }
 
-static pt_status result_check(pt_rect t, uint32_t s0, uint32_t s1, uint32_t n, uint32_t have,
-                              uint32_t pixel_n, const char *want, int *allocated)
+static pt_status result_hits_check(pt_rect t, uint32_t s0, uint32_t s1, uint32_t n, uint32_t have,
+                                   uint32_t pixel_n, uint32_t pixel_hits, const char *want,
+                                   int *allocated)
 {
-    proto_writer w = result_raw(t, s0, s1, n, have, pixel_n);
+    proto_writer w = result_raw(t, s0, s1, n, have, pixel_n, pixel_hits);
     pt_error err = {0};
     proto_result r;
     pt_alloc_fail_at(0); /* resets the allocation counter */
@@ -683,6 +708,12 @@ static pt_status result_check(pt_rect t, uint32_t s0, uint32_t s1, uint32_t n, u
         return PT_OK;
     }
     return st;
+}
+
+static pt_status result_check(pt_rect t, uint32_t s0, uint32_t s1, uint32_t n, uint32_t have,
+                              uint32_t pixel_n, const char *want, int *allocated)
+{
+    return result_hits_check(t, s0, s1, n, have, pixel_n, 0, want, allocated);
 }
 
 static void test_result(void)
@@ -716,6 +747,11 @@ static void test_result(void)
     CHECK(result_check((pt_rect){0, 0, 4, 2}, 0, 8, 8, 8, 9, "sample count", &alloc) ==
           PT_ERR_PROTO);
     CHECK(alloc == 0);
+    /* Camera hits: up to the pixel's count, not one more. */
+    CHECK(result_hits_check((pt_rect){0, 0, 4, 2}, 0, 8, 8, 8, 5, 5, NULL, &alloc) == PT_OK);
+    CHECK(result_hits_check((pt_rect){0, 0, 4, 2}, 0, 8, 8, 8, 5, 6, "hits", &alloc) ==
+          PT_ERR_PROTO);
+    CHECK(alloc == 0);
     CHECK(pt_alloc_live() == live);
 
     /* Encoder side of the same rules. */
@@ -731,6 +767,10 @@ static void test_result(void)
     m = sample_result(0);
     m.pixels[3].n = m.s1 - m.s0 + 1;
     CHECK(proto_msg_encode_result(&w, &m, &err) == PT_ERR_ARG);
+    m = sample_result(0);
+    m.pixels[4].hits = m.pixels[4].n + 1;
+    CHECK(proto_msg_encode_result(&w, &m, &err) == PT_ERR_ARG && strstr(err.msg, "hits"));
+    m.pixels[4].hits = m.pixels[4].n;
     CHECK(w.len == 0);
     /* Writer too small: PT_ERR_LIMIT, and no partial message left behind. */
     proto_writer_fini(&w);
@@ -798,7 +838,8 @@ static void test_types(void)
     CHECK(13 + PROTO_MAX_NAME + PROTO_MAX_BUILD_ID <= PROTO_MAX_PAYLOAD_PREAUTH);
     CHECK(4 + PROTO_MAX_ERROR_TEXT <= PROTO_MAX_PAYLOAD_PREAUTH);
     /* A full RESULT fits the frame cap. */
-    CHECK(60 + (uint64_t)PROTO_RESULT_PIXEL_SIZE * PROTO_MAX_TILE_PIXELS <= PROTO_MAX_PAYLOAD);
+    CHECK(PROTO_RESULT_HEADER_SIZE + (uint64_t)PROTO_RESULT_PIXEL_SIZE * PROTO_MAX_TILE_PIXELS <=
+          PROTO_MAX_PAYLOAD);
     CHECK(52 + (uint64_t)PROTO_MAX_SCENE_CHUNK <= PROTO_MAX_PAYLOAD);
 }
 
@@ -832,6 +873,7 @@ static pt_status submit_check(const proto_submit *m, const char *want)
     proto_w_u8(&w, m->env.background);
     for (int k = 0; k < 3; k++)
         proto_w_f32(&w, m->env.rgb[k]);
+    proto_w_u32(&w, m->film_flags);
     pt_error err = {0};
     pt_status st = decode_any(PROTO_MSG_SUBMIT, w.buf, w.len, &err);
     if (st != PT_OK && want && !strstr(err.msg, want)) {
@@ -864,6 +906,10 @@ static void test_submit(void)
     m = sample_submit(0);
     m.bundle_size = 0;
     CHECK(submit_check(&m, "bundle size") == PT_ERR_PROTO);
+    m = sample_submit(1);
+    CHECK(m.film_flags == PROTO_FILM_TRANSPARENT && submit_check(&m, NULL) == PT_OK);
+    m.film_flags = PROTO_FILM_TRANSPARENT | 4u;
+    CHECK(submit_check(&m, "film flags") == PT_ERR_PROTO);
     static const uint64_t bad_errors[] = {
         0x7FF8000000000000ull, /* NaN */
         0xFFF8000000000000ull, /* -NaN */
@@ -947,7 +993,7 @@ static void test_submit(void)
     /* Cut inside the ENV block: refused as truncated. */
     m = sample_submit(0);
     CHECK(proto_msg_encode_submit(&w, &m, &err) == PT_OK);
-    CHECK(decode_any(PROTO_MSG_SUBMIT, w.buf, w.len - 1, &err) == PT_ERR_PROTO);
+    CHECK(decode_any(PROTO_MSG_SUBMIT, w.buf, w.len - 4 - 1, &err) == PT_ERR_PROTO);
     CHECK(strstr(err.msg, "background colour") != NULL);
     proto_writer_reset(&w);
     /* A NUL in the name. */
@@ -973,6 +1019,7 @@ static void job_info_raw(proto_writer *w, int f, size_t n)
     for (int k = 0; k < 21; k++)
         proto_w_u32(w, 0);
     w_str(w, f == 4 ? n : 0, 'q');
+    proto_w_u64(w, 0); /* paths capped */
 }
 
 static void test_job_info(void)
@@ -983,7 +1030,7 @@ static void test_job_info(void)
     /* Every string at its cap round-trips; one byte over is refused by both sides. */
     proto_job_info m = sample_job_info(2);
     CHECK(proto_msg_encode_job_info(&w, &m, &err) == PT_OK);
-    CHECK(w.len == 107 + 2 * PROTO_MAX_NAME + 2 * PROTO_MAX_PATH + PROTO_MAX_ERROR_TEXT);
+    CHECK(w.len == 115 + 2 * PROTO_MAX_NAME + 2 * PROTO_MAX_PATH + PROTO_MAX_ERROR_TEXT);
     static proto_job_info b;
     CHECK(proto_msg_decode_job_info(w.buf, w.len, &b, &err) == PT_OK);
     CHECK(job_info_same(&m, &b));
@@ -1074,8 +1121,8 @@ static void test_job_list(void)
     CHECK(job_list_check(head, 4, "cap", &alloc) == PT_ERR_PROTO && alloc == 0);
     /* A count that the bytes present cannot hold: refused before allocating. */
     proto_writer_reset(&w);
-    jobs[0] = sample_job_info(1); /* the smallest entry: 107 bytes */
-    CHECK(proto_msg_encode_job_list(&w, jobs, 1, &err) == PT_OK && w.len == 4 + 107);
+    jobs[0] = sample_job_info(1); /* the smallest entry: 115 bytes */
+    CHECK(proto_msg_encode_job_list(&w, jobs, 1, &err) == PT_OK && w.len == 4 + 115);
     CHECK(job_list_check(w.buf, w.len, NULL, &alloc) == PT_OK && alloc == 1);
     proto_put_u32(w.buf, 2);
     CHECK(job_list_check(w.buf, w.len, "bytes", &alloc) == PT_ERR_PROTO && alloc == 0);

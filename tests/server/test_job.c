@@ -37,7 +37,7 @@ static void fake_result(const proto_task *t, pt_pixel_acc *px, proto_result *r)
 static srv_job *make(uint32_t w, uint32_t h, uint32_t spp, uint32_t tile, uint32_t chunk)
 {
     srv_job_params p = {
-        w, h, spp, tile, chunk, 5, 16, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}};
+        w, h, spp, tile, chunk, 5, 16, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}, 0};
     srv_job *j = NULL;
     pt_error err = {0};
     CHECKF(srv_job_new(9, &p, HASH, &j, &err) == PT_OK, "%s", err.msg);
@@ -180,7 +180,7 @@ static void bit_identical(void)
 static void adaptive(void)
 {
     srv_job_params p = {
-        64, 32, 64, 32, 8, 1, 16, 3, 0.01, 16, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}};
+        64, 32, 64, 32, 8, 1, 16, 3, 0.01, 16, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}, 0};
     srv_job *j = NULL;
     CHECK(srv_job_new(2, &p, HASH, &j, NULL) == PT_OK);
     if (!j)
@@ -205,7 +205,7 @@ static void adaptive(void)
             double sq = tile == 0 ? ns * 0.25 : 2.0 * v * v * ns;
             px[i] = (pt_pixel_acc){{sum, sum, sum}, sq, ns, 0};
         }
-        proto_result r = {t.job_id, t.task_id, t.tile, t.s0, t.s1, 0, 0, 32 * 32, px, 0};
+        proto_result r = {t.job_id, t.task_id, t.tile, t.s0, t.s1, 0, 0, 0, 32 * 32, px, 0};
         srv_outcome o = srv_job_result(j, 1, &r, NULL);
         dup += o == SRV_DUPLICATE;
         CHECK(o == SRV_MERGED || o == SRV_DUPLICATE);
@@ -231,7 +231,7 @@ static void gain_pixels_of(const proto_task *t, pt_pixel_acc *px, proto_result *
         double v = t->tile.x0 == 0 ? (black0 ? 0.0 : 0.5) : (double)((chunk + 1) % 2);
         px[i] = (pt_pixel_acc){{v * ns, v * ns, v * ns}, v * v * ns, ns, 0};
     }
-    *r = (proto_result){t->job_id, t->task_id, t->tile, t->s0, t->s1, 0, 0, 32 * 32, px, 0};
+    *r = (proto_result){t->job_id, t->task_id, t->tile, t->s0, t->s1, 0, 0, 0, 32 * 32, px, 0};
 }
 
 static void gain_pixels(const proto_task *t, pt_pixel_acc *px, proto_result *r)
@@ -246,7 +246,7 @@ static void gain_pixels(const proto_task *t, pt_pixel_acc *px, proto_result *r)
 static void adaptive_min_gain(void)
 {
     srv_job_params p = {
-        64, 32, 64, 32, 8, 1, 16, 3, 0.0, 8, 1e-5, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}};
+        64, 32, 64, 32, 8, 1, 16, 3, 0.0, 8, 1e-5, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}, 0};
     srv_job *a = NULL, *b = NULL, *c = NULL, *d = NULL;
     CHECK(srv_job_new(3, &p, HASH, &a, NULL) == PT_OK);
     CHECK(srv_job_new(3, &p, HASH, &b, NULL) == PT_OK);
@@ -306,13 +306,36 @@ static void adaptive_min_gain(void)
     CHECK(d && srv_job_load(d, w.buf, w.len, &err) == PT_ERR_FORMAT);
     srv_job_free(d);
     d = NULL;
-    /* A version 3 checkpoint (before the environment: the same bytes less
-     * the ENV block after the camera) loads as a job with none. */
+    /* A version 3 checkpoint (before the environment and the film flags: the
+     * same bytes less the ENV block, the film flags and the depth-cap count
+     * after the camera, and 36-byte pixels, without the camera hits) loads as
+     * a job with no environment and an opaque film. */
     size_t at = 4 + 4 + 8 + 32 + 9 * 4 + 2 * 8 + 2 + strlen(p.camera);
-    proto_put_u32(w.buf + 4, 3);
-    memmove(w.buf + at, w.buf + at + 23, w.len - at - 23);
+    proto_writer v3;
+    proto_writer_init(&v3, 1u << 20);
+    proto_w_bytes(&v3, w.buf, at);
+    proto_put_u32(v3.buf + 4, 3);
+    at += 23 + 4 + 8;
+    uint32_t ntiles = proto_get_u32(w.buf + at);
+    proto_w_bytes(&v3, w.buf + at, 8 + (size_t)ntiles * 5 + 4);
+    at += 8 + (size_t)ntiles * 5;
+    uint32_t nheld = proto_get_u32(w.buf + at);
+    at += 4;
+    for (uint32_t i = 0; i <= nheld && at < w.len; i++) {
+        size_t npx = i < nheld ? 32 * 32 : 64 * 32; /* held tiles, then the film */
+        if (i < nheld) {
+            proto_w_bytes(&v3, w.buf + at, 8); /* task id */
+            at += 8;
+        }
+        for (size_t k = 0; k < npx; k++, at += 40)
+            proto_w_bytes(&v3, w.buf + at, 36);
+    }
+    CHECK(at == w.len && proto_writer_status(&v3) == PT_OK);
     CHECK(srv_job_new(3, &p, HASH, &d, NULL) == PT_OK);
-    CHECKF(d && srv_job_load(d, w.buf, w.len - 23, &err) == PT_OK, "%s", err.msg);
+    CHECKF(d && srv_job_load(d, v3.buf, v3.len, &err) == PT_OK, "%s", err.msg);
+    const pt_film *h = d ? srv_job_film(d) : NULL;
+    CHECK(h && h->px[0].n > 0 && h->px[0].hits == h->px[0].n); /* read as fully covered */
+    proto_writer_fini(&v3);
     proto_writer_fini(&w);
 done:
     srv_job_free(a);
@@ -327,7 +350,7 @@ done:
 static void adaptive_min_gain_black(void)
 {
     srv_job_params p = {
-        64, 32, 64, 32, 8, 1, 16, 3, 0.0, 8, 1e-5, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}};
+        64, 32, 64, 32, 8, 1, 16, 3, 0.0, 8, 1e-5, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}, 0};
     srv_job *j = NULL;
     CHECK(srv_job_new(3, &p, HASH, &j, NULL) == PT_OK);
     if (!j)
@@ -350,22 +373,23 @@ static void adaptive_min_gain_black(void)
 
 static void bad_params(void)
 {
-    srv_job_params p = {0, 10, 4, 16, 4, 0, 4, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}};
+    srv_job_params p = {0, 10, 4, 16, 4, 0, 4, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+                        0};
     srv_job *j = NULL;
     pt_error err = {0};
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
     p.width = 10;
     p.tile = 1000;
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
-    p = (srv_job_params){
-        16, 16, 4, 16, 4, 0, 4, 3, 0.0, 0, NAN, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}};
+    p = (srv_job_params){16, 16, 4, 16, 4, 0, 4, 3, 0.0, 0, NAN, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+                         0};
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
     p.min_gain = -1e-6;
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
     p.min_gain = INFINITY;
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
     p = (srv_job_params){
-        16384, 16384, 1u << 24, 16, 1, 0, 4, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}};
+        16384, 16384, 1u << 24, 16, 1, 0, 4, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}, 0};
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_LIMIT);
     CHECK(j == NULL);
 }
@@ -582,6 +606,68 @@ static void verification(void)
     srv_job_free(j);
 }
 
+/* The film flags reach every task; the depth-cap counts of accepted results
+ * are summed (a duplicate's not, an implausible one refused) and, with the
+ * camera hits, kept by a checkpoint, which a job of other film flags refuses. */
+static void film_and_cap(void)
+{
+    srv_job_params p = {32,
+                        32,
+                        16,
+                        16,
+                        8,
+                        5,
+                        2,
+                        3,
+                        0.0,
+                        0,
+                        0.0,
+                        "",
+                        {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+                        PROTO_FILM_TRANSPARENT};
+    srv_job *j = NULL, *k = NULL, *o = NULL;
+    pt_error err = {0};
+    CHECK(srv_job_new(4, &p, HASH, &j, &err) == PT_OK);
+    if (!j)
+        return;
+    static pt_pixel_acc px[16 * 16];
+    proto_task t;
+    proto_result r;
+    uint64_t want = 0;
+    for (uint32_t i = 0; srv_job_lease(j, 1, 0, 1000, &t); i++) {
+        CHECK(t.film_flags == PROTO_FILM_TRANSPARENT);
+        fake_result(&t, px, &r);
+        for (uint32_t q = 0; q < r.npixels; q++)
+            px[q].hits = q % (px[q].n + 1);
+        r.capped = (uint64_t)r.npixels * (t.s1 - t.s0) + 1; /* more than its paths */
+        CHECK(srv_job_result(j, 1, &r, &err) == SRV_INVALID && strstr(err.msg, "depth cap"));
+        r.capped = i + 1;
+        CHECK(srv_job_result(j, 1, &r, &err) == SRV_MERGED);
+        want += i + 1;
+        CHECK(srv_job_result(j, 1, &r, &err) == SRV_DUPLICATE);
+        if (i == 2)
+            break; /* the rest stay leased: the checkpoint has partial state */
+    }
+    CHECK(srv_job_paths_capped(j) == want);
+    proto_writer w;
+    proto_writer_init(&w, 1u << 24);
+    CHECK(srv_job_save(j, &w, &err) == PT_OK);
+    CHECK(srv_job_new(4, &p, HASH, &k, &err) == PT_OK);
+    CHECKF(k && srv_job_load(k, w.buf, w.len, &err) == PT_OK, "%s", err.msg);
+    if (k) {
+        CHECK(srv_job_paths_capped(k) == want);
+        const pt_film *a = srv_job_film(j), *b = srv_job_film(k);
+        CHECK(memcmp(a->px, b->px, 32 * 32 * sizeof *a->px) == 0);
+    }
+    p.film_flags = 0;
+    CHECK(srv_job_new(4, &p, HASH, &o, &err) == PT_OK);
+    CHECK(o && srv_job_load(o, w.buf, w.len, &err) == PT_ERR_FORMAT);
+    proto_writer_fini(&w);
+    srv_job_free(o);
+    srv_job_free(k);
+    srv_job_free(j);
+}
+
 int main(void)
 {
     int64_t live = pt_alloc_live();
@@ -596,6 +682,7 @@ int main(void)
     backups();
     plausible();
     verification();
+    film_and_cap();
     CHECK(pt_alloc_live() == live);
     return check_report();
 }

@@ -715,30 +715,160 @@ static void set_format(const char *name, long at, const long *vers, int nvers, u
     pt_free(d);
 }
 
-/* Removes the len bytes at offset at of a file of the state folder (and
- * seals its CRC32C when crc), leaving its version as it is. */
-static void cut_bytes(const char *name, long at, size_t len, int crc)
+/* ---- format 4 to format 3: what the ptserve before the environment light and
+ * the film flags wrote ---- */
+
+/* Reads the state file name into *d (n bytes); 0 when it cannot. */
+static int read_state(const char *name, uint8_t **d, size_t *n)
 {
-    uint8_t *d = NULL;
-    size_t n = 0;
     pt_error e = {0};
-    CHECK(pt_read_file(path(name), 1 << 30, &d, &n, &e) == PT_OK);
-    if (!d)
+    *d = NULL;
+    CHECK(pt_read_file(path(name), 1 << 30, d, n, &e) == PT_OK);
+    return *d != NULL;
+}
+
+/* A str field at *at: skips it into w. */
+static void copy_str(proto_writer *w, const uint8_t *d, size_t *at)
+{
+    size_t len = 2 + proto_get_u16(d + *at);
+    proto_w_bytes(w, d + *at, len);
+    *at += len;
+}
+
+/* Writes w as the state file name with version 3 at the given offsets and,
+ * when crc, a fresh trailing CRC32C (w holds the file without it). */
+static void write_v3(const char *name, proto_writer *w, const long *vers, int nvers, int crc)
+{
+    for (int i = 0; i < nvers; i++)
+        proto_put_u32(w->buf + vers[i], 3);
+    if (crc)
+        proto_w_u32(w, proto_crc32c(0, w->buf, w->len));
+    pt_error e = {0};
+    CHECK(proto_writer_status(w) == PT_OK);
+    CHECK(pt_write_file_atomic(path(name), w->buf, w->len, &e) == PT_OK);
+    proto_writer_fini(w);
+}
+
+/* The job params block up to the camera (nine u32, two f64, str), copied; the
+ * environment (str, f32 x2, u8, f32 x3) and the film flags after it dropped.
+ * Returns the width, height and tile side. */
+static void copy_params_v3(proto_writer *w, const uint8_t *d, size_t *at, uint32_t wht[3])
+{
+    wht[0] = proto_get_u32(d + *at);
+    wht[1] = proto_get_u32(d + *at + 4);
+    wht[2] = proto_get_u32(d + *at + 12);
+    proto_w_bytes(w, d + *at, 9 * 4 + 16);
+    *at += 9 * 4 + 16;
+    copy_str(w, d, at);
+    *at += 2 + proto_get_u16(d + *at) + 4 + 4 + 1 + 12; /* the environment */
+    *at += 4;                                           /* film flags */
+}
+
+/* The queue file: each record without its environment, film flags and
+ * depth-cap count. */
+static void queue_to_v3(const char *name)
+{
+    uint8_t *d;
+    size_t n;
+    if (!read_state(name, &d, &n))
         return;
-    CHECK(at >= 0 && (size_t)at + len + 4 <= n);
-    if (at >= 0 && (size_t)at + len + 4 <= n) {
-        memmove(d + at, d + at + len, n - (size_t)at - len);
-        n -= len;
-        if (crc)
-            proto_put_u32(d + n - 4, proto_crc32c(0, d, n - 4));
-        CHECK(pt_write_file_atomic(path(name), d, n, &e) == PT_OK);
+    proto_writer w;
+    proto_writer_init(&w, 1 << 30);
+    size_t at = 8 + 8 + 4;
+    proto_w_bytes(&w, d, at);
+    for (uint32_t i = 0, count = proto_get_u32(d + 16); i < count; i++) {
+        proto_w_bytes(&w, d + at, 8 + 8 + 1 + 4);
+        at += 8 + 8 + 1 + 4;
+        for (int k = 0; k < 4; k++) /* name, owner, scene, output */
+            copy_str(&w, d, &at);
+        proto_w_bytes(&w, d + at, 8); /* submitted */
+        at += 8;
+        uint32_t wht[3];
+        copy_params_v3(&w, d, &at, wht);
+        proto_w_bytes(&w, d + at, 32 + 8 + 8 + 8 + 8);
+        at += 32 + 8 + 8 + 8 + 8;
+        copy_str(&w, d, &at); /* message */
+        at += 8;              /* paths capped */
     }
+    CHECK(at + 4 == n);
+    const long vers[] = {4};
+    write_v3(name, &w, vers, 1, 1);
     pt_free(d);
 }
 
-/* The environment block of a job params block with no map (str "", f32
- * strength, f32 rotation, u8 flag, f32 x3): what format 4 added. */
-#define ENV_BLOCK_NONE 23u
+/* A checkpoint: no environment, no film flags, no depth-cap count, 36-byte
+ * pixels. */
+static void checkpoint_to_v3(const char *name)
+{
+    uint8_t *d;
+    size_t n;
+    if (!read_state(name, &d, &n))
+        return;
+    proto_writer w;
+    proto_writer_init(&w, 1 << 30);
+    /* envelope 8, seconds/rejected/rays 24, magic, version, id, hash */
+    size_t at = 8 + 24 + 4 + 4 + 8 + 32;
+    proto_w_bytes(&w, d, at);
+    uint32_t wht[3];
+    copy_params_v3(&w, d, &at, wht);
+    at += 8; /* paths capped */
+    uint32_t ntiles = proto_get_u32(d + at);
+    proto_w_bytes(&w, d + at, 8 + (size_t)ntiles * 5 + 4);
+    at += 8 + (size_t)ntiles * 5;
+    uint32_t nheld = proto_get_u32(d + at);
+    at += 4;
+    uint32_t tiles_x = (wht[0] + wht[2] - 1) / wht[2], tiles_y = (wht[1] + wht[2] - 1) / wht[2];
+    CHECK(tiles_x * tiles_y == ntiles);
+    for (uint32_t i = 0; i < nheld; i++) {
+        uint64_t t = proto_get_u64(d + at) % ntiles;
+        uint32_t tx = (uint32_t)(t % tiles_x), ty = (uint32_t)(t / tiles_x);
+        uint32_t tw = wht[0] - tx * wht[2] < wht[2] ? wht[0] - tx * wht[2] : wht[2];
+        uint32_t th = wht[1] - ty * wht[2] < wht[2] ? wht[1] - ty * wht[2] : wht[2];
+        proto_w_bytes(&w, d + at, 8);
+        at += 8;
+        for (uint32_t k = 0; k < tw * th; k++, at += 40)
+            proto_w_bytes(&w, d + at, 36);
+    }
+    for (uint64_t k = 0; k < (uint64_t)wht[0] * wht[1]; k++, at += 40)
+        proto_w_bytes(&w, d + at, 36);
+    CHECK(at + 4 == n);
+    const long vers[] = {4, 36};
+    write_v3(name, &w, vers, 2, 1);
+    pt_free(d);
+}
+
+/* A results log: each record a RESULT of protocol 2 (no depth-cap count,
+ * 36-byte pixels), with its checksum. */
+static void log_to_v3(const char *name)
+{
+    uint8_t *d;
+    size_t n;
+    if (!read_state(name, &d, &n))
+        return;
+    proto_writer w;
+    proto_writer_init(&w, 1 << 30);
+    proto_w_bytes(&w, d, 16);
+    uint8_t *rec = pt_malloc(n);
+    for (size_t at = 16; rec && at + 8 <= n;) {
+        uint32_t len = proto_get_u32(d + at);
+        const uint8_t *pl = d + at + 8;
+        CHECK(at + 8 + len <= n && len >= 68 && (len - 68) % 40 == 0);
+        size_t m = 0;
+        memcpy(rec, pl, 56);
+        memcpy(rec + 56, pl + 64, 4);
+        m = 60;
+        for (uint32_t k = 0; k < (len - 68) / 40; k++, m += 36)
+            memcpy(rec + m, pl + 68 + (size_t)k * 40, 36);
+        proto_w_u32(&w, (uint32_t)m);
+        proto_w_u32(&w, proto_crc32c(0, rec, m));
+        proto_w_bytes(&w, rec, m);
+        at += 8 + len;
+    }
+    pt_free(rec);
+    const long vers[] = {4};
+    write_v3(name, &w, vers, 1, 0);
+    pt_free(d);
+}
 
 /* The format before the min-gain rule (see set_format). */
 static void to_format2(const char *name, long at, const long *vers, int nvers, int crc)
@@ -869,9 +999,9 @@ static void damaged(void)
     kill_server(SIGTERM);
     CHECK(log_has("damage_torn.log", "incomplete last record"));
 
-    /* State folders in format 3 (before the environment light) and 2 (before
-     * --min-gain as well): the same job resumes with the same samples as from
-     * the current format. */
+    /* State folders in format 3 (before the environment light and the film
+     * flags) and 2 (before --min-gain as well): the same job resumes with the
+     * same samples as from the current format. */
     CHECK(system(cmd) == 0); /* state3.good again */
     CHECK(start_damaged("migrate_v4.log") == -1);
     proto_job_info v4;
@@ -879,24 +1009,21 @@ static void damaged(void)
     kill_server(SIGKILL);
     const long qv[] = {4}, cv[] = {4, 36};
     /* checkpoint: header 8, seconds/rejected/rays 24, magic, version, id, hash,
-     * nine u32 parameters, target error; then the min gain, the camera ("")
-     * and the environment */
+     * nine u32 parameters, target error; then the min gain */
     const long ck_gain = 8 + 24 + 4 + 4 + 8 + 32 + 36 + 8;
     for (uint32_t format = 3; format >= 2; format--) {
         snprintf(cmd, sizeof cmd, "rm -rf '%s' && cp -a '%s' '%s'", path("state3"),
                  path("state3.good"), path("state3"));
         CHECK(system(cmd) == 0);
-        long q_gain = queue_min_gain_at("state3/queue");
-        cut_bytes("state3/queue", q_gain + 8 + 2, ENV_BLOCK_NONE, 1);
-        cut_bytes(ck, ck_gain + 8 + 2, ENV_BLOCK_NONE, 1);
-        if (format == 3) {
-            set_format("state3/queue", -1, qv, 1, 3, 1);
-            set_format(ck, -1, cv, 2, 3, 1);
-            set_format(lg, -1, qv, 1, 3, 0); /* the results log: only its header's version */
-        } else {
-            to_format2("state3/queue", q_gain, qv, 1, 1);
+        /* Format 3: no environment, no film flags, and the results log in
+         * protocol 2's RESULT layout (read so, and rewritten). */
+        queue_to_v3("state3/queue");
+        checkpoint_to_v3(ck);
+        log_to_v3(lg);
+        if (format == 2) {
+            to_format2("state3/queue", queue_min_gain_at("state3/queue"), qv, 1, 1);
             to_format2(ck, ck_gain, cv, 2, 1);
-            to_format2(lg, -1, qv, 1, 0);
+            to_format2(lg, -1, qv, 1, 0); /* the results log: only its header's version */
         }
         char log[32];
         snprintf(log, sizeof log, "migrate_v%u.log", format);

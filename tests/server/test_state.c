@@ -25,7 +25,7 @@
 
 static const uint8_t HASH[32] = {7, 7, 7};
 static const srv_job_params PARAMS = {
-    64, 32, 32, 32, 16, 5, 8, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}};
+    64, 32, 32, 32, 16, 5, 8, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}, 0};
 #define JOB_ID 4u
 
 /* The RESULT payload of task t of a PARAMS job, with synthetic pixels. */
@@ -40,7 +40,7 @@ static void payload_of(srv_job *job, uint64_t t, proto_writer *w)
     uint32_t n = (task.tile.x1 - task.tile.x0) * (task.tile.y1 - task.tile.y0);
     for (uint32_t i = 0; i < n; i++)
         px[i] = (pt_pixel_acc){{0.25 * (double)(t + 1), 0.5, 0.125 * i}, 1.0, task.s1 - task.s0, 0};
-    proto_result r = {JOB_ID, t, task.tile, task.s0, task.s1, 0, 0, n, px, 0};
+    proto_result r = {JOB_ID, t, task.tile, task.s0, task.s1, 0, 0, 0, n, px, 0};
     proto_writer_init(w, (size_t)1 << 20);
     CHECK(proto_msg_encode_result(w, &r, NULL) == PT_OK);
 }
@@ -252,7 +252,8 @@ static void test_queue_env_versions(const char *dir)
     got = NULL;
 
     /* Version 3: the same record without the ENV block (23 bytes with no map
-     * name), which sits after the camera, the params block's last field. */
+     * name) and the film flags (4), which sit after the camera, and without
+     * the depth-cap count (8), the record's last field. */
     rec.params.env = PARAMS.env;
     CHECK(srv_state_save_queue(st, recs, 1, 2, &err) == PT_OK);
     char qp[512];
@@ -262,9 +263,11 @@ static void test_queue_env_versions(const char *dir)
     CHECK(pt_read_file(qp, 1 << 20, &f, &len, &err) == PT_OK);
     size_t at = 8 + 8 + 4 + 8 + 8 + 1 + 4 + (2 + strlen(rec.name)) + 2 + 2 + 2 + 8 + 9 * 4 + 2 * 8 +
                 2 + strlen(rec.params.camera);
-    if (f && len > at + 23) {
-        memmove(f + at, f + at + 23, len - at - 23);
-        len -= 23;
+    if (f && len > at + 27 + 12) {
+        memmove(f + at, f + at + 27, len - at - 27);
+        len -= 27;
+        memmove(f + len - 12, f + len - 4, 4); /* the capped count before the CRC */
+        len -= 8;
         proto_put_u32(f + 4, 3);
         proto_put_u32(f + len - 4, proto_crc32c(0, f, len - 4));
         CHECK(pt_write_file_atomic(qp, f, len, &err) == PT_OK);

@@ -1,7 +1,8 @@
 /*
  * ptexr-diff A.exr B.exr - compares two images written by ptfarm.
  *
- * Exit 0 when R, G, B and samples are bit-identical, 1 when they differ
+ * Exit 0 when R, G, B, samples and A (when either file has it; both must)
+ * are bit-identical, 1 when they differ
  * (the first differing pixel and the count are printed), 2 when a file
  * cannot be read or the sizes differ. Header attributes (render time, job
  * id) are not compared: they legitimately differ between runs.
@@ -34,13 +35,16 @@ int main(int argc, char **argv)
         fprintf(stderr, "ptexr-diff: sizes differ: %ux%u vs %ux%u\n", a->width, a->height, b->width,
                 b->height);
         rc = 2;
+    } else if (a->has_alpha != b->has_alpha) {
+        printf("one image has an A channel, the other not\n");
+        rc = 1;
     } else {
         size_t n = (size_t)a->width * a->height, diff = 0, first = 0;
-        const float *pa[4] = {a->r, a->g, a->b, a->samples},
-                    *pb[4] = {b->r, b->g, b->b, b->samples};
+        const float *pa[5] = {a->r, a->g, a->b, a->samples, a->a},
+                    *pb[5] = {b->r, b->g, b->b, b->samples, b->a};
         for (size_t i = 0; i < n; i++) {
             int d = 0;
-            for (int c = 0; c < 4; c++)
+            for (int c = 0; c < (a->has_alpha ? 5 : 4); c++)
                 d |= memcmp(&pa[c][i], &pb[c][i], sizeof(float)) != 0;
             if (d && diff++ == 0)
                 first = i;
@@ -54,7 +58,8 @@ int main(int argc, char **argv)
                 b->r[first], b->g[first], b->b[first], b->samples[first]);
             rc = 1;
         } else {
-            printf("identical: %ux%u, R G B samples bit for bit\n", a->width, a->height);
+            printf("identical: %ux%u, R G B samples%s bit for bit\n", a->width, a->height,
+                   a->has_alpha ? " A" : "");
         }
     }
     pt_image_free(a);

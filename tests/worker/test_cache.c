@@ -242,7 +242,7 @@ static void test_memory(const uint8_t hash[32], const char *entry)
         CHECK(pt_renderer_params(ren)->width == 16 && pt_renderer_params(ren)->height == 12);
         pt_pixel_acc px[4];
         pt_rect tile = {4, 4, 6, 6};
-        pt_render_stats st = {0, 0, 0};
+        pt_render_stats st = {0};
         pt_render_tile(ren, tile, 0, 4, px, &st);
         CHECK(st.samples + st.rejected == 16);
     }

@@ -521,11 +521,11 @@ static image_stats render_stats(const pt_scene *s, const pt_env *env, uint32_t w
     CHECK(strcmp(pt_renderer_variant(r), "general") == 0);
     double sum[3] = {0, 0, 0}, sq[3] = {0, 0, 0};
     uint64_t n = 0;
-    pt_render_stats st = {0, 0, 0};
+    pt_render_stats st = {0, 0, 0, 0};
     for (uint32_t y = 0; y < w; y++)
         for (uint32_t x = 0; x < w; x++)
             for (uint32_t i = 0; i < spp; i++) {
-                pt_vec3 c = pt_render_sample(r, x, y, i, &st);
+                pt_vec3 c = pt_render_sample(r, x, y, i, &st, NULL);
                 if (!pt_isfinite3(c)) {
                     is.rejected++;
                     continue;
@@ -753,7 +753,7 @@ static void determinism(void)
             pt_pixel_acc a;
             memset(&a, 0, sizeof a);
             for (uint32_t i = 0; i < 16; i++)
-                pt_pixel_acc_sample(&a, pt_render_sample(r, k % 8, k / 8, i, NULL));
+                pt_pixel_acc_sample(&a, pt_render_sample(r, k % 8, k / 8, i, NULL, NULL));
             same &= memcmp(a.sum, whole[k].sum, sizeof a.sum) == 0 && a.n == whole[k].n;
         }
         CHECKF(same, "the batched tile differs from one path at a time");
@@ -837,7 +837,7 @@ static void shared_assets(void)
         CHECKF(pt_renderer_new(s, &p, &r, &err) == PT_OK, "%s", err.msg);
         if (r) {
             pt_pixel_acc acc[24 * 24];
-            pt_render_stats st = {0, 0, 0};
+            pt_render_stats st = {0, 0, 0, 0};
             pt_rect all = {0, 0, 24, 24};
             pt_render_tile(r, all, 0, 8, acc, &st);
             CHECKF(st.rejected == 0, "%s: %llu NaN/Inf samples", names[i],

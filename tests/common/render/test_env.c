@@ -243,7 +243,7 @@ static double render_mean(const pt_scene *s, const pt_env *env, uint32_t strateg
     pt_pixel_acc *acc = pt_malloc_array((size_t)w * w, sizeof *acc);
     double sum = 0.0, var = 0.0;
     if (r && acc) {
-        pt_render_stats st = {0, 0, 0};
+        pt_render_stats st = {0};
         pt_rect all = {0, 0, w, w};
         pt_render_tile(r, all, 0, spp, acc, &st);
         CHECK(st.rejected == 0);

@@ -170,7 +170,7 @@ static pt_vec3 render_plane(const pt_scene *s)
         return mean;
     CHECK(strcmp(pt_renderer_variant(r), "general") == 0);
     pt_pixel_acc acc[4];
-    pt_render_stats st = {0, 0, 0};
+    pt_render_stats st = {0, 0, 0, 0};
     pt_rect all = {0, 0, 2, 2};
     pt_render_tile(r, all, 0, 16, acc, &st);
     CHECK(st.rejected == 0);
@@ -442,7 +442,7 @@ static void furnace(int metal)
     uint32_t np = p.width * p.height, spp = 256;
     pt_pixel_acc *acc = pt_malloc_array(np, sizeof *acc);
     if (r && acc) {
-        pt_render_stats st = {0, 0, 0};
+        pt_render_stats st = {0, 0, 0, 0};
         pt_rect all = {0, 0, p.width, p.height};
         pt_render_tile(r, all, 0, spp, acc, &st);
         CHECKF(st.rejected == 0, "%llu NaN/Inf samples", (unsigned long long)st.rejected);

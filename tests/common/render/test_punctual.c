@@ -124,7 +124,7 @@ static double render_mean(const setup *su, double *se)
     if (r && acc) {
         if (su->light)
             CHECK(strcmp(pt_renderer_variant(r), "general") == 0);
-        pt_render_stats st = {0, 0, 0};
+        pt_render_stats st = {0};
         pt_rect all = {0, 0, su->w, su->h};
         pt_render_tile(r, all, 0, su->spp, acc, &st);
         CHECK(st.rejected == 0);

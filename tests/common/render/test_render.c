@@ -85,7 +85,7 @@ static void furnace(float scale)
     pt_renderer *r = renderer(s, W, H, 1000, PT_LIGHT_MIS);
     CHECK(r != NULL);
     pt_pixel_acc *acc = pt_malloc_array(W * H, sizeof *acc);
-    pt_render_stats st = {0, 0, 0};
+    pt_render_stats st = {0};
     pt_rect all = {0, 0, W, H};
     pt_render_tile(r, all, 0, SPP, acc, &st);
     int outliers = 0;
@@ -266,7 +266,7 @@ static void orthographic(void)
         const uint32_t W = 64;
         pt_renderer *r = renderer(s, W, W, PT_RENDER_DEFAULT_MAX_DEPTH, PT_LIGHT_MIS);
         pt_pixel_acc *acc = pt_malloc_array(W * W, sizeof *acc);
-        pt_render_stats st = {0, 0, 0};
+        pt_render_stats st = {0};
         pt_rect all = {0, 0, W, W};
         int on = 0, wrong = 0;
         if (r && acc) {
@@ -405,7 +405,7 @@ static void cornell_finite(void)
     const uint32_t W = 32, H = 32;
     pt_renderer *r = renderer(s, W, H, 16, PT_LIGHT_MIS);
     pt_pixel_acc *acc = pt_malloc_array(W * H, sizeof *acc);
-    pt_render_stats st = {0, 0, 0};
+    pt_render_stats st = {0};
     pt_rect all = {0, 0, W, H};
     pt_render_tile(r, all, 0, 16, acc, &st);
     int bad = 0;
@@ -444,7 +444,7 @@ static void batched_as_single(const pt_scene *s, uint32_t extra, uint32_t scalar
     int lambert = strncmp(pt_renderer_variant(r), "lambert", 7) == 0;
     CHECK(pt_renderer_lanes(r) == (lambert && !scalar && pt_simd_lanes_fast()));
     pt_pixel_acc tile[W * H], ref[W * H];
-    pt_render_stats ts = {0, 0, 0}, rs = {0, 0, 0};
+    pt_render_stats ts = {0}, rs = {0};
     pt_rect rect = {1, 2, W, H}; /* not at the origin, rows shorter than the image */
     pt_render_tile(r, rect, s0, s1, tile, &ts);
     uint32_t tw = rect.x1 - rect.x0, n = tw * (rect.y1 - rect.y0);
@@ -454,10 +454,14 @@ static void batched_as_single(const pt_scene *s, uint32_t extra, uint32_t scalar
             uint32_t b1 = (b0 / PT_SAMPLE_BLOCK + 1) * PT_SAMPLE_BLOCK;
             b1 = b1 < s1 ? b1 : s1;
             pt_pixel_acc blk = {{0, 0, 0}, 0, 0, 0};
-            for (uint32_t i = b0; i < b1; i++)
-                if (!pt_pixel_acc_sample(
-                        &blk, pt_render_sample(r, rect.x0 + k % tw, rect.y0 + k / tw, i, &rs)))
+            for (uint32_t i = b0; i < b1; i++) {
+                int cov = 0;
+                if (!pt_pixel_acc_sample(&blk, pt_render_sample(r, rect.x0 + k % tw,
+                                                                rect.y0 + k / tw, i, &rs, &cov)))
                     rs.rejected++;
+                else
+                    blk.hits += (uint32_t)cov;
+            }
             pt_pixel_acc_add(&ref[k], &blk);
             rs.samples += blk.n;
             b0 = b1;
@@ -466,7 +470,8 @@ static void batched_as_single(const pt_scene *s, uint32_t extra, uint32_t scalar
     CHECKF(memcmp(tile, ref, n * sizeof *tile) == 0,
            "variant %s (%s), strategy %u, samples [%u,%u): tile differs from one path at a time",
            pt_renderer_variant(r), pt_renderer_lanes(r) ? "lanes" : "per path", strategy, s0, s1);
-    CHECK(ts.samples == rs.samples && ts.rejected == rs.rejected && ts.rays == rs.rays);
+    CHECK(ts.samples == rs.samples && ts.rejected == rs.rejected && ts.rays == rs.rays &&
+          ts.capped == rs.capped);
     pt_renderer_free(r);
 }
 

@@ -64,7 +64,7 @@ static double pixel_sigma(const pt_pixel_acc *a)
 static image render(const pt_scene *s, uint32_t w, uint32_t h, uint32_t spp, uint32_t seed,
                     uint32_t max_depth, const char *what)
 {
-    image im = {w, h, spp, NULL, {0, 0, 0}};
+    image im = {w, h, spp, NULL, {0}};
     pt_render_params p = {0};
     pt_render_params_default(&p);
     p.width = w;

@@ -1,0 +1,71 @@
+#!/usr/bin/env bash
+# ptctl submit --transparent against a real ptserve queue (--state-dir, local
+# workers), under a uniform --background that escaping camera rays would see:
+# the fetched image has the A channel and is bit-identical (R, G, B, samples,
+# A) to the standalone --transparent render, so the film flags and the
+# environment both reach the workers; a job whose paths reach
+# the depth cap (the closed white furnace with --max-depth 2) shows the exact
+# count in `ptctl status`, which says nothing of it otherwise.
+set -euo pipefail
+bin=${PT_BIN:?}
+src=${PT_SOURCE_DIR:?}
+tmp=$(mktemp -d /tmp/pt_transparent_ctl_XXXXXX)
+srv_pid=
+cleanup() {
+  if [ -n "$srv_pid" ] && kill "$srv_pid" 2>/dev/null; then wait "$srv_pid" 2>/dev/null || true; fi
+  if [ "${failed:-0}" = 0 ]; then rm -rf "$tmp"; else echo "logs kept in $tmp" >&2; fi
+}
+trap cleanup EXIT
+failed=1
+fail() { echo "FAIL: $*" >&2; exit 1; }
+
+"$bin/ptserve" --state-dir "$tmp/state" --output-dir "$tmp/out" --listen 127.0.0.1:0 \
+  --port-file "$tmp/port" --local 2 --worker-threads 1 --tile 16 --chunk 8 2> "$tmp/serve.log" &
+srv_pid=$!
+for _ in $(seq 100); do [ -s "$tmp/port" ] && break; sleep 0.05; done
+[ -s "$tmp/port" ] || fail "ptserve did not start: $(cat "$tmp/serve.log")"
+PTFARM_SERVER=127.0.0.1:$(cat "$tmp/port")
+export PTFARM_SERVER
+ctl() { "$bin/ptctl" "$@"; }
+
+view=(--res 64x16 --spp 16 --seed 5 --background "0.25,0.5,1")
+id=$(ctl submit "$src/scenes/cornell_box.gltf" "${view[@]}" --transparent)
+ctl watch "$id" 2> /dev/null || fail "watch exited $?"
+ctl fetch "$id" -o "$tmp/farm.exr"
+"$bin/ptworker" --scene "$src/scenes/cornell_box.gltf" "${view[@]}" --tile 16 --chunk 8 \
+  --transparent -q -o "$tmp/ref.exr"
+"$bin/ptexr-diff" "$tmp/ref.exr" "$tmp/farm.exr" > "$tmp/diff.txt" ||
+  fail "fetched image differs: $(cat "$tmp/diff.txt")"
+grep -q "samples A bit for bit" "$tmp/diff.txt" || fail "no A channel: $(cat "$tmp/diff.txt")"
+ctl status "$id" > "$tmp/status.txt"
+! grep -q "depth cap" "$tmp/status.txt" || fail "a depth cap shown: $(cat "$tmp/status.txt")"
+# Without --transparent the farm's image has no A channel (ptexr-diff tells).
+opaque=$(ctl submit "$src/scenes/cornell_box.gltf" "${view[@]}")
+ctl watch "$opaque" 2> /dev/null || fail "watch exited $?"
+ctl fetch "$opaque" -o "$tmp/opaque.exr"
+set +e
+"$bin/ptexr-diff" "$tmp/ref.exr" "$tmp/opaque.exr" > "$tmp/diff2.txt"; rc=$?
+set -e
+if [ "$rc" != 1 ] || ! grep -q "A channel" "$tmp/diff2.txt"; then
+  fail "opaque job: $(cat "$tmp/diff2.txt")"
+fi
+
+cap=$(ctl submit "$src/scenes/furnace.gltf" --res 8x8 --spp 16 --max-depth 2)
+ctl watch "$cap" 2> /dev/null || fail "watch exited $?"
+ctl status "$cap" > "$tmp/cap.txt"
+grep -q "depth cap  1024 paths reached it" "$tmp/cap.txt" || fail "status: $(cat "$tmp/cap.txt")"
+ctl status "$cap" --json > "$tmp/cap.json"
+grep -q '"paths_capped": 1024,' "$tmp/cap.json" || fail "status --json: $(cat "$tmp/cap.json")"
+# After a restart the finished job keeps its count (the queue file has it).
+kill "$srv_pid"; wait "$srv_pid" 2>/dev/null || true; srv_pid=
+rm -f "$tmp/port"
+"$bin/ptserve" --state-dir "$tmp/state" --output-dir "$tmp/out" --listen 127.0.0.1:0 \
+  --port-file "$tmp/port" 2>> "$tmp/serve.log" &
+srv_pid=$!
+for _ in $(seq 100); do [ -s "$tmp/port" ] && break; sleep 0.05; done
+[ -s "$tmp/port" ] || fail "ptserve did not restart: $(cat "$tmp/serve.log")"
+PTFARM_SERVER=127.0.0.1:$(cat "$tmp/port")
+ctl status "$cap" > "$tmp/cap2.txt"
+grep -q "depth cap  1024 paths reached it" "$tmp/cap2.txt" || fail "after restart: $(cat "$tmp/cap2.txt")"
+failed=0
+echo "ok: ptctl submit --transparent and the depth-cap count"
