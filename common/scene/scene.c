@@ -874,6 +874,11 @@ static uint32_t scene_features(const pt_scene *s, int has_uv, pt_error *err, pt_
         }
         if (m->normal_tex >= 0)
             f |= PT_FEAT_NORMAL_MAP;
+        /* Layers have GGX-like lobes: the Lambert paths must not run. */
+        if (m->clearcoat > 0.0f)
+            f |= PT_FEAT_CLEARCOAT | PT_FEAT_GLOSSY;
+        if (m->sheen_color[0] > 0.0f || m->sheen_color[1] > 0.0f || m->sheen_color[2] > 0.0f)
+            f |= PT_FEAT_SHEEN | PT_FEAT_GLOSSY;
     }
     pt_free(used);
     *st = PT_OK;
