@@ -387,6 +387,43 @@ static inline int has_layers(const pt_material *m)
            m->sheen_color[2] > 0.0f;
 }
 
+/* The layers of sf's material over base: the factors times their textures
+ * (KHR_materials_clearcoat: R and G; KHR_materials_sheen: RGB and A). */
+static int layers_setup(const pt_renderer *r, const surface *sf, const pt_bsdf *base,
+                        pt_layers *lay, const uint32_t features)
+{
+    const pt_material *m = sf->mat;
+    float cc = m->clearcoat, ccr = m->clearcoat_roughness, sr = m->sheen_roughness;
+    float sc[3] = {m->sheen_color[0], m->sheen_color[1], m->sheen_color[2]};
+    if (features & PT_FEAT_TEXTURES) {
+        const pt_texture *tx = r->scene->textures;
+        float t[4], uv[2];
+        if (m->clearcoat_tex >= 0) {
+            slot_uv(sf, &m->tex_xf[PT_SLOT_CLEARCOAT], uv);
+            pt_texture_sample(&tx[m->clearcoat_tex], uv[0], uv[1], t);
+            cc *= t[0];
+        }
+        if (m->clearcoat_rough_tex >= 0) {
+            slot_uv(sf, &m->tex_xf[PT_SLOT_CLEARCOAT_ROUGH], uv);
+            pt_texture_sample(&tx[m->clearcoat_rough_tex], uv[0], uv[1], t);
+            ccr *= t[1];
+        }
+        if (m->sheen_color_tex >= 0) {
+            slot_uv(sf, &m->tex_xf[PT_SLOT_SHEEN_COLOR], uv);
+            pt_texture_sample(&tx[m->sheen_color_tex], uv[0], uv[1], t);
+            sc[0] *= t[0];
+            sc[1] *= t[1];
+            sc[2] *= t[2];
+        }
+        if (m->sheen_rough_tex >= 0) {
+            slot_uv(sf, &m->tex_xf[PT_SLOT_SHEEN_ROUGH], uv);
+            pt_texture_sample(&tx[m->sheen_rough_tex], uv[0], uv[1], t);
+            sr *= t[3];
+        }
+    }
+    return pt_layers_setup(lay, base, cc, ccr, sc, sr);
+}
+
 /* pt_v3_max_comp(v) > 0, exactly (fmaxf ignores NaNs; so does this). */
 static inline int any_positive(pt_vec3 v)
 {
@@ -943,9 +980,7 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
      * the base where the material has a layer; others keep the base's bits. */
     pt_layers lay;
     const int layered =
-        (features & LAYERS) && has_layers(sf->mat) &&
-        pt_layers_setup(&lay, &bsdf, sf->mat->clearcoat, sf->mat->clearcoat_roughness,
-                        sf->mat->sheen_color, sf->mat->sheen_roughness);
+        (features & LAYERS) && has_layers(sf->mat) && layers_setup(r, sf, &bsdf, &lay, features);
     if ((features & NEE_LIGHTS) && r->nee) {
         pt_vec3 lrad = ls_ok ? ls->radiance : pt_v3(0.0f, 0.0f, 0.0f);
         if ((features & PT_FEAT_ALPHA) && r->alpha && ls_ok && ls->delta == PT_LIGHT_AREA &&

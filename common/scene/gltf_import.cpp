@@ -779,22 +779,29 @@ void add_transmission(importer &im, int mi, const tinygltf::Material &g, pt_mate
     }
 }
 
-// KHR_materials_clearcoat and KHR_materials_sheen factors into pm, clamped
-// to [0, 1] as the extensions define them. Their textures are not read yet:
+// KHR_materials_clearcoat and KHR_materials_sheen factors and textures into
+// pm, the factors clamped to [0, 1] as the extensions define them. The
+// clearcoat normal texture is not read (the coat uses the shading normal):
 // one warning says so.
 void add_layers(importer &im, int mi, const tinygltf::Material &g, pt_material &pm)
 {
     auto unit = [](double v) { return float(v > 0.0 ? (v < 1.0 ? v : 1.0) : 0.0); };
+    auto tex = [&](const tinygltf::Value &ext, const char *key, bool srgb, int slot) {
+        const tinygltf::TextureInfo t = ext_texture(ext, key);
+        return texture_for(im, mi, key, t.index, t.texCoord, t.extensions, srgb, &pm.tex_xf[slot]);
+    };
     auto cc = g.extensions.find("KHR_materials_clearcoat");
     if (cc != g.extensions.end()) {
         pm.clearcoat = unit(ext_number(cc->second, "clearcoatFactor", 0.0));
         pm.clearcoat_roughness = unit(ext_number(cc->second, "clearcoatRoughnessFactor", 0.0));
-        if (cc->second.IsObject() &&
-            (cc->second.Has("clearcoatTexture") || cc->second.Has("clearcoatRoughnessTexture") ||
-             cc->second.Has("clearcoatNormalTexture")))
-            im.warn_once("clearcoat-texture",
+        pm.clearcoat_tex = tex(cc->second, "clearcoatTexture", false, PT_SLOT_CLEARCOAT);
+        pm.clearcoat_rough_tex =
+            tex(cc->second, "clearcoatRoughnessTexture", false, PT_SLOT_CLEARCOAT_ROUGH);
+        if (cc->second.IsObject() && cc->second.Has("clearcoatNormalTexture"))
+            im.warn_once("clearcoat-normal",
                          "material " + std::to_string(mi) +
-                             ": KHR_materials_clearcoat textures are ignored (factors only)");
+                             ": KHR_materials_clearcoat clearcoatNormalTexture is ignored (the "
+                             "coat uses the shading normal)");
     }
     auto sh = g.extensions.find("KHR_materials_sheen");
     if (sh != g.extensions.end()) {
@@ -803,11 +810,8 @@ void add_layers(importer &im, int mi, const tinygltf::Material &g, pt_material &
         for (int i = 0; i < 3; i++)
             pm.sheen_color[i] = unit(c[i]);
         pm.sheen_roughness = unit(ext_number(sh->second, "sheenRoughnessFactor", 0.0));
-        if (sh->second.IsObject() &&
-            (sh->second.Has("sheenColorTexture") || sh->second.Has("sheenRoughnessTexture")))
-            im.warn_once("sheen-texture",
-                         "material " + std::to_string(mi) +
-                             ": KHR_materials_sheen textures are ignored (factors only)");
+        pm.sheen_color_tex = tex(sh->second, "sheenColorTexture", true, PT_SLOT_SHEEN_COLOR);
+        pm.sheen_rough_tex = tex(sh->second, "sheenRoughnessTexture", false, PT_SLOT_SHEEN_ROUGH);
     }
 }
 

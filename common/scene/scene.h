@@ -79,6 +79,10 @@ enum {
     PT_SLOT_EMISSIVE,
     PT_SLOT_NORMAL,
     PT_SLOT_TRANSMISSION,
+    PT_SLOT_CLEARCOAT,
+    PT_SLOT_CLEARCOAT_ROUGH,
+    PT_SLOT_SHEEN_COLOR,
+    PT_SLOT_SHEEN_ROUGH,
     PT_SLOT_COUNT
 };
 
@@ -118,11 +122,16 @@ typedef struct pt_material {
     float normal_scale;                 /* normalTexture.scale: scales the map's x and y */
     pt_tex_xform tex_xf[PT_SLOT_COUNT]; /* per slot (PT_SLOT_*) */
     /* KHR_materials_clearcoat and KHR_materials_sheen factors (all 0 by
-     * default: no layer; textures are not read). */
-    float clearcoat;           /* clearcoatFactor in [0, 1] */
-    float clearcoat_roughness; /* clearcoatRoughnessFactor in [0, 1] */
-    float sheen_color[3];      /* sheenColorFactor, linear, in [0, 1] */
-    float sheen_roughness;     /* sheenRoughnessFactor in [0, 1] */
+     * default: no layer) and textures (-1: none; each multiplies its
+     * factor, so a texture under a factor of 0 is unused). */
+    float clearcoat;             /* clearcoatFactor in [0, 1] */
+    float clearcoat_roughness;   /* clearcoatRoughnessFactor in [0, 1] */
+    float sheen_color[3];        /* sheenColorFactor, linear, in [0, 1] */
+    float sheen_roughness;       /* sheenRoughnessFactor in [0, 1] */
+    int32_t clearcoat_tex;       /* R = clearcoat (linear), or -1 */
+    int32_t clearcoat_rough_tex; /* G = clearcoat roughness (linear), or -1 */
+    int32_t sheen_color_tex;     /* RGB = sheen colour (sRGB), or -1 */
+    int32_t sheen_rough_tex;     /* A = sheen roughness (linear), or -1 */
     char name[64];
 } pt_material;
 
