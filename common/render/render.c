@@ -8,6 +8,7 @@
 #include "common/render/bsdf.h"
 #include "common/render/dielectric.h"
 #include "common/render/env.h"
+#include "common/render/layers.h"
 #include "common/render/light.h"
 #include "common/render/light_lanes.h"
 #include "common/render/sampler.h"
@@ -377,6 +378,51 @@ static tri_rec *tri_recs_new(const pt_scene *s, void **base)
 static inline float max2(float a, float b)
 {
     return (a > b || b != b) ? a : b;
+}
+
+/* Clearcoat and sheen (common/render/layers.h). */
+#define LAYERS (uint32_t)(PT_FEAT_CLEARCOAT | PT_FEAT_SHEEN)
+static inline int has_layers(const pt_material *m)
+{
+    return m->clearcoat > 0.0f || m->sheen_color[0] > 0.0f || m->sheen_color[1] > 0.0f ||
+           m->sheen_color[2] > 0.0f;
+}
+
+/* The layers of sf's material over base: the factors times their textures
+ * (KHR_materials_clearcoat: R and G; KHR_materials_sheen: RGB and A). */
+static int layers_setup(const pt_renderer *r, const surface *sf, const pt_bsdf *base,
+                        pt_layers *lay, const uint32_t features)
+{
+    const pt_material *m = sf->mat;
+    float cc = m->clearcoat, ccr = m->clearcoat_roughness, sr = m->sheen_roughness;
+    float sc[3] = {m->sheen_color[0], m->sheen_color[1], m->sheen_color[2]};
+    if (features & PT_FEAT_TEXTURES) {
+        const pt_texture *tx = r->scene->textures;
+        float t[4], uv[2];
+        if (m->clearcoat_tex >= 0) {
+            slot_uv(sf, &m->tex_xf[PT_SLOT_CLEARCOAT], uv);
+            pt_texture_sample(&tx[m->clearcoat_tex], uv[0], uv[1], t);
+            cc *= t[0];
+        }
+        if (m->clearcoat_rough_tex >= 0) {
+            slot_uv(sf, &m->tex_xf[PT_SLOT_CLEARCOAT_ROUGH], uv);
+            pt_texture_sample(&tx[m->clearcoat_rough_tex], uv[0], uv[1], t);
+            ccr *= t[1];
+        }
+        if (m->sheen_color_tex >= 0) {
+            slot_uv(sf, &m->tex_xf[PT_SLOT_SHEEN_COLOR], uv);
+            pt_texture_sample(&tx[m->sheen_color_tex], uv[0], uv[1], t);
+            sc[0] *= t[0];
+            sc[1] *= t[1];
+            sc[2] *= t[2];
+        }
+        if (m->sheen_rough_tex >= 0) {
+            slot_uv(sf, &m->tex_xf[PT_SLOT_SHEEN_ROUGH], uv);
+            pt_texture_sample(&tx[m->sheen_rough_tex], uv[0], uv[1], t);
+            sr *= t[3];
+        }
+    }
+    return pt_layers_setup(lay, base, cc, ccr, sc, sr);
 }
 
 /* pt_v3_max_comp(v) > 0, exactly (fmaxf ignores NaNs; so does this). */
@@ -940,6 +986,11 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     pt_frame fr = pt_frame_from_normal(ns);
     pt_vec3 wo_l = pt_frame_to_local(&fr, wo);
     pt_bsdf bsdf = material_bsdf(r, sf, features);
+    /* Clearcoat and sheen (general variant only): the layered BSDF replaces
+     * the base where the material has a layer; others keep the base's bits. */
+    pt_layers lay;
+    const int layered =
+        (features & LAYERS) && has_layers(sf->mat) && layers_setup(r, sf, &bsdf, &lay, features);
     if ((features & NEE_LIGHTS) && r->nee) {
         pt_vec3 lrad = ls_ok ? ls->radiance : pt_v3(0.0f, 0.0f, 0.0f);
         if ((features & PT_FEAT_ALPHA) && r->alpha && ls_ok && ls->delta == PT_LIGHT_AREA &&
@@ -949,7 +1000,9 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
             sr->alpha_key = pt_alpha_key(u[OFF_ALPHA], ALPHA_SALT_SHADOW);
         if (ls_ok && ls->pdf > 0.0f && any_positive(lrad) && pt_v3_dot(ls->wi, ng) > 0.0f) {
             float bpdf;
-            pt_vec3 f = bsdf_eval(&bsdf, wo_l, pt_frame_to_local(&fr, ls->wi), &bpdf, features);
+            pt_vec3 wi_ll = pt_frame_to_local(&fr, ls->wi);
+            pt_vec3 f = layered ? pt_layers_eval(&lay, wo_l, wi_ll, &bpdf)
+                                : bsdf_eval(&bsdf, wo_l, wi_ll, &bpdf, features);
             if ((features & (PT_FEAT_PUNCTUAL | PT_FEAT_ENV)) && ls->delta != PT_LIGHT_AREA &&
                 any_positive(f)) {
                 /* A punctual light: BSDF sampling cannot find it, so no MIS;
@@ -998,7 +1051,8 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     u3[2] = u[OFF_BSDF_DIR + 1];
     pt_vec3 wi_l;
     float pdf;
-    pt_vec3 weight = bsdf_sample(&bsdf, wo_l, u3, &wi_l, &pdf, cos_wi, features);
+    pt_vec3 weight = layered ? pt_layers_sample(&lay, wo_l, u3, &wi_l, &pdf)
+                             : bsdf_sample(&bsdf, wo_l, u3, &wi_l, &pdf, cos_wi, features);
     if (!(pdf > 0.0f) || !any_positive(weight))
         return ret;
     pt_vec3 wi = pt_frame_to_world(&fr, wi_l);
@@ -1572,7 +1626,7 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
 /* The material features beyond the core's (normal maps, vertex colours). */
 #define SURFACE_EXTRAS (uint32_t)(PT_FEAT_NORMAL_MAP | PT_FEAT_VERTEX_COLOR)
 /* Features that only the general variant has code for. */
-#define GENERAL_ONLY (uint32_t)(OTHER_LIGHTS | PT_FEAT_ALPHA | GLASS | SURFACE_EXTRAS)
+#define GENERAL_ONLY (uint32_t)(OTHER_LIGHTS | PT_FEAT_ALPHA | GLASS | SURFACE_EXTRAS | LAYERS)
 VARIANT(li_general, tile_general, ALL_FEATURES)
 VARIANT(li_untextured, tile_untextured, ALL_FEATURES & ~NO_TEX & ~GENERAL_ONLY)
 VARIANT(li_lambert, tile_lambert, ALL_FEATURES & ~(uint32_t)PT_FEAT_GLOSSY & ~GENERAL_ONLY)

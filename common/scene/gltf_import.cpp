@@ -779,12 +779,52 @@ void add_transmission(importer &im, int mi, const tinygltf::Material &g, pt_mate
     }
 }
 
+// KHR_materials_clearcoat and KHR_materials_sheen factors and textures into
+// pm, the factors clamped to [0, 1] as the extensions define them. The
+// clearcoat normal texture is not read (the coat uses the shading normal):
+// one warning says so.
+void add_layers(importer &im, int mi, const tinygltf::Material &g, pt_material &pm)
+{
+    auto unit = [](double v) { return float(v > 0.0 ? (v < 1.0 ? v : 1.0) : 0.0); };
+    auto tex = [&](const tinygltf::Value &ext, const char *key, bool srgb, int slot) {
+        const tinygltf::TextureInfo t = ext_texture(ext, key);
+        return texture_for(im, mi, key, t.index, t.texCoord, t.extensions, srgb, &pm.tex_xf[slot]);
+    };
+    auto cc = g.extensions.find("KHR_materials_clearcoat");
+    if (cc != g.extensions.end()) {
+        pm.clearcoat = unit(ext_number(cc->second, "clearcoatFactor", 0.0));
+        pm.clearcoat_roughness = unit(ext_number(cc->second, "clearcoatRoughnessFactor", 0.0));
+        pm.clearcoat_tex = tex(cc->second, "clearcoatTexture", false, PT_SLOT_CLEARCOAT);
+        pm.clearcoat_rough_tex =
+            tex(cc->second, "clearcoatRoughnessTexture", false, PT_SLOT_CLEARCOAT_ROUGH);
+        if (cc->second.IsObject() && cc->second.Has("clearcoatNormalTexture"))
+            im.warn_once("clearcoat-normal",
+                         "material " + std::to_string(mi) +
+                             ": KHR_materials_clearcoat clearcoatNormalTexture is ignored (the "
+                             "coat uses the shading normal)");
+    }
+    auto sh = g.extensions.find("KHR_materials_sheen");
+    if (sh != g.extensions.end()) {
+        float c[3] = {0.0f, 0.0f, 0.0f};
+        ext_numbers(sh->second, "sheenColorFactor", c, 3);
+        for (int i = 0; i < 3; i++)
+            pm.sheen_color[i] = unit(c[i]);
+        pm.sheen_roughness = unit(ext_number(sh->second, "sheenRoughnessFactor", 0.0));
+        pm.sheen_color_tex = tex(sh->second, "sheenColorTexture", true, PT_SLOT_SHEEN_COLOR);
+        pm.sheen_rough_tex = tex(sh->second, "sheenRoughnessTexture", false, PT_SLOT_SHEEN_ROUGH);
+    }
+}
+
 void add_materials(importer &im)
 {
     const tinygltf::Model &m = im.model;
-    static const std::set<std::string> handled = {
-        "KHR_materials_emissive_strength", "KHR_materials_specular", "KHR_materials_transmission",
-        "KHR_materials_ior", "KHR_materials_volume"};
+    static const std::set<std::string> handled = {"KHR_materials_emissive_strength",
+                                                  "KHR_materials_specular",
+                                                  "KHR_materials_transmission",
+                                                  "KHR_materials_ior",
+                                                  "KHR_materials_volume",
+                                                  "KHR_materials_clearcoat",
+                                                  "KHR_materials_sheen"};
     for (size_t i = 0; i < m.materials.size(); i++) {
         const tinygltf::Material &g = m.materials[i];
         int mi = int(i);
@@ -819,6 +859,7 @@ void add_materials(importer &im)
                                  ": KHR_materials_specular textures are ignored");
         }
         add_transmission(im, mi, g, pm);
+        add_layers(im, mi, g, pm);
         pm.double_sided = g.doubleSided ? 1 : 0;
         for (const auto &e : g.extensions)
             if (!handled.count(e.first))
@@ -1277,7 +1318,9 @@ void import(importer &im)
     for (const auto &r : m.extensionsRequired)
         if (r != "KHR_materials_emissive_strength" && r != "KHR_materials_specular" &&
             r != "KHR_lights_punctual" && r != "KHR_materials_transmission" &&
-            r != "KHR_materials_ior" && r != "KHR_materials_volume" && r != "KHR_texture_transform")
+            r != "KHR_materials_ior" && r != "KHR_materials_volume" &&
+            r != "KHR_texture_transform" && r != "KHR_materials_clearcoat" &&
+            r != "KHR_materials_sheen")
             im.warn_once("req:" + r, "required extension " + r + " is not supported");
     add_materials(im);
     std::vector<char> on_path(m.nodes.size(), 0);

@@ -108,6 +108,7 @@ pt_material pt_material_default(void)
     m.alpha_cutoff = 0.5f;
     m.normal_tex = -1;
     m.normal_scale = 1.0f;
+    m.clearcoat_tex = m.clearcoat_rough_tex = m.sheen_color_tex = m.sheen_rough_tex = -1;
     for (int i = 0; i < PT_SLOT_COUNT; i++)
         m.tex_xf[i] = pt_tex_xform_identity();
     snprintf(m.name, sizeof m.name, "default");
@@ -205,6 +206,19 @@ static pt_status check_transmission(const pt_scene_builder *b, const pt_material
     return PT_OK;
 }
 
+/* The clearcoat and sheen texture indices. */
+static pt_status check_layers(const pt_scene_builder *b, const pt_material *m, const char *name,
+                              pt_error *err)
+{
+    const int32_t t[4] = {m->clearcoat_tex, m->clearcoat_rough_tex, m->sheen_color_tex,
+                          m->sheen_rough_tex};
+    for (int i = 0; i < 4; i++)
+        if (t[i] < -1 || (t[i] >= 0 && (uint32_t)t[i] >= b->ntex))
+            return pt_error_set(err, PT_ERR_ARG, "material '%.64s': texture %d out of range", name,
+                                (int)t[i]);
+    return PT_OK;
+}
+
 pt_status pt_scene_builder_add_material(pt_scene_builder *b, const pt_material *m, uint32_t *index,
                                         pt_error *err)
 {
@@ -244,6 +258,8 @@ pt_status pt_scene_builder_add_material(pt_scene_builder *b, const pt_material *
         return pt_error_set(err, PT_ERR_FORMAT, "material '%.64s': alphaCutoff %g is not >= 0",
                             name, (double)m->alpha_cutoff);
     pt_status st = check_transmission(b, m, name, err);
+    if (st == PT_OK)
+        st = check_layers(b, m, name, err);
     if (st != PT_OK)
         return st;
     if (!isfinite(m->normal_scale))
@@ -874,6 +890,17 @@ static uint32_t scene_features(const pt_scene *s, int has_uv, pt_error *err, pt_
         }
         if (m->normal_tex >= 0)
             f |= PT_FEAT_NORMAL_MAP;
+        /* Layers have GGX-like lobes: the Lambert paths must not run. */
+        if (m->clearcoat > 0.0f) {
+            f |= PT_FEAT_CLEARCOAT | PT_FEAT_GLOSSY;
+            if (m->clearcoat_tex >= 0 || m->clearcoat_rough_tex >= 0)
+                f |= PT_FEAT_TEXTURES;
+        }
+        if (m->sheen_color[0] > 0.0f || m->sheen_color[1] > 0.0f || m->sheen_color[2] > 0.0f) {
+            f |= PT_FEAT_SHEEN | PT_FEAT_GLOSSY;
+            if (m->sheen_color_tex >= 0 || m->sheen_rough_tex >= 0)
+                f |= PT_FEAT_TEXTURES;
+        }
     }
     pt_free(used);
     *st = PT_OK;

@@ -52,6 +52,10 @@ enum {
  * PT_FEAT_GLOSSY too), and some transmitting material absorbs inside its
  * closed mesh (KHR_materials_volume, pt_material_absorbs). */
 enum { PT_FEAT_TRANSMISSION = 1u << 11, PT_FEAT_VOLUME = 1u << 12 };
+/* Layers over the base (common/render/layers.h): some material has a
+ * clearcoat > 0 (KHR_materials_clearcoat) or a sheen colour > 0
+ * (KHR_materials_sheen). Both set PT_FEAT_GLOSSY too. */
+enum { PT_FEAT_CLEARCOAT = 1u << 13, PT_FEAT_SHEEN = 1u << 14 };
 
 /* glTF alphaMode (common/scene/alpha.h). OPAQUE is 0, so a material
  * initialised with zeros is opaque. */
@@ -75,6 +79,10 @@ enum {
     PT_SLOT_EMISSIVE,
     PT_SLOT_NORMAL,
     PT_SLOT_TRANSMISSION,
+    PT_SLOT_CLEARCOAT,
+    PT_SLOT_CLEARCOAT_ROUGH,
+    PT_SLOT_SHEEN_COLOR,
+    PT_SLOT_SHEEN_ROUGH,
     PT_SLOT_COUNT
 };
 
@@ -113,6 +121,17 @@ typedef struct pt_material {
     int32_t normal_tex;                 /* linear tangent-space normal texture or -1 */
     float normal_scale;                 /* normalTexture.scale: scales the map's x and y */
     pt_tex_xform tex_xf[PT_SLOT_COUNT]; /* per slot (PT_SLOT_*) */
+    /* KHR_materials_clearcoat and KHR_materials_sheen factors (all 0 by
+     * default: no layer) and textures (-1: none; each multiplies its
+     * factor, so a texture under a factor of 0 is unused). */
+    float clearcoat;             /* clearcoatFactor in [0, 1] */
+    float clearcoat_roughness;   /* clearcoatRoughnessFactor in [0, 1] */
+    float sheen_color[3];        /* sheenColorFactor, linear, in [0, 1] */
+    float sheen_roughness;       /* sheenRoughnessFactor in [0, 1] */
+    int32_t clearcoat_tex;       /* R = clearcoat (linear), or -1 */
+    int32_t clearcoat_rough_tex; /* G = clearcoat roughness (linear), or -1 */
+    int32_t sheen_color_tex;     /* RGB = sheen colour (sRGB), or -1 */
+    int32_t sheen_rough_tex;     /* A = sheen roughness (linear), or -1 */
     char name[64];
 } pt_material;
 
