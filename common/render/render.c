@@ -440,6 +440,38 @@ static pt_bsdf material_bsdf_untextured(const pt_material *m)
                          pt_v3(m->specular_color[0], m->specular_color[1], m->specular_color[2]));
 }
 
+/* The metallic-roughness inputs at sf: the material's factors times its
+ * base-colour and metal-rough textures (each read through its slot's
+ * coordinate set and transform), the base colour times COLOR_0 (glTF 2.0,
+ * 3.9.2). Shared by the opaque BSDF and the glass. */
+static inline __attribute__((always_inline)) void base_inputs(const pt_scene *s, const surface *sf,
+                                                              const uint32_t features,
+                                                              pt_vec3 *base, float *metallic,
+                                                              float *roughness)
+{
+    const pt_material *m = sf->mat;
+    *base = pt_v3(m->base_color[0], m->base_color[1], m->base_color[2]);
+    *metallic = m->metallic;
+    *roughness = m->roughness;
+    if (features & PT_FEAT_TEXTURES) {
+        float t[4];
+        float uv[2];
+        if (m->base_color_tex >= 0) {
+            slot_uv(sf, &m->tex_xf[PT_SLOT_BASE], uv);
+            pt_texture_sample(&s->textures[m->base_color_tex], uv[0], uv[1], t);
+            *base = pt_v3_mul(*base, pt_v3(t[0], t[1], t[2]));
+        }
+        if (m->metal_rough_tex >= 0) {
+            slot_uv(sf, &m->tex_xf[PT_SLOT_METAL_ROUGH], uv);
+            pt_texture_sample(&s->textures[m->metal_rough_tex], uv[0], uv[1], t);
+            *roughness *= t[1];
+            *metallic *= t[2];
+        }
+    }
+    if ((features & PT_FEAT_VERTEX_COLOR) && s->colors)
+        *base = pt_v3_mul(*base, sf->color);
+}
+
 static inline pt_bsdf material_bsdf(const pt_renderer *r, const surface *sf,
                                     const uint32_t features)
 {
@@ -453,25 +485,9 @@ static inline pt_bsdf material_bsdf(const pt_renderer *r, const surface *sf,
          * 1 - 0) is read, the same bits as the branch below. */
         return r->mat_bsdf[m - s->materials];
     }
-    pt_vec3 base = pt_v3(m->base_color[0], m->base_color[1], m->base_color[2]);
-    float metallic = m->metallic, roughness = m->roughness;
-    if (features & PT_FEAT_TEXTURES) {
-        float t[4];
-        float uv[2];
-        if (m->base_color_tex >= 0) {
-            slot_uv(sf, &m->tex_xf[PT_SLOT_BASE], uv);
-            pt_texture_sample(&s->textures[m->base_color_tex], uv[0], uv[1], t);
-            base = pt_v3_mul(base, pt_v3(t[0], t[1], t[2]));
-        }
-        if (m->metal_rough_tex >= 0) {
-            slot_uv(sf, &m->tex_xf[PT_SLOT_METAL_ROUGH], uv);
-            pt_texture_sample(&s->textures[m->metal_rough_tex], uv[0], uv[1], t);
-            roughness *= t[1];
-            metallic *= t[2];
-        }
-    }
-    if (vcol)
-        base = pt_v3_mul(base, sf->color); /* COLOR_0 multiplies the base colour (3.9.2) */
+    pt_vec3 base;
+    float metallic, roughness;
+    base_inputs(s, sf, features, &base, &metallic, &roughness);
     if (!(features & PT_FEAT_GLOSSY)) {
         /* pt_bsdf_setup's diffuse for metallic 0: the clamped base times 1. */
         pt_bsdf b;
@@ -783,30 +799,15 @@ static pt_glass glass_at(const pt_renderer *r, const surface *sf, int front,
 {
     const pt_scene *s = r->scene;
     const pt_material *m = sf->mat;
-    pt_vec3 base = pt_v3(m->base_color[0], m->base_color[1], m->base_color[2]);
-    float metallic = m->metallic, roughness = m->roughness, trans = m->transmission;
-    if (features & PT_FEAT_TEXTURES) {
-        float t[4];
-        float uv[2];
-        if (m->base_color_tex >= 0) {
-            slot_uv(sf, &m->tex_xf[PT_SLOT_BASE], uv);
-            pt_texture_sample(&s->textures[m->base_color_tex], uv[0], uv[1], t);
-            base = pt_v3_mul(base, pt_v3(t[0], t[1], t[2]));
-        }
-        if (m->metal_rough_tex >= 0) {
-            slot_uv(sf, &m->tex_xf[PT_SLOT_METAL_ROUGH], uv);
-            pt_texture_sample(&s->textures[m->metal_rough_tex], uv[0], uv[1], t);
-            roughness *= t[1];
-            metallic *= t[2];
-        }
-        if (m->transmission_tex >= 0) {
-            slot_uv(sf, &m->tex_xf[PT_SLOT_TRANSMISSION], uv);
-            pt_texture_sample(&s->textures[m->transmission_tex], uv[0], uv[1], t);
-            trans *= t[0];
-        }
+    pt_vec3 base;
+    float metallic, roughness, trans = m->transmission;
+    base_inputs(s, sf, features, &base, &metallic, &roughness);
+    if ((features & PT_FEAT_TEXTURES) && m->transmission_tex >= 0) {
+        float t[4], uv[2];
+        slot_uv(sf, &m->tex_xf[PT_SLOT_TRANSMISSION], uv);
+        pt_texture_sample(&s->textures[m->transmission_tex], uv[0], uv[1], t);
+        trans *= t[0];
     }
-    if ((features & PT_FEAT_VERTEX_COLOR) && s->colors)
-        base = pt_v3_mul(base, sf->color); /* COLOR_0 multiplies the base colour (3.9.2) */
     int thin = !(m->thickness > 0.0f);
     /* Seen from the back of a closed mesh the ray is inside: n_far / n_near
      * is 1 / ior. A thin wall has air on both sides. */
