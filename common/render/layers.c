@@ -103,6 +103,7 @@ int pt_layers_setup(pt_layers *l, const pt_bsdf *base, float clearcoat, float co
     l->sheen_max = pt_v3_max_comp(l->sheen);
     l->sheen_rough = clamp01(sheen_roughness == sheen_roughness ? sheen_roughness : 0.0f);
     l->sheen_alpha = sheen_alpha(l->sheen_rough);
+    l->coat_own = 0;
     return l->clearcoat > 0.0f || l->sheen_max > 0.0f;
 }
 
@@ -139,11 +140,18 @@ static float coat_eval(const pt_layers *l, pt_vec3 wo, pt_vec3 wi, float *pdf)
     return d * g2 / (4.0f * wo.z);
 }
 
-/* Lobe probabilities from wo alone (so that pdf needs no sampled state). */
-static inline void lobe_probs(const pt_layers *l, float mu_o, float *pc, float *ps, float *pb,
-                              float *fc, float *eo)
+void pt_layers_coat_normal(pt_layers *l, pt_vec3 n)
 {
-    *fc = coat_fresnel(l, mu_o);
+    l->coat_own = 1;
+    l->coat_fr = pt_frame_from_normal(n);
+}
+
+/* Lobe probabilities from wo alone (so that pdf needs no sampled state):
+ * mu_c = wo's cosine to the coat's normal, mu_o to the base's. */
+static inline void lobe_probs(const pt_layers *l, float mu_c, float mu_o, float *pc, float *ps,
+                              float *pb, float *fc, float *eo)
+{
+    *fc = coat_fresnel(l, mu_c);
     *eo = l->sheen_max > 0.0f ? fminf(pt_sheen_albedo(mu_o, l->sheen_rough), 1.0f) : 0.0f;
     float wc = *fc, ws = (1.0f - *fc) * l->sheen_max * *eo;
     float wb = (1.0f - *fc) * (1.0f - l->sheen_max * *eo);
@@ -160,7 +168,7 @@ static pt_vec3 eval_all(const pt_layers *l, pt_vec3 wo, pt_vec3 wi, float *pdf)
     if (!(wo.z > 0.0f) || !(wi.z > 0.0f))
         return zero;
     float pc, ps, pb, fc, eo;
-    lobe_probs(l, wo.z, &pc, &ps, &pb, &fc, &eo);
+    lobe_probs(l, wo.z, wo.z, &pc, &ps, &pb, &fc, &eo);
     float bpdf = 0.0f, cpdf = 0.0f;
     pt_vec3 fb = pt_bsdf_eval(&l->base, wo, wi, &bpdf);
     float scale = 1.0f;
@@ -185,16 +193,91 @@ static pt_vec3 eval_all(const pt_layers *l, pt_vec3 wo, pt_vec3 wi, float *pdf)
     return f;
 }
 
+/* eval_all with the coat on its own normal (layers.h). */
+static pt_vec3 eval_own(const pt_layers *l, pt_vec3 wo, pt_vec3 wi, float *pdf)
+{
+    pt_vec3 zero = pt_v3(0.0f, 0.0f, 0.0f);
+    *pdf = 0.0f;
+    pt_vec3 woc = pt_frame_to_local(&l->coat_fr, wo), wic = pt_frame_to_local(&l->coat_fr, wi);
+    if (!(wo.z > 0.0f) || !(woc.z > 0.0f))
+        return zero;
+    float pc, ps, pb, fc, eo;
+    lobe_probs(l, woc.z, wo.z, &pc, &ps, &pb, &fc, &eo);
+    pt_vec3 f = zero;
+    float p = 0.0f;
+    if (wi.z > 0.0f) {
+        float bpdf = 0.0f, scale = 1.0f;
+        pt_vec3 fb = pt_bsdf_eval(&l->base, wo, wi, &bpdf);
+        if (l->sheen_max > 0.0f) {
+            float ei = fminf(pt_sheen_albedo(wi.z, l->sheen_rough), 1.0f);
+            float eo_raw = pt_sheen_albedo(wo.z, l->sheen_rough);
+            float norm = eo_raw > 1.0f ? 1.0f / eo_raw : 1.0f;
+            scale = fminf(1.0f - l->sheen_max * eo, 1.0f - l->sheen_max * ei);
+            f = pt_v3_scale(l->sheen, pt_sheen_eval(l->sheen_alpha, wo, wi) * norm);
+        }
+        f = pt_v3_scale(pt_v3_add(f, pt_v3_scale(fb, scale)), 1.0f - fc);
+        p = ps * (0.5f * PT_INV_PI) + pb * bpdf;
+    }
+    if (l->clearcoat > 0.0f && wic.z > 0.0f) {
+        float cpdf = 0.0f;
+        float c = coat_eval(l, woc, wic, &cpdf);
+        f = pt_v3_add(f, pt_v3(fc * c, fc * c, fc * c));
+        p += pc * cpdf;
+    }
+    *pdf = p;
+    return f;
+}
+
 pt_vec3 pt_layers_eval(const pt_layers *l, pt_vec3 wo, pt_vec3 wi, float *pdf)
 {
-    return eval_all(l, wo, wi, pdf);
+    return l->coat_own ? eval_own(l, wo, wi, pdf) : eval_all(l, wo, wi, pdf);
 }
 
 float pt_layers_pdf(const pt_layers *l, pt_vec3 wo, pt_vec3 wi)
 {
     float pdf;
-    eval_all(l, wo, wi, &pdf);
+    pt_layers_eval(l, wo, wi, &pdf);
     return pdf;
+}
+
+/* pt_layers_sample with the coat on its own normal. */
+static pt_vec3 sample_own(const pt_layers *l, pt_vec3 wo, const float u[3], pt_vec3 *wi, float *pdf)
+{
+    pt_vec3 zero = pt_v3(0.0f, 0.0f, 0.0f);
+    pt_vec3 woc = pt_frame_to_local(&l->coat_fr, wo);
+    if (!(wo.z > 0.0f) || !(woc.z > 0.0f))
+        return zero;
+    float pc, ps, pb, fc, eo;
+    lobe_probs(l, woc.z, wo.z, &pc, &ps, &pb, &fc, &eo);
+    if (u[0] < pc) {
+        pt_vec3 m = pt_ggx_sample_vndf(woc, l->coat_alpha, u[1], u[2]);
+        float om = pt_v3_dot(woc, m);
+        pt_vec3 wic = pt_v3_sub(pt_v3_scale(m, 2.0f * om), woc);
+        if (!(wic.z > 0.0f))
+            return zero;
+        *wi = pt_frame_to_world(&l->coat_fr, wic);
+    } else {
+        if (u[0] < pc + ps) {
+            float z = u[1], r = sqrtf(fmaxf(0.0f, 1.0f - z * z)), ph = 2.0f * PT_PI * u[2];
+            *wi = pt_v3(r * cosf(ph), r * sinf(ph), z);
+        } else {
+            float ub[3] = {fminf((u[0] - pc - ps) / pb, 0x1.fffffep-1f), u[1], u[2]};
+            if (!(ub[0] >= 0.0f))
+                ub[0] = 0.0f;
+            float bp;
+            pt_bsdf_sample(&l->base, wo, ub, wi, &bp);
+            if (!(bp > 0.0f))
+                return zero;
+        }
+        if (!(wi->z > 0.0f))
+            return zero;
+    }
+    pt_vec3 f = eval_own(l, wo, *wi, pdf);
+    if (!(*pdf > 0.0f)) {
+        *pdf = 0.0f;
+        return zero;
+    }
+    return pt_v3_scale(f, 1.0f / *pdf);
 }
 
 pt_vec3 pt_layers_sample(const pt_layers *l, pt_vec3 wo, const float u[3], pt_vec3 *wi, float *pdf)
@@ -202,10 +285,12 @@ pt_vec3 pt_layers_sample(const pt_layers *l, pt_vec3 wo, const float u[3], pt_ve
     pt_vec3 zero = pt_v3(0.0f, 0.0f, 0.0f);
     *pdf = 0.0f;
     *wi = pt_v3(0.0f, 0.0f, 1.0f);
+    if (l->coat_own)
+        return sample_own(l, wo, u, wi, pdf);
     if (!(wo.z > 0.0f))
         return zero;
     float pc, ps, pb, fc, eo;
-    lobe_probs(l, wo.z, &pc, &ps, &pb, &fc, &eo);
+    lobe_probs(l, wo.z, wo.z, &pc, &ps, &pb, &fc, &eo);
     if (u[0] < pc) {
         pt_vec3 m = pt_ggx_sample_vndf(wo, l->coat_alpha, u[1], u[2]);
         float om = pt_v3_dot(wo, m);

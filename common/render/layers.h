@@ -8,23 +8,33 @@
  *   Fc(wo) = clearcoat x Schlick(F0 = 0.04, wo.z)   (a coat of ior 1.5),
  *   S(wo, wi) = min(1 - max(sheen) E(wo.z), 1 - max(sheen) E(wi.z)),
  * with f_coat a GGX reflection without Fresnel (alpha = clearcoatRoughness^2,
- * Smith height-correlated G2) on the shading normal (clearcoatNormalTexture
- * is not read), and f_sheen = sheenColor D_charlie V_ashikhmin: the "Charlie"
- * distribution of Estevez & Kulla 2017 ("Production Friendly Microfacet
- * Sheen BRDF"), alpha = sheenRoughness^2 (>= PT_LAYERS_MIN_SHEEN_ALPHA), with
- * the visibility 1 / (4 (zi + zo - zi zo)) of Neubelt & Pettineo 2013 (as in
+ * Smith height-correlated G2) on the shading normal, or on the coat's own
+ * normal (clearcoatNormalTexture) where pt_layers_coat_normal gave one, and
+ * f_sheen = sheenColor D_charlie V_ashikhmin: the "Charlie" distribution of
+ * Estevez & Kulla 2017 ("Production Friendly Microfacet Sheen BRDF"),
+ * alpha = sheenRoughness^2 (>= PT_LAYERS_MIN_SHEEN_ALPHA), with the
+ * visibility 1 / (4 (zi + zo - zi zo)) of Neubelt & Pettineo 2013 (as in
  * Filament). E(mu) is that sheen lobe's directional albedo for white colour,
  * tabulated by numerical quadrature (32 x 32 over mu and roughness, computed
  * once per process, bilinear). That visibility lets a sharp sheen seen at
  * grazing reflect more than it receives (E > 1): there the sheen lobe is
- * divided by E(wo.z) and E is read as min(E, 1). The whole never reflects more than it gets:
- * each term's albedo is at most what the layer above leaves.
+ * divided by E(wo.z) and E is read as min(E, 1). The whole never reflects
+ * more than it gets: each term's albedo is at most what the layer above
+ * leaves.
  *
  * Sampling picks coat, sheen or base with u[0] by the weights Fc(wo),
  * (1 - Fc) max(sheen) E(wo.z), (1 - Fc)(1 - max(sheen) E(wo.z)); the coat by
  * GGX visible normals, the sheen uniformly over the hemisphere, the base by
  * pt_bsdf_sample with u[0] rescaled. pdf is the one-sample MIS mixture of all
  * three, so NEE weighs with it as with pt_bsdf_pdf. Local frame as bsdf.h.
+ *
+ * With a coat normal nc (in that local frame, z = the base's normal): Fc and
+ * the coat lobe read wo and wi in nc's frame (Fc(wo) = clearcoat x
+ * Schlick(wo.nc)); the sheen and base terms keep the base normal. Each term
+ * is zero where wi is below its own normal's hemisphere, so a direction may
+ * be valid for the coat alone (wi.z <= 0 < wi.nc); the caller keeps it above
+ * the geometric surface. A sampled lobe's direction below its own normal's
+ * hemisphere is a failed sample, so the mixture pdf stays the true density.
  */
 #ifndef PT_COMMON_RENDER_LAYERS_H
 #define PT_COMMON_RENDER_LAYERS_H
@@ -39,6 +49,8 @@ typedef struct pt_layers {
     float sheen_max;   /* max component of sheen */
     float sheen_rough; /* [0, 1]: the table's coordinate */
     float sheen_alpha; /* >= PT_LAYERS_MIN_SHEEN_ALPHA */
+    int coat_own;      /* the coat has its own normal: coat_fr.n */
+    pt_frame coat_fr;
 } pt_layers;
 
 /* Charlie's D is degenerate at alpha 0; below this the lobe is this sharp. */
@@ -48,6 +60,11 @@ typedef struct pt_layers {
  * same bits as without the layers) when clearcoat and sheen are both 0. */
 int pt_layers_setup(pt_layers *l, const pt_bsdf *base, float clearcoat, float coat_roughness,
                     const float sheen_color[3], float sheen_roughness);
+
+/* Gives the coat its own unit normal n, in the local frame of wo and wi
+ * (the base's); n.wo > 0 is the caller's (render.c bends it as the base's
+ * mapped normal). Without this call the coat shares the base's normal. */
+void pt_layers_coat_normal(pt_layers *l, pt_vec3 n);
 
 /* As pt_bsdf_eval / pt_bsdf_pdf / pt_bsdf_sample for the layered whole. */
 pt_vec3 pt_layers_eval(const pt_layers *l, pt_vec3 wo, pt_vec3 wi, float *pdf);

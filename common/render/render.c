@@ -137,6 +137,10 @@ typedef struct surface {
     float uv1[2];  /* TEXCOORD_1 (PT_FEAT_TEXTURES; 0 without the set) */
     pt_vec3 color; /* COLOR_0 (PT_FEAT_VERTEX_COLOR) */
     int mapped;    /* ns comes from a normal map (PT_FEAT_NORMAL_MAP) */
+    /* The clear coat's own normal, where coat_mapped: from its
+     * clearcoatNormalTexture (PT_FEAT_CLEARCOAT and PT_FEAT_NORMAL_MAP). */
+    pt_vec3 nc;
+    int coat_mapped;
     const pt_material *mat;
 } surface;
 
@@ -148,13 +152,16 @@ static inline void slot_uv(const surface *sf, const pt_tex_xform *x, float out[2
 
 /*
  * Tangent-space normal mapping (glTF 2.0, 3.9.3): the interpolated tangent,
- * made orthogonal to the interpolated normal n (Gram-Schmidt), the bitangent
- * w cross(n, t) with the handedness w, and the texel's
- * normalize((2 c - 1) * (scale, scale, 1)) in that frame. The result may face
- * away from the viewer or the geometric normal; shade() bends it back
- * (valid_reflection). A degenerate frame leaves ns as it was.
+ * made orthogonal to the interpolated normal n = sf->ns (Gram-Schmidt), the
+ * bitangent w cross(n, t) with the handedness w, and the texel of texture
+ * tex (read through slot's transform) normalize((2 c - 1) * (scale, scale, 1))
+ * in that frame, into *out. The result may face away from the viewer or the
+ * geometric normal; shade() bends it back (valid_reflection). Returns 0 and
+ * leaves *out alone for a degenerate frame. The base's normalTexture and the
+ * clear coat's clearcoatNormalTexture both go through here, in the same frame.
  */
-static void normal_map(const pt_scene *s, const pt_hit *hit, surface *sf)
+static int tangent_normal(const pt_scene *s, const pt_hit *hit, const surface *sf, int32_t tex,
+                          float scale, int slot, pt_vec3 *out)
 {
     const pt_material *m = sf->mat;
     const uint32_t *tri = &s->indices[3 * hit->tri];
@@ -168,26 +175,43 @@ static void normal_map(const pt_scene *s, const pt_hit *hit, surface *sf)
     t = pt_v3_sub(t, pt_v3_scale(n, pt_v3_dot(n, t)));
     float len = pt_v3_len(t);
     if (!(len > 1e-12f) || !isfinite(len))
-        return;
+        return 0;
     t = pt_v3_scale(t, 1.0f / len);
     pt_vec3 bt = pt_v3_scale(pt_v3_cross(n, t), w < 0.0f ? -1.0f : 1.0f);
     float uv[2], c[4];
-    slot_uv(sf, &m->tex_xf[PT_SLOT_NORMAL], uv);
-    pt_texture_sample(&s->textures[m->normal_tex], uv[0], uv[1], c);
-    float x = (2.0f * c[0] - 1.0f) * m->normal_scale, y = (2.0f * c[1] - 1.0f) * m->normal_scale,
+    slot_uv(sf, &m->tex_xf[slot], uv);
+    pt_texture_sample(&s->textures[tex], uv[0], uv[1], c);
+    float x = (2.0f * c[0] - 1.0f) * scale, y = (2.0f * c[1] - 1.0f) * scale,
           z = 2.0f * c[2] - 1.0f;
     pt_vec3 nm = pt_v3_add(pt_v3_add(pt_v3_scale(t, x), pt_v3_scale(bt, y)), pt_v3_scale(n, z));
     len = pt_v3_len(nm);
     if (!(len > 1e-12f) || !isfinite(len))
-        return;
+        return 0;
     /* Kept on the side of the winding's normal where the interpolated normal
      * is, so that shade()'s flip towards the viewer (by ng) puts it where the
      * interpolated normal would go, even when a file's normals disagree
      * with its winding. */
     if (pt_v3_dot(n, sf->ng) < 0.0f)
         len = -len;
-    sf->ns = pt_v3_scale(nm, 1.0f / len);
-    sf->mapped = 1;
+    *out = pt_v3_scale(nm, 1.0f / len);
+    return 1;
+}
+
+/* The base's normal map: sf->ns mapped (unchanged for a degenerate frame). */
+static void normal_map(const pt_scene *s, const pt_hit *hit, surface *sf)
+{
+    const pt_material *m = sf->mat;
+    if (tangent_normal(s, hit, sf, m->normal_tex, m->normal_scale, PT_SLOT_NORMAL, &sf->ns))
+        sf->mapped = 1;
+}
+
+/* The clear coat's normal map, from the interpolated normal (so before
+ * normal_map replaces it): sf->nc, and sf->coat_mapped where it took. */
+static void coat_normal_map(const pt_scene *s, const pt_hit *hit, surface *sf)
+{
+    const pt_material *m = sf->mat;
+    sf->coat_mapped = tangent_normal(s, hit, sf, m->clearcoat_normal_tex, m->clearcoat_normal_scale,
+                                     PT_SLOT_CLEARCOAT_NORMAL, &sf->nc);
 }
 
 /*
@@ -316,7 +340,12 @@ static inline void surface_at(const pt_renderer *r, const pt_hit *hit, surface *
     }
     if (features & PT_FEAT_NORMAL_MAP) {
         sf->mapped = 0;
-        if (sf->mat->normal_tex >= 0 && s->tangents) {
+        const pt_material *m = sf->mat;
+        const int coat = (features & PT_FEAT_CLEARCOAT) && m->clearcoat > 0.0f &&
+                         m->clearcoat_normal_tex >= 0 && s->tangents;
+        if (features & PT_FEAT_CLEARCOAT)
+            sf->coat_mapped = 0;
+        if ((m->normal_tex >= 0 && s->tangents) || coat) {
             if (!(features & PT_FEAT_TEXTURES) || !s->uvs) {
                 /* normal_map reads the UVs; set them even where no other
                  * texture needs them. */
@@ -329,7 +358,10 @@ static inline void surface_at(const pt_renderer *r, const pt_hit *hit, surface *
                                 hit->b2 * uv[2 * tri[2] + 1];
                 }
             }
-            normal_map(s, hit, sf);
+            if (coat)
+                coat_normal_map(s, hit, sf);
+            if (m->normal_tex >= 0)
+                normal_map(s, hit, sf);
         }
     }
 }
@@ -992,6 +1024,18 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     pt_layers lay;
     const int layered =
         (features & LAYERS) && has_layers(sf->mat) && layers_setup(r, sf, &bsdf, &lay, features);
+    if ((features & PT_FEAT_CLEARCOAT) && (features & PT_FEAT_NORMAL_MAP) && layered &&
+        sf->coat_mapped) {
+        /* The coat's own normal, turned and bent as the base's mapped one
+         * is above, in the base's local frame. */
+        pt_vec3 nc = sf->nc;
+        if (pt_v3_dot(sf->ng, wo) < 0.0f)
+            nc = pt_v3_neg(nc);
+        nc = valid_reflection(ng, wo, nc);
+        if (pt_v3_dot(nc, wo) <= 0.0f)
+            nc = ng;
+        pt_layers_coat_normal(&lay, pt_frame_to_local(&fr, nc));
+    }
     if ((features & NEE_LIGHTS) && r->nee) {
         pt_vec3 lrad = ls_ok ? ls->radiance : pt_v3(0.0f, 0.0f, 0.0f);
         if ((features & PT_FEAT_ALPHA) && r->alpha && ls_ok && ls->delta == PT_LIGHT_AREA &&

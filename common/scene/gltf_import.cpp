@@ -780,9 +780,8 @@ void add_transmission(importer &im, int mi, const tinygltf::Material &g, pt_mate
 }
 
 // KHR_materials_clearcoat and KHR_materials_sheen factors and textures into
-// pm, the factors clamped to [0, 1] as the extensions define them. The
-// clearcoat normal texture is not read (the coat uses the shading normal):
-// one warning says so.
+// pm, the factors clamped to [0, 1] as the extensions define them, and the
+// clearcoat normal texture with its scale.
 void add_layers(importer &im, int mi, const tinygltf::Material &g, pt_material &pm)
 {
     auto unit = [](double v) { return float(v > 0.0 ? (v < 1.0 ? v : 1.0) : 0.0); };
@@ -797,11 +796,14 @@ void add_layers(importer &im, int mi, const tinygltf::Material &g, pt_material &
         pm.clearcoat_tex = tex(cc->second, "clearcoatTexture", false, PT_SLOT_CLEARCOAT);
         pm.clearcoat_rough_tex =
             tex(cc->second, "clearcoatRoughnessTexture", false, PT_SLOT_CLEARCOAT_ROUGH);
-        if (cc->second.IsObject() && cc->second.Has("clearcoatNormalTexture"))
-            im.warn_once("clearcoat-normal",
-                         "material " + std::to_string(mi) +
-                             ": KHR_materials_clearcoat clearcoatNormalTexture is ignored (the "
-                             "coat uses the shading normal)");
+        // The coat's own normal map: a normalTextureInfo (its scale scales
+        // x and y as normalTexture's does), read with the base's tangents.
+        if (cc->second.IsObject() && cc->second.Has("clearcoatNormalTexture")) {
+            pm.clearcoat_normal_tex =
+                tex(cc->second, "clearcoatNormalTexture", false, PT_SLOT_CLEARCOAT_NORMAL);
+            pm.clearcoat_normal_scale =
+                float(ext_number(cc->second.Get("clearcoatNormalTexture"), "scale", 1.0));
+        }
     }
     auto sh = g.extensions.find("KHR_materials_sheen");
     if (sh != g.extensions.end()) {

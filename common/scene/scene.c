@@ -108,6 +108,8 @@ pt_material pt_material_default(void)
     m.alpha_cutoff = 0.5f;
     m.normal_tex = -1;
     m.normal_scale = 1.0f;
+    m.clearcoat_normal_tex = -1;
+    m.clearcoat_normal_scale = 1.0f;
     m.clearcoat_tex = m.clearcoat_rough_tex = m.sheen_color_tex = m.sheen_rough_tex = -1;
     for (int i = 0; i < PT_SLOT_COUNT; i++)
         m.tex_xf[i] = pt_tex_xform_identity();
@@ -210,9 +212,12 @@ static pt_status check_transmission(const pt_scene_builder *b, const pt_material
 static pt_status check_layers(const pt_scene_builder *b, const pt_material *m, const char *name,
                               pt_error *err)
 {
-    const int32_t t[4] = {m->clearcoat_tex, m->clearcoat_rough_tex, m->sheen_color_tex,
-                          m->sheen_rough_tex};
-    for (int i = 0; i < 4; i++)
+    const int32_t t[5] = {m->clearcoat_tex, m->clearcoat_rough_tex, m->sheen_color_tex,
+                          m->sheen_rough_tex, m->clearcoat_normal_tex};
+    if (!isfinite(m->clearcoat_normal_scale))
+        return pt_error_set(err, PT_ERR_FORMAT,
+                            "material '%.64s': clearcoat normal scale is not finite", name);
+    for (int i = 0; i < 5; i++)
         if (t[i] < -1 || (t[i] >= 0 && (uint32_t)t[i] >= b->ntex))
             return pt_error_set(err, PT_ERR_ARG, "material '%.64s': texture %d out of range", name,
                                 (int)t[i]);
@@ -895,6 +900,9 @@ static uint32_t scene_features(const pt_scene *s, int has_uv, pt_error *err, pt_
             f |= PT_FEAT_CLEARCOAT | PT_FEAT_GLOSSY;
             if (m->clearcoat_tex >= 0 || m->clearcoat_rough_tex >= 0)
                 f |= PT_FEAT_TEXTURES;
+            /* The coat's normal map needs the tangents (and the UVs). */
+            if (m->clearcoat_normal_tex >= 0)
+                f |= PT_FEAT_NORMAL_MAP | PT_FEAT_TEXTURES;
         }
         if (m->sheen_color[0] > 0.0f || m->sheen_color[1] > 0.0f || m->sheen_color[2] > 0.0f) {
             f |= PT_FEAT_SHEEN | PT_FEAT_GLOSSY;
@@ -926,8 +934,9 @@ static double rebase_origin(double lo, double hi, double extent)
 
 /* The optional attributes go to the scene where something reads them:
  * TEXCOORD_1 and COLOR_0 when some mesh had them, tangents when some
- * material has a normal texture (then generated where missing, from the
- * normal texture's coordinate set). Sets PT_FEAT_NORMAL_MAP and
+ * material has a normal texture or a clear coat with its own normal texture
+ * (then generated where missing, from the normal texture's coordinate set,
+ * else the coat normal texture's). Sets PT_FEAT_NORMAL_MAP and
  * PT_FEAT_VERTEX_COLOR. */
 static pt_status finish_extra(pt_scene_builder *b, pt_scene *s, pt_error *err)
 {
@@ -956,7 +965,12 @@ static pt_status finish_extra(pt_scene_builder *b, pt_scene *s, pt_error *err)
         int any = 0;
         for (uint32_t t = 0; t < s->num_triangles; t++) {
             const pt_material *m = &s->materials[s->tri_material[t]];
-            use[t] = m->normal_tex >= 0 && m->tex_xf[PT_SLOT_NORMAL].texcoord == set;
+            /* One tangent per vertex: a triangle with both maps gets it
+             * from the base normal map's coordinate set. */
+            int slot = m->normal_tex >= 0 ? PT_SLOT_NORMAL : PT_SLOT_CLEARCOAT_NORMAL;
+            int mapped =
+                m->normal_tex >= 0 || (m->clearcoat > 0.0f && m->clearcoat_normal_tex >= 0);
+            use[t] = mapped && m->tex_xf[slot].texcoord == set;
             any |= use[t];
         }
         /* Without that UV set every vertex gets a frame from its normal. */

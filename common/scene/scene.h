@@ -83,6 +83,7 @@ enum {
     PT_SLOT_CLEARCOAT_ROUGH,
     PT_SLOT_SHEEN_COLOR,
     PT_SLOT_SHEEN_ROUGH,
+    PT_SLOT_CLEARCOAT_NORMAL,
     PT_SLOT_COUNT
 };
 
@@ -132,6 +133,11 @@ typedef struct pt_material {
     int32_t clearcoat_rough_tex; /* G = clearcoat roughness (linear), or -1 */
     int32_t sheen_color_tex;     /* RGB = sheen colour (sRGB), or -1 */
     int32_t sheen_rough_tex;     /* A = sheen roughness (linear), or -1 */
+    /* clearcoatNormalTexture: the coat's own tangent-space normal (linear),
+     * or -1 (the coat then uses the base's shading normal); it reads the
+     * same tangents as normal_tex, so it sets PT_FEAT_NORMAL_MAP too. */
+    int32_t clearcoat_normal_tex;
+    float clearcoat_normal_scale; /* its scale: scales the map's x and y */
     char name[64];
 } pt_material;
 

@@ -14,14 +14,16 @@
  * - Clearcoat 0 and sheen colour 0: pt_layers_setup declines (the renderer
  *   keeps the base BSDF, the same bits), and a scene with them has no layer
  *   feature bit.
- * - Chi-square of pt_layers_sample against pt_layers_pdf for three settings
+ * - Chi-square of pt_layers_sample against pt_layers_pdf for four settings
  *   (binning and quadrature as in test_bsdf.c), each sampled pdf equal to
- *   the pdf function's.
+ *   the pdf function's; the fourth has a coat normal tilted 35 degrees from
+ *   the base's (pt_layers_coat_normal), so part of the coat's lobe lies
+ *   below the base's hemisphere.
  * - ToyCar, SheenChair and ClearCoatTest (../shared/scenes) load without a
- *   warning about either extension (but the clearcoat normal texture, not
- *   read), ToyCar's clearcoat texture and sheen factors are read, and render under an
- *   environment map with no NaN/Inf (skipped without ../shared; a failure
- *   under CI=true).
+ *   warning about either extension, ToyCar's clearcoat texture and sheen
+ *   factors are read, ClearCoatTest's clearcoat normal textures are read
+ *   (with tangents), and each renders under an environment map with no
+ *   NaN/Inf (skipped without ../shared; a failure under CI=true).
  */
 #include "common/render/layers.h"
 
@@ -41,7 +43,7 @@
 
 #define PI_D 3.14159265358979323846
 
-#define N_CHI2_TESTS 3
+#define N_CHI2_TESTS 4
 #include "tests/common/render/dir_chi2.h"
 
 /* ---- the layered BSDF ------------------------------------------------------ */
@@ -209,6 +211,14 @@ static void test_chi2(void)
     chi2_run("clearcoat 0.3 over glossy, 45 deg", &b1, lay_sample, &c1, 300000, 21);
     chi2_run("sheen 0.5 over glossy, 60 deg", &b2, lay_sample, &c2, 300000, 22);
     chi2_run("clearcoat + sheen, 20 deg", &b3, lay_sample, &c3, 300000, 23);
+    lay_ctx c4;
+    c4.l = make(white_base(1), 1.0f, 0.4f, 0.5f, 0.6f);
+    pt_vec3 nc = dir_at(35.0f, 0.4f);
+    pt_layers_coat_normal(&c4.l, nc);
+    c4.wo = dir_at(50.0f, 3.3f);
+    pt_vec3 r4 = pt_v3_sub(pt_v3_scale(nc, 2.0f * pt_v3_dot(nc, c4.wo)), c4.wo);
+    binning b4 = {pt_frame_from_normal(pt_v3_norm(r4)), 1.5, lay_pdf, &c4};
+    chi2_run("clearcoat on its own normal + sheen, 50 deg", &b4, lay_sample, &c4, 300000, 24);
 }
 
 /* ---- the shared assets ------------------------------------------------------ */
@@ -218,9 +228,9 @@ static int g_layer_warnings;
 static void count_layer_warnings(void *user, const char *message)
 {
     (void)user;
-    /* Any word of either extension but the one texture not read. */
-    if ((strstr(message, "KHR_materials_clearcoat") || strstr(message, "KHR_materials_sheen")) &&
-        !strstr(message, "clearcoatNormalTexture"))
+    /* Any word of either extension (the clearcoat normal texture included). */
+    if (strstr(message, "KHR_materials_clearcoat") || strstr(message, "KHR_materials_sheen") ||
+        strstr(message, "clearcoatNormal"))
         g_layer_warnings++;
     if (getenv("PT_TEST_VERBOSE"))
         printf("  warning: %s\n", message);
@@ -251,6 +261,16 @@ static void asset(const char *rel, uint32_t want)
                    m->sheen_roughness == 0.5f;
         }
         CHECK(cc_tex == 1 && red == 1);
+    }
+    if (strstr(rel, "ClearCoatTest")) {
+        /* Its "coat normal" row maps the coat's normal only. */
+        int coat_normal = 0;
+        for (uint32_t i = 0; i < s->num_materials; i++)
+            coat_normal +=
+                s->materials[i].clearcoat > 0.0f && s->materials[i].clearcoat_normal_tex >= 0;
+        CHECKF(coat_normal > 0 && (s->features & PT_FEAT_NORMAL_MAP) && s->tangents,
+               "%s: %d materials with a coat normal map, features %#x", rel, coat_normal,
+               s->features);
     }
     char path[1024];
     snprintf(path, sizeof path, "%s/../envs/studio_small_03_1k.hdr", PT_SHARED_SCENES);
