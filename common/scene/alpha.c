@@ -17,28 +17,41 @@ static inline uint32_t mix32(uint32_t x)
     return x;
 }
 
+/* The attribute `attr` (n floats a vertex) of triangle tri interpolated at
+ * (b1, b2), as surface_at interpolates it (render.c). */
+static void interp(const pt_scene *s, const float *attr, int n, uint32_t tri, float b1, float b2,
+                   float *out)
+{
+    const uint32_t *t = &s->indices[3 * tri];
+    float b0 = 1.0f - b1 - b2;
+    for (int k = 0; k < n; k++)
+        out[k] = b0 * attr[n * t[0] + k] + b1 * attr[n * t[1] + k] + b2 * attr[n * t[2] + k];
+}
+
 float pt_alpha_value(const pt_scene *s, uint32_t tri, float b1, float b2)
 {
     const pt_material *m = &s->materials[s->tri_material[tri]];
     float a = m->base_color[3];
     if (m->base_color_tex >= 0) {
-        /* surface_at's interpolation (render.c), so alpha is read at the
-         * texel the base colour is. */
-        float u = 0.0f, v = 0.0f;
-        if (s->uvs) {
-            const uint32_t *t = &s->indices[3 * tri];
-            const float *uv = s->uvs;
-            float b0 = 1.0f - b1 - b2;
-            u = b0 * uv[2 * t[0]] + b1 * uv[2 * t[1]] + b2 * uv[2 * t[2]];
-            v = b0 * uv[2 * t[0] + 1] + b1 * uv[2 * t[1] + 1] + b2 * uv[2 * t[2] + 1];
-        }
+        /* Read at the texel the base colour is: the slot's coordinate set
+         * and transform (KHR_texture_transform). */
+        const pt_tex_xform *x = &m->tex_xf[PT_SLOT_BASE];
+        const float *set = x->texcoord ? s->uvs1 : s->uvs;
+        float uv[2] = {0.0f, 0.0f}, st[2];
+        if (set)
+            interp(s, set, 2, tri, b1, b2, uv);
+        pt_tex_xform_apply(x, uv, st);
         float texel[4];
-        pt_texture_sample(&s->textures[m->base_color_tex], u, v, texel);
+        pt_texture_sample(&s->textures[m->base_color_tex], st[0], st[1], texel);
         a *= texel[3];
     }
-    /* COLOR_0: when vertex colours are imported, multiply here by their
-     * alpha interpolated at (b1, b2) (glTF 3.9.2: the base colour is
-     * factor x texture x COLOR_0, alpha included). */
+    /* COLOR_0: the base colour is factor x texture x COLOR_0, alpha included
+     * (glTF 2.0, 3.9.2). */
+    if (s->colors) {
+        float c[4];
+        interp(s, s->colors, 4, tri, b1, b2, c);
+        a *= c[3];
+    }
     return a;
 }
 

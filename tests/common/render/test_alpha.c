@@ -538,6 +538,49 @@ static void determinism(void)
 /* BLEND of alpha 1 with no texture passes nothing: the same bits as the
  * scene with the material OPAQUE (in the general variant, which the alpha
  * scene runs). */
+/* Alpha is read where the base colour is: through the base slot's texture
+ * transform (an offset of 0.5 swaps the texture's transparent and opaque
+ * halves), and times COLOR_0's alpha (glTF 2.0, 3.9.2). Read at triangle 0's
+ * point (b1, b2) = (0.2, 0.1), whose u is 0.3 (the texture's left half). */
+static void alpha_inputs(void)
+{
+    for (int variant = 0; variant < 3; variant++) {
+        pt_scene_builder *b = NULL;
+        pt_error err = {0};
+        CHECK(pt_scene_builder_new(&b, &err) == PT_OK);
+        pt_material m = black(0.0f);
+        m.alpha_mode = PT_ALPHA_BLEND;
+        m.base_color_tex = (int32_t)add_alpha_texture(b, 0, 255);
+        if (variant == 1) {
+            const float off[2] = {0.5f, 0.0f}, scale[2] = {1.0f, 1.0f};
+            m.tex_xf[PT_SLOT_BASE] = pt_tex_xform_make(off, 0.0f, scale, 0);
+        }
+        uint32_t mi = 0;
+        CHECK(pt_scene_builder_add_material(b, &m, &mi, &err) == PT_OK);
+        float p[12] = {0, 0, 0, 1, 0, 0, 1, 1, 0, 0, 1, 0};
+        float uv[8] = {0, 0, 1, 0, 1, 1, 0, 1};
+        float rgba[16];
+        for (int i = 0; i < 16; i++)
+            rgba[i] = (i % 4 == 3) ? 0.25f : 1.0f;
+        pt_mesh_extra extra = {NULL, NULL, variant == 2 ? rgba : NULL};
+        CHECKF(pt_scene_builder_add_mesh_extra(b, "quad", p, NULL, uv, &extra, 4, QUAD_IDX, 2, NULL,
+                                               mi, &err) == PT_OK,
+               "%s", err.msg);
+        pt_scene *s = finish_down(b, pt_v3(0.5f, 0.5f, 5.0f));
+        if (!s)
+            continue;
+        if (variant == 2) { /* the opaque half, times COLOR_0's 0.25 */
+            s->materials[0].tex_xf[PT_SLOT_BASE] =
+                pt_tex_xform_make((const float[2]){0.5f, 0.0f}, 0.0f, (const float[2]){1, 1}, 0);
+        }
+        float a = pt_alpha_value(s, 0, 0.2f, 0.1f);
+        const float want[3] = {0.0f, 1.0f, 0.25f};
+        CHECKF(fabsf(a - want[variant]) < 1e-6f, "alpha inputs %d: %g, want %g", variant, (double)a,
+               (double)want[variant]);
+        pt_scene_free(s);
+    }
+}
+
 static void alpha_one_is_opaque(void)
 {
     pt_scene *s = mixed_scene(1);
@@ -693,6 +736,7 @@ int main(void)
     blend_area(0);
     determinism();
     alpha_one_is_opaque();
+    alpha_inputs();
     asset();
     return check_report();
 }
