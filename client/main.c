@@ -105,6 +105,7 @@ enum {
     O_MINSPP,
     O_WATCH,
     O_CAMERA,
+    O_VARIANT,
     O_ENV,
     O_ENVSTRENGTH,
     O_ENVROTATE,
@@ -323,6 +324,8 @@ static const char SUBMIT_HELP[] =
     "  --background R,G,B a uniform environment of this radiance instead\n"
     "                     (a scene with no emitter, no KHR_lights_punctual light and\n"
     "                     neither of these is refused: it would render black)\n"
+    "  --variant NAME     the KHR_materials_variants variant: mapped primitives take\n"
+    "                     its material (an unknown name is refused at submit)\n"
     "  --transparent      camera rays that leave the scene add nothing, and the EXR\n"
     "                     gets an A channel (coverage; RGB premultiplied by it)\n"
     "  --watch            then follow the job as 'ptctl watch' does (exit status 4\n"
@@ -376,6 +379,7 @@ static int cmd_submit(int argc, char **argv, globals *g)
                                          {"min-spp", required_argument, NULL, O_MINSPP},
                                          {"watch", no_argument, NULL, O_WATCH},
                                          {"camera", required_argument, NULL, O_CAMERA},
+                                         {"variant", required_argument, NULL, O_VARIANT},
                                          {"env", required_argument, NULL, O_ENV},
                                          {"env-strength", required_argument, NULL, O_ENVSTRENGTH},
                                          {"env-rotate", required_argument, NULL, O_ENVROTATE},
@@ -443,6 +447,12 @@ static int cmd_submit(int argc, char **argv, globals *g)
                 rc = bad_usage("submit", "--camera: a name of 1 to %u bytes", PROTO_MAX_NAME);
             else
                 snprintf(m.camera, sizeof m.camera, "%s", optarg);
+            break;
+        case O_VARIANT:
+            if (!optarg[0] || strlen(optarg) > PROTO_MAX_NAME)
+                rc = bad_usage("submit", "--variant: a name of 1 to %u bytes", PROTO_MAX_NAME);
+            else
+                snprintf(m.variant, sizeof m.variant, "%s", optarg);
             break;
         case O_ENV:
             env_path = optarg;

@@ -408,6 +408,8 @@ pt_status proto_msg_encode_task(proto_writer *w, const proto_task *m, pt_error *
     const char *why = task_problem(m);
     if (!why && !str_fits(m->camera, PROTO_MAX_NAME))
         why = "camera name over the length cap";
+    if (!why && !str_fits(m->variant, PROTO_MAX_NAME))
+        why = "variant name over the length cap";
     if (!why && !str_fits(m->env.name, PROTO_MAX_PATH))
         why = "environment map name over the length cap";
     if (why)
@@ -427,6 +429,7 @@ pt_status proto_msg_encode_task(proto_writer *w, const proto_task *m, pt_error *
     proto_w_str(w, m->camera);
     w_env(w, &m->env);
     proto_w_u32(w, m->film_flags);
+    proto_w_str(w, m->variant);
     return w_done(w, start, "TASK", err);
 }
 
@@ -449,6 +452,7 @@ pt_status proto_msg_decode_task(const uint8_t *p, size_t len, proto_task *out, p
     proto_r_str(&r, m.camera, PROTO_MAX_NAME, "camera");
     r_env(&r, &m.env);
     m.film_flags = proto_r_u32(&r, "film flags");
+    proto_r_str(&r, m.variant, PROTO_MAX_NAME, "variant");
     pt_status st = proto_r_finish(&r, "TASK", err);
     if (st != PT_OK)
         return st;
@@ -740,8 +744,9 @@ static const char *submit_problem(const proto_submit *m)
 pt_status proto_msg_encode_submit(proto_writer *w, const proto_submit *m, pt_error *err)
 {
     size_t start = w->len;
-    const char *why = !str_fits(m->name, PROTO_MAX_NAME)     ? "name over the length cap"
-                      : !str_fits(m->camera, PROTO_MAX_NAME) ? "camera name over the length cap"
+    const char *why = !str_fits(m->name, PROTO_MAX_NAME)      ? "name over the length cap"
+                      : !str_fits(m->camera, PROTO_MAX_NAME)  ? "camera name over the length cap"
+                      : !str_fits(m->variant, PROTO_MAX_NAME) ? "variant name over the length cap"
                       : !str_fits(m->env.name, PROTO_MAX_PATH)
                           ? "environment map name over the length cap"
                           : submit_problem(m);
@@ -762,6 +767,7 @@ pt_status proto_msg_encode_submit(proto_writer *w, const proto_submit *m, pt_err
     proto_w_f64(w, m->min_gain);
     w_env(w, &m->env);
     proto_w_u32(w, m->film_flags);
+    proto_w_str(w, m->variant);
     return w_done(w, start, "SUBMIT", err);
 }
 
@@ -784,6 +790,7 @@ pt_status proto_msg_decode_submit(const uint8_t *p, size_t len, proto_submit *ou
     m.min_gain = proto_r_f64(&r, "min gain");
     r_env(&r, &m.env);
     m.film_flags = proto_r_u32(&r, "film flags");
+    proto_r_str(&r, m.variant, PROTO_MAX_NAME, "variant");
     pt_status st = proto_r_finish(&r, "SUBMIT", err);
     if (st != PT_OK)
         return st;

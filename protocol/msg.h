@@ -215,7 +215,8 @@ int proto_env_same(const proto_env *a, const proto_env *b);
  *                      or a view framing the scene when it has none)
  *   94+c 23+e ENV      the environment light (ENV layout, above)
  *   117+c+e 4 u32      film flags (PROTO_FILM_*; unknown bits refused)
- *   size 121+c+e */
+ *   121+c+e 2+v str    KHR_materials_variants name, v <= PROTO_MAX_NAME ("": none)
+ *   size 123+c+e+v */
 typedef struct proto_task {
     uint64_t job_id, task_id;
     pt_rect tile;
@@ -227,7 +228,8 @@ typedef struct proto_task {
     uint32_t lease_ms;
     char camera[PROTO_MAX_NAME + 1]; /* NUL-terminated; "" the default view */
     proto_env env;
-    uint32_t film_flags; /* PROTO_FILM_* */
+    uint32_t film_flags;              /* PROTO_FILM_* */
+    char variant[PROTO_MAX_NAME + 1]; /* material variant; "" each primitive's own */
 } proto_task;
 
 /* SCENE_GET
@@ -345,7 +347,9 @@ typedef struct proto_job_ref {
  *   86+a+c 23+e ENV the environment light (ENV layout, above); a map named
  *                  here travels in the bundle
  *   109+a+c+e 4 u32 film flags (PROTO_FILM_*; unknown bits refused)
- *   size 113+a+c+e
+ *   113+a+c+e 2+v str KHR_materials_variants name, v <= PROTO_MAX_NAME ("": none;
+ *                  the server refuses a name the scene lacks)
+ *   size 115+a+c+e+v
  * The decoder checks shape only (width and height both 0 or both > 0, spp > 0,
  * size > 0, target error and min gain finite and >= 0); caps, and whether the
  * two rules may be combined, are the server's business. */
@@ -361,7 +365,8 @@ typedef struct proto_submit {
     char camera[PROTO_MAX_NAME + 1]; /* NUL-terminated; "" the default view */
     double min_gain;
     proto_env env;
-    uint32_t film_flags; /* PROTO_FILM_* */
+    uint32_t film_flags;              /* PROTO_FILM_* */
+    char variant[PROTO_MAX_NAME + 1]; /* material variant; "" each primitive's own */
 } proto_submit;
 
 enum {

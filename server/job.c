@@ -446,6 +446,7 @@ int srv_job_lease(srv_job *j, uint64_t owner, uint64_t now_ms, uint32_t lease_ms
     snprintf(task->camera, sizeof task->camera, "%s", j->p.camera);
     task->env = j->p.env;
     task->film_flags = j->p.film_flags;
+    snprintf(task->variant, sizeof task->variant, "%s", j->p.variant);
     return 1;
 }
 
@@ -1022,6 +1023,7 @@ void srv_job_params_write(proto_writer *w, const srv_job_params *p)
     for (int k = 0; k < 3; k++)
         proto_w_f32(w, p->env.rgb[k]);
     proto_w_u32(w, p->film_flags);
+    proto_w_str(w, p->variant);
 }
 
 void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, int has_env_film)
@@ -1041,6 +1043,7 @@ void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, i
     proto_r_str(r, p->camera, PROTO_MAX_NAME, "camera");
     proto_env_none(&p->env);
     p->film_flags = 0;
+    p->variant[0] = '\0';
     if (!has_env_film)
         return;
     proto_r_str(r, p->env.name, PROTO_MAX_PATH, "environment map name");
@@ -1052,6 +1055,7 @@ void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, i
     p->film_flags = proto_r_u32(r, "film flags");
     if (r->status == PT_OK && (p->film_flags & ~PROTO_FILM_KNOWN))
         proto_r_fail(r, PT_ERR_FORMAT, "unknown", "film flags");
+    proto_r_str(r, p->variant, PROTO_MAX_NAME, "variant");
 }
 
 static uint32_t tile_merged(const srv_job *j, uint32_t tile)
@@ -1123,7 +1127,8 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
         memcmp(&p.target_error, &j->p.target_error, sizeof p.target_error) != 0 ||
         memcmp(&p.min_gain, &j->p.min_gain, sizeof p.min_gain) != 0 ||
         strcmp(p.camera, j->p.camera) != 0 || !proto_env_same(&p.env, &j->p.env) ||
-        p.film_flags != j->p.film_flags || ntiles != j->ntiles || nchunks != j->nchunks)
+        p.film_flags != j->p.film_flags || strcmp(p.variant, j->p.variant) != 0 ||
+        ntiles != j->ntiles || nchunks != j->nchunks)
         return pt_error_set(err, PT_ERR_FORMAT,
                             "checkpoint is of another job or other settings "
                             "(job %llu, %ux%u, %u spp)",

@@ -38,6 +38,7 @@ static pt_status setup_single(srv_server *s, pt_error *err)
     /* Load once here so a broken scene fails before any worker starts. */
     pt_scene_opts so = {0};
     so.camera_name = cfg->job.camera[0] ? cfg->job.camera : NULL;
+    so.variant = cfg->job.variant[0] ? cfg->job.variant : NULL;
     pt_scene *scene = NULL;
     if ((st = pt_scene_load(cfg->scene_path, &so, &scene, err)) != PT_OK)
         return st;

@@ -95,6 +95,9 @@ static void usage(FILE *f)
         "  --transparent          camera rays that leave the scene add nothing, and the\n"
         "                         EXR gets an A channel (coverage; RGB premultiplied);\n"
         "                         one-job mode (queued jobs: ptctl submit --transparent)\n"
+        "  --variant NAME         the KHR_materials_variants variant: mapped primitives\n"
+        "                         take its material; one-job mode (queued jobs: ptctl\n"
+        "                         submit --variant)\n"
         "  --tile N               tile side in pixels (default 32)\n"
         "  --chunk N              samples per task (default 16)\n"
         "  --save-interval SEC    progressive saves at most this often (default 5)\n"
@@ -184,6 +187,7 @@ int main(int argc, char **argv)
         O_MAXSCENE,
         O_MAXQUEUED,
         O_CAMERA,
+        O_VARIANT,
         O_MINGAIN,
         O_CLIENTS,
         O_MAXINPUT,
@@ -211,6 +215,7 @@ int main(int argc, char **argv)
         {"res", required_argument, NULL, O_RES},
         {"seed", required_argument, NULL, O_SEED},
         {"camera", required_argument, NULL, O_CAMERA},
+        {"variant", required_argument, NULL, O_VARIANT},
         {"max-depth", required_argument, NULL, O_DEPTH},
         {"tile", required_argument, NULL, O_TILE},
         {"chunk", required_argument, NULL, O_CHUNK},
@@ -286,6 +291,13 @@ int main(int argc, char **argv)
                 return 2;
             }
             snprintf(c.job.camera, sizeof c.job.camera, "%s", optarg);
+            break;
+        case O_VARIANT:
+            if (!optarg[0] || strlen(optarg) > PROTO_MAX_NAME) {
+                fprintf(stderr, "ptserve: --variant: a name of 1 to %u bytes\n", PROTO_MAX_NAME);
+                return 2;
+            }
+            snprintf(c.job.variant, sizeof c.job.variant, "%s", optarg);
             break;
         case O_DEPTH:
             st = pt_opt_u32("--max-depth", optarg, 0, 1024, &c.job.max_depth, &err);
@@ -438,6 +450,11 @@ int main(int argc, char **argv)
     if (c.clients_path && (!c.token_path || !c.state_dir)) {
         fprintf(stderr, "ptserve: --clients-file needs --token-file (the admin and worker token) "
                         "and --state-dir (clients use the queue)\n");
+        return 2;
+    }
+    if (c.state_dir && c.job.variant[0]) {
+        fprintf(stderr, "ptserve: --variant is for one-job mode; a queued job asks for it "
+                        "with ptctl submit --variant\n");
         return 2;
     }
     if (c.state_dir && (c.job.film_flags & PROTO_FILM_TRANSPARENT)) {

@@ -208,6 +208,7 @@ static void submitted_params(const srv_config *cfg, const srv_upload *k, srv_job
     p.width = m->width;
     p.height = m->height;
     snprintf(p.camera, sizeof p.camera, "%s", m->camera);
+    snprintf(p.variant, sizeof p.variant, "%s", m->variant);
     p.env = m->env;
     if (p.width == 0) {
         p.width = 512;

@@ -91,6 +91,8 @@ static void verify_upload(srv_upload *k)
     if (st == PT_OK) {
         pt_scene_opts so = {0};
         so.camera_name = k->m.camera[0] ? k->m.camera : NULL;
+        /* An unknown variant fails the load, naming the scene's variants. */
+        so.variant = k->m.variant[0] ? k->m.variant : NULL;
         st = pt_scene_load(entry, &so, &scene, &err);
     }
     if (st == PT_OK && ev->name[0]) {

@@ -275,9 +275,10 @@ enum { E_BUILDING, E_READY, E_FAILED };
 struct wrk_scene_ref {
     uint8_t hash[WRK_HASH_SIZE];
     pt_render_params params;
-    char camera[64]; /* pt_camera's name: "" the default view */
-    proto_env env;   /* the key's environment; proto_env_none when there is none */
-    pt_env *envobj;  /* built from it, NULL for none; outlives renderer */
+    char camera[64];                  /* pt_camera's name: "" the default view */
+    char variant[PROTO_MAX_NAME + 1]; /* KHR_materials_variants name: "" the default materials */
+    proto_env env;                    /* the key's environment; proto_env_none when there is none */
+    pt_env *envobj;                   /* built from it, NULL for none; outlives renderer */
     pt_scene *scene;
     pt_renderer *renderer;
     int state;
@@ -415,6 +416,7 @@ static pt_status build(wrk_scene_ref *e, const char *entry_path)
     pt_scene_opts so;
     memset(&so, 0, sizeof so);
     so.camera_name = e->camera[0] ? e->camera : NULL;
+    so.variant = e->variant[0] ? e->variant : NULL;
     pt_status st = build_env(e, entry_path);
     if (st != PT_OK)
         return st;
@@ -448,6 +450,14 @@ pt_status wrk_scenes_acquire_env(wrk_scenes *s, const uint8_t hash[WRK_HASH_SIZE
                                  const proto_env *env, const char *entry_path, wrk_scene_ref **out,
                                  pt_error *err)
 {
+    return wrk_scenes_acquire_variant(s, hash, params, camera, NULL, env, entry_path, out, err);
+}
+
+pt_status wrk_scenes_acquire_variant(wrk_scenes *s, const uint8_t hash[WRK_HASH_SIZE],
+                                     const pt_render_params *params, const char *camera,
+                                     const char *variant, const proto_env *env,
+                                     const char *entry_path, wrk_scene_ref **out, pt_error *err)
+{
     /* One key for "no environment", however the fields unused then were set. */
     proto_env key;
     if (env && proto_env_any(env))
@@ -459,10 +469,16 @@ pt_status wrk_scenes_acquire_env(wrk_scenes *s, const uint8_t hash[WRK_HASH_SIZE
     if (strlen(camera) >= sizeof((wrk_scene_ref *)0)->camera)
         return pt_error_set(err, PT_ERR_ARG, "camera name '%.64s...' is over %zu bytes", camera,
                             sizeof((wrk_scene_ref *)0)->camera - 1);
+    if (!variant)
+        variant = "";
+    if (strlen(variant) >= sizeof((wrk_scene_ref *)0)->variant)
+        return pt_error_set(err, PT_ERR_ARG, "variant name '%.64s...' is over %zu bytes", variant,
+                            sizeof((wrk_scene_ref *)0)->variant - 1);
     pthread_mutex_lock(&s->mu);
     wrk_scene_ref *e = s->head;
     while (e && !(memcmp(e->hash, hash, WRK_HASH_SIZE) == 0 && same_params(&e->params, params) &&
-                  strcmp(e->camera, camera) == 0 && proto_env_same(&e->env, &key)))
+                  strcmp(e->camera, camera) == 0 && strcmp(e->variant, variant) == 0 &&
+                  proto_env_same(&e->env, &key)))
         e = e->next;
     if (e) {
         e->refs++;
@@ -488,6 +504,7 @@ pt_status wrk_scenes_acquire_env(wrk_scenes *s, const uint8_t hash[WRK_HASH_SIZE
     e->params.env = NULL;
     e->env = key;
     snprintf(e->camera, sizeof e->camera, "%s", camera);
+    snprintf(e->variant, sizeof e->variant, "%s", variant);
     e->state = E_BUILDING;
     e->refs = 1;
     e->next = s->head;

@@ -84,6 +84,12 @@ pt_status wrk_scenes_acquire_env(wrk_scenes *s, const uint8_t hash[WRK_HASH_SIZE
                                  const pt_render_params *params, const char *camera,
                                  const proto_env *env, const char *entry_path, wrk_scene_ref **out,
                                  pt_error *err);
+/* As wrk_scenes_acquire_env, with a KHR_materials_variants name (NULL or "":
+ * each primitive's own material) in the key; an unknown name fails the build. */
+pt_status wrk_scenes_acquire_variant(wrk_scenes *s, const uint8_t hash[WRK_HASH_SIZE],
+                                     const pt_render_params *params, const char *camera,
+                                     const char *variant, const proto_env *env,
+                                     const char *entry_path, wrk_scene_ref **out, pt_error *err);
 const pt_renderer *wrk_scene_renderer(const wrk_scene_ref *ref);
 void wrk_scenes_release(wrk_scenes *s, wrk_scene_ref *ref); /* accepts NULL */
 

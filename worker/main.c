@@ -58,6 +58,8 @@ static void usage(FILE *f)
             "  --threads T        render threads (default: all cores; both modes)\n"
             "  --max-depth D      bounce cap (default 1024); Russian roulette ends paths\n"
             "  --camera NAME      the camera to render (default: the scene's first)\n"
+            "  --variant NAME     a KHR_materials_variants variant: mapped primitives take\n"
+            "                     its material (default: each primitive's own)\n"
             "  --tile N           tile side in pixels (default 32)\n"
             "  --chunk N          samples per chunk (default 16)\n"
             "  --target-error E   adaptive sampling: a tile stops once the RMS relative\n"
@@ -161,6 +163,7 @@ int main(int argc, char **argv)
         OPT_ENV_ROTATE,
         OPT_BACKGROUND,
         OPT_TRANSPARENT,
+        OPT_VARIANT,
         OPT_SERVER,
         OPT_PREFETCH,
         OPT_TOKEN,
@@ -187,6 +190,7 @@ int main(int argc, char **argv)
         {"env-rotate", required_argument, NULL, OPT_ENV_ROTATE},
         {"background", required_argument, NULL, OPT_BACKGROUND},
         {"transparent", no_argument, NULL, OPT_TRANSPARENT},
+        {"variant", required_argument, NULL, OPT_VARIANT},
         {"quiet", no_argument, NULL, 'q'},
         {"server", required_argument, NULL, OPT_SERVER},
         {"prefetch", required_argument, NULL, OPT_PREFETCH},
@@ -227,6 +231,9 @@ int main(int argc, char **argv)
             break;
         case OPT_CAMERA:
             o.camera = optarg;
+            break;
+        case OPT_VARIANT:
+            o.variant = optarg;
             break;
         case OPT_TILE:
             bad = bad_value(pt_opt_u32("--tile", optarg, 1, PT_TILE_MAX, &o.tile, &err), &err);

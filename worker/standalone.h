@@ -14,6 +14,7 @@ typedef struct wrk_standalone_opts {
     const char *scene_path;
     const char *out_path; /* .exr; a .png preview is written beside it */
     const char *camera;   /* NULL: the scene's first camera */
+    const char *variant;  /* KHR_materials_variants name; NULL: the default materials */
     uint32_t spp;
     uint32_t width, height; /* 0: from the camera's aspect, 512 wide */
     uint32_t seed;

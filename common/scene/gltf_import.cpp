@@ -21,6 +21,10 @@
 // (KHR_materials_transmission, _ior, _volume: add_transmission); what the
 // renderer does not support is reported once per kind through opts->warn.
 // KHR_lights_punctual lights become pt_punctual lights (scene.h: units).
+// KHR_materials_variants: with opts->variant naming one of the root's
+// variants, a primitive whose mappings list that variant uses the mapped
+// material instead of its own (choose_variant, variant_material); without
+// one the extension is not read at all, so nothing changes.
 //
 // External files: every buffer and image URI is a name below the entry
 // file's folder and nothing else (pt_uri_path_refusal: no absolute path, no
@@ -95,6 +99,7 @@ struct importer {
     std::map<std::string, std::vector<unsigned char>> files; // external files read for the hash
     std::map<std::pair<int, int>, uint32_t> tex_map;         // (gltf texture, srgb) -> builder
     uint32_t default_material = UINT32_MAX;
+    int variant = -1; // KHR_materials_variants index chosen by opts->variant; -1: none
     uint64_t node_visits = 0;
     int dirfd = -1;          // the entry file's folder, opened on first use
     pt_status fs_st = PT_OK; // the first failure of a read tinygltf asked for
@@ -917,6 +922,64 @@ uint32_t material_index(importer &im, int mat, const char *what)
     return im.default_material;
 }
 
+// The material primitive p uses: the one its KHR_materials_variants mappings
+// give the chosen variant, else its own. Mappings are checked only when a
+// variant is chosen (a file rendered without one loads as it always has).
+int variant_material(importer &im, const tinygltf::Primitive &p, const char *what)
+{
+    if (im.variant < 0)
+        return p.material;
+    auto ext = p.extensions.find("KHR_materials_variants");
+    if (ext == p.extensions.end())
+        return p.material;
+    const tinygltf::Value &maps = ext->second.Get("mappings");
+    if (!maps.IsArray())
+        im.fail(PT_ERR_FORMAT, "%s: KHR_materials_variants has no mappings array", what);
+    for (size_t i = 0; i < maps.ArrayLen(); i++) {
+        const tinygltf::Value &mp = maps.Get(int(i));
+        const tinygltf::Value &mat = mp.Get("material");
+        const tinygltf::Value &vs = mp.Get("variants");
+        if (!mp.IsObject() || !mat.IsNumber() || !vs.IsArray())
+            im.fail(PT_ERR_FORMAT,
+                    "%s: KHR_materials_variants mapping %zu needs material and variants", what, i);
+        for (size_t k = 0; k < vs.ArrayLen(); k++)
+            if (vs.Get(int(k)).IsNumber() && vs.Get(int(k)).GetNumberAsInt() == im.variant)
+                return mat.GetNumberAsInt(); // range-checked by material_index
+    }
+    return p.material;
+}
+
+// Resolves opts->variant against the root's KHR_materials_variants list; an
+// unknown name is PT_ERR_ARG naming the file's variants (as an unknown camera).
+void choose_variant(importer &im)
+{
+    const char *name = im.opts ? im.opts->variant : nullptr;
+    if (!name)
+        return;
+    std::vector<std::string> names;
+    auto ext = im.model.extensions.find("KHR_materials_variants");
+    if (ext != im.model.extensions.end()) {
+        const tinygltf::Value &vs = ext->second.Get("variants");
+        for (size_t i = 0; vs.IsArray() && i < vs.ArrayLen(); i++) {
+            const tinygltf::Value &n = vs.Get(int(i)).Get("name");
+            names.push_back(n.IsString() ? n.Get<std::string>() : std::string());
+        }
+    }
+    for (size_t i = 0; i < names.size(); i++)
+        if (names[i] == name) {
+            im.variant = int(i);
+            return;
+        }
+    if (names.empty())
+        im.fail(PT_ERR_ARG, "no variant named '%.64s': the scene has no variants", name);
+    std::string list;
+    for (size_t i = 0; i < names.size() && list.size() < 300; i++)
+        list += (i ? ", '" : "'") + names[i].substr(0, 64) + "'";
+    if (list.size() >= 300)
+        list += "...";
+    im.fail(PT_ERR_ARG, "no variant named '%.64s'; variants: %s", name, list.c_str());
+}
+
 void add_primitive(importer &im, int mesh, int pi, const mat4 &world)
 {
     const tinygltf::Primitive &p = im.model.meshes[size_t(mesh)].primitives[size_t(pi)];
@@ -1035,7 +1098,7 @@ void add_primitive(importer &im, int mesh, int pi, const mat4 &world)
             tri.push_back(idx[i]);
         }
     }
-    uint32_t mat = material_index(im, p.material, what);
+    uint32_t mat = material_index(im, variant_material(im, p, what), what);
     float xf[16];
     double xd[16];
     for (size_t i = 0; i < 16; i++) {
@@ -1324,6 +1387,7 @@ void import(importer &im)
             r != "KHR_texture_transform" && r != "KHR_materials_clearcoat" &&
             r != "KHR_materials_sheen")
             im.warn_once("req:" + r, "required extension " + r + " is not supported");
+    choose_variant(im);
     add_materials(im);
     std::vector<char> on_path(m.nodes.size(), 0);
     if (!m.scenes.empty()) {

@@ -223,6 +223,8 @@ typedef struct pt_scene_opts {
                                 positions, when it is large) */
     pt_warn_fn warn;         /* each unsupported feature reported once; NULL: stderr */
     void *warn_user;
+    const char *variant; /* KHR_materials_variants name: mapped primitives use its material;
+                            NULL: every primitive its own. Unknown: PT_ERR_ARG listing them */
 } pt_scene_opts;
 
 /* Hard caps on what a file may ask for. */

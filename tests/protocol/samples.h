@@ -71,6 +71,7 @@ static inline proto_task sample_task(int v)
         m.env.rgb[2] = 1e-3f;
     }
     m.film_flags = v ? PROTO_FILM_TRANSPARENT : 0;
+    strcpy(m.variant, v ? "" : "Peacock Velvet");
     return m;
 }
 
@@ -135,6 +136,7 @@ static inline proto_submit sample_submit(int v)
         m.env.rotate_deg = 180.0f;
     }
     m.film_flags = v ? PROTO_FILM_TRANSPARENT : 0;
+    strcpy(m.variant, v ? "" : "Mango Velvet");
     return m;
 }
 

@@ -195,9 +195,10 @@ static void check_round_trip(int s, int v, const uint8_t *p, size_t len)
     }
     case 6: {
         proto_task a = sample_task(v), b;
-        CHECK(len == 121 + strlen(a.camera) + strlen(a.env.name) &&
+        CHECK(len == 123 + strlen(a.camera) + strlen(a.env.name) + strlen(a.variant) &&
               proto_msg_decode_task(p, len, &b, &err) == PT_OK);
         CHECK(strcmp(a.camera, b.camera) == 0 && a.film_flags == b.film_flags);
+        CHECK(strcmp(a.variant, b.variant) == 0);
         CHECK(proto_env_same(&a.env, &b.env));
         CHECK(a.job_id == b.job_id && a.task_id == b.task_id);
         CHECK(memcmp(&a.tile, &b.tile, sizeof a.tile) == 0);
@@ -265,8 +266,10 @@ static void check_round_trip(int s, int v, const uint8_t *p, size_t len)
     case 12: {
         proto_submit a = sample_submit(v), b;
         CHECK(proto_msg_decode_submit(p, len, &b, &err) == PT_OK);
-        CHECK(len == 113 + strlen(a.name) + strlen(a.camera) + strlen(a.env.name));
+        CHECK(len ==
+              115 + strlen(a.name) + strlen(a.camera) + strlen(a.env.name) + strlen(a.variant));
         CHECK(strcmp(a.camera, b.camera) == 0 && a.film_flags == b.film_flags);
+        CHECK(strcmp(a.variant, b.variant) == 0);
         CHECK(proto_env_same(&a.env, &b.env));
         CHECK(strcmp(a.name, b.name) == 0 && a.width == b.width && a.height == b.height);
         CHECK(a.spp == b.spp && a.seed == b.seed && a.priority == b.priority);
@@ -457,6 +460,7 @@ static proto_writer task_raw(pt_rect t, uint32_t s0, uint32_t s1, uint32_t width
     proto_w_u16(&w, 0); /* camera: "" */
     w_env_none(&w);
     proto_w_u32(&w, 0); /* film flags */
+    proto_w_u16(&w, 0); /* variant: "" */
     return w;
 }
 
@@ -522,8 +526,9 @@ static void test_task(void)
         proto_task good = sample_task(k & 1);
         CHECK(proto_msg_encode_task(&ew, &good, &err) == PT_OK);
         /* Patch the bad value into the good bytes: the ENV block, then the
-         * film flags, end the message. */
-        uint8_t *env_at = ew.buf + ew.len - 4 - 23 - strlen(good.env.name);
+         * film flags and the variant, end the message. */
+        uint8_t *env_at =
+            ew.buf + ew.len - 2 - strlen(good.variant) - 4 - 23 - strlen(good.env.name);
         if (k == 0)
             proto_put_u32(env_at + 19, 0x7FC00000u); /* rgb[2], the name empty */
         else if (k == 1)
@@ -549,11 +554,12 @@ static void test_task(void)
           strcmp(back.camera, t.camera) == 0);
     proto_writer_reset(&w);
     proto_writer raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
-    raw.len -= 2 + 23 + 4; /* the empty camera, the ENV block and the film flags */
+    raw.len -= 2 + 23 + 4 + 2; /* the empty camera, ENV block, film flags and variant */
     proto_w_u16(&raw, PROTO_MAX_NAME + 1);
     for (uint32_t i = 0; i <= PROTO_MAX_NAME; i++)
         proto_w_u8(&raw, 'c');
     proto_w_u32(&raw, 0);
+    proto_w_u16(&raw, 0);
     CHECK(decode_any(PROTO_MSG_TASK, raw.buf, raw.len, &err) == PT_ERR_PROTO &&
           strstr(err.msg, "camera"));
     proto_writer_fini(&raw);
@@ -569,10 +575,35 @@ static void test_task(void)
     proto_writer_reset(&w);
     CHECK(proto_msg_encode_task(&w, &t, &err) == PT_ERR_ARG && w.len == 0);
     raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
-    proto_put_u32(raw.buf + raw.len - 4, 0x80000000u);
+    proto_put_u32(raw.buf + raw.len - 6, 0x80000000u);
     CHECK(decode_any(PROTO_MSG_TASK, raw.buf, raw.len, &err) == PT_ERR_PROTO &&
           strstr(err.msg, "film flags"));
     proto_writer_fini(&raw);
+
+    /* The variant name travels at the end: at its cap it round-trips, one
+     * over is refused both ways, and the protocol-3 layout before it (no
+     * variant field) is a truncated TASK. */
+    t = sample_task(0);
+    CHECK(strcmp(t.variant, "Peacock Velvet") == 0);
+    memset(t.variant, 'v', PROTO_MAX_NAME);
+    t.variant[PROTO_MAX_NAME] = '\0';
+    proto_writer_reset(&w);
+    CHECK(proto_msg_encode_task(&w, &t, &err) == PT_OK);
+    CHECK(proto_msg_decode_task(w.buf, w.len, &back, &err) == PT_OK &&
+          strcmp(back.variant, t.variant) == 0);
+    raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
+    raw.len -= 2;
+    proto_w_u16(&raw, PROTO_MAX_NAME + 1);
+    for (uint32_t i = 0; i <= PROTO_MAX_NAME; i++)
+        proto_w_u8(&raw, 'v');
+    CHECK(decode_any(PROTO_MSG_TASK, raw.buf, raw.len, &err) == PT_ERR_PROTO &&
+          strstr(err.msg, "variant"));
+    raw.len -= 2 + PROTO_MAX_NAME + 1;
+    CHECK(decode_any(PROTO_MSG_TASK, raw.buf, raw.len, &err) == PT_ERR_PROTO);
+    proto_writer_fini(&raw);
+    memset(t.variant, 'w', sizeof t.variant);
+    proto_writer_reset(&w);
+    CHECK(proto_msg_encode_task(&w, &t, &err) == PT_ERR_ARG && w.len == 0);
     proto_writer_fini(&w);
 }
 
@@ -874,6 +905,8 @@ static pt_status submit_check(const proto_submit *m, const char *want)
     for (int k = 0; k < 3; k++)
         proto_w_f32(&w, m->env.rgb[k]);
     proto_w_u32(&w, m->film_flags);
+    proto_w_u16(&w, (uint16_t)strnlen(m->variant, sizeof m->variant));
+    proto_w_bytes(&w, m->variant, strnlen(m->variant, sizeof m->variant));
     pt_error err = {0};
     pt_status st = decode_any(PROTO_MSG_SUBMIT, w.buf, w.len, &err);
     if (st != PT_OK && want && !strstr(err.msg, want)) {
@@ -910,6 +943,14 @@ static void test_submit(void)
     CHECK(m.film_flags == PROTO_FILM_TRANSPARENT && submit_check(&m, NULL) == PT_OK);
     m.film_flags = PROTO_FILM_TRANSPARENT | 4u;
     CHECK(submit_check(&m, "film flags") == PT_ERR_PROTO);
+    /* The variant: at its cap accepted, one over refused both ways. */
+    m = sample_submit(0);
+    CHECK(strcmp(m.variant, "Mango Velvet") == 0 && submit_check(&m, NULL) == PT_OK);
+    memset(m.variant, 'v', PROTO_MAX_NAME);
+    m.variant[PROTO_MAX_NAME] = '\0';
+    CHECK(submit_check(&m, NULL) == PT_OK);
+    memset(m.variant, 'v', sizeof m.variant);
+    CHECK(submit_check(&m, "variant") == PT_ERR_PROTO);
     static const uint64_t bad_errors[] = {
         0x7FF8000000000000ull, /* NaN */
         0xFFF8000000000000ull, /* -NaN */
@@ -993,7 +1034,8 @@ static void test_submit(void)
     /* Cut inside the ENV block: refused as truncated. */
     m = sample_submit(0);
     CHECK(proto_msg_encode_submit(&w, &m, &err) == PT_OK);
-    CHECK(decode_any(PROTO_MSG_SUBMIT, w.buf, w.len - 4 - 1, &err) == PT_ERR_PROTO);
+    CHECK(decode_any(PROTO_MSG_SUBMIT, w.buf, w.len - 2 - strlen(m.variant) - 4 - 1, &err) ==
+          PT_ERR_PROTO);
     CHECK(strstr(err.msg, "background colour") != NULL);
     proto_writer_reset(&w);
     /* A NUL in the name. */

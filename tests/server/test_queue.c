@@ -762,10 +762,11 @@ static void copy_params_v3(proto_writer *w, const uint8_t *d, size_t *at, uint32
     copy_str(w, d, at);
     *at += 2 + proto_get_u16(d + *at) + 4 + 4 + 1 + 12; /* the environment */
     *at += 4;                                           /* film flags */
+    *at += 2 + proto_get_u16(d + *at);                  /* material variant */
 }
 
-/* The queue file: each record without its environment, film flags and
- * depth-cap count. */
+/* The queue file: each record without its environment, film flags, variant
+ * and depth-cap count. */
 static void queue_to_v3(const char *name)
 {
     uint8_t *d;
@@ -796,8 +797,8 @@ static void queue_to_v3(const char *name)
     pt_free(d);
 }
 
-/* A checkpoint: no environment, no film flags, no depth-cap count, 36-byte
- * pixels. */
+/* A checkpoint: no environment, no film flags, no variant, no depth-cap
+ * count, 36-byte pixels. */
 static void checkpoint_to_v3(const char *name)
 {
     uint8_t *d;

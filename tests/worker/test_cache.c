@@ -303,6 +303,16 @@ static void test_memory(const uint8_t hash[32], const char *entry)
     wrk_scenes_release(s, c);
     CHECK(wrk_scenes_acquire_env(s, hash, &p, NULL, &stray, entry, &a, &err) == PT_ERR_ARG);
     CHECK(strstr(err.msg, "not the bundle's") != NULL);
+    /* The material variant is in the key: the cached default entry does not
+     * serve a variant, whose build fails here (the scene has none). */
+    before0 = wrk_scenes_builds(s);
+    CHECK(wrk_scenes_acquire_variant(s, hash, &p, NULL, "", &none, entry, &a, &err) == PT_OK);
+    CHECK(wrk_scenes_builds(s) == before0);
+    wrk_scenes_release(s, a);
+    CHECK(wrk_scenes_acquire_variant(s, hash, &p, NULL, "Velvet", &none, entry, &a, &err) ==
+          PT_ERR_ARG);
+    CHECKF(strstr(err.msg, "no variant named 'Velvet'") && wrk_scenes_builds(s) == before0 + 1,
+           "%s", err.msg);
 
     /* A build that fails: both racers get the error, nothing is kept, and a
      * later acquire tries again. */
