@@ -39,6 +39,8 @@ typedef struct snap_worker {
     char peer[64];
     uint32_t threads, want, misses;
     double connected_s;
+    uint64_t tasks_done, samples_done;
+    double last_result_s; /* seconds since its last merged result; < 0: none yet */
 } snap_worker;
 
 typedef struct snap {
@@ -48,6 +50,8 @@ typedef struct snap {
     uint32_t njobs, nworkers, nclients;
     snap_job *jobs;
     snap_worker *workers;
+    uint32_t nblocked;
+    srv_blocked *blocked; /* workers refused for the coordinator's life (workers.h) */
     srv_counters counters;
     uint64_t bytes_in, bytes_out;
 } snap;
@@ -97,6 +101,7 @@ static void snap_unref_locked(snap *p)
     if (p && --p->refs == 0) {
         pt_free(p->jobs);
         pt_free(p->workers);
+        pt_free(p->blocked);
         pt_free(p);
     }
 }
@@ -158,6 +163,7 @@ void srv_http_publish(srv_server *s, srv_http *h, int force)
     if (!p->jobs || !p->workers) {
         pt_free(p->jobs);
         pt_free(p->workers);
+        pt_free(p->blocked);
         pt_free(p);
         return;
     }
@@ -184,6 +190,13 @@ void srv_http_publish(srv_server *s, srv_http *h, int force)
         w->want = c->want;
         w->misses = c->misses;
         w->connected_s = (double)(now - c->t_connect) / 1000.0;
+        w->tasks_done = c->tasks_done;
+        w->samples_done = c->samples_done;
+        w->last_result_s = c->t_result ? (double)(now - c->t_result) / 1000.0 : -1.0;
+    }
+    if (s->nblocked && (p->blocked = pt_malloc_array(s->nblocked, sizeof *p->blocked)) != NULL) {
+        memcpy(p->blocked, s->blocked, s->nblocked * sizeof *p->blocked);
+        p->nblocked = s->nblocked;
     }
     p->counters = s->counters;
     p->bytes_in = s->bytes_in;
@@ -507,6 +520,26 @@ static void json_workers(FILE *f, const snap *p)
                 w->want, w->misses);
         fputs("\"connected_seconds\": ", f);
         proto_json_double(f, w->connected_s);
+        fprintf(f, ", \"tasks_done\": %llu, \"samples_done\": %llu, \"samples_per_second\": ",
+                (unsigned long long)w->tasks_done, (unsigned long long)w->samples_done);
+        proto_json_double(f, w->connected_s > 0.0 ? (double)w->samples_done / w->connected_s : 0.0);
+        fputs(", \"last_result_seconds_ago\": ", f);
+        if (w->last_result_s >= 0.0)
+            proto_json_double(f, w->last_result_s);
+        else
+            fputs("null", f);
+        fputs(", \"state\": \"connected\", \"reason\": \"\"}", f);
+    }
+    /* Blocked workers are closed and refused at HELLO: listed by name, with
+     * the address refused with them ("" for loopback) and why. */
+    for (uint32_t i = 0; p && i < p->nblocked; i++) {
+        const srv_blocked *b = &p->blocked[i];
+        fprintf(f, "%s{\"id\": null, \"name\": ", (i || p->nworkers) ? ",\n " : "");
+        proto_json_string(f, b->name);
+        fputs(", \"address\": ", f);
+        proto_json_string(f, b->addr);
+        fputs(", \"state\": \"blocked\", \"reason\": ", f);
+        proto_json_string(f, b->why);
         fputc('}', f);
     }
     fputs("]\n", f);

@@ -103,6 +103,8 @@ struct srv_conn {
     uint32_t misses;    /* worker: deadline misses since its last result (workers.h) */
     uint64_t missed_at; /* when the last one was counted */
     uint64_t t_connect, t_progress;
+    /* worker: results merged, their samples, when the last one was (0: none) */
+    uint64_t tasks_done, samples_done, t_result;
     uint32_t events;
     /* client (server/requests.c) */
     uint64_t watch, watch_t; /* job watched, last JOB_INFO sent */

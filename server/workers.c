@@ -212,16 +212,21 @@ static void on_result(srv_server *s, srv_conn *c, const proto_frame *f)
         proto_result_fini(&r); /* not merged; the failure is logged once, by the queue */
         return;
     }
+    uint64_t merged = 0;
     if (o == SRV_MERGED) {
         uint64_t before = srv_job_samples_merged(j->job);
         double t0 = pt_now_s();
         o = srv_job_result_validated(j->job, lease_index, &r, pt_now_ms(), &err);
         srv_histogram_add(&s->counters.merge, pt_now_s() - t0);
-        s->counters.samples_merged += srv_job_samples_merged(j->job) - before;
+        merged = srv_job_samples_merged(j->job) - before;
+        s->counters.samples_merged += merged;
     }
     switch (o) {
     case SRV_MERGED:
         c->misses = 0;
+        c->tasks_done++;
+        c->samples_done += merged;
+        c->t_result = pt_now_ms();
         j->rejected += r.rejected;
         j->rays += r.rays;
         if (srv_job_complete(j->job))

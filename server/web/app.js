@@ -54,10 +54,15 @@ async function queuePage() {
 
 async function workersPage() {
   const ws = await getJSON("/api/workers");
-  $("workers").tBodies[0].innerHTML = ws.map((w) =>
+  $("workers").tBodies[0].innerHTML = ws.map((w) => w.state === "blocked" ?
+    `<tr class="err"><td class="num">-</td><td>${esc(w.name)}</td><td>${esc(w.address)}</td>
+     <td colspan="7">blocked: ${esc(w.reason)}</td></tr>` :
     `<tr><td class="num">${w.id}</td><td>${esc(w.name)}</td><td>${esc(w.address)}</td>
-     <td class="num">${w.threads}</td><td class="num">${w.slots_wanted}</td>
-     <td class="num">${w.deadline_misses}</td><td>${dur(w.connected_seconds)}</td></tr>`).join("");
+     <td class="num">${w.threads}</td><td class="num">${w.tasks_done}</td>
+     <td class="num">${(w.samples_per_second / 1e3).toFixed(1)} k</td>
+     <td>${w.last_result_seconds_ago === null ? "-" : dur(w.last_result_seconds_ago) + " ago"}</td>
+     <td class="num">${w.slots_wanted}</td><td class="num">${w.deadline_misses}</td>
+     <td>${dur(w.connected_seconds)}</td></tr>`).join("");
 }
 
 function jobPage() {

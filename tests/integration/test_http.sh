@@ -190,6 +190,17 @@ for v in rgb samples error; do
 done
 as alice -o "$tmp/dl.exr" "$web/api/jobs/$short/image.exr"
 cmp "$tmp/dl.exr" "$tmp/state/output/$short-alice_short.exr" || fail "EXR download differs"
+# The worker's row counts what it rendered: tasks, samples, its last result.
+ok=
+for _ in $(seq 50); do
+  as admin "$web/api/workers" > "$tmp/workers2.json"
+  ok=$(json "$tmp/workers2.json" '(d[0]["state"] == "connected" and d[0]["tasks_done"] > 0 and
+    d[0]["samples_done"] >= 16 * 32 * 24 and d[0]["samples_per_second"] > 0 and
+    d[0]["last_result_seconds_ago"] is not None)')
+  [ "$ok" = True ] && break
+  sleep 0.1
+done
+[ "$ok" = True ] || fail "the worker's counts: $(cat "$tmp/workers2.json")"
 # The short job, rendered through all of the above, is bit-identical to a
 # standalone render of the same job.
 "$bin/ptworker" --scene "$src/scenes/cornell_box.gltf" --res 32x24 --spp 16 --threads 1 -q \

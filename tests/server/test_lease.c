@@ -293,6 +293,36 @@ static int wait_log(const char *log, const char *needle, double timeout)
     return 0;
 }
 
+/* Runs a shell command; its stdout (at most size - 1 bytes) in out. */
+static int capture(const char *cmd, char *out, size_t size)
+{
+    FILE *p = popen(cmd, "r");
+    size_t n = p ? fread(out, 1, size - 1, p) : 0;
+    out[n] = '\0';
+    return p ? pclose(p) : -1;
+}
+
+/* The dashboard's /api/workers (ptserve --http, its port in hport_file),
+ * with the farm's token, in out. */
+static void api_workers(const char *hport_file, char *out, size_t size)
+{
+    int port = 0;
+    FILE *f = fopen(hport_file, "r");
+    if (f) {
+        if (fscanf(f, "%d", &port) != 1)
+            port = 0;
+        fclose(f);
+    }
+    char cmd[1024];
+    snprintf(cmd, sizeof cmd,
+             "curl -s --max-time 10 -H \"Authorization: Bearer $(cat '%s')\" "
+             "http://127.0.0.1:%d/api/workers",
+             path("token"), port);
+    out[0] = '\0';
+    if (port > 0)
+        capture(cmd, out, size);
+}
+
 /* ---- a. the hoarder ---- */
 
 static void hoarder(void)
@@ -302,7 +332,18 @@ static void hoarder(void)
      * the honest workers need for the tasks it holds (they take over some as
      * backups), so it misses 3 rounds long before the job could end without
      * it. Honest workers deliver results all the time: no misses in a row. */
-    const char *extra[] = {"--lease-timeout", "0.3", "--verify-fraction", "0", NULL};
+    static char hport[512];
+    snprintf(hport, sizeof hport, "%s", path("hport"));
+    unlink(hport);
+    const char *extra[] = {"--lease-timeout",
+                           "0.3",
+                           "--verify-fraction",
+                           "0",
+                           "--http",
+                           "127.0.0.1:0",
+                           "--http-port-file",
+                           hport,
+                           NULL};
     pid_t srv = start_server("8192", "64", "hoard.exr", "hoard.log", extra);
     int port = read_port();
     CHECK(port > 0);
@@ -336,6 +377,15 @@ static void hoarder(void)
     CHECK(!peer_open(&h, port, "hoarder"));
     CHECKF(strstr(h.error, "blocked") != NULL, "the returning hoarder was told: '%s'", h.error);
     peer_close(&h);
+    /* The dashboard lists it as blocked with the reason, beside the honest
+     * workers and what they rendered. */
+    static char workers[16384];
+    api_workers(hport, workers, sizeof workers);
+    CHECKF(strstr(workers, "\"name\": \"hoarder\", \"address\": \"\", \"state\": \"blocked\", "
+                           "\"reason\": \"missed lease deadlines 3 times in a row") != NULL,
+           "/api/workers: %s", workers);
+    CHECKF(strstr(workers, "\"name\": \"good1\"") && strstr(workers, "\"tasks_done\": "),
+           "/api/workers: %s", workers);
     int st = wait_exit(srv, 300);
     CHECKF(st == 0, "ptserve exit status %d", st);
     stop(w1);
@@ -494,15 +544,6 @@ static void verify_clean(void)
 }
 
 /* ---- f. the liar's note in queue mode ---- */
-
-/* Runs a shell command; its stdout (at most size - 1 bytes) in out. */
-static int capture(const char *cmd, char *out, size_t size)
-{
-    FILE *p = popen(cmd, "r");
-    size_t n = p ? fread(out, 1, size - 1, p) : 0;
-    out[n] = '\0';
-    return p ? pclose(p) : -1;
-}
 
 static void liar_queue(void)
 {
