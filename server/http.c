@@ -138,7 +138,7 @@ static const snap_job *snap_find(const snap *p, uint64_t id)
  * snapshot computes every running job's error estimate over its film. */
 static uint64_t loop_signature(const srv_server *s)
 {
-    uint64_t sig = (uint64_t)s->nconns * 1000003u + s->njobs;
+    uint64_t sig = (uint64_t)s->nconns * 1000003u + s->njobs + (uint64_t)s->nblocked * 7919u;
     for (const srv_entry *j = s->jobs; j; j = j->next)
         sig = sig * 1099511628211ull + j->rec.id * 31u + j->rec.state * 17u +
               (uint64_t)(uint32_t)j->rec.priority;
