@@ -240,6 +240,38 @@ float pt_layers_pdf(const pt_layers *l, pt_vec3 wo, pt_vec3 wi)
     return pdf;
 }
 
+/* A direction from the lobes under the coat, for u[0] past the coat's
+ * share pc: the sheen (uniform over the hemisphere) for the next ps, else
+ * the base, the rest of u[0]'s interval picking the base's own lobe. 0 when
+ * the direction is impossible or below the surface. */
+static int sample_below_coat(const pt_layers *l, pt_vec3 wo, const float u[3], float pc, float ps,
+                             float pb, pt_vec3 *wi)
+{
+    if (u[0] < pc + ps) {
+        float z = u[1], r = sqrtf(fmaxf(0.0f, 1.0f - z * z)), ph = 2.0f * PT_PI * u[2];
+        *wi = pt_v3(r * cosf(ph), r * sinf(ph), z);
+    } else {
+        float ub[3] = {fminf((u[0] - pc - ps) / pb, 0x1.fffffep-1f), u[1], u[2]};
+        if (!(ub[0] >= 0.0f))
+            ub[0] = 0.0f;
+        float bp;
+        pt_bsdf_sample(&l->base, wo, ub, wi, &bp);
+        if (!(bp > 0.0f))
+            return 0;
+    }
+    return wi->z > 0.0f;
+}
+
+/* The sample's weight f / pdf, and *pdf 0 with no weight when impossible. */
+static pt_vec3 weight(pt_vec3 f, float *pdf)
+{
+    if (!(*pdf > 0.0f)) {
+        *pdf = 0.0f;
+        return pt_v3(0.0f, 0.0f, 0.0f);
+    }
+    return pt_v3_scale(f, 1.0f / *pdf);
+}
+
 /* pt_layers_sample with the coat on its own normal. */
 static pt_vec3 sample_own(const pt_layers *l, pt_vec3 wo, const float u[3], pt_vec3 *wi, float *pdf)
 {
@@ -256,28 +288,10 @@ static pt_vec3 sample_own(const pt_layers *l, pt_vec3 wo, const float u[3], pt_v
         if (!(wic.z > 0.0f))
             return zero;
         *wi = pt_frame_to_world(&l->coat_fr, wic);
-    } else {
-        if (u[0] < pc + ps) {
-            float z = u[1], r = sqrtf(fmaxf(0.0f, 1.0f - z * z)), ph = 2.0f * PT_PI * u[2];
-            *wi = pt_v3(r * cosf(ph), r * sinf(ph), z);
-        } else {
-            float ub[3] = {fminf((u[0] - pc - ps) / pb, 0x1.fffffep-1f), u[1], u[2]};
-            if (!(ub[0] >= 0.0f))
-                ub[0] = 0.0f;
-            float bp;
-            pt_bsdf_sample(&l->base, wo, ub, wi, &bp);
-            if (!(bp > 0.0f))
-                return zero;
-        }
-        if (!(wi->z > 0.0f))
-            return zero;
-    }
-    pt_vec3 f = eval_own(l, wo, *wi, pdf);
-    if (!(*pdf > 0.0f)) {
-        *pdf = 0.0f;
+    } else if (!sample_below_coat(l, wo, u, pc, ps, pb, wi)) {
         return zero;
     }
-    return pt_v3_scale(f, 1.0f / *pdf);
+    return weight(eval_own(l, wo, *wi, pdf), pdf);
 }
 
 pt_vec3 pt_layers_sample(const pt_layers *l, pt_vec3 wo, const float u[3], pt_vec3 *wi, float *pdf)
@@ -295,26 +309,10 @@ pt_vec3 pt_layers_sample(const pt_layers *l, pt_vec3 wo, const float u[3], pt_ve
         pt_vec3 m = pt_ggx_sample_vndf(wo, l->coat_alpha, u[1], u[2]);
         float om = pt_v3_dot(wo, m);
         *wi = pt_v3_sub(pt_v3_scale(m, 2.0f * om), wo);
-    } else if (u[0] < pc + ps) {
-        /* uniform over the hemisphere */
-        float z = u[1], r = sqrtf(fmaxf(0.0f, 1.0f - z * z)), ph = 2.0f * PT_PI * u[2];
-        *wi = pt_v3(r * cosf(ph), r * sinf(ph), z);
-    } else {
-        /* the rest of u[0]'s interval picks the base's own lobe */
-        float ub[3] = {fminf((u[0] - pc - ps) / pb, 0x1.fffffep-1f), u[1], u[2]};
-        if (!(ub[0] >= 0.0f))
-            ub[0] = 0.0f;
-        float bp;
-        pt_bsdf_sample(&l->base, wo, ub, wi, &bp);
-        if (!(bp > 0.0f))
+        if (!(wi->z > 0.0f))
             return zero;
-    }
-    if (!(wi->z > 0.0f))
-        return zero;
-    pt_vec3 f = eval_all(l, wo, *wi, pdf);
-    if (!(*pdf > 0.0f)) {
-        *pdf = 0.0f;
+    } else if (!sample_below_coat(l, wo, u, pc, ps, pb, wi)) {
         return zero;
     }
-    return pt_v3_scale(f, 1.0f / *pdf);
+    return weight(eval_all(l, wo, *wi, pdf), pdf);
 }
