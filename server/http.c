@@ -150,8 +150,12 @@ void srv_http_publish(srv_server *s, srv_http *h, int force)
     if (!h)
         return;
     uint64_t now = pt_now_ms();
+    /* Called every loop round: the signature walks the queue, so it is
+     * taken only once a republish is possible (250 ms after the last). */
+    if (!force && now - h->t_pub < 250)
+        return;
     uint64_t sig = loop_signature(s);
-    if (!force && now - h->t_pub < 1000 && (sig == h->sig || now - h->t_pub < 250))
+    if (!force && now - h->t_pub < 1000 && sig == h->sig)
         return;
     h->t_pub = now;
     h->sig = sig;
