@@ -225,6 +225,14 @@ typedef struct pt_scene_opts {
     void *warn_user;
     const char *variant; /* KHR_materials_variants name: mapped primitives use its material;
                             NULL: every primitive its own. Unknown: PT_ERR_ARG listing them */
+    /* glTF animation (common/scene/anim.h). animate 0: every node keeps its own
+     * transform (and morph weights), as in a still of the file. animate 1: the
+     * scene is posed at time seconds of animation: NULL or "" plays every
+     * channel of every animation, as viewers do; else an animation's name or
+     * its decimal index (unknown: PT_ERR_ARG listing them). */
+    int animate;
+    double time;
+    const char *animation;
 } pt_scene_opts;
 
 /* Hard caps on what a file may ask for. */
