@@ -8,6 +8,7 @@
 #include <stdio.h>
 #include <string.h>
 #include <sys/epoll.h>
+#include <sys/resource.h>
 #include <sys/socket.h>
 #include <unistd.h>
 
@@ -69,6 +70,8 @@ struct srv_guard {
     uint64_t in_held;    /* input buffer bytes past each connection's IN_START */
     srv_conn **hs;       /* the connections in the handshake: nhs of lim.max_handshakes */
     uint32_t nhs;
+    uint32_t max_conns; /* connection slots: RLIMIT_NOFILE less SRV_FD_RESERVE */
+    int spare_fd;       /* /dev/null, given up to accept and refuse a peer at EMFILE */
     refusal_log refused[REFUSE_N];
 };
 
@@ -218,7 +221,7 @@ static void conn_refuse(srv_server *s, srv_conn *c, uint16_t code, int why, cons
 static int accept_refusal(const srv_server *s, const uint8_t addr[16])
 {
     const struct srv_guard *g = s->guard;
-    if (s->nconns >= SRV_MAX_CONNS)
+    if (s->nconns >= g->max_conns)
         return REFUSE_FULL;
     if (g->nhs >= g->lim.max_handshakes)
         return REFUSE_HANDSHAKES;
@@ -251,7 +254,7 @@ static int handshake_admits(srv_server *s, srv_conn *c, const proto_frame *f)
     const struct srv_guard *g = s->guard;
     if (c->state != SRV_C_AUTH || f->type != PROTO_MSG_AUTH)
         return 1;
-    if (s->nconns - g->nhs < SRV_MAX_CONNS - g->lim.max_handshakes)
+    if (s->nconns - g->nhs < g->max_conns - g->lim.max_handshakes)
         return 1;
     conn_refuse(s, c, PROTO_E_LIMIT, REFUSE_AUTHED, "too many peers connected; try again later");
     return 0;
@@ -357,6 +360,37 @@ static void conn_check_rate(srv_server *s, srv_conn *c, uint64_t now)
     }
 }
 
+/* The connection slots the file-descriptor limit allows: the soft
+ * RLIMIT_NOFILE is raised to the hard one first where the kernel lets it
+ * (an unlimited hard limit: to fs.nr_open's usual 1,048,576, else kept),
+ * then SRV_FD_RESERVE of it is kept for files. Logs the outcome; *cap 0
+ * when the limit leaves no room. */
+static void conns_from_nofile(const srv_server *s, uint32_t *cap)
+{
+    struct rlimit rl;
+    *cap = 0;
+    if (getrlimit(RLIMIT_NOFILE, &rl) != 0)
+        return;
+    rlim_t was = rl.rlim_cur;
+    if (rl.rlim_cur != RLIM_INFINITY &&
+        (rl.rlim_max == RLIM_INFINITY || rl.rlim_cur < rl.rlim_max)) {
+        struct rlimit up = rl;
+        up.rlim_cur = rl.rlim_max == RLIM_INFINITY ? (rlim_t)1 << 20 : rl.rlim_max;
+        if (up.rlim_cur > rl.rlim_cur && setrlimit(RLIMIT_NOFILE, &up) == 0)
+            rl.rlim_cur = up.rlim_cur;
+    }
+    uint64_t lim = rl.rlim_cur == RLIM_INFINITY ? UINT32_MAX : (uint64_t)rl.rlim_cur;
+    uint64_t n = lim > SRV_FD_RESERVE ? lim - SRV_FD_RESERVE : 0;
+    *cap = n > UINT32_MAX - 1 ? UINT32_MAX - 1 : (uint32_t)n;
+    if (s->cfg->quiet)
+        return;
+    char from[64] = "";
+    if (rl.rlim_cur != was)
+        snprintf(from, sizeof from, ", raised from %llu", (unsigned long long)was);
+    srv_log("connections: at most %u (file descriptor limit %llu%s, %u kept for files)", *cap,
+            (unsigned long long)lim, from, SRV_FD_RESERVE);
+}
+
 /* Fills the defaults of the limits and checks them. */
 static pt_status guard_open(srv_server *s, pt_error *err)
 {
@@ -364,6 +398,7 @@ static pt_status guard_open(srv_server *s, pt_error *err)
     if (!g)
         return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
     s->guard = g;
+    g->spare_fd = -1;
     g->lim = s->cfg->limits;
     srv_peer_limits *l = &g->lim;
     if (!l->max_input_mem)
@@ -384,9 +419,13 @@ static pt_status guard_open(srv_server *s, pt_error *err)
         return pt_error_set(err, PT_ERR_ARG,
                             "input memory limit of %llu bytes under one frame's %u",
                             (unsigned long long)l->max_input_mem, (unsigned)IN_MAX);
-    if (l->max_handshakes >= SRV_MAX_CONNS)
-        return pt_error_set(err, PT_ERR_ARG, "%u handshakes at once leave no slot of %u for peers",
-                            l->max_handshakes, SRV_MAX_CONNS);
+    conns_from_nofile(s, &g->max_conns);
+    if (l->max_handshakes >= g->max_conns)
+        return pt_error_set(err, PT_ERR_ARG,
+                            "%u handshakes at once leave no slot of %u for peers (the file "
+                            "descriptor limit less %u for files; raise it: ulimit -n)",
+                            l->max_handshakes, g->max_conns, SRV_FD_RESERVE);
+    g->spare_fd = open("/dev/null", O_RDONLY | O_CLOEXEC);
     g->hs = pt_calloc(l->max_handshakes, sizeof *g->hs);
     if (!g->hs)
         return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
@@ -398,6 +437,8 @@ static void guard_close(srv_server *s)
     if (s->guard) {
         refusals_flush(s, pt_now_ms(), 1);
         pt_free(s->guard->hs);
+        if (s->guard->spare_fd >= 0)
+            close(s->guard->spare_fd);
     }
     pt_free(s->guard);
     s->guard = NULL;
@@ -449,6 +490,23 @@ static void accept_all(srv_server *s)
         struct sockaddr_storage ss;
         socklen_t sl = sizeof ss;
         int fd = accept4(s->lfd, (struct sockaddr *)&ss, &sl, SOCK_NONBLOCK | SOCK_CLOEXEC);
+        if (fd < 0 && (errno == EMFILE || errno == ENFILE) && s->guard->spare_fd >= 0) {
+            /* Out of descriptors (files took more than the reserve): the
+             * peer would wait in the backlog and wake epoll every round.
+             * The spare descriptor lets it be accepted and closed. */
+            close(s->guard->spare_fd);
+            fd = accept4(s->lfd, (struct sockaddr *)&ss, &sl, SOCK_CLOEXEC);
+            if (fd >= 0) {
+                char host[48];
+                uint8_t addr[16];
+                peer_address(&ss, host, sizeof host, addr);
+                close(fd);
+                note_refusal(s, REFUSE_FULL, host, "out of file descriptors");
+            }
+            s->guard->spare_fd = open("/dev/null", O_RDONLY | O_CLOEXEC);
+            if (fd >= 0)
+                continue;
+        }
         if (fd < 0)
             return;
         char host[48];

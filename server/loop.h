@@ -17,12 +17,15 @@
  *   all. A peer whose next frame would pass it is parked: not read (no
  *   EPOLLIN, TCP pushes back on it) until a frame ends or a peer goes, and
  *   not judged by the rate rule meanwhile. Total input memory is thus at
- *   most SRV_MAX_CONNS x IN_START + max_input_mem.
- * - slots: at most max_handshakes connections in the handshake, at most
- *   max_handshakes_ip of them from one address, SRV_MAX_CONNS -
- *   max_handshakes authenticated. Refusals (and handshakes that fail on a
- *   bad frame or time out) are logged one by one up to 5 per reason in
- *   10 s, then as one line with the count of the others.
+ *   most connections x IN_START + max_input_mem.
+ * - slots: the file-descriptor limit (RLIMIT_NOFILE, its soft value raised
+ *   to the hard one at srv_loop_open where allowed) less SRV_FD_RESERVE
+ *   connections in all, logged at start; of them at most max_handshakes in
+ *   the handshake, at most max_handshakes_ip of those from one address, the
+ *   rest authenticated. A connection past them is accepted and closed at
+ *   once (so is one that meets EMFILE, through a spare descriptor). Refusals (and handshakes that
+ * fail on a bad frame or time out) are logged one by one up to 5 per reason in 10 s, then as one
+ * line with the count of the others.
  * - rate: a frame in progress must be whole within max(frame_grace,
  *   its size / min_rate) of its first byte, an upload within max(grace,
  *   bundle size / min_rate) of its SUBMIT, and nothing may stall for
@@ -50,11 +53,15 @@
 
 #define SRV_OUT_HIGH (16u << 20) /* stop reading a peer whose unsent output passes this */
 
-/* Connection slots: SRV_MAX_CONNS in all, of which at most max_handshakes
- * (srv_peer_limits, server/serve.h) are not yet authenticated; the others
- * are kept for authenticated peers, so a flood of handshakes never locks a
- * worker out. */
-#define SRV_MAX_CONNS 1024u
+/* Connection slots: the file-descriptor limit less SRV_FD_RESERVE, of which
+ * at most max_handshakes (srv_peer_limits, server/serve.h) are not yet
+ * authenticated; the others are kept for authenticated peers, so a flood of
+ * handshakes never locks a worker out. The reserve is for the process's
+ * own descriptors: standard streams, the listener, epoll and its pipes, the
+ * state folder (lock, queue file, a results log per running job,
+ * checkpoints), images being written, uploads being verified and the
+ * dashboard's connections (at most 64). */
+#define SRV_FD_RESERVE 128u
 
 /* The largest payload each role sends once authenticated (the frame cap):
  * a worker's RESULT of a PT_TILE_MAX x PT_TILE_MAX tile, 68 bytes of header
