@@ -32,6 +32,7 @@
 #define CLOSE_GRACE_MS 1000  /* time to flush an ERROR before closing */
 #define REFUSAL_LOG_MS 10000 /* the window of refusals logged one by one */
 #define REFUSAL_BURST 5      /* lines per reason and window; then one with the count */
+#define TIMERS_MS 50         /* srv_loop_timers walks the connections at most this often */
 
 _Static_assert(ROLE_MAX_PAYLOAD <= PROTO_MAX_PAYLOAD, "a role's frames fit the protocol's cap");
 _Static_assert(IN_START >= PROTO_FRAME_OVERHEAD + PROTO_MAX_PAYLOAD_PREAUTH,
@@ -72,6 +73,14 @@ struct srv_guard {
     uint32_t nhs;
     uint32_t max_conns; /* connection slots: RLIMIT_NOFILE less SRV_FD_RESERVE */
     int spare_fd;       /* /dev/null, given up to accept and refuse a peer at EMFILE */
+    uint64_t t_timers;  /* srv_loop_timers' last walk (ms) */
+    /* The connections touched since the last sweep (conn_touch), in the
+     * growable act, and whether one could not be listed (no memory): the
+     * next sweep then walks them all. */
+    srv_conn **act;
+    uint32_t nact, act_cap;
+    int act_lost;
+    uint64_t t_sweep; /* the last sweep over every connection (ms) */
     refusal_log refused[REFUSE_N];
 };
 
@@ -103,6 +112,26 @@ static void on_signal(int sig)
     }
 }
 
+/* Lists c for the next sweep (once). */
+static void conn_touch(srv_server *s, srv_conn *c)
+{
+    struct srv_guard *g = s->guard;
+    if (c->active)
+        return;
+    if (g->nact == g->act_cap) {
+        uint32_t cap = g->act_cap ? 2 * g->act_cap : 64;
+        srv_conn **n = pt_realloc(g->act, (size_t)cap * sizeof *n);
+        if (!n) {
+            g->act_lost = 1;
+            return;
+        }
+        g->act = n;
+        g->act_cap = cap;
+    }
+    g->act[g->nact++] = c;
+    c->active = 1;
+}
+
 void srv_conn_update_events(srv_server *s, srv_conn *c)
 {
     uint32_t ev = 0;
@@ -115,6 +144,9 @@ void srv_conn_update_events(srv_server *s, srv_conn *c)
         epoll_ctl(s->ep, EPOLL_CTL_MOD, c->fd, &e);
         c->events = ev;
     }
+    /* Output queued: the sweep sends it this round. */
+    if (ev & EPOLLOUT)
+        conn_touch(s, c);
 }
 
 int srv_conn_queued(srv_server *s, srv_conn *c, pt_status st)
@@ -128,6 +160,7 @@ int srv_conn_queued(srv_server *s, srv_conn *c, pt_status st)
 void srv_conn_close_soon(srv_server *s, srv_conn *c)
 {
     if (!c->closing) {
+        conn_touch(s, c);
         c->closing = 1;
         c->close_at = pt_now_ms() + CLOSE_GRACE_MS;
         srv_queue_release_owner(s, c, 0);
@@ -437,6 +470,7 @@ static void guard_close(srv_server *s)
     if (s->guard) {
         refusals_flush(s, pt_now_ms(), 1);
         pt_free(s->guard->hs);
+        pt_free(s->guard->act);
         if (s->guard->spare_fd >= 0)
             close(s->guard->spare_fd);
     }
@@ -959,6 +993,7 @@ void srv_loop_poll(srv_server *s, int timeout_ms)
             srv_upload_collect(s);
         } else {
             srv_conn *c = p;
+            conn_touch(s, c);
             /* A parked peer is not read; one that hung up meanwhile can
              * never finish its frame (and would wake epoll every round). */
             if (c->parked && (evs[i].events & (EPOLLHUP | EPOLLERR)) && !c->closing) {
@@ -975,6 +1010,14 @@ void srv_loop_poll(srv_server *s, int timeout_ms)
 
 void srv_loop_timers(srv_server *s, uint64_t now)
 {
+    /* The walk over every connection runs every TIMERS_MS, not every
+     * round: its deadlines are seconds long, and a farm's loop turns
+     * thousands of rounds a second over thousands of connections. */
+    if (now - s->guard->t_timers < TIMERS_MS) {
+        refusals_flush(s, now, 0);
+        return;
+    }
+    s->guard->t_timers = now;
     for (srv_conn *c = s->conns; c; c = c->next) {
         if (c->closing)
             continue;
@@ -992,30 +1035,109 @@ void srv_loop_timers(srv_server *s, uint64_t now)
 
 void srv_loop_flush_all(srv_server *s)
 {
-    for (srv_conn *c = s->conns; c; c = c->next)
+    /* Queued output is listed (srv_conn_update_events); a list that lost
+     * one is not trusted. */
+    struct srv_guard *g = s->guard;
+    if (g->act_lost) {
+        for (srv_conn *c = s->conns; c; c = c->next)
+            if (c->out.len > c->out_off && !c->closing)
+                conn_flush(s, c);
+        return;
+    }
+    for (uint32_t i = 0; i < g->nact; i++) {
+        srv_conn *c = g->act[i];
         if (c->out.len > c->out_off && !c->closing)
             conn_flush(s, c);
+    }
+}
+
+/* The sweep of one connection; 1 when c is to be freed now. */
+static int sweep_one(srv_server *s, srv_conn *c, uint64_t now)
+{
+    if (c->out.len > c->out_off)
+        conn_flush(s, c);
+    if (proto_frame_reader_pending(&c->in) > 0 && !c->closing) {
+        conn_process(s, c);
+        in_shrink(s, c);
+    }
+    if (c->closing && (c->close_at == 0 || now >= c->close_at))
+        return 1;
+    if (c->parked && in_fits(s, c))
+        conn_unpark(c, now);
+    srv_conn_update_events(s, c);
+    return 0;
+}
+
+/* Takes c, about to be freed, off the touched list (another peer's frame
+ * may have touched it since the list was taken). */
+static void conn_unlist(srv_server *s, srv_conn *c)
+{
+    struct srv_guard *g = s->guard;
+    if (!c->active)
+        return;
+    for (uint32_t k = 0; k < g->nact; k++)
+        if (g->act[k] == c) {
+            g->act[k] = g->act[--g->nact];
+            break;
+        }
+    c->active = 0;
+}
+
+/* Takes the list of touched connections (each one's mark cleared), so that
+ * what the sweep touches goes on a new one; the caller frees it. */
+static srv_conn **take_touched(srv_server *s, uint32_t *n)
+{
+    struct srv_guard *g = s->guard;
+    srv_conn **list = g->act;
+    *n = g->nact;
+    for (uint32_t i = 0; i < *n; i++)
+        list[i]->active = 0;
+    g->act = NULL;
+    g->nact = g->act_cap = 0;
+    return list;
 }
 
 void srv_loop_sweep(srv_server *s)
 {
+    struct srv_guard *g = s->guard;
     uint64_t now = pt_now_ms();
-    for (srv_conn **pc = &s->conns; *pc;) {
-        srv_conn *c = *pc;
-        if (c->out.len > c->out_off)
-            conn_flush(s, c);
-        if (proto_frame_reader_pending(&c->in) > 0 && !c->closing) {
-            conn_process(s, c);
-            in_shrink(s, c);
+    uint32_t n;
+    srv_conn **list = take_touched(s, &n);
+    if (g->act_lost || now - g->t_sweep >= TIMERS_MS) {
+        /* Every connection: grace times end, parked peers may fit again,
+         * and nothing left unlisted waits longer than this. */
+        g->act_lost = 0;
+        g->t_sweep = now;
+        pt_free(list);
+        for (srv_conn **pc = &s->conns; *pc;) {
+            srv_conn *c = *pc;
+            if (sweep_one(s, c, now)) {
+                *pc = c->next;
+                conn_unlist(s, c);
+                conn_free(s, c);
+                continue;
+            }
+            if (c->closing || c->parked)
+                conn_touch(s, c);
+            pc = &c->next;
         }
-        if (c->closing && (c->close_at == 0 || now >= c->close_at)) {
-            *pc = c->next;
-            conn_free(s, c);
+        return;
+    }
+    for (uint32_t i = 0; i < n; i++) {
+        srv_conn *c = list[i];
+        if (!sweep_one(s, c, now)) {
+            /* Not done: looked at again next round, not only every 50 ms. */
+            if (c->closing || c->parked)
+                conn_touch(s, c);
             continue;
         }
-        if (c->parked && in_fits(s, c))
-            conn_unpark(c, now);
-        srv_conn_update_events(s, c);
-        pc = &c->next;
+        /* Frees are rare beside the rounds: the walk to unlink is fine. */
+        srv_conn **pc = &s->conns;
+        while (*pc != c)
+            pc = &(*pc)->next;
+        *pc = c->next;
+        conn_unlist(s, c);
+        conn_free(s, c);
     }
+    pt_free(list);
 }

@@ -100,6 +100,7 @@ struct srv_conn {
     char host[48];    /* the peer's address alone, for refusals */
     uint8_t addr[16]; /* the same as bytes (IPv4 as ::ffff:a.b.c.d): per-address caps */
     int handshaking;  /* holds one of the max_handshakes slots */
+    int active;       /* on the loop's list for this round's sweep (loop.c) */
     int parked;       /* not read: its next frame waits for input memory */
     uint64_t t_parked;
     uint64_t t_frame;  /* the first byte of the frame in progress arrived */
@@ -142,15 +143,21 @@ int srv_loop_stopped(void);
  * dispatches frames, flushes output, completes verifications. */
 void srv_loop_poll(srv_server *s, int timeout_ms);
 
-/* Handshake, stall and rate timeouts; the refusals not yet logged. */
+/* Handshake, stall and rate timeouts (judged at most every 50 ms: the walk
+ * over every connection is not repeated each round); the refusals not yet
+ * logged. */
 void srv_loop_timers(srv_server *s, uint64_t now);
 
-/* Sends what each open connection has queued (before a slow disk sync). */
+/* Sends what the connections touched this round have queued (before a slow
+ * disk sync). */
 void srv_loop_flush_all(srv_server *s);
 
 /* Flushes, processes input left by backpressure, frees the connections
  * closed since the last sweep, reads again from parked peers whose frame
- * now fits and sets each one's epoll interest. */
+ * now fits and sets each one's epoll interest. Each round it visits only
+ * the connections touched since the last sweep (an event, queued output, a
+ * close, a park), and all of them every 50 ms, so a round's cost follows
+ * what happened in it, not how many peers are connected. */
 void srv_loop_sweep(srv_server *s);
 
 /* 1 while c's unsent output is under SRV_OUT_HIGH. */
