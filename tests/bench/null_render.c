@@ -7,9 +7,9 @@
  * Never installed: its images are not renders.
  *
  * The fill is one that the coordinator accepts as it would a render: every
- * pixel gets the task's sample count, every camera ray a hit, and constant
- * sums (0.5 per sample and channel), so a tile's merge does the same
- * arithmetic on the same bytes as a real one.
+ * pixel gets the task's sample count, every camera ray a hit, and zero sums
+ * (black, whatever the sums' type), so a tile's merge does the same
+ * arithmetic on as many bytes as a real one.
  *
  * Pacing: with PTWORKER_NULL_RATE set to R > 0 (samples per second), the
  * calling thread sleeps as long as a render thread of that speed would take
@@ -22,6 +22,7 @@
 #include <errno.h>
 #include <pthread.h>
 #include <stdlib.h>
+#include <string.h>
 #include <time.h>
 
 #include "common/render/render.h"
@@ -46,12 +47,10 @@ void ptbench_null_render_tile(const pt_renderer *r, pt_rect tile, uint32_t s0, u
     (void)r;
     uint32_t n = s1 - s0;
     size_t npx = (size_t)(tile.x1 - tile.x0) * (size_t)(tile.y1 - tile.y0);
+    memset(out, 0, npx * sizeof *out);
     for (size_t i = 0; i < npx; i++) {
-        pt_pixel_acc *a = &out[i];
-        a->sum[0] = a->sum[1] = a->sum[2] = 0.5 * n;
-        a->sum_sq = 0.25 * n;
-        a->n = n;
-        a->hits = n;
+        out[i].n = n;
+        out[i].hits = n;
     }
     uint64_t samples = (uint64_t)npx * n;
     if (stats) {
