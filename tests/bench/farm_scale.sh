@@ -23,6 +23,8 @@
 #   loop us/result   loop CPU per RESULT frame
 #   results/s        RESULT frames per second of the job's wall time
 #   bytes/sample     coordinator socket bytes (in + out) per sample merged
+#   MB/Mpixel        ptserve's peak resident memory (VmHWM) per megapixel of
+#                    the job (its base of a few MB included)
 #   cores fed        samples one loop core merges per second (samples / loop
 #                    CPU seconds) over one real core's rate (--core-rate:
 #                    samples/s of one Cornell-box core; 'measure' times the real
@@ -121,6 +123,9 @@ loop_ns() {
   echo $((( ${12} + ${13}) * 1000000000 / $(getconf CLK_TCK)))
 }
 
+# The process's peak resident memory in KiB.
+vm_hwm() { awk '/^VmHWM:/ {print $2}' "/proc/$1/status" 2>/dev/null; }
+
 # Polls until the file holds a line matching the pattern (grep -E), or the
 # process is gone, or the seconds pass; 0 when found.
 wait_for() {
@@ -178,8 +183,11 @@ run_one_job() {
   # ptserve waits for its final image's writer after the last merge, so the
   # last reading before it exits holds all of the loop's merging.
   last=0
+  local hwm=0 v
   while cpu=$(loop_ns "$sp" 2>/dev/null); do
     last=$cpu
+    v=$(vm_hwm "$sp")
+    hwm=${v:-$hwm}
     sleep 0.05
   done
   wait "$sp" || { echo "farm_scale: ptserve failed (see $dir/serve.log)" >&2; return 1; }
@@ -189,7 +197,7 @@ run_one_job() {
   wall=$(sed -n 's/.*done in \([0-9.]*\)s:.*/\1/p' "$dir/serve.log")
   bytes=$(sed -n 's/.*wire: \([0-9]*\) bytes in, \([0-9]*\) out.*/\1 \2/p' "$dir/serve.log" |
     awk '{printf "%.0f\n", $1 + $2}')
-  line="$results $samples $last $wall $bytes"
+  line="$results $samples $last $wall $bytes $hwm"
 }
 
 run_queue() {
@@ -215,7 +223,8 @@ run_queue() {
   wait_for "$dir/serve.log" "job $id (done|failed|cancelled)" "$sp" 3600 ||
     { echo "farm_scale: job $id did not end (see $dir/serve.log)" >&2; return 1; }
   cpu1=$(loop_ns "$sp")
-  local bytes samples wall
+  local bytes samples wall hwm
+  hwm=$(vm_hwm "$sp")
   bytes=$(socket_bytes "$port")
   stop_workers "$dir"
   kill -TERM "$sp"
@@ -223,18 +232,19 @@ run_queue() {
   samples=$(sed -n "s/.*job $id done: \([0-9]*\) samples in \([0-9.]*\) s.*/\1/p" "$dir/serve.log")
   wall=$(sed -n "s/.*job $id done: \([0-9]*\) samples in \([0-9.]*\) s.*/\2/p" "$dir/serve.log")
   [[ -n $samples ]] || { echo "farm_scale: job $id failed (see $dir/serve.log)" >&2; return 1; }
-  line="$results $samples $((cpu1 - cpu0)) $wall $bytes"
+  line="$results $samples $((cpu1 - cpu0)) $wall $bytes $hwm"
 }
 
-# "us_per_result results_per_s bytes_per_sample cores_fed" of one run's line.
+# "us_per_result results_per_s bytes_per_sample MB_per_Mpixel cores_fed" of
+# one run's line.
 figures() {
-  awk -v rate="$core_rate" '{
-    r = $1; s = $2; ns = $3; wall = $4; b = $5
-    printf "%.2f %.0f %.3f %.0f\n", ns / 1000 / r, r / wall, b / s, s / (ns / 1e9) / rate }'
+  awk -v rate="$core_rate" -v mpx="$(awk -v r="$res" 'BEGIN {split(r, a, "x"); print a[1] * a[2] / 1e6}')" '{
+    r = $1; s = $2; ns = $3; wall = $4; b = $5; kb = $6
+    printf "%.2f %.0f %.3f %.1f %.0f\n", ns / 1000 / r, r / wall, b / s, kb / 1024 / mpx, s / (ns / 1e9) / rate }'
 }
 
 # Runs mode m at chunk c (empty: default) --runs times; sets med to its
-# medians "us/result results/s bytes/sample cores"; each run's figures go
+# medians "us/result results/s bytes/sample MB/Mpixel cores"; each run's figures go
 # to stderr.
 measure() {
   local m=$1 c=$2 s=$3 i
@@ -243,11 +253,11 @@ measure() {
     local dir="$work/$m-${c:-default}-$i"
     if [[ $m == one-job ]]; then run_one_job "$c" "$s" "$dir"; else run_queue "$c" "$s" "$dir"; fi
     echo "$line" | figures >> "$work/fig"
-    echo "  run $i: $(tail -n 1 "$work/fig")  (results samples loop_ns wall_s bytes: $line)" >&2
+    echo "  run $i: $(tail -n 1 "$work/fig")  (results samples loop_ns wall_s bytes peak_KiB: $line)" >&2
     ((keep)) || rm -rf "$dir"
   done
   local col out=()
-  for col in 1 2 3 4; do out+=("$(awk -v c="$col" '{print $c}' "$work/fig" | median)"); done
+  for col in 1 2 3 4 5; do out+=("$(awk -v c="$col" '{print $c}' "$work/fig" | median)"); done
   med="${out[*]}"
 }
 
@@ -264,7 +274,8 @@ fi
 
 echo "farm scale: ${res}, tile $tile, chunk ${chunk:-default}, $spp spp, $workers null workers x $threads threads" \
   "paced at ${pace} samples/s per thread, core rate $core_rate samples/s, $runs runs, medians"
-printf '%-8s %6s %12s %10s %12s %10s\n' mode chunk 'loop us/res' results/s bytes/sample 'cores fed'
+printf '%-8s %6s %12s %10s %12s %10s %10s\n' mode chunk 'loop us/res' results/s bytes/sample \
+  MB/Mpixel 'cores fed'
 
 declare -A fed
 for m in ${modes//,/ }; do
@@ -276,16 +287,16 @@ if [[ -n $curve ]]; then
     ((s >= 2 * c)) || s=$((2 * c))
     for m in ${modes//,/ }; do
       measure "$m" "$c" "$s"
-      read -r us rps bps cores <<< "$med"
-      printf '%-8s %6s %12s %10s %12s %10s\n' "$m" "$c" "$us" "$rps" "$bps" "$cores"
+      read -r us rps bps mem cores <<< "$med"
+      printf '%-8s %6s %12s %10s %12s %10s %10s\n' "$m" "$c" "$us" "$rps" "$bps" "$mem" "$cores"
       fed[$m]=$cores
     done
   done
 else
   for m in ${modes//,/ }; do
     measure "$m" "$chunk" "$spp"
-    read -r us rps bps cores <<< "$med"
-    printf '%-8s %6s %12s %10s %12s %10s\n' "$m" "${chunk:-dflt}" "$us" "$rps" "$bps" "$cores"
+    read -r us rps bps mem cores <<< "$med"
+    printf '%-8s %6s %12s %10s %12s %10s %10s\n' "$m" "${chunk:-dflt}" "$us" "$rps" "$bps" "$mem" "$cores"
     fed[$m]=$cores
   done
 fi
