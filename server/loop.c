@@ -81,6 +81,13 @@ struct srv_guard {
     uint32_t nact, act_cap;
     int act_lost;
     uint64_t t_sweep; /* the last sweep over every connection (ms) */
+    uint64_t t_hand;  /* srv_loop_each_for_hand_out's last walk over every one */
+    int hand_waiting; /* its last call left a worker waiting on a dry queue */
+    /* Every connection by its id: open addressing with linear probing,
+     * ids_cap a power of two at least twice ids_n, so srv_conn_find does
+     * not walk the connections (it is asked once per result). */
+    srv_conn **ids;
+    uint32_t ids_n, ids_cap;
     refusal_log refused[REFUSE_N];
 };
 
@@ -92,12 +99,66 @@ int srv_conn_has_room(const srv_conn *c)
     return c->out.len - c->out_off < SRV_OUT_HIGH;
 }
 
+/* The slot where id is, or the empty one where it would go. */
+static uint32_t id_slot(const struct srv_guard *g, uint64_t id)
+{
+    uint32_t mask = g->ids_cap - 1;
+    uint32_t i = (uint32_t)((id * 0x9E3779B97F4A7C15ull) >> 32) & mask;
+    while (g->ids[i] && g->ids[i]->id != id)
+        i = (i + 1) & mask;
+    return i;
+}
+
+/* Adds c to the table by id; -1 without memory. */
+static int id_add(struct srv_guard *g, srv_conn *c)
+{
+    if (2 * (g->ids_n + 1) > g->ids_cap) {
+        uint32_t cap = g->ids_cap ? 2 * g->ids_cap : 64;
+        srv_conn **old = g->ids, **n = pt_calloc(cap, sizeof *n);
+        if (!n)
+            return -1;
+        uint32_t old_cap = g->ids_cap;
+        g->ids = n;
+        g->ids_cap = cap;
+        for (uint32_t i = 0; i < old_cap; i++)
+            if (old[i])
+                g->ids[id_slot(g, old[i]->id)] = old[i];
+        pt_free(old);
+    }
+    g->ids[id_slot(g, c->id)] = c;
+    g->ids_n++;
+    return 0;
+}
+
+/* Takes c out of the table, moving back the entries after it that its slot
+ * kept from their own (linear probing's deletion, no tombstones). */
+static void id_remove(struct srv_guard *g, const srv_conn *c)
+{
+    if (!g->ids_cap)
+        return;
+    uint32_t mask = g->ids_cap - 1, i = id_slot(g, c->id);
+    if (g->ids[i] != c)
+        return;
+    g->ids[i] = NULL;
+    g->ids_n--;
+    for (uint32_t j = (i + 1) & mask; g->ids[j]; j = (j + 1) & mask) {
+        uint32_t home = (uint32_t)((g->ids[j]->id * 0x9E3779B97F4A7C15ull) >> 32) & mask;
+        /* The entry at j stays unless i lies cyclically in [home, j). */
+        if (((j - home) & mask) >= ((j - i) & mask)) {
+            g->ids[i] = g->ids[j];
+            g->ids[j] = NULL;
+            i = j;
+        }
+    }
+}
+
 srv_conn *srv_conn_find(srv_server *s, uint64_t id)
 {
-    srv_conn *c = s->conns;
-    while (c && (c->id != id || c->closing))
-        c = c->next;
-    return c;
+    const struct srv_guard *g = s->guard;
+    if (!g || !g->ids_cap)
+        return NULL;
+    srv_conn *c = g->ids[id_slot(g, id)];
+    return c && !c->closing ? c : NULL;
 }
 
 static void on_signal(int sig)
@@ -471,6 +532,7 @@ static void guard_close(srv_server *s)
         refusals_flush(s, pt_now_ms(), 1);
         pt_free(s->guard->hs);
         pt_free(s->guard->act);
+        pt_free(s->guard->ids);
         if (s->guard->spare_fd >= 0)
             close(s->guard->spare_fd);
     }
@@ -491,6 +553,7 @@ static void conn_free(srv_server *s, srv_conn *c)
     s->guard->in_held -= in_counted(c->in.cap);
     proto_writer_fini(&c->out);
     proto_frame_reader_fini(&c->in);
+    id_remove(s->guard, c);
     pt_free(c);
     s->nconns--;
 }
@@ -575,7 +638,8 @@ static void accept_all(srv_server *s)
         memcpy(c->addr, addr, sizeof c->addr);
         snprintf(c->peer, sizeof c->peer, "%s:%u", host, port);
         struct epoll_event e = {.events = EPOLLIN, .data.ptr = c};
-        if (epoll_ctl(s->ep, EPOLL_CTL_ADD, fd, &e) != 0) {
+        if (id_add(s->guard, c) != 0 || epoll_ctl(s->ep, EPOLL_CTL_ADD, fd, &e) != 0) {
+            id_remove(s->guard, c);
             proto_writer_fini(&c->out);
             proto_frame_reader_fini(&c->in);
             pt_free(c);
@@ -1051,6 +1115,24 @@ void srv_loop_flush_all(srv_server *s)
     }
 }
 
+void srv_loop_each_for_hand_out(srv_server *s, int (*fn)(srv_server *, srv_conn *, void *),
+                                void *ctx)
+{
+    struct srv_guard *g = s->guard;
+    uint64_t now = pt_now_ms();
+    int waiting = 0;
+    if (g->hand_waiting || g->act_lost || now - g->t_hand >= TIMERS_MS) {
+        g->t_hand = now;
+        for (srv_conn *c = s->conns; c; c = c->next)
+            waiting |= fn(s, c, ctx);
+    } else {
+        /* By index: fn may list more (its own output, other peers'). */
+        for (uint32_t i = 0; i < g->nact; i++)
+            waiting |= fn(s, g->act[i], ctx);
+    }
+    g->hand_waiting = waiting;
+}
+
 /* The sweep of one connection; 1 when c is to be freed now. */
 static int sweep_one(srv_server *s, srv_conn *c, uint64_t now)
 {
@@ -1059,6 +1141,7 @@ static int sweep_one(srv_server *s, srv_conn *c, uint64_t now)
     if (proto_frame_reader_pending(&c->in) > 0 && !c->closing) {
         conn_process(s, c);
         in_shrink(s, c);
+        conn_touch(s, c); /* what it asked for is handed out next round */
     }
     if (c->closing && (c->close_at == 0 || now >= c->close_at))
         return 1;

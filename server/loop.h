@@ -160,6 +160,15 @@ void srv_loop_flush_all(srv_server *s);
  * what happened in it, not how many peers are connected. */
 void srv_loop_sweep(srv_server *s);
 
+/* Calls fn(s, c, ctx) for the connections a round's hand-out of tasks
+ * (server/queue.c) must look at: those touched since the last sweep (a
+ * WORK_REQUEST, a RESULT, output drained), or all of them every 50 ms and
+ * while some worker waits on a queue that had nothing for it (fn returned 1
+ * for it in the last call). Tasks reach waiting workers as before; a
+ * busy farm's round looks only at the peers it heard from. */
+void srv_loop_each_for_hand_out(srv_server *s, int (*fn)(srv_server *, srv_conn *, void *),
+                                void *ctx);
+
 /* 1 while c's unsent output is under SRV_OUT_HIGH. */
 int srv_conn_has_room(const srv_conn *c);
 
