@@ -18,7 +18,7 @@
  * backup_factor x the median for its size): the first result wins and the
  * other copy's lease is dropped. A result is accepted only from the owner of
  * a live lease for exactly that task (tile, sample range, pixel count, and
- * plausible pixels: finite non-negative sums under SRV_MAX_SAMPLE_RADIANCE
+ * plausible pixels: non-negative sums under PT_MAX_SAMPLE_RADIANCE (tile.h)
  * per sample, each pixel's count the task's samples less the samples the
  * result reports rejected), so merging is idempotent: a duplicate or late
  * result changes nothing.
@@ -81,13 +81,6 @@ typedef enum srv_outcome {
 } srv_outcome;
 
 typedef struct srv_job srv_job;
-
-/* A per-sample radiance no scene reaches (emission, base colour and textures
- * are bounded and non-negative, see common/scene/scene.c); a pixel sum over n
- * samples above n times this is refused as garbage. Well under what a double
- * sum of float samples can hold, and 1e20 times the brightest emitter of the
- * sample scenes. */
-#define SRV_MAX_SAMPLE_RADIANCE 1e20
 
 /* How leases end and which tasks are rendered twice. All zero (a new job's):
  * no hard deadline, no backups, no verification. */
