@@ -221,7 +221,7 @@ void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, i
 
 /* Checkpoints. srv_job_save appends the merged state (per tile the chunks
  * merged and whether adaptive sampling stopped it, the held early results, the
- * film's double sums and counts) to w; leases are not saved (their tasks are
+ * film's fixed-point sums and counts) to w; leases are not saved (their tasks are
  * pending again after a load). srv_job_load restores that state into a fresh
  * job made with the same id, params and scene hash: PT_ERR_FORMAT naming what
  * does not fit when the bytes are of another job or inconsistent. The result
