@@ -580,35 +580,31 @@ pt_status proto_msg_encode_result(proto_writer *w, const proto_result *m, pt_err
     proto_w_u64(w, m->rays);
     proto_w_u64(w, m->capped);
     proto_w_u32(w, m->npixels);
-    /* Narrow when every sum fits 64 bits (the usual case), so that a pixel
-     * is 40 bytes on the wire. */
-    int wide = 0;
-    for (uint32_t i = 0; i < m->npixels && !wide; i++) {
+    /* Each kind of sum narrow (8 bytes) when it fits 64 bits in every pixel
+     * (the usual case), so that a pixel is 40 bytes on the wire. */
+    int wide_rgb = 0, wide_sq = 0;
+    for (uint32_t i = 0; i < m->npixels; i++) {
         const pt_pixel_acc *a = &m->pixels[i];
         for (int c = 0; c < 3; c++)
-            wide |= a->fsum[c] != (pt_i128)(int64_t)a->fsum[c];
-        wide |= a->fsum_sq > UINT64_MAX;
+            wide_rgb |= a->fsum[c] != (pt_i128)(int64_t)a->fsum[c];
+        wide_sq |= a->fsum_sq > UINT64_MAX;
     }
-    proto_w_u8(w, (uint8_t)wide);
-    size_t psize = wide ? PROTO_RESULT_WIDE_PIXEL_SIZE : PROTO_RESULT_PIXEL_SIZE;
+    proto_w_u8(w, (uint8_t)(wide_rgb * PROTO_RESULT_WIDE_RGB + wide_sq * PROTO_RESULT_WIDE_SQ));
+    size_t rgb = wide_rgb ? 16 : 8, sq = wide_sq ? 16 : 8, psize = 3 * rgb + sq + 8;
     /* One reservation for all pixels: a 64k-pixel tile is 2.6 MB narrow. */
     uint8_t *q = proto_w_reserve(w, (size_t)m->npixels * psize);
     if (!q)
         return w_done(w, start, "RESULT", err);
     for (uint32_t i = 0; i < m->npixels; i++, q += psize) {
         const pt_pixel_acc *a = &m->pixels[i];
-        if (wide) {
-            for (int c = 0; c < 3; c++) {
-                proto_put_u64(q + 16 * c, (uint64_t)a->fsum[c]);
-                proto_put_u64(q + 16 * c + 8, (uint64_t)(a->fsum[c] >> 64));
-            }
-            proto_put_u64(q + 48, (uint64_t)a->fsum_sq);
-            proto_put_u64(q + 56, (uint64_t)(a->fsum_sq >> 64));
-        } else {
-            for (int c = 0; c < 3; c++)
-                proto_put_u64(q + 8 * c, (uint64_t)(int64_t)a->fsum[c]);
-            proto_put_u64(q + 24, (uint64_t)a->fsum_sq);
+        for (int c = 0; c < 3; c++) {
+            proto_put_u64(q + rgb * c, (uint64_t)a->fsum[c]);
+            if (wide_rgb)
+                proto_put_u64(q + rgb * c + 8, (uint64_t)(a->fsum[c] >> 64));
         }
+        proto_put_u64(q + 3 * rgb, (uint64_t)a->fsum_sq);
+        if (wide_sq)
+            proto_put_u64(q + 3 * rgb + 8, (uint64_t)(a->fsum_sq >> 64));
         proto_put_u32(q + psize - 8, a->n);
         proto_put_u32(q + psize - 4, a->hits);
     }
@@ -629,7 +625,7 @@ pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *bu
     m.rays = proto_r_u64(&r, "rays");
     m.capped = proto_r_u64(&r, "paths capped");
     m.npixels = proto_r_u32(&r, "pixel count");
-    uint8_t wide = proto_r_u8(&r, "pixel form");
+    uint8_t form = proto_r_u8(&r, "pixel form");
     m.pixels = NULL;
     m.owns_pixels = 0;
     if (r.status != PT_OK)
@@ -640,9 +636,11 @@ pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *bu
     const char *why = result_problem(&m);
     if (why)
         return bad(err, PT_ERR_PROTO, "RESULT", why);
-    if (wide > 1)
+    if (form & ~(PROTO_RESULT_WIDE_RGB | PROTO_RESULT_WIDE_SQ))
         return bad(err, PT_ERR_PROTO, "RESULT", "unknown pixel form");
-    size_t psize = wide ? PROTO_RESULT_WIDE_PIXEL_SIZE : PROTO_RESULT_PIXEL_SIZE;
+    int wide_rgb = (form & PROTO_RESULT_WIDE_RGB) != 0,
+        wide_sq = (form & PROTO_RESULT_WIDE_SQ) != 0;
+    size_t rgb = wide_rgb ? 16 : 8, psize = 3 * rgb + (wide_sq ? 16 : 8) + 8;
     size_t body = (size_t)m.npixels * psize;
     if (proto_r_left(&r) < body)
         return pt_error_set(err, PT_ERR_PROTO, "RESULT: truncated pixels (%zu of %zu bytes)",
@@ -670,16 +668,13 @@ pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *bu
         m.owns_pixels = 1;
     }
     for (uint32_t i = 0; i < m.npixels; i++, q += psize) {
-        if (wide) {
-            for (int c = 0; c < 3; c++)
-                px[i].fsum[c] = (pt_i128)(((pt_u128)proto_get_u64(q + 16 * c + 8) << 64) |
-                                          proto_get_u64(q + 16 * c));
-            px[i].fsum_sq = ((pt_u128)proto_get_u64(q + 56) << 64) | proto_get_u64(q + 48);
-        } else {
-            for (int c = 0; c < 3; c++)
-                px[i].fsum[c] = (int64_t)proto_get_u64(q + 8 * c);
-            px[i].fsum_sq = proto_get_u64(q + 24);
-        }
+        for (int c = 0; c < 3; c++)
+            px[i].fsum[c] = wide_rgb ? (pt_i128)(((pt_u128)proto_get_u64(q + 16 * c + 8) << 64) |
+                                                 proto_get_u64(q + 16 * c))
+                                     : (pt_i128)(int64_t)proto_get_u64(q + 8 * c);
+        px[i].fsum_sq = proto_get_u64(q + 3 * rgb);
+        if (wide_sq)
+            px[i].fsum_sq |= (pt_u128)proto_get_u64(q + 3 * rgb + 8) << 64;
         px[i].n = proto_get_u32(q + psize - 8);
         px[i].hits = proto_get_u32(q + psize - 4);
     }

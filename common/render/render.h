@@ -67,11 +67,11 @@ static inline pt_i128 pt_fixed_of(double x)
     return (pt_i128)v;
 }
 
-/* x >= 0 (a sum of squares) in fixed point, rounded to nearest, saturating
- * at PT_U128_MAX; NaN or a negative x gives 0. */
+/* x >= 0 (a sum of squares) in fixed point (units of 2^-48), rounded to
+ * nearest, saturating at PT_U128_MAX; NaN or a negative x gives 0. */
 static inline pt_u128 pt_ufixed_of(double x)
 {
-    double v = nearbyint(x * PT_FIXED_ONE);
+    double v = nearbyint(x * PT_FIXED_SQ_ONE);
     if (!(v > 0.0))
         return 0;
     if (v < 0x1p63)

@@ -19,10 +19,17 @@
 __extension__ typedef __int128 pt_i128 __attribute__((aligned(8)));
 __extension__ typedef unsigned __int128 pt_u128 __attribute__((aligned(8)));
 
-/* Sums are fixed point: the integer v stands for v x 2^-PT_FIXED_BITS. */
+/* Sums are fixed point: the integer v of an RGB sum stands for v x
+ * 2^-PT_FIXED_BITS, that of a sum of squared luminance for v x
+ * 2^-PT_FIXED_SQ_BITS. The squares get the finer unit so that a dim pixel
+ * (luminance 1e-6, a square of 1e-12) keeps its variance estimate; they
+ * saturate rather than overflow, so they need no headroom. */
 #define PT_FIXED_BITS 32
 #define PT_FIXED_ONE 0x1p32
 #define PT_FIXED_ULP 0x1p-32
+#define PT_FIXED_SQ_BITS 48
+#define PT_FIXED_SQ_ONE 0x1p48
+#define PT_FIXED_SQ_ULP 0x1p-48
 
 /* A sample with a colour component above this (or below its negative, or not
  * finite) is rejected, as NaN and Inf are (render.h): it is counted, not
@@ -44,7 +51,7 @@ __extension__ typedef unsigned __int128 pt_u128 __attribute__((aligned(8)));
 typedef struct pt_pixel_acc {
     pt_i128 fsum[3]; /* sum of the RGB samples, units of 2^-32 */
     pt_u128 fsum_sq; /* sum of squared luminance of the samples (error estimate),
-                        units of 2^-32; saturates at PT_U128_MAX (adding
+                        units of 2^-48; saturates at PT_U128_MAX (adding
                         non-negative values with saturation is associative,
                         so it stays exact and split-invariant; a saturated
                         pixel only reads as a very noisy one) */
@@ -81,11 +88,12 @@ static inline double pt_fixed_to_double(pt_i128 v)
     return (double)v * PT_FIXED_ULP;
 }
 
+/* A fixed-point sum of squares (units of 2^-48) as a double. */
 static inline double pt_ufixed_to_double(pt_u128 v)
 {
     if (v <= UINT64_MAX)
-        return (double)(uint64_t)v * PT_FIXED_ULP;
-    return (double)v * PT_FIXED_ULP;
+        return (double)(uint64_t)v * PT_FIXED_SQ_ULP;
+    return (double)v * PT_FIXED_SQ_ULP;
 }
 
 /* Sum of colour channel c (0..2) and of squared luminance, as doubles. */

@@ -18,6 +18,7 @@
 #include <string.h>
 
 #include "common/base/alloc.h"
+#include "common/render/render.h"
 #include "protocol/frame.h"
 #include "protocol/msg.h"
 #include "tests/check.h"
@@ -226,7 +227,7 @@ static void check_round_trip(int s, int v, const uint8_t *p, size_t len)
         CHECK(proto_msg_decode_result(p, len, NULL, 0, &b, &err) == PT_OK);
         /* v = 1: narrow, 40 bytes a pixel; v = 0: wide, 72. */
         CHECK(len == 69 + (v ? 40 : 72) * (size_t)a.npixels);
-        CHECK(p[68] == (v ? 0 : 1));
+        CHECK(p[68] == (v ? 0 : 3));
         CHECK(a.job_id == b.job_id && a.task_id == b.task_id && a.s0 == b.s0 && a.s1 == b.s1);
         CHECK(memcmp(&a.tile, &b.tile, sizeof a.tile) == 0);
         CHECK(a.rejected == b.rejected && a.rays == b.rays && a.npixels == b.npixels);
@@ -790,13 +791,32 @@ static void test_result(void)
         proto_writer raw = result_raw((pt_rect){0, 0, 4, 2}, 0, 8, 8, 8, 8, 0);
         proto_result r;
         pt_error e = {0};
-        raw.buf[68] = 1; /* wide, but 40-byte pixels: 8 x 72 bytes are not there */
+        raw.buf[68] = 1; /* wide RGB, but 40-byte pixels: 8 x 64 bytes are not there */
         CHECK(proto_msg_decode_result(raw.buf, raw.len, NULL, 0, &r, &e) == PT_ERR_PROTO &&
               strstr(e.msg, "truncated"));
-        raw.buf[68] = 2;
+        raw.buf[68] = 4;
         CHECK(proto_msg_decode_result(raw.buf, raw.len, NULL, 0, &r, &e) == PT_ERR_PROTO &&
               strstr(e.msg, "pixel form"));
         proto_writer_fini(&raw);
+    }
+    /* Only the sums of squares wide (a bright pixel): 48-byte pixels, and
+     * only the RGB sums: 64; both round trip. */
+    for (int k = 0; k < 2; k++) {
+        pt_pixel_acc px[2] = {pt_pixel_acc_of(1.0, 2.0, 3.0, 4.0, 8, 8),
+                              pt_pixel_acc_of(0.5, 0.25, 0.125, 0.0625, 8, 3)};
+        if (k == 0)
+            px[1].fsum_sq = ((pt_u128)1 << 64) + 5;
+        else
+            px[1].fsum[2] = -((pt_i128)1 << 64) - 5;
+        proto_result m = {1, 2, {0, 0, 2, 1}, 0, 8, 0, 0, 0, 2, px, 0}, b;
+        proto_writer ww;
+        proto_writer_init(&ww, 1 << 20);
+        CHECK(proto_msg_encode_result(&ww, &m, NULL) == PT_OK);
+        CHECK(ww.len == 69 + 2 * (size_t)(k ? 64 : 48) && ww.buf[68] == (k ? 1 : 2));
+        CHECK(proto_msg_decode_result(ww.buf, ww.len, NULL, 0, &b, NULL) == PT_OK &&
+              acc_same(&b.pixels[0], &px[0]) && acc_same(&b.pixels[1], &px[1]));
+        proto_result_fini(&b);
+        proto_writer_fini(&ww);
     }
     CHECK(pt_alloc_live() == live);
 

@@ -845,21 +845,19 @@ static void log_to_v4(const char *name)
         uint32_t len = proto_get_u32(d + at);
         const uint8_t *pl = d + at + 8;
         CHECK(at + 8 + len <= n && len >= 69);
-        size_t ps = pl[68] ? 72 : 40;
-        CHECK((len - 69) % ps == 0);
+        /* A record in the current layout decoded, in the old one written. */
+        proto_result r;
+        CHECK(proto_msg_decode_result(pl, len, NULL, 0, &r, NULL) == PT_OK);
         proto_writer_reset(&rec);
         proto_w_bytes(&rec, pl, 68);
-        for (size_t k = 0; k < (len - 69) / ps; k++) {
-            const uint8_t *q = pl + 69 + k * ps;
-            if (ps == 72) {
-                pixel_to_v4(&rec, q);
-            } else {
-                for (int c = 0; c < 3; c++)
-                    proto_w_f64(&rec, (double)(int64_t)proto_get_u64(q + 8 * c) * 0x1p-32);
-                proto_w_f64(&rec, (double)proto_get_u64(q + 24) * 0x1p-32);
-                proto_w_bytes(&rec, q + 32, 8);
-            }
+        for (uint32_t k = 0; k < r.npixels; k++) {
+            for (int c = 0; c < 3; c++)
+                proto_w_f64(&rec, pt_acc_sum(&r.pixels[k], c));
+            proto_w_f64(&rec, pt_acc_sum_sq(&r.pixels[k]));
+            proto_w_u32(&rec, r.pixels[k].n);
+            proto_w_u32(&rec, r.pixels[k].hits);
         }
+        proto_result_fini(&r);
         proto_w_u32(&w, (uint32_t)rec.len);
         proto_w_u32(&w, proto_crc32c(0, rec.buf, rec.len));
         proto_w_bytes(&w, rec.buf, rec.len);
