@@ -635,8 +635,17 @@ static void on_missed(void *ctx, uint64_t owner, uint64_t task)
     srv_workers_missed(e->s, owner, e->now);
 }
 
+/* Leases are checked at most this often, not every loop round: each check
+ * walks every lease of every job, thousands on a big farm, and deadlines are
+ * at least a --lease-timeout (seconds) away. */
+#define EXPIRE_MS 50
+
 void srv_queue_expire(srv_server *s, uint64_t now)
 {
+    static uint64_t t_last; /* one loop per process */
+    if (now - t_last < EXPIRE_MS && now >= t_last)
+        return;
+    t_last = now;
     expiry e = {s, now};
     for (srv_entry *j = s->jobs; j; j = j->next) {
         uint32_t n;
