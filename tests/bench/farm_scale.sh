@@ -34,6 +34,12 @@
 # --pace is given: with a fixed chunk the pace changes only how busy the
 # loop is, not the tasks.
 #
+# The default job is the farm: 2048x2048, tile 32, 16 workers, at
+# 1,024 samples per pixel (a final render; with tasks sized by time a tile's
+# tasks grow from 16 samples, so a short job is mostly small tasks and feeds
+# fewer cores per loop core than a long one). The coordinator's own defaults
+# size the tasks unless --chunk is given.
+#
 # The last line reads `cores fed per loop core: one-job N, queue M` (medians),
 # for scripts. Not a pass/fail test.
 #
@@ -49,7 +55,7 @@ threads=8
 res=2048x2048
 tile=32
 chunk=      # empty: the coordinator's default
-spp=256
+spp=1024
 runs=3
 pace=      # empty: 1.35e6, or 0 with --curve
 core_rate=1.35e6
