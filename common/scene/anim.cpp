@@ -237,16 +237,24 @@ void pose_nodes(const pt_anim &a, double t, pose_state &ps)
     }
 }
 
-// A camera's or light's placement from its node's global matrix, as the
-// importer places them at load (add_camera, add_light).
+// A camera's placement from its node's global matrix, as the importer
+// places it at load (add_camera). A matrix that degenerates during an
+// animation (a scale through zero) keeps the camera's previous axes, which
+// the load checked, rather than making NaN ones.
 void place_camera(const double *w, const double *pos, pt_camera *c)
 {
     c->position = pt_v3(float(pos[0]), float(pos[1]), float(pos[2]));
     pt_vec3 fwd = pt_v3(float(-w[8]), float(-w[9]), float(-w[10]));
     pt_vec3 up = pt_v3(float(w[4]), float(w[5]), float(w[6]));
-    c->forward = pt_v3_norm(fwd);
-    c->right = pt_v3_norm(pt_v3_cross(c->forward, up));
-    c->up = pt_v3_cross(c->right, c->forward);
+    if (!pt_isfinite3(fwd) || !pt_isfinite3(up) || !(pt_v3_len(fwd) > 0.0f))
+        return;
+    pt_vec3 f = pt_v3_norm(fwd);
+    pt_vec3 r = pt_v3_norm(pt_v3_cross(f, up));
+    if (!(pt_v3_len(r) > 0.5f) || !pt_isfinite3(r))
+        return;
+    c->forward = f;
+    c->right = r;
+    c->up = pt_v3_cross(r, f);
 }
 
 pt_status pose(const pt_anim &a, double t, const pt_scene *s, pt_anim_pose_out *out, pt_error *err)
@@ -431,6 +439,10 @@ pt_status pose(const pt_anim &a, double t, const pt_scene *s, pt_anim_pose_out *
         }
     }
 
+    // Checked before anything is written, so that a failed pose leaves the
+    // output as it was.
+    std::vector<pt_camera> cams;
+    std::vector<pt_punctual> lights;
     for (const placed &pc : a.cameras) {
         const double *w = &ps.global[16 * size_t(pc.node)];
         double pos[3];
@@ -438,10 +450,10 @@ pt_status pose(const pt_anim &a, double t, const pt_scene *s, pt_anim_pose_out *
             pos[r] = w[12 + r] * sc + a.translate[r] - org[r];
         pt_camera c = s->cameras[pc.index];
         place_camera(w, pos, &c);
-        if (out->cameras)
-            out->cameras[pc.index] = c;
-        if (out->camera && a.camera >= 0 && uint32_t(a.camera) == pc.index)
-            *out->camera = c;
+        if (!pt_isfinite3(c.position))
+            return pt_error_set(err, PT_ERR_FORMAT,
+                                "animation at %g s: camera '%.64s' is not finite", t, c.name);
+        cams.push_back(c);
     }
     for (const placed &pl : a.lights) {
         const double *w = &ps.global[16 * size_t(pl.node)];
@@ -453,9 +465,21 @@ pt_status pose(const pt_anim &a, double t, const pt_scene *s, pt_anim_pose_out *
         l.position = pt_v3(float(w[12] * sc + a.translate[0] - org[0]),
                            float(w[13] * sc + a.translate[1] - org[1]),
                            float(w[14] * sc + a.translate[2] - org[2]));
-        if (out->punctual)
-            out->punctual[pl.index] = l;
+        if (!pt_isfinite3(l.position))
+            return pt_error_set(err, PT_ERR_FORMAT,
+                                "animation at %g s: light '%.64s' is not finite", t, l.name);
+        lights.push_back(l);
     }
+    for (size_t i = 0; i < cams.size(); i++) {
+        uint32_t k = a.cameras[i].index;
+        if (out->cameras)
+            out->cameras[k] = cams[i];
+        if (out->camera && a.camera >= 0 && uint32_t(a.camera) == k)
+            *out->camera = cams[i];
+    }
+    for (size_t i = 0; i < lights.size(); i++)
+        if (out->punctual)
+            out->punctual[a.lights[i].index] = lights[i];
     if (out->positions)
         memcpy(out->positions, F.data(), F.size() * sizeof(float));
     if (out->normals)

@@ -85,9 +85,10 @@ pt_status pt_anim_load(const char *path, const pt_scene_opts *opts, pt_scene **s
 /* Poses scene (which must be the one pt_anim_load returned with anim, or a
  * copy with the same arrays) at time t seconds, in place: positions,
  * normals, tangents, bounds, cameras, scene->camera (see above) and punctual
- * lights. t must be finite and >= 0 (else PT_ERR_ARG, scene untouched).
- * PT_ERR_NOMEM leaves the scene partly posed. A scene a renderer or an
- * accelerator is using must not be posed under it. */
+ * lights. t must be finite and >= 0 (else PT_ERR_ARG). A pose whose
+ * positions, cameras or lights are not finite or over PT_SCENE_MAX_COORD at t
+ * (a hostile scale) is PT_ERR_FORMAT; on any failure the scene is untouched.
+ * A scene a renderer or an accelerator is using must not be posed under it. */
 pt_status pt_anim_pose(const pt_anim *anim, double t, pt_scene *scene, pt_error *err);
 
 /* The output of a pose into caller-owned arrays, for holding several times

@@ -1566,6 +1566,7 @@ void rig_animations(importer &im)
         const tinygltf::Animation &an = m.animations[ai];
         char ctx[120];
         snprintf(ctx, sizeof ctx, "animation %zu ('%.48s')", ai, shown(an.name).c_str());
+        std::map<std::array<int, 4>, int> read; // (sampler, comps, type, normalized ok) -> index
         for (size_t ci = 0; ci < an.channels.size(); ci++) {
             const tinygltf::AnimationChannel &ch = an.channels[ci];
             if (ch.target_node < 0)
@@ -1603,6 +1604,18 @@ void rig_animations(importer &im)
             if (ch.sampler < 0 || size_t(ch.sampler) >= an.samplers.size())
                 im.fail(PT_ERR_FORMAT, "%s channel %zu: sampler %d out of range (%zu samplers)",
                         ctx, ci, ch.sampler, an.samplers.size());
+            bool take = chosen < 0 || size_t(chosen) == ai;
+            // A sampler that several channels share is read once (as the
+            // same kind of value): a file cannot multiply its keys by
+            // repeating channels.
+            std::array<int, 4> key = {ch.sampler, comps, type,
+                                      path == pt_rig::PATH_R || path == pt_rig::PATH_W};
+            auto seen = read.find(key);
+            if (seen != read.end()) {
+                if (take)
+                    a.channels.push_back({ch.target_node, path, seen->second});
+                continue;
+            }
             const tinygltf::AnimationSampler &sm = an.samplers[size_t(ch.sampler)];
             char sctx[200];
             snprintf(sctx, sizeof sctx, "%s sampler %d", ctx, ch.sampler);
@@ -1635,7 +1648,8 @@ void rig_animations(importer &im)
                         "%s: %zu output numbers for %zu keys (%s %s needs %zu a key)", sctx,
                         rs.out.size(), rs.in.size(), sm.interpolation.c_str(),
                         ch.target_path.c_str(), per);
-            if (chosen >= 0 && size_t(chosen) != ai)
+            read[key] = take ? int(a.samplers.size()) : -1;
+            if (!take)
                 continue;
             double t0 = rs.in.front(), t1 = rs.in.back();
             a.start = any ? std::fmin(a.start, t0) : t0;
