@@ -18,6 +18,10 @@
 //   PT_ERR_FORMAT naming the element, and load as stills without animate.
 // - Options: an unknown animation is PT_ERR_ARG listing the file's, a
 //   negative or NaN time PT_ERR_ARG; an index chooses as the name does.
+// - Morph weights animated (LINEAR) add the weighted target deltas; a
+//   camera and a point light under an animated node follow it; a skin with
+//   JOINTS_1/WEIGHTS_1 blends both sets, ignores the mesh node's transform
+//   and turns normals by the inverse transpose.
 // The same configuration as the importer's (gltf_import.cpp).
 #define TINYGLTF_NO_STB_IMAGE_WRITE
 #define TINYGLTF_NO_EXTERNAL_IMAGE
@@ -695,6 +699,95 @@ void test_hostile()
     }
 }
 
+// A camera and a point light under an animated node move with it, and the
+// rendered camera (the file's first) with them.
+void test_follow()
+{
+    gltf g;
+    g.floats(k_tri, "VEC3", 3);
+    int in = g.floats({0, 1}, "SCALAR", 1), out = g.floats({0, 0, 0, 2, 0, 0}, "VEC3", 3);
+    char a[900];
+    snprintf(
+        a, sizeof a,
+        "\"extensionsUsed\":[\"KHR_lights_punctual\"],\"extensions\":{\"KHR_lights_punctual\":"
+        "{\"lights\":[{\"type\":\"point\",\"intensity\":2}]}},"
+        "\"nodes\":[{\"mesh\":0,\"children\":[1,2]},{\"camera\":0,\"translation\":[0,0,5]},"
+        "{\"translation\":[0,3,0],\"extensions\":{\"KHR_lights_punctual\":{\"light\":0}}}],"
+        "\"cameras\":[{\"type\":\"perspective\",\"perspective\":{\"yfov\":0.7,\"znear\":0.1}}],"
+        "\"meshes\":[{\"primitives\":[{\"attributes\":{\"POSITION\":0}}]}],"
+        "\"animations\":[{\"channels\":[{\"sampler\":0,\"target\":{\"node\":0,\"path\":"
+        "\"translation\"}}],\"samplers\":[{\"input\":%d,\"output\":%d}]}]",
+        in, out);
+    std::string p = write_tmp(g.json(a), "follow");
+    pt_error err{};
+    pt_status st;
+    pt_scene *s = load_at(p.c_str(), nullptr, 0.5, &st, &err);
+    CHECKF(st == PT_OK, "%s", err.msg);
+    if (s) {
+        CHECK(s->num_cameras == 1 && s->num_punctual == 1);
+        pt_vec3 c = s->cameras[0].position, r = s->camera.position, l = s->punctual[0].position;
+        const double *o = s->origin;
+        CHECKF(std::fabs(c.x + o[0] - 1) < 1e-6 && std::fabs(c.y + o[1]) < 1e-6 &&
+                   std::fabs(c.z + o[2] - 5) < 1e-6,
+               "camera at (%g, %g, %g)", double(c.x), double(c.y), double(c.z));
+        CHECK(memcmp(&r, &c, sizeof r) == 0);
+        CHECK(std::fabs(s->camera.forward.z + 1.0f) < 1e-6f);
+        CHECKF(std::fabs(l.x + o[0] - 1) < 1e-6 && std::fabs(l.y + o[1] - 3) < 1e-6 &&
+                   std::fabs(l.z + o[2]) < 1e-6,
+               "light at (%g, %g, %g)", double(l.x), double(l.y), double(l.z));
+    }
+    pt_scene_free(s);
+    unlink(p.c_str());
+}
+
+// JOINTS_1/WEIGHTS_1 and normals by the inverse transpose: each vertex half
+// on joint 0 (scale (2, 1, 1)) by its first set and half on joint 1
+// (translation (0, 0, 1)) by its second, so the blended matrix is
+// diag(1.5, 1, 1) with translation (0, 0, 0.5); a normal (1, 1, 0)/sqrt 2
+// becomes normalize(1/1.5, 1, 0). No animation: a rig with a skin only.
+void test_skin_sets()
+{
+    gltf g;
+    g.floats(k_tri, "VEC3", 3);
+    const float h = 0.70710678f;
+    int na = g.floats({h, h, 0, h, h, 0, h, h, 0}, "VEC3", 3);
+    uint16_t j0[12] = {0}, j1[12] = {1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0};
+    int j0a = g.add(j0, sizeof j0, 5123, "VEC4", 3), j1a = g.add(j1, sizeof j1, 5123, "VEC4", 3);
+    int w0a = g.floats({0.5f, 0, 0, 0, 0.5f, 0, 0, 0, 0.5f, 0, 0, 0}, "VEC4", 4);
+    int w1a = g.floats({0.5f, 0, 0, 0, 0.5f, 0, 0, 0, 0.5f, 0, 0, 0}, "VEC4", 4);
+    char a[600];
+    snprintf(a, sizeof a,
+             "\"nodes\":[{\"mesh\":0,\"skin\":0,\"translation\":[9,9,9],\"children\":[1,2]},"
+             "{\"scale\":[2,1,1]},{\"translation\":[0,0,1]}],\"skins\":[{\"joints\":[1,2]}],"
+             "\"meshes\":[{\"primitives\":[{\"attributes\":{\"POSITION\":0,\"NORMAL\":%d,"
+             "\"JOINTS_0\":%d,\"WEIGHTS_0\":%d,\"JOINTS_1\":%d,\"WEIGHTS_1\":%d}}]}]",
+             na, j0a, w0a, j1a, w1a);
+    std::string p = write_tmp(g.json(a), "skinsets");
+    pt_error err{};
+    pt_status st;
+    pt_scene *s = load_at(p.c_str(), nullptr, 0.0, &st, &err);
+    CHECKF(st == PT_OK, "%s", err.msg);
+    if (s) {
+        // The joints hang under the mesh node (translation 9, 9, 9): their
+        // globals include it, the mesh node's own transform is not applied
+        // on top.
+        for (int v = 0; v < 3; v++) {
+            double want[3] = {1.5 * k_tri[size_t(3 * v)] + 9, k_tri[size_t(3 * v + 1)] + 9,
+                              k_tri[size_t(3 * v + 2)] + 9.5};
+            for (int r = 0; r < 3; r++)
+                CHECKF(std::fabs(s->positions[3 * v + r] + s->origin[r] - want[r]) < 1e-5,
+                       "vertex %d axis %d: %g, want %g", v, r,
+                       s->positions[3 * v + r] + s->origin[r], want[r]);
+            double n[3] = {1 / 1.5, 1, 0}, l = std::sqrt(n[0] * n[0] + n[1] * n[1]);
+            for (int r = 0; r < 3; r++)
+                CHECKF(std::fabs(s->normals[3 * v + r] - n[r] / l) < 1e-6, "normal %d axis %d: %g",
+                       v, r, double(s->normals[3 * v + r]));
+        }
+    }
+    pt_scene_free(s);
+    unlink(p.c_str());
+}
+
 } // namespace
 
 int main(void)
@@ -703,5 +796,7 @@ int main(void)
     test_fox_skinning();
     test_repose();
     test_hostile();
+    test_follow();
+    test_skin_sets();
     return check_report();
 }
