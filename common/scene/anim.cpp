@@ -261,6 +261,26 @@ pt_status pose(const pt_anim &a, double t, const pt_scene *s, pt_anim_pose_out *
 {
     if (!(t >= 0.0) || !std::isfinite(t))
         return pt_error_set(err, PT_ERR_ARG, "animation time %g is negative or not finite", t);
+    if (!a.moves) {
+        // Every pose is the load's: the scene's own arrays, copied where the
+        // output is elsewhere.
+        size_t nv = s->num_vertices;
+        if (out->positions && out->positions != s->positions)
+            memcpy(out->positions, s->positions, 12 * nv);
+        if (out->normals && out->normals != s->normals)
+            memcpy(out->normals, s->normals, 12 * nv);
+        if (out->tangents && s->tangents && out->tangents != s->tangents)
+            memcpy(out->tangents, s->tangents, 16 * nv);
+        if (out->cameras && out->cameras != s->cameras && s->num_cameras)
+            memcpy(out->cameras, s->cameras, sizeof(pt_camera) * s->num_cameras);
+        if (out->camera && out->camera != &s->camera)
+            *out->camera = s->camera;
+        if (out->punctual && out->punctual != s->punctual && s->num_punctual)
+            memcpy(out->punctual, s->punctual, sizeof(pt_punctual) * s->num_punctual);
+        out->bounds_min = s->bounds_min;
+        out->bounds_max = s->bounds_max;
+        return PT_OK;
+    }
     pose_state ps;
     pose_nodes(a, t, ps);
     const double sc = a.scale;

@@ -77,8 +77,9 @@ typedef struct pt_anim pt_anim;
  * file's animations. A malformed animation, skin or morph target is
  * PT_ERR_FORMAT naming the element ("animation 0 ('Walk') sampler 2: input
  * times are not increasing at key 7"). On failure nothing is returned and
- * nothing leaks. A file without animations, skins or morph targets gives a
- * rig whose pose is the still. */
+ * nothing leaks. A file without animations, skins or morph targets gives an
+ * empty rig whose every pose is the still: the load reads nothing more and
+ * gives the bits of a still's load, and a pose leaves the scene as it is. */
 pt_status pt_anim_load(const char *path, const pt_scene_opts *opts, pt_scene **scene,
                        pt_anim **anim, pt_error *err);
 

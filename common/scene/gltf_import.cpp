@@ -1665,6 +1665,18 @@ void rig_animations(importer &im)
     }
 }
 
+// Whether nothing in the file can move: no animations, skins or morph targets.
+bool rig_static(const tinygltf::Model &m)
+{
+    if (!m.animations.empty() || !m.skins.empty())
+        return false;
+    for (const auto &mesh : m.meshes)
+        for (const auto &p : mesh.primitives)
+            if (!p.targets.empty())
+                return false;
+    return true;
+}
+
 // After the scene's nodes were visited: the rest of the rig.
 void rig_finish(importer &im)
 {
@@ -1859,6 +1871,14 @@ void import(importer &im)
             im.warn_once("req:" + r, "required extension " + r + " is not supported");
     choose_variant(im);
     add_materials(im);
+    // A file with nothing to animate (no animations, skins or morph targets)
+    // gets an empty rig: its poses are the still, so the load reads and
+    // costs what a still's does and gives the same bits.
+    pt_anim *rig = im.rig;
+    if (rig && rig_static(m)) {
+        rig_choose(im); // an animation named in a file without any is still an error
+        im.rig = nullptr;
+    }
     std::vector<char> on_path(m.nodes.size(), 0);
     if (!m.scenes.empty()) {
         int si = m.defaultScene >= 0 ? m.defaultScene : 0;
@@ -1868,6 +1888,7 @@ void import(importer &im)
             visit(im, ni, identity(), 0, on_path);
         if (im.rig)
             rig_finish(im);
+        im.rig = rig;
     } else {
         im.fail(PT_ERR_FORMAT, "no scenes: nothing to render");
     }
@@ -1942,7 +1963,7 @@ static pt_status load(const char *path, const pt_scene_opts *opts, pt_scene **ou
         for (uint32_t i = 0; i < s->num_cameras && rig->camera < 0; i++)
             if (!cam || strcmp(s->cameras[i].name, cam) == 0)
                 rig->camera = int(i);
-        st = pt_anim_pose(rig, opts ? opts->time : 0.0, s, &e);
+        st = rig->moves ? pt_anim_pose(rig, opts ? opts->time : 0.0, s, &e) : PT_OK;
         if (st != PT_OK) {
             pt_anim_free(rig);
             pt_scene_free(s);

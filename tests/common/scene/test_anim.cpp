@@ -18,6 +18,7 @@
 //   PT_ERR_FORMAT naming the element, and load as stills without animate.
 // - Options: an unknown animation is PT_ERR_ARG listing the file's, a
 //   negative or NaN time PT_ERR_ARG; an index chooses as the name does.
+// - A file with nothing to animate loads animated as its still, bit for bit.
 // - Morph weights animated (LINEAR) add the weighted target deltas; a
 //   camera and a point light under an animated node follow it; a skin with
 //   JOINTS_1/WEIGHTS_1 blends both sets, ignores the mesh node's transform
@@ -788,6 +789,41 @@ void test_skin_sets()
     unlink(p.c_str());
 }
 
+// A file with nothing to animate (the Cornell box) loads with animate 1 as
+// its still, bit for bit, and its rig does not move; naming an animation
+// there is an error.
+void test_static()
+{
+    std::string path = std::string(PT_SOURCE_DIR) + "/scenes/cornell_box.gltf";
+    pt_scene_opts o{};
+    o.warn = [](void *, const char *) {};
+    pt_scene *still = nullptr, *s = nullptr;
+    pt_anim *a = nullptr;
+    pt_error err{};
+    CHECKF(pt_scene_load(path.c_str(), &o, &still, &err) == PT_OK, "%s", err.msg);
+    o.animate = 1;
+    o.time = 2.5;
+    CHECKF(pt_anim_load(path.c_str(), &o, &s, &a, &err) == PT_OK, "%s", err.msg);
+    if (still && s) {
+        CHECK(!pt_anim_moves(a));
+        CHECK(same_scene(s, still));
+        CHECK(pt_anim_pose(a, 7.0, s, &err) == PT_OK);
+        CHECK(same_scene(s, still));
+        std::vector<float> P(3 * size_t(s->num_vertices));
+        pt_anim_pose_out out{};
+        out.positions = P.data();
+        CHECK(pt_anim_pose_into(a, 1.0, s, &out, &err) == PT_OK);
+        CHECK(memcmp(P.data(), still->positions, P.size() * 4) == 0);
+    }
+    pt_anim_free(a);
+    pt_scene_free(s);
+    pt_scene_free(still);
+    o.animation = "Walk";
+    s = nullptr;
+    CHECK(pt_scene_load(path.c_str(), &o, &s, &err) == PT_ERR_ARG && !s);
+    CHECKF(strstr(err.msg, "the scene has no animations") != nullptr, "%s", err.msg);
+}
+
 } // namespace
 
 int main(void)
@@ -798,5 +834,6 @@ int main(void)
     test_hostile();
     test_follow();
     test_skin_sets();
+    test_static();
     return check_report();
 }
