@@ -1569,8 +1569,11 @@ void rig_animations(importer &im)
         std::map<std::array<int, 4>, int> read; // (sampler, comps, type, normalized ok) -> index
         for (size_t ci = 0; ci < an.channels.size(); ci++) {
             const tinygltf::AnimationChannel &ch = an.channels[ci];
-            if (ch.target_node < 0)
-                continue; // no node: defined by an extension (glTF 3.11), not read
+            if (ch.target_node < 0) { // no node: an extension's target (glTF 3.11)
+                im.warn_once("anim-no-node", std::string(ctx) + " channel " + std::to_string(ci) +
+                                                 " has no target node (an extension's); ignored");
+                continue;
+            }
             if (size_t(ch.target_node) >= m.nodes.size())
                 im.fail(PT_ERR_FORMAT, "%s channel %zu: node %d out of range (%zu nodes)", ctx, ci,
                         ch.target_node, m.nodes.size());
