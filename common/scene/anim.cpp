@@ -261,6 +261,16 @@ pt_status pose(const pt_anim &a, double t, const pt_scene *s, pt_anim_pose_out *
 {
     if (!(t >= 0.0) || !std::isfinite(t))
         return pt_error_set(err, PT_ERR_ARG, "animation time %g is negative or not finite", t);
+    // A scene other than the rig's would be read out of range: refuse it.
+    for (const prim &p : a.prims)
+        if (uint64_t(p.v0) + p.nv > s->num_vertices || uint64_t(p.t0) + p.nt > s->num_triangles)
+            return pt_error_set(err, PT_ERR_ARG, "pt_anim_pose: the scene is not the rig's");
+    for (const placed &pc : a.cameras)
+        if (pc.index >= s->num_cameras)
+            return pt_error_set(err, PT_ERR_ARG, "pt_anim_pose: the scene is not the rig's");
+    for (const placed &pl : a.lights)
+        if (pl.index >= s->num_punctual)
+            return pt_error_set(err, PT_ERR_ARG, "pt_anim_pose: the scene is not the rig's");
     if (!a.moves) {
         // Every pose is the load's: the scene's own arrays, copied where the
         // output is elsewhere.
@@ -388,6 +398,8 @@ pt_status pose(const pt_anim &a, double t, const pt_scene *s, pt_anim_pose_out *
             std::vector<double> acc(size_t(p.nv) * 3, 0.0);
             for (uint32_t tri = p.t0; tri < p.t0 + p.nt; tri++) {
                 const uint32_t *I = s->indices + 3 * size_t(tri);
+                if (I[0] - p.v0 >= p.nv || I[1] - p.v0 >= p.nv || I[2] - p.v0 >= p.nv)
+                    continue; // not this instance's (a scene other than the rig's)
                 const double *p0 = &P[3 * size_t(I[0])], *p1 = &P[3 * size_t(I[1])],
                              *p2 = &P[3 * size_t(I[2])];
                 double e1[3] = {p1[0] - p0[0], p1[1] - p0[1], p1[2] - p0[2]};

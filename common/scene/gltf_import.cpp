@@ -1918,8 +1918,10 @@ static pt_status load(const char *path, const pt_scene_opts *opts, pt_scene **ou
     }
     pt_scene_builder *b = nullptr;
     pt_status st = pt_scene_builder_new(&b, err);
-    if (st != PT_OK)
+    if (st != PT_OK) {
+        pt_anim_free(rig);
         return st;
+    }
     try {
         importer im;
         im.path = path;

@@ -470,6 +470,12 @@ void test_repose()
         if (early)
             CHECKF(!same_scene(s, early), "%s: poses at 0.6 s and 0.8125 s are the same", f);
         pt_scene_free(early);
+        // Another file's scene, smaller than the rig's: refused, not read.
+        pt_scene *other =
+            load_at(shared("BoxAnimated/BoxAnimated.glb").c_str(), nullptr, 0.0, &st, &err);
+        if (other && other->num_vertices < s->num_vertices)
+            CHECK(pt_anim_pose(a, 0.5, other, &err) == PT_ERR_ARG);
+        pt_scene_free(other);
         CHECK(pt_anim_pose(a, -1.0, s, &err) == PT_ERR_ARG);
         CHECK(pt_anim_pose(a, NAN, s, &err) == PT_ERR_ARG);
         pt_anim_free(a);
