@@ -11,7 +11,8 @@
  * mode byte (see fuzz_frame.c) and frames, alone, in one stream, and a few
  * broken ones. For the decoders of files: small glTF scenes (a data: URI
  * buffer, an external buffer and image, a .glb, a name leading out of the
- * folder, animated ones with skins and morph targets) for fuzz_gltf; bundles packed from such
+ * folder, animated ones with skins and morph targets, and hostile animated
+ * ones) for fuzz_gltf; bundles packed from such
  * scenes, and hostile ones, for fuzz_bundle; and for the state folder's targets (fuzz_state.h) real
  * queue files, checkpoints and results logs written by server/state.c in a
  * scratch folder: fresh, with held early results, finished, cut short,
@@ -338,8 +339,14 @@ static void gen_gltf_anim(const char *dir)
         "{\"bufferView\":8,\"componentType\":5126,\"count\":3,\"type\":\"VEC3\"},"
         "{\"bufferView\":9,\"componentType\":5126,\"count\":6,\"type\":\"SCALAR\"},"
         "{\"bufferView\":10,\"componentType\":5123,\"count\":3,\"type\":\"VEC4\"}],";
-    static const char *const scenes[2][2] = {
-        {"anim_trs_morph.gltf",
+    /* The last three are hostile: a skin whose joints form a cycle out of the
+     * scene, a joint index past the skin's joints, a CUBICSPLINE sampler with
+     * one value a key. */
+    static const char k_skin_mesh[] =
+        "\"meshes\":[{\"primitives\":[{\"attributes\":{\"POSITION\":0,\"JOINTS_0\":10,"
+        "\"WEIGHTS_0\":5}}]}],";
+    static const char *const scenes[5][3] = {
+        {"anim_trs_morph.gltf", "\"scenes\":[{\"nodes\":[0]}],",
          "\"nodes\":[{\"mesh\":0,\"weights\":[0.5,0],\"children\":[1]},"
          "{\"camera\":0,\"translation\":[0,0,3]}],"
          "\"cameras\":[{\"name\":\"cam\",\"type\":\"perspective\",\"perspective\":{\"yfov\":0.6,"
@@ -354,7 +361,7 @@ static void gen_gltf_anim(const char *dir)
          "{\"input\":1,\"output\":2},{\"input\":1,\"output\":3,\"interpolation\":\"STEP\"},"
          "{\"input\":1,\"output\":4,\"interpolation\":\"CUBICSPLINE\"},"
          "{\"input\":1,\"output\":9}]}],"},
-        {"anim_skin.gltf",
+        {"anim_skin.gltf", "",
          "\"nodes\":[{\"mesh\":0,\"skin\":0},{\"children\":[2]},{\"translation\":[1,0,0]}],"
          "\"scenes\":[{\"nodes\":[0,1]}],"
          "\"skins\":[{\"joints\":[1,2],\"inverseBindMatrices\":6,\"skeleton\":1}],"
@@ -363,13 +370,25 @@ static void gen_gltf_anim(const char *dir)
          "\"animations\":[{\"name\":\"bend\",\"channels\":["
          "{\"sampler\":0,\"target\":{\"node\":2,\"path\":\"rotation\"}}],\"samplers\":["
          "{\"input\":1,\"output\":3}]}],"},
+        {"anim_skin_cycle.gltf", k_skin_mesh,
+         "\"nodes\":[{\"mesh\":0,\"skin\":0},{\"children\":[2]},"
+         "{\"translation\":[1,0,0],\"children\":[1]}],\"scenes\":[{\"nodes\":[0]}],"
+         "\"skins\":[{\"joints\":[1,2],\"inverseBindMatrices\":6}],"},
+        {"anim_bad_joint.gltf", k_skin_mesh,
+         "\"nodes\":[{\"mesh\":0,\"skin\":0,\"children\":[1]},{}],\"scenes\":[{\"nodes\":[0]}],"
+         "\"skins\":[{\"joints\":[1]}],"},
+        {"anim_bad_count.gltf", "",
+         "\"nodes\":[{\"mesh\":0}],\"scenes\":[{\"nodes\":[0]}],"
+         "\"meshes\":[{\"primitives\":[{\"attributes\":{\"POSITION\":0}}]}],"
+         "\"animations\":[{\"channels\":[{\"sampler\":0,\"target\":{\"node\":0,\"path\":"
+         "\"translation\"}}],\"samplers\":[{\"input\":1,\"output\":2,"
+         "\"interpolation\":\"CUBICSPLINE\"}]}],"},
     };
-    for (int i = 0; i < 2; i++) {
+    for (int i = 0; i < 5; i++) {
         b.len = 0;
         puts_(&b, "{\"asset\":{\"version\":\"2.0\"},");
-        if (i == 0)
-            puts_(&b, "\"scenes\":[{\"nodes\":[0]}],");
         puts_(&b, scenes[i][1]);
+        puts_(&b, scenes[i][2]);
         puts_(&b, k_anim_views);
         char len[64];
         snprintf(len, sizeof len, "\"buffers\":[{\"byteLength\":%zu,", sizeof bin);
