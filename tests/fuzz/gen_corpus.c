@@ -12,8 +12,8 @@
  * broken ones. For the decoders of files: small glTF scenes (a data: URI
  * buffer, an external buffer and image, a .glb, a name leading out of the
  * folder, animated ones with skins and morph targets, and hostile animated
- * ones) for fuzz_gltf; bundles packed from such
- * scenes, and hostile ones, for fuzz_bundle; and for the state folder's targets (fuzz_state.h) real
+ * ones) for fuzz_gltf; bundles packed from such scenes, and hostile ones,
+ * for fuzz_bundle; and for the state folder's targets (fuzz_state.h) real
  * queue files, checkpoints and results logs written by server/state.c in a
  * scratch folder: fresh, with held early results, finished, cut short,
  * unsealed. ctest runs "check", so a change to the wire format that
