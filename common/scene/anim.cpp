@@ -7,9 +7,11 @@
 // the importer, so nothing here indexes out of range whatever the file said.
 #include "common/scene/anim_rig.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <new>
+#include <utility>
 
 extern "C" {
 #include "common/base/alloc.h"
@@ -296,15 +298,25 @@ pt_status pose(const pt_anim &a, double t, const pt_scene *s, pt_anim_pose_out *
     const double sc = a.scale;
     const double *org = s->origin;
     uint32_t nv_all = s->num_vertices;
-    // World positions in double (scaled), normals and tangents, whole scene.
+    // Stored positions, normals and tangents start as the load's: a static
+    // instance keeps them, bit for bit. World positions (double, scaled) of
+    // the dynamic ones.
     std::vector<double> P(size_t(nv_all) * 3, 0.0);
-    std::vector<float> N(size_t(nv_all) * 3, 0.0f);
+    std::vector<float> F(s->positions, s->positions + size_t(nv_all) * 3);
+    std::vector<float> N(s->normals, s->normals + size_t(nv_all) * 3);
     std::vector<float> TG;
     bool want_tan = s->tangents != nullptr;
     if (want_tan)
-        TG.assign(size_t(nv_all) * 4, 0.0f);
+        TG.assign(s->tangents, s->tangents + size_t(nv_all) * 4);
+    std::vector<uint8_t> dyn_tri(s->num_triangles, 0);
     std::vector<double> m, jm;
     for (const prim &p : a.prims) {
+        if (!p.dynamic)
+            continue;
+        std::fill(N.begin() + 3 * long(p.v0), N.begin() + 3 * long(p.v0 + p.nv), 0.0f);
+        if (want_tan)
+            std::fill(TG.begin() + 4 * long(p.v0), TG.begin() + 4 * long(p.v0 + p.nv), 0.0f);
+        std::fill(dyn_tri.begin() + long(p.t0), dyn_tri.begin() + long(p.t0 + p.nt), uint8_t(1));
         const node &nd = a.nodes[size_t(p.node)];
         const std::vector<double> &wts = ps.weights[size_t(p.node)];
         size_t ntg = p.dpos.size();
@@ -425,19 +437,25 @@ pt_status pose(const pt_anim &a, double t, const pt_scene *s, pt_anim_pose_out *
             }
         }
     }
-    // Stored = float(world - origin); bounds from the stored values.
-    std::vector<float> F(size_t(nv_all) * 3);
+    // Stored = float(world - origin) for the dynamic instances; bounds from
+    // all the stored values.
+    for (const prim &p : a.prims) {
+        if (!p.dynamic)
+            continue;
+        for (size_t v = p.v0; v < size_t(p.v0) + p.nv; v++)
+            for (int r = 0; r < 3; r++) {
+                float q = float(P[3 * v + size_t(r)] - org[r]);
+                if (!std::isfinite(q) ||
+                    std::fabs(P[3 * v + size_t(r)]) > double(PT_SCENE_MAX_COORD))
+                    return pt_error_set(err, PT_ERR_FORMAT,
+                                        "animation at %g s: vertex %zu is not finite or over %g", t,
+                                        v, double(PT_SCENE_MAX_COORD));
+                F[3 * v + size_t(r)] = q;
+            }
+    }
     pt_vec3 lo = pt_v3(INFINITY, INFINITY, INFINITY), hi = pt_v3(-INFINITY, -INFINITY, -INFINITY);
     for (size_t v = 0; v < nv_all; v++) {
-        float *q = &F[3 * v];
-        for (int r = 0; r < 3; r++) {
-            q[r] = float(P[3 * v + size_t(r)] - org[r]);
-            if (!std::isfinite(q[r]) ||
-                std::fabs(P[3 * v + size_t(r)]) > double(PT_SCENE_MAX_COORD))
-                return pt_error_set(err, PT_ERR_FORMAT,
-                                    "animation at %g s: vertex %zu is not finite or over %g", t, v,
-                                    double(PT_SCENE_MAX_COORD));
-        }
+        const float *q = &F[3 * v];
         lo = pt_v3(fminf(lo.x, q[0]), fminf(lo.y, q[1]), fminf(lo.z, q[2]));
         hi = pt_v3(fmaxf(hi.x, q[0]), fmaxf(hi.y, q[1]), fmaxf(hi.z, q[2]));
     }
@@ -453,7 +471,8 @@ pt_status pose(const pt_anim &a, double t, const pt_scene *s, pt_anim_pose_out *
                 int slot = mt->normal_tex >= 0 ? PT_SLOT_NORMAL : PT_SLOT_CLEARCOAT_NORMAL;
                 int mapped =
                     mt->normal_tex >= 0 || (mt->clearcoat > 0.0f && mt->clearcoat_normal_tex >= 0);
-                use[tri] = mapped && mt->tex_xf[slot].texcoord == set;
+                // Only the dynamic instances': the static keep the load's.
+                use[tri] = dyn_tri[tri] && mapped && mt->tex_xf[slot].texcoord == set;
                 any |= use[tri];
             }
             if (!any)
@@ -473,9 +492,11 @@ pt_status pose(const pt_anim &a, double t, const pt_scene *s, pt_anim_pose_out *
 
     // Checked before anything is written, so that a failed pose leaves the
     // output as it was.
-    std::vector<pt_camera> cams;
-    std::vector<pt_punctual> lights;
+    std::vector<std::pair<uint32_t, pt_camera>> cams;
+    std::vector<std::pair<uint32_t, pt_punctual>> lights;
     for (const placed &pc : a.cameras) {
+        if (!pc.dynamic)
+            continue;
         const double *w = &ps.global[16 * size_t(pc.node)];
         double pos[3];
         for (int r = 0; r < 3; r++)
@@ -485,9 +506,11 @@ pt_status pose(const pt_anim &a, double t, const pt_scene *s, pt_anim_pose_out *
         if (!pt_isfinite3(c.position))
             return pt_error_set(err, PT_ERR_FORMAT,
                                 "animation at %g s: camera '%.64s' is not finite", t, c.name);
-        cams.push_back(c);
+        cams.push_back({pc.index, c});
     }
     for (const placed &pl : a.lights) {
+        if (!pl.dynamic)
+            continue;
         const double *w = &ps.global[16 * size_t(pl.node)];
         pt_punctual l = s->punctual[pl.index];
         double d[3] = {-w[8], -w[9], -w[10]};
@@ -500,18 +523,25 @@ pt_status pose(const pt_anim &a, double t, const pt_scene *s, pt_anim_pose_out *
         if (!pt_isfinite3(l.position))
             return pt_error_set(err, PT_ERR_FORMAT,
                                 "animation at %g s: light '%.64s' is not finite", t, l.name);
-        lights.push_back(l);
+        lights.push_back({pl.index, l});
     }
-    for (size_t i = 0; i < cams.size(); i++) {
-        uint32_t k = a.cameras[i].index;
+    // Static cameras and lights keep the load's (copied where the output is
+    // elsewhere), dynamic ones move.
+    if (out->cameras && out->cameras != s->cameras && s->num_cameras)
+        memcpy(out->cameras, s->cameras, sizeof(pt_camera) * s->num_cameras);
+    if (out->camera && out->camera != &s->camera)
+        *out->camera = s->camera;
+    if (out->punctual && out->punctual != s->punctual && s->num_punctual)
+        memcpy(out->punctual, s->punctual, sizeof(pt_punctual) * s->num_punctual);
+    for (const auto &c : cams) {
         if (out->cameras)
-            out->cameras[k] = cams[i];
-        if (out->camera && a.camera >= 0 && uint32_t(a.camera) == k)
-            *out->camera = cams[i];
+            out->cameras[c.first] = c.second;
+        if (out->camera && a.camera >= 0 && uint32_t(a.camera) == c.first)
+            *out->camera = c.second;
     }
-    for (size_t i = 0; i < lights.size(); i++)
+    for (const auto &l : lights)
         if (out->punctual)
-            out->punctual[a.lights[i].index] = lights[i];
+            out->punctual[l.first] = l.second;
     if (out->positions)
         memcpy(out->positions, F.data(), F.size() * sizeof(float));
     if (out->normals)

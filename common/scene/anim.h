@@ -31,6 +31,10 @@
  *   matrices (position, axes); the rendered camera (scene->camera) follows
  *   when it is one of the file's cameras (a framed camera stays where the
  *   load framed it).
+ * Only what can move is computed: instances under a node whose TRS a chosen
+ * channel animates (or under such an ancestor), skinned and morphed
+ * instances, cameras and lights under animated nodes. Everything else keeps
+ * the values of the load (a still's), bit for bit.
  * Then opts' scale and translation are applied (in double) and positions are
  * stored relative to scene->origin, which the load fixed: a pose never
  * changes origin. Bounds are recomputed from the stored positions. Normals of

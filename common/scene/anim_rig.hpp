@@ -53,6 +53,7 @@ struct skin {
 struct prim {
     int node = 0, mesh = 0, index = 0;
     int skin = -1;
+    bool dynamic = false; // skinned, morphed or under an animated node: posed; else kept
     uint32_t v0 = 0, nv = 0, t0 = 0, nt = 0;
     std::vector<float> pos;       // 3 per vertex, mesh space
     std::vector<float> nrm;       // 3 per vertex, or empty: normals from the posed positions
@@ -65,7 +66,8 @@ struct prim {
 
 struct placed {
     int node = 0;
-    uint32_t index = 0; // into scene->cameras or scene->punctual
+    uint32_t index = 0;   // into scene->cameras or scene->punctual
+    bool dynamic = false; // under an animated node: posed; else kept
 };
 
 } // namespace pt_rig

@@ -1686,11 +1686,29 @@ void rig_finish(importer &im)
     rig_nodes(im);
     rig_skins(im);
     rig_animations(im);
+    // What a pose must compute: instances under a node whose TRS a chosen
+    // channel animates (or under such an ancestor), skinned or morphed ones,
+    // and cameras and lights under animated nodes. The rest keep the load's
+    // values, so a static part of an animated scene keeps a still's bits and
+    // costs a pose nothing.
     pt_anim &a = *im.rig;
-    a.moves = !a.channels.empty();
-    for (const auto &p : a.prims)
-        if (p.skin >= 0 || !p.dpos.empty())
-            a.moves = true;
+    std::vector<char> animated(a.nodes.size(), 0);
+    for (const auto &ch : a.channels)
+        if (ch.path != pt_rig::PATH_W)
+            animated[size_t(ch.node)] = 1;
+    for (int ni : a.order)
+        if (a.nodes[size_t(ni)].parent >= 0 && animated[size_t(a.nodes[size_t(ni)].parent)])
+            animated[size_t(ni)] = 1;
+    a.moves = false;
+    for (auto &p : a.prims) {
+        p.dynamic = animated[size_t(p.node)] || p.skin >= 0 || !p.dpos.empty();
+        a.moves = a.moves || p.dynamic;
+    }
+    for (auto *list : {&a.cameras, &a.lights})
+        for (auto &pl : *list) {
+            pl.dynamic = animated[size_t(pl.node)] != 0;
+            a.moves = a.moves || pl.dynamic;
+        }
 }
 
 void visit(importer &im, int ni, const mat4 &parent, int depth, std::vector<char> &on_path)

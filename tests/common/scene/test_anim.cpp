@@ -18,7 +18,8 @@
 //   PT_ERR_FORMAT naming the element, and load as stills without animate.
 // - Options: an unknown animation is PT_ERR_ARG listing the file's, a
 //   negative or NaN time PT_ERR_ARG; an index chooses as the name does.
-// - A file with nothing to animate loads animated as its still, bit for bit.
+// - A file with nothing to animate loads animated as its still, bit for bit,
+//   and so do the static parts of animated ones.
 // - Morph weights animated (LINEAR) add the weighted target deltas; a
 //   camera and a point light under an animated node follow it; a skin with
 //   JOINTS_1/WEIGHTS_1 blends both sets, ignores the mesh node's transform
@@ -483,6 +484,51 @@ void test_repose()
     }
 }
 
+// The static instances of an animated scene keep the still's bits at any
+// time (BoxAnimated's base, node 3; InterpolationTest's plane, node 11,
+// rotated, scaled and moved), while the animated ones move.
+void test_static_parts(const char *rel, int static_node)
+{
+    std::string path = shared(rel);
+    tinygltf::Model m;
+    if (!exists(path) || !load_model(path, m)) {
+        if (check_shared_required())
+            CHECKF(0, "%s is missing", path.c_str());
+        else
+            CHECK_SKIP("%s is missing", path.c_str());
+        return;
+    }
+    std::vector<std::pair<int, size_t>> inst;
+    size_t nv = 0;
+    for (int ni : m.scenes[0].nodes)
+        offsets(m, ni, inst, nv);
+    pt_scene_opts o{};
+    pt_scene *still = nullptr;
+    pt_error err{};
+    pt_status st;
+    CHECK(pt_scene_load(path.c_str(), &o, &still, &err) == PT_OK);
+    pt_scene *s = load_at(path.c_str(), nullptr, 0.75, &st, &err);
+    CHECKF(st == PT_OK, "%s", err.msg);
+    int seen = 0;
+    if (s && still && s->num_vertices == nv) {
+        for (size_t i = 0; i < inst.size(); i++) {
+            size_t v0 = inst[i].second, v1 = i + 1 < inst.size() ? inst[i + 1].second : nv;
+            bool same =
+                memcmp(s->positions + 3 * v0, still->positions + 3 * v0, 12 * (v1 - v0)) == 0 &&
+                memcmp(s->normals + 3 * v0, still->normals + 3 * v0, 12 * (v1 - v0)) == 0;
+            if (inst[i].first == static_node) {
+                CHECKF(same, "%s: static node %d moved", rel, static_node);
+                seen++;
+            } else {
+                CHECKF(!same, "%s: node %d did not move", rel, inst[i].first);
+            }
+        }
+    }
+    CHECKF(seen == 1, "%s: node %d not found", rel, static_node);
+    pt_scene_free(s);
+    pt_scene_free(still);
+}
+
 // ---- hand-written files ----------------------------------------------------------------
 
 std::string base64(const std::vector<unsigned char> &d)
@@ -830,6 +876,41 @@ void test_static()
     CHECKF(strstr(err.msg, "the scene has no animations") != nullptr, "%s", err.msg);
 }
 
+// A static instance far from the origin (the still rounds its node matrix
+// to float, as the importer always has) keeps the still's bits beside an
+// animated one.
+void test_static_far()
+{
+    gltf g;
+    g.floats(k_tri, "VEC3", 3);
+    int in = g.floats({0, 1}, "SCALAR", 1), out = g.floats({0, 0, 0, 2, 0, 0}, "VEC3", 3);
+    char a[600];
+    snprintf(a, sizeof a,
+             "\"nodes\":[{\"children\":[1,2]},{\"mesh\":0,\"translation\":[123456.789,0.1,0.3]},"
+             "{\"mesh\":0,\"translation\":[123450.5,0,0]}],"
+             "\"meshes\":[{\"primitives\":[{\"attributes\":{\"POSITION\":0}}]}],"
+             "\"animations\":[{\"channels\":[{\"sampler\":0,\"target\":{\"node\":2,\"path\":"
+             "\"translation\"}}],\"samplers\":[{\"input\":%d,\"output\":%d}]}]",
+             in, out);
+    std::string p = write_tmp(g.json(a), "far");
+    pt_scene_opts o{};
+    pt_scene *still = nullptr;
+    pt_error err{};
+    pt_status st;
+    CHECK(pt_scene_load(p.c_str(), &o, &still, &err) == PT_OK);
+    pt_scene *s = load_at(p.c_str(), nullptr, 0.5, &st, &err);
+    CHECKF(st == PT_OK, "%s", err.msg);
+    if (s && still) {
+        CHECK(memcmp(s->origin, still->origin, sizeof s->origin) == 0);
+        CHECKF(memcmp(s->positions, still->positions, 36) == 0, "static x %.9g, still %.9g",
+               double(s->positions[0]), double(still->positions[0]));
+        CHECK(memcmp(s->positions + 9, still->positions + 9, 36) != 0);
+    }
+    pt_scene_free(s);
+    pt_scene_free(still);
+    unlink(p.c_str());
+}
+
 } // namespace
 
 int main(void)
@@ -837,9 +918,12 @@ int main(void)
     test_interpolation();
     test_fox_skinning();
     test_repose();
+    test_static_parts("BoxAnimated/BoxAnimated.glb", 3);
+    test_static_parts("InterpolationTest/InterpolationTest.glb", 11);
     test_hostile();
     test_follow();
     test_skin_sets();
     test_static();
+    test_static_far();
     return check_report();
 }
