@@ -788,8 +788,12 @@ static void queue_to_v3(const char *name)
         copy_params_v3(&w, d, &at, wht);
         proto_w_bytes(&w, d + at, 32 + 8 + 8 + 8 + 8);
         at += 32 + 8 + 8 + 8 + 8;
-        copy_str(&w, d, &at); /* message */
-        at += 8;              /* paths capped */
+        copy_str(&w, d, &at);            /* message */
+        at += 8;                         /* paths capped */
+        at += 4 * 3 + 8;                 /* version 5's frame range and fps */
+        at += 2 + proto_get_u16(d + at); /* its animation */
+        at += 4;                         /* frames done */
+        at += 1 + 4 * (size_t)d[at];     /* frames done ahead */
     }
     CHECK(at + 4 == n);
     const long vers[] = {4};

@@ -253,7 +253,8 @@ static void test_queue_env_versions(const char *dir)
 
     /* Version 3: the same record without the ENV block (23 bytes with no map
      * name), the film flags (4) and the variant (2, empty), which sit after
-     * the camera, and without the depth-cap count (8), the record's last field. */
+     * the camera, and without the depth-cap count (8) and version 5's frame
+     * block (27 with no animation and no frame done ahead), its last fields. */
     rec.params.env = PARAMS.env;
     CHECK(srv_state_save_queue(st, recs, 1, 2, &err) == PT_OK);
     char qp[512];
@@ -263,11 +264,11 @@ static void test_queue_env_versions(const char *dir)
     CHECK(pt_read_file(qp, 1 << 20, &f, &len, &err) == PT_OK);
     size_t at = 8 + 8 + 4 + 8 + 8 + 1 + 4 + (2 + strlen(rec.name)) + 2 + 2 + 2 + 8 + 9 * 4 + 2 * 8 +
                 2 + strlen(rec.params.camera);
-    if (f && len > at + 29 + 12) {
+    if (f && len > at + 29 + 12 + 27) {
         memmove(f + at, f + at + 29, len - at - 29);
         len -= 29;
-        memmove(f + len - 12, f + len - 4, 4); /* the capped count before the CRC */
-        len -= 8;
+        memmove(f + len - 39, f + len - 4, 4); /* the capped count and frames before the CRC */
+        len -= 35;
         proto_put_u32(f + 4, 3);
         proto_put_u32(f + len - 4, proto_crc32c(0, f, len - 4));
         CHECK(pt_write_file_atomic(qp, f, len, &err) == PT_OK);
