@@ -74,6 +74,8 @@ void srv_frames_note_done(srv_entry *f)
         r->samples_done += srv_job_samples_merged(f->job);
         r->capped += srv_job_paths_capped(f->job);
     }
+    /* Journaled with the frame: a restart's range counts on from here. */
+    r->seconds = srv_entry_seconds(p, pt_now_ms());
     if (p->frames) {
         p->frames->any_done = 1;
         p->frames->last_done = f->frame;
@@ -145,6 +147,7 @@ int srv_frames_ready(srv_server *s, srv_entry *p)
         }
         p->frames->count = pt_frames_count(&p->rec.frames);
         p->frames->next = p->rec.frames_done;
+        p->seconds_before = p->rec.seconds; /* as of its last frame done */
         if (!p->t_started)
             p->rate_t = pt_now_ms();
     }

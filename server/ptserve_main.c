@@ -21,6 +21,7 @@ static void usage(FILE *f)
         f,
         "usage: ptserve [options] -o OUT.exr SCENE\n"
         "       ptserve --local N [options] -o OUT.exr SCENE\n"
+        "       ptserve --local N --frames A-B[:STEP] [options] -o SHOT.####.exr SCENE\n"
         "       ptserve --state-dir DIR [--output-dir DIR] [options]\n"
         "\n"
         "Coordinates a ptfarm render: splits each image into tiles x sample chunks,\n"
