@@ -112,9 +112,10 @@ ls "$tmp"/x.* > /dev/null 2>&1 && fail "a refused job wrote an image"
 
 # The queue: ptctl submit --frames with two workers, killed mid-range.
 serve() { # $1: log
-  rm -f "$tmp/port"
+  rm -f "$tmp/port" "$tmp/http_port"
   "$bin/ptserve" --state-dir "$tmp/state" --output-dir "$tmp/out" --listen 127.0.0.1:0 \
-    --port-file "$tmp/port" --tile 16 --chunk 8 --save-interval 0.2 2>> "$1" &
+    --port-file "$tmp/port" --tile 16 --chunk 8 --save-interval 0.2 --http 127.0.0.1:0 \
+    --http-port-file "$tmp/http_port" 2>> "$1" &
   srv_pid=$!
   for _ in $(seq 200); do [ -s "$tmp/port" ] && break; sleep 0.05; done
   [ -s "$tmp/port" ] || fail "ptserve did not start"
@@ -146,6 +147,12 @@ grep -q "^frames     0-5:1, [1-6] done" "$tmp/status.txt" || fail "status: $(cat
 ctl status "$id" --json > "$tmp/status.json"
 [ "$(json "$tmp/status.json" 'd["frame_range"] == {"first": 0, "last": 5, "step": 1}')" = True ] ||
   fail "status json: $(cat "$tmp/status.json")"
+# The dashboard's API: the same frames.
+for _ in $(seq 100); do [ -s "$tmp/http_port" ] && break; sleep 0.05; done
+python3 -c "import urllib.request,sys; sys.stdout.write(urllib.request.urlopen(sys.argv[1]).read().decode())" \
+  "http://127.0.0.1:$(cat "$tmp/http_port")/api/jobs/$id" > "$tmp/api.json" || fail "/api/jobs/$id"
+[ "$(json "$tmp/api.json" 'd["frame_range"]["last"] == 5 and isinstance(d["frames"], list)')" = True ] ||
+  fail "/api/jobs/$id: $(cat "$tmp/api.json")"
 kill -9 "$srv_pid"
 wait "$srv_pid" 2> /dev/null || true
 for p in $wrk_pids; do

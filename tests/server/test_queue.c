@@ -157,16 +157,27 @@ static int reply(cli *c, proto_frame *f)
     return t;
 }
 
-/* Sends SUBMIT; spp 0 (which the encoder refuses) is patched into the bytes. */
+/* Sends SUBMIT; spp 0 and a reversed frame range (which the encoder
+ * refuses) are patched into the bytes. */
 static void submit_begin(cli *c, const proto_submit *m)
 {
     proto_writer w;
     proto_writer_init(&w, 4096);
     proto_submit fixed = *m;
     fixed.spp = m->spp ? m->spp : 1;
+    int reversed = m->frame_step && m->frame_last < m->frame_first;
+    if (reversed) {
+        fixed.frame_first = m->frame_last;
+        fixed.frame_last = m->frame_first;
+    }
     CHECK(proto_msg_encode_submit(&w, &fixed, NULL) == PT_OK);
     if (m->spp == 0)
         proto_put_u32(w.buf + 10 + strlen(m->name), 0);
+    if (reversed) { /* the range is the last fields but the fps and the animation */
+        uint8_t *range = w.buf + w.len - 2 - strlen(m->animation) - 8 - 12;
+        proto_put_u32(range, m->frame_first);
+        proto_put_u32(range + 4, m->frame_last);
+    }
     cli_send(c, PROTO_MSG_SUBMIT, &w);
     proto_writer_fini(&w);
 }
@@ -1133,6 +1144,16 @@ static void hostile_clients(void)
     both.target_error = 0.05;
     both.min_gain = 1e-6;
     CHECK(refused(both, B, N, "two adaptive rules"));
+    /* Frame ranges: refused at SUBMIT, the server serving on. */
+    proto_submit fr = job_of("shot", 64, 48, 16, 0);
+    fr.frame_first = 9;
+    fr.frame_last = 3;
+    fr.frame_step = 1;
+    fr.fps = 24.0;
+    CHECK(refused(fr, B, N, "bad frame range"));
+    fr.frame_first = 0;
+    fr.fps = 2e6;
+    CHECK(refused(fr, B, N, "frames per second is over"));
 
     /* Bundles: a file named ../x, a lying inner length, the wrong hash, a broken glTF. */
     const char *n1[] = {"scene.gltf", "../evil.bin"}, *d1[] = {"{}", "x"};
