@@ -51,7 +51,8 @@ print(out.get("f"), repr(out.get("t")), out.get("r"))
 PY
 }
 
-view=(--res 40x30 --spp 32 --seed 3 --background 1,1,1)
+bg=(--background "1,1,1")
+view=(--res 40x30 --spp 32 --seed 3 "${bg[@]}")
 frames=(0 1 2 3 4 5)
 # ptworker poses a scene at --frame F once animation is in; until then
 # every frame is the still, and the frames must equal it.
@@ -89,7 +90,7 @@ done
 mkdir -p "$tmp/step"
 "$bin/ptserve" --local 2 --worker-threads 1 "${view[@]}" --tile 16 --chunk 8 --frames 1-5:2 -q \
   -o "$tmp/step/s_##.exr" "$scene" 2> "$tmp/serve_step.log" || fail "--frames 1-5:2"
-[ "$(cd "$tmp/step" && ls ./*.exr | tr '\n' ' ')" = "./s_01.exr ./s_03.exr ./s_05.exr " ] ||
+[ "$(cd "$tmp/step" && echo ./*.exr)" = "./s_01.exr ./s_03.exr ./s_05.exr" ] ||
   fail "step outputs: $(ls "$tmp/step")"
 same "$tmp/ref.3.exr" "$tmp/step/s_03.exr"
 
@@ -98,7 +99,9 @@ bad() { # $1: what the message must say, then the command
   local want=$1 rc=0
   shift
   "$@" > "$tmp/bad.log" 2>&1 || rc=$?
-  [ $rc != 0 ] && grep -q -- "$want" "$tmp/bad.log" || fail "$* -> rc $rc: $(cat "$tmp/bad.log")"
+  if [ $rc = 0 ] || ! grep -q -- "$want" "$tmp/bad.log"; then
+    fail "$* -> rc $rc: $(cat "$tmp/bad.log")"
+  fi
 }
 one=("$bin/ptserve" --local 1 "${view[@]}")
 bad "is not a frame range" "${one[@]}" --frames 1-x -o "$tmp/x.#.exr" "$scene"
@@ -134,7 +137,7 @@ bad "give --frames" ctl submit "$scene" --animation 0 --server 127.0.0.1:1
 
 serve "$tmp/serve1.log"
 # Many passes a frame, so that the kill finds frames done and frames in flight.
-long=(--res 40x30 --spp 2048 --seed 3 --background 1,1,1)
+long=(--res 40x30 --spp 2048 --seed 3 "${bg[@]}")
 id=$(ctl submit "$scene" "${long[@]}" --frames 0-5 --fps 24 --name shot)
 [[ "$id" =~ ^[0-9]+$ ]] || fail "submit printed '$id'"
 end=$((SECONDS + 300))
@@ -168,7 +171,7 @@ done_before=$(grep -o "job $id frame [0-9]* done" "$tmp/serve1.log" | awk '{prin
 serve "$tmp/serve2.log"
 ctl watch "$id" 2> /dev/null || fail "watch exited $?"
 ctl status "$id" --json > "$tmp/status.json"
-[ "$(json "$tmp/status.json" 'd["state"]')" = done ] || fail "state: $(cat "$tmp/status.json")"
+[ "$(json "$tmp/status.json" 'd["state"]')" = "done" ] || fail "state: $(cat "$tmp/status.json")"
 [ "$(json "$tmp/status.json" 'd["frames_done"]')" = 6 ] || fail "frames: $(cat "$tmp/status.json")"
 grep -q "damaged\|refusing" "$tmp/serve2.log" && fail "the job was refused after the restart"
 # A frame done before the kill is not rendered again: no task of it is
@@ -177,15 +180,18 @@ for f in $done_before; do
   grep -q "job $id frame $f done" "$tmp/serve2.log" && fail "frame $f was rendered again"
 done
 for f in "${frames[@]}"; do
-  "$bin/ptworker" --scene "$scene" "${long[@]}" --tile 16 --chunk 8 -q \
-    $([ $posed = 1 ] && echo "--frame $f --fps 24") -o "$tmp/long_ref.$f.exr"
+  pose=()
+  [ $posed = 1 ] && pose=(--frame "$f" --fps 24)
+  "$bin/ptworker" --scene "$scene" "${long[@]}" --tile 16 --chunk 8 -q "${pose[@]}" \
+    -o "$tmp/long_ref.$f.exr"
   same "$tmp/long_ref.$f.exr" "$tmp/out/$id-shot.000$f.exr"
   [ $posed = 1 ] || break # the still: every frame is checked against frame 0's below
 done
 if [ $posed = 0 ]; then
   for f in "${frames[@]}"; do same "$tmp/long_ref.0.exr" "$tmp/out/$id-shot.000$f.exr"; done
 fi
-ls "$tmp/state/jobs" | grep -q . && fail "files left in the state folder: $(ls "$tmp/state/jobs")"
+left=$(find "$tmp/state/jobs" -mindepth 1)
+[ -z "$left" ] || fail "files left in the state folder: $left"
 
 # ptctl fetch --frame: that frame's image; a frame the job does not render,
 # a still, and no job at all are refused.
