@@ -14,6 +14,7 @@
 #include <unistd.h>
 
 #include "common/base/alloc.h"
+#include "common/base/clock.h"
 #include "common/base/fsutil.h"
 #include "common/base/hash.h"
 #include "common/render/env.h"
@@ -297,6 +298,7 @@ struct wrk_scenes {
     wrk_scene_ref *head;
     uint32_t count, max;
     uint64_t builds, tick;
+    double build_seconds; /* loading and building, over every build */
 };
 
 pt_status wrk_scenes_new(uint32_t max, wrk_scenes **out, pt_error *err)
@@ -543,9 +545,12 @@ pt_status wrk_scenes_acquire_posed(wrk_scenes *s, const uint8_t hash[WRK_HASH_SI
     s->builds++;
     pthread_mutex_unlock(&s->mu);
 
+    double t0 = pt_now_s();
     pt_status st = build(e, entry_path);
+    double took = pt_now_s() - t0;
 
     pthread_mutex_lock(&s->mu);
+    s->build_seconds += took;
     wrk_scene_ref *freed = NULL;
     if (st == PT_OK) {
         e->state = E_READY;
@@ -592,6 +597,14 @@ uint64_t wrk_scenes_builds(wrk_scenes *s)
     uint64_t n = s->builds;
     pthread_mutex_unlock(&s->mu);
     return n;
+}
+
+double wrk_scenes_build_seconds(wrk_scenes *s)
+{
+    pthread_mutex_lock(&s->mu);
+    double t = s->build_seconds;
+    pthread_mutex_unlock(&s->mu);
+    return t;
 }
 
 uint32_t wrk_scenes_count(wrk_scenes *s)

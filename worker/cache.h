@@ -111,5 +111,8 @@ void wrk_scenes_release(wrk_scenes *s, wrk_scene_ref *ref); /* accepts NULL */
 /* Scenes built so far (failed builds included) and entries held now (tests). */
 uint64_t wrk_scenes_builds(wrk_scenes *s);
 uint32_t wrk_scenes_count(wrk_scenes *s);
+/* Seconds spent loading scenes and building renderers, over every build:
+ * a frame-range job's per-frame set-up (each frame is a build). */
+double wrk_scenes_build_seconds(wrk_scenes *s);
 
 #endif

@@ -1296,6 +1296,12 @@ int wrk_client_run(const wrk_client_opts *o)
             (unsigned long long)w->samples, secs > 0 ? (double)w->samples / secs : 0.0, secs);
     if (w->failed)
         fprintf(stderr, ", %llu failed", (unsigned long long)w->failed);
+    /* The set-up cost beside the render time (each frame of a range is a
+     * build of its own). */
+    uint64_t builds = wrk_scenes_builds(w->scenes);
+    if (builds)
+        fprintf(stderr, "; %llu scene builds, %.3f s each", (unsigned long long)builds,
+                wrk_scenes_build_seconds(w->scenes) / (double)builds);
     fputc('\n', stderr);
 
     /* Finish nothing: threads end after the tile they are in. A tile of a
