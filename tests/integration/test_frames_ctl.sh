@@ -206,6 +206,22 @@ ctl watch "$still" 2> /dev/null || fail "watch of the still exited $?"
 bad "is a still" ctl fetch "$still" --frame 0 -o "$tmp/s.exr"
 bad "no job 999" ctl fetch 999 --frame 0 -o "$tmp/s.exr"
 ctl list | grep -q "6/6 frames" || fail "list: $(ctl list)"
+
+# Cancel: every frame ends with the job, their files go, the queue serves on.
+cut=$(ctl submit "$scene" "${long[@]}" --frames 0-99 --name cut)
+end=$((SECONDS + 120))
+until ctl status "$cut" --json > "$tmp/cut.json" && [ "$(json "$tmp/cut.json" 'd["frames_rendering"] > 0')" = True ]; do
+  [ $SECONDS -lt $end ] || fail "no frame of the job to cancel started"
+  sleep 0.05
+done
+[ "$(ctl cancel "$cut")" = cancelled ] || fail "cancel"
+end=$((SECONDS + 30))
+until [ -z "$(find "$tmp/state/jobs" -mindepth 1)" ]; do
+  [ $SECONDS -lt $end ] || fail "files of the cancelled range stay: $(find "$tmp/state/jobs")"
+  sleep 0.05
+done
+after=$(ctl submit "$scene" "${view[@]}")
+ctl watch "$after" 2> /dev/null || fail "the job after the cancelled range: watch exited $?"
 grep -q "Sanitizer\|runtime error:" "$tmp"/serve*.log && fail "sanitizer report"
 failed=0
 echo "ok: frame ranges one-job and queued (1 and 2 workers, kill -9 mid-range) equal the standalone frames"
