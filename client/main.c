@@ -879,7 +879,8 @@ static const char FETCH_HELP[] =
     "options:\n"
     "  -o, --output PATH  the file to write (required)\n"
     "  --frame F          frame F of a frame-range job (its latest image); without\n"
-    "                     it, such a job's earliest frame rendering, or its last\n";
+    "                     it, such a job's earliest frame rendering, or else the\n"
+    "                     last frame done\n";
 
 static int cmd_fetch(int argc, char **argv, globals *g)
 {
