@@ -57,7 +57,9 @@ frames=(0 1 2 3 4 5)
 # ptworker poses a scene at --frame F once animation is in; until then
 # every frame is the still, and the frames must equal it.
 posed=0
-"$bin/ptworker" --help 2>&1 | grep -q -- "--frame" && posed=1
+# (Read whole first: grep -q would end the pipe early, and pipefail fail it.)
+worker_help=$("$bin/ptworker" --help 2>&1 || true)
+[[ "$worker_help" == *"--frame F"* ]] && posed=1
 for f in "${frames[@]}"; do
   if [ $posed = 1 ]; then
     "$bin/ptworker" --scene "$scene" "${view[@]}" --tile 16 --chunk 8 --frame "$f" --fps 24 -q \
