@@ -113,6 +113,11 @@ bad "over the cap of 100000" "${one[@]}" --frames 0-200000 -o "$tmp/x.#.exr" "$s
 bad "needs a '#'" "${one[@]}" --frames 0-3 -o "$tmp/x.exr" "$scene"
 bad "give --frames" "${one[@]}" --fps 30 -o "$tmp/x.exr" "$scene"
 bad "is not a positive number" "${one[@]}" --frames 0-3 --fps 0 -o "$tmp/x.#.exr" "$scene"
+if [ $posed = 1 ]; then # the loader knows animations: an unknown one is refused
+  bad "the scene has no animations" "${one[@]}" --frames 0-3 --animation Walk -o "$tmp/x.#.exr" \
+    "$src/scenes/cornell_box.gltf"
+  bad "no animation '3'" "${one[@]}" --frames 0-3 --animation 3 -o "$tmp/x.#.exr" "$scene"
+fi
 ls "$tmp"/x.* > /dev/null 2>&1 && fail "a refused job wrote an image"
 
 # The queue: ptctl submit --frames with two workers, killed mid-range.
@@ -203,6 +208,10 @@ cmp -s "$tmp/f4.exr" "$tmp/out/$id-shot.0004.exr" || fail "fetch --frame 4 diffe
   fail "fetched header: $(frame_meta "$tmp/f4.exr")"
 bad "renders no frame 9" ctl fetch "$id" --frame 9 -o "$tmp/f9.exr"
 bad "is not a whole number" ctl fetch "$id" --frame x -o "$tmp/f9.exr"
+if [ $posed = 1 ]; then
+  bad "scene refused: cornell_box.gltf: no animation 'Walk'" ctl submit \
+    "$src/scenes/cornell_box.gltf" --frames 0-2 --animation Walk "${view[@]}"
+fi
 still=$(ctl submit "$scene" "${view[@]}")
 ctl watch "$still" 2> /dev/null || fail "watch of the still exited $?"
 bad "is a still" ctl fetch "$still" --frame 0 -o "$tmp/s.exr"
