@@ -31,7 +31,8 @@ size=$(od -An -tu1 -j16 -N8 "$tmp/sheet.png" | awk '{print $1*16777216+$2*65536+
 
 rc=0
 "$bin/ptcontact-sheet" -o "$tmp/bad.png" "$tmp/f0.exr" "$tmp/other.exr" 2> "$tmp/err" || rc=$?
-[ "$rc" = 2 ] && grep -q "not the first image's size" "$tmp/err" || fail "mismatched size: exit $rc"
+[ "$rc" = 2 ] || fail "mismatched size: exit $rc"
+grep -q "not the first image's size" "$tmp/err" || fail "mismatched size: $(cat "$tmp/err")"
 rc=0
 "$bin/ptcontact-sheet" -o "$tmp/bad.png" "$tmp/f0.exr" "$tmp/missing.exr" 2> /dev/null || rc=$?
 [ "$rc" = 2 ] || fail "missing file: exit $rc"
