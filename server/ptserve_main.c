@@ -21,6 +21,7 @@ static void usage(FILE *f)
         f,
         "usage: ptserve [options] -o OUT.exr SCENE\n"
         "       ptserve --local N [options] -o OUT.exr SCENE\n"
+        "       ptserve --local N --frames A-B[:STEP] [options] -o SHOT.####.exr SCENE\n"
         "       ptserve --state-dir DIR [--output-dir DIR] [options]\n"
         "\n"
         "Coordinates a ptfarm render: splits each image into tiles x sample chunks,\n"
@@ -98,6 +99,15 @@ static void usage(FILE *f)
         "  --variant NAME         the KHR_materials_variants variant: mapped primitives\n"
         "                         take its material; one-job mode (queued jobs: ptctl\n"
         "                         submit --variant)\n"
+        "  --frames A-B[:STEP]    render the frames A, A+STEP, ... B of the scene's\n"
+        "                         animation as one job (at most 100000 frames, numbers\n"
+        "                         0 to 999999): -o must have a '#' run, replaced by the\n"
+        "                         zero-padded frame number (shot.####.exr: frame 7 is\n"
+        "                         shot.0007.exr); early frames finish first; each frame\n"
+        "                         is the same image as ptworker --scene ... --frame F\n"
+        "  --fps R                frame F is at F / R seconds (default 24)\n"
+        "  --animation NAME|INDEX the animation played (default: all of them, as\n"
+        "                         viewers do); one-job mode (queued jobs: ptctl submit)\n"
         "  --tile N               tile side in pixels (default 32)\n"
         "  --chunk N              samples per task (default 16)\n"
         "  --save-interval SEC    progressive saves at most this often (default 5)\n"
@@ -191,6 +201,9 @@ int main(int argc, char **argv)
         O_MAXQUEUED,
         O_CAMERA,
         O_VARIANT,
+        O_FRAMES,
+        O_FPS,
+        O_ANIMATION,
         O_MINGAIN,
         O_CLIENTS,
         O_MAXINPUT,
@@ -219,6 +232,9 @@ int main(int argc, char **argv)
         {"seed", required_argument, NULL, O_SEED},
         {"camera", required_argument, NULL, O_CAMERA},
         {"variant", required_argument, NULL, O_VARIANT},
+        {"frames", required_argument, NULL, O_FRAMES},
+        {"fps", required_argument, NULL, O_FPS},
+        {"animation", required_argument, NULL, O_ANIMATION},
         {"max-depth", required_argument, NULL, O_DEPTH},
         {"tile", required_argument, NULL, O_TILE},
         {"chunk", required_argument, NULL, O_CHUNK},
@@ -294,6 +310,20 @@ int main(int argc, char **argv)
                 return 2;
             }
             snprintf(c.job.camera, sizeof c.job.camera, "%s", optarg);
+            break;
+        case O_FRAMES:
+            st = pt_frames_parse("--frames", optarg, &c.frames, &err);
+            break;
+        case O_FPS:
+            st = pt_opt_positive("--fps", optarg, 1e6, &c.fps, &err);
+            break;
+        case O_ANIMATION:
+            if (!optarg[0] || strlen(optarg) > PROTO_MAX_NAME) {
+                fprintf(stderr, "ptserve: --animation: a name or index of 1 to %u bytes\n",
+                        PROTO_MAX_NAME);
+                return 2;
+            }
+            c.animation = optarg;
             break;
         case O_VARIANT:
             if (!optarg[0] || strlen(optarg) > PROTO_MAX_NAME) {
@@ -455,6 +485,25 @@ int main(int argc, char **argv)
                         "and --state-dir (clients use the queue)\n");
         return 2;
     }
+    if (c.state_dir && (c.frames.step || c.fps > 0 || c.animation)) {
+        fprintf(stderr, "ptserve: --frames, --fps and --animation are for one-job mode; a queued "
+                        "job asks for them with ptctl submit --frames\n");
+        return 2;
+    }
+    if (!c.frames.step && (c.fps > 0 || c.animation)) {
+        fprintf(stderr, "ptserve: --fps and --animation pose the frames of --frames A-B[:STEP]; "
+                        "give --frames\n");
+        return 2;
+    }
+    if (c.frames.step && !pt_frames_has_pattern(c.out_path)) {
+        fprintf(stderr,
+                "ptserve: -o %s: a frame range needs a '#' run in the output name for "
+                "the frame number (e.g. -o shot.####.exr: frame 7 is shot.0007.exr)\n",
+                c.out_path);
+        return 2;
+    }
+    if (c.frames.step && c.fps == 0)
+        c.fps = PT_FRAMES_DEFAULT_FPS;
     if (c.state_dir && c.job.variant[0]) {
         fprintf(stderr, "ptserve: --variant is for one-job mode; a queued job asks for it "
                         "with ptctl submit --variant\n");

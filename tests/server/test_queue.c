@@ -158,16 +158,27 @@ static int reply(cli *c, proto_frame *f)
     return t;
 }
 
-/* Sends SUBMIT; spp 0 (which the encoder refuses) is patched into the bytes. */
+/* Sends SUBMIT; spp 0 and a reversed frame range (which the encoder
+ * refuses) are patched into the bytes. */
 static void submit_begin(cli *c, const proto_submit *m)
 {
     proto_writer w;
     proto_writer_init(&w, 4096);
     proto_submit fixed = *m;
     fixed.spp = m->spp ? m->spp : 1;
+    int reversed = m->frame_step && m->frame_last < m->frame_first;
+    if (reversed) {
+        fixed.frame_first = m->frame_last;
+        fixed.frame_last = m->frame_first;
+    }
     CHECK(proto_msg_encode_submit(&w, &fixed, NULL) == PT_OK);
     if (m->spp == 0)
         proto_put_u32(w.buf + 10 + strlen(m->name), 0);
+    if (reversed) { /* the range is the last fields but the fps and the animation */
+        uint8_t *range = w.buf + w.len - 2 - strlen(m->animation) - 8 - 12;
+        proto_put_u32(range, m->frame_first);
+        proto_put_u32(range + 4, m->frame_last);
+    }
     cli_send(c, PROTO_MSG_SUBMIT, &w);
     proto_writer_fini(&w);
 }
@@ -771,7 +782,44 @@ static void pixel_to_v4(proto_writer *w, const uint8_t *q)
     proto_w_bytes(w, q + 64, 8);
 }
 
-/* The queue file of format 4: the same records. */
+/* The queue file of format 5: each record without format 6's frame range,
+ * pose and frames done, its last fields. */
+static void queue_to_v5(const char *name)
+{
+    uint8_t *d;
+    size_t n;
+    if (!read_state(name, &d, &n))
+        return;
+    proto_writer w;
+    proto_writer_init(&w, 1 << 30);
+    size_t at = 8 + 8 + 4;
+    proto_w_bytes(&w, d, at);
+    for (uint32_t i = 0, count = proto_get_u32(d + 16); i < count; i++) {
+        size_t start = at;
+        at += 8 + 8 + 1 + 4;
+        for (int k = 0; k < 4; k++) /* name, owner, scene, output */
+            at += 2 + proto_get_u16(d + at);
+        at += 8 + 9 * 4 + 16;                             /* submitted, params */
+        at += 2 + proto_get_u16(d + at);                  /* camera */
+        at += 2 + proto_get_u16(d + at) + 4 + 4 + 1 + 12; /* the environment */
+        at += 4;                                          /* film flags */
+        at += 2 + proto_get_u16(d + at);                  /* material variant */
+        at += 32 + 8 + 8 + 8 + 8;
+        at += 2 + proto_get_u16(d + at); /* message */
+        at += 8;                         /* paths capped */
+        proto_w_bytes(&w, d + start, at - start);
+        at += 4 * 3 + 8;                 /* the frame range and fps */
+        at += 2 + proto_get_u16(d + at); /* the animation */
+        at += 4;                         /* frames done */
+        at += 1 + 4 * (size_t)d[at];     /* frames done ahead */
+    }
+    CHECK(at + 4 == n);
+    const long vers[] = {4};
+    write_ver(name, &w, vers, 1, 1, 5);
+    pt_free(d);
+}
+
+/* The queue file of format 4: the same records as format 5. */
 static void queue_to_v4(const char *name)
 {
     uint8_t *d;
@@ -1120,7 +1168,7 @@ static void damaged(void)
     kill_server(SIGTERM);
     CHECK(log_has("damage_torn.log", "incomplete last record"));
 
-    /* State folders in format 4 (before fixed-point sums), 3 (before the
+    /* State folders in format 5 (before frame ranges), 4 (before fixed-point sums), 3 (before the
      * environment light and the film flags as well) and 2 (before --min-gain
      * as well): the same job resumes with the same samples as from the
      * current format. */
@@ -1133,15 +1181,19 @@ static void damaged(void)
     /* checkpoint: header 8, seconds/rejected/rays 24, magic, version, id, hash,
      * nine u32 parameters, target error; then the min gain */
     const long ck_gain = 8 + 24 + 4 + 4 + 8 + 32 + 36 + 8;
-    for (uint32_t format = 4; format >= 2; format--) {
+    for (uint32_t format = 5; format >= 2; format--) {
         snprintf(cmd, sizeof cmd, "rm -rf '%s' && cp -a '%s' '%s'", path("state3"),
                  path("state3.good"), path("state3"));
         CHECK(system(cmd) == 0);
+        /* Format 5: no frame ranges in the queue's records. */
+        queue_to_v5("state3/queue");
         /* Format 4: double sums in the checkpoint, protocol 3's RESULT in
          * the results log (converted as read, and rewritten). */
-        queue_to_v4("state3/queue");
-        checkpoint_to_v4(ck);
-        log_to_v4(lg);
+        if (format <= 4) {
+            queue_to_v4("state3/queue");
+            checkpoint_to_v4(ck);
+            log_to_v4(lg);
+        }
         /* Format 3: no environment, no film flags, and the results log in
          * protocol 2's RESULT layout (read so, and rewritten). */
         if (format <= 3) {
@@ -1159,7 +1211,7 @@ static void damaged(void)
         CHECK(start_damaged(log) == -1);
         CHECKF(status(g_port, id, &info) == PROTO_MSG_JOB_INFO && info.state == PROTO_JOB_RUNNING &&
                    info.samples_done == v4.samples_done,
-               "format %u: state %u, %llu samples (format 5: %llu)", format, info.state,
+               "format %u: state %u, %llu samples (format 6: %llu)", format, info.state,
                (unsigned long long)info.samples_done, (unsigned long long)v4.samples_done);
         kill_server(SIGTERM);
     }
@@ -1257,6 +1309,16 @@ static void hostile_clients(void)
     both.target_error = 0.05;
     both.min_gain = 1e-6;
     CHECK(refused(both, B, N, "two adaptive rules"));
+    /* Frame ranges: refused at SUBMIT, the server serving on. */
+    proto_submit fr = job_of("shot", 64, 48, 16, 0);
+    fr.frame_first = 9;
+    fr.frame_last = 3;
+    fr.frame_step = 1;
+    fr.fps = 24.0;
+    CHECK(refused(fr, B, N, "bad frame range"));
+    fr.frame_first = 0;
+    fr.fps = 2e6;
+    CHECK(refused(fr, B, N, "frames per second is over"));
 
     /* Bundles: a file named ../x, a lying inner length, the wrong hash, a broken glTF. */
     const char *n1[] = {"scene.gltf", "../evil.bin"}, *d1[] = {"{}", "x"};
