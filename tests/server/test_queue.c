@@ -810,23 +810,34 @@ static void checkpoint_to_v3(const char *name)
     /* envelope 8, seconds/rejected/rays 24, magic, version, id, hash */
     size_t at = 8 + 24 + 4 + 4 + 8 + 32;
     proto_w_bytes(&w, d, at);
-    uint32_t wht[3];
+    uint32_t wht[3], chunk = proto_get_u32(d + at + 16);
     copy_params_v3(&w, d, &at, wht);
     at += 8; /* paths capped */
+    /* Format 6 counts a tile's samples merged and names a held result by its
+     * tile and samples; older ones count chunks and name the task, chunk x
+     * tiles + tile (the job's tasks are fixed chunks here). */
     uint32_t ntiles = proto_get_u32(d + at);
-    proto_w_bytes(&w, d + at, 8 + (size_t)ntiles * 5 + 4);
-    at += 8 + (size_t)ntiles * 5;
+    proto_w_bytes(&w, d + at, 8);
+    at += 8;
+    for (uint32_t i = 0; i < ntiles; i++, at += 5) {
+        uint32_t m = proto_get_u32(d + at);
+        CHECK(m % chunk == 0 || m == proto_get_u32(d + 8 + 24 + 4 + 4 + 8 + 32 + 8));
+        proto_w_u32(&w, (m + chunk - 1) / chunk);
+        proto_w_u8(&w, d[at + 4]);
+    }
     uint32_t nheld = proto_get_u32(d + at);
+    proto_w_u32(&w, nheld);
     at += 4;
     uint32_t tiles_x = (wht[0] + wht[2] - 1) / wht[2], tiles_y = (wht[1] + wht[2] - 1) / wht[2];
     CHECK(tiles_x * tiles_y == ntiles);
     for (uint32_t i = 0; i < nheld; i++) {
-        uint64_t t = proto_get_u64(d + at) % ntiles;
-        uint32_t tx = (uint32_t)(t % tiles_x), ty = (uint32_t)(t / tiles_x);
+        uint32_t t = proto_get_u32(d + at), s0 = proto_get_u32(d + at + 4);
+        uint32_t tx = t % tiles_x, ty = t / tiles_x;
         uint32_t tw = wht[0] - tx * wht[2] < wht[2] ? wht[0] - tx * wht[2] : wht[2];
         uint32_t th = wht[1] - ty * wht[2] < wht[2] ? wht[1] - ty * wht[2] : wht[2];
-        proto_w_bytes(&w, d + at, 8);
-        at += 8;
+        CHECK(s0 % chunk == 0);
+        proto_w_u64(&w, (uint64_t)(s0 / chunk) * ntiles + t);
+        at += 12;
         for (uint32_t k = 0; k < tw * th; k++, at += 40)
             proto_w_bytes(&w, d + at, 36);
     }
