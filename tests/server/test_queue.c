@@ -2,7 +2,8 @@
  * test_queue.c - ptserve's render queue (--state-dir) with real processes,
  * real sockets and real files; a raw protocol client plays ptctl.
  *
- *  1. Crash-restart: ptserve is killed with SIGKILL at least 5 times during a
+ *  1. Crash-restart: ptserve (tasks sized by time, the default) is killed
+ *     with SIGKILL at least 5 times during a
  *     job (each time after more samples were merged) and restarted on the same
  *     state folder; every restart resumes with at least the samples merged
  *     before the kill, and the final image is bit-identical to an undisturbed
@@ -306,6 +307,9 @@ static int fetch(int port, uint64_t id, const char *name)
 
 /* ---- processes --------------------------------------------------------------------- */
 
+/* How ptserve sizes tasks: fixed chunks of 8 unless a test asks otherwise. */
+static const char *g_sizing[2] = {"--chunk", "8"};
+
 /* ptserve on state, logging to log; opt and its value (or NULL) are added. */
 static void start_server_opt(const char *state, const char *log, const char *opt, const char *value)
 {
@@ -321,8 +325,8 @@ static void start_server_opt(const char *state, const char *log, const char *opt
                           path("port"),
                           "--tile",
                           "16",
-                          "--chunk",
-                          "8",
+                          g_sizing[0],
+                          g_sizing[1],
                           "--save-interval",
                           "0.2",
                           "--lease-timeout",
@@ -455,6 +459,10 @@ static void crash_restart(void)
                          NULL};
     CHECK(run(ref, "crash_ref.log", 600) == 0);
     g_port = 0;
+    /* Tasks sized by time, the default task time: the image is still the
+     * standalone render's (chunks of 8) after every kill. */
+    g_sizing[0] = "--task-time";
+    g_sizing[1] = "2000";
     start_server("state1", "crash.log", NULL);
     pid_t w1 = start_worker("c1"), w2 = start_worker("c2");
     uint64_t id = submit(g_port, job_of("crash", 64, 48, spp, 0));
@@ -518,6 +526,8 @@ static void crash_restart(void)
     stop_worker(w1);
     stop_worker(w2);
     kill_server(SIGTERM);
+    g_sizing[0] = "--chunk";
+    g_sizing[1] = "8";
 }
 
 /* ---- 2. the queue ------------------------------------------------------------------- */
