@@ -95,6 +95,8 @@ struct srv_job {
     uint32_t tiles_x, tiles_y, ntiles, npasses;
     int adaptive;        /* adaptive sampling is on: decisions at multiples of chunk */
     uint32_t first_stop; /* the first decision point (a multiple of chunk >= min_spp) */
+    uint32_t least;      /* the fewest samples of a time-sized task: a block, or more
+                          * where a job's blocks would pass half of SRV_MAX_TASKS */
     tile_state *tiles;
     uint32_t *heap; /* tiles not fully cut, by (frontier, tile) */
     uint32_t nheap;
@@ -223,12 +225,12 @@ static double expected_ms_ps(const srv_job *j, const owner_stat *o)
 
 /* Samples a time-sized task of a tile with px pixels should have for owner
  * o: the task time at o's speed, less near the end (TAIL_SHARE), a multiple
- * of PT_SAMPLE_BLOCK, at least one block. */
+ * of PT_SAMPLE_BLOCK, at least one block (j->least). */
 static uint32_t sized_samples(const srv_job *j, const owner_stat *o, uint32_t px)
 {
     double v = expected_ms_ps(j, o);
     if (!(v > 0.0))
-        return PT_SAMPLE_BLOCK;
+        return j->least;
     double ms = j->pol.task_ms;
     double farm = j->farm_rate + 1.0 / v; /* this lease included */
     double tail = (double)j->uncut / (farm * TAIL_SHARE);
@@ -237,8 +239,8 @@ static uint32_t sized_samples(const srv_job *j, const owner_stat *o, uint32_t px
     double n = ms / v / px;
     if (!(n < 1e9))
         n = 1e9;
-    uint32_t b = (uint32_t)(n / PT_SAMPLE_BLOCK);
-    return (b ? b : 1) * PT_SAMPLE_BLOCK;
+    uint32_t b = (uint32_t)(n / PT_SAMPLE_BLOCK) * PT_SAMPLE_BLOCK;
+    return b > j->least ? b : j->least;
 }
 
 /* The end of the next task of tile that starts at s0 (its frontier) for
@@ -257,7 +259,7 @@ static uint32_t next_end(const srv_job *j, uint32_t tile, uint32_t s0, const own
         return c < e ? (uint32_t)c : e;
     }
     uint32_t n = sized_samples(j, o, tile_pixels(j, tile));
-    uint32_t grow = s0 > PT_SAMPLE_BLOCK ? s0 : PT_SAMPLE_BLOCK;
+    uint32_t grow = s0 > j->least ? s0 : j->least;
     if (n > grow)
         n = grow;
     uint64_t s1 = (uint64_t)s0 + n;
@@ -338,6 +340,9 @@ pt_status srv_job_new(uint64_t id, const srv_job_params *p, const uint8_t scene_
     j->first_stop =
         (uint32_t)(((uint64_t)m + c - 1) / c * c > UINT32_MAX ? UINT32_MAX
                                                               : ((uint64_t)m + c - 1) / c * c);
+    j->least = PT_SAMPLE_BLOCK;
+    while (j->least < p->spp && ntiles * ((p->spp + j->least - 1) / j->least) > SRV_MAX_TASKS / 2)
+        j->least *= 2;
     j->lease_free = NONE;
     j->tiles = pt_calloc(j->ntiles, sizeof *j->tiles);
     j->heap = pt_malloc_array(j->ntiles, sizeof *j->heap);

@@ -100,8 +100,9 @@ typedef struct srv_job_params {
 } srv_job_params;
 
 /* Tasks of one job: a job whose fixed chunks would pass this is refused;
- * time-sized tasks are at least one block, and their table stops growing
- * here (nothing more is handed out; never reached by a job that passed). */
+ * time-sized tasks are at least one block, or as many more (a power of two)
+ * as keeps a job's smallest tasks under half of it, so their table never
+ * fills (requeues keep their task; only a restart's gaps add a few). */
 #define SRV_MAX_TASKS (64u * 1024u * 1024u)
 
 /* The default task time (ptserve --task-time). A result costs the event
