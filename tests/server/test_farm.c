@@ -8,7 +8,7 @@
  *     sampling.
  *  2. Chaos: workers are killed with SIGKILL at random moments (at least ten
  *     times, each replaced) while tasks are sized by time; the job completes
- *     bit-identical (to the standalone render's fixed chunks) with exact sample
+ *     bit-identical (to the standalone render's chunks of 48) with exact sample
  *     counts, while a reader polling the output EXR always finds a valid file
  *     whose sample counts never decrease.
  *  3. Hostile peers during a render: garbage, a huge declared length, a bad
@@ -46,6 +46,9 @@ static const char *SCENE = PT_SOURCE_DIR "/scenes/cornell_box.gltf";
 /* The same job with ptserve's default: tasks sized by time (decisions of
  * adaptive sampling every 16 samples, the standalone's --chunk 16). */
 #define SIZED "--res", "48x32", "--tile", "16", "--seed", "3"
+/* A standalone render of the same job in chunks of 48 samples: with exact
+ * sums any cut at multiples of 16 samples gives the same bits. */
+#define SOLO48 SIZED, "--chunk", "48"
 
 /* ---- 1. bit identity ---------------------------------------------------------------- */
 
@@ -162,12 +165,12 @@ static void bit_identity(void)
 
     /* Tasks sized by time (ptserve's default; a short task time so that
      * this small job's tasks grow past one block): the same bits as the
-     * standalone render's chunks of 8, with one worker and with three. */
+     * standalone render's chunks of 48, with one worker and with three. */
     const char *sized1[] = {
         PT_BIN_DIR "/ptserve", "--local", "1", SIZED, "--task-time", "50", "--spp", "256", "-o",
         path("s1.exr"),        SCENE,     NULL};
     CHECK(run(sized1, "s1.log", 300) == 0);
-    const char *solo256[] = {PT_BIN_DIR "/ptworker", "--scene", SCENE, COMMON, "--spp", "256", "-o",
+    const char *solo256[] = {PT_BIN_DIR "/ptworker", "--scene", SCENE, SOLO48, "--spp", "256", "-o",
                              path("ref256.exr"),     "-q",      NULL};
     CHECK(run(solo256, "ref256.log", 300) == 0);
     const char *sized3[] = {PT_BIN_DIR "/ptserve",
@@ -252,7 +255,7 @@ static int chaos_run(uint32_t spp)
 {
     char spp_text[16];
     snprintf(spp_text, sizeof spp_text, "%u", spp);
-    const char *ref[] = {PT_BIN_DIR "/ptworker", "--scene", SCENE, COMMON, "--spp", spp_text, "-o",
+    const char *ref[] = {PT_BIN_DIR "/ptworker", "--scene", SCENE, SOLO48, "--spp", spp_text, "-o",
                          path("chaos_ref.exr"),  "-q",      NULL};
     CHECK(run(ref, "chaos_ref.log", 300) == 0);
     unlink(path("port"));
@@ -343,7 +346,7 @@ static int chaos_run(uint32_t spp)
  * render's bits. */
 static void mixed_speeds(void)
 {
-    const char *ref[] = {PT_BIN_DIR "/ptworker", "--scene", SCENE, COMMON, "--spp", "512", "-o",
+    const char *ref[] = {PT_BIN_DIR "/ptworker", "--scene", SCENE, SOLO48, "--spp", "512", "-o",
                          path("mixed_ref.exr"),  "-q",      NULL};
     CHECK(run(ref, "mixed_ref.log", 300) == 0);
     unlink(path("port"));
