@@ -35,7 +35,7 @@
  * backup_factor x the median for its size): the first result wins and the
  * other copy's lease is dropped. A result is accepted only from the owner of
  * a live lease for exactly that task (tile, sample range, pixel count, and
- * plausible pixels: finite non-negative sums under SRV_MAX_SAMPLE_RADIANCE
+ * plausible pixels: non-negative sums under PT_MAX_SAMPLE_RADIANCE (tile.h)
  * per sample, each pixel's count the task's samples less the samples the
  * result reports rejected), so merging is idempotent: a duplicate or late
  * result changes nothing.
@@ -124,13 +124,6 @@ typedef enum srv_outcome {
 } srv_outcome;
 
 typedef struct srv_job srv_job;
-
-/* A per-sample radiance no scene reaches (emission, base colour and textures
- * are bounded and non-negative, see common/scene/scene.c); a pixel sum over n
- * samples above n times this is refused as garbage. Well under what a double
- * sum of float samples can hold, and 1e20 times the brightest emitter of the
- * sample scenes. */
-#define SRV_MAX_SAMPLE_RADIANCE 1e20
 
 /* How leases end and which tasks are rendered twice. All zero (a new job's):
  * no hard deadline, no backups, no verification. */
@@ -276,9 +269,9 @@ void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, i
 
 /* Checkpoints (format 6). srv_job_save appends the merged state (per tile
  * the samples merged and whether adaptive sampling stopped it, the held early
- * results with their tile and samples, the film's sums and counts) to w;
- * formats 2 to 4 (chunks merged per tile, held task ids of fixed chunks) are
- * read too; leases are not saved (their tasks are
+ * results with their tile and samples, the film's fixed-point sums and counts)
+ * to w; formats 2 to 5 (chunks merged per tile, held task ids of fixed
+ * chunks; double sums before 5) are read too; leases are not saved (their tasks are
  * pending again after a load). srv_job_load restores that state into a fresh
  * job made with the same id, params and scene hash: PT_ERR_FORMAT naming what
  * does not fit when the bytes are of another job or inconsistent. The result
@@ -297,7 +290,10 @@ uint32_t srv_job_tiles(const srv_job *job);
  * tile has min((k + 1) x chunk, spp) samples merged (or stopped). */
 uint32_t srv_job_passes(const srv_job *job);      /* ceil(spp / chunk) */
 uint32_t srv_job_passes_done(const srv_job *job); /* passes merged for every tile */
-uint64_t srv_job_tasks_total(const srv_job *job); /* tasks cut so far */
+/* Tasks merged (or skipped), cut and open, and those fixed chunks would cut
+ * of the samples not cut yet (time-sized tasks may be fewer): equal to
+ * srv_job_tasks_merged once every tile is done. O(tiles). */
+uint64_t srv_job_tasks_total(const srv_job *job);
 uint64_t srv_job_tasks_merged(const srv_job *job);
 uint64_t srv_job_samples_merged(const srv_job *job);
 /* Paths that the results accepted so far report ended by the depth cap. */
