@@ -342,6 +342,48 @@ static void adaptive_min_gain(void)
     }
     srv_job_free(d);
     d = NULL;
+    /* A version 5 checkpoint (fixed-point sums, fixed chunks: each tile's
+     * chunks merged, held results by task id) loads to the same bits and
+     * resumes to the same image: a state folder from before time-sized
+     * tasks goes on. */
+    {
+        const size_t at0 = 4 + 4 + 8 + 32 + 9 * 4 + 2 * 8 + 2 + strlen(p.camera) + 23 + 4 + 2 + 8;
+        proto_writer v5;
+        proto_writer_init(&v5, 1u << 20);
+        uint32_t ntiles = proto_get_u32(w.buf + at0);
+        size_t at = at0 + 8;
+        proto_w_bytes(&v5, w.buf, at);
+        proto_put_u32(v5.buf + 4, 5);
+        for (uint32_t ti = 0; ti < ntiles; ti++, at += 5) {
+            proto_w_u32(&v5, proto_get_u32(w.buf + at) / 8);
+            proto_w_u8(&v5, w.buf[at + 4]);
+        }
+        uint32_t nheld = proto_get_u32(w.buf + at);
+        proto_w_u32(&v5, nheld);
+        at += 4;
+        for (uint32_t i = 0; i < nheld; i++) {
+            uint32_t tile = proto_get_u32(w.buf + at), s0 = proto_get_u32(w.buf + at + 4);
+            proto_w_u64(&v5, (uint64_t)(s0 / 8) * ntiles + tile); /* task id */
+            at += 12;
+            proto_w_bytes(&v5, w.buf + at, 32 * 32 * 72);
+            at += 32 * 32 * 72;
+        }
+        proto_w_bytes(&v5, w.buf + at, w.len - at);
+        srv_job *e = NULL;
+        CHECK(proto_writer_status(&v5) == PT_OK);
+        CHECK(srv_job_new(3, &p, HASH, &e, NULL) == PT_OK);
+        CHECKF(e && srv_job_load(e, v5.buf, v5.len, &err) == PT_OK, "%s", err.msg);
+        CHECK(e && memcmp(srv_job_film(e)->px, srv_job_film(b)->px, 64 * 32 * sizeof *f->px) == 0);
+        for (int k = 5; e && k < n; k++) {
+            gain_pixels(&tasks[k], px, &r);
+            srv_outcome o = srv_job_replay(e, &r, NULL);
+            CHECK(o == SRV_MERGED || o == SRV_DUPLICATE);
+        }
+        CHECK(e && srv_job_complete(e) &&
+              memcmp(f->px, srv_job_film(e)->px, 64 * 32 * sizeof *f->px) == 0);
+        srv_job_free(e);
+        proto_writer_fini(&v5);
+    }
     /* A version 4 checkpoint (before fixed-point sums: the same bytes with
      * each pixel's four sums as f64) loads to the same bits: sums of whole
      * multiples of 2^-32 this small are exact in double, and the conversion
