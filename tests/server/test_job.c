@@ -1117,6 +1117,50 @@ static void ranges_back(void)
     srv_job_free(j);
 }
 
+/* Thousands of owners (the owner table and its hash grow, each owner lists
+ * its own leases): a lost owner gives back exactly its leases, the others'
+ * stay; heartbeats and results find their lease among all of them. */
+static void many_owners(void)
+{
+    srv_job_params p = sized_params(64, 0.0);
+    p.width = 1024;
+    p.height = 1024; /* 1024 tiles */
+    srv_job *j = sized_job(&p, 0);
+    static proto_task t[3000];
+    uint32_t n = 0;
+    for (uint64_t o = 0; o < 3000; o++)
+        n += (uint32_t)srv_job_lease(j, 100 + o, 0, 1000, &t[o]);
+    CHECK(n == 3000 && srv_job_leases(j) == 3000);
+    /* The first pass (1024 tasks), then the second. */
+    CHECK(t[0].s0 == 0 && t[1023].s0 == 0 && t[1024].s0 == 16);
+    uint32_t back = 0;
+    for (uint64_t o = 0; o < 3000; o += 2)
+        back += srv_job_release_owner(j, 100 + o);
+    CHECK(back == 1500 && srv_job_leases(j) == 1500);
+    int active = 1, idle = 1;
+    for (uint64_t o = 0; o < 3000; o++) {
+        srv_job_heartbeat(j, 100 + o, t[o].task_id, 900, 1000);
+        if (o % 2)
+            active &= srv_job_owner_active(j, 100 + o);
+        else
+            idle &= !srv_job_owner_active(j, 100 + o);
+    }
+    CHECK(active && idle);
+    CHECK(srv_job_expire(j, 1500, NULL, NULL, NULL) == 0); /* the heartbeats held */
+    /* The released tasks come back first, to the owners that ask. */
+    proto_task u;
+    CHECK(srv_job_lease(j, 99, 1500, 1000, &u) && u.task_id == t[0].task_id);
+    static pt_pixel_acc px[32 * 32];
+    proto_result r;
+    int merged = 1;
+    for (uint64_t o = 1; o < 3000; o += 2) {
+        fake_result(&t[o], px, &r);
+        merged &= srv_job_result(j, 100 + o, &r, NULL) == SRV_MERGED;
+    }
+    CHECK(merged && srv_job_leases(j) == 1);
+    srv_job_free(j);
+}
+
 int main(void)
 {
     int64_t live = pt_alloc_live();
@@ -1136,6 +1180,7 @@ int main(void)
     fixed_chunks();
     same_film_any_cut();
     ranges_back();
+    many_owners();
     CHECK(pt_alloc_live() == live);
     return check_report();
 }
