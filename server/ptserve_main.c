@@ -24,7 +24,7 @@ static void usage(FILE *f)
         "       ptserve --local N --frames A-B[:STEP] [options] -o SHOT.####.exr SCENE\n"
         "       ptserve --state-dir DIR [--output-dir DIR] [options]\n"
         "\n"
-        "Coordinates a ptfarm render: splits each image into tiles x sample chunks,\n"
+        "Coordinates a ptfarm render: splits each image into tiles x sample ranges,\n"
         "leases them to ptworker processes, merges their results in a fixed order (the\n"
         "image does not depend on how the work was split) and writes progressive\n"
         "OpenEXR images (R, G, B, samples, variance) plus a PNG preview.\n"
@@ -50,7 +50,8 @@ static void usage(FILE *f)
         "                         token (--token-file, required with this) is the admin's\n"
         "                         and the workers'. Without it every client is an admin\n"
         "                         (docs/OPERATIONS.md, \"Clients and admins\")\n"
-        "  (--tile, --chunk and --max-depth set the defaults of submitted jobs; a\n"
+        "  (--tile, --chunk and --max-depth set the defaults of submitted jobs, and\n"
+        "  --task-time sizes every job's tasks; a\n"
         "  job's --env or --background is given to ptctl submit, and its map is\n"
         "  uploaded with the scene and checked before the job is queued)\n"
         "\n"
@@ -109,7 +110,13 @@ static void usage(FILE *f)
         "  --animation NAME|INDEX the animation played (default: all of them, as\n"
         "                         viewers do); one-job mode (queued jobs: ptctl submit)\n"
         "  --tile N               tile side in pixels (default 32)\n"
-        "  --chunk N              samples per task (default 16)\n"
+        "  --task-time MS         size each task's samples so that it takes about MS\n"
+        "                         on the worker that asks, from that worker's measured\n"
+        "                         speed (default 2000): 16 samples first, then at most\n"
+        "                         doubling a tile's samples, smaller again near the end\n"
+        "  --chunk N              fixed tasks of N samples instead of --task-time; also\n"
+        "                         the step at which adaptive sampling judges a tile\n"
+        "                         (default 16), which an adaptive job's tasks never cross\n"
         "  --save-interval SEC    progressive saves at most this often (default 5)\n"
         "  --lease-timeout SEC    requeue a task whose worker is silent this long (default 20);\n"
         "                         also the shortest hard deadline of a lease\n"
@@ -162,6 +169,8 @@ int main(int argc, char **argv)
     c.job.spp = 64;
     c.job.tile = 32;
     c.job.chunk = 16;
+    c.task_ms = SRV_DEFAULT_TASK_MS;
+    int has_chunk = 0, has_task_time = 0;
     c.job.max_depth = PT_RENDER_DEFAULT_MAX_DEPTH;
     c.job.rr_depth = 3;
     c.save_interval = 5.0;
@@ -218,7 +227,8 @@ int main(int argc, char **argv)
         O_BACKGROUND,
         O_HTTP,
         O_HTTPPORT,
-        O_TRANSPARENT
+        O_TRANSPARENT,
+        O_TASKTIME
     };
     static const struct option opts[] = {
         {"output", required_argument, NULL, 'o'},
@@ -238,6 +248,7 @@ int main(int argc, char **argv)
         {"max-depth", required_argument, NULL, O_DEPTH},
         {"tile", required_argument, NULL, O_TILE},
         {"chunk", required_argument, NULL, O_CHUNK},
+        {"task-time", required_argument, NULL, O_TASKTIME},
         {"save-interval", required_argument, NULL, O_SAVE},
         {"lease-timeout", required_argument, NULL, O_LEASE},
         {"port-file", required_argument, NULL, O_PORTFILE},
@@ -340,6 +351,11 @@ int main(int argc, char **argv)
             break;
         case O_CHUNK:
             st = pt_opt_u32("--chunk", optarg, 1, 1u << 24, &c.job.chunk, &err);
+            has_chunk = 1;
+            break;
+        case O_TASKTIME:
+            st = pt_opt_u32("--task-time", optarg, 1, 3600000, &c.task_ms, &err);
+            has_task_time = 1;
             break;
         case O_SAVE:
             st = pt_opt_seconds("--save-interval", optarg, 0, 86400, &c.save_interval, &err);
@@ -519,6 +535,13 @@ int main(int argc, char **argv)
                         "one\n");
         return 2;
     }
+    if (has_chunk && has_task_time) {
+        fprintf(stderr, "ptserve: --chunk gives fixed tasks and --task-time sizes them by "
+                        "time; give one\n");
+        return 2;
+    }
+    if (has_chunk)
+        c.task_ms = 0;
     if (lease < 0.1) {
         fprintf(stderr, "ptserve: --lease-timeout must be at least 0.1 s\n");
         return 2;

@@ -519,7 +519,8 @@ static void set_policy(srv_server *s, srv_entry *j)
     srv_lease_policy pol = {
         s->cfg->lease_ms,        first > UINT32_MAX ? UINT32_MAX : (uint32_t)first,
         DEADLINE_FACTOR,         BACKUP_FACTOR,
-        s->cfg->verify_fraction, s->verify_seed};
+        s->cfg->verify_fraction, s->verify_seed,
+        s->cfg->task_ms};
     srv_job_set_policy(j->job, &pol);
 }
 

@@ -58,6 +58,7 @@ typedef struct srv_config {
     const char *worker_bin;     /* NULL: ptworker beside this program */
     double save_interval;       /* seconds between progressive saves, at most this often */
     uint32_t lease_ms;
+    uint32_t task_ms;        /* time-sized tasks of about this long; 0: fixed chunks (job.h) */
     double verify_fraction;  /* share of tasks rendered twice and compared (server/job.h) */
     uint32_t handshake_ms;   /* a peer must authenticate within this time */
     uint32_t local_workers;  /* spawn this many ptworker processes */

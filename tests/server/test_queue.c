@@ -2,7 +2,8 @@
  * test_queue.c - ptserve's render queue (--state-dir) with real processes,
  * real sockets and real files; a raw protocol client plays ptctl.
  *
- *  1. Crash-restart: ptserve is killed with SIGKILL at least 5 times during a
+ *  1. Crash-restart: ptserve (tasks sized by time, the default) is killed
+ *     with SIGKILL at least 5 times during a
  *     job (each time after more samples were merged) and restarted on the same
  *     state folder; every restart resumes with at least the samples merged
  *     before the kill, and the final image is bit-identical to an undisturbed
@@ -318,6 +319,9 @@ static int fetch(int port, uint64_t id, const char *name)
 
 /* ---- processes --------------------------------------------------------------------- */
 
+/* How ptserve sizes tasks: fixed chunks of 8 unless a test asks otherwise. */
+static const char *g_sizing[2] = {"--chunk", "8"};
+
 /* ptserve on state, logging to log; opt and its value (or NULL) are added. */
 static void start_server_opt(const char *state, const char *log, const char *opt, const char *value)
 {
@@ -333,8 +337,8 @@ static void start_server_opt(const char *state, const char *log, const char *opt
                           path("port"),
                           "--tile",
                           "16",
-                          "--chunk",
-                          "8",
+                          g_sizing[0],
+                          g_sizing[1],
                           "--save-interval",
                           "0.2",
                           "--lease-timeout",
@@ -456,7 +460,7 @@ static void crash_restart(void)
                          "--tile",
                          "16",
                          "--chunk",
-                         "8",
+                         "48",
                          "--seed",
                          "5",
                          "--spp",
@@ -467,6 +471,11 @@ static void crash_restart(void)
                          NULL};
     CHECK(run(ref, "crash_ref.log", 600) == 0);
     g_port = 0;
+    /* Tasks sized by time, the default task time: the image is still the
+     * standalone render's (chunks of 48: with exact sums any cut at
+     * multiples of 16 samples gives the same bits) after every kill. */
+    g_sizing[0] = "--task-time";
+    g_sizing[1] = "2000";
     start_server("state1", "crash.log", NULL);
     pid_t w1 = start_worker("c1"), w2 = start_worker("c2");
     uint64_t id = submit(g_port, job_of("crash", 64, 48, spp, 0));
@@ -530,6 +539,8 @@ static void crash_restart(void)
     stop_worker(w1);
     stop_worker(w2);
     kill_server(SIGTERM);
+    g_sizing[0] = "--chunk";
+    g_sizing[1] = "8";
 }
 
 /* ---- 2. the queue ------------------------------------------------------------------- */
@@ -846,26 +857,38 @@ static void checkpoint_to_v4(const char *name)
     /* envelope 8, seconds/rejected/rays 24, magic, version, id, hash, params */
     size_t at = 8 + 24 + 4 + 4 + 8 + 32;
     uint32_t wd = proto_get_u32(d + at), ht = proto_get_u32(d + at + 4),
-             tile = proto_get_u32(d + at + 12);
+             spp = proto_get_u32(d + at + 8), tile = proto_get_u32(d + at + 12),
+             chunk = proto_get_u32(d + at + 16);
     at += 9 * 4 + 16;
     at += 2 + proto_get_u16(d + at);                  /* camera */
     at += 2 + proto_get_u16(d + at) + 4 + 4 + 1 + 12; /* the environment */
     at += 4;                                          /* film flags */
     at += 2 + proto_get_u16(d + at);                  /* material variant */
     at += 8;                                          /* paths capped */
+    /* Format 6 counts a tile's samples merged and names a held result by its
+     * tile and samples; older ones count chunks and name the task, chunk x
+     * tiles + tile (the job's tasks are fixed chunks here). */
     uint32_t ntiles = proto_get_u32(d + at);
-    at += 8 + (size_t)ntiles * 5;
-    uint32_t nheld = proto_get_u32(d + at);
-    at += 4;
+    at += 8;
     proto_w_bytes(&w, d, at);
+    for (uint32_t i = 0; i < ntiles; i++, at += 5) {
+        uint32_t m = proto_get_u32(d + at);
+        CHECK(m % chunk == 0 || m == spp);
+        proto_w_u32(&w, (m + chunk - 1) / chunk);
+        proto_w_u8(&w, d[at + 4]);
+    }
+    uint32_t nheld = proto_get_u32(d + at);
+    proto_w_u32(&w, nheld);
+    at += 4;
     uint32_t tiles_x = (wd + tile - 1) / tile;
     for (uint32_t i = 0; i < nheld; i++) {
-        uint64_t t = proto_get_u64(d + at) % ntiles;
-        uint32_t tx = (uint32_t)(t % tiles_x), ty = (uint32_t)(t / tiles_x);
+        uint32_t t = proto_get_u32(d + at), s0 = proto_get_u32(d + at + 4);
+        uint32_t tx = t % tiles_x, ty = t / tiles_x;
         uint32_t tw = wd - tx * tile < tile ? wd - tx * tile : tile;
         uint32_t th = ht - ty * tile < tile ? ht - ty * tile : tile;
-        proto_w_bytes(&w, d + at, 8);
-        at += 8;
+        CHECK(s0 % chunk == 0);
+        proto_w_u64(&w, (uint64_t)(s0 / chunk) * ntiles + t);
+        at += 12;
         for (uint32_t k = 0; k < tw * th; k++, at += 72)
             pixel_to_v4(&w, d + at);
     }
