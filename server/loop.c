@@ -8,6 +8,7 @@
 #include <stdio.h>
 #include <string.h>
 #include <sys/epoll.h>
+#include <sys/resource.h>
 #include <sys/socket.h>
 #include <unistd.h>
 
@@ -31,6 +32,7 @@
 #define CLOSE_GRACE_MS 1000  /* time to flush an ERROR before closing */
 #define REFUSAL_LOG_MS 10000 /* the window of refusals logged one by one */
 #define REFUSAL_BURST 5      /* lines per reason and window; then one with the count */
+#define TIMERS_MS 50         /* srv_loop_timers walks the connections at most this often */
 
 _Static_assert(ROLE_MAX_PAYLOAD <= PROTO_MAX_PAYLOAD, "a role's frames fit the protocol's cap");
 _Static_assert(IN_START >= PROTO_FRAME_OVERHEAD + PROTO_MAX_PAYLOAD_PREAUTH,
@@ -69,6 +71,23 @@ struct srv_guard {
     uint64_t in_held;    /* input buffer bytes past each connection's IN_START */
     srv_conn **hs;       /* the connections in the handshake: nhs of lim.max_handshakes */
     uint32_t nhs;
+    uint32_t max_conns; /* connection slots: RLIMIT_NOFILE less SRV_FD_RESERVE */
+    int spare_fd;       /* /dev/null, given up to accept and refuse a peer at EMFILE */
+    uint64_t t_timers;  /* srv_loop_timers' last walk (ms) */
+    /* The connections touched since the last sweep (conn_touch), in the
+     * growable act, and whether one could not be listed (no memory): the
+     * next sweep then walks them all. */
+    srv_conn **act;
+    uint32_t nact, act_cap;
+    int act_lost;
+    uint64_t t_sweep; /* the last sweep over every connection (ms) */
+    uint64_t t_hand;  /* srv_loop_each_for_hand_out's last walk over every one */
+    int hand_waiting; /* its last call left a worker waiting on a dry queue */
+    /* Every connection by its id: open addressing with linear probing,
+     * ids_cap a power of two at least twice ids_n, so srv_conn_find does
+     * not walk the connections (it is asked once per result). */
+    srv_conn **ids;
+    uint32_t ids_n, ids_cap;
     refusal_log refused[REFUSE_N];
 };
 
@@ -80,12 +99,66 @@ int srv_conn_has_room(const srv_conn *c)
     return c->out.len - c->out_off < SRV_OUT_HIGH;
 }
 
+/* The slot where id is, or the empty one where it would go. */
+static uint32_t id_slot(const struct srv_guard *g, uint64_t id)
+{
+    uint32_t mask = g->ids_cap - 1;
+    uint32_t i = (uint32_t)((id * 0x9E3779B97F4A7C15ull) >> 32) & mask;
+    while (g->ids[i] && g->ids[i]->id != id)
+        i = (i + 1) & mask;
+    return i;
+}
+
+/* Adds c to the table by id; -1 without memory. */
+static int id_add(struct srv_guard *g, srv_conn *c)
+{
+    if (2 * (g->ids_n + 1) > g->ids_cap) {
+        uint32_t cap = g->ids_cap ? 2 * g->ids_cap : 64;
+        srv_conn **old = g->ids, **n = pt_calloc(cap, sizeof *n);
+        if (!n)
+            return -1;
+        uint32_t old_cap = g->ids_cap;
+        g->ids = n;
+        g->ids_cap = cap;
+        for (uint32_t i = 0; i < old_cap; i++)
+            if (old[i])
+                g->ids[id_slot(g, old[i]->id)] = old[i];
+        pt_free(old);
+    }
+    g->ids[id_slot(g, c->id)] = c;
+    g->ids_n++;
+    return 0;
+}
+
+/* Takes c out of the table, moving back the entries after it that its slot
+ * kept from their own (linear probing's deletion, no tombstones). */
+static void id_remove(struct srv_guard *g, const srv_conn *c)
+{
+    if (!g->ids_cap)
+        return;
+    uint32_t mask = g->ids_cap - 1, i = id_slot(g, c->id);
+    if (g->ids[i] != c)
+        return;
+    g->ids[i] = NULL;
+    g->ids_n--;
+    for (uint32_t j = (i + 1) & mask; g->ids[j]; j = (j + 1) & mask) {
+        uint32_t home = (uint32_t)((g->ids[j]->id * 0x9E3779B97F4A7C15ull) >> 32) & mask;
+        /* The entry at j stays unless i lies cyclically in [home, j). */
+        if (((j - home) & mask) >= ((j - i) & mask)) {
+            g->ids[i] = g->ids[j];
+            g->ids[j] = NULL;
+            i = j;
+        }
+    }
+}
+
 srv_conn *srv_conn_find(srv_server *s, uint64_t id)
 {
-    srv_conn *c = s->conns;
-    while (c && (c->id != id || c->closing))
-        c = c->next;
-    return c;
+    const struct srv_guard *g = s->guard;
+    if (!g || !g->ids_cap)
+        return NULL;
+    srv_conn *c = g->ids[id_slot(g, id)];
+    return c && !c->closing ? c : NULL;
 }
 
 static void on_signal(int sig)
@@ -100,6 +173,26 @@ static void on_signal(int sig)
     }
 }
 
+/* Lists c for the next sweep (once). */
+static void conn_touch(srv_server *s, srv_conn *c)
+{
+    struct srv_guard *g = s->guard;
+    if (c->active)
+        return;
+    if (g->nact == g->act_cap) {
+        uint32_t cap = g->act_cap ? 2 * g->act_cap : 64;
+        srv_conn **n = pt_realloc(g->act, (size_t)cap * sizeof *n);
+        if (!n) {
+            g->act_lost = 1;
+            return;
+        }
+        g->act = n;
+        g->act_cap = cap;
+    }
+    g->act[g->nact++] = c;
+    c->active = 1;
+}
+
 void srv_conn_update_events(srv_server *s, srv_conn *c)
 {
     uint32_t ev = 0;
@@ -112,6 +205,9 @@ void srv_conn_update_events(srv_server *s, srv_conn *c)
         epoll_ctl(s->ep, EPOLL_CTL_MOD, c->fd, &e);
         c->events = ev;
     }
+    /* Output queued: the sweep sends it this round. */
+    if (ev & EPOLLOUT)
+        conn_touch(s, c);
 }
 
 int srv_conn_queued(srv_server *s, srv_conn *c, pt_status st)
@@ -125,6 +221,7 @@ int srv_conn_queued(srv_server *s, srv_conn *c, pt_status st)
 void srv_conn_close_soon(srv_server *s, srv_conn *c)
 {
     if (!c->closing) {
+        conn_touch(s, c);
         c->closing = 1;
         c->close_at = pt_now_ms() + CLOSE_GRACE_MS;
         srv_queue_release_owner(s, c, 0);
@@ -218,7 +315,7 @@ static void conn_refuse(srv_server *s, srv_conn *c, uint16_t code, int why, cons
 static int accept_refusal(const srv_server *s, const uint8_t addr[16])
 {
     const struct srv_guard *g = s->guard;
-    if (s->nconns >= SRV_MAX_CONNS)
+    if (s->nconns >= g->max_conns)
         return REFUSE_FULL;
     if (g->nhs >= g->lim.max_handshakes)
         return REFUSE_HANDSHAKES;
@@ -251,7 +348,7 @@ static int handshake_admits(srv_server *s, srv_conn *c, const proto_frame *f)
     const struct srv_guard *g = s->guard;
     if (c->state != SRV_C_AUTH || f->type != PROTO_MSG_AUTH)
         return 1;
-    if (s->nconns - g->nhs < SRV_MAX_CONNS - g->lim.max_handshakes)
+    if (s->nconns - g->nhs < g->max_conns - g->lim.max_handshakes)
         return 1;
     conn_refuse(s, c, PROTO_E_LIMIT, REFUSE_AUTHED, "too many peers connected; try again later");
     return 0;
@@ -357,6 +454,37 @@ static void conn_check_rate(srv_server *s, srv_conn *c, uint64_t now)
     }
 }
 
+/* The connection slots the file-descriptor limit allows: the soft
+ * RLIMIT_NOFILE is raised to the hard one first where the kernel lets it
+ * (an unlimited hard limit: to fs.nr_open's usual 1,048,576, else kept),
+ * then SRV_FD_RESERVE of it is kept for files. Logs the outcome; *cap 0
+ * when the limit leaves no room. */
+static void conns_from_nofile(const srv_server *s, uint32_t *cap)
+{
+    struct rlimit rl;
+    *cap = 0;
+    if (getrlimit(RLIMIT_NOFILE, &rl) != 0)
+        return;
+    rlim_t was = rl.rlim_cur;
+    if (rl.rlim_cur != RLIM_INFINITY &&
+        (rl.rlim_max == RLIM_INFINITY || rl.rlim_cur < rl.rlim_max)) {
+        struct rlimit up = rl;
+        up.rlim_cur = rl.rlim_max == RLIM_INFINITY ? (rlim_t)1 << 20 : rl.rlim_max;
+        if (up.rlim_cur > rl.rlim_cur && setrlimit(RLIMIT_NOFILE, &up) == 0)
+            rl.rlim_cur = up.rlim_cur;
+    }
+    uint64_t lim = rl.rlim_cur == RLIM_INFINITY ? UINT32_MAX : (uint64_t)rl.rlim_cur;
+    uint64_t n = lim > SRV_FD_RESERVE ? lim - SRV_FD_RESERVE : 0;
+    *cap = n > UINT32_MAX - 1 ? UINT32_MAX - 1 : (uint32_t)n;
+    if (s->cfg->quiet)
+        return;
+    char from[64] = "";
+    if (rl.rlim_cur != was)
+        snprintf(from, sizeof from, ", raised from %llu", (unsigned long long)was);
+    srv_log("connections: at most %u (file descriptor limit %llu%s, %u kept for files)", *cap,
+            (unsigned long long)lim, from, SRV_FD_RESERVE);
+}
+
 /* Fills the defaults of the limits and checks them. */
 static pt_status guard_open(srv_server *s, pt_error *err)
 {
@@ -364,6 +492,7 @@ static pt_status guard_open(srv_server *s, pt_error *err)
     if (!g)
         return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
     s->guard = g;
+    g->spare_fd = -1;
     g->lim = s->cfg->limits;
     srv_peer_limits *l = &g->lim;
     if (!l->max_input_mem)
@@ -384,9 +513,13 @@ static pt_status guard_open(srv_server *s, pt_error *err)
         return pt_error_set(err, PT_ERR_ARG,
                             "input memory limit of %llu bytes under one frame's %u",
                             (unsigned long long)l->max_input_mem, (unsigned)IN_MAX);
-    if (l->max_handshakes >= SRV_MAX_CONNS)
-        return pt_error_set(err, PT_ERR_ARG, "%u handshakes at once leave no slot of %u for peers",
-                            l->max_handshakes, SRV_MAX_CONNS);
+    conns_from_nofile(s, &g->max_conns);
+    if (l->max_handshakes >= g->max_conns)
+        return pt_error_set(err, PT_ERR_ARG,
+                            "%u handshakes at once leave no slot of %u for peers (the file "
+                            "descriptor limit less %u for files; raise it: ulimit -n)",
+                            l->max_handshakes, g->max_conns, SRV_FD_RESERVE);
+    g->spare_fd = open("/dev/null", O_RDONLY | O_CLOEXEC);
     g->hs = pt_calloc(l->max_handshakes, sizeof *g->hs);
     if (!g->hs)
         return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
@@ -398,6 +531,10 @@ static void guard_close(srv_server *s)
     if (s->guard) {
         refusals_flush(s, pt_now_ms(), 1);
         pt_free(s->guard->hs);
+        pt_free(s->guard->act);
+        pt_free(s->guard->ids);
+        if (s->guard->spare_fd >= 0)
+            close(s->guard->spare_fd);
     }
     pt_free(s->guard);
     s->guard = NULL;
@@ -416,6 +553,7 @@ static void conn_free(srv_server *s, srv_conn *c)
     s->guard->in_held -= in_counted(c->in.cap);
     proto_writer_fini(&c->out);
     proto_frame_reader_fini(&c->in);
+    id_remove(s->guard, c);
     pt_free(c);
     s->nconns--;
 }
@@ -449,6 +587,23 @@ static void accept_all(srv_server *s)
         struct sockaddr_storage ss;
         socklen_t sl = sizeof ss;
         int fd = accept4(s->lfd, (struct sockaddr *)&ss, &sl, SOCK_NONBLOCK | SOCK_CLOEXEC);
+        if (fd < 0 && (errno == EMFILE || errno == ENFILE) && s->guard->spare_fd >= 0) {
+            /* Out of descriptors (files took more than the reserve): the
+             * peer would wait in the backlog and wake epoll every round.
+             * The spare descriptor lets it be accepted and closed. */
+            close(s->guard->spare_fd);
+            fd = accept4(s->lfd, (struct sockaddr *)&ss, &sl, SOCK_CLOEXEC);
+            if (fd >= 0) {
+                char host[48];
+                uint8_t addr[16];
+                peer_address(&ss, host, sizeof host, addr);
+                close(fd);
+                note_refusal(s, REFUSE_FULL, host, "out of file descriptors");
+            }
+            s->guard->spare_fd = open("/dev/null", O_RDONLY | O_CLOEXEC);
+            if (fd >= 0)
+                continue;
+        }
         if (fd < 0)
             return;
         char host[48];
@@ -483,7 +638,8 @@ static void accept_all(srv_server *s)
         memcpy(c->addr, addr, sizeof c->addr);
         snprintf(c->peer, sizeof c->peer, "%s:%u", host, port);
         struct epoll_event e = {.events = EPOLLIN, .data.ptr = c};
-        if (epoll_ctl(s->ep, EPOLL_CTL_ADD, fd, &e) != 0) {
+        if (id_add(s->guard, c) != 0 || epoll_ctl(s->ep, EPOLL_CTL_ADD, fd, &e) != 0) {
+            id_remove(s->guard, c);
             proto_writer_fini(&c->out);
             proto_frame_reader_fini(&c->in);
             pt_free(c);
@@ -901,6 +1057,7 @@ void srv_loop_poll(srv_server *s, int timeout_ms)
             srv_upload_collect(s);
         } else {
             srv_conn *c = p;
+            conn_touch(s, c);
             /* A parked peer is not read; one that hung up meanwhile can
              * never finish its frame (and would wake epoll every round). */
             if (c->parked && (evs[i].events & (EPOLLHUP | EPOLLERR)) && !c->closing) {
@@ -917,6 +1074,14 @@ void srv_loop_poll(srv_server *s, int timeout_ms)
 
 void srv_loop_timers(srv_server *s, uint64_t now)
 {
+    /* The walk over every connection runs every TIMERS_MS, not every
+     * round: its deadlines are seconds long, and a farm's loop turns
+     * thousands of rounds a second over thousands of connections. */
+    if (now - s->guard->t_timers < TIMERS_MS) {
+        refusals_flush(s, now, 0);
+        return;
+    }
+    s->guard->t_timers = now;
     for (srv_conn *c = s->conns; c; c = c->next) {
         if (c->closing)
             continue;
@@ -934,30 +1099,128 @@ void srv_loop_timers(srv_server *s, uint64_t now)
 
 void srv_loop_flush_all(srv_server *s)
 {
-    for (srv_conn *c = s->conns; c; c = c->next)
+    /* Queued output is listed (srv_conn_update_events); a list that lost
+     * one is not trusted. */
+    struct srv_guard *g = s->guard;
+    if (g->act_lost) {
+        for (srv_conn *c = s->conns; c; c = c->next)
+            if (c->out.len > c->out_off && !c->closing)
+                conn_flush(s, c);
+        return;
+    }
+    for (uint32_t i = 0; i < g->nact; i++) {
+        srv_conn *c = g->act[i];
         if (c->out.len > c->out_off && !c->closing)
             conn_flush(s, c);
+    }
+}
+
+void srv_loop_each_for_hand_out(srv_server *s, int (*fn)(srv_server *, srv_conn *, void *),
+                                void *ctx)
+{
+    struct srv_guard *g = s->guard;
+    uint64_t now = pt_now_ms();
+    int waiting = 0;
+    if (g->hand_waiting || g->act_lost || now - g->t_hand >= TIMERS_MS) {
+        g->t_hand = now;
+        for (srv_conn *c = s->conns; c; c = c->next)
+            waiting |= fn(s, c, ctx);
+    } else {
+        /* By index: fn may list more (its own output, other peers'). */
+        for (uint32_t i = 0; i < g->nact; i++)
+            waiting |= fn(s, g->act[i], ctx);
+    }
+    g->hand_waiting = waiting;
+}
+
+/* The sweep of one connection; 1 when c is to be freed now. */
+static int sweep_one(srv_server *s, srv_conn *c, uint64_t now)
+{
+    if (c->out.len > c->out_off)
+        conn_flush(s, c);
+    if (proto_frame_reader_pending(&c->in) > 0 && !c->closing) {
+        conn_process(s, c);
+        in_shrink(s, c);
+        conn_touch(s, c); /* what it asked for is handed out next round */
+    }
+    if (c->closing && (c->close_at == 0 || now >= c->close_at))
+        return 1;
+    if (c->parked && in_fits(s, c))
+        conn_unpark(c, now);
+    srv_conn_update_events(s, c);
+    return 0;
+}
+
+/* Takes c, about to be freed, off the touched list (another peer's frame
+ * may have touched it since the list was taken). */
+static void conn_unlist(srv_server *s, srv_conn *c)
+{
+    struct srv_guard *g = s->guard;
+    if (!c->active)
+        return;
+    for (uint32_t k = 0; k < g->nact; k++)
+        if (g->act[k] == c) {
+            g->act[k] = g->act[--g->nact];
+            break;
+        }
+    c->active = 0;
+}
+
+/* Takes the list of touched connections (each one's mark cleared), so that
+ * what the sweep touches goes on a new one; the caller frees it. */
+static srv_conn **take_touched(srv_server *s, uint32_t *n)
+{
+    struct srv_guard *g = s->guard;
+    srv_conn **list = g->act;
+    *n = g->nact;
+    for (uint32_t i = 0; i < *n; i++)
+        list[i]->active = 0;
+    g->act = NULL;
+    g->nact = g->act_cap = 0;
+    return list;
 }
 
 void srv_loop_sweep(srv_server *s)
 {
+    struct srv_guard *g = s->guard;
     uint64_t now = pt_now_ms();
-    for (srv_conn **pc = &s->conns; *pc;) {
-        srv_conn *c = *pc;
-        if (c->out.len > c->out_off)
-            conn_flush(s, c);
-        if (proto_frame_reader_pending(&c->in) > 0 && !c->closing) {
-            conn_process(s, c);
-            in_shrink(s, c);
+    uint32_t n;
+    srv_conn **list = take_touched(s, &n);
+    if (g->act_lost || now - g->t_sweep >= TIMERS_MS) {
+        /* Every connection: grace times end, parked peers may fit again,
+         * and nothing left unlisted waits longer than this. */
+        g->act_lost = 0;
+        g->t_sweep = now;
+        pt_free(list);
+        for (srv_conn **pc = &s->conns; *pc;) {
+            srv_conn *c = *pc;
+            if (sweep_one(s, c, now)) {
+                *pc = c->next;
+                conn_unlist(s, c);
+                conn_free(s, c);
+                continue;
+            }
+            if (c->closing || c->parked)
+                conn_touch(s, c);
+            pc = &c->next;
         }
-        if (c->closing && (c->close_at == 0 || now >= c->close_at)) {
-            *pc = c->next;
-            conn_free(s, c);
+        return;
+    }
+    for (uint32_t i = 0; i < n; i++) {
+        srv_conn *c = list[i];
+        if (!sweep_one(s, c, now)) {
+            /* Not done: looked at again next round, not only every 50 ms. */
+            if (c->closing || c->parked)
+                conn_touch(s, c);
             continue;
         }
-        if (c->parked && in_fits(s, c))
-            conn_unpark(c, now);
-        srv_conn_update_events(s, c);
-        pc = &c->next;
+        /* Frees are rare beside the rounds: the walk to unlink is fine. */
+        srv_conn **pc = &s->conns;
+        while (*pc != c)
+            pc = &(*pc)->next;
+        *pc = c->next;
+        conn_unlist(s, c);
+        conn_free(s, c);
     }
+    pt_free(list);
 }

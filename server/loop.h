@@ -17,12 +17,15 @@
  *   all. A peer whose next frame would pass it is parked: not read (no
  *   EPOLLIN, TCP pushes back on it) until a frame ends or a peer goes, and
  *   not judged by the rate rule meanwhile. Total input memory is thus at
- *   most SRV_MAX_CONNS x IN_START + max_input_mem.
- * - slots: at most max_handshakes connections in the handshake, at most
- *   max_handshakes_ip of them from one address, SRV_MAX_CONNS -
- *   max_handshakes authenticated. Refusals (and handshakes that fail on a
- *   bad frame or time out) are logged one by one up to 5 per reason in
- *   10 s, then as one line with the count of the others.
+ *   most connections x IN_START + max_input_mem.
+ * - slots: the file-descriptor limit (RLIMIT_NOFILE, its soft value raised
+ *   to the hard one at srv_loop_open where allowed) less SRV_FD_RESERVE
+ *   connections in all, logged at start; of them at most max_handshakes in
+ *   the handshake, at most max_handshakes_ip of those from one address, the
+ *   rest authenticated. A connection past them is accepted and closed at
+ *   once (so is one that meets EMFILE, through a spare descriptor). Refusals (and handshakes that
+ * fail on a bad frame or time out) are logged one by one up to 5 per reason in 10 s, then as one
+ * line with the count of the others.
  * - rate: a frame in progress must be whole within max(frame_grace,
  *   its size / min_rate) of its first byte, an upload within max(grace,
  *   bundle size / min_rate) of its SUBMIT, and nothing may stall for
@@ -50,11 +53,15 @@
 
 #define SRV_OUT_HIGH (16u << 20) /* stop reading a peer whose unsent output passes this */
 
-/* Connection slots: SRV_MAX_CONNS in all, of which at most max_handshakes
- * (srv_peer_limits, server/serve.h) are not yet authenticated; the others
- * are kept for authenticated peers, so a flood of handshakes never locks a
- * worker out. */
-#define SRV_MAX_CONNS 1024u
+/* Connection slots: the file-descriptor limit less SRV_FD_RESERVE, of which
+ * at most max_handshakes (srv_peer_limits, server/serve.h) are not yet
+ * authenticated; the others are kept for authenticated peers, so a flood of
+ * handshakes never locks a worker out. The reserve is for the process's
+ * own descriptors: standard streams, the listener, epoll and its pipes, the
+ * state folder (lock, queue file, a results log per running job,
+ * checkpoints), images being written, uploads being verified and the
+ * dashboard's connections (at most 64). */
+#define SRV_FD_RESERVE 128u
 
 /* The largest payload each role sends once authenticated (the frame cap):
  * a worker's RESULT of a PT_TILE_MAX x PT_TILE_MAX tile, 69 bytes of header
@@ -93,6 +100,7 @@ struct srv_conn {
     char host[48];    /* the peer's address alone, for refusals */
     uint8_t addr[16]; /* the same as bytes (IPv4 as ::ffff:a.b.c.d): per-address caps */
     int handshaking;  /* holds one of the max_handshakes slots */
+    int active;       /* on the loop's list for this round's sweep (loop.c) */
     int parked;       /* not read: its next frame waits for input memory */
     uint64_t t_parked;
     uint64_t t_frame;  /* the first byte of the frame in progress arrived */
@@ -135,16 +143,31 @@ int srv_loop_stopped(void);
  * dispatches frames, flushes output, completes verifications. */
 void srv_loop_poll(srv_server *s, int timeout_ms);
 
-/* Handshake, stall and rate timeouts; the refusals not yet logged. */
+/* Handshake, stall and rate timeouts (judged at most every 50 ms: the walk
+ * over every connection is not repeated each round); the refusals not yet
+ * logged. */
 void srv_loop_timers(srv_server *s, uint64_t now);
 
-/* Sends what each open connection has queued (before a slow disk sync). */
+/* Sends what the connections touched this round have queued (before a slow
+ * disk sync). */
 void srv_loop_flush_all(srv_server *s);
 
 /* Flushes, processes input left by backpressure, frees the connections
  * closed since the last sweep, reads again from parked peers whose frame
- * now fits and sets each one's epoll interest. */
+ * now fits and sets each one's epoll interest. Each round it visits only
+ * the connections touched since the last sweep (an event, queued output, a
+ * close, a park), and all of them every 50 ms, so a round's cost follows
+ * what happened in it, not how many peers are connected. */
 void srv_loop_sweep(srv_server *s);
+
+/* Calls fn(s, c, ctx) for the connections a round's hand-out of tasks
+ * (server/queue.c) must look at: those touched since the last sweep (a
+ * WORK_REQUEST, a RESULT, output drained), or all of them every 50 ms and
+ * while some worker waits on a queue that had nothing for it (fn returned 1
+ * for it in the last call). Tasks reach waiting workers as before; a
+ * busy farm's round looks only at the peers it heard from. */
+void srv_loop_each_for_hand_out(srv_server *s, int (*fn)(srv_server *, srv_conn *, void *),
+                                void *ctx);
 
 /* 1 while c's unsent output is under SRV_OUT_HIGH. */
 int srv_conn_has_room(const srv_conn *c);

@@ -578,32 +578,43 @@ static int lease_any(srv_server *s, uint64_t owner, uint64_t now, proto_task *t)
     return 0;
 }
 
+/* hand_out_to's state over one hand-out. */
+typedef struct hand_out {
+    uint64_t now;
+    int dry; /* the queue had nothing to lease: skip the other workers */
+} hand_out;
+
+/* Serves c's free slots and pending fetch; 1 when c still wants tasks that
+ * the queue had none of. */
+static int hand_out_to(srv_server *s, srv_conn *c, void *ctx)
+{
+    hand_out *h = ctx;
+    if (c->state != SRV_C_READY || c->closing)
+        return 0;
+    if (c->fetch)
+        srv_requests_pump_fetch(s, c);
+    while (!h->dry && c->role == PROTO_ROLE_WORKER && c->want > 0 && srv_conn_has_room(c)) {
+        proto_task t;
+        if (!lease_any(s, c->id, h->now, &t)) {
+            h->dry = 1;
+            break;
+        }
+        size_t mark;
+        pt_status st = proto_frame_begin(&c->out, PROTO_MSG_TASK, &mark, NULL);
+        if (st == PT_OK)
+            st = proto_frame_finish(&c->out, mark, proto_msg_encode_task(&c->out, &t, NULL), NULL);
+        if (!srv_conn_queued(s, c, st))
+            break;
+        c->want--;
+    }
+    srv_conn_update_events(s, c);
+    return h->dry && c->role == PROTO_ROLE_WORKER && c->want > 0;
+}
+
 void srv_queue_hand_out(srv_server *s)
 {
-    uint64_t now = pt_now_ms();
-    int dry = 0; /* the queue had nothing to lease: skip the other workers */
-    for (srv_conn *c = s->conns; c; c = c->next) {
-        if (c->state != SRV_C_READY || c->closing)
-            continue;
-        if (c->fetch)
-            srv_requests_pump_fetch(s, c);
-        while (!dry && c->role == PROTO_ROLE_WORKER && c->want > 0 && srv_conn_has_room(c)) {
-            proto_task t;
-            if (!lease_any(s, c->id, now, &t)) {
-                dry = 1;
-                break;
-            }
-            size_t mark;
-            pt_status st = proto_frame_begin(&c->out, PROTO_MSG_TASK, &mark, NULL);
-            if (st == PT_OK)
-                st = proto_frame_finish(&c->out, mark, proto_msg_encode_task(&c->out, &t, NULL),
-                                        NULL);
-            if (!srv_conn_queued(s, c, st))
-                break;
-            c->want--;
-        }
-        srv_conn_update_events(s, c);
-    }
+    hand_out h = {pt_now_ms(), 0};
+    srv_loop_each_for_hand_out(s, hand_out_to, &h);
 }
 
 void srv_queue_release_owner(srv_server *s, const srv_conn *c, int report)
@@ -692,8 +703,17 @@ static void on_missed(void *ctx, uint64_t owner, uint64_t task)
     srv_workers_missed(e->s, owner, e->now);
 }
 
+/* Leases are checked at most this often, not every loop round: each check
+ * walks every lease of every job, thousands on a big farm, and deadlines are
+ * at least a --lease-timeout (seconds) away. */
+#define EXPIRE_MS 50
+
 void srv_queue_expire(srv_server *s, uint64_t now)
 {
+    static uint64_t t_last; /* one loop per process */
+    if (now - t_last < EXPIRE_MS && now >= t_last)
+        return;
+    t_last = now;
     expiry e = {s, now};
     for (srv_entry *j = s->jobs; j; j = j->next) {
         uint32_t n;

@@ -145,7 +145,8 @@ void srv_queue_hand_out(srv_server *s);
  * how many. Nothing for a peer that is not a ready worker. */
 void srv_queue_release_owner(srv_server *s, const srv_conn *c, int report);
 
-/* Lease expiry (misses counted, then srv_workers_enforce); then, per running
+/* Lease expiry, at most every 50 ms (misses counted, then
+ * srv_workers_enforce); then, per running
  * job, the progressive save (a failure logged once per streak), the rate, the
  * checkpoint trigger, and the retries of a paused job's writes, of a final
  * image and of the queue file. now in ms (pt_now_ms). */

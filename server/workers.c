@@ -111,17 +111,27 @@ void srv_workers_block(srv_server *s, srv_conn *c, const char *why)
     srv_conn_send_error(s, c, PROTO_E_AUTH, "this worker is blocked: %s", why);
 }
 
+/* Some worker reached SRV_MAX_MISSES since the last srv_workers_enforce:
+ * only then does it walk the connections, not once per loop round. One
+ * flag for the process: the loop is single-threaded, and a flag set for
+ * another server's worker costs only a walk. */
+static int enforce_due;
+
 void srv_workers_missed(srv_server *s, uint64_t owner, uint64_t now)
 {
     srv_conn *c = srv_conn_find(s, owner);
     if (!c || c->closing || c->missed_at == now)
         return;
     c->missed_at = now;
-    c->misses++;
+    if (++c->misses >= SRV_MAX_MISSES)
+        enforce_due = 1;
 }
 
 void srv_workers_enforce(srv_server *s)
 {
+    if (!enforce_due)
+        return;
+    enforce_due = 0;
     for (srv_conn *c = s->conns; c; c = c->next)
         if (c->state == SRV_C_READY && c->role == PROTO_ROLE_WORKER && !c->closing &&
             c->misses >= SRV_MAX_MISSES) {

@@ -38,7 +38,8 @@ void srv_workers_dispatch(srv_server *s, srv_conn *c, const proto_frame *f);
  * job); srv_workers_enforce does. */
 void srv_workers_missed(srv_server *s, uint64_t owner, uint64_t now);
 
-/* Blocks each worker with SRV_MAX_MISSES misses. */
+/* Blocks each worker with SRV_MAX_MISSES misses. O(1) unless a worker
+ * reached them since the last call (then it walks the connections). */
 void srv_workers_enforce(srv_server *s);
 
 /* Blocks worker c (see the file comment) for why, logged and sent to it. */

@@ -7,6 +7,11 @@
  *   ptworker still renders the job to the end meanwhile;
  * - slots: a flood of silent connections from 127.0.0.2 neither keeps an
  *   honest peer on 127.0.0.1 from authenticating nor floods the log;
+ * - connections: under `prlimit --nofile=L:L`, ptserve authenticates
+ *   L - SRV_FD_RESERVE workers, refuses the next connection at once
+ *   (accepted and closed, not left waiting in the backlog), takes a new one
+ *   when one leaves, and keeps serving; a soft limit under the hard one is
+ *   raised at start;
  * - rate: a peer dripping a frame a byte at a time, and a client dripping
  *   an upload in small whole frames, are closed once the rule (max(grace,
  *   size / min rate)) says so, while a slower-than-the-network but
@@ -398,6 +403,105 @@ static void slots_kept(void)
     CHECK(log_has("slots.log", "too many unauthenticated connections from that address"));
 }
 
+/* ---- connections: the file-descriptor limit ---- */
+
+static pid_t start_limited(const char *nofile, const char *log)
+{
+    const char *argv[] = {"/usr/bin/prlimit",
+                          nofile,
+                          PT_BIN_DIR "/ptserve",
+                          "--listen",
+                          "127.0.0.1:0",
+                          "--port-file",
+                          path("port"),
+                          "--max-handshakes-per-ip",
+                          "64",
+                          "--res",
+                          "64x64",
+                          "-o",
+                          path("conns.exr"),
+                          SCENE,
+                          NULL};
+    unlink(path("port"));
+    return spawn(argv, log);
+}
+
+static void conns_follow_nofile(void)
+{
+    if (access("/usr/bin/prlimit", X_OK) != 0) {
+        CHECK_SKIP("no /usr/bin/prlimit (util-linux)");
+        return;
+    }
+    const unsigned lim = 300, cap = lim - SRV_FD_RESERVE;
+    char nofile[64], line[128];
+    snprintf(nofile, sizeof nofile, "--nofile=%u:%u", lim, lim);
+    pid_t srv = start_limited(nofile, "conns.log");
+    int port = read_port();
+    CHECK(port > 0);
+    if (port <= 0) {
+        kill(srv, SIGKILL);
+        wait_exit(srv, 10);
+        return;
+    }
+    snprintf(line, sizeof line, "connections: at most %u (file descriptor limit %u,", cap, lim);
+    CHECKF(log_has("conns.log", line), "no '%s' in the log", line);
+
+    /* The authenticated peers' slots (all but the 64 handshake slots) taken
+     * by workers, one after the other; the next worker's AUTH is refused. */
+    static int fds[1024], idle[64];
+    const unsigned authed = cap - SRV_DEFAULT_MAX_HANDSHAKES;
+    unsigned n = 0;
+    while (n < authed && (fds[n] = ready_worker(port)) >= 0)
+        n++;
+    CHECKF(n == authed, "%u of %u workers authenticated", n, authed);
+    int more = ready_worker(port);
+    CHECKF(more < 0, "a worker past the authenticated slots was let in");
+    if (more >= 0)
+        close(more);
+    /* The handshake slots taken by silent peers; the next connection is
+     * accepted and closed at once (accept takes them in order), and logged. */
+    for (unsigned i = 0; i < SRV_DEFAULT_MAX_HANDSHAKES; i++)
+        idle[i] = connect_to(port);
+    int extra = connect_to(port);
+    CHECK(extra >= 0);
+    CHECKF(extra >= 0 && closed_by_server(extra, 10000),
+           "a connection past the cap was not refused");
+    if (extra >= 0)
+        close(extra);
+    CHECK(wait_log("conns.log", "every connection slot is taken", 10));
+    /* The workers in are kept; when one leaves, another takes its slot. */
+    CHECKF(n < 2 || !closed_by_server(fds[1], 200), "a worker in a slot was closed");
+    for (unsigned i = 0; i < SRV_DEFAULT_MAX_HANDSHAKES; i++)
+        if (idle[i] >= 0)
+            close(idle[i]);
+    if (n > 0) {
+        close(fds[0]);
+        int fd = -1;
+        double end = pt_now_s() + 10.0;
+        while (fd < 0 && pt_now_s() < end) {
+            fd = ready_worker(port);
+            if (fd < 0)
+                sleep_ms(100);
+        }
+        CHECKF(fd >= 0, "no slot for a worker after one left");
+        fds[0] = fd;
+    }
+    CHECK(kill(srv, 0) == 0);
+    for (unsigned i = 0; i < n; i++)
+        close(fds[i]);
+    stop_serve(srv);
+
+    /* A soft limit under the hard one is raised to it. */
+    snprintf(nofile, sizeof nofile, "--nofile=%u:%u", lim, 4 * lim);
+    srv = start_limited(nofile, "raised.log");
+    port = read_port();
+    CHECK(port > 0);
+    snprintf(line, sizeof line, "connections: at most %u (file descriptor limit %u, raised from %u",
+             4 * lim - SRV_FD_RESERVE, 4 * lim, lim);
+    CHECKF(wait_log("raised.log", line, 10), "no '%s' in the log", line);
+    stop_serve(srv);
+}
+
 /* ---- rate ---- */
 
 /* A RESULT of a 64 x 64 tile for a job the server does not have: well
@@ -564,5 +668,7 @@ int main(int argc, char **argv)
         slots_kept();
     if (!*only || !strcmp(only, "rate"))
         drip_closed();
+    if (!*only || !strcmp(only, "conns"))
+        conns_follow_nofile();
     return farm_test_end();
 }
