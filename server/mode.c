@@ -60,6 +60,13 @@ static pt_status setup_single(srv_server *s, pt_error *err)
 {
     const srv_config *cfg = s->cfg;
     pt_status st;
+    /* An output folder that is missing or not writable fails now, not after
+     * the render (a still) or never (a frame range retries its saves): a
+     * temporary file is made where the images will go and removed. */
+    pt_temp probe;
+    if ((st = pt_temp_open(cfg->out_path, 0644, &probe, err)) != PT_OK)
+        return st;
+    pt_temp_abort(&probe);
     /* Load once here so a broken scene fails before any worker starts. */
     pt_scene_opts so = {0};
     so.camera_name = cfg->job.camera[0] ? cfg->job.camera : NULL;

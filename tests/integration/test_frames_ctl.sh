@@ -113,6 +113,12 @@ bad "over the cap of 100000" "${one[@]}" --frames 0-200000 -o "$tmp/x.#.exr" "$s
 bad "needs a '#'" "${one[@]}" --frames 0-3 -o "$tmp/x.exr" "$scene"
 bad "give --frames" "${one[@]}" --fps 30 -o "$tmp/x.exr" "$scene"
 bad "is not a positive number" "${one[@]}" --frames 0-3 --fps 0 -o "$tmp/x.#.exr" "$scene"
+# A missing output folder fails at start (it used to render a still and then
+# fail, and retry a range's saves for ever).
+bad "cannot create its temporary file" timeout 120 "${one[@]}" --frames 0-3 -o "$tmp/none/x.#.exr" \
+  "$scene"
+bad "cannot create its temporary file" "${one[@]}" -o "$tmp/none/x.exr" "$scene"
+grep -q "joined" "$tmp/bad.log" && fail "a worker joined before the missing folder was found"
 if [ $posed = 1 ]; then # the loader knows animations: an unknown one is refused
   bad "the scene has no animations" "${one[@]}" --frames 0-3 --animation Walk -o "$tmp/x.#.exr" \
     "$src/scenes/cornell_box.gltf"
