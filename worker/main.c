@@ -82,6 +82,12 @@ static void usage(FILE *f)
             "  --transparent      camera rays that leave the scene add nothing (the\n"
             "                     environment still lights the scene), and the EXR gets\n"
             "                     an A channel: the pixel's coverage, RGB premultiplied\n"
+            "  --shutter O,C      motion blur: the shutter opens and closes at these\n"
+            "                     fractions of a frame (0,0.5: a 180-degree shutter;\n"
+            "                     default off): what the scene's animation moves in\n"
+            "                     [t + O/fps, t + C/fps] blurs (t: the frame's time)\n"
+            "  --fps R            frames per second that turns the shutter's fractions\n"
+            "                     into seconds (default 24)\n"
             "  -q, --quiet        no progress line\n"
             "  -h, --help         this text\n"
             "  --version          the version and renderer build id\n"
@@ -139,6 +145,7 @@ int main(int argc, char **argv)
     o.tile = 32;
     o.chunk = 16;
     o.env_strength = 1.0f;
+    o.fps = 24.0;
     wrk_client_opts net = {0};
     double dv, rgb[3];
     uint32_t prefetch = 0;
@@ -164,6 +171,8 @@ int main(int argc, char **argv)
         OPT_BACKGROUND,
         OPT_TRANSPARENT,
         OPT_VARIANT,
+        OPT_SHUTTER,
+        OPT_FPS,
         OPT_SERVER,
         OPT_PREFETCH,
         OPT_TOKEN,
@@ -191,6 +200,8 @@ int main(int argc, char **argv)
         {"background", required_argument, NULL, OPT_BACKGROUND},
         {"transparent", no_argument, NULL, OPT_TRANSPARENT},
         {"variant", required_argument, NULL, OPT_VARIANT},
+        {"shutter", required_argument, NULL, OPT_SHUTTER},
+        {"fps", required_argument, NULL, OPT_FPS},
         {"quiet", no_argument, NULL, 'q'},
         {"server", required_argument, NULL, OPT_SERVER},
         {"prefetch", required_argument, NULL, OPT_PREFETCH},
@@ -271,6 +282,13 @@ int main(int argc, char **argv)
             break;
         case OPT_TRANSPARENT:
             o.transparent = 1;
+            break;
+        case OPT_SHUTTER:
+            bad = bad_value(pt_opt_shutter("--shutter", optarg, o.shutter, &err), &err);
+            o.has_shutter = 1;
+            break;
+        case OPT_FPS:
+            bad = bad_value(pt_opt_positive("--fps", optarg, 1e6, &o.fps, &err), &err);
             break;
         case 'q':
             o.quiet = 1;

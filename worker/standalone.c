@@ -101,10 +101,21 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
     pt_scene_opts so = {0};
     so.camera_name = o->camera;
     so.variant = o->variant;
+    if (o->has_shutter) {
+        /* The frame at o->time, its shutter in seconds of animation. */
+        so.animate = 1;
+        so.time = o->time;
+        so.shutter_open = o->time + o->shutter[0] / o->fps;
+        so.shutter_close = o->time + o->shutter[1] / o->fps;
+    }
     if (pt_scene_load(o->scene_path, &so, &scene, &err) != PT_OK) {
         fprintf(stderr, "ptworker: %s\n", err.msg);
         goto done;
     }
+    if (o->has_shutter && o->shutter[1] > o->shutter[0] && !(scene->features & PT_FEAT_MOTION) &&
+        !o->quiet)
+        fprintf(stderr, "ptworker: --shutter: nothing in the scene moves while the shutter is "
+                        "open; the image is the still\n");
     pt_render_params p = {0};
     pt_render_params_default(&p);
     p.width = o->width;

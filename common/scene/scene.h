@@ -239,6 +239,12 @@ typedef struct pt_scene_opts {
     int animate;
     double time;
     const char *animation;
+    /* Motion blur (common/scene/motion.h): with animate 1 and shutter_close >
+     * shutter_open (seconds of animation), the scene is posed at time steps
+     * over [shutter_open, shutter_close] and what moves there blurs; its
+     * still pose is then the one at shutter_open. Otherwise both are
+     * ignored (0, 0 when zeroed: no motion blur). */
+    double shutter_open, shutter_close;
 } pt_scene_opts;
 
 /* Hard caps on what a file may ask for. */
