@@ -388,6 +388,14 @@ static void r_env(proto_reader *r, proto_env *e)
 
 /* ---- TASK ---- */
 
+const char *proto_shutter_problem(const double shutter[2])
+{
+    /* Written so that NaN fails too. */
+    if (!(shutter[0] >= 0.0 && shutter[0] <= shutter[1] && shutter[1] <= PROTO_MAX_SHUTTER_S))
+        return "shutter not 0 <= open <= close <= 3600 s";
+    return NULL;
+}
+
 static const char *task_problem(const proto_task *m)
 {
     const char *why = rect_problem(m->tile);
@@ -399,7 +407,8 @@ static const char *task_problem(const proto_task *m)
         return "sample range s0 >= s1";
     if (m->film_flags & ~PROTO_FILM_KNOWN)
         return "unknown film flags";
-    return env_problem(&m->env);
+    why = proto_shutter_problem(m->shutter);
+    return why ? why : env_problem(&m->env);
 }
 
 pt_status proto_msg_encode_task(proto_writer *w, const proto_task *m, pt_error *err)
@@ -430,6 +439,8 @@ pt_status proto_msg_encode_task(proto_writer *w, const proto_task *m, pt_error *
     w_env(w, &m->env);
     proto_w_u32(w, m->film_flags);
     proto_w_str(w, m->variant);
+    proto_w_f64(w, m->shutter[0]);
+    proto_w_f64(w, m->shutter[1]);
     return w_done(w, start, "TASK", err);
 }
 
@@ -453,6 +464,8 @@ pt_status proto_msg_decode_task(const uint8_t *p, size_t len, proto_task *out, p
     r_env(&r, &m.env);
     m.film_flags = proto_r_u32(&r, "film flags");
     proto_r_str(&r, m.variant, PROTO_MAX_NAME, "variant");
+    m.shutter[0] = proto_r_f64(&r, "shutter open");
+    m.shutter[1] = proto_r_f64(&r, "shutter close");
     pt_status st = proto_r_finish(&r, "TASK", err);
     if (st != PT_OK)
         return st;
@@ -738,7 +751,8 @@ static const char *submit_problem(const proto_submit *m)
         return "bundle size is 0";
     if (m->film_flags & ~PROTO_FILM_KNOWN)
         return "unknown film flags";
-    return env_problem(&m->env);
+    const char *why = proto_shutter_problem(m->shutter);
+    return why ? why : env_problem(&m->env);
 }
 
 pt_status proto_msg_encode_submit(proto_writer *w, const proto_submit *m, pt_error *err)
@@ -768,6 +782,8 @@ pt_status proto_msg_encode_submit(proto_writer *w, const proto_submit *m, pt_err
     w_env(w, &m->env);
     proto_w_u32(w, m->film_flags);
     proto_w_str(w, m->variant);
+    proto_w_f64(w, m->shutter[0]);
+    proto_w_f64(w, m->shutter[1]);
     return w_done(w, start, "SUBMIT", err);
 }
 
@@ -791,6 +807,8 @@ pt_status proto_msg_decode_submit(const uint8_t *p, size_t len, proto_submit *ou
     r_env(&r, &m.env);
     m.film_flags = proto_r_u32(&r, "film flags");
     proto_r_str(&r, m.variant, PROTO_MAX_NAME, "variant");
+    m.shutter[0] = proto_r_f64(&r, "shutter open");
+    m.shutter[1] = proto_r_f64(&r, "shutter close");
     pt_status st = proto_r_finish(&r, "SUBMIT", err);
     if (st != PT_OK)
         return st;

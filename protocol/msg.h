@@ -216,7 +216,8 @@ int proto_env_same(const proto_env *a, const proto_env *b);
  *   94+c 23+e ENV      the environment light (ENV layout, above)
  *   117+c+e 4 u32      film flags (PROTO_FILM_*; unknown bits refused)
  *   121+c+e 2+v str    KHR_materials_variants name, v <= PROTO_MAX_NAME ("": none)
- *   size 123+c+e+v */
+ *   123+c+e+v 16 SHUTTER motion blur's shutter (SHUTTER layout, below)
+ *   size 139+c+e+v */
 typedef struct proto_task {
     uint64_t job_id, task_id;
     pt_rect tile;
@@ -230,7 +231,21 @@ typedef struct proto_task {
     proto_env env;
     uint32_t film_flags;              /* PROTO_FILM_* */
     char variant[PROTO_MAX_NAME + 1]; /* material variant; "" each primitive's own */
+    double shutter[2];                /* SHUTTER: open, close; 0, 0 off */
 } proto_task;
+
+/* SHUTTER (in TASK and SUBMIT): motion blur's shutter, in seconds after the
+ * frame's time (a still's: 0), so that what the scene's animation moves in
+ * [time + open, time + close] blurs (common/scene/motion.h).
+ *   0    8    f64      open
+ *   8    8    f64      close
+ *   size 16
+ * Both finite with 0 <= open <= close <= PROTO_MAX_SHUTTER_S; close == open
+ * is no motion blur (0, 0 when off). Clients give fractions of a frame and
+ * the frame rate (ptctl submit --shutter, --fps) and send their seconds. */
+#define PROTO_MAX_SHUTTER_S 3600.0
+/* NULL when open and close make a shutter, else what is wrong. */
+const char *proto_shutter_problem(const double shutter[2]);
 
 /* SCENE_GET
  *   0    32   u8[32]  scene content hash
@@ -349,7 +364,8 @@ typedef struct proto_job_ref {
  *   109+a+c+e 4 u32 film flags (PROTO_FILM_*; unknown bits refused)
  *   113+a+c+e 2+v str KHR_materials_variants name, v <= PROTO_MAX_NAME ("": none;
  *                  the server refuses a name the scene lacks)
- *   size 115+a+c+e+v
+ *   115+a+c+e+v 16 SHUTTER motion blur's shutter (SHUTTER layout, above)
+ *   size 131+a+c+e+v
  * The decoder checks shape only (width and height both 0 or both > 0, spp > 0,
  * size > 0, target error and min gain finite and >= 0); caps, and whether the
  * two rules may be combined, are the server's business. */
@@ -367,6 +383,7 @@ typedef struct proto_submit {
     proto_env env;
     uint32_t film_flags;              /* PROTO_FILM_* */
     char variant[PROTO_MAX_NAME + 1]; /* material variant; "" each primitive's own */
+    double shutter[2];                /* SHUTTER: open, close; 0, 0 off */
 } proto_submit;
 
 enum {

@@ -447,6 +447,8 @@ int srv_job_lease(srv_job *j, uint64_t owner, uint64_t now_ms, uint32_t lease_ms
     task->env = j->p.env;
     task->film_flags = j->p.film_flags;
     snprintf(task->variant, sizeof task->variant, "%s", j->p.variant);
+    task->shutter[0] = j->p.shutter[0];
+    task->shutter[1] = j->p.shutter[1];
     return 1;
 }
 
@@ -1024,6 +1026,8 @@ void srv_job_params_write(proto_writer *w, const srv_job_params *p)
         proto_w_f32(w, p->env.rgb[k]);
     proto_w_u32(w, p->film_flags);
     proto_w_str(w, p->variant);
+    proto_w_f64(w, p->shutter[0]);
+    proto_w_f64(w, p->shutter[1]);
 }
 
 void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, int has_env_film)
@@ -1044,6 +1048,7 @@ void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, i
     proto_env_none(&p->env);
     p->film_flags = 0;
     p->variant[0] = '\0';
+    p->shutter[0] = p->shutter[1] = 0.0;
     if (!has_env_film)
         return;
     proto_r_str(r, p->env.name, PROTO_MAX_PATH, "environment map name");
@@ -1056,6 +1061,10 @@ void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, i
     if (r->status == PT_OK && (p->film_flags & ~PROTO_FILM_KNOWN))
         proto_r_fail(r, PT_ERR_FORMAT, "unknown", "film flags");
     proto_r_str(r, p->variant, PROTO_MAX_NAME, "variant");
+    p->shutter[0] = proto_r_f64(r, "shutter open");
+    p->shutter[1] = proto_r_f64(r, "shutter close");
+    if (r->status == PT_OK && proto_shutter_problem(p->shutter))
+        proto_r_fail(r, PT_ERR_FORMAT, "bad", "shutter");
 }
 
 static uint32_t tile_merged(const srv_job *j, uint32_t tile)
@@ -1128,7 +1137,8 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
         memcmp(&p.min_gain, &j->p.min_gain, sizeof p.min_gain) != 0 ||
         strcmp(p.camera, j->p.camera) != 0 || !proto_env_same(&p.env, &j->p.env) ||
         p.film_flags != j->p.film_flags || strcmp(p.variant, j->p.variant) != 0 ||
-        ntiles != j->ntiles || nchunks != j->nchunks)
+        memcmp(p.shutter, j->p.shutter, sizeof p.shutter) != 0 || ntiles != j->ntiles ||
+        nchunks != j->nchunks)
         return pt_error_set(err, PT_ERR_FORMAT,
                             "checkpoint is of another job or other settings "
                             "(job %llu, %ux%u, %u spp)",

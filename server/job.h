@@ -68,6 +68,8 @@ typedef struct srv_job_params {
     proto_env env;       /* the environment light; its map is a file of the job's bundle */
     uint32_t film_flags; /* PROTO_FILM_* (transparent: the EXR gets A) */
     char variant[PROTO_MAX_NAME + 1]; /* KHR_materials_variants name; "" the default materials */
+    double shutter[2]; /* motion blur's shutter, seconds after the frame's time (SHUTTER in
+                          protocol/msg.h); 0, 0 off */
 } srv_job_params;
 
 #define SRV_MAX_TASKS (64u * 1024u * 1024u)
@@ -218,8 +220,9 @@ int srv_job_owner_active(const srv_job *job, uint64_t owner);
  * it; read as 0 from older ones), str camera, then (in the formats that have
  * them: no environment and no film flags from older ones) the environment: str
  * map name, f32 strength, f32 rotation, u8 background flag, f32 x3 colour; and
- * u32 film flags (an unknown bit is a format error), str material variant
- * (both formats 4; "" from older ones). srv_job_params_read reads
+ * u32 film flags (an unknown bit is a format error), str material variant,
+ * f64 x2 shutter (open, close; refused unless proto_shutter_problem passes)
+ * (all formats 4; "" and 0, 0 from older ones). srv_job_params_read reads
  * a block with or without the min gain and with or without both the
  * environment and the film flags (one format version brought both), as its
  * file's format version says; a failure is left in r's status. */

@@ -98,6 +98,11 @@ static void usage(FILE *f)
         "  --variant NAME         the KHR_materials_variants variant: mapped primitives\n"
         "                         take its material; one-job mode (queued jobs: ptctl\n"
         "                         submit --variant)\n"
+        "  --shutter O,C          motion blur: the shutter opens and closes at these\n"
+        "                         fractions of a frame (0,0.5: 180 degrees; default off);\n"
+        "                         what the scene's animation moves then blurs; one-job\n"
+        "                         mode (queued jobs: ptctl submit --shutter)\n"
+        "  --fps R                frames per second for --shutter (default 24)\n"
         "  --tile N               tile side in pixels (default 32)\n"
         "  --chunk N              samples per task (default 16)\n"
         "  --save-interval SEC    progressive saves at most this often (default 5)\n"
@@ -202,7 +207,9 @@ int main(int argc, char **argv)
         O_BACKGROUND,
         O_HTTP,
         O_HTTPPORT,
-        O_TRANSPARENT
+        O_TRANSPARENT,
+        O_SHUTTER,
+        O_FPS
     };
     static const struct option opts[] = {
         {"output", required_argument, NULL, 'o'},
@@ -228,6 +235,8 @@ int main(int argc, char **argv)
         {"verify-fraction", required_argument, NULL, O_VERIFY},
         {"min-spp", required_argument, NULL, O_MINSPP},
         {"transparent", no_argument, NULL, O_TRANSPARENT},
+        {"shutter", required_argument, NULL, O_SHUTTER},
+        {"fps", required_argument, NULL, O_FPS},
         {"worker-bin", required_argument, NULL, O_WBIN},
         {"state-dir", required_argument, NULL, O_STATE},
         {"output-dir", required_argument, NULL, O_OUTDIR},
@@ -253,6 +262,8 @@ int main(int argc, char **argv)
         {NULL, 0, NULL, 0},
     };
     pt_error err = {0};
+    double shutter[2] = {0.0, 0.0}, fps = 24.0;
+    int has_shutter = 0;
     int ch;
     while ((ch = getopt_long(argc, argv, "o:qh", opts, NULL)) != -1) {
         pt_status st = PT_OK;
@@ -334,6 +345,13 @@ int main(int argc, char **argv)
             break;
         case O_TRANSPARENT:
             c.job.film_flags |= PROTO_FILM_TRANSPARENT;
+            break;
+        case O_SHUTTER:
+            st = pt_opt_shutter("--shutter", optarg, shutter, &err);
+            has_shutter = 1;
+            break;
+        case O_FPS:
+            st = pt_opt_positive("--fps", optarg, 1e6, &fps, &err);
             break;
         case O_WBIN:
             c.worker_bin = optarg;
@@ -452,6 +470,14 @@ int main(int argc, char **argv)
                         "and --state-dir (clients use the queue)\n");
         return 2;
     }
+    if (c.state_dir && has_shutter) {
+        fprintf(stderr, "ptserve: --shutter is for one-job mode; a queued job asks for it "
+                        "with ptctl submit --shutter\n");
+        return 2;
+    }
+    /* The job carries seconds after the frame's time (SHUTTER, protocol/msg.h). */
+    c.job.shutter[0] = shutter[0] / fps;
+    c.job.shutter[1] = shutter[1] / fps;
     if (c.state_dir && c.job.variant[0]) {
         fprintf(stderr, "ptserve: --variant is for one-job mode; a queued job asks for it "
                         "with ptctl submit --variant\n");

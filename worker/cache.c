@@ -278,6 +278,7 @@ struct wrk_scene_ref {
     char camera[64];                  /* pt_camera's name: "" the default view */
     char variant[PROTO_MAX_NAME + 1]; /* KHR_materials_variants name: "" the default materials */
     proto_env env;                    /* the key's environment; proto_env_none when there is none */
+    double shutter[2];                /* motion blur's (SHUTTER); 0, 0 when off */
     pt_env *envobj;                   /* built from it, NULL for none; outlives renderer */
     pt_scene *scene;
     pt_renderer *renderer;
@@ -417,6 +418,11 @@ static pt_status build(wrk_scene_ref *e, const char *entry_path)
     memset(&so, 0, sizeof so);
     so.camera_name = e->camera[0] ? e->camera : NULL;
     so.variant = e->variant[0] ? e->variant : NULL;
+    if (e->shutter[1] > e->shutter[0]) {
+        so.animate = 1;
+        so.shutter_open = e->shutter[0];
+        so.shutter_close = e->shutter[1];
+    }
     pt_status st = build_env(e, entry_path);
     if (st != PT_OK)
         return st;
@@ -458,6 +464,22 @@ pt_status wrk_scenes_acquire_variant(wrk_scenes *s, const uint8_t hash[WRK_HASH_
                                      const char *variant, const proto_env *env,
                                      const char *entry_path, wrk_scene_ref **out, pt_error *err)
 {
+    return wrk_scenes_acquire_shutter(s, hash, params, camera, variant, env, NULL, entry_path, out,
+                                      err);
+}
+
+pt_status wrk_scenes_acquire_shutter(wrk_scenes *s, const uint8_t hash[WRK_HASH_SIZE],
+                                     const pt_render_params *params, const char *camera,
+                                     const char *variant, const proto_env *env,
+                                     const double shutter[2], const char *entry_path,
+                                     wrk_scene_ref **out, pt_error *err)
+{
+    /* One key for "no motion blur", however an empty shutter was given. */
+    double sh[2] = {0.0, 0.0};
+    if (shutter && shutter[1] > shutter[0]) {
+        sh[0] = shutter[0];
+        sh[1] = shutter[1];
+    }
     /* One key for "no environment", however the fields unused then were set. */
     proto_env key;
     if (env && proto_env_any(env))
@@ -478,7 +500,7 @@ pt_status wrk_scenes_acquire_variant(wrk_scenes *s, const uint8_t hash[WRK_HASH_
     wrk_scene_ref *e = s->head;
     while (e && !(memcmp(e->hash, hash, WRK_HASH_SIZE) == 0 && same_params(&e->params, params) &&
                   strcmp(e->camera, camera) == 0 && strcmp(e->variant, variant) == 0 &&
-                  proto_env_same(&e->env, &key)))
+                  proto_env_same(&e->env, &key) && memcmp(e->shutter, sh, sizeof sh) == 0))
         e = e->next;
     if (e) {
         e->refs++;
@@ -505,6 +527,7 @@ pt_status wrk_scenes_acquire_variant(wrk_scenes *s, const uint8_t hash[WRK_HASH_
     e->env = key;
     snprintf(e->camera, sizeof e->camera, "%s", camera);
     snprintf(e->variant, sizeof e->variant, "%s", variant);
+    memcpy(e->shutter, sh, sizeof sh);
     e->state = E_BUILDING;
     e->refs = 1;
     e->next = s->head;

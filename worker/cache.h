@@ -90,6 +90,15 @@ pt_status wrk_scenes_acquire_variant(wrk_scenes *s, const uint8_t hash[WRK_HASH_
                                      const pt_render_params *params, const char *camera,
                                      const char *variant, const proto_env *env,
                                      const char *entry_path, wrk_scene_ref **out, pt_error *err);
+/* As wrk_scenes_acquire_variant, with motion blur's shutter (seconds after
+ * the frame's time, protocol/msg.h's SHUTTER; NULL or close <= open: none)
+ * in the key, its bits compared: the scene is then loaded posed over the
+ * shutter (pt_scene_opts.shutter_open, _close). */
+pt_status wrk_scenes_acquire_shutter(wrk_scenes *s, const uint8_t hash[WRK_HASH_SIZE],
+                                     const pt_render_params *params, const char *camera,
+                                     const char *variant, const proto_env *env,
+                                     const double shutter[2], const char *entry_path,
+                                     wrk_scene_ref **out, pt_error *err);
 const pt_renderer *wrk_scene_renderer(const wrk_scene_ref *ref);
 void wrk_scenes_release(wrk_scenes *s, wrk_scene_ref *ref); /* accepts NULL */
 

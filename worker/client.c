@@ -221,8 +221,8 @@ static void render_one(worker *w, const task_item *t, done_item *d)
         return;
     }
     wrk_scene_ref *ref = NULL;
-    d->st = wrk_scenes_acquire_variant(w->scenes, k->scene_hash, &p, k->camera, k->variant, &k->env,
-                                       t->entry, &ref, &d->err);
+    d->st = wrk_scenes_acquire_shutter(w->scenes, k->scene_hash, &p, k->camera, k->variant, &k->env,
+                                       k->shutter, t->entry, &ref, &d->err);
     if (d->st != PT_OK)
         return;
     pt_render_tile(wrk_scene_renderer(ref), k->tile, k->s0, k->s1, d->pixels, &d->stats);

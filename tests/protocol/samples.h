@@ -72,6 +72,9 @@ static inline proto_task sample_task(int v)
     }
     m.film_flags = v ? PROTO_FILM_TRANSPARENT : 0;
     strcpy(m.variant, v ? "" : "Peacock Velvet");
+    /* v 0: a 180-degree shutter at 24 frames per second; v 1: off. */
+    m.shutter[0] = 0.0;
+    m.shutter[1] = v ? 0.0 : 0.5 / 24.0;
     return m;
 }
 
@@ -137,6 +140,8 @@ static inline proto_submit sample_submit(int v)
     }
     m.film_flags = v ? PROTO_FILM_TRANSPARENT : 0;
     strcpy(m.variant, v ? "" : "Mango Velvet");
+    m.shutter[0] = v ? 0.25 / 30.0 : 0.0;
+    m.shutter[1] = v ? 0.75 / 30.0 : 0.0;
     return m;
 }
 

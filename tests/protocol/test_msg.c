@@ -195,9 +195,10 @@ static void check_round_trip(int s, int v, const uint8_t *p, size_t len)
     }
     case 6: {
         proto_task a = sample_task(v), b;
-        CHECK(len == 123 + strlen(a.camera) + strlen(a.env.name) + strlen(a.variant) &&
+        CHECK(len == 139 + strlen(a.camera) + strlen(a.env.name) + strlen(a.variant) &&
               proto_msg_decode_task(p, len, &b, &err) == PT_OK);
         CHECK(strcmp(a.camera, b.camera) == 0 && a.film_flags == b.film_flags);
+        CHECK(memcmp(a.shutter, b.shutter, sizeof a.shutter) == 0);
         CHECK(strcmp(a.variant, b.variant) == 0);
         CHECK(proto_env_same(&a.env, &b.env));
         CHECK(a.job_id == b.job_id && a.task_id == b.task_id);
@@ -267,8 +268,9 @@ static void check_round_trip(int s, int v, const uint8_t *p, size_t len)
         proto_submit a = sample_submit(v), b;
         CHECK(proto_msg_decode_submit(p, len, &b, &err) == PT_OK);
         CHECK(len ==
-              115 + strlen(a.name) + strlen(a.camera) + strlen(a.env.name) + strlen(a.variant));
+              131 + strlen(a.name) + strlen(a.camera) + strlen(a.env.name) + strlen(a.variant));
         CHECK(strcmp(a.camera, b.camera) == 0 && a.film_flags == b.film_flags);
+        CHECK(memcmp(a.shutter, b.shutter, sizeof a.shutter) == 0);
         CHECK(strcmp(a.variant, b.variant) == 0);
         CHECK(proto_env_same(&a.env, &b.env));
         CHECK(strcmp(a.name, b.name) == 0 && a.width == b.width && a.height == b.height);
@@ -459,8 +461,10 @@ static proto_writer task_raw(pt_rect t, uint32_t s0, uint32_t s1, uint32_t width
     proto_w_u32(&w, 1000);
     proto_w_u16(&w, 0); /* camera: "" */
     w_env_none(&w);
-    proto_w_u32(&w, 0); /* film flags */
-    proto_w_u16(&w, 0); /* variant: "" */
+    proto_w_u32(&w, 0);   /* film flags */
+    proto_w_u16(&w, 0);   /* variant: "" */
+    proto_w_f64(&w, 0.0); /* shutter: off */
+    proto_w_f64(&w, 0.0);
     return w;
 }
 
@@ -526,9 +530,9 @@ static void test_task(void)
         proto_task good = sample_task(k & 1);
         CHECK(proto_msg_encode_task(&ew, &good, &err) == PT_OK);
         /* Patch the bad value into the good bytes: the ENV block, then the
-         * film flags and the variant, end the message. */
+         * film flags, the variant and the shutter, end the message. */
         uint8_t *env_at =
-            ew.buf + ew.len - 2 - strlen(good.variant) - 4 - 23 - strlen(good.env.name);
+            ew.buf + ew.len - 16 - 2 - strlen(good.variant) - 4 - 23 - strlen(good.env.name);
         if (k == 0)
             proto_put_u32(env_at + 19, 0x7FC00000u); /* rgb[2], the name empty */
         else if (k == 1)
@@ -554,12 +558,14 @@ static void test_task(void)
           strcmp(back.camera, t.camera) == 0);
     proto_writer_reset(&w);
     proto_writer raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
-    raw.len -= 2 + 23 + 4 + 2; /* the empty camera, ENV block, film flags and variant */
+    raw.len -= 2 + 23 + 4 + 2 + 16; /* the empty camera, ENV, film flags, variant, shutter */
     proto_w_u16(&raw, PROTO_MAX_NAME + 1);
     for (uint32_t i = 0; i <= PROTO_MAX_NAME; i++)
         proto_w_u8(&raw, 'c');
     proto_w_u32(&raw, 0);
     proto_w_u16(&raw, 0);
+    proto_w_f64(&raw, 0.0);
+    proto_w_f64(&raw, 0.0);
     CHECK(decode_any(PROTO_MSG_TASK, raw.buf, raw.len, &err) == PT_ERR_PROTO &&
           strstr(err.msg, "camera"));
     proto_writer_fini(&raw);
@@ -575,7 +581,7 @@ static void test_task(void)
     proto_writer_reset(&w);
     CHECK(proto_msg_encode_task(&w, &t, &err) == PT_ERR_ARG && w.len == 0);
     raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
-    proto_put_u32(raw.buf + raw.len - 6, 0x80000000u);
+    proto_put_u32(raw.buf + raw.len - 16 - 6, 0x80000000u);
     CHECK(decode_any(PROTO_MSG_TASK, raw.buf, raw.len, &err) == PT_ERR_PROTO &&
           strstr(err.msg, "film flags"));
     proto_writer_fini(&raw);
@@ -592,7 +598,7 @@ static void test_task(void)
     CHECK(proto_msg_decode_task(w.buf, w.len, &back, &err) == PT_OK &&
           strcmp(back.variant, t.variant) == 0);
     raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
-    raw.len -= 2;
+    raw.len -= 2 + 16;
     proto_w_u16(&raw, PROTO_MAX_NAME + 1);
     for (uint32_t i = 0; i <= PROTO_MAX_NAME; i++)
         proto_w_u8(&raw, 'v');
@@ -604,6 +610,37 @@ static void test_task(void)
     memset(t.variant, 'w', sizeof t.variant);
     proto_writer_reset(&w);
     CHECK(proto_msg_encode_task(&w, &t, &err) == PT_ERR_ARG && w.len == 0);
+
+    /* The shutter ends the message: it round-trips; open after close,
+     * negative, NaN or over the cap is refused both ways; the protocol-3
+     * layout without it is a truncated TASK. */
+    t = sample_task(0);
+    CHECK(t.shutter[1] > t.shutter[0]);
+    proto_writer_reset(&w);
+    CHECK(proto_msg_encode_task(&w, &t, &err) == PT_OK);
+    CHECK(proto_msg_decode_task(w.buf, w.len, &back, &err) == PT_OK &&
+          memcmp(back.shutter, t.shutter, sizeof t.shutter) == 0);
+    const double bad_shutters[][2] = {{0.5, 0.25}, {-1.0, 0.0},     {0.0, NAN},
+                                      {NAN, 0.0},  {0.0, INFINITY}, {0.0, 3601.0}};
+    for (size_t k = 0; k < sizeof bad_shutters / sizeof *bad_shutters; k++) {
+        t.shutter[0] = bad_shutters[k][0];
+        t.shutter[1] = bad_shutters[k][1];
+        proto_writer_reset(&w);
+        CHECKF(proto_msg_encode_task(&w, &t, &err) == PT_ERR_ARG && w.len == 0, "shutter %zu", k);
+        raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
+        raw.len -= 16;
+        proto_w_f64(&raw, bad_shutters[k][0]);
+        proto_w_f64(&raw, bad_shutters[k][1]);
+        CHECKF(decode_any(PROTO_MSG_TASK, raw.buf, raw.len, &err) == PT_ERR_PROTO &&
+                   strstr(err.msg, "shutter"),
+               "shutter %zu: %s", k, err.msg);
+        proto_writer_fini(&raw);
+    }
+    raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
+    raw.len -= 16;
+    CHECK(decode_any(PROTO_MSG_TASK, raw.buf, raw.len, &err) == PT_ERR_PROTO &&
+          strstr(err.msg, "truncated"));
+    proto_writer_fini(&raw);
     proto_writer_fini(&w);
 }
 
@@ -907,6 +944,8 @@ static pt_status submit_check(const proto_submit *m, const char *want)
     proto_w_u32(&w, m->film_flags);
     proto_w_u16(&w, (uint16_t)strnlen(m->variant, sizeof m->variant));
     proto_w_bytes(&w, m->variant, strnlen(m->variant, sizeof m->variant));
+    proto_w_f64(&w, m->shutter[0]);
+    proto_w_f64(&w, m->shutter[1]);
     pt_error err = {0};
     pt_status st = decode_any(PROTO_MSG_SUBMIT, w.buf, w.len, &err);
     if (st != PT_OK && want && !strstr(err.msg, want)) {
@@ -951,6 +990,16 @@ static void test_submit(void)
     CHECK(submit_check(&m, NULL) == PT_OK);
     memset(m.variant, 'v', sizeof m.variant);
     CHECK(submit_check(&m, "variant") == PT_ERR_PROTO);
+    /* The shutter: a quarter to three quarters of a frame at 30 per second
+     * travels; open after close, negative or NaN is refused both ways. */
+    m = sample_submit(1);
+    CHECK(m.shutter[1] > m.shutter[0] && submit_check(&m, NULL) == PT_OK);
+    m.shutter[0] = m.shutter[1] + 1.0;
+    CHECK(submit_check(&m, "shutter") == PT_ERR_PROTO);
+    m.shutter[0] = -0.5;
+    CHECK(submit_check(&m, "shutter") == PT_ERR_PROTO);
+    m.shutter[0] = NAN;
+    CHECK(submit_check(&m, "shutter") == PT_ERR_PROTO);
     static const uint64_t bad_errors[] = {
         0x7FF8000000000000ull, /* NaN */
         0xFFF8000000000000ull, /* -NaN */
@@ -1034,7 +1083,7 @@ static void test_submit(void)
     /* Cut inside the ENV block: refused as truncated. */
     m = sample_submit(0);
     CHECK(proto_msg_encode_submit(&w, &m, &err) == PT_OK);
-    CHECK(decode_any(PROTO_MSG_SUBMIT, w.buf, w.len - 2 - strlen(m.variant) - 4 - 1, &err) ==
+    CHECK(decode_any(PROTO_MSG_SUBMIT, w.buf, w.len - 16 - 2 - strlen(m.variant) - 4 - 1, &err) ==
           PT_ERR_PROTO);
     CHECK(strstr(err.msg, "background colour") != NULL);
     proto_writer_reset(&w);

@@ -37,7 +37,8 @@ static void fake_result(const proto_task *t, pt_pixel_acc *px, proto_result *r)
 static srv_job *make(uint32_t w, uint32_t h, uint32_t spp, uint32_t tile, uint32_t chunk)
 {
     srv_job_params p = {
-        w, h, spp, tile, chunk, 5, 16, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}, 0, ""};
+        w, h,  spp,   tile, chunk, 5, 16, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+        0, "", {0, 0}};
     srv_job *j = NULL;
     pt_error err = {0};
     CHECKF(srv_job_new(9, &p, HASH, &j, &err) == PT_OK, "%s", err.msg);
@@ -180,7 +181,8 @@ static void bit_identical(void)
 static void adaptive(void)
 {
     srv_job_params p = {
-        64, 32, 64, 32, 8, 1, 16, 3, 0.01, 16, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}, 0, ""};
+        64, 32, 64,    32, 8, 1, 16, 3, 0.01, 16, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+        0,  "", {0, 0}};
     srv_job *j = NULL;
     CHECK(srv_job_new(2, &p, HASH, &j, NULL) == PT_OK);
     if (!j)
@@ -246,7 +248,8 @@ static void gain_pixels(const proto_task *t, pt_pixel_acc *px, proto_result *r)
 static void adaptive_min_gain(void)
 {
     srv_job_params p = {
-        64, 32, 64, 32, 8, 1, 16, 3, 0.0, 8, 1e-5, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}, 0, ""};
+        64, 32, 64,    32, 8, 1, 16, 3, 0.0, 8, 1e-5, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+        0,  "", {0, 0}};
     srv_job *a = NULL, *b = NULL, *c = NULL, *d = NULL;
     CHECK(srv_job_new(3, &p, HASH, &a, NULL) == PT_OK);
     CHECK(srv_job_new(3, &p, HASH, &b, NULL) == PT_OK);
@@ -326,15 +329,15 @@ static void adaptive_min_gain(void)
     srv_job_free(d);
     d = NULL;
     /* A version 3 checkpoint (before the environment and the film flags: the
-     * same bytes less the ENV block, the film flags, the variant and the
-     * depth-cap count after the camera, and 36-byte pixels, without the camera hits) loads as
-     * a job with no environment and an opaque film. */
+     * same bytes less the ENV block, the film flags, the variant, the shutter
+     * and the depth-cap count after the camera, and 36-byte pixels, without the camera hits) loads
+     * as a job with no environment and an opaque film. */
     size_t at = 4 + 4 + 8 + 32 + 9 * 4 + 2 * 8 + 2 + strlen(p.camera);
     proto_writer v3;
     proto_writer_init(&v3, 1u << 20);
     proto_w_bytes(&v3, w.buf, at);
     proto_put_u32(v3.buf + 4, 3);
-    at += 23 + 4 + 2 + 8;
+    at += 23 + 4 + 2 + 16 + 8;
     uint32_t ntiles = proto_get_u32(w.buf + at);
     proto_w_bytes(&v3, w.buf + at, 8 + (size_t)ntiles * 5 + 4);
     at += 8 + (size_t)ntiles * 5;
@@ -369,7 +372,8 @@ done:
 static void adaptive_min_gain_black(void)
 {
     srv_job_params p = {
-        64, 32, 64, 32, 8, 1, 16, 3, 0.0, 8, 1e-5, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}, 0, ""};
+        64, 32, 64,    32, 8, 1, 16, 3, 0.0, 8, 1e-5, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+        0,  "", {0, 0}};
     srv_job *j = NULL;
     CHECK(srv_job_new(3, &p, HASH, &j, NULL) == PT_OK);
     if (!j)
@@ -392,16 +396,16 @@ static void adaptive_min_gain_black(void)
 
 static void bad_params(void)
 {
-    srv_job_params p = {0, 10, 4, 16, 4, 0, 4, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
-                        0, ""};
+    srv_job_params p = {
+        0, 10, 4, 16, 4, 0, 4, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}, 0, "", {0, 0}};
     srv_job *j = NULL;
     pt_error err = {0};
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
     p.width = 10;
     p.tile = 1000;
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
-    p = (srv_job_params){16, 16, 4, 16, 4, 0, 4, 3, 0.0, 0, NAN, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
-                         0,  ""};
+    p = (srv_job_params){
+        16, 16, 4, 16, 4, 0, 4, 3, 0.0, 0, NAN, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}, 0, "", {0, 0}};
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
     p.min_gain = -1e-6;
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
@@ -409,7 +413,7 @@ static void bad_params(void)
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
     p = (srv_job_params){
         16384, 16384, 1u << 24, 16, 1, 0, 4, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
-        0,     ""};
+        0,     "",    {0, 0}};
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_LIMIT);
     CHECK(j == NULL);
 }
@@ -645,7 +649,8 @@ static void film_and_cap(void)
                         "",
                         {"", 1.0f, 0.0f, 0, {0, 0, 0}},
                         PROTO_FILM_TRANSPARENT,
-                        ""};
+                        "",
+                        {0, 0}};
     srv_job *j = NULL, *k = NULL, *o = NULL;
     pt_error err = {0};
     CHECK(srv_job_new(4, &p, HASH, &j, &err) == PT_OK);

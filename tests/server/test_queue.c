@@ -763,6 +763,7 @@ static void copy_params_v3(proto_writer *w, const uint8_t *d, size_t *at, uint32
     *at += 2 + proto_get_u16(d + *at) + 4 + 4 + 1 + 12; /* the environment */
     *at += 4;                                           /* film flags */
     *at += 2 + proto_get_u16(d + *at);                  /* material variant */
+    *at += 16;                                          /* shutter */
 }
 
 /* The queue file: each record without its environment, film flags, variant
