@@ -302,6 +302,123 @@ void pt_motion_hash(const pt_motion *m, void *evp_md_ctx)
     }
 }
 
+pt_status pt_scene_set_motion(pt_scene *s, uint32_t steps, const float *const *positions,
+                              const float *const *normals, pt_error *err)
+{
+    if (steps < 2 || steps > PT_MOTION_MAX_STEPS)
+        return pt_error_set(err, PT_ERR_ARG, "motion: %u time steps, not 2 to %u", steps,
+                            PT_MOTION_MAX_STEPS);
+    uint32_t nv = s->num_vertices, nt = s->num_triangles;
+    size_t per = (size_t)nv * 3;
+    for (uint32_t k = 0; k < steps; k++)
+        if (!positions[k] || !normals[k] || !finite_under(positions[k], per, 3.4e38f))
+            return pt_error_set(err, PT_ERR_FORMAT,
+                                "motion: step %u: a position is missing or not finite", k);
+    /* local[v]: the vertex's index among the moving ones, UINT32_MAX if none. */
+    uint32_t *local = pt_malloc_array(nv ? nv : 1, sizeof(uint32_t));
+    if (!local)
+        return pt_error_set(err, PT_ERR_NOMEM, "motion: out of memory");
+    for (uint32_t v = 0; v < nv; v++) {
+        local[v] = UINT32_MAX;
+        for (uint32_t k = 1; k < steps && local[v] == UINT32_MAX; k++)
+            if (memcmp(positions[k] + 3 * (size_t)v, positions[0] + 3 * (size_t)v,
+                       3 * sizeof(float)) != 0 ||
+                memcmp(normals[k] + 3 * (size_t)v, normals[0] + 3 * (size_t)v, 3 * sizeof(float)) !=
+                    0)
+                local[v] = 0; /* moves */
+    }
+    /* tmove[t]: some vertex of triangle t moves; keep[v]: v is a vertex of
+     * a moving triangle, so it gets steps (numbered in order). */
+    uint8_t *tmove = pt_calloc(nt ? nt : 1, 1), *keep = pt_calloc(nv ? nv : 1, 1);
+    if (!tmove || !keep) {
+        pt_free(tmove);
+        pt_free(keep);
+        pt_free(local);
+        return pt_error_set(err, PT_ERR_NOMEM, "motion: out of memory");
+    }
+    uint32_t ntm = 0;
+    for (uint32_t t = 0; t < nt; t++) {
+        const uint32_t *i = &s->indices[3 * (size_t)t];
+        tmove[t] =
+            local[i[0]] != UINT32_MAX || local[i[1]] != UINT32_MAX || local[i[2]] != UINT32_MAX;
+        if (tmove[t])
+            keep[i[0]] = keep[i[1]] = keep[i[2]] = 1;
+        ntm += tmove[t];
+    }
+    uint32_t nvm = 0;
+    for (uint32_t v = 0; v < nv; v++)
+        local[v] = keep[v] ? nvm++ : UINT32_MAX;
+    pt_free(keep);
+    if (ntm == 0) {
+        pt_free(tmove);
+        pt_free(local);
+        return PT_OK;
+    }
+    pt_motion *m = s->motion ? s->motion : motion_new(s);
+    pt_status st = PT_OK;
+    if (!m) {
+        st = pt_error_set(err, PT_ERR_NOMEM, "motion: out of memory");
+        goto done;
+    }
+    m->positions = pt_malloc_array((size_t)nvm * 3 * steps, sizeof(float));
+    m->normals = pt_malloc_array((size_t)nvm * 3 * steps, sizeof(float));
+    m->tri = pt_malloc_array(ntm, sizeof(uint32_t));
+    m->indices = pt_malloc_array((size_t)ntm * 3, sizeof(uint32_t));
+    if (!m->positions || !m->normals || !m->tri || !m->indices) {
+        if (m != s->motion)
+            pt_motion_free(m);
+        else { /* the camera's motion stays; the meshes' is dropped */
+            pt_free(m->positions);
+            pt_free(m->normals);
+            pt_free(m->tri);
+            pt_free(m->indices);
+            m->positions = m->normals = NULL;
+            m->tri = m->indices = NULL;
+        }
+        st = pt_error_set(err, PT_ERR_NOMEM, "motion: out of memory");
+        goto done;
+    }
+    m->steps = steps;
+    m->num_vertices = nvm;
+    m->num_triangles = ntm;
+    pt_vec3 lo = s->bounds_min, hi = s->bounds_max;
+    for (uint32_t k = 0; k < steps; k++) {
+        for (uint32_t v = 0; v < nv; v++) {
+            if (local[v] == UINT32_MAX)
+                continue;
+            float *q = m->positions + 3 * ((size_t)k * nvm + local[v]);
+            float *n = m->normals + 3 * ((size_t)k * nvm + local[v]);
+            memcpy(q, positions[k] + 3 * (size_t)v, 3 * sizeof(float));
+            memcpy(n, normals[k] + 3 * (size_t)v, 3 * sizeof(float));
+            lo = pt_v3(fminf(lo.x, q[0]), fminf(lo.y, q[1]), fminf(lo.z, q[2]));
+            hi = pt_v3(fmaxf(hi.x, q[0]), fmaxf(hi.y, q[1]), fmaxf(hi.z, q[2]));
+        }
+    }
+    uint32_t tb = 0, ns = 0;
+    for (uint32_t t = 0; t < nt; t++) {
+        const uint32_t *i = &s->indices[3 * (size_t)t];
+        if (!tmove[t]) {
+            m->moving[t] = UINT32_MAX;
+            m->static_tri[ns++] = t;
+            continue;
+        }
+        m->moving[t] = tb;
+        m->tri[tb] = t;
+        for (int c = 0; c < 3; c++)
+            m->indices[3 * (size_t)tb + c] = local[i[c]];
+        tb++;
+    }
+    m->num_static = ns;
+    s->bounds_min = lo;
+    s->bounds_max = hi;
+    s->motion = m;
+    s->features |= PT_FEAT_MOTION;
+done:
+    pt_free(tmove);
+    pt_free(local);
+    return st;
+}
+
 pt_camera pt_motion_camera(const pt_motion *m, float t)
 {
     uint32_t i;

@@ -123,6 +123,18 @@ void pt_motion_build_free(pt_motion_build *b); /* accepts NULL */
  * moving scene and its still are told apart. */
 void pt_motion_hash(const pt_motion *m, void *evp_md_ctx);
 
+/* Gives scene s motion from whole-scene poses: positions[k] and normals[k]
+ * (3 per vertex each, scene space, in the scene's vertex order, as a
+ * re-posing of the scene writes them) for k < steps, evenly spaced over the
+ * shutter; the scene's own arrays must hold step 0. Vertices that differ
+ * between steps (bit for bit) make their triangles move; all vertices of a
+ * moving triangle get steps. Sets s->motion, grows the bounds and sets
+ * PT_FEAT_MOTION when something moves; else leaves s as it was. Rejects
+ * (PT_ERR_ARG) steps outside [2, PT_MOTION_MAX_STEPS], PT_ERR_FORMAT a
+ * position that is not finite. Call before the renderer is made. */
+pt_status pt_scene_set_motion(pt_scene *s, uint32_t steps, const float *const *positions,
+                              const float *const *normals, pt_error *err);
+
 /* Gives scene s's camera `steps` poses over the shutter (world space;
  * positions are moved to scene space). s->camera becomes pose 0 and the
  * camera moves when the poses differ: s->motion is created when needed and

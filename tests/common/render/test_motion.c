@@ -368,6 +368,63 @@ static void test_occluder(void)
     pt_scene_free(s);
 }
 
+/* Motion from whole-scene poses (as a re-posing of an animated file gives
+ * them): the square's four vertices move, the wall's stay; the same
+ * trapezoid, and only the square's triangles get steps. */
+static void test_set_motion(void)
+{
+    path_def p = {2, {-2.0f, 0.5f}};
+    pt_scene_builder *b = NULL;
+    pt_error err = {0};
+    CHECK(pt_scene_builder_new(&b, &err) == PT_OK);
+    pt_material m = pt_material_default();
+    m.base_color[0] = m.base_color[1] = m.base_color[2] = 0.0f;
+    m.metallic = 0.0f;
+    m.specular = 0.0f;
+    m.double_sided = 1;
+    uint32_t black, light;
+    CHECK(pt_scene_builder_add_material(b, &m, &black, &err) == PT_OK);
+    m.emissive[0] = m.emissive[1] = m.emissive[2] = E;
+    CHECK(pt_scene_builder_add_material(b, &m, &light, &err) == PT_OK);
+    const uint32_t idx[6] = {0, 1, 2, 0, 2, 3};
+    const float wall[12] = {-10, -10, -1, 10, -10, -1, 10, 10, -1, -10, 10, -1};
+    CHECK(pt_scene_builder_add_mesh(b, "wall", wall, NULL, NULL, 4, idx, 2, NULL, black, &err) ==
+          PT_OK);
+    float sq[12] = {p.x[0], -0.5f, 0, p.x[0] + S, -0.5f, 0, p.x[0] + S, 0.5f, 0, p.x[0], 0.5f, 0};
+    CHECK(pt_scene_builder_add_mesh(b, "square", sq, NULL, NULL, 4, idx, 2, NULL, light, &err) ==
+          PT_OK);
+    add_camera(b);
+    pt_scene_opts o;
+    memset(&o, 0, sizeof o);
+    o.camera_name = "ortho";
+    pt_scene *s = NULL;
+    CHECKF(pt_scene_builder_finish(b, &o, &s, &err) == PT_OK, "%s", err.msg);
+    size_t n = 3 * (size_t)s->num_vertices;
+    float *pos1 = pt_malloc_array(n, sizeof(float));
+    CHECK(pos1 != NULL);
+    memcpy(pos1, s->positions, n * sizeof(float));
+    for (uint32_t v = 4; v < 8; v++)
+        pos1[3 * v] += p.x[1] - p.x[0];
+    const float *pp[2] = {s->positions, s->positions}, *nn[2] = {s->normals, s->normals};
+    /* Equal poses: nothing moves. */
+    CHECK(pt_scene_set_motion(s, 2, pp, nn, &err) == PT_OK && !s->motion &&
+          !(s->features & PT_FEAT_MOTION));
+    CHECK(pt_scene_set_motion(s, 1, pp, nn, &err) == PT_ERR_ARG);
+    pp[1] = pos1;
+    CHECKF(pt_scene_set_motion(s, 2, pp, nn, &err) == PT_OK, "%s", err.msg);
+    CHECK(s->motion && s->motion->num_triangles == 2 && s->motion->num_vertices == 4 &&
+          s->motion->num_static == 2 && s->motion->tri[0] == 2 &&
+          s->motion->moving[0] == UINT32_MAX);
+    CHECK((s->features & PT_FEAT_MOTION) && s->bounds_max.z >= 0.0f);
+    pt_renderer *r = renderer(s);
+    pt_pixel_acc *acc = render_all(r);
+    check_row(acc, &p, "set_motion");
+    pt_free(acc);
+    pt_renderer_free(r);
+    pt_free(pos1);
+    pt_scene_free(s);
+}
+
 static void test_refusals(void)
 {
     pt_scene_builder *b = NULL;
@@ -407,6 +464,7 @@ int main(void)
     test_still();
     test_split();
     test_occluder();
+    test_set_motion();
     test_refusals();
     return check_report();
 }
