@@ -442,8 +442,10 @@ static int unit(pt_vec3 v)
     return pt_isfinite3(v) && fabsf(l - 1.0f) < 1e-3f;
 }
 
-pt_status pt_scene_set_camera_motion(pt_scene *s, uint32_t steps, const pt_camera *poses,
-                                     pt_error *err)
+/* The camera's poses, each position less shift (the origin for world-space
+ * poses, 0 for scene-space ones). */
+static pt_status set_camera_motion(pt_scene *s, uint32_t steps, const pt_camera *poses,
+                                   const double shift[3], pt_error *err)
 {
     if (steps < 2 || steps > PT_MOTION_MAX_STEPS)
         return pt_error_set(err, PT_ERR_ARG, "camera motion: %u time steps, not 2 to %u", steps,
@@ -461,9 +463,8 @@ pt_status pt_scene_set_camera_motion(pt_scene *s, uint32_t steps, const pt_camer
     for (uint32_t k = 0; k < steps; k++) {
         cams[k] = poses[k];
         const pt_vec3 p = poses[k].position;
-        cams[k].position =
-            pt_v3((float)((double)p.x - s->origin[0]), (float)((double)p.y - s->origin[1]),
-                  (float)((double)p.z - s->origin[2]));
+        cams[k].position = pt_v3((float)((double)p.x - shift[0]), (float)((double)p.y - shift[1]),
+                                 (float)((double)p.z - shift[2]));
         if (k > 0 && (memcmp(&cams[k].position, &cams[0].position, sizeof(pt_vec3)) != 0 ||
                       memcmp(&cams[k].right, &cams[0].right, sizeof(pt_vec3)) != 0 ||
                       memcmp(&cams[k].up, &cams[0].up, sizeof(pt_vec3)) != 0 ||
@@ -484,4 +485,17 @@ pt_status pt_scene_set_camera_motion(pt_scene *s, uint32_t steps, const pt_camer
     s->motion->camera_steps = steps;
     s->features |= PT_FEAT_MOTION;
     return PT_OK;
+}
+
+pt_status pt_scene_set_camera_motion(pt_scene *s, uint32_t steps, const pt_camera *poses,
+                                     pt_error *err)
+{
+    return set_camera_motion(s, steps, poses, s->origin, err);
+}
+
+pt_status pt_scene_set_camera_motion_scene(pt_scene *s, uint32_t steps, const pt_camera *poses,
+                                           pt_error *err)
+{
+    static const double none[3] = {0.0, 0.0, 0.0};
+    return set_camera_motion(s, steps, poses, none, err);
 }

@@ -143,5 +143,8 @@ pt_status pt_scene_set_motion(pt_scene *s, uint32_t steps, const float *const *p
  * renderer is made. */
 pt_status pt_scene_set_camera_motion(pt_scene *s, uint32_t steps, const pt_camera *poses,
                                      pt_error *err);
+/* The same with the poses in scene space (as a re-posing writes them). */
+pt_status pt_scene_set_camera_motion_scene(pt_scene *s, uint32_t steps, const pt_camera *poses,
+                                           pt_error *err);
 
 #endif
