@@ -418,10 +418,13 @@ static pt_status build(wrk_scene_ref *e, const char *entry_path)
     memset(&so, 0, sizeof so);
     so.camera_name = e->camera[0] ? e->camera : NULL;
     so.variant = e->variant[0] ? e->variant : NULL;
-    if (e->shutter[1] > e->shutter[0]) {
+    if (e->shutter[0] > 0.0 || e->shutter[1] > 0.0) {
+        /* Posed over the shutter, the still at its opening (a closed
+         * shutter, open == close, is that still alone). */
         so.animate = 1;
         so.shutter_open = e->shutter[0];
         so.shutter_close = e->shutter[1];
+        so.time = so.shutter_open;
     }
     pt_status st = build_env(e, entry_path);
     if (st != PT_OK)
@@ -474,9 +477,8 @@ pt_status wrk_scenes_acquire_shutter(wrk_scenes *s, const uint8_t hash[WRK_HASH_
                                      const double shutter[2], const char *entry_path,
                                      wrk_scene_ref **out, pt_error *err)
 {
-    /* One key for "no motion blur", however an empty shutter was given. */
     double sh[2] = {0.0, 0.0};
-    if (shutter && shutter[1] > shutter[0]) {
+    if (shutter) {
         sh[0] = shutter[0];
         sh[1] = shutter[1];
     }

@@ -91,9 +91,9 @@ pt_status wrk_scenes_acquire_variant(wrk_scenes *s, const uint8_t hash[WRK_HASH_
                                      const char *variant, const proto_env *env,
                                      const char *entry_path, wrk_scene_ref **out, pt_error *err);
 /* As wrk_scenes_acquire_variant, with motion blur's shutter (seconds after
- * the frame's time, protocol/msg.h's SHUTTER; NULL or close <= open: none)
- * in the key, its bits compared: the scene is then loaded posed over the
- * shutter (pt_scene_opts.shutter_open, _close). */
+ * the frame's time, protocol/msg.h's SHUTTER; NULL: 0, 0, none) in the key,
+ * its bits compared: the scene is then loaded posed over the shutter
+ * (pt_scene_opts.shutter_open, _close), its still at the opening. */
 pt_status wrk_scenes_acquire_shutter(wrk_scenes *s, const uint8_t hash[WRK_HASH_SIZE],
                                      const pt_render_params *params, const char *camera,
                                      const char *variant, const proto_env *env,
