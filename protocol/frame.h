@@ -37,7 +37,8 @@
 #define PROTO_MAGIC "PTF1"
 /* 2: mutual authentication (AUTH and WELCOME, protocol/msg.h); 3: the environment light
  * in SUBMIT and TASK (ENV), film flags in TASK and SUBMIT, coverage and depth-cap counts
- * in RESULT and JOB_INFO; 4: motion blur's shutter in TASK and SUBMIT */
+ * in RESULT and JOB_INFO; 4: RESULT's sums in fixed point (exact, so a job's image is the
+ * same bits however its tasks are sized), motion blur's shutter in TASK and SUBMIT */
 #define PROTO_VERSION 4u
 #define PROTO_FRAME_HEADER 12u
 #define PROTO_FRAME_TRAILER 4u

@@ -593,18 +593,33 @@ pt_status proto_msg_encode_result(proto_writer *w, const proto_result *m, pt_err
     proto_w_u64(w, m->rays);
     proto_w_u64(w, m->capped);
     proto_w_u32(w, m->npixels);
-    /* One reservation for all pixels: a 64k-pixel tile is 2.4 MB. */
-    uint8_t *q = proto_w_reserve(w, (size_t)m->npixels * PROTO_RESULT_PIXEL_SIZE);
+    /* Each kind of sum narrow (8 bytes) when it fits 64 bits in every pixel
+     * (the usual case), so that a pixel is 40 bytes on the wire. */
+    int wide_rgb = 0, wide_sq = 0;
+    for (uint32_t i = 0; i < m->npixels; i++) {
+        const pt_pixel_acc *a = &m->pixels[i];
+        for (int c = 0; c < 3; c++)
+            wide_rgb |= a->fsum[c] != (pt_i128)(int64_t)a->fsum[c];
+        wide_sq |= a->fsum_sq > UINT64_MAX;
+    }
+    proto_w_u8(w, (uint8_t)(wide_rgb * PROTO_RESULT_WIDE_RGB + wide_sq * PROTO_RESULT_WIDE_SQ));
+    size_t rgb = wide_rgb ? 16 : 8, sq = wide_sq ? 16 : 8, psize = 3 * rgb + sq + 8;
+    /* One reservation for all pixels: a 64k-pixel tile is 2.6 MB narrow. */
+    uint8_t *q = proto_w_reserve(w, (size_t)m->npixels * psize);
     if (!q)
         return w_done(w, start, "RESULT", err);
-    for (uint32_t i = 0; i < m->npixels; i++, q += PROTO_RESULT_PIXEL_SIZE) {
+    for (uint32_t i = 0; i < m->npixels; i++, q += psize) {
         const pt_pixel_acc *a = &m->pixels[i];
-        proto_put_f64(q, a->sum[0]);
-        proto_put_f64(q + 8, a->sum[1]);
-        proto_put_f64(q + 16, a->sum[2]);
-        proto_put_f64(q + 24, a->sum_sq);
-        proto_put_u32(q + 32, a->n);
-        proto_put_u32(q + 36, a->hits);
+        for (int c = 0; c < 3; c++) {
+            proto_put_u64(q + rgb * c, (uint64_t)a->fsum[c]);
+            if (wide_rgb)
+                proto_put_u64(q + rgb * c + 8, (uint64_t)(a->fsum[c] >> 64));
+        }
+        proto_put_u64(q + 3 * rgb, (uint64_t)a->fsum_sq);
+        if (wide_sq)
+            proto_put_u64(q + 3 * rgb + 8, (uint64_t)(a->fsum_sq >> 64));
+        proto_put_u32(q + psize - 8, a->n);
+        proto_put_u32(q + psize - 4, a->hits);
     }
     return w_done(w, start, "RESULT", err);
 }
@@ -623,6 +638,7 @@ pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *bu
     m.rays = proto_r_u64(&r, "rays");
     m.capped = proto_r_u64(&r, "paths capped");
     m.npixels = proto_r_u32(&r, "pixel count");
+    uint8_t form = proto_r_u8(&r, "pixel form");
     m.pixels = NULL;
     m.owns_pixels = 0;
     if (r.status != PT_OK)
@@ -633,7 +649,12 @@ pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *bu
     const char *why = result_problem(&m);
     if (why)
         return bad(err, PT_ERR_PROTO, "RESULT", why);
-    size_t body = (size_t)m.npixels * PROTO_RESULT_PIXEL_SIZE;
+    if (form & ~(PROTO_RESULT_WIDE_RGB | PROTO_RESULT_WIDE_SQ))
+        return bad(err, PT_ERR_PROTO, "RESULT", "unknown pixel form");
+    int wide_rgb = (form & PROTO_RESULT_WIDE_RGB) != 0,
+        wide_sq = (form & PROTO_RESULT_WIDE_SQ) != 0;
+    size_t rgb = wide_rgb ? 16 : 8, psize = 3 * rgb + (wide_sq ? 16 : 8) + 8;
+    size_t body = (size_t)m.npixels * psize;
     if (proto_r_left(&r) < body)
         return pt_error_set(err, PT_ERR_PROTO, "RESULT: truncated pixels (%zu of %zu bytes)",
                             proto_r_left(&r), body);
@@ -643,8 +664,8 @@ pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *bu
     const uint8_t *q = r.p;
     uint32_t nmax = m.s1 - m.s0;
     for (uint32_t i = 0; i < m.npixels; i++) {
-        const uint8_t *pq = q + (size_t)i * PROTO_RESULT_PIXEL_SIZE;
-        why = result_pixel_problem(proto_get_u32(pq + 32), proto_get_u32(pq + 36), nmax);
+        const uint8_t *pq = q + (size_t)i * psize + psize - 8;
+        why = result_pixel_problem(proto_get_u32(pq), proto_get_u32(pq + 4), nmax);
         if (why)
             return pt_error_set(err, PT_ERR_PROTO, "RESULT: pixel %u %s", (unsigned)i, why);
     }
@@ -659,13 +680,16 @@ pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *bu
             return pt_error_set(err, PT_ERR_NOMEM, "RESULT: %u pixels", (unsigned)m.npixels);
         m.owns_pixels = 1;
     }
-    for (uint32_t i = 0; i < m.npixels; i++, q += PROTO_RESULT_PIXEL_SIZE) {
-        px[i].sum[0] = proto_get_f64(q);
-        px[i].sum[1] = proto_get_f64(q + 8);
-        px[i].sum[2] = proto_get_f64(q + 16);
-        px[i].sum_sq = proto_get_f64(q + 24);
-        px[i].n = proto_get_u32(q + 32);
-        px[i].hits = proto_get_u32(q + 36);
+    for (uint32_t i = 0; i < m.npixels; i++, q += psize) {
+        for (int c = 0; c < 3; c++)
+            px[i].fsum[c] = wide_rgb ? (pt_i128)(((pt_u128)proto_get_u64(q + 16 * c + 8) << 64) |
+                                                 proto_get_u64(q + 16 * c))
+                                     : (pt_i128)(int64_t)proto_get_u64(q + 8 * c);
+        px[i].fsum_sq = proto_get_u64(q + 3 * rgb);
+        if (wide_sq)
+            px[i].fsum_sq |= (pt_u128)proto_get_u64(q + 3 * rgb + 8) << 64;
+        px[i].n = proto_get_u32(q + psize - 8);
+        px[i].hits = proto_get_u32(q + psize - 4);
     }
     m.pixels = px;
     *out = m;

@@ -83,9 +83,12 @@ const char *proto_msg_type_name(uint32_t type);
 #define PROTO_MAX_TILE_PIXELS (PT_TILE_MAX * PT_TILE_MAX) /* pixels in one TASK / RESULT tile */
 #define PROTO_HASH_SIZE 32u                               /* scene content hash (SHA-256) */
 #define PROTO_NONCE_SIZE 32u
-#define PROTO_MAC_SIZE 32u           /* HMAC-SHA256 */
-#define PROTO_RESULT_PIXEL_SIZE 40u  /* bytes per pixel in RESULT */
-#define PROTO_RESULT_HEADER_SIZE 68u /* bytes of RESULT before its pixels */
+#define PROTO_MAC_SIZE 32u               /* HMAC-SHA256 */
+#define PROTO_RESULT_PIXEL_SIZE 40u      /* bytes per pixel in a narrow RESULT */
+#define PROTO_RESULT_WIDE_PIXEL_SIZE 72u /* bytes per pixel in a wide RESULT (the most) */
+#define PROTO_RESULT_WIDE_RGB 1u         /* RESULT pixel form: RGB sums in 16 bytes */
+#define PROTO_RESULT_WIDE_SQ 2u          /* RESULT pixel form: sum of squares in 16 bytes */
+#define PROTO_RESULT_HEADER_SIZE 69u     /* bytes of RESULT before its pixels */
 
 /* Film flags (TASK, SUBMIT). Decoders refuse a bit not defined here. */
 #define PROTO_FILM_TRANSPARENT 1u /* camera rays that escape add nothing; the EXR gets A */
@@ -281,16 +284,22 @@ typedef struct proto_scene_chunk {
  *   48   8    u64   rays traced
  *   56   8    u64   paths ended by the depth cap (pt_render_stats.capped)
  *   64   4    u32   N: pixels; must equal (x1-x0)*(y1-y0) and be <= PROTO_MAX_TILE_PIXELS
- *   68   40N        pixels, row-major over the tile, each:
- *                     +0   8  f64  sum R
- *                     +8   8  f64  sum G
- *                     +16  8  f64  sum B
- *                     +24  8  f64  sum of squared luminance
- *                     +32  4  u32  n: samples accumulated, n <= s1 - s0
- *                     +36  4  u32  hits: of those, samples whose camera ray hit the
+ *   68   1    u8    pixel form: PROTO_RESULT_WIDE_RGB | PROTO_RESULT_WIDE_SQ, no other bit
+ *   69   PN         pixels, row-major over the tile, P = 40 to 72 bytes, each:
+ *                     the sums of pt_pixel_acc (tile.h) in fixed point: R, G, B
+ *                     (signed, units of 2^-32), each an i64 (8 bytes) or, with
+ *                     WIDE_RGB, two u64 low half first (16 bytes); then the sum
+ *                     of squared luminance (unsigned, units of 2^-48), a u64 or,
+ *                     with WIDE_SQ, two u64 low half first
+ *                     P-8  4  u32  n: samples accumulated, n <= s1 - s0
+ *                     P-4  4  u32  hits: of those, samples whose camera ray hit the
  *                                  scene, hits <= n (the coverage is hits / n)
- *   size 68+40N (PROTO_RESULT_HEADER_SIZE + PROTO_RESULT_PIXEL_SIZE x N)
- * The floats are not checked (finiteness is the server's business). */
+ *   size 69+PN (PROTO_RESULT_HEADER_SIZE + P x N; P = PROTO_RESULT_PIXEL_SIZE
+ *   narrow, PROTO_RESULT_WIDE_PIXEL_SIZE with both bits)
+ * The encoder sets a bit only when some pixel's sum of that kind does not fit
+ * 64 bits: RGB sums fit below 2^31 per task, squares below 2^16, so a pixel of
+ * ordinary radiance costs 40 bytes on the wire as with double sums. The sums
+ * are not checked (plausibility is the server's business). */
 typedef struct proto_result {
     uint64_t job_id, task_id;
     pt_rect tile;

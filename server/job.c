@@ -7,6 +7,7 @@
 #include "common/base/alloc.h"
 #include "common/base/hash.h"
 #include "common/render/adaptive.h"
+#include "common/render/render.h"
 
 enum { T_PENDING = 0, T_LEASED = 1, T_HELD = 2, T_MERGED = 3, T_SKIPPED = 4 };
 
@@ -584,32 +585,46 @@ static void merge_held(srv_job *j, uint32_t tile)
     }
 }
 
-static int acc_sane(const pt_pixel_acc *a, uint32_t max_n)
+/* The largest sum n samples can give, in fixed point: n x the cap per sample,
+ * with room for each block's rounding (a double sum of 16 samples is within
+ * 2^-48 of its exact value, and rounding to fixed point adds at most half a
+ * unit). At most 2^32 x 4.3e27 x (1 + 2^-40) + 2^32, below 2^127 (tile.h). */
+static pt_i128 acc_cap(uint32_t n)
 {
-    return isfinite(a->sum[0]) && isfinite(a->sum[1]) && isfinite(a->sum[2]) &&
-           isfinite(a->sum_sq) && a->sum_sq >= 0 && a->n <= max_n && a->hits <= a->n;
+    pt_i128 per = (pt_i128)(PT_MAX_SAMPLE_RADIANCE * PT_FIXED_ONE * (1.0 + 0x1p-40)) + 1;
+    return per * n;
 }
 
-/* Each pixel's count must be the task's samples less those rejected (a NaN
- * or Inf sample is not counted, render.h), the rejections must add up to
- * what the result reports, and the sums must be finite, non-negative and at
- * most n x SRV_MAX_SAMPLE_RADIANCE (sum_sq: the luminance squared, which is
- * at most the largest channel squared). A pixel with no samples then has
+/* Sums non-negative and within the cap for n samples (radiance is never
+ * negative: emission, base colour and textures are bounded and non-negative,
+ * see common/scene/scene.c), a pixel with no samples all zero, counts
+ * consistent. The sum of squares is unsigned and saturates (tile.h): any
+ * value is possible but 0 is the only one for no samples. */
+static int acc_sane(const pt_pixel_acc *a, uint32_t max_n)
+{
+    pt_i128 cap = acc_cap(a->n);
+    for (int c = 0; c < 3; c++)
+        if (!(a->fsum[c] >= 0 && a->fsum[c] <= cap))
+            return 0;
+    return (a->n > 0 || a->fsum_sq == 0) && a->n <= max_n && a->hits <= a->n;
+}
+
+/* Each pixel's count must be the task's samples less those rejected (a NaN,
+ * Inf or over-the-cap sample is not counted, render.h), the rejections must
+ * add up to what the result reports, and the sums must be non-negative and at
+ * most n x PT_MAX_SAMPLE_RADIANCE (acc_sane). A pixel with no samples then has
  * zero sums. */
 static int pixels_plausible(const proto_result *r, uint32_t samples, pt_error *err)
 {
     uint64_t missing = 0;
     for (uint32_t i = 0; i < r->npixels; i++) {
         const pt_pixel_acc *a = &r->pixels[i];
-        double cap = SRV_MAX_SAMPLE_RADIANCE * a->n;
-        if (a->n > samples || !(a->sum[0] >= 0.0 && a->sum[0] <= cap) ||
-            !(a->sum[1] >= 0.0 && a->sum[1] <= cap) || !(a->sum[2] >= 0.0 && a->sum[2] <= cap) ||
-            !(a->sum_sq >= 0.0 && a->sum_sq <= cap * SRV_MAX_SAMPLE_RADIANCE)) {
+        if (a->n > samples || !acc_sane(a, samples)) {
             pt_error_set(err, PT_ERR_PROTO,
                          "result for task %llu: pixel %u (%u samples of %u, sums %.3g %.3g %.3g) "
                          "is not a plausible render",
-                         (unsigned long long)r->task_id, i, a->n, samples, a->sum[0], a->sum[1],
-                         a->sum[2]);
+                         (unsigned long long)r->task_id, i, a->n, samples, pt_acc_sum(a, 0),
+                         pt_acc_sum(a, 1), pt_acc_sum(a, 2));
             return 0;
         }
         missing += samples - a->n;
@@ -973,7 +988,7 @@ uint32_t srv_job_tiles(const srv_job *j)
 /* ---- checkpoints ---- */
 
 #define CKPT_MAGIC 0x434a5450u /* "PTJC" */
-#define CKPT_VERSION 4u
+#define CKPT_VERSION 5u
 #define CKPT_OLDEST_VERSION 2u   /* no min gain: read as 0 */
 #define CKPT_MIN_GAIN_VERSION 3u /* the first with the min gain */
 /* The first with the environment (older: none), and the first with the film
@@ -982,26 +997,63 @@ uint32_t srv_job_tiles(const srv_job *j)
  * shown). One format version brought both: srv_job_params_read takes one flag. */
 #define CKPT_ENV_VERSION 4u
 #define CKPT_FILM_VERSION CKPT_ENV_VERSION
+/* The first with fixed-point sums (tile.h); older double sums are converted
+ * as they are read (get_acc). */
+#define CKPT_FIXED_VERSION 5u
+/* The first with motion blur's shutter in the params (older: none). */
+#define CKPT_SHUTTER_VERSION 5u
 
-/* A pixel as the checkpoint stores it: RESULT's pixel layout (msg.h). */
+/* A pixel as the checkpoint stores it: each sum as two u64, low half first
+ * (RESULT's wide layout, msg.h), then n and hits. */
 static void put_acc(proto_writer *w, const pt_pixel_acc *a)
 {
-    proto_w_f64(w, a->sum[0]);
-    proto_w_f64(w, a->sum[1]);
-    proto_w_f64(w, a->sum[2]);
-    proto_w_f64(w, a->sum_sq);
+    for (int c = 0; c < 3; c++) {
+        proto_w_u64(w, (uint64_t)a->fsum[c]);
+        proto_w_u64(w, (uint64_t)(a->fsum[c] >> 64));
+    }
+    proto_w_u64(w, (uint64_t)a->fsum_sq);
+    proto_w_u64(w, (uint64_t)(a->fsum_sq >> 64));
     proto_w_u32(w, a->n);
     proto_w_u32(w, a->hits);
 }
 
-static void get_acc(proto_reader *r, pt_pixel_acc *a, int has_hits)
+/* A double sum of a checkpoint before CKPT_FIXED_VERSION in fixed point, by
+ * the same rounding as a block's (pt_fixed_of): deterministic, so a job
+ * resumed from an older checkpoint loses no work and every coordinator that
+ * loads it gets the same bits. A value that is not finite or not within the
+ * cap for n samples (which no render gives) becomes -1, for acc_sane to
+ * refuse. */
+static pt_i128 fixed_of_old(double d, uint32_t n)
 {
-    a->sum[0] = proto_r_f64(r, "pixel sum");
-    a->sum[1] = proto_r_f64(r, "pixel sum");
-    a->sum[2] = proto_r_f64(r, "pixel sum");
-    a->sum_sq = proto_r_f64(r, "pixel sum of squares");
+    if (!(d >= 0.0 && d <= PT_MAX_SAMPLE_RADIANCE * n))
+        return -1;
+    return pt_fixed_of(d);
+}
+
+static void get_acc(proto_reader *r, pt_pixel_acc *a, uint32_t version)
+{
+    if (version >= CKPT_FIXED_VERSION) {
+        for (int c = 0; c < 3; c++) {
+            uint64_t lo = proto_r_u64(r, "pixel sum");
+            a->fsum[c] = (pt_i128)(((pt_u128)proto_r_u64(r, "pixel sum") << 64) | lo);
+        }
+        uint64_t lo = proto_r_u64(r, "pixel sum of squares");
+        a->fsum_sq = ((pt_u128)proto_r_u64(r, "pixel sum of squares") << 64) | lo;
+        a->n = proto_r_u32(r, "pixel samples");
+        a->hits = proto_r_u32(r, "pixel camera hits");
+        return;
+    }
+    double sum[3], sum_sq;
+    for (int c = 0; c < 3; c++)
+        sum[c] = proto_r_f64(r, "pixel sum");
+    sum_sq = proto_r_f64(r, "pixel sum of squares");
     a->n = proto_r_u32(r, "pixel samples");
-    a->hits = has_hits ? proto_r_u32(r, "pixel camera hits") : a->n;
+    a->hits = version >= CKPT_FILM_VERSION ? proto_r_u32(r, "pixel camera hits") : a->n;
+    for (int c = 0; c < 3; c++)
+        a->fsum[c] = fixed_of_old(sum[c], a->n);
+    a->fsum_sq = isfinite(sum_sq) ? pt_ufixed_of(sum_sq) : 0;
+    if (!isfinite(sum_sq) || sum_sq < 0.0)
+        a->fsum[0] = -1;
 }
 
 void srv_job_params_write(proto_writer *w, const srv_job_params *p)
@@ -1030,7 +1082,8 @@ void srv_job_params_write(proto_writer *w, const srv_job_params *p)
     proto_w_f64(w, p->shutter[1]);
 }
 
-void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, int has_env_film)
+void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, int has_env_film,
+                         int has_shutter)
 {
     p->width = proto_r_u32(r, "width");
     p->height = proto_r_u32(r, "height");
@@ -1061,6 +1114,8 @@ void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, i
     if (r->status == PT_OK && (p->film_flags & ~PROTO_FILM_KNOWN))
         proto_r_fail(r, PT_ERR_FORMAT, "unknown", "film flags");
     proto_r_str(r, p->variant, PROTO_MAX_NAME, "variant");
+    if (!has_shutter)
+        return;
     p->shutter[0] = proto_r_f64(r, "shutter open");
     p->shutter[1] = proto_r_f64(r, "shutter close");
     if (r->status == PT_OK && proto_shutter_problem(p->shutter))
@@ -1123,8 +1178,11 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
     const uint8_t *hash = proto_r_bytes(&r, 32, "scene hash");
     srv_job_params p;
     int film = version >= CKPT_FILM_VERSION;
-    size_t acc_size = film ? PROTO_RESULT_PIXEL_SIZE : PROTO_RESULT_PIXEL_SIZE - 4;
-    srv_job_params_read(&r, &p, version >= CKPT_MIN_GAIN_VERSION, version >= CKPT_ENV_VERSION);
+    /* Per pixel: 4 sums of 16 bytes (fixed point) or 8 (double, before
+     * CKPT_FIXED_VERSION), n, and hits (from CKPT_FILM_VERSION on). */
+    size_t acc_size = version >= CKPT_FIXED_VERSION ? 72 : film ? 40 : 36;
+    srv_job_params_read(&r, &p, version >= CKPT_MIN_GAIN_VERSION, version >= CKPT_ENV_VERSION,
+                        version >= CKPT_SHUTTER_VERSION);
     uint64_t capped = film ? proto_r_u64(&r, "paths capped") : 0;
     uint32_t ntiles = proto_r_u32(&r, "tiles"), nchunks = proto_r_u32(&r, "chunks");
     if (r.status != PT_OK)
@@ -1199,7 +1257,7 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
         if (!px)
             return pt_error_set(err, PT_ERR_NOMEM, "checkpoint: out of memory");
         for (uint32_t k = 0; k < npx; k++)
-            get_acc(&r, &px[k], film);
+            get_acc(&r, &px[k], version);
         j->held[j->nheld++] = (held){t, 0, px};
         j->state[t] = T_HELD;
         for (uint32_t k = 0; k < npx; k++)
@@ -1214,7 +1272,7 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
         return pt_error_set(err, PT_ERR_FORMAT, "checkpoint: %zu bytes of film, expected %zu",
                             proto_r_left(&r), npx * acc_size);
     for (size_t k = 0; k < npx && r.status == PT_OK; k++) {
-        get_acc(&r, &j->film->px[k], film);
+        get_acc(&r, &j->film->px[k], version);
         if (r.status == PT_OK && !acc_sane(&j->film->px[k], j->p.spp))
             return pt_error_set(err, PT_ERR_FORMAT,
                                 "checkpoint: pixel %zu is not finite or has "

@@ -18,7 +18,7 @@
  * backup_factor x the median for its size): the first result wins and the
  * other copy's lease is dropped. A result is accepted only from the owner of
  * a live lease for exactly that task (tile, sample range, pixel count, and
- * plausible pixels: finite non-negative sums under SRV_MAX_SAMPLE_RADIANCE
+ * plausible pixels: non-negative sums under PT_MAX_SAMPLE_RADIANCE (tile.h)
  * per sample, each pixel's count the task's samples less the samples the
  * result reports rejected), so merging is idempotent: a duplicate or late
  * result changes nothing.
@@ -83,13 +83,6 @@ typedef enum srv_outcome {
 } srv_outcome;
 
 typedef struct srv_job srv_job;
-
-/* A per-sample radiance no scene reaches (emission, base colour and textures
- * are bounded and non-negative, see common/scene/scene.c); a pixel sum over n
- * samples above n times this is refused as garbage. Well under what a double
- * sum of float samples can hold, and 1e20 times the brightest emitter of the
- * sample scenes. */
-#define SRV_MAX_SAMPLE_RADIANCE 1e20
 
 /* How leases end and which tasks are rendered twice. All zero (a new job's):
  * no hard deadline, no backups, no verification. */
@@ -220,18 +213,20 @@ int srv_job_owner_active(const srv_job *job, uint64_t owner);
  * it; read as 0 from older ones), str camera, then (in the formats that have
  * them: no environment and no film flags from older ones) the environment: str
  * map name, f32 strength, f32 rotation, u8 background flag, f32 x3 colour; and
- * u32 film flags (an unknown bit is a format error), str material variant,
- * f64 x2 shutter (open, close; refused unless proto_shutter_problem passes)
- * (all formats 4; "" and 0, 0 from older ones). srv_job_params_read reads
- * a block with or without the min gain and with or without both the
- * environment and the film flags (one format version brought both), as its
- * file's format version says; a failure is left in r's status. */
+ * u32 film flags (an unknown bit is a format error), str material variant
+ * (formats 4 on; "" from older ones), then f64 x2 motion blur's shutter (open,
+ * close; refused unless proto_shutter_problem passes; formats 5 on, 0, 0 from
+ * older ones). srv_job_params_read reads a block with or without the min gain,
+ * with or without both the environment and the film flags (one format version
+ * brought both) and with or without the shutter, as its file's format version
+ * says; a failure is left in r's status. */
 void srv_job_params_write(proto_writer *w, const srv_job_params *p);
-void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, int has_env_film);
+void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, int has_env_film,
+                         int has_shutter);
 
 /* Checkpoints. srv_job_save appends the merged state (per tile the chunks
  * merged and whether adaptive sampling stopped it, the held early results, the
- * film's double sums and counts) to w; leases are not saved (their tasks are
+ * film's fixed-point sums and counts) to w; leases are not saved (their tasks are
  * pending again after a load). srv_job_load restores that state into a fresh
  * job made with the same id, params and scene hash: PT_ERR_FORMAT naming what
  * does not fit when the bytes are of another job or inconsistent. The result

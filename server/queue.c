@@ -695,7 +695,7 @@ void srv_queue_tick(srv_server *s, uint64_t now)
         /* Checkpoint cost stays proportional to what the log has taken in. */
         if (s->state && !j->paused) {
             const pt_film *f = srv_job_film(j->job);
-            uint64_t film_bytes = (uint64_t)f->width * f->height * PROTO_RESULT_PIXEL_SIZE;
+            uint64_t film_bytes = (uint64_t)f->width * f->height * sizeof(pt_pixel_acc);
             uint64_t limit = film_bytes > CKPT_MIN_LOG ? film_bytes : CKPT_MIN_LOG;
             pt_error err = {0};
             if (srv_state_log_bytes(s->state, j->rec.id) >= limit &&

@@ -4,6 +4,7 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <limits.h>
+#include <math.h>
 #include <stdio.h>
 #include <string.h>
 #include <sys/file.h>
@@ -13,13 +14,14 @@
 #include "common/base/alloc.h"
 #include "common/base/fsutil.h"
 #include "common/base/hash.h"
+#include "common/render/render.h"
 #include "protocol/frame.h"
 #include "protocol/wire.h"
 
 #define QUEUE_MAGIC 0x31515450u /* "PTQ1" */
 #define CKPT_MAGIC 0x4b435450u  /* "PTCK" */
 #define LOG_MAGIC 0x4c525450u   /* "PTRL" */
-#define STATE_VERSION 4u
+#define STATE_VERSION 5u
 /* The oldest format still read: version 2 has no min gain (read as 0, the
  * rule off), versions 2 and 3 no environment and no film flags (read as
  * none) and protocol 2's RESULT in the log, so a state folder survives the
@@ -32,6 +34,11 @@
  * rewritten. One format version brought both. */
 #define STATE_ENV_VERSION 4u
 #define STATE_FILM_VERSION STATE_ENV_VERSION
+/* The first with protocol 4's RESULT (fixed-point sums) in the log; an older
+ * log's double sums are converted as it is read (log_upgrade_fixed). */
+#define STATE_FIXED_VERSION 5u
+/* The first with motion blur's shutter in the job params (older: none). */
+#define STATE_SHUTTER_VERSION 5u
 #define LOG_HEADER 16u
 #define MAX_QUEUE_BYTES (256u << 20)
 #define MAX_CKPT_BYTES ((size_t)8 << 30)
@@ -286,7 +293,7 @@ pt_status srv_state_load_queue(srv_state *st, srv_job_record **recs, uint32_t *n
         proto_r_str(&r, j->output, sizeof j->output - 1, "output");
         j->submitted = proto_r_u64(&r, "submitted");
         srv_job_params_read(&r, &j->params, version >= STATE_MIN_GAIN_VERSION,
-                            version >= STATE_ENV_VERSION);
+                            version >= STATE_ENV_VERSION, version >= STATE_SHUTTER_VERSION);
         const uint8_t *h = proto_r_bytes(&r, 32, "scene hash");
         if (h)
             memcpy(j->hash, h, 32);
@@ -557,11 +564,57 @@ static size_t log_upgrade_record(const uint8_t *pl, size_t n, uint8_t *out)
     proto_put_u64(out + 56, 0);
     memcpy(out + 64, pl + 56, 4);
     for (size_t i = 0; i < npx; i++) {
-        uint8_t *q = out + PROTO_RESULT_HEADER_SIZE + i * PROTO_RESULT_PIXEL_SIZE;
+        uint8_t *q = out + 68 + i * 40;
         memcpy(q, pl + 60 + i * 36, 36);
         memcpy(q + 36, pl + 60 + i * 36 + 32, 4);
     }
-    return PROTO_RESULT_HEADER_SIZE + npx * PROTO_RESULT_PIXEL_SIZE;
+    return 68 + npx * 40;
+}
+
+/* A RESULT payload of protocol 3 (68 bytes of header, 40 per pixel with
+ * double sums) in protocol 4's layout (msg.h), written into w (reset first);
+ * px is scratch for PROTO_MAX_TILE_PIXELS pixels. Each double sum becomes
+ * fixed point by the rounding a block's sum gets (pt_fixed_of): the same
+ * bits on every coordinator, so resuming from an old log loses no work.
+ * Returns the length, or 0 when pl is not of that shape or a sum is not one a
+ * render gives (not finite, negative, above the cap), and the decoder then
+ * names the fault. */
+static size_t log_upgrade_fixed(const uint8_t *pl, size_t n, pt_pixel_acc *px, proto_writer *w)
+{
+    if (n < 68 || (n - 68) % 40 != 0 || (n - 68) / 40 > PROTO_MAX_TILE_PIXELS)
+        return 0;
+    proto_result m = {0};
+    m.job_id = proto_get_u64(pl);
+    m.task_id = proto_get_u64(pl + 8);
+    m.tile = (pt_rect){proto_get_u32(pl + 16), proto_get_u32(pl + 20), proto_get_u32(pl + 24),
+                       proto_get_u32(pl + 28)};
+    m.s0 = proto_get_u32(pl + 32);
+    m.s1 = proto_get_u32(pl + 36);
+    m.rejected = proto_get_u64(pl + 40);
+    m.rays = proto_get_u64(pl + 48);
+    m.capped = proto_get_u64(pl + 56);
+    m.npixels = (uint32_t)((n - 68) / 40);
+    m.pixels = px;
+    for (uint32_t i = 0; i < m.npixels; i++) {
+        const uint8_t *q = pl + 68 + (size_t)i * 40;
+        px[i].n = proto_get_u32(q + 32);
+        px[i].hits = proto_get_u32(q + 36);
+        for (int c = 0; c < 3; c++) {
+            double d = proto_get_f64(q + 8 * c);
+            if (!(d >= 0.0 && d <= PT_MAX_SAMPLE_RADIANCE * px[i].n))
+                return 0;
+            px[i].fsum[c] = pt_fixed_of(d);
+        }
+        double sq = proto_get_f64(q + 24);
+        if (!(sq >= 0.0 && sq <= INFINITY))
+            return 0;
+        px[i].fsum_sq = pt_ufixed_of(sq);
+    }
+    proto_writer_reset(w);
+    pt_error e = {0};
+    if (proto_msg_encode_result(w, &m, &e) != PT_OK)
+        return 0;
+    return w->len;
 }
 
 static pt_status replay_log(srv_state *st, srv_job *job, srv_ckpt_extra *x, uint32_t *replayed,
@@ -580,9 +633,11 @@ static pt_status replay_log(srv_state *st, srv_job *job, srv_ckpt_extra *x, uint
      * is rewritten in this layout once replayed, so that records appended
      * later never follow records of another layout. */
     uint8_t *upbuf = NULL;
-    proto_writer up;
+    proto_writer up, rec;
     proto_writer_init(&up, (size_t)64 << 30);
+    proto_writer_init(&rec, (size_t)1 << 30);
     int old = 0;
+    uint32_t logver = 0;
     if (len < LOG_HEADER) {
         *torn = len > 0; /* the header write itself was cut short */
     } else if (proto_get_u32(data) != LOG_MAGIC || !version_read(proto_get_u32(data + 4)) ||
@@ -594,7 +649,8 @@ static pt_status replay_log(srv_state *st, srv_job *job, srv_ckpt_extra *x, uint
                             p, (unsigned long long)id);
     } else {
         good = LOG_HEADER;
-        old = proto_get_u32(data + 4) < STATE_FILM_VERSION;
+        logver = proto_get_u32(data + 4);
+        old = logver < STATE_FIXED_VERSION;
         if (old) {
             upbuf = pt_malloc(PROTO_RESULT_HEADER_SIZE +
                               (size_t)PROTO_RESULT_PIXEL_SIZE * PROTO_MAX_TILE_PIXELS);
@@ -607,6 +663,7 @@ static pt_status replay_log(srv_state *st, srv_job *job, srv_ckpt_extra *x, uint
             pt_free(buf);
             pt_free(upbuf);
             proto_writer_fini(&up);
+            proto_writer_fini(&rec);
             pt_free(data);
             return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
         }
@@ -629,9 +686,15 @@ static pt_status replay_log(srv_state *st, srv_job *job, srv_ckpt_extra *x, uint
             }
             size_t rn = n;
             if (crc_ok && old) {
-                rn = log_upgrade_record(pl, n, upbuf);
-                pl = rn ? upbuf : pl;
-                rn = rn ? rn : n;
+                size_t k = logver < STATE_FILM_VERSION ? log_upgrade_record(pl, n, upbuf) : 0;
+                if (k) {
+                    pl = upbuf;
+                    rn = k;
+                }
+                if ((k = log_upgrade_fixed(pl, rn, buf, &rec)) != 0) {
+                    pl = rec.buf;
+                    rn = k;
+                }
                 proto_w_u32(&up, (uint32_t)rn);
                 proto_w_u32(&up, proto_crc32c(0, pl, rn));
                 proto_w_bytes(&up, pl, rn);
@@ -662,6 +725,7 @@ static pt_status replay_log(srv_state *st, srv_job *job, srv_ckpt_extra *x, uint
         pt_free(upbuf);
     }
     pt_free(data);
+    proto_writer_fini(&rec);
     if (s == PT_OK && old) {
         /* Whole records only: a torn last one is left out. */
         s = proto_writer_status(&up) != PT_OK

@@ -391,7 +391,11 @@ static void fake_result(const proto_task *t, pt_pixel_acc *px, proto_result *r)
         /* An odd task's first pixel lost one sample (NaN/Inf), as its
          * rejected count says: the coordinator checks the two agree. */
         uint32_t k = i == 0 && (t->task_id & 1) ? ns - 1 : ns;
-        px[i] = (pt_pixel_acc){{v * k, v * 0.5 * k, v * 0.25 * k}, v * v * k * 1.1, k, 0};
+        px[i] = (pt_pixel_acc){
+            {pt_fixed_of(v * k), pt_fixed_of(v * 0.5 * k), pt_fixed_of(v * 0.25 * k)},
+            pt_ufixed_of(v * v * k * 1.1),
+            k,
+            0};
     }
     memset(r, 0, sizeof *r);
     r->job_id = t->job_id;

@@ -83,10 +83,12 @@ static inline proto_result sample_result(int v)
     proto_result m;
     memset(&m, 0, sizeof m);
     for (unsigned i = 0; i < 12; i++) {
-        sample_pixels[i].sum[0] = 0.25 * i;
-        sample_pixels[i].sum[1] = -1.5e300 / (i + 1);
-        sample_pixels[i].sum[2] = i == 5 ? proto_bits_f64(0x7FF8000000000123ull) : 1e-310;
-        sample_pixels[i].sum_sq = i * 3.0;
+        /* Pixel 0 alone (v = 1) fits the narrow form, at its edges (the
+         * least i64, the largest u64); the 12 (v = 0) need the wide one. */
+        sample_pixels[i].fsum[0] = (pt_i128)i << 30;
+        sample_pixels[i].fsum[1] = i ? -((pt_i128)1 << 100) - i : -7;
+        sample_pixels[i].fsum[2] = i == 5 ? ((pt_i128)1 << 126) + 12345 : (pt_i128)INT64_MIN;
+        sample_pixels[i].fsum_sq = i == 3 ? PT_U128_MAX : (pt_u128)UINT64_MAX - i;
         sample_pixels[i].n = i % 9;
         sample_pixels[i].hits = i % 9 - i % 9 % 2; /* <= n, some below */
     }

@@ -18,6 +18,7 @@
 #include <string.h>
 
 #include "common/base/alloc.h"
+#include "common/render/render.h"
 #include "protocol/frame.h"
 #include "protocol/msg.h"
 #include "tests/check.h"
@@ -117,10 +118,9 @@ static pt_status decode_any(uint16_t type, const uint8_t *p, size_t len, pt_erro
 static int acc_same(const pt_pixel_acc *a, const pt_pixel_acc *b)
 {
     for (int c = 0; c < 3; c++)
-        if (proto_f64_bits(a->sum[c]) != proto_f64_bits(b->sum[c]))
+        if (a->fsum[c] != b->fsum[c])
             return 0;
-    return proto_f64_bits(a->sum_sq) == proto_f64_bits(b->sum_sq) && a->n == b->n &&
-           a->hits == b->hits;
+    return a->fsum_sq == b->fsum_sq && a->n == b->n && a->hits == b->hits;
 }
 
 static int job_info_same(const proto_job_info *a, const proto_job_info *b)
@@ -226,7 +226,9 @@ static void check_round_trip(int s, int v, const uint8_t *p, size_t len)
     case 9: {
         proto_result a = sample_result(v), b;
         CHECK(proto_msg_decode_result(p, len, NULL, 0, &b, &err) == PT_OK);
-        CHECK(len == 68 + 40 * (size_t)a.npixels);
+        /* v = 1: narrow, 40 bytes a pixel; v = 0: wide, 72. */
+        CHECK(len == 69 + (v ? 40 : 72) * (size_t)a.npixels);
+        CHECK(p[68] == (v ? 0 : 3));
         CHECK(a.job_id == b.job_id && a.task_id == b.task_id && a.s0 == b.s0 && a.s1 == b.s1);
         CHECK(memcmp(&a.tile, &b.tile, sizeof a.tile) == 0);
         CHECK(a.rejected == b.rejected && a.rays == b.rays && a.npixels == b.npixels);
@@ -749,9 +751,10 @@ static proto_writer result_raw(pt_rect t, uint32_t s0, uint32_t s1, uint32_t n, 
     proto_w_u64(&w, 0);
     proto_w_u64(&w, 0);
     proto_w_u32(&w, n);
+    proto_w_u8(&w, 0); /* narrow */
     for (uint32_t i = 0; i < have; i++) {
         for (int k = 0; k < 4; k++)
-            proto_w_f64(&w, 1.0);
+            proto_w_u64(&w, 1ull << 32);
         proto_w_u32(&w, pixel_n);
         proto_w_u32(&w, pixel_hits);
     }
@@ -820,6 +823,38 @@ static void test_result(void)
     CHECK(result_hits_check((pt_rect){0, 0, 4, 2}, 0, 8, 8, 8, 5, 6, "hits", &alloc) ==
           PT_ERR_PROTO);
     CHECK(alloc == 0);
+    /* The pixel form: 0 narrow, 1 wide (72-byte pixels), nothing else. */
+    {
+        proto_writer raw = result_raw((pt_rect){0, 0, 4, 2}, 0, 8, 8, 8, 8, 0);
+        proto_result r;
+        pt_error e = {0};
+        raw.buf[68] = 1; /* wide RGB, but 40-byte pixels: 8 x 64 bytes are not there */
+        CHECK(proto_msg_decode_result(raw.buf, raw.len, NULL, 0, &r, &e) == PT_ERR_PROTO &&
+              strstr(e.msg, "truncated"));
+        raw.buf[68] = 4;
+        CHECK(proto_msg_decode_result(raw.buf, raw.len, NULL, 0, &r, &e) == PT_ERR_PROTO &&
+              strstr(e.msg, "pixel form"));
+        proto_writer_fini(&raw);
+    }
+    /* Only the sums of squares wide (a bright pixel): 48-byte pixels, and
+     * only the RGB sums: 64; both round trip. */
+    for (int k = 0; k < 2; k++) {
+        pt_pixel_acc px[2] = {pt_pixel_acc_of(1.0, 2.0, 3.0, 4.0, 8, 8),
+                              pt_pixel_acc_of(0.5, 0.25, 0.125, 0.0625, 8, 3)};
+        if (k == 0)
+            px[1].fsum_sq = ((pt_u128)1 << 64) + 5;
+        else
+            px[1].fsum[2] = -((pt_i128)1 << 64) - 5;
+        proto_result m = {1, 2, {0, 0, 2, 1}, 0, 8, 0, 0, 0, 2, px, 0}, b;
+        proto_writer ww;
+        proto_writer_init(&ww, 1 << 20);
+        CHECK(proto_msg_encode_result(&ww, &m, NULL) == PT_OK);
+        CHECK(ww.len == 69 + 2 * (size_t)(k ? 64 : 48) && ww.buf[68] == (k ? 1 : 2));
+        CHECK(proto_msg_decode_result(ww.buf, ww.len, NULL, 0, &b, NULL) == PT_OK &&
+              acc_same(&b.pixels[0], &px[0]) && acc_same(&b.pixels[1], &px[1]));
+        proto_result_fini(&b);
+        proto_writer_fini(&ww);
+    }
     CHECK(pt_alloc_live() == live);
 
     /* Encoder side of the same rules. */
@@ -906,7 +941,8 @@ static void test_types(void)
     CHECK(13 + PROTO_MAX_NAME + PROTO_MAX_BUILD_ID <= PROTO_MAX_PAYLOAD_PREAUTH);
     CHECK(4 + PROTO_MAX_ERROR_TEXT <= PROTO_MAX_PAYLOAD_PREAUTH);
     /* A full RESULT fits the frame cap. */
-    CHECK(PROTO_RESULT_HEADER_SIZE + (uint64_t)PROTO_RESULT_PIXEL_SIZE * PROTO_MAX_TILE_PIXELS <=
+    CHECK(PROTO_RESULT_HEADER_SIZE +
+              (uint64_t)PROTO_RESULT_WIDE_PIXEL_SIZE * PROTO_MAX_TILE_PIXELS <=
           PROTO_MAX_PAYLOAD);
     CHECK(52 + (uint64_t)PROTO_MAX_SCENE_CHUNK <= PROTO_MAX_PAYLOAD);
 }

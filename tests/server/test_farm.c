@@ -382,7 +382,7 @@ static void hostile(void)
         static pt_pixel_acc px[256];
         memset(px, 0, sizeof px);
         for (int i = 0; i < 256; i++) {
-            px[i].sum[0] = 1e6;
+            px[i].fsum[0] = (pt_i128)1e6 << PT_FIXED_BITS;
             px[i].n = 8;
         }
         proto_result r = {0};

@@ -22,7 +22,7 @@ static void fake_result(const proto_task *t, pt_pixel_acc *px, proto_result *r)
         h ^= h >> 33;
         h *= 0xff51afd7ed558ccdull;
         double v = (double)(h >> 11) / 9007199254740992.0;
-        px[i] = (pt_pixel_acc){{v, v * 0.5, v * 1e-7}, v * v, t->s1 - t->s0, 0};
+        px[i] = pt_pixel_acc_of(v, v * 0.5, v * 1e-7, v * v, t->s1 - t->s0, 0);
     }
     memset(r, 0, sizeof *r);
     r->job_id = t->job_id;
@@ -90,7 +90,7 @@ static void leases(void)
     r.s1++;
     CHECK(srv_job_result(j, 4, &r, &err) == SRV_INVALID);
     r.s1--;
-    px[3].sum[1] = NAN;
+    px[3].fsum[1] = -1; /* negative */
     CHECK(srv_job_result(j, 4, &r, &err) == SRV_INVALID && strstr(err.msg, "pixel 3"));
     fake_result(&c, px, &r);
     px[0].n = 17;
@@ -205,7 +205,7 @@ static void adaptive(void)
             /* ns samples of value v (tile 0), or half 0 and half 2v (tile 1). */
             double sum = tile == 0 ? v * ns : v * ns;
             double sq = tile == 0 ? ns * 0.25 : 2.0 * v * v * ns;
-            px[i] = (pt_pixel_acc){{sum, sum, sum}, sq, ns, 0};
+            px[i] = pt_pixel_acc_of(sum, sum, sum, sq, ns, 0);
         }
         proto_result r = {t.job_id, t.task_id, t.tile, t.s0, t.s1, 0, 0, 0, 32 * 32, px, 0};
         srv_outcome o = srv_job_result(j, 1, &r, NULL);
@@ -231,9 +231,22 @@ static void gain_pixels_of(const proto_task *t, pt_pixel_acc *px, proto_result *
     uint32_t ns = t->s1 - t->s0, chunk = t->s0 / 8;
     for (uint32_t i = 0; i < 32 * 32; i++) {
         double v = t->tile.x0 == 0 ? (black0 ? 0.0 : 0.5) : (double)((chunk + 1) % 2);
-        px[i] = (pt_pixel_acc){{v * ns, v * ns, v * ns}, v * v * ns, ns, 0};
+        px[i] = pt_pixel_acc_of(v * ns, v * ns, v * ns, v * v * ns, ns, 0);
     }
     *r = (proto_result){t->job_id, t->task_id, t->tile, t->s0, t->s1, 0, 0, 0, 32 * 32, px, 0};
+}
+
+/* A pixel of a version 5 checkpoint (72 bytes: sums as u64 pairs, low half
+ * first, n, hits) as version 4 wrote it (40 bytes: f64 sums, n, hits). */
+static void put_old_pixel(proto_writer *o, const uint8_t *q)
+{
+    for (int c = 0; c < 3; c++)
+        proto_w_f64(o, pt_fixed_to_double((pt_i128)(((pt_u128)proto_get_u64(q + 16 * c + 8) << 64) |
+                                                    proto_get_u64(q + 16 * c))));
+    proto_w_f64(
+        o, pt_ufixed_to_double(((pt_u128)proto_get_u64(q + 56) << 64) | proto_get_u64(q + 48)));
+    proto_w_u32(o, proto_get_u32(q + 64));
+    proto_w_u32(o, proto_get_u32(q + 68));
 }
 
 static void gain_pixels(const proto_task *t, pt_pixel_acc *px, proto_result *r)
@@ -328,6 +341,62 @@ static void adaptive_min_gain(void)
     }
     srv_job_free(d);
     d = NULL;
+    /* A version 4 checkpoint (before fixed-point sums and the shutter: the
+     * same bytes without the shutter and with each pixel's four sums as f64) loads to the same
+     * bits: sums of whole multiples of 2^-32 this small are exact in double, and the conversion
+     * rounds to nearest. */
+    /* The params end with the shutter (16 bytes), which format 4 lacks. */
+    const size_t pend = 4 + 4 + 8 + 32 + 9 * 4 + 2 * 8 + 2 + strlen(p.camera) + 23 + 4 + 2;
+    const size_t head = pend + 16 + 8;
+    proto_writer v4;
+    proto_writer_init(&v4, 1u << 20);
+    {
+        uint32_t ntiles = proto_get_u32(w.buf + head);
+        size_t at = head + 8 + (size_t)ntiles * 5;
+        proto_w_bytes(&v4, w.buf, pend);
+        proto_w_bytes(&v4, w.buf + pend + 16, at + 4 - (pend + 16));
+        proto_put_u32(v4.buf + 4, 4);
+        uint32_t nheld = proto_get_u32(w.buf + at);
+        at += 4;
+        for (uint32_t i = 0; i <= nheld && at < w.len; i++) {
+            size_t npx = i < nheld ? 32 * 32 : 64 * 32; /* held tiles, then the film */
+            if (i < nheld) {
+                proto_w_bytes(&v4, w.buf + at, 8); /* task id */
+                at += 8;
+            }
+            for (size_t k = 0; k < npx; k++, at += 72)
+                put_old_pixel(&v4, w.buf + at);
+        }
+        CHECK(at == w.len && proto_writer_status(&v4) == PT_OK);
+    }
+    srv_job_free(d);
+    d = NULL;
+    CHECK(srv_job_new(3, &p, HASH, &d, NULL) == PT_OK);
+    CHECKF(d && srv_job_load(d, v4.buf, v4.len, &err) == PT_OK, "%s", err.msg);
+    const pt_film *fb = srv_job_film(b);
+    CHECK(d && memcmp(srv_job_film(d)->px, fb->px, 64 * 32 * sizeof *fb->px) == 0);
+    /* ... and resumes to the same image as the uninterrupted job. */
+    for (int k = 5; d && k < n; k++) {
+        gain_pixels(&tasks[k], px, &r);
+        srv_outcome o = srv_job_replay(d, &r, NULL);
+        CHECK(o == SRV_MERGED || o == SRV_DUPLICATE);
+    }
+    CHECK(d && srv_job_complete(d) &&
+          memcmp(f->px, srv_job_film(d)->px, 64 * 32 * sizeof *f->px) == 0);
+    /* A double sum that no render gives (negative) is refused. */
+    {
+        proto_writer bad;
+        proto_writer_init(&bad, 1u << 20);
+        proto_w_bytes(&bad, v4.buf, v4.len);
+        proto_put_f64(bad.buf + bad.len - 40 * 3, -1.0); /* a film pixel's R */
+        srv_job *e = NULL;
+        CHECK(srv_job_new(3, &p, HASH, &e, NULL) == PT_OK);
+        CHECK(e && srv_job_load(e, bad.buf, bad.len, &err) == PT_ERR_FORMAT);
+        srv_job_free(e);
+        proto_writer_fini(&bad);
+    }
+    srv_job_free(d);
+    d = NULL;
     /* A version 3 checkpoint (before the environment and the film flags: the
      * same bytes less the ENV block, the film flags, the variant, the shutter
      * and the depth-cap count after the camera, and 36-byte pixels, without the camera hits) loads
@@ -335,29 +404,30 @@ static void adaptive_min_gain(void)
     size_t at = 4 + 4 + 8 + 32 + 9 * 4 + 2 * 8 + 2 + strlen(p.camera);
     proto_writer v3;
     proto_writer_init(&v3, 1u << 20);
-    proto_w_bytes(&v3, w.buf, at);
+    proto_w_bytes(&v3, v4.buf, at);
     proto_put_u32(v3.buf + 4, 3);
-    at += 23 + 4 + 2 + 16 + 8;
-    uint32_t ntiles = proto_get_u32(w.buf + at);
-    proto_w_bytes(&v3, w.buf + at, 8 + (size_t)ntiles * 5 + 4);
+    at += 23 + 4 + 2 + 8;
+    uint32_t ntiles = proto_get_u32(v4.buf + at);
+    proto_w_bytes(&v3, v4.buf + at, 8 + (size_t)ntiles * 5 + 4);
     at += 8 + (size_t)ntiles * 5;
-    uint32_t nheld = proto_get_u32(w.buf + at);
+    uint32_t nheld = proto_get_u32(v4.buf + at);
     at += 4;
-    for (uint32_t i = 0; i <= nheld && at < w.len; i++) {
+    for (uint32_t i = 0; i <= nheld && at < v4.len; i++) {
         size_t npx = i < nheld ? 32 * 32 : 64 * 32; /* held tiles, then the film */
         if (i < nheld) {
-            proto_w_bytes(&v3, w.buf + at, 8); /* task id */
+            proto_w_bytes(&v3, v4.buf + at, 8); /* task id */
             at += 8;
         }
         for (size_t k = 0; k < npx; k++, at += 40)
-            proto_w_bytes(&v3, w.buf + at, 36);
+            proto_w_bytes(&v3, v4.buf + at, 36);
     }
-    CHECK(at == w.len && proto_writer_status(&v3) == PT_OK);
+    CHECK(at == v4.len && proto_writer_status(&v3) == PT_OK);
     CHECK(srv_job_new(3, &p, HASH, &d, NULL) == PT_OK);
     CHECKF(d && srv_job_load(d, v3.buf, v3.len, &err) == PT_OK, "%s", err.msg);
     const pt_film *h = d ? srv_job_film(d) : NULL;
     CHECK(h && h->px[0].n > 0 && h->px[0].hits == h->px[0].n); /* read as fully covered */
     proto_writer_fini(&v3);
+    proto_writer_fini(&v4);
     proto_writer_fini(&w);
 done:
     srv_job_free(a);
@@ -390,7 +460,7 @@ static void adaptive_min_gain_black(void)
     CHECK(srv_job_tiles_stopped(j) == 1);
     const pt_film *f = srv_job_film(j);
     CHECK(f->px[0].n == 8 && f->px[32].n == 64);
-    CHECK(f->px[0].sum[0] == 0.0 && f->px[0].sum_sq == 0.0);
+    CHECK(f->px[0].fsum[0] == 0 && f->px[0].fsum_sq == 0);
     srv_job_free(j);
 }
 
@@ -515,6 +585,9 @@ static void backups(void)
     srv_job_free(j);
 }
 
+#define ONE ((pt_i128)1 << PT_FIXED_BITS)
+#define HALF (ONE / 2)
+
 static void plausible(void)
 {
     static pt_pixel_acc px[256];
@@ -524,20 +597,28 @@ static void plausible(void)
     pt_error err = {0};
     CHECK(srv_job_lease(j, 1, 0, 1000, &t) == 1);
     struct {
-        double sum, sum_sq;
+        pt_i128 sum;
+        pt_u128 sum_sq;
         uint32_t n, rejected;
         srv_outcome want;
     } cases[] = {
-        {1e38, 1.0, 8, 0, SRV_INVALID},    {-1e-30, 0.0, 8, 0, SRV_INVALID},
-        {0.0, 0.0, 0, 0, SRV_INVALID},     {0.5, 0.5, 7, 0, SRV_INVALID},
-        {0.5, -1.0, 8, 0, SRV_INVALID},    {0.5, 0.5, 9, 0, SRV_INVALID},
-        {1.0, 0.0, 0, 8, SRV_INVALID}, /* no samples, yet a sum */
-        {1.6e21, 1e30, 8, 0, SRV_INVALID}, {0.5, 0.5, 7, 1, SRV_MERGED},
+        /* Sums in fixed point (units of 2^-32): far over the cap, negative. */
+        {(pt_i128)1 << 120, 1, 8, 0, SRV_INVALID},
+        {-1, 0, 8, 0, SRV_INVALID},
+        {0, 0, 0, 0, SRV_INVALID},
+        {HALF, HALF, 7, 0, SRV_INVALID},
+        {HALF, HALF, 9, 0, SRV_INVALID},
+        {ONE, 0, 0, 8, SRV_INVALID}, /* no samples, yet a sum */
+        {0, 1, 0, 8, SRV_INVALID},   /* no samples, yet a sum of squares */
+        /* Just over 8 samples at the per-sample cap. */
+        {(pt_i128)(8.001 * PT_MAX_SAMPLE_RADIANCE * PT_FIXED_ONE), 0, 8, 0, SRV_INVALID},
+        /* 7 samples at the cap, the sum of squares saturated: plausible. */
+        {(pt_i128)(7.0 * PT_MAX_SAMPLE_RADIANCE * PT_FIXED_ONE), PT_U128_MAX, 7, 1, SRV_MERGED},
     };
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
         fake_result(&t, px, &r);
-        px[5].sum[1] = cases[i].sum;
-        px[5].sum_sq = cases[i].sum_sq;
+        px[5].fsum[1] = cases[i].sum;
+        px[5].fsum_sq = cases[i].sum_sq;
         px[5].n = cases[i].n;
         r.rejected = cases[i].rejected;
         srv_outcome o = srv_job_result(j, 1, &r, &err);
@@ -578,7 +659,7 @@ static void verification(void)
     r.s0 = 8;
     r.s1 = 16;
     for (int i = 0; i < 256; i++)
-        px[i] = (pt_pixel_acc){{0.5, 0.5, 0.5}, 0.25, 8, 0};
+        px[i] = pt_pixel_acc_of(0.5, 0.5, 0.5, 0.25, 8, 0);
     CHECK(srv_job_result(j, 1, &r, &err) == SRV_MERGED);
     CHECK(srv_job_complete(j));
     CHECK(srv_job_lease(j, 2, 0, 1000, &v) == 1 && v.task_id == 1);

@@ -30,6 +30,7 @@
 #include "common/base/alloc.h"
 #include "common/base/fsutil.h"
 #include "common/base/hash.h"
+#include "common/render/render.h"
 #include "common/scene/bundle.h"
 #include "tests/check.h"
 #include "tests/server/farm_util.h"
@@ -735,18 +736,163 @@ static void copy_str(proto_writer *w, const uint8_t *d, size_t *at)
     *at += len;
 }
 
-/* Writes w as the state file name with version 3 at the given offsets and,
+/* Writes w as the state file name with version v at the given offsets and,
  * when crc, a fresh trailing CRC32C (w holds the file without it). */
-static void write_v3(const char *name, proto_writer *w, const long *vers, int nvers, int crc)
+static void write_ver(const char *name, proto_writer *w, const long *vers, int nvers, int crc,
+                      uint32_t v)
 {
     for (int i = 0; i < nvers; i++)
-        proto_put_u32(w->buf + vers[i], 3);
+        proto_put_u32(w->buf + vers[i], v);
     if (crc)
         proto_w_u32(w, proto_crc32c(0, w->buf, w->len));
     pt_error e = {0};
     CHECK(proto_writer_status(w) == PT_OK);
     CHECK(pt_write_file_atomic(path(name), w->buf, w->len, &e) == PT_OK);
     proto_writer_fini(w);
+}
+
+static void write_v3(const char *name, proto_writer *w, const long *vers, int nvers, int crc)
+{
+    write_ver(name, w, vers, nvers, crc, 3);
+}
+
+/* A fixed-point sum (two u64, low half first) at q as format 4's f64. */
+static void put_f64_of_fixed(proto_writer *w, const uint8_t *q, int is_signed)
+{
+    pt_u128 v = ((pt_u128)proto_get_u64(q + 8) << 64) | proto_get_u64(q);
+    proto_w_f64(w, is_signed ? pt_fixed_to_double((pt_i128)v) : pt_ufixed_to_double(v));
+}
+
+/* A pixel of format 5 (72 bytes) in format 4's layout (f64 sums, n, hits). */
+static void pixel_to_v4(proto_writer *w, const uint8_t *q)
+{
+    for (int c = 0; c < 4; c++)
+        put_f64_of_fixed(w, q + 16 * c, c < 3);
+    proto_w_bytes(w, q + 64, 8);
+}
+
+/* Where the shutter (16 bytes, format 5 on) starts in params at d + at:
+ * after the camera, the environment, the film flags and the variant. */
+static size_t shutter_at(const uint8_t *d, size_t at)
+{
+    at += 9 * 4 + 16;
+    at += 2 + proto_get_u16(d + at);                  /* camera */
+    at += 2 + proto_get_u16(d + at) + 4 + 4 + 1 + 12; /* the environment */
+    at += 4;                                          /* film flags */
+    at += 2 + proto_get_u16(d + at);                  /* material variant */
+    return at;
+}
+
+/* The queue file of format 4: the same records without the shutter. */
+static void queue_to_v4(const char *name)
+{
+    uint8_t *d;
+    size_t n;
+    if (!read_state(name, &d, &n))
+        return;
+    proto_writer w;
+    proto_writer_init(&w, 1 << 30);
+    size_t at = 8 + 8 + 4, done = 0;
+    for (uint32_t i = 0, count = proto_get_u32(d + 16); i < count; i++) {
+        at += 8 + 8 + 1 + 4;
+        for (int k = 0; k < 4; k++) /* name, owner, scene, output */
+            at += 2 + proto_get_u16(d + at);
+        at += 8; /* submitted */
+        size_t sh = shutter_at(d, at);
+        proto_w_bytes(&w, d + done, sh - done);
+        at = sh + 16;
+        done = at;
+        at += 32 + 8 + 8 + 8 + 8;
+        at += 2 + proto_get_u16(d + at); /* message */
+        at += 8;                         /* paths capped */
+    }
+    CHECK(at + 4 == n);
+    proto_w_bytes(&w, d + done, n - 4 - done);
+    const long vers[] = {4};
+    write_ver(name, &w, vers, 1, 1, 4);
+    pt_free(d);
+}
+
+/* A checkpoint of format 4: double sums, 40-byte pixels. */
+static void checkpoint_to_v4(const char *name)
+{
+    uint8_t *d;
+    size_t n;
+    if (!read_state(name, &d, &n))
+        return;
+    proto_writer w;
+    proto_writer_init(&w, 1 << 30);
+    /* envelope 8, seconds/rejected/rays 24, magic, version, id, hash, params */
+    size_t at = 8 + 24 + 4 + 4 + 8 + 32;
+    uint32_t wd = proto_get_u32(d + at), ht = proto_get_u32(d + at + 4),
+             tile = proto_get_u32(d + at + 12);
+    size_t sh = shutter_at(d, at);
+    proto_w_bytes(&w, d, sh); /* without the shutter */
+    at = sh + 16;
+    size_t from = at;
+    at += 8; /* paths capped */
+    uint32_t ntiles = proto_get_u32(d + at);
+    at += 8 + (size_t)ntiles * 5;
+    uint32_t nheld = proto_get_u32(d + at);
+    at += 4;
+    proto_w_bytes(&w, d + from, at - from);
+    uint32_t tiles_x = (wd + tile - 1) / tile;
+    for (uint32_t i = 0; i < nheld; i++) {
+        uint64_t t = proto_get_u64(d + at) % ntiles;
+        uint32_t tx = (uint32_t)(t % tiles_x), ty = (uint32_t)(t / tiles_x);
+        uint32_t tw = wd - tx * tile < tile ? wd - tx * tile : tile;
+        uint32_t th = ht - ty * tile < tile ? ht - ty * tile : tile;
+        proto_w_bytes(&w, d + at, 8);
+        at += 8;
+        for (uint32_t k = 0; k < tw * th; k++, at += 72)
+            pixel_to_v4(&w, d + at);
+    }
+    for (uint64_t k = 0; k < (uint64_t)wd * ht; k++, at += 72)
+        pixel_to_v4(&w, d + at);
+    CHECK(at + 4 == n);
+    const long vers[] = {4, 36};
+    write_ver(name, &w, vers, 2, 1, 4);
+    pt_free(d);
+}
+
+/* A results log of format 4: each record a RESULT of protocol 3 (68 bytes of
+ * header, f64 sums), with its checksum. */
+static void log_to_v4(const char *name)
+{
+    uint8_t *d;
+    size_t n;
+    if (!read_state(name, &d, &n))
+        return;
+    proto_writer w, rec;
+    proto_writer_init(&w, 1 << 30);
+    proto_writer_init(&rec, 1 << 30);
+    proto_w_bytes(&w, d, 16);
+    for (size_t at = 16; at + 8 <= n;) {
+        uint32_t len = proto_get_u32(d + at);
+        const uint8_t *pl = d + at + 8;
+        CHECK(at + 8 + len <= n && len >= 69);
+        /* A record in the current layout decoded, in the old one written. */
+        proto_result r;
+        CHECK(proto_msg_decode_result(pl, len, NULL, 0, &r, NULL) == PT_OK);
+        proto_writer_reset(&rec);
+        proto_w_bytes(&rec, pl, 68);
+        for (uint32_t k = 0; k < r.npixels; k++) {
+            for (int c = 0; c < 3; c++)
+                proto_w_f64(&rec, pt_acc_sum(&r.pixels[k], c));
+            proto_w_f64(&rec, pt_acc_sum_sq(&r.pixels[k]));
+            proto_w_u32(&rec, r.pixels[k].n);
+            proto_w_u32(&rec, r.pixels[k].hits);
+        }
+        proto_result_fini(&r);
+        proto_w_u32(&w, (uint32_t)rec.len);
+        proto_w_u32(&w, proto_crc32c(0, rec.buf, rec.len));
+        proto_w_bytes(&w, rec.buf, rec.len);
+        at += 8 + len;
+    }
+    proto_writer_fini(&rec);
+    const long vers[] = {4};
+    write_ver(name, &w, vers, 1, 0, 4);
+    pt_free(d);
 }
 
 /* The job params block up to the camera (nine u32, two f64, str), copied; the
@@ -763,7 +909,6 @@ static void copy_params_v3(proto_writer *w, const uint8_t *d, size_t *at, uint32
     *at += 2 + proto_get_u16(d + *at) + 4 + 4 + 1 + 12; /* the environment */
     *at += 4;                                           /* film flags */
     *at += 2 + proto_get_u16(d + *at);                  /* material variant */
-    *at += 16;                                          /* shutter */
 }
 
 /* The queue file: each record without its environment, film flags, variant
@@ -1001,11 +1146,12 @@ static void damaged(void)
     kill_server(SIGTERM);
     CHECK(log_has("damage_torn.log", "incomplete last record"));
 
-    /* State folders in format 3 (before the environment light and the film
-     * flags) and 2 (before --min-gain as well): the same job resumes with the
-     * same samples as from the current format. */
+    /* State folders in format 4 (before fixed-point sums), 3 (before the
+     * environment light and the film flags as well) and 2 (before --min-gain
+     * as well): the same job resumes with the same samples as from the
+     * current format. */
     CHECK(system(cmd) == 0); /* state3.good again */
-    CHECK(start_damaged("migrate_v4.log") == -1);
+    CHECK(start_damaged("migrate_v5.log") == -1);
     proto_job_info v4;
     CHECK(status(g_port, id, &v4) == PROTO_MSG_JOB_INFO && v4.samples_done > 0);
     kill_server(SIGKILL);
@@ -1013,15 +1159,22 @@ static void damaged(void)
     /* checkpoint: header 8, seconds/rejected/rays 24, magic, version, id, hash,
      * nine u32 parameters, target error; then the min gain */
     const long ck_gain = 8 + 24 + 4 + 4 + 8 + 32 + 36 + 8;
-    for (uint32_t format = 3; format >= 2; format--) {
+    for (uint32_t format = 4; format >= 2; format--) {
         snprintf(cmd, sizeof cmd, "rm -rf '%s' && cp -a '%s' '%s'", path("state3"),
                  path("state3.good"), path("state3"));
         CHECK(system(cmd) == 0);
+        /* Format 4: double sums in the checkpoint, protocol 3's RESULT in
+         * the results log (converted as read, and rewritten). */
+        queue_to_v4("state3/queue");
+        checkpoint_to_v4(ck);
+        log_to_v4(lg);
         /* Format 3: no environment, no film flags, and the results log in
          * protocol 2's RESULT layout (read so, and rewritten). */
-        queue_to_v3("state3/queue");
-        checkpoint_to_v3(ck);
-        log_to_v3(lg);
+        if (format <= 3) {
+            queue_to_v3("state3/queue");
+            checkpoint_to_v3(ck);
+            log_to_v3(lg);
+        }
         if (format == 2) {
             to_format2("state3/queue", queue_min_gain_at("state3/queue"), qv, 1, 1);
             to_format2(ck, ck_gain, cv, 2, 1);
@@ -1032,7 +1185,7 @@ static void damaged(void)
         CHECK(start_damaged(log) == -1);
         CHECKF(status(g_port, id, &info) == PROTO_MSG_JOB_INFO && info.state == PROTO_JOB_RUNNING &&
                    info.samples_done == v4.samples_done,
-               "format %u: state %u, %llu samples (format 4: %llu)", format, info.state,
+               "format %u: state %u, %llu samples (format 5: %llu)", format, info.state,
                (unsigned long long)info.samples_done, (unsigned long long)v4.samples_done);
         kill_server(SIGTERM);
     }

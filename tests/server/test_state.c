@@ -17,6 +17,7 @@
 
 #include "common/base/alloc.h"
 #include "common/base/fsutil.h"
+#include "common/render/render.h"
 #include "protocol/frame.h"
 #include "protocol/wire.h"
 #include "server/job.h"
@@ -39,7 +40,7 @@ static void payload_of(srv_job *job, uint64_t t, proto_writer *w)
     } while (task.task_id != t);
     uint32_t n = (task.tile.x1 - task.tile.x0) * (task.tile.y1 - task.tile.y0);
     for (uint32_t i = 0; i < n; i++)
-        px[i] = (pt_pixel_acc){{0.25 * (double)(t + 1), 0.5, 0.125 * i}, 1.0, task.s1 - task.s0, 0};
+        px[i] = pt_pixel_acc_of(0.25 * (double)(t + 1), 0.5, 0.125 * i, 1.0, task.s1 - task.s0, 0);
     proto_result r = {JOB_ID, t, task.tile, task.s0, task.s1, 0, 0, 0, n, px, 0};
     proto_writer_init(w, (size_t)1 << 20);
     CHECK(proto_msg_encode_result(w, &r, NULL) == PT_OK);

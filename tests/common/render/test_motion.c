@@ -170,8 +170,8 @@ static int check_row(const pt_pixel_acc *acc, const path_def *p, const char *wha
     for (uint32_t px = 0; px < W; px++) {
         const pt_pixel_acc *a = &acc[ROW * W + px];
         double n = (double)a->n;
-        double mean = a->sum[0] / n;
-        double var = a->sum_sq / n - mean * mean; /* luminance = red here */
+        double mean = pt_acc_sum(a, 0) / n;
+        double var = pt_acc_sum_sq(a) / n - mean * mean; /* luminance = red here */
         double se = sqrt(fmax(var, 0.0) / n);
         double want = expected(p, px);
         if (want > 1e-9 && want < E - 1e-9)
@@ -301,13 +301,14 @@ static void test_split(void)
     CHECK(memcmp(whole, split, W * H * sizeof *whole) == 0);
     /* Batched paths equal paths traced alone. */
     for (uint32_t px = 20; px < 44; px++) {
-        pt_pixel_acc one = {{0, 0, 0}, 0, 0, 0};
+        pt_block_acc one = {{0, 0, 0}, 0, 0, 0};
         pt_rect t = {px, ROW, px + 1, ROW + 1};
-        pt_pixel_acc got;
+        pt_pixel_acc got, want = {{0, 0, 0}, 0, 0, 0};
         pt_render_tile(r, t, 0, 16, &got, NULL);
         for (uint32_t i = 0; i < 16; i++)
-            pt_pixel_acc_sample(&one, pt_render_sample(r, px, ROW, i, NULL, NULL));
-        CHECK(memcmp(one.sum, got.sum, sizeof one.sum) == 0);
+            pt_block_acc_sample(&one, pt_render_sample(r, px, ROW, i, NULL, NULL));
+        pt_pixel_acc_add_block(&want, &one);
+        CHECK(memcmp(want.fsum, got.fsum, sizeof want.fsum) == 0);
     }
     pt_free(whole);
     pt_free(split);
@@ -357,8 +358,8 @@ static void test_occluder(void)
     pt_pixel_acc *acc = render_all(r);
     for (uint32_t px = 0; px < W; px++) {
         const pt_pixel_acc *a = &acc[ROW * W + px];
-        double n = (double)a->n, mean = a->sum[0] / n;
-        double se = sqrt(fmax(a->sum_sq / n - mean * mean, 0.0) / n);
+        double n = (double)a->n, mean = pt_acc_sum(a, 0) / n;
+        double se = sqrt(fmax(pt_acc_sum_sq(a) / n - mean * mean, 0.0) / n);
         double want = E - expected(&p, px);
         CHECKF(fabs(mean - want) <= 5.0 * se + 1e-6, "occluder: pixel %u: %.5f, want %.5f", px,
                mean, want);
