@@ -360,6 +360,11 @@ pt_status pt_scene_set_motion(pt_scene *s, uint32_t steps, const float *const *p
         st = pt_error_set(err, PT_ERR_NOMEM, "motion: out of memory");
         goto done;
     }
+    /* A second call replaces the meshes' steps (the camera's stay). */
+    pt_free(m->positions);
+    pt_free(m->normals);
+    pt_free(m->tri);
+    pt_free(m->indices);
     m->positions = pt_malloc_array((size_t)nvm * 3 * steps, sizeof(float));
     m->normals = pt_malloc_array((size_t)nvm * 3 * steps, sizeof(float));
     m->tri = pt_malloc_array(ntm, sizeof(uint32_t));

@@ -417,6 +417,9 @@ static void test_set_motion(void)
           s->motion->num_static == 2 && s->motion->tri[0] == 2 &&
           s->motion->moving[0] == UINT32_MAX);
     CHECK((s->features & PT_FEAT_MOTION) && s->bounds_max.z >= 0.0f);
+    /* A second call replaces the steps (nothing leaks: the ASan build). */
+    CHECKF(pt_scene_set_motion(s, 2, pp, nn, &err) == PT_OK, "%s", err.msg);
+    CHECK(s->motion->num_triangles == 2 && s->motion->steps == 2);
     pt_renderer *r = renderer(s);
     pt_pixel_acc *acc = render_all(r);
     check_row(acc, &p, "set_motion");
