@@ -60,6 +60,14 @@ static void usage(FILE *f)
             "  --camera NAME      the camera to render (default: the scene's first)\n"
             "  --variant NAME     a KHR_materials_variants variant: mapped primitives take\n"
             "                     its material (default: each primitive's own)\n"
+            "  --time T           pose the scene's glTF animation at T seconds (>= 0):\n"
+            "                     nodes, skins, morph targets, cameras and lights move\n"
+            "  --frame F          the same at frame F, T = F / fps\n"
+            "  --fps R            frames per second for --frame and --shutter (default 24)\n"
+            "  --animation NAME   the animation to play, by name or index (default: every\n"
+            "                     channel of every animation, as viewers play them);\n"
+            "                     without --time, --frame or --animation a scene renders\n"
+            "                     as its still: its nodes' own transforms, no skinning\n"
             "  --tile N           tile side in pixels (default 32)\n"
             "  --chunk N          samples per chunk (default 16)\n"
             "  --target-error E   adaptive sampling: a tile stops once the RMS relative\n"
@@ -86,8 +94,6 @@ static void usage(FILE *f)
             "                     fractions of a frame (0,0.5: a 180-degree shutter;\n"
             "                     default off): what the scene's animation moves in\n"
             "                     [t + O/fps, t + C/fps] blurs (t: the frame's time)\n"
-            "  --fps R            frames per second that turns the shutter's fractions\n"
-            "                     into seconds (default 24)\n"
             "  -q, --quiet        no progress line\n"
             "  -h, --help         this text\n"
             "  --version          the version and renderer build id\n"
@@ -145,11 +151,13 @@ int main(int argc, char **argv)
     o.tile = 32;
     o.chunk = 16;
     o.env_strength = 1.0f;
-    o.fps = 24.0;
     wrk_client_opts net = {0};
     double dv, rgb[3];
     uint32_t prefetch = 0;
     int has_prefetch = 0;
+    /* Animation: --time, or --frame over --fps (default 24). */
+    double anim_time = 0.0, anim_frame = 0.0, anim_fps = 24.0;
+    int has_time = 0, has_frame = 0, has_fps = 0;
     /* Which options were given, to refuse mixing the modes. */
     char standalone_opt[40] = "", farm_opt[40] = "";
     enum {
@@ -171,8 +179,11 @@ int main(int argc, char **argv)
         OPT_BACKGROUND,
         OPT_TRANSPARENT,
         OPT_VARIANT,
-        OPT_SHUTTER,
+        OPT_TIME,
+        OPT_FRAME,
         OPT_FPS,
+        OPT_ANIMATION,
+        OPT_SHUTTER,
         OPT_SERVER,
         OPT_PREFETCH,
         OPT_TOKEN,
@@ -200,8 +211,11 @@ int main(int argc, char **argv)
         {"background", required_argument, NULL, OPT_BACKGROUND},
         {"transparent", no_argument, NULL, OPT_TRANSPARENT},
         {"variant", required_argument, NULL, OPT_VARIANT},
-        {"shutter", required_argument, NULL, OPT_SHUTTER},
+        {"time", required_argument, NULL, OPT_TIME},
+        {"frame", required_argument, NULL, OPT_FRAME},
         {"fps", required_argument, NULL, OPT_FPS},
+        {"animation", required_argument, NULL, OPT_ANIMATION},
+        {"shutter", required_argument, NULL, OPT_SHUTTER},
         {"quiet", no_argument, NULL, 'q'},
         {"server", required_argument, NULL, OPT_SERVER},
         {"prefetch", required_argument, NULL, OPT_PREFETCH},
@@ -246,6 +260,22 @@ int main(int argc, char **argv)
         case OPT_VARIANT:
             o.variant = optarg;
             break;
+        case OPT_TIME:
+            bad = bad_value(pt_opt_double("--time", optarg, 0.0, 1e9, &anim_time, &err), &err);
+            has_time = 1;
+            break;
+        case OPT_FRAME:
+            bad = bad_value(pt_opt_double("--frame", optarg, 0.0, 1e9, &anim_frame, &err), &err);
+            has_frame = 1;
+            break;
+        case OPT_FPS:
+            bad = bad_value(pt_opt_positive("--fps", optarg, 1e6, &anim_fps, &err), &err);
+            has_fps = 1;
+            break;
+        case OPT_ANIMATION:
+            o.animation = optarg;
+            o.animate = 1;
+            break;
         case OPT_TILE:
             bad = bad_value(pt_opt_u32("--tile", optarg, 1, PT_TILE_MAX, &o.tile, &err), &err);
             break;
@@ -287,9 +317,7 @@ int main(int argc, char **argv)
             bad = bad_value(pt_opt_shutter("--shutter", optarg, o.shutter, &err), &err);
             o.has_shutter = 1;
             break;
-        case OPT_FPS:
-            bad = bad_value(pt_opt_positive("--fps", optarg, 1e6, &o.fps, &err), &err);
-            break;
+
         case 'q':
             o.quiet = 1;
             break;
@@ -382,6 +410,19 @@ int main(int argc, char **argv)
     if (o.env_path && o.has_background) {
         fprintf(stderr, "ptworker: --env and --background are two environments; give one\n");
         return 2;
+    }
+    if (has_time && has_frame) {
+        fprintf(stderr, "ptworker: --time and --frame both give the time; give one\n");
+        return 2;
+    }
+    if (has_fps && !has_frame && !o.has_shutter) {
+        fprintf(stderr, "ptworker: --fps needs --frame or --shutter\n");
+        return 2;
+    }
+    o.fps = anim_fps;
+    if (has_time || has_frame) {
+        o.animate = 1;
+        o.time = has_time ? anim_time : anim_frame / anim_fps;
     }
     if (o.min_spp == 0)
         o.min_spp = o.chunk > 1 ? o.chunk : 2;

@@ -101,10 +101,13 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
     pt_scene_opts so = {0};
     so.camera_name = o->camera;
     so.variant = o->variant;
+    so.animate = o->animate;
+    so.time = o->time;
+    so.animation = o->animation;
     if (o->has_shutter && (o->shutter[0] > 0.0 || o->shutter[1] > 0.0)) {
-        /* The frame at o->time, its shutter in seconds of animation; the
-         * still is the pose at the opening (a closed shutter, open ==
-         * close, is that still alone). */
+        /* The frame at o->time (0 without --time or --frame), its shutter in
+         * seconds of animation; the still is the pose at the opening (a
+         * closed shutter, open == close, is that still alone). */
         so.animate = 1;
         so.shutter_open = o->time + o->shutter[0] / o->fps;
         so.shutter_close = o->time + o->shutter[1] / o->fps;

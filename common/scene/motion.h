@@ -90,6 +90,18 @@ static inline pt_vec3 pt_motion_normal(const pt_motion *m, uint32_t v, uint32_t 
  * shutter. */
 pt_camera pt_motion_camera(const pt_motion *m, float t);
 
+typedef struct pt_anim pt_anim; /* common/scene/anim.h */
+
+/* Gives scene s (loaded by pt_anim_load with anim) motion blur over the
+ * shutter [t0, t1] (seconds of animation): s is posed at t0 (its still),
+ * then at time steps over the interval, as many as the motion's curvature
+ * needs (motion_anim.c: 2 to 17), and pt_scene_set_motion and the camera's
+ * poses make of them what moves. Nothing when t1 <= t0 or the rig cannot
+ * move. Errors as pt_anim_pose's and pt_scene_set_motion's. pt_scene_load
+ * calls it for pt_scene_opts.shutter_open and _close. */
+pt_status pt_motion_from_anim(pt_scene *s, const pt_anim *anim, double t0, double t1,
+                              pt_error *err);
+
 /* Frees m and all it owns. Accepts NULL. */
 void pt_motion_free(pt_motion *m);
 

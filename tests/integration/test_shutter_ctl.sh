@@ -20,7 +20,7 @@ fail() { echo "FAIL: $*" >&2; exit 1; }
 
 scene=$src/scenes/cornell_box.gltf
 view=(--res 48x32 --spp 16 --seed 5)
-shutter=(--shutter 0.25,0.75 --fps 30)
+shutter=(--shutter "0.25,0.75" --fps 30)
 "$bin/ptworker" --scene "$scene" "${view[@]}" "${shutter[@]}" --tile 16 --chunk 8 -q \
   -o "$tmp/ref.exr" 2> "$tmp/ref.log" || fail "ptworker --shutter: $(cat "$tmp/ref.log")"
 
@@ -32,7 +32,9 @@ expect_refusal() { # WHAT LOG PATTERN CMD...
   "$@" 2> "$log"
   local rc=$?
   set -e
-  [ $rc = 2 ] && grep -q -- "$pattern" "$log" || fail "$what: rc $rc: $(cat "$log")"
+  if [ $rc != 2 ] || ! grep -q -- "$pattern" "$log"; then
+    fail "$what: rc $rc: $(cat "$log")"
+  fi
 }
 for bad in 0.5 0.5,0.25 0,1.5 -0.1,0.5 a,b 0,0.5,1; do
   case $bad in
