@@ -4,6 +4,7 @@
 #include <string.h>
 
 #include "common/base/alloc.h"
+#include "common/base/frames.h"
 #include "common/base/version.h"
 
 const char *proto_build_id(void)
@@ -52,6 +53,8 @@ const char *proto_msg_type_name(uint32_t type)
         return "FETCH";
     case PROTO_MSG_UPLOAD:
         return "UPLOAD";
+    case PROTO_MSG_FETCH_FRAME:
+        return "FETCH_FRAME";
     case PROTO_MSG_SUBMITTED:
         return "SUBMITTED";
     case PROTO_MSG_JOB_LIST:
@@ -407,6 +410,11 @@ static const char *task_problem(const proto_task *m)
         return "sample range s0 >= s1";
     if (m->film_flags & ~PROTO_FILM_KNOWN)
         return "unknown film flags";
+    if (m->animate > 1)
+        return "animate flag not 0 or 1";
+    /* Written so that NaN fails too. */
+    if (!(m->time >= 0.0) || !isfinite(m->time) || (!m->animate && m->time != 0.0))
+        return "time not finite and >= 0 (0 for a still)";
     why = proto_shutter_problem(m->shutter);
     return why ? why : env_problem(&m->env);
 }
@@ -419,6 +427,8 @@ pt_status proto_msg_encode_task(proto_writer *w, const proto_task *m, pt_error *
         why = "camera name over the length cap";
     if (!why && !str_fits(m->variant, PROTO_MAX_NAME))
         why = "variant name over the length cap";
+    if (!why && !str_fits(m->animation, PROTO_MAX_NAME))
+        why = "animation name over the length cap";
     if (!why && !str_fits(m->env.name, PROTO_MAX_PATH))
         why = "environment map name over the length cap";
     if (why)
@@ -439,6 +449,9 @@ pt_status proto_msg_encode_task(proto_writer *w, const proto_task *m, pt_error *
     w_env(w, &m->env);
     proto_w_u32(w, m->film_flags);
     proto_w_str(w, m->variant);
+    proto_w_u8(w, m->animate);
+    proto_w_f64(w, m->time);
+    proto_w_str(w, m->animation);
     proto_w_f64(w, m->shutter[0]);
     proto_w_f64(w, m->shutter[1]);
     return w_done(w, start, "TASK", err);
@@ -464,6 +477,9 @@ pt_status proto_msg_decode_task(const uint8_t *p, size_t len, proto_task *out, p
     r_env(&r, &m.env);
     m.film_flags = proto_r_u32(&r, "film flags");
     proto_r_str(&r, m.variant, PROTO_MAX_NAME, "variant");
+    m.animate = proto_r_u8(&r, "animate");
+    m.time = proto_r_f64(&r, "time");
+    proto_r_str(&r, m.animation, PROTO_MAX_NAME, "animation");
     m.shutter[0] = proto_r_f64(&r, "shutter open");
     m.shutter[1] = proto_r_f64(&r, "shutter close");
     pt_status st = proto_r_finish(&r, "TASK", err);
@@ -758,6 +774,30 @@ pt_status proto_msg_decode_job_ref(const uint8_t *p, size_t len, proto_job_ref *
     return PT_OK;
 }
 
+/* ---- FETCH_FRAME ---- */
+
+pt_status proto_msg_encode_fetch_frame(proto_writer *w, const proto_fetch_frame *m, pt_error *err)
+{
+    size_t start = w->len;
+    proto_w_u64(w, m->job_id);
+    proto_w_u32(w, m->frame);
+    return w_done(w, start, "FETCH_FRAME", err);
+}
+
+pt_status proto_msg_decode_fetch_frame(const uint8_t *p, size_t len, proto_fetch_frame *out,
+                                       pt_error *err)
+{
+    proto_reader r = proto_reader_make(p, len);
+    proto_fetch_frame m;
+    m.job_id = proto_r_u64(&r, "job id");
+    m.frame = proto_r_u32(&r, "frame");
+    pt_status st = proto_r_finish(&r, "FETCH_FRAME", err);
+    if (st != PT_OK)
+        return st;
+    *out = m;
+    return PT_OK;
+}
+
 /* ---- SUBMIT ---- */
 
 static const char *submit_problem(const proto_submit *m)
@@ -775,6 +815,12 @@ static const char *submit_problem(const proto_submit *m)
         return "bundle size is 0";
     if (m->film_flags & ~PROTO_FILM_KNOWN)
         return "unknown film flags";
+    pt_frames fr = {m->frame_first, m->frame_last, m->frame_step};
+    if (pt_frames_check(&fr, NULL) != PT_OK)
+        return "bad frame range";
+    if (fr.step ? !(m->fps > 0.0) || !isfinite(m->fps) : m->fps != 0.0 || m->animation[0])
+        return "frames per second not finite and > 0 for a range (0 and no animation for a "
+               "still)";
     const char *why = proto_shutter_problem(m->shutter);
     return why ? why : env_problem(&m->env);
 }
@@ -782,12 +828,13 @@ static const char *submit_problem(const proto_submit *m)
 pt_status proto_msg_encode_submit(proto_writer *w, const proto_submit *m, pt_error *err)
 {
     size_t start = w->len;
-    const char *why = !str_fits(m->name, PROTO_MAX_NAME)      ? "name over the length cap"
-                      : !str_fits(m->camera, PROTO_MAX_NAME)  ? "camera name over the length cap"
-                      : !str_fits(m->variant, PROTO_MAX_NAME) ? "variant name over the length cap"
-                      : !str_fits(m->env.name, PROTO_MAX_PATH)
-                          ? "environment map name over the length cap"
-                          : submit_problem(m);
+    const char *why =
+        !str_fits(m->name, PROTO_MAX_NAME)        ? "name over the length cap"
+        : !str_fits(m->camera, PROTO_MAX_NAME)    ? "camera name over the length cap"
+        : !str_fits(m->variant, PROTO_MAX_NAME)   ? "variant name over the length cap"
+        : !str_fits(m->animation, PROTO_MAX_NAME) ? "animation name over the length cap"
+        : !str_fits(m->env.name, PROTO_MAX_PATH)  ? "environment map name over the length cap"
+                                                  : submit_problem(m);
     if (why)
         return bad(err, PT_ERR_ARG, "SUBMIT", why);
     proto_w_str(w, m->name);
@@ -806,6 +853,11 @@ pt_status proto_msg_encode_submit(proto_writer *w, const proto_submit *m, pt_err
     w_env(w, &m->env);
     proto_w_u32(w, m->film_flags);
     proto_w_str(w, m->variant);
+    proto_w_u32(w, m->frame_first);
+    proto_w_u32(w, m->frame_last);
+    proto_w_u32(w, m->frame_step);
+    proto_w_f64(w, m->fps);
+    proto_w_str(w, m->animation);
     proto_w_f64(w, m->shutter[0]);
     proto_w_f64(w, m->shutter[1]);
     return w_done(w, start, "SUBMIT", err);
@@ -831,6 +883,11 @@ pt_status proto_msg_decode_submit(const uint8_t *p, size_t len, proto_submit *ou
     r_env(&r, &m.env);
     m.film_flags = proto_r_u32(&r, "film flags");
     proto_r_str(&r, m.variant, PROTO_MAX_NAME, "variant");
+    m.frame_first = proto_r_u32(&r, "first frame");
+    m.frame_last = proto_r_u32(&r, "last frame");
+    m.frame_step = proto_r_u32(&r, "frame step");
+    m.fps = proto_r_f64(&r, "frames per second");
+    proto_r_str(&r, m.animation, PROTO_MAX_NAME, "animation");
     m.shutter[0] = proto_r_f64(&r, "shutter open");
     m.shutter[1] = proto_r_f64(&r, "shutter close");
     pt_status st = proto_r_finish(&r, "SUBMIT", err);
@@ -848,7 +905,7 @@ pt_status proto_msg_decode_submit(const uint8_t *p, size_t len, proto_submit *ou
 
 /* Bytes of a JOB_INFO with every string empty: the least an entry of
  * JOB_LIST can take, so a count is checked against the bytes present. */
-#define JOB_INFO_FIXED 115u
+#define JOB_INFO_FIXED 136u
 
 static const char *job_info_problem(const proto_job_info *m)
 {
@@ -862,6 +919,8 @@ static const char *job_info_problem(const proto_job_info *m)
         return "output over the length cap";
     if (!str_fits(m->message, PROTO_MAX_ERROR_TEXT))
         return "message over the length cap";
+    if (m->nshown > PROTO_MAX_FRAMES_SHOWN)
+        return "frames listed over the cap";
     return NULL;
 }
 
@@ -891,6 +950,17 @@ static void w_job_info(proto_writer *w, const proto_job_info *m)
     proto_w_u32(w, m->queue_pos);
     proto_w_str(w, m->message);
     proto_w_u64(w, m->capped);
+    proto_w_u32(w, m->frame_first);
+    proto_w_u32(w, m->frame_last);
+    proto_w_u32(w, m->frame_step);
+    proto_w_u32(w, m->frames_done);
+    proto_w_u32(w, m->frames_rendering);
+    proto_w_u8(w, m->nshown);
+    for (uint32_t i = 0; i < m->nshown; i++) {
+        proto_w_u32(w, m->shown[i].frame);
+        proto_w_u64(w, m->shown[i].samples_done);
+        proto_w_u64(w, m->shown[i].samples_total);
+    }
 }
 
 /* Reads one JOB_INFO into m (which may be left half-filled on failure). */
@@ -920,6 +990,19 @@ static void r_job_info(proto_reader *r, proto_job_info *m)
     m->queue_pos = proto_r_u32(r, "queue position");
     proto_r_str(r, m->message, PROTO_MAX_ERROR_TEXT, "message");
     m->capped = proto_r_u64(r, "paths capped");
+    m->frame_first = proto_r_u32(r, "first frame");
+    m->frame_last = proto_r_u32(r, "last frame");
+    m->frame_step = proto_r_u32(r, "frame step");
+    m->frames_done = proto_r_u32(r, "frames done");
+    m->frames_rendering = proto_r_u32(r, "frames rendering");
+    m->nshown = proto_r_u8(r, "frames listed");
+    if (r->status == PT_OK && m->nshown > PROTO_MAX_FRAMES_SHOWN)
+        proto_r_fail(r, PT_ERR_PROTO, "over the cap:", "frames listed");
+    for (uint32_t i = 0; i < m->nshown && r->status == PT_OK; i++) {
+        m->shown[i].frame = proto_r_u32(r, "frame");
+        m->shown[i].samples_done = proto_r_u64(r, "frame samples merged");
+        m->shown[i].samples_total = proto_r_u64(r, "frame samples total");
+    }
 }
 
 pt_status proto_msg_encode_job_info(proto_writer *w, const proto_job_info *m, pt_error *err)

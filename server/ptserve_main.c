@@ -21,9 +21,10 @@ static void usage(FILE *f)
         f,
         "usage: ptserve [options] -o OUT.exr SCENE\n"
         "       ptserve --local N [options] -o OUT.exr SCENE\n"
+        "       ptserve --local N --frames A-B[:STEP] [options] -o SHOT.####.exr SCENE\n"
         "       ptserve --state-dir DIR [--output-dir DIR] [options]\n"
         "\n"
-        "Coordinates a ptfarm render: splits each image into tiles x sample chunks,\n"
+        "Coordinates a ptfarm render: splits each image into tiles x sample ranges,\n"
         "leases them to ptworker processes, merges their results in a fixed order (the\n"
         "image does not depend on how the work was split) and writes progressive\n"
         "OpenEXR images (R, G, B, samples, variance) plus a PNG preview.\n"
@@ -49,7 +50,8 @@ static void usage(FILE *f)
         "                         token (--token-file, required with this) is the admin's\n"
         "                         and the workers'. Without it every client is an admin\n"
         "                         (docs/OPERATIONS.md, \"Clients and admins\")\n"
-        "  (--tile, --chunk and --max-depth set the defaults of submitted jobs; a\n"
+        "  (--tile, --chunk and --max-depth set the defaults of submitted jobs, and\n"
+        "  --task-time sizes every job's tasks; a\n"
         "  job's --env or --background is given to ptctl submit, and its map is\n"
         "  uploaded with the scene and checked before the job is queued)\n"
         "\n"
@@ -98,13 +100,28 @@ static void usage(FILE *f)
         "  --variant NAME         the KHR_materials_variants variant: mapped primitives\n"
         "                         take its material; one-job mode (queued jobs: ptctl\n"
         "                         submit --variant)\n"
+        "  --frames A-B[:STEP]    render the frames A, A+STEP, ... B of the scene's\n"
+        "                         animation as one job (at most 100000 frames, numbers\n"
+        "                         0 to 999999): -o must have a '#' run, replaced by the\n"
+        "                         zero-padded frame number (shot.####.exr: frame 7 is\n"
+        "                         shot.0007.exr); early frames finish first; each frame\n"
+        "                         is the same image as ptworker --scene ... --frame F\n"
+        "  --animation NAME|INDEX the animation played (default: all of them, as\n"
+        "                         viewers do); one-job mode (queued jobs: ptctl submit)\n"
         "  --shutter O,C          motion blur: the shutter opens and closes at these\n"
         "                         fractions of a frame (0,0.5: 180 degrees; default off);\n"
         "                         what the scene's animation moves then blurs; one-job\n"
         "                         mode (queued jobs: ptctl submit --shutter)\n"
-        "  --fps R                frames per second for --shutter (default 24)\n"
+        "  --fps R                frames per second of --frames and --shutter: frame F\n"
+        "                         is at F / R seconds (default 24)\n"
         "  --tile N               tile side in pixels (default 32)\n"
-        "  --chunk N              samples per task (default 16)\n"
+        "  --task-time MS         size each task's samples so that it takes about MS\n"
+        "                         on the worker that asks, from that worker's measured\n"
+        "                         speed (default 2000): 16 samples first, then at most\n"
+        "                         doubling a tile's samples, smaller again near the end\n"
+        "  --chunk N              fixed tasks of N samples instead of --task-time; also\n"
+        "                         the step at which adaptive sampling judges a tile\n"
+        "                         (default 16), which an adaptive job's tasks never cross\n"
         "  --save-interval SEC    progressive saves at most this often (default 5)\n"
         "  --lease-timeout SEC    requeue a task whose worker is silent this long (default 20);\n"
         "                         also the shortest hard deadline of a lease\n"
@@ -154,6 +171,8 @@ int main(int argc, char **argv)
     c.job.spp = 64;
     c.job.tile = 32;
     c.job.chunk = 16;
+    c.task_ms = SRV_DEFAULT_TASK_MS;
+    int has_chunk = 0, has_task_time = 0;
     c.job.max_depth = PT_RENDER_DEFAULT_MAX_DEPTH;
     c.job.rr_depth = 3;
     c.save_interval = 5.0;
@@ -193,6 +212,9 @@ int main(int argc, char **argv)
         O_MAXQUEUED,
         O_CAMERA,
         O_VARIANT,
+        O_FRAMES,
+        O_FPS,
+        O_ANIMATION,
         O_MINGAIN,
         O_CLIENTS,
         O_MAXINPUT,
@@ -208,8 +230,8 @@ int main(int argc, char **argv)
         O_HTTP,
         O_HTTPPORT,
         O_TRANSPARENT,
-        O_SHUTTER,
-        O_FPS
+        O_TASKTIME,
+        O_SHUTTER
     };
     static const struct option opts[] = {
         {"output", required_argument, NULL, 'o'},
@@ -223,9 +245,13 @@ int main(int argc, char **argv)
         {"seed", required_argument, NULL, O_SEED},
         {"camera", required_argument, NULL, O_CAMERA},
         {"variant", required_argument, NULL, O_VARIANT},
+        {"frames", required_argument, NULL, O_FRAMES},
+        {"fps", required_argument, NULL, O_FPS},
+        {"animation", required_argument, NULL, O_ANIMATION},
         {"max-depth", required_argument, NULL, O_DEPTH},
         {"tile", required_argument, NULL, O_TILE},
         {"chunk", required_argument, NULL, O_CHUNK},
+        {"task-time", required_argument, NULL, O_TASKTIME},
         {"save-interval", required_argument, NULL, O_SAVE},
         {"lease-timeout", required_argument, NULL, O_LEASE},
         {"port-file", required_argument, NULL, O_PORTFILE},
@@ -236,7 +262,6 @@ int main(int argc, char **argv)
         {"min-spp", required_argument, NULL, O_MINSPP},
         {"transparent", no_argument, NULL, O_TRANSPARENT},
         {"shutter", required_argument, NULL, O_SHUTTER},
-        {"fps", required_argument, NULL, O_FPS},
         {"worker-bin", required_argument, NULL, O_WBIN},
         {"state-dir", required_argument, NULL, O_STATE},
         {"output-dir", required_argument, NULL, O_OUTDIR},
@@ -262,7 +287,7 @@ int main(int argc, char **argv)
         {NULL, 0, NULL, 0},
     };
     pt_error err = {0};
-    double shutter[2] = {0.0, 0.0}, fps = 24.0;
+    double shutter[2] = {0.0, 0.0};
     int has_shutter = 0;
     int ch;
     while ((ch = getopt_long(argc, argv, "o:qh", opts, NULL)) != -1) {
@@ -303,6 +328,20 @@ int main(int argc, char **argv)
             }
             snprintf(c.job.camera, sizeof c.job.camera, "%s", optarg);
             break;
+        case O_FRAMES:
+            st = pt_frames_parse("--frames", optarg, &c.frames, &err);
+            break;
+        case O_FPS:
+            st = pt_opt_positive("--fps", optarg, 1e6, &c.fps, &err);
+            break;
+        case O_ANIMATION:
+            if (!optarg[0] || strlen(optarg) > PROTO_MAX_NAME) {
+                fprintf(stderr, "ptserve: --animation: a name or index of 1 to %u bytes\n",
+                        PROTO_MAX_NAME);
+                return 2;
+            }
+            c.animation = optarg;
+            break;
         case O_VARIANT:
             if (!optarg[0] || strlen(optarg) > PROTO_MAX_NAME) {
                 fprintf(stderr, "ptserve: --variant: a name of 1 to %u bytes\n", PROTO_MAX_NAME);
@@ -318,6 +357,11 @@ int main(int argc, char **argv)
             break;
         case O_CHUNK:
             st = pt_opt_u32("--chunk", optarg, 1, 1u << 24, &c.job.chunk, &err);
+            has_chunk = 1;
+            break;
+        case O_TASKTIME:
+            st = pt_opt_u32("--task-time", optarg, 1, 3600000, &c.task_ms, &err);
+            has_task_time = 1;
             break;
         case O_SAVE:
             st = pt_opt_seconds("--save-interval", optarg, 0, 86400, &c.save_interval, &err);
@@ -349,9 +393,6 @@ int main(int argc, char **argv)
         case O_SHUTTER:
             st = pt_opt_shutter("--shutter", optarg, shutter, &err);
             has_shutter = 1;
-            break;
-        case O_FPS:
-            st = pt_opt_positive("--fps", optarg, 1e6, &fps, &err);
             break;
         case O_WBIN:
             c.worker_bin = optarg;
@@ -475,9 +516,36 @@ int main(int argc, char **argv)
                         "with ptctl submit --shutter\n");
         return 2;
     }
-    /* The job carries seconds after the frame's time (SHUTTER, protocol/msg.h). */
-    c.job.shutter[0] = shutter[0] / fps;
-    c.job.shutter[1] = shutter[1] / fps;
+    if (c.state_dir && (c.frames.step || c.fps > 0 || c.animation)) {
+        fprintf(stderr, "ptserve: --frames, --fps and --animation are for one-job mode; a queued "
+                        "job asks for them with ptctl submit --frames\n");
+        return 2;
+    }
+    if (!c.frames.step && c.animation) {
+        fprintf(stderr, "ptserve: --animation poses the frames of --frames A-B[:STEP]; "
+                        "give --frames\n");
+        return 2;
+    }
+    if (!c.frames.step && !has_shutter && c.fps > 0) {
+        fprintf(stderr, "ptserve: --fps is the frame rate of --frames A-B[:STEP] and --shutter; "
+                        "give --frames or --shutter\n");
+        return 2;
+    }
+    if (c.frames.step && !pt_frames_has_pattern(c.out_path)) {
+        fprintf(stderr,
+                "ptserve: -o %s: a frame range needs a '#' run in the output name for "
+                "the frame number (e.g. -o shot.####.exr: frame 7 is shot.0007.exr)\n",
+                c.out_path);
+        return 2;
+    }
+    /* One frame rate serves both: the shutter's fractions of a frame become seconds
+     * after the frame's time (SHUTTER, protocol/msg.h) by the same R that times the
+     * frames. c.fps stays 0 for a still so the job keeps a still's parameters. */
+    double rate = c.fps > 0 ? c.fps : PT_FRAMES_DEFAULT_FPS;
+    c.job.shutter[0] = shutter[0] / rate;
+    c.job.shutter[1] = shutter[1] / rate;
+    if (c.frames.step && c.fps == 0)
+        c.fps = PT_FRAMES_DEFAULT_FPS;
     if (c.state_dir && c.job.variant[0]) {
         fprintf(stderr, "ptserve: --variant is for one-job mode; a queued job asks for it "
                         "with ptctl submit --variant\n");
@@ -493,6 +561,13 @@ int main(int argc, char **argv)
                         "one\n");
         return 2;
     }
+    if (has_chunk && has_task_time) {
+        fprintf(stderr, "ptserve: --chunk gives fixed tasks and --task-time sizes them by "
+                        "time; give one\n");
+        return 2;
+    }
+    if (has_chunk)
+        c.task_ms = 0;
     if (lease < 0.1) {
         fprintf(stderr, "ptserve: --lease-timeout must be at least 0.1 s\n");
         return 2;

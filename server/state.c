@@ -21,7 +21,7 @@
 #define QUEUE_MAGIC 0x31515450u /* "PTQ1" */
 #define CKPT_MAGIC 0x4b435450u  /* "PTCK" */
 #define LOG_MAGIC 0x4c525450u   /* "PTRL" */
-#define STATE_VERSION 5u
+#define STATE_VERSION 7u
 /* The oldest format still read: version 2 has no min gain (read as 0, the
  * rule off), versions 2 and 3 no environment and no film flags (read as
  * none) and protocol 2's RESULT in the log, so a state folder survives the
@@ -37,8 +37,11 @@
 /* The first with protocol 4's RESULT (fixed-point sums) in the log; an older
  * log's double sums are converted as it is read (log_upgrade_fixed). */
 #define STATE_FIXED_VERSION 5u
+/* The first with a frame-range job's range, pose and frames done in its
+ * queue record (older records are stills). */
+#define STATE_FRAMES_VERSION 6u
 /* The first with motion blur's shutter in the job params (older: none). */
-#define STATE_SHUTTER_VERSION 5u
+#define STATE_SHUTTER_VERSION 7u
 #define LOG_HEADER 16u
 #define MAX_QUEUE_BYTES (256u << 20)
 #define MAX_CKPT_BYTES ((size_t)8 << 30)
@@ -236,6 +239,15 @@ pt_status srv_state_save_queue(srv_state *st, srv_job_record *const *recs, uint3
         proto_w_f64(&w, j->error);
         proto_w_str(&w, j->message);
         proto_w_u64(&w, j->capped);
+        proto_w_u32(&w, j->frames.first);
+        proto_w_u32(&w, j->frames.last);
+        proto_w_u32(&w, j->frames.step);
+        proto_w_f64(&w, j->fps);
+        proto_w_str(&w, j->animation);
+        proto_w_u32(&w, j->frames_done);
+        proto_w_u8(&w, (uint8_t)j->ndone_ahead);
+        for (uint32_t k = 0; k < j->ndone_ahead; k++)
+            proto_w_u32(&w, j->done_ahead[k]);
     }
     pt_status s = end_file(&w, path, err);
     proto_writer_fini(&w);
@@ -246,6 +258,32 @@ pt_status srv_state_save_queue(srv_state *st, srv_job_record *const *recs, uint3
 int srv_state_queue_unsaved(const srv_state *st)
 {
     return st->queue_unsaved;
+}
+
+/* A record's frame range, pose and frames done; what does not check out
+ * fails r. */
+static void read_frames(proto_reader *r, srv_job_record *j)
+{
+    j->frames.first = proto_r_u32(r, "first frame");
+    j->frames.last = proto_r_u32(r, "last frame");
+    j->frames.step = proto_r_u32(r, "frame step");
+    j->fps = proto_r_f64(r, "frames per second");
+    proto_r_str(r, j->animation, sizeof j->animation - 1, "animation");
+    j->frames_done = proto_r_u32(r, "frames done");
+    j->ndone_ahead = proto_r_u8(r, "frames done ahead");
+    if (r->status != PT_OK)
+        return;
+    uint32_t count = pt_frames_count(&j->frames);
+    if (pt_frames_check(&j->frames, NULL) != PT_OK || j->frames_done > count ||
+        j->ndone_ahead > SRV_FRAMES_AHEAD || (j->frames.step && !(j->fps > 0.0 && j->fps < 1e9))) {
+        proto_r_fail(r, PT_ERR_FORMAT, "bad", "frame range or frames done");
+        return;
+    }
+    for (uint32_t k = 0; k < j->ndone_ahead && r->status == PT_OK; k++) {
+        j->done_ahead[k] = proto_r_u32(r, "frame done ahead");
+        if (r->status == PT_OK && (j->done_ahead[k] <= j->frames_done || j->done_ahead[k] >= count))
+            proto_r_fail(r, PT_ERR_FORMAT, "bad", "frame done ahead");
+    }
 }
 
 pt_status srv_state_load_queue(srv_state *st, srv_job_record **recs, uint32_t *n, uint64_t *next_id,
@@ -303,6 +341,8 @@ pt_status srv_state_load_queue(srv_state *st, srv_job_record **recs, uint32_t *n
         j->error = proto_r_f64(&r, "error");
         proto_r_str(&r, j->message, sizeof j->message - 1, "message");
         j->capped = version >= STATE_FILM_VERSION ? proto_r_u64(&r, "paths capped") : 0;
+        if (version >= STATE_FRAMES_VERSION)
+            read_frames(&r, j);
         if (r.status == PT_OK && (j->id == 0 || j->id >= nid || j->state < PROTO_JOB_QUEUED ||
                                   j->state > PROTO_JOB_FAILED))
             proto_r_fail(&r, PT_ERR_FORMAT, "bad", "job id or state");
@@ -394,7 +434,11 @@ static pt_status open_log(srv_state *st, uint64_t id, log_file **out, pt_error *
         st->logs_cap = cap;
     }
     char p[PATH_MAX];
-    job_path(st, id, "results.log", p, sizeof p);
+    /* The folder is made here too: a frame of a frame-range job has no
+     * bundle of its own, so its first file may be its log. */
+    pt_status ms = job_file(st, id, "results.log", p, sizeof p, err);
+    if (ms != PT_OK)
+        return ms;
     int fd = open(p, O_WRONLY | O_CREAT | O_APPEND | O_NOFOLLOW | O_CLOEXEC, 0600);
     if (fd < 0)
         return pt_error_errno(err, PT_ERR_IO, "%s", p);

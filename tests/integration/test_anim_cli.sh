@@ -20,7 +20,7 @@ trap cleanup EXIT
 failed=1
 fail() { echo "FAIL: $*" >&2; exit 1; }
 
-view=(--res 40x30 --spp 8 --seed 5 --threads 2 -q --background 1,1,1)
+view=(--res 40x30 --spp 8 --seed 5 --threads 2 -q --background "1,1,1")
 "$bin/ptworker" --scene "$box" "${view[@]}" --time 1.5 -o "$tmp/time.exr"
 "$bin/ptworker" --scene "$box" "${view[@]}" --frame 36 --fps 24 -o "$tmp/frame.exr"
 "$bin/ptworker" --scene "$box" "${view[@]}" --frame 36 -o "$tmp/frame24.exr"

@@ -72,6 +72,10 @@ static inline proto_task sample_task(int v)
     }
     m.film_flags = v ? PROTO_FILM_TRANSPARENT : 0;
     strcpy(m.variant, v ? "" : "Peacock Velvet");
+    /* v 1: a frame of an animation. */
+    m.animate = v ? 1 : 0;
+    m.time = v ? 41.0 / 24.0 : 0.0;
+    strcpy(m.animation, v ? "Walk" : "");
     /* v 0: a 180-degree shutter at 24 frames per second; v 1: off. */
     m.shutter[0] = 0.0;
     m.shutter[1] = v ? 0.0 : 0.5 / 24.0;
@@ -142,6 +146,14 @@ static inline proto_submit sample_submit(int v)
     }
     m.film_flags = v ? PROTO_FILM_TRANSPARENT : 0;
     strcpy(m.variant, v ? "" : "Mango Velvet");
+    /* v 0: a frame range. */
+    if (!v) {
+        m.frame_first = 1;
+        m.frame_last = 240;
+        m.frame_step = 2;
+        m.fps = 23.976;
+        strcpy(m.animation, "Survey");
+    }
     m.shutter[0] = v ? 0.25 / 30.0 : 0.0;
     m.shutter[1] = v ? 0.75 / 30.0 : 0.0;
     return m;
@@ -183,6 +195,19 @@ static inline proto_job_info sample_job_info(int v)
     m.submitted = v == 0 ? 1700000000u : UINT64_MAX;
     m.queue_pos = v == 1 ? 2 : 0;
     m.capped = v == 0 ? 12 : v == 2 ? UINT64_MAX : 0;
+    if (v == 0) { /* a frame range, two frames rendering */
+        m.frame_first = 1001;
+        m.frame_last = 1100;
+        m.frame_step = 1;
+        m.frames_done = 12;
+        m.frames_rendering = 2;
+        m.nshown = 2;
+        m.shown[0].frame = 1013;
+        m.shown[0].samples_done = 5000;
+        m.shown[0].samples_total = 8000;
+        m.shown[1].frame = 1014;
+        m.shown[1].samples_total = UINT64_MAX;
+    }
     return m;
 }
 

@@ -41,6 +41,7 @@ static pt_status decode_any(uint16_t type, const uint8_t *p, size_t len, pt_erro
         proto_result result;
         proto_heartbeat hb;
         proto_job_ref ref;
+        proto_fetch_frame fetch_frame;
         proto_submit submit;
         proto_job_info info;
         proto_job_list list;
@@ -92,6 +93,9 @@ static pt_status decode_any(uint16_t type, const uint8_t *p, size_t len, pt_erro
     case PROTO_MSG_JOB_END:
         st = proto_msg_decode_job_ref(p, len, &u.ref, err);
         break;
+    case PROTO_MSG_FETCH_FRAME:
+        st = proto_msg_decode_fetch_frame(p, len, &u.fetch_frame, err);
+        break;
     case PROTO_MSG_UPLOAD:
     case PROTO_MSG_IMAGE:
         st = proto_msg_decode_scene_chunk(p, len, &u.chunk, err);
@@ -123,6 +127,16 @@ static int acc_same(const pt_pixel_acc *a, const pt_pixel_acc *b)
     return a->fsum_sq == b->fsum_sq && a->n == b->n && a->hits == b->hits;
 }
 
+static int shown_same(const proto_job_info *a, const proto_job_info *b)
+{
+    for (uint32_t i = 0; i < a->nshown && i < PROTO_MAX_FRAMES_SHOWN; i++)
+        if (a->shown[i].frame != b->shown[i].frame ||
+            a->shown[i].samples_done != b->shown[i].samples_done ||
+            a->shown[i].samples_total != b->shown[i].samples_total)
+            return 0;
+    return 1;
+}
+
 static int job_info_same(const proto_job_info *a, const proto_job_info *b)
 {
     return a->job_id == b->job_id && a->state == b->state && a->priority == b->priority &&
@@ -136,13 +150,16 @@ static int job_info_same(const proto_job_info *a, const proto_job_info *b)
            proto_f64_bits(a->rate) == proto_f64_bits(b->rate) &&
            proto_f64_bits(a->error) == proto_f64_bits(b->error) && a->submitted == b->submitted &&
            a->queue_pos == b->queue_pos && strcmp(a->message, b->message) == 0 &&
-           a->capped == b->capped;
+           a->capped == b->capped && a->frame_first == b->frame_first &&
+           a->frame_last == b->frame_last && a->frame_step == b->frame_step &&
+           a->frames_done == b->frames_done && a->frames_rendering == b->frames_rendering &&
+           a->nshown == b->nshown && shown_same(a, b);
 }
 
 static size_t job_info_size(const proto_job_info *m)
 {
-    return 115 + strlen(m->name) + strlen(m->owner) + strlen(m->scene) + strlen(m->output) +
-           strlen(m->message);
+    return 136 + strlen(m->name) + strlen(m->owner) + strlen(m->scene) + strlen(m->output) +
+           strlen(m->message) + 20u * m->nshown;
 }
 
 static void check_round_trip(int s, int v, const uint8_t *p, size_t len)
@@ -195,8 +212,11 @@ static void check_round_trip(int s, int v, const uint8_t *p, size_t len)
     }
     case 6: {
         proto_task a = sample_task(v), b;
-        CHECK(len == 139 + strlen(a.camera) + strlen(a.env.name) + strlen(a.variant) &&
+        CHECK(len == 150 + strlen(a.camera) + strlen(a.env.name) + strlen(a.variant) +
+                         strlen(a.animation) &&
               proto_msg_decode_task(p, len, &b, &err) == PT_OK);
+        CHECK(a.animate == b.animate && proto_f64_bits(a.time) == proto_f64_bits(b.time) &&
+              strcmp(a.animation, b.animation) == 0);
         CHECK(strcmp(a.camera, b.camera) == 0 && a.film_flags == b.film_flags);
         CHECK(memcmp(a.shutter, b.shutter, sizeof a.shutter) == 0);
         CHECK(strcmp(a.variant, b.variant) == 0);
@@ -269,8 +289,11 @@ static void check_round_trip(int s, int v, const uint8_t *p, size_t len)
     case 12: {
         proto_submit a = sample_submit(v), b;
         CHECK(proto_msg_decode_submit(p, len, &b, &err) == PT_OK);
-        CHECK(len ==
-              131 + strlen(a.name) + strlen(a.camera) + strlen(a.env.name) + strlen(a.variant));
+        CHECK(len == 153 + strlen(a.name) + strlen(a.camera) + strlen(a.env.name) +
+                         strlen(a.variant) + strlen(a.animation));
+        CHECK(a.frame_first == b.frame_first && a.frame_last == b.frame_last &&
+              a.frame_step == b.frame_step && proto_f64_bits(a.fps) == proto_f64_bits(b.fps) &&
+              strcmp(a.animation, b.animation) == 0);
         CHECK(strcmp(a.camera, b.camera) == 0 && a.film_flags == b.film_flags);
         CHECK(memcmp(a.shutter, b.shutter, sizeof a.shutter) == 0);
         CHECK(strcmp(a.variant, b.variant) == 0);
@@ -463,12 +486,18 @@ static proto_writer task_raw(pt_rect t, uint32_t s0, uint32_t s1, uint32_t width
     proto_w_u32(&w, 1000);
     proto_w_u16(&w, 0); /* camera: "" */
     w_env_none(&w);
-    proto_w_u32(&w, 0);   /* film flags */
-    proto_w_u16(&w, 0);   /* variant: "" */
+    proto_w_u32(&w, 0); /* film flags */
+    proto_w_u16(&w, 0); /* variant: "" */
+    proto_w_u8(&w, 0);  /* animate: a still */
+    proto_w_f64(&w, 0.0);
+    proto_w_u16(&w, 0);   /* animation: "" */
     proto_w_f64(&w, 0.0); /* shutter: off */
     proto_w_f64(&w, 0.0);
     return w;
 }
+
+/* Bytes of a TASK's pose, its last fields: animate, time, animation. */
+#define POSE_TAIL(t) (1 + 8 + 2 + strlen((t).animation))
 
 static pt_status task_check(pt_rect t, uint32_t s0, uint32_t s1, uint32_t width, uint32_t height,
                             const char *want, pt_error *err)
@@ -532,9 +561,9 @@ static void test_task(void)
         proto_task good = sample_task(k & 1);
         CHECK(proto_msg_encode_task(&ew, &good, &err) == PT_OK);
         /* Patch the bad value into the good bytes: the ENV block, then the
-         * film flags, the variant and the shutter, end the message. */
-        uint8_t *env_at =
-            ew.buf + ew.len - 16 - 2 - strlen(good.variant) - 4 - 23 - strlen(good.env.name);
+         * film flags, the variant, the pose and the shutter end the message. */
+        uint8_t *env_at = ew.buf + ew.len - 16 - POSE_TAIL(good) - 2 - strlen(good.variant) - 4 -
+                          23 - strlen(good.env.name);
         if (k == 0)
             proto_put_u32(env_at + 19, 0x7FC00000u); /* rgb[2], the name empty */
         else if (k == 1)
@@ -560,7 +589,8 @@ static void test_task(void)
           strcmp(back.camera, t.camera) == 0);
     proto_writer_reset(&w);
     proto_writer raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
-    raw.len -= 2 + 23 + 4 + 2 + 16; /* the empty camera, ENV, film flags, variant, shutter */
+    raw.len -= 2 + 23 + 4 + 2 + 11 + 16; /* the empty camera, ENV, film flags, variant, pose,
+                                            shutter */
     proto_w_u16(&raw, PROTO_MAX_NAME + 1);
     for (uint32_t i = 0; i <= PROTO_MAX_NAME; i++)
         proto_w_u8(&raw, 'c');
@@ -583,7 +613,7 @@ static void test_task(void)
     proto_writer_reset(&w);
     CHECK(proto_msg_encode_task(&w, &t, &err) == PT_ERR_ARG && w.len == 0);
     raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
-    proto_put_u32(raw.buf + raw.len - 16 - 6, 0x80000000u);
+    proto_put_u32(raw.buf + raw.len - 16 - 11 - 6, 0x80000000u);
     CHECK(decode_any(PROTO_MSG_TASK, raw.buf, raw.len, &err) == PT_ERR_PROTO &&
           strstr(err.msg, "film flags"));
     proto_writer_fini(&raw);
@@ -600,7 +630,7 @@ static void test_task(void)
     CHECK(proto_msg_decode_task(w.buf, w.len, &back, &err) == PT_OK &&
           strcmp(back.variant, t.variant) == 0);
     raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
-    raw.len -= 2 + 16;
+    raw.len -= 2 + 11 + 16; /* the empty variant, the still's pose and the shutter */
     proto_w_u16(&raw, PROTO_MAX_NAME + 1);
     for (uint32_t i = 0; i <= PROTO_MAX_NAME; i++)
         proto_w_u8(&raw, 'v');
@@ -980,6 +1010,12 @@ static pt_status submit_check(const proto_submit *m, const char *want)
     proto_w_u32(&w, m->film_flags);
     proto_w_u16(&w, (uint16_t)strnlen(m->variant, sizeof m->variant));
     proto_w_bytes(&w, m->variant, strnlen(m->variant, sizeof m->variant));
+    proto_w_u32(&w, m->frame_first);
+    proto_w_u32(&w, m->frame_last);
+    proto_w_u32(&w, m->frame_step);
+    proto_w_f64(&w, m->fps);
+    proto_w_u16(&w, (uint16_t)strnlen(m->animation, sizeof m->animation));
+    proto_w_bytes(&w, m->animation, strnlen(m->animation, sizeof m->animation));
     proto_w_f64(&w, m->shutter[0]);
     proto_w_f64(&w, m->shutter[1]);
     pt_error err = {0};
@@ -1119,8 +1155,9 @@ static void test_submit(void)
     /* Cut inside the ENV block: refused as truncated. */
     m = sample_submit(0);
     CHECK(proto_msg_encode_submit(&w, &m, &err) == PT_OK);
-    CHECK(decode_any(PROTO_MSG_SUBMIT, w.buf, w.len - 16 - 2 - strlen(m.variant) - 4 - 1, &err) ==
-          PT_ERR_PROTO);
+    CHECK(decode_any(PROTO_MSG_SUBMIT, w.buf,
+                     w.len - 16 - 22 - strlen(m.animation) - 2 - strlen(m.variant) - 4 - 1,
+                     &err) == PT_ERR_PROTO);
     CHECK(strstr(err.msg, "background colour") != NULL);
     proto_writer_reset(&w);
     /* A NUL in the name. */
@@ -1147,6 +1184,9 @@ static void job_info_raw(proto_writer *w, int f, size_t n)
         proto_w_u32(w, 0);
     w_str(w, f == 4 ? n : 0, 'q');
     proto_w_u64(w, 0); /* paths capped */
+    for (int k = 0; k < 5; k++)
+        proto_w_u32(w, 0); /* a still: no frame range, no frames */
+    proto_w_u8(w, 0);      /* no frames listed */
 }
 
 static void test_job_info(void)
@@ -1157,7 +1197,7 @@ static void test_job_info(void)
     /* Every string at its cap round-trips; one byte over is refused by both sides. */
     proto_job_info m = sample_job_info(2);
     CHECK(proto_msg_encode_job_info(&w, &m, &err) == PT_OK);
-    CHECK(w.len == 115 + 2 * PROTO_MAX_NAME + 2 * PROTO_MAX_PATH + PROTO_MAX_ERROR_TEXT);
+    CHECK(w.len == 136 + 2 * PROTO_MAX_NAME + 2 * PROTO_MAX_PATH + PROTO_MAX_ERROR_TEXT);
     static proto_job_info b;
     CHECK(proto_msg_decode_job_info(w.buf, w.len, &b, &err) == PT_OK);
     CHECK(job_info_same(&m, &b));
@@ -1248,8 +1288,8 @@ static void test_job_list(void)
     CHECK(job_list_check(head, 4, "cap", &alloc) == PT_ERR_PROTO && alloc == 0);
     /* A count that the bytes present cannot hold: refused before allocating. */
     proto_writer_reset(&w);
-    jobs[0] = sample_job_info(1); /* the smallest entry: 115 bytes */
-    CHECK(proto_msg_encode_job_list(&w, jobs, 1, &err) == PT_OK && w.len == 4 + 115);
+    jobs[0] = sample_job_info(1); /* the smallest entry: 136 bytes */
+    CHECK(proto_msg_encode_job_list(&w, jobs, 1, &err) == PT_OK && w.len == 4 + 136);
     CHECK(job_list_check(w.buf, w.len, NULL, &alloc) == PT_OK && alloc == 1);
     proto_put_u32(w.buf, 2);
     CHECK(job_list_check(w.buf, w.len, "bytes", &alloc) == PT_ERR_PROTO && alloc == 0);
@@ -1320,7 +1360,8 @@ static void test_client_types(void)
     CHECK(strcmp(proto_msg_type_name(PROTO_MSG_IMAGE), "IMAGE") == 0);
     CHECK(strcmp(proto_msg_type_name(PROTO_MSG_JOB_END), "JOB_END") == 0);
     CHECK(proto_msg_type_known(PROTO_MSG_JOB_END) && !proto_msg_type_preauth(PROTO_MSG_JOB_END));
-    CHECK(!proto_msg_type_known(39) && !proto_msg_type_known(47) && !proto_msg_type_known(52));
+    CHECK(strcmp(proto_msg_type_name(PROTO_MSG_FETCH_FRAME), "FETCH_FRAME") == 0);
+    CHECK(!proto_msg_type_known(40) && !proto_msg_type_known(47) && !proto_msg_type_known(52));
     /* UPLOAD and IMAGE go through the SCENE_CHUNK decoder; JOB_REF types share one. */
     proto_writer w;
     pt_error err = {0};
@@ -1336,9 +1377,88 @@ static void test_client_types(void)
     proto_writer_fini(&w);
 }
 
+/* Protocol 4's frame ranges: SUBMIT's range and pose, TASK's pose,
+ * FETCH_FRAME; each malformed value refused by both sides. */
+static void test_frames(void)
+{
+    proto_submit m = sample_submit(0);
+    CHECK(m.frame_step == 2 && submit_check(&m, NULL) == PT_OK);
+    m.frame_last = 0; /* reversed */
+    CHECK(submit_check(&m, "frame range") == PT_ERR_PROTO);
+    m = sample_submit(0);
+    m.frame_step = 0; /* a still with a range's other fields */
+    CHECK(submit_check(&m, "frame range") == PT_ERR_PROTO);
+    m = sample_submit(0);
+    m.frame_first = 0;
+    m.frame_last = 100000; /* 100001 frames */
+    m.frame_step = 1;
+    CHECK(submit_check(&m, "frame range") == PT_ERR_PROTO);
+    m.frame_last = 99999;
+    CHECK(submit_check(&m, NULL) == PT_OK);
+    m.fps = 0.0;
+    CHECK(submit_check(&m, "frames per second") == PT_ERR_PROTO);
+    m.fps = NAN;
+    CHECK(submit_check(&m, "frames per second") == PT_ERR_PROTO);
+    m.fps = INFINITY;
+    CHECK(submit_check(&m, "frames per second") == PT_ERR_PROTO);
+    m = sample_submit(1); /* a still: no rate, no animation */
+    CHECK(submit_check(&m, NULL) == PT_OK);
+    m.fps = 24.0;
+    CHECK(submit_check(&m, "frames per second") == PT_ERR_PROTO);
+    m.fps = 0.0;
+    strcpy(m.animation, "Walk");
+    CHECK(submit_check(&m, "animation") == PT_ERR_PROTO);
+
+    pt_error err = {0};
+    proto_writer w;
+    proto_writer_init(&w, 4096);
+    proto_task t = sample_task(1), back;
+    CHECK(t.animate == 1);
+    for (int k = 0; k < 4; k++) {
+        t = sample_task(k < 2);
+        if (k == 0)
+            t.animate = 2;
+        else if (k == 1)
+            t.time = NAN;
+        else if (k == 2)
+            t.time = 1.0; /* a time without animate */
+        else
+            t.time = -0.0 - 1.0;
+        proto_writer_reset(&w);
+        CHECKF(proto_msg_encode_task(&w, &t, &err) == PT_ERR_ARG && w.len == 0, "pose %d", k);
+        /* By hand: the good bytes with the bad pose patched in. */
+        proto_task good = sample_task(k < 2);
+        CHECK(proto_msg_encode_task(&w, &good, &err) == PT_OK);
+        uint8_t *pose = w.buf + w.len - 16 - POSE_TAIL(good); /* the shutter after it */
+        pose[0] = t.animate;
+        proto_put_u64(pose + 1, proto_f64_bits(t.time));
+        CHECKF(decode_any(PROTO_MSG_TASK, w.buf, w.len, &err) == PT_ERR_PROTO &&
+                   (strstr(err.msg, "animate") || strstr(err.msg, "time")),
+               "pose %d: %s", k, err.msg);
+    }
+    /* The protocol-3 layout (no pose) is a truncated TASK now. */
+    t = sample_task(0);
+    proto_writer_reset(&w);
+    CHECK(proto_msg_encode_task(&w, &t, &err) == PT_OK);
+    CHECK(decode_any(PROTO_MSG_TASK, w.buf, w.len - 16 - POSE_TAIL(t), &err) == PT_ERR_PROTO);
+    CHECK(proto_msg_decode_task(w.buf, w.len, &back, &err) == PT_OK && back.animate == 0 &&
+          back.time == 0.0);
+
+    proto_fetch_frame ff = {UINT64_MAX, 999999}, fb;
+    proto_writer_reset(&w);
+    CHECK(proto_msg_encode_fetch_frame(&w, &ff, &err) == PT_OK && w.len == 12);
+    CHECK(proto_msg_decode_fetch_frame(w.buf, w.len, &fb, &err) == PT_OK &&
+          fb.job_id == UINT64_MAX && fb.frame == 999999);
+    CHECK(decode_any(PROTO_MSG_FETCH_FRAME, w.buf, 11, &err) == PT_ERR_PROTO);
+    proto_w_u8(&w, 0);
+    CHECK(decode_any(PROTO_MSG_FETCH_FRAME, w.buf, w.len, &err) == PT_ERR_PROTO);
+    proto_writer_fini(&w);
+}
+
 int main(void)
 {
     test_types();
+    test_frames();
     test_samples();
     test_strings();
     test_task();

@@ -2,7 +2,8 @@
  * test_queue.c - ptserve's render queue (--state-dir) with real processes,
  * real sockets and real files; a raw protocol client plays ptctl.
  *
- *  1. Crash-restart: ptserve is killed with SIGKILL at least 5 times during a
+ *  1. Crash-restart: ptserve (tasks sized by time, the default) is killed
+ *     with SIGKILL at least 5 times during a
  *     job (each time after more samples were merged) and restarted on the same
  *     state folder; every restart resumes with at least the samples merged
  *     before the kill, and the final image is bit-identical to an undisturbed
@@ -158,16 +159,27 @@ static int reply(cli *c, proto_frame *f)
     return t;
 }
 
-/* Sends SUBMIT; spp 0 (which the encoder refuses) is patched into the bytes. */
+/* Sends SUBMIT; spp 0 and a reversed frame range (which the encoder
+ * refuses) are patched into the bytes. */
 static void submit_begin(cli *c, const proto_submit *m)
 {
     proto_writer w;
     proto_writer_init(&w, 4096);
     proto_submit fixed = *m;
     fixed.spp = m->spp ? m->spp : 1;
+    int reversed = m->frame_step && m->frame_last < m->frame_first;
+    if (reversed) {
+        fixed.frame_first = m->frame_last;
+        fixed.frame_last = m->frame_first;
+    }
     CHECK(proto_msg_encode_submit(&w, &fixed, NULL) == PT_OK);
     if (m->spp == 0)
         proto_put_u32(w.buf + 10 + strlen(m->name), 0);
+    if (reversed) { /* the range: the last fields but the fps, the animation, the shutter */
+        uint8_t *range = w.buf + w.len - 16 - 2 - strlen(m->animation) - 8 - 12;
+        proto_put_u32(range, m->frame_first);
+        proto_put_u32(range + 4, m->frame_last);
+    }
     cli_send(c, PROTO_MSG_SUBMIT, &w);
     proto_writer_fini(&w);
 }
@@ -307,6 +319,9 @@ static int fetch(int port, uint64_t id, const char *name)
 
 /* ---- processes --------------------------------------------------------------------- */
 
+/* How ptserve sizes tasks: fixed chunks of 8 unless a test asks otherwise. */
+static const char *g_sizing[2] = {"--chunk", "8"};
+
 /* ptserve on state, logging to log; opt and its value (or NULL) are added. */
 static void start_server_opt(const char *state, const char *log, const char *opt, const char *value)
 {
@@ -322,8 +337,8 @@ static void start_server_opt(const char *state, const char *log, const char *opt
                           path("port"),
                           "--tile",
                           "16",
-                          "--chunk",
-                          "8",
+                          g_sizing[0],
+                          g_sizing[1],
                           "--save-interval",
                           "0.2",
                           "--lease-timeout",
@@ -445,7 +460,7 @@ static void crash_restart(void)
                          "--tile",
                          "16",
                          "--chunk",
-                         "8",
+                         "48",
                          "--seed",
                          "5",
                          "--spp",
@@ -456,6 +471,11 @@ static void crash_restart(void)
                          NULL};
     CHECK(run(ref, "crash_ref.log", 600) == 0);
     g_port = 0;
+    /* Tasks sized by time, the default task time: the image is still the
+     * standalone render's (chunks of 48: with exact sums any cut at
+     * multiples of 16 samples gives the same bits) after every kill. */
+    g_sizing[0] = "--task-time";
+    g_sizing[1] = "2000";
     start_server("state1", "crash.log", NULL);
     pid_t w1 = start_worker("c1"), w2 = start_worker("c2");
     uint64_t id = submit(g_port, job_of("crash", 64, 48, spp, 0));
@@ -519,6 +539,8 @@ static void crash_restart(void)
     stop_worker(w1);
     stop_worker(w2);
     kill_server(SIGTERM);
+    g_sizing[0] = "--chunk";
+    g_sizing[1] = "8";
 }
 
 /* ---- 2. the queue ------------------------------------------------------------------- */
@@ -771,7 +793,7 @@ static void pixel_to_v4(proto_writer *w, const uint8_t *q)
     proto_w_bytes(w, q + 64, 8);
 }
 
-/* Where the shutter (16 bytes, format 5 on) starts in params at d + at:
+/* Where the shutter (16 bytes, format 7 on) starts in params at d + at:
  * after the camera, the environment, the film flags and the variant. */
 static size_t shutter_at(const uint8_t *d, size_t at)
 {
@@ -783,8 +805,8 @@ static size_t shutter_at(const uint8_t *d, size_t at)
     return at;
 }
 
-/* The queue file of format 4: the same records without the shutter. */
-static void queue_to_v4(const char *name)
+/* The queue file of format 6: the same records without the shutter. */
+static void queue_to_v6(const char *name)
 {
     uint8_t *d;
     size_t n;
@@ -805,9 +827,83 @@ static void queue_to_v4(const char *name)
         at += 32 + 8 + 8 + 8 + 8;
         at += 2 + proto_get_u16(d + at); /* message */
         at += 8;                         /* paths capped */
+        at += 4 * 3 + 8;                 /* the frame range and fps */
+        at += 2 + proto_get_u16(d + at); /* the animation */
+        at += 4;                         /* frames done */
+        at += 1 + 4 * (size_t)d[at];     /* frames done ahead */
     }
     CHECK(at + 4 == n);
     proto_w_bytes(&w, d + done, n - 4 - done);
+    const long vers[] = {4};
+    write_ver(name, &w, vers, 1, 1, 6);
+    pt_free(d);
+}
+
+/* A checkpoint of format 6: the same bytes without the shutter. */
+static void checkpoint_to_v6(const char *name)
+{
+    uint8_t *d;
+    size_t n;
+    if (!read_state(name, &d, &n))
+        return;
+    proto_writer w;
+    proto_writer_init(&w, 1 << 30);
+    /* envelope 8, seconds/rejected/rays 24, magic, version, id, hash, params */
+    size_t sh = shutter_at(d, 8 + 24 + 4 + 4 + 8 + 32);
+    proto_w_bytes(&w, d, sh);
+    proto_w_bytes(&w, d + sh + 16, n - 4 - (sh + 16));
+    const long vers[] = {4, 36};
+    write_ver(name, &w, vers, 2, 1, 6);
+    pt_free(d);
+}
+
+/* The queue file of format 5: each record without format 6's frame range,
+ * pose and frames done, its last fields (read in format 6's layout). */
+static void queue_to_v5(const char *name)
+{
+    uint8_t *d;
+    size_t n;
+    if (!read_state(name, &d, &n))
+        return;
+    proto_writer w;
+    proto_writer_init(&w, 1 << 30);
+    size_t at = 8 + 8 + 4;
+    proto_w_bytes(&w, d, at);
+    for (uint32_t i = 0, count = proto_get_u32(d + 16); i < count; i++) {
+        size_t start = at;
+        at += 8 + 8 + 1 + 4;
+        for (int k = 0; k < 4; k++) /* name, owner, scene, output */
+            at += 2 + proto_get_u16(d + at);
+        at += 8 + 9 * 4 + 16;                             /* submitted, params */
+        at += 2 + proto_get_u16(d + at);                  /* camera */
+        at += 2 + proto_get_u16(d + at) + 4 + 4 + 1 + 12; /* the environment */
+        at += 4;                                          /* film flags */
+        at += 2 + proto_get_u16(d + at);                  /* material variant */
+        at += 32 + 8 + 8 + 8 + 8;
+        at += 2 + proto_get_u16(d + at); /* message */
+        at += 8;                         /* paths capped */
+        proto_w_bytes(&w, d + start, at - start);
+        at += 4 * 3 + 8;                 /* the frame range and fps */
+        at += 2 + proto_get_u16(d + at); /* the animation */
+        at += 4;                         /* frames done */
+        at += 1 + 4 * (size_t)d[at];     /* frames done ahead */
+    }
+    CHECK(at + 4 == n);
+    const long vers[] = {4};
+    write_ver(name, &w, vers, 1, 1, 5);
+    pt_free(d);
+}
+
+/* The queue file of format 4: the same records as format 5. */
+static void queue_to_v4(const char *name)
+{
+    uint8_t *d;
+    size_t n;
+    if (!read_state(name, &d, &n))
+        return;
+    proto_writer w;
+    proto_writer_init(&w, 1 << 30);
+    proto_w_bytes(&w, d, n - 4);
     const long vers[] = {4};
     write_ver(name, &w, vers, 1, 1, 4);
     pt_free(d);
@@ -825,25 +921,38 @@ static void checkpoint_to_v4(const char *name)
     /* envelope 8, seconds/rejected/rays 24, magic, version, id, hash, params */
     size_t at = 8 + 24 + 4 + 4 + 8 + 32;
     uint32_t wd = proto_get_u32(d + at), ht = proto_get_u32(d + at + 4),
-             tile = proto_get_u32(d + at + 12);
-    size_t sh = shutter_at(d, at);
-    proto_w_bytes(&w, d, sh); /* without the shutter */
-    at = sh + 16;
-    size_t from = at;
-    at += 8; /* paths capped */
+             spp = proto_get_u32(d + at + 8), tile = proto_get_u32(d + at + 12),
+             chunk = proto_get_u32(d + at + 16);
+    at += 9 * 4 + 16;
+    at += 2 + proto_get_u16(d + at);                  /* camera */
+    at += 2 + proto_get_u16(d + at) + 4 + 4 + 1 + 12; /* the environment */
+    at += 4;                                          /* film flags */
+    at += 2 + proto_get_u16(d + at);                  /* material variant */
+    at += 8;                                          /* paths capped */
+    /* Format 6 counts a tile's samples merged and names a held result by its
+     * tile and samples; older ones count chunks and name the task, chunk x
+     * tiles + tile (the job's tasks are fixed chunks here). */
     uint32_t ntiles = proto_get_u32(d + at);
-    at += 8 + (size_t)ntiles * 5;
+    at += 8;
+    proto_w_bytes(&w, d, at);
+    for (uint32_t i = 0; i < ntiles; i++, at += 5) {
+        uint32_t m = proto_get_u32(d + at);
+        CHECK(m % chunk == 0 || m == spp);
+        proto_w_u32(&w, (m + chunk - 1) / chunk);
+        proto_w_u8(&w, d[at + 4]);
+    }
     uint32_t nheld = proto_get_u32(d + at);
+    proto_w_u32(&w, nheld);
     at += 4;
-    proto_w_bytes(&w, d + from, at - from);
     uint32_t tiles_x = (wd + tile - 1) / tile;
     for (uint32_t i = 0; i < nheld; i++) {
-        uint64_t t = proto_get_u64(d + at) % ntiles;
-        uint32_t tx = (uint32_t)(t % tiles_x), ty = (uint32_t)(t / tiles_x);
+        uint32_t t = proto_get_u32(d + at), s0 = proto_get_u32(d + at + 4);
+        uint32_t tx = t % tiles_x, ty = t / tiles_x;
         uint32_t tw = wd - tx * tile < tile ? wd - tx * tile : tile;
         uint32_t th = ht - ty * tile < tile ? ht - ty * tile : tile;
-        proto_w_bytes(&w, d + at, 8);
-        at += 8;
+        CHECK(s0 % chunk == 0);
+        proto_w_u64(&w, (uint64_t)(s0 / chunk) * ntiles + t);
+        at += 12;
         for (uint32_t k = 0; k < tw * th; k++, at += 72)
             pixel_to_v4(&w, d + at);
     }
@@ -1146,7 +1255,7 @@ static void damaged(void)
     kill_server(SIGTERM);
     CHECK(log_has("damage_torn.log", "incomplete last record"));
 
-    /* State folders in format 4 (before fixed-point sums), 3 (before the
+    /* State folders in format 5 (before frame ranges), 4 (before fixed-point sums), 3 (before the
      * environment light and the film flags as well) and 2 (before --min-gain
      * as well): the same job resumes with the same samples as from the
      * current format. */
@@ -1159,15 +1268,23 @@ static void damaged(void)
     /* checkpoint: header 8, seconds/rejected/rays 24, magic, version, id, hash,
      * nine u32 parameters, target error; then the min gain */
     const long ck_gain = 8 + 24 + 4 + 4 + 8 + 32 + 36 + 8;
-    for (uint32_t format = 4; format >= 2; format--) {
+    for (uint32_t format = 6; format >= 2; format--) {
         snprintf(cmd, sizeof cmd, "rm -rf '%s' && cp -a '%s' '%s'", path("state3"),
                  path("state3.good"), path("state3"));
         CHECK(system(cmd) == 0);
+        /* Format 6: no shutter in the queue's records and the checkpoint. */
+        queue_to_v6("state3/queue");
+        checkpoint_to_v6(ck);
+        /* Format 5: no frame ranges in the queue's records. */
+        if (format <= 5)
+            queue_to_v5("state3/queue");
         /* Format 4: double sums in the checkpoint, protocol 3's RESULT in
          * the results log (converted as read, and rewritten). */
-        queue_to_v4("state3/queue");
-        checkpoint_to_v4(ck);
-        log_to_v4(lg);
+        if (format <= 4) {
+            queue_to_v4("state3/queue");
+            checkpoint_to_v4(ck);
+            log_to_v4(lg);
+        }
         /* Format 3: no environment, no film flags, and the results log in
          * protocol 2's RESULT layout (read so, and rewritten). */
         if (format <= 3) {
@@ -1185,7 +1302,7 @@ static void damaged(void)
         CHECK(start_damaged(log) == -1);
         CHECKF(status(g_port, id, &info) == PROTO_MSG_JOB_INFO && info.state == PROTO_JOB_RUNNING &&
                    info.samples_done == v4.samples_done,
-               "format %u: state %u, %llu samples (format 5: %llu)", format, info.state,
+               "format %u: state %u, %llu samples (format 6: %llu)", format, info.state,
                (unsigned long long)info.samples_done, (unsigned long long)v4.samples_done);
         kill_server(SIGTERM);
     }
@@ -1283,6 +1400,16 @@ static void hostile_clients(void)
     both.target_error = 0.05;
     both.min_gain = 1e-6;
     CHECK(refused(both, B, N, "two adaptive rules"));
+    /* Frame ranges: refused at SUBMIT, the server serving on. */
+    proto_submit fr = job_of("shot", 64, 48, 16, 0);
+    fr.frame_first = 9;
+    fr.frame_last = 3;
+    fr.frame_step = 1;
+    fr.fps = 24.0;
+    CHECK(refused(fr, B, N, "bad frame range"));
+    fr.frame_first = 0;
+    fr.fps = 2e6;
+    CHECK(refused(fr, B, N, "frames per second is over"));
 
     /* Bundles: a file named ../x, a lying inner length, the wrong hash, a broken glTF. */
     const char *n1[] = {"scene.gltf", "../evil.bin"}, *d1[] = {"{}", "x"};
