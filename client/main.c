@@ -116,7 +116,8 @@ enum {
     O_ENVSTRENGTH,
     O_ENVROTATE,
     O_BACKGROUND,
-    O_TRANSPARENT
+    O_TRANSPARENT,
+    O_SHUTTER
 };
 
 static int bad_usage(const char *cmd, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
@@ -338,9 +339,13 @@ static const char SUBMIT_HELP[] =
     "                     animation (at most 100000, numbers 0 to 999999), each\n"
     "                     written as ID-NAME.####.exr with its zero-padded number;\n"
     "                     early frames finish first ('ptctl fetch JOB --frame F')\n"
-    "  --fps R            frame F is at F / R seconds (default 24)\n"
     "  --animation NAME|INDEX  the animation played (default: all of them); an\n"
     "                     unknown one (or a scene without animations) is refused\n"
+    "  --shutter O,C      motion blur: the shutter opens and closes at these\n"
+    "                     fractions of a frame (0,0.5: 180 degrees; default off);\n"
+    "                     what the scene's animation moves then blurs\n"
+    "  --fps R            frames per second of --frames and --shutter: frame F is\n"
+    "                     at F / R seconds (default 24)\n"
     "  --watch            then follow the job as 'ptctl watch' does (exit status 4\n"
     "                     when it ends cancelled or failed)\n";
 
@@ -401,15 +406,16 @@ static int cmd_submit(int argc, char **argv, globals *g)
                                          {"frames", required_argument, NULL, O_FRAMES},
                                          {"fps", required_argument, NULL, O_FPS},
                                          {"animation", required_argument, NULL, O_ANIMATION},
+                                         {"shutter", required_argument, NULL, O_SHUTTER},
                                          {NULL, 0, NULL, 0}};
     proto_submit m;
     memset(&m, 0, sizeof m);
     m.spp = 64;
     proto_env_none(&m.env);
     const char *env_path = NULL;
-    double dv = 0.0, rgb[3];
+    double dv = 0.0, rgb[3], shutter[2] = {0.0, 0.0};
     const char *name = NULL;
-    int watch = 0;
+    int watch = 0, has_shutter = 0;
     uint32_t depth = 0;
     int c;
     optind = 0;
@@ -501,6 +507,10 @@ static int cmd_submit(int argc, char **argv, globals *g)
             st = pt_opt_double("--env-rotate", optarg, -1e6, 1e6, &dv, &err);
             m.env.rotate_deg = (float)dv;
             break;
+        case O_SHUTTER:
+            st = pt_opt_shutter("--shutter", optarg, shutter, &err);
+            has_shutter = 1;
+            break;
         case O_BACKGROUND:
             if ((st = pt_opt_rgb("--background", optarg, 1e20, rgb, &err)) == PT_OK) {
                 m.env.background = 1;
@@ -529,11 +539,18 @@ static int cmd_submit(int argc, char **argv, globals *g)
                                    "one");
     if (env_path && m.env.background)
         return bad_usage("submit", "--env and --background are two environments; give one");
-    if (!m.frame_step && (m.fps > 0.0 || m.animation[0]))
-        return bad_usage("submit", "--fps and --animation pose the frames of --frames A-B[:STEP]; "
-                                   "give --frames");
-    if (m.frame_step && m.fps == 0.0)
-        m.fps = PT_FRAMES_DEFAULT_FPS;
+    if (!m.frame_step && m.animation[0])
+        return bad_usage("submit", "--animation poses the frames of --frames A-B[:STEP]; give "
+                                   "--frames");
+    if (!m.frame_step && !has_shutter && m.fps > 0.0)
+        return bad_usage("submit", "--fps is the frame rate of --frames A-B[:STEP] and --shutter; "
+                                   "give --frames or --shutter");
+    /* One frame rate serves both: SUBMIT carries the shutter in seconds after the
+     * frame's time (SHUTTER, protocol/msg.h), and a still's SUBMIT has fps 0. */
+    double rate = m.fps > 0.0 ? m.fps : PT_FRAMES_DEFAULT_FPS;
+    m.shutter[0] = shutter[0] / rate;
+    m.shutter[1] = shutter[1] / rate;
+    m.fps = m.frame_step ? rate : 0.0;
     if (env_path)
         snprintf(m.env.name, sizeof m.env.name, "%s", PT_BUNDLE_ENV_NAME);
     const char *scene = argv[optind];

@@ -391,6 +391,14 @@ static void r_env(proto_reader *r, proto_env *e)
 
 /* ---- TASK ---- */
 
+const char *proto_shutter_problem(const double shutter[2])
+{
+    /* Written so that NaN fails too. */
+    if (!(shutter[0] >= 0.0 && shutter[0] <= shutter[1] && shutter[1] <= PROTO_MAX_SHUTTER_S))
+        return "shutter not 0 <= open <= close <= 3600 s";
+    return NULL;
+}
+
 static const char *task_problem(const proto_task *m)
 {
     const char *why = rect_problem(m->tile);
@@ -407,7 +415,8 @@ static const char *task_problem(const proto_task *m)
     /* Written so that NaN fails too. */
     if (!(m->time >= 0.0) || !isfinite(m->time) || (!m->animate && m->time != 0.0))
         return "time not finite and >= 0 (0 for a still)";
-    return env_problem(&m->env);
+    why = proto_shutter_problem(m->shutter);
+    return why ? why : env_problem(&m->env);
 }
 
 pt_status proto_msg_encode_task(proto_writer *w, const proto_task *m, pt_error *err)
@@ -443,6 +452,8 @@ pt_status proto_msg_encode_task(proto_writer *w, const proto_task *m, pt_error *
     proto_w_u8(w, m->animate);
     proto_w_f64(w, m->time);
     proto_w_str(w, m->animation);
+    proto_w_f64(w, m->shutter[0]);
+    proto_w_f64(w, m->shutter[1]);
     return w_done(w, start, "TASK", err);
 }
 
@@ -469,6 +480,8 @@ pt_status proto_msg_decode_task(const uint8_t *p, size_t len, proto_task *out, p
     m.animate = proto_r_u8(&r, "animate");
     m.time = proto_r_f64(&r, "time");
     proto_r_str(&r, m.animation, PROTO_MAX_NAME, "animation");
+    m.shutter[0] = proto_r_f64(&r, "shutter open");
+    m.shutter[1] = proto_r_f64(&r, "shutter close");
     pt_status st = proto_r_finish(&r, "TASK", err);
     if (st != PT_OK)
         return st;
@@ -808,7 +821,8 @@ static const char *submit_problem(const proto_submit *m)
     if (fr.step ? !(m->fps > 0.0) || !isfinite(m->fps) : m->fps != 0.0 || m->animation[0])
         return "frames per second not finite and > 0 for a range (0 and no animation for a "
                "still)";
-    return env_problem(&m->env);
+    const char *why = proto_shutter_problem(m->shutter);
+    return why ? why : env_problem(&m->env);
 }
 
 pt_status proto_msg_encode_submit(proto_writer *w, const proto_submit *m, pt_error *err)
@@ -844,6 +858,8 @@ pt_status proto_msg_encode_submit(proto_writer *w, const proto_submit *m, pt_err
     proto_w_u32(w, m->frame_step);
     proto_w_f64(w, m->fps);
     proto_w_str(w, m->animation);
+    proto_w_f64(w, m->shutter[0]);
+    proto_w_f64(w, m->shutter[1]);
     return w_done(w, start, "SUBMIT", err);
 }
 
@@ -872,6 +888,8 @@ pt_status proto_msg_decode_submit(const uint8_t *p, size_t len, proto_submit *ou
     m.frame_step = proto_r_u32(&r, "frame step");
     m.fps = proto_r_f64(&r, "frames per second");
     proto_r_str(&r, m.animation, PROTO_MAX_NAME, "animation");
+    m.shutter[0] = proto_r_f64(&r, "shutter open");
+    m.shutter[1] = proto_r_f64(&r, "shutter close");
     pt_status st = proto_r_finish(&r, "SUBMIT", err);
     if (st != PT_OK)
         return st;

@@ -226,7 +226,8 @@ int proto_env_same(const proto_env *a, const proto_env *b);
  *                      animate is 0)
  *   132+c+e+v 2+n str  animation: "" every animation, else a name or decimal
  *                      index (pt_scene_opts.animation), n <= PROTO_MAX_NAME
- *   size 134+c+e+v+n
+ *   134+c+e+v+n 16 SHUTTER motion blur's shutter (SHUTTER layout, below)
+ *   size 150+c+e+v+n
  * A frame-range job's frames are separate jobs on the wire: each has its own
  * job id (srv_frame_job_id, server/frames.h), so a task id, a RESULT and a
  * JOB_END name one frame's tasks. */
@@ -246,7 +247,21 @@ typedef struct proto_task {
     uint8_t animate;                    /* 1: posed at time */
     double time;                        /* seconds */
     char animation[PROTO_MAX_NAME + 1]; /* "" every animation */
+    double shutter[2];                  /* SHUTTER: open, close; 0, 0 off */
 } proto_task;
+
+/* SHUTTER (in TASK and SUBMIT): motion blur's shutter, in seconds after the
+ * frame's time (a still's: 0), so that what the scene's animation moves in
+ * [time + open, time + close] blurs (common/scene/motion.h).
+ *   0    8    f64      open
+ *   8    8    f64      close
+ *   size 16
+ * Both finite with 0 <= open <= close <= PROTO_MAX_SHUTTER_S; close == open
+ * is no motion blur (0, 0 when off). Clients give fractions of a frame and
+ * the frame rate (ptctl submit --shutter, --fps) and send their seconds. */
+#define PROTO_MAX_SHUTTER_S 3600.0
+/* NULL when open and close make a shutter, else what is wrong. */
+const char *proto_shutter_problem(const double shutter[2]);
 
 /* SCENE_GET
  *   0    32   u8[32]  scene content hash
@@ -388,7 +403,8 @@ typedef struct proto_fetch_frame {
  *   127+a+c+e+v 8 f64 frames per second (finite, > 0 for a range; 0 for a still)
  *   135+a+c+e+v 2+n str animation: "" every animation, else a name or decimal
  *                  index, n <= PROTO_MAX_NAME ("" for a still)
- *   size 137+a+c+e+v+n
+ *   137+a+c+e+v+n 16 SHUTTER motion blur's shutter (SHUTTER layout, above)
+ *   size 153+a+c+e+v+n
  * The decoder checks shape only (width and height both 0 or both > 0, spp > 0,
  * size > 0, target error and min gain finite and >= 0); caps, and whether the
  * two rules may be combined, are the server's business. */
@@ -409,6 +425,7 @@ typedef struct proto_submit {
     uint32_t frame_first, frame_last, frame_step; /* step 0: a still */
     double fps;
     char animation[PROTO_MAX_NAME + 1];
+    double shutter[2]; /* SHUTTER: open, close; 0, 0 off */
 } proto_submit;
 
 enum {

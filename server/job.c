@@ -828,6 +828,8 @@ int srv_job_lease(srv_job *j, uint64_t owner, uint64_t now_ms, uint32_t lease_ms
     task_out->env = j->p.env;
     task_out->film_flags = j->p.film_flags;
     snprintf(task_out->variant, sizeof task_out->variant, "%s", j->p.variant);
+    task_out->shutter[0] = j->p.shutter[0];
+    task_out->shutter[1] = j->p.shutter[1];
     return 1;
 }
 
@@ -1548,7 +1550,7 @@ int srv_job_owner_active(const srv_job *j, uint64_t owner)
 /* ---- checkpoints ---- */
 
 #define CKPT_MAGIC 0x434a5450u /* "PTJC" */
-#define CKPT_VERSION 6u
+#define CKPT_VERSION 7u
 #define CKPT_OLDEST_VERSION 2u   /* no min gain: read as 0 */
 #define CKPT_MIN_GAIN_VERSION 3u /* the first with the min gain */
 /* The first with the environment (older: none), and the first with the film
@@ -1560,6 +1562,8 @@ int srv_job_owner_active(const srv_job *j, uint64_t owner)
 /* The first with fixed-point sums (tile.h); older double sums are converted
  * as they are read (get_acc). */
 #define CKPT_FIXED_VERSION 5u
+/* The first with motion blur's shutter in the params (older: none). */
+#define CKPT_SHUTTER_VERSION 7u
 
 /* A pixel as the checkpoint stores it: each sum as two u64, low half first
  * (RESULT's wide layout, msg.h), then n and hits. */
@@ -1636,9 +1640,12 @@ void srv_job_params_write(proto_writer *w, const srv_job_params *p)
         proto_w_f32(w, p->env.rgb[k]);
     proto_w_u32(w, p->film_flags);
     proto_w_str(w, p->variant);
+    proto_w_f64(w, p->shutter[0]);
+    proto_w_f64(w, p->shutter[1]);
 }
 
-void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, int has_env_film)
+void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, int has_env_film,
+                         int has_shutter)
 {
     p->width = proto_r_u32(r, "width");
     p->height = proto_r_u32(r, "height");
@@ -1656,6 +1663,7 @@ void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, i
     proto_env_none(&p->env);
     p->film_flags = 0;
     p->variant[0] = '\0';
+    p->shutter[0] = p->shutter[1] = 0.0;
     if (!has_env_film)
         return;
     proto_r_str(r, p->env.name, PROTO_MAX_PATH, "environment map name");
@@ -1668,6 +1676,12 @@ void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, i
     if (r->status == PT_OK && (p->film_flags & ~PROTO_FILM_KNOWN))
         proto_r_fail(r, PT_ERR_FORMAT, "unknown", "film flags");
     proto_r_str(r, p->variant, PROTO_MAX_NAME, "variant");
+    if (!has_shutter)
+        return;
+    p->shutter[0] = proto_r_f64(r, "shutter open");
+    p->shutter[1] = proto_r_f64(r, "shutter close");
+    if (r->status == PT_OK && proto_shutter_problem(p->shutter))
+        proto_r_fail(r, PT_ERR_FORMAT, "bad", "shutter");
 }
 
 /* The first that records each tile's merged samples and each held result's
@@ -1727,7 +1741,8 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
     /* Per pixel: 4 sums of 16 bytes (fixed point) or 8 (double, before
      * CKPT_FIXED_VERSION), n, and hits (from CKPT_FILM_VERSION on). */
     size_t acc_size = version >= CKPT_FIXED_VERSION ? 72 : film ? 40 : 36;
-    srv_job_params_read(&r, &p, version >= CKPT_MIN_GAIN_VERSION, version >= CKPT_ENV_VERSION);
+    srv_job_params_read(&r, &p, version >= CKPT_MIN_GAIN_VERSION, version >= CKPT_ENV_VERSION,
+                        version >= CKPT_SHUTTER_VERSION);
     uint64_t capped = film ? proto_r_u64(&r, "paths capped") : 0;
     uint32_t ntiles = proto_r_u32(&r, "tiles"), nchunks = proto_r_u32(&r, "chunks");
     if (r.status != PT_OK)
@@ -1740,7 +1755,8 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
         memcmp(&p.min_gain, &j->p.min_gain, sizeof p.min_gain) != 0 ||
         strcmp(p.camera, j->p.camera) != 0 || !proto_env_same(&p.env, &j->p.env) ||
         p.film_flags != j->p.film_flags || strcmp(p.variant, j->p.variant) != 0 ||
-        ntiles != j->ntiles || nchunks != j->npasses)
+        memcmp(p.shutter, j->p.shutter, sizeof p.shutter) != 0 || ntiles != j->ntiles ||
+        nchunks != j->npasses)
         return pt_error_set(err, PT_ERR_FORMAT,
                             "checkpoint is of another job or other settings "
                             "(job %llu, %ux%u, %u spp)",

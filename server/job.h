@@ -97,6 +97,8 @@ typedef struct srv_job_params {
     proto_env env;       /* the environment light; its map is a file of the job's bundle */
     uint32_t film_flags; /* PROTO_FILM_* (transparent: the EXR gets A) */
     char variant[PROTO_MAX_NAME + 1]; /* KHR_materials_variants name; "" the default materials */
+    double shutter[2]; /* motion blur's shutter, seconds after the frame's time (SHUTTER in
+                          protocol/msg.h); 0, 0 off */
 } srv_job_params;
 
 /* Tasks of one job: a job whose fixed chunks would pass this is refused;
@@ -260,12 +262,15 @@ int srv_job_owner_active(const srv_job *job, uint64_t owner);
  * them: no environment and no film flags from older ones) the environment: str
  * map name, f32 strength, f32 rotation, u8 background flag, f32 x3 colour; and
  * u32 film flags (an unknown bit is a format error), str material variant
- * (both formats 4; "" from older ones). srv_job_params_read reads
- * a block with or without the min gain and with or without both the
- * environment and the film flags (one format version brought both), as its
- * file's format version says; a failure is left in r's status. */
+ * (formats 4 on; "" from older ones), then f64 x2 motion blur's shutter (open,
+ * close; refused unless proto_shutter_problem passes; formats 5 on, 0, 0 from
+ * older ones). srv_job_params_read reads a block with or without the min gain,
+ * with or without both the environment and the film flags (one format version
+ * brought both) and with or without the shutter, as its file's format version
+ * says; a failure is left in r's status. */
 void srv_job_params_write(proto_writer *w, const srv_job_params *p);
-void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, int has_env_film);
+void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, int has_env_film,
+                         int has_shutter);
 
 /* Checkpoints (format 6). srv_job_save appends the merged state (per tile
  * the samples merged and whether adaptive sampling stopped it, the held early

@@ -106,9 +106,14 @@ static void usage(FILE *f)
         "                         zero-padded frame number (shot.####.exr: frame 7 is\n"
         "                         shot.0007.exr); early frames finish first; each frame\n"
         "                         is the same image as ptworker --scene ... --frame F\n"
-        "  --fps R                frame F is at F / R seconds (default 24)\n"
         "  --animation NAME|INDEX the animation played (default: all of them, as\n"
         "                         viewers do); one-job mode (queued jobs: ptctl submit)\n"
+        "  --shutter O,C          motion blur: the shutter opens and closes at these\n"
+        "                         fractions of a frame (0,0.5: 180 degrees; default off);\n"
+        "                         what the scene's animation moves then blurs; one-job\n"
+        "                         mode (queued jobs: ptctl submit --shutter)\n"
+        "  --fps R                frames per second of --frames and --shutter: frame F\n"
+        "                         is at F / R seconds (default 24)\n"
         "  --tile N               tile side in pixels (default 32)\n"
         "  --task-time MS         size each task's samples so that it takes about MS\n"
         "                         on the worker that asks, from that worker's measured\n"
@@ -228,7 +233,8 @@ int main(int argc, char **argv)
         O_HTTP,
         O_HTTPPORT,
         O_TRANSPARENT,
-        O_TASKTIME
+        O_TASKTIME,
+        O_SHUTTER
     };
     static const struct option opts[] = {
         {"output", required_argument, NULL, 'o'},
@@ -258,6 +264,7 @@ int main(int argc, char **argv)
         {"verify-fraction", required_argument, NULL, O_VERIFY},
         {"min-spp", required_argument, NULL, O_MINSPP},
         {"transparent", no_argument, NULL, O_TRANSPARENT},
+        {"shutter", required_argument, NULL, O_SHUTTER},
         {"worker-bin", required_argument, NULL, O_WBIN},
         {"state-dir", required_argument, NULL, O_STATE},
         {"output-dir", required_argument, NULL, O_OUTDIR},
@@ -283,6 +290,8 @@ int main(int argc, char **argv)
         {NULL, 0, NULL, 0},
     };
     pt_error err = {0};
+    double shutter[2] = {0.0, 0.0};
+    int has_shutter = 0;
     int ch;
     while ((ch = getopt_long(argc, argv, "o:qh", opts, NULL)) != -1) {
         pt_status st = PT_OK;
@@ -383,6 +392,10 @@ int main(int argc, char **argv)
             break;
         case O_TRANSPARENT:
             c.job.film_flags |= PROTO_FILM_TRANSPARENT;
+            break;
+        case O_SHUTTER:
+            st = pt_opt_shutter("--shutter", optarg, shutter, &err);
+            has_shutter = 1;
             break;
         case O_WBIN:
             c.worker_bin = optarg;
@@ -501,14 +514,24 @@ int main(int argc, char **argv)
                         "and --state-dir (clients use the queue)\n");
         return 2;
     }
+    if (c.state_dir && has_shutter) {
+        fprintf(stderr, "ptserve: --shutter is for one-job mode; a queued job asks for it "
+                        "with ptctl submit --shutter\n");
+        return 2;
+    }
     if (c.state_dir && (c.frames.step || c.fps > 0 || c.animation)) {
         fprintf(stderr, "ptserve: --frames, --fps and --animation are for one-job mode; a queued "
                         "job asks for them with ptctl submit --frames\n");
         return 2;
     }
-    if (!c.frames.step && (c.fps > 0 || c.animation)) {
-        fprintf(stderr, "ptserve: --fps and --animation pose the frames of --frames A-B[:STEP]; "
+    if (!c.frames.step && c.animation) {
+        fprintf(stderr, "ptserve: --animation poses the frames of --frames A-B[:STEP]; "
                         "give --frames\n");
+        return 2;
+    }
+    if (!c.frames.step && !has_shutter && c.fps > 0) {
+        fprintf(stderr, "ptserve: --fps is the frame rate of --frames A-B[:STEP] and --shutter; "
+                        "give --frames or --shutter\n");
         return 2;
     }
     if (c.frames.step && !pt_frames_has_pattern(c.out_path)) {
@@ -518,6 +541,12 @@ int main(int argc, char **argv)
                 c.out_path);
         return 2;
     }
+    /* One frame rate serves both: the shutter's fractions of a frame become seconds
+     * after the frame's time (SHUTTER, protocol/msg.h) by the same R that times the
+     * frames. c.fps stays 0 for a still so the job keeps a still's parameters. */
+    double rate = c.fps > 0 ? c.fps : PT_FRAMES_DEFAULT_FPS;
+    c.job.shutter[0] = shutter[0] / rate;
+    c.job.shutter[1] = shutter[1] / rate;
     if (c.frames.step && c.fps == 0)
         c.fps = PT_FRAMES_DEFAULT_FPS;
     if (c.state_dir && c.job.variant[0]) {

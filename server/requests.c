@@ -216,6 +216,8 @@ static void submitted_params(const srv_config *cfg, const srv_upload *k, srv_job
     p.height = m->height;
     snprintf(p.camera, sizeof p.camera, "%s", m->camera);
     snprintf(p.variant, sizeof p.variant, "%s", m->variant);
+    p.shutter[0] = m->shutter[0];
+    p.shutter[1] = m->shutter[1];
     p.env = m->env;
     if (p.width == 0) {
         p.width = 512;

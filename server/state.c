@@ -21,7 +21,7 @@
 #define QUEUE_MAGIC 0x31515450u /* "PTQ1" */
 #define CKPT_MAGIC 0x4b435450u  /* "PTCK" */
 #define LOG_MAGIC 0x4c525450u   /* "PTRL" */
-#define STATE_VERSION 6u
+#define STATE_VERSION 7u
 /* The oldest format still read: version 2 has no min gain (read as 0, the
  * rule off), versions 2 and 3 no environment and no film flags (read as
  * none) and protocol 2's RESULT in the log, so a state folder survives the
@@ -40,6 +40,8 @@
 /* The first with a frame-range job's range, pose and frames done in its
  * queue record (older records are stills). */
 #define STATE_FRAMES_VERSION 6u
+/* The first with motion blur's shutter in the job params (older: none). */
+#define STATE_SHUTTER_VERSION 7u
 #define LOG_HEADER 16u
 #define MAX_QUEUE_BYTES (256u << 20)
 #define MAX_CKPT_BYTES ((size_t)8 << 30)
@@ -329,7 +331,7 @@ pt_status srv_state_load_queue(srv_state *st, srv_job_record **recs, uint32_t *n
         proto_r_str(&r, j->output, sizeof j->output - 1, "output");
         j->submitted = proto_r_u64(&r, "submitted");
         srv_job_params_read(&r, &j->params, version >= STATE_MIN_GAIN_VERSION,
-                            version >= STATE_ENV_VERSION);
+                            version >= STATE_ENV_VERSION, version >= STATE_SHUTTER_VERSION);
         const uint8_t *h = proto_r_bytes(&r, 32, "scene hash");
         if (h)
             memcpy(j->hash, h, 32);

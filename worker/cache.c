@@ -282,7 +282,8 @@ struct wrk_scene_ref {
     int animate;                      /* the pose (wrk_pose); time 0 and "" when still */
     uint64_t time_bits;
     char animation[PROTO_MAX_NAME + 1];
-    pt_env *envobj; /* built from it, NULL for none; outlives renderer */
+    double shutter[2]; /* motion blur's (SHUTTER), seconds after time; 0, 0 when off */
+    pt_env *envobj;    /* built from it, NULL for none; outlives renderer */
     pt_scene *scene;
     pt_renderer *renderer;
     int state;
@@ -425,6 +426,15 @@ static pt_status build(wrk_scene_ref *e, const char *entry_path)
     so.animate = e->animate;
     memcpy(&so.time, &e->time_bits, sizeof so.time);
     so.animation = e->animation[0] ? e->animation : NULL;
+    if (e->shutter[0] > 0.0 || e->shutter[1] > 0.0) {
+        /* Posed over the shutter, seconds after the frame's time (a still's:
+         * 0), the still at its opening (a closed shutter, open == close, is
+         * that still alone): as ptworker --frame F --fps R --shutter O,C. */
+        so.animate = 1;
+        so.shutter_open = so.time + e->shutter[0];
+        so.shutter_close = so.time + e->shutter[1];
+        so.time = so.shutter_open;
+    }
     pt_status st = build_env(e, entry_path);
     if (st != PT_OK)
         return st;
@@ -466,14 +476,24 @@ pt_status wrk_scenes_acquire_variant(wrk_scenes *s, const uint8_t hash[WRK_HASH_
                                      const char *variant, const proto_env *env,
                                      const char *entry_path, wrk_scene_ref **out, pt_error *err)
 {
-    return wrk_scenes_acquire_posed(s, hash, params, camera, variant, env, NULL, entry_path, out,
-                                    err);
+    return wrk_scenes_acquire_shutter(s, hash, params, camera, variant, env, NULL, NULL, entry_path,
+                                      out, err);
 }
 
 pt_status wrk_scenes_acquire_posed(wrk_scenes *s, const uint8_t hash[WRK_HASH_SIZE],
                                    const pt_render_params *params, const char *camera,
                                    const char *variant, const proto_env *env, const wrk_pose *pose,
                                    const char *entry_path, wrk_scene_ref **out, pt_error *err)
+{
+    return wrk_scenes_acquire_shutter(s, hash, params, camera, variant, env, pose, NULL, entry_path,
+                                      out, err);
+}
+
+pt_status wrk_scenes_acquire_shutter(wrk_scenes *s, const uint8_t hash[WRK_HASH_SIZE],
+                                     const pt_render_params *params, const char *camera,
+                                     const char *variant, const proto_env *env,
+                                     const wrk_pose *pose, const double shutter[2],
+                                     const char *entry_path, wrk_scene_ref **out, pt_error *err)
 {
     /* One key for the still pose, however the fields unused then were set. */
     int animate = pose && pose->animate;
@@ -486,6 +506,11 @@ pt_status wrk_scenes_acquire_posed(wrk_scenes *s, const uint8_t hash[WRK_HASH_SI
     if (strlen(animation) > PROTO_MAX_NAME)
         return pt_error_set(err, PT_ERR_ARG, "animation name '%.64s...' is over %u bytes",
                             animation, PROTO_MAX_NAME);
+    double sh[2] = {0.0, 0.0};
+    if (shutter) {
+        sh[0] = shutter[0];
+        sh[1] = shutter[1];
+    }
     /* One key for "no environment", however the fields unused then were set. */
     proto_env key;
     if (env && proto_env_any(env))
@@ -504,10 +529,11 @@ pt_status wrk_scenes_acquire_posed(wrk_scenes *s, const uint8_t hash[WRK_HASH_SI
                             sizeof((wrk_scene_ref *)0)->variant - 1);
     pthread_mutex_lock(&s->mu);
     wrk_scene_ref *e = s->head;
-    while (e && !(memcmp(e->hash, hash, WRK_HASH_SIZE) == 0 && same_params(&e->params, params) &&
-                  strcmp(e->camera, camera) == 0 && strcmp(e->variant, variant) == 0 &&
-                  proto_env_same(&e->env, &key) && e->animate == animate &&
-                  e->time_bits == time_bits && strcmp(e->animation, animation) == 0))
+    while (e &&
+           !(memcmp(e->hash, hash, WRK_HASH_SIZE) == 0 && same_params(&e->params, params) &&
+             strcmp(e->camera, camera) == 0 && strcmp(e->variant, variant) == 0 &&
+             proto_env_same(&e->env, &key) && e->animate == animate && e->time_bits == time_bits &&
+             strcmp(e->animation, animation) == 0 && memcmp(e->shutter, sh, sizeof sh) == 0))
         e = e->next;
     if (e) {
         e->refs++;
@@ -537,6 +563,7 @@ pt_status wrk_scenes_acquire_posed(wrk_scenes *s, const uint8_t hash[WRK_HASH_SI
     e->animate = animate;
     e->time_bits = time_bits;
     snprintf(e->animation, sizeof e->animation, "%s", animation);
+    memcpy(e->shutter, sh, sizeof sh);
     e->state = E_BUILDING;
     e->refs = 1;
     e->next = s->head;

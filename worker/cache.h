@@ -105,6 +105,16 @@ pt_status wrk_scenes_acquire_posed(wrk_scenes *s, const uint8_t hash[WRK_HASH_SI
                                    const pt_render_params *params, const char *camera,
                                    const char *variant, const proto_env *env, const wrk_pose *pose,
                                    const char *entry_path, wrk_scene_ref **out, pt_error *err);
+/* As wrk_scenes_acquire_posed, with motion blur's shutter (seconds after the
+ * pose's time, 0 for a still; protocol/msg.h's SHUTTER; NULL: 0, 0, none) in
+ * the key, its bits compared: the scene is then loaded posed over [time +
+ * open, time + close] (pt_scene_opts.shutter_open, _close), its still at time
+ * + open, as ptworker --frame F --fps R --shutter O,C poses it. */
+pt_status wrk_scenes_acquire_shutter(wrk_scenes *s, const uint8_t hash[WRK_HASH_SIZE],
+                                     const pt_render_params *params, const char *camera,
+                                     const char *variant, const proto_env *env,
+                                     const wrk_pose *pose, const double shutter[2],
+                                     const char *entry_path, wrk_scene_ref **out, pt_error *err);
 const pt_renderer *wrk_scene_renderer(const wrk_scene_ref *ref);
 void wrk_scenes_release(wrk_scenes *s, wrk_scene_ref *ref); /* accepts NULL */
 

@@ -63,7 +63,7 @@ static void usage(FILE *f)
             "  --time T           pose the scene's glTF animation at T seconds (>= 0):\n"
             "                     nodes, skins, morph targets, cameras and lights move\n"
             "  --frame F          the same at frame F, T = F / fps\n"
-            "  --fps R            frames per second for --frame (default 24)\n"
+            "  --fps R            frames per second for --frame and --shutter (default 24)\n"
             "  --animation NAME   the animation to play, by name or index (default: every\n"
             "                     channel of every animation, as viewers play them);\n"
             "                     without --time, --frame or --animation a scene renders\n"
@@ -90,6 +90,10 @@ static void usage(FILE *f)
             "  --transparent      camera rays that leave the scene add nothing (the\n"
             "                     environment still lights the scene), and the EXR gets\n"
             "                     an A channel: the pixel's coverage, RGB premultiplied\n"
+            "  --shutter O,C      motion blur: the shutter opens and closes at these\n"
+            "                     fractions of a frame (0,0.5: a 180-degree shutter;\n"
+            "                     default off): what the scene's animation moves in\n"
+            "                     [t + O/fps, t + C/fps] blurs (t: the frame's time)\n"
             "  -q, --quiet        no progress line\n"
             "  -h, --help         this text\n"
             "  --version          the version and renderer build id\n"
@@ -179,6 +183,7 @@ int main(int argc, char **argv)
         OPT_FRAME,
         OPT_FPS,
         OPT_ANIMATION,
+        OPT_SHUTTER,
         OPT_SERVER,
         OPT_PREFETCH,
         OPT_TOKEN,
@@ -210,6 +215,7 @@ int main(int argc, char **argv)
         {"frame", required_argument, NULL, OPT_FRAME},
         {"fps", required_argument, NULL, OPT_FPS},
         {"animation", required_argument, NULL, OPT_ANIMATION},
+        {"shutter", required_argument, NULL, OPT_SHUTTER},
         {"quiet", no_argument, NULL, 'q'},
         {"server", required_argument, NULL, OPT_SERVER},
         {"prefetch", required_argument, NULL, OPT_PREFETCH},
@@ -307,6 +313,11 @@ int main(int argc, char **argv)
         case OPT_TRANSPARENT:
             o.transparent = 1;
             break;
+        case OPT_SHUTTER:
+            bad = bad_value(pt_opt_shutter("--shutter", optarg, o.shutter, &err), &err);
+            o.has_shutter = 1;
+            break;
+
         case 'q':
             o.quiet = 1;
             break;
@@ -404,10 +415,11 @@ int main(int argc, char **argv)
         fprintf(stderr, "ptworker: --time and --frame both give the time; give one\n");
         return 2;
     }
-    if (has_fps && !has_frame) {
-        fprintf(stderr, "ptworker: --fps needs --frame\n");
+    if (has_fps && !has_frame && !o.has_shutter) {
+        fprintf(stderr, "ptworker: --fps needs --frame or --shutter\n");
         return 2;
     }
+    o.fps = anim_fps;
     if (has_time || has_frame) {
         o.animate = 1;
         o.time = has_time ? anim_time : anim_frame / anim_fps;

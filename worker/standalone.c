@@ -104,10 +104,23 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
     so.animate = o->animate;
     so.time = o->time;
     so.animation = o->animation;
+    if (o->has_shutter && (o->shutter[0] > 0.0 || o->shutter[1] > 0.0)) {
+        /* The frame at o->time (0 without --time or --frame), its shutter in
+         * seconds of animation; the still is the pose at the opening (a
+         * closed shutter, open == close, is that still alone). */
+        so.animate = 1;
+        so.shutter_open = o->time + o->shutter[0] / o->fps;
+        so.shutter_close = o->time + o->shutter[1] / o->fps;
+        so.time = so.shutter_open;
+    }
     if (pt_scene_load(o->scene_path, &so, &scene, &err) != PT_OK) {
         fprintf(stderr, "ptworker: %s\n", err.msg);
         goto done;
     }
+    if (o->has_shutter && o->shutter[1] > o->shutter[0] && !(scene->features & PT_FEAT_MOTION) &&
+        !o->quiet)
+        fprintf(stderr, "ptworker: --shutter: nothing in the scene moves while the shutter is "
+                        "open; the image is the still\n");
     pt_render_params p = {0};
     pt_render_params_default(&p);
     p.width = o->width;

@@ -35,7 +35,10 @@ typedef struct wrk_standalone_opts {
     float env_rotate;     /* degrees about +Y */
     int has_background;   /* a uniform environment of background[] (not with env_path) */
     float background[3];
-    int transparent; /* escaped camera rays add nothing; the EXR gets A (coverage) */
+    int transparent;   /* escaped camera rays add nothing; the EXR gets A (coverage) */
+    int has_shutter;   /* motion blur over [time + shutter[0] / fps, time + shutter[1] / fps] */
+    double shutter[2]; /* fractions of a frame, 0 <= open <= close <= 1 (pt_opt_shutter) */
+    double fps;        /* frames per second (24 by default; --fps) */
     int quiet;
 } wrk_standalone_opts;
 

@@ -165,3 +165,35 @@ bad:
     return pt_error_set(err, PT_ERR_ARG, "%s: '%s' is not R,G,B (three numbers in [0, %g])", opt,
                         text, max);
 }
+
+pt_status pt_opt_shutter(const char *opt, const char *text, double out[2], pt_error *err)
+{
+    char part[64];
+    const char *comma = strchr(text, ',');
+    double v[2];
+    if (!comma || strchr(comma + 1, ','))
+        goto bad;
+    size_t n = (size_t)(comma - text);
+    if (n == 0 || n >= sizeof part)
+        goto bad;
+    memcpy(part, text, n);
+    part[n] = '\0';
+    if (read_double(part, &v[0]) != 0 || read_double(comma + 1, &v[1]) != 0)
+        goto bad;
+    if (!(v[0] >= 0.0 && v[0] <= 1.0 && v[1] >= 0.0 && v[1] <= 1.0))
+        return pt_error_set(err, PT_ERR_ARG,
+                            "%s: '%s': the shutter opens and closes within the frame: both "
+                            "fractions must be in [0, 1]",
+                            opt, text);
+    if (v[0] > v[1])
+        return pt_error_set(err, PT_ERR_ARG,
+                            "%s: '%s': the shutter opens (%g) after it closes (%g)", opt, text,
+                            v[0], v[1]);
+    out[0] = v[0];
+    out[1] = v[1];
+    return PT_OK;
+bad:
+    return pt_error_set(err, PT_ERR_ARG,
+                        "%s: '%s' is not OPEN,CLOSE (two fractions of a frame, e.g. 0,0.5)", opt,
+                        text);
+}

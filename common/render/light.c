@@ -39,6 +39,7 @@
 #include "common/render/env.h"
 #include "common/render/light_lanes.h"
 #include "common/scene/accel.h"
+#include "common/scene/motion.h"
 
 /* One column of the alias table: 16 bytes, so that the random read of a
  * column touches one cache line and four columns share it. */
@@ -169,6 +170,10 @@ static double tri_power(const pt_scene *s, uint32_t tri, const pt_vec3 *tex_mean
     const pt_material *m = &s->materials[s->tri_material[tri]];
     *area_out = 0.0f;
     if (!emits(m))
+        return 0.0;
+    /* A moving emitter is no light to sample (its area and place depend on
+     * the path's time): BSDF sampling alone finds it, with MIS weight 1. */
+    if (s->motion && s->motion->moving[tri] != UINT32_MAX)
         return 0.0;
     pt_vec3 v[3], n;
     float area;

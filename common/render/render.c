@@ -14,14 +14,19 @@
 #include "common/render/sampler.h"
 #include "common/scene/accel.h"
 #include "common/scene/alpha.h"
+#include "common/scene/motion.h"
 
 /*
  * Sample dimensions. Pixel jitter uses dims 0-1; bounce k uses the 8 dims
  * starting at DIM_BOUNCE0 + 8k. 2D values start at even dimensions, so each
- * is one stratified pair of the sampler (sampler.h).
+ * is one stratified pair of the sampler (sampler.h). A camera sample's time
+ * in the shutter (motion blur) is dim 2, the first of a pair of its own: it
+ * is stratified over a pixel's samples independently of the jitter, and no
+ * other dimension moves, so a scene without motion keeps its numbers.
  */
 enum {
     DIM_PIXEL = 0,
+    DIM_TIME = 2,
     DIM_BOUNCE0 = 4,
     DIM_PER_BOUNCE = 8,
     OFF_LIGHT_POINT = 0, /* 2D */
@@ -79,6 +84,7 @@ struct pt_renderer {
     const char *variant;
     int lanes; /* the Lambert variants shade in lanes (shade_lanes) */
     float tan_half_fov;
+    const pt_motion *motion; /* the scene's (PT_FEAT_MOTION), or NULL: nothing moves */
 };
 
 void pt_render_params_default(pt_render_params *p)
@@ -294,7 +300,33 @@ typedef struct tri_rec {
 #define TRI_FLAT 0x80000000u
 _Static_assert(sizeof(tri_rec) == 64, "tri_rec is one cache line");
 
-static inline void surface_at(const pt_renderer *r, const pt_hit *hit, surface *sf,
+/* A moving triangle's hit point, winding normal and interpolated shading
+ * normal at the path's time (common/scene/motion.h), in place of the
+ * triangle record's (which hold its step 0). */
+static __attribute__((noinline)) void surface_moving(const pt_motion *m, uint32_t k,
+                                                     const pt_hit *hit, float time, surface *sf)
+{
+    const uint32_t *vi = &m->indices[3 * (size_t)k];
+    uint32_t i;
+    float f;
+    pt_motion_segment(m->steps, time, &i, &f);
+    pt_vec3 v0 = pt_motion_position(m, vi[0], i, f), v1 = pt_motion_position(m, vi[1], i, f),
+            v2 = pt_motion_position(m, vi[2], i, f);
+    float b0 = 1.0f - hit->b1 - hit->b2;
+    sf->p = pt_v3_add(pt_v3_add(pt_v3_scale(v0, b0), pt_v3_scale(v1, hit->b1)),
+                      pt_v3_scale(v2, hit->b2));
+    pt_vec3 n = pt_v3_cross(pt_v3_sub(v1, v0), pt_v3_sub(v2, v0));
+    float len = pt_v3_len(n);
+    sf->ng =
+        (len > 0.0f && isfinite(len)) ? pt_v3_scale(n, 1.0f / len) : pt_accel_degenerate_normal(n);
+    n = pt_v3_add(pt_v3_add(pt_v3_scale(pt_motion_normal(m, vi[0], i, f), b0),
+                            pt_v3_scale(pt_motion_normal(m, vi[1], i, f), hit->b1)),
+                  pt_v3_scale(pt_motion_normal(m, vi[2], i, f), hit->b2));
+    len = pt_v3_len(n);
+    sf->ns = (len > 0.0f && isfinite(len)) ? pt_v3_scale(n, 1.0f / len) : sf->ng;
+}
+
+static inline void surface_at(const pt_renderer *r, const pt_hit *hit, float time, surface *sf,
                               const uint32_t features)
 {
     const pt_scene *s = r->scene;
@@ -313,6 +345,11 @@ static inline void surface_at(const pt_renderer *r, const pt_hit *hit, surface *
                               pt_v3_scale(vert(s->normals, tri[2]), hit->b2));
         float len = pt_v3_len(n);
         sf->ns = (len > 0.0f && isfinite(len)) ? pt_v3_scale(n, 1.0f / len) : sf->ng;
+    }
+    if ((features & PT_FEAT_MOTION) && r->motion && r->motion->num_triangles > 0) {
+        uint32_t k = r->motion->moving[hit->tri];
+        if (k != UINT32_MAX)
+            surface_moving(r->motion, k, hit, time, sf);
     }
     sf->uv[0] = sf->uv[1] = 0.0f;
     if ((features & PT_FEAT_TEXTURES) && s->uvs) {
@@ -582,10 +619,9 @@ static inline int emits(const pt_material *m)
     return m->emissive[0] > 0.0f || m->emissive[1] > 0.0f || m->emissive[2] > 0.0f;
 }
 
-static inline void camera_ray(const pt_renderer *r, uint32_t px, uint32_t py, const float u[2],
-                              pt_vec3 *o, pt_vec3 *d)
+static inline void camera_ray(const pt_renderer *r, const pt_camera *c, uint32_t px, uint32_t py,
+                              const float u[2], pt_vec3 *o, pt_vec3 *d)
 {
-    const pt_camera *c = &r->scene->camera;
     float w = (float)r->params.width, h = (float)r->params.height;
     if (c->ortho) {
         /* Parallel rays from the camera's plane: ymag is half the image's
@@ -635,9 +671,14 @@ static inline void draw_bounce(pixel_ctx *pc, uint32_t depth, uint32_t index,
  * passes (their emission and BSDF are then not applied: the ray never meets
  * them) when the scene has any; u_alpha is the bounce's OFF_ALPHA number. */
 static inline __attribute__((always_inline)) int closest_hit(const pt_renderer *r, pt_vec3 o,
-                                                             pt_vec3 d, float u_alpha, pt_hit *hit,
-                                                             const uint32_t features)
+                                                             pt_vec3 d, float time, float u_alpha,
+                                                             pt_hit *hit, const uint32_t features)
 {
+    if ((features & PT_FEAT_MOTION) && r->motion) {
+        int alpha = (features & PT_FEAT_ALPHA) && r->alpha;
+        return pt_accel_intersect_time(r->accel, o, d, INFINITY, time, alpha,
+                                       alpha ? pt_alpha_key(u_alpha, ALPHA_SALT_RAY) : 0, hit);
+    }
     if ((features & PT_FEAT_ALPHA) && r->alpha)
         return pt_accel_intersect_alpha(r->accel, o, d, INFINITY,
                                         pt_alpha_key(u_alpha, ALPHA_SALT_RAY), hit);
@@ -677,6 +718,7 @@ typedef struct path {
     uint32_t depth;
     uint32_t index;   /* the sample index */
     uint32_t escaped; /* 1: the camera ray left the scene (the sample does not cover the pixel) */
+    float time;       /* in the shutter, [0, 1) (PT_FEAT_MOTION; else 0) */
     pixel_ctx *pc;
 } path;
 
@@ -692,12 +734,25 @@ typedef struct shadow_ray {
 
 enum { SHADE_SHADOW = 1u, SHADE_CONTINUE = 2u }; /* bits 0 and 1: the batch counts with them */
 
-/* The camera ray of sample `index` of pc's pixel. */
-static inline void path_start(const pt_renderer *r, pixel_ctx *pc, uint32_t index, path *pa)
+/* The camera ray of sample `index` of pc's pixel, at the sample's time in
+ * the shutter when something moves (a moving camera at its pose then). */
+static inline __attribute__((always_inline)) void
+path_start(const pt_renderer *r, pixel_ctx *pc, uint32_t index, path *pa, const uint32_t features)
 {
     float u2[2];
     pt_sample_group_eval2(&pc->jitter, index, u2);
-    camera_ray(r, pc->px, pc->py, u2, &pa->o, &pa->d);
+    pa->time = 0.0f;
+    if ((features & PT_FEAT_MOTION) && r->motion) {
+        pa->time = pt_sample_1d(pc->seed, index, DIM_TIME);
+        if (r->motion->camera_steps > 0) {
+            pt_camera c = pt_motion_camera(r->motion, pa->time);
+            camera_ray(r, &c, pc->px, pc->py, u2, &pa->o, &pa->d);
+        } else {
+            camera_ray(r, &r->scene->camera, pc->px, pc->py, u2, &pa->o, &pa->d);
+        }
+    } else {
+        camera_ray(r, &r->scene->camera, pc->px, pc->py, u2, &pa->o, &pa->d);
+    }
     pa->L = pt_v3(0, 0, 0);
     pa->beta = pt_v3(1, 1, 1);
     pa->prev_p = pa->o;
@@ -739,7 +794,16 @@ static inline __attribute__((always_inline)) void shade_emission(const pt_render
     const uint32_t strategy = r->params.light_strategy;
     if (!((features & PT_FEAT_EMITTERS) && emits(sf->mat)))
         return;
-    pt_vec3 le = pt_emitted(s, hit->tri, hit->b1, hit->b2, pt_v3_neg(pa->d));
+    pt_vec3 wo = pt_v3_neg(pa->d);
+    if ((features & PT_FEAT_MOTION) && r->motion && r->motion->num_triangles > 0 &&
+        r->motion->moving[hit->tri] != UINT32_MAX) {
+        /* pt_emitted tells the front by the still triangle; a moving one
+         * has turned: its side at the path's time (sf->ng) decides, and
+         * pt_emitted is handed the still normal on that side. */
+        pt_vec3 n0 = r->tris[hit->tri].ng;
+        wo = pt_v3_dot(sf->ng, wo) > 0.0f ? n0 : pt_v3_neg(n0);
+    }
+    pt_vec3 le = pt_emitted(s, hit->tri, hit->b1, hit->b2, wo);
     if (pa->prev_pdf > 0.0f && strategy == PT_LIGHT_MIS) {
         float lp = pt_lights_pdf(r->lights, s, hit->tri, pa->prev_p, sf->p, sf->ng);
         le = pt_v3_scale(le, power_heuristic(pa->prev_pdf, lp));
@@ -1136,10 +1200,17 @@ static inline __attribute__((always_inline)) void trace_shadow(const pt_renderer
         return;
     if (sink)
         sink->ray(sink->user, sr->from, sr->dir, sr->dist, 1);
-    int blocked =
-        (features & PT_FEAT_ALPHA) && r->alpha
-            ? pt_accel_occluded_alpha(r->accel, sr->from, sr->dir, sr->dist, sr->alpha_key)
-            : pt_accel_occluded(r->accel, sr->from, sr->dir, sr->dist);
+    int blocked;
+    if ((features & PT_FEAT_MOTION) && r->motion) {
+        int alpha = (features & PT_FEAT_ALPHA) && r->alpha;
+        blocked = pt_accel_occluded_time(r->accel, sr->from, sr->dir, sr->dist, pa->time, alpha,
+                                         alpha ? sr->alpha_key : 0);
+    } else {
+        blocked =
+            (features & PT_FEAT_ALPHA) && r->alpha
+                ? pt_accel_occluded_alpha(r->accel, sr->from, sr->dir, sr->dist, sr->alpha_key)
+                : pt_accel_occluded(r->accel, sr->from, sr->dir, sr->dist);
+    }
     if (!blocked)
         pa->L = pt_v3_add(pa->L, sr->contrib);
 }
@@ -1365,7 +1436,7 @@ static inline __attribute__((always_inline)) pt_vec3 li_impl(const pt_renderer *
                                                              int *covered, const uint32_t features)
 {
     path pa;
-    path_start(r, pc, index, &pa);
+    path_start(r, pc, index, &pa, features);
     uint64_t rays = 0, capped = 0;
     for (;;) {
         /* The bounce's numbers are drawn before the ray is traced: they do
@@ -1375,7 +1446,7 @@ static inline __attribute__((always_inline)) pt_vec3 li_impl(const pt_renderer *
         draw_bounce(pc, pa.depth, index, u);
         pt_hit hit;
         rays++;
-        if (!closest_hit(r, pa.o, pa.d, u[OFF_ALPHA], &hit, features)) {
+        if (!closest_hit(r, pa.o, pa.d, pa.time, u[OFF_ALPHA], &hit, features)) {
             medium_segment(r, &pa, INFINITY, features);
             shade_miss(r, &pa, features);
             break;
@@ -1384,7 +1455,7 @@ static inline __attribute__((always_inline)) pt_vec3 li_impl(const pt_renderer *
         capped += pa.depth >= r->params.max_depth; /* shade() ends it: it may not scatter */
         shadow_ray sr = {{0, 0, 0}, {0, 0, 0}, 0.0f, {0, 0, 0}, 0}; /* set when SHADE_SHADOW */
         surface sf;
-        surface_at(r, &hit, &sf, features);
+        surface_at(r, &hit, pa.time, &sf, features);
         pt_light_sample ls;
         int ls_ok = bounce_light(r, &sf, u, &ls, features);
         uint32_t st = shade(r, &pa, &hit, u, &sf, &ls, ls_ok, NULL, &sr, features);
@@ -1485,8 +1556,8 @@ trace_batch(const pt_renderer *r, path *paths, uint32_t n, stage_lanes *sl, cons
             uint32_t k = live[j];
             if (sink)
                 sink->ray(sink->user, paths[k].o, paths[k].d, INFINITY, 0);
-            if (closest_hit(r, paths[k].o, paths[k].d, alpha ? u[j][OFF_ALPHA] : 0.0f, &hits[k],
-                            features)) {
+            if (closest_hit(r, paths[k].o, paths[k].d, paths[k].time,
+                            alpha ? u[j][OFF_ALPHA] : 0.0f, &hits[k], features)) {
                 medium_segment(r, &paths[k], hits[k].t, features);
                 if (alpha && nh != j) /* u follows live[]'s compaction */
                     memcpy(u[nh], u[j], sizeof u[nh]);
@@ -1519,7 +1590,7 @@ trace_batch(const pt_renderer *r, path *paths, uint32_t n, stage_lanes *sl, cons
             for (uint32_t j = 0; j < nh; j++) {
                 uint32_t k = live[j];
                 surface sf;
-                surface_at(r, &hits[k], &sf, features);
+                surface_at(r, &hits[k], paths[k].time, &sf, features);
                 shade_emission(r, &paths[k], &hits[k], &sf, features);
                 pt_bsdf b = material_bsdf(r, &sf, features);
                 PT_LANE_PUT3(sl->p, j, sf.p);
@@ -1551,7 +1622,7 @@ trace_batch(const pt_renderer *r, path *paths, uint32_t n, stage_lanes *sl, cons
                 pt_sample_cosine_hemisphere_n(&u[0][OFF_BSDF_DIR], DIM_PER_BOUNCE, nh, cw[0], cw[1],
                                               cw[2]);
             for (uint32_t j = 0; j < nh; j++)
-                surface_at(r, &hits[live[j]], &sfs[j], features);
+                surface_at(r, &hits[live[j]], paths[live[j]].time, &sfs[j], features);
             if ((features & PT_FEAT_EMITTERS) && r->nee_n) {
                 lights_stage(r, nh, sfs, u, lss, ls_ok);
             } else {
@@ -1618,7 +1689,7 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
             uint32_t nb = b1 - b0;
             for (uint32_t g = 0; g < np; g++)
                 for (uint32_t i = 0; i < nb; i++)
-                    path_start(r, &pcs[g], b0 + i, &paths[g * nb + i]);
+                    path_start(r, &pcs[g], b0 + i, &paths[g * nb + i], features);
             local.rays += trace_batch(r, paths, np * nb, sl, features, sink, &local.capped);
             for (uint32_t g = 0; g < np; g++) {
                 pt_block_acc blk = {{0, 0, 0}, 0, 0, 0};
@@ -1672,7 +1743,9 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
 /* The material features beyond the core's (normal maps, vertex colours). */
 #define SURFACE_EXTRAS (uint32_t)(PT_FEAT_NORMAL_MAP | PT_FEAT_VERTEX_COLOR)
 /* Features that only the general variant has code for. */
-#define GENERAL_ONLY (uint32_t)(OTHER_LIGHTS | PT_FEAT_ALPHA | GLASS | SURFACE_EXTRAS | LAYERS)
+/* Motion blur (PT_FEAT_MOTION) too: a path's time reaches every ray query. */
+#define GENERAL_ONLY                                                                               \
+    (uint32_t)(OTHER_LIGHTS | PT_FEAT_ALPHA | GLASS | SURFACE_EXTRAS | LAYERS | PT_FEAT_MOTION)
 VARIANT(li_general, tile_general, ALL_FEATURES)
 VARIANT(li_untextured, tile_untextured, ALL_FEATURES & ~NO_TEX & ~GENERAL_ONLY)
 VARIANT(li_lambert, tile_lambert, ALL_FEATURES & ~(uint32_t)PT_FEAT_GLOSSY & ~GENERAL_ONLY)
@@ -1740,6 +1813,7 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
     r->nee_n = r->nee && pt_lights_count(r->lights) >= LIGHTS_N_MIN && others == 0;
     uint32_t features = scene->features | params->extra_features;
     r->alpha = (scene->features & PT_FEAT_ALPHA) != 0;
+    r->motion = (scene->features & PT_FEAT_MOTION) ? scene->motion : NULL;
     if (params->env)
         features |= PT_FEAT_ENV;
     pick_variant(r, features);

@@ -21,6 +21,15 @@
  * data to filters). The decision is a pure function of (key, triangle), so
  * the answer does not depend on the order in which Embree visits candidates
  * or on a triangle split into several BVH leaves being tested more than once.
+ *
+ * Motion blur (PT_FEAT_MOTION with moving triangles, common/scene/motion.h):
+ * two geometries, the still triangles (id 0, one time step) and the moving
+ * ones (id 1, the motion's K time steps, a vertex buffer per step), so that
+ * still geometry keeps its ordinary BVH nodes. A hit's primID is then an
+ * index into its geometry's list of scene triangles (map[geomID]). Queries
+ * pass the ray's time in [0, 1] (the shutter's); Embree interpolates the
+ * moving vertices linearly between the two steps around it. A scene without
+ * moving triangles is built and queried exactly as before.
  */
 #include "common/scene/accel.h"
 
@@ -31,6 +40,7 @@
 
 #include "common/base/alloc.h"
 #include "common/scene/alpha.h"
+#include "common/scene/motion.h"
 
 /* Waechter & Binder's constants (RTG ch. 6), for a scene of about unit size. */
 #define OFFSET_ORIGIN (1.0f / 32.0f)
@@ -41,6 +51,9 @@ struct pt_accel {
     RTCScene scene;
     float origin, float_scale; /* pt_accel_offset_ray's constants for this scene */
     const pt_scene *alpha;     /* the scene, when it has alpha filters; else NULL */
+    int moving;                /* two geometries (still, moving): map[geomID][primID] is the
+                                  scene triangle */
+    const uint32_t *map[2];
 };
 
 /* What a query passes to the alpha filter. rtc comes first: Embree hands the
@@ -49,6 +62,7 @@ typedef struct alpha_ctx {
     struct RTCIntersectContext rtc;
     const pt_scene *scene; /* NULL: the query ignores alpha */
     uint32_t key;
+    const pt_accel *accel; /* for the triangle maps of a moving scene */
 } alpha_ctx;
 
 /* Field i of an RTCHitN of N hits: Embree's RTCHitN_u/v/primID, which its
@@ -79,6 +93,11 @@ static void alpha_filter(const struct RTCFilterFunctionNArguments *args)
         if (args->valid[i] == 0)
             continue;
         uint32_t tri = hitn_prim(args->hit, args->N, i);
+        if (c->accel->moving) {
+            uint32_t gid;
+            memcpy(&gid, (const char *)args->hit + 4 * ((size_t)6 * args->N + i), sizeof gid);
+            tri = c->accel->map[gid][tri];
+        }
         if (!pt_alpha_tri(c->scene, tri))
             continue;
         if (!pt_alpha_hit(c->scene, tri, hitn_float(args->hit, args->N, 3, i),
@@ -127,6 +146,61 @@ static pt_status check_device(RTCDevice device, const char *step, pt_error *err)
     return PT_OK;
 }
 
+/* Attaches a triangle geometry of nt triangles: triangle i is the scene's
+ * sel[i] (sel NULL: i), its vertices indices[3 sel[i] ..] into nv vertices
+ * of `steps` time steps, step k at pos + k * step_stride (floats). With
+ * alpha materials it gets the filters. Its id is `id`. */
+static pt_status add_geometry(pt_accel *a, const pt_scene *scene, unsigned id, uint32_t steps,
+                              uint32_t nv, const float *pos, size_t step_stride, uint32_t nt,
+                              const uint32_t *sel, const uint32_t *indices, pt_error *err)
+{
+    pt_status st;
+    RTCGeometry g = rtcNewGeometry(a->device, RTC_GEOMETRY_TYPE_TRIANGLE);
+    if ((st = check_device(a->device, "rtcNewGeometry", err)) != PT_OK)
+        return st;
+    rtcSetGeometryBuildQuality(g, RTC_BUILD_QUALITY_HIGH);
+    if (steps > 1)
+        rtcSetGeometryTimeStepCount(g, steps);
+    uint32_t *ib = rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
+                                           3 * sizeof(uint32_t), nt);
+    if (!ib && nt > 0)
+        goto nomem;
+    for (uint32_t k = 0; k < steps; k++) {
+        float *vb = rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, k, RTC_FORMAT_FLOAT3,
+                                            3 * sizeof(float), nv);
+        if (!vb && nv > 0)
+            goto nomem;
+        if (nv > 0)
+            memcpy(vb, pos + step_stride * k, (size_t)nv * 3 * sizeof(float));
+    }
+    if (sel) {
+        for (uint32_t i = 0; i < nt; i++)
+            memcpy(ib + 3 * (size_t)i, indices + 3 * (size_t)sel[i], 3 * sizeof(uint32_t));
+    } else if (nt > 0) {
+        memcpy(ib, indices, (size_t)nt * 3 * sizeof(uint32_t));
+    }
+    if (scene->features & PT_FEAT_ALPHA) {
+        if (!rtcGetDeviceProperty(a->device, RTC_DEVICE_PROPERTY_FILTER_FUNCTION_SUPPORTED)) {
+            rtcReleaseGeometry(g);
+            return pt_error_set(err, PT_ERR_LIMIT,
+                                "embree: this build has no filter functions, which alpha "
+                                "MASK and BLEND materials need");
+        }
+        rtcSetGeometryIntersectFilterFunction(g, alpha_filter);
+        rtcSetGeometryOccludedFilterFunction(g, alpha_filter);
+        a->alpha = scene;
+    }
+    rtcCommitGeometry(g);
+    rtcAttachGeometryByID(a->scene, g, id);
+    rtcReleaseGeometry(g);
+    return check_device(a->device, "geometry", err);
+nomem:
+    rtcReleaseGeometry(g);
+    if ((st = check_device(a->device, "vertex/index buffers", err)) == PT_OK)
+        st = pt_error_set(err, PT_ERR_NOMEM, "embree: vertex/index buffers: out of memory");
+    return st;
+}
+
 pt_status pt_accel_new(const pt_scene *scene, pt_accel **out, pt_error *err)
 {
     pt_status st;
@@ -152,39 +226,22 @@ pt_status pt_accel_new(const pt_scene *scene, pt_accel **out, pt_error *err)
     rtcSetSceneFlags(a->scene, RTC_SCENE_FLAG_ROBUST);
     rtcSetSceneBuildQuality(a->scene, RTC_BUILD_QUALITY_HIGH);
 
-    if (scene->num_triangles > 0) {
-        RTCGeometry g = rtcNewGeometry(a->device, RTC_GEOMETRY_TYPE_TRIANGLE);
-        if ((st = check_device(a->device, "rtcNewGeometry", err)) != PT_OK)
+    if (scene->motion && scene->motion->num_triangles > 0) {
+        const pt_motion *m = scene->motion;
+        a->moving = 1;
+        a->map[0] = m->static_tri;
+        a->map[1] = m->tri;
+        if (m->num_static > 0 &&
+            (st = add_geometry(a, scene, 0, 1, scene->num_vertices, scene->positions, 0,
+                               m->num_static, m->static_tri, scene->indices, err)) != PT_OK)
             goto fail;
-        rtcSetGeometryBuildQuality(g, RTC_BUILD_QUALITY_HIGH);
-        float *vb = rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
-                                            3 * sizeof(float), scene->num_vertices);
-        uint32_t *ib = rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
-                                               3 * sizeof(uint32_t), scene->num_triangles);
-        if (!vb || !ib) {
-            rtcReleaseGeometry(g);
-            if ((st = check_device(a->device, "vertex/index buffers", err)) == PT_OK)
-                st = pt_error_set(err, PT_ERR_NOMEM, "embree: vertex/index buffers: out of memory");
+        if ((st = add_geometry(a, scene, 1, m->steps, m->num_vertices, m->positions,
+                               (size_t)m->num_vertices * 3, m->num_triangles, NULL, m->indices,
+                               err)) != PT_OK)
             goto fail;
-        }
-        memcpy(vb, scene->positions, (size_t)scene->num_vertices * 3 * sizeof(float));
-        memcpy(ib, scene->indices, (size_t)scene->num_triangles * 3 * sizeof(uint32_t));
-        if (scene->features & PT_FEAT_ALPHA) {
-            if (!rtcGetDeviceProperty(a->device, RTC_DEVICE_PROPERTY_FILTER_FUNCTION_SUPPORTED)) {
-                rtcReleaseGeometry(g);
-                st = pt_error_set(err, PT_ERR_LIMIT,
-                                  "embree: this build has no filter functions, which alpha "
-                                  "MASK and BLEND materials need");
-                goto fail;
-            }
-            rtcSetGeometryIntersectFilterFunction(g, alpha_filter);
-            rtcSetGeometryOccludedFilterFunction(g, alpha_filter);
-            a->alpha = scene;
-        }
-        rtcCommitGeometry(g);
-        rtcAttachGeometry(a->scene, g); /* geometry id 0: primID is the triangle index */
-        rtcReleaseGeometry(g);
-        if ((st = check_device(a->device, "geometry", err)) != PT_OK)
+    } else if (scene->num_triangles > 0) {
+        if ((st = add_geometry(a, scene, 0, 1, scene->num_vertices, scene->positions, 0,
+                               scene->num_triangles, NULL, scene->indices, err)) != PT_OK)
             goto fail;
     }
     rtcCommitScene(a->scene);
@@ -222,7 +279,7 @@ void pt_accel_free(pt_accel *accel)
     pt_free(accel);
 }
 
-static void init_ray(struct RTCRay *r, pt_vec3 o, pt_vec3 d, float tfar)
+static void init_ray(struct RTCRay *r, pt_vec3 o, pt_vec3 d, float tfar, float time)
 {
     r->org_x = o.x;
     r->org_y = o.y;
@@ -231,7 +288,7 @@ static void init_ray(struct RTCRay *r, pt_vec3 o, pt_vec3 d, float tfar)
     r->dir_x = d.x;
     r->dir_y = d.y;
     r->dir_z = d.z;
-    r->time = 0.0f;
+    r->time = time;
     r->tfar = tfar;
     r->mask = 0xffffffffu;
     r->id = 0;
@@ -239,7 +296,7 @@ static void init_ray(struct RTCRay *r, pt_vec3 o, pt_vec3 d, float tfar)
 }
 
 /* The closest hit; scene NULL ignores alpha. */
-static inline int intersect(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar,
+static inline int intersect(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, float time,
                             const pt_scene *scene, uint32_t key, pt_hit *hit)
 {
     hit->tri = UINT32_MAX;
@@ -251,8 +308,9 @@ static inline int intersect(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float t
     rtcInitIntersectContext(&ctx.rtc);
     ctx.scene = scene;
     ctx.key = key;
+    ctx.accel = accel;
     struct RTCRayHit rh;
-    init_ray(&rh.ray, o, d, tfar);
+    init_ray(&rh.ray, o, d, tfar, time);
     rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
     rh.hit.primID = RTC_INVALID_GEOMETRY_ID;
     rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
@@ -262,19 +320,19 @@ static inline int intersect(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float t
     hit->t = rh.ray.tfar;
     hit->b1 = rh.hit.u;
     hit->b2 = rh.hit.v;
-    hit->tri = rh.hit.primID;
+    hit->tri = accel->moving ? accel->map[rh.hit.geomID][rh.hit.primID] : rh.hit.primID;
     return 1;
 }
 
 int pt_accel_intersect(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, pt_hit *hit)
 {
-    return intersect(accel, o, d, tfar, NULL, 0, hit);
+    return intersect(accel, o, d, tfar, 0.0f, NULL, 0, hit);
 }
 
 int pt_accel_intersect_alpha(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, uint32_t key,
                              pt_hit *hit)
 {
-    return intersect(accel, o, d, tfar, accel->alpha, key, hit);
+    return intersect(accel, o, d, tfar, 0.0f, accel->alpha, key, hit);
 }
 
 /* nextafterf(t, 0) for t > 0 (finite or not), without the library call: a
@@ -288,7 +346,7 @@ static inline float below(float t)
     return t;
 }
 
-static inline int occluded(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar,
+static inline int occluded(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, float time,
                            const pt_scene *scene, uint32_t key)
 {
     if (!(tfar > 0.0f))
@@ -297,24 +355,37 @@ static inline int occluded(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tf
     rtcInitIntersectContext(&ctx.rtc);
     ctx.scene = scene;
     ctx.key = key;
+    ctx.accel = accel;
     struct RTCRay r;
     /* The contract is the half-open [0, tfar): the end point itself (a light
      * point the caller offset towards the shading point) must not occlude.
      * Embree's test is closed, so pass the next float below tfar: exactly the
      * open interval, not a hand-picked shortening. */
-    init_ray(&r, o, d, below(tfar));
+    init_ray(&r, o, d, below(tfar), time);
     rtcOccluded1(accel->scene, &ctx.rtc, &r);
     return r.tfar == -INFINITY;
 }
 
 int pt_accel_occluded(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar)
 {
-    return occluded(accel, o, d, tfar, NULL, 0);
+    return occluded(accel, o, d, tfar, 0.0f, NULL, 0);
 }
 
 int pt_accel_occluded_alpha(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, uint32_t key)
 {
-    return occluded(accel, o, d, tfar, accel->alpha, key);
+    return occluded(accel, o, d, tfar, 0.0f, accel->alpha, key);
+}
+
+int pt_accel_intersect_time(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, float time,
+                            int alpha, uint32_t key, pt_hit *hit)
+{
+    return intersect(accel, o, d, tfar, time, alpha ? accel->alpha : NULL, key, hit);
+}
+
+int pt_accel_occluded_time(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, float time,
+                           int alpha, uint32_t key)
+{
+    return occluded(accel, o, d, tfar, time, alpha ? accel->alpha : NULL, key);
 }
 
 pt_vec3 pt_accel_degenerate_normal(pt_vec3 n)

@@ -46,6 +46,16 @@ int pt_accel_intersect_alpha(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float 
                              pt_hit *hit);
 int pt_accel_occluded_alpha(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, uint32_t key);
 
+/* The same at a time in [0, 1] of the shutter (motion blur,
+ * common/scene/motion.h): moving triangles are where they are at that time
+ * (between time steps on the straight line, as Embree interpolates); still
+ * ones ignore it. alpha: 0 ignores alpha (as pt_accel_intersect), 1 as the
+ * _alpha functions with key. Time 0 with alpha 0 is pt_accel_intersect. */
+int pt_accel_intersect_time(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, float time,
+                            int alpha, uint32_t key, pt_hit *hit);
+int pt_accel_occluded_time(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, float time,
+                           int alpha, uint32_t key);
+
 /* The unit normal of a degenerate or overflowing triangle's cross product n
  * (computed in double; (0,0,1) when it has no direction). */
 pt_vec3 pt_accel_degenerate_normal(pt_vec3 n);

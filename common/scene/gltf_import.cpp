@@ -75,6 +75,7 @@ extern "C" {
 #include "common/base/hash.h"
 #include "common/scene/anim.h"
 #include "common/scene/gltf_import.h"
+#include "common/scene/motion.h"
 #include "common/scene/scene.h"
 #include "common/scene/uri.h"
 }
@@ -2005,6 +2006,14 @@ extern "C" pt_status pt_scene_load(const char *path, const pt_scene_opts *opts, 
         return load(path, opts, out, nullptr, err);
     pt_anim *rig = nullptr;
     pt_status st = load(path, opts, out, &rig, err);
+    // Motion blur: the scene posed over the shutter (common/scene/motion.h).
+    if (st == PT_OK && opts->shutter_close > opts->shutter_open) {
+        st = pt_motion_from_anim(*out, rig, opts->shutter_open, opts->shutter_close, err);
+        if (st != PT_OK) {
+            pt_scene_free(*out);
+            *out = nullptr;
+        }
+    }
     pt_anim_free(rig);
     return st;
 }

@@ -31,6 +31,7 @@
 #include "common/base/alloc.h"
 #include "common/base/hash.h"
 #include "common/scene/gltf_import.h"
+#include "common/scene/motion.h"
 #include "common/scene/tangent.h"
 
 /* Vertices are not capped by the file's triangle count alone: unreferenced
@@ -60,6 +61,7 @@ struct pt_scene_builder {
     uint32_t npun, cap_pun, cap_pun_pos;
     int hash_set;
     char hash[65];
+    pt_motion_build *motion; /* moving meshes' time steps, or NULL (motion.h) */
 };
 
 /* Grows *p (elements of `elem` bytes, `per` per item) to hold `need` items. */
@@ -151,6 +153,7 @@ void pt_scene_builder_free(pt_scene_builder *b)
     pt_free(b->cam_pos);
     pt_free(b->puns);
     pt_free(b->pun_pos);
+    pt_motion_build_free(b->motion);
     pt_free(b);
 }
 
@@ -447,6 +450,32 @@ pt_status pt_scene_builder_add_mesh(pt_scene_builder *b, const char *what, const
                                             xform ? xd : NULL, material, err);
 }
 
+pt_status pt_scene_builder_add_mesh_motion(pt_scene_builder *b, const char *what, uint32_t steps,
+                                           const float *const *positions,
+                                           const float *const *normals, const float *uvs,
+                                           uint32_t nv, const uint32_t *indices, uint32_t nt,
+                                           uint32_t material, pt_error *err)
+{
+    if (!what)
+        what = "mesh";
+    if (!positions || steps < 2 || steps > PT_MOTION_MAX_STEPS)
+        return pt_error_set(err, PT_ERR_ARG, "%s: %u time steps, not 2 to %u", what, steps,
+                            PT_MOTION_MAX_STEPS);
+    uint32_t v0 = b->nv, t0 = b->nt;
+    pt_status st =
+        pt_scene_builder_add_mesh_extra(b, what, positions[0], normals ? normals[0] : NULL, uvs,
+                                        NULL, nv, indices, nt, NULL, material, err);
+    if (st != PT_OK || b->nt == t0)
+        return st;
+    st = pt_motion_build_add(&b->motion, what, v0, nv, t0, nt, indices, steps, positions, normals,
+                             err);
+    if (st != PT_OK) { /* the mesh goes too: a failed add leaves the builder as it was */
+        b->nv = v0;
+        b->nt = t0;
+    }
+    return st;
+}
+
 pt_status pt_scene_builder_add_mesh_dxform(pt_scene_builder *b, const char *what,
                                            const float *positions, const float *normals,
                                            const float *uvs, uint32_t nv, const uint32_t *indices,
@@ -734,6 +763,8 @@ static pt_status hash_scene(const pt_scene *s, char out[65], pt_error *err)
     EVP_DigestUpdate(ctx, s->indices, 3 * sizeof(uint32_t) * s->num_triangles);
     EVP_DigestUpdate(ctx, s->tri_material, sizeof(uint32_t) * s->num_triangles);
     EVP_DigestUpdate(ctx, s->materials, sizeof(pt_material) * s->num_materials);
+    if (s->motion) /* only then: a still scene keeps its hash */
+        pt_motion_hash(s->motion, ctx);
     for (uint32_t i = 0; i < s->num_textures; i++) {
         const pt_texture *t = &s->textures[i];
         int32_t h[5] = {(int32_t)t->width, (int32_t)t->height, t->srgb, t->wrap_s, t->wrap_t};
@@ -828,6 +859,7 @@ void pt_scene_free(pt_scene *s)
     free_textures(s->textures, s->num_textures);
     pt_free(s->cameras);
     pt_free(s->punctual);
+    pt_motion_free(s->motion);
     pt_free(s);
 }
 
@@ -1128,6 +1160,8 @@ pt_status pt_scene_builder_finish(pt_scene_builder *b, const pt_scene_opts *opts
     if (s->num_punctual > 0)
         s->features |= PT_FEAT_PUNCTUAL;
     if ((st = finish_extra(b, s, err)) != PT_OK)
+        goto fail;
+    if ((st = pt_motion_build_finish(b->motion, s, sc, t, err)) != PT_OK)
         goto fail;
     if (b->hash_set) {
         memcpy(s->hash, b->hash, sizeof s->hash);

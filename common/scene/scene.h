@@ -56,6 +56,9 @@ enum { PT_FEAT_TRANSMISSION = 1u << 11, PT_FEAT_VOLUME = 1u << 12 };
  * clearcoat > 0 (KHR_materials_clearcoat) or a sheen colour > 0
  * (KHR_materials_sheen). Both set PT_FEAT_GLOSSY too. */
 enum { PT_FEAT_CLEARCOAT = 1u << 13, PT_FEAT_SHEEN = 1u << 14 };
+/* Motion blur (common/scene/motion.h): something moves while the shutter is
+ * open (scene->motion is not NULL). */
+enum { PT_FEAT_MOTION = 1u << 15 };
 
 /* glTF alphaMode (common/scene/alpha.h). OPAQUE is 0, so a material
  * initialised with zeros is opaque. */
@@ -176,6 +179,8 @@ typedef struct pt_punctual {
     char name[64];
 } pt_punctual;
 
+typedef struct pt_motion pt_motion; /* common/scene/motion.h */
+
 typedef struct pt_scene {
     uint32_t num_vertices;
     uint32_t num_triangles;
@@ -211,6 +216,7 @@ typedef struct pt_scene {
     double origin[3];               /* world position of scene space's zero: world = stored +
                                        origin; a multiple of a power of two near the centre
                                        of the bounds, or 0 (see above) */
+    pt_motion *motion;              /* what moves within the shutter, or NULL (motion.h) */
 } pt_scene;
 
 typedef void (*pt_warn_fn)(void *user, const char *message);
@@ -233,6 +239,12 @@ typedef struct pt_scene_opts {
     int animate;
     double time;
     const char *animation;
+    /* Motion blur (common/scene/motion.h): with animate 1 and shutter_close >
+     * shutter_open (seconds of animation), the scene is posed at time steps
+     * over [shutter_open, shutter_close] and what moves there blurs; its
+     * still pose is then the one at shutter_open. Otherwise both are
+     * ignored (0, 0 when zeroed: no motion blur). */
+    double shutter_open, shutter_close;
 } pt_scene_opts;
 
 /* Hard caps on what a file may ask for. */
@@ -365,6 +377,19 @@ pt_status pt_scene_builder_add_mesh_extra(pt_scene_builder *b, const char *what,
                                           const float *uvs, const pt_mesh_extra *extra, uint32_t nv,
                                           const uint32_t *indices, uint32_t nt,
                                           const double xform[16], uint32_t material, pt_error *err);
+/* Adds a mesh that moves while the shutter is open: as
+ * pt_scene_builder_add_mesh without a transform, posed at `steps` times
+ * evenly spaced over the shutter (common/scene/motion.h): positions[k] (3*nv
+ * floats, world space) and normals[k] (or normals NULL: computed per step)
+ * for k < steps; step 0 is also the mesh's still pose. steps must be in
+ * [2, PT_MOTION_MAX_STEPS] and the same for every moving mesh of the scene
+ * (PT_ERR_ARG). A mesh whose steps are all equal does not move (no
+ * PT_FEAT_MOTION). */
+pt_status pt_scene_builder_add_mesh_motion(pt_scene_builder *b, const char *what, uint32_t steps,
+                                           const float *const *positions,
+                                           const float *const *normals, const float *uvs,
+                                           uint32_t nv, const uint32_t *indices, uint32_t nt,
+                                           uint32_t material, pt_error *err);
 /* Adds a camera (copied) in world space. Rejects (PT_ERR_FORMAT) non-finite
  * vectors, a position over PT_SCENE_MAX_COORD, yfov outside (0, pi), aspect
  * outside [0, 1e6), a negative or non-finite znear. */

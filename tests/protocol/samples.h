@@ -76,6 +76,9 @@ static inline proto_task sample_task(int v)
     m.animate = v ? 1 : 0;
     m.time = v ? 41.0 / 24.0 : 0.0;
     strcpy(m.animation, v ? "Walk" : "");
+    /* v 0: a 180-degree shutter at 24 frames per second; v 1: off. */
+    m.shutter[0] = 0.0;
+    m.shutter[1] = v ? 0.0 : 0.5 / 24.0;
     return m;
 }
 
@@ -151,6 +154,8 @@ static inline proto_submit sample_submit(int v)
         m.fps = 23.976;
         strcpy(m.animation, "Survey");
     }
+    m.shutter[0] = v ? 0.25 / 30.0 : 0.0;
+    m.shutter[1] = v ? 0.75 / 30.0 : 0.0;
     return m;
 }
 

@@ -212,12 +212,13 @@ static void check_round_trip(int s, int v, const uint8_t *p, size_t len)
     }
     case 6: {
         proto_task a = sample_task(v), b;
-        CHECK(len == 134 + strlen(a.camera) + strlen(a.env.name) + strlen(a.variant) +
+        CHECK(len == 150 + strlen(a.camera) + strlen(a.env.name) + strlen(a.variant) +
                          strlen(a.animation) &&
               proto_msg_decode_task(p, len, &b, &err) == PT_OK);
         CHECK(a.animate == b.animate && proto_f64_bits(a.time) == proto_f64_bits(b.time) &&
               strcmp(a.animation, b.animation) == 0);
         CHECK(strcmp(a.camera, b.camera) == 0 && a.film_flags == b.film_flags);
+        CHECK(memcmp(a.shutter, b.shutter, sizeof a.shutter) == 0);
         CHECK(strcmp(a.variant, b.variant) == 0);
         CHECK(proto_env_same(&a.env, &b.env));
         CHECK(a.job_id == b.job_id && a.task_id == b.task_id);
@@ -288,12 +289,13 @@ static void check_round_trip(int s, int v, const uint8_t *p, size_t len)
     case 12: {
         proto_submit a = sample_submit(v), b;
         CHECK(proto_msg_decode_submit(p, len, &b, &err) == PT_OK);
-        CHECK(len == 137 + strlen(a.name) + strlen(a.camera) + strlen(a.env.name) +
+        CHECK(len == 153 + strlen(a.name) + strlen(a.camera) + strlen(a.env.name) +
                          strlen(a.variant) + strlen(a.animation));
         CHECK(a.frame_first == b.frame_first && a.frame_last == b.frame_last &&
               a.frame_step == b.frame_step && proto_f64_bits(a.fps) == proto_f64_bits(b.fps) &&
               strcmp(a.animation, b.animation) == 0);
         CHECK(strcmp(a.camera, b.camera) == 0 && a.film_flags == b.film_flags);
+        CHECK(memcmp(a.shutter, b.shutter, sizeof a.shutter) == 0);
         CHECK(strcmp(a.variant, b.variant) == 0);
         CHECK(proto_env_same(&a.env, &b.env));
         CHECK(strcmp(a.name, b.name) == 0 && a.width == b.width && a.height == b.height);
@@ -488,7 +490,9 @@ static proto_writer task_raw(pt_rect t, uint32_t s0, uint32_t s1, uint32_t width
     proto_w_u16(&w, 0); /* variant: "" */
     proto_w_u8(&w, 0);  /* animate: a still */
     proto_w_f64(&w, 0.0);
-    proto_w_u16(&w, 0); /* animation: "" */
+    proto_w_u16(&w, 0);   /* animation: "" */
+    proto_w_f64(&w, 0.0); /* shutter: off */
+    proto_w_f64(&w, 0.0);
     return w;
 }
 
@@ -557,9 +561,9 @@ static void test_task(void)
         proto_task good = sample_task(k & 1);
         CHECK(proto_msg_encode_task(&ew, &good, &err) == PT_OK);
         /* Patch the bad value into the good bytes: the ENV block, then the
-         * film flags, the variant and the pose end the message. */
-        uint8_t *env_at = ew.buf + ew.len - POSE_TAIL(good) - 2 - strlen(good.variant) - 4 - 23 -
-                          strlen(good.env.name);
+         * film flags, the variant, the pose and the shutter end the message. */
+        uint8_t *env_at = ew.buf + ew.len - 16 - POSE_TAIL(good) - 2 - strlen(good.variant) - 4 -
+                          23 - strlen(good.env.name);
         if (k == 0)
             proto_put_u32(env_at + 19, 0x7FC00000u); /* rgb[2], the name empty */
         else if (k == 1)
@@ -585,12 +589,15 @@ static void test_task(void)
           strcmp(back.camera, t.camera) == 0);
     proto_writer_reset(&w);
     proto_writer raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
-    raw.len -= 2 + 23 + 4 + 2 + 11; /* the empty camera, ENV, film flags, variant and pose */
+    raw.len -= 2 + 23 + 4 + 2 + 11 + 16; /* the empty camera, ENV, film flags, variant, pose,
+                                            shutter */
     proto_w_u16(&raw, PROTO_MAX_NAME + 1);
     for (uint32_t i = 0; i <= PROTO_MAX_NAME; i++)
         proto_w_u8(&raw, 'c');
     proto_w_u32(&raw, 0);
     proto_w_u16(&raw, 0);
+    proto_w_f64(&raw, 0.0);
+    proto_w_f64(&raw, 0.0);
     CHECK(decode_any(PROTO_MSG_TASK, raw.buf, raw.len, &err) == PT_ERR_PROTO &&
           strstr(err.msg, "camera"));
     proto_writer_fini(&raw);
@@ -606,7 +613,7 @@ static void test_task(void)
     proto_writer_reset(&w);
     CHECK(proto_msg_encode_task(&w, &t, &err) == PT_ERR_ARG && w.len == 0);
     raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
-    proto_put_u32(raw.buf + raw.len - 6 - 11, 0x80000000u);
+    proto_put_u32(raw.buf + raw.len - 16 - 11 - 6, 0x80000000u);
     CHECK(decode_any(PROTO_MSG_TASK, raw.buf, raw.len, &err) == PT_ERR_PROTO &&
           strstr(err.msg, "film flags"));
     proto_writer_fini(&raw);
@@ -623,7 +630,7 @@ static void test_task(void)
     CHECK(proto_msg_decode_task(w.buf, w.len, &back, &err) == PT_OK &&
           strcmp(back.variant, t.variant) == 0);
     raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
-    raw.len -= 2 + 11; /* the empty variant and the still's pose */
+    raw.len -= 2 + 11 + 16; /* the empty variant, the still's pose and the shutter */
     proto_w_u16(&raw, PROTO_MAX_NAME + 1);
     for (uint32_t i = 0; i <= PROTO_MAX_NAME; i++)
         proto_w_u8(&raw, 'v');
@@ -635,6 +642,37 @@ static void test_task(void)
     memset(t.variant, 'w', sizeof t.variant);
     proto_writer_reset(&w);
     CHECK(proto_msg_encode_task(&w, &t, &err) == PT_ERR_ARG && w.len == 0);
+
+    /* The shutter ends the message: it round-trips; open after close,
+     * negative, NaN or over the cap is refused both ways; the protocol-3
+     * layout without it is a truncated TASK. */
+    t = sample_task(0);
+    CHECK(t.shutter[1] > t.shutter[0]);
+    proto_writer_reset(&w);
+    CHECK(proto_msg_encode_task(&w, &t, &err) == PT_OK);
+    CHECK(proto_msg_decode_task(w.buf, w.len, &back, &err) == PT_OK &&
+          memcmp(back.shutter, t.shutter, sizeof t.shutter) == 0);
+    const double bad_shutters[][2] = {{0.5, 0.25}, {-1.0, 0.0},     {0.0, NAN},
+                                      {NAN, 0.0},  {0.0, INFINITY}, {0.0, 3601.0}};
+    for (size_t k = 0; k < sizeof bad_shutters / sizeof *bad_shutters; k++) {
+        t.shutter[0] = bad_shutters[k][0];
+        t.shutter[1] = bad_shutters[k][1];
+        proto_writer_reset(&w);
+        CHECKF(proto_msg_encode_task(&w, &t, &err) == PT_ERR_ARG && w.len == 0, "shutter %zu", k);
+        raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
+        raw.len -= 16;
+        proto_w_f64(&raw, bad_shutters[k][0]);
+        proto_w_f64(&raw, bad_shutters[k][1]);
+        CHECKF(decode_any(PROTO_MSG_TASK, raw.buf, raw.len, &err) == PT_ERR_PROTO &&
+                   strstr(err.msg, "shutter"),
+               "shutter %zu: %s", k, err.msg);
+        proto_writer_fini(&raw);
+    }
+    raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
+    raw.len -= 16;
+    CHECK(decode_any(PROTO_MSG_TASK, raw.buf, raw.len, &err) == PT_ERR_PROTO &&
+          strstr(err.msg, "truncated"));
+    proto_writer_fini(&raw);
     proto_writer_fini(&w);
 }
 
@@ -978,6 +1016,8 @@ static pt_status submit_check(const proto_submit *m, const char *want)
     proto_w_f64(&w, m->fps);
     proto_w_u16(&w, (uint16_t)strnlen(m->animation, sizeof m->animation));
     proto_w_bytes(&w, m->animation, strnlen(m->animation, sizeof m->animation));
+    proto_w_f64(&w, m->shutter[0]);
+    proto_w_f64(&w, m->shutter[1]);
     pt_error err = {0};
     pt_status st = decode_any(PROTO_MSG_SUBMIT, w.buf, w.len, &err);
     if (st != PT_OK && want && !strstr(err.msg, want)) {
@@ -1022,6 +1062,16 @@ static void test_submit(void)
     CHECK(submit_check(&m, NULL) == PT_OK);
     memset(m.variant, 'v', sizeof m.variant);
     CHECK(submit_check(&m, "variant") == PT_ERR_PROTO);
+    /* The shutter: a quarter to three quarters of a frame at 30 per second
+     * travels; open after close, negative or NaN is refused both ways. */
+    m = sample_submit(1);
+    CHECK(m.shutter[1] > m.shutter[0] && submit_check(&m, NULL) == PT_OK);
+    m.shutter[0] = m.shutter[1] + 1.0;
+    CHECK(submit_check(&m, "shutter") == PT_ERR_PROTO);
+    m.shutter[0] = -0.5;
+    CHECK(submit_check(&m, "shutter") == PT_ERR_PROTO);
+    m.shutter[0] = NAN;
+    CHECK(submit_check(&m, "shutter") == PT_ERR_PROTO);
     static const uint64_t bad_errors[] = {
         0x7FF8000000000000ull, /* NaN */
         0xFFF8000000000000ull, /* -NaN */
@@ -1106,7 +1156,7 @@ static void test_submit(void)
     m = sample_submit(0);
     CHECK(proto_msg_encode_submit(&w, &m, &err) == PT_OK);
     CHECK(decode_any(PROTO_MSG_SUBMIT, w.buf,
-                     w.len - 22 - strlen(m.animation) - 2 - strlen(m.variant) - 4 - 1,
+                     w.len - 16 - 22 - strlen(m.animation) - 2 - strlen(m.variant) - 4 - 1,
                      &err) == PT_ERR_PROTO);
     CHECK(strstr(err.msg, "background colour") != NULL);
     proto_writer_reset(&w);
@@ -1379,7 +1429,7 @@ static void test_frames(void)
         /* By hand: the good bytes with the bad pose patched in. */
         proto_task good = sample_task(k < 2);
         CHECK(proto_msg_encode_task(&w, &good, &err) == PT_OK);
-        uint8_t *pose = w.buf + w.len - POSE_TAIL(good);
+        uint8_t *pose = w.buf + w.len - 16 - POSE_TAIL(good); /* the shutter after it */
         pose[0] = t.animate;
         proto_put_u64(pose + 1, proto_f64_bits(t.time));
         CHECKF(decode_any(PROTO_MSG_TASK, w.buf, w.len, &err) == PT_ERR_PROTO &&
@@ -1390,7 +1440,7 @@ static void test_frames(void)
     t = sample_task(0);
     proto_writer_reset(&w);
     CHECK(proto_msg_encode_task(&w, &t, &err) == PT_OK);
-    CHECK(decode_any(PROTO_MSG_TASK, w.buf, w.len - POSE_TAIL(t), &err) == PT_ERR_PROTO);
+    CHECK(decode_any(PROTO_MSG_TASK, w.buf, w.len - 16 - POSE_TAIL(t), &err) == PT_ERR_PROTO);
     CHECK(proto_msg_decode_task(w.buf, w.len, &back, &err) == PT_OK && back.animate == 0 &&
           back.time == 0.0);
 

@@ -39,7 +39,8 @@ static void fake_result(const proto_task *t, pt_pixel_acc *px, proto_result *r)
 static srv_job *make(uint32_t w, uint32_t h, uint32_t spp, uint32_t tile, uint32_t chunk)
 {
     srv_job_params p = {
-        w, h, spp, tile, chunk, 5, 16, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}, 0, ""};
+        w, h,  spp,   tile, chunk, 5, 16, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+        0, "", {0, 0}};
     srv_job *j = NULL;
     pt_error err = {0};
     CHECKF(srv_job_new(9, &p, HASH, &j, &err) == PT_OK, "%s", err.msg);
@@ -184,7 +185,8 @@ static void bit_identical(void)
 static void adaptive(void)
 {
     srv_job_params p = {
-        64, 32, 64, 32, 8, 1, 16, 3, 0.01, 16, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}, 0, ""};
+        64, 32, 64,    32, 8, 1, 16, 3, 0.01, 16, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+        0,  "", {0, 0}};
     srv_job *j = NULL;
     CHECK(srv_job_new(2, &p, HASH, &j, NULL) == PT_OK);
     if (!j)
@@ -263,7 +265,8 @@ static void gain_pixels(const proto_task *t, pt_pixel_acc *px, proto_result *r)
 static void adaptive_min_gain(void)
 {
     srv_job_params p = {
-        64, 32, 64, 32, 8, 1, 16, 3, 0.0, 8, 1e-5, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}, 0, ""};
+        64, 32, 64,    32, 8, 1, 16, 3, 0.0, 8, 1e-5, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+        0,  "", {0, 0}};
     srv_job *a = NULL, *b = NULL, *c = NULL, *d = NULL;
     CHECK(srv_job_new(3, &p, HASH, &a, NULL) == PT_OK);
     CHECK(srv_job_new(3, &p, HASH, &b, NULL) == PT_OK);
@@ -342,17 +345,36 @@ static void adaptive_min_gain(void)
     }
     srv_job_free(d);
     d = NULL;
-    /* A version 5 checkpoint (fixed-point sums, fixed chunks: each tile's
-     * chunks merged, held results by task id) loads to the same bits and
-     * resumes to the same image: a state folder from before time-sized
-     * tasks goes on. */
+    /* The params end with the shutter (16 bytes), which formats before 7 lack. */
+    const size_t pend = 4 + 4 + 8 + 32 + 9 * 4 + 2 * 8 + 2 + strlen(p.camera) + 23 + 4 + 2;
+    const size_t head = pend + 16 + 8;
+    /* A version 6 checkpoint (time-sized tasks, no shutter: the same bytes
+     * without it) loads to the same bits. */
     {
-        const size_t at0 = 4 + 4 + 8 + 32 + 9 * 4 + 2 * 8 + 2 + strlen(p.camera) + 23 + 4 + 2 + 8;
+        proto_writer v6;
+        proto_writer_init(&v6, 1u << 20);
+        proto_w_bytes(&v6, w.buf, pend);
+        proto_w_bytes(&v6, w.buf + pend + 16, w.len - pend - 16);
+        proto_put_u32(v6.buf + 4, 6);
+        srv_job *e = NULL;
+        CHECK(proto_writer_status(&v6) == PT_OK);
+        CHECK(srv_job_new(3, &p, HASH, &e, NULL) == PT_OK);
+        CHECKF(e && srv_job_load(e, v6.buf, v6.len, &err) == PT_OK, "%s", err.msg);
+        CHECK(e && memcmp(srv_job_film(e)->px, srv_job_film(b)->px, 64 * 32 * sizeof *f->px) == 0);
+        srv_job_free(e);
+        proto_writer_fini(&v6);
+    }
+    /* A version 5 checkpoint (fixed-point sums, fixed chunks: each tile's
+     * chunks merged, held results by task id; no shutter) loads to the same
+     * bits and resumes to the same image: a state folder from before
+     * time-sized tasks goes on. */
+    {
         proto_writer v5;
         proto_writer_init(&v5, 1u << 20);
-        uint32_t ntiles = proto_get_u32(w.buf + at0);
-        size_t at = at0 + 8;
-        proto_w_bytes(&v5, w.buf, at);
+        uint32_t ntiles = proto_get_u32(w.buf + head);
+        size_t at = head + 8;
+        proto_w_bytes(&v5, w.buf, pend);
+        proto_w_bytes(&v5, w.buf + pend + 16, at - pend - 16);
         proto_put_u32(v5.buf + 4, 5);
         for (uint32_t ti = 0; ti < ntiles; ti++, at += 5) {
             proto_w_u32(&v5, proto_get_u32(w.buf + at) / 8);
@@ -384,11 +406,10 @@ static void adaptive_min_gain(void)
         srv_job_free(e);
         proto_writer_fini(&v5);
     }
-    /* A version 4 checkpoint (before fixed-point sums: the same bytes with
-     * each pixel's four sums as f64) loads to the same bits: sums of whole
-     * multiples of 2^-32 this small are exact in double, and the conversion
+    /* A version 4 checkpoint (before fixed-point sums and the shutter: the
+     * same bytes without the shutter and with each pixel's four sums as f64) loads to the same
+     * bits: sums of whole multiples of 2^-32 this small are exact in double, and the conversion
      * rounds to nearest. */
-    const size_t head = 4 + 4 + 8 + 32 + 9 * 4 + 2 * 8 + 2 + strlen(p.camera) + 23 + 4 + 2 + 8;
     proto_writer v4;
     proto_writer_init(&v4, 1u << 20);
     {
@@ -397,7 +418,8 @@ static void adaptive_min_gain(void)
          * name the task, chunk x tiles + tile. */
         uint32_t ntiles = proto_get_u32(w.buf + head);
         size_t at = head + 8;
-        proto_w_bytes(&v4, w.buf, at);
+        proto_w_bytes(&v4, w.buf, pend); /* without the shutter */
+        proto_w_bytes(&v4, w.buf + pend + 16, at - pend - 16);
         proto_put_u32(v4.buf + 4, 4);
         for (uint32_t ti = 0; ti < ntiles; ti++, at += 5) {
             proto_w_u32(&v4, proto_get_u32(w.buf + at) / 8);
@@ -447,9 +469,9 @@ static void adaptive_min_gain(void)
     srv_job_free(d);
     d = NULL;
     /* A version 3 checkpoint (before the environment and the film flags: the
-     * same bytes less the ENV block, the film flags, the variant and the
-     * depth-cap count after the camera, and 36-byte pixels, without the camera hits) loads as
-     * a job with no environment and an opaque film. */
+     * same bytes less the ENV block, the film flags, the variant, the shutter
+     * and the depth-cap count after the camera, and 36-byte pixels, without the camera hits) loads
+     * as a job with no environment and an opaque film. */
     size_t at = 4 + 4 + 8 + 32 + 9 * 4 + 2 * 8 + 2 + strlen(p.camera);
     proto_writer v3;
     proto_writer_init(&v3, 1u << 20);
@@ -491,7 +513,8 @@ done:
 static void adaptive_min_gain_black(void)
 {
     srv_job_params p = {
-        64, 32, 64, 32, 8, 1, 16, 3, 0.0, 8, 1e-5, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}, 0, ""};
+        64, 32, 64,    32, 8, 1, 16, 3, 0.0, 8, 1e-5, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+        0,  "", {0, 0}};
     srv_job *j = NULL;
     CHECK(srv_job_new(3, &p, HASH, &j, NULL) == PT_OK);
     if (!j)
@@ -514,16 +537,16 @@ static void adaptive_min_gain_black(void)
 
 static void bad_params(void)
 {
-    srv_job_params p = {0, 10, 4, 16, 4, 0, 4, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
-                        0, ""};
+    srv_job_params p = {
+        0, 10, 4, 16, 4, 0, 4, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}, 0, "", {0, 0}};
     srv_job *j = NULL;
     pt_error err = {0};
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
     p.width = 10;
     p.tile = 1000;
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
-    p = (srv_job_params){16, 16, 4, 16, 4, 0, 4, 3, 0.0, 0, NAN, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
-                         0,  ""};
+    p = (srv_job_params){
+        16, 16, 4, 16, 4, 0, 4, 3, 0.0, 0, NAN, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}, 0, "", {0, 0}};
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
     p.min_gain = -1e-6;
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
@@ -531,7 +554,7 @@ static void bad_params(void)
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
     p = (srv_job_params){
         16384, 16384, 1u << 24, 16, 1, 0, 4, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
-        0,     ""};
+        0,     "",    {0, 0}};
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_LIMIT);
     CHECK(j == NULL);
 }
@@ -778,7 +801,8 @@ static void film_and_cap(void)
                         "",
                         {"", 1.0f, 0.0f, 0, {0, 0, 0}},
                         PROTO_FILM_TRANSPARENT,
-                        ""};
+                        "",
+                        {0, 0}};
     srv_job *j = NULL, *k = NULL, *o = NULL;
     pt_error err = {0};
     CHECK(srv_job_new(4, &p, HASH, &j, &err) == PT_OK);
@@ -932,9 +956,22 @@ static srv_job *simulate(srv_job *j, sim_owner *ow, int n, sim_log *log, int ckp
 
 static srv_job_params sized_params(uint32_t spp, double target_error)
 {
-    srv_job_params p = {
-        64, 48, spp, 32, 16, 1, 16, 3, target_error, 32, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
-        0,  ""};
+    srv_job_params p = {64,
+                        48,
+                        spp,
+                        32,
+                        16,
+                        1,
+                        16,
+                        3,
+                        target_error,
+                        32,
+                        0.0,
+                        "",
+                        {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+                        0,
+                        "",
+                        {0.0, 0.0}};
     return p;
 }
 

@@ -175,8 +175,8 @@ static void submit_begin(cli *c, const proto_submit *m)
     CHECK(proto_msg_encode_submit(&w, &fixed, NULL) == PT_OK);
     if (m->spp == 0)
         proto_put_u32(w.buf + 10 + strlen(m->name), 0);
-    if (reversed) { /* the range is the last fields but the fps and the animation */
-        uint8_t *range = w.buf + w.len - 2 - strlen(m->animation) - 8 - 12;
+    if (reversed) { /* the range: the last fields but the fps, the animation, the shutter */
+        uint8_t *range = w.buf + w.len - 16 - 2 - strlen(m->animation) - 8 - 12;
         proto_put_u32(range, m->frame_first);
         proto_put_u32(range + 4, m->frame_last);
     }
@@ -793,8 +793,72 @@ static void pixel_to_v4(proto_writer *w, const uint8_t *q)
     proto_w_bytes(w, q + 64, 8);
 }
 
+/* Where the shutter (16 bytes, format 7 on) starts in params at d + at:
+ * after the camera, the environment, the film flags and the variant. */
+static size_t shutter_at(const uint8_t *d, size_t at)
+{
+    at += 9 * 4 + 16;
+    at += 2 + proto_get_u16(d + at);                  /* camera */
+    at += 2 + proto_get_u16(d + at) + 4 + 4 + 1 + 12; /* the environment */
+    at += 4;                                          /* film flags */
+    at += 2 + proto_get_u16(d + at);                  /* material variant */
+    return at;
+}
+
+/* The queue file of format 6: the same records without the shutter. */
+static void queue_to_v6(const char *name)
+{
+    uint8_t *d;
+    size_t n;
+    if (!read_state(name, &d, &n))
+        return;
+    proto_writer w;
+    proto_writer_init(&w, 1 << 30);
+    size_t at = 8 + 8 + 4, done = 0;
+    for (uint32_t i = 0, count = proto_get_u32(d + 16); i < count; i++) {
+        at += 8 + 8 + 1 + 4;
+        for (int k = 0; k < 4; k++) /* name, owner, scene, output */
+            at += 2 + proto_get_u16(d + at);
+        at += 8; /* submitted */
+        size_t sh = shutter_at(d, at);
+        proto_w_bytes(&w, d + done, sh - done);
+        at = sh + 16;
+        done = at;
+        at += 32 + 8 + 8 + 8 + 8;
+        at += 2 + proto_get_u16(d + at); /* message */
+        at += 8;                         /* paths capped */
+        at += 4 * 3 + 8;                 /* the frame range and fps */
+        at += 2 + proto_get_u16(d + at); /* the animation */
+        at += 4;                         /* frames done */
+        at += 1 + 4 * (size_t)d[at];     /* frames done ahead */
+    }
+    CHECK(at + 4 == n);
+    proto_w_bytes(&w, d + done, n - 4 - done);
+    const long vers[] = {4};
+    write_ver(name, &w, vers, 1, 1, 6);
+    pt_free(d);
+}
+
+/* A checkpoint of format 6: the same bytes without the shutter. */
+static void checkpoint_to_v6(const char *name)
+{
+    uint8_t *d;
+    size_t n;
+    if (!read_state(name, &d, &n))
+        return;
+    proto_writer w;
+    proto_writer_init(&w, 1 << 30);
+    /* envelope 8, seconds/rejected/rays 24, magic, version, id, hash, params */
+    size_t sh = shutter_at(d, 8 + 24 + 4 + 4 + 8 + 32);
+    proto_w_bytes(&w, d, sh);
+    proto_w_bytes(&w, d + sh + 16, n - 4 - (sh + 16));
+    const long vers[] = {4, 36};
+    write_ver(name, &w, vers, 2, 1, 6);
+    pt_free(d);
+}
+
 /* The queue file of format 5: each record without format 6's frame range,
- * pose and frames done, its last fields. */
+ * pose and frames done, its last fields (read in format 6's layout). */
 static void queue_to_v5(const char *name)
 {
     uint8_t *d;
@@ -1204,12 +1268,16 @@ static void damaged(void)
     /* checkpoint: header 8, seconds/rejected/rays 24, magic, version, id, hash,
      * nine u32 parameters, target error; then the min gain */
     const long ck_gain = 8 + 24 + 4 + 4 + 8 + 32 + 36 + 8;
-    for (uint32_t format = 5; format >= 2; format--) {
+    for (uint32_t format = 6; format >= 2; format--) {
         snprintf(cmd, sizeof cmd, "rm -rf '%s' && cp -a '%s' '%s'", path("state3"),
                  path("state3.good"), path("state3"));
         CHECK(system(cmd) == 0);
+        /* Format 6: no shutter in the queue's records and the checkpoint. */
+        queue_to_v6("state3/queue");
+        checkpoint_to_v6(ck);
         /* Format 5: no frame ranges in the queue's records. */
-        queue_to_v5("state3/queue");
+        if (format <= 5)
+            queue_to_v5("state3/queue");
         /* Format 4: double sums in the checkpoint, protocol 3's RESULT in
          * the results log (converted as read, and rewritten). */
         if (format <= 4) {

@@ -133,6 +133,25 @@ int main(void)
     CHECK(run("--scene x.gltf -o y.exr --background 1,2,nan") == 2 && stderr_has("R,G,B"));
     CHECK(run("--scene x.gltf -o y.exr --env-strength -1") == 2 && stderr_has("--env-strength"));
     CHECK(run("--server 127.0.0.1:1 --env x.hdr") == 2 && stderr_has("standalone option"));
+    /* Motion blur's shutter: refused unless 0 <= open <= close <= 1, and a
+     * standalone option; on a scene where nothing moves it renders the
+     * still, bit for bit. */
+    CHECK(run("--scene x.gltf -o y.exr --shutter 0.5") == 2 && stderr_has("OPEN,CLOSE"));
+    CHECK(run("--scene x.gltf -o y.exr --shutter 0,0.5,1") == 2 && stderr_has("OPEN,CLOSE"));
+    CHECK(run("--scene x.gltf -o y.exr --shutter 0.6,0.4") == 2 && stderr_has("after it closes"));
+    CHECK(run("--scene x.gltf -o y.exr --shutter 0,2") == 2 && stderr_has("[0, 1]"));
+    CHECK(run("--scene x.gltf -o y.exr --shutter -1,0") == 2 && stderr_has("[0, 1]"));
+    CHECK(run("--scene x.gltf -o y.exr --shutter 0,0.5 --fps 0") == 2 && stderr_has("--fps"));
+    CHECK(run("--server 127.0.0.1:1 --shutter 0,0.5") == 2 && stderr_has("standalone option"));
+    for (int k = 0; k < 2; k++) {
+        snprintf(args, sizeof args, "--scene %s -o %s/still%d.exr --res 24x24 --spp 4 -q%s",
+                 cornell, tmpdir, k, k ? " --shutter 0,0.5" : "");
+        CHECK(run(args) == 0);
+    }
+    pt_image *st0 = read_exr("still0.exr", NULL), *st1 = read_exr("still1.exr", NULL);
+    CHECK(st0 && st1 && same_pixels(st0, st1));
+    pt_image_free(st0);
+    pt_image_free(st1);
     /* A scene with no light is refused with the way to light it, and
      * renders with a background. */
     char dark[512];

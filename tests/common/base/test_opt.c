@@ -131,11 +131,35 @@ static void test_res(void)
     CHECKF(!strncmp(err.msg, "--res width: ", 13), "%s", err.msg);
 }
 
+static void test_shutter(void)
+{
+    pt_error err = {0};
+    double v[2] = {7, 7};
+    CHECK(pt_opt_shutter("--shutter", "0,0.5", v, &err) == PT_OK && v[0] == 0.0 && v[1] == 0.5);
+    CHECK(pt_opt_shutter("--shutter", "0,1", v, &err) == PT_OK && v[0] == 0.0 && v[1] == 1.0);
+    CHECK(pt_opt_shutter("--shutter", "0.25,0.25", v, &err) == PT_OK && v[0] == 0.25);
+    const char *shape[] = {"",        ",",   "0",     "0,",    ",0.5",   "0;0.5",
+                           "0,0.5,1", "a,b", "0,nan", "inf,1", "0 ,0.5x"};
+    for (size_t i = 0; i < sizeof shape / sizeof *shape; i++) {
+        v[0] = v[1] = 7;
+        CHECKF(pt_opt_shutter("--shutter", shape[i], v, &err) == PT_ERR_ARG && v[0] == 7 &&
+                   v[1] == 7 && strstr(err.msg, "is not OPEN,CLOSE"),
+               "'%s': %s", shape[i], err.msg);
+    }
+    CHECK(pt_opt_shutter("--shutter", "-0.1,0.5", v, &err) == PT_ERR_ARG &&
+          strstr(err.msg, "[0, 1]"));
+    CHECK(pt_opt_shutter("--shutter", "0,1.5", v, &err) == PT_ERR_ARG && strstr(err.msg, "[0, 1]"));
+    CHECK(pt_opt_shutter("--shutter", "0.6,0.4", v, &err) == PT_ERR_ARG &&
+          strstr(err.msg, "opens (0.6) after it closes (0.4)"));
+    CHECK(v[0] == 7 && v[1] == 7);
+}
+
 int main(void)
 {
     test_u32();
     test_u64_i32();
     test_double();
     test_res();
+    test_shutter();
     return check_report();
 }
