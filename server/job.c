@@ -86,6 +86,12 @@ typedef struct tile_state {
  * yet cut, divided by this: the last tasks end within a fraction of one
  * another, and no core idles long on the tail. */
 #define TAIL_SHARE 4.0
+/* After the first pass a task takes a tile to at most this many times the
+ * samples it had cut: 16, 128, 1024... so a 1,024-spp tile is three results
+ * (doubling made it seven, and the coordinator's cost is per result), while
+ * a task is still bounded by the task time and the image still improves
+ * pass by pass, fewest samples first. */
+#define GROWTH 8
 /* Weight of a new measurement in an owner's moving average of its speed. */
 #define SPEED_WEIGHT 0.5
 
@@ -246,9 +252,9 @@ static uint32_t sized_samples(const srv_job *j, const owner_stat *o, uint32_t px
 
 /* The end of the next task of tile that starts at s0 (its frontier) for
  * owner o. Fixed chunks: the next multiple of chunk. Time-sized: s0 +
- * sized_samples, but at most s0 itself past 16 (the first pass is one
- * block and each later one at most doubles a tile's samples, so the
- * progressive image improves as soon and as evenly as with fixed chunks),
+ * sized_samples, but at most (GROWTH - 1) x s0 past 16 (the first pass is
+ * one block, so the progressive image comes as soon as with fixed chunks,
+ * and each later one at most takes the tile to GROWTH times its samples),
  * ending on a block boundary. */
 static uint32_t next_end(const srv_job *j, uint32_t tile, uint32_t s0, const owner_stat *o)
 {
@@ -260,9 +266,9 @@ static uint32_t next_end(const srv_job *j, uint32_t tile, uint32_t s0, const own
         return c < e ? (uint32_t)c : e;
     }
     uint32_t n = sized_samples(j, o, tile_pixels(j, tile));
-    uint32_t grow = s0 > j->least ? s0 : j->least;
+    uint64_t grow = s0 == 0 ? j->least : (uint64_t)(s0 > j->least ? s0 : j->least) * (GROWTH - 1);
     if (n > grow)
-        n = grow;
+        n = (uint32_t)grow;
     uint64_t s1 = (uint64_t)s0 + n;
     if (s1 >= e)
         return e;

@@ -118,7 +118,7 @@ static void usage(FILE *f)
         "  --task-time MS         size each task's samples so that it takes about MS\n"
         "                         on the worker that asks, from that worker's measured\n"
         "                         speed (default 2000): 16 samples first, then at most\n"
-        "                         doubling a tile's samples, smaller again near the end\n"
+        "                         8 times a tile's samples, smaller again near the end\n"
         "  --chunk N              fixed tasks of N samples instead of --task-time; also\n"
         "                         the step at which adaptive sampling judges a tile\n"
         "                         (default 16), which an adaptive job's tasks never cross\n"

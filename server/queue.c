@@ -234,7 +234,7 @@ void srv_entry_save_image(srv_entry *j)
     pt_film_resolve(film, img);
     img->has_alpha = (srv_job_params_of(j->job)->film_flags & PROTO_FILM_TRANSPARENT) != 0;
     pt_exr_meta meta = {0};
-    meta.total_samples = pt_film_total_samples(film);
+    meta.total_samples = srv_job_samples_merged(j->job); /* the film's, without a walk */
     meta.render_seconds = srv_entry_seconds(j, pt_now_ms());
     pt_hash_hex(j->rec.hash, meta.scene_hash);
     snprintf(meta.job_id, sizeof meta.job_id, "%llu", (unsigned long long)j->rec.id);
