@@ -20,6 +20,8 @@ typedef struct lease {
     uint64_t deadline; /* heartbeat deadline: start or last heartbeat + lease_ms */
     uint32_t check;    /* L_VERIFY: its check's index */
     uint8_t kind;      /* L_* */
+    uint8_t answered;  /* its result arrived and waits for its log record to be
+                          durable before it is merged: not a straggler */
 } lease;
 
 typedef struct held {
@@ -381,7 +383,7 @@ static uint64_t backup_pick(const srv_job *j, uint64_t owner, uint64_t now_ms)
     uint64_t best = UINT64_MAX, best_start = UINT64_MAX;
     for (uint32_t i = 0; i < j->nleases; i++) {
         const lease *l = &j->leases[i];
-        if (l->kind != L_TASK || l->owner == owner || l->start >= best_start)
+        if (l->kind != L_TASK || l->answered || l->owner == owner || l->start >= best_start)
             continue;
         double age = (double)(now_ms - l->start);
         if (now_ms < l->start || age < j->pol.backup_factor * j->t_mid * task_work(j, l->task))
@@ -429,7 +431,7 @@ int srv_job_lease(srv_job *j, uint64_t owner, uint64_t now_ms, uint32_t lease_ms
     }
     if (kind != L_VERIFY)
         j->state[t] = T_LEASED;
-    j->leases[j->nleases++] = (lease){t, owner, now_ms, now_ms + lease_ms, (uint32_t)ci, kind};
+    j->leases[j->nleases++] = (lease){t, owner, now_ms, now_ms + lease_ms, (uint32_t)ci, kind, 0};
 
     memset(task, 0, sizeof *task);
     task->job_id = j->id;
@@ -865,6 +867,12 @@ srv_outcome srv_job_result_validated(srv_job *j, int lease_index, const proto_re
     return merge_validated(j, lease_index, r, now_ms, err);
 }
 
+void srv_job_answered(srv_job *j, int lease_index)
+{
+    if (lease_index >= 0 && (uint32_t)lease_index < j->nleases)
+        j->leases[lease_index].answered = 1;
+}
+
 srv_outcome srv_job_replay(srv_job *j, const proto_result *r, pt_error *err)
 {
     return accept_result(j, 0, r, 0, err);
@@ -1219,4 +1227,44 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
     while (j->passes_done < j->nchunks && j->merged_in_pass[j->passes_done] == j->ntiles)
         j->passes_done++;
     return PT_OK;
+}
+
+srv_job *srv_job_snapshot(const srv_job *j)
+{
+    /* What srv_job_save reads, and nothing else: the sizes, the task states,
+     * the held results and the film. */
+    srv_job *c = pt_calloc(1, sizeof *c);
+    if (!c)
+        return NULL;
+    c->id = j->id;
+    c->p = j->p;
+    memcpy(c->hash, j->hash, sizeof c->hash);
+    c->tiles_x = j->tiles_x;
+    c->tiles_y = j->tiles_y;
+    c->ntiles = j->ntiles;
+    c->nchunks = j->nchunks;
+    c->ntasks = j->ntasks;
+    c->capped = j->capped;
+    c->state = pt_malloc(j->ntasks ? j->ntasks : 1);
+    c->held = pt_malloc_array(j->nheld ? j->nheld : 1, sizeof *c->held);
+    if (!c->state || !c->held ||
+        pt_film_new(j->film->width, j->film->height, &c->film, NULL) != PT_OK) {
+        srv_job_free(c);
+        return NULL;
+    }
+    memcpy(c->state, j->state, j->ntasks);
+    memcpy(c->film->px, j->film->px,
+           (size_t)j->film->width * j->film->height * sizeof *c->film->px);
+    for (uint32_t i = 0; i < j->nheld; i++) {
+        pt_rect r = task_rect(j, j->held[i].task);
+        size_t npx = (size_t)(r.x1 - r.x0) * (r.y1 - r.y0);
+        pt_pixel_acc *px = pt_malloc_array(npx, sizeof *px);
+        if (!px) {
+            srv_job_free(c);
+            return NULL;
+        }
+        memcpy(px, j->held[i].px, npx * sizeof *px);
+        c->held[c->nheld++] = (held){j->held[i].task, j->held[i].owner, px};
+    }
+    return c;
 }

@@ -838,8 +838,8 @@ static void checkpoint_to_v3(const char *name)
     pt_free(d);
 }
 
-/* A results log: each record a RESULT of protocol 2 (no depth-cap count,
- * 36-byte pixels), with its checksum. */
+/* A results log of frames into one of version 3: each record a RESULT of
+ * protocol 2 (no depth-cap count, 36-byte pixels), with its checksum. */
 static void log_to_v3(const char *name)
 {
     uint8_t *d;
@@ -848,12 +848,15 @@ static void log_to_v3(const char *name)
         return;
     proto_writer w;
     proto_writer_init(&w, 1 << 30);
-    proto_w_bytes(&w, d, 16);
+    /* The log holds frames now ("PTRF"); the old one held records ("PTRL"). */
+    CHECK(n >= 16 && proto_get_u32(d) == 0x46525450u);
+    proto_w_u32(&w, 0x4c525450u);
+    proto_w_bytes(&w, d + 4, 12);
     uint8_t *rec = pt_malloc(n);
-    for (size_t at = 16; rec && at + 8 <= n;) {
-        uint32_t len = proto_get_u32(d + at);
-        const uint8_t *pl = d + at + 8;
-        CHECK(at + 8 + len <= n && len >= 68 && (len - 68) % 40 == 0);
+    for (size_t at = 16; rec && at + PROTO_FRAME_OVERHEAD <= n;) {
+        uint32_t len = proto_frame_payload_len(d + at);
+        const uint8_t *pl = d + at + PROTO_FRAME_HEADER;
+        CHECK(at + PROTO_FRAME_OVERHEAD + len <= n && len >= 68 && (len - 68) % 40 == 0);
         size_t m = 0;
         memcpy(rec, pl, 56);
         memcpy(rec + 56, pl + 64, 4);
@@ -863,7 +866,7 @@ static void log_to_v3(const char *name)
         proto_w_u32(&w, (uint32_t)m);
         proto_w_u32(&w, proto_crc32c(0, rec, m));
         proto_w_bytes(&w, rec, m);
-        at += 8 + len;
+        at += PROTO_FRAME_OVERHEAD + len;
     }
     pt_free(rec);
     const long vers[] = {4};
