@@ -79,6 +79,7 @@ typedef struct committer {
     commit_item *items;
     uint32_t n, cap;
     char gate[PATH_MAX]; /* test hook: wait for this file before each fdatasync */
+    char fail[PATH_MAX]; /* test hook: while this file exists, each fdatasync fails */
 } committer;
 
 /* The checkpoint in flight: a snapshot of the job written by its own thread. */
@@ -90,9 +91,10 @@ typedef struct ckpt_work {
     srv_job *snap;
     srv_ckpt_extra x;
     char path[PATH_MAX], old[PATH_MAX];
-    char gate[PATH_MAX]; /* test hook: wait for this file before writing */
+    char gate[PATH_MAX]; /* test hook: wait for this file before the rename */
     pt_status status;
     pt_error err;
+    int forget; /* the job ended meanwhile: its folder goes once this is done */
 } ckpt_work;
 
 struct srv_state {
@@ -150,12 +152,15 @@ pt_status srv_state_open(const char *dir, srv_state **out, pt_error *err)
     st->lock_fd = -1;
     st->cm.efd = -1;
     st->cm.next = 1;
-    /* Test hooks (tests/server/test_durable.c): hold each fdatasync of a
-     * group commit, or each checkpoint's write, until a file exists; write
-     * checkpoints past a small log. Unset in production. */
+    /* Test hooks (tests/integration/test_durable.sh): hold each fdatasync of
+     * a group commit until a file exists, or fail it while another exists;
+     * hold a checkpoint written but not yet renamed into place until a file
+     * exists; write checkpoints past a small log. Unset in production. */
     const char *e;
     if ((e = getenv("PTSERVE_TEST_COMMIT_GATE")) != NULL)
         snprintf(st->cm.gate, sizeof st->cm.gate, "%s", e);
+    if ((e = getenv("PTSERVE_TEST_COMMIT_FAIL")) != NULL)
+        snprintf(st->cm.fail, sizeof st->cm.fail, "%s", e);
     if ((e = getenv("PTSERVE_TEST_CKPT_GATE")) != NULL)
         snprintf(st->ck.gate, sizeof st->ck.gate, "%s", e);
     if ((e = getenv("PTSERVE_TEST_CKPT_LOG_BYTES")) != NULL)
@@ -620,7 +625,9 @@ static void *commit_main(void *arg)
             commit_item *it = &cm->items[i];
             wait_gate(cm->gate);
             it->err = 0;
-            if (fdatasync(it->fd) != 0 || (it->fresh && pt_fsync_dir_of(it->path) != 0))
+            if (cm->fail[0] && access(cm->fail, F_OK) == 0)
+                it->err = EIO;
+            else if (fdatasync(it->fd) != 0 || (it->fresh && pt_fsync_dir_of(it->path) != 0))
                 it->err = errno ? errno : EIO;
             close(it->fd);
             it->fd = -1;
@@ -790,22 +797,32 @@ pt_status srv_state_log_resync(srv_state *st, uint64_t id, pt_error *err)
     return PT_OK;
 }
 
-void srv_state_forget_job(srv_state *st, uint64_t id)
+static void remove_job(const srv_state *st, uint64_t id)
 {
-    if (st->ck.running && st->ck.id == id)
-        ckpt_join(st); /* its folder goes: the checkpoint's write ends first */
-    close_log(st, id);
     char p[PATH_MAX];
     job_path(st, id, NULL, p, sizeof p);
     pt_remove_tree(p);
     pt_fsync_dir_of(p);
 }
 
+void srv_state_forget_job(srv_state *st, uint64_t id)
+{
+    close_log(st, id);
+    if (st->ck.running && st->ck.id == id) {
+        /* Its checkpoint is being written into the folder: the folder goes
+         * when that is done (srv_state_checkpoint_collect), not under it. */
+        st->ck.forget = 1;
+        return;
+    }
+    remove_job(st, id);
+}
+
 /* ---- checkpoints ------------------------------------------------------------------- */
 
-/* Serialises job into a checkpoint file at path, durably. */
+/* Serialises job into a checkpoint file at path, durably: a temporary file
+ * beside it, renamed into place (gate: a test hook, waited for between). */
 static pt_status write_ckpt(const char *path, const srv_job *job, const srv_ckpt_extra *x,
-                            pt_error *err)
+                            const char *gate, pt_error *err)
 {
     proto_writer w;
     proto_writer_init(&w, MAX_CKPT_BYTES);
@@ -814,8 +831,20 @@ static pt_status write_ckpt(const char *path, const srv_job *job, const srv_ckpt
     proto_w_u64(&w, x->rejected);
     proto_w_u64(&w, x->rays);
     pt_status s = srv_job_save(job, &w, err);
-    if (s == PT_OK)
-        s = end_file(&w, path, err);
+    if (s == PT_OK && proto_writer_status(&w) == PT_OK)
+        proto_w_u32(&w, proto_crc32c(0, w.buf, w.len));
+    if (s == PT_OK && proto_writer_status(&w) != PT_OK)
+        s = pt_error_set(err, proto_writer_status(&w), "%s: cannot serialise", path);
+    pt_temp t;
+    if (s == PT_OK && (s = pt_temp_open(path, 0644, &t, err)) == PT_OK) {
+        if (pt_write_all(t.fd, w.buf, w.len) != 0) {
+            s = pt_error_errno(err, PT_ERR_IO, "%s: write", path);
+            pt_temp_abort(&t);
+        } else {
+            wait_gate(gate);
+            s = pt_temp_commit(&t, path, err);
+        }
+    }
     proto_writer_fini(&w);
     return s;
 }
@@ -851,7 +880,7 @@ pt_status srv_state_checkpoint(srv_state *st, const srv_job *job, const srv_ckpt
     while (st->cm.has_req)
         pthread_cond_wait(&st->cm.cv, &st->cm.mu);
     pthread_mutex_unlock(&st->cm.mu);
-    if ((s = write_ckpt(p, job, x, err)) != PT_OK)
+    if ((s = write_ckpt(p, job, x, "", err)) != PT_OK)
         return s;
     /* Everything the logs held is in the checkpoint now: start afresh. */
     job_path(st, id, "results.old", old, sizeof old);
@@ -863,8 +892,7 @@ pt_status srv_state_checkpoint(srv_state *st, const srv_job *job, const srv_ckpt
 static void *ckpt_main(void *arg)
 {
     ckpt_work *ck = arg;
-    wait_gate(ck->gate);
-    ck->status = write_ckpt(ck->path, ck->snap, &ck->x, &ck->err);
+    ck->status = write_ckpt(ck->path, ck->snap, &ck->x, ck->gate, &ck->err);
     /* The records of the rotated log are in the checkpoint now. Should the
      * unlink not reach the disk, a restart replays them again: harmless. */
     if (ck->status == PT_OK && unlink(ck->old) != 0 && errno != ENOENT)
@@ -881,6 +909,9 @@ static void ckpt_join(srv_state *st)
     st->ck.running = 0;
     srv_job_free(st->ck.snap);
     st->ck.snap = NULL;
+    if (st->ck.forget)
+        remove_job(st, st->ck.id);
+    st->ck.forget = 0;
 }
 
 int srv_state_checkpoint_busy(const srv_state *st)
@@ -933,6 +964,7 @@ pt_status srv_state_checkpoint_start(srv_state *st, srv_job *snap, const srv_ckp
     ck->snap = snap;
     ck->x = *x;
     ck->status = PT_OK;
+    ck->forget = 0;
     memset(&ck->err, 0, sizeof ck->err);
     atomic_store(&ck->done, 0);
     if (pthread_create(&ck->th, NULL, ckpt_main, ck) != 0) {
@@ -1186,7 +1218,7 @@ pt_status srv_state_restore(srv_state *st, srv_job *job, srv_ckpt_extra *extra, 
     /* Fold both into a checkpoint now, so that the next rotation finds no
      * results.old in its way. */
     if ((s = job_file(st, srv_job_id(job), "checkpoint", p, sizeof p, err)) != PT_OK ||
-        (s = write_ckpt(p, job, extra, err)) != PT_OK)
+        (s = write_ckpt(p, job, extra, "", err)) != PT_OK)
         return s;
     if (unlink(old) != 0)
         return pt_error_errno(err, PT_ERR_IO, "%s", old);
