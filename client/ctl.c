@@ -420,12 +420,36 @@ pt_status ctl_submit(ctl_conn *c, const proto_submit *m, const pt_bundle *b,
     return PT_OK;
 }
 
+static pt_status recv_image(ctl_conn *c, ctl_progress_fn progress, void *arg, uint8_t **data,
+                            size_t *size, pt_error *err);
+
 pt_status ctl_fetch(ctl_conn *c, uint64_t job_id, ctl_progress_fn progress, void *arg,
                     uint8_t **data, size_t *size, pt_error *err)
 {
     pt_status st = send_job_ref(c, PROTO_MSG_FETCH, job_id, err);
     if (st != PT_OK)
         return st;
+    return recv_image(c, progress, arg, data, size, err);
+}
+
+pt_status ctl_fetch_frame(ctl_conn *c, uint64_t job_id, uint32_t frame, ctl_progress_fn progress,
+                          void *arg, uint8_t **data, size_t *size, pt_error *err)
+{
+    proto_fetch_frame m = {job_id, frame};
+    size_t mark;
+    pt_status st = proto_frame_begin(&c->out, PROTO_MSG_FETCH_FRAME, &mark, err);
+    if (st == PT_OK)
+        st = send_frame(c, mark, proto_msg_encode_fetch_frame(&c->out, &m, err), err);
+    if (st != PT_OK)
+        return st;
+    return recv_image(c, progress, arg, data, size, err);
+}
+
+/* The IMAGE frames answering a FETCH or FETCH_FRAME (ctl_fetch). */
+static pt_status recv_image(ctl_conn *c, ctl_progress_fn progress, void *arg, uint8_t **data,
+                            size_t *size, pt_error *err)
+{
+    pt_status st;
     uint8_t *buf = NULL;
     size_t have = 0, cap = 0;
     uint64_t total = 0;
@@ -638,8 +662,18 @@ void ctl_progress_line(const proto_job_info *j, char *out, size_t cap)
     bar[BAR] = '\0';
     uint64_t pixels = (uint64_t)j->width * j->height;
     double spp_done = pixels ? (double)j->samples_done / (double)pixels : 0.0;
-    append(out, cap, &len, "[%s] %.1f/%lu spp %5.1f%%", bar, spp_done, (unsigned long)j->spp,
-           100.0 * frac);
+    if (j->frame_step) {
+        /* A frame range: frames done, then the earliest frame rendering. */
+        uint32_t count = (j->frame_last - j->frame_first) / j->frame_step + 1;
+        append(out, cap, &len, "[%s] frames %lu/%lu done %5.1f%%", bar,
+               (unsigned long)j->frames_done, (unsigned long)count, 100.0 * frac);
+        if (j->nshown > 0 && j->shown[0].samples_total > 0)
+            append(out, cap, &len, "  frame %lu %.0f%%", (unsigned long)j->shown[0].frame,
+                   100.0 * (double)j->shown[0].samples_done / (double)j->shown[0].samples_total);
+    } else {
+        append(out, cap, &len, "[%s] %.1f/%lu spp %5.1f%%", bar, spp_done, (unsigned long)j->spp,
+               100.0 * frac);
+    }
     if (ctl_job_ended(j->state)) {
         char d[32];
         ctl_format_duration(j->seconds, d, sizeof d);

@@ -98,6 +98,9 @@ pt_status ctl_watch_next(ctl_conn *c, proto_job_info *out, pt_error *err);
  * hash. On success *data is a pt_malloc'd buffer of *size bytes (pt_free). */
 pt_status ctl_fetch(ctl_conn *c, uint64_t job_id, ctl_progress_fn progress, void *arg,
                     uint8_t **data, size_t *size, pt_error *err);
+/* FETCH_FRAME: as ctl_fetch, the image of one frame of a frame-range job. */
+pt_status ctl_fetch_frame(ctl_conn *c, uint64_t job_id, uint32_t frame, ctl_progress_fn progress,
+                          void *arg, uint8_t **data, size_t *size, pt_error *err);
 
 /* ---- helpers ---- */
 

@@ -26,6 +26,7 @@
 #include "client/ctl.h"
 #include "common/base/alloc.h"
 #include "common/base/clock.h"
+#include "common/base/frames.h"
 #include "common/base/opt.h"
 #include "common/base/text.h"
 #include "common/base/version.h"
@@ -73,7 +74,8 @@ static void usage(FILE *f)
             "  status JOB [--json]     everything about one job\n"
             "  watch JOB               follow a job's progress until it ends\n"
             "  cancel JOB              cancel a job; prints the state it ends in\n"
-            "  fetch JOB -o OUT.exr    download a job's image\n"
+            "  fetch JOB [--frame F] -o OUT.exr\n"
+            "                          download a job's image (or one frame's)\n"
             "'ptctl COMMAND --help' describes each one; 'ptctl --version' prints the\n"
             "version and renderer build id.\n"
             "\n"
@@ -91,6 +93,10 @@ typedef struct globals {
 
 enum {
     O_SERVER = 1000,
+    O_FRAMES,
+    O_FPS,
+    O_ANIMATION,
+    O_FRAME,
     O_TOKEN,
     O_TIMEOUT,
     O_JSON,
@@ -328,6 +334,13 @@ static const char SUBMIT_HELP[] =
     "                     its material (an unknown name is refused at submit)\n"
     "  --transparent      camera rays that leave the scene add nothing, and the EXR\n"
     "                     gets an A channel (coverage; RGB premultiplied by it)\n"
+    "  --frames A-B[:STEP] one job of the frames A, A+STEP, ... B of the scene's\n"
+    "                     animation (at most 100000, numbers 0 to 999999), each\n"
+    "                     written as ID-NAME.####.exr with its zero-padded number;\n"
+    "                     early frames finish first ('ptctl fetch JOB --frame F')\n"
+    "  --fps R            frame F is at F / R seconds (default 24)\n"
+    "  --animation NAME|INDEX  the animation played (default: all of them); an\n"
+    "                     unknown one (or a scene without animations) is refused\n"
     "  --watch            then follow the job as 'ptctl watch' does (exit status 4\n"
     "                     when it ends cancelled or failed)\n";
 
@@ -385,6 +398,9 @@ static int cmd_submit(int argc, char **argv, globals *g)
                                          {"env-rotate", required_argument, NULL, O_ENVROTATE},
                                          {"background", required_argument, NULL, O_BACKGROUND},
                                          {"transparent", no_argument, NULL, O_TRANSPARENT},
+                                         {"frames", required_argument, NULL, O_FRAMES},
+                                         {"fps", required_argument, NULL, O_FPS},
+                                         {"animation", required_argument, NULL, O_ANIMATION},
                                          {NULL, 0, NULL, 0}};
     proto_submit m;
     memset(&m, 0, sizeof m);
@@ -438,6 +454,25 @@ static int cmd_submit(int argc, char **argv, globals *g)
             break;
         case O_TRANSPARENT:
             m.film_flags |= PROTO_FILM_TRANSPARENT;
+            break;
+        case O_FRAMES: {
+            pt_frames fr;
+            if ((st = pt_frames_parse("--frames", optarg, &fr, &err)) == PT_OK) {
+                m.frame_first = fr.first;
+                m.frame_last = fr.last;
+                m.frame_step = fr.step;
+            }
+            break;
+        }
+        case O_FPS:
+            st = pt_opt_positive("--fps", optarg, 1e6, &m.fps, &err);
+            break;
+        case O_ANIMATION:
+            if (!optarg[0] || strlen(optarg) > PROTO_MAX_NAME)
+                rc = bad_usage("submit", "--animation: a name or index of 1 to %u bytes",
+                               PROTO_MAX_NAME);
+            else
+                snprintf(m.animation, sizeof m.animation, "%s", optarg);
             break;
         case O_WATCH:
             watch = 1;
@@ -494,6 +529,11 @@ static int cmd_submit(int argc, char **argv, globals *g)
                                    "one");
     if (env_path && m.env.background)
         return bad_usage("submit", "--env and --background are two environments; give one");
+    if (!m.frame_step && (m.fps > 0.0 || m.animation[0]))
+        return bad_usage("submit", "--fps and --animation pose the frames of --frames A-B[:STEP]; "
+                                   "give --frames");
+    if (m.frame_step && m.fps == 0.0)
+        m.fps = PT_FRAMES_DEFAULT_FPS;
     if (env_path)
         snprintf(m.env.name, sizeof m.env.name, "%s", PT_BUNDLE_ENV_NAME);
     const char *scene = argv[optind];
@@ -543,9 +583,11 @@ typedef struct job_args {
     uint64_t id;
     int json;
     const char *output;
+    int has_frame; /* --frame F */
+    uint32_t frame;
 } job_args;
 
-enum { TAKES_JOB = 1, TAKES_JSON = 2, TAKES_OUTPUT = 4 };
+enum { TAKES_JOB = 1, TAKES_JSON = 2, TAKES_OUTPUT = 4, TAKES_FRAME = 8 };
 
 /* Parses the command's arguments, then connects: 0 with *conn set, or the
  * exit status with *conn NULL (0 too after --help). */
@@ -559,6 +601,7 @@ static int open_job_command(const char *cmd, const char *help, int flags, int ar
                                          {"help", no_argument, NULL, 'h'},
                                          {"json", no_argument, NULL, O_JSON},
                                          {"output", required_argument, NULL, 'o'},
+                                         {"frame", required_argument, NULL, O_FRAME},
                                          {NULL, 0, NULL, 0}};
     int c;
     *conn = NULL;
@@ -580,6 +623,16 @@ static int open_job_command(const char *cmd, const char *help, int flags, int ar
                 return bad_usage(cmd, "unknown option '%s'", argv[optind - 1]);
             a->output = optarg;
             break;
+        case O_FRAME: {
+            pt_error err = {0};
+            if (!(flags & TAKES_FRAME))
+                return bad_usage(cmd, "unknown option '--frame'");
+            pt_status st = pt_opt_u32("--frame", optarg, 0, PT_FRAMES_MAX_NUMBER, &a->frame, &err);
+            if ((rc = bad_value(cmd, st, &err)) != 0)
+                return rc;
+            a->has_frame = 1;
+            break;
+        }
         case ':':
             return bad_usage(cmd, "%s needs a value", argv[optind - 1]);
         case '?':
@@ -650,9 +703,14 @@ static int cmd_list(int argc, char **argv, globals *g)
             ctl_printable(j->name, name, sizeof name);
             ctl_printable(j->owner, owner, sizeof owner);
             uint64_t px = (uint64_t)j->width * j->height;
-            snprintf(prog, sizeof prog, "%llu/%lu spp %5.1f%%",
-                     (unsigned long long)(px ? j->samples_done / px : 0), (unsigned long)j->spp,
-                     100.0 * ctl_job_fraction(j));
+            if (j->frame_step) /* a frame range: frames done of its frames */
+                snprintf(prog, sizeof prog, "%lu/%lu frames %5.1f%%", (unsigned long)j->frames_done,
+                         (unsigned long)((j->frame_last - j->frame_first) / j->frame_step + 1),
+                         100.0 * ctl_job_fraction(j));
+            else
+                snprintf(prog, sizeof prog, "%llu/%lu spp %5.1f%%",
+                         (unsigned long long)(px ? j->samples_done / px : 0), (unsigned long)j->spp,
+                         100.0 * ctl_job_fraction(j));
             if (j->queue_pos)
                 snprintf(queue, sizeof queue, "%lu", (unsigned long)j->queue_pos);
             else
@@ -719,6 +777,20 @@ static void print_status(const proto_job_info *j)
         ctl_printable(j->message, s, sizeof s);
         printf("message    %s\n", s);
     }
+    if (j->frame_step) {
+        pt_frames fr = {j->frame_first, j->frame_last, j->frame_step};
+        uint32_t count = pt_frames_count(&fr);
+        uint32_t queued = count - j->frames_done - j->frames_rendering;
+        printf("frames     %lu-%lu:%lu, %lu done, %lu rendering, %lu queued\n",
+               (unsigned long)j->frame_first, (unsigned long)j->frame_last,
+               (unsigned long)j->frame_step, (unsigned long)j->frames_done,
+               (unsigned long)j->frames_rendering, (unsigned long)(queued <= count ? queued : 0));
+        for (uint32_t i = 0; i < j->nshown && i < PROTO_MAX_FRAMES_SHOWN; i++) {
+            double tot = (double)j->shown[i].samples_total;
+            printf("frame      %lu: %.1f%%\n", (unsigned long)j->shown[i].frame,
+                   tot > 0 ? 100.0 * (double)j->shown[i].samples_done / tot : 0.0);
+        }
+    }
 }
 
 static const char STATUS_HELP[] =
@@ -727,7 +799,8 @@ static const char STATUS_HELP[] =
     "Everything the server reports about job JOB: state, queue position, priority,\n"
     "owner, scene, output file, size, samples done and asked, passes, tiles stopped\n"
     "by adaptive sampling, workers, render time, samples/s, estimated error,\n"
-    "submission time and message.\n"
+    "submission time and message; for a frame range, the frames done, rendering and\n"
+    "queued, and each rendering frame's percentage.\n"
     "\n"
     "options:\n"
     "  --json             one JSON object instead (error: null when unknown)\n";
@@ -796,7 +869,7 @@ static int cmd_cancel(int argc, char **argv, globals *g)
 }
 
 static const char FETCH_HELP[] =
-    "usage: ptctl fetch JOB -o OUT.exr\n"
+    "usage: ptctl fetch JOB [--frame F] -o OUT.exr\n"
     "\n"
     "Downloads job JOB's image (the EXR the server wrote last) and writes it to\n"
     "OUT.exr atomically: a temporary file in the same folder, synced, renamed\n"
@@ -804,13 +877,17 @@ static const char FETCH_HELP[] =
     "server's. Download progress goes to stderr when it is a terminal.\n"
     "\n"
     "options:\n"
-    "  -o, --output PATH  the file to write (required)\n";
+    "  -o, --output PATH  the file to write (required)\n"
+    "  --frame F          frame F of a frame-range job (its latest image); without\n"
+    "                     it, such a job's earliest frame rendering, or else the\n"
+    "                     last frame done\n";
 
 static int cmd_fetch(int argc, char **argv, globals *g)
 {
     job_args a = {0};
     ctl_conn *c;
-    int rc = open_job_command("fetch", FETCH_HELP, TAKES_JOB | TAKES_OUTPUT, argc, argv, g, &a, &c);
+    int rc = open_job_command("fetch", FETCH_HELP, TAKES_JOB | TAKES_OUTPUT | TAKES_FRAME, argc,
+                              argv, g, &a, &c);
     if (!c)
         return rc;
     pt_error err = {0};
@@ -818,7 +895,10 @@ static int cmd_fetch(int argc, char **argv, globals *g)
     size_t size = 0;
     transfer t = {"downloading", 0};
     int tty = isatty(STDERR_FILENO);
-    pt_status st = ctl_fetch(c, a.id, tty ? show_transfer : NULL, &t, &data, &size, &err);
+    pt_status st =
+        a.has_frame
+            ? ctl_fetch_frame(c, a.id, a.frame, tty ? show_transfer : NULL, &t, &data, &size, &err)
+            : ctl_fetch(c, a.id, tty ? show_transfer : NULL, &t, &data, &size, &err);
     if (t.shown)
         fputc('\n', stderr);
     if (st != PT_OK)

@@ -37,8 +37,10 @@
 #define PROTO_MAGIC "PTF1"
 /* 2: mutual authentication (AUTH and WELCOME, protocol/msg.h); 3: the environment light
  * in SUBMIT and TASK (ENV), film flags in TASK and SUBMIT, coverage and depth-cap counts
- * in RESULT and JOB_INFO */
-#define PROTO_VERSION 3u
+ * in RESULT and JOB_INFO; 4: RESULT's sums in fixed point (exact, so a job's image is the
+ * same bits however its tasks are sized); 5: frame ranges (the pose in TASK, the range in
+ * SUBMIT and JOB_INFO, FETCH_FRAME) */
+#define PROTO_VERSION 5u
 #define PROTO_FRAME_HEADER 12u
 #define PROTO_FRAME_TRAILER 4u
 #define PROTO_FRAME_OVERHEAD (PROTO_FRAME_HEADER + PROTO_FRAME_TRAILER)

@@ -149,5 +149,26 @@ void proto_json_job(FILE *f, const proto_job_info *j)
             (unsigned long long)j->capped, (unsigned long long)j->submitted,
             (unsigned long)j->queue_pos);
     proto_json_string(f, j->message);
+    if (j->frame_step) {
+        /* A frame-range job: its range, and its frames rendering. */
+        fprintf(f,
+                ", \"frame_range\": {\"first\": %lu, \"last\": %lu, \"step\": %lu}, "
+                "\"frames_done\": %lu, \"frames_rendering\": %lu, \"frames\": [",
+                (unsigned long)j->frame_first, (unsigned long)j->frame_last,
+                (unsigned long)j->frame_step, (unsigned long)j->frames_done,
+                (unsigned long)j->frames_rendering);
+        for (uint32_t i = 0; i < j->nshown && i < PROTO_MAX_FRAMES_SHOWN; i++) {
+            double total = (double)j->shown[i].samples_total;
+            fprintf(f,
+                    "%s{\"frame\": %lu, \"samples_done\": %llu, \"samples_total\": %llu, "
+                    "\"progress\": ",
+                    i ? ", " : "", (unsigned long)j->shown[i].frame,
+                    (unsigned long long)j->shown[i].samples_done,
+                    (unsigned long long)j->shown[i].samples_total);
+            proto_json_double(f, total > 0 ? (double)j->shown[i].samples_done / total : 0.0);
+            fputc('}', f);
+        }
+        fputc(']', f);
+    }
     fputc('}', f);
 }

@@ -4,6 +4,7 @@
 #include <string.h>
 
 #include "common/base/alloc.h"
+#include "common/base/frames.h"
 #include "common/base/version.h"
 
 const char *proto_build_id(void)
@@ -52,6 +53,8 @@ const char *proto_msg_type_name(uint32_t type)
         return "FETCH";
     case PROTO_MSG_UPLOAD:
         return "UPLOAD";
+    case PROTO_MSG_FETCH_FRAME:
+        return "FETCH_FRAME";
     case PROTO_MSG_SUBMITTED:
         return "SUBMITTED";
     case PROTO_MSG_JOB_LIST:
@@ -399,6 +402,11 @@ static const char *task_problem(const proto_task *m)
         return "sample range s0 >= s1";
     if (m->film_flags & ~PROTO_FILM_KNOWN)
         return "unknown film flags";
+    if (m->animate > 1)
+        return "animate flag not 0 or 1";
+    /* Written so that NaN fails too. */
+    if (!(m->time >= 0.0) || !isfinite(m->time) || (!m->animate && m->time != 0.0))
+        return "time not finite and >= 0 (0 for a still)";
     return env_problem(&m->env);
 }
 
@@ -410,6 +418,8 @@ pt_status proto_msg_encode_task(proto_writer *w, const proto_task *m, pt_error *
         why = "camera name over the length cap";
     if (!why && !str_fits(m->variant, PROTO_MAX_NAME))
         why = "variant name over the length cap";
+    if (!why && !str_fits(m->animation, PROTO_MAX_NAME))
+        why = "animation name over the length cap";
     if (!why && !str_fits(m->env.name, PROTO_MAX_PATH))
         why = "environment map name over the length cap";
     if (why)
@@ -430,6 +440,9 @@ pt_status proto_msg_encode_task(proto_writer *w, const proto_task *m, pt_error *
     w_env(w, &m->env);
     proto_w_u32(w, m->film_flags);
     proto_w_str(w, m->variant);
+    proto_w_u8(w, m->animate);
+    proto_w_f64(w, m->time);
+    proto_w_str(w, m->animation);
     return w_done(w, start, "TASK", err);
 }
 
@@ -453,6 +466,9 @@ pt_status proto_msg_decode_task(const uint8_t *p, size_t len, proto_task *out, p
     r_env(&r, &m.env);
     m.film_flags = proto_r_u32(&r, "film flags");
     proto_r_str(&r, m.variant, PROTO_MAX_NAME, "variant");
+    m.animate = proto_r_u8(&r, "animate");
+    m.time = proto_r_f64(&r, "time");
+    proto_r_str(&r, m.animation, PROTO_MAX_NAME, "animation");
     pt_status st = proto_r_finish(&r, "TASK", err);
     if (st != PT_OK)
         return st;
@@ -580,18 +596,33 @@ pt_status proto_msg_encode_result(proto_writer *w, const proto_result *m, pt_err
     proto_w_u64(w, m->rays);
     proto_w_u64(w, m->capped);
     proto_w_u32(w, m->npixels);
-    /* One reservation for all pixels: a 64k-pixel tile is 2.4 MB. */
-    uint8_t *q = proto_w_reserve(w, (size_t)m->npixels * PROTO_RESULT_PIXEL_SIZE);
+    /* Each kind of sum narrow (8 bytes) when it fits 64 bits in every pixel
+     * (the usual case), so that a pixel is 40 bytes on the wire. */
+    int wide_rgb = 0, wide_sq = 0;
+    for (uint32_t i = 0; i < m->npixels; i++) {
+        const pt_pixel_acc *a = &m->pixels[i];
+        for (int c = 0; c < 3; c++)
+            wide_rgb |= a->fsum[c] != (pt_i128)(int64_t)a->fsum[c];
+        wide_sq |= a->fsum_sq > UINT64_MAX;
+    }
+    proto_w_u8(w, (uint8_t)(wide_rgb * PROTO_RESULT_WIDE_RGB + wide_sq * PROTO_RESULT_WIDE_SQ));
+    size_t rgb = wide_rgb ? 16 : 8, sq = wide_sq ? 16 : 8, psize = 3 * rgb + sq + 8;
+    /* One reservation for all pixels: a 64k-pixel tile is 2.6 MB narrow. */
+    uint8_t *q = proto_w_reserve(w, (size_t)m->npixels * psize);
     if (!q)
         return w_done(w, start, "RESULT", err);
-    for (uint32_t i = 0; i < m->npixels; i++, q += PROTO_RESULT_PIXEL_SIZE) {
+    for (uint32_t i = 0; i < m->npixels; i++, q += psize) {
         const pt_pixel_acc *a = &m->pixels[i];
-        proto_put_f64(q, a->sum[0]);
-        proto_put_f64(q + 8, a->sum[1]);
-        proto_put_f64(q + 16, a->sum[2]);
-        proto_put_f64(q + 24, a->sum_sq);
-        proto_put_u32(q + 32, a->n);
-        proto_put_u32(q + 36, a->hits);
+        for (int c = 0; c < 3; c++) {
+            proto_put_u64(q + rgb * c, (uint64_t)a->fsum[c]);
+            if (wide_rgb)
+                proto_put_u64(q + rgb * c + 8, (uint64_t)(a->fsum[c] >> 64));
+        }
+        proto_put_u64(q + 3 * rgb, (uint64_t)a->fsum_sq);
+        if (wide_sq)
+            proto_put_u64(q + 3 * rgb + 8, (uint64_t)(a->fsum_sq >> 64));
+        proto_put_u32(q + psize - 8, a->n);
+        proto_put_u32(q + psize - 4, a->hits);
     }
     return w_done(w, start, "RESULT", err);
 }
@@ -610,6 +641,7 @@ pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *bu
     m.rays = proto_r_u64(&r, "rays");
     m.capped = proto_r_u64(&r, "paths capped");
     m.npixels = proto_r_u32(&r, "pixel count");
+    uint8_t form = proto_r_u8(&r, "pixel form");
     m.pixels = NULL;
     m.owns_pixels = 0;
     if (r.status != PT_OK)
@@ -620,7 +652,12 @@ pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *bu
     const char *why = result_problem(&m);
     if (why)
         return bad(err, PT_ERR_PROTO, "RESULT", why);
-    size_t body = (size_t)m.npixels * PROTO_RESULT_PIXEL_SIZE;
+    if (form & ~(PROTO_RESULT_WIDE_RGB | PROTO_RESULT_WIDE_SQ))
+        return bad(err, PT_ERR_PROTO, "RESULT", "unknown pixel form");
+    int wide_rgb = (form & PROTO_RESULT_WIDE_RGB) != 0,
+        wide_sq = (form & PROTO_RESULT_WIDE_SQ) != 0;
+    size_t rgb = wide_rgb ? 16 : 8, psize = 3 * rgb + (wide_sq ? 16 : 8) + 8;
+    size_t body = (size_t)m.npixels * psize;
     if (proto_r_left(&r) < body)
         return pt_error_set(err, PT_ERR_PROTO, "RESULT: truncated pixels (%zu of %zu bytes)",
                             proto_r_left(&r), body);
@@ -630,8 +667,8 @@ pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *bu
     const uint8_t *q = r.p;
     uint32_t nmax = m.s1 - m.s0;
     for (uint32_t i = 0; i < m.npixels; i++) {
-        const uint8_t *pq = q + (size_t)i * PROTO_RESULT_PIXEL_SIZE;
-        why = result_pixel_problem(proto_get_u32(pq + 32), proto_get_u32(pq + 36), nmax);
+        const uint8_t *pq = q + (size_t)i * psize + psize - 8;
+        why = result_pixel_problem(proto_get_u32(pq), proto_get_u32(pq + 4), nmax);
         if (why)
             return pt_error_set(err, PT_ERR_PROTO, "RESULT: pixel %u %s", (unsigned)i, why);
     }
@@ -646,13 +683,16 @@ pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *bu
             return pt_error_set(err, PT_ERR_NOMEM, "RESULT: %u pixels", (unsigned)m.npixels);
         m.owns_pixels = 1;
     }
-    for (uint32_t i = 0; i < m.npixels; i++, q += PROTO_RESULT_PIXEL_SIZE) {
-        px[i].sum[0] = proto_get_f64(q);
-        px[i].sum[1] = proto_get_f64(q + 8);
-        px[i].sum[2] = proto_get_f64(q + 16);
-        px[i].sum_sq = proto_get_f64(q + 24);
-        px[i].n = proto_get_u32(q + 32);
-        px[i].hits = proto_get_u32(q + 36);
+    for (uint32_t i = 0; i < m.npixels; i++, q += psize) {
+        for (int c = 0; c < 3; c++)
+            px[i].fsum[c] = wide_rgb ? (pt_i128)(((pt_u128)proto_get_u64(q + 16 * c + 8) << 64) |
+                                                 proto_get_u64(q + 16 * c))
+                                     : (pt_i128)(int64_t)proto_get_u64(q + 8 * c);
+        px[i].fsum_sq = proto_get_u64(q + 3 * rgb);
+        if (wide_sq)
+            px[i].fsum_sq |= (pt_u128)proto_get_u64(q + 3 * rgb + 8) << 64;
+        px[i].n = proto_get_u32(q + psize - 8);
+        px[i].hits = proto_get_u32(q + psize - 4);
     }
     m.pixels = px;
     *out = m;
@@ -721,6 +761,30 @@ pt_status proto_msg_decode_job_ref(const uint8_t *p, size_t len, proto_job_ref *
     return PT_OK;
 }
 
+/* ---- FETCH_FRAME ---- */
+
+pt_status proto_msg_encode_fetch_frame(proto_writer *w, const proto_fetch_frame *m, pt_error *err)
+{
+    size_t start = w->len;
+    proto_w_u64(w, m->job_id);
+    proto_w_u32(w, m->frame);
+    return w_done(w, start, "FETCH_FRAME", err);
+}
+
+pt_status proto_msg_decode_fetch_frame(const uint8_t *p, size_t len, proto_fetch_frame *out,
+                                       pt_error *err)
+{
+    proto_reader r = proto_reader_make(p, len);
+    proto_fetch_frame m;
+    m.job_id = proto_r_u64(&r, "job id");
+    m.frame = proto_r_u32(&r, "frame");
+    pt_status st = proto_r_finish(&r, "FETCH_FRAME", err);
+    if (st != PT_OK)
+        return st;
+    *out = m;
+    return PT_OK;
+}
+
 /* ---- SUBMIT ---- */
 
 static const char *submit_problem(const proto_submit *m)
@@ -738,18 +802,25 @@ static const char *submit_problem(const proto_submit *m)
         return "bundle size is 0";
     if (m->film_flags & ~PROTO_FILM_KNOWN)
         return "unknown film flags";
+    pt_frames fr = {m->frame_first, m->frame_last, m->frame_step};
+    if (pt_frames_check(&fr, NULL) != PT_OK)
+        return "bad frame range";
+    if (fr.step ? !(m->fps > 0.0) || !isfinite(m->fps) : m->fps != 0.0 || m->animation[0])
+        return "frames per second not finite and > 0 for a range (0 and no animation for a "
+               "still)";
     return env_problem(&m->env);
 }
 
 pt_status proto_msg_encode_submit(proto_writer *w, const proto_submit *m, pt_error *err)
 {
     size_t start = w->len;
-    const char *why = !str_fits(m->name, PROTO_MAX_NAME)      ? "name over the length cap"
-                      : !str_fits(m->camera, PROTO_MAX_NAME)  ? "camera name over the length cap"
-                      : !str_fits(m->variant, PROTO_MAX_NAME) ? "variant name over the length cap"
-                      : !str_fits(m->env.name, PROTO_MAX_PATH)
-                          ? "environment map name over the length cap"
-                          : submit_problem(m);
+    const char *why =
+        !str_fits(m->name, PROTO_MAX_NAME)        ? "name over the length cap"
+        : !str_fits(m->camera, PROTO_MAX_NAME)    ? "camera name over the length cap"
+        : !str_fits(m->variant, PROTO_MAX_NAME)   ? "variant name over the length cap"
+        : !str_fits(m->animation, PROTO_MAX_NAME) ? "animation name over the length cap"
+        : !str_fits(m->env.name, PROTO_MAX_PATH)  ? "environment map name over the length cap"
+                                                  : submit_problem(m);
     if (why)
         return bad(err, PT_ERR_ARG, "SUBMIT", why);
     proto_w_str(w, m->name);
@@ -768,6 +839,11 @@ pt_status proto_msg_encode_submit(proto_writer *w, const proto_submit *m, pt_err
     w_env(w, &m->env);
     proto_w_u32(w, m->film_flags);
     proto_w_str(w, m->variant);
+    proto_w_u32(w, m->frame_first);
+    proto_w_u32(w, m->frame_last);
+    proto_w_u32(w, m->frame_step);
+    proto_w_f64(w, m->fps);
+    proto_w_str(w, m->animation);
     return w_done(w, start, "SUBMIT", err);
 }
 
@@ -791,6 +867,11 @@ pt_status proto_msg_decode_submit(const uint8_t *p, size_t len, proto_submit *ou
     r_env(&r, &m.env);
     m.film_flags = proto_r_u32(&r, "film flags");
     proto_r_str(&r, m.variant, PROTO_MAX_NAME, "variant");
+    m.frame_first = proto_r_u32(&r, "first frame");
+    m.frame_last = proto_r_u32(&r, "last frame");
+    m.frame_step = proto_r_u32(&r, "frame step");
+    m.fps = proto_r_f64(&r, "frames per second");
+    proto_r_str(&r, m.animation, PROTO_MAX_NAME, "animation");
     pt_status st = proto_r_finish(&r, "SUBMIT", err);
     if (st != PT_OK)
         return st;
@@ -806,7 +887,7 @@ pt_status proto_msg_decode_submit(const uint8_t *p, size_t len, proto_submit *ou
 
 /* Bytes of a JOB_INFO with every string empty: the least an entry of
  * JOB_LIST can take, so a count is checked against the bytes present. */
-#define JOB_INFO_FIXED 115u
+#define JOB_INFO_FIXED 136u
 
 static const char *job_info_problem(const proto_job_info *m)
 {
@@ -820,6 +901,8 @@ static const char *job_info_problem(const proto_job_info *m)
         return "output over the length cap";
     if (!str_fits(m->message, PROTO_MAX_ERROR_TEXT))
         return "message over the length cap";
+    if (m->nshown > PROTO_MAX_FRAMES_SHOWN)
+        return "frames listed over the cap";
     return NULL;
 }
 
@@ -849,6 +932,17 @@ static void w_job_info(proto_writer *w, const proto_job_info *m)
     proto_w_u32(w, m->queue_pos);
     proto_w_str(w, m->message);
     proto_w_u64(w, m->capped);
+    proto_w_u32(w, m->frame_first);
+    proto_w_u32(w, m->frame_last);
+    proto_w_u32(w, m->frame_step);
+    proto_w_u32(w, m->frames_done);
+    proto_w_u32(w, m->frames_rendering);
+    proto_w_u8(w, m->nshown);
+    for (uint32_t i = 0; i < m->nshown; i++) {
+        proto_w_u32(w, m->shown[i].frame);
+        proto_w_u64(w, m->shown[i].samples_done);
+        proto_w_u64(w, m->shown[i].samples_total);
+    }
 }
 
 /* Reads one JOB_INFO into m (which may be left half-filled on failure). */
@@ -878,6 +972,19 @@ static void r_job_info(proto_reader *r, proto_job_info *m)
     m->queue_pos = proto_r_u32(r, "queue position");
     proto_r_str(r, m->message, PROTO_MAX_ERROR_TEXT, "message");
     m->capped = proto_r_u64(r, "paths capped");
+    m->frame_first = proto_r_u32(r, "first frame");
+    m->frame_last = proto_r_u32(r, "last frame");
+    m->frame_step = proto_r_u32(r, "frame step");
+    m->frames_done = proto_r_u32(r, "frames done");
+    m->frames_rendering = proto_r_u32(r, "frames rendering");
+    m->nshown = proto_r_u8(r, "frames listed");
+    if (r->status == PT_OK && m->nshown > PROTO_MAX_FRAMES_SHOWN)
+        proto_r_fail(r, PT_ERR_PROTO, "over the cap:", "frames listed");
+    for (uint32_t i = 0; i < m->nshown && r->status == PT_OK; i++) {
+        m->shown[i].frame = proto_r_u32(r, "frame");
+        m->shown[i].samples_done = proto_r_u64(r, "frame samples merged");
+        m->shown[i].samples_total = proto_r_u64(r, "frame samples total");
+    }
 }
 
 pt_status proto_msg_encode_job_info(proto_writer *w, const proto_job_info *m, pt_error *err)

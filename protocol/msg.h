@@ -57,7 +57,8 @@ typedef enum proto_msg_type {
     PROTO_MSG_WATCH = 35,
     PROTO_MSG_CANCEL = 36,
     PROTO_MSG_FETCH = 37,
-    PROTO_MSG_UPLOAD = 38, /* SCENE_CHUNK layout: a piece of the submitted bundle */
+    PROTO_MSG_UPLOAD = 38,      /* SCENE_CHUNK layout: a piece of the submitted bundle */
+    PROTO_MSG_FETCH_FRAME = 39, /* a frame-range job's image of one frame */
     /* server -> client */
     PROTO_MSG_SUBMITTED = 48, /* JOB_REF layout: the new job's id */
     PROTO_MSG_JOB_LIST = 49,
@@ -83,9 +84,12 @@ const char *proto_msg_type_name(uint32_t type);
 #define PROTO_MAX_TILE_PIXELS (PT_TILE_MAX * PT_TILE_MAX) /* pixels in one TASK / RESULT tile */
 #define PROTO_HASH_SIZE 32u                               /* scene content hash (SHA-256) */
 #define PROTO_NONCE_SIZE 32u
-#define PROTO_MAC_SIZE 32u           /* HMAC-SHA256 */
-#define PROTO_RESULT_PIXEL_SIZE 40u  /* bytes per pixel in RESULT */
-#define PROTO_RESULT_HEADER_SIZE 68u /* bytes of RESULT before its pixels */
+#define PROTO_MAC_SIZE 32u               /* HMAC-SHA256 */
+#define PROTO_RESULT_PIXEL_SIZE 40u      /* bytes per pixel in a narrow RESULT */
+#define PROTO_RESULT_WIDE_PIXEL_SIZE 72u /* bytes per pixel in a wide RESULT (the most) */
+#define PROTO_RESULT_WIDE_RGB 1u         /* RESULT pixel form: RGB sums in 16 bytes */
+#define PROTO_RESULT_WIDE_SQ 2u          /* RESULT pixel form: sum of squares in 16 bytes */
+#define PROTO_RESULT_HEADER_SIZE 69u     /* bytes of RESULT before its pixels */
 
 /* Film flags (TASK, SUBMIT). Decoders refuse a bit not defined here. */
 #define PROTO_FILM_TRANSPARENT 1u /* camera rays that escape add nothing; the EXR gets A */
@@ -216,7 +220,16 @@ int proto_env_same(const proto_env *a, const proto_env *b);
  *   94+c 23+e ENV      the environment light (ENV layout, above)
  *   117+c+e 4 u32      film flags (PROTO_FILM_*; unknown bits refused)
  *   121+c+e 2+v str    KHR_materials_variants name, v <= PROTO_MAX_NAME ("": none)
- *   size 123+c+e+v */
+ *   123+c+e+v 1 u8     animate: 1 the scene is posed at the time below (a frame of
+ *                      a frame-range job), 0 the file's still pose (0 or 1)
+ *   124+c+e+v 8 f64    time in seconds into the animation (finite, >= 0; 0 when
+ *                      animate is 0)
+ *   132+c+e+v 2+n str  animation: "" every animation, else a name or decimal
+ *                      index (pt_scene_opts.animation), n <= PROTO_MAX_NAME
+ *   size 134+c+e+v+n
+ * A frame-range job's frames are separate jobs on the wire: each has its own
+ * job id (srv_frame_job_id, server/frames.h), so a task id, a RESULT and a
+ * JOB_END name one frame's tasks. */
 typedef struct proto_task {
     uint64_t job_id, task_id;
     pt_rect tile;
@@ -228,8 +241,11 @@ typedef struct proto_task {
     uint32_t lease_ms;
     char camera[PROTO_MAX_NAME + 1]; /* NUL-terminated; "" the default view */
     proto_env env;
-    uint32_t film_flags;              /* PROTO_FILM_* */
-    char variant[PROTO_MAX_NAME + 1]; /* material variant; "" each primitive's own */
+    uint32_t film_flags;                /* PROTO_FILM_* */
+    char variant[PROTO_MAX_NAME + 1];   /* material variant; "" each primitive's own */
+    uint8_t animate;                    /* 1: posed at time */
+    double time;                        /* seconds */
+    char animation[PROTO_MAX_NAME + 1]; /* "" every animation */
 } proto_task;
 
 /* SCENE_GET
@@ -266,16 +282,22 @@ typedef struct proto_scene_chunk {
  *   48   8    u64   rays traced
  *   56   8    u64   paths ended by the depth cap (pt_render_stats.capped)
  *   64   4    u32   N: pixels; must equal (x1-x0)*(y1-y0) and be <= PROTO_MAX_TILE_PIXELS
- *   68   40N        pixels, row-major over the tile, each:
- *                     +0   8  f64  sum R
- *                     +8   8  f64  sum G
- *                     +16  8  f64  sum B
- *                     +24  8  f64  sum of squared luminance
- *                     +32  4  u32  n: samples accumulated, n <= s1 - s0
- *                     +36  4  u32  hits: of those, samples whose camera ray hit the
+ *   68   1    u8    pixel form: PROTO_RESULT_WIDE_RGB | PROTO_RESULT_WIDE_SQ, no other bit
+ *   69   PN         pixels, row-major over the tile, P = 40 to 72 bytes, each:
+ *                     the sums of pt_pixel_acc (tile.h) in fixed point: R, G, B
+ *                     (signed, units of 2^-32), each an i64 (8 bytes) or, with
+ *                     WIDE_RGB, two u64 low half first (16 bytes); then the sum
+ *                     of squared luminance (unsigned, units of 2^-48), a u64 or,
+ *                     with WIDE_SQ, two u64 low half first
+ *                     P-8  4  u32  n: samples accumulated, n <= s1 - s0
+ *                     P-4  4  u32  hits: of those, samples whose camera ray hit the
  *                                  scene, hits <= n (the coverage is hits / n)
- *   size 68+40N (PROTO_RESULT_HEADER_SIZE + PROTO_RESULT_PIXEL_SIZE x N)
- * The floats are not checked (finiteness is the server's business). */
+ *   size 69+PN (PROTO_RESULT_HEADER_SIZE + P x N; P = PROTO_RESULT_PIXEL_SIZE
+ *   narrow, PROTO_RESULT_WIDE_PIXEL_SIZE with both bits)
+ * The encoder sets a bit only when some pixel's sum of that kind does not fit
+ * 64 bits: RGB sums fit below 2^31 per task, squares below 2^16, so a pixel of
+ * ordinary radiance costs 40 bytes on the wire as with double sums. The sums
+ * are not checked (plausibility is the server's business). */
 typedef struct proto_result {
     uint64_t job_id, task_id;
     pt_rect tile;
@@ -314,13 +336,15 @@ typedef struct proto_heartbeat {
  *   CANCEL (JOB_REF)         -> JOB_INFO (state CANCELLED, or the state it had
  *                               when it had already ended)
  *   FETCH (JOB_REF)          -> IMAGE frames, offsets 0.. in order, until total
+ *   FETCH_FRAME              -> IMAGE frames likewise: that frame's latest EXR
  * LIST has an empty payload (size 0).
  *
  * UPLOAD and IMAGE use the SCENE_CHUNK layout and decoder: hash is the SHA-256
  * of the whole file (the bundle announced by SUBMIT; the EXR sent for FETCH),
  * so the receiver checks what it assembled. */
 
-#define PROTO_MAX_JOBS 4096u /* entries in one JOB_LIST */
+#define PROTO_MAX_JOBS 4096u      /* entries in one JOB_LIST */
+#define PROTO_MAX_FRAMES_SHOWN 8u /* frames rendering listed in one JOB_INFO */
 
 /* JOB_REF (STATUS, WATCH, CANCEL, FETCH, SUBMITTED)
  *   0    8    u64  job id
@@ -328,6 +352,15 @@ typedef struct proto_heartbeat {
 typedef struct proto_job_ref {
     uint64_t job_id;
 } proto_job_ref;
+
+/* FETCH_FRAME
+ *   0    8    u64  job id (a frame-range job)
+ *   8    4    u32  frame number
+ *   size 12 */
+typedef struct proto_fetch_frame {
+    uint64_t job_id;
+    uint32_t frame;
+} proto_fetch_frame;
 
 /* SUBMIT
  *   0    2+a  str  job name, a <= PROTO_MAX_NAME (may be empty)
@@ -349,7 +382,13 @@ typedef struct proto_job_ref {
  *   109+a+c+e 4 u32 film flags (PROTO_FILM_*; unknown bits refused)
  *   113+a+c+e 2+v str KHR_materials_variants name, v <= PROTO_MAX_NAME ("": none;
  *                  the server refuses a name the scene lacks)
- *   size 115+a+c+e+v
+ *   115+a+c+e+v 4 u32 first frame \  a frame range (common/base/frames.h):
+ *   119+a+c+e+v 4 u32 last frame   | step 0 (and the others 0): a still;
+ *   123+a+c+e+v 4 u32 frame step  /  else pt_frames_check's rules
+ *   127+a+c+e+v 8 f64 frames per second (finite, > 0 for a range; 0 for a still)
+ *   135+a+c+e+v 2+n str animation: "" every animation, else a name or decimal
+ *                  index, n <= PROTO_MAX_NAME ("" for a still)
+ *   size 137+a+c+e+v+n
  * The decoder checks shape only (width and height both 0 or both > 0, spp > 0,
  * size > 0, target error and min gain finite and >= 0); caps, and whether the
  * two rules may be combined, are the server's business. */
@@ -365,8 +404,11 @@ typedef struct proto_submit {
     char camera[PROTO_MAX_NAME + 1]; /* NUL-terminated; "" the default view */
     double min_gain;
     proto_env env;
-    uint32_t film_flags;              /* PROTO_FILM_* */
-    char variant[PROTO_MAX_NAME + 1]; /* material variant; "" each primitive's own */
+    uint32_t film_flags;                          /* PROTO_FILM_* */
+    char variant[PROTO_MAX_NAME + 1];             /* material variant; "" each primitive's own */
+    uint32_t frame_first, frame_last, frame_step; /* step 0: a still */
+    double fps;
+    char animation[PROTO_MAX_NAME + 1];
 } proto_submit;
 
 enum {
@@ -405,7 +447,17 @@ const char *proto_job_state_name(uint32_t state);
  *   ..   4    u32  position in the queue (1 = next; 0 when not queued)
  *   ..   2+e  str  message (why it failed, ...), e <= PROTO_MAX_ERROR_TEXT
  *   ..   8    u64  paths ended by the depth cap, over the results merged
- *   size 115+a+b+c+d+e */
+ *   ..   4    u32  first frame \  the frame range (step 0: a still, and the
+ *   ..   4    u32  last frame   | frame fields below are 0); for a range,
+ *   ..   4    u32  frame step  /  the sample counts above cover every frame
+ *   ..   4    u32  frames done
+ *   ..   4    u32  frames rendering (started, not done)
+ *   ..   1    u8   K: frames listed next, K <= PROTO_MAX_FRAMES_SHOWN
+ *   ..   20K       the frames rendering, earliest first, each:
+ *                    +0  4  u32  frame number
+ *                    +4  8  u64  samples merged
+ *                    +12 8  u64  samples total
+ *   size 136+a+b+c+d+e+20K */
 typedef struct proto_job_info {
     uint64_t job_id;
     uint8_t state;
@@ -423,7 +475,14 @@ typedef struct proto_job_info {
     uint64_t submitted;
     uint32_t queue_pos;
     char message[PROTO_MAX_ERROR_TEXT + 1];
-    uint64_t capped; /* paths ended by the depth cap */
+    uint64_t capped;                              /* paths ended by the depth cap */
+    uint32_t frame_first, frame_last, frame_step; /* step 0: a still */
+    uint32_t frames_done, frames_rendering;
+    uint8_t nshown;
+    struct {
+        uint32_t frame;
+        uint64_t samples_done, samples_total;
+    } shown[PROTO_MAX_FRAMES_SHOWN];
 } proto_job_info;
 
 /* JOB_LIST
@@ -431,7 +490,7 @@ typedef struct proto_job_info {
  *   4    ...       N JOB_INFO entries, back to back
  * Decoded, jobs is a pt_malloc'd array of N entries (NULL when N is 0) that
  * the caller frees with pt_free; N is checked against the bytes present (each
- * entry needs at least 115 bytes) before anything is allocated. */
+ * entry needs at least 136 bytes) before anything is allocated. */
 typedef struct proto_job_list {
     uint32_t count;
     proto_job_info *jobs;
@@ -439,6 +498,10 @@ typedef struct proto_job_list {
 
 pt_status proto_msg_encode_job_ref(proto_writer *w, const proto_job_ref *m, pt_error *err);
 pt_status proto_msg_decode_job_ref(const uint8_t *p, size_t len, proto_job_ref *out, pt_error *err);
+
+pt_status proto_msg_encode_fetch_frame(proto_writer *w, const proto_fetch_frame *m, pt_error *err);
+pt_status proto_msg_decode_fetch_frame(const uint8_t *p, size_t len, proto_fetch_frame *out,
+                                       pt_error *err);
 
 pt_status proto_msg_encode_submit(proto_writer *w, const proto_submit *m, pt_error *err);
 pt_status proto_msg_decode_submit(const uint8_t *p, size_t len, proto_submit *out, pt_error *err);

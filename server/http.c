@@ -21,6 +21,7 @@
 #include "common/image/image.h"
 #include "protocol/auth.h"
 #include "protocol/jobjson.h"
+#include "server/frames.h"
 #include "server/http_assets.h"
 #include "server/loop.h"
 #include "server/queue.h"
@@ -172,10 +173,18 @@ void srv_http_publish(srv_server *s, srv_http *h, int force)
         return;
     }
     for (const srv_entry *j = s->jobs; j && p->njobs < s->njobs; j = j->next) {
+        if (j->parent)
+            continue; /* a frame: its range shows it */
         snap_job *o = &p->jobs[p->njobs++];
         srv_queue_info(s, j, &o->info);
         snprintf(o->exr, sizeof o->exr, "%s", j->out_path);
         o->images = j->writer ? srv_writer_count(j->writer) : 0;
+        if (j->rec.frames.step) {
+            /* The frame a viewer wants: the earliest rendering, or the last done. */
+            srv_frames_latest(j, o->exr, sizeof o->exr);
+            const srv_entry *f = srv_frames_at(j, 0);
+            o->images = f && f->writer ? srv_writer_count(f->writer) : o->exr[0] != '\0';
+        }
     }
     for (const srv_conn *c = s->conns; c; c = c->next) {
         if (c->closing || c->state != SRV_C_READY)

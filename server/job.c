@@ -7,6 +7,7 @@
 #include "common/base/alloc.h"
 #include "common/base/hash.h"
 #include "common/render/adaptive.h"
+#include "common/render/render.h"
 
 enum { T_PENDING = 0, T_LEASED = 1, T_HELD = 2, T_MERGED = 3, T_SKIPPED = 4 };
 
@@ -14,18 +15,40 @@ enum { T_PENDING = 0, T_LEASED = 1, T_HELD = 2, T_MERGED = 3, T_SKIPPED = 4 };
  * verification copy of a task already merged. */
 enum { L_TASK = 0, L_BACKUP = 1, L_VERIFY = 2 };
 
+#define NONE UINT32_MAX
+
+/* A task: samples [s0, s1) of one tile. Its id is its index in the job's
+ * task table; records are never removed (a check names a merged task). */
+typedef struct task {
+    uint32_t tile, s0, s1;
+    uint32_t next;   /* the tile's next unmerged task in sample order, NONE at the end */
+    uint32_t leases; /* its live leases: the first one's slot, NONE when none */
+    uint32_t held;   /* T_HELD: its index in held[] */
+    uint8_t state;   /* T_* */
+} task;
+
+/* A lease lives in a slot of a pool; slots are stable while it lives, so
+ * tasks and owners keep lists of them (by slot) and nothing is looked up by
+ * scanning. */
 typedef struct lease {
-    uint64_t task, owner;
+    uint64_t owner;
     uint64_t start;    /* when it was handed out (ms) */
     uint64_t deadline; /* heartbeat deadline: start or last heartbeat + lease_ms */
-    uint32_t check;    /* L_VERIFY: its check's index */
-    uint8_t kind;      /* L_* */
-    uint8_t answered;  /* its result arrived and waits for its log record to be
-                          durable before it is merged: not a straggler */
+    double rate;       /* what it adds to the farm's rate (pixel-samples per ms) */
+    uint32_t task;
+    uint32_t check;        /* L_VERIFY: its check's index */
+    uint32_t tnext;        /* the task's next lease; in a free slot, the next free slot */
+    uint32_t oprev, onext; /* the owner's lease list */
+    uint32_t owner_ix;     /* the owner's index in owners[] */
+    uint8_t kind;          /* L_* */
+    uint8_t live;
+    uint8_t answered; /* its result arrived and waits for its log record to be
+                         durable before it is merged: not a straggler */
 } lease;
 
 typedef struct held {
-    uint64_t task, owner;
+    uint32_t task;
+    uint64_t owner;
     pt_pixel_acc *px;
 } held;
 
@@ -34,42 +57,70 @@ typedef struct held {
 enum { C_WANT_B = 0, C_LEASED_B, C_WANT_C, C_LEASED_C };
 
 typedef struct check {
-    uint64_t task;
+    uint32_t task;
+    uint32_t lease; /* C_LEASED_*: the copy's slot */
     uint64_t owner[2];
     uint8_t hash[2][32];
     uint8_t stage; /* C_* */
 } check;
 
-/* Per worker connection (owner), what it delivered to this job. */
+/* Per worker connection (owner), what it delivered to this job, its leases
+ * and its measured speed. */
 typedef struct owner_stat {
     uint64_t owner, merged, verified, samples;
+    double ms_ps;    /* ms per pixel-sample of one of its tasks (moving average); 0 unknown */
+    uint32_t leases; /* its first lease's slot, NONE when none */
+    uint32_t nleases;
 } owner_stat;
+
+/* Per tile: samples [0, merged) are in the film, [merged, frontier) are cut
+ * into tasks (the list head..tail in sample order), [frontier, spp) are not
+ * cut yet. */
+typedef struct tile_state {
+    uint32_t merged, frontier;
+    uint32_t head, tail;
+    uint8_t stopped; /* adaptive sampling stopped it: nothing more is rendered */
+} tile_state;
 
 #define TIMES 256 /* observed task times kept (a ring) for the deadline quantile */
 #define CHECK_SCAN 64
+/* Near the end a task takes at most the time the farm needs for the work not
+ * yet cut, divided by this: the last tasks end within a fraction of one
+ * another, and no core idles long on the tail. */
+#define TAIL_SHARE 4.0
+/* Weight of a new measurement in an owner's moving average of its speed. */
+#define SPEED_WEIGHT 0.5
 
 struct srv_job {
     uint64_t id;
     srv_job_params p;
     uint8_t hash[32];
-    uint32_t tiles_x, tiles_y, ntiles, nchunks;
-    uint64_t ntasks;
-    uint8_t *state;           /* T_* per task */
-    uint32_t *next_chunk;     /* per tile: the chunk to merge next */
-    uint32_t *merged_in_pass; /* per chunk: tiles merged */
-    uint32_t passes_done;
-    uint64_t cursor;   /* every id below it has been handed out at least once */
-    uint64_t *requeue; /* FIFO ring of task ids */
-    uint64_t rq_head, rq_len, rq_cap;
+    uint32_t tiles_x, tiles_y, ntiles, npasses;
+    int adaptive;        /* adaptive sampling is on: decisions at multiples of chunk */
+    uint32_t first_stop; /* the first decision point (a multiple of chunk >= min_spp) */
+    uint32_t least;      /* the fewest samples of a time-sized task: a block, or more
+                          * where a job's blocks would pass half of SRV_MAX_TASKS */
+    tile_state *tiles;
+    uint32_t *heap; /* tiles not fully cut, by (frontier, tile) */
+    uint32_t nheap;
+    int heap_dirty; /* a frontier moved in the heap (a replay): rebuild it */
+    task *tasks;
+    uint32_t ntasks, tasks_cap;
+    uint32_t *requeue; /* FIFO ring of task ids, as large as the task table */
+    uint32_t rq_head, rq_len;
     lease *leases;
-    uint32_t nleases, leases_cap;
+    uint32_t nleases, lease_slots, lease_free;
     held *held;
     uint32_t nheld, held_cap;
-    uint64_t merged, samples;
+    uint64_t merged; /* tasks merged or skipped */
+    uint64_t samples;
     uint64_t capped; /* paths ended by the depth cap, over the results accepted */
-    uint32_t stopped;
+    uint32_t stopped, tiles_done;
+    uint32_t passes_done, at_level; /* tiles with merged >= the next pass's samples */
+    uint64_t uncut;                 /* pixel-samples of every tile's [frontier, spp) */
+    double farm_rate;               /* sum of the live leases' rates */
     pt_film *film;
-    /* deadlines, backups and verification (srv_job_set_policy) */
+    /* deadlines, backups, verification and sizing (srv_job_set_policy) */
     srv_lease_policy pol;
     double times[TIMES];  /* ms per pixel-sample of merged results, in arrival order */
     double sorted[TIMES]; /* the same ntimes values, ascending */
@@ -79,12 +130,20 @@ struct srv_job {
     uint32_t nchecks, checks_cap;
     owner_stat *owners;
     uint32_t nowners, owners_cap;
+    uint32_t *owner_map; /* open addressing: owner index + 1, 0 empty */
+    uint32_t owner_map_cap;
     srv_verify_stats vs;
 };
 
-static pt_rect task_rect(const srv_job *j, uint64_t id)
+static uint32_t tile_pixels(const srv_job *j, uint32_t tile)
 {
-    uint32_t tile = (uint32_t)(id % j->ntiles);
+    uint32_t tx = tile % j->tiles_x, ty = tile / j->tiles_x;
+    uint32_t w = j->p.width - tx * j->p.tile, h = j->p.height - ty * j->p.tile;
+    return (w < j->p.tile ? w : j->p.tile) * (h < j->p.tile ? h : j->p.tile);
+}
+
+static pt_rect tile_rect(const srv_job *j, uint32_t tile)
+{
     uint32_t tx = tile % j->tiles_x, ty = tile / j->tiles_x;
     pt_rect r;
     r.x0 = tx * j->p.tile;
@@ -94,11 +153,11 @@ static pt_rect task_rect(const srv_job *j, uint64_t id)
     return r;
 }
 
-static void task_samples(const srv_job *j, uint64_t id, uint32_t *s0, uint32_t *s1)
+/* Pixel-samples of task t: what its time is measured against. */
+static double task_work(const srv_job *j, uint32_t t)
 {
-    uint32_t c = (uint32_t)(id / j->ntiles);
-    *s0 = c * j->p.chunk;
-    *s1 = *s0 + j->p.chunk < j->p.spp ? *s0 + j->p.chunk : j->p.spp;
+    const task *k = &j->tasks[t];
+    return (double)tile_pixels(j, k->tile) * (k->s1 - k->s0);
 }
 
 uint32_t srv_job_params_tiles(const srv_job_params *p)
@@ -111,6 +170,148 @@ uint32_t srv_job_params_passes(const srv_job_params *p)
     return (p->spp + p->chunk - 1) / p->chunk;
 }
 
+/* ---- where tasks may end ---- */
+
+/* 1 when adaptive sampling decides after sample count s (s a multiple of the
+ * chunk, at least min spp, short of spp). */
+static int decision_point(const srv_job *j, uint32_t s)
+{
+    return j->adaptive && s >= j->first_stop && s < j->p.spp && s % j->p.chunk == 0;
+}
+
+/* The furthest a task starting at s0 may end: spp, and for an adaptive job
+ * never past a decision point. With the min-gain rule, which judges the
+ * chunk before the point against the samples before it (pt_tile_gain), only
+ * a task of exactly that chunk may end at one; the error rule reads the sums
+ * alone. */
+static uint32_t max_end(const srv_job *j, uint32_t s0)
+{
+    uint32_t e = j->p.spp;
+    if (!j->adaptive)
+        return e;
+    uint64_t c = j->p.chunk;
+    uint64_t d = ((uint64_t)s0 / c + 1) * c;
+    if (d < j->first_stop)
+        d = j->first_stop;
+    if (d >= e)
+        return e;
+    if (j->p.min_gain > 0.0 && s0 < d - c)
+        return (uint32_t)(d - c);
+    return (uint32_t)d;
+}
+
+/* With the min gain, a task that starts a decision point's chunk must end at
+ * the point: the end it must have, or 0 when it is free. */
+static uint32_t forced_end(const srv_job *j, uint32_t s0)
+{
+    if (!j->adaptive || j->p.min_gain <= 0.0 || s0 % j->p.chunk != 0)
+        return 0;
+    uint64_t d = (uint64_t)s0 + j->p.chunk;
+    return decision_point(j, (uint32_t)(d < UINT32_MAX ? d : UINT32_MAX)) ? (uint32_t)d : 0;
+}
+
+/* 1 when time-sized tasks are cut for this job: a task time is set, and an
+ * adaptive job's chunk is a whole number of sample blocks. */
+static int time_sized(const srv_job *j)
+{
+    return j->pol.task_ms > 0 && (!j->adaptive || j->p.chunk % PT_SAMPLE_BLOCK == 0);
+}
+
+/* ms per pixel-sample expected of owner o's next task: its own average, else
+ * the job's median, 0 when nothing was measured. */
+static double expected_ms_ps(const srv_job *j, const owner_stat *o)
+{
+    if (o && o->ms_ps > 0.0)
+        return o->ms_ps;
+    return j->t_mid;
+}
+
+/* Samples a time-sized task of a tile with px pixels should have for owner
+ * o: the task time at o's speed, less near the end (TAIL_SHARE), a multiple
+ * of PT_SAMPLE_BLOCK, at least one block (j->least). */
+static uint32_t sized_samples(const srv_job *j, const owner_stat *o, uint32_t px)
+{
+    double v = expected_ms_ps(j, o);
+    if (!(v > 0.0))
+        return j->least;
+    double ms = j->pol.task_ms;
+    double farm = j->farm_rate + 1.0 / v; /* this lease included */
+    double tail = (double)j->uncut / (farm * TAIL_SHARE);
+    if (tail < ms)
+        ms = tail;
+    double n = ms / v / px;
+    if (!(n < 1e9))
+        n = 1e9;
+    uint32_t b = (uint32_t)(n / PT_SAMPLE_BLOCK) * PT_SAMPLE_BLOCK;
+    return b > j->least ? b : j->least;
+}
+
+/* The end of the next task of tile that starts at s0 (its frontier) for
+ * owner o. Fixed chunks: the next multiple of chunk. Time-sized: s0 +
+ * sized_samples, but at most s0 itself past 16 (the first pass is one
+ * block and each later one at most doubles a tile's samples, so the
+ * progressive image improves as soon and as evenly as with fixed chunks),
+ * ending on a block boundary. */
+static uint32_t next_end(const srv_job *j, uint32_t tile, uint32_t s0, const owner_stat *o)
+{
+    uint32_t e = max_end(j, s0);
+    if (forced_end(j, s0))
+        return forced_end(j, s0);
+    if (!time_sized(j)) {
+        uint64_t c = ((uint64_t)s0 / j->p.chunk + 1) * j->p.chunk;
+        return c < e ? (uint32_t)c : e;
+    }
+    uint32_t n = sized_samples(j, o, tile_pixels(j, tile));
+    uint32_t grow = s0 > j->least ? s0 : j->least;
+    if (n > grow)
+        n = grow;
+    uint64_t s1 = (uint64_t)s0 + n;
+    if (s1 >= e)
+        return e;
+    s1 -= s1 % PT_SAMPLE_BLOCK; /* s0 off a block boundary (an older chunk size) */
+    if (s1 <= s0)
+        s1 = (uint64_t)s0 + PT_SAMPLE_BLOCK - s0 % PT_SAMPLE_BLOCK;
+    return s1 < e ? (uint32_t)s1 : e;
+}
+
+/* ---- tiles in order of samples cut ---- */
+
+static int heap_less(const srv_job *j, uint32_t a, uint32_t b)
+{
+    uint32_t fa = j->tiles[a].frontier, fb = j->tiles[b].frontier;
+    return fa < fb || (fa == fb && a < b);
+}
+
+static void heap_down(srv_job *j, uint32_t i)
+{
+    for (;;) {
+        uint32_t l = 2 * i + 1, m = i;
+        if (l < j->nheap && heap_less(j, j->heap[l], j->heap[m]))
+            m = l;
+        if (l + 1 < j->nheap && heap_less(j, j->heap[l + 1], j->heap[m]))
+            m = l + 1;
+        if (m == i)
+            return;
+        uint32_t t = j->heap[i];
+        j->heap[i] = j->heap[m];
+        j->heap[m] = t;
+        i = m;
+    }
+}
+
+static void heap_rebuild(srv_job *j)
+{
+    j->nheap = 0;
+    for (uint32_t t = 0; t < j->ntiles; t++)
+        if (!j->tiles[t].stopped && j->tiles[t].frontier < j->p.spp)
+            j->heap[j->nheap++] = t;
+    for (uint32_t i = j->nheap / 2; i-- > 0;)
+        heap_down(j, i);
+    j->heap_dirty = 0;
+}
+
+/* ---- the job ---- */
+
 pt_status srv_job_new(uint64_t id, const srv_job_params *p, const uint8_t scene_hash[32],
                       srv_job **out, pt_error *err)
 {
@@ -121,6 +322,11 @@ pt_status srv_job_new(uint64_t id, const srv_job_params *p, const uint8_t scene_
         return pt_error_set(err, PT_ERR_ARG,
                             "job: size %ux%u, %u spp, tile %u, chunk %u is not a valid job",
                             p->width, p->height, p->spp, p->tile, p->chunk);
+    uint64_t ntiles = srv_job_params_tiles(p);
+    uint64_t most = ntiles * srv_job_params_passes(p);
+    if (most > SRV_MAX_TASKS)
+        return pt_error_set(err, PT_ERR_LIMIT, "job: %llu tasks is over the cap of %u",
+                            (unsigned long long)most, SRV_MAX_TASKS);
     srv_job *j = pt_calloc(1, sizeof *j);
     if (!j)
         return pt_error_set(err, PT_ERR_NOMEM, "job: out of memory");
@@ -130,22 +336,28 @@ pt_status srv_job_new(uint64_t id, const srv_job_params *p, const uint8_t scene_
     memcpy(j->hash, scene_hash, 32);
     j->tiles_x = (p->width + p->tile - 1) / p->tile;
     j->tiles_y = (p->height + p->tile - 1) / p->tile;
-    j->ntiles = srv_job_params_tiles(p);
-    j->nchunks = srv_job_params_passes(p);
-    j->ntasks = (uint64_t)j->ntiles * j->nchunks;
-    if (j->ntasks > SRV_MAX_TASKS) {
-        st = pt_error_set(err, PT_ERR_LIMIT, "job: %llu tasks is over the cap of %u",
-                          (unsigned long long)j->ntasks, SRV_MAX_TASKS);
+    j->ntiles = (uint32_t)ntiles;
+    j->npasses = srv_job_params_passes(p);
+    j->adaptive = p->target_error > 0.0 || p->min_gain > 0.0;
+    uint32_t c = p->chunk, m = p->min_spp > c ? p->min_spp : c;
+    j->first_stop =
+        (uint32_t)(((uint64_t)m + c - 1) / c * c > UINT32_MAX ? UINT32_MAX
+                                                              : ((uint64_t)m + c - 1) / c * c);
+    j->least = PT_SAMPLE_BLOCK;
+    while (j->least < p->spp && ntiles * ((p->spp + j->least - 1) / j->least) > SRV_MAX_TASKS / 2)
+        j->least *= 2;
+    j->lease_free = NONE;
+    j->tiles = pt_calloc(j->ntiles, sizeof *j->tiles);
+    j->heap = pt_malloc_array(j->ntiles, sizeof *j->heap);
+    if (!j->tiles || !j->heap) {
+        st = pt_error_set(err, PT_ERR_NOMEM, "job: out of memory for %u tiles", j->ntiles);
         goto fail;
     }
-    j->state = pt_calloc(j->ntasks, 1);
-    j->next_chunk = pt_calloc(j->ntiles, sizeof *j->next_chunk);
-    j->merged_in_pass = pt_calloc(j->nchunks, sizeof *j->merged_in_pass);
-    if (!j->state || !j->next_chunk || !j->merged_in_pass) {
-        st = pt_error_set(err, PT_ERR_NOMEM, "job: out of memory for %llu tasks",
-                          (unsigned long long)j->ntasks);
-        goto fail;
+    for (uint32_t t = 0; t < j->ntiles; t++) {
+        j->tiles[t].head = j->tiles[t].tail = NONE;
+        j->uncut += (uint64_t)tile_pixels(j, t) * p->spp;
     }
+    heap_rebuild(j);
     if ((st = pt_film_new(p->width, p->height, &j->film, err)) != PT_OK)
         goto fail;
     *out = j;
@@ -164,11 +376,12 @@ void srv_job_free(srv_job *j)
     pt_free(j->held);
     pt_free(j->checks);
     pt_free(j->owners);
+    pt_free(j->owner_map);
     pt_free(j->leases);
     pt_free(j->requeue);
-    pt_free(j->state);
-    pt_free(j->next_chunk);
-    pt_free(j->merged_in_pass);
+    pt_free(j->tasks);
+    pt_free(j->tiles);
+    pt_free(j->heap);
     pt_film_free(j->film);
     pt_free(j);
 }
@@ -183,7 +396,7 @@ const srv_job_params *srv_job_params_of(const srv_job *j)
 }
 uint32_t srv_job_passes(const srv_job *j)
 {
-    return j->nchunks;
+    return j->npasses;
 }
 uint32_t srv_job_passes_done(const srv_job *j)
 {
@@ -191,7 +404,18 @@ uint32_t srv_job_passes_done(const srv_job *j)
 }
 uint64_t srv_job_tasks_total(const srv_job *j)
 {
-    return j->ntasks;
+    /* Merged or skipped, plus cut and open, plus what fixed chunks would cut
+     * of the rest (a chunk boundary ends a task; time-sized ones may cut it
+     * otherwise): when nothing is open or uncut, the merged count. */
+    uint64_t n = j->merged;
+    for (uint32_t t = 0; t < j->ntiles; t++) {
+        const tile_state *ts = &j->tiles[t];
+        for (uint32_t k = ts->head; k != NONE; k = j->tasks[k].next)
+            n++;
+        if (!ts->stopped && ts->frontier < j->p.spp)
+            n += j->npasses - ts->frontier / j->p.chunk;
+    }
+    return n;
 }
 uint64_t srv_job_tasks_merged(const srv_job *j)
 {
@@ -215,7 +439,7 @@ uint32_t srv_job_tiles_stopped(const srv_job *j)
 }
 int srv_job_complete(const srv_job *j)
 {
-    if (j->merged != j->ntasks)
+    if (j->tiles_done != j->ntiles)
         return 0;
     /* A mismatch means one of two merged results may be false: the job is
      * not done until a third render says whose (and blocks that worker). */
@@ -228,80 +452,275 @@ const pt_film *srv_job_film(const srv_job *j)
 {
     return j->film;
 }
-
-static int requeue_push(srv_job *j, uint64_t task)
+uint32_t srv_job_tiles(const srv_job *j)
 {
-    if (j->rq_len == j->rq_cap) {
-        uint64_t cap = j->rq_cap ? 2 * j->rq_cap : 64;
-        uint64_t *n = pt_malloc_array(cap, sizeof *n);
+    return j->ntiles;
+}
+
+/* A new pending task [s0, s1) of tile, linked after `after` in the tile's
+ * list (NONE: at its tail). NONE without memory. The requeue ring grows with
+ * the table, so a task can always be put back (each is in it at most once). */
+static uint32_t task_add(srv_job *j, uint32_t tile, uint32_t s0, uint32_t s1, uint32_t after)
+{
+    if (j->ntasks == j->tasks_cap) {
+        if (j->tasks_cap >= SRV_MAX_TASKS)
+            return NONE;
+        uint32_t cap = j->tasks_cap ? 2 * j->tasks_cap : 256;
+        if (cap > SRV_MAX_TASKS)
+            cap = SRV_MAX_TASKS;
+        task *n = pt_realloc(j->tasks, (size_t)cap * sizeof *n);
         if (!n)
-            return -1;
-        for (uint64_t i = 0; i < j->rq_len; i++)
-            n[i] = j->requeue[(j->rq_head + i) % j->rq_cap];
+            return NONE;
+        j->tasks = n;
+        uint32_t *q = pt_malloc_array(cap, sizeof *q);
+        if (!q)
+            return NONE;
+        for (uint32_t i = 0; i < j->rq_len; i++)
+            q[i] = j->requeue[(j->rq_head + i) % j->tasks_cap];
         pt_free(j->requeue);
-        j->requeue = n;
-        j->rq_cap = cap;
+        j->requeue = q;
         j->rq_head = 0;
+        j->tasks_cap = cap;
     }
-    j->requeue[(j->rq_head + j->rq_len) % j->rq_cap] = task;
+    uint32_t t = j->ntasks++;
+    j->tasks[t] = (task){tile, s0, s1, NONE, NONE, 0, T_PENDING};
+    tile_state *ts = &j->tiles[tile];
+    if (after == NONE) {
+        if (ts->tail == NONE)
+            ts->head = t;
+        else
+            j->tasks[ts->tail].next = t;
+        ts->tail = t;
+    } else {
+        j->tasks[t].next = j->tasks[after].next;
+        j->tasks[after].next = t;
+        if (ts->tail == after)
+            ts->tail = t;
+    }
+    return t;
+}
+
+static void requeue_push(srv_job *j, uint32_t t)
+{
+    j->requeue[(j->rq_head + j->rq_len) % j->tasks_cap] = t;
     j->rq_len++;
+}
+
+/* Cuts the next task from the tile with the fewest samples cut, for owner o
+ * (its speed sizes it). NONE when every tile is cut to its end. */
+static uint32_t cut_next(srv_job *j, const owner_stat *o)
+{
+    if (j->heap_dirty)
+        heap_rebuild(j);
+    while (j->nheap > 0) {
+        uint32_t tile = j->heap[0];
+        tile_state *ts = &j->tiles[tile];
+        if (ts->stopped || ts->frontier >= j->p.spp) {
+            j->heap[0] = j->heap[--j->nheap];
+            heap_down(j, 0);
+            continue;
+        }
+        uint32_t s0 = ts->frontier, s1 = next_end(j, tile, s0, o);
+        uint32_t t = task_add(j, tile, s0, s1, NONE);
+        if (t == NONE)
+            return NONE;
+        ts->frontier = s1;
+        j->uncut -= (uint64_t)tile_pixels(j, tile) * (s1 - s0);
+        if (s1 >= j->p.spp) {
+            j->heap[0] = j->heap[--j->nheap];
+            if (j->nheap)
+                heap_down(j, 0);
+        } else {
+            heap_down(j, 0);
+        }
+        return t;
+    }
+    return NONE;
+}
+
+/* ---- owners ---- */
+
+static uint32_t owner_slot(uint64_t owner, uint32_t cap)
+{
+    uint64_t z = owner * 0x9E3779B97F4A7C15ull;
+    return (uint32_t)(z >> 32) & (cap - 1);
+}
+
+static owner_stat *owner_find(const srv_job *j, uint64_t owner)
+{
+    if (!j->owner_map_cap)
+        return NULL;
+    for (uint32_t i = owner_slot(owner, j->owner_map_cap);; i = (i + 1) & (j->owner_map_cap - 1)) {
+        uint32_t v = j->owner_map[i];
+        if (!v)
+            return NULL;
+        if (j->owners[v - 1].owner == owner)
+            return &j->owners[v - 1];
+    }
+}
+
+/* Owner's entry of the per-owner table (made when missing); NULL without memory. */
+static owner_stat *owner_entry(srv_job *j, uint64_t owner)
+{
+    owner_stat *o = owner_find(j, owner);
+    if (o)
+        return o;
+    if (j->nowners == j->owners_cap) {
+        uint32_t cap = j->owners_cap ? 2 * j->owners_cap : 16;
+        owner_stat *n = pt_realloc(j->owners, (size_t)cap * sizeof *n);
+        if (!n)
+            return NULL;
+        j->owners = n;
+        j->owners_cap = cap;
+    }
+    if (2 * (j->nowners + 1) > j->owner_map_cap) {
+        uint32_t cap = j->owner_map_cap ? 2 * j->owner_map_cap : 32;
+        uint32_t *m = pt_calloc(cap, sizeof *m);
+        if (!m)
+            return NULL;
+        for (uint32_t k = 0; k < j->nowners; k++) {
+            uint32_t i = owner_slot(j->owners[k].owner, cap);
+            while (m[i])
+                i = (i + 1) & (cap - 1);
+            m[i] = k + 1;
+        }
+        pt_free(j->owner_map);
+        j->owner_map = m;
+        j->owner_map_cap = cap;
+    }
+    uint32_t i = owner_slot(owner, j->owner_map_cap);
+    while (j->owner_map[i])
+        i = (i + 1) & (j->owner_map_cap - 1);
+    j->owner_map[i] = j->nowners + 1;
+    o = &j->owners[j->nowners++];
+    memset(o, 0, sizeof *o);
+    o->owner = owner;
+    o->leases = NONE;
+    return o;
+}
+
+/* ---- leases ---- */
+
+static int grow_leases(srv_job *j)
+{
+    if (j->lease_free != NONE)
+        return 0;
+    uint32_t cap = j->lease_slots ? 2 * j->lease_slots : 64;
+    lease *n = pt_realloc(j->leases, (size_t)cap * sizeof *n);
+    if (!n)
+        return -1;
+    j->leases = n;
+    for (uint32_t i = cap; i-- > j->lease_slots;) {
+        n[i].live = 0;
+        n[i].tnext = j->lease_free;
+        j->lease_free = i;
+    }
+    j->lease_slots = cap;
     return 0;
 }
 
-/* Pixel-samples of task t: what its time is measured against. */
-static double task_work(const srv_job *j, uint64_t t)
-{
-    pt_rect r = task_rect(j, t);
-    uint32_t s0, s1;
-    task_samples(j, t, &s0, &s1);
-    return (double)(r.x1 - r.x0) * (r.y1 - r.y0) * (s1 - s0);
-}
-
 /* Live first or backup copies of task t (verification copies aside). */
-static uint32_t task_copies(const srv_job *j, uint64_t t)
+static uint32_t task_copies(const srv_job *j, uint32_t t)
 {
     uint32_t n = 0;
-    for (uint32_t i = 0; i < j->nleases; i++)
-        n += j->leases[i].task == t && j->leases[i].kind != L_VERIFY;
+    for (uint32_t i = j->tasks[t].leases; i != NONE; i = j->leases[i].tnext)
+        n += j->leases[i].kind != L_VERIFY;
     return n;
 }
 
-/* Removes lease i (the last one takes its place). */
-static void remove_lease(srv_job *j, uint32_t i)
+/* Owner's lease of task t: its slot, or -1. Walks the task's few copies. */
+static int find_lease(const srv_job *j, uint32_t t, uint64_t owner)
 {
-    j->leases[i] = j->leases[--j->nleases];
+    for (uint32_t i = j->tasks[t].leases; i != NONE; i = j->leases[i].tnext)
+        if (j->leases[i].owner == owner)
+            return (int)i;
+    return -1;
 }
 
-/* Drops lease i. A task's copy makes the task pending again when it was its
- * last copy; a verification copy gives its check back to the waiting ones.
- * If the requeue list cannot grow, the cursor is moved back instead, which
- * also finds the task again. */
-static void requeue_lease(srv_job *j, uint32_t i)
+/* Adds a lease (a slot is free: grow_leases). */
+static uint32_t add_lease(srv_job *j, owner_stat *o, uint32_t t, uint8_t kind, uint32_t ci,
+                          uint64_t now_ms, uint32_t lease_ms)
 {
-    lease l = j->leases[i];
-    remove_lease(j, i);
+    uint32_t s = j->lease_free;
+    lease *l = &j->leases[s];
+    j->lease_free = l->tnext;
+    double v = expected_ms_ps(j, o);
+    *l = (lease){.owner = o->owner,
+                 .start = now_ms,
+                 .deadline = now_ms + lease_ms,
+                 .rate = v > 0.0 ? 1.0 / v : 0.0,
+                 .task = t,
+                 .check = ci,
+                 .tnext = j->tasks[t].leases,
+                 .oprev = NONE,
+                 .onext = o->leases,
+                 .owner_ix = (uint32_t)(o - j->owners),
+                 .kind = kind,
+                 .live = 1};
+    j->tasks[t].leases = s;
+    if (o->leases != NONE)
+        j->leases[o->leases].oprev = s;
+    o->leases = s;
+    o->nleases++;
+    j->nleases++;
+    j->farm_rate += l->rate;
+    return s;
+}
+
+/* Removes the lease in slot s from its task's and owner's lists. */
+static void remove_lease(srv_job *j, uint32_t s)
+{
+    lease *l = &j->leases[s];
+    uint32_t *p = &j->tasks[l->task].leases;
+    while (*p != s)
+        p = &j->leases[*p].tnext;
+    *p = l->tnext;
+    owner_stat *o = &j->owners[l->owner_ix];
+    if (l->oprev != NONE)
+        j->leases[l->oprev].onext = l->onext;
+    else
+        o->leases = l->onext;
+    if (l->onext != NONE)
+        j->leases[l->onext].oprev = l->oprev;
+    o->nleases--;
+    j->nleases--;
+    j->farm_rate -= l->rate;
+    if (j->nleases == 0 || j->farm_rate < 0.0)
+        j->farm_rate = 0.0; /* no drift left over from the sums */
+    l->live = 0;
+    l->tnext = j->lease_free;
+    j->lease_free = s;
+}
+
+/* Drops the lease in slot s. A task's copy makes the task pending again
+ * (requeued) when it was its last copy; a verification copy gives its check
+ * back to the waiting ones. */
+static void requeue_lease(srv_job *j, uint32_t s)
+{
+    lease l = j->leases[s];
+    remove_lease(j, s);
     if (l.kind == L_VERIFY) {
         check *c = &j->checks[l.check];
         if (c->stage == C_LEASED_B || c->stage == C_LEASED_C)
             c->stage--;
         return;
     }
-    if (j->state[l.task] != T_LEASED || task_copies(j, l.task) > 0)
+    if (j->tasks[l.task].state != T_LEASED || task_copies(j, l.task) > 0)
         return;
-    j->state[l.task] = T_PENDING;
-    if (requeue_push(j, l.task) != 0 && l.task < j->cursor)
-        j->cursor = l.task;
+    j->tasks[l.task].state = T_PENDING;
+    requeue_push(j, l.task);
 }
 
 /* Drops every first or backup copy of task t (its result was accepted, or
  * adaptive sampling skipped it). */
-static void drop_copies(srv_job *j, uint64_t t)
+static void drop_copies(srv_job *j, uint32_t t)
 {
-    for (uint32_t i = 0; i < j->nleases;)
-        if (j->leases[i].task == t && j->leases[i].kind != L_VERIFY)
+    for (uint32_t i = j->tasks[t].leases; i != NONE;) {
+        uint32_t next = j->leases[i].tnext;
+        if (j->leases[i].kind != L_VERIFY)
             remove_lease(j, i);
-        else
-            i++;
+        i = next;
+    }
 }
 
 void srv_job_set_policy(srv_job *j, const srv_lease_policy *pol)
@@ -320,39 +739,6 @@ static uint64_t allowance(const srv_job *j, const lease *l)
     if (!(a < 1e15))
         a = 1e15;
     return a > (double)j->pol.floor_ms ? (uint64_t)a : j->pol.floor_ms;
-}
-
-/* Owner's entry of the per-owner table (made when missing); NULL without memory. */
-static owner_stat *owner_entry(srv_job *j, uint64_t owner)
-{
-    for (uint32_t i = 0; i < j->nowners; i++)
-        if (j->owners[i].owner == owner)
-            return &j->owners[i];
-    if (j->nowners == j->owners_cap) {
-        uint32_t cap = j->owners_cap ? 2 * j->owners_cap : 16;
-        owner_stat *n = pt_realloc(j->owners, (size_t)cap * sizeof *n);
-        if (!n)
-            return NULL;
-        j->owners = n;
-        j->owners_cap = cap;
-    }
-    owner_stat *o = &j->owners[j->nowners++];
-    memset(o, 0, sizeof *o);
-    o->owner = owner;
-    return o;
-}
-
-static int grow_leases(srv_job *j)
-{
-    if (j->nleases < j->leases_cap)
-        return 0;
-    uint32_t cap = j->leases_cap ? 2 * j->leases_cap : 64;
-    lease *n = pt_realloc(j->leases, (size_t)cap * sizeof *n);
-    if (!n)
-        return -1;
-    j->leases = n;
-    j->leases_cap = cap;
-    return 0;
 }
 
 /* A check owner may answer: the first waiting one whose results so far are
@@ -375,15 +761,18 @@ static int verify_pick(const srv_job *j, uint64_t owner)
 
 /* The straggler owner should get a backup copy of: the oldest first copy,
  * not owner's, older than backup_factor x the median time for its size,
- * that has no backup yet. UINT64_MAX when none (or nothing was observed). */
-static uint64_t backup_pick(const srv_job *j, uint64_t owner, uint64_t now_ms)
+ * that has no backup yet. NONE when none (or nothing was observed). Scans
+ * the leases, but only once nothing else is left to hand out. */
+static uint32_t backup_pick(const srv_job *j, uint64_t owner, uint64_t now_ms)
 {
     if (j->pol.backup_factor <= 0.0 || j->t_mid <= 0.0)
-        return UINT64_MAX;
-    uint64_t best = UINT64_MAX, best_start = UINT64_MAX;
-    for (uint32_t i = 0; i < j->nleases; i++) {
+        return NONE;
+    uint32_t best = NONE;
+    uint64_t best_start = UINT64_MAX;
+    for (uint32_t i = 0; i < j->lease_slots; i++) {
         const lease *l = &j->leases[i];
-        if (l->kind != L_TASK || l->answered || l->owner == owner || l->start >= best_start)
+        if (!l->live || l->kind != L_TASK || l->answered || l->owner == owner ||
+            l->start >= best_start)
             continue;
         double age = (double)(now_ms - l->start);
         if (now_ms < l->start || age < j->pol.backup_factor * j->t_mid * task_work(j, l->task))
@@ -396,88 +785,82 @@ static uint64_t backup_pick(const srv_job *j, uint64_t owner, uint64_t now_ms)
     return best;
 }
 
-int srv_job_lease(srv_job *j, uint64_t owner, uint64_t now_ms, uint32_t lease_ms, proto_task *task)
+int srv_job_lease(srv_job *j, uint64_t owner, uint64_t now_ms, uint32_t lease_ms,
+                  proto_task *task_out)
 {
-    uint64_t t = UINT64_MAX;
+    uint32_t t = NONE, check_ix = 0;
     uint8_t kind = L_TASK;
-    int ci = -1;
-    if (grow_leases(j) != 0)
+    owner_stat *o = owner_entry(j, owner);
+    if (!o || grow_leases(j) != 0)
         return 0;
     while (j->rq_len > 0) {
-        uint64_t c = j->requeue[j->rq_head];
-        j->rq_head = (j->rq_head + 1) % j->rq_cap;
+        uint32_t c = j->requeue[j->rq_head];
+        j->rq_head = (j->rq_head + 1) % j->tasks_cap;
         j->rq_len--;
-        if (j->state[c] == T_PENDING) {
+        if (j->tasks[c].state == T_PENDING) {
             t = c;
             break;
         }
     }
-    if (t == UINT64_MAX && (ci = verify_pick(j, owner)) >= 0) {
+    int ci;
+    if (t == NONE && (ci = verify_pick(j, owner)) >= 0) {
         t = j->checks[ci].task;
         kind = L_VERIFY;
+        check_ix = (uint32_t)ci;
         j->checks[ci].stage++;
     }
-    if (t == UINT64_MAX) {
-        while (j->cursor < j->ntasks && j->state[j->cursor] != T_PENDING)
-            j->cursor++;
-        if (j->cursor < j->ntasks)
-            t = j->cursor++;
-    }
-    if (t == UINT64_MAX) {
-        if ((t = backup_pick(j, owner, now_ms)) == UINT64_MAX)
+    if (t == NONE)
+        t = cut_next(j, o);
+    if (t == NONE) {
+        if ((t = backup_pick(j, owner, now_ms)) == NONE)
             return 0;
         kind = L_BACKUP;
         j->vs.backups++;
     }
     if (kind != L_VERIFY)
-        j->state[t] = T_LEASED;
-    j->leases[j->nleases++] = (lease){t, owner, now_ms, now_ms + lease_ms, (uint32_t)ci, kind, 0};
+        j->tasks[t].state = T_LEASED;
+    uint32_t s = add_lease(j, o, t, kind, check_ix, now_ms, lease_ms);
+    if (kind == L_VERIFY)
+        j->checks[check_ix].lease = s;
 
-    memset(task, 0, sizeof *task);
-    task->job_id = j->id;
-    task->task_id = t;
-    task->tile = task_rect(j, t);
-    task_samples(j, t, &task->s0, &task->s1);
-    task->width = j->p.width;
-    task->height = j->p.height;
-    task->seed = j->p.seed;
-    task->max_depth = (uint16_t)j->p.max_depth;
-    task->rr_depth = (uint16_t)j->p.rr_depth;
-    memcpy(task->scene_hash, j->hash, 32);
-    task->lease_ms = lease_ms;
-    snprintf(task->camera, sizeof task->camera, "%s", j->p.camera);
-    task->env = j->p.env;
-    task->film_flags = j->p.film_flags;
-    snprintf(task->variant, sizeof task->variant, "%s", j->p.variant);
+    const task *k = &j->tasks[t];
+    memset(task_out, 0, sizeof *task_out);
+    task_out->job_id = j->id;
+    task_out->task_id = t;
+    task_out->tile = tile_rect(j, k->tile);
+    task_out->s0 = k->s0;
+    task_out->s1 = k->s1;
+    task_out->width = j->p.width;
+    task_out->height = j->p.height;
+    task_out->seed = j->p.seed;
+    task_out->max_depth = (uint16_t)j->p.max_depth;
+    task_out->rr_depth = (uint16_t)j->p.rr_depth;
+    memcpy(task_out->scene_hash, j->hash, 32);
+    task_out->lease_ms = lease_ms;
+    snprintf(task_out->camera, sizeof task_out->camera, "%s", j->p.camera);
+    task_out->env = j->p.env;
+    task_out->film_flags = j->p.film_flags;
+    snprintf(task_out->variant, sizeof task_out->variant, "%s", j->p.variant);
     return 1;
-}
-
-static int find_lease(const srv_job *j, uint64_t task, uint64_t owner)
-{
-    for (uint32_t i = 0; i < j->nleases; i++)
-        if (j->leases[i].task == task && j->leases[i].owner == owner)
-            return (int)i;
-    return -1;
 }
 
 void srv_job_heartbeat(srv_job *j, uint64_t owner, uint64_t task_id, uint64_t now_ms,
                        uint32_t lease_ms)
 {
-    int i = find_lease(j, task_id, owner);
+    if (task_id >= j->ntasks)
+        return;
+    int i = find_lease(j, (uint32_t)task_id, owner);
     if (i >= 0)
         j->leases[i].deadline = now_ms + lease_ms;
 }
 
 uint32_t srv_job_release_owner(srv_job *j, uint64_t owner)
 {
+    owner_stat *o = owner_find(j, owner);
     uint32_t n = 0;
-    for (uint32_t i = 0; i < j->nleases;) {
-        if (j->leases[i].owner == owner) {
-            requeue_lease(j, i);
-            n++;
-        } else {
-            i++;
-        }
+    while (o && o->leases != NONE) {
+        requeue_lease(j, o->leases);
+        n++;
     }
     return n;
 }
@@ -487,13 +870,15 @@ uint32_t srv_job_expire(srv_job *j, uint64_t now_ms, uint64_t *next_deadline, sr
 {
     uint32_t n = 0;
     uint64_t next = UINT64_MAX;
-    for (uint32_t i = 0; i < j->nleases;) {
+    for (uint32_t i = 0; i < j->lease_slots; i++) {
         lease *l = &j->leases[i];
+        if (!l->live)
+            continue;
         uint64_t a = allowance(j, l);
         uint64_t hard = a > UINT64_MAX - l->start ? UINT64_MAX : l->start + a;
         uint64_t d = l->deadline < hard ? l->deadline : hard;
         if (d <= now_ms) {
-            uint64_t owner = l->owner, task = l->task;
+            uint64_t owner = l->owner, t = l->task;
             /* Before the job's first result a slow start (a big scene to
              * fetch and load) cannot be told from hoarding: no miss then,
              * unless the owner stopped heartbeating. */
@@ -502,11 +887,9 @@ uint32_t srv_job_expire(srv_job *j, uint64_t now_ms, uint64_t *next_deadline, sr
             n++;
             j->vs.expired++;
             if (missed && miss)
-                missed(ctx, owner, task);
-        } else {
-            if (d < next)
-                next = d;
-            i++;
+                missed(ctx, owner, t);
+        } else if (d < next) {
+            next = d;
         }
     }
     if (next_deadline)
@@ -514,102 +897,168 @@ uint32_t srv_job_expire(srv_job *j, uint64_t now_ms, uint64_t *next_deadline, sr
     return n;
 }
 
-/* Adaptive sampling stopped a tile before chunk `from`: its later tasks are
- * done without work; leased ones lose their lease, held ones their pixels. */
-static void stop_tile(srv_job *j, uint32_t tile, uint32_t from)
+/* ---- merging ---- */
+
+/* A tile's samples as the passes count them: spp once stopped. */
+static uint32_t tile_done_samples(const srv_job *j, uint32_t tile)
 {
-    for (uint32_t c = from; c < j->nchunks; c++) {
-        uint64_t t = (uint64_t)c * j->ntiles + tile;
-        if (j->state[t] == T_LEASED) {
-            drop_copies(j, t);
-        } else if (j->state[t] == T_HELD) {
-            for (uint32_t i = 0; i < j->nheld; i++)
-                if (j->held[i].task == t) {
-                    pt_free(j->held[i].px);
-                    j->held[i] = j->held[--j->nheld];
-                    break;
-                }
-        }
-        j->state[t] = T_SKIPPED;
-        j->merged++;
-        j->merged_in_pass[c]++;
-    }
-    j->next_chunk[tile] = j->nchunks;
-    j->stopped++;
+    return j->tiles[tile].stopped ? j->p.spp : j->tiles[tile].merged;
 }
 
-static void merge_now(srv_job *j, uint64_t t, const pt_pixel_acc *px)
+/* The samples every tile needs for the next pass to be done. */
+static uint32_t next_level(const srv_job *j)
 {
-    uint32_t tile = (uint32_t)(t % j->ntiles), chunk = (uint32_t)(t / j->ntiles);
-    pt_rect r = task_rect(j, t);
+    uint64_t l = (uint64_t)(j->passes_done + 1) * j->p.chunk;
+    return l < j->p.spp ? (uint32_t)l : j->p.spp;
+}
+
+/* Counts passes done from scratch, from the tiles' samples (one pass of the
+ * tiles per pass done, so a few per job). */
+static void passes_recount(srv_job *j)
+{
+    while (j->passes_done < j->npasses) {
+        uint32_t l = next_level(j);
+        j->at_level = 0;
+        for (uint32_t t = 0; t < j->ntiles; t++)
+            j->at_level += tile_done_samples(j, t) >= l;
+        if (j->at_level < j->ntiles)
+            return;
+        j->passes_done++;
+    }
+}
+
+/* A tile went from `from` to `to` samples (as tile_done_samples counts). */
+static void tile_moved(srv_job *j, uint32_t from, uint32_t to)
+{
+    if (j->passes_done >= j->npasses)
+        return;
+    uint32_t l = next_level(j);
+    if (from < l && to >= l && ++j->at_level == j->ntiles) {
+        j->passes_done++;
+        passes_recount(j);
+    }
+}
+
+static void held_remove(srv_job *j, uint32_t i)
+{
+    j->held[i] = j->held[--j->nheld];
+    if (i < j->nheld)
+        j->tasks[j->held[i].task].held = i;
+}
+
+/* Adaptive sampling stopped tile: its later tasks are done without work;
+ * leased ones lose their lease, held ones their pixels, and nothing more of
+ * it is cut. */
+static void stop_tile(srv_job *j, uint32_t tile)
+{
+    tile_state *ts = &j->tiles[tile];
+    for (uint32_t t = ts->head; t != NONE;) {
+        task *k = &j->tasks[t];
+        uint32_t next = k->next;
+        if (k->state == T_LEASED) {
+            drop_copies(j, t);
+        } else if (k->state == T_HELD) {
+            pt_free(j->held[k->held].px);
+            held_remove(j, k->held);
+        }
+        k->state = T_SKIPPED;
+        j->merged++;
+        t = next;
+    }
+    ts->head = ts->tail = NONE;
+    j->uncut -= (uint64_t)tile_pixels(j, tile) * (j->p.spp - ts->frontier);
+    ts->frontier = j->p.spp;
+    ts->stopped = 1;
+    j->stopped++;
+    j->tiles_done++;
+    tile_moved(j, ts->merged, j->p.spp);
+}
+
+/* Adds task t, the first unmerged of its tile, to the film. */
+static void merge_now(srv_job *j, uint32_t t, const pt_pixel_acc *px)
+{
+    task *k = &j->tasks[t];
+    tile_state *ts = &j->tiles[k->tile];
+    pt_rect r = tile_rect(j, k->tile);
     pt_film_add_tile(j->film, r, px);
     uint32_t npx = (r.x1 - r.x0) * (r.y1 - r.y0);
     for (uint32_t i = 0; i < npx; i++)
         j->samples += px[i].n;
-    j->state[t] = T_MERGED;
+    k->state = T_MERGED;
     j->merged++;
-    j->next_chunk[tile] = chunk + 1;
-    j->merged_in_pass[chunk]++;
+    uint32_t from = ts->merged;
+    ts->merged = k->s1;
+    ts->head = k->next;
+    if (ts->head == NONE)
+        ts->tail = NONE;
+    if (ts->merged == j->p.spp)
+        j->tiles_done++;
+    tile_moved(j, from, ts->merged);
+    /* Only at a decision point, which no task crosses (max_end): the
+     * decision sees the same sums however the samples before were split
+     * (with the min gain, the task is the chunk before the point). */
     pt_adaptive rule = {j->p.target_error, j->p.min_gain, j->p.min_spp};
     uint32_t tw = r.x1 - r.x0;
-    if (chunk + 1 < j->nchunks &&
+    if (decision_point(j, k->s1) && (j->p.min_gain <= 0.0 || k->s1 - k->s0 == j->p.chunk) &&
         pt_tile_stops(&j->film->px[(size_t)r.y0 * j->p.width + r.x0], j->p.width, px, tw, tw,
-                      r.y1 - r.y0, (uint64_t)(chunk + 1) * j->p.chunk, &rule))
-        stop_tile(j, tile, chunk + 1);
-    while (j->passes_done < j->nchunks && j->merged_in_pass[j->passes_done] == j->ntiles)
-        j->passes_done++;
+                      r.y1 - r.y0, k->s1, &rule))
+        stop_tile(j, k->tile);
 }
 
-/* Merges the held chunks of a tile that have become next in line. */
+/* Merges the held tasks of a tile that have become next in line. */
 static void merge_held(srv_job *j, uint32_t tile)
 {
     for (;;) {
-        uint32_t c = j->next_chunk[tile];
-        if (c >= j->nchunks)
+        uint32_t t = j->tiles[tile].head;
+        if (t == NONE || j->tasks[t].state != T_HELD)
             return;
-        uint64_t t = (uint64_t)c * j->ntiles + tile;
-        if (j->state[t] != T_HELD)
-            return;
-        for (uint32_t i = 0; i < j->nheld; i++) {
-            if (j->held[i].task == t) {
-                pt_pixel_acc *px = j->held[i].px;
-                j->held[i] = j->held[--j->nheld];
-                merge_now(j, t, px);
-                pt_free(px);
-                break;
-            }
-        }
-        if (j->state[t] != T_MERGED)
-            return; /* cannot happen: a held state always has its pixels */
+        pt_pixel_acc *px = j->held[j->tasks[t].held].px;
+        held_remove(j, j->tasks[t].held);
+        merge_now(j, t, px);
+        pt_free(px);
     }
 }
 
-static int acc_sane(const pt_pixel_acc *a, uint32_t max_n)
+/* The largest sum n samples can give, in fixed point: n x the cap per sample,
+ * with room for each block's rounding (a double sum of 16 samples is within
+ * 2^-48 of its exact value, and rounding to fixed point adds at most half a
+ * unit). At most 2^32 x 4.3e27 x (1 + 2^-40) + 2^32, below 2^127 (tile.h). */
+static pt_i128 acc_cap(uint32_t n)
 {
-    return isfinite(a->sum[0]) && isfinite(a->sum[1]) && isfinite(a->sum[2]) &&
-           isfinite(a->sum_sq) && a->sum_sq >= 0 && a->n <= max_n && a->hits <= a->n;
+    pt_i128 per = (pt_i128)(PT_MAX_SAMPLE_RADIANCE * PT_FIXED_ONE * (1.0 + 0x1p-40)) + 1;
+    return per * n;
 }
 
-/* Each pixel's count must be the task's samples less those rejected (a NaN
- * or Inf sample is not counted, render.h), the rejections must add up to
- * what the result reports, and the sums must be finite, non-negative and at
- * most n x SRV_MAX_SAMPLE_RADIANCE (sum_sq: the luminance squared, which is
- * at most the largest channel squared). A pixel with no samples then has
+/* Sums non-negative and within the cap for n samples (radiance is never
+ * negative: emission, base colour and textures are bounded and non-negative,
+ * see common/scene/scene.c), a pixel with no samples all zero, counts
+ * consistent. The sum of squares is unsigned and saturates (tile.h): any
+ * value is possible but 0 is the only one for no samples. */
+static int acc_sane(const pt_pixel_acc *a, uint32_t max_n)
+{
+    pt_i128 cap = acc_cap(a->n);
+    for (int c = 0; c < 3; c++)
+        if (!(a->fsum[c] >= 0 && a->fsum[c] <= cap))
+            return 0;
+    return (a->n > 0 || a->fsum_sq == 0) && a->n <= max_n && a->hits <= a->n;
+}
+
+/* Each pixel's count must be the task's samples less those rejected (a NaN,
+ * Inf or over-the-cap sample is not counted, render.h), the rejections must
+ * add up to what the result reports, and the sums must be non-negative and at
+ * most n x PT_MAX_SAMPLE_RADIANCE (acc_sane). A pixel with no samples then has
  * zero sums. */
 static int pixels_plausible(const proto_result *r, uint32_t samples, pt_error *err)
 {
     uint64_t missing = 0;
     for (uint32_t i = 0; i < r->npixels; i++) {
         const pt_pixel_acc *a = &r->pixels[i];
-        double cap = SRV_MAX_SAMPLE_RADIANCE * a->n;
-        if (a->n > samples || !(a->sum[0] >= 0.0 && a->sum[0] <= cap) ||
-            !(a->sum[1] >= 0.0 && a->sum[1] <= cap) || !(a->sum[2] >= 0.0 && a->sum[2] <= cap) ||
-            !(a->sum_sq >= 0.0 && a->sum_sq <= cap * SRV_MAX_SAMPLE_RADIANCE)) {
+        if (a->n > samples || !acc_sane(a, samples)) {
             pt_error_set(err, PT_ERR_PROTO,
                          "result for task %llu: pixel %u (%u samples of %u, sums %.3g %.3g %.3g) "
                          "is not a plausible render",
-                         (unsigned long long)r->task_id, i, a->n, samples, a->sum[0], a->sum[1],
-                         a->sum[2]);
+                         (unsigned long long)r->task_id, i, a->n, samples, pt_acc_sum(a, 0),
+                         pt_acc_sum(a, 1), pt_acc_sum(a, 2));
             return 0;
         }
         missing += samples - a->n;
@@ -634,40 +1083,50 @@ static int pixels_plausible(const proto_result *r, uint32_t samples, pt_error *e
 /* Checks r against the task it names; need_lease: the owner must hold it.
  * On SRV_MERGED or SRV_CHECK *lease_index receives the lease (-1 when none
  * was needed). */
+
+/* Checks a leased result r against its task: on SRV_MERGED or SRV_CHECK
+ * *lease_index receives owner's lease. */
 static srv_outcome validate_result(const srv_job *j, uint64_t owner, const proto_result *r,
-                                   int need_lease, int *lease_index, pt_error *err)
+                                   int *lease_index, pt_error *err)
 {
     if (r->job_id != j->id) {
         pt_error_set(err, PT_ERR_PROTO, "result for job %llu, not the running job %llu",
                      (unsigned long long)r->job_id, (unsigned long long)j->id);
         return SRV_NOT_LEASED;
     }
-    if (r->task_id >= j->ntasks) {
+    /* Past the most tasks the job can have: the peer made it up. Short of
+     * it, perhaps a task not cut yet: never leased to it, but no proof of
+     * malice. */
+    if (r->task_id >= (uint64_t)j->ntiles * j->npasses && r->task_id >= j->ntasks) {
         pt_error_set(err, PT_ERR_PROTO, "result for task %llu, which does not exist",
                      (unsigned long long)r->task_id);
         return SRV_INVALID;
     }
-    uint64_t t = r->task_id;
+    if (r->task_id >= j->ntasks) {
+        pt_error_set(err, PT_ERR_PROTO, "result for task %llu, which this peer does not hold",
+                     (unsigned long long)r->task_id);
+        return SRV_NOT_LEASED;
+    }
+    uint32_t t = (uint32_t)r->task_id;
+    const task *k = &j->tasks[t];
     int li = find_lease(j, t, owner);
     int verify = li >= 0 && j->leases[li].kind == L_VERIFY;
-    if (!verify && (j->state[t] == T_MERGED || j->state[t] == T_HELD || j->state[t] == T_SKIPPED))
+    if (!verify && (k->state == T_MERGED || k->state == T_HELD || k->state == T_SKIPPED))
         return SRV_DUPLICATE;
-    if (li < 0 && need_lease) {
+    if (li < 0) {
         pt_error_set(err, PT_ERR_PROTO, "result for task %llu, which this peer does not hold",
                      (unsigned long long)t);
         return SRV_NOT_LEASED;
     }
-    pt_rect rc = task_rect(j, t);
-    uint32_t s0, s1;
-    task_samples(j, t, &s0, &s1);
-    if (memcmp(&rc, &r->tile, sizeof rc) != 0 || r->s0 != s0 || r->s1 != s1 ||
+    pt_rect rc = tile_rect(j, k->tile);
+    if (memcmp(&rc, &r->tile, sizeof rc) != 0 || r->s0 != k->s0 || r->s1 != k->s1 ||
         r->npixels != (rc.x1 - rc.x0) * (rc.y1 - rc.y0)) {
         pt_error_set(err, PT_ERR_PROTO,
                      "result for task %llu does not match the task's tile or samples",
                      (unsigned long long)t);
         return SRV_INVALID;
     }
-    if (!pixels_plausible(r, s1 - s0, err))
+    if (!pixels_plausible(r, k->s1 - k->s0, err))
         return SRV_INVALID;
     *lease_index = li;
     return verify ? SRV_CHECK : SRV_MERGED;
@@ -676,7 +1135,7 @@ static srv_outcome validate_result(const srv_job *j, uint64_t owner, const proto
 srv_outcome srv_job_validate(const srv_job *j, uint64_t owner, const proto_result *r,
                              int *lease_index, pt_error *err)
 {
-    return validate_result(j, owner, r, 1, lease_index, err);
+    return validate_result(j, owner, r, lease_index, err);
 }
 
 /* The deterministic pick of verification copies: splitmix64 (Steele et al.
@@ -700,7 +1159,7 @@ static void pixels_hash(const proto_result *r, uint8_t out[32])
     pt_sha256((const uint8_t *)r->pixels, (size_t)r->npixels * sizeof *r->pixels, out);
 }
 
-static void add_check(srv_job *j, uint64_t t, uint64_t owner, const proto_result *r)
+static void add_check(srv_job *j, uint32_t t, uint64_t owner, const proto_result *r)
 {
     if (j->nchecks == j->checks_cap) {
         uint32_t cap = j->checks_cap ? 2 * j->checks_cap : 32;
@@ -713,27 +1172,39 @@ static void add_check(srv_job *j, uint64_t t, uint64_t owner, const proto_result
     check *c = &j->checks[j->nchecks++];
     memset(c, 0, sizeof *c);
     c->task = t;
+    c->lease = NONE;
     c->owner[0] = owner;
     pixels_hash(r, c->hash[0]);
     c->stage = C_WANT_B;
     j->vs.picked++;
 }
 
-/* Ends check i: its leases go, the last check takes its place. */
+/* Check i's live copy, or NONE. */
+static uint32_t check_lease(const srv_job *j, uint32_t i)
+{
+    const check *c = &j->checks[i];
+    if (c->stage != C_LEASED_B && c->stage != C_LEASED_C)
+        return NONE;
+    const lease *l = &j->leases[c->lease];
+    return l->live && l->kind == L_VERIFY && l->check == i ? c->lease : NONE;
+}
+
+/* Ends check i: its lease goes, the last check takes its place. */
 static void free_check(srv_job *j, uint32_t i)
 {
-    for (uint32_t k = 0; k < j->nleases;)
-        if (j->leases[k].kind == L_VERIFY && j->leases[k].check == i)
-            remove_lease(j, k);
-        else
-            k++;
+    uint32_t s = check_lease(j, i);
+    if (s != NONE)
+        remove_lease(j, s);
     uint32_t last = --j->nchecks;
     if (i == last)
         return;
     j->checks[i] = j->checks[last];
-    for (uint32_t k = 0; k < j->nleases; k++)
-        if (j->leases[k].kind == L_VERIFY && j->leases[k].check == last)
-            j->leases[k].check = i;
+    const check *c = &j->checks[i];
+    if (c->stage == C_LEASED_B || c->stage == C_LEASED_C) {
+        lease *l = &j->leases[c->lease];
+        if (l->live && l->kind == L_VERIFY && l->check == last)
+            l->check = i;
+    }
 }
 
 /* Learns how long a task took (ms per pixel-sample) and the quantiles the
@@ -784,42 +1255,50 @@ static void observe(srv_job *j, double ms_per_sample)
 /* What an accepted result of lease li (or -1: a replay) teaches: the task's
  * time, who delivered it, and whether it is picked for verification. Then
  * every copy's lease goes: the first result wins. */
-static void accepted(srv_job *j, int li, const proto_result *r, uint64_t now_ms)
+
+/* What an accepted result of lease li (or -1: a replay) of task t teaches:
+ * the task's time (the job's quantiles and its owner's speed), who delivered
+ * it, and whether it is picked for verification. Then every copy's lease
+ * goes: the first result wins. */
+static void accepted(srv_job *j, uint32_t t, int li, const proto_result *r, uint64_t now_ms)
 {
-    uint64_t t = r->task_id;
-    if (li < 0)
+    if (li < 0) {
+        drop_copies(j, t); /* a replay while leased (a paused job's last result) */
         return;
+    }
     lease l = j->leases[li];
     uint32_t copies = task_copies(j, t);
     if (copies > 1)
         j->vs.backup_samples += (uint64_t)task_work(j, t) * (copies - 1);
     drop_copies(j, t);
-    if (now_ms >= l.start && now_ms > 0)
+    owner_stat *o = &j->owners[l.owner_ix];
+    if (now_ms >= l.start && now_ms > 0) {
+        /* A task done within the clock's millisecond counts as half of one. */
+        double ms = now_ms > l.start ? (double)(now_ms - l.start) : 0.5;
+        double v = ms / task_work(j, t);
         observe(j, (double)(now_ms - l.start) / task_work(j, t));
-    owner_stat *o = owner_entry(j, l.owner);
-    if (o) {
-        o->merged++;
-        for (uint32_t i = 0; i < r->npixels; i++)
-            o->samples += r->pixels[i].n;
+        o->ms_ps = o->ms_ps > 0.0 ? (1.0 - SPEED_WEIGHT) * o->ms_ps + SPEED_WEIGHT * v : v;
     }
+    o->merged++;
+    for (uint32_t i = 0; i < r->npixels; i++)
+        o->samples += r->pixels[i].n;
     if (verify_picked(j, t))
         add_check(j, t, l.owner, r);
 }
 
-/* Merges or holds r, which validate_result accepted; li: its lease or -1. */
-static srv_outcome merge_validated(srv_job *j, int li, const proto_result *r, uint64_t now_ms,
-                                   pt_error *err)
+/* Merges or holds r, the result of task t (validated); li: its lease or -1. */
+static srv_outcome merge_task(srv_job *j, uint32_t t, int li, const proto_result *r,
+                              uint64_t now_ms, pt_error *err)
 {
-    uint64_t t = r->task_id;
-    uint32_t tile = (uint32_t)(t % j->ntiles), chunk = (uint32_t)(t / j->ntiles);
-    if (chunk == j->next_chunk[tile]) {
-        accepted(j, li, r, now_ms);
+    uint32_t tile = j->tasks[t].tile;
+    if (j->tiles[tile].head == t) {
+        accepted(j, t, li, r, now_ms);
         j->capped += r->capped;
         merge_now(j, t, r->pixels);
         merge_held(j, tile);
         return SRV_MERGED;
     }
-    /* Early: hold a copy until the tile's earlier chunks are merged. */
+    /* Early: hold a copy until the tile's earlier samples are merged. */
     if (j->nheld == j->held_cap) {
         uint32_t cap = j->held_cap ? 2 * j->held_cap : 32;
         held *n = pt_realloc(j->held, (size_t)cap * sizeof *n);
@@ -832,10 +1311,11 @@ static srv_outcome merge_validated(srv_job *j, int li, const proto_result *r, ui
     if (!copy)
         goto nomem;
     memcpy(copy, r->pixels, (size_t)r->npixels * sizeof *copy);
-    j->held[j->nheld++] = (held){t, li >= 0 ? j->leases[li].owner : 0, copy};
-    accepted(j, li, r, now_ms);
+    j->held[j->nheld] = (held){t, li >= 0 ? j->leases[li].owner : 0, copy};
+    j->tasks[t].held = j->nheld++;
+    accepted(j, t, li, r, now_ms);
     j->capped += r->capped;
-    j->state[t] = T_HELD;
+    j->tasks[t].state = T_HELD;
     return SRV_MERGED;
 nomem:
     /* Keep the lease: the task is requeued when it expires, nothing is lost. */
@@ -843,39 +1323,155 @@ nomem:
     return SRV_NOT_LEASED;
 }
 
-static srv_outcome accept_result(srv_job *j, uint64_t owner, const proto_result *r, int need_lease,
-                                 pt_error *err)
+srv_outcome srv_job_result(srv_job *j, uint64_t owner, const proto_result *r, pt_error *err)
 {
     int li;
-    srv_outcome o = validate_result(j, owner, r, need_lease, &li, err);
+    srv_outcome o = validate_result(j, owner, r, &li, err);
     if (o == SRV_CHECK) {
         srv_verdict v;
         srv_job_check(j, li, r, &v);
         return SRV_CHECK;
     }
-    return o == SRV_MERGED ? merge_validated(j, li, r, 0, err) : o;
-}
-
-srv_outcome srv_job_result(srv_job *j, uint64_t owner, const proto_result *r, pt_error *err)
-{
-    return accept_result(j, owner, r, 1, err);
+    return o == SRV_MERGED ? merge_task(j, j->leases[li].task, li, r, 0, err) : o;
 }
 
 srv_outcome srv_job_result_validated(srv_job *j, int lease_index, const proto_result *r,
                                      uint64_t now_ms, pt_error *err)
 {
-    return merge_validated(j, lease_index, r, now_ms, err);
+    return merge_task(j, j->leases[lease_index].task, lease_index, r, now_ms, err);
+}
+
+/* 1 when [s0, s1) may be one task: within spp, crossing no decision point,
+ * and (min gain) ending at one only as the chunk before it. */
+static int cut_ok(const srv_job *j, uint32_t s0, uint32_t s1)
+{
+    return s0 < s1 && s1 <= max_end(j, s0) &&
+           (!decision_point(j, s1) || j->p.min_gain <= 0.0 || s1 - s0 == j->p.chunk) &&
+           (!forced_end(j, s0) || s1 == forced_end(j, s0));
+}
+
+/* Cuts [from, to) of tile into pending tasks (requeued), linked after
+ * `after` (NONE: at the tail). -1 without memory or when the range cannot be
+ * cut at valid points. */
+static int cut_pending(srv_job *j, uint32_t tile, uint32_t from, uint32_t to, uint32_t after)
+{
+    while (from < to) {
+        uint32_t e = max_end(j, from);
+        if (e > to)
+            e = to;
+        if (!cut_ok(j, from, e))
+            return -1;
+        uint32_t t = task_add(j, tile, from, e, after);
+        if (t == NONE)
+            return -1;
+        requeue_push(j, t);
+        after = after == NONE ? NONE : t;
+        from = e;
+    }
+    return 0;
+}
+
+/* The task of tile that samples [s0, s1) are, for a result without a lease
+ * (a replay, a checkpoint's held result): the task cut so, else one made by
+ * cutting a pending task or the tile's uncut samples (the rest pending).
+ * SRV_MERGED with *out, or SRV_DUPLICATE (merged already), or SRV_INVALID
+ * (the range does not fit what is cut; err says why). */
+static srv_outcome locate(srv_job *j, uint32_t tile, uint32_t s0, uint32_t s1, uint32_t *out,
+                          pt_error *err)
+{
+    tile_state *ts = &j->tiles[tile];
+    if (s0 < s1 && s1 <= j->p.spp && (ts->stopped || s1 <= ts->merged))
+        return SRV_DUPLICATE;
+    if (s0 >= s1 || s1 > j->p.spp || s0 < ts->merged || !cut_ok(j, s0, s1))
+        goto misfit;
+    for (uint32_t t = ts->head; t != NONE; t = j->tasks[t].next) {
+        task k = j->tasks[t];
+        if (k.s0 == s0 && k.s1 == s1) {
+            *out = t;
+            return SRV_MERGED;
+        }
+        if (k.s1 <= s0)
+            continue;
+        if (k.s0 > s0 || s1 > k.s1 || k.state != T_PENDING || (k.s0 < s0 && !cut_ok(j, k.s0, s0)) ||
+            (s1 < k.s1 && !cut_ok(j, s1, k.s1)))
+            goto misfit;
+        /* Split the pending task: it keeps its start, the rest is pending. */
+        uint32_t n = t;
+        if (k.s0 < s0) {
+            j->tasks[t].s1 = s0;
+            if ((n = task_add(j, tile, s0, s1, t)) == NONE)
+                goto nomem;
+        } else {
+            j->tasks[t].s1 = s1;
+        }
+        if (s1 < k.s1) {
+            uint32_t r = task_add(j, tile, s1, k.s1, n);
+            if (r == NONE)
+                goto nomem;
+            requeue_push(j, r);
+        }
+        *out = n;
+        return SRV_MERGED;
+    }
+    if (s0 < ts->frontier)
+        goto misfit;
+    if (cut_pending(j, tile, ts->frontier, s0, NONE) != 0)
+        goto misfit;
+    uint32_t t = task_add(j, tile, s0, s1, NONE);
+    if (t == NONE)
+        goto nomem;
+    j->uncut -= (uint64_t)tile_pixels(j, tile) * (s1 - ts->frontier);
+    ts->frontier = s1;
+    j->heap_dirty = 1;
+    *out = t;
+    return SRV_MERGED;
+misfit:
+    pt_error_set(err, PT_ERR_PROTO, "samples %u to %u of tile %u do not fit the job's tasks", s0,
+                 s1, tile);
+    return SRV_INVALID;
+nomem:
+    pt_error_set(err, PT_ERR_NOMEM, "out of memory for the tasks of tile %u", tile);
+    return SRV_INVALID;
+}
+
+/* The tile whose rectangle r is, or NONE. */
+static uint32_t tile_of(const srv_job *j, pt_rect r)
+{
+    if (r.x0 % j->p.tile || r.y0 % j->p.tile || r.x0 >= j->p.width || r.y0 >= j->p.height)
+        return NONE;
+    uint32_t t = (r.y0 / j->p.tile) * j->tiles_x + r.x0 / j->p.tile;
+    pt_rect e = tile_rect(j, t);
+    return memcmp(&e, &r, sizeof e) == 0 ? t : NONE;
 }
 
 void srv_job_answered(srv_job *j, int lease_index)
 {
-    if (lease_index >= 0 && (uint32_t)lease_index < j->nleases)
+    if (lease_index >= 0 && (uint32_t)lease_index < j->lease_slots && j->leases[lease_index].live)
         j->leases[lease_index].answered = 1;
 }
 
 srv_outcome srv_job_replay(srv_job *j, const proto_result *r, pt_error *err)
 {
-    return accept_result(j, 0, r, 0, err);
+    if (r->job_id != j->id) {
+        pt_error_set(err, PT_ERR_PROTO, "result for job %llu, not the running job %llu",
+                     (unsigned long long)r->job_id, (unsigned long long)j->id);
+        return SRV_NOT_LEASED;
+    }
+    uint32_t tile = tile_of(j, r->tile), t;
+    if (tile == NONE || r->npixels != tile_pixels(j, tile)) {
+        pt_error_set(err, PT_ERR_PROTO, "result for task %llu: its tile is not one of the job's",
+                     (unsigned long long)r->task_id);
+        return SRV_INVALID;
+    }
+    srv_outcome o = locate(j, tile, r->s0, r->s1, &t, err);
+    if (o != SRV_MERGED)
+        return o;
+    uint8_t st = j->tasks[t].state;
+    if (st == T_MERGED || st == T_HELD || st == T_SKIPPED)
+        return SRV_DUPLICATE;
+    if (!pixels_plausible(r, r->s1 - r->s0, err))
+        return SRV_INVALID;
+    return merge_task(j, t, -1, r, 0, err);
 }
 
 void srv_job_check(srv_job *j, int li, const proto_result *r, srv_verdict *v)
@@ -928,12 +1524,11 @@ void srv_job_forget_owner(srv_job *j, uint64_t owner, uint64_t *merged, uint64_t
             i++;
             continue;
         }
-        uint64_t t = j->held[i].task;
+        uint32_t t = j->held[i].task;
         pt_free(j->held[i].px);
-        j->held[i] = j->held[--j->nheld];
-        j->state[t] = T_PENDING;
-        if (requeue_push(j, t) != 0 && t < j->cursor)
-            j->cursor = t;
+        held_remove(j, i);
+        j->tasks[t].state = T_PENDING;
+        requeue_push(j, t);
     }
     for (uint32_t i = 0; i < j->nchecks;) {
         check *c = &j->checks[i];
@@ -965,21 +1560,14 @@ void srv_job_refused(srv_job *j)
 
 int srv_job_owner_active(const srv_job *j, uint64_t owner)
 {
-    for (uint32_t i = 0; i < j->nleases; i++)
-        if (j->leases[i].owner == owner)
-            return 1;
-    return 0;
-}
-
-uint32_t srv_job_tiles(const srv_job *j)
-{
-    return j->ntiles;
+    const owner_stat *o = owner_find(j, owner);
+    return o && o->nleases > 0;
 }
 
 /* ---- checkpoints ---- */
 
 #define CKPT_MAGIC 0x434a5450u /* "PTJC" */
-#define CKPT_VERSION 4u
+#define CKPT_VERSION 6u
 #define CKPT_OLDEST_VERSION 2u   /* no min gain: read as 0 */
 #define CKPT_MIN_GAIN_VERSION 3u /* the first with the min gain */
 /* The first with the environment (older: none), and the first with the film
@@ -988,26 +1576,61 @@ uint32_t srv_job_tiles(const srv_job *j)
  * shown). One format version brought both: srv_job_params_read takes one flag. */
 #define CKPT_ENV_VERSION 4u
 #define CKPT_FILM_VERSION CKPT_ENV_VERSION
+/* The first with fixed-point sums (tile.h); older double sums are converted
+ * as they are read (get_acc). */
+#define CKPT_FIXED_VERSION 5u
 
-/* A pixel as the checkpoint stores it: RESULT's pixel layout (msg.h). */
+/* A pixel as the checkpoint stores it: each sum as two u64, low half first
+ * (RESULT's wide layout, msg.h), then n and hits. */
 static void put_acc(proto_writer *w, const pt_pixel_acc *a)
 {
-    proto_w_f64(w, a->sum[0]);
-    proto_w_f64(w, a->sum[1]);
-    proto_w_f64(w, a->sum[2]);
-    proto_w_f64(w, a->sum_sq);
+    for (int c = 0; c < 3; c++) {
+        proto_w_u64(w, (uint64_t)a->fsum[c]);
+        proto_w_u64(w, (uint64_t)(a->fsum[c] >> 64));
+    }
+    proto_w_u64(w, (uint64_t)a->fsum_sq);
+    proto_w_u64(w, (uint64_t)(a->fsum_sq >> 64));
     proto_w_u32(w, a->n);
     proto_w_u32(w, a->hits);
 }
 
-static void get_acc(proto_reader *r, pt_pixel_acc *a, int has_hits)
+/* A double sum of a checkpoint before CKPT_FIXED_VERSION in fixed point, by
+ * the same rounding as a block's (pt_fixed_of): deterministic, so a job
+ * resumed from an older checkpoint loses no work and every coordinator that
+ * loads it gets the same bits. A value that is not finite or not within the
+ * cap for n samples (which no render gives) becomes -1, for acc_sane to
+ * refuse. */
+static pt_i128 fixed_of_old(double d, uint32_t n)
 {
-    a->sum[0] = proto_r_f64(r, "pixel sum");
-    a->sum[1] = proto_r_f64(r, "pixel sum");
-    a->sum[2] = proto_r_f64(r, "pixel sum");
-    a->sum_sq = proto_r_f64(r, "pixel sum of squares");
+    if (!(d >= 0.0 && d <= PT_MAX_SAMPLE_RADIANCE * n))
+        return -1;
+    return pt_fixed_of(d);
+}
+
+static void get_acc(proto_reader *r, pt_pixel_acc *a, uint32_t version)
+{
+    if (version >= CKPT_FIXED_VERSION) {
+        for (int c = 0; c < 3; c++) {
+            uint64_t lo = proto_r_u64(r, "pixel sum");
+            a->fsum[c] = (pt_i128)(((pt_u128)proto_r_u64(r, "pixel sum") << 64) | lo);
+        }
+        uint64_t lo = proto_r_u64(r, "pixel sum of squares");
+        a->fsum_sq = ((pt_u128)proto_r_u64(r, "pixel sum of squares") << 64) | lo;
+        a->n = proto_r_u32(r, "pixel samples");
+        a->hits = proto_r_u32(r, "pixel camera hits");
+        return;
+    }
+    double sum[3], sum_sq;
+    for (int c = 0; c < 3; c++)
+        sum[c] = proto_r_f64(r, "pixel sum");
+    sum_sq = proto_r_f64(r, "pixel sum of squares");
     a->n = proto_r_u32(r, "pixel samples");
-    a->hits = has_hits ? proto_r_u32(r, "pixel camera hits") : a->n;
+    a->hits = version >= CKPT_FILM_VERSION ? proto_r_u32(r, "pixel camera hits") : a->n;
+    for (int c = 0; c < 3; c++)
+        a->fsum[c] = fixed_of_old(sum[c], a->n);
+    a->fsum_sq = isfinite(sum_sq) ? pt_ufixed_of(sum_sq) : 0;
+    if (!isfinite(sum_sq) || sum_sq < 0.0)
+        a->fsum[0] = -1;
 }
 
 void srv_job_params_write(proto_writer *w, const srv_job_params *p)
@@ -1066,13 +1689,10 @@ void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, i
     proto_r_str(r, p->variant, PROTO_MAX_NAME, "variant");
 }
 
-static uint32_t tile_merged(const srv_job *j, uint32_t tile)
-{
-    uint32_t m = 0;
-    while (m < j->nchunks && j->state[(uint64_t)m * j->ntiles + tile] == T_MERGED)
-        m++;
-    return m;
-}
+/* The first that records each tile's merged samples and each held result's
+ * range (older: chunks merged per tile and held task ids, chunk x tiles +
+ * tile, of fixed chunks). */
+#define CKPT_RANGE_VERSION 6u
 
 pt_status srv_job_save(const srv_job *j, proto_writer *w, pt_error *err)
 {
@@ -1083,19 +1703,20 @@ pt_status srv_job_save(const srv_job *j, proto_writer *w, pt_error *err)
     srv_job_params_write(w, &j->p);
     proto_w_u64(w, j->capped);
     proto_w_u32(w, j->ntiles);
-    proto_w_u32(w, j->nchunks);
+    proto_w_u32(w, j->npasses);
     for (uint32_t t = 0; t < j->ntiles; t++) {
-        uint32_t m = tile_merged(j, t);
-        proto_w_u32(w, m);
-        proto_w_u8(w, m < j->nchunks && j->state[(uint64_t)m * j->ntiles + t] == T_SKIPPED);
+        proto_w_u32(w, j->tiles[t].merged);
+        proto_w_u8(w, j->tiles[t].stopped);
     }
     proto_w_u32(w, j->nheld);
     for (uint32_t i = 0; i < j->nheld; i++) {
-        pt_rect r = task_rect(j, j->held[i].task);
-        uint32_t npx = (r.x1 - r.x0) * (r.y1 - r.y0);
-        proto_w_u64(w, j->held[i].task);
-        for (uint32_t k = 0; k < npx; k++)
-            put_acc(w, &j->held[i].px[k]);
+        const task *k = &j->tasks[j->held[i].task];
+        proto_w_u32(w, k->tile);
+        proto_w_u32(w, k->s0);
+        proto_w_u32(w, k->s1);
+        uint32_t npx = tile_pixels(j, k->tile);
+        for (uint32_t p = 0; p < npx; p++)
+            put_acc(w, &j->held[i].px[p]);
     }
     size_t npx = (size_t)j->p.width * j->p.height;
     for (size_t k = 0; k < npx; k++)
@@ -1110,7 +1731,7 @@ pt_status srv_job_save(const srv_job *j, proto_writer *w, pt_error *err)
 
 pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *err)
 {
-    if (j->merged || j->nleases || j->nheld)
+    if (j->merged || j->nleases || j->nheld || j->ntasks)
         return pt_error_set(err, PT_ERR_ARG, "checkpoint: job %llu is not fresh",
                             (unsigned long long)j->id);
     proto_reader r = proto_reader_make(data, len);
@@ -1121,8 +1742,10 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
     uint64_t id = proto_r_u64(&r, "job id");
     const uint8_t *hash = proto_r_bytes(&r, 32, "scene hash");
     srv_job_params p;
-    int film = version >= CKPT_FILM_VERSION;
-    size_t acc_size = film ? PROTO_RESULT_PIXEL_SIZE : PROTO_RESULT_PIXEL_SIZE - 4;
+    int film = version >= CKPT_FILM_VERSION, ranges = version >= CKPT_RANGE_VERSION;
+    /* Per pixel: 4 sums of 16 bytes (fixed point) or 8 (double, before
+     * CKPT_FIXED_VERSION), n, and hits (from CKPT_FILM_VERSION on). */
+    size_t acc_size = version >= CKPT_FIXED_VERSION ? 72 : film ? 40 : 36;
     srv_job_params_read(&r, &p, version >= CKPT_MIN_GAIN_VERSION, version >= CKPT_ENV_VERSION);
     uint64_t capped = film ? proto_r_u64(&r, "paths capped") : 0;
     uint32_t ntiles = proto_r_u32(&r, "tiles"), nchunks = proto_r_u32(&r, "chunks");
@@ -1136,55 +1759,73 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
         memcmp(&p.min_gain, &j->p.min_gain, sizeof p.min_gain) != 0 ||
         strcmp(p.camera, j->p.camera) != 0 || !proto_env_same(&p.env, &j->p.env) ||
         p.film_flags != j->p.film_flags || strcmp(p.variant, j->p.variant) != 0 ||
-        ntiles != j->ntiles || nchunks != j->nchunks)
+        ntiles != j->ntiles || nchunks != j->npasses)
         return pt_error_set(err, PT_ERR_FORMAT,
                             "checkpoint is of another job or other settings "
                             "(job %llu, %ux%u, %u spp)",
                             (unsigned long long)id, p.width, p.height, p.spp);
     for (uint32_t t = 0; t < ntiles; t++) {
-        uint32_t m = proto_r_u32(&r, "tile chunks merged");
+        uint32_t m = proto_r_u32(&r, ranges ? "tile samples merged" : "tile chunks merged");
         uint8_t stopped = proto_r_u8(&r, "tile stopped");
         if (r.status != PT_OK)
             return proto_r_finish(&r, "checkpoint", err);
-        if (m > nchunks || stopped > 1 || (stopped && m == nchunks))
+        uint32_t most = ranges ? j->p.spp : nchunks;
+        if (m > most || stopped > 1 || (stopped && m == most))
             return pt_error_set(err, PT_ERR_FORMAT,
-                                "checkpoint: tile %u has %u chunks merged "
-                                "of %u (stopped %u)",
-                                t, m, nchunks, stopped);
-        for (uint32_t c = 0; c < m; c++) {
-            j->state[(uint64_t)c * ntiles + t] = T_MERGED;
-            j->merged_in_pass[c]++;
+                                "checkpoint: tile %u has %u %s merged of %u (stopped %u)", t, m,
+                                ranges ? "samples" : "chunks", most, stopped);
+        if (!ranges) {
+            uint64_t s = (uint64_t)m * j->p.chunk;
+            j->merged += m;
+            m = s < j->p.spp ? (uint32_t)s : j->p.spp;
+        } else {
+            j->merged += (m + j->p.chunk - 1) / j->p.chunk; /* as many fixed chunks */
         }
-        j->merged += m;
-        j->next_chunk[t] = m;
+        tile_state *ts = &j->tiles[t];
+        ts->merged = ts->frontier = m;
+        j->uncut -= (uint64_t)tile_pixels(j, t) * m;
+        if (m == j->p.spp)
+            j->tiles_done++;
         if (stopped) {
-            for (uint32_t c = m; c < nchunks; c++) {
-                j->state[(uint64_t)c * ntiles + t] = T_SKIPPED;
-                j->merged_in_pass[c]++;
-            }
-            j->merged += nchunks - m;
-            j->next_chunk[t] = nchunks;
+            j->uncut -= (uint64_t)tile_pixels(j, t) * (j->p.spp - m);
+            ts->frontier = j->p.spp;
+            ts->stopped = 1;
             j->stopped++;
+            j->tiles_done++;
         }
     }
+    j->heap_dirty = 1;
     uint32_t nheld = proto_r_u32(&r, "held results");
-    if (r.status == PT_OK && nheld > j->ntasks)
+    if (r.status == PT_OK && nheld > (uint64_t)ntiles * nchunks)
         return pt_error_set(err, PT_ERR_FORMAT, "checkpoint: %u held results", nheld);
     for (uint32_t i = 0; i < nheld && r.status == PT_OK; i++) {
-        uint64_t t = proto_r_u64(&r, "held task");
+        uint32_t tile, s0, s1;
+        if (ranges) {
+            tile = proto_r_u32(&r, "held tile");
+            s0 = proto_r_u32(&r, "held samples start");
+            s1 = proto_r_u32(&r, "held samples end");
+        } else {
+            uint64_t t = proto_r_u64(&r, "held task");
+            tile = (uint32_t)(t % ntiles);
+            uint64_t c = t / ntiles, e = (c + 1) * j->p.chunk;
+            s0 = c < nchunks ? (uint32_t)(c * j->p.chunk) : j->p.spp;
+            s1 = e < j->p.spp ? (uint32_t)e : j->p.spp;
+        }
         if (r.status != PT_OK)
             break;
-        if (t >= j->ntasks || j->state[t] != T_PENDING ||
-            (uint32_t)(t / j->ntiles) <= j->next_chunk[t % j->ntiles])
+        uint32_t t;
+        pt_error e2 = {0};
+        if (tile >= ntiles || locate(j, tile, s0, s1, &t, &e2) != SRV_MERGED ||
+            j->tasks[t].state != T_PENDING)
             return pt_error_set(err, PT_ERR_FORMAT,
-                                "checkpoint: held task %llu is not one that "
+                                "checkpoint: held samples %u to %u of tile %u are not ones that "
                                 "can be held",
-                                (unsigned long long)t);
-        pt_rect rc = task_rect(j, t);
-        uint32_t npx = (rc.x1 - rc.x0) * (rc.y1 - rc.y0);
+                                s0, s1, tile);
+        uint32_t npx = tile_pixels(j, tile);
         if (proto_r_left(&r) < (size_t)npx * acc_size)
-            return pt_error_set(err, PT_ERR_FORMAT, "checkpoint: truncated held task %llu",
-                                (unsigned long long)t);
+            return pt_error_set(err, PT_ERR_FORMAT,
+                                "checkpoint: truncated held samples %u to %u of tile %u", s0, s1,
+                                tile);
         if (j->nheld == j->held_cap) {
             uint32_t cap = j->held_cap ? 2 * j->held_cap : 32;
             held *n = pt_realloc(j->held, (size_t)cap * sizeof *n);
@@ -1197,22 +1838,23 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
         if (!px)
             return pt_error_set(err, PT_ERR_NOMEM, "checkpoint: out of memory");
         for (uint32_t k = 0; k < npx; k++)
-            get_acc(&r, &px[k], film);
-        j->held[j->nheld++] = (held){t, 0, px};
-        j->state[t] = T_HELD;
+            get_acc(&r, &px[k], version);
+        j->held[j->nheld] = (held){t, 0, px};
+        j->tasks[t].held = j->nheld++;
+        j->tasks[t].state = T_HELD;
         for (uint32_t k = 0; k < npx; k++)
-            if (!acc_sane(&px[k], j->p.chunk))
+            if (!acc_sane(&px[k], s1 - s0))
                 return pt_error_set(err, PT_ERR_FORMAT,
-                                    "checkpoint: held task %llu pixel %u "
-                                    "is not finite or has too many samples",
-                                    (unsigned long long)t, k);
+                                    "checkpoint: held samples %u to %u of tile %u, pixel %u, "
+                                    "are not finite or have too many samples",
+                                    s0, s1, tile, k);
     }
     size_t npx = (size_t)j->p.width * j->p.height;
     if (r.status == PT_OK && proto_r_left(&r) != npx * acc_size)
         return pt_error_set(err, PT_ERR_FORMAT, "checkpoint: %zu bytes of film, expected %zu",
                             proto_r_left(&r), npx * acc_size);
     for (size_t k = 0; k < npx && r.status == PT_OK; k++) {
-        get_acc(&r, &j->film->px[k], film);
+        get_acc(&r, &j->film->px[k], version);
         if (r.status == PT_OK && !acc_sane(&j->film->px[k], j->p.spp))
             return pt_error_set(err, PT_ERR_FORMAT,
                                 "checkpoint: pixel %zu is not finite or has "
@@ -1224,15 +1866,15 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
         return st;
     j->samples = pt_film_total_samples(j->film);
     j->capped = capped;
-    while (j->passes_done < j->nchunks && j->merged_in_pass[j->passes_done] == j->ntiles)
-        j->passes_done++;
+    passes_recount(j);
     return PT_OK;
 }
 
 srv_job *srv_job_snapshot(const srv_job *j)
 {
-    /* What srv_job_save reads, and nothing else: the sizes, the task states,
-     * the held results and the film. */
+    /* What srv_job_save reads, and nothing else: the sizes, the tiles' merged
+     * samples, the held results (each with a copy of its task, numbered as
+     * its place in held[], for its tile and range) and the film. */
     srv_job *c = pt_calloc(1, sizeof *c);
     if (!c)
         return NULL;
@@ -1242,29 +1884,31 @@ srv_job *srv_job_snapshot(const srv_job *j)
     c->tiles_x = j->tiles_x;
     c->tiles_y = j->tiles_y;
     c->ntiles = j->ntiles;
-    c->nchunks = j->nchunks;
-    c->ntasks = j->ntasks;
+    c->npasses = j->npasses;
     c->capped = j->capped;
-    c->state = pt_malloc(j->ntasks ? j->ntasks : 1);
+    c->tiles = pt_malloc_array(j->ntiles ? j->ntiles : 1, sizeof *c->tiles);
+    c->tasks = pt_malloc_array(j->nheld ? j->nheld : 1, sizeof *c->tasks);
     c->held = pt_malloc_array(j->nheld ? j->nheld : 1, sizeof *c->held);
-    if (!c->state || !c->held ||
+    if (!c->tiles || !c->tasks || !c->held ||
         pt_film_new(j->film->width, j->film->height, &c->film, NULL) != PT_OK) {
         srv_job_free(c);
         return NULL;
     }
-    memcpy(c->state, j->state, j->ntasks);
+    memcpy(c->tiles, j->tiles, (size_t)j->ntiles * sizeof *c->tiles);
     memcpy(c->film->px, j->film->px,
            (size_t)j->film->width * j->film->height * sizeof *c->film->px);
     for (uint32_t i = 0; i < j->nheld; i++) {
-        pt_rect r = task_rect(j, j->held[i].task);
-        size_t npx = (size_t)(r.x1 - r.x0) * (r.y1 - r.y0);
+        const task *k = &j->tasks[j->held[i].task];
+        size_t npx = tile_pixels(j, k->tile);
         pt_pixel_acc *px = pt_malloc_array(npx, sizeof *px);
         if (!px) {
             srv_job_free(c);
             return NULL;
         }
         memcpy(px, j->held[i].px, npx * sizeof *px);
-        c->held[c->nheld++] = (held){j->held[i].task, j->held[i].owner, px};
+        c->tasks[i] = (task){k->tile, k->s0, k->s1, NONE, NONE, i, T_HELD};
+        c->ntasks = c->tasks_cap = i + 1;
+        c->held[c->nheld++] = (held){i, j->held[i].owner, px};
     }
     return c;
 }

@@ -1,10 +1,27 @@
 /*
  * job.h - one render job on the coordinator: tasks, leases, the merge.
  *
- * The image is cut into tiles (tile x tile pixels) and the samples into chunks
- * (chunk samples each). A task is (tile, chunk); its id is chunk * ntiles +
- * tile, so handing out ids in increasing order hands out pass 0 (chunk 0 of
- * every tile), then pass 1, and the progressive image improves evenly.
+ * The image is cut into tiles (tile x tile pixels). A task is samples
+ * [s0, s1) of one tile; its id is its index in the job's task table (ids are
+ * given in the order tasks are cut, from 0). Tasks are cut from a tile's
+ * uncut samples when an owner asks, always from the tile with the fewest
+ * samples cut so far (ties: the lowest tile), so the progressive image
+ * improves evenly. How many samples (srv_lease_policy.task_ms):
+ *   - 0: fixed chunks: up to the next multiple of chunk (pass by pass, ids
+ *     chunk x tiles + tile as before this scheme);
+ *   - else time-sized: samples for about task_ms at the asking owner's speed
+ *     (its moving average of ms per pixel-sample from lease to result, or the
+ *     job's median before it has one; one block before anything is known),
+ *     as a multiple of PT_SAMPLE_BLOCK, but never more than the tile already
+ *     has cut past the first block: the first pass is 16 samples, each
+ *     later one at most doubles a tile's, so the first image comes as soon as
+ *     with fixed chunks of 16. Near the end, when the uncut work is less than
+ *     the farm (the sum of its live leases' speeds) renders in TAIL_SHARE (4)
+ *     task times, a task takes at most a quarter of the time the farm needs
+ *     for that rest, so the last tasks end close together.
+ * A task keeps its range: an expired lease's task goes back whole to the
+ * requeue list, served first. Tile results merge in sample order (early
+ * ones held), so with exact sums the image is the same however it was cut.
  *
  * Tasks are leased to an owner (a connection). A lease has two deadlines: a
  * heartbeat deadline (lease_ms after it was handed out or last heartbeat),
@@ -18,7 +35,7 @@
  * backup_factor x the median for its size): the first result wins and the
  * other copy's lease is dropped. A result is accepted only from the owner of
  * a live lease for exactly that task (tile, sample range, pixel count, and
- * plausible pixels: finite non-negative sums under SRV_MAX_SAMPLE_RADIANCE
+ * plausible pixels: non-negative sums under PT_MAX_SAMPLE_RADIANCE (tile.h)
  * per sample, each pixel's count the task's samples less the samples the
  * result reports rejected), so merging is idempotent: a duplicate or late
  * result changes nothing.
@@ -30,17 +47,29 @@
  * never merged. On a mismatch a third owner renders it; the one of the first
  * two that differs from the third is the liar (srv_job_check).
  *
- * Chunks of a tile are added to the film in chunk order (early arrivals are
- * held), in double, so the final pixels are bit-identical however many
- * workers rendered them and in whatever order results arrived.
+ * A tile's tasks are added to the film in sample order (early arrivals are
+ * held), so the final pixels are bit-identical however many workers rendered
+ * them and in whatever order results arrived.
  *
- * Adaptive sampling: when a tile's chunk c is merged and the tile has at least
- * min_spp samples, pt_tile_stops decides from the film's sums and chunk c's
- * whether it stops (pt_tile_rel_error at most target_error, or pt_tile_gain
- * at most min_gain): its later chunks are then skipped (dropped if already
- * leased or held). The decision depends only on the tile's sums after chunk c
- * and on chunk c, which do not depend on how the work was split, so adaptive
- * images are bit-identical across worker counts and a resumed job too.
+ * Adaptive sampling: decisions are taken only at decision points, the
+ * multiples of chunk from min_spp on (short of spp), whatever the task
+ * sizes: a task never crosses one, and one that ends at one is exactly the
+ * chunk before it. When that task is merged, pt_tile_stops decides from the
+ * film's sums and that chunk's whether the tile stops (pt_tile_rel_error at
+ * most target_error, or pt_tile_gain at most min_gain): its later tasks are
+ * then skipped (dropped if already leased or held) and nothing more of it is
+ * cut. The decision depends only on the tile's sums after the point and on
+ * the chunk before it, which do not depend on how the work was split, so
+ * adaptive images are bit-identical across worker counts, task sizes and a
+ * resumed job too. Time-sized tasks of an adaptive job are therefore at most
+ * one chunk from the chunk before the first decision point on (and fixed
+ * chunks when chunk is not a multiple of PT_SAMPLE_BLOCK).
+ *
+ * Lookups: a task id indexes the task table; a task lists its live leases
+ * (a few copies) and an owner its own (pool slots), owners are hashed, so a
+ * result, a heartbeat (per task id it names) or a lost owner costs no scan
+ * of the job's leases. srv_job_expire and a backup pick (only once nothing
+ * else is left) look at every live lease.
  * Pure code: no sockets, no clock (callers pass now_ms). Threads: a job is
  * used by one thread at a time (the event loop's); the params functions below
  * are pure and may be called from any thread.
@@ -70,7 +99,21 @@ typedef struct srv_job_params {
     char variant[PROTO_MAX_NAME + 1]; /* KHR_materials_variants name; "" the default materials */
 } srv_job_params;
 
+/* Tasks of one job: a job whose fixed chunks would pass this is refused;
+ * time-sized tasks are at least one block, or as many more (a power of two)
+ * as keeps a job's smallest tasks under half of it, so their table never
+ * fills (requeues keep their task; only a restart's gaps add a few). */
 #define SRV_MAX_TASKS (64u * 1024u * 1024u)
+
+/* The default task time (ptserve --task-time). A result costs the event
+ * loop about 11 us + 3 ns per byte, and carries 40 bytes per pixel whatever
+ * its samples: ~135 us for a 32 x 32 tile, so one loop core takes ~7,400
+ * results/s. One core renders ~1.35 M samples/s on the Cornell box, so at
+ * 2 s a task is ~2.7 M pixel-samples (a 32 x 32 tile's 2,600 samples: jobs
+ * under that spp get tasks of a whole pass) and 10,000 cores send 5,000
+ * results/s, two thirds of a loop core; shorter tasks would not feed 10,000
+ * cores, longer ones only lengthen the tail and the loss of a lease. */
+#define SRV_DEFAULT_TASK_MS 2000u
 
 typedef enum srv_outcome {
     SRV_MERGED = 0, /* accepted (merged now or held until its turn) */
@@ -82,13 +125,6 @@ typedef enum srv_outcome {
 
 typedef struct srv_job srv_job;
 
-/* A per-sample radiance no scene reaches (emission, base colour and textures
- * are bounded and non-negative, see common/scene/scene.c); a pixel sum over n
- * samples above n times this is refused as garbage. Well under what a double
- * sum of float samples can hold, and 1e20 times the brightest emitter of the
- * sample scenes. */
-#define SRV_MAX_SAMPLE_RADIANCE 1e20
-
 /* How leases end and which tasks are rendered twice. All zero (a new job's):
  * no hard deadline, no backups, no verification. */
 typedef struct srv_lease_policy {
@@ -98,6 +134,7 @@ typedef struct srv_lease_policy {
     double backup_factor;   /* backup copy of a lease older than this x the median; 0: none */
     double verify_fraction; /* [0, 1]: the share of merged tasks rendered again */
     uint64_t verify_seed;   /* picks them with the task id */
+    uint32_t task_ms;       /* time-sized tasks of about this long; 0: fixed chunks */
 } srv_lease_policy;
 
 #define SRV_DEADLINE_QUANTILE 0.9 /* of the observed times per pixel-sample */
@@ -130,7 +167,7 @@ typedef struct srv_verify_stats {
 typedef void (*srv_miss_fn)(void *ctx, uint64_t owner, uint64_t task);
 
 /* scene_hash: 32 raw bytes. PT_ERR_ARG for sizes that make no sense,
- * PT_ERR_LIMIT over SRV_MAX_TASKS. */
+ * PT_ERR_LIMIT when its fixed chunks would pass SRV_MAX_TASKS. */
 pt_status srv_job_new(uint64_t id, const srv_job_params *p, const uint8_t scene_hash[32],
                       srv_job **out, pt_error *err);
 void srv_job_free(srv_job *job); /* accepts NULL */
@@ -144,8 +181,9 @@ void srv_job_set_policy(srv_job *job, const srv_lease_policy *pol);
 
 /* Leases the next task to owner (heartbeat deadline now_ms + lease_ms) and
  * describes it in *task: a requeued task first, then a verification copy
- * owner may render (not of its own result), then the next in pass order, then
- * a backup copy of a straggler. Returns 0 when nothing is left for owner. */
+ * owner may render (not of its own result), then a new task cut for owner
+ * (see the file comment), then a backup copy of a straggler. Returns 0 when
+ * nothing is left for owner. */
 int srv_job_lease(srv_job *job, uint64_t owner, uint64_t now_ms, uint32_t lease_ms,
                   proto_task *task);
 
@@ -211,8 +249,11 @@ srv_outcome srv_job_result_validated(srv_job *job, int lease_index, const proto_
 void srv_job_answered(srv_job *job, int lease_index);
 
 /* Accepts a result from the durable log after a restart: like srv_job_result
- * but without a lease (there are none yet). Duplicates are dropped, so a log
- * that overlaps the checkpoint is harmless. */
+ * but without a lease, found by its tile and samples rather than its id (ids
+ * are per run): the task cut so, else cut to fit from a pending task or the
+ * tile's uncut samples (what it leaves pending is requeued); SRV_INVALID
+ * when the range overlaps tasks cut otherwise. Duplicates are dropped, so a
+ * log that overlaps the checkpoint is harmless. */
 srv_outcome srv_job_replay(srv_job *job, const proto_result *r, pt_error *err);
 
 /* 1 when owner holds a lease of this job. */
@@ -232,9 +273,11 @@ int srv_job_owner_active(const srv_job *job, uint64_t owner);
 void srv_job_params_write(proto_writer *w, const srv_job_params *p);
 void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, int has_env_film);
 
-/* Checkpoints. srv_job_save appends the merged state (per tile the chunks
- * merged and whether adaptive sampling stopped it, the held early results, the
- * film's double sums and counts) to w; leases are not saved (their tasks are
+/* Checkpoints (format 6). srv_job_save appends the merged state (per tile
+ * the samples merged and whether adaptive sampling stopped it, the held early
+ * results with their tile and samples, the film's fixed-point sums and counts)
+ * to w; formats 2 to 5 (chunks merged per tile, held task ids of fixed
+ * chunks; double sums before 5) are read too; leases are not saved (their tasks are
  * pending again after a load). srv_job_load restores that state into a fresh
  * job made with the same id, params and scene hash: PT_ERR_FORMAT naming what
  * does not fit when the bytes are of another job or inconsistent. The result
@@ -253,8 +296,13 @@ uint32_t srv_job_params_passes(const srv_job_params *p);
 
 /* Progress. */
 uint32_t srv_job_tiles(const srv_job *job);
-uint32_t srv_job_passes(const srv_job *job);      /* chunks per tile */
+/* Passes count chunks whatever the task sizes: pass k is done when every
+ * tile has min((k + 1) x chunk, spp) samples merged (or stopped). */
+uint32_t srv_job_passes(const srv_job *job);      /* ceil(spp / chunk) */
 uint32_t srv_job_passes_done(const srv_job *job); /* passes merged for every tile */
+/* Tasks merged (or skipped), cut and open, and those fixed chunks would cut
+ * of the samples not cut yet (time-sized tasks may be fewer): equal to
+ * srv_job_tasks_merged once every tile is done. O(tiles). */
 uint64_t srv_job_tasks_total(const srv_job *job);
 uint64_t srv_job_tasks_merged(const srv_job *job);
 uint64_t srv_job_samples_merged(const srv_job *job);
@@ -262,7 +310,7 @@ uint64_t srv_job_samples_merged(const srv_job *job);
 uint64_t srv_job_paths_capped(const srv_job *job);
 uint32_t srv_job_tiles_stopped(const srv_job *job); /* tiles adaptive sampling stopped early */
 uint32_t srv_job_leases(const srv_job *job);
-/* 1 when every task is merged (or skipped) and no verification mismatch
+/* 1 when every tile has all its samples merged (or stopped) and no verification mismatch
  * waits for its third render; checks that have not found a mismatch are
  * dropped with the job. */
 int srv_job_complete(const srv_job *job);

@@ -57,12 +57,12 @@
 #define SRV_MAX_CONNS 1024u
 
 /* The largest payload each role sends once authenticated (the frame cap):
- * a worker's RESULT of a PT_TILE_MAX x PT_TILE_MAX tile, 68 bytes of header
- * and 40 per pixel (2,621,508 bytes; HEARTBEAT, WORK_REQUEST, SCENE_GET and
+ * a worker's RESULT of a PT_TILE_MAX x PT_TILE_MAX tile, 69 bytes of header
+ * and at most 72 per pixel (4,718,661 bytes; HEARTBEAT, WORK_REQUEST, SCENE_GET and
  * ERROR are smaller); a client's UPLOAD chunk, 52 bytes of header and
  * PROTO_MAX_SCENE_CHUNK of data (SUBMIT and the rest are smaller). */
 #define SRV_WORKER_MAX_PAYLOAD                                                                     \
-    (PROTO_RESULT_HEADER_SIZE + PROTO_RESULT_PIXEL_SIZE * PROTO_MAX_TILE_PIXELS)
+    (PROTO_RESULT_HEADER_SIZE + PROTO_RESULT_WIDE_PIXEL_SIZE * PROTO_MAX_TILE_PIXELS)
 #define SRV_CLIENT_MAX_PAYLOAD (52u + PROTO_MAX_SCENE_CHUNK)
 
 /* Defaults of srv_peer_limits (server/serve.h): a field left 0 takes these. */

@@ -11,14 +11,39 @@
 #include "common/render/tile.h"
 #include "common/scene/bundle.h"
 #include "common/scene/scene.h"
+#include "server/frames.h"
 #include "server/loop.h"
 #include "server/queue.h"
 
 /* ---- one job ----------------------------------------------------------------------- */
 
+/* A frame range's line: frames done, the earliest rendering and its pass. */
+static void print_frames_progress(srv_server *s, uint64_t now)
+{
+    const srv_entry *p = s->single;
+    proto_job_info m;
+    srv_queue_info(s, p, &m);
+    double el = (double)(now - s->t_start) / 1000.0;
+    double rate = el > 0 ? (double)m.samples_done / el : 0;
+    char eta[32];
+    pt_format_eta(rate > 0 ? ((double)m.samples_total - (double)m.samples_done) / rate : -1, eta,
+                  sizeof eta);
+    const srv_entry *f = srv_frames_at(p, 0);
+    fprintf(stderr, "\rptserve: frames %u/%u done, %u rendering", m.frames_done,
+            pt_frames_count(&p->rec.frames), m.frames_rendering);
+    if (f && f->job)
+        fprintf(stderr, "  frame %u pass %u/%u", f->frame, srv_job_passes_done(f->job),
+                srv_job_passes(f->job));
+    fprintf(stderr, "  %.3g samples/s  %u workers  ETA %s\033[K", rate, s->nworkers, eta);
+}
+
 static void print_progress(srv_server *s, uint64_t now)
 {
     const srv_entry *j = s->single;
+    if (j->frames) {
+        print_frames_progress(s, now);
+        return;
+    }
     const srv_job_params *p = &j->rec.params;
     double el = (double)(now - s->t_start) / 1000.0;
     uint64_t done = srv_job_samples_merged(j->job);
@@ -39,6 +64,12 @@ static pt_status setup_single(srv_server *s, pt_error *err)
     pt_scene_opts so = {0};
     so.camera_name = cfg->job.camera[0] ? cfg->job.camera : NULL;
     so.variant = cfg->job.variant[0] ? cfg->job.variant : NULL;
+    if (cfg->frames.step) {
+        /* Posed at the first frame: an animation the scene lacks fails now. */
+        so.animate = 1;
+        so.time = pt_frames_time(cfg->frames.first, cfg->fps);
+        so.animation = cfg->animation;
+    }
     pt_scene *scene = NULL;
     if ((st = pt_scene_load(cfg->scene_path, &so, &scene, err)) != PT_OK)
         return st;
@@ -81,12 +112,61 @@ static pt_status setup_single(srv_server *s, pt_error *err)
     const char *base = strrchr(cfg->scene_path, '/');
     snprintf(j->rec.scene, sizeof j->rec.scene, "%s", base ? base + 1 : cfg->scene_path);
     snprintf(j->out_path, sizeof j->out_path, "%s", cfg->out_path);
+    if (cfg->frames.step) {
+        j->rec.frames = cfg->frames;
+        j->rec.fps = cfg->fps;
+        snprintf(j->rec.animation, sizeof j->rec.animation, "%s",
+                 cfg->animation ? cfg->animation : "");
+    }
     if (!srv_entry_ready(s, j))
         return pt_error_set(err, PT_ERR_IO, "%s", j->rec.message);
-    if (!cfg->quiet)
+    if (!cfg->quiet && cfg->frames.step)
+        srv_log("%s: %u triangles, %ux%u, %u spp in %u passes of %u, tiles of %u; frames %u-%u:%u "
+                "(%u) at %g fps into %s",
+                cfg->scene_path, ntris, jp.width, jp.height, jp.spp, srv_job_params_passes(&jp),
+                jp.chunk, jp.tile, cfg->frames.first, cfg->frames.last, cfg->frames.step,
+                pt_frames_count(&cfg->frames), cfg->fps, cfg->out_path);
+    else if (!cfg->quiet)
         srv_log("%s: %u triangles, %ux%u, %u spp in %u passes of %u, tiles of %u", cfg->scene_path,
                 ntris, jp.width, jp.height, jp.spp, srv_job_passes(j->job), jp.chunk, jp.tile);
     return PT_OK;
+}
+
+/* A frame range's end: the frames rendering saved as they are (when
+ * interrupted), and the summary. */
+static int finish_frames(srv_server *s)
+{
+    srv_entry *p = s->single;
+    pt_error err = {0};
+    srv_entry *f;
+    for (uint32_t i = 0; (f = srv_frames_at(p, i)); i++)
+        if (f->job && srv_entry_active(f)) {
+            srv_entry_save_image(f);
+            if (srv_writer_flush(f->writer, &err) != PT_OK)
+                fprintf(stderr, "\nptserve: cannot write %s: %s", f->out_path, err.msg);
+        }
+    if (!s->cfg->quiet)
+        print_progress(s, pt_now_ms());
+    fputc('\n', stderr);
+    double secs = (double)(pt_now_ms() - s->t_start) / 1000.0;
+    uint32_t count = pt_frames_count(&p->rec.frames);
+    if (p->rec.state == PROTO_JOB_DONE) {
+        fprintf(stderr,
+                "ptserve: done in %.2fs: %u frames, %llu samples (%.4g samples/s); wrote %s\n",
+                secs, count, (unsigned long long)p->rec.samples_done,
+                (double)p->rec.samples_done / secs, s->cfg->out_path);
+        return 0;
+    }
+    if (p->rec.state == PROTO_JOB_FAILED) {
+        fprintf(stderr, "ptserve: %s\n", p->rec.message);
+        return 1;
+    }
+    if (srv_loop_stopped()) {
+        fprintf(stderr, "ptserve: interrupted after %.2fs; %u of %u frames done\n", secs,
+                p->rec.frames_done + p->rec.ndone_ahead, count);
+        return 130;
+    }
+    return 1;
 }
 
 /* The final image and the summary. Returns the exit status. */
@@ -95,6 +175,8 @@ static int finish_single(srv_server *s)
     const srv_config *cfg = s->cfg;
     srv_entry *j = s->single;
     pt_error err = {0};
+    if (j->rec.frames.step)
+        return finish_frames(s);
     if (!j->job)
         return 1;
     srv_entry_save_image(j);
@@ -141,17 +223,22 @@ static int finish_single(srv_server *s)
 
 static int single_over(const srv_server *s)
 {
+    if (s->single->rec.frames.step)
+        return !srv_entry_active(s->single);
     return !s->single->job || srv_job_complete(s->single->job);
 }
 
 static void single_after_leases(srv_server *s)
 {
-    (void)s; /* nothing is durable, and the loop ends with the job */
+    /* Nothing is durable, and the loop ends with a still; a frame range's
+     * done frames are written and the next ones started. */
+    if (s->single->rec.frames.step && srv_queue_end_complete(s))
+        srv_queue_hand_out(s);
 }
 
 static void single_tick(srv_server *s, uint64_t now)
 {
-    if (s->single->job && !s->cfg->quiet && now - s->t_last_print >= 1000) {
+    if ((s->single->job || s->single->frames) && !s->cfg->quiet && now - s->t_last_print >= 1000) {
         s->t_last_print = now;
         print_progress(s, now);
     }
@@ -159,7 +246,8 @@ static void single_tick(srv_server *s, uint64_t now)
 
 static int single_local_gone(srv_server *s)
 {
-    if (srv_job_complete(s->single->job))
+    if (s->single->rec.frames.step ? !srv_entry_active(s->single)
+                                   : srv_job_complete(s->single->job))
         return 0;
     fprintf(stderr, "\nptserve: all %u local workers exited before the image was complete\n",
             s->local.nchildren);

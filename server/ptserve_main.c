@@ -21,9 +21,10 @@ static void usage(FILE *f)
         f,
         "usage: ptserve [options] -o OUT.exr SCENE\n"
         "       ptserve --local N [options] -o OUT.exr SCENE\n"
+        "       ptserve --local N --frames A-B[:STEP] [options] -o SHOT.####.exr SCENE\n"
         "       ptserve --state-dir DIR [--output-dir DIR] [options]\n"
         "\n"
-        "Coordinates a ptfarm render: splits each image into tiles x sample chunks,\n"
+        "Coordinates a ptfarm render: splits each image into tiles x sample ranges,\n"
         "leases them to ptworker processes, merges their results in a fixed order (the\n"
         "image does not depend on how the work was split) and writes progressive\n"
         "OpenEXR images (R, G, B, samples, variance) plus a PNG preview.\n"
@@ -51,7 +52,8 @@ static void usage(FILE *f)
         "                         token (--token-file, required with this) is the admin's\n"
         "                         and the workers'. Without it every client is an admin\n"
         "                         (docs/OPERATIONS.md, \"Clients and admins\")\n"
-        "  (--tile, --chunk and --max-depth set the defaults of submitted jobs; a\n"
+        "  (--tile, --chunk and --max-depth set the defaults of submitted jobs, and\n"
+        "  --task-time sizes every job's tasks; a\n"
         "  job's --env or --background is given to ptctl submit, and its map is\n"
         "  uploaded with the scene and checked before the job is queued)\n"
         "\n"
@@ -100,8 +102,23 @@ static void usage(FILE *f)
         "  --variant NAME         the KHR_materials_variants variant: mapped primitives\n"
         "                         take its material; one-job mode (queued jobs: ptctl\n"
         "                         submit --variant)\n"
+        "  --frames A-B[:STEP]    render the frames A, A+STEP, ... B of the scene's\n"
+        "                         animation as one job (at most 100000 frames, numbers\n"
+        "                         0 to 999999): -o must have a '#' run, replaced by the\n"
+        "                         zero-padded frame number (shot.####.exr: frame 7 is\n"
+        "                         shot.0007.exr); early frames finish first; each frame\n"
+        "                         is the same image as ptworker --scene ... --frame F\n"
+        "  --fps R                frame F is at F / R seconds (default 24)\n"
+        "  --animation NAME|INDEX the animation played (default: all of them, as\n"
+        "                         viewers do); one-job mode (queued jobs: ptctl submit)\n"
         "  --tile N               tile side in pixels (default 32)\n"
-        "  --chunk N              samples per task (default 16)\n"
+        "  --task-time MS         size each task's samples so that it takes about MS\n"
+        "                         on the worker that asks, from that worker's measured\n"
+        "                         speed (default 2000): 16 samples first, then at most\n"
+        "                         doubling a tile's samples, smaller again near the end\n"
+        "  --chunk N              fixed tasks of N samples instead of --task-time; also\n"
+        "                         the step at which adaptive sampling judges a tile\n"
+        "                         (default 16), which an adaptive job's tasks never cross\n"
         "  --save-interval SEC    progressive saves at most this often (default 5)\n"
         "  --lease-timeout SEC    requeue a task whose worker is silent this long (default 20);\n"
         "                         also the shortest hard deadline of a lease\n"
@@ -151,6 +168,8 @@ int main(int argc, char **argv)
     c.job.spp = 64;
     c.job.tile = 32;
     c.job.chunk = 16;
+    c.task_ms = SRV_DEFAULT_TASK_MS;
+    int has_chunk = 0, has_task_time = 0;
     c.job.max_depth = PT_RENDER_DEFAULT_MAX_DEPTH;
     c.job.rr_depth = 3;
     c.save_interval = 5.0;
@@ -190,6 +209,9 @@ int main(int argc, char **argv)
         O_MAXQUEUED,
         O_CAMERA,
         O_VARIANT,
+        O_FRAMES,
+        O_FPS,
+        O_ANIMATION,
         O_MINGAIN,
         O_CLIENTS,
         O_MAXINPUT,
@@ -204,7 +226,8 @@ int main(int argc, char **argv)
         O_BACKGROUND,
         O_HTTP,
         O_HTTPPORT,
-        O_TRANSPARENT
+        O_TRANSPARENT,
+        O_TASKTIME
     };
     static const struct option opts[] = {
         {"output", required_argument, NULL, 'o'},
@@ -218,9 +241,13 @@ int main(int argc, char **argv)
         {"seed", required_argument, NULL, O_SEED},
         {"camera", required_argument, NULL, O_CAMERA},
         {"variant", required_argument, NULL, O_VARIANT},
+        {"frames", required_argument, NULL, O_FRAMES},
+        {"fps", required_argument, NULL, O_FPS},
+        {"animation", required_argument, NULL, O_ANIMATION},
         {"max-depth", required_argument, NULL, O_DEPTH},
         {"tile", required_argument, NULL, O_TILE},
         {"chunk", required_argument, NULL, O_CHUNK},
+        {"task-time", required_argument, NULL, O_TASKTIME},
         {"save-interval", required_argument, NULL, O_SAVE},
         {"lease-timeout", required_argument, NULL, O_LEASE},
         {"port-file", required_argument, NULL, O_PORTFILE},
@@ -294,6 +321,20 @@ int main(int argc, char **argv)
             }
             snprintf(c.job.camera, sizeof c.job.camera, "%s", optarg);
             break;
+        case O_FRAMES:
+            st = pt_frames_parse("--frames", optarg, &c.frames, &err);
+            break;
+        case O_FPS:
+            st = pt_opt_positive("--fps", optarg, 1e6, &c.fps, &err);
+            break;
+        case O_ANIMATION:
+            if (!optarg[0] || strlen(optarg) > PROTO_MAX_NAME) {
+                fprintf(stderr, "ptserve: --animation: a name or index of 1 to %u bytes\n",
+                        PROTO_MAX_NAME);
+                return 2;
+            }
+            c.animation = optarg;
+            break;
         case O_VARIANT:
             if (!optarg[0] || strlen(optarg) > PROTO_MAX_NAME) {
                 fprintf(stderr, "ptserve: --variant: a name of 1 to %u bytes\n", PROTO_MAX_NAME);
@@ -309,6 +350,11 @@ int main(int argc, char **argv)
             break;
         case O_CHUNK:
             st = pt_opt_u32("--chunk", optarg, 1, 1u << 24, &c.job.chunk, &err);
+            has_chunk = 1;
+            break;
+        case O_TASKTIME:
+            st = pt_opt_u32("--task-time", optarg, 1, 3600000, &c.task_ms, &err);
+            has_task_time = 1;
             break;
         case O_SAVE:
             st = pt_opt_seconds("--save-interval", optarg, 0, 86400, &c.save_interval, &err);
@@ -454,6 +500,25 @@ int main(int argc, char **argv)
                         "and --state-dir (clients use the queue)\n");
         return 2;
     }
+    if (c.state_dir && (c.frames.step || c.fps > 0 || c.animation)) {
+        fprintf(stderr, "ptserve: --frames, --fps and --animation are for one-job mode; a queued "
+                        "job asks for them with ptctl submit --frames\n");
+        return 2;
+    }
+    if (!c.frames.step && (c.fps > 0 || c.animation)) {
+        fprintf(stderr, "ptserve: --fps and --animation pose the frames of --frames A-B[:STEP]; "
+                        "give --frames\n");
+        return 2;
+    }
+    if (c.frames.step && !pt_frames_has_pattern(c.out_path)) {
+        fprintf(stderr,
+                "ptserve: -o %s: a frame range needs a '#' run in the output name for "
+                "the frame number (e.g. -o shot.####.exr: frame 7 is shot.0007.exr)\n",
+                c.out_path);
+        return 2;
+    }
+    if (c.frames.step && c.fps == 0)
+        c.fps = PT_FRAMES_DEFAULT_FPS;
     if (c.state_dir && c.job.variant[0]) {
         fprintf(stderr, "ptserve: --variant is for one-job mode; a queued job asks for it "
                         "with ptctl submit --variant\n");
@@ -469,6 +534,13 @@ int main(int argc, char **argv)
                         "one\n");
         return 2;
     }
+    if (has_chunk && has_task_time) {
+        fprintf(stderr, "ptserve: --chunk gives fixed tasks and --task-time sizes them by "
+                        "time; give one\n");
+        return 2;
+    }
+    if (has_chunk)
+        c.task_ms = 0;
     if (lease < 0.1) {
         fprintf(stderr, "ptserve: --lease-timeout must be at least 0.1 s\n");
         return 2;

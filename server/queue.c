@@ -12,6 +12,7 @@
 #include "common/image/exr.h"
 #include "common/render/adaptive.h"
 #include "common/render/film.h"
+#include "server/frames.h"
 #include "server/loop.h"
 #include "server/requests.h"
 #include "server/workers.h"
@@ -27,12 +28,18 @@ int srv_entry_active(const srv_entry *j)
     return j->rec.state == PROTO_JOB_QUEUED || j->rec.state == PROTO_JOB_RUNNING;
 }
 
-srv_entry *srv_queue_find(srv_server *s, uint64_t id)
+srv_entry *srv_queue_find_any(srv_server *s, uint64_t id)
 {
     for (srv_entry *j = s->jobs; j; j = j->next)
         if (j->rec.id == id)
             return j;
     return NULL;
+}
+
+srv_entry *srv_queue_find(srv_server *s, uint64_t id)
+{
+    srv_entry *j = srv_queue_find_any(s, id);
+    return j && !j->parent ? j : NULL;
 }
 
 void srv_queue_insert(srv_server *s, srv_entry *j)
@@ -77,18 +84,26 @@ void srv_entry_free(srv_entry *j)
     if (!j)
         return;
     free_run(j);
+    srv_frames_free(j);
     pt_free(j);
+}
+
+/* An ended job of the history; not a frame (srv_frames_round frees those)
+ * nor a range whose frames are not freed yet. */
+static int prunable(const srv_entry *j)
+{
+    return !srv_entry_active(j) && !j->parent && !srv_frames_at(j, 0);
 }
 
 void srv_queue_prune(srv_server *s)
 {
     uint32_t ended = 0;
     for (srv_entry *j = s->jobs; j; j = j->next)
-        ended += !srv_entry_active(j);
+        ended += prunable(j);
     while (ended > MAX_FINISHED) {
         srv_entry **oldest = NULL;
         for (srv_entry **p = &s->jobs; *p; p = &(*p)->next)
-            if (!srv_entry_active(*p) && (!oldest || (*p)->rec.id < (*oldest)->rec.id))
+            if (prunable(*p) && (!oldest || (*p)->rec.id < (*oldest)->rec.id))
                 oldest = p;
         srv_entry *j = *oldest;
         *oldest = j->next;
@@ -107,7 +122,8 @@ pt_status srv_queue_journal(srv_server *s, pt_error *err)
         return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
     uint32_t n = 0;
     for (srv_entry *j = s->jobs; j; j = j->next)
-        recs[n++] = &j->rec;
+        if (!j->parent) /* a frame's record is its range's */
+            recs[n++] = &j->rec;
     pt_status st = srv_state_save_queue(s->state, recs, n, s->next_job_id, err);
     pt_free(recs);
     return st;
@@ -204,6 +220,8 @@ void srv_queue_info(const srv_server *s, const srv_entry *j, proto_job_info *m)
         }
         m->queue_pos = pos;
     }
+    if (r->frames.step)
+        srv_frames_info(s, j, m);
     if (j->paused)
         snprintf(m->message, sizeof m->message, "paused: %s; retrying", j->pause_reason);
     else if (j->final_pending)
@@ -232,6 +250,12 @@ void srv_entry_save_image(srv_entry *j)
     meta.render_seconds = srv_entry_seconds(j, pt_now_ms());
     pt_hash_hex(j->rec.hash, meta.scene_hash);
     snprintf(meta.job_id, sizeof meta.job_id, "%llu", (unsigned long long)j->rec.id);
+    if (j->parent) {
+        meta.has_frame = 1;
+        meta.frame = j->frame;
+        meta.fps = j->parent->rec.fps;
+        meta.time = pt_frames_time(j->frame, meta.fps);
+    }
     srv_writer_submit(j->writer, img, &meta);
     j->t_last_save = pt_now_ms();
     j->saved_passes = srv_job_passes_done(j->job);
@@ -424,6 +448,8 @@ void srv_queue_end_job(srv_server *s, srv_entry *j, uint8_t state, const char *m
 {
     uint64_t now = pt_now_ms();
     pt_error err = {0};
+    if (state != PROTO_JOB_DONE && j->rec.frames.step)
+        srv_frames_end(s, j, state, message); /* a range's frames end with it */
     if (state == PROTO_JOB_DONE && j->job) {
         srv_entry_save_image(j);
         if (srv_writer_flush(j->writer, &err) != PT_OK) {
@@ -447,6 +473,10 @@ void srv_queue_end_job(srv_server *s, srv_entry *j, uint8_t state, const char *m
         }
         if (j->final_pending)
             srv_log("job %llu: its image is written at last", (unsigned long long)j->rec.id);
+        /* Recorded in its range before the queue file is written below, and
+         * that before the frame's files go: never rendered again. */
+        if (j->parent)
+            srv_frames_note_done(j);
     }
     j->rec.seconds = srv_entry_seconds(j, now);
     if (j->job) {
@@ -465,10 +495,15 @@ void srv_queue_end_job(srv_server *s, srv_entry *j, uint8_t state, const char *m
      * go once the queue says it ended. */
     if (s->state && state != PROTO_JOB_FAILED && st == PT_OK)
         srv_state_forget_job(s->state, j->rec.id);
-    if (state == PROTO_JOB_DONE)
+    if (state == PROTO_JOB_DONE && j->parent) {
+        if (!s->cfg->quiet)
+            srv_log("job %llu frame %u done: %llu samples in %.1f s; %s",
+                    (unsigned long long)j->parent->rec.id, j->frame,
+                    (unsigned long long)j->rec.samples_done, j->rec.seconds, j->out_path);
+    } else if (state == PROTO_JOB_DONE)
         srv_log("job %llu done: %llu samples in %.1f s; %s", (unsigned long long)j->rec.id,
                 (unsigned long long)j->rec.samples_done, j->rec.seconds, j->out_path);
-    else {
+    else if (!j->parent || state != PROTO_JOB_CANCELLED) { /* a cancelled frame: its range says */
         char text[PT_TEXT_ESCAPED_SIZE(PROTO_MAX_ERROR_TEXT)];
         srv_log("job %llu %s%s%s", (unsigned long long)j->rec.id, proto_job_state_name(state),
                 j->rec.message[0] ? ": " : "", pt_text_shown(j->rec.message, text, sizeof text));
@@ -496,6 +531,7 @@ static double resumed_seconds(const srv_entry *j, double ckpt)
     snprintf(id, sizeof id, "%llu", (unsigned long long)j->rec.id);
     pt_hash_hex(j->rec.hash, hash);
     if (strcmp(meta.job_id, id) != 0 || strcmp(meta.scene_hash, hash) != 0 ||
+        (j->parent && (!meta.has_frame || meta.frame != (int32_t)j->frame)) ||
         !(meta.render_seconds > ckpt) || meta.render_seconds > 1e12)
         return ckpt;
     return meta.render_seconds;
@@ -505,6 +541,8 @@ int srv_entry_ready(srv_server *s, srv_entry *j)
 {
     if (j->job)
         return 1;
+    if (j->rec.frames.step)
+        return srv_frames_ready(s, j);
     pt_error err = {0};
     pt_status st = srv_job_new(j->rec.id, &j->rec.params, j->rec.hash, &j->job, &err);
     if (st == PT_OK && s->state) {
@@ -566,22 +604,50 @@ static void set_policy(srv_server *s, srv_entry *j)
     srv_lease_policy pol = {
         s->cfg->lease_ms,        first > UINT32_MAX ? UINT32_MAX : (uint32_t)first,
         DEADLINE_FACTOR,         BACKUP_FACTOR,
-        s->cfg->verify_fraction, s->verify_seed};
+        s->cfg->verify_fraction, s->verify_seed,
+        s->cfg->task_ms};
     srv_job_set_policy(j->job, &pol);
+}
+
+/* Leases a task of j (a still, or a frame of a range) to owner. */
+static int lease_from(srv_server *s, srv_entry *j, uint64_t owner, uint64_t now, proto_task *t)
+{
+    if (!srv_entry_active(j) || j->paused || !j->job)
+        return 0;
+    if (!j->t_started)
+        set_policy(s, j);
+    if (!srv_job_lease(j->job, owner, now, s->cfg->lease_ms, t))
+        return 0;
+    s->counters.tasks_leased++;
+    if (!j->t_started)
+        j->t_started = now;
+    return 1;
+}
+
+/* A range's task: of its earliest frame that has one to hand out, so early
+ * frames finish first (server/frames.h). */
+static int lease_frames(srv_server *s, srv_entry *p, uint64_t owner, uint64_t now, proto_task *t)
+{
+    srv_entry *f;
+    for (uint32_t i = 0; (f = srv_frames_at(p, i)); i++)
+        if (lease_from(s, f, owner, now, t)) {
+            srv_frames_pose(f, t);
+            if (!p->t_started)
+                p->t_started = now;
+            return 1;
+        }
+    return 0;
 }
 
 static int lease_any(srv_server *s, uint64_t owner, uint64_t now, proto_task *t)
 {
     for (srv_entry *j = s->jobs; j; j = j->next) {
-        if (!srv_entry_active(j) || j->paused || !srv_entry_ready(s, j))
+        /* A frame is leased through its range, in the range's place. */
+        if (j->parent || !srv_entry_active(j) || j->paused || !srv_entry_ready(s, j))
             continue;
-        if (!j->t_started)
-            set_policy(s, j);
-        if (!srv_job_lease(j->job, owner, now, s->cfg->lease_ms, t))
+        if (!(j->rec.frames.step ? lease_frames(s, j, owner, now, t)
+                                 : lease_from(s, j, owner, now, t)))
             continue;
-        s->counters.tasks_leased++;
-        if (!j->t_started)
-            j->t_started = now;
         if (j->rec.state == PROTO_JOB_QUEUED) {
             j->rec.state = PROTO_JOB_RUNNING;
             journal_or_log(s);
@@ -646,7 +712,8 @@ int srv_queue_end_complete(srv_server *s)
             srv_queue_end_job(s, j, PROTO_JOB_DONE, NULL);
             ended++;
         }
-    return ended;
+    /* Frames done make room for the next ones, and end their range. */
+    return ended + srv_frames_round(s);
 }
 
 void srv_queue_unlink(srv_server *s, srv_entry *j)
@@ -663,7 +730,8 @@ srv_entry *srv_queue_find_scene(srv_server *s, const uint8_t hash[32])
 {
     pt_error err = {0};
     srv_entry *j = s->jobs;
-    while (j && !(srv_entry_active(j) && memcmp(hash, j->rec.hash, 32) == 0))
+    /* A frame's bundle is its range's (jobs/ID/bundle of the range's id). */
+    while (j && !(srv_entry_active(j) && !j->parent && memcmp(hash, j->rec.hash, 32) == 0))
         j = j->next;
     if (j && !j->bundle && s->state &&
         srv_state_load_bundle(s->state, j->rec.id, j->rec.hash, &j->bundle, &err) != PT_OK) {
@@ -705,7 +773,7 @@ pt_status srv_queue_log_result(srv_server *s, srv_entry *j, uint64_t owner, cons
 static void on_commit(void *ctx, uint64_t id, pt_status st, const pt_error *err)
 {
     srv_server *s = ctx;
-    srv_entry *j = srv_queue_find(s, id);
+    srv_entry *j = srv_queue_find_any(s, id); /* a frame's too */
     if (!j || !j->job)
         return;
     if (st != PT_OK) {
@@ -849,7 +917,7 @@ void srv_queue_tick(srv_server *s, uint64_t now)
         /* Checkpoint cost stays proportional to what the log has taken in. */
         if (s->state && !j->paused && !srv_state_checkpoint_busy(s->state)) {
             const pt_film *f = srv_job_film(j->job);
-            uint64_t film_bytes = (uint64_t)f->width * f->height * PROTO_RESULT_PIXEL_SIZE;
+            uint64_t film_bytes = (uint64_t)f->width * f->height * sizeof(pt_pixel_acc);
             if (srv_state_log_bytes(s->state, j->rec.id) >=
                 srv_state_ckpt_limit(s->state, film_bytes))
                 checkpoint_start(s, j);
@@ -859,7 +927,7 @@ void srv_queue_tick(srv_server *s, uint64_t now)
     pt_status cst;
     pt_error err = {0};
     if (s->state && srv_state_checkpoint_collect(s->state, &id, &cst, &err) && cst != PT_OK) {
-        srv_entry *j = srv_queue_find(s, id);
+        srv_entry *j = srv_queue_find_any(s, id);
         s->counters.state_write_errors++;
         if (j && j->job && srv_entry_active(j) && err.code == PT_ERR_IO) {
             j->pending_ckpt = 1;

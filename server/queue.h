@@ -79,7 +79,14 @@ struct srv_entry {
     int final_pending;               /* complete, but its final image is not written yet */
     char out_reason[160];            /* why the last image write failed ("" when none) */
     unsigned long save_fails_logged; /* progressive saves failed in a row, logged once */
-    srv_entry *next;                 /* the queue's order */
+    /* A frame-range job (server/frames.h): the range holds its frames
+     * rendering (frames); each frame is an entry of this list too, a still
+     * of its own with parent set and its frame number. Frame entries are
+     * not journaled, listed or found by id (srv_queue_find_any finds them). */
+    struct srv_frames *frames;
+    srv_entry *parent;
+    uint32_t frame;
+    srv_entry *next; /* the queue's order */
 };
 
 /* 1 while j is QUEUED or RUNNING. */
@@ -103,8 +110,12 @@ void srv_entry_save_image(srv_entry *j);
  * and returned. */
 pt_status srv_entry_checkpoint(srv_server *s, srv_entry *j, pt_error *err);
 
-/* The job with id, NULL when there is none. */
+/* The job with id, NULL when there is none (a frame of a frame-range job
+ * is not a job of the queue: NULL for its id). */
 srv_entry *srv_queue_find(srv_server *s, uint64_t id);
+
+/* The entry whose tasks carry job id, a frame's included (RESULT). */
+srv_entry *srv_queue_find_any(srv_server *s, uint64_t id);
 
 /* The active job whose scene has this SHA-256, its bundle loaded (a bundle
  * that does not load fails the job); NULL when there is none. */

@@ -1,6 +1,7 @@
 #include "server/requests.h"
 
 #include <errno.h>
+#include <limits.h>
 #include <stdio.h>
 #include <string.h>
 #include <time.h>
@@ -11,6 +12,7 @@
 #include "common/base/text.h"
 #include "common/scene/scene.h"
 #include "protocol/msg.h"
+#include "server/frames.h"
 #include "server/job.h"
 #include "server/loop.h"
 #include "server/queue.h"
@@ -85,7 +87,7 @@ static uint32_t owner_unfinished(const srv_server *s, const char *owner)
 {
     uint32_t n = 0;
     for (const srv_entry *j = s->jobs; j; j = j->next)
-        n += srv_entry_active(j) && strcmp(j->rec.owner, owner) == 0;
+        n += srv_entry_active(j) && !j->parent && strcmp(j->rec.owner, owner) == 0;
     return n;
 }
 
@@ -165,6 +167,11 @@ static void on_submit(srv_server *s, srv_conn *c, const proto_frame *f)
                             (double)m.env.strength, (double)m.env.rotate_deg);
         return;
     }
+    /* A range's shape is the decoder's (pt_frames_check); its rate's cap: */
+    if (m.frame_step && !(m.fps <= 1e6)) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "%g frames per second is over 1e6", m.fps);
+        return;
+    }
     if (owner_unfinished(s, c->name) >= cap->max_queued) {
         srv_conn_send_error(s, c, PROTO_E_LIMIT,
                             "%s already has %u unfinished jobs, this "
@@ -227,7 +234,19 @@ static void output_name(srv_job_record *r)
     if (!r->name[0] && dot && dot != stem)
         *dot = '\0';
     sanitise(stem, safe, sizeof safe);
-    snprintf(r->output, sizeof r->output, "%llu-%s.exr", (unsigned long long)r->id, safe);
+    if (!r->frames.step) {
+        snprintf(r->output, sizeof r->output, "%llu-%s.exr", (unsigned long long)r->id, safe);
+        return;
+    }
+    /* A frame range: ID-NAME.####.exr, as many '#' as its last frame has
+     * digits, at least 4 (server/frames.h names each frame's file). */
+    char hashes[16];
+    int width = snprintf(hashes, sizeof hashes, "%u", r->frames.last);
+    width = width < 4 ? 4 : width;
+    memset(hashes, '#', (size_t)width);
+    hashes[width] = '\0';
+    snprintf(r->output, sizeof r->output, "%llu-%s.%s.exr", (unsigned long long)r->id, safe,
+             hashes);
 }
 
 void srv_requests_verified(srv_server *s, srv_conn *c, srv_upload *k)
@@ -264,6 +283,9 @@ void srv_requests_verified(srv_server *s, srv_conn *c, srv_upload *k)
     r->params = p;
     memcpy(r->hash, m->bundle_hash, 32);
     r->bundle_size = b->size;
+    r->frames = (pt_frames){m->frame_first, m->frame_last, m->frame_step};
+    r->fps = m->fps;
+    snprintf(r->animation, sizeof r->animation, "%s", m->animation);
     output_name(r);
     snprintf(j->out_path, sizeof j->out_path, "%s/%s", s->out_dir, r->output);
     srv_job *probe = NULL;
@@ -286,10 +308,13 @@ void srv_requests_verified(srv_server *s, srv_conn *c, srv_upload *k)
         srv_conn_send_error(s, c, PROTO_E_INTERNAL, "cannot write the queue: %s", err.msg);
         return;
     }
-    char scene[PT_TEXT_ESCAPED_SIZE(PROTO_MAX_PATH)];
-    srv_log("job %llu queued from %s: %s (%u triangles), %ux%u, %u spp, priority %d",
+    char scene[PT_TEXT_ESCAPED_SIZE(PROTO_MAX_PATH)], range[64] = "";
+    if (r->frames.step)
+        snprintf(range, sizeof range, ", frames %u-%u:%u at %g fps", r->frames.first,
+                 r->frames.last, r->frames.step, r->fps);
+    srv_log("job %llu queued from %s: %s (%u triangles), %ux%u, %u spp%s, priority %d",
             (unsigned long long)r->id, c->shown, pt_text_shown(r->scene, scene, sizeof scene),
-            ntris, p.width, p.height, p.spp, r->priority);
+            ntris, p.width, p.height, p.spp, range, r->priority);
     proto_job_ref ref = {r->id};
     size_t mark;
     if (proto_frame_begin(&c->out, PROTO_MSG_SUBMITTED, &mark, NULL) == PT_OK)
@@ -369,7 +394,8 @@ static void on_list(srv_server *s, srv_conn *c, const proto_frame *f)
     }
     uint32_t k = 0;
     for (srv_entry *j = s->jobs; j && k < n; j = j->next)
-        srv_queue_info(s, j, &infos[k++]);
+        if (!j->parent) /* a frame: its range shows it */
+            srv_queue_info(s, j, &infos[k++]);
     size_t mark;
     pt_status st = proto_frame_begin(&c->out, PROTO_MSG_JOB_LIST, &mark, NULL);
     if (st == PT_OK)
@@ -379,7 +405,7 @@ static void on_list(srv_server *s, srv_conn *c, const proto_frame *f)
     pt_free(infos);
 }
 
-static void on_fetch(srv_server *s, srv_conn *c, srv_entry *j)
+static void on_fetch(srv_server *s, srv_conn *c, srv_entry *j, const char *path)
 {
     pt_error err = {0};
     if (c->fetch) {
@@ -389,7 +415,7 @@ static void on_fetch(srv_server *s, srv_conn *c, srv_entry *j)
     uint8_t *data;
     size_t len;
     /* Not through a link planted in the output folder, a regular file only. */
-    if (pt_read_file_nofollow(j->out_path, MAX_FETCH, &data, &len, &err) != PT_OK) {
+    if (pt_read_file_nofollow(path, MAX_FETCH, &data, &len, &err) != PT_OK) {
         if (err.sys_errno == ENOENT)
             srv_conn_send_error(s, c, PROTO_E_NOT_FOUND, "job %llu has no image yet (%s)",
                                 (unsigned long long)j->rec.id, proto_job_state_name(j->rec.state));
@@ -413,6 +439,33 @@ static void on_fetch(srv_server *s, srv_conn *c, srv_entry *j)
     c->fetch_len = len;
     c->fetch_off = 0;
     srv_requests_pump_fetch(s, c);
+}
+
+static void on_fetch_frame(srv_server *s, srv_conn *c, const proto_frame *f)
+{
+    proto_fetch_frame m;
+    pt_error err = {0};
+    if (proto_msg_decode_fetch_frame(f->payload, f->len, &m, &err) != PT_OK) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "bad FETCH_FRAME: %s", err.msg);
+        return;
+    }
+    srv_entry *j = srv_queue_find(s, m.job_id);
+    if (!j) {
+        srv_conn_send_error(s, c, PROTO_E_NOT_FOUND, "no job %llu", (unsigned long long)m.job_id);
+        return;
+    }
+    if (!j->rec.frames.step) {
+        srv_conn_send_error(s, c, PROTO_E_NOT_FOUND,
+                            "job %llu is a still, not a frame range (fetch it without --frame)",
+                            (unsigned long long)m.job_id);
+        return;
+    }
+    char path[PATH_MAX];
+    if (srv_frames_path(j, m.frame, path, sizeof path, &err) != PT_OK) {
+        srv_conn_send_error(s, c, PROTO_E_NOT_FOUND, "%s", err.msg);
+        return;
+    }
+    on_fetch(s, c, j, path);
 }
 
 /* 1 when c may change job j (cancel it): c owns it or is an admin (every
@@ -468,8 +521,19 @@ void srv_requests_dispatch(srv_server *s, srv_conn *c, const proto_frame *f)
         }
         break;
     case PROTO_MSG_FETCH:
-        if (read_job_ref(s, c, f, &j))
-            on_fetch(s, c, j);
+        if (read_job_ref(s, c, f, &j)) {
+            char path[PATH_MAX];
+            /* A frame range's latest image: the earliest frame rendering, or
+             * the last one done (FETCH_FRAME names one). */
+            if (j->rec.frames.step)
+                srv_frames_latest(j, path, sizeof path);
+            else
+                snprintf(path, sizeof path, "%s", j->out_path);
+            on_fetch(s, c, j, path);
+        }
+        break;
+    case PROTO_MSG_FETCH_FRAME:
+        on_fetch_frame(s, c, f);
         break;
     case PROTO_MSG_ERROR:
         srv_conn_peer_error(s, c, f, "client");

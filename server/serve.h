@@ -23,6 +23,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "common/base/frames.h"
 #include "protocol/auth.h"
 #include "server/job.h"
 
@@ -57,6 +58,7 @@ typedef struct srv_config {
     const char *worker_bin;     /* NULL: ptworker beside this program */
     double save_interval;       /* seconds between progressive saves, at most this often */
     uint32_t lease_ms;
+    uint32_t task_ms;        /* time-sized tasks of about this long; 0: fixed chunks (job.h) */
     double verify_fraction;  /* share of tasks rendered twice and compared (server/job.h) */
     uint32_t handshake_ms;   /* a peer must authenticate within this time */
     uint32_t local_workers;  /* spawn this many ptworker processes */
@@ -67,8 +69,11 @@ typedef struct srv_config {
     srv_caps caps;           /* queue mode: what a client may ask for */
     srv_peer_limits limits;  /* memory, connections and rates of peers */
     int quiet;
-    const char *env_path; /* one-job mode: the environment map packed with the scene
-                           * (job.env then names it PT_BUNDLE_ENV_NAME); NULL: none */
+    const char *env_path;  /* one-job mode: the environment map packed with the scene
+                            * (job.env then names it PT_BUNDLE_ENV_NAME); NULL: none */
+    pt_frames frames;      /* one-job mode: a frame range (server/frames.h); step 0: a still */
+    double fps;            /* its frames per second */
+    const char *animation; /* its animation; NULL: every one */
 } srv_config;
 
 /* Runs the coordinator. One-job mode: exit status 0 when the image is

@@ -4,6 +4,7 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <limits.h>
+#include <math.h>
 #include <pthread.h>
 #include <stdatomic.h>
 #include <stdio.h>
@@ -18,6 +19,7 @@
 #include "common/base/alloc.h"
 #include "common/base/fsutil.h"
 #include "common/base/hash.h"
+#include "common/render/render.h"
 #include "protocol/frame.h"
 #include "protocol/wire.h"
 
@@ -25,7 +27,7 @@
 #define CKPT_MAGIC 0x4b435450u  /* "PTCK" */
 #define LOG_MAGIC 0x4c525450u   /* "PTRL": records of u32 length, u32 CRC32C, payload */
 #define FLOG_MAGIC 0x46525450u  /* "PTRF": records are RESULT frames as received */
-#define STATE_VERSION 4u
+#define STATE_VERSION 6u
 /* The oldest format still read: version 2 has no min gain (read as 0, the
  * rule off), versions 2 and 3 no environment and no film flags (read as
  * none) and protocol 2's RESULT in the log, so a state folder survives the
@@ -38,6 +40,12 @@
  * rewritten. One format version brought both. */
 #define STATE_ENV_VERSION 4u
 #define STATE_FILM_VERSION STATE_ENV_VERSION
+/* The first with protocol 4's RESULT (fixed-point sums) in the log; an older
+ * log's double sums are converted as it is read (log_upgrade_fixed). */
+#define STATE_FIXED_VERSION 5u
+/* The first with a frame-range job's range, pose and frames done in its
+ * queue record (older records are stills). */
+#define STATE_FRAMES_VERSION 6u
 #define LOG_HEADER 16u
 #define MAX_QUEUE_BYTES (256u << 20)
 #define MAX_CKPT_BYTES ((size_t)8 << 30)
@@ -332,6 +340,15 @@ pt_status srv_state_save_queue(srv_state *st, srv_job_record *const *recs, uint3
         proto_w_f64(&w, j->error);
         proto_w_str(&w, j->message);
         proto_w_u64(&w, j->capped);
+        proto_w_u32(&w, j->frames.first);
+        proto_w_u32(&w, j->frames.last);
+        proto_w_u32(&w, j->frames.step);
+        proto_w_f64(&w, j->fps);
+        proto_w_str(&w, j->animation);
+        proto_w_u32(&w, j->frames_done);
+        proto_w_u8(&w, (uint8_t)j->ndone_ahead);
+        for (uint32_t k = 0; k < j->ndone_ahead; k++)
+            proto_w_u32(&w, j->done_ahead[k]);
     }
     pt_status s = end_file(&w, path, err);
     proto_writer_fini(&w);
@@ -342,6 +359,32 @@ pt_status srv_state_save_queue(srv_state *st, srv_job_record *const *recs, uint3
 int srv_state_queue_unsaved(const srv_state *st)
 {
     return st->queue_unsaved;
+}
+
+/* A record's frame range, pose and frames done; what does not check out
+ * fails r. */
+static void read_frames(proto_reader *r, srv_job_record *j)
+{
+    j->frames.first = proto_r_u32(r, "first frame");
+    j->frames.last = proto_r_u32(r, "last frame");
+    j->frames.step = proto_r_u32(r, "frame step");
+    j->fps = proto_r_f64(r, "frames per second");
+    proto_r_str(r, j->animation, sizeof j->animation - 1, "animation");
+    j->frames_done = proto_r_u32(r, "frames done");
+    j->ndone_ahead = proto_r_u8(r, "frames done ahead");
+    if (r->status != PT_OK)
+        return;
+    uint32_t count = pt_frames_count(&j->frames);
+    if (pt_frames_check(&j->frames, NULL) != PT_OK || j->frames_done > count ||
+        j->ndone_ahead > SRV_FRAMES_AHEAD || (j->frames.step && !(j->fps > 0.0 && j->fps < 1e9))) {
+        proto_r_fail(r, PT_ERR_FORMAT, "bad", "frame range or frames done");
+        return;
+    }
+    for (uint32_t k = 0; k < j->ndone_ahead && r->status == PT_OK; k++) {
+        j->done_ahead[k] = proto_r_u32(r, "frame done ahead");
+        if (r->status == PT_OK && (j->done_ahead[k] <= j->frames_done || j->done_ahead[k] >= count))
+            proto_r_fail(r, PT_ERR_FORMAT, "bad", "frame done ahead");
+    }
 }
 
 pt_status srv_state_load_queue(srv_state *st, srv_job_record **recs, uint32_t *n, uint64_t *next_id,
@@ -399,6 +442,8 @@ pt_status srv_state_load_queue(srv_state *st, srv_job_record **recs, uint32_t *n
         j->error = proto_r_f64(&r, "error");
         proto_r_str(&r, j->message, sizeof j->message - 1, "message");
         j->capped = version >= STATE_FILM_VERSION ? proto_r_u64(&r, "paths capped") : 0;
+        if (version >= STATE_FRAMES_VERSION)
+            read_frames(&r, j);
         if (r.status == PT_OK && (j->id == 0 || j->id >= nid || j->state < PROTO_JOB_QUEUED ||
                                   j->state > PROTO_JOB_FAILED))
             proto_r_fail(&r, PT_ERR_FORMAT, "bad", "job id or state");
@@ -501,7 +546,11 @@ static pt_status open_log(srv_state *st, uint64_t id, log_file **out, pt_error *
         st->logs_cap = cap;
     }
     char p[PATH_MAX];
-    job_path(st, id, "results.log", p, sizeof p);
+    /* The folder is made here too: a frame of a frame-range job has no
+     * bundle of its own, so its first file may be its log. */
+    pt_status ms = job_file(st, id, "results.log", p, sizeof p, err);
+    if (ms != PT_OK)
+        return ms;
     int fd = open(p, O_RDWR | O_CREAT | O_APPEND | O_NOFOLLOW | O_CLOEXEC, 0600);
     if (fd < 0)
         return pt_error_errno(err, PT_ERR_IO, "%s", p);
@@ -1003,11 +1052,57 @@ static size_t log_upgrade_record(const uint8_t *pl, size_t n, uint8_t *out)
     proto_put_u64(out + 56, 0);
     memcpy(out + 64, pl + 56, 4);
     for (size_t i = 0; i < npx; i++) {
-        uint8_t *q = out + PROTO_RESULT_HEADER_SIZE + i * PROTO_RESULT_PIXEL_SIZE;
+        uint8_t *q = out + 68 + i * 40;
         memcpy(q, pl + 60 + i * 36, 36);
         memcpy(q + 36, pl + 60 + i * 36 + 32, 4);
     }
-    return PROTO_RESULT_HEADER_SIZE + npx * PROTO_RESULT_PIXEL_SIZE;
+    return 68 + npx * 40;
+}
+
+/* A RESULT payload of protocol 3 (68 bytes of header, 40 per pixel with
+ * double sums) in protocol 4's layout (msg.h), written into w (reset first);
+ * px is scratch for PROTO_MAX_TILE_PIXELS pixels. Each double sum becomes
+ * fixed point by the rounding a block's sum gets (pt_fixed_of): the same
+ * bits on every coordinator, so resuming from an old log loses no work.
+ * Returns the length, or 0 when pl is not of that shape or a sum is not one a
+ * render gives (not finite, negative, above the cap), and the decoder then
+ * names the fault. */
+static size_t log_upgrade_fixed(const uint8_t *pl, size_t n, pt_pixel_acc *px, proto_writer *w)
+{
+    if (n < 68 || (n - 68) % 40 != 0 || (n - 68) / 40 > PROTO_MAX_TILE_PIXELS)
+        return 0;
+    proto_result m = {0};
+    m.job_id = proto_get_u64(pl);
+    m.task_id = proto_get_u64(pl + 8);
+    m.tile = (pt_rect){proto_get_u32(pl + 16), proto_get_u32(pl + 20), proto_get_u32(pl + 24),
+                       proto_get_u32(pl + 28)};
+    m.s0 = proto_get_u32(pl + 32);
+    m.s1 = proto_get_u32(pl + 36);
+    m.rejected = proto_get_u64(pl + 40);
+    m.rays = proto_get_u64(pl + 48);
+    m.capped = proto_get_u64(pl + 56);
+    m.npixels = (uint32_t)((n - 68) / 40);
+    m.pixels = px;
+    for (uint32_t i = 0; i < m.npixels; i++) {
+        const uint8_t *q = pl + 68 + (size_t)i * 40;
+        px[i].n = proto_get_u32(q + 32);
+        px[i].hits = proto_get_u32(q + 36);
+        for (int c = 0; c < 3; c++) {
+            double d = proto_get_f64(q + 8 * c);
+            if (!(d >= 0.0 && d <= PT_MAX_SAMPLE_RADIANCE * px[i].n))
+                return 0;
+            px[i].fsum[c] = pt_fixed_of(d);
+        }
+        double sq = proto_get_f64(q + 24);
+        if (!(sq >= 0.0 && sq <= INFINITY))
+            return 0;
+        px[i].fsum_sq = pt_ufixed_of(sq);
+    }
+    proto_writer_reset(w);
+    pt_error e = {0};
+    if (proto_msg_encode_result(w, &m, &e) != PT_OK)
+        return 0;
+    return w->len;
 }
 
 /* Merges one RESULT payload of the log into job. */
@@ -1034,11 +1129,54 @@ static pt_status replay_one(srv_job *job, const uint8_t *pl, size_t n, pt_pixel_
     return PT_OK;
 }
 
+/* The oldest protocol whose RESULT frames a log may hold: 3 (double sums,
+ * upgraded to fixed point as read); from PROTO_FIXED_RESULT on the RESULT
+ * layout is the current one (later versions changed only TASK and SUBMIT). */
+#define LOG_OLDEST_PROTO 3u
+#define PROTO_FIXED_RESULT 4u
+
+/* Decodes the record at b[0, len) of a frames log: a RESULT frame of any
+ * protocol from LOG_OLDEST_PROTO to PROTO_VERSION (proto_frame_decode takes
+ * only the current one, and a log outlives a protocol bump). PT_AGAIN when
+ * the bytes end inside it. */
+static pt_status log_frame_decode(const uint8_t *b, size_t len, proto_frame *f, size_t *used,
+                                  pt_error *err)
+{
+    if (len < PROTO_FRAME_HEADER)
+        return PT_AGAIN;
+    if (memcmp(b, PROTO_MAGIC, 4) != 0)
+        return pt_error_set(err, PT_ERR_FORMAT, "not a frame (bad magic)");
+    uint16_t version = proto_get_u16(b + 4), type = proto_get_u16(b + 6);
+    uint32_t plen = proto_get_u32(b + 8);
+    if (version < LOG_OLDEST_PROTO || version > PROTO_VERSION)
+        return pt_error_set(err, PT_ERR_FORMAT,
+                            "a frame of protocol %u; this ptserve reads logs of protocols %u to %u",
+                            (unsigned)version, LOG_OLDEST_PROTO, PROTO_VERSION);
+    if (type != PROTO_MSG_RESULT)
+        return pt_error_set(err, PT_ERR_FORMAT, "not a RESULT (type %u)", (unsigned)type);
+    if (plen > PROTO_MAX_PAYLOAD)
+        return pt_error_set(err, PT_ERR_FORMAT, "payload length %u over the cap", (unsigned)plen);
+    size_t total = (size_t)PROTO_FRAME_OVERHEAD + plen;
+    if (len < total)
+        return PT_AGAIN;
+    if (proto_crc32c(0, b, PROTO_FRAME_HEADER + (size_t)plen) !=
+        proto_get_u32(b + PROTO_FRAME_HEADER + plen))
+        return pt_error_set(err, PT_ERR_FORMAT, "bad CRC");
+    f->version = version;
+    f->type = type;
+    f->len = plen;
+    f->payload = b + PROTO_FRAME_HEADER;
+    *used = total;
+    return PT_OK;
+}
+
 /* Replays the log at p (results.old or results.log) into job. A log of
- * records (PTRL, an older ptserve's: u32 length, u32 CRC32C, payload) is
- * rewritten as frames (PTRF) once replayed, so that records appended later
- * never follow records of another layout; its protocol 2 payloads are
- * upgraded on the way. A torn last record is cut off (*torn). */
+ * records (PTRL, an older ptserve's: u32 length, u32 CRC32C, payload) or a
+ * frames log holding protocol 3 frames (double sums) is rewritten as frames
+ * of the current protocol once replayed, so that records appended later never
+ * follow records of another layout; its older payloads are upgraded on the
+ * way (log_upgrade_record, log_upgrade_fixed). A torn last record is cut off
+ * (*torn). */
 static pt_status replay_log(const char *p, srv_job *job, srv_ckpt_extra *x, uint32_t *replayed,
                             int *torn, pt_error *err)
 {
@@ -1050,15 +1188,18 @@ static pt_status replay_log(const char *p, srv_job *job, srv_ckpt_extra *x, uint
         return (s == PT_ERR_IO && err->sys_errno == ENOENT) ? PT_OK : s;
     size_t good = 0;
     uint8_t *upbuf = NULL;
-    proto_writer up;
+    proto_writer up, rec;
     proto_writer_init(&up, (size_t)64 << 30);
+    proto_writer_init(&rec, (size_t)1 << 30);
     int frames = 0, rewrite = 0;
+    uint32_t logver = 0;
     if (len < LOG_HEADER) {
         *torn = len > 0; /* the header write itself was cut short */
     } else if ((proto_get_u32(data) != LOG_MAGIC && proto_get_u32(data) != FLOG_MAGIC) ||
                !version_read(proto_get_u32(data + 4)) || proto_get_u64(data + 8) != id) {
         pt_free(data);
         proto_writer_fini(&up);
+        proto_writer_fini(&rec);
         return pt_error_set(err, PT_ERR_FORMAT,
                             "%s: not the results log of job %llu (bad "
                             "header); refusing to use it",
@@ -1066,20 +1207,19 @@ static pt_status replay_log(const char *p, srv_job *job, srv_ckpt_extra *x, uint
     } else {
         good = LOG_HEADER;
         frames = proto_get_u32(data) == FLOG_MAGIC;
+        logver = proto_get_u32(data + 4);
         rewrite = !frames;
-        int old = !frames && proto_get_u32(data + 4) < STATE_FILM_VERSION;
-        if (rewrite) {
-            upbuf = pt_malloc(PROTO_RESULT_HEADER_SIZE +
-                              (size_t)PROTO_RESULT_PIXEL_SIZE * PROTO_MAX_TILE_PIXELS);
-            proto_w_u32(&up, FLOG_MAGIC);
-            proto_w_u32(&up, STATE_VERSION);
-            proto_w_u64(&up, id);
-        }
+        upbuf = pt_malloc(PROTO_RESULT_HEADER_SIZE +
+                          (size_t)PROTO_RESULT_WIDE_PIXEL_SIZE * PROTO_MAX_TILE_PIXELS);
+        proto_w_u32(&up, FLOG_MAGIC);
+        proto_w_u32(&up, STATE_VERSION);
+        proto_w_u64(&up, id);
         pt_pixel_acc *buf = pt_malloc_array(PROTO_MAX_TILE_PIXELS, sizeof *buf);
-        if (!buf || (rewrite && !upbuf)) {
+        if (!buf || !upbuf) {
             pt_free(buf);
             pt_free(upbuf);
             proto_writer_fini(&up);
+            proto_writer_fini(&rec);
             pt_free(data);
             return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
         }
@@ -1087,11 +1227,10 @@ static pt_status replay_log(const char *p, srv_job *job, srv_ckpt_extra *x, uint
             const uint8_t *pl;
             size_t n, next;
             if (frames) {
-                proto_frame f;
-                size_t used;
+                proto_frame f = {0};
+                size_t used = 0;
                 pt_error e2 = {0};
-                pt_status fs =
-                    proto_frame_decode(data + good, len - good, PROTO_MAX_PAYLOAD, &f, &used, &e2);
+                pt_status fs = log_frame_decode(data + good, len - good, &f, &used, &e2);
                 if (fs == PT_AGAIN) {
                     *torn = 1; /* the last write was cut short by the crash */
                     break;
@@ -1105,15 +1244,35 @@ static pt_status replay_log(const char *p, srv_job *job, srv_ckpt_extra *x, uint
                     *torn = 1;
                     break;
                 }
-                if (fs != PT_OK || f.type != PROTO_MSG_RESULT) {
+                if (fs != PT_OK) {
                     s = pt_error_set(err, PT_ERR_FORMAT,
                                      "%s: record at byte %zu is damaged (%s); refusing to use it",
-                                     p, good, fs != PT_OK ? e2.msg : "not a RESULT");
+                                     p, good, e2.msg);
                     break;
                 }
                 pl = f.payload;
                 n = f.len;
                 next = good + used;
+                if (f.version < PROTO_FIXED_RESULT) {
+                    /* Double sums: this record and every later one go into a
+                     * rewritten log, the records before it as they are. */
+                    if (!rewrite) {
+                        proto_w_bytes(&up, data + LOG_HEADER, good - LOG_HEADER);
+                        rewrite = 1;
+                    }
+                    size_t k = log_upgrade_fixed(pl, n, buf, &rec);
+                    if (k == 0) {
+                        s = pt_error_set(err, PT_ERR_FORMAT,
+                                         "%s: record at byte %zu is a protocol %u RESULT that "
+                                         "cannot be upgraded; refusing to use it",
+                                         p, good, (unsigned)f.version);
+                        break;
+                    }
+                    pl = rec.buf;
+                    n = k;
+                }
+                if (rewrite)
+                    proto_frame_encode(&up, PROTO_MSG_RESULT, pl, n, NULL);
             } else {
                 if (len - good < 8 || len - good - 8 < proto_get_u32(data + good)) {
                     *torn = 1;
@@ -1133,11 +1292,15 @@ static pt_status replay_log(const char *p, srv_job *job, srv_ckpt_extra *x, uint
                                      p, good);
                     break;
                 }
-                if (old) {
-                    size_t rn = log_upgrade_record(pl, n, upbuf);
-                    if (rn) {
+                if (logver < STATE_FIXED_VERSION) {
+                    size_t k = logver < STATE_FILM_VERSION ? log_upgrade_record(pl, n, upbuf) : 0;
+                    if (k) {
                         pl = upbuf;
-                        n = rn;
+                        n = k;
+                    }
+                    if ((k = log_upgrade_fixed(pl, n, buf, &rec)) != 0) {
+                        pl = rec.buf;
+                        n = k;
                     }
                 }
                 proto_frame_encode(&up, PROTO_MSG_RESULT, pl, n, NULL);
@@ -1150,6 +1313,7 @@ static pt_status replay_log(const char *p, srv_job *job, srv_ckpt_extra *x, uint
         pt_free(upbuf);
     }
     pt_free(data);
+    proto_writer_fini(&rec);
     if (s == PT_OK && rewrite) {
         /* Whole records only: a torn last one is left out. */
         s = proto_writer_status(&up) != PT_OK

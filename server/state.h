@@ -53,9 +53,13 @@
 #include <stdint.h>
 
 #include "common/base/error.h"
+#include "common/base/frames.h"
 #include "common/scene/bundle.h"
 #include "protocol/msg.h"
 #include "server/job.h"
+
+/* Frames of one frame-range job rendering at once (server/frames.h). */
+#define SRV_FRAMES_AHEAD 8u
 
 /* One job's durable record: its entry in the queue file. */
 typedef struct srv_job_record {
@@ -75,6 +79,19 @@ typedef struct srv_job_record {
     double error;          /* estimated relative error when it ended; < 0 unknown */
     char message[PROTO_MAX_ERROR_TEXT + 1];
     uint64_t capped; /* paths ended by the depth cap, set when the job ends */
+    /* A frame-range job (server/frames.h; format 5, none from older ones):
+     * its range (step 0: a still, and the rest unused), the pose's frame rate
+     * and animation, and the frames done: every index below frames_done, and
+     * the ndone_ahead indices in done_ahead (frames past the first one not
+     * done that finished first; never more than SRV_FRAMES_AHEAD, as no
+     * frame further on is started). Written before a done frame's files go,
+     * so a frame is never rendered again after a restart. */
+    pt_frames frames;
+    double fps;
+    char animation[PROTO_MAX_NAME + 1];
+    uint32_t frames_done;
+    uint32_t ndone_ahead;
+    uint32_t done_ahead[SRV_FRAMES_AHEAD];
 } srv_job_record;
 
 #define SRV_MAX_JOBS 100000u /* records in one queue file */

@@ -8,6 +8,7 @@
 #include <unistd.h>
 
 #include "common/base/alloc.h"
+#include "common/base/frames.h"
 #include "common/base/fsutil.h"
 #include "common/base/hash.h"
 #include "common/render/env.h"
@@ -93,6 +94,13 @@ static void verify_upload(srv_upload *k)
         so.camera_name = k->m.camera[0] ? k->m.camera : NULL;
         /* An unknown variant fails the load, naming the scene's variants. */
         so.variant = k->m.variant[0] ? k->m.variant : NULL;
+        /* A frame range is loaded posed at its first frame, so an animation
+         * the scene lacks is refused here, naming the scene's animations. */
+        if (k->m.frame_step) {
+            so.animate = 1;
+            so.time = pt_frames_time(k->m.frame_first, k->m.fps);
+            so.animation = k->m.animation[0] ? k->m.animation : NULL;
+        }
         st = pt_scene_load(entry, &so, &scene, &err);
     }
     if (st == PT_OK && ev->name[0]) {

@@ -231,7 +231,7 @@ static void on_result(srv_server *s, srv_conn *c, const proto_frame *f)
         srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "bad RESULT: %s", err.msg);
         return;
     }
-    srv_entry *j = srv_queue_find(s, r.job_id);
+    srv_entry *j = srv_queue_find_any(s, r.job_id); /* a frame's too */
     if (!j || !srv_entry_active(j) || !j->job || j->paused) {
         proto_result_fini(&r); /* a job that ended (cancelled) or paused: nothing to do */
         return;

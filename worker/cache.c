@@ -14,6 +14,7 @@
 #include <unistd.h>
 
 #include "common/base/alloc.h"
+#include "common/base/clock.h"
 #include "common/base/fsutil.h"
 #include "common/base/hash.h"
 #include "common/render/env.h"
@@ -278,7 +279,10 @@ struct wrk_scene_ref {
     char camera[64];                  /* pt_camera's name: "" the default view */
     char variant[PROTO_MAX_NAME + 1]; /* KHR_materials_variants name: "" the default materials */
     proto_env env;                    /* the key's environment; proto_env_none when there is none */
-    pt_env *envobj;                   /* built from it, NULL for none; outlives renderer */
+    int animate;                      /* the pose (wrk_pose); time 0 and "" when still */
+    uint64_t time_bits;
+    char animation[PROTO_MAX_NAME + 1];
+    pt_env *envobj; /* built from it, NULL for none; outlives renderer */
     pt_scene *scene;
     pt_renderer *renderer;
     int state;
@@ -294,6 +298,7 @@ struct wrk_scenes {
     wrk_scene_ref *head;
     uint32_t count, max;
     uint64_t builds, tick;
+    double build_seconds; /* loading and building, over every build */
 };
 
 pt_status wrk_scenes_new(uint32_t max, wrk_scenes **out, pt_error *err)
@@ -417,6 +422,9 @@ static pt_status build(wrk_scene_ref *e, const char *entry_path)
     memset(&so, 0, sizeof so);
     so.camera_name = e->camera[0] ? e->camera : NULL;
     so.variant = e->variant[0] ? e->variant : NULL;
+    so.animate = e->animate;
+    memcpy(&so.time, &e->time_bits, sizeof so.time);
+    so.animation = e->animation[0] ? e->animation : NULL;
     pt_status st = build_env(e, entry_path);
     if (st != PT_OK)
         return st;
@@ -458,6 +466,26 @@ pt_status wrk_scenes_acquire_variant(wrk_scenes *s, const uint8_t hash[WRK_HASH_
                                      const char *variant, const proto_env *env,
                                      const char *entry_path, wrk_scene_ref **out, pt_error *err)
 {
+    return wrk_scenes_acquire_posed(s, hash, params, camera, variant, env, NULL, entry_path, out,
+                                    err);
+}
+
+pt_status wrk_scenes_acquire_posed(wrk_scenes *s, const uint8_t hash[WRK_HASH_SIZE],
+                                   const pt_render_params *params, const char *camera,
+                                   const char *variant, const proto_env *env, const wrk_pose *pose,
+                                   const char *entry_path, wrk_scene_ref **out, pt_error *err)
+{
+    /* One key for the still pose, however the fields unused then were set. */
+    int animate = pose && pose->animate;
+    uint64_t time_bits = 0;
+    const char *animation = "";
+    if (animate) {
+        memcpy(&time_bits, &pose->time, sizeof time_bits);
+        animation = pose->animation ? pose->animation : "";
+    }
+    if (strlen(animation) > PROTO_MAX_NAME)
+        return pt_error_set(err, PT_ERR_ARG, "animation name '%.64s...' is over %u bytes",
+                            animation, PROTO_MAX_NAME);
     /* One key for "no environment", however the fields unused then were set. */
     proto_env key;
     if (env && proto_env_any(env))
@@ -478,7 +506,8 @@ pt_status wrk_scenes_acquire_variant(wrk_scenes *s, const uint8_t hash[WRK_HASH_
     wrk_scene_ref *e = s->head;
     while (e && !(memcmp(e->hash, hash, WRK_HASH_SIZE) == 0 && same_params(&e->params, params) &&
                   strcmp(e->camera, camera) == 0 && strcmp(e->variant, variant) == 0 &&
-                  proto_env_same(&e->env, &key)))
+                  proto_env_same(&e->env, &key) && e->animate == animate &&
+                  e->time_bits == time_bits && strcmp(e->animation, animation) == 0))
         e = e->next;
     if (e) {
         e->refs++;
@@ -505,6 +534,9 @@ pt_status wrk_scenes_acquire_variant(wrk_scenes *s, const uint8_t hash[WRK_HASH_
     e->env = key;
     snprintf(e->camera, sizeof e->camera, "%s", camera);
     snprintf(e->variant, sizeof e->variant, "%s", variant);
+    e->animate = animate;
+    e->time_bits = time_bits;
+    snprintf(e->animation, sizeof e->animation, "%s", animation);
     e->state = E_BUILDING;
     e->refs = 1;
     e->next = s->head;
@@ -513,9 +545,12 @@ pt_status wrk_scenes_acquire_variant(wrk_scenes *s, const uint8_t hash[WRK_HASH_
     s->builds++;
     pthread_mutex_unlock(&s->mu);
 
+    double t0 = pt_now_s();
     pt_status st = build(e, entry_path);
+    double took = pt_now_s() - t0;
 
     pthread_mutex_lock(&s->mu);
+    s->build_seconds += took;
     wrk_scene_ref *freed = NULL;
     if (st == PT_OK) {
         e->state = E_READY;
@@ -562,6 +597,14 @@ uint64_t wrk_scenes_builds(wrk_scenes *s)
     uint64_t n = s->builds;
     pthread_mutex_unlock(&s->mu);
     return n;
+}
+
+double wrk_scenes_build_seconds(wrk_scenes *s)
+{
+    pthread_mutex_lock(&s->mu);
+    double t = s->build_seconds;
+    pthread_mutex_unlock(&s->mu);
+    return t;
 }
 
 uint32_t wrk_scenes_count(wrk_scenes *s)

@@ -90,11 +90,29 @@ pt_status wrk_scenes_acquire_variant(wrk_scenes *s, const uint8_t hash[WRK_HASH_
                                      const pt_render_params *params, const char *camera,
                                      const char *variant, const proto_env *env,
                                      const char *entry_path, wrk_scene_ref **out, pt_error *err);
+/* The pose of a frame of an animated scene: animate 1 poses it at time
+ * seconds of animation ("" every animation; pt_scene_opts). */
+typedef struct wrk_pose {
+    int animate;
+    double time;
+    const char *animation;
+} wrk_pose;
+/* As wrk_scenes_acquire_variant, with the scene posed (NULL: the file's
+ * still pose) and the pose in the key (its time bit for bit), so a worker
+ * keeps the few frames it renders at once side by side and a frame's scene is
+ * built once per worker, when its first task arrives. */
+pt_status wrk_scenes_acquire_posed(wrk_scenes *s, const uint8_t hash[WRK_HASH_SIZE],
+                                   const pt_render_params *params, const char *camera,
+                                   const char *variant, const proto_env *env, const wrk_pose *pose,
+                                   const char *entry_path, wrk_scene_ref **out, pt_error *err);
 const pt_renderer *wrk_scene_renderer(const wrk_scene_ref *ref);
 void wrk_scenes_release(wrk_scenes *s, wrk_scene_ref *ref); /* accepts NULL */
 
 /* Scenes built so far (failed builds included) and entries held now (tests). */
 uint64_t wrk_scenes_builds(wrk_scenes *s);
 uint32_t wrk_scenes_count(wrk_scenes *s);
+/* Seconds spent loading scenes and building renderers, over every build:
+ * a frame-range job's per-frame set-up (each frame is a build). */
+double wrk_scenes_build_seconds(wrk_scenes *s);
 
 #endif

@@ -39,7 +39,10 @@
 /* Finished results wait in the done list while this much output is unsent:
  * a coordinator that stops reading gets backpressure, not an unbounded buffer. */
 #define OUT_HIGH_WATER ((size_t)8 << 20)
-#define SCENES_IN_MEMORY 2u
+/* Renderers kept while unused: a frame-range job's frames are separate
+ * scenes (each posed at its time), and a worker holds tasks of two or three
+ * frames at once where one frame's last tasks meet the next's first. */
+#define SCENES_IN_MEMORY 4u
 
 /* ---- shared between the I/O thread and the render threads ---------------------------- */
 
@@ -221,8 +224,9 @@ static void render_one(worker *w, const task_item *t, done_item *d)
         return;
     }
     wrk_scene_ref *ref = NULL;
-    d->st = wrk_scenes_acquire_variant(w->scenes, k->scene_hash, &p, k->camera, k->variant, &k->env,
-                                       t->entry, &ref, &d->err);
+    wrk_pose pose = {k->animate, k->time, k->animation};
+    d->st = wrk_scenes_acquire_posed(w->scenes, k->scene_hash, &p, k->camera, k->variant, &k->env,
+                                     &pose, t->entry, &ref, &d->err);
     if (d->st != PT_OK)
         return;
     pt_render_tile(wrk_scene_renderer(ref), k->tile, k->s0, k->s1, d->pixels, &d->stats);
@@ -1292,6 +1296,12 @@ int wrk_client_run(const wrk_client_opts *o)
             (unsigned long long)w->samples, secs > 0 ? (double)w->samples / secs : 0.0, secs);
     if (w->failed)
         fprintf(stderr, ", %llu failed", (unsigned long long)w->failed);
+    /* The set-up cost beside the render time (each frame of a range is a
+     * build of its own). */
+    uint64_t builds = wrk_scenes_builds(w->scenes);
+    if (builds)
+        fprintf(stderr, "; %llu scene builds, %.3f s each", (unsigned long long)builds,
+                wrk_scenes_build_seconds(w->scenes) / (double)builds);
     fputc('\n', stderr);
 
     /* Finish nothing: threads end after the tile they are in. A tile of a

@@ -60,6 +60,14 @@ static void usage(FILE *f)
             "  --camera NAME      the camera to render (default: the scene's first)\n"
             "  --variant NAME     a KHR_materials_variants variant: mapped primitives take\n"
             "                     its material (default: each primitive's own)\n"
+            "  --time T           pose the scene's glTF animation at T seconds (>= 0):\n"
+            "                     nodes, skins, morph targets, cameras and lights move\n"
+            "  --frame F          the same at frame F, T = F / fps\n"
+            "  --fps R            frames per second for --frame (default 24)\n"
+            "  --animation NAME   the animation to play, by name or index (default: every\n"
+            "                     channel of every animation, as viewers play them);\n"
+            "                     without --time, --frame or --animation a scene renders\n"
+            "                     as its still: its nodes' own transforms, no skinning\n"
             "  --tile N           tile side in pixels (default 32)\n"
             "  --chunk N          samples per chunk (default 16)\n"
             "  --target-error E   adaptive sampling: a tile stops once the RMS relative\n"
@@ -143,6 +151,9 @@ int main(int argc, char **argv)
     double dv, rgb[3];
     uint32_t prefetch = 0;
     int has_prefetch = 0;
+    /* Animation: --time, or --frame over --fps (default 24). */
+    double anim_time = 0.0, anim_frame = 0.0, anim_fps = 24.0;
+    int has_time = 0, has_frame = 0, has_fps = 0;
     /* Which options were given, to refuse mixing the modes. */
     char standalone_opt[40] = "", farm_opt[40] = "";
     enum {
@@ -164,6 +175,10 @@ int main(int argc, char **argv)
         OPT_BACKGROUND,
         OPT_TRANSPARENT,
         OPT_VARIANT,
+        OPT_TIME,
+        OPT_FRAME,
+        OPT_FPS,
+        OPT_ANIMATION,
         OPT_SERVER,
         OPT_PREFETCH,
         OPT_TOKEN,
@@ -191,6 +206,10 @@ int main(int argc, char **argv)
         {"background", required_argument, NULL, OPT_BACKGROUND},
         {"transparent", no_argument, NULL, OPT_TRANSPARENT},
         {"variant", required_argument, NULL, OPT_VARIANT},
+        {"time", required_argument, NULL, OPT_TIME},
+        {"frame", required_argument, NULL, OPT_FRAME},
+        {"fps", required_argument, NULL, OPT_FPS},
+        {"animation", required_argument, NULL, OPT_ANIMATION},
         {"quiet", no_argument, NULL, 'q'},
         {"server", required_argument, NULL, OPT_SERVER},
         {"prefetch", required_argument, NULL, OPT_PREFETCH},
@@ -234,6 +253,22 @@ int main(int argc, char **argv)
             break;
         case OPT_VARIANT:
             o.variant = optarg;
+            break;
+        case OPT_TIME:
+            bad = bad_value(pt_opt_double("--time", optarg, 0.0, 1e9, &anim_time, &err), &err);
+            has_time = 1;
+            break;
+        case OPT_FRAME:
+            bad = bad_value(pt_opt_double("--frame", optarg, 0.0, 1e9, &anim_frame, &err), &err);
+            has_frame = 1;
+            break;
+        case OPT_FPS:
+            bad = bad_value(pt_opt_positive("--fps", optarg, 1e6, &anim_fps, &err), &err);
+            has_fps = 1;
+            break;
+        case OPT_ANIMATION:
+            o.animation = optarg;
+            o.animate = 1;
             break;
         case OPT_TILE:
             bad = bad_value(pt_opt_u32("--tile", optarg, 1, PT_TILE_MAX, &o.tile, &err), &err);
@@ -364,6 +399,18 @@ int main(int argc, char **argv)
     if (o.env_path && o.has_background) {
         fprintf(stderr, "ptworker: --env and --background are two environments; give one\n");
         return 2;
+    }
+    if (has_time && has_frame) {
+        fprintf(stderr, "ptworker: --time and --frame both give the time; give one\n");
+        return 2;
+    }
+    if (has_fps && !has_frame) {
+        fprintf(stderr, "ptworker: --fps needs --frame\n");
+        return 2;
+    }
+    if (has_time || has_frame) {
+        o.animate = 1;
+        o.time = has_time ? anim_time : anim_frame / anim_fps;
     }
     if (o.min_spp == 0)
         o.min_spp = o.chunk > 1 ? o.chunk : 2;

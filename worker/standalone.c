@@ -101,6 +101,9 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
     pt_scene_opts so = {0};
     so.camera_name = o->camera;
     so.variant = o->variant;
+    so.animate = o->animate;
+    so.time = o->time;
+    so.animation = o->animation;
     if (pt_scene_load(o->scene_path, &so, &scene, &err) != PT_OK) {
         fprintf(stderr, "ptworker: %s\n", err.msg);
         goto done;

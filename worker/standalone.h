@@ -15,6 +15,11 @@ typedef struct wrk_standalone_opts {
     const char *out_path; /* .exr; a .png preview is written beside it */
     const char *camera;   /* NULL: the scene's first camera */
     const char *variant;  /* KHR_materials_variants name; NULL: the default materials */
+    /* glTF animation (pt_scene_opts): animate 0 renders the still of the
+     * file; 1 poses it at time seconds, playing `animation` (NULL: all). */
+    int animate;
+    double time;
+    const char *animation;
     uint32_t spp;
     uint32_t width, height; /* 0: from the camera's aspect, 512 wide */
     uint32_t seed;

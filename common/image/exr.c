@@ -3,6 +3,7 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <inttypes.h>
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -146,6 +147,26 @@ static float *plane_of(const pt_image *img, const char *name)
 }
 
 /* Declares the part, channels and attributes of the file being written. */
+/* OpenEXR's framesPerSecond is a rational: the NTSC rates as N x 1000 / 1001
+ * (as ImfFramesPerSecond's), a whole rate as R/1, anything else to 1/1000. */
+static exr_attr_rational_t fps_rational(double fps)
+{
+    exr_attr_rational_t r = {0, 1};
+    if (!(fps > 0.0) || fps > 1e6)
+        return r;
+    double ntsc = fps * 1.001;
+    if (fabs(ntsc - round(ntsc)) < 1e-3 && fabs(fps - round(fps)) > 1e-3) {
+        r.num = (int32_t)(round(ntsc) * 1000.0);
+        r.denom = 1001;
+    } else if (fabs(fps - round(fps)) < 1e-9) {
+        r.num = (int32_t)round(fps);
+    } else {
+        r.num = (int32_t)round(fps * 1000.0);
+        r.denom = 1000;
+    }
+    return r;
+}
+
 static exr_result_t define_part(exr_context_t ctx, const pt_image *img, const pt_exr_meta *meta)
 {
     int part = 0;
@@ -180,6 +201,14 @@ static exr_result_t define_part(exr_context_t ctx, const pt_image *img, const pt
         rv = exr_attr_set_string(ctx, part, "ptfarm.sceneHash", meta->scene_hash);
     if (rv == EXR_ERR_SUCCESS && meta)
         rv = exr_attr_set_string(ctx, part, "ptfarm.jobId", meta->job_id);
+    if (rv == EXR_ERR_SUCCESS && meta && meta->has_frame) {
+        exr_attr_rational_t fps = fps_rational(meta->fps);
+        rv = exr_attr_set_int(ctx, part, "ptfarm.frame", meta->frame);
+        if (rv == EXR_ERR_SUCCESS)
+            rv = exr_attr_set_double(ctx, part, "ptfarm.time", meta->time);
+        if (rv == EXR_ERR_SUCCESS)
+            rv = exr_attr_set_rational(ctx, part, "framesPerSecond", &fps);
+    }
     return rv;
 }
 
@@ -308,6 +337,17 @@ static void read_meta(exr_const_context_t ctx, pt_exr_meta *meta)
     double secs = 0.0;
     if (exr_attr_get_double(ctx, 0, "ptfarm.renderSeconds", &secs) == EXR_ERR_SUCCESS)
         meta->render_seconds = secs;
+    int32_t frame = 0;
+    if (exr_attr_get_int(ctx, 0, "ptfarm.frame", &frame) == EXR_ERR_SUCCESS) {
+        exr_attr_rational_t fps = {0, 1};
+        meta->has_frame = 1;
+        meta->frame = frame;
+        if (exr_attr_get_double(ctx, 0, "ptfarm.time", &secs) == EXR_ERR_SUCCESS)
+            meta->time = secs;
+        if (exr_attr_get_rational(ctx, 0, "framesPerSecond", &fps) == EXR_ERR_SUCCESS &&
+            fps.denom > 0)
+            meta->fps = (double)fps.num / (double)fps.denom;
+    }
     char digits[24] = "";
     meta_string(ctx, "ptfarm.samples", digits, sizeof digits);
     if (digits[0] >= '0' && digits[0] <= '9') {

@@ -6,7 +6,11 @@
  * premultiplied by it) when the image has_alpha, all FLOAT, scanline,
  * ZIP compression. Header attributes: "ptfarm.samples" (total samples, as a
  * decimal string), "ptfarm.renderSeconds" (double), "ptfarm.sceneHash"
- * (string), "ptfarm.jobId" (string), and the standard "software" string.
+ * (string), "ptfarm.jobId" (string), and the standard "software" string; a
+ * frame of an animation also "ptfarm.frame" (int, the frame number),
+ * "ptfarm.time" (double, seconds into the animation) and the standard
+ * "framesPerSecond" (rational: R/1 for a whole rate, else R x 1000 / 1000,
+ * or 24000/1001-style for the NTSC rates).
  * Writes are atomic: a temp file in the same folder, fsync, rename, so a
  * reader never sees a torn file.
  *
@@ -27,6 +31,10 @@ typedef struct pt_exr_meta {
     char scene_hash[65];
     char job_id[64];
     char software[64]; /* "ptfarm <version>" when empty on write */
+    int has_frame;     /* a frame of an animation: the three below are written */
+    int32_t frame;
+    double time; /* seconds */
+    double fps;  /* read back from the rational */
 } pt_exr_meta;
 
 pt_status pt_exr_write(const char *path, const pt_image *img, const pt_exr_meta *meta,

@@ -15,8 +15,10 @@ double pt_tile_rel_error(const pt_pixel_acc *px, uint32_t stride, uint32_t width
             if (a->n < 2)
                 return INFINITY;
             double n = a->n;
-            double mean = (0.2126 * a->sum[0] + 0.7152 * a->sum[1] + 0.0722 * a->sum[2]) / n;
-            double var = (a->sum_sq - n * mean * mean) / (n - 1.0);
+            double mean = (0.2126 * pt_acc_sum(a, 0) + 0.7152 * pt_acc_sum(a, 1) +
+                           0.0722 * pt_acc_sum(a, 2)) /
+                          n;
+            double var = (pt_acc_sum_sq(a) - n * mean * mean) / (n - 1.0);
             double sigma = var > 0.0 ? sqrt(var / n) : 0.0;
             double rel = sigma / (fabs(mean) + PT_ADAPTIVE_EPS);
             sum += rel * rel;
@@ -41,13 +43,13 @@ double pt_tile_gain(const pt_pixel_acc *px, uint32_t stride, const pt_pixel_acc 
                  * negative, so zero sums and a zero luminance sum of squares
                  * mean that) has no error by any estimate; any other has no
                  * estimate yet. */
-                if (a->sum[0] != 0.0 || a->sum[1] != 0.0 || a->sum[2] != 0.0 || a->sum_sq != 0.0)
+                if (a->fsum[0] != 0 || a->fsum[1] != 0 || a->fsum[2] != 0 || a->fsum_sq != 0)
                     return INFINITY;
                 continue;
             }
             double nl = l->n, np = (double)(a->n - l->n), n = a->n, d2 = 0.0;
             for (int c = 0; c < 3; c++) {
-                double d = l->sum[c] / nl - (a->sum[c] - l->sum[c]) / np;
+                double d = pt_acc_sum(l, c) / nl - pt_fixed_to_double(a->fsum[c] - l->fsum[c]) / np;
                 d2 += d * d;
             }
             double r = d2 / 3.0 / (1.0 / nl + 1.0 / np);

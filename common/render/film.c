@@ -69,11 +69,11 @@ void pt_film_resolve(const pt_film *film, pt_image *img)
             continue;
         }
         double n = (double)a->n;
-        double r = a->sum[0] / n, g = a->sum[1] / n, b = a->sum[2] / n;
+        double r = pt_acc_sum(a, 0) / n, g = pt_acc_sum(a, 1) / n, b = pt_acc_sum(a, 2) / n;
         double var = 0.0;
         if (a->n >= 2) {
             double lum = 0.2126 * r + 0.7152 * g + 0.0722 * b;
-            var = (a->sum_sq - n * lum * lum) / (n - 1.0) / n;
+            var = (pt_acc_sum_sq(a) - n * lum * lum) / (n - 1.0) / n;
             if (!(var > 0.0))
                 var = 0.0;
         }

@@ -1,9 +1,11 @@
 /*
- * film.h - the whole image's per-pixel double sums and counts.
+ * film.h - the whole image's per-pixel sums (fixed point, tile.h) and counts.
  *
- * Memory O(width x height), independent of how many tasks are merged. Tiles
- * are added with pt_film_add_tile; adding the same partial sums in the same
- * order gives bit-identical pixels. pt_film_resolve turns sums into a pt_image
+ * Memory O(width x height) (72 bytes a pixel), independent of how many tasks
+ * are merged. Tiles are added with pt_film_add_tile; the sums are exact
+ * integers, so the pixels are the same bits whatever the order in which the
+ * parts of a range of samples are added and however it was split at
+ * PT_SAMPLE_BLOCK boundaries. pt_film_resolve turns sums into a pt_image
  * (mean RGB, sample count, variance of the mean). Not thread-safe: one owner.
  */
 #ifndef PT_COMMON_RENDER_FILM_H

@@ -1586,8 +1586,8 @@ trace_batch(const pt_renderer *r, path *paths, uint32_t n, stage_lanes *sl, cons
  * Samples [s0, s1) of a tile's pixels. Pixels are taken in row-major groups
  * and, per aligned block of PT_SAMPLE_BLOCK samples, the block's samples of
  * the whole group are traced together (trace_batch); then each pixel sums its
- * block's results in sample order and adds the block sum: the same additions
- * as one pixel and one sample at a time.
+ * block's results in sample order and adds the block sum (in fixed point):
+ * the same additions as one pixel and one sample at a time.
  */
 static inline __attribute__((always_inline)) void
 tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel_acc *out,
@@ -1607,9 +1607,10 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
             memset(&out[p0 + g], 0, sizeof out[p0 + g]);
             pixel_ctx_init(&pcs[g], r, tile.x0 + (p0 + g) % tw, tile.y0 + (p0 + g) / tw);
         }
-        /* Sum each aligned block of PT_SAMPLE_BLOCK samples on its own, then
-         * add the block sums in order: the result for [s0,s1) is then the
-         * same bits as adding the results of any split at block boundaries. */
+        /* Sum each aligned block of PT_SAMPLE_BLOCK samples on its own in
+         * double, round it to fixed point and add it exactly: the result for
+         * [s0,s1) is then the same bits as adding the results of any split at
+         * block boundaries, whatever the parts' sizes. */
         for (uint32_t b0 = s0; b0 < s1;) {
             uint32_t b1 = (b0 / PT_SAMPLE_BLOCK + 1) * PT_SAMPLE_BLOCK;
             if (b1 > s1 || b1 < b0)
@@ -1620,15 +1621,15 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
                     path_start(r, &pcs[g], b0 + i, &paths[g * nb + i]);
             local.rays += trace_batch(r, paths, np * nb, sl, features, sink, &local.capped);
             for (uint32_t g = 0; g < np; g++) {
-                pt_pixel_acc blk = {{0, 0, 0}, 0, 0, 0};
+                pt_block_acc blk = {{0, 0, 0}, 0, 0, 0};
                 for (uint32_t i = 0; i < nb; i++) {
                     const path *pa = &paths[g * nb + i];
-                    if (!pt_pixel_acc_sample(&blk, pa->L))
+                    if (!pt_block_acc_sample(&blk, pa->L))
                         local.rejected++;
                     else
                         blk.hits += !pa->escaped;
                 }
-                pt_pixel_acc_add(&out[p0 + g], &blk);
+                pt_pixel_acc_add_block(&out[p0 + g], &blk);
                 local.samples += blk.n;
             }
             b0 = b1;

@@ -7,20 +7,22 @@
  * rr_depth bounces. Every random number is pt_sample_*(pixel seed, sample
  * index, dimension), so a pixel's samples [a,b) are the same numbers however
  * the range is split. pt_render_tile sums each aligned block of
- * PT_SAMPLE_BLOCK samples in sample order in double, then adds the block sums
- * in order: rendering [0,64) equals the in-order sum (pt_pixel_acc_add from
- * zero) of [0,16)+[16,32)+... bit for bit, and in general any split of a range
- * at block boundaries merged in order gives the same bits. (Floating-point
- * addition is not associative, so a split inside a block, or merging chunks of
- * several blocks each, is only equal to rounding; the farm therefore fixes the
- * chunk size per job.)
- * A sample with a NaN or Inf component is not accumulated; it is counted.
+ * PT_SAMPLE_BLOCK samples in sample order in double (pt_block_acc), rounds the
+ * block's sums to fixed point (pt_pixel_acc_add_block, tile.h) and adds the
+ * blocks as integers, exactly. So rendering [s0,s1) gives the same bits as
+ * rendering any split of it at multiples of PT_SAMPLE_BLOCK (parts of any
+ * sizes) and adding the parts with pt_pixel_acc_add in any order: the farm
+ * may size every task differently. (A split inside a block is only equal to
+ * rounding.)
+ * A sample with a NaN or Inf component, or one above PT_MAX_SAMPLE_RADIANCE in
+ * magnitude, is not accumulated; it is counted.
  * The renderer is immutable after pt_renderer_new; pt_render_tile is
  * thread-safe and allocates nothing.
  */
 #ifndef PT_COMMON_RENDER_RENDER_H
 #define PT_COMMON_RENDER_RENDER_H
 
+#include <math.h>
 #include <stdint.h>
 
 #include "common/base/error.h"
@@ -29,19 +31,75 @@
 
 typedef struct pt_env pt_env; /* common/render/env.h */
 
-/* Adds one sample's radiance to a; a non-finite sample is left out and
- * returns 0 (the caller counts it as rejected). */
-static inline int pt_pixel_acc_sample(pt_pixel_acc *a, pt_vec3 c)
+/* One block's sums in double, in sample order: the part of the sum that is
+ * floating point, kept to at most PT_SAMPLE_BLOCK samples. */
+typedef struct pt_block_acc {
+    double sum[3];
+    double sum_sq;
+    uint32_t n, hits;
+} pt_block_acc;
+
+/* Adds one sample's radiance to b; a sample with a component not finite or
+ * above PT_MAX_SAMPLE_RADIANCE in magnitude is left out and returns 0 (the
+ * caller counts it as rejected). */
+static inline int pt_block_acc_sample(pt_block_acc *b, pt_vec3 c)
 {
-    if (!pt_isfinite3(c))
+    const float cap = (float)PT_MAX_SAMPLE_RADIANCE;
+    /* NaN fails every comparison, and Inf is above the cap. */
+    if (!(fabsf(c.x) <= cap && fabsf(c.y) <= cap && fabsf(c.z) <= cap))
         return 0;
     double lum = (double)pt_luminance(c);
-    a->sum[0] += c.x;
-    a->sum[1] += c.y;
-    a->sum[2] += c.z;
-    a->sum_sq += lum * lum;
-    a->n++;
+    b->sum[0] += c.x;
+    b->sum[1] += c.y;
+    b->sum[2] += c.z;
+    b->sum_sq += lum * lum;
+    b->n++;
     return 1;
+}
+
+/* x (a sum) in fixed point, rounded to nearest (ties to even): a pure function
+ * of x. |x| must be below 2^94 (a block's sum is at most 1.6e19 < 2^64). */
+static inline pt_i128 pt_fixed_of(double x)
+{
+    double v = nearbyint(x * PT_FIXED_ONE); /* exact scaling by a power of 2 */
+    if (fabs(v) < 0x1p62)
+        return (pt_i128)(int64_t)v;
+    return (pt_i128)v;
+}
+
+/* x >= 0 (a sum of squares) in fixed point (units of 2^-48), rounded to
+ * nearest, saturating at PT_U128_MAX; NaN or a negative x gives 0. */
+static inline pt_u128 pt_ufixed_of(double x)
+{
+    double v = nearbyint(x * PT_FIXED_SQ_ONE);
+    if (!(v > 0.0))
+        return 0;
+    if (v < 0x1p63)
+        return (pt_u128)(uint64_t)v;
+    if (v >= 0x1p128)
+        return PT_U128_MAX;
+    return (pt_u128)v;
+}
+
+/* A pt_pixel_acc of the double sums given, each rounded as a block's sum is
+ * (pt_fixed_of; |r|, |g|, |b| below 2^94): for tests and benchmarks. */
+static inline pt_pixel_acc pt_pixel_acc_of(double r, double g, double b, double sum_sq, uint32_t n,
+                                           uint32_t hits)
+{
+    pt_pixel_acc a = {
+        {pt_fixed_of(r), pt_fixed_of(g), pt_fixed_of(b)}, pt_ufixed_of(sum_sq), n, hits};
+    return a;
+}
+
+/* a += the block b, its sums rounded to fixed point. */
+static inline void pt_pixel_acc_add_block(pt_pixel_acc *a, const pt_block_acc *b)
+{
+    a->fsum[0] += pt_fixed_of(b->sum[0]);
+    a->fsum[1] += pt_fixed_of(b->sum[1]);
+    a->fsum[2] += pt_fixed_of(b->sum[2]);
+    a->fsum_sq = pt_u128_sat_add(a->fsum_sq, pt_ufixed_of(b->sum_sq));
+    a->n += b->n;
+    a->hits += b->hits;
 }
 
 /* How emitters are reached: both strategies weighted by MIS (the default),

@@ -13,29 +13,103 @@
 
 #include <stdint.h>
 
-/* Per-pixel partial sums of a range of samples. */
+/* 128-bit integers (gcc and clang). Aligned to 8 so that a pt_pixel_acc is
+ * 72 bytes, not 80: a film is the coordinator's largest allocation, and x86
+ * loads them unaligned at no cost. */
+__extension__ typedef __int128 pt_i128 __attribute__((aligned(8)));
+__extension__ typedef unsigned __int128 pt_u128 __attribute__((aligned(8)));
+
+/* Sums are fixed point: the integer v of an RGB sum stands for v x
+ * 2^-PT_FIXED_BITS, that of a sum of squared luminance for v x
+ * 2^-PT_FIXED_SQ_BITS. The squares get the finer unit so that a dim pixel
+ * (luminance 1e-6, a square of 1e-12) keeps its variance estimate; they
+ * saturate rather than overflow, so they need no headroom. */
+#define PT_FIXED_BITS 32
+#define PT_FIXED_ONE 0x1p32
+#define PT_FIXED_ULP 0x1p-32
+#define PT_FIXED_SQ_BITS 48
+#define PT_FIXED_SQ_ONE 0x1p48
+#define PT_FIXED_SQ_ULP 0x1p-48
+
+/* A sample with a colour component above this (or below its negative, or not
+ * finite) is rejected, as NaN and Inf are (render.h): it is counted, not
+ * accumulated. The cap is what makes the fixed-point sums unable to overflow:
+ * a pixel never holds more than 2^32 - 1 samples (n is a u32; spp is a u32),
+ * and each 16-sample block's sum rounds to at most 16 x 1e18 x 2^32 + 1/2 in
+ * magnitude, so |sum| <= 2^32 x 1e18 x 2^32 x (1 + 2^-40) ~ 1.9e37 < 2^127 ~
+ * 1.7e38. (The coordinator checks the same bound per result, job.c.) */
+#define PT_MAX_SAMPLE_RADIANCE 1e18
+#define PT_U128_MAX (~(pt_u128)0)
+
+/* Per-pixel partial sums of a range of samples, as exact integers. Each
+ * aligned block of PT_SAMPLE_BLOCK samples is summed in double in sample
+ * order and then rounded to nearest to fixed point (pt_fixed_of): a pure
+ * function of the block's samples. Blocks are then added as integers, which
+ * is exact and associative, so the sums of a range are the same bits however
+ * the range was split at block boundaries and in whatever grouping the parts
+ * were added. Read them as doubles with pt_acc_sum / pt_acc_sum_sq. */
 typedef struct pt_pixel_acc {
-    double sum[3]; /* sum of the RGB samples */
-    double sum_sq; /* sum of squared luminance of the samples (error estimate) */
-    uint32_t n;    /* samples accumulated (rejected ones excluded) */
-    uint32_t hits; /* of those n, the samples whose camera ray hit the scene
-                      (hits <= n); hits / n is the pixel's coverage, the alpha
-                      of a transparent film. An integer, so it merges exactly. */
+    pt_i128 fsum[3]; /* sum of the RGB samples, units of 2^-32 */
+    pt_u128 fsum_sq; /* sum of squared luminance of the samples (error estimate),
+                        units of 2^-48; saturates at PT_U128_MAX (adding
+                        non-negative values with saturation is associative,
+                        so it stays exact and split-invariant; a saturated
+                        pixel only reads as a very noisy one) */
+    uint32_t n;      /* samples accumulated (rejected ones excluded) */
+    uint32_t hits;   /* of those n, the samples whose camera ray hit the scene
+                        (hits <= n); hits / n is the pixel's coverage, the alpha
+                        of a transparent film. An integer, so it merges exactly. */
 } pt_pixel_acc;
 
-/* a += b (the order of calls fixes the floating-point result). */
+/* a + b, saturating at PT_U128_MAX. */
+static inline pt_u128 pt_u128_sat_add(pt_u128 a, pt_u128 b)
+{
+    pt_u128 s = a + b;
+    return s < a ? PT_U128_MAX : s;
+}
+
+/* a += b: exact, so the order of calls does not matter. */
 static inline void pt_pixel_acc_add(pt_pixel_acc *a, const pt_pixel_acc *b)
 {
-    a->sum[0] += b->sum[0];
-    a->sum[1] += b->sum[1];
-    a->sum[2] += b->sum[2];
-    a->sum_sq += b->sum_sq;
+    a->fsum[0] += b->fsum[0];
+    a->fsum[1] += b->fsum[1];
+    a->fsum[2] += b->fsum[2];
+    a->fsum_sq = pt_u128_sat_add(a->fsum_sq, b->fsum_sq);
     a->n += b->n;
     a->hits += b->hits;
 }
 
+/* A fixed-point value as a double (rounded to nearest). */
+static inline double pt_fixed_to_double(pt_i128 v)
+{
+    int64_t s = (int64_t)v;
+    if ((pt_i128)s == v) /* the common case, without the 128-bit conversion */
+        return (double)s * PT_FIXED_ULP;
+    return (double)v * PT_FIXED_ULP;
+}
+
+/* A fixed-point sum of squares (units of 2^-48) as a double. */
+static inline double pt_ufixed_to_double(pt_u128 v)
+{
+    if (v <= UINT64_MAX)
+        return (double)(uint64_t)v * PT_FIXED_SQ_ULP;
+    return (double)v * PT_FIXED_SQ_ULP;
+}
+
+/* Sum of colour channel c (0..2) and of squared luminance, as doubles. */
+static inline double pt_acc_sum(const pt_pixel_acc *a, int c)
+{
+    return pt_fixed_to_double(a->fsum[c]);
+}
+
+static inline double pt_acc_sum_sq(const pt_pixel_acc *a)
+{
+    return pt_ufixed_to_double(a->fsum_sq);
+}
+
 /* A range of samples is summed in aligned blocks of this many, each in sample
- * order, then block by block (render.h): the unit that keeps splits exact. */
+ * order in double, rounded to fixed point, then added exactly (render.h): any
+ * split at multiples of it gives the same bits. */
 #define PT_SAMPLE_BLOCK 16u
 
 /* The largest tile side in pixels that any program accepts (ptserve and

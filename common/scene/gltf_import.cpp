@@ -56,6 +56,7 @@
 #include <cmath>
 #include <cstdarg>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <fcntl.h>
 #include <fstream>
@@ -66,10 +67,13 @@
 #include <unistd.h>
 #include <vector>
 
+#include "common/scene/anim_rig.hpp"
+
 extern "C" {
 #include "common/base/alloc.h"
 #include "common/base/fsutil.h"
 #include "common/base/hash.h"
+#include "common/scene/anim.h"
 #include "common/scene/gltf_import.h"
 #include "common/scene/scene.h"
 #include "common/scene/uri.h"
@@ -102,6 +106,7 @@ struct importer {
     int variant = -1; // KHR_materials_variants index chosen by opts->variant; -1: none
     uint64_t node_visits = 0;
     int dirfd = -1;          // the entry file's folder, opened on first use
+    pt_anim *rig = nullptr;  // pt_anim_load: the rig being read (anim.h); else nullptr
     pt_status fs_st = PT_OK; // the first failure of a read tinygltf asked for
     std::string fs_msg;      // and its message (names the URI only)
 
@@ -341,6 +346,8 @@ int type_comps(int t)
         return 3;
     case TINYGLTF_TYPE_VEC4:
         return 4;
+    case TINYGLTF_TYPE_MAT4:
+        return 16;
     default:
         return 0;
     }
@@ -993,12 +1000,14 @@ void add_primitive(importer &im, int mesh, int pi, const mat4 &world)
                                                         " (points or lines) is not rendered");
         return;
     }
-    if (!p.targets.empty())
+    if (!p.targets.empty() && !im.rig)
         im.warn_once("morph", std::string(what) + ": morph targets are ignored");
     for (const auto &a : p.attributes)
         if (a.first != "POSITION" && a.first != "NORMAL" && a.first != "TEXCOORD_0" &&
             a.first != "TANGENT" && a.first.compare(0, 9, "TEXCOORD_") != 0 &&
-            a.first != "COLOR_0" && a.first.compare(0, 1, "_") != 0)
+            a.first != "COLOR_0" && a.first.compare(0, 1, "_") != 0 &&
+            !(im.rig && (a.first == "JOINTS_0" || a.first == "WEIGHTS_0" || a.first == "JOINTS_1" ||
+                         a.first == "WEIGHTS_1")))
             im.warn_once("attr:" + a.first,
                          std::string(what) + ": attribute " + a.first + " is ignored");
     auto pos_it = p.attributes.find("POSITION");
@@ -1232,6 +1241,476 @@ void add_light(importer &im, int ni, const tinygltf::Value &ext, const mat4 &w)
         im.fail(st, "node %d: %s", ni, e.msg);
 }
 
+// ---- the animation rig (anim.h), read only for pt_anim_load -------------------------
+
+// An accessor of `type` as floats: FLOAT, or (norm_ok) a normalized integer
+// type (glTF 3.11: rotations and weights may be; morph deltas 3.7.2.2).
+void rig_floats(importer &im, int ai, const char *what, int type, bool norm_ok, uint64_t max_count,
+                std::vector<float> &out)
+{
+    view_span s = accessor_span(im, ai, what, type, max_count);
+    int nc = type_comps(type);
+    bool ok = s.ctype == TINYGLTF_COMPONENT_TYPE_FLOAT ||
+              (norm_ok && s.normalized && s.ctype != TINYGLTF_COMPONENT_TYPE_UNSIGNED_INT);
+    if (!ok)
+        im.fail(PT_ERR_FORMAT, "accessor %d (%s): component type %d is not supported", ai, what,
+                s.ctype);
+    out.assign(size_t(s.count) * size_t(nc), 0.0f);
+    if (!s.data)
+        return;
+    int cs = comp_size(s.ctype);
+    for (uint64_t i = 0; i < s.count; i++)
+        for (int c = 0; c < nc; c++)
+            out[size_t(i) * size_t(nc) + size_t(c)] =
+                read_comp(s.data + i * s.stride + uint64_t(c * cs), s.ctype, s.normalized);
+    for (size_t i = 0; i < out.size(); i++)
+        if (!std::isfinite(out[i]))
+            im.fail(PT_ERR_FORMAT, "accessor %d (%s): element %zu is not finite", ai, what,
+                    i / size_t(nc));
+}
+
+// The skin attributes of a primitive instance: JOINTS_n (u8/u16) and
+// WEIGHTS_n (float or normalized u8/u16) for n = 0 and, when present, 1;
+// every joint index must name one of the skin's joints.
+void rig_skin_attrs(importer &im, const tinygltf::Primitive &p, const char *what, int skin,
+                    pt_rig::prim &rp)
+{
+    size_t nj = im.model.skins[size_t(skin)].joints.size();
+    int sets = p.attributes.count("JOINTS_1") && p.attributes.count("WEIGHTS_1") ? 2 : 1;
+    rp.influences = 4 * sets;
+    rp.joints.assign(size_t(rp.nv) * size_t(rp.influences), 0);
+    rp.weights.assign(size_t(rp.nv) * size_t(rp.influences), 0.0f);
+    for (int set = 0; set < sets; set++) {
+        std::string jn = "JOINTS_" + std::to_string(set), wn = "WEIGHTS_" + std::to_string(set);
+        auto j_it = p.attributes.find(jn), w_it = p.attributes.find(wn);
+        if (j_it == p.attributes.end() || w_it == p.attributes.end())
+            im.fail(PT_ERR_FORMAT, "%s: skinned by skin %d but has no %s and %s", what, skin,
+                    jn.c_str(), wn.c_str());
+        char w2[200];
+        snprintf(w2, sizeof w2, "%s of %s", jn.c_str(), what);
+        view_span js = accessor_span(im, j_it->second, w2, TINYGLTF_TYPE_VEC4, rp.nv);
+        if (js.count != rp.nv)
+            im.fail(PT_ERR_FORMAT, "accessor %d (%s): %llu joints for %u positions", j_it->second,
+                    w2, (unsigned long long)js.count, rp.nv);
+        if (js.ctype != TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE &&
+            js.ctype != TINYGLTF_COMPONENT_TYPE_UNSIGNED_SHORT)
+            im.fail(PT_ERR_FORMAT, "accessor %d (%s): component type %d is not u8/u16",
+                    j_it->second, w2, js.ctype);
+        std::vector<float> wt;
+        char w3[200];
+        snprintf(w3, sizeof w3, "%s of %s", wn.c_str(), what);
+        rig_floats(im, w_it->second, w3, TINYGLTF_TYPE_VEC4, true, rp.nv, wt);
+        if (wt.size() / 4 != rp.nv)
+            im.fail(PT_ERR_FORMAT, "accessor %d (%s): %zu weights for %u positions", w_it->second,
+                    w3, wt.size() / 4, rp.nv);
+        for (uint32_t v = 0; v < rp.nv; v++)
+            for (int c = 0; c < 4; c++) {
+                uint32_t j = 0;
+                if (js.data) {
+                    const unsigned char *e = js.data + v * js.stride;
+                    j = js.ctype == TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE
+                            ? e[c]
+                            : uint32_t(e[2 * c] | e[2 * c + 1] << 8);
+                }
+                if (j >= nj)
+                    im.fail(PT_ERR_FORMAT,
+                            "accessor %d (%s): vertex %u names joint %u, but skin %d has %zu "
+                            "joints",
+                            j_it->second, w2, v, j, skin, nj);
+                size_t o = size_t(v) * size_t(rp.influences) + size_t(set * 4 + c);
+                rp.joints[o] = j;
+                rp.weights[o] = wt[size_t(v) * 4 + size_t(c)];
+            }
+    }
+}
+
+// Records mesh primitive `pi` of node ni, which the builder stored in the
+// ranges between the counts `before` and `after`, with its rest data.
+void rig_add_primitive(importer &im, int ni, int mesh, int pi, const uint32_t before[4],
+                       const uint32_t after[4])
+{
+    if (after[0] == before[0])
+        return; // not rendered (points, lines, no triangles)
+    const tinygltf::Node &n = im.model.nodes[size_t(ni)];
+    const tinygltf::Primitive &p = im.model.meshes[size_t(mesh)].primitives[size_t(pi)];
+    char what[96];
+    snprintf(what, sizeof what, "mesh %d primitive %d", mesh, pi);
+    pt_rig::prim rp;
+    rp.node = ni;
+    rp.mesh = mesh;
+    rp.index = pi;
+    rp.v0 = before[0];
+    rp.nv = after[0] - before[0];
+    rp.t0 = before[1];
+    rp.nt = after[1] - before[1];
+    char w2[160];
+    snprintf(w2, sizeof w2, "POSITION of %s", what);
+    read_floats(im, p.attributes.at("POSITION"), w2, TINYGLTF_TYPE_VEC3, false, rp.pos);
+    auto n_it = p.attributes.find("NORMAL");
+    if (n_it != p.attributes.end()) {
+        snprintf(w2, sizeof w2, "NORMAL of %s", what);
+        read_floats(im, n_it->second, w2, TINYGLTF_TYPE_VEC3, false, rp.nrm);
+    }
+    auto tg_it = p.attributes.find("TANGENT");
+    if (tg_it != p.attributes.end()) {
+        snprintf(w2, sizeof w2, "TANGENT of %s", what);
+        read_floats(im, tg_it->second, w2, TINYGLTF_TYPE_VEC4, false, rp.tan);
+        for (size_t i = 3; i < rp.tan.size(); i += 4)
+            rp.tan[i] = rp.tan[i] < 0.0f ? -1.0f : 1.0f;
+    }
+    if (rp.pos.size() / 3 != rp.nv || (!rp.nrm.empty() && rp.nrm.size() / 3 != rp.nv) ||
+        (!rp.tan.empty() && rp.tan.size() / 4 != rp.nv))
+        im.fail(PT_ERR_FORMAT, "%s: attribute counts disagree", what);
+    if (p.targets.size() > PT_ANIM_MAX_TARGETS)
+        im.fail(PT_ERR_LIMIT, "%s: %zu morph targets (at most %u)", what, p.targets.size(),
+                PT_ANIM_MAX_TARGETS);
+    for (size_t k = 0; k < p.targets.size(); k++) {
+        rp.dpos.emplace_back();
+        rp.dnrm.emplace_back();
+        rp.dtan.emplace_back();
+        static const char *names[3] = {"POSITION", "NORMAL", "TANGENT"};
+        std::vector<float> *dst[3] = {&rp.dpos.back(), &rp.dnrm.back(), &rp.dtan.back()};
+        for (int a = 0; a < 3; a++) {
+            auto it = p.targets[k].find(names[a]);
+            if (it == p.targets[k].end())
+                continue;
+            snprintf(w2, sizeof w2, "morph target %zu %s of %s", k, names[a], what);
+            rig_floats(im, it->second, w2, TINYGLTF_TYPE_VEC3, true, rp.nv, *dst[a]);
+            if (dst[a]->size() / 3 != rp.nv)
+                im.fail(PT_ERR_FORMAT, "accessor %d (%s): %zu deltas for %u positions", it->second,
+                        w2, dst[a]->size() / 3, rp.nv);
+        }
+    }
+    if (n.skin >= 0) {
+        if (size_t(n.skin) >= im.model.skins.size())
+            im.fail(PT_ERR_FORMAT, "node %d: skin %d out of range (%zu skins)", ni, n.skin,
+                    im.model.skins.size());
+        rp.skin = n.skin;
+        rig_skin_attrs(im, p, what, n.skin, rp);
+    }
+    im.rig->prims.push_back(std::move(rp));
+}
+
+void rig_add_placed(importer &im, int ni, bool camera, const uint32_t before[4],
+                    const uint32_t after[4])
+{
+    int k = camera ? 2 : 3;
+    if (after[k] == before[k])
+        return; // a camera of a type that is ignored
+    pt_rig::placed pl;
+    pl.node = ni;
+    pl.index = before[k];
+    (camera ? im.rig->cameras : im.rig->lights).push_back(pl);
+}
+
+// The number of morph targets of mesh mi (all its primitives must agree).
+size_t rig_targets(importer &im, int mi)
+{
+    const tinygltf::Mesh &mesh = im.model.meshes[size_t(mi)];
+    size_t n = mesh.primitives.empty() ? 0 : mesh.primitives[0].targets.size();
+    for (size_t p = 1; p < mesh.primitives.size(); p++)
+        if (mesh.primitives[p].targets.size() != n)
+            im.fail(PT_ERR_FORMAT, "mesh %d: primitive %zu has %zu morph targets, primitive 0 %zu",
+                    mi, p, mesh.primitives[p].targets.size(), n);
+    return n;
+}
+
+// Nodes: parents (each node has at most one), local TRS, morph weights, and
+// an order with every node after its parent; a node left out of that order
+// lies on a cycle of the hierarchy.
+void rig_nodes(importer &im)
+{
+    const tinygltf::Model &m = im.model;
+    pt_anim &a = *im.rig;
+    size_t nn = m.nodes.size();
+    a.nodes.resize(nn);
+    for (size_t i = 0; i < nn; i++) {
+        const tinygltf::Node &n = m.nodes[i];
+        pt_rig::node &rn = a.nodes[i];
+        for (int c : n.children) {
+            if (c < 0 || size_t(c) >= nn)
+                im.fail(PT_ERR_FORMAT, "node %zu: child %d out of range (%zu nodes)", i, c, nn);
+            if (a.nodes[size_t(c)].parent >= 0 || size_t(c) == i)
+                im.fail(PT_ERR_FORMAT, "node %d has more than one parent (nodes %d and %zu)", c,
+                        a.nodes[size_t(c)].parent, i);
+            a.nodes[size_t(c)].parent = int(i);
+        }
+        if (!n.matrix.empty()) {
+            mat4 lm = local_matrix(im, n, int(i));
+            rn.has_matrix = true;
+            for (size_t k = 0; k < 16; k++)
+                rn.matrix[k] = lm[k];
+        } else {
+            (void)local_matrix(im, n, int(i)); // checks the sizes and finiteness
+            for (size_t k = 0; k < n.translation.size(); k++)
+                rn.t[k] = n.translation[k];
+            for (size_t k = 0; k < n.rotation.size(); k++)
+                rn.r[k] = n.rotation[k];
+            for (size_t k = 0; k < n.scale.size(); k++)
+                rn.s[k] = n.scale[k];
+        }
+        size_t nt = 0;
+        if (n.mesh >= 0 && size_t(n.mesh) < m.meshes.size()) {
+            nt = rig_targets(im, n.mesh);
+            const std::vector<double> &mw = m.meshes[size_t(n.mesh)].weights;
+            if (!mw.empty() && mw.size() != nt)
+                im.fail(PT_ERR_FORMAT, "mesh %d: %zu weights for %zu morph targets", n.mesh,
+                        mw.size(), nt);
+            if (!n.weights.empty() && n.weights.size() != nt)
+                im.fail(PT_ERR_FORMAT, "node %zu: %zu weights for %zu morph targets of mesh %d", i,
+                        n.weights.size(), nt, n.mesh);
+            rn.weights = !n.weights.empty() ? n.weights : mw;
+            rn.weights.resize(nt, 0.0);
+            for (double w : rn.weights)
+                if (!std::isfinite(w))
+                    im.fail(PT_ERR_FORMAT, "node %zu: a morph weight is not finite", i);
+        } else if (!n.weights.empty()) {
+            im.fail(PT_ERR_FORMAT, "node %zu: %zu weights but no mesh with morph targets", i,
+                    n.weights.size());
+        }
+    }
+    std::vector<char> placed(nn, 0);
+    std::vector<int> stack;
+    for (size_t i = 0; i < nn; i++)
+        if (a.nodes[i].parent < 0)
+            stack.push_back(int(i));
+    while (!stack.empty()) {
+        int ni = stack.back();
+        stack.pop_back();
+        placed[size_t(ni)] = 1;
+        a.order.push_back(ni);
+        for (int c : m.nodes[size_t(ni)].children)
+            stack.push_back(c);
+    }
+    for (size_t s = 0; s < m.skins.size(); s++)
+        for (int j : m.skins[s].joints)
+            if (j >= 0 && size_t(j) < nn && !placed[size_t(j)])
+                im.fail(PT_ERR_FORMAT, "skin %zu: joint node %d: the node hierarchy has a cycle", s,
+                        j);
+    for (size_t i = 0; i < nn; i++)
+        if (!placed[i])
+            im.fail(PT_ERR_FORMAT, "node %zu: the node hierarchy has a cycle", i);
+}
+
+void rig_skins(importer &im)
+{
+    const tinygltf::Model &m = im.model;
+    for (size_t s = 0; s < m.skins.size(); s++) {
+        const tinygltf::Skin &sk = m.skins[s];
+        pt_rig::skin rs;
+        if (sk.joints.empty())
+            im.fail(PT_ERR_FORMAT, "skin %zu: no joints", s);
+        if (sk.joints.size() > PT_ANIM_MAX_JOINTS)
+            im.fail(PT_ERR_LIMIT, "skin %zu: %zu joints (at most %u)", s, sk.joints.size(),
+                    PT_ANIM_MAX_JOINTS);
+        for (int j : sk.joints)
+            if (j < 0 || size_t(j) >= m.nodes.size())
+                im.fail(PT_ERR_FORMAT, "skin %zu: joint node %d out of range (%zu nodes)", s, j,
+                        m.nodes.size());
+        rs.joints = sk.joints;
+        rs.ibm.assign(16 * sk.joints.size(), 0.0);
+        for (size_t j = 0; j < sk.joints.size(); j++)
+            for (int d = 0; d < 4; d++)
+                rs.ibm[16 * j + size_t(d * 5)] = 1.0; // identity by default
+        if (sk.inverseBindMatrices >= 0) {
+            char what[80];
+            snprintf(what, sizeof what, "inverseBindMatrices of skin %zu", s);
+            std::vector<float> f;
+            rig_floats(im, sk.inverseBindMatrices, what, TINYGLTF_TYPE_MAT4, false,
+                       PT_ANIM_MAX_JOINTS, f);
+            if (f.size() / 16 != sk.joints.size())
+                im.fail(PT_ERR_FORMAT, "skin %zu: %zu inverse bind matrices for %zu joints", s,
+                        f.size() / 16, sk.joints.size());
+            for (size_t k = 0; k < f.size(); k++)
+                rs.ibm[k] = f[k];
+        }
+        im.rig->skins.push_back(std::move(rs));
+    }
+}
+
+// The animation(s) opts->animation names: -1 all, else one index.
+int rig_choose(importer &im)
+{
+    const char *name = im.opts ? im.opts->animation : nullptr;
+    const auto &as = im.model.animations;
+    if (!name || !*name)
+        return -1;
+    for (size_t i = 0; i < as.size(); i++)
+        if (as[i].name == name)
+            return int(i);
+    char *end = nullptr;
+    errno = 0;
+    unsigned long idx = strtoul(name, &end, 10);
+    if (name[0] >= '0' && name[0] <= '9' && end && !*end && errno == 0 && idx < as.size())
+        return int(idx);
+    if (as.empty())
+        im.fail(PT_ERR_ARG, "no animation '%.64s': the scene has no animations",
+                shown(name).c_str());
+    std::string list;
+    for (size_t i = 0; i < as.size() && list.size() < 300; i++)
+        list += (i ? ", " : "") + std::to_string(i) + " '" + shown(as[i].name.substr(0, 64)) + "'";
+    if (list.size() >= 300)
+        list += "...";
+    im.fail(PT_ERR_ARG, "no animation '%.64s'; animations: %s", shown(name).c_str(), list.c_str());
+}
+
+// Every animation is checked (a malformed one fails the load whichever is
+// chosen); the chosen one's channels go to the rig, one sampler each.
+void rig_animations(importer &im)
+{
+    const tinygltf::Model &m = im.model;
+    pt_anim &a = *im.rig;
+    int chosen = rig_choose(im);
+    bool any = false;
+    for (size_t ai = 0; ai < m.animations.size(); ai++) {
+        const tinygltf::Animation &an = m.animations[ai];
+        char ctx[120];
+        snprintf(ctx, sizeof ctx, "animation %zu ('%.48s')", ai, shown(an.name).c_str());
+        std::map<std::array<int, 4>, int> read; // (sampler, comps, type, normalized ok) -> index
+        for (size_t ci = 0; ci < an.channels.size(); ci++) {
+            const tinygltf::AnimationChannel &ch = an.channels[ci];
+            if (ch.target_node < 0) { // no node: an extension's target (glTF 3.11)
+                im.warn_once("anim-no-node", std::string(ctx) + " channel " + std::to_string(ci) +
+                                                 " has no target node (an extension's); ignored");
+                continue;
+            }
+            if (size_t(ch.target_node) >= m.nodes.size())
+                im.fail(PT_ERR_FORMAT, "%s channel %zu: node %d out of range (%zu nodes)", ctx, ci,
+                        ch.target_node, m.nodes.size());
+            int path;
+            int comps;
+            int type;
+            const tinygltf::Node &tn = m.nodes[size_t(ch.target_node)];
+            if (ch.target_path == "translation") {
+                path = pt_rig::PATH_T, comps = 3, type = TINYGLTF_TYPE_VEC3;
+            } else if (ch.target_path == "rotation") {
+                path = pt_rig::PATH_R, comps = 4, type = TINYGLTF_TYPE_VEC4;
+            } else if (ch.target_path == "scale") {
+                path = pt_rig::PATH_S, comps = 3, type = TINYGLTF_TYPE_VEC3;
+            } else if (ch.target_path == "weights") {
+                path = pt_rig::PATH_W, type = TINYGLTF_TYPE_SCALAR;
+                comps = int(a.nodes[size_t(ch.target_node)].weights.size());
+                if (comps == 0)
+                    im.fail(PT_ERR_FORMAT,
+                            "%s channel %zu: animates the weights of node %d, which has no "
+                            "morph targets",
+                            ctx, ci, ch.target_node);
+            } else {
+                im.warn_once("anim-path:" + ch.target_path,
+                             std::string(ctx) + " channel " + std::to_string(ci) + ": path '" +
+                                 shown(ch.target_path) + "' is not animated");
+                continue;
+            }
+            if (path != pt_rig::PATH_W && !tn.matrix.empty())
+                im.fail(PT_ERR_FORMAT, "%s channel %zu: animates node %d, which has a matrix", ctx,
+                        ci, ch.target_node);
+            if (ch.sampler < 0 || size_t(ch.sampler) >= an.samplers.size())
+                im.fail(PT_ERR_FORMAT, "%s channel %zu: sampler %d out of range (%zu samplers)",
+                        ctx, ci, ch.sampler, an.samplers.size());
+            bool take = chosen < 0 || size_t(chosen) == ai;
+            // A sampler that several channels share is read once (as the
+            // same kind of value): a file cannot multiply its keys by
+            // repeating channels.
+            std::array<int, 4> key = {ch.sampler, comps, type,
+                                      path == pt_rig::PATH_R || path == pt_rig::PATH_W};
+            auto seen = read.find(key);
+            if (seen != read.end()) {
+                if (take)
+                    a.channels.push_back({ch.target_node, path, seen->second});
+                continue;
+            }
+            const tinygltf::AnimationSampler &sm = an.samplers[size_t(ch.sampler)];
+            char sctx[200];
+            snprintf(sctx, sizeof sctx, "%s sampler %d", ctx, ch.sampler);
+            pt_rig::sampler rs;
+            rs.comps = comps;
+            if (sm.interpolation == "STEP")
+                rs.interp = pt_rig::INTERP_STEP;
+            else if (sm.interpolation == "CUBICSPLINE")
+                rs.interp = pt_rig::INTERP_CUBIC;
+            else if (sm.interpolation.empty() || sm.interpolation == "LINEAR")
+                rs.interp = pt_rig::INTERP_LINEAR;
+            else
+                im.fail(PT_ERR_FORMAT,
+                        "%s: interpolation '%.32s' is not STEP, LINEAR or CUBICSPLINE", sctx,
+                        shown(sm.interpolation).c_str());
+            char what[240];
+            snprintf(what, sizeof what, "input of %s", sctx);
+            rig_floats(im, sm.input, what, TINYGLTF_TYPE_SCALAR, false, PT_ANIM_MAX_KEYS, rs.in);
+            for (size_t k = 1; k < rs.in.size(); k++)
+                if (!(rs.in[k] > rs.in[k - 1]))
+                    im.fail(PT_ERR_FORMAT,
+                            "%s: input times are not increasing at key %zu (%g after %g)", sctx, k,
+                            double(rs.in[k]), double(rs.in[k - 1]));
+            snprintf(what, sizeof what, "output of %s", sctx);
+            rig_floats(im, sm.output, what, type, path == pt_rig::PATH_R || path == pt_rig::PATH_W,
+                       uint64_t(PT_ANIM_MAX_KEYS) * 3 * PT_ANIM_MAX_TARGETS, rs.out);
+            size_t per = size_t(comps) * (rs.interp == pt_rig::INTERP_CUBIC ? 3 : 1);
+            if (rs.out.size() != rs.in.size() * per)
+                im.fail(PT_ERR_FORMAT,
+                        "%s: %zu output numbers for %zu keys (%s %s needs %zu a key)", sctx,
+                        rs.out.size(), rs.in.size(), sm.interpolation.c_str(),
+                        ch.target_path.c_str(), per);
+            read[key] = take ? int(a.samplers.size()) : -1;
+            if (!take)
+                continue;
+            double t0 = rs.in.front(), t1 = rs.in.back();
+            a.start = any ? std::fmin(a.start, t0) : t0;
+            a.end = any ? std::fmax(a.end, t1) : t1;
+            any = true;
+            pt_rig::channel rc;
+            rc.node = ch.target_node;
+            rc.path = path;
+            rc.sampler = int(a.samplers.size());
+            a.samplers.push_back(std::move(rs));
+            a.channels.push_back(rc);
+        }
+    }
+}
+
+// Whether nothing in the file can move: no animations, skins or morph targets.
+bool rig_static(const tinygltf::Model &m)
+{
+    if (!m.animations.empty() || !m.skins.empty())
+        return false;
+    for (const auto &mesh : m.meshes)
+        for (const auto &p : mesh.primitives)
+            if (!p.targets.empty())
+                return false;
+    return true;
+}
+
+// After the scene's nodes were visited: the rest of the rig.
+void rig_finish(importer &im)
+{
+    rig_nodes(im);
+    rig_skins(im);
+    rig_animations(im);
+    // What a pose must compute: instances under a node whose TRS a chosen
+    // channel animates (or under such an ancestor), skinned or morphed ones,
+    // and cameras and lights under animated nodes. The rest keep the load's
+    // values, so a static part of an animated scene keeps a still's bits and
+    // costs a pose nothing.
+    pt_anim &a = *im.rig;
+    std::vector<char> animated(a.nodes.size(), 0);
+    for (const auto &ch : a.channels)
+        if (ch.path != pt_rig::PATH_W)
+            animated[size_t(ch.node)] = 1;
+    for (int ni : a.order)
+        if (a.nodes[size_t(ni)].parent >= 0 && animated[size_t(a.nodes[size_t(ni)].parent)])
+            animated[size_t(ni)] = 1;
+    a.moves = false;
+    for (auto &p : a.prims) {
+        p.dynamic = animated[size_t(p.node)] || p.skin >= 0 || !p.dpos.empty();
+        a.moves = a.moves || p.dynamic;
+    }
+    for (auto *list : {&a.cameras, &a.lights})
+        for (auto &pl : *list) {
+            pl.dynamic = animated[size_t(pl.node)] != 0;
+            a.moves = a.moves || pl.dynamic;
+        }
+}
+
 void visit(importer &im, int ni, const mat4 &parent, int depth, std::vector<char> &on_path)
 {
     const tinygltf::Model &m = im.model;
@@ -1247,21 +1726,45 @@ void visit(importer &im, int ni, const mat4 &parent, int depth, std::vector<char
     on_path[size_t(ni)] = 1;
     const tinygltf::Node &n = m.nodes[size_t(ni)];
     mat4 w = mat_mul(parent, local_matrix(im, n, ni));
-    if (n.skin >= 0)
+    if (n.skin >= 0 && !im.rig)
         im.warn_once("skin", "node " + std::to_string(ni) + ": skins are ignored");
+    // With a rig, the builder's counts around each addition map it to the
+    // scene's ranges (anim_rig.hpp).
+    uint32_t before[4], after[4];
     if (n.mesh >= 0) {
         if (size_t(n.mesh) >= m.meshes.size())
             im.fail(PT_ERR_FORMAT, "node %d: mesh %d out of range (%zu meshes)", ni, n.mesh,
                     m.meshes.size());
         const tinygltf::Mesh &mesh = m.meshes[size_t(n.mesh)];
-        for (size_t p = 0; p < mesh.primitives.size(); p++)
+        for (size_t p = 0; p < mesh.primitives.size(); p++) {
+            if (im.rig)
+                pt_scene_builder_counts(im.b, before);
             add_primitive(im, n.mesh, int(p), w);
+            if (im.rig) {
+                pt_scene_builder_counts(im.b, after);
+                rig_add_primitive(im, ni, n.mesh, int(p), before, after);
+            }
+        }
     }
-    if (n.camera >= 0)
+    if (n.camera >= 0) {
+        if (im.rig)
+            pt_scene_builder_counts(im.b, before);
         add_camera(im, ni, n.camera, w);
+        if (im.rig) {
+            pt_scene_builder_counts(im.b, after);
+            rig_add_placed(im, ni, true, before, after);
+        }
+    }
     auto lx = n.extensions.find("KHR_lights_punctual");
-    if (lx != n.extensions.end())
+    if (lx != n.extensions.end()) {
+        if (im.rig)
+            pt_scene_builder_counts(im.b, before);
         add_light(im, ni, lx->second, w);
+        if (im.rig) {
+            pt_scene_builder_counts(im.b, after);
+            rig_add_placed(im, ni, false, before, after);
+        }
+    }
     for (int c : n.children)
         visit(im, c, w, depth + 1, on_path);
     on_path[size_t(ni)] = 0;
@@ -1378,7 +1881,7 @@ void import(importer &im)
     parse(im, bytes);
     tinygltf::Model &m = im.model;
     hash_files(im, bytes);
-    if (!m.skins.empty())
+    if (!m.skins.empty() && !im.rig)
         im.warn_once("skin", "skins are ignored");
     for (const auto &r : m.extensionsRequired)
         if (r != "KHR_materials_emissive_strength" && r != "KHR_materials_specular" &&
@@ -1389,6 +1892,14 @@ void import(importer &im)
             im.warn_once("req:" + r, "required extension " + r + " is not supported");
     choose_variant(im);
     add_materials(im);
+    // A file with nothing to animate (no animations, skins or morph targets)
+    // gets an empty rig: its poses are the still, so the load reads and
+    // costs what a still's does and gives the same bits.
+    pt_anim *rig = im.rig;
+    if (rig && rig_static(m)) {
+        rig_choose(im); // an animation named in a file without any is still an error
+        im.rig = nullptr;
+    }
     std::vector<char> on_path(m.nodes.size(), 0);
     if (!m.scenes.empty()) {
         int si = m.defaultScene >= 0 ? m.defaultScene : 0;
@@ -1396,6 +1907,9 @@ void import(importer &im)
             im.fail(PT_ERR_FORMAT, "scene %d out of range (%zu scenes)", si, m.scenes.size());
         for (int ni : m.scenes[size_t(si)].nodes)
             visit(im, ni, identity(), 0, on_path);
+        if (im.rig)
+            rig_finish(im);
+        im.rig = rig;
     } else {
         im.fail(PT_ERR_FORMAT, "no scenes: nothing to render");
     }
@@ -1403,42 +1917,102 @@ void import(importer &im)
 
 } // namespace
 
-extern "C" pt_status pt_scene_load(const char *path, const pt_scene_opts *opts, pt_scene **out,
-                                   pt_error *err)
+// pt_scene_load, and with rig_out pt_anim_load: the rig is read along the
+// way, and the built scene is then posed at opts->time.
+static pt_status load(const char *path, const pt_scene_opts *opts, pt_scene **out,
+                      pt_anim **rig_out, pt_error *err)
 {
     if (!path || !out)
         return pt_error_set(err, PT_ERR_ARG, "pt_scene_load: no path");
+    pt_anim *rig = nullptr;
+    if (rig_out) {
+        double t = opts ? opts->time : 0.0;
+        if (!(t >= 0.0) || !std::isfinite(t))
+            return pt_error_set(err, PT_ERR_ARG, "%s: animation time %g is negative or not finite",
+                                path, t);
+        rig = new (std::nothrow) pt_anim;
+        if (!rig)
+            return pt_error_set(err, PT_ERR_NOMEM, "%s: out of memory", path);
+    }
     pt_scene_builder *b = nullptr;
     pt_status st = pt_scene_builder_new(&b, err);
-    if (st != PT_OK)
+    if (st != PT_OK) {
+        pt_anim_free(rig);
         return st;
+    }
     try {
         importer im;
         im.path = path;
         im.opts = opts;
         im.err = err;
         im.b = b;
+        im.rig = rig;
         size_t slash = im.path.rfind('/');
         im.base = slash == std::string::npos ? std::string() : im.path.substr(0, slash + 1);
         import(im);
     } catch (const load_failure &f) {
         pt_scene_builder_free(b);
+        pt_anim_free(rig);
         return f.st;
     } catch (const std::bad_alloc &) {
         pt_scene_builder_free(b);
+        pt_anim_free(rig);
         return pt_error_set(err, PT_ERR_NOMEM, "%s: out of memory", path);
     } catch (const std::exception &ex) {
         pt_scene_builder_free(b);
+        pt_anim_free(rig);
         return pt_error_set(err, PT_ERR_FORMAT, "%s: %s", path, ex.what());
     } catch (...) {
         pt_scene_builder_free(b);
+        pt_anim_free(rig);
         return pt_error_set(err, PT_ERR_FORMAT, "%s: unexpected error", path);
     }
     pt_error e{};
     pt_scene *s = nullptr;
     st = pt_scene_builder_finish(b, opts, &s, &e);
-    if (st != PT_OK)
+    if (st != PT_OK) {
+        pt_anim_free(rig);
         return pt_error_set(err, st, "%s: %s", path, e.msg);
+    }
+    if (rig) {
+        rig->scale = opts && opts->scale != 0.0f ? double(opts->scale) : 1.0;
+        if (opts) {
+            rig->translate[0] = opts->translate.x;
+            rig->translate[1] = opts->translate.y;
+            rig->translate[2] = opts->translate.z;
+        }
+        // scene->camera as choose_camera (scene.c) chose it.
+        const char *cam = opts ? opts->camera_name : nullptr;
+        for (uint32_t i = 0; i < s->num_cameras && rig->camera < 0; i++)
+            if (!cam || strcmp(s->cameras[i].name, cam) == 0)
+                rig->camera = int(i);
+        st = rig->moves ? pt_anim_pose(rig, opts ? opts->time : 0.0, s, &e) : PT_OK;
+        if (st != PT_OK) {
+            pt_anim_free(rig);
+            pt_scene_free(s);
+            return pt_error_set(err, st, "%s: %s", path, e.msg);
+        }
+        *rig_out = rig;
+    }
     *out = s;
     return PT_OK;
+}
+
+extern "C" pt_status pt_scene_load(const char *path, const pt_scene_opts *opts, pt_scene **out,
+                                   pt_error *err)
+{
+    if (!opts || !opts->animate)
+        return load(path, opts, out, nullptr, err);
+    pt_anim *rig = nullptr;
+    pt_status st = load(path, opts, out, &rig, err);
+    pt_anim_free(rig);
+    return st;
+}
+
+extern "C" pt_status pt_anim_load(const char *path, const pt_scene_opts *opts, pt_scene **scene,
+                                  pt_anim **anim, pt_error *err)
+{
+    if (!anim)
+        return pt_error_set(err, PT_ERR_ARG, "pt_anim_load: no rig to return");
+    return load(path, opts, scene, anim, err);
 }

@@ -28,6 +28,11 @@ void pt_scene_builder_set_hash(pt_scene_builder *b, const char *hex);
  * indices to builder indices with them). */
 uint32_t pt_scene_builder_num_materials(const pt_scene_builder *b);
 
+/* The vertices, triangles, cameras and punctual lights added so far, in
+ * that order (the animation rig maps mesh instances to the scene's ranges
+ * with them). */
+void pt_scene_builder_counts(const pt_scene_builder *b, uint32_t counts[4]);
+
 #ifdef __cplusplus
 }
 #endif

@@ -165,6 +165,14 @@ uint32_t pt_scene_builder_num_materials(const pt_scene_builder *b)
     return b->nmat;
 }
 
+void pt_scene_builder_counts(const pt_scene_builder *b, uint32_t counts[4])
+{
+    counts[0] = b->nv;
+    counts[1] = b->nt;
+    counts[2] = b->ncam;
+    counts[3] = b->npun;
+}
+
 static int finite_n(const float *v, int n)
 {
     for (int i = 0; i < n; i++)

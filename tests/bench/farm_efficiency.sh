@@ -13,7 +13,9 @@ res=${4:-256x256}
 spp=${5:-128}
 out=$(mktemp -d)
 trap 'rm -rf "$out"' EXIT
-common=(--res "$res" --spp "$spp" --tile 32 --chunk 16 --seed 1 -q)
+# The standalone render merges chunks of 16; ptserve sizes its tasks by time (its
+# default): with exact sums the images are the same bits.
+common=(--res "$res" --spp "$spp" --tile 32 --seed 1 -q)
 w=${res%x*}; h=${res#*x}
 samples=$((w * h * spp))
 
@@ -22,7 +24,7 @@ median() { sort -g | awk '{a[NR]=$1} END {print (NR % 2) ? a[(NR+1)/2] : (a[NR/2
 
 : > "$out/solo"; : > "$out/farm"
 for _ in $(seq "$runs"); do
-  t0=$(now); "$bin/ptworker" --scene "$scene" --threads 2 "${common[@]}" -o "$out/solo.exr" 2>/dev/null; t1=$(now)
+  t0=$(now); "$bin/ptworker" --scene "$scene" --threads 2 "${common[@]}" --chunk 16 -o "$out/solo.exr" 2>/dev/null; t1=$(now)
   awk -v a="$t0" -v b="$t1" 'BEGIN {print b - a}' >> "$out/solo"
   t0=$(now); "$bin/ptserve" --local 2 --worker-threads 1 "${common[@]}" -o "$out/farm.exr" "$scene" 2>/dev/null; t1=$(now)
   awk -v a="$t0" -v b="$t1" 'BEGIN {print b - a}' >> "$out/farm"

@@ -80,7 +80,11 @@ int main(int argc, char **argv)
         while (srv_job_lease(job, 1, 0, 60000, &t)) {
             uint32_t n = (t.tile.x1 - t.tile.x0) * (t.tile.y1 - t.tile.y0);
             for (uint32_t i = 0; i < n; i++)
-                px[i] = (pt_pixel_acc){{0.5 + i, 0.25, 0.125}, 0.3, t.s1 - t.s0, 0};
+                px[i] =
+                    (pt_pixel_acc){{pt_fixed_of(0.5 + i), pt_fixed_of(0.25), pt_fixed_of(0.125)},
+                                   pt_ufixed_of(0.3),
+                                   t.s1 - t.s0,
+                                   0};
             proto_result res = {t.job_id, t.task_id, t.tile, t.s0, t.s1, 0, 1000, 0, n, px, 0};
             size_t mark;
             if (proto_frame_begin(&wr, PROTO_MSG_RESULT, &mark, NULL) != PT_OK ||

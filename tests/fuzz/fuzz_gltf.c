@@ -10,6 +10,8 @@
  * input as it is (ctest also replays the scenes/ folder). The harness writes
  * the files into its scratch folder and loads the entry with the real loader,
  * then frees the scene; no render.
+ * The entry is loaded twice: as a still, and animated (pt_anim_load, then
+ * posed after its last key).
  * Invariants: a refusal names its cause; nothing is left allocated; a loaded
  * scene has triangles whose indices and materials are in range, finite
  * positions inside its bounds, unit normals, textures within the size cap,
@@ -22,6 +24,7 @@
 #include <string.h>
 
 #include "common/base/alloc.h"
+#include "common/scene/anim.h"
 #include "common/scene/bundle.h"
 #include "common/scene/scene.h"
 #include "common/scene/uri.h"
@@ -122,6 +125,25 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     FUZZ_CHECK((st == PT_OK) == (scene != NULL));
     if (scene)
         check_scene(scene);
+    pt_scene_free(scene);
+
+    /* The same file animated (anim.h): posed at load, then after every key;
+     * each pose keeps the invariants, or the load names what it refuses. */
+    pt_anim *anim = NULL;
+    scene = NULL;
+    opts.animate = 1;
+    opts.time = 0.75;
+    st = pt_anim_load(entry, &opts, &scene, &anim, &err);
+    fuzz_note("animate", st, &err);
+    FUZZ_CHECK(st == PT_OK || (st == err.code && err.msg[0]));
+    FUZZ_CHECK((st == PT_OK) == (scene != NULL) && (st == PT_OK) == (anim != NULL));
+    if (scene) {
+        check_scene(scene);
+        st = pt_anim_pose(anim, 1e3, scene, &err);
+        FUZZ_CHECK(st == PT_OK || (st == err.code && err.msg[0]));
+        check_scene(scene);
+    }
+    pt_anim_free(anim);
     pt_scene_free(scene);
 
     /* What a client packs: the same files refused as the loader refuses. */

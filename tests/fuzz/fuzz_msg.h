@@ -51,6 +51,7 @@ static inline pt_status fuzz_decode(uint32_t type, const uint8_t *p, size_t len,
         proto_result result;
         proto_heartbeat hb;
         proto_job_ref ref;
+        proto_fetch_frame fetch_frame;
         proto_submit submit;
         proto_job_info info;
         proto_job_list list;
@@ -136,6 +137,11 @@ static inline pt_status fuzz_decode(uint32_t type, const uint8_t *p, size_t len,
         st = proto_msg_decode_job_ref(p, len, &u.ref, &err);
         if (st == PT_OK)
             FUZZ_REENCODE(proto_msg_encode_job_ref, &u.ref);
+        break;
+    case PROTO_MSG_FETCH_FRAME:
+        st = proto_msg_decode_fetch_frame(p, len, &u.fetch_frame, &err);
+        if (st == PT_OK)
+            FUZZ_REENCODE(proto_msg_encode_fetch_frame, &u.fetch_frame);
         break;
     case PROTO_MSG_SUBMIT:
         st = proto_msg_decode_submit(p, len, &u.submit, &err);

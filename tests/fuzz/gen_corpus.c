@@ -11,7 +11,8 @@
  * mode byte (see fuzz_frame.c) and frames, alone, in one stream, and a few
  * broken ones. For the decoders of files: small glTF scenes (a data: URI
  * buffer, an external buffer and image, a .glb, a name leading out of the
- * folder) for fuzz_gltf; bundles packed from such scenes, and hostile ones,
+ * folder, animated ones with skins and morph targets, and hostile animated
+ * ones) for fuzz_gltf; bundles packed from such scenes, and hostile ones,
  * for fuzz_bundle; and for the state folder's targets (fuzz_state.h) real
  * queue files, checkpoints and results logs written by server/state.c in a
  * scratch folder: fresh, with held early results, finished, cut short,
@@ -284,6 +285,122 @@ static void gen_gltf(const char *dir)
     free(b.p);
 }
 
+/* Animated scenes (common/scene/anim.h), the buffer inline: a triangle
+ * whose node is moved by LINEAR translation, STEP rotation and CUBICSPLINE
+ * scale, with two morph targets whose weights are animated, and a camera
+ * under it; and the triangle skinned to two joints, one of them turning. */
+static void gen_gltf_anim(const char *dir)
+{
+    /* clang-format off */
+    static const float f[] = {
+        0, 0, 0, 1, 0, 0, 0, 1, 0,                        /* 0: positions */
+        0, 0.5f, 1,                                       /* 36: times */
+        0, 0, 0, 1, 0, 0, 1, 1, 0,                        /* 48: translations */
+        0, 0, 0, 1, 0, 0, 0.7071068f, 0.7071068f,         /* 84: rotations */
+        0, 0, 1, 0,
+        0, 0, 0, 1, 1, 1, 0, 0, 0,                        /* 132: scales, */
+        0, 0, 0, 0, 0, 0, 2, 2, 2,                        /* (in, value, out) */
+        0, 0, 0, 1, 1, 1, 0, 0, 0,
+        1, 0, 0, 0, 0.5f, 0.5f, 0, 0, 1, 0, 0, 0,         /* 240: weights */
+        1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1,   /* 288: inverse binds */
+        1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, -1, 0, 0, 1,
+        0, 0, 1, 0, 0, 1, 0, 0, 1,                        /* 416: target 0 */
+        0, 1, 0, 0, 1, 0, 0, 1, 0,                        /* 452: target 1 */
+        0, 0, 1, 0, 0.5f, 0.5f,                           /* 488: morph weights */
+    };
+    /* clang-format on */
+    static const uint16_t joints[12] = {0, 1, 0, 0, 0, 1, 0, 0, 1, 0, 0, 0};
+    uint8_t bin[sizeof f + sizeof joints];
+    for (size_t i = 0; i < sizeof f / sizeof f[0]; i++)
+        proto_put_f32(bin + 4 * i, f[i]);
+    for (size_t i = 0; i < 12; i++)
+        proto_put_u16(bin + sizeof f + 2 * i, joints[i]);
+    bytes b = {0};
+    static const char k_anim_views[] =
+        "\"bufferViews\":[{\"buffer\":0,\"byteLength\":36},"
+        "{\"buffer\":0,\"byteOffset\":36,\"byteLength\":12},"
+        "{\"buffer\":0,\"byteOffset\":48,\"byteLength\":36},"
+        "{\"buffer\":0,\"byteOffset\":84,\"byteLength\":48},"
+        "{\"buffer\":0,\"byteOffset\":132,\"byteLength\":108},"
+        "{\"buffer\":0,\"byteOffset\":240,\"byteLength\":48},"
+        "{\"buffer\":0,\"byteOffset\":288,\"byteLength\":128},"
+        "{\"buffer\":0,\"byteOffset\":416,\"byteLength\":36},"
+        "{\"buffer\":0,\"byteOffset\":452,\"byteLength\":36},"
+        "{\"buffer\":0,\"byteOffset\":488,\"byteLength\":24},"
+        "{\"buffer\":0,\"byteOffset\":512,\"byteLength\":24}],"
+        "\"accessors\":[{\"bufferView\":0,\"componentType\":5126,\"count\":3,\"type\":\"VEC3\"},"
+        "{\"bufferView\":1,\"componentType\":5126,\"count\":3,\"type\":\"SCALAR\"},"
+        "{\"bufferView\":2,\"componentType\":5126,\"count\":3,\"type\":\"VEC3\"},"
+        "{\"bufferView\":3,\"componentType\":5126,\"count\":3,\"type\":\"VEC4\"},"
+        "{\"bufferView\":4,\"componentType\":5126,\"count\":9,\"type\":\"VEC3\"},"
+        "{\"bufferView\":5,\"componentType\":5126,\"count\":3,\"type\":\"VEC4\"},"
+        "{\"bufferView\":6,\"componentType\":5126,\"count\":2,\"type\":\"MAT4\"},"
+        "{\"bufferView\":7,\"componentType\":5126,\"count\":3,\"type\":\"VEC3\"},"
+        "{\"bufferView\":8,\"componentType\":5126,\"count\":3,\"type\":\"VEC3\"},"
+        "{\"bufferView\":9,\"componentType\":5126,\"count\":6,\"type\":\"SCALAR\"},"
+        "{\"bufferView\":10,\"componentType\":5123,\"count\":3,\"type\":\"VEC4\"}],";
+    /* The last three are hostile: a skin whose joints form a cycle out of the
+     * scene, a joint index past the skin's joints, a CUBICSPLINE sampler with
+     * one value a key. */
+    static const char k_skin_mesh[] =
+        "\"meshes\":[{\"primitives\":[{\"attributes\":{\"POSITION\":0,\"JOINTS_0\":10,"
+        "\"WEIGHTS_0\":5}}]}],";
+    static const char *const scenes[5][3] = {
+        {"anim_trs_morph.gltf", "\"scenes\":[{\"nodes\":[0]}],",
+         "\"nodes\":[{\"mesh\":0,\"weights\":[0.5,0],\"children\":[1]},"
+         "{\"camera\":0,\"translation\":[0,0,3]}],"
+         "\"cameras\":[{\"name\":\"cam\",\"type\":\"perspective\",\"perspective\":{\"yfov\":0.6,"
+         "\"znear\":0.1}}],"
+         "\"meshes\":[{\"weights\":[0,0],\"primitives\":[{\"attributes\":{\"POSITION\":0},"
+         "\"targets\":[{\"POSITION\":7},{\"POSITION\":8}]}]}],"
+         "\"animations\":[{\"name\":\"all\",\"channels\":["
+         "{\"sampler\":0,\"target\":{\"node\":0,\"path\":\"translation\"}},"
+         "{\"sampler\":1,\"target\":{\"node\":0,\"path\":\"rotation\"}},"
+         "{\"sampler\":2,\"target\":{\"node\":0,\"path\":\"scale\"}},"
+         "{\"sampler\":3,\"target\":{\"node\":0,\"path\":\"weights\"}}],\"samplers\":["
+         "{\"input\":1,\"output\":2},{\"input\":1,\"output\":3,\"interpolation\":\"STEP\"},"
+         "{\"input\":1,\"output\":4,\"interpolation\":\"CUBICSPLINE\"},"
+         "{\"input\":1,\"output\":9}]}],"},
+        {"anim_skin.gltf", "",
+         "\"nodes\":[{\"mesh\":0,\"skin\":0},{\"children\":[2]},{\"translation\":[1,0,0]}],"
+         "\"scenes\":[{\"nodes\":[0,1]}],"
+         "\"skins\":[{\"joints\":[1,2],\"inverseBindMatrices\":6,\"skeleton\":1}],"
+         "\"meshes\":[{\"primitives\":[{\"attributes\":{\"POSITION\":0,\"JOINTS_0\":10,"
+         "\"WEIGHTS_0\":5}}]}],"
+         "\"animations\":[{\"name\":\"bend\",\"channels\":["
+         "{\"sampler\":0,\"target\":{\"node\":2,\"path\":\"rotation\"}}],\"samplers\":["
+         "{\"input\":1,\"output\":3}]}],"},
+        {"anim_skin_cycle.gltf", k_skin_mesh,
+         "\"nodes\":[{\"mesh\":0,\"skin\":0},{\"children\":[2]},"
+         "{\"translation\":[1,0,0],\"children\":[1]}],\"scenes\":[{\"nodes\":[0]}],"
+         "\"skins\":[{\"joints\":[1,2],\"inverseBindMatrices\":6}],"},
+        {"anim_bad_joint.gltf", k_skin_mesh,
+         "\"nodes\":[{\"mesh\":0,\"skin\":0,\"children\":[1]},{}],\"scenes\":[{\"nodes\":[0]}],"
+         "\"skins\":[{\"joints\":[1]}],"},
+        {"anim_bad_count.gltf", "",
+         "\"nodes\":[{\"mesh\":0}],\"scenes\":[{\"nodes\":[0]}],"
+         "\"meshes\":[{\"primitives\":[{\"attributes\":{\"POSITION\":0}}]}],"
+         "\"animations\":[{\"channels\":[{\"sampler\":0,\"target\":{\"node\":0,\"path\":"
+         "\"translation\"}}],\"samplers\":[{\"input\":1,\"output\":2,"
+         "\"interpolation\":\"CUBICSPLINE\"}]}],"},
+    };
+    for (int i = 0; i < 5; i++) {
+        b.len = 0;
+        puts_(&b, "{\"asset\":{\"version\":\"2.0\"},");
+        puts_(&b, scenes[i][1]);
+        puts_(&b, scenes[i][2]);
+        puts_(&b, k_anim_views);
+        char len[64];
+        snprintf(len, sizeof len, "\"buffers\":[{\"byteLength\":%zu,", sizeof bin);
+        puts_(&b, len);
+        puts_(&b, "\"uri\":\"data:application/octet-stream;base64,");
+        base64(&b, bin, sizeof bin);
+        puts_(&b, "\"}]}");
+        emit(dir, "fuzz_gltf", scenes[i][0], b.p, b.len);
+    }
+    free(b.p);
+}
+
 /* Writes tmp/name with data (the generator's own scratch files). */
 static void scratch(const char *tmp, const char *name, const void *data, size_t len)
 {
@@ -391,7 +508,11 @@ static void fake_result(const proto_task *t, pt_pixel_acc *px, proto_result *r)
         /* An odd task's first pixel lost one sample (NaN/Inf), as its
          * rejected count says: the coordinator checks the two agree. */
         uint32_t k = i == 0 && (t->task_id & 1) ? ns - 1 : ns;
-        px[i] = (pt_pixel_acc){{v * k, v * 0.5 * k, v * 0.25 * k}, v * v * k * 1.1, k, 0};
+        px[i] = (pt_pixel_acc){
+            {pt_fixed_of(v * k), pt_fixed_of(v * 0.5 * k), pt_fixed_of(v * 0.25 * k)},
+            pt_ufixed_of(v * v * k * 1.1),
+            k,
+            0};
     }
     memset(r, 0, sizeof *r);
     r->job_id = t->job_id;
@@ -555,6 +676,7 @@ static void gen_files(const char *dir)
         return;
     }
     gen_gltf(dir);
+    gen_gltf_anim(dir);
     gen_bundle(dir, tmp);
     gen_state(dir, tmp);
     pt_remove_tree(tmp);

@@ -113,11 +113,12 @@ serve serve3.log PTSERVE_TEST_CKPT_LOG_BYTES=400000 PTSERVE_TEST_CKPT_GATE="$tmp
 id=$(submit killed)
 until_file "$tmp/state/jobs/$id/results.old" 16
 until_file "$tmp/state/jobs/$id/results.log" 40000
-ls "$tmp/state/jobs/$id/" | grep -q '^checkpoint.tmp-' || for _ in $(seq 600); do
-  ls "$tmp/state/jobs/$id/" | grep -q '^checkpoint.tmp-' && break
+ckpt_tmp() { compgen -G "$tmp/state/jobs/$id/checkpoint.tmp-*" >/dev/null; }
+for _ in $(seq 600); do
+  ckpt_tmp && break
   sleep 0.1
 done
-ls "$tmp/state/jobs/$id/" | grep -q '^checkpoint.tmp-' || fail "no checkpoint being written"
+ckpt_tmp || fail "no checkpoint being written"
 until_status "$id" 'd["samples_done"] > 0 or d["state"] != "running"'
 [ "$(json "$tmp/status.json" 'd["state"]')" = running ] || fail "the job ended before the kill"
 before=$(json "$tmp/status.json" 'd["samples_done"]')

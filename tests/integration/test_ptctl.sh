@@ -61,7 +61,7 @@ run 0 list --help && has "$tmp/out" "ptctl list" --json "${globals[@]}" "${statu
 run 0 status --help && has "$tmp/out" "ptctl status JOB" --json "${globals[@]}" "${statuses[@]}"
 run 0 watch --help && has "$tmp/out" "ptctl watch JOB" "${globals[@]}" "${statuses[@]}"
 run 0 cancel --help && has "$tmp/out" "ptctl cancel JOB" "${globals[@]}" "${statuses[@]}"
-run 0 fetch --help && has "$tmp/out" "ptctl fetch JOB -o OUT.exr" --output "${globals[@]}" "${statuses[@]}"
+run 0 fetch --help && has "$tmp/out" "ptctl fetch JOB [--frame F] -o OUT.exr" --output --frame "${globals[@]}" "${statuses[@]}"
 # Help wins over what else is on the line, and needs no server.
 run 0 --server 127.0.0.1:1 fetch 7 --help && has "$tmp/out" "ptctl fetch"
 [[ -s "$tmp/err" ]] && fail "help wrote to stderr: $(cat "$tmp/err")"

@@ -72,6 +72,10 @@ static inline proto_task sample_task(int v)
     }
     m.film_flags = v ? PROTO_FILM_TRANSPARENT : 0;
     strcpy(m.variant, v ? "" : "Peacock Velvet");
+    /* v 1: a frame of an animation. */
+    m.animate = v ? 1 : 0;
+    m.time = v ? 41.0 / 24.0 : 0.0;
+    strcpy(m.animation, v ? "Walk" : "");
     return m;
 }
 
@@ -80,10 +84,12 @@ static inline proto_result sample_result(int v)
     proto_result m;
     memset(&m, 0, sizeof m);
     for (unsigned i = 0; i < 12; i++) {
-        sample_pixels[i].sum[0] = 0.25 * i;
-        sample_pixels[i].sum[1] = -1.5e300 / (i + 1);
-        sample_pixels[i].sum[2] = i == 5 ? proto_bits_f64(0x7FF8000000000123ull) : 1e-310;
-        sample_pixels[i].sum_sq = i * 3.0;
+        /* Pixel 0 alone (v = 1) fits the narrow form, at its edges (the
+         * least i64, the largest u64); the 12 (v = 0) need the wide one. */
+        sample_pixels[i].fsum[0] = (pt_i128)i << 30;
+        sample_pixels[i].fsum[1] = i ? -((pt_i128)1 << 100) - i : -7;
+        sample_pixels[i].fsum[2] = i == 5 ? ((pt_i128)1 << 126) + 12345 : (pt_i128)INT64_MIN;
+        sample_pixels[i].fsum_sq = i == 3 ? PT_U128_MAX : (pt_u128)UINT64_MAX - i;
         sample_pixels[i].n = i % 9;
         sample_pixels[i].hits = i % 9 - i % 9 % 2; /* <= n, some below */
     }
@@ -137,6 +143,14 @@ static inline proto_submit sample_submit(int v)
     }
     m.film_flags = v ? PROTO_FILM_TRANSPARENT : 0;
     strcpy(m.variant, v ? "" : "Mango Velvet");
+    /* v 0: a frame range. */
+    if (!v) {
+        m.frame_first = 1;
+        m.frame_last = 240;
+        m.frame_step = 2;
+        m.fps = 23.976;
+        strcpy(m.animation, "Survey");
+    }
     return m;
 }
 
@@ -176,6 +190,19 @@ static inline proto_job_info sample_job_info(int v)
     m.submitted = v == 0 ? 1700000000u : UINT64_MAX;
     m.queue_pos = v == 1 ? 2 : 0;
     m.capped = v == 0 ? 12 : v == 2 ? UINT64_MAX : 0;
+    if (v == 0) { /* a frame range, two frames rendering */
+        m.frame_first = 1001;
+        m.frame_last = 1100;
+        m.frame_step = 1;
+        m.frames_done = 12;
+        m.frames_rendering = 2;
+        m.nshown = 2;
+        m.shown[0].frame = 1013;
+        m.shown[0].samples_done = 5000;
+        m.shown[0].samples_total = 8000;
+        m.shown[1].frame = 1014;
+        m.shown[1].samples_total = UINT64_MAX;
+    }
     return m;
 }
 

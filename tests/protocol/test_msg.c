@@ -18,6 +18,7 @@
 #include <string.h>
 
 #include "common/base/alloc.h"
+#include "common/render/render.h"
 #include "protocol/frame.h"
 #include "protocol/msg.h"
 #include "tests/check.h"
@@ -40,6 +41,7 @@ static pt_status decode_any(uint16_t type, const uint8_t *p, size_t len, pt_erro
         proto_result result;
         proto_heartbeat hb;
         proto_job_ref ref;
+        proto_fetch_frame fetch_frame;
         proto_submit submit;
         proto_job_info info;
         proto_job_list list;
@@ -91,6 +93,9 @@ static pt_status decode_any(uint16_t type, const uint8_t *p, size_t len, pt_erro
     case PROTO_MSG_JOB_END:
         st = proto_msg_decode_job_ref(p, len, &u.ref, err);
         break;
+    case PROTO_MSG_FETCH_FRAME:
+        st = proto_msg_decode_fetch_frame(p, len, &u.fetch_frame, err);
+        break;
     case PROTO_MSG_UPLOAD:
     case PROTO_MSG_IMAGE:
         st = proto_msg_decode_scene_chunk(p, len, &u.chunk, err);
@@ -117,10 +122,19 @@ static pt_status decode_any(uint16_t type, const uint8_t *p, size_t len, pt_erro
 static int acc_same(const pt_pixel_acc *a, const pt_pixel_acc *b)
 {
     for (int c = 0; c < 3; c++)
-        if (proto_f64_bits(a->sum[c]) != proto_f64_bits(b->sum[c]))
+        if (a->fsum[c] != b->fsum[c])
             return 0;
-    return proto_f64_bits(a->sum_sq) == proto_f64_bits(b->sum_sq) && a->n == b->n &&
-           a->hits == b->hits;
+    return a->fsum_sq == b->fsum_sq && a->n == b->n && a->hits == b->hits;
+}
+
+static int shown_same(const proto_job_info *a, const proto_job_info *b)
+{
+    for (uint32_t i = 0; i < a->nshown && i < PROTO_MAX_FRAMES_SHOWN; i++)
+        if (a->shown[i].frame != b->shown[i].frame ||
+            a->shown[i].samples_done != b->shown[i].samples_done ||
+            a->shown[i].samples_total != b->shown[i].samples_total)
+            return 0;
+    return 1;
 }
 
 static int job_info_same(const proto_job_info *a, const proto_job_info *b)
@@ -136,13 +150,16 @@ static int job_info_same(const proto_job_info *a, const proto_job_info *b)
            proto_f64_bits(a->rate) == proto_f64_bits(b->rate) &&
            proto_f64_bits(a->error) == proto_f64_bits(b->error) && a->submitted == b->submitted &&
            a->queue_pos == b->queue_pos && strcmp(a->message, b->message) == 0 &&
-           a->capped == b->capped;
+           a->capped == b->capped && a->frame_first == b->frame_first &&
+           a->frame_last == b->frame_last && a->frame_step == b->frame_step &&
+           a->frames_done == b->frames_done && a->frames_rendering == b->frames_rendering &&
+           a->nshown == b->nshown && shown_same(a, b);
 }
 
 static size_t job_info_size(const proto_job_info *m)
 {
-    return 115 + strlen(m->name) + strlen(m->owner) + strlen(m->scene) + strlen(m->output) +
-           strlen(m->message);
+    return 136 + strlen(m->name) + strlen(m->owner) + strlen(m->scene) + strlen(m->output) +
+           strlen(m->message) + 20u * m->nshown;
 }
 
 static void check_round_trip(int s, int v, const uint8_t *p, size_t len)
@@ -195,8 +212,11 @@ static void check_round_trip(int s, int v, const uint8_t *p, size_t len)
     }
     case 6: {
         proto_task a = sample_task(v), b;
-        CHECK(len == 123 + strlen(a.camera) + strlen(a.env.name) + strlen(a.variant) &&
+        CHECK(len == 134 + strlen(a.camera) + strlen(a.env.name) + strlen(a.variant) +
+                         strlen(a.animation) &&
               proto_msg_decode_task(p, len, &b, &err) == PT_OK);
+        CHECK(a.animate == b.animate && proto_f64_bits(a.time) == proto_f64_bits(b.time) &&
+              strcmp(a.animation, b.animation) == 0);
         CHECK(strcmp(a.camera, b.camera) == 0 && a.film_flags == b.film_flags);
         CHECK(strcmp(a.variant, b.variant) == 0);
         CHECK(proto_env_same(&a.env, &b.env));
@@ -225,7 +245,9 @@ static void check_round_trip(int s, int v, const uint8_t *p, size_t len)
     case 9: {
         proto_result a = sample_result(v), b;
         CHECK(proto_msg_decode_result(p, len, NULL, 0, &b, &err) == PT_OK);
-        CHECK(len == 68 + 40 * (size_t)a.npixels);
+        /* v = 1: narrow, 40 bytes a pixel; v = 0: wide, 72. */
+        CHECK(len == 69 + (v ? 40 : 72) * (size_t)a.npixels);
+        CHECK(p[68] == (v ? 0 : 3));
         CHECK(a.job_id == b.job_id && a.task_id == b.task_id && a.s0 == b.s0 && a.s1 == b.s1);
         CHECK(memcmp(&a.tile, &b.tile, sizeof a.tile) == 0);
         CHECK(a.rejected == b.rejected && a.rays == b.rays && a.npixels == b.npixels);
@@ -266,8 +288,11 @@ static void check_round_trip(int s, int v, const uint8_t *p, size_t len)
     case 12: {
         proto_submit a = sample_submit(v), b;
         CHECK(proto_msg_decode_submit(p, len, &b, &err) == PT_OK);
-        CHECK(len ==
-              115 + strlen(a.name) + strlen(a.camera) + strlen(a.env.name) + strlen(a.variant));
+        CHECK(len == 137 + strlen(a.name) + strlen(a.camera) + strlen(a.env.name) +
+                         strlen(a.variant) + strlen(a.animation));
+        CHECK(a.frame_first == b.frame_first && a.frame_last == b.frame_last &&
+              a.frame_step == b.frame_step && proto_f64_bits(a.fps) == proto_f64_bits(b.fps) &&
+              strcmp(a.animation, b.animation) == 0);
         CHECK(strcmp(a.camera, b.camera) == 0 && a.film_flags == b.film_flags);
         CHECK(strcmp(a.variant, b.variant) == 0);
         CHECK(proto_env_same(&a.env, &b.env));
@@ -461,8 +486,14 @@ static proto_writer task_raw(pt_rect t, uint32_t s0, uint32_t s1, uint32_t width
     w_env_none(&w);
     proto_w_u32(&w, 0); /* film flags */
     proto_w_u16(&w, 0); /* variant: "" */
+    proto_w_u8(&w, 0);  /* animate: a still */
+    proto_w_f64(&w, 0.0);
+    proto_w_u16(&w, 0); /* animation: "" */
     return w;
 }
+
+/* Bytes of a TASK's pose, its last fields: animate, time, animation. */
+#define POSE_TAIL(t) (1 + 8 + 2 + strlen((t).animation))
 
 static pt_status task_check(pt_rect t, uint32_t s0, uint32_t s1, uint32_t width, uint32_t height,
                             const char *want, pt_error *err)
@@ -526,9 +557,9 @@ static void test_task(void)
         proto_task good = sample_task(k & 1);
         CHECK(proto_msg_encode_task(&ew, &good, &err) == PT_OK);
         /* Patch the bad value into the good bytes: the ENV block, then the
-         * film flags and the variant, end the message. */
-        uint8_t *env_at =
-            ew.buf + ew.len - 2 - strlen(good.variant) - 4 - 23 - strlen(good.env.name);
+         * film flags, the variant and the pose end the message. */
+        uint8_t *env_at = ew.buf + ew.len - POSE_TAIL(good) - 2 - strlen(good.variant) - 4 - 23 -
+                          strlen(good.env.name);
         if (k == 0)
             proto_put_u32(env_at + 19, 0x7FC00000u); /* rgb[2], the name empty */
         else if (k == 1)
@@ -554,7 +585,7 @@ static void test_task(void)
           strcmp(back.camera, t.camera) == 0);
     proto_writer_reset(&w);
     proto_writer raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
-    raw.len -= 2 + 23 + 4 + 2; /* the empty camera, ENV block, film flags and variant */
+    raw.len -= 2 + 23 + 4 + 2 + 11; /* the empty camera, ENV, film flags, variant and pose */
     proto_w_u16(&raw, PROTO_MAX_NAME + 1);
     for (uint32_t i = 0; i <= PROTO_MAX_NAME; i++)
         proto_w_u8(&raw, 'c');
@@ -575,7 +606,7 @@ static void test_task(void)
     proto_writer_reset(&w);
     CHECK(proto_msg_encode_task(&w, &t, &err) == PT_ERR_ARG && w.len == 0);
     raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
-    proto_put_u32(raw.buf + raw.len - 6, 0x80000000u);
+    proto_put_u32(raw.buf + raw.len - 6 - 11, 0x80000000u);
     CHECK(decode_any(PROTO_MSG_TASK, raw.buf, raw.len, &err) == PT_ERR_PROTO &&
           strstr(err.msg, "film flags"));
     proto_writer_fini(&raw);
@@ -592,7 +623,7 @@ static void test_task(void)
     CHECK(proto_msg_decode_task(w.buf, w.len, &back, &err) == PT_OK &&
           strcmp(back.variant, t.variant) == 0);
     raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
-    raw.len -= 2;
+    raw.len -= 2 + 11; /* the empty variant and the still's pose */
     proto_w_u16(&raw, PROTO_MAX_NAME + 1);
     for (uint32_t i = 0; i <= PROTO_MAX_NAME; i++)
         proto_w_u8(&raw, 'v');
@@ -712,9 +743,10 @@ static proto_writer result_raw(pt_rect t, uint32_t s0, uint32_t s1, uint32_t n, 
     proto_w_u64(&w, 0);
     proto_w_u64(&w, 0);
     proto_w_u32(&w, n);
+    proto_w_u8(&w, 0); /* narrow */
     for (uint32_t i = 0; i < have; i++) {
         for (int k = 0; k < 4; k++)
-            proto_w_f64(&w, 1.0);
+            proto_w_u64(&w, 1ull << 32);
         proto_w_u32(&w, pixel_n);
         proto_w_u32(&w, pixel_hits);
     }
@@ -783,6 +815,38 @@ static void test_result(void)
     CHECK(result_hits_check((pt_rect){0, 0, 4, 2}, 0, 8, 8, 8, 5, 6, "hits", &alloc) ==
           PT_ERR_PROTO);
     CHECK(alloc == 0);
+    /* The pixel form: 0 narrow, 1 wide (72-byte pixels), nothing else. */
+    {
+        proto_writer raw = result_raw((pt_rect){0, 0, 4, 2}, 0, 8, 8, 8, 8, 0);
+        proto_result r;
+        pt_error e = {0};
+        raw.buf[68] = 1; /* wide RGB, but 40-byte pixels: 8 x 64 bytes are not there */
+        CHECK(proto_msg_decode_result(raw.buf, raw.len, NULL, 0, &r, &e) == PT_ERR_PROTO &&
+              strstr(e.msg, "truncated"));
+        raw.buf[68] = 4;
+        CHECK(proto_msg_decode_result(raw.buf, raw.len, NULL, 0, &r, &e) == PT_ERR_PROTO &&
+              strstr(e.msg, "pixel form"));
+        proto_writer_fini(&raw);
+    }
+    /* Only the sums of squares wide (a bright pixel): 48-byte pixels, and
+     * only the RGB sums: 64; both round trip. */
+    for (int k = 0; k < 2; k++) {
+        pt_pixel_acc px[2] = {pt_pixel_acc_of(1.0, 2.0, 3.0, 4.0, 8, 8),
+                              pt_pixel_acc_of(0.5, 0.25, 0.125, 0.0625, 8, 3)};
+        if (k == 0)
+            px[1].fsum_sq = ((pt_u128)1 << 64) + 5;
+        else
+            px[1].fsum[2] = -((pt_i128)1 << 64) - 5;
+        proto_result m = {1, 2, {0, 0, 2, 1}, 0, 8, 0, 0, 0, 2, px, 0}, b;
+        proto_writer ww;
+        proto_writer_init(&ww, 1 << 20);
+        CHECK(proto_msg_encode_result(&ww, &m, NULL) == PT_OK);
+        CHECK(ww.len == 69 + 2 * (size_t)(k ? 64 : 48) && ww.buf[68] == (k ? 1 : 2));
+        CHECK(proto_msg_decode_result(ww.buf, ww.len, NULL, 0, &b, NULL) == PT_OK &&
+              acc_same(&b.pixels[0], &px[0]) && acc_same(&b.pixels[1], &px[1]));
+        proto_result_fini(&b);
+        proto_writer_fini(&ww);
+    }
     CHECK(pt_alloc_live() == live);
 
     /* Encoder side of the same rules. */
@@ -869,7 +933,8 @@ static void test_types(void)
     CHECK(13 + PROTO_MAX_NAME + PROTO_MAX_BUILD_ID <= PROTO_MAX_PAYLOAD_PREAUTH);
     CHECK(4 + PROTO_MAX_ERROR_TEXT <= PROTO_MAX_PAYLOAD_PREAUTH);
     /* A full RESULT fits the frame cap. */
-    CHECK(PROTO_RESULT_HEADER_SIZE + (uint64_t)PROTO_RESULT_PIXEL_SIZE * PROTO_MAX_TILE_PIXELS <=
+    CHECK(PROTO_RESULT_HEADER_SIZE +
+              (uint64_t)PROTO_RESULT_WIDE_PIXEL_SIZE * PROTO_MAX_TILE_PIXELS <=
           PROTO_MAX_PAYLOAD);
     CHECK(52 + (uint64_t)PROTO_MAX_SCENE_CHUNK <= PROTO_MAX_PAYLOAD);
 }
@@ -907,6 +972,12 @@ static pt_status submit_check(const proto_submit *m, const char *want)
     proto_w_u32(&w, m->film_flags);
     proto_w_u16(&w, (uint16_t)strnlen(m->variant, sizeof m->variant));
     proto_w_bytes(&w, m->variant, strnlen(m->variant, sizeof m->variant));
+    proto_w_u32(&w, m->frame_first);
+    proto_w_u32(&w, m->frame_last);
+    proto_w_u32(&w, m->frame_step);
+    proto_w_f64(&w, m->fps);
+    proto_w_u16(&w, (uint16_t)strnlen(m->animation, sizeof m->animation));
+    proto_w_bytes(&w, m->animation, strnlen(m->animation, sizeof m->animation));
     pt_error err = {0};
     pt_status st = decode_any(PROTO_MSG_SUBMIT, w.buf, w.len, &err);
     if (st != PT_OK && want && !strstr(err.msg, want)) {
@@ -1034,8 +1105,9 @@ static void test_submit(void)
     /* Cut inside the ENV block: refused as truncated. */
     m = sample_submit(0);
     CHECK(proto_msg_encode_submit(&w, &m, &err) == PT_OK);
-    CHECK(decode_any(PROTO_MSG_SUBMIT, w.buf, w.len - 2 - strlen(m.variant) - 4 - 1, &err) ==
-          PT_ERR_PROTO);
+    CHECK(decode_any(PROTO_MSG_SUBMIT, w.buf,
+                     w.len - 22 - strlen(m.animation) - 2 - strlen(m.variant) - 4 - 1,
+                     &err) == PT_ERR_PROTO);
     CHECK(strstr(err.msg, "background colour") != NULL);
     proto_writer_reset(&w);
     /* A NUL in the name. */
@@ -1062,6 +1134,9 @@ static void job_info_raw(proto_writer *w, int f, size_t n)
         proto_w_u32(w, 0);
     w_str(w, f == 4 ? n : 0, 'q');
     proto_w_u64(w, 0); /* paths capped */
+    for (int k = 0; k < 5; k++)
+        proto_w_u32(w, 0); /* a still: no frame range, no frames */
+    proto_w_u8(w, 0);      /* no frames listed */
 }
 
 static void test_job_info(void)
@@ -1072,7 +1147,7 @@ static void test_job_info(void)
     /* Every string at its cap round-trips; one byte over is refused by both sides. */
     proto_job_info m = sample_job_info(2);
     CHECK(proto_msg_encode_job_info(&w, &m, &err) == PT_OK);
-    CHECK(w.len == 115 + 2 * PROTO_MAX_NAME + 2 * PROTO_MAX_PATH + PROTO_MAX_ERROR_TEXT);
+    CHECK(w.len == 136 + 2 * PROTO_MAX_NAME + 2 * PROTO_MAX_PATH + PROTO_MAX_ERROR_TEXT);
     static proto_job_info b;
     CHECK(proto_msg_decode_job_info(w.buf, w.len, &b, &err) == PT_OK);
     CHECK(job_info_same(&m, &b));
@@ -1163,8 +1238,8 @@ static void test_job_list(void)
     CHECK(job_list_check(head, 4, "cap", &alloc) == PT_ERR_PROTO && alloc == 0);
     /* A count that the bytes present cannot hold: refused before allocating. */
     proto_writer_reset(&w);
-    jobs[0] = sample_job_info(1); /* the smallest entry: 115 bytes */
-    CHECK(proto_msg_encode_job_list(&w, jobs, 1, &err) == PT_OK && w.len == 4 + 115);
+    jobs[0] = sample_job_info(1); /* the smallest entry: 136 bytes */
+    CHECK(proto_msg_encode_job_list(&w, jobs, 1, &err) == PT_OK && w.len == 4 + 136);
     CHECK(job_list_check(w.buf, w.len, NULL, &alloc) == PT_OK && alloc == 1);
     proto_put_u32(w.buf, 2);
     CHECK(job_list_check(w.buf, w.len, "bytes", &alloc) == PT_ERR_PROTO && alloc == 0);
@@ -1235,7 +1310,8 @@ static void test_client_types(void)
     CHECK(strcmp(proto_msg_type_name(PROTO_MSG_IMAGE), "IMAGE") == 0);
     CHECK(strcmp(proto_msg_type_name(PROTO_MSG_JOB_END), "JOB_END") == 0);
     CHECK(proto_msg_type_known(PROTO_MSG_JOB_END) && !proto_msg_type_preauth(PROTO_MSG_JOB_END));
-    CHECK(!proto_msg_type_known(39) && !proto_msg_type_known(47) && !proto_msg_type_known(52));
+    CHECK(strcmp(proto_msg_type_name(PROTO_MSG_FETCH_FRAME), "FETCH_FRAME") == 0);
+    CHECK(!proto_msg_type_known(40) && !proto_msg_type_known(47) && !proto_msg_type_known(52));
     /* UPLOAD and IMAGE go through the SCENE_CHUNK decoder; JOB_REF types share one. */
     proto_writer w;
     pt_error err = {0};
@@ -1251,9 +1327,88 @@ static void test_client_types(void)
     proto_writer_fini(&w);
 }
 
+/* Protocol 4's frame ranges: SUBMIT's range and pose, TASK's pose,
+ * FETCH_FRAME; each malformed value refused by both sides. */
+static void test_frames(void)
+{
+    proto_submit m = sample_submit(0);
+    CHECK(m.frame_step == 2 && submit_check(&m, NULL) == PT_OK);
+    m.frame_last = 0; /* reversed */
+    CHECK(submit_check(&m, "frame range") == PT_ERR_PROTO);
+    m = sample_submit(0);
+    m.frame_step = 0; /* a still with a range's other fields */
+    CHECK(submit_check(&m, "frame range") == PT_ERR_PROTO);
+    m = sample_submit(0);
+    m.frame_first = 0;
+    m.frame_last = 100000; /* 100001 frames */
+    m.frame_step = 1;
+    CHECK(submit_check(&m, "frame range") == PT_ERR_PROTO);
+    m.frame_last = 99999;
+    CHECK(submit_check(&m, NULL) == PT_OK);
+    m.fps = 0.0;
+    CHECK(submit_check(&m, "frames per second") == PT_ERR_PROTO);
+    m.fps = NAN;
+    CHECK(submit_check(&m, "frames per second") == PT_ERR_PROTO);
+    m.fps = INFINITY;
+    CHECK(submit_check(&m, "frames per second") == PT_ERR_PROTO);
+    m = sample_submit(1); /* a still: no rate, no animation */
+    CHECK(submit_check(&m, NULL) == PT_OK);
+    m.fps = 24.0;
+    CHECK(submit_check(&m, "frames per second") == PT_ERR_PROTO);
+    m.fps = 0.0;
+    strcpy(m.animation, "Walk");
+    CHECK(submit_check(&m, "animation") == PT_ERR_PROTO);
+
+    pt_error err = {0};
+    proto_writer w;
+    proto_writer_init(&w, 4096);
+    proto_task t = sample_task(1), back;
+    CHECK(t.animate == 1);
+    for (int k = 0; k < 4; k++) {
+        t = sample_task(k < 2);
+        if (k == 0)
+            t.animate = 2;
+        else if (k == 1)
+            t.time = NAN;
+        else if (k == 2)
+            t.time = 1.0; /* a time without animate */
+        else
+            t.time = -0.0 - 1.0;
+        proto_writer_reset(&w);
+        CHECKF(proto_msg_encode_task(&w, &t, &err) == PT_ERR_ARG && w.len == 0, "pose %d", k);
+        /* By hand: the good bytes with the bad pose patched in. */
+        proto_task good = sample_task(k < 2);
+        CHECK(proto_msg_encode_task(&w, &good, &err) == PT_OK);
+        uint8_t *pose = w.buf + w.len - POSE_TAIL(good);
+        pose[0] = t.animate;
+        proto_put_u64(pose + 1, proto_f64_bits(t.time));
+        CHECKF(decode_any(PROTO_MSG_TASK, w.buf, w.len, &err) == PT_ERR_PROTO &&
+                   (strstr(err.msg, "animate") || strstr(err.msg, "time")),
+               "pose %d: %s", k, err.msg);
+    }
+    /* The protocol-3 layout (no pose) is a truncated TASK now. */
+    t = sample_task(0);
+    proto_writer_reset(&w);
+    CHECK(proto_msg_encode_task(&w, &t, &err) == PT_OK);
+    CHECK(decode_any(PROTO_MSG_TASK, w.buf, w.len - POSE_TAIL(t), &err) == PT_ERR_PROTO);
+    CHECK(proto_msg_decode_task(w.buf, w.len, &back, &err) == PT_OK && back.animate == 0 &&
+          back.time == 0.0);
+
+    proto_fetch_frame ff = {UINT64_MAX, 999999}, fb;
+    proto_writer_reset(&w);
+    CHECK(proto_msg_encode_fetch_frame(&w, &ff, &err) == PT_OK && w.len == 12);
+    CHECK(proto_msg_decode_fetch_frame(w.buf, w.len, &fb, &err) == PT_OK &&
+          fb.job_id == UINT64_MAX && fb.frame == 999999);
+    CHECK(decode_any(PROTO_MSG_FETCH_FRAME, w.buf, 11, &err) == PT_ERR_PROTO);
+    proto_w_u8(&w, 0);
+    CHECK(decode_any(PROTO_MSG_FETCH_FRAME, w.buf, w.len, &err) == PT_ERR_PROTO);
+    proto_writer_fini(&w);
+}
+
 int main(void)
 {
     test_types();
+    test_frames();
     test_samples();
     test_strings();
     test_task();

@@ -2,9 +2,13 @@
  * test_farm.c - ptserve and ptworker as real processes over real sockets.
  *
  *  1. Bit identity: the standalone `ptworker --scene`, `ptserve --local 1`
- *     and `ptserve --local 3` give the same R, G, B and samples bits.
+ *     and `ptserve --local 3` give the same R, G, B and samples bits, with
+ *     fixed chunks (--chunk) and with tasks sized by time (the default), also
+ *     for workers of different speeds (2 threads and 1) and for adaptive
+ *     sampling.
  *  2. Chaos: workers are killed with SIGKILL at random moments (at least ten
- *     times, each replaced); the job completes bit-identical with exact sample
+ *     times, each replaced) while tasks are sized by time; the job completes
+ *     bit-identical (to the standalone render's chunks of 48) with exact sample
  *     counts, while a reader polling the output EXR always finds a valid file
  *     whose sample counts never decrease.
  *  3. Hostile peers during a render: garbage, a huge declared length, a bad
@@ -39,6 +43,12 @@
 
 static const char *SCENE = PT_SOURCE_DIR "/scenes/cornell_box.gltf";
 #define COMMON "--res", "48x32", "--tile", "16", "--chunk", "8", "--seed", "3"
+/* The same job with ptserve's default: tasks sized by time (decisions of
+ * adaptive sampling every 16 samples, the standalone's --chunk 16). */
+#define SIZED "--res", "48x32", "--tile", "16", "--seed", "3"
+/* A standalone render of the same job in chunks of 48 samples: with exact
+ * sums any cut at multiples of 16 samples gives the same bits. */
+#define SOLO48 SIZED, "--chunk", "48"
 
 /* ---- 1. bit identity ---------------------------------------------------------------- */
 
@@ -152,6 +162,71 @@ static void bit_identity(void)
     printf("min gain: %d distinct counts, %d pixels at the full count\n", ncounts, full);
     CHECK(ncounts >= 3 && full > 0 && full < (int)(48 * 32));
     pt_image_free(mg);
+
+    /* Tasks sized by time (ptserve's default; a short task time so that
+     * this small job's tasks grow past one block): the same bits as the
+     * standalone render's chunks of 48, with one worker and with three. */
+    const char *sized1[] = {
+        PT_BIN_DIR "/ptserve", "--local", "1", SIZED, "--task-time", "50", "--spp", "256", "-o",
+        path("s1.exr"),        SCENE,     NULL};
+    CHECK(run(sized1, "s1.log", 300) == 0);
+    const char *solo256[] = {PT_BIN_DIR "/ptworker", "--scene", SCENE, SOLO48, "--spp", "256", "-o",
+                             path("ref256.exr"),     "-q",      NULL};
+    CHECK(run(solo256, "ref256.log", 300) == 0);
+    const char *sized3[] = {PT_BIN_DIR "/ptserve",
+                            "--local",
+                            "3",
+                            "--worker-threads",
+                            "1",
+                            SIZED,
+                            "--task-time",
+                            "50",
+                            "--spp",
+                            "256",
+                            "-o",
+                            path("s3.exr"),
+                            SCENE,
+                            NULL};
+    CHECK(run(sized3, "s3.log", 300) == 0);
+    CHECKF(same_pixels("ref256.exr", "s1.exr"), "time-sized --local 1 differs from standalone");
+    CHECKF(same_pixels("ref256.exr", "s3.exr"), "time-sized --local 3 differs from standalone");
+    CHECK(all_samples("s3.exr", 256.0f));
+    /* Adaptive sampling with time-sized tasks: decisions every 16 samples,
+     * as the standalone render's with --chunk 16. */
+    const char *ad16_solo[] = {PT_BIN_DIR "/ptworker",
+                               "--scene",
+                               SCENE,
+                               SIZED,
+                               "--chunk",
+                               "16",
+                               "--spp",
+                               "256",
+                               "--target-error",
+                               "0.05",
+                               "-o",
+                               path("ad16_ref.exr"),
+                               "-q",
+                               NULL};
+    CHECK(run(ad16_solo, "ad16_ref.log", 120) == 0);
+    const char *ad_sized[] = {PT_BIN_DIR "/ptserve",
+                              "--local",
+                              "2",
+                              "--worker-threads",
+                              "1",
+                              SIZED,
+                              "--task-time",
+                              "50",
+                              "--spp",
+                              "256",
+                              "--target-error",
+                              "0.05",
+                              "-o",
+                              path("ad_sized.exr"),
+                              SCENE,
+                              NULL};
+    CHECK(run(ad_sized, "ad_sized.log", 120) == 0);
+    CHECKF(same_pixels("ad16_ref.exr", "ad_sized.exr"),
+           "adaptive time-sized --local 2 differs from standalone");
 }
 
 /* ---- 2. chaos ----------------------------------------------------------------------- */
@@ -180,7 +255,7 @@ static int chaos_run(uint32_t spp)
 {
     char spp_text[16];
     snprintf(spp_text, sizeof spp_text, "%u", spp);
-    const char *ref[] = {PT_BIN_DIR "/ptworker", "--scene", SCENE, COMMON, "--spp", spp_text, "-o",
+    const char *ref[] = {PT_BIN_DIR "/ptworker", "--scene", SCENE, SOLO48, "--spp", spp_text, "-o",
                          path("chaos_ref.exr"),  "-q",      NULL};
     CHECK(run(ref, "chaos_ref.log", 300) == 0);
     unlink(path("port"));
@@ -192,7 +267,9 @@ static int chaos_run(uint32_t spp)
                            path("port"),
                            "--token-file",
                            path("token"),
-                           COMMON,
+                           SIZED,
+                           "--task-time",
+                           "100",
                            "--spp",
                            spp_text,
                            "--save-interval",
@@ -262,6 +339,54 @@ static int chaos_run(uint32_t spp)
     CHECKF(same_pixels("chaos_ref.exr", "chaos.exr"), "chaos changed the image");
     CHECK(all_samples("chaos.exr", (float)spp));
     return status == 0 ? kills : -1;
+}
+
+/* Workers of different speeds (2 threads and 1) with time-sized tasks:
+ * each gets tasks sized for itself, and the image is still the standalone
+ * render's bits. */
+static void mixed_speeds(void)
+{
+    const char *ref[] = {PT_BIN_DIR "/ptworker", "--scene", SCENE, SOLO48, "--spp", "512", "-o",
+                         path("mixed_ref.exr"),  "-q",      NULL};
+    CHECK(run(ref, "mixed_ref.log", 300) == 0);
+    unlink(path("port"));
+    const char *serve[] = {PT_BIN_DIR "/ptserve",
+                           "--listen",
+                           "127.0.0.1:0",
+                           "--port-file",
+                           path("port"),
+                           "--token-file",
+                           path("token"),
+                           SIZED,
+                           "--task-time",
+                           "100",
+                           "--spp",
+                           "512",
+                           "-o",
+                           path("mixed.exr"),
+                           SCENE,
+                           NULL};
+    pid_t srv = spawn(serve, "mixed.log");
+    int port = read_port();
+    CHECK(port > 0);
+    char server[64];
+    snprintf(server, sizeof server, "127.0.0.1:%d", port);
+    const char *fast[] = {
+        PT_BIN_DIR "/ptworker", "--server",    server,        "--threads", "2",    "--token-file",
+        path("token"),          "--cache-dir", path("cache"), "--name",    "fast", NULL};
+    const char *slow[] = {
+        PT_BIN_DIR "/ptworker", "--server", server,         "--threads",   "1",
+        "--prefetch",           "0",        "--token-file", path("token"), "--cache-dir",
+        path("cache"),          "--name",   "slow",         NULL};
+    pid_t w1 = spawn(fast, "mixed_fast.log"), w2 = spawn(slow, "mixed_slow.log");
+    int st = wait_exit(srv, 300);
+    kill(w1, SIGTERM);
+    kill(w2, SIGTERM);
+    wait_exit(w1, 10);
+    wait_exit(w2, 10);
+    CHECKF(st == 0, "ptserve exit status %d", st);
+    CHECKF(same_pixels("mixed_ref.exr", "mixed.exr"), "workers of mixed speeds changed the image");
+    CHECK(all_samples("mixed.exr", 512.0f));
 }
 
 /* The kills must land while the job runs. How long it runs depends on the
@@ -382,7 +507,7 @@ static void hostile(void)
         static pt_pixel_acc px[256];
         memset(px, 0, sizeof px);
         for (int i = 0; i < 256; i++) {
-            px[i].sum[0] = 1e6;
+            px[i].fsum[0] = (pt_i128)1e6 << PT_FIXED_BITS;
             px[i].n = 8;
         }
         proto_result r = {0};
@@ -473,6 +598,7 @@ int main(void)
     signal(SIGPIPE, SIG_IGN);
     write_token();
     bit_identity();
+    mixed_speeds();
     chaos();
     hostile();
     interrupt();

@@ -1,7 +1,9 @@
 /*
  * test_job.c - the coordinator's job model without sockets: pass order,
- * leases and their expiry, requeue on a lost worker, idempotent merging, and
- * bit-identical films whatever order results arrive in.
+ * leases and their expiry, requeue on a lost worker, idempotent merging,
+ * bit-identical films whatever order results arrive in, and time-sized
+ * tasks (sizes by owner speed, the tail, fixed chunks, any cut merging to
+ * the same film, with adaptive sampling and a resume too).
  */
 #include <math.h>
 #include <stdlib.h>
@@ -22,7 +24,7 @@ static void fake_result(const proto_task *t, pt_pixel_acc *px, proto_result *r)
         h ^= h >> 33;
         h *= 0xff51afd7ed558ccdull;
         double v = (double)(h >> 11) / 9007199254740992.0;
-        px[i] = (pt_pixel_acc){{v, v * 0.5, v * 1e-7}, v * v, t->s1 - t->s0, 0};
+        px[i] = pt_pixel_acc_of(v, v * 0.5, v * 1e-7, v * v, t->s1 - t->s0, 0);
     }
     memset(r, 0, sizeof *r);
     r->job_id = t->job_id;
@@ -57,6 +59,8 @@ static void pass_order(void)
     }
     CHECK(t.s1 == 40 && t.tile.x1 == 70 && t.tile.y1 == 40 && t.tile.x0 == 64);
     CHECK(srv_job_lease(j, 1, 0, 1000, &t) == 0);
+    CHECK(srv_job_tasks_total(j) == 18);
+    CHECK(srv_job_tasks_merged(j) == 0);
     CHECK(memcmp(t.scene_hash, HASH, 32) == 0 && t.width == 70 && t.seed == 5);
     srv_job_free(j);
 }
@@ -89,7 +93,7 @@ static void leases(void)
     r.s1++;
     CHECK(srv_job_result(j, 4, &r, &err) == SRV_INVALID);
     r.s1--;
-    px[3].sum[1] = NAN;
+    px[3].fsum[1] = -1; /* negative */
     CHECK(srv_job_result(j, 4, &r, &err) == SRV_INVALID && strstr(err.msg, "pixel 3"));
     fake_result(&c, px, &r);
     px[0].n = 17;
@@ -113,7 +117,7 @@ static void leases(void)
 static pt_pixel_acc *complete(uint32_t seed, int owners)
 {
     srv_job *j = make(50, 30, 64, 16, 16);
-    uint64_t total = srv_job_tasks_total(j);
+    uint64_t total = (uint64_t)srv_job_tiles(j) * srv_job_passes(j);
     proto_task *tasks = calloc(total, sizeof *tasks);
     uint64_t n = 0;
     int guard = 0;
@@ -203,7 +207,7 @@ static void adaptive(void)
             /* ns samples of value v (tile 0), or half 0 and half 2v (tile 1). */
             double sum = tile == 0 ? v * ns : v * ns;
             double sq = tile == 0 ? ns * 0.25 : 2.0 * v * v * ns;
-            px[i] = (pt_pixel_acc){{sum, sum, sum}, sq, ns, 0};
+            px[i] = pt_pixel_acc_of(sum, sum, sum, sq, ns, 0);
         }
         proto_result r = {t.job_id, t.task_id, t.tile, t.s0, t.s1, 0, 0, 0, 32 * 32, px, 0};
         srv_outcome o = srv_job_result(j, 1, &r, NULL);
@@ -229,9 +233,22 @@ static void gain_pixels_of(const proto_task *t, pt_pixel_acc *px, proto_result *
     uint32_t ns = t->s1 - t->s0, chunk = t->s0 / 8;
     for (uint32_t i = 0; i < 32 * 32; i++) {
         double v = t->tile.x0 == 0 ? (black0 ? 0.0 : 0.5) : (double)((chunk + 1) % 2);
-        px[i] = (pt_pixel_acc){{v * ns, v * ns, v * ns}, v * v * ns, ns, 0};
+        px[i] = pt_pixel_acc_of(v * ns, v * ns, v * ns, v * v * ns, ns, 0);
     }
     *r = (proto_result){t->job_id, t->task_id, t->tile, t->s0, t->s1, 0, 0, 0, 32 * 32, px, 0};
+}
+
+/* A pixel of a version 5 checkpoint (72 bytes: sums as u64 pairs, low half
+ * first, n, hits) as version 4 wrote it (40 bytes: f64 sums, n, hits). */
+static void put_old_pixel(proto_writer *o, const uint8_t *q)
+{
+    for (int c = 0; c < 3; c++)
+        proto_w_f64(o, pt_fixed_to_double((pt_i128)(((pt_u128)proto_get_u64(q + 16 * c + 8) << 64) |
+                                                    proto_get_u64(q + 16 * c))));
+    proto_w_f64(
+        o, pt_ufixed_to_double(((pt_u128)proto_get_u64(q + 56) << 64) | proto_get_u64(q + 48)));
+    proto_w_u32(o, proto_get_u32(q + 64));
+    proto_w_u32(o, proto_get_u32(q + 68));
 }
 
 static void gain_pixels(const proto_task *t, pt_pixel_acc *px, proto_result *r)
@@ -325,6 +342,110 @@ static void adaptive_min_gain(void)
     }
     srv_job_free(d);
     d = NULL;
+    /* A version 5 checkpoint (fixed-point sums, fixed chunks: each tile's
+     * chunks merged, held results by task id) loads to the same bits and
+     * resumes to the same image: a state folder from before time-sized
+     * tasks goes on. */
+    {
+        const size_t at0 = 4 + 4 + 8 + 32 + 9 * 4 + 2 * 8 + 2 + strlen(p.camera) + 23 + 4 + 2 + 8;
+        proto_writer v5;
+        proto_writer_init(&v5, 1u << 20);
+        uint32_t ntiles = proto_get_u32(w.buf + at0);
+        size_t at = at0 + 8;
+        proto_w_bytes(&v5, w.buf, at);
+        proto_put_u32(v5.buf + 4, 5);
+        for (uint32_t ti = 0; ti < ntiles; ti++, at += 5) {
+            proto_w_u32(&v5, proto_get_u32(w.buf + at) / 8);
+            proto_w_u8(&v5, w.buf[at + 4]);
+        }
+        uint32_t nheld = proto_get_u32(w.buf + at);
+        proto_w_u32(&v5, nheld);
+        at += 4;
+        for (uint32_t i = 0; i < nheld; i++) {
+            uint32_t tile = proto_get_u32(w.buf + at), s0 = proto_get_u32(w.buf + at + 4);
+            proto_w_u64(&v5, (uint64_t)(s0 / 8) * ntiles + tile); /* task id */
+            at += 12;
+            proto_w_bytes(&v5, w.buf + at, 32 * 32 * 72);
+            at += 32 * 32 * 72;
+        }
+        proto_w_bytes(&v5, w.buf + at, w.len - at);
+        srv_job *e = NULL;
+        CHECK(proto_writer_status(&v5) == PT_OK);
+        CHECK(srv_job_new(3, &p, HASH, &e, NULL) == PT_OK);
+        CHECKF(e && srv_job_load(e, v5.buf, v5.len, &err) == PT_OK, "%s", err.msg);
+        CHECK(e && memcmp(srv_job_film(e)->px, srv_job_film(b)->px, 64 * 32 * sizeof *f->px) == 0);
+        for (int k = 5; e && k < n; k++) {
+            gain_pixels(&tasks[k], px, &r);
+            srv_outcome o = srv_job_replay(e, &r, NULL);
+            CHECK(o == SRV_MERGED || o == SRV_DUPLICATE);
+        }
+        CHECK(e && srv_job_complete(e) &&
+              memcmp(f->px, srv_job_film(e)->px, 64 * 32 * sizeof *f->px) == 0);
+        srv_job_free(e);
+        proto_writer_fini(&v5);
+    }
+    /* A version 4 checkpoint (before fixed-point sums: the same bytes with
+     * each pixel's four sums as f64) loads to the same bits: sums of whole
+     * multiples of 2^-32 this small are exact in double, and the conversion
+     * rounds to nearest. */
+    const size_t head = 4 + 4 + 8 + 32 + 9 * 4 + 2 * 8 + 2 + strlen(p.camera) + 23 + 4 + 2 + 8;
+    proto_writer v4;
+    proto_writer_init(&v4, 1u << 20);
+    {
+        /* Format 6 counts a tile's samples merged and names a held result by
+         * its tile and samples; older ones count chunks (8 samples here) and
+         * name the task, chunk x tiles + tile. */
+        uint32_t ntiles = proto_get_u32(w.buf + head);
+        size_t at = head + 8;
+        proto_w_bytes(&v4, w.buf, at);
+        proto_put_u32(v4.buf + 4, 4);
+        for (uint32_t ti = 0; ti < ntiles; ti++, at += 5) {
+            proto_w_u32(&v4, proto_get_u32(w.buf + at) / 8);
+            proto_w_u8(&v4, w.buf[at + 4]);
+        }
+        uint32_t nheld = proto_get_u32(w.buf + at);
+        proto_w_u32(&v4, nheld);
+        at += 4;
+        for (uint32_t i = 0; i <= nheld && at < w.len; i++) {
+            size_t npx = i < nheld ? 32 * 32 : 64 * 32; /* held tiles, then the film */
+            if (i < nheld) {
+                uint32_t tile = proto_get_u32(w.buf + at), s0 = proto_get_u32(w.buf + at + 4);
+                proto_w_u64(&v4, (uint64_t)(s0 / 8) * ntiles + tile); /* task id */
+                at += 12;
+            }
+            for (size_t k = 0; k < npx; k++, at += 72)
+                put_old_pixel(&v4, w.buf + at);
+        }
+        CHECK(at == w.len && proto_writer_status(&v4) == PT_OK);
+    }
+    srv_job_free(d);
+    d = NULL;
+    CHECK(srv_job_new(3, &p, HASH, &d, NULL) == PT_OK);
+    CHECKF(d && srv_job_load(d, v4.buf, v4.len, &err) == PT_OK, "%s", err.msg);
+    const pt_film *fb = srv_job_film(b);
+    CHECK(d && memcmp(srv_job_film(d)->px, fb->px, 64 * 32 * sizeof *fb->px) == 0);
+    /* ... and resumes to the same image as the uninterrupted job. */
+    for (int k = 5; d && k < n; k++) {
+        gain_pixels(&tasks[k], px, &r);
+        srv_outcome o = srv_job_replay(d, &r, NULL);
+        CHECK(o == SRV_MERGED || o == SRV_DUPLICATE);
+    }
+    CHECK(d && srv_job_complete(d) &&
+          memcmp(f->px, srv_job_film(d)->px, 64 * 32 * sizeof *f->px) == 0);
+    /* A double sum that no render gives (negative) is refused. */
+    {
+        proto_writer bad;
+        proto_writer_init(&bad, 1u << 20);
+        proto_w_bytes(&bad, v4.buf, v4.len);
+        proto_put_f64(bad.buf + bad.len - 40 * 3, -1.0); /* a film pixel's R */
+        srv_job *e = NULL;
+        CHECK(srv_job_new(3, &p, HASH, &e, NULL) == PT_OK);
+        CHECK(e && srv_job_load(e, bad.buf, bad.len, &err) == PT_ERR_FORMAT);
+        srv_job_free(e);
+        proto_writer_fini(&bad);
+    }
+    srv_job_free(d);
+    d = NULL;
     /* A version 3 checkpoint (before the environment and the film flags: the
      * same bytes less the ENV block, the film flags, the variant and the
      * depth-cap count after the camera, and 36-byte pixels, without the camera hits) loads as
@@ -332,29 +453,30 @@ static void adaptive_min_gain(void)
     size_t at = 4 + 4 + 8 + 32 + 9 * 4 + 2 * 8 + 2 + strlen(p.camera);
     proto_writer v3;
     proto_writer_init(&v3, 1u << 20);
-    proto_w_bytes(&v3, w.buf, at);
+    proto_w_bytes(&v3, v4.buf, at);
     proto_put_u32(v3.buf + 4, 3);
     at += 23 + 4 + 2 + 8;
-    uint32_t ntiles = proto_get_u32(w.buf + at);
-    proto_w_bytes(&v3, w.buf + at, 8 + (size_t)ntiles * 5 + 4);
+    uint32_t ntiles = proto_get_u32(v4.buf + at);
+    proto_w_bytes(&v3, v4.buf + at, 8 + (size_t)ntiles * 5 + 4);
     at += 8 + (size_t)ntiles * 5;
-    uint32_t nheld = proto_get_u32(w.buf + at);
+    uint32_t nheld = proto_get_u32(v4.buf + at);
     at += 4;
-    for (uint32_t i = 0; i <= nheld && at < w.len; i++) {
+    for (uint32_t i = 0; i <= nheld && at < v4.len; i++) {
         size_t npx = i < nheld ? 32 * 32 : 64 * 32; /* held tiles, then the film */
         if (i < nheld) {
-            proto_w_bytes(&v3, w.buf + at, 8); /* task id */
+            proto_w_bytes(&v3, v4.buf + at, 8); /* task id */
             at += 8;
         }
         for (size_t k = 0; k < npx; k++, at += 40)
-            proto_w_bytes(&v3, w.buf + at, 36);
+            proto_w_bytes(&v3, v4.buf + at, 36);
     }
-    CHECK(at == w.len && proto_writer_status(&v3) == PT_OK);
+    CHECK(at == v4.len && proto_writer_status(&v3) == PT_OK);
     CHECK(srv_job_new(3, &p, HASH, &d, NULL) == PT_OK);
     CHECKF(d && srv_job_load(d, v3.buf, v3.len, &err) == PT_OK, "%s", err.msg);
     const pt_film *h = d ? srv_job_film(d) : NULL;
     CHECK(h && h->px[0].n > 0 && h->px[0].hits == h->px[0].n); /* read as fully covered */
     proto_writer_fini(&v3);
+    proto_writer_fini(&v4);
     proto_writer_fini(&w);
 done:
     srv_job_free(a);
@@ -386,7 +508,7 @@ static void adaptive_min_gain_black(void)
     CHECK(srv_job_tiles_stopped(j) == 1);
     const pt_film *f = srv_job_film(j);
     CHECK(f->px[0].n == 8 && f->px[32].n == 64);
-    CHECK(f->px[0].sum[0] == 0.0 && f->px[0].sum_sq == 0.0);
+    CHECK(f->px[0].fsum[0] == 0 && f->px[0].fsum_sq == 0);
     srv_job_free(j);
 }
 
@@ -445,7 +567,7 @@ static srv_outcome render(srv_job *j, uint64_t owner, uint64_t t0, uint64_t t1, 
 static void hard_deadlines(void)
 {
     srv_job *j = make(64, 16, 64, 16, 8); /* 4 tiles x 8 chunks, 2048 samples a task */
-    srv_lease_policy pol = {100, 1000, 8.0, 0.0, 0.0, 0};
+    srv_lease_policy pol = {100, 1000, 8.0, 0.0, 0.0, 0, 0};
     srv_job_set_policy(j, &pol);
     proto_task a, b, c;
     misses m = {{0}, 0};
@@ -484,7 +606,7 @@ static void backups(void)
 {
     static pt_pixel_acc px[256];
     srv_job *j = make(16, 16, 16, 16, 8); /* two tasks */
-    srv_lease_policy pol = {100000, 100000, 8.0, 3.0, 0.0, 0};
+    srv_lease_policy pol = {100000, 100000, 8.0, 3.0, 0.0, 0, 0};
     srv_job_set_policy(j, &pol);
     proto_task a, b, c;
     CHECK(srv_job_lease(j, 1, 0, 100000, &a) == 1 && a.task_id == 0);
@@ -495,7 +617,7 @@ static void backups(void)
     CHECK(srv_job_lease(j, 3, 40, 100000, &c) == 0); /* one backup a task */
     CHECK(srv_job_leases(j) == 2);
     /* The first copy expiring leaves the backup: the task stays leased. */
-    srv_lease_policy tight = {50, 50, 8.0, 3.0, 0.0, 0};
+    srv_lease_policy tight = {50, 50, 8.0, 3.0, 0.0, 0, 0};
     srv_job_set_policy(j, &tight);
     CHECK(srv_job_expire(j, 85, NULL, NULL, NULL) == 1 && srv_job_leases(j) == 1);
     CHECK(srv_job_lease(j, 4, 85, 100000, &c) == 0);
@@ -511,6 +633,9 @@ static void backups(void)
     srv_job_free(j);
 }
 
+#define ONE ((pt_i128)1 << PT_FIXED_BITS)
+#define HALF (ONE / 2)
+
 static void plausible(void)
 {
     static pt_pixel_acc px[256];
@@ -520,20 +645,28 @@ static void plausible(void)
     pt_error err = {0};
     CHECK(srv_job_lease(j, 1, 0, 1000, &t) == 1);
     struct {
-        double sum, sum_sq;
+        pt_i128 sum;
+        pt_u128 sum_sq;
         uint32_t n, rejected;
         srv_outcome want;
     } cases[] = {
-        {1e38, 1.0, 8, 0, SRV_INVALID},    {-1e-30, 0.0, 8, 0, SRV_INVALID},
-        {0.0, 0.0, 0, 0, SRV_INVALID},     {0.5, 0.5, 7, 0, SRV_INVALID},
-        {0.5, -1.0, 8, 0, SRV_INVALID},    {0.5, 0.5, 9, 0, SRV_INVALID},
-        {1.0, 0.0, 0, 8, SRV_INVALID}, /* no samples, yet a sum */
-        {1.6e21, 1e30, 8, 0, SRV_INVALID}, {0.5, 0.5, 7, 1, SRV_MERGED},
+        /* Sums in fixed point (units of 2^-32): far over the cap, negative. */
+        {(pt_i128)1 << 120, 1, 8, 0, SRV_INVALID},
+        {-1, 0, 8, 0, SRV_INVALID},
+        {0, 0, 0, 0, SRV_INVALID},
+        {HALF, HALF, 7, 0, SRV_INVALID},
+        {HALF, HALF, 9, 0, SRV_INVALID},
+        {ONE, 0, 0, 8, SRV_INVALID}, /* no samples, yet a sum */
+        {0, 1, 0, 8, SRV_INVALID},   /* no samples, yet a sum of squares */
+        /* Just over 8 samples at the per-sample cap. */
+        {(pt_i128)(8.001 * PT_MAX_SAMPLE_RADIANCE * PT_FIXED_ONE), 0, 8, 0, SRV_INVALID},
+        /* 7 samples at the cap, the sum of squares saturated: plausible. */
+        {(pt_i128)(7.0 * PT_MAX_SAMPLE_RADIANCE * PT_FIXED_ONE), PT_U128_MAX, 7, 1, SRV_MERGED},
     };
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
         fake_result(&t, px, &r);
-        px[5].sum[1] = cases[i].sum;
-        px[5].sum_sq = cases[i].sum_sq;
+        px[5].fsum[1] = cases[i].sum;
+        px[5].fsum_sq = cases[i].sum_sq;
         px[5].n = cases[i].n;
         r.rejected = cases[i].rejected;
         srv_outcome o = srv_job_result(j, 1, &r, &err);
@@ -547,7 +680,7 @@ static void verification(void)
 {
     static pt_pixel_acc px[256];
     srv_job *j = make(16, 16, 16, 16, 8);
-    srv_lease_policy pol = {0, 0, 0.0, 0.0, 1.0, 42};
+    srv_lease_policy pol = {0, 0, 0.0, 0.0, 1.0, 42, 0};
     srv_job_set_policy(j, &pol);
     proto_task t, v;
     proto_result r;
@@ -574,7 +707,7 @@ static void verification(void)
     r.s0 = 8;
     r.s1 = 16;
     for (int i = 0; i < 256; i++)
-        px[i] = (pt_pixel_acc){{0.5, 0.5, 0.5}, 0.25, 8, 0};
+        px[i] = pt_pixel_acc_of(0.5, 0.5, 0.5, 0.25, 8, 0);
     CHECK(srv_job_result(j, 1, &r, &err) == SRV_MERGED);
     CHECK(srv_job_complete(j));
     CHECK(srv_job_lease(j, 2, 0, 1000, &v) == 1 && v.task_id == 1);
@@ -613,7 +746,7 @@ static void verification(void)
 
     /* The pick is a function of the seed and the task: about the fraction. */
     j = make(512, 512, 64, 16, 8); /* 8192 tasks */
-    srv_lease_policy f = {0, 0, 0.0, 0.0, 0.02, 7};
+    srv_lease_policy f = {0, 0, 0.0, 0.0, 0.02, 7, 0};
     srv_job_set_policy(j, &f);
     proto_task x;
     while (srv_job_lease(j, 1, 0, 1000, &x)) {
@@ -689,6 +822,429 @@ static void film_and_cap(void)
     srv_job_free(j);
 }
 
+/* ---- time-sized tasks ---- */
+
+/* Pixels whose every sample is a multiple of 1/2 below 3: sums of any split
+ * are exact in double, so films merged from different cuts compare bit for
+ * bit, as exact sums make them in the renderer. Tile 0 is constant (adaptive
+ * sampling stops it), the others vary by sample. */
+static void exact_result(const proto_task *t, pt_pixel_acc *px, proto_result *r)
+{
+    uint32_t w = t->tile.x1 - t->tile.x0, n = w * (t->tile.y1 - t->tile.y0);
+    for (uint32_t i = 0; i < n; i++) {
+        uint32_t x = t->tile.x0 + i % w, y = t->tile.y0 + i / w;
+        double sum = 0, sq = 0;
+        for (uint32_t s = t->s0; s < t->s1; s++) {
+            double v = x < 32 && y < 32 ? 0.5 : (double)((s * 7 + x + 3 * y) % 5) * 0.5;
+            sum += v;
+            sq += v * v;
+        }
+        px[i] = pt_pixel_acc_of(sum, sum, sum, sq, t->s1 - t->s0, t->s1 - t->s0);
+    }
+    *r = (proto_result){t->job_id, t->task_id, t->tile, t->s0, t->s1, 0, 0, 0, n, px, 0};
+}
+
+typedef struct sim_owner {
+    uint64_t id;
+    double ms_ps; /* its true ms per pixel-sample */
+    int busy;
+    proto_task t;
+    uint64_t done_at;
+} sim_owner;
+
+typedef struct sim_log {
+    uint32_t ntasks;
+    uint32_t s0[4096], s1[4096];
+    uint64_t owner[4096], at[4096];
+    uint32_t tile_px[4096];
+} sim_log;
+
+/* Runs job j to the end with owners of the given speeds, one task each at a
+ * time (a result arrives when its owner's time for it has passed); logs
+ * every lease. ckpt_at: after this many results the job is saved and
+ * replaced by a loaded copy, the results outstanding replayed into it
+ * (-1: never). Returns the job (perhaps the copy). */
+static srv_job *simulate(srv_job *j, sim_owner *ow, int n, sim_log *log, int ckpt_at,
+                         const srv_job_params *p)
+{
+    static pt_pixel_acc px[32 * 32];
+    uint64_t now = 0;
+    int results = 0, guard = 0;
+    if (log)
+        log->ntasks = 0;
+    while (!srv_job_complete(j) && guard++ < 100000) {
+        for (int k = 0; k < n; k++) {
+            if (ow[k].busy || !srv_job_lease(j, ow[k].id, now, 100000, &ow[k].t))
+                continue;
+            ow[k].busy = 1;
+            uint32_t w = ow[k].t.tile.x1 - ow[k].t.tile.x0, h = ow[k].t.tile.y1 - ow[k].t.tile.y0;
+            double ms = ow[k].ms_ps * w * h * (ow[k].t.s1 - ow[k].t.s0);
+            ow[k].done_at = now + (uint64_t)(ms < 1.0 ? 1.0 : ms);
+            if (log && log->ntasks < 4096) {
+                log->s0[log->ntasks] = ow[k].t.s0;
+                log->s1[log->ntasks] = ow[k].t.s1;
+                log->owner[log->ntasks] = ow[k].id;
+                log->at[log->ntasks] = now;
+                log->tile_px[log->ntasks] = w * h;
+                log->ntasks++;
+            }
+        }
+        int next = -1;
+        for (int k = 0; k < n; k++)
+            if (ow[k].busy && (next < 0 || ow[k].done_at < ow[next].done_at))
+                next = k;
+        if (next < 0)
+            break;
+        now = ow[next].done_at;
+        ow[next].busy = 0;
+        proto_result r;
+        exact_result(&ow[next].t, px, &r);
+        int li;
+        pt_error err = {0};
+        srv_outcome o = srv_job_validate(j, ow[next].id, &r, &li, &err);
+        if (o == SRV_MERGED)
+            o = srv_job_result_validated(j, li, &r, now, &err);
+        CHECKF(o == SRV_MERGED || o == SRV_DUPLICATE, "outcome %d: %s", (int)o, err.msg);
+        if (++results == ckpt_at) {
+            /* A coordinator killed here: the checkpoint, then what the log
+             * holds (results outstanding are lost with their leases). */
+            proto_writer w;
+            proto_writer_init(&w, 1u << 24);
+            srv_job *c = NULL;
+            CHECK(srv_job_save(j, &w, &err) == PT_OK);
+            CHECK(srv_job_new(srv_job_id(j), p, HASH, &c, &err) == PT_OK);
+            CHECKF(c && srv_job_load(c, w.buf, w.len, &err) == PT_OK, "%s", err.msg);
+            proto_writer_fini(&w);
+            if (c) {
+                srv_lease_policy pol = {0};
+                pol.task_ms = 1000;
+                srv_job_set_policy(c, &pol);
+                srv_job_free(j);
+                j = c;
+                for (int k = 0; k < n; k++)
+                    ow[k].busy = 0;
+            }
+        }
+    }
+    CHECK(srv_job_complete(j));
+    return j;
+}
+
+static srv_job_params sized_params(uint32_t spp, double target_error)
+{
+    srv_job_params p = {
+        64, 48, spp, 32, 16, 1, 16, 3, target_error, 32, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+        0,  ""};
+    return p;
+}
+
+static srv_job *sized_job(const srv_job_params *p, uint32_t task_ms)
+{
+    srv_job *j = NULL;
+    CHECK(srv_job_new(7, p, HASH, &j, NULL) == PT_OK);
+    srv_lease_policy pol = {0};
+    pol.task_ms = task_ms;
+    if (j)
+        srv_job_set_policy(j, &pol);
+    return j;
+}
+
+/* Sizes follow the owner that asks: a fast one's grow from one block,
+ * doubling a tile's samples, up to its time's worth; a slow one's stay one
+ * block; every task is a whole number of blocks within [0, spp); near the
+ * end they shrink again. */
+static void sizing(void)
+{
+    static sim_log log;
+    srv_job_params p = sized_params(4096, 0.0);
+    /* 4 tiles, 2 of 1024 pixels and 2 of 512 (the last row is 16 high).
+     * One fast owner (1 us per pixel-sample: 1,000 ms is ~1 M pixel-samples,
+     * ~1,000 samples of a whole tile) and one slow (20 ms per pixel-sample:
+     * 16 samples of a tile take 330 s, more than the task time). */
+    srv_job *j = sized_job(&p, 1000);
+    sim_owner ow[2] = {{1, 0.001, 0, {0}, 0}, {2, 20.0, 0, {0}, 0}};
+    j = simulate(j, ow, 2, &log, -1, &p);
+    uint32_t most_fast = 0, most_slow = 0, blocks = 1, first = 1, px_ok = 1;
+    for (uint32_t i = 0; i < log.ntasks; i++) {
+        uint32_t n = log.s1[i] - log.s0[i];
+        /* ~1,000 ms of the fast owner: 976 samples of 1024 pixels, 1952 of 512 */
+        px_ok &= log.owner[i] != 1 || n * (log.tile_px[i]) <= 1000u * 1000u;
+        blocks &= (n % 16 == 0 || log.s1[i] == p.spp) && log.s0[i] % 16 == 0 && log.s1[i] <= p.spp;
+        if (log.owner[i] == 1 && n > most_fast)
+            most_fast = n;
+        if (log.owner[i] == 2 && n > most_slow)
+            most_slow = n;
+        /* The first pass is one block a tile, and no task more than doubles
+         * its tile's samples. */
+        first &= i >= 4 || (log.s0[i] == 0 && log.s1[i] == 16);
+        first &= n <= (log.s0[i] > 16 ? log.s0[i] : 16);
+    }
+    CHECK(blocks && first);
+    CHECKF(most_fast == 1952, "fast owner's largest task: %u samples", most_fast);
+    CHECK(px_ok);
+    CHECKF(most_slow == 16, "slow owner's largest task: %u samples", most_slow);
+    /* The last tasks of the fast owner are smaller than its largest. */
+    uint32_t last_fast = 0;
+    for (uint32_t i = 0; i < log.ntasks; i++)
+        if (log.owner[i] == 1)
+            last_fast = log.s1[i] - log.s0[i];
+    CHECKF(last_fast < most_fast, "fast owner's last task %u, largest %u", last_fast, most_fast);
+    CHECK(srv_job_samples_merged(j) == (64ull * 48) * p.spp);
+    srv_job_free(j);
+
+    /* Four equal owners near the end: once the work left is under what they
+     * render in a few task times, each task takes at most a quarter of what
+     * is left, so the last tasks end close together. */
+    j = sized_job(&p, 1000);
+    sim_owner eq[4] = {
+        {1, 0.001, 0, {0}, 0}, {2, 0.001, 0, {0}, 0}, {3, 0.001, 0, {0}, 0}, {4, 0.001, 0, {0}, 0}};
+    j = simulate(j, eq, 4, &log, -1, &p);
+    uint64_t end = 0, last_start = 0;
+    for (int k = 0; k < 4; k++)
+        end = eq[k].done_at > end ? eq[k].done_at : end;
+    for (uint32_t i = 0; i < log.ntasks; i++)
+        last_start = log.at[i] > last_start ? log.at[i] : last_start;
+    /* Total work 12.6 M pixel-samples: 3.1 s for the four. Without the
+     * shrink the last 1,000 ms tasks would leave owners idle that long. */
+    CHECKF(end - last_start < 300, "the last task started %llu ms before the end",
+           (unsigned long long)(end - last_start));
+    srv_job_free(j);
+}
+
+/* Fixed chunks (ptserve --chunk) whatever the owners' speeds: every task is
+ * the next chunk, in pass order. */
+static void fixed_chunks(void)
+{
+    static sim_log log;
+    srv_job_params p = sized_params(100, 0.0);
+    p.chunk = 24;
+    srv_job *j = sized_job(&p, 0);
+    sim_owner ow[2] = {{1, 0.0001, 0, {0}, 0}, {2, 1.0, 0, {0}, 0}};
+    j = simulate(j, ow, 2, &log, -1, &p);
+    CHECK(log.ntasks == 4 * 5);
+    int fixed = 1;
+    for (uint32_t i = 0; i < log.ntasks; i++) {
+        uint32_t c = i / 4;
+        fixed &= log.s0[i] == 24 * c && log.s1[i] == (c == 4 ? 100 : 24 * (c + 1));
+    }
+    CHECK(fixed);
+    srv_job_free(j);
+}
+
+/* The film is the same bits however the samples were cut: fixed chunks,
+ * time-sized tasks for owners of mixed speeds, and the same with the job
+ * saved and resumed midway; with adaptive sampling too, by either rule
+ * (decisions every 64 samples from 64 on: no task crosses one, with the min
+ * gain one ends there only as the 64 before it, and the same tiles stop at
+ * the same samples). */
+static void same_film_any_cut(void)
+{
+    for (int mode = 0; mode < 3; mode++) {
+        srv_job_params p = sized_params(512, mode == 1 ? 0.05 : 0.0);
+        if (mode) {
+            p.chunk = 64;
+            p.min_spp = 64;
+            p.min_gain = mode == 2 ? 1e-3 : 0.0;
+        }
+        srv_job *a = sized_job(&p, 0);
+        sim_owner one[1] = {{1, 0.001, 0, {0}, 0}};
+        a = simulate(a, one, 1, NULL, -1, &p);
+        srv_job *b = sized_job(&p, 1000);
+        sim_owner mixed[3] = {{1, 0.0002, 0, {0}, 0}, {2, 0.003, 0, {0}, 0}, {3, 0.05, 0, {0}, 0}};
+        static sim_log log;
+        b = simulate(b, mixed, 3, &log, -1, &p);
+        int bigger = 0, crossed = 0;
+        for (uint32_t i = 0; i < log.ntasks; i++) {
+            uint32_t s0 = log.s0[i], s1 = log.s1[i];
+            bigger |= s1 - s0 > 16;
+            for (uint32_t d = 64; mode && d < 512; d += 64)
+                crossed |= (s0 < d && d < s1) || (mode == 2 && s1 == d && s0 != d - 64);
+        }
+        CHECK(bigger);
+        CHECKF(!crossed, "mode %d: a task crossed a decision point", mode);
+        srv_job *c = sized_job(&p, 1000);
+        sim_owner again[3] = {{1, 0.0002, 0, {0}, 0}, {2, 0.003, 0, {0}, 0}, {3, 0.05, 0, {0}, 0}};
+        c = simulate(c, again, 3, NULL, 9, &p);
+        const pt_film *fa = srv_job_film(a), *fb = srv_job_film(b), *fc = srv_job_film(c);
+        CHECKF(memcmp(fa->px, fb->px, 64 * 48 * sizeof *fa->px) == 0,
+               "mode %d: time-sized tasks changed the film", mode);
+        CHECKF(memcmp(fa->px, fc->px, 64 * 48 * sizeof *fa->px) == 0,
+               "mode %d: a resumed job changed the film", mode);
+        CHECKF(mode == 0 ? srv_job_tiles_stopped(a) == 0 : srv_job_tiles_stopped(a) >= 1,
+               "mode %d: %u tiles stopped", mode, srv_job_tiles_stopped(a));
+        CHECK(srv_job_tiles_stopped(b) == srv_job_tiles_stopped(a));
+        CHECK(srv_job_samples_merged(b) == srv_job_samples_merged(a));
+        CHECK(srv_job_passes_done(b) == srv_job_passes(b));
+        srv_job_free(a);
+        srv_job_free(b);
+        srv_job_free(c);
+    }
+}
+
+/* An expired lease gives its exact range back; a replay finds its task by
+ * tile and samples even when it was cut otherwise in this run. */
+static void ranges_back(void)
+{
+    srv_job_params p = sized_params(256, 0.0);
+    srv_job *j = sized_job(&p, 1000);
+    static pt_pixel_acc px[32 * 32];
+    proto_task t[8], u;
+    proto_result r;
+    for (int k = 0; k < 6; k++) /* the first pass, merged at 10 ms: ~1 us per pixel-sample */
+        if (srv_job_lease(j, 1, 0, 100, &t[k])) {
+            exact_result(&t[k], px, &r);
+            int li;
+            CHECK(srv_job_validate(j, 1, &r, &li, NULL) == SRV_MERGED);
+            CHECK(srv_job_result_validated(j, li, &r, 10, NULL) == SRV_MERGED);
+        }
+    CHECK(srv_job_lease(j, 1, 10, 100, &t[6]) && t[6].s0 == 16 && t[6].s1 == 32);
+    CHECK(srv_job_lease(j, 2, 10, 100, &t[7]) && t[7].s0 == 16);
+    CHECK(srv_job_expire(j, 200, NULL, NULL, NULL) == 2);
+    CHECK(srv_job_lease(j, 3, 200, 100, &u) && u.task_id == t[6].task_id && u.s0 == t[6].s0 &&
+          u.s1 == t[6].s1 && memcmp(&u.tile, &t[6].tile, sizeof u.tile) == 0);
+    /* A replay of samples [16, 32) of t[7]'s tile, with another id. */
+    proto_task v = t[7];
+    v.task_id = 999;
+    exact_result(&v, px, &r);
+    CHECK(srv_job_replay(j, &r, NULL) == SRV_MERGED);
+    CHECK(srv_job_replay(j, &r, NULL) == SRV_DUPLICATE);
+    /* Samples that overlap what is merged fit no task. */
+    v.s0 = 24;
+    v.s1 = 40;
+    exact_result(&v, px, &r);
+    pt_error err = {0};
+    CHECK(srv_job_replay(j, &r, &err) == SRV_INVALID && strstr(err.msg, "do not fit"));
+    srv_job_free(j);
+}
+
+/* Thousands of owners (the owner table and its hash grow, each owner lists
+ * its own leases): a lost owner gives back exactly its leases, the others'
+ * stay; heartbeats and results find their lease among all of them. */
+static void many_owners(void)
+{
+    srv_job_params p = sized_params(64, 0.0);
+    p.width = 1024;
+    p.height = 1024; /* 1024 tiles */
+    srv_job *j = sized_job(&p, 0);
+    static proto_task t[3000];
+    uint32_t n = 0;
+    for (uint64_t o = 0; o < 3000; o++)
+        n += (uint32_t)srv_job_lease(j, 100 + o, 0, 1000, &t[o]);
+    CHECK(n == 3000 && srv_job_leases(j) == 3000);
+    /* The first pass (1024 tasks), then the second. */
+    CHECK(t[0].s0 == 0 && t[1023].s0 == 0 && t[1024].s0 == 16);
+    uint32_t back = 0;
+    for (uint64_t o = 0; o < 3000; o += 2)
+        back += srv_job_release_owner(j, 100 + o);
+    CHECK(back == 1500 && srv_job_leases(j) == 1500);
+    int active = 1, idle = 1;
+    for (uint64_t o = 0; o < 3000; o++) {
+        srv_job_heartbeat(j, 100 + o, t[o].task_id, 900, 1000);
+        if (o % 2)
+            active &= srv_job_owner_active(j, 100 + o);
+        else
+            idle &= !srv_job_owner_active(j, 100 + o);
+    }
+    CHECK(active && idle);
+    CHECK(srv_job_expire(j, 1500, NULL, NULL, NULL) == 0); /* the heartbeats held */
+    /* The released tasks come back first, to the owners that ask. */
+    proto_task u;
+    CHECK(srv_job_lease(j, 99, 1500, 1000, &u) && u.task_id == t[0].task_id);
+    static pt_pixel_acc px[32 * 32];
+    proto_result r;
+    int merged = 1;
+    for (uint64_t o = 1; o < 3000; o += 2) {
+        fake_result(&t[o], px, &r);
+        merged &= srv_job_result(j, 100 + o, &r, NULL) == SRV_MERGED;
+    }
+    CHECK(merged && srv_job_leases(j) == 1);
+    srv_job_free(j);
+}
+
+/* A lease whose result arrived and waits for its log record to be durable
+ * (srv_job_answered) is no straggler: no backup copy of it is handed out
+ * however long the commit takes, and the result then merges. */
+static void answered_no_backup(void)
+{
+    static pt_pixel_acc px[256];
+    srv_job *j = make(16, 16, 16, 16, 8); /* two tasks */
+    srv_lease_policy pol = {100000, 100000, 8.0, 3.0, 0.0, 0, 0};
+    srv_job_set_policy(j, &pol);
+    proto_task a, b, c;
+    CHECK(srv_job_lease(j, 1, 0, 100000, &a) == 1 && a.task_id == 0);
+    CHECK(render(j, 2, 0, 10, &b) == SRV_MERGED && b.task_id == 1);
+    proto_result r;
+    fake_result(&a, px, &r);
+    pt_error err = {0};
+    int li = -1;
+    CHECK(srv_job_validate(j, 1, &r, &li, &err) == SRV_MERGED);
+    srv_job_answered(j, li);
+    CHECK(srv_job_lease(j, 2, 40, 100000, &c) == 0); /* 40 ms > 3 x 10 ms, but answered */
+    CHECK(srv_job_lease(j, 2, 5000, 100000, &c) == 0);
+    CHECK(srv_job_result_validated(j, li, &r, 5000, &err) == SRV_MERGED);
+    CHECK(srv_job_complete(j) && srv_job_verify_stats(j).backups == 0);
+    srv_job_free(j);
+}
+
+/* A snapshot saves the same bytes as the job it was taken of (per tile
+ * state, held results by tile and range, film), and keeps them while the job
+ * goes on; its checkpoint resumes to the job's bits. */
+static void snapshot_saves_the_same(void)
+{
+    static pt_pixel_acc px[16 * 16];
+    srv_job *j = make(32, 32, 32, 16, 8), *k = NULL, *snap = NULL;
+    if (!j)
+        return;
+    proto_task t[64];
+    int n = 0;
+    while (n < 64 && srv_job_lease(j, 1, 0, 100000, &t[n]))
+        n++;
+    CHECK(n >= 8);
+    proto_result r;
+    pt_error err = {0};
+    int done = 0;
+    for (int i = n - 1; i >= n / 2; i--, done++) { /* later samples first: held */
+        fake_result(&t[i], px, &r);
+        CHECK(srv_job_result(j, 1, &r, &err) == SRV_MERGED);
+    }
+    fake_result(&t[0], px, &r); /* one merged into the film */
+    CHECK(srv_job_result(j, 1, &r, &err) == SRV_MERGED);
+    proto_writer w, ws, w2;
+    proto_writer_init(&w, 1u << 24);
+    proto_writer_init(&ws, 1u << 24);
+    proto_writer_init(&w2, 1u << 24);
+    CHECK(srv_job_save(j, &w, &err) == PT_OK);
+    snap = srv_job_snapshot(j);
+    CHECK(snap && srv_job_save(snap, &ws, &err) == PT_OK);
+    CHECK(w.len == ws.len && memcmp(w.buf, ws.buf, w.len) == 0);
+    /* The job goes on to the end; the snapshot does not move. */
+    for (int i = 1; i < n / 2; i++) {
+        fake_result(&t[i], px, &r);
+        CHECK(srv_job_result(j, 1, &r, &err) == SRV_MERGED);
+    }
+    CHECK(srv_job_complete(j));
+    CHECK(snap && srv_job_save(snap, &w2, &err) == PT_OK);
+    CHECK(w2.len == ws.len && memcmp(w2.buf, ws.buf, ws.len) == 0);
+    /* Resumed from the snapshot's checkpoint, with the rest replayed. */
+    CHECK(srv_job_new(9, srv_job_params_of(j), HASH, &k, &err) == PT_OK);
+    CHECKF(k && srv_job_load(k, ws.buf, ws.len, &err) == PT_OK, "%s", err.msg);
+    for (int i = 0; k && i < n; i++) {
+        fake_result(&t[i], px, &r);
+        srv_outcome o = srv_job_replay(k, &r, &err);
+        CHECK(o == SRV_MERGED || o == SRV_DUPLICATE);
+    }
+    CHECK(k && srv_job_complete(k));
+    if (k)
+        CHECK(memcmp(srv_job_film(j)->px, srv_job_film(k)->px, 32 * 32 * sizeof(pt_pixel_acc)) ==
+              0);
+    proto_writer_fini(&w);
+    proto_writer_fini(&ws);
+    proto_writer_fini(&w2);
+    srv_job_free(snap);
+    srv_job_free(k);
+    srv_job_free(j);
+}
+
 int main(void)
 {
     int64_t live = pt_alloc_live();
@@ -704,6 +1260,13 @@ int main(void)
     plausible();
     verification();
     film_and_cap();
+    sizing();
+    fixed_chunks();
+    same_film_any_cut();
+    ranges_back();
+    many_owners();
+    answered_no_backup();
+    snapshot_saves_the_same();
     CHECK(pt_alloc_live() == live);
     return check_report();
 }

@@ -33,6 +33,7 @@
 #include <unistd.h>
 
 #include "common/base/net.h"
+#include "common/render/render.h"
 #include "protocol/auth.h"
 #include "protocol/frame.h"
 #include "protocol/msg.h"
@@ -494,7 +495,8 @@ static uint32_t lie(peer *l, int port, pid_t *w1, pid_t *w2)
         l->ntasks = l->next = 0;
         peer_read(l, 50);
         for (uint32_t i = 0; i < l->ntasks; i++) {
-            pt_pixel_acc px = {{0.5, 0.5, 0.5}, 0.25, l->tasks[i].s1 - l->tasks[i].s0, 0};
+            pt_pixel_acc px =
+                pt_pixel_acc_of(0.5, 0.5, 0.5, 0.25, l->tasks[i].s1 - l->tasks[i].s0, 0);
             peer_result(l, &l->tasks[i], px, 0);
             lies++;
         }

@@ -549,8 +549,10 @@ int main(int argc, char **argv)
     r.tile.x1 = r.tile.y1 = PT_TILE_MAX;
     r.npixels = PROTO_MAX_TILE_PIXELS;
     r.pixels = px;
+    px[0].fsum[0] = (pt_i128)1 << 100; /* a sum that needs the wide form, 72 bytes a pixel */
+    px[0].fsum_sq = (pt_u128)1 << 100;
     proto_writer w;
-    proto_writer_init(&w, 4u << 20);
+    proto_writer_init(&w, 8u << 20);
     CHECK(proto_msg_encode_result(&w, &r, NULL) == PT_OK);
     CHECKF(w.len == SRV_WORKER_MAX_PAYLOAD, "largest RESULT %zu bytes, cap %u", w.len,
            SRV_WORKER_MAX_PAYLOAD);

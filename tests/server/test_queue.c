@@ -2,7 +2,8 @@
  * test_queue.c - ptserve's render queue (--state-dir) with real processes,
  * real sockets and real files; a raw protocol client plays ptctl.
  *
- *  1. Crash-restart: ptserve is killed with SIGKILL at least 5 times during a
+ *  1. Crash-restart: ptserve (tasks sized by time, the default) is killed
+ *     with SIGKILL at least 5 times during a
  *     job (each time after more samples were merged) and restarted on the same
  *     state folder; every restart resumes with at least the samples merged
  *     before the kill, and the final image is bit-identical to an undisturbed
@@ -30,6 +31,7 @@
 #include "common/base/alloc.h"
 #include "common/base/fsutil.h"
 #include "common/base/hash.h"
+#include "common/render/render.h"
 #include "common/scene/bundle.h"
 #include "tests/check.h"
 #include "tests/server/farm_util.h"
@@ -157,16 +159,27 @@ static int reply(cli *c, proto_frame *f)
     return t;
 }
 
-/* Sends SUBMIT; spp 0 (which the encoder refuses) is patched into the bytes. */
+/* Sends SUBMIT; spp 0 and a reversed frame range (which the encoder
+ * refuses) are patched into the bytes. */
 static void submit_begin(cli *c, const proto_submit *m)
 {
     proto_writer w;
     proto_writer_init(&w, 4096);
     proto_submit fixed = *m;
     fixed.spp = m->spp ? m->spp : 1;
+    int reversed = m->frame_step && m->frame_last < m->frame_first;
+    if (reversed) {
+        fixed.frame_first = m->frame_last;
+        fixed.frame_last = m->frame_first;
+    }
     CHECK(proto_msg_encode_submit(&w, &fixed, NULL) == PT_OK);
     if (m->spp == 0)
         proto_put_u32(w.buf + 10 + strlen(m->name), 0);
+    if (reversed) { /* the range is the last fields but the fps and the animation */
+        uint8_t *range = w.buf + w.len - 2 - strlen(m->animation) - 8 - 12;
+        proto_put_u32(range, m->frame_first);
+        proto_put_u32(range + 4, m->frame_last);
+    }
     cli_send(c, PROTO_MSG_SUBMIT, &w);
     proto_writer_fini(&w);
 }
@@ -306,6 +319,9 @@ static int fetch(int port, uint64_t id, const char *name)
 
 /* ---- processes --------------------------------------------------------------------- */
 
+/* How ptserve sizes tasks: fixed chunks of 8 unless a test asks otherwise. */
+static const char *g_sizing[2] = {"--chunk", "8"};
+
 /* ptserve on state, logging to log; opt and its value (or NULL) are added. */
 static void start_server_opt(const char *state, const char *log, const char *opt, const char *value)
 {
@@ -321,8 +337,8 @@ static void start_server_opt(const char *state, const char *log, const char *opt
                           path("port"),
                           "--tile",
                           "16",
-                          "--chunk",
-                          "8",
+                          g_sizing[0],
+                          g_sizing[1],
                           "--save-interval",
                           "0.2",
                           "--lease-timeout",
@@ -446,7 +462,7 @@ static void crash_restart(void)
                          "--tile",
                          "16",
                          "--chunk",
-                         "8",
+                         "48",
                          "--seed",
                          "5",
                          "--spp",
@@ -457,6 +473,11 @@ static void crash_restart(void)
                          NULL};
     CHECK(run(ref, "crash_ref.log", 600) == 0);
     g_port = 0;
+    /* Tasks sized by time, the default task time: the image is still the
+     * standalone render's (chunks of 48: with exact sums any cut at
+     * multiples of 16 samples gives the same bits) after every kill. */
+    g_sizing[0] = "--task-time";
+    g_sizing[1] = "2000";
     start_server("state1", "crash.log", NULL);
     pid_t w1 = start_worker("c1"), w2 = start_worker("c2");
     uint64_t id = submit(g_port, job_of("crash", 64, 48, spp, 0));
@@ -522,6 +543,8 @@ static void crash_restart(void)
     stop_worker(w1);
     stop_worker(w2);
     kill_server(SIGTERM);
+    g_sizing[0] = "--chunk";
+    g_sizing[1] = "8";
 }
 
 /* ---- 2. the queue ------------------------------------------------------------------- */
@@ -739,18 +762,235 @@ static void copy_str(proto_writer *w, const uint8_t *d, size_t *at)
     *at += len;
 }
 
-/* Writes w as the state file name with version 3 at the given offsets and,
+/* Writes w as the state file name with version v at the given offsets and,
  * when crc, a fresh trailing CRC32C (w holds the file without it). */
-static void write_v3(const char *name, proto_writer *w, const long *vers, int nvers, int crc)
+static void write_ver(const char *name, proto_writer *w, const long *vers, int nvers, int crc,
+                      uint32_t v)
 {
     for (int i = 0; i < nvers; i++)
-        proto_put_u32(w->buf + vers[i], 3);
+        proto_put_u32(w->buf + vers[i], v);
     if (crc)
         proto_w_u32(w, proto_crc32c(0, w->buf, w->len));
     pt_error e = {0};
     CHECK(proto_writer_status(w) == PT_OK);
     CHECK(pt_write_file_atomic(path(name), w->buf, w->len, &e) == PT_OK);
     proto_writer_fini(w);
+}
+
+static void write_v3(const char *name, proto_writer *w, const long *vers, int nvers, int crc)
+{
+    write_ver(name, w, vers, nvers, crc, 3);
+}
+
+/* A fixed-point sum (two u64, low half first) at q as format 4's f64. */
+static void put_f64_of_fixed(proto_writer *w, const uint8_t *q, int is_signed)
+{
+    pt_u128 v = ((pt_u128)proto_get_u64(q + 8) << 64) | proto_get_u64(q);
+    proto_w_f64(w, is_signed ? pt_fixed_to_double((pt_i128)v) : pt_ufixed_to_double(v));
+}
+
+/* A pixel of format 5 (72 bytes) in format 4's layout (f64 sums, n, hits). */
+static void pixel_to_v4(proto_writer *w, const uint8_t *q)
+{
+    for (int c = 0; c < 4; c++)
+        put_f64_of_fixed(w, q + 16 * c, c < 3);
+    proto_w_bytes(w, q + 64, 8);
+}
+
+/* The queue file of format 5: each record without format 6's frame range,
+ * pose and frames done, its last fields. */
+static void queue_to_v5(const char *name)
+{
+    uint8_t *d;
+    size_t n;
+    if (!read_state(name, &d, &n))
+        return;
+    proto_writer w;
+    proto_writer_init(&w, 1 << 30);
+    size_t at = 8 + 8 + 4;
+    proto_w_bytes(&w, d, at);
+    for (uint32_t i = 0, count = proto_get_u32(d + 16); i < count; i++) {
+        size_t start = at;
+        at += 8 + 8 + 1 + 4;
+        for (int k = 0; k < 4; k++) /* name, owner, scene, output */
+            at += 2 + proto_get_u16(d + at);
+        at += 8 + 9 * 4 + 16;                             /* submitted, params */
+        at += 2 + proto_get_u16(d + at);                  /* camera */
+        at += 2 + proto_get_u16(d + at) + 4 + 4 + 1 + 12; /* the environment */
+        at += 4;                                          /* film flags */
+        at += 2 + proto_get_u16(d + at);                  /* material variant */
+        at += 32 + 8 + 8 + 8 + 8;
+        at += 2 + proto_get_u16(d + at); /* message */
+        at += 8;                         /* paths capped */
+        proto_w_bytes(&w, d + start, at - start);
+        at += 4 * 3 + 8;                 /* the frame range and fps */
+        at += 2 + proto_get_u16(d + at); /* the animation */
+        at += 4;                         /* frames done */
+        at += 1 + 4 * (size_t)d[at];     /* frames done ahead */
+    }
+    CHECK(at + 4 == n);
+    const long vers[] = {4};
+    write_ver(name, &w, vers, 1, 1, 5);
+    pt_free(d);
+}
+
+/* The queue file of format 4: the same records as format 5. */
+static void queue_to_v4(const char *name)
+{
+    uint8_t *d;
+    size_t n;
+    if (!read_state(name, &d, &n))
+        return;
+    proto_writer w;
+    proto_writer_init(&w, 1 << 30);
+    proto_w_bytes(&w, d, n - 4);
+    const long vers[] = {4};
+    write_ver(name, &w, vers, 1, 1, 4);
+    pt_free(d);
+}
+
+/* A checkpoint of format 4: double sums, 40-byte pixels. */
+static void checkpoint_to_v4(const char *name)
+{
+    uint8_t *d;
+    size_t n;
+    if (!read_state(name, &d, &n))
+        return;
+    proto_writer w;
+    proto_writer_init(&w, 1 << 30);
+    /* envelope 8, seconds/rejected/rays 24, magic, version, id, hash, params */
+    size_t at = 8 + 24 + 4 + 4 + 8 + 32;
+    uint32_t wd = proto_get_u32(d + at), ht = proto_get_u32(d + at + 4),
+             spp = proto_get_u32(d + at + 8), tile = proto_get_u32(d + at + 12),
+             chunk = proto_get_u32(d + at + 16);
+    at += 9 * 4 + 16;
+    at += 2 + proto_get_u16(d + at);                  /* camera */
+    at += 2 + proto_get_u16(d + at) + 4 + 4 + 1 + 12; /* the environment */
+    at += 4;                                          /* film flags */
+    at += 2 + proto_get_u16(d + at);                  /* material variant */
+    at += 8;                                          /* paths capped */
+    /* Format 6 counts a tile's samples merged and names a held result by its
+     * tile and samples; older ones count chunks and name the task, chunk x
+     * tiles + tile (the job's tasks are fixed chunks here). */
+    uint32_t ntiles = proto_get_u32(d + at);
+    at += 8;
+    proto_w_bytes(&w, d, at);
+    for (uint32_t i = 0; i < ntiles; i++, at += 5) {
+        uint32_t m = proto_get_u32(d + at);
+        CHECK(m % chunk == 0 || m == spp);
+        proto_w_u32(&w, (m + chunk - 1) / chunk);
+        proto_w_u8(&w, d[at + 4]);
+    }
+    uint32_t nheld = proto_get_u32(d + at);
+    proto_w_u32(&w, nheld);
+    at += 4;
+    uint32_t tiles_x = (wd + tile - 1) / tile;
+    for (uint32_t i = 0; i < nheld; i++) {
+        uint32_t t = proto_get_u32(d + at), s0 = proto_get_u32(d + at + 4);
+        uint32_t tx = t % tiles_x, ty = t / tiles_x;
+        uint32_t tw = wd - tx * tile < tile ? wd - tx * tile : tile;
+        uint32_t th = ht - ty * tile < tile ? ht - ty * tile : tile;
+        CHECK(s0 % chunk == 0);
+        proto_w_u64(&w, (uint64_t)(s0 / chunk) * ntiles + t);
+        at += 12;
+        for (uint32_t k = 0; k < tw * th; k++, at += 72)
+            pixel_to_v4(&w, d + at);
+    }
+    for (uint64_t k = 0; k < (uint64_t)wd * ht; k++, at += 72)
+        pixel_to_v4(&w, d + at);
+    CHECK(at + 4 == n);
+    const long vers[] = {4, 36};
+    write_ver(name, &w, vers, 2, 1, 4);
+    pt_free(d);
+}
+
+/* A RESULT payload of the current layout as protocol 3 wrote it (68 bytes of
+ * header, f64 sums) into rec (reset first). */
+static void payload_to_p3(const uint8_t *pl, uint32_t len, proto_writer *rec)
+{
+    proto_result r;
+    CHECK(proto_msg_decode_result(pl, len, NULL, 0, &r, NULL) == PT_OK);
+    proto_writer_reset(rec);
+    proto_w_bytes(rec, pl, 68);
+    for (uint32_t k = 0; k < r.npixels; k++) {
+        for (int c = 0; c < 3; c++)
+            proto_w_f64(rec, pt_acc_sum(&r.pixels[k], c));
+        proto_w_f64(rec, pt_acc_sum_sq(&r.pixels[k]));
+        proto_w_u32(rec, r.pixels[k].n);
+        proto_w_u32(rec, r.pixels[k].hits);
+    }
+    proto_result_fini(&r);
+}
+
+/* A results log of frames ("PTRF") into one of format 4: records ("PTRL")
+ * of a RESULT of protocol 3 (68 bytes of header, f64 sums), with their
+ * checksum. */
+static void log_to_v4(const char *name)
+{
+    uint8_t *d;
+    size_t n;
+    if (!read_state(name, &d, &n))
+        return;
+    proto_writer w, rec;
+    proto_writer_init(&w, 1 << 30);
+    proto_writer_init(&rec, 1 << 30);
+    CHECK(n >= 16 && proto_get_u32(d) == 0x46525450u);
+    proto_w_u32(&w, 0x4c525450u);
+    proto_w_bytes(&w, d + 4, 12);
+    for (size_t at = 16; at + PROTO_FRAME_OVERHEAD <= n;) {
+        uint32_t len = proto_frame_payload_len(d + at);
+        CHECK(at + PROTO_FRAME_OVERHEAD + len <= n && len >= 69);
+        payload_to_p3(d + at + PROTO_FRAME_HEADER, len, &rec);
+        proto_w_u32(&w, (uint32_t)rec.len);
+        proto_w_u32(&w, proto_crc32c(0, rec.buf, rec.len));
+        proto_w_bytes(&w, rec.buf, rec.len);
+        at += PROTO_FRAME_OVERHEAD + len;
+    }
+    proto_writer_fini(&rec);
+    const long vers[] = {4};
+    write_ver(name, &w, vers, 1, 0, 4);
+    pt_free(d);
+}
+
+/* A results log of frames with every frame's protocol version set to v (its
+ * CRC32C redone): from 4 on the payload is kept (RESULT has not changed
+ * since), for 3 it is rewritten in protocol 3's layout (f64 sums). */
+static void log_frames_to(const char *name, uint16_t v)
+{
+    uint8_t *d;
+    size_t n;
+    if (!read_state(name, &d, &n))
+        return;
+    proto_writer w, rec;
+    proto_writer_init(&w, 1 << 30);
+    proto_writer_init(&rec, 1 << 30);
+    CHECK(n >= 16 && proto_get_u32(d) == 0x46525450u);
+    proto_w_bytes(&w, d, 16);
+    for (size_t at = 16; at + PROTO_FRAME_OVERHEAD <= n;) {
+        uint32_t len = proto_frame_payload_len(d + at);
+        const uint8_t *pl = d + at + PROTO_FRAME_HEADER;
+        CHECK(at + PROTO_FRAME_OVERHEAD + len <= n && len >= 69);
+        uint32_t m = len;
+        if (v < 4) {
+            payload_to_p3(pl, len, &rec);
+            pl = rec.buf;
+            m = (uint32_t)rec.len;
+        }
+        size_t h = w.len;
+        proto_w_bytes(&w, d + at, 4); /* "PTF1" */
+        proto_w_u16(&w, v);
+        proto_w_u16(&w, PROTO_MSG_RESULT);
+        proto_w_u32(&w, m);
+        proto_w_bytes(&w, pl, m);
+        proto_w_u32(&w, proto_crc32c(0, w.buf + h, w.len - h));
+        at += PROTO_FRAME_OVERHEAD + len;
+    }
+    proto_writer_fini(&rec);
+    pt_error e = {0};
+    CHECK(proto_writer_status(&w) == PT_OK);
+    CHECK(pt_write_file_atomic(path(name), w.buf, w.len, &e) == PT_OK);
+    proto_writer_fini(&w);
+    pt_free(d);
 }
 
 /* The job params block up to the camera (nine u32, two f64, str), copied; the
@@ -842,8 +1082,8 @@ static void checkpoint_to_v3(const char *name)
     pt_free(d);
 }
 
-/* A results log of frames into one of version 3: each record a RESULT of
- * protocol 2 (no depth-cap count, 36-byte pixels), with its checksum. */
+/* A results log: each record a RESULT of protocol 2 (no depth-cap count,
+ * 36-byte pixels), with its checksum. */
 static void log_to_v3(const char *name)
 {
     uint8_t *d;
@@ -852,15 +1092,12 @@ static void log_to_v3(const char *name)
         return;
     proto_writer w;
     proto_writer_init(&w, 1 << 30);
-    /* The log holds frames now ("PTRF"); the old one held records ("PTRL"). */
-    CHECK(n >= 16 && proto_get_u32(d) == 0x46525450u);
-    proto_w_u32(&w, 0x4c525450u);
-    proto_w_bytes(&w, d + 4, 12);
+    proto_w_bytes(&w, d, 16);
     uint8_t *rec = pt_malloc(n);
-    for (size_t at = 16; rec && at + PROTO_FRAME_OVERHEAD <= n;) {
-        uint32_t len = proto_frame_payload_len(d + at);
-        const uint8_t *pl = d + at + PROTO_FRAME_HEADER;
-        CHECK(at + PROTO_FRAME_OVERHEAD + len <= n && len >= 68 && (len - 68) % 40 == 0);
+    for (size_t at = 16; rec && at + 8 <= n;) {
+        uint32_t len = proto_get_u32(d + at);
+        const uint8_t *pl = d + at + 8;
+        CHECK(at + 8 + len <= n && len >= 68 && (len - 68) % 40 == 0);
         size_t m = 0;
         memcpy(rec, pl, 56);
         memcpy(rec + 56, pl + 64, 4);
@@ -870,7 +1107,7 @@ static void log_to_v3(const char *name)
         proto_w_u32(&w, (uint32_t)m);
         proto_w_u32(&w, proto_crc32c(0, rec, m));
         proto_w_bytes(&w, rec, m);
-        at += PROTO_FRAME_OVERHEAD + len;
+        at += 8 + len;
     }
     pt_free(rec);
     const long vers[] = {4};
@@ -1010,11 +1247,12 @@ static void damaged(void)
     kill_server(SIGTERM);
     CHECK(log_has("damage_torn.log", "incomplete last record"));
 
-    /* State folders in format 3 (before the environment light and the film
-     * flags) and 2 (before --min-gain as well): the same job resumes with the
-     * same samples as from the current format. */
+    /* State folders in format 5 (before frame ranges), 4 (before fixed-point sums), 3 (before the
+     * environment light and the film flags as well) and 2 (before --min-gain
+     * as well): the same job resumes with the same samples as from the
+     * current format. */
     CHECK(system(cmd) == 0); /* state3.good again */
-    CHECK(start_damaged("migrate_v4.log") == -1);
+    CHECK(start_damaged("migrate_v5.log") == -1);
     proto_job_info v4;
     CHECK(status(g_port, id, &v4) == PROTO_MSG_JOB_INFO && v4.samples_done > 0);
     kill_server(SIGKILL);
@@ -1022,15 +1260,28 @@ static void damaged(void)
     /* checkpoint: header 8, seconds/rejected/rays 24, magic, version, id, hash,
      * nine u32 parameters, target error; then the min gain */
     const long ck_gain = 8 + 24 + 4 + 4 + 8 + 32 + 36 + 8;
-    for (uint32_t format = 3; format >= 2; format--) {
+    for (uint32_t format = 5; format >= 2; format--) {
         snprintf(cmd, sizeof cmd, "rm -rf '%s' && cp -a '%s' '%s'", path("state3"),
                  path("state3.good"), path("state3"));
         CHECK(system(cmd) == 0);
+        /* Format 5: no frame ranges in the queue's records; the results
+         * log's frames of protocol 4 (RESULT as today's: read as they are). */
+        queue_to_v5("state3/queue");
+        log_frames_to(lg, 4);
+        /* Format 4: double sums in the checkpoint, protocol 3's RESULT in
+         * the results log (converted as read, and rewritten). */
+        if (format <= 4) {
+            queue_to_v4("state3/queue");
+            checkpoint_to_v4(ck);
+            log_to_v4(lg);
+        }
         /* Format 3: no environment, no film flags, and the results log in
          * protocol 2's RESULT layout (read so, and rewritten). */
-        queue_to_v3("state3/queue");
-        checkpoint_to_v3(ck);
-        log_to_v3(lg);
+        if (format <= 3) {
+            queue_to_v3("state3/queue");
+            checkpoint_to_v3(ck);
+            log_to_v3(lg);
+        }
         if (format == 2) {
             to_format2("state3/queue", queue_min_gain_at("state3/queue"), qv, 1, 1);
             to_format2(ck, ck_gain, cv, 2, 1);
@@ -1041,8 +1292,36 @@ static void damaged(void)
         CHECK(start_damaged(log) == -1);
         CHECKF(status(g_port, id, &info) == PROTO_MSG_JOB_INFO && info.state == PROTO_JOB_RUNNING &&
                    info.samples_done == v4.samples_done,
-               "format %u: state %u, %llu samples (format 4: %llu)", format, info.state,
+               "format %u: state %u, %llu samples (format 6: %llu)", format, info.state,
                (unsigned long long)info.samples_done, (unsigned long long)v4.samples_done);
+        kill_server(SIGTERM);
+    }
+    /* A results log of protocol 3 frames (f64 sums) is converted as read and
+     * rewritten in today's frames: the same samples. One of protocol 2 frames
+     * is refused, naming the file and the protocol: that job fails. */
+    for (uint16_t pv = 3; pv >= 2; pv--) {
+        snprintf(cmd, sizeof cmd, "rm -rf '%s' && cp -a '%s' '%s'", path("state3"),
+                 path("state3.good"), path("state3"));
+        CHECK(system(cmd) == 0);
+        log_frames_to(lg, pv);
+        char log[32];
+        snprintf(log, sizeof log, "migrate_p%u.log", pv);
+        CHECK(start_damaged(log) == -1);
+        if (pv == 3) {
+            CHECKF(status(g_port, id, &info) == PROTO_MSG_JOB_INFO &&
+                       info.state == PROTO_JOB_RUNNING && info.samples_done == v4.samples_done,
+                   "protocol 3 frames: state %u, %llu samples (today's: %llu)", info.state,
+                   (unsigned long long)info.samples_done, (unsigned long long)v4.samples_done);
+            uint8_t *d = NULL;
+            size_t n = 0;
+            CHECK(read_state(lg, &d, &n) && n > 16 + PROTO_FRAME_HEADER &&
+                  proto_get_u16(d + 16 + 4) == PROTO_VERSION);
+            pt_free(d);
+        } else {
+            CHECK(status(g_port, id, &info) == PROTO_MSG_JOB_INFO &&
+                  info.state == PROTO_JOB_FAILED);
+            CHECK(log_has(log, "results.log") && log_has(log, "a frame of protocol 2"));
+        }
         kill_server(SIGTERM);
     }
     /* A format this ptserve does not know is refused, naming the file. */
@@ -1139,6 +1418,16 @@ static void hostile_clients(void)
     both.target_error = 0.05;
     both.min_gain = 1e-6;
     CHECK(refused(both, B, N, "two adaptive rules"));
+    /* Frame ranges: refused at SUBMIT, the server serving on. */
+    proto_submit fr = job_of("shot", 64, 48, 16, 0);
+    fr.frame_first = 9;
+    fr.frame_last = 3;
+    fr.frame_step = 1;
+    fr.fps = 24.0;
+    CHECK(refused(fr, B, N, "bad frame range"));
+    fr.frame_first = 0;
+    fr.fps = 2e6;
+    CHECK(refused(fr, B, N, "frames per second is over"));
 
     /* Bundles: a file named ../x, a lying inner length, the wrong hash, a broken glTF. */
     const char *n1[] = {"scene.gltf", "../evil.bin"}, *d1[] = {"{}", "x"};

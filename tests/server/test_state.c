@@ -17,6 +17,7 @@
 
 #include "common/base/alloc.h"
 #include "common/base/fsutil.h"
+#include "common/render/render.h"
 #include "protocol/frame.h"
 #include "protocol/wire.h"
 #include "server/job.h"
@@ -40,7 +41,7 @@ static void payload_of(srv_job *job, uint64_t t, proto_writer *w)
     } while (task.task_id != t);
     uint32_t n = (task.tile.x1 - task.tile.x0) * (task.tile.y1 - task.tile.y0);
     for (uint32_t i = 0; i < n; i++)
-        px[i] = (pt_pixel_acc){{0.25 * (double)(t + 1), 0.5, 0.125 * i}, 1.0, task.s1 - task.s0, 0};
+        px[i] = pt_pixel_acc_of(0.25 * (double)(t + 1), 0.5, 0.125 * i, 1.0, task.s1 - task.s0, 0);
     proto_result r = {JOB_ID, t, task.tile, task.s0, task.s1, 0, 0, 0, n, px, 0};
     proto_writer_init(w, (size_t)1 << 20);
     size_t mark;
@@ -256,7 +257,8 @@ static void test_queue_env_versions(const char *dir)
 
     /* Version 3: the same record without the ENV block (23 bytes with no map
      * name), the film flags (4) and the variant (2, empty), which sit after
-     * the camera, and without the depth-cap count (8), the record's last field. */
+     * the camera, and without the depth-cap count (8) and version 5's frame
+     * block (27 with no animation and no frame done ahead), its last fields. */
     rec.params.env = PARAMS.env;
     CHECK(srv_state_save_queue(st, recs, 1, 2, &err) == PT_OK);
     char qp[512];
@@ -266,11 +268,11 @@ static void test_queue_env_versions(const char *dir)
     CHECK(pt_read_file(qp, 1 << 20, &f, &len, &err) == PT_OK);
     size_t at = 8 + 8 + 4 + 8 + 8 + 1 + 4 + (2 + strlen(rec.name)) + 2 + 2 + 2 + 8 + 9 * 4 + 2 * 8 +
                 2 + strlen(rec.params.camera);
-    if (f && len > at + 29 + 12) {
+    if (f && len > at + 29 + 12 + 27) {
         memmove(f + at, f + at + 29, len - at - 29);
         len -= 29;
-        memmove(f + len - 12, f + len - 4, 4); /* the capped count before the CRC */
-        len -= 8;
+        memmove(f + len - 39, f + len - 4, 4); /* the capped count and frames before the CRC */
+        len -= 35;
         proto_put_u32(f + 4, 3);
         proto_put_u32(f + len - 4, proto_crc32c(0, f, len - 4));
         CHECK(pt_write_file_atomic(qp, f, len, &err) == PT_OK);
@@ -282,6 +284,56 @@ static void test_queue_env_versions(const char *dir)
         pt_free(got);
     }
     pt_free(f);
+    srv_state_close(st);
+    pt_remove_tree(dir);
+}
+
+/* A frame range's record (version 5): its range, pose and frames done
+ * round-trip; a record whose frames done do not fit its range is refused
+ * naming the file. */
+static void test_queue_frames(const char *dir)
+{
+    srv_state *st = NULL;
+    pt_error err = {0};
+    CHECK(srv_state_open(dir, &st, &err) == PT_OK);
+    srv_job_record rec = {0}, *recs[1] = {&rec}, *got = NULL;
+    rec.id = 4;
+    rec.state = PROTO_JOB_RUNNING;
+    rec.params = PARAMS;
+    rec.frames = (pt_frames){1001, 1100, 1};
+    rec.fps = 23.976;
+    snprintf(rec.animation, sizeof rec.animation, "Walk");
+    rec.frames_done = 7;
+    rec.ndone_ahead = 2;
+    rec.done_ahead[0] = 9;
+    rec.done_ahead[1] = 12;
+    uint32_t n = 0;
+    uint64_t next = 0;
+    CHECK(srv_state_save_queue(st, recs, 1, 5, &err) == PT_OK);
+    CHECK(srv_state_load_queue(st, &got, &n, &next, &err) == PT_OK && n == 1);
+    CHECK(got && got->frames.first == 1001 && got->frames.last == 1100 && got->frames.step == 1 &&
+          got->fps == 23.976 && strcmp(got->animation, "Walk") == 0 && got->frames_done == 7 &&
+          got->ndone_ahead == 2 && got->done_ahead[0] == 9 && got->done_ahead[1] == 12);
+    pt_free(got);
+    got = NULL;
+    /* Each inconsistency, written as a queue file would be, is refused. */
+    for (int k = 0; k < 4; k++) {
+        srv_job_record bad = rec, *brecs[1] = {&bad};
+        if (k == 0)
+            bad.frames_done = 101; /* more than its 100 frames */
+        else if (k == 1)
+            bad.done_ahead[1] = 7; /* "ahead" but within the done prefix */
+        else if (k == 2)
+            bad.frames.last = 1000; /* reversed */
+        else
+            bad.fps = 0.0;
+        CHECK(srv_state_save_queue(st, brecs, 1, 5, &err) == PT_OK);
+        CHECKF(srv_state_load_queue(st, &got, &n, &next, &err) == PT_ERR_FORMAT &&
+                   strstr(err.msg, "queue") && strstr(err.msg, "frame"),
+               "case %d: %s", k, err.msg);
+        pt_free(got);
+        got = NULL;
+    }
     srv_state_close(st);
     pt_remove_tree(dir);
 }
@@ -299,6 +351,7 @@ int main(void)
     test_torn_tail(dir);
     test_queue_unsaved(dir);
     test_queue_env_versions(dir);
+    test_queue_frames(dir);
     pt_remove_tree(dir);
     return check_report();
 }

@@ -142,8 +142,8 @@ static stats render_stats(const pt_scene *s, const pt_env *env, uint32_t strateg
     CHECK(st.rejected == 0);
     double sum = 0.0, sq = 0.0, n = 0.0;
     for (uint32_t i = 0; i < W * H; i++) {
-        sum += acc[i].sum[1];
-        sq += acc[i].sum_sq;
+        sum += pt_acc_sum(&acc[i], 1);
+        sq += pt_acc_sum_sq(&acc[i]);
         n += acc[i].n;
     }
     out.mean = sum / n;
@@ -516,19 +516,19 @@ static void determinism(void)
         memset(ref, 0, sizeof ref);
         for (uint32_t k = 0; k < N; k++)
             for (uint32_t b0 = 0; b0 < 48; b0 += PT_SAMPLE_BLOCK) {
-                pt_pixel_acc blk = {{0, 0, 0}, 0, 0, 0};
+                pt_block_acc blk = {{0, 0, 0}, 0, 0, 0};
                 for (uint32_t i = b0; i < b0 + PT_SAMPLE_BLOCK; i++) {
                     int cov = 0; /* a cut-out the camera ray passes may leave the pixel */
-                    if (pt_pixel_acc_sample(&blk, pt_render_sample(r, k % W, k / W, i, NULL, &cov)))
+                    if (pt_block_acc_sample(&blk, pt_render_sample(r, k % W, k / W, i, NULL, &cov)))
                         blk.hits += (uint32_t)cov;
                 }
-                pt_pixel_acc_add(&ref[k], &blk);
+                pt_pixel_acc_add_block(&ref[k], &blk);
             }
         CHECKF(memcmp(whole, ref, sizeof whole) == 0,
                "strategy %u: the tile differs from one path at a time", strategy);
         double lit = 0.0;
         for (uint32_t i = 0; i < N; i++)
-            lit += whole[i].sum[1];
+            lit += pt_acc_sum(&whole[i], 1);
         CHECK(lit > 0.0);
         pt_renderer_free(r);
     }
@@ -720,7 +720,7 @@ static void asset(void)
     pt_renderer_free(r);
     uint32_t differ = 0;
     for (uint32_t i = 0; i < N; i++)
-        differ += with[i].sum[0] != without[i].sum[0];
+        differ += pt_acc_sum(&with[i], 0) != pt_acc_sum(&without[i], 0);
     CHECKF(differ > N / 50, "only %u of %u pixels change with alpha", differ, N);
     pt_env_free(env);
     pt_scene_free(s);

@@ -85,11 +85,13 @@ static image_stats render(const pt_scene *s, const pt_env *env, uint32_t spp)
             r.finite = 0;
             continue;
         }
-        double lum = (0.2126 * acc[i].sum[0] + 0.7152 * acc[i].sum[1] + 0.0722 * acc[i].sum[2]) / k;
+        double lum = (0.2126 * pt_acc_sum(&acc[i], 0) + 0.7152 * pt_acc_sum(&acc[i], 1) +
+                      0.0722 * pt_acc_sum(&acc[i], 2)) /
+                     k;
         for (int c = 0; c < 3; c++)
-            r.finite &= isfinite(acc[i].sum[c]) && acc[i].sum[c] >= 0.0;
+            r.finite &= isfinite(pt_acc_sum(&acc[i], c)) && pt_acc_sum(&acc[i], c) >= 0.0;
         sum += lum;
-        var += fmax((acc[i].sum_sq - k * lum * lum) / (k - 1.0), 0.0) / k;
+        var += fmax((pt_acc_sum_sq(&acc[i]) - k * lum * lum) / (k - 1.0), 0.0) / k;
     }
     r.mean = sum / (SIDE * SIDE);
     r.se = sqrt(var) / (SIDE * SIDE);

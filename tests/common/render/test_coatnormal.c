@@ -172,8 +172,8 @@ static double render(const pt_scene *s, uint32_t spp, double *se)
     CHECK(st.rejected == 0);
     double sum = 0.0, sq = 0.0, n = 0.0;
     for (int i = 0; i < 4; i++) {
-        sum += acc[i].sum[1];
-        sq += acc[i].sum_sq;
+        sum += pt_acc_sum(&acc[i], 1);
+        sq += pt_acc_sum_sq(&acc[i]);
         n += acc[i].n;
     }
     double mean = sum / n;

@@ -106,16 +106,16 @@ static void transparent_film(void)
             /* The same paths either way: only the escaped camera rays differ. */
             CHECK(a->hits == b->hits);
             if (x < edge_px) {
-                bad_bg += a->hits != 0 || a->sum[0] != 0.0 || a->sum[1] != 0.0 ||
-                          a->sum[2] != 0.0 || a->sum_sq != 0.0;
+                bad_bg += a->hits != 0 || pt_acc_sum(a, 0) != 0.0 || pt_acc_sum(a, 1) != 0.0 ||
+                          pt_acc_sum(a, 2) != 0.0 || pt_acc_sum_sq(a) != 0.0;
                 /* Opaque: the sky itself, exactly. */
-                bad_bg += b->sum[1] != (double)L * SPP;
+                bad_bg += pt_acc_sum(b, 1) != (double)L * SPP;
             } else if (x > edge_px) {
                 bad_full += a->hits != a->n;
-                bad_full += memcmp(a->sum, b->sum, sizeof a->sum) != 0;
-                double n = a->n, mean = a->sum[1] / n;
+                bad_full += memcmp(a->fsum, b->fsum, sizeof a->fsum) != 0;
+                double n = a->n, mean = pt_acc_sum(a, 1) / n;
                 full_sum += mean;
-                full_var += fmax((a->sum_sq - n * mean * mean) / (n - 1.0), 0.0) / n;
+                full_var += fmax((pt_acc_sum_sq(a) - n * mean * mean) / (n - 1.0), 0.0) / n;
             } else {
                 /* A binomial proportion over SPP samples (stratified samples
                  * only do better). */

@@ -750,11 +750,14 @@ static void determinism(void)
         pt_render_tile(r, all, 0, 16, whole, NULL);
         int same = 1;
         for (uint32_t k = 0; k < 64; k++) {
+            pt_block_acc blk;
             pt_pixel_acc a;
+            memset(&blk, 0, sizeof blk);
             memset(&a, 0, sizeof a);
             for (uint32_t i = 0; i < 16; i++)
-                pt_pixel_acc_sample(&a, pt_render_sample(r, k % 8, k / 8, i, NULL, NULL));
-            same &= memcmp(a.sum, whole[k].sum, sizeof a.sum) == 0 && a.n == whole[k].n;
+                pt_block_acc_sample(&blk, pt_render_sample(r, k % 8, k / 8, i, NULL, NULL));
+            pt_pixel_acc_add_block(&a, &blk);
+            same &= memcmp(a.fsum, whole[k].fsum, sizeof a.fsum) == 0 && a.n == whole[k].n;
         }
         CHECKF(same, "the batched tile differs from one path at a time");
         pt_render_tile(r, all, 0, 48, whole, NULL);
@@ -766,7 +769,7 @@ static void determinism(void)
         }
         same = 1;
         for (uint32_t k = 0; k < 64; k++)
-            same &= memcmp(part[k].sum, whole[k].sum, sizeof part[k].sum) == 0;
+            same &= memcmp(part[k].fsum, whole[k].fsum, sizeof part[k].fsum) == 0;
         CHECKF(same, "[0,48) differs from three chunks of 16");
     }
     pt_renderer_free(r);

@@ -249,10 +249,11 @@ static double render_mean(const pt_scene *s, const pt_env *env, uint32_t strateg
         CHECK(st.rejected == 0);
         for (uint32_t i = 0; i < w * w; i++) {
             double k = acc[i].n;
-            double lum =
-                (0.2126 * acc[i].sum[0] + 0.7152 * acc[i].sum[1] + 0.0722 * acc[i].sum[2]) / k;
-            sum += acc[i].sum[1] / k;
-            var += fmax((acc[i].sum_sq - k * lum * lum) / (k - 1.0), 0.0) / k;
+            double lum = (0.2126 * pt_acc_sum(&acc[i], 0) + 0.7152 * pt_acc_sum(&acc[i], 1) +
+                          0.0722 * pt_acc_sum(&acc[i], 2)) /
+                         k;
+            sum += pt_acc_sum(&acc[i], 1) / k;
+            var += fmax((pt_acc_sum_sq(&acc[i]) - k * lum * lum) / (k - 1.0), 0.0) / k;
         }
     }
     pt_free(acc);

@@ -22,6 +22,9 @@ static double rnd(void)
     return (double)(z >> 11) * 0x1.0p-53;
 }
 
+/* v in fixed point (v an integer). */
+#define FX(v) ((pt_i128)(v) * ((pt_i128)1 << PT_FIXED_BITS))
+
 static double lum(double r, double g, double b)
 {
     return 0.2126 * r + 0.7152 * g + 0.0722 * b;
@@ -32,10 +35,10 @@ static pt_pixel_acc synth_acc(uint32_t x, uint32_t y, uint32_t c)
 {
     pt_pixel_acc a = {{0}, 0, 0, 0};
     double k = (double)(x * 131u + y * 71u + c * 17u + 1u);
-    a.sum[0] = 0.1 * k + 1.0 / 3.0;
-    a.sum[1] = 1.0 / (k + 7.0);
-    a.sum[2] = sqrt(k) * 1e-3;
-    a.sum_sq = k * 0.01 + 1e-17;
+    a.fsum[0] = pt_fixed_of(0.1 * k + 1.0 / 3.0);
+    a.fsum[1] = pt_fixed_of(1.0 / (k + 7.0));
+    a.fsum[2] = pt_fixed_of(sqrt(k) * 1e-3);
+    a.fsum_sq = pt_ufixed_of(k * 0.01 + 1e-17);
     a.n = 16 + (x + y + c) % 5;
     return a;
 }
@@ -63,8 +66,8 @@ static void add_grid(pt_film *film, uint32_t tw, uint32_t th, uint32_t c, pt_pix
 
 static int acc_equal(const pt_pixel_acc *a, const pt_pixel_acc *b)
 {
-    return memcmp(a->sum, b->sum, sizeof a->sum) == 0 &&
-           memcmp(&a->sum_sq, &b->sum_sq, sizeof a->sum_sq) == 0 && a->n == b->n;
+    return memcmp(a->fsum, b->fsum, sizeof a->fsum) == 0 &&
+           memcmp(&a->fsum_sq, &b->fsum_sq, sizeof a->fsum_sq) == 0 && a->n == b->n;
 }
 
 static void test_new_limits(void)
@@ -80,7 +83,7 @@ static void test_new_limits(void)
         CHECK(f->width == 3 && f->height == 2);
         int zero = 1;
         for (int i = 0; i < 6; i++)
-            zero &= f->px[i].n == 0 && f->px[i].sum[0] == 0.0 && f->px[i].sum_sq == 0.0;
+            zero &= f->px[i].n == 0 && f->px[i].fsum[0] == 0 && f->px[i].fsum_sq == 0;
         CHECK(zero);
         CHECK(pt_film_total_samples(f) == 0);
     }
@@ -117,8 +120,10 @@ static void test_tile_splits(void)
     }
 }
 
-/* Chunks [0,16) then [16,32) merged tile by tile, under two different tile
- * splits, equal the in-order sum from zero bit for bit. */
+/* Chunks [0,16) then [16,32) ... merged tile by tile, under two different
+ * tile splits and in two different orders, equal the in-order sum from zero
+ * bit for bit: the sums are exact integers (with double sums, adding the
+ * chunks in another order gave other bits). */
 static void test_chunk_order_bits(void)
 {
     const uint32_t w = 33, h = 18;
@@ -129,9 +134,10 @@ static void test_chunk_order_bits(void)
         pt_film_free(a);
         return;
     }
+    static const uint32_t order[4] = {3, 1, 0, 2};
     for (uint32_t c = 0; c < 4; c++) {
         add_grid(a, 16, 16, c, scratch);
-        add_grid(b, 32, 7, c, scratch);
+        add_grid(b, 32, 7, order[c], scratch);
     }
     int same = 1, as_precomputed = 1;
     for (uint32_t y = 0; y < h; y++)
@@ -150,7 +156,10 @@ static void test_chunk_order_bits(void)
     pt_film_free(b);
 }
 
-/* Resolve against a direct two-pass computation in double over the samples. */
+/* Resolve against a direct two-pass computation in double over the samples
+ * (summed in blocks of PT_SAMPLE_BLOCK as the renderer sums them; the means
+ * are checked against the fixed-point sums, the variance against the exact
+ * samples). */
 static void test_resolve_math(void)
 {
     enum { W = 7, H = 5, MAXN = 300 };
@@ -171,6 +180,7 @@ static void test_resolve_math(void)
         uint32_t n = i == 0 ? 0 : i == 1 ? 1 : i == 2 ? 64 : 2 + (uint32_t)(rnd() * (MAXN - 2));
         double scale = i % 3 == 0 ? 1000.0 : 1.0; /* a bright pixel stresses cancellation */
         pt_pixel_acc acc = {{0}, 0, 0, 0};
+        pt_block_acc blk = {{0}, 0, 0, 0};
         for (uint32_t k = 0; k < n; k++) {
             if (i == 2) {
                 sr[k] = 0.3;
@@ -181,15 +191,19 @@ static void test_resolve_math(void)
                 sg[k] = scale * rnd() * rnd();
                 sb[k] = scale * (rnd() < 0.1 ? 5.0 : 0.1);
             }
-            acc.sum[0] += sr[k];
-            acc.sum[1] += sg[k];
-            acc.sum[2] += sb[k];
+            blk.sum[0] += sr[k];
+            blk.sum[1] += sg[k];
+            blk.sum[2] += sb[k];
             double l = lum(sr[k], sg[k], sb[k]);
-            acc.sum_sq += l * l;
+            blk.sum_sq += l * l;
+            if (k % PT_SAMPLE_BLOCK == PT_SAMPLE_BLOCK - 1 || k == n - 1) {
+                pt_pixel_acc_add_block(&acc, &blk);
+                memset(&blk, 0, sizeof blk);
+            }
         }
         acc.n = n;
-        double mr = n ? acc.sum[0] / n : 0, mg = n ? acc.sum[1] / n : 0,
-               mb = n ? acc.sum[2] / n : 0;
+        double mr = n ? pt_acc_sum(&acc, 0) / n : 0, mg = n ? pt_acc_sum(&acc, 1) / n : 0,
+               mb = n ? pt_acc_sum(&acc, 2) / n : 0;
         double ml = 0, ss = 0;
         for (uint32_t k = 0; k < n; k++)
             ml += lum(sr[k], sg[k], sb[k]);
@@ -221,9 +235,12 @@ static void test_resolve_math(void)
          * numerator (Chan, Golub & LeVeque 1983, "Algorithms for computing the
          * sample variance"), so after dividing by (n - 1) n the bound is about
          * eps * sum_sq / (n - 1); 4x for the accumulation of the sums, plus
-         * the final rounding to float. */
+         * the final rounding to float; and the fixed-point rounding, half a
+         * unit (2^-33) a block in each sum. */
         const pt_pixel_acc *a = &f->px[i];
-        double tol = 1e-6 * want_var[i] + (a->n >= 2 ? 4 * 0x1p-52 * a->sum_sq / (a->n - 1) : 0);
+        double tol =
+            1e-6 * want_var[i] +
+            (a->n >= 2 ? (4 * 0x1p-52 * pt_acc_sum_sq(a) + 0x1p-30 * a->n) / (a->n - 1) / a->n : 0);
         double got = img->variance[i];
         if (!(got >= 0.0 && fabs(got - want_var[i]) <= tol)) {
             var_ok = 0;
@@ -236,7 +253,9 @@ static void test_resolve_math(void)
     CHECK(var_ok);
     CHECK(img->r[0] == 0.0f && img->samples[0] == 0.0f && img->variance[0] == 0.0f);
     CHECK(img->variance[1] == 0.0f && img->samples[1] == 1.0f);
-    CHECK(img->variance[2] >= 0.0f && img->variance[2] < 1e-15f);
+    /* A constant pixel: 0 up to the fixed-point rounding of the RGB sums (half
+     * of 2^-32 a block), which leaves n mean_L^2 about 1e-9 off sum_sq. */
+    CHECK(img->variance[2] >= 0.0f && img->variance[2] < 1e-12f);
     CHECK(pt_film_total_samples(f) == total);
     pt_image_free(img);
     pt_film_free(f);
@@ -252,11 +271,12 @@ static void test_clamp_and_totals(void)
         pt_film_free(f);
         return;
     }
-    f->px[0].sum[1] = 2.0;
-    f->px[0].sum_sq = 0.5 * 0.7152 * 0.7152 * 2.0 * 2.0; /* below n * mean_L^2 */
+    f->px[0].fsum[1] = pt_fixed_of(2.0);
+    /* One unit below n * mean_L^2. */
+    f->px[0].fsum_sq = pt_ufixed_of(0.5 * 0.7152 * 0.7152 * 2.0 * 2.0) - 1;
     f->px[0].n = 2;
     f->px[1].n = 4000000000u;
-    f->px[1].sum[0] = 4e9;
+    f->px[1].fsum[0] = pt_fixed_of(4e9);
     pt_film_resolve(f, img);
     CHECK(img->variance[0] == 0.0f);
     CHECK(img->g[0] == 1.0f);
@@ -272,8 +292,8 @@ static void test_clamp_and_totals(void)
  * agrees with its past: 0. */
 static void test_tile_gain_math(void)
 {
-    pt_pixel_acc tile[2] = {{{2, 10, 18}, 0, 8, 0}, {{8, 8, 8}, 0, 8, 0}};
-    pt_pixel_acc last[2] = {{{2, 4, 6}, 0, 2, 0}, {{2, 2, 2}, 0, 2, 0}};
+    pt_pixel_acc tile[2] = {{{FX(2), FX(10), FX(18)}, 0, 8, 0}, {{FX(8), FX(8), FX(8)}, 0, 8, 0}};
+    pt_pixel_acc last[2] = {{{FX(2), FX(4), FX(6)}, 0, 2, 0}, {{FX(2), FX(2), FX(2)}, 0, 2, 0}};
     double want = 0.5 * (1.5 / 72.0);
     double g = pt_tile_gain(tile, 2, last, 2, 2, 1);
     CHECKF(fabs(g - want) <= 1e-15 * want, "gain %.17g, want %.17g", g, want);
@@ -293,9 +313,9 @@ static void test_tile_gain_math(void)
     for (int k = 0; k < 4; k++) {
         pt_pixel_acc one[2] = {black[0], black[1]};
         if (k < 3)
-            one[1].sum[k] = 1e-300;
+            one[1].fsum[k] = 1; /* the smallest non-zero sum */
         else
-            one[1].sum_sq = 1e-300;
+            one[1].fsum_sq = 1;
         CHECK(isinf(pt_tile_gain(one, 2, one, 2, 2, 1)));
     }
     /* Black pixels count 0 beside pixels that have an estimate. */
@@ -312,8 +332,8 @@ static void test_tile_gain_math(void)
  * both off. */
 static void test_tile_stops_rules(void)
 {
-    pt_pixel_acc tile[2] = {{{2, 10, 18}, 0, 8, 0}, {{8, 8, 8}, 0, 8, 0}};
-    pt_pixel_acc last[2] = {{{2, 4, 6}, 0, 2, 0}, {{2, 2, 2}, 0, 2, 0}};
+    pt_pixel_acc tile[2] = {{{FX(2), FX(10), FX(18)}, 0, 8, 0}, {{FX(8), FX(8), FX(8)}, 0, 8, 0}};
+    pt_pixel_acc last[2] = {{{FX(2), FX(4), FX(6)}, 0, 2, 0}, {{FX(2), FX(2), FX(2)}, 0, 2, 0}};
     double g = pt_tile_gain(tile, 2, last, 2, 2, 1);
     pt_adaptive off = {0.0, 0.0, 2};
     CHECK(!pt_tile_stops(tile, 2, last, 2, 2, 1, 8, &off));
@@ -376,14 +396,16 @@ static double sim_render(const pt_adaptive *a, double *mse)
         while (s1 < SIM_CAP) {
             memset(chunk, 0, sizeof chunk);
             for (int i = 0; i < NPX; i++) {
+                pt_block_acc b = {{0}, 0, 0, 0};
                 for (int k = 0; k < SIM_CHUNK; k++) {
                     double v = mu + sigma * sqrt(3.0) * (2.0 * rnd() - 1.0);
-                    chunk[i].sum[0] += v;
-                    chunk[i].sum[1] += v;
-                    chunk[i].sum[2] += v;
-                    chunk[i].sum_sq += v * v;
-                    chunk[i].n++;
+                    b.sum[0] += v;
+                    b.sum[1] += v;
+                    b.sum[2] += v;
+                    b.sum_sq += v * v;
+                    b.n++;
                 }
+                pt_pixel_acc_add_block(&chunk[i], &b);
                 pt_pixel_acc_add(&sum[i], &chunk[i]);
             }
             s1 += SIM_CHUNK;

@@ -291,8 +291,8 @@ static void asset(const char *rel, uint32_t want)
         double sum = 0.0;
         for (uint32_t i = 0; i < 32u * 32u; i++)
             for (int c = 0; c < 3; c++) {
-                finite &= isfinite(acc[i].sum[c]) && acc[i].sum[c] >= 0.0;
-                sum += acc[i].sum[c];
+                finite &= isfinite(pt_acc_sum(&acc[i], c)) && pt_acc_sum(&acc[i], c) >= 0.0;
+                sum += pt_acc_sum(&acc[i], c);
             }
         CHECKF(st.rejected == 0 && finite, "%s: %llu NaN/Inf samples, finite %d", rel,
                (unsigned long long)st.rejected, finite);

@@ -129,10 +129,11 @@ static double render_mean(const setup *su, double *se)
         pt_render_tile(r, all, 0, su->spp, acc, &st);
         CHECK(st.rejected == 0);
         for (uint32_t i = 0; i < n; i++) {
-            double k = acc[i].n, m = acc[i].sum[1] / k;
-            double lum =
-                (acc[i].sum[0] * 0.2126 + acc[i].sum[1] * 0.7152 + acc[i].sum[2] * 0.0722) / k;
-            double v = (acc[i].sum_sq - k * lum * lum) / (k - 1.0);
+            double k = acc[i].n, m = pt_acc_sum(&acc[i], 1) / k;
+            double lum = (pt_acc_sum(&acc[i], 0) * 0.2126 + pt_acc_sum(&acc[i], 1) * 0.7152 +
+                          pt_acc_sum(&acc[i], 2) * 0.0722) /
+                         k;
+            double v = (pt_acc_sum_sq(&acc[i]) - k * lum * lum) / (k - 1.0);
             sum += m;
             var += fmax(v, 0.0) / k;
         }

@@ -16,7 +16,9 @@
  * - Direct light by NEE alone and by BSDF sampling alone agree within their
  *   combined standard error.
  * - Determinism: [0,64) equals the in-order sum of four 16-sample chunks bit
- *   for bit, and the same pixels rendered by several threads equal one thread's.
+ *   for bit, and the same pixels rendered by several threads equal one thread's;
+ *   [0,N) equals any split at multiples of 16 into parts of any sizes, merged
+ *   in any order (sums and resolved image), N a multiple of 16 or not.
  * - The Cornell box renders with no NaN or Inf and no rejected sample.
  * - Every specialised integrator variant gives the general one's bits.
  * - pt_render_tile, which traces many paths interleaved, gives the bits of
@@ -29,6 +31,7 @@
 
 #include "common/base/alloc.h"
 #include "common/math/simd.h"
+#include "common/render/film.h"
 #include "common/render/render.h"
 #include "common/scene/scene.h"
 #include "tests/check.h"
@@ -68,9 +71,10 @@ static pt_renderer *renderer(const pt_scene *s, uint32_t w, uint32_t h, uint32_t
 /* Standard error of a pixel mean from its luminance sums. */
 static double pixel_sigma(const pt_pixel_acc *a)
 {
-    double n = a->n, mean = pt_luminance(pt_v3((float)(a->sum[0] / n), (float)(a->sum[1] / n),
-                                               (float)(a->sum[2] / n)));
-    double var = (a->sum_sq - n * mean * mean) / (n - 1.0);
+    double n = a->n,
+           mean = pt_luminance(pt_v3((float)(pt_acc_sum(a, 0) / n), (float)(pt_acc_sum(a, 1) / n),
+                                     (float)(pt_acc_sum(a, 2) / n)));
+    double var = (pt_acc_sum_sq(a) - n * mean * mean) / (n - 1.0);
     return sqrt(fmax(var, 0.0) / n);
 }
 
@@ -91,7 +95,7 @@ static void furnace(float scale)
     int outliers = 0;
     double sum = 0, var_sum = 0;
     for (uint32_t i = 0; i < W * H; i++) {
-        double m = acc[i].sum[1] / acc[i].n;
+        double m = pt_acc_sum(&acc[i], 1) / acc[i].n;
         double sig = pixel_sigma(&acc[i]);
         sum += m;
         var_sum += sig * sig;
@@ -209,7 +213,7 @@ static void furnace_defaults(void)
     double sum = 0, var_sum = 0;
     for (uint32_t i = 0; r && acc && i < W * H; i++) {
         double sig = pixel_sigma(&acc[i]);
-        sum += acc[i].sum[1] / acc[i].n;
+        sum += pt_acc_sum(&acc[i], 1) / acc[i].n;
         var_sum += sig * sig;
     }
     const double expected = 1.0 / (1.0 - 0.8);
@@ -274,7 +278,7 @@ static void orthographic(void)
             for (uint32_t y = 0; y < W; y++)
                 for (uint32_t x = 0; x < W; x++) {
                     int inside = x >= 16 && x < 48 && y >= 16 && y < 48;
-                    int lit = fabs(acc[y * W + x].sum[1] / acc[y * W + x].n - 2.0) < 1e-6;
+                    int lit = fabs(pt_acc_sum(&acc[y * W + x], 1) / acc[y * W + x].n - 2.0) < 1e-6;
                     on += lit;
                     wrong += lit != inside;
                 }
@@ -308,18 +312,18 @@ static void nee_vs_bsdf(void)
     double ma = 0, mb = 0, mm = 0, va = 0, vb = 0, vm = 0;
     int outliers = 0;
     for (uint32_t i = 0; i < W * H; i++) {
-        double xa =
-            pt_luminance(pt_v3((float)(pa[i].sum[0] / pa[i].n), (float)(pa[i].sum[1] / pa[i].n),
-                               (float)(pa[i].sum[2] / pa[i].n)));
-        double xb =
-            pt_luminance(pt_v3((float)(pb[i].sum[0] / pb[i].n), (float)(pb[i].sum[1] / pb[i].n),
-                               (float)(pb[i].sum[2] / pb[i].n)));
+        double xa = pt_luminance(pt_v3((float)(pt_acc_sum(&pa[i], 0) / pa[i].n),
+                                       (float)(pt_acc_sum(&pa[i], 1) / pa[i].n),
+                                       (float)(pt_acc_sum(&pa[i], 2) / pa[i].n)));
+        double xb = pt_luminance(pt_v3((float)(pt_acc_sum(&pb[i], 0) / pb[i].n),
+                                       (float)(pt_acc_sum(&pb[i], 1) / pb[i].n),
+                                       (float)(pt_acc_sum(&pb[i], 2) / pb[i].n)));
         double sa = pixel_sigma(&pa[i]), sb = pixel_sigma(&pb[i]);
         if (fabs(xa - xb) > 5.0 * sqrt(sa * sa + sb * sb) + 1e-6)
             outliers++;
-        ma += pa[i].sum[1];
-        mb += pb[i].sum[1];
-        mm += pm[i].sum[1];
+        ma += pt_acc_sum(&pa[i], 1);
+        mb += pt_acc_sum(&pb[i], 1);
+        mm += pt_acc_sum(&pm[i], 1);
         va += sa * sa;
         vb += sb * sb;
         vm += pixel_sigma(&pm[i]) * pixel_sigma(&pm[i]);
@@ -377,7 +381,7 @@ static void determinism(void)
     CHECKF(memcmp(whole, sum, sizeof whole) == 0, "[0,64) differs from the sum of 16-chunks");
     int nonzero = 0;
     for (uint32_t i = 0; i < n; i++)
-        nonzero += whole[i].sum[0] > 0;
+        nonzero += pt_acc_sum(&whole[i], 0) > 0;
     CHECK(nonzero > 0);
 
     /* Rows of the tile on four threads vs the whole tile on this one. */
@@ -392,6 +396,91 @@ static void determinism(void)
     for (uint32_t t = 0; t < 4; t++)
         pthread_join(th[t], NULL);
     CHECKF(memcmp(one, four, sizeof one) == 0, "four threads differ from one");
+    pt_renderer_free(r);
+    pt_scene_free(s);
+}
+
+/* Renders tile's samples [0, n) in parts split at cuts (16-aligned, parts of
+ * different sizes), adding the parts in order into acc (zeroed first). */
+static void render_split(const pt_renderer *r, pt_rect tile, const uint32_t *cuts, size_t ncuts,
+                         uint32_t n, pt_pixel_acc *acc, pt_pixel_acc *part_acc, uint32_t npx)
+{
+    memset(acc, 0, npx * sizeof *acc);
+    for (size_t c = 0; c <= ncuts; c++) {
+        uint32_t a = c ? cuts[c - 1] : 0, b = c < ncuts ? cuts[c] : n;
+        pt_render_tile(r, tile, a, b, part_acc, NULL);
+        for (uint32_t i = 0; i < npx; i++)
+            pt_pixel_acc_add(&acc[i], &part_acc[i]);
+    }
+}
+
+/* Resolves a tile's sums into a film of the tile's size. */
+static pt_image *resolve_tile(const pt_pixel_acc *acc, uint32_t w, uint32_t h)
+{
+    pt_film *f = NULL;
+    pt_image *img = NULL;
+    if (pt_film_new(w, h, &f, NULL) != PT_OK || pt_image_new(w, h, &img, NULL) != PT_OK) {
+        pt_film_free(f);
+        return NULL;
+    }
+    pt_film_add_tile(f, (pt_rect){0, 0, w, h}, acc);
+    pt_film_resolve(f, img);
+    pt_film_free(f);
+    return img;
+}
+
+static int image_same(const pt_image *a, const pt_image *b)
+{
+    if (!a || !b)
+        return 0;
+    size_t n = (size_t)a->width * a->height * sizeof(float);
+    return memcmp(a->r, b->r, n) == 0 && memcmp(a->g, b->g, n) == 0 && memcmp(a->b, b->b, n) == 0 &&
+           memcmp(a->variance, b->variance, n) == 0 && memcmp(a->samples, b->samples, n) == 0;
+}
+
+/* [0,N) in one call equals, bit for bit, any split at multiples of 16 into
+ * parts of different sizes merged in order (the sums and the resolved image),
+ * for a total that is a multiple of 16 and one that is not: what lets the
+ * coordinator size every task differently. */
+static void split_any_sizes(void)
+{
+    pt_scene *s = load("scenes/cornell_box.gltf", 1.0f);
+    CHECK(s != NULL);
+    if (!s)
+        return;
+    const uint32_t W = 16, H = 16;
+    pt_renderer *r = renderer(s, W, H, 16, PT_LIGHT_MIS);
+    pt_rect tile = {3, 5, 11, 13};
+    enum { NPX = 64 };
+    static const uint32_t cuts_a[] = {16, 48, 112}, cuts_b[] = {64}, cuts_c[] = {32, 80, 96, 144};
+    static const uint32_t totals[] = {160, 203};
+    for (size_t t = 0; t < 2; t++) {
+        uint32_t n = totals[t];
+        pt_pixel_acc whole[NPX], split[NPX], part_acc[NPX];
+        pt_render_tile(r, tile, 0, n, whole, NULL);
+        const uint32_t *cuts[] = {cuts_a, cuts_b, cuts_c};
+        const size_t ncuts[] = {3, 1, 4};
+        pt_image *wi = resolve_tile(whole, 8, 8);
+        for (size_t k = 0; k < 3; k++) {
+            render_split(r, tile, cuts[k], ncuts[k], n, split, part_acc, NPX);
+            CHECKF(memcmp(whole, split, sizeof whole) == 0,
+                   "[0,%u) differs from split %zu merged in order", n, k);
+            pt_image *si = resolve_tile(split, 8, 8);
+            CHECKF(image_same(wi, si), "[0,%u): the image of split %zu differs", n, k);
+            pt_image_free(si);
+        }
+        /* The same parts merged in another order: the same bits too. */
+        memset(split, 0, sizeof split);
+        static const uint32_t rev[][2] = {{112, 0}, {48, 112}, {0, 16}, {16, 48}};
+        for (size_t c = 0; c < 4; c++) {
+            uint32_t a = rev[c][0], b = rev[c][1] ? rev[c][1] : n;
+            pt_render_tile(r, tile, a, b, part_acc, NULL);
+            for (uint32_t i = 0; i < NPX; i++)
+                pt_pixel_acc_add(&split[i], &part_acc[i]);
+        }
+        CHECKF(memcmp(whole, split, sizeof whole) == 0, "[0,%u) differs merged out of order", n);
+        pt_image_free(wi);
+    }
     pt_renderer_free(r);
     pt_scene_free(s);
 }
@@ -411,7 +500,7 @@ static void cornell_finite(void)
     int bad = 0;
     for (uint32_t i = 0; i < W * H; i++)
         for (int c = 0; c < 3; c++)
-            bad += !isfinite(acc[i].sum[c]) || acc[i].sum[c] < 0;
+            bad += !isfinite(pt_acc_sum(&acc[i], c)) || pt_acc_sum(&acc[i], c) < 0;
     CHECK(bad == 0);
     CHECKF(st.rejected == 0, "%llu rejected samples", (unsigned long long)st.rejected);
     CHECK(st.samples == (uint64_t)W * H * 16);
@@ -453,16 +542,16 @@ static void batched_as_single(const pt_scene *s, uint32_t extra, uint32_t scalar
         for (uint32_t b0 = s0; b0 < s1;) {
             uint32_t b1 = (b0 / PT_SAMPLE_BLOCK + 1) * PT_SAMPLE_BLOCK;
             b1 = b1 < s1 ? b1 : s1;
-            pt_pixel_acc blk = {{0, 0, 0}, 0, 0, 0};
+            pt_block_acc blk = {{0, 0, 0}, 0, 0, 0};
             for (uint32_t i = b0; i < b1; i++) {
                 int cov = 0;
-                if (!pt_pixel_acc_sample(&blk, pt_render_sample(r, rect.x0 + k % tw,
+                if (!pt_block_acc_sample(&blk, pt_render_sample(r, rect.x0 + k % tw,
                                                                 rect.y0 + k / tw, i, &rs, &cov)))
                     rs.rejected++;
                 else
                     blk.hits += (uint32_t)cov;
             }
-            pt_pixel_acc_add(&ref[k], &blk);
+            pt_pixel_acc_add_block(&ref[k], &blk);
             rs.samples += blk.n;
             b0 = b1;
         }
@@ -514,7 +603,7 @@ static void same_as_general(pt_scene *s, const char *want_variant)
                want_variant);
         double lit = 0;
         for (int i = 0; i < 120; i++)
-            lit += pa[i].sum[1];
+            lit += pt_acc_sum(&pa[i], 1);
         CHECK(lit > 0);
     }
     pt_renderer_free(a);
@@ -708,6 +797,7 @@ int main(void)
     orthographic();
     nee_vs_bsdf();
     determinism();
+    split_any_sizes();
     cornell_finite();
     variants();
     return check_report();

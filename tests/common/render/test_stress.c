@@ -47,15 +47,15 @@ typedef struct image {
 static double lum_of(const pt_pixel_acc *a)
 {
     double n = a->n;
-    return pt_luminance(
-        pt_v3((float)(a->sum[0] / n), (float)(a->sum[1] / n), (float)(a->sum[2] / n)));
+    return pt_luminance(pt_v3((float)(pt_acc_sum(a, 0) / n), (float)(pt_acc_sum(a, 1) / n),
+                              (float)(pt_acc_sum(a, 2) / n)));
 }
 
 /* Standard error of a pixel mean from its luminance sums. */
 static double pixel_sigma(const pt_pixel_acc *a)
 {
     double n = a->n, mean = lum_of(a);
-    double var = (a->sum_sq - n * mean * mean) / (n - 1.0);
+    double var = (pt_acc_sum_sq(a) - n * mean * mean) / (n - 1.0);
     return sqrt(fmax(var, 0.0) / n);
 }
 
@@ -86,8 +86,8 @@ static image render(const pt_scene *s, uint32_t w, uint32_t h, uint32_t spp, uin
     uint64_t n = 0;
     for (uint32_t i = 0; i < w * h; i++) {
         for (int c = 0; c < 3; c++)
-            bad += !isfinite(im.acc[i].sum[c]) || im.acc[i].sum[c] < 0;
-        bad += !isfinite(im.acc[i].sum_sq) || im.acc[i].n == 0;
+            bad += !isfinite(pt_acc_sum(&im.acc[i], c)) || pt_acc_sum(&im.acc[i], c) < 0;
+        bad += !isfinite(pt_acc_sum_sq(&im.acc[i])) || im.acc[i].n == 0;
         n += im.acc[i].n;
     }
     printf("%-40s %ux%u %4u spp: %llu rejected samples\n", what, w, h, spp,
@@ -424,7 +424,8 @@ static void degenerate_geometry(void)
         image im = render(s, W, H, SPP, 5, 8, "camera inside a closed cube");
         double total = 0;
         for (uint32_t i = 0; i < W * H && im.acc; i++)
-            total += im.acc[i].sum[0] + im.acc[i].sum[1] + im.acc[i].sum[2];
+            total +=
+                pt_acc_sum(&im.acc[i], 0) + pt_acc_sum(&im.acc[i], 1) + pt_acc_sum(&im.acc[i], 2);
         CHECKF(total == 0.0, "inside a closed cube: light leaks (%g)", total);
         image_free(&im);
         pt_scene_free(s);
@@ -459,7 +460,8 @@ static void degenerate_geometry(void)
             for (uint32_t x = 0; x < W; x++) {
                 const pt_pixel_acc *a = &im.acc[y * W + x];
                 if (y < H / 2)
-                    lit_sky += a->sum[0] != 0 || a->sum[1] != 0 || a->sum[2] != 0;
+                    lit_sky +=
+                        pt_acc_sum(a, 0) != 0 || pt_acc_sum(a, 1) != 0 || pt_acc_sum(a, 2) != 0;
                 else
                     below += lum_of(a);
                 over += lum_of(a) > rho * E + 5.0 * pixel_sigma(a);
@@ -508,7 +510,7 @@ static void extreme_values(void)
             image im = render(s, W, H, SPP, 12, 16, "furnace lambert 0");
             int off = 0;
             for (uint32_t i = 0; i < W * H && im.acc; i++)
-                off += im.acc[i].sum[1] != 0.5 * im.acc[i].n;
+                off += pt_acc_sum(&im.acc[i], 1) != 0.5 * im.acc[i].n;
             CHECKF(off == 0, "albedo 0: %d pixels are not exactly E", off);
             image_free(&im);
             pt_scene_free(s);
@@ -590,7 +592,7 @@ static void extreme_values(void)
         if (base == 0.0f && m.metallic == 0.0f) {
             int off = 0;
             for (uint32_t i = 0; i < W * H && im.acc; i++) {
-                double k = im.acc[i].sum[1] / 4.0;
+                double k = pt_acc_sum(&im.acc[i], 1) / 4.0;
                 off += k != floor(k) || k > im.acc[i].n;
             }
             CHECKF(off == 0, "%s: %d pixels are not whole numbers of light hits", what, off);
