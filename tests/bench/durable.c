@@ -185,7 +185,7 @@ int main(int argc, char **argv)
     if (srv_job_new(1, &p, hash, &job, &err) != PT_OK)
         die("job", &err);
     uint32_t ntiles = srv_job_tiles(job);
-    uint64_t film_bytes = (uint64_t)w * h * PROTO_RESULT_PIXEL_SIZE;
+    uint64_t film_bytes = (uint64_t)w * h * sizeof(pt_pixel_acc); /* as srv_queue_tick counts */
 #ifdef SRV_CKPT_FILM_MULTIPLE
     g_job = job;
     pends = pt_malloc_array((size_t)ntiles * passes, sizeof *pends);
