@@ -42,6 +42,8 @@ typedef struct lease {
     uint32_t owner_ix;     /* the owner's index in owners[] */
     uint8_t kind;          /* L_* */
     uint8_t live;
+    uint8_t answered; /* its result arrived and waits for its log record to be
+                         durable before it is merged: not a straggler */
 } lease;
 
 typedef struct held {
@@ -649,8 +651,18 @@ static uint32_t add_lease(srv_job *j, owner_stat *o, uint32_t t, uint8_t kind, u
     lease *l = &j->leases[s];
     j->lease_free = l->tnext;
     double v = expected_ms_ps(j, o);
-    *l = (lease){o->owner,           now_ms, now_ms + lease_ms, v > 0.0 ? 1.0 / v : 0.0,   t,    ci,
-                 j->tasks[t].leases, NONE,   o->leases,         (uint32_t)(o - j->owners), kind, 1};
+    *l = (lease){.owner = o->owner,
+                 .start = now_ms,
+                 .deadline = now_ms + lease_ms,
+                 .rate = v > 0.0 ? 1.0 / v : 0.0,
+                 .task = t,
+                 .check = ci,
+                 .tnext = j->tasks[t].leases,
+                 .oprev = NONE,
+                 .onext = o->leases,
+                 .owner_ix = (uint32_t)(o - j->owners),
+                 .kind = kind,
+                 .live = 1};
     j->tasks[t].leases = s;
     if (o->leases != NONE)
         j->leases[o->leases].oprev = s;
@@ -765,7 +777,8 @@ static uint32_t backup_pick(const srv_job *j, uint64_t owner, uint64_t now_ms)
     uint64_t best_start = UINT64_MAX;
     for (uint32_t i = 0; i < j->lease_slots; i++) {
         const lease *l = &j->leases[i];
-        if (!l->live || l->kind != L_TASK || l->owner == owner || l->start >= best_start)
+        if (!l->live || l->kind != L_TASK || l->answered || l->owner == owner ||
+            l->start >= best_start)
             continue;
         double age = (double)(now_ms - l->start);
         if (now_ms < l->start || age < j->pol.backup_factor * j->t_mid * task_work(j, l->task))
@@ -1439,6 +1452,12 @@ static uint32_t tile_of(const srv_job *j, pt_rect r)
     return memcmp(&e, &r, sizeof e) == 0 ? t : NONE;
 }
 
+void srv_job_answered(srv_job *j, int lease_index)
+{
+    if (lease_index >= 0 && (uint32_t)lease_index < j->lease_slots && j->leases[lease_index].live)
+        j->leases[lease_index].answered = 1;
+}
+
 srv_outcome srv_job_replay(srv_job *j, const proto_result *r, pt_error *err)
 {
     if (r->job_id != j->id) {
@@ -1871,4 +1890,47 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
     j->capped = capped;
     passes_recount(j);
     return PT_OK;
+}
+
+srv_job *srv_job_snapshot(const srv_job *j)
+{
+    /* What srv_job_save reads, and nothing else: the sizes, the tiles' merged
+     * samples, the held results (each with a copy of its task, numbered as
+     * its place in held[], for its tile and range) and the film. */
+    srv_job *c = pt_calloc(1, sizeof *c);
+    if (!c)
+        return NULL;
+    c->id = j->id;
+    c->p = j->p;
+    memcpy(c->hash, j->hash, sizeof c->hash);
+    c->tiles_x = j->tiles_x;
+    c->tiles_y = j->tiles_y;
+    c->ntiles = j->ntiles;
+    c->npasses = j->npasses;
+    c->capped = j->capped;
+    c->tiles = pt_malloc_array(j->ntiles ? j->ntiles : 1, sizeof *c->tiles);
+    c->tasks = pt_malloc_array(j->nheld ? j->nheld : 1, sizeof *c->tasks);
+    c->held = pt_malloc_array(j->nheld ? j->nheld : 1, sizeof *c->held);
+    if (!c->tiles || !c->tasks || !c->held ||
+        pt_film_new(j->film->width, j->film->height, &c->film, NULL) != PT_OK) {
+        srv_job_free(c);
+        return NULL;
+    }
+    memcpy(c->tiles, j->tiles, (size_t)j->ntiles * sizeof *c->tiles);
+    memcpy(c->film->px, j->film->px,
+           (size_t)j->film->width * j->film->height * sizeof *c->film->px);
+    for (uint32_t i = 0; i < j->nheld; i++) {
+        const task *k = &j->tasks[j->held[i].task];
+        size_t npx = tile_pixels(j, k->tile);
+        pt_pixel_acc *px = pt_malloc_array(npx, sizeof *px);
+        if (!px) {
+            srv_job_free(c);
+            return NULL;
+        }
+        memcpy(px, j->held[i].px, npx * sizeof *px);
+        c->tasks[i] = (task){k->tile, k->s0, k->s1, NONE, NONE, i, T_HELD};
+        c->ntasks = c->tasks_cap = i + 1;
+        c->held[c->nheld++] = (held){i, j->held[i].owner, px};
+    }
+    return c;
 }

@@ -244,6 +244,12 @@ srv_outcome srv_job_validate(const srv_job *job, uint64_t owner, const proto_res
 srv_outcome srv_job_result_validated(srv_job *job, int lease_index, const proto_result *r,
                                      uint64_t now_ms, pt_error *err);
 
+/* Marks the lease a result srv_job_validate accepted answers (lease_index:
+ * what it gave, the job unchanged since) while that result waits to be
+ * merged (its log record is being made durable): no backup copy of it is
+ * handed out meanwhile. Nothing else changes; deadlines still apply. */
+void srv_job_answered(srv_job *job, int lease_index);
+
 /* Accepts a result from the durable log after a restart: like srv_job_result
  * but without a lease, found by its tile and samples rather than its id (ids
  * are per run): the task cut so, else cut to fit from a pending task or the
@@ -282,6 +288,10 @@ void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, i
  * does not fit when the bytes are of another job or inconsistent. The result
  * merges bit-identically to the job that was saved. */
 pt_status srv_job_save(const srv_job *job, proto_writer *w, pt_error *err);
+/* A copy of what srv_job_save reads (a checkpoint written off the loop from
+ * it, while the job goes on); not a job to lease from. NULL when out of
+ * memory. Free with srv_job_free. */
+srv_job *srv_job_snapshot(const srv_job *job);
 pt_status srv_job_load(srv_job *job, const uint8_t *data, size_t len, pt_error *err);
 
 /* Tiles and passes (chunks per tile) of a job with params p, before or

@@ -1010,6 +1010,10 @@ pt_status srv_loop_open(srv_server *s, pt_error *err)
         return st;
     e.data.ptr = &s->verifypipe;
     epoll_ctl(s->ep, EPOLL_CTL_ADD, s->verifypipe[0], &e);
+    if (s->state) { /* the group commit's completions (server/state.h) */
+        e.data.ptr = &s->state;
+        epoll_ctl(s->ep, EPOLL_CTL_ADD, srv_state_commit_fd(s->state), &e);
+    }
     g_sigpipe_w = s->sigpipe[1];
     struct sigaction sa;
     memset(&sa, 0, sizeof sa);
@@ -1055,6 +1059,8 @@ void srv_loop_poll(srv_server *s, int timeout_ms)
             }
         } else if (p == &s->verifypipe) {
             srv_upload_collect(s);
+        } else if (p == &s->state) {
+            srv_queue_committed(s, 0);
         } else {
             srv_conn *c = p;
             conn_touch(s, c);

@@ -323,6 +323,7 @@ static pt_status setup_queue(srv_server *s, pt_error *err)
 static int finish_queue(srv_server *s)
 {
     uint32_t n = 0;
+    srv_queue_commit_all(s); /* the results logged are merged first */
     for (srv_entry *j = s->jobs; j; j = j->next) {
         if (!j->job || !srv_entry_active(j))
             continue;
@@ -345,13 +346,12 @@ static int queue_over(const srv_server *s)
 
 static void queue_after_leases(srv_server *s)
 {
-    pt_error err = {0};
-    /* Leases need no disk: they leave before the group commit, so workers do
-     * not wait on it for their next tasks. Then the results logged in this
-     * round reach the disk. */
+    /* Leases leave first. Then the results logged in this round go to the
+     * commit thread, unless a commit is in flight (they join the next one,
+     * started when it returns): the loop never waits on the disk, and the
+     * results are merged when their commit returns (srv_queue_committed). */
     srv_loop_flush_all(s);
-    if (srv_state_sync(s->state, &err) != PT_OK)
-        srv_log("error: %s", err.msg);
+    srv_state_commit_start(s->state);
     if (srv_queue_end_complete(s))
         srv_queue_hand_out(s); /* the workers the ended jobs left waiting */
 }

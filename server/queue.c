@@ -17,8 +17,7 @@
 #include "server/requests.h"
 #include "server/workers.h"
 
-#define CKPT_MIN_LOG (16u << 20) /* checkpoint once a job's results log passes this */
-#define MAX_FINISHED 1000        /* ended jobs kept in the queue's history */
+#define MAX_FINISHED 1000 /* ended jobs kept in the queue's history */
 /* A write to a folder that failed (full, over quota) is tried again this
  * often: often enough that a farm resumes soon after space is freed, rarely
  * enough that a full disk costs nothing. */
@@ -54,11 +53,24 @@ void srv_queue_insert(srv_server *s, srv_entry *j)
     s->njobs++;
 }
 
+/* Drops j's results that wait for a group commit (never merged: their
+ * records are gone, or the job is). */
+static void drop_pending(srv_entry *j)
+{
+    for (uint32_t i = 0; i < j->npend; i++)
+        pt_free(j->pend[i].frame);
+    j->npend = 0;
+}
+
 static void free_run(srv_entry *j)
 {
     pt_free(j->pending_rec);
     j->pending_rec = NULL;
-    j->paused = j->pending_ckpt = j->final_pending = 0;
+    drop_pending(j);
+    pt_free(j->pend);
+    j->pend = NULL;
+    j->pend_cap = 0;
+    j->paused = j->pending_ckpt = j->pending_sync = j->final_pending = 0;
     srv_writer_free(j->writer);
     j->writer = NULL;
     srv_job_free(j->job);
@@ -258,9 +270,53 @@ static pt_status checkpoint_quiet(srv_server *s, srv_entry *j, pt_error *err)
     double t0 = pt_now_s();
     pt_status st = srv_state_checkpoint(s->state, j->job, &x, err);
     srv_histogram_add(&s->counters.checkpoint, pt_now_s() - t0);
+    drop_pending(j); /* its records went with the log; never merged */
     if (st != PT_OK)
         s->counters.state_write_errors++;
     return st;
+}
+
+static void pause_job(srv_server *s, srv_entry *j, const char *what, const pt_error *err);
+
+/* Starts j's checkpoint off the loop (server/state.h): a snapshot of the job
+ * now, its results log rotated, and the records of the results not merged
+ * yet logged again in the new log (the snapshot does not hold them), to be
+ * merged once that log is durable. */
+static void checkpoint_start(srv_server *s, srv_entry *j)
+{
+    pt_error err = {0};
+    double t0 = pt_now_s();
+    srv_job *snap = srv_job_snapshot(j->job);
+    if (!snap) {
+        srv_log("error: job %llu: out of memory for a checkpoint; trying again later",
+                (unsigned long long)j->rec.id);
+        return;
+    }
+    srv_ckpt_extra x = {srv_entry_seconds(j, pt_now_ms()), j->rejected, j->rays};
+    pt_status st = srv_state_checkpoint_start(s->state, snap, &x, &err);
+    if (st == PT_OK) {
+        uint32_t k = 0;
+        for (uint32_t i = 0; i < j->npend; i++) {
+            srv_pending *p = &j->pend[i];
+            p->commit = srv_state_commit_next(s->state);
+            if (srv_state_log_result(s->state, j->rec.id, p->frame, p->len, &err) == PT_OK)
+                j->pend[k++] = *p;
+            else
+                pt_free(p->frame); /* never merged; its task is leased again */
+        }
+        j->npend = k;
+    }
+    srv_histogram_add(&s->counters.checkpoint, pt_now_s() - t0);
+    if (st != PT_OK && st != PT_AGAIN) {
+        s->counters.state_write_errors++;
+        if (st == PT_ERR_IO) {
+            j->pending_ckpt = 1;
+            pause_job(s, j, "cannot write its checkpoint", &err);
+        } else {
+            srv_log("error: job %llu: cannot write its checkpoint: %s",
+                    (unsigned long long)j->rec.id, err.msg);
+        }
+    }
 }
 
 pt_status srv_entry_checkpoint(srv_server *s, srv_entry *j, pt_error *err)
@@ -323,6 +379,29 @@ static void pause_job(srv_server *s, srv_entry *j, const char *what, const pt_er
             (unsigned long long)j->rec.id, what, err->msg, n, DISK_RETRY_MS / 1000);
 }
 
+/* Keeps a logged result of j to merge once the commit that holds its record
+ * has returned. */
+static pt_status push_pending(srv_server *s, srv_entry *j, uint64_t owner, const uint8_t *frame,
+                              size_t len, uint64_t arrived)
+{
+    if (j->npend == j->pend_cap) {
+        uint32_t cap = j->pend_cap ? 2 * j->pend_cap : 16;
+        srv_pending *n = pt_realloc(j->pend, (size_t)cap * sizeof *n);
+        if (!n)
+            return PT_ERR_NOMEM;
+        j->pend = n;
+        j->pend_cap = cap;
+    }
+    uint8_t *copy = pt_malloc(len);
+    if (!copy)
+        return PT_ERR_NOMEM;
+    memcpy(copy, frame, len);
+    j->pend[j->npend++] = (srv_pending){copy, len, owner, srv_state_commit_next(s->state), arrived};
+    return PT_OK;
+}
+
+static void resume(srv_server *s, srv_entry *j, uint64_t now);
+
 /* Tries the write that paused j again; resumes j when it succeeds. */
 static void retry_paused(srv_server *s, srv_entry *j, uint64_t now)
 {
@@ -330,21 +409,21 @@ static void retry_paused(srv_server *s, srv_entry *j, uint64_t now)
         return;
     j->t_retry = now + DISK_RETRY_MS;
     pt_error err = {0};
+    if (j->pending_sync) {
+        /* Synced again by the next group commit; srv_queue_committed resumes
+         * the job when that succeeds. */
+        srv_state_log_resync(s->state, j->rec.id, &err);
+        return;
+    }
     if (j->pending_rec) {
         if (srv_state_log_result(s->state, j->rec.id, j->pending_rec, j->pending_len, &err) !=
             PT_OK)
             return;
-        /* Logged: merge it as a restart's replay would (its lease is gone;
-         * should its task have been merged meanwhile, it is a duplicate). */
-        proto_result r;
-        if (proto_msg_decode_result(j->pending_rec, j->pending_len, s->scratch,
-                                    PROTO_MAX_TILE_PIXELS, &r, &err) == PT_OK) {
-            if (srv_job_replay(j->job, &r, &err) == SRV_MERGED) {
-                j->rejected += r.rejected;
-                j->rays += r.rays;
-            }
-            proto_result_fini(&r);
-        }
+        /* Logged: merged once durable, as a restart's replay would (its
+         * lease is gone; should its task have been merged meanwhile, it is a
+         * duplicate). */
+        if (push_pending(s, j, 0, j->pending_rec, j->pending_len, now) != PT_OK)
+            return;
         pt_free(j->pending_rec);
         j->pending_rec = NULL;
     }
@@ -353,6 +432,12 @@ static void retry_paused(srv_server *s, srv_entry *j, uint64_t now)
             return;
         j->pending_ckpt = 0;
     }
+    resume(s, j, now);
+}
+
+static void resume(srv_server *s, srv_entry *j, uint64_t now)
+{
+    (void)s;
     j->paused = 0;
     j->pause_reason[0] = '\0';
     srv_log("job %llu resumed: the state folder takes its writes again (paused %.1f s)",
@@ -669,26 +754,95 @@ srv_entry *srv_queue_find_scene(srv_server *s, const uint8_t hash[32])
     return j && j->bundle ? j : NULL;
 }
 
-pt_status srv_queue_log_result(srv_server *s, srv_entry *j, const uint8_t *payload, size_t len,
-                               pt_error *err)
+pt_status srv_queue_log_result(srv_server *s, srv_entry *j, uint64_t owner, const uint8_t *frame,
+                               size_t len, uint64_t arrived, pt_error *err)
 {
-    if (!s->state)
-        return PT_OK;
     if (j->paused)
         return pt_error_set(err, PT_ERR_IO, "job %llu is paused", (unsigned long long)j->rec.id);
-    pt_status st = srv_state_log_result(s->state, j->rec.id, payload, len, err);
-    if (st != PT_OK)
-        s->counters.state_write_errors++;
+    uint64_t commit = srv_state_commit_next(s->state);
+    pt_status st = srv_state_log_result(s->state, j->rec.id, frame, len, err);
+    if (st == PT_OK) {
+        st = push_pending(s, j, owner, frame, len, arrived);
+        if (st != PT_OK)
+            return pt_error_set(err, st, "out of memory for a result");
+        j->pend[j->npend - 1].commit = commit;
+        return PT_OK;
+    }
+    s->counters.state_write_errors++;
     if (st != PT_ERR_IO)
         return st;
     /* Kept for the retry: logged and merged once the folder takes writes. */
     j->pending_rec = pt_malloc(len ? len : 1);
     if (j->pending_rec) {
-        memcpy(j->pending_rec, payload, len);
+        memcpy(j->pending_rec, frame, len);
         j->pending_len = len;
     }
     pause_job(s, j, "cannot write its results log", err);
     return st;
+}
+
+static void on_commit(void *ctx, uint64_t id, pt_status st, const pt_error *err)
+{
+    srv_server *s = ctx;
+    srv_entry *j = srv_queue_find_any(s, id); /* a frame's too */
+    if (!j || !j->job)
+        return;
+    if (st != PT_OK) {
+        s->counters.state_write_errors++;
+        drop_pending(j); /* cut off the log with the records since the last good commit */
+        j->pending_sync = 1;
+        pause_job(s, j, "cannot make its results log durable", err);
+        return;
+    }
+    j->committed = srv_state_commit_next(s->state) - 1;
+    if (j->pending_sync) {
+        j->pending_sync = 0;
+        if (j->paused && !j->pending_rec && !j->pending_ckpt)
+            resume(s, j, pt_now_ms());
+    }
+}
+
+/* Merges j's results whose records the commit done made durable. */
+static void merge_durable(srv_server *s, srv_entry *j, uint64_t done)
+{
+    uint32_t k = 0, i = 0;
+    for (; i < j->npend && j->pend[i].commit <= done; i++) {
+        srv_pending *p = &j->pend[i];
+        proto_result r;
+        pt_error err = {0};
+        if (j->committed >= p->commit && j->job && srv_entry_active(j) &&
+            proto_msg_decode_result(p->frame + PROTO_FRAME_HEADER, p->len - PROTO_FRAME_OVERHEAD,
+                                    s->scratch, PROTO_MAX_TILE_PIXELS, &r, &err) == PT_OK) {
+            srv_workers_merge_durable(s, j, p->owner, &r, p->arrived);
+            proto_result_fini(&r);
+        }
+        pt_free(p->frame);
+    }
+    for (; i < j->npend; i++)
+        j->pend[k++] = j->pend[i];
+    j->npend = k;
+}
+
+void srv_queue_committed(srv_server *s, int wait)
+{
+    uint64_t done;
+    if (!s->state)
+        return;
+    while (srv_state_commit_collect(s->state, wait, &done, on_commit, s)) {
+        wait = 0;
+        for (srv_entry *j = s->jobs; j; j = j->next)
+            if (j->npend)
+                merge_durable(s, j, done);
+    }
+}
+
+void srv_queue_commit_all(srv_server *s)
+{
+    if (!s->state)
+        return;
+    srv_queue_committed(s, 1); /* the commit in flight */
+    if (srv_state_commit_start(s->state))
+        srv_queue_committed(s, 1); /* the rest */
 }
 
 typedef struct expiry {
@@ -781,21 +935,26 @@ void srv_queue_tick(srv_server *s, uint64_t now)
             j->rate_samples = merged;
         }
         /* Checkpoint cost stays proportional to what the log has taken in. */
-        if (s->state && !j->paused) {
+        if (s->state && !j->paused && !srv_state_checkpoint_busy(s->state)) {
             const pt_film *f = srv_job_film(j->job);
             uint64_t film_bytes = (uint64_t)f->width * f->height * sizeof(pt_pixel_acc);
-            uint64_t limit = film_bytes > CKPT_MIN_LOG ? film_bytes : CKPT_MIN_LOG;
-            pt_error err = {0};
-            if (srv_state_log_bytes(s->state, j->rec.id) >= limit &&
-                checkpoint_quiet(s, j, &err) != PT_OK) {
-                if (err.code == PT_ERR_IO) {
-                    j->pending_ckpt = 1;
-                    pause_job(s, j, "cannot write its checkpoint", &err);
-                } else {
-                    srv_log("error: job %llu: cannot write its checkpoint: %s",
-                            (unsigned long long)j->rec.id, err.msg);
-                }
-            }
+            if (srv_state_log_bytes(s->state, j->rec.id) >=
+                srv_state_ckpt_limit(s->state, film_bytes))
+                checkpoint_start(s, j);
+        }
+    }
+    uint64_t id;
+    pt_status cst;
+    pt_error err = {0};
+    if (s->state && srv_state_checkpoint_collect(s->state, &id, &cst, &err) && cst != PT_OK) {
+        srv_entry *j = srv_queue_find_any(s, id);
+        s->counters.state_write_errors++;
+        if (j && j->job && srv_entry_active(j) && err.code == PT_ERR_IO) {
+            j->pending_ckpt = 1;
+            pause_job(s, j, "cannot write its checkpoint", &err);
+        } else {
+            srv_log("error: job %llu: cannot write its checkpoint: %s", (unsigned long long)id,
+                    err.msg);
         }
     }
 }

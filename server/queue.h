@@ -15,8 +15,8 @@
  * (server/workers.h blocks repeat offenders). A job ends DONE (its final
  * image written first), CANCELLED or FAILED, and workers are told at once of
  * one that ended early (JOB_END). Progressive images are saved at most every
- * cfg->save_interval seconds, checkpoints when a results log grows past
- * max(16 MiB, the film's size).
+ * cfg->save_interval seconds, checkpoints (written off the loop, server/
+ * state.h) when a results log grows past srv_state_ckpt_limit.
  *
  * Durable steps (the queue file, results logs, checkpoints, bundles) use the
  * state folder (server/state.h); with none (one-job mode) they are skipped.
@@ -36,6 +36,16 @@
 #include "server/job.h"
 #include "server/state.h"
 #include "server/writer.h"
+
+/* A result logged and waiting for the group commit that makes its record
+ * durable; merged only then (srv_queue_committed). */
+typedef struct srv_pending {
+    uint8_t *frame; /* the RESULT frame as logged */
+    size_t len;
+    uint64_t owner;   /* the connection that sent it */
+    uint64_t commit;  /* the group commit that holds its record */
+    uint64_t arrived; /* ms */
+} srv_pending;
 
 /* A job of the queue (or the one job of one-job mode). */
 struct srv_entry {
@@ -61,6 +71,10 @@ struct srv_entry {
     uint8_t *pending_rec;
     size_t pending_len;
     int pending_ckpt;
+    int pending_sync;  /* a group commit of its log failed: synced again first */
+    srv_pending *pend; /* logged, not merged yet: in commit order */
+    uint32_t npend, pend_cap;
+    uint64_t committed;              /* the last group commit its log was in, and durable */
     uint64_t t_paused, t_retry;      /* ms */
     int final_pending;               /* complete, but its final image is not written yet */
     char out_reason[160];            /* why the last image write failed ("" when none) */
@@ -117,13 +131,23 @@ void srv_queue_prune(srv_server *s);
 /* Writes the queue file (every job's record); PT_OK with no state folder. */
 pt_status srv_queue_journal(srv_server *s, pt_error *err);
 
-/* Logs an accepted RESULT payload of j durably before it is merged; PT_OK
- * with no state folder. When the log cannot take it, j is paused (its leases
- * requeued, the workers told to drop its tasks, the reason logged once) and
- * the payload kept to be logged and merged by a later srv_queue_tick; the
- * caller must not merge it. Also fails, quietly, while j is paused. */
-pt_status srv_queue_log_result(srv_server *s, srv_entry *j, const uint8_t *payload, size_t len,
-                               pt_error *err);
+/* Logs an accepted RESULT of j (frame: its whole frame as received) from
+ * owner; the result is merged once its record is durable (srv_queue_committed)
+ * and the caller must not merge it. When the log cannot take it, j is paused
+ * (its leases requeued, the workers told to drop its tasks, the reason logged
+ * once) and the frame kept to be logged by a later srv_queue_tick. Also
+ * fails, quietly, while j is paused. Needs a state folder. */
+pt_status srv_queue_log_result(srv_server *s, srv_entry *j, uint64_t owner, const uint8_t *frame,
+                               size_t len, uint64_t arrived, pt_error *err);
+
+/* The group commit's completions (its eventfd is readable): merges the
+ * results whose records are now durable, pauses a job whose log's fdatasync
+ * failed (its unmerged results dropped; their tasks are leased again). wait:
+ * first wait for the commit in flight. */
+void srv_queue_committed(srv_server *s, int wait);
+
+/* Commits and merges everything logged (a clean stop). */
+void srv_queue_commit_all(srv_server *s);
 
 /* JOB_INFO of j as a client sees it now. */
 void srv_queue_info(const srv_server *s, const srv_entry *j, proto_job_info *m);

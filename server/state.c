@@ -5,10 +5,15 @@
 #include <fcntl.h>
 #include <limits.h>
 #include <math.h>
+#include <pthread.h>
+#include <stdatomic.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
+#include <sys/eventfd.h>
 #include <sys/file.h>
 #include <sys/stat.h>
+#include <time.h>
 #include <unistd.h>
 
 #include "common/base/alloc.h"
@@ -20,7 +25,8 @@
 
 #define QUEUE_MAGIC 0x31515450u /* "PTQ1" */
 #define CKPT_MAGIC 0x4b435450u  /* "PTCK" */
-#define LOG_MAGIC 0x4c525450u   /* "PTRL" */
+#define LOG_MAGIC 0x4c525450u   /* "PTRL": records of u32 length, u32 CRC32C, payload */
+#define FLOG_MAGIC 0x46525450u  /* "PTRF": records are RESULT frames as received */
 #define STATE_VERSION 7u
 /* The oldest format still read: version 2 has no min gain (read as 0, the
  * rule off), versions 2 and 3 no environment and no film flags (read as
@@ -49,10 +55,57 @@
 typedef struct log_file {
     uint64_t id;
     int fd;
-    uint64_t bytes; /* the log's length: its whole records end here */
-    int dirty;
-    int cut; /* a write was cut short and the cut back to bytes failed */
+    uint64_t bytes;   /* the log's length: its whole records end here */
+    uint64_t durable; /* what the last successful commit covered (<= bytes) */
+    uint32_t epoch;   /* bumped when the file is cut to its header or replaced */
+    int dirty;        /* written (or to be synced) since its last commit began */
+    int cut;          /* a write was cut short and the cut back to bytes failed */
+    int fresh;        /* made since its last commit: its folder entry is synced too */
 } log_file;
+
+/* One log of a group commit: what the commit thread syncs. */
+typedef struct commit_item {
+    uint64_t id, upto;
+    uint32_t epoch;
+    int fd;    /* a dup of the log's, closed by the commit thread */
+    int fresh; /* also fsync its folder */
+    int err;   /* errno of the step that failed; 0: durable up to upto */
+    char path[PATH_MAX];
+} commit_item;
+
+/* The group commit: the loop hands a batch to the thread (busy), the thread
+ * syncs it and says so through efd (ready), the loop collects it. The mutex
+ * guards has_req, ready and stop; the items belong to the thread between the
+ * hand-over and ready, to the loop otherwise. */
+typedef struct committer {
+    pthread_t th;
+    int started;
+    pthread_mutex_t mu;
+    pthread_cond_t cv;
+    int efd;
+    int has_req, ready, stop, busy;
+    uint64_t gen;  /* the batch in flight (or last collected) */
+    uint64_t next; /* the batch a record written now joins */
+    commit_item *items;
+    uint32_t n, cap;
+    char gate[PATH_MAX]; /* test hook: wait for this file before each fdatasync */
+    char fail[PATH_MAX]; /* test hook: while this file exists, each fdatasync fails */
+} committer;
+
+/* The checkpoint in flight: a snapshot of the job written by its own thread. */
+typedef struct ckpt_work {
+    pthread_t th;
+    int running; /* started and not joined */
+    atomic_int done;
+    uint64_t id;
+    srv_job *snap;
+    srv_ckpt_extra x;
+    char path[PATH_MAX], old[PATH_MAX];
+    char gate[PATH_MAX]; /* test hook: wait for this file before the rename */
+    pt_status status;
+    pt_error err;
+    int forget; /* the job ended meanwhile: its folder goes once this is done */
+} ckpt_work;
 
 struct srv_state {
     char dir[PATH_MAX - 64];
@@ -60,6 +113,10 @@ struct srv_state {
     log_file *logs;
     uint32_t nlogs, logs_cap;
     int queue_unsaved; /* the last queue file write failed */
+    committer cm;
+    ckpt_work ck;
+    uint64_t ckpt_log_bytes; /* test hook: checkpoint past this many bytes of log */
+    uint32_t epochs;         /* the last log_file epoch given */
 };
 
 const char *srv_state_dir(const srv_state *st)
@@ -92,6 +149,8 @@ static pt_status job_file(const srv_state *st, uint64_t id, const char *file, ch
     return s;
 }
 
+static void *commit_main(void *arg);
+
 pt_status srv_state_open(const char *dir, srv_state **out, pt_error *err)
 {
     if (strlen(dir) >= sizeof((srv_state *)0)->dir)
@@ -101,6 +160,21 @@ pt_status srv_state_open(const char *dir, srv_state **out, pt_error *err)
         return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
     snprintf(st->dir, sizeof st->dir, "%s", dir);
     st->lock_fd = -1;
+    st->cm.efd = -1;
+    st->cm.next = 1;
+    /* Test hooks (tests/integration/test_durable.sh): hold each fdatasync of
+     * a group commit until a file exists, or fail it while another exists;
+     * hold a checkpoint written but not yet renamed into place until a file
+     * exists; write checkpoints past a small log. Unset in production. */
+    const char *e;
+    if ((e = getenv("PTSERVE_TEST_COMMIT_GATE")) != NULL)
+        snprintf(st->cm.gate, sizeof st->cm.gate, "%s", e);
+    if ((e = getenv("PTSERVE_TEST_COMMIT_FAIL")) != NULL)
+        snprintf(st->cm.fail, sizeof st->cm.fail, "%s", e);
+    if ((e = getenv("PTSERVE_TEST_CKPT_GATE")) != NULL)
+        snprintf(st->ck.gate, sizeof st->ck.gate, "%s", e);
+    if ((e = getenv("PTSERVE_TEST_CKPT_LOG_BYTES")) != NULL)
+        st->ckpt_log_bytes = strtoull(e, NULL, 10);
     char p[PATH_MAX];
     pt_status s;
     path_of(st, p, sizeof p, "jobs");
@@ -116,6 +190,20 @@ pt_status srv_state_open(const char *dir, srv_state **out, pt_error *err)
         s = pt_error_errno(err, PT_ERR_IO, "state folder %s is in use by another ptserve", dir);
         goto fail;
     }
+    st->cm.efd = eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC);
+    if (st->cm.efd < 0) {
+        s = pt_error_errno(err, PT_ERR_IO, "eventfd");
+        goto fail;
+    }
+    pthread_mutex_init(&st->cm.mu, NULL);
+    pthread_cond_init(&st->cm.cv, NULL);
+    if (pthread_create(&st->cm.th, NULL, commit_main, &st->cm) != 0) {
+        pthread_mutex_destroy(&st->cm.mu);
+        pthread_cond_destroy(&st->cm.cv);
+        s = pt_error_set(err, PT_ERR_IO, "cannot start the commit thread");
+        goto fail;
+    }
+    st->cm.started = 1;
     *out = st;
     return PT_OK;
 fail:
@@ -123,10 +211,25 @@ fail:
     return s;
 }
 
+static void ckpt_join(srv_state *st);
+
 void srv_state_close(srv_state *st)
 {
     if (!st)
         return;
+    ckpt_join(st);
+    if (st->cm.started) {
+        pthread_mutex_lock(&st->cm.mu);
+        st->cm.stop = 1;
+        pthread_cond_signal(&st->cm.cv);
+        pthread_mutex_unlock(&st->cm.mu);
+        pthread_join(st->cm.th, NULL);
+        pthread_mutex_destroy(&st->cm.mu);
+        pthread_cond_destroy(&st->cm.cv);
+    }
+    pt_free(st->cm.items);
+    if (st->cm.efd >= 0)
+        close(st->cm.efd);
     for (uint32_t i = 0; i < st->nlogs; i++)
         if (st->logs[i].fd >= 0) {
             fdatasync(st->logs[i].fd);
@@ -417,6 +520,17 @@ static void close_log(srv_state *st, uint64_t id)
     *l = st->logs[--st->nlogs];
 }
 
+/* Writes a new log's header (fd empty); its durability is left to the next
+ * group commit (the file is then marked fresh). */
+static int write_header(int fd, uint64_t id)
+{
+    uint8_t h[LOG_HEADER];
+    proto_put_u32(h, FLOG_MAGIC);
+    proto_put_u32(h + 4, STATE_VERSION);
+    proto_put_u64(h + 8, id);
+    return pt_write_all(fd, h, sizeof h);
+}
+
 /* Opens the job's log for appending, writing its header when it is new. */
 static pt_status open_log(srv_state *st, uint64_t id, log_file **out, pt_error *err)
 {
@@ -439,7 +553,7 @@ static pt_status open_log(srv_state *st, uint64_t id, log_file **out, pt_error *
     pt_status ms = job_file(st, id, "results.log", p, sizeof p, err);
     if (ms != PT_OK)
         return ms;
-    int fd = open(p, O_WRONLY | O_CREAT | O_APPEND | O_NOFOLLOW | O_CLOEXEC, 0600);
+    int fd = open(p, O_RDWR | O_CREAT | O_APPEND | O_NOFOLLOW | O_CLOEXEC, 0600);
     if (fd < 0)
         return pt_error_errno(err, PT_ERR_IO, "%s", p);
     struct stat sb;
@@ -455,25 +569,30 @@ static pt_status open_log(srv_state *st, uint64_t id, log_file **out, pt_error *
         close(fd);
         return s;
     }
+    uint8_t h[4];
+    if (bytes >= LOG_HEADER && (pread(fd, h, 4, 0) != 4 || proto_get_u32(h) != FLOG_MAGIC)) {
+        /* A log of records (an older ptserve's) is rewritten in frames when
+         * it is replayed (srv_state_restore); never appended to. */
+        close(fd);
+        return pt_error_set(err, PT_ERR_FORMAT, "%s: not a results log of frames", p);
+    }
+    int fresh = 0;
     if (bytes == 0) {
-        uint8_t h[LOG_HEADER];
-        proto_put_u32(h, LOG_MAGIC);
-        proto_put_u32(h + 4, STATE_VERSION);
-        proto_put_u64(h + 8, id);
-        if (pt_write_all(fd, h, sizeof h) != 0 || fdatasync(fd) != 0 || pt_fsync_dir_of(p) != 0) {
+        if (write_header(fd, id) != 0) {
             pt_status s = pt_error_errno(err, PT_ERR_IO, "%s: cannot write its header", p);
             /* Records must not follow a header cut short: leave the log empty
              * (it holds nothing yet) for the next try. Should that fail too,
-             * the next open finds a short file and refuses it (below). */
+             * the next open finds a short file and refuses it (above). */
             int cut = ftruncate(fd, 0);
             (void)cut;
             close(fd);
             return s;
         }
         bytes = LOG_HEADER;
+        fresh = 1;
     }
     l = &st->logs[st->nlogs++];
-    *l = (log_file){id, fd, bytes, 0, 0};
+    *l = (log_file){id, fd, bytes, bytes, ++st->epochs, fresh, 0, fresh};
     *out = l;
     return PT_OK;
 }
@@ -490,43 +609,31 @@ static int cut_back(log_file *l)
     return 0;
 }
 
-pt_status srv_state_log_result(srv_state *st, uint64_t id, const uint8_t *payload, size_t len,
+pt_status srv_state_log_result(srv_state *st, uint64_t id, const uint8_t *frame, size_t len,
                                pt_error *err)
 {
     log_file *l;
     pt_status s = open_log(st, id, &l, err);
     if (s != PT_OK)
         return s;
-    uint8_t h[8];
-    proto_put_u32(h, (uint32_t)len);
-    proto_put_u32(h + 4, proto_crc32c(0, payload, len));
-    /* One buffer so the record goes out in a single write(): a kill -9 leaves
-     * it whole or cut short at the end, never interleaved. */
-    uint8_t *rec = pt_malloc(len + 8);
-    if (!rec)
-        return pt_error_set(err, PT_ERR_NOMEM, "out of memory for a log record");
-    memcpy(rec, h, 8);
-    memcpy(rec + 8, payload, len);
     /* A write cut short (a full disk, a quota) leaves part of a record at the
      * end; the next record would follow it and the log would read as damaged
      * in its middle. So the log is cut back to its last whole record before
      * anything else is appended, and stays unwritten while that fails. */
-    if (l->cut && cut_back(l) != 0) {
-        s = pt_error_errno(err, PT_ERR_IO,
-                           "results log of job %llu: cannot cut it back to its last whole record",
-                           (unsigned long long)id);
-        pt_free(rec);
-        return s;
-    }
-    if (pt_write_all(l->fd, rec, len + 8) != 0) {
+    if (l->cut && cut_back(l) != 0)
+        return pt_error_errno(
+            err, PT_ERR_IO, "results log of job %llu: cannot cut it back to its last whole record",
+            (unsigned long long)id);
+    /* The frame is one buffer, so the record goes out in a single write(): a
+     * kill -9 leaves it whole or cut short at the end, never interleaved. Its
+     * own CRC32C, checked when it arrived, is the record's checksum. */
+    if (pt_write_all(l->fd, frame, len) != 0) {
         s = pt_error_errno(err, PT_ERR_IO, "results log of job %llu", (unsigned long long)id);
-        pt_free(rec);
         l->cut = 1;
         cut_back(l);
         return s;
     }
-    pt_free(rec);
-    l->bytes += len + 8;
+    l->bytes += len;
     l->dirty = 1;
     return PT_OK;
 }
@@ -537,61 +644,400 @@ uint64_t srv_state_log_bytes(const srv_state *st, uint64_t id)
     return l ? l->bytes : 0;
 }
 
+uint64_t srv_state_ckpt_limit(const srv_state *st, uint64_t film_bytes)
+{
+    if (st->ckpt_log_bytes)
+        return st->ckpt_log_bytes;
+    uint64_t limit = SRV_CKPT_FILM_MULTIPLE * film_bytes;
+    return limit > SRV_CKPT_MIN_LOG ? limit : SRV_CKPT_MIN_LOG;
+}
+
+/* ---- the group commit -------------------------------------------------------------- */
+
+/* Test hook: waits until path exists (the test lets the commit go on). */
+static void wait_gate(const char *path)
+{
+    struct timespec ts = {0, 10 * 1000 * 1000};
+    while (path[0] && access(path, F_OK) != 0)
+        nanosleep(&ts, NULL);
+}
+
+static void *commit_main(void *arg)
+{
+    committer *cm = arg;
+    pthread_mutex_lock(&cm->mu);
+    for (;;) {
+        while (!cm->has_req && !cm->stop)
+            pthread_cond_wait(&cm->cv, &cm->mu);
+        if (!cm->has_req)
+            break;
+        pthread_mutex_unlock(&cm->mu);
+        for (uint32_t i = 0; i < cm->n; i++) {
+            commit_item *it = &cm->items[i];
+            wait_gate(cm->gate);
+            it->err = 0;
+            if (cm->fail[0] && access(cm->fail, F_OK) == 0)
+                it->err = EIO;
+            else if (fdatasync(it->fd) != 0 || (it->fresh && pt_fsync_dir_of(it->path) != 0))
+                it->err = errno ? errno : EIO;
+            close(it->fd);
+            it->fd = -1;
+        }
+        pthread_mutex_lock(&cm->mu);
+        cm->has_req = 0;
+        cm->ready = 1;
+        pthread_cond_broadcast(&cm->cv);
+        uint64_t one = 1;
+        ssize_t w = write(cm->efd, &one, sizeof one);
+        (void)w;
+    }
+    pthread_mutex_unlock(&cm->mu);
+    return NULL;
+}
+
+int srv_state_commit_fd(const srv_state *st)
+{
+    return st->cm.efd;
+}
+
+uint64_t srv_state_commit_next(const srv_state *st)
+{
+    return st->cm.next;
+}
+
+int srv_state_commit_start(srv_state *st)
+{
+    committer *cm = &st->cm;
+    if (cm->busy)
+        return 0;
+    uint32_t n = 0;
+    for (uint32_t i = 0; i < st->nlogs; i++)
+        n += st->logs[i].dirty;
+    if (n == 0)
+        return 0;
+    if (n > cm->cap) {
+        commit_item *items = pt_realloc(cm->items, n * sizeof *items);
+        if (!items)
+            return 0; /* tried again next round */
+        cm->items = items;
+        cm->cap = n;
+    }
+    uint32_t k = 0;
+    for (uint32_t i = 0; i < st->nlogs; i++) {
+        log_file *l = &st->logs[i];
+        if (!l->dirty)
+            continue;
+        commit_item *it = &cm->items[k];
+        /* A dup, so that the log may be closed (its job ended) meanwhile. */
+        it->fd = fcntl(l->fd, F_DUPFD_CLOEXEC, 0);
+        if (it->fd < 0)
+            continue; /* stays dirty: tried again next round */
+        it->id = l->id;
+        it->upto = l->bytes;
+        it->epoch = l->epoch;
+        it->fresh = l->fresh;
+        it->err = 0;
+        if (l->fresh)
+            job_path(st, l->id, "results.log", it->path, sizeof it->path);
+        l->dirty = 0;
+        l->fresh = 0;
+        k++;
+    }
+    if (k == 0)
+        return 0;
+    cm->n = k;
+    cm->gen = cm->next++;
+    cm->busy = 1;
+    pthread_mutex_lock(&cm->mu);
+    cm->has_req = 1;
+    pthread_cond_broadcast(&cm->cv);
+    pthread_mutex_unlock(&cm->mu);
+    return 1;
+}
+
+int srv_state_commit_busy(const srv_state *st)
+{
+    return st->cm.busy;
+}
+
+int srv_state_commit_collect(srv_state *st, int wait, uint64_t *done, srv_commit_fn fn, void *ctx)
+{
+    committer *cm = &st->cm;
+    uint64_t v;
+    ssize_t r = read(cm->efd, &v, sizeof v); /* the wake-up; the flag below says */
+    (void)r;
+    if (!cm->busy)
+        return 0;
+    pthread_mutex_lock(&cm->mu);
+    while (wait && !cm->ready)
+        pthread_cond_wait(&cm->cv, &cm->mu);
+    int ready = cm->ready;
+    cm->ready = 0;
+    pthread_mutex_unlock(&cm->mu);
+    if (!ready)
+        return 0;
+    cm->busy = 0;
+    for (uint32_t i = 0; i < cm->n; i++) {
+        commit_item *it = &cm->items[i];
+        log_file *l = find_log(st, it->id);
+        int current = l && l->epoch == it->epoch;
+        if (current && it->err == 0 && it->upto > l->durable)
+            l->durable = it->upto;
+        if (current && it->err != 0) {
+            /* A failed fdatasync may have dropped any page written since the
+             * last good one, and a later one would not say so: the log is cut
+             * back to what is known durable. Its records since were never
+             * merged; they are dropped (fn) and synced again before the job
+             * goes on. */
+            l->bytes = l->durable;
+            l->cut = 1;
+            cut_back(l);
+            l->dirty = 1;
+            l->fresh |= it->fresh;
+        }
+        if (fn && current) {
+            pt_error e = {0};
+            if (it->err) {
+                errno = it->err;
+                pt_error_errno(&e, PT_ERR_IO, "results log of job %llu: fdatasync",
+                               (unsigned long long)it->id);
+            }
+            fn(ctx, it->id, it->err ? PT_ERR_IO : PT_OK, &e);
+        }
+    }
+    *done = cm->gen;
+    return 1;
+}
+
 pt_status srv_state_sync(srv_state *st, pt_error *err)
 {
+    /* The batch in flight first (its outcome is left for the collect). */
+    pthread_mutex_lock(&st->cm.mu);
+    while (st->cm.has_req)
+        pthread_cond_wait(&st->cm.cv, &st->cm.mu);
+    pthread_mutex_unlock(&st->cm.mu);
     pt_status s = PT_OK;
     for (uint32_t i = 0; i < st->nlogs; i++) {
-        if (!st->logs[i].dirty)
+        log_file *l = &st->logs[i];
+        if (!l->dirty)
             continue;
-        if (fdatasync(st->logs[i].fd) != 0 && s == PT_OK)
-            s = pt_error_errno(err, PT_ERR_IO, "results log of job %llu: fdatasync",
-                               (unsigned long long)st->logs[i].id);
-        st->logs[i].dirty = 0;
+        char p[PATH_MAX];
+        job_path(st, l->id, "results.log", p, sizeof p);
+        if (fdatasync(l->fd) != 0 || (l->fresh && pt_fsync_dir_of(p) != 0)) {
+            if (s == PT_OK)
+                s = pt_error_errno(err, PT_ERR_IO, "results log of job %llu: fdatasync",
+                                   (unsigned long long)l->id);
+            continue;
+        }
+        l->durable = l->bytes;
+        l->dirty = l->fresh = 0;
     }
     return s;
 }
 
-void srv_state_forget_job(srv_state *st, uint64_t id)
+pt_status srv_state_log_resync(srv_state *st, uint64_t id, pt_error *err)
 {
-    close_log(st, id);
+    log_file *l = find_log(st, id);
+    if (!l)
+        return PT_OK;
+    if (l->cut && cut_back(l) != 0)
+        return pt_error_errno(
+            err, PT_ERR_IO, "results log of job %llu: cannot cut it back to its last whole record",
+            (unsigned long long)id);
+    l->dirty = 1;
+    return PT_OK;
+}
+
+static void remove_job(const srv_state *st, uint64_t id)
+{
     char p[PATH_MAX];
     job_path(st, id, NULL, p, sizeof p);
     pt_remove_tree(p);
     pt_fsync_dir_of(p);
 }
 
+void srv_state_forget_job(srv_state *st, uint64_t id)
+{
+    close_log(st, id);
+    if (st->ck.running && st->ck.id == id) {
+        /* Its checkpoint is being written into the folder: the folder goes
+         * when that is done (srv_state_checkpoint_collect), not under it. */
+        st->ck.forget = 1;
+        return;
+    }
+    remove_job(st, id);
+}
+
 /* ---- checkpoints ------------------------------------------------------------------- */
 
-pt_status srv_state_checkpoint(srv_state *st, const srv_job *job, const srv_ckpt_extra *x,
-                               pt_error *err)
+/* Serialises job into a checkpoint file at path, durably: a temporary file
+ * beside it, renamed into place (gate: a test hook, waited for between). */
+static pt_status write_ckpt(const char *path, const srv_job *job, const srv_ckpt_extra *x,
+                            const char *gate, pt_error *err)
 {
-    uint64_t id = srv_job_id(job);
-    char p[PATH_MAX];
-    pt_status s = job_file(st, id, "checkpoint", p, sizeof p, err);
-    if (s != PT_OK)
-        return s;
     proto_writer w;
     proto_writer_init(&w, MAX_CKPT_BYTES);
     begin_file(&w, CKPT_MAGIC);
     proto_w_f64(&w, x->seconds);
     proto_w_u64(&w, x->rejected);
     proto_w_u64(&w, x->rays);
-    if ((s = srv_job_save(job, &w, err)) == PT_OK)
-        s = end_file(&w, p, err);
+    pt_status s = srv_job_save(job, &w, err);
+    if (s == PT_OK && proto_writer_status(&w) == PT_OK)
+        proto_w_u32(&w, proto_crc32c(0, w.buf, w.len));
+    if (s == PT_OK && proto_writer_status(&w) != PT_OK)
+        s = pt_error_set(err, proto_writer_status(&w), "%s: cannot serialise", path);
+    pt_temp t;
+    if (s == PT_OK && (s = pt_temp_open(path, 0644, &t, err)) == PT_OK) {
+        if (pt_write_all(t.fd, w.buf, w.len) != 0) {
+            s = pt_error_errno(err, PT_ERR_IO, "%s: write", path);
+            pt_temp_abort(&t);
+        } else {
+            wait_gate(gate);
+            s = pt_temp_commit(&t, path, err);
+        }
+    }
     proto_writer_fini(&w);
+    return s;
+}
+
+/* Cuts the job's open log to its header (everything it held is in a
+ * checkpoint now). */
+static pt_status log_restart(srv_state *st, uint64_t id, pt_error *err)
+{
+    log_file *l = find_log(st, id);
+    if (!l)
+        return PT_OK;
+    if (ftruncate(l->fd, LOG_HEADER) != 0 || fdatasync(l->fd) != 0)
+        return pt_error_errno(err, PT_ERR_IO, "results log of job %llu: truncate",
+                              (unsigned long long)id);
+    l->bytes = l->durable = LOG_HEADER;
+    l->epoch = ++st->epochs;
+    l->dirty = 0;
+    l->cut = 0;
+    return PT_OK;
+}
+
+pt_status srv_state_checkpoint(srv_state *st, const srv_job *job, const srv_ckpt_extra *x,
+                               pt_error *err)
+{
+    uint64_t id = srv_job_id(job);
+    if (st->ck.running)
+        ckpt_join(st); /* its older snapshot must not land after this one */
+    char p[PATH_MAX], old[PATH_MAX];
+    pt_status s = job_file(st, id, "checkpoint", p, sizeof p, err);
     if (s != PT_OK)
         return s;
-    /* Everything the log held is in the checkpoint now: start it afresh. */
-    log_file *l = find_log(st, id);
-    if (l) {
-        if (ftruncate(l->fd, LOG_HEADER) != 0 || fdatasync(l->fd) != 0)
-            return pt_error_errno(err, PT_ERR_IO, "results log of job %llu: truncate",
-                                  (unsigned long long)id);
-        l->bytes = LOG_HEADER;
-        l->dirty = 0;
-        l->cut = 0;
+    pthread_mutex_lock(&st->cm.mu); /* no fdatasync of the log during the truncate */
+    while (st->cm.has_req)
+        pthread_cond_wait(&st->cm.cv, &st->cm.mu);
+    pthread_mutex_unlock(&st->cm.mu);
+    if ((s = write_ckpt(p, job, x, "", err)) != PT_OK)
+        return s;
+    /* Everything the logs held is in the checkpoint now: start afresh. */
+    job_path(st, id, "results.old", old, sizeof old);
+    if (unlink(old) != 0 && errno != ENOENT)
+        return pt_error_errno(err, PT_ERR_IO, "%s", old);
+    return log_restart(st, id, err);
+}
+
+static void *ckpt_main(void *arg)
+{
+    ckpt_work *ck = arg;
+    ck->status = write_ckpt(ck->path, ck->snap, &ck->x, ck->gate, &ck->err);
+    /* The records of the rotated log are in the checkpoint now. Should the
+     * unlink not reach the disk, a restart replays them again: harmless. */
+    if (ck->status == PT_OK && unlink(ck->old) != 0 && errno != ENOENT)
+        ck->status = pt_error_errno(&ck->err, PT_ERR_IO, "%s", ck->old);
+    atomic_store(&ck->done, 1);
+    return NULL;
+}
+
+static void ckpt_join(srv_state *st)
+{
+    if (!st->ck.running)
+        return;
+    pthread_join(st->ck.th, NULL);
+    st->ck.running = 0;
+    srv_job_free(st->ck.snap);
+    st->ck.snap = NULL;
+    if (st->ck.forget)
+        remove_job(st, st->ck.id);
+    st->ck.forget = 0;
+}
+
+int srv_state_checkpoint_busy(const srv_state *st)
+{
+    return st->ck.running;
+}
+
+pt_status srv_state_checkpoint_start(srv_state *st, srv_job *snap, const srv_ckpt_extra *x,
+                                     pt_error *err)
+{
+    ckpt_work *ck = &st->ck;
+    uint64_t id = srv_job_id(snap);
+    pt_status s;
+    if (ck->running) {
+        srv_job_free(snap);
+        return pt_error_set(err, PT_AGAIN, "a checkpoint is being written");
     }
+    char cur[PATH_MAX];
+    if ((s = job_file(st, id, "checkpoint", ck->path, sizeof ck->path, err)) != PT_OK) {
+        srv_job_free(snap);
+        return s;
+    }
+    job_path(st, id, "results.old", ck->old, sizeof ck->old);
+    job_path(st, id, "results.log", cur, sizeof cur);
+    /* An older rotated log still here means the checkpoint that was to
+     * replace it failed: its records are not all in a checkpoint yet, so the
+     * current log is not rotated over it; this checkpoint, when written,
+     * holds both, and both go. */
+    struct stat sb;
+    int keep_old = lstat(ck->old, &sb) == 0;
+    log_file *l = find_log(st, id);
+    if (l && !keep_old) {
+        /* The current log becomes results.old until the checkpoint that
+         * holds its records is durable; records go to a fresh log meanwhile
+         * (its header and folder entry are synced by the next group commit,
+         * before any of its records is merged). */
+        if (rename(cur, ck->old) != 0) {
+            srv_job_free(snap);
+            return pt_error_errno(err, PT_ERR_IO, "%s: rename", cur);
+        }
+        close_log(st, id);
+        /* Should the new log not open, the next result's write tries again. */
+        pt_error e2 = {0};
+        (void)open_log(st, id, &l, &e2);
+    }
+    /* With keep_old, both stay until this checkpoint is durable: the thread
+     * then takes results.old away, and the log's records stay (replayed as
+     * duplicates at worst). */
+    ck->id = id;
+    ck->snap = snap;
+    ck->x = *x;
+    ck->status = PT_OK;
+    ck->forget = 0;
+    memset(&ck->err, 0, sizeof ck->err);
+    atomic_store(&ck->done, 0);
+    if (pthread_create(&ck->th, NULL, ckpt_main, ck) != 0) {
+        ck->snap = NULL;
+        srv_job_free(snap);
+        return pt_error_set(err, PT_ERR_IO, "cannot start the checkpoint thread");
+    }
+    ck->running = 1;
     return PT_OK;
+}
+
+int srv_state_checkpoint_collect(srv_state *st, uint64_t *id, pt_status *status, pt_error *err)
+{
+    ckpt_work *ck = &st->ck;
+    if (!ck->running || !atomic_load(&ck->done))
+        return 0;
+    ckpt_join(st);
+    *id = ck->id;
+    *status = ck->status;
+    if (ck->status != PT_OK && err)
+        *err = ck->err;
+    return 1;
 }
 
 /* A RESULT payload of protocol 2 (a log before STATE_FILM_VERSION: 60 bytes
@@ -661,49 +1107,117 @@ static size_t log_upgrade_fixed(const uint8_t *pl, size_t n, pt_pixel_acc *px, p
     return w->len;
 }
 
-static pt_status replay_log(srv_state *st, srv_job *job, srv_ckpt_extra *x, uint32_t *replayed,
+/* Merges one RESULT payload of the log into job. */
+static pt_status replay_one(srv_job *job, const uint8_t *pl, size_t n, pt_pixel_acc *buf,
+                            srv_ckpt_extra *x, uint32_t *replayed, const char *p, size_t at,
+                            pt_error *err)
+{
+    proto_result r;
+    pt_error e2 = {0};
+    if (proto_msg_decode_result(pl, n, buf, PROTO_MAX_TILE_PIXELS, &r, &e2) != PT_OK)
+        return pt_error_set(err, PT_ERR_FORMAT,
+                            "%s: record at byte %zu is damaged (contents: %s); refusing to use it",
+                            p, at, e2.msg);
+    srv_outcome o = srv_job_replay(job, &r, &e2);
+    if (o == SRV_MERGED) {
+        x->rejected += r.rejected;
+        x->rays += r.rays;
+        (*replayed)++;
+    }
+    proto_result_fini(&r);
+    if (o != SRV_MERGED && o != SRV_DUPLICATE)
+        return pt_error_set(err, PT_ERR_FORMAT, "%s: record at byte %zu does not fit the job: %s",
+                            p, at, e2.msg);
+    return PT_OK;
+}
+
+/* The oldest protocol whose RESULT frames a log may hold: 3 (double sums,
+ * upgraded to fixed point as read); from PROTO_FIXED_RESULT on the RESULT
+ * layout is the current one (later versions changed only TASK and SUBMIT). */
+#define LOG_OLDEST_PROTO 3u
+#define PROTO_FIXED_RESULT 4u
+
+/* Decodes the record at b[0, len) of a frames log: a RESULT frame of any
+ * protocol from LOG_OLDEST_PROTO to PROTO_VERSION (proto_frame_decode takes
+ * only the current one, and a log outlives a protocol bump). PT_AGAIN when
+ * the bytes end inside it. */
+static pt_status log_frame_decode(const uint8_t *b, size_t len, proto_frame *f, size_t *used,
+                                  pt_error *err)
+{
+    if (len < PROTO_FRAME_HEADER)
+        return PT_AGAIN;
+    if (memcmp(b, PROTO_MAGIC, 4) != 0)
+        return pt_error_set(err, PT_ERR_FORMAT, "not a frame (bad magic)");
+    uint16_t version = proto_get_u16(b + 4), type = proto_get_u16(b + 6);
+    uint32_t plen = proto_get_u32(b + 8);
+    if (version < LOG_OLDEST_PROTO || version > PROTO_VERSION)
+        return pt_error_set(err, PT_ERR_FORMAT,
+                            "a frame of protocol %u; this ptserve reads logs of protocols %u to %u",
+                            (unsigned)version, LOG_OLDEST_PROTO, PROTO_VERSION);
+    if (type != PROTO_MSG_RESULT)
+        return pt_error_set(err, PT_ERR_FORMAT, "not a RESULT (type %u)", (unsigned)type);
+    if (plen > PROTO_MAX_PAYLOAD)
+        return pt_error_set(err, PT_ERR_FORMAT, "payload length %u over the cap", (unsigned)plen);
+    size_t total = (size_t)PROTO_FRAME_OVERHEAD + plen;
+    if (len < total)
+        return PT_AGAIN;
+    if (proto_crc32c(0, b, PROTO_FRAME_HEADER + (size_t)plen) !=
+        proto_get_u32(b + PROTO_FRAME_HEADER + plen))
+        return pt_error_set(err, PT_ERR_FORMAT, "bad CRC");
+    f->version = version;
+    f->type = type;
+    f->len = plen;
+    f->payload = b + PROTO_FRAME_HEADER;
+    *used = total;
+    return PT_OK;
+}
+
+/* Replays the log at p (results.old or results.log) into job. A log of
+ * records (PTRL, an older ptserve's: u32 length, u32 CRC32C, payload) or a
+ * frames log holding protocol 3 frames (double sums) is rewritten as frames
+ * of the current protocol once replayed, so that records appended later never
+ * follow records of another layout; its older payloads are upgraded on the
+ * way (log_upgrade_record, log_upgrade_fixed). A torn last record is cut off
+ * (*torn). */
+static pt_status replay_log(const char *p, srv_job *job, srv_ckpt_extra *x, uint32_t *replayed,
                             int *torn, pt_error *err)
 {
     uint64_t id = srv_job_id(job);
-    char p[PATH_MAX];
-    job_path(st, id, "results.log", p, sizeof p);
     uint8_t *data;
     size_t len;
     pt_status s = pt_read_file(p, (size_t)64 << 30, &data, &len, err);
     if (s != PT_OK)
         return (s == PT_ERR_IO && err->sys_errno == ENOENT) ? PT_OK : s;
     size_t good = 0;
-    /* An older log's records are upgraded as they are read, and the whole log
-     * is rewritten in this layout once replayed, so that records appended
-     * later never follow records of another layout. */
     uint8_t *upbuf = NULL;
     proto_writer up, rec;
     proto_writer_init(&up, (size_t)64 << 30);
     proto_writer_init(&rec, (size_t)1 << 30);
-    int old = 0;
+    int frames = 0, rewrite = 0;
     uint32_t logver = 0;
     if (len < LOG_HEADER) {
         *torn = len > 0; /* the header write itself was cut short */
-    } else if (proto_get_u32(data) != LOG_MAGIC || !version_read(proto_get_u32(data + 4)) ||
-               proto_get_u64(data + 8) != id) {
+    } else if ((proto_get_u32(data) != LOG_MAGIC && proto_get_u32(data) != FLOG_MAGIC) ||
+               !version_read(proto_get_u32(data + 4)) || proto_get_u64(data + 8) != id) {
         pt_free(data);
+        proto_writer_fini(&up);
+        proto_writer_fini(&rec);
         return pt_error_set(err, PT_ERR_FORMAT,
                             "%s: not the results log of job %llu (bad "
                             "header); refusing to use it",
                             p, (unsigned long long)id);
     } else {
         good = LOG_HEADER;
+        frames = proto_get_u32(data) == FLOG_MAGIC;
         logver = proto_get_u32(data + 4);
-        old = logver < STATE_FIXED_VERSION;
-        if (old) {
-            upbuf = pt_malloc(PROTO_RESULT_HEADER_SIZE +
-                              (size_t)PROTO_RESULT_PIXEL_SIZE * PROTO_MAX_TILE_PIXELS);
-            proto_w_u32(&up, LOG_MAGIC);
-            proto_w_u32(&up, STATE_VERSION);
-            proto_w_u64(&up, id);
-        }
+        rewrite = !frames;
+        upbuf = pt_malloc(PROTO_RESULT_HEADER_SIZE +
+                          (size_t)PROTO_RESULT_WIDE_PIXEL_SIZE * PROTO_MAX_TILE_PIXELS);
+        proto_w_u32(&up, FLOG_MAGIC);
+        proto_w_u32(&up, STATE_VERSION);
+        proto_w_u64(&up, id);
         pt_pixel_acc *buf = pt_malloc_array(PROTO_MAX_TILE_PIXELS, sizeof *buf);
-        if (!buf || (old && !upbuf)) {
+        if (!buf || !upbuf) {
             pt_free(buf);
             pt_free(upbuf);
             proto_writer_fini(&up);
@@ -711,66 +1225,98 @@ static pt_status replay_log(srv_state *st, srv_job *job, srv_ckpt_extra *x, uint
             pt_free(data);
             return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
         }
-        while (good < len) {
-            if (len - good < 8 || len - good - 8 < proto_get_u32(data + good)) {
-                *torn = 1; /* the last write was cut short by the crash */
-                break;
-            }
-            uint32_t n = proto_get_u32(data + good);
-            const uint8_t *pl = data + good + 8;
-            proto_result r;
-            pt_error e2 = {0};
-            int crc_ok = proto_crc32c(0, pl, n) == proto_get_u32(data + good + 4);
-            if (!crc_ok && good + 8 + (size_t)n == len) {
-                /* The last record, whole in length but not in content: the
-                 * file grew before its data reached the disk (a crash or a
-                 * full disk during the write). It was never merged. */
-                *torn = 1;
-                break;
-            }
-            size_t rn = n;
-            if (crc_ok && old) {
-                size_t k = logver < STATE_FILM_VERSION ? log_upgrade_record(pl, n, upbuf) : 0;
-                if (k) {
-                    pl = upbuf;
-                    rn = k;
+        while (good < len && s == PT_OK) {
+            const uint8_t *pl;
+            size_t n, next;
+            if (frames) {
+                proto_frame f = {0};
+                size_t used = 0;
+                pt_error e2 = {0};
+                pt_status fs = log_frame_decode(data + good, len - good, &f, &used, &e2);
+                if (fs == PT_AGAIN) {
+                    *torn = 1; /* the last write was cut short by the crash */
+                    break;
                 }
-                if ((k = log_upgrade_fixed(pl, rn, buf, &rec)) != 0) {
+                if (fs != PT_OK && len - good >= PROTO_FRAME_HEADER &&
+                    good + PROTO_FRAME_OVERHEAD + (size_t)proto_frame_payload_len(data + good) ==
+                        len) {
+                    /* The last record, whole in length but not in content:
+                     * the file grew before its data reached the disk (a
+                     * crash or a full disk during the write). Never merged. */
+                    *torn = 1;
+                    break;
+                }
+                if (fs != PT_OK) {
+                    s = pt_error_set(err, PT_ERR_FORMAT,
+                                     "%s: record at byte %zu is damaged (%s); refusing to use it",
+                                     p, good, e2.msg);
+                    break;
+                }
+                pl = f.payload;
+                n = f.len;
+                next = good + used;
+                if (f.version < PROTO_FIXED_RESULT) {
+                    /* Double sums: this record and every later one go into a
+                     * rewritten log, the records before it as they are. */
+                    if (!rewrite) {
+                        proto_w_bytes(&up, data + LOG_HEADER, good - LOG_HEADER);
+                        rewrite = 1;
+                    }
+                    size_t k = log_upgrade_fixed(pl, n, buf, &rec);
+                    if (k == 0) {
+                        s = pt_error_set(err, PT_ERR_FORMAT,
+                                         "%s: record at byte %zu is a protocol %u RESULT that "
+                                         "cannot be upgraded; refusing to use it",
+                                         p, good, (unsigned)f.version);
+                        break;
+                    }
                     pl = rec.buf;
-                    rn = k;
+                    n = k;
                 }
-                proto_w_u32(&up, (uint32_t)rn);
-                proto_w_u32(&up, proto_crc32c(0, pl, rn));
-                proto_w_bytes(&up, pl, rn);
+                if (rewrite)
+                    proto_frame_encode(&up, PROTO_MSG_RESULT, pl, n, NULL);
+            } else {
+                if (len - good < 8 || len - good - 8 < proto_get_u32(data + good)) {
+                    *torn = 1;
+                    break;
+                }
+                n = proto_get_u32(data + good);
+                pl = data + good + 8;
+                next = good + 8 + n;
+                if (proto_crc32c(0, pl, n) != proto_get_u32(data + good + 4)) {
+                    if (next == len) {
+                        *torn = 1;
+                        break;
+                    }
+                    s = pt_error_set(err, PT_ERR_FORMAT,
+                                     "%s: record at byte %zu is damaged (checksum mismatch); "
+                                     "refusing to use it",
+                                     p, good);
+                    break;
+                }
+                if (logver < STATE_FIXED_VERSION) {
+                    size_t k = logver < STATE_FILM_VERSION ? log_upgrade_record(pl, n, upbuf) : 0;
+                    if (k) {
+                        pl = upbuf;
+                        n = k;
+                    }
+                    if ((k = log_upgrade_fixed(pl, n, buf, &rec)) != 0) {
+                        pl = rec.buf;
+                        n = k;
+                    }
+                }
+                proto_frame_encode(&up, PROTO_MSG_RESULT, pl, n, NULL);
             }
-            if (!crc_ok ||
-                proto_msg_decode_result(pl, rn, buf, PROTO_MAX_TILE_PIXELS, &r, &e2) != PT_OK) {
-                s = pt_error_set(err, PT_ERR_FORMAT,
-                                 "%s: record at byte %zu is damaged "
-                                 "(checksum or contents: %s); refusing to use it",
-                                 p, good, e2.msg[0] ? e2.msg : "checksum mismatch");
-                break;
-            }
-            srv_outcome o = srv_job_replay(job, &r, &e2);
-            if (o == SRV_MERGED) {
-                x->rejected += r.rejected;
-                x->rays += r.rays;
-                (*replayed)++;
-            } else if (o != SRV_DUPLICATE) {
-                s = pt_error_set(err, PT_ERR_FORMAT,
-                                 "%s: record at byte %zu does not fit the "
-                                 "job: %s",
-                                 p, good, e2.msg);
-                break;
-            }
-            good += 8 + (size_t)n;
+            s = replay_one(job, pl, n, buf, x, replayed, p, good, err);
+            if (s == PT_OK)
+                good = next;
         }
         pt_free(buf);
         pt_free(upbuf);
     }
     pt_free(data);
     proto_writer_fini(&rec);
-    if (s == PT_OK && old) {
+    if (s == PT_OK && rewrite) {
         /* Whole records only: a torn last one is left out. */
         s = proto_writer_status(&up) != PT_OK
                 ? pt_error_set(err, proto_writer_status(&up), "%s: cannot upgrade", p)
@@ -820,5 +1366,29 @@ pt_status srv_state_restore(srv_state *st, srv_job *job, srv_ckpt_extra *extra, 
         if (!(extra->seconds >= 0) || extra->seconds > 1e12)
             extra->seconds = 0;
     }
-    return replay_log(st, job, extra, replayed, torn, err);
+    /* A rotated log (results.old) is there when the checkpoint meant to
+     * hold it was not written (a crash or a failure): its records come
+     * before the current log's. Replay is idempotent, so records the
+     * checkpoint already holds change nothing. */
+    char old[PATH_MAX], cur[PATH_MAX];
+    job_path(st, srv_job_id(job), "results.old", old, sizeof old);
+    job_path(st, srv_job_id(job), "results.log", cur, sizeof cur);
+    int torn_old = 0;
+    if ((s = replay_log(old, job, extra, replayed, &torn_old, err)) != PT_OK ||
+        (s = replay_log(cur, job, extra, replayed, torn, err)) != PT_OK)
+        return s;
+    *torn |= torn_old;
+    struct stat sb;
+    if (lstat(old, &sb) != 0)
+        return PT_OK;
+    /* Fold both into a checkpoint now, so that the next rotation finds no
+     * results.old in its way. */
+    if ((s = job_file(st, srv_job_id(job), "checkpoint", p, sizeof p, err)) != PT_OK ||
+        (s = write_ckpt(p, job, extra, "", err)) != PT_OK)
+        return s;
+    if (unlink(old) != 0)
+        return pt_error_errno(err, PT_ERR_IO, "%s", old);
+    if (lstat(cur, &sb) == 0 && sb.st_size > LOG_HEADER && truncate(cur, LOG_HEADER) != 0)
+        return pt_error_errno(err, PT_ERR_IO, "%s: truncate", cur);
+    return PT_OK;
 }

@@ -8,24 +8,43 @@
  *   DIR/jobs/ID/checkpoint   the job's merged state (srv_job_save) with render
  *                            seconds and counters; written whole, CRC32C at the end
  *   DIR/jobs/ID/results.log  every result accepted since that checkpoint, appended
- *                            before it is merged: record = u32 length, u32 CRC32C
- *                            of the payload, the RESULT payload as received
+ *                            before it is merged: a 16-byte header ("PTRF",
+ *                            version, job id), then each RESULT frame as it
+ *                            was received (protocol/frame.h: header, payload,
+ *                            CRC32C), so the frame's own checksum, checked on
+ *                            arrival, is the record's and none is computed
+ *   DIR/jobs/ID/results.old  the log a checkpoint being written will hold: it
+ *                            is renamed from results.log when that checkpoint
+ *                            starts, and removed once the checkpoint is durable
  *
- * A merged result is therefore always on disk: in the checkpoint, or in the log
- * (written before the merge, so a kill -9 of the coordinator loses nothing
- * merged; the log is fdatasync'd in groups for power loss). After a restart the
- * job is rebuilt from the checkpoint, then the log is replayed; replay is
- * idempotent, so a crash between writing a checkpoint and emptying the log is
- * harmless. A write cut short (a full disk) is cut back at once to the last
- * whole record, so later records never follow a partial one. An incomplete or
- * unchecked last record (cut short by a crash, or by a full disk when the cut
- * back also failed) is dropped at the next start with a warning: it was never
- * merged. Anything else that does not check out (a bad magic, checksum,
- * length, or contents before the last record) is refused with an error that
- * names the file; it is never used silently.
+ * A merged result is therefore always on disk: in the checkpoint, or in a log.
+ * A record is written before its result is merged, and the result is merged
+ * only once a group commit (fdatasync of every log written since the last, on
+ * the commit thread, srv_state_commit_start) has returned: so neither a kill
+ * -9 of the coordinator nor a power loss loses a merged result. After a
+ * restart the job is rebuilt from the checkpoint, then results.old and
+ * results.log are replayed; replay is idempotent, so a crash between writing a
+ * checkpoint and removing the log it holds is harmless. Checkpoints are
+ * written from a snapshot of the job (srv_job_snapshot) by their own thread
+ * (srv_state_checkpoint_start), to a temporary file renamed into place, so a
+ * crash during one leaves the previous checkpoint and both logs, which hold
+ * everything. A write cut short (a full disk) is cut back at once to the last
+ * whole record, so later records never follow a partial one; a failed
+ * fdatasync cuts the log back to what the last good one covered (the kernel
+ * may have dropped the pages since, and a later fdatasync would not say so).
+ * An incomplete or unchecked last record (cut short by a crash, or by a full
+ * disk when the cut back also failed) is dropped at the next start with a
+ * warning: it was never merged. Anything else that does not check out (a bad
+ * magic, checksum, length, or contents before the last record) is refused
+ * with an error that names the file; it is never used silently. A log of an
+ * older ptserve ("PTRL": u32 length, u32 CRC32C of the payload, the payload)
+ * is read and rewritten in frames at its first replay.
  *
  * Threads: called only from the event-loop thread, except srv_state_dir and
  * srv_state_save_bundle, which any thread may call between open and close.
+ * The state owns two threads of its own: the group commit's (started at open)
+ * and the checkpoint writer's (one checkpoint at a time); they touch only what
+ * they were handed.
  */
 #ifndef PT_SERVER_STATE_H
 #define PT_SERVER_STATE_H
@@ -110,30 +129,84 @@ typedef struct srv_ckpt_extra {
     uint64_t rays;
 } srv_ckpt_extra;
 
-/* Writes the checkpoint of job (durably), then empties its results log. */
+/* Checkpoints go when a job's log passes SRV_CKPT_FILM_MULTIPLE times the
+ * film's size (its pixels at PROTO_RESULT_PIXEL_SIZE bytes), and at least
+ * SRV_CKPT_MIN_LOG: a checkpoint costs about a film's size of writing, so this
+ * bounds its share of the disk and the loop's time per result, and a
+ * restart's replay to that many bytes of log (docs/ARCHITECTURE.md has the
+ * measurements behind the multiple). */
+#define SRV_CKPT_FILM_MULTIPLE 4u
+#define SRV_CKPT_MIN_LOG ((uint64_t)16 << 20)
+uint64_t srv_state_ckpt_limit(const srv_state *st, uint64_t film_bytes);
+
+/* Writes the checkpoint of job (durably) on the caller's thread, then
+ * empties its results logs (for a clean stop, and the retry of a paused
+ * job). Waits for the checkpoint thread and the group commit in flight
+ * first. Every record of the job's log is dropped: the caller drops the
+ * results it holds unmerged. */
 pt_status srv_state_checkpoint(srv_state *st, const srv_job *job, const srv_ckpt_extra *x,
                                pt_error *err);
 
+/* Starts the checkpoint of a job off the loop: snap (srv_job_snapshot of it,
+ * owned by the state from here on) is serialised and written durably by the
+ * checkpoint thread. The job's results.log is renamed results.old at once and
+ * a fresh one opened: records logged from now on go there, and a record of
+ * results.old whose result is not merged yet must be logged again (its result
+ * is not in snap). PT_AGAIN while another checkpoint is being written;
+ * PT_ERR_IO when the log cannot be rotated. */
+pt_status srv_state_checkpoint_start(srv_state *st, srv_job *snap, const srv_ckpt_extra *x,
+                                     pt_error *err);
+int srv_state_checkpoint_busy(const srv_state *st);
+/* 1 when the checkpoint started last has finished: *id its job, *status how
+ * (err: why not); 0 while it runs or when there is none. */
+int srv_state_checkpoint_collect(srv_state *st, uint64_t *id, pt_status *status, pt_error *err);
+
 /* Rebuilds a fresh job (srv_job_new with its record's settings) from its
- * checkpoint, when there is one, and its results log. *extra receives the
+ * checkpoint, when there is one, and its results logs. *extra receives the
  * checkpoint's counters plus the replayed results'; *replayed the number of
- * log records merged; *torn 1 when an incomplete last record was dropped. */
+ * log records merged; *torn 1 when an incomplete last record was dropped.
+ * A results.old found is folded into a new checkpoint at once. */
 pt_status srv_state_restore(srv_state *st, srv_job *job, srv_ckpt_extra *extra, uint32_t *replayed,
                             int *torn, pt_error *err);
 
-/* Appends one accepted RESULT payload to the job's log (opened on first use).
- * Written before the result is merged; srv_state_sync makes it durable. On
- * failure (PT_ERR_IO, err->sys_errno ENOSPC, EDQUOT, EIO...) the log is left
- * as it was, ending with its last whole record (a partial write is cut
- * back), and the result must not be merged. */
-pt_status srv_state_log_result(srv_state *st, uint64_t id, const uint8_t *payload, size_t len,
+/* Appends one accepted RESULT frame (its whole bytes as received: header,
+ * payload, CRC32C) to the job's log (opened on first use). Written before the
+ * result is merged; the group commit makes it durable, and the result may be
+ * merged once the commit srv_state_commit_next said before this call has
+ * returned. On failure (PT_ERR_IO, err->sys_errno ENOSPC, EDQUOT, EIO...) the
+ * log is left as it was, ending with its last whole record (a partial write
+ * is cut back), and the result must not be merged. */
+pt_status srv_state_log_result(srv_state *st, uint64_t id, const uint8_t *frame, size_t len,
                                pt_error *err);
 /* Bytes in the job's log now (0 when it has none). */
 uint64_t srv_state_log_bytes(const srv_state *st, uint64_t id);
-/* fdatasync of every log written to since the last call. */
+
+/* The group commit. srv_state_commit_next: the number of the commit a record
+ * logged now will be in. srv_state_commit_start (once per loop round) hands
+ * every log written since the last commit to the commit thread, which
+ * fdatasyncs them; it does nothing while one is in flight (returns 0) or when
+ * nothing was written. The thread makes srv_state_commit_fd (an eventfd, for
+ * the loop's epoll set) readable when it is done; srv_state_commit_collect
+ * then returns 1 with *done the commit's number, having called fn for each
+ * job's log in it: PT_OK (every record logged before it began is durable) or
+ * PT_ERR_IO (the fdatasync failed: the log is cut back to what the last good
+ * commit covered, every record since is gone, and srv_state_log_resync then
+ * the next commit that succeeds say when it takes writes again). wait: block
+ * until the commit in flight is done. Returns 0 when none was collected. */
+typedef void (*srv_commit_fn)(void *ctx, uint64_t job_id, pt_status st, const pt_error *err);
+int srv_state_commit_fd(const srv_state *st);
+uint64_t srv_state_commit_next(const srv_state *st);
+int srv_state_commit_start(srv_state *st);
+int srv_state_commit_busy(const srv_state *st);
+int srv_state_commit_collect(srv_state *st, int wait, uint64_t *done, srv_commit_fn fn, void *ctx);
+/* Marks the job's log for the next commit (after a failed one). */
+pt_status srv_state_log_resync(srv_state *st, uint64_t id, pt_error *err);
+/* fdatasync of every log written to since the last commit, on the caller's
+ * thread, after the commit in flight (whose outcome is left to collect). */
 pt_status srv_state_sync(srv_state *st, pt_error *err);
 
-/* Closes the job's log and deletes its folder (the job ended). */
+/* Closes the job's log and deletes its folder (the job ended); waits for
+ * its checkpoint when one is being written. */
 void srv_state_forget_job(srv_state *st, uint64_t id);
 
 #endif

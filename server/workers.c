@@ -190,6 +190,48 @@ static void on_verdict(srv_server *s, srv_entry *j, const srv_verdict *v)
     }
 }
 
+/* Merges r (validated, lease_index what srv_job_validate gave, the job
+ * unchanged since) and counts it. */
+static srv_outcome merge_now(srv_server *s, srv_entry *j, int lease_index, const proto_result *r,
+                             uint64_t arrived, uint64_t *merged, pt_error *err)
+{
+    uint64_t before = srv_job_samples_merged(j->job);
+    double t0 = pt_now_s();
+    srv_outcome o = lease_index >= 0
+                        ? srv_job_result_validated(j->job, lease_index, r, arrived, err)
+                        : srv_job_replay(j->job, r, err);
+    srv_histogram_add(&s->counters.merge, pt_now_s() - t0);
+    *merged = srv_job_samples_merged(j->job) - before;
+    s->counters.samples_merged += *merged;
+    return o;
+}
+
+void srv_workers_merge_durable(srv_server *s, srv_entry *j, uint64_t owner, const proto_result *r,
+                               uint64_t arrived)
+{
+    pt_error err = {0};
+    int li = -1;
+    uint64_t merged = 0;
+    srv_outcome o = srv_job_validate(j->job, owner, r, &li, &err);
+    /* Its lease may have gone since it arrived (expired, its worker left or
+     * the job paused): it is still a render of its task, and durable, so it
+     * is merged as a restart's replay would (a duplicate changes nothing). */
+    if (o == SRV_MERGED || o == SRV_NOT_LEASED)
+        o = merge_now(s, j, o == SRV_MERGED ? li : -1, r, arrived, &merged, &err);
+    srv_conn *c = srv_conn_find(s, owner);
+    if (o == SRV_MERGED) {
+        if (c) {
+            c->tasks_done++;
+            c->samples_done += merged;
+            c->t_result = pt_now_ms();
+        }
+        j->rejected += r->rejected;
+        j->rays += r->rays;
+        if (srv_job_complete(j->job))
+            verify_summary(j);
+    }
+}
+
 static void on_result(srv_server *s, srv_conn *c, const proto_frame *f)
 {
     proto_result r;
@@ -217,20 +259,21 @@ static void on_result(srv_server *s, srv_conn *c, const proto_frame *f)
             verify_summary(j);
         return;
     }
-    /* Durable before merged: the log holds every result the film holds. */
-    if (o == SRV_MERGED && srv_queue_log_result(s, j, f->payload, f->len, &err) != PT_OK) {
-        proto_result_fini(&r); /* not merged; the failure is logged once, by the queue */
+    /* Durable before merged: the log holds every result the film holds. In
+     * queue mode the result is logged now (its frame as received, whose
+     * checksum was checked) and merged by srv_queue_committed once the group
+     * commit that holds its record has returned. */
+    if (o == SRV_MERGED && s->state) {
+        c->misses = 0;
+        if (srv_queue_log_result(s, j, c->id, f->payload - PROTO_FRAME_HEADER,
+                                 (size_t)f->len + PROTO_FRAME_OVERHEAD, pt_now_ms(), &err) == PT_OK)
+            srv_job_answered(j->job, lease_index);
+        proto_result_fini(&r); /* a failure is logged once, by the queue */
         return;
     }
     uint64_t merged = 0;
-    if (o == SRV_MERGED) {
-        uint64_t before = srv_job_samples_merged(j->job);
-        double t0 = pt_now_s();
-        o = srv_job_result_validated(j->job, lease_index, &r, pt_now_ms(), &err);
-        srv_histogram_add(&s->counters.merge, pt_now_s() - t0);
-        merged = srv_job_samples_merged(j->job) - before;
-        s->counters.samples_merged += merged;
-    }
+    if (o == SRV_MERGED)
+        o = merge_now(s, j, lease_index, &r, pt_now_ms(), &merged, &err);
     switch (o) {
     case SRV_MERGED:
         c->misses = 0;

@@ -33,6 +33,11 @@
 /* Serves one whole frame from a ready worker. */
 void srv_workers_dispatch(srv_server *s, srv_conn *c, const proto_frame *f);
 
+/* Merges r, a result of j from owner (a connection id, maybe gone now) held
+ * until its log record was durable (server/queue.h), and counts it. */
+void srv_workers_merge_durable(srv_server *s, srv_entry *j, uint64_t owner, const proto_result *r,
+                               uint64_t arrived);
+
 /* A lease of worker connection owner passed a deadline at now (ms): counts a
  * miss, one per expiry round. Blocks nobody (the caller may be iterating a
  * job); srv_workers_enforce does. */

@@ -1,8 +1,9 @@
 /*
  * fuzz_results_log.c - libFuzzer target for a job's results log as the
- * coordinator replays it after a restart (server/state.c: header, records of
- * length, CRC32C and RESULT payload, the incomplete last record; each record
- * decoded by proto_msg_decode_result and merged by srv_job_replay).
+ * coordinator replays it after a restart (server/state.c: header, records
+ * that are RESULT frames, or in an older log length, CRC32C and payload; the
+ * incomplete last record; each record decoded by proto_msg_decode_result and
+ * merged by srv_job_replay).
  *
  * Input: a mode byte (fuzz_state.h: which job, sealed or not), then the log
  * file. The harness writes it as jobs/1/results.log of a real state folder,

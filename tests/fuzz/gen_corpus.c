@@ -526,7 +526,8 @@ static void fake_result(const proto_task *t, pt_pixel_acc *px, proto_result *r)
     r->pixels = px;
 }
 
-/* Validates, logs, then merges a task's result, as the coordinator does; a
+/* Validates, logs (its frame), then merges a task's result, as the
+ * coordinator does once the record is durable; a
  * task of a tile that adaptive sampling stopped is dropped unlogged. */
 static void log_and_merge(srv_state *st, srv_job *job, const proto_task *t)
 {
@@ -539,8 +540,10 @@ static void log_and_merge(srv_state *st, srv_job *job, const proto_task *t)
     if (o == SRV_NOT_LEASED || o == SRV_DUPLICATE)
         return;
     proto_writer w;
-    proto_writer_init(&w, PROTO_MAX_PAYLOAD);
-    if (o != SRV_MERGED || proto_msg_encode_result(&w, &r, &err) != PT_OK ||
+    proto_writer_init(&w, PROTO_MAX_PAYLOAD + PROTO_FRAME_OVERHEAD);
+    size_t mark;
+    if (o != SRV_MERGED || proto_frame_begin(&w, PROTO_MSG_RESULT, &mark, &err) != PT_OK ||
+        proto_frame_finish(&w, mark, proto_msg_encode_result(&w, &r, &err), &err) != PT_OK ||
         srv_state_log_result(st, FUZZ_JOB_ID, w.buf, w.len, &err) != PT_OK ||
         srv_job_result_validated(job, lease, &r, 0, &err) != SRV_MERGED) {
         fprintf(stderr, "task %llu: %s\n", (unsigned long long)t->task_id, err.msg);

@@ -1198,6 +1198,90 @@ static void many_owners(void)
     srv_job_free(j);
 }
 
+/* A lease whose result arrived and waits for its log record to be durable
+ * (srv_job_answered) is no straggler: no backup copy of it is handed out
+ * however long the commit takes, and the result then merges. */
+static void answered_no_backup(void)
+{
+    static pt_pixel_acc px[256];
+    srv_job *j = make(16, 16, 16, 16, 8); /* two tasks */
+    srv_lease_policy pol = {100000, 100000, 8.0, 3.0, 0.0, 0, 0};
+    srv_job_set_policy(j, &pol);
+    proto_task a, b, c;
+    CHECK(srv_job_lease(j, 1, 0, 100000, &a) == 1 && a.task_id == 0);
+    CHECK(render(j, 2, 0, 10, &b) == SRV_MERGED && b.task_id == 1);
+    proto_result r;
+    fake_result(&a, px, &r);
+    pt_error err = {0};
+    int li = -1;
+    CHECK(srv_job_validate(j, 1, &r, &li, &err) == SRV_MERGED);
+    srv_job_answered(j, li);
+    CHECK(srv_job_lease(j, 2, 40, 100000, &c) == 0); /* 40 ms > 3 x 10 ms, but answered */
+    CHECK(srv_job_lease(j, 2, 5000, 100000, &c) == 0);
+    CHECK(srv_job_result_validated(j, li, &r, 5000, &err) == SRV_MERGED);
+    CHECK(srv_job_complete(j) && srv_job_verify_stats(j).backups == 0);
+    srv_job_free(j);
+}
+
+/* A snapshot saves the same bytes as the job it was taken of (per tile
+ * state, held results by tile and range, film), and keeps them while the job
+ * goes on; its checkpoint resumes to the job's bits. */
+static void snapshot_saves_the_same(void)
+{
+    static pt_pixel_acc px[16 * 16];
+    srv_job *j = make(32, 32, 32, 16, 8), *k = NULL, *snap = NULL;
+    if (!j)
+        return;
+    proto_task t[64];
+    int n = 0;
+    while (n < 64 && srv_job_lease(j, 1, 0, 100000, &t[n]))
+        n++;
+    CHECK(n >= 8);
+    proto_result r;
+    pt_error err = {0};
+    int done = 0;
+    for (int i = n - 1; i >= n / 2; i--, done++) { /* later samples first: held */
+        fake_result(&t[i], px, &r);
+        CHECK(srv_job_result(j, 1, &r, &err) == SRV_MERGED);
+    }
+    fake_result(&t[0], px, &r); /* one merged into the film */
+    CHECK(srv_job_result(j, 1, &r, &err) == SRV_MERGED);
+    proto_writer w, ws, w2;
+    proto_writer_init(&w, 1u << 24);
+    proto_writer_init(&ws, 1u << 24);
+    proto_writer_init(&w2, 1u << 24);
+    CHECK(srv_job_save(j, &w, &err) == PT_OK);
+    snap = srv_job_snapshot(j);
+    CHECK(snap && srv_job_save(snap, &ws, &err) == PT_OK);
+    CHECK(w.len == ws.len && memcmp(w.buf, ws.buf, w.len) == 0);
+    /* The job goes on to the end; the snapshot does not move. */
+    for (int i = 1; i < n / 2; i++) {
+        fake_result(&t[i], px, &r);
+        CHECK(srv_job_result(j, 1, &r, &err) == SRV_MERGED);
+    }
+    CHECK(srv_job_complete(j));
+    CHECK(snap && srv_job_save(snap, &w2, &err) == PT_OK);
+    CHECK(w2.len == ws.len && memcmp(w2.buf, ws.buf, ws.len) == 0);
+    /* Resumed from the snapshot's checkpoint, with the rest replayed. */
+    CHECK(srv_job_new(9, srv_job_params_of(j), HASH, &k, &err) == PT_OK);
+    CHECKF(k && srv_job_load(k, ws.buf, ws.len, &err) == PT_OK, "%s", err.msg);
+    for (int i = 0; k && i < n; i++) {
+        fake_result(&t[i], px, &r);
+        srv_outcome o = srv_job_replay(k, &r, &err);
+        CHECK(o == SRV_MERGED || o == SRV_DUPLICATE);
+    }
+    CHECK(k && srv_job_complete(k));
+    if (k)
+        CHECK(memcmp(srv_job_film(j)->px, srv_job_film(k)->px, 32 * 32 * sizeof(pt_pixel_acc)) ==
+              0);
+    proto_writer_fini(&w);
+    proto_writer_fini(&ws);
+    proto_writer_fini(&w2);
+    srv_job_free(snap);
+    srv_job_free(k);
+    srv_job_free(j);
+}
+
 int main(void)
 {
     int64_t live = pt_alloc_live();
@@ -1218,6 +1302,8 @@ int main(void)
     same_film_any_cut();
     ranges_back();
     many_owners();
+    answered_no_backup();
+    snapshot_saves_the_same();
     CHECK(pt_alloc_live() == live);
     return check_report();
 }

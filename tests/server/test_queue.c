@@ -451,7 +451,9 @@ static double done_seconds(const char *log, uint64_t id)
 
 static void crash_restart(void)
 {
-    const uint32_t spp = 2048;
+    /* Long enough for six kills: results merge once their commit returns, which
+     * on a busy disk may be seconds behind what the workers returned. */
+    const uint32_t spp = 4096;
     const char *ref[] = {PT_BIN_DIR "/ptworker",
                          "--scene",
                          SCENE,
@@ -464,7 +466,7 @@ static void crash_restart(void)
                          "--seed",
                          "5",
                          "--spp",
-                         "2048",
+                         "4096",
                          "-o",
                          path("crash_ref.exr"),
                          "-q",
@@ -487,8 +489,10 @@ static void crash_restart(void)
     srand(12345);
     proto_job_info info;
     while (kills < 6) {
-        /* Let more samples merge since the restart, then kill at a random moment. */
-        uint64_t goal = last + total / 12;
+        /* Let more samples merge since the restart, then kill at a random
+         * moment. Small steps: results are merged once their commit returns,
+         * so more than status says may be logged and come back at a restart. */
+        uint64_t goal = last + total / 24;
         double end = pt_now_s() + 300;
         while (pt_now_s() < end && status(g_port, id, &info) == PROTO_MSG_JOB_INFO &&
                info.samples_done < goal && info.state != PROTO_JOB_DONE)
@@ -964,8 +968,27 @@ static void checkpoint_to_v4(const char *name)
     pt_free(d);
 }
 
-/* A results log of format 4: each record a RESULT of protocol 3 (68 bytes of
- * header, f64 sums), with its checksum. */
+/* A RESULT payload of the current layout as protocol 3 wrote it (68 bytes of
+ * header, f64 sums) into rec (reset first). */
+static void payload_to_p3(const uint8_t *pl, uint32_t len, proto_writer *rec)
+{
+    proto_result r;
+    CHECK(proto_msg_decode_result(pl, len, NULL, 0, &r, NULL) == PT_OK);
+    proto_writer_reset(rec);
+    proto_w_bytes(rec, pl, 68);
+    for (uint32_t k = 0; k < r.npixels; k++) {
+        for (int c = 0; c < 3; c++)
+            proto_w_f64(rec, pt_acc_sum(&r.pixels[k], c));
+        proto_w_f64(rec, pt_acc_sum_sq(&r.pixels[k]));
+        proto_w_u32(rec, r.pixels[k].n);
+        proto_w_u32(rec, r.pixels[k].hits);
+    }
+    proto_result_fini(&r);
+}
+
+/* A results log of frames ("PTRF") into one of format 4: records ("PTRL")
+ * of a RESULT of protocol 3 (68 bytes of header, f64 sums), with their
+ * checksum. */
 static void log_to_v4(const char *name)
 {
     uint8_t *d;
@@ -975,32 +998,62 @@ static void log_to_v4(const char *name)
     proto_writer w, rec;
     proto_writer_init(&w, 1 << 30);
     proto_writer_init(&rec, 1 << 30);
-    proto_w_bytes(&w, d, 16);
-    for (size_t at = 16; at + 8 <= n;) {
-        uint32_t len = proto_get_u32(d + at);
-        const uint8_t *pl = d + at + 8;
-        CHECK(at + 8 + len <= n && len >= 69);
-        /* A record in the current layout decoded, in the old one written. */
-        proto_result r;
-        CHECK(proto_msg_decode_result(pl, len, NULL, 0, &r, NULL) == PT_OK);
-        proto_writer_reset(&rec);
-        proto_w_bytes(&rec, pl, 68);
-        for (uint32_t k = 0; k < r.npixels; k++) {
-            for (int c = 0; c < 3; c++)
-                proto_w_f64(&rec, pt_acc_sum(&r.pixels[k], c));
-            proto_w_f64(&rec, pt_acc_sum_sq(&r.pixels[k]));
-            proto_w_u32(&rec, r.pixels[k].n);
-            proto_w_u32(&rec, r.pixels[k].hits);
-        }
-        proto_result_fini(&r);
+    CHECK(n >= 16 && proto_get_u32(d) == 0x46525450u);
+    proto_w_u32(&w, 0x4c525450u);
+    proto_w_bytes(&w, d + 4, 12);
+    for (size_t at = 16; at + PROTO_FRAME_OVERHEAD <= n;) {
+        uint32_t len = proto_frame_payload_len(d + at);
+        CHECK(at + PROTO_FRAME_OVERHEAD + len <= n && len >= 69);
+        payload_to_p3(d + at + PROTO_FRAME_HEADER, len, &rec);
         proto_w_u32(&w, (uint32_t)rec.len);
         proto_w_u32(&w, proto_crc32c(0, rec.buf, rec.len));
         proto_w_bytes(&w, rec.buf, rec.len);
-        at += 8 + len;
+        at += PROTO_FRAME_OVERHEAD + len;
     }
     proto_writer_fini(&rec);
     const long vers[] = {4};
     write_ver(name, &w, vers, 1, 0, 4);
+    pt_free(d);
+}
+
+/* A results log of frames with every frame's protocol version set to v (its
+ * CRC32C redone): from 4 on the payload is kept (RESULT has not changed
+ * since), for 3 it is rewritten in protocol 3's layout (f64 sums). */
+static void log_frames_to(const char *name, uint16_t v)
+{
+    uint8_t *d;
+    size_t n;
+    if (!read_state(name, &d, &n))
+        return;
+    proto_writer w, rec;
+    proto_writer_init(&w, 1 << 30);
+    proto_writer_init(&rec, 1 << 30);
+    CHECK(n >= 16 && proto_get_u32(d) == 0x46525450u);
+    proto_w_bytes(&w, d, 16);
+    for (size_t at = 16; at + PROTO_FRAME_OVERHEAD <= n;) {
+        uint32_t len = proto_frame_payload_len(d + at);
+        const uint8_t *pl = d + at + PROTO_FRAME_HEADER;
+        CHECK(at + PROTO_FRAME_OVERHEAD + len <= n && len >= 69);
+        uint32_t m = len;
+        if (v < 4) {
+            payload_to_p3(pl, len, &rec);
+            pl = rec.buf;
+            m = (uint32_t)rec.len;
+        }
+        size_t h = w.len;
+        proto_w_bytes(&w, d + at, 4); /* "PTF1" */
+        proto_w_u16(&w, v);
+        proto_w_u16(&w, PROTO_MSG_RESULT);
+        proto_w_u32(&w, m);
+        proto_w_bytes(&w, pl, m);
+        proto_w_u32(&w, proto_crc32c(0, w.buf + h, w.len - h));
+        at += PROTO_FRAME_OVERHEAD + len;
+    }
+    proto_writer_fini(&rec);
+    pt_error e = {0};
+    CHECK(proto_writer_status(&w) == PT_OK);
+    CHECK(pt_write_file_atomic(path(name), w.buf, w.len, &e) == PT_OK);
+    proto_writer_fini(&w);
     pt_free(d);
 }
 
@@ -1190,6 +1243,9 @@ static void damaged(void)
         sleep_ms(20);
     kill_server(SIGTERM);
     start_server("state3", "damage.log", NULL);
+    /* From what the restart holds: a clean stop merges the results still
+     * waiting for their commit, so that may be more than status said. */
+    CHECK(status(g_port, id, &info) == PROTO_MSG_JOB_INFO);
     uint64_t base = info.samples_done;
     end = pt_now_s() + 60;
     while (pt_now_s() < end && status(g_port, id, &info) == PROTO_MSG_JOB_INFO &&
@@ -1275,9 +1331,12 @@ static void damaged(void)
         /* Format 6: no shutter in the queue's records and the checkpoint. */
         queue_to_v6("state3/queue");
         checkpoint_to_v6(ck);
-        /* Format 5: no frame ranges in the queue's records. */
-        if (format <= 5)
+        /* Format 5: no frame ranges in the queue's records; the results
+         * log's frames of protocol 4 (RESULT as today's: read as they are). */
+        if (format <= 5) {
             queue_to_v5("state3/queue");
+            log_frames_to(lg, 4);
+        }
         /* Format 4: double sums in the checkpoint, protocol 3's RESULT in
          * the results log (converted as read, and rewritten). */
         if (format <= 4) {
@@ -1304,6 +1363,34 @@ static void damaged(void)
                    info.samples_done == v4.samples_done,
                "format %u: state %u, %llu samples (format 6: %llu)", format, info.state,
                (unsigned long long)info.samples_done, (unsigned long long)v4.samples_done);
+        kill_server(SIGTERM);
+    }
+    /* A results log of protocol 3 frames (f64 sums) is converted as read and
+     * rewritten in today's frames: the same samples. One of protocol 2 frames
+     * is refused, naming the file and the protocol: that job fails. */
+    for (uint16_t pv = 3; pv >= 2; pv--) {
+        snprintf(cmd, sizeof cmd, "rm -rf '%s' && cp -a '%s' '%s'", path("state3"),
+                 path("state3.good"), path("state3"));
+        CHECK(system(cmd) == 0);
+        log_frames_to(lg, pv);
+        char log[32];
+        snprintf(log, sizeof log, "migrate_p%u.log", pv);
+        CHECK(start_damaged(log) == -1);
+        if (pv == 3) {
+            CHECKF(status(g_port, id, &info) == PROTO_MSG_JOB_INFO &&
+                       info.state == PROTO_JOB_RUNNING && info.samples_done == v4.samples_done,
+                   "protocol 3 frames: state %u, %llu samples (today's: %llu)", info.state,
+                   (unsigned long long)info.samples_done, (unsigned long long)v4.samples_done);
+            uint8_t *d = NULL;
+            size_t n = 0;
+            CHECK(read_state(lg, &d, &n) && n > 16 + PROTO_FRAME_HEADER &&
+                  proto_get_u16(d + 16 + 4) == PROTO_VERSION);
+            pt_free(d);
+        } else {
+            CHECK(status(g_port, id, &info) == PROTO_MSG_JOB_INFO &&
+                  info.state == PROTO_JOB_FAILED);
+            CHECK(log_has(log, "results.log") && log_has(log, "a frame of protocol 2"));
+        }
         kill_server(SIGTERM);
     }
     /* A format this ptserve does not know is refused, naming the file. */

@@ -29,7 +29,8 @@ static const srv_job_params PARAMS = {
     64, 32, 32, 32, 16, 5, 8, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}, 0, "", {0, 0}};
 #define JOB_ID 4u
 
-/* The RESULT payload of task t of a PARAMS job, with synthetic pixels. */
+/* The RESULT frame of task t of a PARAMS job, with synthetic pixels: a log
+ * record. */
 static void payload_of(srv_job *job, uint64_t t, proto_writer *w)
 {
     static pt_pixel_acc px[32 * 32];
@@ -43,7 +44,9 @@ static void payload_of(srv_job *job, uint64_t t, proto_writer *w)
         px[i] = pt_pixel_acc_of(0.25 * (double)(t + 1), 0.5, 0.125 * i, 1.0, task.s1 - task.s0, 0);
     proto_result r = {JOB_ID, t, task.tile, task.s0, task.s1, 0, 0, 0, n, px, 0};
     proto_writer_init(w, (size_t)1 << 20);
-    CHECK(proto_msg_encode_result(w, &r, NULL) == PT_OK);
+    size_t mark;
+    CHECK(proto_frame_begin(w, PROTO_MSG_RESULT, &mark, NULL) == PT_OK);
+    CHECK(proto_frame_finish(w, mark, proto_msg_encode_result(w, &r, NULL), NULL) == PT_OK);
 }
 
 /* Opens the state folder dir with job JOB_ID's folder made (as its bundle's
@@ -179,7 +182,7 @@ static void test_torn_tail(const char *dir)
     CHECK(pt_read_file(log, 1 << 24, &data, &len, &err) == PT_OK);
     uint32_t rec = (uint32_t)(sizes[1] - sizes[0]); /* one record's size */
     uint8_t *zeros = pt_calloc(1, rec);
-    memcpy(zeros, data + sizes[0], 8); /* its length and checksum, no data */
+    memcpy(zeros, data + sizes[0], PROTO_FRAME_HEADER); /* its header, no data */
     append(log, zeros, rec);
     pt_free(zeros);
     CHECKF(restore(dir, &replayed, &torn, &err) == PT_OK, "%s", err.msg);

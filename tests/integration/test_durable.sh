@@ -1,0 +1,140 @@
+#!/usr/bin/env bash
+# Queue mode's durable steps off the event loop (server/state.h), with
+# ptserve's test hooks (environment variables read by server/state.c):
+#  1. While a group commit's fdatasync is held, the loop keeps answering
+#     (ptctl status) and merges nothing: a result is merged only once the
+#     commit that holds its log record has returned. Then the job completes,
+#     bit-identical to the standalone render.
+#  2. A failing fdatasync pauses the job like a full disk (nothing merged,
+#     the reason shown); it resumes once a commit succeeds, bit-identical.
+#  3. kill -9 of the coordinator while a checkpoint is being written (written
+#     to its temporary file, not yet renamed, the log rotated): the restart
+#     loses no merged sample and the image is bit-identical.
+set -euo pipefail
+bin=${PT_BIN:?}
+src=${PT_SOURCE_DIR:?}
+tmp=$(mktemp -d /tmp/pt_durable_XXXXXX)
+srv_pid=
+cleanup() {
+  if [ -n "$srv_pid" ] && kill "$srv_pid" 2>/dev/null; then wait "$srv_pid" 2>/dev/null || true; fi
+  if [ "${failed:-0}" = 0 ]; then rm -rf "$tmp"; else echo "logs kept in $tmp" >&2; fi
+}
+trap cleanup EXIT
+failed=1
+fail() { echo "FAIL: $*" >&2; exit 1; }
+json() { python3 -c "import json,sys; d=json.load(open(sys.argv[1])); print(eval(sys.argv[2]))" "$@"; }
+
+view=(--res 64x48 --spp 256 --seed 7)
+ref() { # NAME: the standalone render of view
+  "$bin/ptworker" --scene "$src/scenes/cornell_box.gltf" "${view[@]}" --tile 16 --chunk 8 -q \
+    -o "$tmp/$1.exr" 2> /dev/null
+}
+ref ref
+
+# serve LOG [VAR=VALUE...]: ptserve on $tmp/state with two local workers.
+serve() {
+  local log=$1
+  shift
+  rm -f "$tmp/port"
+  env "$@" "$bin/ptserve" --state-dir "$tmp/state" --output-dir "$tmp/out" \
+    --listen 127.0.0.1:0 --port-file "$tmp/port" --local 2 --worker-threads 1 --tile 16 \
+    --chunk 8 2>> "$tmp/$log" &
+  srv_pid=$!
+  for _ in $(seq 400); do [ -s "$tmp/port" ] && break; sleep 0.05; done
+  [ -s "$tmp/port" ] || fail "ptserve did not start: $(cat "$tmp/$log")"
+  PTFARM_SERVER=127.0.0.1:$(cat "$tmp/port")
+  export PTFARM_SERVER
+}
+stop() {
+  kill "$srv_pid"
+  wait "$srv_pid" || true
+  srv_pid=
+}
+# status ID: its JSON in $tmp/status.json, answered within 20 s.
+status() { "$bin/ptctl" --timeout 20 status "$1" --json > "$tmp/status.json"; }
+# until_status ID EXPR: polls (up to 120 s) until EXPR over the status (d) holds.
+until_status() {
+  for _ in $(seq 1200); do
+    status "$1" && [ "$(json "$tmp/status.json" "$2")" = True ] && return 0
+    sleep 0.1
+  done
+  fail "job $1: never $2: $(cat "$tmp/status.json")"
+}
+# until_file PATH MIN: polls (up to 120 s) until PATH holds more than MIN bytes.
+until_file() {
+  for _ in $(seq 1200); do
+    [ "$(stat -c %s "$1" 2>/dev/null || echo 0)" -gt "$2" ] && return 0
+    sleep 0.1
+  done
+  fail "$1 never grew past $2 bytes"
+}
+finish() { # ID NAME: the job ends done, its image the standalone render's
+  until_status "$1" 'd["state"] == "done"'
+  [ "$(json "$tmp/status.json" 'd["samples_done"] == d["samples_total"]')" = True ] ||
+    fail "samples: $(cat "$tmp/status.json")"
+  "$bin/ptctl" fetch "$1" -o "$tmp/$2.exr"
+  "$bin/ptexr-diff" "$tmp/ref.exr" "$tmp/$2.exr" || fail "$2: the image differs"
+}
+submit() { "$bin/ptctl" submit "$src/scenes/cornell_box.gltf" "${view[@]}" --name "$1"; }
+
+# 1. The commit held: records are written, the loop answers, nothing merges.
+serve serve1.log PTSERVE_TEST_COMMIT_GATE="$tmp/commit_go"
+id=$(submit held)
+until_file "$tmp/state/jobs/$id/results.log" 100000
+for _ in 1 2 3 4 5; do
+  status "$id" || fail "no answer to status while the commit is held"
+  [ "$(json "$tmp/status.json" 'd["samples_done"]')" = 0 ] ||
+    fail "merged before its commit returned: $(cat "$tmp/status.json")"
+  sleep 0.2
+done
+touch "$tmp/commit_go"
+finish "$id" held
+stop
+
+# 2. The commit fails: the job pauses, merges nothing, and resumes.
+touch "$tmp/commit_fail"
+serve serve2.log PTSERVE_TEST_COMMIT_FAIL="$tmp/commit_fail"
+id=$(submit failing)
+until_status "$id" '"paused" in d["message"]'
+[ "$(json "$tmp/status.json" 'd["samples_done"]')" = 0 ] ||
+  fail "merged though its commit failed: $(cat "$tmp/status.json")"
+grep -q "paused: cannot make its results log durable" "$tmp/serve2.log" ||
+  fail "the pause is not logged: $(cat "$tmp/serve2.log")"
+rm "$tmp/commit_fail"
+finish "$id" failing
+grep -q "job $id resumed" "$tmp/serve2.log" || fail "the resume is not logged"
+stop
+
+# 3. kill -9 with a checkpoint half done: written, not renamed into place. A
+# longer job, so that it is still running then.
+view=(--res 64x48 --spp 2048 --seed 7)
+ref ref
+serve serve3.log PTSERVE_TEST_CKPT_LOG_BYTES=400000 PTSERVE_TEST_CKPT_GATE="$tmp/ckpt_go"
+id=$(submit killed)
+until_file "$tmp/state/jobs/$id/results.old" 16
+until_file "$tmp/state/jobs/$id/results.log" 40000
+ckpt_tmp() { compgen -G "$tmp/state/jobs/$id/checkpoint.tmp-*" >/dev/null; }
+for _ in $(seq 600); do
+  ckpt_tmp && break
+  sleep 0.1
+done
+ckpt_tmp || fail "no checkpoint being written"
+until_status "$id" 'd["samples_done"] > 0 or d["state"] != "running"'
+[ "$(json "$tmp/status.json" 'd["state"]')" = running ] || fail "the job ended before the kill"
+before=$(json "$tmp/status.json" 'd["samples_done"]')
+# Its local workers outlive it: they are stopped with it (the restart starts
+# its own).
+children=$(pgrep -P "$srv_pid" || true)
+kill -9 "$srv_pid"
+wait "$srv_pid" || true
+srv_pid=
+for c in $children; do kill "$c" 2>/dev/null || true; done
+serve serve3.log PTSERVE_TEST_CKPT_LOG_BYTES=400000
+status "$id"
+after=$(json "$tmp/status.json" 'd["samples_done"]')
+[ "$after" -ge "$before" ] || fail "$before samples merged before the kill, $after after"
+grep -q "job $id resumed" "$tmp/serve3.log" || fail "no resume logged: $(cat "$tmp/serve3.log")"
+finish "$id" killed
+stop
+failed=0
+echo "ok"
