@@ -20,27 +20,7 @@ extern "C" {
 
 using namespace pt_rig;
 
-namespace
-{
-
-typedef double mat4[16]; // column-major
-
-void mat_mul(const double *a, const double *b, double *r)
-{
-    double t[16];
-    for (int c = 0; c < 4; c++)
-        for (int rr = 0; rr < 4; rr++) {
-            double s = 0;
-            for (int k = 0; k < 4; k++)
-                s += a[k * 4 + rr] * b[c * 4 + k];
-            t[c * 4 + rr] = s;
-        }
-    memcpy(r, t, sizeof t);
-}
-
-// T * R * S with R from the quaternion (x, y, z, w), normalised first (glTF
-// 3.5.3), as the importer builds a node's matrix.
-void trs_matrix(const double t[3], const double q_in[4], const double s[3], double *m)
+void pt_rig::trs_matrix(const double t[3], const double q_in[4], const double s[3], double *m)
 {
     double q[4] = {q_in[0], q_in[1], q_in[2], q_in[3]};
     double ql = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
@@ -60,6 +40,24 @@ void trs_matrix(const double t[3], const double q_in[4], const double s[3], doub
     m[13] = t[1];
     m[14] = t[2];
     m[15] = 1.0;
+}
+
+namespace
+{
+
+typedef double mat4[16]; // column-major
+
+void mat_mul(const double *a, const double *b, double *r)
+{
+    double t[16];
+    for (int c = 0; c < 4; c++)
+        for (int rr = 0; rr < 4; rr++) {
+            double s = 0;
+            for (int k = 0; k < 4; k++)
+                s += a[k * 4 + rr] * b[c * 4 + k];
+            t[c * 4 + rr] = s;
+        }
+    memcpy(r, t, sizeof t);
 }
 
 // Cofactor matrix of the upper 3x3 (the inverse transpose times the

@@ -18,6 +18,12 @@ extern "C" {
 namespace pt_rig
 {
 
+// A node's local matrix, column-major into m[16]: T * R * S with R from the
+// quaternion (x, y, z, w) normalised first (glTF 3.5.3). The importer builds
+// a still's node matrices with it and the rig its posed ones, so an
+// unanimated node gets the same bits either way.
+void trs_matrix(const double t[3], const double q[4], const double s[3], double *m);
+
 enum path_kind { PATH_T = 0, PATH_R = 1, PATH_S = 2, PATH_W = 3 };
 enum interp_kind { INTERP_STEP = 0, INTERP_LINEAR = 1, INTERP_CUBIC = 2 };
 

@@ -544,20 +544,7 @@ mat4 local_matrix(importer &im, const tinygltf::Node &n, int ni)
             s[i] = n.scale[i];
         for (size_t i = 0; i < n.rotation.size(); i++)
             q[i] = n.rotation[i];
-        double ql = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
-        if (ql > 0 && std::isfinite(ql))
-            for (double &c : q)
-                c /= ql;
-        double x = q[0], y = q[1], z = q[2], w = q[3];
-        double r[9] = {1 - 2 * (y * y + z * z), 2 * (x * y + z * w),     2 * (x * z - y * w),
-                       2 * (x * y - z * w),     1 - 2 * (x * x + z * z), 2 * (y * z + x * w),
-                       2 * (x * z + y * w),     2 * (y * z - x * w),     1 - 2 * (x * x + y * y)};
-        for (int c = 0; c < 3; c++)
-            for (int rr = 0; rr < 3; rr++)
-                m[size_t(c * 4 + rr)] = r[c * 3 + rr] * s[c];
-        m[12] = t[0];
-        m[13] = t[1];
-        m[14] = t[2];
+        pt_rig::trs_matrix(t, q, s, m.data());
     }
     for (double v : m)
         if (!std::isfinite(v))
