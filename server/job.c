@@ -572,12 +572,10 @@ static owner_stat *owner_entry(srv_job *j, uint64_t owner)
     if (o)
         return o;
     if (j->nowners == j->owners_cap) {
-        uint32_t cap = j->owners_cap ? 2 * j->owners_cap : 16;
-        owner_stat *n = pt_realloc(j->owners, (size_t)cap * sizeof *n);
+        owner_stat *n = pt_grow_array(j->owners, &j->owners_cap, sizeof *n, 16);
         if (!n)
             return NULL;
         j->owners = n;
-        j->owners_cap = cap;
     }
     if (2 * (j->nowners + 1) > j->owner_map_cap) {
         uint32_t cap = j->owner_map_cap ? 2 * j->owner_map_cap : 32;
@@ -1170,12 +1168,10 @@ static void pixels_hash(const proto_result *r, uint8_t out[32])
 static void add_check(srv_job *j, uint32_t t, uint64_t owner, const proto_result *r)
 {
     if (j->nchecks == j->checks_cap) {
-        uint32_t cap = j->checks_cap ? 2 * j->checks_cap : 32;
-        check *n = pt_realloc(j->checks, (size_t)cap * sizeof *n);
+        check *n = pt_grow_array(j->checks, &j->checks_cap, sizeof *n, 32);
         if (!n)
             return; /* this task goes unverified; nothing else is lost */
         j->checks = n;
-        j->checks_cap = cap;
     }
     check *c = &j->checks[j->nchecks++];
     memset(c, 0, sizeof *c);
@@ -1308,12 +1304,10 @@ static srv_outcome merge_task(srv_job *j, uint32_t t, int li, const proto_result
     }
     /* Early: hold a copy until the tile's earlier samples are merged. */
     if (j->nheld == j->held_cap) {
-        uint32_t cap = j->held_cap ? 2 * j->held_cap : 32;
-        held *n = pt_realloc(j->held, (size_t)cap * sizeof *n);
+        held *n = pt_grow_array(j->held, &j->held_cap, sizeof *n, 32);
         if (!n)
             goto nomem;
         j->held = n;
-        j->held_cap = cap;
     }
     pt_pixel_acc *copy = pt_malloc_array(r->npixels, sizeof *copy);
     if (!copy)
@@ -1849,12 +1843,10 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
                                 "checkpoint: truncated held samples %u to %u of tile %u", s0, s1,
                                 tile);
         if (j->nheld == j->held_cap) {
-            uint32_t cap = j->held_cap ? 2 * j->held_cap : 32;
-            held *n = pt_realloc(j->held, (size_t)cap * sizeof *n);
+            held *n = pt_grow_array(j->held, &j->held_cap, sizeof *n, 32);
             if (!n)
                 return pt_error_set(err, PT_ERR_NOMEM, "checkpoint: out of memory");
             j->held = n;
-            j->held_cap = cap;
         }
         pt_pixel_acc *px = pt_malloc_array(npx, sizeof *px);
         if (!px)

@@ -180,14 +180,12 @@ static void conn_touch(srv_server *s, srv_conn *c)
     if (c->active)
         return;
     if (g->nact == g->act_cap) {
-        uint32_t cap = g->act_cap ? 2 * g->act_cap : 64;
-        srv_conn **n = pt_realloc(g->act, (size_t)cap * sizeof *n);
+        srv_conn **n = pt_grow_array(g->act, &g->act_cap, sizeof *n, 64);
         if (!n) {
             g->act_lost = 1;
             return;
         }
         g->act = n;
-        g->act_cap = cap;
     }
     g->act[g->nact++] = c;
     c->active = 1;

@@ -385,12 +385,10 @@ static pt_status push_pending(srv_server *s, srv_entry *j, uint64_t owner, const
                               size_t len, uint64_t arrived)
 {
     if (j->npend == j->pend_cap) {
-        uint32_t cap = j->pend_cap ? 2 * j->pend_cap : 16;
-        srv_pending *n = pt_realloc(j->pend, (size_t)cap * sizeof *n);
+        srv_pending *n = pt_grow_array(j->pend, &j->pend_cap, sizeof *n, 16);
         if (!n)
             return PT_ERR_NOMEM;
         j->pend = n;
-        j->pend_cap = cap;
     }
     uint8_t *copy = pt_malloc(len);
     if (!copy)

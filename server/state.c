@@ -540,12 +540,10 @@ static pt_status open_log(srv_state *st, uint64_t id, log_file **out, pt_error *
         return PT_OK;
     }
     if (st->nlogs == st->logs_cap) {
-        uint32_t cap = st->logs_cap ? 2 * st->logs_cap : 8;
-        log_file *n = pt_realloc(st->logs, cap * sizeof *n);
+        log_file *n = pt_grow_array(st->logs, &st->logs_cap, sizeof *n, 8);
         if (!n)
             return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
         st->logs = n;
-        st->logs_cap = cap;
     }
     char p[PATH_MAX];
     /* The folder is made here too: a frame of a frame-range job has no

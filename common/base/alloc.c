@@ -60,6 +60,17 @@ void pt_free(void *p)
     }
 }
 
+void *pt_grow_array(void *arr, uint32_t *cap, size_t size, uint32_t first)
+{
+    uint64_t want = *cap ? 2 * (uint64_t)*cap : first;
+    if (want > UINT32_MAX || size == 0 || want > SIZE_MAX / size)
+        return NULL;
+    void *n = pt_realloc(arr, (size_t)want * size);
+    if (n)
+        *cap = (uint32_t)want;
+    return n;
+}
+
 char *pt_strdup(const char *s)
 {
     size_t n = strlen(s) + 1;

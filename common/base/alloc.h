@@ -21,6 +21,11 @@ void *pt_realloc(void *p, size_t size);
 void *pt_malloc_array(size_t n, size_t size); /* NULL on overflow */
 void pt_free(void *p);
 char *pt_strdup(const char *s);
+/* The block arr (*cap elements of size bytes, full) reallocated to twice as
+ * many (first when *cap is 0), *cap updated; NULL (arr and *cap untouched)
+ * when memory or the element count runs out. For arrays grown one element
+ * at a time: if (n == cap) { p = pt_grow_array(a, &cap, sizeof *a, 16); ... } */
+void *pt_grow_array(void *arr, uint32_t *cap, size_t size, uint32_t first);
 
 /* Test hooks. pt_alloc_fail_at(n): allocation number n (1-based, counted
  * from this call) and every later one fail; 0 turns injection off. */
