@@ -696,6 +696,7 @@ pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *bu
             return pt_error_set(err, PT_ERR_NOMEM, "RESULT: %u pixels", (unsigned)m.npixels);
         m.owns_pixels = 1;
     }
+    int need_rgb = 0, need_sq = 0;
     for (uint32_t i = 0; i < m.npixels; i++, q += psize) {
         for (int c = 0; c < 3; c++)
             px[i].fsum[c] = wide_rgb ? (pt_i128)(((pt_u128)proto_get_u64(q + 16 * c + 8) << 64) |
@@ -706,6 +707,17 @@ pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *bu
             px[i].fsum_sq |= (pt_u128)proto_get_u64(q + 3 * rgb + 8) << 64;
         px[i].n = proto_get_u32(q + psize - 8);
         px[i].hits = proto_get_u32(q + psize - 4);
+        for (int c = 0; c < 3; c++)
+            need_rgb |= px[i].fsum[c] != (pt_i128)(int64_t)px[i].fsum[c];
+        need_sq |= px[i].fsum_sq > UINT64_MAX;
+    }
+    /* One encoding per message (the encoder's): a wide kind that no pixel
+     * needs is refused, so a RESULT's bytes, which the results log keeps and
+     * verification compares, are a function of its values. */
+    if (wide_rgb > need_rgb || wide_sq > need_sq) {
+        if (m.owns_pixels)
+            pt_free(px);
+        return bad(err, PT_ERR_PROTO, "RESULT", "a wide pixel form that no pixel needs");
     }
     m.pixels = px;
     *out = m;

@@ -883,6 +883,15 @@ static void test_result(void)
         CHECK(proto_msg_decode_result(ww.buf, ww.len, NULL, 0, &b, NULL) == PT_OK &&
               acc_same(&b.pixels[0], &px[0]) && acc_same(&b.pixels[1], &px[1]));
         proto_result_fini(&b);
+        if (k == 0) {
+            /* The same bytes with the one wide sum's high word 0: every sum
+             * fits 64 bits, so the wide form is not the encoder's and is
+             * refused (one encoding per message). */
+            memset(ww.buf + 69 + 48 + 3 * 8 + 8, 0, 8);
+            pt_error e = {0};
+            CHECK(proto_msg_decode_result(ww.buf, ww.len, NULL, 0, &b, &e) == PT_ERR_PROTO &&
+                  strstr(e.msg, "no pixel needs"));
+        }
         proto_writer_fini(&ww);
     }
     CHECK(pt_alloc_live() == live);
