@@ -457,44 +457,16 @@ static pt_status give_up(wrk_scene_ref *e, pt_error *err)
 }
 
 pt_status wrk_scenes_acquire(wrk_scenes *s, const uint8_t hash[WRK_HASH_SIZE],
-                             const pt_render_params *params, const char *camera,
+                             const pt_render_params *params, const wrk_scene_look *look,
                              const char *entry_path, wrk_scene_ref **out, pt_error *err)
 {
-    return wrk_scenes_acquire_env(s, hash, params, camera, NULL, entry_path, out, err);
-}
-
-pt_status wrk_scenes_acquire_env(wrk_scenes *s, const uint8_t hash[WRK_HASH_SIZE],
-                                 const pt_render_params *params, const char *camera,
-                                 const proto_env *env, const char *entry_path, wrk_scene_ref **out,
-                                 pt_error *err)
-{
-    return wrk_scenes_acquire_variant(s, hash, params, camera, NULL, env, entry_path, out, err);
-}
-
-pt_status wrk_scenes_acquire_variant(wrk_scenes *s, const uint8_t hash[WRK_HASH_SIZE],
-                                     const pt_render_params *params, const char *camera,
-                                     const char *variant, const proto_env *env,
-                                     const char *entry_path, wrk_scene_ref **out, pt_error *err)
-{
-    return wrk_scenes_acquire_shutter(s, hash, params, camera, variant, env, NULL, NULL, entry_path,
-                                      out, err);
-}
-
-pt_status wrk_scenes_acquire_posed(wrk_scenes *s, const uint8_t hash[WRK_HASH_SIZE],
-                                   const pt_render_params *params, const char *camera,
-                                   const char *variant, const proto_env *env, const wrk_pose *pose,
-                                   const char *entry_path, wrk_scene_ref **out, pt_error *err)
-{
-    return wrk_scenes_acquire_shutter(s, hash, params, camera, variant, env, pose, NULL, entry_path,
-                                      out, err);
-}
-
-pt_status wrk_scenes_acquire_shutter(wrk_scenes *s, const uint8_t hash[WRK_HASH_SIZE],
-                                     const pt_render_params *params, const char *camera,
-                                     const char *variant, const proto_env *env,
-                                     const wrk_pose *pose, const double shutter[2],
-                                     const char *entry_path, wrk_scene_ref **out, pt_error *err)
-{
+    static const wrk_scene_look plain = {0};
+    if (!look)
+        look = &plain;
+    const char *camera = look->camera, *variant = look->variant;
+    const proto_env *env = look->env;
+    const wrk_pose *pose = look->pose;
+    const double *shutter = look->shutter;
     /* One key for the still pose, however the fields unused then were set. */
     int animate = pose && pose->animate;
     uint64_t time_bits = 0;

@@ -67,29 +67,6 @@ pt_status wrk_scenes_new(uint32_t max, wrk_scenes **out, pt_error *err);
 /* Frees every entry; none may be in use. Accepts NULL. */
 void wrk_scenes_free(wrk_scenes *s);
 
-/* The renderer for (hash, params, camera), loading entry_path (the scene's
- * entry file) with that camera (NULL or "": the scene's default view) and
- * building it when it is not cached; an unknown camera fails the build; blocks while another thread
- * builds the same key. On failure the error of that build is returned to it and to every thread
- * that waited for it, and the key is forgotten (a later acquire tries again). Release each PT_OK
- * reference with wrk_scenes_release. */
-pt_status wrk_scenes_acquire(wrk_scenes *s, const uint8_t hash[WRK_HASH_SIZE],
-                             const pt_render_params *params, const char *camera,
-                             const char *entry_path, wrk_scene_ref **out, pt_error *err);
-/* As wrk_scenes_acquire, with the job's environment light (NULL: none). A
- * map is read from the scene's folder (entry_path's), and only under the one
- * name a bundle keeps for it (PT_BUNDLE_ENV_NAME: PT_ERR_ARG for another);
- * params->env is ignored (the entry's own pt_env is used). */
-pt_status wrk_scenes_acquire_env(wrk_scenes *s, const uint8_t hash[WRK_HASH_SIZE],
-                                 const pt_render_params *params, const char *camera,
-                                 const proto_env *env, const char *entry_path, wrk_scene_ref **out,
-                                 pt_error *err);
-/* As wrk_scenes_acquire_env, with a KHR_materials_variants name (NULL or "":
- * each primitive's own material) in the key; an unknown name fails the build. */
-pt_status wrk_scenes_acquire_variant(wrk_scenes *s, const uint8_t hash[WRK_HASH_SIZE],
-                                     const pt_render_params *params, const char *camera,
-                                     const char *variant, const proto_env *env,
-                                     const char *entry_path, wrk_scene_ref **out, pt_error *err);
 /* The pose of a frame of an animated scene: animate 1 poses it at time
  * seconds of animation ("" every animation; pt_scene_opts). */
 typedef struct wrk_pose {
@@ -97,24 +74,42 @@ typedef struct wrk_pose {
     double time;
     const char *animation;
 } wrk_pose;
-/* As wrk_scenes_acquire_variant, with the scene posed (NULL: the file's
- * still pose) and the pose in the key (its time bit for bit), so a worker
- * keeps the few frames it renders at once side by side and a frame's scene is
- * built once per worker, when its first task arrives. */
-pt_status wrk_scenes_acquire_posed(wrk_scenes *s, const uint8_t hash[WRK_HASH_SIZE],
-                                   const pt_render_params *params, const char *camera,
-                                   const char *variant, const proto_env *env, const wrk_pose *pose,
-                                   const char *entry_path, wrk_scene_ref **out, pt_error *err);
-/* As wrk_scenes_acquire_posed, with motion blur's shutter (seconds after the
- * pose's time, 0 for a still; protocol/msg.h's SHUTTER; NULL: 0, 0, none) in
- * the key, its bits compared: the scene is then loaded posed over [time +
- * open, time + close] (pt_scene_opts.shutter_open, _close), its still at time
- * + open, as ptworker --frame F --fps R --shutter O,C poses it. */
-pt_status wrk_scenes_acquire_shutter(wrk_scenes *s, const uint8_t hash[WRK_HASH_SIZE],
-                                     const pt_render_params *params, const char *camera,
-                                     const char *variant, const proto_env *env,
-                                     const wrk_pose *pose, const double shutter[2],
-                                     const char *entry_path, wrk_scene_ref **out, pt_error *err);
+
+/* What a job asks of its scene beyond the file and the render params; each
+ * field may be NULL, and each is part of the cache key:
+ * - camera: NULL or "" the scene's default view; an unknown one fails the build;
+ * - variant: a KHR_materials_variants name, NULL or "" each primitive's own
+ *   material; an unknown one fails the build;
+ * - env: the job's environment light, NULL none. A map is read from the
+ *   scene's folder (entry_path's), and only under the one name a bundle keeps
+ *   for it (PT_BUNDLE_ENV_NAME: PT_ERR_ARG for another); params->env is
+ *   ignored (the entry's own pt_env is used);
+ * - pose: NULL the file's still pose; else the scene posed, the time compared
+ *   bit for bit, so a worker keeps the few frames it renders at once side by
+ *   side and a frame's scene is built once per worker, when its first task
+ *   arrives;
+ * - shutter: motion blur's [open, close], seconds after the pose's time (0 for
+ *   a still; protocol/msg.h's SHUTTER), NULL none; the scene is then loaded
+ *   posed over [time + open, time + close] (pt_scene_opts.shutter_open,
+ *   _close), its still at time + open, as ptworker --frame F --fps R
+ *   --shutter O,C poses it. */
+typedef struct wrk_scene_look {
+    const char *camera;
+    const char *variant;
+    const proto_env *env;
+    const wrk_pose *pose;
+    const double *shutter; /* 2 values */
+} wrk_scene_look;
+
+/* The renderer for (hash, params, look), loading entry_path (the scene's
+ * entry file) as look says (NULL: every field NULL) and building it when it
+ * is not cached; blocks while another thread builds the same key. On failure
+ * the error of that build is returned to it and to every thread that waited
+ * for it, and the key is forgotten (a later acquire tries again). Release
+ * each PT_OK reference with wrk_scenes_release. */
+pt_status wrk_scenes_acquire(wrk_scenes *s, const uint8_t hash[WRK_HASH_SIZE],
+                             const pt_render_params *params, const wrk_scene_look *look,
+                             const char *entry_path, wrk_scene_ref **out, pt_error *err);
 const pt_renderer *wrk_scene_renderer(const wrk_scene_ref *ref);
 void wrk_scenes_release(wrk_scenes *s, wrk_scene_ref *ref); /* accepts NULL */
 

@@ -225,8 +225,8 @@ static void render_one(worker *w, const task_item *t, done_item *d)
     }
     wrk_scene_ref *ref = NULL;
     wrk_pose pose = {k->animate, k->time, k->animation};
-    d->st = wrk_scenes_acquire_shutter(w->scenes, k->scene_hash, &p, k->camera, k->variant, &k->env,
-                                       &pose, k->shutter, t->entry, &ref, &d->err);
+    wrk_scene_look look = {k->camera, k->variant, &k->env, &pose, k->shutter};
+    d->st = wrk_scenes_acquire(w->scenes, k->scene_hash, &p, &look, t->entry, &ref, &d->err);
     if (d->st != PT_OK)
         return;
     pt_render_tile(wrk_scene_renderer(ref), k->tile, k->s0, k->s1, d->pixels, &d->stats);

@@ -289,28 +289,34 @@ static void test_memory(const uint8_t hash[32], const char *entry)
     sky.rgb[0] = sky.rgb[1] = sky.rgb[2] = 0.5f;
     stray = none;
     snprintf(stray.name, sizeof stray.name, "../../etc/passwd");
-    CHECK(wrk_scenes_acquire_env(s, hash, &p, NULL, &none, entry, &a, &err) == PT_OK);
+    CHECK(wrk_scenes_acquire(s, hash, &p, &(wrk_scene_look){.env = &none}, entry, &a, &err) ==
+          PT_OK);
     CHECK(pt_renderer_params(wrk_scene_renderer(a))->env == NULL);
-    CHECK(wrk_scenes_acquire_env(s, hash, &p, NULL, &zeroed, entry, &b, &err) == PT_OK);
+    CHECK(wrk_scenes_acquire(s, hash, &p, &(wrk_scene_look){.env = &zeroed}, entry, &b, &err) ==
+          PT_OK);
     CHECK(a == b && wrk_scenes_builds(s) == before0);
     wrk_scenes_release(s, b);
-    CHECK(wrk_scenes_acquire_env(s, hash, &p, NULL, &sky, entry, &b, &err) == PT_OK);
-    CHECK(wrk_scenes_acquire_env(s, hash, &p, NULL, &sky, entry, &c, &err) == PT_OK);
+    CHECK(wrk_scenes_acquire(s, hash, &p, &(wrk_scene_look){.env = &sky}, entry, &b, &err) ==
+          PT_OK);
+    CHECK(wrk_scenes_acquire(s, hash, &p, &(wrk_scene_look){.env = &sky}, entry, &c, &err) ==
+          PT_OK);
     CHECK(b == c && b != a && wrk_scenes_builds(s) == before0 + 1);
     CHECK(pt_renderer_params(wrk_scene_renderer(b))->env != NULL);
     wrk_scenes_release(s, a);
     wrk_scenes_release(s, b);
     wrk_scenes_release(s, c);
-    CHECK(wrk_scenes_acquire_env(s, hash, &p, NULL, &stray, entry, &a, &err) == PT_ERR_ARG);
+    CHECK(wrk_scenes_acquire(s, hash, &p, &(wrk_scene_look){.env = &stray}, entry, &a, &err) ==
+          PT_ERR_ARG);
     CHECK(strstr(err.msg, "not the bundle's") != NULL);
     /* The material variant is in the key: the cached default entry does not
      * serve a variant, whose build fails here (the scene has none). */
     before0 = wrk_scenes_builds(s);
-    CHECK(wrk_scenes_acquire_variant(s, hash, &p, NULL, "", &none, entry, &a, &err) == PT_OK);
+    CHECK(wrk_scenes_acquire(s, hash, &p, &(wrk_scene_look){.variant = "", .env = &none}, entry, &a,
+                             &err) == PT_OK);
     CHECK(wrk_scenes_builds(s) == before0);
     wrk_scenes_release(s, a);
-    CHECK(wrk_scenes_acquire_variant(s, hash, &p, NULL, "Velvet", &none, entry, &a, &err) ==
-          PT_ERR_ARG);
+    CHECK(wrk_scenes_acquire(s, hash, &p, &(wrk_scene_look){.variant = "Velvet", .env = &none},
+                             entry, &a, &err) == PT_ERR_ARG);
     CHECKF(strstr(err.msg, "no variant named 'Velvet'") && wrk_scenes_builds(s) == before0 + 1,
            "%s", err.msg);
 
