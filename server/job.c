@@ -87,7 +87,7 @@ typedef struct tile_state {
 /* Near the end a task takes at most the time the farm needs for the work not
  * yet cut, divided by this: the last tasks end within a fraction of one
  * another, and no core idles long on the tail. */
-#define TAIL_SHARE 4.0
+#define TAIL_SHARE 2.0
 /* After the first pass a task takes a tile to at most this many times the
  * samples it had cut: 16, 128, 1024... so a 1,024-spp tile is three results
  * (doubling made it seven, and the coordinator's cost is per result), while
