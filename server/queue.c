@@ -236,17 +236,8 @@ void srv_queue_info(const srv_server *s, const srv_entry *j, proto_job_info *m)
 
 void srv_entry_save_image(srv_entry *j)
 {
-    pt_image *img = NULL;
-    const pt_film *film = srv_job_film(j->job);
-    if (pt_image_new(film->width, film->height, &img, NULL) != PT_OK) {
-        srv_log("out of memory for a progressive image of job %llu; will try again",
-                (unsigned long long)j->rec.id);
-        return;
-    }
-    pt_film_resolve(film, img);
-    img->has_alpha = (srv_job_params_of(j->job)->film_flags & PROTO_FILM_TRANSPARENT) != 0;
     pt_exr_meta meta = {0};
-    meta.total_samples = srv_job_samples_merged(j->job); /* the film's, without a walk */
+    meta.total_samples = srv_job_samples_merged(j->job); /* the writer's resolve recounts */
     meta.render_seconds = srv_entry_seconds(j, pt_now_ms());
     pt_hash_hex(j->rec.hash, meta.scene_hash);
     snprintf(meta.job_id, sizeof meta.job_id, "%llu", (unsigned long long)j->rec.id);
@@ -256,7 +247,7 @@ void srv_entry_save_image(srv_entry *j)
         meta.fps = j->parent->rec.fps;
         meta.time = pt_frames_time(j->frame, meta.fps);
     }
-    srv_writer_submit(j->writer, img, &meta);
+    srv_writer_submit(j->writer, &meta);
     j->t_last_save = pt_now_ms();
     j->saved_passes = srv_job_passes_done(j->job);
     j->saved_samples = meta.total_samples;
@@ -563,7 +554,9 @@ int srv_entry_ready(srv_server *s, srv_entry *j)
         }
     }
     if (st == PT_OK && !j->writer)
-        st = srv_writer_new(j->out_path, &j->writer, &err);
+        st = srv_writer_new(j->out_path, srv_job_film(j->job),
+                            (srv_job_params_of(j->job)->film_flags & PROTO_FILM_TRANSPARENT) != 0,
+                            &j->writer, &err);
     if (st != PT_OK) {
         char msg[PROTO_MAX_ERROR_TEXT + 1];
         snprintf(msg, sizeof msg, "%s", err.msg);

@@ -10,7 +10,10 @@ struct srv_writer {
     pthread_cond_t cv;
     pthread_t thread;
     char exr[4096], png[4096];
-    pt_image *pending;
+    const pt_film *film;
+    int has_alpha;
+    pt_image *img; /* the thread's, made at the first write and kept */
+    int pending;   /* a request not yet taken */
     pt_exr_meta meta;
     int busy, stop;
     unsigned long written, failures;
@@ -27,17 +30,22 @@ static void *writer_main(void *p)
             pthread_cond_wait(&w->cv, &w->mu);
         if (!w->pending && w->stop)
             break;
-        pt_image *img = w->pending;
         pt_exr_meta meta = w->meta;
-        w->pending = NULL;
+        w->pending = 0;
         w->busy = 1;
         pthread_mutex_unlock(&w->mu);
 
         pt_error err = {0};
-        pt_status st = pt_exr_write(w->exr, img, &meta, &err);
+        pt_status st = PT_OK;
+        if (!w->img)
+            st = pt_image_new(w->film->width, w->film->height, &w->img, &err);
+        if (st == PT_OK) {
+            meta.total_samples = pt_film_resolve(w->film, w->img);
+            w->img->has_alpha = w->has_alpha;
+            st = pt_exr_write(w->exr, w->img, &meta, &err);
+        }
         if (st == PT_OK)
-            st = pt_png_write_preview(w->png, img, &err);
-        pt_image_free(img);
+            st = pt_png_write_preview(w->png, w->img, &err);
 
         pthread_mutex_lock(&w->mu);
         w->busy = 0;
@@ -55,11 +63,14 @@ static void *writer_main(void *p)
     return NULL;
 }
 
-pt_status srv_writer_new(const char *exr_path, srv_writer **out, pt_error *err)
+pt_status srv_writer_new(const char *exr_path, const pt_film *film, int has_alpha, srv_writer **out,
+                         pt_error *err)
 {
     srv_writer *w = pt_calloc(1, sizeof *w);
     if (!w)
         return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
+    w->film = film;
+    w->has_alpha = has_alpha;
     snprintf(w->exr, sizeof w->exr, "%s", exr_path);
     pt_png_preview_path(exr_path, w->png, sizeof w->png);
     pthread_mutex_init(&w->mu, NULL);
@@ -74,11 +85,10 @@ pt_status srv_writer_new(const char *exr_path, srv_writer **out, pt_error *err)
     return PT_OK;
 }
 
-void srv_writer_submit(srv_writer *w, pt_image *img, const pt_exr_meta *meta)
+void srv_writer_submit(srv_writer *w, const pt_exr_meta *meta)
 {
     pthread_mutex_lock(&w->mu);
-    pt_image_free(w->pending);
-    w->pending = img;
+    w->pending = 1;
     w->meta = *meta;
     pthread_cond_broadcast(&w->cv);
     pthread_mutex_unlock(&w->mu);
@@ -125,7 +135,7 @@ void srv_writer_free(srv_writer *w)
     pthread_cond_broadcast(&w->cv);
     pthread_mutex_unlock(&w->mu);
     pthread_join(w->thread, NULL);
-    pt_image_free(w->pending);
+    pt_image_free(w->img);
     pthread_mutex_destroy(&w->mu);
     pthread_cond_destroy(&w->cv);
     pt_free(w);

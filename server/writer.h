@@ -1,12 +1,14 @@
 /*
  * writer.h - progressive EXR writes off the event loop.
  *
- * The loop resolves the film into an image snapshot and hands it over with
- * srv_writer_submit; a thread writes it (pt_exr_write: temp file, fsync,
- * rename) and a PNG preview beside it. Only the newest snapshot waiting is
- * kept: an older one not yet written is dropped, so a slow disk never makes
+ * The loop asks for an image with srv_writer_submit; a thread resolves the
+ * job's live film into its own image (pt_film_resolve, band by band under
+ * the film's locks, while the loop goes on adding tiles), writes it
+ * (pt_exr_write: temp file, fsync, rename) and a PNG preview beside it. So
+ * the loop spends nothing per save but the request. Only the newest request
+ * waiting is kept: one not yet taken is replaced, so a slow disk never makes
  * the loop wait or memory grow, and the files on disk only move forward.
- * srv_writer_flush waits until everything submitted has been written. A write
+ * srv_writer_flush waits until everything asked for has been written. A write
  * that fails (a full output folder) leaves the last good image in place and
  * is reported by srv_writer_last; the caller submits again later.
  * Threads: one owner thread (the event loop's) calls every function; the
@@ -18,12 +20,18 @@
 #include "common/base/error.h"
 #include "common/image/exr.h"
 #include "common/image/image.h"
+#include "common/render/film.h"
 
 typedef struct srv_writer srv_writer;
 
-pt_status srv_writer_new(const char *exr_path, srv_writer **out, pt_error *err);
-/* Takes ownership of img (freed after writing or when replaced). */
-void srv_writer_submit(srv_writer *w, pt_image *img, const pt_exr_meta *meta);
+/* film: what every image is resolved from; it must outlive the writer.
+ * has_alpha: the images carry A (the film's coverage). */
+pt_status srv_writer_new(const char *exr_path, const pt_film *film, int has_alpha, srv_writer **out,
+                         pt_error *err);
+/* Asks for the film as it is when the thread takes the request, written with
+ * meta; meta's total_samples is replaced by the samples of the pixels
+ * resolved, so the file says what its pixels hold. */
+void srv_writer_submit(srv_writer *w, const pt_exr_meta *meta);
 /* Waits until the last submitted snapshot is on disk; returns the status of
  * the last write (its error in err). */
 pt_status srv_writer_flush(srv_writer *w, pt_error *err);

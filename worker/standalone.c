@@ -73,7 +73,6 @@ static void *render_thread(void *p)
                 break;
             }
         }
-        /* Tiles are disjoint: no lock needed to write the film. */
         pt_film_add_tile(j->film, rc, sum);
         atomic_fetch_add(&j->tiles_done, 1);
     }
@@ -236,10 +235,9 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
         st.rays += tstats[i].rays;
         st.capped += tstats[i].capped;
     }
-    pt_film_resolve(film, img);
-    img->has_alpha = p.transparent;
     pt_exr_meta meta = {0};
-    meta.total_samples = pt_film_total_samples(film);
+    meta.total_samples = pt_film_resolve(film, img);
+    img->has_alpha = p.transparent;
     meta.render_seconds = secs;
     snprintf(meta.scene_hash, sizeof meta.scene_hash, "%s", scene->hash);
     if (pt_exr_write(o->out_path, img, &meta, &err) != PT_OK) {

@@ -2,8 +2,19 @@
 
 #include <assert.h>
 #include <math.h>
+#include <pthread.h>
 
 #include "common/base/alloc.h"
+
+struct pt_film_bands {
+    uint32_t n;
+    pthread_mutex_t mu[];
+};
+
+static uint32_t band_count(uint32_t height)
+{
+    return (height + PT_FILM_BAND_ROWS - 1) / PT_FILM_BAND_ROWS;
+}
 
 pt_status pt_film_new(uint32_t width, uint32_t height, pt_film **out, pt_error *err)
 {
@@ -12,16 +23,23 @@ pt_status pt_film_new(uint32_t width, uint32_t height, pt_film **out, pt_error *
     if (st != PT_OK)
         return st;
     uint64_t pixels = (uint64_t)width * height;
+    uint32_t nb = band_count(height);
     pt_film *film = pt_malloc(sizeof *film);
     pt_pixel_acc *px = pt_calloc((size_t)pixels, sizeof *px);
-    if (!film || !px) {
+    pt_film_bands *bands = pt_malloc(sizeof *bands + (size_t)nb * sizeof bands->mu[0]);
+    if (!film || !px || !bands) {
+        pt_free(bands);
         pt_free(px);
         pt_free(film);
         return pt_error_set(err, PT_ERR_NOMEM, "film %ux%u: out of memory", width, height);
     }
+    bands->n = nb;
+    for (uint32_t i = 0; i < nb; i++)
+        pthread_mutex_init(&bands->mu[i], NULL);
     film->width = width;
     film->height = height;
     film->px = px;
+    film->bands = bands;
     *out = film;
     return PT_OK;
 }
@@ -29,6 +47,9 @@ pt_status pt_film_new(uint32_t width, uint32_t height, pt_film **out, pt_error *
 void pt_film_free(pt_film *film)
 {
     if (film) {
+        for (uint32_t i = 0; i < film->bands->n; i++)
+            pthread_mutex_destroy(&film->bands->mu[i]);
+        pt_free(film->bands);
         pt_free(film->px);
         pt_free(film);
     }
@@ -39,11 +60,18 @@ void pt_film_add_tile(pt_film *film, pt_rect tile, const pt_pixel_acc *acc)
     assert(tile.x0 <= tile.x1 && tile.x1 <= film->width);
     assert(tile.y0 <= tile.y1 && tile.y1 <= film->height);
     uint32_t tw = tile.x1 - tile.x0;
-    for (uint32_t y = tile.y0; y < tile.y1; y++) {
-        pt_pixel_acc *row = film->px + (size_t)y * film->width + tile.x0;
-        const pt_pixel_acc *src = acc + (size_t)(y - tile.y0) * tw;
-        for (uint32_t x = 0; x < tw; x++)
-            pt_pixel_acc_add(&row[x], &src[x]);
+    for (uint32_t y = tile.y0; y < tile.y1;) {
+        uint32_t band = y / PT_FILM_BAND_ROWS, end = (band + 1) * PT_FILM_BAND_ROWS;
+        if (end > tile.y1)
+            end = tile.y1;
+        pthread_mutex_lock(&film->bands->mu[band]);
+        for (; y < end; y++) {
+            pt_pixel_acc *row = film->px + (size_t)y * film->width + tile.x0;
+            const pt_pixel_acc *src = acc + (size_t)(y - tile.y0) * tw;
+            for (uint32_t x = 0; x < tw; x++)
+                pt_pixel_acc_add(&row[x], &src[x]);
+        }
+        pthread_mutex_unlock(&film->bands->mu[band]);
     }
 }
 
@@ -55,11 +83,10 @@ void pt_film_add_tile(pt_film *film, pt_rect tile, const pt_pixel_acc *acc)
  * catastrophically when the variance is tiny against the mean, so it is
  * computed in double and clamped at 0 (which also maps NaN to 0).
  */
-void pt_film_resolve(const pt_film *film, pt_image *img)
+static uint64_t resolve_pixels(const pt_film *film, pt_image *img, size_t i0, size_t i1)
 {
-    assert(film->width == img->width && film->height == img->height);
-    size_t n_px = (size_t)film->width * film->height;
-    for (size_t i = 0; i < n_px; i++) {
+    uint64_t total = 0;
+    for (size_t i = i0; i < i1; i++) {
         const pt_pixel_acc *a = &film->px[i];
         if (a->n == 0) {
             img->r[i] = img->g[i] = img->b[i] = 0.0f;
@@ -68,6 +95,7 @@ void pt_film_resolve(const pt_film *film, pt_image *img)
             img->a[i] = 0.0f;
             continue;
         }
+        total += a->n;
         double n = (double)a->n;
         double r = pt_acc_sum(a, 0) / n, g = pt_acc_sum(a, 1) / n, b = pt_acc_sum(a, 2) / n;
         double var = 0.0;
@@ -84,6 +112,22 @@ void pt_film_resolve(const pt_film *film, pt_image *img)
         img->variance[i] = (float)var;
         img->a[i] = (float)((double)a->hits / n);
     }
+    return total;
+}
+
+uint64_t pt_film_resolve(const pt_film *film, pt_image *img)
+{
+    assert(film->width == img->width && film->height == img->height);
+    uint64_t total = 0;
+    for (uint32_t b = 0; b < film->bands->n; b++) {
+        uint32_t y0 = b * PT_FILM_BAND_ROWS, y1 = y0 + PT_FILM_BAND_ROWS;
+        if (y1 > film->height)
+            y1 = film->height;
+        pthread_mutex_lock(&film->bands->mu[b]);
+        total += resolve_pixels(film, img, (size_t)y0 * film->width, (size_t)y1 * film->width);
+        pthread_mutex_unlock(&film->bands->mu[b]);
+    }
+    return total;
 }
 
 uint64_t pt_film_total_samples(const pt_film *film)

@@ -6,7 +6,13 @@
  * integers, so the pixels are the same bits whatever the order in which the
  * parts of a range of samples are added and however it was split at
  * PT_SAMPLE_BLOCK boundaries. pt_film_resolve turns sums into a pt_image
- * (mean RGB, sample count, variance of the mean). Not thread-safe: one owner.
+ * (mean RGB, sample count, variance of the mean).
+ * Threads: pt_film_add_tile and pt_film_resolve lock the bands of
+ * PT_FILM_BAND_ROWS rows they touch, one at a time, so a thread may resolve
+ * while another adds tiles: every pixel is resolved whole (its sums and count
+ * from the same moment), each band as it was when it was read. Everything
+ * else (px read or written directly, pt_film_free) is the owner's, while no
+ * other thread uses the film.
  */
 #ifndef PT_COMMON_RENDER_FILM_H
 #define PT_COMMON_RENDER_FILM_H
@@ -17,9 +23,14 @@
 #include "common/image/image.h"
 #include "common/render/render.h"
 
+#define PT_FILM_BAND_ROWS 16
+
+typedef struct pt_film_bands pt_film_bands;
+
 typedef struct pt_film {
     uint32_t width, height;
-    pt_pixel_acc *px; /* width*height, row-major */
+    pt_pixel_acc *px;     /* width*height, row-major */
+    pt_film_bands *bands; /* a lock per PT_FILM_BAND_ROWS rows */
 } pt_film;
 
 pt_status pt_film_new(uint32_t width, uint32_t height, pt_film **out, pt_error *err);
@@ -30,8 +41,9 @@ void pt_film_add_tile(pt_film *film, pt_rect tile, const pt_pixel_acc *acc);
 
 /* Writes mean, count, variance of the mean and coverage (hits / n, into
  * img->a; img->has_alpha is the caller's) into img (same size). Pixels with
- * no samples are 0; variance needs n >= 2 (else 0). */
-void pt_film_resolve(const pt_film *film, pt_image *img);
+ * no samples are 0; variance needs n >= 2 (else 0). Returns the samples of
+ * the pixels it resolved (their sum of n). */
+uint64_t pt_film_resolve(const pt_film *film, pt_image *img);
 
 /* Total samples over all pixels. */
 uint64_t pt_film_total_samples(const pt_film *film);

@@ -3,6 +3,8 @@
  * adaptive sampling's measures and decision (pt_tile_gain, pt_tile_stops).
  */
 #include <math.h>
+#include <pthread.h>
+#include <stdatomic.h>
 #include <string.h>
 
 #include "common/base/alloc.h"
@@ -450,6 +452,71 @@ static void test_min_gain_beats_equal_error(void)
     CHECK(best_mse < 0.5 * mse_uniform);
 }
 
+/* The coordinator's writer thread resolves the live film while the loop adds
+ * tiles. Every add keeps each pixel's mean at (3, 5, 0) and its coverage at
+ * 1, so a pixel read between its sums and its count (a torn read) shows
+ * another mean; tiles straddle the lock bands. */
+typedef struct adder {
+    pt_film *film;
+    atomic_int done;
+} adder;
+
+static void *add_loop(void *p)
+{
+    adder *a = p;
+    enum { TW = 24, TH = 20 };
+    pt_pixel_acc acc[TW * TH];
+    for (uint32_t round = 0; round < 400; round++)
+        for (uint32_t y0 = 5; y0 + TH <= a->film->height; y0 += TH)
+            for (uint32_t x0 = 0; x0 + TW <= a->film->width; x0 += TW) {
+                uint32_t k = 1 + (round + x0 + y0) % 7;
+                for (int i = 0; i < TW * TH; i++)
+                    acc[i] = (pt_pixel_acc){{FX(3 * k), FX(5 * k), 0}, 0, k, k};
+                pt_film_add_tile(a->film, (pt_rect){x0, y0, x0 + TW, y0 + TH}, acc);
+            }
+    atomic_store(&a->done, 1);
+    return NULL;
+}
+
+static void test_resolve_while_adding(void)
+{
+    adder a = {0};
+    pt_image *img = NULL;
+    pthread_t t;
+    int ok = pt_film_new(96, 90, &a.film, NULL) == PT_OK &&
+             pt_image_new(96, 90, &img, NULL) == PT_OK &&
+             pthread_create(&t, NULL, add_loop, &a) == 0;
+    CHECK(ok);
+    if (!ok) {
+        pt_image_free(img);
+        pt_film_free(a.film);
+        return;
+    }
+    uint64_t resolves = 0, bad = 0, last = 0, backwards = 0, miscounted = 0;
+    int finished;
+    do {
+        finished = atomic_load(&a.done);
+        uint64_t total = pt_film_resolve(a.film, img), counted = 0;
+        for (size_t i = 0; i < (size_t)img->width * img->height; i++) {
+            counted += (uint64_t)img->samples[i];
+            if (img->samples[i] > 0 &&
+                (img->r[i] != 3.0f || img->g[i] != 5.0f || img->b[i] != 0.0f || img->a[i] != 1.0f))
+                bad++;
+        }
+        backwards += total < last;
+        miscounted += total != counted;
+        last = total;
+        resolves++;
+    } while (!finished);
+    pthread_join(t, NULL);
+    CHECK(bad == 0);
+    CHECK(backwards == 0 && miscounted == 0);
+    CHECK(last == pt_film_total_samples(a.film));
+    CHECK(resolves >= 2);
+    pt_image_free(img);
+    pt_film_free(a.film);
+}
+
 static void test_alloc_failure(void)
 {
     int64_t live0 = pt_alloc_live();
@@ -481,6 +548,7 @@ int main(void)
     test_tile_gain_math();
     test_tile_stops_rules();
     test_min_gain_beats_equal_error();
+    test_resolve_while_adding();
     test_alloc_failure();
     return check_report();
 }
