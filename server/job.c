@@ -986,10 +986,7 @@ static void merge_now(srv_job *j, uint32_t t, const pt_pixel_acc *px)
     task *k = &j->tasks[t];
     tile_state *ts = &j->tiles[k->tile];
     pt_rect r = tile_rect(j, k->tile);
-    pt_film_add_tile(j->film, r, px);
-    uint32_t npx = (r.x1 - r.x0) * (r.y1 - r.y0);
-    for (uint32_t i = 0; i < npx; i++)
-        j->samples += px[i].n;
+    j->samples += pt_film_add_tile(j->film, r, px);
     k->state = T_MERGED;
     j->merged++;
     uint32_t from = ts->merged;
@@ -1284,8 +1281,9 @@ static void accepted(srv_job *j, uint32_t t, int li, const proto_result *r, uint
         o->ms_ps = o->ms_ps > 0.0 ? (1.0 - SPEED_WEIGHT) * o->ms_ps + SPEED_WEIGHT * v : v;
     }
     o->merged++;
-    for (uint32_t i = 0; i < r->npixels; i++)
-        o->samples += r->pixels[i].n;
+    /* What its pixels hold, without a walk: validated, they lack exactly the
+     * samples the result reports rejected (pixels_plausible). */
+    o->samples += (uint64_t)r->npixels * (r->s1 - r->s0) - r->rejected;
     if (verify_picked(j, t))
         add_check(j, t, l.owner, r);
 }

@@ -36,8 +36,9 @@ typedef struct pt_film {
 pt_status pt_film_new(uint32_t width, uint32_t height, pt_film **out, pt_error *err);
 void pt_film_free(pt_film *film); /* accepts NULL */
 
-/* Adds a tile's partial sums (row-major over tile, as pt_render_tile writes them). */
-void pt_film_add_tile(pt_film *film, pt_rect tile, const pt_pixel_acc *acc);
+/* Adds a tile's partial sums (row-major over tile, as pt_render_tile writes
+ * them). Returns the samples added (the sum of their n). */
+uint64_t pt_film_add_tile(pt_film *film, pt_rect tile, const pt_pixel_acc *acc);
 
 /* Writes mean, count, variance of the mean and coverage (hits / n, into
  * img->a; img->has_alpha is the caller's) into img (same size). Pixels with
