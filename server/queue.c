@@ -780,7 +780,11 @@ static void on_commit(void *ctx, uint64_t id, pt_status st, const pt_error *err)
         return;
     if (st != PT_OK) {
         s->counters.state_write_errors++;
-        drop_pending(j); /* cut off the log with the records since the last good commit */
+        /* The log is cut back to its last good commit; its records since
+         * are kept and written again by the retry (server/state.h), unless
+         * memory was short, and then they are gone, never merged. */
+        if (st == PT_ERR_NOMEM)
+            drop_pending(j);
         j->pending_sync = 1;
         pause_job(s, j, "cannot make its results log durable", err);
         return;
@@ -793,15 +797,16 @@ static void on_commit(void *ctx, uint64_t id, pt_status st, const pt_error *err)
     }
 }
 
-/* Merges j's results whose records the commit done made durable. */
+/* Merges j's results whose records the commit done made durable (those of a
+ * failed commit wait for the retry's). */
 static void merge_durable(srv_server *s, srv_entry *j, uint64_t done)
 {
     uint32_t k = 0, i = 0;
-    for (; i < j->npend && j->pend[i].commit <= done; i++) {
+    for (; i < j->npend && j->pend[i].commit <= done && j->committed >= j->pend[i].commit; i++) {
         srv_pending *p = &j->pend[i];
         proto_result r;
         pt_error err = {0};
-        if (j->committed >= p->commit && j->job && srv_entry_active(j) &&
+        if (j->job && srv_entry_active(j) &&
             proto_msg_decode_result(p->frame + PROTO_FRAME_HEADER, p->len - PROTO_FRAME_OVERHEAD,
                                     s->scratch, PROTO_MAX_TILE_PIXELS, &r, &err) == PT_OK) {
             srv_workers_merge_durable(s, j, p->owner, &r, p->arrived);

@@ -52,24 +52,52 @@
 #define MAX_QUEUE_BYTES (256u << 20)
 #define MAX_CKPT_BYTES ((size_t)8 << 30)
 
+/* Records waiting to be written: the loop appends, the commit thread writes. */
+typedef struct rec_buf {
+    uint8_t *b;
+    size_t len, cap;
+} rec_buf;
+
+/* Appends n bytes; 0, or -1 out of memory. */
+static int rec_append(rec_buf *r, const uint8_t *p, size_t n)
+{
+    if (n > r->cap - r->len) {
+        size_t cap = r->cap ? r->cap : 64 * 1024;
+        while (cap - r->len < n)
+            cap *= 2;
+        uint8_t *b = pt_realloc(r->b, cap);
+        if (!b)
+            return -1;
+        r->b = b;
+        r->cap = cap;
+    }
+    memcpy(r->b + r->len, p, n);
+    r->len += n;
+    return 0;
+}
+
 typedef struct log_file {
     uint64_t id;
     int fd;
-    uint64_t bytes;   /* the log's length: its whole records end here */
+    uint64_t bytes;   /* the log's length once written: its whole records end here */
     uint64_t durable; /* what the last successful commit covered (<= bytes) */
     uint32_t epoch;   /* bumped when the file is cut to its header or replaced */
     int dirty;        /* written (or to be synced) since its last commit began */
     int cut;          /* a write was cut short and the cut back to bytes failed */
     int fresh;        /* made since its last commit: its folder entry is synced too */
+    rec_buf out;      /* records logged, not yet handed to a commit (bytes - out.len:
+                       * what the file holds or a commit in flight writes) */
 } log_file;
 
 /* One log of a group commit: what the commit thread syncs. */
 typedef struct commit_item {
     uint64_t id, upto;
     uint32_t epoch;
-    int fd;    /* a dup of the log's, closed by the commit thread */
-    int fresh; /* also fsync its folder */
-    int err;   /* errno of the step that failed; 0: durable up to upto */
+    int fd;           /* a dup of the log's, closed by the commit thread */
+    int fresh;        /* also fsync its folder */
+    rec_buf in;       /* the records the thread appends before the fdatasync */
+    const char *step; /* what failed: "write" or "fdatasync" */
+    int err;          /* errno of the step that failed; 0: durable up to upto */
     char path[PATH_MAX];
 } commit_item;
 
@@ -212,6 +240,25 @@ fail:
 }
 
 static void ckpt_join(srv_state *st);
+static int cut_back(log_file *l);
+
+/* Writes the log's records not handed to a commit, on the caller's thread
+ * (no commit in flight). Returns 0, or -1 with errno: the file is cut back
+ * to the records before them, which stay in memory to be written again. */
+static int write_out(log_file *l)
+{
+    if (l->out.len == 0)
+        return 0;
+    if (pt_write_all(l->fd, l->out.b, l->out.len) == 0) {
+        l->out.len = 0;
+        return 0;
+    }
+    int e = errno;
+    l->cut = 1;
+    cut_back(l);
+    errno = e;
+    return -1;
+}
 
 void srv_state_close(srv_state *st)
 {
@@ -227,14 +274,21 @@ void srv_state_close(srv_state *st)
         pthread_mutex_destroy(&st->cm.mu);
         pthread_cond_destroy(&st->cm.cv);
     }
+    for (uint32_t i = 0; i < st->cm.cap; i++)
+        pt_free(st->cm.items[i].in.b);
     pt_free(st->cm.items);
     if (st->cm.efd >= 0)
         close(st->cm.efd);
-    for (uint32_t i = 0; i < st->nlogs; i++)
-        if (st->logs[i].fd >= 0) {
-            fdatasync(st->logs[i].fd);
-            close(st->logs[i].fd);
+    for (uint32_t i = 0; i < st->nlogs; i++) {
+        log_file *l = &st->logs[i];
+        if (l->fd >= 0) {
+            /* Records not merged yet: a restart replays them. */
+            if (write_out(l) == 0)
+                fdatasync(l->fd);
+            close(l->fd);
         }
+        pt_free(l->out.b);
+    }
     pt_free(st->logs);
     if (st->lock_fd >= 0)
         close(st->lock_fd);
@@ -517,6 +571,7 @@ static void close_log(srv_state *st, uint64_t id)
         return;
     if (l->fd >= 0)
         close(l->fd);
+    pt_free(l->out.b);
     *l = st->logs[--st->nlogs];
 }
 
@@ -590,7 +645,7 @@ static pt_status open_log(srv_state *st, uint64_t id, log_file **out, pt_error *
         fresh = 1;
     }
     l = &st->logs[st->nlogs++];
-    *l = (log_file){id, fd, bytes, bytes, ++st->epochs, fresh, 0, fresh};
+    *l = (log_file){id, fd, bytes, bytes, ++st->epochs, fresh, 0, fresh, {NULL, 0, 0}};
     *out = l;
     return PT_OK;
 }
@@ -600,7 +655,7 @@ static pt_status open_log(srv_state *st, uint64_t id, log_file **out, pt_error *
 static int cut_back(log_file *l)
 {
     int saved = errno;
-    if (ftruncate(l->fd, (off_t)l->bytes) != 0)
+    if (ftruncate(l->fd, (off_t)(l->bytes - l->out.len)) != 0)
         return -1;
     l->cut = 0;
     errno = saved;
@@ -622,15 +677,14 @@ pt_status srv_state_log_result(srv_state *st, uint64_t id, const uint8_t *frame,
         return pt_error_errno(
             err, PT_ERR_IO, "results log of job %llu: cannot cut it back to its last whole record",
             (unsigned long long)id);
-    /* The frame is one buffer, so the record goes out in a single write(): a
-     * kill -9 leaves it whole or cut short at the end, never interleaved. Its
-     * own CRC32C, checked when it arrived, is the record's checksum. */
-    if (pt_write_all(l->fd, frame, len) != 0) {
-        s = pt_error_errno(err, PT_ERR_IO, "results log of job %llu", (unsigned long long)id);
-        l->cut = 1;
-        cut_back(l);
-        return s;
-    }
+    /* Kept in memory for the commit thread, which writes it before the
+     * fdatasync: a write() of every record on the loop cost more than half
+     * its time in queue mode (the copy into the page cache). A kill -9 loses
+     * only records not durable, which were never merged. The frame's own
+     * CRC32C, checked when it arrived, is the record's checksum. */
+    if (rec_append(&l->out, frame, len) != 0)
+        return pt_error_set(err, PT_ERR_NOMEM, "results log of job %llu: out of memory",
+                            (unsigned long long)id);
     l->bytes += len;
     l->dirty = 1;
     return PT_OK;
@@ -672,12 +726,18 @@ static void *commit_main(void *arg)
         pthread_mutex_unlock(&cm->mu);
         for (uint32_t i = 0; i < cm->n; i++) {
             commit_item *it = &cm->items[i];
-            wait_gate(cm->gate);
             it->err = 0;
-            if (cm->fail[0] && access(cm->fail, F_OK) == 0)
-                it->err = EIO;
-            else if (fdatasync(it->fd) != 0 || (it->fresh && pt_fsync_dir_of(it->path) != 0))
+            it->step = "write";
+            if (it->in.len && pt_write_all(it->fd, it->in.b, it->in.len) != 0)
                 it->err = errno ? errno : EIO;
+            if (!it->err) {
+                wait_gate(cm->gate);
+                it->step = "fdatasync";
+                if (cm->fail[0] && access(cm->fail, F_OK) == 0)
+                    it->err = EIO;
+                else if (fdatasync(it->fd) != 0 || (it->fresh && pt_fsync_dir_of(it->path) != 0))
+                    it->err = errno ? errno : EIO;
+            }
             close(it->fd);
             it->fd = -1;
         }
@@ -717,6 +777,7 @@ int srv_state_commit_start(srv_state *st)
         commit_item *items = pt_realloc(cm->items, n * sizeof *items);
         if (!items)
             return 0; /* tried again next round */
+        memset(items + cm->cap, 0, (n - cm->cap) * sizeof *items);
         cm->items = items;
         cm->cap = n;
     }
@@ -735,6 +796,11 @@ int srv_state_commit_start(srv_state *st)
         it->epoch = l->epoch;
         it->fresh = l->fresh;
         it->err = 0;
+        /* The log's records go to the thread; the item's emptied buffer
+         * (from an earlier commit) takes the next ones. */
+        rec_buf spare = it->in;
+        it->in = l->out;
+        l->out = spare;
         if (l->fresh)
             job_path(st, l->id, "results.log", it->path, sizeof it->path);
         l->dirty = 0;
@@ -781,26 +847,38 @@ int srv_state_commit_collect(srv_state *st, int wait, uint64_t *done, srv_commit
         int current = l && l->epoch == it->epoch;
         if (current && it->err == 0 && it->upto > l->durable)
             l->durable = it->upto;
+        pt_status outcome = it->err ? PT_ERR_IO : PT_OK;
         if (current && it->err != 0) {
-            /* A failed fdatasync may have dropped any page written since the
-             * last good one, and a later one would not say so: the log is cut
-             * back to what is known durable. Its records since were never
-             * merged; they are dropped (fn) and synced again before the job
-             * goes on. */
-            l->bytes = l->durable;
+            /* A write cut short, or a failed fdatasync, which may have dropped
+             * any page written since the last good one (and a later one would
+             * not say so): the file is cut back to what is known durable. The
+             * batch's records go back in front of those logged since, to be
+             * written again once srv_state_log_resync says to (not at once: a
+             * full disk would make that a busy loop). Only when memory for
+             * that is short are they dropped (PT_ERR_NOMEM: never merged). */
+            if (rec_append(&it->in, l->out.b, l->out.len) == 0) {
+                rec_buf failed = it->in;
+                it->in = l->out;
+                l->out = failed;
+            } else {
+                l->bytes = l->durable;
+                l->out.len = 0;
+                outcome = PT_ERR_NOMEM;
+            }
             l->cut = 1;
             cut_back(l);
-            l->dirty = 1;
+            l->dirty = 0;
             l->fresh |= it->fresh;
         }
+        it->in.len = 0;
         if (fn && current) {
             pt_error e = {0};
             if (it->err) {
                 errno = it->err;
-                pt_error_errno(&e, PT_ERR_IO, "results log of job %llu: fdatasync",
-                               (unsigned long long)it->id);
+                pt_error_errno(&e, PT_ERR_IO, "results log of job %llu: %s",
+                               (unsigned long long)it->id, it->step);
             }
-            fn(ctx, it->id, it->err ? PT_ERR_IO : PT_OK, &e);
+            fn(ctx, it->id, outcome, &e);
         }
     }
     *done = cm->gen;
@@ -819,9 +897,21 @@ pt_status srv_state_sync(srv_state *st, pt_error *err)
         log_file *l = &st->logs[i];
         if (!l->dirty)
             continue;
+        /* A commit that failed and is not collected yet: its log is cut
+         * back when it is, and nothing is written after its torn end. */
+        int failed = 0;
+        for (uint32_t k = 0; st->cm.busy && k < st->cm.n; k++)
+            failed |= st->cm.items[k].id == l->id && st->cm.items[k].epoch == l->epoch &&
+                      st->cm.items[k].err != 0;
         char p[PATH_MAX];
         job_path(st, l->id, "results.log", p, sizeof p);
-        if (fdatasync(l->fd) != 0 || (l->fresh && pt_fsync_dir_of(p) != 0)) {
+        if (failed) {
+            if (s == PT_OK)
+                s = pt_error_set(err, PT_ERR_IO, "results log of job %llu: its commit failed",
+                                 (unsigned long long)l->id);
+            continue;
+        }
+        if (write_out(l) != 0 || fdatasync(l->fd) != 0 || (l->fresh && pt_fsync_dir_of(p) != 0)) {
             if (s == PT_OK)
                 s = pt_error_errno(err, PT_ERR_IO, "results log of job %llu: fdatasync",
                                    (unsigned long long)l->id);
@@ -909,6 +999,7 @@ static pt_status log_restart(srv_state *st, uint64_t id, pt_error *err)
         return pt_error_errno(err, PT_ERR_IO, "results log of job %llu: truncate",
                               (unsigned long long)id);
     l->bytes = l->durable = LOG_HEADER;
+    l->out.len = 0;
     l->epoch = ++st->epochs;
     l->dirty = 0;
     l->cut = 0;

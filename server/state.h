@@ -170,12 +170,15 @@ pt_status srv_state_restore(srv_state *st, srv_job *job, srv_ckpt_extra *extra, 
                             int *torn, pt_error *err);
 
 /* Appends one accepted RESULT frame (its whole bytes as received: header,
- * payload, CRC32C) to the job's log (opened on first use). Written before the
- * result is merged; the group commit makes it durable, and the result may be
- * merged once the commit srv_state_commit_next said before this call has
- * returned. On failure (PT_ERR_IO, err->sys_errno ENOSPC, EDQUOT, EIO...) the
- * log is left as it was, ending with its last whole record (a partial write
- * is cut back), and the result must not be merged. */
+ * payload, CRC32C) to the job's log (opened on first use). The record is kept
+ * in memory: the group commit's thread writes it and makes it durable (so the
+ * loop does no disk work per result), or srv_state_sync on the caller's
+ * thread; the result may be merged once the commit srv_state_commit_next said
+ * before this call has returned. A write that fails (err->sys_errno ENOSPC,
+ * EDQUOT, EIO...) fails that commit or sync: the log is cut back to its last
+ * whole record and the records since are gone, never merged. Fails itself
+ * (PT_ERR_IO, PT_ERR_NOMEM) only when the log cannot be opened or cut back,
+ * or memory is short; the result must not be merged then. */
 pt_status srv_state_log_result(srv_state *st, uint64_t id, const uint8_t *frame, size_t len,
                                pt_error *err);
 /* Bytes in the job's log now (0 when it has none). */
@@ -184,15 +187,14 @@ uint64_t srv_state_log_bytes(const srv_state *st, uint64_t id);
 /* The group commit. srv_state_commit_next: the number of the commit a record
  * logged now will be in. srv_state_commit_start (once per loop round) hands
  * every log written since the last commit to the commit thread, which
- * fdatasyncs them; it does nothing while one is in flight (returns 0) or when
- * nothing was written. The thread makes srv_state_commit_fd (an eventfd, for
- * the loop's epoll set) readable when it is done; srv_state_commit_collect
- * then returns 1 with *done the commit's number, having called fn for each
- * job's log in it: PT_OK (every record logged before it began is durable) or
- * PT_ERR_IO (the fdatasync failed: the log is cut back to what the last good
- * commit covered, every record since is gone, and srv_state_log_resync then
- * the next commit that succeeds say when it takes writes again). wait: block
- * until the commit in flight is done. Returns 0 when none was collected. */
+ * writes their records and fdatasyncs them; it does nothing while one is in flight (returns 0) or
+ * when nothing was written. The thread makes srv_state_commit_fd (an eventfd, for the loop's epoll
+ * set) readable when it is done; srv_state_commit_collect then returns 1 with *done the commit's
+ * number, having called fn for each job's log in it: PT_OK (every record logged before it began is
+ * durable) or PT_ERR_IO (the fdatasync failed: the log is cut back to what the last good commit
+ * covered, every record since is gone, and srv_state_log_resync then the next commit that succeeds
+ * say when it takes writes again). wait: block until the commit in flight is done. Returns 0 when
+ * none was collected. */
 typedef void (*srv_commit_fn)(void *ctx, uint64_t job_id, pt_status st, const pt_error *err);
 int srv_state_commit_fd(const srv_state *st);
 uint64_t srv_state_commit_next(const srv_state *st);
@@ -201,8 +203,9 @@ int srv_state_commit_busy(const srv_state *st);
 int srv_state_commit_collect(srv_state *st, int wait, uint64_t *done, srv_commit_fn fn, void *ctx);
 /* Marks the job's log for the next commit (after a failed one). */
 pt_status srv_state_log_resync(srv_state *st, uint64_t id, pt_error *err);
-/* fdatasync of every log written to since the last commit, on the caller's
- * thread, after the commit in flight (whose outcome is left to collect). */
+/* Writes and fdatasyncs every log written to since the last commit, on the
+ * caller's thread, after the commit in flight (whose outcome is left to
+ * collect; a log whose commit failed is left for it). */
 pt_status srv_state_sync(srv_state *st, pt_error *err);
 
 /* Closes the job's log and deletes its folder (the job ended); waits for

@@ -626,6 +626,8 @@ static void gen_state(const char *dir, const char *tmp)
         for (uint32_t t = 0; t < tiles; t++)
             log_and_merge(st, job, &tasks[t]);
         log_and_merge(st, job, &tasks[2 * tiles + 1]);
+        if (srv_state_sync(st, &err) != PT_OK) /* the records are written by a commit */
+            failures++;
         snprintf(rel, sizeof rel, "jobs/%u/results.log", FUZZ_JOB_ID);
         snprintf(name, sizeof name, "log%u", p);
         emit_state_file(dir, "fuzz_results_log", name, sdir, rel, sealed, 0, 0);

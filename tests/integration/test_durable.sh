@@ -80,7 +80,7 @@ submit() { "$bin/ptctl" submit "$src/scenes/cornell_box.gltf" "${view[@]}" --nam
 # 1. The commit held: records are written, the loop answers, nothing merges.
 serve serve1.log PTSERVE_TEST_COMMIT_GATE="$tmp/commit_go"
 id=$(submit held)
-until_file "$tmp/state/jobs/$id/results.log" 100000
+until_file "$tmp/state/jobs/$id/results.log" 16 # a record written, its fdatasync held
 for _ in 1 2 3 4 5; do
   status "$id" || fail "no answer to status while the commit is held"
   [ "$(json "$tmp/status.json" 'd["samples_done"]')" = 0 ] ||

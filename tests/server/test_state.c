@@ -1,7 +1,8 @@
 /*
  * test_state.c - the state folder's results log when writes fail or are cut
- * short: a short write (a full disk, here RLIMIT_FSIZE) is cut back to the
- * last whole record so later records follow whole ones; a torn last record
+ * short: a short write (a full disk, here RLIMIT_FSIZE), by a sync or by the
+ * group commit's thread, is cut back to the last whole record so later
+ * records follow whole ones; a torn last record
  * (incomplete, or whole in length with a bad checksum) is dropped at restore
  * and cut off; damage before the last record is still refused; a queue file
  * that cannot be written is reported as unsaved until one is.
@@ -105,6 +106,20 @@ static off_t size_of(const char *path)
     return stat(path, &sb) == 0 ? sb.st_size : -1;
 }
 
+typedef struct commit_seen {
+    unsigned calls;
+    pt_status last;
+} commit_seen;
+
+static void on_commit_seen(void *ctx, uint64_t job_id, pt_status st, const pt_error *err)
+{
+    commit_seen *c = ctx;
+    (void)err;
+    CHECK(job_id == JOB_ID);
+    c->calls++;
+    c->last = st;
+}
+
 static void test_short_write_cut_back(const char *dir)
 {
     char log[512];
@@ -128,16 +143,42 @@ static void test_short_write_cut_back(const char *dir)
     lim = old;
     lim.rlim_cur = (rlim_t)(sizes[1] + w.len / 2);
     signal(SIGXFSZ, SIG_IGN);
+    /* The record is kept in memory; the write comes with the sync. */
+    CHECKF(srv_state_log_result(st, JOB_ID, w.buf, w.len, &err) == PT_OK, "%s", err.msg);
     CHECK(setrlimit(RLIMIT_FSIZE, &lim) == 0);
-    pt_status s = srv_state_log_result(st, JOB_ID, w.buf, w.len, &err);
+    pt_status s = srv_state_sync(st, &err);
     CHECK(setrlimit(RLIMIT_FSIZE, &old) == 0);
     CHECKF(s == PT_ERR_IO, "a cut-short write reported %d", s);
     CHECKF(size_of(log) == (off_t)sizes[1], "the log holds %lld bytes, not %llu",
            (long long)size_of(log), (unsigned long long)sizes[1]);
-    CHECK(srv_state_log_bytes(st, JOB_ID) == sizes[1]);
-    /* Space again: the record goes after the last whole one. */
-    CHECKF(srv_state_log_result(st, JOB_ID, w.buf, w.len, &err) == PT_OK, "%s", err.msg);
+    /* The record is kept; with space again it goes after the last whole one. */
+    CHECK(srv_state_log_bytes(st, JOB_ID) == sizes[1] + w.len);
     CHECK(srv_state_sync(st, &err) == PT_OK);
+    uint64_t whole = srv_state_log_bytes(st, JOB_ID);
+    CHECK(size_of(log) == (off_t)whole);
+
+    /* The same through the group commit, whose thread writes the records. */
+    proto_writer_fini(&w);
+    payload_of(src, 3, &w);
+    lim.rlim_cur = (rlim_t)(whole + w.len / 2);
+    CHECKF(srv_state_log_result(st, JOB_ID, w.buf, w.len, &err) == PT_OK, "%s", err.msg);
+    CHECK(setrlimit(RLIMIT_FSIZE, &lim) == 0);
+    commit_seen seen = {0};
+    uint64_t done = 0;
+    CHECK(srv_state_commit_start(st) == 1);
+    CHECK(srv_state_commit_collect(st, 1, &done, on_commit_seen, &seen) == 1);
+    CHECK(setrlimit(RLIMIT_FSIZE, &old) == 0);
+    CHECKF(seen.calls == 1 && seen.last == PT_ERR_IO, "%u calls, status %d", seen.calls, seen.last);
+    CHECKF(size_of(log) == (off_t)whole, "the log holds %lld bytes after a failed commit, not %llu",
+           (long long)size_of(log), (unsigned long long)whole);
+    /* Kept, and not tried again until the resync says so. */
+    CHECK(srv_state_log_bytes(st, JOB_ID) == whole + w.len);
+    CHECK(srv_state_commit_start(st) == 0);
+    CHECK(srv_state_log_resync(st, JOB_ID, &err) == PT_OK);
+    CHECK(srv_state_commit_start(st) == 1);
+    CHECK(srv_state_commit_collect(st, 1, &done, on_commit_seen, &seen) == 1);
+    CHECK(seen.calls == 2 && seen.last == PT_OK);
+    CHECK(size_of(log) == (off_t)srv_state_log_bytes(st, JOB_ID));
     proto_writer_fini(&w);
     srv_job_free(src);
     srv_state_close(st);
@@ -145,7 +186,7 @@ static void test_short_write_cut_back(const char *dir)
     uint32_t replayed = 0;
     int torn = 0;
     CHECKF(restore(dir, &replayed, &torn, &err) == PT_OK, "%s", err.msg);
-    CHECKF(replayed == 3 && torn == 0, "%u replayed, torn %d", replayed, torn);
+    CHECKF(replayed == 4 && torn == 0, "%u replayed, torn %d", replayed, torn);
     pt_remove_tree(dir);
 }
 
