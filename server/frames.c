@@ -154,6 +154,16 @@ int srv_frames_ready(srv_server *s, srv_entry *p)
     return fill(s, p);
 }
 
+void srv_frames_forget_done(srv_server *s, const srv_entry *p)
+{
+    const srv_job_record *r = &p->rec;
+    uint32_t count = pt_frames_count(&r->frames);
+    for (uint32_t i = 0; i < count; i++)
+        if (is_done(r, i))
+            srv_state_forget_job(s->state,
+                                 srv_frame_job_id(r->id, pt_frames_number(&r->frames, i)));
+}
+
 void srv_frames_end(srv_server *s, srv_entry *p, uint8_t state, const char *message)
 {
     srv_entry *f;

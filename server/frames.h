@@ -58,6 +58,11 @@ void srv_frames_pose(const srv_entry *f, proto_task *t);
  * queue file next, then removes f's files). */
 void srv_frames_note_done(srv_entry *f);
 
+/* Removes the state folders of range p's frames its record says are done: a
+ * kill -9 between the queue file saying so and the folder's removal leaves
+ * one behind (called once, as the queue is loaded). */
+void srv_frames_forget_done(srv_server *s, const srv_entry *p);
+
 /* The range p ends early (cancelled, failed): ends its frames so. */
 void srv_frames_end(srv_server *s, srv_entry *p, uint8_t state, const char *message);
 

@@ -314,8 +314,11 @@ static pt_status setup_queue(srv_server *s, pt_error *err)
                 s->out_dir);
     /* Resume the running jobs now: their checkpoints are checked at start. */
     for (srv_entry *j = s->jobs; j; j = j->next)
-        if (j->rec.state == PROTO_JOB_RUNNING)
+        if (j->rec.state == PROTO_JOB_RUNNING) {
+            if (j->rec.frames.step)
+                srv_frames_forget_done(s, j);
             srv_entry_ready(s, j);
+        }
     return PT_OK;
 }
 
