@@ -61,6 +61,8 @@ typedef struct rec_buf {
 /* Appends n bytes; 0, or -1 out of memory. */
 static int rec_append(rec_buf *r, const uint8_t *p, size_t n)
 {
+    if (n == 0)
+        return 0; /* p may be NULL */
     if (n > r->cap - r->len) {
         size_t cap = r->cap ? r->cap : 64 * 1024;
         while (cap - r->len < n)
