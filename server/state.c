@@ -85,7 +85,7 @@ typedef struct log_file {
     uint64_t durable; /* what the last successful commit covered (<= bytes) */
     uint32_t epoch;   /* bumped when the file is cut to its header or replaced */
     int dirty;        /* written (or to be synced) since its last commit began */
-    int cut;          /* a write was cut short and the cut back to bytes failed */
+    int cut;          /* a write was cut short and the cut back failed */
     int fresh;        /* made since its last commit: its folder entry is synced too */
     rec_buf out;      /* records logged, not yet handed to a commit (bytes - out.len:
                        * what the file holds or a commit in flight writes) */
@@ -256,7 +256,6 @@ static int write_out(log_file *l)
         return 0;
     }
     int e = errno;
-    l->cut = 1;
     cut_back(l);
     errno = e;
     return -1;
@@ -652,11 +651,13 @@ static pt_status open_log(srv_state *st, uint64_t id, log_file **out, pt_error *
     return PT_OK;
 }
 
-/* Truncates the log to its known length (l->bytes), dropping a partial
- * record; clears l->cut on success. Returns 0, or -1 with errno kept. */
+/* Truncates the file to the records written (l->bytes less those still in
+ * memory), dropping a partial record; l->cut says whether that is still to
+ * do. Returns 0, or -1 with errno kept. */
 static int cut_back(log_file *l)
 {
     int saved = errno;
+    l->cut = 1;
     if (ftruncate(l->fd, (off_t)(l->bytes - l->out.len)) != 0)
         return -1;
     l->cut = 0;
@@ -867,7 +868,6 @@ int srv_state_commit_collect(srv_state *st, int wait, uint64_t *done, srv_commit
                 l->out.len = 0;
                 outcome = PT_ERR_NOMEM;
             }
-            l->cut = 1;
             cut_back(l);
             l->dirty = 0;
             l->fresh |= it->fresh;
