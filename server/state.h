@@ -175,8 +175,9 @@ pt_status srv_state_restore(srv_state *st, srv_job *job, srv_ckpt_extra *extra, 
  * loop does no disk work per result), or srv_state_sync on the caller's
  * thread; the result may be merged once the commit srv_state_commit_next said
  * before this call has returned. A write that fails (err->sys_errno ENOSPC,
- * EDQUOT, EIO...) fails that commit or sync: the log is cut back to its last
- * whole record and the records since are gone, never merged. Fails itself
+ * EDQUOT, EIO...) fails that commit or sync: the file is cut back to its last
+ * whole record and the records since stay in memory, written again later
+ * (srv_state_commit_collect, srv_state_log_resync). Fails itself
  * (PT_ERR_IO, PT_ERR_NOMEM) only when the log cannot be opened or cut back,
  * or memory is short; the result must not be merged then. */
 pt_status srv_state_log_result(srv_state *st, uint64_t id, const uint8_t *frame, size_t len,
@@ -186,15 +187,19 @@ uint64_t srv_state_log_bytes(const srv_state *st, uint64_t id);
 
 /* The group commit. srv_state_commit_next: the number of the commit a record
  * logged now will be in. srv_state_commit_start (once per loop round) hands
- * every log written since the last commit to the commit thread, which
- * writes their records and fdatasyncs them; it does nothing while one is in flight (returns 0) or
- * when nothing was written. The thread makes srv_state_commit_fd (an eventfd, for the loop's epoll
- * set) readable when it is done; srv_state_commit_collect then returns 1 with *done the commit's
- * number, having called fn for each job's log in it: PT_OK (every record logged before it began is
- * durable) or PT_ERR_IO (the fdatasync failed: the log is cut back to what the last good commit
- * covered, every record since is gone, and srv_state_log_resync then the next commit that succeeds
- * say when it takes writes again). wait: block until the commit in flight is done. Returns 0 when
- * none was collected. */
+ * every log written since the last commit to the commit thread, which writes
+ * their records and fdatasyncs them; it does nothing while one is in flight
+ * (returns 0) or when nothing was written. The thread makes
+ * srv_state_commit_fd (an eventfd, for the loop's epoll set) readable when it
+ * is done; srv_state_commit_collect then returns 1 with *done the commit's
+ * number, having called fn for each job's log in it: PT_OK (every record
+ * logged before it began is durable); PT_ERR_IO (the write or fdatasync
+ * failed: the file is cut back to what the last good commit covered, every
+ * record since is kept in memory, and the log is left out of commits until
+ * srv_state_log_resync; the next commit that succeeds says it takes writes
+ * again); PT_ERR_NOMEM (the same, but memory to keep the records was short:
+ * they are gone, never merged). wait: block until the commit in flight is
+ * done. Returns 0 when none was collected. */
 typedef void (*srv_commit_fn)(void *ctx, uint64_t job_id, pt_status st, const pt_error *err);
 int srv_state_commit_fd(const srv_state *st);
 uint64_t srv_state_commit_next(const srv_state *st);
