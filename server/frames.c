@@ -154,14 +154,18 @@ int srv_frames_ready(srv_server *s, srv_entry *p)
     return fill(s, p);
 }
 
+static void forget_frame(srv_server *s, const srv_job_record *r, uint32_t idx)
+{
+    srv_state_forget_job(s->state, srv_frame_job_id(r->id, pt_frames_number(&r->frames, idx)));
+}
+
 void srv_frames_forget_done(srv_server *s, const srv_entry *p)
 {
     const srv_job_record *r = &p->rec;
-    uint32_t count = pt_frames_count(&r->frames);
-    for (uint32_t i = 0; i < count; i++)
-        if (is_done(r, i))
-            srv_state_forget_job(s->state,
-                                 srv_frame_job_id(r->id, pt_frames_number(&r->frames, i)));
+    for (uint32_t i = 0; i < r->frames_done; i++)
+        forget_frame(s, r, i);
+    for (uint32_t k = 0; k < r->ndone_ahead; k++)
+        forget_frame(s, r, r->done_ahead[k]);
 }
 
 void srv_frames_end(srv_server *s, srv_entry *p, uint8_t state, const char *message)
