@@ -85,7 +85,11 @@ static void check_scene(const pt_scene *s)
     FUZZ_CHECK(isfinite(c->position.x) && isfinite(c->position.y) && isfinite(c->position.z));
     FUZZ_CHECK(near1(pt_v3_dot(c->forward, c->forward)) && near1(pt_v3_dot(c->right, c->right)) &&
                near1(pt_v3_dot(c->up, c->up)));
-    FUZZ_CHECK(c->yfov > 0 && c->yfov < 3.1416f);
+    if (c->ortho)
+        FUZZ_CHECK(c->yfov == 0 && c->xmag > 0 && c->xmag <= PT_SCENE_MAX_COORD && c->ymag > 0 &&
+                   c->ymag <= PT_SCENE_MAX_COORD);
+    else
+        FUZZ_CHECK(c->yfov > 0 && c->yfov < 3.1416f);
 }
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)

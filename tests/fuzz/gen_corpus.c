@@ -223,7 +223,8 @@ static void gen_gltf(const char *dir)
     free(uri.p);
 
     /* External buffer and PNG texture; then the same asking for a camera,
-     * with a PPM image, and with a name that leads out of the folder. */
+     * with a PPM image, with a name that leads out of the folder, and for
+     * the orthographic camera (its yfov is 0). */
     static const struct {
         const char *name, *buffer, *image, *camera;
         const uint8_t *img;
@@ -233,6 +234,7 @@ static void gen_gltf(const char *dir)
         {"tri_bin_ppm_cam", "./b%2ebin", "{\"uri\":\"i.png\",\"mimeType\":\"image/png\"}", "cam",
          (const uint8_t *)k_ppm, sizeof k_ppm - 1},
         {"tri_escape", "../b.bin", "{\"uri\":\"/etc/passwd\"}", "ortho", k_png, sizeof k_png},
+        {"tri_bin_ortho", "b.bin", "{\"uri\":\"i.png\"}", "ortho", k_png, sizeof k_png},
     };
     for (size_t i = 0; i < sizeof ext / sizeof ext[0]; i++) {
         b.len = 0;
