@@ -1,5 +1,6 @@
 #include "server/job.h"
 
+#include <assert.h>
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
@@ -50,6 +51,7 @@ typedef struct held {
     uint32_t task;
     uint64_t owner;
     pt_pixel_acc *px;
+    uint64_t samples; /* the sum of px's n */
 } held;
 
 /* A verification in progress: the task's first result (owner[0], hash[0]),
@@ -126,6 +128,8 @@ struct srv_job {
     uint64_t uncut;                 /* pixel-samples of every tile's [frontier, spp) */
     double farm_rate;               /* sum of the live leases' rates */
     pt_film *film;
+    srv_adder *adder; /* srv_job_set_adder: film adds go to its threads */
+    srv_adds *adds;   /* those in flight (its own allocation: settled from const) */
     /* deadlines, backups, verification and sizing (srv_job_set_policy) */
     srv_lease_policy pol;
     double times[TIMES];  /* ms per pixel-sample of merged results, in arrival order */
@@ -140,6 +144,14 @@ struct srv_job {
     uint32_t owner_map_cap;
     srv_verify_stats vs;
 };
+
+/* Waits for the job's adds in flight: the film's pixels are then the
+ * merged tasks' sums (every read of them on the loop comes after this). */
+static void settle(const srv_job *j)
+{
+    if (j->adder)
+        srv_adder_settle(j->adder, j->adds);
+}
 
 static uint32_t tile_pixels(const srv_job *j, uint32_t tile)
 {
@@ -377,6 +389,8 @@ void srv_job_free(srv_job *j)
 {
     if (!j)
         return;
+    settle(j);
+    pt_free(j->adds);
     for (uint32_t i = 0; i < j->nheld; i++)
         pt_free(j->held[i].px);
     pt_free(j->held);
@@ -390,6 +404,20 @@ void srv_job_free(srv_job *j)
     pt_free(j->heap);
     pt_film_free(j->film);
     pt_free(j);
+}
+
+pt_status srv_job_set_adder(srv_job *j, srv_adder *a, pt_error *err)
+{
+    settle(j);
+    if (a && !j->adds && !(j->adds = pt_calloc(1, sizeof *j->adds)))
+        return pt_error_set(err, PT_ERR_NOMEM, "job: out of memory");
+    j->adder = a;
+    return PT_OK;
+}
+
+void srv_job_settle(const srv_job *j)
+{
+    settle(j);
 }
 
 uint64_t srv_job_id(const srv_job *j)
@@ -456,6 +484,7 @@ int srv_job_complete(const srv_job *j)
 }
 const pt_film *srv_job_film(const srv_job *j)
 {
+    settle(j);
     return j->film;
 }
 uint32_t srv_job_tiles(const srv_job *j)
@@ -980,13 +1009,30 @@ static void stop_tile(srv_job *j, uint32_t tile)
     tile_moved(j, ts->merged, j->p.spp);
 }
 
-/* Adds task t, the first unmerged of its tile, to the film. */
-static void merge_now(srv_job *j, uint32_t t, const pt_pixel_acc *px)
+/* Adds task t, the first unmerged of its tile, to the film: px holds its
+ * sums, samples in all (the sum of their n). owned: px is the job's to
+ * free (pt_malloc), so the add may go to the adder's threads. */
+static void merge_now(srv_job *j, uint32_t t, pt_pixel_acc *px, uint64_t samples, int owned)
 {
     task *k = &j->tasks[t];
     tile_state *ts = &j->tiles[k->tile];
     pt_rect r = tile_rect(j, k->tile);
-    j->samples += pt_film_add_tile(j->film, r, px);
+    /* Only at a decision point, which no task crosses (max_end): the
+     * decision sees the same sums however the samples before were split
+     * (with the min gain, the task is the chunk before the point). It reads
+     * the tile's sums, so the adds in flight land first. */
+    int decide = decision_point(j, k->s1) && (j->p.min_gain <= 0.0 || k->s1 - k->s0 == j->p.chunk);
+    if (j->adder && owned && !decide) {
+        srv_adder_post(j->adder, j->adds, j->film, r, px);
+        owned = 0;
+    } else {
+        if (decide)
+            settle(j);
+        uint64_t added = pt_film_add_tile(j->film, r, px);
+        assert(added == samples); /* validated: n sums to the samples less rejections */
+        (void)added;
+    }
+    j->samples += samples;
     k->state = T_MERGED;
     j->merged++;
     uint32_t from = ts->merged;
@@ -997,15 +1043,13 @@ static void merge_now(srv_job *j, uint32_t t, const pt_pixel_acc *px)
     if (ts->merged == j->p.spp)
         j->tiles_done++;
     tile_moved(j, from, ts->merged);
-    /* Only at a decision point, which no task crosses (max_end): the
-     * decision sees the same sums however the samples before were split
-     * (with the min gain, the task is the chunk before the point). */
     pt_adaptive rule = {j->p.target_error, j->p.min_gain, j->p.min_spp};
     uint32_t tw = r.x1 - r.x0;
-    if (decision_point(j, k->s1) && (j->p.min_gain <= 0.0 || k->s1 - k->s0 == j->p.chunk) &&
-        pt_tile_stops(&j->film->px[(size_t)r.y0 * j->p.width + r.x0], j->p.width, px, tw, tw,
-                      r.y1 - r.y0, k->s1, &rule))
+    if (decide && pt_tile_stops(&j->film->px[(size_t)r.y0 * j->p.width + r.x0], j->p.width, px, tw,
+                                tw, r.y1 - r.y0, k->s1, &rule))
         stop_tile(j, k->tile);
+    if (owned)
+        pt_free(px);
 }
 
 /* Merges the held tasks of a tile that have become next in line. */
@@ -1015,10 +1059,9 @@ static void merge_held(srv_job *j, uint32_t tile)
         uint32_t t = j->tiles[tile].head;
         if (t == NONE || j->tasks[t].state != T_HELD)
             return;
-        pt_pixel_acc *px = j->held[j->tasks[t].held].px;
+        held h = j->held[j->tasks[t].held];
         held_remove(j, j->tasks[t].held);
-        merge_now(j, t, px);
-        pt_free(px);
+        merge_now(j, t, h.px, h.samples, 1);
     }
 }
 
@@ -1288,15 +1331,24 @@ static void accepted(srv_job *j, uint32_t t, int li, const proto_result *r, uint
         add_check(j, t, l.owner, r);
 }
 
-/* Merges or holds r, the result of task t (validated); li: its lease or -1. */
+/* Merges or holds r, the result of task t (validated); li: its lease or -1.
+ * own: NULL, or where r's pixels are when the caller gives them up (they are
+ * pt_malloc'ed); *own becomes NULL when the job took them. */
 static srv_outcome merge_task(srv_job *j, uint32_t t, int li, const proto_result *r,
-                              uint64_t now_ms, pt_error *err)
+                              pt_pixel_acc **own, uint64_t now_ms, pt_error *err)
 {
     uint32_t tile = j->tasks[t].tile;
+    /* Validated: each pixel lacks exactly the samples reported rejected. */
+    uint64_t samples = (uint64_t)r->npixels * (r->s1 - r->s0) - r->rejected;
     if (j->tiles[tile].head == t) {
         accepted(j, t, li, r, now_ms);
         j->capped += r->capped;
-        merge_now(j, t, r->pixels);
+        if (own) {
+            merge_now(j, t, *own, samples, 1);
+            *own = NULL;
+        } else {
+            merge_now(j, t, r->pixels, samples, 0);
+        }
         merge_held(j, tile);
         return SRV_MERGED;
     }
@@ -1307,11 +1359,16 @@ static srv_outcome merge_task(srv_job *j, uint32_t t, int li, const proto_result
             goto nomem;
         j->held = n;
     }
-    pt_pixel_acc *copy = pt_malloc_array(r->npixels, sizeof *copy);
-    if (!copy)
-        goto nomem;
-    memcpy(copy, r->pixels, (size_t)r->npixels * sizeof *copy);
-    j->held[j->nheld] = (held){t, li >= 0 ? j->leases[li].owner : 0, copy};
+    pt_pixel_acc *copy;
+    if (own) {
+        copy = *own;
+        *own = NULL;
+    } else {
+        if (!(copy = pt_malloc_array(r->npixels, sizeof *copy)))
+            goto nomem;
+        memcpy(copy, r->pixels, (size_t)r->npixels * sizeof *copy);
+    }
+    j->held[j->nheld] = (held){t, li >= 0 ? j->leases[li].owner : 0, copy, samples};
     j->tasks[t].held = j->nheld++;
     accepted(j, t, li, r, now_ms);
     j->capped += r->capped;
@@ -1332,13 +1389,26 @@ srv_outcome srv_job_result(srv_job *j, uint64_t owner, const proto_result *r, pt
         srv_job_check(j, li, r, &v);
         return SRV_CHECK;
     }
-    return o == SRV_MERGED ? merge_task(j, j->leases[li].task, li, r, 0, err) : o;
+    return o == SRV_MERGED ? merge_task(j, j->leases[li].task, li, r, NULL, 0, err) : o;
 }
 
-srv_outcome srv_job_result_validated(srv_job *j, int lease_index, const proto_result *r,
-                                     uint64_t now_ms, pt_error *err)
+/* merge_task, taking r's pixels when r owns them. */
+static srv_outcome merge_taking(srv_job *j, uint32_t t, int li, proto_result *r, uint64_t now_ms,
+                                pt_error *err)
 {
-    return merge_task(j, j->leases[lease_index].task, lease_index, r, now_ms, err);
+    pt_pixel_acc *own = r->owns_pixels ? r->pixels : NULL;
+    srv_outcome o = merge_task(j, t, li, r, own ? &own : NULL, now_ms, err);
+    if (r->owns_pixels && !own) {
+        r->pixels = NULL;
+        r->owns_pixels = 0;
+    }
+    return o;
+}
+
+srv_outcome srv_job_result_validated(srv_job *j, int lease_index, proto_result *r, uint64_t now_ms,
+                                     pt_error *err)
+{
+    return merge_taking(j, j->leases[lease_index].task, lease_index, r, now_ms, err);
 }
 
 /* 1 when [s0, s1) may be one task: within spp, crossing no decision point,
@@ -1450,7 +1520,7 @@ void srv_job_answered(srv_job *j, int lease_index)
         j->leases[lease_index].answered = 1;
 }
 
-srv_outcome srv_job_replay(srv_job *j, const proto_result *r, pt_error *err)
+srv_outcome srv_job_replay(srv_job *j, proto_result *r, pt_error *err)
 {
     if (r->job_id != j->id) {
         pt_error_set(err, PT_ERR_PROTO, "result for job %llu, not the running job %llu",
@@ -1471,7 +1541,7 @@ srv_outcome srv_job_replay(srv_job *j, const proto_result *r, pt_error *err)
         return SRV_DUPLICATE;
     if (!pixels_plausible(r, r->s1 - r->s0, err))
         return SRV_INVALID;
-    return merge_task(j, t, -1, r, 0, err);
+    return merge_taking(j, t, -1, r, 0, err);
 }
 
 void srv_job_check(srv_job *j, int li, const proto_result *r, srv_verdict *v)
@@ -1708,6 +1778,7 @@ void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, i
 
 pt_status srv_job_save(const srv_job *j, proto_writer *w, pt_error *err)
 {
+    settle(j);
     proto_w_u32(w, CKPT_MAGIC);
     proto_w_u32(w, CKPT_VERSION);
     proto_w_u64(w, j->id);
@@ -1849,9 +1920,12 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
         pt_pixel_acc *px = pt_malloc_array(npx, sizeof *px);
         if (!px)
             return pt_error_set(err, PT_ERR_NOMEM, "checkpoint: out of memory");
-        for (uint32_t k = 0; k < npx; k++)
+        uint64_t samples = 0;
+        for (uint32_t k = 0; k < npx; k++) {
             get_acc(&r, &px[k], version);
-        j->held[j->nheld] = (held){t, 0, px};
+            samples += px[k].n;
+        }
+        j->held[j->nheld] = (held){t, 0, px, samples};
         j->tasks[t].held = j->nheld++;
         j->tasks[t].state = T_HELD;
         for (uint32_t k = 0; k < npx; k++)
@@ -1884,6 +1958,7 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
 
 srv_job *srv_job_snapshot(const srv_job *j)
 {
+    settle(j);
     /* What srv_job_save reads, and nothing else: the sizes, the tiles' merged
      * samples, the held results (each with a copy of its task, numbered as
      * its place in held[], for its tile and range) and the film. */
@@ -1920,7 +1995,7 @@ srv_job *srv_job_snapshot(const srv_job *j)
         memcpy(px, j->held[i].px, npx * sizeof *px);
         c->tasks[i] = (task){k->tile, k->s0, k->s1, NONE, NONE, i, T_HELD};
         c->ntasks = c->tasks_cap = i + 1;
-        c->held[c->nheld++] = (held){i, j->held[i].owner, px};
+        c->held[c->nheld++] = (held){i, j->held[i].owner, px, j->held[i].samples};
     }
     return c;
 }

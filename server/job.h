@@ -83,6 +83,7 @@
 #include "common/render/film.h"
 #include "common/render/render.h"
 #include "protocol/msg.h"
+#include "server/adder.h"
 
 typedef struct srv_job_params {
     uint32_t width, height;
@@ -172,7 +173,19 @@ typedef void (*srv_miss_fn)(void *ctx, uint64_t owner, uint64_t task);
  * PT_ERR_LIMIT when its fixed chunks would pass SRV_MAX_TASKS. */
 pt_status srv_job_new(uint64_t id, const srv_job_params *p, const uint8_t scene_hash[32],
                       srv_job **out, pt_error *err);
-void srv_job_free(srv_job *job); /* accepts NULL */
+void srv_job_free(srv_job *job); /* accepts NULL; settles first */
+
+/* Film adds through a (server/adder.h; NULL: made at once, the default):
+ * a merged task's add is posted when the job may free its pixels (a result
+ * that owns them, a held one) and the task ends at no adaptive decision
+ * point (that decision reads the tile's sums). The film's pixels are then
+ * behind the merge until settled: srv_job_film, srv_job_save,
+ * srv_job_snapshot, srv_job_free and the decisions settle first, and so must
+ * any other reader. The sample counts (srv_job_samples_merged) never lag.
+ * a must outlive the job. */
+pt_status srv_job_set_adder(srv_job *job, srv_adder *a, pt_error *err);
+/* Waits until every add of the job's merged tasks is in its film. */
+void srv_job_settle(const srv_job *job);
 
 uint64_t srv_job_id(const srv_job *job);
 const srv_job_params *srv_job_params_of(const srv_job *job);
@@ -240,8 +253,10 @@ srv_outcome srv_job_validate(const srv_job *job, uint64_t owner, const proto_res
 /* srv_job_result for a result that srv_job_validate accepted (lease_index: what
  * it gave), the job unchanged since: merges or holds it without looking up its
  * lease or validating its task and pixels again. now_ms: when it arrived, so
- * that the task's time is learnt for the deadlines (0: learn nothing). */
-srv_outcome srv_job_result_validated(srv_job *job, int lease_index, const proto_result *r,
+ * that the task's time is learnt for the deadlines (0: learn nothing). When r
+ * owns its pixels (r->owns_pixels) the job may take them: r->pixels is then
+ * NULL and r->owns_pixels 0. */
+srv_outcome srv_job_result_validated(srv_job *job, int lease_index, proto_result *r,
                                      uint64_t now_ms, pt_error *err);
 
 /* Marks the lease a result srv_job_validate accepted answers (lease_index:
@@ -255,8 +270,9 @@ void srv_job_answered(srv_job *job, int lease_index);
  * are per run): the task cut so, else cut to fit from a pending task or the
  * tile's uncut samples (what it leaves pending is requeued); SRV_INVALID
  * when the range overlaps tasks cut otherwise. Duplicates are dropped, so a
- * log that overlaps the checkpoint is harmless. */
-srv_outcome srv_job_replay(srv_job *job, const proto_result *r, pt_error *err);
+ * log that overlaps the checkpoint is harmless. Takes r's pixels as
+ * srv_job_result_validated may. */
+srv_outcome srv_job_replay(srv_job *job, proto_result *r, pt_error *err);
 
 /* 1 when owner holds a lease of this job. */
 int srv_job_owner_active(const srv_job *job, uint64_t owner);
@@ -319,6 +335,7 @@ uint32_t srv_job_leases(const srv_job *job);
  * waits for its third render; checks that have not found a mismatch are
  * dropped with the job. */
 int srv_job_complete(const srv_job *job);
+/* The job's film, settled (srv_job_set_adder). */
 const pt_film *srv_job_film(const srv_job *job);
 
 #endif

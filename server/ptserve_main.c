@@ -158,6 +158,9 @@ static void usage(FILE *f)
         "  --min-rate KIB         past the grace, a frame or upload must average this\n"
         "                         many KiB/s from its first byte, or the peer is closed\n"
         "                         (default 16)\n"
+        "  --merge-threads N      threads that add results to the images (default 2;\n"
+        "                         0: the event loop adds them itself); the loop still\n"
+        "                         decides every merge, so images are the same bits\n"
         "  --worker-bin PATH      the ptworker to start with --local (default: beside ptserve)\n"
         "  -q, --quiet            no progress line\n"
         "  -h, --help             this text\n"
@@ -181,6 +184,7 @@ int main(int argc, char **argv)
     c.job.max_depth = PT_RENDER_DEFAULT_MAX_DEPTH;
     c.job.rr_depth = 3;
     c.save_interval = 5.0;
+    c.merge_threads = SRV_DEFAULT_MERGE_THREADS;
     c.verify_fraction = 0.02;
     c.caps.max_side = PT_RENDER_MAX_SIDE;
     c.caps.max_pixels = 16777216;
@@ -236,7 +240,8 @@ int main(int argc, char **argv)
         O_HTTPPORT,
         O_TRANSPARENT,
         O_TASKTIME,
-        O_SHUTTER
+        O_SHUTTER,
+        O_MERGETHREADS
     };
     static const struct option opts[] = {
         {"output", required_argument, NULL, 'o'},
@@ -257,6 +262,7 @@ int main(int argc, char **argv)
         {"tile", required_argument, NULL, O_TILE},
         {"chunk", required_argument, NULL, O_CHUNK},
         {"task-time", required_argument, NULL, O_TASKTIME},
+        {"merge-threads", required_argument, NULL, O_MERGETHREADS},
         {"save-interval", required_argument, NULL, O_SAVE},
         {"lease-timeout", required_argument, NULL, O_LEASE},
         {"port-file", required_argument, NULL, O_PORTFILE},
@@ -307,6 +313,10 @@ int main(int argc, char **argv)
             break;
         case O_WTHREADS:
             st = pt_opt_u32("--worker-threads", optarg, 1, 1024, &c.worker_threads, &err);
+            break;
+        case O_MERGETHREADS:
+            st = pt_opt_u32("--merge-threads", optarg, 0, SRV_ADDER_MAX_THREADS, &c.merge_threads,
+                            &err);
             break;
         case O_LISTEN:
             c.listen = optarg;

@@ -236,6 +236,7 @@ void srv_queue_info(const srv_server *s, const srv_entry *j, proto_job_info *m)
 
 void srv_entry_save_image(srv_entry *j)
 {
+    srv_job_settle(j->job); /* the image holds every sample counted merged */
     pt_exr_meta meta = {0};
     meta.total_samples = srv_job_samples_merged(j->job); /* the writer's resolve recounts */
     meta.render_seconds = srv_entry_seconds(j, pt_now_ms());
@@ -534,6 +535,8 @@ int srv_entry_ready(srv_server *s, srv_entry *j)
         return srv_frames_ready(s, j);
     pt_error err = {0};
     pt_status st = srv_job_new(j->rec.id, &j->rec.params, j->rec.hash, &j->job, &err);
+    if (st == PT_OK)
+        st = srv_job_set_adder(j->job, s->adder, &err);
     if (st == PT_OK && s->state) {
         srv_ckpt_extra x;
         uint32_t replayed;
@@ -806,9 +809,11 @@ static void merge_durable(srv_server *s, srv_entry *j, uint64_t done)
         srv_pending *p = &j->pend[i];
         proto_result r;
         pt_error err = {0};
+        /* With merge threads, into a buffer of its own that the job takes. */
         if (j->job && srv_entry_active(j) &&
             proto_msg_decode_result(p->frame + PROTO_FRAME_HEADER, p->len - PROTO_FRAME_OVERHEAD,
-                                    s->scratch, PROTO_MAX_TILE_PIXELS, &r, &err) == PT_OK) {
+                                    s->adder ? NULL : s->scratch, PROTO_MAX_TILE_PIXELS, &r,
+                                    &err) == PT_OK) {
             srv_workers_merge_durable(s, j, p->owner, &r, p->arrived);
             proto_result_fini(&r);
         }

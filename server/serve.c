@@ -35,6 +35,8 @@ static pt_status setup(srv_server *s, pt_error *err)
     s->scratch = pt_malloc_array(PROTO_MAX_TILE_PIXELS, sizeof *s->scratch);
     if (!s->scratch)
         return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
+    if (cfg->merge_threads && (st = srv_adder_new(cfg->merge_threads, &s->adder, err)) != PT_OK)
+        return st;
     if ((st = s->mode->setup(s, err)) != PT_OK)
         return st;
     if ((st = srv_loop_open(s, err)) != PT_OK)
@@ -94,6 +96,7 @@ done:
     srv_local_stop(&s.local);
     srv_loop_close(&s);
     srv_queue_free(&s);
+    srv_adder_free(s.adder); /* after the jobs: each settled as it was freed */
     srv_clients_free(s.clients);
     pt_free(s.scratch);
     return rc;

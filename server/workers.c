@@ -192,7 +192,7 @@ static void on_verdict(srv_server *s, srv_entry *j, const srv_verdict *v)
 
 /* Merges r (validated, lease_index what srv_job_validate gave, the job
  * unchanged since) and counts it. */
-static srv_outcome merge_now(srv_server *s, srv_entry *j, int lease_index, const proto_result *r,
+static srv_outcome merge_now(srv_server *s, srv_entry *j, int lease_index, proto_result *r,
                              uint64_t arrived, uint64_t *merged, pt_error *err)
 {
     uint64_t before = srv_job_samples_merged(j->job);
@@ -206,7 +206,7 @@ static srv_outcome merge_now(srv_server *s, srv_entry *j, int lease_index, const
     return o;
 }
 
-void srv_workers_merge_durable(srv_server *s, srv_entry *j, uint64_t owner, const proto_result *r,
+void srv_workers_merge_durable(srv_server *s, srv_entry *j, uint64_t owner, proto_result *r,
                                uint64_t arrived)
 {
     pt_error err = {0};
@@ -236,7 +236,10 @@ static void on_result(srv_server *s, srv_conn *c, const proto_frame *f)
 {
     proto_result r;
     pt_error err = {0};
-    if (proto_msg_decode_result(f->payload, f->len, s->scratch, PROTO_MAX_TILE_PIXELS, &r, &err) !=
+    /* Merged now and with merge threads: into a buffer of its own, which the
+     * job takes for the add (in queue mode the log's copy is merged). */
+    pt_pixel_acc *buf = s->adder && !s->state ? NULL : s->scratch;
+    if (proto_msg_decode_result(f->payload, f->len, buf, PROTO_MAX_TILE_PIXELS, &r, &err) !=
         PT_OK) {
         srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "bad RESULT: %s", err.msg);
         return;

@@ -5,9 +5,11 @@
  * fills with tasks (server/queue.h); SCENE_GET is answered with a chunk of
  * the bundle of the active job with that hash; HEARTBEAT moves the heartbeat
  * deadline of the worker's leases (never their hard deadline, server/job.h);
- * RESULT is decoded into s->scratch, validated against the job's lease
- * (srv_job_validate), logged durably (when there is a state folder) and only
- * then merged, so the results log holds every result the film holds. A
+ * RESULT is decoded (into s->scratch, or with merge threads and no state
+ * folder into a buffer the job takes for its add, server/adder.h), validated
+ * against the job's lease (srv_job_validate), logged durably (when there is a
+ * state folder) and only then merged, so the results log holds every result
+ * the film holds. A
  * result that is malformed, implausible or inconsistent with its task is the
  * worker's fault (ERROR, closed); a late or duplicate one is dropped. The
  * answer to a verification copy is compared, never logged or merged.
@@ -34,8 +36,9 @@
 void srv_workers_dispatch(srv_server *s, srv_conn *c, const proto_frame *f);
 
 /* Merges r, a result of j from owner (a connection id, maybe gone now) held
- * until its log record was durable (server/queue.h), and counts it. */
-void srv_workers_merge_durable(srv_server *s, srv_entry *j, uint64_t owner, const proto_result *r,
+ * until its log record was durable (server/queue.h), and counts it. The job
+ * may take r's pixels when r owns them (srv_job_result_validated). */
+void srv_workers_merge_durable(srv_server *s, srv_entry *j, uint64_t owner, proto_result *r,
                                uint64_t arrived);
 
 /* A lease of worker connection owner passed a deadline at now (ms): counts a

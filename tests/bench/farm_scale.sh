@@ -21,6 +21,10 @@
 # workers' connections, ss -ti). CPU time, not wall time: the machine may be
 # shared. Reported per mode as medians over --runs:
 #   loop us/result   loop CPU per RESULT frame
+#   merge us/result  CPU of the merge threads (ptserve --merge-threads,
+#                    threads named pt-merge: the film adds) per RESULT
+#                    frame, all of them together; they run beside the loop,
+#                    so this spreads over their number of cores
 #   results/s        RESULT frames per second of the job's wall time
 #   bytes/sample     coordinator socket bytes (in + out) per sample merged
 #   MB/Mpixel        ptserve's peak resident memory (VmHWM) per megapixel of
@@ -129,6 +133,19 @@ loop_ns() {
   echo $((( ${12} + ${13}) * 1000000000 / $(getconf CLK_TCK)))
 }
 
+# CPU time in ns of ptserve's threads named pt-merge (the film adds), all
+# together; 0 when it has none.
+merge_ns() {
+  local pid=$1 d ns rest sum=0 name
+  for d in /proc/"$pid"/task/*; do
+    read -r name < "$d/comm" 2>/dev/null || continue
+    [[ $name == pt-merge ]] || continue
+    read -r ns rest < "$d/schedstat" 2>/dev/null || continue
+    sum=$((sum + ns))
+  done
+  echo "$sum"
+}
+
 # The process's peak resident memory in KiB.
 vm_hwm() { awk '/^VmHWM:/ {print $2}' "/proc/$1/status" 2>/dev/null; }
 
@@ -173,9 +190,10 @@ socket_bytes() {
     grep -oE 'bytes_(sent|received):[0-9]+' | awk -F: '{s += $2} END {printf "%.0f\n", s}'
 }
 
-# One run of one mode: sets line to "results samples loop_ns wall_s bytes".
+# One run of one mode: sets line to "results samples loop_ns wall_s bytes
+# peak_KiB merge_ns".
 run_one_job() {
-  local c=$1 s=$2 dir=$3 args=() port cpu last
+  local c=$1 s=$2 dir=$3 args=() port cpu last mlast=0 m
   mkdir -p "$dir"
   [[ -n $c ]] && args+=(--chunk "$c")
   "$bin/ptserve" --listen 127.0.0.1:0 --port-file "$dir/port" --res "$res" --spp "$s" \
@@ -192,6 +210,8 @@ run_one_job() {
   local hwm=0 v
   while cpu=$(loop_ns "$sp" 2>/dev/null); do
     last=$cpu
+    m=$(merge_ns "$sp")
+    ((m < mlast)) || mlast=$m
     v=$(vm_hwm "$sp")
     hwm=${v:-$hwm}
     sleep 0.05
@@ -203,11 +223,11 @@ run_one_job() {
   wall=$(sed -n 's/.*done in \([0-9.]*\)s:.*/\1/p' "$dir/serve.log")
   bytes=$(sed -n 's/.*wire: \([0-9]*\) bytes in, \([0-9]*\) out.*/\1 \2/p' "$dir/serve.log" |
     awk '{printf "%.0f\n", $1 + $2}')
-  line="$results $samples $last $wall $bytes $hwm"
+  line="$results $samples $last $wall $bytes $hwm $mlast"
 }
 
 run_queue() {
-  local c=$1 s=$2 dir=$3 args=() port cpu0 cpu1 id
+  local c=$1 s=$2 dir=$3 args=() port cpu0 cpu1 m0 m1 id
   mkdir -p "$dir"
   [[ -n $c ]] && args+=(--chunk "$c")
   "$bin/ptserve" --state-dir "$dir/state" --listen 127.0.0.1:0 --port-file "$dir/port" \
@@ -225,10 +245,12 @@ run_queue() {
     ((t < 1200)) || { echo "farm_scale: workers did not join" >&2; return 1; }
   done
   cpu0=$(loop_ns "$sp")
+  m0=$(merge_ns "$sp")
   id=$("$bin/ptctl" --server "127.0.0.1:$port" submit "$scene" --res "$res" --spp "$s")
   wait_for "$dir/serve.log" "job $id (done|failed|cancelled)" "$sp" 3600 ||
     { echo "farm_scale: job $id did not end (see $dir/serve.log)" >&2; return 1; }
   cpu1=$(loop_ns "$sp")
+  m1=$(merge_ns "$sp")
   local bytes samples wall hwm
   hwm=$(vm_hwm "$sp")
   bytes=$(socket_bytes "$port")
@@ -238,20 +260,20 @@ run_queue() {
   samples=$(sed -n "s/.*job $id done: \([0-9]*\) samples in \([0-9.]*\) s.*/\1/p" "$dir/serve.log")
   wall=$(sed -n "s/.*job $id done: \([0-9]*\) samples in \([0-9.]*\) s.*/\2/p" "$dir/serve.log")
   [[ -n $samples ]] || { echo "farm_scale: job $id failed (see $dir/serve.log)" >&2; return 1; }
-  line="$results $samples $((cpu1 - cpu0)) $wall $bytes $hwm"
+  line="$results $samples $((cpu1 - cpu0)) $wall $bytes $hwm $((m1 - m0))"
 }
 
-# "us_per_result results_per_s bytes_per_sample MB_per_Mpixel cores_fed" of
-# one run's line.
+# "us_per_result results_per_s bytes_per_sample MB_per_Mpixel cores_fed
+# merge_us_per_result" of one run's line.
 figures() {
   awk -v rate="$core_rate" -v mpx="$(awk -v r="$res" 'BEGIN {split(r, a, "x"); print a[1] * a[2] / 1e6}')" '{
-    r = $1; s = $2; ns = $3; wall = $4; b = $5; kb = $6
-    printf "%.2f %.0f %.3f %.1f %.0f\n", ns / 1000 / r, r / wall, b / s, kb / 1024 / mpx, s / (ns / 1e9) / rate }'
+    r = $1; s = $2; ns = $3; wall = $4; b = $5; kb = $6; mns = $7
+    printf "%.2f %.0f %.3f %.1f %.0f %.2f\n", ns / 1000 / r, r / wall, b / s, kb / 1024 / mpx, s / (ns / 1e9) / rate, mns / 1000 / r }'
 }
 
 # Runs mode m at chunk c (empty: default) --runs times; sets med to its
-# medians "us/result results/s bytes/sample MB/Mpixel cores"; each run's figures go
-# to stderr.
+# medians "us/result results/s bytes/sample MB/Mpixel cores merge_us/result";
+# each run's figures go to stderr.
 measure() {
   local m=$1 c=$2 s=$3 i
   : > "$work/fig"
@@ -259,11 +281,11 @@ measure() {
     local dir="$work/$m-${c:-default}-$i"
     if [[ $m == one-job ]]; then run_one_job "$c" "$s" "$dir"; else run_queue "$c" "$s" "$dir"; fi
     echo "$line" | figures >> "$work/fig"
-    echo "  run $i: $(tail -n 1 "$work/fig")  (results samples loop_ns wall_s bytes peak_KiB: $line)" >&2
+    echo "  run $i: $(tail -n 1 "$work/fig")  (results samples loop_ns wall_s bytes peak_KiB merge_ns: $line)" >&2
     ((keep)) || rm -rf "$dir"
   done
   local col out=()
-  for col in 1 2 3 4 5; do out+=("$(awk -v c="$col" '{print $c}' "$work/fig" | median)"); done
+  for col in 1 2 3 4 5 6; do out+=("$(awk -v c="$col" '{print $c}' "$work/fig" | median)"); done
   med="${out[*]}"
 }
 
@@ -280,8 +302,8 @@ fi
 
 echo "farm scale: ${res}, tile $tile, chunk ${chunk:-default}, $spp spp, $workers null workers x $threads threads" \
   "paced at ${pace} samples/s per thread, core rate $core_rate samples/s, $runs runs, medians"
-printf '%-8s %6s %12s %10s %12s %10s %10s\n' mode chunk 'loop us/res' results/s bytes/sample \
-  MB/Mpixel 'cores fed'
+row() { printf '%-8s %6s %12s %10s %12s %10s %10s %13s\n' "$@"; }
+row mode chunk 'loop us/res' results/s bytes/sample MB/Mpixel 'cores fed' 'merge us/res'
 
 declare -A fed
 for m in ${modes//,/ }; do
@@ -293,16 +315,16 @@ if [[ -n $curve ]]; then
     ((s >= 2 * c)) || s=$((2 * c))
     for m in ${modes//,/ }; do
       measure "$m" "$c" "$s"
-      read -r us rps bps mem cores <<< "$med"
-      printf '%-8s %6s %12s %10s %12s %10s %10s\n' "$m" "$c" "$us" "$rps" "$bps" "$mem" "$cores"
+      read -r us rps bps mem cores mus <<< "$med"
+      row "$m" "$c" "$us" "$rps" "$bps" "$mem" "$cores" "$mus"
       fed[$m]=$cores
     done
   done
 else
   for m in ${modes//,/ }; do
     measure "$m" "$chunk" "$spp"
-    read -r us rps bps mem cores <<< "$med"
-    printf '%-8s %6s %12s %10s %12s %10s %10s\n' "$m" "${chunk:-dflt}" "$us" "$rps" "$bps" "$mem" "$cores"
+    read -r us rps bps mem cores mus <<< "$med"
+    row "$m" "${chunk:-dflt}" "$us" "$rps" "$bps" "$mem" "$cores" "$mus"
     fed[$m]=$cores
   done
 fi

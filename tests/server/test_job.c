@@ -883,15 +883,22 @@ typedef struct sim_log {
     uint32_t tile_px[4096];
 } sim_log;
 
+/* The merge threads simulate's jobs use when it is set (ptserve's). */
+static srv_adder *sim_adder;
+
 /* Runs job j to the end with owners of the given speeds, one task each at a
  * time (a result arrives when its owner's time for it has passed); logs
  * every lease. ckpt_at: after this many results the job is saved and
  * replaced by a loaded copy, the results outstanding replayed into it
- * (-1: never). Returns the job (perhaps the copy). */
+ * (-1: never). Returns the job (perhaps the copy). With sim_adder each
+ * result owns its pixels, as ptserve's do, so the job may hand their add to
+ * the merge threads. */
 static srv_job *simulate(srv_job *j, sim_owner *ow, int n, sim_log *log, int ckpt_at,
                          const srv_job_params *p)
 {
     static pt_pixel_acc px[32 * 32];
+    if (sim_adder)
+        CHECK(srv_job_set_adder(j, sim_adder, NULL) == PT_OK);
     uint64_t now = 0;
     int results = 0, guard = 0;
     if (log)
@@ -923,12 +930,22 @@ static srv_job *simulate(srv_job *j, sim_owner *ow, int n, sim_log *log, int ckp
         ow[next].busy = 0;
         proto_result r;
         exact_result(&ow[next].t, px, &r);
+        if (sim_adder) {
+            r.pixels = pt_malloc_array(r.npixels, sizeof *r.pixels);
+            CHECK(r.pixels != NULL);
+            if (!r.pixels)
+                break;
+            memcpy(r.pixels, px, r.npixels * sizeof *px);
+            r.owns_pixels = 1;
+        }
         int li;
         pt_error err = {0};
         srv_outcome o = srv_job_validate(j, ow[next].id, &r, &li, &err);
         if (o == SRV_MERGED)
             o = srv_job_result_validated(j, li, &r, now, &err);
         CHECKF(o == SRV_MERGED || o == SRV_DUPLICATE, "outcome %d: %s", (int)o, err.msg);
+        CHECK(o != SRV_MERGED || !r.owns_pixels); /* taken, held or posted */
+        proto_result_fini(&r);
         if (++results == ckpt_at) {
             /* A coordinator killed here: the checkpoint, then what the log
              * holds (results outstanding are lost with their leases). */
@@ -943,6 +960,8 @@ static srv_job *simulate(srv_job *j, sim_owner *ow, int n, sim_log *log, int ckp
                 srv_lease_policy pol = {0};
                 pol.task_ms = 1000;
                 srv_job_set_policy(c, &pol);
+                if (sim_adder)
+                    CHECK(srv_job_set_adder(c, sim_adder, NULL) == PT_OK);
                 srv_job_free(j);
                 j = c;
                 for (int k = 0; k < n; k++)
@@ -1102,11 +1121,39 @@ static void same_film_any_cut(void)
         srv_job *c = sized_job(&p, 1000);
         sim_owner again[3] = {{1, 0.0002, 0, {0}, 0}, {2, 0.003, 0, {0}, 0}, {3, 0.05, 0, {0}, 0}};
         c = simulate(c, again, 3, NULL, 9, &p);
+        /* The same, its adds made by merge threads (server/adder.h), and
+         * resumed after a checkpoint as well. */
+        srv_adder *ad = NULL;
+        CHECK(srv_adder_new(2, &ad, NULL) == PT_OK);
+        if (!ad)
+            return;
+        srv_job *d = sized_job(&p, 1000), *e = sized_job(&p, 1000);
+        sim_owner more[3] = {{1, 0.0002, 0, {0}, 0}, {2, 0.003, 0, {0}, 0}, {3, 0.05, 0, {0}, 0}};
+        sim_owner last[3] = {{1, 0.0002, 0, {0}, 0}, {2, 0.003, 0, {0}, 0}, {3, 0.05, 0, {0}, 0}};
+        sim_adder = ad;
+        d = simulate(d, more, 3, NULL, -1, &p);
+        e = simulate(e, last, 3, NULL, 9, &p);
+        sim_adder = NULL;
+        uint64_t threaded, inl;
+        srv_adder_counts(ad, &threaded, &inl);
+        /* With the min gain every task here ends where a tile is judged, so
+         * its adds are made at once (the judgement reads the sums). */
+        CHECKF(mode == 2 || threaded > 0, "mode %d: no add went to the merge threads", mode);
         const pt_film *fa = srv_job_film(a), *fb = srv_job_film(b), *fc = srv_job_film(c);
+        const pt_film *fd = srv_job_film(d), *fe = srv_job_film(e);
         CHECKF(memcmp(fa->px, fb->px, 64 * 48 * sizeof *fa->px) == 0,
                "mode %d: time-sized tasks changed the film", mode);
         CHECKF(memcmp(fa->px, fc->px, 64 * 48 * sizeof *fa->px) == 0,
                "mode %d: a resumed job changed the film", mode);
+        CHECKF(memcmp(fa->px, fd->px, 64 * 48 * sizeof *fa->px) == 0,
+               "mode %d: merge threads changed the film", mode);
+        CHECKF(memcmp(fa->px, fe->px, 64 * 48 * sizeof *fa->px) == 0,
+               "mode %d: merge threads and a resume changed the film", mode);
+        CHECK(srv_job_samples_merged(d) == srv_job_samples_merged(a));
+        CHECK(srv_job_tiles_stopped(d) == srv_job_tiles_stopped(a));
+        srv_job_free(d);
+        srv_job_free(e);
+        srv_adder_free(ad);
         CHECKF(mode == 0 ? srv_job_tiles_stopped(a) == 0 : srv_job_tiles_stopped(a) >= 1,
                "mode %d: %u tiles stopped", mode, srv_job_tiles_stopped(a));
         CHECK(srv_job_tiles_stopped(b) == srv_job_tiles_stopped(a));
