@@ -58,7 +58,7 @@ void srv_queue_insert(srv_server *s, srv_entry *j)
 static void drop_pending(srv_entry *j)
 {
     for (uint32_t i = 0; i < j->npend; i++)
-        pt_free(j->pend[i].frame);
+        proto_result_fini(&j->pend[i].r);
     j->npend = 0;
 }
 
@@ -287,15 +287,25 @@ static void checkpoint_start(srv_server *s, srv_entry *j)
     srv_ckpt_extra x = {srv_entry_seconds(j, pt_now_ms()), j->rejected, j->rays};
     pt_status st = srv_state_checkpoint_start(s->state, snap, &x, &err);
     if (st == PT_OK) {
+        /* Each encoded again (the same sums; checkpoints are rare, results
+         * are decoded once). */
         uint32_t k = 0;
+        proto_writer w;
+        proto_writer_init(&w, PROTO_FRAME_OVERHEAD + PROTO_MAX_PAYLOAD);
         for (uint32_t i = 0; i < j->npend; i++) {
             srv_pending *p = &j->pend[i];
             p->commit = srv_state_commit_next(s->state);
-            if (srv_state_log_result(s->state, j->rec.id, p->frame, p->len, &err) == PT_OK)
+            size_t mark;
+            proto_writer_reset(&w);
+            if (proto_frame_begin(&w, PROTO_MSG_RESULT, &mark, &err) == PT_OK &&
+                proto_msg_encode_result(&w, &p->r, &err) == PT_OK &&
+                proto_frame_end(&w, mark, &err) == PT_OK &&
+                srv_state_log_result(s->state, j->rec.id, w.buf, w.len, &err) == PT_OK)
                 j->pend[k++] = *p;
             else
-                pt_free(p->frame); /* never merged; its task is leased again */
+                proto_result_fini(&p->r); /* never merged; its task is leased again */
         }
+        proto_writer_fini(&w);
         j->npend = k;
     }
     srv_histogram_add(&s->counters.checkpoint, pt_now_s() - t0);
@@ -371,10 +381,11 @@ static void pause_job(srv_server *s, srv_entry *j, const char *what, const pt_er
             (unsigned long long)j->rec.id, what, err->msg, n, DISK_RETRY_MS / 1000);
 }
 
-/* Keeps a logged result of j to merge once the commit that holds its record
- * has returned. */
-static pt_status push_pending(srv_server *s, srv_entry *j, uint64_t owner, const uint8_t *frame,
-                              size_t len, uint64_t arrived)
+/* Keeps r, a logged result of j, to merge once the commit that holds its
+ * record has returned: takes its pixels when it owns them, else copies them
+ * (r's are then NULL, not owned). */
+static pt_status push_pending(srv_server *s, srv_entry *j, uint64_t owner, proto_result *r,
+                              uint64_t arrived)
 {
     if (j->npend == j->pend_cap) {
         srv_pending *n = pt_grow_array(j->pend, &j->pend_cap, sizeof *n, 16);
@@ -382,11 +393,17 @@ static pt_status push_pending(srv_server *s, srv_entry *j, uint64_t owner, const
             return PT_ERR_NOMEM;
         j->pend = n;
     }
-    uint8_t *copy = pt_malloc(len);
-    if (!copy)
-        return PT_ERR_NOMEM;
-    memcpy(copy, frame, len);
-    j->pend[j->npend++] = (srv_pending){copy, len, owner, srv_state_commit_next(s->state), arrived};
+    srv_pending p = {*r, owner, srv_state_commit_next(s->state), arrived};
+    if (!r->owns_pixels) {
+        p.r.pixels = pt_malloc_array(r->npixels ? r->npixels : 1, sizeof *p.r.pixels);
+        if (!p.r.pixels)
+            return PT_ERR_NOMEM;
+        memcpy(p.r.pixels, r->pixels, (size_t)r->npixels * sizeof *p.r.pixels);
+        p.r.owns_pixels = 1;
+    }
+    r->pixels = NULL;
+    r->owns_pixels = 0;
+    j->pend[j->npend++] = p;
     return PT_OK;
 }
 
@@ -411,9 +428,16 @@ static void retry_paused(srv_server *s, srv_entry *j, uint64_t now)
             return;
         /* Logged: merged once durable, as a restart's replay would (its
          * lease is gone; should its task have been merged meanwhile, it is a
-         * duplicate). */
-        if (push_pending(s, j, 0, j->pending_rec, j->pending_len, now) != PT_OK)
+         * duplicate). It was decoded when it came (a record that no longer
+         * decodes is not possible; it would be dropped, as at a replay). */
+        proto_result r;
+        if (proto_msg_decode_result(j->pending_rec + PROTO_FRAME_HEADER,
+                                    j->pending_len - PROTO_FRAME_OVERHEAD, NULL, 0, &r,
+                                    &err) == PT_OK &&
+            push_pending(s, j, 0, &r, now) != PT_OK) {
+            proto_result_fini(&r);
             return;
+        }
         pt_free(j->pending_rec);
         j->pending_rec = NULL;
     }
@@ -748,15 +772,15 @@ srv_entry *srv_queue_find_scene(srv_server *s, const uint8_t hash[32])
     return j && j->bundle ? j : NULL;
 }
 
-pt_status srv_queue_log_result(srv_server *s, srv_entry *j, uint64_t owner, const uint8_t *frame,
-                               size_t len, uint64_t arrived, pt_error *err)
+pt_status srv_queue_log_result(srv_server *s, srv_entry *j, uint64_t owner, proto_result *r,
+                               const uint8_t *frame, size_t len, uint64_t arrived, pt_error *err)
 {
     if (j->paused)
         return pt_error_set(err, PT_ERR_IO, "job %llu is paused", (unsigned long long)j->rec.id);
     uint64_t commit = srv_state_commit_next(s->state);
     pt_status st = srv_state_log_result(s->state, j->rec.id, frame, len, err);
     if (st == PT_OK) {
-        st = push_pending(s, j, owner, frame, len, arrived);
+        st = push_pending(s, j, owner, r, arrived);
         if (st != PT_OK)
             return pt_error_set(err, st, "out of memory for a result");
         j->pend[j->npend - 1].commit = commit;
@@ -807,17 +831,9 @@ static void merge_durable(srv_server *s, srv_entry *j, uint64_t done)
     uint32_t k = 0, i = 0;
     for (; i < j->npend && j->pend[i].commit <= done && j->committed >= j->pend[i].commit; i++) {
         srv_pending *p = &j->pend[i];
-        proto_result r;
-        pt_error err = {0};
-        /* With merge threads, into a buffer of its own that the job takes. */
-        if (j->job && srv_entry_active(j) &&
-            proto_msg_decode_result(p->frame + PROTO_FRAME_HEADER, p->len - PROTO_FRAME_OVERHEAD,
-                                    s->adder ? NULL : s->scratch, PROTO_MAX_TILE_PIXELS, &r,
-                                    &err) == PT_OK) {
-            srv_workers_merge_durable(s, j, p->owner, &r, p->arrived);
-            proto_result_fini(&r);
-        }
-        pt_free(p->frame);
+        if (j->job && srv_entry_active(j))
+            srv_workers_merge_durable(s, j, p->owner, &p->r, p->arrived);
+        proto_result_fini(&p->r); /* unless the job took its pixels */
     }
     for (; i < j->npend; i++)
         j->pend[k++] = j->pend[i];

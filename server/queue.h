@@ -40,8 +40,7 @@
 /* A result logged and waiting for the group commit that makes its record
  * durable; merged only then (srv_queue_committed). */
 typedef struct srv_pending {
-    uint8_t *frame; /* the RESULT frame as logged */
-    size_t len;
+    proto_result r;   /* the result as logged, decoded; it owns its pixels */
     uint64_t owner;   /* the connection that sent it */
     uint64_t commit;  /* the group commit that holds its record */
     uint64_t arrived; /* ms */
@@ -131,14 +130,17 @@ void srv_queue_prune(srv_server *s);
 /* Writes the queue file (every job's record); PT_OK with no state folder. */
 pt_status srv_queue_journal(srv_server *s, pt_error *err);
 
-/* Logs an accepted RESULT of j (frame: its whole frame as received) from
- * owner; the result is merged once its record is durable (srv_queue_committed)
- * and the caller must not merge it. When the log cannot take it, j is paused
+/* Logs an accepted RESULT of j (frame: its whole frame as received; r: that
+ * frame decoded) from owner; the result is merged once its record is durable
+ * (srv_queue_committed) and the caller must not merge it. Takes r's pixels
+ * when r owns them (else copies them): r->pixels is then NULL and
+ * r->owns_pixels 0, and the pixels wait with the record, decoded once. When
+ * the log cannot take it, j is paused
  * (its leases requeued, the workers told to drop its tasks, the reason logged
  * once) and the frame kept to be logged by a later srv_queue_tick. Also
  * fails, quietly, while j is paused. Needs a state folder. */
-pt_status srv_queue_log_result(srv_server *s, srv_entry *j, uint64_t owner, const uint8_t *frame,
-                               size_t len, uint64_t arrived, pt_error *err);
+pt_status srv_queue_log_result(srv_server *s, srv_entry *j, uint64_t owner, proto_result *r,
+                               const uint8_t *frame, size_t len, uint64_t arrived, pt_error *err);
 
 /* The group commit's completions (its eventfd is readable): merges the
  * results whose records are now durable, pauses a job whose log's fdatasync

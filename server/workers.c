@@ -236,9 +236,10 @@ static void on_result(srv_server *s, srv_conn *c, const proto_frame *f)
 {
     proto_result r;
     pt_error err = {0};
-    /* Merged now and with merge threads: into a buffer of its own, which the
-     * job takes for the add (in queue mode the log's copy is merged). */
-    pt_pixel_acc *buf = s->adder && !s->state ? NULL : s->scratch;
+    /* Into a buffer of its own when something keeps the pixels: the result
+     * waiting for its record to be durable (queue mode), or the job for a
+     * merge thread's add. */
+    pt_pixel_acc *buf = s->adder || s->state ? NULL : s->scratch;
     if (proto_msg_decode_result(f->payload, f->len, buf, PROTO_MAX_TILE_PIXELS, &r, &err) !=
         PT_OK) {
         srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "bad RESULT: %s", err.msg);
@@ -268,7 +269,7 @@ static void on_result(srv_server *s, srv_conn *c, const proto_frame *f)
      * commit that holds its record has returned. */
     if (o == SRV_MERGED && s->state) {
         c->misses = 0;
-        if (srv_queue_log_result(s, j, c->id, f->payload - PROTO_FRAME_HEADER,
+        if (srv_queue_log_result(s, j, c->id, &r, f->payload - PROTO_FRAME_HEADER,
                                  (size_t)f->len + PROTO_FRAME_OVERHEAD, pt_now_ms(), &err) == PT_OK)
             srv_job_answered(j->job, lease_index);
         proto_result_fini(&r); /* a failure is logged once, by the queue */
