@@ -119,6 +119,7 @@ struct srv_server {
     /* worker messages (server/workers.c) */
     pt_pixel_acc *scratch; /* RESULT decode buffer */
     srv_adder *adder;      /* film adds off the loop (--merge-threads); NULL: none */
+    struct srv_io *io;     /* workers read off the loop (--io-threads, server/io.h); NULL: none */
     srv_blocked blocked[SRV_MAX_BLOCKED];
     uint32_t nblocked;
     uint64_t verify_seed; /* picks the tasks verified (server/job.h), made at the first lease */

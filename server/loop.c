@@ -18,6 +18,7 @@
 #include "common/base/alloc.h"
 #include "common/base/net.h"
 #include "common/base/text.h"
+#include "server/io.h"
 #include "server/queue.h"
 #include "server/requests.h"
 #include "server/upload.h"
@@ -33,6 +34,7 @@
 #define REFUSAL_LOG_MS 10000 /* the window of refusals logged one by one */
 #define REFUSAL_BURST 5      /* lines per reason and window; then one with the count */
 #define TIMERS_MS 50         /* srv_loop_timers walks the connections at most this often */
+#define RQ_MAX 4096          /* an attached worker's frames waiting on its full output */
 
 _Static_assert(ROLE_MAX_PAYLOAD <= PROTO_MAX_PAYLOAD, "a role's frames fit the protocol's cap");
 _Static_assert(IN_START >= PROTO_FRAME_OVERHEAD + PROTO_MAX_PAYLOAD_PREAUTH,
@@ -67,9 +69,10 @@ typedef struct refusal_log {
 
 /* The loop's limits on peers (loop.h) and what it counts against them. */
 struct srv_guard {
-    srv_peer_limits lim; /* the configuration's, defaults filled in */
-    uint64_t in_held;    /* input buffer bytes past each connection's IN_START */
-    srv_conn **hs;       /* the connections in the handshake: nhs of lim.max_handshakes */
+    srv_peer_limits lim;      /* the configuration's, defaults filled in */
+    _Atomic uint64_t in_held; /* input buffer bytes past each connection's IN_START (the
+                               * I/O threads count theirs here too) */
+    srv_conn **hs;            /* the connections in the handshake: nhs of lim.max_handshakes */
     uint32_t nhs;
     uint32_t max_conns; /* connection slots: RLIMIT_NOFILE less SRV_FD_RESERVE */
     int spare_fd;       /* /dev/null, given up to accept and refuse a peer at EMFILE */
@@ -194,7 +197,9 @@ static void conn_touch(srv_server *s, srv_conn *c)
 void srv_conn_update_events(srv_server *s, srv_conn *c)
 {
     uint32_t ev = 0;
-    if (!c->closing && !c->parked && srv_conn_has_room(c))
+    if (c->attached)
+        ev |= EPOLLET; /* its thread reads; a hang-up is reported here once */
+    else if (!c->closing && !c->parked && srv_conn_has_room(c))
         ev |= EPOLLIN;
     if (c->out.len > c->out_off)
         ev |= EPOLLOUT;
@@ -418,6 +423,20 @@ static uint64_t allowed_ms(const srv_peer_limits *l, uint64_t size)
     return at_rate > l->frame_grace_ms ? at_rate : l->frame_grace_ms;
 }
 
+int srv_frame_too_slow(const srv_peer_limits *l, size_t held, uint64_t size, uint64_t t_frame,
+                       uint64_t now, char *why, size_t n)
+{
+    /* Until its header is here a frame's size is unknown: the grace alone. */
+    if (!(held > 0 && (size == 0 || held < size) && now - t_frame > allowed_ms(l, size)))
+        return 0;
+    snprintf(why, n,
+             "frame of %llu bytes too slow: %zu received in %.1f s (the minimum is %.1f KiB/s "
+             "after %.1f s)",
+             (unsigned long long)size, held, (now - t_frame) / 1000.0, l->min_rate / 1024.0,
+             l->frame_grace_ms / 1000.0);
+    return 1;
+}
+
 /* The rate rule (loop.h): closes c, logging why, when its frame in
  * progress or its upload is too slow or stalled. A parked peer is not
  * judged: the loop is the one not reading it. */
@@ -431,13 +450,9 @@ static void conn_check_rate(srv_server *s, srv_conn *c, uint64_t now)
     if (held >= PROTO_FRAME_HEADER)
         size = PROTO_FRAME_OVERHEAD + (uint64_t)proto_frame_payload_len(c->in.buf + c->in.start);
     double kib_s = l->min_rate / 1024.0;
-    /* Until its header is here a frame's size is unknown: the grace alone. */
-    if (held > 0 && (size == 0 || held < size) && now - c->t_frame > allowed_ms(l, size)) {
-        srv_conn_send_error(s, c, PROTO_E_LIMIT,
-                            "frame of %llu bytes too slow: %zu received in %.1f s (the minimum is "
-                            "%.1f KiB/s after %.1f s)",
-                            (unsigned long long)size, held, (now - c->t_frame) / 1000.0, kib_s,
-                            l->frame_grace_ms / 1000.0);
+    char why[256];
+    if (srv_frame_too_slow(l, held, size, c->t_frame, now, why, sizeof why)) {
+        srv_conn_send_error(s, c, PROTO_E_LIMIT, "%s", why);
     } else if (c->uploading && c->t_upload &&
                now - c->t_upload > allowed_ms(l, c->up.bundle_size)) {
         srv_conn_send_error(s, c, PROTO_E_LIMIT,
@@ -546,7 +561,14 @@ static void conn_free(srv_server *s, srv_conn *c)
         s->nworkers--;
     srv_requests_conn_gone(c);
     epoll_ctl(s->ep, EPOLL_CTL_DEL, c->fd, NULL);
-    close(c->fd);
+    if (c->attached)
+        srv_io_close(s->io, c->id, c->fd); /* its thread closes it, done reading */
+    else
+        close(c->fd);
+    for (srv_io_item *it = c->rq, *nx; it; it = nx) {
+        nx = it->next;
+        srv_io_item_free(it);
+    }
     handshake_leave(s, c);
     s->guard->in_held -= in_counted(c->in.cap);
     proto_writer_fini(&c->out);
@@ -855,11 +877,22 @@ static uint32_t conn_cap(const srv_conn *c)
     return c->role == PROTO_ROLE_WORKER ? SRV_WORKER_MAX_PAYLOAD : SRV_CLIENT_MAX_PAYLOAD;
 }
 
+/* Hands a worker that has just authenticated to an I/O thread, with what
+ * it has sent since; without memory for that the loop goes on reading it. */
+static void conn_attach(srv_server *s, srv_conn *c)
+{
+    if (srv_io_attach(s->io, c->id, c->fd, &c->in, SRV_WORKER_MAX_PAYLOAD, NULL) != PT_OK)
+        return;
+    c->attached = 1;
+    c->rq_tail = &c->rq;
+    srv_conn_update_events(s, c);
+}
+
 /* Decodes and dispatches the whole frames buffered in c->in, while the peer's
  * output is under the high-water mark (backpressure). */
 static void conn_process(srv_server *s, srv_conn *c)
 {
-    while (!c->closing && srv_conn_has_room(c)) {
+    while (!c->closing && !c->attached && srv_conn_has_room(c)) {
         proto_frame f;
         pt_error err = {0};
         pt_status st = proto_frame_reader_next(&c->in, conn_cap(c), &f, &err);
@@ -879,8 +912,11 @@ static void conn_process(srv_server *s, srv_conn *c)
             break;
         int was_uploading = c->uploading;
         dispatch(s, c, &f);
-        if (c->handshaking && c->state == SRV_C_READY)
+        if (c->handshaking && c->state == SRV_C_READY) {
             handshake_leave(s, c);
+            if (s->io && c->role == PROTO_ROLE_WORKER && !c->closing)
+                conn_attach(s, c);
+        }
         if (c->uploading && !was_uploading)
             c->t_upload = now;
         else if (!c->uploading)
@@ -896,7 +932,7 @@ static void conn_read(srv_server *s, srv_conn *c)
          * length it declares: a length over the cap is refused before
          * anything is waited for or allocated. */
         conn_process(s, c);
-        if (c->closing || !srv_conn_has_room(c))
+        if (c->closing || c->attached || !srv_conn_has_room(c))
             return;
         if (!in_fits(s, c)) {
             conn_park(s, c);
@@ -1012,6 +1048,13 @@ pt_status srv_loop_open(srv_server *s, pt_error *err)
         e.data.ptr = &s->state;
         epoll_ctl(s->ep, EPOLL_CTL_ADD, srv_state_commit_fd(s->state), &e);
     }
+    if (cfg->io_threads) { /* in queue mode a RESULT's frame is kept for the log */
+        if ((st = srv_io_new(cfg->io_threads, &s->guard->lim, &s->guard->in_held, IN_START,
+                             s->state != NULL, &s->io, err)) != PT_OK)
+            return st;
+        e.data.ptr = &s->io;
+        epoll_ctl(s->ep, EPOLL_CTL_ADD, srv_io_fd(s->io), &e);
+    }
     g_sigpipe_w = s->sigpipe[1];
     struct sigaction sa;
     memset(&sa, 0, sizeof sa);
@@ -1029,6 +1072,8 @@ void srv_loop_close(srv_server *s)
         s->conns = c->next;
         conn_free(s, c);
     }
+    srv_io_free(s->io); /* after the conns: it closes the descriptors they gave it */
+    s->io = NULL;
     if (s->lfd >= 0)
         close(s->lfd);
     if (s->ep >= 0)
@@ -1041,6 +1086,70 @@ void srv_loop_close(srv_server *s)
         s->sigpipe[0] = s->sigpipe[1] = -1;
     }
     guard_close(s);
+}
+
+/* Serves one of an attached worker's items (server/io.h); frees it. */
+static void item_run(srv_server *s, srv_conn *c, srv_io_item *it)
+{
+    if (it->kind == SRV_IO_EOF) {
+        srv_conn_close_soon(s, c);
+        c->close_at = 0;
+    } else if (it->kind == SRV_IO_ERROR) {
+        srv_conn_send_error(s, c, it->code, "%s", it->msg);
+    } else {
+        c->t_frame = c->t_progress = pt_now_ms();
+        if (it->f.type == PROTO_MSG_RESULT && it->decoded)
+            srv_workers_result(s, c, &it->f, &it->r);
+        else
+            dispatch(s, c, &it->f);
+    }
+    srv_io_item_free(it);
+}
+
+/* Serves what c's items waiting in rq it has room for. */
+static void rq_run(srv_server *s, srv_conn *c)
+{
+    while (c->rq && !c->closing && srv_conn_has_room(c)) {
+        srv_io_item *it = c->rq;
+        if (!(c->rq = it->next))
+            c->rq_tail = &c->rq;
+        c->nrq--;
+        item_run(s, c, it);
+    }
+}
+
+/* Serves the items the I/O threads have read, each connection's in order;
+ * those of a peer whose output is full wait in its rq (its thread reads on:
+ * a worker that sends on without reading its replies is closed at RQ_MAX). */
+static void io_deliver(srv_server *s)
+{
+    uint64_t received;
+    srv_io_item *it = srv_io_take(s->io, &received);
+    s->bytes_in += received;
+    while (it) {
+        srv_io_item *next = it->next;
+        it->next = NULL;
+        srv_conn *c = srv_conn_find(s, it->conn); /* none: closed or closing */
+        if (!c) {
+            srv_io_item_free(it);
+        } else if (c->rq || !srv_conn_has_room(c)) {
+            conn_touch(s, c);
+            if (c->nrq >= RQ_MAX) {
+                srv_io_item_free(it);
+                srv_conn_send_error(s, c, PROTO_E_LIMIT,
+                                    "%u frames unanswered while it does not read its replies",
+                                    c->nrq);
+            } else {
+                *c->rq_tail = it;
+                c->rq_tail = &it->next;
+                c->nrq++;
+            }
+        } else {
+            conn_touch(s, c);
+            item_run(s, c, it);
+        }
+        it = next;
+    }
 }
 
 void srv_loop_poll(srv_server *s, int timeout_ms)
@@ -1059,12 +1168,16 @@ void srv_loop_poll(srv_server *s, int timeout_ms)
             srv_upload_collect(s);
         } else if (p == &s->state) {
             srv_queue_committed(s, 0);
+        } else if (p == &s->io) {
+            io_deliver(s);
         } else {
             srv_conn *c = p;
             conn_touch(s, c);
-            /* A parked peer is not read; one that hung up meanwhile can
-             * never finish its frame (and would wake epoll every round). */
-            if (c->parked && (evs[i].events & (EPOLLHUP | EPOLLERR)) && !c->closing) {
+            /* An attached peer's thread reads it, a hang-up included. A
+             * parked peer is not read; one that hung up meanwhile can never
+             * finish its frame (and would wake epoll every round). */
+            if (c->attached) {
+            } else if (c->parked && (evs[i].events & (EPOLLHUP | EPOLLERR)) && !c->closing) {
                 srv_conn_close_soon(s, c);
                 c->close_at = 0;
             } else if (evs[i].events & (EPOLLIN | EPOLLHUP | EPOLLERR)) {
@@ -1142,6 +1255,10 @@ static int sweep_one(srv_server *s, srv_conn *c, uint64_t now)
 {
     if (c->out.len > c->out_off)
         conn_flush(s, c);
+    if (c->rq && !c->closing) {
+        rq_run(s, c);
+        conn_touch(s, c); /* what it asked for is handed out next round */
+    }
     if (proto_frame_reader_pending(&c->in) > 0 && !c->closing) {
         conn_process(s, c);
         in_shrink(s, c);

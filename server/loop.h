@@ -32,7 +32,11 @@
  *   frame_grace; a peer that fails is sent ERROR and closed, with the
  *   reason logged.
  * A whole frame from a ready peer goes to server/workers.h or
- * server/requests.h by the peer's role. A protocol error is answered with
+ * server/requests.h by the peer's role. With I/O threads (server/io.h) a
+ * worker is read by one of them from its AUTH on ("attached"): its frames
+ * arrive as items, served in order as if read here, the limits above
+ * applied by its thread, and its descriptor closed by that thread once the
+ * loop frees the connection. A protocol error is answered with
  * ERROR, then the peer is closed once that is flushed (or after a grace
  * time); a connection is freed only by srv_loop_sweep, never inside its own
  * callback, so a handler may close the peer it is serving.
@@ -100,8 +104,14 @@ struct srv_conn {
     char host[48];    /* the peer's address alone, for refusals */
     uint8_t addr[16]; /* the same as bytes (IPv4 as ::ffff:a.b.c.d): per-address caps */
     int handshaking;  /* holds one of the max_handshakes slots */
-    int active;       /* on the loop's list for this round's sweep (loop.c) */
-    int parked;       /* not read: its next frame waits for input memory */
+    /* Read by an I/O thread (server/io.h) since it authenticated as a
+     * worker: in is then empty and unused; its frames arrive as items,
+     * which wait in rq while its output is over SRV_OUT_HIGH. */
+    int attached;
+    struct srv_io_item *rq, **rq_tail;
+    uint32_t nrq;
+    int active; /* on the loop's list for this round's sweep (loop.c) */
+    int parked; /* not read: its next frame waits for input memory */
     uint64_t t_parked;
     uint64_t t_frame;  /* the first byte of the frame in progress arrived */
     uint64_t t_upload; /* its upload (c->uploading) began */
@@ -193,5 +203,11 @@ void srv_conn_peer_error(srv_server *s, srv_conn *c, const proto_frame *f, const
 
 /* The open connection with this id, NULL when there is none. */
 srv_conn *srv_conn_find(srv_server *s, uint64_t id);
+
+/* The rate rule's first part (above) for a frame in progress: held bytes
+ * of it, size its whole size (0 while its header is incomplete), begun at
+ * t_frame. 1 when it is too slow, with the reason in why. */
+int srv_frame_too_slow(const srv_peer_limits *l, size_t held, uint64_t size, uint64_t t_frame,
+                       uint64_t now, char *why, size_t n);
 
 #endif

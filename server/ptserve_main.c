@@ -13,6 +13,7 @@
 #include "common/base/opt.h"
 #include "common/base/version.h"
 #include "common/render/tile.h"
+#include "server/io.h"
 #include "server/serve.h"
 
 static void usage(FILE *f)
@@ -161,6 +162,9 @@ static void usage(FILE *f)
         "  --merge-threads N      threads that add results to the images (default 2;\n"
         "                         0: the event loop adds them itself); the loop still\n"
         "                         decides every merge, so images are the same bits\n"
+        "  --io-threads N         threads that receive, check and decode the workers'\n"
+        "                         frames once they have authenticated (default 2; 0:\n"
+        "                         the event loop reads them itself)\n"
         "  --worker-bin PATH      the ptworker to start with --local (default: beside ptserve)\n"
         "  -q, --quiet            no progress line\n"
         "  -h, --help             this text\n"
@@ -185,6 +189,7 @@ int main(int argc, char **argv)
     c.job.rr_depth = 3;
     c.save_interval = 5.0;
     c.merge_threads = SRV_DEFAULT_MERGE_THREADS;
+    c.io_threads = SRV_DEFAULT_IO_THREADS;
     c.verify_fraction = 0.02;
     c.caps.max_side = PT_RENDER_MAX_SIDE;
     c.caps.max_pixels = 16777216;
@@ -241,7 +246,8 @@ int main(int argc, char **argv)
         O_TRANSPARENT,
         O_TASKTIME,
         O_SHUTTER,
-        O_MERGETHREADS
+        O_MERGETHREADS,
+        O_IOTHREADS
     };
     static const struct option opts[] = {
         {"output", required_argument, NULL, 'o'},
@@ -263,6 +269,7 @@ int main(int argc, char **argv)
         {"chunk", required_argument, NULL, O_CHUNK},
         {"task-time", required_argument, NULL, O_TASKTIME},
         {"merge-threads", required_argument, NULL, O_MERGETHREADS},
+        {"io-threads", required_argument, NULL, O_IOTHREADS},
         {"save-interval", required_argument, NULL, O_SAVE},
         {"lease-timeout", required_argument, NULL, O_LEASE},
         {"port-file", required_argument, NULL, O_PORTFILE},
@@ -313,6 +320,9 @@ int main(int argc, char **argv)
             break;
         case O_WTHREADS:
             st = pt_opt_u32("--worker-threads", optarg, 1, 1024, &c.worker_threads, &err);
+            break;
+        case O_IOTHREADS:
+            st = pt_opt_u32("--io-threads", optarg, 0, SRV_IO_MAX_THREADS, &c.io_threads, &err);
             break;
         case O_MERGETHREADS:
             st = pt_opt_u32("--merge-threads", optarg, 0, SRV_ADDER_MAX_THREADS, &c.merge_threads,

@@ -64,6 +64,7 @@ typedef struct srv_config {
     uint32_t local_workers;  /* spawn this many ptworker processes */
     uint32_t worker_threads; /* threads per local worker; 0: cores / local_workers */
     uint32_t merge_threads;  /* threads adding results to films (server/adder.h); 0: the loop */
+    uint32_t io_threads;     /* threads reading workers (server/io.h); 0: the loop */
     srv_job_params job;      /* one-job mode: the job; queue mode: defaults (tile,
                               * chunk, max depth, rr depth) for submitted jobs.
                               * width/height 0: from the camera, 512 wide */

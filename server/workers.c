@@ -245,6 +245,15 @@ static void on_result(srv_server *s, srv_conn *c, const proto_frame *f)
         srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "bad RESULT: %s", err.msg);
         return;
     }
+    srv_workers_result(s, c, f, &r);
+}
+
+void srv_workers_result(srv_server *s, srv_conn *c, const proto_frame *f, proto_result *rp)
+{
+    proto_result r = *rp; /* the caller's is left empty: this one is fini'd here */
+    rp->pixels = NULL;
+    rp->owns_pixels = 0;
+    pt_error err = {0};
     srv_entry *j = srv_queue_find_any(s, r.job_id); /* a frame's too */
     if (!j || !srv_entry_active(j) || !j->job || j->paused) {
         proto_result_fini(&r); /* a job that ended (cancelled) or paused: nothing to do */

@@ -35,6 +35,12 @@
 /* Serves one whole frame from a ready worker. */
 void srv_workers_dispatch(srv_server *s, srv_conn *c, const proto_frame *f);
 
+/* Serves a RESULT frame f already decoded into r (by an I/O thread,
+ * server/io.h; its pixels its own): as srv_workers_dispatch would, without
+ * decoding it again. f's payload is needed only in queue mode (the results
+ * log writes the frame as received). Takes r's pixels: r is left empty. */
+void srv_workers_result(srv_server *s, srv_conn *c, const proto_frame *f, proto_result *r);
+
 /* Merges r, a result of j from owner (a connection id, maybe gone now) held
  * until its log record was durable (server/queue.h), and counts it. The job
  * may take r's pixels when r owns them (srv_job_result_validated). */

@@ -21,10 +21,13 @@
 # workers' connections, ss -ti). CPU time, not wall time: the machine may be
 # shared. Reported per mode as medians over --runs:
 #   loop us/result   loop CPU per RESULT frame
+#   io us/result     CPU of the I/O threads (ptserve --io-threads, threads
+#                    named pt-io: receiving, checksums, decoding) per RESULT
+#                    frame, all of them together
 #   merge us/result  CPU of the merge threads (ptserve --merge-threads,
 #                    threads named pt-merge: the film adds) per RESULT
-#                    frame, all of them together; they run beside the loop,
-#                    so this spreads over their number of cores
+#                    frame, all of them together; both kinds run beside the
+#                    loop, so their time spreads over their number of cores
 #   results/s        RESULT frames per second of the job's wall time
 #   bytes/sample     coordinator socket bytes (in + out) per sample merged
 #   MB/Mpixel        ptserve's peak resident memory (VmHWM) per megapixel of
@@ -50,7 +53,9 @@
 #   tests/bench/farm_scale.sh [--bin DIR] [--workers N] [--threads T]
 #       [--res WxH] [--tile N] [--chunk N] [--spp N] [--runs R] [--pace R]
 #       [--core-rate R|measure] [--modes one-job,queue] [--curve [LIST]]
-#       [--work DIR] [--keep]
+#       [--serve-args 'ARGS'] [--work DIR] [--keep]
+# --serve-args adds options to every ptserve (e.g. '--io-threads 0
+# --merge-threads 0': the loop alone, as before those threads).
 set -euo pipefail
 
 bin=build/bin
@@ -69,6 +74,7 @@ curve_list="16 32 64 128 256 512 1024"
 work=
 keep=0
 scene=scenes/cornell_box.gltf
+serve_args=()
 
 usage() { sed -n '2,/^set -euo/p' "$0" | sed '$d; s/^# \{0,1\}//'; }
 while (($#)); do
@@ -89,6 +95,7 @@ while (($#)); do
     if [[ ${2:-} =~ ^[0-9][0-9,\ ]*$ ]]; then curve_list=${2//,/ }; shift; fi
     shift ;;
   --work) work=$2; shift 2 ;;
+  --serve-args) read -r -a serve_args <<< "$2"; shift 2 ;;
   --keep) keep=1; shift ;;
   -h | --help) usage; exit 0 ;;
   *) echo "farm_scale: unknown option $1 (--help)" >&2; exit 2 ;;
@@ -133,13 +140,13 @@ loop_ns() {
   echo $((( ${12} + ${13}) * 1000000000 / $(getconf CLK_TCK)))
 }
 
-# CPU time in ns of ptserve's threads named pt-merge (the film adds), all
-# together; 0 when it has none.
-merge_ns() {
-  local pid=$1 d ns rest sum=0 name
+# CPU time in ns of ptserve's threads named $2 (pt-merge: the film adds;
+# pt-io: the workers' input), all together; 0 when it has none.
+threads_ns() {
+  local pid=$1 want=$2 d ns rest sum=0 name
   for d in /proc/"$pid"/task/*; do
     read -r name < "$d/comm" 2>/dev/null || continue
-    [[ $name == pt-merge ]] || continue
+    [[ $name == "$want" ]] || continue
     read -r ns rest < "$d/schedstat" 2>/dev/null || continue
     sum=$((sum + ns))
   done
@@ -191,13 +198,13 @@ socket_bytes() {
 }
 
 # One run of one mode: sets line to "results samples loop_ns wall_s bytes
-# peak_KiB merge_ns".
+# peak_KiB merge_ns io_ns".
 run_one_job() {
-  local c=$1 s=$2 dir=$3 args=() port cpu last mlast=0 m
+  local c=$1 s=$2 dir=$3 args=() port cpu last mlast=0 m ilast=0 io
   mkdir -p "$dir"
   [[ -n $c ]] && args+=(--chunk "$c")
   "$bin/ptserve" --listen 127.0.0.1:0 --port-file "$dir/port" --res "$res" --spp "$s" \
-    --tile "$tile" "${args[@]}" -o "$dir/out.exr" "$scene" 2> "$dir/serve.log" &
+    --tile "$tile" "${args[@]}" "${serve_args[@]}" -o "$dir/out.exr" "$scene" 2> "$dir/serve.log" &
   local sp=$!
   pids+=("$sp")
   wait_for "$dir/port" . "$sp" 60 || { echo "farm_scale: ptserve did not start" >&2; return 1; }
@@ -210,8 +217,10 @@ run_one_job() {
   local hwm=0 v
   while cpu=$(loop_ns "$sp" 2>/dev/null); do
     last=$cpu
-    m=$(merge_ns "$sp")
+    m=$(threads_ns "$sp" pt-merge)
     ((m < mlast)) || mlast=$m
+    io=$(threads_ns "$sp" pt-io)
+    ((io < ilast)) || ilast=$io
     v=$(vm_hwm "$sp")
     hwm=${v:-$hwm}
     sleep 0.05
@@ -223,15 +232,15 @@ run_one_job() {
   wall=$(sed -n 's/.*done in \([0-9.]*\)s:.*/\1/p' "$dir/serve.log")
   bytes=$(sed -n 's/.*wire: \([0-9]*\) bytes in, \([0-9]*\) out.*/\1 \2/p' "$dir/serve.log" |
     awk '{printf "%.0f\n", $1 + $2}')
-  line="$results $samples $last $wall $bytes $hwm $mlast"
+  line="$results $samples $last $wall $bytes $hwm $mlast $ilast"
 }
 
 run_queue() {
-  local c=$1 s=$2 dir=$3 args=() port cpu0 cpu1 m0 m1 id
+  local c=$1 s=$2 dir=$3 args=() port cpu0 cpu1 m0 m1 i0 i1 id
   mkdir -p "$dir"
   [[ -n $c ]] && args+=(--chunk "$c")
   "$bin/ptserve" --state-dir "$dir/state" --listen 127.0.0.1:0 --port-file "$dir/port" \
-    --tile "$tile" --max-spp 1048576 "${args[@]}" 2> "$dir/serve.log" &
+    --tile "$tile" --max-spp 1048576 "${args[@]}" "${serve_args[@]}" 2> "$dir/serve.log" &
   local sp=$!
   pids+=("$sp")
   wait_for "$dir/port" . "$sp" 60 || { echo "farm_scale: ptserve did not start" >&2; return 1; }
@@ -245,12 +254,14 @@ run_queue() {
     ((t < 1200)) || { echo "farm_scale: workers did not join" >&2; return 1; }
   done
   cpu0=$(loop_ns "$sp")
-  m0=$(merge_ns "$sp")
+  m0=$(threads_ns "$sp" pt-merge)
+  i0=$(threads_ns "$sp" pt-io)
   id=$("$bin/ptctl" --server "127.0.0.1:$port" submit "$scene" --res "$res" --spp "$s")
   wait_for "$dir/serve.log" "job $id (done|failed|cancelled)" "$sp" 3600 ||
     { echo "farm_scale: job $id did not end (see $dir/serve.log)" >&2; return 1; }
   cpu1=$(loop_ns "$sp")
-  m1=$(merge_ns "$sp")
+  m1=$(threads_ns "$sp" pt-merge)
+  i1=$(threads_ns "$sp" pt-io)
   local bytes samples wall hwm
   hwm=$(vm_hwm "$sp")
   bytes=$(socket_bytes "$port")
@@ -260,19 +271,20 @@ run_queue() {
   samples=$(sed -n "s/.*job $id done: \([0-9]*\) samples in \([0-9.]*\) s.*/\1/p" "$dir/serve.log")
   wall=$(sed -n "s/.*job $id done: \([0-9]*\) samples in \([0-9.]*\) s.*/\2/p" "$dir/serve.log")
   [[ -n $samples ]] || { echo "farm_scale: job $id failed (see $dir/serve.log)" >&2; return 1; }
-  line="$results $samples $((cpu1 - cpu0)) $wall $bytes $hwm $((m1 - m0))"
+  line="$results $samples $((cpu1 - cpu0)) $wall $bytes $hwm $((m1 - m0)) $((i1 - i0))"
 }
 
 # "us_per_result results_per_s bytes_per_sample MB_per_Mpixel cores_fed
-# merge_us_per_result" of one run's line.
+# merge_us_per_result io_us_per_result" of one run's line.
 figures() {
   awk -v rate="$core_rate" -v mpx="$(awk -v r="$res" 'BEGIN {split(r, a, "x"); print a[1] * a[2] / 1e6}')" '{
-    r = $1; s = $2; ns = $3; wall = $4; b = $5; kb = $6; mns = $7
-    printf "%.2f %.0f %.3f %.1f %.0f %.2f\n", ns / 1000 / r, r / wall, b / s, kb / 1024 / mpx, s / (ns / 1e9) / rate, mns / 1000 / r }'
+    r = $1; s = $2; ns = $3; wall = $4; b = $5; kb = $6; mns = $7; ins = $8
+    printf "%.2f %.0f %.3f %.1f %.0f %.2f %.2f\n", ns / 1000 / r, r / wall, b / s, kb / 1024 / mpx, s / (ns / 1e9) / rate, mns / 1000 / r, ins / 1000 / r }'
 }
 
 # Runs mode m at chunk c (empty: default) --runs times; sets med to its
-# medians "us/result results/s bytes/sample MB/Mpixel cores merge_us/result";
+# medians "us/result results/s bytes/sample MB/Mpixel cores merge_us/result
+# io_us/result";
 # each run's figures go to stderr.
 measure() {
   local m=$1 c=$2 s=$3 i
@@ -281,11 +293,11 @@ measure() {
     local dir="$work/$m-${c:-default}-$i"
     if [[ $m == one-job ]]; then run_one_job "$c" "$s" "$dir"; else run_queue "$c" "$s" "$dir"; fi
     echo "$line" | figures >> "$work/fig"
-    echo "  run $i: $(tail -n 1 "$work/fig")  (results samples loop_ns wall_s bytes peak_KiB merge_ns: $line)" >&2
+    echo "  run $i: $(tail -n 1 "$work/fig")  (results samples loop_ns wall_s bytes peak_KiB merge_ns io_ns: $line)" >&2
     ((keep)) || rm -rf "$dir"
   done
   local col out=()
-  for col in 1 2 3 4 5 6; do out+=("$(awk -v c="$col" '{print $c}' "$work/fig" | median)"); done
+  for col in 1 2 3 4 5 6 7; do out+=("$(awk -v c="$col" '{print $c}' "$work/fig" | median)"); done
   med="${out[*]}"
 }
 
@@ -302,8 +314,8 @@ fi
 
 echo "farm scale: ${res}, tile $tile, chunk ${chunk:-default}, $spp spp, $workers null workers x $threads threads" \
   "paced at ${pace} samples/s per thread, core rate $core_rate samples/s, $runs runs, medians"
-row() { printf '%-8s %6s %12s %10s %12s %10s %10s %13s\n' "$@"; }
-row mode chunk 'loop us/res' results/s bytes/sample MB/Mpixel 'cores fed' 'merge us/res'
+row() { printf '%-8s %6s %12s %10s %12s %10s %10s %13s %11s\n' "$@"; }
+row mode chunk 'loop us/res' results/s bytes/sample MB/Mpixel 'cores fed' 'merge us/res' 'io us/res'
 
 declare -A fed
 for m in ${modes//,/ }; do
@@ -315,16 +327,16 @@ if [[ -n $curve ]]; then
     ((s >= 2 * c)) || s=$((2 * c))
     for m in ${modes//,/ }; do
       measure "$m" "$c" "$s"
-      read -r us rps bps mem cores mus <<< "$med"
-      row "$m" "$c" "$us" "$rps" "$bps" "$mem" "$cores" "$mus"
+      read -r us rps bps mem cores mus ius <<< "$med"
+      row "$m" "$c" "$us" "$rps" "$bps" "$mem" "$cores" "$mus" "$ius"
       fed[$m]=$cores
     done
   done
 else
   for m in ${modes//,/ }; do
     measure "$m" "$chunk" "$spp"
-    read -r us rps bps mem cores mus <<< "$med"
-    row "$m" "${chunk:-dflt}" "$us" "$rps" "$bps" "$mem" "$cores" "$mus"
+    read -r us rps bps mem cores mus ius <<< "$med"
+    row "$m" "${chunk:-dflt}" "$us" "$rps" "$bps" "$mem" "$cores" "$mus" "$ius"
     fed[$m]=$cores
   done
 fi
