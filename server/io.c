@@ -12,6 +12,7 @@
 
 #include "common/base/alloc.h"
 #include "common/base/clock.h"
+#include "server/job.h"
 #include "server/loop.h"
 
 #define RATE_MS 100 /* the rate rule is judged this often */
@@ -154,8 +155,12 @@ static int take_frame(io_thread *t, io_conn *c, const proto_frame *f)
         /* A RESULT that does not decode goes to the loop as it came, which
          * decodes it again and answers with the same error. */
         it->decoded = proto_msg_decode_result(f->payload, f->len, NULL, 0, &it->r, &err) == PT_OK;
-        if (it->decoded)
+        if (it->decoded) {
             bytes += (uint64_t)it->r.npixels * sizeof *it->r.pixels;
+            /* Checked here too (a pass over its pixels, the loop's costliest
+             * part of validation); one that fails is judged again there. */
+            it->checked = srv_job_pixels_plausible(&it->r, NULL);
+        }
     }
     it->f.payload = NULL;
     if (f->type != PROTO_MSG_RESULT || io->keep_results || !it->decoded) {

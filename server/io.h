@@ -56,6 +56,7 @@ typedef struct srv_io_item {
     proto_frame f;
     uint8_t *frame;
     int decoded;    /* a RESULT decoded into r, its pixels its own */
+    int checked;    /* ... and plausible for its range (srv_job_pixels_plausible) */
     proto_result r; /* decoded: fini'd by srv_io_item_free unless taken */
     uint16_t code;  /* ERROR: the PROTO_E_* to answer with */
     char msg[512];  /* ERROR: why (pt_error's size) */

@@ -1133,7 +1133,7 @@ static int pixels_plausible(const proto_result *r, uint32_t samples, pt_error *e
 /* Checks a leased result r against its task: on SRV_MERGED or SRV_CHECK
  * *lease_index receives owner's lease. */
 static srv_outcome validate_result(const srv_job *j, uint64_t owner, const proto_result *r,
-                                   int *lease_index, pt_error *err)
+                                   int pixels_checked, int *lease_index, pt_error *err)
 {
     if (r->job_id != j->id) {
         pt_error_set(err, PT_ERR_PROTO, "result for job %llu, not the running job %llu",
@@ -1172,7 +1172,8 @@ static srv_outcome validate_result(const srv_job *j, uint64_t owner, const proto
                      (unsigned long long)t);
         return SRV_INVALID;
     }
-    if (!pixels_plausible(r, k->s1 - k->s0, err))
+    /* Checked for its own range, which is the task's (just above). */
+    if (!pixels_checked && !pixels_plausible(r, k->s1 - k->s0, err))
         return SRV_INVALID;
     *lease_index = li;
     return verify ? SRV_CHECK : SRV_MERGED;
@@ -1181,7 +1182,18 @@ static srv_outcome validate_result(const srv_job *j, uint64_t owner, const proto
 srv_outcome srv_job_validate(const srv_job *j, uint64_t owner, const proto_result *r,
                              int *lease_index, pt_error *err)
 {
-    return validate_result(j, owner, r, lease_index, err);
+    return validate_result(j, owner, r, 0, lease_index, err);
+}
+
+srv_outcome srv_job_validate_checked(const srv_job *j, uint64_t owner, const proto_result *r,
+                                     int *lease_index, pt_error *err)
+{
+    return validate_result(j, owner, r, 1, lease_index, err);
+}
+
+int srv_job_pixels_plausible(const proto_result *r, pt_error *err)
+{
+    return r->s1 > r->s0 && pixels_plausible(r, r->s1 - r->s0, err);
 }
 
 /* The deterministic pick of verification copies: splitmix64 (Steele et al.
@@ -1383,7 +1395,7 @@ nomem:
 srv_outcome srv_job_result(srv_job *j, uint64_t owner, const proto_result *r, pt_error *err)
 {
     int li;
-    srv_outcome o = validate_result(j, owner, r, &li, err);
+    srv_outcome o = validate_result(j, owner, r, 0, &li, err);
     if (o == SRV_CHECK) {
         srv_verdict v;
         srv_job_check(j, li, r, &v);

@@ -249,6 +249,14 @@ srv_outcome srv_job_result(srv_job *job, uint64_t owner, const proto_result *r, 
  * caller log it durably before merging. */
 srv_outcome srv_job_validate(const srv_job *job, uint64_t owner, const proto_result *r,
                              int *lease_index, pt_error *err);
+/* The same for a result whose pixels srv_job_pixels_plausible accepted:
+ * the pixel check, the costliest part, is not made again. */
+srv_outcome srv_job_validate_checked(const srv_job *job, uint64_t owner, const proto_result *r,
+                                     int *lease_index, pt_error *err);
+/* The pixel check of validation (see above: counts, rejections, sums) for
+ * r's own sample range; pure, so any thread may make it. 1 when plausible;
+ * err says why not. */
+int srv_job_pixels_plausible(const proto_result *r, pt_error *err);
 
 /* srv_job_result for a result that srv_job_validate accepted (lease_index: what
  * it gave), the job unchanged since: merges or holds it without looking up its

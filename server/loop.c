@@ -1099,7 +1099,7 @@ static void item_run(srv_server *s, srv_conn *c, srv_io_item *it)
     } else {
         c->t_frame = c->t_progress = pt_now_ms();
         if (it->f.type == PROTO_MSG_RESULT && it->decoded)
-            srv_workers_result(s, c, &it->f, &it->r);
+            srv_workers_result(s, c, &it->f, &it->r, it->checked);
         else
             dispatch(s, c, &it->f);
     }

@@ -212,7 +212,8 @@ void srv_workers_merge_durable(srv_server *s, srv_entry *j, uint64_t owner, prot
     pt_error err = {0};
     int li = -1;
     uint64_t merged = 0;
-    srv_outcome o = srv_job_validate(j->job, owner, r, &li, &err);
+    /* Validated whole when it arrived: its pixels have not changed since. */
+    srv_outcome o = srv_job_validate_checked(j->job, owner, r, &li, &err);
     /* Its lease may have gone since it arrived (expired, its worker left or
      * the job paused): it is still a render of its task, and durable, so it
      * is merged as a restart's replay would (a duplicate changes nothing). */
@@ -245,10 +246,11 @@ static void on_result(srv_server *s, srv_conn *c, const proto_frame *f)
         srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "bad RESULT: %s", err.msg);
         return;
     }
-    srv_workers_result(s, c, f, &r);
+    srv_workers_result(s, c, f, &r, 0);
 }
 
-void srv_workers_result(srv_server *s, srv_conn *c, const proto_frame *f, proto_result *rp)
+void srv_workers_result(srv_server *s, srv_conn *c, const proto_frame *f, proto_result *rp,
+                        int checked)
 {
     proto_result r = *rp; /* the caller's is left empty: this one is fini'd here */
     rp->pixels = NULL;
@@ -260,7 +262,8 @@ void srv_workers_result(srv_server *s, srv_conn *c, const proto_frame *f, proto_
         return;
     }
     int lease_index;
-    srv_outcome o = srv_job_validate(j->job, c->id, &r, &lease_index, &err);
+    srv_outcome o = checked ? srv_job_validate_checked(j->job, c->id, &r, &lease_index, &err)
+                            : srv_job_validate(j->job, c->id, &r, &lease_index, &err);
     if (o == SRV_CHECK) {
         /* A verification copy: compared, never logged or merged. */
         srv_verdict v;

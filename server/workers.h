@@ -37,9 +37,11 @@ void srv_workers_dispatch(srv_server *s, srv_conn *c, const proto_frame *f);
 
 /* Serves a RESULT frame f already decoded into r (by an I/O thread,
  * server/io.h; its pixels its own): as srv_workers_dispatch would, without
- * decoding it again. f's payload is needed only in queue mode (the results
- * log writes the frame as received). Takes r's pixels: r is left empty. */
-void srv_workers_result(srv_server *s, srv_conn *c, const proto_frame *f, proto_result *r);
+ * decoding it again; checked: its pixels passed srv_job_pixels_plausible.
+ * f's payload is needed only in queue mode (the results log writes the
+ * frame as received). Takes r's pixels: r is left empty. */
+void srv_workers_result(srv_server *s, srv_conn *c, const proto_frame *f, proto_result *r,
+                        int checked);
 
 /* Merges r, a result of j from owner (a connection id, maybe gone now) held
  * until its log record was durable (server/queue.h), and counts it. The job

@@ -145,9 +145,9 @@ loop_ns() {
 threads_ns() {
   local pid=$1 want=$2 d ns rest sum=0 name
   for d in /proc/"$pid"/task/*; do
-    read -r name < "$d/comm" 2>/dev/null || continue
+    read -r name 2>/dev/null < "$d/comm" || continue
     [[ $name == "$want" ]] || continue
-    read -r ns rest < "$d/schedstat" 2>/dev/null || continue
+    read -r ns rest 2>/dev/null < "$d/schedstat" || continue
     sum=$((sum + ns))
   done
   echo "$sum"
@@ -221,7 +221,8 @@ run_one_job() {
     ((m < mlast)) || mlast=$m
     io=$(threads_ns "$sp" pt-io)
     ((io < ilast)) || ilast=$io
-    v=$(vm_hwm "$sp")
+    # ptserve may exit between the readings: set -e must not end the run.
+    v=$(vm_hwm "$sp") || v=
     hwm=${v:-$hwm}
     sleep 0.05
   done
