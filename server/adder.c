@@ -111,7 +111,7 @@ void srv_adder_post(srv_adder *a, srv_adds *g, pt_film *film, pt_rect tile, pt_p
     pthread_mutex_unlock(&a->mu);
 }
 
-void srv_adder_settle(srv_adder *a, srv_adds *g)
+void srv_adder_settle(srv_adder *a, const srv_adds *g)
 {
     pthread_mutex_lock(&a->mu);
     while (g->pending) {

@@ -45,7 +45,7 @@ void srv_adder_free(srv_adder *a);
  * taken: freed once added) to film, counted in g. */
 void srv_adder_post(srv_adder *a, srv_adds *g, pt_film *film, pt_rect tile, pt_pixel_acc *px);
 /* Returns once every add counted in g has landed in its film. */
-void srv_adder_settle(srv_adder *a, srv_adds *g);
+void srv_adder_settle(srv_adder *a, const srv_adds *g);
 
 /* Adds made on the threads and at once by the caller, so far. */
 void srv_adder_counts(srv_adder *a, uint64_t *threaded, uint64_t *inline_adds);

@@ -129,7 +129,7 @@ struct srv_job {
     double farm_rate;               /* sum of the live leases' rates */
     pt_film *film;
     srv_adder *adder; /* srv_job_set_adder: film adds go to its threads */
-    srv_adds *adds;   /* those in flight (its own allocation: settled from const) */
+    srv_adds adds;    /* those in flight */
     /* deadlines, backups, verification and sizing (srv_job_set_policy) */
     srv_lease_policy pol;
     double times[TIMES];  /* ms per pixel-sample of merged results, in arrival order */
@@ -150,7 +150,7 @@ struct srv_job {
 static void settle(const srv_job *j)
 {
     if (j->adder)
-        srv_adder_settle(j->adder, j->adds);
+        srv_adder_settle(j->adder, &j->adds);
 }
 
 static uint32_t tile_pixels(const srv_job *j, uint32_t tile)
@@ -390,7 +390,6 @@ void srv_job_free(srv_job *j)
     if (!j)
         return;
     settle(j);
-    pt_free(j->adds);
     for (uint32_t i = 0; i < j->nheld; i++)
         pt_free(j->held[i].px);
     pt_free(j->held);
@@ -406,13 +405,10 @@ void srv_job_free(srv_job *j)
     pt_free(j);
 }
 
-pt_status srv_job_set_adder(srv_job *j, srv_adder *a, pt_error *err)
+void srv_job_set_adder(srv_job *j, srv_adder *a)
 {
     settle(j);
-    if (a && !j->adds && !(j->adds = pt_calloc(1, sizeof *j->adds)))
-        return pt_error_set(err, PT_ERR_NOMEM, "job: out of memory");
     j->adder = a;
-    return PT_OK;
 }
 
 void srv_job_settle(const srv_job *j)
@@ -1023,7 +1019,7 @@ static void merge_now(srv_job *j, uint32_t t, pt_pixel_acc *px, uint64_t samples
      * the tile's sums, so the adds in flight land first. */
     int decide = decision_point(j, k->s1) && (j->p.min_gain <= 0.0 || k->s1 - k->s0 == j->p.chunk);
     if (j->adder && owned && !decide) {
-        srv_adder_post(j->adder, j->adds, j->film, r, px);
+        srv_adder_post(j->adder, &j->adds, j->film, r, px);
         owned = 0;
     } else {
         if (decide)
@@ -1344,10 +1340,10 @@ static void accepted(srv_job *j, uint32_t t, int li, const proto_result *r, uint
 }
 
 /* Merges or holds r, the result of task t (validated); li: its lease or -1.
- * own: NULL, or where r's pixels are when the caller gives them up (they are
- * pt_malloc'ed); *own becomes NULL when the job took them. */
-static srv_outcome merge_task(srv_job *j, uint32_t t, int li, const proto_result *r,
-                              pt_pixel_acc **own, uint64_t now_ms, pt_error *err)
+ * take: r's pixels are pt_malloc'ed and the caller gives them up; the job
+ * has them once this returns SRV_MERGED. */
+static srv_outcome merge_task(srv_job *j, uint32_t t, int li, const proto_result *r, int take,
+                              uint64_t now_ms, pt_error *err)
 {
     uint32_t tile = j->tasks[t].tile;
     /* Validated: each pixel lacks exactly the samples reported rejected. */
@@ -1355,12 +1351,7 @@ static srv_outcome merge_task(srv_job *j, uint32_t t, int li, const proto_result
     if (j->tiles[tile].head == t) {
         accepted(j, t, li, r, now_ms);
         j->capped += r->capped;
-        if (own) {
-            merge_now(j, t, *own, samples, 1);
-            *own = NULL;
-        } else {
-            merge_now(j, t, r->pixels, samples, 0);
-        }
+        merge_now(j, t, r->pixels, samples, take);
         merge_held(j, tile);
         return SRV_MERGED;
     }
@@ -1371,11 +1362,8 @@ static srv_outcome merge_task(srv_job *j, uint32_t t, int li, const proto_result
             goto nomem;
         j->held = n;
     }
-    pt_pixel_acc *copy;
-    if (own) {
-        copy = *own;
-        *own = NULL;
-    } else {
+    pt_pixel_acc *copy = r->pixels;
+    if (!take) {
         if (!(copy = pt_malloc_array(r->npixels, sizeof *copy)))
             goto nomem;
         memcpy(copy, r->pixels, (size_t)r->npixels * sizeof *copy);
@@ -1401,16 +1389,15 @@ srv_outcome srv_job_result(srv_job *j, uint64_t owner, const proto_result *r, pt
         srv_job_check(j, li, r, &v);
         return SRV_CHECK;
     }
-    return o == SRV_MERGED ? merge_task(j, j->leases[li].task, li, r, NULL, 0, err) : o;
+    return o == SRV_MERGED ? merge_task(j, j->leases[li].task, li, r, 0, 0, err) : o;
 }
 
 /* merge_task, taking r's pixels when r owns them. */
 static srv_outcome merge_taking(srv_job *j, uint32_t t, int li, proto_result *r, uint64_t now_ms,
                                 pt_error *err)
 {
-    pt_pixel_acc *own = r->owns_pixels ? r->pixels : NULL;
-    srv_outcome o = merge_task(j, t, li, r, own ? &own : NULL, now_ms, err);
-    if (r->owns_pixels && !own) {
+    srv_outcome o = merge_task(j, t, li, r, r->owns_pixels, now_ms, err);
+    if (r->owns_pixels && o == SRV_MERGED) {
         r->pixels = NULL;
         r->owns_pixels = 0;
     }

@@ -183,7 +183,7 @@ void srv_job_free(srv_job *job); /* accepts NULL; settles first */
  * srv_job_snapshot, srv_job_free and the decisions settle first, and so must
  * any other reader. The sample counts (srv_job_samples_merged) never lag.
  * a must outlive the job. */
-pt_status srv_job_set_adder(srv_job *job, srv_adder *a, pt_error *err);
+void srv_job_set_adder(srv_job *job, srv_adder *a);
 /* Waits until every add of the job's merged tasks is in its film. */
 void srv_job_settle(const srv_job *job);
 

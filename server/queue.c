@@ -560,7 +560,7 @@ int srv_entry_ready(srv_server *s, srv_entry *j)
     pt_error err = {0};
     pt_status st = srv_job_new(j->rec.id, &j->rec.params, j->rec.hash, &j->job, &err);
     if (st == PT_OK)
-        st = srv_job_set_adder(j->job, s->adder, &err);
+        srv_job_set_adder(j->job, s->adder);
     if (st == PT_OK && s->state) {
         srv_ckpt_extra x;
         uint32_t replayed;

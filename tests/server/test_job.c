@@ -898,7 +898,7 @@ static srv_job *simulate(srv_job *j, sim_owner *ow, int n, sim_log *log, int ckp
 {
     static pt_pixel_acc px[32 * 32];
     if (sim_adder)
-        CHECK(srv_job_set_adder(j, sim_adder, NULL) == PT_OK);
+        srv_job_set_adder(j, sim_adder);
     uint64_t now = 0;
     int results = 0, guard = 0;
     if (log)
@@ -961,7 +961,7 @@ static srv_job *simulate(srv_job *j, sim_owner *ow, int n, sim_log *log, int ckp
                 pol.task_ms = 1000;
                 srv_job_set_policy(c, &pol);
                 if (sim_adder)
-                    CHECK(srv_job_set_adder(c, sim_adder, NULL) == PT_OK);
+                    srv_job_set_adder(c, sim_adder);
                 srv_job_free(j);
                 j = c;
                 for (int k = 0; k < n; k++)
