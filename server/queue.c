@@ -1,5 +1,6 @@
 #include "server/queue.h"
 
+#include <assert.h>
 #include <errno.h>
 #include <math.h>
 #include <stdio.h>
@@ -381,29 +382,22 @@ static void pause_job(srv_server *s, srv_entry *j, const char *what, const pt_er
             (unsigned long long)j->rec.id, what, err->msg, n, DISK_RETRY_MS / 1000);
 }
 
-/* Keeps r, a logged result of j, to merge once the commit that holds its
- * record has returned: takes its pixels when it owns them, else copies them
- * (r's are then NULL, not owned). */
+/* Keeps r, a logged result of j that owns its pixels, to merge once the
+ * commit that holds its record has returned; takes the pixels (r's are then
+ * NULL, not owned). */
 static pt_status push_pending(srv_server *s, srv_entry *j, uint64_t owner, proto_result *r,
                               uint64_t arrived)
 {
+    assert(r->owns_pixels);
     if (j->npend == j->pend_cap) {
         srv_pending *n = pt_grow_array(j->pend, &j->pend_cap, sizeof *n, 16);
         if (!n)
             return PT_ERR_NOMEM;
         j->pend = n;
     }
-    srv_pending p = {*r, owner, srv_state_commit_next(s->state), arrived};
-    if (!r->owns_pixels) {
-        p.r.pixels = pt_malloc_array(r->npixels ? r->npixels : 1, sizeof *p.r.pixels);
-        if (!p.r.pixels)
-            return PT_ERR_NOMEM;
-        memcpy(p.r.pixels, r->pixels, (size_t)r->npixels * sizeof *p.r.pixels);
-        p.r.owns_pixels = 1;
-    }
+    j->pend[j->npend++] = (srv_pending){*r, owner, srv_state_commit_next(s->state), arrived};
     r->pixels = NULL;
     r->owns_pixels = 0;
-    j->pend[j->npend++] = p;
     return PT_OK;
 }
 

@@ -131,10 +131,10 @@ void srv_queue_prune(srv_server *s);
 pt_status srv_queue_journal(srv_server *s, pt_error *err);
 
 /* Logs an accepted RESULT of j (frame: its whole frame as received; r: that
- * frame decoded) from owner; the result is merged once its record is durable
- * (srv_queue_committed) and the caller must not merge it. Takes r's pixels
- * when r owns them (else copies them): r->pixels is then NULL and
- * r->owns_pixels 0, and the pixels wait with the record, decoded once. When
+ * frame decoded into pixels of its own) from owner; the result is merged
+ * once its record is durable (srv_queue_committed) and the caller must not
+ * merge it. Takes r's pixels (r->pixels is then NULL, r->owns_pixels 0):
+ * they wait with the record, decoded once. When
  * the log cannot take it, j is paused
  * (its leases requeued, the workers told to drop its tasks, the reason logged
  * once) and the frame kept to be logged by a later srv_queue_tick. Also
