@@ -1132,8 +1132,11 @@ static void io_deliver(srv_server *s)
         srv_conn *c = srv_conn_find(s, it->conn); /* none: closed or closing */
         if (!c) {
             srv_io_item_free(it);
-        } else if (c->rq || !srv_conn_has_room(c)) {
-            conn_touch(s, c);
+            it = next;
+            continue;
+        }
+        conn_touch(s, c);
+        if (c->rq || !srv_conn_has_room(c)) {
             if (c->nrq >= RQ_MAX) {
                 srv_io_item_free(it);
                 srv_conn_send_error(s, c, PROTO_E_LIMIT,
@@ -1145,7 +1148,6 @@ static void io_deliver(srv_server *s)
                 c->nrq++;
             }
         } else {
-            conn_touch(s, c);
             item_run(s, c, it);
         }
         it = next;
@@ -1176,11 +1178,11 @@ void srv_loop_poll(srv_server *s, int timeout_ms)
             /* An attached peer's thread reads it, a hang-up included. A
              * parked peer is not read; one that hung up meanwhile can never
              * finish its frame (and would wake epoll every round). */
-            if (c->attached) {
-            } else if (c->parked && (evs[i].events & (EPOLLHUP | EPOLLERR)) && !c->closing) {
+            uint32_t in = c->attached ? 0 : evs[i].events & (EPOLLIN | EPOLLHUP | EPOLLERR);
+            if (c->parked && (in & (EPOLLHUP | EPOLLERR)) && !c->closing) {
                 srv_conn_close_soon(s, c);
                 c->close_at = 0;
-            } else if (evs[i].events & (EPOLLIN | EPOLLHUP | EPOLLERR)) {
+            } else if (in) {
                 conn_read(s, c);
             }
             if (evs[i].events & EPOLLOUT)
