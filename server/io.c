@@ -61,7 +61,6 @@ struct srv_io {
     io_thread *t;
     srv_peer_limits lim;
     _Atomic uint64_t *in_held;
-    size_t in_start;
     int keep_results;
     int wake; /* eventfd the loop polls */
     pthread_mutex_t mu;
@@ -94,12 +93,6 @@ static void post_cmd(io_thread *t, io_cmd *c)
     t->cmds_tail = &c->next;
     pthread_mutex_unlock(&t->mu);
     eventfd_bump(t->cmd);
-}
-
-/* Input bytes a buffer of cap bytes counts (loop.c's in_counted). */
-static uint64_t counted(const srv_io *io, size_t cap)
-{
-    return cap > io->in_start ? cap - io->in_start : 0;
 }
 
 static srv_io_item *item_new(io_conn *c, int kind)
@@ -179,15 +172,19 @@ static int take_frame(io_thread *t, io_conn *c, const proto_frame *f)
     return 1;
 }
 
+/* The input bytes c's buffer counts more once grown to its next frame. */
+static uint64_t growth(const io_conn *c)
+{
+    size_t need = proto_frame_reader_need(&c->in);
+    return need <= c->in.cap ? 0 : srv_in_counted(need) - srv_in_counted(c->in.cap);
+}
+
 /* 1 when c's next frame fits the input memory now (nothing counted). */
 static int fits_now(const io_thread *t, const io_conn *c)
 {
-    const srv_io *io = t->io;
-    size_t need = proto_frame_reader_need(&c->in);
-    if (need <= c->in.cap)
-        return 1;
-    uint64_t more = counted(io, need) - counted(io, c->in.cap);
-    return atomic_load_explicit(io->in_held, memory_order_relaxed) + more <= io->lim.max_input_mem;
+    uint64_t more = growth(c);
+    return !more || atomic_load_explicit(t->io->in_held, memory_order_relaxed) + more <=
+                        t->io->lim.max_input_mem;
 }
 
 /* 1 when c's buffer may grow to what its next frame needs (counted in
@@ -195,10 +192,9 @@ static int fits_now(const io_thread *t, const io_conn *c)
 static int fits(io_thread *t, io_conn *c)
 {
     srv_io *io = t->io;
-    size_t need = proto_frame_reader_need(&c->in);
-    if (need <= c->in.cap)
+    uint64_t more = growth(c);
+    if (!more)
         return 1;
-    uint64_t more = counted(io, need) - counted(io, c->in.cap);
     uint64_t held = atomic_load_explicit(io->in_held, memory_order_relaxed);
     for (;;) {
         if (held + more > io->lim.max_input_mem)
@@ -214,7 +210,7 @@ static int fits(io_thread *t, io_conn *c)
 static void recount(io_thread *t, size_t reserved_for, size_t now)
 {
     srv_io *io = t->io;
-    uint64_t a = counted(io, reserved_for), b = counted(io, now);
+    uint64_t a = srv_in_counted(reserved_for), b = srv_in_counted(now);
     if (a > b)
         atomic_fetch_sub_explicit(io->in_held, a - b, memory_order_relaxed);
     else if (b > a)
@@ -295,7 +291,7 @@ static void conn_drop(io_thread *t, io_conn *c)
     if (c->in_set)
         epoll_ctl(t->ep, EPOLL_CTL_DEL, c->fd, NULL);
     close(c->fd);
-    atomic_fetch_sub_explicit(t->io->in_held, counted(t->io, c->in.cap), memory_order_relaxed);
+    atomic_fetch_sub_explicit(t->io->in_held, srv_in_counted(c->in.cap), memory_order_relaxed);
     proto_frame_reader_fini(&c->in);
     pt_free(c);
 }
@@ -305,15 +301,10 @@ static void judge(io_thread *t, uint64_t now)
 {
     const srv_peer_limits *l = &t->io->lim;
     for (io_conn *c = t->conns; c; c = c->next) {
-        size_t held = proto_frame_reader_pending(&c->in);
-        if (c->done || c->parked || held == 0)
+        if (c->done || c->parked || proto_frame_reader_pending(&c->in) == 0)
             continue;
-        uint64_t size = 0;
-        if (held >= PROTO_FRAME_HEADER)
-            size =
-                PROTO_FRAME_OVERHEAD + (uint64_t)proto_frame_payload_len(c->in.buf + c->in.start);
         char why[256];
-        if (srv_frame_too_slow(l, held, size, c->t_frame, now, why, sizeof why))
+        if (srv_frame_too_slow(l, &c->in, c->t_frame, now, why, sizeof why))
             conn_end(t, c, SRV_IO_ERROR, PROTO_E_LIMIT, why);
         else if (now - c->t_progress > l->frame_grace_ms) {
             snprintf(why, sizeof why, "partial frame stalled for %.1f s",
@@ -450,7 +441,7 @@ static void *io_main(void *p)
 }
 
 pt_status srv_io_new(uint32_t threads, const srv_peer_limits *lim, _Atomic uint64_t *in_held,
-                     size_t in_start, int keep_results, srv_io **out, pt_error *err)
+                     int keep_results, srv_io **out, pt_error *err)
 {
     if (threads < 1 || threads > SRV_IO_MAX_THREADS)
         return pt_error_set(err, PT_ERR_ARG, "I/O threads: %u is not 1 to %u", threads,
@@ -460,7 +451,6 @@ pt_status srv_io_new(uint32_t threads, const srv_peer_limits *lim, _Atomic uint6
         return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
     io->lim = *lim;
     io->in_held = in_held;
-    io->in_start = in_start;
     io->keep_results = keep_results;
     io->tail = &io->head;
     pthread_mutex_init(&io->mu, NULL);

@@ -63,11 +63,11 @@ typedef struct srv_io_item {
 } srv_io_item;
 
 /* threads: 1 to SRV_IO_MAX_THREADS. in_held: the loop's count of input
- * bytes past in_start per connection, against lim->max_input_mem.
+ * bytes (srv_in_counted, server/loop.h), against lim->max_input_mem.
  * keep_results: RESULT frames are kept whole (the results log writes them).
  * srv_io_fd is to be polled for reading: items wait. */
 pt_status srv_io_new(uint32_t threads, const srv_peer_limits *lim, _Atomic uint64_t *in_held,
-                     size_t in_start, int keep_results, srv_io **out, pt_error *err);
+                     int keep_results, srv_io **out, pt_error *err);
 /* Stops the threads and closes every descriptor they still hold; frees the
  * items not taken. Accepts NULL. */
 void srv_io_free(srv_io *io);

@@ -24,7 +24,6 @@
 #include "server/upload.h"
 #include "server/workers.h"
 
-#define IN_START (64u * 1024u)
 #define ROLE_MAX_PAYLOAD                                                                           \
     (SRV_WORKER_MAX_PAYLOAD > SRV_CLIENT_MAX_PAYLOAD ? SRV_WORKER_MAX_PAYLOAD                      \
                                                      : SRV_CLIENT_MAX_PAYLOAD)
@@ -37,7 +36,7 @@
 #define RQ_MAX 4096          /* an attached worker's frames waiting on its full output */
 
 _Static_assert(ROLE_MAX_PAYLOAD <= PROTO_MAX_PAYLOAD, "a role's frames fit the protocol's cap");
-_Static_assert(IN_START >= PROTO_FRAME_OVERHEAD + PROTO_MAX_PAYLOAD_PREAUTH,
+_Static_assert(SRV_IN_START >= PROTO_FRAME_OVERHEAD + PROTO_MAX_PAYLOAD_PREAUTH,
                "a handshake frame fits the first buffer");
 
 /* Why a connection was refused; one rate-limited log line each. */
@@ -70,8 +69,8 @@ typedef struct refusal_log {
 /* The loop's limits on peers (loop.h) and what it counts against them. */
 struct srv_guard {
     srv_peer_limits lim;      /* the configuration's, defaults filled in */
-    _Atomic uint64_t in_held; /* input buffer bytes past each connection's IN_START (the
-                               * I/O threads count theirs here too) */
+    _Atomic uint64_t in_held; /* srv_in_counted over the input buffers (the I/O
+                               * threads count theirs here too) */
     srv_conn **hs;            /* the connections in the handshake: nhs of lim.max_handshakes */
     uint32_t nhs;
     uint32_t max_conns; /* connection slots: RLIMIT_NOFILE less SRV_FD_RESERVE */
@@ -357,19 +356,12 @@ static int handshake_admits(srv_server *s, srv_conn *c, const proto_frame *f)
     return 0;
 }
 
-/* Input bytes a buffer of cap bytes counts against max_input_mem: what it
- * holds past the IN_START every connection has. */
-static uint64_t in_counted(size_t cap)
-{
-    return cap > IN_START ? cap - IN_START : 0;
-}
-
 /* Records that c's input buffer went from before bytes to its capacity now. */
 static void in_account(srv_server *s, const srv_conn *c, size_t before)
 {
     struct srv_guard *g = s->guard;
-    g->in_held -= in_counted(before);
-    g->in_held += in_counted(c->in.cap);
+    g->in_held -= srv_in_counted(before);
+    g->in_held += srv_in_counted(c->in.cap);
 }
 
 /* 1 when c's input buffer may grow to what its next frame needs. */
@@ -379,11 +371,11 @@ static int in_fits(const srv_server *s, const srv_conn *c)
     size_t need = proto_frame_reader_need(&c->in);
     if (need <= c->in.cap)
         return 1;
-    uint64_t more = in_counted(need) - in_counted(c->in.cap);
+    uint64_t more = srv_in_counted(need) - srv_in_counted(c->in.cap);
     return g->in_held + more <= g->lim.max_input_mem;
 }
 
-/* Cuts c's input buffer back to IN_START once its big frame is consumed. */
+/* Cuts c's input buffer back to SRV_IN_START once its big frame is consumed. */
 static void in_shrink(srv_server *s, srv_conn *c)
 {
     size_t before = c->in.cap;
@@ -423,9 +415,13 @@ static uint64_t allowed_ms(const srv_peer_limits *l, uint64_t size)
     return at_rate > l->frame_grace_ms ? at_rate : l->frame_grace_ms;
 }
 
-int srv_frame_too_slow(const srv_peer_limits *l, size_t held, uint64_t size, uint64_t t_frame,
+int srv_frame_too_slow(const srv_peer_limits *l, const proto_frame_reader *in, uint64_t t_frame,
                        uint64_t now, char *why, size_t n)
 {
+    size_t held = proto_frame_reader_pending(in);
+    uint64_t size = 0;
+    if (held >= PROTO_FRAME_HEADER)
+        size = PROTO_FRAME_OVERHEAD + (uint64_t)proto_frame_payload_len(in->buf + in->start);
     /* Until its header is here a frame's size is unknown: the grace alone. */
     if (!(held > 0 && (size == 0 || held < size) && now - t_frame > allowed_ms(l, size)))
         return 0;
@@ -446,12 +442,9 @@ static void conn_check_rate(srv_server *s, srv_conn *c, uint64_t now)
     if (c->parked)
         return;
     size_t held = proto_frame_reader_pending(&c->in);
-    uint64_t size = 0;
-    if (held >= PROTO_FRAME_HEADER)
-        size = PROTO_FRAME_OVERHEAD + (uint64_t)proto_frame_payload_len(c->in.buf + c->in.start);
     double kib_s = l->min_rate / 1024.0;
     char why[256];
-    if (srv_frame_too_slow(l, held, size, c->t_frame, now, why, sizeof why)) {
+    if (srv_frame_too_slow(l, &c->in, c->t_frame, now, why, sizeof why)) {
         srv_conn_send_error(s, c, PROTO_E_LIMIT, "%s", why);
     } else if (c->uploading && c->t_upload &&
                now - c->t_upload > allowed_ms(l, c->up.bundle_size)) {
@@ -570,7 +563,7 @@ static void conn_free(srv_server *s, srv_conn *c)
         srv_io_item_free(it);
     }
     handshake_leave(s, c);
-    s->guard->in_held -= in_counted(c->in.cap);
+    s->guard->in_held -= srv_in_counted(c->in.cap);
     proto_writer_fini(&c->out);
     proto_frame_reader_fini(&c->in);
     id_remove(s->guard, c);
@@ -641,7 +634,7 @@ static void accept_all(srv_server *s)
         uint8_t *room_at;
         size_t room;
         if (c)
-            proto_frame_reader_init(&c->in, IN_START, IN_MAX);
+            proto_frame_reader_init(&c->in, SRV_IN_START, IN_MAX);
         /* The input buffer is taken now: a peer it cannot be had for is
          * refused at once rather than told later. */
         if (!c || proto_frame_reader_space(&c->in, &room_at, &room, NULL) != PT_OK) {
@@ -1049,8 +1042,8 @@ pt_status srv_loop_open(srv_server *s, pt_error *err)
         epoll_ctl(s->ep, EPOLL_CTL_ADD, srv_state_commit_fd(s->state), &e);
     }
     if (cfg->io_threads) { /* in queue mode a RESULT's frame is kept for the log */
-        if ((st = srv_io_new(cfg->io_threads, &s->guard->lim, &s->guard->in_held, IN_START,
-                             s->state != NULL, &s->io, err)) != PT_OK)
+        if ((st = srv_io_new(cfg->io_threads, &s->guard->lim, &s->guard->in_held, s->state != NULL,
+                             &s->io, err)) != PT_OK)
             return st;
         e.data.ptr = &s->io;
         epoll_ctl(s->ep, EPOLL_CTL_ADD, srv_io_fd(s->io), &e);
@@ -1097,7 +1090,7 @@ static void item_run(srv_server *s, srv_conn *c, srv_io_item *it)
     } else if (it->kind == SRV_IO_ERROR) {
         srv_conn_send_error(s, c, it->code, "%s", it->msg);
     } else {
-        c->t_frame = c->t_progress = pt_now_ms();
+        /* No clock: an attached peer's frame times are its thread's. */
         if (it->f.type == PROTO_MSG_RESULT && it->decoded)
             srv_workers_result(s, c, &it->f, &it->r, it->checked);
         else

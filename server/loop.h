@@ -2,22 +2,22 @@
  * loop.h - the event loop: non-blocking sockets under one epoll, and the
  * connections (workers and clients) it serves.
  *
- * Owns every srv_conn: its input (a proto_frame_reader of IN_START bytes,
+ * Owns every srv_conn: its input (a proto_frame_reader of SRV_IN_START bytes,
  * grown only to the frame its header declares once the decoder has checked
  * that length against the cap: PROTO_MAX_PAYLOAD_PREAUTH before
  * authentication, then the role's SRV_WORKER_MAX_PAYLOAD or
- * SRV_CLIENT_MAX_PAYLOAD, and cut back to IN_START once that frame is
+ * SRV_CLIENT_MAX_PAYLOAD, and cut back to SRV_IN_START once that frame is
  * consumed), its output (a writer capped at OUT_MAX; a peer whose unsent
  * output passes OUT_HIGH is not read from, which is backpressure), the
  * handshake (HELLO, CHALLENGE, AUTH, WELCOME) and its timeout.
  *
  * Limits on peers (srv_peer_limits, server/serve.h; hostile peers are
  * stopped by these, honest ones only slowed):
- * - memory: input buffers grown past IN_START hold at most max_input_mem in
+ * - memory: input buffers grown past SRV_IN_START hold at most max_input_mem in
  *   all. A peer whose next frame would pass it is parked: not read (no
  *   EPOLLIN, TCP pushes back on it) until a frame ends or a peer goes, and
  *   not judged by the rate rule meanwhile. Total input memory is thus at
- *   most connections x IN_START + max_input_mem.
+ *   most connections x SRV_IN_START + max_input_mem.
  * - slots: the file-descriptor limit (RLIMIT_NOFILE, its soft value raised
  *   to the hard one at srv_loop_open where allowed) less SRV_FD_RESERVE
  *   connections in all, logged at start; of them at most max_handshakes in
@@ -55,7 +55,16 @@
 #include "protocol/msg.h"
 #include "server/core.h"
 
-#define SRV_OUT_HIGH (16u << 20) /* stop reading a peer whose unsent output passes this */
+#define SRV_OUT_HIGH (16u << 20)   /* stop reading a peer whose unsent output passes this */
+#define SRV_IN_START (64u * 1024u) /* every connection's first input buffer */
+
+/* Input bytes a buffer of cap bytes counts against max_input_mem: what it
+ * holds past the SRV_IN_START every connection has (server/io.h counts its
+ * threads' buffers so too). */
+static inline uint64_t srv_in_counted(size_t cap)
+{
+    return cap > SRV_IN_START ? cap - SRV_IN_START : 0;
+}
 
 /* Connection slots: the file-descriptor limit less SRV_FD_RESERVE, of which
  * at most max_handshakes (srv_peer_limits, server/serve.h) are not yet
@@ -204,10 +213,10 @@ void srv_conn_peer_error(srv_server *s, srv_conn *c, const proto_frame *f, const
 /* The open connection with this id, NULL when there is none. */
 srv_conn *srv_conn_find(srv_server *s, uint64_t id);
 
-/* The rate rule's first part (above) for a frame in progress: held bytes
- * of it, size its whole size (0 while its header is incomplete), begun at
- * t_frame. 1 when it is too slow, with the reason in why. */
-int srv_frame_too_slow(const srv_peer_limits *l, size_t held, uint64_t size, uint64_t t_frame,
+/* The rate rule's first part (above) for the frame in progress in the
+ * reader in (begun at t_frame). 1 when it is too slow, with the reason in
+ * why. */
+int srv_frame_too_slow(const srv_peer_limits *l, const proto_frame_reader *in, uint64_t t_frame,
                        uint64_t now, char *why, size_t n);
 
 #endif

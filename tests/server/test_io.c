@@ -17,10 +17,9 @@
 #include "common/base/alloc.h"
 #include "common/base/clock.h"
 #include "server/io.h"
+#include "server/loop.h"
 #include "tests/check.h"
 #include "tests/protocol/samples.h"
-
-#define IN_START (64u * 1024u)
 
 static _Atomic uint64_t in_held;
 
@@ -87,7 +86,7 @@ static void frames_in_order(int keep_results)
 {
     srv_peer_limits l = limits();
     srv_io *io = NULL;
-    CHECK(srv_io_new(2, &l, &in_held, IN_START, keep_results, &io, NULL) == PT_OK);
+    CHECK(srv_io_new(2, &l, &in_held, keep_results, &io, NULL) == PT_OK);
     if (!io)
         return;
     int sp[2][2];
@@ -96,7 +95,7 @@ static void frames_in_order(int keep_results)
         CHECK(socketpair(AF_UNIX, SOCK_STREAM | SOCK_NONBLOCK, 0, sp[c]) == 0);
         /* What the loop read past the AUTH: the first three frames. */
         proto_frame_reader in;
-        proto_frame_reader_init(&in, IN_START, PROTO_FRAME_OVERHEAD + PROTO_MAX_PAYLOAD);
+        proto_frame_reader_init(&in, SRV_IN_START, PROTO_FRAME_OVERHEAD + PROTO_MAX_PAYLOAD);
         proto_writer w;
         proto_writer_init(&w, 1 << 22);
         for (int i = 0; i < 3; i++)
@@ -169,13 +168,13 @@ static void full_queue_stops(void)
 {
     srv_peer_limits l = limits();
     srv_io *io = NULL;
-    CHECK(srv_io_new(1, &l, &in_held, IN_START, 1, &io, NULL) == PT_OK);
+    CHECK(srv_io_new(1, &l, &in_held, 1, &io, NULL) == PT_OK);
     if (!io)
         return;
     int sp[2];
     CHECK(socketpair(AF_UNIX, SOCK_STREAM | SOCK_NONBLOCK, 0, sp) == 0);
     proto_frame_reader in;
-    proto_frame_reader_init(&in, IN_START, PROTO_FRAME_OVERHEAD + PROTO_MAX_PAYLOAD);
+    proto_frame_reader_init(&in, SRV_IN_START, PROTO_FRAME_OVERHEAD + PROTO_MAX_PAYLOAD);
     CHECK(srv_io_attach(io, 7, sp[0], &in, 1u << 20, NULL) == PT_OK);
     /* 1 MiB frames (an unknown payload is fine here: the loop judges it). */
     size_t big = 1u << 20;
@@ -225,8 +224,8 @@ static void bad_threads(void)
     srv_peer_limits l = limits();
     srv_io *io = NULL;
     pt_error err = {0};
-    CHECK(srv_io_new(0, &l, &in_held, IN_START, 0, &io, &err) == PT_ERR_ARG && !io);
-    CHECK(srv_io_new(SRV_IO_MAX_THREADS + 1, &l, &in_held, IN_START, 0, &io, &err) == PT_ERR_ARG);
+    CHECK(srv_io_new(0, &l, &in_held, 0, &io, &err) == PT_ERR_ARG && !io);
+    CHECK(srv_io_new(SRV_IO_MAX_THREADS + 1, &l, &in_held, 0, &io, &err) == PT_ERR_ARG);
     srv_io_free(NULL);
 }
 
