@@ -17,6 +17,7 @@ struct srv_writer {
     pt_exr_meta meta;
     int busy, stop;
     unsigned long written, failures;
+    double error; /* pt_film_rel_error at the last resolve; -1 before any */
     pt_status last;
     pt_error last_err;
 };
@@ -37,10 +38,12 @@ static void *writer_main(void *p)
 
         pt_error err = {0};
         pt_status st = PT_OK;
+        double e = -1.0;
         if (!w->img)
             st = pt_image_new(w->film->width, w->film->height, &w->img, &err);
         if (st == PT_OK) {
             meta.total_samples = pt_film_resolve(w->film, w->img);
+            e = pt_film_rel_error(w->film);
             w->img->has_alpha = w->has_alpha;
             st = pt_exr_write(w->exr, w->img, &meta, &err);
         }
@@ -49,6 +52,8 @@ static void *writer_main(void *p)
 
         pthread_mutex_lock(&w->mu);
         w->busy = 0;
+        if (e != -1.0)
+            w->error = e;
         w->last = st;
         w->last_err = err;
         if (st == PT_OK) {
@@ -71,6 +76,7 @@ pt_status srv_writer_new(const char *exr_path, const pt_film *film, int has_alph
         return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
     w->film = film;
     w->has_alpha = has_alpha;
+    w->error = -1.0;
     snprintf(w->exr, sizeof w->exr, "%s", exr_path);
     pt_png_preview_path(exr_path, w->png, sizeof w->png);
     pthread_mutex_init(&w->mu, NULL);
@@ -116,6 +122,14 @@ pt_status srv_writer_last(srv_writer *w, unsigned long *failures, pt_error *err)
         *failures = w->failures;
     pthread_mutex_unlock(&w->mu);
     return st;
+}
+
+double srv_writer_error(srv_writer *w)
+{
+    pthread_mutex_lock(&w->mu);
+    double e = w->error;
+    pthread_mutex_unlock(&w->mu);
+    return e;
 }
 
 unsigned long srv_writer_count(srv_writer *w)

@@ -5,9 +5,12 @@
  * job's live film into its own image (pt_film_resolve, band by band under
  * the film's locks, while the loop goes on adding tiles), writes it
  * (pt_exr_write: temp file, fsync, rename) and a PNG preview beside it. So
- * the loop spends nothing per save but the request. Only the newest request
- * waiting is kept: one not yet taken is replaced, so a slow disk never makes
- * the loop wait or memory grow, and the files on disk only move forward.
+ * the loop spends nothing per save but the request. The thread also measures
+ * the image's estimated error (pt_film_rel_error, a pass over every pixel),
+ * which the loop reads with srv_writer_error instead of computing it. Only
+ * the newest request waiting is kept: one not yet taken is replaced, so a
+ * slow disk never makes the loop wait or memory grow, and the files on disk
+ * only move forward.
  * srv_writer_flush waits until everything asked for has been written. A write
  * that fails (a full output folder) leaves the last good image in place and
  * is reported by srv_writer_last; the caller submits again later.
@@ -39,6 +42,10 @@ pt_status srv_writer_flush(srv_writer *w, pt_error *err);
  * any), its error in err; *failures (may be NULL) receives the number of
  * writes that failed in a row up to it (0 after a success). */
 pt_status srv_writer_last(srv_writer *w, unsigned long *failures, pt_error *err);
+/* The estimated relative error (pt_film_rel_error: infinite while a pixel
+ * has fewer than 2 samples) of the film at the last resolve, written or not:
+ * after srv_writer_flush, the film's as submitted. -1 before any. */
+double srv_writer_error(srv_writer *w);
 /* Number of snapshots written so far. */
 unsigned long srv_writer_count(srv_writer *w);
 void srv_writer_free(srv_writer *w); /* flushes first; accepts NULL */

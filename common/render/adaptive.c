@@ -6,14 +6,14 @@
 #include <math.h>
 #include <stddef.h>
 
-double pt_tile_rel_error(const pt_pixel_acc *px, uint32_t stride, uint32_t width, uint32_t height)
+int pt_rel_error_add(const pt_pixel_acc *px, uint32_t stride, uint32_t width, uint32_t height,
+                     double *sum)
 {
-    double sum = 0.0;
     for (uint32_t y = 0; y < height; y++) {
         for (uint32_t x = 0; x < width; x++) {
             const pt_pixel_acc *a = &px[(size_t)y * stride + x];
             if (a->n < 2)
-                return INFINITY;
+                return -1;
             double n = a->n;
             double mean = (0.2126 * pt_acc_sum(a, 0) + 0.7152 * pt_acc_sum(a, 1) +
                            0.0722 * pt_acc_sum(a, 2)) /
@@ -21,9 +21,17 @@ double pt_tile_rel_error(const pt_pixel_acc *px, uint32_t stride, uint32_t width
             double var = (pt_acc_sum_sq(a) - n * mean * mean) / (n - 1.0);
             double sigma = var > 0.0 ? sqrt(var / n) : 0.0;
             double rel = sigma / (fabs(mean) + PT_ADAPTIVE_EPS);
-            sum += rel * rel;
+            *sum += rel * rel;
         }
     }
+    return 0;
+}
+
+double pt_tile_rel_error(const pt_pixel_acc *px, uint32_t stride, uint32_t width, uint32_t height)
+{
+    double sum = 0.0;
+    if (pt_rel_error_add(px, stride, width, height, &sum) != 0)
+        return INFINITY;
     return width && height ? sqrt(sum / ((double)width * height)) : 0.0;
 }
 

@@ -25,6 +25,12 @@
  * same sums give the same decision wherever it is made. */
 #define PT_ADAPTIVE_EPS 1e-2
 double pt_tile_rel_error(const pt_pixel_acc *px, uint32_t stride, uint32_t width, uint32_t height);
+/* pt_tile_rel_error's sum: adds the squared relative error of each pixel of
+ * the region to *sum, in the same order, so that a sum carried from region to
+ * region of a row-major whole is that whole's. 0, or -1 at a pixel with fewer
+ * than 2 samples (*sum is then partial). */
+int pt_rel_error_add(const pt_pixel_acc *px, uint32_t stride, uint32_t width, uint32_t height,
+                     double *sum);
 
 /* The minimum-mean-error rule's measure of a tile: what one more sample per
  * pixel would take off the mean squared error of its pixel means (R, G and B,

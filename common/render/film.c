@@ -5,6 +5,7 @@
 #include <pthread.h>
 
 #include "common/base/alloc.h"
+#include "common/render/adaptive.h"
 
 struct pt_film_bands {
     uint32_t n;
@@ -141,6 +142,23 @@ uint64_t pt_film_resolve(const pt_film *film, pt_image *img)
         pthread_mutex_unlock(&film->bands->mu[b]);
     }
     return total;
+}
+
+double pt_film_rel_error(const pt_film *film)
+{
+    double sum = 0.0;
+    for (uint32_t b = 0; b < film->bands->n; b++) {
+        uint32_t y0 = b * PT_FILM_BAND_ROWS, y1 = y0 + PT_FILM_BAND_ROWS;
+        if (y1 > film->height)
+            y1 = film->height;
+        pthread_mutex_lock(&film->bands->mu[b]);
+        int st = pt_rel_error_add(film->px + (size_t)y0 * film->width, film->width, film->width,
+                                  y1 - y0, &sum);
+        pthread_mutex_unlock(&film->bands->mu[b]);
+        if (st != 0)
+            return INFINITY;
+    }
+    return film->width && film->height ? sqrt(sum / ((double)film->width * film->height)) : 0.0;
 }
 
 uint64_t pt_film_total_samples(const pt_film *film)

@@ -7,7 +7,7 @@
  * parts of a range of samples are added and however it was split at
  * PT_SAMPLE_BLOCK boundaries. pt_film_resolve turns sums into a pt_image
  * (mean RGB, sample count, variance of the mean).
- * Threads: pt_film_add_tile and pt_film_resolve lock the bands of
+ * Threads: pt_film_add_tile, pt_film_resolve and pt_film_rel_error lock the bands of
  * PT_FILM_BAND_ROWS rows they touch, one at a time, so a thread may resolve
  * while another adds tiles: every pixel is resolved whole (its sums and count
  * from the same moment), each band as it was when it was read. Everything
@@ -45,6 +45,11 @@ uint64_t pt_film_add_tile(pt_film *film, pt_rect tile, const pt_pixel_acc *acc);
  * no samples are 0; variance needs n >= 2 (else 0). Returns the samples of
  * the pixels it resolved (their sum of n). */
 uint64_t pt_film_resolve(const pt_film *film, pt_image *img);
+
+/* Adaptive sampling's measure of the whole image (pt_tile_rel_error over
+ * every pixel, the same value), read band by band under the band locks like
+ * pt_film_resolve. */
+double pt_film_rel_error(const pt_film *film);
 
 /* Total samples over all pixels. */
 uint64_t pt_film_total_samples(const pt_film *film);
