@@ -1092,7 +1092,7 @@ static void item_run(srv_server *s, srv_conn *c, srv_io_item *it)
     } else {
         /* No clock: an attached peer's frame times are its thread's. */
         if (it->f.type == PROTO_MSG_RESULT && it->decoded)
-            srv_workers_result(s, c, &it->f, &it->r, it->checked);
+            srv_workers_result(s, c, &it->f, &it->r, it->checked, it->frame ? &it->frame : NULL);
         else
             dispatch(s, c, &it->f);
     }

@@ -770,12 +770,14 @@ srv_entry *srv_queue_find_scene(srv_server *s, const uint8_t hash[32])
 }
 
 pt_status srv_queue_log_result(srv_server *s, srv_entry *j, uint64_t owner, proto_result *r,
-                               const uint8_t *frame, size_t len, uint64_t arrived, pt_error *err)
+                               const uint8_t *frame, size_t len, uint8_t **own, uint64_t arrived,
+                               pt_error *err)
 {
     if (j->paused)
         return pt_error_set(err, PT_ERR_IO, "job %llu is paused", (unsigned long long)j->rec.id);
     uint64_t commit = srv_state_commit_next(s->state);
-    pt_status st = srv_state_log_result(s->state, j->rec.id, frame, len, err);
+    pt_status st = own && *own ? srv_state_log_result_take(s->state, j->rec.id, own, len, err)
+                               : srv_state_log_result(s->state, j->rec.id, frame, len, err);
     if (st == PT_OK) {
         st = push_pending(s, j, owner, r, arrived);
         if (st != PT_OK)
@@ -787,11 +789,14 @@ pt_status srv_queue_log_result(srv_server *s, srv_entry *j, uint64_t owner, prot
     if (st != PT_ERR_IO)
         return st;
     /* Kept for the retry: logged and merged once the folder takes writes. */
-    j->pending_rec = pt_malloc(len ? len : 1);
-    if (j->pending_rec) {
+    if (own && *own) {
+        j->pending_rec = *own;
+        *own = NULL;
+    } else if ((j->pending_rec = pt_malloc(len ? len : 1)) != NULL) {
         memcpy(j->pending_rec, frame, len);
-        j->pending_len = len;
     }
+    if (j->pending_rec)
+        j->pending_len = len;
     pause_job(s, j, "cannot write its results log", err);
     return st;
 }

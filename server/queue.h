@@ -130,17 +130,19 @@ void srv_queue_prune(srv_server *s);
 /* Writes the queue file (every job's record); PT_OK with no state folder. */
 pt_status srv_queue_journal(srv_server *s, pt_error *err);
 
-/* Logs an accepted RESULT of j (frame: its whole frame as received; r: that
- * frame decoded into pixels of its own) from owner; the result is merged
- * once its record is durable (srv_queue_committed) and the caller must not
- * merge it. Takes r's pixels (r->pixels is then NULL, r->owns_pixels 0):
- * they wait with the record, decoded once. When
- * the log cannot take it, j is paused
- * (its leases requeued, the workers told to drop its tasks, the reason logged
- * once) and the frame kept to be logged by a later srv_queue_tick. Also
- * fails, quietly, while j is paused. Needs a state folder. */
+/* Logs an accepted RESULT of j (frame: its whole frame as received, len
+ * bytes; r: that frame decoded into pixels of its own) from owner; the result
+ * is merged once its record is durable (srv_queue_committed) and the caller
+ * must not merge it. Takes r's pixels (r->pixels is then NULL, r->owns_pixels
+ * 0): they wait with the record, decoded once. own: NULL, or the pt_malloc'd
+ * buffer frame lies at the start of, which the log takes instead of a copy
+ * (*own is then NULL). When the log cannot take it, j is paused (its leases
+ * requeued, the workers told to drop its tasks, the reason logged once) and
+ * the frame kept to be logged by a later srv_queue_tick. Also fails, quietly,
+ * while j is paused. Needs a state folder. */
 pt_status srv_queue_log_result(srv_server *s, srv_entry *j, uint64_t owner, proto_result *r,
-                               const uint8_t *frame, size_t len, uint64_t arrived, pt_error *err);
+                               const uint8_t *frame, size_t len, uint8_t **own, uint64_t arrived,
+                               pt_error *err);
 
 /* The group commit's completions (its eventfd is readable): merges the
  * results whose records are now durable, pauses a job whose log's fdatasync

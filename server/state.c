@@ -13,6 +13,7 @@
 #include <sys/eventfd.h>
 #include <sys/file.h>
 #include <sys/stat.h>
+#include <sys/uio.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -52,29 +53,110 @@
 #define MAX_QUEUE_BYTES (256u << 20)
 #define MAX_CKPT_BYTES ((size_t)8 << 30)
 
-/* Records waiting to be written: the loop appends, the commit thread writes. */
+/* Records waiting to be written: the loop appends, the commit thread writes
+ * them with writev. Each record is a buffer of its own: a RESULT frame as an
+ * I/O thread received it, taken without a copy (a copy of 37 kB per result
+ * was 12 % of the loop's time in queue mode) or a copy. The buffers are
+ * freed once written and durable, by the commit thread. */
+typedef struct rec_seg {
+    uint8_t *p;
+    size_t n; /* > 0 */
+} rec_seg;
+
 typedef struct rec_buf {
-    uint8_t *b;
-    size_t len, cap;
+    rec_seg *seg;
+    uint32_t nseg, cap;
+    size_t len; /* the bytes of all its records */
 } rec_buf;
 
-/* Appends n bytes; 0, or -1 out of memory. */
-static int rec_append(rec_buf *r, const uint8_t *p, size_t n)
+/* Takes p (pt_malloc'd, n > 0 bytes) as the next record; 0, or -1 out of
+ * memory (p stays the caller's). */
+static int rec_take(rec_buf *r, uint8_t *p, size_t n)
 {
-    if (n == 0)
-        return 0; /* p may be NULL */
-    if (n > r->cap - r->len) {
-        size_t cap = r->cap ? r->cap : 64 * 1024;
-        while (cap - r->len < n)
-            cap *= 2;
-        uint8_t *b = pt_realloc(r->b, cap);
-        if (!b)
+    if (r->nseg == r->cap) {
+        rec_seg *g = pt_grow_array(r->seg, &r->cap, sizeof *g, 64);
+        if (!g)
             return -1;
-        r->b = b;
-        r->cap = cap;
+        r->seg = g;
     }
-    memcpy(r->b + r->len, p, n);
+    r->seg[r->nseg++] = (rec_seg){p, n};
     r->len += n;
+    return 0;
+}
+
+/* Frees the records; the array stays for the next ones. */
+static void rec_clear(rec_buf *r)
+{
+    for (uint32_t i = 0; i < r->nseg; i++)
+        pt_free(r->seg[i].p);
+    r->nseg = 0;
+    r->len = 0;
+}
+
+static void rec_fini(rec_buf *r)
+{
+    rec_clear(r);
+    pt_free(r->seg);
+    *r = (rec_buf){0};
+}
+
+/* Moves src's records after dst's (src is left empty); 0, or -1 out of
+ * memory (both unchanged). */
+static int rec_join(rec_buf *dst, rec_buf *src)
+{
+    if (src->nseg == 0)
+        return 0;
+    if (src->nseg > UINT32_MAX - dst->nseg)
+        return -1;
+    uint32_t need = dst->nseg + src->nseg;
+    if (need > dst->cap) {
+        rec_seg *g = pt_realloc(dst->seg, (size_t)need * sizeof *g);
+        if (!g)
+            return -1;
+        dst->seg = g;
+        dst->cap = need;
+    }
+    memcpy(dst->seg + dst->nseg, src->seg, (size_t)src->nseg * sizeof *src->seg);
+    dst->nseg = need;
+    dst->len += src->len;
+    src->nseg = 0;
+    src->len = 0;
+    return 0;
+}
+
+/* Writes every record to fd, in order; 0, or -1 with errno (some may be
+ * written). */
+static int rec_write(int fd, const rec_buf *r)
+{
+    enum { IOV = 256 };
+    uint32_t i = 0;
+    size_t off = 0; /* into record i */
+    while (i < r->nseg) {
+        struct iovec iov[IOV];
+        int k = 0;
+        for (uint32_t j = i; j < r->nseg && k < IOV; j++, k++) {
+            size_t skip = j == i ? off : 0;
+            iov[k] = (struct iovec){r->seg[j].p + skip, r->seg[j].n - skip};
+        }
+        ssize_t w = writev(fd, iov, k);
+        if (w < 0 && errno == EINTR)
+            continue;
+        if (w <= 0) {
+            if (w == 0)
+                errno = EIO;
+            return -1;
+        }
+        for (size_t left = (size_t)w; left > 0;) {
+            size_t rest = r->seg[i].n - off;
+            if (left < rest) {
+                off += left;
+                break;
+            }
+            left -= rest;
+            i++;
+            off = 0;
+        }
+    }
     return 0;
 }
 
@@ -251,8 +333,8 @@ static int write_out(log_file *l)
 {
     if (l->out.len == 0)
         return 0;
-    if (pt_write_all(l->fd, l->out.b, l->out.len) == 0) {
-        l->out.len = 0;
+    if (rec_write(l->fd, &l->out) == 0) {
+        rec_clear(&l->out);
         return 0;
     }
     int e = errno;
@@ -276,7 +358,7 @@ void srv_state_close(srv_state *st)
         pthread_cond_destroy(&st->cm.cv);
     }
     for (uint32_t i = 0; i < st->cm.cap; i++)
-        pt_free(st->cm.items[i].in.b);
+        rec_fini(&st->cm.items[i].in);
     pt_free(st->cm.items);
     if (st->cm.efd >= 0)
         close(st->cm.efd);
@@ -288,7 +370,7 @@ void srv_state_close(srv_state *st)
                 fdatasync(l->fd);
             close(l->fd);
         }
-        pt_free(l->out.b);
+        rec_fini(&l->out);
     }
     pt_free(st->logs);
     if (st->lock_fd >= 0)
@@ -572,7 +654,7 @@ static void close_log(srv_state *st, uint64_t id)
         return;
     if (l->fd >= 0)
         close(l->fd);
-    pt_free(l->out.b);
+    rec_fini(&l->out);
     *l = st->logs[--st->nlogs];
 }
 
@@ -646,7 +728,7 @@ static pt_status open_log(srv_state *st, uint64_t id, log_file **out, pt_error *
         fresh = 1;
     }
     l = &st->logs[st->nlogs++];
-    *l = (log_file){id, fd, bytes, bytes, ++st->epochs, fresh, 0, fresh, {NULL, 0, 0}};
+    *l = (log_file){id, fd, bytes, bytes, ++st->epochs, fresh, 0, fresh, {NULL, 0, 0, 0}};
     *out = l;
     return PT_OK;
 }
@@ -665,8 +747,8 @@ static int cut_back(log_file *l)
     return 0;
 }
 
-pt_status srv_state_log_result(srv_state *st, uint64_t id, const uint8_t *frame, size_t len,
-                               pt_error *err)
+pt_status srv_state_log_result_take(srv_state *st, uint64_t id, uint8_t **frame, size_t len,
+                                    pt_error *err)
 {
     log_file *l;
     pt_status s = open_log(st, id, &l, err);
@@ -685,12 +767,26 @@ pt_status srv_state_log_result(srv_state *st, uint64_t id, const uint8_t *frame,
      * its time in queue mode (the copy into the page cache). A kill -9 loses
      * only records not durable, which were never merged. The frame's own
      * CRC32C, checked when it arrived, is the record's checksum. */
-    if (rec_append(&l->out, frame, len) != 0)
-        return pt_error_set(err, PT_ERR_NOMEM, "results log of job %llu: out of memory",
-                            (unsigned long long)id);
+    if (len == 0 || rec_take(&l->out, *frame, len) != 0)
+        return pt_error_set(err, len ? PT_ERR_NOMEM : PT_ERR_ARG, "results log of job %llu: %s",
+                            (unsigned long long)id, len ? "out of memory" : "an empty record");
+    *frame = NULL;
     l->bytes += len;
     l->dirty = 1;
     return PT_OK;
+}
+
+pt_status srv_state_log_result(srv_state *st, uint64_t id, const uint8_t *frame, size_t len,
+                               pt_error *err)
+{
+    uint8_t *copy = len ? pt_malloc(len) : NULL;
+    if (!copy)
+        return pt_error_set(err, len ? PT_ERR_NOMEM : PT_ERR_ARG, "results log of job %llu: %s",
+                            (unsigned long long)id, len ? "out of memory" : "an empty record");
+    memcpy(copy, frame, len);
+    pt_status s = srv_state_log_result_take(st, id, &copy, len, err);
+    pt_free(copy); /* NULL once taken */
+    return s;
 }
 
 uint64_t srv_state_log_bytes(const srv_state *st, uint64_t id)
@@ -731,7 +827,7 @@ static void *commit_main(void *arg)
             commit_item *it = &cm->items[i];
             it->err = 0;
             it->step = "write";
-            if (it->in.len && pt_write_all(it->fd, it->in.b, it->in.len) != 0)
+            if (rec_write(it->fd, &it->in) != 0)
                 it->err = errno ? errno : EIO;
             if (!it->err) {
                 wait_gate(cm->gate);
@@ -741,6 +837,8 @@ static void *commit_main(void *arg)
                 else if (fdatasync(it->fd) != 0 || (it->fresh && pt_fsync_dir_of(it->path) != 0))
                     it->err = errno ? errno : EIO;
             }
+            if (!it->err)
+                rec_clear(&it->in); /* durable: off the loop's time */
             close(it->fd);
             it->fd = -1;
         }
@@ -859,20 +957,20 @@ int srv_state_commit_collect(srv_state *st, int wait, uint64_t *done, srv_commit
              * written again once srv_state_log_resync says to (not at once: a
              * full disk would make that a busy loop). Only when memory for
              * that is short are they dropped (PT_ERR_NOMEM: never merged). */
-            if (rec_append(&it->in, l->out.b, l->out.len) == 0) {
+            if (rec_join(&it->in, &l->out) == 0) {
                 rec_buf failed = it->in;
                 it->in = l->out;
                 l->out = failed;
             } else {
                 l->bytes = l->durable;
-                l->out.len = 0;
+                rec_clear(&l->out);
                 outcome = PT_ERR_NOMEM;
             }
             cut_back(l);
             l->dirty = 0;
             l->fresh |= it->fresh;
         }
-        it->in.len = 0;
+        rec_clear(&it->in);
         if (fn && current) {
             pt_error e = {0};
             if (it->err) {
@@ -1001,7 +1099,7 @@ static pt_status log_restart(srv_state *st, uint64_t id, pt_error *err)
         return pt_error_errno(err, PT_ERR_IO, "results log of job %llu: truncate",
                               (unsigned long long)id);
     l->bytes = l->durable = LOG_HEADER;
-    l->out.len = 0;
+    rec_clear(&l->out);
     l->epoch = ++st->epochs;
     l->dirty = 0;
     l->cut = 0;

@@ -182,6 +182,11 @@ pt_status srv_state_restore(srv_state *st, srv_job *job, srv_ckpt_extra *extra, 
  * or memory is short; the result must not be merged then. */
 pt_status srv_state_log_result(srv_state *st, uint64_t id, const uint8_t *frame, size_t len,
                                pt_error *err);
+/* srv_state_log_result without a copy: takes *frame (a pt_malloc'd buffer of
+ * len bytes holding the frame) and sets it to NULL; on failure it stays the
+ * caller's. */
+pt_status srv_state_log_result_take(srv_state *st, uint64_t id, uint8_t **frame, size_t len,
+                                    pt_error *err);
 /* Bytes in the job's log now (0 when it has none). */
 uint64_t srv_state_log_bytes(const srv_state *st, uint64_t id);
 

@@ -246,11 +246,11 @@ static void on_result(srv_server *s, srv_conn *c, const proto_frame *f)
         srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "bad RESULT: %s", err.msg);
         return;
     }
-    srv_workers_result(s, c, f, &r, 0);
+    srv_workers_result(s, c, f, &r, 0, NULL);
 }
 
 void srv_workers_result(srv_server *s, srv_conn *c, const proto_frame *f, proto_result *rp,
-                        int checked)
+                        int checked, uint8_t **own)
 {
     proto_result r = *rp; /* the caller's is left empty: this one is fini'd here */
     rp->pixels = NULL;
@@ -282,7 +282,8 @@ void srv_workers_result(srv_server *s, srv_conn *c, const proto_frame *f, proto_
     if (o == SRV_MERGED && s->state) {
         c->misses = 0;
         if (srv_queue_log_result(s, j, c->id, &r, f->payload - PROTO_FRAME_HEADER,
-                                 (size_t)f->len + PROTO_FRAME_OVERHEAD, pt_now_ms(), &err) == PT_OK)
+                                 (size_t)f->len + PROTO_FRAME_OVERHEAD, own, pt_now_ms(),
+                                 &err) == PT_OK)
             srv_job_answered(j->job, lease_index);
         proto_result_fini(&r); /* a failure is logged once, by the queue */
         return;

@@ -39,9 +39,11 @@ void srv_workers_dispatch(srv_server *s, srv_conn *c, const proto_frame *f);
  * server/io.h; its pixels its own): as srv_workers_dispatch would, without
  * decoding it again; checked: its pixels passed srv_job_pixels_plausible.
  * f's payload is needed only in queue mode (the results log writes the
- * frame as received). Takes r's pixels: r is left empty. */
+ * frame as received). own: NULL, or the pt_malloc'd buffer holding that whole
+ * frame, which the results log may take instead of a copy (*own is then
+ * NULL). Takes r's pixels: r is left empty. */
 void srv_workers_result(srv_server *s, srv_conn *c, const proto_frame *f, proto_result *r,
-                        int checked);
+                        int checked, uint8_t **own);
 
 /* Merges r, a result of j from owner (a connection id, maybe gone now) held
  * until its log record was durable (server/queue.h), and counts it. The job

@@ -4,7 +4,9 @@
  * group commit's thread, is cut back to the last whole record so later
  * records follow whole ones; a torn last record
  * (incomplete, or whole in length with a bad checksum) is dropped at restore
- * and cut off; damage before the last record is still refused; a queue file
+ * and cut off; damage before the last record is still refused; records
+ * taken without a copy, more than one writev's, keep their order through a
+ * failed commit; a queue file
  * that cannot be written is reported as unsaved until one is.
  */
 #include <fcntl.h>
@@ -187,6 +189,72 @@ static void test_short_write_cut_back(const char *dir)
     int torn = 0;
     CHECKF(restore(dir, &replayed, &torn, &err) == PT_OK, "%s", err.msg);
     CHECKF(replayed == 4 && torn == 0, "%u replayed, torn %d", replayed, torn);
+    pt_remove_tree(dir);
+}
+
+/* Records taken without a copy (srv_state_log_result_take) and more of them
+ * than one writev takes: a group commit writes them in order; one cut short
+ * keeps its records in front of those logged since, and the next commit
+ * writes them all, in order, once. */
+static void test_commit_many_taken(const char *dir)
+{
+    enum { FIRST = 300, LATER = 300 }; /* each more than the writev batch of 256 */
+    char log[512];
+    snprintf(log, sizeof log, "%s/jobs/%u/results.log", dir, JOB_ID);
+    pt_error err = {0};
+    srv_state *st = open_state(dir);
+    srv_job *src = fresh_job();
+    proto_writer w[4];
+    for (uint64_t t = 0; t < 4; t++)
+        payload_of(src, t, &w[t]);
+    size_t total = 0;
+    uint8_t *want = pt_malloc((size_t)(FIRST + LATER) * w[0].len * 2);
+    CHECK(want != NULL);
+    uint64_t start = 0;
+    struct rlimit old, lim;
+    CHECK(getrlimit(RLIMIT_FSIZE, &old) == 0);
+    commit_seen seen = {0};
+    uint64_t done = 0;
+    for (int i = 0; i < FIRST + LATER; i++) {
+        const proto_writer *r = &w[i % 4];
+        uint8_t *frame = pt_malloc(r->len);
+        CHECK(frame != NULL);
+        memcpy(frame, r->buf, r->len);
+        memcpy(want + total, r->buf, r->len);
+        total += r->len;
+        CHECKF(srv_state_log_result_take(st, JOB_ID, &frame, r->len, &err) == PT_OK, "%s", err.msg);
+        CHECK(frame == NULL); /* the log's now */
+        if (i == 0)
+            start = srv_state_log_bytes(st, JOB_ID) - r->len; /* the header */
+        if (i == FIRST - 1) {
+            /* The first batch's commit is cut short past its 200th record. */
+            lim = old;
+            lim.rlim_cur = (rlim_t)(start + total * 2 / 3);
+            CHECK(setrlimit(RLIMIT_FSIZE, &lim) == 0);
+            CHECK(srv_state_commit_start(st) == 1);
+            CHECK(srv_state_commit_collect(st, 1, &done, on_commit_seen, &seen) == 1);
+            CHECK(setrlimit(RLIMIT_FSIZE, &old) == 0);
+            CHECKF(seen.calls == 1 && seen.last == PT_ERR_IO, "%u calls, status %d", seen.calls,
+                   seen.last);
+            CHECK(size_of(log) == (off_t)start);
+        }
+    }
+    CHECK(srv_state_log_bytes(st, JOB_ID) == start + total);
+    CHECK(srv_state_log_resync(st, JOB_ID, &err) == PT_OK);
+    CHECK(srv_state_commit_start(st) == 1);
+    CHECK(srv_state_commit_collect(st, 1, &done, on_commit_seen, &seen) == 1);
+    CHECK(seen.calls == 2 && seen.last == PT_OK);
+    uint8_t *data = NULL;
+    size_t len = 0;
+    CHECK(pt_read_file(log, 1 << 30, &data, &len, &err) == PT_OK);
+    CHECKF(len == start + total && memcmp(data + start, want, total) == 0,
+           "the log holds %zu bytes, %zu written in order wanted", len, (size_t)(start + total));
+    pt_free(data);
+    pt_free(want);
+    for (int t = 0; t < 4; t++)
+        proto_writer_fini(&w[t]);
+    srv_job_free(src);
+    srv_state_close(st);
     pt_remove_tree(dir);
 }
 
@@ -391,6 +459,7 @@ int main(void)
     }
     test_short_write_cut_back(dir);
     test_torn_tail(dir);
+    test_commit_many_taken(dir);
     test_queue_unsaved(dir);
     test_queue_env_versions(dir);
     test_queue_frames(dir);
