@@ -30,6 +30,8 @@ typedef struct io_conn {
     int armed;                    /* ... for one EPOLLIN (EPOLLONESHOT), not yet reported */
     int parked;                   /* its next frame does not fit the input memory yet */
     uint64_t t_parked;
+    int waiting; /* not read: the queue was full (until CMD_RESUME) */
+    uint64_t t_wait;
 } io_conn;
 
 enum { CMD_ATTACH, CMD_CLOSE, CMD_RESUME, CMD_STOP };
@@ -301,7 +303,7 @@ static void judge(io_thread *t, uint64_t now)
 {
     const srv_peer_limits *l = &t->io->lim;
     for (io_conn *c = t->conns; c; c = c->next) {
-        if (c->done || c->parked || proto_frame_reader_pending(&c->in) == 0)
+        if (c->done || c->parked || c->waiting || proto_frame_reader_pending(&c->in) == 0)
             continue;
         char why[256];
         if (srv_frame_too_slow(l, &c->in, c->t_frame, now, why, sizeof why))
@@ -367,8 +369,17 @@ static int run_cmds(io_thread *t)
                     break;
                 }
         } else if (c->kind == CMD_RESUME) {
-            for (io_conn *k = t->conns; k; k = k->next)
+            /* The time the queue was full is not held against a frame: the
+             * loop was the one not taking (a hold can last seconds). */
+            uint64_t now = pt_now_ms();
+            for (io_conn *k = t->conns; k; k = k->next) {
+                if (k->waiting) {
+                    k->waiting = 0;
+                    k->t_frame += now - k->t_wait;
+                    k->t_progress = now;
+                }
                 conn_arm(t, k);
+            }
         } else {
             go = 0;
         }
@@ -426,9 +437,16 @@ static void *io_main(void *p)
             parked |= read[i]->parked;
         /* On a full queue the connections read this round wait for the
          * loop's take (CMD_RESUME) before they are read again. */
-        if (!publish(t))
+        if (!publish(t)) {
             for (int i = 0; i < nread; i++)
                 conn_arm(t, read[i]);
+        } else {
+            for (int i = 0; i < nread; i++)
+                if (!read[i]->waiting) {
+                    read[i]->waiting = 1;
+                    read[i]->t_wait = now;
+                }
+        }
         if (cmds) {
             eventfd_drain(t->cmd);
             go = run_cmds(t);
