@@ -76,6 +76,8 @@ typedef struct srv_histogram {
 typedef struct srv_counters {
     uint64_t samples_merged, tasks_leased, tasks_requeued, tasks_expired, results_rejected;
     uint64_t state_write_errors;
+    uint64_t log_holds;    /* times workers were not read, the results log being behind */
+    uint64_t log_unsynced; /* results log bytes not yet durable, as of the last round */
     /* Loop time: a RESULT's merge, a progressive image resolved and handed to
      * its writer, a checkpoint written. */
     srv_histogram merge, save, checkpoint;
@@ -120,6 +122,8 @@ struct srv_server {
     pt_pixel_acc *scratch; /* RESULT decode buffer */
     srv_adder *adder;      /* film adds off the loop (--merge-threads); NULL: none */
     struct srv_io *io;     /* workers read off the loop (--io-threads, server/io.h); NULL: none */
+    int log_held;          /* workers not read: the results log is behind (srv_loop_hold) */
+    uint64_t t_held, t_released;
     srv_blocked blocked[SRV_MAX_BLOCKED];
     uint32_t nblocked;
     uint64_t verify_seed; /* picks the tasks verified (server/job.h), made at the first lease */

@@ -962,6 +962,13 @@ static void metrics_text(FILE *f, const snap *p)
     metric_counter(f, "ptfarm_state_write_errors_total",
                    "Failed writes to the state folder (queue file, results logs, checkpoints).",
                    c->state_write_errors);
+    metric_counter(f, "ptfarm_results_log_holds_total",
+                   "Times workers were not read because the results log was over --max-log-mb "
+                   "waiting for the disk.",
+                   c->log_holds);
+    metric_gauge(f, "ptfarm_results_log_unsynced_bytes",
+                 "Results log bytes in memory or being written, not yet durable.",
+                 (double)c->log_unsynced);
     metric_gauge(f, "ptfarm_workers_connected", "Authenticated workers connected.",
                  p ? p->nworkers : 0);
     metric_gauge(f, "ptfarm_worker_threads", "Render threads of the connected workers.", threads);

@@ -394,6 +394,12 @@ static void conn_park(srv_server *s, srv_conn *c)
     srv_conn_update_events(s, c);
 }
 
+/* An authenticated worker the loop reads, while srv_loop_hold holds them. */
+static int held(const srv_server *s, const srv_conn *c)
+{
+    return s->log_held && c->state == SRV_C_READY && c->role == PROTO_ROLE_WORKER;
+}
+
 /* Reads c again; the time it was parked is not held against its frame. */
 static void conn_unpark(srv_conn *c, uint64_t now)
 {
@@ -927,7 +933,7 @@ static void conn_read(srv_server *s, srv_conn *c)
         conn_process(s, c);
         if (c->closing || c->attached || !srv_conn_has_room(c))
             return;
-        if (!in_fits(s, c)) {
+        if (!in_fits(s, c) || held(s, c)) {
             conn_park(s, c);
             return;
         }
@@ -1209,6 +1215,39 @@ void srv_loop_timers(srv_server *s, uint64_t now)
     refusals_flush(s, now, 0);
 }
 
+void srv_loop_hold(srv_server *s)
+{
+    if (!s->state)
+        return;
+    uint64_t unsynced = srv_state_unsynced(s->state), cap = s->cfg->max_log_mem;
+    s->counters.log_unsynced = unsynced;
+    int hold = s->log_held ? unsynced > cap / 2 : unsynced > cap;
+    if (hold == s->log_held)
+        return;
+    uint64_t now = pt_now_ms();
+    s->log_held = hold;
+    if (hold) {
+        s->t_held = now;
+        s->counters.log_holds++;
+        if (s->io)
+            epoll_ctl(s->ep, EPOLL_CTL_DEL, srv_io_fd(s->io), NULL);
+        srv_log("results log: %.1f MiB not on disk yet (--max-log-mb %llu); workers are not read "
+                "until the disk catches up",
+                unsynced / 1048576.0, (unsigned long long)(cap >> 20));
+        return;
+    }
+    s->t_released = now;
+    /* Items still waiting wake the loop again at once (the eventfd was
+     * left unread); parked workers are read again by the sweep, which looks
+     * at every parked peer each round. */
+    if (s->io) {
+        struct epoll_event e = {.events = EPOLLIN, .data.ptr = &s->io};
+        epoll_ctl(s->ep, EPOLL_CTL_ADD, srv_io_fd(s->io), &e);
+    }
+    srv_log("results log: the disk caught up after %.1f s; workers are read again",
+            (now - s->t_held) / 1000.0);
+}
+
 void srv_loop_flush_all(srv_server *s)
 {
     /* Queued output is listed (srv_conn_update_events); a list that lost
@@ -1250,7 +1289,7 @@ static int sweep_one(srv_server *s, srv_conn *c, uint64_t now)
 {
     if (c->out.len > c->out_off)
         conn_flush(s, c);
-    if (c->rq && !c->closing) {
+    if (c->rq && !c->closing && !held(s, c)) { /* held: the walk every 50 ms resumes it */
         rq_run(s, c);
         conn_touch(s, c); /* what it asked for is handed out next round */
     }
@@ -1261,7 +1300,7 @@ static int sweep_one(srv_server *s, srv_conn *c, uint64_t now)
     }
     if (c->closing && (c->close_at == 0 || now >= c->close_at))
         return 1;
-    if (c->parked && in_fits(s, c))
+    if (c->parked && in_fits(s, c) && !held(s, c))
         conn_unpark(c, now);
     srv_conn_update_events(s, c);
     return 0;

@@ -40,6 +40,9 @@ static void usage(FILE *f)
         "  --state-dir DIR        the queue, scenes, checkpoints and results logs (a\n"
         "                         result is merged once fdatasync'd; a job's log is\n"
         "                         folded into a checkpoint at 4x its film's size)\n"
+        "  --max-log-mb N         results held in memory until their log is on disk:\n"
+        "                         past N MiB (default 512), workers are not read until\n"
+        "                         the disk is back under half of it\n"
         "  --output-dir DIR       where images are written (default DIR/output), as\n"
         "                         ID-NAME.exr with NAME reduced to [A-Za-z0-9._-]\n"
         "  --max-res N            longest image side a client may ask for (default 16384)\n"
@@ -190,6 +193,7 @@ int main(int argc, char **argv)
     c.save_interval = 5.0;
     c.merge_threads = SRV_DEFAULT_MERGE_THREADS;
     c.io_threads = SRV_DEFAULT_IO_THREADS;
+    c.max_log_mem = SRV_DEFAULT_MAX_LOG_MEM;
     c.verify_fraction = 0.02;
     c.caps.max_side = PT_RENDER_MAX_SIDE;
     c.caps.max_pixels = 16777216;
@@ -197,7 +201,8 @@ int main(int argc, char **argv)
     c.caps.max_scene = 512ull << 20;
     c.caps.max_queued = 64;
     double lease = 20.0, handshake = 10.0, grace = 30.0, dv = 0.0, rgb[3];
-    int env_opts = 0; /* --env-strength or --env-rotate given */
+    int log_given = 0; /* --max-log-mb: queue mode only */
+    int env_opts = 0;  /* --env-strength or --env-rotate given */
     proto_env_none(&c.job.env);
     enum {
         O_LOCAL = 256,
@@ -247,7 +252,8 @@ int main(int argc, char **argv)
         O_TASKTIME,
         O_SHUTTER,
         O_MERGETHREADS,
-        O_IOTHREADS
+        O_IOTHREADS,
+        O_MAXLOG
     };
     static const struct option opts[] = {
         {"output", required_argument, NULL, 'o'},
@@ -270,6 +276,7 @@ int main(int argc, char **argv)
         {"task-time", required_argument, NULL, O_TASKTIME},
         {"merge-threads", required_argument, NULL, O_MERGETHREADS},
         {"io-threads", required_argument, NULL, O_IOTHREADS},
+        {"max-log-mb", required_argument, NULL, O_MAXLOG},
         {"save-interval", required_argument, NULL, O_SAVE},
         {"lease-timeout", required_argument, NULL, O_LEASE},
         {"port-file", required_argument, NULL, O_PORTFILE},
@@ -445,6 +452,11 @@ int main(int argc, char **argv)
         case O_MAXQUEUED:
             st = pt_opt_u32("--max-queued", optarg, 1, 100000, &c.caps.max_queued, &err);
             break;
+        case O_MAXLOG:
+            if ((st = pt_opt_u32("--max-log-mb", optarg, 1, 1u << 20, &v, &err)) == PT_OK)
+                c.max_log_mem = (uint64_t)v << 20;
+            log_given = 1;
+            break;
         case O_MAXINPUT:
             if ((st = pt_opt_u32("--max-input-mb", optarg, 3, 1u << 20, &v, &err)) == PT_OK)
                 c.limits.max_input_mem = (uint64_t)v << 20;
@@ -518,8 +530,9 @@ int main(int argc, char **argv)
         fprintf(stderr, "ptserve: need -o OUT.exr and exactly one SCENE, or --state-dir DIR\n");
         usage(stderr);
         return 2;
-    } else if (c.output_dir) {
-        fprintf(stderr, "ptserve: --output-dir is for queue mode (--state-dir)\n");
+    } else if (c.output_dir || log_given) {
+        fprintf(stderr, "ptserve: %s is for queue mode (--state-dir)\n",
+                c.output_dir ? "--output-dir" : "--max-log-mb");
         return 2;
     }
     if (c.state_dir && (c.env_path || c.job.env.background || env_opts)) {

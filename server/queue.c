@@ -886,6 +886,10 @@ void srv_queue_expire(srv_server *s, uint64_t now)
     static uint64_t t_last; /* one loop per process */
     if (now - t_last < EXPIRE_MS && now >= t_last)
         return;
+    /* Workers not read (srv_loop_hold) are not silent: their heartbeats
+     * wait behind the hold, and are read in the lease timeout after it. */
+    if (s->log_held || (s->t_released && now - s->t_released < s->cfg->lease_ms))
+        return;
     t_last = now;
     expiry e = {s, now};
     for (srv_entry *j = s->jobs; j; j = j->next) {

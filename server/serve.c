@@ -76,6 +76,7 @@ int srv_serve(const srv_config *cfg)
     }
     while (!srv_loop_stopped() && !s.mode->over(&s)) {
         srv_loop_poll(&s, 100);
+        srv_loop_hold(&s);
         srv_queue_hand_out(&s);
         s.mode->after_leases(&s);
         timers(&s);

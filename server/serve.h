@@ -44,6 +44,8 @@ typedef struct srv_peer_limits {
     uint32_t min_rate;          /* bytes/s a frame or upload must average past the grace */
 } srv_peer_limits;
 
+#define SRV_DEFAULT_MAX_LOG_MEM (512ull << 20) /* ptserve --max-log-mb */
+
 typedef struct srv_config {
     const char *scene_path;     /* one-job mode: render this and exit; NULL: queue mode */
     const char *out_path;       /* one-job mode: the EXR */
@@ -65,6 +67,8 @@ typedef struct srv_config {
     uint32_t worker_threads; /* threads per local worker; 0: cores / local_workers */
     uint32_t merge_threads;  /* threads adding results to films (server/adder.h); 0: the loop */
     uint32_t io_threads;     /* threads reading workers (server/io.h); 0: the loop */
+    uint64_t max_log_mem;    /* queue mode: results log bytes not yet durable past which
+                              * workers are not read (srv_loop_hold, server/loop.h) */
     srv_job_params job;      /* one-job mode: the job; queue mode: defaults (tile,
                               * chunk, max depth, rr depth) for submitted jobs.
                               * width/height 0: from the camera, 512 wide */

@@ -789,6 +789,14 @@ pt_status srv_state_log_result(srv_state *st, uint64_t id, const uint8_t *frame,
     return s;
 }
 
+uint64_t srv_state_unsynced(const srv_state *st)
+{
+    uint64_t n = 0;
+    for (uint32_t i = 0; i < st->nlogs; i++)
+        n += st->logs[i].bytes - st->logs[i].durable;
+    return n;
+}
+
 uint64_t srv_state_log_bytes(const srv_state *st, uint64_t id)
 {
     const log_file *l = find_log(st, id);

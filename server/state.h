@@ -187,6 +187,9 @@ pt_status srv_state_log_result(srv_state *st, uint64_t id, const uint8_t *frame,
  * caller's. */
 pt_status srv_state_log_result_take(srv_state *st, uint64_t id, uint8_t **frame, size_t len,
                                     pt_error *err);
+/* Bytes of every log's records not known durable yet: those in memory, and
+ * those of the commit in flight or of a failed one. */
+uint64_t srv_state_unsynced(const srv_state *st);
 /* Bytes in the job's log now (0 when it has none). */
 uint64_t srv_state_log_bytes(const srv_state *st, uint64_t id);
 

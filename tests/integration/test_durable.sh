@@ -10,12 +10,20 @@
 #  3. kill -9 of the coordinator while a checkpoint is being written (written
 #     to its temporary file, not yet renamed, the log rotated): the restart
 #     loses no merged sample and the image is bit-identical.
+#  4. A disk slower than the results (the commits held) with --max-log-mb 1:
+#     the workers are no longer read once a MiB of records waits (the log's
+#     bytes not yet durable stay near the cap, read from /metrics), clients
+#     are still answered, and no lease expires though the hold lasts three
+#     lease timeouts. Once the disk catches up the job completes,
+#     bit-identical. With the I/O threads and with the loop reading the
+#     workers itself.
 set -euo pipefail
 bin=${PT_BIN:?}
 src=${PT_SOURCE_DIR:?}
 tmp=$(mktemp -d /tmp/pt_durable_XXXXXX)
 srv_pid=
 cleanup() {
+  touch "$tmp/commit_go" # a ptserve stopped mid-test syncs its log first
   if [ -n "$srv_pid" ] && kill "$srv_pid" 2>/dev/null; then wait "$srv_pid" 2>/dev/null || true; fi
   if [ "${failed:-0}" = 0 ]; then rm -rf "$tmp"; else echo "logs kept in $tmp" >&2; fi
 }
@@ -31,14 +39,16 @@ ref() { # NAME: the standalone render of view
 }
 ref ref
 
-# serve LOG [VAR=VALUE...]: ptserve on $tmp/state with two local workers.
+# serve LOG [VAR=VALUE...]: ptserve on $tmp/state with two local workers and
+# the options in serve_args.
+serve_args=()
 serve() {
   local log=$1
   shift
   rm -f "$tmp/port"
   env "$@" "$bin/ptserve" --state-dir "$tmp/state" --output-dir "$tmp/out" \
     --listen 127.0.0.1:0 --port-file "$tmp/port" --local 2 --worker-threads 1 --tile 16 \
-    --chunk 8 2>> "$tmp/$log" &
+    --chunk 8 "${serve_args[@]}" 2>> "$tmp/$log" &
   srv_pid=$!
   for _ in $(seq 400); do [ -s "$tmp/port" ] && break; sleep 0.05; done
   [ -s "$tmp/port" ] || fail "ptserve did not start: $(cat "$tmp/$log")"
@@ -136,5 +146,50 @@ after=$(json "$tmp/status.json" 'd["samples_done"]')
 grep -q "job $id resumed" "$tmp/serve3.log" || fail "no resume logged: $(cat "$tmp/serve3.log")"
 finish "$id" killed
 stop
+
+# 4. The disk behind: commits held, 1 MiB of the log's records in memory at
+# most. 1,536 results of 9 kB: 14 MB of log were nothing held back.
+view=(--res 64x48 --spp 1024 --seed 7)
+ref ref
+metric() { # NAME: its value in /metrics
+  python3 - "http://127.0.0.1:$(cat "$tmp/hport")/metrics" "$1" << 'PY'
+import sys, urllib.request
+for line in urllib.request.urlopen(sys.argv[1], timeout=20).read().decode().splitlines():
+    if line.split(" ")[0] == sys.argv[2]:
+        print(int(float(line.split(" ")[1])))
+PY
+}
+for io in 2 0; do
+  log=serve4-$io.log
+  rm -rf "$tmp/state" "$tmp/commit_go" "$tmp/hport"
+  serve_args=(--max-log-mb 1 --lease-timeout 1 --io-threads "$io" --http 127.0.0.1:0
+    --http-port-file "$tmp/hport")
+  serve "$log" PTSERVE_TEST_COMMIT_GATE="$tmp/commit_go"
+  id=$(submit "behind-$io")
+  for _ in $(seq 1200); do
+    grep -q "workers are not read until the disk catches up" "$tmp/$log" && break
+    sleep 0.1
+  done
+  grep -q "workers are not read until the disk catches up" "$tmp/$log" ||
+    fail "io threads $io: never held: $(cat "$tmp/$log")"
+  sleep 3 # three lease timeouts
+  status "$id" || fail "io threads $io: no answer to status while held"
+  [ "$(json "$tmp/status.json" 'd["state"]')" = running ] || fail "ended while held"
+  held=$(metric ptfarm_results_log_unsynced_bytes)
+  # The cap, and at most what the round that passed it took in: a few tasks
+  # of two one-thread workers.
+  if [ "$held" -le $((1 << 20)) ] || [ "$held" -ge $((3 << 19)) ]; then
+    fail "io threads $io: $held bytes of the log not durable while held"
+  fi
+  echo "io threads $io: $held bytes of the log not durable while held"
+  [ "$(metric ptfarm_results_log_holds_total)" = 1 ] || fail "io threads $io: holds"
+  [ "$(metric ptfarm_tasks_expired_total)" = 0 ] ||
+    fail "io threads $io: leases expired while held: $(cat "$tmp/$log")"
+  touch "$tmp/commit_go"
+  finish "$id" "behind-$io"
+  grep -q "the disk caught up after" "$tmp/$log" || fail "io threads $io: no release logged"
+  ! grep -q "leases expired" "$tmp/$log" || fail "io threads $io: $(grep "leases expired" "$tmp/$log")"
+  stop
+done
 failed=0
 echo "ok"
