@@ -18,7 +18,8 @@
 #include "server/queue.h"
 #include "server/upload.h"
 
-#define WATCH_MS 1000 /* JOB_INFO to watchers this often */
+#define WATCH_MS 1000     /* JOB_INFO to watchers this often */
+#define WATCH_TICK_MS 100 /* ... give or take this */
 #define MAX_FETCH ((size_t)4 << 30)
 
 static void send_job_info(srv_server *s, srv_conn *c, const srv_entry *j)
@@ -548,6 +549,12 @@ void srv_requests_dispatch(srv_server *s, srv_conn *c, const proto_frame *f)
 
 void srv_requests_tick(srv_server *s, uint64_t now)
 {
+    /* A walk over every connection: every WATCH_TICK_MS, not every round (a
+     * farm's loop turns thousands of rounds a second over its workers). */
+    static uint64_t t_last; /* one loop per process */
+    if (now - t_last < WATCH_TICK_MS && now >= t_last)
+        return;
+    t_last = now;
     for (srv_conn *c = s->conns; c; c = c->next) {
         if (c->closing || !c->watch || now - c->watch_t < WATCH_MS)
             continue;

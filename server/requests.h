@@ -37,7 +37,8 @@ void srv_requests_notify_watchers(srv_server *s, const srv_entry *j);
 /* Appends IMAGE frames of c's fetch in progress while c's output has room. */
 void srv_requests_pump_fetch(srv_server *s, srv_conn *c);
 
-/* JOB_INFO to each watcher whose last one is a second old; now in ms. */
+/* JOB_INFO to each watcher whose last one is a second old (looked at every
+ * 100 ms); now in ms. */
 void srv_requests_tick(srv_server *s, uint64_t now);
 
 /* Frees c's upload buffer and ends its upload. */
