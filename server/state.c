@@ -824,6 +824,8 @@ static void wait_gate(const char *path)
 static void *commit_main(void *arg)
 {
     committer *cm = arg;
+    long ps = sysconf(_SC_PAGESIZE);
+    uint64_t page = ps > 0 ? (uint64_t)ps : 4096u;
     pthread_mutex_lock(&cm->mu);
     for (;;) {
         while (!cm->has_req && !cm->stop)
@@ -845,8 +847,18 @@ static void *commit_main(void *arg)
                 else if (fdatasync(it->fd) != 0 || (it->fresh && pt_fsync_dir_of(it->path) != 0))
                     it->err = errno ? errno : EIO;
             }
-            if (!it->err)
+            if (!it->err) {
                 rec_clear(&it->in); /* durable: off the loop's time */
+                /* Its pages are read again only by a restart's replay (from
+                 * the disk): dropped now, clean, rather than when the log is
+                 * cut at a checkpoint or removed with its job, on the loop
+                 * (a 500 MB log's pages were 3 % of a 1,024-spp job's loop
+                 * time in queue mode). Whole pages only: the next record
+                 * goes on in the last one. Advice: a failure changes nothing. */
+                off_t whole = (off_t)(it->upto / page * page);
+                if (whole > 0)
+                    posix_fadvise(it->fd, 0, whole, POSIX_FADV_DONTNEED);
+            }
             close(it->fd);
             it->fd = -1;
         }
