@@ -77,7 +77,7 @@ typedef struct srv_counters {
     uint64_t samples_merged, tasks_leased, tasks_requeued, tasks_expired, results_rejected;
     uint64_t state_write_errors;
     uint64_t log_holds;    /* times workers were not read, the results log being behind */
-    uint64_t log_unsynced; /* results log bytes not yet durable, as of the last round */
+    uint64_t log_unsynced; /* bytes of results not yet durable (srv_loop_hold), last round */
     /* Loop time: a RESULT's merge, a progressive image resolved and handed to
      * its writer, a checkpoint written. */
     srv_histogram merge, save, checkpoint;

@@ -967,7 +967,7 @@ static void metrics_text(FILE *f, const snap *p)
                    "waiting for the disk.",
                    c->log_holds);
     metric_gauge(f, "ptfarm_results_log_unsynced_bytes",
-                 "Results log bytes in memory or being written, not yet durable.",
+                 "Bytes of results not yet durable: their log records and decoded pixels.",
                  (double)c->log_unsynced);
     metric_gauge(f, "ptfarm_workers_connected", "Authenticated workers connected.",
                  p ? p->nworkers : 0);

@@ -1219,7 +1219,9 @@ void srv_loop_hold(srv_server *s)
 {
     if (!s->state)
         return;
-    uint64_t unsynced = srv_state_unsynced(s->state), cap = s->cfg->max_log_mem;
+    /* The records, and the decoded results that wait with them. */
+    uint64_t unsynced = srv_state_unsynced(s->state) + srv_queue_pending_bytes(s);
+    uint64_t cap = s->cfg->max_log_mem;
     s->counters.log_unsynced = unsynced;
     int hold = s->log_held ? unsynced > cap / 2 : unsynced > cap;
     if (hold == s->log_held)
@@ -1231,8 +1233,8 @@ void srv_loop_hold(srv_server *s)
         s->counters.log_holds++;
         if (s->io)
             epoll_ctl(s->ep, EPOLL_CTL_DEL, srv_io_fd(s->io), NULL);
-        srv_log("results log: %.1f MiB not on disk yet (--max-log-mb %llu); workers are not read "
-                "until the disk catches up",
+        srv_log("results log: %.1f MiB of results not on disk yet (--max-log-mb %llu); "
+                "workers are not read until the disk catches up",
                 unsynced / 1048576.0, (unsigned long long)(cap >> 20));
         return;
     }

@@ -168,7 +168,8 @@ void srv_loop_poll(srv_server *s, int timeout_ms);
 void srv_loop_timers(srv_server *s, uint64_t now);
 
 /* Backpressure on the results log (queue mode): once more than
- * cfg->max_log_mem of its records wait for the disk (srv_state_unsynced:
+ * cfg->max_log_mem of results wait for the disk (their records,
+ * srv_state_unsynced, and their decoded pixels, srv_queue_pending_bytes:
  * results come faster than the disk takes them), workers are not read (the
  * I/O threads' items are not taken, so the threads stop reading at
  * SRV_IO_QUEUE_BYTES; a worker the loop reads is parked) until the commits
@@ -176,8 +177,8 @@ void srv_loop_timers(srv_server *s, uint64_t now);
  * block on their sends: a farm goes at its disk's pace instead of the
  * coordinator's memory growing without bound. Clients and handshakes are
  * served as before, and leases do not expire meanwhile, nor for a lease
- * timeout after (the workers' heartbeats wait behind the hold). The log may
- * pass the cap by what one round takes in. Called once per round. */
+ * timeout after (the workers' heartbeats wait behind the hold). The cap may
+ * be passed by what one round takes in. Called once per round. */
 void srv_loop_hold(srv_server *s);
 
 /* Sends what the connections touched this round have queued (before a slow

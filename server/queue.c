@@ -54,13 +54,34 @@ void srv_queue_insert(srv_server *s, srv_entry *j)
     s->njobs++;
 }
 
+static uint64_t pixel_bytes(const proto_result *r)
+{
+    return (uint64_t)r->npixels * sizeof(pt_pixel_acc);
+}
+
+/* Lets go of p, a result of j that waited for its commit: merged (the job
+ * may have taken its pixels) or dropped. */
+static void pending_fini(srv_entry *j, srv_pending *p)
+{
+    j->pend_bytes -= pixel_bytes(&p->r);
+    proto_result_fini(&p->r);
+}
+
 /* Drops j's results that wait for a group commit (never merged: their
  * records are gone, or the job is). */
 static void drop_pending(srv_entry *j)
 {
     for (uint32_t i = 0; i < j->npend; i++)
-        proto_result_fini(&j->pend[i].r);
+        pending_fini(j, &j->pend[i]);
     j->npend = 0;
+}
+
+uint64_t srv_queue_pending_bytes(const srv_server *s)
+{
+    uint64_t n = 0;
+    for (const srv_entry *j = s->jobs; j; j = j->next)
+        n += j->pend_bytes;
+    return n;
 }
 
 static void free_run(srv_entry *j)
@@ -307,7 +328,7 @@ static void checkpoint_start(srv_server *s, srv_entry *j)
                 srv_state_log_result(s->state, j->rec.id, w.buf, w.len, &err) == PT_OK)
                 j->pend[k++] = *p;
             else
-                proto_result_fini(&p->r); /* never merged; its task is leased again */
+                pending_fini(j, p); /* never merged; its task is leased again */
         }
         proto_writer_fini(&w);
         j->npend = k;
@@ -399,6 +420,7 @@ static pt_status push_pending(srv_server *s, srv_entry *j, uint64_t owner, proto
         j->pend = n;
     }
     j->pend[j->npend++] = (srv_pending){*r, owner, srv_state_commit_next(s->state), arrived};
+    j->pend_bytes += pixel_bytes(r);
     r->pixels = NULL;
     r->owns_pixels = 0;
     return PT_OK;
@@ -835,7 +857,7 @@ static void merge_durable(srv_server *s, srv_entry *j, uint64_t done)
         srv_pending *p = &j->pend[i];
         if (j->job && srv_entry_active(j))
             srv_workers_merge_durable(s, j, p->owner, &p->r, p->arrived);
-        proto_result_fini(&p->r); /* unless the job took its pixels */
+        pending_fini(j, p); /* unless the job took its pixels */
     }
     for (; i < j->npend; i++)
         j->pend[k++] = j->pend[i];

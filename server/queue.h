@@ -73,6 +73,7 @@ struct srv_entry {
     int pending_sync;  /* a group commit of its log failed: synced again first */
     srv_pending *pend; /* logged, not merged yet: in commit order */
     uint32_t npend, pend_cap;
+    uint64_t pend_bytes;             /* their pixels' bytes (srv_queue_pending_bytes) */
     uint64_t committed;              /* the last group commit its log was in, and durable */
     uint64_t t_paused, t_retry;      /* ms */
     int final_pending;               /* complete, but its final image is not written yet */
@@ -143,6 +144,11 @@ pt_status srv_queue_journal(srv_server *s, pt_error *err);
 pt_status srv_queue_log_result(srv_server *s, srv_entry *j, uint64_t owner, proto_result *r,
                                const uint8_t *frame, size_t len, uint8_t **own, uint64_t arrived,
                                pt_error *err);
+
+/* The bytes of the pixels of every job's results waiting for their commit
+ * (decoded: twice their log records' size); srv_loop_hold counts them with
+ * the records. */
+uint64_t srv_queue_pending_bytes(const srv_server *s);
 
 /* The group commit's completions (its eventfd is readable): merges the
  * results whose records are now durable, pauses a job whose log's fdatasync

@@ -67,7 +67,7 @@ typedef struct srv_config {
     uint32_t worker_threads; /* threads per local worker; 0: cores / local_workers */
     uint32_t merge_threads;  /* threads adding results to films (server/adder.h); 0: the loop */
     uint32_t io_threads;     /* threads reading workers (server/io.h); 0: the loop */
-    uint64_t max_log_mem;    /* queue mode: results log bytes not yet durable past which
+    uint64_t max_log_mem;    /* queue mode: bytes of results not yet durable past which
                               * workers are not read (srv_loop_hold, server/loop.h) */
     srv_job_params job;      /* one-job mode: the job; queue mode: defaults (tile,
                               * chunk, max depth, rr depth) for submitted jobs.

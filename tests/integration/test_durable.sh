@@ -179,9 +179,9 @@ for io in 2 0; do
   # The cap, and at most what the round that passed it took in: a few tasks
   # of two one-thread workers.
   if [ "$held" -le $((1 << 20)) ] || [ "$held" -ge $((3 << 19)) ]; then
-    fail "io threads $io: $held bytes of the log not durable while held"
+    fail "io threads $io: $held bytes of results not durable while held"
   fi
-  echo "io threads $io: $held bytes of the log not durable while held"
+  echo "io threads $io: $held bytes of results not durable while held"
   [ "$(metric ptfarm_results_log_holds_total)" = 1 ] || fail "io threads $io: holds"
   [ "$(metric ptfarm_tasks_expired_total)" = 0 ] ||
     fail "io threads $io: leases expired while held: $(cat "$tmp/$log")"
