@@ -129,14 +129,20 @@ static uint64_t resolve_pixels(const pt_film *film, pt_image *img, size_t i0, si
     return total;
 }
 
+/* The rows [*y0, *y1) of band b. */
+static void band_rows(const pt_film *film, uint32_t b, uint32_t *y0, uint32_t *y1)
+{
+    *y0 = b * PT_FILM_BAND_ROWS;
+    *y1 = *y0 + PT_FILM_BAND_ROWS < film->height ? *y0 + PT_FILM_BAND_ROWS : film->height;
+}
+
 uint64_t pt_film_resolve(const pt_film *film, pt_image *img)
 {
     assert(film->width == img->width && film->height == img->height);
     uint64_t total = 0;
     for (uint32_t b = 0; b < film->bands->n; b++) {
-        uint32_t y0 = b * PT_FILM_BAND_ROWS, y1 = y0 + PT_FILM_BAND_ROWS;
-        if (y1 > film->height)
-            y1 = film->height;
+        uint32_t y0, y1;
+        band_rows(film, b, &y0, &y1);
         pthread_mutex_lock(&film->bands->mu[b]);
         total += resolve_pixels(film, img, (size_t)y0 * film->width, (size_t)y1 * film->width);
         pthread_mutex_unlock(&film->bands->mu[b]);
@@ -148,9 +154,8 @@ double pt_film_rel_error(const pt_film *film)
 {
     double sum = 0.0;
     for (uint32_t b = 0; b < film->bands->n; b++) {
-        uint32_t y0 = b * PT_FILM_BAND_ROWS, y1 = y0 + PT_FILM_BAND_ROWS;
-        if (y1 > film->height)
-            y1 = film->height;
+        uint32_t y0, y1;
+        band_rows(film, b, &y0, &y1);
         pthread_mutex_lock(&film->bands->mu[b]);
         int st = pt_rel_error_add(film->px + (size_t)y0 * film->width, film->width, film->width,
                                   y1 - y0, &sum);
