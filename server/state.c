@@ -813,14 +813,6 @@ uint64_t srv_state_ckpt_limit(const srv_state *st, uint64_t film_bytes)
 
 /* ---- the group commit -------------------------------------------------------------- */
 
-/* Test hook: waits until path exists (the test lets the commit go on). */
-static void wait_gate(const char *path)
-{
-    struct timespec ts = {0, 10 * 1000 * 1000};
-    while (path[0] && access(path, F_OK) != 0)
-        nanosleep(&ts, NULL);
-}
-
 static void *commit_main(void *arg)
 {
     committer *cm = arg;
@@ -840,7 +832,7 @@ static void *commit_main(void *arg)
             if (rec_write(it->fd, &it->in) != 0)
                 it->err = errno ? errno : EIO;
             if (!it->err) {
-                wait_gate(cm->gate);
+                pt_wait_for_file(cm->gate);
                 it->step = "fdatasync";
                 if (cm->fail[0] && access(cm->fail, F_OK) == 0)
                     it->err = EIO;
@@ -1100,7 +1092,7 @@ static pt_status write_ckpt(const char *path, const srv_job *job, const srv_ckpt
             s = pt_error_errno(err, PT_ERR_IO, "%s: write", path);
             pt_temp_abort(&t);
         } else {
-            wait_gate(gate);
+            pt_wait_for_file(gate);
             s = pt_temp_commit(&t, path, err);
         }
     }

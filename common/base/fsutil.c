@@ -9,6 +9,7 @@
 #include <string.h>
 #include <sys/random.h>
 #include <sys/stat.h>
+#include <time.h>
 #include <unistd.h>
 
 #include "common/base/alloc.h"
@@ -344,4 +345,11 @@ int pt_remove_tree(const char *path)
     if (rmdir(path) != 0)
         rc = -1;
     return rc;
+}
+
+void pt_wait_for_file(const char *path)
+{
+    struct timespec ts = {0, 10 * 1000 * 1000};
+    while (path[0] && access(path, F_OK) != 0)
+        nanosleep(&ts, NULL);
 }

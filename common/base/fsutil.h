@@ -103,4 +103,9 @@ pt_status pt_mkdirs(const char *path, int private_, pt_error *err);
  * are removed, not followed). Missing is fine. Returns 0, or -1 with errno. */
 int pt_remove_tree(const char *path);
 
+/* Test hooks' gate: waits until path exists, polling every 10 ms; returns at
+ * once for an empty path. The coordinator's threads hold a write on it when
+ * a test names a gate file in the environment (PTSERVE_TEST_*_GATE). */
+void pt_wait_for_file(const char *path);
+
 #endif
