@@ -92,7 +92,7 @@ static void free_run(srv_entry *j)
     pt_free(j->pend);
     j->pend = NULL;
     j->pend_cap = 0;
-    j->paused = j->pending_ckpt = j->pending_sync = j->final_pending = 0;
+    j->paused = j->pending_ckpt = j->pending_sync = j->final_writing = j->final_pending = 0;
     srv_writer_free(j->writer);
     j->writer = NULL;
     srv_job_free(j->job);
@@ -252,6 +252,8 @@ void srv_queue_info(const srv_server *s, const srv_entry *j, proto_job_info *m)
     else if (j->final_pending)
         snprintf(m->message, sizeof m->message, "writing: cannot write the image: %s; retrying",
                  j->out_reason);
+    else if (j->final_writing)
+        snprintf(m->message, sizeof m->message, "writing the image");
     else if (j->save_fails_logged)
         snprintf(m->message, sizeof m->message,
                  "rendering; cannot save the progressive image: %s; retrying", j->out_reason);
@@ -484,7 +486,16 @@ void srv_queue_end_job(srv_server *s, srv_entry *j, uint8_t state, const char *m
     if (state != PROTO_JOB_DONE && j->rec.frames.step)
         srv_frames_end(s, j, state, message); /* a range's frames end with it */
     if (state == PROTO_JOB_DONE && j->job) {
-        srv_entry_save_image(j);
+        /* The writer thread writes the image (a second or so for a large
+         * one) while the loop goes on serving the other jobs' workers;
+         * srv_queue_tick comes back once it is on disk. */
+        if (!j->final_writing) {
+            srv_entry_save_image(j);
+            j->final_writing = 1;
+        }
+        if (!srv_writer_idle(j->writer))
+            return;
+        j->final_writing = 0;
         if (srv_writer_flush(j->writer, &err) != PT_OK) {
             if (err.code == PT_ERR_IO) {
                 /* A full output folder: every sample stays merged, the job
@@ -756,9 +767,10 @@ int srv_queue_end_complete(srv_server *s)
 {
     int ended = 0;
     for (srv_entry *j = s->jobs; j; j = j->next)
-        if (j->job && srv_entry_active(j) && !j->final_pending && srv_job_complete(j->job)) {
+        if (j->job && srv_entry_active(j) && !j->final_writing && !j->final_pending &&
+            srv_job_complete(j->job)) {
             srv_queue_end_job(s, j, PROTO_JOB_DONE, NULL);
-            ended++;
+            ended += !srv_entry_active(j); /* not while its image is written */
         }
     /* Frames done make room for the next ones, and end their range. */
     return ended + srv_frames_round(s);
@@ -959,8 +971,8 @@ void srv_queue_tick(srv_server *s, uint64_t now)
             continue;
         if (j->paused)
             retry_paused(s, j, now);
-        if (j->final_pending) {
-            if (now >= j->t_retry)
+        if (j->final_writing || j->final_pending) {
+            if (j->final_writing ? srv_writer_idle(j->writer) : now >= j->t_retry)
                 srv_queue_end_job(s, j, PROTO_JOB_DONE, NULL);
             continue;
         }

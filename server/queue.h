@@ -76,7 +76,8 @@ struct srv_entry {
     uint64_t pend_bytes;             /* their pixels' bytes (srv_queue_pending_bytes) */
     uint64_t committed;              /* the last group commit its log was in, and durable */
     uint64_t t_paused, t_retry;      /* ms */
-    int final_pending;               /* complete, but its final image is not written yet */
+    int final_writing;               /* complete, its final image with the writer */
+    int final_pending;               /* complete, but its final image could not be written */
     char out_reason[160];            /* why the last image write failed ("" when none) */
     unsigned long save_fails_logged; /* progressive saves failed in a row, logged once */
     /* A frame-range job (server/frames.h): the range holds its frames
@@ -162,10 +163,13 @@ void srv_queue_commit_all(srv_server *s);
 /* JOB_INFO of j as a client sees it now. */
 void srv_queue_info(const srv_server *s, const srv_entry *j, proto_job_info *m);
 
-/* Ends j: DONE (the final image is written first; when it cannot be, j stays
- * RUNNING with final_pending set, the reason shown, and srv_queue_tick tries
- * again every few seconds), CANCELLED or FAILED with message (may be NULL). Journals it, tells
- * the workers when it ended early and its watchers always. */
+/* Ends j: DONE (the final image is written first, by j's writer thread:
+ * j stays RUNNING, "writing", with final_writing set while the loop goes on,
+ * and srv_queue_tick ends it once the image is on disk; when it cannot be
+ * written, final_pending is set, the reason shown, and srv_queue_tick tries
+ * again every few seconds), CANCELLED or FAILED with message (may be NULL).
+ * Journals it, tells the workers when it ended early and its watchers
+ * always. */
 void srv_queue_end_job(srv_server *s, srv_entry *j, uint8_t state, const char *message);
 
 /* Ends the jobs whose every task is merged; returns how many. */

@@ -2,14 +2,17 @@
 
 #include <pthread.h>
 #include <stdio.h>
+#include <stdlib.h>
 
 #include "common/base/alloc.h"
+#include "common/base/fsutil.h"
 
 struct srv_writer {
     pthread_mutex_t mu;
     pthread_cond_t cv;
     pthread_t thread;
     char exr[4096], png[4096];
+    char gate[4096]; /* test hook: wait for this file before each write */
     const pt_film *film;
     int has_alpha;
     pt_image *img; /* the thread's, made at the first write and kept */
@@ -41,6 +44,7 @@ static void *writer_main(void *p)
         double e = -1.0;
         if (!w->img)
             st = pt_image_new(w->film->width, w->film->height, &w->img, &err);
+        pt_wait_for_file(w->gate);
         if (st == PT_OK) {
             meta.total_samples = pt_film_resolve(w->film, w->img);
             e = pt_film_rel_error(w->film);
@@ -79,6 +83,11 @@ pt_status srv_writer_new(const char *exr_path, const pt_film *film, int has_alph
     w->error = -1.0;
     snprintf(w->exr, sizeof w->exr, "%s", exr_path);
     pt_png_preview_path(exr_path, w->png, sizeof w->png);
+    /* Test hook (tests/integration/test_queue_ctl.sh): hold every write
+     * until a file exists. Unset in production. */
+    const char *gate = getenv("PTSERVE_TEST_WRITE_GATE");
+    if (gate)
+        snprintf(w->gate, sizeof w->gate, "%s", gate);
     pthread_mutex_init(&w->mu, NULL);
     pthread_cond_init(&w->cv, NULL);
     if (pthread_create(&w->thread, NULL, writer_main, w) != 0) {
@@ -110,6 +119,14 @@ pt_status srv_writer_flush(srv_writer *w, pt_error *err)
         *err = w->last_err;
     pthread_mutex_unlock(&w->mu);
     return st;
+}
+
+int srv_writer_idle(srv_writer *w)
+{
+    pthread_mutex_lock(&w->mu);
+    int idle = !w->pending && !w->busy;
+    pthread_mutex_unlock(&w->mu);
+    return idle;
 }
 
 pt_status srv_writer_last(srv_writer *w, unsigned long *failures, pt_error *err)

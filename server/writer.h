@@ -11,7 +11,8 @@
  * the newest request waiting is kept: one not yet taken is replaced, so a
  * slow disk never makes the loop wait or memory grow, and the files on disk
  * only move forward.
- * srv_writer_flush waits until everything asked for has been written. A write
+ * srv_writer_flush waits until everything asked for has been written;
+ * srv_writer_idle tells, without waiting, whether it would wait. A write
  * that fails (a full output folder) leaves the last good image in place and
  * is reported by srv_writer_last; the caller submits again later.
  * Threads: one owner thread (the event loop's) calls every function; the
@@ -38,6 +39,9 @@ void srv_writer_submit(srv_writer *w, const pt_exr_meta *meta);
 /* Waits until the last submitted snapshot is on disk; returns the status of
  * the last write (its error in err). */
 pt_status srv_writer_flush(srv_writer *w, pt_error *err);
+/* Without waiting: 1 when everything submitted has been written (or has
+ * failed), so that srv_writer_flush would return at once. */
+int srv_writer_idle(srv_writer *w);
 /* Without waiting: the status of the last write that finished (PT_OK before
  * any), its error in err; *failures (may be NULL) receives the number of
  * writes that failed in a row up to it (0 after a success). */

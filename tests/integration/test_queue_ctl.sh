@@ -3,7 +3,8 @@
 # submit (a scene with external buffers and textures, uploaded by ptctl),
 # watch to the end, status --json and list --json, fetch (bit-identical to
 # the standalone render, exact sample counts), cancel (watch then exits 4),
-# and the exit codes a script relies on (3 no such job, 1 refused, 2 usage).
+# the exit codes a script relies on (3 no such job, 1 refused, 2 usage), and
+# a final image written while the coordinator serves the next job.
 set -euo pipefail
 bin=${PT_BIN:?}
 src=${PT_SOURCE_DIR:?}
@@ -11,6 +12,7 @@ shared=${PT_SHARED_SCENES:-$src/../shared/scenes}
 tmp=$(mktemp -d /tmp/pt_queue_ctl_XXXXXX)
 srv_pid=
 cleanup() {
+  touch "$tmp/gate" # a coordinator held at the gate below stops too
   if [ -n "$srv_pid" ] && kill "$srv_pid" 2>/dev/null; then wait "$srv_pid" 2>/dev/null || true; fi
   if [ "${failed:-0}" = 0 ]; then rm -rf "$tmp"; else echo "logs kept in $tmp" >&2; fi
 }
@@ -138,6 +140,48 @@ ctl submit 2>/dev/null; [ $? = 2 ] || fail "submit without a scene"
 ctl frobnicate 2>/dev/null; [ $? = 2 ] || fail "unknown command"
 set -e
 grep -q "Sanitizer\|runtime error:" "$tmp/serve.log" && fail "sanitizer report"
+
+# A job's final image is written by its writer thread while the loop goes
+# on. The writes are held at a gate (a test hook): job a, rendered, waits
+# "writing the image", and meanwhile job b, submitted after it, is served to
+# its last sample. A loop that waited for a's image would answer nothing
+# more. Once the gate opens both end done, bit-identical to the standalone
+# renders.
+kill "$srv_pid"
+wait "$srv_pid" 2>/dev/null || true
+PTSERVE_TEST_WRITE_GATE="$tmp/gate" "$bin/ptserve" --state-dir "$tmp/state2" \
+  --output-dir "$tmp/out2" --listen 127.0.0.1:0 --port-file "$tmp/port2" --local 2 \
+  --worker-threads 1 --tile 16 --chunk 8 2> "$tmp/serve_gate.log" &
+srv_pid=$!
+for _ in $(seq 100); do [ -s "$tmp/port2" ] && break; sleep 0.05; done
+[ -s "$tmp/port2" ] || fail "ptserve did not start: $(cat "$tmp/serve_gate.log")"
+PTFARM_SERVER=127.0.0.1:$(cat "$tmp/port2")
+wait_for() { # $1: job, $2: Python expression over its status d, $3: what it means
+  local end=$((SECONDS + 60))
+  while [ "$SECONDS" -lt "$end" ]; do
+    if timeout 10 "$bin/ptctl" status "$1" --json > "$tmp/gate.json" 2>/dev/null &&
+      [ "$(json "$tmp/gate.json" "$2")" = True ]; then return 0; fi
+    sleep 0.05
+  done
+  fail "timed out waiting for $3 (status: $(cat "$tmp/gate.json" 2>/dev/null))"
+}
+gate_view=(--res 48x32 --spp 16)
+writing='d["state"] == "running" and d["message"] == "writing the image" and d["samples_done"] == 48 * 32 * 16'
+a=$(ctl submit "$src/scenes/cornell_box.gltf" "${gate_view[@]}" --seed 11)
+wait_for "$a" "$writing" "job $a rendered, its image held"
+b=$(ctl submit "$src/scenes/cornell_box.gltf" "${gate_view[@]}" --seed 12)
+wait_for "$b" "$writing" "job $b rendered while job $a's image is held"
+wait_for "$a" "$writing" "job $a still held"
+touch "$tmp/gate"
+for j in "$a:11" "$b:12"; do
+  ctl watch "${j%:*}" 2>/dev/null || fail "watch of job ${j%:*} after the gate"
+  ctl fetch "${j%:*}" -o "$tmp/gate_${j#*:}.exr"
+  "$bin/ptworker" --scene "$src/scenes/cornell_box.gltf" "${gate_view[@]}" --seed "${j#*:}" \
+    --tile 16 --chunk 8 -q -o "$tmp/gate_ref_${j#*:}.exr"
+  "$bin/ptexr-diff" "$tmp/gate_ref_${j#*:}.exr" "$tmp/gate_${j#*:}.exr" ||
+    fail "job ${j%:*}'s image differs"
+done
+grep -q "Sanitizer\|runtime error:" "$tmp/serve_gate.log" && fail "sanitizer report"
 failed=0
 # 77: ctest counts the test as skipped, not passed, when a part could not run.
 [ "${skipped:-0}" = 1 ] && exit 77
