@@ -993,10 +993,8 @@ void srv_queue_tick(srv_server *s, uint64_t now)
         }
         /* Checkpoint cost stays proportional to what the log has taken in. */
         if (s->state && !j->paused && !srv_state_checkpoint_busy(s->state)) {
-            const pt_film *f = srv_job_film(j->job);
-            uint64_t film_bytes = (uint64_t)f->width * f->height * sizeof(pt_pixel_acc);
             if (srv_state_log_bytes(s->state, j->rec.id) >=
-                srv_state_ckpt_limit(s->state, film_bytes))
+                srv_state_ckpt_limit(s->state, srv_job_film_bytes(j->job)))
                 checkpoint_start(s, j);
         }
     }
