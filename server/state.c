@@ -1,6 +1,7 @@
 #define _GNU_SOURCE /* O_CLOEXEC, fdatasync */
 #include "server/state.h"
 
+#include <dirent.h>
 #include <errno.h>
 #include <fcntl.h>
 #include <limits.h>
@@ -204,6 +205,17 @@ typedef struct committer {
     char fail[PATH_MAX]; /* test hook: while this file exists, each fdatasync fails */
 } committer;
 
+/* The sweeper: removes the folders of ended jobs (DIR/trash), whose files
+ * (a results log of hundreds of MB, a checkpoint as large as the film) take
+ * tens of milliseconds to unlink. */
+typedef struct sweeper {
+    pthread_t th;
+    pthread_mutex_t mu;
+    pthread_cond_t cv;
+    int started, work, stop;
+    char jobs[PATH_MAX], trash[PATH_MAX];
+} sweeper;
+
 /* The checkpoint in flight: a snapshot of the job written by its own thread. */
 typedef struct ckpt_work {
     pthread_t th;
@@ -227,6 +239,7 @@ struct srv_state {
     int queue_unsaved; /* the last queue file write failed */
     committer cm;
     ckpt_work ck;
+    sweeper sw;
     uint64_t ckpt_log_bytes; /* test hook: checkpoint past this many bytes of log */
     uint32_t epochs;         /* the last log_file epoch given */
 };
@@ -263,6 +276,52 @@ static pt_status job_file(const srv_state *st, uint64_t id, const char *file, ch
 
 static void *commit_main(void *arg);
 
+/* Removes everything in the trash. The renames that put it there are made
+ * durable first (the jobs folder's fsync), so that a crash never brings an
+ * ended job's folder back. */
+static void sweep(const sweeper *sw)
+{
+    pt_fsync_dir(sw->jobs);
+    DIR *d = opendir(sw->trash);
+    if (!d)
+        return;
+    struct dirent *e;
+    while ((e = readdir(d)) != NULL) {
+        char p[PATH_MAX + 256];
+        if (strcmp(e->d_name, ".") != 0 && strcmp(e->d_name, "..") != 0 &&
+            (size_t)snprintf(p, sizeof p, "%s/%s", sw->trash, e->d_name) < sizeof p)
+            pt_remove_tree(p);
+    }
+    closedir(d);
+    pt_fsync_dir(sw->trash);
+}
+
+static void *sweep_main(void *arg)
+{
+    sweeper *sw = arg;
+    pthread_mutex_lock(&sw->mu);
+    for (;;) {
+        while (!sw->work && !sw->stop)
+            pthread_cond_wait(&sw->cv, &sw->mu);
+        if (!sw->work)
+            break; /* stopped, with nothing left to remove */
+        sw->work = 0;
+        pthread_mutex_unlock(&sw->mu);
+        sweep(sw);
+        pthread_mutex_lock(&sw->mu);
+    }
+    pthread_mutex_unlock(&sw->mu);
+    return NULL;
+}
+
+static void sweep_signal(sweeper *sw)
+{
+    pthread_mutex_lock(&sw->mu);
+    sw->work = 1;
+    pthread_cond_signal(&sw->cv);
+    pthread_mutex_unlock(&sw->mu);
+}
+
 pt_status srv_state_open(const char *dir, srv_state **out, pt_error *err)
 {
     if (strlen(dir) >= sizeof((srv_state *)0)->dir)
@@ -289,8 +348,10 @@ pt_status srv_state_open(const char *dir, srv_state **out, pt_error *err)
         st->ckpt_log_bytes = strtoull(e, NULL, 10);
     char p[PATH_MAX];
     pt_status s;
-    path_of(st, p, sizeof p, "jobs");
-    if ((s = pt_mkdirs(p, 1, err)) != PT_OK)
+    path_of(st, st->sw.jobs, sizeof st->sw.jobs, "jobs");
+    path_of(st, st->sw.trash, sizeof st->sw.trash, "trash");
+    if ((s = pt_mkdirs(st->sw.jobs, 1, err)) != PT_OK ||
+        (s = pt_mkdirs(st->sw.trash, 1, err)) != PT_OK)
         goto fail;
     path_of(st, p, sizeof p, "lock");
     st->lock_fd = open(p, O_RDWR | O_CREAT | O_NOFOLLOW | O_CLOEXEC, 0600);
@@ -316,6 +377,17 @@ pt_status srv_state_open(const char *dir, srv_state **out, pt_error *err)
         goto fail;
     }
     st->cm.started = 1;
+    /* The sweeper starts with what a crash left in the trash. */
+    pthread_mutex_init(&st->sw.mu, NULL);
+    pthread_cond_init(&st->sw.cv, NULL);
+    st->sw.work = 1;
+    if (pthread_create(&st->sw.th, NULL, sweep_main, &st->sw) != 0) {
+        pthread_mutex_destroy(&st->sw.mu);
+        pthread_cond_destroy(&st->sw.cv);
+        s = pt_error_set(err, PT_ERR_IO, "cannot start the sweeper thread");
+        goto fail;
+    }
+    st->sw.started = 1;
     *out = st;
     return PT_OK;
 fail:
@@ -356,6 +428,15 @@ void srv_state_close(srv_state *st)
         pthread_join(st->cm.th, NULL);
         pthread_mutex_destroy(&st->cm.mu);
         pthread_cond_destroy(&st->cm.cv);
+    }
+    if (st->sw.started) { /* after the checkpoint's: it may have ended a job */
+        pthread_mutex_lock(&st->sw.mu);
+        st->sw.stop = 1;
+        pthread_cond_signal(&st->sw.cv);
+        pthread_mutex_unlock(&st->sw.mu);
+        pthread_join(st->sw.th, NULL);
+        pthread_mutex_destroy(&st->sw.mu);
+        pthread_cond_destroy(&st->sw.cv);
     }
     for (uint32_t i = 0; i < st->cm.cap; i++)
         rec_fini(&st->cm.items[i].in);
@@ -1048,12 +1129,20 @@ pt_status srv_state_log_resync(srv_state *st, uint64_t id, pt_error *err)
     return PT_OK;
 }
 
-static void remove_job(const srv_state *st, uint64_t id)
+/* Moves the job's folder to the trash, for the sweeper to remove (a rename:
+ * the loop does not wait for the unlinks). Where the rename fails, the
+ * folder is removed in place. */
+static void remove_job(srv_state *st, uint64_t id)
 {
-    char p[PATH_MAX];
+    char p[PATH_MAX], t[PATH_MAX + 32];
     job_path(st, id, NULL, p, sizeof p);
-    pt_remove_tree(p);
-    pt_fsync_dir_of(p);
+    snprintf(t, sizeof t, "%s/%llu", st->sw.trash, (unsigned long long)id);
+    if (rename(p, t) == 0) {
+        sweep_signal(&st->sw);
+    } else if (errno != ENOENT) {
+        pt_remove_tree(p);
+        pt_fsync_dir_of(p);
+    }
 }
 
 void srv_state_forget_job(srv_state *st, uint64_t id)

@@ -16,6 +16,10 @@
  *   DIR/jobs/ID/results.old  the log a checkpoint being written will hold: it
  *                            is renamed from results.log when that checkpoint
  *                            starts, and removed once the checkpoint is durable
+ *   DIR/trash/ID             an ended job's folder, moved here from jobs/ (a
+ *                            rename) and removed by the state's sweeper thread;
+ *                            what a crash left here is removed after the next
+ *                            start
  *
  * A merged result is therefore always on disk: in the checkpoint, or in a log.
  * A record is written before its result is merged, and the result is merged
@@ -42,9 +46,9 @@
  *
  * Threads: called only from the event-loop thread, except srv_state_dir and
  * srv_state_save_bundle, which any thread may call between open and close.
- * The state owns two threads of its own: the group commit's (started at open)
- * and the checkpoint writer's (one checkpoint at a time); they touch only what
- * they were handed.
+ * The state owns three threads of its own: the group commit's and the
+ * sweeper's (started at open) and the checkpoint writer's (one checkpoint at
+ * a time); they touch only what they were handed.
  */
 #ifndef PT_SERVER_STATE_H
 #define PT_SERVER_STATE_H
@@ -221,8 +225,10 @@ pt_status srv_state_log_resync(srv_state *st, uint64_t id, pt_error *err);
  * collect; a log whose commit failed is left for it). */
 pt_status srv_state_sync(srv_state *st, pt_error *err);
 
-/* Closes the job's log and deletes its folder (the job ended); waits for
- * its checkpoint when one is being written. */
+/* Closes the job's log and deletes its folder (the job ended): moved to
+ * the trash at once, its files removed by the sweeper, so the caller does
+ * not wait for the unlinks (tens of ms for a large job). When its checkpoint
+ * is being written, that is done first (srv_state_checkpoint_collect). */
 void srv_state_forget_job(srv_state *st, uint64_t id);
 
 #endif

@@ -7,7 +7,8 @@
  * and cut off; damage before the last record is still refused; records
  * taken without a copy, more than one writev's, keep their order through a
  * failed commit; a queue file
- * that cannot be written is reported as unsaved until one is.
+ * that cannot be written is reported as unsaved until one is; an ended
+ * job's folder is swept from the trash, with what a crash left there.
  */
 #include <fcntl.h>
 #include <signal.h>
@@ -448,6 +449,33 @@ static void test_queue_frames(const char *dir)
     pt_remove_tree(dir);
 }
 
+/* An ended job's folder leaves jobs/ at once, moved to the trash, and the
+ * state's sweeper removes it (by close at the latest), together with what a
+ * crash left in the trash before the open. */
+static void test_forget_swept(const char *dir)
+{
+    char p[512], left[512];
+    pt_error err = {0};
+    snprintf(left, sizeof left, "%s/trash/99", dir);
+    CHECK(pt_mkdirs(left, 1, &err) == PT_OK);
+    snprintf(p, sizeof p, "%s/trash/99/results.log", dir);
+    CHECK(pt_write_file_atomic(p, "x", 1, &err) == PT_OK);
+    srv_state *st = open_state(dir);
+    uint64_t sizes[3];
+    log_tasks(st, 3, sizes);
+    snprintf(p, sizeof p, "%s/jobs/%u/results.log", dir, JOB_ID);
+    CHECK(size_of(p) == (off_t)sizes[2]);
+    srv_state_forget_job(st, JOB_ID);
+    snprintf(p, sizeof p, "%s/jobs/%u", dir, JOB_ID);
+    CHECK(access(p, F_OK) != 0);
+    srv_state_close(st);
+    snprintf(p, sizeof p, "%s/trash/%u", dir, JOB_ID);
+    CHECK(access(p, F_OK) != 0);
+    CHECK(access(left, F_OK) != 0);
+    snprintf(p, sizeof p, "%s/trash", dir);
+    CHECK(access(p, F_OK) == 0);
+}
+
 int main(void)
 {
     umask(022);
@@ -463,6 +491,7 @@ int main(void)
     test_queue_unsaved(dir);
     test_queue_env_versions(dir);
     test_queue_frames(dir);
+    test_forget_swept(dir);
     pt_remove_tree(dir);
     return check_report();
 }
