@@ -483,10 +483,6 @@ const pt_film *srv_job_film(const srv_job *j)
     settle(j);
     return j->film;
 }
-uint64_t srv_job_film_bytes(const srv_job *j)
-{
-    return (uint64_t)j->film->width * j->film->height * sizeof(pt_pixel_acc);
-}
 uint32_t srv_job_tiles(const srv_job *j)
 {
     return j->ntiles;

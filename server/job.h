@@ -345,8 +345,5 @@ uint32_t srv_job_leases(const srv_job *job);
 int srv_job_complete(const srv_job *job);
 /* The job's film, settled (srv_job_set_adder). */
 const pt_film *srv_job_film(const srv_job *job);
-/* The film's accumulators' size in bytes, without settling (it is fixed when
- * the job is made): what the loop asks every round. */
-uint64_t srv_job_film_bytes(const srv_job *job);
 
 #endif
