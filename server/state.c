@@ -322,6 +322,32 @@ static void sweep_signal(sweeper *sw)
     pthread_mutex_unlock(&sw->mu);
 }
 
+/* A thread of the state's own (the commit's, the sweeper's), with its mutex
+ * and condition; what names it in an error. */
+static pt_status thread_start(pthread_t *th, pthread_mutex_t *mu, pthread_cond_t *cv,
+                              void *(*fn)(void *), void *arg, const char *what, pt_error *err)
+{
+    pthread_mutex_init(mu, NULL);
+    pthread_cond_init(cv, NULL);
+    if (pthread_create(th, NULL, fn, arg) == 0)
+        return PT_OK;
+    pthread_mutex_destroy(mu);
+    pthread_cond_destroy(cv);
+    return pt_error_set(err, PT_ERR_IO, "cannot start the %s thread", what);
+}
+
+/* Sets *stop under mu, wakes the thread and joins it. */
+static void thread_stop(pthread_t th, pthread_mutex_t *mu, pthread_cond_t *cv, int *stop)
+{
+    pthread_mutex_lock(mu);
+    *stop = 1;
+    pthread_cond_signal(cv);
+    pthread_mutex_unlock(mu);
+    pthread_join(th, NULL);
+    pthread_mutex_destroy(mu);
+    pthread_cond_destroy(cv);
+}
+
 pt_status srv_state_open(const char *dir, srv_state **out, pt_error *err)
 {
     if (strlen(dir) >= sizeof((srv_state *)0)->dir)
@@ -368,25 +394,14 @@ pt_status srv_state_open(const char *dir, srv_state **out, pt_error *err)
         s = pt_error_errno(err, PT_ERR_IO, "eventfd");
         goto fail;
     }
-    pthread_mutex_init(&st->cm.mu, NULL);
-    pthread_cond_init(&st->cm.cv, NULL);
-    if (pthread_create(&st->cm.th, NULL, commit_main, &st->cm) != 0) {
-        pthread_mutex_destroy(&st->cm.mu);
-        pthread_cond_destroy(&st->cm.cv);
-        s = pt_error_set(err, PT_ERR_IO, "cannot start the commit thread");
+    if ((s = thread_start(&st->cm.th, &st->cm.mu, &st->cm.cv, commit_main, &st->cm, "commit",
+                          err)) != PT_OK)
         goto fail;
-    }
     st->cm.started = 1;
-    /* The sweeper starts with what a crash left in the trash. */
-    pthread_mutex_init(&st->sw.mu, NULL);
-    pthread_cond_init(&st->sw.cv, NULL);
-    st->sw.work = 1;
-    if (pthread_create(&st->sw.th, NULL, sweep_main, &st->sw) != 0) {
-        pthread_mutex_destroy(&st->sw.mu);
-        pthread_cond_destroy(&st->sw.cv);
-        s = pt_error_set(err, PT_ERR_IO, "cannot start the sweeper thread");
+    st->sw.work = 1; /* the sweeper starts with what a crash left in the trash */
+    if ((s = thread_start(&st->sw.th, &st->sw.mu, &st->sw.cv, sweep_main, &st->sw, "sweeper",
+                          err)) != PT_OK)
         goto fail;
-    }
     st->sw.started = 1;
     *out = st;
     return PT_OK;
@@ -420,24 +435,10 @@ void srv_state_close(srv_state *st)
     if (!st)
         return;
     ckpt_join(st);
-    if (st->cm.started) {
-        pthread_mutex_lock(&st->cm.mu);
-        st->cm.stop = 1;
-        pthread_cond_signal(&st->cm.cv);
-        pthread_mutex_unlock(&st->cm.mu);
-        pthread_join(st->cm.th, NULL);
-        pthread_mutex_destroy(&st->cm.mu);
-        pthread_cond_destroy(&st->cm.cv);
-    }
-    if (st->sw.started) { /* after the checkpoint's: it may have ended a job */
-        pthread_mutex_lock(&st->sw.mu);
-        st->sw.stop = 1;
-        pthread_cond_signal(&st->sw.cv);
-        pthread_mutex_unlock(&st->sw.mu);
-        pthread_join(st->sw.th, NULL);
-        pthread_mutex_destroy(&st->sw.mu);
-        pthread_cond_destroy(&st->sw.cv);
-    }
+    if (st->cm.started)
+        thread_stop(st->cm.th, &st->cm.mu, &st->cm.cv, &st->cm.stop);
+    if (st->sw.started) /* after the checkpoint's: it may have ended a job */
+        thread_stop(st->sw.th, &st->sw.mu, &st->sw.cv, &st->sw.stop);
     for (uint32_t i = 0; i < st->cm.cap; i++)
         rec_fini(&st->cm.items[i].in);
     pt_free(st->cm.items);
