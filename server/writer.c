@@ -20,7 +20,7 @@ struct srv_writer {
     pt_exr_meta meta;
     int busy, stop;
     unsigned long written, failures;
-    double error; /* pt_film_rel_error at the last resolve; -1 before any */
+    double error; /* pt_film_resolve_measured's at the last resolve; -1 before any */
     pt_status last;
     pt_error last_err;
 };
@@ -46,8 +46,7 @@ static void *writer_main(void *p)
             st = pt_image_new(w->film->width, w->film->height, &w->img, &err);
         pt_wait_for_file(w->gate);
         if (st == PT_OK) {
-            meta.total_samples = pt_film_resolve(w->film, w->img);
-            e = pt_film_rel_error(w->film);
+            meta.total_samples = pt_film_resolve_measured(w->film, w->img, &e);
             w->img->has_alpha = w->has_alpha;
             st = pt_exr_write(w->exr, w->img, &meta, &err);
         }

@@ -6,7 +6,7 @@
  * the film's locks, while the loop goes on adding tiles), writes it
  * (pt_exr_write: temp file, fsync, rename) and a PNG preview beside it. So
  * the loop spends nothing per save but the request. The thread also measures
- * the image's estimated error (pt_film_rel_error, a pass over every pixel),
+ * the image's estimated error in the same walk (pt_film_resolve_measured),
  * which the loop reads with srv_writer_error instead of computing it. Only
  * the newest request waiting is kept: one not yet taken is replaced, so a
  * slow disk never makes the loop wait or memory grow, and the files on disk
@@ -46,7 +46,7 @@ int srv_writer_idle(srv_writer *w);
  * any), its error in err; *failures (may be NULL) receives the number of
  * writes that failed in a row up to it (0 after a success). */
 pt_status srv_writer_last(srv_writer *w, unsigned long *failures, pt_error *err);
-/* The estimated relative error (pt_film_rel_error: infinite while a pixel
+/* The estimated relative error (pt_film_resolve_measured's: infinite while a pixel
  * has fewer than 2 samples) of the film at the last resolve, written or not:
  * after srv_writer_flush, the film's as submitted. -1 before any. */
 double srv_writer_error(srv_writer *w);

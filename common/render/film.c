@@ -136,34 +136,34 @@ static void band_rows(const pt_film *film, uint32_t b, uint32_t *y0, uint32_t *y
     *y1 = *y0 + PT_FILM_BAND_ROWS < film->height ? *y0 + PT_FILM_BAND_ROWS : film->height;
 }
 
-uint64_t pt_film_resolve(const pt_film *film, pt_image *img)
+uint64_t pt_film_resolve_measured(const pt_film *film, pt_image *img, double *rel_error)
 {
     assert(film->width == img->width && film->height == img->height);
     uint64_t total = 0;
+    double sum = 0.0;
+    int partial = 0; /* a pixel with fewer than 2 samples */
     for (uint32_t b = 0; b < film->bands->n; b++) {
         uint32_t y0, y1;
         band_rows(film, b, &y0, &y1);
         pthread_mutex_lock(&film->bands->mu[b]);
         total += resolve_pixels(film, img, (size_t)y0 * film->width, (size_t)y1 * film->width);
+        /* The band's sums again while they are in the cache. */
+        if (rel_error && !partial)
+            partial = pt_rel_error_add(film->px + (size_t)y0 * film->width, film->width,
+                                       film->width, y1 - y0, &sum) != 0;
         pthread_mutex_unlock(&film->bands->mu[b]);
     }
+    if (rel_error)
+        *rel_error = partial ? INFINITY
+                     : film->width && film->height
+                         ? sqrt(sum / ((double)film->width * film->height))
+                         : 0.0;
     return total;
 }
 
-double pt_film_rel_error(const pt_film *film)
+uint64_t pt_film_resolve(const pt_film *film, pt_image *img)
 {
-    double sum = 0.0;
-    for (uint32_t b = 0; b < film->bands->n; b++) {
-        uint32_t y0, y1;
-        band_rows(film, b, &y0, &y1);
-        pthread_mutex_lock(&film->bands->mu[b]);
-        int st = pt_rel_error_add(film->px + (size_t)y0 * film->width, film->width, film->width,
-                                  y1 - y0, &sum);
-        pthread_mutex_unlock(&film->bands->mu[b]);
-        if (st != 0)
-            return INFINITY;
-    }
-    return film->width && film->height ? sqrt(sum / ((double)film->width * film->height)) : 0.0;
+    return pt_film_resolve_measured(film, img, NULL);
 }
 
 uint64_t pt_film_total_samples(const pt_film *film)

@@ -7,7 +7,7 @@
  * parts of a range of samples are added and however it was split at
  * PT_SAMPLE_BLOCK boundaries. pt_film_resolve turns sums into a pt_image
  * (mean RGB, sample count, variance of the mean).
- * Threads: pt_film_add_tile, pt_film_resolve and pt_film_rel_error lock the bands of
+ * Threads: pt_film_add_tile and the resolves lock the bands of
  * PT_FILM_BAND_ROWS rows they touch, one at a time, so a thread may resolve
  * while another adds tiles: every pixel is resolved whole (its sums and count
  * from the same moment), each band as it was when it was read. Everything
@@ -46,10 +46,11 @@ uint64_t pt_film_add_tile(pt_film *film, pt_rect tile, const pt_pixel_acc *acc);
  * the pixels it resolved (their sum of n). */
 uint64_t pt_film_resolve(const pt_film *film, pt_image *img);
 
-/* Adaptive sampling's measure of the whole image (pt_tile_rel_error over
- * every pixel, the same value), read band by band under the band locks like
- * pt_film_resolve. */
-double pt_film_rel_error(const pt_film *film);
+/* pt_film_resolve that also measures the image for adaptive sampling: into
+ * *rel_error, pt_tile_rel_error over every pixel (the same value, infinite
+ * while a pixel has fewer than 2 samples), each band's from the sums it
+ * resolves, in the same walk and under the same lock. */
+uint64_t pt_film_resolve_measured(const pt_film *film, pt_image *img, double *rel_error);
 
 /* Total samples over all pixels. */
 uint64_t pt_film_total_samples(const pt_film *film);
