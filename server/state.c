@@ -829,6 +829,13 @@ static int cut_back(log_file *l)
     return 0;
 }
 
+/* A record the log cannot take: empty, or no memory for it. */
+static pt_status record_refused(uint64_t id, size_t len, pt_error *err)
+{
+    return pt_error_set(err, len ? PT_ERR_NOMEM : PT_ERR_ARG, "results log of job %llu: %s",
+                        (unsigned long long)id, len ? "out of memory" : "an empty record");
+}
+
 pt_status srv_state_log_result_take(srv_state *st, uint64_t id, uint8_t **frame, size_t len,
                                     pt_error *err)
 {
@@ -850,8 +857,7 @@ pt_status srv_state_log_result_take(srv_state *st, uint64_t id, uint8_t **frame,
      * only records not durable, which were never merged. The frame's own
      * CRC32C, checked when it arrived, is the record's checksum. */
     if (len == 0 || rec_take(&l->out, *frame, len) != 0)
-        return pt_error_set(err, len ? PT_ERR_NOMEM : PT_ERR_ARG, "results log of job %llu: %s",
-                            (unsigned long long)id, len ? "out of memory" : "an empty record");
+        return record_refused(id, len, err);
     *frame = NULL;
     l->bytes += len;
     l->dirty = 1;
@@ -863,8 +869,7 @@ pt_status srv_state_log_result(srv_state *st, uint64_t id, const uint8_t *frame,
 {
     uint8_t *copy = len ? pt_malloc(len) : NULL;
     if (!copy)
-        return pt_error_set(err, len ? PT_ERR_NOMEM : PT_ERR_ARG, "results log of job %llu: %s",
-                            (unsigned long long)id, len ? "out of memory" : "an empty record");
+        return record_refused(id, len, err);
     memcpy(copy, frame, len);
     pt_status s = srv_state_log_result_take(st, id, &copy, len, err);
     pt_free(copy); /* NULL once taken */
