@@ -76,7 +76,8 @@ keep=0
 scene=scenes/cornell_box.gltf
 serve_args=()
 
-usage() { sed -n '2,/^set -euo/p' "$0" | sed '$d; s/^# \{0,1\}//'; }
+# shellcheck source=tests/bench/lib_farm.sh
+. "$(dirname "$0")/lib_farm.sh"
 while (($#)); do
   case $1 in
   --bin) bin=$2; shift 2 ;;
@@ -123,7 +124,6 @@ cleanup() {
 }
 trap cleanup EXIT
 
-median() { sort -g | awk '{a[NR]=$1} END {if (NR) print (NR % 2) ? a[(NR+1)/2] : (a[NR/2] + a[NR/2+1]) / 2}'; }
 
 # The loop thread's CPU time in ns (schedstat; stat's clock ticks when the
 # kernel keeps no schedstat).
@@ -165,16 +165,6 @@ wait_for() {
     sleep 0.05
     t=$((t + 1))
     ((t < secs * 20)) || return 1
-  done
-}
-
-start_workers() {
-  local port=$1 dir=$2 i
-  for ((i = 0; i < workers; i++)); do
-    PTWORKER_NULL_RATE=$pace "$bin/ptworker-null" --server "127.0.0.1:$port" --threads "$threads" \
-      --cache-dir "$work/cache" --name "null$i" 2> "$dir/w$i.log" &
-    pids+=($!)
-    wpids+=($!)
   done
 }
 
@@ -248,12 +238,7 @@ run_queue() {
   port=$(< "$dir/port")
   wpids=()
   start_workers "$port" "$dir"
-  local t=0
-  while (($(grep -c 'worker .* joined' "$dir/serve.log") < workers)); do
-    sleep 0.05
-    t=$((t + 1))
-    ((t < 1200)) || { echo "farm_scale: workers did not join" >&2; return 1; }
-  done
+  wait_joined "$dir/serve.log" || { echo "farm_scale: workers did not join" >&2; return 1; }
   cpu0=$(loop_ns "$sp")
   m0=$(threads_ns "$sp" pt-merge)
   i0=$(threads_ns "$sp" pt-io)

@@ -29,7 +29,8 @@ pace=1.35e6
 work=
 scene=scenes/cornell_box.gltf
 
-usage() { sed -n '2,/^set -euo/p' "$0" | sed '$d; s/^# \{0,1\}//'; }
+# shellcheck source=tests/bench/lib_farm.sh
+. "$(dirname "$0")/lib_farm.sh"
 while (($#)); do
   case $1 in
   --bin) bin=$2; shift 2 ;;
@@ -52,7 +53,7 @@ done
 [[ -r $scene ]] || { echo "job_end: run from the repository root ($scene)" >&2; exit 2; }
 [[ -n $work ]] || work=$(mktemp -d "${TMPDIR:-/var/tmp}/job_end.XXXXXX")
 mkdir -p "$work"
-pids=()
+pids=() wpids=()
 cleanup() {
   local p
   for p in "${pids[@]}"; do kill "$p" 2>/dev/null || true; done
@@ -61,7 +62,6 @@ cleanup() {
 }
 trap cleanup EXIT
 
-median() { sort -g | awk '{a[NR]=$1} END {if (NR) print (NR % 2) ? a[(NR+1)/2] : (a[NR/2] + a[NR/2+1]) / 2}'; }
 now_ms() { echo $(($(date +%s%N) / 1000000)); }
 
 # One run: prints "longest_ms median_ms wall_s".
@@ -78,17 +78,8 @@ run() {
     ((t < 1200)) || { echo "job_end: ptserve did not start" >&2; return 1; }
   done
   ctl=("$bin/ptctl" --server "127.0.0.1:$(< "$dir/port")")
-  for ((i = 0; i < workers; i++)); do
-    PTWORKER_NULL_RATE=$pace "$bin/ptworker-null" --server "127.0.0.1:$(< "$dir/port")" \
-      --threads "$threads" --cache-dir "$work/cache" --name "null$i" 2> "$dir/w$i.log" &
-    pids+=($!)
-  done
-  t=0
-  while (($(grep -c 'worker .* joined' "$dir/serve.log") < workers)); do
-    sleep 0.05
-    t=$((t + 1))
-    ((t < 1200)) || { echo "job_end: workers did not join" >&2; return 1; }
-  done
+  start_workers "$(< "$dir/port")" "$dir"
+  wait_joined "$dir/serve.log" || { echo "job_end: workers did not join" >&2; return 1; }
   local t0 t1 a b last
   t0=$(now_ms)
   for ((i = 0; i < jobs; i++)); do
@@ -108,7 +99,7 @@ run() {
   grep -q "job $last done" "$dir/serve.log" || { echo "job_end: job $last did not finish" >&2; return 1; }
   kill "${pids[@]}" 2>/dev/null || true
   wait 2>/dev/null || true
-  pids=()
+  pids=() wpids=()
   echo "$(sort -g "$dir/replies" | tail -n 1) $(median < "$dir/replies") $(awk -v a="$t0" -v b="$t1" 'BEGIN {printf "%.2f", (b - a) / 1000}')"
 }
 
