@@ -21,14 +21,21 @@ failed=1
 fail() { echo "FAIL: $*" >&2; exit 1; }
 json() { python3 -c "import json,sys; d=json.load(open(sys.argv[1])); print(eval(sys.argv[2]))" "$@"; }
 
-"$bin/ptserve" --state-dir "$tmp/state" --output-dir "$tmp/out" --listen 127.0.0.1:0 \
-  --port-file "$tmp/port" --local 2 --worker-threads 1 --tile 16 --chunk 8 \
-  --max-queued 3 2> "$tmp/serve.log" &
-srv_pid=$!
-for _ in $(seq 100); do [ -s "$tmp/port" ] && break; sleep 0.05; done
-[ -s "$tmp/port" ] || fail "ptserve did not start: $(cat "$tmp/serve.log")"
-PTFARM_SERVER=127.0.0.1:$(cat "$tmp/port")
-export PTFARM_SERVER
+# serve NAME [OPTIONS...]: a ptserve queue on $tmp/NAME (state folder) with
+# two local one-thread workers, its log $tmp/NAME.log; ptctl's server.
+serve() {
+  local name=$1
+  shift
+  "$bin/ptserve" --state-dir "$tmp/$name" --output-dir "$tmp/$name-out" --listen 127.0.0.1:0 \
+    --port-file "$tmp/$name.port" --local 2 --worker-threads 1 --tile 16 --chunk 8 "$@" \
+    2> "$tmp/$name.log" &
+  srv_pid=$!
+  for _ in $(seq 100); do [ -s "$tmp/$name.port" ] && break; sleep 0.05; done
+  [ -s "$tmp/$name.port" ] || fail "ptserve did not start: $(cat "$tmp/$name.log")"
+  PTFARM_SERVER=127.0.0.1:$(cat "$tmp/$name.port")
+  export PTFARM_SERVER
+}
+serve state --max-queued 3
 ctl() { "$bin/ptctl" "$@"; }
 
 # Submit and watch the Cornell box; compare with the standalone render.
@@ -46,7 +53,7 @@ ctl fetch "$id" -o "$tmp/cornell.exr"
 "$bin/ptexr-diff" "$tmp/cornell_ref.exr" "$tmp/cornell.exr" || fail "fetched image differs"
 out=$(json "$tmp/status.json" 'd["output"]')
 [[ "$out" == "$id-cornell_box.exr" ]] || fail "output name '$out'"
-[ -f "$tmp/out/$out" ] || fail "no $tmp/out/$out"
+[ -f "$tmp/state-out/$out" ] || fail "no $tmp/state-out/$out"
 
 # --camera picks a camera by name, on the farm as in the standalone render: a
 # copy of the Cornell box with a second camera, rendered through it by ptctl
@@ -139,7 +146,7 @@ fi
 ctl submit 2>/dev/null; [ $? = 2 ] || fail "submit without a scene"
 ctl frobnicate 2>/dev/null; [ $? = 2 ] || fail "unknown command"
 set -e
-grep -q "Sanitizer\|runtime error:" "$tmp/serve.log" && fail "sanitizer report"
+grep -q "Sanitizer\|runtime error:" "$tmp/state.log" && fail "sanitizer report"
 
 # A job's final image is written by its writer thread while the loop goes
 # on. The writes are held at a gate (a test hook): job a, rendered, waits
@@ -149,13 +156,7 @@ grep -q "Sanitizer\|runtime error:" "$tmp/serve.log" && fail "sanitizer report"
 # renders.
 kill "$srv_pid"
 wait "$srv_pid" 2>/dev/null || true
-PTSERVE_TEST_WRITE_GATE="$tmp/gate" "$bin/ptserve" --state-dir "$tmp/state2" \
-  --output-dir "$tmp/out2" --listen 127.0.0.1:0 --port-file "$tmp/port2" --local 2 \
-  --worker-threads 1 --tile 16 --chunk 8 2> "$tmp/serve_gate.log" &
-srv_pid=$!
-for _ in $(seq 100); do [ -s "$tmp/port2" ] && break; sleep 0.05; done
-[ -s "$tmp/port2" ] || fail "ptserve did not start: $(cat "$tmp/serve_gate.log")"
-PTFARM_SERVER=127.0.0.1:$(cat "$tmp/port2")
+PTSERVE_TEST_WRITE_GATE="$tmp/gate" serve gated
 wait_for() { # $1: job, $2: Python expression over its status d, $3: what it means
   local end=$((SECONDS + 60))
   while [ "$SECONDS" -lt "$end" ]; do
@@ -181,7 +182,7 @@ for j in "$a:11" "$b:12"; do
   "$bin/ptexr-diff" "$tmp/gate_ref_${j#*:}.exr" "$tmp/gate_${j#*:}.exr" ||
     fail "job ${j%:*}'s image differs"
 done
-grep -q "Sanitizer\|runtime error:" "$tmp/serve_gate.log" && fail "sanitizer report"
+grep -q "Sanitizer\|runtime error:" "$tmp/gated.log" && fail "sanitizer report"
 failed=0
 # 77: ctest counts the test as skipped, not passed, when a part could not run.
 [ "${skipped:-0}" = 1 ] && exit 77
