@@ -15,6 +15,7 @@
 #include <unistd.h>
 
 #include "common/base/alloc.h"
+#include "common/base/fsutil.h"
 #include "common/base/hash.h"
 #include "common/base/net.h"
 #include "common/image/exr.h"
@@ -667,7 +668,7 @@ static enum MHD_Result make_png(struct MHD_Connection *conn, const snap_job *j)
     float scale = (float)exp2(arg_double(conn, "exposure", 0.0, -20.0, 20.0));
     pt_image *img = NULL;
     pt_error err = {0};
-    if (!j->exr[0] || pt_exr_read(j->exr, &img, NULL, &err) != PT_OK)
+    if (!j->exr[0] || pt_exr_read_nofollow(j->exr, &img, NULL, &err) != PT_OK)
         return respond_error(conn, 404, "no image yet");
     size_t n = (size_t)img->width * img->height;
     uint8_t *rgb = pt_malloc_array(n, 3);
@@ -725,12 +726,15 @@ static enum MHD_Result serve_png(srv_http *h, struct MHD_Connection *conn, const
 static enum MHD_Result serve_exr(struct MHD_Connection *conn, const snap_job *j)
 {
     /* Sent from the open file: a rename by the writer meanwhile leaves this
-     * copy whole, and no image is held in memory. */
-    int fd = j->exr[0] ? open(j->exr, O_RDONLY | O_CLOEXEC) : -1;
+     * copy whole, and no image is held in memory. Opened as FETCH opens it:
+     * a link or a FIFO planted at the image's name is refused, not followed
+     * or waited on. */
+    int fd = -1;
     struct stat st;
-    if (fd < 0 || fstat(fd, &st) != 0 || !S_ISREG(st.st_mode)) {
-        if (fd >= 0)
-            close(fd);
+    if (!j->exr[0] || pt_open_regular(j->exr, 0, &fd, NULL) != PT_OK)
+        return respond_error(conn, 404, "no image yet");
+    if (fstat(fd, &st) != 0) {
+        close(fd);
         return respond_error(conn, 404, "no image yet");
     }
     struct MHD_Response *r = MHD_create_response_from_fd((uint64_t)st.st_size, fd);

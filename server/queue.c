@@ -5,7 +5,6 @@
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
-#include <sys/stat.h>
 
 #include "common/base/alloc.h"
 #include "common/base/hash.h"
@@ -565,11 +564,9 @@ void srv_queue_end_job(srv_server *s, srv_entry *j, uint8_t state, const char *m
 static double resumed_seconds(const srv_entry *j, double ckpt)
 {
     pt_exr_meta meta;
-    struct stat sb;
     /* Only a regular file: a link or a FIFO planted in the output folder is
      * not read (a FIFO would block the loop). */
-    if (lstat(j->out_path, &sb) != 0 || !S_ISREG(sb.st_mode) ||
-        pt_exr_read(j->out_path, NULL, &meta, NULL) != PT_OK)
+    if (pt_exr_read_nofollow(j->out_path, NULL, &meta, NULL) != PT_OK)
         return ckpt;
     char id[64], hash[65];
     snprintf(id, sizeof id, "%llu", (unsigned long long)j->rec.id);

@@ -211,29 +211,37 @@ static pt_status read_fd(int fd, const char *path, size_t max, uint8_t **out, si
     return PT_OK;
 }
 
+pt_status pt_open_regular(const char *path, int follow, int *fd, pt_error *err)
+{
+    int f = open(path, O_RDONLY | O_CLOEXEC | O_NONBLOCK | (follow ? 0 : O_NOFOLLOW));
+    if (f < 0) {
+        if (errno == ELOOP && !follow)
+            return pt_error_set(err, PT_ERR_FORMAT, "%s: a symbolic link; not read", path);
+        return pt_error_errno(err, PT_ERR_IO, "%s", path);
+    }
+    struct stat sb;
+    if (fstat(f, &sb) != 0 || !S_ISREG(sb.st_mode)) {
+        close(f);
+        return pt_error_set(err, PT_ERR_FORMAT, "%s: not a regular file; not read", path);
+    }
+    *fd = f;
+    return PT_OK;
+}
+
+/* A FIFO named as a token or scene file does not block either. */
 pt_status pt_read_file(const char *path, size_t max, uint8_t **out, size_t *len, pt_error *err)
 {
-    int fd = open(path, O_RDONLY | O_CLOEXEC);
-    if (fd < 0)
-        return pt_error_errno(err, PT_ERR_IO, "%s", path);
-    return read_fd(fd, path, max, out, len, err);
+    int fd;
+    pt_status st = pt_open_regular(path, 1, &fd, err);
+    return st != PT_OK ? st : read_fd(fd, path, max, out, len, err);
 }
 
 pt_status pt_read_file_nofollow(const char *path, size_t max, uint8_t **out, size_t *len,
                                 pt_error *err)
 {
-    int fd = open(path, O_RDONLY | O_CLOEXEC | O_NOFOLLOW | O_NONBLOCK);
-    if (fd < 0) {
-        if (errno == ELOOP)
-            return pt_error_set(err, PT_ERR_FORMAT, "%s: a symbolic link; not read", path);
-        return pt_error_errno(err, PT_ERR_IO, "%s", path);
-    }
-    struct stat sb;
-    if (fstat(fd, &sb) != 0 || !S_ISREG(sb.st_mode)) {
-        close(fd);
-        return pt_error_set(err, PT_ERR_FORMAT, "%s: not a regular file; not read", path);
-    }
-    return read_fd(fd, path, max, out, len, err);
+    int fd;
+    pt_status st = pt_open_regular(path, 0, &fd, err);
+    return st != PT_OK ? st : read_fd(fd, path, max, out, len, err);
 }
 
 pt_status pt_read_file_beneath(int dirfd, const char *rel, size_t max, uint8_t **out, size_t *len,

@@ -71,9 +71,19 @@ pt_status pt_write_file_atomic_mode(const char *path, const void *data, size_t n
                                     pt_error *err);
 
 /* Reads the whole file into a pt_malloc'd buffer (*out, *len; free with
- * pt_free). PT_ERR_IO naming path when it cannot be read, PT_ERR_LIMIT when
- * it is larger than max bytes, PT_ERR_NOMEM. */
+ * pt_free). PT_ERR_IO naming path when it cannot be read, PT_ERR_FORMAT when
+ * it is not a regular file (a FIFO is refused, not waited on), PT_ERR_LIMIT
+ * when it is larger than max bytes, PT_ERR_NOMEM. */
 pt_status pt_read_file(const char *path, size_t max, uint8_t **out, size_t *len, pt_error *err);
+
+/* Opens path read-only for reading a regular file, into *fd (O_CLOEXEC;
+ * close it). Never blocks: the open is O_NONBLOCK, so a FIFO at path is
+ * refused, not waited on. With follow 0 a symbolic link at path's last
+ * component is refused too (O_NOFOLLOW), for names in a folder that others
+ * may write to, such as the output folder. PT_ERR_FORMAT for a link or a
+ * file that is not regular, PT_ERR_IO (errno kept, so ENOENT can be told
+ * apart) when it cannot be opened. *fd is untouched on failure. */
+pt_status pt_open_regular(const char *path, int follow, int *fd, pt_error *err);
 
 /* pt_read_file that does not follow a symbolic link at path's last component
  * and reads a regular file only (a FIFO does not block): PT_ERR_FORMAT for a

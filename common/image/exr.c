@@ -436,7 +436,8 @@ static exr_result_t read_chunks(exr_const_context_t ctx, int32_t min_y, pt_image
     return rv;
 }
 
-pt_status pt_exr_read(const char *path, pt_image **out, pt_exr_meta *meta, pt_error *err)
+static pt_status exr_read(const char *path, int follow, pt_image **out, pt_exr_meta *meta,
+                          pt_error *err)
 {
     if (!path)
         return pt_error_set(err, PT_ERR_ARG, "EXR read: no path");
@@ -454,16 +455,16 @@ pt_status pt_exr_read(const char *path, pt_image **out, pt_exr_meta *meta, pt_er
     /* A truncated file is an error, not something to guess around. */
     init.flags = EXR_CONTEXT_FLAG_DISABLE_CHUNK_RECONSTRUCTION;
 
-    s.fd = open(path, O_RDONLY | O_CLOEXEC);
-    if (s.fd < 0)
-        return pt_error_errno(err, PT_ERR_IO, "EXR %s: cannot open", path);
+    pt_error oerr = {0};
+    if ((st = pt_open_regular(path, follow, &s.fd, &oerr)) != PT_OK) {
+        pt_error_set(err, st, "EXR %s", oerr.msg);
+        if (err)
+            err->sys_errno = oerr.sys_errno;
+        return st;
+    }
     struct stat sb;
     if (fstat(s.fd, &sb) != 0) {
         st = pt_error_errno(err, PT_ERR_IO, "EXR %s: stat", path);
-        goto fail;
-    }
-    if (!S_ISREG(sb.st_mode)) {
-        st = pt_error_set(err, PT_ERR_ARG, "EXR %s: not a regular file", path);
         goto fail;
     }
     s.size = (int64_t)sb.st_size;
@@ -558,4 +559,14 @@ fail:
         exr_finish(&ctx);
     close(s.fd);
     return st;
+}
+
+pt_status pt_exr_read(const char *path, pt_image **out, pt_exr_meta *meta, pt_error *err)
+{
+    return exr_read(path, 1, out, meta, err);
+}
+
+pt_status pt_exr_read_nofollow(const char *path, pt_image **out, pt_exr_meta *meta, pt_error *err)
+{
+    return exr_read(path, 0, out, meta, err);
 }

@@ -54,4 +54,10 @@ pt_status pt_exr_write(const char *path, const pt_image *img, const pt_exr_meta 
  * PT_ERR_FORMAT. */
 pt_status pt_exr_read(const char *path, pt_image **out, pt_exr_meta *meta, pt_error *err);
 
+/* pt_exr_read that refuses a symbolic link at path's last component
+ * (PT_ERR_FORMAT), for images in a folder that others may write to: the
+ * output folder the dashboard and a restart read from. Neither read opens
+ * anything but a regular file, and a FIFO never blocks them. */
+pt_status pt_exr_read_nofollow(const char *path, pt_image **out, pt_exr_meta *meta, pt_error *err);
+
 #endif

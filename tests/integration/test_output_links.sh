@@ -2,9 +2,12 @@
 # Links planted in the output folder are never followed: not at the image's
 # and the preview's names, not at the names temporaries used to have
 # (NAME.tmp.PID.N); a fetch does not read an image through a link planted
-# there; ptctl fetch into a folder with a link at the destination replaces
-# the link and leaves its target alone.
+# there, by ptctl fetch or by the dashboard; ptctl fetch into a folder with
+# a link at the destination replaces the link and leaves its target alone; a
+# FIFO at an image's name blocks neither a restart nor the dashboard, and
+# ptserve still stops on SIGTERM.
 set -euo pipefail
+command -v curl > /dev/null || { echo "SKIP: no curl"; exit 77; }
 bin=${PT_BIN:?}
 src=${PT_SOURCE_DIR:?}
 tmp=$(mktemp -d /tmp/pt_output_links_XXXXXX)
@@ -27,12 +30,13 @@ mkdir -p "$tmp/out" "$tmp/dl"
 for v in victim_exr victim_png victim_tmp victim_fetch secret; do echo "precious $v" > "$tmp/$v"; done
 "$bin/ptserve" --state-dir "$tmp/state" --output-dir "$tmp/out" --listen 127.0.0.1:0 \
   --port-file "$tmp/port" --local 1 --worker-threads 1 --tile 16 --chunk 8 --save-interval 0 \
-  -q 2> "$tmp/serve.log" &
+  --http 127.0.0.1:0 --http-port-file "$tmp/hport" -q 2> "$tmp/serve.log" &
 srv_pid=$!
-for _ in $(seq 200); do [ -s "$tmp/port" ] && break; sleep 0.05; done
+for _ in $(seq 200); do [ -s "$tmp/port" ] && [ -s "$tmp/hport" ] && break; sleep 0.05; done
 [ -s "$tmp/port" ] || fail "ptserve did not start"
 PTFARM_SERVER=127.0.0.1:$(cat "$tmp/port")
 export PTFARM_SERVER
+web=http://127.0.0.1:$(cat "$tmp/hport")
 
 # The first job's names are known in advance: 1-links.exr and 1-links.png,
 # and the temporaries used to be NAME.tmp.PID.N with N counting from 0.
@@ -72,6 +76,14 @@ set -e
 grep -q "not a regular file" "$tmp/fetch.err" || fail "refusal: $(cat "$tmp/fetch.err")"
 grep -q "$tmp/out" "$tmp/fetch.err" && fail "the refusal names a server path: $(cat "$tmp/fetch.err")"
 "$bin/ptctl" status "$id" > /dev/null || fail "the server stopped serving"
+# Nor does the dashboard: the EXR download and the PNG view answer 404 and
+# send nothing of the link's target.
+[ "$(curl -sS -o /dev/null -w '%{http_code}' "$web/api/jobs/$id")" = 200 ] || fail "/api/jobs/$id"
+for u in image.exr image.png; do
+  code=$(curl -sS -o "$tmp/dl/leak.$u" -w '%{http_code}' "$web/api/jobs/$id/$u")
+  [ "$code" = 404 ] || fail "the dashboard's $u through a link: $code"
+  if grep -q "precious secret" "$tmp/dl/leak.$u"; then fail "the dashboard sent the link's target"; fi
+done
 
 # A restart does not open what is planted at a running job's image name: a
 # FIFO there would block the coordinator before it serves anyone.
@@ -79,13 +91,15 @@ kill "$srv_pid"
 wait "$srv_pid" 2>/dev/null || true
 srv_pid=''
 serve2() {
-  rm -f "$tmp/port"
+  rm -f "$tmp/port" "$tmp/hport"
   "$bin/ptserve" --state-dir "$tmp/state2" --output-dir "$tmp/out2" --listen 127.0.0.1:0 \
-    --port-file "$tmp/port" --tile 16 --chunk 8 --save-interval 0 -q 2>> "$tmp/serve2.log" &
+    --port-file "$tmp/port" --tile 16 --chunk 8 --save-interval 0 \
+    --http 127.0.0.1:0 --http-port-file "$tmp/hport" -q 2>> "$tmp/serve2.log" &
   srv_pid=$!
-  for _ in $(seq 200); do [ -s "$tmp/port" ] && break; sleep 0.05; done
+  for _ in $(seq 200); do [ -s "$tmp/port" ] && [ -s "$tmp/hport" ] && break; sleep 0.05; done
   [ -s "$tmp/port" ] || fail "ptserve did not start"
   PTFARM_SERVER=127.0.0.1:$(cat "$tmp/port")
+  web=http://127.0.0.1:$(cat "$tmp/hport")
 }
 serve2
 id=$("$bin/ptctl" submit "$src/scenes/cornell_box.gltf" --res 32x32 --spp 65536 --name fifo)
@@ -100,5 +114,17 @@ rm "$tmp/out2/$id-fifo.exr"
 mkfifo "$tmp/out2/$id-fifo.exr"
 serve2
 timeout 20 "$bin/ptctl" status "$id" > /dev/null || fail "a FIFO at the image's name blocked the restart"
+# The dashboard neither blocks on the FIFO nor runs out of image slots: each
+# of more requests than it renders at once is answered 404 at once.
+for u in image.exr image.png image.png image.png image.png image.png image.png; do
+  code=$(curl -sS -m 10 -o /dev/null -w '%{http_code}' "$web/api/jobs/$id/$u" || true)
+  [ "$code" = 404 ] || fail "the dashboard's $u with a FIFO at the image's name: $code"
+done
+# And SIGTERM still stops it.
+kill -TERM "$srv_pid"
+for _ in $(seq 200); do kill -0 "$srv_pid" 2>/dev/null || break; sleep 0.05; done
+if kill -0 "$srv_pid" 2>/dev/null; then fail "ptserve did not stop on SIGTERM"; fi
+wait "$srv_pid" 2>/dev/null || true
+srv_pid=''
 failed=0
 echo "PASS"

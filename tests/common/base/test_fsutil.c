@@ -225,6 +225,9 @@ static void test_planted_links(const char *dir)
     snprintf(link2, sizeof link2, "%s/fifo", sub);
     CHECK(mkfifo(link2, 0600) == 0);
     CHECK(pt_read_file_nofollow(link2, 100, &data, &len, &err) == PT_ERR_FORMAT);
+    /* The read that follows links does not block on a FIFO either. */
+    CHECK(pt_read_file(link2, 100, &data, &len, &err) == PT_ERR_FORMAT &&
+          strstr(err.msg, "not a regular file"));
     snprintf(link2, sizeof link2, "%s/none", sub);
     CHECK(pt_read_file_nofollow(link2, 100, &data, &len, &err) == PT_ERR_IO &&
           err.sys_errno == ENOENT);

@@ -260,6 +260,34 @@ static void test_round_trip(void)
     unlink(path("rt.exr"));
 }
 
+/* pt_exr_read follows a link and pt_exr_read_nofollow refuses it; neither
+ * opens a FIFO, and neither blocks on one (the test would hang). */
+static void test_links_and_fifos(void)
+{
+    pt_image *a = random_image(5, 4), *b = NULL;
+    pt_error err = {0};
+    CHECK(pt_exr_write(path("real.exr"), a, NULL, &err) == PT_OK);
+    CHECK(symlink(path("real.exr"), path("link.exr")) == 0);
+    CHECK(pt_exr_read(path("link.exr"), &b, NULL, &err) == PT_OK && same_image(a, b));
+    pt_image_free(b);
+    b = NULL;
+    CHECK(pt_exr_read_nofollow(path("real.exr"), &b, NULL, &err) == PT_OK && same_image(a, b));
+    pt_image_free(b);
+    b = NULL;
+    CHECK(pt_exr_read_nofollow(path("link.exr"), &b, NULL, &err) == PT_ERR_FORMAT && !b &&
+          strstr(err.msg, "symbolic link"));
+    CHECK(mkfifo(path("fifo.exr"), 0600) == 0);
+    CHECK(pt_exr_read(path("fifo.exr"), &b, NULL, &err) == PT_ERR_FORMAT && !b &&
+          strstr(err.msg, "not a regular file"));
+    CHECK(pt_exr_read_nofollow(path("fifo.exr"), NULL, NULL, &err) == PT_ERR_FORMAT);
+    CHECK(pt_exr_read_nofollow(path("none.exr"), NULL, NULL, &err) == PT_ERR_IO &&
+          err.sys_errno == ENOENT);
+    unlink(path("fifo.exr"));
+    unlink(path("link.exr"));
+    unlink(path("real.exr"));
+    pt_image_free(a);
+}
+
 /* A reader racing a writer sees either image, whole, never a torn file. */
 static void test_atomic_replace(void)
 {
@@ -652,6 +680,7 @@ int main(void)
     test_srgb();
     test_png();
     test_round_trip();
+    test_links_and_fifos();
     test_atomic_replace();
     test_threads_one_path();
     test_write_errors();
