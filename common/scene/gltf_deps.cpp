@@ -14,6 +14,7 @@
 
 extern "C" {
 #include "common/base/alloc.h"
+#include "common/base/json.h"
 #include "common/scene/bundle.h"
 #include "common/scene/uri.h"
 }
@@ -58,6 +59,12 @@ pt_status json_text(const char *path, std::string &json, pt_error *err)
     }
     if (json.size() > kMaxJson)
         return pt_error_set(err, PT_ERR_LIMIT, "%s: JSON is over %zu bytes", path, kMaxJson);
+    size_t at = 0;
+    if (pt_json_too_deep(json.data(), json.size(), PT_JSON_MAX_DEPTH, &at))
+        return pt_error_set(err, PT_ERR_LIMIT,
+                            "%s: the JSON nests objects and arrays more than %u deep (at byte %zu "
+                            "of the JSON)",
+                            path, PT_JSON_MAX_DEPTH, at);
     return PT_OK;
 }
 

@@ -73,6 +73,7 @@ extern "C" {
 #include "common/base/alloc.h"
 #include "common/base/fsutil.h"
 #include "common/base/hash.h"
+#include "common/base/json.h"
 #include "common/scene/anim.h"
 #include "common/scene/gltf_import.h"
 #include "common/scene/motion.h"
@@ -1821,10 +1822,28 @@ void parse(importer &im, const std::vector<unsigned char> &bytes)
     if (bytes.empty())
         im.fail(PT_ERR_FORMAT, "file is empty");
     bool glb_name = im.path.size() >= 4 && im.path.compare(im.path.size() - 4, 4, ".glb") == 0;
-    if ((bytes.size() >= 4 && memcmp(bytes.data(), "glTF", 4) == 0) || glb_name) {
-        if (bytes.size() < 20)
-            im.fail(PT_ERR_FORMAT, "GLB header truncated (%zu bytes)", bytes.size());
-        glb = true;
+    glb = (bytes.size() >= 4 && memcmp(bytes.data(), "glTF", 4) == 0) || glb_name;
+    if (glb && bytes.size() < 20)
+        im.fail(PT_ERR_FORMAT, "GLB header truncated (%zu bytes)", bytes.size());
+    // The JSON's nesting is bounded before tinygltf, whose conversion of the
+    // document recurses once per level, sees it (common/base/json.h). A GLB's
+    // JSON is its first chunk (glTF 2.0, 4.4.3); a bad chunk length is
+    // tinygltf's to refuse, so only the bytes present are scanned.
+    {
+        const char *text = reinterpret_cast<const char *>(bytes.data());
+        size_t n = bytes.size(), at = 0;
+        if (glb) {
+            size_t len = size_t(bytes[12]) | size_t(bytes[13]) << 8 | size_t(bytes[14]) << 16 |
+                         size_t(bytes[15]) << 24;
+            text += 20;
+            n = len < n - 20 ? len : n - 20;
+        }
+        if (pt_json_too_deep(text, n, PT_JSON_MAX_DEPTH, &at))
+            im.fail(PT_ERR_LIMIT, "%s nests objects and arrays more than %u deep (at byte %zu)",
+                    glb ? "the GLB's JSON chunk" : "the JSON", PT_JSON_MAX_DEPTH,
+                    at + (glb ? 20 : 0));
+    }
+    if (glb) {
         ok = loader.LoadBinaryFromMemory(&im.model, &terr, &twarn, bytes.data(),
                                          unsigned(bytes.size()), "");
     } else {

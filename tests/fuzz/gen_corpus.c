@@ -11,13 +11,14 @@
  * mode byte (see fuzz_frame.c) and frames, alone, in one stream, and a few
  * broken ones. For the decoders of files: small glTF scenes (a data: URI
  * buffer, an external buffer and image, a .glb, a name leading out of the
- * folder, animated ones with skins and morph targets, and hostile animated
- * ones) for fuzz_gltf; bundles packed from such scenes, and hostile ones,
- * for fuzz_bundle; and for the state folder's targets (fuzz_state.h) real
- * queue files, checkpoints and results logs written by server/state.c in a
- * scratch folder: fresh, with held early results, finished, cut short,
- * unsealed. ctest runs "check", so a change to the wire format that
- * forgets the corpus fails the suite; rerun "write" to refresh it.
+ * folder, JSON nested too deep and just deep enough, animated ones with
+ * skins and morph targets, and hostile animated ones) for fuzz_gltf;
+ * bundles packed from such scenes, and hostile ones, for fuzz_bundle; and
+ * for the state folder's targets (fuzz_state.h) real queue files,
+ * checkpoints and results logs written by server/state.c in a scratch
+ * folder: fresh, with held early results, finished, cut short, unsealed.
+ * ctest runs "check", so a change to the wire format that forgets the
+ * corpus fails the suite; rerun "write" to refresh it.
  */
 #include <errno.h>
 #include <stdio.h>
@@ -221,6 +222,24 @@ static void gen_gltf(const char *dir)
     tri_json(&b, (const char *)uri.p, TRI_BIN, k_views, NULL, k_nodes);
     emit(dir, "fuzz_gltf", "tri_datauri.gltf", b.p, b.len);
     free(uri.p);
+
+    /* The same with "extras" nested 30,000 deep in front (refused before the
+     * recursive parser sees it: common/base/json.h), and 126 deep, the most
+     * that loads (the root object and "extras" are two more levels). */
+    static const unsigned depths[] = {30000, 126};
+    static const char *const deep_names[] = {"deep_extras.gltf", "deep_edge.gltf"};
+    for (int k = 0; k < 2; k++) {
+        bytes d = {0};
+        puts_(&d, "{\"extras\":");
+        for (unsigned i = 0; i < depths[k]; i++)
+            put(&d, "[", 1);
+        for (unsigned i = 0; i < depths[k]; i++)
+            put(&d, "]", 1);
+        put(&d, ",", 1);
+        put(&d, b.p + 1, b.len - 1);
+        emit(dir, "fuzz_gltf", deep_names[k], d.p, d.len);
+        free(d.p);
+    }
 
     /* External buffer and PNG texture; then the same asking for a camera,
      * with a PPM image, with a name that leads out of the folder, and for

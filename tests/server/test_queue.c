@@ -1511,6 +1511,20 @@ static void hostile_clients(void)
     uint8_t *broken = make_bundle(n2, d2, 1, &len);
     CHECK(refused(job_of("broken", 0, 0, 16, 0), broken, len, "scene refused"));
     free(broken);
+    /* JSON nested 30,000 deep (60 KB) overflowed the upload check's stack in
+     * tinygltf's recursive parse and killed the server: now it is refused,
+     * and everything below shows the server serving on. */
+    enum { DEEP = 30000 };
+    char *deep = malloc(2 * DEEP + 64);
+    size_t dn = (size_t)sprintf(deep, "{\"asset\": {\"version\": \"2.0\"}, \"extras\": ");
+    memset(deep + dn, '[', DEEP);
+    memset(deep + dn + DEEP, ']', DEEP);
+    strcpy(deep + dn + 2 * DEEP, "}");
+    const char *d3[] = {deep};
+    uint8_t *deep_bundle = make_bundle(n2, d3, 1, &len);
+    CHECK(refused(job_of("deep", 0, 0, 16, 0), deep_bundle, len, "more than 128 deep"));
+    free(deep_bundle);
+    free(deep);
 
     cli c;
     proto_frame f;

@@ -16,6 +16,8 @@
 
 #include "common/base/alloc.h"
 #include "common/base/fsutil.h"
+#include "common/base/json.h"
+#include "common/scene/bundle.h"
 #include "tests/check.h"
 
 static char tmp[256];
@@ -990,6 +992,80 @@ static void test_alpha_modes(void)
     expect_fail("a_bad_cutoff.gltf", PT_ERR_FORMAT, "alphaCutoff");
 }
 
+/* tri.gltf (test_small_valid's) with "extras" nested depth deep in front,
+ * as .gltf or as a .glb whose JSON chunk it is; then the JSON with a
+ * string full of brackets instead. */
+static void write_deep(const char *name, unsigned depth, int glb, int in_string)
+{
+    FILE *f = fopen(tpath("tri.gltf"), "rb");
+    char base[8192];
+    size_t bn = f ? fread(base, 1, sizeof base, f) : 0;
+    if (f)
+        fclose(f);
+    size_t cap = 2 * (size_t)depth + bn + 64, n = 0;
+    char *j = malloc(cap);
+    n += (size_t)snprintf(j, cap, "{\"extras\":%s", in_string ? "\"" : "");
+    for (unsigned i = 0; i < depth; i++)
+        j[n++] = '[';
+    for (unsigned i = 0; i < depth; i++)
+        j[n++] = in_string ? '{' : ']';
+    n += (size_t)snprintf(j + n, cap - n, "%s,", in_string ? "\"" : "");
+    memcpy(j + n, base + 1, bn - 1); /* tri.gltf without its opening brace */
+    n += bn - 1;
+    if (!glb) {
+        write_file(name, j, n);
+        free(j);
+        return;
+    }
+    while (n % 4)
+        j[n++] = ' ';
+    size_t total = 20 + n;
+    unsigned char *g = malloc(total);
+    uint32_t head[5] = {0x46546C67u, 2, (uint32_t)total, (uint32_t)n, 0x4E4F534Au};
+    memcpy(g, head, sizeof head); /* little-endian hosts only, as the project */
+    memcpy(g + 20, j, n);
+    write_file(name, g, total);
+    free(g);
+    free(j);
+}
+
+/* JSON nested deeper than PT_JSON_MAX_DEPTH is refused before tinygltf's
+ * recursive conversion sees it (30,000 deep overflowed the stack), in .gltf
+ * and .glb, by the loader and by the bundle's dependency scan; up to the
+ * bound, and brackets inside strings, load. */
+static void test_deep_json(void)
+{
+    write_deep("deep.gltf", 30000, 0, 0);
+    expect_fail("deep.gltf", PT_ERR_LIMIT, "more than 128 deep");
+    write_deep("deep.glb", 30000, 1, 0);
+    expect_fail("deep.glb", PT_ERR_LIMIT, "JSON chunk nests");
+    char **deps = NULL;
+    uint32_t ndeps = 0;
+    pt_error err = {0};
+    CHECK(pt_gltf_dependencies(tpath("deep.gltf"), &deps, &ndeps, &err) == PT_ERR_LIMIT &&
+          strstr(err.msg, "128 deep"));
+    CHECK(pt_gltf_dependencies(tpath("deep.glb"), &deps, &ndeps, &err) == PT_ERR_LIMIT);
+
+    /* The root object and "extras" take two levels: 126 more is the bound. */
+    const char *ok[] = {"edge.gltf", "edge.glb", "strings.gltf"};
+    write_deep(ok[0], PT_JSON_MAX_DEPTH - 1, 0, 0);
+    write_deep(ok[1], PT_JSON_MAX_DEPTH - 1, 1, 0);
+    write_deep(ok[2], 30000, 0, 1);
+    for (int i = 0; i < 3; i++) {
+        pt_scene *sc = NULL;
+        pt_scene_opts o = {0};
+        pt_status st = pt_scene_load(tpath(ok[i]), &o, &sc, &err);
+        CHECKF(st == PT_OK, "%s: %s", ok[i], err.msg);
+        pt_scene_free(sc);
+        st = pt_gltf_dependencies(tpath(ok[i]), &deps, &ndeps, &err);
+        CHECKF(st == PT_OK && ndeps >= 1, "%s: %s", ok[i], err.msg);
+        if (st == PT_OK)
+            pt_gltf_dependencies_free(deps, ndeps);
+    }
+    write_deep("over.gltf", PT_JSON_MAX_DEPTH, 0, 0);
+    expect_fail("over.gltf", PT_ERR_LIMIT, "deep");
+}
+
 int main(void)
 {
     snprintf(tmp, sizeof tmp, "/tmp/pt_test_gltf_XXXXXX");
@@ -998,6 +1074,7 @@ int main(void)
     test_small_valid();
     test_attributes();
     test_hostile();
+    test_deep_json();
     test_lights();
     test_confined();
     test_alpha_modes();
