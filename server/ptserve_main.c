@@ -127,7 +127,8 @@ static void usage(FILE *f)
         "                         8 times a tile's samples, smaller again near the end\n"
         "  --chunk N              fixed tasks of N samples instead of --task-time; also\n"
         "                         the step at which adaptive sampling judges a tile\n"
-        "                         (default 16), which an adaptive job's tasks never cross\n"
+        "                         (default 16), which an adaptive job's tasks never cross;\n"
+        "                         rounded up to a multiple of 16\n"
         "  --save-interval SEC    progressive saves at most this often (default 5)\n"
         "  --lease-timeout SEC    requeue a task whose worker is silent this long (default 20);\n"
         "                         also the shortest hard deadline of a lease\n"
@@ -606,6 +607,13 @@ int main(int argc, char **argv)
     }
     if (has_chunk)
         c.task_ms = 0;
+    if (c.job.chunk != pt_chunk_whole_blocks(c.job.chunk)) {
+        /* A task that ends inside a block changes the image's last bits. */
+        fprintf(stderr,
+                "ptserve: --chunk %u rounded up to %u: samples are summed in blocks of %u\n",
+                c.job.chunk, pt_chunk_whole_blocks(c.job.chunk), PT_SAMPLE_BLOCK);
+        c.job.chunk = pt_chunk_whole_blocks(c.job.chunk);
+    }
     if (lease < 0.1) {
         fprintf(stderr, "ptserve: --lease-timeout must be at least 0.1 s\n");
         return 2;

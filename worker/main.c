@@ -69,7 +69,8 @@ static void usage(FILE *f)
             "                     without --time, --frame or --animation a scene renders\n"
             "                     as its still: its nodes' own transforms, no skinning\n"
             "  --tile N           tile side in pixels (default 32)\n"
-            "  --chunk N          samples per chunk (default 16)\n"
+            "  --chunk N          samples per chunk (default 16; rounded up to a multiple\n"
+            "                     of 16, the blocks samples are summed in)\n"
             "  --target-error E   adaptive sampling: a tile stops once the RMS relative\n"
             "                     error of its pixel means is <= E (e.g. 0.01); off by default\n"
             "  --min-gain G       adaptive sampling for the lowest mean error: a tile stops\n"
@@ -423,6 +424,12 @@ int main(int argc, char **argv)
     if (has_time || has_frame) {
         o.animate = 1;
         o.time = has_time ? anim_time : anim_frame / anim_fps;
+    }
+    if (o.chunk != pt_chunk_whole_blocks(o.chunk)) {
+        fprintf(stderr,
+                "ptworker: --chunk %u rounded up to %u: samples are summed in blocks of %u\n",
+                o.chunk, pt_chunk_whole_blocks(o.chunk), PT_SAMPLE_BLOCK);
+        o.chunk = pt_chunk_whole_blocks(o.chunk);
     }
     if (o.min_spp == 0)
         o.min_spp = o.chunk > 1 ? o.chunk : 2;

@@ -112,6 +112,14 @@ static inline double pt_acc_sum_sq(const pt_pixel_acc *a)
  * split at multiples of it gives the same bits. */
 #define PT_SAMPLE_BLOCK 16u
 
+/* A --chunk rounded up to whole blocks: a chunk that ends inside a block
+ * rounds that block's two parts to fixed point apart, which changes the
+ * last bits of the image. ptworker and ptserve round it and say so. */
+static inline uint32_t pt_chunk_whole_blocks(uint32_t chunk)
+{
+    return (chunk + PT_SAMPLE_BLOCK - 1) / PT_SAMPLE_BLOCK * PT_SAMPLE_BLOCK;
+}
+
 /* The largest tile side in pixels that any program accepts (ptserve and
  * ptworker --tile, ptbench): its square is the wire's cap on the pixels of a
  * TASK or RESULT (PROTO_MAX_TILE_PIXELS), so a farm tile always fits. */

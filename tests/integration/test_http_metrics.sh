@@ -24,7 +24,7 @@ umask 077
 head -c 32 /dev/urandom | base64 > "$tmp/token"
 "$bin/ptserve" --state-dir "$tmp/state" --listen 127.0.0.1:0 --port-file "$tmp/port" \
   --token-file "$tmp/token" --http 127.0.0.1:0 --http-port-file "$tmp/hport" \
-  --local 2 --worker-threads 1 --tile 16 --chunk 8 2> "$tmp/serve.log" &
+  --local 2 --worker-threads 1 --tile 16 --chunk 16 2> "$tmp/serve.log" &
 srv_pid=$!
 for _ in $(seq 200); do [ -s "$tmp/hport" ] && [ -s "$tmp/port" ] && break; sleep 0.05; done
 [ -s "$tmp/hport" ] || fail "ptserve did not start: $(cat "$tmp/serve.log")"
@@ -36,7 +36,7 @@ auth=(-H "Authorization: Bearer $(cat "$tmp/token")")
 
 [ "$(curl -sS -o /dev/null -w '%{http_code}' "$url")" = 401 ] || fail "/metrics without a token"
 
-id=$("$bin/ptctl" submit "$src/scenes/cornell_box.gltf" --res 48x32 --spp 32 --name metrics)
+id=$("$bin/ptctl" submit "$src/scenes/cornell_box.gltf" --res 48x32 --spp 64 --name metrics)
 "$bin/ptctl" watch "$id" 2> /dev/null || fail "watch"
 "$bin/ptctl" status "$id" --json > "$tmp/job.json"
 samples=$(json "$tmp/job.json" 'd["samples_done"]')
@@ -51,7 +51,7 @@ grep -qi '^content-type: text/plain; version=0.0.4' "$tmp/headers" || fail "$(ca
 promtool check metrics < "$tmp/metrics" || fail "promtool check metrics"
 [ "$(metric ptfarm_samples_merged_total "$tmp/metrics")" = "$samples" ] ||
   fail "samples merged $(metric ptfarm_samples_merged_total "$tmp/metrics"), the job has $samples"
-# 48x32 in 16-pixel tiles, 32 spp in chunks of 8: 6 tiles x 4 chunks, plus
+# 48x32 in 16-pixel tiles, 64 spp in chunks of 16: 6 tiles x 4 chunks, plus
 # any verification copies and backups.
 leased=$(metric ptfarm_tasks_leased_total "$tmp/metrics")
 [ "$leased" -ge 24 ] || fail "tasks leased $leased < 24"

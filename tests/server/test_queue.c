@@ -580,7 +580,7 @@ static void queue_order(void)
     CHECK(ra.job_id && rb.job_id && ra.job_id != rb.job_id);
     uint64_t first = ra.job_id < rb.job_id ? ra.job_id : rb.job_id;
     uint64_t second = ra.job_id < rb.job_id ? rb.job_id : ra.job_id;
-    uint64_t urgent = submit(g_port, job_of("urgent", 32, 32, 16, 5));
+    uint64_t urgent = submit(g_port, job_of("urgent", 32, 32, 32, 5));
     CHECK(urgent > 0);
     proto_job_info info;
     CHECK(status(g_port, urgent, &info) == PROTO_MSG_JOB_INFO && info.queue_pos == 1);
@@ -606,7 +606,7 @@ static void queue_order(void)
     pt_free(list.jobs);
     cli_close(&l);
 
-    /* A worker that holds every task of the urgent job (4 tiles x 2 chunks)
+    /* A worker that holds every task of the urgent job (4 tiles x 2 chunks of 16)
      * and asks for more is given the next job's: when the running job cannot
      * use a worker, the next one starts. It never returns a result, so its
      * leases are requeued when it goes. */
