@@ -471,7 +471,7 @@ static int cmd_submit(int argc, char **argv, globals *g)
             break;
         }
         case O_FPS:
-            st = pt_opt_positive("--fps", optarg, 1e6, &m.fps, &err);
+            st = pt_opt_double("--fps", optarg, PT_FRAMES_MIN_FPS, PT_FRAMES_MAX_FPS, &m.fps, &err);
             break;
         case O_ANIMATION:
             if (!optarg[0] || strlen(optarg) > PROTO_MAX_NAME)

@@ -10,6 +10,7 @@
 #include <stdio.h>
 #include <string.h>
 
+#include "common/base/frames.h"
 #include "common/base/opt.h"
 #include "common/base/version.h"
 #include "common/render/tile.h"
@@ -365,7 +366,7 @@ int main(int argc, char **argv)
             st = pt_frames_parse("--frames", optarg, &c.frames, &err);
             break;
         case O_FPS:
-            st = pt_opt_positive("--fps", optarg, 1e6, &c.fps, &err);
+            st = pt_opt_double("--fps", optarg, PT_FRAMES_MIN_FPS, PT_FRAMES_MAX_FPS, &c.fps, &err);
             break;
         case O_ANIMATION:
             if (!optarg[0] || strlen(optarg) > PROTO_MAX_NAME) {

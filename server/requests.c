@@ -7,6 +7,7 @@
 #include <time.h>
 
 #include "common/base/alloc.h"
+#include "common/base/frames.h"
 #include "common/base/fsutil.h"
 #include "common/base/hash.h"
 #include "common/base/text.h"
@@ -168,9 +169,12 @@ static void on_submit(srv_server *s, srv_conn *c, const proto_frame *f)
                             (double)m.env.strength, (double)m.env.rotate_deg);
         return;
     }
-    /* A range's shape is the decoder's (pt_frames_check); its rate's cap: */
-    if (m.frame_step && !(m.fps <= 1e6)) {
-        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "%g frames per second is over 1e6", m.fps);
+    /* A range's shape is the decoder's (pt_frames_check); its rate is
+     * ptctl's: a rate of 5e-324 put its frames at an infinite time, which no
+     * TASK can carry, and its workers reconnected in a loop. */
+    if (m.frame_step && !(m.fps >= PT_FRAMES_MIN_FPS && m.fps <= PT_FRAMES_MAX_FPS)) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "%g frames per second is out of range [%g, %g]",
+                            m.fps, PT_FRAMES_MIN_FPS, PT_FRAMES_MAX_FPS);
         return;
     }
     if (owner_unfinished(s, c->name) >= cap->max_queued) {

@@ -18,6 +18,7 @@
 
 #include <unistd.h>
 
+#include "common/base/frames.h"
 #include "common/base/opt.h"
 #include "common/base/version.h"
 #include "common/render/render.h"
@@ -270,7 +271,9 @@ int main(int argc, char **argv)
             has_frame = 1;
             break;
         case OPT_FPS:
-            bad = bad_value(pt_opt_positive("--fps", optarg, 1e6, &anim_fps, &err), &err);
+            bad = bad_value(pt_opt_double("--fps", optarg, PT_FRAMES_MIN_FPS, PT_FRAMES_MAX_FPS,
+                                          &anim_fps, &err),
+                            &err);
             has_fps = 1;
             break;
         case OPT_ANIMATION:

@@ -27,6 +27,11 @@
 #define PT_FRAMES_MAX_NUMBER 999999u /* the highest frame number */
 #define PT_FRAMES_MAX_COUNT 100000u  /* frames in one range */
 #define PT_FRAMES_DEFAULT_FPS 24.0
+/* The frame rates every program accepts (ptworker, ptserve and ptctl --fps,
+ * and a SUBMIT's): at the slowest, frame PT_FRAMES_MAX_NUMBER is at 1e9 s,
+ * a finite time that every TASK can carry. */
+#define PT_FRAMES_MIN_FPS 1e-3
+#define PT_FRAMES_MAX_FPS 1e6
 
 /* A range; step 0: none (a still). */
 typedef struct pt_frames {

@@ -112,7 +112,7 @@ bad "STEP 0" "${one[@]}" --frames 1-9:0 -o "$tmp/x.#.exr" "$scene"
 bad "over the cap of 100000" "${one[@]}" --frames 0-200000 -o "$tmp/x.#.exr" "$scene"
 bad "needs a '#'" "${one[@]}" --frames 0-3 -o "$tmp/x.exr" "$scene"
 bad "give --frames" "${one[@]}" --fps 30 -o "$tmp/x.exr" "$scene"
-bad "is not a positive number" "${one[@]}" --frames 0-3 --fps 0 -o "$tmp/x.#.exr" "$scene"
+bad "is not a number in" "${one[@]}" --frames 0-3 --fps 0 -o "$tmp/x.#.exr" "$scene"
 # A missing output folder fails at start (it used to render a still and then
 # fail, and retry a range's saves for ever).
 bad "cannot create its temporary file" timeout 120 "${one[@]}" --frames 0-3 -o "$tmp/none/x.#.exr" \
