@@ -2,6 +2,7 @@
 
 #include <errno.h>
 #include <fcntl.h>
+#include <math.h>
 #include <string.h>
 #include <sys/stat.h>
 #include <unistd.h>
@@ -167,7 +168,20 @@ fail:
     return st;
 }
 
-pt_status proto_token_check(size_t len, const char *what, pt_error *err)
+/* len x the Shannon entropy of tok's byte frequencies, in bits. */
+static double token_bits(const uint8_t *tok, size_t len)
+{
+    uint32_t count[256] = {0};
+    for (size_t i = 0; i < len; i++)
+        count[tok[i]]++;
+    double bits = 0.0;
+    for (int b = 0; b < 256; b++)
+        if (count[b])
+            bits -= count[b] * log2((double)count[b] / (double)len);
+    return bits;
+}
+
+pt_status proto_token_check(const uint8_t *tok, size_t len, const char *what, pt_error *err)
 {
     if (len < PROTO_TOKEN_MIN)
         return pt_error_set(err, PT_ERR_FORMAT,
@@ -177,6 +191,14 @@ pt_status proto_token_check(size_t len, const char *what, pt_error *err)
     if (len > PROTO_TOKEN_MAX)
         return pt_error_set(err, PT_ERR_LIMIT, "%s: token of %zu bytes is over %u", what, len,
                             PROTO_TOKEN_MAX);
+    /* With a margin, so that a token at the bound (16 distinct bytes) is
+     * not refused for a last bit lost to rounding. */
+    double bits = token_bits(tok, len);
+    if (bits + 1e-9 < PROTO_TOKEN_MIN_BITS)
+        return pt_error_set(err, PT_ERR_FORMAT,
+                            "%s: token is too uniform to be secret (its bytes hold about %.0f "
+                            "bits, at least %.0f are needed); make one with: %s",
+                            what, bits, PROTO_TOKEN_MIN_BITS, PROTO_TOKEN_HOWTO);
     return PT_OK;
 }
 
@@ -194,7 +216,7 @@ pt_status proto_token_load(const char *path, uint8_t *buf, size_t cap, size_t *l
         n--;
     char what[600];
     snprintf(what, sizeof what, "token file %s", path);
-    if ((st = proto_token_check(n, what, err)) != PT_OK)
+    if ((st = proto_token_check(data, n, what, err)) != PT_OK)
         goto done;
     if (n > cap) {
         st = pt_error_set(err, PT_ERR_LIMIT, "%s: token of %zu bytes over %zu", what, n, cap);

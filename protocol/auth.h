@@ -20,7 +20,8 @@
  * (proto_secret_read: a file that group or others may access is refused with
  * its mode and the chmod that fixes it). A token (proto_token_load) is the
  * file's bytes up to trailing white space, PROTO_TOKEN_MIN..PROTO_TOKEN_MAX
- * bytes: a short token would fall to guessing.
+ * bytes of enough variety (PROTO_TOKEN_MIN_BITS): a short or uniform token
+ * would fall to guessing.
  * Thread-safety: reentrant (OpenSSL 3's one-shot HMAC and RAND_bytes are).
  */
 #ifndef PT_PROTOCOL_AUTH_H
@@ -94,10 +95,18 @@ pt_status proto_secret_read(const char *path, const char *what, size_t max, uint
 /* Overwrites len bytes of data with zeros (not optimised away) and frees it. Accepts NULL. */
 void proto_secret_free(uint8_t *data, size_t len);
 
-/* PT_OK when a token of len bytes is allowed: PROTO_TOKEN_MIN..PROTO_TOKEN_MAX
- * bytes. Otherwise PT_ERR_FORMAT (empty or short: the message says how to
- * make a good one) or PT_ERR_LIMIT; what names the token in the message. */
-pt_status proto_token_check(size_t len, const char *what, pt_error *err);
+/* The least a token's bytes must hold by their own statistics: len times
+ * the entropy of their byte frequencies, in bits. 16 distinct bytes (the
+ * shortest token) hold 64; a token of 32 random bytes in base64, about
+ * 230. It catches what a person types in a hurry: one byte repeated, a
+ * short pattern repeated, a word doubled. It cannot see a guessable phrase. */
+#define PROTO_TOKEN_MIN_BITS 64.0
+
+/* PT_OK when the token tok of len bytes is allowed: PROTO_TOKEN_MIN..
+ * PROTO_TOKEN_MAX bytes holding at least PROTO_TOKEN_MIN_BITS. Otherwise
+ * PT_ERR_FORMAT (empty, short or too uniform: the message says how to make
+ * a good one) or PT_ERR_LIMIT; what names the token in the message. */
+pt_status proto_token_check(const uint8_t *tok, size_t len, const char *what, pt_error *err);
 
 /* Reads the token file at path (proto_secret_read's rules) into buf (cap
  * bytes) and strips trailing spaces, tabs, CR and LF; *len is the token's

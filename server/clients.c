@@ -116,7 +116,7 @@ pt_status srv_clients_load(const char *path, const uint8_t *admin, size_t admin_
         }
         char what[600];
         snprintf(what, sizeof what, "clients file %s, line %u", path, line);
-        if ((st = proto_token_check(e.token_len, what, err)) != PT_OK)
+        if ((st = proto_token_check(e.token, e.token_len, what, err)) != PT_OK)
             goto fail;
         if (same_token(e.token, e.token_len, admin, admin_len)) {
             st = pt_error_set(err, PT_ERR_FORMAT,

@@ -138,13 +138,13 @@ static void test_token_file(void)
     pt_error err = {0};
     const char *p;
 
-    p = write_file("t1", "s3cret-s3cret-16 \t\r\n\n", 21, 0600);
+    p = write_file("t1", "Xq7-pLm2#vRt9+Wz \t\r\n\n", 21, 0600);
     CHECK(proto_token_load(p, buf, sizeof buf, &len, &err) == PT_OK);
-    CHECK(len == 16 && memcmp(buf, "s3cret-s3cret-16", 16) == 0);
+    CHECK(len == 16 && memcmp(buf, "Xq7-pLm2#vRt9+Wz", 16) == 0);
     /* Leading and inner white space is part of the token. */
-    p = write_file("t2", " a b c d e f g h i\n", 19, 0600);
+    p = write_file("t2", " aB cD eF gH iJ kL mN oP\n", 25, 0600);
     CHECK(proto_token_load(p, buf, sizeof buf, &len, &err) == PT_OK);
-    CHECK(len == 18 && memcmp(buf, " a b c d e f g h i", 18) == 0);
+    CHECK(len == 24 && memcmp(buf, " aB cD eF gH iJ kL mN oP", 24) == 0);
 
     /* Group or others may read, write or even execute it: refused with the
      * mode and the chmod that fixes it; outputs untouched. 0400 is fine. */
@@ -178,11 +178,33 @@ static void test_token_file(void)
     CHECK(len == 77);
     p = write_file("e4", "0123456789abcdef\n", 17, 0600);
     CHECK(proto_token_load(p, buf, sizeof buf, &len, &err) == PT_OK && len == PROTO_TOKEN_MIN);
-    CHECK(proto_token_check(PROTO_TOKEN_MIN - 1, "x", &err) == PT_ERR_FORMAT);
-    CHECK(proto_token_check(PROTO_TOKEN_MAX + 1, "x", &err) == PT_ERR_LIMIT);
+    static const uint8_t sixteen[] = "0123456789abcdef";
+    CHECK(proto_token_check(sixteen, PROTO_TOKEN_MIN - 1, "x", &err) == PT_ERR_FORMAT);
+    CHECK(proto_token_check(sixteen, PROTO_TOKEN_MAX + 1, "x", &err) == PT_ERR_LIMIT);
+
+    /* Too uniform to be secret: one byte repeated, a short pattern repeated,
+     * a word doubled; each refused with how to make a good one, while
+     * sixteen distinct bytes (64 bits) and a real token pass. */
+    static const char *const weak[] = {"aaaaaaaaaaaaaaaa", "abcdabcdabcdabcd", "passwordpassword",
+                                       "0000000000000000000000000000000000000000000001",
+                                       "abababababababababababababababab"};
+    for (size_t i = 0; i < sizeof weak / sizeof weak[0]; i++) {
+        err.msg[0] = '\0';
+        CHECKF(proto_token_check((const uint8_t *)weak[i], strlen(weak[i]), "w", &err) ==
+                       PT_ERR_FORMAT &&
+                   strstr(err.msg, "too uniform") && strstr(err.msg, PROTO_TOKEN_HOWTO),
+               "%s: %s", weak[i], err.msg);
+    }
+    p = write_file("e5", "kkkkkkkkkkkkkkkkkkkkkkkkkkkkkkkk\n", 33, 0600);
+    CHECK(proto_token_load(p, buf, sizeof buf, &len, &err) == PT_ERR_FORMAT &&
+          strstr(err.msg, "too uniform") && strstr(err.msg, "e5"));
+    CHECK(proto_token_check(sixteen, PROTO_TOKEN_MIN, "x", &err) == PT_OK);
+    static const char good[] = "q8Vd3m0ZbW1yTtP5XkRrLc7JfHs2Ne9GaUo4Ei6Bl+Y=";
+    CHECK(proto_token_check((const uint8_t *)good, strlen(good), "x", &err) == PT_OK);
 
     /* The size limit: 4096 bytes fit (with trailing new lines), 4097 do not. */
-    memset(content, 'k', sizeof content);
+    for (size_t i = 0; i < sizeof content; i++)
+        content[i] = (char)('!' + (i * 7 + i / 94) % 94);
     content[PROTO_TOKEN_MAX] = '\n';
     content[PROTO_TOKEN_MAX + 1] = '\n';
     p = write_file("l1", content, PROTO_TOKEN_MAX + 2, 0600);
@@ -191,7 +213,8 @@ static void test_token_file(void)
     /* ...but not into a smaller buffer. */
     len = 77;
     CHECK(proto_token_load(p, buf, 100, &len, &err) == PT_ERR_LIMIT && len == 77);
-    memset(content, 'k', sizeof content);
+    for (size_t i = 0; i < sizeof content; i++)
+        content[i] = (char)('!' + (i * 7 + i / 94) % 94);
     p = write_file("l2", content, PROTO_TOKEN_MAX + 1, 0600);
     CHECK(proto_token_load(p, buf, sizeof buf, &len, &err) == PT_ERR_LIMIT);
     p = write_file("l3", content, sizeof content, 0600);
