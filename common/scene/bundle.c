@@ -197,6 +197,7 @@ pt_status pt_bundle_pack_env(const char *scene_path, const char *env_path, pt_bu
     const char **names = pt_calloc(nfiles, sizeof *names);
     pt_bundle *b = NULL;
     char path[4096];
+    int dir_fd = -1;
     if (!bufs || !sizes || !names) {
         st = pt_error_set(err, PT_ERR_NOMEM, "%s: out of memory", scene_path);
         goto fail;
@@ -204,6 +205,11 @@ pt_status pt_bundle_pack_env(const char *scene_path, const char *env_path, pt_bu
     const char *slash = strrchr(scene_path, '/');
     size_t dirlen = slash ? (size_t)(slash - scene_path) + 1 : 0;
     names[0] = slash ? slash + 1 : scene_path;
+    snprintf(path, sizeof path, "%.*s", dirlen ? (int)dirlen : 1, dirlen ? scene_path : ".");
+    if (ndeps && (dir_fd = open(path, O_RDONLY | O_DIRECTORY | O_CLOEXEC)) < 0) {
+        st = pt_error_errno(err, PT_ERR_IO, "%s: its folder", scene_path);
+        goto fail;
+    }
     for (uint32_t i = 0; i < ndeps; i++)
         names[i + 1] = deps[i];
     if (env_path)
@@ -225,13 +231,22 @@ pt_status pt_bundle_pack_env(const char *scene_path, const char *env_path, pt_bu
                               scene_path, names[i]);
             goto fail;
         }
-        if (is_env)
-            snprintf(path, sizeof path, "%s", env_path);
-        else if (i == 0)
-            snprintf(path, sizeof path, "%s", scene_path);
-        else
-            snprintf(path, sizeof path, "%.*s%s", (int)dirlen, scene_path, names[i]);
-        if ((st = pt_read_file(path, PT_BUNDLE_MAX_BYTES, &bufs[i], &sizes[i], err)) != PT_OK)
+        if (is_env || i == 0) {
+            /* The files the user named: followed if links, but only a
+             * regular file is read (a FIFO does not block). */
+            snprintf(path, sizeof path, "%s", is_env ? env_path : scene_path);
+            st = pt_read_file(path, PT_BUNDLE_MAX_BYTES, &bufs[i], &sizes[i], err);
+        } else {
+            /* The files the scene names: read as the server and the workers
+             * will read them, below the scene's folder with no link on the
+             * way, so a link planted there cannot send its target away. */
+            pt_error e2 = {0};
+            st = pt_read_file_beneath(dir_fd, names[i], PT_BUNDLE_MAX_BYTES, &bufs[i], &sizes[i],
+                                      &e2);
+            if (st != PT_OK)
+                pt_error_set(err, st, "%s: references %s", scene_path, e2.msg);
+        }
+        if (st != PT_OK)
             goto fail;
         total += 2 + nl + 8 + sizes[i];
         if (total > PT_BUNDLE_MAX_BYTES) {
@@ -277,6 +292,8 @@ fail:
     pt_free(sizes);
     pt_free(names);
     pt_gltf_dependencies_free(deps, ndeps);
+    if (dir_fd >= 0)
+        close(dir_fd);
     return st;
 }
 

@@ -6,14 +6,13 @@
 
 #include <cstdio>
 #include <cstring>
-#include <fstream>
-#include <iterator>
 #include <new>
 #include <string>
 #include <vector>
 
 extern "C" {
 #include "common/base/alloc.h"
+#include "common/base/fsutil.h"
 #include "common/base/json.h"
 #include "common/scene/bundle.h"
 #include "common/scene/uri.h"
@@ -40,10 +39,21 @@ uint32_t le32(const unsigned char *p)
 // The JSON text of a .gltf, or the JSON chunk of a .glb (glTF 2.0 spec, 4.4).
 pt_status json_text(const char *path, std::string &json, pt_error *err)
 {
-    std::ifstream f(path, std::ios::binary);
-    if (!f)
-        return pt_error_errno(err, PT_ERR_IO, "%s", path);
-    std::string bytes((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
+    // pt_read_file reads a regular file only: a FIFO named as the scene
+    // is refused, not waited on for ever.
+    uint8_t *data = nullptr;
+    size_t size = 0;
+    pt_status st = pt_read_file(path, PT_BUNDLE_MAX_BYTES, &data, &size, err);
+    if (st != PT_OK)
+        return st;
+    std::string bytes;
+    try {
+        bytes.assign(reinterpret_cast<const char *>(data), size);
+    } catch (...) {
+        pt_free(data);
+        throw;
+    }
+    pt_free(data);
     if (bytes.size() >= 12 && std::memcmp(bytes.data(), "glTF", 4) == 0) {
         const unsigned char *p = reinterpret_cast<const unsigned char *>(bytes.data());
         if (bytes.size() < 20)

@@ -56,6 +56,28 @@ for f in 1-links.exr 1-links.png; do
   if [ ! -f "$tmp/out/$f" ] || [ -L "$tmp/out/$f" ]; then fail "$f is not a regular file"; fi
 done
 
+# ptctl submit reads what a scene names below its folder with no link on
+# the way: a link there is refused before anything is sent, and a FIFO is
+# refused at once, not read for ever.
+mkdir -p "$tmp/scene"
+sed 's|"uri": *"data:[^"]*"|"uri": "data.bin"|' "$src/scenes/cornell_box.gltf" > "$tmp/scene/s.gltf"
+ln -s "$tmp/secret" "$tmp/scene/data.bin"
+set +e
+"$bin/ptctl" submit "$tmp/scene/s.gltf" --res 32x32 --spp 16 --name leak 2> "$tmp/submit.err"
+rc=$?
+set -e
+[ "$rc" != 0 ] || fail "ptctl submitted a scene through a link"
+grep -q "data.bin: a symbolic link" "$tmp/submit.err" || fail "refusal: $(cat "$tmp/submit.err")"
+rm "$tmp/scene/data.bin"
+mkfifo "$tmp/scene/data.bin"
+set +e
+timeout 20 "$bin/ptctl" submit "$tmp/scene/s.gltf" --res 32x32 --spp 16 --name fifo 2> "$tmp/submit.err"
+rc=$?
+set -e
+[ "$rc" != 0 ] && [ "$rc" != 124 ] || fail "ptctl submit with a FIFO in the folder: rc $rc"
+grep -q "not a regular file" "$tmp/submit.err" || fail "refusal: $(cat "$tmp/submit.err")"
+[ "$("$bin/ptctl" list | grep -c -e leak -e fifo || true)" = 0 ] || fail "a refused scene was queued"
+
 # ptctl fetch: a link at the destination is replaced, its target untouched.
 ln -s "$tmp/victim_fetch" "$tmp/dl/img.exr"
 "$bin/ptctl" fetch "$id" -o "$tmp/dl/img.exr" || fail "fetch exited $?"

@@ -119,6 +119,50 @@ static void pack_refuses_escape(void)
     CHECK(pt_bundle_pack(path, &b, &err) == PT_ERR_IO && strstr(err.msg, "no such.png"));
 }
 
+/* A link in the scene's folder, at a file the scene names or on the way to
+ * it, is refused, and none of its target is packed: the packer reads what
+ * the scene names as the server and the workers will, below the folder.
+ * A FIFO at a named file or at the scene's own name is refused at once,
+ * not waited on. */
+static void pack_refuses_links(void)
+{
+    write_text("secret.txt", "precious secret");
+    char path[512], target[512], fifo[512];
+    snprintf(target, sizeof target, "%s/secret.txt", tmp);
+    snprintf(path, sizeof path, "%s/links", tmp);
+    CHECK(mkdir(path, 0755) == 0);
+    snprintf(path, sizeof path, "%s/links/img.png", tmp);
+    CHECK(symlink(target, path) == 0);
+    snprintf(path, sizeof path, "%s/links/sub", tmp);
+    CHECK(symlink(tmp, path) == 0); /* a folder link: sub/secret.txt */
+    snprintf(fifo, sizeof fifo, "%s/links/pipe.bin", tmp);
+    CHECK(mkfifo(fifo, 0600) == 0);
+    const char *cases[][2] = {{"img.png", "symbolic link"},
+                              {"sub/secret.txt", "symbolic link"},
+                              {"pipe.bin", "not a regular file"}};
+    for (size_t i = 0; i < sizeof cases / sizeof *cases; i++) {
+        char json[256];
+        snprintf(json, sizeof json,
+                 "{\"asset\":{\"version\":\"2.0\"},\"images\":[{\"uri\":\"%s\"}]}", cases[i][0]);
+        write_text("links/s.gltf", json);
+        snprintf(path, sizeof path, "%s/links/s.gltf", tmp);
+        pt_bundle *b = NULL;
+        pt_error err = {0};
+        pt_status st = pt_bundle_pack(path, &b, &err);
+        CHECKF(st == PT_ERR_FORMAT && b == NULL && strstr(err.msg, cases[i][0]) &&
+                   strstr(err.msg, cases[i][1]),
+               "%s: %d %s", cases[i][0], (int)st, err.msg);
+        CHECK(!strstr(err.msg, "precious"));
+    }
+    /* The scene itself a FIFO: refused, not read for ever. */
+    snprintf(path, sizeof path, "%s/links/fifo.gltf", tmp);
+    CHECK(mkfifo(path, 0600) == 0);
+    pt_bundle *b = NULL;
+    pt_error err = {0};
+    CHECKF(pt_bundle_pack(path, &b, &err) == PT_ERR_FORMAT && strstr(err.msg, "regular"), "%s",
+           err.msg);
+}
+
 /* "./a.bin" and "a.bin" name one file: one entry, stored by its plain name
  * (the bundle's rule has no "." components), and the unpacked scene loads. */
 static void pack_dot_names(void)
@@ -277,6 +321,7 @@ int main(void)
     int64_t live0 = pt_alloc_live();
     hostile();
     pack_refuses_escape();
+    pack_refuses_links();
     unpack_nested();
     pack_dot_names();
     pack_env();
