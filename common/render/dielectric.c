@@ -1,6 +1,6 @@
 /*
- * dielectric.c - glass (dielectric.h): the opaque share, a rough or smooth
- * dielectric interface, and their one-sample mixture.
+ * dielectric.c - glass (dielectric.h): its parameters, and the rough or
+ * smooth dielectric interface's lobe.
  *
  * The rough interface follows Walter et al. 2007 in the form of pbrt-v4's
  * DielectricBxDF (Pharr, Jakob & Humphreys, "Physically Based Rendering",
@@ -110,7 +110,7 @@ static inline int refract(pt_vec3 w, pt_vec3 m, float eta, pt_vec3 *out)
 
 /* The rough interface at (wo, wi), wo.z > 0: f |cos wi| without the tint,
  * its pdf (within the interface), and whether wi is transmission. */
-static float rough_eval(const pt_glass *g, pt_vec3 wo, pt_vec3 wi, float *pdf, int *trans)
+static float rough_eval(const pt_dielectric_lobe *g, pt_vec3 wo, pt_vec3 wi, float *pdf, int *trans)
 {
     *pdf = 0.0f;
     *trans = wi.z < 0.0f;
@@ -147,33 +147,28 @@ static float rough_eval(const pt_glass *g, pt_vec3 wo, pt_vec3 wi, float *pdf, i
     return (1.0f - F) * d * G * fabsf(dwi * dwo) / (wo.z * den) / (g->eta * g->eta);
 }
 
-pt_vec3 pt_glass_eval(const pt_glass *g, pt_vec3 wo, pt_vec3 wi, float *pdf)
+pt_dielectric_lobe pt_glass_interface(const pt_glass *g)
 {
-    pt_vec3 f = pt_v3(0.0f, 0.0f, 0.0f);
-    float p = 0.0f;
-    if (!(wo.z > 0.0f)) {
-        *pdf = 0.0f;
-        return f;
-    }
-    if (g->pick < 1.0f && wi.z > 0.0f) {
-        float pb;
-        f = pt_bsdf_eval(&g->base, wo, wi, &pb);
-        p = (1.0f - g->pick) * pb;
-    }
-    if (g->pick > 0.0f && g->alpha > 0.0f) {
-        float pd;
-        int trans;
-        float fd = rough_eval(g, wo, wi, &pd, &trans) * g->weight;
-        pt_vec3 c = trans ? pt_v3_scale(g->tint, fd) : pt_v3(fd, fd, fd);
-        f = pt_v3_add(f, c);
-        p += g->pick * pd;
-    }
-    *pdf = p;
-    return f;
+    pt_dielectric_lobe l = {g->tint, g->weight, g->eta, g->alpha, g->thin};
+    return l;
+}
+
+pt_vec3 pt_dielectric_eval(const pt_dielectric_lobe *l, pt_vec3 wo, pt_vec3 wi, float prob,
+                           float *share)
+{
+    *share = 0.0f;
+    if (!(l->alpha > 0.0f))
+        return pt_v3(0.0f, 0.0f, 0.0f);
+    float pd;
+    int trans;
+    float fd = rough_eval(l, wo, wi, &pd, &trans) * l->weight;
+    *share = prob * pd;
+    return trans ? pt_v3_scale(l->tint, fd) : pt_v3(fd, fd, fd);
 }
 
 /* The smooth interface's delta lobes. */
-static pt_vec3 smooth_sample(const pt_glass *g, pt_vec3 wo, float uc, pt_vec3 *wi, float *prob)
+static pt_vec3 smooth_sample(const pt_dielectric_lobe *g, pt_vec3 wo, float uc, pt_vec3 *wi,
+                             float *prob)
 {
     float F = pt_fresnel_dielectric(wo.z, g->eta);
     if (uc < F) {
@@ -193,55 +188,34 @@ static pt_vec3 smooth_sample(const pt_glass *g, pt_vec3 wo, float uc, pt_vec3 *w
     return pt_v3_scale(g->tint, 1.0f / (g->eta * g->eta));
 }
 
-pt_vec3 pt_glass_sample(const pt_glass *g, pt_vec3 wo, const float u[3], pt_vec3 *wi, float *pdf,
-                        int *delta)
+int pt_dielectric_sample(const pt_dielectric_lobe *l, pt_vec3 wo, const float u[3], float prob,
+                         pt_vec3 *wi, pt_vec3 *weight, float *pdf)
 {
-    pt_vec3 zero = pt_v3(0.0f, 0.0f, 0.0f);
-    *pdf = 0.0f;
-    *delta = 0;
-    *wi = pt_v3(0.0f, 0.0f, 1.0f);
-    if (!(wo.z > 0.0f))
-        return zero;
-    /* One number picks the share and then, rescaled, the lobe within it. */
-    const float below1 = 0x1.fffffep-1f;
-    if (u[0] < g->pick) {
-        float uc = fminf(u[0] / g->pick, below1);
-        if (g->alpha == 0.0f) {
-            float prob;
-            pt_vec3 w = smooth_sample(g, wo, uc, wi, &prob);
-            if (!(prob > 0.0f))
-                return zero;
-            *delta = 1;
-            *pdf = g->pick * prob;
-            return pt_v3_scale(w, g->weight / g->pick);
-        }
-        pt_vec3 wm = pt_ggx_sample_vndf(wo, g->alpha, u[1], u[2]);
-        float dwo = pt_v3_dot(wo, wm);
-        float F = pt_fresnel_dielectric(dwo, g->eta);
-        if (uc < F) {
-            *wi = reflect(wo, wm);
-            if (!(wi->z > 0.0f))
-                return zero;
-        } else if (g->thin) {
-            pt_vec3 r = reflect(wo, wm);
-            if (!(r.z > 0.0f))
-                return zero;
-            *wi = pt_v3(r.x, r.y, -r.z);
-        } else if (!refract(wo, wm, g->eta, wi) || !(wi->z < 0.0f)) {
-            return zero;
-        }
-    } else {
-        float ub[3] = {fminf((u[0] - g->pick) / (1.0f - g->pick), below1), u[1], u[2]};
-        float pb;
-        pt_bsdf_sample(&g->base, wo, ub, wi, &pb);
-        if (!(pb > 0.0f))
-            return zero;
+    float uc = u[0];
+    if (l->alpha == 0.0f) {
+        float p;
+        pt_vec3 w = smooth_sample(l, wo, uc, wi, &p);
+        if (!(p > 0.0f))
+            return PT_DIELECTRIC_NONE;
+        *pdf = prob * p;
+        *weight = pt_v3_scale(w, l->weight / prob);
+        return PT_DIELECTRIC_DELTA;
     }
-    /* The mixture's f cos / pdf, so sampling and pt_glass_eval agree (MIS). */
-    pt_vec3 f = pt_glass_eval(g, wo, *wi, pdf);
-    if (!(*pdf > 0.0f)) {
-        *pdf = 0.0f;
-        return zero;
+    pt_vec3 wm = pt_ggx_sample_vndf(wo, l->alpha, u[1], u[2]);
+    float dwo = pt_v3_dot(wo, wm);
+    float F = pt_fresnel_dielectric(dwo, l->eta);
+    if (uc < F) {
+        *wi = reflect(wo, wm);
+        return wi->z > 0.0f ? PT_DIELECTRIC_DIR : PT_DIELECTRIC_NONE;
     }
-    return pt_v3_scale(f, 1.0f / *pdf);
+    if (l->thin) {
+        pt_vec3 r = reflect(wo, wm);
+        if (!(r.z > 0.0f))
+            return PT_DIELECTRIC_NONE;
+        *wi = pt_v3(r.x, r.y, -r.z);
+        return PT_DIELECTRIC_DIR;
+    }
+    if (!refract(wo, wm, l->eta, wi) || !(wi->z < 0.0f))
+        return PT_DIELECTRIC_NONE;
+    return PT_DIELECTRIC_DIR;
 }

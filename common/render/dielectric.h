@@ -1,6 +1,8 @@
 /*
  * dielectric.h - glass: the glTF transmission model (KHR_materials_transmission,
- * KHR_materials_ior, KHR_materials_volume's thin/thick switch) as one BSDF.
+ * KHR_materials_ior, KHR_materials_volume's thin/thick switch): its parameters
+ * and the dielectric interface's lobe, which the closure (closure.h) puts
+ * beside the opaque share.
  *
  * glTF's dielectric is fresnel_mix(ior, mix(diffuse, specular_btdf, T),
  * specular_brdf), linear in the transmission T, so it splits exactly into
@@ -49,24 +51,42 @@ typedef struct pt_glass {
     int thin;     /* thin-walled: transmission does not bend */
 } pt_glass;
 
-/* Builds the glass BSDF from glTF parameters (as pt_bsdf_setup) plus the
+/* Builds the glass from glTF parameters (as pt_bsdf_setup) plus the
  * transmission factor in [0, 1], the relative ior eta (the caller passes
  * ior or 1 / ior by the side the ray arrives from; 0 reflects everything)
  * and thin. */
 pt_glass pt_glass_setup(pt_vec3 base_color, float metallic, float roughness, float specular,
                         pt_vec3 specular_color, float transmission, float eta, int thin);
 
-/* f(wo, wi) |cos wi| of the non-delta lobes, wi on either side, and the pdf
- * pt_glass_sample gives wi (solid angle). */
-pt_vec3 pt_glass_eval(const pt_glass *g, pt_vec3 wo, pt_vec3 wi, float *pdf);
+/* The dielectric interface lobe: glass.weight x fresnel_mix(ior, btdf, brdf). */
+typedef struct pt_dielectric_lobe {
+    pt_vec3 tint; /* tints transmitted light */
+    float weight; /* (1 - metallic) T */
+    float eta;    /* n_below / n_above */
+    float alpha;  /* GGX alpha, 0 when smooth (two delta lobes) */
+    int thin;
+} pt_dielectric_lobe;
 
-/* Samples wi from u (3 numbers in [0,1): u[0] picks the share and, within
- * the interface, reflection or refraction; u[1..2] the direction). Returns
- * f cos / pdf. *delta is 1 when a smooth interface's delta lobe was taken:
- * then *pdf is the discrete probability of that lobe (not a density, not
- * for MIS). An impossible sample returns zero with *pdf 0. */
-pt_vec3 pt_glass_sample(const pt_glass *g, pt_vec3 wo, const float u[3], pt_vec3 *wi, float *pdf,
-                        int *delta);
+pt_dielectric_lobe pt_glass_interface(const pt_glass *g);
+
+/* f |cos wi| of the rough interface, wi on either side, and *share = prob x
+ * the pdf of its sampling at wi; 0 when smooth (delta lobes are not
+ * evaluated). */
+pt_vec3 pt_dielectric_eval(const pt_dielectric_lobe *l, pt_vec3 wo, pt_vec3 wi, float prob,
+                           float *share);
+
+/* What pt_dielectric_sample made. */
+enum { PT_DIELECTRIC_NONE = 0, PT_DIELECTRIC_DIR = 1, PT_DIELECTRIC_DELTA = 2 };
+
+/* Samples wi from u: u[0] in [0,1) (rescaled to this lobe by the caller)
+ * picks reflection or refraction, u[1..2] the microfacet normal. Returns
+ * PT_DIELECTRIC_DIR for a direction of the rough interface (the caller
+ * weighs it by the closure's eval and pdf), PT_DIELECTRIC_DELTA for a smooth
+ * interface's delta lobe, with *weight = its f cos / pdf within a closure that
+ * picks this lobe with probability prob and *pdf = prob x the lobe's discrete
+ * probability (not a density, not for MIS), PT_DIELECTRIC_NONE when impossible. */
+int pt_dielectric_sample(const pt_dielectric_lobe *l, pt_vec3 wo, const float u[3], float prob,
+                         pt_vec3 *wi, pt_vec3 *weight, float *pdf);
 
 /* Exact Fresnel reflectance of unpolarised light at a dielectric interface,
  * cos_i >= 0 on the incident side, eta = n_transmitted / n_incident; 1 under

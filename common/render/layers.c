@@ -1,6 +1,6 @@
 /*
- * layers.c - clearcoat and sheen over the base BSDF (layers.h has the model
- * and its references).
+ * layers.c - clearcoat and sheen over the base: their lobes (layers.h has
+ * the model and its references).
  *
  * The sheen albedo table: E(mu, r) = integral over the hemisphere of
  * pt_sheen_eval(alpha(r), wo(mu), wi) d wi, by the midpoint rule in theta
@@ -35,7 +35,7 @@ static inline float sheen_alpha(float roughness)
     return a > PT_LAYERS_MIN_SHEEN_ALPHA ? a : PT_LAYERS_MIN_SHEEN_ALPHA;
 }
 
-float pt_sheen_eval(float alpha, pt_vec3 wo, pt_vec3 wi)
+float pt_sheen_charlie(float alpha, pt_vec3 wo, pt_vec3 wi)
 {
     if (!(wo.z > 0.0f) || !(wi.z > 0.0f))
         return 0.0f;
@@ -67,7 +67,7 @@ static void build_sheen_table(void)
                 for (int p = 0; p < Q_PHI; p++) {
                     double ph = (p + 0.5) * (pi / Q_PHI);
                     pt_vec3 wi = pt_v3((float)(st * cos(ph)), (float)(st * sin(ph)), (float)ct);
-                    sum += (double)pt_sheen_eval(alpha, wo, wi) * st;
+                    sum += (double)pt_sheen_charlie(alpha, wo, wi) * st;
                 }
             }
             sheen_table[j][i] = (float)(2.0 * sum * (0.5 * pi / Q_THETA) * (pi / Q_PHI));
@@ -118,7 +118,7 @@ static inline float coat_fresnel(const pt_layers *l, float c)
 
 /* The coat's GGX reflection without Fresnel, times wi.z, and the pdf of
  * sampling it by visible normals. */
-static float coat_eval(const pt_layers *l, pt_vec3 wo, pt_vec3 wi, float *pdf)
+static float coat_ggx(float a, pt_vec3 wo, pt_vec3 wi, float *pdf)
 {
     *pdf = 0.0f;
     pt_vec3 h = pt_v3_add(wo, wi);
@@ -129,7 +129,6 @@ static float coat_eval(const pt_layers *l, pt_vec3 wo, pt_vec3 wi, float *pdf)
     float oh = pt_v3_dot(wo, h);
     if (!(oh > 0.0f))
         return 0.0f;
-    float a = l->coat_alpha;
     float d = pt_ggx_d(h, a);
     float g1o = pt_ggx_g1(wo, a), g1i = pt_ggx_g1(wi, a);
     if (!(g1o > 0.0f) || !(g1i > 0.0f))
@@ -146,173 +145,92 @@ void pt_layers_coat_normal(pt_layers *l, pt_vec3 n)
     l->coat_fr = pt_frame_from_normal(n);
 }
 
-/* Lobe probabilities from wo alone (so that pdf needs no sampled state):
- * mu_c = wo's cosine to the coat's normal, mu_o to the base's. */
-static inline void lobe_probs(const pt_layers *l, float mu_c, float mu_o, float *pc, float *ps,
-                              float *pb, float *fc, float *eo)
+int pt_layers_lobes(const pt_layers *l, pt_vec3 wo, pt_coat_lobe *coat, pt_sheen_lobe *sheen,
+                    float *pc, float *ps, float *pb)
 {
-    *fc = coat_fresnel(l, mu_c);
-    *eo = l->sheen_max > 0.0f ? fminf(pt_sheen_albedo(mu_o, l->sheen_rough), 1.0f) : 0.0f;
-    float wc = *fc, ws = (1.0f - *fc) * l->sheen_max * *eo;
-    float wb = (1.0f - *fc) * (1.0f - l->sheen_max * *eo);
+    /* mu_c = wo's cosine to the coat's normal, mu_o to the base's. */
+    float mu_o = wo.z, mu_c = wo.z;
+    coat->own = l->coat_own;
+    if (l->coat_own) {
+        coat->fr = l->coat_fr;
+        coat->wo = pt_frame_to_local(&l->coat_fr, wo);
+        mu_c = coat->wo.z;
+    }
+    if (!(mu_o > 0.0f) || !(mu_c > 0.0f))
+        return 0;
+    float fc = coat_fresnel(l, mu_c);
+    float eo = l->sheen_max > 0.0f ? fminf(pt_sheen_albedo(mu_o, l->sheen_rough), 1.0f) : 0.0f;
+    float wc = fc, ws = (1.0f - fc) * l->sheen_max * eo;
+    float wb = (1.0f - fc) * (1.0f - l->sheen_max * eo);
     float sum = wc + ws + wb;
     *pc = wc / sum;
     *ps = ws / sum;
     *pb = wb / sum;
-}
-
-static pt_vec3 eval_all(const pt_layers *l, pt_vec3 wo, pt_vec3 wi, float *pdf)
-{
-    pt_vec3 zero = pt_v3(0.0f, 0.0f, 0.0f);
-    *pdf = 0.0f;
-    if (!(wo.z > 0.0f) || !(wi.z > 0.0f))
-        return zero;
-    float pc, ps, pb, fc, eo;
-    lobe_probs(l, wo.z, wo.z, &pc, &ps, &pb, &fc, &eo);
-    float bpdf = 0.0f, cpdf = 0.0f;
-    pt_vec3 fb = pt_bsdf_eval(&l->base, wo, wi, &bpdf);
-    float scale = 1.0f;
-    pt_vec3 f = zero;
+    coat->fc = fc;
+    coat->alpha = l->coat_alpha;
+    sheen->color = l->sheen;
+    sheen->color_max = l->sheen_max;
+    sheen->rough = l->sheen_rough;
+    sheen->alpha = l->sheen_alpha;
+    sheen->keep_o = 1.0f - l->sheen_max * eo;
+    sheen->norm = 1.0f;
     if (l->sheen_max > 0.0f) {
         /* With Ashikhmin's visibility a sharp sheen seen at grazing
          * reflects more than it receives (E > 1): the lobe is scaled down to
          * albedo 1 there, and the base's scaling reads E clamped to 1. */
-        float ei = fminf(pt_sheen_albedo(wi.z, l->sheen_rough), 1.0f);
-        float eo_raw = pt_sheen_albedo(wo.z, l->sheen_rough);
-        float norm = eo_raw > 1.0f ? 1.0f / eo_raw : 1.0f;
-        scale = fminf(1.0f - l->sheen_max * eo, 1.0f - l->sheen_max * ei);
-        f = pt_v3_scale(l->sheen, pt_sheen_eval(l->sheen_alpha, wo, wi) * norm);
+        float eo_raw = pt_sheen_albedo(mu_o, l->sheen_rough);
+        sheen->norm = eo_raw > 1.0f ? 1.0f / eo_raw : 1.0f;
     }
-    f = pt_v3_add(f, pt_v3_scale(fb, scale));
-    f = pt_v3_scale(f, 1.0f - fc);
-    if (l->clearcoat > 0.0f) {
-        float c = coat_eval(l, wo, wi, &cpdf);
-        f = pt_v3_add(f, pt_v3(fc * c, fc * c, fc * c));
-    }
-    *pdf = pc * cpdf + ps * (0.5f * PT_INV_PI) + pb * bpdf;
-    return f;
+    return 1;
 }
 
-/* eval_all with the coat on its own normal (layers.h). */
-static pt_vec3 eval_own(const pt_layers *l, pt_vec3 wo, pt_vec3 wi, float *pdf)
+pt_vec3 pt_coat_eval(const pt_coat_lobe *l, pt_vec3 wo, pt_vec3 wi, float prob, float *share,
+                     float *below)
 {
-    pt_vec3 zero = pt_v3(0.0f, 0.0f, 0.0f);
-    *pdf = 0.0f;
-    pt_vec3 woc = pt_frame_to_local(&l->coat_fr, wo), wic = pt_frame_to_local(&l->coat_fr, wi);
-    if (!(wo.z > 0.0f) || !(woc.z > 0.0f))
-        return zero;
-    float pc, ps, pb, fc, eo;
-    lobe_probs(l, woc.z, wo.z, &pc, &ps, &pb, &fc, &eo);
-    pt_vec3 f = zero;
-    float p = 0.0f;
-    if (wi.z > 0.0f) {
-        float bpdf = 0.0f, scale = 1.0f;
-        pt_vec3 fb = pt_bsdf_eval(&l->base, wo, wi, &bpdf);
-        if (l->sheen_max > 0.0f) {
-            float ei = fminf(pt_sheen_albedo(wi.z, l->sheen_rough), 1.0f);
-            float eo_raw = pt_sheen_albedo(wo.z, l->sheen_rough);
-            float norm = eo_raw > 1.0f ? 1.0f / eo_raw : 1.0f;
-            scale = fminf(1.0f - l->sheen_max * eo, 1.0f - l->sheen_max * ei);
-            f = pt_v3_scale(l->sheen, pt_sheen_eval(l->sheen_alpha, wo, wi) * norm);
-        }
-        f = pt_v3_scale(pt_v3_add(f, pt_v3_scale(fb, scale)), 1.0f - fc);
-        p = ps * (0.5f * PT_INV_PI) + pb * bpdf;
-    }
-    if (l->clearcoat > 0.0f && wic.z > 0.0f) {
-        float cpdf = 0.0f;
-        float c = coat_eval(l, woc, wic, &cpdf);
-        f = pt_v3_add(f, pt_v3(fc * c, fc * c, fc * c));
-        p += pc * cpdf;
-    }
-    *pdf = p;
-    return f;
-}
-
-pt_vec3 pt_layers_eval(const pt_layers *l, pt_vec3 wo, pt_vec3 wi, float *pdf)
-{
-    return l->coat_own ? eval_own(l, wo, wi, pdf) : eval_all(l, wo, wi, pdf);
-}
-
-float pt_layers_pdf(const pt_layers *l, pt_vec3 wo, pt_vec3 wi)
-{
-    float pdf;
-    pt_layers_eval(l, wo, wi, &pdf);
-    return pdf;
-}
-
-/* A direction from the lobes under the coat, for u[0] past the coat's
- * share pc: the sheen (uniform over the hemisphere) for the next ps, else
- * the base, the rest of u[0]'s interval picking the base's own lobe. 0 when
- * the direction is impossible or below the surface. */
-static int sample_below_coat(const pt_layers *l, pt_vec3 wo, const float u[3], float pc, float ps,
-                             float pb, pt_vec3 *wi)
-{
-    if (u[0] < pc + ps) {
-        float z = u[1], r = sqrtf(fmaxf(0.0f, 1.0f - z * z)), ph = 2.0f * PT_PI * u[2];
-        *wi = pt_v3(r * cosf(ph), r * sinf(ph), z);
+    float pdf = 0.0f, c = 0.0f;
+    *below = 1.0f - l->fc;
+    if (l->own) {
+        pt_vec3 wic = pt_frame_to_local(&l->fr, wi);
+        if (wic.z > 0.0f)
+            c = coat_ggx(l->alpha, l->wo, wic, &pdf);
     } else {
-        float ub[3] = {fminf((u[0] - pc - ps) / pb, 0x1.fffffep-1f), u[1], u[2]};
-        if (!(ub[0] >= 0.0f))
-            ub[0] = 0.0f;
-        float bp;
-        pt_bsdf_sample(&l->base, wo, ub, wi, &bp);
-        if (!(bp > 0.0f))
-            return 0;
+        c = coat_ggx(l->alpha, wo, wi, &pdf);
     }
-    return wi->z > 0.0f;
+    *share = prob * pdf;
+    return pt_v3(l->fc * c, l->fc * c, l->fc * c);
 }
 
-/* The sample's weight f / pdf, and *pdf 0 with no weight when impossible. */
-static pt_vec3 weight(pt_vec3 f, float *pdf)
+pt_vec3 pt_sheen_eval(const pt_sheen_lobe *l, pt_vec3 wo, pt_vec3 wi, float prob, float *share,
+                      float *below)
 {
-    if (!(*pdf > 0.0f)) {
-        *pdf = 0.0f;
+    if (!(wo.z > 0.0f) || !(wi.z > 0.0f)) {
+        /* Under the base's hemisphere the base gives nothing to scale. */
+        *share = 0.0f;
+        *below = 1.0f;
         return pt_v3(0.0f, 0.0f, 0.0f);
     }
-    return pt_v3_scale(f, 1.0f / *pdf);
+    float ei = fminf(pt_sheen_albedo(wi.z, l->rough), 1.0f);
+    *below = fminf(l->keep_o, 1.0f - l->color_max * ei);
+    *share = prob * (0.5f * PT_INV_PI);
+    return pt_v3_scale(l->color, pt_sheen_charlie(l->alpha, wo, wi) * l->norm);
 }
 
-/* pt_layers_sample with the coat on its own normal. */
-static pt_vec3 sample_own(const pt_layers *l, pt_vec3 wo, const float u[3], pt_vec3 *wi, float *pdf)
+int pt_coat_sample(const pt_coat_lobe *l, pt_vec3 wo, const float u[3], pt_vec3 *wi)
 {
-    pt_vec3 zero = pt_v3(0.0f, 0.0f, 0.0f);
-    pt_vec3 woc = pt_frame_to_local(&l->coat_fr, wo);
-    if (!(wo.z > 0.0f) || !(woc.z > 0.0f))
-        return zero;
-    float pc, ps, pb, fc, eo;
-    lobe_probs(l, woc.z, wo.z, &pc, &ps, &pb, &fc, &eo);
-    if (u[0] < pc) {
-        pt_vec3 m = pt_ggx_sample_vndf(woc, l->coat_alpha, u[1], u[2]);
-        float om = pt_v3_dot(woc, m);
-        pt_vec3 wic = pt_v3_sub(pt_v3_scale(m, 2.0f * om), woc);
-        if (!(wic.z > 0.0f))
-            return zero;
-        *wi = pt_frame_to_world(&l->coat_fr, wic);
-    } else if (!sample_below_coat(l, wo, u, pc, ps, pb, wi)) {
-        return zero;
-    }
-    return weight(eval_own(l, wo, *wi, pdf), pdf);
+    pt_vec3 v = l->own ? l->wo : wo;
+    pt_vec3 m = pt_ggx_sample_vndf(v, l->alpha, u[1], u[2]);
+    float om = pt_v3_dot(v, m);
+    pt_vec3 r = pt_v3_sub(pt_v3_scale(m, 2.0f * om), v);
+    if (!(r.z > 0.0f))
+        return 0;
+    *wi = l->own ? pt_frame_to_world(&l->fr, r) : r;
+    return 1;
 }
 
-pt_vec3 pt_layers_sample(const pt_layers *l, pt_vec3 wo, const float u[3], pt_vec3 *wi, float *pdf)
+int pt_sheen_sample(const float u[3], pt_vec3 *wi)
 {
-    pt_vec3 zero = pt_v3(0.0f, 0.0f, 0.0f);
-    *pdf = 0.0f;
-    *wi = pt_v3(0.0f, 0.0f, 1.0f);
-    if (l->coat_own)
-        return sample_own(l, wo, u, wi, pdf);
-    if (!(wo.z > 0.0f))
-        return zero;
-    float pc, ps, pb, fc, eo;
-    lobe_probs(l, wo.z, wo.z, &pc, &ps, &pb, &fc, &eo);
-    if (u[0] < pc) {
-        pt_vec3 m = pt_ggx_sample_vndf(wo, l->coat_alpha, u[1], u[2]);
-        float om = pt_v3_dot(wo, m);
-        *wi = pt_v3_sub(pt_v3_scale(m, 2.0f * om), wo);
-        if (!(wi->z > 0.0f))
-            return zero;
-    } else if (!sample_below_coat(l, wo, u, pc, ps, pb, wi)) {
-        return zero;
-    }
-    return weight(eval_all(l, wo, *wi, pdf), pdf);
+    /* Uniform over the hemisphere: z = cos theta is uniform. */
+    float z = u[1], r = sqrtf(fmaxf(0.0f, 1.0f - z * z)), ph = 2.0f * PT_PI * u[2];
+    *wi = pt_v3(r * cosf(ph), r * sinf(ph), z);
+    return wi->z > 0.0f;
 }

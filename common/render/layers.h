@@ -1,6 +1,7 @@
 /*
- * layers.h - clearcoat and sheen layered over the glTF base BSDF
- * (KHR_materials_clearcoat, KHR_materials_sheen).
+ * layers.h - clearcoat and sheen layered over the glTF base
+ * (KHR_materials_clearcoat, KHR_materials_sheen): their parameters and
+ * their two lobes, which the closure (closure.h) puts over the base.
  *
  * The layering is the extensions' own (their READMEs, "Layering" and
  * "Albedo-scaling"), outermost first:
@@ -25,8 +26,10 @@
  * Sampling picks coat, sheen or base with u[0] by the weights Fc(wo),
  * (1 - Fc) max(sheen) E(wo.z), (1 - Fc)(1 - max(sheen) E(wo.z)); the coat by
  * GGX visible normals, the sheen uniformly over the hemisphere, the base by
- * pt_bsdf_sample with u[0] rescaled. pdf is the one-sample MIS mixture of all
- * three, so NEE weighs with it as with pt_bsdf_pdf. Local frame as bsdf.h.
+ * its own lobes with u[0] rescaled (closure.h). Each lobe's eval gives its
+ * f cos, its share of the one-sample MIS pdf, and the factor it puts on the
+ * lobes under it (1 - Fc(wo) for the coat, S(wo, wi) for the sheen). Local
+ * frame as bsdf.h.
  *
  * With a coat normal nc (in that local frame, z = the base's normal): Fc and
  * the coat lobe read wo and wi in nc's frame (Fc(wo) = clearcoat x
@@ -66,13 +69,45 @@ int pt_layers_setup(pt_layers *l, const pt_bsdf *base, float clearcoat, float co
  * mapped normal). Without this call the coat shares the base's normal. */
 void pt_layers_coat_normal(pt_layers *l, pt_vec3 n);
 
-/* As pt_bsdf_eval / pt_bsdf_pdf / pt_bsdf_sample for the layered whole. */
-pt_vec3 pt_layers_eval(const pt_layers *l, pt_vec3 wo, pt_vec3 wi, float *pdf);
-float pt_layers_pdf(const pt_layers *l, pt_vec3 wo, pt_vec3 wi);
-pt_vec3 pt_layers_sample(const pt_layers *l, pt_vec3 wo, const float u[3], pt_vec3 *wi, float *pdf);
+/* The coat lobe at one wo: clearcoat x GGX reflection without Fresnel. */
+typedef struct pt_coat_lobe {
+    float fc;    /* Fc(wo): the coat's weight; the lobes under it get 1 - fc */
+    float alpha; /* >= PT_BSDF_MIN_ALPHA */
+    int own;     /* on its own normal fr.n, with wo in that frame */
+    pt_frame fr;
+    pt_vec3 wo;
+} pt_coat_lobe;
+
+/* The sheen lobe at one wo. */
+typedef struct pt_sheen_lobe {
+    pt_vec3 color;
+    float color_max;
+    float rough;  /* the albedo table's coordinate */
+    float alpha;  /* >= PT_LAYERS_MIN_SHEEN_ALPHA */
+    float keep_o; /* 1 - max(colour) E(wo.z): S's wo half */
+    float norm;   /* 1 / E(wo.z) where E(wo.z) > 1, else 1 */
+} pt_sheen_lobe;
+
+/* The lobes of l at wo and the probabilities of sampling the coat, the sheen
+ * and what lies under them (*pc + *ps + *pb = 1 up to rounding; a lobe l
+ * lacks has probability 0). Returns 0 when wo is not above the base's
+ * normal or the coat's: then nothing scatters. */
+int pt_layers_lobes(const pt_layers *l, pt_vec3 wo, pt_coat_lobe *coat, pt_sheen_lobe *sheen,
+                    float *pc, float *ps, float *pb);
+
+/* f cos at wi, *share = prob x the lobe's sampling pdf at wi, and *below the
+ * factor on the lobes under it at (wo, wi). wo is the one the lobe was made
+ * for. */
+pt_vec3 pt_coat_eval(const pt_coat_lobe *l, pt_vec3 wo, pt_vec3 wi, float prob, float *share,
+                     float *below);
+pt_vec3 pt_sheen_eval(const pt_sheen_lobe *l, pt_vec3 wo, pt_vec3 wi, float prob, float *share,
+                      float *below);
+/* A direction from u[1..2]; 1 when it lies above the lobe's own normal. */
+int pt_coat_sample(const pt_coat_lobe *l, pt_vec3 wo, const float u[3], pt_vec3 *wi);
+int pt_sheen_sample(const float u[3], pt_vec3 *wi);
 
 /* Pieces for the tests: the white sheen lobe's f x cos, and its albedo. */
-float pt_sheen_eval(float alpha, pt_vec3 wo, pt_vec3 wi);
+float pt_sheen_charlie(float alpha, pt_vec3 wo, pt_vec3 wi);
 float pt_sheen_albedo(float mu, float roughness);
 
 #endif

@@ -6,6 +6,7 @@
 #include "common/base/alloc.h"
 #include "common/math/simd.h"
 #include "common/render/bsdf.h"
+#include "common/render/closure.h"
 #include "common/render/dielectric.h"
 #include "common/render/env.h"
 #include "common/render/layers.h"
@@ -571,17 +572,15 @@ static inline pt_bsdf material_bsdf(const pt_renderer *r, const surface *sf,
 
 /*
  * Lambert-only scenes (no PT_FEAT_GLOSSY: every material has metallic 0 and
- * specularFactor 0): the glTF BSDF is diffuse / pi with a Fresnel weight of
- * exactly 1 and the diffuse lobe always chosen. These repeat pt_bsdf_eval and
- * pt_bsdf_sample's arithmetic for that case operation for operation
+ * specularFactor 0): the closure is one diffuse lobe with a Fresnel weight
+ * of exactly 1, always picked. These repeat pt_closure_eval and
+ * pt_closure_sample's arithmetic for that case operation for operation
  * ((1 - 0) * cos = cos exactly), so the pixels are bit-identical to the
- * general integrator's; they skip the lobe choice, Fresnel and GGX terms.
+ * general integrator's; they skip building the closure, the lobe choice,
+ * Fresnel and GGX terms.
  */
-static inline pt_vec3 bsdf_eval(const pt_bsdf *b, pt_vec3 wo, pt_vec3 wi, float *pdf,
-                                const uint32_t features)
+static inline pt_vec3 lambert_eval(const pt_bsdf *b, pt_vec3 wo, pt_vec3 wi, float *pdf)
 {
-    if (features & PT_FEAT_GLOSSY)
-        return pt_bsdf_eval(b, wo, wi, pdf);
     if (!(wo.z > 0.0f) || !(wi.z > 0.0f)) {
         *pdf = 0.0f;
         return pt_v3(0.0f, 0.0f, 0.0f);
@@ -592,12 +591,10 @@ static inline pt_vec3 bsdf_eval(const pt_bsdf *b, pt_vec3 wo, pt_vec3 wi, float 
 }
 
 /* cos_wi, when not NULL, is pt_sample_cosine_hemisphere(u[1], u[2]),
- * computed ahead for many paths in lanes (Lambert variants only). */
-static inline pt_vec3 bsdf_sample(const pt_bsdf *b, pt_vec3 wo, const float u[3], pt_vec3 *wi,
-                                  float *pdf, const pt_vec3 *cos_wi, const uint32_t features)
+ * computed ahead for many paths in lanes. */
+static inline pt_vec3 lambert_sample(const pt_bsdf *b, pt_vec3 wo, const float u[3], pt_vec3 *wi,
+                                     float *pdf, const pt_vec3 *cos_wi)
 {
-    if (features & PT_FEAT_GLOSSY)
-        return pt_bsdf_sample(b, wo, u, wi, pdf);
     pt_vec3 zero = pt_v3(0.0f, 0.0f, 0.0f);
     *pdf = 0.0f;
     *wi = pt_v3(0.0f, 0.0f, 1.0f);
@@ -606,7 +603,7 @@ static inline pt_vec3 bsdf_sample(const pt_bsdf *b, pt_vec3 wo, const float u[3]
     *wi = cos_wi ? *cos_wi : pt_sample_cosine_hemisphere(u[1], u[2]);
     if (!(wi->z > 0.0f))
         return zero;
-    pt_vec3 f = bsdf_eval(b, wo, *wi, pdf, features);
+    pt_vec3 f = lambert_eval(b, wo, *wi, pdf);
     if (!(*pdf > 0.0f)) {
         *pdf = 0.0f;
         return zero;
@@ -914,120 +911,41 @@ static pt_glass glass_at(const pt_renderer *r, const surface *sf, int front,
 }
 
 /*
- * shade() for a transmissive material. As shade(), with these differences:
- * directions on both sides of the surface are valid (a shadow ray or the
- * next ray leaves from the side it goes to, offset along that side's
- * normal); a direction is kept only when the shading frame and the geometric
- * normal put it on the same side (no light leaks through interpolated
- * normals); next-event estimation weighs only the non-delta lobes, and after
- * a smooth interface's delta lobe prev_pdf is 0, so the emitter or the
- * environment that the path then finds counts in full (Veach 1997, sec.
- * 9.2: a delta lobe has no light-sampling rival). A shadow ray inside an
- * absorbing medium carries its transmittance.
+ * The closure at sf (closure.h): the builder. wo_l is wo in the shading frame
+ * fr. Glass (PT_FEAT_TRANSMISSION; front: the ray arrives on the side the
+ * geometric normal points to) is its opaque share beside the interface;
+ * other materials are the glTF base, with clearcoat and sheen over it where
+ * they have them (PT_FEAT_CLEARCOAT, PT_FEAT_SHEEN). Glass takes no layers
+ * yet: a transmissive material's coat and sheen are left out, as they
+ * always were.
  */
-static __attribute__((noinline)) uint32_t
-shade_glass(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_BOUNCE],
-            const surface *sf, const pt_light_sample *ls, int ls_ok, shadow_ray *sr,
-            const uint32_t features)
+static inline __attribute__((always_inline)) void
+material_closure(const pt_renderer *r, const surface *sf, int glass, int front, const pt_frame *fr,
+                 pt_vec3 wo, pt_vec3 wo_l, pt_vec3 ng, pt_closure *cl, const uint32_t features)
 {
-    const pt_scene *s = r->scene;
-    const uint32_t strategy = r->params.light_strategy;
-    uint32_t ret = 0;
-    pt_vec3 wo = pt_v3_neg(pa->d);
-
-    shade_emission(r, pa, hit, sf, features);
-    if (pa->depth >= r->params.max_depth)
-        return ret;
-
-    int front = pt_v3_dot(sf->ng, wo) > 0.0f;
-    pt_vec3 ng = front ? sf->ng : pt_v3_neg(sf->ng);
-    pt_vec3 ns = sf->ns;
-    if (pt_v3_dot(ns, ng) < 0.0f)
-        ns = pt_v3_neg(ns);
-    if (pt_v3_dot(ns, wo) <= 0.0f)
-        ns = ng;
-    pt_frame fr = pt_frame_from_normal(ns);
-    pt_vec3 wo_l = pt_frame_to_local(&fr, wo);
-    uint32_t mi = (uint32_t)(sf->mat - s->materials);
-    int thin = !(sf->mat->thickness > 0.0f);
-    pt_glass g = glass_at(r, sf, front, features);
-
-    if ((features & NEE_LIGHTS) && r->nee && ls_ok && ls->pdf > 0.0f &&
-        any_positive(ls->radiance)) {
-        float side = pt_v3_dot(ls->wi, ng);
-        pt_vec3 wil = pt_frame_to_local(&fr, ls->wi);
-        float bpdf = 0.0f;
-        pt_vec3 f = pt_v3(0.0f, 0.0f, 0.0f);
-        if (side != 0.0f && (side > 0.0f) == (wil.z > 0.0f))
-            f = pt_glass_eval(&g, wo_l, wil, &bpdf);
-        if (any_positive(f)) {
-            pt_vec3 nside = side > 0.0f ? ng : pt_v3_neg(ng);
-            int32_t med = side > 0.0f ? pa->medium : medium_across(s, pa->medium, mi, front, thin);
-            pt_vec3 from = pt_offset_apply(r->offset, sf->p, nside);
-            float w;
-            sr->from = from;
-            if (ls->delta == PT_LIGHT_AREA) {
-                pt_vec3 nl = ls->normal;
-                if (pt_v3_dot(nl, ls->wi) > 0.0f)
-                    nl = pt_v3_neg(nl);
-                pt_vec3 to = pt_offset_apply(r->offset, ls->position, nl);
-                pt_vec3 sd = pt_v3_sub(to, from);
-                float dist = pt_v3_len(sd);
-                sr->dist = dist;
-                sr->dir = pt_v3_scale(sd, dist > 0.0f ? 1.0f / dist : 0.0f);
-                w = (strategy == PT_LIGHT_MIS ? power_heuristic(ls->pdf, bpdf) : 1.0f) / ls->pdf;
-            } else if (ls->delta == PT_LIGHT_AT) {
-                pt_vec3 sd = pt_v3_sub(ls->position, from);
-                float dist = pt_v3_len(sd);
-                sr->dist = dist;
-                sr->dir = pt_v3_scale(sd, dist > 0.0f ? 1.0f / dist : 0.0f);
-                w = 1.0f / ls->pdf;
-            } else {
-                sr->dir = ls->wi;
-                sr->dist = INFINITY;
-                w = 1.0f / ls->pdf;
-                if (ls->delta == PT_LIGHT_ENV && strategy == PT_LIGHT_MIS)
-                    w = power_heuristic(ls->pdf, bpdf) / ls->pdf;
-            }
-            pt_vec3 c = pt_v3_mul(pa->beta, pt_v3_scale(pt_v3_mul(f, ls->radiance), w));
-            if (features & PT_FEAT_VOLUME)
-                c = pt_v3_mul(c, medium_transmittance(s, med, sr->dist));
-            sr->contrib = c;
-            ret = SHADE_SHADOW;
-        }
+    pt_closure_init(cl, wo_l);
+    if ((features & PT_FEAT_TRANSMISSION) && glass) {
+        pt_glass g = glass_at(r, sf, front, features);
+        pt_closure_add_glass(cl, &g);
+        return;
     }
-
-    float u3[3];
-    u3[0] = u[OFF_LIGHT_PICK + 1];
-    u3[1] = u[OFF_BSDF_DIR];
-    u3[2] = u[OFF_BSDF_DIR + 1];
-    pt_vec3 wi_l;
-    float pdf;
-    int delta;
-    pt_vec3 weight = pt_glass_sample(&g, wo_l, u3, &wi_l, &pdf, &delta);
-    if (!(pdf > 0.0f) || !any_positive(weight))
-        return ret;
-    pt_vec3 wi = pt_frame_to_world(&fr, wi_l);
-    float side = pt_v3_dot(wi, ng);
-    if (side == 0.0f || (side > 0.0f) != (wi_l.z > 0.0f))
-        return ret;
-    pt_vec3 beta = pt_v3_mul(pa->beta, weight);
-    if (pa->depth + 1 >= r->params.rr_depth) {
-        float m = max2(beta.x, max2(beta.y, beta.z));
-        float survive = m < 0.95f ? m : 0.95f;
-        if (!(u[OFF_RR] < survive))
-            return ret;
-        beta = pt_v3_scale(beta, 1.0f / survive);
+    pt_bsdf bsdf = material_bsdf(r, sf, features);
+    pt_closure_add_base(cl, &bsdf);
+    pt_layers lay;
+    if (!((features & LAYERS) && has_layers(sf->mat) && layers_setup(r, sf, &bsdf, &lay, features)))
+        return;
+    if ((features & PT_FEAT_CLEARCOAT) && (features & PT_FEAT_NORMAL_MAP) && sf->coat_mapped) {
+        /* The coat's own normal, turned and bent as the base's mapped one
+         * is (shade), in the base's local frame. */
+        pt_vec3 nc = sf->nc;
+        if (pt_v3_dot(sf->ng, wo) < 0.0f)
+            nc = pt_v3_neg(nc);
+        nc = valid_reflection(ng, wo, nc);
+        if (pt_v3_dot(nc, wo) <= 0.0f)
+            nc = ng;
+        pt_layers_coat_normal(&lay, pt_frame_to_local(fr, nc));
     }
-    if (side < 0.0f)
-        pa->medium = medium_across(s, pa->medium, mi, front, thin);
-    pa->beta = beta;
-    pa->prev_p = sf->p;
-    pa->prev_pdf = delta ? 0.0f : pdf;
-    pa->o = pt_offset_apply(r->offset, sf->p, side > 0.0f ? ng : pt_v3_neg(ng));
-    pa->d = wi;
-    pa->depth++;
-    return ret | SHADE_CONTINUE;
+    pt_closure_add_layers(cl, &lay);
 }
 
 /*
@@ -1037,6 +955,21 @@ shade_glass(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM
  * against the light pdf, so each light path is counted once (Veach 1997,
  * sec. 9.2). Russian roulette after rr_depth bounces keeps throughput-weighted
  * survival (survival probability max(beta), at most 0.95).
+ *
+ * Opaque surfaces reflect only: single-sided surfaces are treated as
+ * two-sided for scattering (only emission is one-sided), a direction below
+ * the geometric surface is dropped. Glass (PT_FEAT_TRANSMISSION, PT_FEAT_VOLUME;
+ * general variant only) scatters to both sides: a shadow ray or the next ray
+ * leaves from the side it goes to, offset along that side's normal; a
+ * direction is kept only when the shading frame and the geometric normal put
+ * it on the same side (no light leaks through interpolated normals); after a
+ * smooth interface's delta lobe prev_pdf is 0, so the emitter or the
+ * environment that the path then finds counts in full (Veach 1997, sec. 9.2:
+ * a delta lobe has no light-sampling rival). A shadow ray from glass inside
+ * an absorbing medium carries its transmittance. As before the closure
+ * interface, glass reads its shading normal unbent by a normal map, and its
+ * shadow rays neither weigh an alpha-tested emitter's coverage nor draw an
+ * alpha key of their own.
  *
  * Adds the hit's emission to pa->L; fills *sr and returns SHADE_SHADOW when
  * the light sample needs a shadow ray, whose contribution the caller adds
@@ -1050,8 +983,8 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
       const surface *sf, const pt_light_sample *ls, int ls_ok, const pt_vec3 *cos_wi,
       shadow_ray *sr, const uint32_t features)
 {
-    if ((features & PT_FEAT_TRANSMISSION) && transmits(sf->mat))
-        return shade_glass(r, pa, hit, u, sf, ls, ls_ok, sr, features);
+    const pt_scene *s = r->scene;
+    const int glass = (features & PT_FEAT_TRANSMISSION) && transmits(sf->mat);
     const uint32_t strategy = r->params.light_strategy;
     uint32_t ret = 0;
     pt_vec3 wo = pt_v3_neg(pa->d);
@@ -1060,16 +993,16 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     if (pa->depth >= r->params.max_depth)
         return ret;
 
-    /* Shade on the side the ray arrived from; single-sided surfaces are
-     * treated as two-sided for scattering (only emission is one-sided). */
-    pt_vec3 ng = sf->ng;
-    if (pt_v3_dot(ng, wo) < 0.0f)
-        ng = pt_v3_neg(ng);
+    /* Shade on the side the ray arrived from (glass: a ray that grazes the
+     * geometric surface counts as arriving from the back). */
+    float wng = pt_v3_dot(sf->ng, wo);
+    int front = wng > 0.0f;
+    pt_vec3 ng = (glass ? !front : wng < 0.0f) ? pt_v3_neg(sf->ng) : sf->ng;
     pt_vec3 ns = sf->ns;
-    if ((features & PT_FEAT_NORMAL_MAP) && sf->mapped) {
+    if ((features & PT_FEAT_NORMAL_MAP) && sf->mapped && !glass) {
         /* A mapped normal may lie anywhere: turn it with the side the ray
          * sees (as ng was), then bend it until wo's reflection is valid. */
-        if (pt_v3_dot(sf->ng, wo) < 0.0f)
+        if (wng < 0.0f)
             ns = pt_v3_neg(ns);
         ns = valid_reflection(ng, wo, ns);
         if (pt_v3_dot(ns, wo) <= 0.0f)
@@ -1082,73 +1015,73 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     }
     pt_frame fr = pt_frame_from_normal(ns);
     pt_vec3 wo_l = pt_frame_to_local(&fr, wo);
-    pt_bsdf bsdf = material_bsdf(r, sf, features);
-    /* Clearcoat and sheen (general variant only): the layered BSDF replaces
-     * the base where the material has a layer; others keep the base's bits. */
-    pt_layers lay;
-    const int layered =
-        (features & LAYERS) && has_layers(sf->mat) && layers_setup(r, sf, &bsdf, &lay, features);
-    if ((features & PT_FEAT_CLEARCOAT) && (features & PT_FEAT_NORMAL_MAP) && layered &&
-        sf->coat_mapped) {
-        /* The coat's own normal, turned and bent as the base's mapped one
-         * is above, in the base's local frame. */
-        pt_vec3 nc = sf->nc;
-        if (pt_v3_dot(sf->ng, wo) < 0.0f)
-            nc = pt_v3_neg(nc);
-        nc = valid_reflection(ng, wo, nc);
-        if (pt_v3_dot(nc, wo) <= 0.0f)
-            nc = ng;
-        pt_layers_coat_normal(&lay, pt_frame_to_local(&fr, nc));
-    }
+    /* The Lambert variants skip the closure (lambert_eval). */
+    pt_bsdf lambert;
+    pt_closure cl;
+    if (features & PT_FEAT_GLOSSY)
+        material_closure(r, sf, glass, front, &fr, wo, wo_l, ng, &cl, features);
+    else
+        lambert = material_bsdf(r, sf, features);
+    uint32_t mi = (uint32_t)(sf->mat - s->materials);
+    int thin = glass && !(sf->mat->thickness > 0.0f);
+
     if ((features & NEE_LIGHTS) && r->nee) {
         pt_vec3 lrad = ls_ok ? ls->radiance : pt_v3(0.0f, 0.0f, 0.0f);
-        if ((features & PT_FEAT_ALPHA) && r->alpha && ls_ok && ls->delta == PT_LIGHT_AREA &&
-            pt_alpha_tri(r->scene, ls->tri))
+        if ((features & PT_FEAT_ALPHA) && r->alpha && !glass && ls_ok &&
+            ls->delta == PT_LIGHT_AREA && pt_alpha_tri(r->scene, ls->tri))
             lrad = pt_v3_scale(lrad, light_coverage(r, ls));
-        if (features & PT_FEAT_ALPHA)
+        if ((features & PT_FEAT_ALPHA) && !glass)
             sr->alpha_key = pt_alpha_key(u[OFF_ALPHA], ALPHA_SALT_SHADOW);
-        if (ls_ok && ls->pdf > 0.0f && any_positive(lrad) && pt_v3_dot(ls->wi, ng) > 0.0f) {
-            float bpdf;
+        float side = ls_ok ? pt_v3_dot(ls->wi, ng) : 0.0f;
+        if (ls_ok && ls->pdf > 0.0f && any_positive(lrad) && (side > 0.0f || glass)) {
+            float bpdf = 0.0f;
             pt_vec3 wi_ll = pt_frame_to_local(&fr, ls->wi);
-            pt_vec3 f = layered ? pt_layers_eval(&lay, wo_l, wi_ll, &bpdf)
-                                : bsdf_eval(&bsdf, wo_l, wi_ll, &bpdf, features);
-            if ((features & (PT_FEAT_PUNCTUAL | PT_FEAT_ENV)) && ls->delta != PT_LIGHT_AREA &&
-                any_positive(f)) {
-                /* A punctual light: BSDF sampling cannot find it, so no MIS;
-                 * ls->radiance is the irradiance it gives, f holds the cosine.
-                 * The environment: weighed against BSDF sampling like an
-                 * emitter. Both but a point or spot light are at infinity. */
-                pt_vec3 from = pt_offset_apply(r->offset, sf->p, ng);
+            pt_vec3 f = pt_v3(0.0f, 0.0f, 0.0f);
+            if (!(features & PT_FEAT_GLOSSY))
+                f = lambert_eval(&lambert, wo_l, wi_ll, &bpdf);
+            else if (!glass || (side != 0.0f && (side > 0.0f) == (wi_ll.z > 0.0f)))
+                f = pt_closure_eval(&cl, wi_ll, &bpdf);
+            if (any_positive(f)) {
+                pt_vec3 from = pt_offset_apply(r->offset, sf->p, side > 0.0f ? ng : pt_v3_neg(ng));
+                float w;
                 sr->from = from;
-                if (ls->delta == PT_LIGHT_AT) {
+                if (!(features & (PT_FEAT_PUNCTUAL | PT_FEAT_ENV)) || ls->delta == PT_LIGHT_AREA) {
+                    pt_vec3 nl = ls->normal;
+                    if (pt_v3_dot(nl, ls->wi) > 0.0f)
+                        nl = pt_v3_neg(nl);
+                    pt_vec3 to = pt_offset_apply(r->offset, ls->position, nl);
+                    pt_vec3 sd = pt_v3_sub(to, from);
+                    float dist = pt_v3_len(sd);
+                    sr->dist = dist;
+                    sr->dir = pt_v3_scale(sd, dist > 0.0f ? 1.0f / dist : 0.0f);
+                    w = (strategy == PT_LIGHT_MIS ? power_heuristic(ls->pdf, bpdf) : 1.0f) /
+                        ls->pdf;
+                } else if (ls->delta == PT_LIGHT_AT) {
+                    /* A punctual light: BSDF sampling cannot find it, so no
+                     * MIS; ls->radiance is the irradiance it gives, f holds
+                     * the cosine. */
                     pt_vec3 sd = pt_v3_sub(ls->position, from);
                     float dist = pt_v3_len(sd);
                     sr->dist = dist;
                     sr->dir = pt_v3_scale(sd, dist > 0.0f ? 1.0f / dist : 0.0f);
+                    w = 1.0f / ls->pdf;
                 } else {
+                    /* A directional light, or the environment: weighed
+                     * against BSDF sampling like an emitter. Both at infinity. */
                     sr->dir = ls->wi;
                     sr->dist = INFINITY;
+                    w = 1.0f / ls->pdf;
+                    if ((features & PT_FEAT_ENV) && ls->delta == PT_LIGHT_ENV &&
+                        strategy == PT_LIGHT_MIS)
+                        w = power_heuristic(ls->pdf, bpdf) / ls->pdf;
                 }
-                float w = 1.0f / ls->pdf;
-                if ((features & PT_FEAT_ENV) && ls->delta == PT_LIGHT_ENV &&
-                    strategy == PT_LIGHT_MIS)
-                    w = power_heuristic(ls->pdf, bpdf) / ls->pdf;
-                sr->contrib = pt_v3_mul(pa->beta, pt_v3_scale(pt_v3_mul(f, lrad), w));
-                ret = SHADE_SHADOW;
-            } else if (any_positive(f)) {
-                pt_vec3 from = pt_offset_apply(r->offset, sf->p, ng);
-                pt_vec3 nl = ls->normal;
-                if (pt_v3_dot(nl, ls->wi) > 0.0f)
-                    nl = pt_v3_neg(nl);
-                pt_vec3 to = pt_offset_apply(r->offset, ls->position, nl);
-                pt_vec3 sd = pt_v3_sub(to, from);
-                float dist = pt_v3_len(sd);
-                sr->from = from;
-                sr->dist = dist;
-                sr->dir = pt_v3_scale(sd, dist > 0.0f ? 1.0f / dist : 0.0f);
-                float w =
-                    (strategy == PT_LIGHT_MIS ? power_heuristic(ls->pdf, bpdf) : 1.0f) / ls->pdf;
-                sr->contrib = pt_v3_mul(pa->beta, pt_v3_scale(pt_v3_mul(f, lrad), w));
+                pt_vec3 c = pt_v3_mul(pa->beta, pt_v3_scale(pt_v3_mul(f, lrad), w));
+                if ((features & PT_FEAT_VOLUME) && glass) {
+                    int32_t med =
+                        side > 0.0f ? pa->medium : medium_across(s, pa->medium, mi, front, thin);
+                    c = pt_v3_mul(c, medium_transmittance(s, med, sr->dist));
+                }
+                sr->contrib = c;
                 ret = SHADE_SHADOW;
             }
         }
@@ -1160,13 +1093,16 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     u3[2] = u[OFF_BSDF_DIR + 1];
     pt_vec3 wi_l;
     float pdf;
-    pt_vec3 weight = layered ? pt_layers_sample(&lay, wo_l, u3, &wi_l, &pdf)
-                             : bsdf_sample(&bsdf, wo_l, u3, &wi_l, &pdf, cos_wi, features);
+    int delta = 0;
+    pt_vec3 weight = (features & PT_FEAT_GLOSSY)
+                         ? pt_closure_sample(&cl, u3, &wi_l, &pdf, &delta)
+                         : lambert_sample(&lambert, wo_l, u3, &wi_l, &pdf, cos_wi);
     if (!(pdf > 0.0f) || !any_positive(weight))
         return ret;
     pt_vec3 wi = pt_frame_to_world(&fr, wi_l);
-    if (pt_v3_dot(wi, ng) <= 0.0f)
-        return ret; /* below the geometric surface: reflection only */
+    float side = pt_v3_dot(wi, ng);
+    if (glass ? side == 0.0f || (side > 0.0f) != (wi_l.z > 0.0f) : side <= 0.0f)
+        return ret; /* opaque: below the geometric surface, reflection only */
     pt_vec3 beta = pt_v3_mul(pa->beta, weight);
 
     if (pa->depth + 1 >= r->params.rr_depth) {
@@ -1178,10 +1114,12 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
             return ret;
         beta = pt_v3_scale(beta, 1.0f / survive);
     }
+    if (glass && side < 0.0f)
+        pa->medium = medium_across(s, pa->medium, mi, front, thin);
     pa->beta = beta;
     pa->prev_p = sf->p;
-    pa->prev_pdf = pdf;
-    pa->o = pt_offset_apply(r->offset, sf->p, ng);
+    pa->prev_pdf = delta ? 0.0f : pdf;
+    pa->o = pt_offset_apply(r->offset, sf->p, side > 0.0f ? ng : pt_v3_neg(ng));
     pa->d = wi;
     pa->depth++;
     return ret | SHADE_CONTINUE;
@@ -1351,7 +1289,7 @@ static void shade_lanes(const pt_renderer *r, path *paths, const uint8_t *live, 
         v8f wix = dx * inv, wiy = dy * inv, wiz = dz * inv;
         shadow =
             go & lok & V8_ANY_POS(lrx, lry, lrz) & (V8_DOT(wix, wiy, wiz, ngx, ngy, ngz) > 0.0f);
-        /* bsdf_eval at the light's direction in the frame. */
+        /* lambert_eval at the light's direction in the frame. */
         v8f wilz = V8_DOT(wix, wiy, wiz, nsx, nsy, nsz);
         v8f ce = wilz * PT_INV_PI;
         v8f fx = dfx * ce, fy = dfy * ce, fz = dfz * ce;
@@ -1385,7 +1323,7 @@ static void shade_lanes(const pt_renderer *r, path *paths, const uint8_t *live, 
         cz = btz * ((fz * lrz) * w);
     }
 
-    /* bsdf_sample with the cosine direction, and the checks after it. */
+    /* lambert_sample with the cosine direction, and the checks after it. */
     v8f cwx = V8_LOAD(sl->cos_wi[0], j0), cwy = V8_LOAD(sl->cos_wi[1], j0),
         cwz = V8_LOAD(sl->cos_wi[2], j0);
     v8f pdf = cwz * PT_INV_PI;

@@ -19,6 +19,7 @@
 #include <string.h>
 
 #include "tests/check.h"
+#include "tests/common/render/closure_of.h"
 #include "tests/stats.h"
 
 #define PI_D 3.14159265358979323846
@@ -70,7 +71,7 @@ typedef struct bsdf_ctx {
 static float bsdf_pdf(const void *ctx, pt_vec3 w)
 {
     const bsdf_ctx *c = ctx;
-    return pt_bsdf_pdf(&c->b, c->wo, w);
+    return cl_bsdf_pdf(&c->b, c->wo, w);
 }
 
 static pt_vec3 bsdf_sample(const void *ctx, pcg32 *r, float *pdf)
@@ -78,7 +79,7 @@ static pt_vec3 bsdf_sample(const void *ctx, pcg32 *r, float *pdf)
     const bsdf_ctx *c = ctx;
     float u[3] = {pcg32_float(r), pcg32_float(r), pcg32_float(r)};
     pt_vec3 wi;
-    pt_bsdf_sample(&c->b, c->wo, u, &wi, pdf);
+    cl_bsdf_sample(&c->b, c->wo, u, &wi, pdf);
     return wi;
 }
 
@@ -152,14 +153,14 @@ static void test_consistency(void)
             float u[3] = {pcg32_float(&r), pcg32_float(&r), pcg32_float(&r)};
             pt_vec3 wi;
             float pdf;
-            pt_vec3 w = pt_bsdf_sample(&b, wo, u, &wi, &pdf);
+            pt_vec3 w = cl_bsdf_sample(&b, wo, u, &wi, &pdf);
             nonfinite += !pt_isfinite3(w) || !isfinite(pdf);
             if (!(pdf > 0.0f))
                 continue;
             n++;
             float epdf;
-            pt_vec3 f = pt_bsdf_eval(&b, wo, wi, &epdf);
-            bad_pdf += rel_err(pdf, pt_bsdf_pdf(&b, wo, wi)) > 1e-5f;
+            pt_vec3 f = cl_bsdf_eval(&b, wo, wi, &epdf);
+            bad_pdf += rel_err(pdf, cl_bsdf_pdf(&b, wo, wi)) > 1e-5f;
             bad_eval_pdf += rel_err(pdf, epdf) > 1e-5f;
             pt_vec3 ratio = pt_v3_scale(f, 1.0f / epdf);
             bad_w += rel_err(w.x, ratio.x) > 1e-3f || rel_err(w.y, ratio.y) > 1e-3f ||
@@ -169,8 +170,8 @@ static void test_consistency(void)
     CHECKF(n > 50000, "only %d possible samples", n);
     CHECKF(nonfinite == 0, "%d non-finite samples", nonfinite);
     CHECKF(bad_w == 0, "%d weights differ from eval / pdf", bad_w);
-    CHECKF(bad_pdf == 0, "%d sampled pdfs differ from pt_bsdf_pdf", bad_pdf);
-    CHECKF(bad_eval_pdf == 0, "%d eval pdfs differ from pt_bsdf_pdf", bad_eval_pdf);
+    CHECKF(bad_pdf == 0, "%d sampled pdfs differ from cl_bsdf_pdf", bad_pdf);
+    CHECKF(bad_eval_pdf == 0, "%d eval pdfs differ from cl_bsdf_pdf", bad_eval_pdf);
 }
 
 /* The GGX pieces are normalised: int D(m) cos(m) dm = 1 and the visible
@@ -215,7 +216,7 @@ static void test_ggx_normalisation(void)
         }
 }
 
-/* MC integral of pt_bsdf_pdf over the sphere with uniform directions, against
+/* MC integral of cl_bsdf_pdf over the sphere with uniform directions, against
  * the fraction of possible samples; both with their standard errors. */
 static void test_pdf_integral_mc(void)
 {
@@ -230,7 +231,7 @@ static void test_pdf_integral_mc(void)
             pt_vec3 wo = dir_at(view[j], 2.0f);
             double s = 0.0, s2 = 0.0;
             for (int k = 0; k < n; k++) {
-                double v = pt_bsdf_pdf(&b, wo, uniform_sphere(&r)) * 4.0 * PI_D;
+                double v = cl_bsdf_pdf(&b, wo, uniform_sphere(&r)) * 4.0 * PI_D;
                 s += v, s2 += v * v;
             }
             double mean = s / n, sd = sqrt(fmax(0.0, s2 / n - mean * mean) / n);
@@ -239,7 +240,7 @@ static void test_pdf_integral_mc(void)
                 float u[3] = {pcg32_float(&r), pcg32_float(&r), pcg32_float(&r)};
                 pt_vec3 wi;
                 float pdf;
-                pt_bsdf_sample(&b, wo, u, &wi, &pdf);
+                cl_bsdf_sample(&b, wo, u, &wi, &pdf);
                 possible += pdf > 0.0f;
             }
             double q = (double)possible / n, qsd = sqrt(fmax(q * (1.0 - q), 1.0 / n) / n);
@@ -265,14 +266,14 @@ static estimate albedo_sampled(const pt_bsdf *b, pt_vec3 wo, int n, pcg32 *r)
         float u[3] = {pcg32_float(r), pcg32_float(r), pcg32_float(r)};
         pt_vec3 wi;
         float pdf;
-        double v = pt_bsdf_sample(b, wo, u, &wi, &pdf).x;
+        double v = cl_bsdf_sample(b, wo, u, &wi, &pdf).x;
         s += v, s2 += v * v;
     }
     double mean = s / n;
     return (estimate){mean, sqrt(fmax(0.0, s2 / n - mean * mean) / n)};
 }
 
-/* The same integral with cosine-distributed directions and pt_bsdf_eval: an
+/* The same integral with cosine-distributed directions and cl_bsdf_eval: an
  * estimator independent of the sampling code. */
 static estimate albedo_cosine(const pt_bsdf *b, pt_vec3 wo, int n, pcg32 *r)
 {
@@ -280,7 +281,7 @@ static estimate albedo_cosine(const pt_bsdf *b, pt_vec3 wo, int n, pcg32 *r)
     for (int k = 0; k < n; k++) {
         pt_vec3 wi = pt_sample_cosine_hemisphere(pcg32_float(r), pcg32_float(r));
         float pdf;
-        double v = wi.z > 0.0f ? pt_bsdf_eval(b, wo, wi, &pdf).x / (wi.z * PT_INV_PI) : 0.0;
+        double v = wi.z > 0.0f ? cl_bsdf_eval(b, wo, wi, &pdf).x / (wi.z * PT_INV_PI) : 0.0;
         s += v, s2 += v * v;
     }
     double mean = s / n;
@@ -336,7 +337,7 @@ static void test_lambert_limit(void)
         pt_vec3 wo = uniform_sphere(&r), wi = uniform_sphere(&r);
         wo.z = fabsf(wo.z), wi.z = fabsf(wi.z);
         float pdf;
-        pt_vec3 f = pt_bsdf_eval(&b, wo, wi, &pdf);
+        pt_vec3 f = cl_bsdf_eval(&b, wo, wi, &pdf);
         pt_vec3 want = pt_v3_scale(base, wi.z * PT_INV_PI);
         bad += rel_err(f.x, want.x) > 1e-6f || rel_err(f.y, want.y) > 1e-6f ||
                rel_err(f.z, want.z) > 1e-6f || rel_err(pdf, wi.z * PT_INV_PI) > 1e-6f;
@@ -365,8 +366,8 @@ static void test_reciprocity(void)
             if (wo.z < 1e-3f || wi.z < 1e-3f)
                 continue;
             float p1, p2;
-            pt_vec3 a = pt_v3_scale(pt_bsdf_eval(&b, wo, wi, &p1), 1.0f / wi.z);
-            pt_vec3 c = pt_v3_scale(pt_bsdf_eval(&b, wi, wo, &p2), 1.0f / wo.z);
+            pt_vec3 a = pt_v3_scale(cl_bsdf_eval(&b, wo, wi, &p1), 1.0f / wi.z);
+            pt_vec3 c = pt_v3_scale(cl_bsdf_eval(&b, wi, wo, &p2), 1.0f / wo.z);
             bad +=
                 rel_err(a.x, c.x) > 1e-4f || rel_err(a.y, c.y) > 1e-4f || rel_err(a.z, c.z) > 1e-4f;
             n++;
@@ -380,14 +381,14 @@ static void test_edges(void)
 {
     pt_bsdf b = pt_bsdf_setup(pt_v3(0.7f, 0.7f, 0.7f), 0.3f, 0.0f, 1.0f, pt_v3(1, 1, 1));
     float pdf = 1.0f;
-    pt_vec3 f = pt_bsdf_eval(&b, pt_v3(0, 0, 1), pt_v3(0.6f, 0, -0.8f), &pdf);
+    pt_vec3 f = cl_bsdf_eval(&b, pt_v3(0, 0, 1), pt_v3(0.6f, 0, -0.8f), &pdf);
     CHECK(pdf == 0.0f && f.x == 0.0f && f.y == 0.0f && f.z == 0.0f);
-    f = pt_bsdf_eval(&b, pt_v3(0.6f, 0, -0.8f), pt_v3(0, 0, 1), &pdf);
+    f = cl_bsdf_eval(&b, pt_v3(0.6f, 0, -0.8f), pt_v3(0, 0, 1), &pdf);
     CHECK(pdf == 0.0f && f.x == 0.0f);
-    CHECK(pt_bsdf_pdf(&b, pt_v3(0, 0, -1), pt_v3(0, 0, 1)) == 0.0f);
+    CHECK(cl_bsdf_pdf(&b, pt_v3(0, 0, -1), pt_v3(0, 0, 1)) == 0.0f);
     pt_vec3 wi;
     float u[3] = {0.5f, 0.5f, 0.5f};
-    f = pt_bsdf_sample(&b, pt_v3(0, 0, -1), u, &wi, &pdf);
+    f = cl_bsdf_sample(&b, pt_v3(0, 0, -1), u, &wi, &pdf);
     CHECK(pdf == 0.0f && f.x == 0.0f);
 
     static const float zs[] = {0.0f, 1e-30f, 1e-12f, 1e-7f, 1e-4f, 0.01f, 1.0f};
@@ -402,13 +403,13 @@ static void test_edges(void)
                 pt_vec3 wv = pt_v3_norm(pt_v3(-sqrtf(1.0f - zs[c] * zs[c]) * 0.6f,
                                               sqrtf(1.0f - zs[c] * zs[c]) * 0.8f, zs[c]));
                 float p;
-                pt_vec3 e = pt_bsdf_eval(&m, wo, wv, &p);
+                pt_vec3 e = cl_bsdf_eval(&m, wo, wv, &p);
                 bad += !pt_isfinite3(e) || !isfinite(p) || p < 0.0f;
                 bad += !isfinite(pt_ggx_g1(wo, m.alpha)) || !isfinite(pt_ggx_d(wv, m.alpha));
                 for (int i = 0; i < 5; i++)
                     for (int j = 0; j < 5; j++) {
                         float uu[3] = {us[(i + j) % 5], us[i], us[j]};
-                        pt_vec3 w = pt_bsdf_sample(&m, wo, uu, &wi, &p);
+                        pt_vec3 w = cl_bsdf_sample(&m, wo, uu, &wi, &p);
                         bad += !pt_isfinite3(w) || !isfinite(p) || !pt_isfinite3(wi);
                         pt_vec3 h = pt_ggx_sample_vndf(wo, m.alpha, us[i], us[j]);
                         bad += !pt_isfinite3(h) || h.z < 0.0f;

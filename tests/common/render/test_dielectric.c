@@ -1,11 +1,11 @@
 /*
  * test_dielectric.c - glass (common/render/dielectric.c) and its place in the
- * integrator (render.c: shade_glass, media).
+ * integrator (render.c: shade on glass, media).
  *
  * - Fresnel: ((n - 1) / (n + 1))^2 at normal incidence, 1 past the critical
  *   angle, and F(cos_i, eta) = F(cos_t, 1 / eta) (reciprocity).
- * - Sampling: chi-square goodness of fit of pt_glass_sample's directions over
- *   the whole sphere against pt_glass_eval's pdf (integrated per cell by
+ * - Sampling: chi-square goodness of fit of cl_glass_sample's directions over
+ *   the whole sphere against cl_glass_eval's pdf (integrated per cell by
  *   adaptive Simpson), for roughness 0.3, 0.6 and 0.9, incidences 20, 60 and
  *   80 degrees, entering (eta 1.5) and leaving (1 / 1.5), thick and thin, and
  *   one mixture with the opaque share; each sample's pdf equals the pdf
@@ -51,6 +51,7 @@
 #include "common/render/render.h"
 #include "common/scene/scene.h"
 #include "tests/check.h"
+#include "tests/common/render/closure_of.h"
 #include "tests/stats.h"
 
 #define PI_D 3.14159265358979323846
@@ -113,9 +114,9 @@ static void reciprocity(void)
                 float ph = 6.2831853f * rndf();
                 wi = pt_v3(wi.x * cosf(ph), wi.x * sinf(ph), -wi.z);
                 float p;
-                pt_vec3 f1 = pt_glass_eval(&a, wo, wi, &p);
+                pt_vec3 f1 = cl_glass_eval(&a, wo, wi, &p);
                 pt_vec3 f2 =
-                    pt_glass_eval(&b, pt_v3(wi.x, wi.y, -wi.z), pt_v3(wo.x, wo.y, -wo.z), &p);
+                    cl_glass_eval(&b, pt_v3(wi.x, wi.y, -wi.z), pt_v3(wo.x, wo.y, -wo.z), &p);
                 double x = f1.y / fabs(wi.z) * eta * eta, y = f2.y / fabs(wo.z);
                 /* Near total internal reflection 1 - F is ill-conditioned in
                  * float (F's slope is unbounded at the critical angle). */
@@ -126,8 +127,8 @@ static void reciprocity(void)
                        "transmission eta %g roughness %g: %g vs %g", (double)eta, (double)rough, x,
                        y);
                 pt_vec3 wr = pt_v3(wi.x, wi.y, -wi.z);
-                f1 = pt_glass_eval(&a, wo, wr, &p);
-                f2 = pt_glass_eval(&a, wr, wo, &p);
+                f1 = cl_glass_eval(&a, wo, wr, &p);
+                f2 = cl_glass_eval(&a, wr, wo, &p);
                 x = f1.y / wr.z, y = f2.y / wo.z;
                 CHECKF(fabs(x - y) <= 1e-4 * fmax(x, y) + 1e-12,
                        "reflection eta %g roughness %g: %g vs %g", (double)eta, (double)rough, x,
@@ -155,7 +156,7 @@ static double pdf_at(const glass_ctx *c, double z, double phi)
     double s = sqrt(fmax(0.0, 1.0 - z * z));
     pt_vec3 w = pt_v3((float)(s * cos(phi)), (float)(s * sin(phi)), (float)z);
     float pdf;
-    pt_glass_eval(&c->g, c->wo, w, &pdf);
+    cl_glass_eval(&c->g, c->wo, w, &pdf);
     return pdf;
 }
 
@@ -236,14 +237,14 @@ static void chi2_glass(const char *name, const glass_ctx *c, int n)
         float u[3] = {rndf(), rndf(), rndf()}, pdf;
         int delta;
         pt_vec3 wi;
-        pt_vec3 wt = pt_glass_sample(&c->g, c->wo, u, &wi, &pdf, &delta);
+        pt_vec3 wt = cl_glass_sample(&c->g, c->wo, u, &wi, &pdf, &delta);
         bad += delta;
         if (!(pdf > 0.0f)) {
             lost++;
             continue;
         }
         float p2;
-        pt_vec3 f = pt_glass_eval(&c->g, c->wo, wi, &p2);
+        pt_vec3 f = cl_glass_eval(&c->g, c->wo, wi, &p2);
         bad += fabsf(pdf - p2) > 1e-4f * p2 || fabsf(wt.y * pdf - f.y) > 1e-4f * f.y + 1e-7f;
         cells[cell_of(wi)][1] += 1.0;
     }
@@ -316,7 +317,7 @@ static double albedo(const pt_glass *g, pt_vec3 wo, int n, double *se)
         float u[3] = {rndf(), rndf(), rndf()}, pdf;
         int delta;
         pt_vec3 wi;
-        pt_vec3 w = pt_glass_sample(g, wo, u, &wi, &pdf, &delta);
+        pt_vec3 w = cl_glass_sample(g, wo, u, &wi, &pdf, &delta);
         double v = w.y;
         if (wi.z < 0.0f && !g->thin)
             v *= (double)g->eta * g->eta;
@@ -359,7 +360,7 @@ static void energy(void)
         pt_vec3 wo = incidence(35.0f), wi;
         float u[3] = {0.3f, 0.6f, 0.2f}, pdf;
         int delta;
-        pt_vec3 w = pt_glass_sample(&g, wo, u, &wi, &pdf, &delta);
+        pt_vec3 w = cl_glass_sample(&g, wo, u, &wi, &pdf, &delta);
         CHECK(delta && pdf == 1.0f && w.x == 1.0f && w.y == 1.0f);
         CHECK(fabsf(wi.x + wo.x) < 1e-6f && fabsf(wi.y + wo.y) < 1e-6f &&
               fabsf(wi.z + wo.z) < 1e-6f);

@@ -14,7 +14,7 @@
  * - Clearcoat 0 and sheen colour 0: pt_layers_setup declines (the renderer
  *   keeps the base BSDF, the same bits), and a scene with them has no layer
  *   feature bit.
- * - Chi-square of pt_layers_sample against pt_layers_pdf for four settings
+ * - Chi-square of cl_layers_sample against cl_layers_pdf for four settings
  *   (binning and quadrature as in test_bsdf.c), each sampled pdf equal to
  *   the pdf function's; the fourth has a coat normal tilted 35 degrees from
  *   the base's (pt_layers_coat_normal), so part of the coat's lobe lies
@@ -39,6 +39,7 @@
 #include "common/render/sampler.h"
 #include "common/scene/scene.h"
 #include "tests/check.h"
+#include "tests/common/render/closure_of.h"
 #include "tests/stats.h"
 
 #define PI_D 3.14159265358979323846
@@ -72,7 +73,7 @@ static void furnace(const pt_layers *l, pt_vec3 wo, int n, uint64_t seed, double
         float u[3] = {pcg32_float(&r), pcg32_float(&r), pcg32_float(&r)};
         pt_vec3 wi;
         float pdf;
-        pt_vec3 w = pt_layers_sample(l, wo, u, &wi, &pdf);
+        pt_vec3 w = cl_layers_sample(l, wo, u, &wi, &pdf);
         if (!pt_isfinite3(w) || w.x < 0.0f || w.y < 0.0f || w.z < 0.0f || !(pdf >= 0.0f))
             (*bad)++;
         double x = w.x;
@@ -181,7 +182,7 @@ typedef struct lay_ctx {
 static float lay_pdf(const void *ctx, pt_vec3 w)
 {
     const lay_ctx *c = ctx;
-    return pt_layers_pdf(&c->l, c->wo, w);
+    return cl_layers_pdf(&c->l, c->wo, w);
 }
 
 static pt_vec3 lay_sample(const void *ctx, pcg32 *r, float *pdf)
@@ -189,7 +190,7 @@ static pt_vec3 lay_sample(const void *ctx, pcg32 *r, float *pdf)
     const lay_ctx *c = ctx;
     float u[3] = {pcg32_float(r), pcg32_float(r), pcg32_float(r)};
     pt_vec3 wi;
-    pt_layers_sample(&c->l, c->wo, u, &wi, pdf);
+    cl_layers_sample(&c->l, c->wo, u, &wi, pdf);
     return wi;
 }
 

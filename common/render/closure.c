@@ -1,0 +1,264 @@
+/*
+ * closure.c - the material closure (closure.h): the builder, and eval and
+ * sample over the groups of lobes.
+ *
+ * The sums and products are written in the order the model states them
+ * (closure.h): a group's pdf adds its lobes' shares in order, then the
+ * inner group's, then the shares of lobes on their own normal; the value
+ * folds from the innermost lobe outwards. u[0] is compared with the running
+ * sum of the probabilities and rescaled by subtracting them one by one, so a
+ * pick is the same whichever lobes a material lacks.
+ */
+#include "common/render/closure.h"
+
+#include <assert.h>
+#include <math.h>
+
+void pt_closure_init(pt_closure *c, pt_vec3 wo)
+{
+    c->wo = wo;
+    c->n_lobes = 0;
+    c->n_groups = 0;
+    c->dead = !(wo.z > 0.0f);
+}
+
+/* Nothing scatters at this wo. */
+static void closure_kill(pt_closure *c)
+{
+    c->dead = 1;
+    c->n_lobes = 0;
+    c->n_groups = 0;
+}
+
+/* A new outermost group; below is the probability of the group inside. */
+static pt_closure_group *open_group(pt_closure *c, float below)
+{
+    assert(c->n_groups < PT_CLOSURE_MAX_GROUPS);
+    pt_closure_group *g = &c->group[c->n_groups];
+    g->first = c->n_lobes;
+    g->n = 0;
+    g->below = c->n_groups > 0 ? below : 0.0f;
+    c->n_groups++;
+    return g;
+}
+
+static pt_lobe *add_lobe(pt_closure *c, pt_closure_group *g, uint32_t kind, float prob)
+{
+    assert(c->n_lobes < PT_CLOSURE_MAX_LOBES);
+    pt_lobe *l = &c->lobe[c->n_lobes++];
+    g->n++;
+    l->kind = kind;
+    l->own = 0;
+    l->prob = prob;
+    return l;
+}
+
+void pt_closure_add_base(pt_closure *c, const pt_bsdf *b)
+{
+    if (c->dead)
+        return;
+    float ps = pt_bsdf_spec_prob(b, c->wo.z);
+    pt_closure_group *g = open_group(c, 0.0f);
+    if (ps > 0.0f)
+        add_lobe(c, g, PT_LOBE_SPECULAR, ps)->p.specular = pt_bsdf_specular(b);
+    if (ps < 1.0f)
+        add_lobe(c, g, PT_LOBE_DIFFUSE, 1.0f - ps)->p.diffuse = pt_bsdf_diffuse(b);
+}
+
+void pt_closure_add_glass(pt_closure *c, const pt_glass *gl)
+{
+    if (c->dead)
+        return;
+    /* The opaque share, when sampling can pick it; the interface beside it. */
+    if (gl->pick < 1.0f)
+        pt_closure_add_base(c, &gl->base);
+    if (gl->pick > 0.0f) {
+        pt_closure_group *g = open_group(c, 1.0f - gl->pick);
+        add_lobe(c, g, PT_LOBE_DIELECTRIC, gl->pick)->p.dielectric = pt_glass_interface(gl);
+    }
+}
+
+void pt_closure_add_layers(pt_closure *c, const pt_layers *l)
+{
+    if (c->dead)
+        return;
+    pt_coat_lobe coat;
+    pt_sheen_lobe sheen;
+    float pc, ps, pb;
+    if (!pt_layers_lobes(l, c->wo, &coat, &sheen, &pc, &ps, &pb)) {
+        closure_kill(c);
+        return;
+    }
+    pt_closure_group *g = open_group(c, pb);
+    if (l->clearcoat > 0.0f) {
+        pt_lobe *lc = add_lobe(c, g, PT_LOBE_COAT, pc);
+        lc->p.coat = coat;
+        lc->own = (uint32_t)coat.own;
+    }
+    if (l->sheen_max > 0.0f)
+        add_lobe(c, g, PT_LOBE_SHEEN, ps)->p.sheen = sheen;
+}
+
+/* One lobe's f cos, pdf share and factor on the lobes under it. */
+static inline __attribute__((always_inline)) pt_vec3
+lobe_eval(const pt_lobe *l, pt_vec3 wo, pt_vec3 wi, float *share, float *below)
+{
+    *below = 1.0f;
+    switch (l->kind) {
+    case PT_LOBE_DIFFUSE:
+        return pt_diffuse_eval(&l->p.diffuse, wo, wi, l->prob, share);
+    case PT_LOBE_SPECULAR:
+        return pt_specular_eval(&l->p.specular, wo, wi, l->prob, share);
+    case PT_LOBE_DIELECTRIC:
+        return pt_dielectric_eval(&l->p.dielectric, wo, wi, l->prob, share);
+    case PT_LOBE_SHEEN:
+        return pt_sheen_eval(&l->p.sheen, wo, wi, l->prob, share, below);
+    case PT_LOBE_COAT:
+        return pt_coat_eval(&l->p.coat, wo, wi, l->prob, share, below);
+    }
+    *share = 0.0f;
+    return pt_v3(0.0f, 0.0f, 0.0f);
+}
+
+/* f cos at wi, and each group's pdf in gpdf (the outermost's is the
+ * closure's). */
+static inline __attribute__((always_inline)) pt_vec3 eval_groups(const pt_closure *c, pt_vec3 wi,
+                                                                 float gpdf[PT_CLOSURE_MAX_GROUPS])
+{
+    pt_vec3 f = pt_v3(0.0f, 0.0f, 0.0f);
+    float inner = 0.0f;
+    for (uint32_t g = 0; g < c->n_groups; g++) {
+        const pt_closure_group *gr = &c->group[g];
+        float share[PT_CLOSURE_MAX_LOBES];
+        /* Innermost lobe first: f = f_lobe + below_lobe x f. */
+        for (uint32_t i = gr->n; i-- > 0;) {
+            float below;
+            pt_vec3 fl = lobe_eval(&c->lobe[gr->first + i], c->wo, wi, &share[i], &below);
+            if (below != 1.0f)
+                f = pt_v3_scale(f, below);
+            f = pt_v3_add(fl, f);
+        }
+        float p = 0.0f;
+        for (uint32_t i = 0; i < gr->n; i++)
+            if (!c->lobe[gr->first + i].own)
+                p += share[i];
+        if (g > 0)
+            p += gr->below * inner;
+        for (uint32_t i = 0; i < gr->n; i++)
+            if (c->lobe[gr->first + i].own)
+                p += share[i];
+        gpdf[g] = p;
+        inner = p;
+    }
+    return f;
+}
+
+pt_vec3 pt_closure_eval(const pt_closure *c, pt_vec3 wi, float *pdf)
+{
+    if (c->n_groups == 0) {
+        *pdf = 0.0f;
+        return pt_v3(0.0f, 0.0f, 0.0f);
+    }
+    float gpdf[PT_CLOSURE_MAX_GROUPS];
+    pt_vec3 f = eval_groups(c, wi, gpdf);
+    *pdf = gpdf[c->n_groups - 1];
+    return f;
+}
+
+float pt_closure_pdf(const pt_closure *c, pt_vec3 wi)
+{
+    float pdf;
+    pt_closure_eval(c, wi, &pdf);
+    return pdf;
+}
+
+pt_vec3 pt_closure_sample(const pt_closure *c, const float u[3], pt_vec3 *wi, float *pdf,
+                          int *delta)
+{
+    const float below1 = 0x1.fffffep-1f;
+    pt_vec3 zero = pt_v3(0.0f, 0.0f, 0.0f);
+    *pdf = 0.0f;
+    if (delta)
+        *delta = 0;
+    *wi = pt_v3(0.0f, 0.0f, 1.0f);
+    if (c->n_groups == 0)
+        return zero;
+
+    /* Pick a lobe, outermost group first: u0 against the running sum of the
+     * group's probabilities, else the group inside (the innermost group's
+     * last lobe takes what is left); u0 rescaled to what it picked. */
+    float u0 = u[0];
+    uint32_t g = c->n_groups - 1;
+    const pt_lobe *pick = NULL;
+    for (;;) {
+        const pt_closure_group *gr = &c->group[g];
+        float cum = 0.0f;
+        uint32_t i;
+        for (i = 0; i < gr->n; i++) {
+            const pt_lobe *l = &c->lobe[gr->first + i];
+            if (g == 0 && i + 1 == gr->n) {
+                pick = l;
+                break;
+            }
+            cum += l->prob;
+            if (u0 < cum) {
+                pick = l;
+                break;
+            }
+        }
+        for (uint32_t j = 0; j < i; j++)
+            u0 -= c->lobe[gr->first + j].prob;
+        u0 = fminf(u0 / (pick ? pick->prob : gr->below), below1);
+        if (!(u0 >= 0.0f))
+            u0 = 0.0f;
+        if (pick)
+            break;
+        if (g == 0)
+            return zero; /* an innermost group without lobes */
+        g--;
+    }
+
+    const float ul[3] = {u0, u[1], u[2]};
+    int ok = 0;
+    switch (pick->kind) {
+    case PT_LOBE_DIFFUSE:
+        ok = pt_diffuse_sample(ul, wi);
+        break;
+    case PT_LOBE_SPECULAR:
+        ok = pt_specular_sample(&pick->p.specular, c->wo, ul, wi);
+        break;
+    case PT_LOBE_SHEEN:
+        ok = pt_sheen_sample(ul, wi);
+        break;
+    case PT_LOBE_COAT:
+        ok = pt_coat_sample(&pick->p.coat, c->wo, ul, wi);
+        break;
+    case PT_LOBE_DIELECTRIC: {
+        pt_vec3 w;
+        float p;
+        int r = pt_dielectric_sample(&pick->p.dielectric, c->wo, ul, pick->prob, wi, &w, &p);
+        if (r == PT_DIELECTRIC_DELTA) {
+            /* Its weight assumes nothing around it (closure.h). */
+            assert(g == c->n_groups - 1);
+            *pdf = p;
+            if (delta)
+                *delta = 1;
+            return w;
+        }
+        ok = r == PT_DIELECTRIC_DIR;
+        break;
+    }
+    }
+    if (!ok)
+        return zero;
+
+    /* The closure's f cos / pdf, not the lobe's, so that sampling agrees
+     * with pt_closure_eval for MIS. */
+    float gpdf[PT_CLOSURE_MAX_GROUPS];
+    pt_vec3 f = eval_groups(c, *wi, gpdf);
+    for (uint32_t k = g; k < c->n_groups; k++)
+        if (!(gpdf[k] > 0.0f))
+            return zero;
+    *pdf = gpdf[c->n_groups - 1];
+    return pt_v3_scale(f, 1.0f / *pdf);
+}

@@ -1,0 +1,109 @@
+/*
+ * closure.h - the material closure: the BSDF at one shading point as a small
+ * list of weighted lobes, after pbrt-v4's BSDF/BxDF split and Cycles' closure
+ * lists. The integrator builds one per shading point, for its wo, and asks it
+ * for eval, pdf and sample; it never sees a lobe.
+ *
+ * Lobes (each a file with its setup, eval and sample): diffuse and specular
+ * (bsdf.h, the glTF metallic-roughness base), the dielectric interface
+ * (dielectric.h, glass), sheen and clearcoat (layers.h). Adding a lobe is its
+ * file, a kind below, and its entry in the builder (pt_closure_add_*).
+ *
+ * Structure. The lobes sit in groups, innermost first: the base's lobes
+ * (specular, diffuse), then the interface beside the base, then the layers
+ * over both (coat, sheen). Sampling walks the groups from the outermost: u[0]
+ * picks a lobe of the group by its probability, or the group inside with the
+ * group's `below` probability, u[0] rescaled to what it picked (one number
+ * picks at every level, as a one-sample MIS mixture should). The pdf of a
+ * group is its lobes' shares (each lobe's probability times its density) plus
+ * below x the inner group's pdf; lobes on a normal of their own (a coat with
+ * clearcoatNormalTexture) are added last. The value is a fold from the
+ * innermost lobe outwards, f = f_lobe + below_lobe(wo, wi) x f_inside: 1 for
+ * lobes side by side, 1 - Fc(wo) under a coat, the sheen's albedo scaling
+ * under a sheen (layers.h). The probabilities and every term that depends on
+ * wo alone are computed once, when the closure is built.
+ *
+ * pt_closure_sample returns the whole closure's f cos / pdf at the sampled
+ * direction, not the picked lobe's, so NEE and BSDF sampling weigh one
+ * estimator (Veach 1997, ch. 9). A sample fails (pdf 0) where the picked
+ * lobe's direction is impossible or the pdf of its group or of any group
+ * around it is 0. A delta lobe (a smooth interface) is sampled only, never
+ * evaluated, and only in the outermost group.
+ *
+ * Directions in the local shading frame (z = the normal), unit length,
+ * pointing away from the surface; wo.z > 0 or the closure is empty (eval and
+ * sample give 0). Plain data on the stack; thread-safe (no state).
+ */
+#ifndef PT_COMMON_RENDER_CLOSURE_H
+#define PT_COMMON_RENDER_CLOSURE_H
+
+#include <stdint.h>
+
+#include "common/math/vec.h"
+#include "common/render/bsdf.h"
+#include "common/render/dielectric.h"
+#include "common/render/layers.h"
+
+#define PT_CLOSURE_MAX_LOBES 6
+#define PT_CLOSURE_MAX_GROUPS 3
+
+enum {
+    PT_LOBE_DIFFUSE,
+    PT_LOBE_SPECULAR,
+    PT_LOBE_DIELECTRIC,
+    PT_LOBE_SHEEN,
+    PT_LOBE_COAT,
+};
+
+typedef struct pt_lobe {
+    uint32_t kind; /* PT_LOBE_* */
+    uint32_t own;  /* on a normal of its own: its pdf share is added after the group's */
+    float prob;    /* probability that sampling picks it within its group, at wo */
+    union {
+        pt_diffuse_lobe diffuse;
+        pt_specular_lobe specular;
+        pt_dielectric_lobe dielectric;
+        pt_sheen_lobe sheen;
+        pt_coat_lobe coat;
+    } p;
+} pt_lobe;
+
+typedef struct pt_closure_group {
+    uint32_t first, n; /* lobes [first, first + n), outermost first */
+    float below;       /* probability of sampling the group inside; 0 for the innermost */
+} pt_closure_group;
+
+typedef struct pt_closure {
+    pt_vec3 wo;
+    uint32_t n_lobes, n_groups;                    /* no groups: nothing scatters */
+    int dead;                                      /* wo is below a lobe's normal: stays empty */
+    pt_closure_group group[PT_CLOSURE_MAX_GROUPS]; /* [0] the innermost */
+    pt_lobe lobe[PT_CLOSURE_MAX_LOBES];
+} pt_closure;
+
+/* Starts an empty closure for wo. */
+void pt_closure_init(pt_closure *c, pt_vec3 wo);
+
+/* The builder: each adds a group around what is there. */
+/* The glTF base's lobes (bsdf.h): specular, diffuse; innermost. */
+void pt_closure_add_base(pt_closure *c, const pt_bsdf *b);
+/* Glass (dielectric.h): its opaque share as the base, then the interface
+ * beside it; in place of pt_closure_add_base. */
+void pt_closure_add_glass(pt_closure *c, const pt_glass *g);
+/* Clearcoat and sheen (layers.h) over what is there. */
+void pt_closure_add_layers(pt_closure *c, const pt_layers *l);
+
+/* f(wo, wi) |cos wi| and the pdf pt_closure_sample gives wi (solid angle;
+ * delta lobes excluded). */
+pt_vec3 pt_closure_eval(const pt_closure *c, pt_vec3 wi, float *pdf);
+float pt_closure_pdf(const pt_closure *c, pt_vec3 wi);
+
+/* Samples wi from u (3 numbers in [0,1): u[0] picks the lobe, u[1..2] the
+ * direction). Returns f cos / pdf and sets *wi, *pdf; *delta (may be NULL
+ * when the closure has no delta lobe) is 1 when a delta lobe was taken, and
+ * then *pdf is its discrete probability. An impossible sample returns zero
+ * with *pdf 0. */
+pt_vec3 pt_closure_sample(const pt_closure *c, const float u[3], pt_vec3 *wi, float *pdf,
+                          int *delta);
+
+#endif

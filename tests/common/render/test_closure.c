@@ -1,0 +1,345 @@
+/*
+ * test_closure.c - the material closure (common/render/closure.h): its
+ * builder, its composition rule and its sampling contract. The lobes' own
+ * statistics (chi-square, furnace, closed forms) are in test_bsdf.c,
+ * test_layers.c and test_dielectric.c, which reach them through closures.
+ *
+ * - The builder: the glTF base gives a specular lobe where pt_bsdf_spec_prob
+ *   > 0 and a diffuse one where it is < 1; glass gives its opaque share and
+ *   the interface beside it (none of the share when sampling never picks
+ *   it); layers give a coat and a sheen over the base, each only when the
+ *   material has it. Each group's probabilities add up to 1 (to rounding).
+ * - The rule: eval of clearcoat + sheen over the base equals, to float
+ *   rounding, the extensions' layering written out from the lobes' own
+ *   functions, f = Fc c + (1 - Fc)(f_sheen + S (f_spec + f_diffuse)), and
+ *   its pdf the nested mixture pc p_c + ps p_s + pb (q p_spec + (1 - q)
+ *   p_diffuse); glass likewise as pick p_t + (1 - pick) p_base.
+ * - Sampling: over random materials (base, layers with and without a coat
+ *   normal, rough glass) and random wo, a sample with pdf > 0 has pdf equal to
+ *   pt_closure_pdf at its direction and weight equal to eval / pdf; a failed
+ *   one has pdf 0 and weight 0.
+ * - Empty closures: wo below the surface, or below the coat's own normal,
+ *   scatter nothing (eval 0, pdf 0, sample pdf 0).
+ * - Delta lobes: a smooth interface's sample is flagged delta, with the
+ *   discrete probability pick x F or pick x (1 - F), and is not in eval.
+ */
+#include "common/render/closure.h"
+
+#include <math.h>
+#include <stdint.h>
+
+#include "tests/check.h"
+
+/* splitmix64: the test's own numbers. */
+static uint64_t rng = 0x2545f4914f6cdd1dull;
+static float rndf(void)
+{
+    uint64_t z = (rng += 0x9e3779b97f4a7c15ull);
+    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
+    z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
+    z ^= z >> 31;
+    return (float)(z >> 40) * 0x1p-24f;
+}
+
+static pt_vec3 dir_at(float theta_deg, float phi)
+{
+    float t = theta_deg * (PT_PI / 180.0f);
+    return pt_v3(sinf(t) * cosf(phi), sinf(t) * sinf(phi), cosf(t));
+}
+
+static pt_vec3 random_upper(void)
+{
+    return dir_at(89.0f * rndf(), 2.0f * PT_PI * rndf());
+}
+
+static int close_rel(float a, float b, float tol)
+{
+    float m = fmaxf(fabsf(a), fabsf(b));
+    return m == 0.0f || fabsf(a - b) <= tol * m;
+}
+
+static int close3(pt_vec3 a, pt_vec3 b, float tol)
+{
+    return close_rel(a.x, b.x, tol) && close_rel(a.y, b.y, tol) && close_rel(a.z, b.z, tol);
+}
+
+static pt_bsdf gloss_base(void)
+{
+    return pt_bsdf_setup(pt_v3(0.8f, 0.5f, 0.3f), 0.2f, 0.4f, 1.0f, pt_v3(1, 1, 1));
+}
+
+static pt_layers layers(float cc, float sheen)
+{
+    pt_bsdf b = gloss_base();
+    pt_layers l;
+    float sc[3] = {sheen, 0.7f * sheen, 0.5f * sheen};
+    pt_layers_setup(&l, &b, cc, 0.3f, sc, 0.5f);
+    return l;
+}
+
+static float group_sum(const pt_closure *c, uint32_t g)
+{
+    const pt_closure_group *gr = &c->group[g];
+    float s = gr->below;
+    for (uint32_t i = 0; i < gr->n; i++)
+        s += c->lobe[gr->first + i].prob;
+    return s;
+}
+
+static void test_builder(void)
+{
+    pt_vec3 wo = dir_at(40.0f, 0.3f);
+    pt_closure c;
+
+    /* A Lambert base: one diffuse lobe. */
+    pt_bsdf lam = pt_bsdf_setup(pt_v3(0.5f, 0.5f, 0.5f), 0.0f, 1.0f, 0.0f, pt_v3(1, 1, 1));
+    pt_closure_init(&c, wo);
+    pt_closure_add_base(&c, &lam);
+    CHECK(c.n_groups == 1 && c.n_lobes == 1 && c.lobe[0].kind == PT_LOBE_DIFFUSE);
+    CHECK(c.lobe[0].prob == 1.0f);
+
+    /* A metal: one specular lobe. */
+    pt_bsdf metal = pt_bsdf_setup(pt_v3(0.9f, 0.6f, 0.2f), 1.0f, 0.3f, 1.0f, pt_v3(1, 1, 1));
+    pt_closure_init(&c, wo);
+    pt_closure_add_base(&c, &metal);
+    CHECK(c.n_groups == 1 && c.n_lobes == 1 && c.lobe[0].kind == PT_LOBE_SPECULAR);
+
+    /* A dielectric: specular then diffuse, probabilities adding to 1. */
+    pt_bsdf gb = gloss_base();
+    pt_closure_init(&c, wo);
+    pt_closure_add_base(&c, &gb);
+    CHECK(c.n_groups == 1 && c.n_lobes == 2);
+    CHECK(c.lobe[0].kind == PT_LOBE_SPECULAR && c.lobe[1].kind == PT_LOBE_DIFFUSE);
+    CHECK(c.lobe[0].prob == pt_bsdf_spec_prob(&gb, wo.z));
+    CHECK(fabsf(group_sum(&c, 0) - 1.0f) < 1e-6f);
+
+    /* Layers: coat and sheen over the base, each only when present. */
+    pt_layers both = layers(0.7f, 0.6f), coat = layers(0.7f, 0.0f), sheen = layers(0.0f, 0.6f);
+    pt_closure_init(&c, wo);
+    pt_closure_add_base(&c, &both.base);
+    pt_closure_add_layers(&c, &both);
+    CHECK(c.n_groups == 2 && c.n_lobes == 4);
+    CHECK(c.lobe[2].kind == PT_LOBE_COAT && c.lobe[3].kind == PT_LOBE_SHEEN);
+    CHECK(c.group[1].below > 0.0f);
+    CHECK(fabsf(group_sum(&c, 1) - 1.0f) < 1e-6f);
+    pt_closure_init(&c, wo);
+    pt_closure_add_base(&c, &coat.base);
+    pt_closure_add_layers(&c, &coat);
+    CHECK(c.n_groups == 2 && c.n_lobes == 3 && c.lobe[2].kind == PT_LOBE_COAT);
+    pt_closure_init(&c, wo);
+    pt_closure_add_base(&c, &sheen.base);
+    pt_closure_add_layers(&c, &sheen);
+    CHECK(c.n_groups == 2 && c.n_lobes == 3 && c.lobe[2].kind == PT_LOBE_SHEEN);
+
+    /* Glass: the opaque share (when it can be picked), then the interface. */
+    pt_glass g = pt_glass_setup(pt_v3(1, 1, 1), 0.0f, 0.3f, 1.0f, pt_v3(1, 1, 1), 0.6f, 1.5f, 0);
+    pt_closure_init(&c, wo);
+    pt_closure_add_glass(&c, &g);
+    CHECK(c.n_groups == 2 && c.lobe[c.n_lobes - 1].kind == PT_LOBE_DIELECTRIC);
+    CHECK(c.lobe[c.n_lobes - 1].prob == g.pick && c.group[1].below == 1.0f - g.pick);
+    pt_glass clear =
+        pt_glass_setup(pt_v3(1, 1, 1), 0.0f, 0.3f, 0.0f, pt_v3(1, 1, 1), 1.0f, 1.5f, 0);
+    pt_closure_init(&c, wo);
+    pt_closure_add_glass(&c, &clear);
+    CHECK(clear.pick == 1.0f && c.n_groups == 1 && c.n_lobes == 1);
+    CHECK(c.lobe[0].kind == PT_LOBE_DIELECTRIC);
+}
+
+/* The layered closure against the layering written out from its lobes. */
+static void test_rule(void)
+{
+    int bad_f = 0, bad_p = 0, n = 0;
+    for (int k = 0; k < 2000; k++) {
+        pt_layers l = layers(rndf(), rndf());
+        pt_vec3 wo = random_upper(), wi = random_upper();
+        pt_closure c;
+        pt_closure_init(&c, wo);
+        pt_closure_add_base(&c, &l.base);
+        pt_closure_add_layers(&c, &l);
+        float pdf;
+        pt_vec3 f = pt_closure_eval(&c, wi, &pdf);
+
+        /* By hand: the base's lobes, then sheen, then coat. */
+        pt_coat_lobe cl;
+        pt_sheen_lobe sl;
+        float pc, ps, pb, sc, ss, sb, ssp = 0.0f, sd = 0.0f, bc, bs;
+        CHECK(pt_layers_lobes(&l, wo, &cl, &sl, &pc, &ps, &pb));
+        float q = pt_bsdf_spec_prob(&l.base, wo.z);
+        pt_diffuse_lobe dl = pt_bsdf_diffuse(&l.base);
+        pt_specular_lobe spl = pt_bsdf_specular(&l.base);
+        pt_vec3 fb = pt_v3(0, 0, 0);
+        if (q > 0.0f)
+            fb = pt_v3_add(fb, pt_specular_eval(&spl, wo, wi, q, &ssp));
+        if (q < 1.0f)
+            fb = pt_v3_add(fb, pt_diffuse_eval(&dl, wo, wi, 1.0f - q, &sd));
+        pt_vec3 fc = pt_coat_eval(&cl, wo, wi, pc, &sc, &bc);
+        pt_vec3 fs = pt_sheen_eval(&sl, wo, wi, ps, &ss, &bs);
+        sb = ssp + sd;
+        pt_vec3 want = l.sheen_max > 0.0f ? pt_v3_add(fs, pt_v3_scale(fb, bs)) : fb;
+        if (l.clearcoat > 0.0f)
+            want = pt_v3_add(fc, pt_v3_scale(want, bc));
+        float want_p =
+            (l.clearcoat > 0.0f ? sc : 0.0f) + (l.sheen_max > 0.0f ? ss : 0.0f) + pb * sb;
+        /* Fc and S as the extensions state them. */
+        CHECK(close_rel(bc, 1.0f - cl.fc, 1e-6f));
+        bad_f += !close3(f, want, 2e-6f);
+        bad_p += !close_rel(pdf, want_p, 2e-6f);
+        n++;
+    }
+    CHECKF(bad_f == 0, "%d of %d layered values differ from the written-out layering", bad_f, n);
+    CHECKF(bad_p == 0, "%d of %d layered pdfs differ from the nested mixture", bad_p, n);
+
+    /* Glass: pick p_t + (1 - pick) p_base, f_t + f_base. */
+    bad_f = bad_p = 0;
+    for (int k = 0; k < 2000; k++) {
+        pt_glass g = pt_glass_setup(pt_v3(0.9f, 0.8f, 0.7f), 0.0f, 0.2f + 0.7f * rndf(), 1.0f,
+                                    pt_v3(1, 1, 1), rndf(), rndf() < 0.5f ? 1.5f : 1.0f / 1.5f,
+                                    rndf() < 0.3f);
+        pt_vec3 wo = random_upper(), wi = random_upper();
+        if (rndf() < 0.5f)
+            wi.z = -wi.z;
+        pt_closure c;
+        pt_closure_init(&c, wo);
+        pt_closure_add_glass(&c, &g);
+        float pdf;
+        pt_vec3 f = pt_closure_eval(&c, wi, &pdf);
+        pt_closure base;
+        pt_closure_init(&base, wo);
+        pt_closure_add_base(&base, &g.base);
+        float pb;
+        pt_vec3 fb = g.pick < 1.0f ? pt_closure_eval(&base, wi, &pb) : pt_v3(0, 0, 0);
+        if (!(g.pick < 1.0f))
+            pb = 0.0f;
+        pt_dielectric_lobe dl = pt_glass_interface(&g);
+        float st = 0.0f;
+        pt_vec3 ft = g.pick > 0.0f ? pt_dielectric_eval(&dl, wo, wi, g.pick, &st) : pt_v3(0, 0, 0);
+        bad_f += !close3(f, pt_v3_add(ft, fb), 2e-6f);
+        bad_p += !close_rel(pdf, st + (1.0f - g.pick) * pb, 2e-6f);
+    }
+    CHECKF(bad_f == 0, "%d glass values differ from interface + opaque share", bad_f);
+    CHECKF(bad_p == 0, "%d glass pdfs differ from the mixture", bad_p);
+}
+
+/* A random closure of one of four kinds. */
+static pt_closure random_closure(pt_vec3 wo, int kind)
+{
+    pt_closure c;
+    pt_closure_init(&c, wo);
+    if (kind == 0) {
+        pt_bsdf b =
+            pt_bsdf_setup(pt_v3(rndf(), rndf(), rndf()), rndf(), rndf(), rndf(), pt_v3(1, 1, 1));
+        pt_closure_add_base(&c, &b);
+    } else if (kind <= 2) {
+        pt_layers l = layers(rndf(), rndf());
+        if (kind == 2)
+            pt_layers_coat_normal(&l,
+                                  pt_v3_norm(pt_v3_add(wo, dir_at(30.0f * rndf(), 6.0f * rndf()))));
+        pt_closure_add_base(&c, &l.base);
+        pt_closure_add_layers(&c, &l);
+    } else {
+        pt_glass g = pt_glass_setup(pt_v3(rndf(), rndf(), rndf()), 0.3f * rndf(),
+                                    0.1f + 0.8f * rndf(), 1.0f, pt_v3(1, 1, 1), rndf(),
+                                    rndf() < 0.5f ? 1.5f : 1.0f / 1.5f, rndf() < 0.3f);
+        pt_closure_add_glass(&c, &g);
+    }
+    return c;
+}
+
+static void test_sampling_contract(void)
+{
+    int bad_pdf = 0, bad_w = 0, bad_fail = 0, ok = 0;
+    for (int k = 0; k < 4000; k++) {
+        pt_vec3 wo = random_upper();
+        pt_closure c = random_closure(wo, k % 4);
+        for (int j = 0; j < 8; j++) {
+            float u[3] = {rndf(), rndf(), rndf()}, pdf;
+            pt_vec3 wi;
+            int delta;
+            pt_vec3 w = pt_closure_sample(&c, u, &wi, &pdf, &delta);
+            if (!(pdf > 0.0f)) {
+                bad_fail += pdf != 0.0f || w.x != 0.0f || w.y != 0.0f || w.z != 0.0f;
+                continue;
+            }
+            CHECK(!delta);
+            float p2;
+            pt_vec3 f = pt_closure_eval(&c, wi, &p2);
+            bad_pdf += p2 != pdf || pt_closure_pdf(&c, wi) != pdf;
+            bad_w += !close3(w, pt_v3_scale(f, 1.0f / p2), 1e-6f);
+            ok++;
+        }
+    }
+    CHECKF(bad_pdf == 0, "%d of %d samples' pdfs differ from pt_closure_pdf", bad_pdf, ok);
+    CHECKF(bad_w == 0, "%d of %d sample weights differ from eval / pdf", bad_w, ok);
+    CHECKF(bad_fail == 0, "%d failed samples have a pdf or a weight", bad_fail);
+    CHECK(ok > 20000);
+}
+
+static void test_empty(void)
+{
+    pt_bsdf b = gloss_base();
+    float u[3] = {0.3f, 0.4f, 0.5f}, pdf = 1.0f;
+    pt_vec3 wi;
+    pt_closure c;
+    pt_closure_init(&c, pt_v3(0.6f, 0.0f, -0.8f));
+    pt_closure_add_base(&c, &b);
+    CHECK(c.n_groups == 0);
+    pt_vec3 f = pt_closure_eval(&c, pt_v3(0, 0, 1), &pdf);
+    CHECK(pdf == 0.0f && f.x == 0.0f && f.y == 0.0f && f.z == 0.0f);
+    pt_vec3 w = pt_closure_sample(&c, u, &wi, &pdf, NULL);
+    CHECK(pdf == 0.0f && w.x == 0.0f);
+
+    /* wo above the base but below the coat's own normal. */
+    pt_layers l = layers(1.0f, 0.5f);
+    pt_vec3 wo = dir_at(80.0f, 0.0f);
+    pt_layers_coat_normal(&l, dir_at(40.0f, PT_PI));
+    pt_closure_init(&c, wo);
+    pt_closure_add_base(&c, &l.base);
+    pt_closure_add_layers(&c, &l);
+    CHECK(c.n_groups == 0);
+    f = pt_closure_eval(&c, pt_v3(0, 0, 1), &pdf);
+    CHECK(pdf == 0.0f && f.x == 0.0f);
+    /* A dead closure stays dead. */
+    pt_closure_add_base(&c, &b);
+    CHECK(c.n_groups == 0);
+}
+
+static void test_delta(void)
+{
+    pt_glass g = pt_glass_setup(pt_v3(1, 1, 1), 0.0f, 0.0f, 1.0f, pt_v3(1, 1, 1), 0.8f, 1.5f, 0);
+    CHECK(g.alpha == 0.0f && g.pick > 0.0f && g.pick < 1.0f);
+    pt_vec3 wo = dir_at(30.0f, 1.0f);
+    pt_closure c;
+    pt_closure_init(&c, wo);
+    pt_closure_add_glass(&c, &g);
+    float F = pt_fresnel_dielectric(wo.z, 1.5f);
+    int nd = 0, bad = 0;
+    for (int k = 0; k < 1000; k++) {
+        float u[3] = {rndf(), rndf(), rndf()}, pdf;
+        pt_vec3 wi;
+        int delta;
+        pt_closure_sample(&c, u, &wi, &pdf, &delta);
+        if (!delta)
+            continue;
+        nd++;
+        float want = wi.z > 0.0f ? g.pick * F : g.pick * (1.0f - F);
+        bad += !close_rel(pdf, want, 1e-6f);
+    }
+    CHECKF(bad == 0, "%d delta samples with a wrong discrete probability", bad);
+    CHECK(nd > 600 && nd < 1000);
+    /* The mirror direction gets only the opaque share's density. */
+    pt_closure base;
+    pt_closure_init(&base, wo);
+    pt_closure_add_base(&base, &g.base);
+    pt_vec3 mir = pt_v3(-wo.x, -wo.y, wo.z);
+    CHECK(close_rel(pt_closure_pdf(&c, mir), (1.0f - g.pick) * pt_closure_pdf(&base, mir), 1e-6f));
+}
+
+int main(void)
+{
+    test_builder();
+    test_rule();
+    test_sampling_contract();
+    test_empty();
+    test_delta();
+    return check_report();
+}
