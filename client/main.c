@@ -774,6 +774,11 @@ static void print_status(const proto_job_info *j)
     if (j->capped > 0)
         printf("depth cap  %llu paths reached it; raise --max-depth if this matters\n",
                (unsigned long long)j->capped);
+    if (j->rejected > 0)
+        printf("rejected   %llu samples (%.2f%% of those merged): NaN or Inf, or results that "
+               "held no sample\n",
+               (unsigned long long)j->rejected,
+               100.0 * (double)j->rejected / (double)(j->samples_done + j->rejected));
     ctl_format_duration(j->seconds, d, sizeof d);
     printf("time       %s\n", d);
     if (j->rate > 0.0 && isfinite(j->rate))

@@ -144,10 +144,10 @@ void proto_json_job(FILE *f, const proto_job_info *j)
     else
         fputs("null", f);
     fprintf(f,
-            ", \"paths_capped\": %llu, \"submitted\": %llu, \"queue_position\": %lu, "
-            "\"message\": ",
-            (unsigned long long)j->capped, (unsigned long long)j->submitted,
-            (unsigned long)j->queue_pos);
+            ", \"paths_capped\": %llu, \"samples_rejected\": %llu, \"submitted\": %llu, "
+            "\"queue_position\": %lu, \"message\": ",
+            (unsigned long long)j->capped, (unsigned long long)j->rejected,
+            (unsigned long long)j->submitted, (unsigned long)j->queue_pos);
     proto_json_string(f, j->message);
     if (j->frame_step) {
         /* A frame-range job: its range, and its frames rendering. */

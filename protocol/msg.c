@@ -917,7 +917,7 @@ pt_status proto_msg_decode_submit(const uint8_t *p, size_t len, proto_submit *ou
 
 /* Bytes of a JOB_INFO with every string empty: the least an entry of
  * JOB_LIST can take, so a count is checked against the bytes present. */
-#define JOB_INFO_FIXED 136u
+#define JOB_INFO_FIXED 144u
 
 static const char *job_info_problem(const proto_job_info *m)
 {
@@ -962,6 +962,7 @@ static void w_job_info(proto_writer *w, const proto_job_info *m)
     proto_w_u32(w, m->queue_pos);
     proto_w_str(w, m->message);
     proto_w_u64(w, m->capped);
+    proto_w_u64(w, m->rejected);
     proto_w_u32(w, m->frame_first);
     proto_w_u32(w, m->frame_last);
     proto_w_u32(w, m->frame_step);
@@ -1002,6 +1003,7 @@ static void r_job_info(proto_reader *r, proto_job_info *m)
     m->queue_pos = proto_r_u32(r, "queue position");
     proto_r_str(r, m->message, PROTO_MAX_ERROR_TEXT, "message");
     m->capped = proto_r_u64(r, "paths capped");
+    m->rejected = proto_r_u64(r, "samples rejected");
     m->frame_first = proto_r_u32(r, "first frame");
     m->frame_last = proto_r_u32(r, "last frame");
     m->frame_step = proto_r_u32(r, "frame step");

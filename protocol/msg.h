@@ -464,6 +464,8 @@ const char *proto_job_state_name(uint32_t state);
  *   ..   4    u32  position in the queue (1 = next; 0 when not queued)
  *   ..   2+e  str  message (why it failed, ...), e <= PROTO_MAX_ERROR_TEXT
  *   ..   8    u64  paths ended by the depth cap, over the results merged
+ *   ..   8    u64  samples rejected: the workers' NaN/Inf samples and those of results
+ *                  that held no sample at all, over the results merged
  *   ..   4    u32  first frame \  the frame range (step 0: a still, and the
  *   ..   4    u32  last frame   | frame fields below are 0); for a range,
  *   ..   4    u32  frame step  /  the sample counts above cover every frame
@@ -474,7 +476,7 @@ const char *proto_job_state_name(uint32_t state);
  *                    +0  4  u32  frame number
  *                    +4  8  u64  samples merged
  *                    +12 8  u64  samples total
- *   size 136+a+b+c+d+e+20K */
+ *   size 144+a+b+c+d+e+20K */
 typedef struct proto_job_info {
     uint64_t job_id;
     uint8_t state;
@@ -493,6 +495,7 @@ typedef struct proto_job_info {
     uint32_t queue_pos;
     char message[PROTO_MAX_ERROR_TEXT + 1];
     uint64_t capped;                              /* paths ended by the depth cap */
+    uint64_t rejected;                            /* samples merged as rejected */
     uint32_t frame_first, frame_last, frame_step; /* step 0: a still */
     uint32_t frames_done, frames_rendering;
     uint8_t nshown;
@@ -507,7 +510,7 @@ typedef struct proto_job_info {
  *   4    ...       N JOB_INFO entries, back to back
  * Decoded, jobs is a pt_malloc'd array of N entries (NULL when N is 0) that
  * the caller frees with pt_free; N is checked against the bytes present (each
- * entry needs at least 136 bytes) before anything is allocated. */
+ * entry needs at least 144 bytes) before anything is allocated. */
 typedef struct proto_job_list {
     uint32_t count;
     proto_job_info *jobs;

@@ -75,6 +75,7 @@ typedef struct srv_histogram {
 } srv_histogram;
 typedef struct srv_counters {
     uint64_t samples_merged, tasks_leased, tasks_requeued, tasks_expired, results_rejected;
+    uint64_t samples_rejected; /* merged as rejected (proto_job_info.rejected) */
     uint64_t state_write_errors;
     uint64_t log_holds;    /* times workers were not read, the results log being behind */
     uint64_t log_unsynced; /* bytes of results not yet durable (srv_loop_hold), last round */

@@ -963,6 +963,9 @@ static void metrics_text(FILE *f, const snap *p)
     metric_counter(f, "ptfarm_results_rejected_total",
                    "Results refused as invalid or not leased to their sender.",
                    c->results_rejected);
+    metric_counter(f, "ptfarm_samples_rejected_total",
+                   "Samples merged as rejected: NaN or Inf, or results that held no sample.",
+                   c->samples_rejected);
     metric_counter(f, "ptfarm_state_write_errors_total",
                    "Failed writes to the state folder (queue file, results logs, checkpoints).",
                    c->state_write_errors);

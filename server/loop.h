@@ -128,6 +128,7 @@ struct srv_conn {
     int admin;          /* proved the shared token (every peer, without --clients-file) */
     uint32_t want;      /* worker: free slots it asked tasks for */
     uint32_t misses;    /* worker: deadline misses since its last result (workers.h) */
+    uint32_t empties;   /* of them, results that held no sample */
     uint64_t missed_at; /* when the last one was counted */
     uint64_t t_connect, t_progress;
     /* worker: results merged, their samples, when the last one was (0: none) */

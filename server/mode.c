@@ -198,6 +198,13 @@ static int finish_single(srv_server *s)
         fprintf(stderr, "ptserve: cannot write %s: %s\n", cfg->out_path, err.msg);
         return 1;
     }
+    if (srv_job_complete(j->job) && samples == 0 && j->rejected > 0) {
+        fprintf(stderr,
+                "ptserve: every sample was rejected (%llu: NaN or Inf, or workers that rendered "
+                "nothing); %s holds no image\n",
+                (unsigned long long)j->rejected, cfg->out_path);
+        return 1;
+    }
     if (srv_job_complete(j->job)) {
         uint64_t tasks = srv_job_tasks_total(j->job);
         fprintf(stderr,

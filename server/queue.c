@@ -221,6 +221,7 @@ void srv_queue_info(const srv_server *s, const srv_entry *j, proto_job_info *m)
         m->workers = job_workers(s, j);
         m->error = job_error(j);
         m->capped = srv_job_paths_capped(j->job);
+        m->rejected = j->rejected;
     } else if (r->state == PROTO_JOB_DONE) {
         m->samples_done = r->samples_done;
         m->passes_done = m->passes;
@@ -229,8 +230,10 @@ void srv_queue_info(const srv_server *s, const srv_entry *j, proto_job_info *m)
         m->samples_done = r->samples_done;
         m->error = r->samples_done ? r->error : -1.0;
     }
-    if (!j->job)
+    if (!j->job) {
         m->capped = r->capped;
+        m->rejected = r->rejected;
+    }
     m->seconds = srv_entry_seconds(j, now);
     m->rate = j->rate;
     m->submitted = r->submitted;
@@ -478,10 +481,31 @@ static void resume(srv_server *s, srv_entry *j, uint64_t now)
             (unsigned long long)j->rec.id, (double)(now - j->t_paused) / 1000.0);
 }
 
+/* The note a job that ends done keeps when some of its samples were
+ * rejected: its image holds fewer samples than it asked for, which status,
+ * JSON and the log then say (after any note it has already). */
+static void note_rejected(srv_entry *j)
+{
+    uint64_t merged = j->rec.samples_done, rejected = j->rec.rejected;
+    size_t n = strlen(j->rec.message);
+    snprintf(j->rec.message + n, sizeof j->rec.message - n,
+             "%s%llu samples were rejected (%.2f%%: NaN or Inf, or results that held no "
+             "sample); the image holds the %llu others",
+             n ? "; " : "", (unsigned long long)rejected,
+             100.0 * (double)rejected / (double)(merged + rejected), (unsigned long long)merged);
+}
+
 void srv_queue_end_job(srv_server *s, srv_entry *j, uint8_t state, const char *message)
 {
     uint64_t now = pt_now_ms();
     pt_error err = {0};
+    /* A job none of whose samples survived has no image worth the name: it
+     * fails, with the reason, rather than end done and black. */
+    if (state == PROTO_JOB_DONE && j->job && !j->parent && !j->rec.frames.step && j->rejected > 0 &&
+        srv_job_samples_merged(j->job) == 0) {
+        state = PROTO_JOB_FAILED;
+        message = "every sample was rejected (NaN or Inf, or workers that rendered nothing)";
+    }
     if (state != PROTO_JOB_DONE && j->rec.frames.step)
         srv_frames_end(s, j, state, message); /* a range's frames end with it */
     if (state == PROTO_JOB_DONE && j->job) {
@@ -526,12 +550,15 @@ void srv_queue_end_job(srv_server *s, srv_entry *j, uint8_t state, const char *m
         j->rec.samples_done = srv_job_samples_merged(j->job);
         j->rec.error = job_error(j);
         j->rec.capped = srv_job_paths_capped(j->job);
+        j->rec.rejected = j->rejected;
     }
     if (state != PROTO_JOB_DONE && j->t_started)
         announce_job_end(s, j);
     j->rec.state = state;
     if (message || state != PROTO_JOB_DONE) /* a done job keeps a note (server/workers.h) */
         snprintf(j->rec.message, sizeof j->rec.message, "%s", message ? message : "");
+    else if (j->rec.rejected > 0)
+        note_rejected(j);
     free_run(j);
     pt_status st = journal_or_log(s);
     /* A failed job's files stay for the operator to look at; an ended one's
@@ -543,10 +570,13 @@ void srv_queue_end_job(srv_server *s, srv_entry *j, uint8_t state, const char *m
             srv_log("job %llu frame %u done: %llu samples in %.1f s; %s",
                     (unsigned long long)j->parent->rec.id, j->frame,
                     (unsigned long long)j->rec.samples_done, j->rec.seconds, j->out_path);
-    } else if (state == PROTO_JOB_DONE)
+    } else if (state == PROTO_JOB_DONE) {
         srv_log("job %llu done: %llu samples in %.1f s; %s", (unsigned long long)j->rec.id,
                 (unsigned long long)j->rec.samples_done, j->rec.seconds, j->out_path);
-    else if (!j->parent || state != PROTO_JOB_CANCELLED) { /* a cancelled frame: its range says */
+        if (j->rec.rejected > 0)
+            srv_log("job %llu: %llu samples were rejected; its image holds fewer than asked for",
+                    (unsigned long long)j->rec.id, (unsigned long long)j->rec.rejected);
+    } else if (!j->parent || state != PROTO_JOB_CANCELLED) { /* a cancelled frame: its range says */
         char text[PT_TEXT_ESCAPED_SIZE(PROTO_MAX_ERROR_TEXT)];
         srv_log("job %llu %s%s%s", (unsigned long long)j->rec.id, proto_job_state_name(state),
                 j->rec.message[0] ? ": " : "", pt_text_shown(j->rec.message, text, sizeof text));

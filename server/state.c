@@ -29,7 +29,7 @@
 #define CKPT_MAGIC 0x4b435450u  /* "PTCK" */
 #define LOG_MAGIC 0x4c525450u   /* "PTRL": records of u32 length, u32 CRC32C, payload */
 #define FLOG_MAGIC 0x46525450u  /* "PTRF": records are RESULT frames as received */
-#define STATE_VERSION 7u
+#define STATE_VERSION 8u
 /* The oldest format still read: version 2 has no min gain (read as 0, the
  * rule off), versions 2 and 3 no environment and no film flags (read as
  * none) and protocol 2's RESULT in the log, so a state folder survives the
@@ -50,6 +50,8 @@
 #define STATE_FRAMES_VERSION 6u
 /* The first with motion blur's shutter in the job params (older: none). */
 #define STATE_SHUTTER_VERSION 7u
+/* The first with a job's rejected samples in its queue record (older: 0). */
+#define STATE_REJECTED_VERSION 8u
 #define LOG_HEADER 16u
 #define MAX_QUEUE_BYTES (256u << 20)
 #define MAX_CKPT_BYTES ((size_t)8 << 30)
@@ -561,6 +563,7 @@ pt_status srv_state_save_queue(srv_state *st, srv_job_record *const *recs, uint3
         proto_w_f64(&w, j->error);
         proto_w_str(&w, j->message);
         proto_w_u64(&w, j->capped);
+        proto_w_u64(&w, j->rejected);
         proto_w_u32(&w, j->frames.first);
         proto_w_u32(&w, j->frames.last);
         proto_w_u32(&w, j->frames.step);
@@ -663,6 +666,7 @@ pt_status srv_state_load_queue(srv_state *st, srv_job_record **recs, uint32_t *n
         j->error = proto_r_f64(&r, "error");
         proto_r_str(&r, j->message, sizeof j->message - 1, "message");
         j->capped = version >= STATE_FILM_VERSION ? proto_r_u64(&r, "paths capped") : 0;
+        j->rejected = version >= STATE_REJECTED_VERSION ? proto_r_u64(&r, "samples rejected") : 0;
         if (version >= STATE_FRAMES_VERSION)
             read_frames(&r, j);
         if (r.status == PT_OK && (j->id == 0 || j->id >= nid || j->state < PROTO_JOB_QUEUED ||

@@ -83,6 +83,9 @@ typedef struct srv_job_record {
     double error;          /* estimated relative error when it ended; < 0 unknown */
     char message[PROTO_MAX_ERROR_TEXT + 1];
     uint64_t capped; /* paths ended by the depth cap, set when the job ends */
+    /* Samples merged as rejected (proto_job_info.rejected), set when the job
+     * ends (format 8; 0 from older ones). */
+    uint64_t rejected;
     /* A frame-range job (server/frames.h; format 5, none from older ones):
      * its range (step 0: a still, and the rest unused), the pose's frame rate
      * and animation, and the frames done: every index below frames_done, and

@@ -135,8 +135,14 @@ void srv_workers_enforce(srv_server *s)
     for (srv_conn *c = s->conns; c; c = c->next)
         if (c->state == SRV_C_READY && c->role == PROTO_ROLE_WORKER && !c->closing &&
             c->misses >= SRV_MAX_MISSES) {
-            char why[96];
-            snprintf(why, sizeof why, "missed lease deadlines %u times in a row", c->misses);
+            char why[160];
+            if (c->empties)
+                snprintf(why, sizeof why,
+                         "returned results that held no sample (%u) or missed lease deadlines "
+                         "%u times in a row",
+                         c->empties, c->misses);
+            else
+                snprintf(why, sizeof why, "missed lease deadlines %u times in a row", c->misses);
             srv_workers_block(s, c, why);
         }
 }
@@ -146,13 +152,18 @@ static void verify_summary(const srv_entry *j)
 {
     srv_verify_stats v = srv_job_verify_stats(j->job);
     uint64_t total = srv_job_samples_merged(j->job);
-    srv_log("job %llu: verified %llu of %llu tasks (%llu matched, %llu mismatched, %llu liars): "
+    /* Verified: compared with a second render. A task picked that no other
+     * worker rendered was not verified, and is counted apart. */
+    uint64_t compared = v.matched + v.mismatched;
+    srv_log("job %llu: verified %llu of %llu tasks (%llu picked, %llu never compared: no other "
+            "worker rendered them; %llu matched, %llu mismatched, %llu liars): "
             "%llu extra samples, %.2f%% of %llu; %llu backup copies, %llu expired leases, %llu "
             "results refused",
-            (unsigned long long)j->rec.id, (unsigned long long)v.picked,
-            (unsigned long long)srv_job_tasks_total(j->job), (unsigned long long)v.matched,
-            (unsigned long long)v.mismatched, (unsigned long long)v.liars,
-            (unsigned long long)(v.samples + v.backup_samples),
+            (unsigned long long)j->rec.id, (unsigned long long)compared,
+            (unsigned long long)srv_job_tasks_total(j->job), (unsigned long long)v.picked,
+            (unsigned long long)(v.picked > compared ? v.picked - compared : 0),
+            (unsigned long long)v.matched, (unsigned long long)v.mismatched,
+            (unsigned long long)v.liars, (unsigned long long)(v.samples + v.backup_samples),
             total ? 100.0 * (double)(v.samples + v.backup_samples) / (double)total : 0.0,
             (unsigned long long)total, (unsigned long long)v.backups, (unsigned long long)v.expired,
             (unsigned long long)v.refused);
@@ -227,10 +238,31 @@ void srv_workers_merge_durable(srv_server *s, srv_entry *j, uint64_t owner, prot
             c->t_result = pt_now_ms();
         }
         j->rejected += r->rejected;
+        s->counters.samples_rejected += r->rejected;
         j->rays += r->rays;
         if (srv_job_complete(j->job))
             verify_summary(j);
     }
+}
+
+/* A merged result clears its worker's misses, unless it held no sample at
+ * all (every one "rejected") while the job has merged samples that were
+ * not: that is a worker that renders nothing, and it counts as a missed
+ * deadline, so SRV_MAX_MISSES of them in a row block it. A scene whose
+ * samples are all NaN blocks no one: then no result of the job holds one. */
+static void judge_rendered(srv_conn *c, const srv_entry *j, const proto_result *r)
+{
+    uint64_t asked = (uint64_t)r->npixels * (r->s1 - r->s0);
+    if (asked == 0 || r->rejected < asked || srv_job_samples_merged(j->job) == 0) {
+        c->misses = c->empties = 0;
+        return;
+    }
+    srv_log("worker %s: a result of job %llu holds no sample (all %llu rejected)", c->shown,
+            (unsigned long long)j->rec.id, (unsigned long long)asked);
+    /* Each one counts, however many arrive in one millisecond. */
+    c->empties++;
+    if (++c->misses >= SRV_MAX_MISSES)
+        enforce_due = 1;
 }
 
 static void on_result(srv_server *s, srv_conn *c, const proto_frame *f)
@@ -268,8 +300,8 @@ void srv_workers_result(srv_server *s, srv_conn *c, const proto_frame *f, proto_
         /* A verification copy: compared, never logged or merged. */
         srv_verdict v;
         srv_job_check(j->job, lease_index, &r, &v);
+        judge_rendered(c, j, &r);
         proto_result_fini(&r);
-        c->misses = 0;
         on_verdict(s, j, &v);
         if (srv_entry_active(j) && j->job && srv_job_complete(j->job))
             verify_summary(j);
@@ -280,7 +312,7 @@ void srv_workers_result(srv_server *s, srv_conn *c, const proto_frame *f, proto_
      * checksum was checked) and merged by srv_queue_committed once the group
      * commit that holds its record has returned. */
     if (o == SRV_MERGED && s->state) {
-        c->misses = 0;
+        judge_rendered(c, j, &r);
         if (srv_queue_log_result(s, j, c->id, &r, f->payload - PROTO_FRAME_HEADER,
                                  (size_t)f->len + PROTO_FRAME_OVERHEAD, own, pt_now_ms(),
                                  &err) == PT_OK)
@@ -293,17 +325,18 @@ void srv_workers_result(srv_server *s, srv_conn *c, const proto_frame *f, proto_
         o = merge_now(s, j, lease_index, &r, pt_now_ms(), &merged, &err);
     switch (o) {
     case SRV_MERGED:
-        c->misses = 0;
+        judge_rendered(c, j, &r);
         c->tasks_done++;
         c->samples_done += merged;
         c->t_result = pt_now_ms();
         j->rejected += r.rejected;
+        s->counters.samples_rejected += r.rejected;
         j->rays += r.rays;
         if (srv_job_complete(j->job))
             verify_summary(j);
         break;
     case SRV_DUPLICATE:
-        c->misses = 0; /* late, but rendered: it is working */
+        c->misses = c->empties = 0; /* late, but rendered: it is working */
         break;
     case SRV_NOT_LEASED: {
         s->counters.results_rejected++;

@@ -15,7 +15,9 @@
  * answer to a verification copy is compared, never logged or merged.
  *
  * Blocking: a worker that misses deadlines in SRV_MAX_MISSES expiry rounds
- * with no result in between, or whose result a verification shows false, is
+ * with no result in between (a result that holds no sample, every one
+ * "rejected", while its job has merged real samples counts as a miss, not a
+ * result), or whose result a verification shows false, is
  * blocked: its leases and held results are requeued, it is sent ERROR and
  * closed, and a worker of that name, or from that address (loopback aside:
  * the coordinator's own local workers share it), is refused at HELLO for the

@@ -195,6 +195,7 @@ static inline proto_job_info sample_job_info(int v)
     m.submitted = v == 0 ? 1700000000u : UINT64_MAX;
     m.queue_pos = v == 1 ? 2 : 0;
     m.capped = v == 0 ? 12 : v == 2 ? UINT64_MAX : 0;
+    m.rejected = v == 0 ? 34 : v == 2 ? UINT64_MAX : 0;
     if (v == 0) { /* a frame range, two frames rendering */
         m.frame_first = 1001;
         m.frame_last = 1100;

@@ -150,15 +150,15 @@ static int job_info_same(const proto_job_info *a, const proto_job_info *b)
            proto_f64_bits(a->rate) == proto_f64_bits(b->rate) &&
            proto_f64_bits(a->error) == proto_f64_bits(b->error) && a->submitted == b->submitted &&
            a->queue_pos == b->queue_pos && strcmp(a->message, b->message) == 0 &&
-           a->capped == b->capped && a->frame_first == b->frame_first &&
-           a->frame_last == b->frame_last && a->frame_step == b->frame_step &&
-           a->frames_done == b->frames_done && a->frames_rendering == b->frames_rendering &&
-           a->nshown == b->nshown && shown_same(a, b);
+           a->capped == b->capped && a->rejected == b->rejected &&
+           a->frame_first == b->frame_first && a->frame_last == b->frame_last &&
+           a->frame_step == b->frame_step && a->frames_done == b->frames_done &&
+           a->frames_rendering == b->frames_rendering && a->nshown == b->nshown && shown_same(a, b);
 }
 
 static size_t job_info_size(const proto_job_info *m)
 {
-    return 136 + strlen(m->name) + strlen(m->owner) + strlen(m->scene) + strlen(m->output) +
+    return 144 + strlen(m->name) + strlen(m->owner) + strlen(m->scene) + strlen(m->output) +
            strlen(m->message) + 20u * m->nshown;
 }
 
@@ -1193,6 +1193,7 @@ static void job_info_raw(proto_writer *w, int f, size_t n)
         proto_w_u32(w, 0);
     w_str(w, f == 4 ? n : 0, 'q');
     proto_w_u64(w, 0); /* paths capped */
+    proto_w_u64(w, 0); /* samples rejected */
     for (int k = 0; k < 5; k++)
         proto_w_u32(w, 0); /* a still: no frame range, no frames */
     proto_w_u8(w, 0);      /* no frames listed */
@@ -1206,7 +1207,7 @@ static void test_job_info(void)
     /* Every string at its cap round-trips; one byte over is refused by both sides. */
     proto_job_info m = sample_job_info(2);
     CHECK(proto_msg_encode_job_info(&w, &m, &err) == PT_OK);
-    CHECK(w.len == 136 + 2 * PROTO_MAX_NAME + 2 * PROTO_MAX_PATH + PROTO_MAX_ERROR_TEXT);
+    CHECK(w.len == 144 + 2 * PROTO_MAX_NAME + 2 * PROTO_MAX_PATH + PROTO_MAX_ERROR_TEXT);
     static proto_job_info b;
     CHECK(proto_msg_decode_job_info(w.buf, w.len, &b, &err) == PT_OK);
     CHECK(job_info_same(&m, &b));
@@ -1297,8 +1298,8 @@ static void test_job_list(void)
     CHECK(job_list_check(head, 4, "cap", &alloc) == PT_ERR_PROTO && alloc == 0);
     /* A count that the bytes present cannot hold: refused before allocating. */
     proto_writer_reset(&w);
-    jobs[0] = sample_job_info(1); /* the smallest entry: 136 bytes */
-    CHECK(proto_msg_encode_job_list(&w, jobs, 1, &err) == PT_OK && w.len == 4 + 136);
+    jobs[0] = sample_job_info(1); /* the smallest entry: 144 bytes */
+    CHECK(proto_msg_encode_job_list(&w, jobs, 1, &err) == PT_OK && w.len == 4 + 144);
     CHECK(job_list_check(w.buf, w.len, NULL, &alloc) == PT_OK && alloc == 1);
     proto_put_u32(w.buf, 2);
     CHECK(job_list_check(w.buf, w.len, "bytes", &alloc) == PT_ERR_PROTO && alloc == 0);

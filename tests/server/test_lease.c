@@ -19,6 +19,13 @@
  *     twice, every copy matches, the image is bit-identical.
  *  f. The liar in queue mode: `ptctl status` of the job, once done, says
  *     how many of the liar's results were merged unverified.
+ *  g. A worker that renders nothing and says every sample was rejected, in
+ *     queue mode with --verify-fraction 1: alone, its job fails ("every
+ *     sample was rejected"), status and JSON count the rejected samples,
+ *     and the log says no task was verified (none was compared); beside an
+ *     honest worker, three such results in a row (here the verification
+ *     copies of the honest worker's tasks, which it is handed first) block
+ *     it.
  *
  * With PT_LEASE_MEASURE set it only measures, at the default lease timeout,
  * how long a stalled lease (a peer that holds a task and heartbeats) takes to
@@ -603,6 +610,111 @@ static void liar_queue(void)
     stop(w2);
 }
 
+/* ---- g. the empty worker ---- */
+
+/* Answers every task it is given with no sample, all of them "rejected",
+ * until it is closed or max results are sent; returns how many it sent. */
+static uint32_t send_nothing(peer *e, uint32_t max, double seconds)
+{
+    double end = pt_now_s() + seconds;
+    uint32_t sent = 0;
+    while (!e->closed && sent < max && pt_now_s() < end) {
+        peer_ask(e, 4);
+        e->ntasks = e->next = 0;
+        peer_read(e, 50);
+        for (uint32_t i = 0; i < e->ntasks && sent < max; i++) {
+            const proto_task *t = &e->tasks[i];
+            uint64_t px = (uint64_t)(t->tile.x1 - t->tile.x0) * (t->tile.y1 - t->tile.y0);
+            peer_result(e, t, pt_pixel_acc_of(0, 0, 0, 0, 0, 0), px * (t->s1 - t->s0));
+            sent++;
+        }
+    }
+    return sent;
+}
+
+/* ptctl ARGS against the server on port, its stdout in out. */
+static int ctl(int port, const char *args, char *out, size_t size)
+{
+    char cmd[2048];
+    snprintf(cmd, sizeof cmd, "%s/ptctl --server 127.0.0.1:%d --token-file %s %s", PT_BIN_DIR, port,
+             path("token"), args);
+    return capture(cmd, out, size);
+}
+
+static void empty_worker(void)
+{
+    static peer e;
+    unlink(path("port"));
+    const char *argv[] = {PT_BIN_DIR "/ptserve",
+                          "--state-dir",
+                          path("state_empty"),
+                          "--listen",
+                          "127.0.0.1:0",
+                          "--port-file",
+                          path("port"),
+                          "--token-file",
+                          path("token"),
+                          "--verify-fraction",
+                          "1",
+                          "--chunk",
+                          "16",
+                          NULL};
+    pid_t srv = spawn(argv, "empty.log");
+    int port = read_port();
+    CHECK(port > 0);
+    char out[8192], args[1024];
+    snprintf(args, sizeof args, "submit %s --res 48x32 --spp 32 --name alone", SCENE);
+    CHECK(ctl(port, args, out, sizeof out) == 0);
+    long job = strtol(out, NULL, 10);
+    CHECK(job > 0);
+
+    /* Alone: 2 tiles (of 32 pixels) x 2 chunks, every one empty. The job
+     * fails. */
+    CHECK(peer_open(&e, port, "empty"));
+    uint32_t sent = send_nothing(&e, 4, 60);
+    CHECKF(sent == 4 && !e.closed, "sent %u, closed %d (%s)", sent, e.closed, e.error);
+    peer_close(&e);
+    snprintf(args, sizeof args, "status %ld --json", job);
+    double end = pt_now_s() + 60;
+    while (pt_now_s() < end && !(ctl(port, args, out, sizeof out) == 0 && strstr(out, "failed")))
+        sleep_ms(100);
+    CHECKF(strstr(out, "\"state\": \"failed\"") && strstr(out, "every sample was rejected") &&
+               strstr(out, "\"samples_rejected\": 49152"),
+           "status --json says:\n%s", out);
+    snprintf(args, sizeof args, "status %ld", job);
+    CHECK(ctl(port, args, out, sizeof out) == 0);
+    CHECKF(strstr(out, "rejected   49152 samples"), "status says:\n%s", out);
+    /* Picked for verification, never compared: not "verified". */
+    CHECK(wait_log("empty.log", "job 1: verified 0 of 4 tasks", 10));
+
+    /* Beside an honest worker whose samples the next job has merged: three
+     * empty results in a row block it, and the job counts their samples. */
+    snprintf(args, sizeof args, "submit %s --res 48x32 --spp 65536 --name shared", SCENE);
+    CHECK(ctl(port, args, out, sizeof out) == 0);
+    long job2 = strtol(out, NULL, 10);
+    pid_t w = start_worker(port, "honest");
+    snprintf(args, sizeof args, "status %ld --json", job2);
+    end = pt_now_s() + 60;
+    while (pt_now_s() < end && ctl(port, args, out, sizeof out) == 0 &&
+           strstr(out, "\"samples_done\": 0,"))
+        sleep_ms(50);
+    CHECKF(!strstr(out, "\"samples_done\": 0,"), "the honest worker merged nothing:\n%s", out);
+    CHECK(peer_open(&e, port, "empty2"));
+    sent = send_nothing(&e, 1000, 60);
+    CHECKF(e.closed && strstr(e.error, "blocked") && strstr(e.error, "held no sample"),
+           "after %u empty results the worker was told '%s'", sent, e.error);
+    CHECKF(sent >= 3, "blocked after %u empty results", sent);
+    /* Blocked at the next enforcement: after the third, or a few more that
+     * arrived with it. */
+    CHECK(wait_log("empty.log", "blocked: returned results that held no sample (", 10));
+    peer_close(&e);
+    snprintf(args, sizeof args, "cancel %ld", job2);
+    CHECK(ctl(port, args, out, sizeof out) == 0);
+    stop(w);
+    kill(srv, SIGTERM);
+    CHECK(wait_exit(srv, 30) == 0);
+}
+
 /* Counts "leases expired" lines in a log. */
 static int expiries(const char *log)
 {
@@ -666,5 +778,6 @@ int main(void)
     liar();
     verify_clean();
     liar_queue();
+    empty_worker();
     return farm_test_end();
 }

@@ -809,7 +809,8 @@ static size_t shutter_at(const uint8_t *d, size_t at)
     return at;
 }
 
-/* The queue file of format 6: the same records without the shutter. */
+/* The queue file of format 6: the same records without the shutter and
+ * without format 8's count of rejected samples. */
 static void queue_to_v6(const char *name)
 {
     uint8_t *d;
@@ -831,6 +832,9 @@ static void queue_to_v6(const char *name)
         at += 32 + 8 + 8 + 8 + 8;
         at += 2 + proto_get_u16(d + at); /* message */
         at += 8;                         /* paths capped */
+        proto_w_bytes(&w, d + done, at - done);
+        at += 8; /* samples rejected */
+        done = at;
         at += 4 * 3 + 8;                 /* the frame range and fps */
         at += 2 + proto_get_u16(d + at); /* the animation */
         at += 4;                         /* frames done */

@@ -367,9 +367,9 @@ static void test_queue_env_versions(const char *dir)
 
     /* Version 3: the same record without the ENV block (23 bytes with no map
      * name), the film flags (4), the variant (2, empty) and the shutter (16),
-     * which sit after the camera, and without the depth-cap count (8) and
-     * version 6's frame block (27 with no animation and no frame done ahead),
-     * its last fields. */
+     * which sit after the camera, and without the depth-cap count (8),
+     * version 8's rejected count (8) and version 6's frame block (27 with no
+     * animation and no frame done ahead), its last fields. */
     rec.params.env = PARAMS.env;
     CHECK(srv_state_save_queue(st, recs, 1, 2, &err) == PT_OK);
     char qp[512];
@@ -379,11 +379,12 @@ static void test_queue_env_versions(const char *dir)
     CHECK(pt_read_file(qp, 1 << 20, &f, &len, &err) == PT_OK);
     size_t at = 8 + 8 + 4 + 8 + 8 + 1 + 4 + (2 + strlen(rec.name)) + 2 + 2 + 2 + 8 + 9 * 4 + 2 * 8 +
                 2 + strlen(rec.params.camera);
-    if (f && len > at + 45 + 12 + 27) {
+    if (f && len > at + 45 + 12 + 35) {
         memmove(f + at, f + at + 45, len - at - 45);
         len -= 45;
-        memmove(f + len - 39, f + len - 4, 4); /* the capped count and frames before the CRC */
-        len -= 35;
+        /* the capped and rejected counts and frames before the CRC */
+        memmove(f + len - 47, f + len - 4, 4);
+        len -= 43;
         proto_put_u32(f + 4, 3);
         proto_put_u32(f + len - 4, proto_crc32c(0, f, len - 4));
         CHECK(pt_write_file_atomic(qp, f, len, &err) == PT_OK);
