@@ -116,8 +116,10 @@ struct srv_server {
     char out_dir[PATH_MAX - 512];
 
     /* upload verification (server/upload.c) */
-    int verifypipe[2];         /* verifications done: their pointers */
-    srv_upload *verifications; /* in flight */
+    int verifypipe[2];          /* verifications done: their pointers */
+    srv_upload *verifications;  /* in flight */
+    srv_upload *checks_waiting; /* complete uploads waiting for a check thread, oldest first */
+    uint32_t checks_running;    /* of verifications, those with a thread */
 
     /* worker messages (server/workers.c) */
     pt_pixel_acc *scratch; /* RESULT decode buffer */

@@ -155,6 +155,25 @@ static void upload_free(srv_upload *k)
     pt_free(k);
 }
 
+/* Starts k's check on a thread of its own; the client is answered at
+ * once when it cannot start. */
+static void start_check(srv_server *s, srv_upload *k)
+{
+    k->next = s->verifications;
+    s->verifications = k;
+    if (pthread_create(&k->thread, NULL, verify_thread, k) != 0) {
+        s->verifications = k->next;
+        srv_conn *c = srv_conn_find(s, k->conn_id);
+        if (c) {
+            c->verifying = 0;
+            srv_conn_send_error(s, c, PROTO_E_INTERNAL, "cannot start checking the scene");
+        }
+        upload_free(k);
+        return;
+    }
+    s->checks_running++;
+}
+
 void srv_upload_start(srv_server *s, srv_conn *c)
 {
     srv_upload *k = pt_calloc(1, sizeof *k);
@@ -173,14 +192,17 @@ void srv_upload_start(srv_server *s, srv_conn *c)
     snprintf(k->tmp, sizeof k->tmp, "%s/tmp/upload-%llu", srv_state_dir(s->state),
              (unsigned long long)k->job_id);
     k->wake_fd = s->verifypipe[1];
-    if (pthread_create(&k->thread, NULL, verify_thread, k) != 0) {
-        upload_free(k);
-        srv_conn_send_error(s, c, PROTO_E_INTERNAL, "cannot start checking the scene");
+    c->verifying = 1;
+    if (s->checks_running < SRV_MAX_SCENE_CHECKS) {
+        start_check(s, k);
         return;
     }
-    k->next = s->verifications;
-    s->verifications = k;
-    c->verifying = 1;
+    srv_upload **q = &s->checks_waiting;
+    while (*q)
+        q = &(*q)->next;
+    *q = k;
+    srv_log("the scene of job %llu waits to be checked: %u checks run at once",
+            (unsigned long long)k->job_id, SRV_MAX_SCENE_CHECKS);
 }
 
 void srv_upload_collect(srv_server *s)
@@ -193,6 +215,7 @@ void srv_upload_collect(srv_server *s)
                 *q = k->next;
                 break;
             }
+        s->checks_running--;
         srv_conn *c = srv_conn_find(s, k->conn_id);
         if (c) {
             srv_requests_verified(s, c, k);
@@ -203,10 +226,26 @@ void srv_upload_collect(srv_server *s)
         }
         upload_free(k);
     }
+    /* The next waiting checks; a client gone meanwhile is not checked. */
+    while (s->checks_waiting && s->checks_running < SRV_MAX_SCENE_CHECKS) {
+        srv_upload *w = s->checks_waiting;
+        s->checks_waiting = w->next;
+        if (!srv_conn_find(s, w->conn_id)) {
+            srv_log("a client left before its scene was checked; nothing was queued");
+            upload_free(w);
+            continue;
+        }
+        start_check(s, w);
+    }
 }
 
 void srv_upload_close(srv_server *s)
 {
+    while (s->checks_waiting) {
+        srv_upload *w = s->checks_waiting;
+        s->checks_waiting = w->next;
+        upload_free(w);
+    }
     while (s->verifications) {
         srv_upload *k = s->verifications;
         s->verifications = k->next;

@@ -2,8 +2,10 @@
  * upload.h - upload verification: a submitted scene checked off the loop.
  *
  * A complete upload is verified on a thread of its own, since a big scene
- * takes seconds: its SHA-256 against the one SUBMIT announced, its bundle,
- * one load of the scene in a temporary folder (with the camera asked for, so
+ * takes seconds, and at most SRV_MAX_SCENE_CHECKS at once (a check holds a
+ * decoded scene: an unbounded number of them was an unbounded amount of
+ * memory); the others wait, in the order they completed: its SHA-256 against the one SUBMIT
+ * announced, its bundle, one load of the scene in a temporary folder (with the camera asked for, so
  * a broken scene is refused now, not by every worker), and the bundle stored
  * in the state folder under the job id reserved for it. The thread writes
  * the srv_upload's pointer to the verification pipe; the loop then hands the
@@ -25,6 +27,10 @@
 #include "common/scene/bundle.h"
 #include "protocol/msg.h"
 #include "server/core.h"
+
+/* Scene checks that run at once; a check's memory is bounded by the
+ * scene caps (common/scene/scene.h), so this bounds theirs. */
+#define SRV_MAX_SCENE_CHECKS 2u
 
 struct srv_upload {
     uint64_t conn_id, job_id;
@@ -49,8 +55,9 @@ struct srv_upload {
 /* Makes the verification pipe (s->verifypipe; its read end non-blocking). */
 pt_status srv_upload_open(srv_server *s, pt_error *err);
 
-/* c's upload is complete: reserves the job id and starts its verification
- * (c is answered now only when it cannot start). */
+/* c's upload is complete: reserves the job id and starts its verification,
+ * or queues it behind the SRV_MAX_SCENE_CHECKS running (c is answered now
+ * only when it cannot start). */
 void srv_upload_start(srv_server *s, srv_conn *c);
 
 /* Completes each verification that is done (server/requests.h answers the

@@ -1707,6 +1707,23 @@ static void checked_off_loop(void)
           list.jobs[0].job_id == ref.job_id);
     pt_free(list.jobs);
     cli_close(&b);
+    /* Five uploads complete at once: SRV_MAX_SCENE_CHECKS are checked at a
+     * time (each holds a decoded scene), the rest wait their turn, and every
+     * one is queued in the end. */
+    cli many[5];
+    for (int i = 0; i < 5; i++) {
+        char name[16];
+        snprintf(name, sizeof name, "many%d", i);
+        CHECK(cli_open(&many[i], g_port) == 0);
+        send_submission(&many[i], name, big);
+    }
+    for (int i = 0; i < 5; i++) {
+        ref.job_id = 0;
+        CHECK(reply(&many[i], &f) == PROTO_MSG_SUBMITTED &&
+              proto_msg_decode_job_ref(f.payload, f.len, &ref, NULL) == PT_OK && ref.job_id);
+        cli_close(&many[i]);
+    }
+    CHECK(log_count("check.log", "waits to be checked: 2 checks run at once") >= 1);
     pt_bundle_free(big);
     kill_server(SIGTERM);
 }
