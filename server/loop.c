@@ -44,6 +44,8 @@ enum {
     REFUSE_FULL,
     REFUSE_HANDSHAKES,
     REFUSE_ADDRESS,
+    REFUSE_NETWORK,
+    REFUSE_EVICTED,
     REFUSE_AUTHED,
     REFUSE_LATE,
     REFUSE_GARBAGE,
@@ -53,6 +55,8 @@ static const char *const refusal_why[REFUSE_N] = {
     "every connection slot is taken",
     "too many unauthenticated connections",
     "too many unauthenticated connections from that address",
+    "too many unauthenticated connections from that network",
+    "handshake slot taken by a newer connection (all were in use)",
     "too many authenticated peers",
     "handshake not finished in time",
     "bad frame before authentication",
@@ -313,18 +317,33 @@ static void conn_refuse(srv_server *s, srv_conn *c, uint16_t code, int why, cons
     send_error_msg(s, c, &m);
 }
 
-/* Which of accept's checks refuses a new connection from addr, or -1. */
+/* The bytes of an address (IPv4 as ::ffff:a.b.c.d) that name its network:
+ * an IPv4 /24, an IPv6 /64. */
+static size_t network_bytes(const uint8_t addr[16])
+{
+    static const uint8_t v4[12] = {0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0xff, 0xff};
+    return memcmp(addr, v4, sizeof v4) == 0 ? 15 : 8;
+}
+
+/* Which of accept's checks refuses a new connection from addr, or -1. The
+ * per-address and per-network caps come first: a peer they refuse does not
+ * push anyone out of a handshake slot (take_oldest_handshake). */
 static int accept_refusal(const srv_server *s, const uint8_t addr[16])
 {
     const struct srv_guard *g = s->guard;
     if (s->nconns >= g->max_conns)
         return REFUSE_FULL;
-    if (g->nhs >= g->lim.max_handshakes)
-        return REFUSE_HANDSHAKES;
-    uint32_t same = 0;
-    for (uint32_t i = 0; i < g->nhs; i++)
+    uint32_t same = 0, near = 0;
+    size_t net = network_bytes(addr);
+    for (uint32_t i = 0; i < g->nhs; i++) {
         same += memcmp(g->hs[i]->addr, addr, 16) == 0;
-    return same >= g->lim.max_handshakes_ip ? REFUSE_ADDRESS : -1;
+        near += memcmp(g->hs[i]->addr, addr, net) == 0;
+    }
+    if (same >= g->lim.max_handshakes_ip)
+        return REFUSE_ADDRESS;
+    if (near >= 2 * g->lim.max_handshakes_ip)
+        return REFUSE_NETWORK;
+    return g->nhs >= g->lim.max_handshakes ? REFUSE_HANDSHAKES : -1;
 }
 
 /* c gives back its handshake slot (authenticated, or gone). */
@@ -340,6 +359,25 @@ static void handshake_leave(srv_server *s, srv_conn *c)
             break;
         }
     }
+}
+
+/* Every handshake slot is taken: closes the connection that has been in
+ * its handshake longest, so the newcomer gets its slot. An honest peer
+ * authenticates in a round trip; one that sits in the handshake is pushed
+ * out by every newer connection. 0 when none could be closed. */
+static int take_oldest_handshake(srv_server *s)
+{
+    struct srv_guard *g = s->guard;
+    srv_conn *old = NULL;
+    for (uint32_t i = 0; i < g->nhs; i++)
+        if (!old || g->hs[i]->t_connect < old->t_connect)
+            old = g->hs[i];
+    if (!old)
+        return 0;
+    handshake_leave(s, old);
+    conn_refuse(s, old, PROTO_E_LIMIT, REFUSE_EVICTED,
+                "the handshake took too long while others waited; connect again");
+    return 1;
 }
 
 /* Checks a frame c sends in the handshake before it is dispatched: an AUTH
@@ -631,6 +669,8 @@ static void accept_all(srv_server *s)
         /* Refused before anything is allocated, and logged by
          * note_refusal's rule, not a line each. */
         int why = accept_refusal(s, addr);
+        if (why == REFUSE_HANDSHAKES && take_oldest_handshake(s))
+            why = -1;
         if (why >= 0) {
             close(fd);
             note_refusal(s, why, host, NULL);

@@ -21,9 +21,14 @@
  * - slots: the file-descriptor limit (RLIMIT_NOFILE, its soft value raised
  *   to the hard one at srv_loop_open where allowed) less SRV_FD_RESERVE
  *   connections in all, logged at start; of them at most max_handshakes in
- *   the handshake, at most max_handshakes_ip of those from one address, the
- *   rest authenticated. A connection past them is accepted and closed at
- *   once (so is one that meets EMFILE, through a spare descriptor). Refusals (and handshakes that
+ *   the handshake, at most max_handshakes_ip of those from one address and
+ *   twice that from one network (an IPv4 /24, an IPv6 /64), the rest
+ *   authenticated. A connection past them is accepted and closed at once
+ *   (so is one that meets EMFILE, through a spare descriptor), except that
+ *   when only the handshake slots are full, the newcomer takes the slot of
+ *   the oldest connection still in its handshake, which is closed: a peer
+ *   that holds a slot without authenticating is thus pushed out by every
+ *   newer one, and an honest handshake, one round trip long, is not. Refusals (and handshakes that
  * fail on a bad frame or time out) are logged one by one up to 5 per reason in 10 s, then as one
  * line with the count of the others.
  * - rate: a frame in progress must be whole within max(frame_grace,

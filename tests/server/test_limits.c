@@ -6,7 +6,11 @@
  *   ptserve's VmRSS within what --max-input-mb allows, and an honest
  *   ptworker still renders the job to the end meanwhile;
  * - slots: a flood of silent connections from 127.0.0.2 neither keeps an
- *   honest peer on 127.0.0.1 from authenticating nor floods the log;
+ *   honest peer on 127.0.0.1 from authenticating nor floods the log; silent
+ *   connections from eight addresses in eight networks that hold every
+ *   handshake slot do not keep a worker out either (the oldest is closed to
+ *   make room), and a third address of a network already holding twice the
+ *   per-address cap is refused;
  * - connections: under `prlimit --nofile=L:L`, ptserve authenticates
  *   L - SRV_FD_RESERVE workers, refuses the next connection at once
  *   (accepted and closed, not left waiting in the backlog), takes a new one
@@ -403,6 +407,75 @@ static void slots_kept(void)
     CHECK(log_has("slots.log", "too many unauthenticated connections from that address"));
 }
 
+/* n silent connections from the address from, each connected (and so in
+ * the server's accept queue) before the next; -1 for any that failed. */
+static void hold_from(const char *from, int port, int *fds, int n)
+{
+    for (int i = 0; i < n; i++) {
+        fds[i] = connect_from(from, port);
+        struct pollfd p = {fds[i], POLLOUT, 0};
+        if (fds[i] >= 0 && poll(&p, 1, 5000) != 1) {
+            close(fds[i]);
+            fds[i] = -1;
+        }
+    }
+    sleep_ms(20); /* accepted in this order, a few ms apart from the next batch */
+}
+
+static void slots_many_addresses(void)
+{
+    const char *extra[] = {"--state-dir", path("many"), "--handshake-timeout", "600", NULL};
+    pid_t srv = start_serve(extra, "many.log");
+    int port = read_port();
+    CHECK(port > 0);
+    if (port <= 0) {
+        kill(srv, SIGKILL);
+        wait_exit(srv, 10);
+        return;
+    }
+    /* One network: two addresses take its 16 slots, a third gets none. */
+    static int net[3][SRV_DEFAULT_MAX_HANDSHAKES_IP];
+    const int per = SRV_DEFAULT_MAX_HANDSHAKES_IP;
+    hold_from("127.0.9.2", port, net[0], per);
+    hold_from("127.0.9.3", port, net[1], per);
+    hold_from("127.0.9.4", port, net[2], per);
+    for (int i = 0; i < per; i++)
+        CHECKF(net[2][i] >= 0 && closed_by_server(net[2][i], 5000),
+               "a third address of a full network kept connection %d", i);
+    CHECK(!closed_by_server(net[0][0], 100) && !closed_by_server(net[1][per - 1], 100));
+    CHECK(wait_log("many.log", "too many unauthenticated connections from that network", 10));
+    for (int k = 0; k < 3; k++)
+        for (int i = 0; i < per; i++)
+            if (net[k][i] >= 0)
+                close(net[k][i]);
+
+    /* Eight addresses in eight networks, eight silent connections each:
+     * every handshake slot. A worker from a ninth network joins at once; the
+     * oldest silent connection is the one closed for it. */
+    static int fds[8][SRV_DEFAULT_MAX_HANDSHAKES_IP];
+    sleep_ms(200); /* the closes above have reached the server */
+    for (int k = 0; k < 8; k++) {
+        char from[32];
+        snprintf(from, sizeof from, "127.0.%d.2", k + 1);
+        hold_from(from, port, fds[k], per);
+    }
+    CHECK(8 * per == (int)SRV_DEFAULT_MAX_HANDSHAKES);
+    int fd = ready_worker(port);
+    CHECKF(fd >= 0, "a worker was kept out by connections that hold every handshake slot");
+    if (fd >= 0)
+        close(fd);
+    CHECKF(fds[0][0] >= 0 && closed_by_server(fds[0][0], 5000),
+           "the oldest silent connection was not the one closed");
+    CHECK(!closed_by_server(fds[7][per - 1], 100));
+    CHECK(wait_log("many.log", "handshake slot taken by a newer connection", 10));
+    for (int k = 0; k < 8; k++)
+        for (int i = 0; i < per; i++)
+            if (fds[k][i] >= 0)
+                close(fds[k][i]);
+    CHECK(kill(srv, 0) == 0);
+    stop_serve(srv);
+}
+
 /* ---- connections: the file-descriptor limit ---- */
 
 static pid_t start_limited(const char *nofile, const char *log)
@@ -666,6 +739,8 @@ int main(int argc, char **argv)
         memory_capped();
     if (!*only || !strcmp(only, "slots"))
         slots_kept();
+    if (!*only || !strcmp(only, "many"))
+        slots_many_addresses();
     if (!*only || !strcmp(only, "rate"))
         drip_closed();
     if (!*only || !strcmp(only, "conns"))
