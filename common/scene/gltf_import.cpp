@@ -14,7 +14,9 @@
 // decodes, with stb_image from the system's libstb, only the images that a
 // material actually uses as base colour, metal-rough, emissive or
 // transmission texture, to RGBA8 (1-4 channels and 16-bit data are converted
-// by stb_image).
+// by stb_image). Every such image's size is read from its header and checked
+// against PT_SCENE_MAX_IMAGE_TEXELS and, summed, PT_SCENE_MAX_TEXELS before
+// the first one is decoded.
 //
 // Materials follow the core metallic-roughness model (spec 3.9.2) with
 // KHR_materials_emissive_strength, KHR_materials_specular and glass
@@ -107,10 +109,12 @@ struct importer {
     uint32_t default_material = UINT32_MAX;
     int variant = -1; // KHR_materials_variants index chosen by opts->variant; -1: none
     uint64_t node_visits = 0;
-    int dirfd = -1;          // the entry file's folder, opened on first use
-    pt_anim *rig = nullptr;  // pt_anim_load: the rig being read (anim.h); else nullptr
-    pt_status fs_st = PT_OK; // the first failure of a read tinygltf asked for
-    std::string fs_msg;      // and its message (names the URI only)
+    uint64_t texels = 0;       // decoded so far, summed over the textures (PT_SCENE_MAX_TEXELS)
+    bool headers_only = false; // read_materials: images' headers only, nothing built
+    int dirfd = -1;            // the entry file's folder, opened on first use
+    pt_anim *rig = nullptr;    // pt_anim_load: the rig being read (anim.h); else nullptr
+    pt_status fs_st = PT_OK;   // the first failure of a read tinygltf asked for
+    std::string fs_msg;        // and its message (names the URI only)
 
     importer() = default;
     importer(const importer &) = delete;
@@ -642,7 +646,9 @@ pt_tex_xform slot_transform(importer &im, const char *ctx, int tex_coord,
 }
 
 // Builder texture for glTF texture `index` used as `slot` of material `mi`,
-// and the slot's coordinate set and transform into *xf.
+// and the slot's coordinate set and transform into *xf. With
+// im.headers_only, the image's header alone is read and checked against the
+// caps and its texels counted; nothing is decoded and -1 is returned.
 int32_t texture_for(importer &im, int mi, const char *slot, int index, int tex_coord,
                     const tinygltf::ExtensionMap &ext, bool srgb, pt_tex_xform *xf)
 {
@@ -675,6 +681,30 @@ int32_t texture_for(importer &im, int mi, const char *slot, int index, int tex_c
         uint32_t(h) > PT_SCENE_MAX_TEXTURE_DIM)
         im.fail(PT_ERR_LIMIT, "%s: image %d is %dx%d (at most %u a side)", ctx, t.source, w, h,
                 PT_SCENE_MAX_TEXTURE_DIM);
+    // The header's size decides before the decoder allocates anything: a
+    // 1 MB PNG of zeros may claim 16384^2, 1 GiB once decoded. stb_image
+    // sizes its buffers from the same header fields (PNG IHDR, JPEG SOF, the
+    // BMP, TGA, GIF, PSD, PIC, PNM and Radiance headers).
+    const tinygltf::Image &img = m.images[size_t(t.source)];
+    const char *uri = is_data_uri(img.uri) ? "" : img.uri.c_str();
+    const int hw = w, hh = h;
+    uint64_t texels = uint64_t(w) * uint64_t(h);
+    if (texels > PT_SCENE_MAX_IMAGE_TEXELS)
+        im.fail(PT_ERR_LIMIT,
+                "%s: image %d ('%.64s') is %dx%d, %llu texels (at most %llu an image)", ctx,
+                t.source, uri, w, h, (unsigned long long)texels,
+                (unsigned long long)PT_SCENE_MAX_IMAGE_TEXELS);
+    if (texels > PT_SCENE_MAX_TEXELS - im.texels)
+        im.fail(PT_ERR_LIMIT,
+                "%s: image %d ('%.64s') is %dx%d, which makes %llu texels in the scene's "
+                "textures (at most %llu a scene)",
+                ctx, t.source, uri, w, h, (unsigned long long)(im.texels + texels),
+                (unsigned long long)PT_SCENE_MAX_TEXELS);
+    if (im.headers_only) {
+        im.texels += texels;
+        im.tex_map[key] = 0;
+        return -1;
+    }
     const tinygltf::Sampler *smp = nullptr;
     if (t.sampler >= 0) {
         if (size_t(t.sampler) >= m.samplers.size())
@@ -685,6 +715,11 @@ int32_t texture_for(importer &im, int mi, const char *slot, int index, int tex_c
     if (!px)
         im.fail(PT_ERR_FORMAT, "%s: image %d cannot be decoded: %s", ctx, t.source,
                 stbi_failure_reason());
+    if (w != hw || h != hh) {
+        stbi_image_free(px);
+        im.fail(PT_ERR_FORMAT, "%s: image %d decodes to %dx%d, its header says %dx%d", ctx,
+                t.source, w, h, hw, hh);
+    }
     size_t n = size_t(w) * size_t(h) * 4;
     pt_texture tex{};
     tex.width = uint32_t(w);
@@ -696,6 +731,7 @@ int32_t texture_for(importer &im, int mi, const char *slot, int index, int tex_c
     }
     memcpy(tex.rgba, px, n);
     stbi_image_free(px);
+    im.texels += texels;
     tex.srgb = srgb ? 1 : 0;
     tex.wrap_s = tex.wrap_t = PT_WRAP_REPEAT;
     if (smp) {
@@ -818,7 +854,7 @@ void add_layers(importer &im, int mi, const tinygltf::Material &g, pt_material &
     }
 }
 
-void add_materials(importer &im)
+void read_materials(importer &im)
 {
     const tinygltf::Model &m = im.model;
     static const std::set<std::string> handled = {"KHR_materials_emissive_strength",
@@ -892,12 +928,28 @@ void add_materials(importer &im)
         pm.normal_tex = texture_for(im, mi, "normalTexture", nt.index, nt.texCoord, nt.extensions,
                                     false, &pm.tex_xf[PT_SLOT_NORMAL]);
         pm.normal_scale = float(nt.scale);
+        if (im.headers_only)
+            continue;
         uint32_t idx;
         pt_error e{};
         pt_status st = pt_scene_builder_add_material(im.b, &pm, &idx, &e);
         if (st != PT_OK)
             im.fail(st, "material %d: %s", mi, e.msg);
     }
+}
+
+// The materials, and the textures they use decoded, in two passes: the
+// first reads the images' headers alone, so that the scene's texels are
+// checked against PT_SCENE_MAX_TEXELS before any image is decoded (a cap
+// checked as images decode would let a scene hold nearly all of it first).
+void add_materials(importer &im)
+{
+    im.headers_only = true;
+    read_materials(im);
+    im.headers_only = false;
+    im.tex_map.clear();
+    im.texels = 0;
+    read_materials(im);
 }
 
 uint32_t material_index(importer &im, int mat, const char *what)

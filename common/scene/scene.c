@@ -53,6 +53,7 @@ struct pt_scene_builder {
     uint32_t nmat, cap_mat;
     pt_texture *texs;
     uint32_t ntex, cap_tex;
+    uint64_t texels; /* width * height summed over texs (PT_SCENE_MAX_TEXELS) */
     pt_camera *cams;
     double *cam_pos; /* 3 per camera: the world-space position in double */
     uint32_t ncam, cap_cam, cap_cam_pos;
@@ -316,6 +317,16 @@ pt_status pt_scene_builder_add_texture(pt_scene_builder *b, const pt_texture *te
                           b->ntex, tex->width, tex->height, PT_SCENE_MAX_TEXTURE_DIM);
         goto fail;
     }
+    uint64_t texels = (uint64_t)tex->width * tex->height;
+    if (texels > PT_SCENE_MAX_IMAGE_TEXELS || texels > PT_SCENE_MAX_TEXELS - b->texels) {
+        st = pt_error_set(
+            err, PT_ERR_LIMIT,
+            "texture %u: %ux%u pixels make %llu texels in the scene (at most %llu "
+            "an image, %llu a scene)",
+            b->ntex, tex->width, tex->height, (unsigned long long)(b->texels + texels),
+            (unsigned long long)PT_SCENE_MAX_IMAGE_TEXELS, (unsigned long long)PT_SCENE_MAX_TEXELS);
+        goto fail;
+    }
     if (tex->wrap_s < PT_WRAP_REPEAT || tex->wrap_s > PT_WRAP_MIRROR ||
         tex->wrap_t < PT_WRAP_REPEAT || tex->wrap_t > PT_WRAP_MIRROR) {
         st = pt_error_set(err, PT_ERR_ARG, "texture %u: bad wrap mode", b->ntex);
@@ -331,6 +342,7 @@ pt_status pt_scene_builder_add_texture(pt_scene_builder *b, const pt_texture *te
     }
     b->texs[b->ntex] = *tex;
     b->texs[b->ntex].srgb = tex->srgb ? 1 : 0;
+    b->texels += texels;
     *index = b->ntex++;
     return PT_OK;
 fail:

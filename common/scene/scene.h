@@ -247,9 +247,21 @@ typedef struct pt_scene_opts {
     double shutter_open, shutter_close;
 } pt_scene_opts;
 
-/* Hard caps on what a file may ask for. */
+/* Hard caps on what a file may ask for, so that the memory a worker (and the
+ * coordinator's scene check) needs for an accepted scene is bounded: see
+ * docs/OPERATIONS.md, "Limits", for the bytes each one costs.
+ *
+ * Texels are those decoded (RGBA8, 4 bytes each), summed over the scene's
+ * textures (an image used both as sRGB and linear data counts twice), and
+ * are checked from the image's header before anything is decoded: 256 Mi
+ * (1 GiB) is 64 textures of 2048^2 or 16 of 4096^2; one image may have at
+ * most 64 Mi texels (8192^2, or 16384 x 4096), which also bounds what the
+ * decoder holds while it works (up to 20 bytes a texel for a Radiance
+ * .hdr, 8 for a PNG). */
 #define PT_SCENE_MAX_TRIANGLES (64u * 1024u * 1024u)
 #define PT_SCENE_MAX_TEXTURE_DIM 16384u
+#define PT_SCENE_MAX_IMAGE_TEXELS (64ull * 1024u * 1024u)
+#define PT_SCENE_MAX_TEXELS (256ull * 1024u * 1024u)
 #define PT_SCENE_MAX_COORD 1e15f
 
 /* Loads a .gltf or .glb. Returns PT_ERR_IO, PT_ERR_FORMAT (message names the

@@ -9,7 +9,9 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/resource.h>
 #include <sys/stat.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include <stb_image_write.h>
@@ -929,6 +931,270 @@ static void test_cameras(void)
     pt_scene_free(s);
 }
 
+/* ---- decompression and instancing bombs -------------------------------------------- */
+
+typedef struct bitbuf {
+    unsigned char *p;
+    size_t len, cap;
+    uint32_t acc;
+    int nacc;
+} bitbuf;
+
+static void put_byte(bitbuf *b, unsigned char c)
+{
+    if (b->len == b->cap) {
+        b->cap = b->cap ? 2 * b->cap : 4096;
+        b->p = realloc(b->p, b->cap);
+        if (!b->p)
+            exit(1);
+    }
+    b->p[b->len++] = c;
+}
+
+static void put_be32(bitbuf *b, uint32_t v)
+{
+    for (int s = 24; s >= 0; s -= 8)
+        put_byte(b, (unsigned char)(v >> s));
+}
+
+/* Deflate's bit order (RFC 1951, 3.1.1): values LSB first, Huffman codes
+ * MSB first. */
+static void put_bits(bitbuf *b, uint32_t v, int n)
+{
+    for (int i = 0; i < n; i++) {
+        b->acc |= ((v >> i) & 1u) << b->nacc;
+        if (++b->nacc == 8) {
+            put_byte(b, (unsigned char)b->acc);
+            b->acc = 0;
+            b->nacc = 0;
+        }
+    }
+}
+
+static void put_code(bitbuf *b, uint32_t code, int n)
+{
+    for (int i = n - 1; i >= 0; i--)
+        put_bits(b, (code >> i) & 1u, 1);
+}
+
+/* A zlib stream of n zero bytes in one fixed-Huffman block (RFC 1950, 1951
+ * 3.2.6): a literal 0, then matches of length 258 at distance 1 (13 bits
+ * for 258 bytes), then literals, then end of block; Adler-32 of zeros is
+ * (n mod 65521) << 16 | 1. */
+static void put_zlib_zeros(bitbuf *b, uint64_t n)
+{
+    put_byte(b, 0x78);
+    put_byte(b, 0x01);
+    put_bits(b, 1, 1); /* BFINAL */
+    put_bits(b, 1, 2); /* BTYPE 01: fixed Huffman */
+    uint64_t left = n;
+    if (left) {
+        put_code(b, 0x30, 8); /* literal 0 */
+        left--;
+    }
+    for (; left >= 258; left -= 258) {
+        put_code(b, 0xc5, 8); /* length symbol 285: 258 */
+        put_code(b, 0, 5);    /* distance code 0: 1 */
+    }
+    for (; left > 0; left--)
+        put_code(b, 0x30, 8);
+    put_code(b, 0, 7); /* end of block */
+    if (b->nacc)
+        put_bits(b, 0, 8 - b->nacc);
+    put_be32(b, (uint32_t)((n % 65521u) << 16 | 1u));
+}
+
+static uint32_t crc32_png(const unsigned char *p, size_t n)
+{
+    uint32_t c = 0xffffffffu;
+    for (size_t i = 0; i < n; i++) {
+        c ^= p[i];
+        for (int k = 0; k < 8; k++)
+            c = (c >> 1) ^ (0xedb88320u & (0u - (c & 1u)));
+    }
+    return ~c;
+}
+
+static void put_chunk(bitbuf *b, const char *type, const unsigned char *data, size_t n)
+{
+    put_be32(b, (uint32_t)n);
+    size_t start = b->len;
+    for (int i = 0; i < 4; i++)
+        put_byte(b, (unsigned char)type[i]);
+    for (size_t i = 0; i < n; i++)
+        put_byte(b, data[i]);
+    put_be32(b, crc32_png(b->p + start, b->len - start));
+}
+
+/* Writes a w x h 8-bit greyscale PNG of zeros. rows: how many rows its IDAT
+ * holds (h for the whole image, 0 for no IDAT at all: a header alone). */
+static void write_png_zeros(const char *name, uint32_t w, uint32_t h, uint32_t rows)
+{
+    bitbuf b = {0};
+    static const unsigned char sig[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
+    for (int i = 0; i < 8; i++)
+        put_byte(&b, sig[i]);
+    unsigned char ihdr[13] = {0};
+    for (int i = 0; i < 4; i++) {
+        ihdr[i] = (unsigned char)(w >> (24 - 8 * i));
+        ihdr[4 + i] = (unsigned char)(h >> (24 - 8 * i));
+    }
+    ihdr[8] = 8; /* bit depth; colour type 0 (grey), deflate, filter 0, no interlace */
+    put_chunk(&b, "IHDR", ihdr, sizeof ihdr);
+    if (rows) {
+        bitbuf z = {0};
+        put_zlib_zeros(&z, (uint64_t)rows * (w + 1u)); /* a filter byte (0) a row */
+        put_chunk(&b, "IDAT", z.p, z.len);
+        free(z.p);
+    }
+    put_chunk(&b, "IEND", NULL, 0);
+    write_file(name, b.p, b.len);
+    free(b.p);
+}
+
+/* Loads `name` in a child process and reports its status and how far the
+ * child's peak resident memory rose over the load, in KiB. */
+static pt_status load_in_child(const char *name, long *rise_kib, char *msg, size_t msg_size)
+{
+    int fd[2];
+    if (pipe(fd) != 0)
+        return PT_ERR_IO;
+    pid_t pid = fork();
+    if (pid == 0) {
+        close(fd[0]);
+        struct rusage r0, r1;
+        getrusage(RUSAGE_SELF, &r0);
+        pt_error err = {0};
+        pt_scene *s = NULL;
+        pt_scene_opts o = {0};
+        warnings w = {0};
+        o.warn = collect;
+        o.warn_user = &w;
+        pt_status st = pt_scene_load(tpath(name), &o, &s, &err);
+        getrusage(RUSAGE_SELF, &r1);
+        char out[sizeof err.msg + 64];
+        int n =
+            snprintf(out, sizeof out, "%d %ld %s", (int)st, r1.ru_maxrss - r0.ru_maxrss, err.msg);
+        if (write(fd[1], out, (size_t)n + 1) != n + 1)
+            _exit(2);
+        _exit(0);
+    }
+    close(fd[1]);
+    char in[sizeof((pt_error *)0)->msg + 64] = {0};
+    size_t got = 0;
+    ssize_t r;
+    while (got < sizeof in - 1 && (r = read(fd[0], in + got, sizeof in - 1 - got)) > 0)
+        got += (size_t)r;
+    close(fd[0]);
+    int status = 0;
+    waitpid(pid, &status, 0);
+    int st = -1, off = 0;
+    if (!WIFEXITED(status) || WEXITSTATUS(status) != 0 ||
+        sscanf(in, "%d %ld %n", &st, rise_kib, &off) != 2)
+        return (pt_status)-1;
+    snprintf(msg, msg_size, "%s", in + off);
+    return (pt_status)st;
+}
+
+/* A one-triangle .gltf whose materials use images img[0..n) as base colour,
+ * one material each. */
+static void make_textured_n(const char *name, const char *const *img, int n)
+{
+    char tail[4096];
+    size_t k = 0;
+    k += (size_t)snprintf(tail + k, sizeof tail - k, "\"textures\":[");
+    for (int i = 0; i < n; i++)
+        k += (size_t)snprintf(tail + k, sizeof tail - k, "%s{\"source\":%d}", i ? "," : "", i);
+    k += (size_t)snprintf(tail + k, sizeof tail - k, "],\"images\":[");
+    for (int i = 0; i < n; i++)
+        k +=
+            (size_t)snprintf(tail + k, sizeof tail - k, "%s{\"uri\":\"%s\"}", i ? "," : "", img[i]);
+    k += (size_t)snprintf(tail + k, sizeof tail - k, "],\"materials\":[");
+    for (int i = 0; i < n; i++)
+        k += (size_t)snprintf(tail + k, sizeof tail - k,
+                              "%s{\"pbrMetallicRoughness\":{\"baseColorTexture\":{\"index\":%d}}}",
+                              i ? "," : "", i);
+    snprintf(tail + k, sizeof tail - k, "]");
+    make_gltf_tail(name, "tri.bin", k_pos_ok, k_views, k_nodes_ok, tail);
+}
+
+/* Images are refused from their headers, before anything is decoded: one
+ * over PT_SCENE_MAX_IMAGE_TEXELS, or one that takes the scene's textures
+ * over PT_SCENE_MAX_TEXELS; at the caps, the decoder is reached. */
+static void test_image_caps(void)
+{
+    /* A whole 16384^2 PNG of zeros (1.7 MB): 256 MiB of grey, 1 GiB once
+     * decoded to RGBA. Refused from its IHDR with no pixel allocated. */
+    write_png_zeros("bomb16k.png", 16384, 16384, 16384);
+    const char *one[] = {"bomb16k.png"};
+    make_textured_n("bomb16k.gltf", one, 1);
+    long rise = -1;
+    char msg[512] = "";
+    pt_status st = load_in_child("bomb16k.gltf", &rise, msg, sizeof msg);
+    if (getenv("PT_TEST_VERBOSE"))
+        printf("bomb16k.gltf -> %d, peak +%ld KiB: %s\n", (int)st, rise, msg);
+    CHECKF(st == PT_ERR_LIMIT, "bomb16k.gltf: status %d (%s)", (int)st, msg);
+    CHECKF(strstr(msg, "'bomb16k.png') is 16384x16384") && strstr(msg, "268435456 texels") &&
+               strstr(msg, "at most 67108864 an image"),
+           "bomb16k.gltf: %s", msg);
+    CHECKF(rise >= 0 && rise < 64 * 1024, "bomb16k.gltf: peak memory rose by %ld KiB", rise);
+    expect_fail("bomb16k.gltf", PT_ERR_LIMIT, "16384x16384");
+
+    /* The same claim with no pixel data at all: the header alone decides. */
+    write_png_zeros("hdr16k.png", 16384, 16384, 0);
+    write_png_zeros("wide.png", 8193, 8192, 0);
+    const char *hdr[] = {"hdr16k.png"}, *wide[] = {"wide.png"};
+    make_textured_n("hdr16k.gltf", hdr, 1);
+    expect_fail("hdr16k.gltf", PT_ERR_LIMIT, "at most 67108864 an image");
+    make_textured_n("wide.gltf", wide, 1);
+    expect_fail("wide.gltf", PT_ERR_LIMIT, "8193x8192, 67117056 texels");
+
+    /* Five images of 8192^2 (the most one may have): 320 Mi texels, over
+     * the scene's 256 Mi, refused before the first is decoded (none can
+     * be: they are headers alone). Four are at the cap: the loader then
+     * goes on to decode, and it is the missing data that fails. */
+    write_png_zeros("h8k.png", 8192, 8192, 0);
+    const char *five[] = {"h8k.png", "h8k.png", "h8k.png", "h8k.png", "h8k.png"};
+    make_textured_n("five8k.gltf", five, 5);
+    expect_fail("five8k.gltf", PT_ERR_LIMIT,
+                "makes 335544320 texels in the scene's textures (at most 268435456 a scene)");
+    make_textured_n("four8k.gltf", five, 4);
+    expect_fail("four8k.gltf", PT_ERR_FORMAT, "cannot be decoded");
+    /* One image used as sRGB and as linear data is decoded, and counted,
+     * twice: two textures used so make four images, at the cap; a third
+     * texture makes five. */
+    char tail[1024];
+    snprintf(tail, sizeof tail,
+             "\"textures\":[{\"source\":0},{\"source\":1}],"
+             "\"images\":[{\"uri\":\"h8k.png\"},{\"uri\":\"h8k.png\"}],"
+             "\"materials\":[{\"pbrMetallicRoughness\":{\"baseColorTexture\":{\"index\":0},"
+             "\"metallicRoughnessTexture\":{\"index\":0}},\"emissiveTexture\":{\"index\":1},"
+             "\"normalTexture\":{\"index\":1},\"emissiveFactor\":[1,1,1]}]");
+    make_gltf_tail("twice8k.gltf", "tri.bin", k_pos_ok, k_views, k_nodes_ok, tail);
+    expect_fail("twice8k.gltf", PT_ERR_FORMAT, "cannot be decoded");
+    snprintf(tail, sizeof tail,
+             "\"textures\":[{\"source\":0},{\"source\":1},{\"source\":2}],"
+             "\"images\":[{\"uri\":\"h8k.png\"},{\"uri\":\"h8k.png\"},{\"uri\":\"h8k.png\"}],"
+             "\"materials\":[{\"pbrMetallicRoughness\":{\"baseColorTexture\":{\"index\":0},"
+             "\"metallicRoughnessTexture\":{\"index\":0}},\"emissiveTexture\":{\"index\":1},"
+             "\"normalTexture\":{\"index\":1},\"emissiveFactor\":[1,1,1]},"
+             "{\"pbrMetallicRoughness\":{\"baseColorTexture\":{\"index\":2}}}]");
+    make_gltf_tail("thrice8k.gltf", "tri.bin", k_pos_ok, k_views, k_nodes_ok, tail);
+    expect_fail("thrice8k.gltf", PT_ERR_LIMIT, "at most 268435456 a scene");
+
+    /* A real image below the caps still loads. */
+    write_png_zeros("small.png", 64, 32, 32);
+    const char *small[] = {"small.png"};
+    make_textured_n("small.gltf", small, 1);
+    pt_scene *s = NULL;
+    pt_error err = {0};
+    st = pt_scene_load(tpath("small.gltf"), NULL, &s, &err);
+    CHECKF(st == PT_OK && s->num_textures == 1 && s->textures[0].width == 64 &&
+               s->textures[0].height == 32,
+           "small.gltf: %s", err.msg);
+    pt_scene_free(s);
+}
+
 /* The project's own scenes (scenes/): they must load, emit, and carry a camera or not. */
 static void test_project_scenes(void)
 {
@@ -1075,6 +1341,7 @@ int main(void)
     test_attributes();
     test_hostile();
     test_deep_json();
+    test_image_caps();
     test_lights();
     test_confined();
     test_alpha_modes();

@@ -177,6 +177,28 @@ static void test_rejects(void)
     CHECK(pt_scene_builder_add_texture(b, &t, &ti, &err) == PT_ERR_LIMIT);
     pt_scene_builder_free(b);
     CHECK(pt_alloc_live() == live);
+
+    /* Texels: one image over PT_SCENE_MAX_IMAGE_TEXELS, or one that takes
+     * the scene over PT_SCENE_MAX_TEXELS, is refused (and freed). No pixel
+     * is read before finish, so 4-byte stand-ins do. */
+    b = builder_with(NULL);
+    t.width = 8193;
+    t.height = 8192;
+    t.rgba = pt_malloc(4);
+    CHECK(pt_scene_builder_add_texture(b, &t, &ti, &err) == PT_ERR_LIMIT &&
+          strstr(err.msg, "at most 67108864 an image") != NULL);
+    for (int i = 0; i < 4; i++) {
+        t.width = t.height = 8192;
+        t.rgba = pt_malloc(4);
+        CHECK(pt_scene_builder_add_texture(b, &t, &ti, &err) == PT_OK);
+    }
+    t.width = t.height = 1;
+    t.rgba = pt_malloc(4);
+    CHECK(pt_scene_builder_add_texture(b, &t, &ti, &err) == PT_ERR_LIMIT &&
+          strstr(err.msg, "268435457 texels in the scene") != NULL &&
+          strstr(err.msg, "268435456 a scene") != NULL);
+    pt_scene_builder_free(b);
+    CHECK(pt_alloc_live() == live);
 }
 
 static uint32_t features_of(const pt_material *m, int with_tex, int with_uv)
