@@ -2,27 +2,19 @@
  * layers.c - clearcoat and sheen over the base: their lobes (layers.h has
  * the model and its references).
  *
- * The sheen albedo table: E(mu, r) = integral over the hemisphere of
- * pt_sheen_eval(alpha(r), wo(mu), wi) d wi, by the midpoint rule in theta
- * (128 steps) and phi (64 steps over [0, pi], doubled: the lobe is symmetric
- * about the plane of wo), in double. It is built once per process
- * (pthread_once) by the same code on every machine of the farm, so each
- * worker reads the same numbers.
+ * The sheen albedo E(mu, r) is read bilinearly from the table compiled in
+ * (sheen_table.h: generated once by the quadrature in test_layers.c), so a
+ * worker neither spends time on it nor depends on its libm for it.
  */
 #include "common/render/layers.h"
 
 #include <math.h>
-#include <pthread.h>
 
 #include "common/render/sampler.h"
+#include "common/render/sheen_table.h"
 
 #define COAT_F0 0.04f /* ((1.5 - 1) / (1.5 + 1))^2 */
-#define TABLE_N 32
-#define Q_THETA 128
-#define Q_PHI 64
-
-static float sheen_table[TABLE_N][TABLE_N]; /* [roughness][mu] */
-static pthread_once_t sheen_once = PTHREAD_ONCE_INIT;
+#define TABLE_N PT_SHEEN_TABLE_N
 
 static inline float clamp01(float x)
 {
@@ -52,32 +44,8 @@ float pt_sheen_charlie(float alpha, pt_vec3 wo, pt_vec3 wi)
     return d * v * wi.z;
 }
 
-static void build_sheen_table(void)
-{
-    const double pi = 3.14159265358979323846;
-    for (int j = 0; j < TABLE_N; j++) {
-        float alpha = sheen_alpha((float)j / (TABLE_N - 1));
-        for (int i = 0; i < TABLE_N; i++) {
-            float mu = fmaxf((float)i / (TABLE_N - 1), 1e-3f);
-            pt_vec3 wo = pt_v3(sqrtf(1.0f - mu * mu), 0.0f, mu);
-            double sum = 0.0;
-            for (int t = 0; t < Q_THETA; t++) {
-                double th = (t + 0.5) * (0.5 * pi / Q_THETA);
-                double st = sin(th), ct = cos(th);
-                for (int p = 0; p < Q_PHI; p++) {
-                    double ph = (p + 0.5) * (pi / Q_PHI);
-                    pt_vec3 wi = pt_v3((float)(st * cos(ph)), (float)(st * sin(ph)), (float)ct);
-                    sum += (double)pt_sheen_charlie(alpha, wo, wi) * st;
-                }
-            }
-            sheen_table[j][i] = (float)(2.0 * sum * (0.5 * pi / Q_THETA) * (pi / Q_PHI));
-        }
-    }
-}
-
 float pt_sheen_albedo(float mu, float roughness)
 {
-    pthread_once(&sheen_once, build_sheen_table);
     float x = clamp01(mu) * (TABLE_N - 1), y = clamp01(roughness) * (TABLE_N - 1);
     int i = (int)x, j = (int)y;
     if (i > TABLE_N - 2)
@@ -85,8 +53,9 @@ float pt_sheen_albedo(float mu, float roughness)
     if (j > TABLE_N - 2)
         j = TABLE_N - 2;
     float fx = x - (float)i, fy = y - (float)j;
-    float a = sheen_table[j][i] + (sheen_table[j][i + 1] - sheen_table[j][i]) * fx;
-    float b = sheen_table[j + 1][i] + (sheen_table[j + 1][i + 1] - sheen_table[j + 1][i]) * fx;
+    float a = pt_sheen_table[j][i] + (pt_sheen_table[j][i + 1] - pt_sheen_table[j][i]) * fx;
+    float b =
+        pt_sheen_table[j + 1][i] + (pt_sheen_table[j + 1][i + 1] - pt_sheen_table[j + 1][i]) * fx;
     return a + (b - a) * fy;
 }
 

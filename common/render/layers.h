@@ -16,10 +16,10 @@
  * alpha = sheenRoughness^2 (>= PT_LAYERS_MIN_SHEEN_ALPHA), with the
  * visibility 1 / (4 (zi + zo - zi zo)) of Neubelt & Pettineo 2013 (as in
  * Filament). E(mu) is that sheen lobe's directional albedo for white colour,
- * tabulated by numerical quadrature (32 x 32 over mu and roughness, computed
- * once per process, bilinear). That visibility lets a sharp sheen seen at
- * grazing reflect more than it receives (E > 1): there the sheen lobe is
- * divided by E(wo.z) and E is read as min(E, 1). The whole never reflects
+ * tabulated by numerical quadrature (32 x 32 over mu and roughness,
+ * compiled in: sheen_table.h; read bilinearly). That visibility lets a sharp
+ * sheen seen at grazing reflect more than it receives (E > 1): there the
+ * sheen lobe is divided by E(wo.z) and E is read as min(E, 1). The whole never reflects
  * more than it gets: each term's albedo is at most what the layer above
  * leaves.
  *
