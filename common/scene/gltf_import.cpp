@@ -16,7 +16,8 @@
 // transmission texture, to RGBA8 (1-4 channels and 16-bit data are converted
 // by stb_image). Every such image's size is read from its header and checked
 // against PT_SCENE_MAX_IMAGE_TEXELS and, summed, PT_SCENE_MAX_TEXELS before
-// the first one is decoded.
+// the first one is decoded; the meshes' triangles, every instance counted,
+// are checked against PT_SCENE_MAX_TRIANGLES before that (check_triangles).
 //
 // Materials follow the core metallic-roughness model (spec 3.9.2) with
 // KHR_materials_emissive_strength, KHR_materials_specular and glass
@@ -1811,6 +1812,78 @@ void visit(importer &im, int ni, const mat4 &parent, int depth, std::vector<char
     on_path[size_t(ni)] = 0;
 }
 
+uint64_t sat_add(uint64_t a, uint64_t b)
+{
+    return a > UINT64_MAX - b ? UINT64_MAX : a + b;
+}
+
+// The triangles add_primitive makes of mesh `mi`, from the accessors' counts
+// alone (0 for a primitive it skips or refuses: it reports those itself).
+uint64_t mesh_triangles(const tinygltf::Model &m, int mi)
+{
+    uint64_t n = 0;
+    for (const auto &p : m.meshes[size_t(mi)].primitives) {
+        int mode = p.mode < 0 ? TINYGLTF_MODE_TRIANGLES : p.mode;
+        int ai = p.indices;
+        if (ai < 0) {
+            auto it = p.attributes.find("POSITION");
+            ai = it == p.attributes.end() ? -1 : it->second;
+        }
+        if (ai < 0 || size_t(ai) >= m.accessors.size())
+            continue;
+        uint64_t c = uint64_t(m.accessors[size_t(ai)].count);
+        if (mode == TINYGLTF_MODE_TRIANGLES)
+            n = sat_add(n, c / 3);
+        else if (mode == TINYGLTF_MODE_TRIANGLE_STRIP || mode == TINYGLTF_MODE_TRIANGLE_FAN)
+            n = sat_add(n, c >= 3 ? c - 2 : 0);
+    }
+    return n;
+}
+
+// The triangles under node ni, every instance counted, remembered per node:
+// a node may have several parents, and the count of a deep graph of shared
+// nodes is a product that no walk could afford. Bad indices, cycles and
+// depth count 0 here; visit() refuses them.
+uint64_t node_triangles(const tinygltf::Model &m, int ni, int depth,
+                        const std::vector<uint64_t> &per_mesh, std::vector<uint64_t> &memo,
+                        std::vector<char> &state)
+{
+    if (ni < 0 || size_t(ni) >= m.nodes.size() || depth > kMaxNodeDepth)
+        return 0;
+    char &st = state[size_t(ni)];
+    if (st != 0)
+        return st == 2 ? memo[size_t(ni)] : 0;
+    st = 1;
+    const tinygltf::Node &n = m.nodes[size_t(ni)];
+    uint64_t t = n.mesh >= 0 && size_t(n.mesh) < m.meshes.size() ? per_mesh[size_t(n.mesh)] : 0;
+    for (int c : n.children)
+        t = sat_add(t, node_triangles(m, c, depth + 1, per_mesh, memo, state));
+    st = 2;
+    memo[size_t(ni)] = t;
+    return t;
+}
+
+// Refuses a scene whose meshes, once instanced by its nodes, make more than
+// PT_SCENE_MAX_TRIANGLES triangles, before anything is read or decoded: a
+// small file can instance one mesh (or an accessor of zeros, which needs no
+// bytes) many times over. The builder checks the same cap as it goes.
+void check_triangles(importer &im, int si)
+{
+    const tinygltf::Model &m = im.model;
+    std::vector<uint64_t> per_mesh(m.meshes.size()), memo(m.nodes.size());
+    std::vector<char> state(m.nodes.size(), 0);
+    for (size_t i = 0; i < m.meshes.size(); i++)
+        per_mesh[i] = mesh_triangles(m, int(i));
+    uint64_t total = 0;
+    for (int ni : m.scenes[size_t(si)].nodes)
+        total = sat_add(total, node_triangles(m, ni, 0, per_mesh, memo, state));
+    if (total > PT_SCENE_MAX_TRIANGLES)
+        im.fail(PT_ERR_LIMIT,
+                "scene %d: %llu triangles once every instance of its meshes is counted, over the "
+                "cap of %u a scene",
+                si, (unsigned long long)total, PT_SCENE_MAX_TRIANGLES);
+}
+
 // Reads the external buffer and image files (for the hash and for decoding),
 // in the order of the JSON arrays, and hashes them after the entry file.
 void hash_files(importer &im, const std::vector<unsigned char> &entry)
@@ -1950,6 +2023,9 @@ void import(importer &im)
             r != "KHR_materials_sheen")
             im.warn_once("req:" + r, "required extension " + r + " is not supported");
     choose_variant(im);
+    int dsi = m.defaultScene >= 0 ? m.defaultScene : 0;
+    if (size_t(dsi) < m.scenes.size()) // else refused below
+        check_triangles(im, dsi);
     add_materials(im);
     // A file with nothing to animate (no animations, skins or morph targets)
     // gets an empty rig: its poses are the still, so the load reads and

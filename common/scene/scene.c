@@ -543,8 +543,10 @@ pt_status pt_scene_builder_add_mesh_extra(pt_scene_builder *b, const char *what,
         return pt_error_set(err, PT_ERR_FORMAT,
                             "%s: non-indexed mesh with %u vertices for %u triangles", what, nv, nt);
     if (nt > PT_SCENE_MAX_TRIANGLES - b->nt)
-        return pt_error_set(err, PT_ERR_LIMIT, "%s: over %u triangles in the scene", what,
-                            PT_SCENE_MAX_TRIANGLES);
+        return pt_error_set(err, PT_ERR_LIMIT,
+                            "%s: %llu triangles in the scene, over the cap of %u (every "
+                            "instance counted)",
+                            what, (unsigned long long)b->nt + nt, PT_SCENE_MAX_TRIANGLES);
     if (nv > PT_SCENE_MAX_VERTICES - b->nv)
         return pt_error_set(err, PT_ERR_LIMIT, "%s: over %u vertices in the scene", what,
                             PT_SCENE_MAX_VERTICES);

@@ -251,6 +251,12 @@ typedef struct pt_scene_opts {
  * coordinator's scene check) needs for an accepted scene is bounded: see
  * docs/OPERATIONS.md, "Limits", for the bytes each one costs.
  *
+ * Triangles are counted once flattened, every instance of a mesh counted
+ * (a 100k-triangle mesh under 80 nodes is 8 M), before anything is built:
+ * 16 Mi is 16 times the largest test asset (1.04 M, itself 98 instances)
+ * and holds the large public test scenes (San Miguel, 10 M). A worker needs
+ * about 170 bytes a triangle for indexed meshes and up to 500 for a soup
+ * with every attribute, its BVH included (measured: OPERATIONS.md).
  * Texels are those decoded (RGBA8, 4 bytes each), summed over the scene's
  * textures (an image used both as sRGB and linear data counts twice), and
  * are checked from the image's header before anything is decoded: 256 Mi
@@ -258,7 +264,7 @@ typedef struct pt_scene_opts {
  * most 64 Mi texels (8192^2, or 16384 x 4096), which also bounds what the
  * decoder holds while it works (up to 20 bytes a texel for a Radiance
  * .hdr, 8 for a PNG). */
-#define PT_SCENE_MAX_TRIANGLES (64u * 1024u * 1024u)
+#define PT_SCENE_MAX_TRIANGLES (16u * 1024u * 1024u)
 #define PT_SCENE_MAX_TEXTURE_DIM 16384u
 #define PT_SCENE_MAX_IMAGE_TEXELS (64ull * 1024u * 1024u)
 #define PT_SCENE_MAX_TEXELS (256ull * 1024u * 1024u)

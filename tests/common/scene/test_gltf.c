@@ -1195,6 +1195,72 @@ static void test_image_caps(void)
     pt_scene_free(s);
 }
 
+/* A scene whose mesh 0 is one triangle repeated 1 Mi times (u8 indices:
+ * 3 MiB), instanced by `big` nodes, and whose mesh 1, one triangle, is
+ * instanced by `small` nodes. */
+static void make_instanced(const char *name, int big, int small)
+{
+    static const float pos[9] = {0, 0, 0, 1, 0, 0, 0, 1, 0};
+    const size_t nidx = 3u << 20;
+    unsigned char *bin = malloc(36 + nidx);
+    if (!bin)
+        exit(1);
+    memcpy(bin, pos, 36);
+    for (size_t i = 0; i < nidx; i++)
+        bin[36 + i] = (unsigned char)(i % 3);
+    write_file("big.bin", bin, 36 + nidx);
+    free(bin);
+    char nodes[4096];
+    size_t k = (size_t)snprintf(nodes, sizeof nodes, "[{\"children\":[");
+    for (int i = 0; i < big + small; i++)
+        k += (size_t)snprintf(nodes + k, sizeof nodes - k, "%s%d", i ? "," : "", i + 1);
+    k += (size_t)snprintf(nodes + k, sizeof nodes - k, "]}");
+    for (int i = 0; i < big + small; i++)
+        k += (size_t)snprintf(nodes + k, sizeof nodes - k, ",{\"mesh\":%d}", i < big ? 0 : 1);
+    snprintf(nodes + k, sizeof nodes - k, "]");
+    char json[8192];
+    snprintf(json, sizeof json,
+             "{\"asset\":{\"version\":\"2.0\"},\"scene\":0,\"scenes\":[{\"nodes\":[0]}],"
+             "\"nodes\":%s,"
+             "\"meshes\":[{\"primitives\":[{\"attributes\":{\"POSITION\":0},\"indices\":1}]},"
+             "{\"primitives\":[{\"attributes\":{\"POSITION\":0},\"indices\":2}]}],"
+             "\"buffers\":[{\"uri\":\"big.bin\",\"byteLength\":%zu}],"
+             "\"bufferViews\":[{\"buffer\":0,\"byteOffset\":0,\"byteLength\":36},"
+             "{\"buffer\":0,\"byteOffset\":36,\"byteLength\":%zu}],"
+             "\"accessors\":[%s,"
+             "{\"bufferView\":1,\"componentType\":5121,\"count\":%zu,\"type\":\"SCALAR\"},"
+             "{\"bufferView\":1,\"componentType\":5121,\"count\":3,\"type\":\"SCALAR\"}]}",
+             nodes, 36 + nidx, nidx, k_pos_ok, nidx);
+    write_file(name, json, strlen(json));
+}
+
+/* Triangles are counted with every instance, and refused before any is built. */
+static void test_instancing_caps(void)
+{
+    /* 16 instances of 1 Mi triangles and one of 1: one over the cap. */
+    make_instanced("inst_over.gltf", 16, 1);
+    expect_fail("inst_over.gltf", PT_ERR_LIMIT,
+                "16777217 triangles once every instance of its meshes is counted, over the cap "
+                "of 16777216");
+    /* 16 Mi exactly: loads. */
+    make_instanced("inst_at.gltf", 16, 0);
+    pt_scene *s = NULL;
+    pt_error err = {0};
+    pt_status st = pt_scene_load(tpath("inst_at.gltf"), NULL, &s, &err);
+    CHECKF(st == PT_OK && s->num_triangles == PT_SCENE_MAX_TRIANGLES, "inst_at.gltf: %s", err.msg);
+    pt_scene_free(s);
+
+    /* Nodes shared by several parents multiply: 2^40 instances of one
+     * triangle from 41 nodes, counted without walking them. */
+    char nodes[4096];
+    size_t k = (size_t)snprintf(nodes, sizeof nodes, "[");
+    for (int i = 0; i < 40; i++)
+        k += (size_t)snprintf(nodes + k, sizeof nodes - k, "{\"children\":[%d,%d]},", i + 1, i + 1);
+    snprintf(nodes + k, sizeof nodes - k, "{\"mesh\":0}]");
+    make_gltf("dag.gltf", "tri.bin", k_pos_ok, k_views, nodes, "");
+    expect_fail("dag.gltf", PT_ERR_LIMIT, "1099511627776 triangles once every instance");
+}
+
 /* The project's own scenes (scenes/): they must load, emit, and carry a camera or not. */
 static void test_project_scenes(void)
 {
@@ -1342,6 +1408,7 @@ int main(void)
     test_hostile();
     test_deep_json();
     test_image_caps();
+    test_instancing_caps();
     test_lights();
     test_confined();
     test_alpha_modes();

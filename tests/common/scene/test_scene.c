@@ -156,6 +156,7 @@ static void test_rejects(void)
           PT_ERR_FORMAT);
     CHECK(pt_scene_builder_add_mesh(b, "cap", k_tri, NULL, NULL, 3, k_idx,
                                     PT_SCENE_MAX_TRIANGLES + 1, NULL, 0, &err) == PT_ERR_LIMIT);
+    CHECK(strstr(err.msg, "16777217 triangles in the scene, over the cap of 16777216") != NULL);
     /* A material naming a texture that does not exist. */
     pt_material m = pt_material_default();
     m.base_color_tex = 0;
