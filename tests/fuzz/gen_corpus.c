@@ -11,8 +11,9 @@
  * mode byte (see fuzz_frame.c) and frames, alone, in one stream, and a few
  * broken ones. For the decoders of files: small glTF scenes (a data: URI
  * buffer, an external buffer and image, a .glb, a name leading out of the
- * folder, JSON nested too deep and just deep enough, animated ones with
- * skins and morph targets, and hostile animated ones) for fuzz_gltf;
+ * folder, JSON nested too deep and just deep enough, a PNG whose header
+ * claims 16384^2, meshes instanced past the triangle cap, animated ones
+ * with skins and morph targets, and hostile animated ones) for fuzz_gltf;
  * bundles packed from such scenes, and hostile ones, for fuzz_bundle; and
  * for the state folder's targets (fuzz_state.h) real queue files,
  * checkpoints and results logs written by server/state.c in a scratch
@@ -118,6 +119,20 @@ static const uint8_t k_png[75] = {
     0xb6, 0x0d, 0x24, 0x00, 0x00, 0x00, 0x12, 0x49, 0x44, 0x41, 0x54, 0x78, 0xda, 0x63, 0xf8,
     0xcf, 0xc0, 0xf0, 0x1f, 0x0c, 0x81, 0x34, 0x18, 0x00, 0x00, 0x49, 0xc8, 0x09, 0xf7, 0x03,
     0xd9, 0x64, 0xf1, 0x00, 0x00, 0x00, 0x00, 0x49, 0x45, 0x4e, 0x44, 0xae, 0x42, 0x60, 0x82};
+
+/* A PNG whose IHDR claims 16384x16384 RGBA (1 GiB decoded) and whose IDAT
+ * holds one row of zeros (zlib, level 9): the decompression bomb's header,
+ * refused before anything is decoded (PT_SCENE_MAX_IMAGE_TEXELS). */
+static const uint8_t k_png_bomb[142] = {
+    0x89, 0x50, 0x4e, 0x47, 0x0d, 0x0a, 0x1a, 0x0a, 0x00, 0x00, 0x00, 0x0d, 0x49, 0x48, 0x44, 0x52,
+    0x00, 0x00, 0x40, 0x00, 0x00, 0x00, 0x40, 0x00, 0x08, 0x06, 0x00, 0x00, 0x00, 0xa9, 0xc8, 0x10,
+    0x84, 0x00, 0x00, 0x00, 0x55, 0x49, 0x44, 0x41, 0x54, 0x78, 0xda, 0xed, 0xc1, 0x01, 0x01, 0x00,
+    0x00, 0x00, 0x82, 0x20, 0xff, 0xaf, 0xae, 0x21, 0x40, 0x01, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0xc0, 0x0d, 0x00, 0x10, 0x00, 0x01, 0xd2, 0x25,
+    0x94, 0x11, 0x00, 0x00, 0x00, 0x00, 0x49, 0x45, 0x4e, 0x44, 0xae, 0x42, 0x60, 0x82};
 
 /* A 2x1 binary PPM: the other image format stb_image reads without zlib. */
 static const char k_ppm[] = "P6\n2 1\n255\n\xff\x80\x00\x00\x80\xff";
@@ -254,6 +269,7 @@ static void gen_gltf(const char *dir)
          (const uint8_t *)k_ppm, sizeof k_ppm - 1},
         {"tri_escape", "../b.bin", "{\"uri\":\"/etc/passwd\"}", "ortho", k_png, sizeof k_png},
         {"tri_bin_ortho", "b.bin", "{\"uri\":\"i.png\"}", "ortho", k_png, sizeof k_png},
+        {"png_bomb", "b.bin", "{\"uri\":\"i.png\"}", NULL, k_png_bomb, sizeof k_png_bomb},
     };
     for (size_t i = 0; i < sizeof ext / sizeof ext[0]; i++) {
         b.len = 0;
@@ -267,6 +283,37 @@ static void gen_gltf(const char *dir)
             puts_(&b, ext[i].camera);
         }
         emit(dir, "fuzz_gltf", ext[i].name, b.p, b.len);
+    }
+
+    /* Instancing bombs: a mesh of 1,024 triangles (u8 indices) under nodes
+     * shared by two parents, 15 deep: 2^15 instances, 33.5 M triangles,
+     * twice PT_SCENE_MAX_TRIANGLES; then 40 deep over one triangle: 2^40. */
+    uint8_t ibin[36 + 3072];
+    memcpy(ibin, bin, 36);
+    for (size_t i = 0; i < 3072; i++)
+        ibin[36 + i] = (uint8_t)(i % 3);
+    for (int k = 0; k < 2; k++) {
+        const int levels = k == 0 ? 15 : 40;
+        b.len = 0;
+        puts_(&b, "{\"asset\":{\"version\":\"2.0\"},\"scene\":0,\"scenes\":[{\"nodes\":[0]}],"
+                  "\"nodes\":[");
+        char node[64];
+        for (int i = 0; i < levels; i++) {
+            snprintf(node, sizeof node, "{\"children\":[%d,%d]},", i + 1, i + 1);
+            puts_(&b, node);
+        }
+        puts_(&b, "{\"mesh\":0}],"
+                  "\"meshes\":[{\"primitives\":[{\"attributes\":{\"POSITION\":0},\"indices\":1}]}],"
+                  "\"buffers\":[{\"uri\":\"b.bin\",\"byteLength\":3108}],"
+                  "\"bufferViews\":[{\"buffer\":0,\"byteOffset\":0,\"byteLength\":36},"
+                  "{\"buffer\":0,\"byteOffset\":36,\"byteLength\":3072}],"
+                  "\"accessors\":[{\"bufferView\":0,\"componentType\":5126,\"count\":3,"
+                  "\"type\":\"VEC3\",\"min\":[0,0,0],\"max\":[1,1,0]},"
+                  "{\"bufferView\":1,\"componentType\":5121,\"type\":\"SCALAR\",\"count\":");
+        puts_(&b, k == 0 ? "3072}]}" : "3}]}");
+        puts_(&b, GLTF_SEP);
+        put(&b, ibin, sizeof ibin);
+        emit(dir, "fuzz_gltf", k == 0 ? "inst_bomb.gltf" : "inst_dag.gltf", b.p, b.len);
     }
 
     /* A .glb (glTF 2.0 spec 4.4): header, JSON chunk, BIN chunk holding the
