@@ -64,6 +64,7 @@
 #include <fcntl.h>
 #include <fstream>
 #include <map>
+#include <memory>
 #include <new>
 #include <set>
 #include <string>
@@ -575,6 +576,66 @@ int wrap_mode(int gl)
     }
 }
 
+uint32_t be32(const unsigned char *p)
+{
+    return uint32_t(p[0]) << 24 | uint32_t(p[1]) << 16 | uint32_t(p[2]) << 8 | uint32_t(p[3]);
+}
+
+// Whether a PNG's image data inflates to no more than its IHDR's size needs
+// (true for anything that is not a PNG, and for a PNG too broken for
+// stb_image to read, which refuses it itself). stb_image sizes its output
+// from the header but grows it while the zlib stream goes on, to 2 GiB: a
+// 2 MB PNG that claims 1x1 took a worker to 2 GB and 3 s of CPU a texture,
+// through every cap on texels. So the stream is inflated once here into a
+// buffer of the header's size, which refuses any more, and freed before
+// stb_image decodes the file. Chunks: PNG spec (ISO 15948) 5.3 and 11.2.2;
+// the raw size of a row is its filter byte and ceil(width x channels x
+// depth / 8) bytes; Adam7 (8.2) adds at most a filter and a padding byte to
+// each of at most 2 h + 7 pass rows. An Apple "CgBI" PNG's stream has no
+// zlib header, as stb_image reads it.
+bool png_inflates_within(const unsigned char *p, size_t n)
+{
+    static const unsigned char sig[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
+    if (n < 8 || memcmp(p, sig, 8) != 0)
+        return true;
+    bool cgbi = false, ihdr = false;
+    uint32_t w = 0, h = 0;
+    int depth = 0, ctype = -1;
+    std::vector<char> z;
+    for (size_t off = 8; n - off >= 12;) {
+        uint32_t len = be32(p + off);
+        if (len > n - off - 12)
+            break;
+        const unsigned char *type = p + off + 4, *d = p + off + 8;
+        if (memcmp(type, "CgBI", 4) == 0) {
+            cgbi = true;
+        } else if (memcmp(type, "IHDR", 4) == 0 && len >= 13) {
+            w = be32(d);
+            h = be32(d + 4);
+            depth = d[8];
+            ctype = d[9];
+            ihdr = true;
+        } else if (memcmp(type, "IDAT", 4) == 0) {
+            z.insert(z.end(), d, d + len);
+        } else if (memcmp(type, "IEND", 4) == 0) {
+            break;
+        }
+        off += 12 + size_t(len);
+    }
+    int ch = ctype == 0 || ctype == 3 ? 1 : ctype == 4 ? 2 : ctype == 2 ? 3 : ctype == 6 ? 4 : 0;
+    if (!ihdr || z.empty() || ch == 0 || depth < 1 || depth > 16 || z.size() > size_t(INT32_MAX))
+        return true;
+    uint64_t row = (uint64_t(w) * uint64_t(ch) * uint64_t(depth) + 7) / 8 + 1;
+    uint64_t limit = row * h + 4 * uint64_t(h) + 16;
+    if (limit > uint64_t(INT32_MAX))
+        return false; // no image under the texel caps needs this much
+    std::unique_ptr<char[]> out(new char[size_t(limit)]);
+    int got = cgbi
+                  ? stbi_zlib_decode_noheader_buffer(out.get(), int(limit), z.data(), int(z.size()))
+                  : stbi_zlib_decode_buffer(out.get(), int(limit), z.data(), int(z.size()));
+    return got >= 0;
+}
+
 // The encoded bytes of image `ii`, wherever they live.
 std::pair<const unsigned char *, size_t> image_bytes(importer &im, int ii, const char *ctx)
 {
@@ -706,6 +767,11 @@ int32_t texture_for(importer &im, int mi, const char *slot, int index, int tex_c
         im.tex_map[key] = 0;
         return -1;
     }
+    if (!im.headers_only && !png_inflates_within(bytes.first, bytes.second))
+        im.fail(PT_ERR_FORMAT,
+                "%s: image %d ('%.64s'): its PNG data does not inflate to the %dx%d its header "
+                "gives (longer, or broken)",
+                ctx, t.source, uri, w, h);
     const tinygltf::Sampler *smp = nullptr;
     if (t.sampler >= 0) {
         if (size_t(t.sampler) >= m.samplers.size())

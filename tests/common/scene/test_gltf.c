@@ -1026,9 +1026,29 @@ static void put_chunk(bitbuf *b, const char *type, const unsigned char *data, si
     put_be32(b, crc32_png(b->p + start, b->len - start));
 }
 
-/* Writes a w x h 8-bit greyscale PNG of zeros. rows: how many rows its IDAT
- * holds (h for the whole image, 0 for no IDAT at all: a header alone). */
-static void write_png_zeros(const char *name, uint32_t w, uint32_t h, uint32_t rows)
+/* The bytes a w x h 8-bit greyscale PNG's stream inflates to: a filter byte
+ * and w bytes a row, or with Adam7 (PNG spec 8.2) the same for each row of
+ * each of the 7 passes' subimages. */
+static uint64_t png_raw(uint32_t w, uint32_t h, int interlace)
+{
+    if (!interlace)
+        return (uint64_t)h * (w + 1u);
+    static const uint32_t x0[7] = {0, 4, 0, 2, 0, 1, 0}, y0[7] = {0, 0, 4, 0, 2, 0, 1},
+                          dx[7] = {8, 8, 4, 4, 2, 2, 1}, dy[7] = {8, 8, 8, 4, 4, 2, 2};
+    uint64_t n = 0;
+    for (int p = 0; p < 7; p++) {
+        uint32_t pw = w > x0[p] ? (w - x0[p] + dx[p] - 1) / dx[p] : 0;
+        uint32_t ph = h > y0[p] ? (h - y0[p] + dy[p] - 1) / dy[p] : 0;
+        if (pw && ph)
+            n += (uint64_t)ph * (pw + 1u);
+    }
+    return n;
+}
+
+/* Writes a PNG whose IHDR says w x h, 8-bit greyscale, Adam7 or not, and
+ * whose IDAT inflates to `raw` zero bytes (png_raw for the whole image; 0
+ * for no IDAT at all: a header alone). */
+static void write_png_zeros(const char *name, uint32_t w, uint32_t h, int interlace, uint64_t raw)
 {
     bitbuf b = {0};
     static const unsigned char sig[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
@@ -1039,11 +1059,12 @@ static void write_png_zeros(const char *name, uint32_t w, uint32_t h, uint32_t r
         ihdr[i] = (unsigned char)(w >> (24 - 8 * i));
         ihdr[4 + i] = (unsigned char)(h >> (24 - 8 * i));
     }
-    ihdr[8] = 8; /* bit depth; colour type 0 (grey), deflate, filter 0, no interlace */
+    ihdr[8] = 8; /* bit depth; colour type 0 (grey), deflate, filter 0 */
+    ihdr[12] = (unsigned char)interlace;
     put_chunk(&b, "IHDR", ihdr, sizeof ihdr);
-    if (rows) {
+    if (raw) {
         bitbuf z = {0};
-        put_zlib_zeros(&z, (uint64_t)rows * (w + 1u)); /* a filter byte (0) a row */
+        put_zlib_zeros(&z, raw);
         put_chunk(&b, "IDAT", z.p, z.len);
         free(z.p);
     }
@@ -1125,7 +1146,7 @@ static void test_image_caps(void)
 {
     /* A whole 16384^2 PNG of zeros (1.7 MB): 256 MiB of grey, 1 GiB once
      * decoded to RGBA. Refused from its IHDR with no pixel allocated. */
-    write_png_zeros("bomb16k.png", 16384, 16384, 16384);
+    write_png_zeros("bomb16k.png", 16384, 16384, 0, png_raw(16384, 16384, 0));
     const char *one[] = {"bomb16k.png"};
     make_textured_n("bomb16k.gltf", one, 1);
     long rise = -1;
@@ -1141,8 +1162,8 @@ static void test_image_caps(void)
     expect_fail("bomb16k.gltf", PT_ERR_LIMIT, "16384x16384");
 
     /* The same claim with no pixel data at all: the header alone decides. */
-    write_png_zeros("hdr16k.png", 16384, 16384, 0);
-    write_png_zeros("wide.png", 8193, 8192, 0);
+    write_png_zeros("hdr16k.png", 16384, 16384, 0, 0);
+    write_png_zeros("wide.png", 8193, 8192, 0, 0);
     const char *hdr[] = {"hdr16k.png"}, *wide[] = {"wide.png"};
     make_textured_n("hdr16k.gltf", hdr, 1);
     expect_fail("hdr16k.gltf", PT_ERR_LIMIT, "at most 67108864 an image");
@@ -1153,7 +1174,7 @@ static void test_image_caps(void)
      * the scene's 256 Mi, refused before the first is decoded (none can
      * be: they are headers alone). Four are at the cap: the loader then
      * goes on to decode, and it is the missing data that fails. */
-    write_png_zeros("h8k.png", 8192, 8192, 0);
+    write_png_zeros("h8k.png", 8192, 8192, 0, 0);
     const char *five[] = {"h8k.png", "h8k.png", "h8k.png", "h8k.png", "h8k.png"};
     make_textured_n("five8k.gltf", five, 5);
     expect_fail("five8k.gltf", PT_ERR_LIMIT,
@@ -1182,17 +1203,49 @@ static void test_image_caps(void)
     make_gltf_tail("thrice8k.gltf", "tri.bin", k_pos_ok, k_views, k_nodes_ok, tail);
     expect_fail("thrice8k.gltf", PT_ERR_LIMIT, "at most 268435456 a scene");
 
-    /* A real image below the caps still loads. */
-    write_png_zeros("small.png", 64, 32, 32);
-    const char *small[] = {"small.png"};
-    make_textured_n("small.gltf", small, 1);
-    pt_scene *s = NULL;
-    pt_error err = {0};
-    st = pt_scene_load(tpath("small.gltf"), NULL, &s, &err);
-    CHECKF(st == PT_OK && s->num_textures == 1 && s->textures[0].width == 64 &&
-               s->textures[0].height == 32,
-           "small.gltf: %s", err.msg);
-    pt_scene_free(s);
+    /* Real images below the caps still load, interlaced or not. */
+    for (int il = 0; il < 2; il++) {
+        const char *png = il ? "small_il.png" : "small.png";
+        const char *gltf = il ? "small_il.gltf" : "small.gltf";
+        write_png_zeros(png, 37, 23, il, png_raw(37, 23, il));
+        make_textured_n(gltf, &png, 1);
+        pt_scene *s = NULL;
+        pt_error err = {0};
+        st = pt_scene_load(tpath(gltf), NULL, &s, &err);
+        CHECKF(st == PT_OK && s->num_textures == 1 && s->textures[0].width == 37 &&
+                   s->textures[0].height == 23,
+               "%s: %s", gltf, err.msg);
+        pt_scene_free(s);
+    }
+}
+
+/* A PNG whose stream inflates past what its header's size needs is
+ * refused before stb_image sees it: stb_image grows its buffer with the
+ * stream, to 2 GiB, whatever the header says. */
+static void test_png_stream(void)
+{
+    /* 1x1, with 256 MiB of zeros in its stream (1.6 MB). */
+    write_png_zeros("liar.png", 1, 1, 0, 256u << 20);
+    const char *liar[] = {"liar.png"};
+    make_textured_n("liar.gltf", liar, 1);
+    long rise = -1;
+    char msg[512] = "";
+    pt_status st = load_in_child("liar.gltf", &rise, msg, sizeof msg);
+    if (getenv("PT_TEST_VERBOSE"))
+        printf("liar.gltf -> %d, peak +%ld KiB: %s\n", (int)st, rise, msg);
+    CHECKF(st == PT_ERR_FORMAT && strstr(msg, "('liar.png'): its PNG data does not inflate to "
+                                              "the 1x1 its header gives"),
+           "liar.gltf: status %d (%s)", (int)st, msg);
+    CHECKF(rise >= 0 && rise < 64 * 1024, "liar.gltf: peak memory rose by %ld KiB", rise);
+    expect_fail("liar.gltf", PT_ERR_FORMAT, "does not inflate");
+    /* A little longer than its size needs, interlaced or not. */
+    for (int il = 0; il < 2; il++) {
+        const char *png = il ? "long_il.png" : "long.png";
+        const char *gltf = il ? "long_il.gltf" : "long.gltf";
+        write_png_zeros(png, 37, 23, il, png_raw(37, 23, 0) + 4 * 23 + 17);
+        make_textured_n(gltf, &png, 1);
+        expect_fail(gltf, PT_ERR_FORMAT, "does not inflate");
+    }
 }
 
 /* A scene whose mesh 0 is one triangle repeated 1 Mi times (u8 indices:
@@ -1408,6 +1461,7 @@ int main(void)
     test_hostile();
     test_deep_json();
     test_image_caps();
+    test_png_stream();
     test_instancing_caps();
     test_lights();
     test_confined();
