@@ -596,7 +596,7 @@ static void conn_free(srv_server *s, srv_conn *c)
         srv_queue_release_owner(s, c, 1);
     if (c->state == SRV_C_READY && c->role == PROTO_ROLE_WORKER && s->nworkers > 0)
         s->nworkers--;
-    srv_requests_conn_gone(c);
+    srv_requests_conn_gone(s, c);
     epoll_ctl(s->ep, EPOLL_CTL_DEL, c->fd, NULL);
     if (c->attached)
         srv_io_close(s->io, c->id, c->fd); /* its thread closes it, done reading */

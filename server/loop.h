@@ -141,14 +141,18 @@ struct srv_conn {
     uint32_t events;
     /* client (server/requests.c) */
     uint64_t watch, watch_t; /* job watched, last JOB_INFO sent */
-    uint8_t *fetch;          /* the EXR being sent */
+    int fetch;               /* an EXR is being sent, read from fetch_fd as the output drains */
+    int fetch_fd;            /* open (when fetch) on the image as it was at FETCH */
     size_t fetch_len, fetch_off;
     uint8_t fetch_hash[32];
     int uploading;
     int verifying; /* its upload is being verified (a srv_upload in flight) */
     proto_submit up;
-    uint8_t *up_buf;
-    size_t up_len, up_cap;
+    /* The upload goes to a file of the state folder as it arrives
+     * (srv_requests_upload_path), open in up_fd while up_open: memory holds
+     * no upload, whatever its size or number. */
+    int up_open, up_fd;
+    size_t up_len;
     srv_conn *next;
 };
 

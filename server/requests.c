@@ -1,10 +1,13 @@
 #include "server/requests.h"
 
 #include <errno.h>
+#include <fcntl.h>
 #include <limits.h>
 #include <stdio.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <time.h>
+#include <unistd.h>
 
 #include "common/base/alloc.h"
 #include "common/base/frames.h"
@@ -42,8 +45,16 @@ void srv_requests_notify_watchers(srv_server *s, const srv_entry *j)
             send_job_info(s, c, j);
 }
 
+static void fetch_end(srv_conn *c)
+{
+    if (c->fetch)
+        close(c->fetch_fd);
+    c->fetch = 0;
+}
+
 void srv_requests_pump_fetch(srv_server *s, srv_conn *c)
 {
+    static uint8_t chunk[PROTO_MAX_SCENE_CHUNK]; /* the loop's, one thread */
     while (c->fetch && !c->closing && srv_conn_has_room(c)) {
         proto_scene_chunk ch;
         memcpy(ch.hash, c->fetch_hash, 32);
@@ -51,7 +62,15 @@ void srv_requests_pump_fetch(srv_server *s, srv_conn *c)
         ch.total = c->fetch_len;
         size_t left = c->fetch_len - c->fetch_off;
         ch.len = (uint32_t)(left < PROTO_MAX_SCENE_CHUNK ? left : PROTO_MAX_SCENE_CHUNK);
-        ch.data = c->fetch + c->fetch_off;
+        /* The open file is the image as it was hashed: the writer renames
+         * a new one into place, never writes into this one. */
+        ssize_t got = pread(c->fetch_fd, chunk, ch.len, (off_t)c->fetch_off);
+        if (got != (ssize_t)ch.len) {
+            fetch_end(c);
+            srv_conn_send_error(s, c, PROTO_E_INTERNAL, "the image could not be read");
+            return;
+        }
+        ch.data = chunk;
         size_t mark;
         pt_status st = proto_frame_begin(&c->out, PROTO_MSG_IMAGE, &mark, NULL);
         if (st == PT_OK)
@@ -60,10 +79,8 @@ void srv_requests_pump_fetch(srv_server *s, srv_conn *c)
         if (!srv_conn_queued(s, c, st))
             break;
         c->fetch_off += ch.len;
-        if (c->fetch_off == c->fetch_len) {
-            pt_free(c->fetch);
-            c->fetch = NULL;
-        }
+        if (c->fetch_off == c->fetch_len)
+            fetch_end(c);
     }
 }
 
@@ -93,12 +110,29 @@ static uint32_t owner_unfinished(const srv_server *s, const char *owner)
     return n;
 }
 
+/* Uploads in progress or being checked: those of identity name, and all. */
+static void count_uploads(const srv_server *s, const char *name, uint32_t *mine, uint32_t *all)
+{
+    *mine = *all = 0;
+    for (const srv_conn *c = s->conns; c; c = c->next)
+        if (!c->closing && (c->uploading || c->verifying)) {
+            (*all)++;
+            *mine += strcmp(c->name, name) == 0;
+        }
+}
+
 static void on_submit(srv_server *s, srv_conn *c, const proto_frame *f)
 {
     pt_error err = {0};
     proto_submit m;
     if (c->uploading) {
         srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "SUBMIT during an upload");
+        return;
+    }
+    if (!s->state) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL,
+                            "this coordinator renders one job and takes no SUBMIT (a queue is "
+                            "ptserve --state-dir)");
         return;
     }
     if (proto_msg_decode_submit(f->payload, f->len, &m, &err) != PT_OK) {
@@ -188,17 +222,45 @@ static void on_submit(srv_server *s, srv_conn *c, const proto_frame *f)
         srv_conn_send_error(s, c, PROTO_E_LIMIT, "the queue is full (%u jobs)", SRV_MAX_JOBS);
         return;
     }
+    uint32_t mine, all;
+    count_uploads(s, c->name, &mine, &all);
+    if (mine >= SRV_MAX_UPLOADS_PER_CLIENT || all >= SRV_MAX_UPLOADS) {
+        srv_conn_send_error(s, c, PROTO_E_LIMIT,
+                            "too many uploads in progress (%u of yours, at most %u; %u in all, at "
+                            "most %u); try again when one is done",
+                            mine, SRV_MAX_UPLOADS_PER_CLIENT, all, SRV_MAX_UPLOADS);
+        return;
+    }
+    char part[PATH_MAX];
+    srv_requests_part_path(s, c, part, sizeof part);
+    int fd = open(part, O_RDWR | O_CREAT | O_TRUNC | O_NOFOLLOW | O_CLOEXEC, 0600);
+    if (fd < 0) {
+        srv_conn_send_error(s, c, PROTO_E_INTERNAL, "cannot store the upload: %s", strerror(errno));
+        return;
+    }
+    c->up_fd = fd;
+    c->up_open = 1;
     c->up = m;
     c->uploading = 1;
     c->up_len = 0;
     c->t_progress = pt_now_ms();
 }
 
-void srv_requests_drop_upload(srv_conn *c)
+void srv_requests_part_path(const srv_server *s, const srv_conn *c, char *out, size_t n)
 {
-    pt_free(c->up_buf);
-    c->up_buf = NULL;
-    c->up_len = c->up_cap = 0;
+    snprintf(out, n, "%s/tmp/part-%llu", srv_state_dir(s->state), (unsigned long long)c->id);
+}
+
+void srv_requests_drop_upload(srv_server *s, srv_conn *c)
+{
+    if (c->up_open) {
+        char part[PATH_MAX];
+        srv_requests_part_path(s, c, part, sizeof part);
+        close(c->up_fd);
+        unlink(part);
+        c->up_open = 0;
+    }
+    c->up_len = 0;
     c->uploading = 0;
 }
 
@@ -349,22 +411,14 @@ static void on_upload(srv_server *s, srv_conn *c, const proto_frame *f)
                             c->up_len, (unsigned long long)c->up.bundle_size);
         return;
     }
-    /* Grow with what arrives, not with what was announced. */
-    if (c->up_len + ch.len > c->up_cap) {
-        size_t cap = c->up_cap ? c->up_cap : (1u << 20);
-        while (cap < c->up_len + ch.len)
-            cap *= 2;
-        if (cap > c->up.bundle_size)
-            cap = (size_t)c->up.bundle_size;
-        uint8_t *n = pt_realloc(c->up_buf, cap);
-        if (!n) {
-            srv_conn_send_error(s, c, PROTO_E_INTERNAL, "out of memory for the scene");
-            return;
-        }
-        c->up_buf = n;
-        c->up_cap = cap;
+    /* To disk as it arrives (page cache first): no upload is held in
+     * memory. A full disk ends the upload with the reason. */
+    if (pt_write_all(c->up_fd, ch.data, ch.len) != 0) {
+        int e = errno;
+        srv_requests_drop_upload(s, c);
+        srv_conn_send_error(s, c, PROTO_E_INTERNAL, "cannot store the upload: %s", strerror(e));
+        return;
     }
-    memcpy(c->up_buf + c->up_len, ch.data, ch.len);
     c->up_len += ch.len;
     if (c->up_len == c->up.bundle_size)
         srv_upload_start(s, c);
@@ -419,10 +473,11 @@ static void on_fetch(srv_server *s, srv_conn *c, srv_entry *j, const char *path)
         srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "FETCH while a fetch is in progress");
         return;
     }
-    uint8_t *data;
-    size_t len;
-    /* Not through a link planted in the output folder, a regular file only. */
-    if (pt_read_file_nofollow(path, MAX_FETCH, &data, &len, &err) != PT_OK) {
+    int fd = -1;
+    struct stat sb;
+    /* Not through a link planted in the output folder, a regular file only;
+     * streamed from the open file, so no fetch holds a copy of the image. */
+    if (pt_open_regular(path, 0, &fd, &err) != PT_OK) {
         if (err.sys_errno == ENOENT)
             srv_conn_send_error(s, c, PROTO_E_NOT_FOUND, "job %llu has no image yet (%s)",
                                 (unsigned long long)j->rec.id, proto_job_state_name(j->rec.state));
@@ -435,15 +490,21 @@ static void on_fetch(srv_server *s, srv_conn *c, srv_entry *j, const char *path)
             srv_conn_send_error(s, c, PROTO_E_INTERNAL, "%s", err.msg);
         return;
     }
-    if (len == 0) {
-        pt_free(data);
-        srv_conn_send_error(s, c, PROTO_E_INTERNAL, "job %llu: its image file is empty",
+    if (fstat(fd, &sb) != 0 || sb.st_size == 0 || (uint64_t)sb.st_size > MAX_FETCH) {
+        close(fd);
+        srv_conn_send_error(s, c, PROTO_E_INTERNAL, "job %llu: its image file is empty or too big",
                             (unsigned long long)j->rec.id);
         return;
     }
-    pt_sha256(data, len, c->fetch_hash);
-    c->fetch = data;
-    c->fetch_len = len;
+    if (pt_sha256_fd(fd, &c->fetch_hash[0], &err) != PT_OK) {
+        close(fd);
+        srv_conn_send_error(s, c, PROTO_E_INTERNAL, "job %llu: its image could not be read",
+                            (unsigned long long)j->rec.id);
+        return;
+    }
+    c->fetch = 1;
+    c->fetch_fd = fd;
+    c->fetch_len = (size_t)sb.st_size;
     c->fetch_off = 0;
     srv_requests_pump_fetch(s, c);
 }
@@ -570,12 +631,11 @@ void srv_requests_tick(srv_server *s, uint64_t now)
     }
 }
 
-void srv_requests_conn_gone(srv_conn *c)
+void srv_requests_conn_gone(srv_server *s, srv_conn *c)
 {
     if (c->uploading)
         srv_log("client %s left during an upload (%zu of %llu bytes); nothing was queued", c->shown,
                 c->up_len, (unsigned long long)c->up.bundle_size);
-    srv_requests_drop_upload(c);
-    pt_free(c->fetch);
-    c->fetch = NULL;
+    srv_requests_drop_upload(s, c);
+    fetch_end(c);
 }

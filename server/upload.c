@@ -58,6 +58,14 @@ static void verify_upload(srv_upload *k)
 {
     pt_error err = {0};
     char hex[65], want[65];
+    /* Read here, by one of the few check threads: while it arrived, the
+     * upload was on disk only. */
+    pt_status rd = pt_read_file(k->part, (size_t)k->m.bundle_size, &k->data, &k->len, &err);
+    unlink(k->part);
+    if (rd != PT_OK || k->len != k->m.bundle_size) {
+        verify_refuse(k, PROTO_E_INTERNAL, "cannot read the stored upload back");
+        return;
+    }
     pt_sha256_hex(k->data, k->len, hex);
     pt_hash_hex(k->m.bundle_hash, want);
     if (strcmp(hex, want) != 0) {
@@ -150,6 +158,7 @@ static void *verify_thread(void *arg)
 
 static void upload_free(srv_upload *k)
 {
+    unlink(k->part); /* gone already once its check read it */
     pt_free(k->data);
     pt_bundle_free(k->bundle);
     pt_free(k);
@@ -184,10 +193,20 @@ void srv_upload_start(srv_server *s, srv_conn *c)
     k->conn_id = c->id;
     k->job_id = s->next_job_id++;
     k->m = c->up;
-    k->data = c->up_buf;
-    k->len = c->up_len;
-    c->up_buf = NULL;
-    srv_requests_drop_upload(c);
+    /* The upload's file becomes the check's: renamed, so the connection's
+     * end (srv_requests_drop_upload) no longer removes it. */
+    char part[PATH_MAX];
+    srv_requests_part_path(s, c, part, sizeof part);
+    snprintf(k->part, sizeof k->part, "%s/tmp/bundle-%llu", srv_state_dir(s->state),
+             (unsigned long long)k->job_id);
+    int moved = rename(part, k->part) == 0;
+    srv_requests_drop_upload(s, c);
+    if (!moved) {
+        k->part[0] = '\0';
+        upload_free(k);
+        srv_conn_send_error(s, c, PROTO_E_INTERNAL, "cannot keep the upload for its check");
+        return;
+    }
     k->state = s->state;
     snprintf(k->tmp, sizeof k->tmp, "%s/tmp/upload-%llu", srv_state_dir(s->state),
              (unsigned long long)k->job_id);

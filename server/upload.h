@@ -35,7 +35,8 @@
 struct srv_upload {
     uint64_t conn_id, job_id;
     proto_submit m;
-    uint8_t *data; /* the upload (owned), freed once wrapped in bundle */
+    char part[PATH_MAX]; /* the upload's file (tmp/bundle-JOB), the check's to read and remove */
+    uint8_t *data;       /* its bytes (owned), freed once wrapped in bundle */
     size_t len;
     const srv_state *state;
     char tmp[PATH_MAX];

@@ -1,7 +1,12 @@
 #include "common/base/hash.h"
 
+#include <errno.h>
 #include <openssl/evp.h>
 #include <string.h>
+#include <sys/types.h>
+#include <unistd.h>
+
+#include "common/base/alloc.h"
 
 void pt_hash_hex(const uint8_t hash[32], char out[65])
 {
@@ -20,6 +25,42 @@ void pt_sha256(const uint8_t *data, size_t size, uint8_t out[32])
     if (!EVP_Digest(data, size, md, &len, EVP_sha256(), NULL) || len != 32)
         memset(md, 0, 32);
     memcpy(out, md, 32);
+}
+
+pt_status pt_sha256_fd(int fd, uint8_t out[32], pt_error *err)
+{
+    enum { PIECE = 1 << 20 };
+    uint8_t *buf = pt_malloc(PIECE);
+    EVP_MD_CTX *ctx = EVP_MD_CTX_new();
+    pt_status st = PT_OK;
+    if (!buf || !ctx || !EVP_DigestInit_ex(ctx, EVP_sha256(), NULL)) {
+        st = pt_error_set(err, PT_ERR_NOMEM, "SHA-256: out of memory");
+        goto done;
+    }
+    for (off_t at = 0;;) {
+        ssize_t n = pread(fd, buf, PIECE, at);
+        if (n < 0 && errno == EINTR)
+            continue;
+        if (n < 0) {
+            st = pt_error_errno(err, PT_ERR_IO, "SHA-256: read");
+            goto done;
+        }
+        if (n == 0)
+            break;
+        EVP_DigestUpdate(ctx, buf, (size_t)n);
+        at += n;
+    }
+    unsigned char md[EVP_MAX_MD_SIZE];
+    unsigned int len = 0;
+    if (!EVP_DigestFinal_ex(ctx, md, &len) || len != 32) {
+        st = pt_error_set(err, PT_ERR_NOMEM, "SHA-256: the digest failed");
+        goto done;
+    }
+    memcpy(out, md, 32);
+done:
+    EVP_MD_CTX_free(ctx);
+    pt_free(buf);
+    return st;
 }
 
 void pt_sha256_hex(const uint8_t *data, size_t size, char out[65])

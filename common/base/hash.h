@@ -13,6 +13,8 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "common/base/error.h"
+
 #define PT_HASH_SIZE 32u /* bytes of a SHA-256 */
 #define PT_HASH_HEX 65u  /* its hex text with the NUL */
 
@@ -22,6 +24,12 @@ void pt_hash_hex(const uint8_t hash[32], char out[65]);
 /* SHA-256 of bytes, the 32 raw bytes as peers send them. A failure of the
  * digest (it has none for in-memory bytes) gives 32 zero bytes. */
 void pt_sha256(const uint8_t *data, size_t size, uint8_t out[32]);
+
+/* SHA-256 of the bytes of the open file fd, from its start to its end,
+ * read in 1 MiB pieces with pread (fd's offset is left alone), so a file of
+ * any size is hashed in constant memory. PT_ERR_IO when a read fails,
+ * PT_ERR_NOMEM; out is untouched on failure. */
+pt_status pt_sha256_fd(int fd, uint8_t out[32], pt_error *err);
 
 /* SHA-256 of bytes as lower-case hex (65 bytes with the NUL): pt_sha256 then
  * pt_hash_hex, so a failure gives 64 zeros. */

@@ -27,12 +27,19 @@
  *     the server's ("../../..", an absolute path, /dev/zero) are refused
  *     without opening it, and the reply shows neither its bytes, its size nor
  *     a path of the server; the next good submit is served.
+ *  7. Uploads held open: four clients with 47 MiB of 48 MiB uploads each
+ *     leave the server's resident memory within a few MiB (the uploads are
+ *     on disk); a fifth upload of the same client is refused; clients that
+ *     leave take their upload files with them.
  */
+#include <dirent.h>
+
 #include "common/base/alloc.h"
 #include "common/base/fsutil.h"
 #include "common/base/hash.h"
 #include "common/render/render.h"
 #include "common/scene/bundle.h"
+#include "server/requests.h"
 #include "tests/check.h"
 #include "tests/server/farm_util.h"
 
@@ -1707,17 +1714,17 @@ static void checked_off_loop(void)
           list.jobs[0].job_id == ref.job_id);
     pt_free(list.jobs);
     cli_close(&b);
-    /* Five uploads complete at once: SRV_MAX_SCENE_CHECKS are checked at a
+    /* Four uploads (a client's most) complete at once: SRV_MAX_SCENE_CHECKS are checked at a
      * time (each holds a decoded scene), the rest wait their turn, and every
      * one is queued in the end. */
-    cli many[5];
-    for (int i = 0; i < 5; i++) {
+    cli many[SRV_MAX_UPLOADS_PER_CLIENT];
+    for (int i = 0; i < (int)SRV_MAX_UPLOADS_PER_CLIENT; i++) {
         char name[16];
         snprintf(name, sizeof name, "many%d", i);
         CHECK(cli_open(&many[i], g_port) == 0);
         send_submission(&many[i], name, big);
     }
-    for (int i = 0; i < 5; i++) {
+    for (int i = 0; i < (int)SRV_MAX_UPLOADS_PER_CLIENT; i++) {
         ref.job_id = 0;
         CHECK(reply(&many[i], &f) == PROTO_MSG_SUBMITTED &&
               proto_msg_decode_job_ref(f.payload, f.len, &ref, NULL) == PT_OK && ref.job_id);
@@ -1725,6 +1732,96 @@ static void checked_off_loop(void)
     }
     CHECK(log_count("check.log", "waits to be checked: 2 checks run at once") >= 1);
     pt_bundle_free(big);
+    kill_server(SIGTERM);
+}
+
+/* ---- 7. uploads on disk ------------------------------------------------------------- */
+
+/* The resident memory of process pid in KiB (VmRSS), -1 when unknown. */
+static long rss_kib(pid_t pid)
+{
+    char file[64], line[256];
+    snprintf(file, sizeof file, "/proc/%d/status", (int)pid);
+    FILE *f = fopen(file, "r");
+    long kib = -1;
+    while (f && fgets(line, sizeof line, f))
+        if (strncmp(line, "VmRSS:", 6) == 0)
+            kib = strtol(line + 6, NULL, 10);
+    if (f)
+        fclose(f);
+    return kib;
+}
+
+/* Files in folder whose names start with prefix (of size bytes, when size
+ * is not 0). */
+static int count_files_sized(const char *folder, const char *prefix, off_t size)
+{
+    DIR *d = opendir(folder);
+    int n = 0;
+    for (struct dirent *e; d && (e = readdir(d));) {
+        char p[2048];
+        struct stat sb;
+        snprintf(p, sizeof p, "%s/%s", folder, e->d_name);
+        n += strncmp(e->d_name, prefix, strlen(prefix)) == 0 &&
+             (!size || (stat(p, &sb) == 0 && sb.st_size == size));
+    }
+    if (d)
+        closedir(d);
+    return n;
+}
+
+static int count_files(const char *folder, const char *prefix)
+{
+    return count_files_sized(folder, prefix, 0);
+}
+
+static void uploads_on_disk(void)
+{
+    enum { MIB = 1 << 20, SIZE = 48 * MIB, SENT = 47, N = SRV_MAX_UPLOADS_PER_CLIENT };
+    uint8_t *junk = malloc(SIZE), hash[32];
+    for (size_t i = 0; i < SIZE; i++)
+        junk[i] = (uint8_t)(i * 2654435761u >> 13);
+    hash_bytes(junk, SIZE, hash);
+    g_port = 0;
+    start_server("state7", "uploads.log", NULL);
+    long base = rss_kib(g_srv);
+    static cli c[N + 1];
+    for (int i = 0; i <= N; i++) {
+        char name[16];
+        snprintf(name, sizeof name, "held%d", i);
+        CHECK(cli_open(&c[i], g_port) == 0);
+        proto_submit m = job_of(name, 64, 48, 16, 0);
+        m.bundle_size = SIZE;
+        memcpy(m.bundle_hash, hash, 32);
+        submit_begin(&c[i], &m);
+        if (i == N)
+            break;
+        /* In halves: send_frame's writer holds a frame of at most 1 MiB. */
+        for (int k = 0; k < 2 * SENT; k++)
+            upload(&c[i], hash, junk, SIZE, (uint64_t)k * (MIB / 2), MIB / 2);
+    }
+    /* The fifth of one client is refused; the four others are all in. */
+    proto_frame f;
+    CHECK(reply(&c[N], &f) == -2 && strstr(err_text, "too many uploads in progress"));
+    cli_close(&c[N]);
+    char part_dir[1024];
+    snprintf(part_dir, sizeof part_dir, "%s/tmp", path("state7"));
+    /* Every byte sent is with the server: on disk, in its upload files. */
+    for (double end = pt_now_s() + 30; pt_now_s() < end; sleep_ms(50))
+        if (count_files_sized(part_dir, "part-", (off_t)SENT * MIB) == N)
+            break;
+    CHECK(count_files_sized(part_dir, "part-", (off_t)SENT * MIB) == N);
+    long held = rss_kib(g_srv);
+    CHECKF(base > 0 && held - base < 32 * 1024,
+           "%d uploads of %d MiB held open took the server from %ld to %ld KiB", N, SENT, base,
+           held);
+    fprintf(stderr, "uploads: %d x %d MiB held open: VmRSS %ld -> %ld KiB\n", N, SENT, base, held);
+    CHECK(count_files(part_dir, "part-") == N);
+    for (int i = 0; i < N; i++)
+        cli_close(&c[i]);
+    CHECK(wait_log_count("uploads.log", "left during an upload", N));
+    CHECK(count_files(part_dir, "part-") == 0);
+    free(junk);
     kill_server(SIGTERM);
 }
 
@@ -1867,6 +1964,7 @@ int main(void)
     hostile_clients();
     checked_off_loop();
     outside_files();
+    uploads_on_disk();
     pt_bundle_free(g_bundle);
     if (g_srv > 0)
         kill_server(SIGKILL);

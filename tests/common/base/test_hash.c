@@ -1,9 +1,40 @@
 /* Tests for common/base/hash.c: SHA-256 text and hex in both directions. */
 #include "common/base/hash.h"
 
+#include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "tests/check.h"
+
+/* pt_sha256_fd reads a file in pieces: across piece boundaries, empty, and
+ * from a descriptor whose offset is elsewhere, it gives pt_sha256's bytes. */
+static void test_sha256_fd(void)
+{
+    const size_t sizes[] = {0, 1, (1u << 20) - 1, 1u << 20, 3u * (1u << 20) + 17};
+    for (size_t k = 0; k < sizeof sizes / sizeof *sizes; k++) {
+        size_t n = sizes[k];
+        uint8_t *data = malloc(n ? n : 1), want[32], got[32];
+        for (size_t i = 0; i < n; i++)
+            data[i] = (uint8_t)(i * 131u + (i >> 9));
+        FILE *f = tmpfile();
+        CHECK(f && fwrite(data, 1, n, f) == n && fflush(f) == 0);
+        int fd = f ? fileno(f) : -1;
+        lseek(fd, (off_t)(n / 2), SEEK_SET);
+        pt_error err = {0};
+        pt_sha256(data, n, want);
+        CHECKF(pt_sha256_fd(fd, got, &err) == PT_OK && memcmp(got, want, 32) == 0, "%zu bytes: %s",
+               n, err.msg);
+        CHECK(lseek(fd, 0, SEEK_CUR) == (off_t)(n / 2));
+        if (f)
+            fclose(f);
+        free(data);
+    }
+    uint8_t out[32] = {7};
+    pt_error err = {0};
+    CHECK(pt_sha256_fd(-1, out, &err) == PT_ERR_IO && out[0] == 7);
+}
 
 static void test_sha256(void)
 {
@@ -60,6 +91,7 @@ int main(void)
 {
     test_hex_digit();
     test_sha256();
+    test_sha256_fd();
     test_hex_round_trip();
     test_hex_decode_rejects();
     return check_report();
