@@ -238,8 +238,21 @@ pt_vec3 pt_closure_sample(const pt_closure *c, const float u[3], pt_vec3 *wi, fl
         float p;
         int r = pt_dielectric_sample(&pick->p.dielectric, c->wo, ul, pick->prob, wi, &w, &p);
         if (r == PT_DIELECTRIC_DELTA) {
-            /* Its weight assumes nothing around it (closure.h). */
-            assert(g == c->n_groups - 1);
+            /* The groups around it: the lobes there add no delta, they only
+             * pass on below(wo, wi) of it, and picking it took each
+             * group's below probability. */
+            for (uint32_t k = g + 1; k < c->n_groups; k++) {
+                const pt_closure_group *gr = &c->group[k];
+                for (uint32_t i = gr->n; i-- > 0;) {
+                    float sh, below;
+                    lobe_eval(&c->lobe[gr->first + i], c->wo, *wi, &sh, &below);
+                    w = pt_v3_scale(w, below);
+                }
+                w = pt_v3_scale(w, 1.0f / gr->below);
+                p *= gr->below;
+            }
+            if (!(p > 0.0f))
+                return zero;
             *pdf = p;
             if (delta)
                 *delta = 1;

@@ -28,7 +28,9 @@
  * estimator (Veach 1997, ch. 9). A sample fails (pdf 0) where the picked
  * lobe's direction is impossible or the pdf of its group or of any group
  * around it is 0. A delta lobe (a smooth interface) is sampled only, never
- * evaluated, and only in the outermost group.
+ * evaluated; the groups around it scale its weight by their lobes' below
+ * factors at the sampled direction and its probability by their below
+ * probabilities.
  *
  * Directions in the local shading frame (z = the normal), unit length,
  * pointing away from the surface; wo.z > 0 or the closure is empty (eval and

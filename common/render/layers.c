@@ -173,9 +173,10 @@ pt_vec3 pt_sheen_eval(const pt_sheen_lobe *l, pt_vec3 wo, pt_vec3 wi, float prob
                       float *below)
 {
     if (!(wo.z > 0.0f) || !(wi.z > 0.0f)) {
-        /* Under the base's hemisphere the base gives nothing to scale. */
+        /* Light that the base transmits from below crosses the sheen once,
+         * along wo: only S's wo half. (An opaque base gives 0 there.) */
         *share = 0.0f;
-        *below = 1.0f;
+        *below = l->keep_o;
         return pt_v3(0.0f, 0.0f, 0.0f);
     }
     float ei = fminf(pt_sheen_albedo(wi.z, l->rough), 1.0f);

@@ -1,13 +1,16 @@
 /*
- * layers.h - clearcoat and sheen layered over the glTF base
+ * layers.h - clearcoat and sheen layered over the glTF base or glass
  * (KHR_materials_clearcoat, KHR_materials_sheen): their parameters and
- * their two lobes, which the closure (closure.h) puts over the base.
+ * their two lobes, which the closure (closure.h) puts over the rest of the
+ * material (f_base below: the base, or glass with its transmission).
  *
  * The layering is the extensions' own (their READMEs, "Layering" and
  * "Albedo-scaling"), outermost first:
  *   f = Fc(wo) f_coat + (1 - Fc(wo)) [ f_sheen + S(wo, wi) f_base ],
  *   Fc(wo) = clearcoat x Schlick(F0 = 0.04, wo.z)   (a coat of ior 1.5),
  *   S(wo, wi) = min(1 - max(sheen) E(wo.z), 1 - max(sheen) E(wi.z)),
+ *   S(wo, wi) = 1 - max(sheen) E(wo.z) for wi below the base (light the
+ *   base transmits crosses the sheen once, along wo),
  * with f_coat a GGX reflection without Fresnel (alpha = clearcoatRoughness^2,
  * Smith height-correlated G2) on the shading normal, or on the coat's own
  * normal (clearcoatNormalTexture) where pt_layers_coat_normal gave one, and

@@ -914,23 +914,24 @@ static pt_glass glass_at(const pt_renderer *r, const surface *sf, int front,
  * The closure at sf (closure.h): the builder. wo_l is wo in the shading frame
  * fr. Glass (PT_FEAT_TRANSMISSION; front: the ray arrives on the side the
  * geometric normal points to) is its opaque share beside the interface;
- * other materials are the glTF base, with clearcoat and sheen over it where
- * they have them (PT_FEAT_CLEARCOAT, PT_FEAT_SHEEN). Glass takes no layers
- * yet: a transmissive material's coat and sheen are left out, as they
- * always were.
+ * other materials are the glTF base. Clearcoat and sheen go over either
+ * where the material has them (PT_FEAT_CLEARCOAT, PT_FEAT_SHEEN), as the
+ * extensions layer them over the whole material, transmission included.
  */
 static inline __attribute__((always_inline)) void
 material_closure(const pt_renderer *r, const surface *sf, int glass, int front, const pt_frame *fr,
                  pt_vec3 wo, pt_vec3 wo_l, pt_vec3 ng, pt_closure *cl, const uint32_t features)
 {
     pt_closure_init(cl, wo_l);
+    pt_bsdf bsdf;
     if ((features & PT_FEAT_TRANSMISSION) && glass) {
         pt_glass g = glass_at(r, sf, front, features);
         pt_closure_add_glass(cl, &g);
-        return;
+        bsdf = g.base;
+    } else {
+        bsdf = material_bsdf(r, sf, features);
+        pt_closure_add_base(cl, &bsdf);
     }
-    pt_bsdf bsdf = material_bsdf(r, sf, features);
-    pt_closure_add_base(cl, &bsdf);
     pt_layers lay;
     if (!((features & LAYERS) && has_layers(sf->mat) && layers_setup(r, sf, &bsdf, &lay, features)))
         return;

@@ -22,6 +22,15 @@
  *   scatter nothing (eval 0, pdf 0, sample pdf 0).
  * - Delta lobes: a smooth interface's sample is flagged delta, with the
  *   discrete probability pick x F or pick x (1 - F), and is not in eval.
+ * - Layers over glass (KHR_materials_clearcoat and _sheen over
+ *   _transmission): a smooth glass (ior 1.5) under a smooth coat, seen along
+ *   the normal, transmits (1 - Fc)(1 - F) / eta^2 and reflects
+ *   (1 - Fc) F + Fc A_c with Fc = F = 0.04 (the coat's and the glass's
+ *   Fresnel at normal incidence) and A_c in [0.95, 1] the smooth coat lobe's
+ *   albedo, each within 5 standard errors of the sampled means; a thin rough
+ *   glass under coat and sheen reflects and transmits at most what it gets
+ *   (furnace, 5 standard errors, every incidence 0..85 degrees); chi-square
+ *   of its sampling against its pdf over the whole sphere.
  */
 #include "common/render/closure.h"
 
@@ -29,6 +38,10 @@
 #include <stdint.h>
 
 #include "tests/check.h"
+#include "tests/stats.h"
+
+#define N_CHI2_TESTS 2
+#include "tests/common/render/dir_chi2.h"
 
 /* splitmix64: the test's own numbers. */
 static uint64_t rng = 0x2545f4914f6cdd1dull;
@@ -39,12 +52,6 @@ static float rndf(void)
     z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
     z ^= z >> 31;
     return (float)(z >> 40) * 0x1p-24f;
-}
-
-static pt_vec3 dir_at(float theta_deg, float phi)
-{
-    float t = theta_deg * (PT_PI / 180.0f);
-    return pt_v3(sinf(t) * cosf(phi), sinf(t) * sinf(phi), cosf(t));
 }
 
 static pt_vec3 random_upper(void)
@@ -241,6 +248,13 @@ static pt_closure random_closure(pt_vec3 wo, int kind)
                                     0.1f + 0.8f * rndf(), 1.0f, pt_v3(1, 1, 1), rndf(),
                                     rndf() < 0.5f ? 1.5f : 1.0f / 1.5f, rndf() < 0.3f);
         pt_closure_add_glass(&c, &g);
+        if (kind >= 4) {
+            pt_layers l = layers(rndf(), rndf());
+            if (kind == 5)
+                pt_layers_coat_normal(
+                    &l, pt_v3_norm(pt_v3_add(wo, dir_at(30.0f * rndf(), 6.0f * rndf()))));
+            pt_closure_add_layers(&c, &l);
+        }
     }
     return c;
 }
@@ -248,9 +262,9 @@ static pt_closure random_closure(pt_vec3 wo, int kind)
 static void test_sampling_contract(void)
 {
     int bad_pdf = 0, bad_w = 0, bad_fail = 0, ok = 0;
-    for (int k = 0; k < 4000; k++) {
+    for (int k = 0; k < 6000; k++) {
         pt_vec3 wo = random_upper();
-        pt_closure c = random_closure(wo, k % 4);
+        pt_closure c = random_closure(wo, k % 6);
         for (int j = 0; j < 8; j++) {
             float u[3] = {rndf(), rndf(), rndf()}, pdf;
             pt_vec3 wi;
@@ -271,7 +285,7 @@ static void test_sampling_contract(void)
     CHECKF(bad_pdf == 0, "%d of %d samples' pdfs differ from pt_closure_pdf", bad_pdf, ok);
     CHECKF(bad_w == 0, "%d of %d sample weights differ from eval / pdf", bad_w, ok);
     CHECKF(bad_fail == 0, "%d failed samples have a pdf or a weight", bad_fail);
-    CHECK(ok > 20000);
+    CHECK(ok > 30000);
 }
 
 static void test_empty(void)
@@ -334,6 +348,119 @@ static void test_delta(void)
     CHECK(close_rel(pt_closure_pdf(&c, mir), (1.0f - g.pick) * pt_closure_pdf(&base, mir), 1e-6f));
 }
 
+/* Clearcoat (and sheen) over glass. */
+static pt_closure coated_glass(pt_vec3 wo, float rough, int thin, float cc, float ccr, float sheen)
+{
+    pt_glass g =
+        pt_glass_setup(pt_v3(1, 1, 1), 0.0f, rough, 1.0f, pt_v3(1, 1, 1), 1.0f, 1.5f, thin);
+    pt_bsdf b = g.base;
+    pt_layers l;
+    float sc[3] = {sheen, sheen, sheen};
+    pt_layers_setup(&l, &b, cc, ccr, sc, 0.5f);
+    pt_closure c;
+    pt_closure_init(&c, wo);
+    pt_closure_add_glass(&c, &g);
+    pt_closure_add_layers(&c, &l);
+    return c;
+}
+
+static void test_coated_glass_normal(void)
+{
+    pt_vec3 wo = pt_v3(0, 0, 1);
+    pt_closure c = coated_glass(wo, 0.0f, 0, 1.0f, 0.0f, 0.0f);
+    CHECK(c.n_groups == 2 && c.n_lobes == 2);
+    const double fc = 0.04, F = 0.04, eta2 = 1.5 * 1.5;
+    const int n = 400000;
+    double st = 0, st2 = 0, sr = 0, sr2 = 0;
+    int bad = 0;
+    pcg32 r = pcg32_make(91, 3);
+    for (int k = 0; k < n; k++) {
+        float u[3] = {pcg32_float(&r), pcg32_float(&r), pcg32_float(&r)}, pdf;
+        pt_vec3 wi;
+        int delta;
+        pt_vec3 w = pt_closure_sample(&c, u, &wi, &pdf, &delta);
+        if (!pt_isfinite3(w) || w.x < 0.0f || w.y != w.x || w.z != w.x)
+            bad++;
+        if (!(pdf > 0.0f))
+            continue;
+        double x = w.x;
+        if (wi.z < 0.0f) {
+            bad += !delta;
+            st += x;
+            st2 += x * x;
+        } else {
+            sr += x;
+            sr2 += x * x;
+        }
+    }
+    CHECKF(bad == 0, "%d bad samples of the coated glass", bad);
+    double mt = st / n, set = sqrt(fmax(st2 / n - mt * mt, 0.0) / n);
+    double mr = sr / n, ser = sqrt(fmax(sr2 / n - mr * mr, 0.0) / n);
+    double want_t = (1.0 - fc) * (1.0 - F) / eta2;
+    CHECKF(fabs(mt - want_t) <= 5.0 * set + 1e-6,
+           "coated glass transmits %.6f, want %.6f (se %.2g)", mt, want_t, set);
+    double lo = (1.0 - fc) * F + fc * 0.95, hi = (1.0 - fc) * F + fc;
+    CHECKF(mr >= lo - 5.0 * ser && mr <= hi + 5.0 * ser,
+           "coated glass reflects %.6f, want [%.6f, %.6f] (se %.2g)", mr, lo, hi, ser);
+}
+
+static void test_coated_glass_furnace(void)
+{
+    int bad = 0;
+    for (int deg = 0; deg <= 85; deg += 17) {
+        pt_vec3 wo = dir_at((float)deg, 0.7f);
+        pt_closure c = coated_glass(wo, 0.4f, 1, 0.8f, 0.3f, 0.7f);
+        const int n = 100000;
+        double s = 0, s2 = 0;
+        pcg32 r = pcg32_make(200 + (uint64_t)deg, 5);
+        for (int k = 0; k < n; k++) {
+            float u[3] = {pcg32_float(&r), pcg32_float(&r), pcg32_float(&r)}, pdf;
+            pt_vec3 wi;
+            pt_vec3 w = pt_closure_sample(&c, u, &wi, &pdf, NULL);
+            if (!pt_isfinite3(w) || w.x < 0.0f)
+                bad++;
+            double x = w.x;
+            s += x;
+            s2 += x * x;
+        }
+        double m = s / n, se = sqrt(fmax(s2 / n - m * m, 0.0) / n);
+        CHECKF(m <= 1.0 + 5.0 * se, "coated thin glass at %d deg: albedo %.5f (se %.2g)", deg, m,
+               se);
+        CHECKF(m > 0.5, "coated thin glass at %d deg: albedo %.5f", deg, m);
+    }
+    CHECKF(bad == 0, "%d bad weights from coated thin glass", bad);
+}
+
+typedef struct cg_ctx {
+    pt_closure c;
+} cg_ctx;
+
+static float cg_pdf(const void *ctx, pt_vec3 w)
+{
+    return pt_closure_pdf(&((const cg_ctx *)ctx)->c, w);
+}
+
+static pt_vec3 cg_sample(const void *ctx, pcg32 *r, float *pdf)
+{
+    float u[3] = {pcg32_float(r), pcg32_float(r), pcg32_float(r)};
+    pt_vec3 wi;
+    pt_closure_sample(&((const cg_ctx *)ctx)->c, u, &wi, pdf, NULL);
+    return wi;
+}
+
+static void test_coated_glass_chi2(void)
+{
+    static cg_ctx a, b;
+    pt_vec3 wo = dir_at(40.0f, 1.1f);
+    a.c = coated_glass(wo, 0.5f, 0, 0.6f, 0.3f, 0.5f);
+    binning ba = {pt_frame_from_normal(pt_v3(0, 0, 1)), 1.0, cg_pdf, &a};
+    chi2_run("clearcoat + sheen over rough glass, 40 deg", &ba, cg_sample, &a, 300000, 31);
+    wo = dir_at(65.0f, 2.0f);
+    b.c = coated_glass(wo, 0.3f, 1, 1.0f, 0.4f, 0.0f);
+    binning bb = {pt_frame_from_normal(pt_v3(-wo.x, -wo.y, wo.z)), 1.5, cg_pdf, &b};
+    chi2_run("clearcoat over thin rough glass, 65 deg", &bb, cg_sample, &b, 300000, 32);
+}
+
 int main(void)
 {
     test_builder();
@@ -341,5 +468,8 @@ int main(void)
     test_sampling_contract();
     test_empty();
     test_delta();
+    test_coated_glass_normal();
+    test_coated_glass_furnace();
+    test_coated_glass_chi2();
     return check_report();
 }
