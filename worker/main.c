@@ -23,6 +23,7 @@
 #include "common/base/version.h"
 #include "common/render/render.h"
 #include "common/render/tile.h"
+#include "common/scene/scene.h"
 #include "protocol/msg.h"
 #include "worker/client.h"
 #include "worker/standalone.h"
@@ -41,6 +42,16 @@ static void usage(FILE *f)
             "used on the scale of emission, with no 683 lm/W or 4 pi factor: a point or spot\n"
             "light of intensity I gives irradiance I/d^2 at distance d, a directional light of\n"
             "intensity E gives irradiance E (glTF gives emission no unit; see README).\n"
+            "\n"
+            "Scene limits (both modes; ptserve checks uploads the same way): at most\n"
+            "%u triangles, every instance of a mesh counted; images of at most\n"
+            "%llu texels (%u a side) and %llu texels over all textures; PNG\n"
+            "data no longer than an image's size needs. They are read from the files\n"
+            "before anything is built or decoded; a scene past them is refused. A worker\n"
+            "needs 170 to 500 bytes a triangle and 4 a texel (docs/OPERATIONS.md, Limits).\n",
+            PT_SCENE_MAX_TRIANGLES, (unsigned long long)PT_SCENE_MAX_IMAGE_TEXELS,
+            PT_SCENE_MAX_TEXTURE_DIM, (unsigned long long)PT_SCENE_MAX_TEXELS);
+    fprintf(f,
             "\n"
             "Farm worker: connects to a ptserve coordinator, renders the tasks it hands out\n"
             "and sends the results back, until SIGTERM or SIGINT. Scenes are fetched by\n"
