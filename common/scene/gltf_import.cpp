@@ -748,30 +748,31 @@ int32_t texture_for(importer &im, int mi, const char *slot, int index, int tex_c
     // sizes its buffers from the same header fields (PNG IHDR, JPEG SOF, the
     // BMP, TGA, GIF, PSD, PIC, PNM and Radiance headers).
     const tinygltf::Image &img = m.images[size_t(t.source)];
-    const char *uri = is_data_uri(img.uri) ? "" : img.uri.c_str();
+    char what[96]; // "image 3", and its file's name when it has one
+    int k = snprintf(what, sizeof what, "image %d", t.source);
+    if (!img.uri.empty() && !is_data_uri(img.uri))
+        snprintf(what + k, sizeof what - size_t(k), " ('%.64s')", img.uri.c_str());
     const int hw = w, hh = h;
     uint64_t texels = uint64_t(w) * uint64_t(h);
     if (texels > PT_SCENE_MAX_IMAGE_TEXELS)
-        im.fail(PT_ERR_LIMIT,
-                "%s: image %d ('%.64s') is %dx%d, %llu texels (at most %llu an image)", ctx,
-                t.source, uri, w, h, (unsigned long long)texels,
-                (unsigned long long)PT_SCENE_MAX_IMAGE_TEXELS);
+        im.fail(PT_ERR_LIMIT, "%s: %s is %dx%d, %llu texels (at most %llu an image)", ctx, what, w,
+                h, (unsigned long long)texels, (unsigned long long)PT_SCENE_MAX_IMAGE_TEXELS);
     if (texels > PT_SCENE_MAX_TEXELS - im.texels)
         im.fail(PT_ERR_LIMIT,
-                "%s: image %d ('%.64s') is %dx%d, which makes %llu texels in the scene's "
-                "textures (at most %llu a scene)",
-                ctx, t.source, uri, w, h, (unsigned long long)(im.texels + texels),
+                "%s: %s is %dx%d, which makes %llu texels in the scene's textures (at most "
+                "%llu a scene)",
+                ctx, what, w, h, (unsigned long long)(im.texels + texels),
                 (unsigned long long)PT_SCENE_MAX_TEXELS);
     if (im.headers_only) {
         im.texels += texels;
         im.tex_map[key] = 0;
         return -1;
     }
-    if (!im.headers_only && !png_inflates_within(bytes.first, bytes.second))
+    if (!png_inflates_within(bytes.first, bytes.second))
         im.fail(PT_ERR_FORMAT,
-                "%s: image %d ('%.64s'): its PNG data does not inflate to the %dx%d its header "
-                "gives (longer, or broken)",
-                ctx, t.source, uri, w, h);
+                "%s: %s: its PNG data does not inflate to the %dx%d its header gives (longer, "
+                "or broken)",
+                ctx, what, w, h);
     const tinygltf::Sampler *smp = nullptr;
     if (t.sampler >= 0) {
         if (size_t(t.sampler) >= m.samplers.size())
@@ -1931,8 +1932,8 @@ uint64_t node_triangles(const tinygltf::Model &m, int ni, int depth,
 
 // Refuses a scene whose meshes, once instanced by its nodes, make more than
 // PT_SCENE_MAX_TRIANGLES triangles, before anything is read or decoded: a
-// small file can instance one mesh (or an accessor of zeros, which needs no
-// bytes) many times over. The builder checks the same cap as it goes.
+// small file can instance one mesh many times over (u8 indices make a
+// triangle of 3 bytes). The builder checks the same cap as it goes.
 void check_triangles(importer &im, int si)
 {
     const tinygltf::Model &m = im.model;
