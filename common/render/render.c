@@ -969,8 +969,7 @@ material_closure(const pt_renderer *r, const surface *sf, int glass, int front, 
  * a delta lobe has no light-sampling rival). A shadow ray from glass inside
  * an absorbing medium carries its transmittance. As before the closure
  * interface, glass reads its shading normal unbent by a normal map, and its
- * shadow rays neither weigh an alpha-tested emitter's coverage nor draw an
- * alpha key of their own.
+ * shadow rays do not weigh an alpha-tested emitter's coverage.
  *
  * Adds the hit's emission to pa->L; fills *sr and returns SHADE_SHADOW when
  * the light sample needs a shadow ray, whose contribution the caller adds
@@ -1031,7 +1030,7 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
         if ((features & PT_FEAT_ALPHA) && r->alpha && !glass && ls_ok &&
             ls->delta == PT_LIGHT_AREA && pt_alpha_tri(r->scene, ls->tri))
             lrad = pt_v3_scale(lrad, light_coverage(r, ls));
-        if ((features & PT_FEAT_ALPHA) && !glass)
+        if (features & PT_FEAT_ALPHA)
             sr->alpha_key = pt_alpha_key(u[OFF_ALPHA], ALPHA_SALT_SHADOW);
         float side = ls_ok ? pt_v3_dot(ls->wi, ng) : 0.0f;
         if (ls_ok && ls->pdf > 0.0f && any_positive(lrad) && (side > 0.0f || glass)) {
