@@ -10,9 +10,13 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <strings.h>
 #include <sys/stat.h>
 #include <time.h>
 #include <unistd.h>
+
+#include <arpa/inet.h>
+#include <netinet/in.h>
 
 #include "common/base/alloc.h"
 #include "common/base/fsutil.h"
@@ -22,6 +26,7 @@
 #include "common/image/image.h"
 #include "protocol/auth.h"
 #include "protocol/jobjson.h"
+#include "server/authlimit.h"
 #include "server/frames.h"
 #include "server/http_assets.h"
 #include "server/loop.h"
@@ -92,6 +97,8 @@ struct srv_http {
     snap *cur;
     action acts[SRV_HTTP_ACTIONS];
     session sessions[SRV_HTTP_SESSIONS];
+    srv_authlimit fails; /* under mu: failed authentications per address */
+    char hosts[512];     /* --http-host's names, comma-separated ("" for none) */
     /* the loop's own */
     uint64_t t_pub, version, sig;
     int stopping;  /* under mu: event streams end */
@@ -295,6 +302,8 @@ void srv_http_drain(srv_server *s, srv_http *h)
 
 typedef struct who {
     int ok, admin;
+    int tried;  /* the request presented a token or a session cookie */
+    int cookie; /* authenticated by the session cookie (a browser's) */
     char name[PROTO_MAX_NAME + 1];
 } who;
 
@@ -414,14 +423,125 @@ static who authenticate(srv_http *h, struct MHD_Connection *conn)
         return w;
     }
     const char *auth = MHD_lookup_connection_value(conn, MHD_HEADER_KIND, "Authorization");
-    if (auth && strncmp(auth, "Bearer ", 7) == 0) {
-        who_token(h, (const uint8_t *)auth + 7, strlen(auth + 7), &w);
+    if (auth) {
+        w.tried = 1;
+        if (strncmp(auth, "Bearer ", 7) == 0)
+            who_token(h, (const uint8_t *)auth + 7, strlen(auth + 7), &w);
         return w;
     }
     const char *cookie = MHD_lookup_connection_value(conn, MHD_COOKIE_KIND, COOKIE);
-    if (cookie && strlen(cookie) == 64)
-        who_cookie(h, cookie, &w);
+    if (cookie) {
+        w.tried = w.cookie = 1;
+        if (strlen(cookie) == 64)
+            who_cookie(h, cookie, &w);
+    }
     return w;
+}
+
+/* The client's address as text (the failed-authentication table's key). */
+static void client_addr(struct MHD_Connection *conn, char out[SRV_AUTHLIMIT_ADDR])
+{
+    const union MHD_ConnectionInfo *ci =
+        MHD_get_connection_info(conn, MHD_CONNECTION_INFO_CLIENT_ADDRESS);
+    out[0] = '\0';
+    if (!ci || !ci->client_addr)
+        return;
+    const struct sockaddr *sa = ci->client_addr;
+    if (sa->sa_family == AF_INET)
+        inet_ntop(AF_INET, &((const struct sockaddr_in *)(const void *)sa)->sin_addr, out,
+                  SRV_AUTHLIMIT_ADDR);
+    else if (sa->sa_family == AF_INET6)
+        inet_ntop(AF_INET6, &((const struct sockaddr_in6 *)(const void *)sa)->sin6_addr, out,
+                  SRV_AUTHLIMIT_ADDR);
+}
+
+/* Milliseconds addr stays blocked for failed authentications (0: none). */
+static uint64_t auth_blocked(srv_http *h, const char *addr)
+{
+    pthread_mutex_lock(&h->mu);
+    uint64_t ms = srv_authlimit_blocked(&h->fails, addr, pt_now_ms());
+    pthread_mutex_unlock(&h->mu);
+    return ms;
+}
+
+static void auth_failed(srv_http *h, const char *addr)
+{
+    pthread_mutex_lock(&h->mu);
+    srv_authlimit_failed(&h->fails, addr, "dashboard", pt_now_ms());
+    pthread_mutex_unlock(&h->mu);
+}
+
+/* 429 with Retry-After: addr is blocked for ms more. */
+static enum MHD_Result respond_blocked(struct MHD_Connection *conn, uint64_t ms)
+{
+    char text[160], after[24];
+    unsigned s = (unsigned)((ms + 999) / 1000);
+    snprintf(text, sizeof text,
+             "{\"error\": \"too many failed authentications from this address; retry in %u s\"}",
+             s);
+    snprintf(after, sizeof after, "%u", s);
+    struct MHD_Response *r =
+        MHD_create_response_from_buffer(strlen(text), text, MHD_RESPMEM_MUST_COPY);
+    if (!r)
+        return MHD_NO;
+    MHD_add_response_header(r, "Content-Type", "application/json");
+    MHD_add_response_header(r, "Retry-After", after);
+    MHD_add_response_header(r, "Cache-Control", "no-store");
+    enum MHD_Result ret = MHD_queue_response(conn, 429, r);
+    MHD_destroy_response(r);
+    return ret;
+}
+
+/* 1 when host (a Host header, or an Origin's host part: NAME[:PORT]) names
+ * this server as only its operator would: an IP literal, localhost, or a
+ * --http-host name. A DNS name an attacker points at this address (DNS
+ * rebinding) is none of those. */
+static int host_allowed(const srv_http *h, const char *host)
+{
+    char name[256];
+    size_t n = strlen(host);
+    if (n == 0 || n >= sizeof name)
+        return 0;
+    if (host[0] == '[') { /* [v6]:port */
+        const char *end = strchr(host, ']');
+        if (!end || (end[1] && end[1] != ':'))
+            return 0;
+        snprintf(name, sizeof name, "%.*s", (int)(end - host - 1), host + 1);
+        struct in6_addr a6;
+        return inet_pton(AF_INET6, name, &a6) == 1;
+    }
+    const char *colon = strchr(host, ':');
+    snprintf(name, sizeof name, "%.*s", (int)(colon ? (size_t)(colon - host) : n), host);
+    struct in_addr a4;
+    if (inet_pton(AF_INET, name, &a4) == 1 || strcasecmp(name, "localhost") == 0)
+        return 1;
+    for (const char *p = h->hosts; *p;) {
+        const char *comma = strchr(p, ',');
+        size_t len = comma ? (size_t)(comma - p) : strlen(p);
+        if (len == strlen(name) && strncasecmp(p, name, len) == 0)
+            return 1;
+        p += len + (comma != NULL);
+    }
+    return 0;
+}
+
+/* 0 when a state-changing request comes from another origin as a browser
+ * says (Sec-Fetch-Site, Origin), or, authenticated by the session cookie,
+ * does not say where it comes from: cross-site request forgery. */
+static int same_origin(struct MHD_Connection *conn, const who *w)
+{
+    const char *site = MHD_lookup_connection_value(conn, MHD_HEADER_KIND, "Sec-Fetch-Site");
+    const char *origin = MHD_lookup_connection_value(conn, MHD_HEADER_KIND, "Origin");
+    const char *host = MHD_lookup_connection_value(conn, MHD_HEADER_KIND, "Host");
+    if (site && strcmp(site, "same-origin") != 0 && strcmp(site, "none") != 0)
+        return 0;
+    if (origin) {
+        const char *o = strncmp(origin, "http://", 7) == 0    ? origin + 7
+                        : strncmp(origin, "https://", 8) == 0 ? origin + 8
+                                                              : NULL;
+        return o && host && strcasecmp(o, host) == 0;
+    }
+    return site != NULL || !w->cookie;
 }
 
 /* A new session for w: its cookie value (64 hex digits) in out. */
@@ -438,10 +558,20 @@ static int session_new(srv_http *h, const who *w, char out[65])
     time_t now = time(NULL);
     n.expires = now + SRV_HTTP_SESSION_S;
     pthread_mutex_lock(&h->mu);
-    unsigned pick = 0;
-    for (unsigned i = 0; i < SRV_HTTP_SESSIONS; i++) /* a free or expired slot, else the oldest */
-        if (h->sessions[i].expires < h->sessions[pick].expires)
+    /* The identity's oldest login once it holds SRV_HTTP_SESSIONS_PER_WHO
+     * live ones (so no client's logins push out another's), else a free or
+     * expired slot, else the oldest. */
+    unsigned pick = 0, mine = 0, my_oldest = 0;
+    for (unsigned i = 0; i < SRV_HTTP_SESSIONS; i++) {
+        const session *e = &h->sessions[i];
+        if (e->expires < h->sessions[pick].expires)
             pick = i;
+        if (e->expires > now && strcmp(e->who, n.who) == 0 &&
+            (mine++ == 0 || e->expires < h->sessions[my_oldest].expires))
+            my_oldest = i;
+    }
+    if (mine >= SRV_HTTP_SESSIONS_PER_WHO)
+        pick = my_oldest;
     h->sessions[pick] = n;
     pthread_mutex_unlock(&h->mu);
     OPENSSL_cleanse(raw, sizeof raw);
@@ -994,14 +1124,17 @@ static void metrics_text(FILE *f, const snap *p)
                  p ? p->uptime_s : 0.0);
 }
 
-static enum MHD_Result serve_login(srv_http *h, struct MHD_Connection *conn, req *r)
+static enum MHD_Result serve_login(srv_http *h, struct MHD_Connection *conn, req *r,
+                                   const char *addr)
 {
     who w = {0};
     if (r->token_len && !r->too_big)
         who_token(h, (const uint8_t *)r->token, r->token_len, &w);
     OPENSSL_cleanse(r->token, sizeof r->token);
-    if (!w.ok)
+    if (!w.ok) {
+        auth_failed(h, addr);
         return respond_text(conn, 401, "text/html; charset=utf-8", srv_http_login_page(1));
+    }
     char value[65], cookie[160];
     if (!session_new(h, &w, value))
         return respond_error(conn, 500, "no random bytes for a session");
@@ -1047,15 +1180,39 @@ static enum MHD_Result on_request(void *cls, struct MHD_Connection *conn, const 
         return respond_error(
             conn, 413,
             "request body: form fields (application/x-www-form-urlencoded) of at most 16 KiB");
+    /* DNS rebinding: a page of the attacker's name must not read the API. */
+    const char *host = MHD_lookup_connection_value(conn, MHD_HEADER_KIND, "Host");
+    if (host && !host_allowed(h, host))
+        return respond_error(conn, 421,
+                             "this dashboard does not answer to that host name (ptserve "
+                             "--http-host names the ones it does)");
+    int changes = strcmp(method, "GET") != 0 && strcmp(method, "HEAD") != 0;
+    char addr[SRV_AUTHLIMIT_ADDR];
+    client_addr(conn, addr);
     if (strcmp(url, "/login") == 0) {
-        if (strcmp(method, "POST") == 0)
-            return serve_login(h, conn, r);
-        return respond_text(conn, 200, "text/html; charset=utf-8", srv_http_login_page(0));
+        if (!changes)
+            return respond_text(conn, 200, "text/html; charset=utf-8", srv_http_login_page(0));
+        who none = {0};
+        if (!same_origin(conn, &none))
+            return respond_error(conn, 403, "a login from another site is refused");
+        uint64_t ms = auth_blocked(h, addr);
+        if (ms)
+            return respond_blocked(conn, ms);
+        return serve_login(h, conn, r, addr);
     }
     const srv_http_asset *a = srv_http_asset_find(url);
     if (a && a->is_public)
         return respond(conn, 200, a->type, (void *)a->data, *a->len, MHD_RESPMEM_PERSISTENT);
+    uint64_t ms = h->token_len ? auth_blocked(h, addr) : 0;
+    if (ms)
+        return respond_blocked(conn, ms);
     who w = authenticate(h, conn);
+    if (!w.ok && w.tried)
+        auth_failed(h, addr);
+    if (w.ok && changes && !same_origin(conn, &w))
+        return respond_error(conn, 403,
+                             "a request from another site is refused (cross-site request "
+                             "forgery)");
     if (!w.ok) {
         if (strncmp(url, "/api/", 5) == 0 || strcmp(url, "/metrics") == 0)
             return respond_error(conn, 401, "a token is needed: Authorization: Bearer TOKEN");
@@ -1117,6 +1274,7 @@ pt_status srv_http_start(srv_server *s, srv_http **out, pt_error *err)
     memcpy(h->token, s->token, s->token_len);
     h->token_len = s->token_len;
     h->clients = s->clients;
+    snprintf(h->hosts, sizeof h->hosts, "%s", cfg->http_hosts ? cfg->http_hosts : "");
     int fd = -1;
     uint16_t bound = 0;
     if ((st = proto_auth_nonce(h->label, err)) != PT_OK ||
@@ -1128,7 +1286,7 @@ pt_status srv_http_start(srv_server *s, srv_http **out, pt_error *err)
                             MHD_OPTION_CONNECTION_LIMIT, (unsigned)SRV_HTTP_MAX_CONNS,
                             MHD_OPTION_CONNECTION_MEMORY_LIMIT, (size_t)SRV_HTTP_MEMORY,
                             MHD_OPTION_CONNECTION_TIMEOUT, (unsigned)SRV_HTTP_TIMEOUT_S,
-                            MHD_OPTION_PER_IP_CONNECTION_LIMIT, (unsigned)(SRV_HTTP_MAX_CONNS / 2),
+                            MHD_OPTION_PER_IP_CONNECTION_LIMIT, (unsigned)SRV_HTTP_PER_ADDRESS,
                             MHD_OPTION_NOTIFY_COMPLETED, on_done, h, MHD_OPTION_END);
     if (!h->d) {
         close(fd);

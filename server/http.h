@@ -23,7 +23,21 @@
  * token typed into the login form. Tokens are compared in constant time
  * (through HMAC over a fixed label, like the worker handshake: no early
  * exit). A request without is answered 401 (a page: the login form); an
- * action on a job of another identity, 403.
+ * action on a job of another identity, 403. Failed authentications (a wrong
+ * bearer token, session cookie or login) are counted per address with the
+ * worker port's backoff (server/authlimit.h): a blocked address is answered
+ * 429 with Retry-After, and each block is logged. An identity holds at most
+ * SRV_HTTP_SESSIONS_PER_WHO logins, so no client's logins push out
+ * another's.
+ *
+ * Browsers: a request whose Host is not an IP address, localhost or a
+ * --http-host name is refused (421), so a name an attacker points at this
+ * address (DNS rebinding) reads nothing. A state-changing request (POST)
+ * that a browser sent from another origin (its Origin or Sec-Fetch-Site
+ * says so) is refused (403), and one authenticated by the session cookie
+ * must say where it came from (Origin or Sec-Fetch-Site): cross-site
+ * request forgery is refused with or without a token. At most
+ * SRV_HTTP_PER_ADDRESS connections come from one address.
  *
  * No part of a URL reaches the file system: pages and scripts are a fixed
  * table compiled in (server/http_assets.c); a job's image is read from the
@@ -49,6 +63,8 @@
 #define SRV_HTTP_ACTION_WAIT_MS 5000u
 #define SRV_HTTP_RENDERS 2u /* PNGs made at once (each reads the whole EXR); then 503 */
 #define SRV_HTTP_SESSIONS 256u
+#define SRV_HTTP_SESSIONS_PER_WHO 8u     /* an identity's logins: its 9th replaces its oldest */
+#define SRV_HTTP_PER_ADDRESS 8u          /* connections from one address */
 #define SRV_HTTP_SESSION_S (12u * 3600u) /* a login lasts this long */
 
 typedef struct srv_http srv_http;

@@ -146,6 +146,10 @@ static void usage(FILE *f)
         "                         every request needs 'Authorization: Bearer TOKEN' or a\n"
         "                         login (the shared token, or a --clients-file token)\n"
         "  --http-port-file PATH  write the dashboard's port to PATH\n"
+        "  --http-host NAMES      host names the dashboard answers to (comma-separated,\n"
+        "                         e.g. farm.example.com); it always answers to IP\n"
+        "                         addresses and localhost, and refuses other Host headers\n"
+        "                         (DNS rebinding) with 421\n"
         "\n"
         "limits on peers (either mode; docs/OPERATIONS.md, \"Limits\"):\n"
         "  --max-input-mb N       input buffers past 64 KiB each, all peers together\n"
@@ -250,6 +254,7 @@ int main(int argc, char **argv)
         O_BACKGROUND,
         O_HTTP,
         O_HTTPPORT,
+        O_HTTPHOST,
         O_TRANSPARENT,
         O_TASKTIME,
         O_SHUTTER,
@@ -308,6 +313,7 @@ int main(int argc, char **argv)
         {"background", required_argument, NULL, O_BACKGROUND},
         {"http", required_argument, NULL, O_HTTP},
         {"http-port-file", required_argument, NULL, O_HTTPPORT},
+        {"http-host", required_argument, NULL, O_HTTPHOST},
         {"quiet", no_argument, NULL, 'q'},
         {"help", no_argument, NULL, 'h'},
         {"version", no_argument, NULL, 'V'},
@@ -504,6 +510,9 @@ int main(int argc, char **argv)
             break;
         case O_HTTPPORT:
             c.http_port_file = optarg;
+            break;
+        case O_HTTPHOST:
+            c.http_hosts = optarg;
             break;
         case 'q':
             c.quiet = 1;

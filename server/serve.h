@@ -57,6 +57,8 @@ typedef struct srv_config {
     const char *port_file;      /* write the bound port here (tests, scripts) */
     const char *http;           /* the dashboard's HOST:PORT (server/http.h); NULL: none */
     const char *http_port_file; /* write its bound port here */
+    const char *http_hosts;     /* host names the dashboard answers to besides IP literals and
+                                   localhost (comma-separated; NULL: none) */
     const char *worker_bin;     /* NULL: ptworker beside this program */
     double save_interval;       /* seconds between progressive saves, at most this often */
     uint32_t lease_ms;

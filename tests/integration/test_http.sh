@@ -29,7 +29,7 @@ head -c 32 /dev/urandom | base64 > "$tmp/bob.token"
 printf 'alice %s\nbob %s\n' "$(cat "$tmp/alice.token")" "$(cat "$tmp/bob.token")" > "$tmp/clients"
 "$bin/ptserve" --state-dir "$tmp/state" --listen 127.0.0.1:0 --port-file "$tmp/port" \
   --token-file "$tmp/admin.token" --clients-file "$tmp/clients" \
-  --http 127.0.0.1:0 --http-port-file "$tmp/hport" \
+  --http 127.0.0.1:0 --http-port-file "$tmp/hport" --http-host farm.example \
   --local 1 --worker-threads 1 --tile 16 --chunk 8 2> "$tmp/serve.log" &
 srv_pid=$!
 for _ in $(seq 200); do [ -s "$tmp/hport" ] && [ -s "$tmp/port" ] && break; sleep 0.05; done
@@ -122,10 +122,63 @@ grep -i '^set-cookie:' "$tmp/login.h" | grep -i httponly | grep -qi 'samesite=st
   fail "cookie flags: $(cat "$tmp/login.h")"
 [ "$(code -b "$tmp/jar" "$web/api/jobs")" = 200 ] || fail "the session cookie is not accepted"
 [ "$(code -b "$tmp/jar" "$web/")" = 200 ] || fail "the queue page with a session"
-[ "$(code -b "$tmp/jar" -X POST "$web/api/jobs/$short/cancel")" = 403 ] ||
+[ "$(code -b "$tmp/jar" -H "Origin: $web" -X POST "$web/api/jobs/$short/cancel")" = 403 ] ||
   fail "bob's session on alice's job: not 403"
 [ "$(code -b 'ptfarm_session=0000000000000000000000000000000000000000000000000000000000000000' \
   "$web/api/jobs")" = 401 ] || fail "a made-up session: not 401"
+
+# Browsers. A Host that is not an IP address, localhost or a --http-host
+# name (DNS rebinding) is refused; a state-changing request from another
+# origin is refused whatever it carries, and one by session cookie must say
+# where it comes from.
+hp=$(cat "$tmp/hport")
+[ "$(code -H "Host: evil.example:$hp" -H "Authorization: Bearer $(cat "$tmp/admin.token")" \
+  "$web/api/jobs")" = 421 ] || fail "a foreign Host: not 421"
+[ "$(code -H "Host: evil.example" "$web/login")" = 421 ] || fail "a foreign Host on /login"
+for h in "localhost:$hp" "127.0.0.1:$hp" "farm.example:$hp" "[::1]:$hp"; do
+  [ "$(code -H "Host: $h" -H "Authorization: Bearer $(cat "$tmp/admin.token")" "$web/api/jobs")" = 200 ] ||
+    fail "Host $h: not 200"
+done
+bob2=$(PTFARM_TOKEN_FILE=$tmp/bob.token "$bin/ptctl" submit "$src/scenes/cornell_box.gltf" \
+  --res 32x24 --spp 65536 --name "bob again" --priority -5)
+prio() { code -X POST -d priority="$1" "${@:2}" "$web/api/jobs/$bob2/priority"; }
+[ "$(prio 5 -b "$tmp/jar" -H "Origin: http://evil.example")" = 403 ] || fail "CSRF by Origin"
+[ "$(prio 5 -b "$tmp/jar" -H "Origin: http://127.0.0.1:1")" = 403 ] || fail "CSRF from another port"
+[ "$(prio 5 -b "$tmp/jar" -H "Sec-Fetch-Site: same-site")" = 403 ] || fail "CSRF by Sec-Fetch-Site"
+[ "$(prio 5 -b "$tmp/jar")" = 403 ] || fail "a cookie POST that does not say where it is from"
+[ "$(prio 5 -H "Authorization: Bearer $(cat "$tmp/bob.token")" -H "Origin: http://evil.example")" = 403 ] ||
+  fail "a bearer POST from another origin"
+PTFARM_TOKEN_FILE=$tmp/bob.token "$bin/ptctl" status "$bob2" --json > "$tmp/bob2.json"
+[ "$(json "$tmp/bob2.json" 'd["priority"]')" = -5 ] || fail "a refused request changed the priority"
+[ "$(prio 6 -b "$tmp/jar" -H "Origin: $web" -H "Sec-Fetch-Site: same-origin")" = 200 ] ||
+  fail "the dashboard's own POST"
+[ "$(prio 7 -H "Authorization: Bearer $(cat "$tmp/bob.token")")" = 200 ] || fail "a script's POST"
+# Logins: an identity holds 8; its 9th replaces its oldest, and no one
+# else's is touched.
+for i in $(seq 9); do
+  curl -sS -o /dev/null -c "$tmp/ajar$i" -X POST --data-urlencode "token=$(cat "$tmp/alice.token")" \
+    "$web/login"
+done
+[ "$(code -b "$tmp/ajar1" "$web/api/jobs")" = 401 ] || fail "alice's 9th login kept her first"
+[ "$(code -b "$tmp/ajar2" "$web/api/jobs")" = 200 ] || fail "alice's second login was lost"
+[ "$(code -b "$tmp/jar" "$web/api/jobs")" = 200 ] || fail "alice's logins pushed out bob's"
+# Guessing: wrong tokens from one address (here 127.0.0.3) are backed off
+# as on the worker port (the 5th in a row blocks it), answered 429 with
+# Retry-After, and logged; other addresses are served.
+for i in $(seq 5); do
+  code --interface 127.0.0.3 -H "Authorization: Bearer guess-$i-of-many-guesses" "$web/api/jobs" > /dev/null
+done
+curl -sS -D "$tmp/blocked.h" -o /dev/null --interface 127.0.0.3 \
+  -H "Authorization: Bearer $(cat "$tmp/admin.token")" "$web/api/jobs"
+grep -q '^HTTP/1.1 429' "$tmp/blocked.h" || fail "a blocked address: $(cat "$tmp/blocked.h")"
+grep -qi '^retry-after: [0-9]' "$tmp/blocked.h" || fail "no Retry-After: $(cat "$tmp/blocked.h")"
+[ "$(code --interface 127.0.0.3 -X POST --data-urlencode "token=$(cat "$tmp/admin.token")" \
+  "$web/login")" = 429 ] || fail "a login from a blocked address"
+grep -q "peer 127.0.0.3.*failed authentications in a row" "$tmp/serve.log" ||
+  fail "the block is not logged"
+[ "$(code -H "Authorization: Bearer $(cat "$tmp/admin.token")" "$web/api/jobs")" = 200 ] ||
+  fail "another address was blocked too"
+as admin -X POST "$web/api/jobs/$bob2/cancel" > /dev/null
 
 # URLs never reach files; bodies are small.
 for u in /../../etc/passwd /index.html /web/app.js /api/jobs/1/../../etc/passwd; do
@@ -148,7 +201,8 @@ c=$(as admin -o /dev/null -w '%{http_code}' -H "X-Big: $(head -c 100000 /dev/zer
 case $c in 4* | 000) ;; *) fail "a 100 KB header: $c" ;; esac
 for cookie in 'ptfarm_session=%00%0a../../x; ptfarm_session=' \
   "ptfarm_session=$(head -c 8000 /dev/zero | tr '\0' f)"; do
-  c=$(code -b "$cookie" "$web/api/jobs" || true)
+  # From an address of their own: failed authentications count per address.
+  c=$(code --interface 127.0.0.4 -b "$cookie" "$web/api/jobs" || true)
   case $c in 400 | 401 | 413 | 431 | 000) ;; *) fail "a bad cookie: $c" ;; esac
 done
 python3 - "$(cat "$tmp/hport")" > "$tmp/slow.log" 2>&1 <<'PY' &

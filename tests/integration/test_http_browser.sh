@@ -3,7 +3,10 @@
 # real ptserve and worker: the page gets the job's progress over
 # Server-Sent Events and asks for a newer image as passes merge (read from
 # the DOM Chromium dumps), the image it asks for changes between dumps, and
-# the queue and workers pages render their tables from the API.
+# the queue and workers pages render their tables from the API. A page of
+# another origin (another port of this host, which SameSite cookies do not
+# tell apart) that posts a cancel and a priority to the dashboard, by a form
+# and by fetch, changes nothing.
 set -euo pipefail
 bin=${PT_BIN:?}
 src=${PT_SOURCE_DIR:?}
@@ -82,6 +85,34 @@ grep -q "href=\"/job?id=$id\">in the browser</a>" "$tmp/queue.html" || fail "que
 grep -q "data-cancel=\"$id\"" "$tmp/queue.html" || fail "queue page has no cancel button"
 dom "$web/workers" 3000 > "$tmp/workers.html" || true
 grep -q '<td>local-1</td>' "$tmp/workers.html" || fail "workers page: $(cat "$tmp/workers.html")"
+
+# Cross-site request forgery, from a page served on another port.
+mkdir -p "$tmp/evil"
+cat > "$tmp/evil/index.html" <<HTML
+<!doctype html><html><body>
+<form id="f" method="POST" action="$web/api/jobs/$id/cancel"></form>
+<iframe name="sink" style="display:none"></iframe>
+<script>
+fetch("$web/api/jobs/$id/priority", {method: "POST", mode: "no-cors",
+  body: new URLSearchParams("priority=42")}).finally(function () {
+  document.getElementById("f").target = "sink";
+  document.getElementById("f").submit();
+});
+</script><p id="done">sent</p></body></html>
+HTML
+python3 -m http.server --bind 127.0.0.1 --directory "$tmp/evil" 0 > "$tmp/evil.log" 2>&1 &
+evil_pid=$!
+for _ in $(seq 100); do grep -q "port [0-9]" "$tmp/evil.log" && break; sleep 0.05; done
+eport=$(grep -o "port [0-9]*" "$tmp/evil.log" | head -1 | tr -dc 0-9)
+[ -n "$eport" ] || fail "no page server: $(cat "$tmp/evil.log")"
+dom "http://127.0.0.1:$eport/" 3000 > "$tmp/evil.html" || true
+kill "$evil_pid" 2> /dev/null || true
+grep -q 'id="done"' "$tmp/evil.html" || fail "the other origin's page did not run"
+"$bin/ptctl" status "$id" --json > "$tmp/after.json"
+python3 -c 'import json,sys; d=json.load(open(sys.argv[1])); sys.exit(not (d["state"] == "running" and d["priority"] == 0))' "$tmp/after.json" ||
+  fail "a page of another origin changed the job: $(cat "$tmp/after.json")"
+if grep -q "cancelled" "$tmp/serve.log"; then fail "the job was cancelled from another origin"; fi
+
 "$bin/ptctl" cancel "$id" > /dev/null
 failed=0
 echo "PASS"
