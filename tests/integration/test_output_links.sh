@@ -74,7 +74,7 @@ set +e
 timeout 20 "$bin/ptctl" submit "$tmp/scene/s.gltf" --res 32x32 --spp 16 --name fifo 2> "$tmp/submit.err"
 rc=$?
 set -e
-[ "$rc" != 0 ] && [ "$rc" != 124 ] || fail "ptctl submit with a FIFO in the folder: rc $rc"
+if [ "$rc" = 0 ] || [ "$rc" = 124 ]; then fail "ptctl submit with a FIFO in the folder: rc $rc"; fi
 grep -q "not a regular file" "$tmp/submit.err" || fail "refusal: $(cat "$tmp/submit.err")"
 [ "$("$bin/ptctl" list | grep -c -e leak -e fifo || true)" = 0 ] || fail "a refused scene was queued"
 
