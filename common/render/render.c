@@ -968,8 +968,7 @@ material_closure(const pt_renderer *r, const surface *sf, int glass, int front, 
  * environment that the path then finds counts in full (Veach 1997, sec. 9.2:
  * a delta lobe has no light-sampling rival). A shadow ray from glass inside
  * an absorbing medium carries its transmittance. As before the closure
- * interface, glass reads its shading normal unbent by a normal map, and its
- * shadow rays do not weigh an alpha-tested emitter's coverage.
+ * interface, glass reads its shading normal unbent by a normal map.
  *
  * Adds the hit's emission to pa->L; fills *sr and returns SHADE_SHADOW when
  * the light sample needs a shadow ray, whose contribution the caller adds
@@ -1027,8 +1026,8 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
 
     if ((features & NEE_LIGHTS) && r->nee) {
         pt_vec3 lrad = ls_ok ? ls->radiance : pt_v3(0.0f, 0.0f, 0.0f);
-        if ((features & PT_FEAT_ALPHA) && r->alpha && !glass && ls_ok &&
-            ls->delta == PT_LIGHT_AREA && pt_alpha_tri(r->scene, ls->tri))
+        if ((features & PT_FEAT_ALPHA) && r->alpha && ls_ok && ls->delta == PT_LIGHT_AREA &&
+            pt_alpha_tri(r->scene, ls->tri))
             lrad = pt_v3_scale(lrad, light_coverage(r, ls));
         if (features & PT_FEAT_ALPHA)
             sr->alpha_key = pt_alpha_key(u[OFF_ALPHA], ALPHA_SALT_SHADOW);
