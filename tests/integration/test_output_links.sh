@@ -100,6 +100,11 @@ grep -q "$tmp/out" "$tmp/fetch.err" && fail "the refusal names a server path: $(
 "$bin/ptctl" status "$id" > /dev/null || fail "the server stopped serving"
 # Nor does the dashboard: the EXR download and the PNG view answer 404 and
 # send nothing of the link's target.
+# (The dashboard's snapshot follows the loop within about a second.)
+for _ in $(seq 100); do
+  [ "$(curl -sS -o /dev/null -w '%{http_code}' "$web/api/jobs/$id")" = 200 ] && break
+  sleep 0.1
+done
 [ "$(curl -sS -o /dev/null -w '%{http_code}' "$web/api/jobs/$id")" = 200 ] || fail "/api/jobs/$id"
 for u in image.exr image.png; do
   code=$(curl -sS -o "$tmp/dl/leak.$u" -w '%{http_code}' "$web/api/jobs/$id/$u")
@@ -138,6 +143,10 @@ serve2
 timeout 20 "$bin/ptctl" status "$id" > /dev/null || fail "a FIFO at the image's name blocked the restart"
 # The dashboard neither blocks on the FIFO nor runs out of image slots: each
 # of more requests than it renders at once is answered 404 at once.
+for _ in $(seq 100); do
+  [ "$(curl -sS -m 10 -o /dev/null -w '%{http_code}' "$web/api/jobs/$id")" = 200 ] && break
+  sleep 0.1
+done
 for u in image.exr image.png image.png image.png image.png image.png image.png; do
   code=$(curl -sS -m 10 -o /dev/null -w '%{http_code}' "$web/api/jobs/$id/$u" || true)
   [ "$code" = 404 ] || fail "the dashboard's $u with a FIFO at the image's name: $code"
