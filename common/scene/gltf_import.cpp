@@ -1884,71 +1884,97 @@ uint64_t sat_add(uint64_t a, uint64_t b)
     return a > UINT64_MAX - b ? UINT64_MAX : a + b;
 }
 
-// The triangles add_primitive makes of mesh `mi`, from the accessors' counts
-// alone (0 for a primitive it skips or refuses: it reports those itself).
-uint64_t mesh_triangles(const tinygltf::Model &m, int mi)
+// Triangles and vertices, as the builder counts them.
+struct geo_count {
+    uint64_t tri = 0, vtx = 0;
+    void add(const geo_count &o)
+    {
+        tri = sat_add(tri, o.tri);
+        vtx = sat_add(vtx, o.vtx);
+    }
+};
+
+// What add_primitive adds to the builder for one instance of mesh `mi`, from
+// the accessors' counts alone (nothing for a primitive it skips or refuses:
+// it reports those itself).
+geo_count mesh_count(const tinygltf::Model &m, int mi)
 {
-    uint64_t n = 0;
+    geo_count n;
     for (const auto &p : m.meshes[size_t(mi)].primitives) {
         int mode = p.mode < 0 ? TINYGLTF_MODE_TRIANGLES : p.mode;
-        int ai = p.indices;
-        if (ai < 0) {
-            auto it = p.attributes.find("POSITION");
-            ai = it == p.attributes.end() ? -1 : it->second;
-        }
-        if (ai < 0 || size_t(ai) >= m.accessors.size())
+        if (mode != TINYGLTF_MODE_TRIANGLES && mode != TINYGLTF_MODE_TRIANGLE_STRIP &&
+            mode != TINYGLTF_MODE_TRIANGLE_FAN)
             continue;
+        auto it = p.attributes.find("POSITION");
+        int pa = it == p.attributes.end() ? -1 : it->second;
+        if (pa < 0 || size_t(pa) >= m.accessors.size())
+            continue;
+        int ai = p.indices >= 0 ? p.indices : pa;
+        if (size_t(ai) >= m.accessors.size())
+            continue;
+        // An accessor over the cap is refused by its reader, which names it.
         uint64_t c = uint64_t(m.accessors[size_t(ai)].count);
-        if (mode == TINYGLTF_MODE_TRIANGLES)
-            n = sat_add(n, c / 3);
-        else if (mode == TINYGLTF_MODE_TRIANGLE_STRIP || mode == TINYGLTF_MODE_TRIANGLE_FAN)
-            n = sat_add(n, c >= 3 ? c - 2 : 0);
+        uint64_t v = uint64_t(m.accessors[size_t(pa)].count);
+        if (c > PT_SCENE_MAX_TRIANGLES * 3ull || v > PT_SCENE_MAX_TRIANGLES * 3ull)
+            continue;
+        geo_count g;
+        g.vtx = v;
+        g.tri = mode == TINYGLTF_MODE_TRIANGLES ? c / 3 : c >= 3 ? c - 2 : 0;
+        n.add(g);
     }
     return n;
 }
 
-// The triangles under node ni, every instance counted, remembered per node:
-// a node may have several parents, and the count of a deep graph of shared
+// What is under node ni, every instance counted, remembered per node: a
+// node may have several parents, and the count of a deep graph of shared
 // nodes is a product that no walk could afford. Bad indices, cycles and
-// depth count 0 here; visit() refuses them.
-uint64_t node_triangles(const tinygltf::Model &m, int ni, int depth,
-                        const std::vector<uint64_t> &per_mesh, std::vector<uint64_t> &memo,
-                        std::vector<char> &state)
+// depth count nothing here; visit() refuses them.
+geo_count node_count(const tinygltf::Model &m, int ni, int depth,
+                     const std::vector<geo_count> &per_mesh, std::vector<geo_count> &memo,
+                     std::vector<char> &state)
 {
     if (ni < 0 || size_t(ni) >= m.nodes.size() || depth > kMaxNodeDepth)
-        return 0;
+        return geo_count();
     char &st = state[size_t(ni)];
     if (st != 0)
-        return st == 2 ? memo[size_t(ni)] : 0;
+        return st == 2 ? memo[size_t(ni)] : geo_count();
     st = 1;
     const tinygltf::Node &n = m.nodes[size_t(ni)];
-    uint64_t t = n.mesh >= 0 && size_t(n.mesh) < m.meshes.size() ? per_mesh[size_t(n.mesh)] : 0;
+    geo_count t;
+    if (n.mesh >= 0 && size_t(n.mesh) < m.meshes.size())
+        t = per_mesh[size_t(n.mesh)];
     for (int c : n.children)
-        t = sat_add(t, node_triangles(m, c, depth + 1, per_mesh, memo, state));
+        t.add(node_count(m, c, depth + 1, per_mesh, memo, state));
     st = 2;
     memo[size_t(ni)] = t;
     return t;
 }
 
 // Refuses a scene whose meshes, once instanced by its nodes, make more than
-// PT_SCENE_MAX_TRIANGLES triangles, before anything is read or decoded: a
-// small file can instance one mesh many times over (u8 indices make a
-// triangle of 3 bytes). The builder checks the same cap as it goes.
+// PT_SCENE_MAX_TRIANGLES triangles or PT_SCENE_MAX_VERTICES vertices, before
+// anything is read or decoded: a small file can instance one mesh many times
+// over (u8 indices make a triangle of 3 bytes). The builder checks the same
+// caps as it goes.
 void check_triangles(importer &im, int si)
 {
     const tinygltf::Model &m = im.model;
-    std::vector<uint64_t> per_mesh(m.meshes.size()), memo(m.nodes.size());
+    std::vector<geo_count> per_mesh(m.meshes.size()), memo(m.nodes.size());
     std::vector<char> state(m.nodes.size(), 0);
     for (size_t i = 0; i < m.meshes.size(); i++)
-        per_mesh[i] = mesh_triangles(m, int(i));
-    uint64_t total = 0;
+        per_mesh[i] = mesh_count(m, int(i));
+    geo_count total;
     for (int ni : m.scenes[size_t(si)].nodes)
-        total = sat_add(total, node_triangles(m, ni, 0, per_mesh, memo, state));
-    if (total > PT_SCENE_MAX_TRIANGLES)
+        total.add(node_count(m, ni, 0, per_mesh, memo, state));
+    if (total.tri > PT_SCENE_MAX_TRIANGLES)
         im.fail(PT_ERR_LIMIT,
                 "scene %d: %llu triangles once every instance of its meshes is counted, over the "
                 "cap of %u a scene",
-                si, (unsigned long long)total, PT_SCENE_MAX_TRIANGLES);
+                si, (unsigned long long)total.tri, PT_SCENE_MAX_TRIANGLES);
+    if (total.vtx > PT_SCENE_MAX_VERTICES)
+        im.fail(PT_ERR_LIMIT,
+                "scene %d: %llu vertices once every instance of its meshes is counted, over the "
+                "cap of %u a scene",
+                si, (unsigned long long)total.vtx, PT_SCENE_MAX_VERTICES);
 }
 
 // Reads the external buffer and image files (for the hash and for decoding),

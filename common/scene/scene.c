@@ -34,10 +34,6 @@
 #include "common/scene/motion.h"
 #include "common/scene/tangent.h"
 
-/* Vertices are not capped by the file's triangle count alone: unreferenced
- * vertices still cost memory. Three per triangle is the most a sane mesh needs. */
-#define PT_SCENE_MAX_VERTICES (3u * PT_SCENE_MAX_TRIANGLES)
-
 struct pt_scene_builder {
     double *pos; /* world space, before opts' scale/translate; float only at finish */
     float *nrm, *uv;
@@ -548,8 +544,10 @@ pt_status pt_scene_builder_add_mesh_extra(pt_scene_builder *b, const char *what,
                             "instance counted)",
                             what, (unsigned long long)b->nt + nt, PT_SCENE_MAX_TRIANGLES);
     if (nv > PT_SCENE_MAX_VERTICES - b->nv)
-        return pt_error_set(err, PT_ERR_LIMIT, "%s: over %u vertices in the scene", what,
-                            PT_SCENE_MAX_VERTICES);
+        return pt_error_set(err, PT_ERR_LIMIT,
+                            "%s: %llu vertices in the scene, over the cap of %u (every "
+                            "instance counted)",
+                            what, (unsigned long long)b->nv + nv, PT_SCENE_MAX_VERTICES);
     if (indices) {
         for (uint64_t i = 0; i < 3 * (uint64_t)nt; i++)
             if (indices[i] >= nv)

@@ -265,6 +265,9 @@ typedef struct pt_scene_opts {
  * decoder holds while it works (up to 20 bytes a texel for a Radiance
  * .hdr, 8 for a PNG). */
 #define PT_SCENE_MAX_TRIANGLES (16u * 1024u * 1024u)
+/* Vertices are not capped by the triangles alone: unreferenced vertices
+ * still cost memory. Three per triangle is the most a sane mesh needs. */
+#define PT_SCENE_MAX_VERTICES (3u * PT_SCENE_MAX_TRIANGLES)
 #define PT_SCENE_MAX_TEXTURE_DIM 16384u
 #define PT_SCENE_MAX_IMAGE_TEXELS (64ull * 1024u * 1024u)
 #define PT_SCENE_MAX_TEXELS (256ull * 1024u * 1024u)

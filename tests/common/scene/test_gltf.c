@@ -1287,6 +1287,52 @@ static void make_instanced(const char *name, int big, int small)
     write_file(name, json, strlen(json));
 }
 
+/* A scene whose one mesh is one triangle over 64 Ki vertices (768 KiB),
+ * instanced by `n` nodes. */
+static void make_many_vertices(const char *name, int n)
+{
+    const uint32_t nv = 65536;
+    float *pos = calloc(3u * nv + 1, sizeof *pos);
+    if (!pos)
+        exit(1);
+    pos[3] = pos[7] = 1.0f; /* (0,0,0), (1,0,0), (0,1,0), then zeros */
+    unsigned char *bin = (unsigned char *)pos;
+    bin[12u * nv] = 0;
+    bin[12u * nv + 1] = 1;
+    bin[12u * nv + 2] = 2;
+    write_file("verts.bin", bin, 12u * nv + 4);
+    free(pos);
+    size_t cap = 64 + 16 * (size_t)n, k = 0;
+    char *nodes = malloc(cap);
+    if (!nodes)
+        exit(1);
+    k += (size_t)snprintf(nodes + k, cap - k, "[{\"children\":[");
+    for (int i = 0; i < n; i++)
+        k += (size_t)snprintf(nodes + k, cap - k, "%s%d", i ? "," : "", i + 1);
+    k += (size_t)snprintf(nodes + k, cap - k, "]}");
+    for (int i = 0; i < n; i++)
+        k += (size_t)snprintf(nodes + k, cap - k, ",{\"mesh\":0}");
+    snprintf(nodes + k, cap - k, "]");
+    size_t jcap = k + 2048;
+    char *json = malloc(jcap);
+    if (!json)
+        exit(1);
+    snprintf(json, jcap,
+             "{\"asset\":{\"version\":\"2.0\"},\"scene\":0,\"scenes\":[{\"nodes\":[0]}],"
+             "\"nodes\":%s,"
+             "\"meshes\":[{\"primitives\":[{\"attributes\":{\"POSITION\":0},\"indices\":1}]}],"
+             "\"buffers\":[{\"uri\":\"verts.bin\",\"byteLength\":%u}],"
+             "\"bufferViews\":[{\"buffer\":0,\"byteOffset\":0,\"byteLength\":%u},"
+             "{\"buffer\":0,\"byteOffset\":%u,\"byteLength\":3}],"
+             "\"accessors\":[{\"bufferView\":0,\"componentType\":5126,\"count\":%u,"
+             "\"type\":\"VEC3\"},"
+             "{\"bufferView\":1,\"componentType\":5121,\"count\":3,\"type\":\"SCALAR\"}]}",
+             nodes, 12u * nv + 4, 12u * nv, 12u * nv, nv);
+    write_file(name, json, strlen(json));
+    free(json);
+    free(nodes);
+}
+
 /* Triangles are counted with every instance, and refused before any is built. */
 static void test_instancing_caps(void)
 {
@@ -1312,6 +1358,18 @@ static void test_instancing_caps(void)
     snprintf(nodes + k, sizeof nodes - k, "{\"mesh\":0}]");
     make_gltf("dag.gltf", "tri.bin", k_pos_ok, k_views, nodes, "");
     expect_fail("dag.gltf", PT_ERR_LIMIT, "1099511627776 triangles once every instance");
+
+    /* Vertices count too, referenced or not: 769 instances of one triangle
+     * over 64 Ki vertices are 50397184, over 3 x 16 Mi. */
+    make_many_vertices("vtx_over.gltf", 769);
+    expect_fail("vtx_over.gltf", PT_ERR_LIMIT,
+                "50397184 vertices once every instance of its meshes is counted, over the cap of "
+                "50331648");
+    make_many_vertices("vtx_few.gltf", 3);
+    s = NULL;
+    st = pt_scene_load(tpath("vtx_few.gltf"), NULL, &s, &err);
+    CHECKF(st == PT_OK && s->num_vertices == 3u * 65536u, "vtx_few.gltf: %s", err.msg);
+    pt_scene_free(s);
 }
 
 /* The project's own scenes (scenes/): they must load, emit, and carry a camera or not. */
