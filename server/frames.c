@@ -108,14 +108,21 @@ static srv_entry *new_frame(srv_server *s, srv_entry *p, uint32_t number, pt_err
     return f;
 }
 
-/* Starts p's next frames, up to SRV_FRAMES_AHEAD rendering and none that
- * far past the first not done. Returns 0 when one could not be made (p is
- * then ended FAILED, or will be by the round: a frame that failed). */
+uint32_t srv_frames_in_flight(const srv_caps *caps, uint32_t width, uint32_t height)
+{
+    uint64_t px = (uint64_t)width * height, n = px ? caps->max_pixels / px : SRV_FRAMES_AHEAD;
+    return n < 1 ? 1 : n > SRV_FRAMES_AHEAD ? SRV_FRAMES_AHEAD : (uint32_t)n;
+}
+
+/* Starts p's next frames, up to srv_frames_in_flight rendering and none
+ * that far past the first not done. Returns 0 when one could not be made (p
+ * is then ended FAILED, or will be by the round: a frame that failed). */
 static int fill(srv_server *s, srv_entry *p)
 {
     struct srv_frames *fr = p->frames;
-    while (fr->nwin < SRV_FRAMES_AHEAD && fr->next < fr->count &&
-           fr->next < p->rec.frames_done + SRV_FRAMES_AHEAD) {
+    const srv_job_params *jp = &p->rec.params;
+    uint32_t ahead = srv_frames_in_flight(&s->cfg->caps, jp->width, jp->height);
+    while (fr->nwin < ahead && fr->next < fr->count && fr->next < p->rec.frames_done + ahead) {
         uint32_t idx = fr->next++;
         if (is_done(&p->rec, idx))
             continue;

@@ -12,8 +12,10 @@
  * queue file, LIST or the dashboard: the range's record is, with the frames
  * done (server/state.h).
  *
- * At most SRV_FRAMES_AHEAD frames render at once: the first frame not done
- * and the ones after it (never one SRV_FRAMES_AHEAD or more past it). A free
+ * At most srv_frames_in_flight frames render at once (SRV_FRAMES_AHEAD, fewer
+ * for large frames: no more pixels than --max-pixels, so a range holds no
+ * more film than the largest still could): the first frame not done and the
+ * ones after it (never one that many or more past it). A free
  * worker slot gets a task of the earliest of them that has one to hand out,
  * so early frames finish first and the farm moves on to later ones only when
  * earlier ones have nothing left to hand out (their last pass). Each task
@@ -86,5 +88,9 @@ void srv_frames_latest(const srv_entry *p, char *out, size_t cap);
 /* Frees p's frame bookkeeping (not the frame entries: they are the
  * queue's). Accepts a p without. */
 void srv_frames_free(srv_entry *p);
+
+/* How many frames of width x height pixels a range renders at once: as many
+ * as fit in caps->max_pixels, at least 1, at most SRV_FRAMES_AHEAD. */
+uint32_t srv_frames_in_flight(const srv_caps *caps, uint32_t width, uint32_t height);
 
 #endif

@@ -26,6 +26,9 @@
  *     honest worker, three such results in a row (here the verification
  *     copies of the honest worker's tasks, which it is handed first) block
  *     it.
+ *  h. Frames in flight: with --max-pixels at twice a frame's pixels, a
+ *     worker that asks for 64 tasks of a ten-frame range gets tasks of two
+ *     frames, not of SRV_FRAMES_AHEAD (each frame in flight holds a film).
  *
  * With PT_LEASE_MEASURE set it only measures, at the default lease timeout,
  * how long a stalled lease (a peer that holds a task and heartbeats) takes to
@@ -101,9 +104,10 @@ static void peer_read(peer *p, int timeout_ms)
     } while (pt_now_s() < end && !p->closed);
 }
 
-/* Connects and authenticates as worker name; returns 1 once WELCOME came,
- * 0 when the server refused (p->error says why). */
-static int peer_open(peer *p, int port, const char *name)
+/* Connects and authenticates as worker name of threads render threads;
+ * returns 1 once WELCOME came, 0 when the server refused (p->error says
+ * why). */
+static int peer_open_threads(peer *p, int port, const char *name, uint16_t threads)
 {
     memset(p, 0, sizeof *p);
     p->fd = connect_to(port);
@@ -113,7 +117,7 @@ static int peer_open(peer *p, int port, const char *name)
     h.version = PROTO_VERSION;
     h.role = PROTO_ROLE_WORKER;
     snprintf(h.name, sizeof h.name, "%s", name);
-    h.threads = 1;
+    h.threads = threads;
     snprintf(h.build_id, sizeof h.build_id, "%s", proto_build_id());
     proto_writer w;
     proto_writer_init(&w, 4096);
@@ -158,6 +162,11 @@ static int peer_open(peer *p, int port, const char *name)
         }
     }
     return 0;
+}
+
+static int peer_open(peer *p, int port, const char *name)
+{
+    return peer_open_threads(p, port, name, 1);
 }
 
 static void peer_ask(peer *p, uint16_t slots)
@@ -715,6 +724,56 @@ static void empty_worker(void)
     CHECK(wait_exit(srv, 30) == 0);
 }
 
+/* ---- h. frames in flight ---- */
+
+static void frames_in_flight(void)
+{
+    static peer g;
+    unlink(path("port"));
+    const char *argv[] = {PT_BIN_DIR "/ptserve",
+                          "--state-dir",
+                          path("state_frames"),
+                          "--listen",
+                          "127.0.0.1:0",
+                          "--port-file",
+                          path("port"),
+                          "--token-file",
+                          path("token"),
+                          "--max-pixels",
+                          "2400",
+                          "-q",
+                          NULL};
+    pid_t srv = spawn(argv, "frames.log");
+    int port = read_port();
+    CHECK(port > 0);
+    char out[8192], args[1024];
+    snprintf(args, sizeof args, "submit %s --res 40x30 --spp 16 --frames 0-9 --name flight", SCENE);
+    CHECK(ctl(port, args, out, sizeof out) == 0);
+    long job = strtol(out, NULL, 10);
+    CHECK(job > 0);
+    CHECK(peer_open_threads(&g, port, "greedy", 64));
+    uint64_t jobs[64];
+    uint32_t njobs = 0;
+    for (int round = 0; round < 20; round++) {
+        peer_ask(&g, 64);
+        peer_read(&g, 100);
+    }
+    for (uint32_t i = 0; i < g.ntasks; i++) {
+        uint32_t k = 0;
+        while (k < njobs && jobs[k] != g.tasks[i].job_id)
+            k++;
+        if (k == njobs && njobs < 64)
+            jobs[njobs++] = g.tasks[i].job_id;
+    }
+    CHECKF(g.ntasks > 2 && njobs == 2, "%u tasks of %u frames (2400 pixels: two frames of 1200)",
+           g.ntasks, njobs);
+    peer_close(&g);
+    snprintf(args, sizeof args, "cancel %ld", job);
+    CHECK(ctl(port, args, out, sizeof out) == 0);
+    kill(srv, SIGTERM);
+    CHECK(wait_exit(srv, 30) == 0);
+}
+
 /* Counts "leases expired" lines in a log. */
 static int expiries(const char *log)
 {
@@ -779,5 +838,6 @@ int main(void)
     verify_clean();
     liar_queue();
     empty_worker();
+    frames_in_flight();
     return farm_test_end();
 }
