@@ -44,11 +44,12 @@ static void usage(FILE *f)
             "intensity E gives irradiance E (glTF gives emission no unit; see README).\n"
             "\n"
             "Scene limits (both modes; ptserve checks uploads the same way): at most\n"
-            "%u triangles, every instance of a mesh counted; images of at most\n"
-            "%llu texels (%u a side) and %llu texels over all textures; PNG\n"
-            "data no longer than an image's size needs. They are read from the files\n"
-            "before anything is built or decoded; a scene past them is refused. A worker\n"
-            "needs 170 to 500 bytes a triangle and 4 a texel (docs/OPERATIONS.md, Limits).\n",
+            "%u triangles and 3 times as many vertices, every instance of a mesh\n"
+            "counted; images of at most %llu texels (%u a side) and %llu\n"
+            "texels over all textures; PNG data no longer than an image's size needs.\n"
+            "They are read from the files before anything is built or decoded; a scene\n"
+            "past them is refused. A worker needs 170 to 500 bytes a triangle and 4 a\n"
+            "texel (docs/OPERATIONS.md, Limits).\n",
             PT_SCENE_MAX_TRIANGLES, (unsigned long long)PT_SCENE_MAX_IMAGE_TEXELS,
             PT_SCENE_MAX_TEXTURE_DIM, (unsigned long long)PT_SCENE_MAX_TEXELS);
     fprintf(f,
