@@ -777,9 +777,28 @@ static void verification(void)
         srv_job_result(j, 1, &r, &err);
     }
     uint64_t picked = srv_job_verify_stats(j).picked;
-    /* Binomial(8192, 0.02): mean 164, sd 12.7; 5 sd either side. */
+    /* Binomial(8192, 0.02): mean 164, sd 12.7; 5 sd either side (plus the
+     * owner's first result, always picked). */
     CHECKF(picked > 100 && picked < 228, "%llu picked", (unsigned long long)picked);
     srv_job_free(j);
+
+    /* Every owner's first result is picked: 64-task jobs at 0.02, whose
+     * pick alone leaves about 27 % of them unchecked, each get one check per
+     * owner at least, whatever the seed. */
+    for (uint64_t seed = 1; seed <= 50; seed++) {
+        j = make(128, 128, 16, 16, 16); /* 64 tiles, one chunk each */
+        /* Seeds apart in their high bits: the pick hashes seed ^ task. */
+        srv_lease_policy small = {0, 0, 0.0, 0.0, 0.02, seed * 0x9E3779B97F4A7C15ull, 0};
+        srv_job_set_policy(j, &small);
+        for (uint64_t owner = 1; srv_job_lease(j, owner, 0, 1000, &x); owner = 3 - owner) {
+            fake_result(&x, px, &r);
+            srv_job_result(j, owner, &r, &err);
+        }
+        picked = srv_job_verify_stats(j).picked;
+        CHECKF(picked >= 2, "seed %llu: %llu picked", (unsigned long long)seed,
+               (unsigned long long)picked);
+        srv_job_free(j);
+    }
 }
 
 /* The film flags reach every task; the depth-cap counts of accepted results
