@@ -266,11 +266,14 @@ static void refusals_flush(srv_server *s, uint64_t now, int all)
 {
     for (int why = 0; why < REFUSE_N; why++) {
         refusal_log *l = &s->guard->refused[why];
-        if (l->count == 0 || (!all && now - l->t_window < REFUSAL_LOG_MS))
+        /* Saturated: a window opened after now (a later clock reading
+         * passed in) is 0 s old, never 2^64 ms. */
+        uint64_t age = now > l->t_window ? now - l->t_window : 0;
+        if (l->count == 0 || (!all && age < REFUSAL_LOG_MS))
             continue;
         srv_log("refused %u more connection%s from %s%s in the last %.0f s: %s", l->count,
                 l->count == 1 ? "" : "s", l->host, l->many ? " and other addresses" : "",
-                (double)(now - l->t_window) / 1000.0, refusal_why[why]);
+                (double)age / 1000.0, refusal_why[why]);
         l->count = 0;
         l->logged = 0;
         l->t_window = now;
