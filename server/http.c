@@ -98,7 +98,14 @@ struct srv_http {
     action acts[SRV_HTTP_ACTIONS];
     session sessions[SRV_HTTP_SESSIONS];
     srv_authlimit fails; /* under mu: failed authentications per address */
-    char hosts[512];     /* --http-host's names, comma-separated ("" for none) */
+    /* under mu: the open connections' networks (an IPv4 /24, an IPv6 /64,
+     * as the first bytes of the v6 or v4-mapped address), for the accept
+     * policy: at most SRV_HTTP_PER_NETWORK from one */
+    struct {
+        uint8_t net[16];
+        uint32_t n;
+    } nets[SRV_HTTP_MAX_CONNS];
+    char hosts[512]; /* --http-host's names, comma-separated ("" for none) */
     /* the loop's own */
     uint64_t t_pub, version, sig;
     int stopping;  /* under mu: event streams end */
@@ -453,6 +460,78 @@ static void client_addr(struct MHD_Connection *conn, char out[SRV_AUTHLIMIT_ADDR
     else if (sa->sa_family == AF_INET6)
         inet_ntop(AF_INET6, &((const struct sockaddr_in6 *)(const void *)sa)->sin6_addr, out,
                   SRV_AUTHLIMIT_ADDR);
+}
+
+/* The network of a socket address: its first bytes as IPv6 (IPv4 mapped to
+ * ::ffff:a.b.c.d), an IPv4 /24 or an IPv6 /64; 0 for another family. */
+static int net_of(const struct sockaddr *sa, uint8_t net[16])
+{
+    memset(net, 0, 16);
+    if (sa->sa_family == AF_INET) {
+        const struct sockaddr_in *a = (const struct sockaddr_in *)(const void *)sa;
+        net[10] = net[11] = 0xff;
+        memcpy(net + 12, &a->sin_addr, 3);
+        return 1;
+    }
+    if (sa->sa_family == AF_INET6) {
+        const struct sockaddr_in6 *a = (const struct sockaddr_in6 *)(const void *)sa;
+        memcpy(net, &a->sin6_addr, 8);
+        if (memcmp(net, "\0\0\0\0\0\0\0\0", 8) == 0) /* v4-mapped: its /24 */
+            memcpy(net + 8, (const uint8_t *)&a->sin6_addr + 8, 7);
+        return 1;
+    }
+    return 0;
+}
+
+/* libmicrohttpd's accept policy: a connection from a network that holds
+ * SRV_HTTP_PER_NETWORK already is refused before a thread is started, so
+ * slow clients need that many networks to hold every connection. */
+static enum MHD_Result accept_policy(void *cls, const struct sockaddr *sa, socklen_t len)
+{
+    (void)len;
+    srv_http *h = cls;
+    uint8_t net[16];
+    if (!net_of(sa, net))
+        return MHD_YES;
+    enum MHD_Result ok = MHD_YES;
+    pthread_mutex_lock(&h->mu);
+    for (unsigned i = 0; i < SRV_HTTP_MAX_CONNS; i++)
+        if (h->nets[i].n && memcmp(h->nets[i].net, net, 16) == 0)
+            ok = h->nets[i].n >= SRV_HTTP_PER_NETWORK ? MHD_NO : MHD_YES;
+    pthread_mutex_unlock(&h->mu);
+    return ok;
+}
+
+/* Counts a connection in or out of its network's share. */
+static void on_connection(void *cls, struct MHD_Connection *conn, void **socket_context,
+                          enum MHD_ConnectionNotificationCode code)
+{
+    (void)socket_context;
+    srv_http *h = cls;
+    const union MHD_ConnectionInfo *ci =
+        MHD_get_connection_info(conn, MHD_CONNECTION_INFO_CLIENT_ADDRESS);
+    uint8_t net[16];
+    if (!ci || !ci->client_addr || !net_of(ci->client_addr, net))
+        return;
+    pthread_mutex_lock(&h->mu);
+    int at = -1, free_at = -1;
+    for (unsigned i = 0; i < SRV_HTTP_MAX_CONNS; i++) {
+        if (h->nets[i].n && memcmp(h->nets[i].net, net, 16) == 0)
+            at = (int)i;
+        else if (!h->nets[i].n && free_at < 0)
+            free_at = (int)i;
+    }
+    if (code == MHD_CONNECTION_NOTIFY_STARTED) {
+        if (at < 0 && free_at >= 0) {
+            at = free_at;
+            memcpy(h->nets[at].net, net, 16);
+        }
+        if (at >= 0)
+            h->nets[at].n++;
+    } else if (at >= 0) {
+        h->nets[at].n--;
+    }
+    pthread_mutex_unlock(&h->mu);
 }
 
 /* Milliseconds addr stays blocked for failed authentications (0: none). */
@@ -1282,7 +1361,8 @@ pt_status srv_http_start(srv_server *s, srv_http **out, pt_error *err)
         goto fail;
     h->d = MHD_start_daemon(MHD_USE_THREAD_PER_CONNECTION | MHD_USE_INTERNAL_POLLING_THREAD |
                                 MHD_USE_POLL | MHD_USE_ERROR_LOG,
-                            0, NULL, NULL, on_request, h, MHD_OPTION_LISTEN_SOCKET, (MHD_socket)fd,
+                            0, accept_policy, h, on_request, h, MHD_OPTION_LISTEN_SOCKET,
+                            (MHD_socket)fd, MHD_OPTION_NOTIFY_CONNECTION, on_connection, h,
                             MHD_OPTION_CONNECTION_LIMIT, (unsigned)SRV_HTTP_MAX_CONNS,
                             MHD_OPTION_CONNECTION_MEMORY_LIMIT, (size_t)SRV_HTTP_MEMORY,
                             MHD_OPTION_CONNECTION_TIMEOUT, (unsigned)SRV_HTTP_TIMEOUT_S,

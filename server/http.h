@@ -37,7 +37,9 @@
  * says so) is refused (403), and one authenticated by the session cookie
  * must say where it came from (Origin or Sec-Fetch-Site): cross-site
  * request forgery is refused with or without a token. At most
- * SRV_HTTP_PER_ADDRESS connections come from one address.
+ * SRV_HTTP_PER_ADDRESS connections come from one address and
+ * SRV_HTTP_PER_NETWORK from one network (IPv4 /24, IPv6 /64), refused at
+ * accept before a thread is started.
  *
  * No part of a URL reaches the file system: pages and scripts are a fixed
  * table compiled in (server/http_assets.c); a job's image is read from the
@@ -65,6 +67,7 @@
 #define SRV_HTTP_SESSIONS 256u
 #define SRV_HTTP_SESSIONS_PER_WHO 8u     /* an identity's logins: its 9th replaces its oldest */
 #define SRV_HTTP_PER_ADDRESS 8u          /* connections from one address */
+#define SRV_HTTP_PER_NETWORK 16u         /* from one IPv4 /24 or IPv6 /64 */
 #define SRV_HTTP_SESSION_S (12u * 3600u) /* a login lasts this long */
 
 typedef struct srv_http srv_http;
