@@ -17,8 +17,8 @@
  *     is 16 samples, each later one takes a tile to at most 8 times its
  *     samples (16, 128, 1024), so the first image comes as soon as with
  *     fixed chunks of 16 and a long job is few results per tile. Near the end, when the uncut work
- * is less than the farm (the sum of its live leases' speeds) renders in TAIL_SHARE (4) task times,
- * a task takes at most a quarter of the time the farm needs for that rest, so the last tasks end
+ * is less than the farm (the sum of its live leases' speeds) renders in TAIL_SHARE (2) task times,
+ * a task takes at most half the time the farm needs for that rest, so the last tasks end
  * close together. A task keeps its range: an expired lease's task goes back whole to the requeue
  * list, served first. Tile results merge in sample order (early ones held), so with exact sums the
  * image is the same however it was cut.
