@@ -11,9 +11,14 @@
  * (server/state.h), and runs until it is stopped.
  *
  * serve.c only sets up and dispatches; the parts are server/loop.h (sockets,
- * connections, handshake), queue.h (jobs and leases), workers.h and
- * requests.h (what workers and clients send), upload.h (scene verification
- * off the loop), local.h (local workers) and mode.h (the two modes as data).
+ * connections, handshake, limits on peers), io.h (the I/O threads that read
+ * workers), queue.h (jobs and leases), frames.h (frame ranges), job.h (one
+ * job's scheduling and merging), adder.h and writer.h (the merge and image
+ * threads), state.h (the state folder), workers.h and requests.h (what
+ * workers and clients send), upload.h (scene verification off the loop),
+ * http.h (the dashboard), clients.h and authlimit.h (identities and the
+ * backoff of wrong tokens), local.h (local workers), core.h (the server's
+ * state) and mode.h (the two modes as data).
  * Threads: srv_serve runs the loop on the calling thread; call it once at a
  * time per process (it installs SIGINT and SIGTERM handlers).
  */
