@@ -30,6 +30,7 @@
 #include "common/base/opt.h"
 #include "common/base/text.h"
 #include "common/base/version.h"
+#include "common/render/tile.h"
 #include "common/scene/bundle.h"
 #include "protocol/auth.h"
 
@@ -447,7 +448,7 @@ static int cmd_submit(int argc, char **argv, globals *g)
                 rc = bad_usage("submit", "--name: longer than %u bytes", PROTO_MAX_NAME);
             break;
         case O_DEPTH:
-            st = pt_opt_u32("--max-depth", optarg, 1, UINT16_MAX, &depth, &err);
+            st = pt_opt_u32("--max-depth", optarg, 1, PT_RENDER_MAX_DEPTH, &depth, &err);
             break;
         case O_TARGET:
             st = pt_opt_double("--target-error", optarg, 0.0, DBL_MAX, &m.target_error, &err);

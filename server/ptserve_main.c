@@ -390,7 +390,7 @@ int main(int argc, char **argv)
             snprintf(c.job.variant, sizeof c.job.variant, "%s", optarg);
             break;
         case O_DEPTH:
-            st = pt_opt_u32("--max-depth", optarg, 0, 1024, &c.job.max_depth, &err);
+            st = pt_opt_u32("--max-depth", optarg, 0, PT_RENDER_MAX_DEPTH, &c.job.max_depth, &err);
             break;
         case O_TILE:
             st = pt_opt_u32("--tile", optarg, 1, PT_TILE_MAX, &c.job.tile, &err);

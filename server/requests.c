@@ -14,6 +14,7 @@
 #include "common/base/fsutil.h"
 #include "common/base/hash.h"
 #include "common/base/text.h"
+#include "common/render/tile.h"
 #include "common/scene/scene.h"
 #include "protocol/msg.h"
 #include "server/frames.h"
@@ -174,7 +175,7 @@ static void on_submit(srv_server *s, srv_conn *c, const proto_frame *f)
                             m.width, m.height, cap->max_side, (unsigned long long)cap->max_pixels);
         return;
     }
-    if (m.max_depth > 1024 || (m.min_spp && m.min_spp < 2) || m.min_spp > m.spp) {
+    if (m.max_depth > PT_RENDER_MAX_DEPTH || (m.min_spp && m.min_spp < 2) || m.min_spp > m.spp) {
         srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "max depth %u or min spp %u is out of range",
                             m.max_depth, m.min_spp);
         return;

@@ -266,7 +266,9 @@ int main(int argc, char **argv)
             bad = bad_value(pt_opt_u32("--threads", optarg, 1, 1024, &o.threads, &err), &err);
             break;
         case OPT_DEPTH:
-            bad = bad_value(pt_opt_u32("--max-depth", optarg, 0, 1024, &o.max_depth, &err), &err);
+            bad = bad_value(
+                pt_opt_u32("--max-depth", optarg, 0, PT_RENDER_MAX_DEPTH, &o.max_depth, &err),
+                &err);
             break;
         case OPT_CAMERA:
             o.camera = optarg;

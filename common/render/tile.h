@@ -129,6 +129,11 @@ static inline uint32_t pt_chunk_whole_blocks(uint32_t chunk)
  * --res: ptworker, one-job ptserve, and the default of ptserve --max-res. */
 #define PT_RENDER_MAX_SIDE 16384u
 
+/* The highest --max-depth any program (ptworker, ptserve, ptctl) or a
+ * SUBMIT accepts: one limit, checked where it is typed (it is also the
+ * default, render.h's PT_RENDER_DEFAULT_MAX_DEPTH). */
+#define PT_RENDER_MAX_DEPTH 1024u
+
 typedef struct pt_rect {
     uint32_t x0, y0, x1, y1; /* pixels [x0,x1) x [y0,y1), y down from the top row */
 } pt_rect;
