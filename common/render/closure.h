@@ -7,7 +7,8 @@
  * Lobes (each a file with its setup, eval and sample): diffuse and specular
  * (bsdf.h, the glTF metallic-roughness base), the dielectric interface
  * (dielectric.h, glass), sheen and clearcoat (layers.h). Adding a lobe is its
- * file, a kind below, and its entry in the builder (pt_closure_add_*).
+ * file, a kind below with its case in closure.c's lobe_eval and sample
+ * switch, and its entry in the builder (pt_closure_add_*).
  *
  * Structure. The lobes sit in groups, innermost first: the base's lobes
  * (specular, diffuse), then the interface beside the base, then the layers
