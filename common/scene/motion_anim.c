@@ -12,7 +12,10 @@
  * PT_MOTION_TOLERANCE radians off it: 2, 3, 5, 9, 17 steps at most. A
  * vertex's chord error falls as 1/K^2 (motion.h), so a quarter turn over the
  * shutter needs 9 steps for 1e-3 (a half turn 17); what stays is under a
- * pixel of a 512-pixel view of the whole scene.
+ * pixel of a 512-pixel view of the whole scene. The doubling also stops
+ * before the scene's triangles times the steps would pass the cap
+ * (PT_MOTION_MAX_TRIANGLE_STEPS, motion.h): each step costs a pose of every
+ * vertex here and a time segment of every moving triangle in Embree.
  */
 #include "common/scene/motion.h"
 
@@ -80,6 +83,12 @@ static int off_line(const pose *a, const pose *m, const pose *b, size_t n, doubl
 
 pt_status pt_motion_from_anim(pt_scene *s, const pt_anim *anim, double t0, double t1, pt_error *err)
 {
+    return pt_motion_from_anim_cap(s, anim, t0, t1, PT_MOTION_MAX_TRIANGLE_STEPS, err);
+}
+
+pt_status pt_motion_from_anim_cap(pt_scene *s, const pt_anim *anim, double t0, double t1,
+                                  uint64_t max_triangle_steps, pt_error *err)
+{
     if (!(t1 > t0) || !pt_anim_moves(anim))
         return PT_OK;
     pt_status st = pt_anim_pose(anim, t0, s, err); /* the still: step 0 */
@@ -95,7 +104,8 @@ pt_status pt_motion_from_anim(pt_scene *s, const pt_anim *anim, double t0, doubl
     if ((st = pose_at(anim, s, t0, &p[0], err)) != PT_OK ||
         (st = pose_at(anim, s, t1, &p[1], err)) != PT_OK)
         goto done;
-    while (2 * k - 1 <= AUTO_MAX_STEPS) {
+    while (2 * k - 1 <= AUTO_MAX_STEPS &&
+           (uint64_t)s->num_triangles * (2 * k - 1) <= max_triangle_steps) {
         int split = 0;
         for (uint32_t i = 0; i + 1 < k; i++) {
             if ((st = pose_at(anim, s, 0.5 * (p[i].t + p[i + 1].t), &mid[i], err)) != PT_OK)

@@ -37,6 +37,7 @@
 
 extern "C" {
 #include "common/scene/anim.h"
+#include "common/scene/motion.h"
 }
 #include "tests/check.h"
 
@@ -911,6 +912,44 @@ void test_static_far()
     unlink(p.c_str());
 }
 
+// Motion blur's steps double while the motion curves, up to 17 for a half
+// turn, and stop before the scene's triangles times the steps pass the cap:
+// 3 steps under a cap of 3 a triangle, and 2 (linear) always.
+void test_motion_cap()
+{
+    gltf g;
+    g.floats(k_tri, "VEC3", 3);
+    const float h = float(std::sqrt(0.5));
+    int in = g.floats({0, 0.5f, 1}, "SCALAR", 1);
+    int out = g.floats({0, 0, 0, 1, 0, h, 0, h, 0, 1, 0, 0}, "VEC4", 4);
+    char a[600];
+    snprintf(a, sizeof a,
+             "\"nodes\":[{\"mesh\":0,\"translation\":[0.5,0,0]}],"
+             "\"meshes\":[{\"primitives\":[{\"attributes\":{\"POSITION\":0}}]}],"
+             "\"animations\":[{\"channels\":[{\"sampler\":0,\"target\":{\"node\":0,\"path\":"
+             "\"rotation\"}}],\"samplers\":[{\"input\":%d,\"output\":%d}]}]",
+             in, out);
+    std::string p = write_tmp(g.json(a), "motioncap");
+    pt_scene_opts o{};
+    o.animate = 1;
+    pt_scene *s = nullptr;
+    pt_anim *rig = nullptr;
+    pt_error err{};
+    CHECKF(pt_anim_load(p.c_str(), &o, &s, &rig, &err) == PT_OK, "%s", err.msg);
+    if (s && rig) {
+        CHECKF(pt_motion_from_anim(s, rig, 0.0, 1.0, &err) == PT_OK, "%s", err.msg);
+        CHECKF(s->motion && s->motion->steps == 17, "steps %u", s->motion ? s->motion->steps : 0u);
+        CHECKF(pt_motion_from_anim_cap(s, rig, 0.0, 1.0, 3ull * s->num_triangles, &err) == PT_OK,
+               "%s", err.msg);
+        CHECKF(s->motion && s->motion->steps == 3, "steps %u", s->motion ? s->motion->steps : 0u);
+        CHECKF(pt_motion_from_anim_cap(s, rig, 0.0, 1.0, 0, &err) == PT_OK, "%s", err.msg);
+        CHECKF(s->motion && s->motion->steps == 2, "steps %u", s->motion ? s->motion->steps : 0u);
+    }
+    pt_anim_free(rig);
+    pt_scene_free(s);
+    unlink(p.c_str());
+}
+
 } // namespace
 
 int main(void)
@@ -925,5 +964,6 @@ int main(void)
     test_skin_sets();
     test_static();
     test_static_far();
+    test_motion_cap();
     return check_report();
 }
