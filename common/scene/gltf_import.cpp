@@ -1884,13 +1884,15 @@ uint64_t sat_add(uint64_t a, uint64_t b)
     return a > UINT64_MAX - b ? UINT64_MAX : a + b;
 }
 
-// Triangles and vertices, as the builder counts them.
+// Triangles and vertices, as the builder counts them, and morph target
+// deltas (vertices x targets), as the rig keeps them.
 struct geo_count {
-    uint64_t tri = 0, vtx = 0;
+    uint64_t tri = 0, vtx = 0, deltas = 0;
     void add(const geo_count &o)
     {
         tri = sat_add(tri, o.tri);
         vtx = sat_add(vtx, o.vtx);
+        deltas = sat_add(deltas, o.deltas);
     }
 };
 
@@ -1919,6 +1921,8 @@ geo_count mesh_count(const tinygltf::Model &m, int mi)
             continue;
         geo_count g;
         g.vtx = v;
+        g.deltas = v * uint64_t(p.targets.size() < PT_ANIM_MAX_TARGETS ? p.targets.size()
+                                                                       : PT_ANIM_MAX_TARGETS);
         g.tri = mode == TINYGLTF_MODE_TRIANGLES ? c / 3 : c >= 3 ? c - 2 : 0;
         n.add(g);
     }
@@ -1975,6 +1979,12 @@ void check_triangles(importer &im, int si)
                 "scene %d: %llu vertices once every instance of its meshes is counted, over the "
                 "cap of %u a scene",
                 si, (unsigned long long)total.vtx, PT_SCENE_MAX_VERTICES);
+    // Only a rig keeps the deltas: a still ignores morph targets.
+    if (im.rig && total.deltas > PT_ANIM_MAX_MORPH_DELTAS)
+        im.fail(PT_ERR_LIMIT,
+                "scene %d: %llu morph target deltas (vertices x targets) once every instance of "
+                "its meshes is counted, over the cap of %llu a scene for an animated load",
+                si, (unsigned long long)total.deltas, (unsigned long long)PT_ANIM_MAX_MORPH_DELTAS);
 }
 
 // Reads the external buffer and image files (for the hash and for decoding),

@@ -950,6 +950,40 @@ void test_motion_cap()
     unlink(p.c_str());
 }
 
+// Morph target deltas are counted with every instance before the rig keeps
+// a copy of them for each: a triangle with 1,024 targets (one accessor of
+// deltas for all) under 15 levels of shared nodes is 2^15 x 3 x 1024
+// deltas, refused for an animated load; a still ignores targets and loads.
+void test_morph_cap()
+{
+    gltf g;
+    g.floats(k_tri, "VEC3", 3);
+    int d = g.floats({0.1f, 0, 0, 0.1f, 0, 0, 0.1f, 0, 0}, "VEC3", 3);
+    std::string m = "\"nodes\":[";
+    for (int i = 0; i < 15; i++)
+        m += "{\"children\":[" + std::to_string(i + 1) + "," + std::to_string(i + 1) + "]},";
+    m += "{\"mesh\":0}],\"meshes\":[{\"primitives\":[{\"attributes\":{\"POSITION\":0},"
+         "\"targets\":[";
+    for (int k = 0; k < 1024; k++)
+        m += (k ? ",{\"POSITION\":" : "{\"POSITION\":") + std::to_string(d) + "}";
+    m += "]}]}]";
+    std::string p = write_tmp(g.json(m), "morphcap");
+    pt_scene_opts o{};
+    o.warn = [](void *, const char *) {};
+    pt_scene *s = nullptr;
+    pt_anim *rig = nullptr;
+    pt_error err{};
+    CHECK(pt_anim_load(p.c_str(), &o, &s, &rig, &err) == PT_ERR_LIMIT && !s && !rig);
+    CHECKF(strstr(err.msg,
+                  "100663296 morph target deltas (vertices x targets) once every "
+                  "instance of its meshes is counted, over the cap of 67108864") != nullptr,
+           "%s", err.msg);
+    CHECKF(pt_scene_load(p.c_str(), &o, &s, &err) == PT_OK && s && s->num_triangles == 32768, "%s",
+           err.msg);
+    pt_scene_free(s);
+    unlink(p.c_str());
+}
+
 } // namespace
 
 int main(void)
@@ -965,5 +999,6 @@ int main(void)
     test_static();
     test_static_far();
     test_motion_cap();
+    test_morph_cap();
     return check_report();
 }
