@@ -11,6 +11,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <strings.h>
+#include <sys/socket.h>
 #include <sys/stat.h>
 #include <time.h>
 #include <unistd.h>
@@ -105,12 +106,22 @@ struct srv_http {
         uint8_t net[16];
         uint32_t n;
     } nets[SRV_HTTP_MAX_CONNS];
+    /* under mu: the open connections, for the header deadline: each one's
+     * descriptor, and since when it waits for a request's headers (busy: a
+     * request of it is being answered) */
+    struct {
+        struct MHD_Connection *c; /* NULL: a free slot */
+        int fd, busy;
+        uint64_t since;
+    } open[SRV_HTTP_MAX_CONNS];
     char hosts[512]; /* --http-host's names, comma-separated ("" for none) */
     /* the loop's own */
     uint64_t t_pub, version, sig;
     int stopping;  /* under mu: event streams end */
     int rendering; /* under mu: PNGs being made (at most SRV_HTTP_RENDERS) */
 };
+
+static void sweep_headers(srv_http *h, uint64_t now);
 
 static void snap_unref_locked(snap *p)
 {
@@ -170,6 +181,7 @@ void srv_http_publish(srv_server *s, srv_http *h, int force)
      * taken only once a republish is possible (250 ms after the last). */
     if (!force && now - h->t_pub < 250)
         return;
+    sweep_headers(h, now);
     uint64_t sig = loop_signature(s);
     if (!force && now - h->t_pub < 1000 && sig == h->sig)
         return;
@@ -502,6 +514,64 @@ static enum MHD_Result accept_policy(void *cls, const struct sockaddr *sa, sockl
     return ok;
 }
 
+/* Under mu: conn's slot in h->open, or -1. */
+static int open_slot(const srv_http *h, const struct MHD_Connection *conn)
+{
+    for (unsigned i = 0; i < SRV_HTTP_MAX_CONNS; i++)
+        if (h->open[i].c == conn)
+            return (int)i;
+    return -1;
+}
+
+/* Under mu: conn opened (started 1) or is about to be closed (0). */
+static void track_open(srv_http *h, struct MHD_Connection *conn, int started)
+{
+    int i = started ? open_slot(h, NULL) : open_slot(h, conn);
+    if (i < 0)
+        return;
+    if (!started) {
+        h->open[i].c = NULL;
+        return;
+    }
+    const union MHD_ConnectionInfo *fi =
+        MHD_get_connection_info(conn, MHD_CONNECTION_INFO_CONNECTION_FD);
+    h->open[i].c = conn;
+    h->open[i].fd = fi ? (int)fi->connect_fd : -1;
+    h->open[i].busy = 0;
+    h->open[i].since = pt_now_ms();
+}
+
+/* A request of conn began to be answered (busy 1: its headers are in) or
+ * was answered (0: the connection waits for the next one's headers). */
+static void mark_busy(srv_http *h, struct MHD_Connection *conn, int busy)
+{
+    pthread_mutex_lock(&h->mu);
+    int i = open_slot(h, conn);
+    if (i >= 0) {
+        h->open[i].busy = busy;
+        h->open[i].since = pt_now_ms();
+    }
+    pthread_mutex_unlock(&h->mu);
+}
+
+/* Connections that have waited SRV_HTTP_HEADER_S for a request's headers
+ * are shut down, so their thread reads the end and libmicrohttpd closes
+ * them: a client that sends its headers a byte at a time holds a
+ * connection that long, no longer. Under mu, which NOTIFY_CLOSED takes
+ * before libmicrohttpd closes a descriptor, so the one shut down is the
+ * connection's own. */
+static void sweep_headers(srv_http *h, uint64_t now)
+{
+    pthread_mutex_lock(&h->mu);
+    for (unsigned i = 0; i < SRV_HTTP_MAX_CONNS; i++)
+        if (h->open[i].c && !h->open[i].busy && h->open[i].fd >= 0 &&
+            now - h->open[i].since > SRV_HTTP_HEADER_S * 1000u) {
+            shutdown(h->open[i].fd, SHUT_RDWR);
+            h->open[i].fd = -1; /* once */
+        }
+    pthread_mutex_unlock(&h->mu);
+}
+
 /* Counts a connection in or out of its network's share. */
 static void on_connection(void *cls, struct MHD_Connection *conn, void **socket_context,
                           enum MHD_ConnectionNotificationCode code)
@@ -531,6 +601,7 @@ static void on_connection(void *cls, struct MHD_Connection *conn, void **socket_
     } else if (at >= 0) {
         h->nets[at].n--;
     }
+    track_open(h, conn, code == MHD_CONNECTION_NOTIFY_STARTED);
     pthread_mutex_unlock(&h->mu);
 }
 
@@ -1243,6 +1314,7 @@ static enum MHD_Result on_request(void *cls, struct MHD_Connection *conn, const 
         if (!r)
             return MHD_NO;
         *con_cls = r;
+        mark_busy(h, conn, 1);
         if (strcmp(method, "POST") == 0)
             r->pp = MHD_create_post_processor(conn, 4096, post_field, r);
         return MHD_YES;
@@ -1320,10 +1392,11 @@ static enum MHD_Result on_request(void *cls, struct MHD_Connection *conn, const 
 static void on_done(void *cls, struct MHD_Connection *conn, void **con_cls,
                     enum MHD_RequestTerminationCode toe)
 {
-    (void)cls, (void)conn, (void)toe;
+    (void)toe;
     req *r = *con_cls;
     if (!r)
         return;
+    mark_busy(cls, conn, 0);
     if (r->pp)
         MHD_destroy_post_processor(r->pp);
     OPENSSL_cleanse(r->token, sizeof r->token);

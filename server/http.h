@@ -39,7 +39,9 @@
  * request forgery is refused with or without a token. At most
  * SRV_HTTP_PER_ADDRESS connections come from one address and
  * SRV_HTTP_PER_NETWORK from one network (IPv4 /24, IPv6 /64), refused at
- * accept before a thread is started.
+ * accept before a thread is started; a connection that has not sent a
+ * request's headers within SRV_HTTP_HEADER_S of opening (or of its last
+ * answer) is closed, however slowly it keeps sending.
  *
  * No part of a URL reaches the file system: pages and scripts are a fixed
  * table compiled in (server/http_assets.c); a job's image is read from the
@@ -68,6 +70,7 @@
 #define SRV_HTTP_SESSIONS_PER_WHO 8u     /* an identity's logins: its 9th replaces its oldest */
 #define SRV_HTTP_PER_ADDRESS 8u          /* connections from one address */
 #define SRV_HTTP_PER_NETWORK 16u         /* from one IPv4 /24 or IPv6 /64 */
+#define SRV_HTTP_HEADER_S 10u            /* a request's headers must be in within this */
 #define SRV_HTTP_SESSION_S (12u * 3600u) /* a login lasts this long */
 
 typedef struct srv_http srv_http;

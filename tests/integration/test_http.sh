@@ -261,6 +261,33 @@ PY
 [ "$(head -n 1 "$tmp/net.log")" = 16 ] || fail "one network held $(cat "$tmp/net.log") connections"
 [ "$(code -H "Authorization: Bearer $(cat "$tmp/admin.token")" --max-time 10 "$web/api/jobs")" = 200 ] ||
   fail "a request while one network holds its share"
+# A client that sends its headers a byte a second is closed once it has
+# not finished them in 10 s (it would otherwise hold its connection for as
+# long as it keeps sending).
+python3 - "$(cat "$tmp/hport")" > "$tmp/drip.log" 2>&1 <<'PY'
+import socket, sys, time
+s = socket.socket()
+s.bind(("127.0.0.6", 0))
+s.connect(("127.0.0.1", int(sys.argv[1])))
+s.settimeout(0.2)
+head = b"GET /api/jobs HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Slow: " + b"a" * 100
+t0 = time.time()
+for b in head:
+    try:
+        s.send(bytes([b]))
+        if s.recv(1) == b"":
+            break
+    except socket.timeout:
+        pass
+    except OSError:
+        break
+    time.sleep(0.8)
+print("%.0f" % (time.time() - t0), flush=True)
+PY
+t=$(head -n 1 "$tmp/drip.log")
+if [ -z "$t" ] || [ "$t" -lt 9 ] || [ "$t" -gt 20 ]; then
+  fail "a dripping client lasted $(cat "$tmp/drip.log") s"
+fi
 # The render went on through all of it: the job still gains samples.
 s0=$(as admin "$web/api/jobs/$fire" | python3 -c 'import json,sys; print(json.load(sys.stdin)["samples_done"])')
 for _ in $(seq 200); do
