@@ -13,14 +13,14 @@
  * buffer, an external buffer and image, a .glb, a name leading out of the
  * folder, JSON nested too deep and just deep enough, a PNG whose header
  * claims 16384^2, one whose data inflates past its header's 1x1, meshes
- * instanced past the triangle cap, animated ones with skins and morph
- * targets, and hostile animated ones) for fuzz_gltf; bundles packed from
- * such scenes, and hostile ones, for fuzz_bundle; and for the state
- * folder's targets (fuzz_state.h) real queue files, checkpoints and
- * results logs written by server/state.c in a scratch folder: fresh, with
- * held early results, finished, cut short, unsealed. ctest runs "check",
- * so a change to the wire format that forgets the corpus fails the suite;
- * rerun "write" to refresh it.
+ * instanced past the triangle cap and morph targets past the delta cap,
+ * animated ones with skins and morph targets, and hostile animated ones)
+ * for fuzz_gltf; bundles packed from such scenes, and hostile ones, for
+ * fuzz_bundle; and for the state folder's targets (fuzz_state.h) real
+ * queue files, checkpoints and results logs written by server/state.c in
+ * a scratch folder: fresh, with held early results, finished, cut short,
+ * unsealed. ctest runs "check", so a change to the wire format that
+ * forgets the corpus fails the suite; rerun "write" to refresh it.
  */
 #include <errno.h>
 #include <stdio.h>
@@ -391,6 +391,30 @@ static void gen_gltf(const char *dir)
         put(&b, ibin, sizeof ibin);
         emit(dir, "fuzz_gltf", k == 0 ? "inst_bomb.gltf" : "inst_dag.gltf", b.p, b.len);
     }
+    /* A morph bomb for the animated load: one triangle with 256 targets
+     * (one accessor for all) under 17 levels of shared nodes, 2^17 x 3 x 256
+     * deltas, past PT_ANIM_MAX_MORPH_DELTAS; as a still it loads. */
+    b.len = 0;
+    puts_(&b, "{\"asset\":{\"version\":\"2.0\"},\"scene\":0,\"scenes\":[{\"nodes\":[0]}],"
+              "\"nodes\":[");
+    for (int i = 0; i < 17; i++) {
+        char node[64];
+        snprintf(node, sizeof node, "{\"children\":[%d,%d]},", i + 1, i + 1);
+        puts_(&b, node);
+    }
+    puts_(&b, "{\"mesh\":0}],\"meshes\":[{\"primitives\":[{\"attributes\":{\"POSITION\":0},"
+              "\"indices\":1,\"targets\":[");
+    for (int t = 0; t < 256; t++)
+        puts_(&b, t ? ",{\"POSITION\":0}" : "{\"POSITION\":0}");
+    puts_(&b, "]}]}],\"buffers\":[{\"uri\":\"b.bin\",\"byteLength\":3108}],"
+              "\"bufferViews\":[{\"buffer\":0,\"byteOffset\":0,\"byteLength\":36},"
+              "{\"buffer\":0,\"byteOffset\":36,\"byteLength\":3072}],"
+              "\"accessors\":[{\"bufferView\":0,\"componentType\":5126,\"count\":3,"
+              "\"type\":\"VEC3\",\"min\":[0,0,0],\"max\":[1,1,0]},"
+              "{\"bufferView\":1,\"componentType\":5121,\"type\":\"SCALAR\",\"count\":3}]}");
+    puts_(&b, GLTF_SEP);
+    put(&b, ibin, sizeof ibin);
+    emit(dir, "fuzz_gltf", "morph_bomb.gltf", b.p, b.len);
 
     /* A .glb (glTF 2.0 spec 4.4): header, JSON chunk, BIN chunk holding the
      * triangle and the PNG, which a bufferView names as the texture. */
