@@ -182,6 +182,21 @@ static inline int farm_test_end(void)
     return check_report();
 }
 
+/* The resident memory of process pid in KiB (VmRSS), -1 when unknown. */
+static inline long rss_kib(pid_t pid)
+{
+    char name[64], line[256];
+    snprintf(name, sizeof name, "/proc/%d/status", (int)pid);
+    FILE *f = fopen(name, "r");
+    long kib = -1;
+    while (f && fgets(line, sizeof line, f))
+        if (sscanf(line, "VmRSS: %ld kB", &kib) == 1)
+            break;
+    if (f)
+        fclose(f);
+    return kib;
+}
+
 /* ---- a raw protocol peer ---- */
 
 static inline int connect_to(int port)

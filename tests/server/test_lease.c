@@ -567,34 +567,45 @@ static void verify_clean(void)
     CHECKF(same_pixels("verify_ref.exr", "verify.exr"), "verification changed the image");
 }
 
+/* ptctl ARGS against the server on port, its stdout in out. */
+static int ctl(int port, const char *args, char *out, size_t size)
+{
+    char cmd[2048];
+    snprintf(cmd, sizeof cmd, "%s/ptctl --server 127.0.0.1:%d --token-file %s %s", PT_BIN_DIR, port,
+             path("token"), args);
+    return capture(cmd, out, size);
+}
+
+/* A queue-mode ptserve with the farm's token on a fresh state folder,
+ * extra options after those (NULL-terminated); its port in *port. */
+static pid_t start_queue(const char *state, const char *log, const char *const *extra, int *port)
+{
+    const char *argv[24] = {PT_BIN_DIR "/ptserve", "--state-dir", path(state),  "--listen",
+                            "127.0.0.1:0",         "--port-file", path("port"), "--token-file",
+                            path("token")};
+    int n = 9;
+    while (*extra && n < 23)
+        argv[n++] = *extra++;
+    argv[n] = NULL;
+    unlink(path("port"));
+    pid_t srv = spawn(argv, log);
+    *port = read_port();
+    CHECK(*port > 0);
+    return srv;
+}
+
 /* ---- f. the liar's note in queue mode ---- */
 
 static void liar_queue(void)
 {
     static peer l;
-    unlink(path("port"));
-    const char *argv[] = {PT_BIN_DIR "/ptserve",
-                          "--state-dir",
-                          path("state"),
-                          "--listen",
-                          "127.0.0.1:0",
-                          "--port-file",
-                          path("port"),
-                          "--token-file",
-                          path("token"),
-                          "--verify-fraction",
-                          "1",
-                          "-q",
-                          NULL};
-    pid_t srv = spawn(argv, "queue.log");
-    int port = read_port();
-    CHECK(port > 0);
+    const char *extra[] = {"--verify-fraction", "1", "-q", NULL};
+    int port;
+    pid_t srv = start_queue("state", "queue.log", extra, &port);
     CHECK(peer_open(&l, port, "liar"));
-    char cmd[2048], out[8192];
-    snprintf(cmd, sizeof cmd,
-             "%s/ptctl --server 127.0.0.1:%d --token-file %s submit %s --res 48x32 --spp 256",
-             PT_BIN_DIR, port, path("token"), SCENE);
-    CHECK(capture(cmd, out, sizeof out) == 0);
+    char args[1024], out[8192];
+    snprintf(args, sizeof args, "submit %s --res 48x32 --spp 256", SCENE);
+    CHECK(ctl(port, args, out, sizeof out) == 0);
     long job = strtol(out, NULL, 10);
     CHECK(job > 0);
     pid_t w1, w2;
@@ -602,11 +613,10 @@ static void liar_queue(void)
     double end = pt_now_s() + 300;
     CHECKF(strstr(l.error, "blocked") != NULL, "the liar was told '%s'", l.error);
     peer_close(&l);
-    snprintf(cmd, sizeof cmd, "%s/ptctl --server 127.0.0.1:%d --token-file %s status %ld",
-             PT_BIN_DIR, port, path("token"), job);
+    snprintf(args, sizeof args, "status %ld", job);
     int done = 0;
     while (!done && pt_now_s() < end) {
-        capture(cmd, out, sizeof out);
+        ctl(port, args, out, sizeof out);
         done = strstr(out, "done") != NULL;
         if (!done)
             sleep_ms(100);
@@ -641,36 +651,12 @@ static uint32_t send_nothing(peer *e, uint32_t max, double seconds)
     return sent;
 }
 
-/* ptctl ARGS against the server on port, its stdout in out. */
-static int ctl(int port, const char *args, char *out, size_t size)
-{
-    char cmd[2048];
-    snprintf(cmd, sizeof cmd, "%s/ptctl --server 127.0.0.1:%d --token-file %s %s", PT_BIN_DIR, port,
-             path("token"), args);
-    return capture(cmd, out, size);
-}
-
 static void empty_worker(void)
 {
     static peer e;
-    unlink(path("port"));
-    const char *argv[] = {PT_BIN_DIR "/ptserve",
-                          "--state-dir",
-                          path("state_empty"),
-                          "--listen",
-                          "127.0.0.1:0",
-                          "--port-file",
-                          path("port"),
-                          "--token-file",
-                          path("token"),
-                          "--verify-fraction",
-                          "1",
-                          "--chunk",
-                          "16",
-                          NULL};
-    pid_t srv = spawn(argv, "empty.log");
-    int port = read_port();
-    CHECK(port > 0);
+    const char *extra[] = {"--verify-fraction", "1", "--chunk", "16", NULL};
+    int port;
+    pid_t srv = start_queue("state_empty", "empty.log", extra, &port);
     char out[8192], args[1024];
     snprintf(args, sizeof args, "submit %s --res 48x32 --spp 32 --name alone", SCENE);
     CHECK(ctl(port, args, out, sizeof out) == 0);
@@ -729,23 +715,9 @@ static void empty_worker(void)
 static void frames_in_flight(void)
 {
     static peer g;
-    unlink(path("port"));
-    const char *argv[] = {PT_BIN_DIR "/ptserve",
-                          "--state-dir",
-                          path("state_frames"),
-                          "--listen",
-                          "127.0.0.1:0",
-                          "--port-file",
-                          path("port"),
-                          "--token-file",
-                          path("token"),
-                          "--max-pixels",
-                          "2400",
-                          "-q",
-                          NULL};
-    pid_t srv = spawn(argv, "frames.log");
-    int port = read_port();
-    CHECK(port > 0);
+    const char *extra[] = {"--max-pixels", "2400", "-q", NULL};
+    int port;
+    pid_t srv = start_queue("state_frames", "frames.log", extra, &port);
     char out[8192], args[1024];
     snprintf(args, sizeof args, "submit %s --res 40x30 --spp 16 --frames 0-9 --name flight", SCENE);
     CHECK(ctl(port, args, out, sizeof out) == 0);

@@ -57,21 +57,6 @@
 
 static const char *SCENE = PT_SOURCE_DIR "/scenes/cornell_box.gltf";
 
-/* ptserve's resident memory in KiB (VmRSS), or -1. */
-static long rss_kib(pid_t pid)
-{
-    char name[64], line[256];
-    snprintf(name, sizeof name, "/proc/%d/status", (int)pid);
-    FILE *f = fopen(name, "r");
-    long kib = -1;
-    while (f && fgets(line, sizeof line, f))
-        if (sscanf(line, "VmRSS: %ld kB", &kib) == 1)
-            break;
-    if (f)
-        fclose(f);
-    return kib;
-}
-
 static int log_lines(const char *name)
 {
     FILE *f = fopen(path(name), "r");
@@ -115,6 +100,20 @@ static void stop_serve(pid_t srv)
 {
     kill(srv, SIGTERM);
     wait_exit(srv, 30);
+}
+
+/* start_serve, then its port in *port; -1 (the server stopped) when it
+ * wrote none. */
+static pid_t start_serve_port(const char *const *extra, const char *log, int *port)
+{
+    pid_t srv = start_serve(extra, log);
+    *port = read_port();
+    CHECK(*port > 0);
+    if (*port > 0)
+        return srv;
+    kill(srv, SIGKILL);
+    wait_exit(srv, 10);
+    return -1;
 }
 
 /* A worker that passed the handshake (WELCOME read), or -1. */
@@ -199,14 +198,10 @@ static void memory_capped(void)
                            "--lease-timeout",
                            "600",
                            NULL};
-    pid_t srv = start_serve(extra, "mem.log");
-    int port = read_port();
-    CHECK(port > 0);
-    if (port <= 0) {
-        kill(srv, SIGKILL);
-        wait_exit(srv, 10);
+    int port;
+    pid_t srv = start_serve_port(extra, "mem.log", &port);
+    if (srv < 0)
         return;
-    }
     int probe = ready_worker(port);
     CHECK(probe >= 0);
     long base = rss_kib(srv);
@@ -362,14 +357,10 @@ static void slots_kept(void)
     if (rl.rlim_cur < FLOOD + 64)
         return;
     const char *extra[] = {"--state-dir", path("slots"), "--handshake-timeout", "600", NULL};
-    pid_t srv = start_serve(extra, "slots.log");
-    int port = read_port();
-    CHECK(port > 0);
-    if (port <= 0) {
-        kill(srv, SIGKILL);
-        wait_exit(srv, 10);
+    int port;
+    pid_t srv = start_serve_port(extra, "slots.log", &port);
+    if (srv < 0)
         return;
-    }
     /* The attacker, a process of its own: FLOOD silent connections from
      * 127.0.0.2, more than every slot, each reopened as soon as the server
      * closes it, for as long as the test runs. */
@@ -425,14 +416,10 @@ static void hold_from(const char *from, int port, int *fds, int n)
 static void slots_many_addresses(void)
 {
     const char *extra[] = {"--state-dir", path("many"), "--handshake-timeout", "600", NULL};
-    pid_t srv = start_serve(extra, "many.log");
-    int port = read_port();
-    CHECK(port > 0);
-    if (port <= 0) {
-        kill(srv, SIGKILL);
-        wait_exit(srv, 10);
+    int port;
+    pid_t srv = start_serve_port(extra, "many.log", &port);
+    if (srv < 0)
         return;
-    }
     /* One network: two addresses take its 16 slots, a third gets none. */
     static int net[3][SRV_DEFAULT_MAX_HANDSHAKES_IP];
     const int per = SRV_DEFAULT_MAX_HANDSHAKES_IP;
@@ -651,14 +638,10 @@ static void drip_closed(void)
     /* A frame of ~144 KiB may take max(1 s, 144 / 32 = 4.5 s). */
     const char *extra[] = {"--state-dir", path("rate"), "--frame-grace", "1", "--min-rate",
                            "32",          NULL};
-    pid_t srv = start_serve(extra, "rate.log");
-    int port = read_port();
-    CHECK(port > 0);
-    if (port <= 0) {
-        kill(srv, SIGKILL);
-        wait_exit(srv, 10);
+    int port;
+    pid_t srv = start_serve_port(extra, "rate.log", &port);
+    if (srv < 0)
         return;
-    }
     size_t len;
     uint8_t *frame = valid_result(&len);
     double allowed = (double)len / (MIN_RATE_KIB * 1024.0);

@@ -1737,21 +1737,6 @@ static void checked_off_loop(void)
 
 /* ---- 7. uploads on disk ------------------------------------------------------------- */
 
-/* The resident memory of process pid in KiB (VmRSS), -1 when unknown. */
-static long rss_kib(pid_t pid)
-{
-    char file[64], line[256];
-    snprintf(file, sizeof file, "/proc/%d/status", (int)pid);
-    FILE *f = fopen(file, "r");
-    long kib = -1;
-    while (f && fgets(line, sizeof line, f))
-        if (strncmp(line, "VmRSS:", 6) == 0)
-            kib = strtol(line + 6, NULL, 10);
-    if (f)
-        fclose(f);
-    return kib;
-}
-
 /* Files in folder whose names start with prefix (of size bytes, when size
  * is not 0). */
 static int count_files_sized(const char *folder, const char *prefix, off_t size)
