@@ -336,6 +336,17 @@ typedef struct req {
     int too_big;
 } req;
 
+/* Queues r with status, its type and no-store, and lets it go. */
+static enum MHD_Result send_response(struct MHD_Connection *conn, unsigned status,
+                                     struct MHD_Response *r, const char *type)
+{
+    MHD_add_response_header(r, "Content-Type", type);
+    MHD_add_response_header(r, "Cache-Control", "no-store");
+    enum MHD_Result ret = MHD_queue_response(conn, status, r);
+    MHD_destroy_response(r);
+    return ret;
+}
+
 static enum MHD_Result respond(struct MHD_Connection *conn, unsigned status, const char *type,
                                void *data, size_t len, enum MHD_ResponseMemoryMode mode)
 {
@@ -345,15 +356,11 @@ static enum MHD_Result respond(struct MHD_Connection *conn, unsigned status, con
             free(data);
         return MHD_NO;
     }
-    MHD_add_response_header(r, "Content-Type", type);
-    MHD_add_response_header(r, "Cache-Control", "no-store");
     MHD_add_response_header(r, "X-Content-Type-Options", "nosniff");
     MHD_add_response_header(r, "X-Frame-Options", "DENY");
     MHD_add_response_header(r, "Content-Security-Policy",
                             "default-src 'self'; img-src 'self' blob:; frame-ancestors 'none'");
-    enum MHD_Result ret = MHD_queue_response(conn, status, r);
-    MHD_destroy_response(r);
-    return ret;
+    return send_response(conn, status, r, type);
 }
 
 static enum MHD_Result respond_text(struct MHD_Connection *conn, unsigned status, const char *type,
@@ -634,12 +641,8 @@ static enum MHD_Result respond_blocked(struct MHD_Connection *conn, uint64_t ms)
         MHD_create_response_from_buffer(strlen(text), text, MHD_RESPMEM_MUST_COPY);
     if (!r)
         return MHD_NO;
-    MHD_add_response_header(r, "Content-Type", "application/json");
     MHD_add_response_header(r, "Retry-After", after);
-    MHD_add_response_header(r, "Cache-Control", "no-store");
-    enum MHD_Result ret = MHD_queue_response(conn, 429, r);
-    MHD_destroy_response(r);
-    return ret;
+    return send_response(conn, 429, r, "application/json");
 }
 
 /* 1 when host (a Host header, or an Origin's host part: NAME[:PORT]) names
@@ -1025,12 +1028,8 @@ static enum MHD_Result serve_exr(struct MHD_Connection *conn, const snap_job *j)
     char disp[128];
     snprintf(disp, sizeof disp, "attachment; filename=\"job%llu.exr\"",
              (unsigned long long)j->info.job_id);
-    MHD_add_response_header(r, "Content-Type", "image/x-exr");
     MHD_add_response_header(r, "Content-Disposition", disp);
-    MHD_add_response_header(r, "Cache-Control", "no-store");
-    enum MHD_Result ret = MHD_queue_response(conn, 200, r);
-    MHD_destroy_response(r);
-    return ret;
+    return send_response(conn, 200, r, "image/x-exr");
 }
 
 /* Server-Sent Events of one job: its JSON each time a snapshot changes it,
@@ -1109,11 +1108,7 @@ static enum MHD_Result serve_events(srv_http *h, struct MHD_Connection *conn, ui
         free(e);
         return MHD_NO;
     }
-    MHD_add_response_header(r, "Content-Type", "text/event-stream");
-    MHD_add_response_header(r, "Cache-Control", "no-store");
-    enum MHD_Result ret = MHD_queue_response(conn, 200, r);
-    MHD_destroy_response(r);
-    return ret;
+    return send_response(conn, 200, r, "text/event-stream");
 }
 
 static enum MHD_Result serve_api(srv_http *h, struct MHD_Connection *conn, const who *w,
@@ -1296,10 +1291,7 @@ static enum MHD_Result serve_login(srv_http *h, struct MHD_Connection *conn, req
         return MHD_NO;
     MHD_add_response_header(resp, "Set-Cookie", cookie);
     MHD_add_response_header(resp, "Location", "/");
-    MHD_add_response_header(resp, "Cache-Control", "no-store");
-    enum MHD_Result ret = MHD_queue_response(conn, 303, resp);
-    MHD_destroy_response(resp);
-    return ret;
+    return send_response(conn, 303, resp, "text/plain");
 }
 
 static enum MHD_Result on_request(void *cls, struct MHD_Connection *conn, const char *url,
