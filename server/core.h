@@ -29,8 +29,8 @@
 #include "protocol/msg.h"
 #include "server/authlimit.h"
 #include "server/clients.h"
+#include "server/config.h"
 #include "server/local.h"
-#include "server/serve.h"
 #include "server/state.h"
 
 typedef struct srv_server srv_server;

@@ -35,7 +35,7 @@
 #include "common/base/error.h"
 #include "protocol/frame.h"
 #include "protocol/msg.h"
-#include "server/serve.h"
+#include "server/config.h"
 
 #define SRV_IO_MAX_THREADS 64u
 #define SRV_DEFAULT_IO_THREADS 2u      /* ptserve --io-threads */

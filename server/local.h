@@ -18,7 +18,7 @@
 #include <sys/types.h>
 
 #include "common/base/error.h"
-#include "server/serve.h"
+#include "server/config.h"
 
 typedef struct srv_local {
     pid_t *children; /* 0 once reaped */
