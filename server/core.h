@@ -114,6 +114,8 @@ struct srv_server {
     srv_entry *single; /* one-job mode: the job */
     srv_state *state;  /* queue mode: the state folder; NULL in one-job mode */
     char out_dir[PATH_MAX - 512];
+    uint64_t t_expire;    /* srv_queue_expire's last walk over the leases */
+    uint64_t queue_retry; /* when an unsaved queue file is tried again */
 
     /* upload verification (server/upload.c) */
     int verifypipe[2];          /* verifications done: their pointers */
@@ -121,11 +123,17 @@ struct srv_server {
     srv_upload *checks_waiting; /* complete uploads waiting for a check thread, oldest first */
     uint32_t checks_running;    /* of verifications, those with a thread */
 
+    /* client requests (server/requests.c) */
+    uint64_t t_watch;     /* srv_requests_tick's last walk over the watchers */
+    uint8_t *fetch_chunk; /* one IMAGE piece read from a fetched file (PROTO_MAX_SCENE_CHUNK) */
+
     /* worker messages (server/workers.c) */
-    pt_pixel_acc *scratch; /* RESULT decode buffer */
-    srv_adder *adder;      /* film adds off the loop (--merge-threads); NULL: none */
-    struct srv_io *io;     /* workers read off the loop (--io-threads, server/io.h); NULL: none */
-    int log_held;          /* workers not read: the results log is behind (srv_loop_hold) */
+    pt_pixel_acc *scratch;      /* RESULT decode buffer */
+    struct proto_heartbeat *hb; /* HEARTBEAT decode buffer (large) */
+    int enforce_due;            /* a worker reached SRV_MAX_MISSES since srv_workers_enforce */
+    srv_adder *adder;           /* film adds off the loop (--merge-threads); NULL: none */
+    struct srv_io *io; /* workers read off the loop (--io-threads, server/io.h); NULL: none */
+    int log_held;      /* workers not read: the results log is behind (srv_loop_hold) */
     uint64_t t_held, t_released;
     srv_blocked blocked[SRV_MAX_BLOCKED];
     uint32_t nblocked;

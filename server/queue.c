@@ -944,14 +944,13 @@ static void on_missed(void *ctx, uint64_t owner, uint64_t task)
 
 void srv_queue_expire(srv_server *s, uint64_t now)
 {
-    static uint64_t t_last; /* one loop per process */
-    if (now - t_last < EXPIRE_MS && now >= t_last)
+    if (now - s->t_expire < EXPIRE_MS && now >= s->t_expire)
         return;
     /* Workers not read (srv_loop_hold) are not silent: their heartbeats
      * wait behind the hold, and are read in the lease timeout after it. */
     if (s->log_held || (s->t_released && now - s->t_released < s->cfg->lease_ms))
         return;
-    t_last = now;
+    s->t_expire = now;
     expiry e = {s, now};
     for (srv_entry *j = s->jobs; j; j = j->next) {
         uint32_t n;
@@ -986,9 +985,8 @@ static void note_saves(srv_entry *j)
 
 void srv_queue_tick(srv_server *s, uint64_t now)
 {
-    static uint64_t queue_retry; /* one loop per process */
-    if (s->state && srv_state_queue_unsaved(s->state) && now >= queue_retry) {
-        queue_retry = now + DISK_RETRY_MS;
+    if (s->state && srv_state_queue_unsaved(s->state) && now >= s->queue_retry) {
+        s->queue_retry = now + DISK_RETRY_MS;
         pt_error err = {0};
         if (srv_queue_journal(s, &err) == PT_OK)
             srv_log("the queue file is written again");

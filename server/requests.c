@@ -55,7 +55,7 @@ static void fetch_end(srv_conn *c)
 
 void srv_requests_pump_fetch(srv_server *s, srv_conn *c)
 {
-    static uint8_t chunk[PROTO_MAX_SCENE_CHUNK]; /* the loop's, one thread */
+    uint8_t *chunk = s->fetch_chunk;
     while (c->fetch && !c->closing && srv_conn_has_room(c)) {
         proto_scene_chunk ch;
         memcpy(ch.hash, c->fetch_hash, 32);
@@ -617,10 +617,9 @@ void srv_requests_tick(srv_server *s, uint64_t now)
 {
     /* A walk over every connection: every WATCH_TICK_MS, not every round (a
      * farm's loop turns thousands of rounds a second over its workers). */
-    static uint64_t t_last; /* one loop per process */
-    if (now - t_last < WATCH_TICK_MS && now >= t_last)
+    if (now - s->t_watch < WATCH_TICK_MS && now >= s->t_watch)
         return;
-    t_last = now;
+    s->t_watch = now;
     for (srv_conn *c = s->conns; c; c = c->next) {
         if (c->closing || !c->watch || now - c->watch_t < WATCH_MS)
             continue;

@@ -33,7 +33,9 @@ static pt_status setup(srv_server *s, pt_error *err)
                     srv_clients_count(s->clients), cfg->clients_path);
     }
     s->scratch = pt_malloc_array(PROTO_MAX_TILE_PIXELS, sizeof *s->scratch);
-    if (!s->scratch)
+    s->hb = pt_malloc(sizeof *s->hb);
+    s->fetch_chunk = pt_malloc(PROTO_MAX_SCENE_CHUNK);
+    if (!s->scratch || !s->hb || !s->fetch_chunk)
         return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
     if (cfg->merge_threads && (st = srv_adder_new(cfg->merge_threads, &s->adder, err)) != PT_OK)
         return st;
@@ -100,5 +102,7 @@ done:
     srv_adder_free(s.adder); /* after the jobs: each settled as it was freed */
     srv_clients_free(s.clients);
     pt_free(s.scratch);
+    pt_free(s.hb);
+    pt_free(s.fetch_chunk);
     return rc;
 }

@@ -111,12 +111,8 @@ void srv_workers_block(srv_server *s, srv_conn *c, const char *why)
     srv_conn_send_error(s, c, PROTO_E_AUTH, "this worker is blocked: %s", why);
 }
 
-/* Some worker reached SRV_MAX_MISSES since the last srv_workers_enforce:
- * only then does it walk the connections, not once per loop round. One
- * flag for the process: the loop is single-threaded, and a flag set for
- * another server's worker costs only a walk. */
-static int enforce_due;
-
+/* A miss sets s->enforce_due once a worker reaches SRV_MAX_MISSES: only then
+ * does srv_workers_enforce walk the connections, not once per loop round. */
 void srv_workers_missed(srv_server *s, uint64_t owner, uint64_t now)
 {
     srv_conn *c = srv_conn_find(s, owner);
@@ -124,14 +120,14 @@ void srv_workers_missed(srv_server *s, uint64_t owner, uint64_t now)
         return;
     c->missed_at = now;
     if (++c->misses >= SRV_MAX_MISSES)
-        enforce_due = 1;
+        s->enforce_due = 1;
 }
 
 void srv_workers_enforce(srv_server *s)
 {
-    if (!enforce_due)
+    if (!s->enforce_due)
         return;
-    enforce_due = 0;
+    s->enforce_due = 0;
     for (srv_conn *c = s->conns; c; c = c->next)
         if (c->state == SRV_C_READY && c->role == PROTO_ROLE_WORKER && !c->closing &&
             c->misses >= SRV_MAX_MISSES) {
@@ -250,7 +246,7 @@ void srv_workers_merge_durable(srv_server *s, srv_entry *j, uint64_t owner, prot
  * not: that is a worker that renders nothing, and it counts as a missed
  * deadline, so SRV_MAX_MISSES of them in a row block it. A scene whose
  * samples are all NaN blocks no one: then no result of the job holds one. */
-static void judge_rendered(srv_conn *c, const srv_entry *j, const proto_result *r)
+static void judge_rendered(srv_server *s, srv_conn *c, const srv_entry *j, const proto_result *r)
 {
     uint64_t asked = (uint64_t)r->npixels * (r->s1 - r->s0);
     if (asked == 0 || r->rejected < asked || srv_job_samples_merged(j->job) == 0) {
@@ -262,7 +258,7 @@ static void judge_rendered(srv_conn *c, const srv_entry *j, const proto_result *
     /* Each one counts, however many arrive in one millisecond. */
     c->empties++;
     if (++c->misses >= SRV_MAX_MISSES)
-        enforce_due = 1;
+        s->enforce_due = 1;
 }
 
 static void on_result(srv_server *s, srv_conn *c, const proto_frame *f)
@@ -300,7 +296,7 @@ void srv_workers_result(srv_server *s, srv_conn *c, const proto_frame *f, proto_
         /* A verification copy: compared, never logged or merged. */
         srv_verdict v;
         srv_job_check(j->job, lease_index, &r, &v);
-        judge_rendered(c, j, &r);
+        judge_rendered(s, c, j, &r);
         proto_result_fini(&r);
         on_verdict(s, j, &v);
         if (srv_entry_active(j) && j->job && srv_job_complete(j->job))
@@ -312,7 +308,7 @@ void srv_workers_result(srv_server *s, srv_conn *c, const proto_frame *f, proto_
      * checksum was checked) and merged by srv_queue_committed once the group
      * commit that holds its record has returned. */
     if (o == SRV_MERGED && s->state) {
-        judge_rendered(c, j, &r);
+        judge_rendered(s, c, j, &r);
         if (srv_queue_log_result(s, j, c->id, &r, f->payload - PROTO_FRAME_HEADER,
                                  (size_t)f->len + PROTO_FRAME_OVERHEAD, own, pt_now_ms(),
                                  &err) == PT_OK)
@@ -325,7 +321,7 @@ void srv_workers_result(srv_server *s, srv_conn *c, const proto_frame *f, proto_
         o = merge_now(s, j, lease_index, &r, pt_now_ms(), &merged, &err);
     switch (o) {
     case SRV_MERGED:
-        judge_rendered(c, j, &r);
+        judge_rendered(s, c, j, &r);
         c->tasks_done++;
         c->samples_done += merged;
         c->t_result = pt_now_ms();
@@ -357,9 +353,9 @@ void srv_workers_result(srv_server *s, srv_conn *c, const proto_frame *f, proto_
 
 static void on_heartbeat(srv_server *s, srv_conn *c, const proto_frame *f)
 {
-    static proto_heartbeat hb; /* large; the loop is single-threaded */
+    proto_heartbeat *hb = s->hb; /* large: the server's buffer */
     pt_error err = {0};
-    if (proto_msg_decode_heartbeat(f->payload, f->len, &hb, &err) != PT_OK) {
+    if (proto_msg_decode_heartbeat(f->payload, f->len, hb, &err) != PT_OK) {
         srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "bad HEARTBEAT: %s", err.msg);
         return;
     }
@@ -368,8 +364,8 @@ static void on_heartbeat(srv_server *s, srv_conn *c, const proto_frame *f)
      * even when two of its jobs share an id. */
     for (srv_entry *j = s->jobs; j; j = j->next)
         if (j->job && srv_entry_active(j))
-            for (uint32_t i = 0; i < hb.count; i++)
-                srv_job_heartbeat(j->job, c->id, hb.task_ids[i], now, s->cfg->lease_ms);
+            for (uint32_t i = 0; i < hb->count; i++)
+                srv_job_heartbeat(j->job, c->id, hb->task_ids[i], now, s->cfg->lease_ms);
 }
 
 void srv_workers_dispatch(srv_server *s, srv_conn *c, const proto_frame *f)
