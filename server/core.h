@@ -51,6 +51,10 @@ typedef struct srv_mode {
     const char *name;
     int serves_clients; /* a client (ptctl) may connect */
     int logs_starts;    /* log each job as it starts (the queue's; one job logs its setup) */
+    /* A result is logged durably before it is merged (the queue's state
+     * folder: srv_queue_log_result, merged once its commit returns); else
+     * it is merged as it arrives (one job). */
+    int durable;
     /* Loads or restores the jobs before the loop listens. */
     pt_status (*setup)(srv_server *s, pt_error *err);
     /* 1 when the loop is over (besides a stop signal). */

@@ -1090,8 +1090,8 @@ pt_status srv_loop_open(srv_server *s, pt_error *err)
         e.data.ptr = &s->state;
         epoll_ctl(s->ep, EPOLL_CTL_ADD, srv_state_commit_fd(s->state), &e);
     }
-    if (cfg->io_threads) { /* in queue mode a RESULT's frame is kept for the log */
-        if ((st = srv_io_new(cfg->io_threads, &s->guard->lim, &s->guard->in_held, s->state != NULL,
+    if (cfg->io_threads) { /* a durable mode keeps a RESULT's frame for its log */
+        if ((st = srv_io_new(cfg->io_threads, &s->guard->lim, &s->guard->in_held, s->mode->durable,
                              &s->io, err)) != PT_OK)
             return st;
         e.data.ptr = &s->io;

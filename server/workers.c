@@ -268,7 +268,7 @@ static void on_result(srv_server *s, srv_conn *c, const proto_frame *f)
     /* Into a buffer of its own when something keeps the pixels: the result
      * waiting for its record to be durable (queue mode), or the job for a
      * merge thread's add. */
-    pt_pixel_acc *buf = s->adder || s->state ? NULL : s->scratch;
+    pt_pixel_acc *buf = s->adder || s->mode->durable ? NULL : s->scratch;
     if (proto_msg_decode_result(f->payload, f->len, buf, PROTO_MAX_TILE_PIXELS, &r, &err) !=
         PT_OK) {
         srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "bad RESULT: %s", err.msg);
@@ -307,7 +307,7 @@ void srv_workers_result(srv_server *s, srv_conn *c, const proto_frame *f, proto_
      * queue mode the result is logged now (its frame as received, whose
      * checksum was checked) and merged by srv_queue_committed once the group
      * commit that holds its record has returned. */
-    if (o == SRV_MERGED && s->state) {
+    if (o == SRV_MERGED && s->mode->durable) {
         judge_rendered(s, c, j, &r);
         if (srv_queue_log_result(s, j, c->id, &r, f->payload - PROTO_FRAME_HEADER,
                                  (size_t)f->len + PROTO_FRAME_OVERHEAD, own, pt_now_ms(),
