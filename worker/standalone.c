@@ -5,11 +5,13 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <strings.h>
 #include <time.h>
 #include <unistd.h>
 
 #include "common/base/alloc.h"
 #include "common/base/clock.h"
+#include "common/base/fsutil.h"
 #include "common/image/exr.h"
 #include "common/image/image.h"
 #include "common/render/adaptive.h"
@@ -82,6 +84,62 @@ static void *render_thread(void *p)
     return NULL;
 }
 
+/* 1 when path's name ends in ext (".exr"), in any case. */
+static int has_ext(const char *path, const char *ext)
+{
+    size_t n = strlen(path), e = strlen(ext);
+    return n > e && strcasecmp(path + n - e, ext) == 0;
+}
+
+/* 1 when a file can be written at path: a temporary is made beside it and
+ * removed, as the final write will make one (so the folder exists, is a
+ * folder and is writable); else says why on stderr. */
+static int writable(const char *what, const char *path)
+{
+    pt_temp t;
+    pt_error err = {0};
+    if (pt_temp_open(path, 0644, &t, &err) != PT_OK) {
+        fprintf(stderr, "ptworker: %s %s: cannot be written: %s\n", what, path, err.msg);
+        return 0;
+    }
+    pt_temp_abort(&t);
+    return 1;
+}
+
+/* Whatever would fail once the image is rendered is checked before the
+ * scene is loaded: the output's format (by its name), that it and its PNG
+ * preview can be written, that the environment map can be read. A render
+ * of 40 minutes is not lost to a folder that does not exist. Returns 0, or
+ * the exit status: 2 for a name of no known format, 1 for the rest. */
+static int check_before(const wrk_standalone_opts *o)
+{
+    if (!has_ext(o->out_path, ".exr") && !has_ext(o->out_path, ".png")) {
+        fprintf(stderr,
+                "ptworker: -o %s: the output's format follows its name: .exr (OpenEXR, with a "
+                ".png preview beside it) or .png (8-bit sRGB)\n",
+                o->out_path);
+        return 2;
+    }
+    if (!writable("-o", o->out_path))
+        return 1;
+    if (has_ext(o->out_path, ".exr")) {
+        char png[4096];
+        pt_png_preview_path(o->out_path, png, sizeof png);
+        if (!writable("the preview", png))
+            return 1;
+    }
+    if (o->env_path) {
+        int fd;
+        pt_error err = {0};
+        if (pt_open_regular(o->env_path, 1, &fd, &err) != PT_OK) {
+            fprintf(stderr, "ptworker: --env: %s\n", err.msg);
+            return 1;
+        }
+        close(fd);
+    }
+    return 0;
+}
+
 int wrk_standalone_run(const wrk_standalone_opts *o)
 {
     pt_error err = {0};
@@ -96,6 +154,9 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
     pt_render_stats *tstats = NULL;
     int rc = 1;
     double t0 = pt_now_s();
+    int early = check_before(o);
+    if (early)
+        return early;
 
     pt_scene_opts so = {0};
     so.camera_name = o->camera;
@@ -240,13 +301,15 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
     img->has_alpha = p.transparent;
     meta.render_seconds = secs;
     snprintf(meta.scene_hash, sizeof meta.scene_hash, "%s", scene->hash);
-    if (pt_exr_write(o->out_path, img, &meta, &err) != PT_OK) {
-        fprintf(stderr, "\nptworker: %s\n", err.msg);
-        goto done;
-    }
+    /* An .exr with its preview beside it, or a .png alone (check_before). */
+    int exr = has_ext(o->out_path, ".exr");
     char png[4096];
-    pt_png_preview_path(o->out_path, png, sizeof png);
-    if (pt_png_write_preview(png, img, &err) != PT_OK) {
+    if (exr)
+        pt_png_preview_path(o->out_path, png, sizeof png);
+    else
+        snprintf(png, sizeof png, "%s", o->out_path);
+    if ((exr && pt_exr_write(o->out_path, img, &meta, &err) != PT_OK) ||
+        pt_png_write_preview(png, img, &err) != PT_OK) {
         fprintf(stderr, "\nptworker: %s\n", err.msg);
         goto done;
     }
@@ -254,9 +317,9 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
         fputc('\n', stderr);
     fprintf(stderr,
             "ptworker: rendered %s in %.2fs: %.4g samples/s, %.4g rays/s, %llu rejected samples "
-            "(NaN/Inf)\nptworker: wrote %s and %s\n",
+            "(NaN/Inf)\nptworker: wrote %s%s%s\n",
             o->scene_path, secs, (double)st.samples / secs, (double)st.rays / secs,
-            (unsigned long long)st.rejected, o->out_path, png);
+            (unsigned long long)st.rejected, o->out_path, exr ? " and " : "", exr ? png : "");
     if (o->target_error > 0.0 || o->min_gain > 0.0)
         fprintf(stderr,
                 "ptworker: adaptive sampling stopped %u of %u tiles early; %.2f spp on "

@@ -120,6 +120,28 @@ int main(void)
     }
     pt_image_free(a);
     pt_image_free(b);
+    /* What would fail at the end fails at the start, before the scene is
+     * loaded (no "N triangles" line): a missing output folder, a missing
+     * map, a name of no known format (2: bad usage). A .png output is a
+     * PNG, alone. */
+    snprintf(args, sizeof args, "--scene %s -o %s/out/none.exr --res 8x8 --spp 1", cornell, tmpdir);
+    CHECK(run(args) == 1 && stderr_has("cannot be written") && !stderr_has("triangles"));
+    snprintf(args, sizeof args, "--scene %s -o %s/e.exr --env %s/missing.hdr --res 8x8", cornell,
+             tmpdir, tmpdir);
+    CHECK(run(args) == 1 && stderr_has("missing.hdr") && !stderr_has("triangles"));
+    snprintf(args, sizeof args, "--scene %s -o %s/x.jpg --res 8x8 --spp 1", cornell, tmpdir);
+    CHECK(run(args) == 2 && stderr_has(".exr") && stderr_has(".png") && !stderr_has("triangles"));
+    snprintf(args, sizeof args, "--scene %s -o %s/p.PNG --res 8x8 --spp 1 -q", cornell, tmpdir);
+    CHECK(run(args) == 0);
+    char png_path[512];
+    snprintf(png_path, sizeof png_path, "%s/p.PNG", tmpdir);
+    FILE *pf = fopen(png_path, "rb");
+    unsigned char magic[8] = {0};
+    CHECK(pf && fread(magic, 1, 8, pf) == 8 && memcmp(magic, "\x89PNG\r\n\x1a\n", 8) == 0);
+    if (pf)
+        fclose(pf);
+    snprintf(png_path, sizeof png_path, "%s/p.PNG.png", tmpdir);
+    CHECK(access(png_path, F_OK) != 0);
     /* The environment options: bad maps and mixes refused with the reason. */
     snprintf(args, sizeof args, "--scene %s -o %s/e.exr --env %s/missing.hdr", cornell, tmpdir,
              tmpdir);
