@@ -61,6 +61,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <dirent.h>
 #include <fcntl.h>
 #include <fstream>
 #include <map>
@@ -68,6 +69,7 @@
 #include <new>
 #include <set>
 #include <string>
+#include <sys/stat.h>
 #include <unistd.h>
 #include <vector>
 
@@ -179,31 +181,46 @@ bool keep_image_bytes(tinygltf::Image *image, const int idx, std::string *, std:
     return true;
 }
 
-bool read_file(const std::string &p, std::vector<unsigned char> &out, int *os_errno)
+// The scene's own file: a regular file only (a FIFO is refused, not waited
+// on), at most kMaxFileBytes. A folder named as the scene is answered with
+// the scene files in it, which is what its user meant.
+void read_entry(importer &im, std::vector<unsigned char> &out)
 {
-    errno = 0;
-    FILE *f = fopen(p.c_str(), "rb");
-    if (!f) {
-        *os_errno = errno;
-        return false;
-    }
-    bool ok = true;
-    unsigned char chunk[65536];
-    size_t n;
-    while ((n = fread(chunk, 1, sizeof chunk, f)) > 0) {
-        if (out.size() + n > kMaxFileBytes) {
-            *os_errno = EFBIG;
-            ok = false;
-            break;
+    struct stat sb;
+    if (stat(im.path.c_str(), &sb) == 0 && S_ISDIR(sb.st_mode)) {
+        std::string found;
+        if (DIR *d = opendir(im.path.c_str())) {
+            while (struct dirent *e = readdir(d)) {
+                std::string n = e->d_name;
+                bool scene = n.size() > 5 && (n.compare(n.size() - 5, 5, ".gltf") == 0 ||
+                                              n.compare(n.size() - 4, 4, ".glb") == 0);
+                if (scene && found.size() < 200)
+                    found += (found.empty() ? "" : ", ") + n;
+            }
+            closedir(d);
         }
-        out.insert(out.end(), chunk, chunk + n);
+        if (found.empty())
+            im.fail(PT_ERR_ARG, "a folder, with no .gltf or .glb in it; give a scene file");
+        im.fail(PT_ERR_ARG, "a folder; give the scene file in it: %s", found.c_str());
     }
-    if (ok && ferror(f)) {
-        *os_errno = EIO;
-        ok = false;
+    uint8_t *data = nullptr;
+    size_t len = 0;
+    pt_error e = {};
+    pt_status st = pt_read_file(im.path.c_str(), kMaxFileBytes, &data, &len, &e);
+    if (st != PT_OK) {
+        if (im.err) {
+            *im.err = e;
+            im.err->code = st;
+        }
+        throw load_failure{st};
     }
-    fclose(f);
-    return ok;
+    try {
+        out.assign(data, data + len);
+    } catch (...) {
+        pt_free(data);
+        throw;
+    }
+    pt_free(data);
 }
 
 // A URI or file name as a message may show it: printable ASCII, the rest as
@@ -2107,12 +2124,7 @@ void parse(importer &im, const std::vector<unsigned char> &bytes)
 void import(importer &im)
 {
     std::vector<unsigned char> bytes;
-    int e = 0;
-    if (!read_file(im.path, bytes, &e)) {
-        errno = e;
-        pt_error_errno(im.err, e == EFBIG ? PT_ERR_LIMIT : PT_ERR_IO, "%s", im.path.c_str());
-        throw load_failure{im.err ? im.err->code : PT_ERR_IO};
-    }
+    read_entry(im, bytes);
     parse(im, bytes);
     tinygltf::Model &m = im.model;
     hash_files(im, bytes);

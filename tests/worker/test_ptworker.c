@@ -142,6 +142,18 @@ int main(void)
         fclose(pf);
     snprintf(png_path, sizeof png_path, "%s/p.PNG.png", tmpdir);
     CHECK(access(png_path, F_OK) != 0);
+    /* A folder named as the scene: the scene files in it, not "Input/output
+     * error"; a FIFO named as the scene is refused, not waited on. */
+    snprintf(args, sizeof args, "--scene %s/scenes -o %s/d.exr --res 8x8 --spp 1", PT_SOURCE_DIR,
+             tmpdir);
+    CHECK(run(args) == 1 && stderr_has("a folder; give the scene file in it") &&
+          stderr_has("cornell_box.gltf"));
+    char fifo[512];
+    snprintf(fifo, sizeof fifo, "%s/pipe.gltf", tmpdir);
+    CHECK(mkfifo(fifo, 0600) == 0);
+    snprintf(args, sizeof args, "--scene %s -o %s/d.exr --res 8x8 --spp 1", fifo, tmpdir);
+    CHECK(run(args) == 1 && stderr_has("not a regular file"));
+    unlink(fifo);
     /* The environment options: bad maps and mixes refused with the reason. */
     snprintf(args, sizeof args, "--scene %s -o %s/e.exr --env %s/missing.hdr", cornell, tmpdir,
              tmpdir);
