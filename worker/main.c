@@ -32,32 +32,38 @@
 
 static void usage(FILE *f)
 {
-    fprintf(f,
-            "usage: ptworker --scene SCENE -o OUT.exr [options]    (standalone)\n"
-            "       ptworker --server HOST:PORT [options]          (farm worker)\n"
-            "\n"
-            "Standalone: renders a glTF 2.0 scene (.gltf or .glb) with the ptfarm path tracer\n"
-            "on this machine and writes an OpenEXR image (R, G, B, samples, variance) plus an\n"
-            "sRGB PNG preview beside it.\n"
-            "\n"
-            "Lights: emissive triangles and KHR_lights_punctual lights. A light's number is\n"
-            "used on the scale of emission, with no 683 lm/W or 4 pi factor: a point or spot\n"
-            "light of intensity I gives irradiance I/d^2 at distance d, a directional light of\n"
-            "intensity E gives irradiance E (glTF gives emission no unit; see README).\n"
-            "\n"
-            "Scene limits (both modes; ptserve checks uploads the same way): at most\n"
-            "%u triangles and 3 times as many vertices, every instance of a mesh\n"
-            "counted; images of at most %llu texels (%u a side) and %llu\n"
-            "texels over all textures; PNG data no longer than an image's size needs;\n"
-            "with --time, --frame or --shutter, %llu morph target deltas (vertices x\n"
-            "targets, every instance). They are read from the files before anything is\n"
-            "built or decoded; a scene past them is refused. --shutter stops doubling\n"
-            "its time steps at %llu triangles x steps. A worker needs 170 to 500 bytes\n"
-            "a triangle and 4 a texel (docs/OPERATIONS.md, Limits).\n",
-            PT_SCENE_MAX_TRIANGLES, (unsigned long long)PT_SCENE_MAX_IMAGE_TEXELS,
-            PT_SCENE_MAX_TEXTURE_DIM, (unsigned long long)PT_SCENE_MAX_TEXELS,
-            (unsigned long long)PT_ANIM_MAX_MORPH_DELTAS,
-            (unsigned long long)PT_MOTION_MAX_TRIANGLE_STEPS);
+    fprintf(
+        f,
+        "usage: ptworker --scene SCENE -o OUT.exr [options]    (standalone)\n"
+        "       ptworker --server HOST:PORT [options]          (farm worker)\n"
+        "\n"
+        "examples:\n"
+        "  ptworker --scene scenes/cornell_box.gltf --spp 256 -o cornell.png\n"
+        "  ptworker --scene helmet.glb --env studio.hdr --res 1280x720 --spp 512 -o helmet.exr\n"
+        "  ptworker --server farm:7878 --token-file farm.token     (join a farm)\n"
+        "\n"
+        "Standalone: renders a glTF 2.0 scene (.gltf or .glb) with the ptfarm path tracer\n"
+        "on this machine and writes an OpenEXR image (R, G, B, samples, variance) plus an\n"
+        "sRGB PNG preview beside it.\n"
+        "\n"
+        "Lights: emissive triangles and KHR_lights_punctual lights. A light's number is\n"
+        "used on the scale of emission, with no 683 lm/W or 4 pi factor: a point or spot\n"
+        "light of intensity I gives irradiance I/d^2 at distance d, a directional light of\n"
+        "intensity E gives irradiance E (glTF gives emission no unit; see README).\n"
+        "\n"
+        "Scene limits (both modes; ptserve checks uploads the same way): at most\n"
+        "%u triangles and 3 times as many vertices, every instance of a mesh\n"
+        "counted; images of at most %llu texels (%u a side) and %llu\n"
+        "texels over all textures; PNG data no longer than an image's size needs;\n"
+        "with --time, --frame or --shutter, %llu morph target deltas (vertices x\n"
+        "targets, every instance). They are read from the files before anything is\n"
+        "built or decoded; a scene past them is refused. --shutter stops doubling\n"
+        "its time steps at %llu triangles x steps. A worker needs 170 to 500 bytes\n"
+        "a triangle and 4 a texel (docs/OPERATIONS.md, Limits).\n",
+        PT_SCENE_MAX_TRIANGLES, (unsigned long long)PT_SCENE_MAX_IMAGE_TEXELS,
+        PT_SCENE_MAX_TEXTURE_DIM, (unsigned long long)PT_SCENE_MAX_TEXELS,
+        (unsigned long long)PT_ANIM_MAX_MORPH_DELTAS,
+        (unsigned long long)PT_MOTION_MAX_TRIANGLE_STEPS);
     fprintf(f,
             "\n"
             "Farm worker: connects to a ptserve coordinator, renders the tasks it hands out\n"
