@@ -1986,22 +1986,28 @@ void check_triangles(importer &im, int si)
     geo_count total;
     for (int ni : m.scenes[size_t(si)].nodes)
         total.add(node_count(m, ni, 0, per_mesh, memo, state));
-    if (total.tri > PT_SCENE_MAX_TRIANGLES)
+    uint32_t max_tri = PT_SCENE_MAX_TRIANGLES;
+    if (im.opts && im.opts->max_triangles && im.opts->max_triangles < max_tri)
+        max_tri = im.opts->max_triangles;
+    if (total.tri > max_tri)
         im.fail(PT_ERR_LIMIT,
                 "scene %d: %llu triangles once every instance of its meshes is counted, over the "
                 "cap of %u a scene",
-                si, (unsigned long long)total.tri, PT_SCENE_MAX_TRIANGLES);
-    if (total.vtx > PT_SCENE_MAX_VERTICES)
+                si, (unsigned long long)total.tri, max_tri);
+    if (total.vtx > 3ull * max_tri)
         im.fail(PT_ERR_LIMIT,
                 "scene %d: %llu vertices once every instance of its meshes is counted, over the "
-                "cap of %u a scene",
-                si, (unsigned long long)total.vtx, PT_SCENE_MAX_VERTICES);
-    // Only a rig keeps the deltas: a still ignores morph targets.
-    if (im.rig && total.deltas > PT_ANIM_MAX_MORPH_DELTAS)
+                "cap of %llu a scene",
+                si, (unsigned long long)total.vtx, 3ull * max_tri);
+    // Only a rig keeps the deltas: a still ignores morph targets. A lower
+    // triangle cap lowers this one in proportion.
+    unsigned long long max_deltas =
+        (unsigned long long)PT_ANIM_MAX_MORPH_DELTAS / PT_SCENE_MAX_TRIANGLES * max_tri;
+    if (im.rig && total.deltas > max_deltas)
         im.fail(PT_ERR_LIMIT,
                 "scene %d: %llu morph target deltas (vertices x targets) once every instance of "
                 "its meshes is counted, over the cap of %llu a scene for an animated load",
-                si, (unsigned long long)total.deltas, (unsigned long long)PT_ANIM_MAX_MORPH_DELTAS);
+                si, (unsigned long long)total.deltas, max_deltas);
 }
 
 // Reads the external buffer and image files (for the hash and for decoding),

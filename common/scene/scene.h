@@ -245,6 +245,11 @@ typedef struct pt_scene_opts {
      * still pose is then the one at shutter_open. Otherwise both are
      * ignored (0, 0 when zeroed: no motion blur). */
     double shutter_open, shutter_close;
+    /* A lower cap on the scene's triangles (and 3 vertices each, and an
+     * animated load's morph deltas in proportion) than PT_SCENE_MAX_TRIANGLES,
+     * for a caller that wants less (the fuzzers, whose every input must load
+     * in well under a second); 0: the caps. */
+    uint32_t max_triangles;
 } pt_scene_opts;
 
 /* Hard caps on what a file may ask for, so that the memory a worker (and the
