@@ -77,6 +77,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         }
         pt_scene_opts opts = {0};
         opts.warn = quiet;
+        opts.max_triangles = PT_SCENE_MAX_TRIANGLES / 64; /* as fuzz_gltf: fast loads */
         pt_scene *scene = NULL;
         pt_status ls = pt_scene_load(entry, &opts, &scene, &err);
         fuzz_note("load", ls, &err);
