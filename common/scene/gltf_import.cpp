@@ -181,6 +181,18 @@ bool keep_image_bytes(tinygltf::Image *image, const int idx, std::string *, std:
     return true;
 }
 
+// Moves len pt_malloc'd bytes into out, freeing them whatever happens.
+void take_bytes(uint8_t *data, size_t len, std::vector<unsigned char> &out)
+{
+    try {
+        out.assign(data, data + len);
+    } catch (...) {
+        pt_free(data);
+        throw;
+    }
+    pt_free(data);
+}
+
 // The scene's own file: a regular file only (a FIFO is refused, not waited
 // on), at most kMaxFileBytes. A folder named as the scene is answered with
 // the scene files in it, which is what its user meant.
@@ -214,13 +226,7 @@ void read_entry(importer &im, std::vector<unsigned char> &out)
         }
         throw load_failure{st};
     }
-    try {
-        out.assign(data, data + len);
-    } catch (...) {
-        pt_free(data);
-        throw;
-    }
-    pt_free(data);
+    take_bytes(data, len, out);
 }
 
 // A URI or file name as a message may show it: printable ASCII, the rest as
@@ -275,13 +281,7 @@ pt_status read_inside(importer &im, const std::string &name, std::vector<unsigne
         *msg = "'" + shown(name) + "':" + rest;
         return st;
     }
-    try {
-        out.assign(data, data + len);
-    } catch (...) {
-        pt_free(data);
-        throw;
-    }
-    pt_free(data);
+    take_bytes(data, len, out);
     return PT_OK;
 }
 
