@@ -99,18 +99,14 @@ struct srv_http {
     action acts[SRV_HTTP_ACTIONS];
     session sessions[SRV_HTTP_SESSIONS];
     srv_authlimit fails; /* under mu: failed authentications per address */
-    /* under mu: the open connections' networks (an IPv4 /24, an IPv6 /64,
-     * as the first bytes of the v6 or v4-mapped address), for the accept
-     * policy: at most SRV_HTTP_PER_NETWORK from one */
-    struct {
-        uint8_t net[16];
-        uint32_t n;
-    } nets[SRV_HTTP_MAX_CONNS];
-    /* under mu: the open connections, for the header deadline: each one's
-     * descriptor, and since when it waits for a request's headers (busy: a
-     * request of it is being answered) */
+    /* under mu: the open connections: each one's network (an IPv4 /24, an
+     * IPv6 /64, as the first bytes of the v6 or v4-mapped address), for the
+     * accept policy (at most SRV_HTTP_PER_NETWORK from one), and for the
+     * header deadline its descriptor and since when it waits for a
+     * request's headers (busy: a request of it is being answered) */
     struct {
         struct MHD_Connection *c; /* NULL: a free slot */
+        uint8_t net[16];
         int fd, busy;
         uint64_t since;
     } open[SRV_HTTP_MAX_CONNS];
@@ -512,13 +508,12 @@ static enum MHD_Result accept_policy(void *cls, const struct sockaddr *sa, sockl
     uint8_t net[16];
     if (!net_of(sa, net))
         return MHD_YES;
-    enum MHD_Result ok = MHD_YES;
+    unsigned n = 0;
     pthread_mutex_lock(&h->mu);
     for (unsigned i = 0; i < SRV_HTTP_MAX_CONNS; i++)
-        if (h->nets[i].n && memcmp(h->nets[i].net, net, 16) == 0)
-            ok = h->nets[i].n >= SRV_HTTP_PER_NETWORK ? MHD_NO : MHD_YES;
+        n += h->open[i].c && memcmp(h->open[i].net, net, 16) == 0;
     pthread_mutex_unlock(&h->mu);
-    return ok;
+    return n >= SRV_HTTP_PER_NETWORK ? MHD_NO : MHD_YES;
 }
 
 /* Under mu: conn's slot in h->open, or -1. */
@@ -530,8 +525,9 @@ static int open_slot(const srv_http *h, const struct MHD_Connection *conn)
     return -1;
 }
 
-/* Under mu: conn opened (started 1) or is about to be closed (0). */
-static void track_open(srv_http *h, struct MHD_Connection *conn, int started)
+/* Under mu: conn, of network net, opened (started 1) or is about to be
+ * closed (0). */
+static void track_open(srv_http *h, struct MHD_Connection *conn, const uint8_t net[16], int started)
 {
     int i = started ? open_slot(h, NULL) : open_slot(h, conn);
     if (i < 0)
@@ -543,6 +539,7 @@ static void track_open(srv_http *h, struct MHD_Connection *conn, int started)
     const union MHD_ConnectionInfo *fi =
         MHD_get_connection_info(conn, MHD_CONNECTION_INFO_CONNECTION_FD);
     h->open[i].c = conn;
+    memcpy(h->open[i].net, net, 16);
     h->open[i].fd = fi ? (int)fi->connect_fd : -1;
     h->open[i].busy = 0;
     h->open[i].since = pt_now_ms();
@@ -579,7 +576,7 @@ static void sweep_headers(srv_http *h, uint64_t now)
     pthread_mutex_unlock(&h->mu);
 }
 
-/* Counts a connection in or out of its network's share. */
+/* Tracks a connection from its start to its close. */
 static void on_connection(void *cls, struct MHD_Connection *conn, void **socket_context,
                           enum MHD_ConnectionNotificationCode code)
 {
@@ -591,24 +588,7 @@ static void on_connection(void *cls, struct MHD_Connection *conn, void **socket_
     if (!ci || !ci->client_addr || !net_of(ci->client_addr, net))
         return;
     pthread_mutex_lock(&h->mu);
-    int at = -1, free_at = -1;
-    for (unsigned i = 0; i < SRV_HTTP_MAX_CONNS; i++) {
-        if (h->nets[i].n && memcmp(h->nets[i].net, net, 16) == 0)
-            at = (int)i;
-        else if (!h->nets[i].n && free_at < 0)
-            free_at = (int)i;
-    }
-    if (code == MHD_CONNECTION_NOTIFY_STARTED) {
-        if (at < 0 && free_at >= 0) {
-            at = free_at;
-            memcpy(h->nets[at].net, net, 16);
-        }
-        if (at >= 0)
-            h->nets[at].n++;
-    } else if (at >= 0) {
-        h->nets[at].n--;
-    }
-    track_open(h, conn, code == MHD_CONNECTION_NOTIFY_STARTED);
+    track_open(h, conn, net, code == MHD_CONNECTION_NOTIFY_STARTED);
     pthread_mutex_unlock(&h->mu);
 }
 
