@@ -46,6 +46,7 @@
 #include <string.h>
 
 #include "common/base/alloc.h"
+#include "common/render/bsdf.h"
 #include "common/render/env.h"
 #include "common/render/render.h"
 #include "common/scene/scene.h"
@@ -357,13 +358,12 @@ static uint32_t hash32(uint32_t x)
     return x;
 }
 
-static void furnace(int metal)
+/* A unit sphere at the origin with a noisy normal map (tilts up to ~60
+ * degrees in every direction) and material m (its normal_tex is set here). */
+static void add_noisy_sphere(pt_scene_builder *b, pt_material m)
 {
     enum { NU = 64, NV = 32, TW = 16 };
-    pt_scene_builder *b = NULL;
     pt_error err = {0};
-    CHECK(pt_scene_builder_new(&b, &err) == PT_OK);
-    /* A noisy map: tilts up to ~60 degrees in every direction. */
     pt_texture t;
     memset(&t, 0, sizeof t);
     t.width = t.height = TW;
@@ -376,12 +376,7 @@ static void furnace(int metal)
     }
     uint32_t ti;
     CHECK(pt_scene_builder_add_texture(b, &t, &ti, &err) == PT_OK);
-    pt_material m = pt_material_default();
-    m.metallic = metal ? 1.0f : 0.0f;
-    m.roughness = 0.4f;
-    m.specular = 0.0f;
     m.normal_tex = (int32_t)ti;
-    m.double_sided = 1;
     uint32_t mi;
     CHECK(pt_scene_builder_add_material(b, &m, &mi, &err) == PT_OK);
     uint32_t nv = (NU + 1) * (NV + 1), nt = 2 * NU * NV;
@@ -413,6 +408,12 @@ static void furnace(int metal)
     pt_free(pos);
     pt_free(uv);
     pt_free(idx);
+}
+
+/* A camera 4 away that sees the unit sphere whole. */
+static void sphere_camera(pt_scene_builder *b)
+{
+    pt_error err = {0};
     pt_camera cam = {0};
     cam.position = pt_v3(0, -4, 0.5f);
     cam.forward = pt_v3_norm(pt_v3(0, 4, -0.5f));
@@ -422,6 +423,20 @@ static void furnace(int metal)
     cam.aspect = 1.0f;
     snprintf(cam.name, sizeof cam.name, "c");
     CHECK(pt_scene_builder_add_camera(b, &cam, &err) == PT_OK);
+}
+
+static void furnace(int metal)
+{
+    pt_scene_builder *b = NULL;
+    pt_error err = {0};
+    CHECK(pt_scene_builder_new(&b, &err) == PT_OK);
+    pt_material m = pt_material_default();
+    m.metallic = metal ? 1.0f : 0.0f;
+    m.roughness = 0.4f;
+    m.specular = 0.0f;
+    m.double_sided = 1;
+    add_noisy_sphere(b, m);
+    sphere_camera(b);
     pt_scene *s = NULL;
     CHECKF(pt_scene_builder_finish(b, NULL, &s, &err) == PT_OK, "%s", err.msg);
     pt_env *env = NULL;
@@ -473,6 +488,208 @@ static void furnace(int metal)
     pt_free(acc);
     pt_renderer_free(r);
     pt_env_free(env);
+    pt_scene_free(s);
+}
+
+/* ---- weights ---------------------------------------------------------------------------- */
+
+/*
+ * The weights of direct light on a glossy, normal-mapped sphere (the noisy
+ * map above) under a small bright emitter: a square of side 0.6 and
+ * radiance LE_W, about 2.5 from the sphere's centre, up and to the left of
+ * the camera. Direct light only (max_depth 1), each sample traced alone
+ * (pt_render_sample), with the three light strategies.
+ *
+ * Bound on one sample (MIS, power heuristic, one emitter): the NEE term is
+ * f_l Le p_l / (p_l^2 + p_b^2) <= Le (f_l / p_b) / 2 (as p_l^2 + p_b^2 >=
+ * 2 p_l p_b), the term of a BSDF-sampled ray that hits the emitter is
+ * Le (f / p_b) w_b <= Le (f / p_b); f is f cos and p_b the closure's
+ * one-sample pdf (closure.h). With the lobes picked with probabilities
+ * ps, 1 - ps (pt_bsdf_spec_prob), p_b >= ps p_s and p_b >= (1 - ps) p_d, so
+ * f / p_b <= f_s / (ps p_s) + f_d / ((1 - ps) p_d) <= F90 / ps + rho / (1 - ps):
+ * GGX sampled by its visible normals weighs F G2 / G1 <= F <= F90 (Heitz
+ * 2018), Lambert sampled by the cosine weighs rho (1 - F_d) <= rho. So no
+ * sample exceeds 1.5 Le max_c (F90 / ps(c) + rho / (1 - ps(c))) over the
+ * cosines c a shading point can have. A weight too large somewhere (a lobe
+ * pdf that misses a factor, a pick probability the sampler does not use, a
+ * shading-normal term at grazing) breaks the bound or the agreement below.
+ *
+ * Agreement: light sampling alone, BSDF sampling alone and their MIS
+ * combination are three unbiased estimators of the same image: their means
+ * over the image and over each of 16 blocks of it agree within 4.5 standard
+ * errors (from each estimator's own sample variance), a block counting
+ * where both estimators saw the light in at least W_MIN_LIT samples (with
+ * fewer, BSDF sampling's variance of a small light is not yet measured).
+ * The dielectric's bound is loose (Schlick's F reaches F90 = 1 where the
+ * half vector grazes, and its pick probability may be 0.05); the metal's is
+ * tight (ps = 1, F <= 1: 1.5 Le).
+ */
+#define LE_W 400.0
+enum { W_RES = 16, W_BLOCKS = 4, W_SPP = 2048, W_MIN_LIT = 100 };
+
+typedef struct est {
+    double sum[W_BLOCKS * W_BLOCKS], sq[W_BLOCKS * W_BLOCKS];
+    double n[W_BLOCKS * W_BLOCKS];
+    double lit[W_BLOCKS * W_BLOCKS]; /* samples above 0 */
+    double max_sample;
+    uint64_t rejected;
+} est;
+
+static void add_lamp(pt_scene_builder *b)
+{
+    pt_error err = {0};
+    pt_material lamp = pt_material_default();
+    lamp.base_color[0] = lamp.base_color[1] = lamp.base_color[2] = 0.0f;
+    lamp.emissive[0] = lamp.emissive[1] = lamp.emissive[2] = (float)LE_W;
+    uint32_t ml;
+    CHECK(pt_scene_builder_add_material(b, &lamp, &ml, &err) == PT_OK);
+    /* Centred at c, facing the sphere's centre: corners c +- h u +- h v,
+     * wound so that (v1 - v0) x (v2 - v0) points along -c. */
+    pt_vec3 c = pt_v3(-1.2f, -1.6f, 1.6f), n = pt_v3_norm(pt_v3_neg(c));
+    pt_vec3 u = pt_v3_norm(pt_v3_cross(n, pt_v3(0, 0, 1))), v = pt_v3_cross(n, u);
+    const float h = 0.3f;
+    pt_vec3 q[4] = {
+        pt_v3_add(c, pt_v3_add(pt_v3_scale(u, -h), pt_v3_scale(v, -h))),
+        pt_v3_add(c, pt_v3_add(pt_v3_scale(u, h), pt_v3_scale(v, -h))),
+        pt_v3_add(c, pt_v3_add(pt_v3_scale(u, h), pt_v3_scale(v, h))),
+        pt_v3_add(c, pt_v3_add(pt_v3_scale(u, -h), pt_v3_scale(v, h))),
+    };
+    if (pt_v3_dot(pt_v3_cross(pt_v3_sub(q[1], q[0]), pt_v3_sub(q[2], q[0])), n) < 0.0f) {
+        pt_vec3 t = q[1];
+        q[1] = q[3];
+        q[3] = t;
+    }
+    float pos[12];
+    for (int i = 0; i < 4; i++) {
+        pos[3 * i] = q[i].x;
+        pos[3 * i + 1] = q[i].y;
+        pos[3 * i + 2] = q[i].z;
+    }
+    uint32_t idx[6] = {0, 1, 2, 0, 2, 3};
+    CHECKF(pt_scene_builder_add_mesh(b, "lamp", pos, NULL, NULL, 4, idx, 2, NULL, ml, &err) ==
+               PT_OK,
+           "%s", err.msg);
+}
+
+static void render_est(const pt_scene *s, uint32_t strategy, est *e)
+{
+    pt_error err = {0};
+    memset(e, 0, sizeof *e);
+    pt_render_params p;
+    pt_render_params_default(&p);
+    p.width = p.height = W_RES;
+    p.seed = 3;
+    p.max_depth = 1;
+    p.light_strategy = strategy;
+    pt_renderer *r = NULL;
+    CHECKF(pt_renderer_new(s, &p, &r, &err) == PT_OK, "%s", err.msg);
+    if (!r)
+        return;
+    pt_render_stats st = {0, 0, 0, 0};
+    for (uint32_t y = 0; y < W_RES; y++)
+        for (uint32_t x = 0; x < W_RES; x++) {
+            uint32_t blk = (y * W_BLOCKS / W_RES) * W_BLOCKS + x * W_BLOCKS / W_RES;
+            for (uint32_t i = 0; i < W_SPP; i++) {
+                pt_vec3 L = pt_render_sample(r, x, y, i, &st, NULL);
+                double l = pt_luminance(L);
+                e->sum[blk] += l;
+                e->sq[blk] += l * l;
+                e->n[blk] += 1.0;
+                e->lit[blk] += l > 0.0;
+                e->max_sample = fmax(e->max_sample, pt_v3_max_comp(L));
+            }
+        }
+    e->rejected = st.rejected;
+    pt_renderer_free(r);
+}
+
+/* z of two estimators' means over the blocks in [b0, b1). */
+static double est_z(const est *a, const est *b, int b0, int b1)
+{
+    double ma = 0, mb = 0, va = 0, vb = 0;
+    for (int k = b0; k < b1; k++) {
+        double na = a->n[k], nb = b->n[k];
+        double xa = a->sum[k] / na, xb = b->sum[k] / nb;
+        ma += xa;
+        mb += xb;
+        va += fmax(a->sq[k] / na - xa * xa, 0.0) / (na - 1.0);
+        vb += fmax(b->sq[k] / nb - xb * xb, 0.0) / (nb - 1.0);
+    }
+    double se = sqrt(va + vb);
+    return se > 0.0 ? (ma - mb) / se : (ma == mb ? 0.0 : INFINITY);
+}
+
+static void weights(int metal)
+{
+    const char *name = metal ? "metal" : "dielectric";
+    pt_scene_builder *b = NULL;
+    pt_error err = {0};
+    CHECK(pt_scene_builder_new(&b, &err) == PT_OK);
+    pt_material m = pt_material_default();
+    m.base_color[0] = m.base_color[1] = m.base_color[2] = 0.8f;
+    m.metallic = metal ? 1.0f : 0.0f;
+    m.roughness = metal ? 0.2f : 0.25f;
+    m.double_sided = 1;
+    add_noisy_sphere(b, m);
+    add_lamp(b);
+    sphere_camera(b);
+    pt_scene *s = NULL;
+    CHECKF(pt_scene_builder_finish(b, NULL, &s, &err) == PT_OK, "%s", err.msg);
+    if (!s)
+        return;
+    CHECK(s->features & PT_FEAT_NORMAL_MAP);
+
+    /* The bound, over every cosine a shading point can see. */
+    pt_bsdf bs = pt_bsdf_setup(
+        pt_v3(m.base_color[0], m.base_color[1], m.base_color[2]), m.metallic, m.roughness,
+        m.specular, pt_v3(m.specular_color[0], m.specular_color[1], m.specular_color[2]));
+    double wmax = 0.0, rho = pt_v3_max_comp(bs.diffuse);
+    for (int i = 1; i <= 1000; i++) {
+        double ps = pt_bsdf_spec_prob(&bs, (float)i / 1000.0f);
+        double w = (ps > 0.0 ? bs.spec_weight / ps : 0.0) + (ps < 1.0 ? rho / (1.0 - ps) : 0.0);
+        wmax = fmax(wmax, w);
+    }
+    double bound = 1.5 * LE_W * wmax;
+
+    est e[3];
+    static const uint32_t strat[3] = {PT_LIGHT_MIS, PT_LIGHT_NEE_ONLY, PT_LIGHT_BSDF_ONLY};
+    static const char *sname[3] = {"MIS", "light sampling", "BSDF sampling"};
+    for (int k = 0; k < 3; k++) {
+        render_est(s, strat[k], &e[k]);
+        CHECKF(e[k].rejected == 0, "%s %s: %llu NaN/Inf samples", name, sname[k],
+               (unsigned long long)e[k].rejected);
+    }
+    CHECKF(e[0].max_sample <= bound, "%s: a MIS sample of %g, above the bound %g", name,
+           e[0].max_sample, bound);
+    int nb = W_BLOCKS * W_BLOCKS;
+    for (int k = 1; k < 3; k++) {
+        double z = est_z(&e[0], &e[k], 0, nb);
+        CHECKF(fabs(z) < 4.5, "%s: MIS and %s disagree over the image (z %.2f)", name, sname[k], z);
+        /* Blocks where both estimators saw the light often enough for
+         * their sample variances to stand for their errors. */
+        int off = 0, compared = 0;
+        double worst = 0.0;
+        for (int blk = 0; blk < nb; blk++) {
+            if (e[0].lit[blk] < W_MIN_LIT || e[k].lit[blk] < W_MIN_LIT)
+                continue;
+            double zb = est_z(&e[0], &e[k], blk, blk + 1);
+            compared++;
+            off += fabs(zb) >= 4.5;
+            worst = fabs(zb) > fabs(worst) ? zb : worst;
+        }
+        CHECKF(compared >= 2, "%s: only %d blocks lit for %s", name, compared, sname[k]);
+        CHECKF(off == 0, "%s: MIS and %s disagree in %d of %d blocks (worst z %.2f)", name,
+               sname[k], off, compared, worst);
+        printf("%s: MIS vs %s: image z %.2f, worst of %d blocks z %.2f\n", name, sname[k], z,
+               compared, worst);
+    }
+    double tot = 0.0, cnt = 0.0;
+    for (int blk = 0; blk < nb; blk++) {
+        tot += e[0].sum[blk];
+        cnt += e[0].n[blk];
+    }
+    printf("%s: largest MIS sample %.1f (bound %.1f), mean %.4f\n", name, e[0].max_sample, bound,
+           tot / cnt);
     pt_scene_free(s);
 }
 
@@ -597,5 +814,7 @@ int main(void)
     vertex_color_and_transform();
     furnace(0);
     furnace(1);
+    weights(0);
+    weights(1);
     return check_report();
 }
