@@ -8,26 +8,82 @@
 #define PI_F 3.14159265358979323846f
 #define PI_D 3.14159265358979323846
 
-struct pt_env {
-    uint32_t w, h;
-    float *rgb;       /* w * h * 3, strength applied */
+/* A piecewise-constant distribution over the map's texels (env.h). */
+typedef struct env_dist {
     double *row_cdf;  /* h + 1: the marginal over rows, 0 .. 1 */
     double *col_cdf;  /* h * (w + 1): per row, 0 .. 1 (uniform for a black row) */
     float *texel_pdf; /* w * h: the density over [0,1)^2 of each texel's rectangle */
-    float rot;        /* rotate_deg in turns, in [0, 1) */
-    double mean_lum;  /* over the sphere */
     int black;        /* nothing to sample */
+} env_dist;
+
+struct pt_env {
+    uint32_t w, h;
+    float *rgb;      /* w * h * 3, strength applied */
+    env_dist full;   /* weights: the texel's mean luminance x sin(theta) */
+    env_dist comp;   /* the same less the sphere's mean (MIS compensation) */
+    float rot;       /* rotate_deg in turns, in [0, 1) */
+    double mean_lum; /* over the sphere */
 };
+
+static void dist_free(env_dist *d)
+{
+    pt_free(d->row_cdf);
+    pt_free(d->col_cdf);
+    pt_free(d->texel_pdf);
+}
 
 void pt_env_free(pt_env *env)
 {
     if (!env)
         return;
     pt_free(env->rgb);
-    pt_free(env->row_cdf);
-    pt_free(env->col_cdf);
-    pt_free(env->texel_pdf);
+    dist_free(&env->full);
+    dist_free(&env->comp);
     pt_free(env);
+}
+
+/* The distribution with texel weights wgt (>= 0, w * h, row-major); sums in
+ * double. Returns 0 when out of memory. */
+static int dist_build(env_dist *d, const double *wgt, uint32_t w, uint32_t h)
+{
+    size_t n = (size_t)w * h;
+    d->row_cdf = pt_malloc_array((size_t)h + 1, sizeof *d->row_cdf);
+    d->col_cdf = pt_malloc_array((size_t)h * (w + 1), sizeof *d->col_cdf);
+    d->texel_pdf = pt_malloc_array(n, sizeof *d->texel_pdf);
+    if (!d->row_cdf || !d->col_cdf || !d->texel_pdf)
+        return 0;
+    double total = 0.0;
+    d->row_cdf[0] = 0.0;
+    for (uint32_t y = 0; y < h; y++) {
+        double *cdf = d->col_cdf + (size_t)y * (w + 1);
+        cdf[0] = 0.0;
+        for (uint32_t x = 0; x < w; x++)
+            cdf[x + 1] = cdf[x] + wgt[(size_t)y * w + x];
+        double row = cdf[w];
+        for (uint32_t x = 1; x <= w; x++)
+            cdf[x] = row > 0.0 ? cdf[x] / row : (double)x / (double)w;
+        cdf[w] = 1.0;
+        total += row;
+        d->row_cdf[y + 1] = total;
+    }
+    d->black = !(total > 0.0) || !isfinite(total);
+    for (size_t i = 0; i < n; i++)
+        d->texel_pdf[i] = d->black ? 0.0f : (float)(wgt[i] / total * (double)n);
+    for (uint32_t y = 0; y < h && !d->black; y++)
+        d->row_cdf[y + 1] /= total;
+    d->row_cdf[h] = 1.0;
+    return 1;
+}
+
+/* Texel (x, y)'s luminance; x wraps, y is clamped (the bilinear lookup's
+ * neighbours, pt_env_eval). */
+static double lum_at(const pt_env *e, int64_t x, int64_t y)
+{
+    int64_t w = e->w, h = e->h;
+    x = ((x % w) + w) % w;
+    y = y < 0 ? 0 : (y >= h ? h - 1 : y);
+    const float *c = &e->rgb[3 * ((size_t)y * e->w + (size_t)x)];
+    return pt_luminance(pt_v3(c[0], c[1], c[2]));
 }
 
 pt_status pt_env_new(const pt_envmap *map, float strength, float rotate_deg, pt_env **out,
@@ -48,10 +104,9 @@ pt_status pt_env_new(const pt_envmap *map, float strength, float rotate_deg, pt_
     e->w = w;
     e->h = h;
     e->rgb = pt_malloc_array(n * 3, sizeof *e->rgb);
-    e->row_cdf = pt_malloc_array((size_t)h + 1, sizeof *e->row_cdf);
-    e->col_cdf = pt_malloc_array((size_t)h * (w + 1), sizeof *e->col_cdf);
-    e->texel_pdf = pt_malloc_array(n, sizeof *e->texel_pdf);
-    if (!e->rgb || !e->row_cdf || !e->col_cdf || !e->texel_pdf) {
+    double *wgt = pt_malloc_array(n, sizeof *wgt);
+    if (!e->rgb || !wgt) {
+        pt_free(wgt);
         pt_env_free(e);
         return pt_error_set(err, PT_ERR_NOMEM, "out of memory for a %ux%u environment", w, h);
     }
@@ -62,46 +117,65 @@ pt_status pt_env_new(const pt_envmap *map, float strength, float rotate_deg, pt_
     for (size_t i = 0; i < n * 3; i++) {
         e->rgb[i] = map->rgb[i] * strength;
         if (!isfinite(e->rgb[i]) || e->rgb[i] < 0.0f) {
+            pt_free(wgt);
             pt_env_free(e);
             return pt_error_set(err, PT_ERR_ARG,
                                 "environment strength %g makes a texel overflow a float",
                                 (double)strength);
         }
     }
-    /* Weights lum x sin(theta at the row's centre); sums in double. */
-    double total = 0.0, lum_sphere = 0.0;
-    e->row_cdf[0] = 0.0;
+    /* Each texel's mean luminance under the bilinear lookup: the integral
+     * of the interpolant over the texel's rectangle weighs the 3 x 3 texels
+     * around it by (1/8, 3/4, 1/8) in each direction. Every texel whose
+     * lookup can be above 0 gets a weight above 0, so the full distribution
+     * covers the whole lookup. Times sin(theta at the row's centre), and
+     * the mean over the sphere (solid angle of texel (x, y): (2 pi / w)
+     * (pi / h) sin(theta)). */
+    static const double k3[3] = {0.125, 0.75, 0.125};
+    double lum_sphere = 0.0;
     for (uint32_t y = 0; y < h; y++) {
         double s = sin(PI_D * ((double)y + 0.5) / (double)h);
-        double *cdf = e->col_cdf + (size_t)y * (w + 1);
-        cdf[0] = 0.0;
         for (uint32_t x = 0; x < w; x++) {
-            const float *c = &e->rgb[3 * ((size_t)y * w + x)];
-            double lum = pt_luminance(pt_v3(c[0], c[1], c[2]));
-            cdf[x + 1] = cdf[x] + lum * s;
+            double m = 0.0;
+            for (int j = 0; j < 3; j++)
+                for (int i = 0; i < 3; i++)
+                    m += k3[j] * k3[i] * lum_at(e, (int64_t)x + i - 1, (int64_t)y + j - 1);
+            wgt[(size_t)y * w + x] = m;
+            lum_sphere += m * s;
         }
-        double row = cdf[w];
-        lum_sphere += row;
-        for (uint32_t x = 1; x <= w; x++)
-            cdf[x] = row > 0.0 ? cdf[x] / row : (double)x / (double)w;
-        cdf[w] = 1.0;
-        total += row;
-        e->row_cdf[y + 1] = total;
     }
-    /* Solid angle of texel (x, y): (2 pi / w) (pi / h) sin(theta). */
     e->mean_lum = lum_sphere * (2.0 * PI_D / w) * (PI_D / h) / (4.0 * PI_D);
-    e->black = !(total > 0.0) || !isfinite(total);
-    for (uint32_t y = 0; y < h; y++) {
+    /* The compensated weights (Karlik, Sik, Vevoda, Skrivan, Krivanek 2019,
+     * "MIS Compensation: Optimizing Sampling Techniques in Multiple
+     * Importance Sampling", SIGGRAPH Asia): max(0, mean luminance - the
+     * sphere's mean) x sin(theta). Where the map is no brighter than its
+     * mean, BSDF sampling, which MIS weighs fully there, finds it better;
+     * NEE's samples go to the bright parts. A map with nothing above its
+     * mean (a uniform one) keeps the full weights. */
+    double *cw = pt_malloc_array(n, sizeof *cw);
+    int ok = cw != NULL;
+    double comp_total = 0.0;
+    for (uint32_t y = 0; ok && y < h; y++) {
         double s = sin(PI_D * ((double)y + 0.5) / (double)h);
         for (uint32_t x = 0; x < w; x++) {
-            const float *c = &e->rgb[3 * ((size_t)y * w + x)];
-            double wgt = pt_luminance(pt_v3(c[0], c[1], c[2])) * s;
-            e->texel_pdf[(size_t)y * w + x] = e->black ? 0.0f : (float)(wgt / total * (double)n);
+            size_t i = (size_t)y * w + x;
+            double c = wgt[i] - e->mean_lum;
+            cw[i] = c > 0.0 ? c * s : 0.0;
+            comp_total += cw[i];
+            wgt[i] *= s;
         }
-        if (!e->black)
-            e->row_cdf[y + 1] /= total;
     }
-    e->row_cdf[h] = 1.0;
+    /* A compensated share under 1e-6 of the map is left to the full one:
+     * rounding, not light. */
+    if (ok && !(comp_total > 1e-6 * e->mean_lum * (double)n))
+        memcpy(cw, wgt, n * sizeof *cw);
+    ok = ok && dist_build(&e->full, wgt, w, h) && dist_build(&e->comp, cw, w, h);
+    pt_free(wgt);
+    pt_free(cw);
+    if (!ok) {
+        pt_env_free(e);
+        return pt_error_set(err, PT_ERR_NOMEM, "out of memory for a %ux%u environment", w, h);
+    }
     *out = e;
     return PT_OK;
 }
@@ -172,43 +246,73 @@ static size_t texel_of(const pt_env *e, float u, float v)
     return (size_t)y * e->w + x;
 }
 
+/* The bilinear lookup at (u, v) in [0,1]^2: texel centres at ((x + 0.5) / w,
+ * (y + 0.5) / h), u wrapping around the sphere, v clamped at the poles. */
+static pt_vec3 lookup(const pt_env *e, float u, float v)
+{
+    float fx = u * (float)e->w - 0.5f, fy = v * (float)e->h - 0.5f;
+    float x0f = floorf(fx), y0f = floorf(fy);
+    float ax = fx - x0f, ay = fy - y0f;
+    int64_t w = e->w, h = e->h;
+    int64_t x0 = (int64_t)x0f, y0 = (int64_t)y0f;
+    int64_t xs[2] = {((x0 % w) + w) % w, (((x0 + 1) % w) + w) % w};
+    int64_t ys[2] = {y0 < 0 ? 0 : (y0 >= h ? h - 1 : y0),
+                     y0 + 1 >= h ? h - 1 : (y0 + 1 < 0 ? 0 : y0 + 1)};
+    float k[4] = {(1.0f - ax) * (1.0f - ay), ax * (1.0f - ay), (1.0f - ax) * ay, ax * ay};
+    float r = 0.0f, g = 0.0f, b = 0.0f;
+    for (int i = 0; i < 4; i++) {
+        const float *c = &e->rgb[3 * ((size_t)ys[i >> 1] * e->w + (size_t)xs[i & 1])];
+        r += k[i] * c[0];
+        g += k[i] * c[1];
+        b += k[i] * c[2];
+    }
+    return pt_v3(r, g, b);
+}
+
 pt_vec3 pt_env_eval(const pt_env *env, pt_vec3 dir)
 {
     float u, v;
     dir_to_uv(env, dir, &u, &v);
-    const float *c = &env->rgb[3 * texel_of(env, u, v)];
-    return pt_v3(c[0], c[1], c[2]);
+    return lookup(env, u, v);
 }
 
-float pt_env_pdf(const pt_env *env, pt_vec3 dir)
+static const env_dist *dist_of(const pt_env *env, int which)
 {
-    if (env->black)
+    return which == PT_ENV_MIS ? &env->comp : &env->full;
+}
+
+float pt_env_pdf(const pt_env *env, pt_vec3 dir, int which)
+{
+    const env_dist *d = dist_of(env, which);
+    if (d->black)
         return 0.0f;
     float u, v;
     dir_to_uv(env, dir, &u, &v);
     float s = sinf(PI_F * v);
     if (!(s > 0.0f))
         return 0.0f;
-    return env->texel_pdf[texel_of(env, u, v)] / (2.0f * PI_F * PI_F * s);
+    return d->texel_pdf[texel_of(env, u, v)] / (2.0f * PI_F * PI_F * s);
 }
 
-int pt_env_sample(const pt_env *env, const float u[2], pt_vec3 *dir, pt_vec3 *radiance, float *pdf)
+int pt_env_sample(const pt_env *env, const float u[2], int which, pt_vec3 *dir, pt_vec3 *radiance,
+                  float *pdf)
 {
+    const env_dist *d = dist_of(env, which);
     *pdf = 0.0f;
-    if (env->black)
+    if (d->black)
         return 0;
     /* The row by the marginal, then the column in it; each number's
      * remainder places the point inside the texel. */
     double rv = u[1];
-    uint32_t y = find_interval(env->row_cdf, env->h, rv);
-    double r0 = env->row_cdf[y], r1 = env->row_cdf[y + 1];
+    uint32_t y = find_interval(d->row_cdf, env->h, rv);
+    double r0 = d->row_cdf[y], r1 = d->row_cdf[y + 1];
     double fy = r1 > r0 ? (rv - r0) / (r1 - r0) : 0.5;
-    const double *cdf = env->col_cdf + (size_t)y * (env->w + 1);
+    const double *cdf = d->col_cdf + (size_t)y * (env->w + 1);
     double ru = u[0];
     uint32_t x = find_interval(cdf, env->w, ru);
     double c0 = cdf[x], c1 = cdf[x + 1];
     double fx = c1 > c0 ? (ru - c0) / (c1 - c0) : 0.5;
-    float tp = env->texel_pdf[(size_t)y * env->w + x];
+    float tp = d->texel_pdf[(size_t)y * env->w + x];
     if (!(tp > 0.0f))
         return 0;
     double uu = ((double)x + fx) / env->w, vv = ((double)y + fy) / env->h;
@@ -217,8 +321,9 @@ int pt_env_sample(const pt_env *env, const float u[2], pt_vec3 *dir, pt_vec3 *ra
     if (!(st > 0.0))
         return 0;
     *dir = pt_v3((float)(st * sin(phi)), (float)cos(theta), (float)(-st * cos(phi)));
-    const float *c = &env->rgb[3 * ((size_t)y * env->w + x)];
-    *radiance = pt_v3(c[0], c[1], c[2]);
+    /* The radiance the direction's own lookup gives, as a BSDF-sampled ray
+     * along it would see. */
+    *radiance = pt_env_eval(env, *dir);
     *pdf = (float)(tp / (2.0 * PI_D * PI_D * st));
     return isfinite(*pdf) && *pdf > 0.0f;
 }

@@ -12,14 +12,20 @@
  * polar angle theta from +Y and phi = atan2(x, -z):
  *     u = 1/2 + (phi - rotate) / (2 pi)  (wrapped to [0, 1)),  v = theta / pi.
  *
- * Radiance is the map's texel under the direction (nearest texel, no
- * filtering) times strength, so the sampled density is exactly proportional
- * to luminance x sin(theta) within each texel: a piecewise-constant 2-D
- * distribution over (u, v), a marginal over rows and a conditional per row
- * (Pharr, Jakob & Humphreys, "Physically Based Rendering", 3rd ed., 13.6.7
- * and 14.2.4). Its solid-angle pdf is pdf(u, v) / (2 pi^2 sin theta). A
- * tiny hot sun (66 % of a map's energy in 52 texels) is then found by NEE
- * with its share of the samples, not by chance.
+ * Radiance is the map's bilinear lookup under the direction (texel centres
+ * at ((x + 0.5) / w, (y + 0.5) / h), u wrapping, v clamped at the poles)
+ * times strength; NEE and a BSDF-sampled ray that leaves the scene read the
+ * same lookup. Sampling is a piecewise-constant 2-D distribution over (u, v),
+ * a marginal over rows and a conditional per row (Pharr, Jakob & Humphreys,
+ * "Physically Based Rendering", 3rd ed., 13.6.7 and 14.2.4), with each
+ * texel weighted by the lookup's mean luminance over it times sin(theta);
+ * its solid-angle pdf is pdf(u, v) / (2 pi^2 sin theta). A tiny hot sun (66 %
+ * of a map's energy in 52 texels) is then found by NEE with its share of the
+ * samples, not by chance. Two distributions: PT_ENV_FULL, above 0 wherever
+ * the lookup is (for light sampling alone), and PT_ENV_MIS, whose weights
+ * are the texel's mean less the sphere's mean luminance, 0 where that is
+ * negative (MIS compensation, Karlik et al. 2019): for NEE combined with
+ * BSDF sampling by MIS, which finds the dim rest.
  *
  * A uniform colour (--background) is a 64 x 32 map of that colour, whose
  * density, luminance x sin(theta), is close to uniform over the sphere.
@@ -52,13 +58,18 @@ void pt_env_free(pt_env *env); /* accepts NULL */
 /* Radiance arriving from direction dir (unit), i.e. seen looking along dir. */
 pt_vec3 pt_env_eval(const pt_env *env, pt_vec3 dir);
 
-/* Samples a direction by the map's distribution from u (2 numbers in
- * [0,1)): *dir, the radiance from it and the solid-angle pdf. Returns 0 when
- * the environment is black or the sample is impossible (pdf 0). */
-int pt_env_sample(const pt_env *env, const float u[2], pt_vec3 *dir, pt_vec3 *radiance, float *pdf);
+/* The sampling distributions (above). */
+enum { PT_ENV_FULL = 0, PT_ENV_MIS = 1 };
 
-/* The solid-angle pdf pt_env_sample gives dir. */
-float pt_env_pdf(const pt_env *env, pt_vec3 dir);
+/* Samples a direction by distribution `which` (PT_ENV_*) from u (2 numbers
+ * in [0,1)): *dir, the radiance from it (pt_env_eval's) and the solid-angle
+ * pdf. Returns 0 when the distribution is black or the sample is impossible
+ * (pdf 0). */
+int pt_env_sample(const pt_env *env, const float u[2], int which, pt_vec3 *dir, pt_vec3 *radiance,
+                  float *pdf);
+
+/* The solid-angle pdf pt_env_sample with `which` gives dir. */
+float pt_env_pdf(const pt_env *env, pt_vec3 dir, int which);
 
 /* The mean radiance over the sphere (luminance, weighted by solid angle):
  * the flux it sends into a sphere of radius R is 4 pi^2 R^2 times this. */

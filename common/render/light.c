@@ -79,6 +79,7 @@ struct pt_lights {
     const pt_env *env;        /* NULL: none (or black) */
     double c_env;             /* u0 >= c_env chooses the environment (1: never) */
     float p_env;              /* the probability of choosing it */
+    int env_dist;             /* its distribution (env.h, PT_ENV_*) */
 };
 
 static pt_vec3 vertex(const pt_scene *s, uint32_t i)
@@ -244,10 +245,10 @@ static void build_alias(alias_slot *lights, double *q, uint32_t *scratch, uint32
 
 pt_status pt_lights_new(const pt_scene *scene, pt_lights **out, pt_error *err)
 {
-    return pt_lights_new_env(scene, NULL, out, err);
+    return pt_lights_new_env(scene, NULL, PT_ENV_FULL, out, err);
 }
 
-pt_status pt_lights_new_env(const pt_scene *scene, const pt_env *env, pt_lights **out,
+pt_status pt_lights_new_env(const pt_scene *scene, const pt_env *env, int env_dist, pt_lights **out,
                             pt_error *err)
 {
     pt_status st = PT_OK;
@@ -261,6 +262,7 @@ pt_status pt_lights_new_env(const pt_scene *scene, const pt_env *env, pt_lights 
     if (!L)
         return pt_error_set(err, PT_ERR_NOMEM, "pt_lights_new: out of memory");
     L->num_triangles = scene->num_triangles;
+    L->env_dist = env_dist;
 
     /* Check what we will index, and the mean of each emissive texture. */
     int any_tex = 0;
@@ -444,7 +446,7 @@ float pt_lights_env_pdf(const pt_lights *lights, pt_vec3 dir)
 {
     if (!lights || !lights->env)
         return 0.0f;
-    return lights->p_env * pt_env_pdf(lights->env, dir);
+    return lights->p_env * pt_env_pdf(lights->env, dir, lights->env_dist);
 }
 
 /* A sample of the environment from u[1..2]: a direction and the radiance
@@ -455,7 +457,7 @@ static int sample_env(const pt_lights *lights, const float u[3], pt_light_sample
     s->tri = UINT32_MAX;
     s->dist = INFINITY;
     float pdf;
-    if (!pt_env_sample(lights->env, &u[1], &s->wi, &s->radiance, &pdf))
+    if (!pt_env_sample(lights->env, &u[1], lights->env_dist, &s->wi, &s->radiance, &pdf))
         return 0;
     s->pdf = lights->p_env * pdf;
     return s->pdf > 0.0f && isfinite(s->pdf);

@@ -54,9 +54,10 @@ typedef struct pt_light_sample {
 
 /* Builds the light list. A scene without emitters gives a valid, empty set. */
 pt_status pt_lights_new(const pt_scene *scene, pt_lights **out, pt_error *err);
-/* The same with an environment (may be NULL) as a third class; it must
- * outlive the set. */
-pt_status pt_lights_new_env(const pt_scene *scene, const pt_env *env, pt_lights **out,
+/* The same with an environment (may be NULL) as a third class, sampled by
+ * its distribution env_dist (env.h: PT_ENV_MIS when NEE is weighed against
+ * BSDF sampling, PT_ENV_FULL when it runs alone); it must outlive the set. */
+pt_status pt_lights_new_env(const pt_scene *scene, const pt_env *env, int env_dist, pt_lights **out,
                             pt_error *err);
 void pt_lights_free(pt_lights *lights); /* accepts NULL */
 

@@ -1727,7 +1727,9 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
     r->tan_half_fov = tanf(0.5f * scene->camera.yfov);
     if ((st = pt_accel_new(scene, &r->accel, err)) != PT_OK)
         goto fail;
-    if ((st = pt_lights_new_env(scene, params->env, &r->lights, err)) != PT_OK)
+    if ((st = pt_lights_new_env(scene, params->env,
+                                params->light_strategy == PT_LIGHT_MIS ? PT_ENV_MIS : PT_ENV_FULL,
+                                &r->lights, err)) != PT_OK)
         goto fail;
     r->offset = pt_accel_offset(r->accel);
     if (scene->num_materials > 0) {

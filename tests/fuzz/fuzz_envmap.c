@@ -44,10 +44,10 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         for (int k = 0; env && k < 16; k++) {
             float u[2] = {(float)k / 16.0f, (float)((k * 7) % 16) / 16.0f + 0.03f}, pdf;
             pt_vec3 d, rad;
-            if (!pt_env_sample(env, u, &d, &rad, &pdf))
+            if (!pt_env_sample(env, u, PT_ENV_FULL, &d, &rad, &pdf))
                 continue;
             FUZZ_CHECK(fabsf(pt_v3_len(d) - 1.0f) < 1e-3f && isfinite(pdf) && pdf > 0.0f);
-            float p2 = pt_env_pdf(env, d);
+            float p2 = pt_env_pdf(env, d, PT_ENV_FULL);
             FUZZ_CHECK(isfinite(p2) && p2 >= 0.0f);
         }
         pt_env_free(env);
