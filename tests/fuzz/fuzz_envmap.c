@@ -41,13 +41,15 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
             FUZZ_CHECK(m.rgb[i] >= 0.0f && m.rgb[i] <= PT_ENVMAP_MAX_VALUE);
         pt_env *env = NULL;
         FUZZ_CHECK(pt_env_new(&m, 1.0f, 33.0f, &env, &err) == PT_OK);
-        for (int k = 0; env && k < 16; k++) {
-            float u[2] = {(float)k / 16.0f, (float)((k * 7) % 16) / 16.0f + 0.03f}, pdf;
+        for (int k = 0; env && k < 32; k++) {
+            int which = k & 1 ? PT_ENV_MIS : PT_ENV_FULL;
+            float u[2] = {(float)(k / 2) / 16.0f, (float)((k / 2 * 7) % 16) / 16.0f + 0.03f}, pdf;
             pt_vec3 d, rad;
-            if (!pt_env_sample(env, u, PT_ENV_FULL, &d, &rad, &pdf))
+            if (!pt_env_sample(env, u, which, &d, &rad, &pdf))
                 continue;
             FUZZ_CHECK(fabsf(pt_v3_len(d) - 1.0f) < 1e-3f && isfinite(pdf) && pdf > 0.0f);
-            float p2 = pt_env_pdf(env, d, PT_ENV_FULL);
+            FUZZ_CHECK(pt_isfinite3(rad) && rad.x >= 0.0f && rad.y >= 0.0f && rad.z >= 0.0f);
+            float p2 = pt_env_pdf(env, d, which);
             FUZZ_CHECK(isfinite(p2) && p2 >= 0.0f);
         }
         pt_env_free(env);
