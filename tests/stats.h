@@ -50,4 +50,31 @@ static inline double stats_chi2_survival(double chi2, int dof)
     return stats_gamma_q(0.5 * dof, 0.5 * chi2);
 }
 
+/* Pearson's chi-square of observed against expected counts in n bins; bins
+ * expected below min_exp are pooled into one. Returns the p-value. */
+static inline double stats_chi2_gof(const double *obs, const double *expd, int n, double min_exp,
+                                    double *stat, int *dof)
+{
+    double s = 0.0, po = 0.0, pe = 0.0;
+    int bins = 0;
+    for (int i = 0; i < n; i++) {
+        if (expd[i] < min_exp) {
+            po += obs[i];
+            pe += expd[i];
+            continue;
+        }
+        s += (obs[i] - expd[i]) * (obs[i] - expd[i]) / expd[i];
+        bins++;
+    }
+    if (pe > 0.0) {
+        s += (po - pe) * (po - pe) / pe;
+        bins++;
+    } else if (po > 0.0) {
+        s = INFINITY; /* samples where the density is zero */
+    }
+    *stat = s;
+    *dof = bins - 1;
+    return stats_chi2_survival(s, *dof);
+}
+
 #endif

@@ -53,33 +53,6 @@ static double rnd(void)
     return (double)(z >> 11) * 0x1.0p-53;
 }
 
-/* Pearson's chi-square of observed against expected counts in n bins; bins
- * expected below min_exp are pooled into one. Returns the p-value. */
-static double chi2_gof(const double *obs, const double *expd, int n, double min_exp, double *stat,
-                       int *dof)
-{
-    double s = 0.0, po = 0.0, pe = 0.0;
-    int bins = 0;
-    for (int i = 0; i < n; i++) {
-        if (expd[i] < min_exp) {
-            po += obs[i];
-            pe += expd[i];
-            continue;
-        }
-        s += (obs[i] - expd[i]) * (obs[i] - expd[i]) / expd[i];
-        bins++;
-    }
-    if (pe > 0.0) {
-        s += (po - pe) * (po - pe) / pe;
-        bins++;
-    } else if (po > 0.0) {
-        s = INFINITY; /* samples where the density is zero */
-    }
-    *stat = s;
-    *dof = bins - 1;
-    return stats_chi2_survival(s, *dof);
-}
-
 /* This test's (u, v) of a direction: env.h's formula, written again. */
 static void uv_of(pt_vec3 d, double rot_deg, double *u, double *v)
 {
@@ -179,7 +152,7 @@ static void chi2_env(const char *what, const pt_envmap *map, double rot_deg, int
         expd[b] = expd[b] / total * N;
     double stat, p;
     int dof;
-    p = chi2_gof(obs, expd, BU * BV, 5.0, &stat, &dof);
+    p = stats_chi2_gof(obs, expd, BU * BV, 5.0, &stat, &dof);
     CHECKF(p > 1e-3, "%s: chi-square %.1f with %d degrees of freedom, p = %.2e", what, stat, dof,
            p);
     /* A direction on a texel's edge may round into its neighbour: rare. */

@@ -1,0 +1,118 @@
+/*
+ * guide.h - path guiding's learned distribution of incident light: a
+ * spatial binary tree over the scene's bounds whose leaves each hold a
+ * directional quadtree (Mueller, Gross & Novak 2017, "Practical Path
+ * Guiding for Efficient Light-Transport Simulation", the SD-tree), and the
+ * statistics a pass of rendering collects to build the next one.
+ *
+ * Directions map to the unit square by the cylindrical equal-area map
+ * (u, v) = ((z + 1) / 2, atan2(y, x) / (2 pi) wrapped to [0, 1)), so a
+ * density over the square is the solid-angle density times 4 pi. A quadtree
+ * node covers a square of side 2^-depth; a leaf's share of its tree is
+ * spread uniformly over its square. Sampling descends from the root, each
+ * step picking a child in proportion to its energy, one number rescaled at
+ * every level; the pdf of a direction is the product of the same choices
+ * divided by the leaf's area, so it is the sampler's density whatever the
+ * stored energies are (no sum over children is assumed).
+ *
+ * Learning runs in passes. A pass renders with a distribution G and records
+ * into statistics made for G: each record is a spatial leaf, a direction and
+ * an estimate of incident radiance over its pdf (Mueller's L / p), summed in
+ * fixed point (PT_GUIDE_FIXED_BITS fractional bits, each record clamped to
+ * PT_GUIDE_MAX_RECORD) into the quadtree leaf it falls in, with a count per
+ * spatial leaf. Integer sums merge exactly in any order, so the statistics
+ * of a pass - and the distribution pt_guide_build makes from them - do not
+ * depend on how the pass was split into threads, tasks or workers. Building
+ * splits a spatial leaf whose count exceeds the split threshold (both halves
+ * inherit its directions) and rebuilds each quadtree from its energies: a
+ * node is subdivided while its share of the tree is above
+ * PT_GUIDE_SUBDIV_SHARE (down to PT_GUIDE_MAX_DEPTH), a leaf new to the tree
+ * takes a quarter of its parent's energy. A tree with no energy is uniform.
+ *
+ * A pt_guide is immutable once built: any number of render threads may
+ * sample it. Statistics belong to one thread at a time; merge them after.
+ */
+#ifndef PT_COMMON_RENDER_GUIDE_H
+#define PT_COMMON_RENDER_GUIDE_H
+
+#include <stdint.h>
+
+#include "common/base/error.h"
+#include "common/math/vec.h"
+
+#define PT_GUIDE_FIXED_BITS 16         /* fractional bits of a record's fixed point */
+#define PT_GUIDE_MAX_RECORD 1.0e9      /* a record above this is clamped to it */
+#define PT_GUIDE_SUBDIV_SHARE 0.01     /* a quadtree node above this share is split */
+#define PT_GUIDE_MAX_DEPTH 16u         /* quadtree levels at most */
+#define PT_GUIDE_MAX_SPATIAL_DEPTH 48u /* spatial tree levels at most */
+#define PT_GUIDE_MAX_NODES (1u << 24)  /* spatial or directional nodes at most */
+
+/* A spatial node: a leaf when child is 0, else its children are child and
+ * child + 1, split at the midpoint of axis. */
+typedef struct pt_guide_snode {
+    uint32_t child;
+    uint32_t axis; /* 0, 1, 2 */
+    uint32_t tree; /* a leaf's quadtree: the index of its root in qnode */
+} pt_guide_snode;
+
+/* A directional node: a leaf when child is 0, else its children are child
+ * .. child + 3 (quadrants (0,0), (1,0), (0,1), (1,1) of its square). */
+typedef struct pt_guide_qnode {
+    uint32_t child;
+    float energy; /* >= 0, finite */
+} pt_guide_qnode;
+
+typedef struct pt_guide {
+    pt_vec3 lo, hi; /* the spatial tree's bounds; points outside are clamped */
+    uint32_t nsnode, nqnode;
+    pt_guide_snode *snode; /* [0] the root */
+    pt_guide_qnode *qnode;
+} pt_guide;
+
+typedef struct pt_guide_stats {
+    uint32_t nsnode, nqnode; /* the guide's they were made for */
+    uint64_t *count;         /* per spatial node (leaves): records */
+    uint64_t *sum;           /* per directional node (leaves): fixed-point L / p */
+} pt_guide_stats;
+
+/* A guide of one spatial leaf over [lo, hi] with a uniform quadtree. */
+pt_status pt_guide_new_uniform(pt_vec3 lo, pt_vec3 hi, pt_guide **out, pt_error *err);
+void pt_guide_free(pt_guide *g); /* accepts NULL */
+
+/* The spatial leaf holding p (clamped into the bounds). */
+uint32_t pt_guide_leaf(const pt_guide *g, pt_vec3 p);
+
+/* A direction from leaf's quadtree for u (2 numbers in [0,1)), and its
+ * solid-angle pdf (> 0). */
+pt_vec3 pt_guide_sample(const pt_guide *g, uint32_t leaf, const float u[2], float *pdf);
+/* The solid-angle pdf pt_guide_sample gives dir (unit) at leaf. */
+float pt_guide_pdf(const pt_guide *g, uint32_t leaf, pt_vec3 dir);
+
+/* Direction <-> the unit square (the equal-area map above). */
+void pt_guide_dir_to_square(pt_vec3 dir, float *u, float *v);
+pt_vec3 pt_guide_square_to_dir(float u, float v);
+
+/* Empty statistics for g. */
+pt_status pt_guide_stats_new(const pt_guide *g, pt_guide_stats **out, pt_error *err);
+void pt_guide_stats_free(pt_guide_stats *s); /* accepts NULL */
+/* Records value (incident radiance over the pdf that chose dir; a value that
+ * is not finite or not above 0 is dropped, one above PT_GUIDE_MAX_RECORD is
+ * clamped) at leaf along dir. */
+void pt_guide_stats_record(pt_guide_stats *s, const pt_guide *g, uint32_t leaf, pt_vec3 dir,
+                           float value);
+/* into += from (saturating); PT_ERR_ARG when they were made for different
+ * guides' shapes. */
+pt_status pt_guide_stats_merge(pt_guide_stats *into, const pt_guide_stats *from, pt_error *err);
+
+/* The next pass's guide from g and the statistics s of a pass rendered with
+ * it: spatial leaves with more than split_count records are split. */
+pt_status pt_guide_build(const pt_guide *g, const pt_guide_stats *s, uint64_t split_count,
+                         pt_guide **out, pt_error *err);
+
+/* PT_OK when g's trees are well formed (children in range, after their
+ * parent and referenced once, leaves' trees in range, energies finite and
+ * >= 0, depths within the caps); else PT_ERR_FORMAT naming the fault. For a
+ * guide that came from elsewhere (a decoder) before it is sampled. */
+pt_status pt_guide_check(const pt_guide *g, pt_error *err);
+
+#endif
