@@ -41,12 +41,36 @@ pt_status pt_guide_new_uniform(pt_vec3 lo, pt_vec3 hi, pt_guide **out, pt_error 
 {
     if (!pt_isfinite3(lo) || !pt_isfinite3(hi) || !(lo.x <= hi.x && lo.y <= hi.y && lo.z <= hi.z))
         return pt_error_set(err, PT_ERR_ARG, "guide bounds are not finite and ordered");
-    pt_guide *g = guide_alloc(1, 1);
+    /* Each face's tree complete to PT_GUIDE_INIT_DEPTH, breadth first, so
+     * the first pass records at that resolution; roots 0 (not learned). */
+    uint32_t per = 0, level = 1;
+    for (uint32_t d = 0; d <= PT_GUIDE_INIT_DEPTH; d++, level *= 4)
+        per += level;
+    pt_guide *g = guide_alloc(1, PT_GUIDE_FACES * per);
     if (!g)
         return pt_error_set(err, PT_ERR_NOMEM, "out of memory for a guide");
     g->lo = lo;
     g->hi = hi;
-    g->qnode[0].energy = 1.0f;
+    uint32_t next = PT_GUIDE_FACES;
+    for (uint32_t f = 0; f < PT_GUIDE_FACES; f++) {
+        g->qnode[f].energy = 0.0f;
+        /* The nodes of this tree in breadth-first order: node k's children
+         * are the next four unassigned. */
+        uint32_t lvl_start[PT_GUIDE_INIT_DEPTH + 1], lvl_n[PT_GUIDE_INIT_DEPTH + 1];
+        lvl_start[0] = f;
+        lvl_n[0] = 1;
+        for (uint32_t d = 1; d <= PT_GUIDE_INIT_DEPTH; d++) {
+            lvl_start[d] = next;
+            lvl_n[d] = lvl_n[d - 1] * 4;
+            for (uint32_t k = 0; k < lvl_n[d - 1]; k++) {
+                uint32_t parent = d == 1 ? lvl_start[0] : lvl_start[d - 1] + k;
+                g->qnode[parent].child = next;
+                for (uint32_t c = 0; c < 4; c++)
+                    g->qnode[next + c].energy = 1.0f;
+                next += 4;
+            }
+        }
+    }
     *out = g;
     return PT_OK;
 }
@@ -72,6 +96,33 @@ pt_vec3 pt_guide_square_to_dir(float u, float v)
     float r = sqrtf(fmaxf(0.0f, 1.0f - z * z));
     float phi = 2.0f * PI_F * v;
     return pt_v3(r * cosf(phi), r * sinf(phi), z);
+}
+
+/* The face of the cube that n points to: 0..5 for +x, -x, +y, -y, +z, -z. */
+static uint32_t face_of(pt_vec3 n)
+{
+    float ax = fabsf(n.x), ay = fabsf(n.y), az = fabsf(n.z);
+    if (ax >= ay && ax >= az)
+        return n.x >= 0.0f ? 0u : 1u;
+    if (ay >= az)
+        return n.y >= 0.0f ? 2u : 3u;
+    return n.z >= 0.0f ? 4u : 5u;
+}
+
+uint32_t pt_guide_cell(const pt_guide *g, pt_vec3 p, pt_vec3 n)
+{
+    return pt_guide_leaf(g, p) * PT_GUIDE_FACES + face_of(n);
+}
+
+/* The root of cell's quadtree. */
+static uint32_t cell_root(const pt_guide *g, uint32_t cell)
+{
+    return g->snode[cell / PT_GUIDE_FACES].tree + cell % PT_GUIDE_FACES;
+}
+
+int pt_guide_learned(const pt_guide *g, uint32_t cell)
+{
+    return g->qnode[cell_root(g, cell)].energy > 0.0f;
 }
 
 uint32_t pt_guide_leaf(const pt_guide *g, pt_vec3 p)
@@ -118,9 +169,9 @@ static void child_energies(const pt_guide *g, uint32_t c, float e[4])
         e[i] = g->qnode[c + (uint32_t)i].energy;
 }
 
-pt_vec3 pt_guide_sample(const pt_guide *g, uint32_t leaf, const float u[2], float *pdf)
+pt_vec3 pt_guide_sample(const pt_guide *g, uint32_t cell, const float u[2], float *pdf)
 {
-    uint32_t n = g->snode[leaf].tree;
+    uint32_t n = cell_root(g, cell);
     float ux = clamp_below1(u[0]), uy = clamp_below1(u[1]);
     float x0 = 0.0f, y0 = 0.0f, size = 1.0f, prob = 1.0f;
     while (g->qnode[n].child) {
@@ -182,11 +233,11 @@ static uint32_t find_qleaf(const pt_guide *g, uint32_t n, float u, float v, floa
     return n;
 }
 
-float pt_guide_pdf(const pt_guide *g, uint32_t leaf, pt_vec3 dir)
+float pt_guide_pdf(const pt_guide *g, uint32_t cell, pt_vec3 dir)
 {
     float u, v, prob, size;
     pt_guide_dir_to_square(dir, &u, &v);
-    find_qleaf(g, g->snode[leaf].tree, u, v, &prob, &size);
+    find_qleaf(g, cell_root(g, cell), u, v, &prob, &size);
     return prob / (size * size) * (0.25f / PI_F);
 }
 
@@ -224,18 +275,21 @@ static uint64_t sat_add(uint64_t a, uint64_t b)
     return __builtin_add_overflow(a, b, &r) ? UINT64_MAX : r;
 }
 
-void pt_guide_stats_record(pt_guide_stats *s, const pt_guide *g, uint32_t leaf, pt_vec3 dir,
+void pt_guide_stats_record(pt_guide_stats *s, const pt_guide *g, uint32_t cell, pt_vec3 dir,
                            float value)
 {
-    if (!(value > 0.0f) || !isfinite(value))
+    if (!(value >= 0.0f) || !isfinite(value))
+        return;
+    uint32_t leaf = cell / PT_GUIDE_FACES;
+    s->count[leaf] = sat_add(s->count[leaf], 1);
+    if (!(value > 0.0f))
         return;
     double v = value < PT_GUIDE_MAX_RECORD ? (double)value : PT_GUIDE_MAX_RECORD;
     uint64_t q = (uint64_t)(v * (double)(1u << PT_GUIDE_FIXED_BITS) + 0.5);
     float u, w, prob, size;
     pt_guide_dir_to_square(dir, &u, &w);
-    uint32_t n = find_qleaf(g, g->snode[leaf].tree, u, w, &prob, &size);
+    uint32_t n = find_qleaf(g, cell_root(g, cell), u, w, &prob, &size);
     s->sum[n] = sat_add(s->sum[n], q);
-    s->count[leaf] = sat_add(s->count[leaf], 1);
 }
 
 pt_status pt_guide_stats_merge(pt_guide_stats *into, const pt_guide_stats *from, pt_error *err)
@@ -347,6 +401,39 @@ static void copy_q(builder *b, uint32_t src, uint32_t dst)
         copy_q(b, sc + i, c + i);
 }
 
+/* Makes new spatial node at a subtree `levels` deep split at the midpoints
+ * (axes cycling from axis), whose leaves hold tree q (the first) and copies
+ * of it (the others; first: q is not yet used). */
+static void split_leaf(builder *b, uint32_t at, uint32_t axis, uint32_t levels, uint32_t q,
+                       int first)
+{
+    if (levels == 0) {
+        b->snode[at].child = 0;
+        b->snode[at].axis = axis; /* the axis its next split takes */
+        if (first) {
+            b->snode[at].tree = q;
+            return;
+        }
+        uint32_t t = new_qnodes(b, PT_GUIDE_FACES);
+        for (uint32_t f = 0; f < PT_GUIDE_FACES && !b->nomem; f++)
+            copy_q(b, q + f, t + f);
+        b->snode[at].tree = t;
+        return;
+    }
+    if (!grow((void **)&b->snode, &b->cap_s, b->ns + 2, sizeof *b->snode)) {
+        b->nomem = 1;
+        return;
+    }
+    uint32_t c = b->ns;
+    b->ns += 2;
+    b->snode[at].child = c;
+    b->snode[at].axis = axis;
+    b->snode[at].tree = 0;
+    split_leaf(b, c, (axis + 1) % 3, levels - 1, q, first);
+    if (!b->nomem)
+        split_leaf(b, c + 1, (axis + 1) % 3, levels - 1, q, 0);
+}
+
 pt_status pt_guide_build(const pt_guide *g, const pt_guide_stats *s, uint64_t split_count,
                          pt_guide **out, pt_error *err)
 {
@@ -384,35 +471,32 @@ pt_status pt_guide_build(const pt_guide *g, const pt_guide_stats *s, uint64_t sp
         }
         /* A leaf: its rebuilt quadtree, from the pass's energies (or, with
          * none recorded, from the distribution it sampled). */
-        uint32_t root = g->snode[i].tree;
-        double total = sum_energy(g, s, root, E, 1, 0);
-        if (!(total > 0.0))
-            total = sum_energy(g, s, root, E, 0, 0);
-        uint32_t q = new_qnodes(&b, 1);
+        uint32_t q = new_qnodes(&b, PT_GUIDE_FACES);
         if (b.nomem)
             goto nomem;
-        build_q(&b, g, E, root, 1.0, q, 0, total);
-        if (b.nomem)
-            goto nomem;
-        if (!(total > 0.0))
-            b.qnode[q].energy = 1.0f;
-        int split = s->count[i] > split_count && depth[i] < PT_GUIDE_MAX_SPATIAL_DEPTH;
-        if (!split) {
-            b.snode[ni].child = 0;
-            b.snode[ni].tree = q;
-            continue;
+        for (uint32_t f = 0; f < PT_GUIDE_FACES; f++) {
+            /* From the pass's records; a cell none reached keeps the
+             * distribution it had, learned or not (root energy 0). */
+            uint32_t root = g->snode[i].tree + f;
+            double total = sum_energy(g, s, root, E, 1, 0);
+            int learned = total > 0.0;
+            if (!learned) {
+                learned = g->qnode[root].energy > 0.0f;
+                total = sum_energy(g, s, root, E, 0, 0);
+            }
+            build_q(&b, g, E, root, 1.0, q + f, 0, total);
+            if (b.nomem)
+                goto nomem;
+            b.qnode[q + f].energy = learned ? 1.0f : 0.0f;
         }
-        uint32_t c = b.ns;
-        if (!grow((void **)&b.snode, &b.cap_s, b.ns + 2, sizeof *b.snode))
-            goto nomem;
-        b.ns += 2;
-        b.snode[ni].child = c;
-        b.snode[ni].axis = (o->axis + 1) % 3;
-        b.snode[c].child = b.snode[c + 1].child = 0;
-        b.snode[c].tree = q;
-        b.snode[c + 1].tree = new_qnodes(&b, 1);
-        if (!b.nomem)
-            copy_q(&b, q, b.snode[c + 1].tree);
+        /* Split while a part's share of the records (halved each level,
+         * as Mueller et al. assume) is over the split count. */
+        uint32_t levels = 0;
+        for (uint64_t c = s->count[i]; c > split_count && levels < PT_GUIDE_MAX_SPLIT_LEVELS &&
+                                       depth[i] + levels < PT_GUIDE_MAX_SPATIAL_DEPTH;
+             c /= 2)
+            levels++;
+        split_leaf(&b, ni, o->axis, levels, q, 1);
         if (b.nomem)
             goto nomem;
     }
@@ -444,7 +528,7 @@ nomem:
 
 pt_status pt_guide_check(const pt_guide *g, pt_error *err)
 {
-    if (!g->nsnode || !g->nqnode || g->nsnode > PT_GUIDE_MAX_NODES ||
+    if (!g->nsnode || g->nqnode < PT_GUIDE_FACES || g->nsnode > PT_GUIDE_MAX_NODES ||
         g->nqnode > PT_GUIDE_MAX_NODES)
         return pt_error_set(err, PT_ERR_FORMAT, "guide has %u spatial and %u directional nodes",
                             g->nsnode, g->nqnode);
@@ -476,12 +560,16 @@ pt_status pt_guide_check(const pt_guide *g, pt_error *err)
             seen_s[n->child] = seen_s[n->child + 1] = 1;
             sdepth[n->child] = sdepth[n->child + 1] = (uint8_t)(sdepth[i] + 1);
         } else {
-            if (n->tree >= g->nqnode || seen_q[n->tree]) {
-                st = pt_error_set(err, PT_ERR_FORMAT, "guide spatial leaf %u: bad tree %u", i,
+            int bad = n->tree > g->nqnode - PT_GUIDE_FACES;
+            for (uint32_t f = 0; !bad && f < PT_GUIDE_FACES; f++)
+                bad = seen_q[n->tree + f];
+            if (bad) {
+                st = pt_error_set(err, PT_ERR_FORMAT, "guide spatial leaf %u: bad trees at %u", i,
                                   n->tree);
                 goto done;
             }
-            seen_q[n->tree] = 1;
+            for (uint32_t f = 0; f < PT_GUIDE_FACES; f++)
+                seen_q[n->tree + f] = 1;
         }
     }
     for (uint32_t i = 0; i < g->nqnode; i++) {

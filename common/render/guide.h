@@ -5,6 +5,12 @@
  * Guiding for Efficient Light-Transport Simulation", the SD-tree), and the
  * statistics a pass of rendering collects to build the next one.
  *
+ * A spatial leaf holds PT_GUIDE_FACES quadtrees, one per face of the cube
+ * that a surface's normal points to (+x, -x, +y, -y, +z, -z): the light a
+ * floor receives and the light a wall beside it receives are learned apart,
+ * so a floor's distribution stays above the floor. A cell is a leaf and a
+ * face (pt_guide_cell); sampling, pdfs and records name cells.
+ *
  * Directions map to the unit square by the cylindrical equal-area map
  * (u, v) = ((z + 1) / 2, atan2(y, x) / (2 pi) wrapped to [0, 1)), so a
  * density over the square is the solid-angle density times 4 pi. A quadtree
@@ -23,8 +29,9 @@
  * spatial leaf. Integer sums merge exactly in any order, so the statistics
  * of a pass - and the distribution pt_guide_build makes from them - do not
  * depend on how the pass was split into threads, tasks or workers. Building
- * splits a spatial leaf whose count exceeds the split threshold (both halves
- * inherit its directions) and rebuilds each quadtree from its energies: a
+ * splits a spatial leaf at its midpoints while a part's share of its records
+ * (half at each level) exceeds the split threshold, the parts inheriting its
+ * directions, and rebuilds each quadtree from its energies: a
  * node is subdivided while its share of the tree is above
  * PT_GUIDE_SUBDIV_SHARE (down to PT_GUIDE_MAX_DEPTH), a leaf new to the tree
  * takes a quarter of its parent's energy. A tree with no energy is uniform.
@@ -40,23 +47,28 @@
 #include "common/base/error.h"
 #include "common/math/vec.h"
 
+#define PT_GUIDE_FACES 6u              /* quadtrees a spatial leaf holds, by normal */
+#define PT_GUIDE_INIT_DEPTH 4u         /* a new guide's trees: complete to this depth */
 #define PT_GUIDE_FIXED_BITS 16         /* fractional bits of a record's fixed point */
 #define PT_GUIDE_MAX_RECORD 1.0e9      /* a record above this is clamped to it */
 #define PT_GUIDE_SUBDIV_SHARE 0.01     /* a quadtree node above this share is split */
 #define PT_GUIDE_MAX_DEPTH 16u         /* quadtree levels at most */
 #define PT_GUIDE_MAX_SPATIAL_DEPTH 48u /* spatial tree levels at most */
 #define PT_GUIDE_MAX_NODES (1u << 24)  /* spatial or directional nodes at most */
+#define PT_GUIDE_MAX_SPLIT_LEVELS 12u  /* levels one build adds under a leaf at most */
 
 /* A spatial node: a leaf when child is 0, else its children are child and
- * child + 1, split at the midpoint of axis. */
+ * child + 1, split at the midpoint of axis (a leaf's: the axis its next
+ * split takes). */
 typedef struct pt_guide_snode {
     uint32_t child;
     uint32_t axis; /* 0, 1, 2 */
-    uint32_t tree; /* a leaf's quadtree: the index of its root in qnode */
+    uint32_t tree; /* a leaf's quadtrees: their PT_GUIDE_FACES roots from this index on */
 } pt_guide_snode;
 
 /* A directional node: a leaf when child is 0, else its children are child
- * .. child + 3 (quadrants (0,0), (1,0), (0,1), (1,1) of its square). */
+ * .. child + 3 (quadrants (0,0), (1,0), (0,1), (1,1) of its square). A
+ * root's energy is 1 when its tree was learned, 0 when not. */
 typedef struct pt_guide_qnode {
     uint32_t child;
     float energy; /* >= 0, finite */
@@ -75,18 +87,27 @@ typedef struct pt_guide_stats {
     uint64_t *sum;           /* per directional node (leaves): fixed-point L / p */
 } pt_guide_stats;
 
-/* A guide of one spatial leaf over [lo, hi] with a uniform quadtree. */
+/* A guide of one spatial leaf over [lo, hi] whose quadtrees are uniform and
+ * complete to PT_GUIDE_INIT_DEPTH, so that a first pass records directions
+ * at that resolution; none is learned yet. */
 pt_status pt_guide_new_uniform(pt_vec3 lo, pt_vec3 hi, pt_guide **out, pt_error *err);
 void pt_guide_free(pt_guide *g); /* accepts NULL */
 
 /* The spatial leaf holding p (clamped into the bounds). */
 uint32_t pt_guide_leaf(const pt_guide *g, pt_vec3 p);
+/* The cell of a surface point p with normal n: its leaf and n's face. */
+uint32_t pt_guide_cell(const pt_guide *g, pt_vec3 p, pt_vec3 n);
 
-/* A direction from leaf's quadtree for u (2 numbers in [0,1)), and its
+/* 1 when cell's quadtree was learned from records (its root's energy is 1);
+ * 0: it is the uniform tree it started as (root energy 0), and sampling it
+ * would waste directions. Sampling reads only children's energies. */
+int pt_guide_learned(const pt_guide *g, uint32_t cell);
+
+/* A direction from cell's quadtree for u (2 numbers in [0,1)), and its
  * solid-angle pdf (> 0). */
-pt_vec3 pt_guide_sample(const pt_guide *g, uint32_t leaf, const float u[2], float *pdf);
-/* The solid-angle pdf pt_guide_sample gives dir (unit) at leaf. */
-float pt_guide_pdf(const pt_guide *g, uint32_t leaf, pt_vec3 dir);
+pt_vec3 pt_guide_sample(const pt_guide *g, uint32_t cell, const float u[2], float *pdf);
+/* The solid-angle pdf pt_guide_sample gives dir (unit) at cell. */
+float pt_guide_pdf(const pt_guide *g, uint32_t cell, pt_vec3 dir);
 
 /* Direction <-> the unit square (the equal-area map above). */
 void pt_guide_dir_to_square(pt_vec3 dir, float *u, float *v);
@@ -95,17 +116,19 @@ pt_vec3 pt_guide_square_to_dir(float u, float v);
 /* Empty statistics for g. */
 pt_status pt_guide_stats_new(const pt_guide *g, pt_guide_stats **out, pt_error *err);
 void pt_guide_stats_free(pt_guide_stats *s); /* accepts NULL */
-/* Records value (incident radiance over the pdf that chose dir; a value that
- * is not finite or not above 0 is dropped, one above PT_GUIDE_MAX_RECORD is
- * clamped) at leaf along dir. */
-void pt_guide_stats_record(pt_guide_stats *s, const pt_guide *g, uint32_t leaf, pt_vec3 dir,
+/* Records value (incident radiance over the pdf that chose dir) at cell
+ * along dir: counted at the cell's leaf, and added to its direction's cell when
+ * above 0 (clamped to PT_GUIDE_MAX_RECORD); a value that is negative or not
+ * finite is dropped. */
+void pt_guide_stats_record(pt_guide_stats *s, const pt_guide *g, uint32_t cell, pt_vec3 dir,
                            float value);
 /* into += from (saturating); PT_ERR_ARG when they were made for different
  * guides' shapes. */
 pt_status pt_guide_stats_merge(pt_guide_stats *into, const pt_guide_stats *from, pt_error *err);
 
 /* The next pass's guide from g and the statistics s of a pass rendered with
- * it: spatial leaves with more than split_count records are split. */
+ * it: a spatial leaf is split until a part holds about split_count records
+ * or fewer (at most PT_GUIDE_MAX_SPLIT_LEVELS levels a build). */
 pt_status pt_guide_build(const pt_guide *g, const pt_guide_stats *s, uint64_t split_count,
                          pt_guide **out, pt_error *err);
 

@@ -4,6 +4,8 @@
  * - The equal-area map: a direction comes back from its square point, and
  *   uniform points of the square are uniform on the sphere (the mean of z
  *   and z^2: 0 and 1/3 within 5 standard errors).
+ * - Cells: the normal's face picks one of a leaf's quadtrees; what is
+ *   learned at a floor is not sampled at a wall.
  * - Learning: directions recorded with a peaked radiance (1 + 200 max(0,
  *   d.a)^40, a lobe of about 0.1 sr, sampled uniformly so a record is L /
  *   (1 / 4 pi)) over three passes give a guide whose pdf towards a is more
@@ -50,6 +52,7 @@ static pt_vec3 uniform_dir(void)
 }
 
 static const pt_vec3 PEAK = {0.48f, -0.6f, 0.64f};
+static const pt_vec3 UP = {0.1f, 0.2f, 0.97f}; /* the surface normal of the learning tests */
 
 static double radiance(pt_vec3 d)
 {
@@ -86,7 +89,7 @@ static void record_peak(pt_guide_stats *s, const pt_guide *g, int n, uint64_t se
     rng = seed;
     for (int i = 0; i < n; i++) {
         pt_vec3 d = uniform_dir();
-        pt_guide_stats_record(s, g, pt_guide_leaf(g, pt_v3(0, 0, 0)), d,
+        pt_guide_stats_record(s, g, pt_guide_cell(g, pt_v3(0, 0, 0), UP), d,
                               (float)(radiance(d) * 4.0 * PI_D));
     }
     rng = keep;
@@ -155,7 +158,7 @@ static void learning_and_sampling(void)
     pt_guide *g = learn(3);
     if (!g)
         return;
-    uint32_t leaf = pt_guide_leaf(g, pt_v3(0, 0, 0));
+    uint32_t leaf = pt_guide_cell(g, pt_v3(0, 0, 0), UP);
     float towards = pt_guide_pdf(g, leaf, PEAK);
     float away = pt_guide_pdf(g, leaf, pt_v3_neg(PEAK));
     CHECKF(towards > 20.0f * away, "pdf towards the peak %g, away %g", towards, away);
@@ -166,7 +169,8 @@ static void learning_and_sampling(void)
     enum { NB = 32 };
     static double expd[NB * NB], obs[NB * NB];
     double total = 0.0;
-    leaf_mass(g, g->snode[leaf].tree, 0.0, 0.0, 1.0, 1.0, expd, NB, &total);
+    leaf_mass(g, g->snode[leaf / PT_GUIDE_FACES].tree + leaf % PT_GUIDE_FACES, 0.0, 0.0, 1.0, 1.0,
+              expd, NB, &total);
     CHECKF(fabs(total - 1.0) < 1e-9, "the leaves' shares sum to %.12f", total);
     const int N = 200000;
     int pdf_bad = 0;
@@ -234,7 +238,7 @@ static void exact_merge(void)
         pt_vec3 d = uniform_dir();
         pt_vec3 p = pt_v3((float)rnd() - 0.5f, (float)rnd() - 0.5f, (float)rnd() - 0.5f);
         float v = (float)(radiance(d) * 4.0 * PI_D * (0.5 + rnd()));
-        uint32_t leaf = pt_guide_leaf(g, p);
+        uint32_t leaf = pt_guide_cell(g, p, uniform_dir());
         pt_guide_stats_record(a[i / 10000], g, leaf, d, v);
         while (left_b == 0)
             left_b = split_b[++which_b];
@@ -281,6 +285,21 @@ static void exact_merge(void)
     (void)k;
 }
 
+static void cells(void)
+{
+    pt_guide *g = learn(2);
+    if (!g)
+        return;
+    uint32_t up = pt_guide_cell(g, pt_v3(0, 0, 0), UP);
+    uint32_t side = pt_guide_cell(g, pt_v3(0, 0, 0), pt_v3(1, 0, 0));
+    CHECK(up / PT_GUIDE_FACES == side / PT_GUIDE_FACES && up != side);
+    /* The side's tree saw nothing: uniform, 1 / (4 pi) everywhere. */
+    float ps = pt_guide_pdf(g, side, PEAK), pu = pt_guide_pdf(g, up, PEAK);
+    CHECKF(fabs(ps - 0.25 / PI_D) < 1e-5, "an unlearned cell's pdf %g", ps);
+    CHECKF(pu > 10.0f * ps, "the learned cell's pdf towards the peak %g", pu);
+    pt_guide_free(g);
+}
+
 static void hostile(void)
 {
     pt_guide *g = learn(2);
@@ -325,6 +344,7 @@ int main(void)
     equal_area();
     learning_and_sampling();
     exact_merge();
+    cells();
     hostile();
     CHECKF(pt_alloc_live() == live, "%lld allocations left", (long long)(pt_alloc_live() - live));
     return check_report();
