@@ -9,6 +9,7 @@
 #include "common/render/closure.h"
 #include "common/render/dielectric.h"
 #include "common/render/env.h"
+#include "common/render/guide.h"
 #include "common/render/layers.h"
 #include "common/render/light.h"
 #include "common/render/light_lanes.h"
@@ -64,9 +65,13 @@ static void pixel_ctx_init(pixel_ctx *pc, const pt_renderer *r, uint32_t px, uin
 /* The integrator variants: a feature mask fixed at compile time, so that code
  * for features a scene lacks is folded away (see pick_variant). */
 typedef pt_vec3 (*li_fn)(const pt_renderer *r, pixel_ctx *pc, uint32_t index,
-                         pt_render_stats *stats, int *covered);
+                         pt_render_stats *stats, int *covered, const pt_render_guiding *gd);
 typedef void (*tile_fn)(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,
-                        pt_pixel_acc *out, pt_render_stats *stats);
+                        pt_pixel_acc *out, pt_render_stats *stats, const pt_render_guiding *gd);
+
+/* Path guiding (guide.h): a renderer feature like the environment, set when
+ * the parameters ask for it; only the guided variant has its code. */
+#define FEAT_GUIDE (1u << 31)
 
 struct pt_renderer {
     const pt_scene *scene;
@@ -98,6 +103,7 @@ void pt_render_params_default(pt_render_params *p)
     p->scalar_shading = 0;
     p->env = NULL;
     p->transparent = 0;
+    p->guiding = 0;
 }
 
 const pt_render_params *pt_renderer_params(const pt_renderer *r)
@@ -717,7 +723,52 @@ typedef struct path {
     uint32_t escaped; /* 1: the camera ray left the scene (the sample does not cover the pixel) */
     float time;       /* in the shutter, [0, 1) (PT_FEAT_MOTION; else 0) */
     pixel_ctx *pc;
+    struct guide_path *gp; /* FEAT_GUIDE: its guided vertices; else NULL */
 } path;
+
+/* The vertices of a path where it sampled its next direction from the
+ * guide's mixture, for the statistics: each one's leaf, direction, mixture
+ * pdf, throughput after it (luminance) and the path's radiance (luminance)
+ * before anything it found along that direction was added. */
+#define GUIDE_VERTS 8u
+typedef struct guide_vert {
+    pt_vec3 dir;
+    uint32_t leaf;
+    float pdf, beta, snap;
+} guide_vert;
+typedef struct guide_path {
+    const pt_render_guiding *gd;
+    uint32_t n;       /* vertices in v */
+    uint32_t pending; /* the last vertex's snap is taken at the path's next event */
+    guide_vert v[GUIDE_VERTS];
+} guide_path;
+
+/* The path's next event (an emitter or the environment found along the last
+ * guided direction, or nothing) begins: the radiance so far is the last
+ * guided vertex's baseline. */
+static inline __attribute__((always_inline)) void guide_snap(path *pa, const uint32_t features)
+{
+    if ((features & FEAT_GUIDE) && pa->gp && pa->gp->pending) {
+        pa->gp->v[pa->gp->n - 1].snap = pt_luminance(pa->L);
+        pa->gp->pending = 0;
+    }
+}
+
+/* At the path's end: each guided vertex's incident radiance estimate,
+ * (L - snap) / beta, over its pdf, into the pass's statistics. */
+static void guide_record(const path *pa)
+{
+    const guide_path *gp = pa->gp;
+    if (!gp || !gp->gd || !gp->gd->stats)
+        return;
+    float l = pt_luminance(pa->L);
+    for (uint32_t i = 0; i < gp->n; i++) {
+        const guide_vert *v = &gp->v[i];
+        float li = v->beta > 0.0f ? (l - v->snap) / v->beta : 0.0f;
+        pt_guide_stats_record(gp->gd->stats, gp->gd->guide, v->leaf, v->dir,
+                              li > 0.0f ? li / v->pdf : 0.0f);
+    }
+}
 
 /* A shadow ray that shade() asks for, and what the path gains when the ray is
  * unoccluded. Nothing is traced when dist is not positive (it still counts as
@@ -759,6 +810,7 @@ path_start(const pt_renderer *r, pixel_ctx *pc, uint32_t index, path *pa, const 
     pa->index = index;
     pa->escaped = 0;
     pa->pc = pc;
+    pa->gp = NULL;
 }
 
 /* The light sample of a bounce at sf, when NEE runs. Like the hit's surface
@@ -789,6 +841,7 @@ static inline __attribute__((always_inline)) void shade_emission(const pt_render
 {
     const pt_scene *s = r->scene;
     const uint32_t strategy = r->params.light_strategy;
+    guide_snap(pa, features);
     if (!((features & PT_FEAT_EMITTERS) && emits(sf->mat)))
         return;
     pt_vec3 wo = pt_v3_neg(pa->d);
@@ -818,6 +871,7 @@ static inline __attribute__((always_inline)) void shade_emission(const pt_render
 static inline __attribute__((always_inline)) void shade_miss(const pt_renderer *r, path *pa,
                                                              const uint32_t features)
 {
+    guide_snap(pa, features);
     if (pa->depth == 0) {
         pa->escaped = 1;
         if (r->params.transparent)
@@ -949,6 +1003,25 @@ material_closure(const pt_renderer *r, const surface *sf, int glass, int front, 
     pt_closure_add_layers(cl, &lay);
 }
 
+/* A closure path guiding samples at: one with a diffuse lobe or a GGX lobe
+ * rough enough (alpha >= GUIDE_MIN_ALPHA) for light to arrive over a spread
+ * of directions, and no dielectric interface (a glass's delta or narrow
+ * lobes are sampled by the BSDF alone). */
+#define GUIDE_MIN_ALPHA 0.1f
+#define GUIDE_MAX_DEPTH 3u
+static inline int closure_guidable(const pt_closure *cl)
+{
+    int any = 0;
+    for (uint32_t i = 0; i < cl->n_lobes; i++) {
+        const pt_lobe *l = &cl->lobe[i];
+        if (l->kind == PT_LOBE_DIELECTRIC)
+            return 0;
+        any |= l->kind == PT_LOBE_DIFFUSE ||
+               (l->kind == PT_LOBE_SPECULAR && l->p.specular.alpha >= GUIDE_MIN_ALPHA);
+    }
+    return any;
+}
+
 /*
  * One bounce of a path whose ray hit `hit`, with the bounce's numbers u. NEE
  * samples an emissive triangle at every vertex; the BSDF-sampled continuation
@@ -1023,6 +1096,22 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
         lambert = material_bsdf(r, sf, features);
     uint32_t mi = (uint32_t)(sf->mat - s->materials);
     int thin = glass && !(sf->mat->thickness > 0.0f);
+    /* Path guiding (FEAT_GUIDE): at a guidable closure the continuation is
+     * drawn from the mixture gprob x guide + (1 - gprob) x closure (one-sample
+     * MIS, Mueller et al. 2017, sec. 5), and the BSDF strategy's pdf that
+     * MIS weighs against light sampling is the mixture's. */
+    const pt_guide *guide = NULL;
+    uint32_t gleaf = 0;
+    float gprob = 0.0f;
+    if ((features & FEAT_GUIDE) && pa->gp && pa->gp->gd && pa->gp->gd->guide && !glass &&
+        pa->depth < GUIDE_MAX_DEPTH && (features & PT_FEAT_GLOSSY) && closure_guidable(&cl)) {
+        guide = pa->gp->gd->guide;
+        gprob = pa->gp->gd->prob;
+        gleaf = pt_guide_cell(guide, sf->p, ns);
+        /* A cell no record reached is uniform: recorded into, not sampled. */
+        if (!pt_guide_learned(guide, gleaf))
+            gprob = 0.0f;
+    }
 
     if ((features & NEE_LIGHTS) && r->nee) {
         pt_vec3 lrad = ls_ok ? ls->radiance : pt_v3(0.0f, 0.0f, 0.0f);
@@ -1040,6 +1129,8 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
                 f = lambert_eval(&lambert, wo_l, wi_ll, &bpdf);
             else if (!glass || (side != 0.0f && (side > 0.0f) == (wi_ll.z > 0.0f)))
                 f = pt_closure_eval(&cl, wi_ll, &bpdf);
+            if ((features & FEAT_GUIDE) && guide && gprob > 0.0f)
+                bpdf = gprob * pt_guide_pdf(guide, gleaf, ls->wi) + (1.0f - gprob) * bpdf;
             if (any_positive(f)) {
                 pt_vec3 from = pt_offset_apply(r->offset, sf->p, side > 0.0f ? ng : pt_v3_neg(ng));
                 float w;
@@ -1093,9 +1184,31 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     pt_vec3 wi_l;
     float pdf;
     int delta = 0;
-    pt_vec3 weight = (features & PT_FEAT_GLOSSY)
-                         ? pt_closure_sample(&cl, u3, &wi_l, &pdf, &delta)
-                         : lambert_sample(&lambert, wo_l, u3, &wi_l, &pdf, cos_wi);
+    pt_vec3 weight;
+    if ((features & FEAT_GUIDE) && guide && gprob > 0.0f) {
+        /* u3[0] picks the guide or the closure, rescaled for the closure's
+         * own lobe pick; the weight is f / the mixture's pdf. */
+        float gpdf = 0.0f, bp = 0.0f;
+        pt_vec3 f = pt_v3(0.0f, 0.0f, 0.0f);
+        if (u3[0] < gprob) {
+            pt_vec3 wg = pt_guide_sample(guide, gleaf, &u3[1], &gpdf);
+            wi_l = pt_frame_to_local(&fr, wg);
+            f = pt_closure_eval(&cl, wi_l, &bp);
+        } else {
+            float uc[3] = {fminf((u3[0] - gprob) / (1.0f - gprob), 0x1.fffffep-1f), u3[1], u3[2]};
+            pt_vec3 w = pt_closure_sample(&cl, uc, &wi_l, &bp, &delta);
+            if (bp > 0.0f) {
+                f = pt_v3_scale(w, bp);
+                gpdf = pt_guide_pdf(guide, gleaf, pt_frame_to_world(&fr, wi_l));
+            }
+        }
+        pdf = gprob * gpdf + (1.0f - gprob) * bp;
+        weight = pdf > 0.0f ? pt_v3_scale(f, 1.0f / pdf) : pt_v3(0.0f, 0.0f, 0.0f);
+    } else {
+        weight = (features & PT_FEAT_GLOSSY)
+                     ? pt_closure_sample(&cl, u3, &wi_l, &pdf, &delta)
+                     : lambert_sample(&lambert, wo_l, u3, &wi_l, &pdf, cos_wi);
+    }
     if (!(pdf > 0.0f) || !any_positive(weight))
         return ret;
     pt_vec3 wi = pt_frame_to_world(&fr, wi_l);
@@ -1121,6 +1234,15 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     pa->o = pt_offset_apply(r->offset, sf->p, side > 0.0f ? ng : pt_v3_neg(ng));
     pa->d = wi;
     pa->depth++;
+    if ((features & FEAT_GUIDE) && guide && pa->gp->n < GUIDE_VERTS) {
+        guide_vert *gv = &pa->gp->v[pa->gp->n++];
+        gv->dir = wi;
+        gv->leaf = gleaf;
+        gv->pdf = pdf;
+        gv->beta = pt_luminance(beta);
+        gv->snap = 0.0f;
+        pa->gp->pending = 1;
+    }
     return ret | SHADE_CONTINUE;
 }
 
@@ -1368,12 +1490,18 @@ static void shade_lanes(const pt_renderer *r, path *paths, const uint8_t *live, 
 
 /* One path, start to end: the reference that the batched tile loop below
  * must match bit for bit (tested through pt_render_sample). */
-static inline __attribute__((always_inline)) pt_vec3 li_impl(const pt_renderer *r, pixel_ctx *pc,
-                                                             uint32_t index, pt_render_stats *stats,
-                                                             int *covered, const uint32_t features)
+static inline __attribute__((always_inline)) pt_vec3
+li_impl(const pt_renderer *r, pixel_ctx *pc, uint32_t index, pt_render_stats *stats, int *covered,
+        const pt_render_guiding *gd, const uint32_t features)
 {
     path pa;
     path_start(r, pc, index, &pa, features);
+    guide_path gp;
+    if ((features & FEAT_GUIDE) && gd) {
+        gp.gd = gd;
+        gp.n = gp.pending = 0;
+        pa.gp = &gp;
+    }
     uint64_t rays = 0, capped = 0;
     for (;;) {
         /* The bounce's numbers are drawn before the ray is traced: they do
@@ -1409,6 +1537,8 @@ static inline __attribute__((always_inline)) pt_vec3 li_impl(const pt_renderer *
     }
     if (covered)
         *covered = !pa.escaped;
+    if ((features & FEAT_GUIDE) && gd)
+        guide_record(&pa);
     return pa.L;
 }
 
@@ -1599,8 +1729,10 @@ trace_batch(const pt_renderer *r, path *paths, uint32_t n, stage_lanes *sl, cons
  */
 static inline __attribute__((always_inline)) void
 tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel_acc *out,
-          pt_render_stats *stats, stage_lanes *sl, const uint32_t features, const pt_ray_sink *sink)
+          pt_render_stats *stats, stage_lanes *sl, const uint32_t features, const pt_ray_sink *sink,
+          const pt_render_guiding *gd)
 {
+    guide_path gps[BATCH]; /* FEAT_GUIDE only: folded away in the other variants */
     pt_render_stats local = {0};
     uint32_t tw = tile.x1 - tile.x0, npix = tw * (tile.y1 - tile.y0);
     uint32_t span = s1 > s0 ? s1 - s0 : 1;
@@ -1625,9 +1757,20 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
                 b1 = s1;
             uint32_t nb = b1 - b0;
             for (uint32_t g = 0; g < np; g++)
-                for (uint32_t i = 0; i < nb; i++)
-                    path_start(r, &pcs[g], b0 + i, &paths[g * nb + i], features);
+                for (uint32_t i = 0; i < nb; i++) {
+                    path *pa = &paths[g * nb + i];
+                    path_start(r, &pcs[g], b0 + i, pa, features);
+                    if ((features & FEAT_GUIDE) && gd) {
+                        guide_path *gp = &gps[g * nb + i];
+                        gp->gd = gd;
+                        gp->n = gp->pending = 0;
+                        pa->gp = gp;
+                    }
+                }
             local.rays += trace_batch(r, paths, np * nb, sl, features, sink, &local.capped);
+            if ((features & FEAT_GUIDE) && gd)
+                for (uint32_t k = 0; k < np * nb; k++)
+                    guide_record(&paths[k]);
             for (uint32_t g = 0; g < np; g++) {
                 pt_block_acc blk = {{0, 0, 0}, 0, 0, 0};
                 for (uint32_t i = 0; i < nb; i++) {
@@ -1654,22 +1797,22 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
 #define ALL_FEATURES 0xffffffffu
 #define VARIANT(li_name, tile_name, feat)                                                          \
     static pt_vec3 li_name(const pt_renderer *r, pixel_ctx *pc, uint32_t index,                    \
-                           pt_render_stats *stats, int *covered)                                   \
+                           pt_render_stats *stats, int *covered, const pt_render_guiding *gd)      \
     {                                                                                              \
-        return li_impl(r, pc, index, stats, covered, (feat));                                      \
+        return li_impl(r, pc, index, stats, covered, gd, (feat));                                  \
     }                                                                                              \
     static void tile_name(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,            \
-                          pt_pixel_acc *out, pt_render_stats *stats)                               \
+                          pt_pixel_acc *out, pt_render_stats *stats, const pt_render_guiding *gd)  \
     {                                                                                              \
         if (((feat)&PT_FEAT_GLOSSY) || !r->lanes) {                                                \
-            tile_impl(r, tile, s0, s1, out, stats, NULL, (feat), NULL);                            \
+            tile_impl(r, tile, s0, s1, out, stats, NULL, (feat), NULL, gd);                        \
         } else {                                                                                   \
             /* Lanes past a stage's paths compute on zeros or an earlier                           \
              * stage's values, not on what the stack held (which could be                          \
              * slow denormals). */                                                                 \
             stage_lanes sl;                                                                        \
             memset(&sl, 0, sizeof sl);                                                             \
-            tile_impl(r, tile, s0, s1, out, stats, &sl, (feat), NULL);                             \
+            tile_impl(r, tile, s0, s1, out, stats, &sl, (feat), NULL, gd);                         \
         }                                                                                          \
     }
 #define NO_TEX (uint32_t)(PT_FEAT_TEXTURES | PT_FEAT_EMISSIVE_TEX)
@@ -1683,18 +1826,24 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
 /* Motion blur (PT_FEAT_MOTION) too: a path's time reaches every ray query. */
 #define GENERAL_ONLY                                                                               \
     (uint32_t)(OTHER_LIGHTS | PT_FEAT_ALPHA | GLASS | SURFACE_EXTRAS | LAYERS | PT_FEAT_MOTION)
-VARIANT(li_general, tile_general, ALL_FEATURES)
-VARIANT(li_untextured, tile_untextured, ALL_FEATURES & ~NO_TEX & ~GENERAL_ONLY)
-VARIANT(li_lambert, tile_lambert, ALL_FEATURES & ~(uint32_t)PT_FEAT_GLOSSY & ~GENERAL_ONLY)
+VARIANT(li_guided, tile_guided, ALL_FEATURES)
+VARIANT(li_general, tile_general, ALL_FEATURES & ~FEAT_GUIDE)
+VARIANT(li_untextured, tile_untextured, ALL_FEATURES & ~NO_TEX & ~GENERAL_ONLY & ~FEAT_GUIDE)
+VARIANT(li_lambert, tile_lambert,
+        ALL_FEATURES & ~(uint32_t)PT_FEAT_GLOSSY & ~GENERAL_ONLY & ~FEAT_GUIDE)
 VARIANT(li_lambert_untextured, tile_lambert_untextured,
-        ALL_FEATURES & ~NO_TEX & ~(uint32_t)PT_FEAT_GLOSSY & ~GENERAL_ONLY)
+        ALL_FEATURES & ~NO_TEX & ~(uint32_t)PT_FEAT_GLOSSY & ~GENERAL_ONLY & ~FEAT_GUIDE)
 #undef VARIANT
 
 /* The most specialised variant whose assumptions the scene meets. */
 static void pick_variant(pt_renderer *r, uint32_t features)
 {
     int tex = (features & NO_TEX) != 0, glossy = (features & PT_FEAT_GLOSSY) != 0;
-    if (features & GENERAL_ONLY) {
+    if (features & FEAT_GUIDE) {
+        r->li = li_guided;
+        r->tile = tile_guided;
+        r->variant = "guided";
+    } else if (features & GENERAL_ONLY) {
         r->li = li_general;
         r->tile = tile_general;
         r->variant = "general";
@@ -1750,17 +1899,21 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
         pt_lights_count(r->lights) + others > 0 && params->light_strategy != PT_LIGHT_BSDF_ONLY;
     /* The stage-wide light sampling and the lanes know only triangles. */
     r->nee_n = r->nee && pt_lights_count(r->lights) >= LIGHTS_N_MIN && others == 0;
-    uint32_t features = scene->features | params->extra_features;
+    uint32_t features = scene->features | (params->extra_features & ~FEAT_GUIDE);
     r->alpha = (scene->features & PT_FEAT_ALPHA) != 0;
     r->motion = (scene->features & PT_FEAT_MOTION) ? scene->motion : NULL;
     if (params->env)
         features |= PT_FEAT_ENV;
+    /* Guiding samples glossy closures only (closure_guidable): a
+     * Lambert-only scene keeps its variant. */
+    if (params->guiding && (features & PT_FEAT_GLOSSY))
+        features |= FEAT_GUIDE;
     pick_variant(r, features);
     /* Without fast lanes (an x86-64 processor without AVX2 runs shade_lanes'
      * baseline clone, which does the lanes one by one) the per-path shading
      * is faster: docs/bench/throughput.md, "Fourth round". */
-    r->lanes = !(features & (PT_FEAT_GLOSSY | GENERAL_ONLY)) && !params->scalar_shading &&
-               pt_simd_lanes_fast();
+    r->lanes = !(features & (PT_FEAT_GLOSSY | GENERAL_ONLY | FEAT_GUIDE)) &&
+               !params->scalar_shading && pt_simd_lanes_fast();
     *out = r;
     return PT_OK;
 fail:
@@ -1793,19 +1946,33 @@ pt_vec3 pt_render_sample(const pt_renderer *r, uint32_t px, uint32_t py, uint32_
 {
     pixel_ctx pc;
     pixel_ctx_init(&pc, r, px, py);
-    return r->li(r, &pc, index, stats, covered);
+    return r->li(r, &pc, index, stats, covered, NULL);
+}
+
+pt_vec3 pt_render_sample_guided(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index,
+                                pt_render_stats *stats, int *covered, const pt_render_guiding *gd)
+{
+    pixel_ctx pc;
+    pixel_ctx_init(&pc, r, px, py);
+    return r->li(r, &pc, index, stats, covered, gd);
 }
 
 void pt_render_tile(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel_acc *out,
                     pt_render_stats *stats)
 {
-    r->tile(r, tile, s0, s1, out, stats);
+    r->tile(r, tile, s0, s1, out, stats, NULL);
+}
+
+void pt_render_tile_guided(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,
+                           pt_pixel_acc *out, pt_render_stats *stats, const pt_render_guiding *gd)
+{
+    r->tile(r, tile, s0, s1, out, stats, gd);
 }
 
 void pt_render_tile_traced(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,
                            pt_pixel_acc *out, const pt_ray_sink *sink)
 {
-    tile_impl(r, tile, s0, s1, out, NULL, NULL, ALL_FEATURES, sink);
+    tile_impl(r, tile, s0, s1, out, NULL, NULL, ALL_FEATURES & ~FEAT_GUIDE, sink, NULL);
 }
 
 pt_status pt_render_check_lit(const pt_scene *scene, int has_env, const char *name, pt_error *err)

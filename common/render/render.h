@@ -129,6 +129,9 @@ typedef struct pt_render_params {
     uint32_t scalar_shading; /* 1: the Lambert variants shade one path at a time, as
                                 they do where SIMD lanes are slow (pt_simd_lanes_fast);
                                 the same bits; for tests and benchmarks; default 0 */
+    uint32_t guiding;        /* 1: renders may be handed a path-guiding distribution
+                                (pt_render_tile_guided); picks the guided variant when the
+                                scene has glossy materials; default 0 */
     uint32_t transparent;    /* 1: a camera ray that escapes adds nothing (the environment
                                 still lights the scene through bounces and NEE), so RGB is
                                 premultiplied by the coverage, pt_pixel_acc.hits / n
@@ -172,17 +175,38 @@ int pt_renderer_lanes(const pt_renderer *r);
  * all refuse with this one message. */
 pt_status pt_render_check_lit(const pt_scene *scene, int has_env, const char *name, pt_error *err);
 
+/* Path guiding for one pass (common/render/guide.h): the distribution its
+ * renders sample, the chance a guided vertex draws from it (0: the guide
+ * only defines the statistics' cells: nothing is sampled from it, as in a
+ * first pass), and the calling thread's statistics to record into (NULL:
+ * none). A vertex is guided where the closure has a diffuse lobe or a rough
+ * GGX lobe and no glass interface (render.c, closure_guidable). */
+typedef struct pt_guide pt_guide;
+typedef struct pt_guide_stats pt_guide_stats;
+typedef struct pt_render_guiding {
+    const pt_guide *guide;
+    float prob;
+    pt_guide_stats *stats;
+} pt_render_guiding;
+
 /* Renders samples [s0, s1) of every pixel of tile and writes one pt_pixel_acc
  * per pixel (row-major over the tile, (x1-x0)*(y1-y0) entries, overwritten).
  * stats (may be NULL) is added to. */
 void pt_render_tile(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel_acc *out,
                     pt_render_stats *stats);
+/* The same with path guiding (gd may be NULL: as pt_render_tile; a renderer
+ * made without params.guiding ignores it). */
+void pt_render_tile_guided(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,
+                           pt_pixel_acc *out, pt_render_stats *stats, const pt_render_guiding *gd);
 
 /* Radiance of one camera sample, traced alone: the reference that
  * pt_render_tile's batched paths match bit for bit (for tests). *covered (when
  * not NULL) gets 1 when its camera ray hit the scene (it counts in hits). */
 pt_vec3 pt_render_sample(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index,
                          pt_render_stats *stats, int *covered);
+/* pt_render_sample with path guiding (as pt_render_tile_guided). */
+pt_vec3 pt_render_sample_guided(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index,
+                                pt_render_stats *stats, int *covered, const pt_render_guiding *gd);
 
 /* Receives every ray one sample traces, for benchmarks that replay the same
  * rays through bare Embree (the ray-query ceiling). occlusion: 1 for shadow

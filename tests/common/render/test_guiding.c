@@ -1,0 +1,459 @@
+/*
+ * test_guiding.c - path guiding through the integrator (render.h,
+ * pt_render_tile_guided; the SD-tree itself is test_guide.c's).
+ *
+ * A render is guided as ptworker does it: a first pass records into
+ * statistics of a uniform guide without sampling it, the guide built from
+ * them is sampled by half of a guided vertex's directions in the second.
+ *
+ * - Unbiased, analytically: the white furnace (scenes/furnace.gltf with flat
+ *   normals, albedo 0.5, emission 1; test_render.c) forced onto the guided
+ *   variant reads 1 / (1 - 0.5) = 2 within 0.2 % and 5 standard errors, with
+ *   the guide sampled at every bounce and weighed by MIS against NEE.
+ * - Unbiased against the unguided render: the same sphere made a glossy
+ *   dielectric (roughness 0.4) has no closed form; guided and unguided
+ *   images agree over the image and pixel by pixel within 5 standard errors
+ *   (at most 1 of 256 pixels beyond, as chance allows).
+ * - The guide learns: the second pass's guide has more than one directional
+ *   node, and its statistics saw records.
+ * - Bits: a guided tile equals the same samples traced one path at a time
+ *   (pt_render_sample_guided) and summed in order, and the statistics of a
+ *   tile equal, exactly, the merged statistics of its halves rendered apart.
+ * - Off costs nothing: a renderer made without params.guiding ignores a
+ *   guide it is handed (the same bits as pt_render_tile), and a Lambert scene
+ *   with guiding asked keeps its own variant.
+ */
+#include <math.h>
+#include <pthread.h>
+#include <string.h>
+
+#include "common/base/alloc.h"
+#include "common/render/guide.h"
+#include "common/render/render.h"
+#include "common/scene/scene.h"
+#include "tests/check.h"
+
+static pt_scene *load(const char *rel)
+{
+    char path[4096];
+    snprintf(path, sizeof path, "%s/%s", PT_SOURCE_DIR, rel);
+    pt_scene_opts o = {0};
+    o.scale = 1.0f;
+    pt_scene *s = NULL;
+    pt_error err = {0};
+    if (pt_scene_load(path, &o, &s, &err) != PT_OK) {
+        fprintf(stderr, "cannot load %s: %s\n", path, err.msg);
+        return NULL;
+    }
+    return s;
+}
+
+/* The furnace's sphere, flat normals (test_render.c says why), with m's
+ * parameters: base colour albedo, emission 1. */
+static pt_scene *furnace(float albedo, float metallic, float roughness, float specular)
+{
+    pt_scene *src = load("scenes/furnace.gltf");
+    if (!src)
+        return NULL;
+    uint32_t nt = src->num_triangles;
+    float *pos = pt_malloc_array((size_t)nt * 9, sizeof *pos);
+    float *nrm = pt_malloc_array((size_t)nt * 9, sizeof *nrm);
+    pt_scene *out = NULL;
+    pt_scene_builder *b = NULL;
+    pt_error err = {0};
+    if (pos && nrm && pt_scene_builder_new(&b, &err) == PT_OK) {
+        for (uint32_t t = 0; t < nt; t++) {
+            pt_vec3 v[3];
+            for (int k = 0; k < 3; k++) {
+                uint32_t i = src->indices[3 * t + k];
+                v[k] = pt_v3(src->positions[3 * i], src->positions[3 * i + 1],
+                             src->positions[3 * i + 2]);
+                memcpy(&pos[9 * t + 3 * k], &v[k], 3 * sizeof(float));
+            }
+            pt_vec3 n = pt_v3_norm(pt_v3_cross(pt_v3_sub(v[1], v[0]), pt_v3_sub(v[2], v[0])));
+            for (int k = 0; k < 3; k++)
+                memcpy(&nrm[9 * t + 3 * k], &n, 3 * sizeof(float));
+        }
+        pt_material m = src->materials[0];
+        for (int c = 0; c < 3; c++) {
+            m.base_color[c] = albedo;
+            m.emissive[c] = 1.0f;
+        }
+        m.metallic = metallic;
+        m.roughness = roughness;
+        m.specular = specular;
+        uint32_t mat;
+        CHECK(pt_scene_builder_add_material(b, &m, &mat, &err) == PT_OK);
+        CHECK(pt_scene_builder_add_mesh(b, "sphere", pos, nrm, NULL, nt * 3, NULL, nt, NULL, mat,
+                                        &err) == PT_OK);
+        CHECK(pt_scene_builder_add_camera(b, &src->camera, &err) == PT_OK);
+        CHECKF(pt_scene_builder_finish(b, NULL, &out, &err) == PT_OK, "%s", err.msg);
+    }
+    pt_free(pos);
+    pt_free(nrm);
+    pt_scene_free(src);
+    return out;
+}
+
+static pt_renderer *renderer(const pt_scene *s, uint32_t w, uint32_t h, int guiding, uint32_t extra)
+{
+    pt_render_params p = {0};
+    pt_render_params_default(&p);
+    p.width = w;
+    p.height = h;
+    p.seed = 5;
+    p.guiding = (uint32_t)guiding;
+    p.extra_features = extra;
+    pt_renderer *r = NULL;
+    pt_error err = {0};
+    CHECKF(pt_renderer_new(s, &p, &r, &err) == PT_OK, "%s", err.msg);
+    return r;
+}
+
+typedef struct half_job {
+    const pt_renderer *r;
+    pt_rect rows;
+    uint32_t s0, s1;
+    pt_pixel_acc *acc;
+    pt_render_guiding gd;
+} half_job;
+
+static void *render_half(void *arg)
+{
+    half_job *j = arg;
+    pt_render_tile_guided(j->r, j->rows, j->s0, j->s1, j->acc, NULL, j->gd.guide ? &j->gd : NULL);
+    return NULL;
+}
+
+/* Samples [s0, s1) of the w x h image on two threads (half the rows each),
+ * guided by gd (prob; guide NULL: unguided) with each thread's records into
+ * st[0], st[1] (may be NULL); added to acc. */
+static void render_pass(const pt_renderer *r, uint32_t w, uint32_t h, uint32_t s0, uint32_t s1,
+                        const pt_guide *g, float prob, pt_guide_stats *st[2], pt_pixel_acc *acc)
+{
+    pt_pixel_acc *part = pt_malloc_array((size_t)w * h, sizeof *part);
+    if (!part)
+        return;
+    half_job jobs[2] = {
+        {r, {0, 0, w, h / 2}, s0, s1, part, {g, prob, st ? st[0] : NULL}},
+        {r, {0, h / 2, w, h}, s0, s1, part + (size_t)w * (h / 2), {g, prob, st ? st[1] : NULL}},
+    };
+    pthread_t th;
+    int threaded = pthread_create(&th, NULL, render_half, &jobs[1]) == 0;
+    render_half(&jobs[0]);
+    if (threaded)
+        pthread_join(th, NULL);
+    else
+        render_half(&jobs[1]);
+    for (size_t i = 0; i < (size_t)w * h; i++)
+        pt_pixel_acc_add(&acc[i], &part[i]);
+    pt_free(part);
+}
+
+/* A guided render as ptworker's: [0, first) recording, the rest guided.
+ * Returns the guide of the second pass (the caller frees it). */
+static pt_guide *render_guided(const pt_scene *s, const pt_renderer *r, uint32_t w, uint32_t h,
+                               uint32_t first, uint32_t spp, pt_pixel_acc *acc)
+{
+    pt_error err = {0};
+    pt_guide *g = NULL, *g2 = NULL;
+    pt_guide_stats *st[2] = {NULL, NULL};
+    CHECK(pt_guide_new_uniform(pt_v3_sub(s->bounds_min, pt_v3(0.01f, 0.01f, 0.01f)),
+                               pt_v3_add(s->bounds_max, pt_v3(0.01f, 0.01f, 0.01f)), &g,
+                               &err) == PT_OK);
+    CHECK(g && pt_guide_stats_new(g, &st[0], &err) == PT_OK &&
+          pt_guide_stats_new(g, &st[1], &err) == PT_OK);
+    if (g && st[0] && st[1]) {
+        render_pass(r, w, h, 0, first, g, 0.0f, st, acc);
+        CHECK(pt_guide_stats_merge(st[0], st[1], &err) == PT_OK);
+        uint64_t recs = 0;
+        for (uint32_t i = 0; i < st[0]->nsnode; i++)
+            recs += st[0]->count[i];
+        CHECKF(recs > 0, "the first pass recorded nothing");
+        CHECK(pt_guide_build(g, st[0], 20000, &g2, &err) == PT_OK);
+        if (g2) {
+            CHECKF(g2->nqnode > 1, "the guide did not learn (%u directional nodes)", g2->nqnode);
+            render_pass(r, w, h, first, spp, g2, 0.5f, NULL, acc);
+        }
+    }
+    pt_guide_stats_free(st[0]);
+    pt_guide_stats_free(st[1]);
+    pt_guide_free(g);
+    return g2;
+}
+
+static double lum_mean(const pt_pixel_acc *a)
+{
+    return pt_luminance(
+               pt_v3((float)pt_acc_sum(a, 0), (float)pt_acc_sum(a, 1), (float)pt_acc_sum(a, 2))) /
+           (double)a->n;
+}
+
+static double lum_var_of_mean(const pt_pixel_acc *a)
+{
+    double n = a->n, m = lum_mean(a);
+    return fmax((pt_acc_sum_sq(a) - n * m * m) / (n - 1.0), 0.0) / n;
+}
+
+#define ALBEDO 0.5f
+static void white_furnace(void)
+{
+    pt_scene *s = furnace(ALBEDO, 0.0f, 1.0f, 0.0f);
+    if (!s)
+        return;
+    enum { W = 32, H = 32, SPP = 1536 };
+    /* PT_FEAT_GLOSSY: the guided variant for a Lambert material. */
+    pt_renderer *r = renderer(s, W, H, 1, PT_FEAT_GLOSSY);
+    CHECK(r && strcmp(pt_renderer_variant(r), "guided") == 0);
+    pt_pixel_acc *acc = pt_calloc(W * H, sizeof *acc);
+    pt_guide *g2 = NULL;
+    if (r && acc)
+        g2 = render_guided(s, r, W, H, 256, SPP, acc);
+    double sum = 0.0, var = 0.0;
+    for (uint32_t i = 0; acc && i < W * H; i++) {
+        sum += lum_mean(&acc[i]);
+        var += lum_var_of_mean(&acc[i]);
+    }
+    double mean = sum / (W * H), se = sqrt(var) / (W * H), want = 1.0 / (1.0 - ALBEDO);
+    CHECKF(fabs(mean - want) < 0.002 * want && fabs(mean - want) < 5.0 * se,
+           "guided furnace: %.5f, want %.5f (se %.5f)", mean, want, se);
+    /* 0.2 % is beyond 5 standard errors: a bias that large cannot hide. */
+    CHECKF(5.0 * se < 0.002 * want, "guided furnace: standard error %.5f too large", se);
+    printf("guided white furnace: %.5f (exact %.5f), standard error %.2e\n", mean, want, se);
+    pt_guide_free(g2);
+    pt_free(acc);
+    pt_renderer_free(r);
+    pt_scene_free(s);
+}
+
+static void glossy_agrees(void)
+{
+    pt_scene *s = furnace(0.8f, 0.0f, 0.4f, 1.0f);
+    if (!s)
+        return;
+    enum { W = 16, H = 16, SPP = 2048 };
+    pt_renderer *rg = renderer(s, W, H, 1, 0), *ru = renderer(s, W, H, 0, 0);
+    pt_pixel_acc *ag = pt_calloc(W * H, sizeof *ag), *au = pt_calloc(W * H, sizeof *au);
+    pt_guide *g2 = NULL;
+    if (rg && ru && ag && au) {
+        CHECK(strcmp(pt_renderer_variant(rg), "guided") == 0);
+        g2 = render_guided(s, rg, W, H, 256, SPP, ag);
+        render_pass(ru, W, H, 0, SPP, NULL, 0.0f, NULL, au);
+    }
+    double dsum = 0.0, vsum = 0.0;
+    int off = 0;
+    for (uint32_t i = 0; ag && au && i < W * H; i++) {
+        double d = lum_mean(&ag[i]) - lum_mean(&au[i]);
+        double v = lum_var_of_mean(&ag[i]) + lum_var_of_mean(&au[i]);
+        dsum += d;
+        vsum += v;
+        off += fabs(d) > 5.0 * sqrt(v);
+    }
+    double z = vsum > 0.0 ? dsum / sqrt(vsum) : 0.0;
+    CHECKF(fabs(z) < 5.0, "glossy furnace: guided and unguided images differ (z %.2f)", z);
+    CHECKF(off <= 1, "glossy furnace: %d of %d pixels differ beyond 5 standard errors", off, W * H);
+    printf("glossy furnace: guided vs unguided z %.2f, %d pixels beyond 5 se\n", z, off);
+    pt_guide_free(g2);
+    pt_free(ag);
+    pt_free(au);
+    pt_renderer_free(rg);
+    pt_renderer_free(ru);
+    pt_scene_free(s);
+}
+
+static void bits(void)
+{
+    pt_scene *s = furnace(0.8f, 0.0f, 0.4f, 1.0f);
+    if (!s)
+        return;
+    enum { W = 6, H = 4, S0 = 3, S1 = 37 };
+    pt_error err = {0};
+    pt_renderer *r = renderer(s, W, H, 1, 0), *off = renderer(s, W, H, 0, 0);
+    pt_guide *g = NULL;
+    pt_guide_stats *whole = NULL, *a = NULL, *b = NULL, *single = NULL;
+    CHECK(pt_guide_new_uniform(pt_v3(-2, -2, -2), pt_v3(2, 2, 2), &g, &err) == PT_OK);
+    if (!r || !off || !g)
+        goto done;
+    /* A guide with something learned, to sample from. */
+    pt_guide_stats *st[2] = {NULL, NULL};
+    pt_pixel_acc warm[W * H];
+    memset(warm, 0, sizeof warm);
+    CHECK(pt_guide_stats_new(g, &st[0], &err) == PT_OK &&
+          pt_guide_stats_new(g, &st[1], &err) == PT_OK);
+    render_pass(r, W, H, 0, 64, g, 0.0f, st, warm);
+    pt_guide_stats_merge(st[0], st[1], &err);
+    pt_guide *g2 = NULL;
+    CHECK(pt_guide_build(g, st[0], 50, &g2, &err) == PT_OK);
+    pt_guide_stats_free(st[0]);
+    pt_guide_stats_free(st[1]);
+    pt_guide_free(g);
+    g = g2;
+    if (!g)
+        goto done;
+    CHECK(pt_guide_stats_new(g, &whole, &err) == PT_OK &&
+          pt_guide_stats_new(g, &a, &err) == PT_OK && pt_guide_stats_new(g, &b, &err) == PT_OK &&
+          pt_guide_stats_new(g, &single, &err) == PT_OK);
+    if (!single)
+        goto done;
+    pt_rect all = {0, 0, W, H};
+    pt_pixel_acc tile[W * H], ref[W * H], plain[W * H], ignored[W * H];
+    pt_render_guiding gw = {g, 0.5f, whole}, gs = {g, 0.5f, single};
+    pt_render_tile_guided(r, all, S0, S1, tile, NULL, &gw);
+    memset(ref, 0, sizeof ref);
+    for (uint32_t k = 0; k < W * H; k++)
+        for (uint32_t b0 = S0; b0 < S1;) {
+            uint32_t b1 = (b0 / PT_SAMPLE_BLOCK + 1) * PT_SAMPLE_BLOCK;
+            b1 = b1 < S1 ? b1 : S1;
+            pt_block_acc blk = {{0, 0, 0}, 0, 0, 0};
+            for (uint32_t i = b0; i < b1; i++) {
+                int cov = 0;
+                if (pt_block_acc_sample(
+                        &blk, pt_render_sample_guided(r, k % W, k / W, i, NULL, &cov, &gs)))
+                    blk.hits += (uint32_t)cov;
+            }
+            pt_pixel_acc_add_block(&ref[k], &blk);
+            b0 = b1;
+        }
+    CHECKF(memcmp(tile, ref, sizeof tile) == 0, "a guided tile differs from one path at a time");
+    CHECK(memcmp(whole->sum, single->sum, g->nqnode * sizeof *whole->sum) == 0 &&
+          memcmp(whole->count, single->count, g->nsnode * sizeof *whole->count) == 0);
+    /* The tile's statistics equal its two halves', rendered apart. */
+    pt_render_guiding ga = {g, 0.5f, a}, gb = {g, 0.5f, b};
+    pt_pixel_acc part[W * H];
+    pt_rect top = {0, 0, W, H / 2}, bottom = {0, H / 2, W, H};
+    pt_render_tile_guided(r, bottom, S0, S1, part, NULL, &gb);
+    pt_render_tile_guided(r, top, S0, S1, part, NULL, &ga);
+    CHECK(pt_guide_stats_merge(b, a, &err) == PT_OK);
+    CHECKF(memcmp(whole->sum, b->sum, g->nqnode * sizeof *b->sum) == 0 &&
+               memcmp(whole->count, b->count, g->nsnode * sizeof *b->count) == 0,
+           "a tile's statistics differ from its halves'");
+    /* Without params.guiding a guide changes nothing. */
+    pt_render_tile(off, all, S0, S1, plain, NULL);
+    pt_render_tile_guided(off, all, S0, S1, ignored, NULL, &gw);
+    CHECK(memcmp(plain, ignored, sizeof plain) == 0);
+    CHECK(strcmp(pt_renderer_variant(off), "guided") != 0);
+done:
+    pt_guide_stats_free(whole);
+    pt_guide_stats_free(a);
+    pt_guide_stats_free(b);
+    pt_guide_stats_free(single);
+    pt_guide_free(g);
+    pt_renderer_free(r);
+    pt_renderer_free(off);
+    pt_scene_free(s);
+}
+
+/* A rough metal floor (z = 0, +z up) and a small emitter facing it from
+ * above and to the side; the camera looks down at the floor. */
+static pt_scene *floor_and_lamp(void)
+{
+    pt_scene_builder *b = NULL;
+    pt_error err = {0};
+    CHECK(pt_scene_builder_new(&b, &err) == PT_OK);
+    if (!b)
+        return NULL;
+    pt_material fl = pt_material_default();
+    fl.metallic = 1.0f;
+    fl.roughness = 0.7f;
+    pt_material lamp = pt_material_default();
+    lamp.base_color[0] = lamp.base_color[1] = lamp.base_color[2] = 0.0f;
+    lamp.emissive[0] = lamp.emissive[1] = lamp.emissive[2] = 50.0f;
+    uint32_t mf, ml;
+    CHECK(pt_scene_builder_add_material(b, &fl, &mf, &err) == PT_OK);
+    CHECK(pt_scene_builder_add_material(b, &lamp, &ml, &err) == PT_OK);
+    const float floor_p[12] = {-1, -1, 0, 1, -1, 0, 1, 1, 0, -1, 1, 0};
+    /* 0.2 x 0.2 at (1.5, 0, 1.5), wound to face -z. */
+    const float lamp_p[12] = {1.4f, -0.1f, 1.5f, 1.4f, 0.1f,  1.5f,
+                              1.6f, 0.1f,  1.5f, 1.6f, -0.1f, 1.5f};
+    const uint32_t idx[6] = {0, 1, 2, 0, 2, 3};
+    CHECK(pt_scene_builder_add_mesh(b, "floor", floor_p, NULL, NULL, 4, idx, 2, NULL, mf, &err) ==
+          PT_OK);
+    CHECK(pt_scene_builder_add_mesh(b, "lamp", lamp_p, NULL, NULL, 4, idx, 2, NULL, ml, &err) ==
+          PT_OK);
+    pt_camera cam = {0};
+    cam.position = pt_v3(0, 0, 3);
+    cam.forward = pt_v3(0, 0, -1);
+    cam.right = pt_v3(1, 0, 0);
+    cam.up = pt_v3(0, 1, 0);
+    cam.yfov = 0.5f;
+    cam.aspect = 1.0f;
+    snprintf(cam.name, sizeof cam.name, "c");
+    CHECK(pt_scene_builder_add_camera(b, &cam, &err) == PT_OK);
+    pt_scene *s = NULL;
+    CHECKF(pt_scene_builder_finish(b, NULL, &s, &err) == PT_OK, "%s", err.msg);
+    return s;
+}
+
+/* The guide learns where light comes from: on the floor under BSDF sampling
+ * alone (so a ray that finds the lamp records its whole radiance), the cell
+ * of the floor's middle, after one recording pass, has a pdf towards the
+ * lamp many times its pdf in the mirrored direction. */
+static void learns_the_lamp(void)
+{
+    pt_scene *s = floor_and_lamp();
+    if (!s)
+        return;
+    enum { W = 16, H = 16 };
+    pt_render_params p = {0};
+    pt_render_params_default(&p);
+    p.width = W;
+    p.height = H;
+    p.guiding = 1;
+    p.light_strategy = PT_LIGHT_BSDF_ONLY;
+    p.max_depth = 1;
+    pt_renderer *r = NULL;
+    pt_error err = {0};
+    CHECKF(pt_renderer_new(s, &p, &r, &err) == PT_OK, "%s", err.msg);
+    pt_guide *g = NULL, *g2 = NULL;
+    pt_guide_stats *st[2] = {NULL, NULL};
+    CHECK(pt_guide_new_uniform(pt_v3(-1.1f, -1.1f, -0.1f), pt_v3(1.7f, 1.1f, 1.6f), &g, &err) ==
+          PT_OK);
+    pt_pixel_acc *acc = pt_calloc(W * H, sizeof *acc);
+    if (r && g && acc && pt_guide_stats_new(g, &st[0], &err) == PT_OK &&
+        pt_guide_stats_new(g, &st[1], &err) == PT_OK) {
+        render_pass(r, W, H, 0, 1024, g, 0.0f, st, acc);
+        pt_guide_stats_merge(st[0], st[1], &err);
+        /* No split: one cell for the whole floor, whose middle sees the
+         * lamp 45 degrees up towards +x. */
+        CHECK(pt_guide_build(g, st[0], UINT64_MAX, &g2, &err) == PT_OK);
+    }
+    if (g2) {
+        uint32_t cell = pt_guide_cell(g2, pt_v3(0, 0, 0), pt_v3(0, 0, 1));
+        pt_vec3 to_lamp = pt_v3_norm(pt_v3(1.5f, 0, 1.5f)),
+                mirror = pt_v3_norm(pt_v3(-1.5f, 0, 1.5f));
+        float pl = pt_guide_pdf(g2, cell, to_lamp), pm = pt_guide_pdf(g2, cell, mirror);
+        CHECKF(pl > 10.0f * pm, "pdf towards the lamp %g, mirrored %g", pl, pm);
+        printf("learned lamp: pdf towards it %.3g, mirrored %.3g\n", pl, pm);
+    }
+    pt_guide_stats_free(st[0]);
+    pt_guide_stats_free(st[1]);
+    pt_guide_free(g);
+    pt_guide_free(g2);
+    pt_free(acc);
+    pt_renderer_free(r);
+    pt_scene_free(s);
+}
+
+static void lambert_keeps_variant(void)
+{
+    pt_scene *s = load("scenes/cornell_box.gltf");
+    if (!s)
+        return;
+    pt_renderer *a = renderer(s, 8, 8, 1, 0), *b = renderer(s, 8, 8, 0, 0);
+    CHECK(a && b && strcmp(pt_renderer_variant(a), pt_renderer_variant(b)) == 0);
+    pt_renderer_free(a);
+    pt_renderer_free(b);
+    pt_scene_free(s);
+}
+
+int main(void)
+{
+    int64_t live = pt_alloc_live();
+    bits();
+    lambert_keeps_variant();
+    learns_the_lamp();
+    white_furnace();
+    glossy_agrees();
+    CHECKF(pt_alloc_live() == live, "%lld allocations left", (long long)(pt_alloc_live() - live));
+    return check_report();
+}
