@@ -939,16 +939,38 @@ void add_layers(importer &im, int mi, const tinygltf::Material &g, pt_material &
     }
 }
 
+// The extensions the importer reads (README, "glTF extensions"). glTF 2.0
+// spec 3.12: a loader must refuse a file whose extensionsRequired lists one
+// it does not support; one only in extensionsUsed may be ignored, which is
+// reported once, by name, with the same key as a material's use of it.
+bool ext_supported(const std::string &name)
+{
+    static const std::set<std::string> supported = {
+        "KHR_lights_punctual",             // add_light
+        "KHR_materials_clearcoat",         // add_layers
+        "KHR_materials_emissive_strength", // read_materials
+        "KHR_materials_ior",               // add_transmission
+        "KHR_materials_sheen",             // add_layers
+        "KHR_materials_specular",          // read_materials (factors)
+        "KHR_materials_transmission",      // add_transmission
+        "KHR_materials_variants",          // choose_variant
+        "KHR_materials_volume",            // add_transmission
+        "KHR_texture_transform",           // slot_transform
+        "KHR_xmp",                         // metadata: nothing to render
+        "KHR_xmp_json_ld",                 // metadata: nothing to render
+    };
+    return supported.count(name) != 0;
+}
+
+void warn_ext_ignored(importer &im, const std::string &name, const std::string &where)
+{
+    im.warn_once("ext:" + name,
+                 "extension " + shown(name) + " is not supported; " + where + " is ignored");
+}
+
 void read_materials(importer &im)
 {
     const tinygltf::Model &m = im.model;
-    static const std::set<std::string> handled = {"KHR_materials_emissive_strength",
-                                                  "KHR_materials_specular",
-                                                  "KHR_materials_transmission",
-                                                  "KHR_materials_ior",
-                                                  "KHR_materials_volume",
-                                                  "KHR_materials_clearcoat",
-                                                  "KHR_materials_sheen"};
     for (size_t i = 0; i < m.materials.size(); i++) {
         const tinygltf::Material &g = m.materials[i];
         int mi = int(i);
@@ -986,9 +1008,9 @@ void read_materials(importer &im)
         add_layers(im, mi, g, pm);
         pm.double_sided = g.doubleSided ? 1 : 0;
         for (const auto &e : g.extensions)
-            if (!handled.count(e.first))
-                im.warn_once("ext:" + e.first, "material " + std::to_string(i) + " ('" + g.name +
-                                                   "') uses " + e.first + ", which is ignored");
+            if (!ext_supported(e.first))
+                warn_ext_ignored(im, e.first,
+                                 "material " + std::to_string(i) + " ('" + shown(g.name) + "')");
         if (g.occlusionTexture.index >= 0)
             im.warn_once("occlusionTexture",
                          "occlusion textures are ignored (material " + std::to_string(i) + ")");
@@ -2127,6 +2149,20 @@ void parse(importer &im, const std::vector<unsigned char> &bytes)
         im.warn_once("tinygltf:" + twarn, "tinygltf: " + tidy(twarn));
 }
 
+void check_extensions(importer &im)
+{
+    const tinygltf::Model &m = im.model;
+    for (const auto &r : m.extensionsRequired)
+        if (!ext_supported(r))
+            im.fail(PT_ERR_FORMAT,
+                    "requires extension %.80s (extensionsRequired), which ptfarm does not "
+                    "support",
+                    shown(r).c_str());
+    for (const auto &u : m.extensionsUsed)
+        if (!ext_supported(u))
+            warn_ext_ignored(im, u, "what uses it");
+}
+
 void import(importer &im)
 {
     std::vector<unsigned char> bytes;
@@ -2136,13 +2172,7 @@ void import(importer &im)
     hash_files(im, bytes);
     if (!m.skins.empty() && !im.rig)
         im.warn_once("skin", "skins are ignored");
-    for (const auto &r : m.extensionsRequired)
-        if (r != "KHR_materials_emissive_strength" && r != "KHR_materials_specular" &&
-            r != "KHR_lights_punctual" && r != "KHR_materials_transmission" &&
-            r != "KHR_materials_ior" && r != "KHR_materials_volume" &&
-            r != "KHR_texture_transform" && r != "KHR_materials_clearcoat" &&
-            r != "KHR_materials_sheen")
-            im.warn_once("req:" + r, "required extension " + r + " is not supported");
+    check_extensions(im);
     choose_variant(im);
     int dsi = m.defaultScene >= 0 ? m.defaultScene : 0;
     if (size_t(dsi) < m.scenes.size()) // else refused below

@@ -40,6 +40,7 @@ extern "C" {
 #include "common/scene/motion.h"
 }
 #include "tests/check.h"
+#include "tests/common/scene/gltf_writer.hpp"
 
 namespace
 {
@@ -532,58 +533,7 @@ void test_static_parts(const char *rel, int static_node)
 
 // ---- hand-written files ----------------------------------------------------------------
 
-std::string base64(const std::vector<unsigned char> &d)
-{
-    static const char *al = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
-    std::string o;
-    for (size_t i = 0; i < d.size(); i += 3) {
-        uint32_t v = uint32_t(d[i]) << 16;
-        if (i + 1 < d.size())
-            v |= uint32_t(d[i + 1]) << 8;
-        if (i + 2 < d.size())
-            v |= d[i + 2];
-        o += al[v >> 18 & 63];
-        o += al[v >> 12 & 63];
-        o += i + 1 < d.size() ? al[v >> 6 & 63] : '=';
-        o += i + 2 < d.size() ? al[v & 63] : '=';
-    }
-    return o;
-}
-
-// A file under construction: accessors each with their own buffer view.
-struct gltf {
-    std::vector<unsigned char> buf;
-    std::string accessors, views;
-    int n = 0;
-    int add(const void *data, size_t bytes, int ctype, const char *type, size_t count)
-    {
-        while (buf.size() % 4)
-            buf.push_back(0);
-        size_t off = buf.size();
-        buf.insert(buf.end(), (const unsigned char *)data, (const unsigned char *)data + bytes);
-        char v[128], a[160];
-        snprintf(v, sizeof v, "%s{\"buffer\":0,\"byteOffset\":%zu,\"byteLength\":%zu}",
-                 n ? "," : "", off, bytes);
-        snprintf(a, sizeof a,
-                 "%s{\"bufferView\":%d,\"componentType\":%d,\"count\":%zu,\"type\":\"%s\"}",
-                 n ? "," : "", n, ctype, count, type);
-        views += v;
-        accessors += a;
-        return n++;
-    }
-    int floats(const std::vector<float> &f, const char *type, size_t per)
-    {
-        return add(f.data(), f.size() * 4, 5126, type, f.size() / per);
-    }
-    // The file: one triangle mesh (accessor 0) and the given JSON members.
-    std::string json(const std::string &members)
-    {
-        return "{\"asset\":{\"version\":\"2.0\"},\"scenes\":[{\"nodes\":[0]}]," + members +
-               ",\"accessors\":[" + accessors + "],\"bufferViews\":[" + views +
-               "],\"buffers\":[{\"byteLength\":" + std::to_string(buf.size()) +
-               ",\"uri\":\"data:application/octet-stream;base64," + base64(buf) + "\"}]}";
-    }
-};
+using pt_test::gltf;
 
 const std::vector<float> k_tri = {0, 0, 0, 1, 0, 0, 0, 1, 0};
 
