@@ -110,6 +110,7 @@ struct importer {
     std::vector<std::vector<unsigned char>> data_uri_images; // by image index
     std::map<std::string, std::vector<unsigned char>> files; // external files read for the hash
     std::map<std::pair<int, int>, uint32_t> tex_map;         // (gltf texture, srgb) -> builder
+    std::map<int, std::vector<unsigned char>> dense; // accessor -> its elements, made dense once
     uint32_t default_material = UINT32_MAX;
     int variant = -1; // KHR_materials_variants index chosen by opts->variant; -1: none
     uint64_t node_visits = 0;
@@ -388,6 +389,118 @@ struct view_span {
     bool normalized;
 };
 
+// The bytes of bufferView vi, checked to lie within its buffer. ai and what
+// only name the reader in messages.
+std::pair<const unsigned char *, uint64_t> view_bytes(importer &im, int vi, int ai,
+                                                      const char *what)
+{
+    const tinygltf::Model &m = im.model;
+    if (vi < 0 || size_t(vi) >= m.bufferViews.size())
+        im.fail(PT_ERR_FORMAT, "accessor %d (%s): bufferView %d out of range (%zu views)", ai, what,
+                vi, m.bufferViews.size());
+    const tinygltf::BufferView &v = m.bufferViews[size_t(vi)];
+    if (v.buffer < 0 || size_t(v.buffer) >= m.buffers.size())
+        im.fail(PT_ERR_FORMAT, "accessor %d (%s): bufferView %d names buffer %d, out of range", ai,
+                what, vi, v.buffer);
+    const std::vector<unsigned char> &buf = m.buffers[size_t(v.buffer)].data;
+    uint64_t view_end;
+    if (!add_ok(v.byteOffset, v.byteLength, &view_end) || view_end > buf.size())
+        im.fail(PT_ERR_FORMAT,
+                "accessor %d (%s): bufferView %d (offset %zu, length %zu) is outside buffer %d "
+                "(%zu bytes)",
+                ai, what, vi, v.byteOffset, v.byteLength, v.buffer, buf.size());
+    return {buf.data() + v.byteOffset, v.byteLength};
+}
+
+// Element 0 of `count` elements of `elem` bytes at byte `offset` of
+// bufferView vi, `stride` apart (the view's byteStride when it has one,
+// else elem), checked to lie within the view.
+const unsigned char *view_elements(importer &im, int vi, uint64_t offset, uint64_t count,
+                                   uint64_t elem, uint64_t *stride, int ai, const char *what)
+{
+    auto vb = view_bytes(im, vi, ai, what);
+    const tinygltf::BufferView &v = im.model.bufferViews[size_t(vi)];
+    *stride = elem;
+    if (v.byteStride != 0) {
+        if (v.byteStride < elem)
+            im.fail(PT_ERR_FORMAT,
+                    "accessor %d (%s): bufferView %d stride %zu is under the %llu "
+                    "bytes of an element",
+                    ai, what, vi, v.byteStride, (unsigned long long)elem);
+        *stride = v.byteStride;
+    }
+    uint64_t last, end;
+    if (!mul_ok(*stride, count - 1, &last) || !add_ok(last, offset, &last) ||
+        !add_ok(last, elem, &end) || end > vb.second)
+        im.fail(PT_ERR_FORMAT,
+                "accessor %d (%s): %llu elements at offset %llu, stride %llu run past the end of "
+                "bufferView %d (%llu bytes)",
+                ai, what, (unsigned long long)count, (unsigned long long)offset,
+                (unsigned long long)*stride, vi, (unsigned long long)vb.second);
+    return vb.first + offset;
+}
+
+// A sparse accessor (glTF 2.0, 3.6.2.3) made dense: its base (the buffer
+// view's elements, or zeros without one) with sparse.count elements
+// replaced. The indices must be u8/u16/u32, strictly increasing and under
+// the accessor's count; the values are tightly packed elements.
+std::vector<unsigned char> sparse_dense(importer &im, int ai, const char *what, view_span s)
+{
+    const tinygltf::Accessor &a = im.model.accessors[size_t(ai)];
+    uint64_t elem = uint64_t(comp_size(a.componentType)) * uint64_t(type_comps(a.type));
+    std::vector<unsigned char> out(size_t(s.count * elem), 0);
+    if (a.bufferView >= 0) {
+        uint64_t stride;
+        const unsigned char *base =
+            view_elements(im, a.bufferView, a.byteOffset, s.count, elem, &stride, ai, what);
+        for (uint64_t i = 0; i < s.count; i++)
+            memcpy(&out[size_t(i * elem)], base + i * stride, size_t(elem));
+    }
+    const auto &sp = a.sparse;
+    if (sp.count < 1 || uint64_t(sp.count) > s.count)
+        im.fail(PT_ERR_FORMAT, "accessor %d (%s): sparse count %d is not in [1, %llu]", ai, what,
+                sp.count, (unsigned long long)s.count);
+    int is = sp.indices.componentType == TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE    ? 1
+             : sp.indices.componentType == TINYGLTF_COMPONENT_TYPE_UNSIGNED_SHORT ? 2
+             : sp.indices.componentType == TINYGLTF_COMPONENT_TYPE_UNSIGNED_INT   ? 4
+                                                                                  : 0;
+    if (is == 0)
+        im.fail(PT_ERR_FORMAT,
+                "accessor %d (%s): sparse indices' component type %d is not u8/u16/u32", ai, what,
+                sp.indices.componentType);
+    if (sp.indices.byteOffset < 0 || sp.values.byteOffset < 0)
+        im.fail(PT_ERR_FORMAT, "accessor %d (%s): a sparse byteOffset is negative", ai, what);
+    uint64_t n = uint64_t(sp.count), istride, vstride;
+    const unsigned char *ip =
+        view_elements(im, sp.indices.bufferView, uint64_t(sp.indices.byteOffset), n, uint64_t(is),
+                      &istride, ai, what);
+    const unsigned char *vp = view_elements(
+        im, sp.values.bufferView, uint64_t(sp.values.byteOffset), n, elem, &vstride, ai, what);
+    // The spec's sparse views have no byteStride: elements are tightly packed.
+    istride = uint64_t(is);
+    vstride = elem;
+    uint64_t prev = 0;
+    for (uint64_t k = 0; k < n; k++) {
+        const unsigned char *p = ip + k * istride;
+        uint64_t idx = is == 1   ? p[0]
+                       : is == 2 ? uint64_t(p[0] | p[1] << 8)
+                                 : uint64_t(p[0]) | uint64_t(p[1]) << 8 | uint64_t(p[2]) << 16 |
+                                       uint64_t(p[3]) << 24;
+        if (idx >= s.count)
+            im.fail(PT_ERR_FORMAT,
+                    "accessor %d (%s): sparse index %llu at %llu is out of range (count %llu)", ai,
+                    what, (unsigned long long)idx, (unsigned long long)k,
+                    (unsigned long long)s.count);
+        if (k > 0 && idx <= prev)
+            im.fail(PT_ERR_FORMAT,
+                    "accessor %d (%s): sparse indices do not strictly increase (%llu after %llu)",
+                    ai, what, (unsigned long long)idx, (unsigned long long)prev);
+        prev = idx;
+        memcpy(&out[size_t(idx * elem)], vp + k * vstride, size_t(elem));
+    }
+    return out;
+}
+
 view_span accessor_span(importer &im, int ai, const char *what, int want_type, uint64_t max_count)
 {
     const tinygltf::Model &m = im.model;
@@ -395,8 +508,6 @@ view_span accessor_span(importer &im, int ai, const char *what, int want_type, u
         im.fail(PT_ERR_FORMAT, "accessor %d (%s): no such accessor (%zu accessors)", ai, what,
                 m.accessors.size());
     const tinygltf::Accessor &a = m.accessors[size_t(ai)];
-    if (a.sparse.isSparse)
-        im.fail(PT_ERR_FORMAT, "accessor %d (%s): sparse accessors are not supported", ai, what);
     int cs = comp_size(a.componentType), nc = type_comps(a.type);
     if (cs == 0 || nc != type_comps(want_type))
         im.fail(PT_ERR_FORMAT, "accessor %d (%s): unexpected type %d / component type %d", ai, what,
@@ -408,38 +519,20 @@ view_span accessor_span(importer &im, int ai, const char *what, int want_type, u
                 (unsigned long long)max_count);
     view_span s{nullptr, uint64_t(cs) * uint64_t(nc), uint64_t(a.count), a.componentType,
                 a.normalized};
+    // Accessors made dense once (sparse ones, decoded ones): tightly packed.
+    auto d = im.dense.find(ai);
+    if (d == im.dense.end() && a.sparse.isSparse)
+        d = im.dense.emplace(ai, sparse_dense(im, ai, what, s)).first;
+    if (d != im.dense.end()) {
+        if (d->second.size() != s.count * s.stride)
+            im.fail(PT_ERR_FORMAT, "accessor %d (%s): decoded to %zu bytes, not %llu", ai, what,
+                    d->second.size(), (unsigned long long)(s.count * s.stride));
+        s.data = d->second.data();
+        return s;
+    }
     if (a.bufferView < 0)
         return s; // glTF 3.6.2.1: no buffer view means zeros
-    if (size_t(a.bufferView) >= m.bufferViews.size())
-        im.fail(PT_ERR_FORMAT, "accessor %d (%s): bufferView %d out of range (%zu views)", ai, what,
-                a.bufferView, m.bufferViews.size());
-    const tinygltf::BufferView &v = m.bufferViews[size_t(a.bufferView)];
-    if (v.buffer < 0 || size_t(v.buffer) >= m.buffers.size())
-        im.fail(PT_ERR_FORMAT, "accessor %d (%s): bufferView %d names buffer %d, out of range", ai,
-                what, a.bufferView, v.buffer);
-    const std::vector<unsigned char> &buf = m.buffers[size_t(v.buffer)].data;
-    uint64_t elem = s.stride, view_end, last, end;
-    if (!add_ok(v.byteOffset, v.byteLength, &view_end) || view_end > buf.size())
-        im.fail(PT_ERR_FORMAT,
-                "accessor %d (%s): bufferView %d (offset %zu, length %zu) is outside buffer %d "
-                "(%zu bytes)",
-                ai, what, a.bufferView, v.byteOffset, v.byteLength, v.buffer, buf.size());
-    if (v.byteStride != 0) {
-        if (v.byteStride < elem)
-            im.fail(PT_ERR_FORMAT,
-                    "accessor %d (%s): bufferView %d stride %zu is under the %llu "
-                    "bytes of an element",
-                    ai, what, a.bufferView, v.byteStride, (unsigned long long)elem);
-        s.stride = v.byteStride;
-    }
-    if (!mul_ok(s.stride, s.count - 1, &last) || !add_ok(last, a.byteOffset, &last) ||
-        !add_ok(last, elem, &end) || end > v.byteLength)
-        im.fail(PT_ERR_FORMAT,
-                "accessor %d (%s): %llu elements at offset %zu, stride %llu run past the end of "
-                "bufferView %d (%zu bytes)",
-                ai, what, (unsigned long long)s.count, a.byteOffset, (unsigned long long)s.stride,
-                a.bufferView, v.byteLength);
-    s.data = buf.data() + v.byteOffset + a.byteOffset;
+    s.data = view_elements(im, a.bufferView, a.byteOffset, s.count, s.stride, &s.stride, ai, what);
     return s;
 }
 
@@ -473,20 +566,51 @@ float read_comp(const unsigned char *p, int ct, bool normalized)
     }
 }
 
-// Reads a float attribute (POSITION, NORMAL float only; TEXCOORD_0 float or
-// normalized unsigned byte/short, glTF 3.7.2.1).
-void read_floats(importer &im, int ai, const char *what, int type, bool allow_norm,
+// Which component types an attribute may have, as floats after reading
+// (read_comp: a normalized integer is scaled to [0, 1] or [-1, 1], another
+// converted as it is).
+enum comp_kinds {
+    COMP_FLOAT, // FLOAT only
+    COMP_UNORM, // FLOAT, normalized u8/u16 (core TEXCOORD_n, COLOR_n, 3.7.2.1)
+    COMP_SNORM, // FLOAT, normalized i8/i16, and normalized u8/u16 where core allows them
+    COMP_INT16, // FLOAT, i8/u8/i16/u16, normalized or not
+};
+
+// Whether component type ct (normalized or not) is one that kinds allows.
+// KHR_mesh_quantization ("Extending Mesh Attributes") widens the core
+// attributes: POSITION and TEXCOORD_n to every 8- and 16-bit type,
+// normalized or not (COMP_INT16); NORMAL and TANGENT to normalized i8/i16
+// (COMP_SNORM); morph target deltas likewise. u32 is never a vertex
+// attribute's type.
+bool comp_allowed(int ct, bool normalized, comp_kinds kinds)
+{
+    bool signed8_16 = ct == TINYGLTF_COMPONENT_TYPE_BYTE || ct == TINYGLTF_COMPONENT_TYPE_SHORT;
+    bool unsigned8_16 =
+        ct == TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE || ct == TINYGLTF_COMPONENT_TYPE_UNSIGNED_SHORT;
+    if (ct == TINYGLTF_COMPONENT_TYPE_FLOAT)
+        return true;
+    switch (kinds) {
+    case COMP_FLOAT:
+        return false;
+    case COMP_UNORM:
+        return unsigned8_16 && normalized;
+    case COMP_SNORM:
+        return (signed8_16 || unsigned8_16) && normalized;
+    case COMP_INT16:
+        return signed8_16 || unsigned8_16;
+    }
+    return false;
+}
+
+// Reads a float attribute whose component types kinds allows.
+void read_floats(importer &im, int ai, const char *what, int type, comp_kinds kinds,
                  std::vector<float> &out)
 {
     view_span s = accessor_span(im, ai, what, type, PT_SCENE_MAX_TRIANGLES * 3ull);
     int nc = type_comps(type);
-    bool ok = s.ctype == TINYGLTF_COMPONENT_TYPE_FLOAT ||
-              (allow_norm && s.normalized &&
-               (s.ctype == TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE ||
-                s.ctype == TINYGLTF_COMPONENT_TYPE_UNSIGNED_SHORT));
-    if (!ok)
-        im.fail(PT_ERR_FORMAT, "accessor %d (%s): component type %d is not supported", ai, what,
-                s.ctype);
+    if (!comp_allowed(s.ctype, s.normalized, kinds))
+        im.fail(PT_ERR_FORMAT, "accessor %d (%s): component type %d%s is not supported", ai, what,
+                s.ctype, s.normalized ? " (normalized)" : "");
     out.assign(size_t(s.count) * size_t(nc), 0.0f);
     if (!s.data)
         return;
@@ -955,6 +1079,7 @@ bool ext_supported(const std::string &name)
         "KHR_materials_transmission",      // add_transmission
         "KHR_materials_variants",          // choose_variant
         "KHR_materials_volume",            // add_transmission
+        "KHR_mesh_quantization",           // comp_allowed
         "KHR_texture_transform",           // slot_transform
         "KHR_xmp",                         // metadata: nothing to render
         "KHR_xmp_json_ld",                 // metadata: nothing to render
@@ -1164,12 +1289,12 @@ void add_primitive(importer &im, int mesh, int pi, const mat4 &world)
     char w2[160];
     std::vector<float> pos, nrm, uv;
     snprintf(w2, sizeof w2, "POSITION of %s", what);
-    read_floats(im, pos_it->second, w2, TINYGLTF_TYPE_VEC3, false, pos);
+    read_floats(im, pos_it->second, w2, TINYGLTF_TYPE_VEC3, COMP_INT16, pos);
     uint64_t nv = pos.size() / 3;
     auto n_it = p.attributes.find("NORMAL");
     if (n_it != p.attributes.end()) {
         snprintf(w2, sizeof w2, "NORMAL of %s", what);
-        read_floats(im, n_it->second, w2, TINYGLTF_TYPE_VEC3, false, nrm);
+        read_floats(im, n_it->second, w2, TINYGLTF_TYPE_VEC3, COMP_SNORM, nrm);
         if (nrm.size() / 3 != nv)
             im.fail(PT_ERR_FORMAT, "accessor %d (%s): %zu normals for %llu positions", n_it->second,
                     w2, nrm.size() / 3, (unsigned long long)nv);
@@ -1177,7 +1302,7 @@ void add_primitive(importer &im, int mesh, int pi, const mat4 &world)
     auto t_it = p.attributes.find("TEXCOORD_0");
     if (t_it != p.attributes.end()) {
         snprintf(w2, sizeof w2, "TEXCOORD_0 of %s", what);
-        read_floats(im, t_it->second, w2, TINYGLTF_TYPE_VEC2, true, uv);
+        read_floats(im, t_it->second, w2, TINYGLTF_TYPE_VEC2, COMP_INT16, uv);
         if (uv.size() / 2 != nv)
             im.fail(PT_ERR_FORMAT, "accessor %d (%s): %zu texcoords for %llu positions",
                     t_it->second, w2, uv.size() / 2, (unsigned long long)nv);
@@ -1188,7 +1313,7 @@ void add_primitive(importer &im, int mesh, int pi, const mat4 &world)
     auto u1_it = p.attributes.find("TEXCOORD_1");
     if (u1_it != p.attributes.end()) {
         snprintf(w2, sizeof w2, "TEXCOORD_1 of %s", what);
-        read_floats(im, u1_it->second, w2, TINYGLTF_TYPE_VEC2, true, uv1);
+        read_floats(im, u1_it->second, w2, TINYGLTF_TYPE_VEC2, COMP_INT16, uv1);
         if (uv1.size() / 2 != nv)
             im.fail(PT_ERR_FORMAT, "accessor %d (%s): %zu texcoords for %llu positions",
                     u1_it->second, w2, uv1.size() / 2, (unsigned long long)nv);
@@ -1196,7 +1321,7 @@ void add_primitive(importer &im, int mesh, int pi, const mat4 &world)
     auto tg_it = p.attributes.find("TANGENT");
     if (tg_it != p.attributes.end()) {
         snprintf(w2, sizeof w2, "TANGENT of %s", what);
-        read_floats(im, tg_it->second, w2, TINYGLTF_TYPE_VEC4, false, tan);
+        read_floats(im, tg_it->second, w2, TINYGLTF_TYPE_VEC4, COMP_SNORM, tan);
         if (tan.size() / 4 != nv)
             im.fail(PT_ERR_FORMAT, "accessor %d (%s): %zu tangents for %llu positions",
                     tg_it->second, w2, tan.size() / 4, (unsigned long long)nv);
@@ -1211,7 +1336,7 @@ void add_primitive(importer &im, int mesh, int pi, const mat4 &world)
         bool vec3 = ai >= 0 && size_t(ai) < im.model.accessors.size() &&
                     im.model.accessors[size_t(ai)].type == TINYGLTF_TYPE_VEC3;
         std::vector<float> raw;
-        read_floats(im, ai, w2, vec3 ? TINYGLTF_TYPE_VEC3 : TINYGLTF_TYPE_VEC4, true, raw);
+        read_floats(im, ai, w2, vec3 ? TINYGLTF_TYPE_VEC3 : TINYGLTF_TYPE_VEC4, COMP_UNORM, raw);
         int nc = vec3 ? 3 : 4;
         if (raw.size() / size_t(nc) != nv)
             im.fail(PT_ERR_FORMAT, "accessor %d (%s): %zu colours for %llu positions", ai, w2,
@@ -1391,16 +1516,15 @@ void add_light(importer &im, int ni, const tinygltf::Value &ext, const mat4 &w)
 
 // ---- the animation rig (anim.h), read only for pt_anim_load -------------------------
 
-// An accessor of `type` as floats: FLOAT, or (norm_ok) a normalized integer
-// type (glTF 3.11: rotations and weights may be; morph deltas 3.7.2.2).
-void rig_floats(importer &im, int ai, const char *what, int type, bool norm_ok, uint64_t max_count,
-                std::vector<float> &out)
+// An accessor of `type` as floats, of a component type kinds allows
+// (glTF 3.11: rotations and weights may be normalized integers; morph
+// deltas 3.7.2.2, and KHR_mesh_quantization's).
+void rig_floats(importer &im, int ai, const char *what, int type, comp_kinds kinds,
+                uint64_t max_count, std::vector<float> &out)
 {
     view_span s = accessor_span(im, ai, what, type, max_count);
     int nc = type_comps(type);
-    bool ok = s.ctype == TINYGLTF_COMPONENT_TYPE_FLOAT ||
-              (norm_ok && s.normalized && s.ctype != TINYGLTF_COMPONENT_TYPE_UNSIGNED_INT);
-    if (!ok)
+    if (!comp_allowed(s.ctype, s.normalized, kinds))
         im.fail(PT_ERR_FORMAT, "accessor %d (%s): component type %d is not supported", ai, what,
                 s.ctype);
     out.assign(size_t(s.count) * size_t(nc), 0.0f);
@@ -1447,7 +1571,7 @@ void rig_skin_attrs(importer &im, const tinygltf::Primitive &p, const char *what
         std::vector<float> wt;
         char w3[200];
         snprintf(w3, sizeof w3, "%s of %s", wn.c_str(), what);
-        rig_floats(im, w_it->second, w3, TINYGLTF_TYPE_VEC4, true, rp.nv, wt);
+        rig_floats(im, w_it->second, w3, TINYGLTF_TYPE_VEC4, COMP_UNORM, rp.nv, wt);
         if (wt.size() / 4 != rp.nv)
             im.fail(PT_ERR_FORMAT, "accessor %d (%s): %zu weights for %u positions", w_it->second,
                     w3, wt.size() / 4, rp.nv);
@@ -1493,16 +1617,16 @@ void rig_add_primitive(importer &im, int ni, int mesh, int pi, const uint32_t be
     rp.nt = after[1] - before[1];
     char w2[160];
     snprintf(w2, sizeof w2, "POSITION of %s", what);
-    read_floats(im, p.attributes.at("POSITION"), w2, TINYGLTF_TYPE_VEC3, false, rp.pos);
+    read_floats(im, p.attributes.at("POSITION"), w2, TINYGLTF_TYPE_VEC3, COMP_INT16, rp.pos);
     auto n_it = p.attributes.find("NORMAL");
     if (n_it != p.attributes.end()) {
         snprintf(w2, sizeof w2, "NORMAL of %s", what);
-        read_floats(im, n_it->second, w2, TINYGLTF_TYPE_VEC3, false, rp.nrm);
+        read_floats(im, n_it->second, w2, TINYGLTF_TYPE_VEC3, COMP_SNORM, rp.nrm);
     }
     auto tg_it = p.attributes.find("TANGENT");
     if (tg_it != p.attributes.end()) {
         snprintf(w2, sizeof w2, "TANGENT of %s", what);
-        read_floats(im, tg_it->second, w2, TINYGLTF_TYPE_VEC4, false, rp.tan);
+        read_floats(im, tg_it->second, w2, TINYGLTF_TYPE_VEC4, COMP_SNORM, rp.tan);
         for (size_t i = 3; i < rp.tan.size(); i += 4)
             rp.tan[i] = rp.tan[i] < 0.0f ? -1.0f : 1.0f;
     }
@@ -1523,7 +1647,8 @@ void rig_add_primitive(importer &im, int ni, int mesh, int pi, const uint32_t be
             if (it == p.targets[k].end())
                 continue;
             snprintf(w2, sizeof w2, "morph target %zu %s of %s", k, names[a], what);
-            rig_floats(im, it->second, w2, TINYGLTF_TYPE_VEC3, true, rp.nv, *dst[a]);
+            rig_floats(im, it->second, w2, TINYGLTF_TYPE_VEC3, a == 0 ? COMP_INT16 : COMP_SNORM,
+                       rp.nv, *dst[a]);
             if (dst[a]->size() / 3 != rp.nv)
                 im.fail(PT_ERR_FORMAT, "accessor %d (%s): %zu deltas for %u positions", it->second,
                         w2, dst[a]->size() / 3, rp.nv);
@@ -1664,7 +1789,7 @@ void rig_skins(importer &im)
             char what[80];
             snprintf(what, sizeof what, "inverseBindMatrices of skin %zu", s);
             std::vector<float> f;
-            rig_floats(im, sk.inverseBindMatrices, what, TINYGLTF_TYPE_MAT4, false,
+            rig_floats(im, sk.inverseBindMatrices, what, TINYGLTF_TYPE_MAT4, COMP_FLOAT,
                        PT_ANIM_MAX_JOINTS, f);
             if (f.size() / 16 != sk.joints.size())
                 im.fail(PT_ERR_FORMAT, "skin %zu: %zu inverse bind matrices for %zu joints", s,
@@ -1784,14 +1909,16 @@ void rig_animations(importer &im)
                         shown(sm.interpolation).c_str());
             char what[240];
             snprintf(what, sizeof what, "input of %s", sctx);
-            rig_floats(im, sm.input, what, TINYGLTF_TYPE_SCALAR, false, PT_ANIM_MAX_KEYS, rs.in);
+            rig_floats(im, sm.input, what, TINYGLTF_TYPE_SCALAR, COMP_FLOAT, PT_ANIM_MAX_KEYS,
+                       rs.in);
             for (size_t k = 1; k < rs.in.size(); k++)
                 if (!(rs.in[k] > rs.in[k - 1]))
                     im.fail(PT_ERR_FORMAT,
                             "%s: input times are not increasing at key %zu (%g after %g)", sctx, k,
                             double(rs.in[k]), double(rs.in[k - 1]));
             snprintf(what, sizeof what, "output of %s", sctx);
-            rig_floats(im, sm.output, what, type, path == pt_rig::PATH_R || path == pt_rig::PATH_W,
+            rig_floats(im, sm.output, what, type,
+                       path == pt_rig::PATH_R || path == pt_rig::PATH_W ? COMP_SNORM : COMP_FLOAT,
                        uint64_t(PT_ANIM_MAX_KEYS) * 3 * PT_ANIM_MAX_TARGETS, rs.out);
             size_t per = size_t(comps) * (rs.interp == pt_rig::INTERP_CUBIC ? 3 : 1);
             if (rs.out.size() != rs.in.size() * per)

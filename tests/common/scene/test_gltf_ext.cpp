@@ -3,6 +3,11 @@
 // time and on the shared sample assets:
 // - extensionsRequired naming an extension the importer does not support is
 //   refused, naming it; one only in extensionsUsed is warned about once;
+// - KHR_mesh_quantization: every 8- and 16-bit type, normalized or not, for
+//   POSITION, NORMAL and TEXCOORD_0, dequantized as the spec says;
+// - sparse accessors (glTF 2.0, 3.6.2.3) with and without a base view, on
+//   SimpleSparseAccessor, and hostile ones (indices out of range or out of
+//   order, counts that lie);
 // The test reads the shared files with tinygltf itself (its implementation is
 // the one compiled into ptcore).
 #define TINYGLTF_NO_STB_IMAGE_WRITE
@@ -26,6 +31,31 @@ namespace
 {
 
 using pt_test::gltf;
+
+std::string shared(const char *rel)
+{
+    return std::string(PT_SHARED_SCENES) + "/" + rel;
+}
+
+bool exists(const std::string &p)
+{
+    FILE *f = fopen(p.c_str(), "rb");
+    if (f)
+        fclose(f);
+    return f != nullptr;
+}
+
+// Whether the shared asset is there; a CHECK failure when it must be.
+bool have_shared(const std::string &p)
+{
+    if (exists(p))
+        return true;
+    if (check_shared_required())
+        CHECKF(0, "%s is missing", p.c_str());
+    else
+        CHECK_SKIP("%s is missing", p.c_str());
+    return false;
+}
 
 std::string write_tmp(const std::string &text, const char *name)
 {
@@ -156,10 +186,236 @@ void test_extensions()
     }
 }
 
+// ---- KHR_mesh_quantization ----------------------------------------------------------
+
+// The spec's dequantization (glTF 2.0, 3.11 "Animations", the table of
+// normalized integers, which KHR_mesh_quantization uses): f = max(c / 127,
+// -1) for i8, c / 255 for u8, max(c / 32767, -1) for i16, c / 65535 for u16.
+double dequant(int ctype, int c, bool normalized)
+{
+    if (!normalized)
+        return double(c);
+    switch (ctype) {
+    case 5120:
+        return std::fmax(c / 127.0, -1.0);
+    case 5121:
+        return c / 255.0;
+    case 5122:
+        return std::fmax(c / 32767.0, -1.0);
+    default:
+        return c / 65535.0;
+    }
+}
+
+// Three VEC3 elements (padded to 4-byte elements as the spec's alignment
+// asks) of component type ctype from raw integers.
+std::vector<unsigned char> packed3(int ctype, const int v[9])
+{
+    int cs = ctype == 5120 || ctype == 5121 ? 1 : 2;
+    size_t stride = cs == 1 ? 4 : 8;
+    std::vector<unsigned char> out(3 * stride, 0);
+    for (int e = 0; e < 3; e++)
+        for (int c = 0; c < 3; c++) {
+            unsigned char *p = &out[size_t(e) * stride + size_t(c * cs)];
+            uint16_t u = uint16_t(v[3 * e + c]);
+            p[0] = uint8_t(u & 0xff);
+            if (cs == 2)
+                p[1] = uint8_t(u >> 8);
+        }
+    return out;
+}
+
+void test_quantization()
+{
+    const int types[4] = {5120, 5121, 5122, 5123};
+    const int big[4] = {-128, 255, -32768, 65535}; // the extremes; i8/i16 clamp to -1
+    for (int t = 0; t < 4; t++)
+        for (int norm = 0; norm < 2; norm++) {
+            int ct = types[t], c = big[t];
+            int raw[9] = {0, 0, 0, c, 0, 0, 0, c == -128 || c == -32768 ? 1 : 3, 0};
+            gltf g;
+            std::vector<unsigned char> pb = packed3(ct, raw);
+            int view = g.view(pb.data(), pb.size(), ct == 5120 || ct == 5121 ? 4 : 8);
+            char acc[200];
+            snprintf(acc, sizeof acc,
+                     "{\"bufferView\":%d,\"byteOffset\":0,\"componentType\":%d,\"count\":3,"
+                     "\"type\":\"VEC3\"%s}",
+                     view, ct, norm ? ",\"normalized\":true" : "");
+            int pa = g.accessor(acc);
+            // Normals +Z as normalized i8 (127), texcoords as i16.
+            int8_t n8[12] = {0, 0, 127, 0, 0, 0, 127, 0, 0, 0, 127, 0};
+            int na = g.add(n8, sizeof n8, 5120, "VEC3", 3, true, 4);
+            int16_t uv[6] = {0, 0, 2, 0, 0, -3};
+            int ua = g.add(uv, sizeof uv, 5122, "VEC2", 3);
+            char m[600];
+            snprintf(m, sizeof m,
+                     "\"nodes\":[{\"mesh\":0}],\"meshes\":[{\"primitives\":[{\"attributes\":{"
+                     "\"POSITION\":%d,\"NORMAL\":%d,\"TEXCOORD_0\":%d}}]}],"
+                     "\"extensionsUsed\":[\"KHR_mesh_quantization\"],"
+                     "\"extensionsRequired\":[\"KHR_mesh_quantization\"]",
+                     pa, na, ua);
+            std::string text = g.json(m);
+            std::string p = write_tmp(text, "quant");
+            loaded l;
+            load(p, l);
+            CHECKF(l.st == PT_OK, "type %d normalized %d: %s", ct, norm, l.err.msg);
+            if (!l.s)
+                continue;
+            CHECK(l.nwarn == 0);
+            for (int v = 0; v < 3; v++)
+                for (int r = 0; r < 3; r++) {
+                    double want = dequant(ct, raw[3 * v + r], norm != 0);
+                    CHECKF(std::fabs(l.pos(size_t(v), r) - want) < 1e-6 * (1 + std::fabs(want)),
+                           "type %d normalized %d vertex %d axis %d: %g, want %g", ct, norm, v, r,
+                           l.pos(size_t(v), r), want);
+                }
+            CHECK(l.s->normals[2] == 1.0f);
+            CHECK(l.s->uvs && l.s->uvs[2] == 2.0f && l.s->uvs[5] == -3.0f);
+            unlink(p.c_str());
+        }
+    // What stays refused: u32 positions, unnormalized integer normals.
+    {
+        gltf g;
+        uint32_t p32[9] = {0, 0, 0, 1, 0, 0, 0, 1, 0};
+        int pa = g.add(p32, sizeof p32, 5125, "VEC3", 3);
+        char m[200];
+        snprintf(m, sizeof m,
+                 "\"nodes\":[{\"mesh\":0}],\"meshes\":[{\"primitives\":[{\"attributes\":{"
+                 "\"POSITION\":%d}}]}]",
+                 pa);
+        expect_fail(g.json(m), "quant_u32", PT_ERR_FORMAT, "component type 5125 is not supported");
+    }
+    {
+        gltf g;
+        g.floats(k_tri, "VEC3", 3);
+        int8_t n8[12] = {0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0};
+        int na = g.add(n8, sizeof n8, 5120, "VEC3", 3, false, 4);
+        char m[200];
+        snprintf(m, sizeof m,
+                 "\"nodes\":[{\"mesh\":0}],\"meshes\":[{\"primitives\":[{\"attributes\":{"
+                 "\"POSITION\":0,\"NORMAL\":%d}}]}]",
+                 na);
+        expect_fail(g.json(m), "quant_nrm", PT_ERR_FORMAT, "component type 5120 is not supported");
+    }
+}
+
+// ---- sparse accessors -----------------------------------------------------------------
+
+// A triangle whose POSITION (accessor 1) is sparse: `base` false means no
+// buffer view (zeros); indices of component type ictype from `idx`, values
+// (count of them) from `val`; `count` is the sparse count the file claims.
+std::string sparse_file(bool base, int ictype, const std::vector<uint32_t> &idx,
+                        const std::vector<float> &val, int count)
+{
+    gltf g;
+    uint16_t tri[3] = {0, 1, 2};
+    g.add(tri, sizeof tri, 5123, "SCALAR", 3);
+    int bv = g.view(k_tri.data(), k_tri.size() * 4);
+    std::vector<unsigned char> ib;
+    for (uint32_t i : idx) {
+        int is = ictype == 5121 ? 1 : ictype == 5123 ? 2 : 4;
+        for (int k = 0; k < is; k++)
+            ib.push_back(uint8_t(i >> (8 * k)));
+    }
+    if (ib.empty())
+        ib.push_back(0);
+    int iv = g.view(ib.data(), ib.size());
+    int vv = g.view(val.data(), val.size() * 4);
+    char acc[400];
+    snprintf(acc, sizeof acc,
+             "{%s\"componentType\":5126,\"count\":3,\"type\":\"VEC3\",\"sparse\":{\"count\":%d,"
+             "\"indices\":{\"bufferView\":%d,\"componentType\":%d},\"values\":{\"bufferView\":%"
+             "d}}}",
+             base ? ("\"bufferView\":" + std::to_string(bv) + ",").c_str() : "", count, iv, ictype,
+             vv);
+    g.accessor(acc);
+    return g.json("\"nodes\":[{\"mesh\":0}],\"meshes\":[{\"primitives\":[{\"attributes\":{"
+                  "\"POSITION\":1},\"indices\":0}]}]");
+}
+
+void check_positions(const std::string &text, const char *name, const std::vector<float> &want)
+{
+    std::string p = write_tmp(text, name);
+    loaded l;
+    load(p, l);
+    CHECKF(l.st == PT_OK, "%s: %s", name, l.err.msg);
+    if (l.s && l.s->num_vertices == want.size() / 3)
+        for (size_t v = 0; v < want.size() / 3; v++)
+            for (int r = 0; r < 3; r++)
+                CHECKF(l.pos(v, r) == double(want[3 * v + size_t(r)]),
+                       "%s: vertex %zu axis %d: %g, want %g", name, v, r, l.pos(v, r),
+                       double(want[3 * v + size_t(r)]));
+    else
+        CHECKF(0, "%s: not loaded with 3 vertices", name);
+    unlink(p.c_str());
+}
+
+void test_sparse()
+{
+    // Over the base: vertex 1 moved to (5, 0, 2).
+    check_positions(sparse_file(true, 5123, {1}, {5, 0, 2}, 1), "sparse_base",
+                    {0, 0, 0, 5, 0, 2, 0, 1, 0});
+    // No base: zeros, then vertices 0 and 2 set (u8 and u32 indices).
+    check_positions(sparse_file(false, 5121, {0, 2}, {1, 1, 1, 0, 3, 0}, 2), "sparse_zeros8",
+                    {1, 1, 1, 0, 0, 0, 0, 3, 0});
+    check_positions(sparse_file(false, 5125, {0, 2}, {1, 1, 1, 0, 3, 0}, 2), "sparse_zeros32",
+                    {1, 1, 1, 0, 0, 0, 0, 3, 0});
+    // Hostile: an index past the count, indices out of order or repeated, a
+    // count over the accessor's, a count the views cannot hold, indices of
+    // a float type.
+    expect_fail(sparse_file(true, 5123, {3}, {5, 0, 2}, 1), "sparse_range", PT_ERR_FORMAT,
+                "sparse index 3 at 0 is out of range (count 3)");
+    expect_fail(sparse_file(true, 5123, {2, 1}, {0, 0, 0, 0, 0, 0}, 2), "sparse_order",
+                PT_ERR_FORMAT, "sparse indices do not strictly increase (1 after 2)");
+    expect_fail(sparse_file(true, 5123, {1, 1}, {0, 0, 0, 0, 0, 0}, 2), "sparse_repeat",
+                PT_ERR_FORMAT, "sparse indices do not strictly increase (1 after 1)");
+    expect_fail(sparse_file(true, 5123, {0, 1, 2}, {0, 0, 0, 0, 0, 0, 0, 0, 0}, 4), "sparse_over",
+                PT_ERR_FORMAT, "sparse count 4 is not in [1, 3]");
+    expect_fail(sparse_file(true, 5123, {0}, {0, 0, 0}, 2), "sparse_lie", PT_ERR_FORMAT,
+                "run past the end of bufferView");
+    expect_fail(sparse_file(true, 5126, {0}, {0, 0, 0}, 1), "sparse_ftype", PT_ERR_FORMAT,
+                "is not u8/u16/u32");
+    expect_fail(sparse_file(true, 5123, {}, {}, 0), "sparse_zero", PT_ERR_FORMAT,
+                "sparse count 0 is not in [1, 3]");
+
+    // SimpleSparseAccessor: its 14 positions computed here from the .bin
+    // (base view 1, indices u16 at byte 240, values at 248), in order.
+    std::string path = shared("SimpleSparseAccessor/SimpleSparseAccessor.gltf");
+    if (!have_shared(path))
+        return;
+    std::vector<unsigned char> bin(284);
+    FILE *f = fopen(shared("SimpleSparseAccessor/SimpleSparseAccessor.bin").c_str(), "rb");
+    CHECK(f && fread(bin.data(), 1, bin.size(), f) == bin.size());
+    if (f)
+        fclose(f);
+    std::vector<float> want(42);
+    memcpy(want.data(), &bin[72], 168);
+    for (int k = 0; k < 3; k++) {
+        int at = bin[size_t(240 + 2 * k)] | bin[size_t(241 + 2 * k)] << 8;
+        memcpy(&want[size_t(3 * at)], &bin[size_t(248 + 12 * k)], 12);
+    }
+    loaded l;
+    load(path, l);
+    CHECKF(l.st == PT_OK && l.nwarn == 0, "%s %s", l.err.msg, l.warnings.c_str());
+    if (!l.s)
+        return;
+    CHECK(l.s->num_vertices == 14 && l.s->num_triangles == 12);
+    int bad = 0;
+    for (size_t v = 0; v < 14 && v < l.s->num_vertices; v++)
+        for (int r = 0; r < 3; r++)
+            bad += l.pos(v, r) != double(want[3 * v + size_t(r)]);
+    CHECKF(bad == 0, "%d coordinates differ from the sparse substitution", bad);
+    // The accessor's max (6, 4, 0) holds the displaced vertices.
+    CHECKF(l.s->bounds_max.y + l.s->origin[1] == 4.0, "max y %g",
+           double(l.s->bounds_max.y + l.s->origin[1]));
+}
+
 } // namespace
 
 int main(void)
 {
     test_extensions();
+    test_quantization();
+    test_sparse();
     return check_report();
 }
