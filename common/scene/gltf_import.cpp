@@ -118,6 +118,7 @@ struct importer {
     bool headers_only = false; // read_materials: images' headers only, nothing built
     int dirfd = -1;            // the entry file's folder, opened on first use
     pt_anim *rig = nullptr;    // pt_anim_load: the rig being read (anim.h); else nullptr
+    bool still = false;        // the rig poses a still: no animation, time 0 (load_still)
     pt_status fs_st = PT_OK;   // the first failure of a read tinygltf asked for
     std::string fs_msg;        // and its message (names the URI only)
 
@@ -1273,8 +1274,6 @@ void add_primitive(importer &im, int mesh, int pi, const mat4 &world)
                                                         " (points or lines) is not rendered");
         return;
     }
-    if (!p.targets.empty() && !im.rig)
-        im.warn_once("morph", std::string(what) + ": morph targets are ignored");
     for (const auto &a : p.attributes)
         if (a.first != "POSITION" && a.first != "NORMAL" && a.first != "TEXCOORD_0" &&
             a.first != "TANGENT" && a.first.compare(0, 9, "TEXCOORD_") != 0 &&
@@ -1955,12 +1954,35 @@ bool rig_static(const tinygltf::Model &m)
     return true;
 }
 
+// Whether a still looks as it would without a rig: no skins, and every
+// morph target at weight 0 by default (node.weights, else mesh.weights).
+// Such a still builds none and costs what it always has.
+bool still_static(const tinygltf::Model &m)
+{
+    if (!m.skins.empty())
+        return false;
+    auto zero = [](const std::vector<double> &w) {
+        for (double x : w)
+            if (x != 0.0)
+                return false;
+        return true;
+    };
+    for (const auto &mesh : m.meshes)
+        if (!zero(mesh.weights))
+            return false;
+    for (const auto &n : m.nodes)
+        if (!zero(n.weights))
+            return false;
+    return true;
+}
+
 // After the scene's nodes were visited: the rest of the rig.
 void rig_finish(importer &im)
 {
     rig_nodes(im);
     rig_skins(im);
-    rig_animations(im);
+    if (!im.still)
+        rig_animations(im);
     // What a pose must compute: instances under a node whose TRS a chosen
     // channel animates (or under such an ancestor), skinned or morphed ones,
     // and cameras and lights under animated nodes. The rest keep the load's
@@ -2001,8 +2023,6 @@ void visit(importer &im, int ni, const mat4 &parent, int depth, std::vector<char
     on_path[size_t(ni)] = 1;
     const tinygltf::Node &n = m.nodes[size_t(ni)];
     mat4 w = mat_mul(parent, local_matrix(im, n, ni));
-    if (n.skin >= 0 && !im.rig)
-        im.warn_once("skin", "node " + std::to_string(ni) + ": skins are ignored");
     // With a rig, the builder's counts around each addition map it to the
     // scene's ranges (anim_rig.hpp).
     uint32_t before[4], after[4];
@@ -2297,22 +2317,22 @@ void import(importer &im)
     parse(im, bytes);
     tinygltf::Model &m = im.model;
     hash_files(im, bytes);
-    if (!m.skins.empty() && !im.rig)
-        im.warn_once("skin", "skins are ignored");
     check_extensions(im);
     choose_variant(im);
+    // A file with nothing to animate (no animations, skins or morph
+    // targets), and a still that needs no pose (still_static), get no rig:
+    // the load reads and costs what a still's always has, and gives the same
+    // bits.
+    pt_anim *rig = im.rig;
+    if (rig && (rig_static(m) || (im.still && still_static(m)))) {
+        if (!im.still)
+            rig_choose(im); // an animation named in a file without any is still an error
+        im.rig = nullptr;
+    }
     int dsi = m.defaultScene >= 0 ? m.defaultScene : 0;
     if (size_t(dsi) < m.scenes.size()) // else refused below
         check_triangles(im, dsi);
     add_materials(im);
-    // A file with nothing to animate (no animations, skins or morph targets)
-    // gets an empty rig: its poses are the still, so the load reads and
-    // costs what a still's does and gives the same bits.
-    pt_anim *rig = im.rig;
-    if (rig && rig_static(m)) {
-        rig_choose(im); // an animation named in a file without any is still an error
-        im.rig = nullptr;
-    }
     std::vector<char> on_path(m.nodes.size(), 0);
     if (!m.scenes.empty()) {
         int si = m.defaultScene >= 0 ? m.defaultScene : 0;
@@ -2331,22 +2351,26 @@ void import(importer &im)
 } // namespace
 
 // pt_scene_load, and with rig_out pt_anim_load: the rig is read along the
-// way, and the built scene is then posed at opts->time.
+// way, and the built scene is then posed at opts->time. A still (rig_out
+// nullptr, not animate) is posed too when the file has skins or morph
+// targets, as viewers show it: no animation, so every node at its own TRS
+// (the skin at the pose its nodes give, normally its bind pose) and every
+// morphed mesh at its default weights (node.weights, else mesh.weights,
+// else 0); the rig is then dropped. A file with neither never builds one.
 static pt_status load(const char *path, const pt_scene_opts *opts, pt_scene **out,
                       pt_anim **rig_out, pt_error *err)
 {
     if (!path || !out)
         return pt_error_set(err, PT_ERR_ARG, "pt_scene_load: no path");
     pt_anim *rig = nullptr;
-    if (rig_out) {
-        double t = opts ? opts->time : 0.0;
-        if (!(t >= 0.0) || !std::isfinite(t))
-            return pt_error_set(err, PT_ERR_ARG, "%s: animation time %g is negative or not finite",
-                                path, t);
-        rig = new (std::nothrow) pt_anim;
-        if (!rig)
-            return pt_error_set(err, PT_ERR_NOMEM, "%s: out of memory", path);
-    }
+    bool still = !rig_out;
+    double t = still || !opts ? 0.0 : opts->time;
+    if (!(t >= 0.0) || !std::isfinite(t))
+        return pt_error_set(err, PT_ERR_ARG, "%s: animation time %g is negative or not finite",
+                            path, t);
+    rig = new (std::nothrow) pt_anim;
+    if (!rig)
+        return pt_error_set(err, PT_ERR_NOMEM, "%s: out of memory", path);
     pt_scene_builder *b = nullptr;
     pt_status st = pt_scene_builder_new(&b, err);
     if (st != PT_OK) {
@@ -2360,6 +2384,7 @@ static pt_status load(const char *path, const pt_scene_opts *opts, pt_scene **ou
         im.err = err;
         im.b = b;
         im.rig = rig;
+        im.still = still;
         size_t slash = im.path.rfind('/');
         im.base = slash == std::string::npos ? std::string() : im.path.substr(0, slash + 1);
         import(im);
@@ -2399,13 +2424,16 @@ static pt_status load(const char *path, const pt_scene_opts *opts, pt_scene **ou
         for (uint32_t i = 0; i < s->num_cameras && rig->camera < 0; i++)
             if (!cam || strcmp(s->cameras[i].name, cam) == 0)
                 rig->camera = int(i);
-        st = rig->moves ? pt_anim_pose(rig, opts ? opts->time : 0.0, s, &e) : PT_OK;
+        st = rig->moves ? pt_anim_pose(rig, t, s, &e) : PT_OK;
         if (st != PT_OK) {
             pt_anim_free(rig);
             pt_scene_free(s);
             return pt_error_set(err, st, "%s: %s", path, e.msg);
         }
-        *rig_out = rig;
+        if (rig_out)
+            *rig_out = rig;
+        else
+            pt_anim_free(rig);
     }
     *out = s;
     return PT_OK;

@@ -20,6 +20,9 @@
 //   negative or NaN time PT_ERR_ARG; an index chooses as the name does.
 // - A file with nothing to animate loads animated as its still, bit for bit,
 //   and so do the static parts of animated ones.
+// - Stills: a skinned mesh's still is its skin posed with no animation
+//   (bit for bit the animated load of a file without animations; the fox's
+//   is its bind pose), and a morphed mesh's is at its default weights.
 // - Morph weights animated (LINEAR) add the weighted target deltas; a
 //   camera and a point light under an animated node follow it; a skin with
 //   JOINTS_1/WEIGHTS_1 blends both sets, ignores the mesh node's transform
@@ -343,15 +346,21 @@ void test_fox_skinning()
             walk = int(a);
     CHECK(walk >= 0);
     const double t = 0.3;
-    std::vector<mat> g = globals(m, walk, t);
     const tinygltf::Skin &sk = m.skins[0];
-    std::vector<mat> jm;
-    for (size_t j = 0; j < sk.joints.size(); j++) {
-        mat ibm(16);
-        for (int e = 0; e < 16; e++)
-            ibm[size_t(e)] = acc_get(m, sk.inverseBindMatrices, j, e);
-        jm.push_back(mul(g[size_t(sk.joints[j])], ibm));
-    }
+    // Joint matrices global(joint) * inverseBind with animation `which` at
+    // t (which past the animations: none, every node at its own TRS).
+    auto joints = [&](int which, double at) {
+        std::vector<mat> g = globals(m, which, at);
+        std::vector<mat> jm;
+        for (size_t j = 0; j < sk.joints.size(); j++) {
+            mat ibm(16);
+            for (int e = 0; e < 16; e++)
+                ibm[size_t(e)] = acc_get(m, sk.inverseBindMatrices, j, e);
+            jm.push_back(mul(g[size_t(sk.joints[j])], ibm));
+        }
+        return jm;
+    };
+    std::vector<mat> jm = joints(walk, t), rest = joints(int(m.animations.size()), 0.0);
     const tinygltf::Primitive &p = m.meshes[0].primitives[0];
     int pa = p.attributes.at("POSITION"), ja = p.attributes.at("JOINTS_0"),
         wa = p.attributes.at("WEIGHTS_0");
@@ -368,25 +377,36 @@ void test_fox_skinning()
         return;
     }
     size_t nv = m.accessors[size_t(pa)].count;
-    CHECK(s->num_vertices == nv);
-    double worst = 0.0, moved = 0.0;
-    for (size_t v = 0; v < nv && v < s->num_vertices; v++) {
+    CHECK(s->num_vertices == nv && s0->num_vertices == nv);
+    // The still is the skin posed with no animation (each joint at its own
+    // TRS, as viewers show it), which for the fox is its bind pose: every
+    // joint matrix the identity, every vertex its POSITION.
+    double worst = 0.0, moved = 0.0, worst_still = 0.0, worst_bind = 0.0;
+    for (size_t v = 0; v < nv && v < s->num_vertices && v < s0->num_vertices; v++) {
         double q[3] = {acc_get(m, pa, v, 0), acc_get(m, pa, v, 1), acc_get(m, pa, v, 2)};
-        double want[3] = {0, 0, 0};
+        double want[3] = {0, 0, 0}, want0[3] = {0, 0, 0};
         for (int i = 0; i < 4; i++) {
             double wi = acc_get(m, wa, v, i);
             const mat &J = jm[size_t(acc_get(m, ja, v, i))];
-            for (int r = 0; r < 3; r++)
+            const mat &J0 = rest[size_t(acc_get(m, ja, v, i))];
+            for (int r = 0; r < 3; r++) {
                 want[r] += wi * (J[size_t(r)] * q[0] + J[size_t(4 + r)] * q[1] +
                                  J[size_t(8 + r)] * q[2] + J[size_t(12 + r)]);
+                want0[r] += wi * (J0[size_t(r)] * q[0] + J0[size_t(4 + r)] * q[1] +
+                                  J0[size_t(8 + r)] * q[2] + J0[size_t(12 + r)]);
+            }
         }
         for (int r = 0; r < 3; r++) {
             double got = s->positions[3 * v + size_t(r)] + s->origin[r];
+            double got0 = s0->positions[3 * v + size_t(r)] + s0->origin[r];
             worst = std::fmax(worst, std::fabs(got - want[r]));
-            moved = std::fmax(moved,
-                              std::fabs(got - (s0->positions[3 * v + size_t(r)] + s0->origin[r])));
+            worst_still = std::fmax(worst_still, std::fabs(got0 - want0[r]));
+            worst_bind = std::fmax(worst_bind, std::fabs(got0 - q[r]));
+            moved = std::fmax(moved, std::fabs(got - got0));
         }
     }
+    CHECKF(worst_still < 1e-3, "the still's skinned vertices are off by up to %g", worst_still);
+    CHECKF(worst_bind < 1e-3, "the still is off the bind pose by up to %g", worst_bind);
     // The fox is ~170 units long: float rounding is under 1e-4 of it.
     CHECKF(worst < 1e-3, "skinned vertices are off by up to %g", worst);
     CHECKF(moved > 1.0, "the walk moves vertices from the still by %g only", moved);
@@ -549,9 +569,11 @@ std::string write_tmp(const std::string &text, const char *name)
     return p;
 }
 
-// The file fails with animate (PT_ERR_FORMAT, message containing `want`)
-// and loads as a still without.
-void hostile(const char *name, const std::string &text, const char *want)
+// The file fails with animate (PT_ERR_FORMAT, message containing `want`).
+// Without animate, a fault in an animation leaves the still as it is (a
+// still reads no animation); one in a skin or in morph weights fails it too,
+// with the same message (a still poses its skins and default weights).
+void hostile(const char *name, const std::string &text, const char *want, bool still_fails)
 {
     std::string p = write_tmp(text, name);
     pt_error err{};
@@ -564,7 +586,13 @@ void hostile(const char *name, const std::string &text, const char *want)
     still.warn = [](void *, const char *) {};
     s = nullptr;
     st = pt_scene_load(p.c_str(), &still, &s, &err);
-    CHECKF(st == PT_OK, "%s as a still: %s", name, err.msg);
+    if (still_fails) {
+        CHECKF(st == PT_ERR_FORMAT && !s, "%s as a still: status %d", name, int(st));
+        CHECKF(strstr(err.msg, want) != nullptr, "%s as a still: '%s' lacks '%s'", name, err.msg,
+               want);
+    } else {
+        CHECKF(st == PT_OK, "%s as a still: %s", name, err.msg);
+    }
     pt_scene_free(s);
     unlink(p.c_str());
 }
@@ -619,15 +647,15 @@ void test_hostile()
         unlink(p.c_str());
     }
     hostile("count", anim_file({0, 1}, {0, 0, 0, 1, 0, 0, 2, 0, 0}, "LINEAR"),
-            "animation 0 ('Move') sampler 0: 9 output numbers for 2 keys");
+            "animation 0 ('Move') sampler 0: 9 output numbers for 2 keys", false);
     hostile("cubic-count", anim_file({0, 1}, {0, 0, 0, 1, 0, 0}, "CUBICSPLINE"),
-            "6 output numbers for 2 keys");
+            "6 output numbers for 2 keys", false);
     hostile("order", anim_file({0, 1, 0.5f}, {0, 0, 0, 1, 0, 0, 2, 0, 0}, "LINEAR"),
-            "input times are not increasing at key 2");
+            "input times are not increasing at key 2", false);
     hostile("nan-time", anim_file({0, NAN}, {0, 0, 0, 1, 0, 0}, "STEP"),
-            "input of animation 0 ('Move') sampler 0): element 1 is not finite");
+            "input of animation 0 ('Move') sampler 0): element 1 is not finite", false);
     hostile("nan-key", anim_file({0, 1}, {0, 0, 0, 1, NAN, 0}, "LINEAR"),
-            "output of animation 0 ('Move') sampler 0): element 1 is not finite");
+            "output of animation 0 ('Move') sampler 0): element 1 is not finite", false);
     // Skins: node 0 is the skinned mesh, joints node 1 (and node 2).
     auto skin_file = [](uint16_t joint, bool cycle) {
         gltf g;
@@ -646,8 +674,9 @@ void test_hostile()
                  nodes, ja, wa);
         return g.json(a);
     };
-    hostile("joint", skin_file(7, false), "vertex 1 names joint 7, but skin 0 has 2 joints");
-    hostile("cycle", skin_file(0, true), "skin 0: joint node 1: the node hierarchy has a cycle");
+    hostile("joint", skin_file(7, false), "vertex 1 names joint 7, but skin 0 has 2 joints", true);
+    hostile("cycle", skin_file(0, true), "skin 0: joint node 1: the node hierarchy has a cycle",
+            true);
     // Morph weights: two targets, one weight.
     {
         gltf g;
@@ -660,7 +689,7 @@ void test_hostile()
                  "\"attributes\":{\"POSITION\":0},\"targets\":[{\"POSITION\":%d},{\"POSITION\":%"
                  "d}]}]}]",
                  d0, d1);
-        hostile("weights", g.json(a), "mesh 0: 1 weights for 2 morph targets");
+        hostile("weights", g.json(a), "mesh 0: 1 weights for 2 morph targets", true);
     }
     // Morph targets that are well-formed: weights animated, LINEAR.
     {
@@ -691,13 +720,19 @@ void test_hostile()
                    "morphed vertex (%g, %g, %g)", double(v[0]), double(v[1]), double(v[2]));
         }
         pt_scene_free(s);
-        // Without animate: the still, targets not applied.
+        // Without animate: the still, at the mesh's default weights (0.25,
+        // 0.5): vertex 1 = (1, 0, 0) + 0.25 z + 0.5 y, as viewers show it.
         pt_scene_opts still{};
         still.warn = [](void *, const char *) {};
         s = nullptr;
         CHECK(pt_scene_load(p.c_str(), &still, &s, &err) == PT_OK);
-        if (s)
-            CHECK(s->positions[3] + s->origin[0] == 1.0f && s->positions[4] + s->origin[1] == 0.0f);
+        if (s) {
+            const float *v = s->positions + 3;
+            CHECKF(std::fabs(v[0] + s->origin[0] - 1.0) < 1e-6 &&
+                       std::fabs(v[1] + s->origin[1] - 0.5) < 1e-6 &&
+                       std::fabs(v[2] + s->origin[2] - 0.25) < 1e-6,
+                   "still vertex (%g, %g, %g)", double(v[0]), double(v[1]), double(v[2]));
+        }
         pt_scene_free(s);
         unlink(p.c_str());
     }
@@ -788,6 +823,15 @@ void test_skin_sets()
                        v, r, double(s->normals[3 * v + r]));
         }
     }
+    // A still poses the skin as that load does (no animation: every joint
+    // at its own TRS), bit for bit: the vertices checked just above, not the
+    // mesh node's (9, 9, 9) translation of the unskinned positions.
+    pt_scene_opts still{};
+    pt_scene *s0 = nullptr;
+    CHECKF(pt_scene_load(p.c_str(), &still, &s0, &err) == PT_OK, "%s", err.msg);
+    if (s && s0)
+        CHECK(same_scene(s, s0));
+    pt_scene_free(s0);
     pt_scene_free(s);
     unlink(p.c_str());
 }
@@ -903,7 +947,8 @@ void test_motion_cap()
 // Morph target deltas are counted with every instance before the rig keeps
 // a copy of them for each: a triangle with 1,024 targets (one accessor of
 // deltas for all) under 15 levels of shared nodes is 2^15 x 3 x 1024
-// deltas, refused for an animated load; a still ignores targets and loads.
+// deltas, refused for an animated load; a still, whose default weights are
+// all 0, needs no rig and loads.
 void test_morph_cap()
 {
     gltf g;

@@ -8,6 +8,8 @@
 // - sparse accessors (glTF 2.0, 3.6.2.3) with and without a base view, on
 //   SimpleSparseAccessor, and hostile ones (indices out of range or out of
 //   order, counts that lie);
+// - morph targets at their default weights in a still: MorphPrimitivesTest
+//   against base + 0.5 x delta computed from the file.
 // The test reads the shared files with tinygltf itself (its implementation is
 // the one compiled into ptcore).
 #define TINYGLTF_NO_STB_IMAGE_WRITE
@@ -410,6 +412,92 @@ void test_sparse()
            double(l.s->bounds_max.y + l.s->origin[1]));
 }
 
+// ---- morph targets at their default weights ------------------------------------------
+
+// Accessor element i, component c, as a double (float; normalized or not
+// 8/16-bit integers).
+double acc_get(const tinygltf::Model &m, int ai, size_t i, int c)
+{
+    const tinygltf::Accessor &a = m.accessors[size_t(ai)];
+    const tinygltf::BufferView &v = m.bufferViews[size_t(a.bufferView)];
+    int cs = tinygltf::GetComponentSizeInBytes(uint32_t(a.componentType));
+    int nc = tinygltf::GetNumComponentsInType(uint32_t(a.type));
+    size_t stride = v.byteStride ? v.byteStride : size_t(cs * nc);
+    const unsigned char *p = m.buffers[size_t(v.buffer)].data.data() + v.byteOffset + a.byteOffset +
+                             i * stride + size_t(c * cs);
+    int raw;
+    switch (a.componentType) {
+    case TINYGLTF_COMPONENT_TYPE_FLOAT: {
+        float f;
+        memcpy(&f, p, 4);
+        return f;
+    }
+    case 5120:
+        raw = int8_t(p[0]);
+        break;
+    case 5121:
+        raw = p[0];
+        break;
+    case 5122:
+        raw = int16_t(uint16_t(p[0] | p[1] << 8));
+        break;
+    default:
+        raw = p[0] | p[1] << 8;
+        break;
+    }
+    return dequant(a.componentType, raw, a.normalized);
+}
+
+void test_morph_default_weights()
+{
+    std::string path = shared("MorphPrimitivesTest/glTF-Binary/MorphPrimitivesTest.glb");
+    if (!have_shared(path))
+        return;
+    tinygltf::Model m;
+    tinygltf::TinyGLTF loader;
+    std::string terr, twarn;
+    CHECK(loader.LoadBinaryFromFile(&m, &terr, &twarn, path));
+    loaded l;
+    load(path, l);
+    CHECKF(l.st == PT_OK, "%s", l.err.msg);
+    CHECKF(l.nwarn == 0, "%s", l.warnings.c_str());
+    if (!l.s || m.nodes.empty())
+        return;
+    // A root node over one mesh node with weights [0.5]; no node has a
+    // matrix or TRS (checked), so a vertex is base + 0.5 x delta.
+    for (const auto &n : m.nodes)
+        CHECK(n.matrix.empty() && n.translation.empty() && n.rotation.empty() && n.scale.empty() &&
+              n.weights.empty());
+    CHECK(m.nodes.size() == 2 && m.nodes[1].mesh == 0 && m.meshes.size() == 1);
+    if (m.meshes.size() != 1)
+        return;
+    const tinygltf::Mesh &mesh = m.meshes[0];
+    CHECK(mesh.weights.size() == 1 && mesh.weights[0] == 0.5);
+    size_t v0 = 0;
+    double worst = 0, moved = 0;
+    for (const auto &p : mesh.primitives) {
+        int pa = p.attributes.at("POSITION");
+        size_t nv = m.accessors[size_t(pa)].count;
+        for (size_t v = 0; v < nv && v0 + v < l.s->num_vertices; v++)
+            for (int r = 0; r < 3; r++) {
+                double want = acc_get(m, pa, v, r);
+                for (size_t k = 0; k < p.targets.size(); k++) {
+                    auto it = p.targets[k].find("POSITION");
+                    if (it != p.targets[k].end()) {
+                        double d = mesh.weights[k] * acc_get(m, it->second, v, r);
+                        want += d;
+                        moved = std::fmax(moved, std::fabs(d));
+                    }
+                }
+                worst = std::fmax(worst, std::fabs(l.pos(v0 + v, r) - want));
+            }
+        v0 += nv;
+    }
+    CHECK(v0 == l.s->num_vertices);
+    CHECKF(worst < 1e-6, "morphed vertices off by %g", worst);
+    CHECKF(moved > 0.1, "the targets move vertices by %g only", moved);
+}
+
 } // namespace
 
 int main(void)
@@ -417,5 +505,6 @@ int main(void)
     test_extensions();
     test_quantization();
     test_sparse();
+    test_morph_default_weights();
     return check_report();
 }
