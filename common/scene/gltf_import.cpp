@@ -50,6 +50,8 @@
 // header (STB_IMAGE_IMPLEMENTATION is deliberately left undefined).
 #include <tiny_gltf.h>
 
+#include <nlohmann/json.hpp>
+
 #include <stb_image.h>
 
 #include <openssl/evp.h>
@@ -81,6 +83,7 @@ extern "C" {
 #include "common/base/hash.h"
 #include "common/base/json.h"
 #include "common/scene/anim.h"
+#include "common/scene/draco.h"
 #include "common/scene/gltf_import.h"
 #include "common/scene/motion.h"
 #include "common/scene/scene.h"
@@ -110,7 +113,9 @@ struct importer {
     std::vector<std::vector<unsigned char>> data_uri_images; // by image index
     std::map<std::string, std::vector<unsigned char>> files; // external files read for the hash
     std::map<std::pair<int, int>, uint32_t> tex_map;         // (gltf texture, srgb) -> builder
-    std::map<int, std::vector<unsigned char>> dense; // accessor -> its elements, made dense once
+    std::map<int, std::vector<unsigned char>> dense;  // accessor -> its elements, made dense once
+    std::map<std::pair<int, int>, int> draco_indices; // (mesh, primitive) -> indices set aside
+    std::set<std::pair<int, int>> draco_done;         // primitives decoded into dense
     uint32_t default_material = UINT32_MAX;
     int variant = -1; // KHR_materials_variants index chosen by opts->variant; -1: none
     uint64_t node_visits = 0;
@@ -1071,6 +1076,7 @@ void add_layers(importer &im, int mi, const tinygltf::Material &g, pt_material &
 bool ext_supported(const std::string &name)
 {
     static const std::set<std::string> supported = {
+        "KHR_draco_mesh_compression",      // draco_primitive
         "KHR_lights_punctual",             // add_light
         "KHR_materials_clearcoat",         // add_layers
         "KHR_materials_emissive_strength", // read_materials
@@ -1261,11 +1267,114 @@ void choose_variant(importer &im)
     im.fail(PT_ERR_ARG, "no variant named '%.64s'; variants: %s", name, list.c_str());
 }
 
+// KHR_draco_mesh_compression: primitive (mesh, pi)'s Draco buffer view
+// decoded once into the dense elements of the accessors it replaces (its
+// indices and the attributes its "attributes" map names), converted to each
+// accessor's component type, so every reader takes them as any accessor.
+// The decoded counts must be the accessors' (a buffer that lies about its
+// counts is refused, naming both), within the same caps as any accessor.
+void draco_primitive(importer &im, int mesh, int pi, const char *what)
+{
+    const tinygltf::Primitive &p = im.model.meshes[size_t(mesh)].primitives[size_t(pi)];
+    auto ext = p.extensions.find("KHR_draco_mesh_compression");
+    if (ext == p.extensions.end() || !im.draco_done.insert({mesh, pi}).second)
+        return;
+    const tinygltf::Value &e = ext->second;
+    if (!e.IsObject() || !e.Get("bufferView").IsNumber() || !e.Get("attributes").IsObject())
+        im.fail(PT_ERR_FORMAT, "%s: KHR_draco_mesh_compression needs bufferView and attributes",
+                what);
+    double bvd = e.Get("bufferView").GetNumberAsDouble();
+    if (!(bvd >= 0.0 && bvd < double(im.model.bufferViews.size())))
+        im.fail(PT_ERR_FORMAT, "%s: KHR_draco_mesh_compression bufferView %g out of range", what,
+                bvd);
+    auto bytes = view_bytes(im, int(bvd), -1, what);
+    const uint64_t cap = PT_SCENE_MAX_TRIANGLES * 3ull;
+    pt_draco_mesh *dm = nullptr;
+    pt_error de{};
+    pt_status st =
+        pt_draco_decode(bytes.first, size_t(bytes.second), cap, PT_SCENE_MAX_TRIANGLES, &dm, &de);
+    if (st != PT_OK)
+        im.fail(st, "%s: KHR_draco_mesh_compression bufferView %d: %s", what, int(bvd), de.msg);
+    std::unique_ptr<pt_draco_mesh, void (*)(pt_draco_mesh *)> guard(dm, pt_draco_free);
+    uint64_t np = pt_draco_points(dm), nf = pt_draco_faces(dm);
+    auto claim = [&](int ai, const char *name) -> const tinygltf::Accessor & {
+        if (ai < 0 || size_t(ai) >= im.model.accessors.size())
+            im.fail(PT_ERR_FORMAT, "%s: %s accessor %d out of range", what, name, ai);
+        if (im.dense.count(ai))
+            im.fail(PT_ERR_FORMAT,
+                    "%s: accessor %d (%s) is decoded twice (shared by Draco "
+                    "primitives or sparse)",
+                    what, ai, name);
+        return im.model.accessors[size_t(ai)];
+    };
+    auto idx_it = im.draco_indices.find({mesh, pi});
+    int ia = idx_it != im.draco_indices.end() ? idx_it->second : p.indices;
+    if (ia >= 0) {
+        const tinygltf::Accessor &a = claim(ia, "indices");
+        if (uint64_t(a.count) != 3 * nf)
+            im.fail(PT_ERR_FORMAT,
+                    "%s: indices accessor %d says %zu indices, the Draco buffer holds %llu "
+                    "triangles (%llu)",
+                    what, ia, a.count, (unsigned long long)nf, (unsigned long long)(3 * nf));
+        int cs = comp_size(a.componentType);
+        if (a.type != TINYGLTF_TYPE_SCALAR ||
+            (cs != 1 && cs != 2 && a.componentType != TINYGLTF_COMPONENT_TYPE_UNSIGNED_INT))
+            im.fail(PT_ERR_FORMAT, "%s: indices accessor %d is not u8/u16/u32", what, ia);
+        std::vector<uint32_t> tri(size_t(3 * nf));
+        pt_draco_indices(dm, tri.data());
+        std::vector<unsigned char> out(tri.size() * size_t(cs));
+        uint64_t max = cs == 1 ? 0xffu : cs == 2 ? 0xffffu : 0xffffffffu;
+        for (size_t i = 0; i < tri.size(); i++) {
+            if (tri[i] > max)
+                im.fail(PT_ERR_FORMAT, "%s: Draco index %u does not fit accessor %d's type", what,
+                        tri[i], ia);
+            for (int k = 0; k < cs; k++)
+                out[i * size_t(cs) + size_t(k)] = uint8_t(tri[i] >> (8 * k));
+        }
+        im.dense.emplace(ia, std::move(out));
+    } else if (nf * 3 != np) {
+        im.fail(PT_ERR_FORMAT,
+                "%s: no indices, but the Draco buffer holds %llu triangles over %llu "
+                "points",
+                what, (unsigned long long)nf, (unsigned long long)np);
+    }
+    const tinygltf::Value &attrs = e.Get("attributes");
+    for (const auto &name : attrs.Keys()) {
+        const tinygltf::Value &id = attrs.Get(name);
+        auto at = p.attributes.find(name);
+        if (at == p.attributes.end())
+            im.fail(PT_ERR_FORMAT,
+                    "%s: KHR_draco_mesh_compression decodes %.40s, which the "
+                    "primitive does not have",
+                    what, shown(name).c_str());
+        if (!id.IsNumber() || !(id.GetNumberAsDouble() >= 0.0) ||
+            id.GetNumberAsDouble() > double(UINT32_MAX))
+            im.fail(PT_ERR_FORMAT, "%s: KHR_draco_mesh_compression attribute %.40s has no id", what,
+                    shown(name).c_str());
+        const tinygltf::Accessor &a = claim(at->second, name.c_str());
+        if (uint64_t(a.count) != np)
+            im.fail(PT_ERR_FORMAT,
+                    "%s: accessor %d (%.40s) says %zu elements, the Draco buffer holds %llu points",
+                    what, at->second, shown(name).c_str(), a.count, (unsigned long long)np);
+        int cs = comp_size(a.componentType), nc = type_comps(a.type);
+        if (cs == 0 || nc == 0 || nc > 4)
+            im.fail(PT_ERR_FORMAT, "%s: accessor %d (%.40s): type %d / component type %d", what,
+                    at->second, shown(name).c_str(), a.type, a.componentType);
+        std::vector<unsigned char> out(size_t(np) * size_t(nc) * size_t(cs));
+        st = pt_draco_attribute(dm, uint32_t(id.GetNumberAsDouble()), a.componentType, nc,
+                                out.data(), &de);
+        if (st != PT_OK)
+            im.fail(st, "%s: %.40s: %s", what, shown(name).c_str(), de.msg);
+        im.dense.emplace(at->second, std::move(out));
+    }
+}
+
 void add_primitive(importer &im, int mesh, int pi, const mat4 &world)
 {
     const tinygltf::Primitive &p = im.model.meshes[size_t(mesh)].primitives[size_t(pi)];
     char what[96];
     snprintf(what, sizeof what, "mesh %d primitive %d", mesh, pi);
+    draco_primitive(im, mesh, pi, what);
     int mode = p.mode < 0 ? TINYGLTF_MODE_TRIANGLES : p.mode;
     if (mode != TINYGLTF_MODE_TRIANGLES && mode != TINYGLTF_MODE_TRIANGLE_STRIP &&
         mode != TINYGLTF_MODE_TRIANGLE_FAN) {
@@ -2230,6 +2339,45 @@ void hash_files(importer &im, const std::vector<unsigned char> &entry)
             im.files.erase(uris[i]);
 }
 
+// tinygltf refuses a primitive whose indices accessor has no buffer view,
+// which is how KHR_draco_mesh_compression primitives come (their indices
+// are in the Draco buffer). Their "indices" are set aside in the JSON given
+// to tinygltf (im.draco_indices) and put back once it has parsed. text is
+// the JSON (a GLB's first chunk); the rewritten document is returned, or ""
+// when nothing was set aside (or the JSON does not parse: tinygltf says why).
+std::string set_aside_draco_indices(importer &im, const char *text, size_t n)
+{
+    static const char key[] = "KHR_draco_mesh_compression";
+    if (std::string(text, n).find(key) == std::string::npos)
+        return std::string();
+    nlohmann::json doc = nlohmann::json::parse(text, text + n, nullptr, false);
+    if (doc.is_discarded() || !doc.is_object() || !doc.contains("meshes") ||
+        !doc["meshes"].is_array())
+        return std::string();
+    bool any = false;
+    auto &meshes = doc["meshes"];
+    for (size_t mi = 0; mi < meshes.size(); mi++) {
+        auto &mesh = meshes[mi];
+        if (!mesh.is_object() || !mesh.contains("primitives") || !mesh["primitives"].is_array())
+            continue;
+        auto &prims = mesh["primitives"];
+        for (size_t pi = 0; pi < prims.size(); pi++) {
+            auto &pr = prims[pi];
+            if (!pr.is_object() || !pr.contains("indices") || !pr["indices"].is_number_integer() ||
+                !pr.contains("extensions") || !pr["extensions"].is_object() ||
+                !pr["extensions"].contains(key))
+                continue;
+            long long ia = pr["indices"].get<long long>();
+            if (ia < 0 || ia > INT32_MAX)
+                continue; // tinygltf refuses it
+            im.draco_indices[{int(mi), int(pi)}] = int(ia);
+            pr.erase("indices");
+            any = true;
+        }
+    }
+    return any ? doc.dump() : std::string();
+}
+
 void parse(importer &im, const std::vector<unsigned char> &bytes)
 {
     tinygltf::TinyGLTF loader;
@@ -2241,6 +2389,8 @@ void parse(importer &im, const std::vector<unsigned char> &bytes)
     bool ok, glb = false;
     if (bytes.empty())
         im.fail(PT_ERR_FORMAT, "file is empty");
+    const std::vector<unsigned char> *src = &bytes; // what tinygltf parses
+    std::vector<unsigned char> rewritten;
     bool glb_name = im.path.size() >= 4 && im.path.compare(im.path.size() - 4, 4, ".glb") == 0;
     glb = (bytes.size() >= 4 && memcmp(bytes.data(), "glTF", 4) == 0) || glb_name;
     if (glb && bytes.size() < 20)
@@ -2262,15 +2412,45 @@ void parse(importer &im, const std::vector<unsigned char> &bytes)
             im.fail(PT_ERR_LIMIT, "%s nests objects and arrays more than %u deep (at byte %zu)",
                     glb ? "the GLB's JSON chunk" : "the JSON", PT_JSON_MAX_DEPTH,
                     at + (glb ? 20 : 0));
+        std::string jtext = set_aside_draco_indices(im, text, n);
+        if (!jtext.empty()) {
+            // The same file with that JSON: a GLB keeps its header and its
+            // chunks after the JSON chunk (lengths updated, JSON padded with
+            // spaces to 4 bytes, glTF 2.0 4.4.3.1).
+            if (glb) {
+                while (jtext.size() % 4)
+                    jtext += ' ';
+                size_t rest = 20 + n;
+                uint32_t total = uint32_t(20 + jtext.size() + (bytes.size() - rest));
+                uint32_t jl = uint32_t(jtext.size());
+                unsigned char h[20];
+                memcpy(h, bytes.data(), 20);
+                for (int k = 0; k < 4; k++) {
+                    h[8 + k] = uint8_t(total >> (8 * k));
+                    h[12 + k] = uint8_t(jl >> (8 * k));
+                }
+                rewritten.assign(h, h + 20);
+                rewritten.insert(rewritten.end(), jtext.begin(), jtext.end());
+                rewritten.insert(rewritten.end(), bytes.begin() + long(rest), bytes.end());
+            } else {
+                rewritten.assign(jtext.begin(), jtext.end());
+            }
+            src = &rewritten;
+        }
     }
     if (glb) {
-        ok = loader.LoadBinaryFromMemory(&im.model, &terr, &twarn, bytes.data(),
-                                         unsigned(bytes.size()), "");
+        ok = loader.LoadBinaryFromMemory(&im.model, &terr, &twarn, src->data(),
+                                         unsigned(src->size()), "");
     } else {
         ok = loader.LoadASCIIFromString(&im.model, &terr, &twarn,
-                                        reinterpret_cast<const char *>(bytes.data()),
-                                        unsigned(bytes.size()), "");
+                                        reinterpret_cast<const char *>(src->data()),
+                                        unsigned(src->size()), "");
     }
+    for (const auto &d : im.draco_indices) // put back (set_aside_draco_indices)
+        if (ok && size_t(d.first.first) < im.model.meshes.size() &&
+            size_t(d.first.second) < im.model.meshes[size_t(d.first.first)].primitives.size())
+            im.model.meshes[size_t(d.first.first)].primitives[size_t(d.first.second)].indices =
+                d.second;
     // tinygltf's messages end in newlines; keep the first line or two.
     auto tidy = [](std::string s) {
         for (char &c : s)

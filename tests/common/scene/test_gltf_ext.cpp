@@ -10,6 +10,8 @@
 //   order, counts that lie);
 // - morph targets at their default weights in a still: MorphPrimitivesTest
 //   against base + 0.5 x delta computed from the file.
+// - KHR_draco_mesh_compression: MorphPrimitivesTest's Draco variant within
+//   its quantization of the uncompressed one; hostile Draco buffers.
 // The test reads the shared files with tinygltf itself (its implementation is
 // the one compiled into ptcore).
 #define TINYGLTF_NO_STB_IMAGE_WRITE
@@ -498,6 +500,160 @@ void test_morph_default_weights()
     CHECKF(moved > 0.1, "the targets move vertices by %g only", moved);
 }
 
+// ---- KHR_draco_mesh_compression --------------------------------------------------------
+
+// MorphPrimitivesTest's Draco variant against its uncompressed one: the same
+// triangles over the same vertices in the same order (the extension keeps
+// the order when a mesh has morph targets), and every vertex within Draco's
+// quantization of the uncompressed one. The bound: Draco quantizes a
+// position to q bits over its bounding cube of side r, so a coordinate moves
+// by at most r / (2^q - 1) / 2 (half a step); the variant's POSITION
+// accessors (max 0.5004885 = 0.5 + 1 / 2047 on a side of 1) give q = 11 for
+// this file, a step of 1 / 2047. The still adds 0.5 x the (uncompressed)
+// morph delta to both alike. Normals are quantized on the octahedron with
+// at least 8 bits a coordinate by default: a step of 2 / 255 on each of
+// the two octahedral coordinates moves a unit normal by under 0.02.
+// Texture coordinates: 10 bits over their range [0, 1], a step of 1 / 1023.
+void test_draco()
+{
+    std::string bin = shared("MorphPrimitivesTest/glTF-Binary/MorphPrimitivesTest.glb");
+    std::string dra = shared("MorphPrimitivesTest/glTF-Draco/MorphPrimitivesTest.gltf");
+    if (!have_shared(bin) || !have_shared(dra))
+        return;
+    loaded a, b;
+    load(bin, a);
+    load(dra, b);
+    CHECKF(a.st == PT_OK && b.st == PT_OK, "%s / %s", a.err.msg, b.err.msg);
+    CHECKF(b.nwarn == 0, "%s", b.warnings.c_str());
+    if (!a.s || !b.s)
+        return;
+    CHECK(a.s->num_vertices == b.s->num_vertices && a.s->num_triangles == b.s->num_triangles);
+    if (a.s->num_vertices != b.s->num_vertices || a.s->num_triangles != b.s->num_triangles)
+        return;
+    CHECK(memcmp(a.s->indices, b.s->indices, 12 * size_t(a.s->num_triangles)) == 0);
+    double dp = 0, dn = 0, du = 0;
+    for (size_t v = 0; v < a.s->num_vertices; v++) {
+        for (int r = 0; r < 3; r++) {
+            dp = std::fmax(dp, std::fabs(a.pos(v, r) - b.pos(v, r)));
+            dn = std::fmax(dn, std::fabs(double(a.s->normals[3 * v + size_t(r)]) -
+                                         double(b.s->normals[3 * v + size_t(r)])));
+        }
+        for (int r = 0; r < 2 && a.s->uvs && b.s->uvs; r++)
+            du = std::fmax(du, std::fabs(double(a.s->uvs[2 * v + size_t(r)]) -
+                                         double(b.s->uvs[2 * v + size_t(r)])));
+    }
+    if (getenv("PT_TEST_VERBOSE"))
+        printf("draco: position %g, normal %g, uv %g\n", dp, dn, du);
+    CHECK(a.s->uvs && b.s->uvs);
+    CHECKF(dp <= 1.0 / 2047.0 / 2.0 + 1e-6, "positions differ by %g", dp);
+    CHECKF(dn < 0.02, "normals differ by %g", dn);
+    CHECKF(du <= 1.0 / 1023.0 / 2.0 + 1e-6, "texture coordinates differ by %g", du);
+    CHECKF(dp > 0.0, "no quantization at all: the Draco variant was not decoded?");
+}
+
+std::string read_text(const std::string &path)
+{
+    std::string out;
+    FILE *f = fopen(path.c_str(), "rb");
+    if (!f)
+        return out;
+    char buf[4096];
+    size_t n;
+    while ((n = fread(buf, 1, sizeof buf, f)) > 0)
+        out.append(buf, n);
+    fclose(f);
+    return out;
+}
+
+// The k-th (0-based) occurrence of from in s replaced by to.
+std::string replace_nth(std::string s, const std::string &from, const std::string &to, int k)
+{
+    size_t at = s.find(from);
+    for (int i = 0; i < k && at != std::string::npos; i++)
+        at = s.find(from, at + 1);
+    if (at != std::string::npos)
+        s.replace(at, from.size(), to);
+    else
+        CHECKF(0, "'%s' not found", from.c_str());
+    return s;
+}
+
+// Hostile Draco: accessors whose counts disagree with the Draco buffer's, a
+// truncated buffer, and every byte of the Draco streams overwritten in turn
+// (counts, varints, entropy-coded data): each loads, or fails with a format
+// or limit error that names the file, never anything else.
+void test_draco_hostile()
+{
+    std::string dir = shared("MorphPrimitivesTest/glTF-Draco/");
+    if (!have_shared(dir + "MorphPrimitivesTest.gltf"))
+        return;
+    std::string text = read_text(dir + "MorphPrimitivesTest.gltf");
+    std::string binb = read_text(dir + "MorphPrimitivesTest.bin");
+    std::string jpg = read_text(dir + "uv_texture.jpg");
+    CHECK(binb.size() == 880);
+    // The file alone: its buffer and image as data: URIs.
+    text =
+        replace_nth(text, "\"uri\": \"uv_texture.jpg\"",
+                    "\"uri\": \"data:image/jpeg;base64," +
+                        pt_test::base64(std::vector<unsigned char>(jpg.begin(), jpg.end())) + "\"",
+                    0);
+    auto with_bin = [&](const std::string &t, const std::string &b) {
+        std::vector<unsigned char> v(b.begin(), b.end());
+        return replace_nth(t, "\"MorphPrimitivesTest.bin\"",
+                           "\"data:application/octet-stream;base64," + pt_test::base64(v) + "\"",
+                           0);
+    };
+    {
+        std::string p = write_tmp(with_bin(text, binb), "draco_intact");
+        loaded l;
+        load(p, l);
+        CHECKF(l.st == PT_OK && l.nwarn == 0, "%s %s", l.err.msg, l.warnings.c_str());
+        unlink(p.c_str());
+    }
+    // Accessor 4 (POSITION of primitive 0) says 22: the third "count": 21.
+    expect_fail(with_bin(replace_nth(text, "\"count\": 21", "\"count\": 22", 2), binb),
+                "draco_count", PT_ERR_FORMAT,
+                "accessor 4 (POSITION) says 22 elements, the Draco buffer holds 21 points");
+    expect_fail(with_bin(replace_nth(text, "\"count\": 72", "\"count\": 75", 0), binb),
+                "draco_indices", PT_ERR_FORMAT,
+                "indices accessor 2 says 75 indices, the Draco buffer holds 24 triangles");
+    expect_fail(with_bin(replace_nth(text, "\"byteLength\": 310", "\"byteLength\": 200", 0), binb),
+                "draco_short", PT_ERR_FORMAT, "KHR_draco_mesh_compression bufferView 2: Draco:");
+    int loaded_ok = 0, refused = 0, bad = 0;
+    for (size_t at = 360; at < 880; at++) {
+        if (at >= 670 && at < 672)
+            continue; // padding between the two streams
+        // Every byte as 0xff; the headers' (the first 32 of each stream)
+        // as 0 and 0x7f too: counts and varints.
+        bool head = at < 392 || (at >= 672 && at < 704);
+        for (int val : {0xff, 0x00, 0x7f}) {
+            if (val != 0xff && !head)
+                continue;
+            std::string b = binb;
+            if ((unsigned char)b[at] == val)
+                continue;
+            b[at] = char(val);
+            std::string p = write_tmp(with_bin(text, b), "draco_byte");
+            loaded l;
+            load(p, l);
+            if (l.st == PT_OK) {
+                loaded_ok++;
+                CHECK(l.s && l.s->num_triangles > 0);
+            } else if ((l.st == PT_ERR_FORMAT || l.st == PT_ERR_LIMIT) &&
+                       strstr(l.err.msg, p.c_str()) != nullptr) {
+                refused++;
+            } else if (bad++ < 5) {
+                CHECKF(0, "byte %zu = %d: status %d: %s", at, val, int(l.st), l.err.msg);
+            }
+            unlink(p.c_str());
+        }
+    }
+    if (getenv("PT_TEST_VERBOSE"))
+        printf("draco bytes: %d loaded, %d refused\n", loaded_ok, refused);
+    CHECK(refused > 0);
+    CHECKF(bad == 0, "%d overwritten bytes gave another error", bad);
+}
+
 } // namespace
 
 int main(void)
@@ -506,5 +662,7 @@ int main(void)
     test_quantization();
     test_sparse();
     test_morph_default_weights();
+    test_draco();
+    test_draco_hostile();
     return check_report();
 }
