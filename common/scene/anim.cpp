@@ -319,6 +319,11 @@ pt_status pose(const pt_anim &a, double t, const pt_scene *s, pt_anim_pose_out *
         const std::vector<double> &wts = ps.weights[size_t(p.node)];
         size_t ntg = p.dpos.size();
         const double *W = &ps.global[16 * size_t(p.node)];
+        double Wi[16];
+        if (p.has_inst) { // one instance of EXT_mesh_gpu_instancing
+            mat_mul(W, p.inst, Wi);
+            W = Wi;
+        }
         double c[3][3];
         double det = 0.0;
         if (p.skin >= 0) {

@@ -68,6 +68,8 @@ struct prim {
     std::vector<uint32_t> joints; // influences per vertex, each < the skin's joints
     std::vector<float> weights;   // influences per vertex
     std::vector<std::vector<float>> dpos, dnrm, dtan; // per target: 3 per vertex, or empty
+    bool has_inst = false; // EXT_mesh_gpu_instancing: global(node) * inst places it
+    double inst[16] = {0};
 };
 
 struct placed {

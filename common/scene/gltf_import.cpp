@@ -1090,6 +1090,7 @@ bool ext_supported(const std::string &name)
         "KHR_texture_transform",           // slot_transform
         "KHR_xmp",                         // metadata: nothing to render
         "KHR_xmp_json_ld",                 // metadata: nothing to render
+        "EXT_mesh_gpu_instancing",         // instance_matrices
     };
     return supported.count(name) != 0;
 }
@@ -1707,7 +1708,7 @@ void rig_skin_attrs(importer &im, const tinygltf::Primitive &p, const char *what
 // Records mesh primitive `pi` of node ni, which the builder stored in the
 // ranges between the counts `before` and `after`, with its rest data.
 void rig_add_primitive(importer &im, int ni, int mesh, int pi, const uint32_t before[4],
-                       const uint32_t after[4])
+                       const uint32_t after[4], const double *inst)
 {
     if (after[0] == before[0])
         return; // not rendered (points, lines, no triangles)
@@ -1768,6 +1769,10 @@ void rig_add_primitive(importer &im, int ni, int mesh, int pi, const uint32_t be
                     im.model.skins.size());
         rp.skin = n.skin;
         rig_skin_attrs(im, p, what, n.skin, rp);
+    }
+    if (inst) {
+        rp.has_inst = true;
+        memcpy(rp.inst, inst, sizeof rp.inst);
     }
     im.rig->prims.push_back(std::move(rp));
 }
@@ -2117,6 +2122,100 @@ void rig_finish(importer &im)
         }
 }
 
+// EXT_mesh_gpu_instancing on node n: the accessor of its attribute with
+// the largest count and that count, or {-1, 0} without the extension.
+// Counts only: instance_matrices reads them and checks that they agree.
+std::pair<int, uint64_t> instance_count(const tinygltf::Model &m, const tinygltf::Node &n)
+{
+    auto ext = n.extensions.find("EXT_mesh_gpu_instancing");
+    if (ext == n.extensions.end() || !ext->second.IsObject())
+        return {-1, 0};
+    const tinygltf::Value &at = ext->second.Get("attributes");
+    if (!at.IsObject())
+        return {-1, 0};
+    std::pair<int, uint64_t> most{-1, 0};
+    for (const auto &k : at.Keys()) {
+        const tinygltf::Value &v = at.Get(k);
+        if (!v.IsNumber())
+            continue;
+        double ai = v.GetNumberAsDouble();
+        if (ai >= 0.0 && ai < double(m.accessors.size()) &&
+            uint64_t(m.accessors[size_t(ai)].count) > most.second)
+            most = {int(ai), uint64_t(m.accessors[size_t(ai)].count)};
+    }
+    return most;
+}
+
+// EXT_mesh_gpu_instancing: node ni's instances, each the matrix T * R * S
+// of its TRANSLATION (float VEC3), ROTATION (unit quaternion, float or
+// normalized i8/i16 VEC4) and SCALE (float VEC3) attributes, which must all
+// have the instance count; none without the extension. Each instance is
+// the node's mesh under global(node) * instance. The mesh is copied once
+// an instance (the triangle caps count every copy: check_triangles), not
+// instanced in the accelerator.
+std::vector<mat4> instance_matrices(importer &im, int ni)
+{
+    const tinygltf::Node &n = im.model.nodes[size_t(ni)];
+    std::vector<mat4> out;
+    auto ext = n.extensions.find("EXT_mesh_gpu_instancing");
+    if (ext == n.extensions.end())
+        return out;
+    const tinygltf::Value &at = ext->second.Get("attributes");
+    if (!ext->second.IsObject() || !at.IsObject())
+        im.fail(PT_ERR_FORMAT, "node %d: EXT_mesh_gpu_instancing has no attributes", ni);
+    std::vector<float> t, r, s;
+    uint64_t count = 0;
+    for (const auto &k : at.Keys()) {
+        const tinygltf::Value &v = at.Get(k);
+        bool tr = k == "TRANSLATION", ro = k == "ROTATION", sc = k == "SCALE";
+        if (!tr && !ro && !sc) {
+            im.warn_once("inst-attr:" + k, "node " + std::to_string(ni) +
+                                               ": EXT_mesh_gpu_instancing attribute " + shown(k) +
+                                               " is ignored");
+            continue;
+        }
+        if (!v.IsNumber())
+            im.fail(PT_ERR_FORMAT, "node %d: EXT_mesh_gpu_instancing %s is not an accessor", ni,
+                    k.c_str());
+        char what[96];
+        snprintf(what, sizeof what, "EXT_mesh_gpu_instancing %s of node %d", k.c_str(), ni);
+        std::vector<float> &dst = tr ? t : ro ? r : s;
+        read_floats(im, int(v.GetNumberAsDouble()), what,
+                    ro ? TINYGLTF_TYPE_VEC4 : TINYGLTF_TYPE_VEC3, ro ? COMP_SNORM : COMP_FLOAT,
+                    dst);
+        uint64_t c = dst.size() / (ro ? 4 : 3);
+        if (count && c != count)
+            im.fail(PT_ERR_FORMAT,
+                    "node %d: EXT_mesh_gpu_instancing attributes disagree on the count (%llu "
+                    "and %llu)",
+                    ni, (unsigned long long)count, (unsigned long long)c);
+        count = c;
+    }
+    if (count == 0)
+        im.fail(PT_ERR_FORMAT,
+                "node %d: EXT_mesh_gpu_instancing has no TRANSLATION, ROTATION "
+                "or SCALE",
+                ni);
+    out.resize(size_t(count));
+    for (size_t i = 0; i < out.size(); i++) {
+        double tt[3] = {0, 0, 0}, q[4] = {0, 0, 0, 1}, ss[3] = {1, 1, 1};
+        for (int c = 0; c < 3 && !t.empty(); c++)
+            tt[c] = t[3 * i + size_t(c)];
+        for (int c = 0; c < 4 && !r.empty(); c++)
+            q[c] = r[4 * i + size_t(c)];
+        for (int c = 0; c < 3 && !s.empty(); c++)
+            ss[c] = s[3 * i + size_t(c)];
+        pt_rig::trs_matrix(tt, q, ss, out[i].data());
+        for (double x : out[i])
+            if (!std::isfinite(x))
+                im.fail(PT_ERR_FORMAT,
+                        "node %d: EXT_mesh_gpu_instancing instance %zu is not "
+                        "finite",
+                        ni, i);
+    }
+    return out;
+}
+
 void visit(importer &im, int ni, const mat4 &parent, int depth, std::vector<char> &on_path)
 {
     const tinygltf::Model &m = im.model;
@@ -2140,13 +2239,19 @@ void visit(importer &im, int ni, const mat4 &parent, int depth, std::vector<char
             im.fail(PT_ERR_FORMAT, "node %d: mesh %d out of range (%zu meshes)", ni, n.mesh,
                     m.meshes.size());
         const tinygltf::Mesh &mesh = m.meshes[size_t(n.mesh)];
-        for (size_t p = 0; p < mesh.primitives.size(); p++) {
-            if (im.rig)
-                pt_scene_builder_counts(im.b, before);
-            add_primitive(im, n.mesh, int(p), w);
-            if (im.rig) {
-                pt_scene_builder_counts(im.b, after);
-                rig_add_primitive(im, ni, n.mesh, int(p), before, after);
+        std::vector<mat4> inst = instance_matrices(im, ni);
+        size_t copies = inst.empty() ? 1 : inst.size();
+        for (size_t k = 0; k < copies; k++) {
+            mat4 wk = inst.empty() ? w : mat_mul(w, inst[k]);
+            for (size_t p = 0; p < mesh.primitives.size(); p++) {
+                if (im.rig)
+                    pt_scene_builder_counts(im.b, before);
+                add_primitive(im, n.mesh, int(p), wk);
+                if (im.rig) {
+                    pt_scene_builder_counts(im.b, after);
+                    rig_add_primitive(im, ni, n.mesh, int(p), before, after,
+                                      inst.empty() ? nullptr : inst[k].data());
+                }
             }
         }
     }
@@ -2177,6 +2282,12 @@ void visit(importer &im, int ni, const mat4 &parent, int depth, std::vector<char
 uint64_t sat_add(uint64_t a, uint64_t b)
 {
     return a > UINT64_MAX - b ? UINT64_MAX : a + b;
+}
+
+uint64_t sat_mul(uint64_t a, uint64_t b)
+{
+    uint64_t r;
+    return __builtin_mul_overflow(a, b, &r) ? UINT64_MAX : r;
 }
 
 // Triangles and vertices, as the builder counts them, and morph target
@@ -2240,8 +2351,13 @@ geo_count node_count(const tinygltf::Model &m, int ni, int depth,
     st = 1;
     const tinygltf::Node &n = m.nodes[size_t(ni)];
     geo_count t;
-    if (n.mesh >= 0 && size_t(n.mesh) < m.meshes.size())
+    if (n.mesh >= 0 && size_t(n.mesh) < m.meshes.size()) {
         t = per_mesh[size_t(n.mesh)];
+        uint64_t copies = instance_count(m, n).second;
+        if (copies > 1) // EXT_mesh_gpu_instancing: one copy an instance
+            t = geo_count{sat_mul(t.tri, copies), sat_mul(t.vtx, copies),
+                          sat_mul(t.deltas, copies)};
+    }
     for (int c : n.children)
         t.add(node_count(m, c, depth + 1, per_mesh, memo, state));
     st = 2;
@@ -2257,6 +2373,17 @@ geo_count node_count(const tinygltf::Model &m, int ni, int depth,
 void check_triangles(importer &im, int si)
 {
     const tinygltf::Model &m = im.model;
+    // EXT_mesh_gpu_instancing: each instance is a copy of the mesh, so a
+    // node's instance count is capped as triangles are, before anything
+    // reads the accessors (a count of 2^31 in a few bytes of JSON).
+    for (size_t i = 0; i < m.nodes.size(); i++) {
+        std::pair<int, uint64_t> ic = instance_count(m, m.nodes[i]);
+        if (ic.second > PT_SCENE_MAX_TRIANGLES)
+            im.fail(PT_ERR_LIMIT,
+                    "node %zu: EXT_mesh_gpu_instancing: %llu instances (accessor %d), over the "
+                    "cap of %u a scene (instances are copied)",
+                    i, (unsigned long long)ic.second, ic.first, PT_SCENE_MAX_TRIANGLES);
+    }
     std::vector<geo_count> per_mesh(m.meshes.size()), memo(m.nodes.size());
     std::vector<char> state(m.nodes.size(), 0);
     for (size_t i = 0; i < m.meshes.size(); i++)

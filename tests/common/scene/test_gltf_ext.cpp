@@ -12,6 +12,8 @@
 //   against base + 0.5 x delta computed from the file.
 // - KHR_draco_mesh_compression: MorphPrimitivesTest's Draco variant within
 //   its quantization of the uncompressed one; hostile Draco buffers.
+// - EXT_mesh_gpu_instancing: instances placed by global(node) * T * R * S,
+//   as a still and posed; SimpleInstancing's 1,500 triangles.
 // The test reads the shared files with tinygltf itself (its implementation is
 // the one compiled into ptcore).
 #define TINYGLTF_NO_STB_IMAGE_WRITE
@@ -654,6 +656,77 @@ void test_draco_hostile()
     CHECKF(bad == 0, "%d overwritten bytes gave another error", bad);
 }
 
+// ---- EXT_mesh_gpu_instancing -----------------------------------------------------------
+
+// A triangle instanced twice (translations (10, 0, 0) and (0, 10, 0), the
+// second also rotated a quarter turn about z and scaled by 2) under node 0,
+// which an animation moves from (0, 0, 0) at 0 s to (0, 0, 4) at 1 s. The
+// still has both copies where global(node) * T * R * S puts them; posed at
+// 0.5 s they follow the node. Then: SimpleInstancing's 125 cubes, and
+// instance counts that lie.
+void test_instancing()
+{
+    gltf g;
+    g.floats(k_tri, "VEC3", 3);
+    int ta = g.floats({10, 0, 0, 0, 10, 0}, "VEC3", 3);
+    int ra = g.floats({0, 0, 0, 1, 0, 0, 0.70710678f, 0.70710678f}, "VEC4", 4);
+    int sa = g.floats({1, 1, 1, 2, 2, 2}, "VEC3", 3);
+    int in = g.floats({0, 1}, "SCALAR", 1), out = g.floats({0, 0, 0, 0, 0, 4}, "VEC3", 3);
+    char m[700];
+    snprintf(m, sizeof m,
+             "\"nodes\":[{\"mesh\":0,\"extensions\":{\"EXT_mesh_gpu_instancing\":{\"attributes\":{"
+             "\"TRANSLATION\":%d,\"ROTATION\":%d,\"SCALE\":%d}}}}],\"meshes\":[{\"primitives\":[{"
+             "\"attributes\":{\"POSITION\":0}}]}],\"extensionsUsed\":[\"EXT_mesh_gpu_"
+             "instancing\"],\"animations\":[{\"channels\":[{\"sampler\":0,\"target\":{\"node\":0,"
+             "\"path\":\"translation\"}}],\"samplers\":[{\"input\":%d,\"output\":%d}]}]",
+             ta, ra, sa, in, out);
+    std::string p = write_tmp(g.json(m), "instancing");
+    // Instance 1 maps (x, y, z) to (-2y, 2x, 2z) + (0, 10, 0).
+    const double want[6][3] = {{10, 0, 0}, {11, 0, 0}, {10, 1, 0},
+                               {0, 10, 0}, {0, 12, 0}, {-2, 10, 0}};
+    for (int posed = 0; posed < 2; posed++) {
+        pt_scene_opts o{};
+        o.animate = posed;
+        o.time = 0.5;
+        pt_scene *s = nullptr;
+        pt_error err{};
+        CHECKF(pt_scene_load(p.c_str(), &o, &s, &err) == PT_OK, "%s", err.msg);
+        if (!s)
+            continue;
+        CHECK(s->num_triangles == 2 && s->num_vertices == 6);
+        for (size_t v = 0; v < 6 && v < s->num_vertices; v++)
+            for (int r = 0; r < 3; r++) {
+                double got = s->positions[3 * v + size_t(r)] + s->origin[r];
+                double w = want[v][r] + (posed && r == 2 ? 2.0 : 0.0);
+                CHECKF(std::fabs(got - w) < 1e-5, "posed %d vertex %zu axis %d: %g, want %g", posed,
+                       v, r, got, w);
+            }
+        pt_scene_free(s);
+    }
+    unlink(p.c_str());
+
+    std::string path = shared("SimpleInstancing/SimpleInstancing.glb");
+    if (!have_shared(path))
+        return;
+    loaded l;
+    load(path, l);
+    CHECKF(l.st == PT_OK && l.nwarn == 0, "%s %s", l.err.msg, l.warnings.c_str());
+    if (l.s)
+        CHECKF(l.s->num_triangles == 1500, "%u triangles", l.s->num_triangles);
+
+    // Attributes that disagree on the count.
+    gltf h;
+    h.floats(k_tri, "VEC3", 3);
+    int t2 = h.floats({1, 0, 0, 2, 0, 0}, "VEC3", 3), s3 = h.floats({1, 1, 1}, "VEC3", 3);
+    snprintf(m, sizeof m,
+             "\"nodes\":[{\"mesh\":0,\"extensions\":{\"EXT_mesh_gpu_instancing\":{\"attributes\":{"
+             "\"TRANSLATION\":%d,\"SCALE\":%d}}}}],\"meshes\":[{\"primitives\":[{"
+             "\"attributes\":{\"POSITION\":0}}]}]",
+             t2, s3);
+    expect_fail(h.json(m), "inst_disagree", PT_ERR_FORMAT,
+                "EXT_mesh_gpu_instancing attributes disagree on the count");
+}
+
 } // namespace
 
 int main(void)
@@ -664,5 +737,6 @@ int main(void)
     test_morph_default_weights();
     test_draco();
     test_draco_hostile();
+    test_instancing();
     return check_report();
 }
