@@ -23,7 +23,7 @@ cleanup() { if [ "${failed:-0}" = 0 ]; then rm -rf "$tmp"; else echo "logs kept 
 trap cleanup EXIT
 failed=1
 fail() { echo "FAIL: $*" >&2; exit 1; }
-view=(--res 64x48 --spp 4 --seed 7 --background 0.6,0.7,0.8 -q)
+view=(--res 64x48 --spp 4 --seed 7 --background "0.6,0.7,0.8" -q)
 
 # Required / used extensions, on a copy of the Cornell box.
 python3 - "$src/scenes/cornell_box.gltf" "$tmp" <<'PY'
