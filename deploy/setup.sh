@@ -17,6 +17,7 @@ build_pkgs=(
   libssl-dev                           # SHA-256 scene hashes, HMAC authentication
   libmicrohttpd-dev                    # ptserve --http: the dashboard, API, /metrics
   libdraco-dev                         # KHR_draco_mesh_compression meshes in glTF
+  libwebp-dev                          # EXT_texture_webp images in glTF
 )
 test_pkgs=(
   clang libclang-rt-14-dev             # libFuzzer targets, sanitizer runtime
@@ -29,7 +30,7 @@ test_pkgs=(
   curl prometheus                      # test_http*: the dashboard's API, promtool check metrics
   chromium                             # test_http_browser: the job page in a headless browser
 )
-runtime_pkgs=(libembree3-3 libopenexr-3-1-30 libstb0 libssl3 libmicrohttpd12 libdraco7)
+runtime_pkgs=(libembree3-3 libopenexr-3-1-30 libstb0 libssl3 libmicrohttpd12 libdraco7 libwebp7)
 
 case "${1:-}" in
 "") pkgs=("${build_pkgs[@]}" "${test_pkgs[@]}") ;;

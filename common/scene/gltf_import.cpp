@@ -88,6 +88,7 @@ extern "C" {
 #include "common/scene/motion.h"
 #include "common/scene/scene.h"
 #include "common/scene/uri.h"
+#include "common/scene/webp.h"
 }
 
 namespace
@@ -854,6 +855,29 @@ pt_tex_xform slot_transform(importer &im, const char *ctx, int tex_coord,
     return x;
 }
 
+// The image a texture decodes: EXT_texture_webp's source when it has one
+// (the image its author prefers; libwebp decodes it), else the core source,
+// a PNG or JPEG. KHR_texture_basisu's KTX2 source is never decoded (Debian
+// has no Basis Universal transcoder): the core source is its fallback, and
+// without one the texture is refused naming KTX2.
+int texture_source(importer &im, const tinygltf::Texture &t, const char *ctx)
+{
+    auto wx = t.extensions.find("EXT_texture_webp");
+    if (wx != t.extensions.end()) {
+        const tinygltf::Value &v = wx->second.Get("source");
+        if (!wx->second.IsObject() || !v.IsNumber())
+            im.fail(PT_ERR_FORMAT, "%s: EXT_texture_webp has no source", ctx);
+        double d = v.GetNumberAsDouble();
+        return d >= 0.0 && d < double(INT32_MAX) ? int(d) : -1;
+    }
+    if (t.source < 0 && t.extensions.count("KHR_texture_basisu"))
+        im.fail(PT_ERR_FORMAT,
+                "%s: its only image is KTX2 (KHR_texture_basisu), which ptfarm cannot decode; "
+                "export a PNG or JPEG fallback",
+                ctx);
+    return t.source;
+}
+
 // Builder texture for glTF texture `index` used as `slot` of material `mi`,
 // and the slot's coordinate set and transform into *xf. With
 // im.headers_only, the image's header alone is read and checked against the
@@ -876,27 +900,46 @@ int32_t texture_for(importer &im, int mi, const char *slot, int index, int tex_c
     if (found != im.tex_map.end())
         return int32_t(found->second);
     const tinygltf::Texture &t = m.textures[size_t(index)];
-    if (t.source < 0 || size_t(t.source) >= m.images.size())
-        im.fail(PT_ERR_FORMAT, "%s points at image %d, which does not exist (%zu images)", ctx,
-                t.source, m.images.size());
-    auto bytes = image_bytes(im, t.source, ctx);
+    int src = texture_source(im, t, ctx);
+    if (src < 0 || size_t(src) >= m.images.size())
+        im.fail(PT_ERR_FORMAT, "%s points at image %d, which does not exist (%zu images)", ctx, src,
+                m.images.size());
+    auto bytes = image_bytes(im, src, ctx);
+    bool webp = pt_webp_is(bytes.first, bytes.second) != 0;
+    if (bytes.second >= 12 && memcmp(bytes.first, "\xabKTX 20\xbb\r\n\x1a\n", 12) == 0)
+        im.fail(PT_ERR_FORMAT,
+                "%s: image %d is KTX2 (KHR_texture_basisu), which ptfarm cannot decode, and the "
+                "texture offers no PNG or JPEG source",
+                ctx, src);
     if (bytes.second > size_t(INT32_MAX))
-        im.fail(PT_ERR_LIMIT, "%s: image %d is too large", ctx, t.source);
+        im.fail(PT_ERR_LIMIT, "%s: image %d is too large", ctx, src);
     int w = 0, h = 0, comp = 0;
-    if (!stbi_info_from_memory(bytes.first, int(bytes.second), &w, &h, &comp))
-        im.fail(PT_ERR_FORMAT, "%s: image %d cannot be decoded: %s", ctx, t.source,
+    if (webp) {
+        uint32_t ww = 0, wh = 0;
+        pt_error we{};
+        pt_status wst = pt_webp_size(bytes.first, bytes.second, &ww, &wh, &we);
+        if (wst != PT_OK)
+            im.fail(wst, "%s: image %d cannot be decoded: %s", ctx, src, we.msg);
+        if (ww > PT_SCENE_MAX_TEXTURE_DIM || wh > PT_SCENE_MAX_TEXTURE_DIM)
+            im.fail(PT_ERR_LIMIT, "%s: image %d is %ux%u (at most %u a side)", ctx, src, ww, wh,
+                    PT_SCENE_MAX_TEXTURE_DIM);
+        w = int(ww);
+        h = int(wh);
+    } else if (!stbi_info_from_memory(bytes.first, int(bytes.second), &w, &h, &comp)) {
+        im.fail(PT_ERR_FORMAT, "%s: image %d cannot be decoded: %s", ctx, src,
                 stbi_failure_reason());
+    }
     if (w <= 0 || h <= 0 || uint32_t(w) > PT_SCENE_MAX_TEXTURE_DIM ||
         uint32_t(h) > PT_SCENE_MAX_TEXTURE_DIM)
-        im.fail(PT_ERR_LIMIT, "%s: image %d is %dx%d (at most %u a side)", ctx, t.source, w, h,
+        im.fail(PT_ERR_LIMIT, "%s: image %d is %dx%d (at most %u a side)", ctx, src, w, h,
                 PT_SCENE_MAX_TEXTURE_DIM);
     // The header's size decides before the decoder allocates anything: a
     // 1 MB PNG of zeros may claim 16384^2, 1 GiB once decoded. stb_image
     // sizes its buffers from the same header fields (PNG IHDR, JPEG SOF, the
     // BMP, TGA, GIF, PSD, PIC, PNM and Radiance headers).
-    const tinygltf::Image &img = m.images[size_t(t.source)];
+    const tinygltf::Image &img = m.images[size_t(src)];
     char what[96]; // "image 3", and its file's name when it has one
-    int k = snprintf(what, sizeof what, "image %d", t.source);
+    int k = snprintf(what, sizeof what, "image %d", src);
     if (!img.uri.empty() && !is_data_uri(img.uri))
         snprintf(what + k, sizeof what - size_t(k), " ('%.64s')", img.uri.c_str());
     const int hw = w, hh = h;
@@ -915,7 +958,7 @@ int32_t texture_for(importer &im, int mi, const char *slot, int index, int tex_c
         im.tex_map[key] = 0;
         return -1;
     }
-    if (!png_inflates_within(bytes.first, bytes.second))
+    if (!webp && !png_inflates_within(bytes.first, bytes.second))
         im.fail(PT_ERR_FORMAT,
                 "%s: %s: its PNG data does not inflate to the %dx%d its header gives (longer, "
                 "or broken)",
@@ -926,14 +969,17 @@ int32_t texture_for(importer &im, int mi, const char *slot, int index, int tex_c
             im.fail(PT_ERR_FORMAT, "%s: sampler %d out of range", ctx, t.sampler);
         smp = &m.samplers[size_t(t.sampler)];
     }
-    unsigned char *px = stbi_load_from_memory(bytes.first, int(bytes.second), &w, &h, &comp, 4);
-    if (!px)
-        im.fail(PT_ERR_FORMAT, "%s: image %d cannot be decoded: %s", ctx, t.source,
-                stbi_failure_reason());
-    if (w != hw || h != hh) {
-        stbi_image_free(px);
-        im.fail(PT_ERR_FORMAT, "%s: image %d decodes to %dx%d, its header says %dx%d", ctx,
-                t.source, w, h, hw, hh);
+    unsigned char *px = nullptr;
+    if (!webp) {
+        px = stbi_load_from_memory(bytes.first, int(bytes.second), &w, &h, &comp, 4);
+        if (!px)
+            im.fail(PT_ERR_FORMAT, "%s: image %d cannot be decoded: %s", ctx, src,
+                    stbi_failure_reason());
+        if (w != hw || h != hh) {
+            stbi_image_free(px);
+            im.fail(PT_ERR_FORMAT, "%s: image %d decodes to %dx%d, its header says %dx%d", ctx, src,
+                    w, h, hw, hh);
+        }
     }
     size_t n = size_t(w) * size_t(h) * 4;
     pt_texture tex{};
@@ -944,8 +990,18 @@ int32_t texture_for(importer &im, int mi, const char *slot, int index, int tex_c
         stbi_image_free(px);
         im.fail(PT_ERR_NOMEM, "%s: out of memory", ctx);
     }
-    memcpy(tex.rgba, px, n);
-    stbi_image_free(px);
+    if (webp) {
+        pt_error we{};
+        pt_status wst =
+            pt_webp_decode(bytes.first, bytes.second, uint32_t(w), uint32_t(h), tex.rgba, &we);
+        if (wst != PT_OK) {
+            pt_free(tex.rgba);
+            im.fail(wst, "%s: image %d cannot be decoded: %s", ctx, src, we.msg);
+        }
+    } else {
+        memcpy(tex.rgba, px, n);
+        stbi_image_free(px);
+    }
     im.texels += texels;
     tex.srgb = srgb ? 1 : 0;
     tex.wrap_s = tex.wrap_t = PT_WRAP_REPEAT;
@@ -1091,6 +1147,8 @@ bool ext_supported(const std::string &name)
         "KHR_xmp",                         // metadata: nothing to render
         "KHR_xmp_json_ld",                 // metadata: nothing to render
         "EXT_mesh_gpu_instancing",         // instance_matrices
+        "EXT_texture_webp",                // texture_source, webp.c
+        "KHR_texture_basisu",              // texture_source: the PNG/JPEG fallback
     };
     return supported.count(name) != 0;
 }

@@ -14,11 +14,16 @@
 //   its quantization of the uncompressed one; hostile Draco buffers.
 // - EXT_mesh_gpu_instancing: instances placed by global(node) * T * R * S,
 //   as a still and posed; SimpleInstancing's 1,500 triangles.
+// - EXT_texture_webp (lossless WebP texels exactly, preferred over the PNG
+//   fallback) and KHR_texture_basisu (the PNG fallback; KTX2 alone refused).
 // The test reads the shared files with tinygltf itself (its implementation is
 // the one compiled into ptcore).
 #define TINYGLTF_NO_STB_IMAGE_WRITE
 #define TINYGLTF_NO_EXTERNAL_IMAGE
 #include <tiny_gltf.h>
+
+#include <stb_image_write.h>
+#include <webp/encode.h>
 
 #include <cmath>
 #include <cstring>
@@ -727,6 +732,103 @@ void test_instancing()
                 "EXT_mesh_gpu_instancing attributes disagree on the count");
 }
 
+// ---- EXT_texture_webp and KHR_texture_basisu ------------------------------------------
+
+std::vector<unsigned char> png_of(const unsigned char *rgba, int w, int h)
+{
+    std::vector<unsigned char> out;
+    stbi_write_png_to_func(
+        [](void *ctx, void *data, int size) {
+            auto *o = static_cast<std::vector<unsigned char> *>(ctx);
+            o->insert(o->end(), (unsigned char *)data, (unsigned char *)data + size);
+        },
+        &out, w, h, 4, rgba, w * 4);
+    return out;
+}
+
+std::vector<unsigned char> webp_of(const unsigned char *rgba, int w, int h)
+{
+    uint8_t *enc = nullptr;
+    size_t n = WebPEncodeLosslessRGBA(rgba, w, h, w * 4, &enc);
+    std::vector<unsigned char> out(enc, enc + n);
+    WebPFree(enc);
+    return out;
+}
+
+// A triangle whose material's base colour is texture 0, with the given
+// texture JSON and images (data: URIs).
+std::string textured(const std::string &texture,
+                     const std::vector<std::vector<unsigned char>> &imgs, const char *used)
+{
+    gltf g;
+    g.floats(k_tri, "VEC3", 3);
+    int uv = g.floats({0, 0, 1, 0, 0, 1}, "VEC2", 2);
+    std::string images;
+    for (size_t i = 0; i < imgs.size(); i++)
+        images += std::string(i ? "," : "") + "{\"uri\":\"data:application/octet-stream;base64," +
+                  pt_test::base64(imgs[i]) + "\"}";
+    return g.json("\"nodes\":[{\"mesh\":0}],\"meshes\":[{\"primitives\":[{\"attributes\":{"
+                  "\"POSITION\":0,\"TEXCOORD_0\":" +
+                  std::to_string(uv) +
+                  "},\"material\":0}]}],\"materials\":[{\"pbrMetallicRoughness\":{"
+                  "\"baseColorTexture\":{\"index\":0}}}],\"textures\":[" +
+                  texture + "],\"images\":[" + images + "],\"extensionsUsed\":[" + used + "]");
+}
+
+void test_texture_formats()
+{
+    // 2x2: a WebP (lossless, so the texels come back exactly) and a PNG of
+    // other colours, so the test sees which one was decoded.
+    const unsigned char a[16] = {255, 0, 0, 255, 0, 255, 0, 128, 0, 0, 255, 255, 9, 99, 199, 7};
+    const unsigned char b[16] = {1, 2, 3, 255, 4, 5, 6, 255, 7, 8, 9, 255, 10, 11, 12, 255};
+    std::vector<unsigned char> wa = webp_of(a, 2, 2), pb = png_of(b, 2, 2);
+    CHECK(wa.size() > 12 && pb.size() > 8);
+    auto texels = [&](const std::string &text, const char *name, const unsigned char *want) {
+        std::string p = write_tmp(text, name);
+        loaded l;
+        load(p, l);
+        CHECKF(l.st == PT_OK && l.nwarn == 0, "%s: %s %s", name, l.err.msg, l.warnings.c_str());
+        if (l.s) {
+            CHECKF(l.s->num_textures == 1, "%s: %u textures", name, l.s->num_textures);
+            if (l.s->num_textures == 1)
+                CHECKF(l.s->textures[0].width == 2 && l.s->textures[0].height == 2 &&
+                           memcmp(l.s->textures[0].rgba, want, 16) == 0,
+                       "%s: other texels", name);
+        }
+        unlink(p.c_str());
+    };
+    // WebP alone, and WebP preferred over its PNG fallback.
+    texels(textured("{\"extensions\":{\"EXT_texture_webp\":{\"source\":0}}}", {wa},
+                    "\"EXT_texture_webp\""),
+           "webp", a);
+    texels(textured("{\"source\":1,\"extensions\":{\"EXT_texture_webp\":{\"source\":0}}}", {wa, pb},
+                    "\"EXT_texture_webp\""),
+           "webp_fallback", a);
+    // KHR_texture_basisu: the PNG fallback is used; without one, refused
+    // naming KTX2; a KTX2 file as the core source, the same.
+    std::vector<unsigned char> ktx2 = {0xab, 'K',  'T',  'X',  ' ', '2', '0', 0xbb,
+                                       '\r', '\n', 0x1a, '\n', 0,   0,   0,   0};
+    texels(textured("{\"source\":1,\"extensions\":{\"KHR_texture_basisu\":{\"source\":0}}}",
+                    {ktx2, pb}, "\"KHR_texture_basisu\""),
+           "basisu_fallback", b);
+    expect_fail(textured("{\"extensions\":{\"KHR_texture_basisu\":{\"source\":0}}}", {ktx2},
+                         "\"KHR_texture_basisu\""),
+                "basisu_only", PT_ERR_FORMAT, "its only image is KTX2 (KHR_texture_basisu)");
+    expect_fail(textured("{\"source\":0}", {ktx2}, ""), "ktx2_core", PT_ERR_FORMAT,
+                "image 0 is KTX2 (KHR_texture_basisu), which ptfarm cannot decode");
+    // Hostile WebP: truncated, and a header that lies about its size.
+    std::vector<unsigned char> cut(wa.begin(), wa.begin() + long(wa.size() / 2));
+    expect_fail(textured("{\"extensions\":{\"EXT_texture_webp\":{\"source\":0}}}", {cut},
+                         "\"EXT_texture_webp\""),
+                "webp_cut", PT_ERR_FORMAT, "image 0 cannot be decoded: WebP:");
+    std::vector<unsigned char> junk = {
+        'R', 'I',  'F',  'F',  30,   0,    0, 0, 'W', 'E', 'B', 'P', 'V', 'P', '8', 'L', 10, 0, 0,
+        0,   0x2f, 0xff, 0xff, 0xff, 0xff, 0, 0, 0,   0,   0,   0,   0,   0,   0,   0,   0,  0, 0};
+    expect_fail(textured("{\"extensions\":{\"EXT_texture_webp\":{\"source\":0}}}", {junk},
+                         "\"EXT_texture_webp\""),
+                "webp_liar", PT_ERR_FORMAT, "image 0");
+}
+
 } // namespace
 
 int main(void)
@@ -738,5 +840,6 @@ int main(void)
     test_draco();
     test_draco_hostile();
     test_instancing();
+    test_texture_formats();
     return check_report();
 }
