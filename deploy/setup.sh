@@ -18,6 +18,7 @@ build_pkgs=(
   libmicrohttpd-dev                    # ptserve --http: the dashboard, API, /metrics
   libdraco-dev                         # KHR_draco_mesh_compression meshes in glTF
   libwebp-dev                          # EXT_texture_webp images in glTF
+  libmeshoptimizer-dev                 # EXT_meshopt_compression buffers in glTF
 )
 test_pkgs=(
   clang libclang-rt-14-dev             # libFuzzer targets, sanitizer runtime
@@ -30,7 +31,8 @@ test_pkgs=(
   curl prometheus                      # test_http*: the dashboard's API, promtool check metrics
   chromium                             # test_http_browser: the job page in a headless browser
 )
-runtime_pkgs=(libembree3-3 libopenexr-3-1-30 libstb0 libssl3 libmicrohttpd12 libdraco7 libwebp7)
+runtime_pkgs=(libembree3-3 libopenexr-3-1-30 libstb0 libssl3 libmicrohttpd12 libdraco7 libwebp7
+  libmeshoptimizer2d)
 
 case "${1:-}" in
 "") pkgs=("${build_pkgs[@]}" "${test_pkgs[@]}") ;;

@@ -85,6 +85,7 @@ extern "C" {
 #include "common/scene/anim.h"
 #include "common/scene/draco.h"
 #include "common/scene/gltf_import.h"
+#include "common/scene/meshopt.h"
 #include "common/scene/motion.h"
 #include "common/scene/scene.h"
 #include "common/scene/uri.h"
@@ -114,9 +115,10 @@ struct importer {
     std::vector<std::vector<unsigned char>> data_uri_images; // by image index
     std::map<std::string, std::vector<unsigned char>> files; // external files read for the hash
     std::map<std::pair<int, int>, uint32_t> tex_map;         // (gltf texture, srgb) -> builder
-    std::map<int, std::vector<unsigned char>> dense;  // accessor -> its elements, made dense once
-    std::map<std::pair<int, int>, int> draco_indices; // (mesh, primitive) -> indices set aside
-    std::set<std::pair<int, int>> draco_done;         // primitives decoded into dense
+    std::map<int, std::vector<unsigned char>> dense;   // accessor -> its elements, made dense once
+    std::map<std::pair<int, int>, int> draco_indices;  // (mesh, primitive) -> indices set aside
+    std::set<std::pair<int, int>> draco_done;          // primitives decoded into dense
+    std::map<int, std::vector<unsigned char>> meshopt; // buffer view -> its decoded bytes
     uint32_t default_material = UINT32_MAX;
     int variant = -1; // KHR_materials_variants index chosen by opts->variant; -1: none
     uint64_t node_visits = 0;
@@ -398,6 +400,9 @@ struct view_span {
 
 // The bytes of bufferView vi, checked to lie within its buffer. ai and what
 // only name the reader in messages.
+std::pair<const unsigned char *, uint64_t> meshopt_view(importer &im, int vi, int ai,
+                                                        const char *what);
+
 std::pair<const unsigned char *, uint64_t> view_bytes(importer &im, int vi, int ai,
                                                       const char *what)
 {
@@ -406,6 +411,8 @@ std::pair<const unsigned char *, uint64_t> view_bytes(importer &im, int vi, int 
         im.fail(PT_ERR_FORMAT, "accessor %d (%s): bufferView %d out of range (%zu views)", ai, what,
                 vi, m.bufferViews.size());
     const tinygltf::BufferView &v = m.bufferViews[size_t(vi)];
+    if (v.extensions.count("EXT_meshopt_compression"))
+        return meshopt_view(im, vi, ai, what);
     if (v.buffer < 0 || size_t(v.buffer) >= m.buffers.size())
         im.fail(PT_ERR_FORMAT, "accessor %d (%s): bufferView %d names buffer %d, out of range", ai,
                 what, vi, v.buffer);
@@ -417,6 +424,92 @@ std::pair<const unsigned char *, uint64_t> view_bytes(importer &im, int vi, int 
                 "(%zu bytes)",
                 ai, what, vi, v.byteOffset, v.byteLength, v.buffer, buf.size());
     return {buf.data() + v.byteOffset, v.byteLength};
+}
+
+// EXT_meshopt_compression: buffer view vi decoded once from the bytes its
+// extension names (buffer, byteOffset, byteLength) into count x byteStride
+// bytes, which must be the view's byteLength (the extension's README). The
+// view's own buffer is the uncompressed fallback, often absent
+// (prepare_json). The decoded size is capped before anything is allocated.
+std::pair<const unsigned char *, uint64_t> meshopt_view(importer &im, int vi, int ai,
+                                                        const char *what)
+{
+    auto done = im.meshopt.find(vi);
+    if (done != im.meshopt.end())
+        return {done->second.data(), done->second.size()};
+    const tinygltf::Model &m = im.model;
+    const tinygltf::BufferView &v = m.bufferViews[size_t(vi)];
+    const tinygltf::Value &e = v.extensions.at("EXT_meshopt_compression");
+    auto num = [&](const char *key, double dflt, bool required) {
+        const tinygltf::Value &x = e.Get(key);
+        if (!x.IsNumber()) {
+            if (required)
+                im.fail(PT_ERR_FORMAT,
+                        "accessor %d (%s): bufferView %d: EXT_meshopt_compression has no %s", ai,
+                        what, vi, key);
+            return dflt;
+        }
+        double d = x.GetNumberAsDouble();
+        if (!(d >= 0.0 && d <= 9007199254740992.0) || d != std::floor(d))
+            im.fail(PT_ERR_FORMAT,
+                    "accessor %d (%s): bufferView %d: EXT_meshopt_compression %s is %g", ai, what,
+                    vi, key, d);
+        return d;
+    };
+    if (!e.IsObject())
+        im.fail(PT_ERR_FORMAT,
+                "accessor %d (%s): bufferView %d: EXT_meshopt_compression is not "
+                "an object",
+                ai, what, vi);
+    double buf = num("buffer", 0, true), off = num("byteOffset", 0, false);
+    double len = num("byteLength", 0, true), stride = num("byteStride", 0, true);
+    double count = num("count", 0, true);
+    std::string mode = e.Get("mode").IsString() ? e.Get("mode").Get<std::string>() : "";
+    std::string filter = e.Get("filter").IsString() ? e.Get("filter").Get<std::string>() : "NONE";
+    int md = mode == "ATTRIBUTES"  ? PT_MESHOPT_ATTRIBUTES
+             : mode == "TRIANGLES" ? PT_MESHOPT_TRIANGLES
+             : mode == "INDICES"   ? PT_MESHOPT_INDICES
+                                   : -1;
+    int fl = filter == "NONE"          ? PT_MESHOPT_NONE
+             : filter == "OCTAHEDRAL"  ? PT_MESHOPT_OCTAHEDRAL
+             : filter == "QUATERNION"  ? PT_MESHOPT_QUATERNION
+             : filter == "EXPONENTIAL" ? PT_MESHOPT_EXPONENTIAL
+                                       : -1;
+    if (md < 0 || fl < 0)
+        im.fail(PT_ERR_FORMAT,
+                "accessor %d (%s): bufferView %d: EXT_meshopt_compression mode '%.20s' / filter "
+                "'%.20s' unknown",
+                ai, what, vi, shown(mode).c_str(), shown(filter).c_str());
+    if (buf >= double(m.buffers.size()))
+        im.fail(PT_ERR_FORMAT,
+                "accessor %d (%s): bufferView %d: EXT_meshopt_compression buffer %g out of range",
+                ai, what, vi, buf);
+    const std::vector<unsigned char> &src = m.buffers[size_t(buf)].data;
+    if (off + len > double(src.size()))
+        im.fail(PT_ERR_FORMAT,
+                "accessor %d (%s): bufferView %d: EXT_meshopt_compression bytes %g + %g are "
+                "outside buffer %g (%zu bytes)",
+                ai, what, vi, off, len, buf, src.size());
+    double size = count * stride;
+    const double cap = double(PT_SCENE_MAX_TRIANGLES) * 3.0 * 16.0; // the accessors' cap
+    if (size > cap)
+        im.fail(PT_ERR_LIMIT,
+                "accessor %d (%s): bufferView %d: EXT_meshopt_compression decodes to %g bytes "
+                "(at most %g)",
+                ai, what, vi, size, cap);
+    if (size != double(v.byteLength))
+        im.fail(PT_ERR_FORMAT,
+                "accessor %d (%s): bufferView %d: EXT_meshopt_compression count x byteStride = "
+                "%g, the view's byteLength %zu",
+                ai, what, vi, size, v.byteLength);
+    std::vector<unsigned char> out(static_cast<size_t>(size));
+    pt_error me{};
+    pt_status st = pt_meshopt_decode(src.data() + size_t(off), size_t(len), uint64_t(count),
+                                     uint32_t(stride), md, fl, out.data(), &me);
+    if (st != PT_OK)
+        im.fail(st, "accessor %d (%s): bufferView %d: %s", ai, what, vi, me.msg);
+    auto &kept = im.meshopt[vi] = std::move(out);
+    return {kept.data(), kept.size()};
 }
 
 // Element 0 of `count` elements of `elem` bytes at byte `offset` of
@@ -1147,6 +1240,7 @@ bool ext_supported(const std::string &name)
         "KHR_xmp",                         // metadata: nothing to render
         "KHR_xmp_json_ld",                 // metadata: nothing to render
         "EXT_mesh_gpu_instancing",         // instance_matrices
+        "EXT_meshopt_compression",         // meshopt_view, meshopt.c
         "EXT_texture_webp",                // texture_source, webp.c
         "KHR_texture_basisu",              // texture_source: the PNG/JPEG fallback
     };
@@ -2524,42 +2618,62 @@ void hash_files(importer &im, const std::vector<unsigned char> &entry)
             im.files.erase(uris[i]);
 }
 
-// tinygltf refuses a primitive whose indices accessor has no buffer view,
-// which is how KHR_draco_mesh_compression primitives come (their indices
-// are in the Draco buffer). Their "indices" are set aside in the JSON given
-// to tinygltf (im.draco_indices) and put back once it has parsed. text is
-// the JSON (a GLB's first chunk); the rewritten document is returned, or ""
-// when nothing was set aside (or the JSON does not parse: tinygltf says why).
-std::string set_aside_draco_indices(importer &im, const char *text, size_t n)
+// The JSON given to tinygltf, where two extensions need it changed:
+// - tinygltf refuses a primitive whose indices accessor has no buffer view,
+//   which is how KHR_draco_mesh_compression primitives come (their indices
+//   are in the Draco buffer): their "indices" are set aside
+//   (im.draco_indices) and put back once it has parsed;
+// - EXT_meshopt_compression's fallback buffers may have no uri and no data
+//   (the extension's README, "fallback"), which tinygltf reads as a file
+//   named "": they get a 4-byte data: URI instead, and views of them are
+//   only ever read decoded (meshopt_view).
+// text is the JSON (a GLB's first chunk); the rewritten document is
+// returned, or "" when nothing changed (or the JSON does not parse:
+// tinygltf says why).
+std::string prepare_json(importer &im, const char *text, size_t n)
 {
-    static const char key[] = "KHR_draco_mesh_compression";
-    if (std::string(text, n).find(key) == std::string::npos)
+    static const char draco[] = "KHR_draco_mesh_compression", meshopt[] = "EXT_meshopt_compression";
+    std::string all(text, n);
+    if (all.find(draco) == std::string::npos && all.find(meshopt) == std::string::npos)
         return std::string();
     nlohmann::json doc = nlohmann::json::parse(text, text + n, nullptr, false);
-    if (doc.is_discarded() || !doc.is_object() || !doc.contains("meshes") ||
-        !doc["meshes"].is_array())
+    if (doc.is_discarded() || !doc.is_object())
         return std::string();
     bool any = false;
-    auto &meshes = doc["meshes"];
-    for (size_t mi = 0; mi < meshes.size(); mi++) {
-        auto &mesh = meshes[mi];
-        if (!mesh.is_object() || !mesh.contains("primitives") || !mesh["primitives"].is_array())
-            continue;
-        auto &prims = mesh["primitives"];
-        for (size_t pi = 0; pi < prims.size(); pi++) {
-            auto &pr = prims[pi];
-            if (!pr.is_object() || !pr.contains("indices") || !pr["indices"].is_number_integer() ||
-                !pr.contains("extensions") || !pr["extensions"].is_object() ||
-                !pr["extensions"].contains(key))
+    if (doc.contains("meshes") && doc["meshes"].is_array()) {
+        auto &meshes = doc["meshes"];
+        for (size_t mi = 0; mi < meshes.size(); mi++) {
+            auto &mesh = meshes[mi];
+            if (!mesh.is_object() || !mesh.contains("primitives") || !mesh["primitives"].is_array())
                 continue;
-            long long ia = pr["indices"].get<long long>();
-            if (ia < 0 || ia > INT32_MAX)
-                continue; // tinygltf refuses it
-            im.draco_indices[{int(mi), int(pi)}] = int(ia);
-            pr.erase("indices");
-            any = true;
+            auto &prims = mesh["primitives"];
+            for (size_t pi = 0; pi < prims.size(); pi++) {
+                auto &pr = prims[pi];
+                if (!pr.is_object() || !pr.contains("indices") ||
+                    !pr["indices"].is_number_integer() || !pr.contains("extensions") ||
+                    !pr["extensions"].is_object() || !pr["extensions"].contains(draco))
+                    continue;
+                long long ia = pr["indices"].get<long long>();
+                if (ia < 0 || ia > INT32_MAX)
+                    continue; // tinygltf refuses it
+                im.draco_indices[{int(mi), int(pi)}] = int(ia);
+                pr.erase("indices");
+                any = true;
+            }
         }
     }
+    if (doc.contains("buffers") && doc["buffers"].is_array())
+        for (auto &b : doc["buffers"]) {
+            if (!b.is_object() || b.contains("uri") || !b.contains("extensions") ||
+                !b["extensions"].is_object() || !b["extensions"].contains(meshopt))
+                continue;
+            const auto &e = b["extensions"][meshopt];
+            if (!e.is_object() || !e.contains("fallback") || e["fallback"] != true)
+                continue;
+            b["uri"] = "data:application/octet-stream;base64,AAAAAA==";
+            b["byteLength"] = 4;
+            any = true;
+        }
     return any ? doc.dump() : std::string();
 }
 
@@ -2597,7 +2711,7 @@ void parse(importer &im, const std::vector<unsigned char> &bytes)
             im.fail(PT_ERR_LIMIT, "%s nests objects and arrays more than %u deep (at byte %zu)",
                     glb ? "the GLB's JSON chunk" : "the JSON", PT_JSON_MAX_DEPTH,
                     at + (glb ? 20 : 0));
-        std::string jtext = set_aside_draco_indices(im, text, n);
+        std::string jtext = prepare_json(im, text, n);
         if (!jtext.empty()) {
             // The same file with that JSON: a GLB keeps its header and its
             // chunks after the JSON chunk (lengths updated, JSON padded with
@@ -2631,7 +2745,7 @@ void parse(importer &im, const std::vector<unsigned char> &bytes)
                                         reinterpret_cast<const char *>(src->data()),
                                         unsigned(src->size()), "");
     }
-    for (const auto &d : im.draco_indices) // put back (set_aside_draco_indices)
+    for (const auto &d : im.draco_indices) // put back (prepare_json)
         if (ok && size_t(d.first.first) < im.model.meshes.size() &&
             size_t(d.first.second) < im.model.meshes[size_t(d.first.first)].primitives.size())
             im.model.meshes[size_t(d.first.first)].primitives[size_t(d.first.second)].indices =

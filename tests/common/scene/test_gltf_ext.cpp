@@ -16,12 +16,15 @@
 //   as a still and posed; SimpleInstancing's 1,500 triangles.
 // - EXT_texture_webp (lossless WebP texels exactly, preferred over the PNG
 //   fallback) and KHR_texture_basisu (the PNG fallback; KTX2 alone refused).
+// - EXT_meshopt_compression: lossless positions and indices bit-identical
+//   to the plain file, octahedral normals within their quantization.
 // The test reads the shared files with tinygltf itself (its implementation is
 // the one compiled into ptcore).
 #define TINYGLTF_NO_STB_IMAGE_WRITE
 #define TINYGLTF_NO_EXTERNAL_IMAGE
 #include <tiny_gltf.h>
 
+#include <meshoptimizer.h>
 #include <stb_image_write.h>
 #include <webp/encode.h>
 
@@ -829,6 +832,143 @@ void test_texture_formats()
                 "webp_liar", PT_ERR_FORMAT, "image 0");
 }
 
+// ---- EXT_meshopt_compression ------------------------------------------------------------
+
+// A 4 x 4 grid (16 vertices, 18 triangles) written twice: plainly, and with
+// its positions (vertex codec, no filter), indices (index codec) and normals
+// (vertex codec, OCTAHEDRAL filter, 8-bit) in EXT_meshopt_compression views
+// over a fallback buffer that has no data. Positions are lossless:
+// bit-identical; triangles the same, up to a rotation of their corners. Normals: the 8-bit
+// octahedral encoding moves a unit vector by at most about 1.5 / 127 (two coordinates each rounded
+// by half of 1/127, mapped through the octahedron, whose stretch is at most about 2): the test
+// allows 0.02.
+void test_meshopt()
+{
+    std::vector<float> pos, nrm4;
+    for (int y = 0; y < 4; y++)
+        for (int x = 0; x < 4; x++) {
+            float z = 0.1f * float((x * 7 + y * 3) % 5);
+            pos.insert(pos.end(), {float(x), float(y), z});
+            float n[3] = {0.3f * float(x - 1), 0.2f * float(y - 2), 1.0f};
+            float l = std::sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+            nrm4.insert(nrm4.end(), {n[0] / l, n[1] / l, n[2] / l, 0.0f});
+        }
+    std::vector<uint16_t> idx;
+    for (int y = 0; y < 3; y++)
+        for (int x = 0; x < 3; x++) {
+            uint16_t a = uint16_t(y * 4 + x), b = uint16_t(a + 1), c = uint16_t(a + 4),
+                     d = uint16_t(a + 5);
+            idx.insert(idx.end(), {a, b, d, a, d, c});
+        }
+    std::vector<float> nrm3;
+    for (size_t i = 0; i < nrm4.size(); i += 4)
+        nrm3.insert(nrm3.end(), {nrm4[i], nrm4[i + 1], nrm4[i + 2]});
+    // The plain file.
+    gltf g;
+    int pa = g.floats(pos, "VEC3", 3), na = g.floats(nrm3, "VEC3", 3);
+    int ia = g.add(idx.data(), idx.size() * 2, 5123, "SCALAR", idx.size());
+    char m[300];
+    snprintf(m, sizeof m,
+             "\"nodes\":[{\"mesh\":0}],\"meshes\":[{\"primitives\":[{\"attributes\":{"
+             "\"POSITION\":%d,\"NORMAL\":%d},\"indices\":%d}]}]",
+             pa, na, ia);
+    std::string plain = write_tmp(g.json(m), "meshopt_plain");
+    // The compressed one.
+    std::vector<int8_t> oct(nrm4.size());
+    meshopt_encodeFilterOct(oct.data(), 16, 4, 8, nrm4.data());
+    std::vector<unsigned char> vb(meshopt_encodeVertexBufferBound(16, 12));
+    vb.resize(meshopt_encodeVertexBuffer(vb.data(), vb.size(), pos.data(), 16, 12));
+    std::vector<unsigned char> nb(meshopt_encodeVertexBufferBound(16, 4));
+    nb.resize(meshopt_encodeVertexBuffer(nb.data(), nb.size(), oct.data(), 16, 4));
+    std::vector<unsigned char> ib(meshopt_encodeIndexBufferBound(idx.size(), 16));
+    ib.resize(meshopt_encodeIndexBuffer(ib.data(), ib.size(), idx.data(), idx.size()));
+    CHECK(vb.size() > 0 && nb.size() > 0 && ib.size() > 0);
+    std::vector<unsigned char> packed;
+    size_t offs[3];
+    for (int k = 0; k < 3; k++) {
+        const std::vector<unsigned char> &part = k == 0 ? vb : k == 1 ? nb : ib;
+        while (packed.size() % 4)
+            packed.push_back(0);
+        offs[k] = packed.size();
+        packed.insert(packed.end(), part.begin(), part.end());
+    }
+    auto view = [&](int k, size_t fb_off, size_t len, int stride, size_t count, const char *mode,
+                    const char *filter, bool view_stride) {
+        char v[400];
+        snprintf(v, sizeof v,
+                 "{\"buffer\":1,\"byteOffset\":%zu,\"byteLength\":%zu%s,\"extensions\":{"
+                 "\"EXT_meshopt_compression\":{\"buffer\":0,\"byteOffset\":%zu,\"byteLength\":%"
+                 "zu,\"byteStride\":%d,\"count\":%zu,\"mode\":\"%s\"%s%s%s}}}",
+                 fb_off, len,
+                 view_stride ? (",\"byteStride\":" + std::to_string(stride)).c_str() : "", offs[k],
+                 k == 0   ? vb.size()
+                 : k == 1 ? nb.size()
+                          : ib.size(),
+                 stride, count, mode, filter ? ",\"filter\":\"" : "", filter ? filter : "",
+                 filter ? "\"" : "");
+        return std::string(v);
+    };
+    auto compressed = [&](size_t ilen) {
+        return "{\"asset\":{\"version\":\"2.0\"},\"scenes\":[{\"nodes\":[0]}],\"nodes\":[{"
+               "\"mesh\":0}],\"meshes\":[{\"primitives\":[{\"attributes\":{\"POSITION\":0,"
+               "\"NORMAL\":1},\"indices\":2}]}],\"extensionsUsed\":[\"EXT_meshopt_compression\","
+               "\"KHR_mesh_quantization\"],\"extensionsRequired\":[\"EXT_meshopt_compression\","
+               "\"KHR_mesh_quantization\"],\"buffers\":[{\"byteLength\":" +
+               std::to_string(packed.size()) + ",\"uri\":\"data:application/octet-stream;base64," +
+               pt_test::base64(packed) +
+               "\"},{\"byteLength\":500,\"extensions\":{\"EXT_meshopt_compression\":{"
+               "\"fallback\":true}}}],\"bufferViews\":[" +
+               view(0, 0, 192, 12, 16, "ATTRIBUTES", nullptr, true) + "," +
+               view(1, 192, 64, 4, 16, "ATTRIBUTES", "OCTAHEDRAL", true) + "," +
+               view(2, 256, ilen, 2, idx.size(), "TRIANGLES", nullptr, false) +
+               "],\"accessors\":[{\"bufferView\":0,\"componentType\":5126,\"count\":16,"
+               "\"type\":\"VEC3\"},{\"bufferView\":1,\"componentType\":5120,\"normalized\":"
+               "true,\"count\":16,\"type\":\"VEC3\"},{\"bufferView\":2,\"componentType\":"
+               "5123,\"count\":" +
+               std::to_string(idx.size()) + ",\"type\":\"SCALAR\"}]}";
+    };
+    std::string comp = write_tmp(compressed(idx.size() * 2), "meshopt");
+    loaded a, b;
+    load(plain, a);
+    load(comp, b);
+    CHECKF(a.st == PT_OK && b.st == PT_OK, "%s / %s", a.err.msg, b.err.msg);
+    CHECKF(b.nwarn == 0, "%s", b.warnings.c_str());
+    if (a.s && b.s && a.s->num_vertices == b.s->num_vertices &&
+        a.s->num_triangles == b.s->num_triangles) {
+        CHECK(memcmp(a.s->positions, b.s->positions, 12 * size_t(a.s->num_vertices)) == 0);
+        // The index codec keeps each triangle and its winding, but may
+        // rotate its corners (meshoptimizer.h, meshopt_encodeIndexBuffer).
+        int moved = 0;
+        for (size_t t = 0; t < a.s->num_triangles; t++) {
+            const uint32_t *x = a.s->indices + 3 * t, *y = b.s->indices + 3 * t;
+            bool same = false;
+            for (int r = 0; r < 3; r++)
+                same = same || (x[0] == y[r] && x[1] == y[(r + 1) % 3] && x[2] == y[(r + 2) % 3]);
+            moved += !same;
+        }
+        CHECKF(moved == 0, "%d triangles differ beyond a rotation of their corners", moved);
+        double dn = 0;
+        for (size_t i = 0; i < 3 * size_t(a.s->num_vertices); i++)
+            dn = std::fmax(dn, std::fabs(double(a.s->normals[i]) - double(b.s->normals[i])));
+        CHECKF(dn < 0.02 && dn > 0.0, "normals differ by %g", dn);
+    } else {
+        CHECK(0);
+    }
+    unlink(plain.c_str());
+    unlink(comp.c_str());
+    // Lies: a view whose byteLength is not count x byteStride; a stream cut
+    // short (its byteLength halved).
+    std::string bad = compressed(idx.size() * 2 + 2);
+    expect_fail(bad, "meshopt_len", PT_ERR_FORMAT,
+                "count x byteStride = 108, the view's byteLength 110");
+    std::string cut =
+        replace_nth(compressed(idx.size() * 2),
+                    "\"byteLength\":" + std::to_string(ib.size()) + ",\"byteStride\":2",
+                    "\"byteLength\":" + std::to_string(ib.size() / 2) + ",\"byteStride\":2", 0);
+    expect_fail(cut, "meshopt_cut", PT_ERR_FORMAT,
+                "EXT_meshopt_compression: the stream does not decode");
+}
+
 } // namespace
 
 int main(void)
@@ -841,5 +981,6 @@ int main(void)
     test_draco_hostile();
     test_instancing();
     test_texture_formats();
+    test_meshopt();
     return check_report();
 }
