@@ -2626,7 +2626,10 @@ void hash_files(importer &im, const std::vector<unsigned char> &entry)
 // - EXT_meshopt_compression's fallback buffers may have no uri and no data
 //   (the extension's README, "fallback"), which tinygltf reads as a file
 //   named "": they get a 4-byte data: URI instead, and views of them are
-//   only ever read decoded (meshopt_view).
+//   only ever read decoded (meshopt_view);
+// - tinygltf decodes data: URIs of a few MIME types only: an image's
+//   "data:image/webp;base64," (EXT_texture_webp) or "data:image/ktx2;..."
+//   is given as application/octet-stream, whose bytes it keeps as they are.
 // text is the JSON (a GLB's first chunk); the rewritten document is
 // returned, or "" when nothing changed (or the JSON does not parse:
 // tinygltf says why).
@@ -2634,7 +2637,10 @@ std::string prepare_json(importer &im, const char *text, size_t n)
 {
     static const char draco[] = "KHR_draco_mesh_compression", meshopt[] = "EXT_meshopt_compression";
     std::string all(text, n);
-    if (all.find(draco) == std::string::npos && all.find(meshopt) == std::string::npos)
+    static const char webp_uri[] = "data:image/webp;base64,",
+                      ktx2_uri[] = "data:image/ktx2;base64,";
+    if (all.find(draco) == std::string::npos && all.find(meshopt) == std::string::npos &&
+        all.find(webp_uri) == std::string::npos && all.find(ktx2_uri) == std::string::npos)
         return std::string();
     nlohmann::json doc = nlohmann::json::parse(text, text + n, nullptr, false);
     if (doc.is_discarded() || !doc.is_object())
@@ -2673,6 +2679,17 @@ std::string prepare_json(importer &im, const char *text, size_t n)
             b["uri"] = "data:application/octet-stream;base64,AAAAAA==";
             b["byteLength"] = 4;
             any = true;
+        }
+    if (doc.contains("images") && doc["images"].is_array())
+        for (auto &img : doc["images"]) {
+            if (!img.is_object() || !img.contains("uri") || !img["uri"].is_string())
+                continue;
+            std::string u = img["uri"].get<std::string>();
+            for (const char *pre : {webp_uri, ktx2_uri})
+                if (u.compare(0, strlen(pre), pre) == 0) {
+                    img["uri"] = "data:application/octet-stream;base64," + u.substr(strlen(pre));
+                    any = true;
+                }
         }
     return any ? doc.dump() : std::string();
 }

@@ -804,6 +804,11 @@ void test_texture_formats()
     texels(textured("{\"extensions\":{\"EXT_texture_webp\":{\"source\":0}}}", {wa},
                     "\"EXT_texture_webp\""),
            "webp", a);
+    // As a data:image/webp URI (tinygltf alone decodes no such MIME type).
+    texels(replace_nth(textured("{\"extensions\":{\"EXT_texture_webp\":{\"source\":0}}}", {wa},
+                                "\"EXT_texture_webp\""),
+                       "data:application/octet-stream;base64,", "data:image/webp;base64,", 0),
+           "webp_mime", a);
     texels(textured("{\"source\":1,\"extensions\":{\"EXT_texture_webp\":{\"source\":0}}}", {wa, pb},
                     "\"EXT_texture_webp\""),
            "webp_fallback", a);
