@@ -457,6 +457,184 @@ static void gen_gltf(const char *dir)
  * whose node is moved by LINEAR translation, STEP rotation and CUBICSPLINE
  * scale, with two morph targets whose weights are animated, and a camera
  * under it; and the triangle skinned to two joints, one of them turning. */
+/* Seeds of the extensions (gen_gltf_ext): streams encoded once by libdraco's,
+ * libmeshoptimizer's and libwebp's encoders (tests/fuzz/corpus/fuzz_draco,
+ * fuzz_meshopt, fuzz_webp hold the same), kept as bytes so the corpus does
+ * not change with an encoder's version. */
+static const uint8_t k_draco_seq[158] = {
+    0x44, 0x52, 0x41, 0x43, 0x4f, 0x02, 0x02, 0x01, 0x00, 0x00, 0x00, 0x04, 0x09, 0x01, 0x00, 0x01,
+    0x02, 0x03, 0x04, 0x02, 0x00, 0x05, 0x06, 0x00, 0x07, 0x08, 0x01, 0x03, 0x00, 0x09, 0x03, 0x00,
+    0x00, 0x01, 0x09, 0x03, 0x00, 0x01, 0x03, 0x09, 0x02, 0x00, 0x02, 0x02, 0x03, 0x02, 0x00, 0x01,
+    0x01, 0x00, 0x03, 0x03, 0x71, 0x1c, 0x91, 0x23, 0x04, 0x20, 0x34, 0x40, 0x80, 0x88, 0x91, 0x48,
+    0xc0, 0x10, 0x02, 0x00, 0x00, 0x00, 0x00, 0xff, 0x07, 0x00, 0x00, 0x00, 0x03, 0x01, 0x01, 0x01,
+    0x80, 0x01, 0x71, 0x3c, 0xff, 0xf7, 0x91, 0x03, 0x03, 0xa0, 0xcc, 0x8a, 0xff, 0x00, 0x00, 0x00,
+    0x7f, 0x00, 0x00, 0x00, 0x00, 0x01, 0x01, 0x00, 0x03, 0x03, 0x71, 0x1c, 0x91, 0x23, 0x04, 0x48,
+    0x94, 0x40, 0x80, 0x64, 0x18, 0x96, 0x06, 0x00, 0x00, 0x00, 0x00, 0xff, 0x03, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x80, 0x3f, 0x0b,
+    0x08, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x80, 0x3f, 0x0a,
+};
+static const uint8_t k_meshopt_pos[136] = {
+    0xa0, 0x00, 0x00, 0x03, 0x00, 0xff, 0xff, 0x80, 0x7f, 0xff, 0xff, 0x80, 0x7f, 0xff, 0xff, 0x80,
+    0x7f, 0xff, 0xff, 0x80, 0x01, 0x38, 0xf8, 0xf8, 0xf8, 0x7e, 0x7f, 0x7e, 0x7f, 0x7e, 0x7f, 0x7e,
+    0x00, 0x00, 0x01, 0x00, 0xc0, 0xc0, 0xc0, 0xff, 0xff, 0x80, 0x01, 0x00, 0xc0, 0x80, 0x00, 0x7e,
+    0x01, 0x30, 0xfc, 0x3f, 0x0f, 0x65, 0x65, 0xcc, 0x65, 0x65, 0xcc, 0x65, 0x65, 0xcc, 0x01, 0x30,
+    0xfc, 0x3f, 0x0f, 0x67, 0x65, 0xce, 0x67, 0x65, 0xce, 0x67, 0x65, 0xce, 0x03, 0x00, 0x98, 0xff,
+    0x00, 0x65, 0xce, 0x98, 0xff, 0x00, 0x65, 0xce, 0x98, 0xff, 0x00, 0x65, 0xce, 0x01, 0x31, 0xbc,
+    0x6f, 0x1b, 0x7c, 0x7b, 0x7c, 0x7b, 0x7c, 0x7b, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+};
+static const uint8_t k_meshopt_tri[50] = {
+    0xe0, 0xfe, 0x0f, 0xfe, 0x13, 0xfe, 0x12, 0xbf, 0x0f, 0xaf, 0x02, 0x9f, 0x01,
+    0x9f, 0x0f, 0x9f, 0x02, 0x9f, 0x01, 0x0f, 0x0a, 0x01, 0xf3, 0x04, 0xf2, 0x02,
+    0x04, 0x01, 0x04, 0x02, 0x04, 0x01, 0x04, 0x02, 0x00, 0x76, 0x87, 0x56, 0x67,
+    0x78, 0xa9, 0x86, 0x65, 0x89, 0x68, 0x98, 0x01, 0x69, 0x00, 0x00,
+};
+static const uint8_t k_webp_8x6[112] = {
+    0x52, 0x49, 0x46, 0x46, 0x68, 0x00, 0x00, 0x00, 0x57, 0x45, 0x42, 0x50, 0x56, 0x50, 0x38, 0x4c,
+    0x5c, 0x00, 0x00, 0x00, 0x2f, 0x07, 0x40, 0x01, 0x10, 0x99, 0x32, 0x44, 0xf4, 0x3f, 0x36, 0x51,
+    0xf0, 0xe8, 0x7f, 0x48, 0xcc, 0xb4, 0x6d, 0x13, 0xfe, 0x48, 0x47, 0xa2, 0x1a, 0x8f, 0x9c, 0xb9,
+    0xc4, 0x82, 0x29, 0xde, 0x93, 0x4b, 0x8a, 0x22, 0x49, 0x6a, 0xee, 0x95, 0x8f, 0x28, 0x87, 0x3f,
+    0x5e, 0x56, 0x0e, 0x96, 0x70, 0x73, 0x32, 0x04, 0x24, 0x49, 0xcf, 0xa5, 0xe7, 0xf1, 0xe8, 0xc5,
+    0x96, 0xb6, 0xfc, 0x95, 0x56, 0x6f, 0xcd, 0xd7, 0x76, 0x03, 0xe6, 0x98, 0xb2, 0xbc, 0xab, 0x2c,
+    0xc3, 0x76, 0xe3, 0x12, 0x4b, 0xe2, 0xbb, 0x8b, 0x65, 0x79, 0xa3, 0xc4, 0x81, 0x47, 0x5c, 0x01,
+};
+
+/* A .gltf whose one buffer is data: uri of bin; json_head then the buffer's
+ * URI, then json_tail. */
+static void emit_with_buffer(const char *dir, const char *name, const char *json_head,
+                             const uint8_t *bin, size_t n, const char *json_tail)
+{
+    bytes b = {0};
+    puts_(&b, json_head);
+    puts_(&b, "data:application/octet-stream;base64,");
+    base64(&b, bin, n);
+    puts_(&b, json_tail);
+    emit(dir, "fuzz_gltf", name, b.p, b.len);
+    free(b.p);
+}
+
+/* Seeds of the geometry and image extensions: a sparse accessor, quantized
+ * positions with GPU instancing (normalized i16 rotations), a Draco mesh, a
+ * meshopt-compressed grid over a fallback buffer without data, and a WebP
+ * texture given as a data:image/webp URI. */
+static void gen_gltf_ext(const char *dir)
+{
+    static const char head[] = "{\"asset\":{\"version\":\"2.0\"},\"scenes\":[{\"nodes\":[0]}],";
+    uint8_t bin[256];
+    memset(bin, 0, sizeof bin);
+    static const float pos[9] = {0, 0, 0, 1, 0, 0, 0, 1, 0};
+    for (int i = 0; i < 9; i++)
+        proto_put_f32(bin + 4 * i, pos[i]);
+    proto_put_u16(bin + 36, 1);
+    proto_put_f32(bin + 40, 2.0f);
+    proto_put_f32(bin + 48, 0.5f);
+    bytes j = {0};
+    puts_(&j, head);
+    puts_(&j, "\"nodes\":[{\"mesh\":0}],\"meshes\":[{\"primitives\":[{\"attributes\":{"
+              "\"POSITION\":0}}]}],\"bufferViews\":[{\"buffer\":0,\"byteLength\":36},{\"buffer\":0,"
+              "\"byteOffset\":36,\"byteLength\":2},{\"buffer\":0,\"byteOffset\":40,\"byteLength\":"
+              "12}],\"accessors\":[{\"bufferView\":0,\"componentType\":5126,\"count\":3,\"type\":"
+              "\"VEC3\",\"sparse\":{\"count\":1,\"indices\":{\"bufferView\":1,\"componentType\":"
+              "5123},\"values\":{\"bufferView\":2}}}],\"buffers\":[{\"byteLength\":52,\"uri\":\"");
+    put(&j, "", 1);
+    emit_with_buffer(dir, "ext_sparse.gltf", (const char *)j.p, bin, 52, "\"}]}");
+    free(j.p);
+
+    /* i16 positions (stride 8), 2 translations, 2 rotations (i16, stride 8). */
+    memset(bin, 0, sizeof bin);
+    proto_put_u16(bin + 8, 32767);
+    proto_put_u16(bin + 18, 32767);
+    proto_put_f32(bin + 24 + 12, 2.0f);
+    proto_put_u16(bin + 48 + 6, 32767);
+    proto_put_u16(bin + 56 + 4, 23170);
+    proto_put_u16(bin + 56 + 6, 23170);
+    j = (bytes){0};
+    puts_(&j, head);
+    puts_(&j, "\"nodes\":[{\"mesh\":0,\"extensions\":{\"EXT_mesh_gpu_instancing\":{\"attributes\":"
+              "{\"TRANSLATION\":1,\"ROTATION\":2}}}}],\"meshes\":[{\"primitives\":[{\"attributes\":"
+              "{\"POSITION\":0}}]}],\"extensionsUsed\":[\"KHR_mesh_quantization\","
+              "\"EXT_mesh_gpu_instancing\"],\"extensionsRequired\":[\"KHR_mesh_quantization\"],"
+              "\"bufferViews\":[{\"buffer\":0,\"byteLength\":24,\"byteStride\":8},{\"buffer\":0,"
+              "\"byteOffset\":24,\"byteLength\":24},{\"buffer\":0,\"byteOffset\":48,\"byteLength\":"
+              "16,\"byteStride\":8}],\"accessors\":[{\"bufferView\":0,\"componentType\":5122,"
+              "\"normalized\":true,\"count\":3,\"type\":\"VEC3\"},{\"bufferView\":1,"
+              "\"componentType\":5126,\"count\":2,\"type\":\"VEC3\"},{\"bufferView\":2,"
+              "\"componentType\":5122,\"normalized\":true,\"count\":2,\"type\":\"VEC4\"}],"
+              "\"buffers\":[{\"byteLength\":64,\"uri\":\"");
+    put(&j, "", 1);
+    emit_with_buffer(dir, "ext_quant_instancing.gltf", (const char *)j.p, bin, 64, "\"}]}");
+    free(j.p);
+
+    /* Draco: 9 points, 4 triangles; POSITION, NORMAL, TEXCOORD_0 (ids 0-2). */
+    j = (bytes){0};
+    puts_(&j, head);
+    puts_(&j, "\"nodes\":[{\"mesh\":0}],\"meshes\":[{\"primitives\":[{\"attributes\":{"
+              "\"POSITION\":1,\"NORMAL\":2,\"TEXCOORD_0\":3},\"indices\":0,\"extensions\":{"
+              "\"KHR_draco_mesh_compression\":{\"bufferView\":0,\"attributes\":{\"POSITION\":0,"
+              "\"NORMAL\":1,\"TEXCOORD_0\":2}}}}]}],\"extensionsUsed\":["
+              "\"KHR_draco_mesh_compression\"],\"extensionsRequired\":["
+              "\"KHR_draco_mesh_compression\"],\"bufferViews\":[{\"buffer\":0,\"byteLength\":158}],"
+              "\"accessors\":[{\"componentType\":5123,\"count\":12,\"type\":\"SCALAR\"},"
+              "{\"componentType\":5126,\"count\":9,\"type\":\"VEC3\"},{\"componentType\":5126,"
+              "\"count\":9,\"type\":\"VEC3\"},{\"componentType\":5126,\"count\":9,\"type\":"
+              "\"VEC2\"}],\"buffers\":[{\"byteLength\":158,\"uri\":\"");
+    put(&j, "", 1);
+    emit_with_buffer(dir, "ext_draco.gltf", (const char *)j.p, k_draco_seq, sizeof k_draco_seq,
+                     "\"}]}");
+    free(j.p);
+
+    /* meshopt: a 4 x 4 grid's positions (vertex codec) and 18 triangles
+     * (index codec, read as u16). */
+    size_t np = sizeof k_meshopt_pos, at = (np + 3) & ~(size_t)3, nt = sizeof k_meshopt_tri;
+    uint8_t mo[512];
+    memset(mo, 0, sizeof mo);
+    memcpy(mo, k_meshopt_pos, np);
+    memcpy(mo + at, k_meshopt_tri, nt);
+    char views[900];
+    snprintf(views, sizeof views,
+             "\"nodes\":[{\"mesh\":0}],\"meshes\":[{\"primitives\":[{\"attributes\":{"
+             "\"POSITION\":0},\"indices\":1}]}],\"extensionsUsed\":[\"EXT_meshopt_compression\"],"
+             "\"extensionsRequired\":[\"EXT_meshopt_compression\"],\"bufferViews\":[{\"buffer\":0,"
+             "\"byteLength\":192,\"byteStride\":12,\"extensions\":{\"EXT_meshopt_compression\":{"
+             "\"buffer\":1,\"byteLength\":%zu,\"byteStride\":12,\"count\":16,\"mode\":"
+             "\"ATTRIBUTES\"}}},{\"buffer\":0,\"byteOffset\":192,\"byteLength\":108,"
+             "\"extensions\":{\"EXT_meshopt_compression\":{\"buffer\":1,\"byteOffset\":%zu,"
+             "\"byteLength\":%zu,\"byteStride\":2,\"count\":54,\"mode\":\"TRIANGLES\"}}}],"
+             "\"accessors\":[{\"bufferView\":0,\"componentType\":5126,\"count\":16,\"type\":"
+             "\"VEC3\"},{\"bufferView\":1,\"componentType\":5123,\"count\":54,\"type\":"
+             "\"SCALAR\"}],\"buffers\":[{\"byteLength\":300,\"extensions\":{"
+             "\"EXT_meshopt_compression\":{\"fallback\":true}}},{\"byteLength\":%zu,\"uri\":\"",
+             np, at, nt, at + nt);
+    j = (bytes){0};
+    puts_(&j, head);
+    puts_(&j, views);
+    put(&j, "", 1);
+    emit_with_buffer(dir, "ext_meshopt.gltf", (const char *)j.p, mo, at + nt, "\"}]}");
+    free(j.p);
+
+    /* The triangle textured by a WebP, as a data:image/webp URI. */
+    uint8_t tri[TRI_BIN];
+    tri_bin(tri);
+    bytes img = {0};
+    puts_(&img, "{\"uri\":\"data:image/webp;base64,");
+    base64(&img, k_webp_8x6, sizeof k_webp_8x6);
+    puts_(&img, "\"}");
+    put(&img, "", 1);
+    bytes w = {0};
+    bytes uri = {0};
+    puts_(&uri, "data:application/octet-stream;base64,");
+    base64(&uri, tri, sizeof tri);
+    put(&uri, "", 1);
+    tri_json(&w, (const char *)uri.p, TRI_BIN, k_views, (const char *)img.p, k_nodes);
+    /* tri_json's texture points at the image itself; EXT_texture_webp is
+     * what a WebP texture should name: both are read. */
+    emit(dir, "fuzz_gltf", "ext_webp.gltf", w.p, w.len);
+    free(w.p);
+    free(uri.p);
+    free(img.p);
+}
+
 static void gen_gltf_anim(const char *dir)
 {
     /* clang-format off */
@@ -846,6 +1024,7 @@ static void gen_files(const char *dir)
         return;
     }
     gen_gltf(dir);
+    gen_gltf_ext(dir);
     gen_gltf_anim(dir);
     gen_bundle(dir, tmp);
     gen_state(dir, tmp);
