@@ -7,7 +7,11 @@
 #   same file with its 125 instances written out as child nodes (each
 #   instance's TRANSLATION, ROTATION and SCALE as the node's TRS, read from
 #   the file's accessors here), and differs from its one uninstanced cube;
-# - an instance count of 2^31 exits 1 with the cap named, at once.
+# - an instance count of 2^31 exits 1 with the cap named, at once;
+# - a still of the skinned Fox is bit-identical to --time 0.5 of the same
+#   file with an animation that holds every node at its own TRS (STEP keys,
+#   the file's values rounded to float in both), and differs from the
+#   Fox's own first pose at 0.5 s.
 set -euo pipefail
 bin=${PT_BIN:?}
 src=${PT_SOURCE_DIR:?}
@@ -113,5 +117,58 @@ set -e
 grep -q "EXT_mesh_gpu_instancing: 2147483648 instances (accessor 3), over the cap" "$tmp/huge.log" ||
   fail "2^31 instances: $(cat "$tmp/huge.log")"
 
+# The Fox: still against its rest pose played as an animation.
+fox=$scenes/Fox/Fox.glb
+python3 - "$fox" "$tmp" <<'PY'
+import json, struct, sys
+raw = open(sys.argv[1], "rb").read()
+jl = struct.unpack_from("<I", raw, 12)[0]
+doc = json.loads(raw[20:20 + jl])
+bl = struct.unpack_from("<I", raw, 20 + jl)[0]
+binc = bytearray(raw[28 + jl:28 + jl + bl])
+f32 = lambda v: struct.unpack("<f", struct.pack("<f", v))[0]
+def add(data, ctype, count, typ):
+    while len(binc) % 4:
+        binc.append(0)
+    doc["bufferViews"].append({"buffer": 0, "byteOffset": len(binc), "byteLength": len(data)})
+    binc.extend(data)
+    doc["accessors"].append({"bufferView": len(doc["bufferViews"]) - 1, "componentType": ctype,
+                             "count": count, "type": typ})
+    return len(doc["accessors"]) - 1
+times = add(struct.pack("<2f", 0.0, 1.0), 5126, 2, "SCALAR")
+doc["accessors"][times].update({"min": [0.0], "max": [1.0]})
+channels, samplers = [], []
+for ni, n in enumerate(doc["nodes"]):
+    if "matrix" in n:
+        continue
+    for path, dflt, typ in (("translation", [0, 0, 0], "VEC3"), ("rotation", [0, 0, 0, 1], "VEC4"),
+                            ("scale", [1, 1, 1], "VEC3")):
+        v = [f32(x) for x in n.get(path, dflt)]
+        n[path] = v
+        out = add(struct.pack(f"<{2 * len(v)}f", *(v + v)), 5126, 2, typ)
+        samplers.append({"input": times, "output": out, "interpolation": "STEP"})
+        channels.append({"sampler": len(samplers) - 1, "target": {"node": ni, "path": path}})
+doc["animations"].append({"name": "Rest", "channels": channels, "samplers": samplers})
+doc["buffers"][0]["byteLength"] = len(binc)
+j = json.dumps(doc).encode()
+j += b" " * (-len(j) % 4)
+b = bytes(binc) + b"\0" * (-len(binc) % 4)
+out = struct.pack("<III", 0x46546C67, 2, 12 + 8 + len(j) + 8 + len(b))
+out += struct.pack("<II", len(j), 0x4E4F534A) + j + struct.pack("<II", len(b), 0x004E4942) + b
+open(f"{sys.argv[2]}/fox_rest.glb", "wb").write(out)
+PY
+"$bin/ptworker" --scene "$tmp/fox_rest.glb" "${view[@]}" -o "$tmp/fox_still.exr" 2> "$tmp/fox_still.log" ||
+  fail "fox still: $(cat "$tmp/fox_still.log")"
+"$bin/ptworker" --scene "$tmp/fox_rest.glb" "${view[@]}" --time 0.5 --animation Rest \
+  -o "$tmp/fox_rest.exr" 2> "$tmp/fox_rest.log" || fail "fox rest: $(cat "$tmp/fox_rest.log")"
+"$bin/ptworker" --scene "$tmp/fox_rest.glb" "${view[@]}" --time 0.5 --animation 0 \
+  -o "$tmp/fox_anim.exr" 2> "$tmp/fox_anim.log" || fail "fox anim: $(cat "$tmp/fox_anim.log")"
+"$bin/ptexr-diff" "$tmp/fox_still.exr" "$tmp/fox_rest.exr" ||
+  fail "the Fox's still differs from its rest pose played at 0.5 s"
+if "$bin/ptexr-diff" "$tmp/fox_still.exr" "$tmp/fox_anim.exr" > /dev/null; then
+  fail "the Fox's still equals its first animation at 0.5 s"
+fi
+
 failed=0
-echo "ok: required and used extensions, instancing equals its copies, 2^31 instances refused"
+echo "ok: required and used extensions, instancing equals its copies, 2^31 instances refused,"
+echo "    the skinned still equals its rest pose animated"
