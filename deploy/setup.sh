@@ -31,8 +31,8 @@ test_pkgs=(
   curl prometheus                      # test_http*: the dashboard's API, promtool check metrics
   chromium                             # test_http_browser: the job page in a headless browser
 )
-runtime_pkgs=(libembree3-3 libopenexr-3-1-30 libstb0 libssl3 libmicrohttpd12 libdraco7 libwebp7
-  libmeshoptimizer2d)
+# One line: test_deploy reads it to check the release image's libraries.
+runtime_pkgs=(libembree3-3 libopenexr-3-1-30 libstb0 libssl3 libmicrohttpd12 libdraco7 libwebp7 libmeshoptimizer2d)
 
 case "${1:-}" in
 "") pkgs=("${build_pkgs[@]}" "${test_pkgs[@]}") ;;
