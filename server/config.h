@@ -14,6 +14,7 @@
 #include <stdint.h>
 
 #include "common/base/frames.h"
+#include "common/image/view.h"
 #include "protocol/auth.h"
 #include "server/job.h"
 
@@ -72,6 +73,7 @@ typedef struct srv_config {
     pt_frames frames;      /* one-job mode: a frame range (server/frames.h); step 0: a still */
     double fps;            /* its frames per second */
     const char *animation; /* its animation; NULL: every one */
+    pt_view view;          /* every PNG preview's exposure and view transform */
 } srv_config;
 
 #endif

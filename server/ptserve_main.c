@@ -144,6 +144,11 @@ static void usage(FILE *f)
         "  --handshake-timeout SEC  drop a peer that has not authenticated by then (default 10)\n"
         "  --port-file PATH       write the port listened on to PATH\n"
         "\n"
+        "previews (either mode; every job's PNG; the EXR stays linear):\n"
+        "  --exposure EV          radiance x 2^EV before the view (default 0; -20 to 20)\n"
+        "  --view V               standard (clamp + sRGB, the default), filmic (Hable's\n"
+        "                         curve: bright areas roll off) or agx (Blender 4's AgX)\n"
+        "\n"
         "dashboard (either mode; docs/OPERATIONS.md, \"Dashboard\"):\n"
         "  --http HOST:PORT       serve the web dashboard, a JSON API (/api/jobs,\n"
         "                         /api/workers) and Prometheus /metrics there; off by\n"
@@ -265,7 +270,9 @@ int main(int argc, char **argv)
         O_SHUTTER,
         O_MERGETHREADS,
         O_IOTHREADS,
-        O_MAXLOG
+        O_MAXLOG,
+        O_EXPOSURE,
+        O_VIEW
     };
     static const struct option opts[] = {
         {"output", required_argument, NULL, 'o'},
@@ -299,6 +306,8 @@ int main(int argc, char **argv)
         {"min-spp", required_argument, NULL, O_MINSPP},
         {"transparent", no_argument, NULL, O_TRANSPARENT},
         {"shutter", required_argument, NULL, O_SHUTTER},
+        {"exposure", required_argument, NULL, O_EXPOSURE},
+        {"view", required_argument, NULL, O_VIEW},
         {"worker-bin", required_argument, NULL, O_WBIN},
         {"state-dir", required_argument, NULL, O_STATE},
         {"output-dir", required_argument, NULL, O_OUTDIR},
@@ -438,6 +447,13 @@ int main(int argc, char **argv)
         case O_SHUTTER:
             st = pt_opt_shutter("--shutter", optarg, shutter, &err);
             has_shutter = 1;
+            break;
+        case O_EXPOSURE:
+            st = pt_opt_double("--exposure", optarg, -PT_VIEW_MAX_EV, PT_VIEW_MAX_EV, &dv, &err);
+            c.view.exposure = (float)dv;
+            break;
+        case O_VIEW:
+            st = pt_view_parse("--view", optarg, &c.view.kind, &err);
             break;
         case O_WBIN:
             c.worker_bin = optarg;

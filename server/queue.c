@@ -640,7 +640,7 @@ int srv_entry_ready(srv_server *s, srv_entry *j)
     if (st == PT_OK && !j->writer)
         st = srv_writer_new(j->out_path, srv_job_film(j->job),
                             (srv_job_params_of(j->job)->film_flags & PROTO_FILM_TRANSPARENT) != 0,
-                            &j->writer, &err);
+                            &s->cfg->view, &j->writer, &err);
     if (st != PT_OK) {
         char msg[PROTO_MAX_ERROR_TEXT + 1];
         snprintf(msg, sizeof msg, "%s", err.msg);

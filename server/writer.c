@@ -15,6 +15,7 @@ struct srv_writer {
     char gate[4096]; /* test hook: wait for this file before each write */
     const pt_film *film;
     int has_alpha;
+    pt_view view;  /* the preview's */
     pt_image *img; /* the thread's, made at the first write and kept */
     int pending;   /* a request not yet taken */
     pt_exr_meta meta;
@@ -51,7 +52,7 @@ static void *writer_main(void *p)
             st = pt_exr_write(w->exr, w->img, &meta, &err);
         }
         if (st == PT_OK)
-            st = pt_png_write_preview(w->png, w->img, &err);
+            st = pt_png_write_preview(w->png, w->img, &w->view, &err);
 
         pthread_mutex_lock(&w->mu);
         w->busy = 0;
@@ -71,14 +72,16 @@ static void *writer_main(void *p)
     return NULL;
 }
 
-pt_status srv_writer_new(const char *exr_path, const pt_film *film, int has_alpha, srv_writer **out,
-                         pt_error *err)
+pt_status srv_writer_new(const char *exr_path, const pt_film *film, int has_alpha,
+                         const pt_view *view, srv_writer **out, pt_error *err)
 {
     srv_writer *w = pt_calloc(1, sizeof *w);
     if (!w)
         return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
     w->film = film;
     w->has_alpha = has_alpha;
+    if (view)
+        w->view = *view;
     w->error = -1.0;
     snprintf(w->exr, sizeof w->exr, "%s", exr_path);
     pt_png_preview_path(exr_path, w->png, sizeof w->png);

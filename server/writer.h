@@ -24,14 +24,16 @@
 #include "common/base/error.h"
 #include "common/image/exr.h"
 #include "common/image/image.h"
+#include "common/image/view.h"
 #include "common/render/film.h"
 
 typedef struct srv_writer srv_writer;
 
 /* film: what every image is resolved from; it must outlive the writer.
- * has_alpha: the images carry A (the film's coverage). */
-pt_status srv_writer_new(const char *exr_path, const pt_film *film, int has_alpha, srv_writer **out,
-                         pt_error *err);
+ * has_alpha: the images carry A (the film's coverage). view: the PNG
+ * preview's exposure and transform (NULL: standard at 0 EV). */
+pt_status srv_writer_new(const char *exr_path, const pt_film *film, int has_alpha,
+                         const pt_view *view, srv_writer **out, pt_error *err);
 /* Asks for the film as it is when the thread takes the request, written with
  * meta; meta's total_samples is replaced by the samples of the pixels
  * resolved, so the file says what its pixels hold. */

@@ -40,6 +40,7 @@ static void usage(FILE *f)
         "examples:\n"
         "  ptworker --scene scenes/cornell_box.gltf --spp 256 -o cornell.png\n"
         "  ptworker --scene helmet.glb --env studio.hdr --res 1280x720 --spp 512 -o helmet.exr\n"
+        "  ptworker --scene sofa.glb --env studio.hdr --view agx --exposure -1 -o sofa.png\n"
         "  ptworker --server farm:7878 --token-file farm.token     (join a farm)\n"
         "\n"
         "Standalone: renders a glTF 2.0 scene (.gltf or .glb) with the ptfarm path tracer\n"
@@ -118,7 +119,13 @@ static void usage(FILE *f)
             "  --background R,G,B a uniform environment of this radiance instead\n"
             "  --transparent      camera rays that leave the scene add nothing (the\n"
             "                     environment still lights the scene), and the EXR gets\n"
-            "                     an A channel: the pixel's coverage, RGB premultiplied\n"
+            "                     an A channel: the pixel's coverage, RGB premultiplied;\n"
+            "                     the PNG gets alpha (straight, the coverage)\n"
+            "  --exposure EV      the PNG's exposure in stops: radiance x 2^EV (default 0;\n"
+            "                     -20 to 20); the EXR stays linear\n"
+            "  --view V           the PNG's view transform: standard (clamp + sRGB, the\n"
+            "                     default), filmic (Hable's curve: bright areas roll off)\n"
+            "                     or agx (Blender 4's AgX: bright colours desaturate)\n"
             "  --shutter O,C      motion blur: the shutter opens and closes at these\n"
             "                     fractions of a frame (0,0.5: a 180-degree shutter;\n"
             "                     default off): what the scene's animation moves in\n"
@@ -213,6 +220,8 @@ int main(int argc, char **argv)
         OPT_FPS,
         OPT_ANIMATION,
         OPT_SHUTTER,
+        OPT_EXPOSURE,
+        OPT_VIEW,
         OPT_SERVER,
         OPT_PREFETCH,
         OPT_TOKEN,
@@ -245,6 +254,8 @@ int main(int argc, char **argv)
         {"fps", required_argument, NULL, OPT_FPS},
         {"animation", required_argument, NULL, OPT_ANIMATION},
         {"shutter", required_argument, NULL, OPT_SHUTTER},
+        {"exposure", required_argument, NULL, OPT_EXPOSURE},
+        {"view", required_argument, NULL, OPT_VIEW},
         {"quiet", no_argument, NULL, 'q'},
         {"server", required_argument, NULL, OPT_SERVER},
         {"prefetch", required_argument, NULL, OPT_PREFETCH},
@@ -349,6 +360,15 @@ int main(int argc, char **argv)
         case OPT_SHUTTER:
             bad = bad_value(pt_opt_shutter("--shutter", optarg, o.shutter, &err), &err);
             o.has_shutter = 1;
+            break;
+        case OPT_EXPOSURE:
+            bad = bad_value(
+                pt_opt_double("--exposure", optarg, -PT_VIEW_MAX_EV, PT_VIEW_MAX_EV, &dv, &err),
+                &err);
+            o.view.exposure = (float)dv;
+            break;
+        case OPT_VIEW:
+            bad = bad_value(pt_view_parse("--view", optarg, &o.view.kind, &err), &err);
             break;
 
         case 'q':

@@ -309,7 +309,7 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
     else
         snprintf(png, sizeof png, "%s", o->out_path);
     if ((exr && pt_exr_write(o->out_path, img, &meta, &err) != PT_OK) ||
-        pt_png_write_preview(png, img, &err) != PT_OK) {
+        pt_png_write_preview(png, img, &o->view, &err) != PT_OK) {
         fprintf(stderr, "\nptworker: %s\n", err.msg);
         goto done;
     }

@@ -10,6 +10,8 @@
 
 #include <stdint.h>
 
+#include "common/image/view.h"
+
 typedef struct wrk_standalone_opts {
     const char *scene_path;
     const char *out_path; /* .exr; a .png preview is written beside it */
@@ -39,6 +41,7 @@ typedef struct wrk_standalone_opts {
     int has_shutter;   /* motion blur over [time + shutter[0] / fps, time + shutter[1] / fps] */
     double shutter[2]; /* fractions of a frame, 0 <= open <= close <= 1 (pt_opt_shutter) */
     double fps;        /* frames per second (24 by default; --fps) */
+    pt_view view;      /* the PNG's exposure and view transform; the EXR stays linear */
     int quiet;
 } wrk_standalone_opts;
 

@@ -75,17 +75,6 @@ float pt_linear_to_srgb(float c)
     return 1.055f * powf(c, 1.0f / 2.4f) - 0.055f;
 }
 
-/* Clamped to [0,1] first (NaN goes to 0), then rounded to nearest. */
-static unsigned char to_byte(float linear)
-{
-    if (!(linear > 0.0f))
-        return 0;
-    if (linear >= 1.0f)
-        return 255;
-    float s = pt_linear_to_srgb(linear) * 255.0f + 0.5f;
-    return s >= 255.0f ? 255 : (unsigned char)s;
-}
-
 /* stb's PNG bytes, gathered in memory for one atomic write. */
 typedef struct png_buf {
     unsigned char *data;
@@ -123,27 +112,41 @@ void pt_png_preview_path(const char *exr_path, char *out, size_t n)
         snprintf(out, n, "%s.png", exr_path);
 }
 
-pt_status pt_png_write_preview(const char *path, const pt_image *img, pt_error *err)
+pt_status pt_png_write_preview(const char *path, const pt_image *img, const pt_view *view,
+                               pt_error *err)
 {
     if (!path || !img || img->width == 0 || img->height == 0 || img->width > PT_IMAGE_MAX_SIDE ||
         img->height > PT_IMAGE_MAX_SIDE)
         return pt_error_set(err, PT_ERR_ARG, "PNG preview %s: no image or a bad size",
                             path ? path : "(null)");
     size_t n = (size_t)img->width * img->height;
-    unsigned char *rgb = pt_malloc_array(n, 3);
+    int ch = img->has_alpha ? 4 : 3;
+    unsigned char *px = pt_malloc_array(n, (size_t)ch);
     png_buf png = {0};
     pt_status st = PT_OK;
-    if (!rgb) {
+    if (!px) {
         st = pt_error_set(err, PT_ERR_NOMEM, "PNG preview %s: out of memory", path);
         goto fail;
     }
     for (size_t i = 0; i < n; i++) {
-        rgb[3 * i + 0] = to_byte(img->r[i]);
-        rgb[3 * i + 1] = to_byte(img->g[i]);
-        rgb[3 * i + 2] = to_byte(img->b[i]);
+        float rgb[3] = {img->r[i], img->g[i], img->b[i]};
+        unsigned char *o = px + (size_t)ch * i;
+        if (ch == 4) {
+            /* PNG's alpha is straight: the film's RGB is premultiplied by
+             * the coverage, so it is divided out before the view. */
+            float a = img->a[i];
+            if (!(a > 0.0f))
+                a = 0.0f;
+            if (a > 1.0f)
+                a = 1.0f;
+            for (int k = 0; k < 3; k++)
+                rgb[k] = a > 0.0f ? rgb[k] / a : 0.0f;
+            o[3] = (unsigned char)(a * 255.0f + 0.5f);
+        }
+        pt_view_pixel(view, rgb, o);
     }
-    if (!stbi_write_png_to_func(png_append, &png, (int)img->width, (int)img->height, 3, rgb,
-                                (int)img->width * 3) ||
+    if (!stbi_write_png_to_func(png_append, &png, (int)img->width, (int)img->height, ch, px,
+                                (int)img->width * ch) ||
         png.failed) {
         st = pt_error_set(err, PT_ERR_NOMEM, "PNG preview %s: cannot encode", path);
         goto fail;
@@ -151,7 +154,7 @@ pt_status pt_png_write_preview(const char *path, const pt_image *img, pt_error *
     st = pt_write_file_atomic(path, png.data, png.len, err);
 fail:
     pt_free(png.data);
-    pt_free(rgb);
+    pt_free(px);
     return st;
 }
 

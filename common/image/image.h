@@ -7,7 +7,7 @@
  * camera samples whose camera ray hit the scene), meaningful and written as
  * the EXR's A channel only when has_alpha is 1 (a transparent film, whose RGB
  * is then premultiplied by it). Row 0 is the top row.
- * Also writes an 8-bit sRGB PNG preview (stb_image_write).
+ * Also writes an 8-bit PNG preview through a view transform (stb_image_write).
  *
  * Threads: an image belongs to one thread at a time; the functions keep no
  * state of their own.
@@ -19,6 +19,7 @@
 #include <stdint.h>
 
 #include "common/base/error.h"
+#include "common/image/view.h"
 
 typedef struct pt_image {
     uint32_t width, height;
@@ -48,8 +49,12 @@ void pt_image_free(pt_image *img); /* accepts NULL */
  * appended. Every program names its preview so. */
 void pt_png_preview_path(const char *exr_path, char *out, size_t n);
 
-/* Writes an sRGB PNG of r,g,b (clamped, exposure 1), atomically (temp + rename). */
-pt_status pt_png_write_preview(const char *path, const pt_image *img, pt_error *err);
+/* Writes a PNG of r,g,b through view (common/image/view.h; NULL: standard
+ * at 0 EV, the clamped sRGB of earlier releases), atomically (temp +
+ * rename). An image with has_alpha gets an RGBA PNG: straight alpha, the
+ * coverage, with the RGB divided by it before the view. */
+pt_status pt_png_write_preview(const char *path, const pt_image *img, const pt_view *view,
+                               pt_error *err);
 
 /* PNG bytes of width x height 8-bit RGB pixels (rows top first), in memory:
  * *out is pt_malloc'd (pt_free), *len its size; both untouched on failure. */

@@ -29,6 +29,14 @@ done
 size=$(od -An -tu1 -j16 -N8 "$tmp/sheet.png" | awk '{print $1*16777216+$2*65536+$3*256+$4 "x" $5*16777216+$6*65536+$7*256+$8}')
 [ "$size" = "52x36" ] || fail "sheet is $size, want 52x36"
 
+# The previews' view transform and exposure: another image, same size.
+"$bin/ptcontact-sheet" -o "$tmp/agx.png" --view agx --exposure -1 --cols 2 "$tmp/f0.exr" \
+  "$tmp/f12.exr" "$tmp/f24.exr" || fail "--view agx: exit $?"
+if cmp -s "$tmp/sheet.png" "$tmp/agx.png"; then fail "--view agx made the standard sheet"; fi
+rc=0
+"$bin/ptcontact-sheet" -o "$tmp/bad.png" --view aces "$tmp/f0.exr" 2> "$tmp/err" || rc=$?
+[ "$rc" = 2 ] || fail "--view aces: exit $rc"
+grep -q "standard, filmic or agx" "$tmp/err" || fail "--view aces: $(cat "$tmp/err")"
 rc=0
 "$bin/ptcontact-sheet" -o "$tmp/bad.png" "$tmp/f0.exr" "$tmp/other.exr" 2> "$tmp/err" || rc=$?
 [ "$rc" = 2 ] || fail "mismatched size: exit $rc"

@@ -299,10 +299,15 @@ done
 as admin -X POST "$web/api/jobs/$fire/cancel" > /dev/null
 
 # The image views and the EXR download.
-for v in rgb samples error; do
+for v in rgb standard filmic agx samples error; do
   as alice -o "$tmp/$v.png" "$web/api/jobs/$short/image.png?view=$v&exposure=1"
   [ "$(head -c 8 "$tmp/$v.png" | od -An -tx1 | tr -d ' \n')" = 89504e470d0a1a0a ] || fail "$v: not a PNG"
 done
+# The view transforms are the previews' own: rgb is standard, agx is not.
+cmp -s "$tmp/rgb.png" "$tmp/standard.png" || fail "view=rgb and view=standard differ"
+if cmp -s "$tmp/rgb.png" "$tmp/agx.png"; then fail "view=agx is the standard image"; fi
+[ "$(code -H "Authorization: Bearer $(cat "$tmp/alice.token")" "$web/api/jobs/$short/image.png?view=aces")" = 400 ] ||
+  fail "view=aces is not refused with 400"
 as alice -o "$tmp/dl.exr" "$web/api/jobs/$short/image.exr"
 cmp "$tmp/dl.exr" "$tmp/state/output/$short-alice_short.exr" || fail "EXR download differs"
 # The worker's row counts what it rendered: tasks, samples, its last result.

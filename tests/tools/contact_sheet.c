@@ -2,13 +2,13 @@
  * ptcontact-sheet - lays images written by ptfarm out on one sRGB PNG, in
  * rows, for reviewing a sequence (a frame range's EXRs) at a glance.
  *
- *   ptcontact-sheet -o SHEET.png [--cols N] A.exr B.exr ...
+ *   ptcontact-sheet -o SHEET.png [--cols N] [--exposure EV] [--view V] A.exr ...
  *
  * Every image must have the size of the first. Frames are placed left to
  * right, top to bottom, in the order given, with a 4-pixel black gutter;
- * the PNG is the same clamped sRGB encoding as every preview ptfarm writes
- * (pt_png_write_preview). Exit 0 on success, 2 on bad arguments or an image
- * that cannot be read, 1 when the PNG cannot be written.
+ * the PNG goes through the same view transform as every preview ptfarm
+ * writes (pt_png_write_preview, common/image/view.h). Exit 0 on success, 2 on bad arguments or an
+ * image that cannot be read, 1 when the PNG cannot be written.
  */
 #include <stdio.h>
 #include <stdlib.h>
@@ -19,15 +19,18 @@
 #include "common/base/version.h"
 #include "common/image/exr.h"
 #include "common/image/image.h"
+#include "common/image/view.h"
 
 enum { GUTTER = 4, MAX_FRAMES = 1024 };
 
 static int usage(FILE *f, int rc)
 {
-    fprintf(f, "usage: ptcontact-sheet -o SHEET.png [--cols N] A.exr B.exr ...\n"
+    fprintf(f, "usage: ptcontact-sheet -o SHEET.png [--cols N] [--exposure EV]\n"
+               "                       [--view " PT_VIEW_NAMES "] A.exr B.exr ...\n"
                "       ptcontact-sheet --version\n"
                "Lays the images out in rows of N (default: up to 4), in the order given,\n"
-               "on one sRGB PNG. Every image must have the first one's size.\n");
+               "on one sRGB PNG. Every image must have the first one's size. --exposure\n"
+               "(stops, default 0) and --view (default standard) are the previews' own.\n");
     return rc;
 }
 
@@ -51,6 +54,8 @@ int main(int argc, char **argv)
     uint32_t cols = 0;
     int first = 1;
     pt_error err = {0};
+    pt_view view = {PT_VIEW_STANDARD, 0.0f};
+    double ev = 0.0;
     while (first < argc && argv[first][0] == '-') {
         if (!strcmp(argv[first], "-h") || !strcmp(argv[first], "--help"))
             return usage(stdout, 0);
@@ -58,6 +63,18 @@ int main(int argc, char **argv)
             out = argv[first + 1];
         } else if (!strcmp(argv[first], "--cols") && first + 1 < argc) {
             if (pt_opt_u32("--cols", argv[first + 1], 1, MAX_FRAMES, &cols, &err) != PT_OK) {
+                fprintf(stderr, "ptcontact-sheet: %s\n", err.msg);
+                return 2;
+            }
+        } else if (!strcmp(argv[first], "--exposure") && first + 1 < argc) {
+            if (pt_opt_double("--exposure", argv[first + 1], -PT_VIEW_MAX_EV, PT_VIEW_MAX_EV, &ev,
+                              &err) != PT_OK) {
+                fprintf(stderr, "ptcontact-sheet: %s\n", err.msg);
+                return 2;
+            }
+            view.exposure = (float)ev;
+        } else if (!strcmp(argv[first], "--view") && first + 1 < argc) {
+            if (pt_view_parse("--view", argv[first + 1], &view.kind, &err) != PT_OK) {
                 fprintf(stderr, "ptcontact-sheet: %s\n", err.msg);
                 return 2;
             }
@@ -104,7 +121,7 @@ int main(int argc, char **argv)
         pt_image_free(img);
         img = NULL;
     }
-    if (rc == 0 && pt_png_write_preview(out, sheet, &err) != PT_OK) {
+    if (rc == 0 && pt_png_write_preview(out, sheet, &view, &err) != PT_OK) {
         fprintf(stderr, "ptcontact-sheet: %s\n", err.msg);
         rc = 1;
     }

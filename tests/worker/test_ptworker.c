@@ -53,6 +53,20 @@ static pt_image *read_exr(const char *name, pt_exr_meta *meta)
     return img;
 }
 
+/* The bytes of tmpdir/name, malloc'd, their count in *len; NULL if unread. */
+static unsigned char *slurp(const char *name, size_t *len)
+{
+    char path[512];
+    snprintf(path, sizeof path, "%s/%s", tmpdir, name);
+    FILE *f = fopen(path, "rb");
+    if (!f)
+        return NULL;
+    unsigned char *buf = malloc(1 << 20);
+    *len = buf ? fread(buf, 1, 1 << 20, f) : 0;
+    fclose(f);
+    return buf;
+}
+
 static int same_pixels(const pt_image *a, const pt_image *b)
 {
     size_t n = (size_t)a->width * a->height * sizeof(float);
@@ -234,6 +248,45 @@ int main(void)
     snprintf(png, sizeof png, "%s/t1.png", tmpdir);
     struct stat sb;
     CHECK(stat(png, &sb) == 0 && sb.st_size > 100);
+
+    /* The view transform and exposure change the PNG only: the EXR is the
+     * same bits, the preview is not; a bad view or exposure is bad usage. */
+    CHECK(run("--scene x.gltf -o y.exr --view aces") == 2 && stderr_has("standard, filmic or agx"));
+    CHECK(run("--scene x.gltf -o y.exr --exposure 21") == 2 && stderr_has("--exposure"));
+    CHECK(run("--scene x.gltf -o y.exr --exposure 1e") == 2 && stderr_has("--exposure"));
+    CHECK(run("--server 127.0.0.1:1 --view agx") == 2 && stderr_has("standalone option"));
+    snprintf(args, sizeof args,
+             "--scene %s -o %s/v1.exr --res 40x30 --spp 8 --threads 1 --tile 16 --view agx "
+             "--exposure 1 -q",
+             cornell, tmpdir);
+    CHECK(run(args) == 0);
+    a = read_exr("t1.exr", NULL);
+    b = read_exr("v1.exr", NULL);
+    CHECKF(a && b && same_pixels(a, b), "--view changed the EXR");
+    pt_image_free(a);
+    pt_image_free(b);
+    size_t la = 0, lb = 0;
+    unsigned char *pa = slurp("t1.png", &la), *pb = slurp("v1.png", &lb);
+    CHECKF(pa && pb && (la != lb || memcmp(pa, pb, la) != 0), "--view agx left the PNG as it was");
+    free(pa);
+    free(pb);
+    /* --transparent: an RGBA PNG (IHDR colour type 6 at byte 25), as the
+     * output and as the EXR's preview; without it RGB (type 2). */
+    snprintf(args, sizeof args,
+             "--scene %s -o %s/tr.png --res 16x12 --spp 2 -q --transparent --background 1,1,1",
+             cornell, tmpdir);
+    CHECK(run(args) == 0);
+    snprintf(args, sizeof args,
+             "--scene %s -o %s/tr.exr --res 16x12 --spp 2 -q --transparent --background 1,1,1",
+             cornell, tmpdir);
+    CHECK(run(args) == 0);
+    pa = slurp("tr.png", &la);
+    CHECKF(pa && la > 26 && pa[25] == 6, "transparent PNG colour type %d",
+           pa && la > 26 ? pa[25] : -1);
+    free(pa);
+    pb = slurp("t1.png", &lb);
+    CHECK(pb && lb > 26 && pb[25] == 2);
+    free(pb);
 
     if (pt_remove_tree(tmpdir) != 0)
         fprintf(stderr, "could not remove %s\n", tmpdir);

@@ -179,7 +179,7 @@ static void test_png(void)
         img->r[i] = img->g[i] = img->b[i] = lin[i];
         img->r[n + i] = lin[i]; /* row 2: red only */
     }
-    CHECK(pt_png_write_preview(path("p.png"), img, &err) == PT_OK);
+    CHECK(pt_png_write_preview(path("p.png"), img, NULL, &err) == PT_OK);
     size_t len = 0;
     unsigned char *bytes = slurp(path("p.png"), &len);
     static const unsigned char sig[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
@@ -201,9 +201,9 @@ static void test_png(void)
     }
     stbi_image_free(px);
     /* Replacing an existing preview, and no temp file left behind. */
-    CHECK(pt_png_write_preview(path("p.png"), img, &err) == PT_OK);
+    CHECK(pt_png_write_preview(path("p.png"), img, NULL, &err) == PT_OK);
     CHECK(count_temp_files() == 0);
-    CHECK(pt_png_write_preview(path("no/such/dir/p.png"), img, &err) == PT_ERR_IO);
+    CHECK(pt_png_write_preview(path("no/such/dir/p.png"), img, NULL, &err) == PT_ERR_IO);
     CHECK(strstr(err.msg, "no/such/dir/p.png") != NULL);
     CHECK(count_temp_files() == 0);
     pt_image_free(img);
