@@ -2,6 +2,7 @@
 
 #include <stdio.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "common/base/alloc.h"
 #include "common/base/fsutil.h"
@@ -67,6 +68,15 @@ static pt_status setup_single(srv_server *s, pt_error *err)
     if ((st = pt_temp_open(cfg->out_path, 0644, &probe, err)) != PT_OK)
         return st;
     pt_temp_abort(&probe);
+    /* So does a map that cannot be opened: it is decoded below, after the
+     * scene, but a missing file is known now. */
+    if (cfg->env_path) {
+        int fd;
+        pt_error e = {0};
+        if ((st = pt_open_regular(cfg->env_path, 1, &fd, &e)) != PT_OK)
+            return pt_error_set(err, st, "--env: %s", e.msg);
+        close(fd);
+    }
     /* Load once here so a broken scene fails before any worker starts. */
     pt_scene_opts so = {0};
     so.camera_name = cfg->job.camera[0] ? cfg->job.camera : NULL;

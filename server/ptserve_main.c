@@ -13,6 +13,8 @@
 #include "common/base/frames.h"
 #include "common/base/opt.h"
 #include "common/base/version.h"
+#include "common/image/image.h"
+#include "common/image/view.h"
 #include "common/render/tile.h"
 #include "server/io.h"
 #include "server/serve.h"
@@ -21,13 +23,14 @@ static void usage(FILE *f)
 {
     fprintf(
         f,
-        "usage: ptserve [options] -o OUT.exr SCENE\n"
-        "       ptserve --local N [options] -o OUT.exr SCENE\n"
+        "usage: ptserve [options] -o OUT.exr|OUT.png SCENE\n"
+        "       ptserve --local N [options] -o OUT.exr|OUT.png SCENE\n"
         "       ptserve --local N --frames A-B[:STEP] [options] -o SHOT.####.exr SCENE\n"
         "       ptserve --state-dir DIR [--output-dir DIR] [options]\n"
         "\n"
         "examples:\n"
         "  ptserve --local 4 --spp 512 -o out.exr scene.gltf     (one machine, 4 workers)\n"
+        "  ptserve --local 4 --spp 256 --view agx -o out.png scene.gltf   (a PNG alone)\n"
         "  ptserve --state-dir /var/lib/ptfarm --listen 0.0.0.0:7878 --token-file farm.token\n"
         "          --http 0.0.0.0:8080                          (a render queue, a dashboard)\n"
         "\n"
@@ -68,7 +71,11 @@ static void usage(FILE *f)
         "  uploaded with the scene and checked before the job is queued)\n"
         "\n"
         "one-job mode:\n"
-        "  -o, --output PATH      the EXR to write (required)\n"
+        "  -o, --output PATH      the image to write (required), its format by its name:\n"
+        "                         NAME.exr (OpenEXR, linear; a preview NAME.png beside\n"
+        "                         it) or NAME.png (8-bit, the preview alone). Checked,\n"
+        "                         with --env and --frames' pattern, before the scene\n"
+        "                         is loaded\n"
         "  --local N              start N ptworker processes on this machine\n"
         "  --worker-threads T     threads per local worker (default: cores / N)\n"
         "  --listen HOST:PORT     where workers connect (default 127.0.0.1:7878; with\n"
@@ -599,6 +606,10 @@ int main(int argc, char **argv)
     if (!c.frames.step && !has_shutter && c.fps > 0) {
         fprintf(stderr, "ptserve: --fps is the frame rate of --frames A-B[:STEP] and --shutter; "
                         "give --frames or --shutter\n");
+        return 2;
+    }
+    if (c.out_path && pt_image_format_of(c.out_path) == PT_IMAGE_FORMAT_NONE) {
+        fprintf(stderr, "ptserve: -o %s: " PT_IMAGE_FORMATS "\n", c.out_path);
         return 2;
     }
     if (c.frames.step && !pt_frames_has_pattern(c.out_path)) {

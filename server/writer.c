@@ -11,8 +11,8 @@ struct srv_writer {
     pthread_mutex_t mu;
     pthread_cond_t cv;
     pthread_t thread;
-    char exr[4096], png[4096];
-    char gate[4096]; /* test hook: wait for this file before each write */
+    char exr[4096], png[4096]; /* exr "": a .png output, the PNG alone */
+    char gate[4096];           /* test hook: wait for this file before each write */
     const pt_film *film;
     int has_alpha;
     pt_view view;  /* the preview's */
@@ -49,7 +49,8 @@ static void *writer_main(void *p)
         if (st == PT_OK) {
             meta.total_samples = pt_film_resolve_measured(w->film, w->img, &e);
             w->img->has_alpha = w->has_alpha;
-            st = pt_exr_write(w->exr, w->img, &meta, &err);
+            if (w->exr[0])
+                st = pt_exr_write(w->exr, w->img, &meta, &err);
         }
         if (st == PT_OK)
             st = pt_png_write_preview(w->png, w->img, &w->view, &err);
@@ -83,8 +84,13 @@ pt_status srv_writer_new(const char *exr_path, const pt_film *film, int has_alph
     if (view)
         w->view = *view;
     w->error = -1.0;
-    snprintf(w->exr, sizeof w->exr, "%s", exr_path);
-    pt_png_preview_path(exr_path, w->png, sizeof w->png);
+    if (pt_image_format_of(exr_path) == PT_IMAGE_FORMAT_PNG) {
+        /* A .png output is the PNG alone: no EXR is written. */
+        snprintf(w->png, sizeof w->png, "%s", exr_path);
+    } else {
+        snprintf(w->exr, sizeof w->exr, "%s", exr_path);
+        pt_png_preview_path(exr_path, w->png, sizeof w->png);
+    }
     /* Test hook (tests/integration/test_queue_ctl.sh): hold every write
      * until a file exists. Unset in production. */
     const char *gate = getenv("PTSERVE_TEST_WRITE_GATE");

@@ -29,7 +29,9 @@
 
 typedef struct srv_writer srv_writer;
 
-/* film: what every image is resolved from; it must outlive the writer.
+/* exr_path: the image, its format by its name (pt_image_format_of): an EXR
+ * with its PNG preview beside it, or a .png alone.
+ * film: what every image is resolved from; it must outlive the writer.
  * has_alpha: the images carry A (the film's coverage). view: the PNG
  * preview's exposure and transform (NULL: standard at 0 EV). */
 pt_status srv_writer_new(const char *exr_path, const pt_film *film, int has_alpha,

@@ -5,7 +5,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <strings.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -84,13 +83,6 @@ static void *render_thread(void *p)
     return NULL;
 }
 
-/* 1 when path's name ends in ext (".exr"), in any case. */
-static int has_ext(const char *path, const char *ext)
-{
-    size_t n = strlen(path), e = strlen(ext);
-    return n > e && strcasecmp(path + n - e, ext) == 0;
-}
-
 /* 1 when a file can be written at path: a temporary is made beside it and
  * removed, as the final write will make one (so the folder exists, is a
  * folder and is writable); else says why on stderr. */
@@ -113,16 +105,13 @@ static int writable(const char *what, const char *path)
  * the exit status: 2 for a name of no known format, 1 for the rest. */
 static int check_before(const wrk_standalone_opts *o)
 {
-    if (!has_ext(o->out_path, ".exr") && !has_ext(o->out_path, ".png")) {
-        fprintf(stderr,
-                "ptworker: -o %s: the output's format follows its name: .exr (OpenEXR, with a "
-                ".png preview beside it) or .png (8-bit sRGB)\n",
-                o->out_path);
+    if (pt_image_format_of(o->out_path) == PT_IMAGE_FORMAT_NONE) {
+        fprintf(stderr, "ptworker: -o %s: " PT_IMAGE_FORMATS "\n", o->out_path);
         return 2;
     }
     if (!writable("-o", o->out_path))
         return 1;
-    if (has_ext(o->out_path, ".exr")) {
+    if (pt_image_format_of(o->out_path) == PT_IMAGE_FORMAT_EXR) {
         char png[4096];
         pt_png_preview_path(o->out_path, png, sizeof png);
         if (!writable("the preview", png))
@@ -302,7 +291,7 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
     meta.render_seconds = secs;
     snprintf(meta.scene_hash, sizeof meta.scene_hash, "%s", scene->hash);
     /* An .exr with its preview beside it, or a .png alone (check_before). */
-    int exr = has_ext(o->out_path, ".exr");
+    int exr = pt_image_format_of(o->out_path) == PT_IMAGE_FORMAT_EXR;
     char png[4096];
     if (exr)
         pt_png_preview_path(o->out_path, png, sizeof png);

@@ -4,6 +4,7 @@
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
+#include <strings.h>
 
 #include <stb/stb_image_write.h>
 
@@ -101,6 +102,16 @@ static void png_append(void *ctx, void *data, int size)
     }
     memcpy(b->data + b->len, data, (size_t)size);
     b->len += (size_t)size;
+}
+
+pt_image_format pt_image_format_of(const char *path)
+{
+    size_t n = strlen(path);
+    if (n > 4 && strcasecmp(path + n - 4, ".exr") == 0)
+        return PT_IMAGE_FORMAT_EXR;
+    if (n > 4 && strcasecmp(path + n - 4, ".png") == 0)
+        return PT_IMAGE_FORMAT_PNG;
+    return PT_IMAGE_FORMAT_NONE;
 }
 
 void pt_png_preview_path(const char *exr_path, char *out, size_t n)

@@ -44,6 +44,20 @@ pt_status pt_image_check_size(const char *what, uint32_t width, uint32_t height,
 pt_status pt_image_new(uint32_t width, uint32_t height, pt_image **out, pt_error *err);
 void pt_image_free(pt_image *img); /* accepts NULL */
 
+/* An output's format, by its name's ending in any case: ".exr" (OpenEXR,
+ * linear, with a PNG preview beside it) or ".png" (the 8-bit PNG alone). */
+typedef enum pt_image_format {
+    PT_IMAGE_FORMAT_NONE = 0,
+    PT_IMAGE_FORMAT_EXR,
+    PT_IMAGE_FORMAT_PNG
+} pt_image_format;
+pt_image_format pt_image_format_of(const char *path);
+
+/* The refusal of any other name, for "prog: -o NAME: " PT_IMAGE_FORMATS. */
+#define PT_IMAGE_FORMATS                                                                           \
+    "the output's format follows its name: .exr (OpenEXR, with a .png preview beside it) or "      \
+    ".png (8-bit sRGB)"
+
 /* The name of the PNG preview written beside the EXR exr_path, into out (n
  * bytes, cut to fit): "out.exr" -> "out.png"; any other name gets ".png"
  * appended. Every program names its preview so. */
