@@ -90,6 +90,7 @@ struct pt_renderer {
     const char *variant;
     int lanes; /* the Lambert variants shade in lanes (shade_lanes) */
     float tan_half_fov;
+    pt_camera camera; /* the scene's, or a framed one fitted to the image (pt_renderer_new) */
     const pt_motion *motion; /* the scene's (PT_FEAT_MOTION), or NULL: nothing moves */
 };
 
@@ -110,6 +111,11 @@ const pt_render_params *pt_renderer_params(const pt_renderer *r)
 {
     return &r->params;
 }
+const pt_camera *pt_renderer_camera(const pt_renderer *r)
+{
+    return &r->camera;
+}
+
 const char *pt_renderer_variant(const pt_renderer *r)
 {
     return r->variant;
@@ -796,10 +802,10 @@ path_start(const pt_renderer *r, pixel_ctx *pc, uint32_t index, path *pa, const 
             pt_camera c = pt_motion_camera(r->motion, pa->time);
             camera_ray(r, &c, pc->px, pc->py, u2, &pa->o, &pa->d);
         } else {
-            camera_ray(r, &r->scene->camera, pc->px, pc->py, u2, &pa->o, &pa->d);
+            camera_ray(r, &r->camera, pc->px, pc->py, u2, &pa->o, &pa->d);
         }
     } else {
-        camera_ray(r, &r->scene->camera, pc->px, pc->py, u2, &pa->o, &pa->d);
+        camera_ray(r, &r->camera, pc->px, pc->py, u2, &pa->o, &pa->d);
     }
     pa->L = pt_v3(0, 0, 0);
     pa->beta = pt_v3(1, 1, 1);
@@ -1873,7 +1879,17 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
     pt_status st;
     r->scene = scene;
     r->params = *params;
-    r->tan_half_fov = tanf(0.5f * scene->camera.yfov);
+    r->camera = scene->camera;
+    /* A framed camera looks at the bounds as they are (posed at the time
+     * asked for) and fits them to this image's aspect. */
+    if (scene->camera.framed)
+        pt_camera_frame(scene->bounds_min, scene->bounds_max,
+                        (float)params->width / (float)params->height, &r->camera);
+    /* An orthographic view given by its width alone (ymag 0): the height
+     * follows the image. */
+    if (r->camera.ortho && !(r->camera.ymag > 0.0f))
+        r->camera.ymag = r->camera.xmag * (float)params->height / (float)params->width;
+    r->tan_half_fov = tanf(0.5f * r->camera.yfov);
     if ((st = pt_accel_new(scene, &r->accel, err)) != PT_OK)
         goto fail;
     if ((st = pt_lights_new_env(scene, params->env,

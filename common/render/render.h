@@ -163,6 +163,9 @@ const pt_render_params *pt_renderer_params(const pt_renderer *r);
 /* The integrator variant chosen for the scene ("general", "lambert", ...).
  * Every variant gives the same bits as the general one; it only skips work. */
 const char *pt_renderer_variant(const pt_renderer *r);
+/* The camera rays leave from: the scene's, or for a framed one (no camera
+ * in the file) pt_camera_frame of the scene's bounds at the image's aspect. */
+const pt_camera *pt_renderer_camera(const pt_renderer *r);
 
 /* 1 when the variant shades 8 paths at a time in SIMD lanes (the Lambert
  * variants, on a processor where the lanes are fast). */

@@ -30,7 +30,7 @@
  * - cameras and KHR_lights_punctual lights follow their nodes' global
  *   matrices (position, axes); the rendered camera (scene->camera) follows
  *   when it is one of the file's cameras (a framed camera stays where the
- *   load framed it).
+ *   load framed it; the renderer frames it again from the posed bounds).
  * Only what can move is computed: instances under a node whose TRS a chosen
  * channel animates (or under such an ancestor), skinned and morphed
  * instances, cameras and lights under animated nodes. Everything else keeps

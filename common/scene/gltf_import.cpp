@@ -1676,6 +1676,7 @@ void add_camera(importer &im, int ni, int ci, const mat4 &w)
                        : !n.name.empty() ? n.name
                                          : "camera " + std::to_string(ci);
     snprintf(pc.name, sizeof pc.name, "%s", name.c_str());
+    snprintf(pc.node, sizeof pc.node, "%s", n.name.c_str());
     pc.position = pt_v3(float(w[12]), float(w[13]), float(w[14]));
     pt_vec3 fwd = pt_v3(float(-w[8]), float(-w[9]), float(-w[10]));
     pt_vec3 up = pt_v3(float(w[4]), float(w[5]), float(w[6]));
@@ -2916,10 +2917,7 @@ static pt_status load(const char *path, const pt_scene_opts *opts, pt_scene **ou
             rig->translate[2] = opts->translate.z;
         }
         // scene->camera as choose_camera (scene.c) chose it.
-        const char *cam = opts ? opts->camera_name : nullptr;
-        for (uint32_t i = 0; i < s->num_cameras && rig->camera < 0; i++)
-            if (!cam || strcmp(s->cameras[i].name, cam) == 0)
-                rig->camera = int(i);
+        rig->camera = pt_scene_find_camera(s, opts ? opts->camera_name : nullptr);
         st = rig->moves ? pt_anim_pose(rig, t, s, &e) : PT_OK;
         if (st != PT_OK) {
             pt_anim_free(rig);

@@ -24,6 +24,7 @@
 #include <math.h>
 #include <pthread.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include <openssl/evp.h>
@@ -826,33 +827,59 @@ uint32_t pt_camera_height(float aspect, uint32_t width, uint32_t max_height)
     return n > 0 ? n : 1;
 }
 
-void pt_scene_frame_camera(pt_scene *scene, float aspect)
+void pt_camera_frame(pt_vec3 lo, pt_vec3 hi, float aspect, pt_camera *out)
 {
     pt_camera c;
     memset(&c, 0, sizeof c);
-    pt_vec3 lo = scene->bounds_min, hi = scene->bounds_max;
     pt_vec3 centre = pt_v3_scale(pt_v3_add(lo, hi), 0.5f);
-    float radius = 0.5f * pt_v3_len(pt_v3_sub(hi, lo));
-    if (!(radius > 0.0f) || !isfinite(radius))
+    pt_vec3 ext = pt_v3_sub(hi, lo);
+    float radius = 0.5f * pt_v3_len(ext);
+    int box = radius > 0.0f && isfinite(radius);
+    if (!box)
         radius = 1.0f;
     c.yfov = 40.0f * PT_PI / 180.0f;
     c.aspect = aspect > 0.0f && isfinite(aspect) ? aspect : 0.0f;
-    /* The narrower of the two fields of view must hold the bounding sphere:
-     * distance = r / sin(fov/2). With no aspect known the image is taken as square. */
     float a = c.aspect > 0.0f ? c.aspect : 1.0f;
-    float half = 0.5f * c.yfov;
-    if (a < 1.0f)
-        half = atanf(a * tanf(half));
-    float dist = radius / sinf(half) * 1.05f;
     /* From +Z, a little above, so the top of the scene shows. */
     pt_vec3 dir = pt_v3_norm(pt_v3(0.0f, 0.25f, 1.0f));
-    c.position = pt_v3_add(centre, pt_v3_scale(dir, dist));
     c.forward = pt_v3_neg(dir);
     c.right = pt_v3_norm(pt_v3_cross(c.forward, pt_v3(0.0f, 1.0f, 0.0f)));
     c.up = pt_v3_cross(c.right, c.forward);
+    /* The box's projection fitted to the image: the camera sits at distance
+     * d from the centre, on dir; a corner v (from the centre) at depth
+     * d + v.forward is inside the view when |v.right| <= (d + v.forward)
+     * tan(xfov/2) and |v.up| <= (d + v.forward) tan(yfov/2), so d is the
+     * largest of |v.right| / tx - v.forward and |v.up| / ty - v.forward over
+     * the 8 corners, with 5 % of margin in the tangents. A flat board then
+     * fills the frame, where the bounding sphere left it half of it. */
+    float ty = tanf(0.5f * c.yfov) / 1.05f, tx = ty * a;
+    float dist = radius / sinf(atanf(a < 1.0f ? tx : ty)); /* the sphere's: no box */
+    if (box) {
+        dist = 0.0f;
+        float deepest = 0.0f;
+        for (int k = 0; k < 8; k++) {
+            pt_vec3 v =
+                pt_v3(0.5f * ext.x * (k & 1 ? 1.0f : -1.0f), 0.5f * ext.y * (k & 2 ? 1.0f : -1.0f),
+                      0.5f * ext.z * (k & 4 ? 1.0f : -1.0f));
+            float x = fabsf(pt_v3_dot(v, c.right)), y = fabsf(pt_v3_dot(v, c.up));
+            float z = pt_v3_dot(v, c.forward);
+            float need = fmaxf(x / tx, y / ty) - z;
+            dist = fmaxf(dist, need);
+            deepest = fmaxf(deepest, -z);
+        }
+        /* Never inside the box: in front of its nearest corner by 1 % of its size. */
+        dist = fmaxf(dist, deepest + 0.01f * radius);
+    }
+    c.position = pt_v3_add(centre, pt_v3_scale(dir, dist));
     c.znear = dist * 1e-4f;
+    c.framed = 1;
     snprintf(c.name, sizeof c.name, "(framed)");
-    scene->camera = c;
+    *out = c;
+}
+
+void pt_scene_frame_camera(pt_scene *scene, float aspect)
+{
+    pt_camera_frame(scene->bounds_min, scene->bounds_max, aspect, &scene->camera);
 }
 
 void pt_scene_free(pt_scene *s)
@@ -875,21 +902,38 @@ void pt_scene_free(pt_scene *s)
     pt_free(s);
 }
 
+int pt_scene_find_camera(const pt_scene *s, const char *name)
+{
+    if (!name)
+        return s->num_cameras > 0 ? 0 : -1;
+    for (uint32_t i = 0; i < s->num_cameras; i++)
+        if (strcmp(s->cameras[i].name, name) == 0)
+            return (int)i;
+    for (uint32_t i = 0; i < s->num_cameras; i++)
+        if (s->cameras[i].node[0] && strcmp(s->cameras[i].node, name) == 0)
+            return (int)i;
+    /* A decimal index, plain digits, as --list numbers them. */
+    size_t n = strlen(name);
+    if (n == 0 || n > 9 || strspn(name, "0123456789") != n)
+        return -1;
+    unsigned long k = strtoul(name, NULL, 10);
+    return k < s->num_cameras ? (int)k : -1;
+}
+
 static pt_status choose_camera(pt_scene *s, const char *name, pt_error *err)
 {
     if (name) {
-        for (uint32_t i = 0; i < s->num_cameras; i++) {
-            if (strcmp(s->cameras[i].name, name) == 0) {
-                s->camera = s->cameras[i];
-                return PT_OK;
-            }
+        int k = pt_scene_find_camera(s, name);
+        if (k >= 0) {
+            s->camera = s->cameras[k];
+            return PT_OK;
         }
         char list[400];
         size_t n = 0;
         list[0] = 0;
         for (uint32_t i = 0; i < s->num_cameras && n + 1 < sizeof list; i++) {
-            int w =
-                snprintf(list + n, sizeof list - n, "%s'%s'", i ? ", " : "", s->cameras[i].name);
+            int w = snprintf(list + n, sizeof list - n, "%s%u '%s'", i ? ", " : "", i,
+                             s->cameras[i].name);
             if (w < 0)
                 break;
             n += (size_t)w;

@@ -152,7 +152,10 @@ typedef struct pt_camera {
     float xmag, ymag;           /* orthographic: half the view's width and height */
     float aspect;               /* width/height from the file, 0 when the image decides */
     float znear;
-    char name[64];
+    int framed;    /* 1: no camera of the file's: the renderer frames the scene's bounds
+                      (pt_camera_frame) for the image's aspect, as posed */
+    char name[64]; /* the camera's name, else its node's, else "camera N" */
+    char node[64]; /* its node's name ("" when unnamed) */
 } pt_camera;
 
 /* A punctual light (KHR_lights_punctual): a point, a spot or a directional
@@ -222,7 +225,8 @@ typedef struct pt_scene {
 typedef void (*pt_warn_fn)(void *user, const char *message);
 
 typedef struct pt_scene_opts {
-    const char *camera_name; /* NULL: first perspective camera, else frame the bounds */
+    const char *camera_name; /* NULL: the first camera, else frame the bounds; else a
+                                camera's name, node name or index (pt_scene_find_camera) */
     float scale;             /* uniform scale applied to world space (0 means 1), in double */
     pt_vec3 translate;       /* added to world space after scaling, in double, before
                                 the scene is rebased (so it moves origin, not stored
@@ -323,8 +327,21 @@ static inline void pt_tex_xform_apply(const pt_tex_xform *x, const float uv[2], 
 void pt_scene_slot_uv(const pt_scene *s, const pt_material *m, int slot, uint32_t tri, float b1,
                       float b2, float out[2]);
 
-/* Sets scene->camera to a default view that frames the bounds, for an image
- * aspect of `aspect` (width/height). */
+/* The index in s->cameras of the camera `name` picks: a camera's name,
+ * else a camera's node name, else a decimal index; NULL picks the first.
+ * -1 when none does. Pure: any thread may call it. */
+int pt_scene_find_camera(const pt_scene *s, const char *name);
+
+/* A default view of the box [lo, hi] for an image of `aspect` (width/height;
+ * 0: square) into *out: a 40-degree camera looking down -Z from a little
+ * above, at the distance where the 8 corners' projections fit the image
+ * with 5 % to spare, so the box fills the frame along one axis. Degenerate
+ * bounds (empty, infinite) get a unit sphere's view. framed is set. */
+void pt_camera_frame(pt_vec3 lo, pt_vec3 hi, float aspect, pt_camera *out);
+
+/* Sets scene->camera to pt_camera_frame of its bounds for `aspect`. The
+ * renderer frames such a camera again for its image's aspect from the
+ * bounds as they are then (posed at the requested time). */
 void pt_scene_frame_camera(pt_scene *scene, float aspect);
 
 /* The image height for an image `width` pixels wide seen through a camera of

@@ -358,6 +358,34 @@ static void test_cameras(void)
     }
     pt_scene_free(s);
 
+    /* A camera by its node's name or by its index, as --list numbers them;
+     * a camera's own name wins over an index that reads the same. */
+    const char *picks[][2] = {{"RigNode", "side"}, {"0", "front"}, {"1", "side"}, {"2", "2"}};
+    for (int k = 0; k < 4; k++) {
+        b = builder_with(NULL);
+        CHECK(pt_scene_builder_add_mesh(b, "t", k_tri, NULL, NULL, 3, k_idx, 1, NULL, 0, &err) ==
+              PT_OK);
+        snprintf(c.name, sizeof c.name, "front");
+        snprintf(c.node, sizeof c.node, "FrontNode");
+        CHECK(pt_scene_builder_add_camera(b, &c, &err) == PT_OK);
+        snprintf(c.name, sizeof c.name, "side");
+        snprintf(c.node, sizeof c.node, "RigNode");
+        CHECK(pt_scene_builder_add_camera(b, &c, &err) == PT_OK);
+        snprintf(c.name, sizeof c.name, "2");
+        c.node[0] = '\0';
+        CHECK(pt_scene_builder_add_camera(b, &c, &err) == PT_OK);
+        o = (pt_scene_opts){0};
+        o.camera_name = picks[k][0];
+        s = finish(b, &o);
+        CHECKF(s && strcmp(s->camera.name, picks[k][1]) == 0, "--camera %s: '%s', want '%s'",
+               picks[k][0], s ? s->camera.name : "", picks[k][1]);
+        CHECK(!s || pt_scene_find_camera(s, "3") == -1);
+        CHECK(!s || pt_scene_find_camera(s, "+1") == -1);
+        pt_scene_free(s);
+    }
+    snprintf(c.name, sizeof c.name, "side");
+    c.node[0] = '\0';
+
     /* Unknown name: PT_ERR_ARG listing the names. */
     b = builder_with(NULL);
     CHECK(pt_scene_builder_add_mesh(b, "t", k_tri, NULL, NULL, 3, k_idx, 1, NULL, 0, &err) ==
