@@ -32,6 +32,7 @@
 #include "common/base/version.h"
 #include "common/render/tile.h"
 #include "common/scene/bundle.h"
+#include "common/scene/scene.h"
 #include "protocol/auth.h"
 
 enum { EXIT_ERROR = 1, EXIT_USAGE = 2, EXIT_NO_JOB = 3, EXIT_JOB_FAILED = 4 };
@@ -124,7 +125,8 @@ enum {
     O_ENVROTATE,
     O_BACKGROUND,
     O_TRANSPARENT,
-    O_SHUTTER
+    O_SHUTTER,
+    O_LOOK
 };
 
 static int bad_usage(const char *cmd, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
@@ -310,7 +312,12 @@ static const char SUBMIT_HELP[] =
     "  --spp N            samples per pixel (default 64)\n"
     "  --res WxH          image size (default: 512 wide, height from the camera)\n"
     "  --seed S           random seed (default 0); same seed, same image\n"
-    "  --camera NAME      the camera to render (default: the scene's first)\n"
+    "  --camera NAME      the camera to render: its name, its node's name or its index\n"
+    "                     (default: the scene's first; none: a view framing the scene)\n"
+    "  --camera-from X,Y,Z  a camera of your own at X,Y,Z (world coordinates, +Y up)\n"
+    "  --camera-at X,Y,Z    looking at this point; 40 degrees high unless --fov DEG\n"
+    "  --fov DEG            (0 to 180) or --ortho WIDTH (orthographic, WIDTH wide);\n"
+    "  --ortho WIDTH        the same image as ptworker's; not with --camera\n"
     "  --priority P       higher runs first, ties in submission order (default 0;\n"
     "                     may be negative)\n"
     "  --name NAME        the job's name (default: the scene's file name without\n"
@@ -414,8 +421,14 @@ static int cmd_submit(int argc, char **argv, globals *g)
                                          {"fps", required_argument, NULL, O_FPS},
                                          {"animation", required_argument, NULL, O_ANIMATION},
                                          {"shutter", required_argument, NULL, O_SHUTTER},
+                                         {"camera-from", required_argument, NULL, O_LOOK},
+                                         {"camera-at", required_argument, NULL, O_LOOK},
+                                         {"fov", required_argument, NULL, O_LOOK},
+                                         {"ortho", required_argument, NULL, O_LOOK},
                                          {NULL, 0, NULL, 0}};
     proto_submit m;
+    pt_camera_look_opts look = {0};
+    int li = 0;
     memset(&m, 0, sizeof m);
     m.spp = 64;
     proto_env_none(&m.env);
@@ -426,11 +439,17 @@ static int cmd_submit(int argc, char **argv, globals *g)
     uint32_t depth = 0;
     int c;
     optind = 0;
-    while ((c = getopt_long(argc, argv, ":h", opts, NULL)) != -1) {
+    while ((c = getopt_long(argc, argv, ":h", opts, &li)) != -1) {
         int rc = 0;
         pt_status st = PT_OK;
         pt_error err = {0};
         switch (c) {
+        case O_LOOK: {
+            char opt[32];
+            snprintf(opt, sizeof opt, "--%s", opts[li].name);
+            st = pt_camera_look_option(&look, opt, optarg, &err);
+            break;
+        }
         case 'h':
             fputs(SUBMIT_HELP, stdout);
             printf("\n%s\n%s", GLOBAL_HELP, EXIT_HELP);
@@ -536,6 +555,13 @@ static int cmd_submit(int argc, char **argv, globals *g)
             rc = bad_value("submit", st, &err);
         if (rc)
             return rc;
+    }
+    {
+        int placed = 0;
+        pt_error err = {0};
+        if (pt_camera_look_finish(&look, m.camera[0] ? m.camera : NULL, m.camera, sizeof m.camera,
+                                  &placed, &err) != PT_OK)
+            return bad_usage("submit", "%s", err.msg);
     }
     if (optind >= argc)
         return bad_usage("submit", "which scene?");

@@ -216,7 +216,9 @@ int proto_env_same(const proto_env *a, const proto_env *b);
  *   56   32   u8[32]   scene content hash
  *   88   4    u32      lease in milliseconds (heartbeat before it runs out)
  *   92   2+c  str      camera name, c <= PROTO_MAX_NAME ("": the scene's first camera,
- *                      or a view framing the scene when it has none)
+ *                      or a view framing the scene when it has none; a name, node
+ *                      name or index; or a placement "look:X,Y,Z:X,Y,Z[:fov=D|
+ *                      :ortho=W]", pt_camera_look_parse in common/scene/scene.h)
  *   94+c 23+e ENV      the environment light (ENV layout, above)
  *   117+c+e 4 u32      film flags (PROTO_FILM_*; unknown bits refused)
  *   121+c+e 2+v str    KHR_materials_variants name, v <= PROTO_MAX_NAME ("": none)

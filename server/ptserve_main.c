@@ -16,6 +16,7 @@
 #include "common/image/image.h"
 #include "common/image/view.h"
 #include "common/render/tile.h"
+#include "common/scene/scene.h"
 #include "server/io.h"
 #include "server/serve.h"
 
@@ -93,6 +94,11 @@ static void usage(FILE *f)
         "  --camera NAME          the camera to render: its name, its node's name or its\n"
         "                         index (default: the scene's first; with none, a view\n"
         "                         framing the scene as posed, fitted to the image)\n"
+        "  --camera-from X,Y,Z    a camera of your own at X,Y,Z (world coordinates, +Y up)\n"
+        "  --camera-at X,Y,Z      looking at this point; 40 degrees high unless --fov DEG\n"
+        "  --fov DEG, --ortho W   (0 to 180) or --ortho W (orthographic, W wide); it\n"
+        "                         travels with the job as its camera (queued jobs: ptctl\n"
+        "                         submit --camera-from); not with --camera\n"
         "  --max-depth D          bounce cap (default 1024); Russian roulette ends paths\n"
         "  --target-error E       adaptive sampling: a tile stops once the RMS relative\n"
         "                         error of its pixel means is <= E (e.g. 0.01); off by default\n"
@@ -281,7 +287,8 @@ int main(int argc, char **argv)
         O_IOTHREADS,
         O_MAXLOG,
         O_EXPOSURE,
-        O_VIEW
+        O_VIEW,
+        O_LOOK
     };
     static const struct option opts[] = {
         {"output", required_argument, NULL, 'o'},
@@ -317,6 +324,10 @@ int main(int argc, char **argv)
         {"shutter", required_argument, NULL, O_SHUTTER},
         {"exposure", required_argument, NULL, O_EXPOSURE},
         {"view", required_argument, NULL, O_VIEW},
+        {"camera-from", required_argument, NULL, O_LOOK},
+        {"camera-at", required_argument, NULL, O_LOOK},
+        {"fov", required_argument, NULL, O_LOOK},
+        {"ortho", required_argument, NULL, O_LOOK},
         {"worker-bin", required_argument, NULL, O_WBIN},
         {"state-dir", required_argument, NULL, O_STATE},
         {"output-dir", required_argument, NULL, O_OUTDIR},
@@ -346,7 +357,9 @@ int main(int argc, char **argv)
     double shutter[2] = {0.0, 0.0};
     int has_shutter = 0;
     int ch;
-    while ((ch = getopt_long(argc, argv, "o:qh", opts, NULL)) != -1) {
+    pt_camera_look_opts look = {0};
+    int li = 0;
+    while ((ch = getopt_long(argc, argv, "o:qh", opts, &li)) != -1) {
         pt_status st = PT_OK;
         uint32_t v;
         switch (ch) {
@@ -464,6 +477,12 @@ int main(int argc, char **argv)
         case O_VIEW:
             st = pt_view_parse("--view", optarg, &c.view.kind, &err);
             break;
+        case O_LOOK: {
+            char name[32];
+            snprintf(name, sizeof name, "--%s", opts[li].name);
+            st = pt_camera_look_option(&look, name, optarg, &err);
+            break;
+        }
         case O_WBIN:
             c.worker_bin = optarg;
             break;
@@ -608,6 +627,17 @@ int main(int argc, char **argv)
     if (!c.frames.step && !has_shutter && c.fps > 0) {
         fprintf(stderr, "ptserve: --fps is the frame rate of --frames A-B[:STEP] and --shutter; "
                         "give --frames or --shutter\n");
+        return 2;
+    }
+    int placed = 0;
+    if (pt_camera_look_finish(&look, c.job.camera[0] ? c.job.camera : NULL, c.job.camera,
+                              sizeof c.job.camera, &placed, &err) != PT_OK) {
+        fprintf(stderr, "ptserve: %s\n", err.msg);
+        return 2;
+    }
+    if (c.state_dir && placed) {
+        fprintf(stderr, "ptserve: --camera-from and --camera-at are a job's: in queue mode give "
+                        "them to ptctl submit\n");
         return 2;
     }
     if (c.out_path && pt_image_format_of(c.out_path) == PT_IMAGE_FORMAT_NONE) {

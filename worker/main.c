@@ -89,6 +89,10 @@ static void usage(FILE *f)
             "  --camera NAME      the camera to render: its name, its node's name or its\n"
             "                     index (default: the scene's first; with none, a view\n"
             "                     that frames the scene as posed, fitted to the image)\n"
+            "  --camera-from X,Y,Z  a camera of your own at X,Y,Z (world coordinates, +Y\n"
+            "  --camera-at X,Y,Z    up) looking at the point given; 40 degrees high unless\n"
+            "  --fov DEG            --fov (0 to 180) or --ortho WIDTH (an orthographic view\n"
+            "  --ortho WIDTH        WIDTH wide, its height from the image). Not with --camera\n"
             "  --variant NAME     a KHR_materials_variants variant: mapped primitives take\n"
             "                     its material (default: each primitive's own)\n"
             "  --time T           pose the scene's glTF animation at T seconds (>= 0):\n"
@@ -190,6 +194,8 @@ int main(int argc, char **argv)
     o.chunk = 16;
     o.env_strength = 1.0f;
     wrk_client_opts net = {0};
+    pt_camera_look_opts look = {0};
+    char look_text[PROTO_MAX_NAME + 1]; /* a farm job's camera field holds it too */
     double dv, rgb[3];
     uint32_t prefetch = 0;
     int has_prefetch = 0;
@@ -224,6 +230,7 @@ int main(int argc, char **argv)
         OPT_SHUTTER,
         OPT_EXPOSURE,
         OPT_VIEW,
+        OPT_LOOK, /* --camera-from, --camera-at, --fov, --ortho */
         OPT_SERVER,
         OPT_PREFETCH,
         OPT_TOKEN,
@@ -258,6 +265,10 @@ int main(int argc, char **argv)
         {"shutter", required_argument, NULL, OPT_SHUTTER},
         {"exposure", required_argument, NULL, OPT_EXPOSURE},
         {"view", required_argument, NULL, OPT_VIEW},
+        {"camera-from", required_argument, NULL, OPT_LOOK},
+        {"camera-at", required_argument, NULL, OPT_LOOK},
+        {"fov", required_argument, NULL, OPT_LOOK},
+        {"ortho", required_argument, NULL, OPT_LOOK},
         {"quiet", no_argument, NULL, 'q'},
         {"server", required_argument, NULL, OPT_SERVER},
         {"prefetch", required_argument, NULL, OPT_PREFETCH},
@@ -372,6 +383,12 @@ int main(int argc, char **argv)
         case OPT_VIEW:
             bad = bad_value(pt_view_parse("--view", optarg, &o.view.kind, &err), &err);
             break;
+        case OPT_LOOK: {
+            char name[32];
+            snprintf(name, sizeof name, "--%s", longopts[li].name);
+            bad = bad_value(pt_camera_look_option(&look, name, optarg, &err), &err);
+            break;
+        }
 
         case 'q':
             o.quiet = 1;
@@ -457,6 +474,13 @@ int main(int argc, char **argv)
         usage(stderr);
         return 2;
     }
+    int placed = 0;
+    if (bad_value(
+            pt_camera_look_finish(&look, o.camera, look_text, sizeof look_text, &placed, &err),
+            &err))
+        return 2;
+    if (placed)
+        o.camera = look_text;
     if (o.target_error > 0.0 && o.min_gain > 0.0) {
         fprintf(stderr, "ptworker: --target-error and --min-gain are two adaptive rules; give "
                         "one\n");

@@ -197,3 +197,27 @@ bad:
                         "%s: '%s' is not OPEN,CLOSE (two fractions of a frame, e.g. 0,0.5)", opt,
                         text);
 }
+
+pt_status pt_opt_point(const char *opt, const char *text, double max_abs, double out[3],
+                       pt_error *err)
+{
+    char part[64];
+    const char *p = text;
+    double v[3];
+    for (int k = 0; k < 3; k++) {
+        const char *end = k < 2 ? strchr(p, ',') : p + strlen(p);
+        size_t n = end ? (size_t)(end - p) : 0;
+        if (!end || n == 0 || n >= sizeof part)
+            goto bad;
+        memcpy(part, p, n);
+        part[n] = '\0';
+        if (read_double(part, &v[k]) != 0 || !(fabs(v[k]) <= max_abs))
+            goto bad;
+        p = end + 1;
+    }
+    memcpy(out, v, sizeof v);
+    return PT_OK;
+bad:
+    return pt_error_set(err, PT_ERR_ARG, "%s: '%s' is not X,Y,Z (three numbers in [-%g, %g])", opt,
+                        text, max_abs, max_abs);
+}

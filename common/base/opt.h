@@ -56,6 +56,11 @@ pt_status pt_opt_res(const char *opt, const char *text, uint32_t max_side, uint3
  * otherwise: "OPT: 'TEXT' is not R,G,B (three numbers in [0, MAX])". */
 pt_status pt_opt_rgb(const char *opt, const char *text, double max, double out[3], pt_error *err);
 
+/* text as X,Y,Z, three real numbers in [-max_abs, max_abs], into out.
+ * PT_ERR_ARG otherwise: "OPT: 'TEXT' is not X,Y,Z (...)". */
+pt_status pt_opt_point(const char *opt, const char *text, double max_abs, double out[3],
+                       pt_error *err);
+
 /* text as OPEN,CLOSE: a camera shutter, two fractions of a frame with
  * 0 <= OPEN <= CLOSE <= 1 (0,0.5 is a 180-degree shutter), into out[0] and
  * out[1]. PT_ERR_ARG otherwise: "OPT: 'TEXT' is not OPEN,CLOSE (...)" for

@@ -31,6 +31,7 @@
 
 #include "common/base/alloc.h"
 #include "common/base/hash.h"
+#include "common/base/opt.h"
 #include "common/scene/gltf_import.h"
 #include "common/scene/motion.h"
 #include "common/scene/tangent.h"
@@ -920,6 +921,176 @@ int pt_scene_find_camera(const pt_scene *s, const char *name)
     return k < s->num_cameras ? (int)k : -1;
 }
 
+pt_status pt_camera_look_text(const double from[3], const double at[3], double fov_deg,
+                              double ortho_width, char *out, size_t cap, pt_error *err)
+{
+    char buf[256];
+    int n = snprintf(buf, sizeof buf, PT_CAMERA_LOOK_PREFIX "%.9g,%.9g,%.9g:%.9g,%.9g,%.9g",
+                     from[0], from[1], from[2], at[0], at[1], at[2]);
+    if (ortho_width > 0.0)
+        n += snprintf(buf + n, sizeof buf - (size_t)n, ":ortho=%.9g", ortho_width);
+    else if (fov_deg > 0.0)
+        n += snprintf(buf + n, sizeof buf - (size_t)n, ":fov=%.9g", fov_deg);
+    if ((size_t)n >= cap)
+        return pt_error_set(err, PT_ERR_ARG,
+                            "the camera placement '%s' is %d bytes as text, over %zu: give the "
+                            "numbers with fewer digits",
+                            buf, n, cap - 1);
+    pt_camera c;
+    pt_status st = pt_camera_look_parse(buf, &c, err);
+    if (st != PT_OK)
+        return st;
+    memcpy(out, buf, (size_t)n + 1);
+    return PT_OK;
+}
+
+/* "X,Y,Z" at *p, up to its end or a ':': three finite numbers within the
+ * coordinate cap; p moves past them. */
+static int read_point(const char **p, double v[3])
+{
+    for (int k = 0; k < 3; k++) {
+        char *end;
+        v[k] = strtod(*p, &end);
+        if (end == *p || !isfinite(v[k]) || fabs(v[k]) > PT_SCENE_MAX_COORD)
+            return -1;
+        if (k < 2 && *end != ',')
+            return -1;
+        *p = end + (k < 2);
+    }
+    return 0;
+}
+
+/* The placement text as a camera whose position is from * sc + t - origin
+ * (in double: a scene far from zero keeps it). */
+static pt_status look_build(const char *text, double sc, const double t[3], const double origin[3],
+                            pt_camera *out, pt_error *err)
+{
+    const char *p = text;
+    double from[3], at[3], fov = 40.0, width = 0.0;
+    size_t pre = strlen(PT_CAMERA_LOOK_PREFIX);
+    if (strncmp(p, PT_CAMERA_LOOK_PREFIX, pre) != 0)
+        goto bad;
+    p += pre;
+    if (read_point(&p, from) != 0 || *p++ != ':' || read_point(&p, at) != 0)
+        goto bad;
+    if (*p) {
+        char *end;
+        if (strncmp(p, ":fov=", 5) == 0) {
+            fov = strtod(p + 5, &end);
+            if (end == p + 5 || *end || !(fov > 0.0 && fov < 180.0))
+                return pt_error_set(err, PT_ERR_ARG,
+                                    "camera '%.64s': the field of view must be in (0, 180) "
+                                    "degrees",
+                                    text);
+        } else if (strncmp(p, ":ortho=", 7) == 0) {
+            width = strtod(p + 7, &end);
+            if (end == p + 7 || *end || !(width > 0.0 && width <= PT_SCENE_MAX_COORD))
+                return pt_error_set(err, PT_ERR_ARG,
+                                    "camera '%.64s': the orthographic width must be > 0", text);
+        } else {
+            goto bad;
+        }
+    }
+    pt_camera c;
+    memset(&c, 0, sizeof c);
+    pt_vec3 d = pt_v3((float)(at[0] - from[0]), (float)(at[1] - from[1]), (float)(at[2] - from[2]));
+    float len = pt_v3_len(d);
+    if (!(len > 0.0f) || !isfinite(len))
+        return pt_error_set(err, PT_ERR_ARG,
+                            "camera '%.64s': the camera is where it looks (or too far from it)",
+                            text);
+    c.forward = pt_v3_scale(d, 1.0f / len);
+    /* Up is +Y, glTF's; looking straight up or down, -Z is the image's up. */
+    pt_vec3 up = fabsf(c.forward.y) > 0.9999f ? pt_v3(0.0f, 0.0f, c.forward.y > 0 ? 1.0f : -1.0f)
+                                              : pt_v3(0.0f, 1.0f, 0.0f);
+    c.right = pt_v3_norm(pt_v3_cross(c.forward, up));
+    c.up = pt_v3_cross(c.right, c.forward);
+    c.position =
+        pt_v3((float)(from[0] * sc + t[0] - origin[0]), (float)(from[1] * sc + t[1] - origin[1]),
+              (float)(from[2] * sc + t[2] - origin[2]));
+    if (!pt_isfinite3(c.position))
+        return pt_error_set(err, PT_ERR_ARG, "camera '%.64s' is not finite after scaling", text);
+    if (width > 0.0) {
+        c.ortho = 1;
+        c.xmag = (float)(0.5 * width * sc);
+        c.ymag = 0.0f; /* the image's aspect gives it (pt_renderer_new) */
+    } else {
+        c.yfov = (float)(fov * PT_PI / 180.0);
+    }
+    c.znear = (float)(1e-4 * len * sc);
+    snprintf(c.name, sizeof c.name, "%s", text);
+    *out = c;
+    return PT_OK;
+bad:
+    return pt_error_set(
+        err, PT_ERR_ARG,
+        "camera '%.64s' is not " PT_CAMERA_LOOK_PREFIX "X,Y,Z:X,Y,Z[:fov=DEG|:ortho=WIDTH]", text);
+}
+
+pt_status pt_camera_look_parse(const char *text, pt_camera *out, pt_error *err)
+{
+    const double zero[3] = {0.0, 0.0, 0.0};
+    return look_build(text, 1.0, zero, zero, out, err);
+}
+
+pt_status pt_camera_look_option(pt_camera_look_opts *l, const char *opt, const char *text,
+                                pt_error *err)
+{
+    pt_status st;
+    if (strcmp(opt, "--camera-from") == 0) {
+        st = pt_opt_point(opt, text, PT_SCENE_MAX_COORD, l->from, err);
+        l->has_from = st == PT_OK;
+    } else if (strcmp(opt, "--camera-at") == 0) {
+        st = pt_opt_point(opt, text, PT_SCENE_MAX_COORD, l->at, err);
+        l->has_at = st == PT_OK;
+    } else if (strcmp(opt, "--fov") == 0) {
+        st = pt_opt_double(opt, text, 0.0, 180.0, &l->fov, err);
+        if (st == PT_OK && !(l->fov > 0.0 && l->fov < 180.0))
+            st = pt_error_set(err, PT_ERR_ARG, "--fov: '%s' is not in (0, 180) degrees", text);
+    } else {
+        st = pt_opt_positive(opt, text, PT_SCENE_MAX_COORD, &l->ortho, err);
+    }
+    return st;
+}
+
+pt_status pt_camera_look_finish(const pt_camera_look_opts *l, const char *camera_name, char *out,
+                                size_t cap, int *given, pt_error *err)
+{
+    *given = 0;
+    if (!l->has_from && !l->has_at && l->fov == 0.0 && l->ortho == 0.0)
+        return PT_OK;
+    if (!l->has_from || !l->has_at)
+        return pt_error_set(err, PT_ERR_ARG,
+                            "%s: a camera is placed by --camera-from X,Y,Z and --camera-at X,Y,Z "
+                            "together",
+                            l->has_from  ? "--camera-from"
+                            : l->has_at  ? "--camera-at"
+                            : l->fov > 0 ? "--fov"
+                                         : "--ortho");
+    if (l->fov > 0.0 && l->ortho > 0.0)
+        return pt_error_set(err, PT_ERR_ARG,
+                            "--fov and --ortho are two projections; give one (or neither)");
+    if (camera_name)
+        return pt_error_set(err, PT_ERR_ARG,
+                            "--camera picks the file's camera, --camera-from places one; give one");
+    pt_status st = pt_camera_look_text(l->from, l->at, l->fov, l->ortho, out, cap, err);
+    if (st == PT_OK)
+        *given = 1;
+    return st;
+}
+
+/* A placement (PT_CAMERA_LOOK_PREFIX) in world space, through the build's
+ * scale and translation, to scene space. */
+static pt_status look_camera(pt_scene *s, const char *text, double sc, const double t[3],
+                             pt_error *err)
+{
+    pt_camera c;
+    pt_status st = look_build(text, sc, t, s->origin, &c, err);
+    if (st == PT_OK)
+        s->camera = c;
+    return st;
+}
+
 static pt_status choose_camera(pt_scene *s, const char *name, pt_error *err)
 {
     if (name) {
@@ -1224,8 +1395,14 @@ pt_status pt_scene_builder_finish(pt_scene_builder *b, const pt_scene_opts *opts
     } else if ((st = hash_scene(s, s->hash, err)) != PT_OK) {
         goto fail;
     }
-    if ((st = choose_camera(s, opts ? opts->camera_name : NULL, err)) != PT_OK)
+    if (opts && opts->camera_name &&
+        strncmp(opts->camera_name, PT_CAMERA_LOOK_PREFIX, strlen(PT_CAMERA_LOOK_PREFIX)) == 0 &&
+        pt_scene_find_camera(s, opts->camera_name) < 0) {
+        if ((st = look_camera(s, opts->camera_name, sc, t, err)) != PT_OK)
+            goto fail;
+    } else if ((st = choose_camera(s, opts ? opts->camera_name : NULL, err)) != PT_OK) {
         goto fail;
+    }
     pt_scene_builder_free(b);
     *out = s;
     return PT_OK;

@@ -332,6 +332,50 @@ void pt_scene_slot_uv(const pt_scene *s, const pt_material *m, int slot, uint32_
  * -1 when none does. Pure: any thread may call it. */
 int pt_scene_find_camera(const pt_scene *s, const char *name);
 
+/* A camera placed by its position and the point it looks at, as text that
+ * travels where a camera name does (pt_scene_opts.camera_name, a farm
+ * job's camera): "look:FX,FY,FZ:AX,AY,AZ[:fov=DEG|:ortho=WIDTH]", world
+ * coordinates; +Y is up (-Z when looking straight up or down); a 40-degree
+ * vertical field of view unless fov (0 < DEG < 180) or an orthographic view
+ * WIDTH wide (its height from the image) is given. A file's camera of that
+ * very name wins. Both sides of the farm read the same text, so the view is
+ * the same bits. */
+#define PT_CAMERA_LOOK_PREFIX "look:"
+
+/* The text of a placement into out (cap bytes with the NUL; the numbers as
+ * %.9g): PT_ERR_ARG when it does not fit, or when pt_camera_look_parse would
+ * refuse it (from == at, a field of view outside (0, 180)). fov_deg 0:
+ * the default; ortho_width > 0: orthographic. */
+pt_status pt_camera_look_text(const double from[3], const double at[3], double fov_deg,
+                              double ortho_width, char *out, size_t cap, pt_error *err);
+
+/* text (PT_CAMERA_LOOK_PREFIX...) as a camera in world space into *out
+ * (name: the text). PT_ERR_ARG naming what is wrong. */
+pt_status pt_camera_look_parse(const char *text, pt_camera *out, pt_error *err);
+
+/* The command-line options that place a camera, as every program takes
+ * them: --camera-from X,Y,Z, --camera-at X,Y,Z, --fov DEG, --ortho WIDTH.
+ * Zero it, hand it each option with pt_camera_look_option, then
+ * pt_camera_look_finish. */
+typedef struct pt_camera_look_opts {
+    int has_from, has_at;
+    double from[3], at[3];
+    double fov, ortho; /* 0: not given */
+} pt_camera_look_opts;
+
+/* opt ("--camera-from", "--camera-at", "--fov", "--ortho") with its text
+ * into l. PT_ERR_ARG naming the option when the value is bad. */
+pt_status pt_camera_look_option(pt_camera_look_opts *l, const char *opt, const char *text,
+                                pt_error *err);
+
+/* *given = 0 when no option of l was given (out untouched); else the
+ * placement's text (pt_camera_look_text) into out. PT_ERR_ARG when only
+ * one of --camera-from and --camera-at is given, when --fov or --ortho
+ * comes without them or with each other, or with camera_name (--camera)
+ * not NULL. */
+pt_status pt_camera_look_finish(const pt_camera_look_opts *l, const char *camera_name, char *out,
+                                size_t cap, int *given, pt_error *err);
+
 /* A default view of the box [lo, hi] for an image of `aspect` (width/height;
  * 0: square) into *out: a 40-degree camera looking down -Z from a little
  * above, at the distance where the 8 corners' projections fit the image
