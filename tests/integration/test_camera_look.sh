@@ -23,8 +23,8 @@ same() { # $1 $2: EXRs that must hold the same pixels
 }
 
 view=(--res 40x30 --spp 8 --seed 5 --tile 16 --chunk 8)
-look=(--camera-from 0.1,0.35,0.9 --camera-at -0.2,0.25,-0.3 --fov 50)
-ortho=(--camera-from -0.278,0.273,0.8 --camera-at -0.278,0.273,0 --ortho 0.7)
+look=(--camera-from "0.1,0.35,0.9" --camera-at "-0.2,0.25,-0.3" --fov 50)
+ortho=(--camera-from "-0.278,0.273,0.8" --camera-at "-0.278,0.273,0" --ortho 0.7)
 "$bin/ptworker" --scene "$scene" "${view[@]}" -q "${look[@]}" -o "$tmp/w.exr"
 "$bin/ptworker" --scene "$scene" "${view[@]}" -q "${ortho[@]}" -o "$tmp/wo.exr"
 "$bin/ptworker" --scene "$scene" "${view[@]}" -q -o "$tmp/file.exr"
