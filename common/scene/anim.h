@@ -15,8 +15,9 @@
  * What a pose computes (glTF 2.0, 3.11 "Animations", 3.7.3 "Skins", 3.7.2.2
  * "Morph Targets"):
  * - every channel of the chosen animation(s) (pt_scene_opts.animation: NULL
- *   or "" plays every channel of every animation, in the file's order, so a
- *   later channel on the same property wins) sets its node's property to its
+ *   or "" plays the first, "all" every channel of every animation, in the
+ *   file's order, so a later channel on the same property wins) sets its
+ *   node's property to its
  *   sampler's value at t; a time before a sampler's first key gives the first
  *   value, after its last key the last (no looping);
  * - a node's local matrix is T * R * S; its global matrix parent * local;
@@ -84,7 +85,7 @@ typedef struct pt_anim pt_anim;
 /* Loads path as pt_scene_load does with opts (opts->animate is ignored: the
  * scene comes back posed at opts->time, which must be finite and >= 0) and
  * returns its rig in *anim. opts->animation chooses the animation (NULL or
- * "": all; a name; or a decimal index); unknown is PT_ERR_ARG listing the
+ * "": the first; "all"; a name; or a decimal index); unknown is PT_ERR_ARG listing the
  * file's animations. A malformed animation, skin or morph target is
  * PT_ERR_FORMAT naming the element ("animation 0 ('Walk') sampler 2: input
  * times are not increasing at key 7"). On failure nothing is returned and

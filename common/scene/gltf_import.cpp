@@ -2067,16 +2067,28 @@ void rig_skins(importer &im)
     }
 }
 
-// The animation(s) opts->animation names: -1 all, else one index.
+// The animation(s) opts->animation names: -1 all, else one index. None
+// named: the first, said once when there are several (playing them all at
+// once is rarely what a file with a walk and a run means); "all" (unless
+// an animation has that name): every one.
 int rig_choose(importer &im)
 {
     const char *name = im.opts ? im.opts->animation : nullptr;
     const auto &as = im.model.animations;
-    if (!name || !*name)
-        return -1;
+    if (!name || !*name) {
+        if (as.size() < 2)
+            return -1;
+        im.warn_once("anim-first", "the scene has " + std::to_string(as.size()) +
+                                       " animations; playing the first, 0 '" +
+                                       shown(as[0].name.substr(0, 64)) +
+                                       "' (--animation NAME, INDEX or all chooses)");
+        return 0;
+    }
     for (size_t i = 0; i < as.size(); i++)
         if (as[i].name == name)
             return int(i);
+    if (strcmp(name, "all") == 0)
+        return -1;
     char *end = nullptr;
     errno = 0;
     unsigned long idx = strtoul(name, &end, 10);

@@ -237,9 +237,11 @@ typedef struct pt_scene_opts {
                             NULL: every primitive its own. Unknown: PT_ERR_ARG listing them */
     /* glTF animation (common/scene/anim.h). animate 0: every node keeps its own
      * transform (and morph weights), as in a still of the file. animate 1: the
-     * scene is posed at time seconds of animation: NULL or "" plays every
-     * channel of every animation, as viewers do; else an animation's name or
-     * its decimal index (unknown: PT_ERR_ARG listing them). */
+     * scene is posed at time seconds of animation: NULL or "" plays the
+     * first animation (said once through warn when the file has several),
+     * "all" every channel of every animation (a later channel on the same
+     * property wins); else an animation's name or its decimal index
+     * (unknown: PT_ERR_ARG listing them). A name wins over "all" or an index. */
     int animate;
     double time;
     const char *animation;

@@ -31,6 +31,26 @@ view=(--res 40x30 --spp 8 --seed 5 --threads 2 -q --background "1,1,1")
 "$bin/ptexr-diff" "$tmp/time.exr" "$tmp/anim0.exr" > /dev/null || fail "--animation 0 != all"
 ! "$bin/ptexr-diff" "$tmp/time.exr" "$tmp/still.exr" > /dev/null || fail "the frame at 1.5 s is the still"
 
+# The Fox has three animations: a frame of it plays the first and says so
+# once; --animation all plays them all at once (another image), --animation 0
+# the first (the same bits, and nothing said).
+fox=$scenes/Fox/Fox.glb
+if [ -f "$fox" ]; then
+  fview=(--res 24x24 --spp 2 --seed 5 --threads 2 --background "1,1,1" --time 1)
+  "$bin/ptworker" --scene "$fox" "${fview[@]}" -o "$tmp/fox.exr" 2> "$tmp/fox.log"
+  [ "$(grep -c "3 animations; playing the first, 0 'Survey'" "$tmp/fox.log")" = 1 ] ||
+    fail "the Fox's first animation is not said once: $(cat "$tmp/fox.log")"
+  "$bin/ptworker" --scene "$fox" "${fview[@]}" --animation 0 -o "$tmp/fox0.exr" 2> "$tmp/fox0.log"
+  if grep -q "playing the first" "$tmp/fox0.log"; then fail "--animation 0 still said it"; fi
+  "$bin/ptworker" --scene "$fox" "${fview[@]}" -q --animation all -o "$tmp/foxall.exr"
+  "$bin/ptexr-diff" "$tmp/fox.exr" "$tmp/fox0.exr" > /dev/null || fail "the default is not animation 0"
+  if "$bin/ptexr-diff" "$tmp/fox.exr" "$tmp/foxall.exr" > /dev/null; then
+    fail "--animation all is the first alone"
+  fi
+else
+  case "${CI:-}" in true | 1 | yes) fail "$fox is missing" ;; esac
+fi
+
 # Bad options: status 2 (arguments) or 1 (the scene refuses), with the reason.
 expect() { # expect STATUS PATTERN ARGS...
   local want=$1 pat=$2 rc=0

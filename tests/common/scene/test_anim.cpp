@@ -296,7 +296,7 @@ void test_interpolation()
     for (double t : times) {
         pt_error err{};
         pt_status st;
-        pt_scene *s = load_at(path.c_str(), nullptr, t, &st, &err);
+        pt_scene *s = load_at(path.c_str(), "all", t, &st, &err);
         CHECKF(st == PT_OK, "%s", err.msg);
         if (!s)
             continue;
@@ -456,6 +456,7 @@ void test_repose()
         pt_scene_opts o{};
         o.animate = 1;
         o.time = 0.0;
+        o.animation = "all"; // every node moves
         pt_scene *s = nullptr;
         pt_anim *a = nullptr;
         pt_error err{};
@@ -470,7 +471,7 @@ void test_repose()
         for (double t : times) {
             CHECKF(pt_anim_pose(a, t, s, &err) == PT_OK, "%s", err.msg);
             pt_status st;
-            pt_scene *fresh = load_at(path.c_str(), nullptr, t, &st, &err);
+            pt_scene *fresh = load_at(path.c_str(), "all", t, &st, &err);
             CHECKF(st == PT_OK, "%s", err.msg);
             if (fresh) {
                 CHECKF(same_scene(s, fresh), "%s at %g s: re-posed differs from a fresh load", f,
@@ -489,7 +490,7 @@ void test_repose()
         // The pose differs from another time's (the test would pass
         // vacuously on a rig that did not move).
         pt_status st;
-        pt_scene *early = load_at(path.c_str(), nullptr, 0.6, &st, &err);
+        pt_scene *early = load_at(path.c_str(), "all", 0.6, &st, &err);
         if (early)
             CHECKF(!same_scene(s, early), "%s: poses at 0.6 s and 0.8125 s are the same", f);
         pt_scene_free(early);
@@ -529,7 +530,7 @@ void test_static_parts(const char *rel, int static_node)
     pt_error err{};
     pt_status st;
     CHECK(pt_scene_load(path.c_str(), &o, &still, &err) == PT_OK);
-    pt_scene *s = load_at(path.c_str(), nullptr, 0.75, &st, &err);
+    pt_scene *s = load_at(path.c_str(), "all", 0.75, &st, &err);
     CHECKF(st == PT_OK, "%s", err.msg);
     int seen = 0;
     if (s && still && s->num_vertices == nv) {
@@ -613,6 +614,76 @@ std::string anim_file(const std::vector<float> &times, const std::vector<float> 
              "\"output\":%d,\"interpolation\":\"%s\"}]}]",
              in, out, interp);
     return g.json(a);
+}
+
+// What the loader says through opts->warn, gathered.
+void gather(void *user, const char *msg)
+{
+    static_cast<std::string *>(user)->append(msg).append("\n");
+}
+
+// A file with two animations of node 0's translation, "Move" along x and
+// "Lift" along y: a pose with none named plays the first and says so once;
+// "all" plays both (the later channel wins: Lift); an index or a name picks one.
+void test_default_first()
+{
+    gltf g;
+    g.floats(k_tri, "VEC3", 3);
+    int in = g.floats({0, 1}, "SCALAR", 1);
+    int mx = g.floats({0, 0, 0, 2, 0, 0}, "VEC3", 3), my = g.floats({0, 0, 0, 0, 2, 0}, "VEC3", 3);
+    char a[700];
+    snprintf(a, sizeof a,
+             "\"nodes\":[{\"mesh\":0}],\"meshes\":[{\"primitives\":[{\"attributes\":{"
+             "\"POSITION\":0}}]}],\"animations\":["
+             "{\"name\":\"Move\",\"channels\":[{\"sampler\":0,\"target\":{\"node\":0,\"path\":"
+             "\"translation\"}}],\"samplers\":[{\"input\":%d,\"output\":%d}]},"
+             "{\"name\":\"Lift\",\"channels\":[{\"sampler\":0,\"target\":{\"node\":0,\"path\":"
+             "\"translation\"}}],\"samplers\":[{\"input\":%d,\"output\":%d}]}]",
+             in, mx, in, my);
+    std::string p = write_tmp(g.json(a), "two");
+    struct pick {
+        const char *animation;
+        double x, y;
+        bool said;
+    } picks[] = {{nullptr, 1, 0, true}, {"", 1, 0, true},      {"all", 0, 1, false},
+                 {"1", 0, 1, false},    {"Move", 1, 0, false}, {"0", 1, 0, false}};
+    for (const pick &k : picks) {
+        std::string said;
+        pt_scene_opts o{};
+        o.animate = 1;
+        o.time = 0.5;
+        o.animation = k.animation;
+        o.warn = gather;
+        o.warn_user = &said;
+        pt_scene *s = nullptr;
+        pt_error err{};
+        CHECKF(pt_scene_load(p.c_str(), &o, &s, &err) == PT_OK, "%s", err.msg);
+        if (!s)
+            continue;
+        double x = s->positions[0] + s->origin[0], y = s->positions[1] + s->origin[1];
+        const char *name = k.animation ? k.animation : "(none)";
+        CHECKF(std::fabs(x - k.x) < 1e-6 && std::fabs(y - k.y) < 1e-6, "%s: at (%g, %g)", name, x,
+               y);
+        bool first = said.find("2 animations; playing the first, 0 'Move'") != std::string::npos;
+        CHECKF(first == k.said, "%s: said '%s'", name, said.c_str());
+        CHECKF(said.find("playing the first") == said.rfind("playing the first"),
+               "%s: said it twice", name);
+        pt_scene_free(s);
+    }
+    unlink(p.c_str());
+    // One animation: nothing to say.
+    std::string one = write_tmp(anim_file({0, 1}, {0, 0, 0, 2, 0, 0}, "LINEAR"), "one");
+    std::string said;
+    pt_scene_opts o{};
+    o.animate = 1;
+    o.time = 0.5;
+    o.warn = gather;
+    o.warn_user = &said;
+    pt_scene *s = nullptr;
+    pt_error err{};
+    CHECK(pt_scene_load(one.c_str(), &o, &s, &err) == PT_OK && said.empty());
+    pt_scene_free(s);
+    unlink(one.c_str());
 }
 
 void test_hostile()
@@ -989,6 +1060,7 @@ int main(void)
     test_static_parts("BoxAnimated/BoxAnimated.glb", 3);
     test_static_parts("InterpolationTest/InterpolationTest.glb", 11);
     test_hostile();
+    test_default_first();
     test_follow();
     test_skin_sets();
     test_static();
