@@ -36,6 +36,7 @@ static void usage(FILE *f)
         f,
         "usage: ptworker --scene SCENE -o OUT.exr [options]    (standalone)\n"
         "       ptworker --server HOST:PORT [options]          (farm worker)\n"
+        "       ptworker --list SCENE      (its cameras, animations, variants, lights)\n"
         "\n"
         "examples:\n"
         "  ptworker --scene scenes/cornell_box.gltf --spp 256 -o cornell.png\n"
@@ -137,6 +138,9 @@ static void usage(FILE *f)
             "                     fractions of a frame (0,0.5: a 180-degree shutter;\n"
             "                     default off): what the scene's animation moves in\n"
             "                     [t + O/fps, t + C/fps] blurs (t: the frame's time)\n"
+            "  --list SCENE       print what SCENE offers these options and exit: its\n"
+            "                     cameras (names, nodes, indices), lights, animations,\n"
+            "                     variants and the glTF extensions it uses\n"
             "  -q, --quiet        no progress line\n"
             "  -h, --help         this text\n"
             "  --version          the version and renderer build id\n"
@@ -232,6 +236,7 @@ int main(int argc, char **argv)
         OPT_EXPOSURE,
         OPT_VIEW,
         OPT_LOOK, /* --camera-from, --camera-at, --fov, --ortho */
+        OPT_LIST,
         OPT_SERVER,
         OPT_PREFETCH,
         OPT_TOKEN,
@@ -270,6 +275,7 @@ int main(int argc, char **argv)
         {"camera-at", required_argument, NULL, OPT_LOOK},
         {"fov", required_argument, NULL, OPT_LOOK},
         {"ortho", required_argument, NULL, OPT_LOOK},
+        {"list", required_argument, NULL, OPT_LIST},
         {"quiet", no_argument, NULL, 'q'},
         {"server", required_argument, NULL, OPT_SERVER},
         {"prefetch", required_argument, NULL, OPT_PREFETCH},
@@ -414,6 +420,13 @@ int main(int argc, char **argv)
         case OPT_LINK_TIMEOUT:
             bad = parse_link_timeout(optarg, &net.link_timeout_ms, &err);
             break;
+        case OPT_LIST:
+            /* What the scene offers the options above; nothing rendered. */
+            if (pt_scene_list(optarg, stdout, &err) != PT_OK) {
+                fprintf(stderr, "ptworker: %s\n", err.msg);
+                return 1;
+            }
+            return 0;
         case 'h':
             usage(stdout);
             return 0;

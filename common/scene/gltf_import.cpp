@@ -56,6 +56,7 @@
 
 #include <openssl/evp.h>
 
+#include <algorithm>
 #include <array>
 #include <cerrno>
 #include <cmath>
@@ -2970,4 +2971,117 @@ extern "C" pt_status pt_anim_load(const char *path, const pt_scene_opts *opts, p
     if (!anim)
         return pt_error_set(err, PT_ERR_ARG, "pt_anim_load: no rig to return");
     return load(path, opts, scene, anim, err);
+}
+
+// ---- ptworker --list -----------------------------------------------------------------
+
+namespace
+{
+
+// The file's own lists, read as the loader reads it: animations with their
+// time ranges, variants, extensions.
+void list_model(importer &im, FILE *out)
+{
+    std::vector<unsigned char> bytes;
+    read_entry(im, bytes);
+    parse(im, bytes);
+    const tinygltf::Model &m = im.model;
+    fprintf(out, "animations (%zu)%s\n", m.animations.size(),
+            m.animations.size() > 1 ? ": the first plays unless --animation NAME|INDEX|all" : "");
+    for (size_t i = 0; i < m.animations.size(); i++) {
+        const tinygltf::Animation &a = m.animations[i];
+        double lo = INFINITY, hi = -INFINITY;
+        for (const auto &s : a.samplers) {
+            if (s.input < 0 || size_t(s.input) >= m.accessors.size())
+                continue;
+            const tinygltf::Accessor &acc = m.accessors[size_t(s.input)];
+            if (!acc.minValues.empty())
+                lo = std::min(lo, acc.minValues[0]);
+            if (!acc.maxValues.empty())
+                hi = std::max(hi, acc.maxValues[0]);
+        }
+        fprintf(out, "  %zu '%s': %zu channels", i, shown(a.name.substr(0, 64)).c_str(),
+                a.channels.size());
+        if (lo <= hi)
+            fprintf(out, ", %g to %g s", lo, hi);
+        fputc('\n', out);
+    }
+    std::vector<std::string> variants;
+    auto ext = m.extensions.find("KHR_materials_variants");
+    if (ext != m.extensions.end()) {
+        const tinygltf::Value &vs = ext->second.Get("variants");
+        for (size_t i = 0; vs.IsArray() && i < vs.ArrayLen(); i++) {
+            const tinygltf::Value &n = vs.Get(int(i)).Get("name");
+            variants.push_back(n.IsString() ? n.Get<std::string>() : std::string());
+        }
+    }
+    fprintf(out, "variants (%zu)%s\n", variants.size(), variants.empty() ? "" : ": --variant NAME");
+    for (size_t i = 0; i < variants.size(); i++)
+        fprintf(out, "  %zu '%s'\n", i, shown(variants[i].substr(0, 64)).c_str());
+    fprintf(out, "extensions used (%zu)", m.extensionsUsed.size());
+    for (size_t i = 0; i < m.extensionsUsed.size(); i++)
+        fprintf(out, "%s%s", i ? ", " : ": ", shown(m.extensionsUsed[i].substr(0, 64)).c_str());
+    fputc('\n', out);
+    if (!m.extensionsRequired.empty()) {
+        fprintf(out, "extensions required (%zu)", m.extensionsRequired.size());
+        for (size_t i = 0; i < m.extensionsRequired.size(); i++)
+            fprintf(out, "%s%s", i ? ", " : ": ",
+                    shown(m.extensionsRequired[i].substr(0, 64)).c_str());
+        fputc('\n', out);
+    }
+}
+
+} // namespace
+
+extern "C" pt_status pt_scene_list(const char *path, FILE *out, pt_error *err)
+{
+    // The built still: the cameras in the order --camera numbers them, the
+    // lights, the sizes; with every check of a load (caps, hostile files).
+    pt_scene_opts so{};
+    // What a still ignores (skins: an animation's) is no news to a listing.
+    so.warn = [](void *, const char *) {};
+    pt_scene *s = nullptr;
+    pt_status st = pt_scene_load(path, &so, &s, err);
+    if (st != PT_OK)
+        return st;
+    fprintf(out, "%s: %u triangles, %u materials, %u textures\n", path, s->num_triangles,
+            s->num_materials, s->num_textures);
+    fprintf(out, "cameras (%u)%s\n", s->num_cameras,
+            s->num_cameras ? ": --camera NAME, NODE or INDEX; the first by default"
+                           : ": none; a view framing the scene is used");
+    for (uint32_t i = 0; i < s->num_cameras; i++) {
+        const pt_camera *c = &s->cameras[i];
+        fprintf(out, "  %u '%s'", i, c->name);
+        if (c->node[0] && strcmp(c->node, c->name) != 0)
+            fprintf(out, " (node '%s')", c->node);
+        if (c->ortho)
+            fprintf(out, ": orthographic, %g x %g\n", 2.0 * c->xmag, 2.0 * c->ymag);
+        else
+            fprintf(out, ": perspective, %.4g degrees high\n", c->yfov * 180.0 / PT_PI);
+    }
+    static const char *const kinds[] = {"point", "spot", "directional"};
+    fprintf(out, "lights (%u)\n", s->num_punctual);
+    for (uint32_t i = 0; i < s->num_punctual; i++) {
+        const pt_punctual *l = &s->punctual[i];
+        fprintf(out, "  %u '%s': %s\n", i, l->name,
+                l->type >= 0 && l->type <= 2 ? kinds[l->type] : "?");
+    }
+    fprintf(out, "emissive triangles: %s\n", s->features & PT_FEAT_EMITTERS ? "yes" : "none");
+    pt_scene_free(s);
+    try {
+        importer im;
+        im.path = path;
+        im.opts = &so;
+        im.err = err;
+        size_t slash = im.path.rfind('/');
+        im.base = slash == std::string::npos ? std::string() : im.path.substr(0, slash + 1);
+        list_model(im, out);
+    } catch (const load_failure &f) {
+        return f.st;
+    } catch (const std::bad_alloc &) {
+        return pt_error_set(err, PT_ERR_NOMEM, "%s: out of memory", path);
+    } catch (const std::exception &ex) {
+        return pt_error_set(err, PT_ERR_FORMAT, "%s: %s", path, ex.what());
+    }
+    return PT_OK;
 }

@@ -30,6 +30,7 @@
 
 #include <stddef.h>
 #include <stdint.h>
+#include <stdio.h>
 
 #include "common/base/error.h"
 #include "common/math/vec.h"
@@ -377,6 +378,14 @@ pt_status pt_camera_look_option(pt_camera_look_opts *l, const char *opt, const c
  * not NULL. */
 pt_status pt_camera_look_finish(const pt_camera_look_opts *l, const char *camera_name, char *out,
                                 size_t cap, int *given, pt_error *err);
+
+/* Prints what path holds that a render's options choose among, for
+ * ptworker --list: its size; its cameras in --camera's numbering (name,
+ * node, projection); its punctual lights; whether it has emissive
+ * triangles; its animations (channels, time range), KHR_materials_variants
+ * variants and the extensions it uses and requires. Loads it as a still
+ * first, with every check of pt_scene_load (its errors). */
+pt_status pt_scene_list(const char *path, FILE *out, pt_error *err);
 
 /* A default view of the box [lo, hi] for an image of `aspect` (width/height;
  * 0: square) into *out: a 40-degree camera looking down -Z from a little

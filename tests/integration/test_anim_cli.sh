@@ -44,6 +44,9 @@ if [ -f "$fox" ]; then
   if grep -q "playing the first" "$tmp/fox0.log"; then fail "--animation 0 still said it"; fi
   "$bin/ptworker" --scene "$fox" "${fview[@]}" -q --animation all -o "$tmp/foxall.exr"
   "$bin/ptexr-diff" "$tmp/fox.exr" "$tmp/fox0.exr" > /dev/null || fail "the default is not animation 0"
+  "$bin/ptworker" --list "$fox" > "$tmp/list.txt" || fail "--list: exit $?"
+  grep -q "animations (3)" "$tmp/list.txt" || fail "--list: $(cat "$tmp/list.txt")"
+  grep -q "1 'Walk': 21 channels, 0 to 0.708333 s" "$tmp/list.txt" || fail "--list: $(cat "$tmp/list.txt")"
   if "$bin/ptexr-diff" "$tmp/fox.exr" "$tmp/foxall.exr" > /dev/null; then
     fail "--animation all is the first alone"
   fi

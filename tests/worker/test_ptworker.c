@@ -53,7 +53,8 @@ static pt_image *read_exr(const char *name, pt_exr_meta *meta)
     return img;
 }
 
-/* The bytes of tmpdir/name, malloc'd, their count in *len; NULL if unread. */
+/* The bytes of tmpdir/name, malloc'd and NUL-terminated, their count in
+ * *len; NULL if unread. */
 static unsigned char *slurp(const char *name, size_t *len)
 {
     char path[512];
@@ -61,8 +62,10 @@ static unsigned char *slurp(const char *name, size_t *len)
     FILE *f = fopen(path, "rb");
     if (!f)
         return NULL;
-    unsigned char *buf = malloc(1 << 20);
+    unsigned char *buf = malloc((1 << 20) + 1);
     *len = buf ? fread(buf, 1, 1 << 20, f) : 0;
+    if (buf)
+        buf[*len] = 0;
     fclose(f);
     return buf;
 }
@@ -248,6 +251,20 @@ int main(void)
     snprintf(png, sizeof png, "%s/t1.png", tmpdir);
     struct stat sb;
     CHECK(stat(png, &sb) == 0 && sb.st_size > 100);
+
+    /* --list: what the scene offers the options, on stdout; nothing rendered. */
+    snprintf(args, sizeof args, "--list %s", cornell);
+    CHECK(run(args) == 0);
+    size_t lo = 0;
+    unsigned char *listed = slurp("out.txt", &lo);
+    CHECKF(listed && strstr((char *)listed, "cameras (1)") &&
+               strstr((char *)listed, "0 'Camera'") &&
+               strstr((char *)listed, "KHR_materials_emissive_strength") &&
+               strstr((char *)listed, "animations (0)"),
+           "--list: %s", listed ? (char *)listed : "");
+    free(listed);
+    snprintf(args, sizeof args, "--list %s/missing.gltf", tmpdir);
+    CHECK(run(args) == 1 && stderr_has("missing.gltf"));
 
     /* The view transform and exposure change the PNG only: the EXR is the
      * same bits, the preview is not; a bad view or exposure is bad usage. */
