@@ -21,6 +21,7 @@
 #include "common/base/frames.h"
 #include "common/base/opt.h"
 #include "common/base/version.h"
+#include "common/render/options.h"
 #include "common/render/render.h"
 #include "common/render/tile.h"
 #include "common/scene/anim.h"
@@ -193,88 +194,35 @@ static int parse_link_timeout(const char *s, uint32_t *ms, pt_error *err)
 int main(int argc, char **argv)
 {
     wrk_standalone_opts o = {0};
-    o.spp = 64;
-    o.max_depth = PT_RENDER_DEFAULT_MAX_DEPTH;
-    o.tile = 32;
-    o.chunk = 16;
-    o.env_strength = 1.0f;
+    pt_render_opts ro;
+    pt_render_opts_init(&ro);
     wrk_client_opts net = {0};
-    pt_camera_look_opts look = {0};
-    char look_text[PROTO_MAX_NAME + 1]; /* a farm job's camera field holds it too */
-    double dv, rgb[3];
     uint32_t prefetch = 0;
     int has_prefetch = 0;
     /* Animation: --time, or --frame over --fps (default 24). */
-    double anim_time = 0.0, anim_frame = 0.0, anim_fps = 24.0;
-    int has_time = 0, has_frame = 0, has_fps = 0;
+    double anim_time = 0.0, anim_frame = 0.0;
+    int has_time = 0, has_frame = 0;
     /* Which options were given, to refuse mixing the modes. */
     char standalone_opt[40] = "", farm_opt[40] = "";
     enum {
         OPT_SCENE = 256,
-        OPT_SPP,
-        OPT_RES,
-        OPT_SEED,
         OPT_THREADS,
-        OPT_DEPTH,
-        OPT_CAMERA,
-        OPT_TILE,
-        OPT_CHUNK,
-        OPT_TARGET,
-        OPT_MINGAIN,
-        OPT_MINSPP,
-        OPT_ENV,
-        OPT_ENV_STRENGTH,
-        OPT_ENV_ROTATE,
-        OPT_BACKGROUND,
-        OPT_TRANSPARENT,
-        OPT_VARIANT,
         OPT_TIME,
         OPT_FRAME,
-        OPT_FPS,
-        OPT_ANIMATION,
-        OPT_SHUTTER,
-        OPT_EXPOSURE,
-        OPT_VIEW,
-        OPT_LOOK, /* --camera-from, --camera-at, --fov, --ortho */
         OPT_LIST,
-        OPT_SERVER,
+        OPT_SERVER, /* the farm worker's, from here on */
         OPT_PREFETCH,
         OPT_TOKEN,
         OPT_CACHE,
         OPT_NAME,
         OPT_LINK_TIMEOUT
     };
-    static const struct option longopts[] = {
+    static const struct option own[] = {
         {"scene", required_argument, NULL, OPT_SCENE},
         {"output", required_argument, NULL, 'o'},
-        {"spp", required_argument, NULL, OPT_SPP},
-        {"res", required_argument, NULL, OPT_RES},
-        {"seed", required_argument, NULL, OPT_SEED},
         {"threads", required_argument, NULL, OPT_THREADS},
-        {"max-depth", required_argument, NULL, OPT_DEPTH},
-        {"camera", required_argument, NULL, OPT_CAMERA},
-        {"tile", required_argument, NULL, OPT_TILE},
-        {"chunk", required_argument, NULL, OPT_CHUNK},
-        {"target-error", required_argument, NULL, OPT_TARGET},
-        {"min-gain", required_argument, NULL, OPT_MINGAIN},
-        {"min-spp", required_argument, NULL, OPT_MINSPP},
-        {"env", required_argument, NULL, OPT_ENV},
-        {"env-strength", required_argument, NULL, OPT_ENV_STRENGTH},
-        {"env-rotate", required_argument, NULL, OPT_ENV_ROTATE},
-        {"background", required_argument, NULL, OPT_BACKGROUND},
-        {"transparent", no_argument, NULL, OPT_TRANSPARENT},
-        {"variant", required_argument, NULL, OPT_VARIANT},
         {"time", required_argument, NULL, OPT_TIME},
         {"frame", required_argument, NULL, OPT_FRAME},
-        {"fps", required_argument, NULL, OPT_FPS},
-        {"animation", required_argument, NULL, OPT_ANIMATION},
-        {"shutter", required_argument, NULL, OPT_SHUTTER},
-        {"exposure", required_argument, NULL, OPT_EXPOSURE},
-        {"view", required_argument, NULL, OPT_VIEW},
-        {"camera-from", required_argument, NULL, OPT_LOOK},
-        {"camera-at", required_argument, NULL, OPT_LOOK},
-        {"fov", required_argument, NULL, OPT_LOOK},
-        {"ortho", required_argument, NULL, OPT_LOOK},
         {"list", required_argument, NULL, OPT_LIST},
         {"quiet", no_argument, NULL, 'q'},
         {"server", required_argument, NULL, OPT_SERVER},
@@ -285,8 +233,14 @@ int main(int argc, char **argv)
         {"link-timeout", required_argument, NULL, OPT_LINK_TIMEOUT},
         {"help", no_argument, NULL, 'h'},
         {"version", no_argument, NULL, 'V'},
-        {NULL, 0, NULL, 0},
     };
+    /* Its own options, then every render option of the shared table
+     * (common/render/options.h), then the end. */
+    enum { NOWN = sizeof own / sizeof own[0] };
+    struct option longopts[NOWN + PT_ROPT_COUNT + 1];
+    memcpy(longopts, own, sizeof own);
+    size_t nl = NOWN + pt_render_longopts(PT_ROPT_ALL, longopts + NOWN, PT_ROPT_COUNT);
+    longopts[nl] = (struct option){NULL, 0, NULL, 0};
     int c, li = 0;
     pt_error err = {0};
     while ((c = getopt_long(argc, argv, "o:qh", longopts, &li)) != -1) {
@@ -298,29 +252,8 @@ int main(int argc, char **argv)
         case 'o':
             o.out_path = optarg;
             break;
-        case OPT_SPP:
-            bad = bad_value(pt_opt_u32("--spp", optarg, 1, 1u << 24, &o.spp, &err), &err);
-            break;
-        case OPT_RES:
-            bad = bad_value(
-                pt_opt_res("--res", optarg, PT_RENDER_MAX_SIDE, &o.width, &o.height, &err), &err);
-            break;
-        case OPT_SEED:
-            bad = bad_value(pt_opt_u32("--seed", optarg, 0, UINT32_MAX, &o.seed, &err), &err);
-            break;
         case OPT_THREADS:
             bad = bad_value(pt_opt_u32("--threads", optarg, 1, 1024, &o.threads, &err), &err);
-            break;
-        case OPT_DEPTH:
-            bad = bad_value(
-                pt_opt_u32("--max-depth", optarg, 0, PT_RENDER_MAX_DEPTH, &o.max_depth, &err),
-                &err);
-            break;
-        case OPT_CAMERA:
-            o.camera = optarg;
-            break;
-        case OPT_VARIANT:
-            o.variant = optarg;
             break;
         case OPT_TIME:
             bad = bad_value(pt_opt_double("--time", optarg, 0.0, 1e9, &anim_time, &err), &err);
@@ -330,73 +263,13 @@ int main(int argc, char **argv)
             bad = bad_value(pt_opt_double("--frame", optarg, 0.0, 1e9, &anim_frame, &err), &err);
             has_frame = 1;
             break;
-        case OPT_FPS:
-            bad = bad_value(pt_opt_double("--fps", optarg, PT_FRAMES_MIN_FPS, PT_FRAMES_MAX_FPS,
-                                          &anim_fps, &err),
-                            &err);
-            has_fps = 1;
-            break;
-        case OPT_ANIMATION:
-            o.animation = optarg;
-            o.animate = 1;
-            break;
-        case OPT_TILE:
-            bad = bad_value(pt_opt_u32("--tile", optarg, 1, PT_TILE_MAX, &o.tile, &err), &err);
-            break;
-        case OPT_CHUNK:
-            bad = bad_value(pt_opt_u32("--chunk", optarg, 1, 1u << 24, &o.chunk, &err), &err);
-            break;
-        case OPT_TARGET:
-            bad = bad_value(pt_opt_positive("--target-error", optarg, 1e6, &o.target_error, &err),
-                            &err);
-            break;
-        case OPT_MINGAIN:
-            bad =
-                bad_value(pt_opt_positive("--min-gain", optarg, DBL_MAX, &o.min_gain, &err), &err);
-            break;
-        case OPT_MINSPP:
-            bad = bad_value(pt_opt_u32("--min-spp", optarg, 2, 1u << 24, &o.min_spp, &err), &err);
-            break;
-        case OPT_ENV:
-            o.env_path = optarg;
-            break;
-        case OPT_ENV_STRENGTH:
-            bad = bad_value(pt_opt_double("--env-strength", optarg, 0.0, 1e20, &dv, &err), &err);
-            o.env_strength = (float)dv;
-            break;
-        case OPT_ENV_ROTATE:
-            bad = bad_value(pt_opt_double("--env-rotate", optarg, -1e6, 1e6, &dv, &err), &err);
-            o.env_rotate = (float)dv;
-            break;
-        case OPT_BACKGROUND:
-            bad = bad_value(pt_opt_rgb("--background", optarg, 1e20, rgb, &err), &err);
-            o.has_background = 1;
-            for (int k = 0; k < 3; k++)
-                o.background[k] = (float)rgb[k];
-            break;
-        case OPT_TRANSPARENT:
-            o.transparent = 1;
-            break;
-        case OPT_SHUTTER:
-            bad = bad_value(pt_opt_shutter("--shutter", optarg, o.shutter, &err), &err);
-            o.has_shutter = 1;
-            break;
-        case OPT_EXPOSURE:
-            bad = bad_value(
-                pt_opt_double("--exposure", optarg, -PT_VIEW_MAX_EV, PT_VIEW_MAX_EV, &dv, &err),
-                &err);
-            o.view.exposure = (float)dv;
-            break;
-        case OPT_VIEW:
-            bad = bad_value(pt_view_parse("--view", optarg, &o.view.kind, &err), &err);
-            break;
-        case OPT_LOOK: {
-            char name[32];
-            snprintf(name, sizeof name, "--%s", longopts[li].name);
-            bad = bad_value(pt_camera_look_option(&look, name, optarg, &err), &err);
-            break;
-        }
-
+        case OPT_LIST:
+            /* What the scene offers the options above; nothing rendered. */
+            if (pt_scene_list(optarg, stdout, &err) != PT_OK) {
+                fprintf(stderr, "ptworker: %s\n", err.msg);
+                return 1;
+            }
+            return 0;
         case 'q':
             o.quiet = 1;
             break;
@@ -420,25 +293,22 @@ int main(int argc, char **argv)
         case OPT_LINK_TIMEOUT:
             bad = parse_link_timeout(optarg, &net.link_timeout_ms, &err);
             break;
-        case OPT_LIST:
-            /* What the scene offers the options above; nothing rendered. */
-            if (pt_scene_list(optarg, stdout, &err) != PT_OK) {
-                fprintf(stderr, "ptworker: %s\n", err.msg);
-                return 1;
-            }
-            return 0;
         case 'h':
             usage(stdout);
             return 0;
         case 'V':
             return pt_version_print("ptworker");
         default:
-            usage(stderr);
-            return 2;
+            if (!pt_render_opt_is(c)) {
+                usage(stderr);
+                return 2;
+            }
+            bad = bad_value(pt_render_opt_set(&ro, c, optarg, &err), &err);
         }
         if (bad)
             return 2;
-        char *seen = c >= OPT_SERVER ? farm_opt : c != OPT_THREADS ? standalone_opt : NULL;
+        int farm = c >= OPT_SERVER && c <= OPT_LINK_TIMEOUT;
+        char *seen = farm ? farm_opt : c != OPT_THREADS ? standalone_opt : NULL;
         if (seen && c == 'o')
             snprintf(seen, 40, "-o");
         else if (seen && c == 'q')
@@ -488,34 +358,49 @@ int main(int argc, char **argv)
         usage(stderr);
         return 2;
     }
-    int placed = 0;
-    if (bad_value(
-            pt_camera_look_finish(&look, o.camera, look_text, sizeof look_text, &placed, &err),
-            &err))
+    if (bad_value(pt_render_opts_finish(&ro, &err), &err))
         return 2;
-    if (placed)
-        o.camera = look_text;
-    if (o.target_error > 0.0 && o.min_gain > 0.0) {
-        fprintf(stderr, "ptworker: --target-error and --min-gain are two adaptive rules; give "
-                        "one\n");
-        return 2;
-    }
-    if (o.env_path && o.has_background) {
-        fprintf(stderr, "ptworker: --env and --background are two environments; give one\n");
-        return 2;
-    }
+    int given_fps = (ro.given & PT_ROPT(PT_ROPT_FPS)) != 0;
+    int given_shutter = (ro.given & PT_ROPT(PT_ROPT_SHUTTER)) != 0;
     if (has_time && has_frame) {
         fprintf(stderr, "ptworker: --time and --frame both give the time; give one\n");
         return 2;
     }
-    if (has_fps && !has_frame && !o.has_shutter) {
+    if (given_fps && !has_frame && !given_shutter) {
         fprintf(stderr, "ptworker: --fps needs --frame or --shutter\n");
         return 2;
     }
-    o.fps = anim_fps;
+    /* The shared options into the standalone render's. */
+    o.spp = ro.spp;
+    o.width = ro.width;
+    o.height = ro.height;
+    o.seed = ro.seed;
+    o.max_depth = ro.max_depth;
+    o.camera = ro.camera;
+    o.variant = ro.variant;
+    o.animation = ro.animation;
+    o.tile = ro.tile;
+    o.chunk = ro.chunk;
+    o.target_error = ro.target_error;
+    o.min_gain = ro.min_gain;
+    o.min_spp = ro.min_spp;
+    o.env_path = ro.env_path;
+    o.env_strength = (float)ro.env_strength;
+    o.env_rotate = (float)ro.env_rotate;
+    o.has_background = (ro.given & PT_ROPT(PT_ROPT_BACKGROUND)) != 0;
+    for (int k = 0; k < 3; k++)
+        o.background[k] = (float)ro.background[k];
+    o.transparent = (ro.given & PT_ROPT(PT_ROPT_TRANSPARENT)) != 0;
+    o.has_shutter = given_shutter;
+    o.shutter[0] = ro.shutter[0];
+    o.shutter[1] = ro.shutter[1];
+    o.view = ro.view;
+    o.fps = ro.fps;
+    if (ro.animation)
+        o.animate = 1;
     if (has_time || has_frame) {
         o.animate = 1;
-        o.time = has_time ? anim_time : anim_frame / anim_fps;
+        o.time = has_time ? anim_time : anim_frame / ro.fps;
     }
     if (o.chunk != pt_chunk_whole_blocks(o.chunk)) {
         fprintf(stderr,
