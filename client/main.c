@@ -30,6 +30,7 @@
 #include "common/base/opt.h"
 #include "common/base/text.h"
 #include "common/base/version.h"
+#include "common/render/options.h"
 #include "common/render/tile.h"
 #include "common/scene/bundle.h"
 #include "common/scene/scene.h"
@@ -396,75 +397,42 @@ static void default_job_name(const char *scene, char out[PROTO_MAX_NAME + 1])
 
 static int cmd_submit(int argc, char **argv, globals *g)
 {
-    static const struct option opts[] = {/* the global options, accepted after the command too */
-                                         {"server", required_argument, NULL, O_SERVER},
-                                         {"token-file", required_argument, NULL, O_TOKEN},
-                                         {"timeout", required_argument, NULL, O_TIMEOUT},
-                                         {"help", no_argument, NULL, 'h'},
-                                         {"spp", required_argument, NULL, O_SPP},
-                                         {"res", required_argument, NULL, O_RES},
-                                         {"seed", required_argument, NULL, O_SEED},
-                                         {"priority", required_argument, NULL, O_PRIORITY},
-                                         {"name", required_argument, NULL, O_NAME},
-                                         {"max-depth", required_argument, NULL, O_DEPTH},
-                                         {"target-error", required_argument, NULL, O_TARGET},
-                                         {"min-gain", required_argument, NULL, O_MINGAIN},
-                                         {"min-spp", required_argument, NULL, O_MINSPP},
-                                         {"watch", no_argument, NULL, O_WATCH},
-                                         {"camera", required_argument, NULL, O_CAMERA},
-                                         {"variant", required_argument, NULL, O_VARIANT},
-                                         {"env", required_argument, NULL, O_ENV},
-                                         {"env-strength", required_argument, NULL, O_ENVSTRENGTH},
-                                         {"env-rotate", required_argument, NULL, O_ENVROTATE},
-                                         {"background", required_argument, NULL, O_BACKGROUND},
-                                         {"transparent", no_argument, NULL, O_TRANSPARENT},
-                                         {"frames", required_argument, NULL, O_FRAMES},
-                                         {"fps", required_argument, NULL, O_FPS},
-                                         {"animation", required_argument, NULL, O_ANIMATION},
-                                         {"shutter", required_argument, NULL, O_SHUTTER},
-                                         {"camera-from", required_argument, NULL, O_LOOK},
-                                         {"camera-at", required_argument, NULL, O_LOOK},
-                                         {"fov", required_argument, NULL, O_LOOK},
-                                         {"ortho", required_argument, NULL, O_LOOK},
-                                         {NULL, 0, NULL, 0}};
+    static const struct option own[] = {/* the global options, accepted after the command too */
+                                        {"server", required_argument, NULL, O_SERVER},
+                                        {"token-file", required_argument, NULL, O_TOKEN},
+                                        {"timeout", required_argument, NULL, O_TIMEOUT},
+                                        {"help", no_argument, NULL, 'h'},
+                                        {"priority", required_argument, NULL, O_PRIORITY},
+                                        {"name", required_argument, NULL, O_NAME},
+                                        {"watch", no_argument, NULL, O_WATCH},
+                                        {"frames", required_argument, NULL, O_FRAMES}};
+    /* The render options of the shared table (common/render/options.h) but
+     * tiles, chunks and the preview's, which are the coordinator's. */
+    const uint32_t mine = PT_ROPT_ALL & ~(PT_ROPT(PT_ROPT_TILE) | PT_ROPT(PT_ROPT_CHUNK) |
+                                          PT_ROPT(PT_ROPT_EXPOSURE) | PT_ROPT(PT_ROPT_VIEW));
+    enum { NOWN = sizeof own / sizeof own[0] };
+    struct option opts[NOWN + PT_ROPT_COUNT + 1];
+    memcpy(opts, own, sizeof own);
+    size_t nl = NOWN + pt_render_longopts(mine, opts + NOWN, PT_ROPT_COUNT);
+    opts[nl] = (struct option){NULL, 0, NULL, 0};
+    _Static_assert(PT_ROPT_MAX_NAME == PROTO_MAX_NAME, "a job's names are the options'");
     proto_submit m;
-    pt_camera_look_opts look = {0};
-    int li = 0;
     memset(&m, 0, sizeof m);
-    m.spp = 64;
-    proto_env_none(&m.env);
-    const char *env_path = NULL;
-    double dv = 0.0, rgb[3], shutter[2] = {0.0, 0.0};
+    pt_render_opts ro;
+    pt_render_opts_init(&ro);
     const char *name = NULL;
-    int watch = 0, has_shutter = 0;
-    uint32_t depth = 0;
+    int watch = 0;
     int c;
     optind = 0;
-    while ((c = getopt_long(argc, argv, ":h", opts, &li)) != -1) {
+    while ((c = getopt_long(argc, argv, ":h", opts, NULL)) != -1) {
         int rc = 0;
         pt_status st = PT_OK;
         pt_error err = {0};
         switch (c) {
-        case O_LOOK: {
-            char opt[32];
-            snprintf(opt, sizeof opt, "--%s", opts[li].name);
-            st = pt_camera_look_option(&look, opt, optarg, &err);
-            break;
-        }
         case 'h':
             fputs(SUBMIT_HELP, stdout);
             printf("\n%s\n%s", GLOBAL_HELP, EXIT_HELP);
             return 0;
-        case O_SPP:
-            st = pt_opt_u32("--spp", optarg, 1, UINT32_MAX, &m.spp, &err);
-            break;
-        case O_RES:
-            /* The server judges the size against its own caps. */
-            st = pt_opt_res("--res", optarg, UINT32_MAX, &m.width, &m.height, &err);
-            break;
-        case O_SEED:
-            st = pt_opt_u32("--seed", optarg, 0, UINT32_MAX, &m.seed, &err);
-            break;
         case O_PRIORITY:
             st = pt_opt_i32("--priority", optarg, INT32_MIN, INT32_MAX, &m.priority, &err);
             break;
@@ -472,21 +440,6 @@ static int cmd_submit(int argc, char **argv, globals *g)
             name = optarg;
             if (strlen(name) > PROTO_MAX_NAME)
                 rc = bad_usage("submit", "--name: longer than %u bytes", PROTO_MAX_NAME);
-            break;
-        case O_DEPTH:
-            st = pt_opt_u32("--max-depth", optarg, 1, PT_RENDER_MAX_DEPTH, &depth, &err);
-            break;
-        case O_TARGET:
-            st = pt_opt_double("--target-error", optarg, 0.0, DBL_MAX, &m.target_error, &err);
-            break;
-        case O_MINGAIN:
-            st = pt_opt_double("--min-gain", optarg, 0.0, DBL_MAX, &m.min_gain, &err);
-            break;
-        case O_MINSPP:
-            st = pt_opt_u32("--min-spp", optarg, 1, UINT32_MAX, &m.min_spp, &err);
-            break;
-        case O_TRANSPARENT:
-            m.film_flags |= PROTO_FILM_TRANSPARENT;
             break;
         case O_FRAMES: {
             pt_frames fr;
@@ -497,60 +450,18 @@ static int cmd_submit(int argc, char **argv, globals *g)
             }
             break;
         }
-        case O_FPS:
-            st = pt_opt_double("--fps", optarg, PT_FRAMES_MIN_FPS, PT_FRAMES_MAX_FPS, &m.fps, &err);
-            break;
-        case O_ANIMATION:
-            if (!optarg[0] || strlen(optarg) > PROTO_MAX_NAME)
-                rc = bad_usage("submit", "--animation: a name or index of 1 to %u bytes",
-                               PROTO_MAX_NAME);
-            else
-                snprintf(m.animation, sizeof m.animation, "%s", optarg);
-            break;
         case O_WATCH:
             watch = 1;
-            break;
-        case O_CAMERA:
-            if (!optarg[0] || strlen(optarg) > PROTO_MAX_NAME)
-                rc = bad_usage("submit", "--camera: a name of 1 to %u bytes", PROTO_MAX_NAME);
-            else
-                snprintf(m.camera, sizeof m.camera, "%s", optarg);
-            break;
-        case O_VARIANT:
-            if (!optarg[0] || strlen(optarg) > PROTO_MAX_NAME)
-                rc = bad_usage("submit", "--variant: a name of 1 to %u bytes", PROTO_MAX_NAME);
-            else
-                snprintf(m.variant, sizeof m.variant, "%s", optarg);
-            break;
-        case O_ENV:
-            env_path = optarg;
-            break;
-        case O_ENVSTRENGTH:
-            /* ptworker --scene's ranges: the same job renders the same there. */
-            st = pt_opt_double("--env-strength", optarg, 0.0, 1e20, &dv, &err);
-            m.env.strength = (float)dv;
-            break;
-        case O_ENVROTATE:
-            st = pt_opt_double("--env-rotate", optarg, -1e6, 1e6, &dv, &err);
-            m.env.rotate_deg = (float)dv;
-            break;
-        case O_SHUTTER:
-            st = pt_opt_shutter("--shutter", optarg, shutter, &err);
-            has_shutter = 1;
-            break;
-        case O_BACKGROUND:
-            if ((st = pt_opt_rgb("--background", optarg, 1e20, rgb, &err)) == PT_OK) {
-                m.env.background = 1;
-                for (int k = 0; k < 3; k++)
-                    m.env.rgb[k] = (float)rgb[k];
-            }
             break;
         case ':':
             return bad_usage("submit", "%s needs a value", argv[optind - 1]);
         case '?':
             return unknown_option("submit", argv);
         default:
-            rc = parse_global("submit", c, optarg, g);
+            if (pt_render_opt_is(c))
+                st = pt_render_opt_set(&ro, c, optarg, &err);
+            else
+                rc = parse_global("submit", c, optarg, g);
         }
         if (!rc)
             rc = bad_value("submit", st, &err);
@@ -558,21 +469,46 @@ static int cmd_submit(int argc, char **argv, globals *g)
             return rc;
     }
     {
-        int placed = 0;
         pt_error err = {0};
-        if (pt_camera_look_finish(&look, m.camera[0] ? m.camera : NULL, m.camera, sizeof m.camera,
-                                  &placed, &err) != PT_OK)
+        if (pt_render_opts_finish(&ro, &err) != PT_OK)
             return bad_usage("submit", "%s", err.msg);
     }
+    if ((ro.given & PT_ROPT(PT_ROPT_MAX_DEPTH)) && ro.max_depth == 0)
+        return bad_usage("submit", "--max-depth 0: a job's cap is 1 or more (0 in a job asks the "
+                                   "coordinator's default)");
+    /* The shared options into the job. */
+    m.spp = ro.spp;
+    m.width = ro.width;
+    m.height = ro.height;
+    m.seed = ro.seed;
+    m.max_depth = (ro.given & PT_ROPT(PT_ROPT_MAX_DEPTH)) ? (uint16_t)ro.max_depth : 0;
+    m.target_error = ro.target_error;
+    m.min_gain = ro.min_gain;
+    m.min_spp = ro.min_spp;
+    if (ro.given & PT_ROPT(PT_ROPT_TRANSPARENT))
+        m.film_flags |= PROTO_FILM_TRANSPARENT;
+    if (ro.camera)
+        snprintf(m.camera, sizeof m.camera, "%s", ro.camera);
+    if (ro.variant)
+        snprintf(m.variant, sizeof m.variant, "%s", ro.variant);
+    if (ro.animation)
+        snprintf(m.animation, sizeof m.animation, "%s", ro.animation);
+    proto_env_none(&m.env);
+    const char *env_path = ro.env_path;
+    m.env.strength = (float)ro.env_strength;
+    m.env.rotate_deg = (float)ro.env_rotate;
+    if (ro.given & PT_ROPT(PT_ROPT_BACKGROUND)) {
+        m.env.background = 1;
+        for (int k = 0; k < 3; k++)
+            m.env.rgb[k] = (float)ro.background[k];
+    }
+    int has_shutter = (ro.given & PT_ROPT(PT_ROPT_SHUTTER)) != 0;
+    double shutter[2] = {ro.shutter[0], ro.shutter[1]};
+    m.fps = (ro.given & PT_ROPT(PT_ROPT_FPS)) ? ro.fps : 0.0;
     if (optind >= argc)
         return bad_usage("submit", "which scene?");
     if (argc - optind > 1)
         return bad_usage("submit", "one scene at a time ('%s' is extra)", argv[optind + 1]);
-    if (m.target_error > 0.0 && m.min_gain > 0.0)
-        return bad_usage("submit", "--target-error and --min-gain are two adaptive rules; give "
-                                   "one");
-    if (env_path && m.env.background)
-        return bad_usage("submit", "--env and --background are two environments; give one");
     if (!m.frame_step && m.animation[0])
         return bad_usage("submit", "--animation poses the frames of --frames A-B[:STEP]; give "
                                    "--frames");
@@ -588,7 +524,6 @@ static int cmd_submit(int argc, char **argv, globals *g)
     if (env_path)
         snprintf(m.env.name, sizeof m.env.name, "%s", PT_BUNDLE_ENV_NAME);
     const char *scene = argv[optind];
-    m.max_depth = (uint16_t)depth;
     if (name)
         snprintf(m.name, sizeof m.name, "%s", name);
     else

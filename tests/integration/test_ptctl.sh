@@ -108,7 +108,8 @@ usage_case "--priority" submit a.gltf --priority 2147483648
 usage_case "--priority" submit a.gltf --priority high
 usage_case "--max-depth" submit a.gltf --max-depth 70000
 # The same limit as ptworker and ptserve: 1025 passed ptctl and failed at the server.
-usage_case "in [1, 1024]" submit a.gltf --max-depth 1025
+usage_case "in [0, 1024]" submit a.gltf --max-depth 1025 # the limits of every program (options.h)
+usage_case "cap is 1 or more" submit a.gltf --max-depth 0
 usage_case "--target-error" submit a.gltf --target-error -0.1
 usage_case "--target-error" submit a.gltf --target-error nan
 usage_case "--min-gain" submit a.gltf --min-gain -1e-6
