@@ -15,6 +15,7 @@
 #include "common/base/version.h"
 #include "common/image/image.h"
 #include "common/image/view.h"
+#include "common/render/options.h"
 #include "common/render/tile.h"
 #include "common/scene/scene.h"
 #include "server/io.h"
@@ -215,12 +216,8 @@ int main(int argc, char **argv)
 {
     srv_config c;
     memset(&c, 0, sizeof c);
-    c.job.spp = 64;
-    c.job.tile = 32;
-    c.job.chunk = 16;
     c.task_ms = SRV_DEFAULT_TASK_MS;
-    int has_chunk = 0, has_task_time = 0;
-    c.job.max_depth = PT_RENDER_DEFAULT_MAX_DEPTH;
+    int has_task_time = 0;
     c.job.rr_depth = 3;
     c.save_interval = 5.0;
     c.merge_threads = SRV_DEFAULT_MERGE_THREADS;
@@ -232,28 +229,19 @@ int main(int argc, char **argv)
     c.caps.max_spp = 65536;
     c.caps.max_scene = 512ull << 20;
     c.caps.max_queued = 64;
-    double lease = 20.0, handshake = 10.0, grace = 30.0, dv = 0.0, rgb[3];
+    double lease = 20.0, handshake = 10.0, grace = 30.0;
     int log_given = 0; /* --max-log-mb: queue mode only */
-    int env_opts = 0;  /* --env-strength or --env-rotate given */
     proto_env_none(&c.job.env);
     enum {
         O_LOCAL = 256,
         O_WTHREADS,
         O_LISTEN,
         O_TOKEN,
-        O_SPP,
-        O_RES,
-        O_SEED,
-        O_DEPTH,
-        O_TILE,
-        O_CHUNK,
         O_SAVE,
         O_LEASE,
         O_PORTFILE,
         O_WBIN,
         O_HANDSHAKE,
-        O_TARGET,
-        O_MINSPP,
         O_STATE,
         O_OUTDIR,
         O_MAXRES,
@@ -261,12 +249,7 @@ int main(int argc, char **argv)
         O_MAXSPP,
         O_MAXSCENE,
         O_MAXQUEUED,
-        O_CAMERA,
-        O_VARIANT,
         O_FRAMES,
-        O_FPS,
-        O_ANIMATION,
-        O_MINGAIN,
         O_CLIENTS,
         O_MAXINPUT,
         O_MAXHS,
@@ -274,41 +257,22 @@ int main(int argc, char **argv)
         O_GRACE,
         O_MINRATE,
         O_VERIFY,
-        O_ENV,
-        O_ENVSTRENGTH,
-        O_ENVROTATE,
-        O_BACKGROUND,
         O_HTTP,
         O_HTTPPORT,
         O_HTTPHOST,
-        O_TRANSPARENT,
         O_TASKTIME,
-        O_SHUTTER,
         O_MERGETHREADS,
         O_IOTHREADS,
-        O_MAXLOG,
-        O_EXPOSURE,
-        O_VIEW,
-        O_LOOK
+        O_MAXLOG
     };
-    static const struct option opts[] = {
+    static const struct option own[] = {
         {"output", required_argument, NULL, 'o'},
         {"local", required_argument, NULL, O_LOCAL},
         {"worker-threads", required_argument, NULL, O_WTHREADS},
         {"listen", required_argument, NULL, O_LISTEN},
         {"token-file", required_argument, NULL, O_TOKEN},
         {"clients-file", required_argument, NULL, O_CLIENTS},
-        {"spp", required_argument, NULL, O_SPP},
-        {"res", required_argument, NULL, O_RES},
-        {"seed", required_argument, NULL, O_SEED},
-        {"camera", required_argument, NULL, O_CAMERA},
-        {"variant", required_argument, NULL, O_VARIANT},
         {"frames", required_argument, NULL, O_FRAMES},
-        {"fps", required_argument, NULL, O_FPS},
-        {"animation", required_argument, NULL, O_ANIMATION},
-        {"max-depth", required_argument, NULL, O_DEPTH},
-        {"tile", required_argument, NULL, O_TILE},
-        {"chunk", required_argument, NULL, O_CHUNK},
         {"task-time", required_argument, NULL, O_TASKTIME},
         {"merge-threads", required_argument, NULL, O_MERGETHREADS},
         {"io-threads", required_argument, NULL, O_IOTHREADS},
@@ -317,18 +281,7 @@ int main(int argc, char **argv)
         {"lease-timeout", required_argument, NULL, O_LEASE},
         {"port-file", required_argument, NULL, O_PORTFILE},
         {"handshake-timeout", required_argument, NULL, O_HANDSHAKE},
-        {"target-error", required_argument, NULL, O_TARGET},
-        {"min-gain", required_argument, NULL, O_MINGAIN},
         {"verify-fraction", required_argument, NULL, O_VERIFY},
-        {"min-spp", required_argument, NULL, O_MINSPP},
-        {"transparent", no_argument, NULL, O_TRANSPARENT},
-        {"shutter", required_argument, NULL, O_SHUTTER},
-        {"exposure", required_argument, NULL, O_EXPOSURE},
-        {"view", required_argument, NULL, O_VIEW},
-        {"camera-from", required_argument, NULL, O_LOOK},
-        {"camera-at", required_argument, NULL, O_LOOK},
-        {"fov", required_argument, NULL, O_LOOK},
-        {"ortho", required_argument, NULL, O_LOOK},
         {"worker-bin", required_argument, NULL, O_WBIN},
         {"state-dir", required_argument, NULL, O_STATE},
         {"output-dir", required_argument, NULL, O_OUTDIR},
@@ -342,25 +295,26 @@ int main(int argc, char **argv)
         {"max-handshakes-per-ip", required_argument, NULL, O_MAXHSIP},
         {"frame-grace", required_argument, NULL, O_GRACE},
         {"min-rate", required_argument, NULL, O_MINRATE},
-        {"env", required_argument, NULL, O_ENV},
-        {"env-strength", required_argument, NULL, O_ENVSTRENGTH},
-        {"env-rotate", required_argument, NULL, O_ENVROTATE},
-        {"background", required_argument, NULL, O_BACKGROUND},
         {"http", required_argument, NULL, O_HTTP},
         {"http-port-file", required_argument, NULL, O_HTTPPORT},
         {"http-host", required_argument, NULL, O_HTTPHOST},
         {"quiet", no_argument, NULL, 'q'},
         {"help", no_argument, NULL, 'h'},
         {"version", no_argument, NULL, 'V'},
-        {NULL, 0, NULL, 0},
     };
+    /* Its own options, then every render option of the shared table
+     * (common/render/options.h), then the end. */
+    enum { NOWN = sizeof own / sizeof own[0] };
+    struct option opts[NOWN + PT_ROPT_COUNT + 1];
+    memcpy(opts, own, sizeof own);
+    size_t nl = NOWN + pt_render_longopts(PT_ROPT_ALL, opts + NOWN, PT_ROPT_COUNT);
+    opts[nl] = (struct option){NULL, 0, NULL, 0};
+    _Static_assert(PT_ROPT_MAX_NAME == PROTO_MAX_NAME, "a job's names are the options'");
+    pt_render_opts ro;
+    pt_render_opts_init(&ro);
     pt_error err = {0};
-    double shutter[2] = {0.0, 0.0};
-    int has_shutter = 0;
     int ch;
-    pt_camera_look_opts look = {0};
-    int li = 0;
-    while ((ch = getopt_long(argc, argv, "o:qh", opts, &li)) != -1) {
+    while ((ch = getopt_long(argc, argv, "o:qh", opts, NULL)) != -1) {
         pt_status st = PT_OK;
         uint32_t v;
         switch (ch) {
@@ -389,52 +343,8 @@ int main(int argc, char **argv)
         case O_CLIENTS:
             c.clients_path = optarg;
             break;
-        case O_SPP:
-            st = pt_opt_u32("--spp", optarg, 1, 1u << 24, &c.job.spp, &err);
-            break;
-        case O_RES:
-            st = pt_opt_res("--res", optarg, PT_RENDER_MAX_SIDE, &c.job.width, &c.job.height, &err);
-            break;
-        case O_SEED:
-            st = pt_opt_u32("--seed", optarg, 0, UINT32_MAX, &c.job.seed, &err);
-            break;
-        case O_CAMERA:
-            if (!optarg[0] || strlen(optarg) > PROTO_MAX_NAME) {
-                fprintf(stderr, "ptserve: --camera: a name of 1 to %u bytes\n", PROTO_MAX_NAME);
-                return 2;
-            }
-            snprintf(c.job.camera, sizeof c.job.camera, "%s", optarg);
-            break;
         case O_FRAMES:
             st = pt_frames_parse("--frames", optarg, &c.frames, &err);
-            break;
-        case O_FPS:
-            st = pt_opt_double("--fps", optarg, PT_FRAMES_MIN_FPS, PT_FRAMES_MAX_FPS, &c.fps, &err);
-            break;
-        case O_ANIMATION:
-            if (!optarg[0] || strlen(optarg) > PROTO_MAX_NAME) {
-                fprintf(stderr, "ptserve: --animation: a name or index of 1 to %u bytes\n",
-                        PROTO_MAX_NAME);
-                return 2;
-            }
-            c.animation = optarg;
-            break;
-        case O_VARIANT:
-            if (!optarg[0] || strlen(optarg) > PROTO_MAX_NAME) {
-                fprintf(stderr, "ptserve: --variant: a name of 1 to %u bytes\n", PROTO_MAX_NAME);
-                return 2;
-            }
-            snprintf(c.job.variant, sizeof c.job.variant, "%s", optarg);
-            break;
-        case O_DEPTH:
-            st = pt_opt_u32("--max-depth", optarg, 0, PT_RENDER_MAX_DEPTH, &c.job.max_depth, &err);
-            break;
-        case O_TILE:
-            st = pt_opt_u32("--tile", optarg, 1, PT_TILE_MAX, &c.job.tile, &err);
-            break;
-        case O_CHUNK:
-            st = pt_opt_u32("--chunk", optarg, 1, 1u << 24, &c.job.chunk, &err);
-            has_chunk = 1;
             break;
         case O_TASKTIME:
             st = pt_opt_u32("--task-time", optarg, 1, 3600000, &c.task_ms, &err);
@@ -452,38 +362,9 @@ int main(int argc, char **argv)
         case O_HANDSHAKE:
             st = pt_opt_seconds("--handshake-timeout", optarg, 0, 86400, &handshake, &err);
             break;
-        case O_TARGET:
-            st = pt_opt_positive("--target-error", optarg, 1e6, &c.job.target_error, &err);
-            break;
         case O_VERIFY:
             st = pt_opt_double("--verify-fraction", optarg, 0.0, 1.0, &c.verify_fraction, &err);
             break;
-        case O_MINGAIN:
-            st = pt_opt_positive("--min-gain", optarg, DBL_MAX, &c.job.min_gain, &err);
-            break;
-        case O_MINSPP:
-            st = pt_opt_u32("--min-spp", optarg, 2, 1u << 24, &c.job.min_spp, &err);
-            break;
-        case O_TRANSPARENT:
-            c.job.film_flags |= PROTO_FILM_TRANSPARENT;
-            break;
-        case O_SHUTTER:
-            st = pt_opt_shutter("--shutter", optarg, shutter, &err);
-            has_shutter = 1;
-            break;
-        case O_EXPOSURE:
-            st = pt_opt_double("--exposure", optarg, -PT_VIEW_MAX_EV, PT_VIEW_MAX_EV, &dv, &err);
-            c.view.exposure = (float)dv;
-            break;
-        case O_VIEW:
-            st = pt_view_parse("--view", optarg, &c.view.kind, &err);
-            break;
-        case O_LOOK: {
-            char name[32];
-            snprintf(name, sizeof name, "--%s", opts[li].name);
-            st = pt_camera_look_option(&look, name, optarg, &err);
-            break;
-        }
         case O_WBIN:
             c.worker_bin = optarg;
             break;
@@ -533,28 +414,6 @@ int main(int argc, char **argv)
             if ((st = pt_opt_u32("--min-rate", optarg, 1, 1u << 20, &v, &err)) == PT_OK)
                 c.limits.min_rate = v << 10;
             break;
-        case O_ENV:
-            c.env_path = optarg;
-            break;
-        case O_ENVSTRENGTH:
-            /* The ranges of ptworker --scene's options, so the same job is
-             * accepted by both. */
-            st = pt_opt_double("--env-strength", optarg, 0.0, 1e20, &dv, &err);
-            c.job.env.strength = (float)dv;
-            env_opts = 1;
-            break;
-        case O_ENVROTATE:
-            st = pt_opt_double("--env-rotate", optarg, -1e6, 1e6, &dv, &err);
-            c.job.env.rotate_deg = (float)dv;
-            env_opts = 1;
-            break;
-        case O_BACKGROUND:
-            if ((st = pt_opt_rgb("--background", optarg, 1e20, rgb, &err)) == PT_OK) {
-                c.job.env.background = 1;
-                for (int k = 0; k < 3; k++)
-                    c.job.env.rgb[k] = (float)rgb[k];
-            }
-            break;
         case O_HTTP:
             c.http = optarg;
             break;
@@ -573,14 +432,55 @@ int main(int argc, char **argv)
         case 'V':
             return pt_version_print("ptserve");
         default:
-            usage(stderr);
-            return 2;
+            if (!pt_render_opt_is(ch)) {
+                usage(stderr);
+                return 2;
+            }
+            st = pt_render_opt_set(&ro, ch, optarg, &err);
         }
         if (st != PT_OK) {
             fprintf(stderr, "ptserve: %s\n", err.msg);
             return 2;
         }
     }
+    if (pt_render_opts_finish(&ro, &err) != PT_OK) {
+        fprintf(stderr, "ptserve: %s\n", err.msg);
+        return 2;
+    }
+    /* The shared options into the job (one-job mode) or the defaults of
+     * submitted jobs (queue mode: tile, chunk, max depth). */
+    c.job.spp = ro.spp;
+    c.job.width = ro.width;
+    c.job.height = ro.height;
+    c.job.seed = ro.seed;
+    c.job.max_depth = ro.max_depth;
+    c.job.tile = ro.tile;
+    c.job.chunk = ro.chunk;
+    c.job.target_error = ro.target_error;
+    c.job.min_gain = ro.min_gain;
+    c.job.min_spp = ro.min_spp;
+    int has_chunk = (ro.given & PT_ROPT(PT_ROPT_CHUNK)) != 0;
+    int has_shutter = (ro.given & PT_ROPT(PT_ROPT_SHUTTER)) != 0;
+    int env_opts = (ro.given & (PT_ROPT(PT_ROPT_ENV_STRENGTH) | PT_ROPT(PT_ROPT_ENV_ROTATE))) != 0;
+    int placed = (ro.given & PT_ROPT(PT_ROPT_CAMERA_FROM)) != 0;
+    double shutter[2] = {ro.shutter[0], ro.shutter[1]};
+    if (ro.camera)
+        snprintf(c.job.camera, sizeof c.job.camera, "%s", ro.camera);
+    if (ro.variant)
+        snprintf(c.job.variant, sizeof c.job.variant, "%s", ro.variant);
+    c.animation = ro.animation;
+    c.fps = (ro.given & PT_ROPT(PT_ROPT_FPS)) ? ro.fps : 0.0;
+    c.env_path = ro.env_path;
+    c.job.env.strength = (float)ro.env_strength;
+    c.job.env.rotate_deg = (float)ro.env_rotate;
+    if (ro.given & PT_ROPT(PT_ROPT_BACKGROUND)) {
+        c.job.env.background = 1;
+        for (int k = 0; k < 3; k++)
+            c.job.env.rgb[k] = (float)ro.background[k];
+    }
+    if (ro.given & PT_ROPT(PT_ROPT_TRANSPARENT))
+        c.job.film_flags |= PROTO_FILM_TRANSPARENT;
+    c.view = ro.view;
     if (c.state_dir) {
         if (optind != argc || c.out_path) {
             fprintf(stderr, "ptserve: --state-dir runs a queue: no SCENE or -o (submit jobs "
@@ -599,10 +499,6 @@ int main(int argc, char **argv)
     if (c.state_dir && (c.env_path || c.job.env.background || env_opts)) {
         fprintf(stderr, "ptserve: --env, --env-strength, --env-rotate and --background are a "
                         "job's: in queue mode give them to ptctl submit\n");
-        return 2;
-    }
-    if (c.env_path && c.job.env.background) {
-        fprintf(stderr, "ptserve: --env and --background are two environments; give one\n");
         return 2;
     }
     if (c.clients_path && (!c.token_path || !c.state_dir)) {
@@ -628,12 +524,6 @@ int main(int argc, char **argv)
     if (!c.frames.step && !has_shutter && c.fps > 0) {
         fprintf(stderr, "ptserve: --fps is the frame rate of --frames A-B[:STEP] and --shutter; "
                         "give --frames or --shutter\n");
-        return 2;
-    }
-    int placed = 0;
-    if (pt_camera_look_finish(&look, c.job.camera[0] ? c.job.camera : NULL, c.job.camera,
-                              sizeof c.job.camera, &placed, &err) != PT_OK) {
-        fprintf(stderr, "ptserve: %s\n", err.msg);
         return 2;
     }
     if (c.state_dir && placed) {
@@ -668,11 +558,6 @@ int main(int argc, char **argv)
     if (c.state_dir && (c.job.film_flags & PROTO_FILM_TRANSPARENT)) {
         fprintf(stderr, "ptserve: --transparent is for one-job mode; a queued job asks for it "
                         "with ptctl submit --transparent\n");
-        return 2;
-    }
-    if (c.job.target_error > 0.0 && c.job.min_gain > 0.0) {
-        fprintf(stderr, "ptserve: --target-error and --min-gain are two adaptive rules; give "
-                        "one\n");
         return 2;
     }
     if (has_chunk && has_task_time) {
