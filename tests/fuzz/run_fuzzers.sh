@@ -7,7 +7,7 @@
 # fuzz_envmap (the environment map's Radiance decoder and sampler),
 # fuzz_draco (KHR_draco_mesh_compression's mesh decoder), fuzz_webp
 # (EXT_texture_webp's image decoder), fuzz_meshopt (EXT_meshopt_compression's
-# buffer view decoder);
+# buffer view decoder), fuzz_camera_look (a job's camera placement text);
 # all of them by default.
 # Build: build-fuzz/ (Debug, clang, -DPT_FUZZ=ON), or $PT_FUZZ_BUILD.
 # Each target starts from its committed seeds (tests/fuzz/corpus/<target>;
@@ -24,7 +24,7 @@ shift
 targets=("$@")
 [[ ${#targets[@]} -gt 0 ]] ||
   targets=(fuzz_frame fuzz_msg fuzz_gltf fuzz_bundle fuzz_queue fuzz_checkpoint fuzz_results_log
-    fuzz_exr fuzz_envmap fuzz_draco fuzz_webp fuzz_meshopt)
+    fuzz_exr fuzz_envmap fuzz_draco fuzz_webp fuzz_meshopt fuzz_camera_look)
 build=${PT_FUZZ_BUILD:-build-fuzz}
 jobs=${PT_JOBS:-$(nproc)}
 max_len=${PT_FUZZ_MAX_LEN:-16384}
