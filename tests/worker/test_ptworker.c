@@ -290,17 +290,20 @@ int main(void)
     /* --transparent: an RGBA PNG (IHDR colour type 6 at byte 25), as the
      * output and as the EXR's preview; without it RGB (type 2). */
     snprintf(args, sizeof args,
-             "--scene %s -o %s/tr.png --res 16x12 --spp 2 -q --transparent --background 1,1,1",
+             "--scene %s -o %s/tro.png --res 16x12 --spp 2 -q --transparent --background 1,1,1",
              cornell, tmpdir);
     CHECK(run(args) == 0);
     snprintf(args, sizeof args,
              "--scene %s -o %s/tr.exr --res 16x12 --spp 2 -q --transparent --background 1,1,1",
              cornell, tmpdir);
     CHECK(run(args) == 0);
-    pa = slurp("tr.png", &la);
-    CHECKF(pa && la > 26 && pa[25] == 6, "transparent PNG colour type %d",
-           pa && la > 26 ? pa[25] : -1);
-    free(pa);
+    const char *rgba[2] = {"tro.png", "tr.png"}; /* the output, the EXR's preview */
+    for (int k = 0; k < 2; k++) {
+        pa = slurp(rgba[k], &la);
+        CHECKF(pa && la > 26 && pa[25] == 6, "%s: colour type %d", rgba[k],
+               pa && la > 26 ? pa[25] : -1);
+        free(pa);
+    }
     pb = slurp("t1.png", &lb);
     CHECK(pb && lb > 26 && pb[25] == 2);
     free(pb);
