@@ -35,8 +35,8 @@ static void usage(FILE *f)
 {
     fprintf(
         f,
-        "usage: ptworker --scene SCENE -o OUT.exr [options]    (standalone)\n"
-        "       ptworker --server HOST:PORT [options]          (farm worker)\n"
+        "usage: ptworker --scene SCENE -o OUT.exr|OUT.png [options]    (standalone)\n"
+        "       ptworker --server HOST:PORT [options]                  (farm worker)\n"
         "       ptworker --list SCENE      (its cameras, animations, variants, lights)\n"
         "\n"
         "examples:\n"
