@@ -412,9 +412,7 @@ static int cmd_submit(int argc, char **argv, globals *g)
                                           PT_ROPT(PT_ROPT_EXPOSURE) | PT_ROPT(PT_ROPT_VIEW));
     enum { NOWN = sizeof own / sizeof own[0] };
     struct option opts[NOWN + PT_ROPT_COUNT + 1];
-    memcpy(opts, own, sizeof own);
-    size_t nl = NOWN + pt_render_longopts(mine, opts + NOWN, PT_ROPT_COUNT);
-    opts[nl] = (struct option){NULL, 0, NULL, 0};
+    pt_render_getopt_table(own, NOWN, mine, opts);
     _Static_assert(PT_ROPT_MAX_NAME == PROTO_MAX_NAME, "a job's names are the options'");
     proto_submit m;
     memset(&m, 0, sizeof m);

@@ -306,9 +306,7 @@ int main(int argc, char **argv)
      * (common/render/options.h), then the end. */
     enum { NOWN = sizeof own / sizeof own[0] };
     struct option opts[NOWN + PT_ROPT_COUNT + 1];
-    memcpy(opts, own, sizeof own);
-    size_t nl = NOWN + pt_render_longopts(PT_ROPT_ALL, opts + NOWN, PT_ROPT_COUNT);
-    opts[nl] = (struct option){NULL, 0, NULL, 0};
+    pt_render_getopt_table(own, NOWN, PT_ROPT_ALL, opts);
     _Static_assert(PT_ROPT_MAX_NAME == PROTO_MAX_NAME, "a job's names are the options'");
     pt_render_opts ro;
     pt_render_opts_init(&ro);

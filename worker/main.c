@@ -238,9 +238,7 @@ int main(int argc, char **argv)
      * (common/render/options.h), then the end. */
     enum { NOWN = sizeof own / sizeof own[0] };
     struct option longopts[NOWN + PT_ROPT_COUNT + 1];
-    memcpy(longopts, own, sizeof own);
-    size_t nl = NOWN + pt_render_longopts(PT_ROPT_ALL, longopts + NOWN, PT_ROPT_COUNT);
-    longopts[nl] = (struct option){NULL, 0, NULL, 0};
+    pt_render_getopt_table(own, NOWN, PT_ROPT_ALL, longopts);
     int c, li = 0;
     pt_error err = {0};
     while ((c = getopt_long(argc, argv, "o:qh", longopts, &li)) != -1) {

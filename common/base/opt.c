@@ -143,27 +143,34 @@ pt_status pt_opt_res(const char *opt, const char *text, uint32_t max_side, uint3
     return PT_OK;
 }
 
-pt_status pt_opt_rgb(const char *opt, const char *text, double max, double out[3], pt_error *err)
+/* text as three comma-separated finite numbers, each in [lo, hi], into v;
+ * 0, or -1 (v then partly written). */
+static int read_triple(const char *text, double lo, double hi, double v[3])
 {
     char part[64];
     const char *p = text;
-    double v[3];
     for (int k = 0; k < 3; k++) {
         const char *end = k < 2 ? strchr(p, ',') : p + strlen(p);
         size_t n = end ? (size_t)(end - p) : 0;
         if (!end || n == 0 || n >= sizeof part)
-            goto bad;
+            return -1;
         memcpy(part, p, n);
         part[n] = '\0';
-        if (read_double(part, &v[k]) != 0 || !(v[k] >= 0.0 && v[k] <= max))
-            goto bad;
+        if (read_double(part, &v[k]) != 0 || !(v[k] >= lo && v[k] <= hi))
+            return -1;
         p = end + 1;
     }
+    return 0;
+}
+
+pt_status pt_opt_rgb(const char *opt, const char *text, double max, double out[3], pt_error *err)
+{
+    double v[3];
+    if (read_triple(text, 0.0, max, v) != 0)
+        return pt_error_set(err, PT_ERR_ARG, "%s: '%s' is not R,G,B (three numbers in [0, %g])",
+                            opt, text, max);
     memcpy(out, v, sizeof v);
     return PT_OK;
-bad:
-    return pt_error_set(err, PT_ERR_ARG, "%s: '%s' is not R,G,B (three numbers in [0, %g])", opt,
-                        text, max);
 }
 
 pt_status pt_opt_shutter(const char *opt, const char *text, double out[2], pt_error *err)
@@ -201,23 +208,10 @@ bad:
 pt_status pt_opt_point(const char *opt, const char *text, double max_abs, double out[3],
                        pt_error *err)
 {
-    char part[64];
-    const char *p = text;
     double v[3];
-    for (int k = 0; k < 3; k++) {
-        const char *end = k < 2 ? strchr(p, ',') : p + strlen(p);
-        size_t n = end ? (size_t)(end - p) : 0;
-        if (!end || n == 0 || n >= sizeof part)
-            goto bad;
-        memcpy(part, p, n);
-        part[n] = '\0';
-        if (read_double(part, &v[k]) != 0 || !(fabs(v[k]) <= max_abs))
-            goto bad;
-        p = end + 1;
-    }
+    if (read_triple(text, -max_abs, max_abs, v) != 0)
+        return pt_error_set(err, PT_ERR_ARG, "%s: '%s' is not X,Y,Z (three numbers in [-%g, %g])",
+                            opt, text, max_abs, max_abs);
     memcpy(out, v, sizeof v);
     return PT_OK;
-bad:
-    return pt_error_set(err, PT_ERR_ARG, "%s: '%s' is not X,Y,Z (three numbers in [-%g, %g])", opt,
-                        text, max_abs, max_abs);
 }

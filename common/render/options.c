@@ -59,6 +59,14 @@ size_t pt_render_longopts(uint32_t mask, struct option *out, size_t cap)
     return n;
 }
 
+void pt_render_getopt_table(const struct option *own, size_t nown, uint32_t mask,
+                            struct option *out)
+{
+    memcpy(out, own, nown * sizeof *own);
+    size_t n = nown + pt_render_longopts(mask, out + nown, PT_ROPT_COUNT);
+    out[n] = (struct option){NULL, 0, NULL, 0};
+}
+
 int pt_render_opt_is(int c)
 {
     return c >= PT_ROPT_BASE && c < PT_ROPT_BASE + PT_ROPT_COUNT;

@@ -94,6 +94,11 @@ void pt_render_opts_init(pt_render_opts *o);
  * out[0..], at most cap; returns how many (not NUL-terminated). */
 size_t pt_render_longopts(uint32_t mask, struct option *out, size_t cap);
 
+/* A program's getopt table into out: its own nown entries, then those of
+ * mask, then the terminating entry. out holds nown + PT_ROPT_COUNT + 1. */
+void pt_render_getopt_table(const struct option *own, size_t nown, uint32_t mask,
+                            struct option *out);
+
 /* The option whose getopt value is c (PT_ROPT_BASE + id) with its text
  * into o. PT_ERR_ARG naming the option and its limits when the value is
  * bad ("--spp: '0' is not a whole number in [1, 16777216]"). */

@@ -154,8 +154,28 @@ static void test_shutter(void)
     CHECK(v[0] == 7 && v[1] == 7);
 }
 
+/* R,G,B and X,Y,Z: three numbers each, the same reader; colours >= 0. */
+static void test_triples(void)
+{
+    pt_error err = {0};
+    double v[3] = {9, 9, 9};
+    CHECK(pt_opt_rgb("--background", "0.5,1,0", 1e20, v, &err) == PT_OK && v[0] == 0.5 &&
+          v[1] == 1 && v[2] == 0);
+    CHECK(pt_opt_rgb("--background", "-1,1,1", 1e20, v, &err) == PT_ERR_ARG && v[0] == 0.5);
+    CHECKF(!strcmp(err.msg, "--background: '-1,1,1' is not R,G,B (three numbers in [0, 1e+20])"),
+           "%s", err.msg);
+    CHECK(pt_opt_point("--camera-at", "-1,2.5,-3e2", 1e15, v, &err) == PT_OK && v[0] == -1 &&
+          v[1] == 2.5 && v[2] == -300);
+    const char *bad[] = {"1,2", "1,2,3,4", "1,,3", "a,b,c", "1,2,nan", "1,2,inf", "", "2e15,0,0"};
+    for (size_t i = 0; i < sizeof bad / sizeof bad[0]; i++) {
+        CHECKF(pt_opt_point("--camera-at", bad[i], 1e15, v, &err) == PT_ERR_ARG, "'%s'", bad[i]);
+        CHECK(strstr(err.msg, "is not X,Y,Z") != NULL && v[0] == -1);
+    }
+}
+
 int main(void)
 {
+    test_triples();
     test_u32();
     test_u64_i32();
     test_double();
