@@ -85,9 +85,12 @@ static void check_scene(const pt_scene *s)
     FUZZ_CHECK(isfinite(c->position.x) && isfinite(c->position.y) && isfinite(c->position.z));
     FUZZ_CHECK(near1(pt_v3_dot(c->forward, c->forward)) && near1(pt_v3_dot(c->right, c->right)) &&
                near1(pt_v3_dot(c->up, c->up)));
+    /* A placement's orthographic view (a camera name "look:...:ortho=W") has
+     * ymag 0: the image's aspect gives its height (pt_renderer_new). */
+    int placed = strncmp(c->name, PT_CAMERA_LOOK_PREFIX, strlen(PT_CAMERA_LOOK_PREFIX)) == 0;
     if (c->ortho)
-        FUZZ_CHECK(c->yfov == 0 && c->xmag > 0 && c->xmag <= PT_SCENE_MAX_COORD && c->ymag > 0 &&
-                   c->ymag <= PT_SCENE_MAX_COORD);
+        FUZZ_CHECK(c->yfov == 0 && c->xmag > 0 && c->xmag <= PT_SCENE_MAX_COORD &&
+                   (c->ymag > 0 || (placed && c->ymag == 0)) && c->ymag <= PT_SCENE_MAX_COORD);
     else
         FUZZ_CHECK(c->yfov > 0 && c->yfov < 3.1416f);
 }

@@ -332,8 +332,9 @@ static void gen_gltf(const char *dir)
     }
 
     /* External buffer and PNG texture; then the same asking for a camera,
-     * with a PPM image, with a name that leads out of the folder, and for
-     * the orthographic camera (its yfov is 0). */
+     * with a PPM image, with a name that leads out of the folder, for the
+     * orthographic camera (its yfov is 0), and for placements of a camera
+     * (pt_camera_look_parse: an orthographic one has ymag 0). */
     static const struct {
         const char *name, *buffer, *image, *camera;
         const uint8_t *img;
@@ -344,6 +345,10 @@ static void gen_gltf(const char *dir)
          (const uint8_t *)k_ppm, sizeof k_ppm - 1},
         {"tri_escape", "../b.bin", "{\"uri\":\"/etc/passwd\"}", "ortho", k_png, sizeof k_png},
         {"tri_bin_ortho", "b.bin", "{\"uri\":\"i.png\"}", "ortho", k_png, sizeof k_png},
+        {"tri_look_ortho", "b.bin", "{\"uri\":\"i.png\"}", "look:0,1,5:0,1,0:ortho=2", k_png,
+         sizeof k_png},
+        {"tri_look_fov", "b.bin", "{\"uri\":\"i.png\"}", "look:3,3,3:0,0,0:fov=25", k_png,
+         sizeof k_png},
         {"png_bomb", "b.bin", "{\"uri\":\"i.png\"}", NULL, k_png_bomb, sizeof k_png_bomb},
         {"png_liar", "b.bin", "{\"uri\":\"i.png\"}", NULL, k_png_liar, sizeof k_png_liar},
     };
