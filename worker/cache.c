@@ -300,7 +300,31 @@ struct wrk_scenes {
     uint32_t count, max;
     uint64_t builds, tick;
     double build_seconds; /* loading and building, over every build */
+    /* The loader's warnings said so far (FNV-1a of each): every frame of a
+     * job builds its scene again, and a warning ("the scene has 3
+     * animations; playing the first") is said once, not once a frame. */
+    uint64_t said[64];
+    uint32_t nsaid;
 };
+
+/* pt_scene_opts.warn for builds: each distinct message once per process
+ * (past 64 distinct ones, the rest unfiltered). */
+static void say_once(void *user, const char *msg)
+{
+    wrk_scenes *s = user;
+    uint64_t h = 1469598103934665603ull;
+    for (const unsigned char *p = (const unsigned char *)msg; *p; p++)
+        h = (h ^ *p) * 1099511628211ull;
+    pthread_mutex_lock(&s->mu);
+    int seen = 0;
+    for (uint32_t i = 0; i < s->nsaid && !seen; i++)
+        seen = s->said[i] == h;
+    if (!seen && s->nsaid < sizeof s->said / sizeof s->said[0])
+        s->said[s->nsaid++] = h;
+    pthread_mutex_unlock(&s->mu);
+    if (!seen)
+        fprintf(stderr, "warning: %s\n", msg);
+}
 
 pt_status wrk_scenes_new(uint32_t max, wrk_scenes **out, pt_error *err)
 {
@@ -417,10 +441,12 @@ static pt_status build_env(wrk_scene_ref *e, const char *entry_path)
 }
 
 /* Loading and building, outside the lock. */
-static pt_status build(wrk_scene_ref *e, const char *entry_path)
+static pt_status build(wrk_scenes *s, wrk_scene_ref *e, const char *entry_path)
 {
     pt_scene_opts so;
     memset(&so, 0, sizeof so);
+    so.warn = say_once;
+    so.warn_user = s;
     so.camera_name = e->camera[0] ? e->camera : NULL;
     so.variant = e->variant[0] ? e->variant : NULL;
     so.animate = e->animate;
@@ -545,7 +571,7 @@ pt_status wrk_scenes_acquire(wrk_scenes *s, const uint8_t hash[WRK_HASH_SIZE],
     pthread_mutex_unlock(&s->mu);
 
     double t0 = pt_now_s();
-    pt_status st = build(e, entry_path);
+    pt_status st = build(s, e, entry_path);
     double took = pt_now_s() - t0;
 
     pthread_mutex_lock(&s->mu);

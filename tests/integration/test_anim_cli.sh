@@ -44,6 +44,12 @@ if [ -f "$fox" ]; then
   if grep -q "playing the first" "$tmp/fox0.log"; then fail "--animation 0 still said it"; fi
   "$bin/ptworker" --scene "$fox" "${fview[@]}" -q --animation all -o "$tmp/foxall.exr"
   "$bin/ptexr-diff" "$tmp/fox.exr" "$tmp/fox0.exr" > /dev/null || fail "the default is not animation 0"
+  # A frame range on the farm: said by the coordinator and once by its
+  # worker, not once a frame.
+  "$bin/ptserve" --local 1 --worker-threads 1 --res 16x16 --spp 1 --background "1,1,1" \
+    --frames 0-5 -o "$tmp/fox.#.png" "$fox" 2> "$tmp/foxes.log" || fail "frames: $(cat "$tmp/foxes.log")"
+  [ "$(grep -c "playing the first" "$tmp/foxes.log")" = 2 ] ||
+    fail "the first animation is not said once a process: $(grep "playing" "$tmp/foxes.log")"
   "$bin/ptworker" --list "$fox" > "$tmp/list.txt" || fail "--list: exit $?"
   grep -q "animations (3)" "$tmp/list.txt" || fail "--list: $(cat "$tmp/list.txt")"
   grep -q "1 'Walk': 21 channels, 0 to 0.708333 s" "$tmp/list.txt" || fail "--list: $(cat "$tmp/list.txt")"
