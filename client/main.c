@@ -27,9 +27,13 @@
 #include "common/base/alloc.h"
 #include "common/base/clock.h"
 #include "common/base/frames.h"
+#include "common/base/fsutil.h"
 #include "common/base/opt.h"
 #include "common/base/text.h"
 #include "common/base/version.h"
+#include "common/image/exr.h"
+#include "common/image/image.h"
+#include "common/image/view.h"
 #include "common/render/options.h"
 #include "common/render/tile.h"
 #include "common/scene/bundle.h"
@@ -127,7 +131,9 @@ enum {
     O_BACKGROUND,
     O_TRANSPARENT,
     O_SHUTTER,
-    O_LOOK
+    O_LOOK,
+    O_EXPOSURE,
+    O_VIEW
 };
 
 static int bad_usage(const char *cmd, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
@@ -569,6 +575,8 @@ typedef struct job_args {
     const char *output;
     int has_frame; /* --frame F */
     uint32_t frame;
+    pt_view view; /* --exposure, --view: a .png output's */
+    int has_view;
 } job_args;
 
 enum { TAKES_JOB = 1, TAKES_JSON = 2, TAKES_OUTPUT = 4, TAKES_FRAME = 8 };
@@ -586,6 +594,8 @@ static int open_job_command(const char *cmd, const char *help, int flags, int ar
                                          {"json", no_argument, NULL, O_JSON},
                                          {"output", required_argument, NULL, 'o'},
                                          {"frame", required_argument, NULL, O_FRAME},
+                                         {"exposure", required_argument, NULL, O_EXPOSURE},
+                                         {"view", required_argument, NULL, O_VIEW},
                                          {NULL, 0, NULL, 0}};
     int c;
     *conn = NULL;
@@ -617,6 +627,23 @@ static int open_job_command(const char *cmd, const char *help, int flags, int ar
             a->has_frame = 1;
             break;
         }
+        case O_EXPOSURE:
+        case O_VIEW: {
+            /* The PNG's, as ptworker's and ptserve's previews. */
+            pt_error err = {0};
+            double ev = 0.0;
+            if (!(flags & TAKES_OUTPUT))
+                return bad_usage(cmd, "unknown option '%s'", c == O_VIEW ? "--view" : "--exposure");
+            pt_status st = c == O_VIEW ? pt_view_parse("--view", optarg, &a->view.kind, &err)
+                                       : pt_opt_double("--exposure", optarg, -PT_VIEW_MAX_EV,
+                                                       PT_VIEW_MAX_EV, &ev, &err);
+            if ((rc = bad_value(cmd, st, &err)) != 0)
+                return rc;
+            if (c == O_EXPOSURE)
+                a->view.exposure = (float)ev;
+            a->has_view = 1;
+            break;
+        }
         case ':':
             return bad_usage(cmd, "%s needs a value", argv[optind - 1]);
         case '?':
@@ -636,6 +663,23 @@ static int open_job_command(const char *cmd, const char *help, int flags, int ar
         return EXIT_USAGE;
     if ((flags & TAKES_OUTPUT) && (!a->output || !*a->output))
         return bad_usage(cmd, "-o OUT.exr is required");
+    if (flags & TAKES_OUTPUT) {
+        /* The output's format follows its name, and its folder is checked
+         * before anything is downloaded. */
+        pt_image_format f = pt_image_format_of(a->output);
+        if (f == PT_IMAGE_FORMAT_NONE)
+            return bad_usage(cmd, "-o %s: " PT_IMAGE_FORMATS, a->output);
+        if (f == PT_IMAGE_FORMAT_EXR && a->has_view)
+            return bad_usage(cmd, "--exposure and --view make a PNG: give -o NAME.png (the EXR "
+                                  "is linear)");
+        pt_temp probe;
+        pt_error err = {0};
+        if (pt_temp_open(a->output, 0644, &probe, &err) != PT_OK) {
+            fprintf(stderr, "ptctl: -o %s: cannot be written: %s\n", a->output, err.msg);
+            return EXIT_ERROR;
+        }
+        pt_temp_abort(&probe);
+    }
     return connect_server(g, conn);
 }
 
@@ -859,17 +903,44 @@ static int cmd_cancel(int argc, char **argv, globals *g)
 
 static const char FETCH_HELP[] =
     "usage: ptctl fetch JOB [--frame F] -o OUT.exr\n"
+    "       ptctl fetch JOB [--frame F] [--exposure EV] [--view V] -o OUT.png\n"
     "\n"
     "Downloads job JOB's image (the EXR the server wrote last) and writes it to\n"
     "OUT.exr atomically: a temporary file in the same folder, synced, renamed\n"
     "over OUT.exr. The SHA-256 of the bytes received is checked against the\n"
-    "server's. Download progress goes to stderr when it is a terminal.\n"
+    "server's. Download progress goes to stderr when it is a terminal. The\n"
+    "output's format follows its name: OUT.png is the image as an 8-bit PNG\n"
+    "through the previews' exposure and view transform; any other name is\n"
+    "refused, and the output's folder is checked, before anything is downloaded.\n"
     "\n"
     "options:\n"
-    "  -o, --output PATH  the file to write (required)\n"
+    "  -o, --output PATH  the file to write (required): NAME.exr or NAME.png\n"
+    "  --exposure EV      the PNG's exposure in stops (default 0)\n"
+    "  --view V           the PNG's view transform: standard (default), filmic, agx\n"
     "  --frame F          frame F of a frame-range job (its latest image); without\n"
     "                     it, such a job's earliest frame rendering, or else the\n"
     "                     last frame done\n";
+
+/* The EXR bytes received, as a PNG through view at path: read back from a
+ * temporary beside path (the EXR reader reads files), which is removed. */
+static pt_status write_png(const char *path, const uint8_t *exr, size_t size, const pt_view *view,
+                           pt_error *err)
+{
+    pt_temp t;
+    pt_status st = pt_temp_open(path, 0600, &t, err);
+    if (st != PT_OK)
+        return st;
+    pt_image *img = NULL;
+    if (pt_write_all(t.fd, exr, size) != 0)
+        st = pt_error_set(err, PT_ERR_IO, "%s: cannot write a temporary", path);
+    if (st == PT_OK)
+        st = pt_exr_read(t.path, &img, NULL, err);
+    pt_temp_abort(&t);
+    if (st == PT_OK)
+        st = pt_png_write_preview(path, img, view, err);
+    pt_image_free(img);
+    return st;
+}
 
 static int cmd_fetch(int argc, char **argv, globals *g)
 {
@@ -893,7 +964,10 @@ static int cmd_fetch(int argc, char **argv, globals *g)
     if (st != PT_OK)
         return fail_close(c, &err);
     ctl_close(c);
-    st = ctl_write_atomic(a.output, data, size, &err);
+    if (pt_image_format_of(a.output) == PT_IMAGE_FORMAT_PNG)
+        st = write_png(a.output, data, size, &a.view, &err);
+    else
+        st = ctl_write_atomic(a.output, data, size, &err);
     pt_free(data);
     if (st != PT_OK) {
         fprintf(stderr, "ptctl: %s\n", err.msg);

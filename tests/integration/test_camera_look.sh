@@ -4,7 +4,8 @@
 # ptserve --local (one-job mode) and from ptctl submit on a queue: the
 # placement travels with the job. It differs from the file's camera; the
 # file's camera picked by name, by index and by node name is one image.
-# Half-given placements and mixes are refused as bad usage.
+# Half-given placements and mixes are refused as bad usage. ptctl fetch
+# -o NAME.png writes the PNG ptworker writes of the same pixels.
 set -euo pipefail
 bin=${PT_BIN:?}
 src=${PT_SOURCE_DIR:?}
@@ -63,6 +64,29 @@ for v in look ortho; do
 done
 same "$tmp/w.exr" "$tmp/q_look.exr"
 same "$tmp/wo.exr" "$tmp/q_ortho.exr"
+
+# ptctl fetch -o NAME.png: the image through the previews' view, the same
+# bytes as ptworker's PNG of the same pixels; other names and a missing
+# folder are refused before anything is downloaded (no server is asked).
+"$bin/ptworker" --scene "$scene" "${view[@]}" -q "${look[@]}" --view agx --exposure 1 -o "$tmp/wa.png"
+"$bin/ptctl" fetch "$id" -o "$tmp/q_ortho.png" 2> "$tmp/fetch.log" || fail "fetch png: $(cat "$tmp/fetch.log")"
+"$bin/ptworker" --scene "$scene" "${view[@]}" -q "${ortho[@]}" -o "$tmp/wo.png"
+cmp -s "$tmp/wo.png" "$tmp/q_ortho.png" || fail "the fetched PNG is not ptworker's"
+lid=$("$bin/ptctl" submit "$scene" --res 40x30 --spp 8 --seed 5 "${look[@]}")
+"$bin/ptctl" watch "$lid" 2> /dev/null || fail "watch: exit $?"
+"$bin/ptctl" fetch "$lid" --view agx --exposure 1 -o "$tmp/qa.png" || fail "fetch agx: exit $?"
+cmp -s "$tmp/wa.png" "$tmp/qa.png" || fail "the fetched AgX PNG is not ptworker's"
+rc=0
+"$bin/ptctl" --server 127.0.0.1:1 fetch 1 -o "$tmp/x.jpg" 2> "$tmp/bad.log" || rc=$?
+[ "$rc" = 2 ] || fail "fetch -o x.jpg: exit $rc: $(cat "$tmp/bad.log")"
+grep -q "follows its name" "$tmp/bad.log" || fail "fetch -o x.jpg: $(cat "$tmp/bad.log")"
+rc=0
+"$bin/ptctl" --server 127.0.0.1:1 fetch 1 --view agx -o "$tmp/x.exr" 2> "$tmp/bad.log" || rc=$?
+[ "$rc" = 2 ] || fail "fetch --view to an EXR: exit $rc"
+rc=0
+"$bin/ptctl" --server 127.0.0.1:1 fetch 1 -o "$tmp/none/x.png" 2> "$tmp/bad.log" || rc=$?
+[ "$rc" = 1 ] || fail "fetch into a missing folder: exit $rc: $(cat "$tmp/bad.log")"
+grep -q "cannot be written" "$tmp/bad.log" || fail "fetch into a missing folder: $(cat "$tmp/bad.log")"
 
 # Refusals: bad usage, before anything is loaded.
 bad() { # $1: what stderr must say, then the command
