@@ -135,6 +135,11 @@ static void usage(FILE *f)
             "  --view V           the PNG's view transform: standard (clamp + sRGB, the\n"
             "                     default), filmic (Hable's curve: bright areas roll off)\n"
             "                     or agx (Blender 4's AgX: bright colours desaturate)\n"
+            "  --guiding on|off   path guiding, experimental (default off): the light\n"
+            "                     arriving at diffuse and rough surfaces is learned in\n"
+            "                     passes of 16, 32, 64... spp and half of their directions\n"
+            "                     drawn from it; standalone only for now, not with\n"
+            "                     adaptive sampling; not yet faster on the scenes measured\n"
             "  --shutter O,C      motion blur: the shutter opens and closes at these\n"
             "                     fractions of a frame (0,0.5: a 180-degree shutter;\n"
             "                     default off): what the scene's animation moves in\n"
@@ -210,6 +215,7 @@ int main(int argc, char **argv)
         OPT_TIME,
         OPT_FRAME,
         OPT_LIST,
+        OPT_GUIDING,
         OPT_SERVER, /* the farm worker's, from here on */
         OPT_PREFETCH,
         OPT_TOKEN,
@@ -224,6 +230,7 @@ int main(int argc, char **argv)
         {"time", required_argument, NULL, OPT_TIME},
         {"frame", required_argument, NULL, OPT_FRAME},
         {"list", required_argument, NULL, OPT_LIST},
+        {"guiding", required_argument, NULL, OPT_GUIDING},
         {"quiet", no_argument, NULL, 'q'},
         {"server", required_argument, NULL, OPT_SERVER},
         {"prefetch", required_argument, NULL, OPT_PREFETCH},
@@ -268,6 +275,14 @@ int main(int argc, char **argv)
                 return 1;
             }
             return 0;
+        case OPT_GUIDING:
+            if (strcmp(optarg, "on") == 0 || strcmp(optarg, "off") == 0) {
+                o.guiding = strcmp(optarg, "on") == 0;
+            } else {
+                fprintf(stderr, "ptworker: --guiding: '%s' is not on or off\n", optarg);
+                bad = 1;
+            }
+            break;
         case 'q':
             o.quiet = 1;
             break;
@@ -381,6 +396,12 @@ int main(int argc, char **argv)
     o.chunk = ro.chunk;
     o.target_error = ro.target_error;
     o.min_gain = ro.min_gain;
+    if (o.guiding && (o.target_error > 0.0 || o.min_gain > 0.0)) {
+        /* A tile's adaptive stop would depend on the pass it is in. */
+        fprintf(stderr, "ptworker: --guiding on does not combine with --target-error or "
+                        "--min-gain yet\n");
+        return 2;
+    }
     o.min_spp = ro.min_spp;
     o.env_path = ro.env_path;
     o.env_strength = (float)ro.env_strength;

@@ -42,6 +42,7 @@ typedef struct wrk_standalone_opts {
     double shutter[2]; /* fractions of a frame, 0 <= open <= close <= 1 (pt_opt_shutter) */
     double fps;        /* frames per second (24 by default; --fps) */
     pt_view view;      /* the PNG's exposure and view transform; the EXR stays linear */
+    int guiding;       /* --guiding on: path guiding learned in passes (guide.h) */
     int quiet;
 } wrk_standalone_opts;
 

@@ -137,6 +137,46 @@ int main(void)
     }
     pt_image_free(a);
     pt_image_free(b);
+
+    /* --guiding: bad values; not with adaptive sampling; a Lambert scene
+     * has nothing to guide and keeps its image; a glossy one renders every
+     * pass, the same bits on 1 and 2 threads (the passes' statistics merge
+     * exactly, so both build the same guides). */
+    CHECK(run("--scene x.gltf -o y.exr --guiding maybe") == 2 && stderr_has("--guiding"));
+    snprintf(args, sizeof args,
+             "--scene %s -o %s/g0.exr --res 8x8 --spp 8 --guiding on --target-error 0.1", cornell,
+             tmpdir);
+    CHECK(run(args) == 2 && stderr_has("--guiding"));
+    snprintf(args, sizeof args,
+             "--scene %s -o %s/g1.exr --res 40x30 --spp 8 --threads 1 --tile 16 --guiding on",
+             cornell, tmpdir);
+    CHECK(run(args) == 0 && stderr_has("nothing to guide"));
+    a = read_exr("t1.exr", &m1);
+    b = read_exr("g1.exr", &m2);
+    CHECKF(a && b && same_pixels(a, b), "--guiding on changed a Lambert scene's image");
+    pt_image_free(a);
+    pt_image_free(b);
+    const char *spheres =
+        PT_SHARED_SCENES "/MetalRoughSpheresNoTextures/MetalRoughSpheresNoTextures.glb";
+    if (access(spheres, R_OK) == 0) {
+        for (int t = 1; t <= 2; t++) {
+            snprintf(
+                args, sizeof args,
+                "--scene %s -o %s/gs%d.exr --res 32x24 --spp 48 --threads %d --background 1,1,1 "
+                "--guiding on -q",
+                spheres, tmpdir, t, t);
+            CHECK(run(args) == 0);
+        }
+        a = read_exr("gs1.exr", &m1);
+        b = read_exr("gs2.exr", &m2);
+        CHECK(a && b && m1.total_samples == 32 * 24 * 48);
+        CHECKF(a && b && same_pixels(a, b), "guided renders on 1 and 2 threads differ");
+        pt_image_free(a);
+        pt_image_free(b);
+    } else {
+        CHECK_SKIP("shared scenes not found; the guided render");
+        CHECK(!check_shared_required());
+    }
     /* What would fail at the end fails at the start, before the scene is
      * loaded (no "N triangles" line): a missing output folder, a missing
      * map, a name of no known format (2: bad usage). A .png output is a
