@@ -55,7 +55,11 @@ typedef struct srv_mode {
      * folder: srv_queue_log_result, merged once its commit returns); else
      * it is merged as it arrives (one job). */
     int durable;
-    /* Loads or restores the jobs before the loop listens. */
+    /* Bytes of results waiting for the disk (srv_loop_hold holds the workers
+     * past cfg->max_log_mem); 0 where nothing is logged. */
+    uint64_t (*backlog)(const srv_server *s);
+    /* Loads or restores the jobs before the loop listens (its descriptors
+     * may be added to the loop: srv_loop_add_fd). */
     pt_status (*setup)(srv_server *s, pt_error *err);
     /* 1 when the loop is over (besides a stop signal). */
     int (*over)(const srv_server *s);
@@ -98,6 +102,7 @@ struct srv_server {
 
     /* the loop (server/loop.c) */
     int ep, lfd, sigpipe[2];
+    struct srv_loop_reg *reg; /* the descriptors added and the role sessions */
     uint16_t port;
     srv_conn *conns;
     uint32_t nconns, nworkers;

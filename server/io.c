@@ -12,7 +12,6 @@
 
 #include "common/base/alloc.h"
 #include "common/base/clock.h"
-#include "server/job.h"
 #include "server/loop.h"
 
 #define RATE_MS 100 /* the rate rule is judged this often */
@@ -64,7 +63,8 @@ struct srv_io {
     srv_peer_limits lim;
     _Atomic uint64_t *in_held;
     int keep_results;
-    int wake; /* eventfd the loop polls */
+    int (*check)(const proto_result *r); /* the pixel check (srv_io_new); NULL: none */
+    int wake;                            /* eventfd the loop polls */
     pthread_mutex_t mu;
     srv_io_item *head, **tail;
     uint64_t bytes;            /* held by the items waiting */
@@ -154,7 +154,7 @@ static int take_frame(io_thread *t, io_conn *c, const proto_frame *f)
             bytes += (uint64_t)it->r.npixels * sizeof *it->r.pixels;
             /* Checked here too (a pass over its pixels, the loop's costliest
              * part of validation); one that fails is judged again there. */
-            it->checked = srv_job_pixels_plausible(&it->r, NULL);
+            it->checked = io->check && io->check(&it->r);
         }
     }
     it->f.payload = NULL;
@@ -459,7 +459,8 @@ static void *io_main(void *p)
 }
 
 pt_status srv_io_new(uint32_t threads, const srv_peer_limits *lim, _Atomic uint64_t *in_held,
-                     int keep_results, srv_io **out, pt_error *err)
+                     int keep_results, int (*check)(const proto_result *r), srv_io **out,
+                     pt_error *err)
 {
     if (threads < 1 || threads > SRV_IO_MAX_THREADS)
         return pt_error_set(err, PT_ERR_ARG, "I/O threads: %u is not 1 to %u", threads,
@@ -470,6 +471,7 @@ pt_status srv_io_new(uint32_t threads, const srv_peer_limits *lim, _Atomic uint6
     io->lim = *lim;
     io->in_held = in_held;
     io->keep_results = keep_results;
+    io->check = check;
     io->tail = &io->head;
     pthread_mutex_init(&io->mu, NULL);
     io->wake = eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC);

@@ -56,7 +56,7 @@ typedef struct srv_io_item {
     proto_frame f;
     uint8_t *frame;
     int decoded;    /* a RESULT decoded into r, its pixels its own */
-    int checked;    /* ... and plausible for its range (srv_job_pixels_plausible) */
+    int checked;    /* ... and passed srv_io_new's check (its pixels plausible) */
     proto_result r; /* decoded: fini'd by srv_io_item_free unless taken */
     uint16_t code;  /* ERROR: the PROTO_E_* to answer with */
     char msg[512];  /* ERROR: why (pt_error's size) */
@@ -65,9 +65,12 @@ typedef struct srv_io_item {
 /* threads: 1 to SRV_IO_MAX_THREADS. in_held: the loop's count of input
  * bytes (srv_in_counted, server/loop.h), against lim->max_input_mem.
  * keep_results: RESULT frames are kept whole (the results log writes them).
+ * check (may be NULL): run by the threads over each decoded RESULT, 1 when
+ * its pixels are plausible (the worker session's, srv_session.check_result).
  * srv_io_fd is to be polled for reading: items wait. */
 pt_status srv_io_new(uint32_t threads, const srv_peer_limits *lim, _Atomic uint64_t *in_held,
-                     int keep_results, srv_io **out, pt_error *err);
+                     int keep_results, int (*check)(const proto_result *r), srv_io **out,
+                     pt_error *err);
 /* Stops the threads and closes every descriptor they still hold; frees the
  * items not taken. Accepts NULL. */
 void srv_io_free(srv_io *io);

@@ -19,10 +19,6 @@
 #include "common/base/net.h"
 #include "common/base/text.h"
 #include "server/io.h"
-#include "server/queue.h"
-#include "server/requests.h"
-#include "server/upload.h"
-#include "server/workers.h"
 
 #define ROLE_MAX_PAYLOAD                                                                           \
     (SRV_WORKER_MAX_PAYLOAD > SRV_CLIENT_MAX_PAYLOAD ? SRV_WORKER_MAX_PAYLOAD                      \
@@ -97,8 +93,26 @@ struct srv_guard {
     refusal_log refused[REFUSE_N];
 };
 
+/* The descriptors added by their owners (srv_loop_add_fd) and the role
+ * sessions (srv_loop_set_session). */
+#define SRV_LOOP_SOURCES 8
+struct srv_loop_reg {
+    srv_loop_source src[SRV_LOOP_SOURCES];
+    uint32_t n;
+    srv_loop_source *io;           /* the I/O threads' items (paused by srv_loop_hold) */
+    const srv_session *session[3]; /* by PROTO_ROLE_* */
+};
+
 static volatile sig_atomic_t g_stop;
 static int g_sigpipe_w = -1;
+
+/* The session of c's role (an empty one for a role with none). */
+static const srv_session *session_of(const srv_server *s, const srv_conn *c)
+{
+    static const srv_session none;
+    const srv_session *o = c->role < 3 ? s->reg->session[c->role] : NULL;
+    return o ? o : &none;
+}
 
 int srv_conn_has_room(const srv_conn *c)
 {
@@ -207,7 +221,7 @@ void srv_conn_update_events(srv_server *s, srv_conn *c)
     if (c->out.len > c->out_off)
         ev |= EPOLLOUT;
     if (ev != c->events) {
-        struct epoll_event e = {.events = ev, .data.ptr = c};
+        struct epoll_event e = {.events = ev, .data.ptr = &c->src};
         epoll_ctl(s->ep, EPOLL_CTL_MOD, c->fd, &e);
         c->events = ev;
     }
@@ -230,7 +244,8 @@ void srv_conn_close_soon(srv_server *s, srv_conn *c)
         conn_touch(s, c);
         c->closing = 1;
         c->close_at = pt_now_ms() + CLOSE_GRACE_MS;
-        srv_queue_release_owner(s, c, 0);
+        if (c->state == SRV_C_READY && session_of(s, c)->on_leave)
+            session_of(s, c)->on_leave(s, c, 0);
     }
 }
 
@@ -595,11 +610,13 @@ static void guard_close(srv_server *s)
 
 static void conn_free(srv_server *s, srv_conn *c)
 {
-    if (!c->closing)
-        srv_queue_release_owner(s, c, 1);
+    const srv_session *o = session_of(s, c);
+    if (!c->closing && c->state == SRV_C_READY && o->on_leave)
+        o->on_leave(s, c, 1);
     if (c->state == SRV_C_READY && c->role == PROTO_ROLE_WORKER && s->nworkers > 0)
         s->nworkers--;
-    srv_requests_conn_gone(s, c);
+    if (o->on_gone)
+        o->on_gone(s, c);
     epoll_ctl(s->ep, EPOLL_CTL_DEL, c->fd, NULL);
     if (c->attached)
         srv_io_close(s->io, c->id, c->fd); /* its thread closes it, done reading */
@@ -617,6 +634,9 @@ static void conn_free(srv_server *s, srv_conn *c)
     pt_free(c);
     s->nconns--;
 }
+
+static void conn_event(srv_server *s, void *ctx, uint32_t events);
+static void io_deliver(srv_server *s);
 
 /* The address of ss as text (host) and as 16 bytes, IPv4 as ::ffff:a.b.c.d;
  * returns the port. */
@@ -699,7 +719,8 @@ static void accept_all(srv_server *s)
         snprintf(c->host, sizeof c->host, "%s", host);
         memcpy(c->addr, addr, sizeof c->addr);
         snprintf(c->peer, sizeof c->peer, "%s:%u", host, port);
-        struct epoll_event e = {.events = EPOLLIN, .data.ptr = c};
+        c->src = (srv_loop_source){conn_event, c, fd, 0};
+        struct epoll_event e = {.events = EPOLLIN, .data.ptr = &c->src};
         if (id_add(s->guard, c) != 0 || epoll_ctl(s->ep, EPOLL_CTL_ADD, fd, &e) != 0) {
             id_remove(s->guard, c);
             proto_writer_fini(&c->out);
@@ -789,9 +810,9 @@ static void on_hello(srv_server *s, srv_conn *c, const proto_frame *f)
                             h.build_id, proto_build_id());
         return;
     }
-    if (h.role == PROTO_ROLE_WORKER && srv_workers_refused(s, c))
-        return;
     c->role = h.role;
+    if (session_of(s, c)->refused && session_of(s, c)->refused(s, c))
+        return;
     c->threads = h.threads;
     proto_challenge ch;
     if (proto_auth_nonce(ch.nonce, &err) != PT_OK) {
@@ -904,10 +925,11 @@ static void dispatch(srv_server *s, srv_conn *c, const proto_frame *f)
                                 proto_msg_type_name(f->type));
         return;
     }
-    if (c->role == PROTO_ROLE_CLIENT)
-        srv_requests_dispatch(s, c, f);
+    const srv_session *o = session_of(s, c);
+    if (o->on_frame)
+        o->on_frame(s, c, f);
     else
-        srv_workers_dispatch(s, c, f);
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "unexpected %s", proto_msg_type_name(f->type));
 }
 
 /* The payload cap of c's next frame: tighter until it has authenticated,
@@ -1048,6 +1070,82 @@ int srv_loop_stopped(void)
     return g_stop;
 }
 
+/* The signal pipe is readable: a signal came (g_stop says which). */
+static void drain_signals(srv_server *s, void *ctx, uint32_t events)
+{
+    (void)ctx;
+    (void)events;
+    char buf[16];
+    while (read(s->sigpipe[0], buf, sizeof buf) > 0) {
+    }
+}
+
+/* The listening socket is readable. */
+static void on_listener(srv_server *s, void *ctx, uint32_t events)
+{
+    (void)ctx;
+    (void)events;
+    accept_all(s);
+}
+
+/* The I/O threads have items. */
+static void on_io(srv_server *s, void *ctx, uint32_t events)
+{
+    (void)ctx;
+    (void)events;
+    io_deliver(s);
+}
+
+pt_status srv_loop_init(srv_server *s, pt_error *err)
+{
+    s->reg = pt_calloc(1, sizeof *s->reg);
+    if (!s->reg)
+        return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
+    s->ep = epoll_create1(EPOLL_CLOEXEC);
+    if (s->ep < 0)
+        return pt_error_errno(err, PT_ERR_IO, "epoll_create1");
+    if (pipe2(s->sigpipe, O_NONBLOCK | O_CLOEXEC) != 0)
+        return pt_error_errno(err, PT_ERR_IO, "pipe2");
+    return srv_loop_add_fd(s, s->sigpipe[0], drain_signals, NULL, NULL, err);
+}
+
+pt_status srv_loop_add_fd(srv_server *s, int fd, srv_loop_fn fn, void *ctx, srv_loop_source **out,
+                          pt_error *err)
+{
+    struct srv_loop_reg *r = s->reg;
+    if (r->n == SRV_LOOP_SOURCES)
+        return pt_error_set(err, PT_ERR_ARG, "the loop waits on at most %d descriptors",
+                            SRV_LOOP_SOURCES);
+    srv_loop_source *src = &r->src[r->n];
+    *src = (srv_loop_source){fn, ctx, fd, 0};
+    struct epoll_event e = {.events = EPOLLIN, .data.ptr = src};
+    if (epoll_ctl(s->ep, EPOLL_CTL_ADD, fd, &e) != 0)
+        return pt_error_errno(err, PT_ERR_IO, "epoll_ctl");
+    r->n++;
+    if (out)
+        *out = src;
+    return PT_OK;
+}
+
+void srv_loop_pause_fd(srv_server *s, srv_loop_source *src, int paused)
+{
+    if (!src || src->paused == paused)
+        return;
+    src->paused = paused;
+    if (paused) {
+        epoll_ctl(s->ep, EPOLL_CTL_DEL, src->fd, NULL);
+    } else {
+        struct epoll_event e = {.events = EPOLLIN, .data.ptr = src};
+        epoll_ctl(s->ep, EPOLL_CTL_ADD, src->fd, &e);
+    }
+}
+
+void srv_loop_set_session(srv_server *s, uint8_t role, const srv_session *ops)
+{
+    if (role < 3)
+        s->reg->session[role] = ops;
+}
+
 pt_status srv_loop_open(srv_server *s, pt_error *err)
 {
     const srv_config *cfg = s->cfg;
@@ -1072,30 +1170,15 @@ pt_status srv_loop_open(srv_server *s, pt_error *err)
     }
     if (!cfg->quiet)
         srv_log("listening on %s:%u%s", host, s->port, cfg->token_path ? " (token required)" : "");
-
-    s->ep = epoll_create1(EPOLL_CLOEXEC);
-    if (s->ep < 0)
-        return pt_error_errno(err, PT_ERR_IO, "epoll_create1");
-    struct epoll_event e = {.events = EPOLLIN, .data.ptr = NULL};
-    epoll_ctl(s->ep, EPOLL_CTL_ADD, s->lfd, &e);
-    if (pipe2(s->sigpipe, O_NONBLOCK | O_CLOEXEC) != 0)
-        return pt_error_errno(err, PT_ERR_IO, "pipe2");
-    e.data.ptr = &s->sigpipe;
-    epoll_ctl(s->ep, EPOLL_CTL_ADD, s->sigpipe[0], &e);
-    if ((st = srv_upload_open(s, err)) != PT_OK)
+    if ((st = srv_loop_add_fd(s, s->lfd, on_listener, NULL, NULL, err)) != PT_OK)
         return st;
-    e.data.ptr = &s->verifypipe;
-    epoll_ctl(s->ep, EPOLL_CTL_ADD, s->verifypipe[0], &e);
-    if (s->state) { /* the group commit's completions (server/state.h) */
-        e.data.ptr = &s->state;
-        epoll_ctl(s->ep, EPOLL_CTL_ADD, srv_state_commit_fd(s->state), &e);
-    }
     if (cfg->io_threads) { /* a durable mode keeps a RESULT's frame for its log */
+        const srv_session *w = s->reg->session[PROTO_ROLE_WORKER];
         if ((st = srv_io_new(cfg->io_threads, &s->guard->lim, &s->guard->in_held, s->mode->durable,
-                             &s->io, err)) != PT_OK)
+                             w ? w->check_result : NULL, &s->io, err)) != PT_OK)
             return st;
-        e.data.ptr = &s->io;
-        epoll_ctl(s->ep, EPOLL_CTL_ADD, srv_io_fd(s->io), &e);
+        if ((st = srv_loop_add_fd(s, srv_io_fd(s->io), on_io, NULL, &s->reg->io, err)) != PT_OK)
+            return st;
     }
     g_sigpipe_w = s->sigpipe[1];
     struct sigaction sa;
@@ -1128,6 +1211,8 @@ void srv_loop_close(srv_server *s)
         s->sigpipe[0] = s->sigpipe[1] = -1;
     }
     guard_close(s);
+    pt_free(s->reg);
+    s->reg = NULL;
 }
 
 /* Serves one of an attached worker's items (server/io.h); frees it. */
@@ -1140,8 +1225,9 @@ static void item_run(srv_server *s, srv_conn *c, srv_io_item *it)
         srv_conn_send_error(s, c, it->code, "%s", it->msg);
     } else {
         /* No clock: an attached peer's frame times are its thread's. */
-        if (it->f.type == PROTO_MSG_RESULT && it->decoded)
-            srv_workers_result(s, c, &it->f, &it->r, it->checked, it->frame ? &it->frame : NULL);
+        const srv_session *o = session_of(s, c);
+        if (it->f.type == PROTO_MSG_RESULT && it->decoded && o->on_result)
+            o->on_result(s, c, &it->f, &it->r, it->checked, it->frame ? &it->frame : NULL);
         else
             dispatch(s, c, &it->f);
     }
@@ -1196,40 +1282,32 @@ static void io_deliver(srv_server *s)
     }
 }
 
+/* A connection's descriptor is ready (its srv_loop_source's function). */
+static void conn_event(srv_server *s, void *ctx, uint32_t events)
+{
+    srv_conn *c = ctx;
+    conn_touch(s, c);
+    /* An attached peer's thread reads it, a hang-up included. A parked peer
+     * is not read; one that hung up meanwhile can never finish its frame
+     * (and would wake epoll every round). */
+    uint32_t in = c->attached ? 0 : events & (EPOLLIN | EPOLLHUP | EPOLLERR);
+    if (c->parked && (in & (EPOLLHUP | EPOLLERR)) && !c->closing) {
+        srv_conn_close_soon(s, c);
+        c->close_at = 0;
+    } else if (in) {
+        conn_read(s, c);
+    }
+    if (events & EPOLLOUT)
+        conn_flush(s, c);
+}
+
 void srv_loop_poll(srv_server *s, int timeout_ms)
 {
     struct epoll_event evs[64];
     int n = epoll_wait(s->ep, evs, 64, timeout_ms);
     for (int i = 0; i < n; i++) {
-        void *p = evs[i].data.ptr;
-        if (p == NULL) {
-            accept_all(s);
-        } else if (p == &s->sigpipe) {
-            char buf[16];
-            while (read(s->sigpipe[0], buf, sizeof buf) > 0) {
-            }
-        } else if (p == &s->verifypipe) {
-            srv_upload_collect(s);
-        } else if (p == &s->state) {
-            srv_queue_committed(s, 0);
-        } else if (p == &s->io) {
-            io_deliver(s);
-        } else {
-            srv_conn *c = p;
-            conn_touch(s, c);
-            /* An attached peer's thread reads it, a hang-up included. A
-             * parked peer is not read; one that hung up meanwhile can never
-             * finish its frame (and would wake epoll every round). */
-            uint32_t in = c->attached ? 0 : evs[i].events & (EPOLLIN | EPOLLHUP | EPOLLERR);
-            if (c->parked && (in & (EPOLLHUP | EPOLLERR)) && !c->closing) {
-                srv_conn_close_soon(s, c);
-                c->close_at = 0;
-            } else if (in) {
-                conn_read(s, c);
-            }
-            if (evs[i].events & EPOLLOUT)
-                conn_flush(s, c);
-        }
+        const srv_loop_source *src = evs[i].data.ptr;
+        src->fn(s, src->ctx, evs[i].events);
     }
 }
 
@@ -1258,12 +1336,8 @@ void srv_loop_timers(srv_server *s, uint64_t now)
     refusals_flush(s, now, 0);
 }
 
-void srv_loop_hold(srv_server *s)
+void srv_loop_hold(srv_server *s, uint64_t unsynced)
 {
-    if (!s->state)
-        return;
-    /* The records, and the decoded results that wait with them. */
-    uint64_t unsynced = srv_state_unsynced(s->state) + srv_queue_pending_bytes(s);
     uint64_t cap = s->cfg->max_log_mem;
     s->counters.log_unsynced = unsynced;
     int hold = s->log_held ? unsynced > cap / 2 : unsynced > cap;
@@ -1274,8 +1348,7 @@ void srv_loop_hold(srv_server *s)
     if (hold) {
         s->t_held = now;
         s->counters.log_holds++;
-        if (s->io)
-            epoll_ctl(s->ep, EPOLL_CTL_DEL, srv_io_fd(s->io), NULL);
+        srv_loop_pause_fd(s, s->reg->io, 1);
         srv_log("results log: %.1f MiB of results not on disk yet (--max-log-mb %llu); "
                 "workers are not read until the disk catches up",
                 unsynced / 1048576.0, (unsigned long long)(cap >> 20));
@@ -1285,10 +1358,7 @@ void srv_loop_hold(srv_server *s)
     /* Items still waiting wake the loop again at once (the eventfd was
      * left unread); parked workers are read again by the sweep, which looks
      * at every parked peer each round. */
-    if (s->io) {
-        struct epoll_event e = {.events = EPOLLIN, .data.ptr = &s->io};
-        epoll_ctl(s->ep, EPOLL_CTL_ADD, srv_io_fd(s->io), &e);
-    }
+    srv_loop_pause_fd(s, s->reg->io, 0);
     srv_log("results log: the disk caught up after %.1f s; workers are read again",
             (now - s->t_held) / 1000.0);
 }

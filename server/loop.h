@@ -36,8 +36,14 @@
  *   bundle size / min_rate) of its SUBMIT, and nothing may stall for
  *   frame_grace; a peer that fails is sent ERROR and closed, with the
  *   reason logged.
- * A whole frame from a ready peer goes to server/workers.h or
- * server/requests.h by the peer's role. With I/O threads (server/io.h) a
+ * The loop is a registry: the descriptors it waits on besides its
+ * connections are added by their owners at setup (srv_loop_add_fd: the
+ * upload checks' pipe, the results log's commits, the I/O threads), each
+ * with the function it calls when it is ready, and a whole frame from a
+ * ready peer goes to the session of its role (srv_session: the worker and
+ * client handlers, server/workers.h and server/requests.h, installed by
+ * srv_serve at setup), so the loop names none of the layers above it.
+ * With I/O threads (server/io.h) a
  * worker is read by one of them from its AUTH on ("attached"): its frames
  * arrive as items, served in order as if read here, the limits above
  * applied by its thread, and its descriptor closed by that thread once the
@@ -99,7 +105,42 @@ static inline uint64_t srv_in_counted(size_t cap)
 
 enum { SRV_C_HELLO, SRV_C_AUTH, SRV_C_READY };
 
+/* Called on the loop thread when the descriptor it was added with is
+ * ready; events: epoll's. */
+typedef void (*srv_loop_fn)(srv_server *s, void *ctx, uint32_t events);
+
+/* One descriptor the loop waits on (a connection's, or one srv_loop_add_fd
+ * added): what its readiness calls. */
+typedef struct srv_loop_source {
+    srv_loop_fn fn;
+    void *ctx;
+    int fd;
+    int paused; /* not waited on (srv_loop_pause_fd) */
+} srv_loop_source;
+
+/* What a role's peers are served by once they are ready (installed by
+ * srv_loop_set_session before srv_loop_open; each may be NULL). */
+typedef struct srv_session {
+    /* A whole frame from a ready peer. */
+    void (*on_frame)(srv_server *s, srv_conn *c, const proto_frame *f);
+    /* A RESULT an I/O thread decoded into r (checked: check_result passed
+     * there; own: the frame's buffer, which the callee may take). */
+    void (*on_result)(srv_server *s, srv_conn *c, const proto_frame *f, proto_result *r,
+                      int checked, uint8_t **own);
+    /* Run on the I/O threads over a decoded RESULT: 1 when its pixels are
+     * plausible (pure: any thread). */
+    int (*check_result)(const proto_result *r);
+    /* At HELLO, the name and role set: 1 when c is refused (and was sent why). */
+    int (*refused)(srv_server *s, srv_conn *c);
+    /* c leaves: it is closing (report 0), or is freed without having closed
+     * (report 1: say what it left). */
+    void (*on_leave)(srv_server *s, srv_conn *c, int report);
+    /* c is being freed. */
+    void (*on_gone)(srv_server *s, srv_conn *c);
+} srv_session;
+
 struct srv_conn {
+    srv_loop_source src; /* its descriptor in the loop */
     int fd;
     uint64_t id;
     int state; /* SRV_C_* */
@@ -156,10 +197,26 @@ struct srv_conn {
     srv_conn *next;
 };
 
-/* Listens (cfg->listen, loopback only without a token), opens the epoll
- * set with the listening socket, the signal pipe and the verification pipe
- * (server/upload.h makes it first), installs the SIGINT and SIGTERM
- * handlers, and writes cfg->port_file. */
+/* Opens the epoll set and the signal pipe in it, so the owners of other
+ * descriptors can add them (srv_loop_add_fd) before the loop listens. */
+pt_status srv_loop_init(srv_server *s, pt_error *err);
+
+/* Waits on fd (readable) from now on: fn(s, ctx, events) runs when it is
+ * ready. *out (may be NULL) receives its source, for srv_loop_pause_fd.
+ * At most SRV_LOOP_SOURCES of them. */
+pt_status srv_loop_add_fd(srv_server *s, int fd, srv_loop_fn fn, void *ctx, srv_loop_source **out,
+                          pt_error *err);
+
+/* Stops waiting on src's descriptor (paused 1) or waits on it again (0). */
+void srv_loop_pause_fd(srv_server *s, srv_loop_source *src, int paused);
+
+/* The session that serves ready peers of role (PROTO_ROLE_*). */
+void srv_loop_set_session(srv_server *s, uint8_t role, const srv_session *ops);
+
+/* Listens (cfg->listen, loopback only without a token), adds the listening
+ * socket (and the I/O threads, cfg->io_threads, reading for the worker
+ * session) to the epoll set, installs the SIGINT and SIGTERM handlers, and
+ * writes cfg->port_file. */
 pt_status srv_loop_open(srv_server *s, pt_error *err);
 
 /* Frees every connection and closes what srv_loop_open opened. */
@@ -178,9 +235,9 @@ void srv_loop_poll(srv_server *s, int timeout_ms);
 void srv_loop_timers(srv_server *s, uint64_t now);
 
 /* Backpressure on the results log (queue mode): once more than
- * cfg->max_log_mem of results wait for the disk (their records,
- * srv_state_unsynced, and their decoded pixels, srv_queue_pending_bytes:
- * results come faster than the disk takes them), workers are not read (the
+ * cfg->max_log_mem of results wait for the disk (backlog: the mode's count
+ * of their records and their decoded pixels, srv_mode.backlog: results come
+ * faster than the disk takes them), workers are not read (the
  * I/O threads' items are not taken, so the threads stop reading at
  * SRV_IO_QUEUE_BYTES; a worker the loop reads is parked) until the commits
  * bring it under half of that. TCP then holds the workers' frames, and they
@@ -189,7 +246,7 @@ void srv_loop_timers(srv_server *s, uint64_t now);
  * served as before, and leases do not expire meanwhile, nor for a lease
  * timeout after (the workers' heartbeats wait behind the hold). The cap may
  * be passed by what one round takes in. Called once per round. */
-void srv_loop_hold(srv_server *s);
+void srv_loop_hold(srv_server *s, uint64_t backlog);
 
 /* Sends what the connections touched this round have queued (before a slow
  * disk sync). */

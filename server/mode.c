@@ -278,8 +278,15 @@ static int single_local_gone(srv_server *s)
     return 1;
 }
 
+static uint64_t single_backlog(const srv_server *s)
+{
+    (void)s; /* nothing is logged */
+    return 0;
+}
+
 const srv_mode srv_mode_one_job = {
     .name = "one job",
+    .backlog = single_backlog,
     .serves_clients = 0,
     .logs_starts = 0,
     .durable = 0,
@@ -293,11 +300,21 @@ const srv_mode srv_mode_one_job = {
 
 /* ---- the queue --------------------------------------------------------------------- */
 
+/* The group commit's completions (server/state.h) are ready. */
+static void on_commits(srv_server *s, void *ctx, uint32_t events)
+{
+    (void)ctx;
+    (void)events;
+    srv_queue_committed(s, 0);
+}
+
 static pt_status setup_queue(srv_server *s, pt_error *err)
 {
     const srv_config *cfg = s->cfg;
     pt_status st;
-    if ((st = srv_state_open(cfg->state_dir, &s->state, err)) != PT_OK)
+    if ((st = srv_state_open(cfg->state_dir, &s->state, err)) != PT_OK ||
+        (st = srv_loop_add_fd(s, srv_state_commit_fd(s->state), on_commits, NULL, NULL, err)) !=
+            PT_OK)
         return st;
     if (cfg->output_dir)
         snprintf(s->out_dir, sizeof s->out_dir, "%s", cfg->output_dir);
@@ -392,8 +409,15 @@ static int queue_local_gone(srv_server *s)
     return 0;
 }
 
+/* The records not durable yet, and the decoded results that wait with them. */
+static uint64_t queue_backlog(const srv_server *s)
+{
+    return srv_state_unsynced(s->state) + srv_queue_pending_bytes(s);
+}
+
 const srv_mode srv_mode_queue = {
     .name = "queue",
+    .backlog = queue_backlog,
     .serves_clients = 1,
     .logs_starts = 1,
     .durable = 1,

@@ -639,3 +639,8 @@ void srv_requests_conn_gone(srv_server *s, srv_conn *c)
     srv_requests_drop_upload(s, c);
     fetch_end(c);
 }
+
+const srv_session srv_requests_session = {
+    .on_frame = srv_requests_dispatch,
+    .on_gone = srv_requests_conn_gone,
+};

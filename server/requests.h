@@ -24,6 +24,10 @@
 
 #include "protocol/frame.h"
 #include "server/core.h"
+#include "server/loop.h"
+
+/* The loop's session of clients (srv_loop_set_session): the handlers below. */
+extern const srv_session srv_requests_session;
 
 /* Serves one whole frame from a ready client. */
 void srv_requests_dispatch(srv_server *s, srv_conn *c, const proto_frame *f);

@@ -12,6 +12,7 @@
 #include "server/queue.h"
 #include "server/requests.h"
 #include "server/upload.h"
+#include "server/workers.h"
 
 /* Everything before the loop: the token, the decode buffer, the mode's jobs,
  * the listening socket and the local workers, in that order (a broken scene
@@ -21,6 +22,12 @@ static pt_status setup(srv_server *s, pt_error *err)
     const srv_config *cfg = s->cfg;
     pt_status st;
     s->next_job_id = 1;
+    /* The loop first, so each part adds its descriptors as it starts; the
+     * sessions that serve each role's peers. */
+    if ((st = srv_loop_init(s, err)) != PT_OK)
+        return st;
+    srv_loop_set_session(s, PROTO_ROLE_WORKER, &srv_workers_session);
+    srv_loop_set_session(s, PROTO_ROLE_CLIENT, &srv_requests_session);
     if (cfg->token_path && (st = proto_token_load(cfg->token_path, s->token, sizeof s->token,
                                                   &s->token_len, err)) != PT_OK)
         return st;
@@ -41,7 +48,7 @@ static pt_status setup(srv_server *s, pt_error *err)
         return st;
     if ((st = s->mode->setup(s, err)) != PT_OK)
         return st;
-    if ((st = srv_loop_open(s, err)) != PT_OK)
+    if ((st = srv_loop_open(s, err)) != PT_OK || (st = srv_upload_open(s, err)) != PT_OK)
         return st;
     s->t_start = s->t_last_print = pt_now_ms();
     if (cfg->http && (st = srv_http_start(s, &s->http, err)) != PT_OK)
@@ -78,7 +85,7 @@ int srv_serve(const srv_config *cfg)
     }
     while (!srv_loop_stopped() && !s.mode->over(&s)) {
         srv_loop_poll(&s, 100);
-        srv_loop_hold(&s);
+        srv_loop_hold(&s, s.mode->backlog(&s));
         srv_queue_hand_out(&s);
         s.mode->after_leases(&s);
         timers(&s);

@@ -279,11 +279,19 @@ void srv_upload_close(srv_server *s)
     s->verifypipe[0] = s->verifypipe[1] = -1;
 }
 
+/* The verification pipe is readable (its srv_loop_source's function). */
+static void on_verified(srv_server *s, void *ctx, uint32_t events)
+{
+    (void)ctx;
+    (void)events;
+    srv_upload_collect(s);
+}
+
 pt_status srv_upload_open(srv_server *s, pt_error *err)
 {
     /* The threads' end blocks (a pointer is never lost); the loop's does not. */
     if (pipe2(s->verifypipe, O_CLOEXEC) != 0 ||
         fcntl(s->verifypipe[0], F_SETFL, fcntl(s->verifypipe[0], F_GETFL) | O_NONBLOCK) != 0)
         return pt_error_errno(err, PT_ERR_IO, "pipe2");
-    return PT_OK;
+    return srv_loop_add_fd(s, s->verifypipe[0], on_verified, NULL, NULL, err);
 }

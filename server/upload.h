@@ -53,7 +53,9 @@ struct srv_upload {
     srv_upload *next;
 };
 
-/* Makes the verification pipe (s->verifypipe; its read end non-blocking). */
+/* Makes the verification pipe (s->verifypipe; its read end non-blocking)
+ * and adds it to the loop (srv_loop_add_fd), which then calls
+ * srv_upload_collect when a check is done. */
 pt_status srv_upload_open(srv_server *s, pt_error *err);
 
 /* c's upload is complete: reserves the job id and starts its verification,

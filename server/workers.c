@@ -400,3 +400,23 @@ void srv_workers_dispatch(srv_server *s, srv_conn *c, const proto_frame *f)
                             proto_msg_type_name(f->type));
     }
 }
+
+/* The pixel check the I/O threads make (srv_job_pixels_plausible). */
+static int plausible(const proto_result *r)
+{
+    return srv_job_pixels_plausible(r, NULL);
+}
+
+/* A worker leaving: its leases go back to the queue. */
+static void on_leave(srv_server *s, srv_conn *c, int report)
+{
+    srv_queue_release_owner(s, c, report);
+}
+
+const srv_session srv_workers_session = {
+    .on_frame = srv_workers_dispatch,
+    .on_result = srv_workers_result,
+    .check_result = plausible,
+    .refused = srv_workers_refused,
+    .on_leave = on_leave,
+};

@@ -31,8 +31,12 @@
 
 #include "protocol/frame.h"
 #include "server/core.h"
+#include "server/loop.h"
 
 #define SRV_MAX_MISSES 3
+
+/* The loop's session of workers (srv_loop_set_session): the handlers below. */
+extern const srv_session srv_workers_session;
 
 /* Serves one whole frame from a ready worker. */
 void srv_workers_dispatch(srv_server *s, srv_conn *c, const proto_frame *f);

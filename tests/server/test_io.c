@@ -86,7 +86,7 @@ static void frames_in_order(int keep_results)
 {
     srv_peer_limits l = limits();
     srv_io *io = NULL;
-    CHECK(srv_io_new(2, &l, &in_held, keep_results, &io, NULL) == PT_OK);
+    CHECK(srv_io_new(2, &l, &in_held, keep_results, NULL, &io, NULL) == PT_OK);
     if (!io)
         return;
     int sp[2][2];
@@ -168,7 +168,7 @@ static void full_queue_stops(void)
 {
     srv_peer_limits l = limits();
     srv_io *io = NULL;
-    CHECK(srv_io_new(1, &l, &in_held, 1, &io, NULL) == PT_OK);
+    CHECK(srv_io_new(1, &l, &in_held, 1, NULL, &io, NULL) == PT_OK);
     if (!io)
         return;
     int sp[2];
@@ -224,8 +224,8 @@ static void bad_threads(void)
     srv_peer_limits l = limits();
     srv_io *io = NULL;
     pt_error err = {0};
-    CHECK(srv_io_new(0, &l, &in_held, 0, &io, &err) == PT_ERR_ARG && !io);
-    CHECK(srv_io_new(SRV_IO_MAX_THREADS + 1, &l, &in_held, 0, &io, &err) == PT_ERR_ARG);
+    CHECK(srv_io_new(0, &l, &in_held, 0, NULL, &io, &err) == PT_ERR_ARG && !io);
+    CHECK(srv_io_new(SRV_IO_MAX_THREADS + 1, &l, &in_held, 0, NULL, &io, &err) == PT_ERR_ARG);
     srv_io_free(NULL);
 }
 
