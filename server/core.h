@@ -73,6 +73,22 @@ typedef struct srv_mode {
     int (*finish)(srv_server *s);
 } srv_mode;
 
+/* What the scheduler (server/queue.h) tells the layers above it: they
+ * install these at setup (srv_serve), and it never calls them by name.
+ * Each may be NULL. Called on the loop thread. */
+typedef struct srv_sched_events {
+    /* j ended before it was done, or was paused: workers drop its tasks. */
+    void (*job_ended)(srv_server *s, const srv_entry *j);
+    /* j changed state (queued, started, ended): its watchers are told. */
+    void (*job_changed)(srv_server *s, const srv_entry *j);
+    /* A result of connection owner was merged: merged samples, at now (ms). */
+    void (*result_merged)(srv_server *s, uint64_t owner, uint64_t merged, uint64_t now);
+    /* A lease of connection owner passed a deadline at now (ms). */
+    void (*owner_missed)(srv_server *s, uint64_t owner, uint64_t now);
+    /* Calls fn(ctx, id) for each ready worker connection, in their order. */
+    void (*each_worker)(srv_server *s, void (*fn)(void *ctx, uint64_t owner), void *ctx);
+} srv_sched_events;
+
 /* Totals since the coordinator started, for /metrics (server/http.h). */
 #define SRV_HIST_BUCKETS 12 /* 10 us .. 42 s, x4 apart (SRV_HIST_FIRST), then +Inf */
 #define SRV_HIST_FIRST 1e-5
@@ -117,7 +133,8 @@ struct srv_server {
     struct srv_http *http;        /* --http: the dashboard (server/http.h); NULL: none */
 
     /* the queue (server/queue.c) */
-    srv_entry *jobs; /* every job, in queue order */
+    const srv_sched_events *events; /* what it tells the layers above (srv_serve sets it) */
+    srv_entry *jobs;                /* every job, in queue order */
     uint32_t njobs;
     uint64_t next_job_id;
     srv_entry *single; /* one-job mode: the job */

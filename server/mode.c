@@ -15,6 +15,7 @@
 #include "server/frames.h"
 #include "server/loop.h"
 #include "server/queue.h"
+#include "server/workers.h"
 
 /* ---- one job ----------------------------------------------------------------------- */
 
@@ -257,7 +258,7 @@ static void single_after_leases(srv_server *s)
     /* Nothing is durable, and the loop ends with a still; a frame range's
      * done frames are written and the next ones started. */
     if (s->single->rec.frames.step && srv_queue_end_complete(s))
-        srv_queue_hand_out(s);
+        srv_workers_hand_out(s);
 }
 
 static void single_tick(srv_server *s, uint64_t now)
@@ -391,7 +392,7 @@ static void queue_after_leases(srv_server *s)
     srv_loop_flush_all(s);
     srv_state_commit_start(s->state);
     if (srv_queue_end_complete(s))
-        srv_queue_hand_out(s); /* the workers the ended jobs left waiting */
+        srv_workers_hand_out(s); /* the workers the ended jobs left waiting */
 }
 
 static void queue_tick(srv_server *s, uint64_t now)

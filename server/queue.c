@@ -12,10 +12,8 @@
 #include "common/image/exr.h"
 #include "common/render/adaptive.h"
 #include "common/render/film.h"
+#include "protocol/frame.h"
 #include "server/frames.h"
-#include "server/loop.h"
-#include "server/requests.h"
-#include "server/workers.h"
 
 #define MAX_FINISHED 1000 /* ended jobs kept in the queue's history */
 /* A write to a folder that failed (full, over quota) is tried again this
@@ -172,16 +170,26 @@ double srv_entry_seconds(const srv_entry *j, uint64_t now)
     return j->seconds_before + (j->t_started ? (double)(now - j->t_started) / 1000.0 : 0.0);
 }
 
+/* each_worker's walk that counts the workers holding a lease of job. */
+typedef struct owner_count {
+    const srv_job *job;
+    uint32_t n;
+} owner_count;
+
+static void count_owner(void *ctx, uint64_t owner)
+{
+    owner_count *oc = ctx;
+    oc->n += srv_job_owner_active(oc->job, owner) != 0;
+}
+
+/* The workers connected that hold a lease of j. */
 static uint32_t job_workers(const srv_server *s, const srv_entry *j)
 {
-    uint32_t n = 0;
-    if (!j->job)
+    owner_count oc = {j->job, 0};
+    if (!j->job || !s->events || !s->events->each_worker)
         return 0;
-    for (const srv_conn *c = s->conns; c; c = c->next)
-        if (c->state == SRV_C_READY && c->role == PROTO_ROLE_WORKER &&
-            srv_job_owner_active(j->job, c->id))
-            n++;
-    return n;
+    s->events->each_worker((srv_server *)s, count_owner, &oc);
+    return oc.n;
 }
 
 /* The estimated relative error of the job's image as last resolved for its
@@ -360,20 +368,25 @@ pt_status srv_entry_checkpoint(srv_server *s, srv_entry *j, pt_error *err)
     return st;
 }
 
-/* Tells every worker that job j ended before it was done, so each drops the
- * tasks of it that it has not started and its threads go to the next job at
- * once (their results would be dropped anyway). */
+/* Job j ended before it was done: the layers above tell every worker, so
+ * each drops the tasks of it that it has not started and its threads go to
+ * the next job at once (their results would be dropped anyway). */
 static void announce_job_end(srv_server *s, const srv_entry *j)
 {
-    proto_job_ref ref = {j->rec.id};
-    for (srv_conn *c = s->conns; c; c = c->next) {
-        if (c->role != PROTO_ROLE_WORKER || c->state != SRV_C_READY || c->closing)
-            continue;
-        size_t mark;
-        if (proto_frame_begin(&c->out, PROTO_MSG_JOB_END, &mark, NULL) == PT_OK)
-            proto_frame_finish(&c->out, mark, proto_msg_encode_job_ref(&c->out, &ref, NULL), NULL);
-        srv_conn_update_events(s, c);
-    }
+    if (s->events && s->events->job_ended)
+        s->events->job_ended(s, j);
+}
+
+/* each_worker's walk that requeues a job's leases of each worker. */
+typedef struct owner_release {
+    srv_job *job;
+    uint32_t n;
+} owner_release;
+
+static void release_owner(void *ctx, uint64_t owner)
+{
+    owner_release *r = ctx;
+    r->n += srv_job_release_owner(r->job, owner);
 }
 
 /* What a client is shown of a failed write: "state folder full (No space
@@ -398,11 +411,10 @@ static void pause_job(srv_server *s, srv_entry *j, const char *what, const pt_er
     j->paused = 1;
     j->t_paused = now;
     disk_reason("state folder", err, j->pause_reason, sizeof j->pause_reason);
-    uint32_t n = 0;
-    if (j->job)
-        for (const srv_conn *c = s->conns; c; c = c->next)
-            if (c->role == PROTO_ROLE_WORKER)
-                n += srv_job_release_owner(j->job, c->id);
+    owner_release r = {j->job, 0};
+    if (j->job && s->events && s->events->each_worker)
+        s->events->each_worker(s, release_owner, &r);
+    uint32_t n = r.n;
     s->counters.tasks_requeued += n;
     if (j->t_started)
         announce_job_end(s, j);
@@ -581,7 +593,8 @@ void srv_queue_end_job(srv_server *s, srv_entry *j, uint8_t state, const char *m
         srv_log("job %llu %s%s%s", (unsigned long long)j->rec.id, proto_job_state_name(state),
                 j->rec.message[0] ? ": " : "", pt_text_shown(j->rec.message, text, sizeof text));
     }
-    srv_requests_notify_watchers(s, j);
+    if (s->events && s->events->job_changed)
+        s->events->job_changed(s, j);
 }
 
 /* The render seconds job j had when it was last recorded: its checkpoint's
@@ -714,7 +727,7 @@ static int lease_frames(srv_server *s, srv_entry *p, uint64_t owner, uint64_t no
     return 0;
 }
 
-static int lease_any(srv_server *s, uint64_t owner, uint64_t now, proto_task *t)
+int srv_queue_lease(srv_server *s, uint64_t owner, uint64_t now, proto_task *t)
 {
     for (srv_entry *j = s->jobs; j; j = j->next) {
         /* A frame is leased through its range, in the range's place. */
@@ -738,56 +751,14 @@ static int lease_any(srv_server *s, uint64_t owner, uint64_t now, proto_task *t)
     return 0;
 }
 
-/* hand_out_to's state over one hand-out. */
-typedef struct hand_out {
-    uint64_t now;
-    int dry; /* the queue had nothing to lease: skip the other workers */
-} hand_out;
-
-/* Serves c's free slots and pending fetch; 1 when c still wants tasks that
- * the queue had none of. */
-static int hand_out_to(srv_server *s, srv_conn *c, void *ctx)
+uint32_t srv_queue_release_owner(srv_server *s, uint64_t owner)
 {
-    hand_out *h = ctx;
-    if (c->state != SRV_C_READY || c->closing)
-        return 0;
-    if (c->fetch)
-        srv_requests_pump_fetch(s, c);
-    while (!h->dry && c->role == PROTO_ROLE_WORKER && c->want > 0 && srv_conn_has_room(c)) {
-        proto_task t;
-        if (!lease_any(s, c->id, h->now, &t)) {
-            h->dry = 1;
-            break;
-        }
-        size_t mark;
-        pt_status st = proto_frame_begin(&c->out, PROTO_MSG_TASK, &mark, NULL);
-        if (st == PT_OK)
-            st = proto_frame_finish(&c->out, mark, proto_msg_encode_task(&c->out, &t, NULL), NULL);
-        if (!srv_conn_queued(s, c, st))
-            break;
-        c->want--;
-    }
-    srv_conn_update_events(s, c);
-    return h->dry && c->role == PROTO_ROLE_WORKER && c->want > 0;
-}
-
-void srv_queue_hand_out(srv_server *s)
-{
-    hand_out h = {pt_now_ms(), 0};
-    srv_loop_each_for_hand_out(s, hand_out_to, &h);
-}
-
-void srv_queue_release_owner(srv_server *s, const srv_conn *c, int report)
-{
-    if (c->state != SRV_C_READY || c->role != PROTO_ROLE_WORKER)
-        return;
     uint32_t n = 0;
     for (srv_entry *j = s->jobs; j; j = j->next)
         if (j->job)
-            n += srv_job_release_owner(j->job, c->id);
+            n += srv_job_release_owner(j->job, owner);
     s->counters.tasks_requeued += n;
-    if (n && report)
-        srv_log("worker %s left; %u leased tasks requeued", c->shown, n);
+    return n;
 }
 
 int srv_queue_end_complete(srv_server *s)
@@ -887,6 +858,66 @@ static void on_commit(void *ctx, uint64_t id, pt_status st, const pt_error *err)
     }
 }
 
+void srv_queue_verify_summary(const srv_entry *j)
+{
+    srv_verify_stats v = srv_job_verify_stats(j->job);
+    uint64_t total = srv_job_samples_merged(j->job);
+    /* Verified: compared with a second render. A task picked that no other
+     * worker rendered was not verified, and is counted apart. */
+    uint64_t compared = v.matched + v.mismatched;
+    srv_log("job %llu: verified %llu of %llu tasks (%llu picked, %llu never compared: no other "
+            "worker rendered them; %llu matched, %llu mismatched, %llu liars): "
+            "%llu extra samples, %.2f%% of %llu; %llu backup copies, %llu expired leases, %llu "
+            "results refused",
+            (unsigned long long)j->rec.id, (unsigned long long)compared,
+            (unsigned long long)srv_job_tasks_total(j->job), (unsigned long long)v.picked,
+            (unsigned long long)(v.picked > compared ? v.picked - compared : 0),
+            (unsigned long long)v.matched, (unsigned long long)v.mismatched,
+            (unsigned long long)v.liars, (unsigned long long)(v.samples + v.backup_samples),
+            total ? 100.0 * (double)(v.samples + v.backup_samples) / (double)total : 0.0,
+            (unsigned long long)total, (unsigned long long)v.backups, (unsigned long long)v.expired,
+            (unsigned long long)v.refused);
+}
+
+srv_outcome srv_queue_merge(srv_server *s, srv_entry *j, uint64_t owner, int lease_index,
+                            proto_result *r, uint64_t arrived, pt_error *err)
+{
+    uint64_t before = srv_job_samples_merged(j->job);
+    double t0 = pt_now_s();
+    srv_outcome o = lease_index >= 0
+                        ? srv_job_result_validated(j->job, lease_index, r, arrived, err)
+                        : srv_job_replay(j->job, r, err);
+    srv_histogram_add(&s->counters.merge, pt_now_s() - t0);
+    uint64_t merged = srv_job_samples_merged(j->job) - before;
+    s->counters.samples_merged += merged;
+    if (o != SRV_MERGED)
+        return o;
+    if (s->events && s->events->result_merged)
+        s->events->result_merged(s, owner, merged, pt_now_ms());
+    j->rejected += r->rejected;
+    s->counters.samples_rejected += r->rejected;
+    j->rays += r->rays;
+    if (srv_job_complete(j->job))
+        srv_queue_verify_summary(j);
+    return o;
+}
+
+/* Merges r, a result of j from owner (a connection id, maybe gone now) held
+ * until its log record was durable. */
+static void merge_logged(srv_server *s, srv_entry *j, uint64_t owner, proto_result *r,
+                         uint64_t arrived)
+{
+    pt_error err = {0};
+    int li = -1;
+    /* Validated whole when it arrived: its pixels have not changed since. */
+    srv_outcome o = srv_job_validate_checked(j->job, owner, r, &li, &err);
+    /* Its lease may have gone since it arrived (expired, its worker left or
+     * the job paused): it is still a render of its task, and durable, so it
+     * is merged as a restart's replay would (a duplicate changes nothing). */
+    if (o == SRV_MERGED || o == SRV_NOT_LEASED)
+        srv_queue_merge(s, j, owner, o == SRV_MERGED ? li : -1, r, arrived, &err);
+}
+
 /* Merges j's results whose records the commit done made durable (those of a
  * failed commit wait for the retry's). */
 static void merge_durable(srv_server *s, srv_entry *j, uint64_t done)
@@ -895,7 +926,7 @@ static void merge_durable(srv_server *s, srv_entry *j, uint64_t done)
     for (; i < j->npend && j->pend[i].commit <= done && j->committed >= j->pend[i].commit; i++) {
         srv_pending *p = &j->pend[i];
         if (j->job && srv_entry_active(j))
-            srv_workers_merge_durable(s, j, p->owner, &p->r, p->arrived);
+            merge_logged(s, j, p->owner, &p->r, p->arrived);
         pending_fini(j, p); /* unless the job took its pixels */
     }
     for (; i < j->npend; i++)
@@ -934,7 +965,8 @@ static void on_missed(void *ctx, uint64_t owner, uint64_t task)
 {
     expiry *e = ctx;
     (void)task;
-    srv_workers_missed(e->s, owner, e->now);
+    if (e->s->events && e->s->events->owner_missed)
+        e->s->events->owner_missed(e->s, owner, e->now);
 }
 
 /* Leases are checked at most this often, not every loop round: each check
@@ -942,14 +974,14 @@ static void on_missed(void *ctx, uint64_t owner, uint64_t task)
  * at least a --lease-timeout (seconds) away. */
 #define EXPIRE_MS 50
 
-void srv_queue_expire(srv_server *s, uint64_t now)
+int srv_queue_expire(srv_server *s, uint64_t now)
 {
     if (now - s->t_expire < EXPIRE_MS && now >= s->t_expire)
-        return;
+        return 0;
     /* Workers not read (srv_loop_hold) are not silent: their heartbeats
      * wait behind the hold, and are read in the lease timeout after it. */
     if (s->log_held || (s->t_released && now - s->t_released < s->cfg->lease_ms))
-        return;
+        return 0;
     s->t_expire = now;
     expiry e = {s, now};
     for (srv_entry *j = s->jobs; j; j = j->next) {
@@ -961,8 +993,7 @@ void srv_queue_expire(srv_server *s, uint64_t now)
                     n);
         }
     }
-    /* Blocking requeues leases of every job: only once none is being walked. */
-    srv_workers_enforce(s);
+    return 1;
 }
 
 /* The progressive saves' outcome, logged once per streak of failures. */

@@ -175,20 +175,33 @@ void srv_queue_end_job(srv_server *s, srv_entry *j, uint8_t state, const char *m
 /* Ends the jobs whose every task is merged; returns how many. */
 int srv_queue_end_complete(srv_server *s);
 
-/* Leases tasks to every ready worker that asked for some (and feeds the
- * clients' fetches, server/requests.h, while going over the connections). */
-void srv_queue_hand_out(srv_server *s);
+/* Leases owner (a worker connection's id) a task into *t: of the first job
+ * in queue order that has one to hand out (a frame range's earliest frame
+ * that has one), starting a queued job. 0 when no job has one. */
+int srv_queue_lease(srv_server *s, uint64_t owner, uint64_t now, proto_task *t);
 
-/* Requeues every task leased to c (a worker that is leaving); report: log
- * how many. Nothing for a peer that is not a ready worker. */
-void srv_queue_release_owner(srv_server *s, const srv_conn *c, int report);
+/* Requeues every task leased to owner (a worker that is leaving); returns
+ * how many. */
+uint32_t srv_queue_release_owner(srv_server *s, uint64_t owner);
 
-/* Lease expiry, at most every 50 ms (misses counted, then
- * srv_workers_enforce); then, per running
+/* Merges r, a result of j from owner that srv_job_validate accepted
+ * (lease_index: what it gave, the job unchanged since; -1: no lease, merged
+ * as a replay), and counts it: the merge's time, j's rejected samples and
+ * rays, srv_sched_events.result_merged, the verification summary once j is
+ * complete. May take r's pixels (srv_job_result_validated). */
+srv_outcome srv_queue_merge(srv_server *s, srv_entry *j, uint64_t owner, int lease_index,
+                            proto_result *r, uint64_t arrived, pt_error *err);
+
+/* Logs what verification cost and found in j (complete). */
+void srv_queue_verify_summary(const srv_entry *j);
+
+/* Lease expiry, at most every 50 ms (each miss told as
+ * srv_sched_events.owner_missed): returns 1 when it walked the leases;
+ * then, per running
  * job, the progressive save (a failure logged once per streak), the rate, the
  * checkpoint trigger, and the retries of a paused job's writes, of a final
  * image and of the queue file. now in ms (pt_now_ms). */
-void srv_queue_expire(srv_server *s, uint64_t now);
+int srv_queue_expire(srv_server *s, uint64_t now);
 void srv_queue_tick(srv_server *s, uint64_t now);
 
 /* Frees every job and closes the state folder. */

@@ -14,6 +14,16 @@
 #include "server/upload.h"
 #include "server/workers.h"
 
+/* What the scheduler tells the layers above it (server/queue.h raises
+ * these; the worker and client handlers hear them). */
+static const srv_sched_events sched_events = {
+    .job_ended = srv_workers_job_ended,
+    .job_changed = srv_requests_notify_watchers,
+    .result_merged = srv_workers_merged,
+    .owner_missed = srv_workers_missed,
+    .each_worker = srv_workers_each,
+};
+
 /* Everything before the loop: the token, the decode buffer, the mode's jobs,
  * the listening socket and the local workers, in that order (a broken scene
  * or state folder fails before anything listens or starts). */
@@ -22,6 +32,7 @@ static pt_status setup(srv_server *s, pt_error *err)
     const srv_config *cfg = s->cfg;
     pt_status st;
     s->next_job_id = 1;
+    s->events = &sched_events;
     /* The loop first, so each part adds its descriptors as it starts; the
      * sessions that serve each role's peers. */
     if ((st = srv_loop_init(s, err)) != PT_OK)
@@ -63,7 +74,9 @@ static pt_status setup(srv_server *s, pt_error *err)
 static void timers(srv_server *s)
 {
     uint64_t now = pt_now_ms();
-    srv_queue_expire(s, now);
+    /* Blocking requeues leases of every job: only once none is being walked. */
+    if (srv_queue_expire(s, now))
+        srv_workers_enforce(s);
     srv_loop_timers(s, now);
     srv_queue_tick(s, now);
     srv_requests_tick(s, now);
@@ -86,7 +99,7 @@ int srv_serve(const srv_config *cfg)
     while (!srv_loop_stopped() && !s.mode->over(&s)) {
         srv_loop_poll(&s, 100);
         srv_loop_hold(&s, s.mode->backlog(&s));
-        srv_queue_hand_out(&s);
+        srv_workers_hand_out(&s);
         s.mode->after_leases(&s);
         timers(&s);
         srv_http_drain(&s, s.http); /* the dashboard's actions, then its snapshot */

@@ -8,6 +8,7 @@
 #include "server/job.h"
 #include "server/loop.h"
 #include "server/queue.h"
+#include "server/requests.h"
 
 static void on_scene_get(srv_server *s, srv_conn *c, const proto_frame *f)
 {
@@ -143,28 +144,6 @@ void srv_workers_enforce(srv_server *s)
         }
 }
 
-/* Logs what verification cost and found, once, when job j is complete. */
-static void verify_summary(const srv_entry *j)
-{
-    srv_verify_stats v = srv_job_verify_stats(j->job);
-    uint64_t total = srv_job_samples_merged(j->job);
-    /* Verified: compared with a second render. A task picked that no other
-     * worker rendered was not verified, and is counted apart. */
-    uint64_t compared = v.matched + v.mismatched;
-    srv_log("job %llu: verified %llu of %llu tasks (%llu picked, %llu never compared: no other "
-            "worker rendered them; %llu matched, %llu mismatched, %llu liars): "
-            "%llu extra samples, %.2f%% of %llu; %llu backup copies, %llu expired leases, %llu "
-            "results refused",
-            (unsigned long long)j->rec.id, (unsigned long long)compared,
-            (unsigned long long)srv_job_tasks_total(j->job), (unsigned long long)v.picked,
-            (unsigned long long)(v.picked > compared ? v.picked - compared : 0),
-            (unsigned long long)v.matched, (unsigned long long)v.mismatched,
-            (unsigned long long)v.liars, (unsigned long long)(v.samples + v.backup_samples),
-            total ? 100.0 * (double)(v.samples + v.backup_samples) / (double)total : 0.0,
-            (unsigned long long)total, (unsigned long long)v.backups, (unsigned long long)v.expired,
-            (unsigned long long)v.refused);
-}
-
 static void on_verdict(srv_server *s, srv_entry *j, const srv_verdict *v)
 {
     switch (v->kind) {
@@ -194,50 +173,6 @@ static void on_verdict(srv_server *s, srv_entry *j, const srv_verdict *v)
         }
         break;
     }
-    }
-}
-
-/* Merges r (validated, lease_index what srv_job_validate gave, the job
- * unchanged since) and counts it. */
-static srv_outcome merge_now(srv_server *s, srv_entry *j, int lease_index, proto_result *r,
-                             uint64_t arrived, uint64_t *merged, pt_error *err)
-{
-    uint64_t before = srv_job_samples_merged(j->job);
-    double t0 = pt_now_s();
-    srv_outcome o = lease_index >= 0
-                        ? srv_job_result_validated(j->job, lease_index, r, arrived, err)
-                        : srv_job_replay(j->job, r, err);
-    srv_histogram_add(&s->counters.merge, pt_now_s() - t0);
-    *merged = srv_job_samples_merged(j->job) - before;
-    s->counters.samples_merged += *merged;
-    return o;
-}
-
-void srv_workers_merge_durable(srv_server *s, srv_entry *j, uint64_t owner, proto_result *r,
-                               uint64_t arrived)
-{
-    pt_error err = {0};
-    int li = -1;
-    uint64_t merged = 0;
-    /* Validated whole when it arrived: its pixels have not changed since. */
-    srv_outcome o = srv_job_validate_checked(j->job, owner, r, &li, &err);
-    /* Its lease may have gone since it arrived (expired, its worker left or
-     * the job paused): it is still a render of its task, and durable, so it
-     * is merged as a restart's replay would (a duplicate changes nothing). */
-    if (o == SRV_MERGED || o == SRV_NOT_LEASED)
-        o = merge_now(s, j, o == SRV_MERGED ? li : -1, r, arrived, &merged, &err);
-    srv_conn *c = srv_conn_find(s, owner);
-    if (o == SRV_MERGED) {
-        if (c) {
-            c->tasks_done++;
-            c->samples_done += merged;
-            c->t_result = pt_now_ms();
-        }
-        j->rejected += r->rejected;
-        s->counters.samples_rejected += r->rejected;
-        j->rays += r->rays;
-        if (srv_job_complete(j->job))
-            verify_summary(j);
     }
 }
 
@@ -300,7 +235,7 @@ void srv_workers_result(srv_server *s, srv_conn *c, const proto_frame *f, proto_
         proto_result_fini(&r);
         on_verdict(s, j, &v);
         if (srv_entry_active(j) && j->job && srv_job_complete(j->job))
-            verify_summary(j);
+            srv_queue_verify_summary(j);
         return;
     }
     /* Durable before merged: the log holds every result the film holds. In
@@ -316,20 +251,11 @@ void srv_workers_result(srv_server *s, srv_conn *c, const proto_frame *f, proto_
         proto_result_fini(&r); /* a failure is logged once, by the queue */
         return;
     }
-    uint64_t merged = 0;
     if (o == SRV_MERGED)
-        o = merge_now(s, j, lease_index, &r, pt_now_ms(), &merged, &err);
+        o = srv_queue_merge(s, j, c->id, lease_index, &r, pt_now_ms(), &err);
     switch (o) {
     case SRV_MERGED:
         judge_rendered(s, c, j, &r);
-        c->tasks_done++;
-        c->samples_done += merged;
-        c->t_result = pt_now_ms();
-        j->rejected += r.rejected;
-        s->counters.samples_rejected += r.rejected;
-        j->rays += r.rays;
-        if (srv_job_complete(j->job))
-            verify_summary(j);
         break;
     case SRV_DUPLICATE:
         c->misses = c->empties = 0; /* late, but rendered: it is working */
@@ -407,10 +333,85 @@ static int plausible(const proto_result *r)
     return srv_job_pixels_plausible(r, NULL);
 }
 
-/* A worker leaving: its leases go back to the queue. */
+/* A worker leaving: its leases go back to the queue; report: log how many. */
 static void on_leave(srv_server *s, srv_conn *c, int report)
 {
-    srv_queue_release_owner(s, c, report);
+    if (c->role != PROTO_ROLE_WORKER)
+        return;
+    uint32_t n = srv_queue_release_owner(s, c->id);
+    if (n && report)
+        srv_log("worker %s left; %u leased tasks requeued", c->shown, n);
+}
+
+/* hand_out_to's state over one hand-out. */
+typedef struct hand_out {
+    uint64_t now;
+    int dry; /* the queue had nothing to lease: skip the other workers */
+} hand_out;
+
+/* Serves c's free slots and pending fetch; 1 when c still wants tasks that
+ * the queue had none of. */
+static int hand_out_to(srv_server *s, srv_conn *c, void *ctx)
+{
+    hand_out *h = ctx;
+    if (c->state != SRV_C_READY || c->closing)
+        return 0;
+    if (c->fetch)
+        srv_requests_pump_fetch(s, c);
+    while (!h->dry && c->role == PROTO_ROLE_WORKER && c->want > 0 && srv_conn_has_room(c)) {
+        proto_task t;
+        if (!srv_queue_lease(s, c->id, h->now, &t)) {
+            h->dry = 1;
+            break;
+        }
+        size_t mark;
+        pt_status st = proto_frame_begin(&c->out, PROTO_MSG_TASK, &mark, NULL);
+        if (st == PT_OK)
+            st = proto_frame_finish(&c->out, mark, proto_msg_encode_task(&c->out, &t, NULL), NULL);
+        if (!srv_conn_queued(s, c, st))
+            break;
+        c->want--;
+    }
+    srv_conn_update_events(s, c);
+    return h->dry && c->role == PROTO_ROLE_WORKER && c->want > 0;
+}
+
+void srv_workers_hand_out(srv_server *s)
+{
+    hand_out h = {pt_now_ms(), 0};
+    srv_loop_each_for_hand_out(s, hand_out_to, &h);
+}
+
+/* ---- what the scheduler tells (srv_sched_events) ---- */
+
+void srv_workers_job_ended(srv_server *s, const srv_entry *j)
+{
+    proto_job_ref ref = {j->rec.id};
+    for (srv_conn *c = s->conns; c; c = c->next) {
+        if (c->role != PROTO_ROLE_WORKER || c->state != SRV_C_READY || c->closing)
+            continue;
+        size_t mark;
+        if (proto_frame_begin(&c->out, PROTO_MSG_JOB_END, &mark, NULL) == PT_OK)
+            proto_frame_finish(&c->out, mark, proto_msg_encode_job_ref(&c->out, &ref, NULL), NULL);
+        srv_conn_update_events(s, c);
+    }
+}
+
+void srv_workers_merged(srv_server *s, uint64_t owner, uint64_t merged, uint64_t now)
+{
+    srv_conn *c = srv_conn_find(s, owner);
+    if (c) {
+        c->tasks_done++;
+        c->samples_done += merged;
+        c->t_result = now;
+    }
+}
+
+void srv_workers_each(srv_server *s, void (*fn)(void *ctx, uint64_t owner), void *ctx)
+{
+    for (const srv_conn *c = s->conns; c; c = c->next)
+        if (c->state == SRV_C_READY && c->role == PROTO_ROLE_WORKER && !c->closing)
+            fn(ctx, c->id);
 }
 
 const srv_session srv_workers_session = {

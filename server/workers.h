@@ -51,15 +51,21 @@ void srv_workers_dispatch(srv_server *s, srv_conn *c, const proto_frame *f);
 void srv_workers_result(srv_server *s, srv_conn *c, const proto_frame *f, proto_result *r,
                         int checked, uint8_t **own);
 
-/* Merges r, a result of j from owner (a connection id, maybe gone now) held
- * until its log record was durable (server/queue.h), and counts it. The job
- * may take r's pixels when r owns them (srv_job_result_validated). */
-void srv_workers_merge_durable(srv_server *s, srv_entry *j, uint64_t owner, proto_result *r,
-                               uint64_t arrived);
+/* Leases tasks (srv_queue_lease) to every ready worker that asked for
+ * some, and feeds the clients' fetches (server/requests.h) while going over
+ * the connections (srv_loop_each_for_hand_out). */
+void srv_workers_hand_out(srv_server *s);
+
+/* The scheduler's events (srv_sched_events) that workers hear of: a job
+ * ended early (JOB_END to every ready worker), a result merged (its
+ * worker's counts), and the walk over the ready workers. */
+void srv_workers_job_ended(srv_server *s, const srv_entry *j);
+void srv_workers_merged(srv_server *s, uint64_t owner, uint64_t merged, uint64_t now);
+void srv_workers_each(srv_server *s, void (*fn)(void *ctx, uint64_t owner), void *ctx);
 
 /* A lease of worker connection owner passed a deadline at now (ms): counts a
- * miss, one per expiry round. Blocks nobody (the caller may be iterating a
- * job); srv_workers_enforce does. */
+ * miss, one per expiry round (srv_sched_events.owner_missed). Blocks nobody
+ * (the caller may be iterating a job); srv_workers_enforce does. */
 void srv_workers_missed(srv_server *s, uint64_t owner, uint64_t now);
 
 /* Blocks each worker with SRV_MAX_MISSES misses. O(1) unless a worker
