@@ -37,6 +37,8 @@ typedef struct srv_server srv_server;
 typedef struct srv_conn srv_conn;     /* server/loop.h */
 typedef struct srv_entry srv_entry;   /* server/queue.h */
 typedef struct srv_upload srv_upload; /* server/upload.h */
+/* A scene check's outcome for its client c, still connected (upload.h). */
+typedef void (*srv_verified_fn)(srv_server *s, srv_conn *c, srv_upload *k);
 
 /* A worker refused for the coordinator's life (server/workers.h). */
 #define SRV_MAX_BLOCKED 256
@@ -148,6 +150,7 @@ struct srv_server {
     srv_upload *verifications;  /* in flight */
     srv_upload *checks_waiting; /* complete uploads waiting for a check thread, oldest first */
     uint32_t checks_running;    /* of verifications, those with a thread */
+    srv_verified_fn verified;   /* answers a check's client (srv_upload_open) */
 
     /* client requests (server/requests.c) */
     uint64_t t_watch;     /* srv_requests_tick's last walk over the watchers */

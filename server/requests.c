@@ -233,7 +233,7 @@ static void on_submit(srv_server *s, srv_conn *c, const proto_frame *f)
         return;
     }
     char part[PATH_MAX];
-    srv_requests_part_path(s, c, part, sizeof part);
+    srv_upload_part_path(s, c, part, sizeof part);
     int fd = open(part, O_RDWR | O_CREAT | O_TRUNC | O_NOFOLLOW | O_CLOEXEC, 0600);
     if (fd < 0) {
         srv_conn_send_error(s, c, PROTO_E_INTERNAL, "cannot store the upload: %s", strerror(errno));
@@ -245,24 +245,6 @@ static void on_submit(srv_server *s, srv_conn *c, const proto_frame *f)
     c->uploading = 1;
     c->up_len = 0;
     c->t_progress = pt_now_ms();
-}
-
-void srv_requests_part_path(const srv_server *s, const srv_conn *c, char *out, size_t n)
-{
-    snprintf(out, n, "%s/tmp/part-%llu", srv_state_dir(s->state), (unsigned long long)c->id);
-}
-
-void srv_requests_drop_upload(srv_server *s, srv_conn *c)
-{
-    if (c->up_open) {
-        char part[PATH_MAX];
-        srv_requests_part_path(s, c, part, sizeof part);
-        close(c->up_fd);
-        unlink(part);
-        c->up_open = 0;
-    }
-    c->up_len = 0;
-    c->uploading = 0;
 }
 
 /* A submitted job's params: the server's defaults (tile, chunk, max and RR
@@ -416,7 +398,7 @@ static void on_upload(srv_server *s, srv_conn *c, const proto_frame *f)
      * memory. A full disk ends the upload with the reason. */
     if (pt_write_all(c->up_fd, ch.data, ch.len) != 0) {
         int e = errno;
-        srv_requests_drop_upload(s, c);
+        srv_upload_drop(s, c);
         srv_conn_send_error(s, c, PROTO_E_INTERNAL, "cannot store the upload: %s", strerror(e));
         return;
     }
@@ -636,7 +618,7 @@ void srv_requests_conn_gone(srv_server *s, srv_conn *c)
     if (c->uploading)
         srv_log("client %s left during an upload (%zu of %llu bytes); nothing was queued", c->shown,
                 c->up_len, (unsigned long long)c->up.bundle_size);
-    srv_requests_drop_upload(s, c);
+    srv_upload_drop(s, c);
     fetch_end(c);
 }
 

@@ -45,19 +45,11 @@ void srv_requests_pump_fetch(srv_server *s, srv_conn *c);
  * 100 ms); now in ms. */
 void srv_requests_tick(srv_server *s, uint64_t now);
 
-/* The file c's upload goes to as it arrives: tmp/part-ID in the state
- * folder, ID the connection's (the server names it, never the client). */
-void srv_requests_part_path(const srv_server *s, const srv_conn *c, char *out, size_t n);
-
 /* Uploads in progress or being checked at once, per client identity and
  * in all: a SUBMIT past either is refused (PROTO_E_LIMIT). Each holds
  * disk, not memory (the upload's file), and a check (server/upload.h). */
 #define SRV_MAX_UPLOADS_PER_CLIENT 4u
 #define SRV_MAX_UPLOADS 16u
-
-/* Ends c's upload: closes its file, and removes it unless server/upload.c
- * has taken it. */
-void srv_requests_drop_upload(srv_server *s, srv_conn *c);
 
 /* c is being freed: logs an upload it left unfinished, removes its upload
  * and ends its fetch. */

@@ -59,7 +59,8 @@ static pt_status setup(srv_server *s, pt_error *err)
         return st;
     if ((st = s->mode->setup(s, err)) != PT_OK)
         return st;
-    if ((st = srv_loop_open(s, err)) != PT_OK || (st = srv_upload_open(s, err)) != PT_OK)
+    if ((st = srv_loop_open(s, err)) != PT_OK ||
+        (st = srv_upload_open(s, srv_requests_verified, err)) != PT_OK)
         return st;
     s->t_start = s->t_last_print = pt_now_ms();
     if (cfg->http && (st = srv_http_start(s, &s->http, err)) != PT_OK)

@@ -15,7 +15,6 @@
 #include "common/render/render.h"
 #include "common/scene/scene.h"
 #include "server/loop.h"
-#include "server/requests.h"
 #include "server/state.h"
 
 static void verify_refuse(srv_upload *k, uint16_t code, const char *fmt, ...)
@@ -183,6 +182,24 @@ static void start_check(srv_server *s, srv_upload *k)
     s->checks_running++;
 }
 
+void srv_upload_part_path(const srv_server *s, const srv_conn *c, char *out, size_t n)
+{
+    snprintf(out, n, "%s/tmp/part-%llu", srv_state_dir(s->state), (unsigned long long)c->id);
+}
+
+void srv_upload_drop(srv_server *s, srv_conn *c)
+{
+    if (c->up_open) {
+        char part[PATH_MAX];
+        srv_upload_part_path(s, c, part, sizeof part);
+        close(c->up_fd);
+        unlink(part);
+        c->up_open = 0;
+    }
+    c->up_len = 0;
+    c->uploading = 0;
+}
+
 void srv_upload_start(srv_server *s, srv_conn *c)
 {
     srv_upload *k = pt_calloc(1, sizeof *k);
@@ -194,13 +211,13 @@ void srv_upload_start(srv_server *s, srv_conn *c)
     k->job_id = s->next_job_id++;
     k->m = c->up;
     /* The upload's file becomes the check's: renamed, so the connection's
-     * end (srv_requests_drop_upload) no longer removes it. */
+     * end (srv_upload_drop) no longer removes it. */
     char part[PATH_MAX];
-    srv_requests_part_path(s, c, part, sizeof part);
+    srv_upload_part_path(s, c, part, sizeof part);
     snprintf(k->part, sizeof k->part, "%s/tmp/bundle-%llu", srv_state_dir(s->state),
              (unsigned long long)k->job_id);
     int moved = rename(part, k->part) == 0;
-    srv_requests_drop_upload(s, c);
+    srv_upload_drop(s, c);
     if (!moved) {
         k->part[0] = '\0';
         upload_free(k);
@@ -237,7 +254,7 @@ void srv_upload_collect(srv_server *s)
         s->checks_running--;
         srv_conn *c = srv_conn_find(s, k->conn_id);
         if (c) {
-            srv_requests_verified(s, c, k);
+            s->verified(s, c, k);
         } else {
             if (k->ok)
                 srv_state_forget_job(s->state, k->job_id);
@@ -287,8 +304,9 @@ static void on_verified(srv_server *s, void *ctx, uint32_t events)
     srv_upload_collect(s);
 }
 
-pt_status srv_upload_open(srv_server *s, pt_error *err)
+pt_status srv_upload_open(srv_server *s, srv_verified_fn verified, pt_error *err)
 {
+    s->verified = verified;
     /* The threads' end blocks (a pointer is never lost); the loop's does not. */
     if (pipe2(s->verifypipe, O_CLOEXEC) != 0 ||
         fcntl(s->verifypipe[0], F_SETFL, fcntl(s->verifypipe[0], F_GETFL) | O_NONBLOCK) != 0)

@@ -55,16 +55,25 @@ struct srv_upload {
 
 /* Makes the verification pipe (s->verifypipe; its read end non-blocking)
  * and adds it to the loop (srv_loop_add_fd), which then calls
- * srv_upload_collect when a check is done. */
-pt_status srv_upload_open(srv_server *s, pt_error *err);
+ * srv_upload_collect when a check is done; each outcome whose client is
+ * still connected goes to verified (the client handlers' answer). */
+pt_status srv_upload_open(srv_server *s, srv_verified_fn verified, pt_error *err);
+
+/* The file c's upload goes to as it arrives: tmp/part-ID in the state
+ * folder, ID the connection's (the server names it, never the client). */
+void srv_upload_part_path(const srv_server *s, const srv_conn *c, char *out, size_t n);
+
+/* Ends c's upload: closes its file, and removes it unless srv_upload_start
+ * has taken it. */
+void srv_upload_drop(srv_server *s, srv_conn *c);
 
 /* c's upload is complete: reserves the job id and starts its verification,
  * or queues it behind the SRV_MAX_SCENE_CHECKS running (c is answered now
  * only when it cannot start). */
 void srv_upload_start(srv_server *s, srv_conn *c);
 
-/* Completes each verification that is done (server/requests.h answers the
- * client); a client gone meanwhile gets nothing queued, its bundle removed. */
+/* Completes each verification that is done (srv_upload_open's verified
+ * answers the client); a client gone meanwhile gets nothing queued, its bundle removed. */
 void srv_upload_collect(srv_server *s);
 
 /* At exit: waits for the verifications in flight (none of them is queued)
