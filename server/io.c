@@ -12,7 +12,7 @@
 
 #include "common/base/alloc.h"
 #include "common/base/clock.h"
-#include "server/loop.h"
+#include "server/peerlimits.h"
 
 #define RATE_MS 100 /* the rate rule is judged this often */
 
@@ -23,7 +23,7 @@ typedef struct io_conn {
     int fd;
     uint32_t cap;
     proto_frame_reader in;
-    uint64_t t_frame, t_progress; /* as srv_conn's (server/loop.h) */
+    uint64_t t_frame, t_progress; /* as a loop connection's (server/loop.h) */
     int done;                     /* an end, an error or a bad frame was queued: read no more */
     int in_set;                   /* its descriptor is in the thread's epoll set */
     int armed;                    /* ... for one EPOLLIN (EPOLLONESHOT), not yet reported */

@@ -469,32 +469,6 @@ static void conn_unpark(srv_conn *c, uint64_t now)
     c->t_progress = now;
 }
 
-/* The time a transfer of size bytes may take: the grace, or longer at the
- * minimum rate. */
-static uint64_t allowed_ms(const srv_peer_limits *l, uint64_t size)
-{
-    uint64_t at_rate = size * 1000u / l->min_rate;
-    return at_rate > l->frame_grace_ms ? at_rate : l->frame_grace_ms;
-}
-
-int srv_frame_too_slow(const srv_peer_limits *l, const proto_frame_reader *in, uint64_t t_frame,
-                       uint64_t now, char *why, size_t n)
-{
-    size_t held = proto_frame_reader_pending(in);
-    uint64_t size = 0;
-    if (held >= PROTO_FRAME_HEADER)
-        size = PROTO_FRAME_OVERHEAD + (uint64_t)proto_frame_payload_len(in->buf + in->start);
-    /* Until its header is here a frame's size is unknown: the grace alone. */
-    if (!(held > 0 && (size == 0 || held < size) && now - t_frame > allowed_ms(l, size)))
-        return 0;
-    snprintf(why, n,
-             "frame of %llu bytes too slow: %zu received in %.1f s (the minimum is %.1f KiB/s "
-             "after %.1f s)",
-             (unsigned long long)size, held, (now - t_frame) / 1000.0, l->min_rate / 1024.0,
-             l->frame_grace_ms / 1000.0);
-    return 1;
-}
-
 /* The rate rule (loop.h): closes c, logging why, when its frame in
  * progress or its upload is too slow or stalled. A parked peer is not
  * judged: the loop is the one not reading it. */
@@ -509,7 +483,7 @@ static void conn_check_rate(srv_server *s, srv_conn *c, uint64_t now)
     if (srv_frame_too_slow(l, &c->in, c->t_frame, now, why, sizeof why)) {
         srv_conn_send_error(s, c, PROTO_E_LIMIT, "%s", why);
     } else if (c->uploading && c->t_upload &&
-               now - c->t_upload > allowed_ms(l, c->up.bundle_size)) {
+               now - c->t_upload > srv_allowed_ms(l, c->up.bundle_size)) {
         srv_conn_send_error(s, c, PROTO_E_LIMIT,
                             "upload of %llu bytes too slow: %zu received in %.1f s (the minimum "
                             "is %.1f KiB/s after %.1f s)",

@@ -65,18 +65,9 @@
 #include "protocol/frame.h"
 #include "protocol/msg.h"
 #include "server/core.h"
+#include "server/peerlimits.h"
 
-#define SRV_OUT_HIGH (16u << 20)   /* stop reading a peer whose unsent output passes this */
-#define SRV_IN_START (64u * 1024u) /* every connection's first input buffer */
-
-/* Input bytes a buffer of cap bytes counts against max_input_mem: what it
- * holds past the SRV_IN_START every connection has (server/io.h counts its
- * threads' buffers so too). */
-static inline uint64_t srv_in_counted(size_t cap)
-{
-    return cap > SRV_IN_START ? cap - SRV_IN_START : 0;
-}
-
+#define SRV_OUT_HIGH (16u << 20) /* stop reading a peer whose unsent output passes this */
 /* Connection slots: the file-descriptor limit less SRV_FD_RESERVE, of which
  * at most max_handshakes (srv_peer_limits, server/serve.h) are not yet
  * authenticated; the others are kept for authenticated peers, so a flood of
@@ -190,7 +181,7 @@ struct srv_conn {
     int verifying; /* its upload is being verified (a srv_upload in flight) */
     proto_submit up;
     /* The upload goes to a file of the state folder as it arrives
-     * (srv_requests_upload_path), open in up_fd while up_open: memory holds
+     * (srv_upload_part_path), open in up_fd while up_open: memory holds
      * no upload, whatever its size or number. */
     int up_open, up_fd;
     size_t up_len;
@@ -293,11 +284,5 @@ void srv_conn_peer_error(srv_server *s, srv_conn *c, const proto_frame *f, const
 
 /* The open connection with this id, NULL when there is none. */
 srv_conn *srv_conn_find(srv_server *s, uint64_t id);
-
-/* The rate rule's first part (above) for the frame in progress in the
- * reader in (begun at t_frame). 1 when it is too slow, with the reason in
- * why. */
-int srv_frame_too_slow(const srv_peer_limits *l, const proto_frame_reader *in, uint64_t t_frame,
-                       uint64_t now, char *why, size_t n);
 
 #endif
