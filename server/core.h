@@ -136,6 +136,7 @@ struct srv_server {
 
     /* the queue (server/queue.c) */
     const srv_sched_events *events; /* what it tells the layers above (srv_serve sets it) */
+    const struct srv_range_ops *ranges; /* frame ranges' entries (server/frames.h; srv_serve) */
     srv_entry *jobs;                /* every job, in queue order */
     uint32_t njobs;
     uint64_t next_job_id;

@@ -5,7 +5,6 @@
 
 #include "common/base/alloc.h"
 #include "common/base/frames.h"
-#include "server/loop.h"
 #include "server/queue.h"
 
 struct srv_frames {
@@ -223,6 +222,24 @@ int srv_frames_round(srv_server *s)
     return ended;
 }
 
+/* each_worker's walk that counts the workers holding a task of a frame of
+ * range p. */
+typedef struct range_owners {
+    const srv_entry *p;
+    uint32_t n;
+} range_owners;
+
+static void count_owner(void *ctx, uint64_t owner)
+{
+    range_owners *ro = ctx;
+    const srv_entry *f;
+    for (uint32_t i = 0; (f = srv_frames_at(ro->p, i)); i++)
+        if (f->job && srv_job_owner_active(f->job, owner)) {
+            ro->n++;
+            return;
+        }
+}
+
 void srv_frames_info(const srv_server *s, const srv_entry *p, proto_job_info *m)
 {
     const srv_job_record *r = &p->rec;
@@ -267,17 +284,16 @@ void srv_frames_info(const srv_server *s, const srv_entry *p, proto_job_info *m)
         }
     }
     /* Workers holding a task of any of its frames, each counted once. */
-    m->workers = 0;
-    for (const srv_conn *c = s->conns; c; c = c->next) {
-        if (c->state != SRV_C_READY || c->role != PROTO_ROLE_WORKER)
-            continue;
-        for (uint32_t i = 0; (f = srv_frames_at(p, i)); i++)
-            if (f->job && srv_job_owner_active(f->job, c->id)) {
-                m->workers++;
-                break;
-            }
-    }
+    range_owners ro = {p, 0};
+    if (s->events && s->events->each_worker)
+        s->events->each_worker((srv_server *)s, count_owner, &ro);
+    m->workers = ro.n;
 }
+
+const srv_range_ops srv_frames_ops = {
+    srv_frames_ready, srv_frames_at,    srv_frames_pose, srv_frames_note_done,
+    srv_frames_end,   srv_frames_round, srv_frames_info,
+};
 
 pt_status srv_frames_path(const srv_entry *p, uint32_t number, char *out, size_t cap, pt_error *err)
 {
@@ -299,10 +315,4 @@ void srv_frames_latest(const srv_entry *p, char *out, size_t cap)
     else if (p->rec.frames_done > 0)
         srv_frames_path(p, pt_frames_number(&p->rec.frames, p->rec.frames_done - 1), out, cap,
                         NULL);
-}
-
-void srv_frames_free(srv_entry *p)
-{
-    pt_free(p->frames);
-    p->frames = NULL;
 }

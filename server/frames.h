@@ -36,11 +36,16 @@
 
 #include "protocol/msg.h"
 #include "server/core.h"
+#include "server/queue.h"
 
 /* Frame ids: far above any job id a queue gives (those count from 1), and
  * readable: 10^18 + job x 10^6 + frame number. */
 #define SRV_FRAME_ID_BASE 1000000000000000000ull
 #define SRV_FRAME_MAX_JOB 1000000000000ull /* job ids a frame-range job may have */
+
+/* The range's part of the queue's entries (srv_range_ops, installed by
+ * srv_serve as s->ranges): the functions below. */
+extern const srv_range_ops srv_frames_ops;
 
 /* The wire and state-folder id of frame number of job. */
 uint64_t srv_frame_job_id(uint64_t job, uint32_t number);
@@ -84,10 +89,6 @@ pt_status srv_frames_path(const srv_entry *p, uint32_t number, char *out, size_t
 /* The image a viewer of p should see now: the earliest frame rendering, or
  * the last one done; "" when none. */
 void srv_frames_latest(const srv_entry *p, char *out, size_t cap);
-
-/* Frees p's frame bookkeeping (not the frame entries: they are the
- * queue's). Accepts a p without. */
-void srv_frames_free(srv_entry *p);
 
 /* How many frames of width x height pixels a range renders at once: as many
  * as fit in caps->max_pixels, at least 1, at most SRV_FRAMES_AHEAD. */

@@ -13,7 +13,6 @@
 #include "common/render/adaptive.h"
 #include "common/render/film.h"
 #include "protocol/frame.h"
-#include "server/frames.h"
 
 #define MAX_FINISHED 1000 /* ended jobs kept in the queue's history */
 /* A write to a folder that failed (full, over quota) is tried again this
@@ -103,26 +102,27 @@ void srv_entry_free(srv_entry *j)
     if (!j)
         return;
     free_run(j);
-    srv_frames_free(j);
+    pt_free(j->frames); /* a range's bookkeeping (server/frames.h): plain memory */
+    j->frames = NULL;
     pt_free(j);
 }
 
 /* An ended job of the history; not a frame (srv_frames_round frees those)
  * nor a range whose frames are not freed yet. */
-static int prunable(const srv_entry *j)
+static int prunable(const srv_server *s, const srv_entry *j)
 {
-    return !srv_entry_active(j) && !j->parent && !srv_frames_at(j, 0);
+    return !srv_entry_active(j) && !j->parent && !(j->frames && s->ranges->at(j, 0));
 }
 
 void srv_queue_prune(srv_server *s)
 {
     uint32_t ended = 0;
     for (srv_entry *j = s->jobs; j; j = j->next)
-        ended += prunable(j);
+        ended += prunable(s, j);
     while (ended > MAX_FINISHED) {
         srv_entry **oldest = NULL;
         for (srv_entry **p = &s->jobs; *p; p = &(*p)->next)
-            if (prunable(*p) && (!oldest || (*p)->rec.id < (*oldest)->rec.id))
+            if (prunable(s, *p) && (!oldest || (*p)->rec.id < (*oldest)->rec.id))
                 oldest = p;
         srv_entry *j = *oldest;
         *oldest = j->next;
@@ -256,7 +256,7 @@ void srv_queue_info(const srv_server *s, const srv_entry *j, proto_job_info *m)
         m->queue_pos = pos;
     }
     if (r->frames.step)
-        srv_frames_info(s, j, m);
+        s->ranges->info(s, j, m);
     if (j->paused)
         snprintf(m->message, sizeof m->message, "paused: %s; retrying", j->pause_reason);
     else if (j->final_pending)
@@ -519,7 +519,7 @@ void srv_queue_end_job(srv_server *s, srv_entry *j, uint8_t state, const char *m
         message = "every sample was rejected (NaN or Inf, or workers that rendered nothing)";
     }
     if (state != PROTO_JOB_DONE && j->rec.frames.step)
-        srv_frames_end(s, j, state, message); /* a range's frames end with it */
+        s->ranges->end(s, j, state, message); /* a range's frames end with it */
     if (state == PROTO_JOB_DONE && j->job) {
         /* The writer thread writes the image (a second or so for a large
          * one) while the loop goes on serving the other jobs' workers;
@@ -555,7 +555,7 @@ void srv_queue_end_job(srv_server *s, srv_entry *j, uint8_t state, const char *m
         /* Recorded in its range before the queue file is written below, and
          * that before the frame's files go: never rendered again. */
         if (j->parent)
-            srv_frames_note_done(j);
+            s->ranges->note_done(j);
     }
     j->rec.seconds = srv_entry_seconds(j, now);
     if (j->job) {
@@ -626,7 +626,7 @@ int srv_entry_ready(srv_server *s, srv_entry *j)
     if (j->job)
         return 1;
     if (j->rec.frames.step)
-        return srv_frames_ready(s, j);
+        return s->ranges->ready(s, j);
     pt_error err = {0};
     pt_status st = srv_job_new(j->rec.id, &j->rec.params, j->rec.hash, &j->job, &err);
     if (st == PT_OK)
@@ -717,9 +717,9 @@ static int lease_from(srv_server *s, srv_entry *j, uint64_t owner, uint64_t now,
 static int lease_frames(srv_server *s, srv_entry *p, uint64_t owner, uint64_t now, proto_task *t)
 {
     srv_entry *f;
-    for (uint32_t i = 0; (f = srv_frames_at(p, i)); i++)
+    for (uint32_t i = 0; (f = s->ranges->at(p, i)); i++)
         if (lease_from(s, f, owner, now, t)) {
-            srv_frames_pose(f, t);
+            s->ranges->pose(f, t);
             if (!p->t_started)
                 p->t_started = now;
             return 1;
@@ -771,7 +771,7 @@ int srv_queue_end_complete(srv_server *s)
             ended += !srv_entry_active(j); /* not while its image is written */
         }
     /* Frames done make room for the next ones, and end their range. */
-    return ended + srv_frames_round(s);
+    return ended + s->ranges->round(s);
 }
 
 void srv_queue_unlink(srv_server *s, srv_entry *j)

@@ -90,6 +90,20 @@ struct srv_entry {
     srv_entry *next; /* the queue's order */
 };
 
+/* What a frame range does as an entry of the queue where it differs from a
+ * still: server/frames.h provides it (srv_frames_ops) and srv_serve installs
+ * it (s->ranges), so the queue, below the ranges made of its stills, never
+ * calls them by name. Each as the srv_frames_* function of its name. */
+typedef struct srv_range_ops {
+    int (*ready)(srv_server *s, srv_entry *p);
+    srv_entry *(*at)(const srv_entry *p, uint32_t i);
+    void (*pose)(const srv_entry *f, proto_task *t);
+    void (*note_done)(srv_entry *f);
+    void (*end)(srv_server *s, srv_entry *p, uint8_t state, const char *message);
+    int (*round)(srv_server *s);
+    void (*info)(const srv_server *s, const srv_entry *p, proto_job_info *m);
+} srv_range_ops;
+
 /* 1 while j is QUEUED or RUNNING. */
 int srv_entry_active(const srv_entry *j);
 

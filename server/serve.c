@@ -5,6 +5,7 @@
 
 #include "common/base/alloc.h"
 #include "server/core.h"
+#include "server/frames.h"
 #include "server/http.h"
 #include "server/local.h"
 #include "server/loop.h"
@@ -33,6 +34,7 @@ static pt_status setup(srv_server *s, pt_error *err)
     pt_status st;
     s->next_job_id = 1;
     s->events = &sched_events;
+    s->ranges = &srv_frames_ops;
     /* The loop first, so each part adds its descriptors as it starts; the
      * sessions that serve each role's peers. */
     if ((st = srv_loop_init(s, err)) != PT_OK)
