@@ -3,7 +3,7 @@
 #include <stdio.h>
 #include <string.h>
 
-#include "server/core.h"
+#include "server/log.h"
 
 void srv_authlimit_addr(const char *peer, char out[SRV_AUTHLIMIT_ADDR])
 {

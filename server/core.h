@@ -1,5 +1,5 @@
 /*
- * core.h - the coordinator's shared state and its log line.
+ * core.h - the coordinator's shared state (its log line is server/log.h).
  *
  * srv_server is what every server module's functions take: the event loop's
  * connections (server/loop.h), the queue of jobs (server/queue.h), the upload
@@ -13,7 +13,7 @@
  * when the local workers are gone, so no module asks which mode it is in.
  *
  * Threads: srv_server is touched only by the event-loop thread. srv_log
- * may be called from any thread. Times are pt_now_ms (common/base/clock.h).
+ * (server/log.h) may be called from any thread. Times are pt_now_ms (common/base/clock.h).
  */
 #ifndef PT_SERVER_CORE_H
 #define PT_SERVER_CORE_H
@@ -31,6 +31,7 @@
 #include "server/clients.h"
 #include "server/config.h"
 #include "server/local.h"
+#include "server/log.h"
 #include "server/state.h"
 
 typedef struct srv_server srv_server;
@@ -135,9 +136,9 @@ struct srv_server {
     struct srv_http *http;        /* --http: the dashboard (server/http.h); NULL: none */
 
     /* the queue (server/queue.c) */
-    const srv_sched_events *events; /* what it tells the layers above (srv_serve sets it) */
+    const srv_sched_events *events;     /* what it tells the layers above (srv_serve sets it) */
     const struct srv_range_ops *ranges; /* frame ranges' entries (server/frames.h; srv_serve) */
-    srv_entry *jobs;                /* every job, in queue order */
+    srv_entry *jobs;                    /* every job, in queue order */
     uint32_t njobs;
     uint64_t next_job_id;
     srv_entry *single; /* one-job mode: the job */
@@ -173,8 +174,5 @@ struct srv_server {
     srv_local local;
     int local_gone_logged;
 };
-
-/* One line on stderr, "ptserve: " first (over a progress line, if any). */
-void srv_log(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
 
 #endif

@@ -13,7 +13,7 @@
 
 #include "common/base/alloc.h"
 #include "common/base/fsutil.h"
-#include "server/core.h"
+#include "server/log.h"
 
 extern char **environ;
 
