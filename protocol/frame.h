@@ -21,7 +21,7 @@
  * worker, ptctl): received bytes go in, whole frames come out; it grows to
  * exactly the frame being received, never past the maximum fixed at init,
  * and proto_frame_reader_shrink gives the memory back once that frame is
- * consumed (a server counts what its peers hold: server/loop.h).
+ * consumed (a server counts what its peers hold: server/net/loop.h).
  * Thread-safety: the functions are reentrant; a reader belongs to the one
  * thread that reads its connection.
  */

@@ -1,6 +1,6 @@
 /*
  * jobjson.c - a job's JSON object, shared by ptctl (--json) and ptserve's
- * HTTP API (server/http.h) so that both print the same fields.
+ * HTTP API (server/api/http.h) so that both print the same fields.
  */
 #include "protocol/jobjson.h"
 

@@ -1,7 +1,7 @@
 /*
  * jobjson.h - a job (proto_job_info) as JSON: the one formatter behind
  * `ptctl status --json` / `ptctl list --json` and ptserve's HTTP API
- * (/api/jobs, server/http.h), so a script reads the same fields from both.
+ * (/api/jobs, server/api/http.h), so a script reads the same fields from both.
  *
  * Strings from peers are never trusted: they are escaped and bytes that are
  * not well-formed UTF-8 become U+FFFD. Numbers JSON cannot carry (NaN,

@@ -231,7 +231,7 @@ int proto_env_same(const proto_env *a, const proto_env *b);
  *   134+c+e+v+n 16 SHUTTER motion blur's shutter (SHUTTER layout, below)
  *   size 150+c+e+v+n
  * A frame-range job's frames are separate jobs on the wire: each has its own
- * job id (srv_frame_job_id, server/frames.h), so a task id, a RESULT and a
+ * job id (srv_frame_job_id, server/sched/frames.h), so a task id, a RESULT and a
  * JOB_END name one frame's tasks. */
 typedef struct proto_task {
     uint64_t job_id, task_id;

@@ -16,7 +16,7 @@
 #include "common/base/frames.h"
 #include "common/image/view.h"
 #include "protocol/auth.h"
-#include "server/job.h"
+#include "server/sched/job.h"
 
 typedef struct srv_caps {
     uint32_t max_side;   /* longest image side a client may ask for */
@@ -26,7 +26,7 @@ typedef struct srv_caps {
     uint32_t max_queued; /* unfinished jobs per client identity */
 } srv_caps;
 
-/* What the loop lets peers hold (server/loop.h); 0 in a field: its default. */
+/* What the loop lets peers hold (server/net/loop.h); 0 in a field: its default. */
 typedef struct srv_peer_limits {
     uint64_t max_input_mem;     /* input buffer bytes grown past the first, all peers */
     uint32_t max_handshakes;    /* connections not yet authenticated */
@@ -38,15 +38,15 @@ typedef struct srv_peer_limits {
 #define SRV_DEFAULT_MAX_LOG_MEM (512ull << 20) /* ptserve --max-log-mb */
 
 typedef struct srv_config {
-    const char *scene_path;     /* one-job mode: render this and exit; NULL: queue mode */
-    const char *out_path;       /* one-job mode: the EXR */
-    const char *state_dir;      /* queue mode: the queue, bundles, checkpoints (server/state.h) */
-    const char *output_dir;     /* queue mode: finished images; NULL: STATE_DIR/output */
-    const char *listen;         /* HOST:PORT; NULL: 127.0.0.1:7878, or port 0 with --local */
-    const char *token_path;     /* NULL: no token (loopback only) */
-    const char *clients_path;   /* per-client tokens (server/clients.h); needs token_path */
+    const char *scene_path; /* one-job mode: render this and exit; NULL: queue mode */
+    const char *out_path;   /* one-job mode: the EXR */
+    const char *state_dir;  /* queue mode: the queue, bundles, checkpoints (server/store/state.h) */
+    const char *output_dir; /* queue mode: finished images; NULL: STATE_DIR/output */
+    const char *listen;     /* HOST:PORT; NULL: 127.0.0.1:7878, or port 0 with --local */
+    const char *token_path; /* NULL: no token (loopback only) */
+    const char *clients_path;   /* per-client tokens (server/net/clients.h); needs token_path */
     const char *port_file;      /* write the bound port here (tests, scripts) */
-    const char *http;           /* the dashboard's HOST:PORT (server/http.h); NULL: none */
+    const char *http;           /* the dashboard's HOST:PORT (server/api/http.h); NULL: none */
     const char *http_port_file; /* write its bound port here */
     const char *http_hosts;     /* host names the dashboard answers to besides IP literals and
                                    localhost (comma-separated; NULL: none) */
@@ -54,24 +54,25 @@ typedef struct srv_config {
     double save_interval;       /* seconds between progressive saves, at most this often */
     uint32_t lease_ms;
     uint32_t task_ms;        /* time-sized tasks of about this long; 0: fixed chunks (job.h) */
-    double verify_fraction;  /* share of tasks rendered twice and compared (server/job.h) */
+    double verify_fraction;  /* share of tasks rendered twice and compared (server/sched/job.h) */
     uint32_t handshake_ms;   /* a peer must authenticate within this time */
     uint32_t local_workers;  /* spawn this many ptworker processes */
     uint32_t worker_threads; /* threads per local worker; 0: cores / local_workers */
-    uint32_t merge_threads;  /* threads adding results to films (server/adder.h); 0: the loop */
-    uint32_t io_threads;     /* threads reading workers (server/io.h); 0: the loop */
-    uint64_t max_log_mem;    /* queue mode: bytes of results not yet durable past which
-                              * workers are not read (srv_loop_hold, server/loop.h) */
-    srv_job_params job;      /* one-job mode: the job; queue mode: defaults (tile,
-                              * chunk, max depth, rr depth) for submitted jobs.
-                              * width/height 0: from the camera, 512 wide */
-    srv_caps caps;           /* queue mode: what a client may ask for */
-    srv_peer_limits limits;  /* memory, connections and rates of peers */
+    uint32_t
+        merge_threads;    /* threads adding results to films (server/sched/adder.h); 0: the loop */
+    uint32_t io_threads;  /* threads reading workers (server/net/io.h); 0: the loop */
+    uint64_t max_log_mem; /* queue mode: bytes of results not yet durable past which
+                           * workers are not read (srv_loop_hold, server/net/loop.h) */
+    srv_job_params job;   /* one-job mode: the job; queue mode: defaults (tile,
+                           * chunk, max depth, rr depth) for submitted jobs.
+                           * width/height 0: from the camera, 512 wide */
+    srv_caps caps;        /* queue mode: what a client may ask for */
+    srv_peer_limits limits; /* memory, connections and rates of peers */
     int quiet;
-    const char *env_path;  /* one-job mode: the environment map packed with the scene
-                            * (job.env then names it PT_BUNDLE_ENV_NAME); NULL: none */
-    pt_frames frames;      /* one-job mode: a frame range (server/frames.h); step 0: a still */
-    double fps;            /* its frames per second */
+    const char *env_path; /* one-job mode: the environment map packed with the scene
+                           * (job.env then names it PT_BUNDLE_ENV_NAME); NULL: none */
+    pt_frames frames;     /* one-job mode: a frame range (server/sched/frames.h); step 0: a still */
+    double fps;           /* its frames per second */
     const char *animation; /* its animation; NULL: every one */
     pt_view view;          /* every PNG preview's exposure and view transform */
 } srv_config;

@@ -2,9 +2,9 @@
  * core.h - the coordinator's shared state (its log line is server/log.h).
  *
  * srv_server is what every server module's functions take: the event loop's
- * connections (server/loop.h), the queue of jobs (server/queue.h), the upload
- * verifications in flight (server/upload.h), the local worker processes
- * (server/local.h) and the mode chosen at setup (server/mode.h). Each group
+ * connections (server/net/loop.h), the queue of jobs (server/sched/queue.h), the upload
+ * verifications in flight (server/api/upload.h), the local worker processes
+ * (server/app/local.h) and the mode chosen at setup (server/app/mode.h). Each group
  * of fields belongs to the module named beside it; the others only read it,
  * or change it through that module's functions.
  *
@@ -27,21 +27,21 @@
 #include "common/render/film.h"
 #include "protocol/auth.h"
 #include "protocol/msg.h"
-#include "server/authlimit.h"
-#include "server/clients.h"
+#include "server/app/local.h"
 #include "server/config.h"
-#include "server/local.h"
 #include "server/log.h"
-#include "server/state.h"
+#include "server/net/authlimit.h"
+#include "server/net/clients.h"
+#include "server/store/state.h"
 
 typedef struct srv_server srv_server;
-typedef struct srv_conn srv_conn;     /* server/loop.h */
-typedef struct srv_entry srv_entry;   /* server/queue.h */
-typedef struct srv_upload srv_upload; /* server/upload.h */
+typedef struct srv_conn srv_conn;     /* server/net/loop.h */
+typedef struct srv_entry srv_entry;   /* server/sched/queue.h */
+typedef struct srv_upload srv_upload; /* server/api/upload.h */
 /* A scene check's outcome for its client c, still connected (upload.h). */
 typedef void (*srv_verified_fn)(srv_server *s, srv_conn *c, srv_upload *k);
 
-/* A worker refused for the coordinator's life (server/workers.h). */
+/* A worker refused for the coordinator's life (server/api/workers.h). */
 #define SRV_MAX_BLOCKED 256
 typedef struct srv_blocked {
     char name[PROTO_MAX_NAME + 1];
@@ -49,7 +49,7 @@ typedef struct srv_blocked {
     char why[96];
 } srv_blocked;
 
-/* One way of running the coordinator (server/mode.c has the two). */
+/* One way of running the coordinator (server/app/mode.c has the two). */
 typedef struct srv_mode {
     const char *name;
     int serves_clients; /* a client (ptctl) may connect */
@@ -76,7 +76,7 @@ typedef struct srv_mode {
     int (*finish)(srv_server *s);
 } srv_mode;
 
-/* What the scheduler (server/queue.h) tells the layers above it: they
+/* What the scheduler (server/sched/queue.h) tells the layers above it: they
  * install these at setup (srv_serve), and it never calls them by name.
  * Each may be NULL. Called on the loop thread. */
 typedef struct srv_sched_events {
@@ -92,7 +92,7 @@ typedef struct srv_sched_events {
     void (*each_worker)(srv_server *s, void (*fn)(void *ctx, uint64_t owner), void *ctx);
 } srv_sched_events;
 
-/* Totals since the coordinator started, for /metrics (server/http.h). */
+/* Totals since the coordinator started, for /metrics (server/api/http.h). */
 #define SRV_HIST_BUCKETS 12 /* 10 us .. 42 s, x4 apart (SRV_HIST_FIRST), then +Inf */
 #define SRV_HIST_FIRST 1e-5
 #define SRV_HIST_FACTOR 4.0
@@ -119,7 +119,7 @@ struct srv_server {
     const srv_mode *mode;
     uint64_t t_start, t_last_print;
 
-    /* the loop (server/loop.c) */
+    /* the loop (server/net/loop.c) */
     int ep, lfd, sigpipe[2];
     struct srv_loop_reg *reg; /* the descriptors added and the role sessions */
     uint16_t port;
@@ -128,17 +128,18 @@ struct srv_server {
     uint64_t next_conn_id;
     uint8_t token[PROTO_TOKEN_MAX];
     size_t token_len;
-    srv_clients *clients;         /* --clients-file (server/clients.h); NULL: none */
-    srv_authlimit authlimit;      /* failed handshakes per address (server/authlimit.h) */
+    srv_clients *clients;         /* --clients-file (server/net/clients.h); NULL: none */
+    srv_authlimit authlimit;      /* failed handshakes per address (server/net/authlimit.h) */
     uint64_t bytes_in, bytes_out; /* on the wire, all peers */
     struct srv_guard *guard;      /* limits on peers: memory, slots, rates, refusals */
-    srv_counters counters;        /* counted where they happen; read by server/http.c */
-    struct srv_http *http;        /* --http: the dashboard (server/http.h); NULL: none */
+    srv_counters counters;        /* counted where they happen; read by server/api/http.c */
+    struct srv_http *http;        /* --http: the dashboard (server/api/http.h); NULL: none */
 
-    /* the queue (server/queue.c) */
-    const srv_sched_events *events;     /* what it tells the layers above (srv_serve sets it) */
-    const struct srv_range_ops *ranges; /* frame ranges' entries (server/frames.h; srv_serve) */
-    srv_entry *jobs;                    /* every job, in queue order */
+    /* the queue (server/sched/queue.c) */
+    const srv_sched_events *events; /* what it tells the layers above (srv_serve sets it) */
+    const struct srv_range_ops
+        *ranges;     /* frame ranges' entries (server/sched/frames.h; srv_serve) */
+    srv_entry *jobs; /* every job, in queue order */
     uint32_t njobs;
     uint64_t next_job_id;
     srv_entry *single; /* one-job mode: the job */
@@ -147,30 +148,31 @@ struct srv_server {
     uint64_t t_expire;    /* srv_queue_expire's last walk over the leases */
     uint64_t queue_retry; /* when an unsaved queue file is tried again */
 
-    /* upload verification (server/upload.c) */
+    /* upload verification (server/api/upload.c) */
     int verifypipe[2];          /* verifications done: their pointers */
     srv_upload *verifications;  /* in flight */
     srv_upload *checks_waiting; /* complete uploads waiting for a check thread, oldest first */
     uint32_t checks_running;    /* of verifications, those with a thread */
     srv_verified_fn verified;   /* answers a check's client (srv_upload_open) */
 
-    /* client requests (server/requests.c) */
+    /* client requests (server/api/requests.c) */
     uint64_t t_watch;     /* srv_requests_tick's last walk over the watchers */
     uint8_t *fetch_chunk; /* one IMAGE piece read from a fetched file (PROTO_MAX_SCENE_CHUNK) */
 
-    /* worker messages (server/workers.c) */
+    /* worker messages (server/api/workers.c) */
     pt_pixel_acc *scratch;      /* RESULT decode buffer */
     struct proto_heartbeat *hb; /* HEARTBEAT decode buffer (large) */
     int enforce_due;            /* a worker reached SRV_MAX_MISSES since srv_workers_enforce */
     srv_adder *adder;           /* film adds off the loop (--merge-threads); NULL: none */
-    struct srv_io *io; /* workers read off the loop (--io-threads, server/io.h); NULL: none */
+    struct srv_io *io; /* workers read off the loop (--io-threads, server/net/io.h); NULL: none */
     int log_held;      /* workers not read: the results log is behind (srv_loop_hold) */
     uint64_t t_held, t_released;
     srv_blocked blocked[SRV_MAX_BLOCKED];
     uint32_t nblocked;
-    uint64_t verify_seed; /* picks the tasks verified (server/job.h), made at the first lease */
+    uint64_t
+        verify_seed; /* picks the tasks verified (server/sched/job.h), made at the first lease */
 
-    /* local workers (server/local.c) */
+    /* local workers (server/app/local.c) */
     srv_local local;
     int local_gone_logged;
 };

@@ -18,7 +18,7 @@
 #include "common/render/options.h"
 #include "common/render/tile.h"
 #include "common/scene/scene.h"
-#include "server/io.h"
+#include "server/net/io.h"
 #include "server/serve.h"
 
 static void usage(FILE *f)

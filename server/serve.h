@@ -3,22 +3,28 @@
  *
  * Loads and packs the scene, listens, authenticates workers (HELLO,
  * CHALLENGE, AUTH, WELCOME), leases tasks in pass order, merges results
- * (server/job.h), serves the scene bundle in chunks, expires leases, and
- * writes progressive EXRs off the loop (server/writer.h). With local_workers
+ * (server/sched/job.h), serves the scene bundle in chunks, expires leases, and
+ * writes progressive EXRs off the loop (server/sched/writer.h). With local_workers
  * it also spawns that many ptworker processes on loopback and reaps them.
  * In one-job mode it renders one scene and exits; in queue mode it keeps a
  * render queue that clients (ptctl) fill, durable in a state folder
- * (server/state.h), and runs until it is stopped.
+ * (server/store/state.h), and runs until it is stopped.
  *
- * serve.c only sets up and dispatches; the parts are server/loop.h (sockets,
- * connections, handshake, limits on peers), io.h (the I/O threads that read
- * workers), queue.h (jobs and leases), frames.h (frame ranges), job.h (one
- * job's scheduling and merging), adder.h and writer.h (the merge and image
- * threads), state.h (the state folder), workers.h and requests.h (what
- * workers and clients send), upload.h (scene verification off the loop),
- * http.h (the dashboard), clients.h and authlimit.h (identities and the
- * backoff of wrong tokens), local.h (local workers), core.h (the server's
- * state) and mode.h (the two modes as data).
+ * app/serve.c only sets up, wires and dispatches. The parts, a folder per
+ * layer, calls going down and anything upward a callback or an event that
+ * serve.c installs at setup (docs/ARCHITECTURE.md):
+ * - net/: loop.h (the descriptors it waits on, connections, handshake,
+ *   limits on peers, role sessions), io.h (the I/O threads that read
+ *   workers), peerlimits.h, clients.h and authlimit.h (identities and the
+ *   backoff of wrong tokens);
+ * - sched/: queue.h (jobs, leases, merges and the scheduler's events),
+ *   frames.h (frame ranges), job.h (one job's scheduling and merging),
+ *   adder.h and writer.h (the merge and image threads);
+ * - store/: state.h (the state folder);
+ * - api/: workers.h and requests.h (what workers and clients send),
+ *   upload.h (scene verification off the loop), http.h (the dashboard);
+ * - app/: mode.h (the two modes as data), local.h (local workers);
+ * - here, under all: config.h, core.h (the server's state), log.h.
  * Threads: srv_serve runs the loop on the calling thread; call it once at a
  * time per process (it installs SIGINT and SIGTERM handlers).
  */

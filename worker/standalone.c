@@ -50,7 +50,7 @@ static void *render_thread(void *p)
     thread_arg *a = p;
     job *j = a->j;
     uint32_t max_px = j->o->tile * j->o->tile;
-    /* The coordinator's rule (server/job.c), on the same sums. */
+    /* The coordinator's rule (server/sched/job.c), on the same sums. */
     const pt_adaptive rule = {j->o->target_error, j->o->min_gain, j->o->min_spp};
     pt_pixel_acc *chunk = pt_malloc_array(max_px, sizeof *chunk);
     pt_pixel_acc *sum = pt_malloc_array(max_px, sizeof *sum);

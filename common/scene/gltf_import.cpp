@@ -36,7 +36,7 @@
 // anything but a regular file, and checks the size cap before reading.
 // tinygltf reads buffers through FsCallbacks that go there too, and is given
 // no base folder, so its messages name the URI, never a path of this machine.
-// The coordinator loads scenes that clients send (server/upload.c), so this
+// The coordinator loads scenes that clients send (server/api/upload.c), so this
 // is what keeps a client from making it open a file of its choosing.
 //
 // scene->hash: SHA-256 of the entry file's bytes, then each external

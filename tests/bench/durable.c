@@ -1,6 +1,6 @@
 /*
  * ptbench-durable - the event loop's time per result for queue mode's
- * durable steps, with the state folder's own code (server/state.h) on a real
+ * durable steps, with the state folder's own code (server/store/state.h) on a real
  * folder: receiving a result (frame and RESULT decode, validation), logging
  * it, the group commit, checkpoints and the merge.
  *
@@ -34,8 +34,8 @@
 #include "common/base/opt.h"
 #include "protocol/frame.h"
 #include "protocol/msg.h"
-#include "server/job.h"
-#include "server/state.h"
+#include "server/sched/job.h"
+#include "server/store/state.h"
 
 enum { RECEIVE, LOG, COMMIT, CHECKPOINT, MERGE, NSTEPS };
 static const char *const STEP[NSTEPS] = {"receive", "log append", "commit", "checkpoint", "merge"};

@@ -21,7 +21,7 @@
 #include "common/base/version.h"
 #include "protocol/frame.h"
 #include "protocol/msg.h"
-#include "server/job.h"
+#include "server/sched/job.h"
 
 static int cmp(const void *a, const void *b)
 {

@@ -5,7 +5,7 @@
  *
  * Input: the bundle's bytes. The harness checks them (pt_bundle_check),
  * wraps them (pt_bundle_from_bytes), unpacks them into a fresh folder of its
- * scratch folder and, as server/upload.c does, scans the entry file's
+ * scratch folder and, as server/api/upload.c does, scans the entry file's
  * dependencies and loads it as a scene. Invariants: check and wrap agree; a
  * refusal names its cause; the wrapped copy holds the input and its SHA-256;
  * a checked bundle unpacks (or fails on the file system, PT_ERR_IO, as two

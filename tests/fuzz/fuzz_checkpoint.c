@@ -1,8 +1,8 @@
 /*
  * fuzz_checkpoint.c - libFuzzer target for a job's checkpoint as the
  * coordinator reads it after a restart: the state folder's envelope (magic,
- * version, CRC32C, render seconds and counters; server/state.c) and the
- * merged state inside it (srv_job_load, server/job.c).
+ * version, CRC32C, render seconds and counters; server/store/state.c) and the
+ * merged state inside it (srv_job_load, server/sched/job.c).
  *
  * Input: a mode byte (fuzz_state.h: which job, sealed or not), then the
  * checkpoint file. The harness writes it as jobs/1/checkpoint of a real state
@@ -18,7 +18,7 @@
 #include <string.h>
 
 #include "common/base/alloc.h"
-#include "server/state.h"
+#include "server/store/state.h"
 #include "tests/fuzz/fuzz_job_state.h"
 #include "tests/fuzz/fuzz_state.h"
 #include "tests/fuzz/fuzz_util.h"

@@ -13,7 +13,7 @@
 #include <string.h>
 
 #include "common/base/fsutil.h"
-#include "server/state.h"
+#include "server/store/state.h"
 #include "tests/fuzz/fuzz_state.h"
 #include "tests/fuzz/fuzz_util.h"
 

@@ -1,6 +1,6 @@
 /*
  * fuzz_queue.c - libFuzzer target for the state folder's queue file as
- * ptserve reads it at start (srv_state_load_queue, server/state.c: magic,
+ * ptserve reads it at start (srv_state_load_queue, server/store/state.c: magic,
  * version, CRC32C, every job's record).
  *
  * Input: a mode byte (fuzz_state.h: bit 1 seals the checksum; bit 0 unused),
@@ -17,7 +17,7 @@
 
 #include "common/base/alloc.h"
 #include "common/base/fsutil.h"
-#include "server/state.h"
+#include "server/store/state.h"
 #include "tests/fuzz/fuzz_state.h"
 #include "tests/fuzz/fuzz_util.h"
 

@@ -1,6 +1,6 @@
 /*
  * fuzz_results_log.c - libFuzzer target for a job's results log as the
- * coordinator replays it after a restart (server/state.c: header, records
+ * coordinator replays it after a restart (server/store/state.c: header, records
  * that are RESULT frames, or in an older log length, CRC32C and payload; the
  * incomplete last record; each record decoded by proto_msg_decode_result and
  * merged by srv_job_replay).
@@ -19,7 +19,7 @@
 #include <string.h>
 
 #include "common/base/alloc.h"
-#include "server/state.h"
+#include "server/store/state.h"
 #include "tests/fuzz/fuzz_job_state.h"
 #include "tests/fuzz/fuzz_state.h"
 #include "tests/fuzz/fuzz_util.h"

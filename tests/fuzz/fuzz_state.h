@@ -9,7 +9,7 @@
  * queue file or checkpoint; each record's of a results log) to match, so
  * that mutations reach the parsers behind the checksum instead of dying at
  * it. Unsealed inputs test the checksum and envelope checks themselves.
- * Layouts: server/state.h (files), server/job.h (srv_job_save).
+ * Layouts: server/store/state.h (files), server/sched/job.h (srv_job_save).
  */
 #ifndef PT_TESTS_FUZZ_STATE_H
 #define PT_TESTS_FUZZ_STATE_H
@@ -19,7 +19,7 @@
 
 #include "protocol/frame.h"
 #include "protocol/wire.h"
-#include "server/job.h"
+#include "server/sched/job.h"
 
 #define FUZZ_JOB_ID 1u
 #define FUZZ_MODE_ADAPTIVE 1u

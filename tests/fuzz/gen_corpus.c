@@ -17,7 +17,7 @@
  * animated ones with skins and morph targets, and hostile animated ones)
  * for fuzz_gltf; bundles packed from such scenes, and hostile ones, for
  * fuzz_bundle; and for the state folder's targets (fuzz_state.h) real
- * queue files, checkpoints and results logs written by server/state.c in
+ * queue files, checkpoints and results logs written by server/store/state.c in
  * a scratch folder: fresh, with held early results, finished, cut short,
  * unsealed. ctest runs "check", so a change to the wire format that
  * forgets the corpus fails the suite; rerun "write" to refresh it.
@@ -34,7 +34,7 @@
 #include "protocol/frame.h"
 #include "protocol/msg.h"
 #include "protocol/wire.h"
-#include "server/state.h"
+#include "server/store/state.h"
 #include "tests/fuzz/fuzz_state.h"
 #include "tests/protocol/samples.h"
 

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Queue mode's durable steps off the event loop (server/state.h), with
-# ptserve's test hooks (environment variables read by server/state.c):
+# Queue mode's durable steps off the event loop (server/store/state.h), with
+# ptserve's test hooks (environment variables read by server/store/state.c):
 #  1. While a group commit's fdatasync is held, the loop keeps answering
 #     (ptctl status) and merges nothing: a result is merged only once the
 #     commit that holds its log record has returned. Then the job completes,

@@ -1,5 +1,5 @@
 /*
- * test_adder.c - film adds on merge threads (server/adder.h): the same film
+ * test_adder.c - film adds on merge threads (server/sched/adder.h): the same film
  * as adding at once, whatever the threads and however full the queue; a
  * settle waits for every add of its group; freeing the adder makes the adds
  * still queued; the thread count is checked.
@@ -8,7 +8,7 @@
 #include <string.h>
 
 #include "common/base/alloc.h"
-#include "server/adder.h"
+#include "server/sched/adder.h"
 #include "tests/check.h"
 
 #define W 96u

@@ -1,6 +1,6 @@
 /*
  * test_authlimit.c - the per-address backoff of failed authentications
- * (server/authlimit.c), on made-up times: no clock, no sockets.
+ * (server/net/authlimit.c), on made-up times: no clock, no sockets.
  *
  * - The 5th failure in a row blocks for 1 s; each failure after a block has
  *   run out doubles it, up to 60 s; refusals while blocked extend nothing.
@@ -12,7 +12,7 @@
 #include <stdio.h>
 #include <string.h>
 
-#include "server/authlimit.h"
+#include "server/net/authlimit.h"
 #include "tests/check.h"
 
 static srv_authlimit lim;

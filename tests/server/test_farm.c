@@ -59,7 +59,7 @@ static void bit_identity(void)
         path("ref.exr"),        "-q",      NULL};
     CHECK(run(standalone, "ref.log", 120) == 0);
     /* The loop adds every result itself here (--merge-threads 0); --local 3
-     * hands the adds to the default 2 merge threads (server/adder.h). */
+     * hands the adds to the default 2 merge threads (server/sched/adder.h). */
     const char *local1[] = {
         PT_BIN_DIR "/ptserve", "--local", "1", "--merge-threads", "0", COMMON, "--spp", "32", "-o",
         path("l1.exr"),        SCENE,     NULL};

@@ -1,5 +1,5 @@
 /*
- * test_io.c - workers' connections read by I/O threads (server/io.h), over
+ * test_io.c - workers' connections read by I/O threads (server/net/io.h), over
  * real sockets (socketpair): frames come out whole and in order per
  * connection, RESULTs decoded (the frame kept or not), what the loop had
  * buffered before the attach first; a bad frame and an end of stream are
@@ -16,8 +16,8 @@
 
 #include "common/base/alloc.h"
 #include "common/base/clock.h"
-#include "server/io.h"
-#include "server/loop.h"
+#include "server/net/io.h"
+#include "server/net/loop.h"
 #include "tests/check.h"
 #include "tests/protocol/samples.h"
 

@@ -10,7 +10,7 @@
 #include <string.h>
 
 #include "common/base/alloc.h"
-#include "server/job.h"
+#include "server/sched/job.h"
 #include "tests/check.h"
 
 static const uint8_t HASH[32] = {1, 2, 3};
@@ -1140,7 +1140,7 @@ static void same_film_any_cut(void)
         srv_job *c = sized_job(&p, 1000);
         sim_owner again[3] = {{1, 0.0002, 0, {0}, 0}, {2, 0.003, 0, {0}, 0}, {3, 0.05, 0, {0}, 0}};
         c = simulate(c, again, 3, NULL, 9, &p);
-        /* The same, its adds made by merge threads (server/adder.h), and
+        /* The same, its adds made by merge threads (server/sched/adder.h), and
          * resumed after a checkpoint as well. */
         srv_adder *ad = NULL;
         CHECK(srv_adder_new(2, &ad, NULL) == PT_OK);

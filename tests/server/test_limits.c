@@ -1,5 +1,5 @@
 /*
- * test_limits.c - the coordinator's limits on peers (server/loop.h), each
+ * test_limits.c - the coordinator's limits on peers (server/net/loop.h), each
  * against a real ptserve over real sockets:
  * - memory: authenticated workers that each declare a large frame and send
  *   all of it but the last byte (and some that declare 64 MiB) leave
@@ -35,7 +35,7 @@
 
 #include "common/base/alloc.h"
 #include "protocol/msg.h"
-#include "server/loop.h"
+#include "server/net/loop.h"
 #include "tests/check.h"
 
 #include "tests/server/farm_util.h"

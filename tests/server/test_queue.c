@@ -39,7 +39,7 @@
 #include "common/base/hash.h"
 #include "common/render/render.h"
 #include "common/scene/bundle.h"
-#include "server/requests.h"
+#include "server/api/requests.h"
 #include "tests/check.h"
 #include "tests/server/farm_util.h"
 

@@ -29,10 +29,10 @@
 
 #include "common/base/alloc.h"
 #include "common/base/clock.h"
-#include "server/frames.h"
-#include "server/job.h"
-#include "server/mode.h"
-#include "server/queue.h"
+#include "server/app/mode.h"
+#include "server/sched/frames.h"
+#include "server/sched/job.h"
+#include "server/sched/queue.h"
 #include "tests/check.h"
 
 /* ---- the events, recorded ---- */

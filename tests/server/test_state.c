@@ -24,8 +24,8 @@
 #include "common/render/render.h"
 #include "protocol/frame.h"
 #include "protocol/wire.h"
-#include "server/job.h"
-#include "server/state.h"
+#include "server/sched/job.h"
+#include "server/store/state.h"
 #include "tests/check.h"
 
 static const uint8_t HASH[32] = {7, 7, 7};

@@ -1,0 +1,1091 @@
+#include "server/sched/queue.h"
+
+#include <assert.h>
+#include <errno.h>
+#include <math.h>
+#include <stdio.h>
+#include <string.h>
+
+#include "common/base/alloc.h"
+#include "common/base/hash.h"
+#include "common/base/text.h"
+#include "common/image/exr.h"
+#include "common/render/adaptive.h"
+#include "common/render/film.h"
+#include "protocol/frame.h"
+
+#define MAX_FINISHED 1000 /* ended jobs kept in the queue's history */
+/* A write to a folder that failed (full, over quota) is tried again this
+ * often: often enough that a farm resumes soon after space is freed, rarely
+ * enough that a full disk costs nothing. */
+#define DISK_RETRY_MS 3000
+
+int srv_entry_active(const srv_entry *j)
+{
+    return j->rec.state == PROTO_JOB_QUEUED || j->rec.state == PROTO_JOB_RUNNING;
+}
+
+srv_entry *srv_queue_find_any(srv_server *s, uint64_t id)
+{
+    for (srv_entry *j = s->jobs; j; j = j->next)
+        if (j->rec.id == id)
+            return j;
+    return NULL;
+}
+
+srv_entry *srv_queue_find(srv_server *s, uint64_t id)
+{
+    srv_entry *j = srv_queue_find_any(s, id);
+    return j && !j->parent ? j : NULL;
+}
+
+void srv_queue_insert(srv_server *s, srv_entry *j)
+{
+    srv_entry **p = &s->jobs;
+    while (*p && ((*p)->rec.priority > j->rec.priority ||
+                  ((*p)->rec.priority == j->rec.priority && (*p)->rec.id < j->rec.id)))
+        p = &(*p)->next;
+    j->next = *p;
+    *p = j;
+    s->njobs++;
+}
+
+static uint64_t pixel_bytes(const proto_result *r)
+{
+    return (uint64_t)r->npixels * sizeof(pt_pixel_acc);
+}
+
+/* Lets go of p, a result of j that waited for its commit: merged (the job
+ * may have taken its pixels) or dropped. */
+static void pending_fini(srv_entry *j, srv_pending *p)
+{
+    j->pend_bytes -= pixel_bytes(&p->r);
+    proto_result_fini(&p->r);
+}
+
+/* Drops j's results that wait for a group commit (never merged: their
+ * records are gone, or the job is). */
+static void drop_pending(srv_entry *j)
+{
+    for (uint32_t i = 0; i < j->npend; i++)
+        pending_fini(j, &j->pend[i]);
+    j->npend = 0;
+}
+
+uint64_t srv_queue_pending_bytes(const srv_server *s)
+{
+    uint64_t n = 0;
+    for (const srv_entry *j = s->jobs; j; j = j->next)
+        n += j->pend_bytes;
+    return n;
+}
+
+static void free_run(srv_entry *j)
+{
+    pt_free(j->pending_rec);
+    j->pending_rec = NULL;
+    drop_pending(j);
+    pt_free(j->pend);
+    j->pend = NULL;
+    j->pend_cap = 0;
+    j->paused = j->pending_ckpt = j->pending_sync = j->final_writing = j->final_pending = 0;
+    srv_writer_free(j->writer);
+    j->writer = NULL;
+    srv_job_free(j->job);
+    j->job = NULL;
+    pt_bundle_free(j->bundle);
+    j->bundle = NULL;
+}
+
+void srv_entry_free(srv_entry *j)
+{
+    if (!j)
+        return;
+    free_run(j);
+    pt_free(j->frames); /* a range's bookkeeping (server/sched/frames.h): plain memory */
+    j->frames = NULL;
+    pt_free(j);
+}
+
+/* An ended job of the history; not a frame (srv_frames_round frees those)
+ * nor a range whose frames are not freed yet. */
+static int prunable(const srv_server *s, const srv_entry *j)
+{
+    return !srv_entry_active(j) && !j->parent && !(j->frames && s->ranges->at(j, 0));
+}
+
+void srv_queue_prune(srv_server *s)
+{
+    uint32_t ended = 0;
+    for (srv_entry *j = s->jobs; j; j = j->next)
+        ended += prunable(s, j);
+    while (ended > MAX_FINISHED) {
+        srv_entry **oldest = NULL;
+        for (srv_entry **p = &s->jobs; *p; p = &(*p)->next)
+            if (prunable(s, *p) && (!oldest || (*p)->rec.id < (*oldest)->rec.id))
+                oldest = p;
+        srv_entry *j = *oldest;
+        *oldest = j->next;
+        srv_entry_free(j);
+        s->njobs--;
+        ended--;
+    }
+}
+
+pt_status srv_queue_journal(srv_server *s, pt_error *err)
+{
+    if (!s->state)
+        return PT_OK;
+    srv_job_record **recs = pt_malloc_array(s->njobs ? s->njobs : 1, sizeof *recs);
+    if (!recs)
+        return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
+    uint32_t n = 0;
+    for (srv_entry *j = s->jobs; j; j = j->next)
+        if (!j->parent) /* a frame's record is its range's */
+            recs[n++] = &j->rec;
+    pt_status st = srv_state_save_queue(s->state, recs, n, s->next_job_id, err);
+    pt_free(recs);
+    return st;
+}
+
+/* Writes the queue file; a failure is logged when the file was saved before
+ * (once per streak: srv_queue_tick tries again until it succeeds). */
+static pt_status journal_or_log(srv_server *s)
+{
+    pt_error err = {0};
+    int was_unsaved = s->state && srv_state_queue_unsaved(s->state);
+    pt_status st = srv_queue_journal(s, &err);
+    if (st != PT_OK)
+        s->counters.state_write_errors++;
+    if (st != PT_OK && !was_unsaved)
+        srv_log("error: cannot write the queue: %s; trying again every %d s", err.msg,
+                DISK_RETRY_MS / 1000);
+    return st;
+}
+
+double srv_entry_seconds(const srv_entry *j, uint64_t now)
+{
+    if (!srv_entry_active(j))
+        return j->rec.seconds;
+    return j->seconds_before + (j->t_started ? (double)(now - j->t_started) / 1000.0 : 0.0);
+}
+
+/* each_worker's walk that counts the workers holding a lease of job. */
+typedef struct owner_count {
+    const srv_job *job;
+    uint32_t n;
+} owner_count;
+
+static void count_owner(void *ctx, uint64_t owner)
+{
+    owner_count *oc = ctx;
+    oc->n += srv_job_owner_active(oc->job, owner) != 0;
+}
+
+/* The workers connected that hold a lease of j. */
+static uint32_t job_workers(const srv_server *s, const srv_entry *j)
+{
+    owner_count oc = {j->job, 0};
+    if (!j->job || !s->events || !s->events->each_worker)
+        return 0;
+    s->events->each_worker((srv_server *)s, count_owner, &oc);
+    return oc.n;
+}
+
+/* The estimated relative error of the job's image as last resolved for its
+ * writer (a progressive save, or the final image once flushed); -1 when
+ * unknown. Not measured here: it is a pass over every pixel (57 ms on a
+ * 2048x2048 film), which the loop would pay for each status, watch or
+ * dashboard request and at each job's end. */
+static double job_error(const srv_entry *j)
+{
+    double e = j->writer ? srv_writer_error(j->writer) : -1.0;
+    return isfinite(e) ? e : -1.0;
+}
+
+void srv_queue_info(const srv_server *s, const srv_entry *j, proto_job_info *m)
+{
+    uint64_t now = pt_now_ms();
+    const srv_job_record *r = &j->rec;
+    memset(m, 0, sizeof *m);
+    m->job_id = r->id;
+    m->state = r->state;
+    m->priority = r->priority;
+    snprintf(m->name, sizeof m->name, "%s", r->name);
+    snprintf(m->owner, sizeof m->owner, "%s", r->owner);
+    snprintf(m->scene, sizeof m->scene, "%s", r->scene);
+    snprintf(m->output, sizeof m->output, "%s", r->output);
+    m->width = r->params.width;
+    m->height = r->params.height;
+    m->spp = r->params.spp;
+    m->samples_total = (uint64_t)r->params.width * r->params.height * r->params.spp;
+    m->tiles = srv_job_params_tiles(&r->params);
+    m->passes = srv_job_params_passes(&r->params);
+    m->error = -1.0;
+    if (j->job) {
+        m->samples_done = srv_job_samples_merged(j->job);
+        m->passes_done = srv_job_passes_done(j->job);
+        m->tiles_stopped = srv_job_tiles_stopped(j->job);
+        m->workers = job_workers(s, j);
+        m->error = job_error(j);
+        m->capped = srv_job_paths_capped(j->job);
+        m->rejected = j->rejected;
+    } else if (r->state == PROTO_JOB_DONE) {
+        m->samples_done = r->samples_done;
+        m->passes_done = m->passes;
+        m->error = r->error;
+    } else {
+        m->samples_done = r->samples_done;
+        m->error = r->samples_done ? r->error : -1.0;
+    }
+    if (!j->job) {
+        m->capped = r->capped;
+        m->rejected = r->rejected;
+    }
+    m->seconds = srv_entry_seconds(j, now);
+    m->rate = j->rate;
+    m->submitted = r->submitted;
+    if (r->state == PROTO_JOB_QUEUED) {
+        uint32_t pos = 0;
+        for (const srv_entry *q = s->jobs; q; q = q->next) {
+            if (q->rec.state == PROTO_JOB_QUEUED)
+                pos++;
+            if (q == j)
+                break;
+        }
+        m->queue_pos = pos;
+    }
+    if (r->frames.step)
+        s->ranges->info(s, j, m);
+    if (j->paused)
+        snprintf(m->message, sizeof m->message, "paused: %s; retrying", j->pause_reason);
+    else if (j->final_pending)
+        snprintf(m->message, sizeof m->message, "writing: cannot write the image: %s; retrying",
+                 j->out_reason);
+    else if (j->final_writing)
+        snprintf(m->message, sizeof m->message, "writing the image");
+    else if (j->save_fails_logged)
+        snprintf(m->message, sizeof m->message,
+                 "rendering; cannot save the progressive image: %s; retrying", j->out_reason);
+    else
+        snprintf(m->message, sizeof m->message, "%s", r->message);
+}
+
+void srv_entry_save_image(srv_entry *j)
+{
+    srv_job_settle(j->job); /* the image holds every sample counted merged */
+    pt_exr_meta meta = {0};
+    meta.total_samples = srv_job_samples_merged(j->job); /* the writer's resolve recounts */
+    meta.render_seconds = srv_entry_seconds(j, pt_now_ms());
+    pt_hash_hex(j->rec.hash, meta.scene_hash);
+    snprintf(meta.job_id, sizeof meta.job_id, "%llu", (unsigned long long)j->rec.id);
+    if (j->parent) {
+        meta.has_frame = 1;
+        meta.frame = j->frame;
+        meta.fps = j->parent->rec.fps;
+        meta.time = pt_frames_time(j->frame, meta.fps);
+    }
+    srv_writer_submit(j->writer, &meta);
+    j->t_last_save = pt_now_ms();
+    j->saved_passes = srv_job_passes_done(j->job);
+    j->saved_samples = meta.total_samples;
+}
+
+static pt_status checkpoint_quiet(srv_server *s, srv_entry *j, pt_error *err)
+{
+    if (!s->state || !j->job)
+        return PT_OK;
+    srv_ckpt_extra x = {srv_entry_seconds(j, pt_now_ms()), j->rejected, j->rays};
+    double t0 = pt_now_s();
+    pt_status st = srv_state_checkpoint(s->state, j->job, &x, err);
+    srv_histogram_add(&s->counters.checkpoint, pt_now_s() - t0);
+    drop_pending(j); /* its records went with the log; never merged */
+    if (st != PT_OK)
+        s->counters.state_write_errors++;
+    return st;
+}
+
+static void pause_job(srv_server *s, srv_entry *j, const char *what, const pt_error *err);
+
+/* Starts j's checkpoint off the loop (server/store/state.h): a snapshot of the job
+ * now, its results log rotated, and the records of the results not merged
+ * yet logged again in the new log (the snapshot does not hold them), to be
+ * merged once that log is durable. */
+static void checkpoint_start(srv_server *s, srv_entry *j)
+{
+    pt_error err = {0};
+    double t0 = pt_now_s();
+    srv_job *snap = srv_job_snapshot(j->job);
+    if (!snap) {
+        srv_log("error: job %llu: out of memory for a checkpoint; trying again later",
+                (unsigned long long)j->rec.id);
+        return;
+    }
+    srv_ckpt_extra x = {srv_entry_seconds(j, pt_now_ms()), j->rejected, j->rays};
+    pt_status st = srv_state_checkpoint_start(s->state, snap, &x, &err);
+    if (st == PT_OK) {
+        /* Each encoded again (the same sums; checkpoints are rare, results
+         * are decoded once). */
+        uint32_t k = 0;
+        proto_writer w;
+        proto_writer_init(&w, PROTO_FRAME_OVERHEAD + PROTO_MAX_PAYLOAD);
+        for (uint32_t i = 0; i < j->npend; i++) {
+            srv_pending *p = &j->pend[i];
+            p->commit = srv_state_commit_next(s->state);
+            size_t mark;
+            proto_writer_reset(&w);
+            if (proto_frame_begin(&w, PROTO_MSG_RESULT, &mark, &err) == PT_OK &&
+                proto_msg_encode_result(&w, &p->r, &err) == PT_OK &&
+                proto_frame_end(&w, mark, &err) == PT_OK &&
+                srv_state_log_result(s->state, j->rec.id, w.buf, w.len, &err) == PT_OK)
+                j->pend[k++] = *p;
+            else
+                pending_fini(j, p); /* never merged; its task is leased again */
+        }
+        proto_writer_fini(&w);
+        j->npend = k;
+    }
+    srv_histogram_add(&s->counters.checkpoint, pt_now_s() - t0);
+    if (st != PT_OK && st != PT_AGAIN) {
+        s->counters.state_write_errors++;
+        if (st == PT_ERR_IO) {
+            j->pending_ckpt = 1;
+            pause_job(s, j, "cannot write its checkpoint", &err);
+        } else {
+            srv_log("error: job %llu: cannot write its checkpoint: %s",
+                    (unsigned long long)j->rec.id, err.msg);
+        }
+    }
+}
+
+pt_status srv_entry_checkpoint(srv_server *s, srv_entry *j, pt_error *err)
+{
+    pt_status st = checkpoint_quiet(s, j, err);
+    if (st != PT_OK)
+        srv_log("error: job %llu: cannot write its checkpoint: %s (its results log still holds "
+                "every merged task)",
+                (unsigned long long)j->rec.id, err->msg);
+    return st;
+}
+
+/* Job j ended before it was done: the layers above tell every worker, so
+ * each drops the tasks of it that it has not started and its threads go to
+ * the next job at once (their results would be dropped anyway). */
+static void announce_job_end(srv_server *s, const srv_entry *j)
+{
+    if (s->events && s->events->job_ended)
+        s->events->job_ended(s, j);
+}
+
+/* each_worker's walk that requeues a job's leases of each worker. */
+typedef struct owner_release {
+    srv_job *job;
+    uint32_t n;
+} owner_release;
+
+static void release_owner(void *ctx, uint64_t owner)
+{
+    owner_release *r = ctx;
+    r->n += srv_job_release_owner(r->job, owner);
+}
+
+/* What a client is shown of a failed write: "state folder full (No space
+ * left on device)". Never the error's text, which names server paths. */
+static void disk_reason(const char *folder, const pt_error *err, char *out, size_t cap)
+{
+    int e = err->sys_errno;
+    const char *what = e == ENOSPC ? "full" : e == EDQUOT ? "over its quota" : "cannot be written";
+    snprintf(out, cap, "%s %s (%s)", folder, what, e ? strerror(e) : pt_status_str(err->code));
+}
+
+/* The state folder cannot take j's writes: no task of j is leased until the
+ * failed write succeeds (srv_queue_tick tries it again). Its leases are
+ * requeued and the workers told to drop its tasks (JOB_END), since results
+ * that cannot be logged could not be merged. Logged once per pause. */
+static void pause_job(srv_server *s, srv_entry *j, const char *what, const pt_error *err)
+{
+    uint64_t now = pt_now_ms();
+    j->t_retry = now + DISK_RETRY_MS;
+    if (j->paused)
+        return;
+    j->paused = 1;
+    j->t_paused = now;
+    disk_reason("state folder", err, j->pause_reason, sizeof j->pause_reason);
+    owner_release r = {j->job, 0};
+    if (j->job && s->events && s->events->each_worker)
+        s->events->each_worker(s, release_owner, &r);
+    uint32_t n = r.n;
+    s->counters.tasks_requeued += n;
+    if (j->t_started)
+        announce_job_end(s, j);
+    srv_log("job %llu paused: %s: %s; %u leased tasks requeued; trying again every %d s",
+            (unsigned long long)j->rec.id, what, err->msg, n, DISK_RETRY_MS / 1000);
+}
+
+/* Keeps r, a logged result of j that owns its pixels, to merge once the
+ * commit that holds its record has returned; takes the pixels (r's are then
+ * NULL, not owned). */
+static pt_status push_pending(srv_server *s, srv_entry *j, uint64_t owner, proto_result *r,
+                              uint64_t arrived)
+{
+    assert(r->owns_pixels);
+    if (j->npend == j->pend_cap) {
+        srv_pending *n = pt_grow_array(j->pend, &j->pend_cap, sizeof *n, 16);
+        if (!n)
+            return PT_ERR_NOMEM;
+        j->pend = n;
+    }
+    j->pend[j->npend++] = (srv_pending){*r, owner, srv_state_commit_next(s->state), arrived};
+    j->pend_bytes += pixel_bytes(r);
+    r->pixels = NULL;
+    r->owns_pixels = 0;
+    return PT_OK;
+}
+
+static void resume(srv_server *s, srv_entry *j, uint64_t now);
+
+/* Tries the write that paused j again; resumes j when it succeeds. */
+static void retry_paused(srv_server *s, srv_entry *j, uint64_t now)
+{
+    if (now < j->t_retry)
+        return;
+    j->t_retry = now + DISK_RETRY_MS;
+    pt_error err = {0};
+    if (j->pending_sync) {
+        /* Synced again by the next group commit; srv_queue_committed resumes
+         * the job when that succeeds. */
+        srv_state_log_resync(s->state, j->rec.id, &err);
+        return;
+    }
+    if (j->pending_rec) {
+        if (srv_state_log_result(s->state, j->rec.id, j->pending_rec, j->pending_len, &err) !=
+            PT_OK)
+            return;
+        /* Logged: merged once durable, as a restart's replay would (its
+         * lease is gone; should its task have been merged meanwhile, it is a
+         * duplicate). It was decoded when it came (a record that no longer
+         * decodes is not possible; it would be dropped, as at a replay). */
+        proto_result r;
+        if (proto_msg_decode_result(j->pending_rec + PROTO_FRAME_HEADER,
+                                    j->pending_len - PROTO_FRAME_OVERHEAD, NULL, 0, &r,
+                                    &err) == PT_OK &&
+            push_pending(s, j, 0, &r, now) != PT_OK) {
+            proto_result_fini(&r);
+            return;
+        }
+        pt_free(j->pending_rec);
+        j->pending_rec = NULL;
+    }
+    if (j->pending_ckpt) {
+        if (checkpoint_quiet(s, j, &err) != PT_OK)
+            return;
+        j->pending_ckpt = 0;
+    }
+    resume(s, j, now);
+}
+
+static void resume(srv_server *s, srv_entry *j, uint64_t now)
+{
+    (void)s;
+    j->paused = 0;
+    j->pause_reason[0] = '\0';
+    srv_log("job %llu resumed: the state folder takes its writes again (paused %.1f s)",
+            (unsigned long long)j->rec.id, (double)(now - j->t_paused) / 1000.0);
+}
+
+/* The note a job that ends done keeps when some of its samples were
+ * rejected: its image holds fewer samples than it asked for, which status,
+ * JSON and the log then say (after any note it has already). */
+static void note_rejected(srv_entry *j)
+{
+    uint64_t merged = j->rec.samples_done, rejected = j->rec.rejected;
+    size_t n = strlen(j->rec.message);
+    snprintf(j->rec.message + n, sizeof j->rec.message - n,
+             "%s%llu samples were rejected (%.2f%%: NaN or Inf, or results that held no "
+             "sample); the image holds the %llu others",
+             n ? "; " : "", (unsigned long long)rejected,
+             100.0 * (double)rejected / (double)(merged + rejected), (unsigned long long)merged);
+}
+
+void srv_queue_end_job(srv_server *s, srv_entry *j, uint8_t state, const char *message)
+{
+    uint64_t now = pt_now_ms();
+    pt_error err = {0};
+    /* A job none of whose samples survived has no image worth the name: it
+     * fails, with the reason, rather than end done and black. */
+    if (state == PROTO_JOB_DONE && j->job && !j->parent && !j->rec.frames.step && j->rejected > 0 &&
+        srv_job_samples_merged(j->job) == 0) {
+        state = PROTO_JOB_FAILED;
+        message = "every sample was rejected (NaN or Inf, or workers that rendered nothing)";
+    }
+    if (state != PROTO_JOB_DONE && j->rec.frames.step)
+        s->ranges->end(s, j, state, message); /* a range's frames end with it */
+    if (state == PROTO_JOB_DONE && j->job) {
+        /* The writer thread writes the image (a second or so for a large
+         * one) while the loop goes on serving the other jobs' workers;
+         * srv_queue_tick comes back once it is on disk. */
+        if (!j->final_writing) {
+            srv_entry_save_image(j);
+            j->final_writing = 1;
+        }
+        if (!srv_writer_idle(j->writer))
+            return;
+        j->final_writing = 0;
+        if (srv_writer_flush(j->writer, &err) != PT_OK) {
+            if (err.code == PT_ERR_IO) {
+                /* A full output folder: every sample stays merged, the job
+                 * stays RUNNING ("writing") and the image is tried again. */
+                j->t_retry = now + DISK_RETRY_MS;
+                disk_reason("output folder", &err, j->out_reason, sizeof j->out_reason);
+                if (!j->final_pending)
+                    srv_log("job %llu: rendered, but cannot write its image: %s; its samples are "
+                            "kept and the image is tried again every %d s",
+                            (unsigned long long)j->rec.id, err.msg, DISK_RETRY_MS / 1000);
+                j->final_pending = 1;
+                return;
+            }
+            state = PROTO_JOB_FAILED;
+            char msg[PROTO_MAX_ERROR_TEXT + 1];
+            snprintf(msg, sizeof msg, "cannot write the image: %s", err.msg);
+            srv_queue_end_job(s, j, state, msg);
+            return;
+        }
+        if (j->final_pending)
+            srv_log("job %llu: its image is written at last", (unsigned long long)j->rec.id);
+        /* Recorded in its range before the queue file is written below, and
+         * that before the frame's files go: never rendered again. */
+        if (j->parent)
+            s->ranges->note_done(j);
+    }
+    j->rec.seconds = srv_entry_seconds(j, now);
+    if (j->job) {
+        j->rec.samples_done = srv_job_samples_merged(j->job);
+        j->rec.error = job_error(j);
+        j->rec.capped = srv_job_paths_capped(j->job);
+        j->rec.rejected = j->rejected;
+    }
+    if (state != PROTO_JOB_DONE && j->t_started)
+        announce_job_end(s, j);
+    j->rec.state = state;
+    if (message || state != PROTO_JOB_DONE) /* a done job keeps a note (server/api/workers.h) */
+        snprintf(j->rec.message, sizeof j->rec.message, "%s", message ? message : "");
+    else if (j->rec.rejected > 0)
+        note_rejected(j);
+    free_run(j);
+    pt_status st = journal_or_log(s);
+    /* A failed job's files stay for the operator to look at; an ended one's
+     * go once the queue says it ended. */
+    if (s->state && state != PROTO_JOB_FAILED && st == PT_OK)
+        srv_state_forget_job(s->state, j->rec.id);
+    if (state == PROTO_JOB_DONE && j->parent) {
+        if (!s->cfg->quiet)
+            srv_log("job %llu frame %u done: %llu samples in %.1f s; %s",
+                    (unsigned long long)j->parent->rec.id, j->frame,
+                    (unsigned long long)j->rec.samples_done, j->rec.seconds, j->out_path);
+    } else if (state == PROTO_JOB_DONE) {
+        srv_log("job %llu done: %llu samples in %.1f s; %s", (unsigned long long)j->rec.id,
+                (unsigned long long)j->rec.samples_done, j->rec.seconds, j->out_path);
+        if (j->rec.rejected > 0)
+            srv_log("job %llu: %llu samples were rejected; its image holds fewer than asked for",
+                    (unsigned long long)j->rec.id, (unsigned long long)j->rec.rejected);
+    } else if (!j->parent || state != PROTO_JOB_CANCELLED) { /* a cancelled frame: its range says */
+        char text[PT_TEXT_ESCAPED_SIZE(PROTO_MAX_ERROR_TEXT)];
+        srv_log("job %llu %s%s%s", (unsigned long long)j->rec.id, proto_job_state_name(state),
+                j->rec.message[0] ? ": " : "", pt_text_shown(j->rec.message, text, sizeof text));
+    }
+    if (s->events && s->events->job_changed)
+        s->events->job_changed(s, j);
+}
+
+/* The render seconds job j had when it was last recorded: its checkpoint's
+ * (ckpt), or its last saved image's when that is later. A checkpoint is
+ * written only once the results log has grown (srv_queue_tick) or at a clean
+ * stop, but the image every save interval, so after a kill -9 the image is
+ * usually the newer record. Results log records carry no time, so the time
+ * between the later of the two and a crash is not counted. An image of
+ * another job or scene (a reused output name) is not trusted. */
+static double resumed_seconds(const srv_entry *j, double ckpt)
+{
+    pt_exr_meta meta;
+    /* Only a regular file: a link or a FIFO planted in the output folder is
+     * not read (a FIFO would block the loop). */
+    if (pt_exr_read_nofollow(j->out_path, NULL, &meta, NULL) != PT_OK)
+        return ckpt;
+    char id[64], hash[65];
+    snprintf(id, sizeof id, "%llu", (unsigned long long)j->rec.id);
+    pt_hash_hex(j->rec.hash, hash);
+    if (strcmp(meta.job_id, id) != 0 || strcmp(meta.scene_hash, hash) != 0 ||
+        (j->parent && (!meta.has_frame || meta.frame != (int32_t)j->frame)) ||
+        !(meta.render_seconds > ckpt) || meta.render_seconds > 1e12)
+        return ckpt;
+    return meta.render_seconds;
+}
+
+int srv_entry_ready(srv_server *s, srv_entry *j)
+{
+    if (j->job)
+        return 1;
+    if (j->rec.frames.step)
+        return s->ranges->ready(s, j);
+    pt_error err = {0};
+    pt_status st = srv_job_new(j->rec.id, &j->rec.params, j->rec.hash, &j->job, &err);
+    if (st == PT_OK)
+        srv_job_set_adder(j->job, s->adder);
+    if (st == PT_OK && s->state) {
+        srv_ckpt_extra x;
+        uint32_t replayed;
+        int torn;
+        st = srv_state_restore(s->state, j->job, &x, &replayed, &torn, &err);
+        if (st == PT_OK) {
+            j->seconds_before = resumed_seconds(j, x.seconds);
+            j->rejected = x.rejected;
+            j->rays = x.rays;
+            if (torn)
+                srv_log("job %llu: dropped the incomplete last record of its results log (a "
+                        "write cut short by a crash; it was never merged)",
+                        (unsigned long long)j->rec.id);
+            if (srv_job_tasks_merged(j->job) > 0)
+                srv_log("job %llu resumed: %llu samples merged (%u from its results log)",
+                        (unsigned long long)j->rec.id,
+                        (unsigned long long)srv_job_samples_merged(j->job), replayed);
+        }
+    }
+    if (st == PT_OK && !j->writer)
+        st = srv_writer_new(j->out_path, srv_job_film(j->job),
+                            (srv_job_params_of(j->job)->film_flags & PROTO_FILM_TRANSPARENT) != 0,
+                            &s->cfg->view, &j->writer, &err);
+    if (st != PT_OK) {
+        char msg[PROTO_MAX_ERROR_TEXT + 1];
+        snprintf(msg, sizeof msg, "%s", err.msg);
+        srv_queue_end_job(s, j, PROTO_JOB_FAILED, msg);
+        return 0;
+    }
+    j->saved_passes = srv_job_passes_done(j->job);
+    j->saved_samples = srv_job_samples_merged(j->job);
+    j->t_last_save = pt_now_ms();
+    j->rate_t = pt_now_ms();
+    j->rate_samples = j->saved_samples;
+    return 1;
+}
+
+/* Leases the first task the queue has for owner: the first job in queue order
+ * with a task to hand out, so when the running job has nothing left for an
+ * idle worker (its last pass), the next job starts. */
+/* The lease policy of every job (server/sched/job.h): hard deadlines no sooner
+ * than the lease timeout, FIRST_FACTOR times it before a job's first result
+ * (the first tasks of a worker also load the scene), DEADLINE_FACTOR times
+ * the observed quantile for a task's size after; backup copies of leases
+ * BACKUP_FACTOR times older than the median. */
+#define FIRST_FACTOR 10u
+#define DEADLINE_FACTOR 8.0
+#define BACKUP_FACTOR 3.0
+
+static void set_policy(srv_server *s, srv_entry *j)
+{
+    if (!s->verify_seed) {
+        uint8_t b[PROTO_NONCE_SIZE];
+        if (proto_auth_nonce(b, NULL) == PT_OK)
+            memcpy(&s->verify_seed, b, sizeof s->verify_seed);
+        s->verify_seed |= 1; /* made once, even without randomness */
+    }
+    uint64_t first = (uint64_t)s->cfg->lease_ms * FIRST_FACTOR;
+    srv_lease_policy pol = {
+        s->cfg->lease_ms,        first > UINT32_MAX ? UINT32_MAX : (uint32_t)first,
+        DEADLINE_FACTOR,         BACKUP_FACTOR,
+        s->cfg->verify_fraction, s->verify_seed,
+        s->cfg->task_ms};
+    srv_job_set_policy(j->job, &pol);
+}
+
+/* Leases a task of j (a still, or a frame of a range) to owner. */
+static int lease_from(srv_server *s, srv_entry *j, uint64_t owner, uint64_t now, proto_task *t)
+{
+    if (!srv_entry_active(j) || j->paused || !j->job)
+        return 0;
+    if (!j->t_started)
+        set_policy(s, j);
+    if (!srv_job_lease(j->job, owner, now, s->cfg->lease_ms, t))
+        return 0;
+    s->counters.tasks_leased++;
+    if (!j->t_started)
+        j->t_started = now;
+    return 1;
+}
+
+/* A range's task: of its earliest frame that has one to hand out, so early
+ * frames finish first (server/sched/frames.h). */
+static int lease_frames(srv_server *s, srv_entry *p, uint64_t owner, uint64_t now, proto_task *t)
+{
+    srv_entry *f;
+    for (uint32_t i = 0; (f = s->ranges->at(p, i)); i++)
+        if (lease_from(s, f, owner, now, t)) {
+            s->ranges->pose(f, t);
+            if (!p->t_started)
+                p->t_started = now;
+            return 1;
+        }
+    return 0;
+}
+
+int srv_queue_lease(srv_server *s, uint64_t owner, uint64_t now, proto_task *t)
+{
+    for (srv_entry *j = s->jobs; j; j = j->next) {
+        /* A frame is leased through its range, in the range's place. */
+        if (j->parent || !srv_entry_active(j) || j->paused || !srv_entry_ready(s, j))
+            continue;
+        if (!(j->rec.frames.step ? lease_frames(s, j, owner, now, t)
+                                 : lease_from(s, j, owner, now, t)))
+            continue;
+        if (j->rec.state == PROTO_JOB_QUEUED) {
+            j->rec.state = PROTO_JOB_RUNNING;
+            journal_or_log(s);
+            if (s->mode->logs_starts) {
+                char scene[PT_TEXT_ESCAPED_SIZE(PROTO_MAX_PATH)];
+                srv_log("job %llu started (%s, %ux%u, %u spp)", (unsigned long long)j->rec.id,
+                        pt_text_shown(j->rec.scene, scene, sizeof scene), j->rec.params.width,
+                        j->rec.params.height, j->rec.params.spp);
+            }
+        }
+        return 1;
+    }
+    return 0;
+}
+
+uint32_t srv_queue_release_owner(srv_server *s, uint64_t owner)
+{
+    uint32_t n = 0;
+    for (srv_entry *j = s->jobs; j; j = j->next)
+        if (j->job)
+            n += srv_job_release_owner(j->job, owner);
+    s->counters.tasks_requeued += n;
+    return n;
+}
+
+int srv_queue_end_complete(srv_server *s)
+{
+    int ended = 0;
+    for (srv_entry *j = s->jobs; j; j = j->next)
+        if (j->job && srv_entry_active(j) && !j->final_writing && !j->final_pending &&
+            srv_job_complete(j->job)) {
+            srv_queue_end_job(s, j, PROTO_JOB_DONE, NULL);
+            ended += !srv_entry_active(j); /* not while its image is written */
+        }
+    /* Frames done make room for the next ones, and end their range. */
+    return ended + s->ranges->round(s);
+}
+
+void srv_queue_unlink(srv_server *s, srv_entry *j)
+{
+    for (srv_entry **q = &s->jobs; *q; q = &(*q)->next)
+        if (*q == j) {
+            *q = j->next;
+            s->njobs--;
+            return;
+        }
+}
+
+srv_entry *srv_queue_find_scene(srv_server *s, const uint8_t hash[32])
+{
+    pt_error err = {0};
+    srv_entry *j = s->jobs;
+    /* A frame's bundle is its range's (jobs/ID/bundle of the range's id). */
+    while (j && !(srv_entry_active(j) && !j->parent && memcmp(hash, j->rec.hash, 32) == 0))
+        j = j->next;
+    if (j && !j->bundle && s->state &&
+        srv_state_load_bundle(s->state, j->rec.id, j->rec.hash, &j->bundle, &err) != PT_OK) {
+        char msg[PROTO_MAX_ERROR_TEXT + 1];
+        snprintf(msg, sizeof msg, "%s", err.msg);
+        srv_queue_end_job(s, j, PROTO_JOB_FAILED, msg);
+        j = NULL;
+    }
+    return j && j->bundle ? j : NULL;
+}
+
+pt_status srv_queue_log_result(srv_server *s, srv_entry *j, uint64_t owner, proto_result *r,
+                               const uint8_t *frame, size_t len, uint8_t **own, uint64_t arrived,
+                               pt_error *err)
+{
+    if (j->paused)
+        return pt_error_set(err, PT_ERR_IO, "job %llu is paused", (unsigned long long)j->rec.id);
+    uint64_t commit = srv_state_commit_next(s->state);
+    pt_status st = own && *own ? srv_state_log_result_take(s->state, j->rec.id, own, len, err)
+                               : srv_state_log_result(s->state, j->rec.id, frame, len, err);
+    if (st == PT_OK) {
+        st = push_pending(s, j, owner, r, arrived);
+        if (st != PT_OK)
+            return pt_error_set(err, st, "out of memory for a result");
+        j->pend[j->npend - 1].commit = commit;
+        return PT_OK;
+    }
+    s->counters.state_write_errors++;
+    if (st != PT_ERR_IO)
+        return st;
+    /* Kept for the retry: logged and merged once the folder takes writes. */
+    if (own && *own) {
+        j->pending_rec = *own;
+        *own = NULL;
+    } else if ((j->pending_rec = pt_malloc(len ? len : 1)) != NULL) {
+        memcpy(j->pending_rec, frame, len);
+    }
+    if (j->pending_rec)
+        j->pending_len = len;
+    pause_job(s, j, "cannot write its results log", err);
+    return st;
+}
+
+static void on_commit(void *ctx, uint64_t id, pt_status st, const pt_error *err)
+{
+    srv_server *s = ctx;
+    srv_entry *j = srv_queue_find_any(s, id); /* a frame's too */
+    if (!j || !j->job)
+        return;
+    if (st != PT_OK) {
+        s->counters.state_write_errors++;
+        /* The log is cut back to its last good commit; its records since
+         * are kept and written again by the retry (server/store/state.h), unless
+         * memory was short, and then they are gone, never merged. */
+        if (st == PT_ERR_NOMEM)
+            drop_pending(j);
+        j->pending_sync = 1;
+        pause_job(s, j, "cannot make its results log durable", err);
+        return;
+    }
+    j->committed = srv_state_commit_next(s->state) - 1;
+    if (j->pending_sync) {
+        j->pending_sync = 0;
+        if (j->paused && !j->pending_rec && !j->pending_ckpt)
+            resume(s, j, pt_now_ms());
+    }
+}
+
+void srv_queue_verify_summary(const srv_entry *j)
+{
+    srv_verify_stats v = srv_job_verify_stats(j->job);
+    uint64_t total = srv_job_samples_merged(j->job);
+    /* Verified: compared with a second render. A task picked that no other
+     * worker rendered was not verified, and is counted apart. */
+    uint64_t compared = v.matched + v.mismatched;
+    srv_log("job %llu: verified %llu of %llu tasks (%llu picked, %llu never compared: no other "
+            "worker rendered them; %llu matched, %llu mismatched, %llu liars): "
+            "%llu extra samples, %.2f%% of %llu; %llu backup copies, %llu expired leases, %llu "
+            "results refused",
+            (unsigned long long)j->rec.id, (unsigned long long)compared,
+            (unsigned long long)srv_job_tasks_total(j->job), (unsigned long long)v.picked,
+            (unsigned long long)(v.picked > compared ? v.picked - compared : 0),
+            (unsigned long long)v.matched, (unsigned long long)v.mismatched,
+            (unsigned long long)v.liars, (unsigned long long)(v.samples + v.backup_samples),
+            total ? 100.0 * (double)(v.samples + v.backup_samples) / (double)total : 0.0,
+            (unsigned long long)total, (unsigned long long)v.backups, (unsigned long long)v.expired,
+            (unsigned long long)v.refused);
+}
+
+srv_outcome srv_queue_merge(srv_server *s, srv_entry *j, uint64_t owner, int lease_index,
+                            proto_result *r, uint64_t arrived, pt_error *err)
+{
+    uint64_t before = srv_job_samples_merged(j->job);
+    double t0 = pt_now_s();
+    srv_outcome o = lease_index >= 0
+                        ? srv_job_result_validated(j->job, lease_index, r, arrived, err)
+                        : srv_job_replay(j->job, r, err);
+    srv_histogram_add(&s->counters.merge, pt_now_s() - t0);
+    uint64_t merged = srv_job_samples_merged(j->job) - before;
+    s->counters.samples_merged += merged;
+    if (o != SRV_MERGED)
+        return o;
+    if (s->events && s->events->result_merged)
+        s->events->result_merged(s, owner, merged, pt_now_ms());
+    j->rejected += r->rejected;
+    s->counters.samples_rejected += r->rejected;
+    j->rays += r->rays;
+    if (srv_job_complete(j->job))
+        srv_queue_verify_summary(j);
+    return o;
+}
+
+/* Merges r, a result of j from owner (a connection id, maybe gone now) held
+ * until its log record was durable. */
+static void merge_logged(srv_server *s, srv_entry *j, uint64_t owner, proto_result *r,
+                         uint64_t arrived)
+{
+    pt_error err = {0};
+    int li = -1;
+    /* Validated whole when it arrived: its pixels have not changed since. */
+    srv_outcome o = srv_job_validate_checked(j->job, owner, r, &li, &err);
+    /* Its lease may have gone since it arrived (expired, its worker left or
+     * the job paused): it is still a render of its task, and durable, so it
+     * is merged as a restart's replay would (a duplicate changes nothing). */
+    if (o == SRV_MERGED || o == SRV_NOT_LEASED)
+        srv_queue_merge(s, j, owner, o == SRV_MERGED ? li : -1, r, arrived, &err);
+}
+
+/* Merges j's results whose records the commit done made durable (those of a
+ * failed commit wait for the retry's). */
+static void merge_durable(srv_server *s, srv_entry *j, uint64_t done)
+{
+    uint32_t k = 0, i = 0;
+    for (; i < j->npend && j->pend[i].commit <= done && j->committed >= j->pend[i].commit; i++) {
+        srv_pending *p = &j->pend[i];
+        if (j->job && srv_entry_active(j))
+            merge_logged(s, j, p->owner, &p->r, p->arrived);
+        pending_fini(j, p); /* unless the job took its pixels */
+    }
+    for (; i < j->npend; i++)
+        j->pend[k++] = j->pend[i];
+    j->npend = k;
+}
+
+void srv_queue_committed(srv_server *s, int wait)
+{
+    uint64_t done;
+    if (!s->state)
+        return;
+    while (srv_state_commit_collect(s->state, wait, &done, on_commit, s)) {
+        wait = 0;
+        for (srv_entry *j = s->jobs; j; j = j->next)
+            if (j->npend)
+                merge_durable(s, j, done);
+    }
+}
+
+void srv_queue_commit_all(srv_server *s)
+{
+    if (!s->state)
+        return;
+    srv_queue_committed(s, 1); /* the commit in flight */
+    if (srv_state_commit_start(s->state))
+        srv_queue_committed(s, 1); /* the rest */
+}
+
+typedef struct expiry {
+    srv_server *s;
+    uint64_t now;
+} expiry;
+
+static void on_missed(void *ctx, uint64_t owner, uint64_t task)
+{
+    expiry *e = ctx;
+    (void)task;
+    if (e->s->events && e->s->events->owner_missed)
+        e->s->events->owner_missed(e->s, owner, e->now);
+}
+
+/* Leases are checked at most this often, not every loop round: each check
+ * walks every lease of every job, thousands on a big farm, and deadlines are
+ * at least a --lease-timeout (seconds) away. */
+#define EXPIRE_MS 50
+
+int srv_queue_expire(srv_server *s, uint64_t now)
+{
+    if (now - s->t_expire < EXPIRE_MS && now >= s->t_expire)
+        return 0;
+    /* Workers not read (srv_loop_hold) are not silent: their heartbeats
+     * wait behind the hold, and are read in the lease timeout after it. */
+    if (s->log_held || (s->t_released && now - s->t_released < s->cfg->lease_ms))
+        return 0;
+    s->t_expire = now;
+    expiry e = {s, now};
+    for (srv_entry *j = s->jobs; j; j = j->next) {
+        uint32_t n;
+        if (j->job && srv_entry_active(j) &&
+            (n = srv_job_expire(j->job, now, NULL, on_missed, &e))) {
+            s->counters.tasks_expired += n;
+            srv_log("job %llu: %u leases expired; tasks requeued", (unsigned long long)j->rec.id,
+                    n);
+        }
+    }
+    return 1;
+}
+
+/* The progressive saves' outcome, logged once per streak of failures. */
+static void note_saves(srv_entry *j)
+{
+    unsigned long fails;
+    pt_error err = {0};
+    if (srv_writer_last(j->writer, &fails, &err) != PT_OK) {
+        if (!j->save_fails_logged)
+            srv_log("job %llu: cannot save its progressive image: %s; its samples are kept and "
+                    "the save is tried again",
+                    (unsigned long long)j->rec.id, err.msg);
+        disk_reason("output folder", &err, j->out_reason, sizeof j->out_reason);
+        j->save_fails_logged = fails;
+    } else if (j->save_fails_logged) {
+        srv_log("job %llu: its progressive image is saved again", (unsigned long long)j->rec.id);
+        j->save_fails_logged = 0;
+    }
+}
+
+void srv_queue_tick(srv_server *s, uint64_t now)
+{
+    if (s->state && srv_state_queue_unsaved(s->state) && now >= s->queue_retry) {
+        s->queue_retry = now + DISK_RETRY_MS;
+        pt_error err = {0};
+        if (srv_queue_journal(s, &err) == PT_OK)
+            srv_log("the queue file is written again");
+    }
+    for (srv_entry *j = s->jobs; j; j = j->next) {
+        if (!j->job || !srv_entry_active(j))
+            continue;
+        if (j->paused)
+            retry_paused(s, j, now);
+        if (j->final_writing || j->final_pending) {
+            if (j->final_writing ? srv_writer_idle(j->writer) : now >= j->t_retry)
+                srv_queue_end_job(s, j, PROTO_JOB_DONE, NULL);
+            continue;
+        }
+        note_saves(j);
+        uint64_t merged = srv_job_samples_merged(j->job);
+        int pass_done = srv_job_passes_done(j->job) > j->saved_passes;
+        if ((pass_done || merged > j->saved_samples) &&
+            (double)(now - j->t_last_save) >= s->cfg->save_interval * 1000.0 &&
+            !srv_job_complete(j->job)) {
+            double t0 = pt_now_s();
+            srv_entry_save_image(j);
+            srv_histogram_add(&s->counters.save, pt_now_s() - t0);
+        }
+        if (now - j->rate_t >= 1000) {
+            j->rate = (double)(merged - j->rate_samples) * 1000.0 / (double)(now - j->rate_t);
+            j->rate_t = now;
+            j->rate_samples = merged;
+        }
+        /* Checkpoint cost stays proportional to what the log has taken in. */
+        if (s->state && !j->paused && !srv_state_checkpoint_busy(s->state)) {
+            /* srv_job_film settles: the loop waits here, once a round, for
+             * the merge threads' adds in flight. That wait is their flow
+             * control, not an accident: without it the adds' ring fills and
+             * the loop does the adds itself (farm_scale.sh, unpaced, chunk
+             * 64: 5.8-9.0 loop us per result with it, 19-20 without). */
+            const pt_film *f = srv_job_film(j->job);
+            uint64_t film_bytes = (uint64_t)f->width * f->height * sizeof(pt_pixel_acc);
+            if (srv_state_log_bytes(s->state, j->rec.id) >=
+                srv_state_ckpt_limit(s->state, film_bytes))
+                checkpoint_start(s, j);
+        }
+    }
+    uint64_t id;
+    pt_status cst;
+    pt_error err = {0};
+    if (s->state && srv_state_checkpoint_collect(s->state, &id, &cst, &err) && cst != PT_OK) {
+        srv_entry *j = srv_queue_find_any(s, id);
+        s->counters.state_write_errors++;
+        if (j && j->job && srv_entry_active(j) && err.code == PT_ERR_IO) {
+            j->pending_ckpt = 1;
+            pause_job(s, j, "cannot write its checkpoint", &err);
+        } else {
+            srv_log("error: job %llu: cannot write its checkpoint: %s", (unsigned long long)id,
+                    err.msg);
+        }
+    }
+}
+
+void srv_queue_free(srv_server *s)
+{
+    while (s->jobs) {
+        srv_entry *j = s->jobs;
+        s->jobs = j->next;
+        srv_entry_free(j);
+    }
+    s->njobs = 0;
+    s->single = NULL;
+    srv_state_close(s->state);
+    s->state = NULL;
+}

@@ -1,0 +1,181 @@
+#include "server/sched/writer.h"
+
+#include <pthread.h>
+#include <stdio.h>
+#include <stdlib.h>
+
+#include "common/base/alloc.h"
+#include "common/base/fsutil.h"
+
+struct srv_writer {
+    pthread_mutex_t mu;
+    pthread_cond_t cv;
+    pthread_t thread;
+    char exr[4096], png[4096]; /* exr "": a .png output, the PNG alone */
+    char gate[4096];           /* test hook: wait for this file before each write */
+    const pt_film *film;
+    int has_alpha;
+    pt_view view;  /* the preview's */
+    pt_image *img; /* the thread's, made at the first write and kept */
+    int pending;   /* a request not yet taken */
+    pt_exr_meta meta;
+    int busy, stop;
+    unsigned long written, failures;
+    double error; /* pt_film_resolve_measured's at the last resolve; -1 before any */
+    pt_status last;
+    pt_error last_err;
+};
+
+static void *writer_main(void *p)
+{
+    srv_writer *w = p;
+    pthread_mutex_lock(&w->mu);
+    for (;;) {
+        while (!w->pending && !w->stop)
+            pthread_cond_wait(&w->cv, &w->mu);
+        if (!w->pending && w->stop)
+            break;
+        pt_exr_meta meta = w->meta;
+        w->pending = 0;
+        w->busy = 1;
+        pthread_mutex_unlock(&w->mu);
+
+        pt_error err = {0};
+        pt_status st = PT_OK;
+        double e = -1.0;
+        if (!w->img)
+            st = pt_image_new(w->film->width, w->film->height, &w->img, &err);
+        pt_wait_for_file(w->gate);
+        if (st == PT_OK) {
+            meta.total_samples = pt_film_resolve_measured(w->film, w->img, &e);
+            w->img->has_alpha = w->has_alpha;
+            if (w->exr[0])
+                st = pt_exr_write(w->exr, w->img, &meta, &err);
+        }
+        if (st == PT_OK)
+            st = pt_png_write_preview(w->png, w->img, &w->view, &err);
+
+        pthread_mutex_lock(&w->mu);
+        w->busy = 0;
+        if (e != -1.0)
+            w->error = e;
+        w->last = st;
+        w->last_err = err;
+        if (st == PT_OK) {
+            w->written++;
+            w->failures = 0;
+        } else {
+            w->failures++;
+        }
+        pthread_cond_broadcast(&w->cv);
+    }
+    pthread_mutex_unlock(&w->mu);
+    return NULL;
+}
+
+pt_status srv_writer_new(const char *exr_path, const pt_film *film, int has_alpha,
+                         const pt_view *view, srv_writer **out, pt_error *err)
+{
+    srv_writer *w = pt_calloc(1, sizeof *w);
+    if (!w)
+        return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
+    w->film = film;
+    w->has_alpha = has_alpha;
+    if (view)
+        w->view = *view;
+    w->error = -1.0;
+    if (pt_image_format_of(exr_path) == PT_IMAGE_FORMAT_PNG) {
+        /* A .png output is the PNG alone: no EXR is written. */
+        snprintf(w->png, sizeof w->png, "%s", exr_path);
+    } else {
+        snprintf(w->exr, sizeof w->exr, "%s", exr_path);
+        pt_png_preview_path(exr_path, w->png, sizeof w->png);
+    }
+    /* Test hook (tests/integration/test_queue_ctl.sh): hold every write
+     * until a file exists. Unset in production. */
+    const char *gate = getenv("PTSERVE_TEST_WRITE_GATE");
+    if (gate)
+        snprintf(w->gate, sizeof w->gate, "%s", gate);
+    pthread_mutex_init(&w->mu, NULL);
+    pthread_cond_init(&w->cv, NULL);
+    if (pthread_create(&w->thread, NULL, writer_main, w) != 0) {
+        pthread_mutex_destroy(&w->mu);
+        pthread_cond_destroy(&w->cv);
+        pt_free(w);
+        return pt_error_set(err, PT_ERR_IO, "cannot start the EXR writer thread");
+    }
+    *out = w;
+    return PT_OK;
+}
+
+void srv_writer_submit(srv_writer *w, const pt_exr_meta *meta)
+{
+    pthread_mutex_lock(&w->mu);
+    w->pending = 1;
+    w->meta = *meta;
+    pthread_cond_broadcast(&w->cv);
+    pthread_mutex_unlock(&w->mu);
+}
+
+pt_status srv_writer_flush(srv_writer *w, pt_error *err)
+{
+    pthread_mutex_lock(&w->mu);
+    while (w->pending || w->busy)
+        pthread_cond_wait(&w->cv, &w->mu);
+    pt_status st = w->last;
+    if (st != PT_OK && err)
+        *err = w->last_err;
+    pthread_mutex_unlock(&w->mu);
+    return st;
+}
+
+int srv_writer_idle(srv_writer *w)
+{
+    pthread_mutex_lock(&w->mu);
+    int idle = !w->pending && !w->busy;
+    pthread_mutex_unlock(&w->mu);
+    return idle;
+}
+
+pt_status srv_writer_last(srv_writer *w, unsigned long *failures, pt_error *err)
+{
+    pthread_mutex_lock(&w->mu);
+    pt_status st = w->last;
+    if (st != PT_OK && err)
+        *err = w->last_err;
+    if (failures)
+        *failures = w->failures;
+    pthread_mutex_unlock(&w->mu);
+    return st;
+}
+
+double srv_writer_error(srv_writer *w)
+{
+    pthread_mutex_lock(&w->mu);
+    double e = w->error;
+    pthread_mutex_unlock(&w->mu);
+    return e;
+}
+
+unsigned long srv_writer_count(srv_writer *w)
+{
+    pthread_mutex_lock(&w->mu);
+    unsigned long n = w->written;
+    pthread_mutex_unlock(&w->mu);
+    return n;
+}
+
+void srv_writer_free(srv_writer *w)
+{
+    if (!w)
+        return;
+    pthread_mutex_lock(&w->mu);
+    w->stop = 1;
+    pthread_cond_broadcast(&w->cv);
+    pthread_mutex_unlock(&w->mu);
+    pthread_join(w->thread, NULL);
+    pt_image_free(w->img);
+    pthread_mutex_destroy(&w->mu);
+    pthread_cond_destroy(&w->cv);
+    pt_free(w);
+}
