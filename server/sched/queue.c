@@ -1,4 +1,4 @@
-#include "server/sched/queue.h"
+#include "server/sched/queue_impl.h"
 
 #include <assert.h>
 #include <errno.h>
@@ -15,10 +15,6 @@
 #include "protocol/frame.h"
 
 #define MAX_FINISHED 1000 /* ended jobs kept in the queue's history */
-/* A write to a folder that failed (full, over quota) is tried again this
- * often: often enough that a farm resumes soon after space is freed, rarely
- * enough that a full disk costs nothing. */
-#define DISK_RETRY_MS 3000
 
 int srv_entry_active(const srv_entry *j)
 {
@@ -50,25 +46,25 @@ void srv_queue_insert(srv_server *s, srv_entry *j)
     s->njobs++;
 }
 
-static uint64_t pixel_bytes(const proto_result *r)
+uint64_t queue_pixel_bytes(const proto_result *r)
 {
     return (uint64_t)r->npixels * sizeof(pt_pixel_acc);
 }
 
 /* Lets go of p, a result of j that waited for its commit: merged (the job
  * may have taken its pixels) or dropped. */
-static void pending_fini(srv_entry *j, srv_pending *p)
+void queue_pending_fini(srv_entry *j, srv_pending *p)
 {
-    j->pend_bytes -= pixel_bytes(&p->r);
+    j->pend_bytes -= queue_pixel_bytes(&p->r);
     proto_result_fini(&p->r);
 }
 
 /* Drops j's results that wait for a group commit (never merged: their
  * records are gone, or the job is). */
-static void drop_pending(srv_entry *j)
+void queue_drop_pending(srv_entry *j)
 {
     for (uint32_t i = 0; i < j->npend; i++)
-        pending_fini(j, &j->pend[i]);
+        queue_pending_fini(j, &j->pend[i]);
     j->npend = 0;
 }
 
@@ -80,11 +76,20 @@ uint64_t srv_queue_pending_bytes(const srv_server *s)
     return n;
 }
 
+/* What a client is shown of a failed write: "state folder full (No space
+ * left on device)". Never the error's text, which names server paths. */
+void queue_disk_reason(const char *folder, const pt_error *err, char *out, size_t cap)
+{
+    int e = err->sys_errno;
+    const char *what = e == ENOSPC ? "full" : e == EDQUOT ? "over its quota" : "cannot be written";
+    snprintf(out, cap, "%s %s (%s)", folder, what, e ? strerror(e) : pt_status_str(err->code));
+}
+
 static void free_run(srv_entry *j)
 {
     pt_free(j->pending_rec);
     j->pending_rec = NULL;
-    drop_pending(j);
+    queue_drop_pending(j);
     pt_free(j->pend);
     j->pend = NULL;
     j->pend_cap = 0;
@@ -291,206 +296,19 @@ void srv_entry_save_image(srv_entry *j)
     j->saved_samples = meta.total_samples;
 }
 
-static pt_status checkpoint_quiet(srv_server *s, srv_entry *j, pt_error *err)
-{
-    if (!s->state || !j->job)
-        return PT_OK;
-    srv_ckpt_extra x = {srv_entry_seconds(j, pt_now_ms()), j->rejected, j->rays};
-    double t0 = pt_now_s();
-    pt_status st = srv_state_checkpoint(s->state, j->job, &x, err);
-    srv_histogram_add(&s->counters.checkpoint, pt_now_s() - t0);
-    drop_pending(j); /* its records went with the log; never merged */
-    if (st != PT_OK)
-        s->counters.state_write_errors++;
-    return st;
-}
-
-static void pause_job(srv_server *s, srv_entry *j, const char *what, const pt_error *err);
-
-/* Starts j's checkpoint off the loop (server/store/state.h): a snapshot of the job
- * now, its results log rotated, and the records of the results not merged
- * yet logged again in the new log (the snapshot does not hold them), to be
- * merged once that log is durable. */
-static void checkpoint_start(srv_server *s, srv_entry *j)
-{
-    pt_error err = {0};
-    double t0 = pt_now_s();
-    srv_job *snap = srv_job_snapshot(j->job);
-    if (!snap) {
-        srv_log("error: job %llu: out of memory for a checkpoint; trying again later",
-                (unsigned long long)j->rec.id);
-        return;
-    }
-    srv_ckpt_extra x = {srv_entry_seconds(j, pt_now_ms()), j->rejected, j->rays};
-    pt_status st = srv_state_checkpoint_start(s->state, snap, &x, &err);
-    if (st == PT_OK) {
-        /* Each encoded again (the same sums; checkpoints are rare, results
-         * are decoded once). */
-        uint32_t k = 0;
-        proto_writer w;
-        proto_writer_init(&w, PROTO_FRAME_OVERHEAD + PROTO_MAX_PAYLOAD);
-        for (uint32_t i = 0; i < j->npend; i++) {
-            srv_pending *p = &j->pend[i];
-            p->commit = srv_state_commit_next(s->state);
-            size_t mark;
-            proto_writer_reset(&w);
-            if (proto_frame_begin(&w, PROTO_MSG_RESULT, &mark, &err) == PT_OK &&
-                proto_msg_encode_result(&w, &p->r, &err) == PT_OK &&
-                proto_frame_end(&w, mark, &err) == PT_OK &&
-                srv_state_log_result(s->state, j->rec.id, w.buf, w.len, &err) == PT_OK)
-                j->pend[k++] = *p;
-            else
-                pending_fini(j, p); /* never merged; its task is leased again */
-        }
-        proto_writer_fini(&w);
-        j->npend = k;
-    }
-    srv_histogram_add(&s->counters.checkpoint, pt_now_s() - t0);
-    if (st != PT_OK && st != PT_AGAIN) {
-        s->counters.state_write_errors++;
-        if (st == PT_ERR_IO) {
-            j->pending_ckpt = 1;
-            pause_job(s, j, "cannot write its checkpoint", &err);
-        } else {
-            srv_log("error: job %llu: cannot write its checkpoint: %s",
-                    (unsigned long long)j->rec.id, err.msg);
-        }
-    }
-}
-
-pt_status srv_entry_checkpoint(srv_server *s, srv_entry *j, pt_error *err)
-{
-    pt_status st = checkpoint_quiet(s, j, err);
-    if (st != PT_OK)
-        srv_log("error: job %llu: cannot write its checkpoint: %s (its results log still holds "
-                "every merged task)",
-                (unsigned long long)j->rec.id, err->msg);
-    return st;
-}
-
 /* Job j ended before it was done: the layers above tell every worker, so
  * each drops the tasks of it that it has not started and its threads go to
  * the next job at once (their results would be dropped anyway). */
-static void announce_job_end(srv_server *s, const srv_entry *j)
+void queue_announce_job_end(srv_server *s, const srv_entry *j)
 {
     if (s->events && s->events->job_ended)
         s->events->job_ended(s, j);
 }
 
-/* each_worker's walk that requeues a job's leases of each worker. */
-typedef struct owner_release {
-    srv_job *job;
-    uint32_t n;
-} owner_release;
-
-static void release_owner(void *ctx, uint64_t owner)
+void queue_release_owner(void *ctx, uint64_t owner)
 {
     owner_release *r = ctx;
     r->n += srv_job_release_owner(r->job, owner);
-}
-
-/* What a client is shown of a failed write: "state folder full (No space
- * left on device)". Never the error's text, which names server paths. */
-static void disk_reason(const char *folder, const pt_error *err, char *out, size_t cap)
-{
-    int e = err->sys_errno;
-    const char *what = e == ENOSPC ? "full" : e == EDQUOT ? "over its quota" : "cannot be written";
-    snprintf(out, cap, "%s %s (%s)", folder, what, e ? strerror(e) : pt_status_str(err->code));
-}
-
-/* The state folder cannot take j's writes: no task of j is leased until the
- * failed write succeeds (srv_queue_tick tries it again). Its leases are
- * requeued and the workers told to drop its tasks (JOB_END), since results
- * that cannot be logged could not be merged. Logged once per pause. */
-static void pause_job(srv_server *s, srv_entry *j, const char *what, const pt_error *err)
-{
-    uint64_t now = pt_now_ms();
-    j->t_retry = now + DISK_RETRY_MS;
-    if (j->paused)
-        return;
-    j->paused = 1;
-    j->t_paused = now;
-    disk_reason("state folder", err, j->pause_reason, sizeof j->pause_reason);
-    owner_release r = {j->job, 0};
-    if (j->job && s->events && s->events->each_worker)
-        s->events->each_worker(s, release_owner, &r);
-    uint32_t n = r.n;
-    s->counters.tasks_requeued += n;
-    if (j->t_started)
-        announce_job_end(s, j);
-    srv_log("job %llu paused: %s: %s; %u leased tasks requeued; trying again every %d s",
-            (unsigned long long)j->rec.id, what, err->msg, n, DISK_RETRY_MS / 1000);
-}
-
-/* Keeps r, a logged result of j that owns its pixels, to merge once the
- * commit that holds its record has returned; takes the pixels (r's are then
- * NULL, not owned). */
-static pt_status push_pending(srv_server *s, srv_entry *j, uint64_t owner, proto_result *r,
-                              uint64_t arrived)
-{
-    assert(r->owns_pixels);
-    if (j->npend == j->pend_cap) {
-        srv_pending *n = pt_grow_array(j->pend, &j->pend_cap, sizeof *n, 16);
-        if (!n)
-            return PT_ERR_NOMEM;
-        j->pend = n;
-    }
-    j->pend[j->npend++] = (srv_pending){*r, owner, srv_state_commit_next(s->state), arrived};
-    j->pend_bytes += pixel_bytes(r);
-    r->pixels = NULL;
-    r->owns_pixels = 0;
-    return PT_OK;
-}
-
-static void resume(srv_server *s, srv_entry *j, uint64_t now);
-
-/* Tries the write that paused j again; resumes j when it succeeds. */
-static void retry_paused(srv_server *s, srv_entry *j, uint64_t now)
-{
-    if (now < j->t_retry)
-        return;
-    j->t_retry = now + DISK_RETRY_MS;
-    pt_error err = {0};
-    if (j->pending_sync) {
-        /* Synced again by the next group commit; srv_queue_committed resumes
-         * the job when that succeeds. */
-        srv_state_log_resync(s->state, j->rec.id, &err);
-        return;
-    }
-    if (j->pending_rec) {
-        if (srv_state_log_result(s->state, j->rec.id, j->pending_rec, j->pending_len, &err) !=
-            PT_OK)
-            return;
-        /* Logged: merged once durable, as a restart's replay would (its
-         * lease is gone; should its task have been merged meanwhile, it is a
-         * duplicate). It was decoded when it came (a record that no longer
-         * decodes is not possible; it would be dropped, as at a replay). */
-        proto_result r;
-        if (proto_msg_decode_result(j->pending_rec + PROTO_FRAME_HEADER,
-                                    j->pending_len - PROTO_FRAME_OVERHEAD, NULL, 0, &r,
-                                    &err) == PT_OK &&
-            push_pending(s, j, 0, &r, now) != PT_OK) {
-            proto_result_fini(&r);
-            return;
-        }
-        pt_free(j->pending_rec);
-        j->pending_rec = NULL;
-    }
-    if (j->pending_ckpt) {
-        if (checkpoint_quiet(s, j, &err) != PT_OK)
-            return;
-        j->pending_ckpt = 0;
-    }
-    resume(s, j, now);
-}
-
-static void resume(srv_server *s, srv_entry *j, uint64_t now)
-{
-    (void)s;
-    j->paused = 0;
-    j->pause_reason[0] = '\0';
-    srv_log("job %llu resumed: the state folder takes its writes again (paused %.1f s)",
-            (unsigned long long)j->rec.id, (double)(now - j->t_paused) / 1000.0);
 }
 
 /* The note a job that ends done keeps when some of its samples were
@@ -536,7 +354,7 @@ void srv_queue_end_job(srv_server *s, srv_entry *j, uint8_t state, const char *m
                 /* A full output folder: every sample stays merged, the job
                  * stays RUNNING ("writing") and the image is tried again. */
                 j->t_retry = now + DISK_RETRY_MS;
-                disk_reason("output folder", &err, j->out_reason, sizeof j->out_reason);
+                queue_disk_reason("output folder", &err, j->out_reason, sizeof j->out_reason);
                 if (!j->final_pending)
                     srv_log("job %llu: rendered, but cannot write its image: %s; its samples are "
                             "kept and the image is tried again every %d s",
@@ -565,7 +383,7 @@ void srv_queue_end_job(srv_server *s, srv_entry *j, uint8_t state, const char *m
         j->rec.rejected = j->rejected;
     }
     if (state != PROTO_JOB_DONE && j->t_started)
-        announce_job_end(s, j);
+        queue_announce_job_end(s, j);
     j->rec.state = state;
     if (message || state != PROTO_JOB_DONE) /* a done job keeps a note (server/api/workers.h) */
         snprintf(j->rec.message, sizeof j->rec.message, "%s", message ? message : "");
@@ -801,161 +619,6 @@ srv_entry *srv_queue_find_scene(srv_server *s, const uint8_t hash[32])
     return j && j->bundle ? j : NULL;
 }
 
-pt_status srv_queue_log_result(srv_server *s, srv_entry *j, uint64_t owner, proto_result *r,
-                               const uint8_t *frame, size_t len, uint8_t **own, uint64_t arrived,
-                               pt_error *err)
-{
-    if (j->paused)
-        return pt_error_set(err, PT_ERR_IO, "job %llu is paused", (unsigned long long)j->rec.id);
-    uint64_t commit = srv_state_commit_next(s->state);
-    pt_status st = own && *own ? srv_state_log_result_take(s->state, j->rec.id, own, len, err)
-                               : srv_state_log_result(s->state, j->rec.id, frame, len, err);
-    if (st == PT_OK) {
-        st = push_pending(s, j, owner, r, arrived);
-        if (st != PT_OK)
-            return pt_error_set(err, st, "out of memory for a result");
-        j->pend[j->npend - 1].commit = commit;
-        return PT_OK;
-    }
-    s->counters.state_write_errors++;
-    if (st != PT_ERR_IO)
-        return st;
-    /* Kept for the retry: logged and merged once the folder takes writes. */
-    if (own && *own) {
-        j->pending_rec = *own;
-        *own = NULL;
-    } else if ((j->pending_rec = pt_malloc(len ? len : 1)) != NULL) {
-        memcpy(j->pending_rec, frame, len);
-    }
-    if (j->pending_rec)
-        j->pending_len = len;
-    pause_job(s, j, "cannot write its results log", err);
-    return st;
-}
-
-static void on_commit(void *ctx, uint64_t id, pt_status st, const pt_error *err)
-{
-    srv_server *s = ctx;
-    srv_entry *j = srv_queue_find_any(s, id); /* a frame's too */
-    if (!j || !j->job)
-        return;
-    if (st != PT_OK) {
-        s->counters.state_write_errors++;
-        /* The log is cut back to its last good commit; its records since
-         * are kept and written again by the retry (server/store/state.h), unless
-         * memory was short, and then they are gone, never merged. */
-        if (st == PT_ERR_NOMEM)
-            drop_pending(j);
-        j->pending_sync = 1;
-        pause_job(s, j, "cannot make its results log durable", err);
-        return;
-    }
-    j->committed = srv_state_commit_next(s->state) - 1;
-    if (j->pending_sync) {
-        j->pending_sync = 0;
-        if (j->paused && !j->pending_rec && !j->pending_ckpt)
-            resume(s, j, pt_now_ms());
-    }
-}
-
-void srv_queue_verify_summary(const srv_entry *j)
-{
-    srv_verify_stats v = srv_job_verify_stats(j->job);
-    uint64_t total = srv_job_samples_merged(j->job);
-    /* Verified: compared with a second render. A task picked that no other
-     * worker rendered was not verified, and is counted apart. */
-    uint64_t compared = v.matched + v.mismatched;
-    srv_log("job %llu: verified %llu of %llu tasks (%llu picked, %llu never compared: no other "
-            "worker rendered them; %llu matched, %llu mismatched, %llu liars): "
-            "%llu extra samples, %.2f%% of %llu; %llu backup copies, %llu expired leases, %llu "
-            "results refused",
-            (unsigned long long)j->rec.id, (unsigned long long)compared,
-            (unsigned long long)srv_job_tasks_total(j->job), (unsigned long long)v.picked,
-            (unsigned long long)(v.picked > compared ? v.picked - compared : 0),
-            (unsigned long long)v.matched, (unsigned long long)v.mismatched,
-            (unsigned long long)v.liars, (unsigned long long)(v.samples + v.backup_samples),
-            total ? 100.0 * (double)(v.samples + v.backup_samples) / (double)total : 0.0,
-            (unsigned long long)total, (unsigned long long)v.backups, (unsigned long long)v.expired,
-            (unsigned long long)v.refused);
-}
-
-srv_outcome srv_queue_merge(srv_server *s, srv_entry *j, uint64_t owner, int lease_index,
-                            proto_result *r, uint64_t arrived, pt_error *err)
-{
-    uint64_t before = srv_job_samples_merged(j->job);
-    double t0 = pt_now_s();
-    srv_outcome o = lease_index >= 0
-                        ? srv_job_result_validated(j->job, lease_index, r, arrived, err)
-                        : srv_job_replay(j->job, r, err);
-    srv_histogram_add(&s->counters.merge, pt_now_s() - t0);
-    uint64_t merged = srv_job_samples_merged(j->job) - before;
-    s->counters.samples_merged += merged;
-    if (o != SRV_MERGED)
-        return o;
-    if (s->events && s->events->result_merged)
-        s->events->result_merged(s, owner, merged, pt_now_ms());
-    j->rejected += r->rejected;
-    s->counters.samples_rejected += r->rejected;
-    j->rays += r->rays;
-    if (srv_job_complete(j->job))
-        srv_queue_verify_summary(j);
-    return o;
-}
-
-/* Merges r, a result of j from owner (a connection id, maybe gone now) held
- * until its log record was durable. */
-static void merge_logged(srv_server *s, srv_entry *j, uint64_t owner, proto_result *r,
-                         uint64_t arrived)
-{
-    pt_error err = {0};
-    int li = -1;
-    /* Validated whole when it arrived: its pixels have not changed since. */
-    srv_outcome o = srv_job_validate_checked(j->job, owner, r, &li, &err);
-    /* Its lease may have gone since it arrived (expired, its worker left or
-     * the job paused): it is still a render of its task, and durable, so it
-     * is merged as a restart's replay would (a duplicate changes nothing). */
-    if (o == SRV_MERGED || o == SRV_NOT_LEASED)
-        srv_queue_merge(s, j, owner, o == SRV_MERGED ? li : -1, r, arrived, &err);
-}
-
-/* Merges j's results whose records the commit done made durable (those of a
- * failed commit wait for the retry's). */
-static void merge_durable(srv_server *s, srv_entry *j, uint64_t done)
-{
-    uint32_t k = 0, i = 0;
-    for (; i < j->npend && j->pend[i].commit <= done && j->committed >= j->pend[i].commit; i++) {
-        srv_pending *p = &j->pend[i];
-        if (j->job && srv_entry_active(j))
-            merge_logged(s, j, p->owner, &p->r, p->arrived);
-        pending_fini(j, p); /* unless the job took its pixels */
-    }
-    for (; i < j->npend; i++)
-        j->pend[k++] = j->pend[i];
-    j->npend = k;
-}
-
-void srv_queue_committed(srv_server *s, int wait)
-{
-    uint64_t done;
-    if (!s->state)
-        return;
-    while (srv_state_commit_collect(s->state, wait, &done, on_commit, s)) {
-        wait = 0;
-        for (srv_entry *j = s->jobs; j; j = j->next)
-            if (j->npend)
-                merge_durable(s, j, done);
-    }
-}
-
-void srv_queue_commit_all(srv_server *s)
-{
-    if (!s->state)
-        return;
-    srv_queue_committed(s, 1); /* the commit in flight */
-    if (srv_state_commit_start(s->state))
-        srv_queue_committed(s, 1); /* the rest */
-}
-
 typedef struct expiry {
     srv_server *s;
     uint64_t now;
@@ -994,87 +657,6 @@ int srv_queue_expire(srv_server *s, uint64_t now)
         }
     }
     return 1;
-}
-
-/* The progressive saves' outcome, logged once per streak of failures. */
-static void note_saves(srv_entry *j)
-{
-    unsigned long fails;
-    pt_error err = {0};
-    if (srv_writer_last(j->writer, &fails, &err) != PT_OK) {
-        if (!j->save_fails_logged)
-            srv_log("job %llu: cannot save its progressive image: %s; its samples are kept and "
-                    "the save is tried again",
-                    (unsigned long long)j->rec.id, err.msg);
-        disk_reason("output folder", &err, j->out_reason, sizeof j->out_reason);
-        j->save_fails_logged = fails;
-    } else if (j->save_fails_logged) {
-        srv_log("job %llu: its progressive image is saved again", (unsigned long long)j->rec.id);
-        j->save_fails_logged = 0;
-    }
-}
-
-void srv_queue_tick(srv_server *s, uint64_t now)
-{
-    if (s->state && srv_state_queue_unsaved(s->state) && now >= s->queue_retry) {
-        s->queue_retry = now + DISK_RETRY_MS;
-        pt_error err = {0};
-        if (srv_queue_journal(s, &err) == PT_OK)
-            srv_log("the queue file is written again");
-    }
-    for (srv_entry *j = s->jobs; j; j = j->next) {
-        if (!j->job || !srv_entry_active(j))
-            continue;
-        if (j->paused)
-            retry_paused(s, j, now);
-        if (j->final_writing || j->final_pending) {
-            if (j->final_writing ? srv_writer_idle(j->writer) : now >= j->t_retry)
-                srv_queue_end_job(s, j, PROTO_JOB_DONE, NULL);
-            continue;
-        }
-        note_saves(j);
-        uint64_t merged = srv_job_samples_merged(j->job);
-        int pass_done = srv_job_passes_done(j->job) > j->saved_passes;
-        if ((pass_done || merged > j->saved_samples) &&
-            (double)(now - j->t_last_save) >= s->cfg->save_interval * 1000.0 &&
-            !srv_job_complete(j->job)) {
-            double t0 = pt_now_s();
-            srv_entry_save_image(j);
-            srv_histogram_add(&s->counters.save, pt_now_s() - t0);
-        }
-        if (now - j->rate_t >= 1000) {
-            j->rate = (double)(merged - j->rate_samples) * 1000.0 / (double)(now - j->rate_t);
-            j->rate_t = now;
-            j->rate_samples = merged;
-        }
-        /* Checkpoint cost stays proportional to what the log has taken in. */
-        if (s->state && !j->paused && !srv_state_checkpoint_busy(s->state)) {
-            /* srv_job_film settles: the loop waits here, once a round, for
-             * the merge threads' adds in flight. That wait is their flow
-             * control, not an accident: without it the adds' ring fills and
-             * the loop does the adds itself (farm_scale.sh, unpaced, chunk
-             * 64: 5.8-9.0 loop us per result with it, 19-20 without). */
-            const pt_film *f = srv_job_film(j->job);
-            uint64_t film_bytes = (uint64_t)f->width * f->height * sizeof(pt_pixel_acc);
-            if (srv_state_log_bytes(s->state, j->rec.id) >=
-                srv_state_ckpt_limit(s->state, film_bytes))
-                checkpoint_start(s, j);
-        }
-    }
-    uint64_t id;
-    pt_status cst;
-    pt_error err = {0};
-    if (s->state && srv_state_checkpoint_collect(s->state, &id, &cst, &err) && cst != PT_OK) {
-        srv_entry *j = srv_queue_find_any(s, id);
-        s->counters.state_write_errors++;
-        if (j && j->job && srv_entry_active(j) && err.code == PT_ERR_IO) {
-            j->pending_ckpt = 1;
-            pause_job(s, j, "cannot write its checkpoint", &err);
-        } else {
-            srv_log("error: job %llu: cannot write its checkpoint: %s", (unsigned long long)id,
-                    err.msg);
-        }
-    }
 }
 
 void srv_queue_free(srv_server *s)
