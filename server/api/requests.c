@@ -122,6 +122,75 @@ static void count_uploads(const srv_server *s, const char *name, uint32_t *mine,
         }
 }
 
+/* Checks a SUBMIT's settings against this server's caps and the ranges
+ * every renderer takes; 1 when refused (c was sent why). */
+static int submit_refused(srv_server *s, srv_conn *c, const proto_submit *m)
+{
+    const srv_caps *cap = &s->cfg->caps;
+    if (m->bundle_size > cap->max_scene) {
+        srv_conn_send_error(s, c, PROTO_E_LIMIT,
+                            "scene of %llu bytes is over this server's limit "
+                            "of %llu",
+                            (unsigned long long)m->bundle_size, (unsigned long long)cap->max_scene);
+        return 1;
+    }
+    if (m->spp > cap->max_spp) {
+        srv_conn_send_error(s, c, PROTO_E_LIMIT,
+                            "%u samples per pixel is over this server's limit "
+                            "of %u",
+                            m->spp, cap->max_spp);
+        return 1;
+    }
+    if (m->width > cap->max_side || m->height > cap->max_side ||
+        (uint64_t)m->width * m->height > cap->max_pixels) {
+        srv_conn_send_error(s, c, PROTO_E_LIMIT,
+                            "resolution %ux%u is over this server's limit (%u "
+                            "per side, %llu pixels)",
+                            m->width, m->height, cap->max_side,
+                            (unsigned long long)cap->max_pixels);
+        return 1;
+    }
+    if (m->max_depth > PT_RENDER_MAX_DEPTH || (m->min_spp && m->min_spp < 2) ||
+        m->min_spp > m->spp) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "max depth %u or min spp %u is out of range",
+                            m->max_depth, m->min_spp);
+        return 1;
+    }
+    if (m->target_error > 0.0 && m->min_gain > 0.0) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL,
+                            "target error and min gain are two adaptive "
+                            "rules; a job takes one");
+        return 1;
+    }
+    /* The map must be the one file the bundle keeps for it: the server opens
+     * no other path a client names (server/api/upload.c decodes it). */
+    if (m->env.name[0] && strcmp(m->env.name, PT_BUNDLE_ENV_NAME) != 0) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL,
+                            "environment map '%s': a submitted map must be the bundle's "
+                            "'" PT_BUNDLE_ENV_NAME "' (ptctl submit --env puts it there)",
+                            m->env.name);
+        return 1;
+    }
+    /* ptworker --scene's and ptserve's ranges for the same options. */
+    if (m->env.strength > 1e20f || m->env.rotate_deg < -1e6f || m->env.rotate_deg > 1e6f ||
+        m->env.rgb[0] > 1e20f || m->env.rgb[1] > 1e20f || m->env.rgb[2] > 1e20f) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL,
+                            "environment strength %g, rotation %g or background colour is out "
+                            "of range (strength and colour <= 1e20, |rotation| <= 1e6)",
+                            (double)m->env.strength, (double)m->env.rotate_deg);
+        return 1;
+    }
+    /* A range's shape is the decoder's (pt_frames_check); its rate is
+     * ptctl's: a rate of 5e-324 put its frames at an infinite time, which no
+     * TASK can carry, and its workers reconnected in a loop. */
+    if (m->frame_step && !(m->fps >= PT_FRAMES_MIN_FPS && m->fps <= PT_FRAMES_MAX_FPS)) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "%g frames per second is out of range [%g, %g]",
+                            m->fps, PT_FRAMES_MIN_FPS, PT_FRAMES_MAX_FPS);
+        return 1;
+    }
+    return 0;
+}
+
 static void on_submit(srv_server *s, srv_conn *c, const proto_frame *f)
 {
     pt_error err = {0};
@@ -153,65 +222,8 @@ static void on_submit(srv_server *s, srv_conn *c, const proto_frame *f)
             return;
         }
     const srv_caps *cap = &s->cfg->caps;
-    if (m.bundle_size > cap->max_scene) {
-        srv_conn_send_error(s, c, PROTO_E_LIMIT,
-                            "scene of %llu bytes is over this server's limit "
-                            "of %llu",
-                            (unsigned long long)m.bundle_size, (unsigned long long)cap->max_scene);
+    if (submit_refused(s, c, &m))
         return;
-    }
-    if (m.spp > cap->max_spp) {
-        srv_conn_send_error(s, c, PROTO_E_LIMIT,
-                            "%u samples per pixel is over this server's limit "
-                            "of %u",
-                            m.spp, cap->max_spp);
-        return;
-    }
-    if (m.width > cap->max_side || m.height > cap->max_side ||
-        (uint64_t)m.width * m.height > cap->max_pixels) {
-        srv_conn_send_error(s, c, PROTO_E_LIMIT,
-                            "resolution %ux%u is over this server's limit (%u "
-                            "per side, %llu pixels)",
-                            m.width, m.height, cap->max_side, (unsigned long long)cap->max_pixels);
-        return;
-    }
-    if (m.max_depth > PT_RENDER_MAX_DEPTH || (m.min_spp && m.min_spp < 2) || m.min_spp > m.spp) {
-        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "max depth %u or min spp %u is out of range",
-                            m.max_depth, m.min_spp);
-        return;
-    }
-    if (m.target_error > 0.0 && m.min_gain > 0.0) {
-        srv_conn_send_error(s, c, PROTO_E_PROTOCOL,
-                            "target error and min gain are two adaptive "
-                            "rules; a job takes one");
-        return;
-    }
-    /* The map must be the one file the bundle keeps for it: the server opens
-     * no other path a client names (server/api/upload.c decodes it). */
-    if (m.env.name[0] && strcmp(m.env.name, PT_BUNDLE_ENV_NAME) != 0) {
-        srv_conn_send_error(s, c, PROTO_E_PROTOCOL,
-                            "environment map '%s': a submitted map must be the bundle's "
-                            "'" PT_BUNDLE_ENV_NAME "' (ptctl submit --env puts it there)",
-                            m.env.name);
-        return;
-    }
-    /* ptworker --scene's and ptserve's ranges for the same options. */
-    if (m.env.strength > 1e20f || m.env.rotate_deg < -1e6f || m.env.rotate_deg > 1e6f ||
-        m.env.rgb[0] > 1e20f || m.env.rgb[1] > 1e20f || m.env.rgb[2] > 1e20f) {
-        srv_conn_send_error(s, c, PROTO_E_PROTOCOL,
-                            "environment strength %g, rotation %g or background colour is out "
-                            "of range (strength and colour <= 1e20, |rotation| <= 1e6)",
-                            (double)m.env.strength, (double)m.env.rotate_deg);
-        return;
-    }
-    /* A range's shape is the decoder's (pt_frames_check); its rate is
-     * ptctl's: a rate of 5e-324 put its frames at an infinite time, which no
-     * TASK can carry, and its workers reconnected in a loop. */
-    if (m.frame_step && !(m.fps >= PT_FRAMES_MIN_FPS && m.fps <= PT_FRAMES_MAX_FPS)) {
-        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "%g frames per second is out of range [%g, %g]",
-                            m.fps, PT_FRAMES_MIN_FPS, PT_FRAMES_MAX_FPS);
-        return;
-    }
     if (owner_unfinished(s, c->name) >= cap->max_queued) {
         srv_conn_send_error(s, c, PROTO_E_LIMIT,
                             "%s already has %u unfinished jobs, this "
