@@ -116,7 +116,7 @@ uint32_t srv_frames_in_flight(const srv_caps *caps, uint32_t width, uint32_t hei
 /* Starts p's next frames, up to srv_frames_in_flight rendering and none
  * that far past the first not done. Returns 0 when one could not be made (p
  * is then ended FAILED, or will be by the round: a frame that failed). */
-static int fill(srv_server *s, srv_entry *p)
+static int fill_window(srv_server *s, srv_entry *p)
 {
     struct srv_frames *fr = p->frames;
     const srv_job_params *jp = &p->rec.params;
@@ -158,7 +158,7 @@ int srv_frames_ready(srv_server *s, srv_entry *p)
         if (!p->t_started)
             p->rate_t = pt_now_ms();
     }
-    return fill(s, p);
+    return fill_window(s, p);
 }
 
 static void forget_frame(srv_server *s, const srv_job_record *r, uint32_t idx)
@@ -216,7 +216,7 @@ int srv_frames_round(srv_server *s)
             srv_queue_end_job(s, p, PROTO_JOB_DONE, NULL);
             ended = 1;
         } else if (p->t_started || p->rec.state == PROTO_JOB_RUNNING) {
-            fill(s, p);
+            fill_window(s, p);
         }
     }
     return ended;

@@ -395,7 +395,7 @@ static void observe(srv_job *j, double ms_per_sample)
  * the task's time (the job's quantiles and its owner's speed), who delivered
  * it, and whether it is picked for verification. Then every copy's lease
  * goes: the first result wins. */
-static void accepted(srv_job *j, uint32_t t, int li, const proto_result *r, uint64_t now_ms)
+static void note_accepted(srv_job *j, uint32_t t, int li, const proto_result *r, uint64_t now_ms)
 {
     if (li < 0) {
         job_drop_copies(j, t); /* a replay while leased (a paused job's last result) */
@@ -435,7 +435,7 @@ static srv_outcome merge_task(srv_job *j, uint32_t t, int li, const proto_result
     /* Validated: each pixel lacks exactly the samples reported rejected. */
     uint64_t samples = (uint64_t)r->npixels * (r->s1 - r->s0) - r->rejected;
     if (j->tiles[tile].head == t) {
-        accepted(j, t, li, r, now_ms);
+        note_accepted(j, t, li, r, now_ms);
         j->capped += r->capped;
         merge_now(j, t, r->pixels, samples, take);
         merge_held(j, tile);
@@ -456,7 +456,7 @@ static srv_outcome merge_task(srv_job *j, uint32_t t, int li, const proto_result
     }
     j->held[j->nheld] = (held){t, li >= 0 ? j->leases[li].owner : 0, copy, samples};
     j->tasks[t].held = j->nheld++;
-    accepted(j, t, li, r, now_ms);
+    note_accepted(j, t, li, r, now_ms);
     j->capped += r->capped;
     j->tasks[t].state = T_HELD;
     return SRV_MERGED;
