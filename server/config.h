@@ -3,7 +3,7 @@
  * read by every part of server/ and written by none once srv_serve starts.
  *
  * The bottom of server/'s headers: it includes nothing of server/ but
- * job.h's plain parameter types, so the parts (core.h, io.h, local.h, ...)
+ * params.h's plain parameter types, so the parts (core.h, io.h, local.h, ...)
  * take their settings from here, not from serve.h, the entry point above
  * them. Plain data: any thread may read it.
  */
@@ -16,7 +16,7 @@
 #include "common/base/frames.h"
 #include "common/image/view.h"
 #include "protocol/auth.h"
-#include "server/sched/job.h"
+#include "server/params.h"
 
 typedef struct srv_caps {
     uint32_t max_side;   /* longest image side a client may ask for */

@@ -32,6 +32,7 @@
 #define PT_SERVER_SERVE_H
 
 #include "server/config.h"
+#include "server/sched/job.h" /* the defaults and caps of srv_config.job's fields */
 
 /* Runs the coordinator. One-job mode: exit status 0 when the image is
  * complete, 130 when interrupted, 1 on error. Queue mode: serves until SIGINT
