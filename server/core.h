@@ -27,17 +27,17 @@
 #include "common/render/film.h"
 #include "protocol/auth.h"
 #include "protocol/msg.h"
-#include "server/app/local.h"
 #include "server/config.h"
 #include "server/log.h"
-#include "server/net/authlimit.h"
-#include "server/net/clients.h"
-#include "server/store/state.h"
 
 typedef struct srv_server srv_server;
-typedef struct srv_conn srv_conn;     /* server/net/loop.h */
-typedef struct srv_entry srv_entry;   /* server/sched/queue.h */
-typedef struct srv_upload srv_upload; /* server/api/upload.h */
+typedef struct srv_conn srv_conn;       /* server/net/loop.h */
+typedef struct srv_entry srv_entry;     /* server/sched/queue.h */
+typedef struct srv_upload srv_upload;   /* server/api/upload.h */
+typedef struct srv_clients srv_clients; /* server/net/clients.h */
+typedef struct srv_local srv_local;     /* server/app/local.h */
+typedef struct srv_state srv_state;     /* server/store/state.h */
+typedef struct srv_adder srv_adder;     /* server/sched/adder.h */
 /* A scene check's outcome for its client c, still connected (upload.h). */
 typedef void (*srv_verified_fn)(srv_server *s, srv_conn *c, srv_upload *k);
 
@@ -129,7 +129,6 @@ struct srv_server {
     uint8_t token[PROTO_TOKEN_MAX];
     size_t token_len;
     srv_clients *clients;         /* --clients-file (server/net/clients.h); NULL: none */
-    srv_authlimit authlimit;      /* failed handshakes per address (server/net/authlimit.h) */
     uint64_t bytes_in, bytes_out; /* on the wire, all peers */
     struct srv_guard *guard;      /* limits on peers: memory, slots, rates, refusals */
     srv_counters counters;        /* counted where they happen; read by server/api/http.c */
@@ -173,7 +172,7 @@ struct srv_server {
         verify_seed; /* picks the tasks verified (server/sched/job.h), made at the first lease */
 
     /* local workers (server/app/local.c) */
-    srv_local local;
+    srv_local *local; /* srv_serve's */
     int local_gone_logged;
 };
 

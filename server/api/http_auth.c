@@ -29,6 +29,7 @@
 #include "protocol/jobjson.h"
 #include "server/api/http_assets.h"
 #include "server/net/authlimit.h"
+#include "server/net/clients.h"
 #include "server/net/loop.h"
 #include "server/sched/frames.h"
 #include "server/sched/queue.h"

@@ -13,6 +13,7 @@
 #include "common/scene/bundle.h"
 #include "common/scene/scene.h"
 #include "server/api/workers.h"
+#include "server/app/local.h"
 #include "server/net/loop.h"
 #include "server/sched/frames.h"
 #include "server/sched/queue.h"
@@ -275,7 +276,7 @@ static int single_local_gone(srv_server *s)
                                    : srv_job_complete(s->single->job))
         return 0;
     fprintf(stderr, "\nptserve: all %u local workers exited before the image was complete\n",
-            s->local.nchildren);
+            s->local->nchildren);
     return 1;
 }
 
@@ -404,7 +405,7 @@ static void queue_tick(srv_server *s, uint64_t now)
 static int queue_local_gone(srv_server *s)
 {
     if (!s->local_gone_logged) {
-        srv_log("all %u local workers exited; waiting for remote ones", s->local.nchildren);
+        srv_log("all %u local workers exited; waiting for remote ones", s->local->nchildren);
         s->local_gone_logged = 1;
     }
     return 0;

@@ -11,6 +11,7 @@
 #include "server/app/local.h"
 #include "server/app/mode.h"
 #include "server/core.h"
+#include "server/net/clients.h"
 #include "server/net/loop.h"
 #include "server/sched/frames.h"
 #include "server/sched/queue.h"
@@ -67,7 +68,7 @@ static pt_status setup(srv_server *s, pt_error *err)
     s->t_start = s->t_last_print = pt_now_ms();
     if (cfg->http && (st = srv_http_start(s, &s->http, err)) != PT_OK)
         return st;
-    if (cfg->local_workers && (st = srv_local_start(&s->local, cfg, s->port, err)) != PT_OK)
+    if (cfg->local_workers && (st = srv_local_start(s->local, cfg, s->port, err)) != PT_OK)
         return st;
     return PT_OK;
 }
@@ -89,7 +90,10 @@ static void timers(srv_server *s)
 int srv_serve(const srv_config *cfg)
 {
     srv_server s;
+    srv_local local;
     memset(&s, 0, sizeof s);
+    memset(&local, 0, sizeof local);
+    s.local = &local;
     s.cfg = cfg;
     s.mode = srv_mode_for(cfg);
     s.lfd = s.ep = s.sigpipe[0] = s.sigpipe[1] = s.verifypipe[0] = s.verifypipe[1] = -1;
@@ -109,9 +113,9 @@ int srv_serve(const srv_config *cfg)
         srv_http_publish(&s, s.http, 0);
         /* Flush, then free closed connections outside their callbacks. */
         srv_loop_sweep(&s);
-        if (s.local.nchildren) {
-            srv_local_reap(&s.local, 0);
-            if (s.local.alive == 0 && s.mode->local_gone(&s))
+        if (s.local->nchildren) {
+            srv_local_reap(s.local, 0);
+            if (s.local->alive == 0 && s.mode->local_gone(&s))
                 break;
         }
     }
@@ -119,7 +123,7 @@ int srv_serve(const srv_config *cfg)
 done:
     srv_http_stop(s.http);
     srv_upload_close(&s);
-    srv_local_stop(&s.local);
+    srv_local_stop(s.local);
     srv_loop_close(&s);
     srv_queue_free(&s);
     srv_adder_free(s.adder); /* after the jobs: each settled as it was freed */

@@ -18,6 +18,7 @@
 #include "common/base/alloc.h"
 #include "common/base/net.h"
 #include "common/base/text.h"
+#include "server/net/clients.h"
 #include "server/net/io.h"
 
 /* Sends ERROR(code, text) and closes c, without a log line: for refusals
@@ -45,7 +46,7 @@ static int handshake_blocked(srv_server *s, srv_conn *c)
 {
     char addr[SRV_AUTHLIMIT_ADDR];
     srv_authlimit_addr(c->peer, addr);
-    uint64_t ms = srv_authlimit_blocked(&s->authlimit, addr, pt_now_ms());
+    uint64_t ms = srv_authlimit_blocked(&s->guard->authlimit, addr, pt_now_ms());
     if (ms == 0)
         return 0;
     handshake_refuse(s, c, PROTO_E_LIMIT,
@@ -140,7 +141,7 @@ void loop_on_auth(srv_server *s, srv_conn *c, const proto_frame *f)
     if (!auth_match(s, c, &a, &key, &key_len, &ident)) {
         char addr[SRV_AUTHLIMIT_ADDR];
         srv_authlimit_addr(c->peer, addr);
-        srv_authlimit_failed(&s->authlimit, addr, c->shown, pt_now_ms());
+        srv_authlimit_failed(&s->guard->authlimit, addr, c->shown, pt_now_ms());
         handshake_refuse(s, c, PROTO_E_AUTH, "authentication failed (wrong token)");
         return;
     }

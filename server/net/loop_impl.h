@@ -13,6 +13,7 @@
 #include <stdatomic.h>
 #include <stdint.h>
 
+#include "server/net/authlimit.h"
 #include "server/net/loop.h"
 
 #define ROLE_MAX_PAYLOAD                                                                           \
@@ -54,6 +55,7 @@ typedef struct refusal_log {
 /* The loop's limits on peers (loop.h) and what it counts against them. */
 struct srv_guard {
     srv_peer_limits lim;      /* the configuration's, defaults filled in */
+    srv_authlimit authlimit;  /* failed handshakes per address (server/net/authlimit.h) */
     _Atomic uint64_t in_held; /* srv_in_counted over the input buffers (the I/O
                                * threads count theirs here too) */
     srv_conn **hs;            /* the connections in the handshake: nhs of lim.max_handshakes */
