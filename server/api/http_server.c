@@ -331,7 +331,7 @@ static void run_action(srv_server *s, action *a)
         snprintf(a->text, sizeof a->text, "no job %llu", (unsigned long long)a->job);
         return;
     }
-    if (!a->admin && strcmp(j->rec.owner, a->who) != 0) {
+    if (!srv_queue_may_change(j, a->who, a->admin)) {
         a->status = 403;
         snprintf(a->text, sizeof a->text,
                  "job %llu belongs to another client: only its owner or an admin may change it",
@@ -339,25 +339,13 @@ static void run_action(srv_server *s, action *a)
         return;
     }
     a->status = 200;
-    if (a->kind == ACT_CANCEL) {
-        if (srv_entry_active(j)) {
-            char msg[PROTO_MAX_ERROR_TEXT + 1];
-            snprintf(msg, sizeof msg, "cancelled by %s (web)", a->who);
-            srv_queue_end_job(s, j, PROTO_JOB_CANCELLED, msg);
-        }
-        return;
-    }
-    if (!srv_entry_active(j) || j->rec.priority == a->priority)
-        return;
-    j->rec.priority = a->priority;
-    srv_queue_unlink(s, j);
-    srv_queue_insert(s, j);
-    pt_error err = {0};
-    if (srv_queue_journal(s, &err) != PT_OK)
-        srv_log("job %llu: priority %d not saved: %s", (unsigned long long)a->job, a->priority,
-                err.msg);
-    srv_log("job %llu: priority %d, set by %s (web)", (unsigned long long)a->job, a->priority,
-            a->who);
+    /* The same scheduler calls as ptctl's, by a name that says where from. */
+    char by[PROTO_MAX_NAME + 8];
+    snprintf(by, sizeof by, "%s (web)", a->who);
+    if (a->kind == ACT_CANCEL)
+        srv_queue_cancel(s, j, by);
+    else
+        srv_queue_set_priority(s, j, a->priority, by);
 }
 
 void srv_http_drain(srv_server *s, srv_http *h)

@@ -536,7 +536,7 @@ static void on_fetch_frame(srv_server *s, srv_conn *c, const proto_frame *f)
  * and closed, and it returns 0. */
 static int may_change(srv_server *s, srv_conn *c, const srv_entry *j, const char *verb)
 {
-    if (c->admin || strcmp(j->rec.owner, c->name) == 0)
+    if (srv_queue_may_change(j, c->name, c->admin))
         return 1;
     srv_conn_send_error(s, c, PROTO_E_DENIED,
                         "job %llu belongs to %s: only its owner or an admin (the shared "
@@ -575,11 +575,7 @@ void srv_requests_dispatch(srv_server *s, srv_conn *c, const proto_frame *f)
         break;
     case PROTO_MSG_CANCEL:
         if (read_job_ref(s, c, f, &j) && may_change(s, c, j, "cancel")) {
-            if (srv_entry_active(j)) {
-                char msg[PROTO_MAX_ERROR_TEXT + 1];
-                snprintf(msg, sizeof msg, "cancelled by %s", c->name);
-                srv_queue_end_job(s, j, PROTO_JOB_CANCELLED, msg);
-            }
+            srv_queue_cancel(s, j, c->name);
             send_job_info(s, c, j);
         }
         break;

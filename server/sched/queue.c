@@ -671,3 +671,32 @@ void srv_queue_free(srv_server *s)
     srv_state_close(s->state);
     s->state = NULL;
 }
+
+int srv_queue_may_change(const srv_entry *j, const char *who, int admin)
+{
+    return admin || strcmp(j->rec.owner, who) == 0;
+}
+
+void srv_queue_cancel(srv_server *s, srv_entry *j, const char *by)
+{
+    if (!srv_entry_active(j))
+        return;
+    char msg[PROTO_MAX_ERROR_TEXT + 1];
+    snprintf(msg, sizeof msg, "cancelled by %s", by);
+    srv_queue_end_job(s, j, PROTO_JOB_CANCELLED, msg);
+}
+
+int srv_queue_set_priority(srv_server *s, srv_entry *j, int32_t priority, const char *by)
+{
+    if (!srv_entry_active(j) || j->rec.priority == priority)
+        return 0;
+    j->rec.priority = priority;
+    srv_queue_unlink(s, j);
+    srv_queue_insert(s, j);
+    pt_error err = {0};
+    if (srv_queue_journal(s, &err) != PT_OK)
+        srv_log("job %llu: priority %d not saved: %s", (unsigned long long)j->rec.id, priority,
+                err.msg);
+    srv_log("job %llu: priority %d, set by %s", (unsigned long long)j->rec.id, priority, by);
+    return 1;
+}

@@ -186,6 +186,19 @@ void srv_queue_info(const srv_server *s, const srv_entry *j, proto_job_info *m);
  * always. */
 void srv_queue_end_job(srv_server *s, srv_entry *j, uint8_t state, const char *message);
 
+/* 1 when who (admin: it proved the shared token) may change j: cancel it
+ * or set its priority. Every client may, without --clients-file. */
+int srv_queue_may_change(const srv_entry *j, const char *who, int admin);
+
+/* Cancels j, "cancelled by <by>", when it is still active (ptctl's CANCEL
+ * and the dashboard's). */
+void srv_queue_cancel(srv_server *s, srv_entry *j, const char *by);
+
+/* Sets active j's priority, moves it to its place in the queue order and
+ * journals it (a failure logged); by: who set it, for the log. 0 when
+ * nothing changed (j ended, or the priority is the same). */
+int srv_queue_set_priority(srv_server *s, srv_entry *j, int32_t priority, const char *by);
+
 /* Ends the jobs whose every task is merged; returns how many. */
 int srv_queue_end_complete(srv_server *s);
 
