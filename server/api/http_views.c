@@ -25,6 +25,7 @@
 #include "common/base/net.h"
 #include "common/image/exr.h"
 #include "common/image/image.h"
+#include "common/image/view.h"
 #include "protocol/auth.h"
 #include "protocol/jobjson.h"
 #include "server/api/http_assets.h"
@@ -167,27 +168,20 @@ static void heat(double t, uint8_t *px)
         px[c] = (uint8_t)(255.0 * (stops[i][c] * (1 - u) + stops[i + 1][c] * u) + 0.5);
 }
 
-static uint8_t tone(float v, float scale)
-{
-    float x = v * scale;
-    if (!(x > 0.0f))
-        return 0;
-    if (x >= 1.0f)
-        return 255;
-    return (uint8_t)(pt_linear_to_srgb(x) * 255.0f + 0.5f);
-}
-
-/* The job's current image as a PNG: view "rgb" (exposure in stops), "samples"
- * (samples per pixel over the most any pixel has) or "error" (the relative
- * standard error of each pixel, 0 to 20 %). */
+/* The job's current image as a PNG: view "rgb" or "standard", "filmic" or
+ * "agx" (the previews' view transforms, common/image/view.h, after exposure
+ * in stops), "samples" (samples per pixel over the most any pixel has) or
+ * "error" (the relative standard error of each pixel, 0 to 20 %). */
 static enum MHD_Result make_png(struct MHD_Connection *conn, const snap_job *j)
 {
     const char *view = MHD_lookup_connection_value(conn, MHD_GET_ARGUMENT_KIND, "view");
     if (!view)
         view = "rgb";
-    if (strcmp(view, "rgb") && strcmp(view, "samples") && strcmp(view, "error"))
-        return http_respond_error(conn, 400, "view: rgb, samples or error");
-    float scale = (float)exp2(arg_double(conn, "exposure", 0.0, -20.0, 20.0));
+    pt_view tv = {PT_VIEW_STANDARD, 0.0f};
+    int image = !strcmp(view, "rgb") || pt_view_parse("view", view, &tv.kind, NULL) == PT_OK;
+    if (!image && strcmp(view, "samples") && strcmp(view, "error"))
+        return http_respond_error(conn, 400, "view: rgb, standard, filmic, agx, samples or error");
+    tv.exposure = (float)arg_double(conn, "exposure", 0.0, -PT_VIEW_MAX_EV, PT_VIEW_MAX_EV);
     pt_image *img = NULL;
     pt_error err = {0};
     if (!j->exr[0] || pt_exr_read_nofollow(j->exr, &img, NULL, &err) != PT_OK)
@@ -203,10 +197,9 @@ static enum MHD_Result make_png(struct MHD_Connection *conn, const snap_job *j)
         smax = img->samples[i] > smax ? img->samples[i] : smax;
     for (size_t i = 0; i < n; i++) {
         uint8_t *px = rgb + 3 * i;
-        if (view[0] == 'r') {
-            px[0] = tone(img->r[i], scale);
-            px[1] = tone(img->g[i], scale);
-            px[2] = tone(img->b[i], scale);
+        if (image) {
+            const float c[3] = {img->r[i], img->g[i], img->b[i]};
+            pt_view_pixel(&tv, c, px);
         } else if (view[0] == 's') {
             heat(smax > 0.0f ? img->samples[i] / smax : 0.0, px);
         } else {
