@@ -893,6 +893,19 @@ static inline __attribute__((always_inline)) void shade_miss(const pt_renderer *
         pa->L = pt_v3_add(pa->L, pt_v3_mul(pa->beta, le));
 }
 
+/* KHR_materials_unlit (PT_FEAT_UNLIT; general variant only): the ray sees
+ * the base colour (factor x texture x COLOR_0) as radiance, whatever the
+ * lighting, and the path ends. No light sampling can find the surface, so
+ * the colour counts in full at any depth and under any light strategy. */
+static inline __attribute__((always_inline)) void
+shade_unlit(const pt_renderer *r, path *pa, const surface *sf, const uint32_t features)
+{
+    pt_vec3 base;
+    float metallic, roughness;
+    base_inputs(r->scene, sf, features, &base, &metallic, &roughness);
+    pa->L = pt_v3_add(pa->L, pt_v3_mul(pa->beta, base));
+}
+
 /*
  * Glass and media (PT_FEAT_TRANSMISSION, PT_FEAT_VOLUME; general variant
  * only). A path knows one medium: the absorbing material whose closed mesh
@@ -1068,6 +1081,10 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     pt_vec3 wo = pt_v3_neg(pa->d);
 
     shade_emission(r, pa, hit, sf, features);
+    if ((features & PT_FEAT_UNLIT) && sf->mat->unlit) {
+        shade_unlit(r, pa, sf, features);
+        return ret;
+    }
     if (pa->depth >= r->params.max_depth)
         return ret;
 
@@ -1828,10 +1845,13 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
 #define GLASS (uint32_t)(PT_FEAT_TRANSMISSION | PT_FEAT_VOLUME)
 /* The material features beyond the core's (normal maps, vertex colours). */
 #define SURFACE_EXTRAS (uint32_t)(PT_FEAT_NORMAL_MAP | PT_FEAT_VERTEX_COLOR)
+/* The glTF material extensions past the core's: unlit. */
+#define MATERIAL_EXTS (uint32_t)(PT_FEAT_UNLIT)
 /* Features that only the general variant has code for. */
 /* Motion blur (PT_FEAT_MOTION) too: a path's time reaches every ray query. */
 #define GENERAL_ONLY                                                                               \
-    (uint32_t)(OTHER_LIGHTS | PT_FEAT_ALPHA | GLASS | SURFACE_EXTRAS | LAYERS | PT_FEAT_MOTION)
+    (uint32_t)(OTHER_LIGHTS | PT_FEAT_ALPHA | GLASS | SURFACE_EXTRAS | LAYERS | PT_FEAT_MOTION |   \
+               MATERIAL_EXTS)
 VARIANT(li_guided, tile_guided, ALL_FEATURES)
 VARIANT(li_general, tile_general, ALL_FEATURES & ~FEAT_GUIDE)
 VARIANT(li_untextured, tile_untextured, ALL_FEATURES & ~NO_TEX & ~GENERAL_ONLY & ~FEAT_GUIDE)

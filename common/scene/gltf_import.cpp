@@ -1234,6 +1234,7 @@ bool ext_supported(const std::string &name)
         "KHR_materials_sheen",             // add_layers
         "KHR_materials_specular",          // read_materials (factors)
         "KHR_materials_transmission",      // add_transmission
+        "KHR_materials_unlit",             // read_materials: pm.unlit
         "KHR_materials_variants",          // choose_variant
         "KHR_materials_volume",            // add_transmission
         "KHR_mesh_quantization",           // comp_allowed
@@ -1290,14 +1291,19 @@ void read_materials(importer &im)
                              "material " + std::to_string(i) +
                                  ": KHR_materials_specular textures are ignored");
         }
-        add_transmission(im, mi, g, pm);
-        add_layers(im, mi, g, pm);
+        // KHR_materials_unlit keeps the base colour, its alpha and
+        // doubleSided; what lights or shades (emission included) is not read.
+        pm.unlit = g.extensions.count("KHR_materials_unlit") ? 1 : 0;
+        if (!pm.unlit) {
+            add_transmission(im, mi, g, pm);
+            add_layers(im, mi, g, pm);
+        }
         pm.double_sided = g.doubleSided ? 1 : 0;
         for (const auto &e : g.extensions)
             if (!ext_supported(e.first))
                 warn_ext_ignored(im, e.first,
                                  "material " + std::to_string(i) + " ('" + shown(g.name) + "')");
-        if (g.occlusionTexture.index >= 0)
+        if (g.occlusionTexture.index >= 0 && !pm.unlit)
             im.warn_once("occlusionTexture",
                          "occlusion textures are ignored (material " + std::to_string(i) + ")");
         if (g.alphaMode == "MASK")
@@ -1313,14 +1319,17 @@ void read_materials(importer &im)
         const tinygltf::NormalTextureInfo &nt = g.normalTexture;
         pm.base_color_tex = texture_for(im, mi, "baseColorTexture", bt.index, bt.texCoord,
                                         bt.extensions, true, &pm.tex_xf[PT_SLOT_BASE]);
-        pm.metal_rough_tex = texture_for(im, mi, "metallicRoughnessTexture", mt.index, mt.texCoord,
-                                         mt.extensions, false, &pm.tex_xf[PT_SLOT_METAL_ROUGH]);
-        pm.emissive_tex = texture_for(im, mi, "emissiveTexture", et.index, et.texCoord,
-                                      et.extensions, true, &pm.tex_xf[PT_SLOT_EMISSIVE]);
-        // Normal textures hold vectors: linear, whatever the image says.
-        pm.normal_tex = texture_for(im, mi, "normalTexture", nt.index, nt.texCoord, nt.extensions,
-                                    false, &pm.tex_xf[PT_SLOT_NORMAL]);
-        pm.normal_scale = float(nt.scale);
+        if (!pm.unlit) {
+            pm.metal_rough_tex =
+                texture_for(im, mi, "metallicRoughnessTexture", mt.index, mt.texCoord,
+                            mt.extensions, false, &pm.tex_xf[PT_SLOT_METAL_ROUGH]);
+            pm.emissive_tex = texture_for(im, mi, "emissiveTexture", et.index, et.texCoord,
+                                          et.extensions, true, &pm.tex_xf[PT_SLOT_EMISSIVE]);
+            // Normal textures hold vectors: linear, whatever the image says.
+            pm.normal_tex = texture_for(im, mi, "normalTexture", nt.index, nt.texCoord,
+                                        nt.extensions, false, &pm.tex_xf[PT_SLOT_NORMAL]);
+            pm.normal_scale = float(nt.scale);
+        }
         if (im.headers_only)
             continue;
         uint32_t idx;

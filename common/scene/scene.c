@@ -295,6 +295,10 @@ pt_status pt_scene_builder_add_material(pt_scene_builder *b, const pt_material *
         return pt_error_set(err, PT_ERR_NOMEM, "material '%.64s': out of memory", name);
     pt_material *d = &b->mats[b->nmat];
     *d = *m;
+    if (d->unlit) {
+        d->unlit = 1;
+        d->emissive[0] = d->emissive[1] = d->emissive[2] = 0.0f;
+    }
     /* Zero the bytes after the name's end so the scene hash sees only the name. */
     size_t len = strnlen(m->name, sizeof m->name - 1);
     memset(d->name + len, 0, sizeof d->name - len);
@@ -1137,6 +1141,15 @@ static uint32_t scene_features(const pt_scene *s, int has_uv, pt_error *err, pt_
         const pt_material *m = &s->materials[i];
         if (!used[i])
             continue;
+        if (m->unlit) {
+            /* Only its base colour (and its alpha) is read. */
+            f |= PT_FEAT_UNLIT;
+            if (m->base_color_tex >= 0)
+                f |= PT_FEAT_TEXTURES;
+            if (m->alpha_mode != PT_ALPHA_OPAQUE)
+                f |= PT_FEAT_ALPHA;
+            continue;
+        }
         if (m->base_color_tex >= 0 || m->metal_rough_tex >= 0)
             f |= PT_FEAT_TEXTURES;
         /* Pure Lambert only without any GGX lobe: not metallic (factor and

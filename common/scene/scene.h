@@ -60,6 +60,9 @@ enum { PT_FEAT_CLEARCOAT = 1u << 13, PT_FEAT_SHEEN = 1u << 14 };
 /* Motion blur (common/scene/motion.h): something moves while the shutter is
  * open (scene->motion is not NULL). */
 enum { PT_FEAT_MOTION = 1u << 15 };
+/* KHR_materials_unlit: some material shows its base colour whatever the
+ * lighting (pt_material.unlit). */
+enum { PT_FEAT_UNLIT = 1u << 16 };
 
 /* glTF alphaMode (common/scene/alpha.h). OPAQUE is 0, so a material
  * initialised with zeros is opaque. */
@@ -142,6 +145,11 @@ typedef struct pt_material {
      * same tangents as normal_tex, so it sets PT_FEAT_NORMAL_MAP too. */
     int32_t clearcoat_normal_tex;
     float clearcoat_normal_scale; /* its scale: scales the map's x and y */
+    /* KHR_materials_unlit: 1, every ray that meets the surface sees its base
+     * colour (factor x texture x COLOR_0) and the path ends there: it
+     * neither scatters nor is a light (the builder zeroes its emission, as
+     * the extension ignores it); alpha and doubleSided still apply. */
+    int32_t unlit;
     char name[64];
 } pt_material;
 
