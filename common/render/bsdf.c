@@ -66,6 +66,29 @@ pt_bsdf pt_bsdf_setup(pt_vec3 base_color, float metallic, float roughness, float
     return b;
 }
 
+/*
+ * KHR_materials_pbrSpecularGlossiness (archived extension, "Specular -
+ * Glossiness"): c_diff = diffuse (1 - max(specular)), F0 = specular,
+ * alpha = (1 - glossiness)^2, with the BRDF of glTF 2.0's appendix B, whose
+ * Fresnel goes to 1 at grazing. That is the metallic-roughness base above
+ * with metallic 0, specular 1 (F90 = 1, dielectric_f0 0.04) and F0 given
+ * directly, so the two workflows share one BSDF; built here without the
+ * division by 0.04 that pt_bsdf_setup would need, so F0 keeps its bits.
+ */
+pt_bsdf pt_bsdf_setup_spec_gloss(pt_vec3 diffuse, pt_vec3 specular, float glossiness)
+{
+    specular = clamp3(specular, 1.0f);
+    glossiness = clamp01(glossiness == glossiness ? glossiness : 0.0f);
+    float r = 1.0f - glossiness;
+    pt_bsdf b;
+    b.diffuse = pt_v3_scale(clamp3(diffuse, 1.0f), 1.0f - pt_v3_max_comp(specular));
+    b.f0 = specular;
+    b.spec_weight = 1.0f;
+    b.alpha = maxf(r * r, PT_BSDF_MIN_ALPHA);
+    b.dielectric_f0 = PT_BSDF_DIELECTRIC_F0;
+    return b;
+}
+
 float pt_ggx_g1(pt_vec3 w, float alpha)
 {
     if (w.z <= 0.0f)

@@ -44,6 +44,16 @@ typedef struct pt_bsdf {
 pt_bsdf pt_bsdf_setup(pt_vec3 base_color, float metallic, float roughness, float specular,
                       pt_vec3 specular_color);
 
+/* Builds the base from KHR_materials_pbrSpecularGlossiness inputs (linear
+ * diffuse colour, specular colour and glossiness in [0,1]): the
+ * extension's c_diff = diffuse x (1 - max(specular)) as the Lambert albedo,
+ * F0 = specular and F90 = 1 for the GGX lobe, alpha = (1 - glossiness)^2,
+ * and the diffuse weighed by the dielectric's (1 - F) as the metallic-
+ * roughness base weighs it (bsdf.c). It equals pt_bsdf_setup(c_diff, 0,
+ * 1 - glossiness, 1, specular / 0.04): the metallic-roughness material with
+ * KHR_materials_specular that the extension converts to. */
+pt_bsdf pt_bsdf_setup_spec_gloss(pt_vec3 diffuse, pt_vec3 specular, float glossiness);
+
 /* The Lambert lobe: albedo x (1 - F_d(min(cos wo, cos wi))) / pi, F_d the
  * dielectric layer's scalar Schlick (bsdf.c). */
 typedef struct pt_diffuse_lobe {

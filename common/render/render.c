@@ -554,11 +554,67 @@ static inline __attribute__((always_inline)) void base_inputs(const pt_scene *s,
         *base = pt_v3_mul(*base, sf->color);
 }
 
+/* KHR_materials_specular's factors at sf, times their textures
+ * (PT_FEAT_SPECULAR_TEX: specularTexture's A, specularColorTexture's RGB). */
+static inline void specular_inputs(const pt_scene *s, const surface *sf, const uint32_t features,
+                                   float *spec, pt_vec3 *col)
+{
+    const pt_material *m = sf->mat;
+    *spec = m->specular;
+    *col = pt_v3(m->specular_color[0], m->specular_color[1], m->specular_color[2]);
+    if (!((features & PT_FEAT_SPECULAR_TEX) && (m->ext & PT_MATX_SPECULAR_TEX)))
+        return;
+    float t[4], uv[2];
+    if (m->specular_tex >= 0) {
+        slot_uv(sf, &m->tex_xf[PT_SLOT_SPECULAR], uv);
+        pt_texture_sample(&s->textures[m->specular_tex], uv[0], uv[1], t);
+        *spec *= t[3];
+    }
+    if (m->specular_color_tex >= 0) {
+        slot_uv(sf, &m->tex_xf[PT_SLOT_SPECULAR_COLOR], uv);
+        pt_texture_sample(&s->textures[m->specular_color_tex], uv[0], uv[1], t);
+        *col = pt_v3_mul(*col, pt_v3(t[0], t[1], t[2]));
+    }
+}
+
+/* The material extensions that change the opaque base's inputs. */
+#define BSDF_EXTS (uint32_t)(PT_FEAT_SPEC_GLOSS | PT_FEAT_SPECULAR_TEX)
+
+/* The base of a material with pt_material.ext set: specular-glossiness
+ * (its factors times specularGlossinessTexture: RGB specular, A
+ * glossiness), or metallic-roughness with KHR_materials_specular textures. */
+static pt_bsdf material_bsdf_ext(const pt_renderer *r, const surface *sf, const uint32_t features)
+{
+    const pt_scene *s = r->scene;
+    const pt_material *m = sf->mat;
+    pt_vec3 base;
+    float metallic, roughness;
+    base_inputs(s, sf, features, &base, &metallic, &roughness);
+    if ((features & PT_FEAT_SPEC_GLOSS) && (m->ext & PT_MATX_SPEC_GLOSS)) {
+        pt_vec3 spec = pt_v3(m->sg_specular[0], m->sg_specular[1], m->sg_specular[2]);
+        float gloss = m->sg_glossiness;
+        if ((features & PT_FEAT_TEXTURES) && m->sg_tex >= 0) {
+            float t[4], uv[2];
+            slot_uv(sf, &m->tex_xf[PT_SLOT_SPEC_GLOSS], uv);
+            pt_texture_sample(&s->textures[m->sg_tex], uv[0], uv[1], t);
+            spec = pt_v3_mul(spec, pt_v3(t[0], t[1], t[2]));
+            gloss *= t[3];
+        }
+        return pt_bsdf_setup_spec_gloss(base, spec, gloss);
+    }
+    float spec;
+    pt_vec3 col;
+    specular_inputs(s, sf, features, &spec, &col);
+    return pt_bsdf_setup(base, metallic, roughness, spec, col);
+}
+
 static inline pt_bsdf material_bsdf(const pt_renderer *r, const surface *sf,
                                     const uint32_t features)
 {
     const pt_scene *s = r->scene;
     const pt_material *m = sf->mat;
+    if ((features & BSDF_EXTS) && m->ext)
+        return material_bsdf_ext(r, sf, features);
     const int vcol = (features & PT_FEAT_VERTEX_COLOR) && s->colors;
     if ((!(features & PT_FEAT_TEXTURES) || (m->base_color_tex < 0 && m->metal_rough_tex < 0)) &&
         !vcol) {
@@ -978,9 +1034,10 @@ static pt_glass glass_at(const pt_renderer *r, const surface *sf, int front,
     /* Seen from the back of a closed mesh the ray is inside: n_far / n_near
      * is 1 / ior. A thin wall has air on both sides. */
     float eta = m->ior == 0.0f ? 0.0f : (thin || front ? m->ior : 1.0f / m->ior);
-    return pt_glass_setup(base, metallic, roughness, m->specular,
-                          pt_v3(m->specular_color[0], m->specular_color[1], m->specular_color[2]),
-                          trans, eta, thin);
+    float spec;
+    pt_vec3 col;
+    specular_inputs(s, sf, features, &spec, &col);
+    return pt_glass_setup(base, metallic, roughness, spec, col, trans, eta, thin);
 }
 
 /*
@@ -1845,8 +1902,9 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
 #define GLASS (uint32_t)(PT_FEAT_TRANSMISSION | PT_FEAT_VOLUME)
 /* The material features beyond the core's (normal maps, vertex colours). */
 #define SURFACE_EXTRAS (uint32_t)(PT_FEAT_NORMAL_MAP | PT_FEAT_VERTEX_COLOR)
-/* The glTF material extensions past the core's: unlit. */
-#define MATERIAL_EXTS (uint32_t)(PT_FEAT_UNLIT)
+/* The glTF material extensions past the core's: unlit, specular-glossiness,
+ * specular textures. */
+#define MATERIAL_EXTS (uint32_t)(PT_FEAT_UNLIT | BSDF_EXTS)
 /* Features that only the general variant has code for. */
 /* Motion blur (PT_FEAT_MOTION) too: a path's time reaches every ray query. */
 #define GENERAL_ONLY                                                                               \

@@ -1226,25 +1226,26 @@ void add_layers(importer &im, int mi, const tinygltf::Material &g, pt_material &
 bool ext_supported(const std::string &name)
 {
     static const std::set<std::string> supported = {
-        "KHR_draco_mesh_compression",      // draco_primitive
-        "KHR_lights_punctual",             // add_light
-        "KHR_materials_clearcoat",         // add_layers
-        "KHR_materials_emissive_strength", // read_materials
-        "KHR_materials_ior",               // add_transmission
-        "KHR_materials_sheen",             // add_layers
-        "KHR_materials_specular",          // read_materials (factors)
-        "KHR_materials_transmission",      // add_transmission
-        "KHR_materials_unlit",             // read_materials: pm.unlit
-        "KHR_materials_variants",          // choose_variant
-        "KHR_materials_volume",            // add_transmission
-        "KHR_mesh_quantization",           // comp_allowed
-        "KHR_texture_transform",           // slot_transform
-        "KHR_xmp",                         // metadata: nothing to render
-        "KHR_xmp_json_ld",                 // metadata: nothing to render
-        "EXT_mesh_gpu_instancing",         // instance_matrices
-        "EXT_meshopt_compression",         // meshopt_view, meshopt.c
-        "EXT_texture_webp",                // texture_source, webp.c
-        "KHR_texture_basisu",              // texture_source: the PNG/JPEG fallback
+        "KHR_draco_mesh_compression",          // draco_primitive
+        "KHR_lights_punctual",                 // add_light
+        "KHR_materials_clearcoat",             // add_layers
+        "KHR_materials_emissive_strength",     // read_materials
+        "KHR_materials_ior",                   // add_transmission
+        "KHR_materials_sheen",                 // add_layers
+        "KHR_materials_specular",              // read_materials (factors)
+        "KHR_materials_transmission",          // add_transmission
+        "KHR_materials_unlit",                 // read_materials: pm.unlit
+        "KHR_materials_variants",              // choose_variant
+        "KHR_materials_volume",                // add_transmission
+        "KHR_mesh_quantization",               // comp_allowed
+        "KHR_texture_transform",               // slot_transform
+        "KHR_xmp",                             // metadata: nothing to render
+        "KHR_xmp_json_ld",                     // metadata: nothing to render
+        "EXT_mesh_gpu_instancing",             // instance_matrices
+        "EXT_meshopt_compression",             // meshopt_view, meshopt.c
+        "EXT_texture_webp",                    // texture_source, webp.c
+        "KHR_texture_basisu",                  // texture_source: the PNG/JPEG fallback
+        "KHR_materials_pbrSpecularGlossiness", // read_materials
     };
     return supported.count(name) != 0;
 }
@@ -1253,6 +1254,38 @@ void warn_ext_ignored(importer &im, const std::string &name, const std::string &
 {
     im.warn_once("ext:" + name,
                  "extension " + shown(name) + " is not supported; " + where + " is ignored");
+}
+
+// KHR_materials_pbrSpecularGlossiness into pm (scene.h): the diffuse as the
+// base colour (its factor, its sRGB texture with alpha), the specular and
+// glossiness factors and their texture. The metallic-roughness inputs are
+// then not read, nor the extensions that must not be used with this one
+// (specular, transmission, volume, ior, clearcoat, sheen): each is warned
+// about by name.
+void add_spec_gloss(importer &im, int mi, const tinygltf::Value &sg, pt_material &pm)
+{
+    pm.spec_gloss = 1;
+    pm.metallic = 0.0f;
+    for (int c = 0; c < 4; c++)
+        pm.base_color[c] = 1.0f;
+    ext_numbers(sg, "diffuseFactor", pm.base_color, 4);
+    ext_numbers(sg, "specularFactor", pm.sg_specular, 3);
+    pm.sg_glossiness = float(ext_number(sg, "glossinessFactor", 1.0));
+    const tinygltf::TextureInfo dt = ext_texture(sg, "diffuseTexture"),
+                                gt = ext_texture(sg, "specularGlossinessTexture");
+    pm.base_color_tex = texture_for(im, mi, "diffuseTexture", dt.index, dt.texCoord, dt.extensions,
+                                    true, &pm.tex_xf[PT_SLOT_BASE]);
+    pm.sg_tex = texture_for(im, mi, "specularGlossinessTexture", gt.index, gt.texCoord,
+                            gt.extensions, true, &pm.tex_xf[PT_SLOT_SPEC_GLOSS]);
+    const tinygltf::Material &g = im.model.materials[size_t(mi)];
+    for (const char *x :
+         {"KHR_materials_specular", "KHR_materials_transmission", "KHR_materials_volume",
+          "KHR_materials_ior", "KHR_materials_clearcoat", "KHR_materials_sheen"})
+        if (g.extensions.count(x))
+            im.warn_once(std::string("sg:") + x,
+                         "material " + std::to_string(mi) + " uses " + x +
+                             " with KHR_materials_pbrSpecularGlossiness, which the extension "
+                             "forbids; it is ignored");
 }
 
 void read_materials(importer &im)
@@ -1285,16 +1318,22 @@ void read_materials(importer &im)
                     if (a.Get(c).IsNumber())
                         pm.specular_color[c] = float(a.Get(c).GetNumberAsDouble());
             }
-            if (sp->second.IsObject() &&
-                (sp->second.Has("specularTexture") || sp->second.Has("specularColorTexture")))
-                im.warn_once("specular-texture",
-                             "material " + std::to_string(i) +
-                                 ": KHR_materials_specular textures are ignored");
+            // specularTexture's A and specularColorTexture's RGB (sRGB).
+            const tinygltf::TextureInfo st = ext_texture(sp->second, "specularTexture"),
+                                        sc = ext_texture(sp->second, "specularColorTexture");
+            pm.specular_tex = texture_for(im, mi, "specularTexture", st.index, st.texCoord,
+                                          st.extensions, false, &pm.tex_xf[PT_SLOT_SPECULAR]);
+            pm.specular_color_tex =
+                texture_for(im, mi, "specularColorTexture", sc.index, sc.texCoord, sc.extensions,
+                            true, &pm.tex_xf[PT_SLOT_SPECULAR_COLOR]);
         }
         // KHR_materials_unlit keeps the base colour, its alpha and
         // doubleSided; what lights or shades (emission included) is not read.
         pm.unlit = g.extensions.count("KHR_materials_unlit") ? 1 : 0;
-        if (!pm.unlit) {
+        auto sg = g.extensions.find("KHR_materials_pbrSpecularGlossiness");
+        if (sg != g.extensions.end() && !pm.unlit)
+            add_spec_gloss(im, mi, sg->second, pm);
+        if (!pm.unlit && !pm.spec_gloss) {
             add_transmission(im, mi, g, pm);
             add_layers(im, mi, g, pm);
         }
@@ -1317,12 +1356,14 @@ void read_materials(importer &im)
         const tinygltf::TextureInfo &bt = pbr.baseColorTexture, &mt = pbr.metallicRoughnessTexture,
                                     &et = g.emissiveTexture;
         const tinygltf::NormalTextureInfo &nt = g.normalTexture;
-        pm.base_color_tex = texture_for(im, mi, "baseColorTexture", bt.index, bt.texCoord,
-                                        bt.extensions, true, &pm.tex_xf[PT_SLOT_BASE]);
-        if (!pm.unlit) {
+        if (!pm.spec_gloss)
+            pm.base_color_tex = texture_for(im, mi, "baseColorTexture", bt.index, bt.texCoord,
+                                            bt.extensions, true, &pm.tex_xf[PT_SLOT_BASE]);
+        if (!pm.unlit && !pm.spec_gloss)
             pm.metal_rough_tex =
                 texture_for(im, mi, "metallicRoughnessTexture", mt.index, mt.texCoord,
                             mt.extensions, false, &pm.tex_xf[PT_SLOT_METAL_ROUGH]);
+        if (!pm.unlit) {
             pm.emissive_tex = texture_for(im, mi, "emissiveTexture", et.index, et.texCoord,
                                           et.extensions, true, &pm.tex_xf[PT_SLOT_EMISSIVE]);
             // Normal textures hold vectors: linear, whatever the image says.

@@ -112,6 +112,10 @@ pt_material pt_material_default(void)
     m.clearcoat_normal_tex = -1;
     m.clearcoat_normal_scale = 1.0f;
     m.clearcoat_tex = m.clearcoat_rough_tex = m.sheen_color_tex = m.sheen_rough_tex = -1;
+    m.specular_tex = m.specular_color_tex = m.sg_tex = -1;
+    for (int i = 0; i < 3; i++)
+        m.sg_specular[i] = 1.0f;
+    m.sg_glossiness = 1.0f;
     for (int i = 0; i < PT_SLOT_COUNT; i++)
         m.tex_xf[i] = pt_tex_xform_identity();
     snprintf(m.name, sizeof m.name, "default");
@@ -218,16 +222,25 @@ static pt_status check_transmission(const pt_scene_builder *b, const pt_material
     return PT_OK;
 }
 
-/* The clearcoat and sheen texture indices. */
+/* The clearcoat, sheen, specular and specular-glossiness texture indices,
+ * and the specular-glossiness factors (in [0, 1], as the extension bounds
+ * them). */
 static pt_status check_layers(const pt_scene_builder *b, const pt_material *m, const char *name,
                               pt_error *err)
 {
-    const int32_t t[5] = {m->clearcoat_tex, m->clearcoat_rough_tex, m->sheen_color_tex,
-                          m->sheen_rough_tex, m->clearcoat_normal_tex};
+    const int32_t t[8] = {
+        m->clearcoat_tex,        m->clearcoat_rough_tex, m->sheen_color_tex,    m->sheen_rough_tex,
+        m->clearcoat_normal_tex, m->specular_tex,        m->specular_color_tex, m->sg_tex};
     if (!isfinite(m->clearcoat_normal_scale))
         return pt_error_set(err, PT_ERR_FORMAT,
                             "material '%.64s': clearcoat normal scale is not finite", name);
-    for (int i = 0; i < 5; i++)
+    const float sg[4] = {m->sg_specular[0], m->sg_specular[1], m->sg_specular[2], m->sg_glossiness};
+    for (int i = 0; i < 4; i++)
+        if (!(sg[i] >= 0.0f && sg[i] <= 1.0f))
+            return pt_error_set(
+                err, PT_ERR_FORMAT, "material '%.64s': %s %g is outside [0, 1]", name,
+                i < 3 ? "specularGlossiness specularFactor" : "glossinessFactor", (double)sg[i]);
+    for (int i = 0; i < 8; i++)
         if (t[i] < -1 || (t[i] >= 0 && (uint32_t)t[i] >= b->ntex))
             return pt_error_set(err, PT_ERR_ARG, "material '%.64s': texture %d out of range", name,
                                 (int)t[i]);
@@ -299,6 +312,12 @@ pt_status pt_scene_builder_add_material(pt_scene_builder *b, const pt_material *
         d->unlit = 1;
         d->emissive[0] = d->emissive[1] = d->emissive[2] = 0.0f;
     }
+    d->spec_gloss = d->spec_gloss != 0;
+    d->ext = 0;
+    if (d->spec_gloss)
+        d->ext |= PT_MATX_SPEC_GLOSS;
+    else if (d->specular > 0.0f && (d->specular_tex >= 0 || d->specular_color_tex >= 0))
+        d->ext |= PT_MATX_SPECULAR_TEX;
     /* Zero the bytes after the name's end so the scene hash sees only the name. */
     size_t len = strnlen(m->name, sizeof m->name - 1);
     memset(d->name + len, 0, sizeof d->name - len);
@@ -1150,6 +1169,14 @@ static uint32_t scene_features(const pt_scene *s, int has_uv, pt_error *err, pt_
                 f |= PT_FEAT_ALPHA;
             continue;
         }
+        if (m->spec_gloss) {
+            /* Its own inputs: always a GGX lobe (F0 = specular, F90 = 1). */
+            f |= PT_FEAT_SPEC_GLOSS | PT_FEAT_GLOSSY;
+            if (m->sg_tex >= 0)
+                f |= PT_FEAT_TEXTURES;
+        }
+        if (m->ext & PT_MATX_SPECULAR_TEX)
+            f |= PT_FEAT_SPECULAR_TEX | PT_FEAT_TEXTURES;
         if (m->base_color_tex >= 0 || m->metal_rough_tex >= 0)
             f |= PT_FEAT_TEXTURES;
         /* Pure Lambert only without any GGX lobe: not metallic (factor and

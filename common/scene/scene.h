@@ -63,6 +63,15 @@ enum { PT_FEAT_MOTION = 1u << 15 };
 /* KHR_materials_unlit: some material shows its base colour whatever the
  * lighting (pt_material.unlit). */
 enum { PT_FEAT_UNLIT = 1u << 16 };
+/* KHR_materials_pbrSpecularGlossiness: some material is specular-glossiness
+ * (pt_material.spec_gloss); KHR_materials_specular: some material reads a
+ * specular or specular colour texture. Both set PT_FEAT_GLOSSY too. */
+enum { PT_FEAT_SPEC_GLOSS = 1u << 17, PT_FEAT_SPECULAR_TEX = 1u << 18 };
+
+/* pt_material.ext: what the BSDF of a material reads past the core
+ * metallic-roughness inputs, set by the builder from the material's fields,
+ * so that the renderer tests one word to keep the core path. */
+enum { PT_MATX_SPEC_GLOSS = 1u << 0, PT_MATX_SPECULAR_TEX = 1u << 1 };
 
 /* glTF alphaMode (common/scene/alpha.h). OPAQUE is 0, so a material
  * initialised with zeros is opaque. */
@@ -91,6 +100,9 @@ enum {
     PT_SLOT_SHEEN_COLOR,
     PT_SLOT_SHEEN_ROUGH,
     PT_SLOT_CLEARCOAT_NORMAL,
+    PT_SLOT_SPECULAR,
+    PT_SLOT_SPECULAR_COLOR,
+    PT_SLOT_SPEC_GLOSS,
     PT_SLOT_COUNT
 };
 
@@ -150,6 +162,22 @@ typedef struct pt_material {
      * neither scatters nor is a light (the builder zeroes its emission, as
      * the extension ignores it); alpha and doubleSided still apply. */
     int32_t unlit;
+    /* KHR_materials_specular textures (-1: none), each times its factor:
+     * specular x A of specular_tex (linear), specular_color x RGB of
+     * specular_color_tex (sRGB). */
+    int32_t specular_tex;
+    int32_t specular_color_tex;
+    /* KHR_materials_pbrSpecularGlossiness (spec_gloss 1): the diffuse is
+     * base_color and base_color_tex (diffuseFactor, diffuseTexture), and
+     * the BSDF inputs are those of the extension, c_diff = diffuse x (1 -
+     * max(specular)), F0 = specular, alpha = (1 - glossiness)^2; metallic,
+     * roughness, specular and their textures are not read. */
+    int32_t spec_gloss;
+    float sg_specular[3]; /* specularFactor, linear, in [0, 1] (default 1) */
+    float sg_glossiness;  /* glossinessFactor in [0, 1] (default 1) */
+    int32_t sg_tex;       /* specularGlossinessTexture: RGB specular (sRGB), A glossiness
+                             (linear), or -1 */
+    uint32_t ext;         /* PT_MATX_*: set by the builder (any value given is replaced) */
     char name[64];
 } pt_material;
 
