@@ -20,9 +20,11 @@
 // are checked against PT_SCENE_MAX_TRIANGLES before that (check_triangles).
 //
 // Materials follow the core metallic-roughness model (spec 3.9.2) with
-// KHR_materials_emissive_strength, KHR_materials_specular and glass
-// (KHR_materials_transmission, _ior, _volume: add_transmission); what the
-// renderer does not support is reported once per kind through opts->warn.
+// KHR_materials_emissive_strength, KHR_materials_specular (its textures
+// too) and glass (KHR_materials_transmission, _ior, _volume:
+// add_transmission), or instead of it KHR_materials_pbrSpecularGlossiness
+// (add_spec_gloss) or KHR_materials_unlit; what the renderer does not
+// support is reported once per kind through opts->warn.
 // KHR_lights_punctual lights become pt_punctual lights (scene.h: units).
 // KHR_materials_variants: with opts->variant naming one of the root's
 // variants, a primitive whose mappings list that variant uses the mapped

@@ -20,6 +20,8 @@
  * - The same for KHR_materials_specular: specularTexture (A) and
  *   specularColorTexture (RGB, sRGB) times their factors against the
  *   factors alone set to their product.
+ * - A glossinessFactor or specularFactor outside [0, 1] is refused with an
+ *   error that names it.
  * - SpecularTest (../shared/scenes) loads without a warning about specular
  *   textures, reads both textures, and renders with no NaN/Inf (skipped
  *   without ../shared; a failure under CI=true).
@@ -344,6 +346,31 @@ static void spec_gloss_pairs(size_t bin)
     expect_pair("textured", "tex_sg.gltf", "tex_mr.gltf", "gold_fb.gltf", "SpecularGlossiness");
 }
 
+/* Factors outside the extension's [0, 1] are refused, naming the field. */
+static void refused(size_t bin)
+{
+    write_gltf("bad_sg.gltf", bin,
+               "{\"extensions\":{\"KHR_materials_pbrSpecularGlossiness\":{"
+               "\"glossinessFactor\":2}}}",
+               NULL);
+    write_gltf("bad_sp.gltf", bin,
+               "{\"extensions\":{\"KHR_materials_pbrSpecularGlossiness\":{"
+               "\"specularFactor\":[0.5,-1,0.5]}}}",
+               NULL);
+    const char *files[2] = {"bad_sg.gltf", "bad_sp.gltf"};
+    const char *words[2] = {"glossinessFactor 2", "specularFactor -1"};
+    for (int i = 0; i < 2; i++) {
+        pt_scene_opts o = {0};
+        o.warn = note_warning;
+        pt_scene *s = NULL;
+        pt_error err = {0};
+        pt_status st = pt_scene_load(tpath(files[i]), &o, &s, &err);
+        CHECKF(st == PT_ERR_FORMAT && strstr(err.msg, words[i]), "%s: %d %s", files[i], (int)st,
+               err.msg);
+        pt_scene_free(s);
+    }
+}
+
 static void specular_texture_pair(size_t bin)
 {
     /* specularTexture reads A, specularColorTexture RGB (sRGB): RGB of the
@@ -413,6 +440,7 @@ int main(void)
     CHECK(bin > 0);
     spec_gloss_pairs(bin);
     specular_texture_pair(bin);
+    refused(bin);
     specular_test_asset();
     char cmd[300];
     snprintf(cmd, sizeof cmd, "rm -rf '%s'", tmp);
