@@ -153,28 +153,41 @@ static inline pt_vec3 pt_diffuse_eval(const pt_diffuse_lobe *l, pt_vec3 wo, pt_v
     return pt_v3_scale(l->albedo, (1.0f - fd) * wi.z * PT_INV_PI);
 }
 
-static inline pt_vec3 pt_specular_eval(const pt_specular_lobe *l, pt_vec3 wo, pt_vec3 wi,
-                                       float prob, float *share)
+/* The GGX lobe's f cos without its Fresnel, D zi / (2 (zi s_o + zo s_i)),
+ * *share as pt_specular_eval's and *cos_h = wo.h (for the Fresnel); 0 (and
+ * *share 0) where wi or wo is not above the surface. */
+static inline float pt_specular_geom(const pt_specular_lobe *l, pt_vec3 wo, pt_vec3 wi, float prob,
+                                     float *share, float *cos_h)
 {
-    pt_vec3 zero = pt_v3(0.0f, 0.0f, 0.0f);
     *share = 0.0f;
+    *cos_h = 0.0f;
     if (!(wo.z > 0.0f) || !(wi.z > 0.0f))
-        return zero;
+        return 0.0f;
     pt_vec3 h = pt_v3_add(wo, wi);
     float hl = pt_v3_len(h);
     if (!(hl > 0.0f))
-        return zero;
+        return 0.0f;
     h = pt_v3_scale(h, 1.0f / hl);
     float d = pt_ggx_d(h, l->alpha);
     float so = pt_ggx_lambda_root(wo, l->alpha), si = pt_ggx_lambda_root(wi, l->alpha);
     /* f cos = F D G2 / (4 zo) = F D zi / (2 (zi s_o + zo s_i)). */
     float den = wi.z * so + wo.z * si;
     if (!(den > 0.0f) || !(d > 0.0f))
-        return zero;
-    pt_vec3 F = pt_bsdf_spec_fresnel(l->f0, l->f90, pt_v3_dot(wo, h));
+        return 0.0f;
+    *cos_h = pt_v3_dot(wo, h);
     /* VNDF pdf / (4 wo.h) = D / (2 (zo + s_o)). */
     *share = prob * d / (2.0f * (wo.z + so));
-    return pt_v3_scale(F, d * wi.z / (2.0f * den));
+    return d * wi.z / (2.0f * den);
+}
+
+static inline pt_vec3 pt_specular_eval(const pt_specular_lobe *l, pt_vec3 wo, pt_vec3 wi,
+                                       float prob, float *share)
+{
+    float c;
+    float g = pt_specular_geom(l, wo, wi, prob, share, &c);
+    if (g == 0.0f)
+        return pt_v3(0.0f, 0.0f, 0.0f);
+    return pt_v3_scale(pt_bsdf_spec_fresnel(l->f0, l->f90, c), g);
 }
 
 /* A direction from u[1..2]; 1 when it lies above the surface, else 0. */

@@ -65,6 +65,25 @@ void pt_closure_add_base(pt_closure *c, const pt_bsdf *b)
         add_lobe(c, g, PT_LOBE_DIFFUSE, 1.0f - ps)->p.diffuse = pt_bsdf_diffuse(b);
 }
 
+void pt_closure_add_base_irid(pt_closure *c, const pt_bsdf *b, const pt_irid *film)
+{
+    if (c->dead)
+        return;
+    float ps = pt_bsdf_spec_prob(b, c->wo.z);
+    pt_closure_group *g = open_group(c, 0.0f);
+    if (ps > 0.0f) {
+        pt_irid_specular_lobe *l = &add_lobe(c, g, PT_LOBE_SPECULAR_IRID, ps)->p.irid_specular;
+        l->s = pt_bsdf_specular(b);
+        l->film = *film;
+    }
+    if (ps < 1.0f) {
+        pt_irid_diffuse_lobe *l = &add_lobe(c, g, PT_LOBE_DIFFUSE_IRID, 1.0f - ps)->p.irid_diffuse;
+        l->d = pt_bsdf_diffuse(b);
+        l->f0 = b->f0;
+        l->film = *film;
+    }
+}
+
 void pt_closure_add_glass(pt_closure *c, const pt_glass *gl)
 {
     if (c->dead)
@@ -115,6 +134,10 @@ lobe_eval(const pt_lobe *l, pt_vec3 wo, pt_vec3 wi, float *share, float *below)
         return pt_sheen_eval(&l->p.sheen, wo, wi, l->prob, share, below);
     case PT_LOBE_COAT:
         return pt_coat_eval(&l->p.coat, wo, wi, l->prob, share, below);
+    case PT_LOBE_SPECULAR_IRID:
+        return pt_irid_specular_eval(&l->p.irid_specular, wo, wi, l->prob, share);
+    case PT_LOBE_DIFFUSE_IRID:
+        return pt_irid_diffuse_eval(&l->p.irid_diffuse, wo, wi, l->prob, share);
     }
     *share = 0.0f;
     return pt_v3(0.0f, 0.0f, 0.0f);
@@ -222,7 +245,11 @@ pt_vec3 pt_closure_sample(const pt_closure *c, const float u[3], pt_vec3 *wi, fl
     int ok = 0;
     switch (pick->kind) {
     case PT_LOBE_DIFFUSE:
+    case PT_LOBE_DIFFUSE_IRID:
         ok = pt_diffuse_sample(ul, wi);
+        break;
+    case PT_LOBE_SPECULAR_IRID:
+        ok = pt_specular_sample(&pick->p.irid_specular.s, c->wo, ul, wi);
         break;
     case PT_LOBE_SPECULAR:
         ok = pt_specular_sample(&pick->p.specular, c->wo, ul, wi);

@@ -6,7 +6,8 @@
  *
  * Lobes (each a file with its setup, eval and sample): diffuse and specular
  * (bsdf.h, the glTF metallic-roughness base), the dielectric interface
- * (dielectric.h, glass), sheen and clearcoat (layers.h). Adding a lobe is its
+ * (dielectric.h, glass), sheen and clearcoat (layers.h), the base's lobes
+ * under an iridescent film (thinfilm.h). Adding a lobe is its
  * file, a kind below with its case in closure.c's lobe_eval and sample
  * switch, and its entry in the builder (pt_closure_add_*).
  *
@@ -46,6 +47,7 @@
 #include "common/render/bsdf.h"
 #include "common/render/dielectric.h"
 #include "common/render/layers.h"
+#include "common/render/thinfilm.h"
 
 #define PT_CLOSURE_MAX_LOBES 6
 #define PT_CLOSURE_MAX_GROUPS 3
@@ -56,6 +58,8 @@ enum {
     PT_LOBE_DIELECTRIC,
     PT_LOBE_SHEEN,
     PT_LOBE_COAT,
+    PT_LOBE_SPECULAR_IRID, /* thinfilm.h: the base's lobes under an iridescent film */
+    PT_LOBE_DIFFUSE_IRID,
 };
 
 typedef struct pt_lobe {
@@ -68,6 +72,8 @@ typedef struct pt_lobe {
         pt_dielectric_lobe dielectric;
         pt_sheen_lobe sheen;
         pt_coat_lobe coat;
+        pt_irid_specular_lobe irid_specular;
+        pt_irid_diffuse_lobe irid_diffuse;
     } p;
 } pt_lobe;
 
@@ -90,6 +96,9 @@ void pt_closure_init(pt_closure *c, pt_vec3 wo);
 /* The builder: each adds a group around what is there. */
 /* The glTF base's lobes (bsdf.h): specular, diffuse; innermost. */
 void pt_closure_add_base(pt_closure *c, const pt_bsdf *b);
+/* The same under a thin film (thinfilm.h, KHR_materials_iridescence;
+ * film->strength > 0). */
+void pt_closure_add_base_irid(pt_closure *c, const pt_bsdf *b, const pt_irid *film);
 /* Glass (dielectric.h): its opaque share as the base, then the interface
  * beside it; in place of pt_closure_add_base. */
 void pt_closure_add_glass(pt_closure *c, const pt_glass *g);

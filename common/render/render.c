@@ -613,7 +613,7 @@ static inline pt_bsdf material_bsdf(const pt_renderer *r, const surface *sf,
 {
     const pt_scene *s = r->scene;
     const pt_material *m = sf->mat;
-    if ((features & BSDF_EXTS) && m->ext)
+    if ((features & BSDF_EXTS) && (m->ext & (PT_MATX_SPEC_GLOSS | PT_MATX_SPECULAR_TEX)))
         return material_bsdf_ext(r, sf, features);
     const int vcol = (features & PT_FEAT_VERTEX_COLOR) && s->colors;
     if ((!(features & PT_FEAT_TEXTURES) || (m->base_color_tex < 0 && m->metal_rough_tex < 0)) &&
@@ -1040,6 +1040,33 @@ static pt_glass glass_at(const pt_renderer *r, const surface *sf, int front,
     return pt_glass_setup(base, metallic, roughness, spec, col, trans, eta, thin);
 }
 
+/* The iridescent film at sf (KHR_materials_iridescence): the factor times
+ * its texture's R, the thickness between its minimum and maximum by its
+ * texture's G (the maximum without one). 0 where the strength is 0. */
+static int film_at(const pt_renderer *r, const surface *sf, const uint32_t features, pt_irid *film)
+{
+    const pt_material *m = sf->mat;
+    film->strength = m->iridescence;
+    film->eta = m->iridescence_ior;
+    film->d_nm = m->irid_thickness_max;
+    if (features & PT_FEAT_TEXTURES) {
+        const pt_texture *tx = r->scene->textures;
+        float t[4], uv[2];
+        if (m->iridescence_tex >= 0) {
+            slot_uv(sf, &m->tex_xf[PT_SLOT_IRIDESCENCE], uv);
+            pt_texture_sample(&tx[m->iridescence_tex], uv[0], uv[1], t);
+            film->strength *= t[0];
+        }
+        if (m->irid_thickness_tex >= 0) {
+            slot_uv(sf, &m->tex_xf[PT_SLOT_IRID_THICKNESS], uv);
+            pt_texture_sample(&tx[m->irid_thickness_tex], uv[0], uv[1], t);
+            film->d_nm =
+                m->irid_thickness_min + (m->irid_thickness_max - m->irid_thickness_min) * t[1];
+        }
+    }
+    return film->strength > 0.0f;
+}
+
 /*
  * The closure at sf (closure.h): the builder. wo_l is wo in the shading frame
  * fr. Glass (PT_FEAT_TRANSMISSION; front: the ray arrives on the side the
@@ -1060,7 +1087,12 @@ material_closure(const pt_renderer *r, const surface *sf, int glass, int front, 
         bsdf = g.base;
     } else {
         bsdf = material_bsdf(r, sf, features);
-        pt_closure_add_base(cl, &bsdf);
+        pt_irid film;
+        if ((features & PT_FEAT_IRIDESCENCE) && (sf->mat->ext & PT_MATX_IRIDESCENCE) &&
+            film_at(r, sf, features, &film))
+            pt_closure_add_base_irid(cl, &bsdf, &film);
+        else
+            pt_closure_add_base(cl, &bsdf);
     }
     pt_layers lay;
     if (!((features & LAYERS) && has_layers(sf->mat) && layers_setup(r, sf, &bsdf, &lay, features)))
@@ -1903,8 +1935,8 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
 /* The material features beyond the core's (normal maps, vertex colours). */
 #define SURFACE_EXTRAS (uint32_t)(PT_FEAT_NORMAL_MAP | PT_FEAT_VERTEX_COLOR)
 /* The glTF material extensions past the core's: unlit, specular-glossiness,
- * specular textures. */
-#define MATERIAL_EXTS (uint32_t)(PT_FEAT_UNLIT | BSDF_EXTS)
+ * specular textures, iridescence. */
+#define MATERIAL_EXTS (uint32_t)(PT_FEAT_UNLIT | BSDF_EXTS | PT_FEAT_IRIDESCENCE)
 /* Features that only the general variant has code for. */
 /* Motion blur (PT_FEAT_MOTION) too: a path's time reaches every ray query. */
 #define GENERAL_ONLY                                                                               \

@@ -23,8 +23,9 @@
 // KHR_materials_emissive_strength, KHR_materials_specular (its textures
 // too) and glass (KHR_materials_transmission, _ior, _volume:
 // add_transmission), or instead of it KHR_materials_pbrSpecularGlossiness
-// (add_spec_gloss) or KHR_materials_unlit; what the renderer does not
-// support is reported once per kind through opts->warn.
+// (add_spec_gloss) or KHR_materials_unlit, and KHR_materials_iridescence
+// (add_iridescence); what the renderer does not support is reported once
+// per kind through opts->warn.
 // KHR_lights_punctual lights become pt_punctual lights (scene.h: units).
 // KHR_materials_variants: with opts->variant naming one of the root's
 // variants, a primitive whose mappings list that variant uses the mapped
@@ -1248,6 +1249,7 @@ bool ext_supported(const std::string &name)
         "EXT_texture_webp",                    // texture_source, webp.c
         "KHR_texture_basisu",                  // texture_source: the PNG/JPEG fallback
         "KHR_materials_pbrSpecularGlossiness", // read_materials
+        "KHR_materials_iridescence",           // read_materials
     };
     return supported.count(name) != 0;
 }
@@ -1288,6 +1290,32 @@ void add_spec_gloss(importer &im, int mi, const tinygltf::Value &sg, pt_material
                          "material " + std::to_string(mi) + " uses " + x +
                              " with KHR_materials_pbrSpecularGlossiness, which the extension "
                              "forbids; it is ignored");
+}
+
+// KHR_materials_iridescence into pm (scene.h): the factor and its texture
+// (R), the film's ior, the thickness range and its texture (G). On a
+// transmitting material the film is ignored, with a warning.
+void add_iridescence(importer &im, int mi, const tinygltf::Material &g, pt_material &pm)
+{
+    auto ir = g.extensions.find("KHR_materials_iridescence");
+    if (ir == g.extensions.end())
+        return;
+    const tinygltf::Value &v = ir->second;
+    pm.iridescence = float(ext_number(v, "iridescenceFactor", 0.0));
+    pm.iridescence_ior = float(ext_number(v, "iridescenceIor", 1.3));
+    pm.irid_thickness_min = float(ext_number(v, "iridescenceThicknessMinimum", 100.0));
+    pm.irid_thickness_max = float(ext_number(v, "iridescenceThicknessMaximum", 400.0));
+    const tinygltf::TextureInfo it = ext_texture(v, "iridescenceTexture"),
+                                tt = ext_texture(v, "iridescenceThicknessTexture");
+    pm.iridescence_tex = texture_for(im, mi, "iridescenceTexture", it.index, it.texCoord,
+                                     it.extensions, false, &pm.tex_xf[PT_SLOT_IRIDESCENCE]);
+    pm.irid_thickness_tex =
+        texture_for(im, mi, "iridescenceThicknessTexture", tt.index, tt.texCoord, tt.extensions,
+                    false, &pm.tex_xf[PT_SLOT_IRID_THICKNESS]);
+    if (pm.iridescence > 0.0f && pm.transmission > 0.0f)
+        im.warn_once("irid-glass", "material " + std::to_string(mi) +
+                                       ": KHR_materials_iridescence on a transmitting material is "
+                                       "ignored (the film covers opaque materials only)");
 }
 
 void read_materials(importer &im)
@@ -1338,6 +1366,7 @@ void read_materials(importer &im)
         if (!pm.unlit && !pm.spec_gloss) {
             add_transmission(im, mi, g, pm);
             add_layers(im, mi, g, pm);
+            add_iridescence(im, mi, g, pm);
         }
         pm.double_sided = g.doubleSided ? 1 : 0;
         for (const auto &e : g.extensions)

@@ -116,6 +116,10 @@ pt_material pt_material_default(void)
     for (int i = 0; i < 3; i++)
         m.sg_specular[i] = 1.0f;
     m.sg_glossiness = 1.0f;
+    m.iridescence_tex = m.irid_thickness_tex = -1;
+    m.iridescence_ior = 1.3f;
+    m.irid_thickness_min = 100.0f;
+    m.irid_thickness_max = 400.0f;
     for (int i = 0; i < PT_SLOT_COUNT; i++)
         m.tex_xf[i] = pt_tex_xform_identity();
     snprintf(m.name, sizeof m.name, "default");
@@ -228,9 +232,10 @@ static pt_status check_transmission(const pt_scene_builder *b, const pt_material
 static pt_status check_layers(const pt_scene_builder *b, const pt_material *m, const char *name,
                               pt_error *err)
 {
-    const int32_t t[8] = {
+    const int32_t t[10] = {
         m->clearcoat_tex,        m->clearcoat_rough_tex, m->sheen_color_tex,    m->sheen_rough_tex,
-        m->clearcoat_normal_tex, m->specular_tex,        m->specular_color_tex, m->sg_tex};
+        m->clearcoat_normal_tex, m->specular_tex,        m->specular_color_tex, m->sg_tex,
+        m->iridescence_tex,      m->irid_thickness_tex};
     if (!isfinite(m->clearcoat_normal_scale))
         return pt_error_set(err, PT_ERR_FORMAT,
                             "material '%.64s': clearcoat normal scale is not finite", name);
@@ -240,7 +245,24 @@ static pt_status check_layers(const pt_scene_builder *b, const pt_material *m, c
             return pt_error_set(
                 err, PT_ERR_FORMAT, "material '%.64s': %s %g is outside [0, 1]", name,
                 i < 3 ? "specularGlossiness specularFactor" : "glossinessFactor", (double)sg[i]);
-    for (int i = 0; i < 8; i++)
+    if (!(m->iridescence >= 0.0f && m->iridescence <= 1.0f))
+        return pt_error_set(err, PT_ERR_FORMAT,
+                            "material '%.64s': iridescenceFactor %g is outside [0, 1]", name,
+                            (double)m->iridescence);
+    if (!(m->iridescence_ior >= 1.0f && isfinite(m->iridescence_ior)))
+        return pt_error_set(err, PT_ERR_FORMAT,
+                            "material '%.64s': iridescenceIor %g is not a finite number >= 1", name,
+                            (double)m->iridescence_ior);
+    /* Films past 1 mm are no longer thin (and a float's OPD then loses the
+     * phase): refused. */
+    const float th[2] = {m->irid_thickness_min, m->irid_thickness_max};
+    for (int i = 0; i < 2; i++)
+        if (!(th[i] >= 0.0f && th[i] <= 1e6f))
+            return pt_error_set(err, PT_ERR_FORMAT,
+                                "material '%.64s': iridescenceThickness%s %g nm is outside "
+                                "[0, 1e6]",
+                                name, i ? "Maximum" : "Minimum", (double)th[i]);
+    for (int i = 0; i < 10; i++)
         if (t[i] < -1 || (t[i] >= 0 && (uint32_t)t[i] >= b->ntex))
             return pt_error_set(err, PT_ERR_ARG, "material '%.64s': texture %d out of range", name,
                                 (int)t[i]);
@@ -318,6 +340,8 @@ pt_status pt_scene_builder_add_material(pt_scene_builder *b, const pt_material *
         d->ext |= PT_MATX_SPEC_GLOSS;
     else if (d->specular > 0.0f && (d->specular_tex >= 0 || d->specular_color_tex >= 0))
         d->ext |= PT_MATX_SPECULAR_TEX;
+    if (d->iridescence > 0.0f && !(d->transmission > 0.0f))
+        d->ext |= PT_MATX_IRIDESCENCE;
     /* Zero the bytes after the name's end so the scene hash sees only the name. */
     size_t len = strnlen(m->name, sizeof m->name - 1);
     memset(d->name + len, 0, sizeof d->name - len);
@@ -1177,6 +1201,11 @@ static uint32_t scene_features(const pt_scene *s, int has_uv, pt_error *err, pt_
         }
         if (m->ext & PT_MATX_SPECULAR_TEX)
             f |= PT_FEAT_SPECULAR_TEX | PT_FEAT_TEXTURES;
+        if (m->ext & PT_MATX_IRIDESCENCE) {
+            f |= PT_FEAT_IRIDESCENCE | PT_FEAT_GLOSSY;
+            if (m->iridescence_tex >= 0 || m->irid_thickness_tex >= 0)
+                f |= PT_FEAT_TEXTURES;
+        }
         if (m->base_color_tex >= 0 || m->metal_rough_tex >= 0)
             f |= PT_FEAT_TEXTURES;
         /* Pure Lambert only without any GGX lobe: not metallic (factor and

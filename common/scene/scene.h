@@ -67,11 +67,18 @@ enum { PT_FEAT_UNLIT = 1u << 16 };
  * (pt_material.spec_gloss); KHR_materials_specular: some material reads a
  * specular or specular colour texture. Both set PT_FEAT_GLOSSY too. */
 enum { PT_FEAT_SPEC_GLOSS = 1u << 17, PT_FEAT_SPECULAR_TEX = 1u << 18 };
+/* KHR_materials_iridescence: some opaque material has an iridescenceFactor
+ * > 0 (common/render/thinfilm.h). Sets PT_FEAT_GLOSSY too. */
+enum { PT_FEAT_IRIDESCENCE = 1u << 19 };
 
 /* pt_material.ext: what the BSDF of a material reads past the core
  * metallic-roughness inputs, set by the builder from the material's fields,
  * so that the renderer tests one word to keep the core path. */
-enum { PT_MATX_SPEC_GLOSS = 1u << 0, PT_MATX_SPECULAR_TEX = 1u << 1 };
+enum {
+    PT_MATX_SPEC_GLOSS = 1u << 0,
+    PT_MATX_SPECULAR_TEX = 1u << 1,
+    PT_MATX_IRIDESCENCE = 1u << 2
+};
 
 /* glTF alphaMode (common/scene/alpha.h). OPAQUE is 0, so a material
  * initialised with zeros is opaque. */
@@ -103,6 +110,8 @@ enum {
     PT_SLOT_SPECULAR,
     PT_SLOT_SPECULAR_COLOR,
     PT_SLOT_SPEC_GLOSS,
+    PT_SLOT_IRIDESCENCE,
+    PT_SLOT_IRID_THICKNESS,
     PT_SLOT_COUNT
 };
 
@@ -177,7 +186,15 @@ typedef struct pt_material {
     float sg_glossiness;  /* glossinessFactor in [0, 1] (default 1) */
     int32_t sg_tex;       /* specularGlossinessTexture: RGB specular (sRGB), A glossiness
                              (linear), or -1 */
-    uint32_t ext;         /* PT_MATX_*: set by the builder (any value given is replaced) */
+    /* KHR_materials_iridescence: a thin film over the opaque base (not over
+     * glass: a transmitting material ignores it). iridescence 0: none. */
+    float iridescence;          /* iridescenceFactor in [0, 1] (default 0) */
+    int32_t iridescence_tex;    /* R x iridescence (linear), or -1 */
+    float iridescence_ior;      /* the film's index, >= 1 (default 1.3) */
+    float irid_thickness_min;   /* nm, >= 0 (default 100): the thickness texture's 0 */
+    float irid_thickness_max;   /* nm, >= 0 (default 400): its 1, and the thickness without it */
+    int32_t irid_thickness_tex; /* G picks the thickness (linear), or -1 */
+    uint32_t ext;               /* PT_MATX_*: set by the builder (any value given is replaced) */
     char name[64];
 } pt_material;
 
