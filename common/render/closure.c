@@ -84,6 +84,18 @@ void pt_closure_add_base_irid(pt_closure *c, const pt_bsdf *b, const pt_irid *fi
     }
 }
 
+void pt_closure_add_base_aniso(pt_closure *c, const pt_bsdf *b, float strength, float dc, float ds)
+{
+    if (c->dead)
+        return;
+    float ps = pt_bsdf_spec_prob(b, c->wo.z);
+    pt_closure_group *g = open_group(c, 0.0f);
+    if (ps > 0.0f)
+        add_lobe(c, g, PT_LOBE_SPECULAR_ANISO, ps)->p.aniso = pt_aniso_setup(b, strength, dc, ds);
+    if (ps < 1.0f)
+        add_lobe(c, g, PT_LOBE_DIFFUSE, 1.0f - ps)->p.diffuse = pt_bsdf_diffuse(b);
+}
+
 void pt_closure_add_glass(pt_closure *c, const pt_glass *gl)
 {
     if (c->dead)
@@ -138,6 +150,8 @@ lobe_eval(const pt_lobe *l, pt_vec3 wo, pt_vec3 wi, float *share, float *below)
         return pt_irid_specular_eval(&l->p.irid_specular, wo, wi, l->prob, share);
     case PT_LOBE_DIFFUSE_IRID:
         return pt_irid_diffuse_eval(&l->p.irid_diffuse, wo, wi, l->prob, share);
+    case PT_LOBE_SPECULAR_ANISO:
+        return pt_aniso_eval(&l->p.aniso, wo, wi, l->prob, share);
     }
     *share = 0.0f;
     return pt_v3(0.0f, 0.0f, 0.0f);
@@ -250,6 +264,9 @@ pt_vec3 pt_closure_sample(const pt_closure *c, const float u[3], pt_vec3 *wi, fl
         break;
     case PT_LOBE_SPECULAR_IRID:
         ok = pt_specular_sample(&pick->p.irid_specular.s, c->wo, ul, wi);
+        break;
+    case PT_LOBE_SPECULAR_ANISO:
+        ok = pt_aniso_sample(&pick->p.aniso, c->wo, ul, wi);
         break;
     case PT_LOBE_SPECULAR:
         ok = pt_specular_sample(&pick->p.specular, c->wo, ul, wi);

@@ -7,7 +7,8 @@
  * Lobes (each a file with its setup, eval and sample): diffuse and specular
  * (bsdf.h, the glTF metallic-roughness base), the dielectric interface
  * (dielectric.h, glass), sheen and clearcoat (layers.h), the base's lobes
- * under an iridescent film (thinfilm.h). Adding a lobe is its
+ * under an iridescent film (thinfilm.h), the anisotropic GGX lobe (aniso.h).
+ * Adding a lobe is its
  * file, a kind below with its case in closure.c's lobe_eval and sample
  * switch, and its entry in the builder (pt_closure_add_*).
  *
@@ -44,6 +45,7 @@
 #include <stdint.h>
 
 #include "common/math/vec.h"
+#include "common/render/aniso.h"
 #include "common/render/bsdf.h"
 #include "common/render/dielectric.h"
 #include "common/render/layers.h"
@@ -60,6 +62,7 @@ enum {
     PT_LOBE_COAT,
     PT_LOBE_SPECULAR_IRID, /* thinfilm.h: the base's lobes under an iridescent film */
     PT_LOBE_DIFFUSE_IRID,
+    PT_LOBE_SPECULAR_ANISO, /* aniso.h: the base's GGX lobe, anisotropic */
 };
 
 typedef struct pt_lobe {
@@ -74,6 +77,7 @@ typedef struct pt_lobe {
         pt_coat_lobe coat;
         pt_irid_specular_lobe irid_specular;
         pt_irid_diffuse_lobe irid_diffuse;
+        pt_aniso_lobe aniso;
     } p;
 } pt_lobe;
 
@@ -99,6 +103,9 @@ void pt_closure_add_base(pt_closure *c, const pt_bsdf *b);
 /* The same under a thin film (thinfilm.h, KHR_materials_iridescence;
  * film->strength > 0). */
 void pt_closure_add_base_irid(pt_closure *c, const pt_bsdf *b, const pt_irid *film);
+/* The base with its GGX lobe anisotropic (aniso.h, KHR_materials_anisotropy):
+ * strength in [0, 1], the direction (c, s) in the shading frame. */
+void pt_closure_add_base_aniso(pt_closure *c, const pt_bsdf *b, float strength, float dc, float ds);
 /* Glass (dielectric.h): its opaque share as the base, then the interface
  * beside it; in place of pt_closure_add_base. */
 void pt_closure_add_glass(pt_closure *c, const pt_glass *g);

@@ -160,6 +160,11 @@ typedef struct surface {
      * clearcoatNormalTexture (PT_FEAT_CLEARCOAT and PT_FEAT_NORMAL_MAP). */
     pt_vec3 nc;
     int coat_mapped;
+    /* The interpolated tangent and its handedness, where aniso: an
+     * anisotropic material (PT_FEAT_ANISOTROPY) on a mesh with tangents. */
+    pt_vec3 tan;
+    float tan_w;
+    int aniso;
     const pt_material *mat;
 } surface;
 
@@ -412,6 +417,17 @@ static inline void surface_at(const pt_renderer *r, const pt_hit *hit, float tim
                 coat_normal_map(s, hit, sf);
             if (m->normal_tex >= 0)
                 normal_map(s, hit, sf);
+        }
+    }
+    if (features & PT_FEAT_ANISOTROPY) {
+        sf->aniso = (sf->mat->ext & PT_MATX_ANISOTROPY) && s->tangents;
+        if (sf->aniso) {
+            const float *T = s->tangents;
+            sf->tan = pt_v3_add(pt_v3_add(pt_v3_scale(vert4(T, tri[0]), b0),
+                                          pt_v3_scale(vert4(T, tri[1]), hit->b1)),
+                                pt_v3_scale(vert4(T, tri[2]), hit->b2));
+            sf->tan_w =
+                b0 * T[4 * tri[0] + 3] + hit->b1 * T[4 * tri[1] + 3] + hit->b2 * T[4 * tri[2] + 3];
         }
     }
 }
@@ -1067,6 +1083,42 @@ static int film_at(const pt_renderer *r, const surface *sf, const uint32_t featu
     return film->strength > 0.0f;
 }
 
+/* The anisotropy at sf (KHR_materials_anisotropy) in the shading frame fr:
+ * the strength times the texture's B, the direction (cos, sin) of the
+ * rotation, or the texture's RG in [-1, 1] turned by it, in the tangent
+ * frame (the tangent made orthogonal to fr's normal, the bitangent by its
+ * handedness), into (*c, *s) in fr. 0 where the strength is 0 or the frame
+ * is degenerate. */
+static int aniso_at(const pt_renderer *r, const surface *sf, const pt_frame *fr,
+                    const uint32_t features, float *strength, float *c, float *s)
+{
+    const pt_material *m = sf->mat;
+    float st = m->anisotropy;
+    float cr = cosf(m->anisotropy_rotation), sr = sinf(m->anisotropy_rotation);
+    float dx = cr, dy = sr;
+    if ((features & PT_FEAT_TEXTURES) && m->anisotropy_tex >= 0) {
+        float t[4], uv[2];
+        slot_uv(sf, &m->tex_xf[PT_SLOT_ANISOTROPY], uv);
+        pt_texture_sample(&r->scene->textures[m->anisotropy_tex], uv[0], uv[1], t);
+        float x = 2.0f * t[0] - 1.0f, y = 2.0f * t[1] - 1.0f;
+        dx = x * cr - y * sr;
+        dy = x * sr + y * cr;
+        st *= t[2];
+    }
+    pt_vec3 n = fr->n;
+    pt_vec3 t = pt_v3_sub(sf->tan, pt_v3_scale(n, pt_v3_dot(n, sf->tan)));
+    float len = pt_v3_len(t);
+    if (!(st > 0.0f) || !(len > 1e-12f) || !isfinite(len))
+        return 0;
+    t = pt_v3_scale(t, 1.0f / len);
+    pt_vec3 b = pt_v3_scale(pt_v3_cross(n, t), sf->tan_w < 0.0f ? -1.0f : 1.0f);
+    pt_vec3 d = pt_frame_to_local(fr, pt_v3_add(pt_v3_scale(t, dx), pt_v3_scale(b, dy)));
+    *strength = st;
+    *c = d.x;
+    *s = d.y;
+    return d.x * d.x + d.y * d.y > 0.0f;
+}
+
 /*
  * The closure at sf (closure.h): the builder. wo_l is wo in the shading frame
  * fr. Glass (PT_FEAT_TRANSMISSION; front: the ray arrives on the side the
@@ -1088,8 +1140,12 @@ material_closure(const pt_renderer *r, const surface *sf, int glass, int front, 
     } else {
         bsdf = material_bsdf(r, sf, features);
         pt_irid film;
-        if ((features & PT_FEAT_IRIDESCENCE) && (sf->mat->ext & PT_MATX_IRIDESCENCE) &&
-            film_at(r, sf, features, &film))
+        float as, ac, an;
+        if ((features & PT_FEAT_ANISOTROPY) && sf->aniso &&
+            aniso_at(r, sf, fr, features, &as, &ac, &an))
+            pt_closure_add_base_aniso(cl, &bsdf, as, ac, an);
+        else if ((features & PT_FEAT_IRIDESCENCE) && (sf->mat->ext & PT_MATX_IRIDESCENCE) &&
+                 film_at(r, sf, features, &film))
             pt_closure_add_base_irid(cl, &bsdf, &film);
         else
             pt_closure_add_base(cl, &bsdf);
@@ -1935,8 +1991,9 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
 /* The material features beyond the core's (normal maps, vertex colours). */
 #define SURFACE_EXTRAS (uint32_t)(PT_FEAT_NORMAL_MAP | PT_FEAT_VERTEX_COLOR)
 /* The glTF material extensions past the core's: unlit, specular-glossiness,
- * specular textures, iridescence. */
-#define MATERIAL_EXTS (uint32_t)(PT_FEAT_UNLIT | BSDF_EXTS | PT_FEAT_IRIDESCENCE)
+ * specular textures, iridescence, anisotropy. */
+#define MATERIAL_EXTS                                                                              \
+    (uint32_t)(PT_FEAT_UNLIT | BSDF_EXTS | PT_FEAT_IRIDESCENCE | PT_FEAT_ANISOTROPY)
 /* Features that only the general variant has code for. */
 /* Motion blur (PT_FEAT_MOTION) too: a path's time reaches every ray query. */
 #define GENERAL_ONLY                                                                               \

@@ -24,8 +24,9 @@
 // too) and glass (KHR_materials_transmission, _ior, _volume:
 // add_transmission), or instead of it KHR_materials_pbrSpecularGlossiness
 // (add_spec_gloss) or KHR_materials_unlit, and KHR_materials_iridescence
-// (add_iridescence); what the renderer does not support is reported once
-// per kind through opts->warn.
+// (add_iridescence) and KHR_materials_anisotropy (add_anisotropy); what
+// the renderer does not support is reported once per kind through
+// opts->warn.
 // KHR_lights_punctual lights become pt_punctual lights (scene.h: units).
 // KHR_materials_variants: with opts->variant naming one of the root's
 // variants, a primitive whose mappings list that variant uses the mapped
@@ -1250,6 +1251,7 @@ bool ext_supported(const std::string &name)
         "KHR_texture_basisu",                  // texture_source: the PNG/JPEG fallback
         "KHR_materials_pbrSpecularGlossiness", // read_materials
         "KHR_materials_iridescence",           // read_materials
+        "KHR_materials_anisotropy",            // read_materials
     };
     return supported.count(name) != 0;
 }
@@ -1318,6 +1320,25 @@ void add_iridescence(importer &im, int mi, const tinygltf::Material &g, pt_mater
                                        "ignored (the film covers opaque materials only)");
 }
 
+// KHR_materials_anisotropy into pm (scene.h): strength, rotation and the
+// texture (RG direction, B strength, linear). On a transmitting material it
+// is ignored, with a warning.
+void add_anisotropy(importer &im, int mi, const tinygltf::Material &g, pt_material &pm)
+{
+    auto an = g.extensions.find("KHR_materials_anisotropy");
+    if (an == g.extensions.end())
+        return;
+    pm.anisotropy = float(ext_number(an->second, "anisotropyStrength", 0.0));
+    pm.anisotropy_rotation = float(ext_number(an->second, "anisotropyRotation", 0.0));
+    const tinygltf::TextureInfo at = ext_texture(an->second, "anisotropyTexture");
+    pm.anisotropy_tex = texture_for(im, mi, "anisotropyTexture", at.index, at.texCoord,
+                                    at.extensions, false, &pm.tex_xf[PT_SLOT_ANISOTROPY]);
+    if (pm.anisotropy > 0.0f && pm.transmission > 0.0f)
+        im.warn_once("aniso-glass", "material " + std::to_string(mi) +
+                                        ": KHR_materials_anisotropy on a transmitting material is "
+                                        "ignored (it shapes opaque materials' reflection only)");
+}
+
 void read_materials(importer &im)
 {
     const tinygltf::Model &m = im.model;
@@ -1367,6 +1388,7 @@ void read_materials(importer &im)
             add_transmission(im, mi, g, pm);
             add_layers(im, mi, g, pm);
             add_iridescence(im, mi, g, pm);
+            add_anisotropy(im, mi, g, pm);
         }
         pm.double_sided = g.doubleSided ? 1 : 0;
         for (const auto &e : g.extensions)

@@ -116,7 +116,7 @@ pt_material pt_material_default(void)
     for (int i = 0; i < 3; i++)
         m.sg_specular[i] = 1.0f;
     m.sg_glossiness = 1.0f;
-    m.iridescence_tex = m.irid_thickness_tex = -1;
+    m.iridescence_tex = m.irid_thickness_tex = m.anisotropy_tex = -1;
     m.iridescence_ior = 1.3f;
     m.irid_thickness_min = 100.0f;
     m.irid_thickness_max = 400.0f;
@@ -232,10 +232,10 @@ static pt_status check_transmission(const pt_scene_builder *b, const pt_material
 static pt_status check_layers(const pt_scene_builder *b, const pt_material *m, const char *name,
                               pt_error *err)
 {
-    const int32_t t[10] = {
+    const int32_t t[11] = {
         m->clearcoat_tex,        m->clearcoat_rough_tex, m->sheen_color_tex,    m->sheen_rough_tex,
         m->clearcoat_normal_tex, m->specular_tex,        m->specular_color_tex, m->sg_tex,
-        m->iridescence_tex,      m->irid_thickness_tex};
+        m->iridescence_tex,      m->irid_thickness_tex,  m->anisotropy_tex};
     if (!isfinite(m->clearcoat_normal_scale))
         return pt_error_set(err, PT_ERR_FORMAT,
                             "material '%.64s': clearcoat normal scale is not finite", name);
@@ -262,7 +262,12 @@ static pt_status check_layers(const pt_scene_builder *b, const pt_material *m, c
                                 "material '%.64s': iridescenceThickness%s %g nm is outside "
                                 "[0, 1e6]",
                                 name, i ? "Maximum" : "Minimum", (double)th[i]);
-    for (int i = 0; i < 10; i++)
+    if (!(m->anisotropy >= 0.0f && m->anisotropy <= 1.0f) || !isfinite(m->anisotropy_rotation))
+        return pt_error_set(err, PT_ERR_FORMAT,
+                            "material '%.64s': anisotropyStrength %g is outside [0, 1] or "
+                            "anisotropyRotation %g is not finite",
+                            name, (double)m->anisotropy, (double)m->anisotropy_rotation);
+    for (int i = 0; i < 11; i++)
         if (t[i] < -1 || (t[i] >= 0 && (uint32_t)t[i] >= b->ntex))
             return pt_error_set(err, PT_ERR_ARG, "material '%.64s': texture %d out of range", name,
                                 (int)t[i]);
@@ -342,6 +347,8 @@ pt_status pt_scene_builder_add_material(pt_scene_builder *b, const pt_material *
         d->ext |= PT_MATX_SPECULAR_TEX;
     if (d->iridescence > 0.0f && !(d->transmission > 0.0f))
         d->ext |= PT_MATX_IRIDESCENCE;
+    if (d->anisotropy > 0.0f && !(d->transmission > 0.0f))
+        d->ext |= PT_MATX_ANISOTROPY;
     /* Zero the bytes after the name's end so the scene hash sees only the name. */
     size_t len = strnlen(m->name, sizeof m->name - 1);
     memset(d->name + len, 0, sizeof d->name - len);
@@ -1201,6 +1208,11 @@ static uint32_t scene_features(const pt_scene *s, int has_uv, pt_error *err, pt_
         }
         if (m->ext & PT_MATX_SPECULAR_TEX)
             f |= PT_FEAT_SPECULAR_TEX | PT_FEAT_TEXTURES;
+        if (m->ext & PT_MATX_ANISOTROPY) {
+            f |= PT_FEAT_ANISOTROPY | PT_FEAT_GLOSSY;
+            if (m->anisotropy_tex >= 0)
+                f |= PT_FEAT_TEXTURES;
+        }
         if (m->ext & PT_MATX_IRIDESCENCE) {
             f |= PT_FEAT_IRIDESCENCE | PT_FEAT_GLOSSY;
             if (m->iridescence_tex >= 0 || m->irid_thickness_tex >= 0)
@@ -1270,9 +1282,10 @@ static double rebase_origin(double lo, double hi, double extent)
 
 /* The optional attributes go to the scene where something reads them:
  * TEXCOORD_1 and COLOR_0 when some mesh had them, tangents when some
- * material has a normal texture or a clear coat with its own normal texture
- * (then generated where missing, from the normal texture's coordinate set,
- * else the coat normal texture's). Sets PT_FEAT_NORMAL_MAP and
+ * material has a normal texture, a clear coat with its own normal texture or
+ * anisotropy (then generated where missing, from the normal texture's
+ * coordinate set, else the coat normal texture's, else the anisotropy
+ * texture's). Sets PT_FEAT_NORMAL_MAP and
  * PT_FEAT_VERTEX_COLOR. */
 static pt_status finish_extra(pt_scene_builder *b, pt_scene *s, pt_error *err)
 {
@@ -1283,7 +1296,7 @@ static pt_status finish_extra(pt_scene_builder *b, pt_scene *s, pt_error *err)
         b->col = NULL;
         s->features |= PT_FEAT_VERTEX_COLOR;
     }
-    if (!(s->features & PT_FEAT_NORMAL_MAP))
+    if (!(s->features & (PT_FEAT_NORMAL_MAP | PT_FEAT_ANISOTROPY)))
         return PT_OK;
     if (!b->tan) {
         b->tan = pt_calloc((size_t)s->num_vertices * 4, sizeof(float));
@@ -1303,9 +1316,10 @@ static pt_status finish_extra(pt_scene_builder *b, pt_scene *s, pt_error *err)
             const pt_material *m = &s->materials[s->tri_material[t]];
             /* One tangent per vertex: a triangle with both maps gets it
              * from the base normal map's coordinate set. */
-            int slot = m->normal_tex >= 0 ? PT_SLOT_NORMAL : PT_SLOT_CLEARCOAT_NORMAL;
-            int mapped =
-                m->normal_tex >= 0 || (m->clearcoat > 0.0f && m->clearcoat_normal_tex >= 0);
+            int coat = m->clearcoat > 0.0f && m->clearcoat_normal_tex >= 0;
+            int slot = m->normal_tex >= 0 ? PT_SLOT_NORMAL
+                                          : (coat ? PT_SLOT_CLEARCOAT_NORMAL : PT_SLOT_ANISOTROPY);
+            int mapped = m->normal_tex >= 0 || coat || (m->ext & PT_MATX_ANISOTROPY);
             use[t] = mapped && m->tex_xf[slot].texcoord == set;
             any |= use[t];
         }

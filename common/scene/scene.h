@@ -70,6 +70,10 @@ enum { PT_FEAT_SPEC_GLOSS = 1u << 17, PT_FEAT_SPECULAR_TEX = 1u << 18 };
 /* KHR_materials_iridescence: some opaque material has an iridescenceFactor
  * > 0 (common/render/thinfilm.h). Sets PT_FEAT_GLOSSY too. */
 enum { PT_FEAT_IRIDESCENCE = 1u << 19 };
+/* KHR_materials_anisotropy: some opaque material has an anisotropyStrength
+ * > 0 (common/render/aniso.h); the scene then has tangents. Sets
+ * PT_FEAT_GLOSSY too. */
+enum { PT_FEAT_ANISOTROPY = 1u << 20 };
 
 /* pt_material.ext: what the BSDF of a material reads past the core
  * metallic-roughness inputs, set by the builder from the material's fields,
@@ -77,7 +81,8 @@ enum { PT_FEAT_IRIDESCENCE = 1u << 19 };
 enum {
     PT_MATX_SPEC_GLOSS = 1u << 0,
     PT_MATX_SPECULAR_TEX = 1u << 1,
-    PT_MATX_IRIDESCENCE = 1u << 2
+    PT_MATX_IRIDESCENCE = 1u << 2,
+    PT_MATX_ANISOTROPY = 1u << 3
 };
 
 /* glTF alphaMode (common/scene/alpha.h). OPAQUE is 0, so a material
@@ -112,6 +117,7 @@ enum {
     PT_SLOT_SPEC_GLOSS,
     PT_SLOT_IRIDESCENCE,
     PT_SLOT_IRID_THICKNESS,
+    PT_SLOT_ANISOTROPY,
     PT_SLOT_COUNT
 };
 
@@ -194,7 +200,13 @@ typedef struct pt_material {
     float irid_thickness_min;   /* nm, >= 0 (default 100): the thickness texture's 0 */
     float irid_thickness_max;   /* nm, >= 0 (default 400): its 1, and the thickness without it */
     int32_t irid_thickness_tex; /* G picks the thickness (linear), or -1 */
-    uint32_t ext;               /* PT_MATX_*: set by the builder (any value given is replaced) */
+    /* KHR_materials_anisotropy over the opaque base's GGX lobe (a
+     * transmitting material ignores it); strength 0: none. */
+    float anisotropy;          /* anisotropyStrength in [0, 1] (default 0) */
+    float anisotropy_rotation; /* radians, counter-clockwise from the tangent (default 0) */
+    int32_t anisotropy_tex;    /* RG direction in [-1, 1] (tangent space), B x strength
+                                  (linear), or -1 */
+    uint32_t ext;              /* PT_MATX_*: set by the builder (any value given is replaced) */
     char name[64];
 } pt_material;
 

@@ -14,8 +14,8 @@
  *   glossiness come from textures, converted with their decoded texels),
  *   rendered with the same seed under a uniform environment and a
  *   directional light, sample by sample: no pixel channel's paired
- *   difference is 5 standard errors (and float rounding) from 0 (see
- *   differing), while more than 1 % of them differ from what the
+ *   difference is 5 standard errors (and float rounding) from 0
+ *   (paired.h), while more than 1 % of them differ from what the
  *   metallic-roughness fallback of the file renders.
  * - The same for KHR_materials_specular: specularTexture (A) and
  *   specularColorTexture (RGB, sRGB) times their factors against the
@@ -40,6 +40,7 @@
 #include "common/render/render.h"
 #include "common/scene/scene.h"
 #include "tests/check.h"
+#include "tests/common/render/paired.h"
 
 #define SIDE 32u
 #define SPP 32u
@@ -207,67 +208,16 @@ static pt_scene *load(const char *path, const char *word)
     return s;
 }
 
-static pt_renderer *renderer(const pt_scene *s, const pt_env *env)
-{
-    pt_render_params p = {0};
-    pt_render_params_default(&p);
-    p.width = p.height = SIDE;
-    p.seed = 7;
-    p.env = env;
-    pt_renderer *r = NULL;
-    pt_error err = {0};
-    CHECKF(pt_renderer_new(s, &p, &r, &err) == PT_OK, "%s", err.msg);
-    return r;
-}
-
-/* Renders a and b with the same random numbers, under a uniform
- * environment and the files' directional light, and counts the pixel
- * channels where they differ: the mean of the paired differences of the
- * samples is more than 5 of its standard errors from 0 (a paired t-test,
- * the error from the differences' own spread) and more than float rounding
- * of the inputs, 1e-5 of the pixel's value (+ 1e-8). A sample that takes
- * another path in one render (a decision on a rounded number) is one large
- * difference among SPP: it moves the mean by about one standard error,
- * never five. Returns the count; -1 when a renderer could not be made. */
+/* paired_differing (paired.h) under a uniform environment of 0.5 and the
+ * files' directional light. */
 static int differing(const pt_scene *a, const pt_scene *b)
 {
     pt_env *env = NULL;
     pt_error err = {0};
     CHECK(pt_env_uniform(pt_v3(0.5f, 0.5f, 0.5f), &env, &err) == PT_OK);
-    pt_renderer *ra = renderer(a, env), *rb = renderer(b, env);
-    int count = -1;
-    uint64_t bad = 0;
-    if (ra && rb) {
-        count = 0;
-        for (uint32_t i = 0; i < SIDE * SIDE; i++) {
-            double sum[3] = {0, 0, 0}, sq[3] = {0, 0, 0}, va[3] = {0, 0, 0};
-            for (uint32_t k = 0; k < SPP; k++) {
-                pt_render_stats st = {0};
-                int cov = 0;
-                pt_vec3 x = pt_render_sample(ra, i % SIDE, i / SIDE, k, &st, &cov);
-                pt_vec3 y = pt_render_sample(rb, i % SIDE, i / SIDE, k, &st, &cov);
-                const double xa[3] = {x.x, x.y, x.z}, ya[3] = {y.x, y.y, y.z};
-                for (int c = 0; c < 3; c++) {
-                    bad += !isfinite(xa[c]) || !isfinite(ya[c]);
-                    double d = xa[c] - ya[c];
-                    sum[c] += d;
-                    sq[c] += d * d;
-                    va[c] += xa[c];
-                }
-            }
-            for (int c = 0; c < 3; c++) {
-                double m = sum[c] / SPP;
-                double se = sqrt(fmax(sq[c] / SPP - m * m, 0.0) / (SPP - 1.0));
-                if (fabs(m) > 5.0 * se && fabs(m) > 1e-5 * fabs(va[c] / SPP) + 1e-8)
-                    count++;
-            }
-        }
-    }
-    CHECK(bad == 0);
-    pt_renderer_free(ra);
-    pt_renderer_free(rb);
+    int n = env ? paired_differing(a, b, env, SIDE, SPP) : -1;
     pt_env_free(env);
-    return count;
+    return n;
 }
 
 /* Files a (the extension's), b (its conversion) and the core fallback of

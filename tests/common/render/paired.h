@@ -1,0 +1,74 @@
+/*
+ * paired.h - two scenes rendered with the same random numbers, compared
+ * sample by sample (test_specgloss.c, test_anisotropy.c).
+ *
+ * paired_differing renders a and b (side x side, spp samples, seed 7, under
+ * env) and counts the pixel channels where they differ: the mean of the
+ * paired differences of the samples is more than 5 of its standard errors
+ * from 0 (a paired t-test, the error from the differences' own spread) and
+ * more than float rounding of the inputs, 1e-5 of the pixel's value
+ * (+ 1e-8). A sample that takes another path in one render (a decision on
+ * a rounded number) is one large difference among spp: it moves the mean by
+ * about one standard error, never five. NaN or Inf samples fail a CHECK.
+ * Returns the count, or -1 when a renderer could not be made.
+ */
+#ifndef PT_TESTS_COMMON_RENDER_PAIRED_H
+#define PT_TESTS_COMMON_RENDER_PAIRED_H
+
+#include <math.h>
+
+#include "common/render/render.h"
+#include "tests/check.h"
+
+static pt_renderer *paired_renderer(const pt_scene *s, const pt_env *env, uint32_t side)
+{
+    pt_render_params p = {0};
+    pt_render_params_default(&p);
+    p.width = p.height = side;
+    p.seed = 7;
+    p.env = env;
+    pt_renderer *r = NULL;
+    pt_error err = {0};
+    CHECKF(pt_renderer_new(s, &p, &r, &err) == PT_OK, "%s", err.msg);
+    return r;
+}
+
+static int paired_differing(const pt_scene *a, const pt_scene *b, const pt_env *env, uint32_t side,
+                            uint32_t spp)
+{
+    pt_renderer *ra = paired_renderer(a, env, side), *rb = paired_renderer(b, env, side);
+    int count = -1;
+    uint64_t bad = 0;
+    if (ra && rb) {
+        count = 0;
+        for (uint32_t i = 0; i < side * side; i++) {
+            double sum[3] = {0, 0, 0}, sq[3] = {0, 0, 0}, va[3] = {0, 0, 0};
+            for (uint32_t k = 0; k < spp; k++) {
+                pt_render_stats st = {0};
+                int cov = 0;
+                pt_vec3 x = pt_render_sample(ra, i % side, i / side, k, &st, &cov);
+                pt_vec3 y = pt_render_sample(rb, i % side, i / side, k, &st, &cov);
+                const double xa[3] = {x.x, x.y, x.z}, ya[3] = {y.x, y.y, y.z};
+                for (int c = 0; c < 3; c++) {
+                    bad += !isfinite(xa[c]) || !isfinite(ya[c]);
+                    double d = xa[c] - ya[c];
+                    sum[c] += d;
+                    sq[c] += d * d;
+                    va[c] += xa[c];
+                }
+            }
+            for (int c = 0; c < 3; c++) {
+                double m = sum[c] / spp;
+                double se = sqrt(fmax(sq[c] / spp - m * m, 0.0) / (spp - 1.0));
+                if (fabs(m) > 5.0 * se && fabs(m) > 1e-5 * fabs(va[c] / spp) + 1e-8)
+                    count++;
+            }
+        }
+    }
+    CHECK(bad == 0);
+    pt_renderer_free(ra);
+    pt_renderer_free(rb);
+    return count;
+}
+
+#endif
