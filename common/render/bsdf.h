@@ -190,6 +190,30 @@ static inline pt_vec3 pt_specular_eval(const pt_specular_lobe *l, pt_vec3 wo, pt
     return pt_v3_scale(pt_bsdf_spec_fresnel(l->f0, l->f90, c), g);
 }
 
+/* KHR_materials_diffuse_transmission's thin-walled Lambertian transmission:
+ * the diffuse lobe mirrored to the far side (wi.z < 0), weighted as the
+ * diffuse is by 1 - F_d(min(cos wo, |cos wi|)); albedo is the transmitted
+ * share, dt x colour x (1 - metallic). */
+static inline pt_vec3 pt_diffuse_transmit_eval(const pt_diffuse_lobe *l, pt_vec3 wo, pt_vec3 wi,
+                                               float prob, float *share)
+{
+    if (!(wo.z > 0.0f) || !(wi.z < 0.0f)) {
+        *share = 0.0f;
+        return pt_v3(0.0f, 0.0f, 0.0f);
+    }
+    float fd = pt_bsdf_diffuse_fresnel(l->dielectric_f0, fminf(wo.z, -wi.z));
+    *share = prob * -wi.z * PT_INV_PI;
+    return pt_v3_scale(l->albedo, (1.0f - fd) * -wi.z * PT_INV_PI);
+}
+
+/* A direction on the far side from u[1..2]; 1 when it lies below. */
+static inline int pt_diffuse_transmit_sample(const float u[3], pt_vec3 *wi)
+{
+    *wi = pt_sample_cosine_hemisphere(u[1], u[2]);
+    wi->z = -wi->z;
+    return wi->z < 0.0f;
+}
+
 /* A direction from u[1..2]; 1 when it lies above the surface, else 0. */
 static inline int pt_diffuse_sample(const float u[3], pt_vec3 *wi)
 {

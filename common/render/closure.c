@@ -96,6 +96,31 @@ void pt_closure_add_base_aniso(pt_closure *c, const pt_bsdf *b, float strength, 
         add_lobe(c, g, PT_LOBE_DIFFUSE, 1.0f - ps)->p.diffuse = pt_bsdf_diffuse(b);
 }
 
+void pt_closure_add_base_dt(pt_closure *c, const pt_bsdf *b, float dt, pt_vec3 through)
+{
+    if (c->dead)
+        return;
+    /* The specular lobe's share from both diffuse albedos together; the
+     * rest split between them by their luminances. */
+    pt_bsdf both = *b;
+    pt_vec3 refl = pt_v3_scale(b->diffuse, 1.0f - dt);
+    both.diffuse = pt_v3_add(refl, through);
+    float ps = pt_bsdf_spec_prob(&both, c->wo.z);
+    float lr = pt_luminance(refl), lt = pt_luminance(through);
+    float pr = lr + lt > 0.0f ? lr / (lr + lt) : 0.5f;
+    pt_closure_group *g = open_group(c, 0.0f);
+    if (ps > 0.0f)
+        add_lobe(c, g, PT_LOBE_SPECULAR, ps)->p.specular = pt_bsdf_specular(b);
+    if (ps < 1.0f && pr > 0.0f) {
+        pt_diffuse_lobe d = {refl, b->dielectric_f0};
+        add_lobe(c, g, PT_LOBE_DIFFUSE, (1.0f - ps) * pr)->p.diffuse = d;
+    }
+    if (ps < 1.0f && pr < 1.0f) {
+        pt_diffuse_lobe d = {through, b->dielectric_f0};
+        add_lobe(c, g, PT_LOBE_DIFFUSE_TRANSMIT, (1.0f - ps) * (1.0f - pr))->p.diffuse = d;
+    }
+}
+
 void pt_closure_add_glass(pt_closure *c, const pt_glass *gl)
 {
     if (c->dead)
@@ -152,6 +177,8 @@ lobe_eval(const pt_lobe *l, pt_vec3 wo, pt_vec3 wi, float *share, float *below)
         return pt_irid_diffuse_eval(&l->p.irid_diffuse, wo, wi, l->prob, share);
     case PT_LOBE_SPECULAR_ANISO:
         return pt_aniso_eval(&l->p.aniso, wo, wi, l->prob, share);
+    case PT_LOBE_DIFFUSE_TRANSMIT:
+        return pt_diffuse_transmit_eval(&l->p.diffuse, wo, wi, l->prob, share);
     }
     *share = 0.0f;
     return pt_v3(0.0f, 0.0f, 0.0f);
@@ -267,6 +294,9 @@ pt_vec3 pt_closure_sample(const pt_closure *c, const float u[3], pt_vec3 *wi, fl
         break;
     case PT_LOBE_SPECULAR_ANISO:
         ok = pt_aniso_sample(&pick->p.aniso, c->wo, ul, wi);
+        break;
+    case PT_LOBE_DIFFUSE_TRANSMIT:
+        ok = pt_diffuse_transmit_sample(ul, wi);
         break;
     case PT_LOBE_SPECULAR:
         ok = pt_specular_sample(&pick->p.specular, c->wo, ul, wi);

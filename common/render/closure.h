@@ -62,7 +62,8 @@ enum {
     PT_LOBE_COAT,
     PT_LOBE_SPECULAR_IRID, /* thinfilm.h: the base's lobes under an iridescent film */
     PT_LOBE_DIFFUSE_IRID,
-    PT_LOBE_SPECULAR_ANISO, /* aniso.h: the base's GGX lobe, anisotropic */
+    PT_LOBE_SPECULAR_ANISO,   /* aniso.h: the base's GGX lobe, anisotropic */
+    PT_LOBE_DIFFUSE_TRANSMIT, /* bsdf.h: Lambertian transmission to the far side */
 };
 
 typedef struct pt_lobe {
@@ -106,6 +107,10 @@ void pt_closure_add_base_irid(pt_closure *c, const pt_bsdf *b, const pt_irid *fi
 /* The base with its GGX lobe anisotropic (aniso.h, KHR_materials_anisotropy):
  * strength in [0, 1], the direction (c, s) in the shading frame. */
 void pt_closure_add_base_aniso(pt_closure *c, const pt_bsdf *b, float strength, float dc, float ds);
+/* The base with a share of its diffuse transmitted (bsdf.h,
+ * KHR_materials_diffuse_transmission): reflected albedo b's diffuse x
+ * (1 - dt), transmitted albedo `through` (dt x colour x (1 - metallic)). */
+void pt_closure_add_base_dt(pt_closure *c, const pt_bsdf *b, float dt, pt_vec3 through);
 /* Glass (dielectric.h): its opaque share as the base, then the interface
  * beside it; in place of pt_closure_add_base. */
 void pt_closure_add_glass(pt_closure *c, const pt_glass *g);

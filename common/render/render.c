@@ -1083,6 +1083,39 @@ static int film_at(const pt_renderer *r, const surface *sf, const uint32_t featu
     return film->strength > 0.0f;
 }
 
+/* The diffuse transmission at sf (KHR_materials_diffuse_transmission): the
+ * factor times its texture's A into *dt, and the transmitted albedo, dt x
+ * the colour (times its texture's RGB) x (1 - metallic), into *through. 0
+ * where dt is 0. */
+static int dt_at(const pt_renderer *r, const surface *sf, const uint32_t features, float *dt,
+                 pt_vec3 *through)
+{
+    const pt_scene *s = r->scene;
+    const pt_material *m = sf->mat;
+    pt_vec3 base, col = pt_v3(m->diffuse_transmission_color[0], m->diffuse_transmission_color[1],
+                              m->diffuse_transmission_color[2]);
+    float metallic, roughness, t = m->diffuse_transmission;
+    base_inputs(s, sf, features, &base, &metallic, &roughness);
+    if (features & PT_FEAT_TEXTURES) {
+        float x[4], uv[2];
+        if (m->diffuse_transmission_tex >= 0) {
+            slot_uv(sf, &m->tex_xf[PT_SLOT_DIFFUSE_TRANSMISSION], uv);
+            pt_texture_sample(&s->textures[m->diffuse_transmission_tex], uv[0], uv[1], x);
+            t *= x[3];
+        }
+        if (m->diffuse_transmission_color_tex >= 0) {
+            slot_uv(sf, &m->tex_xf[PT_SLOT_DIFFUSE_TRANSMISSION_COLOR], uv);
+            pt_texture_sample(&s->textures[m->diffuse_transmission_color_tex], uv[0], uv[1], x);
+            col = pt_v3_mul(col, pt_v3(x[0], x[1], x[2]));
+        }
+    }
+    metallic = metallic > 0.0f ? (metallic < 1.0f ? metallic : 1.0f) : 0.0f;
+    t = t > 0.0f ? (t < 1.0f ? t : 1.0f) : 0.0f;
+    *dt = t;
+    *through = pt_v3_scale(col, t * (1.0f - metallic));
+    return t > 0.0f;
+}
+
 /* The anisotropy at sf (KHR_materials_anisotropy) in the shading frame fr:
  * the strength times the texture's B, the direction (cos, sin) of the
  * rotation, or the texture's RG in [-1, 1] turned by it, in the tangent
@@ -1140,9 +1173,13 @@ material_closure(const pt_renderer *r, const surface *sf, int glass, int front, 
     } else {
         bsdf = material_bsdf(r, sf, features);
         pt_irid film;
-        float as, ac, an;
-        if ((features & PT_FEAT_ANISOTROPY) && sf->aniso &&
-            aniso_at(r, sf, fr, features, &as, &ac, &an))
+        float as, ac, an, dt;
+        pt_vec3 dtc;
+        if ((features & PT_FEAT_DIFFUSE_TRANSMISSION) &&
+            (sf->mat->ext & PT_MATX_DIFFUSE_TRANSMISSION) && dt_at(r, sf, features, &dt, &dtc))
+            pt_closure_add_base_dt(cl, &bsdf, dt, dtc);
+        else if ((features & PT_FEAT_ANISOTROPY) && sf->aniso &&
+                 aniso_at(r, sf, fr, features, &as, &ac, &an))
             pt_closure_add_base_aniso(cl, &bsdf, as, ac, an);
         else if ((features & PT_FEAT_IRIDESCENCE) && (sf->mat->ext & PT_MATX_IRIDESCENCE) &&
                  film_at(r, sf, features, &film))
@@ -1221,6 +1258,9 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
 {
     const pt_scene *s = r->scene;
     const int glass = (features & PT_FEAT_TRANSMISSION) && transmits(sf->mat);
+    /* Scatters to both sides: glass, or a diffuse transmitter (thin). */
+    const int through = glass || ((features & PT_FEAT_DIFFUSE_TRANSMISSION) &&
+                                  (sf->mat->ext & PT_MATX_DIFFUSE_TRANSMISSION));
     const uint32_t strategy = r->params.light_strategy;
     uint32_t ret = 0;
     pt_vec3 wo = pt_v3_neg(pa->d);
@@ -1237,9 +1277,9 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
      * geometric surface counts as arriving from the back). */
     float wng = pt_v3_dot(sf->ng, wo);
     int front = wng > 0.0f;
-    pt_vec3 ng = (glass ? !front : wng < 0.0f) ? pt_v3_neg(sf->ng) : sf->ng;
+    pt_vec3 ng = (through ? !front : wng < 0.0f) ? pt_v3_neg(sf->ng) : sf->ng;
     pt_vec3 ns = sf->ns;
-    if ((features & PT_FEAT_NORMAL_MAP) && sf->mapped && !glass) {
+    if ((features & PT_FEAT_NORMAL_MAP) && sf->mapped && !through) {
         /* A mapped normal may lie anywhere: turn it with the side the ray
          * sees (as ng was), then bend it until wo's reflection is valid. */
         if (wng < 0.0f)
@@ -1289,13 +1329,13 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
         if (features & PT_FEAT_ALPHA)
             sr->alpha_key = pt_alpha_key(u[OFF_ALPHA], ALPHA_SALT_SHADOW);
         float side = ls_ok ? pt_v3_dot(ls->wi, ng) : 0.0f;
-        if (ls_ok && ls->pdf > 0.0f && any_positive(lrad) && (side > 0.0f || glass)) {
+        if (ls_ok && ls->pdf > 0.0f && any_positive(lrad) && (side > 0.0f || through)) {
             float bpdf = 0.0f;
             pt_vec3 wi_ll = pt_frame_to_local(&fr, ls->wi);
             pt_vec3 f = pt_v3(0.0f, 0.0f, 0.0f);
             if (!(features & PT_FEAT_GLOSSY))
                 f = lambert_eval(&lambert, wo_l, wi_ll, &bpdf);
-            else if (!glass || (side != 0.0f && (side > 0.0f) == (wi_ll.z > 0.0f)))
+            else if (!through || (side != 0.0f && (side > 0.0f) == (wi_ll.z > 0.0f)))
                 f = pt_closure_eval(&cl, wi_ll, &bpdf);
             if ((features & FEAT_GUIDE) && guide && gprob > 0.0f)
                 bpdf = gprob * pt_guide_pdf(guide, gleaf, ls->wi) + (1.0f - gprob) * bpdf;
@@ -1381,7 +1421,7 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
         return ret;
     pt_vec3 wi = pt_frame_to_world(&fr, wi_l);
     float side = pt_v3_dot(wi, ng);
-    if (glass ? side == 0.0f || (side > 0.0f) != (wi_l.z > 0.0f) : side <= 0.0f)
+    if (through ? side == 0.0f || (side > 0.0f) != (wi_l.z > 0.0f) : side <= 0.0f)
         return ret; /* opaque: below the geometric surface, reflection only */
     pt_vec3 beta = pt_v3_mul(pa->beta, weight);
 
@@ -1991,9 +2031,10 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
 /* The material features beyond the core's (normal maps, vertex colours). */
 #define SURFACE_EXTRAS (uint32_t)(PT_FEAT_NORMAL_MAP | PT_FEAT_VERTEX_COLOR)
 /* The glTF material extensions past the core's: unlit, specular-glossiness,
- * specular textures, iridescence, anisotropy. */
+ * specular textures, iridescence, anisotropy, diffuse transmission. */
 #define MATERIAL_EXTS                                                                              \
-    (uint32_t)(PT_FEAT_UNLIT | BSDF_EXTS | PT_FEAT_IRIDESCENCE | PT_FEAT_ANISOTROPY)
+    (uint32_t)(PT_FEAT_UNLIT | BSDF_EXTS | PT_FEAT_IRIDESCENCE | PT_FEAT_ANISOTROPY |              \
+               PT_FEAT_DIFFUSE_TRANSMISSION)
 /* Features that only the general variant has code for. */
 /* Motion blur (PT_FEAT_MOTION) too: a path's time reaches every ray query. */
 #define GENERAL_ONLY                                                                               \

@@ -24,9 +24,9 @@
 // too) and glass (KHR_materials_transmission, _ior, _volume:
 // add_transmission), or instead of it KHR_materials_pbrSpecularGlossiness
 // (add_spec_gloss) or KHR_materials_unlit, and KHR_materials_iridescence
-// (add_iridescence) and KHR_materials_anisotropy (add_anisotropy); what
-// the renderer does not support is reported once per kind through
-// opts->warn.
+// (add_iridescence), KHR_materials_anisotropy (add_anisotropy) and
+// KHR_materials_diffuse_transmission (add_diffuse_transmission); what the
+// renderer does not support is reported once per kind through opts->warn.
 // KHR_lights_punctual lights become pt_punctual lights (scene.h: units).
 // KHR_materials_variants: with opts->variant naming one of the root's
 // variants, a primitive whose mappings list that variant uses the mapped
@@ -1252,6 +1252,7 @@ bool ext_supported(const std::string &name)
         "KHR_materials_pbrSpecularGlossiness", // read_materials
         "KHR_materials_iridescence",           // read_materials
         "KHR_materials_anisotropy",            // read_materials
+        "KHR_materials_diffuse_transmission",  // read_materials
     };
     return supported.count(name) != 0;
 }
@@ -1339,6 +1340,32 @@ void add_anisotropy(importer &im, int mi, const tinygltf::Material &g, pt_materi
                                         "ignored (it shapes opaque materials' reflection only)");
 }
 
+// KHR_materials_diffuse_transmission into pm (scene.h): the factor and its
+// texture (A), the colour and its texture (RGB, sRGB). The renderer treats
+// the surface as a thin wall; on a transmitting material it is ignored,
+// with a warning.
+void add_diffuse_transmission(importer &im, int mi, const tinygltf::Material &g, pt_material &pm)
+{
+    auto dt = g.extensions.find("KHR_materials_diffuse_transmission");
+    if (dt == g.extensions.end())
+        return;
+    const tinygltf::Value &v = dt->second;
+    pm.diffuse_transmission = float(ext_number(v, "diffuseTransmissionFactor", 0.0));
+    ext_numbers(v, "diffuseTransmissionColorFactor", pm.diffuse_transmission_color, 3);
+    const tinygltf::TextureInfo ft = ext_texture(v, "diffuseTransmissionTexture"),
+                                ct = ext_texture(v, "diffuseTransmissionColorTexture");
+    pm.diffuse_transmission_tex =
+        texture_for(im, mi, "diffuseTransmissionTexture", ft.index, ft.texCoord, ft.extensions,
+                    false, &pm.tex_xf[PT_SLOT_DIFFUSE_TRANSMISSION]);
+    pm.diffuse_transmission_color_tex =
+        texture_for(im, mi, "diffuseTransmissionColorTexture", ct.index, ct.texCoord, ct.extensions,
+                    true, &pm.tex_xf[PT_SLOT_DIFFUSE_TRANSMISSION_COLOR]);
+    if (pm.diffuse_transmission > 0.0f && pm.transmission > 0.0f)
+        im.warn_once("dt-glass", "material " + std::to_string(mi) +
+                                     ": KHR_materials_diffuse_transmission on a transmitting "
+                                     "material is ignored (its glass is kept)");
+}
+
 void read_materials(importer &im)
 {
     const tinygltf::Model &m = im.model;
@@ -1389,6 +1416,7 @@ void read_materials(importer &im)
             add_layers(im, mi, g, pm);
             add_iridescence(im, mi, g, pm);
             add_anisotropy(im, mi, g, pm);
+            add_diffuse_transmission(im, mi, g, pm);
         }
         pm.double_sided = g.doubleSided ? 1 : 0;
         for (const auto &e : g.extensions)

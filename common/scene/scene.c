@@ -117,6 +117,9 @@ pt_material pt_material_default(void)
         m.sg_specular[i] = 1.0f;
     m.sg_glossiness = 1.0f;
     m.iridescence_tex = m.irid_thickness_tex = m.anisotropy_tex = -1;
+    m.diffuse_transmission_tex = m.diffuse_transmission_color_tex = -1;
+    for (int i = 0; i < 3; i++)
+        m.diffuse_transmission_color[i] = 1.0f;
     m.iridescence_ior = 1.3f;
     m.irid_thickness_min = 100.0f;
     m.irid_thickness_max = 400.0f;
@@ -232,10 +235,19 @@ static pt_status check_transmission(const pt_scene_builder *b, const pt_material
 static pt_status check_layers(const pt_scene_builder *b, const pt_material *m, const char *name,
                               pt_error *err)
 {
-    const int32_t t[11] = {
-        m->clearcoat_tex,        m->clearcoat_rough_tex, m->sheen_color_tex,    m->sheen_rough_tex,
-        m->clearcoat_normal_tex, m->specular_tex,        m->specular_color_tex, m->sg_tex,
-        m->iridescence_tex,      m->irid_thickness_tex,  m->anisotropy_tex};
+    const int32_t t[13] = {m->diffuse_transmission_tex,
+                           m->diffuse_transmission_color_tex,
+                           m->clearcoat_tex,
+                           m->clearcoat_rough_tex,
+                           m->sheen_color_tex,
+                           m->sheen_rough_tex,
+                           m->clearcoat_normal_tex,
+                           m->specular_tex,
+                           m->specular_color_tex,
+                           m->sg_tex,
+                           m->iridescence_tex,
+                           m->irid_thickness_tex,
+                           m->anisotropy_tex};
     if (!isfinite(m->clearcoat_normal_scale))
         return pt_error_set(err, PT_ERR_FORMAT,
                             "material '%.64s': clearcoat normal scale is not finite", name);
@@ -267,7 +279,14 @@ static pt_status check_layers(const pt_scene_builder *b, const pt_material *m, c
                             "material '%.64s': anisotropyStrength %g is outside [0, 1] or "
                             "anisotropyRotation %g is not finite",
                             name, (double)m->anisotropy, (double)m->anisotropy_rotation);
-    for (int i = 0; i < 11; i++)
+    const float dt[4] = {m->diffuse_transmission, m->diffuse_transmission_color[0],
+                         m->diffuse_transmission_color[1], m->diffuse_transmission_color[2]};
+    for (int i = 0; i < 4; i++)
+        if (!(dt[i] >= 0.0f && dt[i] <= 1.0f))
+            return pt_error_set(
+                err, PT_ERR_FORMAT, "material '%.64s': %s %g is outside [0, 1]", name,
+                i ? "diffuseTransmissionColorFactor" : "diffuseTransmissionFactor", (double)dt[i]);
+    for (int i = 0; i < 13; i++)
         if (t[i] < -1 || (t[i] >= 0 && (uint32_t)t[i] >= b->ntex))
             return pt_error_set(err, PT_ERR_ARG, "material '%.64s': texture %d out of range", name,
                                 (int)t[i]);
@@ -349,6 +368,8 @@ pt_status pt_scene_builder_add_material(pt_scene_builder *b, const pt_material *
         d->ext |= PT_MATX_IRIDESCENCE;
     if (d->anisotropy > 0.0f && !(d->transmission > 0.0f))
         d->ext |= PT_MATX_ANISOTROPY;
+    if (d->diffuse_transmission > 0.0f && !(d->transmission > 0.0f))
+        d->ext |= PT_MATX_DIFFUSE_TRANSMISSION;
     /* Zero the bytes after the name's end so the scene hash sees only the name. */
     size_t len = strnlen(m->name, sizeof m->name - 1);
     memset(d->name + len, 0, sizeof d->name - len);
@@ -1208,6 +1229,11 @@ static uint32_t scene_features(const pt_scene *s, int has_uv, pt_error *err, pt_
         }
         if (m->ext & PT_MATX_SPECULAR_TEX)
             f |= PT_FEAT_SPECULAR_TEX | PT_FEAT_TEXTURES;
+        if (m->ext & PT_MATX_DIFFUSE_TRANSMISSION) {
+            f |= PT_FEAT_DIFFUSE_TRANSMISSION | PT_FEAT_GLOSSY;
+            if (m->diffuse_transmission_tex >= 0 || m->diffuse_transmission_color_tex >= 0)
+                f |= PT_FEAT_TEXTURES;
+        }
         if (m->ext & PT_MATX_ANISOTROPY) {
             f |= PT_FEAT_ANISOTROPY | PT_FEAT_GLOSSY;
             if (m->anisotropy_tex >= 0)

@@ -74,6 +74,10 @@ enum { PT_FEAT_IRIDESCENCE = 1u << 19 };
  * > 0 (common/render/aniso.h); the scene then has tangents. Sets
  * PT_FEAT_GLOSSY too. */
 enum { PT_FEAT_ANISOTROPY = 1u << 20 };
+/* KHR_materials_diffuse_transmission: some opaque material transmits
+ * diffusely (thin-walled: a Lambertian lobe on the far side). Sets
+ * PT_FEAT_GLOSSY too. */
+enum { PT_FEAT_DIFFUSE_TRANSMISSION = 1u << 21 };
 
 /* pt_material.ext: what the BSDF of a material reads past the core
  * metallic-roughness inputs, set by the builder from the material's fields,
@@ -82,7 +86,8 @@ enum {
     PT_MATX_SPEC_GLOSS = 1u << 0,
     PT_MATX_SPECULAR_TEX = 1u << 1,
     PT_MATX_IRIDESCENCE = 1u << 2,
-    PT_MATX_ANISOTROPY = 1u << 3
+    PT_MATX_ANISOTROPY = 1u << 3,
+    PT_MATX_DIFFUSE_TRANSMISSION = 1u << 4
 };
 
 /* glTF alphaMode (common/scene/alpha.h). OPAQUE is 0, so a material
@@ -118,6 +123,8 @@ enum {
     PT_SLOT_IRIDESCENCE,
     PT_SLOT_IRID_THICKNESS,
     PT_SLOT_ANISOTROPY,
+    PT_SLOT_DIFFUSE_TRANSMISSION,
+    PT_SLOT_DIFFUSE_TRANSMISSION_COLOR,
     PT_SLOT_COUNT
 };
 
@@ -206,7 +213,14 @@ typedef struct pt_material {
     float anisotropy_rotation; /* radians, counter-clockwise from the tangent (default 0) */
     int32_t anisotropy_tex;    /* RG direction in [-1, 1] (tangent space), B x strength
                                   (linear), or -1 */
-    uint32_t ext;              /* PT_MATX_*: set by the builder (any value given is replaced) */
+    /* KHR_materials_diffuse_transmission: the share dt of the dielectric's
+     * diffuse that is transmitted to the far side, as a thin wall, tinted
+     * by the colour (a transmitting material ignores it); 0: none. */
+    float diffuse_transmission;             /* diffuseTransmissionFactor in [0, 1] (default 0) */
+    int32_t diffuse_transmission_tex;       /* A x the factor (linear), or -1 */
+    float diffuse_transmission_color[3];    /* diffuseTransmissionColorFactor (default 1, 1, 1) */
+    int32_t diffuse_transmission_color_tex; /* RGB x the colour (sRGB), or -1 */
+    uint32_t ext; /* PT_MATX_*: set by the builder (any value given is replaced) */
     char name[64];
 } pt_material;
 
