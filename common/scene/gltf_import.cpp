@@ -1162,10 +1162,20 @@ void add_transmission(importer &im, int mi, const tinygltf::Material &g, pt_mate
     auto io = g.extensions.find("KHR_materials_ior");
     if (io != g.extensions.end())
         pm.ior = float(ext_number(io->second, "ior", 1.5));
-    if (pm.ior != 1.5f && pm.transmission == 0.0f)
-        im.warn_once("ior-opaque", "material " + std::to_string(mi) +
-                                       ": KHR_materials_ior is used only for transmission; "
-                                       "opaque materials keep ior 1.5");
+    // An opaque dielectric's F0 is ((ior - 1) / (ior + 1))^2 x the specular
+    // colour (KHR_materials_ior with KHR_materials_specular): the base
+    // scales its colour by 0.04 (ior 1.5), so the colour takes the ratio.
+    if (pm.ior != 1.5f && pm.transmission == 0.0f) {
+        if (pm.ior == 0.0f || (pm.ior >= 1.0f && std::isfinite(pm.ior))) {
+            float r = (pm.ior - 1.0f) / (pm.ior + 1.0f);
+            for (int c = 0; c < 3; c++)
+                pm.specular_color[c] *= r * r / 0.04f;
+        } else {
+            im.warn_once("ior-opaque", "material " + std::to_string(mi) + ": KHR_materials_ior " +
+                                           std::to_string(pm.ior) +
+                                           " is not 0 or >= 1; the material keeps ior 1.5");
+        }
+    }
     auto vo = g.extensions.find("KHR_materials_volume");
     if (vo != g.extensions.end()) {
         pm.thickness = float(ext_number(vo->second, "thicknessFactor", 0.0));

@@ -20,6 +20,9 @@
  * - The same for KHR_materials_specular: specularTexture (A) and
  *   specularColorTexture (RGB, sRGB) times their factors against the
  *   factors alone set to their product.
+ * - KHR_materials_ior on an opaque dielectric (ior 2) renders as the
+ *   specular colour scaled by its F0 over 0.04, with no warning, and not as
+ *   ior 1.5 does.
  * - A glossinessFactor or specularFactor outside [0, 1] is refused with an
  *   error that names it.
  * - SpecularTest (../shared/scenes) loads without a warning about specular
@@ -352,6 +355,27 @@ static void specular_texture_pair(size_t bin)
     expect_pair("specular textures", "spec_tex.gltf", "spec_fac.gltf", "spec_fb.gltf", "specular");
 }
 
+/* KHR_materials_ior on an opaque dielectric: F0 = ((ior - 1) / (ior + 1))^2
+ * x the specular colour, the same as the specular colour scaled by that
+ * over 0.04 (ior 2: 1/9 / 0.04). */
+static void opaque_ior_pair(size_t bin)
+{
+    const char *base = "\"pbrMetallicRoughness\":{\"baseColorFactor\":[0.2,0.3,0.4,1],"
+                       "\"metallicFactor\":0,\"roughnessFactor\":0.25}";
+    char m[1024];
+    snprintf(m, sizeof m, "{%s,\"extensions\":{\"KHR_materials_ior\":{\"ior\":2}}}", base);
+    write_gltf("ior2.gltf", bin, m, NULL);
+    const double k = (1.0 / 9.0) / 0.04;
+    snprintf(m, sizeof m,
+             "{%s,\"extensions\":{\"KHR_materials_specular\":{\"specularColorFactor\":"
+             "[%.9g,%.9g,%.9g]}}}",
+             base, k, k, k);
+    write_gltf("ior2_spec.gltf", bin, m, NULL);
+    snprintf(m, sizeof m, "{%s}", base);
+    write_gltf("ior15.gltf", bin, m, NULL);
+    expect_pair("opaque ior 2", "ior2.gltf", "ior2_spec.gltf", "ior15.gltf", "ior");
+}
+
 static void specular_test_asset(void)
 {
     char path[1024];
@@ -391,6 +415,7 @@ int main(void)
     spec_gloss_pairs(bin);
     specular_texture_pair(bin);
     refused(bin);
+    opaque_ior_pair(bin);
     specular_test_asset();
     char cmd[300];
     snprintf(cmd, sizeof cmd, "rm -rf '%s'", tmp);
