@@ -66,6 +66,8 @@ pt_glass pt_glass_setup(pt_vec3 base_color, float metallic, float roughness, flo
      * direction light takes: treat it as smooth, as pbrt-v4 does. */
     g.alpha = a < PT_GLASS_SMOOTH_ALPHA || g.eta == 1.0f ? 0.0f : a;
     g.thin = thin != 0;
+    g.disp = 0;
+    g.eta3[0] = g.eta3[1] = g.eta3[2] = g.eta;
     int opaque = pt_v3_max_comp(g.base.diffuse) > 0.0f || g.base.spec_weight > 0.0f;
     if (!(g.weight > 0.0f))
         g.pick = 0.0f;
@@ -147,10 +149,56 @@ static float rough_eval(const pt_dielectric_lobe *g, pt_vec3 wo, pt_vec3 wi, flo
     return (1.0f - F) * d * G * fabsf(dwi * dwo) / (wo.z * den) / (g->eta * g->eta);
 }
 
+void pt_dispersion_ior(float ior, float dispersion, float out[3])
+{
+    static const float lambda[3] = {611.0f, 549.0f, 464.0f};
+    for (int c = 0; c < 3; c++) {
+        float n = ior + (ior - 1.0f) * (dispersion / 20.0f) *
+                            (523655.0f / (lambda[c] * lambda[c]) - 1.5168f);
+        out[c] = n > 1.0f ? n : 1.0f;
+    }
+}
+
+void pt_glass_disperse(pt_glass *g, const float ior_n[3], int inverted)
+{
+    if (g->thin || g->eta == 0.0f || g->eta == 1.0f)
+        return;
+    for (int c = 0; c < 3; c++) {
+        float n = ior_n[c] >= 1.0f && isfinite(ior_n[c]) ? ior_n[c] : g->eta;
+        g->eta3[c] = inverted ? 1.0f / n : n;
+    }
+    g->disp = 1;
+}
+
 pt_dielectric_lobe pt_glass_interface(const pt_glass *g)
 {
-    pt_dielectric_lobe l = {g->tint, g->weight, g->eta, g->alpha, g->thin};
+    pt_dielectric_lobe l = {g->tint,
+                            g->weight,
+                            g->eta,
+                            g->alpha,
+                            g->thin,
+                            g->disp,
+                            {g->eta3[0], g->eta3[1], g->eta3[2]}};
     return l;
+}
+
+/* The dispersive rough interface: each channel's own lobe (its eta), the
+ * density the channels' mean. */
+static pt_vec3 disp_eval(const pt_dielectric_lobe *l, pt_vec3 wo, pt_vec3 wi, float prob,
+                         float *share)
+{
+    float f[3], pd = 0.0f;
+    int trans = 0;
+    for (int c = 0; c < 3; c++) {
+        pt_dielectric_lobe one = *l;
+        one.eta = l->eta3[c];
+        float p;
+        f[c] = rough_eval(&one, wo, wi, &p, &trans) * l->weight;
+        pd += p;
+    }
+    *share = prob * (pd * (1.0f / 3.0f));
+    pt_vec3 v = pt_v3(f[0], f[1], f[2]);
+    return trans ? pt_v3_mul(l->tint, v) : v;
 }
 
 pt_vec3 pt_dielectric_eval(const pt_dielectric_lobe *l, pt_vec3 wo, pt_vec3 wi, float prob,
@@ -159,11 +207,44 @@ pt_vec3 pt_dielectric_eval(const pt_dielectric_lobe *l, pt_vec3 wo, pt_vec3 wi, 
     *share = 0.0f;
     if (!(l->alpha > 0.0f))
         return pt_v3(0.0f, 0.0f, 0.0f);
+    if (l->disp)
+        return disp_eval(l, wo, wi, prob, share);
     float pd;
     int trans;
     float fd = rough_eval(l, wo, wi, &pd, &trans) * l->weight;
     *share = prob * pd;
     return trans ? pt_v3_scale(l->tint, fd) : pt_v3(fd, fd, fd);
+}
+
+/* The dispersive smooth interface: channel c picked with probability 1/3,
+ * then reflection with its F_c. Reflection is one direction for every
+ * channel, taken with probability mean(F): weight F_ch / mean(F).
+ * Refraction is channel c's own direction, taken with probability
+ * (1 - F_c) / 3: weight 3 tint_c / eta_c^2 on channel c alone. */
+static pt_vec3 disp_smooth_sample(const pt_dielectric_lobe *g, pt_vec3 wo, float uc, pt_vec3 *wi,
+                                  float *prob)
+{
+    float x = uc * 3.0f;
+    int c = x < 1.0f ? 0 : (x < 2.0f ? 1 : 2);
+    float u = x - (float)c;
+    float F[3];
+    for (int k = 0; k < 3; k++)
+        F[k] = pt_fresnel_dielectric(wo.z, g->eta3[k]);
+    if (u < F[c]) {
+        float mean = (F[0] + F[1] + F[2]) * (1.0f / 3.0f);
+        *wi = pt_v3(-wo.x, -wo.y, wo.z);
+        *prob = mean;
+        return pt_v3_scale(pt_v3(F[0], F[1], F[2]), 1.0f / mean);
+    }
+    *prob = (1.0f - F[c]) * (1.0f / 3.0f);
+    if (!refract(wo, pt_v3(0.0f, 0.0f, 1.0f), g->eta3[c], wi)) {
+        *prob = 0.0f;
+        return pt_v3(0.0f, 0.0f, 0.0f);
+    }
+    const float tint[3] = {g->tint.x, g->tint.y, g->tint.z};
+    float v[3] = {0.0f, 0.0f, 0.0f};
+    v[c] = 3.0f * tint[c] / (g->eta3[c] * g->eta3[c]);
+    return pt_v3(v[0], v[1], v[2]);
 }
 
 /* The smooth interface's delta lobes. */
@@ -192,9 +273,20 @@ int pt_dielectric_sample(const pt_dielectric_lobe *l, pt_vec3 wo, const float u[
                          pt_vec3 *wi, pt_vec3 *weight, float *pdf)
 {
     float uc = u[0];
+    float eta = l->eta;
+    if (l->disp) {
+        /* The channel, and u[0] rescaled to what is left of it. */
+        float x = uc * 3.0f;
+        int c = x < 1.0f ? 0 : (x < 2.0f ? 1 : 2);
+        if (l->alpha > 0.0f) {
+            uc = x - (float)c;
+            eta = l->eta3[c];
+        }
+    }
     if (l->alpha == 0.0f) {
         float p;
-        pt_vec3 w = smooth_sample(l, wo, uc, wi, &p);
+        pt_vec3 w =
+            l->disp ? disp_smooth_sample(l, wo, uc, wi, &p) : smooth_sample(l, wo, uc, wi, &p);
         if (!(p > 0.0f))
             return PT_DIELECTRIC_NONE;
         *pdf = prob * p;
@@ -203,7 +295,7 @@ int pt_dielectric_sample(const pt_dielectric_lobe *l, pt_vec3 wo, const float u[
     }
     pt_vec3 wm = pt_ggx_sample_vndf(wo, l->alpha, u[1], u[2]);
     float dwo = pt_v3_dot(wo, wm);
-    float F = pt_fresnel_dielectric(dwo, l->eta);
+    float F = pt_fresnel_dielectric(dwo, eta);
     if (uc < F) {
         *wi = reflect(wo, wm);
         return wi->z > 0.0f ? PT_DIELECTRIC_DIR : PT_DIELECTRIC_NONE;
@@ -215,7 +307,7 @@ int pt_dielectric_sample(const pt_dielectric_lobe *l, pt_vec3 wo, const float u[
         *wi = pt_v3(r.x, r.y, -r.z);
         return PT_DIELECTRIC_DIR;
     }
-    if (!refract(wo, wm, l->eta, wi) || !(wi->z < 0.0f))
+    if (!refract(wo, wm, eta, wi) || !(wi->z < 0.0f))
         return PT_DIELECTRIC_NONE;
     return PT_DIELECTRIC_DIR;
 }

@@ -49,6 +49,10 @@ typedef struct pt_glass {
     float eta;    /* n_below / n_above across the surface (wo above) */
     float alpha;  /* GGX alpha, 0 when smooth */
     int thin;     /* thin-walled: transmission does not bend */
+    /* KHR_materials_dispersion (pt_glass_disperse): 1, and eta per colour
+     * channel in eta3 (eta unused by the interface); 0 from pt_glass_setup. */
+    int disp;
+    float eta3[3];
 } pt_glass;
 
 /* Builds the glass from glTF parameters (as pt_bsdf_setup) plus the
@@ -58,13 +62,34 @@ typedef struct pt_glass {
 pt_glass pt_glass_setup(pt_vec3 base_color, float metallic, float roughness, float specular,
                         pt_vec3 specular_color, float transmission, float eta, int thin);
 
-/* The dielectric interface lobe: glass.weight x fresnel_mix(ior, btdf, brdf). */
+/* Makes g's interface dispersive (KHR_materials_dispersion): ior_n is the
+ * material's ior at each channel's wavelength (pt_dispersion_ior), and the
+ * caller's side decides eta as for pt_glass_setup (inverted: 1 / ior). A
+ * thin wall or an eta of 0 or 1 stays as it is. */
+void pt_glass_disperse(pt_glass *g, const float ior_n[3], int inverted);
+
+/* The ior at the wavelengths that stand for the R, G and B channels (611,
+ * 549 and 464 nm: the Rec.709 primaries' dominant wavelengths) from the
+ * ior at 587.56 nm (the d line) and the extension's dispersion 20 / V_d:
+ * n(lambda) = max(n_d + (n_d - 1) / V_d (523655 / lambda^2 - 1.5168), 1)
+ * (KHR_materials_dispersion, a Cauchy fit through the Abbe number). */
+void pt_dispersion_ior(float ior, float dispersion, float out[3]);
+
+/* The dielectric interface lobe: glass.weight x fresnel_mix(ior, btdf, brdf).
+ * Dispersive (disp): each channel has its own eta (eta3); sampling picks a
+ * channel with probability 1/3 (u[0] split in three), and the lobe's value
+ * and density are the channels' own, the density their mean, so that a
+ * refraction (which takes one channel's direction) carries that channel
+ * alone. Light that later meets another dispersive interface keeps only
+ * what that interface's pick shares with it. */
 typedef struct pt_dielectric_lobe {
     pt_vec3 tint; /* tints transmitted light */
     float weight; /* (1 - metallic) T */
     float eta;    /* n_below / n_above */
     float alpha;  /* GGX alpha, 0 when smooth (two delta lobes) */
     int thin;
+    int disp; /* dispersive: eta3 per channel */
+    float eta3[3];
 } pt_dielectric_lobe;
 
 pt_dielectric_lobe pt_glass_interface(const pt_glass *g);

@@ -1053,7 +1053,14 @@ static pt_glass glass_at(const pt_renderer *r, const surface *sf, int front,
     float spec;
     pt_vec3 col;
     specular_inputs(s, sf, features, &spec, &col);
-    return pt_glass_setup(base, metallic, roughness, spec, col, trans, eta, thin);
+    pt_glass g = pt_glass_setup(base, metallic, roughness, spec, col, trans, eta, thin);
+    if ((features & PT_FEAT_DISPERSION) && m->dispersion > 0.0f && !thin) {
+        /* KHR_materials_dispersion: eta per channel, on the same side. */
+        float n3[3];
+        pt_dispersion_ior(m->ior, m->dispersion, n3);
+        pt_glass_disperse(&g, n3, !front);
+    }
+    return g;
 }
 
 /* The iridescent film at sf (KHR_materials_iridescence): the factor times
@@ -2031,10 +2038,11 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
 /* The material features beyond the core's (normal maps, vertex colours). */
 #define SURFACE_EXTRAS (uint32_t)(PT_FEAT_NORMAL_MAP | PT_FEAT_VERTEX_COLOR)
 /* The glTF material extensions past the core's: unlit, specular-glossiness,
- * specular textures, iridescence, anisotropy, diffuse transmission. */
+ * specular textures, iridescence, anisotropy, diffuse transmission,
+ * dispersion. */
 #define MATERIAL_EXTS                                                                              \
     (uint32_t)(PT_FEAT_UNLIT | BSDF_EXTS | PT_FEAT_IRIDESCENCE | PT_FEAT_ANISOTROPY |              \
-               PT_FEAT_DIFFUSE_TRANSMISSION)
+               PT_FEAT_DIFFUSE_TRANSMISSION | PT_FEAT_DISPERSION)
 /* Features that only the general variant has code for. */
 /* Motion blur (PT_FEAT_MOTION) too: a path's time reaches every ray query. */
 #define GENERAL_ONLY                                                                               \

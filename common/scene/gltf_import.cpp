@@ -25,8 +25,9 @@
 // add_transmission), or instead of it KHR_materials_pbrSpecularGlossiness
 // (add_spec_gloss) or KHR_materials_unlit, and KHR_materials_iridescence
 // (add_iridescence), KHR_materials_anisotropy (add_anisotropy) and
-// KHR_materials_diffuse_transmission (add_diffuse_transmission); what the
-// renderer does not support is reported once per kind through opts->warn.
+// KHR_materials_diffuse_transmission (add_diffuse_transmission), and
+// KHR_materials_dispersion's factor; what the renderer does not support is
+// reported once per kind through opts->warn.
 // KHR_lights_punctual lights become pt_punctual lights (scene.h: units).
 // KHR_materials_variants: with opts->variant naming one of the root's
 // variants, a primitive whose mappings list that variant uses the mapped
@@ -1263,6 +1264,7 @@ bool ext_supported(const std::string &name)
         "KHR_materials_iridescence",           // read_materials
         "KHR_materials_anisotropy",            // read_materials
         "KHR_materials_diffuse_transmission",  // read_materials
+        "KHR_materials_dispersion",            // read_materials
     };
     return supported.count(name) != 0;
 }
@@ -1427,6 +1429,9 @@ void read_materials(importer &im)
             add_iridescence(im, mi, g, pm);
             add_anisotropy(im, mi, g, pm);
             add_diffuse_transmission(im, mi, g, pm);
+            auto ds = g.extensions.find("KHR_materials_dispersion");
+            if (ds != g.extensions.end())
+                pm.dispersion = float(ext_number(ds->second, "dispersion", 0.0));
         }
         pm.double_sided = g.doubleSided ? 1 : 0;
         for (const auto &e : g.extensions)

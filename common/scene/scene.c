@@ -279,6 +279,10 @@ static pt_status check_layers(const pt_scene_builder *b, const pt_material *m, c
                             "material '%.64s': anisotropyStrength %g is outside [0, 1] or "
                             "anisotropyRotation %g is not finite",
                             name, (double)m->anisotropy, (double)m->anisotropy_rotation);
+    if (!(m->dispersion >= 0.0f && isfinite(m->dispersion)))
+        return pt_error_set(err, PT_ERR_FORMAT,
+                            "material '%.64s': dispersion %g is negative or not finite", name,
+                            (double)m->dispersion);
     const float dt[4] = {m->diffuse_transmission, m->diffuse_transmission_color[0],
                          m->diffuse_transmission_color[1], m->diffuse_transmission_color[2]};
     for (int i = 0; i < 4; i++)
@@ -1266,6 +1270,8 @@ static uint32_t scene_features(const pt_scene *s, int has_uv, pt_error *err, pt_
                 f |= PT_FEAT_TEXTURES;
             if (pt_material_absorbs(m))
                 f |= PT_FEAT_VOLUME;
+            if (m->dispersion > 0.0f && m->thickness > 0.0f)
+                f |= PT_FEAT_DISPERSION;
         }
         if (m->normal_tex >= 0)
             f |= PT_FEAT_NORMAL_MAP;

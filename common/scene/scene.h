@@ -78,6 +78,9 @@ enum { PT_FEAT_ANISOTROPY = 1u << 20 };
  * diffusely (thin-walled: a Lambertian lobe on the far side). Sets
  * PT_FEAT_GLOSSY too. */
 enum { PT_FEAT_DIFFUSE_TRANSMISSION = 1u << 21 };
+/* KHR_materials_dispersion: some transmitting, not thin-walled material has
+ * a dispersion > 0 (common/render/dielectric.h). */
+enum { PT_FEAT_DISPERSION = 1u << 22 };
 
 /* pt_material.ext: what the BSDF of a material reads past the core
  * metallic-roughness inputs, set by the builder from the material's fields,
@@ -220,6 +223,9 @@ typedef struct pt_material {
     int32_t diffuse_transmission_tex;       /* A x the factor (linear), or -1 */
     float diffuse_transmission_color[3];    /* diffuseTransmissionColorFactor (default 1, 1, 1) */
     int32_t diffuse_transmission_color_tex; /* RGB x the colour (sRGB), or -1 */
+    /* KHR_materials_dispersion: 20 / V_d (the Abbe number), >= 0 (default
+     * 0: none); read by transmitting, not thin-walled materials only. */
+    float dispersion;
     uint32_t ext; /* PT_MATX_*: set by the builder (any value given is replaced) */
     char name[64];
 } pt_material;
