@@ -1159,6 +1159,35 @@ static int aniso_at(const pt_renderer *r, const surface *sf, const pt_frame *fr,
     return d.x * d.x + d.y * d.y > 0.0f;
 }
 
+/* The extensions that change the base's lobes, and their material bits. */
+#define BASE_EXTS                                                                                  \
+    (uint32_t)(PT_FEAT_DIFFUSE_TRANSMISSION | PT_FEAT_ANISOTROPY | PT_FEAT_IRIDESCENCE)
+#define BASE_MATX (PT_MATX_DIFFUSE_TRANSMISSION | PT_MATX_ANISOTROPY | PT_MATX_IRIDESCENCE)
+
+/* The base's lobes of a material with one of BASE_MATX, into cl: diffuse
+ * transmission, else anisotropy, else iridescence (a material with several
+ * keeps the first); out of line, so that the core path stays as small as it
+ * was. */
+static __attribute__((noinline)) void add_base_ext(const pt_renderer *r, const surface *sf,
+                                                   const pt_frame *fr, const pt_bsdf *bsdf,
+                                                   pt_closure *cl, const uint32_t features)
+{
+    pt_irid film;
+    float as, ac, an, dt;
+    pt_vec3 dtc;
+    if ((features & PT_FEAT_DIFFUSE_TRANSMISSION) &&
+        (sf->mat->ext & PT_MATX_DIFFUSE_TRANSMISSION) && dt_at(r, sf, features, &dt, &dtc))
+        pt_closure_add_base_dt(cl, bsdf, dt, dtc);
+    else if ((features & PT_FEAT_ANISOTROPY) && sf->aniso &&
+             aniso_at(r, sf, fr, features, &as, &ac, &an))
+        pt_closure_add_base_aniso(cl, bsdf, as, ac, an);
+    else if ((features & PT_FEAT_IRIDESCENCE) && (sf->mat->ext & PT_MATX_IRIDESCENCE) &&
+             film_at(r, sf, features, &film))
+        pt_closure_add_base_irid(cl, bsdf, &film);
+    else
+        pt_closure_add_base(cl, bsdf);
+}
+
 /*
  * The closure at sf (closure.h): the builder. wo_l is wo in the shading frame
  * fr. Glass (PT_FEAT_TRANSMISSION; front: the ray arrives on the side the
@@ -1179,18 +1208,8 @@ material_closure(const pt_renderer *r, const surface *sf, int glass, int front, 
         bsdf = g.base;
     } else {
         bsdf = material_bsdf(r, sf, features);
-        pt_irid film;
-        float as, ac, an, dt;
-        pt_vec3 dtc;
-        if ((features & PT_FEAT_DIFFUSE_TRANSMISSION) &&
-            (sf->mat->ext & PT_MATX_DIFFUSE_TRANSMISSION) && dt_at(r, sf, features, &dt, &dtc))
-            pt_closure_add_base_dt(cl, &bsdf, dt, dtc);
-        else if ((features & PT_FEAT_ANISOTROPY) && sf->aniso &&
-                 aniso_at(r, sf, fr, features, &as, &ac, &an))
-            pt_closure_add_base_aniso(cl, &bsdf, as, ac, an);
-        else if ((features & PT_FEAT_IRIDESCENCE) && (sf->mat->ext & PT_MATX_IRIDESCENCE) &&
-                 film_at(r, sf, features, &film))
-            pt_closure_add_base_irid(cl, &bsdf, &film);
+        if ((features & BASE_EXTS) && (sf->mat->ext & BASE_MATX))
+            add_base_ext(r, sf, fr, &bsdf, cl, features);
         else
             pt_closure_add_base(cl, &bsdf);
     }
@@ -1273,7 +1292,7 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     pt_vec3 wo = pt_v3_neg(pa->d);
 
     shade_emission(r, pa, hit, sf, features);
-    if ((features & PT_FEAT_UNLIT) && sf->mat->unlit) {
+    if ((features & PT_FEAT_UNLIT) && (sf->mat->ext & PT_MATX_UNLIT)) {
         shade_unlit(r, pa, sf, features);
         return ret;
     }

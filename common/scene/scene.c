@@ -363,7 +363,7 @@ pt_status pt_scene_builder_add_material(pt_scene_builder *b, const pt_material *
         d->emissive[0] = d->emissive[1] = d->emissive[2] = 0.0f;
     }
     d->spec_gloss = d->spec_gloss != 0;
-    d->ext = 0;
+    d->ext = d->unlit ? PT_MATX_UNLIT : 0;
     if (d->spec_gloss)
         d->ext |= PT_MATX_SPEC_GLOSS;
     else if (d->specular > 0.0f && (d->specular_tex >= 0 || d->specular_color_tex >= 0))

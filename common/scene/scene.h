@@ -90,7 +90,8 @@ enum {
     PT_MATX_SPECULAR_TEX = 1u << 1,
     PT_MATX_IRIDESCENCE = 1u << 2,
     PT_MATX_ANISOTROPY = 1u << 3,
-    PT_MATX_DIFFUSE_TRANSMISSION = 1u << 4
+    PT_MATX_DIFFUSE_TRANSMISSION = 1u << 4,
+    PT_MATX_UNLIT = 1u << 5
 };
 
 /* glTF alphaMode (common/scene/alpha.h). OPAQUE is 0, so a material
@@ -145,6 +146,11 @@ typedef struct pt_tex_xform {
 typedef struct pt_material {
     float base_color[4];    /* linear RGBA factor */
     int32_t base_color_tex; /* texture index or -1 */
+    /* PT_MATX_*: what the material reads past the core metallic-roughness
+     * inputs, set by the builder from the fields below (any value given is
+     * replaced); beside the base colour, so that the renderer's test of it
+     * reads the cache line it reads anyway. */
+    uint32_t ext;
     float metallic, roughness;
     int32_t metal_rough_tex; /* G = roughness, B = metallic (linear), or -1 */
     float emissive[3];       /* linear radiance: emissiveFactor x KHR_materials_emissive_strength */
@@ -226,7 +232,6 @@ typedef struct pt_material {
     /* KHR_materials_dispersion: 20 / V_d (the Abbe number), >= 0 (default
      * 0: none); read by transmitting, not thin-walled materials only. */
     float dispersion;
-    uint32_t ext; /* PT_MATX_*: set by the builder (any value given is replaced) */
     char name[64];
 } pt_material;
 
