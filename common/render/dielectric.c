@@ -18,6 +18,8 @@
 
 #include <math.h>
 
+#include "common/render/thinfilm.h"
+
 static inline float clamp01(float x)
 {
     return x < 0.0f ? 0.0f : (x > 1.0f ? 1.0f : x);
@@ -68,6 +70,8 @@ pt_glass pt_glass_setup(pt_vec3 base_color, float metallic, float roughness, flo
     g.thin = thin != 0;
     g.disp = 0;
     g.eta3[0] = g.eta3[1] = g.eta3[2] = g.eta;
+    g.film[0] = g.film[1] = g.film[2] = 0.0f;
+    g.film_f0 = 0.0f;
     int opaque = pt_v3_max_comp(g.base.diffuse) > 0.0f || g.base.spec_weight > 0.0f;
     if (!(g.weight > 0.0f))
         g.pick = 0.0f;
@@ -178,8 +182,75 @@ pt_dielectric_lobe pt_glass_interface(const pt_glass *g)
                             g->alpha,
                             g->thin,
                             g->disp,
-                            {g->eta3[0], g->eta3[1], g->eta3[2]}};
+                            {g->eta3[0], g->eta3[1], g->eta3[2]},
+                            {g->film[0], g->film[1], g->film[2]},
+                            g->film_f0};
     return l;
+}
+
+void pt_glass_film(pt_glass *g, float strength, float eta_film, float d_nm, float ior)
+{
+    if (g->disp || !(strength > 0.0f) || g->eta == 0.0f)
+        return;
+    float r = (ior - 1.0f) / (ior + 1.0f);
+    g->film[0] = strength < 1.0f ? strength : 1.0f;
+    g->film[1] = eta_film;
+    g->film[2] = d_nm;
+    g->film_f0 = r * r;
+}
+
+/* The filmed interface's reflectance per channel at cos c, from the bare
+ * interface's F there. */
+static pt_vec3 film_fresnel(const pt_dielectric_lobe *l, float c, float F)
+{
+    float f0 = l->film_f0;
+    pt_vec3 ff = pt_thinfilm_fresnel(1.0f, l->film[1], c, l->film[2], pt_v3(f0, f0, f0));
+    return pt_v3_lerp(pt_v3(F, F, F), ff, l->film[0]);
+}
+
+static inline float mean3(pt_vec3 v)
+{
+    return (v.x + v.y + v.z) * (1.0f / 3.0f);
+}
+
+/* rough_eval under a film: f |cos wi| per channel (without the tint) with
+ * the filmed Fresnel, the pdf with its mean, as sampling picks by it. */
+static pt_vec3 rough_eval_film(const pt_dielectric_lobe *g, pt_vec3 wo, pt_vec3 wi, float *pdf,
+                               int *trans)
+{
+    pt_vec3 zero = pt_v3(0.0f, 0.0f, 0.0f);
+    *pdf = 0.0f;
+    *trans = wi.z < 0.0f;
+    if (!(wo.z > 0.0f) || wi.z == 0.0f || !(wi.z == wi.z))
+        return zero;
+    pt_vec3 wr = (*trans && g->thin) ? pt_v3(wi.x, wi.y, -wi.z) : wi;
+    int refr = *trans && !g->thin;
+    pt_vec3 wm = refr ? pt_v3_add(wo, pt_v3_scale(wi, g->eta)) : pt_v3_add(wo, wr);
+    float len = pt_v3_len(wm);
+    if (!(len > 0.0f))
+        return zero;
+    wm = pt_v3_scale(wm, 1.0f / len);
+    if (wm.z < 0.0f)
+        wm = pt_v3_neg(wm);
+    float dwo = pt_v3_dot(wo, wm), dwi = pt_v3_dot(wr, wm);
+    if (!(dwo > 0.0f) || dwi * wr.z < 0.0f)
+        return zero;
+    float d = pt_ggx_d(wm, g->alpha);
+    float vpdf = pt_ggx_vndf_pdf(wo, wm, g->alpha);
+    pt_vec3 F = film_fresnel(g, dwo, pt_fresnel_dielectric(dwo, g->eta));
+    float G = g2(wo, wr, g->alpha);
+    pt_vec3 p = *trans ? pt_v3_sub(pt_v3(1.0f, 1.0f, 1.0f), F) : F;
+    float pm = mean3(p);
+    if (!refr) {
+        *pdf = vpdf / (4.0f * dwo) * pm;
+        return pt_v3_scale(p, d * G / (4.0f * wo.z));
+    }
+    float t = dwi + dwo / g->eta;
+    float den = t * t;
+    if (!(den > 0.0f))
+        return zero;
+    *pdf = vpdf * fabsf(dwi) / den * pm;
+    return pt_v3_scale(p, d * G * fabsf(dwi * dwo) / (wo.z * den) / (g->eta * g->eta));
 }
 
 /* The dispersive rough interface: each channel's own lobe (its eta), the
@@ -209,6 +280,13 @@ pt_vec3 pt_dielectric_eval(const pt_dielectric_lobe *l, pt_vec3 wo, pt_vec3 wi, 
         return pt_v3(0.0f, 0.0f, 0.0f);
     if (l->disp)
         return disp_eval(l, wo, wi, prob, share);
+    if (l->film[0] > 0.0f) {
+        float pd;
+        int trans;
+        pt_vec3 f = pt_v3_scale(rough_eval_film(l, wo, wi, &pd, &trans), l->weight);
+        *share = prob * pd;
+        return trans ? pt_v3_mul(l->tint, f) : f;
+    }
     float pd;
     int trans;
     float fd = rough_eval(l, wo, wi, &pd, &trans) * l->weight;
@@ -245,6 +323,33 @@ static pt_vec3 disp_smooth_sample(const pt_dielectric_lobe *g, pt_vec3 wo, float
     float v[3] = {0.0f, 0.0f, 0.0f};
     v[c] = 3.0f * tint[c] / (g->eta3[c] * g->eta3[c]);
     return pt_v3(v[0], v[1], v[2]);
+}
+
+/* The smooth interface under a film: reflection with probability mean(F)
+ * (weight F / mean), transmission otherwise (weight (1 - F) / (1 - mean),
+ * tinted, / eta^2 when it bends). */
+static pt_vec3 film_smooth_sample(const pt_dielectric_lobe *g, pt_vec3 wo, float uc, pt_vec3 *wi,
+                                  float *prob)
+{
+    pt_vec3 F = film_fresnel(g, wo.z, pt_fresnel_dielectric(wo.z, g->eta));
+    float m = mean3(F);
+    if (uc < m) {
+        *wi = pt_v3(-wo.x, -wo.y, wo.z);
+        *prob = m;
+        return pt_v3_scale(F, 1.0f / m);
+    }
+    *prob = 1.0f - m;
+    pt_vec3 t =
+        pt_v3_scale(pt_v3_mul(g->tint, pt_v3_sub(pt_v3(1.0f, 1.0f, 1.0f), F)), 1.0f / (1.0f - m));
+    if (g->thin) {
+        *wi = pt_v3_neg(wo);
+        return t;
+    }
+    if (!refract(wo, pt_v3(0.0f, 0.0f, 1.0f), g->eta, wi)) {
+        *prob = 0.0f;
+        return pt_v3(0.0f, 0.0f, 0.0f);
+    }
+    return pt_v3_scale(t, 1.0f / (g->eta * g->eta));
 }
 
 /* The smooth interface's delta lobes. */
@@ -285,8 +390,9 @@ int pt_dielectric_sample(const pt_dielectric_lobe *l, pt_vec3 wo, const float u[
     }
     if (l->alpha == 0.0f) {
         float p;
-        pt_vec3 w =
-            l->disp ? disp_smooth_sample(l, wo, uc, wi, &p) : smooth_sample(l, wo, uc, wi, &p);
+        pt_vec3 w = l->disp             ? disp_smooth_sample(l, wo, uc, wi, &p)
+                    : l->film[0] > 0.0f ? film_smooth_sample(l, wo, uc, wi, &p)
+                                        : smooth_sample(l, wo, uc, wi, &p);
         if (!(p > 0.0f))
             return PT_DIELECTRIC_NONE;
         *pdf = prob * p;
@@ -296,6 +402,8 @@ int pt_dielectric_sample(const pt_dielectric_lobe *l, pt_vec3 wo, const float u[
     pt_vec3 wm = pt_ggx_sample_vndf(wo, l->alpha, u[1], u[2]);
     float dwo = pt_v3_dot(wo, wm);
     float F = pt_fresnel_dielectric(dwo, eta);
+    if (l->film[0] > 0.0f)
+        F = mean3(film_fresnel(l, dwo, F));
     if (uc < F) {
         *wi = reflect(wo, wm);
         return wi->z > 0.0f ? PT_DIELECTRIC_DIR : PT_DIELECTRIC_NONE;

@@ -53,6 +53,11 @@ typedef struct pt_glass {
      * channel in eta3 (eta unused by the interface); 0 from pt_glass_setup. */
     int disp;
     float eta3[3];
+    /* KHR_materials_iridescence (pt_glass_film): the film's strength (0:
+     * none, from pt_glass_setup), index and thickness (nm), and the F0 of
+     * the glass under it. */
+    float film[3];
+    float film_f0;
 } pt_glass;
 
 /* Builds the glass from glTF parameters (as pt_bsdf_setup) plus the
@@ -67,6 +72,13 @@ pt_glass pt_glass_setup(pt_vec3 base_color, float metallic, float roughness, flo
  * caller's side decides eta as for pt_glass_setup (inverted: 1 / ior). A
  * thin wall or an eta of 0 or 1 stays as it is. */
 void pt_glass_disperse(pt_glass *g, const float ior_n[3], int inverted);
+
+/* Puts a thin film (thinfilm.h) over g's interface: its Fresnel becomes
+ * mix(F, F_film, strength) per channel for reflection and one minus that
+ * for transmission; F0 of the glass under the film is ((ior - 1) / (ior +
+ * 1))^2. The caller applies it where the ray arrives from outside; a
+ * dispersive interface keeps no film. */
+void pt_glass_film(pt_glass *g, float strength, float eta_film, float d_nm, float ior);
 
 /* The ior at the wavelengths that stand for the R, G and B channels (611,
  * 549 and 464 nm: the Rec.709 primaries' dominant wavelengths) from the
@@ -90,6 +102,8 @@ typedef struct pt_dielectric_lobe {
     int thin;
     int disp; /* dispersive: eta3 per channel */
     float eta3[3];
+    float film[3]; /* strength (0: no film), index, thickness (nm) */
+    float film_f0;
 } pt_dielectric_lobe;
 
 pt_dielectric_lobe pt_glass_interface(const pt_glass *g);

@@ -1031,6 +1031,8 @@ static inline int32_t medium_across(const pt_scene *s, int32_t current, uint32_t
     return pt_material_absorbs(&s->materials[mi]) ? (int32_t)mi : -1;
 }
 
+static int film_at(const pt_renderer *r, const surface *sf, const uint32_t features, pt_irid *film);
+
 /* The glass BSDF at sf for a ray arriving from the front or the back. */
 static pt_glass glass_at(const pt_renderer *r, const surface *sf, int front,
                          const uint32_t features)
@@ -1060,6 +1062,10 @@ static pt_glass glass_at(const pt_renderer *r, const surface *sf, int front,
         pt_dispersion_ior(m->ior, m->dispersion, n3);
         pt_glass_disperse(&g, n3, !front);
     }
+    pt_irid film;
+    if ((features & PT_FEAT_IRIDESCENCE) && (m->ext & PT_MATX_IRIDESCENCE) && (front || thin) &&
+        film_at(r, sf, features, &film))
+        pt_glass_film(&g, film.strength, film.eta, film.d_nm, m->ior);
     return g;
 }
 

@@ -1308,8 +1308,7 @@ void add_spec_gloss(importer &im, int mi, const tinygltf::Value &sg, pt_material
 }
 
 // KHR_materials_iridescence into pm (scene.h): the factor and its texture
-// (R), the film's ior, the thickness range and its texture (G). On a
-// transmitting material the film is ignored, with a warning.
+// (R), the film's ior, the thickness range and its texture (G).
 void add_iridescence(importer &im, int mi, const tinygltf::Material &g, pt_material &pm)
 {
     auto ir = g.extensions.find("KHR_materials_iridescence");
@@ -1327,10 +1326,6 @@ void add_iridescence(importer &im, int mi, const tinygltf::Material &g, pt_mater
     pm.irid_thickness_tex =
         texture_for(im, mi, "iridescenceThicknessTexture", tt.index, tt.texCoord, tt.extensions,
                     false, &pm.tex_xf[PT_SLOT_IRID_THICKNESS]);
-    if (pm.iridescence > 0.0f && pm.transmission > 0.0f)
-        im.warn_once("irid-glass", "material " + std::to_string(mi) +
-                                       ": KHR_materials_iridescence on a transmitting material is "
-                                       "ignored (the film covers opaque materials only)");
 }
 
 // KHR_materials_anisotropy into pm (scene.h): strength, rotation and the

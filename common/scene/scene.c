@@ -368,7 +368,7 @@ pt_status pt_scene_builder_add_material(pt_scene_builder *b, const pt_material *
         d->ext |= PT_MATX_SPEC_GLOSS;
     else if (d->specular > 0.0f && (d->specular_tex >= 0 || d->specular_color_tex >= 0))
         d->ext |= PT_MATX_SPECULAR_TEX;
-    if (d->iridescence > 0.0f && !(d->transmission > 0.0f))
+    if (d->iridescence > 0.0f)
         d->ext |= PT_MATX_IRIDESCENCE;
     if (d->anisotropy > 0.0f && !(d->transmission > 0.0f))
         d->ext |= PT_MATX_ANISOTROPY;

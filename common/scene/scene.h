@@ -67,8 +67,9 @@ enum { PT_FEAT_UNLIT = 1u << 16 };
  * (pt_material.spec_gloss); KHR_materials_specular: some material reads a
  * specular or specular colour texture. Both set PT_FEAT_GLOSSY too. */
 enum { PT_FEAT_SPEC_GLOSS = 1u << 17, PT_FEAT_SPECULAR_TEX = 1u << 18 };
-/* KHR_materials_iridescence: some opaque material has an iridescenceFactor
- * > 0 (common/render/thinfilm.h). Sets PT_FEAT_GLOSSY too. */
+/* KHR_materials_iridescence: some material has an iridescenceFactor > 0
+ * (common/render/thinfilm.h; over glass, dielectric.h). Sets PT_FEAT_GLOSSY
+ * too. */
 enum { PT_FEAT_IRIDESCENCE = 1u << 19 };
 /* KHR_materials_anisotropy: some opaque material has an anisotropyStrength
  * > 0 (common/render/aniso.h); the scene then has tangents. Sets
@@ -208,8 +209,8 @@ typedef struct pt_material {
     float sg_glossiness;  /* glossinessFactor in [0, 1] (default 1) */
     int32_t sg_tex;       /* specularGlossinessTexture: RGB specular (sRGB), A glossiness
                              (linear), or -1 */
-    /* KHR_materials_iridescence: a thin film over the opaque base (not over
-     * glass: a transmitting material ignores it). iridescence 0: none. */
+    /* KHR_materials_iridescence: a thin film over the opaque base, or over
+     * glass's interface from outside. iridescence 0: none. */
     float iridescence;          /* iridescenceFactor in [0, 1] (default 0) */
     int32_t iridescence_tex;    /* R x iridescence (linear), or -1 */
     float iridescence_ior;      /* the film's index, >= 1 (default 1.3) */
