@@ -78,23 +78,6 @@ pt_vec3 pt_aniso_eval(const pt_aniso_lobe *l, pt_vec3 wo, pt_vec3 wi, float prob
     return pt_v3_scale(F, d * i.z / (2.0f * den));
 }
 
-pt_vec3 pt_ggx_sample_vndf_aniso(pt_vec3 wo, float ax, float ay, float u1, float u2)
-{
-    /* Heitz 2018, listing 1, with the view stretched by (ax, ay). */
-    pt_vec3 v = pt_v3_norm(pt_v3(ax * wo.x, ay * wo.y, wo.z));
-    float len2 = v.x * v.x + v.y * v.y;
-    pt_vec3 t1 = len2 > 0.0f ? pt_v3_scale(pt_v3(-v.y, v.x, 0.0f), 1.0f / sqrtf(len2))
-                             : pt_v3(1.0f, 0.0f, 0.0f);
-    pt_vec3 t2 = pt_v3_cross(v, t1);
-    float r = sqrtf(u1), phi = 2.0f * PT_PI * u2;
-    float p1 = r * cosf(phi), p2 = r * sinf(phi);
-    float sw = 0.5f * (1.0f + v.z);
-    p2 = (1.0f - sw) * sqrtf(fmaxf(0.0f, 1.0f - p1 * p1)) + sw * p2;
-    float pz = sqrtf(fmaxf(0.0f, 1.0f - p1 * p1 - p2 * p2));
-    pt_vec3 nh = pt_v3_add(pt_v3_add(pt_v3_scale(t1, p1), pt_v3_scale(t2, p2)), pt_v3_scale(v, pz));
-    return pt_v3_norm(pt_v3(ax * nh.x, ay * nh.y, fmaxf(0.0f, nh.z)));
-}
-
 int pt_aniso_sample(const pt_aniso_lobe *l, pt_vec3 wo, const float u[3], pt_vec3 *wi)
 {
     pt_vec3 o = to_lobe(l, wo);

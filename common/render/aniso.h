@@ -47,8 +47,4 @@ pt_vec3 pt_aniso_eval(const pt_aniso_lobe *l, pt_vec3 wo, pt_vec3 wi, float prob
  * 1 when it lies above the surface, else 0. */
 int pt_aniso_sample(const pt_aniso_lobe *l, pt_vec3 wo, const float u[3], pt_vec3 *wi);
 
-/* The visible normal of the anisotropic GGX for view wo (both in the
- * lobe's frame), from u1, u2 (Heitz 2018). */
-pt_vec3 pt_ggx_sample_vndf_aniso(pt_vec3 wo, float ax, float ay, float u1, float u2);
-
 #endif

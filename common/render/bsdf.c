@@ -108,11 +108,17 @@ float pt_ggx_vndf_pdf(pt_vec3 wo, pt_vec3 m, float alpha)
 
 pt_vec3 pt_ggx_sample_vndf(pt_vec3 wo, float alpha, float u1, float u2)
 {
+    return pt_ggx_sample_vndf_aniso(wo, alpha, alpha, u1, u2);
+}
+
+pt_vec3 pt_ggx_sample_vndf_aniso(pt_vec3 wo, float ax, float ay, float u1, float u2)
+{
     /* Heitz 2018, "Sampling the GGX Distribution of Visible Normals", JCGT
-     * 7(4), listing 1: stretch the view to the hemisphere configuration, sample
-     * the projected area of the unit hemisphere as a disk whose lower half is
-     * squashed by (1 + v.z) / 2, lift to the hemisphere, unstretch. */
-    pt_vec3 v = pt_v3_norm(pt_v3(alpha * wo.x, alpha * wo.y, wo.z));
+     * 7(4), listing 1: stretch the view to the hemisphere configuration (by
+     * both alphas), sample the projected area of the unit hemisphere as a
+     * disk whose lower half is squashed by (1 + v.z) / 2, lift to the
+     * hemisphere, unstretch. */
+    pt_vec3 v = pt_v3_norm(pt_v3(ax * wo.x, ay * wo.y, wo.z));
     float len2 = v.x * v.x + v.y * v.y;
     pt_vec3 t1 = len2 > 0.0f ? pt_v3_scale(pt_v3(-v.y, v.x, 0.0f), 1.0f / sqrtf(len2))
                              : pt_v3(1.0f, 0.0f, 0.0f);
@@ -123,7 +129,7 @@ pt_vec3 pt_ggx_sample_vndf(pt_vec3 wo, float alpha, float u1, float u2)
     p2 = (1.0f - s) * sqrtf(maxf(0.0f, 1.0f - p1 * p1)) + s * p2;
     float pz = sqrtf(maxf(0.0f, 1.0f - p1 * p1 - p2 * p2));
     pt_vec3 nh = pt_v3_add(pt_v3_add(pt_v3_scale(t1, p1), pt_v3_scale(t2, p2)), pt_v3_scale(v, pz));
-    return pt_v3_norm(pt_v3(alpha * nh.x, alpha * nh.y, maxf(0.0f, nh.z)));
+    return pt_v3_norm(pt_v3(ax * nh.x, ay * nh.y, maxf(0.0f, nh.z)));
 }
 
 /*

@@ -77,6 +77,9 @@ float pt_bsdf_spec_prob(const pt_bsdf *b, float cos_o);
 /* Lower-level pieces, exposed for the statistical tests. */
 /* GGX visible normal for view wo (Heitz 2018); isotropic alpha. */
 pt_vec3 pt_ggx_sample_vndf(pt_vec3 wo, float alpha, float u1, float u2);
+/* The same for the anisotropic GGX (alphas ax along x, ay along y), in the
+ * frame where they lie on the axes (aniso.h). */
+pt_vec3 pt_ggx_sample_vndf_aniso(pt_vec3 wo, float ax, float ay, float u1, float u2);
 float pt_ggx_g1(pt_vec3 w, float alpha);
 /* pdf of pt_ggx_sample_vndf's normal m: G1(wo) max(0, wo.m) D(m) / wo.z */
 float pt_ggx_vndf_pdf(pt_vec3 wo, pt_vec3 m, float alpha);
