@@ -1238,8 +1238,9 @@ material_closure(const pt_renderer *r, const surface *sf, int glass, int front, 
 
 /* A closure path guiding samples at: one with a diffuse lobe or a GGX lobe
  * rough enough (alpha >= GUIDE_MIN_ALPHA) for light to arrive over a spread
- * of directions, and no dielectric interface (a glass's delta or narrow
- * lobes are sampled by the BSDF alone). */
+ * of directions, and nothing that transmits (a glass's delta or narrow
+ * lobes, a thin wall's diffuse transmission: a face's tree learns one side
+ * of a surface); the BSDF alone samples those. */
 #define GUIDE_MIN_ALPHA 0.1f
 #define GUIDE_MAX_DEPTH 3u
 static inline int closure_guidable(const pt_closure *cl)
@@ -1247,7 +1248,7 @@ static inline int closure_guidable(const pt_closure *cl)
     int any = 0;
     for (uint32_t i = 0; i < cl->n_lobes; i++) {
         const pt_lobe *l = &cl->lobe[i];
-        if (l->kind == PT_LOBE_DIELECTRIC)
+        if (l->kind == PT_LOBE_DIELECTRIC || l->kind == PT_LOBE_DIFFUSE_TRANSMIT)
             return 0;
         any |= l->kind == PT_LOBE_DIFFUSE ||
                (l->kind == PT_LOBE_SPECULAR && l->p.specular.alpha >= GUIDE_MIN_ALPHA);
