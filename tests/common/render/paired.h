@@ -11,16 +11,47 @@
  * a rounded number) is one large difference among spp: it moves the mean by
  * about one standard error, never five. NaN or Inf samples fail a CHECK.
  * Returns the count, or -1 when a renderer could not be made.
+ *
+ * render_smoke renders a loaded sample asset at 32 x 32, 8 spp, under a
+ * uniform grey sky, and CHECKs that every sample was accepted (no NaN or
+ * Inf): the asset's new material through the whole integrator.
  */
 #ifndef PT_TESTS_COMMON_RENDER_PAIRED_H
 #define PT_TESTS_COMMON_RENDER_PAIRED_H
 
 #include <math.h>
 
+#include <string.h>
+
+#include "common/base/alloc.h"
+#include "common/render/env.h"
 #include "common/render/render.h"
 #include "tests/check.h"
 
-static pt_renderer *paired_renderer(const pt_scene *s, const pt_env *env, uint32_t side)
+static inline void render_smoke(const pt_scene *s)
+{
+    pt_error err = {0};
+    pt_env *env = NULL;
+    CHECK(pt_env_uniform(pt_v3(0.5f, 0.5f, 0.5f), &env, &err) == PT_OK);
+    pt_render_params p = {0};
+    pt_render_params_default(&p);
+    p.width = p.height = 32;
+    p.env = env;
+    pt_renderer *r = NULL;
+    CHECKF(pt_renderer_new(s, &p, &r, &err) == PT_OK, "%s", err.msg);
+    pt_pixel_acc *acc = pt_malloc_array(32 * 32, sizeof *acc);
+    if (r && acc) {
+        memset(acc, 0, 32 * 32 * sizeof *acc);
+        pt_render_stats st = {0};
+        pt_render_tile(r, (pt_rect){0, 0, 32, 32}, 0, 8, acc, &st);
+        CHECK(st.rejected == 0 && st.samples == 32 * 32 * 8);
+    }
+    pt_free(acc);
+    pt_renderer_free(r);
+    pt_env_free(env);
+}
+
+static inline pt_renderer *paired_renderer(const pt_scene *s, const pt_env *env, uint32_t side)
 {
     pt_render_params p = {0};
     pt_render_params_default(&p);
@@ -33,8 +64,8 @@ static pt_renderer *paired_renderer(const pt_scene *s, const pt_env *env, uint32
     return r;
 }
 
-static int paired_differing(const pt_scene *a, const pt_scene *b, const pt_env *env, uint32_t side,
-                            uint32_t spp)
+static inline int paired_differing(const pt_scene *a, const pt_scene *b, const pt_env *env,
+                                   uint32_t side, uint32_t spp)
 {
     pt_renderer *ra = paired_renderer(a, env, side), *rb = paired_renderer(b, env, side);
     int count = -1;

@@ -32,67 +32,14 @@
 #include "common/render/render.h"
 #include "common/scene/scene.h"
 #include "tests/check.h"
+#include "tests/common/render/furnace.h"
 
-static pt_scene *load(const char *rel)
-{
-    char path[4096];
-    snprintf(path, sizeof path, "%s/%s", PT_SOURCE_DIR, rel);
-    pt_scene_opts o = {0};
-    o.scale = 1.0f;
-    pt_scene *s = NULL;
-    pt_error err = {0};
-    if (pt_scene_load(path, &o, &s, &err) != PT_OK) {
-        fprintf(stderr, "cannot load %s: %s\n", path, err.msg);
-        return NULL;
-    }
-    return s;
-}
-
-/* The furnace's sphere, flat normals (test_render.c says why), with m's
- * parameters: base colour albedo, emission 1. */
+/* The furnace's sphere with flat normals (furnace.h), emission 1, base
+ * colour albedo, and the given metallic, roughness and specular. */
 static pt_scene *furnace(float albedo, float metallic, float roughness, float specular)
 {
-    pt_scene *src = load("scenes/furnace.gltf");
-    if (!src)
-        return NULL;
-    uint32_t nt = src->num_triangles;
-    float *pos = pt_malloc_array((size_t)nt * 9, sizeof *pos);
-    float *nrm = pt_malloc_array((size_t)nt * 9, sizeof *nrm);
-    pt_scene *out = NULL;
-    pt_scene_builder *b = NULL;
-    pt_error err = {0};
-    if (pos && nrm && pt_scene_builder_new(&b, &err) == PT_OK) {
-        for (uint32_t t = 0; t < nt; t++) {
-            pt_vec3 v[3];
-            for (int k = 0; k < 3; k++) {
-                uint32_t i = src->indices[3 * t + k];
-                v[k] = pt_v3(src->positions[3 * i], src->positions[3 * i + 1],
-                             src->positions[3 * i + 2]);
-                memcpy(&pos[9 * t + 3 * k], &v[k], 3 * sizeof(float));
-            }
-            pt_vec3 n = pt_v3_norm(pt_v3_cross(pt_v3_sub(v[1], v[0]), pt_v3_sub(v[2], v[0])));
-            for (int k = 0; k < 3; k++)
-                memcpy(&nrm[9 * t + 3 * k], &n, 3 * sizeof(float));
-        }
-        pt_material m = src->materials[0];
-        for (int c = 0; c < 3; c++) {
-            m.base_color[c] = albedo;
-            m.emissive[c] = 1.0f;
-        }
-        m.metallic = metallic;
-        m.roughness = roughness;
-        m.specular = specular;
-        uint32_t mat;
-        CHECK(pt_scene_builder_add_material(b, &m, &mat, &err) == PT_OK);
-        CHECK(pt_scene_builder_add_mesh(b, "sphere", pos, nrm, NULL, nt * 3, NULL, nt, NULL, mat,
-                                        &err) == PT_OK);
-        CHECK(pt_scene_builder_add_camera(b, &src->camera, &err) == PT_OK);
-        CHECKF(pt_scene_builder_finish(b, NULL, &out, &err) == PT_OK, "%s", err.msg);
-    }
-    pt_free(pos);
-    pt_free(nrm);
-    pt_scene_free(src);
-    return out;
+    const float mrs[3] = {metallic, roughness, specular};
+    return flat_furnace_of(albedo, 1.0f, mrs);
 }
 
 static pt_renderer *renderer(const pt_scene *s, uint32_t w, uint32_t h, int guiding, uint32_t extra)
@@ -436,7 +383,7 @@ static void learns_the_lamp(void)
 
 static void lambert_keeps_variant(void)
 {
-    pt_scene *s = load("scenes/cornell_box.gltf");
+    pt_scene *s = furnace_load("scenes/cornell_box.gltf");
     if (!s)
         return;
     pt_renderer *a = renderer(s, 8, 8, 1, 0), *b = renderer(s, 8, 8, 0, 0);

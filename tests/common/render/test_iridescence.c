@@ -60,6 +60,7 @@
 #include "common/render/render.h"
 #include "common/scene/scene.h"
 #include "tests/check.h"
+#include "tests/common/render/paired.h"
 
 #define PI_D 3.14159265358979323846
 #define N_CHI2_TESTS 3
@@ -541,24 +542,7 @@ static void suzanne(void)
     for (uint32_t i = 0; i < s->num_materials; i++)
         irid += (s->materials[i].ext & PT_MATX_IRIDESCENCE) != 0;
     CHECK(irid == 3);
-    pt_env *env = NULL;
-    CHECK(pt_env_uniform(pt_v3(0.5f, 0.5f, 0.5f), &env, &err) == PT_OK);
-    pt_render_params p = {0};
-    pt_render_params_default(&p);
-    p.width = p.height = 32;
-    p.env = env;
-    pt_renderer *r = NULL;
-    CHECKF(pt_renderer_new(s, &p, &r, &err) == PT_OK, "%s", err.msg);
-    pt_pixel_acc *acc = pt_malloc_array(32 * 32, sizeof *acc);
-    if (r && acc) {
-        memset(acc, 0, 32 * 32 * sizeof *acc);
-        pt_render_stats st = {0};
-        pt_render_tile(r, (pt_rect){0, 0, 32, 32}, 0, 8, acc, &st);
-        CHECK(st.rejected == 0 && st.samples == 32 * 32 * 8);
-    }
-    pt_free(acc);
-    pt_renderer_free(r);
-    pt_env_free(env);
+    render_smoke(s);
     pt_scene_free(s);
 }
 

@@ -35,6 +35,7 @@
 #include "common/render/render.h"
 #include "common/scene/scene.h"
 #include "tests/check.h"
+#include "tests/common/render/furnace.h"
 
 static pt_scene *load(const char *rel, float scale)
 {
@@ -118,52 +119,10 @@ static void furnace(float scale)
     pt_scene_free(s);
 }
 
-/* The furnace's sphere with flat normals: its triangles, unshared, each
- * with its geometric normal. Interpolated normals lose a little energy by
- * design (a cosine sample around the shading normal that falls below the
- * triangle ends the path: about 3e-4 of bounces on this sphere), which
- * would read as a bias of 0.12 % at albedo 0.8; this test is about the
- * estimator, so the surface has none. */
+/* The furnace's sphere with flat normals (furnace.h). */
 static pt_scene *flat_furnace(float albedo, float emission)
 {
-    pt_scene *src = load("scenes/furnace.gltf", 1.0f);
-    if (!src)
-        return NULL;
-    uint32_t nt = src->num_triangles;
-    float *pos = pt_malloc_array((size_t)nt * 9, sizeof *pos);
-    float *nrm = pt_malloc_array((size_t)nt * 9, sizeof *nrm);
-    pt_scene *out = NULL;
-    pt_scene_builder *b = NULL;
-    pt_error err = {0};
-    if (pos && nrm && pt_scene_builder_new(&b, &err) == PT_OK) {
-        for (uint32_t t = 0; t < nt; t++) {
-            pt_vec3 v[3];
-            for (int k = 0; k < 3; k++) {
-                uint32_t i = src->indices[3 * t + k];
-                v[k] = pt_v3(src->positions[3 * i], src->positions[3 * i + 1],
-                             src->positions[3 * i + 2]);
-                memcpy(&pos[9 * t + 3 * k], &v[k], 3 * sizeof(float));
-            }
-            pt_vec3 n = pt_v3_norm(pt_v3_cross(pt_v3_sub(v[1], v[0]), pt_v3_sub(v[2], v[0])));
-            for (int k = 0; k < 3; k++)
-                memcpy(&nrm[9 * t + 3 * k], &n, 3 * sizeof(float));
-        }
-        pt_material m = src->materials[0];
-        for (int c = 0; c < 3; c++) {
-            m.base_color[c] = albedo;
-            m.emissive[c] = emission;
-        }
-        uint32_t mat;
-        CHECK(pt_scene_builder_add_material(b, &m, &mat, &err) == PT_OK);
-        CHECK(pt_scene_builder_add_mesh(b, "sphere", pos, nrm, NULL, nt * 3, NULL, nt, NULL, mat,
-                                        &err) == PT_OK);
-        CHECK(pt_scene_builder_add_camera(b, &src->camera, &err) == PT_OK);
-        CHECKF(pt_scene_builder_finish(b, NULL, &out, &err) == PT_OK, "%s", err.msg);
-    }
-    pt_free(pos);
-    pt_free(nrm);
-    pt_scene_free(src);
-    return out;
+    return flat_furnace_of(albedo, emission, NULL);
 }
 
 typedef struct furnace_job {
