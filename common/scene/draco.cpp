@@ -108,6 +108,14 @@ extern "C" pt_status pt_draco_attribute(const pt_draco_mesh *m, uint32_t unique_
         return pt_error_set(err, PT_ERR_FORMAT,
                             "Draco: attribute %u has %d components, the accessor wants %d",
                             unique_id, int(a->num_components()), ncomp);
+    /* glTF accessors hold integers and floats only; a bool attribute's
+     * bytes would be read as bool by Draco's conversion, whatever they
+     * hold (undefined for any byte but 0 and 1). */
+    if (a->data_type() == draco::DT_BOOL || a->data_type() == draco::DT_INVALID ||
+        a->data_type() >= draco::DT_TYPES_COUNT)
+        return pt_error_set(err, PT_ERR_FORMAT,
+                            "Draco: attribute %u has a data type glTF has no accessor for",
+                            unique_id);
     const draco::Mesh &mesh = *m->mesh;
     bool ok;
     switch (ctype) {
