@@ -23,6 +23,7 @@
 #include <string.h>
 
 #include "common/math/vec.h"
+#include "common/render/closure.h"
 #include "tests/check.h"
 #include "tests/stats.h"
 
@@ -223,6 +224,46 @@ static double chi2_pvalue(cell *cells, int n, int *dof_out)
 }
 
 typedef pt_vec3 (*sample_fn)(const void *ctx, pcg32 *r, float *pdf);
+
+/* A material closure (common/render/closure.h) as a binning's and
+ * chi2_run's ctx: its pdf, and a direction from three i.i.d. numbers. */
+static inline float closure_pdf_fn(const void *ctx, pt_vec3 w)
+{
+    return pt_closure_pdf(ctx, w);
+}
+
+static inline pt_vec3 closure_sample_fn(const void *ctx, pcg32 *r, float *pdf)
+{
+    float u[3] = {pcg32_float(r), pcg32_float(r), pcg32_float(r)};
+    pt_vec3 wi;
+    int delta = 0;
+    pt_closure_sample(ctx, u, &wi, pdf, &delta);
+    return wi;
+}
+
+/* The sampling contract of a closure without a delta lobe: of n samples
+ * drawn from rng, the ones with a pdf (counted in *taken) return f / pdf
+ * equal to what pt_closure_eval gives at their direction, channel by channel
+ * (relative 1e-4). Returns the channels that differ. */
+static inline int closure_weights_differ(const pt_closure *c, pcg32 *rng, int n, int *taken)
+{
+    int bad = 0;
+    *taken = 0;
+    for (int i = 0; i < n; i++) {
+        const float u[3] = {pcg32_float(rng), pcg32_float(rng), pcg32_float(rng)};
+        pt_vec3 wi;
+        float pdf, ep;
+        pt_vec3 w = pt_closure_sample(c, u, &wi, &pdf, NULL);
+        if (!(pdf > 0.0f))
+            continue;
+        (*taken)++;
+        pt_vec3 f = pt_closure_eval(c, wi, &ep);
+        const float fa[3] = {f.x, f.y, f.z}, wa[3] = {w.x, w.y, w.z};
+        for (int k = 0; k < 3; k++)
+            bad += !(fabsf(fa[k] / ep - wa[k]) <= 1e-4f * fmaxf(1.0f, wa[k]));
+    }
+    return bad;
+}
 
 /*
  * Draws n samples, bins them, integrates the pdf over the cells; the

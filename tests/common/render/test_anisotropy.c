@@ -147,33 +147,17 @@ static void furnace(void)
     }
 }
 
-typedef struct an_ctx {
-    pt_closure c;
-} an_ctx;
-
-static float an_pdf(const void *ctx, pt_vec3 w)
-{
-    return pt_closure_pdf(&((const an_ctx *)ctx)->c, w);
-}
-
-static pt_vec3 an_sample(const void *ctx, pcg32 *r, float *pdf)
-{
-    float u[3] = {pcg32_float(r), pcg32_float(r), pcg32_float(r)};
-    pt_vec3 wi;
-    pt_closure_sample(&((const an_ctx *)ctx)->c, u, &wi, pdf, NULL);
-    return wi;
-}
-
 static void chi2(void)
 {
     pt_bsdf b = pt_bsdf_setup(pt_v3(0.5f, 0.5f, 0.5f), 0.0f, 0.4f, 1.0f, pt_v3(1, 1, 1));
     for (int k = 0; k < 3; k++) {
         double rho = k * 60.0 * PI_D / 180.0;
-        an_ctx c = {aniso_closure(&b, 0.9f, rho, dir_at(45.0f, 0.5f))};
-        binning bn = {pt_frame_from_normal(pt_v3(-c.c.wo.x, -c.c.wo.y, c.c.wo.z)), 1.5, an_pdf, &c};
+        pt_closure c = aniso_closure(&b, 0.9f, rho, dir_at(45.0f, 0.5f));
+        binning bn = {pt_frame_from_normal(pt_v3(-c.wo.x, -c.wo.y, c.wo.z)), 1.5, closure_pdf_fn,
+                      &c};
         char name[64];
         snprintf(name, sizeof name, "anisotropic GGX + diffuse, rotation %d deg", k * 60);
-        chi2_run(name, &bn, an_sample, &c, 300000, 41 + (uint64_t)k);
+        chi2_run(name, &bn, closure_sample_fn, &c, 300000, 41 + (uint64_t)k);
     }
 }
 

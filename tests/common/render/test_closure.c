@@ -431,34 +431,17 @@ static void test_coated_glass_furnace(void)
     CHECKF(bad == 0, "%d bad weights from coated thin glass", bad);
 }
 
-typedef struct cg_ctx {
-    pt_closure c;
-} cg_ctx;
-
-static float cg_pdf(const void *ctx, pt_vec3 w)
-{
-    return pt_closure_pdf(&((const cg_ctx *)ctx)->c, w);
-}
-
-static pt_vec3 cg_sample(const void *ctx, pcg32 *r, float *pdf)
-{
-    float u[3] = {pcg32_float(r), pcg32_float(r), pcg32_float(r)};
-    pt_vec3 wi;
-    pt_closure_sample(&((const cg_ctx *)ctx)->c, u, &wi, pdf, NULL);
-    return wi;
-}
-
 static void test_coated_glass_chi2(void)
 {
-    static cg_ctx a, b;
+    static pt_closure a, b;
     pt_vec3 wo = dir_at(40.0f, 1.1f);
-    a.c = coated_glass(wo, 0.5f, 0, 0.6f, 0.3f, 0.5f);
-    binning ba = {pt_frame_from_normal(pt_v3(0, 0, 1)), 1.0, cg_pdf, &a};
-    chi2_run("clearcoat + sheen over rough glass, 40 deg", &ba, cg_sample, &a, 300000, 31);
+    a = coated_glass(wo, 0.5f, 0, 0.6f, 0.3f, 0.5f);
+    binning ba = {pt_frame_from_normal(pt_v3(0, 0, 1)), 1.0, closure_pdf_fn, &a};
+    chi2_run("clearcoat + sheen over rough glass, 40 deg", &ba, closure_sample_fn, &a, 300000, 31);
     wo = dir_at(65.0f, 2.0f);
-    b.c = coated_glass(wo, 0.3f, 1, 1.0f, 0.4f, 0.0f);
-    binning bb = {pt_frame_from_normal(pt_v3(-wo.x, -wo.y, wo.z)), 1.5, cg_pdf, &b};
-    chi2_run("clearcoat over thin rough glass, 65 deg", &bb, cg_sample, &b, 300000, 32);
+    b = coated_glass(wo, 0.3f, 1, 1.0f, 0.4f, 0.0f);
+    binning bb = {pt_frame_from_normal(pt_v3(-wo.x, -wo.y, wo.z)), 1.5, closure_pdf_fn, &b};
+    chi2_run("clearcoat over thin rough glass, 65 deg", &bb, closure_sample_fn, &b, 300000, 32);
 }
 
 int main(void)

@@ -163,29 +163,13 @@ static void furnace(void)
         }
 }
 
-typedef struct dt_ctx {
-    pt_closure c;
-} dt_ctx;
-
-static float dt_pdf(const void *ctx, pt_vec3 w)
-{
-    return pt_closure_pdf(&((const dt_ctx *)ctx)->c, w);
-}
-
-static pt_vec3 dt_sample(const void *ctx, pcg32 *r, float *pdf)
-{
-    float u[3] = {pcg32_float(r), pcg32_float(r), pcg32_float(r)};
-    pt_vec3 wi;
-    pt_closure_sample(&((const dt_ctx *)ctx)->c, u, &wi, pdf, NULL);
-    return wi;
-}
-
 static void chi2(void)
 {
     pt_bsdf b = pt_bsdf_setup(pt_v3(0.6f, 0.6f, 0.6f), 0.0f, 0.3f, 1.0f, pt_v3(1, 1, 1));
-    dt_ctx c = {dt_closure(&b, 0.5f, pt_v3(0.8f, 0.6f, 0.4f), dir_at(35.0f, 0.2f))};
-    binning bn = {pt_frame_from_normal(pt_v3(0, 0, 1)), 1.0, dt_pdf, &c};
-    chi2_run("diffuse transmission 0.5 over a glossy base, 35 deg", &bn, dt_sample, &c, 300000, 51);
+    pt_closure c = dt_closure(&b, 0.5f, pt_v3(0.8f, 0.6f, 0.4f), dir_at(35.0f, 0.2f));
+    binning bn = {pt_frame_from_normal(pt_v3(0, 0, 1)), 1.0, closure_pdf_fn, &c};
+    chi2_run("diffuse transmission 0.5 over a glossy base, 35 deg", &bn, closure_sample_fn, &c,
+             300000, 51);
 }
 
 static void refused(void)

@@ -293,36 +293,19 @@ static void furnace(void)
 
 /* Chi-square of the closure's sampling against its pdf (dir_chi2.h), the
  * film over a glossy white dielectric and over a metal. */
-typedef struct irid_ctx {
-    pt_closure c;
-} irid_ctx;
-
-static float irid_pdf(const void *ctx, pt_vec3 w)
-{
-    return pt_closure_pdf(&((const irid_ctx *)ctx)->c, w);
-}
-
-static pt_vec3 irid_sample(const void *ctx, pcg32 *r, float *pdf)
-{
-    float u[3] = {pcg32_float(r), pcg32_float(r), pcg32_float(r)};
-    pt_vec3 wi;
-    pt_closure_sample(&((const irid_ctx *)ctx)->c, u, &wi, pdf, NULL);
-    return wi;
-}
-
 static void chi2(void)
 {
     pt_irid film = {0.7f, 1.5f, 400.0f};
     pt_bsdf b1 = pt_bsdf_setup(pt_v3(0.8f, 0.8f, 0.8f), 0.0f, 0.3f, 1.0f, pt_v3(1, 1, 1));
     pt_bsdf b2 = pt_bsdf_setup(pt_v3(0.9f, 0.7f, 0.4f), 1.0f, 0.5f, 1.0f, pt_v3(1, 1, 1));
-    irid_ctx c1 = {irid_closure(&b1, &film, dir_at(40.0f, 0.0f))};
-    irid_ctx c2 = {irid_closure(&b2, &film, dir_at(70.0f, 1.6f))};
-    binning bn1 = {pt_frame_from_normal(pt_v3(-c1.c.wo.x, -c1.c.wo.y, c1.c.wo.z)), 1.5, irid_pdf,
+    pt_closure c1 = irid_closure(&b1, &film, dir_at(40.0f, 0.0f));
+    pt_closure c2 = irid_closure(&b2, &film, dir_at(70.0f, 1.6f));
+    binning bn1 = {pt_frame_from_normal(pt_v3(-c1.wo.x, -c1.wo.y, c1.wo.z)), 1.5, closure_pdf_fn,
                    &c1};
-    binning bn2 = {pt_frame_from_normal(pt_v3(-c2.c.wo.x, -c2.c.wo.y, c2.c.wo.z)), 1.5, irid_pdf,
+    binning bn2 = {pt_frame_from_normal(pt_v3(-c2.wo.x, -c2.wo.y, c2.wo.z)), 1.5, closure_pdf_fn,
                    &c2};
-    chi2_run("film over a glossy dielectric, 40 deg", &bn1, irid_sample, &c1, 300000, 31);
-    chi2_run("film over a metal, 70 deg", &bn2, irid_sample, &c2, 300000, 32);
+    chi2_run("film over a glossy dielectric, 40 deg", &bn1, closure_sample_fn, &c1, 300000, 31);
+    chi2_run("film over a metal, 70 deg", &bn2, closure_sample_fn, &c2, 300000, 32);
 }
 
 /* ---- the film over glass ------------------------------------------------- */
@@ -379,26 +362,14 @@ static void glass_energy(void)
 static void glass_rough(void)
 {
     pt_glass g = film_glass(0.4f, 0);
-    irid_ctx c;
-    pt_closure_init(&c.c, dir_at(35.0f, 0.7f));
-    pt_closure_add_glass(&c.c, &g);
-    binning bn = {pt_frame_from_normal(pt_v3(0, 0, 1)), 1.0, irid_pdf, &c};
-    chi2_run("film over rough glass, 35 deg", &bn, irid_sample, &c, 300000, 33);
+    pt_closure c;
+    pt_closure_init(&c, dir_at(35.0f, 0.7f));
+    pt_closure_add_glass(&c, &g);
+    binning bn = {pt_frame_from_normal(pt_v3(0, 0, 1)), 1.0, closure_pdf_fn, &c};
+    chi2_run("film over rough glass, 35 deg", &bn, closure_sample_fn, &c, 300000, 33);
     pcg32 rng = pcg32_make(29, 9);
-    int bad = 0, taken = 0;
-    for (int i = 0; i < 20000; i++) {
-        const float u[3] = {pcg32_float(&rng), pcg32_float(&rng), pcg32_float(&rng)};
-        pt_vec3 wi;
-        float pdf, ep;
-        pt_vec3 w = pt_closure_sample(&c.c, u, &wi, &pdf, NULL);
-        if (!(pdf > 0.0f))
-            continue;
-        taken++;
-        pt_vec3 f = pt_closure_eval(&c.c, wi, &ep);
-        const float fa[3] = {f.x, f.y, f.z}, wa[3] = {w.x, w.y, w.z};
-        for (int k = 0; k < 3; k++)
-            bad += !(fabsf(fa[k] / ep - wa[k]) <= 1e-4f * fmaxf(1.0f, wa[k]));
-    }
+    int taken;
+    int bad = closure_weights_differ(&c, &rng, 20000, &taken);
     CHECK(taken > 10000 && bad == 0);
 }
 
