@@ -12,6 +12,11 @@
  * about one standard error, never five. NaN or Inf samples fail a CHECK.
  * Returns the count, or -1 when a renderer could not be made.
  *
+ * load_shared_asset loads a sample asset of ../shared/scenes (rel under
+ * PT_SHARED_SCENES) and CHECKs that no loader warning names `word` (the
+ * extension it is there for). A missing file fails under CI=true and is
+ * skipped elsewhere; either way, and when it does not load, NULL.
+ *
  * render_smoke renders a loaded sample asset at 32 x 32, 8 spp, under a
  * uniform grey sky, and CHECKs that every sample was accepted (no NaN or
  * Inf): the asset's new material through the whole integrator.
@@ -21,12 +26,48 @@
 
 #include <math.h>
 
+#include <stdio.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "common/base/alloc.h"
 #include "common/render/env.h"
 #include "common/render/render.h"
 #include "tests/check.h"
+
+typedef struct asset_warn {
+    const char *word;
+    int hit;
+} asset_warn;
+
+static inline void asset_note(void *user, const char *message)
+{
+    asset_warn *w = user;
+    if (strstr(message, w->word))
+        w->hit = 1;
+}
+
+static inline pt_scene *load_shared_asset(const char *rel, const char *word)
+{
+    char path[1024];
+    snprintf(path, sizeof path, "%s/%s", PT_SHARED_SCENES, rel);
+    if (access(path, R_OK) != 0) {
+        if (check_shared_required())
+            CHECKF(0, "%s is missing (CI=true)", path);
+        else
+            CHECK_SKIP("%s is missing", path);
+        return NULL;
+    }
+    asset_warn w = {word, 0};
+    pt_scene_opts o = {0};
+    o.warn = asset_note;
+    o.warn_user = &w;
+    pt_scene *s = NULL;
+    pt_error err = {0};
+    CHECKF(pt_scene_load(path, &o, &s, &err) == PT_OK, "%s: %s", path, err.msg);
+    CHECKF(!w.hit, "%s: a warning about %s", path, word);
+    return s;
+}
 
 static inline void render_smoke(const pt_scene *s)
 {

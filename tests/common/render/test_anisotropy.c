@@ -31,7 +31,6 @@
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
-#include <unistd.h>
 
 #include "common/base/alloc.h"
 #include "common/render/closure.h"
@@ -244,34 +243,12 @@ static void refused(void)
     pt_scene_builder_free(b);
 }
 
-static int ignored_warning;
-static void note_warning(void *user, const char *message)
-{
-    (void)user;
-    if (strstr(message, "KHR_materials_anisotropy, which is ignored"))
-        ignored_warning = 1;
-}
-
 static void strength_test(void)
 {
-    char path[1024];
-    snprintf(path, sizeof path, "%s/AnisotropyStrengthTest/AnisotropyStrengthTest.glb",
-             PT_SHARED_SCENES);
-    if (access(path, R_OK) != 0) {
-        if (check_shared_required())
-            CHECKF(0, "%s is missing (CI=true)", path);
-        else
-            CHECK_SKIP("%s is missing", path);
-        return;
-    }
-    pt_scene_opts o = {0};
-    o.warn = note_warning;
-    pt_scene *s = NULL;
-    pt_error err = {0};
-    CHECKF(pt_scene_load(path, &o, &s, &err) == PT_OK, "%s", err.msg);
+    pt_scene *s = load_shared_asset("AnisotropyStrengthTest/AnisotropyStrengthTest.glb",
+                                    "KHR_materials_anisotropy");
     if (!s)
         return;
-    CHECK(!ignored_warning);
     CHECK((s->features & PT_FEAT_ANISOTROPY) && s->tangents);
     render_smoke(s);
     pt_scene_free(s);

@@ -51,7 +51,6 @@
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
-#include <unistd.h>
 
 #include "common/base/alloc.h"
 #include "common/render/closure.h"
@@ -481,33 +480,11 @@ static void rendered(void)
     rendered_one(1);
 }
 
-static int ignored_warning;
-static void note_warning(void *user, const char *message)
-{
-    (void)user;
-    if (strstr(message, "iridescence"))
-        ignored_warning = 1;
-}
-
 static void suzanne(void)
 {
-    char path[1024];
-    snprintf(path, sizeof path, "%s/IridescenceSuzanne/IridescenceSuzanne.glb", PT_SHARED_SCENES);
-    if (access(path, R_OK) != 0) {
-        if (check_shared_required())
-            CHECKF(0, "%s is missing (CI=true)", path);
-        else
-            CHECK_SKIP("%s is missing", path);
-        return;
-    }
-    pt_scene_opts o = {0};
-    o.warn = note_warning;
-    pt_scene *s = NULL;
-    pt_error err = {0};
-    CHECKF(pt_scene_load(path, &o, &s, &err) == PT_OK, "%s", err.msg);
+    pt_scene *s = load_shared_asset("IridescenceSuzanne/IridescenceSuzanne.glb", "iridescence");
     if (!s)
         return;
-    CHECK(!ignored_warning);
     CHECK(s->features & PT_FEAT_IRIDESCENCE);
     int irid = 0;
     for (uint32_t i = 0; i < s->num_materials; i++)

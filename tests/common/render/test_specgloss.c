@@ -378,16 +378,7 @@ static void opaque_ior_pair(size_t bin)
 
 static void specular_test_asset(void)
 {
-    char path[1024];
-    snprintf(path, sizeof path, "%s/SpecularTest/SpecularTest.glb", PT_SHARED_SCENES);
-    if (access(path, R_OK) != 0) {
-        if (check_shared_required())
-            CHECKF(0, "%s is missing (CI=true)", path);
-        else
-            CHECK_SKIP("%s is missing", path);
-        return;
-    }
-    pt_scene *s = load(path, "specular");
+    pt_scene *s = load_shared_asset("SpecularTest/SpecularTest.glb", "specular");
     if (!s)
         return;
     CHECK(s->features & PT_FEAT_SPECULAR_TEX);

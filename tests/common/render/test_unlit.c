@@ -31,6 +31,7 @@
 #include "common/render/render.h"
 #include "common/scene/scene.h"
 #include "tests/check.h"
+#include "tests/common/render/paired.h"
 
 #define SIDE 16u
 #define SPP 16u
@@ -271,35 +272,12 @@ static void emission_ignored(void)
     pt_scene_free(s);
 }
 
-static int warned_unlit;
-static void note_warning(void *user, const char *message)
-{
-    (void)user;
-    if (strstr(message, "unlit"))
-        warned_unlit = 1;
-}
-
 static void unlit_test_asset(void)
 {
-    char path[1024];
-    snprintf(path, sizeof path, "%s/UnlitTest/UnlitTest.glb", PT_SHARED_SCENES);
-    FILE *f = fopen(path, "rb");
-    if (!f) {
-        if (check_shared_required())
-            CHECKF(0, "%s is missing (CI=true)", path);
-        else
-            CHECK_SKIP("%s is missing", path);
-        return;
-    }
-    fclose(f);
-    pt_scene_opts o = {0};
-    o.warn = note_warning;
-    pt_scene *s = NULL;
-    pt_error err = {0};
-    CHECKF(pt_scene_load(path, &o, &s, &err) == PT_OK, "%s", err.msg);
+    pt_scene *s = load_shared_asset("UnlitTest/UnlitTest.glb", "unlit");
     if (!s)
         return;
-    CHECK(!warned_unlit);
+    pt_error err = {0};
     CHECK(s->features & PT_FEAT_UNLIT);
     CHECK(s->num_materials == 2);
     for (uint32_t i = 0; i < s->num_materials; i++)
