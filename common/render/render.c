@@ -1370,7 +1370,7 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
                 f = lambert_eval(&lambert, wo_l, wi_ll, &bpdf);
             else if (!through || (side != 0.0f && (side > 0.0f) == (wi_ll.z > 0.0f)))
                 f = pt_closure_eval(&cl, wi_ll, &bpdf);
-            if ((features & FEAT_GUIDE) && guide && gprob > 0.0f)
+            if ((features & FEAT_GUIDE) && guide && gprob > 0.0f && any_positive(f))
                 bpdf = gprob * pt_guide_pdf(guide, gleaf, ls->wi) + (1.0f - gprob) * bpdf;
             if (any_positive(f)) {
                 pt_vec3 from = pt_offset_apply(r->offset, sf->p, side > 0.0f ? ng : pt_v3_neg(ng));
