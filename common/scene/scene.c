@@ -1096,6 +1096,10 @@ static pt_status look_build(const char *text, double sc, const double t[3], cons
     } else {
         c.yfov = (float)(fov * PT_PI / 180.0);
     }
+    /* A width or an angle too small for a float (5e-56) would be 0 here. */
+    if (!(c.ortho ? c.xmag > 0.0f && isfinite(c.xmag) : c.yfov > 0.0f))
+        return pt_error_set(err, PT_ERR_ARG, "camera '%.64s': the %s is too small to render", text,
+                            c.ortho ? "orthographic width" : "field of view");
     c.znear = (float)(1e-4 * len * sc);
     snprintf(c.name, sizeof c.name, "%s", text);
     *out = c;
