@@ -1,6 +1,9 @@
 // draco.cpp - pt_draco_*: KHR_draco_mesh_compression meshes through
 // libdraco's Decoder (draco/compression/decode.h). See draco.h.
 #include <draco/compression/decode.h>
+#include <draco/core/varint_decoding.h>
+#include <draco/metadata/geometry_metadata.h>
+#include <draco/metadata/metadata_decoder.h>
 
 #include <cstring>
 #include <memory>
@@ -33,12 +36,72 @@ bool convert_all(const draco::Mesh &mesh, const draco::PointAttribute &a, int nc
     return true;
 }
 
+// The counts a Draco 2.2 mesh's connectivity header declares, read before
+// libdraco sizes its tables from them: libdraco checks them only against
+// its index types, so a 73-byte buffer can make it allocate gigabytes
+// (found by fuzz_draco). Layout per the Draco bitstream specification 2.2,
+// the version KHR_draco_mesh_compression is written against: header
+// ("DRACO", major, minor, encoder type, method, flags), the metadata
+// section when flags has 0x8000, then sequential connectivity (varint
+// faces, varint points) or EdgeBreaker's (traversal type byte, varint
+// encoded vertices, varint faces). Any other version is refused.
+pt_status declared_counts(const uint8_t *data, size_t len, uint64_t *points, uint64_t *faces,
+                          pt_error *err)
+{
+    draco::DecoderBuffer b;
+    b.Init(reinterpret_cast<const char *>(data), len);
+    char magic[5];
+    uint8_t major, minor, type, method;
+    uint16_t flags;
+    if (!b.Decode(magic, 5) || memcmp(magic, "DRACO", 5) != 0 || !b.Decode(&major) ||
+        !b.Decode(&minor) || !b.Decode(&type) || !b.Decode(&method) || !b.Decode(&flags))
+        return pt_error_set(err, PT_ERR_FORMAT, "Draco: not a Draco header");
+    if (major != 2 || minor != 2)
+        return pt_error_set(err, PT_ERR_FORMAT,
+                            "Draco: bitstream version %u.%u (KHR_draco_mesh_compression "
+                            "is version 2.2)",
+                            major, minor);
+    if (type != draco::TRIANGULAR_MESH)
+        return pt_error_set(err, PT_ERR_FORMAT, "Draco: not a triangle mesh (a point cloud)");
+    if (flags & 0x8000) {
+        draco::GeometryMetadata md;
+        draco::MetadataDecoder mdec;
+        if (!mdec.DecodeGeometryMetadata(&b, &md))
+            return pt_error_set(err, PT_ERR_FORMAT, "Draco: bad metadata section");
+    }
+    uint32_t np = 0, nf = 0;
+    bool ok;
+    if (method == 0) {
+        ok = draco::DecodeVarint(&nf, &b) && draco::DecodeVarint(&np, &b);
+    } else if (method == 1) {
+        uint8_t traversal;
+        ok = b.Decode(&traversal) && draco::DecodeVarint(&np, &b) && draco::DecodeVarint(&nf, &b);
+    } else {
+        return pt_error_set(err, PT_ERR_FORMAT, "Draco: connectivity method %u", method);
+    }
+    if (!ok)
+        return pt_error_set(err, PT_ERR_FORMAT, "Draco: connectivity header cut short");
+    *points = np;
+    *faces = nf;
+    return PT_OK;
+}
+
 } // namespace
 
 extern "C" pt_status pt_draco_decode(const uint8_t *data, size_t len, uint64_t max_points,
                                      uint64_t max_faces, pt_draco_mesh **out, pt_error *err)
 {
     try {
+        uint64_t dp = 0, df = 0;
+        pt_status hs = declared_counts(data, len, &dp, &df, err);
+        if (hs != PT_OK)
+            return hs;
+        if (dp > max_points || df > max_faces)
+            return pt_error_set(err, PT_ERR_LIMIT,
+                                "Draco: the header declares %llu points and %llu triangles "
+                                "(at most %llu and %llu)",
+                                (unsigned long long)dp, (unsigned long long)df,
+                                (unsigned long long)max_points, (unsigned long long)max_faces);
         draco::DecoderBuffer buf;
         buf.Init(reinterpret_cast<const char *>(data), len);
         auto type = draco::Decoder::GetEncodedGeometryType(&buf);
