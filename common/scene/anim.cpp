@@ -606,3 +606,44 @@ extern "C" void pt_anim_free(pt_anim *anim)
 {
     delete anim;
 }
+
+extern "C" pt_status pt_anim_range_view(const pt_anim *anim, const pt_scene *scene,
+                                        const pt_scene_opts *opts, const pt_frames *frames,
+                                        double fps, float aspect, char *out, size_t cap,
+                                        pt_error *err)
+{
+    if (cap)
+        out[0] = '\0';
+    uint32_t n = pt_frames_count(frames);
+    if (!scene->camera.framed || !pt_anim_moves(anim) || n < 2)
+        return PT_OK;
+    pt_vec3 lo = pt_v3(INFINITY, INFINITY, INFINITY), hi = pt_v3(-INFINITY, -INFINITY, -INFINITY);
+    for (uint32_t i = 0; i < n; i++) {
+        pt_anim_pose_out o{};
+        pt_status st = pt_anim_pose_into(anim, pt_frames_time(pt_frames_number(frames, i), fps),
+                                         scene, &o, err);
+        if (st != PT_OK)
+            return st;
+        lo = pt_v3(fminf(lo.x, o.bounds_min.x), fminf(lo.y, o.bounds_min.y),
+                   fminf(lo.z, o.bounds_min.z));
+        hi = pt_v3(fmaxf(hi.x, o.bounds_max.x), fmaxf(hi.y, o.bounds_max.y),
+                   fmaxf(hi.z, o.bounds_max.z));
+    }
+    if (!(lo.x <= hi.x && lo.y <= hi.y && lo.z <= hi.z))
+        return PT_OK; /* nothing to frame: each frame's (a unit sphere's) view */
+    pt_camera c;
+    pt_camera_frame(lo, hi, aspect, &c);
+    // Scene space back to the coordinates the options scale and move:
+    // stored = world * sc + t - origin.
+    double sc = opts && opts->scale != 0.0f ? double(opts->scale) : 1.0;
+    double t[3] = {opts ? opts->translate.x : 0.0, opts ? opts->translate.y : 0.0,
+                   opts ? opts->translate.z : 0.0};
+    double from[3], at[3];
+    const float p[3] = {c.position.x, c.position.y, c.position.z};
+    const float m[3] = {0.5f * (lo.x + hi.x), 0.5f * (lo.y + hi.y), 0.5f * (lo.z + hi.z)};
+    for (int k = 0; k < 3; k++) {
+        from[k] = (double(p[k]) + scene->origin[k] - t[k]) / sc;
+        at[k] = (double(m[k]) + scene->origin[k] - t[k]) / sc;
+    }
+    return pt_camera_look_text_fit(from, at, 0.0, 0.0, out, cap, err);
+}

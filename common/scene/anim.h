@@ -62,6 +62,7 @@
 #define PT_COMMON_SCENE_ANIM_H
 
 #include "common/base/error.h"
+#include "common/base/frames.h"
 #include "common/scene/scene.h"
 
 #ifdef __cplusplus
@@ -132,6 +133,20 @@ void pt_anim_range(const pt_anim *anim, double *start, double *end);
 /* Whether a pose can differ from another: some channel, skin or morph target
  * is in play. 0: every pose is the same as the load's. */
 int pt_anim_moves(const pt_anim *anim);
+
+/* The view a frame range is rendered from when the scene has no camera of
+ * its own (scene->camera.framed): pt_camera_frame of the union of the
+ * bounds posed at every frame's time (pt_frames_time(number, fps)), for an
+ * image of `aspect`, as placement text (pt_camera_look_text_fit, in the
+ * coordinates opts' scale and translation apply to) into out, so that
+ * every frame is seen from one place and nothing that moves leaves the
+ * frame. out[0] is 0 when the camera is the file's, nothing moves or the
+ * range is one frame: each frame's own framing is then that view already. scene and opts are
+ * those pt_anim_load took and gave with anim. A pose's error, or
+ * PT_ERR_ARG when the text does not fit in cap. */
+pt_status pt_anim_range_view(const pt_anim *anim, const pt_scene *scene, const pt_scene_opts *opts,
+                             const pt_frames *frames, double fps, float aspect, char *out,
+                             size_t cap, pt_error *err);
 
 /* Frees the rig. Accepts NULL. */
 void pt_anim_free(pt_anim *anim);

@@ -1000,16 +1000,43 @@ int pt_scene_find_camera(const pt_scene *s, const char *name)
     return k < s->num_cameras ? (int)k : -1;
 }
 
+/* The placement's text with `digits` significant digits into buf; its length. */
+static int look_format(const double from[3], const double at[3], double fov_deg, double ortho_width,
+                       int digits, char *buf, size_t cap)
+{
+    int n =
+        snprintf(buf, cap, PT_CAMERA_LOOK_PREFIX "%.*g,%.*g,%.*g:%.*g,%.*g,%.*g", digits, from[0],
+                 digits, from[1], digits, from[2], digits, at[0], digits, at[1], digits, at[2]);
+    if (ortho_width > 0.0)
+        n += snprintf(buf + n, cap - (size_t)n, ":ortho=%.*g", digits, ortho_width);
+    else if (fov_deg > 0.0)
+        n += snprintf(buf + n, cap - (size_t)n, ":fov=%.*g", digits, fov_deg);
+    return n;
+}
+
+pt_status pt_camera_look_text_fit(const double from[3], const double at[3], double fov_deg,
+                                  double ortho_width, char *out, size_t cap, pt_error *err)
+{
+    char buf[256];
+    for (int digits = 9; digits >= 4; digits--) {
+        if ((size_t)look_format(from, at, fov_deg, ortho_width, digits, buf, sizeof buf) >= cap)
+            continue;
+        pt_camera c;
+        pt_status st = pt_camera_look_parse(buf, &c, err);
+        if (st == PT_OK)
+            memcpy(out, buf, strlen(buf) + 1);
+        return st;
+    }
+    return pt_error_set(err, PT_ERR_ARG,
+                        "the camera placement '%s' is over %zu bytes as text even with 4 digits",
+                        buf, cap - 1);
+}
+
 pt_status pt_camera_look_text(const double from[3], const double at[3], double fov_deg,
                               double ortho_width, char *out, size_t cap, pt_error *err)
 {
     char buf[256];
-    int n = snprintf(buf, sizeof buf, PT_CAMERA_LOOK_PREFIX "%.9g,%.9g,%.9g:%.9g,%.9g,%.9g",
-                     from[0], from[1], from[2], at[0], at[1], at[2]);
-    if (ortho_width > 0.0)
-        n += snprintf(buf + n, sizeof buf - (size_t)n, ":ortho=%.9g", ortho_width);
-    else if (fov_deg > 0.0)
-        n += snprintf(buf + n, sizeof buf - (size_t)n, ":fov=%.9g", fov_deg);
+    int n = look_format(from, at, fov_deg, ortho_width, 9, buf, sizeof buf);
     if ((size_t)n >= cap)
         return pt_error_set(err, PT_ERR_ARG,
                             "the camera placement '%s' is %d bytes as text, over %zu: give the "

@@ -443,6 +443,13 @@ int pt_scene_find_camera(const pt_scene *s, const char *name);
 pt_status pt_camera_look_text(const double from[3], const double at[3], double fov_deg,
                               double ortho_width, char *out, size_t cap, pt_error *err);
 
+/* pt_camera_look_text with as many significant digits, 9 down to 4, as fit
+ * in cap: for a placement computed rather than typed, whose text must fit a
+ * job's camera name (a 1e-4 relative shift of a view is a small fraction of
+ * a pixel in a 512-pixel image of the scene). */
+pt_status pt_camera_look_text_fit(const double from[3], const double at[3], double fov_deg,
+                                  double ortho_width, char *out, size_t cap, pt_error *err);
+
 /* text (PT_CAMERA_LOOK_PREFIX...) as a camera in world space into *out
  * (name: the text). PT_ERR_ARG naming what is wrong. */
 pt_status pt_camera_look_parse(const char *text, pt_camera *out, pt_error *err);

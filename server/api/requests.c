@@ -276,7 +276,7 @@ static void submitted_params(const srv_config *cfg, const srv_upload *k, srv_job
     p.min_spp = m->min_spp ? m->min_spp : (p.chunk > 1 ? p.chunk : 2);
     p.width = m->width;
     p.height = m->height;
-    snprintf(p.camera, sizeof p.camera, "%s", m->camera);
+    snprintf(p.camera, sizeof p.camera, "%s", k->look[0] ? k->look : m->camera);
     snprintf(p.variant, sizeof p.variant, "%s", m->variant);
     p.shutter[0] = m->shutter[0];
     p.shutter[1] = m->shutter[1];
@@ -351,6 +351,9 @@ void srv_requests_verified(srv_server *s, srv_conn *c, srv_upload *k)
     r->fps = m->fps;
     snprintf(r->animation, sizeof r->animation, "%s", m->animation);
     output_name(r);
+    if (k->look[0])
+        srv_log("job %llu: frames %u-%u are framed together: --camera '%s'",
+                (unsigned long long)r->id, r->frames.first, r->frames.last, k->look);
     snprintf(j->out_path, sizeof j->out_path, "%s/%s", s->out_dir, r->output);
     srv_job *probe = NULL;
     if ((st = srv_job_new(r->id, &p, r->hash, &probe, &err)) != PT_OK) {

@@ -13,6 +13,7 @@
 #include "common/base/hash.h"
 #include "common/render/env.h"
 #include "common/render/render.h"
+#include "common/scene/anim.h"
 #include "common/scene/scene.h"
 #include "server/net/loop.h"
 #include "server/store/state.h"
@@ -108,7 +109,20 @@ static void verify_upload(srv_upload *k)
             so.time = pt_frames_time(k->m.frame_first, k->m.fps);
             so.animation = k->m.animation[0] ? k->m.animation : NULL;
         }
-        st = pt_scene_load(entry, &so, &scene, &err);
+        pt_anim *anim = NULL;
+        st = k->m.frame_step ? pt_anim_load(entry, &so, &scene, &anim, &err)
+                             : pt_scene_load(entry, &so, &scene, &err);
+        /* A range without a camera of the file's is seen from one place
+         * that holds every frame's pose (its size as the job's will be:
+         * given, or 512 wide at a framed view's aspect, square). */
+        if (st == PT_OK && k->m.frame_step && !k->m.camera[0]) {
+            pt_frames fr = {k->m.frame_first, k->m.frame_last, k->m.frame_step};
+            float aspect =
+                k->m.width && k->m.height ? (float)k->m.width / (float)k->m.height : 1.0f;
+            st = pt_anim_range_view(anim, scene, &so, &fr, k->m.fps, aspect, k->look,
+                                    sizeof k->look, &err);
+        }
+        pt_anim_free(anim);
     }
     if (st == PT_OK && ev->name[0]) {
         /* Decoded whole, every texel checked (common/image/envmap.h), so a

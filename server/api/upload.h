@@ -50,6 +50,8 @@ struct srv_upload {
     char scene[256]; /* the entry file's name */
     uint32_t ntris;
     float aspect;
+    char look[PROTO_MAX_NAME + 1]; /* a range's view when the file has no camera
+                                      (pt_anim_range_view), else "" */
     srv_upload *next;
 };
 

@@ -10,6 +10,7 @@
 #include "common/render/env.h"
 #include "common/render/render.h"
 #include "common/render/tile.h"
+#include "common/scene/anim.h"
 #include "common/scene/bundle.h"
 #include "common/scene/scene.h"
 #include "server/api/workers.h"
@@ -90,7 +91,11 @@ static pt_status setup_single(srv_server *s, pt_error *err)
         so.animation = cfg->animation;
     }
     pt_scene *scene = NULL;
-    if ((st = pt_scene_load(cfg->scene_path, &so, &scene, err)) != PT_OK)
+    pt_anim *anim = NULL;
+    /* A range's rig too, to see all its frames' poses (below). */
+    st = cfg->frames.step ? pt_anim_load(cfg->scene_path, &so, &scene, &anim, err)
+                          : pt_scene_load(cfg->scene_path, &so, &scene, err);
+    if (st != PT_OK)
         return st;
     srv_job_params jp = cfg->job;
     if (jp.width == 0) {
@@ -98,6 +103,21 @@ static pt_status setup_single(srv_server *s, pt_error *err)
          * the height within --res's cap. */
         jp.width = 512;
         jp.height = pt_camera_height(scene->camera.aspect, jp.width, PT_RENDER_MAX_SIDE);
+    }
+    /* A range without a camera of the file's is seen from one place that
+     * holds every frame's pose; the placement travels as the job's camera. */
+    if (cfg->frames.step && !jp.camera[0]) {
+        st = pt_anim_range_view(anim, scene, &so, &cfg->frames, cfg->fps,
+                                (float)jp.width / (float)jp.height, jp.camera, sizeof jp.camera,
+                                err);
+        if (st == PT_OK && jp.camera[0])
+            srv_log("frames %u-%u are framed together: --camera '%s'", cfg->frames.first,
+                    cfg->frames.last, jp.camera);
+    }
+    pt_anim_free(anim);
+    if (st != PT_OK) {
+        pt_scene_free(scene);
+        return st;
     }
     uint32_t ntris = scene->num_triangles;
     /* A map is decoded once here, as an upload's is, so a bad one fails now

@@ -60,9 +60,19 @@ posed=0
 # (Read whole first: grep -q would end the pipe early, and pipefail fail it.)
 worker_help=$("$bin/ptworker" --help 2>&1 || true)
 [[ "$worker_help" == *"--frame F"* ]] && posed=1
+# BoxAnimated has no camera: the farm frames a range once, at the union of
+# its frames' poses, says where from, and sends that placement as the
+# job's camera; the references are rendered from it.
+mkdir -p "$tmp/look"
+"$bin/ptserve" --local 1 --worker-threads 1 --res 40x30 --spp 1 "${bg[@]}" --frames 0-5 --fps 24 \
+  -o "$tmp/look/l.####.exr" "$scene" 2> "$tmp/serve_look.log" || fail "$(cat "$tmp/serve_look.log")"
+look=$(sed -n "s/.*frames 0-5 are framed together: --camera '\(look:[^']*\)'.*/\1/p" \
+  "$tmp/serve_look.log")
+[ -n "$look" ] || fail "the range's view is not said: $(cat "$tmp/serve_look.log")"
 for f in "${frames[@]}"; do
   if [ $posed = 1 ]; then
-    "$bin/ptworker" --scene "$scene" "${view[@]}" --tile 16 --chunk 8 --frame "$f" --fps 24 -q \
+    "$bin/ptworker" --scene "$scene" "${view[@]}" --camera "$look" --tile 16 --chunk 8 \
+      --frame "$f" --fps 24 -q \
       -o "$tmp/ref.$f.exr"
   elif [ "$f" = 0 ]; then
     "$bin/ptworker" --scene "$scene" "${view[@]}" --tile 16 --chunk 8 -q -o "$tmp/ref.0.exr"
@@ -200,7 +210,7 @@ for f in $done_before; do
 done
 for f in "${frames[@]}"; do
   pose=()
-  [ $posed = 1 ] && pose=(--frame "$f" --fps 24)
+  [ $posed = 1 ] && pose=(--frame "$f" --fps 24 --camera "$look")
   "$bin/ptworker" --scene "$scene" "${long[@]}" --tile 16 --chunk 8 -q "${pose[@]}" \
     -o "$tmp/long_ref.$f.exr"
   same "$tmp/long_ref.$f.exr" "$tmp/out/$id-shot.000$f.exr"

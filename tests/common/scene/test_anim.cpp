@@ -1052,6 +1052,105 @@ void test_morph_cap()
 
 } // namespace
 
+// The largest of |x| / tan(xfov/2) and |y| / tan(yfov/2) over the corners of
+// [lo, hi] (scene space) seen by c (scene space) in an image of aspect a,
+// or 1e9 when a corner is behind it: <= 1 when the box is in the frame.
+double box_reach(const pt_camera &c, pt_vec3 lo, pt_vec3 hi, double a)
+{
+    double ty = std::tan(0.5 * double(c.yfov)), tx = ty * a, reach = 0.0;
+    for (int k = 0; k < 8; k++) {
+        double v[3] = {double(k & 1 ? hi.x : lo.x) - double(c.position.x),
+                       double(k & 2 ? hi.y : lo.y) - double(c.position.y),
+                       double(k & 4 ? hi.z : lo.z) - double(c.position.z)};
+        double z = v[0] * c.forward.x + v[1] * c.forward.y + v[2] * c.forward.z;
+        double x = v[0] * c.right.x + v[1] * c.right.y + v[2] * c.right.z;
+        double y = v[0] * c.up.x + v[1] * c.up.y + v[2] * c.up.z;
+        if (!(z > 0.0))
+            return 1e9;
+        reach = std::max(reach, std::max(std::fabs(x) / (z * tx), std::fabs(y) / (z * ty)));
+    }
+    return reach;
+}
+
+// A frame range of a file without a camera is seen from one place
+// (pt_anim_range_view): every frame's posed bounds are in the frame, one
+// of them within 10 % of its edge (the view is fitted, with 5 % to spare),
+// while the view framed at the first frame alone loses a later frame's lid
+// (so the union is what holds them). A file's camera or a scene that does
+// not move gives no placement (each frame's own framing is that view).
+void test_range_view()
+{
+    std::string path = shared("BoxAnimated/BoxAnimated.glb");
+    if (!exists(path)) {
+        if (check_shared_required())
+            CHECKF(0, "%s is missing", path.c_str());
+        else
+            CHECK_SKIP("%s is missing", path.c_str());
+        return;
+    }
+    pt_scene_opts o{};
+    o.animate = 1;
+    pt_scene *s = nullptr;
+    pt_anim *a = nullptr;
+    pt_error err{};
+    CHECK(pt_anim_load(path.c_str(), &o, &s, &a, &err) == PT_OK);
+    if (!s)
+        return;
+    const pt_frames fr = {0, 88, 4};
+    const double fps = 24.0, aspect = 1.5;
+    char look[65];
+    CHECK(pt_anim_range_view(a, s, &o, &fr, fps, float(aspect), look, sizeof look, &err) == PT_OK);
+    CHECKF(strncmp(look, PT_CAMERA_LOOK_PREFIX, strlen(PT_CAMERA_LOOK_PREFIX)) == 0,
+           "no placement: '%s'", look);
+    pt_camera c{};
+    CHECK(pt_camera_look_parse(look, &c, &err) == PT_OK);
+    for (int k = 0; k < 3; k++)
+        (&c.position.x)[k] -= float(s->origin[k]);
+    pt_camera first;
+    pt_camera_frame(s->bounds_min, s->bounds_max, float(aspect), &first);
+    double widest = 0.0, first_widest = 0.0;
+    for (uint32_t i = 0; i < pt_frames_count(&fr); i++) {
+        pt_anim_pose_out po{};
+        double t = pt_frames_time(pt_frames_number(&fr, i), fps);
+        CHECK(pt_anim_pose_into(a, t, s, &po, &err) == PT_OK);
+        double r = box_reach(c, po.bounds_min, po.bounds_max, aspect);
+        CHECKF(r <= 1.0, "frame %u: the posed bounds reach %g of the half-frame", i, r);
+        widest = std::max(widest, r);
+        first_widest =
+            std::max(first_widest, box_reach(first, po.bounds_min, po.bounds_max, aspect));
+    }
+    CHECKF(widest > 0.9, "the view is loose: the widest frame reaches %g of the half-frame",
+           widest);
+    CHECKF(first_widest > 1.0, "the first frame's own view holds every frame (%g): no test",
+           first_widest);
+    // A camera given: nothing to place.
+    pt_scene_opts oc = o;
+    oc.camera_name = "look:0,1,5:0,0,0";
+    pt_scene *sc = nullptr;
+    pt_anim *ac = nullptr;
+    CHECK(pt_anim_load(path.c_str(), &oc, &sc, &ac, &err) == PT_OK);
+    if (sc) {
+        CHECK(pt_anim_range_view(ac, sc, &oc, &fr, fps, 1.0f, look, sizeof look, &err) == PT_OK);
+        CHECKF(look[0] == 0, "a given camera was replaced by '%s'", look);
+    }
+    pt_anim_free(ac);
+    pt_scene_free(sc);
+    // A file that does not move: the same.
+    std::string still = shared("MetalRoughSpheresNoTextures/MetalRoughSpheresNoTextures.glb");
+    pt_scene *ss = nullptr;
+    pt_anim *as = nullptr;
+    if (exists(still) && pt_anim_load(still.c_str(), &o, &ss, &as, &err) == PT_OK) {
+        CHECK(pt_anim_range_view(as, ss, &o, &fr, fps, 1.0f, look, sizeof look, &err) == PT_OK);
+        CHECKF(look[0] == 0, "a still scene got '%s'", look);
+    } else {
+        CHECKF(!check_shared_required(), "%s: %s", still.c_str(), err.msg);
+    }
+    pt_anim_free(as);
+    pt_scene_free(ss);
+    pt_anim_free(a);
+    pt_scene_free(s);
+}
+
 int main(void)
 {
     test_interpolation();
@@ -1067,5 +1166,6 @@ int main(void)
     test_static_far();
     test_motion_cap();
     test_morph_cap();
+    test_range_view();
     return check_report();
 }
