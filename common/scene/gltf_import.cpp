@@ -1188,11 +1188,10 @@ void add_transmission(importer &im, int mi, const tinygltf::Material &g, pt_mate
                 if (a.Get(c).IsNumber())
                     pm.attenuation_color[c] = float(a.Get(c).GetNumberAsDouble());
         }
-        if (vo->second.IsObject() && vo->second.Has("thicknessTexture"))
-            im.warn_once("thickness-texture",
-                         "material " + std::to_string(mi) +
-                             ": KHR_materials_volume thicknessTexture is ignored (the mesh "
-                             "itself is traced)");
+        // thicknessTexture is not read, and nothing is lost: it bakes the
+        // distance through the mesh for renderers that do not trace it;
+        // here every ray crosses the mesh itself, as thicknessFactor > 0
+        // (a volume boundary) asks.
     }
 }
 
