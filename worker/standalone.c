@@ -335,6 +335,8 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
     }
     p.env = env;
     p.transparent = o->transparent ? 1u : 0u;
+    p.clamp_direct = o->clamp_direct;
+    p.clamp_indirect = o->clamp_indirect;
     /* Guiding samples glossy closures only (main refuses it with adaptive
      * sampling). */
     p.guiding = o->guiding && (scene->features & PT_FEAT_GLOSSY) ? 1u : 0u;
@@ -412,6 +414,7 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
         st.rejected += tstats[i].rejected;
         st.rays += tstats[i].rays;
         st.capped += tstats[i].capped;
+        st.clamped += tstats[i].clamped;
     }
     pt_exr_meta meta = {0};
     meta.total_samples = pt_film_resolve(film, img);
@@ -443,6 +446,11 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
                 "average\n",
                 atomic_load(&j.tiles_stopped), nt,
                 (double)st.samples / ((double)p.width * p.height));
+    if (p.clamp_direct > 0.0f || p.clamp_indirect > 0.0f)
+        fprintf(stderr,
+                "ptworker: %llu contributions clamped (--clamp-direct %g, --clamp-indirect "
+                "%g; 0 is off)\n",
+                (unsigned long long)st.clamped, (double)p.clamp_direct, (double)p.clamp_indirect);
     if (st.capped > 0)
         fprintf(stderr,
                 "ptworker: %llu paths reached the depth cap of %u; raise --max-depth if this "

@@ -43,6 +43,7 @@ typedef struct wrk_standalone_opts {
     double fps;        /* frames per second (24 by default; --fps) */
     pt_view view;      /* the PNG's exposure and view transform; the EXR stays linear */
     int guiding;       /* --guiding on: path guiding learned in passes (guide.h) */
+    float clamp_direct, clamp_indirect; /* sample clamping (pt_render_params; 0: off) */
     int quiet;
 } wrk_standalone_opts;
 

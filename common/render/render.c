@@ -72,6 +72,12 @@ typedef void (*tile_fn)(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_
 /* Path guiding (guide.h): a renderer feature like the environment, set when
  * the parameters ask for it; only the guided variant has its code. */
 #define FEAT_GUIDE (1u << 31)
+/* Sample clamping (clamp_sample): set when the parameters ask for it; only
+ * the clamped and guided variants have its code. */
+#define FEAT_CLAMP (1u << 29)
+/* The renderer's own features, set by the parameters: the variants without
+ * them are what a render that does not ask for them runs. */
+#define PARAM_FEATURES (FEAT_GUIDE | FEAT_CLAMP)
 
 struct pt_renderer {
     const pt_scene *scene;
@@ -800,6 +806,7 @@ typedef struct path {
     uint32_t index;   /* the sample index */
     uint32_t escaped; /* 1: the camera ray left the scene (the sample does not cover the pixel) */
     float time;       /* in the shutter, [0, 1) (PT_FEAT_MOTION; else 0) */
+    uint32_t clamped; /* FEAT_CLAMP: contributions clamp_sample scaled down */
     pixel_ctx *pc;
     struct guide_path *gp; /* FEAT_GUIDE: its guided vertices; else NULL */
 } path;
@@ -887,8 +894,28 @@ path_start(const pt_renderer *r, pixel_ctx *pc, uint32_t index, path *pa, const 
     pa->depth = 0;
     pa->index = index;
     pa->escaped = 0;
+    pa->clamped = 0;
     pa->pc = pc;
     pa->gp = NULL;
+}
+
+/* Sample clamping (FEAT_CLAMP; pt_render_params.clamp_direct and
+ * clamp_indirect), as Cycles clamps samples: contribution c, whose light
+ * arrives directly (at the camera or at the first surface it sees) or
+ * after more bounces, scaled down to the limit when |R| + |G| + |B| passes
+ * it. Biased, so only where asked for; each one counted. A NaN passes
+ * unchanged, to be rejected with its sample. */
+static inline __attribute__((always_inline)) pt_vec3
+clamp_sample(const pt_renderer *r, path *pa, pt_vec3 c, int direct, const uint32_t features)
+{
+    if (!(features & FEAT_CLAMP))
+        return c;
+    float lim = direct ? r->params.clamp_direct : r->params.clamp_indirect;
+    float sum = fabsf(c.x) + fabsf(c.y) + fabsf(c.z);
+    if (!(lim > 0.0f && sum > lim))
+        return c;
+    pa->clamped++;
+    return pt_v3_scale(c, lim / sum);
 }
 
 /* The light sample of a bounce at sf, when NEE runs. Like the hit's surface
@@ -936,8 +963,10 @@ static inline __attribute__((always_inline)) void shade_emission(const pt_render
         float lp = pt_lights_pdf(r->lights, s, hit->tri, pa->prev_p, sf->p, sf->ng);
         le = pt_v3_scale(le, power_heuristic(pa->prev_pdf, lp));
     }
+    /* Found at depth d, the light arrives at vertex d - 1: direct up to 1. */
     if (pa->prev_pdf == 0.0f || strategy != PT_LIGHT_NEE_ONLY)
-        pa->L = pt_v3_add(pa->L, pt_v3_mul(pa->beta, le));
+        pa->L = pt_v3_add(pa->L,
+                          clamp_sample(r, pa, pt_v3_mul(pa->beta, le), pa->depth <= 1, features));
 }
 
 /* A ray of the path that left the scene: the environment's radiance along
@@ -962,7 +991,8 @@ static inline __attribute__((always_inline)) void shade_miss(const pt_renderer *
     if (pa->prev_pdf > 0.0f && strategy == PT_LIGHT_MIS)
         le = pt_v3_scale(le, power_heuristic(pa->prev_pdf, pt_lights_env_pdf(r->lights, pa->d)));
     if (pa->prev_pdf == 0.0f || strategy != PT_LIGHT_NEE_ONLY)
-        pa->L = pt_v3_add(pa->L, pt_v3_mul(pa->beta, le));
+        pa->L = pt_v3_add(pa->L,
+                          clamp_sample(r, pa, pt_v3_mul(pa->beta, le), pa->depth <= 1, features));
 }
 
 /* KHR_materials_unlit (PT_FEAT_UNLIT; general variant only): the ray sees
@@ -975,7 +1005,8 @@ shade_unlit(const pt_renderer *r, path *pa, const surface *sf, const uint32_t fe
     pt_vec3 base;
     float metallic, roughness;
     base_inputs(r->scene, sf, features, &base, &metallic, &roughness);
-    pa->L = pt_v3_add(pa->L, pt_v3_mul(pa->beta, base));
+    pa->L =
+        pt_v3_add(pa->L, clamp_sample(r, pa, pt_v3_mul(pa->beta, base), pa->depth <= 1, features));
 }
 
 /*
@@ -1412,7 +1443,8 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
                         side > 0.0f ? pa->medium : medium_across(s, pa->medium, mi, front, thin);
                     c = pt_v3_mul(c, medium_transmittance(s, med, sr->dist));
                 }
-                sr->contrib = c;
+                /* Light sampled at depth d arrives at vertex d: direct at 0. */
+                sr->contrib = clamp_sample(r, pa, c, pa->depth == 0, features);
                 ret = SHADE_SHADOW;
             }
         }
@@ -1775,6 +1807,7 @@ li_impl(const pt_renderer *r, pixel_ctx *pc, uint32_t index, pt_render_stats *st
     if (stats) {
         stats->rays += rays;
         stats->capped += capped;
+        stats->clamped += pa.clamped;
     }
     if (covered)
         *covered = !pa.escaped;
@@ -2020,6 +2053,8 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
                         local.rejected++;
                     else
                         blk.hits += !pa->escaped;
+                    if (features & FEAT_CLAMP)
+                        local.clamped += pa->clamped;
                 }
                 pt_pixel_acc_add_block(&out[p0 + g], &blk);
                 local.samples += blk.n;
@@ -2032,6 +2067,7 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
         stats->rejected += local.rejected;
         stats->rays += local.rays;
         stats->capped += local.capped;
+        stats->clamped += local.clamped;
     }
 }
 
@@ -2075,12 +2111,13 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
     (uint32_t)(OTHER_LIGHTS | PT_FEAT_ALPHA | GLASS | SURFACE_EXTRAS | LAYERS | PT_FEAT_MOTION |   \
                MATERIAL_EXTS)
 VARIANT(li_guided, tile_guided, ALL_FEATURES)
-VARIANT(li_general, tile_general, ALL_FEATURES & ~FEAT_GUIDE)
-VARIANT(li_untextured, tile_untextured, ALL_FEATURES & ~NO_TEX & ~GENERAL_ONLY & ~FEAT_GUIDE)
+VARIANT(li_clamped, tile_clamped, ALL_FEATURES & ~FEAT_GUIDE)
+VARIANT(li_general, tile_general, ALL_FEATURES & ~PARAM_FEATURES)
+VARIANT(li_untextured, tile_untextured, ALL_FEATURES & ~NO_TEX & ~GENERAL_ONLY & ~PARAM_FEATURES)
 VARIANT(li_lambert, tile_lambert,
-        ALL_FEATURES & ~(uint32_t)PT_FEAT_GLOSSY & ~GENERAL_ONLY & ~FEAT_GUIDE)
+        ALL_FEATURES & ~(uint32_t)PT_FEAT_GLOSSY & ~GENERAL_ONLY & ~PARAM_FEATURES)
 VARIANT(li_lambert_untextured, tile_lambert_untextured,
-        ALL_FEATURES & ~NO_TEX & ~(uint32_t)PT_FEAT_GLOSSY & ~GENERAL_ONLY & ~FEAT_GUIDE)
+        ALL_FEATURES & ~NO_TEX & ~(uint32_t)PT_FEAT_GLOSSY & ~GENERAL_ONLY & ~PARAM_FEATURES)
 #undef VARIANT
 
 /* The most specialised variant whose assumptions the scene meets. */
@@ -2091,6 +2128,10 @@ static void pick_variant(pt_renderer *r, uint32_t features)
         r->li = li_guided;
         r->tile = tile_guided;
         r->variant = "guided";
+    } else if (features & FEAT_CLAMP) {
+        r->li = li_clamped;
+        r->tile = tile_clamped;
+        r->variant = "clamped";
     } else if (features & GENERAL_ONLY) {
         r->li = li_general;
         r->tile = tile_general;
@@ -2157,7 +2198,7 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
         pt_lights_count(r->lights) + others > 0 && params->light_strategy != PT_LIGHT_BSDF_ONLY;
     /* The stage-wide light sampling and the lanes know only triangles. */
     r->nee_n = r->nee && pt_lights_count(r->lights) >= LIGHTS_N_MIN && others == 0;
-    uint32_t features = scene->features | (params->extra_features & ~FEAT_GUIDE);
+    uint32_t features = scene->features | (params->extra_features & ~PARAM_FEATURES);
     r->alpha = (scene->features & PT_FEAT_ALPHA) != 0;
     r->motion = (scene->features & PT_FEAT_MOTION) ? scene->motion : NULL;
     if (params->env)
@@ -2166,11 +2207,13 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
      * Lambert-only scene keeps its variant. */
     if (params->guiding && (features & PT_FEAT_GLOSSY))
         features |= FEAT_GUIDE;
+    if (params->clamp_direct > 0.0f || params->clamp_indirect > 0.0f)
+        features |= FEAT_CLAMP;
     pick_variant(r, features);
     /* Without fast lanes (an x86-64 processor without AVX2 runs shade_lanes'
      * baseline clone, which does the lanes one by one) the per-path shading
      * is faster: docs/bench/throughput.md, "Fourth round". */
-    r->lanes = !(features & (PT_FEAT_GLOSSY | GENERAL_ONLY | FEAT_GUIDE)) &&
+    r->lanes = !(features & (PT_FEAT_GLOSSY | GENERAL_ONLY | PARAM_FEATURES)) &&
                !params->scalar_shading && pt_simd_lanes_fast();
     *out = r;
     return PT_OK;

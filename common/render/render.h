@@ -136,6 +136,12 @@ typedef struct pt_render_params {
                                 still lights the scene through bounces and NEE), so RGB is
                                 premultiplied by the coverage, pt_pixel_acc.hits / n
                                 (Cycles' "film transparent"); default 0 */
+    /* Sample clamping (biased; 0, the default: off), as Cycles' Clamp Direct
+     * and Clamp Indirect: a contribution to a sample whose R + G + B passes
+     * the limit is scaled down to it. Direct: light reaching the camera or
+     * the first surface the camera sees; indirect: after more bounces.
+     * Either non-zero picks the clamped variant (or the guided one). */
+    float clamp_direct, clamp_indirect;
 } pt_render_params;
 
 typedef struct pt_render_stats {
@@ -144,6 +150,7 @@ typedef struct pt_render_stats {
     uint64_t rays;     /* closest-hit + shadow rays traced */
     uint64_t capped;   /* paths ended by max_depth (a hit they could not scatter from),
                           not by Russian roulette, absorption or escape */
+    uint64_t clamped;  /* contributions scaled down by clamp_direct / clamp_indirect */
 } pt_render_stats;
 
 typedef struct pt_renderer pt_renderer;

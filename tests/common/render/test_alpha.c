@@ -136,7 +136,7 @@ static stats render_stats(const pt_scene *s, const pt_env *env, uint32_t strateg
     if (variant)
         *variant = pt_renderer_variant(r);
     pt_pixel_acc acc[4];
-    pt_render_stats st = {0, 0, 0, 0};
+    pt_render_stats st = {0};
     pt_rect all = {0, 0, W, H};
     pt_render_tile(r, all, 0, spp, acc, &st);
     CHECK(st.rejected == 0);
@@ -703,7 +703,7 @@ static void asset(void)
     p.width = W;
     p.height = H;
     p.env = env;
-    pt_render_stats st = {0, 0, 0, 0};
+    pt_render_stats st = {0};
     pt_renderer *r = NULL;
     CHECK(pt_renderer_new(s, &p, &r, NULL) == PT_OK);
     if (r)

@@ -76,7 +76,7 @@ static image_stats render(const pt_scene *s, const pt_env *env, uint32_t spp)
         r.finite = 0;
         return r;
     }
-    pt_render_stats st = {0, 0, 0, 0};
+    pt_render_stats st = {0};
     pt_render_tile(rd, (pt_rect){0, 0, SIDE, SIDE}, 0, spp, acc, &st);
     double sum = 0.0, var = 0.0;
     for (uint32_t i = 0; i < SIDE * SIDE; i++) {

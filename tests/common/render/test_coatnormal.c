@@ -167,7 +167,7 @@ static double render(const pt_scene *s, uint32_t spp, double *se)
     if (!r)
         return NAN;
     pt_pixel_acc acc[4];
-    pt_render_stats st = {0, 0, 0, 0};
+    pt_render_stats st = {0};
     pt_render_tile(r, (pt_rect){0, 0, 2, 2}, 0, spp, acc, &st);
     CHECK(st.rejected == 0);
     double sum = 0.0, sq = 0.0, n = 0.0;

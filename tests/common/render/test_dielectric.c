@@ -526,7 +526,7 @@ static image_stats render_stats(const pt_scene *s, const pt_env *env, uint32_t w
     CHECK(strcmp(pt_renderer_variant(r), "general") == 0);
     double sum[3] = {0, 0, 0}, sq[3] = {0, 0, 0};
     uint64_t n = 0;
-    pt_render_stats st = {0, 0, 0, 0};
+    pt_render_stats st = {0};
     for (uint32_t y = 0; y < w; y++)
         for (uint32_t x = 0; x < w; x++)
             for (uint32_t i = 0; i < spp; i++) {
@@ -905,7 +905,7 @@ static void shared_assets(void)
         CHECKF(pt_renderer_new(s, &p, &r, &err) == PT_OK, "%s", err.msg);
         if (r) {
             pt_pixel_acc acc[24 * 24];
-            pt_render_stats st = {0, 0, 0, 0};
+            pt_render_stats st = {0};
             pt_rect all = {0, 0, 24, 24};
             pt_render_tile(r, all, 0, 8, acc, &st);
             CHECKF(st.rejected == 0, "%s: %llu NaN/Inf samples", names[i],

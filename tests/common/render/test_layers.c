@@ -287,7 +287,7 @@ static void asset(const char *rel, uint32_t want)
     CHECKF(pt_renderer_new(s, &rp, &rd, &err) == PT_OK, "%s", err.msg);
     pt_pixel_acc *acc = pt_malloc_array(32u * 32u, sizeof *acc);
     if (rd && acc) {
-        pt_render_stats st = {0, 0, 0, 0};
+        pt_render_stats st = {0};
         pt_render_tile(rd, (pt_rect){0, 0, 32, 32}, 0, 8, acc, &st);
         int finite = 1;
         double sum = 0.0;

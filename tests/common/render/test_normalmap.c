@@ -171,7 +171,7 @@ static pt_vec3 render_plane(const pt_scene *s)
         return mean;
     CHECK(strcmp(pt_renderer_variant(r), "general") == 0);
     pt_pixel_acc acc[4];
-    pt_render_stats st = {0, 0, 0, 0};
+    pt_render_stats st = {0};
     pt_rect all = {0, 0, 2, 2};
     pt_render_tile(r, all, 0, 16, acc, &st);
     CHECK(st.rejected == 0);
@@ -457,7 +457,7 @@ static void furnace(int metal)
     uint32_t np = p.width * p.height, spp = 256;
     pt_pixel_acc *acc = pt_malloc_array(np, sizeof *acc);
     if (r && acc) {
-        pt_render_stats st = {0, 0, 0, 0};
+        pt_render_stats st = {0};
         pt_rect all = {0, 0, p.width, p.height};
         pt_render_tile(r, all, 0, spp, acc, &st);
         CHECKF(st.rejected == 0, "%llu NaN/Inf samples", (unsigned long long)st.rejected);
@@ -585,7 +585,7 @@ static void render_est(const pt_scene *s, uint32_t strategy, est *e)
     CHECKF(pt_renderer_new(s, &p, &r, &err) == PT_OK, "%s", err.msg);
     if (!r)
         return;
-    pt_render_stats st = {0, 0, 0, 0};
+    pt_render_stats st = {0};
     for (uint32_t y = 0; y < W_RES; y++)
         for (uint32_t x = 0; x < W_RES; x++) {
             uint32_t blk = (y * W_BLOCKS / W_RES) * W_BLOCKS + x * W_BLOCKS / W_RES;
