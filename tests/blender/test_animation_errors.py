@@ -1,0 +1,92 @@
+"""'Render animation on ptfarm' and the failures a user meets.
+
+An animation of 3 frames (the ball keyframed across the floor, frames 1 to
+3) comes back as 3 EXRs loaded as one image sequence, frame F bit-identical
+to ptworker --frame F on the exported glTF (so the order is right), and the
+three frames differ. Then each failure gives one readable sentence in
+Blender, as the operator's error report and in the panel, not a traceback:
+a wrong token, no coordinator, a job the queue refuses, no active camera;
+and a scene feature the export drops is named in a warning.
+"""
+import json
+import os
+import sys
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import bpy  # noqa: E402
+import farmtest as t  # noqa: E402
+
+t.install_addon()
+scene = t.plane_sphere_scene(res=(48, 32))
+ball = scene.objects["Ball"]
+scene.frame_start, scene.frame_end, scene.render.fps = 1, 3, 24
+for f, x in ((1, -1.5), (2, 0.0), (3, 1.5)):
+    ball.location.x = x
+    ball.keyframe_insert("location", frame=f)
+scene.frame_set(1)
+s = scene.ptfarm
+s.spp = 8
+
+ok, msg = t.call_operator(bpy.ops.ptfarm.render_animation)
+t.check(ok, "Render animation on ptfarm finishes (%s)" % (msg or s.status))
+img = bpy.data.images.get(s.last_image)
+t.check(img is not None and img.source == "SEQUENCE",
+        "the frames are loaded as an image sequence '%s'" % s.last_image)
+base = os.path.join(s.output_dir, scene.name)
+job = json.load(open(base + ".job.json"))
+t.check(job["frames"] == [1, 2, 3], "the job is the timeline's frames 1-3")
+t.check("--frames" in job["args"] and job["args"][job["args"].index("--frames") + 1] == "1-3:1",
+        "submitted as --frames 1-3:1")
+files = ["%s_job%d.%04d.exr" % (base, s.last_job, f) for f in (1, 2, 3)]
+t.check(all(os.path.isfile(f) for f in files), "3 EXRs came back: %s" % [
+    os.path.basename(f) for f in files])
+t.check(bpy.path.abspath(img.filepath) == files[0], "the sequence starts at frame 1's file")
+for f, path in zip((1, 2, 3), files):
+    ref = os.path.join(t.TMP, "ref.%d.exr" % f)
+    t.ptworker(job["scene"], job["args"], ref, extra=("--frame", str(f), "--fps", "24"))
+    t.check(t.same_exr(ref, path), "frame %d is ptworker --frame %d, bit for bit" % (f, f))
+t.check(not t.same_exr(files[0], files[2]), "frames 1 and 3 differ (the ball moved)")
+
+# Failures: one sentence each, no traceback.
+good_token, good_server = s.token_file, s.server
+
+
+def fails(op, words, what):
+    ok, msg = t.call_operator(op)
+    shown = s.error
+    t.check(not ok and all(w in msg for w in words) and "Traceback" not in msg and
+            shown and "Traceback" not in shown,
+            "%s: '%s'" % (what, shown))
+
+
+bad = os.path.join(t.TMP, "wrong.token")
+with open(bad, "w") as f:
+    f.write("this is not the farm's token at all\n")
+os.chmod(bad, 0o600)
+s.token_file = bad
+fails(bpy.ops.ptfarm.render_frame, ["refused the token"], "a wrong token")
+s.token_file = good_token
+
+s.server = "127.0.0.1:1"
+fails(bpy.ops.ptfarm.render_frame, ["no coordinator answers at 127.0.0.1:1"], "no coordinator")
+s.server = good_server
+
+s.spp = 60000  # over run.sh's ptserve --max-spp 4096
+fails(bpy.ops.ptfarm.render_frame, ["4096"], "a job the queue refuses")
+s.spp = 8
+
+s.token_file = os.path.join(t.TMP, "no_such.token")
+fails(bpy.ops.ptfarm.render_frame, ["token file", "does not exist"], "a missing token file")
+s.token_file = good_token
+
+cam = scene.camera
+scene.camera = None
+fails(bpy.ops.ptfarm.render_frame, ["no active camera"], "no active camera")
+scene.camera = cam
+
+# A feature the export drops is named, and the render still goes.
+t.add_light("AREA", "Softbox", 50.0, (0.0, 2.0, 2.0))
+ok, msg = t.call_operator(bpy.ops.ptfarm.render_frame)
+t.check(ok and "light 'Softbox': area lights are not exported" in s.warnings,
+        "a dropped area light is named: '%s'" % s.warnings)
+t.finish()
