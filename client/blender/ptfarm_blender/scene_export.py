@@ -190,7 +190,10 @@ def world_options(scene, folder, warn):
         return []
     rotate = _env_rotation(tex, warn)
     path = _env_file(tex.image, folder)
-    return ["--env", path, "--env-strength", "%.9g" % strength, "--env-rotate", "%.9g" % rotate]
+    # 1e-4 degree is far finer than a texel of any map; it keeps -60, not
+    # -59.9999992 from a rotation stored in radians as a float.
+    return ["--env", path, "--env-strength", "%.9g" % strength, "--env-rotate",
+            "%.9g" % round(rotate, 4)]
 
 
 def _background(c, strength):
@@ -208,9 +211,10 @@ def _env_rotation(tex, warn):
     ptfarm at u = 1/2 + (atan2(x, -z) - rotate) / (2 pi) in glTF's axes
     (common/render/env.h), where x = X, y = Z, z = -Y. So atan2(x, -z) =
     atan2(Y, -X) - 90 degrees, and a map with no Mapping node is rotated
-    -90 degrees. A Mapping node (type Point) turning the lookup vector by
-    theta about Z subtracts theta from Blender's u, which ptfarm's rotate
-    adds: rotate = theta - 90 degrees.
+    -90 degrees. A Mapping node (type Point) with a rotation theta about Z
+    turns the sky the other way, as Cycles renders it: rotate = -theta -
+    90 degrees (tests/blender/test_world_env.py compares the farm's image
+    with Cycles' for theta = 30 degrees, where theta - 90 is 0.6 off).
     """
     theta = 0.0
     vec = tex.inputs["Vector"]
@@ -230,7 +234,7 @@ def _env_rotation(tex, warn):
         if not ok:
             warn.append("world: only a Mapping node's rotation about Z is sent (the map's "
                         "other mapping is dropped)")
-    return theta - 90.0
+    return -theta - 90.0
 
 
 def _env_file(image, folder):
