@@ -99,8 +99,9 @@ def plane_sphere_scene(res=(64, 48)):
     add_mesh(bpy.ops.mesh.primitive_plane_add, "Floor", principled("floor", (0.7, 0.7, 0.7)),
              size=6.0)
     add_mesh(bpy.ops.mesh.primitive_uv_sphere_add, "Ball", principled("ball", (0.8, 0.2, 0.1)),
-             radius=0.7, location=(0, 0, 0.7), segments=24, ring_count=12)
-    add_light("POINT", "Lamp", 800.0, (1.5, -1.0, 3.0))
+             radius=0.7, location=(0, 0, 0.7), segments=32, ring_count=16)
+    bpy.ops.object.shade_smooth()
+    add_light("POINT", "Lamp", 300.0, (1.5, -1.0, 3.0))
     add_camera("Cam", (4.0, -4.0, 3.0), (0, 0, 0.5))
     scene.render.resolution_x, scene.render.resolution_y = res
     scene.render.resolution_percentage = 100

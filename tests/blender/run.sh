@@ -6,8 +6,10 @@
 # scratch folder, the bin folder and the source folder. Blender runs with
 # --factory-startup and its own user folders under the scratch folder, so
 # the add-on is installed as a user installs it and nothing of the user's
-# is read or changed. Exit 77 (skipped) only where Blender is not
-# installed and the test is not in CI (deploy/setup.sh installs it).
+# is read or changed. A test_ui_*.py runs with Blender's window under Xvfb.
+# Exit 77 (skipped) only where Blender is not
+# installed (or Xvfb, for a window) and the test is not in CI
+# (deploy/setup.sh installs both).
 set -euo pipefail
 bin=${PT_BIN:?}
 src=${PT_SOURCE_DIR:?}
@@ -19,6 +21,14 @@ if ! command -v "$blender" > /dev/null; then
     exit 1
   fi
   echo "skipped: no '$blender' (deploy/setup.sh installs Blender)"
+  exit 77
+fi
+if [[ $1 == test_ui_* ]] && ! command -v xvfb-run > /dev/null; then
+  if [ "${CI:-}" = true ]; then
+    echo "FAIL: no xvfb-run (deploy/setup.sh installs xvfb)" >&2
+    exit 1
+  fi
+  echo "skipped: no xvfb-run for Blender's window (deploy/setup.sh installs xvfb)"
   exit 77
 fi
 tmp=$(mktemp -d /tmp/pt_blender_XXXXXX)
@@ -45,11 +55,22 @@ if ! [ -s "$tmp/port" ]; then
 fi
 
 mkdir -p "$tmp/user/scripts" "$tmp/user/config"
+export PYTHONDONTWRITEBYTECODE=1 PATH="$bin:$PATH" BLENDER_USER_SCRIPTS="$tmp/user/scripts"
+export BLENDER_USER_CONFIG="$tmp/user/config"
+args=("127.0.0.1:$(cat "$tmp/port")" "$tmp/farm.token" "$tmp" "$bin" "$src")
 start=$(date +%s.%N)
 set +e
-PYTHONDONTWRITEBYTECODE=1 PATH="$bin:$PATH" BLENDER_USER_SCRIPTS="$tmp/user/scripts" BLENDER_USER_CONFIG="$tmp/user/config" \
-  "$blender" -b --factory-startup --python-exit-code 1 --python "$script" -- \
-  "127.0.0.1:$(cat "$tmp/port")" "$tmp/farm.token" "$tmp" "$bin" "$src" > "$tmp/blender.log" 2>&1
+if [[ $1 == test_ui_* ]]; then
+  # With its window, under a virtual display: Blender opens a file given on
+  # the command line without its splash screen.
+  "$blender" -b --factory-startup --python-expr \
+    "import bpy; bpy.ops.wm.save_as_mainfile(filepath='$tmp/start.blend')" > "$tmp/start.log" 2>&1
+  timeout 300 xvfb-run -a -s "-screen 0 1280x800x24" "$blender" --factory-startup "$tmp/start.blend" \
+    --python "$script" -- "${args[@]}" > "$tmp/blender.log" 2>&1
+else
+  "$blender" -b --factory-startup --python-exit-code 1 --python "$script" -- "${args[@]}" \
+    > "$tmp/blender.log" 2>&1
+fi
 rc=$?
 set -e
 end=$(date +%s.%N)

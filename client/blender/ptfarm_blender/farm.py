@@ -208,6 +208,8 @@ class FarmJob:
         msg = "job %d %s" % (job, state)
         if state == "queued" and st.get("queue_position"):
             msg += ", %d ahead" % st["queue_position"]
+        elif state == "done":
+            msg += ", fetching the image%s" % ("s" if self.frames else "")
         elif state == "running":
             msg += " %d%%, %d worker%s" % (progress * 100, st.get("workers", 0),
                                            "" if st.get("workers") == 1 else "s")
