@@ -3,7 +3,7 @@
 as the button does, and the job followed without blocking: the operator
 returns at once with no image yet, the timer's progress reaches the panel,
 and the image is loaded when the job ends; then Blender's own screenshot
-operator takes the window (the README's picture: PT_SCREENSHOT names a
+operator takes the window (the README's picture: PT_SCREENSHOT_OUT names a
 copy to keep). Driven by a timer, as the event loop runs only once this
 script has returned; any failure ends Blender with exit status 1.
 """
@@ -117,8 +117,8 @@ def advance():
     bpy.ops.screen.screenshot(filepath=SHOT)
     shot = bpy.data.images.load(SHOT)
     t.check(tuple(shot.size) == (1280, 800), "Blender's screenshot operator took the window")
-    if os.environ.get("PT_SCREENSHOT"):
-        keep_left(shot, 1057, os.environ["PT_SCREENSHOT"])
+    if os.environ.get("PT_SCREENSHOT_OUT"):
+        keep_left(shot, 1057, os.environ["PT_SCREENSHOT_OUT"])
     t.finish()
     bpy.ops.wm.quit_blender()
     return None
