@@ -138,7 +138,7 @@ def mean_rgb(img, box=None):
 def ptworker(scene, args, out, extra=()):
     """ptworker --scene with a job's ptctl submit options (those ptworker
     takes), the queue's tile and chunk."""
-    keep, skip = [], {"--priority", "--name", "--frames", "--fps", "--animation"}
+    keep, skip = [], {"--priority", "--name", "--frames", "--fps"}
     i = 0
     while i < len(args):
         if args[i] in skip:

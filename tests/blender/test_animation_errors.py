@@ -1,16 +1,19 @@
 """'Render animation on ptfarm' and the failures a user meets.
 
-An animation of 3 frames (the ball keyframed across the floor, frames 1 to
-3) comes back as 3 EXRs loaded as one image sequence, frame F bit-identical
+An animation of 3 frames (the ball and the lamp keyframed, each by an
+action of its own, frames 1 to 3) comes back as 3 EXRs loaded as one image sequence, frame F bit-identical
 to ptworker --frame F on the exported glTF (so the order is right), and the
 three frames differ. Then each failure gives one readable sentence in
 Blender, as the operator's error report and in the panel, not a traceback:
-a wrong token, no coordinator, a job the queue refuses, no active camera;
+a wrong token, no coordinator, a job the queue refuses, no active camera,
+no ptctl; a job cancelled ends cancelled on the farm;
 and a scene feature the export drops is named in a warning.
 """
 import json
 import os
+import subprocess
 import sys
+import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import bpy  # noqa: E402
@@ -20,9 +23,12 @@ t.install_addon()
 scene = t.plane_sphere_scene(res=(48, 32))
 ball = scene.objects["Ball"]
 scene.frame_start, scene.frame_end, scene.render.fps = 1, 3, 24
+lamp = scene.objects["Lamp"]
 for f, x in ((1, -1.5), (2, 0.0), (3, 1.5)):
     ball.location.x = x
     ball.keyframe_insert("location", frame=f)
+    lamp.location.y = x  # a second object's action: both must play
+    lamp.keyframe_insert("location", frame=f)
 scene.frame_set(1)
 s = scene.ptfarm
 s.spp = 8
@@ -46,6 +52,16 @@ for f, path in zip((1, 2, 3), files):
     t.ptworker(job["scene"], job["args"], ref, extra=("--frame", str(f), "--fps", "24"))
     t.check(t.same_exr(ref, path), "frame %d is ptworker --frame %d, bit for bit" % (f, f))
 t.check(not t.same_exr(files[0], files[2]), "frames 1 and 3 differ (the ball moved)")
+# The lamp's move shows too: frame 3 against a render where only the ball moved.
+only_ball = os.path.join(t.TMP, "only_ball.exr")
+lamp.animation_data_clear()
+lamp.location.y = -1.0
+bpy.ops.ptfarm.render_animation()
+still_lamp = "%s_job%d.%04d.exr" % (base, s.last_job, 3)
+t.check(not t.same_exr(still_lamp, files[2]), "the lamp's own action played in the range")
+for f, x in ((1, -1.5), (2, 0.0), (3, 1.5)):
+    lamp.location.y = x
+    lamp.keyframe_insert("location", frame=f)
 
 # Failures: one sentence each, no traceback.
 good_token, good_server = s.token_file, s.server
@@ -83,6 +99,30 @@ cam = scene.camera
 scene.camera = None
 fails(bpy.ops.ptfarm.render_frame, ["no active camera"], "no active camera")
 scene.camera = cam
+
+prefs = bpy.context.preferences.addons["ptfarm_blender"].preferences
+prefs.ptctl_path = os.path.join(t.TMP, "no", "ptctl")
+fails(bpy.ops.ptfarm.render_frame, ["ptctl not found at"], "no ptctl")
+prefs.ptctl_path = os.path.join(t.BIN, "ptctl")
+
+# Cancel: the job the Cancel button stops (FarmJob.cancel, from another
+# thread here) ends cancelled on the farm, and says so.
+from ptfarm_blender import farm  # noqa: E402
+job = farm.FarmJob(prefs.ptctl_path, s.server, s.token_file, job["scene"],
+                   ["--res", "400x300", "--spp", "4096"], None,
+                   lambda f: os.path.join(t.TMP, "never.exr"))
+job.start()
+while job.snapshot()["job"] is None and not job.snapshot()["done"]:
+    time.sleep(0.05)
+job.cancel()
+while not job.snapshot()["done"]:
+    time.sleep(0.05)
+snap = job.snapshot()
+st = subprocess.run([prefs.ptctl_path, "--server", s.server, "--token-file", s.token_file,
+                     "status", str(snap["job"]), "--json"], stdout=subprocess.PIPE, text=True)
+t.check(snap["error"] == "job %d cancelled" % snap["job"] and
+        json.loads(st.stdout)["state"] == "cancelled" and not snap["fetched"],
+        "a cancelled job ends cancelled on the farm: '%s'" % snap["error"])
 
 # A feature the export drops is named, and the render still goes.
 t.add_light("AREA", "Softbox", 50.0, (0.0, 2.0, 2.0))

@@ -1,7 +1,8 @@
 """Light units: what the add-on sends the farm lights a surface as Blender's
 Cycles does. A Lambert-like plane (Principled BSDF, specular 0, roughness
 1) under a point light of known power, a spot light of the same power,
-then under a sun of known strength, seen straight down by an orthographic camera, is rendered by the
+then under a sun of known strength, and lit by nothing but its own
+emission, seen straight down by an orthographic camera, is rendered by the
 farm through "Render frame on ptfarm" and by Cycles in this test; the two
 images' means must agree within 2 % (the issue's bound), and each must
 agree with the closed form.
@@ -9,7 +10,8 @@ agree with the closed form.
 The closed form: a point light of power P at height h gives the radiant
 intensity I = P / (4 pi) (Cycles' convention, scene_export.py), so the
 plane at (x, y) has radiance L = rho / pi * I * h / r^3, r^2 = x^2 + y^2 +
-h^2; a sun of strength S straight down gives L = rho / pi * S. Cycles'
+h^2; a sun of strength S straight down gives L = rho / pi * S; an
+emission colour C at strength k gives L = k C. Cycles'
 Principled diffuse is Disney's, rho / pi times retro-reflection factors
 (1 + (F_D90 - 1)(1 - cos)^5) that are 1 for a view straight down and below
 1e-6 off 1 for light at most 20 degrees off the normal, as here.
@@ -126,4 +128,23 @@ print("note sun %g W/m^2: farm %.6f, Cycles %.6f, closed form %.6f" % (S, farm, 
 t.check(abs(farm / cyc - 1) < 0.02, "sun: farm / Cycles = %.4f (within 2 %%)" % (farm / cyc))
 t.check(abs(farm / want - 1) < 0.02, "sun: farm / closed form = %.4f" % (farm / want))
 t.check(abs(cyc / want - 1) < 0.02, "sun: Cycles / closed form = %.4f" % (cyc / want))
+
+# Emission: the plane itself glows (Principled Emission x Emission Strength,
+# written as emissiveFactor and KHR_materials_emissive_strength), no light:
+# radiance is the colour times the strength in both renderers.
+bpy.data.objects.remove(sun)
+bsdf = bpy.data.materials["lambert"].node_tree.nodes["Principled BSDF"]
+bsdf.inputs["Emission"].default_value = (0.5, 0.25, 1.0, 1.0)
+bsdf.inputs["Emission Strength"].default_value = 4.0
+ok, msg = t.call_operator(bpy.ops.ptfarm.render_frame)
+t.check(ok, "emission: the farm renders (%s)" % (msg or s.status))
+farm = t.mean_rgb(bpy.data.images[s.last_image])
+scene.render.filepath = os.path.join(t.TMP, "cycles_emission.exr")
+bpy.ops.render.render(write_still=True)
+cyc = t.mean_rgb(bpy.data.images.load(scene.render.filepath, check_existing=False))
+print("note emission 4 x (0.5, 0.25, 1): farm %s, Cycles %s" % (farm, cyc))
+for c, want in enumerate((2.0, 1.0, 4.0)):
+    t.check(abs(farm[c] / cyc[c] - 1) < 0.02 and abs(farm[c] / want - 1) < 0.02,
+            "emission, channel %d: farm %.5f, Cycles %.5f, closed form %g" % (
+                c, farm[c], cyc[c], want))
 t.finish()
