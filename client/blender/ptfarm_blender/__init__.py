@@ -227,7 +227,8 @@ class _RenderOnFarm:
             return {"FINISHED"}
         job_holder.start()
         settings.status = "submitting"
-        bpy.app.timers.register(_poll_timer, first_interval=0.1)
+        # persistent: a .blend opened meanwhile must not strand the job.
+        bpy.app.timers.register(_poll_timer, first_interval=0.1, persistent=True)
         _active["timer"] = True
         return {"FINISHED"}
 
