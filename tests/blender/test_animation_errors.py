@@ -1,10 +1,11 @@
 """'Render animation on ptfarm' and the failures a user meets.
 
 An animation of 3 frames (the ball and the lamp keyframed, each by an
-action of its own, frames 1 to 3) comes back as 3 EXRs loaded as one image sequence, frame F bit-identical
-to ptworker --frame F on the exported glTF (so the order is right), and the
-three frames differ. Then each failure gives one readable sentence in
-Blender, as the operator's error report and in the panel, not a traceback:
+action of its own, frames 1 to 3) comes back as 3 EXRs loaded as one image
+sequence, frame F bit-identical to ptworker --frame F on the exported glTF
+(so the order is right), and the three frames differ. Then each failure
+gives one readable sentence in Blender, as the operator's error report and
+in the panel, not a traceback:
 a wrong token, no coordinator, a job the queue refuses, no active camera,
 no ptctl; a job cancelled ends cancelled on the farm;
 and a scene feature the export drops is named in a warning.

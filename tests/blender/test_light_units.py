@@ -88,7 +88,8 @@ farm, cyc = farm_and_cycles("point")
 want = closed_form_point()
 print("note point light %g W at %g m: farm %.6f, Cycles %.6f, closed form %.6f" % (
     P, H, farm, cyc, want))
-t.check(abs(farm / cyc - 1) < 0.02, "point light: farm / Cycles = %.4f (within 2 %%)" % (farm / cyc))
+t.check(abs(farm / cyc - 1) < 0.02,
+        "point light: farm / Cycles = %.4f (within 2 %%)" % (farm / cyc))
 t.check(abs(farm / want - 1) < 0.02, "point light: farm / closed form = %.4f" % (farm / want))
 t.check(abs(cyc / want - 1) < 0.02, "point light: Cycles / closed form = %.4f" % (cyc / want))
 
