@@ -4,10 +4,13 @@ as the button does, and the job followed without blocking: the operator
 returns at once with no image yet, the timer's progress reaches the panel,
 and the image is loaded when the job ends; then Blender's own screenshot
 operator takes the window (the README's picture: PT_SCREENSHOT_OUT names a
-copy to keep). Driven by a timer, as the event loop runs only once this
+copy to keep). Then "Render animation on ptfarm" the same way: 3 frames
+come back as an image sequence (PT_CONTACT_SHEET_OUT keeps them side by
+side, through ptcontact-sheet). Driven by a timer, as the event loop runs only once this
 script has returned; any failure ends Blender with exit status 1.
 """
 import os
+import subprocess
 import sys
 import time
 import traceback
@@ -114,11 +117,37 @@ def advance():
             for _ in range(8):
                 bpy.ops.view2d.scroll_down(deltay=400)
         return 0.5
-    bpy.ops.screen.screenshot(filepath=SHOT)
-    shot = bpy.data.images.load(SHOT)
-    t.check(tuple(shot.size) == (1280, 800), "Blender's screenshot operator took the window")
-    if os.environ.get("PT_SCREENSHOT_OUT"):
-        keep_left(shot, 1057, os.environ["PT_SCREENSHOT_OUT"])
+    if n == 101:
+        bpy.ops.screen.screenshot(filepath=SHOT)
+        shot = bpy.data.images.load(SHOT)
+        t.check(tuple(shot.size) == (1280, 800), "Blender's screenshot operator took the window")
+        if os.environ.get("PT_SCREENSHOT_OUT"):
+            keep_left(shot, 1057, os.environ["PT_SCREENSHOT_OUT"])
+        # Then the other button: the ball rolls over frames 1 to 3.
+        ball = scene.objects["Ball"]
+        scene.frame_start, scene.frame_end = 1, 3
+        for f, x in ((1, -1.2), (2, 0.0), (3, 1.2)):
+            ball.location.x = x
+            ball.keyframe_insert("location", frame=f)
+        scene.frame_set(1)
+        s.spp = 16
+        state["first"] = s.last_job
+        win, props = areas("PROPERTIES")
+        with bpy.context.temp_override(window=win, area=props[0]):
+            ok = bpy.ops.ptfarm.render_animation()
+        t.check("FINISHED" in ok and s.last_job == state["first"],
+                "Render animation returns before the job is back")
+        state["pressed"] = time.monotonic()
+        return 0.1
+    t.check(not s.error, "the animation job succeeds (%s)" % s.status)
+    img = bpy.data.images.get(s.last_image)
+    t.check(s.last_job != state["first"] and img is not None and img.source == "SEQUENCE",
+            "the timer loaded the frames as an image sequence '%s'" % s.last_image)
+    frames = [bpy.path.abspath(img.filepath).replace(".0001.", ".%04d." % f) for f in (1, 2, 3)]
+    t.check(all(os.path.isfile(f) for f in frames), "its 3 frames are on disk")
+    if os.environ.get("PT_CONTACT_SHEET_OUT"):
+        subprocess.run([os.path.join(t.BIN, "ptcontact-sheet"), "-o",
+                        os.environ["PT_CONTACT_SHEET_OUT"], "--cols", "3", *frames], check=True)
     t.finish()
     bpy.ops.wm.quit_blender()
     return None
