@@ -125,9 +125,18 @@ t.check(snap["error"] == "job %d cancelled" % snap["job"] and
         json.loads(st.stdout)["state"] == "cancelled" and not snap["fetched"],
         "a cancelled job ends cancelled on the farm: '%s'" % snap["error"])
 
-# A feature the export drops is named, and the render still goes.
+# Features the export drops are named, and the render still goes.
 t.add_light("AREA", "Softbox", 50.0, (0.0, 2.0, 2.0))
+velvet = bpy.data.materials.new("velvet")
+velvet.use_nodes = True
+nodes = velvet.node_tree.nodes
+nodes.remove(nodes["Principled BSDF"])
+diffuse = nodes.new("ShaderNodeBsdfDiffuse")
+velvet.node_tree.links.new(diffuse.outputs["BSDF"], nodes["Material Output"].inputs["Surface"])
+scene.objects["Floor"].data.materials[0] = velvet
 ok, msg = t.call_operator(bpy.ops.ptfarm.render_frame)
 t.check(ok and "light 'Softbox': area lights are not exported" in s.warnings,
-        "a dropped area light is named: '%s'" % s.warnings)
+        "a dropped area light is named: '%s'" % s.warnings.splitlines()[0])
+t.check("material 'velvet': its Diffuse BSDF shader is not exported" in s.warnings,
+        "a shader the exporter does not read is named: '%s'" % s.warnings.splitlines()[-1])
 t.finish()

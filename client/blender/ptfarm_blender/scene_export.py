@@ -129,7 +129,7 @@ def check_scene(scene):
             if ps.settings.type == "HAIR" and ps.settings.render_type == "PATH":
                 warn.append("object '%s': hair particles ('%s') are not exported" % (
                     obj.name, ps.name))
-        if obj.type == "MESH":
+        if obj.type in ("MESH", "CURVE", "SURFACE", "FONT"):
             for slot in obj.material_slots:
                 mat = slot.material
                 if mat is None or not mat.use_nodes:
