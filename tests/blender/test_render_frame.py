@@ -14,6 +14,8 @@ import farmtest as t  # noqa: E402
 
 t.install_addon()
 scene = t.plane_sphere_scene(res=(64, 48))
+# A job name over ptctl's 64 bytes, in characters of 2 bytes: cut to fit.
+scene.ptfarm.job_name = "Kugel über dem Boden, " * 4
 ok, msg = t.call_operator(bpy.ops.ptfarm.render_frame)
 t.check(ok, "Render frame on ptfarm finishes (%s)" % (msg or scene.ptfarm.status))
 s = scene.ptfarm
@@ -26,6 +28,9 @@ base = os.path.splitext(os.path.join(s.output_dir, scene.name + ".glb"))[0]
 job = json.load(open(base + ".job.json"))
 t.check("--camera" in job["args"] and job["args"][job["args"].index("--camera") + 1] == "Cam",
         "the active camera is the job's camera")
+name = job["args"][job["args"].index("--name") + 1]
+t.check(len(name.encode()) <= 64 and name.startswith("Kugel über"),
+        "the job's name is cut to 64 bytes: '%s'" % name)
 ref = os.path.join(t.TMP, "ref.exr")
 t.ptworker(job["scene"], job["args"], ref)
 t.check(t.same_exr(ref, exr), "the farm's image is bit-identical to ptworker --scene")

@@ -344,6 +344,12 @@ def _last_line(text):
     return said
 
 
+def _job_name(name):
+    """At most 64 bytes of UTF-8 (ptctl submit --name's limit), cut between
+    characters."""
+    return name.encode("utf-8")[:64].decode("utf-8", "ignore")
+
+
 def export(scene, folder, animation, settings):
     """Exports scene to folder/NAME.glb and returns an Export.
 
@@ -397,7 +403,7 @@ def export(scene, folder, animation, settings):
     w, h = resolution(scene)
     args = ["--res", "%dx%d" % (w, h), "--spp", str(settings.spp), "--seed", str(settings.seed),
             "--priority", str(settings.priority), "--camera", cam.name,
-            "--name", (settings.job_name or scene.name)[:64]]
+            "--name", _job_name(settings.job_name or scene.name)]
     cycles = getattr(scene, "cycles", None)
     if settings.use_bounce_cap and cycles is not None:
         args += ["--max-depth", str(int(cycles.max_bounces))]
