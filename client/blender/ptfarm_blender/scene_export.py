@@ -150,6 +150,14 @@ def check_scene(scene):
             warn.append("camera '%s': depth of field is not rendered by the farm" % cam.name)
     if scene.render.use_motion_blur:
         warn.append("motion blur is not sent to the farm")
+    if scene.render.use_border:
+        warn.append("the render region is not sent: the farm renders the whole frame")
+    if scene.render.use_multiview:
+        warn.append("stereoscopy is not sent: the farm renders the active camera alone")
+    cycles = getattr(scene, "cycles", None)
+    if cycles is not None and abs(getattr(cycles, "film_exposure", 1.0) - 1.0) > 1e-6:
+        warn.append("Film > Exposure (%g) is not applied: the farm's EXR is the scene's "
+                    "radiance" % cycles.film_exposure)
     return sorted(set(warn))
 
 
