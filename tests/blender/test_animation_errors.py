@@ -7,7 +7,7 @@ sequence, frame F bit-identical to ptworker --frame F on the exported glTF
 gives one readable sentence in Blender, as the operator's error report and
 in the panel, not a traceback:
 a wrong token, no coordinator, a job the queue refuses, no active camera,
-no ptctl; a job cancelled ends cancelled on the farm;
+no ptctl, an output folder that cannot be made; a job cancelled ends cancelled on the farm;
 and a scene feature the export drops is named in a warning.
 """
 import json
@@ -95,6 +95,12 @@ s.spp = 8
 s.token_file = os.path.join(t.TMP, "no_such.token")
 fails(bpy.ops.ptfarm.render_frame, ["token file", "does not exist"], "a missing token file")
 s.token_file = good_token
+
+out = s.output_dir
+s.output_dir = "/proc/ptfarm/"
+fails(bpy.ops.ptfarm.render_frame, ["cannot create the output folder '/proc/ptfarm'"],
+      "an output folder that cannot be made")
+s.output_dir = out
 
 cam = scene.camera
 scene.camera = None

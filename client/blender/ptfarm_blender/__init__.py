@@ -33,7 +33,7 @@ bl_info = {
 }
 
 # The job being followed (one at a time) and what it is for.
-_active = {"job": None, "scene": None, "export": None, "loaded": set(), "timer": False}
+_active = {"job": None, "scene": None, "export": None, "loaded": set()}
 
 
 class PtfarmPreferences(bpy.types.AddonPreferences):
@@ -159,7 +159,6 @@ def _poll_timer():
     if s["done"]:
         _status_bar(None)
         _active["job"] = None
-        _active["timer"] = False
         if s["error"]:
             def draw(menu, _context):
                 menu.layout.label(text=s["error"])
@@ -195,13 +194,24 @@ class _RenderOnFarm:
                 raise scene_export.ExportError("frame %d: the farm numbers frames from 0" %
                                                scene.frame_start)
             folder = _output_folder(scene)
+            try:
+                os.makedirs(folder, exist_ok=True)
+            except OSError as e:
+                raise farm.FarmError("cannot create the output folder '%s': %s" % (
+                    folder, e.strerror or e))
             exp = scene_export.export(scene, folder, self.animation, settings)
+            base = os.path.splitext(exp.path)[0]
+            # The exact submit, for whoever wants to reproduce the render.
+            with open(base + ".job.json", "w") as f:
+                json.dump({"scene": exp.path, "args": exp.args, "frames": exp.frames,
+                           "warnings": exp.warnings}, f, indent=1)
         except (farm.FarmError, scene_export.ExportError) as e:
             return self._fail(settings, str(e))
+        except OSError as e:
+            return self._fail(settings, "cannot write in the output folder: %s" % e)
         settings.warnings = "\n".join(exp.warnings)
         for w in exp.warnings:
             self.report({"WARNING"}, "ptfarm: " + w)
-        base = os.path.splitext(exp.path)[0]
 
         def out_path(frame):
             job = job_holder.snapshot()["job"]
@@ -211,10 +221,6 @@ class _RenderOnFarm:
 
         job_holder = farm.FarmJob(ptctl, settings.server, token, exp.path, exp.args, exp.frames,
                                   out_path)
-        # The exact submit, for whoever wants to reproduce the render.
-        with open(base + ".job.json", "w") as f:
-            json.dump({"scene": exp.path, "args": exp.args, "frames": exp.frames,
-                       "warnings": exp.warnings}, f, indent=1)
         _active.update(job=job_holder, scene=scene, export=exp, loaded=set())
         if bpy.app.background:
             # No event loop to drive a timer: wait here.
@@ -229,7 +235,6 @@ class _RenderOnFarm:
         settings.status = "submitting"
         # persistent: a .blend opened meanwhile must not strand the job.
         bpy.app.timers.register(_poll_timer, first_interval=0.1, persistent=True)
-        _active["timer"] = True
         return {"FINISHED"}
 
     def _fail(self, settings, message):
