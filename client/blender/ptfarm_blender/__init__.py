@@ -130,7 +130,12 @@ def _finish(scene, job, exp):
     settings = scene.ptfarm
     settings.last_job = s["job"] or 0
     settings.progress = s["progress"]
-    img = _load(scene, s["job"] or 0, s["fetched"], exp.frames)
+    try:
+        img = _load(scene, s["job"] or 0, s["fetched"], exp.frames)
+    except (RuntimeError, OSError) as e:  # an EXR Blender cannot read
+        img = None
+        if not s["error"]:
+            s["error"] = "Blender cannot load the image: %s" % str(e).strip()
     if s["done"]:
         settings.error = s["error"] or ""
         if s["error"]:
