@@ -70,12 +70,20 @@ def frame_range(scene):
     return list(range(scene.frame_start, scene.frame_end + 1, max(1, scene.frame_step)))
 
 
-def _lighting_mode_property():
+def _enum_property(names, value):
+    """The first of the exporter's properties named in names that offers
+    value, or None: options move and get renamed between Blender versions."""
     props = bpy.ops.export_scene.gltf.get_rna_type().properties
-    for name in ("export_import_convert_lighting_mode", "convert_lighting_mode"):
-        if name in props.keys() and "COMPAT" in [i.identifier for i in props[name].enum_items]:
+    for name in names:
+        if name in props.keys() and value in [i.identifier for i in props[name].enum_items]:
             return name
     return None
+
+
+def _lighting_mode_property():
+    # convert_lighting_mode in 3.4 and 3.5, renamed in 3.6.
+    return _enum_property(("export_import_convert_lighting_mode", "convert_lighting_mode"),
+                          "COMPAT")
 
 
 def _exporter_properties():
@@ -383,6 +391,11 @@ def export(scene, folder, animation, settings):
                         ("export_nla_strips", False), ("export_current_frame", False)):
         if name in have:
             opts[name] = value
+    # Every action that plays in the scene, as one glTF animation: 3.4's
+    # export_nla_strips False above; later exporters' animation mode SCENE.
+    anim_mode = _enum_property(("export_animation_mode",), "SCENE")
+    if anim_mode:
+        opts[anim_mode] = "SCENE"
     mode = _lighting_mode_property()
     if mode:
         opts[mode] = "COMPAT"
