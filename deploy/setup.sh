@@ -30,6 +30,8 @@ test_pkgs=(
   shellcheck                           # tests/check_shell.sh: the shell scripts
   curl prometheus                      # test_http*: the dashboard's API, promtool check metrics
   chromium                             # test_http_browser: the job page in a headless browser
+  blender python3-numpy                # tests/blender: the add-on (numpy: Blender's glTF exporter)
+  xvfb                                 # tests/blender: the panel's screenshot under a virtual display
 )
 # One line: test_deploy reads it to check the release image's libraries.
 runtime_pkgs=(libembree3-3 libopenexr-3-1-30 libstb0 libssl3 libmicrohttpd12 libdraco7 libwebp7 libmeshoptimizer2d)
