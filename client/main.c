@@ -414,8 +414,9 @@ static int cmd_submit(int argc, char **argv, globals *g)
                                         {"frames", required_argument, NULL, O_FRAMES}};
     /* The render options of the shared table (common/render/options.h) but
      * tiles, chunks and the preview's, which are the coordinator's. */
-    const uint32_t mine = PT_ROPT_ALL & ~(PT_ROPT(PT_ROPT_TILE) | PT_ROPT(PT_ROPT_CHUNK) |
-                                          PT_ROPT(PT_ROPT_EXPOSURE) | PT_ROPT(PT_ROPT_VIEW));
+    const uint32_t mine =
+        PT_ROPT_ALL & ~(PT_ROPT(PT_ROPT_TILE) | PT_ROPT(PT_ROPT_CHUNK) | PT_ROPT(PT_ROPT_PASSES) |
+                        PT_ROPT(PT_ROPT_EXPOSURE) | PT_ROPT(PT_ROPT_VIEW));
     enum { NOWN = sizeof own / sizeof own[0] };
     struct option opts[NOWN + PT_ROPT_COUNT + 1];
     pt_render_getopt_table(own, NOWN, mine, opts);

@@ -306,7 +306,8 @@ int main(int argc, char **argv)
      * (common/render/options.h), then the end. */
     enum { NOWN = sizeof own / sizeof own[0] };
     struct option opts[NOWN + PT_ROPT_COUNT + 1];
-    pt_render_getopt_table(own, NOWN, PT_ROPT_ALL, opts);
+    /* --passes: standalone only until the farm carries pass sums. */
+    pt_render_getopt_table(own, NOWN, PT_ROPT_ALL & ~PT_ROPT(PT_ROPT_PASSES), opts);
     _Static_assert(PT_ROPT_MAX_NAME == PROTO_MAX_NAME, "a job's names are the options'");
     pt_render_opts ro;
     pt_render_opts_init(&ro);

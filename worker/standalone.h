@@ -43,6 +43,7 @@ typedef struct wrk_standalone_opts {
     double fps;        /* frames per second (24 by default; --fps) */
     pt_view view;      /* the PNG's exposure and view transform; the EXR stays linear */
     int guiding;       /* --guiding on: path guiding learned in passes (guide.h) */
+    uint32_t passes;   /* PT_PASS_* render passes (passes.h) written as EXR layers; 0: none */
     int quiet;
 } wrk_standalone_opts;
 

@@ -65,13 +65,18 @@ static void pixel_ctx_init(pixel_ctx *pc, const pt_renderer *r, uint32_t px, uin
 /* The integrator variants: a feature mask fixed at compile time, so that code
  * for features a scene lacks is folded away (see pick_variant). */
 typedef pt_vec3 (*li_fn)(const pt_renderer *r, pixel_ctx *pc, uint32_t index,
-                         pt_render_stats *stats, int *covered, const pt_render_guiding *gd);
+                         pt_render_stats *stats, int *covered, const pt_render_guiding *gd,
+                         pt_pass_sample *ps);
 typedef void (*tile_fn)(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,
-                        pt_pixel_acc *out, pt_render_stats *stats, const pt_render_guiding *gd);
+                        pt_pixel_acc *out, pt_pass_acc *pout, pt_render_stats *stats,
+                        const pt_render_guiding *gd);
 
 /* Path guiding (guide.h): a renderer feature like the environment, set when
  * the parameters ask for it; only the guided variant has its code. */
 #define FEAT_GUIDE (1u << 31)
+/* Render passes (params.passes): likewise, only the passes variants record
+ * them (pass_rec), so a render without passes runs the code it always did. */
+#define FEAT_PASSES (1u << 30)
 
 struct pt_renderer {
     const pt_scene *scene;
@@ -105,6 +110,7 @@ void pt_render_params_default(pt_render_params *p)
     p->env = NULL;
     p->transparent = 0;
     p->guiding = 0;
+    p->passes = 0;
 }
 
 const pt_render_params *pt_renderer_params(const pt_renderer *r)
@@ -802,7 +808,15 @@ typedef struct path {
     float time;       /* in the shutter, [0, 1) (PT_FEAT_MOTION; else 0) */
     pixel_ctx *pc;
     struct guide_path *gp; /* FEAT_GUIDE: its guided vertices; else NULL */
+    struct pass_rec *pr;   /* FEAT_PASSES: what the passes record; else NULL */
 } path;
+
+/* A path's render passes (FEAT_PASSES): found is set once the albedo and
+ * normal were read at its first non-specular vertex. */
+typedef struct pass_rec {
+    pt_pass_sample v;
+    uint32_t found;
+} pass_rec;
 
 /* The vertices of a path where it sampled its next direction from the
  * guide's mixture, for the statistics: each one's leaf, direction, mixture
@@ -889,6 +903,7 @@ path_start(const pt_renderer *r, pixel_ctx *pc, uint32_t index, path *pa, const 
     pa->escaped = 0;
     pa->pc = pc;
     pa->gp = NULL;
+    pa->pr = NULL;
 }
 
 /* The light sample of a bounce at sf, when NEE runs. Like the hit's surface
@@ -932,6 +947,8 @@ static inline __attribute__((always_inline)) void shade_emission(const pt_render
         wo = pt_v3_dot(sf->ng, wo) > 0.0f ? n0 : pt_v3_neg(n0);
     }
     pt_vec3 le = pt_emitted(s, hit->tri, hit->b1, hit->b2, wo);
+    if ((features & FEAT_PASSES) && pa->pr && pa->depth == 0)
+        pa->pr->v.emission = le;
     if (pa->prev_pdf > 0.0f && strategy == PT_LIGHT_MIS) {
         float lp = pt_lights_pdf(r->lights, s, hit->tri, pa->prev_p, sf->p, sf->ng);
         le = pt_v3_scale(le, power_heuristic(pa->prev_pdf, lp));
@@ -1256,6 +1273,20 @@ static inline int closure_guidable(const pt_closure *cl)
     return any;
 }
 
+/* The passes at an unlit surface (PT_FEAT_UNLIT), where the path ends: its
+ * colour is the albedo, its interpolated normal turned to the ray the
+ * normal. */
+static inline __attribute__((always_inline)) void
+pass_unlit(const pt_renderer *r, path *pa, const surface *sf, pt_vec3 wo, const uint32_t features)
+{
+    pt_vec3 base;
+    float metallic, roughness;
+    base_inputs(r->scene, sf, features, &base, &metallic, &roughness);
+    pa->pr->found = 1;
+    pa->pr->v.albedo = pt_v3_mul(pa->beta, base);
+    pa->pr->v.normal = pt_v3_dot(sf->ns, wo) < 0.0f ? pt_v3_neg(sf->ns) : sf->ns;
+}
+
 /*
  * One bounce of a path whose ray hit `hit`, with the bounce's numbers u. NEE
  * samples an emissive triangle at every vertex; the BSDF-sampled continuation
@@ -1299,7 +1330,11 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     pt_vec3 wo = pt_v3_neg(pa->d);
 
     shade_emission(r, pa, hit, sf, features);
+    if ((features & FEAT_PASSES) && pa->pr && pa->depth == 0)
+        pa->pr->v.depth = hit->t; /* the camera ray's direction is a unit vector */
     if ((features & PT_FEAT_UNLIT) && (sf->mat->ext & PT_MATX_UNLIT)) {
+        if ((features & FEAT_PASSES) && pa->pr && !pa->pr->found)
+            pass_unlit(r, pa, sf, wo, features);
         shade_unlit(r, pa, sf, features);
         return ret;
     }
@@ -1337,6 +1372,22 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
         lambert = material_bsdf(r, sf, features);
     uint32_t mi = (uint32_t)(sf->mat - s->materials);
     int thin = glass && !(sf->mat->thickness > 0.0f);
+    if ((features & FEAT_PASSES) && pa->pr && !pa->pr->found) {
+        /* The passes' vertex: the first non-specular one. Through a specular
+         * one the path goes on, and beta carries the chain's throughput to
+         * the albedo found behind it. */
+        pt_vec3 alb = pt_v3(0.0f, 0.0f, 0.0f);
+        int rough = 1;
+        if (features & PT_FEAT_GLOSSY)
+            rough = pt_closure_albedo(&cl, &alb);
+        else
+            alb = lambert.diffuse;
+        if (rough) {
+            pa->pr->found = 1;
+            pa->pr->v.albedo = pt_v3_mul(pa->beta, alb);
+            pa->pr->v.normal = ns;
+        }
+    }
     /* Path guiding (FEAT_GUIDE): at a guidable closure the continuation is
      * drawn from the mixture gprob x guide + (1 - gprob) x closure (one-sample
      * MIS, Mueller et al. 2017, sec. 5), and the BSDF strategy's pdf that
@@ -1733,10 +1784,15 @@ static void shade_lanes(const pt_renderer *r, path *paths, const uint8_t *live, 
  * must match bit for bit (tested through pt_render_sample). */
 static inline __attribute__((always_inline)) pt_vec3
 li_impl(const pt_renderer *r, pixel_ctx *pc, uint32_t index, pt_render_stats *stats, int *covered,
-        const pt_render_guiding *gd, const uint32_t features)
+        const pt_render_guiding *gd, pt_pass_sample *ps, const uint32_t features)
 {
     path pa;
     path_start(r, pc, index, &pa, features);
+    pass_rec pr;
+    if ((features & FEAT_PASSES) && ps) {
+        memset(&pr, 0, sizeof pr);
+        pa.pr = &pr;
+    }
     guide_path gp;
     if ((features & FEAT_GUIDE) && gd) {
         gp.gd = gd;
@@ -1780,6 +1836,8 @@ li_impl(const pt_renderer *r, pixel_ctx *pc, uint32_t index, pt_render_stats *st
         *covered = !pa.escaped;
     if ((features & FEAT_GUIDE) && gd)
         guide_record(&pa);
+    if ((features & FEAT_PASSES) && ps)
+        *ps = pr.v;
     return pa.L;
 }
 
@@ -1970,10 +2028,11 @@ trace_batch(const pt_renderer *r, path *paths, uint32_t n, stage_lanes *sl, cons
  */
 static inline __attribute__((always_inline)) void
 tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel_acc *out,
-          pt_render_stats *stats, stage_lanes *sl, const uint32_t features, const pt_ray_sink *sink,
-          const pt_render_guiding *gd)
+          pt_pass_acc *pout, pt_render_stats *stats, stage_lanes *sl, const uint32_t features,
+          const pt_ray_sink *sink, const pt_render_guiding *gd)
 {
     guide_path gps[BATCH]; /* FEAT_GUIDE only: folded away in the other variants */
+    pass_rec prs[BATCH];   /* FEAT_PASSES only */
     pt_render_stats local = {0};
     uint32_t tw = tile.x1 - tile.x0, npix = tw * (tile.y1 - tile.y0);
     uint32_t span = s1 > s0 ? s1 - s0 : 1;
@@ -1986,6 +2045,8 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
         uint32_t np = npix - p0 < group ? npix - p0 : group;
         for (uint32_t g = 0; g < np; g++) {
             memset(&out[p0 + g], 0, sizeof out[p0 + g]);
+            if ((features & FEAT_PASSES) && pout)
+                memset(&pout[p0 + g], 0, sizeof pout[p0 + g]);
             pixel_ctx_init(&pcs[g], r, tile.x0 + (p0 + g) % tw, tile.y0 + (p0 + g) / tw);
         }
         /* Sum each aligned block of PT_SAMPLE_BLOCK samples on its own in
@@ -2007,6 +2068,10 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
                         gp->n = gp->pending = 0;
                         pa->gp = gp;
                     }
+                    if ((features & FEAT_PASSES) && pout) {
+                        memset(&prs[g * nb + i], 0, sizeof prs[0]);
+                        pa->pr = &prs[g * nb + i];
+                    }
                 }
             local.rays += trace_batch(r, paths, np * nb, sl, features, sink, &local.capped);
             if ((features & FEAT_GUIDE) && gd)
@@ -2014,14 +2079,22 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
                     guide_record(&paths[k]);
             for (uint32_t g = 0; g < np; g++) {
                 pt_block_acc blk = {{0, 0, 0}, 0, 0, 0};
+                pt_pass_block pb;
+                if ((features & FEAT_PASSES) && pout)
+                    memset(&pb, 0, sizeof pb);
                 for (uint32_t i = 0; i < nb; i++) {
                     const path *pa = &paths[g * nb + i];
-                    if (!pt_block_acc_sample(&blk, pa->L))
+                    if (!pt_block_acc_sample(&blk, pa->L)) {
                         local.rejected++;
-                    else
+                    } else {
                         blk.hits += !pa->escaped;
+                        if ((features & FEAT_PASSES) && pout)
+                            pt_pass_block_sample(&pb, &prs[g * nb + i].v, pa->L, pa->index);
+                    }
                 }
                 pt_pixel_acc_add_block(&out[p0 + g], &blk);
+                if ((features & FEAT_PASSES) && pout)
+                    pt_pass_acc_add_block(&pout[p0 + g], &pb);
                 local.samples += blk.n;
             }
             b0 = b1;
@@ -2038,22 +2111,24 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
 #define ALL_FEATURES 0xffffffffu
 #define VARIANT(li_name, tile_name, feat)                                                          \
     static pt_vec3 li_name(const pt_renderer *r, pixel_ctx *pc, uint32_t index,                    \
-                           pt_render_stats *stats, int *covered, const pt_render_guiding *gd)      \
+                           pt_render_stats *stats, int *covered, const pt_render_guiding *gd,      \
+                           pt_pass_sample *ps)                                                     \
     {                                                                                              \
-        return li_impl(r, pc, index, stats, covered, gd, (feat));                                  \
+        return li_impl(r, pc, index, stats, covered, gd, ps, (feat));                              \
     }                                                                                              \
     static void tile_name(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,            \
-                          pt_pixel_acc *out, pt_render_stats *stats, const pt_render_guiding *gd)  \
+                          pt_pixel_acc *out, pt_pass_acc *pout, pt_render_stats *stats,            \
+                          const pt_render_guiding *gd)                                             \
     {                                                                                              \
         if (((feat)&PT_FEAT_GLOSSY) || !r->lanes) {                                                \
-            tile_impl(r, tile, s0, s1, out, stats, NULL, (feat), NULL, gd);                        \
+            tile_impl(r, tile, s0, s1, out, pout, stats, NULL, (feat), NULL, gd);                  \
         } else {                                                                                   \
             /* Lanes past a stage's paths compute on zeros or an earlier                           \
              * stage's values, not on what the stack held (which could be                          \
              * slow denormals). */                                                                 \
             stage_lanes sl;                                                                        \
             memset(&sl, 0, sizeof sl);                                                             \
-            tile_impl(r, tile, s0, s1, out, stats, &sl, (feat), NULL, gd);                         \
+            tile_impl(r, tile, s0, s1, out, pout, stats, &sl, (feat), NULL, gd);                   \
         }                                                                                          \
     }
 #define NO_TEX (uint32_t)(PT_FEAT_TEXTURES | PT_FEAT_EMISSIVE_TEX)
@@ -2074,20 +2149,33 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
 #define GENERAL_ONLY                                                                               \
     (uint32_t)(OTHER_LIGHTS | PT_FEAT_ALPHA | GLASS | SURFACE_EXTRAS | LAYERS | PT_FEAT_MOTION |   \
                MATERIAL_EXTS)
-VARIANT(li_guided, tile_guided, ALL_FEATURES)
-VARIANT(li_general, tile_general, ALL_FEATURES & ~FEAT_GUIDE)
-VARIANT(li_untextured, tile_untextured, ALL_FEATURES & ~NO_TEX & ~GENERAL_ONLY & ~FEAT_GUIDE)
+#define NO_EXTRAS (uint32_t)(FEAT_GUIDE | FEAT_PASSES)
+VARIANT(li_guided_passes, tile_guided_passes, ALL_FEATURES)
+VARIANT(li_passes, tile_passes, ALL_FEATURES & ~FEAT_GUIDE)
+VARIANT(li_guided, tile_guided, ALL_FEATURES & ~FEAT_PASSES)
+VARIANT(li_general, tile_general, ALL_FEATURES & ~NO_EXTRAS)
+VARIANT(li_untextured, tile_untextured, ALL_FEATURES & ~NO_TEX & ~GENERAL_ONLY & ~NO_EXTRAS)
 VARIANT(li_lambert, tile_lambert,
-        ALL_FEATURES & ~(uint32_t)PT_FEAT_GLOSSY & ~GENERAL_ONLY & ~FEAT_GUIDE)
+        ALL_FEATURES & ~(uint32_t)PT_FEAT_GLOSSY & ~GENERAL_ONLY & ~NO_EXTRAS)
 VARIANT(li_lambert_untextured, tile_lambert_untextured,
-        ALL_FEATURES & ~NO_TEX & ~(uint32_t)PT_FEAT_GLOSSY & ~GENERAL_ONLY & ~FEAT_GUIDE)
+        ALL_FEATURES & ~NO_TEX & ~(uint32_t)PT_FEAT_GLOSSY & ~GENERAL_ONLY & ~NO_EXTRAS)
 #undef VARIANT
 
 /* The most specialised variant whose assumptions the scene meets. */
 static void pick_variant(pt_renderer *r, uint32_t features)
 {
     int tex = (features & NO_TEX) != 0, glossy = (features & PT_FEAT_GLOSSY) != 0;
-    if (features & FEAT_GUIDE) {
+    if ((features & FEAT_PASSES) && (features & FEAT_GUIDE)) {
+        r->li = li_guided_passes;
+        r->tile = tile_guided_passes;
+        r->variant = "guided-passes";
+    } else if (features & FEAT_PASSES) {
+        /* The general variant that also records the passes: its beauty is
+         * the same bits as any variant's. */
+        r->li = li_passes;
+        r->tile = tile_passes;
+        r->variant = "passes";
+    } else if (features & FEAT_GUIDE) {
         r->li = li_guided;
         r->tile = tile_guided;
         r->variant = "guided";
@@ -2157,7 +2245,7 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
         pt_lights_count(r->lights) + others > 0 && params->light_strategy != PT_LIGHT_BSDF_ONLY;
     /* The stage-wide light sampling and the lanes know only triangles. */
     r->nee_n = r->nee && pt_lights_count(r->lights) >= LIGHTS_N_MIN && others == 0;
-    uint32_t features = scene->features | (params->extra_features & ~FEAT_GUIDE);
+    uint32_t features = scene->features | (params->extra_features & ~NO_EXTRAS);
     r->alpha = (scene->features & PT_FEAT_ALPHA) != 0;
     r->motion = (scene->features & PT_FEAT_MOTION) ? scene->motion : NULL;
     if (params->env)
@@ -2166,11 +2254,13 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
      * Lambert-only scene keeps its variant. */
     if (params->guiding && (features & PT_FEAT_GLOSSY))
         features |= FEAT_GUIDE;
+    if (params->passes & PT_PASS_ALL)
+        features |= FEAT_PASSES;
     pick_variant(r, features);
     /* Without fast lanes (an x86-64 processor without AVX2 runs shade_lanes'
      * baseline clone, which does the lanes one by one) the per-path shading
      * is faster: docs/bench/throughput.md, "Fourth round". */
-    r->lanes = !(features & (PT_FEAT_GLOSSY | GENERAL_ONLY | FEAT_GUIDE)) &&
+    r->lanes = !(features & (PT_FEAT_GLOSSY | GENERAL_ONLY | NO_EXTRAS)) &&
                !params->scalar_shading && pt_simd_lanes_fast();
     *out = r;
     return PT_OK;
@@ -2204,7 +2294,7 @@ pt_vec3 pt_render_sample(const pt_renderer *r, uint32_t px, uint32_t py, uint32_
 {
     pixel_ctx pc;
     pixel_ctx_init(&pc, r, px, py);
-    return r->li(r, &pc, index, stats, covered, NULL);
+    return r->li(r, &pc, index, stats, covered, NULL, NULL);
 }
 
 pt_vec3 pt_render_sample_guided(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index,
@@ -2212,25 +2302,43 @@ pt_vec3 pt_render_sample_guided(const pt_renderer *r, uint32_t px, uint32_t py, 
 {
     pixel_ctx pc;
     pixel_ctx_init(&pc, r, px, py);
-    return r->li(r, &pc, index, stats, covered, gd);
+    return r->li(r, &pc, index, stats, covered, gd, NULL);
+}
+
+pt_vec3 pt_render_sample_passes(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index,
+                                pt_render_stats *stats, int *covered, pt_pass_sample *ps)
+{
+    pixel_ctx pc;
+    pixel_ctx_init(&pc, r, px, py);
+    memset(ps, 0, sizeof *ps);
+    return r->li(r, &pc, index, stats, covered, NULL, ps);
 }
 
 void pt_render_tile(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel_acc *out,
                     pt_render_stats *stats)
 {
-    r->tile(r, tile, s0, s1, out, stats, NULL);
+    r->tile(r, tile, s0, s1, out, NULL, stats, NULL);
 }
 
 void pt_render_tile_guided(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,
                            pt_pixel_acc *out, pt_render_stats *stats, const pt_render_guiding *gd)
 {
-    r->tile(r, tile, s0, s1, out, stats, gd);
+    r->tile(r, tile, s0, s1, out, NULL, stats, gd);
+}
+
+void pt_render_tile_passes(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,
+                           pt_pixel_acc *out, pt_pass_acc *pout, pt_render_stats *stats,
+                           const pt_render_guiding *gd)
+{
+    if (pout && !(r->params.passes & PT_PASS_ALL))
+        memset(pout, 0, (size_t)(tile.x1 - tile.x0) * (tile.y1 - tile.y0) * sizeof *pout);
+    r->tile(r, tile, s0, s1, out, pout, stats, gd);
 }
 
 void pt_render_tile_traced(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,
                            pt_pixel_acc *out, const pt_ray_sink *sink)
 {
-    tile_impl(r, tile, s0, s1, out, NULL, NULL, ALL_FEATURES & ~FEAT_GUIDE, sink, NULL);
+    tile_impl(r, tile, s0, s1, out, NULL, NULL, NULL, ALL_FEATURES & ~NO_EXTRAS, sink, NULL);
 }
 
 pt_status pt_render_check_lit(const pt_scene *scene, int has_env, const char *name, pt_error *err)

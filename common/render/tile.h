@@ -79,6 +79,53 @@ static inline void pt_pixel_acc_add(pt_pixel_acc *a, const pt_pixel_acc *b)
     a->hits += b->hits;
 }
 
+/*
+ * Render passes (AOVs), asked for with a mask of PT_PASS_* bits (passes.h has
+ * their names and the EXR layers they become). A pass's per-pixel sums are
+ * fixed point like the beauty's, over the same accepted samples (their count
+ * is the pixel's pt_pixel_acc.n), so they merge exactly in any order too:
+ * s[] in units of 2^-32 (pt_fixed_of), sq[] (the sum over a pass's channels
+ * of the squared values, for its variance) in units of 2^-48, saturating.
+ * The half buffers are the beauty's sums over the even sample indices (and
+ * their count); the odd half is the total minus them.
+ */
+enum {
+    PT_PASS_ALBEDO = 1u << 0,   /* albedo of the first non-specular surface */
+    PT_PASS_NORMAL = 1u << 1,   /* its shading normal, world space */
+    PT_PASS_DEPTH = 1u << 2,    /* camera distance of the first hit (0: escaped) */
+    PT_PASS_EMISSION = 1u << 3, /* emission of the first hit */
+    PT_PASS_HALVES = 1u << 4,   /* the beauty over even and odd sample indices */
+};
+#define PT_PASS_ALL 0x1fu
+
+/* Indices into pt_pass_acc.s (a pass's first channel) and .sq. */
+enum {
+    PT_PS_ALBEDO = 0,
+    PT_PS_NORMAL = 3,
+    PT_PS_EMISSION = 6,
+    PT_PS_DEPTH = 9,
+    PT_PS_EVEN = 10, /* the beauty's RGB over even sample indices */
+    PT_PASS_SUMS = 13
+};
+enum { PT_PQ_ALBEDO = 0, PT_PQ_NORMAL, PT_PQ_EMISSION, PT_PQ_DEPTH, PT_PASS_SQS };
+
+typedef struct pt_pass_acc {
+    pt_i128 s[PT_PASS_SUMS]; /* sums, units of 2^-32 */
+    pt_u128 sq[PT_PASS_SQS]; /* sums of squares over a pass's channels, units of 2^-48 */
+    uint32_t n_even;         /* of the pixel's n samples, those of even index */
+    uint32_t pad;            /* 0 */
+} pt_pass_acc;
+
+/* a += b: exact, so the order of calls does not matter. */
+static inline void pt_pass_acc_add(pt_pass_acc *a, const pt_pass_acc *b)
+{
+    for (int i = 0; i < PT_PASS_SUMS; i++)
+        a->s[i] += b->s[i];
+    for (int i = 0; i < PT_PASS_SQS; i++)
+        a->sq[i] = pt_u128_sat_add(a->sq[i], b->sq[i]);
+    a->n_even += b->n_even;
+}
+
 /* A fixed-point value as a double (rounded to nearest). */
 static inline double pt_fixed_to_double(pt_i128 v)
 {
