@@ -73,7 +73,9 @@ pt_status pt_film_enable_passes(pt_film *film, uint32_t mask, pt_error *err)
 
 uint64_t pt_film_add_tile(pt_film *film, pt_rect tile, const pt_pixel_acc *acc)
 {
-    return pt_film_add_tile_passes(film, tile, acc, NULL);
+    size_t npx = (size_t)(tile.x1 - tile.x0) * (tile.y1 - tile.y0);
+    return pt_film_add_tile_passes(film, tile, acc,
+                                   film->pass ? (const pt_pass_acc *)(acc + npx) : NULL);
 }
 
 uint64_t pt_film_add_tile_passes(pt_film *film, pt_rect tile, const pt_pixel_acc *acc,

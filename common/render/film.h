@@ -45,7 +45,9 @@ void pt_film_free(pt_film *film); /* accepts NULL */
 pt_status pt_film_enable_passes(pt_film *film, uint32_t mask, pt_error *err);
 
 /* Adds a tile's partial sums (row-major over tile, as pt_render_tile writes
- * them). Returns the samples added (the sum of their n). */
+ * them). On a film with passes acc holds the tile's pixel sums followed by
+ * its pass sums, in one block (as a decoded RESULT's, proto_result.pass).
+ * Returns the samples added (the sum of their n). */
 uint64_t pt_film_add_tile(pt_film *film, pt_rect tile, const pt_pixel_acc *acc);
 /* The same with the tile's pass sums (pacc, as pt_render_tile_passes writes
  * them; NULL: none, as pt_film_add_tile), added under the same lock. */
