@@ -616,6 +616,12 @@ static void put_pass(uint8_t *q, const pt_pass_acc *a, int wide)
             proto_put_u64(q + 8, (uint64_t)(a->sq[k] >> 64));
     }
     proto_put_u32(q, a->n_even);
+    q += 4;
+    for (int k = 0; k < PT_CRYPTO_KINDS; k++, q += 8 * PT_CRYPTO_KEEP)
+        for (int j = 0; j < PT_CRYPTO_KEEP; j++) {
+            proto_put_u32(q + 4 * j, a->cid[k][j]);
+            proto_put_u32(q + 4 * (PT_CRYPTO_KEEP + j), a->ccnt[k][j]);
+        }
 }
 
 static void get_pass(const uint8_t *q, pt_pass_acc *a, int wide)
@@ -631,6 +637,23 @@ static void get_pass(const uint8_t *q, pt_pass_acc *a, int wide)
     }
     a->n_even = proto_get_u32(q);
     a->pad = 0;
+    q += 4;
+    for (int k = 0; k < PT_CRYPTO_KINDS; k++, q += 8 * PT_CRYPTO_KEEP)
+        for (int j = 0; j < PT_CRYPTO_KEEP; j++) {
+            a->cid[k][j] = proto_get_u32(q + 4 * j);
+            a->ccnt[k][j] = proto_get_u32(q + 4 * (PT_CRYPTO_KEEP + j));
+        }
+}
+
+/* The pass sums' own checks against their pixel's n; NULL when sound. */
+static const char *pass_problem(const pt_pass_acc *a, uint32_t n)
+{
+    if (a->n_even > n)
+        return "even count over n";
+    for (int k = 0; k < PT_CRYPTO_KINDS; k++)
+        if (!pt_crypto_canonical(a->cid[k], a->ccnt[k], n))
+            return "Cryptomatte ids not in canonical form";
+    return NULL;
 }
 
 pt_status proto_msg_encode_result(proto_writer *w, const proto_result *m, pt_error *err)
@@ -642,7 +665,7 @@ pt_status proto_msg_encode_result(proto_writer *w, const proto_result *m, pt_err
     uint32_t nmax = m->s1 - m->s0;
     for (uint32_t i = 0; i < m->npixels; i++)
         if ((why = result_pixel_problem(m->pixels[i].n, m->pixels[i].hits, nmax)) != NULL ||
-            (m->pass && m->pass[i].n_even > m->pixels[i].n && (why = "even count over n")))
+            (m->pass && (why = pass_problem(&m->pass[i], m->pixels[i].n)) != NULL))
             return pt_error_set(err, PT_ERR_ARG, "RESULT: pixel %u %s", (unsigned)i, why);
     proto_w_u64(w, m->job_id);
     proto_w_u64(w, m->task_id);
@@ -743,10 +766,6 @@ pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *bu
     for (uint32_t i = 0; i < m.npixels; i++) {
         const uint8_t *pq = q + (size_t)i * psize + psize - 8;
         why = result_pixel_problem(proto_get_u32(pq), proto_get_u32(pq + 4), nmax);
-        if (!why && passes &&
-            proto_get_u32(q + (size_t)m.npixels * psize + (size_t)(i + 1) * qsize - 4) >
-                proto_get_u32(pq))
-            why = "even count over n";
         if (why)
             return pt_error_set(err, PT_ERR_PROTO, "RESULT: pixel %u %s", (unsigned)i, why);
     }
@@ -789,6 +808,10 @@ pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *bu
     for (uint32_t i = 0; passes && i < m.npixels; i++, q += qsize) {
         get_pass(q, &m.pass[i], wide_pass);
         need_pass |= pass_wide(&m.pass[i]);
+        if ((why = pass_problem(&m.pass[i], px[i].n)) != NULL) {
+            pt_free(px);
+            return pt_error_set(err, PT_ERR_PROTO, "RESULT: pixel %u %s", (unsigned)i, why);
+        }
     }
     /* One encoding per message (the encoder's): a wide kind that no pixel
      * needs is refused, so a RESULT's bytes, which the results log keeps and

@@ -91,8 +91,8 @@ const char *proto_msg_type_name(uint32_t type);
 #define PROTO_RESULT_WIDE_SQ 2u          /* RESULT pixel form: sum of squares in 16 bytes */
 #define PROTO_RESULT_PASSES 4u           /* RESULT pixel form: pass sums follow the pixels */
 #define PROTO_RESULT_WIDE_PASSES 8u      /* RESULT pixel form: pass sums in 16 bytes */
-#define PROTO_RESULT_PASS_SIZE 140u      /* bytes per pixel of narrow pass sums */
-#define PROTO_RESULT_WIDE_PASS_SIZE 276u /* bytes per pixel of wide pass sums (the most) */
+#define PROTO_RESULT_PASS_SIZE 268u      /* bytes per pixel of narrow pass sums */
+#define PROTO_RESULT_WIDE_PASS_SIZE 404u /* bytes per pixel of wide pass sums (the most) */
 #define PROTO_RESULT_HEADER_SIZE 69u     /* bytes of RESULT before its pixels */
 
 /* Film flags (TASK, SUBMIT). Decoders refuse a bit not defined here. */
@@ -335,7 +335,11 @@ typedef struct proto_scene_chunk {
  *                     indices), each an i64 or two u64 low half first; 4 sums
  *                     of squares (unsigned, units of 2^-48: albedo, normal,
  *                     emission, depth), each a u64 or two; then a u32: of the
- *                     pixel's n samples, those of even index (<= n)
+ *                     pixel's n samples, those of even index (<= n); then
+ *                     Cryptomatte, objects then materials, PT_CRYPTO_KEEP (8)
+ *                     u32 ids then 8 u32 sample counts each, in the merge's
+ *                     canonical form (pt_crypto_canonical: ascending ids,
+ *                     unused entries 0 last, counts summing to <= n)
  *   size 69+PN[+QN] (PROTO_RESULT_HEADER_SIZE + P x N; P = PROTO_RESULT_PIXEL_SIZE
  *   narrow, PROTO_RESULT_WIDE_PIXEL_SIZE with both bits)
  * The encoder sets a bit only when some pixel's sum of that kind does not fit
@@ -612,7 +616,8 @@ pt_status proto_msg_encode_result(proto_writer *w, const proto_result *m, pt_err
  * pt_malloc'd array that out owns (out->owns_pixels = 1; PT_ERR_NOMEM when the
  * allocation fails). A RESULT with pass sums always goes to an allocation of
  * its own, the pixels then the passes (out->pass), whatever buf is; a pass
- * whose even count exceeds its pixel's n is refused. Release with
+ * whose even count exceeds its pixel's n, or whose Cryptomatte lists are not
+ * canonical, is refused. Release with
  * proto_result_fini either way. */
 pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *buf, size_t buf_cap,
                                   proto_result *out, pt_error *err);

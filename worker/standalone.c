@@ -303,6 +303,7 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
     thread_arg *args = NULL;
     pt_render_stats *tstats = NULL;
     pt_pass_planes planes;
+    pt_crypto_meta cmeta = {0};
     int rc = 1;
     double t0 = pt_now_s();
     int early = check_before(o);
@@ -438,6 +439,14 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
         st.capped += tstats[i].capped;
     }
     pt_exr_meta meta = {0};
+    if (o->passes & PT_PASS_CRYPTOMATTE) {
+        if (pt_crypto_meta_init(&cmeta, scene, &err) != PT_OK) {
+            fprintf(stderr, "\nptworker: %s\n", err.msg);
+            goto done;
+        }
+        meta.attrs = cmeta.attrs;
+        meta.nattrs = cmeta.nattrs;
+    }
     meta.total_samples = pt_film_resolve(film, img);
     img->has_alpha = p.transparent;
     meta.render_seconds = secs;
@@ -474,6 +483,7 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
                 (unsigned long long)st.capped, p.max_depth);
     rc = 0;
 done:
+    pt_crypto_meta_fini(&cmeta);
     pt_free(tstats);
     pt_free(args);
     pt_free(threads);

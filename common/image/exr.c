@@ -206,6 +206,8 @@ static exr_result_t define_part(exr_context_t ctx, const pt_image *img, const pt
         rv = exr_attr_set_string(ctx, part, "ptfarm.sceneHash", meta->scene_hash);
     if (rv == EXR_ERR_SUCCESS && meta)
         rv = exr_attr_set_string(ctx, part, "ptfarm.jobId", meta->job_id);
+    for (uint32_t i = 0; rv == EXR_ERR_SUCCESS && meta && i < meta->nattrs; i++)
+        rv = exr_attr_set_string(ctx, part, meta->attrs[i].name, meta->attrs[i].value);
     if (rv == EXR_ERR_SUCCESS && meta && meta->has_frame) {
         exr_attr_rational_t fps = fps_rational(meta->fps);
         rv = exr_attr_set_int(ctx, part, "ptfarm.frame", meta->frame);
@@ -442,7 +444,7 @@ static exr_result_t read_chunks(exr_const_context_t ctx, int32_t min_y, pt_image
 }
 
 static pt_status exr_read(const char *path, int follow, int layers, pt_image **out,
-                          pt_exr_meta *meta, pt_error *err)
+                          pt_exr_meta *meta, const char *attr, char **attr_out, pt_error *err)
 {
     if (!path)
         return pt_error_set(err, PT_ERR_ARG, "EXR read: no path");
@@ -579,6 +581,22 @@ static pt_status exr_read(const char *path, int follow, int layers, pt_image **o
     }
     if (meta)
         read_meta(ctx, meta);
+    if (attr) {
+        int32_t alen = 0;
+        const char *str = NULL;
+        if (exr_attr_get_string(ctx, 0, attr, &alen, &str) != EXR_ERR_SUCCESS || !str || alen < 0) {
+            st = pt_error_set(err, PT_ERR_FORMAT, "EXR %s: no string attribute %s", path, attr);
+            goto fail;
+        }
+        char *copy = pt_malloc((size_t)alen + 1);
+        if (!copy) {
+            st = pt_error_set(err, PT_ERR_NOMEM, "EXR %s: attribute %s: out of memory", path, attr);
+            goto fail;
+        }
+        memcpy(copy, str, (size_t)alen);
+        copy[alen] = '\0';
+        *attr_out = copy;
+    }
     exr_finish(&ctx);
     close(s.fd);
     if (out)
@@ -595,15 +613,20 @@ fail:
 
 pt_status pt_exr_read(const char *path, pt_image **out, pt_exr_meta *meta, pt_error *err)
 {
-    return exr_read(path, 1, 0, out, meta, err);
+    return exr_read(path, 1, 0, out, meta, NULL, NULL, err);
+}
+
+pt_status pt_exr_read_attr(const char *path, const char *name, char **out, pt_error *err)
+{
+    return exr_read(path, 1, 0, NULL, NULL, name, out, err);
 }
 
 pt_status pt_exr_read_layers(const char *path, pt_image **out, pt_exr_meta *meta, pt_error *err)
 {
-    return exr_read(path, 1, 1, out, meta, err);
+    return exr_read(path, 1, 1, out, meta, NULL, NULL, err);
 }
 
 pt_status pt_exr_read_nofollow(const char *path, pt_image **out, pt_exr_meta *meta, pt_error *err)
 {
-    return exr_read(path, 0, 0, out, meta, err);
+    return exr_read(path, 0, 0, out, meta, NULL, NULL, err);
 }

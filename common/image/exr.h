@@ -26,6 +26,12 @@
 #include "common/base/error.h"
 #include "common/image/image.h"
 
+/* A string attribute written into the header as it is (Cryptomatte's
+ * cryptomatte/<key>/...). */
+typedef struct pt_exr_attr {
+    const char *name, *value;
+} pt_exr_attr;
+
 typedef struct pt_exr_meta {
     uint64_t total_samples;
     double render_seconds;
@@ -34,8 +40,10 @@ typedef struct pt_exr_meta {
     char software[64]; /* "ptfarm <version>" when empty on write */
     int has_frame;     /* a frame of an animation: the three below are written */
     int32_t frame;
-    double time; /* seconds */
-    double fps;  /* read back from the rational */
+    double time;              /* seconds */
+    double fps;               /* read back from the rational */
+    const pt_exr_attr *attrs; /* written only: nattrs more string attributes */
+    uint32_t nattrs;
 } pt_exr_meta;
 
 pt_status pt_exr_write(const char *path, const pt_image *img, const pt_exr_meta *meta,
@@ -61,6 +69,11 @@ pt_status pt_exr_read(const char *path, pt_image **out, pt_exr_meta *meta, pt_er
  * converted to float: the render passes of a ptfarm EXR, for ptdenoise and
  * the tests. The bound on pixels per byte holds over all the planes read. */
 pt_status pt_exr_read_layers(const char *path, pt_image **out, pt_exr_meta *meta, pt_error *err);
+
+/* The string attribute `name` of the file's header into *out (pt_malloc'd,
+ * NUL-terminated): PT_OK, or PT_ERR_FORMAT when there is none (or not a
+ * string), or the errors of pt_exr_read's header. */
+pt_status pt_exr_read_attr(const char *path, const char *name, char **out, pt_error *err);
 
 /* pt_exr_read that refuses a symbolic link at path's last component
  * (PT_ERR_FORMAT), for images in a folder that others may write to: the

@@ -7,8 +7,9 @@ static const struct {
     const char *name;
     uint32_t bit;
 } pass_names[] = {
-    {"albedo", PT_PASS_ALBEDO},     {"normal", PT_PASS_NORMAL}, {"depth", PT_PASS_DEPTH},
-    {"emission", PT_PASS_EMISSION}, {"halves", PT_PASS_HALVES},
+    {"albedo", PT_PASS_ALBEDO}, {"normal", PT_PASS_NORMAL},
+    {"depth", PT_PASS_DEPTH},   {"emission", PT_PASS_EMISSION},
+    {"halves", PT_PASS_HALVES}, {"cryptomatte", PT_PASS_CRYPTOMATTE},
 };
 #define NPASS (sizeof pass_names / sizeof pass_names[0])
 
@@ -41,7 +42,7 @@ pt_status pt_passes_parse(const char *opt, const char *text, uint32_t *mask, pt_
 bad:
     return pt_error_set(err, PT_ERR_ARG,
                         "%s: '%.*s' is not a comma-separated list of albedo, normal, depth, "
-                        "emission, halves (or all)",
+                        "emission, halves, cryptomatte (or all)",
                         opt, (int)(len < 64 ? len : 64), text);
 }
 
@@ -105,6 +106,10 @@ pt_status pt_passes_add_planes(pt_image *img, uint32_t mask, pt_pass_planes *pl,
         if (st == PT_OK)
             st = plane(img, "depth.variance", &pl->depth_var, err);
     }
+    if (st == PT_OK && (mask & PT_PASS_CRYPTOMATTE)) {
+        st = pt_crypto_add_planes(img, &pl->cm, err);
+        pl->crypto = st == PT_OK;
+    }
     return st;
 }
 
@@ -146,8 +151,12 @@ void pt_passes_resolve(const pt_pixel_acc *a, const pt_pass_acc *p, const pt_pas
         for (size_t k = 0; k < sizeof all / sizeof all[0]; k++)
             if (all[k])
                 all[k][i] = 0.0f;
+        if (pl->crypto)
+            pt_crypto_resolve(p, 0, &pl->cm, i);
         return;
     }
+    if (pl->crypto)
+        pt_crypto_resolve(p, a->n, &pl->cm, i);
     double n = (double)a->n;
     resolve_pass(p, PT_PS_ALBEDO, PT_PQ_ALBEDO, 3, n, pl->albedo, pl->albedo_var, i);
     resolve_pass(p, PT_PS_NORMAL, PT_PQ_NORMAL, 3, n, pl->normal, pl->normal_var, i);

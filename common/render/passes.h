@@ -14,6 +14,8 @@
  *   depth      depth.Z                      depth.variance
  *   emission   emission.R emission.G emission.B   emission.variance
  *   halves     halfA.R halfA.G halfA.B  halfB.R halfB.G halfB.B
+ *   cryptomatte  CryptoObject00..03.R/G/B/A, CryptoMaterial00..03.R/G/B/A
+ *              (crypto.h: 8 ranks of id and coverage a kind)
  *
  * Each channel is the pass's mean over the pixel's samples. A pass's
  * variance is the variance of that mean (sample variance / n, the mean over
@@ -37,13 +39,14 @@
 
 #include "common/base/error.h"
 #include "common/image/image.h"
+#include "common/render/crypto.h"
 #include "common/render/tile.h"
 
 /* The longest --passes text any program takes. */
 #define PT_PASSES_MAX_TEXT 128u
 
 /* "albedo,normal" into a PT_PASS_* mask. Names: albedo, normal, depth,
- * emission, halves, and `all` for every one; repeats are allowed; an empty
+ * emission, halves, cryptomatte, and `all` for every one; repeats are allowed; an empty
  * list or another name is PT_ERR_ARG naming the valid ones (opt is the
  * option's name for the message). */
 pt_status pt_passes_parse(const char *opt, const char *text, uint32_t *mask, pt_error *err);
@@ -60,6 +63,8 @@ typedef struct pt_pass_planes {
     float *depth, *depth_var;
     float *emission[3], *emission_var;
     float *half_a[3], *half_b[3];
+    int crypto; /* the Cryptomatte layers below are there */
+    pt_crypto_planes cm;
 } pt_pass_planes;
 
 /* Adds the named planes of mask's passes to img (zeroed) and points *pl at

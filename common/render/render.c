@@ -7,6 +7,7 @@
 #include "common/math/simd.h"
 #include "common/render/bsdf.h"
 #include "common/render/closure.h"
+#include "common/render/crypto.h"
 #include "common/render/dielectric.h"
 #include "common/render/env.h"
 #include "common/render/guide.h"
@@ -97,6 +98,8 @@ struct pt_renderer {
     float tan_half_fov;
     pt_camera camera; /* the scene's, or a framed one fitted to the image (pt_renderer_new) */
     const pt_motion *motion; /* the scene's (PT_FEAT_MOTION), or NULL: nothing moves */
+    /* Cryptomatte (PT_PASS_CRYPTOMATTE): each object's and material's id, or NULL. */
+    uint32_t *crypto_obj, *crypto_mat;
 };
 
 void pt_render_params_default(pt_render_params *p)
@@ -1330,8 +1333,13 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     pt_vec3 wo = pt_v3_neg(pa->d);
 
     shade_emission(r, pa, hit, sf, features);
-    if ((features & FEAT_PASSES) && pa->pr && pa->depth == 0)
+    if ((features & FEAT_PASSES) && pa->pr && pa->depth == 0) {
         pa->pr->v.depth = hit->t; /* the camera ray's direction is a unit vector */
+        if (r->crypto_obj) {
+            pa->pr->v.crypto[PT_CRYPTO_OBJECT] = r->crypto_obj[s->tri_object[hit->tri]];
+            pa->pr->v.crypto[PT_CRYPTO_MATERIAL] = r->crypto_mat[sf->mat - s->materials];
+        }
+    }
     if ((features & PT_FEAT_UNLIT) && (sf->mat->ext & PT_MATX_UNLIT)) {
         if ((features & FEAT_PASSES) && pa->pr && !pa->pr->found)
             pass_unlit(r, pa, sf, wo, features);
@@ -2256,6 +2264,21 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
         features |= FEAT_GUIDE;
     if (params->passes & PT_PASS_ALL)
         features |= FEAT_PASSES;
+    if ((params->passes & PT_PASS_CRYPTOMATTE) && scene->tri_object) {
+        /* The names' ids, hashed once (crypto.h). */
+        r->crypto_obj =
+            pt_malloc_array(scene->num_objects ? scene->num_objects : 1, sizeof *r->crypto_obj);
+        r->crypto_mat =
+            pt_malloc_array(scene->num_materials ? scene->num_materials : 1, sizeof *r->crypto_mat);
+        if (!r->crypto_obj || !r->crypto_mat) {
+            st = pt_error_set(err, PT_ERR_NOMEM, "out of memory for the renderer");
+            goto fail;
+        }
+        for (uint32_t i = 0; i < scene->num_objects; i++)
+            r->crypto_obj[i] = pt_crypto_id(scene->object_names[i].s);
+        for (uint32_t i = 0; i < scene->num_materials; i++)
+            r->crypto_mat[i] = pt_crypto_id(scene->materials[i].name);
+    }
     pick_variant(r, features);
     /* Without fast lanes (an x86-64 processor without AVX2 runs shade_lanes'
      * baseline clone, which does the lanes one by one) the per-path shading
@@ -2274,6 +2297,8 @@ void pt_renderer_free(pt_renderer *r)
     if (!r)
         return;
     pt_free(r->mat_bsdf);
+    pt_free(r->crypto_obj);
+    pt_free(r->crypto_mat);
     pt_free(r->tris_mem);
     pt_lights_free(r->lights);
     pt_accel_free(r->accel);

@@ -110,6 +110,8 @@ static inline void pt_pixel_acc_add_block(pt_pixel_acc *a, const pt_block_acc *b
 typedef struct pt_pass_sample {
     pt_vec3 albedo, normal, emission;
     float depth;
+    uint32_t crypto[PT_CRYPTO_KINDS]; /* the first hit's object and material Cryptomatte ids
+                                         (crypto.h; 0: none, as where the ray escapes) */
 } pt_pass_sample;
 
 /* One block's pass sums in double, in sample order (pt_block_acc's twin). */
@@ -117,6 +119,10 @@ typedef struct pt_pass_block {
     double s[PT_PASS_SUMS];
     double sq[PT_PASS_SQS];
     uint32_t n_even;
+    /* Cryptomatte: the block's ids and counts, exact (a block has at most
+     * PT_SAMPLE_BLOCK samples), ascending, unused last. */
+    uint32_t cid[PT_CRYPTO_KINDS][PT_SAMPLE_BLOCK];
+    uint32_t ccnt[PT_CRYPTO_KINDS][PT_SAMPLE_BLOCK];
 } pt_pass_block;
 
 /* A pass value that is not finite or is above PT_MAX_SAMPLE_RADIANCE in
@@ -144,6 +150,23 @@ static inline void pt_pass_block_sample(pt_pass_block *b, const pt_pass_sample *
     double d = pt_pass_value(ps->depth);
     b->s[PT_PS_DEPTH] += d;
     b->sq[PT_PQ_DEPTH] += d * d;
+    for (int k = 0; k < PT_CRYPTO_KINDS; k++) {
+        /* Insertion into the ascending list: at most 16 entries. */
+        uint32_t id = ps->crypto[k], *ids = b->cid[k], *cnt = b->ccnt[k];
+        unsigned j = 0;
+        while (j < PT_SAMPLE_BLOCK && cnt[j] && ids[j] < id)
+            j++;
+        if (j < PT_SAMPLE_BLOCK && cnt[j] && ids[j] == id) {
+            cnt[j]++;
+        } else if (j < PT_SAMPLE_BLOCK) {
+            for (unsigned m = PT_SAMPLE_BLOCK - 1; m > j; m--) {
+                ids[m] = ids[m - 1];
+                cnt[m] = cnt[m - 1];
+            }
+            ids[j] = id;
+            cnt[j] = 1;
+        }
+    }
     if (!(index & 1u)) {
         b->s[PT_PS_EVEN] += c.x;
         b->s[PT_PS_EVEN + 1] += c.y;
@@ -160,6 +183,9 @@ static inline void pt_pass_acc_add_block(pt_pass_acc *a, const pt_pass_block *b)
         a->s[i] += pt_fixed_of(b->s[i]);
     for (int i = 0; i < PT_PASS_SQS; i++)
         a->sq[i] = pt_u128_sat_add(a->sq[i], pt_ufixed_of(b->sq[i]));
+    for (int k = 0; k < PT_CRYPTO_KINDS; k++)
+        if (b->ccnt[k][0])
+            pt_crypto_merge(a->cid[k], a->ccnt[k], b->cid[k], b->ccnt[k], PT_SAMPLE_BLOCK);
     a->n_even += b->n_even;
 }
 

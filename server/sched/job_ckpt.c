@@ -31,7 +31,7 @@
  * each pixel's sums, held or in the film, are then followed by its pass
  * sums (put_pass). */
 #define CKPT_PASSES_VERSION 8u
-#define CKPT_PASS_SIZE 276u /* bytes of one pixel's pass sums */
+#define CKPT_PASS_SIZE 404u /* bytes of one pixel's pass sums */
 
 /* A pixel as the checkpoint stores it: each sum as two u64, low half first
  * (RESULT's wide layout, msg.h), then n and hits. */
@@ -60,6 +60,24 @@ static void put_pass(proto_writer *w, const pt_pass_acc *a)
         proto_w_u64(w, (uint64_t)(a->sq[k] >> 64));
     }
     proto_w_u32(w, a->n_even);
+    for (int k = 0; k < PT_CRYPTO_KINDS; k++) {
+        for (int j = 0; j < PT_CRYPTO_KEEP; j++)
+            proto_w_u32(w, a->cid[k][j]);
+        for (int j = 0; j < PT_CRYPTO_KEEP; j++)
+            proto_w_u32(w, a->ccnt[k][j]);
+    }
+}
+
+/* A pixel's pass sums are consistent with its n (as the RESULT decoder
+ * checks them). */
+static int pass_sane(const pt_pass_acc *a, uint32_t n)
+{
+    if (a->n_even > n)
+        return 0;
+    for (int k = 0; k < PT_CRYPTO_KINDS; k++)
+        if (!pt_crypto_canonical(a->cid[k], a->ccnt[k], n))
+            return 0;
+    return 1;
 }
 
 static void get_pass(proto_reader *r, pt_pass_acc *a)
@@ -74,6 +92,12 @@ static void get_pass(proto_reader *r, pt_pass_acc *a)
     }
     a->n_even = proto_r_u32(r, "pass even samples");
     a->pad = 0;
+    for (int k = 0; k < PT_CRYPTO_KINDS; k++) {
+        for (int j = 0; j < PT_CRYPTO_KEEP; j++)
+            a->cid[k][j] = proto_r_u32(r, "Cryptomatte id");
+        for (int j = 0; j < PT_CRYPTO_KEEP; j++)
+            a->ccnt[k][j] = proto_r_u32(r, "Cryptomatte count");
+    }
 }
 
 /* A double sum of a checkpoint before CKPT_FIXED_VERSION in fixed point, by
@@ -321,7 +345,7 @@ static pt_status load_held(srv_job *j, proto_reader *r, uint32_t nheld, uint32_t
         j->tasks[t].held = j->nheld++;
         j->tasks[t].state = T_HELD;
         for (uint32_t k = 0; k < npx; k++)
-            if (!job_acc_sane(&px[k], s1 - s0) || (pass && pass[k].n_even > px[k].n))
+            if (!job_acc_sane(&px[k], s1 - s0) || (pass && !pass_sane(&pass[k], px[k].n)))
                 return pt_error_set(err, PT_ERR_FORMAT,
                                     "checkpoint: held samples %u to %u of tile %u, pixel %u, "
                                     "are not finite or have too many samples",
@@ -390,9 +414,9 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
         get_acc(&r, &j->film->px[k], version);
         if (j->film->pass) {
             get_pass(&r, &j->film->pass[k]);
-            if (j->film->pass[k].n_even > j->film->px[k].n)
+            if (r.status == PT_OK && !pass_sane(&j->film->pass[k], j->film->px[k].n))
                 return pt_error_set(err, PT_ERR_FORMAT,
-                                    "checkpoint: pixel %zu has more even samples than samples", k);
+                                    "checkpoint: pixel %zu's pass sums do not fit its samples", k);
         }
         if (r.status == PT_OK && !job_acc_sane(&j->film->px[k], j->p.spp))
             return pt_error_set(err, PT_ERR_FORMAT,

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Render passes on the farm (common/render/passes.h): every pass is merged
 # exactly like the beauty, so the farm's EXR equals the standalone render's
-# bit for bit in all 20 pass channels (ptexr-diff compares every layer):
+# bit for bit in all 52 pass channels (ptexr-diff compares every layer):
 #  1. one-job ptserve --passes with two local workers;
 #  2. ptctl submit --passes through a queue, one of two workers killed (-9)
 #     while it holds tasks, which are requeued;
@@ -32,7 +32,7 @@ view=(--res 48x32 --spp 64 --seed 3 --passes all)
 same() { # NAME: its EXR is the reference's, every layer
   "$bin/ptexr-diff" "$tmp/ref.exr" "$tmp/$1.exr" > "$tmp/$1.diff" ||
     fail "$1: $(cat "$tmp/$1.diff")"
-  grep -q "and 20 named channels" "$tmp/$1.diff" || fail "$1: $(cat "$tmp/$1.diff")"
+  grep -q "and 52 named channels" "$tmp/$1.diff" || fail "$1: $(cat "$tmp/$1.diff")"
 }
 
 # 1. One job.

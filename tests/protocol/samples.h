@@ -122,6 +122,16 @@ static inline proto_result sample_result_passes(int v)
             sample_passes[i].sq[k] = (pt_u128)k * 1000 + i;
         sample_passes[i].s[3] = i == 5 ? -((pt_i128)1 << 90) : sample_passes[i].s[3];
         sample_passes[i].n_even = sample_pixels[i].n / 2;
+        memset(sample_passes[i].cid, 0, sizeof sample_passes[i].cid);
+        memset(sample_passes[i].ccnt, 0, sizeof sample_passes[i].ccnt);
+        if (sample_pixels[i].n > 1) { /* two ids a kind, counts summing to n */
+            for (int k = 0; k < PT_CRYPTO_KINDS; k++) {
+                sample_passes[i].cid[k][0] = 3u + (unsigned)k;
+                sample_passes[i].cid[k][1] = 0x80000000u + i;
+                sample_passes[i].ccnt[k][0] = 1;
+                sample_passes[i].ccnt[k][1] = sample_pixels[i].n - 1;
+            }
+        }
         sample_passes[i].pad = 0;
     }
     m.pass = sample_passes;

@@ -609,7 +609,7 @@ static void test_task(void)
     CHECK(proto_msg_encode_task(&w, &t, &err) == PT_OK);
     CHECK(proto_msg_decode_task(w.buf, w.len, &back, &err) == PT_OK &&
           back.film_flags == PROTO_FILM_TRANSPARENT);
-    t.film_flags = 1u << 6;
+    t.film_flags = 1u << 7;
     proto_writer_reset(&w);
     CHECK(proto_msg_encode_task(&w, &t, &err) == PT_ERR_ARG && w.len == 0);
     raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
@@ -911,6 +911,10 @@ static void test_result(void)
             pa[0].sq[i] = (pt_u128)i * 1000 + 1, pa[1].sq[i] = 3;
         pa[0].n_even = 4;
         pa[1].n_even = 8;
+        /* Cryptomatte lists: pixel 0 three objects and one material. */
+        pa[0].cid[0][0] = 0, pa[0].cid[0][1] = 77, pa[0].cid[0][2] = 0xfffffff0u;
+        pa[0].ccnt[0][0] = 1, pa[0].ccnt[0][1] = 5, pa[0].ccnt[0][2] = 2;
+        pa[0].cid[1][0] = 12345, pa[0].ccnt[1][0] = 8;
         if (k == 1)
             pa[1].sq[2] = ((pt_u128)7 << 64) + 1;
         proto_result m = {1, 2, {0, 0, 2, 1}, 0, 8, 0, 0, 0, 2, px, 0, pa}, b;
@@ -929,10 +933,17 @@ static void test_result(void)
         pt_error e = {0};
         CHECK(proto_msg_decode_result(ww.buf, ww.len - 1, NULL, 0, &b, &e) == PT_ERR_PROTO &&
               strstr(e.msg, "truncated"));
-        /* n_even of pixel 1 (the last 4 bytes) over its n of 8. */
-        ww.buf[ww.len - 4] = 9;
+        /* n_even of pixel 1 (before its 128 bytes of Cryptomatte) over its n of 8. */
+        ww.buf[ww.len - 128 - 4] = 9;
         CHECK(proto_msg_decode_result(ww.buf, ww.len, NULL, 0, &b, &e) == PT_ERR_PROTO &&
               strstr(e.msg, "even count"));
+        ww.buf[ww.len - 128 - 4] = 8;
+        CHECK(proto_msg_decode_result(ww.buf, ww.len, NULL, 0, &b, &e) == PT_OK);
+        proto_result_fini(&b);
+        /* A count without its id's order: the second entry used, the first not. */
+        ww.buf[ww.len - 128 + 4 * PT_CRYPTO_KEEP + 4] = 1;
+        CHECK(proto_msg_decode_result(ww.buf, ww.len, NULL, 0, &b, &e) == PT_ERR_PROTO &&
+              strstr(e.msg, "Cryptomatte"));
         proto_writer_fini(&ww);
         pa[1].n_even = 9;
         proto_writer_init(&ww, 1 << 20);
@@ -1106,7 +1117,7 @@ static void test_submit(void)
     CHECK(submit_check(&m, "bundle size") == PT_ERR_PROTO);
     m = sample_submit(1);
     CHECK(m.film_flags == PROTO_FILM_TRANSPARENT && submit_check(&m, NULL) == PT_OK);
-    m.film_flags = PROTO_FILM_TRANSPARENT | (1u << 6);
+    m.film_flags = PROTO_FILM_TRANSPARENT | (1u << 7);
     CHECK(submit_check(&m, "film flags") == PT_ERR_PROTO);
     /* The variant: at its cap accepted, one over refused both ways. */
     m = sample_submit(0);

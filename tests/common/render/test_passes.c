@@ -51,7 +51,8 @@ static void parse(void)
     CHECK(pt_passes_parse("--passes", "albedo", &m, &err) == PT_OK && m == PT_PASS_ALBEDO);
     CHECK(pt_passes_parse("--passes", "normal,depth,normal", &m, &err) == PT_OK &&
           m == (PT_PASS_NORMAL | PT_PASS_DEPTH));
-    CHECK(pt_passes_parse("--passes", "albedo,normal,depth,emission,halves", &m, &err) == PT_OK &&
+    CHECK(pt_passes_parse("--passes", "albedo,normal,depth,emission,halves,cryptomatte", &m,
+                          &err) == PT_OK &&
           m == PT_PASS_ALL);
     CHECK(pt_passes_parse("--passes", "all", &m, &err) == PT_OK && m == PT_PASS_ALL);
     const char *bad[] = {"",       ",", "albedo,", ",albedo",      "albedo,,depth",
@@ -64,7 +65,7 @@ static void parse(void)
     }
     char t[PT_PASSES_MAX_TEXT];
     pt_passes_text(PT_PASS_ALL, t, sizeof t);
-    CHECK(!strcmp(t, "albedo,normal,depth,emission,halves"));
+    CHECK(!strcmp(t, "albedo,normal,depth,emission,halves,cryptomatte"));
     CHECK(pt_passes_parse("--passes", t, &m, &err) == PT_OK && m == PT_PASS_ALL);
     pt_passes_text(PT_PASS_DEPTH | PT_PASS_HALVES, t, sizeof t);
     CHECK(!strcmp(t, "depth,halves"));
@@ -559,7 +560,7 @@ static void exr_layers(void)
     CHECK(pt_image_new(5, 3, &img, &err) == PT_OK);
     pt_pass_planes pl;
     CHECK(pt_passes_add_planes(img, PT_PASS_ALL, &pl, &err) == PT_OK);
-    CHECK(img->n_planes == 20);
+    CHECK(img->n_planes == 20 + 32); /* 32: Cryptomatte's 2 kinds x 4 layers x RGBA */
     for (uint32_t k = 0; k < img->n_planes; k++)
         for (uint32_t i = 0; i < 15; i++)
             img->planes[k].data[i] = (float)(k * 100 + i) * 0.25f - 3.0f;
