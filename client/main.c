@@ -356,6 +356,9 @@ static const char SUBMIT_HELP[] =
     "                     its material (an unknown name is refused at submit)\n"
     "  --transparent      camera rays that leave the scene add nothing, and the EXR\n"
     "                     gets an A channel (coverage; RGB premultiplied by it)\n"
+    "  --passes LIST      render passes written as EXR layers: a comma-separated\n"
+    "                     list of albedo, normal, depth, emission, halves, or all\n"
+    "                     (see ptworker --help); merged exactly like the beauty\n"
     "  --frames A-B[:STEP] one job of the frames A, A+STEP, ... B of the scene's\n"
     "                     animation (at most 100000, numbers 0 to 999999), each\n"
     "                     written as ID-NAME.####.exr with its zero-padded number;\n"
@@ -491,6 +494,7 @@ static int cmd_submit(int argc, char **argv, globals *g)
     m.min_spp = ro.min_spp;
     if (ro.given & PT_ROPT(PT_ROPT_TRANSPARENT))
         m.film_flags |= PROTO_FILM_TRANSPARENT;
+    m.film_flags |= proto_film_of_passes(ro.passes);
     if (ro.camera)
         snprintf(m.camera, sizeof m.camera, "%s", ro.camera);
     if (ro.variant)

@@ -590,6 +590,72 @@ static const char *result_pixel_problem(uint32_t n, uint32_t hits, uint32_t nmax
     return NULL;
 }
 
+/* A pixel's pass sums need 128 bits (any of them). */
+static int pass_wide(const pt_pass_acc *a)
+{
+    int wide = 0;
+    for (int k = 0; k < PT_PASS_SUMS; k++)
+        wide |= a->s[k] != (pt_i128)(int64_t)a->s[k];
+    for (int k = 0; k < PT_PASS_SQS; k++)
+        wide |= a->sq[k] > UINT64_MAX;
+    return wide;
+}
+
+/* One pixel's pass sums at q, 8 or 16 bytes each (wide), then n_even. */
+static void put_pass(uint8_t *q, const pt_pass_acc *a, int wide)
+{
+    size_t step = wide ? 16 : 8;
+    for (int k = 0; k < PT_PASS_SUMS; k++, q += step) {
+        proto_put_u64(q, (uint64_t)a->s[k]);
+        if (wide)
+            proto_put_u64(q + 8, (uint64_t)(a->s[k] >> 64));
+    }
+    for (int k = 0; k < PT_PASS_SQS; k++, q += step) {
+        proto_put_u64(q, (uint64_t)a->sq[k]);
+        if (wide)
+            proto_put_u64(q + 8, (uint64_t)(a->sq[k] >> 64));
+    }
+    proto_put_u32(q, a->n_even);
+    q += 4;
+    for (int k = 0; k < PT_CRYPTO_KINDS; k++, q += 8 * PT_CRYPTO_KEEP)
+        for (int j = 0; j < PT_CRYPTO_KEEP; j++) {
+            proto_put_u32(q + 4 * j, a->cid[k][j]);
+            proto_put_u32(q + 4 * (PT_CRYPTO_KEEP + j), a->ccnt[k][j]);
+        }
+}
+
+static void get_pass(const uint8_t *q, pt_pass_acc *a, int wide)
+{
+    size_t step = wide ? 16 : 8;
+    for (int k = 0; k < PT_PASS_SUMS; k++, q += step)
+        a->s[k] = wide ? (pt_i128)(((pt_u128)proto_get_u64(q + 8) << 64) | proto_get_u64(q))
+                       : (pt_i128)(int64_t)proto_get_u64(q);
+    for (int k = 0; k < PT_PASS_SQS; k++, q += step) {
+        a->sq[k] = proto_get_u64(q);
+        if (wide)
+            a->sq[k] |= (pt_u128)proto_get_u64(q + 8) << 64;
+    }
+    a->n_even = proto_get_u32(q);
+    a->pad = 0;
+    q += 4;
+    for (int k = 0; k < PT_CRYPTO_KINDS; k++, q += 8 * PT_CRYPTO_KEEP)
+        for (int j = 0; j < PT_CRYPTO_KEEP; j++) {
+            a->cid[k][j] = proto_get_u32(q + 4 * j);
+            a->ccnt[k][j] = proto_get_u32(q + 4 * (PT_CRYPTO_KEEP + j));
+        }
+}
+
+/* The pass sums' own checks against their pixel's n; NULL when sound. */
+static const char *pass_problem(const pt_pass_acc *a, uint32_t n)
+{
+    if (a->n_even > n)
+        return "even count over n";
+    for (int k = 0; k < PT_CRYPTO_KINDS; k++)
+        if (!pt_crypto_canonical(a->cid[k], a->ccnt[k], n))
+            return "Cryptomatte ids not in canonical form";
+    return NULL;
+}
+
 pt_status proto_msg_encode_result(proto_writer *w, const proto_result *m, pt_error *err)
 {
     size_t start = w->len;
@@ -598,7 +664,8 @@ pt_status proto_msg_encode_result(proto_writer *w, const proto_result *m, pt_err
         return bad(err, PT_ERR_ARG, "RESULT", why);
     uint32_t nmax = m->s1 - m->s0;
     for (uint32_t i = 0; i < m->npixels; i++)
-        if ((why = result_pixel_problem(m->pixels[i].n, m->pixels[i].hits, nmax)) != NULL)
+        if ((why = result_pixel_problem(m->pixels[i].n, m->pixels[i].hits, nmax)) != NULL ||
+            (m->pass && (why = pass_problem(&m->pass[i], m->pixels[i].n)) != NULL))
             return pt_error_set(err, PT_ERR_ARG, "RESULT: pixel %u %s", (unsigned)i, why);
     proto_w_u64(w, m->job_id);
     proto_w_u64(w, m->task_id);
@@ -618,7 +685,12 @@ pt_status proto_msg_encode_result(proto_writer *w, const proto_result *m, pt_err
             wide_rgb |= a->fsum[c] != (pt_i128)(int64_t)a->fsum[c];
         wide_sq |= a->fsum_sq > UINT64_MAX;
     }
-    proto_w_u8(w, (uint8_t)(wide_rgb * PROTO_RESULT_WIDE_RGB + wide_sq * PROTO_RESULT_WIDE_SQ));
+    int wide_pass = 0;
+    for (uint32_t i = 0; m->pass && i < m->npixels; i++)
+        wide_pass |= pass_wide(&m->pass[i]);
+    proto_w_u8(w, (uint8_t)(wide_rgb * PROTO_RESULT_WIDE_RGB + wide_sq * PROTO_RESULT_WIDE_SQ +
+                            (m->pass ? PROTO_RESULT_PASSES : 0u) +
+                            wide_pass * PROTO_RESULT_WIDE_PASSES));
     size_t rgb = wide_rgb ? 16 : 8, sq = wide_sq ? 16 : 8, psize = 3 * rgb + sq + 8;
     /* One reservation for all pixels: a 64k-pixel tile is 2.6 MB narrow. */
     uint8_t *q = proto_w_reserve(w, (size_t)m->npixels * psize);
@@ -636,6 +708,13 @@ pt_status proto_msg_encode_result(proto_writer *w, const proto_result *m, pt_err
             proto_put_u64(q + 3 * rgb + 8, (uint64_t)(a->fsum_sq >> 64));
         proto_put_u32(q + psize - 8, a->n);
         proto_put_u32(q + psize - 4, a->hits);
+    }
+    if (m->pass) {
+        size_t qsize = wide_pass ? PROTO_RESULT_WIDE_PASS_SIZE : PROTO_RESULT_PASS_SIZE;
+        if (!(q = proto_w_reserve(w, (size_t)m->npixels * qsize)))
+            return w_done(w, start, "RESULT", err);
+        for (uint32_t i = 0; i < m->npixels; i++, q += qsize)
+            put_pass(q, &m->pass[i], wide_pass);
     }
     return w_done(w, start, "RESULT", err);
 }
@@ -657,6 +736,7 @@ pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *bu
     uint8_t form = proto_r_u8(&r, "pixel form");
     m.pixels = NULL;
     m.owns_pixels = 0;
+    m.pass = NULL;
     if (r.status != PT_OK)
         return proto_r_finish(&r, "RESULT", err);
     /* Everything about the count is settled before a byte is allocated: the
@@ -665,12 +745,16 @@ pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *bu
     const char *why = result_problem(&m);
     if (why)
         return bad(err, PT_ERR_PROTO, "RESULT", why);
-    if (form & ~(PROTO_RESULT_WIDE_RGB | PROTO_RESULT_WIDE_SQ))
+    if (form & ~(PROTO_RESULT_WIDE_RGB | PROTO_RESULT_WIDE_SQ | PROTO_RESULT_PASSES |
+                 PROTO_RESULT_WIDE_PASSES) ||
+        ((form & PROTO_RESULT_WIDE_PASSES) && !(form & PROTO_RESULT_PASSES)))
         return bad(err, PT_ERR_PROTO, "RESULT", "unknown pixel form");
     int wide_rgb = (form & PROTO_RESULT_WIDE_RGB) != 0,
-        wide_sq = (form & PROTO_RESULT_WIDE_SQ) != 0;
+        wide_sq = (form & PROTO_RESULT_WIDE_SQ) != 0, passes = (form & PROTO_RESULT_PASSES) != 0,
+        wide_pass = (form & PROTO_RESULT_WIDE_PASSES) != 0;
     size_t rgb = wide_rgb ? 16 : 8, psize = 3 * rgb + (wide_sq ? 16 : 8) + 8;
-    size_t body = (size_t)m.npixels * psize;
+    size_t qsize = !passes ? 0 : wide_pass ? PROTO_RESULT_WIDE_PASS_SIZE : PROTO_RESULT_PASS_SIZE;
+    size_t body = (size_t)m.npixels * (psize + qsize);
     if (proto_r_left(&r) < body)
         return pt_error_set(err, PT_ERR_PROTO, "RESULT: truncated pixels (%zu of %zu bytes)",
                             proto_r_left(&r), body);
@@ -686,7 +770,16 @@ pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *bu
             return pt_error_set(err, PT_ERR_PROTO, "RESULT: pixel %u %s", (unsigned)i, why);
     }
     pt_pixel_acc *px = buf;
-    if (buf) {
+    if (passes) {
+        /* The pixels then their passes, in one block (proto_result.pass). */
+        size_t each = sizeof *px + sizeof *m.pass;
+        px = pt_malloc_array(m.npixels, each);
+        if (!px)
+            return pt_error_set(err, PT_ERR_NOMEM, "RESULT: %u pixels with passes",
+                                (unsigned)m.npixels);
+        m.owns_pixels = 1;
+        m.pass = (pt_pass_acc *)(px + m.npixels);
+    } else if (buf) {
         if (m.npixels > buf_cap)
             return pt_error_set(err, PT_ERR_LIMIT, "RESULT: %u pixels, buffer holds %zu",
                                 (unsigned)m.npixels, buf_cap);
@@ -711,10 +804,19 @@ pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *bu
             need_rgb |= px[i].fsum[c] != (pt_i128)(int64_t)px[i].fsum[c];
         need_sq |= px[i].fsum_sq > UINT64_MAX;
     }
+    int need_pass = 0;
+    for (uint32_t i = 0; passes && i < m.npixels; i++, q += qsize) {
+        get_pass(q, &m.pass[i], wide_pass);
+        need_pass |= pass_wide(&m.pass[i]);
+        if ((why = pass_problem(&m.pass[i], px[i].n)) != NULL) {
+            pt_free(px);
+            return pt_error_set(err, PT_ERR_PROTO, "RESULT: pixel %u %s", (unsigned)i, why);
+        }
+    }
     /* One encoding per message (the encoder's): a wide kind that no pixel
      * needs is refused, so a RESULT's bytes, which the results log keeps and
      * verification compares, are a function of its values. */
-    if (wide_rgb > need_rgb || wide_sq > need_sq) {
+    if (wide_rgb > need_rgb || wide_sq > need_sq || wide_pass > need_pass) {
         if (m.owns_pixels)
             pt_free(px);
         return bad(err, PT_ERR_PROTO, "RESULT", "a wide pixel form that no pixel needs");
@@ -731,6 +833,7 @@ void proto_result_fini(proto_result *r)
     if (r->owns_pixels)
         pt_free(r->pixels);
     r->pixels = NULL;
+    r->pass = NULL;
     r->owns_pixels = 0;
 }
 

@@ -89,11 +89,28 @@ const char *proto_msg_type_name(uint32_t type);
 #define PROTO_RESULT_WIDE_PIXEL_SIZE 72u /* bytes per pixel in a wide RESULT (the most) */
 #define PROTO_RESULT_WIDE_RGB 1u         /* RESULT pixel form: RGB sums in 16 bytes */
 #define PROTO_RESULT_WIDE_SQ 2u          /* RESULT pixel form: sum of squares in 16 bytes */
+#define PROTO_RESULT_PASSES 4u           /* RESULT pixel form: pass sums follow the pixels */
+#define PROTO_RESULT_WIDE_PASSES 8u      /* RESULT pixel form: pass sums in 16 bytes */
+#define PROTO_RESULT_PASS_SIZE 268u      /* bytes per pixel of narrow pass sums */
+#define PROTO_RESULT_WIDE_PASS_SIZE 404u /* bytes per pixel of wide pass sums (the most) */
 #define PROTO_RESULT_HEADER_SIZE 69u     /* bytes of RESULT before its pixels */
 
 /* Film flags (TASK, SUBMIT). Decoders refuse a bit not defined here. */
 #define PROTO_FILM_TRANSPARENT 1u /* camera rays that escape add nothing; the EXR gets A */
-#define PROTO_FILM_KNOWN PROTO_FILM_TRANSPARENT
+/* Bits 1 to 5: the render passes (PT_PASS_* of tile.h, shifted): a task
+ * renders them and its RESULT carries their sums (PROTO_RESULT_PASSES). */
+#define PROTO_FILM_PASS_SHIFT 1u
+#define PROTO_FILM_PASSES (PT_PASS_ALL << PROTO_FILM_PASS_SHIFT)
+#define PROTO_FILM_KNOWN (PROTO_FILM_TRANSPARENT | PROTO_FILM_PASSES)
+/* The PT_PASS_* mask of film flags, and the flags of a mask. */
+static inline uint32_t proto_film_passes(uint32_t flags)
+{
+    return (flags & PROTO_FILM_PASSES) >> PROTO_FILM_PASS_SHIFT;
+}
+static inline uint32_t proto_film_of_passes(uint32_t passes)
+{
+    return (passes & PT_PASS_ALL) << PROTO_FILM_PASS_SHIFT;
+}
 
 enum { PROTO_ROLE_WORKER = 1, PROTO_ROLE_CLIENT = 2 };
 
@@ -299,7 +316,9 @@ typedef struct proto_scene_chunk {
  *   48   8    u64   rays traced
  *   56   8    u64   paths ended by the depth cap (pt_render_stats.capped)
  *   64   4    u32   N: pixels; must equal (x1-x0)*(y1-y0) and be <= PROTO_MAX_TILE_PIXELS
- *   68   1    u8    pixel form: PROTO_RESULT_WIDE_RGB | PROTO_RESULT_WIDE_SQ, no other bit
+ *   68   1    u8    pixel form: PROTO_RESULT_WIDE_RGB | PROTO_RESULT_WIDE_SQ |
+ *                   PROTO_RESULT_PASSES | PROTO_RESULT_WIDE_PASSES, no other bit
+ *                   (WIDE_PASSES only with PASSES)
  *   69   PN         pixels, row-major over the tile, P = 40 to 72 bytes, each:
  *                     the sums of pt_pixel_acc (tile.h) in fixed point: R, G, B
  *                     (signed, units of 2^-32), each an i64 (8 bytes) or, with
@@ -309,7 +328,19 @@ typedef struct proto_scene_chunk {
  *                     P-8  4  u32  n: samples accumulated, n <= s1 - s0
  *                     P-4  4  u32  hits: of those, samples whose camera ray hit the
  *                                  scene, hits <= n (the coverage is hits / n)
- *   size 69+PN (PROTO_RESULT_HEADER_SIZE + P x N; P = PROTO_RESULT_PIXEL_SIZE
+ *   69+PN QN        with PASSES: each pixel's pass sums (pt_pass_acc, tile.h),
+ *                   row-major, Q = 140 bytes (narrow) or 276 (WIDE_PASSES):
+ *                     13 sums (signed, units of 2^-32: albedo RGB, normal XYZ,
+ *                     emission RGB, depth, the beauty's RGB over even sample
+ *                     indices), each an i64 or two u64 low half first; 4 sums
+ *                     of squares (unsigned, units of 2^-48: albedo, normal,
+ *                     emission, depth), each a u64 or two; then a u32: of the
+ *                     pixel's n samples, those of even index (<= n); then
+ *                     Cryptomatte, objects then materials, PT_CRYPTO_KEEP (8)
+ *                     u32 ids then 8 u32 sample counts each, in the merge's
+ *                     canonical form (pt_crypto_canonical: ascending ids,
+ *                     unused entries 0 last, counts summing to <= n)
+ *   size 69+PN[+QN] (PROTO_RESULT_HEADER_SIZE + P x N; P = PROTO_RESULT_PIXEL_SIZE
  *   narrow, PROTO_RESULT_WIDE_PIXEL_SIZE with both bits)
  * The encoder sets a bit only when some pixel's sum of that kind does not fit
  * 64 bits: RGB sums fit below 2^31 per task, squares below 2^16, so a pixel of
@@ -324,6 +355,9 @@ typedef struct proto_result {
     uint32_t npixels;
     pt_pixel_acc *pixels; /* npixels entries */
     int owns_pixels;      /* 1 when the decoder allocated pixels */
+    pt_pass_acc *pass;    /* NULL, or npixels pass sums; decoded, they lie right after
+                             pixels[npixels - 1] in the same allocation (pt_film_add_tile
+                             of a film with passes reads them there) */
 } proto_result;
 
 /* HEARTBEAT
@@ -580,7 +614,11 @@ pt_status proto_msg_encode_result(proto_writer *w, const proto_result *m, pt_err
  * and the bytes present before anything is allocated. Pixels go to buf when buf
  * is not NULL (PT_ERR_LIMIT when N > buf_cap; out->owns_pixels = 0), else to a
  * pt_malloc'd array that out owns (out->owns_pixels = 1; PT_ERR_NOMEM when the
- * allocation fails). Release with proto_result_fini either way. */
+ * allocation fails). A RESULT with pass sums always goes to an allocation of
+ * its own, the pixels then the passes (out->pass), whatever buf is; a pass
+ * whose even count exceeds its pixel's n, or whose Cryptomatte lists are not
+ * canonical, is refused. Release with
+ * proto_result_fini either way. */
 pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *buf, size_t buf_cap,
                                   proto_result *out, pt_error *err);
 /* Frees the pixels when the decoder allocated them, and clears the pointer. Accepts NULL. */

@@ -125,6 +125,10 @@ static void usage(FILE *f)
         "  --transparent          camera rays that leave the scene add nothing, and the\n"
         "                         EXR gets an A channel (coverage; RGB premultiplied);\n"
         "                         one-job mode (queued jobs: ptctl submit --transparent)\n"
+        "  --passes LIST          render passes as EXR layers: albedo, normal, depth,\n"
+        "                         emission, halves, or all (see ptworker --help); merged\n"
+        "                         exactly like the beauty; one-job mode (queued jobs:\n"
+        "                         ptctl submit --passes)\n"
         "  --variant NAME         the KHR_materials_variants variant: mapped primitives\n"
         "                         take its material; one-job mode (queued jobs: ptctl\n"
         "                         submit --variant)\n"
@@ -478,6 +482,7 @@ int main(int argc, char **argv)
     }
     if (ro.given & PT_ROPT(PT_ROPT_TRANSPARENT))
         c.job.film_flags |= PROTO_FILM_TRANSPARENT;
+    c.job.film_flags |= proto_film_of_passes(ro.passes);
     c.view = ro.view;
     if (c.state_dir) {
         if (optind != argc || c.out_path) {
@@ -556,6 +561,11 @@ int main(int argc, char **argv)
     if (c.state_dir && (c.job.film_flags & PROTO_FILM_TRANSPARENT)) {
         fprintf(stderr, "ptserve: --transparent is for one-job mode; a queued job asks for it "
                         "with ptctl submit --transparent\n");
+        return 2;
+    }
+    if (c.state_dir && ro.passes) {
+        fprintf(stderr, "ptserve: --passes is for one-job mode; a queued job asks for them "
+                        "with ptctl submit --passes\n");
         return 2;
     }
     if (has_chunk && has_task_time) {

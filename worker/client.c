@@ -60,6 +60,7 @@ typedef struct done_item {
     pt_error err; /* why not */
     pt_render_stats stats;
     pt_pixel_acc *pixels;
+    pt_pass_acc *pass; /* the render passes' sums, when the task asks for them */
     struct done_item *next;
 } done_item;
 
@@ -198,6 +199,7 @@ static void done_free(done_item *d)
 {
     if (d) {
         pt_free(d->pixels);
+        pt_free(d->pass);
         pt_free(d);
     }
 }
@@ -217,9 +219,12 @@ static void render_one(worker *w, const task_item *t, done_item *d)
     p.rr_depth = k->rr_depth;
     p.light_strategy = PT_LIGHT_MIS;
     p.transparent = (k->film_flags & PROTO_FILM_TRANSPARENT) ? 1u : 0u;
+    p.passes = proto_film_passes(k->film_flags);
     size_t npx = (size_t)(k->tile.x1 - k->tile.x0) * (k->tile.y1 - k->tile.y0);
     d->pixels = pt_malloc_array(npx, sizeof *d->pixels);
-    if (!d->pixels) {
+    if (p.passes)
+        d->pass = pt_malloc_array(npx, sizeof *d->pass);
+    if (!d->pixels || (p.passes && !d->pass)) {
         d->st = pt_error_set(&d->err, PT_ERR_NOMEM, "out of memory for %zu pixels", npx);
         return;
     }
@@ -229,7 +234,8 @@ static void render_one(worker *w, const task_item *t, done_item *d)
     d->st = wrk_scenes_acquire(w->scenes, k->scene_hash, &p, &look, t->entry, &ref, &d->err);
     if (d->st != PT_OK)
         return;
-    pt_render_tile(wrk_scene_renderer(ref), k->tile, k->s0, k->s1, d->pixels, &d->stats);
+    pt_render_tile_passes(wrk_scene_renderer(ref), k->tile, k->s0, k->s1, d->pixels, d->pass,
+                          &d->stats, NULL);
     wrk_scenes_release(w->scenes, ref);
 }
 
@@ -760,6 +766,7 @@ static int collect_results(worker *w)
         r.capped = d->stats.capped;
         r.npixels = (d->t.tile.x1 - d->t.tile.x0) * (d->t.tile.y1 - d->t.tile.y0);
         r.pixels = d->pixels;
+        r.pass = d->pass;
         r.owns_pixels = 0;
         uint64_t samples = d->stats.samples;
         size_t mark;

@@ -126,6 +126,14 @@ static void usage(FILE *f)
             "  --env-strength S   the map's factor (default 1)\n"
             "  --env-rotate DEG   turn the map about +Y (default 0)\n"
             "  --background R,G,B a uniform environment of this radiance instead\n"
+            "  --passes LIST      render passes written as layers of the EXR, a comma-\n"
+            "                     separated list of albedo (albedo.R/G/B: of the first\n"
+            "                     non-specular surface), normal (N.X/Y/Z: its shading\n"
+            "                     normal, world space), depth (depth.Z: camera distance\n"
+            "                     of the first hit), emission (emission.R/G/B), halves\n"
+            "                     (halfA/halfB.R/G/B: the beauty over even and odd\n"
+            "                     sample indices), or all; each pass with its variance\n"
+            "                     (NAME.variance). The beauty keeps its bits\n"
             "  --transparent      camera rays that leave the scene add nothing (the\n"
             "                     environment still lights the scene), and the EXR gets\n"
             "                     an A channel: the pixel's coverage, RGB premultiplied;\n"
@@ -433,6 +441,7 @@ int main(int argc, char **argv)
     o.shutter[1] = ro.shutter[1];
     o.view = ro.view;
     o.fps = ro.fps;
+    o.passes = ro.passes;
     if (ro.animation)
         o.animate = 1;
     if (has_time || has_frame) {

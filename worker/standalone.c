@@ -18,6 +18,7 @@
 #include "common/render/env.h"
 #include "common/render/film.h"
 #include "common/render/guide.h"
+#include "common/render/passes.h"
 #include "common/render/render.h"
 #include "common/render/tile.h"
 #include "common/scene/scene.h"
@@ -45,6 +46,16 @@ typedef struct thread_arg {
     uint32_t index;
 } thread_arg;
 
+/* sum += chunk, pixel by pixel, and the passes' sums too (psum NULL: none). */
+static void add_chunk(pt_pixel_acc *sum, const pt_pixel_acc *chunk, pt_pass_acc *psum,
+                      const pt_pass_acc *pchunk, uint32_t npx)
+{
+    for (uint32_t i = 0; i < npx; i++)
+        pt_pixel_acc_add(&sum[i], &chunk[i]);
+    for (uint32_t i = 0; psum && i < npx; i++)
+        pt_pass_acc_add(&psum[i], &pchunk[i]);
+}
+
 static void *render_thread(void *p)
 {
     thread_arg *a = p;
@@ -54,8 +65,14 @@ static void *render_thread(void *p)
     const pt_adaptive rule = {j->o->target_error, j->o->min_gain, j->o->min_spp};
     pt_pixel_acc *chunk = pt_malloc_array(max_px, sizeof *chunk);
     pt_pixel_acc *sum = pt_malloc_array(max_px, sizeof *sum);
-    if (!chunk || !sum) {
+    /* The passes' sums beside the beauty's, when asked for. */
+    int passes = j->o->passes != 0;
+    pt_pass_acc *pchunk = passes ? pt_malloc_array(max_px, sizeof *pchunk) : NULL;
+    pt_pass_acc *psum = passes ? pt_malloc_array(max_px, sizeof *psum) : NULL;
+    if (!chunk || !sum || (passes && (!pchunk || !psum))) {
         /* Reported by the main thread as a missing tile count. */
+        pt_free(pchunk);
+        pt_free(psum);
         pt_free(chunk);
         pt_free(sum);
         atomic_fetch_sub(&j->running, 1);
@@ -68,25 +85,26 @@ static void *render_thread(void *p)
         pt_rect rc = j->tiles[t];
         uint32_t tw = rc.x1 - rc.x0, npx = tw * (rc.y1 - rc.y0);
         memset(sum, 0, npx * sizeof *sum);
+        if (psum)
+            memset(psum, 0, npx * sizeof *psum);
         if (j->gd) {
             /* A guided pass: its samples in chunks, no adaptive stop. */
             for (uint32_t s0 = j->pass0; s0 < j->pass1; s0 += j->o->chunk) {
                 uint32_t s1 = s0 + j->o->chunk < j->pass1 ? s0 + j->o->chunk : j->pass1;
-                pt_render_tile_guided(j->r, rc, s0, s1, chunk, &j->thread_stats[a->index],
+                pt_render_tile_passes(j->r, rc, s0, s1, chunk, pchunk, &j->thread_stats[a->index],
                                       &j->gd[a->index]);
-                for (uint32_t i = 0; i < npx; i++)
-                    pt_pixel_acc_add(&sum[i], &chunk[i]);
+                add_chunk(sum, chunk, psum, pchunk, npx);
                 atomic_fetch_add(&j->samples_done, (uint64_t)npx * (s1 - s0));
             }
-            pt_film_add_tile(j->film, rc, sum);
+            pt_film_add_tile_passes(j->film, rc, sum, psum);
             atomic_fetch_add(&j->tiles_done, 1);
             continue;
         }
         for (uint32_t s0 = 0; s0 < j->o->spp; s0 += j->o->chunk) {
             uint32_t s1 = s0 + j->o->chunk < j->o->spp ? s0 + j->o->chunk : j->o->spp;
-            pt_render_tile(j->r, rc, s0, s1, chunk, &j->thread_stats[a->index]);
-            for (uint32_t i = 0; i < npx; i++)
-                pt_pixel_acc_add(&sum[i], &chunk[i]);
+            pt_render_tile_passes(j->r, rc, s0, s1, chunk, pchunk, &j->thread_stats[a->index],
+                                  NULL);
+            add_chunk(sum, chunk, psum, pchunk, npx);
             atomic_fetch_add(&j->samples_done, (uint64_t)npx * (s1 - s0));
             if (s1 < j->o->spp && pt_tile_stops(sum, tw, chunk, tw, tw, rc.y1 - rc.y0, s1, &rule)) {
                 atomic_fetch_add(&j->samples_done, (uint64_t)npx * (j->o->spp - s1));
@@ -94,9 +112,11 @@ static void *render_thread(void *p)
                 break;
             }
         }
-        pt_film_add_tile(j->film, rc, sum);
+        pt_film_add_tile_passes(j->film, rc, sum, psum);
         atomic_fetch_add(&j->tiles_done, 1);
     }
+    pt_free(pchunk);
+    pt_free(psum);
     pt_free(chunk);
     pt_free(sum);
     atomic_fetch_sub(&j->running, 1);
@@ -282,6 +302,8 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
     pthread_t *threads = NULL;
     thread_arg *args = NULL;
     pt_render_stats *tstats = NULL;
+    pt_pass_planes planes;
+    pt_crypto_meta cmeta = {0};
     int rc = 1;
     double t0 = pt_now_s();
     int early = check_before(o);
@@ -337,6 +359,7 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
     p.transparent = o->transparent ? 1u : 0u;
     p.clamp_direct = o->clamp_direct;
     p.clamp_indirect = o->clamp_indirect;
+    p.passes = o->passes;
     /* Guiding samples glossy closures only (main refuses it with adaptive
      * sampling). */
     p.guiding = o->guiding && (scene->features & PT_FEAT_GLOSSY) ? 1u : 0u;
@@ -349,7 +372,9 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
     }
     if (pt_renderer_new(scene, &p, &r, &err) != PT_OK ||
         pt_film_new(p.width, p.height, &film, &err) != PT_OK ||
-        pt_image_new(p.width, p.height, &img, &err) != PT_OK) {
+        (o->passes && pt_film_enable_passes(film, o->passes, &err) != PT_OK) ||
+        pt_image_new(p.width, p.height, &img, &err) != PT_OK ||
+        (o->passes && pt_passes_add_planes(img, o->passes, &planes, &err) != PT_OK)) {
         fprintf(stderr, "ptworker: %s\n", err.msg);
         goto done;
     }
@@ -417,6 +442,14 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
         st.clamped += tstats[i].clamped;
     }
     pt_exr_meta meta = {0};
+    if (o->passes & PT_PASS_CRYPTOMATTE) {
+        if (pt_crypto_meta_init(&cmeta, scene, &err) != PT_OK) {
+            fprintf(stderr, "\nptworker: %s\n", err.msg);
+            goto done;
+        }
+        meta.attrs = cmeta.attrs;
+        meta.nattrs = cmeta.nattrs;
+    }
     meta.total_samples = pt_film_resolve(film, img);
     img->has_alpha = p.transparent;
     meta.render_seconds = secs;
@@ -458,6 +491,7 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
                 (unsigned long long)st.capped, p.max_depth);
     rc = 0;
 done:
+    pt_crypto_meta_fini(&cmeta);
     pt_free(tstats);
     pt_free(args);
     pt_free(threads);

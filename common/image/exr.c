@@ -143,7 +143,7 @@ static float *plane_of(const pt_image *img, const char *name)
         return img->samples;
     if (!strcmp(name, "variance"))
         return img->variance;
-    return NULL;
+    return pt_image_find_plane(img, name);
 }
 
 /* Declares the part, channels and attributes of the file being written. */
@@ -183,6 +183,11 @@ static exr_result_t define_part(exr_context_t ctx, const pt_image *img, const pt
             c >= 1 && c < 4 ? EXR_PERCEPTUALLY_LOGARITHMIC : EXR_PERCEPTUALLY_LINEAR;
         rv = exr_add_channel(ctx, part, channel_names[c], EXR_PIXEL_FLOAT, pt, 1, 1);
     }
+    /* The named planes (render passes), under their own names; OpenEXR
+     * keeps the list sorted, so a layer's channels sit together. */
+    for (uint32_t i = 0; i < img->n_planes && rv == EXR_ERR_SUCCESS; i++)
+        rv = exr_add_channel(ctx, part, img->planes[i].name, EXR_PIXEL_FLOAT,
+                             EXR_PERCEPTUALLY_LINEAR, 1, 1);
     char software[80], samples[24];
     if (meta && meta->software[0])
         snprintf(software, sizeof software, "%s", meta->software);
@@ -201,6 +206,8 @@ static exr_result_t define_part(exr_context_t ctx, const pt_image *img, const pt
         rv = exr_attr_set_string(ctx, part, "ptfarm.sceneHash", meta->scene_hash);
     if (rv == EXR_ERR_SUCCESS && meta)
         rv = exr_attr_set_string(ctx, part, "ptfarm.jobId", meta->job_id);
+    for (uint32_t i = 0; rv == EXR_ERR_SUCCESS && meta && i < meta->nattrs; i++)
+        rv = exr_attr_set_string(ctx, part, meta->attrs[i].name, meta->attrs[i].value);
     if (rv == EXR_ERR_SUCCESS && meta && meta->has_frame) {
         exr_attr_rational_t fps = fps_rational(meta->fps);
         rv = exr_attr_set_int(ctx, part, "ptfarm.frame", meta->frame);
@@ -436,8 +443,8 @@ static exr_result_t read_chunks(exr_const_context_t ctx, int32_t min_y, pt_image
     return rv;
 }
 
-static pt_status exr_read(const char *path, int follow, pt_image **out, pt_exr_meta *meta,
-                          pt_error *err)
+static pt_status exr_read(const char *path, int follow, int layers, pt_image **out,
+                          pt_exr_meta *meta, const char *attr, char **attr_out, pt_error *err)
 {
     if (!path)
         return pt_error_set(err, PT_ERR_ARG, "EXR read: no path");
@@ -515,12 +522,15 @@ static pt_status exr_read(const char *path, int follow, pt_image **out, pt_exr_m
         goto fail;
     }
     int have_rgb = 0;
-    uint32_t has_alpha = 0;
+    uint32_t has_alpha = 0, extra = 0;
     for (int i = 0; i < chl->num_channels; i++) {
         const exr_attr_chlist_entry_t *e = &chl->entries[i];
         const char *name = e->name.str ? e->name.str : "";
         int ours = !strcmp(name, "R") || !strcmp(name, "G") || !strcmp(name, "B") ||
                    !strcmp(name, "samples") || !strcmp(name, "variance") || !strcmp(name, "A");
+        if (!ours && layers && e->x_sampling == 1 && e->y_sampling == 1 &&
+            strlen(name) < PT_IMAGE_PLANE_NAME && extra < PT_IMAGE_MAX_PLANES)
+            extra++; /* read into a named plane (the rest are skipped) */
         if (!ours)
             continue;
         has_alpha |= !strcmp(name, "A");
@@ -534,10 +544,34 @@ static pt_status exr_read(const char *path, int follow, pt_image **out, pt_exr_m
         st = pt_error_set(err, PT_ERR_FORMAT, "EXR %s: channels R, G and B are required", path);
         goto fail;
     }
+    /* Each named plane takes as much memory again as a base one: the same
+     * bound on the file's pixels, over all the planes read. */
+    if (out && extra > 0 &&
+        (uint64_t)w * (uint64_t)h * (extra + 6) >
+            ((uint64_t)s.size * PT_EXR_MAX_PIXELS_PER_BYTE + 65536) * 6) {
+        st = pt_error_set(err, PT_ERR_FORMAT,
+                          "EXR %s: %u layers' channels of %" PRId64 "x%" PRId64
+                          " pixels cannot be in %" PRId64 " bytes",
+                          path, extra, w, h, s.size);
+        goto fail;
+    }
     pt_error ierr = {0};
     if (out && (st = pt_image_new((uint32_t)w, (uint32_t)h, &img, &ierr)) != PT_OK) {
         pt_error_set(err, st, "EXR %s: %s", path, ierr.msg);
         goto fail;
+    }
+    for (int i = 0; img && extra > 0 && i < chl->num_channels; i++) {
+        const exr_attr_chlist_entry_t *e = &chl->entries[i];
+        const char *name = e->name.str ? e->name.str : "";
+        if (plane_of(img, name) || e->x_sampling != 1 || e->y_sampling != 1 ||
+            strlen(name) >= PT_IMAGE_PLANE_NAME || img->n_planes >= PT_IMAGE_MAX_PLANES)
+            continue;
+        /* A name the image refuses (a control byte) is skipped, not fatal. */
+        pt_status pst = pt_image_add_plane(img, name, NULL, &ierr);
+        if (pst == PT_ERR_NOMEM) {
+            st = pt_error_set(err, pst, "EXR %s: %s", path, ierr.msg);
+            goto fail;
+        }
     }
     if (img)
         img->has_alpha = has_alpha;
@@ -547,6 +581,22 @@ static pt_status exr_read(const char *path, int follow, pt_image **out, pt_exr_m
     }
     if (meta)
         read_meta(ctx, meta);
+    if (attr) {
+        int32_t alen = 0;
+        const char *str = NULL;
+        if (exr_attr_get_string(ctx, 0, attr, &alen, &str) != EXR_ERR_SUCCESS || !str || alen < 0) {
+            st = pt_error_set(err, PT_ERR_FORMAT, "EXR %s: no string attribute %s", path, attr);
+            goto fail;
+        }
+        char *copy = pt_malloc((size_t)alen + 1);
+        if (!copy) {
+            st = pt_error_set(err, PT_ERR_NOMEM, "EXR %s: attribute %s: out of memory", path, attr);
+            goto fail;
+        }
+        memcpy(copy, str, (size_t)alen);
+        copy[alen] = '\0';
+        *attr_out = copy;
+    }
     exr_finish(&ctx);
     close(s.fd);
     if (out)
@@ -563,10 +613,20 @@ fail:
 
 pt_status pt_exr_read(const char *path, pt_image **out, pt_exr_meta *meta, pt_error *err)
 {
-    return exr_read(path, 1, out, meta, err);
+    return exr_read(path, 1, 0, out, meta, NULL, NULL, err);
+}
+
+pt_status pt_exr_read_attr(const char *path, const char *name, char **out, pt_error *err)
+{
+    return exr_read(path, 1, 0, NULL, NULL, name, out, err);
+}
+
+pt_status pt_exr_read_layers(const char *path, pt_image **out, pt_exr_meta *meta, pt_error *err)
+{
+    return exr_read(path, 1, 1, out, meta, NULL, NULL, err);
 }
 
 pt_status pt_exr_read_nofollow(const char *path, pt_image **out, pt_exr_meta *meta, pt_error *err)
 {
-    return exr_read(path, 0, out, meta, err);
+    return exr_read(path, 0, 0, out, meta, NULL, NULL, err);
 }

@@ -4,7 +4,8 @@
  * Channels written: R, G, B (mean radiance), "samples" (per-pixel sample count)
  * and "variance" (variance of the pixel mean, luminance), and A (coverage; RGB
  * premultiplied by it) when the image has_alpha, all FLOAT, scanline,
- * ZIP compression. Header attributes: "ptfarm.samples" (total samples, as a
+ * ZIP compression; then the image's named planes (render passes: "albedo.R",
+ * "N.X", ...), FLOAT, under their names. Header attributes: "ptfarm.samples" (total samples, as a
  * decimal string), "ptfarm.renderSeconds" (double), "ptfarm.sceneHash"
  * (string), "ptfarm.jobId" (string), and the standard "software" string; a
  * frame of an animation also "ptfarm.frame" (int, the frame number),
@@ -25,6 +26,12 @@
 #include "common/base/error.h"
 #include "common/image/image.h"
 
+/* A string attribute written into the header as it is (Cryptomatte's
+ * cryptomatte/<key>/...). */
+typedef struct pt_exr_attr {
+    const char *name, *value;
+} pt_exr_attr;
+
 typedef struct pt_exr_meta {
     uint64_t total_samples;
     double render_seconds;
@@ -33,8 +40,10 @@ typedef struct pt_exr_meta {
     char software[64]; /* "ptfarm <version>" when empty on write */
     int has_frame;     /* a frame of an animation: the three below are written */
     int32_t frame;
-    double time; /* seconds */
-    double fps;  /* read back from the rational */
+    double time;              /* seconds */
+    double fps;               /* read back from the rational */
+    const pt_exr_attr *attrs; /* written only: nattrs more string attributes */
+    uint32_t nattrs;
 } pt_exr_meta;
 
 pt_status pt_exr_write(const char *path, const pt_image *img, const pt_exr_meta *meta,
@@ -53,6 +62,18 @@ pt_status pt_exr_write(const char *path, const pt_image *img, const pt_exr_meta 
  * PT_EXR_MAX_PIXELS_PER_BYTE pixels per byte of the file (plus 65536) is
  * PT_ERR_FORMAT. */
 pt_status pt_exr_read(const char *path, pt_image **out, pt_exr_meta *meta, pt_error *err);
+
+/* pt_exr_read that also reads every other channel that is not subsampled
+ * and has a name of at most 31 bytes (the first PT_IMAGE_MAX_PLANES of them,
+ * in the file's order: sorted by name) into the image's named planes,
+ * converted to float: the render passes of a ptfarm EXR, for ptdenoise and
+ * the tests. The bound on pixels per byte holds over all the planes read. */
+pt_status pt_exr_read_layers(const char *path, pt_image **out, pt_exr_meta *meta, pt_error *err);
+
+/* The string attribute `name` of the file's header into *out (pt_malloc'd,
+ * NUL-terminated): PT_OK, or PT_ERR_FORMAT when there is none (or not a
+ * string), or the errors of pt_exr_read's header. */
+pt_status pt_exr_read_attr(const char *path, const char *name, char **out, pt_error *err);
 
 /* pt_exr_read that refuses a symbolic link at path's last component
  * (PT_ERR_FORMAT), for images in a folder that others may write to: the

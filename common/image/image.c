@@ -58,7 +58,51 @@ pt_status pt_image_new(uint32_t width, uint32_t height, pt_image **out, pt_error
 
 void pt_image_free(pt_image *img)
 {
+    if (!img)
+        return;
+    for (uint32_t i = 0; i < img->n_planes; i++)
+        pt_free(img->planes[i].data);
     pt_free(img);
+}
+
+float *pt_image_find_plane(const pt_image *img, const char *name)
+{
+    for (uint32_t i = 0; i < img->n_planes; i++)
+        if (!strcmp(img->planes[i].name, name))
+            return img->planes[i].data;
+    return NULL;
+}
+
+pt_status pt_image_add_plane(pt_image *img, const char *name, float **out, pt_error *err)
+{
+    size_t len = strlen(name);
+    int ok = len > 0 && len < PT_IMAGE_PLANE_NAME;
+    for (size_t i = 0; ok && i < len; i++)
+        ok = name[i] > ' ' && name[i] < 0x7f;
+    static const char *const own[] = {"R", "G", "B", "A", "samples", "variance"};
+    for (size_t i = 0; ok && i < sizeof own / sizeof own[0]; i++)
+        ok = strcmp(name, own[i]) != 0;
+    if (!ok)
+        return pt_error_set(err, PT_ERR_ARG,
+                            "image plane name '%.40s' is not 1 to %d printable "
+                            "bytes other than a base channel's",
+                            name, PT_IMAGE_PLANE_NAME - 1);
+    float *d = pt_image_find_plane(img, name);
+    if (!d) {
+        if (img->n_planes >= PT_IMAGE_MAX_PLANES)
+            return pt_error_set(err, PT_ERR_LIMIT, "image plane %s: more than %d planes", name,
+                                PT_IMAGE_MAX_PLANES);
+        /* The size was checked when the image was made. */
+        d = pt_calloc((size_t)img->width * img->height, sizeof *d);
+        if (!d)
+            return pt_error_set(err, PT_ERR_NOMEM, "image plane %s: out of memory", name);
+        pt_image_plane *pl = &img->planes[img->n_planes++];
+        memcpy(pl->name, name, len + 1);
+        pl->data = d;
+    }
+    if (out)
+        *out = d;
+    return PT_OK;
 }
 
 /* IEC 61966-2-1:1999, section 5.2 (encoding) and its inverse. */

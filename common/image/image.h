@@ -7,6 +7,9 @@
  * camera samples whose camera ray hit the scene), meaningful and written as
  * the EXR's A channel only when has_alpha is 1 (a transparent film, whose RGB
  * is then premultiplied by it). Row 0 is the top row.
+ * Besides these, an image may hold named planes (render passes, a denoised
+ * layer): float channels written into the EXR under their names
+ * ("albedo.R", "N.X", ...; common/render/passes.h names the passes).
  * Also writes an 8-bit PNG preview through a view transform (stb_image_write).
  *
  * Threads: an image belongs to one thread at a time; the functions keep no
@@ -21,6 +24,15 @@
 #include "common/base/error.h"
 #include "common/image/view.h"
 
+/* A named plane: an EXR channel name of 1 to PT_IMAGE_PLANE_NAME - 1
+ * printable ASCII bytes, and width x height floats (pt_malloc'd). */
+#define PT_IMAGE_PLANE_NAME 32
+#define PT_IMAGE_MAX_PLANES 64
+typedef struct pt_image_plane {
+    char name[PT_IMAGE_PLANE_NAME];
+    float *data;
+} pt_image_plane;
+
 typedef struct pt_image {
     uint32_t width, height;
     float *r, *g, *b;
@@ -28,6 +40,8 @@ typedef struct pt_image {
     float *variance;
     float *a;           /* always allocated; see has_alpha */
     uint32_t has_alpha; /* 1: a holds the coverage and the EXR has an A channel */
+    uint32_t n_planes;  /* named planes in planes[], in the order they were added */
+    pt_image_plane planes[PT_IMAGE_MAX_PLANES];
 } pt_image;
 
 /* The largest image any module makes, reads or writes (an image, the film
@@ -42,7 +56,16 @@ pt_status pt_image_check_size(const char *what, uint32_t width, uint32_t height,
 
 /* Allocates a zeroed image with all six planes (has_alpha 0). */
 pt_status pt_image_new(uint32_t width, uint32_t height, pt_image **out, pt_error *err);
-void pt_image_free(pt_image *img); /* accepts NULL */
+void pt_image_free(pt_image *img); /* accepts NULL; frees the named planes too */
+
+/* The named plane `name` of img, added zeroed when it is not there: *out
+ * (may be NULL) is its data. PT_ERR_ARG for a name that is not 1 to 31
+ * printable ASCII bytes or is one of the six planes above (R, G, B, A,
+ * samples, variance); PT_ERR_LIMIT past PT_IMAGE_MAX_PLANES; PT_ERR_NOMEM. */
+pt_status pt_image_add_plane(pt_image *img, const char *name, float **out, pt_error *err);
+
+/* The data of the named plane `name`, or NULL when img has none. */
+float *pt_image_find_plane(const pt_image *img, const char *name);
 
 /* An output's format, by its name's ending in any case: ".exr" (OpenEXR,
  * linear, with a PNG preview beside it) or ".png" (the 8-bit PNG alone). */

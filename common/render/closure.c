@@ -349,3 +349,60 @@ pt_vec3 pt_closure_sample(const pt_closure *c, const float u[3], pt_vec3 *wi, fl
     *pdf = gpdf[c->n_groups - 1];
     return pt_v3_scale(f, 1.0f / *pdf);
 }
+
+int pt_closure_albedo(const pt_closure *c, pt_vec3 *albedo)
+{
+    pt_vec3 a = pt_v3(0.0f, 0.0f, 0.0f);
+    float reach = 1.0f, rough = 0.0f, all = 0.0f;
+    const float ra = PT_CLOSURE_ROUGH_ALPHA;
+    /* Sampling picks a lobe of the outermost group with its prob, or the
+     * group inside with the group's below: a lobe's chance is its prob times
+     * the below of every group around it. */
+    for (uint32_t g = c->n_groups; g-- > 0;) {
+        const pt_closure_group *gr = &c->group[g];
+        for (uint32_t i = 0; i < gr->n; i++) {
+            const pt_lobe *l = &c->lobe[gr->first + i];
+            pt_vec3 col = pt_v3(0.0f, 0.0f, 0.0f);
+            int is_rough = 1;
+            switch (l->kind) {
+            case PT_LOBE_DIFFUSE:
+            case PT_LOBE_DIFFUSE_TRANSMIT:
+                col = l->p.diffuse.albedo;
+                break;
+            case PT_LOBE_DIFFUSE_IRID:
+                col = l->p.irid_diffuse.d.albedo;
+                break;
+            case PT_LOBE_SPECULAR:
+                col = l->p.specular.f0;
+                is_rough = l->p.specular.alpha > ra;
+                break;
+            case PT_LOBE_SPECULAR_IRID:
+                col = l->p.irid_specular.s.f0;
+                is_rough = l->p.irid_specular.s.alpha > ra;
+                break;
+            case PT_LOBE_SPECULAR_ANISO:
+                col = l->p.aniso.f0;
+                is_rough = l->p.aniso.ax * l->p.aniso.ay > ra * ra;
+                break;
+            case PT_LOBE_DIELECTRIC:
+                col = pt_v3_scale(l->p.dielectric.tint, l->p.dielectric.weight);
+                is_rough = l->p.dielectric.alpha > ra;
+                break;
+            case PT_LOBE_SHEEN:
+                col = l->p.sheen.color;
+                break;
+            case PT_LOBE_COAT:
+                is_rough = l->p.coat.alpha > ra;
+                break;
+            }
+            float p = reach * l->prob;
+            a = pt_v3_add(a, col);
+            all += p;
+            if (is_rough)
+                rough += p;
+        }
+        reach *= gr->below;
+    }
+    *albedo = a;
+    return all > 0.0f && 4.0f * rough > all;
+}

@@ -130,4 +130,17 @@ float pt_closure_pdf(const pt_closure *c, pt_vec3 wi);
 pt_vec3 pt_closure_sample(const pt_closure *c, const float u[3], pt_vec3 *wi, float *pdf,
                           int *delta);
 
+/* The closure's albedo for the render passes (the albedo pass, a guide for
+ * the denoiser, not an energy: Cycles' denoising albedo) into *albedo: the
+ * sum of its lobes' colours (a diffuse lobe's albedo, a GGX lobe's F0, the
+ * interface's tint x weight, the sheen's colour; the colourless coat adds
+ * none). Returns 1 when the closure is non-specular, so the pass is read
+ * here: the lobes that are diffuse or rough (GGX alpha above
+ * PT_CLOSURE_ROUGH_ALPHA) hold over a quarter of the probability of being
+ * sampled (Cycles, film_write_denoising_features_surface: roughness^2 above
+ * 0.075^2, non-specular weight above a quarter); else 0, and a path looks
+ * through it (a mirror, smooth glass) to the next surface. */
+#define PT_CLOSURE_ROUGH_ALPHA 0.075f
+int pt_closure_albedo(const pt_closure *c, pt_vec3 *albedo);
+
 #endif

@@ -6,6 +6,7 @@
 
 #include "common/base/alloc.h"
 #include "common/render/adaptive.h"
+#include "common/render/passes.h"
 
 struct pt_film_bands {
     uint32_t n;
@@ -40,6 +41,8 @@ pt_status pt_film_new(uint32_t width, uint32_t height, pt_film **out, pt_error *
     film->width = width;
     film->height = height;
     film->px = px;
+    film->pass = NULL;
+    film->passes = 0;
     film->bands = bands;
     *out = film;
     return PT_OK;
@@ -51,12 +54,32 @@ void pt_film_free(pt_film *film)
         for (uint32_t i = 0; i < film->bands->n; i++)
             pthread_mutex_destroy(&film->bands->mu[i]);
         pt_free(film->bands);
+        pt_free(film->pass);
         pt_free(film->px);
         pt_free(film);
     }
 }
 
+pt_status pt_film_enable_passes(pt_film *film, uint32_t mask, pt_error *err)
+{
+    assert(!film->pass && (mask & PT_PASS_ALL));
+    film->pass = pt_calloc((size_t)film->width * film->height, sizeof *film->pass);
+    if (!film->pass)
+        return pt_error_set(err, PT_ERR_NOMEM, "film %ux%u: out of memory for the passes",
+                            film->width, film->height);
+    film->passes = mask & PT_PASS_ALL;
+    return PT_OK;
+}
+
 uint64_t pt_film_add_tile(pt_film *film, pt_rect tile, const pt_pixel_acc *acc)
+{
+    size_t npx = (size_t)(tile.x1 - tile.x0) * (tile.y1 - tile.y0);
+    return pt_film_add_tile_passes(film, tile, acc,
+                                   film->pass ? (const pt_pass_acc *)(acc + npx) : NULL);
+}
+
+uint64_t pt_film_add_tile_passes(pt_film *film, pt_rect tile, const pt_pixel_acc *acc,
+                                 const pt_pass_acc *pacc)
 {
     assert(tile.x0 <= tile.x1 && tile.x1 <= film->width);
     assert(tile.y0 <= tile.y1 && tile.y1 <= film->height);
@@ -83,6 +106,12 @@ uint64_t pt_film_add_tile(pt_film *film, pt_rect tile, const pt_pixel_acc *acc)
                 pt_pixel_acc_add(&row[x], &src[x]);
                 samples += src[x].n;
             }
+            if (pacc && film->pass) {
+                pt_pass_acc *prow = film->pass + (size_t)y * film->width + tile.x0;
+                const pt_pass_acc *psrc = pacc + (size_t)(y - tile.y0) * tw;
+                for (uint32_t x = 0; x < tw; x++)
+                    pt_pass_acc_add(&prow[x], &psrc[x]);
+            }
         }
         pthread_mutex_unlock(&film->bands->mu[band]);
     }
@@ -97,11 +126,14 @@ uint64_t pt_film_add_tile(pt_film *film, pt_rect tile, const pt_pixel_acc *acc)
  * catastrophically when the variance is tiny against the mean, so it is
  * computed in double and clamped at 0 (which also maps NaN to 0).
  */
-static uint64_t resolve_pixels(const pt_film *film, pt_image *img, size_t i0, size_t i1)
+static uint64_t resolve_pixels(const pt_film *film, pt_image *img, const pt_pass_planes *pl,
+                               size_t i0, size_t i1)
 {
     uint64_t total = 0;
     for (size_t i = i0; i < i1; i++) {
         const pt_pixel_acc *a = &film->px[i];
+        if (pl)
+            pt_passes_resolve(a, &film->pass[i], pl, i);
         if (a->n == 0) {
             img->r[i] = img->g[i] = img->b[i] = 0.0f;
             img->samples[i] = 0.0f;
@@ -142,11 +174,14 @@ uint64_t pt_film_resolve_measured(const pt_film *film, pt_image *img, double *re
     uint64_t total = 0;
     double sum = 0.0;
     int partial = 0; /* a pixel with fewer than 2 samples */
+    pt_pass_planes planes, *pl = NULL;
+    if (film->pass && pt_passes_add_planes(img, film->passes, &planes, NULL) == PT_OK)
+        pl = &planes;
     for (uint32_t b = 0; b < film->bands->n; b++) {
         uint32_t y0, y1;
         band_rows(film, b, &y0, &y1);
         pthread_mutex_lock(&film->bands->mu[b]);
-        total += resolve_pixels(film, img, (size_t)y0 * film->width, (size_t)y1 * film->width);
+        total += resolve_pixels(film, img, pl, (size_t)y0 * film->width, (size_t)y1 * film->width);
         /* The band's sums again while they are in the cache. */
         if (rel_error && !partial)
             partial = pt_rel_error_add(film->px + (size_t)y0 * film->width, film->width,

@@ -6,7 +6,9 @@
  * integers, so the pixels are the same bits whatever the order in which the
  * parts of a range of samples are added and however it was split at
  * PT_SAMPLE_BLOCK boundaries. pt_film_resolve turns sums into a pt_image
- * (mean RGB, sample count, variance of the mean).
+ * (mean RGB, sample count, variance of the mean). A film may also hold the
+ * render passes' sums (pt_film_enable_passes: pass[], 280 bytes a pixel
+ * more), added and resolved with the beauty's, pixel by pixel.
  * Threads: pt_film_add_tile and the resolves lock the bands of
  * PT_FILM_BAND_ROWS rows they touch, one at a time, so a thread may resolve
  * while another adds tiles: every pixel is resolved whole (its sums and count
@@ -30,20 +32,35 @@ typedef struct pt_film_bands pt_film_bands;
 typedef struct pt_film {
     uint32_t width, height;
     pt_pixel_acc *px;     /* width*height, row-major */
+    pt_pass_acc *pass;    /* the same for the render passes, or NULL (none asked for) */
+    uint32_t passes;      /* PT_PASS_* the film resolves (pass != NULL) */
     pt_film_bands *bands; /* a lock per PT_FILM_BAND_ROWS rows */
 } pt_film;
 
 pt_status pt_film_new(uint32_t width, uint32_t height, pt_film **out, pt_error *err);
 void pt_film_free(pt_film *film); /* accepts NULL */
 
+/* Gives the film pass sums for the passes of mask (PT_PASS_*, non-zero),
+ * zeroed: to be called before any tile is added. PT_ERR_NOMEM. */
+pt_status pt_film_enable_passes(pt_film *film, uint32_t mask, pt_error *err);
+
 /* Adds a tile's partial sums (row-major over tile, as pt_render_tile writes
- * them). Returns the samples added (the sum of their n). */
+ * them). On a film with passes acc holds the tile's pixel sums followed by
+ * its pass sums, in one block (as a decoded RESULT's, proto_result.pass).
+ * Returns the samples added (the sum of their n). */
 uint64_t pt_film_add_tile(pt_film *film, pt_rect tile, const pt_pixel_acc *acc);
+/* The same with the tile's pass sums (pacc, as pt_render_tile_passes writes
+ * them; NULL: none, as pt_film_add_tile), added under the same lock. */
+uint64_t pt_film_add_tile_passes(pt_film *film, pt_rect tile, const pt_pixel_acc *acc,
+                                 const pt_pass_acc *pacc);
 
 /* Writes mean, count, variance of the mean and coverage (hits / n, into
  * img->a; img->has_alpha is the caller's) into img (same size). Pixels with
- * no samples are 0; variance needs n >= 2 (else 0). Returns the samples of
- * the pixels it resolved (their sum of n). */
+ * no samples are 0; variance needs n >= 2 (else 0). A film with passes
+ * resolves them into img's named planes (passes.h), which it adds when img
+ * lacks them (an out-of-memory there leaves them out: the caller that must
+ * have them adds them first with pt_passes_add_planes). Returns the samples
+ * of the pixels it resolved (their sum of n). */
 uint64_t pt_film_resolve(const pt_film *film, pt_image *img);
 
 /* pt_film_resolve that also measures the image for adaptive sampling: into

@@ -5,6 +5,7 @@
 
 #include "common/base/frames.h"
 #include "common/base/opt.h"
+#include "common/render/passes.h"
 #include "common/render/render.h"
 #include "common/render/tile.h"
 
@@ -37,6 +38,7 @@ static const struct {
     [PT_ROPT_CHUNK] = {"chunk", required_argument},
     [PT_ROPT_EXPOSURE] = {"exposure", required_argument},
     [PT_ROPT_VIEW] = {"view", required_argument},
+    [PT_ROPT_PASSES] = {"passes", required_argument},
 };
 
 void pt_render_opts_init(pt_render_opts *o)
@@ -160,6 +162,9 @@ pt_status pt_render_opt_set(pt_render_opts *o, int c, const char *text, pt_error
     }
     case PT_ROPT_VIEW:
         st = pt_view_parse(opt, text, &o->view.kind, err);
+        break;
+    case PT_ROPT_PASSES:
+        st = pt_passes_parse(opt, text, &o->passes, err);
         break;
     case PT_ROPT_COUNT:
         break;

@@ -3,8 +3,8 @@
  *
  * ptworker --scene, ptserve (one job) and ptctl submit describe the same
  * render: samples, size, seed, bounce cap, camera, variant, animation,
- * environment, film, shutter, adaptive sampling, tiles and the preview's
- * view. Their names, their value syntax and their limits are here once, so
+ * environment, film, shutter, adaptive sampling, tiles, the preview's
+ * view and the render passes. Their names, their value syntax and their limits are here once, so
  * a job that one program accepts the others accept too, and "--spp 0" or
  * "--res 64x" is refused with the same words everywhere. A program builds
  * its getopt table from its own options and pt_render_longopts (those of
@@ -53,6 +53,7 @@ typedef enum pt_ropt_id {
     PT_ROPT_CHUNK,
     PT_ROPT_EXPOSURE,
     PT_ROPT_VIEW,
+    PT_ROPT_PASSES,
     PT_ROPT_COUNT
 } pt_ropt_id;
 
@@ -85,6 +86,7 @@ typedef struct pt_render_opts {
     uint32_t tile;    /* 32 unless given */
     uint32_t chunk;   /* 16 unless given */
     pt_view view;
+    uint32_t passes; /* PT_PASS_* (tile.h), 0 unless given */
 } pt_render_opts;
 
 /* The defaults above, nothing given. */

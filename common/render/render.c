@@ -7,6 +7,7 @@
 #include "common/math/simd.h"
 #include "common/render/bsdf.h"
 #include "common/render/closure.h"
+#include "common/render/crypto.h"
 #include "common/render/dielectric.h"
 #include "common/render/env.h"
 #include "common/render/guide.h"
@@ -65,19 +66,24 @@ static void pixel_ctx_init(pixel_ctx *pc, const pt_renderer *r, uint32_t px, uin
 /* The integrator variants: a feature mask fixed at compile time, so that code
  * for features a scene lacks is folded away (see pick_variant). */
 typedef pt_vec3 (*li_fn)(const pt_renderer *r, pixel_ctx *pc, uint32_t index,
-                         pt_render_stats *stats, int *covered, const pt_render_guiding *gd);
+                         pt_render_stats *stats, int *covered, const pt_render_guiding *gd,
+                         pt_pass_sample *ps);
 typedef void (*tile_fn)(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,
-                        pt_pixel_acc *out, pt_render_stats *stats, const pt_render_guiding *gd);
+                        pt_pixel_acc *out, pt_pass_acc *pout, pt_render_stats *stats,
+                        const pt_render_guiding *gd);
 
 /* Path guiding (guide.h): a renderer feature like the environment, set when
  * the parameters ask for it; only the guided variant has its code. */
 #define FEAT_GUIDE (1u << 31)
+/* Render passes (params.passes): likewise, only the passes variants record
+ * them (pass_rec), so a render without passes runs the code it always did. */
+#define FEAT_PASSES (1u << 30)
 /* Sample clamping (clamp_sample): set when the parameters ask for it; only
- * the clamped and guided variants have its code. */
+ * the clamped, guided and passes variants have its code. */
 #define FEAT_CLAMP (1u << 29)
 /* The renderer's own features, set by the parameters: the variants without
  * them are what a render that does not ask for them runs. */
-#define PARAM_FEATURES (FEAT_GUIDE | FEAT_CLAMP)
+#define PARAM_FEATURES (FEAT_GUIDE | FEAT_CLAMP | FEAT_PASSES)
 
 struct pt_renderer {
     const pt_scene *scene;
@@ -98,6 +104,8 @@ struct pt_renderer {
     float tan_half_fov;
     pt_camera camera; /* the scene's, or a framed one fitted to the image (pt_renderer_new) */
     const pt_motion *motion; /* the scene's (PT_FEAT_MOTION), or NULL: nothing moves */
+    /* Cryptomatte (PT_PASS_CRYPTOMATTE): each object's and material's id, or NULL. */
+    uint32_t *crypto_obj, *crypto_mat;
 };
 
 void pt_render_params_default(pt_render_params *p)
@@ -111,6 +119,7 @@ void pt_render_params_default(pt_render_params *p)
     p->env = NULL;
     p->transparent = 0;
     p->guiding = 0;
+    p->passes = 0;
 }
 
 const pt_render_params *pt_renderer_params(const pt_renderer *r)
@@ -809,7 +818,15 @@ typedef struct path {
     uint32_t clamped; /* FEAT_CLAMP: contributions clamp_sample scaled down */
     pixel_ctx *pc;
     struct guide_path *gp; /* FEAT_GUIDE: its guided vertices; else NULL */
+    struct pass_rec *pr;   /* FEAT_PASSES: what the passes record; else NULL */
 } path;
+
+/* A path's render passes (FEAT_PASSES): found is set once the albedo and
+ * normal were read at its first non-specular vertex. */
+typedef struct pass_rec {
+    pt_pass_sample v;
+    uint32_t found;
+} pass_rec;
 
 /* The vertices of a path where it sampled its next direction from the
  * guide's mixture, for the statistics: each one's leaf, direction, mixture
@@ -897,6 +914,7 @@ path_start(const pt_renderer *r, pixel_ctx *pc, uint32_t index, path *pa, const 
     pa->clamped = 0;
     pa->pc = pc;
     pa->gp = NULL;
+    pa->pr = NULL;
 }
 
 /* Sample clamping (FEAT_CLAMP; pt_render_params.clamp_direct and
@@ -959,6 +977,8 @@ static inline __attribute__((always_inline)) void shade_emission(const pt_render
         wo = pt_v3_dot(sf->ng, wo) > 0.0f ? n0 : pt_v3_neg(n0);
     }
     pt_vec3 le = pt_emitted(s, hit->tri, hit->b1, hit->b2, wo);
+    if ((features & FEAT_PASSES) && pa->pr && pa->depth == 0)
+        pa->pr->v.emission = le;
     if (pa->prev_pdf > 0.0f && strategy == PT_LIGHT_MIS) {
         float lp = pt_lights_pdf(r->lights, s, hit->tri, pa->prev_p, sf->p, sf->ng);
         le = pt_v3_scale(le, power_heuristic(pa->prev_pdf, lp));
@@ -1287,6 +1307,20 @@ static inline int closure_guidable(const pt_closure *cl)
     return any;
 }
 
+/* The passes at an unlit surface (PT_FEAT_UNLIT), where the path ends: its
+ * colour is the albedo, its interpolated normal turned to the ray the
+ * normal. */
+static inline __attribute__((always_inline)) void
+pass_unlit(const pt_renderer *r, path *pa, const surface *sf, pt_vec3 wo, const uint32_t features)
+{
+    pt_vec3 base;
+    float metallic, roughness;
+    base_inputs(r->scene, sf, features, &base, &metallic, &roughness);
+    pa->pr->found = 1;
+    pa->pr->v.albedo = pt_v3_mul(pa->beta, base);
+    pa->pr->v.normal = pt_v3_dot(sf->ns, wo) < 0.0f ? pt_v3_neg(sf->ns) : sf->ns;
+}
+
 /*
  * One bounce of a path whose ray hit `hit`, with the bounce's numbers u. NEE
  * samples an emissive triangle at every vertex; the BSDF-sampled continuation
@@ -1330,7 +1364,16 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     pt_vec3 wo = pt_v3_neg(pa->d);
 
     shade_emission(r, pa, hit, sf, features);
+    if ((features & FEAT_PASSES) && pa->pr && pa->depth == 0) {
+        pa->pr->v.depth = hit->t; /* the camera ray's direction is a unit vector */
+        if (r->crypto_obj) {
+            pa->pr->v.crypto[PT_CRYPTO_OBJECT] = r->crypto_obj[s->tri_object[hit->tri]];
+            pa->pr->v.crypto[PT_CRYPTO_MATERIAL] = r->crypto_mat[sf->mat - s->materials];
+        }
+    }
     if ((features & PT_FEAT_UNLIT) && (sf->mat->ext & PT_MATX_UNLIT)) {
+        if ((features & FEAT_PASSES) && pa->pr && !pa->pr->found)
+            pass_unlit(r, pa, sf, wo, features);
         shade_unlit(r, pa, sf, features);
         return ret;
     }
@@ -1368,6 +1411,22 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
         lambert = material_bsdf(r, sf, features);
     uint32_t mi = (uint32_t)(sf->mat - s->materials);
     int thin = glass && !(sf->mat->thickness > 0.0f);
+    if ((features & FEAT_PASSES) && pa->pr && !pa->pr->found) {
+        /* The passes' vertex: the first non-specular one. Through a specular
+         * one the path goes on, and beta carries the chain's throughput to
+         * the albedo found behind it. */
+        pt_vec3 alb = pt_v3(0.0f, 0.0f, 0.0f);
+        int rough = 1;
+        if (features & PT_FEAT_GLOSSY)
+            rough = pt_closure_albedo(&cl, &alb);
+        else
+            alb = lambert.diffuse;
+        if (rough) {
+            pa->pr->found = 1;
+            pa->pr->v.albedo = pt_v3_mul(pa->beta, alb);
+            pa->pr->v.normal = ns;
+        }
+    }
     /* Path guiding (FEAT_GUIDE): at a guidable closure the continuation is
      * drawn from the mixture gprob x guide + (1 - gprob) x closure (one-sample
      * MIS, Mueller et al. 2017, sec. 5), and the BSDF strategy's pdf that
@@ -1765,10 +1824,15 @@ static void shade_lanes(const pt_renderer *r, path *paths, const uint8_t *live, 
  * must match bit for bit (tested through pt_render_sample). */
 static inline __attribute__((always_inline)) pt_vec3
 li_impl(const pt_renderer *r, pixel_ctx *pc, uint32_t index, pt_render_stats *stats, int *covered,
-        const pt_render_guiding *gd, const uint32_t features)
+        const pt_render_guiding *gd, pt_pass_sample *ps, const uint32_t features)
 {
     path pa;
     path_start(r, pc, index, &pa, features);
+    pass_rec pr;
+    if ((features & FEAT_PASSES) && ps) {
+        memset(&pr, 0, sizeof pr);
+        pa.pr = &pr;
+    }
     guide_path gp;
     if ((features & FEAT_GUIDE) && gd) {
         gp.gd = gd;
@@ -1813,6 +1877,8 @@ li_impl(const pt_renderer *r, pixel_ctx *pc, uint32_t index, pt_render_stats *st
         *covered = !pa.escaped;
     if ((features & FEAT_GUIDE) && gd)
         guide_record(&pa);
+    if ((features & FEAT_PASSES) && ps)
+        *ps = pr.v;
     return pa.L;
 }
 
@@ -2003,10 +2069,11 @@ trace_batch(const pt_renderer *r, path *paths, uint32_t n, stage_lanes *sl, cons
  */
 static inline __attribute__((always_inline)) void
 tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel_acc *out,
-          pt_render_stats *stats, stage_lanes *sl, const uint32_t features, const pt_ray_sink *sink,
-          const pt_render_guiding *gd)
+          pt_pass_acc *pout, pt_render_stats *stats, stage_lanes *sl, const uint32_t features,
+          const pt_ray_sink *sink, const pt_render_guiding *gd)
 {
     guide_path gps[BATCH]; /* FEAT_GUIDE only: folded away in the other variants */
+    pass_rec prs[BATCH];   /* FEAT_PASSES only */
     pt_render_stats local = {0};
     uint32_t tw = tile.x1 - tile.x0, npix = tw * (tile.y1 - tile.y0);
     uint32_t span = s1 > s0 ? s1 - s0 : 1;
@@ -2019,6 +2086,8 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
         uint32_t np = npix - p0 < group ? npix - p0 : group;
         for (uint32_t g = 0; g < np; g++) {
             memset(&out[p0 + g], 0, sizeof out[p0 + g]);
+            if ((features & FEAT_PASSES) && pout)
+                memset(&pout[p0 + g], 0, sizeof pout[p0 + g]);
             pixel_ctx_init(&pcs[g], r, tile.x0 + (p0 + g) % tw, tile.y0 + (p0 + g) / tw);
         }
         /* Sum each aligned block of PT_SAMPLE_BLOCK samples on its own in
@@ -2040,6 +2109,10 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
                         gp->n = gp->pending = 0;
                         pa->gp = gp;
                     }
+                    if ((features & FEAT_PASSES) && pout) {
+                        memset(&prs[g * nb + i], 0, sizeof prs[0]);
+                        pa->pr = &prs[g * nb + i];
+                    }
                 }
             local.rays += trace_batch(r, paths, np * nb, sl, features, sink, &local.capped);
             if ((features & FEAT_GUIDE) && gd)
@@ -2047,16 +2120,24 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
                     guide_record(&paths[k]);
             for (uint32_t g = 0; g < np; g++) {
                 pt_block_acc blk = {{0, 0, 0}, 0, 0, 0};
+                pt_pass_block pb;
+                if ((features & FEAT_PASSES) && pout)
+                    memset(&pb, 0, sizeof pb);
                 for (uint32_t i = 0; i < nb; i++) {
                     const path *pa = &paths[g * nb + i];
-                    if (!pt_block_acc_sample(&blk, pa->L))
+                    if (!pt_block_acc_sample(&blk, pa->L)) {
                         local.rejected++;
-                    else
+                    } else {
                         blk.hits += !pa->escaped;
+                        if ((features & FEAT_PASSES) && pout)
+                            pt_pass_block_sample(&pb, &prs[g * nb + i].v, pa->L, pa->index);
+                    }
                     if (features & FEAT_CLAMP)
                         local.clamped += pa->clamped;
                 }
                 pt_pixel_acc_add_block(&out[p0 + g], &blk);
+                if ((features & FEAT_PASSES) && pout)
+                    pt_pass_acc_add_block(&pout[p0 + g], &pb);
                 local.samples += blk.n;
             }
             b0 = b1;
@@ -2074,22 +2155,24 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
 #define ALL_FEATURES 0xffffffffu
 #define VARIANT(li_name, tile_name, feat)                                                          \
     static pt_vec3 li_name(const pt_renderer *r, pixel_ctx *pc, uint32_t index,                    \
-                           pt_render_stats *stats, int *covered, const pt_render_guiding *gd)      \
+                           pt_render_stats *stats, int *covered, const pt_render_guiding *gd,      \
+                           pt_pass_sample *ps)                                                     \
     {                                                                                              \
-        return li_impl(r, pc, index, stats, covered, gd, (feat));                                  \
+        return li_impl(r, pc, index, stats, covered, gd, ps, (feat));                              \
     }                                                                                              \
     static void tile_name(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,            \
-                          pt_pixel_acc *out, pt_render_stats *stats, const pt_render_guiding *gd)  \
+                          pt_pixel_acc *out, pt_pass_acc *pout, pt_render_stats *stats,            \
+                          const pt_render_guiding *gd)                                             \
     {                                                                                              \
         if (((feat)&PT_FEAT_GLOSSY) || !r->lanes) {                                                \
-            tile_impl(r, tile, s0, s1, out, stats, NULL, (feat), NULL, gd);                        \
+            tile_impl(r, tile, s0, s1, out, pout, stats, NULL, (feat), NULL, gd);                  \
         } else {                                                                                   \
             /* Lanes past a stage's paths compute on zeros or an earlier                           \
              * stage's values, not on what the stack held (which could be                          \
              * slow denormals). */                                                                 \
             stage_lanes sl;                                                                        \
             memset(&sl, 0, sizeof sl);                                                             \
-            tile_impl(r, tile, s0, s1, out, stats, &sl, (feat), NULL, gd);                         \
+            tile_impl(r, tile, s0, s1, out, pout, stats, &sl, (feat), NULL, gd);                   \
         }                                                                                          \
     }
 #define NO_TEX (uint32_t)(PT_FEAT_TEXTURES | PT_FEAT_EMISSIVE_TEX)
@@ -2110,8 +2193,10 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
 #define GENERAL_ONLY                                                                               \
     (uint32_t)(OTHER_LIGHTS | PT_FEAT_ALPHA | GLASS | SURFACE_EXTRAS | LAYERS | PT_FEAT_MOTION |   \
                MATERIAL_EXTS)
-VARIANT(li_guided, tile_guided, ALL_FEATURES)
-VARIANT(li_clamped, tile_clamped, ALL_FEATURES & ~FEAT_GUIDE)
+VARIANT(li_guided_passes, tile_guided_passes, ALL_FEATURES)
+VARIANT(li_passes, tile_passes, ALL_FEATURES & ~FEAT_GUIDE)
+VARIANT(li_guided, tile_guided, ALL_FEATURES & ~FEAT_PASSES)
+VARIANT(li_clamped, tile_clamped, ALL_FEATURES & ~FEAT_GUIDE & ~FEAT_PASSES)
 VARIANT(li_general, tile_general, ALL_FEATURES & ~PARAM_FEATURES)
 VARIANT(li_untextured, tile_untextured, ALL_FEATURES & ~NO_TEX & ~GENERAL_ONLY & ~PARAM_FEATURES)
 VARIANT(li_lambert, tile_lambert,
@@ -2124,7 +2209,17 @@ VARIANT(li_lambert_untextured, tile_lambert_untextured,
 static void pick_variant(pt_renderer *r, uint32_t features)
 {
     int tex = (features & NO_TEX) != 0, glossy = (features & PT_FEAT_GLOSSY) != 0;
-    if (features & FEAT_GUIDE) {
+    if ((features & FEAT_PASSES) && (features & FEAT_GUIDE)) {
+        r->li = li_guided_passes;
+        r->tile = tile_guided_passes;
+        r->variant = "guided-passes";
+    } else if (features & FEAT_PASSES) {
+        /* The general variant that also records the passes: its beauty is
+         * the same bits as any variant's. */
+        r->li = li_passes;
+        r->tile = tile_passes;
+        r->variant = "passes";
+    } else if (features & FEAT_GUIDE) {
         r->li = li_guided;
         r->tile = tile_guided;
         r->variant = "guided";
@@ -2209,6 +2304,23 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
         features |= FEAT_GUIDE;
     if (params->clamp_direct > 0.0f || params->clamp_indirect > 0.0f)
         features |= FEAT_CLAMP;
+    if (params->passes & PT_PASS_ALL)
+        features |= FEAT_PASSES;
+    if ((params->passes & PT_PASS_CRYPTOMATTE) && scene->tri_object) {
+        /* The names' ids, hashed once (crypto.h). */
+        r->crypto_obj =
+            pt_malloc_array(scene->num_objects ? scene->num_objects : 1, sizeof *r->crypto_obj);
+        r->crypto_mat =
+            pt_malloc_array(scene->num_materials ? scene->num_materials : 1, sizeof *r->crypto_mat);
+        if (!r->crypto_obj || !r->crypto_mat) {
+            st = pt_error_set(err, PT_ERR_NOMEM, "out of memory for the renderer");
+            goto fail;
+        }
+        for (uint32_t i = 0; i < scene->num_objects; i++)
+            r->crypto_obj[i] = pt_crypto_id(scene->object_names[i].s);
+        for (uint32_t i = 0; i < scene->num_materials; i++)
+            r->crypto_mat[i] = pt_crypto_id(scene->materials[i].name);
+    }
     pick_variant(r, features);
     /* Without fast lanes (an x86-64 processor without AVX2 runs shade_lanes'
      * baseline clone, which does the lanes one by one) the per-path shading
@@ -2227,6 +2339,8 @@ void pt_renderer_free(pt_renderer *r)
     if (!r)
         return;
     pt_free(r->mat_bsdf);
+    pt_free(r->crypto_obj);
+    pt_free(r->crypto_mat);
     pt_free(r->tris_mem);
     pt_lights_free(r->lights);
     pt_accel_free(r->accel);
@@ -2247,7 +2361,7 @@ pt_vec3 pt_render_sample(const pt_renderer *r, uint32_t px, uint32_t py, uint32_
 {
     pixel_ctx pc;
     pixel_ctx_init(&pc, r, px, py);
-    return r->li(r, &pc, index, stats, covered, NULL);
+    return r->li(r, &pc, index, stats, covered, NULL, NULL);
 }
 
 pt_vec3 pt_render_sample_guided(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index,
@@ -2255,25 +2369,43 @@ pt_vec3 pt_render_sample_guided(const pt_renderer *r, uint32_t px, uint32_t py, 
 {
     pixel_ctx pc;
     pixel_ctx_init(&pc, r, px, py);
-    return r->li(r, &pc, index, stats, covered, gd);
+    return r->li(r, &pc, index, stats, covered, gd, NULL);
+}
+
+pt_vec3 pt_render_sample_passes(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index,
+                                pt_render_stats *stats, int *covered, pt_pass_sample *ps)
+{
+    pixel_ctx pc;
+    pixel_ctx_init(&pc, r, px, py);
+    memset(ps, 0, sizeof *ps);
+    return r->li(r, &pc, index, stats, covered, NULL, ps);
 }
 
 void pt_render_tile(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel_acc *out,
                     pt_render_stats *stats)
 {
-    r->tile(r, tile, s0, s1, out, stats, NULL);
+    r->tile(r, tile, s0, s1, out, NULL, stats, NULL);
 }
 
 void pt_render_tile_guided(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,
                            pt_pixel_acc *out, pt_render_stats *stats, const pt_render_guiding *gd)
 {
-    r->tile(r, tile, s0, s1, out, stats, gd);
+    r->tile(r, tile, s0, s1, out, NULL, stats, gd);
+}
+
+void pt_render_tile_passes(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,
+                           pt_pixel_acc *out, pt_pass_acc *pout, pt_render_stats *stats,
+                           const pt_render_guiding *gd)
+{
+    if (pout && !(r->params.passes & PT_PASS_ALL))
+        memset(pout, 0, (size_t)(tile.x1 - tile.x0) * (tile.y1 - tile.y0) * sizeof *pout);
+    r->tile(r, tile, s0, s1, out, pout, stats, gd);
 }
 
 void pt_render_tile_traced(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,
                            pt_pixel_acc *out, const pt_ray_sink *sink)
 {
-    tile_impl(r, tile, s0, s1, out, NULL, NULL, ALL_FEATURES & ~FEAT_GUIDE, sink, NULL);
+    tile_impl(r, tile, s0, s1, out, NULL, NULL, NULL, ALL_FEATURES & ~PARAM_FEATURES, sink, NULL);
 }
 
 pt_status pt_render_check_lit(const pt_scene *scene, int has_env, const char *name, pt_error *err)

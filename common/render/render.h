@@ -102,6 +102,93 @@ static inline void pt_pixel_acc_add_block(pt_pixel_acc *a, const pt_block_acc *b
     a->hits += b->hits;
 }
 
+/* What one sample gives the render passes (PT_PASS_*, tile.h): the albedo
+ * of its first non-specular surface (times the specular chain's throughput
+ * before it), that surface's shading normal (world space, facing the ray),
+ * the camera distance of its first hit and that hit's emission. Zero where
+ * the path escapes before reaching them. */
+typedef struct pt_pass_sample {
+    pt_vec3 albedo, normal, emission;
+    float depth;
+    uint32_t crypto[PT_CRYPTO_KINDS]; /* the first hit's object and material Cryptomatte ids
+                                         (crypto.h; 0: none, as where the ray escapes) */
+} pt_pass_sample;
+
+/* One block's pass sums in double, in sample order (pt_block_acc's twin). */
+typedef struct pt_pass_block {
+    double s[PT_PASS_SUMS];
+    double sq[PT_PASS_SQS];
+    uint32_t n_even;
+    /* Cryptomatte: the block's ids and counts, exact (a block has at most
+     * PT_SAMPLE_BLOCK samples), ascending, unused last. */
+    uint32_t cid[PT_CRYPTO_KINDS][PT_SAMPLE_BLOCK];
+    uint32_t ccnt[PT_CRYPTO_KINDS][PT_SAMPLE_BLOCK];
+} pt_pass_block;
+
+/* A pass value that is not finite or is above PT_MAX_SAMPLE_RADIANCE in
+ * magnitude counts as 0 (the beauty decides whether a sample is kept). */
+static inline double pt_pass_value(float v)
+{
+    const float cap = (float)PT_MAX_SAMPLE_RADIANCE;
+    return fabsf(v) <= cap ? (double)v : 0.0;
+}
+
+/* Adds sample `index` (accepted into the beauty's block: c is its radiance)
+ * to b. */
+static inline void pt_pass_block_sample(pt_pass_block *b, const pt_pass_sample *ps, pt_vec3 c,
+                                        uint32_t index)
+{
+    const pt_vec3 *v3[3] = {&ps->albedo, &ps->normal, &ps->emission};
+    for (int k = 0; k < 3; k++) {
+        double x = pt_pass_value(v3[k]->x), y = pt_pass_value(v3[k]->y),
+               z = pt_pass_value(v3[k]->z);
+        b->s[3 * k] += x;
+        b->s[3 * k + 1] += y;
+        b->s[3 * k + 2] += z;
+        b->sq[k] += x * x + y * y + z * z;
+    }
+    double d = pt_pass_value(ps->depth);
+    b->s[PT_PS_DEPTH] += d;
+    b->sq[PT_PQ_DEPTH] += d * d;
+    for (int k = 0; k < PT_CRYPTO_KINDS; k++) {
+        /* Insertion into the ascending list: at most 16 entries. */
+        uint32_t id = ps->crypto[k], *ids = b->cid[k], *cnt = b->ccnt[k];
+        unsigned j = 0;
+        while (j < PT_SAMPLE_BLOCK && cnt[j] && ids[j] < id)
+            j++;
+        if (j < PT_SAMPLE_BLOCK && cnt[j] && ids[j] == id) {
+            cnt[j]++;
+        } else if (j < PT_SAMPLE_BLOCK) {
+            for (unsigned m = PT_SAMPLE_BLOCK - 1; m > j; m--) {
+                ids[m] = ids[m - 1];
+                cnt[m] = cnt[m - 1];
+            }
+            ids[j] = id;
+            cnt[j] = 1;
+        }
+    }
+    if (!(index & 1u)) {
+        b->s[PT_PS_EVEN] += c.x;
+        b->s[PT_PS_EVEN + 1] += c.y;
+        b->s[PT_PS_EVEN + 2] += c.z;
+        b->n_even++;
+    }
+}
+
+/* a += the block b, its sums rounded to fixed point (pt_fixed_of and
+ * pt_ufixed_of, as the beauty's). */
+static inline void pt_pass_acc_add_block(pt_pass_acc *a, const pt_pass_block *b)
+{
+    for (int i = 0; i < PT_PASS_SUMS; i++)
+        a->s[i] += pt_fixed_of(b->s[i]);
+    for (int i = 0; i < PT_PASS_SQS; i++)
+        a->sq[i] = pt_u128_sat_add(a->sq[i], pt_ufixed_of(b->sq[i]));
+    for (int k = 0; k < PT_CRYPTO_KINDS; k++)
+        if (b->ccnt[k][0])
+            pt_crypto_merge(a->cid[k], a->ccnt[k], b->cid[k], b->ccnt[k], PT_SAMPLE_BLOCK);
+    a->n_even += b->n_even;
+}
+
 /* How emitters are reached: both strategies weighted by MIS (the default),
  * or one alone (unweighted), which tests use to check each is unbiased. */
 enum { PT_LIGHT_MIS = 0, PT_LIGHT_NEE_ONLY = 1, PT_LIGHT_BSDF_ONLY = 2 };
@@ -142,6 +229,10 @@ typedef struct pt_render_params {
      * the first surface the camera sees; indirect: after more bounces.
      * Either non-zero picks the clamped variant (or the guided one). */
     float clamp_direct, clamp_indirect;
+    uint32_t passes; /* PT_PASS_* (tile.h): render passes; non-zero picks the
+                        passes variant (the general one that also records them,
+                        pt_render_tile_passes); the beauty keeps its bits;
+                        default 0 */
 } pt_render_params;
 
 typedef struct pt_render_stats {
@@ -209,6 +300,13 @@ void pt_render_tile(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1
 void pt_render_tile_guided(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,
                            pt_pixel_acc *out, pt_render_stats *stats, const pt_render_guiding *gd);
 
+/* pt_render_tile_guided that also writes each pixel's pass sums into pout
+ * (one pt_pass_acc per pixel, like out; NULL: none), over the same samples
+ * as out. A renderer made without params.passes writes zeros there. */
+void pt_render_tile_passes(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,
+                           pt_pixel_acc *out, pt_pass_acc *pout, pt_render_stats *stats,
+                           const pt_render_guiding *gd);
+
 /* Radiance of one camera sample, traced alone: the reference that
  * pt_render_tile's batched paths match bit for bit (for tests). *covered (when
  * not NULL) gets 1 when its camera ray hit the scene (it counts in hits). */
@@ -217,6 +315,11 @@ pt_vec3 pt_render_sample(const pt_renderer *r, uint32_t px, uint32_t py, uint32_
 /* pt_render_sample with path guiding (as pt_render_tile_guided). */
 pt_vec3 pt_render_sample_guided(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index,
                                 pt_render_stats *stats, int *covered, const pt_render_guiding *gd);
+
+/* pt_render_sample that also fills *ps (zeros from a renderer made without
+ * params.passes): the reference of pt_render_tile_passes. */
+pt_vec3 pt_render_sample_passes(const pt_renderer *r, uint32_t px, uint32_t py, uint32_t index,
+                                pt_render_stats *stats, int *covered, pt_pass_sample *ps);
 
 /* Receives every ray one sample traces, for benchmarks that replay the same
  * rays through bare Embree (the ray-query ceiling). occlusion: 1 for shadow

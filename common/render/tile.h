@@ -79,6 +79,122 @@ static inline void pt_pixel_acc_add(pt_pixel_acc *a, const pt_pixel_acc *b)
     a->hits += b->hits;
 }
 
+/*
+ * Render passes (AOVs), asked for with a mask of PT_PASS_* bits (passes.h has
+ * their names and the EXR layers they become). A pass's per-pixel sums are
+ * fixed point like the beauty's, over the same accepted samples (their count
+ * is the pixel's pt_pixel_acc.n), so they merge exactly in any order too:
+ * s[] in units of 2^-32 (pt_fixed_of), sq[] (the sum over a pass's channels
+ * of the squared values, for its variance) in units of 2^-48, saturating.
+ * The half buffers are the beauty's sums over the even sample indices (and
+ * their count); the odd half is the total minus them.
+ */
+enum {
+    PT_PASS_ALBEDO = 1u << 0,      /* albedo of the first non-specular surface */
+    PT_PASS_NORMAL = 1u << 1,      /* its shading normal, world space */
+    PT_PASS_DEPTH = 1u << 2,       /* camera distance of the first hit (0: escaped) */
+    PT_PASS_EMISSION = 1u << 3,    /* emission of the first hit */
+    PT_PASS_HALVES = 1u << 4,      /* the beauty over even and odd sample indices */
+    PT_PASS_CRYPTOMATTE = 1u << 5, /* Cryptomatte ids of objects and materials (crypto.h) */
+};
+#define PT_PASS_ALL 0x3fu
+
+/* Cryptomatte: each pixel keeps, per kind (objects, materials), the exact
+ * sample counts of at most PT_CRYPTO_KEEP ids, in ascending order of id,
+ * unused entries (count 0, id 0) last. Merging keeps the PT_CRYPTO_KEEP
+ * smallest ids of the union, with their counts summed: that rule is
+ * associative and commutative (an id among the smallest of all the ids a
+ * pixel saw is never dropped, since whatever dropped it would have kept as
+ * many smaller ones), so the kept ids and their counts are the same however
+ * the samples were split and merged. A pixel that sees more ids than that
+ * loses the largest ids' samples: its coverages then sum to less than its
+ * share of covered samples. */
+#define PT_CRYPTO_KEEP 8
+enum { PT_CRYPTO_OBJECT = 0, PT_CRYPTO_MATERIAL = 1, PT_CRYPTO_KINDS = 2 };
+
+/* Indices into pt_pass_acc.s (a pass's first channel) and .sq. */
+enum {
+    PT_PS_ALBEDO = 0,
+    PT_PS_NORMAL = 3,
+    PT_PS_EMISSION = 6,
+    PT_PS_DEPTH = 9,
+    PT_PS_EVEN = 10, /* the beauty's RGB over even sample indices */
+    PT_PASS_SUMS = 13
+};
+enum { PT_PQ_ALBEDO = 0, PT_PQ_NORMAL, PT_PQ_EMISSION, PT_PQ_DEPTH, PT_PASS_SQS };
+
+typedef struct pt_pass_acc {
+    pt_i128 s[PT_PASS_SUMS]; /* sums, units of 2^-32 */
+    pt_u128 sq[PT_PASS_SQS]; /* sums of squares over a pass's channels, units of 2^-48 */
+    uint32_t cid[PT_CRYPTO_KINDS][PT_CRYPTO_KEEP];  /* Cryptomatte ids (MurmurHash3_32) */
+    uint32_t ccnt[PT_CRYPTO_KINDS][PT_CRYPTO_KEEP]; /* their sample counts; 0: unused */
+    uint32_t n_even;                                /* of the pixel's n samples, those of
+                                                       even index */
+    uint32_t pad;                                   /* 0 */
+} pt_pass_acc;
+
+/* Merges the list (bid, bcnt) of nb entries (ascending ids, unused last)
+ * into (id, cnt) of PT_CRYPTO_KEEP: the union, counts of equal ids summed,
+ * its PT_CRYPTO_KEEP smallest ids kept. */
+static inline void pt_crypto_merge(uint32_t *id, uint32_t *cnt, const uint32_t *bid,
+                                   const uint32_t *bcnt, int nb)
+{
+    uint32_t oid[PT_CRYPTO_KEEP], oc[PT_CRYPTO_KEEP];
+    int i = 0, j = 0, n = 0;
+    while (n < PT_CRYPTO_KEEP) {
+        int ha = i < PT_CRYPTO_KEEP && cnt[i], hb = j < nb && bcnt[j];
+        if (!ha && !hb)
+            break;
+        if (ha && (!hb || id[i] < bid[j])) {
+            oid[n] = id[i];
+            oc[n++] = cnt[i++];
+        } else if (!ha || bid[j] < id[i]) {
+            oid[n] = bid[j];
+            oc[n++] = bcnt[j++];
+        } else {
+            oid[n] = id[i];
+            oc[n++] = cnt[i++] + bcnt[j++];
+        }
+    }
+    for (int k = 0; k < PT_CRYPTO_KEEP; k++) {
+        id[k] = k < n ? oid[k] : 0;
+        cnt[k] = k < n ? oc[k] : 0;
+    }
+}
+
+/* 1 when (id, cnt) is a list as the merge leaves it (ascending ids, counts
+ * positive, then unused entries all 0) whose counts sum to at most n. */
+static inline int pt_crypto_canonical(const uint32_t *id, const uint32_t *cnt, uint32_t n)
+{
+    uint64_t sum = 0;
+    int used = 1;
+    for (int k = 0; k < PT_CRYPTO_KEEP; k++) {
+        if (!cnt[k]) {
+            used = 0;
+            if (id[k])
+                return 0;
+            continue;
+        }
+        if (!used || (k > 0 && id[k] <= id[k - 1]))
+            return 0;
+        sum += cnt[k];
+    }
+    return sum <= n;
+}
+
+/* a += b: exact, so the order of calls does not matter. */
+static inline void pt_pass_acc_add(pt_pass_acc *a, const pt_pass_acc *b)
+{
+    for (int i = 0; i < PT_PASS_SUMS; i++)
+        a->s[i] += b->s[i];
+    for (int i = 0; i < PT_PASS_SQS; i++)
+        a->sq[i] = pt_u128_sat_add(a->sq[i], b->sq[i]);
+    for (int k = 0; k < PT_CRYPTO_KINDS; k++)
+        if (b->ccnt[k][0])
+            pt_crypto_merge(a->cid[k], a->ccnt[k], b->cid[k], b->ccnt[k], PT_CRYPTO_KEEP);
+    a->n_even += b->n_even;
+}
+
 /* A fixed-point value as a double (rounded to nearest). */
 static inline double pt_fixed_to_double(pt_i128 v)
 {

@@ -2545,6 +2545,10 @@ void visit(importer &im, int ni, const mat4 &parent, int depth, std::vector<char
             im.fail(PT_ERR_FORMAT, "node %d: mesh %d out of range (%zu meshes)", ni, n.mesh,
                     m.meshes.size());
         const tinygltf::Mesh &mesh = m.meshes[size_t(n.mesh)];
+        // Cryptomatte's object: the node, by its name.
+        pt_error oe{};
+        std::string oname = n.name.empty() ? "node " + std::to_string(ni) : n.name;
+        im.check_builder(pt_scene_builder_set_object(im.b, oname.c_str(), &oe), &oe);
         std::vector<mat4> inst = instance_matrices(im, ni);
         size_t copies = inst.empty() ? 1 : inst.size();
         for (size_t k = 0; k < copies; k++) {

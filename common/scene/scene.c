@@ -45,8 +45,11 @@ struct pt_scene_builder {
      * then kept for every vertex, with defaults for meshes without it. */
     float *uv1, *tan, *col;
     uint32_t cap_uv1, cap_tan, cap_col;
-    uint32_t *idx, *tmat;
-    uint32_t nt, cap_idx, cap_tmat;
+    uint32_t *idx, *tmat, *tobj;
+    uint32_t nt, cap_idx, cap_tmat, cap_tobj;
+    pt_scene_name *objs; /* distinct object names */
+    uint32_t nobj, cap_obj;
+    int32_t cur_obj; /* pt_scene_builder_set_object's, or -1: each mesh's `what` */
     pt_material *mats;
     uint32_t nmat, cap_mat;
     pt_texture *texs;
@@ -134,6 +137,7 @@ pt_status pt_scene_builder_new(pt_scene_builder **out, pt_error *err)
     pt_scene_builder *b = pt_calloc(1, sizeof *b);
     if (!b)
         return pt_error_set(err, PT_ERR_NOMEM, "scene builder: out of memory");
+    b->cur_obj = -1;
     *out = b;
     return PT_OK;
 }
@@ -157,6 +161,8 @@ void pt_scene_builder_free(pt_scene_builder *b)
     pt_free(b->col);
     pt_free(b->idx);
     pt_free(b->tmat);
+    pt_free(b->tobj);
+    pt_free(b->objs);
     pt_free(b->mats);
     free_textures(b->texs, b->ntex);
     pt_free(b->cams);
@@ -176,6 +182,33 @@ void pt_scene_builder_set_hash(pt_scene_builder *b, const char *hex)
 uint32_t pt_scene_builder_num_materials(const pt_scene_builder *b)
 {
     return b->nmat;
+}
+
+/* The index of the object named `name` (cut to 63 bytes), added when new. */
+static pt_status object_of(pt_scene_builder *b, const char *name, uint32_t *out, pt_error *err)
+{
+    pt_scene_name n;
+    snprintf(n.s, sizeof n.s, "%s", name);
+    /* From the last: a node's primitives come one after another. */
+    for (uint32_t i = b->nobj; i-- > 0;)
+        if (!strcmp(b->objs[i].s, n.s)) {
+            *out = i;
+            return PT_OK;
+        }
+    if (!reserve((void **)&b->objs, &b->cap_obj, b->nobj + 1, sizeof n, 1))
+        return pt_error_set(err, PT_ERR_NOMEM, "object %s: out of memory", n.s);
+    b->objs[b->nobj] = n;
+    *out = b->nobj++;
+    return PT_OK;
+}
+
+pt_status pt_scene_builder_set_object(pt_scene_builder *b, const char *name, pt_error *err)
+{
+    uint32_t i = 0;
+    pt_status st = object_of(b, name, &i, err);
+    if (st == PT_OK)
+        b->cur_obj = (int32_t)i;
+    return st;
 }
 
 void pt_scene_builder_counts(const pt_scene_builder *b, uint32_t counts[4])
@@ -642,6 +675,7 @@ pt_status pt_scene_builder_add_mesh_extra(pt_scene_builder *b, const char *what,
         !reserve((void **)&b->uv, &b->cap_uv, nv_all, sizeof(float), 2) ||
         !reserve((void **)&b->idx, &b->cap_idx, nt_all, sizeof(uint32_t), 3) ||
         !reserve((void **)&b->tmat, &b->cap_tmat, nt_all, sizeof(uint32_t), 1) ||
+        !reserve((void **)&b->tobj, &b->cap_tobj, nt_all, sizeof(uint32_t), 1) ||
         !extra_reserve(&b->uv1, &b->cap_uv1, b->nv, nv_all, 2, extra->uvs1, zero4) ||
         !extra_reserve(&b->tan, &b->cap_tan, b->nv, nv_all, 4, extra->tangents, zero4) ||
         !extra_reserve(&b->col, &b->cap_col, b->nv, nv_all, 4, extra->colors, one4))
@@ -701,8 +735,14 @@ pt_status pt_scene_builder_add_mesh_extra(pt_scene_builder *b, const char *what,
         if ((st = add_vertex_extra(b, what, extra, v, xform, nsign, err)) != PT_OK)
             return st;
     }
+    uint32_t obj = 0;
+    if (b->cur_obj >= 0)
+        obj = (uint32_t)b->cur_obj;
+    else if ((st = object_of(b, what, &obj, err)) != PT_OK)
+        return st;
     uint32_t *I = b->idx + 3 * (size_t)b->nt;
     for (uint32_t t = 0; t < nt; t++) {
+        b->tobj[b->nt + t] = obj;
         uint32_t i0 = indices ? indices[3 * t] : 3 * t;
         uint32_t i1 = indices ? indices[3 * t + 1] : 3 * t + 1;
         uint32_t i2 = indices ? indices[3 * t + 2] : 3 * t + 2;
@@ -974,6 +1014,8 @@ void pt_scene_free(pt_scene *s)
     pt_free(s->colors);
     pt_free(s->indices);
     pt_free(s->tri_material);
+    pt_free(s->tri_object);
+    pt_free(s->object_names);
     pt_free(s->materials);
     free_textures(s->textures, s->num_textures);
     pt_free(s->cameras);
@@ -1436,6 +1478,12 @@ pt_status pt_scene_builder_finish(pt_scene_builder *b, const pt_scene_opts *opts
     s->normals = b->nrm;
     s->indices = b->idx;
     s->tri_material = b->tmat;
+    s->tri_object = b->tobj;
+    s->num_objects = b->nobj;
+    s->object_names = b->objs;
+    b->tobj = NULL;
+    b->objs = NULL;
+    b->nobj = 0;
     s->materials = b->mats;
     s->num_materials = b->nmat;
     s->textures = b->texs;

@@ -236,6 +236,11 @@ typedef struct pt_material {
     char name[64];
 } pt_material;
 
+/* A name as the scene keeps it: NUL-terminated, cut to 63 bytes. */
+typedef struct pt_scene_name {
+    char s[64];
+} pt_scene_name;
+
 typedef struct pt_camera {
     pt_vec3 position;
     pt_vec3 right, up, forward; /* world-space orthonormal basis; looks along +forward (glTF -Z) */
@@ -290,6 +295,11 @@ typedef struct pt_scene {
                                has it; (1,1,1,1) for vertices of a primitive without it */
     uint32_t *indices;      /* 3 per triangle */
     uint32_t *tri_material; /* 1 per triangle */
+    uint32_t *tri_object;   /* 1 per triangle: its object, an index into object_names */
+    uint32_t num_objects;
+    pt_scene_name *object_names; /* the objects' names (a glTF node's name, else
+                                    "node N"; a built mesh's `what` unless
+                                    pt_scene_builder_set_object), for Cryptomatte */
 
     uint32_t num_materials;
     pt_material *materials;
@@ -590,6 +600,10 @@ pt_status pt_scene_builder_add_mesh_motion(pt_scene_builder *b, const char *what
  * vectors, a position over PT_SCENE_MAX_COORD, yfov outside (0, pi), aspect
  * outside [0, 1e6), a negative or non-finite znear. */
 pt_status pt_scene_builder_add_camera(pt_scene_builder *b, const pt_camera *cam, pt_error *err);
+/* The object the meshes added next belong to (its name, cut to 63 bytes;
+ * one object per distinct name). Until it is called a mesh is an object
+ * named by its `what`. PT_ERR_NOMEM. */
+pt_status pt_scene_builder_set_object(pt_scene_builder *b, const char *name, pt_error *err);
 /* The same with the world-space position in double (cam->position ignored). */
 pt_status pt_scene_builder_add_camera_at(pt_scene_builder *b, const pt_camera *cam,
                                          const double position[3], pt_error *err);

@@ -151,7 +151,8 @@ static int take_frame(io_thread *t, io_conn *c, const proto_frame *f)
          * decodes it again and answers with the same error. */
         it->decoded = proto_msg_decode_result(f->payload, f->len, NULL, 0, &it->r, &err) == PT_OK;
         if (it->decoded) {
-            bytes += (uint64_t)it->r.npixels * sizeof *it->r.pixels;
+            bytes += (uint64_t)it->r.npixels *
+                     (sizeof *it->r.pixels + (it->r.pass ? sizeof *it->r.pass : 0));
             /* Checked here too (a pass over its pixels, the loop's costliest
              * part of validation); one that fails is judged again there. */
             it->checked = io->check && io->check(&it->r);

@@ -18,6 +18,11 @@ void job_settle(const srv_job *j)
         srv_adder_settle(j->adder, &j->adds);
 }
 
+size_t job_px_bytes(const srv_job *j, size_t npx)
+{
+    return npx * (sizeof(pt_pixel_acc) + (j->film->pass ? sizeof(pt_pass_acc) : 0));
+}
+
 uint32_t job_tile_pixels(const srv_job *j, uint32_t tile)
 {
     uint32_t tx = tile % j->tiles_x, ty = tile / j->tiles_x;
@@ -242,6 +247,10 @@ pt_status srv_job_new(uint64_t id, const srv_job_params *p, const uint8_t scene_
     }
     heap_rebuild(j);
     if ((st = pt_film_new(p->width, p->height, &j->film, err)) != PT_OK)
+        goto fail;
+    /* Render passes: their sums beside the film's, merged with them. */
+    if (proto_film_passes(p->film_flags) &&
+        (st = pt_film_enable_passes(j->film, proto_film_passes(p->film_flags), err)) != PT_OK)
         goto fail;
     *out = j;
     return PT_OK;

@@ -13,7 +13,7 @@
 /* ---- checkpoints ---- */
 
 #define CKPT_MAGIC 0x434a5450u /* "PTJC" */
-#define CKPT_VERSION 7u
+#define CKPT_VERSION 8u
 #define CKPT_OLDEST_VERSION 2u   /* no min gain: read as 0 */
 #define CKPT_MIN_GAIN_VERSION 3u /* the first with the min gain */
 /* The first with the environment (older: none), and the first with the film
@@ -27,6 +27,11 @@
 #define CKPT_FIXED_VERSION 5u
 /* The first with motion blur's shutter in the params (older: none). */
 #define CKPT_SHUTTER_VERSION 7u
+/* The first whose jobs may have render passes (film flags; older: none):
+ * each pixel's sums, held or in the film, are then followed by its pass
+ * sums (put_pass). */
+#define CKPT_PASSES_VERSION 8u
+#define CKPT_PASS_SIZE 404u /* bytes of one pixel's pass sums */
 
 /* A pixel as the checkpoint stores it: each sum as two u64, low half first
  * (RESULT's wide layout, msg.h), then n and hits. */
@@ -40,6 +45,59 @@ static void put_acc(proto_writer *w, const pt_pixel_acc *a)
     proto_w_u64(w, (uint64_t)(a->fsum_sq >> 64));
     proto_w_u32(w, a->n);
     proto_w_u32(w, a->hits);
+}
+
+/* A pixel's pass sums as the checkpoint stores them: each sum as two u64,
+ * low half first (RESULT's wide pass layout, msg.h), then n_even. */
+static void put_pass(proto_writer *w, const pt_pass_acc *a)
+{
+    for (int k = 0; k < PT_PASS_SUMS; k++) {
+        proto_w_u64(w, (uint64_t)a->s[k]);
+        proto_w_u64(w, (uint64_t)(a->s[k] >> 64));
+    }
+    for (int k = 0; k < PT_PASS_SQS; k++) {
+        proto_w_u64(w, (uint64_t)a->sq[k]);
+        proto_w_u64(w, (uint64_t)(a->sq[k] >> 64));
+    }
+    proto_w_u32(w, a->n_even);
+    for (int k = 0; k < PT_CRYPTO_KINDS; k++) {
+        for (int j = 0; j < PT_CRYPTO_KEEP; j++)
+            proto_w_u32(w, a->cid[k][j]);
+        for (int j = 0; j < PT_CRYPTO_KEEP; j++)
+            proto_w_u32(w, a->ccnt[k][j]);
+    }
+}
+
+/* A pixel's pass sums are consistent with its n (as the RESULT decoder
+ * checks them). */
+static int pass_sane(const pt_pass_acc *a, uint32_t n)
+{
+    if (a->n_even > n)
+        return 0;
+    for (int k = 0; k < PT_CRYPTO_KINDS; k++)
+        if (!pt_crypto_canonical(a->cid[k], a->ccnt[k], n))
+            return 0;
+    return 1;
+}
+
+static void get_pass(proto_reader *r, pt_pass_acc *a)
+{
+    for (int k = 0; k < PT_PASS_SUMS; k++) {
+        uint64_t lo = proto_r_u64(r, "pass sum");
+        a->s[k] = (pt_i128)(((pt_u128)proto_r_u64(r, "pass sum") << 64) | lo);
+    }
+    for (int k = 0; k < PT_PASS_SQS; k++) {
+        uint64_t lo = proto_r_u64(r, "pass sum of squares");
+        a->sq[k] = ((pt_u128)proto_r_u64(r, "pass sum of squares") << 64) | lo;
+    }
+    a->n_even = proto_r_u32(r, "pass even samples");
+    a->pad = 0;
+    for (int k = 0; k < PT_CRYPTO_KINDS; k++) {
+        for (int j = 0; j < PT_CRYPTO_KEEP; j++)
+            a->cid[k][j] = proto_r_u32(r, "Cryptomatte id");
+        for (int j = 0; j < PT_CRYPTO_KEEP; j++)
+            a->ccnt[k][j] = proto_r_u32(r, "Cryptomatte count");
+    }
 }
 
 /* A double sum of a checkpoint before CKPT_FIXED_VERSION in fixed point, by
@@ -174,12 +232,19 @@ pt_status srv_job_save(const srv_job *j, proto_writer *w, pt_error *err)
         proto_w_u32(w, k->s0);
         proto_w_u32(w, k->s1);
         uint32_t npx = job_tile_pixels(j, k->tile);
-        for (uint32_t p = 0; p < npx; p++)
-            put_acc(w, &j->held[i].px[p]);
+        const pt_pixel_acc *px = j->held[i].px;
+        for (uint32_t p = 0; p < npx; p++) {
+            put_acc(w, &px[p]);
+            if (j->film->pass) /* a held block: the pixels, then their passes */
+                put_pass(w, &((const pt_pass_acc *)(px + npx))[p]);
+        }
     }
     size_t npx = (size_t)j->p.width * j->p.height;
-    for (size_t k = 0; k < npx; k++)
+    for (size_t k = 0; k < npx; k++) {
         put_acc(w, &j->film->px[k]);
+        if (j->film->pass)
+            put_pass(w, &j->film->pass[k]);
+    }
     if (proto_writer_status(w) != PT_OK)
         return pt_error_set(err, proto_writer_status(w),
                             "checkpoint of job %llu: cannot "
@@ -265,19 +330,22 @@ static pt_status load_held(srv_job *j, proto_reader *r, uint32_t nheld, uint32_t
                 return pt_error_set(err, PT_ERR_NOMEM, "checkpoint: out of memory");
             j->held = n;
         }
-        pt_pixel_acc *px = pt_malloc_array(npx, sizeof *px);
+        pt_pixel_acc *px = pt_malloc(job_px_bytes(j, npx));
         if (!px)
             return pt_error_set(err, PT_ERR_NOMEM, "checkpoint: out of memory");
+        pt_pass_acc *pass = j->film->pass ? (pt_pass_acc *)(px + npx) : NULL;
         uint64_t samples = 0;
         for (uint32_t k = 0; k < npx; k++) {
             get_acc(r, &px[k], version);
+            if (pass)
+                get_pass(r, &pass[k]);
             samples += px[k].n;
         }
         j->held[j->nheld] = (held){t, 0, px, samples};
         j->tasks[t].held = j->nheld++;
         j->tasks[t].state = T_HELD;
         for (uint32_t k = 0; k < npx; k++)
-            if (!job_acc_sane(&px[k], s1 - s0))
+            if (!job_acc_sane(&px[k], s1 - s0) || (pass && !pass_sane(&pass[k], px[k].n)))
                 return pt_error_set(err, PT_ERR_FORMAT,
                                     "checkpoint: held samples %u to %u of tile %u, pixel %u, "
                                     "are not finite or have too many samples",
@@ -309,6 +377,12 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
     uint32_t ntiles = proto_r_u32(&r, "tiles"), nchunks = proto_r_u32(&r, "chunks");
     if (r.status != PT_OK)
         return proto_r_finish(&r, "checkpoint", err);
+    if (proto_film_passes(p.film_flags) && version < CKPT_PASSES_VERSION)
+        return pt_error_set(err, PT_ERR_FORMAT,
+                            "checkpoint: version %u cannot hold the render passes its job asks for",
+                            version);
+    if (proto_film_passes(p.film_flags))
+        acc_size += CKPT_PASS_SIZE;
     if (id != j->id || memcmp(hash, j->hash, 32) != 0 || p.width != j->p.width ||
         p.height != j->p.height || p.spp != j->p.spp || p.tile != j->p.tile ||
         p.chunk != j->p.chunk || p.seed != j->p.seed || p.max_depth != j->p.max_depth ||
@@ -338,6 +412,12 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
                             proto_r_left(&r), npx * acc_size);
     for (size_t k = 0; k < npx && r.status == PT_OK; k++) {
         get_acc(&r, &j->film->px[k], version);
+        if (j->film->pass) {
+            get_pass(&r, &j->film->pass[k]);
+            if (r.status == PT_OK && !pass_sane(&j->film->pass[k], j->film->px[k].n))
+                return pt_error_set(err, PT_ERR_FORMAT,
+                                    "checkpoint: pixel %zu's pass sums do not fit its samples", k);
+        }
         if (r.status == PT_OK && !job_acc_sane(&j->film->px[k], j->p.spp))
             return pt_error_set(err, PT_ERR_FORMAT,
                                 "checkpoint: pixel %zu is not finite or has "
@@ -373,22 +453,26 @@ srv_job *srv_job_snapshot(const srv_job *j)
     c->tasks = pt_malloc_array(j->nheld ? j->nheld : 1, sizeof *c->tasks);
     c->held = pt_malloc_array(j->nheld ? j->nheld : 1, sizeof *c->held);
     if (!c->tiles || !c->tasks || !c->held ||
-        pt_film_new(j->film->width, j->film->height, &c->film, NULL) != PT_OK) {
+        pt_film_new(j->film->width, j->film->height, &c->film, NULL) != PT_OK ||
+        (j->film->pass && pt_film_enable_passes(c->film, j->film->passes, NULL) != PT_OK)) {
         srv_job_free(c);
         return NULL;
     }
     memcpy(c->tiles, j->tiles, (size_t)j->ntiles * sizeof *c->tiles);
     memcpy(c->film->px, j->film->px,
            (size_t)j->film->width * j->film->height * sizeof *c->film->px);
+    if (j->film->pass)
+        memcpy(c->film->pass, j->film->pass,
+               (size_t)j->film->width * j->film->height * sizeof *c->film->pass);
     for (uint32_t i = 0; i < j->nheld; i++) {
         const task *k = &j->tasks[j->held[i].task];
         size_t npx = job_tile_pixels(j, k->tile);
-        pt_pixel_acc *px = pt_malloc_array(npx, sizeof *px);
+        pt_pixel_acc *px = pt_malloc(job_px_bytes(j, npx));
         if (!px) {
             srv_job_free(c);
             return NULL;
         }
-        memcpy(px, j->held[i].px, npx * sizeof *px);
+        memcpy(px, j->held[i].px, job_px_bytes(j, npx));
         c->tasks[i] = (task){k->tile, k->s0, k->s1, NONE, NONE, i, T_HELD};
         c->ntasks = c->tasks_cap = i + 1;
         c->held[c->nheld++] = (held){i, j->held[i].owner, px, j->held[i].samples};

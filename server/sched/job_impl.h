@@ -231,5 +231,8 @@ int job_decision_point(const srv_job *j, uint32_t s);
  * consistent. The sum of squares is unsigned and saturates (tile.h): any
  * value is possible but 0 is the only one for no samples. */
 int job_acc_sane(const pt_pixel_acc *a, uint32_t max_n);
+/* The bytes of npx pixels' sums as the job keeps a tile's (held, posted to
+ * the adder): the pixels, then their pass sums when the job has passes. */
+size_t job_px_bytes(const srv_job *j, size_t npx);
 
 #endif

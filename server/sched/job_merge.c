@@ -205,6 +205,20 @@ static int pixels_plausible(const proto_result *r, uint32_t samples, pt_error *e
     return 1;
 }
 
+/* A result carries pass sums exactly when its job asks for passes: the film
+ * reads a tile's passes after its pixels, so a result without them would
+ * be read past its end. (Their values are sums like any: n_even <= n was
+ * checked as it was decoded.) */
+static int passes_match(const srv_job *j, const proto_result *r, pt_error *err)
+{
+    if ((r->pass != NULL) == (j->film->pass != NULL))
+        return 1;
+    pt_error_set(err, PT_ERR_PROTO, "result for task %llu %s pass sums; the job %s",
+                 (unsigned long long)r->task_id, r->pass ? "has" : "lacks",
+                 r->pass ? "asks for none" : "asks for passes");
+    return 0;
+}
+
 /* Checks r against the task it names; need_lease: the owner must hold it.
  * On SRV_MERGED or SRV_CHECK *lease_index receives the lease (-1 when none
  * was needed). */
@@ -254,6 +268,8 @@ static srv_outcome validate_result(const srv_job *j, uint64_t owner, const proto
     /* Checked for its own range, which is the task's (just above). */
     if (!pixels_checked && !pixels_plausible(r, k->s1 - k->s0, err))
         return SRV_INVALID;
+    if (!passes_match(j, r, err))
+        return SRV_INVALID;
     *lease_index = li;
     return verify ? SRV_CHECK : SRV_MERGED;
 }
@@ -292,8 +308,21 @@ static int verify_picked(const srv_job *j, uint64_t t)
 static void pixels_hash(const proto_result *r, uint8_t out[32])
 {
     /* pt_pixel_acc has no implicit padding, so the bytes are the result's
-     * values (camera hits included) and nothing else. */
+     * values (camera hits included) and nothing else; nor has pt_pass_acc
+     * (its pad is 0): the passes' hash is chained after the pixels'. */
     pt_sha256((const uint8_t *)r->pixels, (size_t)r->npixels * sizeof *r->pixels, out);
+    if (r->pass) {
+        size_t n = (size_t)r->npixels * sizeof *r->pass;
+        uint8_t *both = pt_malloc(32 + n);
+        if (!both) {
+            memset(out, 0xff, 32); /* never a match: the check is judged again */
+            return;
+        }
+        memcpy(both, out, 32);
+        memcpy(both + 32, r->pass, n);
+        pt_sha256(both, 32 + n, out);
+        pt_free(both);
+    }
 }
 
 static void add_check(srv_job *j, uint32_t t, uint64_t owner, const proto_result *r)
@@ -435,9 +464,19 @@ static srv_outcome merge_task(srv_job *j, uint32_t t, int li, const proto_result
     /* Validated: each pixel lacks exactly the samples reported rejected. */
     uint64_t samples = (uint64_t)r->npixels * (r->s1 - r->s0) - r->rejected;
     if (j->tiles[tile].head == t) {
+        pt_pixel_acc *px = r->pixels;
+        int own = take;
+        if (r->pass && !take) {
+            /* The film reads a tile's passes after its pixels: one block. */
+            if (!(px = pt_malloc(job_px_bytes(j, r->npixels))))
+                goto nomem;
+            memcpy(px, r->pixels, (size_t)r->npixels * sizeof *px);
+            memcpy(px + r->npixels, r->pass, (size_t)r->npixels * sizeof *r->pass);
+            own = 1;
+        }
         note_accepted(j, t, li, r, now_ms);
         j->capped += r->capped;
-        merge_now(j, t, r->pixels, samples, take);
+        merge_now(j, t, px, samples, own);
         merge_held(j, tile);
         return SRV_MERGED;
     }
@@ -450,9 +489,12 @@ static srv_outcome merge_task(srv_job *j, uint32_t t, int li, const proto_result
     }
     pt_pixel_acc *copy = r->pixels;
     if (!take) {
-        if (!(copy = pt_malloc_array(r->npixels, sizeof *copy)))
+        /* The pixels, then their passes (job_px_bytes), as the film reads them. */
+        if (!(copy = pt_malloc(job_px_bytes(j, r->npixels))))
             goto nomem;
         memcpy(copy, r->pixels, (size_t)r->npixels * sizeof *copy);
+        if (r->pass)
+            memcpy(copy + r->npixels, r->pass, (size_t)r->npixels * sizeof *r->pass);
     }
     j->held[j->nheld] = (held){t, li >= 0 ? j->leases[li].owner : 0, copy, samples};
     j->tasks[t].held = j->nheld++;
@@ -485,6 +527,7 @@ static srv_outcome merge_taking(srv_job *j, uint32_t t, int li, proto_result *r,
     srv_outcome o = merge_task(j, t, li, r, r->owns_pixels, now_ms, err);
     if (r->owns_pixels && o == SRV_MERGED) {
         r->pixels = NULL;
+        r->pass = NULL; /* in the same block */
         r->owns_pixels = 0;
     }
     return o;
@@ -624,7 +667,7 @@ srv_outcome srv_job_replay(srv_job *j, proto_result *r, pt_error *err)
     uint8_t st = j->tasks[t].state;
     if (st == T_MERGED || st == T_HELD || st == T_SKIPPED)
         return SRV_DUPLICATE;
-    if (!pixels_plausible(r, r->s1 - r->s0, err))
+    if (!pixels_plausible(r, r->s1 - r->s0, err) || !passes_match(j, r, err))
         return SRV_INVALID;
     return merge_taking(j, t, -1, r, 0, err);
 }

@@ -48,7 +48,7 @@ void srv_queue_insert(srv_server *s, srv_entry *j)
 
 uint64_t queue_pixel_bytes(const proto_result *r)
 {
-    return (uint64_t)r->npixels * sizeof(pt_pixel_acc);
+    return (uint64_t)r->npixels * (sizeof(pt_pixel_acc) + (r->pass ? sizeof(pt_pass_acc) : 0));
 }
 
 /* Lets go of p, a result of j that waited for its commit: merged (the job

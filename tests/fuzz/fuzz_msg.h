@@ -118,7 +118,10 @@ static inline pt_status fuzz_decode(uint32_t type, const uint8_t *p, size_t len,
                                      &err);
         if (st == PT_OK) {
             FUZZ_CHECK(u.result.npixels <= PROTO_MAX_TILE_PIXELS);
-            FUZZ_CHECK(u.result.owns_pixels == !use_buf);
+            /* With passes, always a block of its own: the pixels, then them. */
+            FUZZ_CHECK(u.result.owns_pixels == (!use_buf || u.result.pass != NULL));
+            FUZZ_CHECK(!u.result.pass ||
+                       u.result.pass == (pt_pass_acc *)(u.result.pixels + u.result.npixels));
             FUZZ_REENCODE(proto_msg_encode_result, &u.result);
             proto_result_fini(&u.result);
         }

@@ -1075,6 +1075,20 @@ int main(int argc, char **argv)
                          path ? "_buf" : "");
                 emit(dir, "fuzz_msg", name, w.buf, w.len);
             }
+            if (s == 9) {
+                /* A RESULT with render passes' sums, through both paths. */
+                for (int path = 0; path < 2; path++) {
+                    proto_writer_reset(&w);
+                    proto_w_u8(&w, (uint8_t)(s + path * SAMPLE_COUNT));
+                    proto_result m = sample_result_passes(v);
+                    if (proto_msg_encode_result(&w, &m, NULL) != PT_OK) {
+                        failures++;
+                        continue;
+                    }
+                    snprintf(name, sizeof name, "RESULT_passes_%d%s", v, path ? "_buf" : "");
+                    emit(dir, "fuzz_msg", name, w.buf, w.len);
+                }
+            }
             /* fuzz_frame: one frame, whole and byte by byte. */
             proto_writer_reset(&w);
             proto_w_u8(&w, (uint8_t)(v ? 0x01 : 0x00));

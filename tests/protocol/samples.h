@@ -82,6 +82,7 @@ static inline proto_task sample_task(int v)
     return m;
 }
 
+static pt_pass_acc sample_passes[12];
 static inline proto_result sample_result(int v)
 {
     proto_result m;
@@ -106,6 +107,34 @@ static inline proto_result sample_result(int v)
     m.capped = v ? 0 : 0x0102030405060708ull;
     m.npixels = v ? 1 : 12;
     m.pixels = sample_pixels;
+    return m;
+}
+
+/* sample_result(v) with render passes' sums: narrow for pixel 0 alone (v =
+ * 1), one wide value among the 12 (v = 0). */
+static inline proto_result sample_result_passes(int v)
+{
+    proto_result m = sample_result(v);
+    for (unsigned i = 0; i < 12; i++) {
+        for (int k = 0; k < PT_PASS_SUMS; k++)
+            sample_passes[i].s[k] = (pt_i128)(k + 1) * (i + 1) * (k % 2 ? -1 : 1);
+        for (int k = 0; k < PT_PASS_SQS; k++)
+            sample_passes[i].sq[k] = (pt_u128)k * 1000 + i;
+        sample_passes[i].s[3] = i == 5 ? -((pt_i128)1 << 90) : sample_passes[i].s[3];
+        sample_passes[i].n_even = sample_pixels[i].n / 2;
+        memset(sample_passes[i].cid, 0, sizeof sample_passes[i].cid);
+        memset(sample_passes[i].ccnt, 0, sizeof sample_passes[i].ccnt);
+        if (sample_pixels[i].n > 1) { /* two ids a kind, counts summing to n */
+            for (int k = 0; k < PT_CRYPTO_KINDS; k++) {
+                sample_passes[i].cid[k][0] = 3u + (unsigned)k;
+                sample_passes[i].cid[k][1] = 0x80000000u + i;
+                sample_passes[i].ccnt[k][0] = 1;
+                sample_passes[i].ccnt[k][1] = sample_pixels[i].n - 1;
+            }
+        }
+        sample_passes[i].pad = 0;
+    }
+    m.pass = sample_passes;
     return m;
 }
 

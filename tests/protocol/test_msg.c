@@ -609,7 +609,7 @@ static void test_task(void)
     CHECK(proto_msg_encode_task(&w, &t, &err) == PT_OK);
     CHECK(proto_msg_decode_task(w.buf, w.len, &back, &err) == PT_OK &&
           back.film_flags == PROTO_FILM_TRANSPARENT);
-    t.film_flags = 2;
+    t.film_flags = 1u << 7;
     proto_writer_reset(&w);
     CHECK(proto_msg_encode_task(&w, &t, &err) == PT_ERR_ARG && w.len == 0);
     raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
@@ -861,7 +861,10 @@ static void test_result(void)
         raw.buf[68] = 1; /* wide RGB, but 40-byte pixels: 8 x 64 bytes are not there */
         CHECK(proto_msg_decode_result(raw.buf, raw.len, NULL, 0, &r, &e) == PT_ERR_PROTO &&
               strstr(e.msg, "truncated"));
-        raw.buf[68] = 4;
+        raw.buf[68] = 16;
+        CHECK(proto_msg_decode_result(raw.buf, raw.len, NULL, 0, &r, &e) == PT_ERR_PROTO &&
+              strstr(e.msg, "pixel form"));
+        raw.buf[68] = PROTO_RESULT_WIDE_PASSES; /* wide passes without passes */
         CHECK(proto_msg_decode_result(raw.buf, raw.len, NULL, 0, &r, &e) == PT_ERR_PROTO &&
               strstr(e.msg, "pixel form"));
         proto_writer_fini(&raw);
@@ -875,7 +878,7 @@ static void test_result(void)
             px[1].fsum_sq = ((pt_u128)1 << 64) + 5;
         else
             px[1].fsum[2] = -((pt_i128)1 << 64) - 5;
-        proto_result m = {1, 2, {0, 0, 2, 1}, 0, 8, 0, 0, 0, 2, px, 0}, b;
+        proto_result m = {1, 2, {0, 0, 2, 1}, 0, 8, 0, 0, 0, 2, px, 0, NULL}, b;
         proto_writer ww;
         proto_writer_init(&ww, 1 << 20);
         CHECK(proto_msg_encode_result(&ww, &m, NULL) == PT_OK);
@@ -892,6 +895,59 @@ static void test_result(void)
             CHECK(proto_msg_decode_result(ww.buf, ww.len, NULL, 0, &b, &e) == PT_ERR_PROTO &&
                   strstr(e.msg, "no pixel needs"));
         }
+        proto_writer_fini(&ww);
+    }
+    /* Pass sums (PROTO_RESULT_PASSES): narrow, then one wide value; both
+     * round trip into one block after the pixels, whatever buffer is given;
+     * an even count over n is refused both ways; bytes cut short too. */
+    for (int k = 0; k < 2; k++) {
+        pt_pixel_acc px[2] = {pt_pixel_acc_of(1.0, 2.0, 3.0, 4.0, 8, 8),
+                              pt_pixel_acc_of(0.5, 0.25, 0.125, 0.0625, 8, 3)};
+        pt_pass_acc pa[2];
+        memset(pa, 0, sizeof pa);
+        for (int i = 0; i < PT_PASS_SUMS; i++)
+            pa[0].s[i] = -(pt_i128)i * 77 - 1, pa[1].s[i] = (pt_i128)i << 40;
+        for (int i = 0; i < PT_PASS_SQS; i++)
+            pa[0].sq[i] = (pt_u128)i * 1000 + 1, pa[1].sq[i] = 3;
+        pa[0].n_even = 4;
+        pa[1].n_even = 8;
+        /* Cryptomatte lists: pixel 0 three objects and one material. */
+        pa[0].cid[0][0] = 0, pa[0].cid[0][1] = 77, pa[0].cid[0][2] = 0xfffffff0u;
+        pa[0].ccnt[0][0] = 1, pa[0].ccnt[0][1] = 5, pa[0].ccnt[0][2] = 2;
+        pa[0].cid[1][0] = 12345, pa[0].ccnt[1][0] = 8;
+        if (k == 1)
+            pa[1].sq[2] = ((pt_u128)7 << 64) + 1;
+        proto_result m = {1, 2, {0, 0, 2, 1}, 0, 8, 0, 0, 0, 2, px, 0, pa}, b;
+        proto_writer ww;
+        proto_writer_init(&ww, 1 << 20);
+        CHECK(proto_msg_encode_result(&ww, &m, NULL) == PT_OK);
+        size_t q = k ? PROTO_RESULT_WIDE_PASS_SIZE : PROTO_RESULT_PASS_SIZE;
+        CHECK(ww.len == 69 + 2 * (40 + q));
+        CHECK(ww.buf[68] ==
+              (k ? PROTO_RESULT_PASSES | PROTO_RESULT_WIDE_PASSES : PROTO_RESULT_PASSES));
+        static pt_pixel_acc scratch[4];
+        CHECK(proto_msg_decode_result(ww.buf, ww.len, scratch, 4, &b, NULL) == PT_OK);
+        CHECK(b.owns_pixels && b.pass == (pt_pass_acc *)(b.pixels + 2));
+        CHECK(acc_same(&b.pixels[1], &px[1]) && memcmp(b.pass, pa, sizeof pa) == 0);
+        proto_result_fini(&b);
+        pt_error e = {0};
+        CHECK(proto_msg_decode_result(ww.buf, ww.len - 1, NULL, 0, &b, &e) == PT_ERR_PROTO &&
+              strstr(e.msg, "truncated"));
+        /* n_even of pixel 1 (before its 128 bytes of Cryptomatte) over its n of 8. */
+        ww.buf[ww.len - 128 - 4] = 9;
+        CHECK(proto_msg_decode_result(ww.buf, ww.len, NULL, 0, &b, &e) == PT_ERR_PROTO &&
+              strstr(e.msg, "even count"));
+        ww.buf[ww.len - 128 - 4] = 8;
+        CHECK(proto_msg_decode_result(ww.buf, ww.len, NULL, 0, &b, &e) == PT_OK);
+        proto_result_fini(&b);
+        /* A count without its id's order: the second entry used, the first not. */
+        ww.buf[ww.len - 128 + 4 * PT_CRYPTO_KEEP + 4] = 1;
+        CHECK(proto_msg_decode_result(ww.buf, ww.len, NULL, 0, &b, &e) == PT_ERR_PROTO &&
+              strstr(e.msg, "Cryptomatte"));
+        proto_writer_fini(&ww);
+        pa[1].n_even = 9;
+        proto_writer_init(&ww, 1 << 20);
+        CHECK(proto_msg_encode_result(&ww, &m, &e) == PT_ERR_ARG && strstr(e.msg, "even count"));
         proto_writer_fini(&ww);
     }
     CHECK(pt_alloc_live() == live);
@@ -1061,7 +1117,7 @@ static void test_submit(void)
     CHECK(submit_check(&m, "bundle size") == PT_ERR_PROTO);
     m = sample_submit(1);
     CHECK(m.film_flags == PROTO_FILM_TRANSPARENT && submit_check(&m, NULL) == PT_OK);
-    m.film_flags = PROTO_FILM_TRANSPARENT | 4u;
+    m.film_flags = PROTO_FILM_TRANSPARENT | (1u << 7);
     CHECK(submit_check(&m, "film flags") == PT_ERR_PROTO);
     /* The variant: at its cap accepted, one over refused both ways. */
     m = sample_submit(0);

@@ -1,8 +1,10 @@
 /*
- * ptexr-diff A.exr B.exr - compares two images written by ptfarm.
+ * ptexr-diff [--base] A.exr B.exr - compares two images written by ptfarm.
  *
  * Exit 0 when R, G, B, samples and A (when either file has it; both must)
- * are bit-identical, 1 when they differ
+ * are bit-identical, and so is every other channel (the render passes'
+ * layers: both files must have the same ones; --base compares the base
+ * channels alone), 1 when they differ
  * (the first differing pixel and the count are printed), 2 when a file
  * cannot be read or the sizes differ. Header attributes (render time, job
  * id) are not compared: they legitimately differ between runs.
@@ -13,19 +15,52 @@
 #include "common/base/version.h"
 #include "common/image/exr.h"
 
+/* The named channels (render passes): the same names, the same bits.
+ * Returns 0 or 1 after saying what differs. */
+static int diff_planes(const pt_image *a, const pt_image *b)
+{
+    const pt_image *ab[2] = {a, b};
+    for (int k = 0; k < 2; k++)
+        for (uint32_t i = 0; i < ab[k]->n_planes; i++)
+            if (!pt_image_find_plane(ab[1 - k], ab[k]->planes[i].name)) {
+                printf("channel %s is only in %s\n", ab[k]->planes[i].name, k ? "B" : "A");
+                return 1;
+            }
+    size_t n = (size_t)a->width * a->height;
+    for (uint32_t i = 0; i < a->n_planes; i++) {
+        const float *pa = a->planes[i].data, *pb = pt_image_find_plane(b, a->planes[i].name);
+        size_t diff = 0, first = 0;
+        for (size_t j = 0; j < n; j++)
+            if (memcmp(&pa[j], &pb[j], sizeof(float)) != 0 && diff++ == 0)
+                first = j;
+        if (diff) {
+            printf("%s: %zu of %zu pixels differ; first at (%zu, %zu): %.9g vs %.9g\n",
+                   a->planes[i].name, diff, n, first % a->width, first / a->width, pa[first],
+                   pb[first]);
+            return 1;
+        }
+    }
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
     if (argc == 2 && !strcmp(argv[1], "--version"))
         return pt_version_print("ptexr-diff");
+    int base = argc == 4 && !strcmp(argv[1], "--base");
+    if (base) {
+        argv++;
+        argc--;
+    }
     if (argc != 3 || !strcmp(argv[1], "-h") || !strcmp(argv[1], "--help")) {
-        fprintf(argc == 3 ? stdout : stderr, "usage: ptexr-diff A.exr B.exr\n"
+        fprintf(argc == 3 ? stdout : stderr, "usage: ptexr-diff [--base] A.exr B.exr\n"
                                              "       ptexr-diff --version\n");
         return argc == 3 ? 0 : 2;
     }
     pt_image *a = NULL, *b = NULL;
     pt_error err = {0};
-    if (pt_exr_read(argv[1], &a, NULL, &err) != PT_OK ||
-        pt_exr_read(argv[2], &b, NULL, &err) != PT_OK) {
+    if (pt_exr_read_layers(argv[1], &a, NULL, &err) != PT_OK ||
+        pt_exr_read_layers(argv[2], &b, NULL, &err) != PT_OK) {
         fprintf(stderr, "ptexr-diff: %s\n", err.msg);
         pt_image_free(a);
         return 2;
@@ -58,9 +93,14 @@ int main(int argc, char **argv)
                 b->r[first], b->g[first], b->b[first], b->samples[first]);
             rc = 1;
         } else {
+            rc = base ? 0 : diff_planes(a, b);
+        }
+        if (rc == 0 && (base || a->n_planes == 0))
             printf("identical: %ux%u, R G B samples%s bit for bit\n", a->width, a->height,
                    a->has_alpha ? " A" : "");
-        }
+        else if (rc == 0)
+            printf("identical: %ux%u, R G B samples%s bit for bit, and %u named channels\n",
+                   a->width, a->height, a->has_alpha ? " A" : "", a->n_planes);
     }
     pt_image_free(a);
     pt_image_free(b);
