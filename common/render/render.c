@@ -120,6 +120,8 @@ void pt_render_params_default(pt_render_params *p)
     p->transparent = 0;
     p->guiding = 0;
     p->passes = 0;
+    p->clamp_direct = 0.0f;
+    p->clamp_indirect = 0.0f;
 }
 
 const pt_render_params *pt_renderer_params(const pt_renderer *r)
