@@ -9,6 +9,7 @@
 
 #include "common/base/alloc.h"
 #include "common/image/image.h"
+#include "common/math/simd.h"
 
 /* Tiles: the unit of parallel work and of the fixed summation order. */
 #define TILE 32
@@ -116,6 +117,83 @@ static int imin(int a, int b)
 {
     return a < b ? a : b;
 }
+/* Not fminf/fmaxf: those are calls where NaN rules differ; no NaN reaches here. */
+static float fmin2(float a, float b)
+{
+    return a < b ? a : b;
+}
+static float fmax2(float a, float b)
+{
+    return a > b ? a : b;
+}
+
+/* e^-d for d >= 0; 0 from d = 80 on (under 2e-35: nothing next to the
+ * centre's weight). Written out rather than expf so that every machine
+ * computes the same bits (libm's expf picks code by processor) and loops
+ * over it vectorise: 2^-t with t = d log2(e) split into its integer part n
+ * and fraction, e^-u for u = fraction x ln 2 in [0, ln 2) by Taylor's
+ * series to degree 9 (truncation under 1e-7 relative), times 2^-n built in
+ * the exponent bits. */
+static inline float exp_neg(float d)
+{
+    float dc = d < 80.0f ? d : 80.0f;
+    float t = dc * 1.44269504f;
+    int n = (int)t;
+    float u = (t - (float)n) * 0.693147181f;
+    float p =
+        1.0f +
+        u * (-1.0f +
+             u * (0.5f +
+                  u * (-1.0f / 6.0f +
+                       u * (1.0f / 24.0f +
+                            u * (-1.0f / 120.0f +
+                                 u * (1.0f / 720.0f +
+                                      u * (-1.0f / 5040.0f +
+                                           u * (1.0f / 40320.0f + u * (-1.0f / 362880.0f)))))))));
+    uint32_t bits = (uint32_t)(127 - n) << 23;
+    float scale;
+    memcpy(&scale, &bits, sizeof scale);
+    return d < 80.0f ? p * scale : 0.0f;
+}
+
+/* exp_neg of 8 lanes in place, the same operations lane by lane: the same
+ * bits. Vectors go by pointer (as in simd.h): no AVX argument ABI. */
+static inline void exp_neg8(v8f *x)
+{
+    v8f d = *x;
+    const v8f lim = {80, 80, 80, 80, 80, 80, 80, 80}, zero = {0};
+    v8i below = d < lim;
+    v8f dc = V8_SELECT(below, d, lim);
+    v8f t = dc * 1.44269504f;
+    v8i n = __builtin_convertvector(t, v8i);
+    v8f u = (t - __builtin_convertvector(n, v8f)) * 0.693147181f;
+    v8f p =
+        1.0f +
+        u * (-1.0f +
+             u * (0.5f +
+                  u * (-1.0f / 6.0f +
+                       u * (1.0f / 24.0f +
+                            u * (-1.0f / 120.0f +
+                                 u * (1.0f / 720.0f +
+                                      u * (-1.0f / 5040.0f +
+                                           u * (1.0f / 40320.0f + u * (-1.0f / 362880.0f)))))))));
+    v8i bits = (127 - n) << 23;
+    *x = V8_SELECT(below, p * (v8f)bits, zero);
+}
+
+/* x[i] = exp_neg(x[i]) for i < n. */
+static inline void exp_neg_row(float *x, int n)
+{
+    int i = 0;
+    for (; i + 8 <= n; i += 8) {
+        v8f v;
+        memcpy(&v, x + i, sizeof v);
+        exp_neg8(&v);
+        memcpy(x + i, &v, sizeof v);
+    }
+    for (; i < n; i++)
+        x[i] = exp_neg(x[i]);
+}
 
 /* What NL-means weights are computed from: nc guide channels and the
  * variance of each (pointers may repeat), scaled by vscale. */
@@ -129,34 +207,37 @@ typedef struct guide {
 
 /* Scratch of patch_weights. */
 typedef struct wscratch {
-    float *d;  /* 3 x (TILE + 2 MAX_F)^2 distances */
-    float *hs; /* 3 x (TILE + 2 MAX_F) x TILE horizontal sums */
-    int *hcount;
+    float *d;  /* 3 x PAD^2: per-pixel distances of each channel */
+    float *hs; /* 2 x PAD: a row's column sums, then its patch sums */
+    float *hc; /* PAD: each output's patch width */
 } wscratch;
 
 #define PAD (TILE + 2 * MAX_F)
-#define WSCRATCH_BYTES                                                                             \
-    (3 * PAD * PAD * sizeof(float) + 3 * PAD * TILE * sizeof(float) + TILE * sizeof(int))
+#define WSCRATCH_BYTES ((3 * PAD * PAD + 3 * PAD + 2) * sizeof(float))
 
 static wscratch wscratch_at(void *mem)
 {
     wscratch s;
     s.d = mem;
     s.hs = s.d + 3 * PAD * PAD;
-    s.hcount = (int *)(void *)(s.hs + 3 * PAD * TILE);
+    s.hc = s.hs + 2 * PAD;
     return s;
 }
 
 /* The NL-means weights between each pixel p of tile r and p + (dx, dy):
- * per channel into out[c * tn + i] (per_channel) or, for the regression,
- * the smallest over the channels into out[i] (i: the pixel's index in the
- * tile, tn its pixel count). 0 where p + (dx, dy) is outside the image.
- * The patch distance is the mean of the per-pixel distances over the part
- * of the patch where both patches are inside the image. */
+ * per channel into out[c * TILE * TILE + i] (per_channel) or, for the
+ * regression, the smallest over the channels into out[i], where i =
+ * (y - r.y0) * TILE + (x - r.x0). 0 where p + (dx, dy) is outside the image
+ * and past the tile's edge. The patch distance is the mean of the per-pixel
+ * distances over the part of the patch where both patches are inside the
+ * image: column sums, then row sums, each loop running along x so that it
+ * vectorises (every element's sum keeps its order). */
+PT_SIMD_CLONES
 static void patch_weights(const dims *dm, const guide *gd, rect r, int dx, int dy, int per_channel,
                           wscratch *s, float *out)
 {
-    int w = dm->w, tw = r.x1 - r.x0, th = r.y1 - r.y0, tn = tw * th, f = gd->f;
+    int w = dm->w, f = gd->f;
+    const int tn = TILE * TILE;
     memset(out, 0, sizeof(float) * (size_t)tn * (size_t)(per_channel ? gd->nc : 1));
     /* p and p + (dx, dy) both inside the image */
     int vx0 = imax(r.x0, -dx), vx1 = imin(r.x1, w - dx);
@@ -165,59 +246,70 @@ static void patch_weights(const dims *dm, const guide *gd, rect r, int dx, int d
         return;
     int px0 = imax(vx0 - f, imax(0, -dx)), px1 = imin(vx1 + f, imin(w, w - dx));
     int py0 = imax(vy0 - f, imax(0, -dy)), py1 = imin(vy1 + f, imin(dm->h, dm->h - dy));
-    int pw = px1 - px0, ph = py1 - py0, vw = vx1 - vx0;
+    int pw = px1 - px0;
     float k2 = gd->k * gd->k;
+    /* pixels in each output's patch row: the columns inside [px0, px1) */
+    for (int x = vx0; x < vx1; x++)
+        s->hc[x - vx0] = (float)(imin(x + f + 1, px1) - imax(x - f, px0));
     for (int c = 0; c < gd->nc; c++) {
         const float *g = gd->g[c], *v = gd->v[c];
         float *d = s->d + (size_t)c * PAD * PAD;
         for (int y = py0; y < py1; y++) {
-            const float *gp = g + (size_t)y * w, *gq = g + (size_t)(y + dy) * w + dx;
-            const float *vp = v + (size_t)y * w, *vq = v + (size_t)(y + dy) * w + dx;
-            float *drow = d + (size_t)(y - py0) * pw - px0;
-            for (int x = px0; x < px1; x++) {
+            const float *gp = g + (size_t)y * w + px0, *gq = g + (size_t)(y + dy) * w + px0 + dx;
+            const float *vp = v + (size_t)y * w + px0, *vq = v + (size_t)(y + dy) * w + px0 + dx;
+            float *drow = d + (size_t)(y - py0) * pw;
+            for (int x = 0; x < pw; x++) {
                 float a = vp[x] * gd->vscale, b = vq[x] * gd->vscale;
                 float diff = gp[x] - gq[x];
-                float dist = (diff * diff - (a + fminf(a, b))) / (NLM_EPS + k2 * (a + b));
-                drow[x] = fminf(dist, NLM_CLAMP);
+                float dist = (diff * diff - (a + fmin2(a, b))) / (NLM_EPS + k2 * (a + b));
+                drow[x] = fmin2(dist, NLM_CLAMP);
             }
         }
-        float *hs = s->hs + (size_t)c * PAD * TILE;
-        for (int j = 0; j < ph; j++) {
-            const float *drow = d + (size_t)j * pw;
-            for (int x = vx0; x < vx1; x++) {
-                int a = imax(x - f, px0) - px0, b = imin(x + f + 1, px1) - px0;
-                float sum = 0.0f;
-                for (int i = a; i < b; i++)
-                    sum += drow[i];
-                hs[(size_t)j * vw + (x - vx0)] = sum;
-                s->hcount[x - vx0] = b - a;
+        float *col = s->hs;
+        float *o = out + (per_channel ? (size_t)c * tn : 0);
+        for (int y = vy0; y < vy1; y++) {
+            int i0 = imax(y - f, py0), i1 = imin(y + f + 1, py1);
+            for (int x = 0; x < pw; x++)
+                col[x] = 0.0f;
+            for (int i = i0; i < i1; i++) {
+                const float *drow = d + (size_t)(i - py0) * pw;
+                for (int x = 0; x < pw; x++)
+                    col[x] += drow[x];
             }
+            float *orow = o + (y - r.y0) * TILE + (vx0 - r.x0);
+            float *sum = s->hs + PAD;
+            int nx = vx1 - vx0;
+            for (int x = 0; x < nx; x++)
+                sum[x] = 0.0f;
+            for (int t = -f; t <= f; t++) {
+                /* x + t inside [px0, px1) */
+                int lo = imax(0, px0 - t - vx0), hi = imin(nx, px1 - t - vx0);
+                const float *cs = col + (vx0 + t - px0);
+                for (int x = lo; x < hi; x++)
+                    sum[x] += cs[x];
+            }
+            float rows = (float)(i1 - i0);
+            for (int x = 0; x < nx; x++)
+                sum[x] = fmax2(sum[x] / (rows * s->hc[x]), 0.0f);
+            if (per_channel)
+                memcpy(orow, sum, sizeof(float) * (size_t)nx);
+            else
+                for (int x = 0; x < nx; x++)
+                    orow[x] = fmax2(orow[x], sum[x]);
         }
     }
-    for (int y = vy0; y < vy1; y++) {
-        int a = imax(y - f, py0) - py0, b = imin(y + f + 1, py1) - py0;
-        for (int x = vx0; x < vx1; x++) {
-            float n = (float)((b - a) * s->hcount[x - vx0]);
-            int i = (y - r.y0) * tw + (x - r.x0);
-            float dmax = 0.0f;
-            for (int c = 0; c < gd->nc; c++) {
-                const float *hs = s->hs + (size_t)c * PAD * TILE + (x - vx0);
-                float sum = 0.0f;
-                for (int j = a; j < b; j++)
-                    sum += hs[(size_t)j * vw];
-                float dist = fmaxf(sum / n, 0.0f);
-                if (per_channel)
-                    out[(size_t)c * tn + i] = expf(-dist);
-                else
-                    dmax = fmaxf(dmax, dist);
-            }
-            if (!per_channel)
-                out[i] = expf(-dmax);
+    for (int c = 0; c < (per_channel ? gd->nc : 1); c++)
+        for (int y = vy0; y < vy1; y++) {
+            float *orow = out + (size_t)c * tn + (y - r.y0) * TILE + (vx0 - r.x0);
+            exp_neg_row(orow, vx1 - vx0);
         }
-    }
     if (dx == 0 && dy == 0)
-        for (int i = 0; i < tn * (per_channel ? gd->nc : 1); i++)
-            out[i] = fmaxf(out[i], NLM_MIN_CENTER);
+        for (int c = 0; c < (per_channel ? gd->nc : 1); c++)
+            for (int y = r.y0; y < r.y1; y++)
+                for (int x = r.x0; x < r.x1; x++) {
+                    float *o = out + (size_t)c * tn + (y - r.y0) * TILE + (x - r.x0);
+                    *o = fmax2(*o, NLM_MIN_CENTER);
+                }
 }
 
 /* ---- NL-means (per-channel weights), for the features, MSE and selection ---- */
@@ -237,7 +329,8 @@ static int nlm_tile(void *vctx, int t, void *mem)
     nlm_ctx *cx = vctx;
     const dims *dm = &cx->dm;
     rect r = tile_rect(dm, t);
-    int tw = r.x1 - r.x0, tn = tw * (r.y1 - r.y0), nc = cx->gd.nc;
+    const int tn = TILE * TILE;
+    int nc = cx->gd.nc;
     wscratch s = wscratch_at(mem);
     float *wt = (float *)(void *)((char *)mem + WSCRATCH_BYTES);
     double *acc = (double *)(void *)(wt + 3 * TILE * TILE), *wsum = acc + 3 * TILE * TILE;
@@ -251,7 +344,7 @@ static int nlm_tile(void *vctx, int t, void *mem)
                 for (int y = vy0; y < vy1; y++) {
                     const float *q = cx->src[c] + (size_t)(y + dy) * dm->w + dx;
                     for (int x = vx0; x < vx1; x++) {
-                        int i = (y - r.y0) * tw + (x - r.x0);
+                        int i = (y - r.y0) * TILE + (x - r.x0);
                         float wv = wt[(size_t)c * tn + i];
                         acc[c * tn + i] += (double)wv * q[x];
                         wsum[c * tn + i] += wv;
@@ -263,7 +356,7 @@ static int nlm_tile(void *vctx, int t, void *mem)
     for (int c = 0; c < nc; c++)
         for (int y = r.y0; y < r.y1; y++)
             for (int x = r.x0; x < r.x1; x++) {
-                int i = (y - r.y0) * tw + (x - r.x0);
+                int i = (y - r.y0) * TILE + (x - r.x0);
                 cx->dst[c][(size_t)y * dm->w + x] = (float)(acc[c * tn + i] / wsum[c * tn + i]);
             }
     return 0;
@@ -331,91 +424,145 @@ typedef struct reg_ctx {
     guide gd;          /* weights: the other half (or the image itself) */
     const float *y[3]; /* the colour fitted */
     const float *feat[PT_DENOISE_FEATURES];
-    double **tile_acc; /* per tile: 4 planes (R, G, B, weight) over its grown rect */
+    double **tile_acc; /* per tile: 4 planes (R, G, B, weight) of RPAD x RPAD */
 } reg_ctx;
 
-/* The tile grown by the window radius, inside the image: where its fits land. */
-static rect grown_rect(const dims *dm, rect r)
-{
-    rect g = {imax(r.x0 - REG_R, 0), imax(r.y0 - REG_R, 0), imin(r.x1 + REG_R, dm->w),
-              imin(r.y1 + REG_R, dm->h)};
-    return g;
-}
+/* A tile's neighbourhood: the tile (always TILE wide here) and the window's
+ * reach around it, from (x0 - REG_R, y0 - REG_R); what lies outside the
+ * image is 0 and has weight 0. */
+#define RPAD (TILE + 2 * REG_R)
+/* Unknowns' products: the upper triangle of the normal matrix. */
+#define NTRI (DIM * (DIM + 1) / 2)
+/* Four pixels of a row fitted at once, one per lane; each lane's sums are
+ * taken in the order the scalar code would take them. */
+#define LANES 4
+typedef double v4d __attribute__((vector_size(LANES * sizeof(double))));
 
 #define REG_SCRATCH_BYTES                                                                          \
     (WSCRATCH_BYTES + (size_t)WIN * TILE * TILE * sizeof(float) +                                  \
-     (size_t)WIN * (DIM * sizeof(double) + sizeof(float) + sizeof(int)))
+     (size_t)(PT_DENOISE_FEATURES + 3) * RPAD * RPAD * sizeof(float))
+
+#define load4(p) ((v4d){(p)[0], (p)[1], (p)[2], (p)[3]})
+
+/* Every fit of one row group of a tile: 4 pixels from (lx0, ly) (tile
+ * coordinates); pixels past the tile's width have no weight and no fit. */
+PT_SIMD_CLONES
+static void fit_lanes(const float *wt, const float *loc, int lx0, int ly, int tw, double *acc)
+{
+    const int side = 2 * REG_R + 1, rn = RPAD * RPAD;
+    const int pc = (ly + REG_R) * RPAD + lx0 + REG_R;
+    const float *feat = loc, *col = loc + (size_t)PT_DENOISE_FEATURES * rn;
+    v4d a[NTRI], b[DIM][3], fp[PT_DENOISE_FEATURES], x[DIM];
+    memset(a, 0, sizeof a);
+    memset(b, 0, sizeof b);
+    for (int k = 0; k < PT_DENOISE_FEATURES; k++)
+        fp[k] = load4(feat + (size_t)k * rn + pc);
+    for (int dy = -REG_R; dy <= REG_R; dy++) {
+        for (int dx = -REG_R; dx <= REG_R; dx++) {
+            const float *wp =
+                wt + (size_t)((dy + REG_R) * side + dx + REG_R) * TILE * TILE + ly * TILE + lx0;
+            if (wp[0] == 0.0f && wp[1] == 0.0f && wp[2] == 0.0f && wp[3] == 0.0f)
+                continue;
+            v4d wv = load4(wp);
+            int qc = pc + dy * RPAD + dx;
+            x[0] = (v4d){1.0, 1.0, 1.0, 1.0};
+            x[1] = (v4d){dx, dx, dx, dx};
+            x[2] = (v4d){dy, dy, dy, dy};
+            for (int k = 0; k < PT_DENOISE_FEATURES; k++)
+                x[3 + k] = load4(feat + (size_t)k * rn + qc) - fp[k];
+            v4d y[3] = {load4(col + qc), load4(col + rn + qc), load4(col + 2 * rn + qc)};
+            int m = 0;
+            for (int j = 0; j < DIM; j++) {
+                v4d wx = wv * x[j];
+                for (int k = j; k < DIM; k++)
+                    a[m++] += wx * x[k];
+                for (int c = 0; c < 3; c++)
+                    b[j][c] += wx * y[c];
+            }
+        }
+    }
+    v4d beta[DIM][3];
+    memset(beta, 0, sizeof beta);
+    for (int l = 0; l < LANES && lx0 + l < tw; l++) {
+        double al[DIM][DIM], bl[DIM][3], bt[DIM][3];
+        int m = 0;
+        for (int j = 0; j < DIM; j++) {
+            for (int k = j; k < DIM; k++)
+                al[j][k] = a[m++][l];
+            for (int c = 0; c < 3; c++)
+                bl[j][c] = b[j][c][l];
+        }
+        solve_wls(al, bl, bt);
+        for (int j = 0; j < DIM; j++)
+            for (int c = 0; c < 3; c++)
+                beta[j][c][l] = bt[j][c];
+    }
+    /* Each fit predicts its window; the predictions land with their weights. */
+    for (int dy = -REG_R; dy <= REG_R; dy++) {
+        for (int dx = -REG_R; dx <= REG_R; dx++) {
+            const float *wp =
+                wt + (size_t)((dy + REG_R) * side + dx + REG_R) * TILE * TILE + ly * TILE + lx0;
+            if (wp[0] == 0.0f && wp[1] == 0.0f && wp[2] == 0.0f && wp[3] == 0.0f)
+                continue;
+            v4d wv = load4(wp);
+            int qc = pc + dy * RPAD + dx;
+            x[0] = (v4d){1.0, 1.0, 1.0, 1.0};
+            x[1] = (v4d){dx, dx, dx, dx};
+            x[2] = (v4d){dy, dy, dy, dy};
+            for (int k = 0; k < PT_DENOISE_FEATURES; k++)
+                x[3 + k] = load4(feat + (size_t)k * rn + qc) - fp[k];
+            for (int c = 0; c < 4; c++) {
+                v4d add = wv;
+                if (c < 3) {
+                    v4d pred = x[0] * beta[0][c];
+                    for (int j = 1; j < DIM; j++)
+                        pred += x[j] * beta[j][c];
+                    add = wv * pred;
+                }
+                v4d cur;
+                memcpy(&cur, acc + (size_t)c * rn + qc, sizeof cur);
+                cur += add;
+                memcpy(acc + (size_t)c * rn + qc, &cur, sizeof cur);
+            }
+        }
+    }
+}
 
 static int reg_tile(void *vctx, int t, void *mem)
 {
     reg_ctx *cx = vctx;
     const dims *dm = &cx->dm;
-    int w = dm->w;
-    rect r = tile_rect(dm, t), gr = grown_rect(dm, r);
-    int tw = r.x1 - r.x0, tn = tw * (r.y1 - r.y0), gw = gr.x1 - gr.x0;
-    size_t gn = (size_t)gw * (size_t)(gr.y1 - gr.y0);
+    const int rn = RPAD * RPAD;
+    rect r = tile_rect(dm, t);
+    int tw = r.x1 - r.x0;
     wscratch s = wscratch_at(mem);
     float *wt = (float *)(void *)((char *)mem + WSCRATCH_BYTES);
-    double *xs = (double *)(void *)(wt + (size_t)WIN * TILE * TILE);
-    float *ws = (float *)(void *)(xs + (size_t)WIN * DIM);
-    int *qs = (int *)(void *)(ws + WIN);
-    double *acc = pt_calloc(4 * gn, sizeof(double));
+    float *loc = wt + (size_t)WIN * TILE * TILE;
+    double *acc = pt_calloc(4 * (size_t)rn, sizeof(double));
     if (!acc)
         return -1;
     cx->tile_acc[t] = acc;
+    /* The features and the colour around the tile, 0 outside the image. */
+    for (int k = 0; k < PT_DENOISE_FEATURES + 3; k++) {
+        const float *src = k < PT_DENOISE_FEATURES ? cx->feat[k] : cx->y[k - PT_DENOISE_FEATURES];
+        float *dst = loc + (size_t)k * rn;
+        for (int ly = 0; ly < RPAD; ly++) {
+            int gy = r.y0 - REG_R + ly;
+            for (int lx = 0; lx < RPAD; lx++) {
+                int gx = r.x0 - REG_R + lx;
+                int in = gx >= 0 && gx < dm->w && gy >= 0 && gy < dm->h;
+                dst[ly * RPAD + lx] = in ? src[(size_t)gy * dm->w + gx] : 0.0f;
+            }
+        }
+    }
     const int side = 2 * REG_R + 1;
     for (int dy = -REG_R; dy <= REG_R; dy++)
         for (int dx = -REG_R; dx <= REG_R; dx++)
             patch_weights(dm, &cx->gd, r, dx, dy, 0, &s,
-                          wt + (size_t)((dy + REG_R) * side + dx + REG_R) * tn);
-    for (int py = r.y0; py < r.y1; py++) {
-        for (int px = r.x0; px < r.x1; px++) {
-            int i = (py - r.y0) * tw + (px - r.x0);
-            size_t p = (size_t)py * w + px;
-            double a[DIM][DIM] = {{0}}, b[DIM][3] = {{0}}, beta[DIM][3];
-            float fp[PT_DENOISE_FEATURES];
-            for (int k = 0; k < PT_DENOISE_FEATURES; k++)
-                fp[k] = cx->feat[k][p];
-            int n = 0;
-            for (int qy = imax(py - REG_R, 0); qy < imin(py + REG_R + 1, dm->h); qy++) {
-                for (int qx = imax(px - REG_R, 0); qx < imin(px + REG_R + 1, w); qx++) {
-                    int o = (qy - py + REG_R) * side + (qx - px + REG_R);
-                    float wv = wt[(size_t)o * tn + i];
-                    if (!(wv > 0.0f))
-                        continue;
-                    size_t q = (size_t)qy * w + qx;
-                    double *x = xs + (size_t)n * DIM;
-                    x[0] = 1.0;
-                    x[1] = qx - px;
-                    x[2] = qy - py;
-                    for (int k = 0; k < PT_DENOISE_FEATURES; k++)
-                        x[3 + k] = (double)cx->feat[k][q] - fp[k];
-                    double yq[3] = {cx->y[0][q], cx->y[1][q], cx->y[2][q]};
-                    for (int j = 0; j < DIM; j++) {
-                        double wx = wv * x[j];
-                        for (int k = j; k < DIM; k++)
-                            a[j][k] += wx * x[k];
-                        for (int c = 0; c < 3; c++)
-                            b[j][c] += wx * yq[c];
-                    }
-                    ws[n] = wv;
-                    qs[n] = (qy - gr.y0) * gw + (qx - gr.x0);
-                    n++;
-                }
-            }
-            solve_wls(a, b, beta);
-            for (int m = 0; m < n; m++) {
-                const double *x = xs + (size_t)m * DIM;
-                for (int c = 0; c < 3; c++) {
-                    double pred = 0.0;
-                    for (int j = 0; j < DIM; j++)
-                        pred += x[j] * beta[j][c];
-                    acc[(size_t)c * gn + qs[m]] += ws[m] * pred;
-                }
-                acc[3 * gn + qs[m]] += ws[m];
-            }
-        }
-    }
+                          wt + (size_t)((dy + REG_R) * side + dx + REG_R) * TILE * TILE);
+    for (int ly = 0; ly < r.y1 - r.y0; ly++)
+        for (int lx0 = 0; lx0 < tw; lx0 += LANES)
+            fit_lanes(wt, loc, lx0, ly, tw, acc);
     return 0;
 }
 
@@ -443,15 +590,14 @@ static pt_status regression(const dims *dm, unsigned threads, const guide *gd,
         goto done;
     /* Tile order: the sums do not depend on which thread made them. */
     for (int t = 0; t < ntiles; t++) {
-        rect gr = grown_rect(dm, tile_rect(dm, t));
-        int gw = gr.x1 - gr.x0;
-        size_t gn = (size_t)gw * (size_t)(gr.y1 - gr.y0);
+        rect r = tile_rect(dm, t);
+        int ox = r.x0 - REG_R, oy = r.y0 - REG_R;
         const double *acc = cx.tile_acc[t];
         for (int c = 0; c < 4; c++)
-            for (int yy = gr.y0; yy < gr.y1; yy++)
-                for (int xx = gr.x0; xx < gr.x1; xx++)
+            for (int yy = imax(oy, 0); yy < imin(oy + RPAD, dm->h); yy++)
+                for (int xx = imax(ox, 0); xx < imin(ox + RPAD, dm->w); xx++)
                     sum[(size_t)c * n + (size_t)yy * dm->w + xx] +=
-                        acc[(size_t)c * gn + (size_t)(yy - gr.y0) * gw + (xx - gr.x0)];
+                        acc[(size_t)c * RPAD * RPAD + (size_t)(yy - oy) * RPAD + (xx - ox)];
         pt_free(cx.tile_acc[t]);
         cx.tile_acc[t] = NULL;
     }

@@ -44,7 +44,7 @@ refused() { # NAME EXPECTED_RC PATTERN ARGS...
   "$bin/ptdenoise" "$@" 2> "$tmp/err" || rc=$?
   [ "$rc" = "$want" ] || fail "$name: exit $rc, want $want: $(cat "$tmp/err")"
   grep -q -- "$pattern" "$tmp/err" || fail "$name: '$pattern' not in: $(cat "$tmp/err")"
-  [ ! -e "$tmp/bad.exr" ] && [ ! -e "$tmp/bad.png" ] || fail "$name left an output"
+  if [ -e "$tmp/bad.exr" ] || [ -e "$tmp/bad.png" ]; then fail "$name left an output"; fi
 }
 
 # A render without passes: the renderer's own EXR.
