@@ -34,6 +34,8 @@
  * are clamped so that the exponential never sees an overflowing argument. */
 #define NLM_EPS 1e-10f
 #define NLM_CLAMP 10000.0f
+/* The distance of a pixel pair that does not exist: weight 0 at any k. */
+#define NLM_FAR 1e30f
 /* The centre pixel always keeps some weight, so a window never sums to 0. */
 #define NLM_MIN_CENTER 1e-4f
 
@@ -201,7 +203,7 @@ typedef struct guide {
     int nc;
     const float *g[3];
     const float *v[3];
-    float vscale, k;
+    float vscale;
     int f; /* patch radius */
 } guide;
 
@@ -224,21 +226,23 @@ static wscratch wscratch_at(void *mem)
     return s;
 }
 
-/* The NL-means weights between each pixel p of tile r and p + (dx, dy):
- * per channel into out[c * TILE * TILE + i] (per_channel) or, for the
- * regression, the smallest over the channels into out[i], where i =
- * (y - r.y0) * TILE + (x - r.x0). 0 where p + (dx, dy) is outside the image
- * and past the tile's edge. The patch distance is the mean of the per-pixel
- * distances over the part of the patch where both patches are inside the
- * image: column sums, then row sums, each loop running along x so that it
- * vectorises (every element's sum keeps its order). */
+/* The NL-means patch distances at k = 1 between each pixel p of tile r and
+ * p + (dx, dy): per channel into out[c * TILE * TILE + i] (per_channel) or,
+ * for the regression, the largest over the channels into out[i], where i =
+ * (y - r.y0) * TILE + (x - r.x0); NLM_FAR where p + (dx, dy) is outside the
+ * image and past the tile's edge. A distance at k is this one / k^2 (eps
+ * scales with it), so candidates of several k share it. The patch distance is the mean of the
+ * per-pixel distances over the part of the patch where both patches are inside the image: column
+ * sums, then row sums, each loop running along x so that it vectorises (every element's sum keeps
+ * its order). */
 PT_SIMD_CLONES
-static void patch_weights(const dims *dm, const guide *gd, rect r, int dx, int dy, int per_channel,
-                          wscratch *s, float *out)
+static void patch_dist(const dims *dm, const guide *gd, rect r, int dx, int dy, int per_channel,
+                       wscratch *s, float *out)
 {
     int w = dm->w, f = gd->f;
     const int tn = TILE * TILE;
-    memset(out, 0, sizeof(float) * (size_t)tn * (size_t)(per_channel ? gd->nc : 1));
+    for (int i = 0; i < tn * (per_channel ? gd->nc : 1); i++)
+        out[i] = NLM_FAR;
     /* p and p + (dx, dy) both inside the image */
     int vx0 = imax(r.x0, -dx), vx1 = imin(r.x1, w - dx);
     int vy0 = imax(r.y0, -dy), vy1 = imin(r.y1, dm->h - dy);
@@ -247,7 +251,6 @@ static void patch_weights(const dims *dm, const guide *gd, rect r, int dx, int d
     int px0 = imax(vx0 - f, imax(0, -dx)), px1 = imin(vx1 + f, imin(w, w - dx));
     int py0 = imax(vy0 - f, imax(0, -dy)), py1 = imin(vy1 + f, imin(dm->h, dm->h - dy));
     int pw = px1 - px0;
-    float k2 = gd->k * gd->k;
     /* pixels in each output's patch row: the columns inside [px0, px1) */
     for (int x = vx0; x < vx1; x++)
         s->hc[x - vx0] = (float)(imin(x + f + 1, px1) - imax(x - f, px0));
@@ -261,7 +264,7 @@ static void patch_weights(const dims *dm, const guide *gd, rect r, int dx, int d
             for (int x = 0; x < pw; x++) {
                 float a = vp[x] * gd->vscale, b = vq[x] * gd->vscale;
                 float diff = gp[x] - gq[x];
-                float dist = (diff * diff - (a + fmin2(a, b))) / (NLM_EPS + k2 * (a + b));
+                float dist = (diff * diff - (a + fmin2(a, b))) / (NLM_EPS + a + b);
                 drow[x] = fmin2(dist, NLM_CLAMP);
             }
         }
@@ -291,23 +294,35 @@ static void patch_weights(const dims *dm, const guide *gd, rect r, int dx, int d
             float rows = (float)(i1 - i0);
             for (int x = 0; x < nx; x++)
                 sum[x] = fmax2(sum[x] / (rows * s->hc[x]), 0.0f);
-            if (per_channel)
+            if (per_channel || c == 0)
                 memcpy(orow, sum, sizeof(float) * (size_t)nx);
             else
                 for (int x = 0; x < nx; x++)
                     orow[x] = fmax2(orow[x], sum[x]);
         }
     }
-    for (int c = 0; c < (per_channel ? gd->nc : 1); c++)
-        for (int y = vy0; y < vy1; y++) {
-            float *orow = out + (size_t)c * tn + (y - r.y0) * TILE + (vx0 - r.x0);
-            exp_neg_row(orow, vx1 - vx0);
-        }
-    if (dx == 0 && dy == 0)
-        for (int c = 0; c < (per_channel ? gd->nc : 1); c++)
+}
+
+/* Weights of n distances at 1 / k^2 = inv_k2: exp(-d / k^2); the tile's
+ * own pixels keep NLM_MIN_CENTER at least when this is the centre offset. */
+PT_SIMD_CLONES
+static void dist_weights(const float *dist, float inv_k2, rect r, int center, float *wt, int n)
+{
+    int i = 0;
+    for (; i + 8 <= n; i += 8) {
+        v8f v;
+        memcpy(&v, dist + i, sizeof v);
+        v *= inv_k2;
+        exp_neg8(&v);
+        memcpy(wt + i, &v, sizeof v);
+    }
+    for (; i < n; i++)
+        wt[i] = exp_neg(dist[i] * inv_k2);
+    if (center)
+        for (int c = 0; c < n / (TILE * TILE); c++)
             for (int y = r.y0; y < r.y1; y++)
                 for (int x = r.x0; x < r.x1; x++) {
-                    float *o = out + (size_t)c * tn + (y - r.y0) * TILE + (x - r.x0);
+                    float *o = wt + (size_t)c * TILE * TILE + (y - r.y0) * TILE + (x - r.x0);
                     *o = fmax2(*o, NLM_MIN_CENTER);
                 }
 }
@@ -317,12 +332,14 @@ static void patch_weights(const dims *dm, const guide *gd, rect r, int dx, int d
 typedef struct nlm_ctx {
     dims dm;
     guide gd;
-    int r;               /* window radius */
-    const float *src[3]; /* gd.nc channels filtered */
-    float *dst[3];
+    float inv_k2; /* 1 / k^2 */
+    int r;        /* window radius */
+    int ns;       /* channels filtered: channel j with the guide's j % nc weights */
+    const float *src[6];
+    float *dst[6];
 } nlm_ctx;
 
-#define NLM_SCRATCH_BYTES (WSCRATCH_BYTES + 3 * TILE * TILE * (sizeof(float) + 2 * sizeof(double)))
+#define NLM_SCRATCH_BYTES (WSCRATCH_BYTES + 6 * TILE * TILE * (sizeof(float) + 2 * sizeof(double)))
 
 static int nlm_tile(void *vctx, int t, void *mem)
 {
@@ -330,30 +347,31 @@ static int nlm_tile(void *vctx, int t, void *mem)
     const dims *dm = &cx->dm;
     rect r = tile_rect(dm, t);
     const int tn = TILE * TILE;
-    int nc = cx->gd.nc;
+    int nc = cx->gd.nc, ns = cx->ns;
     wscratch s = wscratch_at(mem);
-    float *wt = (float *)(void *)((char *)mem + WSCRATCH_BYTES);
-    double *acc = (double *)(void *)(wt + 3 * TILE * TILE), *wsum = acc + 3 * TILE * TILE;
-    memset(acc, 0, sizeof(double) * 3 * TILE * TILE * 2);
+    float *dist = (float *)(void *)((char *)mem + WSCRATCH_BYTES), *wt = dist + 3 * tn;
+    double *acc = (double *)(void *)(wt + 3 * tn), *wsum = acc + 6 * tn;
+    memset(acc, 0, sizeof(double) * 12 * tn);
     for (int dy = -cx->r; dy <= cx->r; dy++) {
         for (int dx = -cx->r; dx <= cx->r; dx++) {
-            patch_weights(dm, &cx->gd, r, dx, dy, 1, &s, wt);
+            patch_dist(dm, &cx->gd, r, dx, dy, 1, &s, dist);
+            dist_weights(dist, cx->inv_k2, r, dx == 0 && dy == 0, wt, nc * tn);
             int vx0 = imax(r.x0, -dx), vx1 = imin(r.x1, dm->w - dx);
             int vy0 = imax(r.y0, -dy), vy1 = imin(r.y1, dm->h - dy);
-            for (int c = 0; c < nc; c++) {
+            for (int c = 0; c < ns; c++) {
+                const float *wc = wt + (size_t)(c % nc) * tn;
                 for (int y = vy0; y < vy1; y++) {
                     const float *q = cx->src[c] + (size_t)(y + dy) * dm->w + dx;
                     for (int x = vx0; x < vx1; x++) {
                         int i = (y - r.y0) * TILE + (x - r.x0);
-                        float wv = wt[(size_t)c * tn + i];
-                        acc[c * tn + i] += (double)wv * q[x];
-                        wsum[c * tn + i] += wv;
+                        acc[c * tn + i] += (double)wc[i] * q[x];
+                        wsum[c * tn + i] += wc[i];
                     }
                 }
             }
         }
     }
-    for (int c = 0; c < nc; c++)
+    for (int c = 0; c < ns; c++)
         for (int y = r.y0; y < r.y1; y++)
             for (int x = r.x0; x < r.x1; x++) {
                 int i = (y - r.y0) * TILE + (x - r.x0);
@@ -362,11 +380,13 @@ static int nlm_tile(void *vctx, int t, void *mem)
     return 0;
 }
 
-static pt_status nlmeans(const dims *dm, unsigned threads, const guide *gd, int radius,
-                         const float *const src[], float *const dst[], pt_error *err)
+/* NL-means of ns channels (at most 6, a multiple of gd->nc) with the
+ * weights of gd at k: channel j with the guide channel j % nc's. */
+static pt_status nlmeans(const dims *dm, unsigned threads, const guide *gd, float k, int radius,
+                         int ns, const float *const src[], float *const dst[], pt_error *err)
 {
-    nlm_ctx cx = {.dm = *dm, .gd = *gd, .r = radius};
-    for (int c = 0; c < gd->nc; c++) {
+    nlm_ctx cx = {.dm = *dm, .gd = *gd, .inv_k2 = 1.0f / (k * k), .r = radius, .ns = ns};
+    for (int c = 0; c < ns; c++) {
         cx.src[c] = src[c];
         cx.dst[c] = dst[c];
     }
@@ -419,12 +439,17 @@ static void solve_wls(double a[DIM][DIM], double b[DIM][3], double beta[DIM][3])
     }
 }
 
+/* Candidates one regression computes: the same fits at several k. */
+#define MAX_CAND 2
+
 typedef struct reg_ctx {
     dims dm;
-    guide gd;          /* weights: the other half (or the image itself) */
+    guide gd;  /* weights: the other half (or the image itself) */
+    int ncand; /* candidates: one per k */
+    float inv_k2[MAX_CAND];
     const float *y[3]; /* the colour fitted */
     const float *feat[PT_DENOISE_FEATURES];
-    double **tile_acc; /* per tile: 4 planes (R, G, B, weight) of RPAD x RPAD */
+    double **tile_acc; /* per tile and candidate: 4 planes (R, G, B, weight) of RPAD x RPAD */
 } reg_ctx;
 
 /* A tile's neighbourhood: the tile (always TILE wide here) and the window's
@@ -439,7 +464,7 @@ typedef struct reg_ctx {
 typedef double v4d __attribute__((vector_size(LANES * sizeof(double))));
 
 #define REG_SCRATCH_BYTES                                                                          \
-    (WSCRATCH_BYTES + (size_t)WIN * TILE * TILE * sizeof(float) +                                  \
+    (WSCRATCH_BYTES + (size_t)(MAX_CAND * WIN + 1) * TILE * TILE * sizeof(float) +                 \
      (size_t)(PT_DENOISE_FEATURES + 3) * RPAD * RPAD * sizeof(float))
 
 #define load4(p) ((v4d){(p)[0], (p)[1], (p)[2], (p)[3]})
@@ -532,16 +557,19 @@ static int reg_tile(void *vctx, int t, void *mem)
 {
     reg_ctx *cx = vctx;
     const dims *dm = &cx->dm;
-    const int rn = RPAD * RPAD;
+    const int rn = RPAD * RPAD, tn = TILE * TILE;
     rect r = tile_rect(dm, t);
     int tw = r.x1 - r.x0;
     wscratch s = wscratch_at(mem);
     float *wt = (float *)(void *)((char *)mem + WSCRATCH_BYTES);
-    float *loc = wt + (size_t)WIN * TILE * TILE;
-    double *acc = pt_calloc(4 * (size_t)rn, sizeof(double));
-    if (!acc)
-        return -1;
-    cx->tile_acc[t] = acc;
+    float *dist = wt + (size_t)MAX_CAND * WIN * tn;
+    float *loc = dist + tn;
+    for (int m = 0; m < cx->ncand; m++) {
+        double *acc = pt_calloc(4 * (size_t)rn, sizeof(double));
+        if (!acc)
+            return -1;
+        cx->tile_acc[t * cx->ncand + m] = acc;
+    }
     /* The features and the colour around the tile, 0 outside the image. */
     for (int k = 0; k < PT_DENOISE_FEATURES + 3; k++) {
         const float *src = k < PT_DENOISE_FEATURES ? cx->feat[k] : cx->y[k - PT_DENOISE_FEATURES];
@@ -555,32 +583,42 @@ static int reg_tile(void *vctx, int t, void *mem)
             }
         }
     }
+    /* One distance per offset, a weight per candidate. */
     const int side = 2 * REG_R + 1;
     for (int dy = -REG_R; dy <= REG_R; dy++)
-        for (int dx = -REG_R; dx <= REG_R; dx++)
-            patch_weights(dm, &cx->gd, r, dx, dy, 0, &s,
-                          wt + (size_t)((dy + REG_R) * side + dx + REG_R) * TILE * TILE);
-    for (int ly = 0; ly < r.y1 - r.y0; ly++)
-        for (int lx0 = 0; lx0 < tw; lx0 += LANES)
-            fit_lanes(wt, loc, lx0, ly, tw, acc);
+        for (int dx = -REG_R; dx <= REG_R; dx++) {
+            int o = (dy + REG_R) * side + dx + REG_R;
+            patch_dist(dm, &cx->gd, r, dx, dy, 0, &s, dist);
+            for (int m = 0; m < cx->ncand; m++)
+                dist_weights(dist, cx->inv_k2[m], r, dx == 0 && dy == 0,
+                             wt + ((size_t)m * WIN + o) * tn, tn);
+        }
+    for (int m = 0; m < cx->ncand; m++)
+        for (int ly = 0; ly < r.y1 - r.y0; ly++)
+            for (int lx0 = 0; lx0 < tw; lx0 += LANES)
+                fit_lanes(wt + (size_t)m * WIN * tn, loc, lx0, ly, tw,
+                          cx->tile_acc[t * cx->ncand + m]);
     return 0;
 }
 
 /* Filters y (3 channels) by collaborative first-order regression on the
- * features with weights from gd; out may not alias y. */
-static pt_status regression(const dims *dm, unsigned threads, const guide *gd,
-                            const float *const y[3], const float *const feat[], float *const out[3],
-                            pt_error *err)
+ * features with weights from gd, once per k in ks[0..ncand-1] into
+ * out[m][0..2] (which may not alias y). */
+static pt_status regression(const dims *dm, unsigned threads, const guide *gd, int ncand,
+                            const float *ks, const float *const y[3], const float *const feat[],
+                            float *const *const out[], pt_error *err)
 {
     int ntiles = dm->tx * dm->ty;
     size_t n = (size_t)dm->w * dm->h;
-    reg_ctx cx = {.dm = *dm, .gd = *gd};
+    reg_ctx cx = {.dm = *dm, .gd = *gd, .ncand = ncand};
+    for (int m = 0; m < ncand; m++)
+        cx.inv_k2[m] = 1.0f / (ks[m] * ks[m]);
     for (int c = 0; c < 3; c++)
         cx.y[c] = y[c];
     for (int k = 0; k < PT_DENOISE_FEATURES; k++)
         cx.feat[k] = feat[k];
-    cx.tile_acc = pt_calloc((size_t)ntiles, sizeof(double *));
-    double *sum = pt_calloc(4 * n, sizeof(double));
+    cx.tile_acc = pt_calloc((size_t)ntiles * (size_t)ncand, sizeof(double *));
+    double *sum = pt_malloc_array(4 * n, sizeof(double));
     pt_status st = PT_OK;
     if (!cx.tile_acc || !sum) {
         st = pt_error_set(err, PT_ERR_NOMEM, "denoise: out of memory");
@@ -588,25 +626,28 @@ static pt_status regression(const dims *dm, unsigned threads, const guide *gd,
     }
     if ((st = run_tiles(threads, ntiles, REG_SCRATCH_BYTES, reg_tile, &cx, err)) != PT_OK)
         goto done;
-    /* Tile order: the sums do not depend on which thread made them. */
-    for (int t = 0; t < ntiles; t++) {
-        rect r = tile_rect(dm, t);
-        int ox = r.x0 - REG_R, oy = r.y0 - REG_R;
-        const double *acc = cx.tile_acc[t];
-        for (int c = 0; c < 4; c++)
-            for (int yy = imax(oy, 0); yy < imin(oy + RPAD, dm->h); yy++)
-                for (int xx = imax(ox, 0); xx < imin(ox + RPAD, dm->w); xx++)
-                    sum[(size_t)c * n + (size_t)yy * dm->w + xx] +=
-                        acc[(size_t)c * RPAD * RPAD + (size_t)(yy - oy) * RPAD + (xx - ox)];
-        pt_free(cx.tile_acc[t]);
-        cx.tile_acc[t] = NULL;
+    for (int m = 0; m < ncand; m++) {
+        memset(sum, 0, 4 * n * sizeof(double));
+        /* Tile order: the sums do not depend on which thread made them. */
+        for (int t = 0; t < ntiles; t++) {
+            rect r = tile_rect(dm, t);
+            int ox = r.x0 - REG_R, oy = r.y0 - REG_R;
+            double *acc = cx.tile_acc[t * ncand + m];
+            for (int c = 0; c < 4; c++)
+                for (int yy = imax(oy, 0); yy < imin(oy + RPAD, dm->h); yy++)
+                    for (int xx = imax(ox, 0); xx < imin(ox + RPAD, dm->w); xx++)
+                        sum[(size_t)c * n + (size_t)yy * dm->w + xx] +=
+                            acc[(size_t)c * RPAD * RPAD + (size_t)(yy - oy) * RPAD + (xx - ox)];
+            pt_free(acc);
+            cx.tile_acc[t * ncand + m] = NULL;
+        }
+        for (size_t i = 0; i < n; i++)
+            for (int c = 0; c < 3; c++)
+                out[m][c][i] = (float)(sum[c * n + i] / sum[3 * n + i]);
     }
-    for (size_t i = 0; i < n; i++)
-        for (int c = 0; c < 3; c++)
-            out[c][i] = (float)(sum[c * n + i] / sum[3 * n + i]);
 done:
     if (cx.tile_acc)
-        for (int t = 0; t < ntiles; t++)
+        for (int t = 0; t < ntiles * ncand; t++)
             pt_free(cx.tile_acc[t]);
     pt_free(cx.tile_acc);
     pt_free(sum);
@@ -674,13 +715,11 @@ enum {
     P_FA = P_FEAT + PT_DENOISE_FEATURES, /* 2 candidates x 3: half A filtered */
     P_FB = P_FA + 6,                     /* 2 x 3: half B filtered */
     P_MSE = P_FB + 6,                    /* 2 x 3: smoothed MSE estimates */
-    P_TMP = P_MSE + 6,                   /* 3: noisy MSE, then the noisy selection */
-    P_SEL = P_TMP + 3,                   /* 3: the smoothed selection map */
-    P_RA = P_SEL + 3,                    /* 3 + 3: the blended halves */
-    P_RB = P_RA + 3,
-    P_VAR = P_RB + 3,    /* 3: variance of the blend's mean */
-    P_HVAR = P_VAR + 3,  /* 1: a half's variance (2 x the beauty's) */
-    P_COMB = P_HVAR + 1, /* 3: the blend's mean */
+    P_TMP = P_MSE + 6,                   /* 6: noisy MSE, then the noisy selection */
+    P_SEL = P_TMP + 6,                   /* 3: the smoothed selection map */
+    P_VAR = P_SEL + 3,                   /* 3: variance of the blend's mean */
+    P_HVAR = P_VAR + 3,                  /* 1: a half's variance (2 x the beauty's) */
+    P_COMB = P_HVAR + 1,                 /* 3: the blend's mean */
     P_COUNT = P_COMB + 3
 };
 
@@ -715,85 +754,88 @@ pt_status pt_denoise(const pt_denoise_input *in, unsigned threads, float *const 
     const float *fvar[3] = {in->albedo_var, in->normal_var, in->depth_var};
     for (int g = 0; g < 3 && st == PT_OK; g++) {
         int first = 3 * g, nc = g < 2 ? 3 : 1;
-        guide gd = {.nc = nc, .vscale = 1.0f, .k = FEAT_K, .f = FEAT_F};
+        guide gd = {.nc = nc, .vscale = 1.0f, .f = FEAT_F};
         for (int c = 0; c < nc; c++) {
             gd.g[c] = fin[first + c];
             gd.v[c] = fvar[g];
         }
-        st = nlmeans(&dm, threads, &gd, FEAT_R, fin + first, pl + P_FEAT + first, err);
+        st = nlmeans(&dm, threads, &gd, FEAT_K, FEAT_R, nc, fin + first, pl + P_FEAT + first, err);
     }
+    if (st != PT_OK)
+        goto done;
     const float *const *feat = (const float *const *)(pl + P_FEAT);
 
-    /* 2. Two candidates, each half filtered with the other's weights (sec. 5.2). */
+    /* 2. Two candidates (k = 0.5, 1), each half filtered with the other's
+     * weights (sec. 5.2); the candidates share the patch distances. */
     for (size_t i = 0; i < n; i++)
         pl[P_HVAR][i] = 2.0f * in->variance[i];
     static const float cand_k[2] = {0.5f, 1.0f};
-    for (int k = 0; k < 2 && st == PT_OK; k++) {
-        guide ga = {.nc = 3, .vscale = 1.0f, .k = cand_k[k], .f = REG_F};
-        guide gb = ga;
+    guide ga = {.nc = 3, .vscale = 1.0f, .f = REG_F};
+    guide gb = ga;
+    for (int c = 0; c < 3; c++) {
+        ga.g[c] = in->half_b[c]; /* A is filtered with B's weights */
+        gb.g[c] = in->half_a[c];
+        ga.v[c] = gb.v[c] = pl[P_HVAR];
+    }
+    float *const fa[2][3] = {{pl[P_FA], pl[P_FA + 1], pl[P_FA + 2]},
+                             {pl[P_FA + 3], pl[P_FA + 4], pl[P_FA + 5]}};
+    float *const fb[2][3] = {{pl[P_FB], pl[P_FB + 1], pl[P_FB + 2]},
+                             {pl[P_FB + 3], pl[P_FB + 4], pl[P_FB + 5]}};
+    float *const *const outa[2] = {fa[0], fa[1]}, *const *const outb[2] = {fb[0], fb[1]};
+    if ((st = regression(&dm, threads, &ga, 2, cand_k, in->half_a, feat, outa, err)) != PT_OK ||
+        (st = regression(&dm, threads, &gb, 2, cand_k, in->half_b, feat, outb, err)) != PT_OK)
+        goto done;
+    /* 3. Each candidate's MSE from the halves' cross errors (sec. 5.3). */
+    for (int k = 0; k < 2; k++) {
         for (int c = 0; c < 3; c++) {
-            ga.g[c] = in->half_b[c]; /* A is filtered with B's weights */
-            gb.g[c] = in->half_a[c];
-            ga.v[c] = gb.v[c] = pl[P_HVAR];
-        }
-        st = regression(&dm, threads, &ga, in->half_a, feat, pl + P_FA + 3 * k, err);
-        if (st == PT_OK)
-            st = regression(&dm, threads, &gb, in->half_b, feat, pl + P_FB + 3 * k, err);
-        if (st != PT_OK)
-            break;
-        /* 3. The candidate's MSE from the halves' cross errors (sec. 5.3). */
-        for (int c = 0; c < 3; c++) {
-            const float *fa = pl[P_FA + 3 * k + c], *fb = pl[P_FB + 3 * k + c];
+            const float *fak = pl[P_FA + 3 * k + c], *fbk = pl[P_FB + 3 * k + c];
+            float *noisy = pl[P_TMP + 3 * k + c];
             for (size_t i = 0; i < n; i++) {
                 float hv = pl[P_HVAR][i];
-                float ea = (in->half_b[c][i] - fa[i]) * (in->half_b[c][i] - fa[i]) - hv;
-                float eb = (in->half_a[c][i] - fb[i]) * (in->half_a[c][i] - fb[i]) - hv;
-                float res = 0.25f * (fb[i] - fa[i]) * (fb[i] - fa[i]);
-                pl[P_TMP + c][i] = 0.5f * (ea + eb) - res;
+                float ea = (in->half_b[c][i] - fak[i]) * (in->half_b[c][i] - fak[i]) - hv;
+                float eb = (in->half_a[c][i] - fbk[i]) * (in->half_a[c][i] - fbk[i]) - hv;
+                float res = 0.25f * (fbk[i] - fak[i]) * (fbk[i] - fak[i]);
+                noisy[i] = 0.5f * (ea + eb) - res;
             }
         }
-        guide gc = {.nc = 3, .vscale = 1.0f, .k = 1.0f, .f = MSE_F};
-        for (int c = 0; c < 3; c++) {
-            gc.g[c] = in->color[c];
-            gc.v[c] = in->variance;
-        }
-        st = nlmeans(&dm, threads, &gc, MSE_R, (const float *const *)(pl + P_TMP),
-                     pl + P_MSE + 3 * k, err);
     }
-    if (st != PT_OK)
+    /* Both estimates smoothed with one set of weights, from the colour. */
+    guide gc = {.nc = 3, .vscale = 1.0f, .f = MSE_F};
+    for (int c = 0; c < 3; c++) {
+        gc.g[c] = in->color[c];
+        gc.v[c] = in->variance;
+    }
+    if ((st = nlmeans(&dm, threads, &gc, 1.0f, MSE_R, 6, (const float *const *)(pl + P_TMP),
+                      pl + P_MSE, err)) != PT_OK)
         goto done;
     /* The choice map, smoothed like the estimates, blends the candidates. */
     for (int c = 0; c < 3; c++)
         for (size_t i = 0; i < n; i++)
             pl[P_TMP + c][i] = pl[P_MSE + c][i] < pl[P_MSE + 3 + c][i] ? 0.0f : 1.0f;
-    guide gc = {.nc = 3, .vscale = 1.0f, .k = 1.0f, .f = MSE_F};
-    for (int c = 0; c < 3; c++) {
-        gc.g[c] = in->color[c];
-        gc.v[c] = in->variance;
-    }
-    if ((st = nlmeans(&dm, threads, &gc, MSE_R, (const float *const *)(pl + P_TMP), pl + P_SEL,
-                      err)) != PT_OK)
+    if ((st = nlmeans(&dm, threads, &gc, 1.0f, MSE_R, 3, (const float *const *)(pl + P_TMP),
+                      pl + P_SEL, err)) != PT_OK)
         goto done;
     for (int c = 0; c < 3; c++) {
         for (size_t i = 0; i < n; i++) {
-            float s = pl[P_SEL + c][i];
+            float sel = pl[P_SEL + c][i];
             /* a + s (b - a): exactly a where the candidates agree */
             float a0 = pl[P_FA + c][i], a1 = pl[P_FA + 3 + c][i];
             float b0 = pl[P_FB + c][i], b1 = pl[P_FB + 3 + c][i];
-            float ra = a0 + s * (a1 - a0), rb = b0 + s * (b1 - b0);
-            pl[P_RA + c][i] = ra;
-            pl[P_RB + c][i] = rb;
+            float ra = a0 + sel * (a1 - a0), rb = b0 + sel * (b1 - b0);
             pl[P_COMB + c][i] = 0.5f * (ra + rb);
             pl[P_VAR + c][i] = 0.25f * (rb - ra) * (rb - ra);
         }
     }
     /* 4. The second pass over the blend's mean (sec. 5.4). */
-    guide gf = {.nc = 3, .vscale = 1.0f, .k = 1.0f, .f = REG_F};
+    guide gf = {.nc = 3, .vscale = 1.0f, .f = REG_F};
     for (int c = 0; c < 3; c++) {
         gf.g[c] = pl[P_COMB + c];
         gf.v[c] = pl[P_VAR + c];
     }
-    st = regression(&dm, threads, &gf, (const float *const *)(pl + P_COMB), feat, out, err);
+    static const float final_k[1] = {1.0f};
+    float *const *const outf[1] = {out};
+    st = regression(&dm, threads, &gf, 1, final_k, (const float *const *)(pl + P_COMB), feat, outf,
+                    err);
 done:
     pt_free(mem);
     return st;
