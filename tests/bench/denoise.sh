@@ -21,6 +21,8 @@
 #   RES      image size [256x256]      THREADS  threads [2]
 #   LOW_SPP  [64]   HIGH_SPP [1024]    REF_SPP  reference spp [16384]
 #   OUT      folder [/tmp/ptfarm-denoise]; a reference already there is reused
+#   WORKER   the ptworker that renders [BIN_DIR/ptworker]: another build's, with
+#            the passes, while this one has none
 set -euo pipefail
 
 if [[ $# -lt 1 || $# -gt 2 || ! -x "$1/ptdenoise" || ! -x "$1/ptworker" ]]; then
@@ -38,6 +40,7 @@ LOW_SPP=${LOW_SPP:-64}
 HIGH_SPP=${HIGH_SPP:-1024}
 REF_SPP=${REF_SPP:-16384}
 OUT=${OUT:-/tmp/ptfarm-denoise}
+WORKER=${WORKER:-$BIN/ptworker}
 mkdir -p "$OUT"
 
 # Median of the numbers on stdin.
@@ -64,7 +67,7 @@ mean_of() { # IMAGE REF [--layer NAME]
 }
 
 echo "== quality: relMSE against a $REF_SPP-spp reference of another seed, $RES, $THREADS threads"
-if ! "$BIN/ptworker" --help 2>&1 | grep -q -- '--passes'; then
+if ! "$WORKER" --help 2>&1 | grep -q -- '--passes'; then
     echo "skipped: this ptworker writes no passes (--passes); part 2 only"
 else
     printf '%-28s %12s %12s %12s %8s %10s\n' scene "raw@$LOW_SPP" "dn@$LOW_SPP" \
@@ -83,11 +86,11 @@ else
         fi
         common=(--scene "$scene" "${env[@]}" --res "$RES" --threads "$THREADS" -q)
         ref=$OUT/$name-ref$REF_SPP-$RES.exr
-        [[ -f $ref ]] || "$BIN/ptworker" "${common[@]}" --spp "$REF_SPP" --seed 9001 -o "$ref"
-        "$BIN/ptworker" "${common[@]}" --spp "$LOW_SPP" --seed 1 \
+        [[ -f $ref ]] || "$WORKER" "${common[@]}" --spp "$REF_SPP" --seed 9001 -o "$ref"
+        "$WORKER" "${common[@]}" --spp "$LOW_SPP" --seed 1 \
             --passes albedo,normal,depth,halves -o "$OUT/$name-low.exr"
         "$BIN/ptdenoise" "$OUT/$name-low.exr" -o "$OUT/$name-dn.exr" --threads "$THREADS" 2> /dev/null
-        "$BIN/ptworker" "${common[@]}" --spp "$HIGH_SPP" --seed 1 -o "$OUT/$name-high.exr"
+        "$WORKER" "${common[@]}" --spp "$HIGH_SPP" --seed 1 -o "$OUT/$name-high.exr"
         raw_lo=$(relmse "$OUT/$name-dn.exr" "$ref")
         dn_lo=$(relmse "$OUT/$name-dn.exr" "$ref" --layer denoised)
         raw_hi=$(relmse "$OUT/$name-high.exr" "$ref")
@@ -113,12 +116,12 @@ dn_cpu=$(printf '%s\n' "${cpus[@]}" | median)
 echo "ptdenoise 1920x1080 (read, denoise, write): wall $dn_wall s, CPU $dn_cpu s (runs: ${walls[*]})"
 grep -o 'denoised in [0-9.]* s' "$OUT/last.log" | sed 's/^/last run: /'
 
-if [[ ${HD_RENDER:-0} == 1 ]] && "$BIN/ptworker" --help 2>&1 | grep -q -- '--passes'; then
+if [[ ${HD_RENDER:-0} == 1 ]] && "$WORKER" --help 2>&1 | grep -q -- '--passes'; then
     first=${SCENES%% *}
     scene=${first%@*}
     env=()
     [[ $first == *@* ]] && env=(--env "${first#*@}")
-    read -r w c < <(timed "$BIN/ptworker" --scene "$scene" "${env[@]}" --res 1920x1080 \
+    read -r w c < <(timed "$WORKER" --scene "$scene" "${env[@]}" --res 1920x1080 \
         --spp "$LOW_SPP" --threads "$THREADS" -q --passes albedo,normal,depth,halves \
         -o "$OUT/hd-render.exr")
     echo "render $(basename "$scene") 1920x1080 at $LOW_SPP spp: wall $w s, CPU $c s;" \
