@@ -38,6 +38,9 @@
 #define NLM_FAR 1e30f
 /* The centre pixel always keeps some weight, so a window never sums to 0. */
 #define NLM_MIN_CENTER 1e-4f
+/* The largest factor a channel's variance gets over luminance's: pure blue's
+ * (1 / 0.0722)^2 is 192. */
+#define VAR_RATIO_MAX 200.0f
 
 typedef struct rect {
     int x0, y0, x1, y1; /* [x0, x1) x [y0, y1) */
@@ -718,8 +721,9 @@ enum {
     P_TMP = P_MSE + 6,                   /* 6: noisy MSE, then the noisy selection */
     P_SEL = P_TMP + 6,                   /* 3: the smoothed selection map */
     P_VAR = P_SEL + 3,                   /* 3: variance of the blend's mean */
-    P_HVAR = P_VAR + 3,                  /* 1: a half's variance (2 x the beauty's) */
-    P_COMB = P_HVAR + 1,                 /* 3: the blend's mean */
+    P_CVAR = P_VAR + 3,                  /* 3: the beauty's variance per channel */
+    P_HVAR = P_CVAR + 3,                 /* 3: a half's variance per channel (2 x) */
+    P_COMB = P_HVAR + 3,                 /* 3: the blend's mean */
     P_COUNT = P_COMB + 3
 };
 
@@ -767,15 +771,28 @@ pt_status pt_denoise(const pt_denoise_input *in, unsigned threads, float *const 
 
     /* 2. Two candidates (k = 0.5, 1), each half filtered with the other's
      * weights (sec. 5.2); the candidates share the patch distances. */
-    for (size_t i = 0; i < n; i++)
-        pl[P_HVAR][i] = 2.0f * in->variance[i];
+    /* The beauty's variance is luminance's; a channel's is taken as
+     * luminance's x (channel / luminance)^2, exact for noise that scales
+     * the pixel's colour (a path's throughput times a random factor): a
+     * red wall's R varies more than its luminance. A half has half the
+     * samples: twice the variance. */
+    for (size_t i = 0; i < n; i++) {
+        float lum =
+            0.2126f * in->color[0][i] + 0.7152f * in->color[1][i] + 0.0722f * in->color[2][i];
+        for (int c = 0; c < 3; c++) {
+            float ratio = lum > 0.0f && in->color[c][i] > 0.0f ? in->color[c][i] / lum : 1.0f;
+            float v = in->variance[i] * fmin2(ratio * ratio, VAR_RATIO_MAX);
+            pl[P_CVAR + c][i] = v;
+            pl[P_HVAR + c][i] = 2.0f * v;
+        }
+    }
     static const float cand_k[2] = {0.5f, 1.0f};
     guide ga = {.nc = 3, .vscale = 1.0f, .f = REG_F};
     guide gb = ga;
     for (int c = 0; c < 3; c++) {
         ga.g[c] = in->half_b[c]; /* A is filtered with B's weights */
         gb.g[c] = in->half_a[c];
-        ga.v[c] = gb.v[c] = pl[P_HVAR];
+        ga.v[c] = gb.v[c] = pl[P_HVAR + c];
     }
     float *const fa[2][3] = {{pl[P_FA], pl[P_FA + 1], pl[P_FA + 2]},
                              {pl[P_FA + 3], pl[P_FA + 4], pl[P_FA + 5]}};
@@ -791,7 +808,7 @@ pt_status pt_denoise(const pt_denoise_input *in, unsigned threads, float *const 
             const float *fak = pl[P_FA + 3 * k + c], *fbk = pl[P_FB + 3 * k + c];
             float *noisy = pl[P_TMP + 3 * k + c];
             for (size_t i = 0; i < n; i++) {
-                float hv = pl[P_HVAR][i];
+                float hv = pl[P_HVAR + c][i];
                 float ea = (in->half_b[c][i] - fak[i]) * (in->half_b[c][i] - fak[i]) - hv;
                 float eb = (in->half_a[c][i] - fbk[i]) * (in->half_a[c][i] - fbk[i]) - hv;
                 float res = 0.25f * (fbk[i] - fak[i]) * (fbk[i] - fak[i]);
@@ -803,7 +820,7 @@ pt_status pt_denoise(const pt_denoise_input *in, unsigned threads, float *const 
     guide gc = {.nc = 3, .vscale = 1.0f, .f = MSE_F};
     for (int c = 0; c < 3; c++) {
         gc.g[c] = in->color[c];
-        gc.v[c] = in->variance;
+        gc.v[c] = pl[P_CVAR + c];
     }
     if ((st = nlmeans(&dm, threads, &gc, 1.0f, MSE_R, 6, (const float *const *)(pl + P_TMP),
                       pl + P_MSE, err)) != PT_OK)

@@ -29,7 +29,9 @@
  *
  * The halves are the means over even and odd sample indices (the EXR
  * convention: halfA, halfB); their variance is twice the beauty's variance
- * of the mean (`variance`, luminance), used for all three channels.
+ * of the mean. That one is luminance's (`variance`); a channel's is taken
+ * as luminance's x (channel / luminance)^2, which is exact for noise that
+ * scales the pixel's colour (a path's random factor times its throughput).
  *
  * Deterministic: every pixel's arithmetic is fixed by the image alone. The
  * work is cut into 32 x 32 tiles in a fixed order; threads take tiles, and
