@@ -48,13 +48,13 @@ median() { sort -g | awk '{ v[NR] = $1 } END { print (NR % 2) ? v[(NR + 1) / 2] 
 
 # Wall and CPU seconds of one command (its stderr to $OUT/last.log): "WALL CPU".
 timed() {
-    local t0 t1 c0 c1
+    local t0 t1 c0 c1 me=$BASHPID
     t0=$(date +%s.%N)
-    c0=$(awk '{ print $14 + $15 + $16 + $17 }' /proc/$BASHPID/stat)
+    c0=$(awk '{ print $14 + $15 + $16 + $17 }' "/proc/$me/stat")
     "$@" 2> "$OUT/last.log"
     t1=$(date +%s.%N)
     # Children's CPU time lands in this shell's cutime/cstime once reaped.
-    c1=$(awk '{ print $14 + $15 + $16 + $17 }' /proc/$BASHPID/stat)
+    c1=$(awk '{ print $14 + $15 + $16 + $17 }' "/proc/$me/stat")
     awk -v a="$t0" -v b="$t1" -v c="$c0" -v d="$c1" -v hz="$(getconf CLK_TCK)" \
         'BEGIN { printf "%.3f %.3f\n", b - a, (d - c) / hz }'
 }
@@ -86,11 +86,11 @@ else
         fi
         common=(--scene "$scene" "${env[@]}" --res "$RES" --threads "$THREADS" -q)
         ref=$OUT/$name-ref$REF_SPP-$RES.exr
-        [[ -f $ref ]] || "$WORKER" "${common[@]}" --spp "$REF_SPP" --seed 9001 -o "$ref"
+        [[ -f $ref ]] || "$WORKER" "${common[@]}" --spp "$REF_SPP" --seed 9001 -o "$ref" 2> /dev/null
         "$WORKER" "${common[@]}" --spp "$LOW_SPP" --seed 1 \
-            --passes albedo,normal,depth,halves -o "$OUT/$name-low.exr"
+            --passes albedo,normal,depth,halves -o "$OUT/$name-low.exr" 2> /dev/null
         "$BIN/ptdenoise" "$OUT/$name-low.exr" -o "$OUT/$name-dn.exr" --threads "$THREADS" 2> /dev/null
-        "$WORKER" "${common[@]}" --spp "$HIGH_SPP" --seed 1 -o "$OUT/$name-high.exr"
+        "$WORKER" "${common[@]}" --spp "$HIGH_SPP" --seed 1 -o "$OUT/$name-high.exr" 2> /dev/null
         raw_lo=$(relmse "$OUT/$name-dn.exr" "$ref")
         dn_lo=$(relmse "$OUT/$name-dn.exr" "$ref" --layer denoised)
         raw_hi=$(relmse "$OUT/$name-high.exr" "$ref")

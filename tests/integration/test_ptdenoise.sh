@@ -5,8 +5,9 @@
 # the beauty; a PNG preview beside it, or alone with -o X.png; the same
 # bytes for 1 and 3 threads. Refused with exit 1 and a message naming the
 # cause: a render without the passes (a plain ptworker EXR), a missing
-# pass, NaN, an absurd normal or a negative variance, a file that is not an
-# EXR; bad usage exits 2. No refusal leaves an output file.
+# pass, NaN, an absurd normal or a negative variance, a pixel with fewer than
+# 2 samples, a file that is not an EXR; bad usage exits 2. No refusal leaves
+# an output file.
 set -euo pipefail
 bin=${PT_BIN:?}
 src=${PT_SOURCE_DIR:?}
@@ -66,6 +67,9 @@ refused "absurd normal" 1 "N.Y at (1, 2) is 40" "$tmp/normal.exr" -o "$tmp/bad.e
 refused "negative variance" 1 "depth.variance at (1, 2) is -1" "$tmp/var.exr" -o "$tmp/bad.png"
 "$bin/ptpasses-exr" "$tmp/huge.exr" 16 16 0.1 1 --set halfB.G=1e30
 refused "absurd half" 1 "halfB.G at (1, 2)" "$tmp/huge.exr" -o "$tmp/bad.exr"
+
+"$bin/ptpasses-exr" "$tmp/one.exr" 16 16 0.1 1 --set samples=1
+refused "one sample" 1 "pixel (1, 2) has 1 samples" "$tmp/one.exr" -o "$tmp/bad.exr"
 
 printf 'not an exr\n' > "$tmp/junk.exr"
 refused "not an EXR" 1 "not a readable OpenEXR file" "$tmp/junk.exr" -o "$tmp/bad.exr"

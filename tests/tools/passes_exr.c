@@ -130,6 +130,8 @@ int main(int argc, char **argv)
     }
     if (nan_name && !strcmp(nan_name, "R"))
         img->r[2 * w + 1] = NAN;
+    if (!strcmp(set_name, "samples"))
+        img->samples[2 * w + 1] = set_value;
     int rc = 0;
     if (pt_exr_write(out, img, &meta, &err) != PT_OK ||
         pt_exr_write_with_channels(out, out, nk, kept_names, kept, &err) != PT_OK) {

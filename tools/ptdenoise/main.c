@@ -10,8 +10,9 @@
  * runs NFOR (common/image/denoise.h) and writes OUT.exr: every channel and
  * header attribute of IN.exr as it was, plus denoised.R/G/B, with a PNG
  * preview of the denoised layer beside it; or OUT.png, that preview alone.
- * Exit status: 0 done, 1 an error (a file without the passes, NaN or
- * absurd values, I/O; the reason on stderr), 2 bad usage.
+ * Exit status: 0 done, 1 an error (a file without the passes or with a
+ * pixel of fewer than 2 samples, NaN or absurd values, I/O; the reason on
+ * stderr), 2 bad usage.
  */
 #include <getopt.h>
 #include <stdio.h>
@@ -57,9 +58,9 @@ static void usage(FILE *f)
 
 /* The channels read, in this order: the input's planes. */
 static const char *const CHANNELS[] = {
-    "halfA.R", "halfA.G", "halfA.B",  "halfB.R",    "halfB.G",  "halfB.B",       "R",
-    "G",       "B",       "variance", "albedo.R",   "albedo.G", "albedo.B",      "albedo.variance",
-    "N.X",     "N.Y",     "N.Z",      "N.variance", "depth.Z",  "depth.variance"};
+    "halfA.R", "halfA.G", "halfA.B",  "halfB.R",    "halfB.G",  "halfB.B",        "R",
+    "G",       "B",       "variance", "albedo.R",   "albedo.G", "albedo.B",       "albedo.variance",
+    "N.X",     "N.Y",     "N.Z",      "N.variance", "depth.Z",  "depth.variance", "samples"};
 enum { NCH = sizeof CHANNELS / sizeof CHANNELS[0] };
 
 int main(int argc, char **argv)
@@ -151,6 +152,16 @@ int main(int argc, char **argv)
                 "ptdenoise: %s has not the passes the denoiser needs (missing %s): render it "
                 "with --denoise, or --passes albedo,normal,depth,halves\n",
                 in_path, missing);
+        goto done;
+    }
+    /* Each half needs a sample: a pixel with fewer than 2 has an empty one. */
+    for (size_t i = 0; i < (size_t)w * h; i++) {
+        if (pl[20][i] >= 2.0f)
+            continue;
+        fprintf(stderr,
+                "ptdenoise: %s: pixel (%zu, %zu) has %g samples; the half buffers need 2 or "
+                "more\n",
+                in_path, i % w, i / w, (double)pl[20][i]);
         goto done;
     }
     pt_denoise_input in = {.width = w, .height = h};
