@@ -701,6 +701,10 @@ pt_status pt_denoise_check(const pt_denoise_input *in, pt_error *err)
         if ((st = check_plane(in, in->normal[c], name, -1.001f, 1.001f, err)) != PT_OK)
             return st;
     }
+    if (!(in->despeckle == 0.0f ||
+          (in->despeckle >= 1.0f && in->despeckle <= PT_DENOISE_DESPECKLE_MAX)))
+        return pt_error_set(err, PT_ERR_ARG, "denoise: despeckle %g is not 0 or in [1, %g]",
+                            (double)in->despeckle, (double)PT_DENOISE_DESPECKLE_MAX);
     if ((st = check_plane(in, in->variance, "variance", 0.0f, M, err)) != PT_OK ||
         (st = check_plane(in, in->albedo_var, "albedo.variance", 0.0f, M, err)) != PT_OK ||
         (st = check_plane(in, in->normal_var, "N.variance", 0.0f, M, err)) != PT_OK ||
@@ -711,6 +715,50 @@ pt_status pt_denoise_check(const pt_denoise_input *in, pt_error *err)
 }
 
 /* ---- the pipeline ---- */
+
+static float lum3(const float *const p[3], size_t i)
+{
+    return 0.2126f * p[0][i] + 0.7152f * p[1][i] + 0.0722f * p[2][i];
+}
+
+/* Fireflies, before NFOR (which has no rule for them: a spike's huge
+ * variance makes it "similar" to every neighbour, and its fit spreads it):
+ * one half's pixel whose luminance is over factor x the largest luminance
+ * of the other half's 3 x 3 neighbourhood is scaled down to that. A spike
+ * that one half's samples have and the other half's do not, around it
+ * either, is one rare sample; a feature of the picture, even one pixel
+ * wide, is seen by both halves' samples and stays. The pixel's variance
+ * is scaled by the square of the factor applied (*vscale, 1 elsewhere),
+ * as the spike made it. factor 0: nothing changes. */
+static void despeckle(const pt_denoise_input *in, float factor, float *const da[3],
+                      float *const db[3], float *vscale)
+{
+    for (size_t i = 0; i < (size_t)in->width * in->height; i++)
+        vscale[i] = 1.0f;
+    int w = (int)in->width, h = (int)in->height;
+    for (int k = 0; k < 2; k++) {
+        const float *const *src = k ? in->half_b : in->half_a, *const *oth =
+                                                                   k ? in->half_a : in->half_b;
+        float *const *dst = k ? db : da;
+        for (int y = 0; y < h; y++)
+            for (int x = 0; x < w; x++) {
+                size_t i = (size_t)y * w + x;
+                float scale = 1.0f;
+                if (factor > 0.0f) {
+                    float m = 0.0f;
+                    for (int yy = imax(y - 1, 0); yy <= imin(y + 1, h - 1); yy++)
+                        for (int xx = imax(x - 1, 0); xx <= imin(x + 1, w - 1); xx++)
+                            m = fmax2(m, lum3(oth, (size_t)yy * w + xx));
+                    float l = lum3(src, i), cap = factor * m;
+                    if (l > cap && l > 0.0f)
+                        scale = cap / l;
+                }
+                for (int c = 0; c < 3; c++)
+                    dst[c][i] = src[c][i] * scale;
+                vscale[i] = fmin2(vscale[i], scale * scale);
+            }
+    }
+}
 
 /* Internal planes, one allocation. */
 enum {
@@ -724,7 +772,10 @@ enum {
     P_CVAR = P_VAR + 3,                  /* 3: the beauty's variance per channel */
     P_HVAR = P_CVAR + 3,                 /* 3: a half's variance per channel (2 x) */
     P_COMB = P_HVAR + 3,                 /* 3: the blend's mean */
-    P_COUNT = P_COMB + 3
+    P_HA = P_COMB + 3,                   /* 3 + 3: the halves, spikes clamped */
+    P_HB = P_HA + 3,
+    P_VS = P_HB + 3, /* 1: the variance's factor after despeckling */
+    P_COUNT = P_VS + 1
 };
 
 pt_status pt_denoise(const pt_denoise_input *in, unsigned threads, float *const out[3],
@@ -750,6 +801,13 @@ pt_status pt_denoise(const pt_denoise_input *in, unsigned threads, float *const 
     float *pl[P_COUNT];
     for (int i = 0; i < P_COUNT; i++)
         pl[i] = mem + (size_t)i * n;
+
+    const float *ha[3], *hb[3];
+    despeckle(in, in->despeckle, pl + P_HA, pl + P_HB, pl[P_VS]);
+    for (int c = 0; c < 3; c++) {
+        ha[c] = pl[P_HA + c];
+        hb[c] = pl[P_HB + c];
+    }
 
     /* 1. Features, each through NL-means guided by itself (sec. 5.1). */
     const float *fin[PT_DENOISE_FEATURES] = {in->albedo[0], in->albedo[1], in->albedo[2],
@@ -781,7 +839,7 @@ pt_status pt_denoise(const pt_denoise_input *in, unsigned threads, float *const 
             0.2126f * in->color[0][i] + 0.7152f * in->color[1][i] + 0.0722f * in->color[2][i];
         for (int c = 0; c < 3; c++) {
             float ratio = lum > 0.0f && in->color[c][i] > 0.0f ? in->color[c][i] / lum : 1.0f;
-            float v = in->variance[i] * fmin2(ratio * ratio, VAR_RATIO_MAX);
+            float v = in->variance[i] * pl[P_VS][i] * fmin2(ratio * ratio, VAR_RATIO_MAX);
             pl[P_CVAR + c][i] = v;
             pl[P_HVAR + c][i] = 2.0f * v;
         }
@@ -790,8 +848,8 @@ pt_status pt_denoise(const pt_denoise_input *in, unsigned threads, float *const 
     guide ga = {.nc = 3, .vscale = 1.0f, .f = REG_F};
     guide gb = ga;
     for (int c = 0; c < 3; c++) {
-        ga.g[c] = in->half_b[c]; /* A is filtered with B's weights */
-        gb.g[c] = in->half_a[c];
+        ga.g[c] = hb[c]; /* A is filtered with B's weights */
+        gb.g[c] = ha[c];
         ga.v[c] = gb.v[c] = pl[P_HVAR + c];
     }
     float *const fa[2][3] = {{pl[P_FA], pl[P_FA + 1], pl[P_FA + 2]},
@@ -799,8 +857,8 @@ pt_status pt_denoise(const pt_denoise_input *in, unsigned threads, float *const 
     float *const fb[2][3] = {{pl[P_FB], pl[P_FB + 1], pl[P_FB + 2]},
                              {pl[P_FB + 3], pl[P_FB + 4], pl[P_FB + 5]}};
     float *const *const outa[2] = {fa[0], fa[1]}, *const *const outb[2] = {fb[0], fb[1]};
-    if ((st = regression(&dm, threads, &ga, 2, cand_k, in->half_a, feat, outa, err)) != PT_OK ||
-        (st = regression(&dm, threads, &gb, 2, cand_k, in->half_b, feat, outb, err)) != PT_OK)
+    if ((st = regression(&dm, threads, &ga, 2, cand_k, ha, feat, outa, err)) != PT_OK ||
+        (st = regression(&dm, threads, &gb, 2, cand_k, hb, feat, outb, err)) != PT_OK)
         goto done;
     /* 3. Each candidate's MSE from the halves' cross errors (sec. 5.3). */
     for (int k = 0; k < 2; k++) {
@@ -809,8 +867,8 @@ pt_status pt_denoise(const pt_denoise_input *in, unsigned threads, float *const 
             float *noisy = pl[P_TMP + 3 * k + c];
             for (size_t i = 0; i < n; i++) {
                 float hv = pl[P_HVAR + c][i];
-                float ea = (in->half_b[c][i] - fak[i]) * (in->half_b[c][i] - fak[i]) - hv;
-                float eb = (in->half_a[c][i] - fbk[i]) * (in->half_a[c][i] - fbk[i]) - hv;
+                float ea = (hb[c][i] - fak[i]) * (hb[c][i] - fak[i]) - hv;
+                float eb = (ha[c][i] - fbk[i]) * (ha[c][i] - fbk[i]) - hv;
                 float res = 0.25f * (fbk[i] - fak[i]) * (fbk[i] - fak[i]);
                 noisy[i] = 0.5f * (ea + eb) - res;
             }

@@ -27,6 +27,13 @@
  *   4. a second pass (sec. 5.4): the blended halves' mean filtered once more
  *      with the variance of their difference, k = 1.
  *
+ * Before them, fireflies (not in the paper; measured on DamagedHelmet in the
+ * studio at 64 spp: relMSE 1.39e-2 -> 6.7e-3, the mean 0.6 % lower): a
+ * pixel of one half brighter than `despeckle` x the brightest of the other
+ * half's 3 x 3 neighbourhood (luminance) is scaled down to that, and its
+ * variance with it. A spike only one half has is one rare sample; what
+ * the picture holds, both halves see.
+ *
  * The halves are the means over even and odd sample indices (the EXR
  * convention: halfA, halfB); their variance is twice the beauty's variance
  * of the mean. That one is luminance's (`variance`); a channel's is taken
@@ -68,13 +75,21 @@ typedef struct pt_denoise_input {
     const float *albedo[3], *albedo_var;
     const float *normal[3], *normal_var;
     const float *depth, *depth_var; /* camera distance; 0 where the ray escaped */
+    /* Fireflies: a half's pixel over despeckle x the other half's 3 x 3
+     * maximum is scaled down to it; 0 turns it off, PT_DENOISE_DESPECKLE is
+     * the default of the programs; at least 1 otherwise. */
+    float despeckle;
 } pt_denoise_input;
+
+#define PT_DENOISE_DESPECKLE 2.0f
+#define PT_DENOISE_DESPECKLE_MAX 1e6f
 
 /* PT_OK when in can be denoised: a size within PT_IMAGE_MAX_SIDE and
  * PT_IMAGE_MAX_PIXELS, every plane present, every value finite and at most
  * PT_DENOISE_MAX_VALUE in magnitude, variances, depth and albedo not
  * negative, normal components within [-1.001, 1.001] (a mean of unit
- * vectors). Else PT_ERR_ARG (size, a missing plane) or PT_ERR_FORMAT, the
+ * vectors), despeckle 0 or in [1, PT_DENOISE_DESPECKLE_MAX]. Else PT_ERR_ARG
+ * (size, a missing plane, despeckle) or PT_ERR_FORMAT, the
  * message naming the pass and the first bad pixel ("albedo.G at (3, 7) is
  * nan"). Pure. */
 pt_status pt_denoise_check(const pt_denoise_input *in, pt_error *err);

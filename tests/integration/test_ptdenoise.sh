@@ -27,6 +27,12 @@ grep -q "96x80 denoised" "$tmp/log" || fail "no summary: $(cat "$tmp/log")"
   fail "denoised not closer to the truth: $(cat "$tmp/mse")"
 cat "$tmp/mse"
 
+# --despeckle 0 (pure NFOR) is another result, still closer to the truth.
+"$bin/ptdenoise" "$tmp/in.exr" -o "$tmp/nfor.exr" --despeckle 0 --no-preview 2> /dev/null ||
+  fail "--despeckle 0: exit $?"
+"$bin/ptpasses-exr" --error "$tmp/nfor.exr" "$tmp/truth.exr" > /dev/null ||
+  fail "--despeckle 0: not closer to the truth"
+
 # Any thread count: the same file, byte for byte.
 "$bin/ptdenoise" "$tmp/in.exr" -o "$tmp/out3.exr" --threads 3 --no-preview 2> /dev/null
 cmp -s "$tmp/out.exr" "$tmp/out3.exr" || fail "3 threads wrote another file than 1"
@@ -82,6 +88,7 @@ refused "no input" 2 "no input EXR" -o "$tmp/bad.exr"
 refused "a bad format" 2 "the output's format follows its name" "$tmp/in.exr" -o "$tmp/bad.tif"
 refused "bad threads" 2 "threads" "$tmp/in.exr" -o "$tmp/bad.exr" --threads 0
 refused "bad view" 2 "standard, filmic or agx" "$tmp/in.exr" -o "$tmp/bad.exr" --view aces
+refused "bad despeckle" 2 "not 0 or at least 1" "$tmp/in.exr" -o "$tmp/bad.exr" --despeckle 0.5
 "$bin/ptdenoise" --help | grep -q "usage: ptdenoise" || fail "--help"
 "$bin/ptdenoise" --version | grep -q "^ptdenoise " || fail "--version"
 failed=0

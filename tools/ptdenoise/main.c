@@ -49,6 +49,9 @@ static void usage(FILE *f)
                " (default standard)\n"
                "  --exposure EV       the preview's exposure in stops (default 0; -20 to 20)\n"
                "  --no-preview        no PNG beside OUT.exr\n"
+               "  --despeckle F       fireflies: a pixel of one half brighter than F times the\n"
+               "                      brightest of the other half around it is scaled down to\n"
+               "                      that (default 2; 0: off, pure NFOR)\n"
                "  -h, --help          this help\n"
                "  --version           version and build id\n"
                "\n"
@@ -65,18 +68,20 @@ enum { NCH = sizeof CHANNELS / sizeof CHANNELS[0] };
 
 int main(int argc, char **argv)
 {
-    enum { OPT_VERSION = 256, OPT_THREADS, OPT_VIEW, OPT_EXPOSURE, OPT_NO_PREVIEW };
+    enum { OPT_VERSION = 256, OPT_THREADS, OPT_VIEW, OPT_EXPOSURE, OPT_NO_PREVIEW, OPT_DESPECKLE };
     static const struct option longopts[] = {{"help", no_argument, NULL, 'h'},
                                              {"version", no_argument, NULL, OPT_VERSION},
                                              {"threads", required_argument, NULL, OPT_THREADS},
                                              {"view", required_argument, NULL, OPT_VIEW},
                                              {"exposure", required_argument, NULL, OPT_EXPOSURE},
                                              {"no-preview", no_argument, NULL, OPT_NO_PREVIEW},
+                                             {"despeckle", required_argument, NULL, OPT_DESPECKLE},
                                              {NULL, 0, NULL, 0}};
     const char *out_path = NULL;
     uint32_t threads = 0;
     pt_view view = {PT_VIEW_STANDARD, 0.0f};
     int preview = 1, c;
+    double despeckle = PT_DENOISE_DESPECKLE;
     pt_error err = {0};
     while ((c = getopt_long(argc, argv, "ho:", longopts, NULL)) != -1) {
         pt_status st = PT_OK;
@@ -102,6 +107,13 @@ int main(int argc, char **argv)
             break;
         case OPT_NO_PREVIEW:
             preview = 0;
+            break;
+        case OPT_DESPECKLE:
+            st = pt_opt_double("--despeckle", optarg, 0.0, PT_DENOISE_DESPECKLE_MAX, &despeckle,
+                               &err);
+            if (st == PT_OK && despeckle > 0.0 && despeckle < 1.0)
+                st = pt_error_set(&err, PT_ERR_ARG, "--despeckle: %s is not 0 or at least 1",
+                                  optarg);
             break;
         default:
             usage(stderr);
@@ -164,7 +176,7 @@ int main(int argc, char **argv)
                 in_path, i % w, i / w, (double)pl[20][i]);
         goto done;
     }
-    pt_denoise_input in = {.width = w, .height = h};
+    pt_denoise_input in = {.width = w, .height = h, .despeckle = (float)despeckle};
     for (int k = 0; k < 3; k++) {
         in.half_a[k] = pl[k];
         in.half_b[k] = pl[3 + k];
