@@ -23,6 +23,7 @@
 #   OUT      folder [/tmp/ptfarm-denoise]; a reference already there is reused
 #   WORKER   the ptworker that renders [BIN_DIR/ptworker]: another build's, with
 #            the passes, while this one has none
+#   COST     0: part 1 only [1]
 set -euo pipefail
 
 if [[ $# -lt 1 || $# -gt 2 || ! -x "$1/ptdenoise" || ! -x "$1/ptworker" ]]; then
@@ -102,6 +103,9 @@ else
     done
 fi
 
+if [[ ${COST:-1} == 0 ]]; then
+    exit 0
+fi
 echo "== cost: ptdenoise on 1920x1080 with every pass, $THREADS threads, median of $REPS"
 hd=$OUT/hd-passes.exr
 [[ -f $hd ]] || "$BIN/ptpasses-exr" "$hd" 1920 1080 0.1 1
