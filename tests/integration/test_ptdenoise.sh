@@ -22,7 +22,7 @@ fail() { echo "FAIL: $*" >&2; exit 1; }
   fail "denoise: exit $?: $(cat "$tmp/log")"
 grep -q "96x80 denoised" "$tmp/log" || fail "no summary: $(cat "$tmp/log")"
 [ -s "$tmp/out.png" ] || fail "no preview beside out.exr"
-"$bin/ptexr-diff" "$tmp/in.exr" "$tmp/out.exr" > /dev/null || fail "the beauty changed"
+"$bin/ptexr-diff" --base "$tmp/in.exr" "$tmp/out.exr" > /dev/null || fail "the beauty changed"
 "$bin/ptpasses-exr" --error "$tmp/out.exr" "$tmp/truth.exr" > "$tmp/mse" ||
   fail "denoised not closer to the truth: $(cat "$tmp/mse")"
 cat "$tmp/mse"
