@@ -21,7 +21,6 @@
 #include "common/base/frames.h"
 #include "common/base/opt.h"
 #include "common/base/version.h"
-#include "common/render/denoise_frame.h"
 #include "common/render/options.h"
 #include "common/render/render.h"
 #include "common/render/tile.h"
@@ -152,8 +151,7 @@ static void usage(FILE *f)
             "  --denoise          denoise the finished image (NFOR, guided by the passes\n"
             "                     albedo, normal, depth and halves, which it turns on):\n"
             "                     the EXR gets the layer denoised.R/G/B beside the\n"
-            "                     untouched beauty, the PNG shows it; standalone only\n"
-            "                     for now (ptdenoise denoises a farm's EXR); 2 spp or more\n"
+            "                     untouched beauty, the PNG shows it; 2 spp or more\n"
             "  --clamp-direct X   clamp each sample's light that reaches the camera or the\n"
             "                     first surface it sees to R+G+B <= X, as Cycles' Clamp\n"
             "                     Direct (biased: fewer fireflies, darker highlights;\n"
@@ -243,8 +241,7 @@ int main(int argc, char **argv)
         OPT_NAME,
         OPT_LINK_TIMEOUT,
         OPT_CLAMP_DIRECT,
-        OPT_CLAMP_INDIRECT,
-        OPT_DENOISE
+        OPT_CLAMP_INDIRECT
     };
     static const struct option own[] = {
         {"scene", required_argument, NULL, OPT_SCENE},
@@ -254,7 +251,6 @@ int main(int argc, char **argv)
         {"frame", required_argument, NULL, OPT_FRAME},
         {"list", required_argument, NULL, OPT_LIST},
         {"guiding", required_argument, NULL, OPT_GUIDING},
-        {"denoise", no_argument, NULL, OPT_DENOISE},
         {"clamp-direct", required_argument, NULL, OPT_CLAMP_DIRECT},
         {"clamp-indirect", required_argument, NULL, OPT_CLAMP_INDIRECT},
         {"quiet", no_argument, NULL, 'q'},
@@ -308,9 +304,6 @@ int main(int argc, char **argv)
                 fprintf(stderr, "ptworker: --guiding: '%s' is not on or off\n", optarg);
                 bad = 1;
             }
-            break;
-        case OPT_DENOISE:
-            o.denoise = 1;
             break;
         case OPT_CLAMP_DIRECT:
         case OPT_CLAMP_INDIRECT: {
@@ -453,15 +446,7 @@ int main(int argc, char **argv)
     o.view = ro.view;
     o.fps = ro.fps;
     o.passes = ro.passes;
-    if (o.denoise) {
-        /* The denoiser reads its passes and needs both halves in every pixel. */
-        o.passes |= PT_PASS_DENOISE;
-        if (ro.spp < 2 || (ro.min_spp > 0 && ro.min_spp < 2)) {
-            fprintf(stderr, "ptworker: --denoise needs 2 samples a pixel or more (--spp%s)\n",
-                    ro.min_spp > 0 ? ", --min-spp" : "");
-            return 2;
-        }
-    }
+    o.denoise = ro.denoise;
     if (ro.animation)
         o.animate = 1;
     if (has_time || has_frame) {

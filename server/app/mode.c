@@ -180,7 +180,7 @@ static int finish_frames(srv_server *s)
     srv_entry *f;
     for (uint32_t i = 0; (f = srv_frames_at(p, i)); i++)
         if (f->job && srv_entry_active(f)) {
-            srv_entry_save_image(f);
+            srv_entry_save_image(f, srv_job_complete(f->job));
             if (srv_writer_flush(f->writer, &err) != PT_OK)
                 fprintf(stderr, "\nptserve: cannot write %s: %s", f->out_path, err.msg);
         }
@@ -218,7 +218,7 @@ static int finish_single(srv_server *s)
         return finish_frames(s);
     if (!j->job)
         return 1;
-    srv_entry_save_image(j);
+    srv_entry_save_image(j, srv_job_complete(j->job));
     pt_status st = srv_writer_flush(j->writer, &err);
     if (!cfg->quiet)
         print_progress(s, pt_now_ms());
@@ -389,7 +389,7 @@ static int finish_queue(srv_server *s)
             continue;
         pt_error err = {0};
         srv_entry_checkpoint(s, j, &err); /* logged; the results log holds the rest */
-        srv_entry_save_image(j);
+        srv_entry_save_image(j, srv_job_complete(j->job));
         if (srv_writer_flush(j->writer, &err) != PT_OK)
             srv_log("job %llu: cannot write its image: %s", (unsigned long long)j->rec.id, err.msg);
         n++;

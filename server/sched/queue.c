@@ -276,7 +276,7 @@ void srv_queue_info(const srv_server *s, const srv_entry *j, proto_job_info *m)
         snprintf(m->message, sizeof m->message, "%s", r->message);
 }
 
-void srv_entry_save_image(srv_entry *j)
+void srv_entry_save_image(srv_entry *j, int final)
 {
     srv_job_settle(j->job); /* the image holds every sample counted merged */
     pt_exr_meta meta = {0};
@@ -290,7 +290,7 @@ void srv_entry_save_image(srv_entry *j)
         meta.fps = j->parent->rec.fps;
         meta.time = pt_frames_time(j->frame, meta.fps);
     }
-    srv_writer_submit(j->writer, &meta);
+    srv_writer_submit(j->writer, &meta, final);
     j->t_last_save = pt_now_ms();
     j->saved_passes = srv_job_passes_done(j->job);
     j->saved_samples = meta.total_samples;
@@ -343,7 +343,7 @@ void srv_queue_end_job(srv_server *s, srv_entry *j, uint8_t state, const char *m
          * one) while the loop goes on serving the other jobs' workers;
          * srv_queue_tick comes back once it is on disk. */
         if (!j->final_writing) {
-            srv_entry_save_image(j);
+            srv_entry_save_image(j, 1);
             j->final_writing = 1;
         }
         if (!srv_writer_idle(j->writer))
@@ -472,6 +472,9 @@ int srv_entry_ready(srv_server *s, srv_entry *j)
         st = srv_writer_new(j->out_path, srv_job_film(j->job),
                             (srv_job_params_of(j->job)->film_flags & PROTO_FILM_TRANSPARENT) != 0,
                             &s->cfg->view, &j->writer, &err);
+    if (st == PT_OK)
+        srv_writer_set_denoise(j->writer,
+                               (srv_job_params_of(j->job)->film_flags & PROTO_FILM_DENOISE) != 0);
     if (st != PT_OK) {
         char msg[PROTO_MAX_ERROR_TEXT + 1];
         snprintf(msg, sizeof msg, "%s", err.msg);

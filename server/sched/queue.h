@@ -118,8 +118,9 @@ void srv_entry_free(srv_entry *j);
  * when it cannot be (j is then ended FAILED, with the reason). */
 int srv_entry_ready(srv_server *s, srv_entry *j);
 
-/* Hands j's film, resolved, to its writer (a progressive or final image). */
-void srv_entry_save_image(srv_entry *j);
+/* Hands j's film, resolved, to its writer: a progressive image, or with
+ * final the finished one (denoised when the job asks, srv_writer.h). */
+void srv_entry_save_image(srv_entry *j, int final);
 
 /* Writes j's checkpoint when there is a state folder; an error is logged
  * and returned. */
