@@ -11,6 +11,7 @@
 #include "common/base/text.h"
 #include "common/image/exr.h"
 #include "common/render/adaptive.h"
+#include "common/render/crypto.h"
 #include "common/render/film.h"
 #include "protocol/frame.h"
 
@@ -107,6 +108,9 @@ void srv_entry_free(srv_entry *j)
     if (!j)
         return;
     free_run(j);
+    if (j->crypto)
+        pt_crypto_meta_fini(j->crypto);
+    pt_free(j->crypto);
     pt_free(j->frames); /* a range's bookkeeping (server/sched/frames.h): plain memory */
     j->frames = NULL;
     pt_free(j);
@@ -289,6 +293,11 @@ void srv_entry_save_image(srv_entry *j)
         meta.frame = j->frame;
         meta.fps = j->parent->rec.fps;
         meta.time = pt_frames_time(j->frame, meta.fps);
+    }
+    const srv_entry *owner = j->parent ? j->parent : j;
+    if (owner->crypto) {
+        meta.attrs = owner->crypto->attrs;
+        meta.nattrs = owner->crypto->nattrs;
     }
     srv_writer_submit(j->writer, &meta);
     j->t_last_save = pt_now_ms();
