@@ -42,9 +42,9 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     pt_exr_meta meta;
     memset(&meta, 0x55, sizeof meta);
     pt_error err = {0};
-    pt_status st = (data[0] & 2) ? pt_exr_read_layers(path, (data[0] & 1) ? NULL : &img, &meta,
-                                                      &err)
-                                 : pt_exr_read(path, (data[0] & 1) ? NULL : &img, &meta, &err);
+    pt_status st = (data[0] & 2)
+                       ? pt_exr_read_layers(path, (data[0] & 1) ? NULL : &img, &meta, &err)
+                       : pt_exr_read(path, (data[0] & 1) ? NULL : &img, &meta, &err);
     fuzz_note("read", st, &err);
     FUZZ_CHECK(st == PT_OK || (st == err.code && err.msg[0]));
     if (st == PT_OK) {
