@@ -7,6 +7,7 @@
 #include "common/base/alloc.h"
 #include "common/base/fsutil.h"
 #include "common/base/hash.h"
+#include "common/render/crypto.h"
 #include "common/render/env.h"
 #include "common/render/render.h"
 #include "common/render/tile.h"
@@ -133,12 +134,27 @@ static pt_status setup_single(srv_server *s, pt_error *err)
         snprintf(jp.env.name, sizeof jp.env.name, "%s", PT_BUNDLE_ENV_NAME);
     }
     st = pt_render_check_lit(scene, proto_env_any(&jp.env), cfg->scene_path, err);
+    /* Cryptomatte's manifests come from the names of the scene loaded here. */
+    pt_crypto_meta *crypto = NULL;
+    if (st == PT_OK && (proto_film_passes(jp.film_flags) & PT_PASS_CRYPTOMATTE)) {
+        if (!(crypto = pt_calloc(1, sizeof *crypto)))
+            st = pt_error_set(err, PT_ERR_NOMEM, "out of memory");
+        else if ((st = pt_crypto_meta_init(crypto, scene, err)) != PT_OK) {
+            pt_free(crypto);
+            crypto = NULL;
+        }
+    }
     pt_scene_free(scene);
     if (st != PT_OK)
         return st;
     srv_entry *j = pt_calloc(1, sizeof *j);
-    if (!j)
+    if (!j) {
+        if (crypto)
+            pt_crypto_meta_fini(crypto);
+        pt_free(crypto);
         return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
+    }
+    j->crypto = crypto;
     srv_queue_insert(s, j);
     s->single = j;
     if ((st = pt_bundle_pack_env(cfg->scene_path, cfg->env_path, &j->bundle, err)) != PT_OK)

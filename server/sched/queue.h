@@ -52,6 +52,11 @@ struct srv_entry {
     srv_job *job;      /* NULL until it is first scheduled (and after it ends) */
     pt_bundle *bundle; /* loaded when a worker first asks for it */
     srv_writer *writer;
+    /* Cryptomatte's header attributes (its manifests), known where the
+     * coordinator loaded the scene itself (one-job mode), else NULL: a
+     * queued job's EXR has the layers and no manifest. A frame uses its
+     * range's. Owned. */
+    struct pt_crypto_meta *crypto;
     char out_path[PATH_MAX];
     double seconds_before; /* render seconds of earlier coordinator runs */
     uint64_t t_started;    /* when this run started rendering it (ms), 0: not yet */
