@@ -111,6 +111,8 @@ void pt_render_params_default(pt_render_params *p)
     p->env = NULL;
     p->transparent = 0;
     p->guiding = 0;
+    p->clamp_direct = 0.0f;
+    p->clamp_indirect = 0.0f;
 }
 
 const pt_render_params *pt_renderer_params(const pt_renderer *r)
