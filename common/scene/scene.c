@@ -22,6 +22,7 @@
 #include "common/scene/scene.h"
 
 #include <math.h>
+#include <stddef.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -1755,6 +1756,116 @@ void pt_texture_sample(const pt_texture *tex, float u, float v, float out[4])
     for (int k = 1; k < 4; k++)
         a += wt[k] * (float)px[k][3] * (1.0f / 255.0f);
     out[3] = a;
+}
+
+/* The two texel rows (one address each) around (u, v): the fractional
+ * part for any wrap mode (exact for REPEAT and for UVs in [0, 1), which is
+ * what the prefetch needs to be useful), clamped into the image. Inlined
+ * by force: GCC 12's IPA finds a function whose only effect is a prefetch
+ * const and deletes the calls to it. */
+static inline __attribute__((always_inline)) void texture_prefetch(const pt_texture *tex, float u,
+                                                                   float v)
+{
+    float fu = u - floorf(u), fv = v - floorf(v);
+    fu = fu >= 0.0f && fu < 1.0f ? fu : 0.0f; /* NaN and inf give NaN */
+    fv = fv >= 0.0f && fv < 1.0f ? fv : 0.0f;
+    uint32_t w = tex->width, h = tex->height;
+    uint32_t x = (uint32_t)(fu * (float)w), y = (uint32_t)(fv * (float)h);
+    x = x < w ? x : w - 1;
+    y = y < h ? y : h - 1;
+    /* The second row of the bilinear footprint: below the texel's centre
+     * the row above, else the row below. */
+    uint32_t y2 =
+        fv * (float)h - (float)y < 0.5f ? (y > 0 ? y - 1 : h - 1) : (y + 1 < h ? y + 1 : 0);
+    __builtin_prefetch(tex->rgba + 4 * ((size_t)y * w + x));
+    __builtin_prefetch(tex->rgba + 4 * ((size_t)y2 * w + x));
+}
+
+void pt_texture_prefetch(const pt_texture *tex, float u, float v)
+{
+    texture_prefetch(tex, u, v);
+}
+
+/* The texels of the core slots of tri's material at (b1, b2). */
+static inline __attribute__((always_inline)) void prefetch_texels(const pt_scene *s, uint32_t tri,
+                                                                  float b1, float b2)
+{
+    static const struct {
+        size_t tex;
+        int slot;
+    } core[] = {
+        {offsetof(pt_material, base_color_tex), PT_SLOT_BASE},
+        {offsetof(pt_material, metal_rough_tex), PT_SLOT_METAL_ROUGH},
+        {offsetof(pt_material, normal_tex), PT_SLOT_NORMAL},
+        {offsetof(pt_material, emissive_tex), PT_SLOT_EMISSIVE},
+        {offsetof(pt_material, transmission_tex), PT_SLOT_TRANSMISSION},
+        {offsetof(pt_material, clearcoat_tex), PT_SLOT_CLEARCOAT},
+        {offsetof(pt_material, clearcoat_rough_tex), PT_SLOT_CLEARCOAT_ROUGH},
+        {offsetof(pt_material, clearcoat_normal_tex), PT_SLOT_CLEARCOAT_NORMAL},
+        {offsetof(pt_material, sheen_color_tex), PT_SLOT_SHEEN_COLOR},
+        {offsetof(pt_material, sheen_rough_tex), PT_SLOT_SHEEN_ROUGH},
+    };
+    if (!s->uvs || tri >= s->num_triangles)
+        return;
+    uint32_t mi = s->tri_material[tri];
+    if (mi >= s->num_materials)
+        return;
+    const pt_material *m = &s->materials[mi];
+    const uint32_t *i = &s->indices[3 * (size_t)tri];
+    if (i[0] >= s->num_vertices || i[1] >= s->num_vertices || i[2] >= s->num_vertices)
+        return;
+    float b0 = 1.0f - b1 - b2;
+    float uv[2][2] = {{0.0f, 0.0f}, {0.0f, 0.0f}};
+    for (int set = 0; set < 2; set++) {
+        const float *t = set ? s->uvs1 : s->uvs;
+        if (!t)
+            continue;
+        uv[set][0] = b0 * t[2 * i[0]] + b1 * t[2 * i[1]] + b2 * t[2 * i[2]];
+        uv[set][1] = b0 * t[2 * i[0] + 1] + b1 * t[2 * i[1] + 1] + b2 * t[2 * i[2] + 1];
+    }
+    for (size_t k = 0; k < sizeof core / sizeof core[0]; k++) {
+        int32_t ti;
+        memcpy(&ti, (const char *)m + core[k].tex, sizeof ti);
+        if (ti < 0 || (uint32_t)ti >= s->num_textures)
+            continue;
+        const pt_tex_xform *x = &m->tex_xf[core[k].slot];
+        float t[2];
+        pt_tex_xform_apply(x, uv[x->texcoord ? 1 : 0], t);
+        texture_prefetch(&s->textures[ti], t[0], t[1]);
+    }
+}
+
+void pt_scene_prefetch_hits(const pt_scene *s, uint32_t n, const uint32_t *tri, const float *b1,
+                            const float *b2)
+{
+    for (uint32_t j = 0; j < n; j++) {
+        if (tri[j] >= s->num_triangles)
+            continue;
+        __builtin_prefetch(&s->indices[3 * (size_t)tri[j]]);
+        __builtin_prefetch(&s->tri_material[tri[j]]);
+    }
+    /* Per corner: the line its attribute starts in (an attribute that
+     * straddles two lines brings the second on its own use). */
+    for (uint32_t j = 0; j < n; j++) {
+        if (tri[j] >= s->num_triangles)
+            continue;
+        const uint32_t *i = &s->indices[3 * (size_t)tri[j]];
+        for (int c = 0; c < 3; c++) {
+            size_t v = i[c];
+            if (v >= s->num_vertices)
+                continue;
+            if (s->normals)
+                __builtin_prefetch(&s->normals[3 * v]);
+            if (s->uvs)
+                __builtin_prefetch(&s->uvs[2 * v]);
+            if (s->uvs1)
+                __builtin_prefetch(&s->uvs1[2 * v]);
+            if (s->tangents)
+                __builtin_prefetch(&s->tangents[4 * v]);
+        }
+    }
+    for (uint32_t j = 0; j < n; j++)
+        prefetch_texels(s, tri[j], b1[j], b2[j]);
 }
 
 pt_tex_xform pt_tex_xform_identity(void)
