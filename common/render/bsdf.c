@@ -10,11 +10,20 @@
  * so F = F0 + (spec_weight - F0)(1 - c)^5 and specular = 0, metallic = 0 gives
  * F = 0: no GGX lobe at all, only Lambert.
  *
- * The diffuse attenuation (1 - s F_d) uses the scalar Schlick of the dielectric
- * layer with F0 = dielectric_f0 = 0.04 s and F90 = s (= dielectric_f0 / 0.04),
- * evaluated at c = min(cos wo, cos wi) instead of glTF's v.h: that keeps the
- * BSDF reciprocal and its energy below 1 (with v.h a smooth dielectric seen at
- * grazing reflects F ~ 1 specularly while the diffuse keeps ~96%).
+ * The diffuse attenuation follows KHR_materials_specular's section
+ * "Implementation": the dielectric's Fresnel is the RGB
+ *   dielectric_fresnel = mix(dielectric_f0, dielectric_f90, (1 - c)^5),
+ *   dielectric_f0 = min(0.04 x specularColor, 1) x specular, dielectric_f90 = specular,
+ * and the diffuse is weighed by 1 - max_value(dielectric_fresnel) (its
+ * dielectric_brdf; the max keeps a coloured F0 from tinting the diffuse with
+ * its complement). For c in [0, 1] each channel is f0_i (1 - w) + f90 w with
+ * 1 - w >= 0, so the largest channel is the one with the largest f0: the
+ * weight is one scalar Schlick from F0 = max_i dielectric_f0_i to F90 =
+ * specular, which is what pt_bsdf keeps (a white colour gives 0.04 s, the
+ * plain glTF dielectric). It is evaluated at c = min(cos wo, cos wi)
+ * instead of glTF's v.h: that keeps the BSDF reciprocal and its energy
+ * below 1 (with v.h a smooth dielectric seen at grazing reflects F ~ 1
+ * specularly while the diffuse keeps ~96%).
  *
  * Specular: GGX / Trowbridge-Reitz D (Walter et al. 2007), Smith
  * height-correlated masking-shadowing G2 = 1 / (1 + L(wo) + L(wi)) with
@@ -62,7 +71,8 @@ pt_bsdf pt_bsdf_setup(pt_vec3 base_color, float metallic, float roughness, float
     b.f0 = pt_v3_lerp(f0_dielectric, base_color, metallic);
     b.spec_weight = (1.0f - metallic) * specular + metallic;
     b.alpha = maxf(roughness * roughness, PT_BSDF_MIN_ALPHA);
-    b.dielectric_f0 = PT_BSDF_DIELECTRIC_F0 * specular;
+    b.dielectric_f0 = pt_v3_max_comp(f0_dielectric);
+    b.dielectric_f90 = specular;
     return b;
 }
 
@@ -71,9 +81,10 @@ pt_bsdf pt_bsdf_setup(pt_vec3 base_color, float metallic, float roughness, float
  * Glossiness"): c_diff = diffuse (1 - max(specular)), F0 = specular,
  * alpha = (1 - glossiness)^2, with the BRDF of glTF 2.0's appendix B, whose
  * Fresnel goes to 1 at grazing. That is the metallic-roughness base above
- * with metallic 0, specular 1 (F90 = 1, dielectric_f0 0.04) and F0 given
- * directly, so the two workflows share one BSDF; built here without the
- * division by 0.04 that pt_bsdf_setup would need, so F0 keeps its bits.
+ * with metallic 0, specular 1 (F90 = 1) and F0 given directly, the diffuse
+ * weighed by 1 - the largest channel of that Fresnel (dielectric_f0 =
+ * max(specular)), so the two workflows share one BSDF; built here without
+ * the division by 0.04 that pt_bsdf_setup would need, so F0 keeps its bits.
  */
 pt_bsdf pt_bsdf_setup_spec_gloss(pt_vec3 diffuse, pt_vec3 specular, float glossiness)
 {
@@ -85,7 +96,8 @@ pt_bsdf pt_bsdf_setup_spec_gloss(pt_vec3 diffuse, pt_vec3 specular, float glossi
     b.f0 = specular;
     b.spec_weight = 1.0f;
     b.alpha = maxf(r * r, PT_BSDF_MIN_ALPHA);
-    b.dielectric_f0 = PT_BSDF_DIELECTRIC_F0;
+    b.dielectric_f0 = pt_v3_max_comp(specular);
+    b.dielectric_f90 = 1.0f;
     return b;
 }
 
@@ -145,7 +157,8 @@ float pt_bsdf_spec_prob(const pt_bsdf *b, float cos_o)
         return 0.0f;
     if (!(pt_v3_max_comp(b->diffuse) > 0.0f))
         return 1.0f;
-    float ed = pt_luminance(b->diffuse) * (1.0f - pt_bsdf_diffuse_fresnel(b->dielectric_f0, cos_o));
+    float ed = pt_luminance(b->diffuse) *
+               (1.0f - pt_bsdf_diffuse_fresnel(b->dielectric_f0, b->dielectric_f90, cos_o));
     float es = pt_luminance(pt_bsdf_spec_fresnel(b->f0, b->spec_weight, cos_o));
     float p = es + ed > 0.0f ? es / (es + ed) : 0.5f;
     return fminf(fmaxf(p, MIN_LOBE_PROB), 1.0f - MIN_LOBE_PROB);

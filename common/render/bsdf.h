@@ -5,8 +5,9 @@
  * Plain data and functions, after the setup/eval/sample triple of the Cycles
  * closures. All directions are in the local shading frame (z = normal), unit
  * length, pointing away from the surface. Lobes:
- *  - diffuse: Lambert, base colour x (1 - metallic), weighted by (1 - F_dielectric)
- *    as in the glTF spec's fresnel_mix;
+ *  - diffuse: Lambert, base colour x (1 - metallic), weighted by 1 - max(F_dielectric),
+ *    the largest channel of the dielectric's coloured Fresnel, as in
+ *    KHR_materials_specular's fresnel_mix;
  *  - specular: GGX / Trowbridge-Reitz microfacets (alpha = roughness^2), Smith
  *    height-correlated masking-shadowing, Schlick Fresnel; F0 = mix(0.04 *
  *    specular_color * specular, base colour, metallic).
@@ -27,12 +28,15 @@
 #include "common/render/sampler.h"
 
 typedef struct pt_bsdf {
-    pt_vec3 diffuse;     /* Lambert albedo (already x (1 - metallic)), 0 when absent */
-    pt_vec3 f0;          /* specular reflectance at normal incidence */
-    float spec_weight;   /* specular strength (0 = no GGX lobe at all) */
-    float alpha;         /* GGX alpha = roughness^2, clamped to >= PT_BSDF_MIN_ALPHA */
-    float dielectric_f0; /* scalar F0 of the dielectric layer (0.04 * specular), for the diffuse
-                            weight */
+    pt_vec3 diffuse;   /* Lambert albedo (already x (1 - metallic)), 0 when absent */
+    pt_vec3 f0;        /* specular reflectance at normal incidence */
+    float spec_weight; /* specular strength (0 = no GGX lobe at all) */
+    float alpha;       /* GGX alpha = roughness^2, clamped to >= PT_BSDF_MIN_ALPHA */
+    /* The diffuse weight's scalar Schlick: the largest channel of the
+     * dielectric's F0, min(0.04 x specular colour, 1) x specular, and its
+     * F90, specular (bsdf.c). */
+    float dielectric_f0;
+    float dielectric_f90;
 } pt_bsdf;
 
 /* Below this alpha the lobe is treated as this smooth; avoids a delta lobe
@@ -55,10 +59,12 @@ pt_bsdf pt_bsdf_setup(pt_vec3 base_color, float metallic, float roughness, float
 pt_bsdf pt_bsdf_setup_spec_gloss(pt_vec3 diffuse, pt_vec3 specular, float glossiness);
 
 /* The Lambert lobe: albedo x (1 - F_d(min(cos wo, cos wi))) / pi, F_d the
- * dielectric layer's scalar Schlick (bsdf.c). */
+ * dielectric layer's scalar Schlick from dielectric_f0 to dielectric_f90
+ * (bsdf.c). */
 typedef struct pt_diffuse_lobe {
     pt_vec3 albedo;
     float dielectric_f0;
+    float dielectric_f90;
 } pt_diffuse_lobe;
 
 /* The GGX reflection lobe with Schlick's Fresnel from f0 to f90. */
@@ -98,11 +104,10 @@ static inline float pt_bsdf_schlick_w(float c)
 }
 
 /* Scalar Schlick of the dielectric layer for the diffuse weight: F0 =
- * dielectric_f0 = 0.04 s, F90 = s. */
-static inline float pt_bsdf_diffuse_fresnel(float dielectric_f0, float c)
+ * dielectric_f0, F90 = dielectric_f90 (pt_bsdf). */
+static inline float pt_bsdf_diffuse_fresnel(float dielectric_f0, float dielectric_f90, float c)
 {
-    float f90 = dielectric_f0 * (1.0f / PT_BSDF_DIELECTRIC_F0);
-    return dielectric_f0 + (f90 - dielectric_f0) * pt_bsdf_schlick_w(c);
+    return dielectric_f0 + (dielectric_f90 - dielectric_f0) * pt_bsdf_schlick_w(c);
 }
 
 /* The GGX lobe's Fresnel: F0 = f0, F90 = f90. */
@@ -132,7 +137,7 @@ static inline float pt_ggx_lambda_root(pt_vec3 w, float alpha)
 
 static inline pt_diffuse_lobe pt_bsdf_diffuse(const pt_bsdf *b)
 {
-    pt_diffuse_lobe l = {b->diffuse, b->dielectric_f0};
+    pt_diffuse_lobe l = {b->diffuse, b->dielectric_f0, b->dielectric_f90};
     return l;
 }
 
@@ -151,7 +156,7 @@ static inline pt_vec3 pt_diffuse_eval(const pt_diffuse_lobe *l, pt_vec3 wo, pt_v
         *share = 0.0f;
         return pt_v3(0.0f, 0.0f, 0.0f);
     }
-    float fd = pt_bsdf_diffuse_fresnel(l->dielectric_f0, fminf(wo.z, wi.z));
+    float fd = pt_bsdf_diffuse_fresnel(l->dielectric_f0, l->dielectric_f90, fminf(wo.z, wi.z));
     *share = prob * wi.z * PT_INV_PI;
     return pt_v3_scale(l->albedo, (1.0f - fd) * wi.z * PT_INV_PI);
 }
@@ -204,7 +209,7 @@ static inline pt_vec3 pt_diffuse_transmit_eval(const pt_diffuse_lobe *l, pt_vec3
         *share = 0.0f;
         return pt_v3(0.0f, 0.0f, 0.0f);
     }
-    float fd = pt_bsdf_diffuse_fresnel(l->dielectric_f0, fminf(wo.z, -wi.z));
+    float fd = pt_bsdf_diffuse_fresnel(l->dielectric_f0, l->dielectric_f90, fminf(wo.z, -wi.z));
     *share = prob * -wi.z * PT_INV_PI;
     return pt_v3_scale(l->albedo, (1.0f - fd) * -wi.z * PT_INV_PI);
 }

@@ -112,11 +112,11 @@ void pt_closure_add_base_dt(pt_closure *c, const pt_bsdf *b, float dt, pt_vec3 t
     if (ps > 0.0f)
         add_lobe(c, g, PT_LOBE_SPECULAR, ps)->p.specular = pt_bsdf_specular(b);
     if (ps < 1.0f && pr > 0.0f) {
-        pt_diffuse_lobe d = {refl, b->dielectric_f0};
+        pt_diffuse_lobe d = {refl, b->dielectric_f0, b->dielectric_f90};
         add_lobe(c, g, PT_LOBE_DIFFUSE, (1.0f - ps) * pr)->p.diffuse = d;
     }
     if (ps < 1.0f && pr < 1.0f) {
-        pt_diffuse_lobe d = {through, b->dielectric_f0};
+        pt_diffuse_lobe d = {through, b->dielectric_f0, b->dielectric_f90};
         add_lobe(c, g, PT_LOBE_DIFFUSE_TRANSMIT, (1.0f - ps) * (1.0f - pr))->p.diffuse = d;
     }
 }

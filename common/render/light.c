@@ -68,6 +68,11 @@ struct pt_lights {
     uint32_t num_triangles;
     light_entry *lights; /* count entries, 64-byte aligned inside lights_mem */
     void *lights_mem;
+    /* 6 floats a light: its vertices' (u, v) in the coordinate set of its
+     * material's emissive slot, where that material has an emissive texture
+     * (emission_at), so that a sample reads neither the index nor the
+     * vertices' coordinates; NULL when no light's material has one. */
+    float *tex_uv;
     alias_slot *alias;      /* count columns */
     uint32_t *tri_to_light; /* num_triangles entries, UINT32_MAX: not a light; NULL if count 0 */
     /* punctual lights */
@@ -116,6 +121,44 @@ static pt_vec3 emission(const pt_scene *s, const pt_material *m, uint32_t tri, f
          * TEXCOORD_0 gives the plain interpolation's bits). */
         float uv[2], c[4];
         pt_scene_slot_uv(s, m, PT_SLOT_EMISSIVE, tri, b1, b2, uv);
+        pt_texture_sample(&s->textures[m->emissive_tex], uv[0], uv[1], c);
+        e = pt_v3_mul(e, pt_v3(c[0], c[1], c[2]));
+    }
+    return e;
+}
+
+/* Whether a light's emission reads its texture (emission's condition). */
+static inline int textured(const pt_scene *s, const pt_material *m)
+{
+    return m->emissive_tex >= 0 && (uint32_t)m->emissive_tex < s->num_textures && s->uvs;
+}
+
+/* The emissive slot's UV of light k at (b1, b2), from the copy in tex_uv:
+ * pt_scene_slot_uv's arithmetic on the same numbers, so the same bits. */
+static inline void light_uv(const pt_lights *L, const pt_scene *s, const pt_material *m, uint32_t k,
+                            float b1, float b2, float out[2])
+{
+    const pt_tex_xform *x = &m->tex_xf[PT_SLOT_EMISSIVE];
+    float t[2] = {0.0f, 0.0f};
+    if (x->texcoord ? s->uvs1 : s->uvs) {
+        const float *uv = &L->tex_uv[6 * (size_t)k];
+        float b0 = 1.0f - b1 - b2;
+        t[0] = b0 * uv[0] + b1 * uv[2] + b2 * uv[4];
+        t[1] = b0 * uv[1] + b1 * uv[3] + b2 * uv[5];
+    }
+    pt_tex_xform_apply(x, t, out);
+}
+
+/* emission() of light entry le: the same bits, its texture coordinates read
+ * from the lights' own copy. */
+static inline pt_vec3 emission_at(const pt_lights *L, const pt_scene *s, const light_entry *le,
+                                  float b1, float b2)
+{
+    const pt_material *m = &s->materials[le->material];
+    pt_vec3 e = pt_v3(m->emissive[0], m->emissive[1], m->emissive[2]);
+    if (textured(s, m)) {
+        float uv[2], c[4];
+        light_uv(L, s, m, (uint32_t)(le - L->lights), b1, b2, uv);
         pt_texture_sample(&s->textures[m->emissive_tex], uv[0], uv[1], c);
         e = pt_v3_mul(e, pt_v3(c[0], c[1], c[2]));
     }
@@ -352,6 +395,8 @@ pt_status pt_lights_new_env(const pt_scene *scene, const pt_env *env, int env_di
     scratch = pt_malloc_array(n, sizeof *scratch);
     if (!L->lights_mem || !L->alias || !L->tri_to_light || !power || !scratch)
         goto nomem;
+    if (any_tex && scene->uvs && !(L->tex_uv = pt_malloc_array(n, 6 * sizeof *L->tex_uv)))
+        goto nomem;
 
     uint32_t k = 0;
     for (uint32_t i = 0; i < scene->num_triangles; i++) {
@@ -367,6 +412,13 @@ pt_status pt_lights_new_env(const pt_scene *scene, const pt_env *env, int env_di
         float a2;
         tri_geom(scene, i, le->v, &le->normal, &a2);
         le->pmf_area = area; /* divided below */
+        const pt_material *m = &scene->materials[le->material];
+        if (L->tex_uv && textured(scene, m)) {
+            const float *set = m->tex_xf[PT_SLOT_EMISSIVE].texcoord ? scene->uvs1 : scene->uvs;
+            const uint32_t *t = &scene->indices[3 * (size_t)i];
+            for (int c = 0; c < 6; c++)
+                L->tex_uv[6 * (size_t)k + c] = set ? set[2 * t[c >> 1] + (c & 1)] : 0.0f;
+        }
         power[k] = p;
         total += p;
         k++;
@@ -420,6 +472,7 @@ void pt_lights_free(pt_lights *lights)
     if (!lights)
         return;
     pt_free(lights->lights_mem);
+    pt_free(lights->tex_uv);
     pt_free(lights->alias);
     pt_free(lights->tri_to_light);
     pt_free(lights->punct_cdf);
@@ -536,19 +589,33 @@ static float solid_angle_pdf(float pmf_area, int double_sided, pt_vec3 p, pt_vec
 
 /* The light and the point on it that u picks (pt_lights_sample's first
  * step), with the point's barycentrics of vertices 1 and 2. */
-static inline const light_entry *pick_point(const pt_lights *lights, const float u[3], pt_vec3 *pos,
-                                            float *b1_out, float *b2_out)
+/* The alias table's column for u0 and its residual. */
+static inline uint32_t pick_column(const pt_lights *lights, float u0, double *residual)
 {
     /* One number picks a column and, with its residual, the column's own
      * light or its alias. In double: u[0] * n is exact for n < 2^29. */
     uint32_t n = lights->count;
-    double x = (double)u[0] * (double)n;
+    double x = (double)u0 * (double)n;
     uint32_t col = x < (double)n ? (uint32_t)x : n - 1;
-    double r = x - (double)col;
+    *residual = x - (double)col;
+    return col;
+}
+
+/* The light that u0 picks. */
+static inline uint32_t pick_index(const pt_lights *lights, float u0)
+{
+    double r;
+    uint32_t col = pick_column(lights, u0, &r);
     /* A select, not a branch: the choice is random, so a branch would be
      * mispredicted half of the time. */
     const alias_slot *c = &lights->alias[col];
-    const light_entry *le = &lights->lights[r < c->prob ? col : c->alias];
+    return r < c->prob ? col : c->alias;
+}
+
+static inline const light_entry *pick_point(const pt_lights *lights, const float u[3], pt_vec3 *pos,
+                                            float *b1_out, float *b2_out)
+{
+    const light_entry *le = &lights->lights[pick_index(lights, u[0])];
 
     /* Heitz 2019, sec. 3: the square is cut along its diagonal and each half
      * sheared onto the triangle; the Jacobian is constant, so the density is
@@ -604,7 +671,7 @@ int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, 
     s->pdf = solid_angle_pdf_d(le->pmf_area, m->double_sided, d, d2, s->dist, le->normal);
     if (!(s->pdf > 0.0f))
         return 0;
-    s->radiance = emission(scene, m, le->tri, b1, b2);
+    s->radiance = emission_at(lights, scene, le, b1, b2);
     return 1;
 }
 
@@ -619,7 +686,7 @@ void pt_lights_pick_n(const pt_lights *lights, const pt_scene *scene, uint32_t n
         const pt_material *m = &scene->materials[le->material];
         /* The emission of every pick, also of those that the checks will
          * reject: without a branch on the checks, which the lanes make. */
-        pt_vec3 e = emission(scene, m, le->tri, b1, b2);
+        pt_vec3 e = emission_at(lights, scene, le, b1, b2);
         PT_LANE_PUT3(out->pos, j, pos);
         PT_LANE_PUT3(out->normal, j, le->normal);
         out->pmf_area[j] = le->pmf_area;
@@ -638,6 +705,10 @@ void pt_lights_pick_n(const pt_lights *lights, const pt_scene *scene, uint32_t n
  * computes it anyway, harmlessly (a NaN or an infinity, no traps), and its
  * result is not used.
  */
+/* The light count past which pt_lights_sample_n prefetches its picks'
+ * reads: 512 entries are 32 KB. */
+#define PREFETCH_LIGHTS 512u
+
 PT_SIMD_CLONES
 void pt_lights_sample_n(const pt_lights *lights, const pt_scene *scene, uint32_t n,
                         const pt_vec3 *p, const float (*u)[3], pt_light_sample *s, int *ok)
@@ -646,6 +717,22 @@ void pt_lights_sample_n(const pt_lights *lights, const pt_scene *scene, uint32_t
         for (uint32_t i = 0; i < n; i++)
             ok[i] = pt_lights_sample(lights, scene, p[i], u[i], &s[i]);
         return;
+    }
+    /* The reads of the picks, asked for in two passes before the first
+     * pick is made: the alias table's columns (their addresses need only
+     * the numbers), then the entries they name and their texture
+     * coordinates, so that these misses overlap across all n points. Only
+     * where there are lights enough for the reads to miss: a few hundred
+     * entries stay in the nearer caches. */
+    for (uint32_t i = 0; i < n && lights->count > PREFETCH_LIGHTS; i++) {
+        double r;
+        __builtin_prefetch(&lights->alias[pick_column(lights, u[i][0], &r)]);
+    }
+    for (uint32_t i = 0; i < n && lights->count > PREFETCH_LIGHTS; i++) {
+        uint32_t k = pick_index(lights, u[i][0]);
+        __builtin_prefetch(&lights->lights[k]);
+        if (lights->tex_uv)
+            __builtin_prefetch(&lights->tex_uv[6 * (size_t)k]);
     }
     for (uint32_t k0 = 0; k0 < n; k0 += 8) {
         uint32_t m = n - k0 < 8 ? n - k0 : 8;
@@ -671,6 +758,14 @@ void pt_lights_sample_n(const pt_lights *lights, const pt_scene *scene, uint32_t
             les[l] = le;
             b1s[l] = b1;
             b2s[l] = b2;
+            /* The emission's texels, asked for now so that the 8 lanes'
+             * misses overlap while the pdfs are computed. */
+            const pt_material *lm = &scene->materials[le->material];
+            if (lights->tex_uv && lights->count > PREFETCH_LIGHTS && textured(scene, lm)) {
+                float tuv[2];
+                light_uv(lights, scene, lm, (uint32_t)(le - lights->lights), b1, b2, tuv);
+                pt_texture_prefetch(&scene->textures[lm->emissive_tex], tuv[0], tuv[1]);
+            }
             ds[l] = d;
             d2[l] = pt_v3_dot(d, d);
             ndot[l] = pt_v3_dot(le->normal, d);
@@ -695,8 +790,7 @@ void pt_lights_sample_n(const pt_lights *lights, const pt_scene *scene, uint32_t
             si->pdf = pdf[l];
             if (!vok[l])
                 continue;
-            si->radiance =
-                emission(scene, &scene->materials[le->material], le->tri, b1s[l], b2s[l]);
+            si->radiance = emission_at(lights, scene, le, b1s[l], b2s[l]);
             ok[k0 + l] = 1;
         }
     }

@@ -146,7 +146,7 @@ pt_vec3 pt_irid_diffuse_eval(const pt_irid_diffuse_lobe *l, pt_vec3 wo, pt_vec3 
         return pt_v3(0.0f, 0.0f, 0.0f);
     }
     float c = fminf(wo.z, wi.z);
-    float fd = pt_bsdf_diffuse_fresnel(l->d.dielectric_f0, c);
+    float fd = pt_bsdf_diffuse_fresnel(l->d.dielectric_f0, l->d.dielectric_f90, c);
     float ff = pt_v3_max_comp(pt_thinfilm_fresnel(1.0f, l->film.eta, c, l->film.d_nm, l->f0));
     float w = 1.0f - (fd + (ff - fd) * l->film.strength);
     *share = prob * wi.z * PT_INV_PI;

@@ -22,7 +22,7 @@
 #include "common/scene/scene.h"
 
 #include <math.h>
-#include <pthread.h>
+#include <stddef.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -1608,39 +1608,149 @@ fail:
 
 /* ---- textures ------------------------------------------------------------------------ */
 
-static float srgb_lut[256];
-static pthread_once_t srgb_once = PTHREAD_ONCE_INIT;
+/*
+ * A texel byte's value, decoded: texel_lut[0] is the unorm byte / 255 as
+ * (float)b * (1.0f / 255.0f) computes it, texel_lut[1] the IEC 61966-2-1 sRGB
+ * transfer function (decoding direction) computed in double and rounded to
+ * float. Both are the bits those formulas give (test_texture recomputes every
+ * entry); a table in the binary instead of one built on the first lookup
+ * needs no once-guard on every call and no branch per channel.
+ */
+static const float texel_lut[2][256] = {
+    {
+        0x0p+0,        0x1.010102p-8, 0x1.010102p-7, 0x1.818184p-7, 0x1.010102p-6, 0x1.414142p-6,
+        0x1.818184p-6, 0x1.c1c1c4p-6, 0x1.010102p-5, 0x1.212122p-5, 0x1.414142p-5, 0x1.616162p-5,
+        0x1.818184p-5, 0x1.a1a1a4p-5, 0x1.c1c1c4p-5, 0x1.e1e1e4p-5, 0x1.010102p-4, 0x1.111112p-4,
+        0x1.212122p-4, 0x1.313132p-4, 0x1.414142p-4, 0x1.515152p-4, 0x1.616162p-4, 0x1.717172p-4,
+        0x1.818184p-4, 0x1.919194p-4, 0x1.a1a1a4p-4, 0x1.b1b1b4p-4, 0x1.c1c1c4p-4, 0x1.d1d1d4p-4,
+        0x1.e1e1e4p-4, 0x1.f1f1f4p-4, 0x1.010102p-3, 0x1.09090ap-3, 0x1.111112p-3, 0x1.19191ap-3,
+        0x1.212122p-3, 0x1.29292ap-3, 0x1.313132p-3, 0x1.39393ap-3, 0x1.414142p-3, 0x1.49494ap-3,
+        0x1.515152p-3, 0x1.59595ap-3, 0x1.616162p-3, 0x1.69696ap-3, 0x1.717172p-3, 0x1.79797ap-3,
+        0x1.818184p-3, 0x1.89898cp-3, 0x1.919194p-3, 0x1.99999cp-3, 0x1.a1a1a4p-3, 0x1.a9a9acp-3,
+        0x1.b1b1b4p-3, 0x1.b9b9bcp-3, 0x1.c1c1c4p-3, 0x1.c9c9ccp-3, 0x1.d1d1d4p-3, 0x1.d9d9dcp-3,
+        0x1.e1e1e4p-3, 0x1.e9e9ecp-3, 0x1.f1f1f4p-3, 0x1.f9f9fcp-3, 0x1.010102p-2, 0x1.050506p-2,
+        0x1.09090ap-2, 0x1.0d0d0ep-2, 0x1.111112p-2, 0x1.151516p-2, 0x1.19191ap-2, 0x1.1d1d1ep-2,
+        0x1.212122p-2, 0x1.252526p-2, 0x1.29292ap-2, 0x1.2d2d2ep-2, 0x1.313132p-2, 0x1.353536p-2,
+        0x1.39393ap-2, 0x1.3d3d3ep-2, 0x1.414142p-2, 0x1.454546p-2, 0x1.49494ap-2, 0x1.4d4d4ep-2,
+        0x1.515152p-2, 0x1.555556p-2, 0x1.59595ap-2, 0x1.5d5d5ep-2, 0x1.616162p-2, 0x1.656566p-2,
+        0x1.69696ap-2, 0x1.6d6d6ep-2, 0x1.717172p-2, 0x1.757576p-2, 0x1.79797ap-2, 0x1.7d7d7ep-2,
+        0x1.818184p-2, 0x1.858588p-2, 0x1.89898cp-2, 0x1.8d8d9p-2,  0x1.919194p-2, 0x1.959598p-2,
+        0x1.99999cp-2, 0x1.9d9dap-2,  0x1.a1a1a4p-2, 0x1.a5a5a8p-2, 0x1.a9a9acp-2, 0x1.adadbp-2,
+        0x1.b1b1b4p-2, 0x1.b5b5b8p-2, 0x1.b9b9bcp-2, 0x1.bdbdcp-2,  0x1.c1c1c4p-2, 0x1.c5c5c8p-2,
+        0x1.c9c9ccp-2, 0x1.cdcddp-2,  0x1.d1d1d4p-2, 0x1.d5d5d8p-2, 0x1.d9d9dcp-2, 0x1.ddddep-2,
+        0x1.e1e1e4p-2, 0x1.e5e5e8p-2, 0x1.e9e9ecp-2, 0x1.ededfp-2,  0x1.f1f1f4p-2, 0x1.f5f5f8p-2,
+        0x1.f9f9fcp-2, 0x1.fdfep-2,   0x1.010102p-1, 0x1.030304p-1, 0x1.050506p-1, 0x1.070708p-1,
+        0x1.09090ap-1, 0x1.0b0b0cp-1, 0x1.0d0d0ep-1, 0x1.0f0f1p-1,  0x1.111112p-1, 0x1.131314p-1,
+        0x1.151516p-1, 0x1.171718p-1, 0x1.19191ap-1, 0x1.1b1b1cp-1, 0x1.1d1d1ep-1, 0x1.1f1f2p-1,
+        0x1.212122p-1, 0x1.232324p-1, 0x1.252526p-1, 0x1.272728p-1, 0x1.29292ap-1, 0x1.2b2b2cp-1,
+        0x1.2d2d2ep-1, 0x1.2f2f3p-1,  0x1.313132p-1, 0x1.333334p-1, 0x1.353536p-1, 0x1.373738p-1,
+        0x1.39393ap-1, 0x1.3b3b3cp-1, 0x1.3d3d3ep-1, 0x1.3f3f4p-1,  0x1.414142p-1, 0x1.434344p-1,
+        0x1.454546p-1, 0x1.474748p-1, 0x1.49494ap-1, 0x1.4b4b4cp-1, 0x1.4d4d4ep-1, 0x1.4f4f5p-1,
+        0x1.515152p-1, 0x1.535354p-1, 0x1.555556p-1, 0x1.575758p-1, 0x1.59595ap-1, 0x1.5b5b5cp-1,
+        0x1.5d5d5ep-1, 0x1.5f5f6p-1,  0x1.616162p-1, 0x1.636364p-1, 0x1.656566p-1, 0x1.676768p-1,
+        0x1.69696ap-1, 0x1.6b6b6cp-1, 0x1.6d6d6ep-1, 0x1.6f6f7p-1,  0x1.717172p-1, 0x1.737374p-1,
+        0x1.757576p-1, 0x1.777778p-1, 0x1.79797ap-1, 0x1.7b7b7cp-1, 0x1.7d7d7ep-1, 0x1.7f7f8p-1,
+        0x1.818184p-1, 0x1.838386p-1, 0x1.858588p-1, 0x1.87878ap-1, 0x1.89898cp-1, 0x1.8b8b8ep-1,
+        0x1.8d8d9p-1,  0x1.8f8f92p-1, 0x1.919194p-1, 0x1.939396p-1, 0x1.959598p-1, 0x1.97979ap-1,
+        0x1.99999cp-1, 0x1.9b9b9ep-1, 0x1.9d9dap-1,  0x1.9f9fa2p-1, 0x1.a1a1a4p-1, 0x1.a3a3a6p-1,
+        0x1.a5a5a8p-1, 0x1.a7a7aap-1, 0x1.a9a9acp-1, 0x1.ababaep-1, 0x1.adadbp-1,  0x1.afafb2p-1,
+        0x1.b1b1b4p-1, 0x1.b3b3b6p-1, 0x1.b5b5b8p-1, 0x1.b7b7bap-1, 0x1.b9b9bcp-1, 0x1.bbbbbep-1,
+        0x1.bdbdcp-1,  0x1.bfbfc2p-1, 0x1.c1c1c4p-1, 0x1.c3c3c6p-1, 0x1.c5c5c8p-1, 0x1.c7c7cap-1,
+        0x1.c9c9ccp-1, 0x1.cbcbcep-1, 0x1.cdcddp-1,  0x1.cfcfd2p-1, 0x1.d1d1d4p-1, 0x1.d3d3d6p-1,
+        0x1.d5d5d8p-1, 0x1.d7d7dap-1, 0x1.d9d9dcp-1, 0x1.dbdbdep-1, 0x1.ddddep-1,  0x1.dfdfe2p-1,
+        0x1.e1e1e4p-1, 0x1.e3e3e6p-1, 0x1.e5e5e8p-1, 0x1.e7e7eap-1, 0x1.e9e9ecp-1, 0x1.ebebeep-1,
+        0x1.ededfp-1,  0x1.efeff2p-1, 0x1.f1f1f4p-1, 0x1.f3f3f6p-1, 0x1.f5f5f8p-1, 0x1.f7f7fap-1,
+        0x1.f9f9fcp-1, 0x1.fbfbfep-1, 0x1.fdfep-1,   0x1p+0,
+    },
+    {
+        0x0p+0,         0x1.3e4568p-12, 0x1.3e4568p-11, 0x1.dd681cp-11, 0x1.3e4568p-10,
+        0x1.8dd6c2p-10, 0x1.dd681cp-10, 0x1.167cbap-9,  0x1.3e4568p-9,  0x1.660e14p-9,
+        0x1.8dd6c2p-9,  0x1.b6a31cp-9,  0x1.e1e31ep-9,  0x1.07c38cp-8,  0x1.1fcc2cp-8,
+        0x1.390ffap-8,  0x1.53936cp-8,  0x1.6f5adep-8,  0x1.8c6a94p-8,  0x1.aac6cp-8,
+        0x1.ca7382p-8,  0x1.eb74e2p-8,  0x1.06e76cp-7,  0x1.18c2a6p-7,  0x1.2b4e0ap-7,
+        0x1.3e8b7cp-7,  0x1.527cd6p-7,  0x1.6723eep-7,  0x1.7c8292p-7,  0x1.929a88p-7,
+        0x1.a96d92p-7,  0x1.c0fd68p-7,  0x1.d94bbep-7,  0x1.f25a44p-7,  0x1.061552p-6,
+        0x1.135f3ep-6,  0x1.210bb8p-6,  0x1.2f1b8cp-6,  0x1.3d8f84p-6,  0x1.4c6866p-6,
+        0x1.5ba6fap-6,  0x1.6b4c04p-6,  0x1.7b5842p-6,  0x1.8bcc74p-6,  0x1.9ca958p-6,
+        0x1.adefaap-6,  0x1.bfa02p-6,   0x1.d1bb74p-6,  0x1.e4425ap-6,  0x1.f73586p-6,
+        0x1.054ad4p-5,  0x1.0f31bap-5,  0x1.194fccp-5,  0x1.23a55ep-5,  0x1.2e32c8p-5,
+        0x1.38f86p-5,   0x1.43f678p-5,  0x1.4f2d64p-5,  0x1.5a9d76p-5,  0x1.664702p-5,
+        0x1.722a56p-5,  0x1.7e47c8p-5,  0x1.8a9fa4p-5,  0x1.97323ap-5,  0x1.a3ffd8p-5,
+        0x1.b108dp-5,   0x1.be4d6cp-5,  0x1.cbcdfap-5,  0x1.d98ac6p-5,  0x1.e7841cp-5,
+        0x1.f5ba48p-5,  0x1.0216cap-4,  0x1.096f26p-4,  0x1.10e65cp-4,  0x1.187c9p-4,
+        0x1.2031e8p-4,  0x1.280688p-4,  0x1.2ffa92p-4,  0x1.380e2ap-4,  0x1.404174p-4,
+        0x1.489494p-4,  0x1.5107acp-4,  0x1.599adep-4,  0x1.624e4ep-4,  0x1.6b221ep-4,
+        0x1.74167p-4,   0x1.7d2b66p-4,  0x1.86612p-4,   0x1.8fb7cp-4,   0x1.992f68p-4,
+        0x1.a2c83ap-4,  0x1.ac8256p-4,  0x1.b65ddcp-4,  0x1.c05aecp-4,  0x1.ca79a8p-4,
+        0x1.d4ba3p-4,   0x1.df1ca2p-4,  0x1.e9a12p-4,   0x1.f447cap-4,  0x1.ff10bcp-4,
+        0x1.04fe0cp-3,  0x1.0a84fep-3,  0x1.101d44p-3,  0x1.15c6eep-3,  0x1.1b8208p-3,
+        0x1.214ea6p-3,  0x1.272cd4p-3,  0x1.2d1ca2p-3,  0x1.331e1ep-3,  0x1.393158p-3,
+        0x1.3f566p-3,   0x1.458d42p-3,  0x1.4bd60ep-3,  0x1.5230d4p-3,  0x1.589dap-3,
+        0x1.5f1c84p-3,  0x1.65ad8ap-3,  0x1.6c50c4p-3,  0x1.73063ep-3,  0x1.79ce06p-3,
+        0x1.80a82ep-3,  0x1.8794cp-3,   0x1.8e93ccp-3,  0x1.95a55ep-3,  0x1.9cc986p-3,
+        0x1.a40052p-3,  0x1.ab49cep-3,  0x1.b2a60ap-3,  0x1.ba1512p-3,  0x1.c196f4p-3,
+        0x1.c92bbep-3,  0x1.d0d37cp-3,  0x1.d88e3ep-3,  0x1.e05c0ep-3,  0x1.e83cfcp-3,
+        0x1.f03116p-3,  0x1.f83866p-3,  0x1.00297ep-2,  0x1.044072p-2,  0x1.086116p-2,
+        0x1.0c8b7p-2,   0x1.10bf86p-2,  0x1.14fd6p-2,   0x1.194502p-2,  0x1.1d9676p-2,
+        0x1.21f1bep-2,  0x1.2656e4p-2,  0x1.2ac5ecp-2,  0x1.2f3edep-2,  0x1.33c1cp-2,
+        0x1.384e98p-2,  0x1.3ce56cp-2,  0x1.418642p-2,  0x1.46312p-2,   0x1.4ae60ep-2,
+        0x1.4fa51p-2,   0x1.546e2cp-2,  0x1.59416cp-2,  0x1.5e1edp-2,   0x1.630664p-2,
+        0x1.67f82ap-2,  0x1.6cf428p-2,  0x1.71fa68p-2,  0x1.770aecp-2,  0x1.7c25bcp-2,
+        0x1.814adcp-2,  0x1.867a54p-2,  0x1.8bb428p-2,  0x1.90f86p-2,   0x1.9647p-2,
+        0x1.9ba01p-2,   0x1.a10394p-2,  0x1.a67192p-2,  0x1.abea1p-2,   0x1.b16d14p-2,
+        0x1.b6faa4p-2,  0x1.bc92c6p-2,  0x1.c2357ep-2,  0x1.c7e2d2p-2,  0x1.cd9acap-2,
+        0x1.d35d6ap-2,  0x1.d92ab6p-2,  0x1.df02b8p-2,  0x1.e4e57p-2,   0x1.ead2e8p-2,
+        0x1.f0cb26p-2,  0x1.f6ce2cp-2,  0x1.fcdcp-2,    0x1.017a56p-1,  0x1.048c18p-1,
+        0x1.07a34ap-1,  0x1.0abfeep-1,  0x1.0de208p-1,  0x1.11099ap-1,  0x1.1436a8p-1,
+        0x1.176932p-1,  0x1.1aa13ep-1,  0x1.1ddecap-1,  0x1.2121dep-1,  0x1.246a7ap-1,
+        0x1.27b8ap-1,   0x1.2b0c54p-1,  0x1.2e6598p-1,  0x1.31c46ep-1,  0x1.3528dcp-1,
+        0x1.3892ep-1,   0x1.3c028p-1,   0x1.3f77bcp-1,  0x1.42f29ap-1,  0x1.467318p-1,
+        0x1.49f93ep-1,  0x1.4d850ap-1,  0x1.511682p-1,  0x1.54ada4p-1,  0x1.584a78p-1,
+        0x1.5becfep-1,  0x1.5f9538p-1,  0x1.634328p-1,  0x1.66f6d4p-1,  0x1.6ab03ap-1,
+        0x1.6e6f6p-1,   0x1.723448p-1,  0x1.75fef4p-1,  0x1.79cf64p-1,  0x1.7da59ep-1,
+        0x1.8181a4p-1,  0x1.856378p-1,  0x1.894b1cp-1,  0x1.8d3892p-1,  0x1.912bdep-1,
+        0x1.9525p-1,    0x1.9923fep-1,  0x1.9d28d8p-1,  0x1.a13392p-1,  0x1.a5442cp-1,
+        0x1.a95aacp-1,  0x1.ad771p-1,   0x1.b1995ep-1,  0x1.b5c198p-1,  0x1.b9efbep-1,
+        0x1.be23d4p-1,  0x1.c25ddep-1,  0x1.c69ddcp-1,  0x1.cae3d2p-1,  0x1.cf2fcp-1,
+        0x1.d381aap-1,  0x1.d7d994p-1,  0x1.dc377ep-1,  0x1.e09b6ap-1,  0x1.e5055cp-1,
+        0x1.e97556p-1,  0x1.edeb5cp-1,  0x1.f2676cp-1,  0x1.f6e98cp-1,  0x1.fb71bcp-1,
+        0x1p+0,
+    },
+};
 
-/* IEC 61966-2-1 sRGB transfer function, decoding direction. */
-static void srgb_init(void)
-{
-    for (int i = 0; i < 256; i++) {
-        double c = i / 255.0;
-        srgb_lut[i] = (float)(c <= 0.04045 ? c / 12.92 : pow((c + 0.055) / 1.055, 2.4));
-    }
-}
-
-static int wrap_index(int i, int n, int mode)
+/* The index of texel i in a row (or column) of n under the wrap mode: for
+ * REPEAT i mod n, for MIRROR i mod 2n reflected into [0, n). Coordinates
+ * reach here reduced (reduce_coord), so i lies within a period of the range
+ * and one add or subtract replaces the integer division; the division stays
+ * for any other i, with the same result. */
+static inline int wrap_index(int i, int n, int mode)
 {
     switch (mode) {
     case PT_WRAP_CLAMP:
         return i < 0 ? 0 : (i >= n ? n - 1 : i);
     case PT_WRAP_MIRROR: {
-        int p = i % (2 * n);
-        if (p < 0)
-            p += 2 * n;
-        return p < n ? p : 2 * n - 1 - p;
+        int n2 = 2 * n;
+        int p = i < 0 ? i + n2 : (i >= n2 ? i - n2 : i);
+        if ((unsigned)p >= (unsigned)n2) {
+            p = i % n2;
+            p = p < 0 ? p + n2 : p;
+        }
+        return p < n ? p : n2 - 1 - p;
     }
     default: {
-        int p = i % n;
-        return p < 0 ? p + n : p;
+        int p = i < 0 ? i + n : (i >= n ? i - n : i);
+        if ((unsigned)p >= (unsigned)n) {
+            p = i % n;
+            p = p < 0 ? p + n : p;
+        }
+        return p;
     }
     }
 }
 
 /* Brings u into a small range before it meets an int, so huge or NaN
  * coordinates cannot overflow the conversion. */
-static float reduce_coord(float u, int mode)
+static inline float reduce_coord(float u, int mode)
 {
     if (!isfinite(u))
         return 0.0f;
@@ -1656,7 +1766,7 @@ static float reduce_coord(float u, int mode)
 
 void pt_texture_sample(const pt_texture *tex, float u, float v, float out[4])
 {
-    pthread_once(&srgb_once, srgb_init);
+    const float *lut = texel_lut[tex->srgb != 0], *unorm = texel_lut[0];
     int w = (int)tex->width, h = (int)tex->height;
     if (tex->nearest) {
         /* The texel whose square holds (u, v): index floor(u w), wrapped. */
@@ -1664,8 +1774,8 @@ void pt_texture_sample(const pt_texture *tex, float u, float v, float out[4])
         int yi = wrap_index((int)floorf(reduce_coord(v, tex->wrap_t) * (float)h), h, tex->wrap_t);
         const uint8_t *px = tex->rgba + 4 * ((size_t)yi * (size_t)w + (size_t)xi);
         for (int c = 0; c < 3; c++)
-            out[c] = tex->srgb ? srgb_lut[px[c]] : (float)px[c] * (1.0f / 255.0f);
-        out[3] = (float)px[3] * (1.0f / 255.0f);
+            out[c] = lut[px[c]];
+        out[3] = unorm[px[3]];
         return;
     }
     /* Texel centres at (i + 0.5) / w; v = 0 is the top row (glTF UVs). */
@@ -1674,16 +1784,136 @@ void pt_texture_sample(const pt_texture *tex, float u, float v, float out[4])
     float fx0 = floorf(x), fy0 = floorf(y);
     float fx = x - fx0, fy = y - fy0;
     int x0 = (int)fx0, y0 = (int)fy0;
-    int xs[2] = {wrap_index(x0, w, tex->wrap_s), wrap_index(x0 + 1, w, tex->wrap_s)};
-    int ys[2] = {wrap_index(y0, h, tex->wrap_t), wrap_index(y0 + 1, h, tex->wrap_t)};
-    float wt[4] = {(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy};
-    out[0] = out[1] = out[2] = out[3] = 0.0f;
-    for (int k = 0; k < 4; k++) {
-        const uint8_t *px = tex->rgba + 4 * ((size_t)ys[k >> 1] * (size_t)w + (size_t)xs[k & 1]);
-        for (int c = 0; c < 3; c++)
-            out[c] += wt[k] * (tex->srgb ? srgb_lut[px[c]] : (float)px[c] * (1.0f / 255.0f));
-        out[3] += wt[k] * (float)px[3] * (1.0f / 255.0f);
+    size_t xs[2] = {(size_t)wrap_index(x0, w, tex->wrap_s),
+                    (size_t)wrap_index(x0 + 1, w, tex->wrap_s)};
+    size_t ys[2] = {(size_t)wrap_index(y0, h, tex->wrap_t) * (size_t)w,
+                    (size_t)wrap_index(y0 + 1, h, tex->wrap_t) * (size_t)w};
+    const float wt[4] = {(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy};
+    const uint8_t *px[4] = {tex->rgba + 4 * (ys[0] + xs[0]), tex->rgba + 4 * (ys[0] + xs[1]),
+                            tex->rgba + 4 * (ys[1] + xs[0]), tex->rgba + 4 * (ys[1] + xs[1])};
+    /* The sum in the order k = 0..3 from +0: each term is >= +0, so starting
+     * from the first term gives the bits that 0 + term gives. */
+    for (int c = 0; c < 3; c++) {
+        float a = wt[0] * lut[px[0][c]];
+        for (int k = 1; k < 4; k++)
+            a += wt[k] * lut[px[k][c]];
+        out[c] = a;
     }
+    /* Alpha as (weight x byte) / 255, in that order. */
+    float a = wt[0] * (float)px[0][3] * (1.0f / 255.0f);
+    for (int k = 1; k < 4; k++)
+        a += wt[k] * (float)px[k][3] * (1.0f / 255.0f);
+    out[3] = a;
+}
+
+/* The two texel rows (one address each) around (u, v): the fractional
+ * part for any wrap mode (exact for REPEAT and for UVs in [0, 1), which is
+ * what the prefetch needs to be useful), clamped into the image. Inlined
+ * by force: GCC 12's IPA finds a function whose only effect is a prefetch
+ * const and deletes the calls to it. */
+static inline __attribute__((always_inline)) void texture_prefetch(const pt_texture *tex, float u,
+                                                                   float v)
+{
+    float fu = u - floorf(u), fv = v - floorf(v);
+    fu = fu >= 0.0f && fu < 1.0f ? fu : 0.0f; /* NaN and inf give NaN */
+    fv = fv >= 0.0f && fv < 1.0f ? fv : 0.0f;
+    uint32_t w = tex->width, h = tex->height;
+    uint32_t x = (uint32_t)(fu * (float)w), y = (uint32_t)(fv * (float)h);
+    x = x < w ? x : w - 1;
+    y = y < h ? y : h - 1;
+    /* The second row of the bilinear footprint: below the texel's centre
+     * the row above, else the row below. */
+    uint32_t y2 =
+        fv * (float)h - (float)y < 0.5f ? (y > 0 ? y - 1 : h - 1) : (y + 1 < h ? y + 1 : 0);
+    __builtin_prefetch(tex->rgba + 4 * ((size_t)y * w + x));
+    __builtin_prefetch(tex->rgba + 4 * ((size_t)y2 * w + x));
+}
+
+void pt_texture_prefetch(const pt_texture *tex, float u, float v)
+{
+    texture_prefetch(tex, u, v);
+}
+
+/* The texels of the core slots of tri's material at (b1, b2). */
+static inline __attribute__((always_inline)) void prefetch_texels(const pt_scene *s, uint32_t tri,
+                                                                  float b1, float b2)
+{
+    static const struct {
+        size_t tex;
+        int slot;
+    } core[] = {
+        {offsetof(pt_material, base_color_tex), PT_SLOT_BASE},
+        {offsetof(pt_material, metal_rough_tex), PT_SLOT_METAL_ROUGH},
+        {offsetof(pt_material, normal_tex), PT_SLOT_NORMAL},
+        {offsetof(pt_material, emissive_tex), PT_SLOT_EMISSIVE},
+        {offsetof(pt_material, transmission_tex), PT_SLOT_TRANSMISSION},
+        {offsetof(pt_material, clearcoat_tex), PT_SLOT_CLEARCOAT},
+        {offsetof(pt_material, clearcoat_rough_tex), PT_SLOT_CLEARCOAT_ROUGH},
+        {offsetof(pt_material, clearcoat_normal_tex), PT_SLOT_CLEARCOAT_NORMAL},
+        {offsetof(pt_material, sheen_color_tex), PT_SLOT_SHEEN_COLOR},
+        {offsetof(pt_material, sheen_rough_tex), PT_SLOT_SHEEN_ROUGH},
+    };
+    if (!s->uvs || tri >= s->num_triangles)
+        return;
+    uint32_t mi = s->tri_material[tri];
+    if (mi >= s->num_materials)
+        return;
+    const pt_material *m = &s->materials[mi];
+    const uint32_t *i = &s->indices[3 * (size_t)tri];
+    if (i[0] >= s->num_vertices || i[1] >= s->num_vertices || i[2] >= s->num_vertices)
+        return;
+    float b0 = 1.0f - b1 - b2;
+    float uv[2][2] = {{0.0f, 0.0f}, {0.0f, 0.0f}};
+    for (int set = 0; set < 2; set++) {
+        const float *t = set ? s->uvs1 : s->uvs;
+        if (!t)
+            continue;
+        uv[set][0] = b0 * t[2 * i[0]] + b1 * t[2 * i[1]] + b2 * t[2 * i[2]];
+        uv[set][1] = b0 * t[2 * i[0] + 1] + b1 * t[2 * i[1] + 1] + b2 * t[2 * i[2] + 1];
+    }
+    for (size_t k = 0; k < sizeof core / sizeof core[0]; k++) {
+        int32_t ti;
+        memcpy(&ti, (const char *)m + core[k].tex, sizeof ti);
+        if (ti < 0 || (uint32_t)ti >= s->num_textures)
+            continue;
+        const pt_tex_xform *x = &m->tex_xf[core[k].slot];
+        float t[2];
+        pt_tex_xform_apply(x, uv[x->texcoord ? 1 : 0], t);
+        texture_prefetch(&s->textures[ti], t[0], t[1]);
+    }
+}
+
+void pt_scene_prefetch_hits(const pt_scene *s, uint32_t n, const uint32_t *tri, const float *b1,
+                            const float *b2)
+{
+    for (uint32_t j = 0; j < n; j++) {
+        if (tri[j] >= s->num_triangles)
+            continue;
+        __builtin_prefetch(&s->indices[3 * (size_t)tri[j]]);
+        __builtin_prefetch(&s->tri_material[tri[j]]);
+    }
+    /* Per corner: the line its attribute starts in (an attribute that
+     * straddles two lines brings the second on its own use). */
+    for (uint32_t j = 0; j < n; j++) {
+        if (tri[j] >= s->num_triangles)
+            continue;
+        const uint32_t *i = &s->indices[3 * (size_t)tri[j]];
+        for (int c = 0; c < 3; c++) {
+            size_t v = i[c];
+            if (v >= s->num_vertices)
+                continue;
+            if (s->normals)
+                __builtin_prefetch(&s->normals[3 * v]);
+            if (s->uvs)
+                __builtin_prefetch(&s->uvs[2 * v]);
+            if (s->uvs1)
+                __builtin_prefetch(&s->uvs1[2 * v]);
+            if (s->tangents)
+                __builtin_prefetch(&s->tangents[4 * v]);
+        }
+    }
+    for (uint32_t j = 0; j < n; j++)
+        prefetch_texels(s, tri[j], b1[j], b2[j]);
 }
 
 pt_tex_xform pt_tex_xform_identity(void)

@@ -405,6 +405,24 @@ void pt_scene_free(pt_scene *scene);
  * the pixel's own supersampling. Returns linear RGBA (sRGB decoded). */
 void pt_texture_sample(const pt_texture *tex, float u, float v, float out[4]);
 
+/* Starts fetching, without waiting for them, the texels that
+ * pt_texture_sample(tex, u, v) reads (a hint that changes no value; the
+ * address is clamped into the image and approximate at the wrap edges).
+ * Thread-safe. */
+void pt_texture_prefetch(const pt_texture *tex, float u, float v);
+
+/* What shading n hits (triangle tri[j] at (b1[j], b2[j])) reads, asked for
+ * in three passes over them: each triangle's indices and material; its
+ * corners' texture coordinates, normals and tangents; then the texels of
+ * its material's core slots (base colour, metal-rough, normal, emissive,
+ * transmission, clearcoat's three, sheen's two) at each slot's UV. A pass's
+ * addresses come from what the pass before fetched, so each pass's cache
+ * misses overlap across the hits instead of following one another within a
+ * hit. A hint: it changes no value and reads nothing out of bounds (a bad
+ * index is skipped). Thread-safe. */
+void pt_scene_prefetch_hits(const pt_scene *s, uint32_t n, const uint32_t *tri, const float *b1,
+                            const float *b2);
+
 /* The identity transform on TEXCOORD_0. */
 pt_tex_xform pt_tex_xform_identity(void);
 

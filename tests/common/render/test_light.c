@@ -799,6 +799,118 @@ static void test_sample_n(void)
     pt_lights_free(L);
 }
 
+/* Many textured lights (past the count from which pt_lights_sample_n
+ * prefetches), on both coordinate sets, one under a texture transform, with
+ * random vertex coordinates and texels: every sample's radiance is the
+ * emission at its point that pt_emitted computes from the scene's own
+ * indices and coordinates, bit for bit (the lights keep a copy of each
+ * light's coordinates), batched or not. The barycentrics are the sampler's
+ * (Heitz 2019's map, as light.c draws them). */
+static void test_emission_copy(void)
+{
+    enum { NT = 700, NV = 3 * NT, TW = 16 };
+    pt_scene s;
+    memset(&s, 0, sizeof s);
+    float *pos = calloc(3 * NV, sizeof *pos), *uv0 = calloc(2 * NV, sizeof *uv0),
+          *uv1 = calloc(2 * NV, sizeof *uv1);
+    uint32_t *idx = calloc(3 * NT, sizeof *idx), *tmat = calloc(NT, sizeof *tmat);
+    uint8_t *texels = malloc(4 * TW * TW);
+    pt_material mats[2];
+    pt_texture tex;
+    if (!pos || !uv0 || !uv1 || !idx || !tmat || !texels) {
+        CHECK(0);
+        goto done;
+    }
+    rng_state = 31;
+    for (int i = 0; i < 4 * TW * TW; i++)
+        texels[i] = (uint8_t)(rnd() * 256.0f);
+    memset(&tex, 0, sizeof tex);
+    tex.width = tex.height = TW;
+    tex.rgba = texels;
+    tex.srgb = 1;
+    memset(mats, 0, sizeof mats);
+    for (int k = 0; k < 2; k++) {
+        mats[k].base_color_tex = mats[k].metal_rough_tex = -1;
+        mats[k].emissive[0] = 1.0f + k;
+        mats[k].emissive[1] = 0.5f;
+        mats[k].emissive[2] = 2.0f;
+        mats[k].emissive_tex = 0;
+        mats[k].double_sided = 1;
+        for (int sl = 0; sl < PT_SLOT_COUNT; sl++)
+            mats[k].tex_xf[sl] = pt_tex_xform_identity();
+    }
+    const float off[2] = {0.25f, -0.5f}, scale[2] = {1.5f, 0.75f};
+    mats[1].tex_xf[PT_SLOT_EMISSIVE] = pt_tex_xform_make(off, 0.3f, scale, 1);
+    for (int t = 0; t < NT; t++) {
+        float x = (float)(t % 30) * 0.1f, y = (float)(t / 30) * 0.1f;
+        const float p[9] = {x, y, 0.0f, x + 0.08f, y, 0.01f, x, y + 0.08f, -0.01f};
+        for (int c = 0; c < 3; c++) {
+            memcpy(&pos[3 * (3 * t + c)], &p[3 * c], 3 * sizeof(float));
+            for (int a = 0; a < 2; a++) {
+                uv0[2 * (3 * t + c) + a] = 3.0f * rnd() - 1.0f;
+                uv1[2 * (3 * t + c) + a] = 3.0f * rnd() - 1.0f;
+            }
+            /* Corners in another order than the vertices, so that a copy
+             * by vertex instead of by index would show. */
+            idx[3 * t + c] = (uint32_t)(3 * t + (c + t) % 3);
+        }
+        tmat[t] = (uint32_t)(t % 2);
+    }
+    s.num_vertices = NV;
+    s.num_triangles = NT;
+    s.positions = pos;
+    s.uvs = uv0;
+    s.uvs1 = uv1;
+    s.indices = idx;
+    s.tri_material = tmat;
+    s.num_materials = 2;
+    s.materials = mats;
+    s.num_textures = 1;
+    s.textures = &tex;
+    s.bounds_max = pt_v3(3, 3, 1);
+    s.bounds_min = pt_v3(0, 0, -1);
+    pt_lights *L = NULL;
+    CHECK(pt_lights_new(&s, &L, NULL) == PT_OK);
+    if (!L)
+        goto done;
+    CHECK(pt_lights_count(L) == NT);
+    enum { N = 64 };
+    int bad = 0, valid = 0;
+    for (int round = 0; round < 200; round++) {
+        pt_vec3 p[N];
+        float u[N][3];
+        pt_light_sample a[N], b;
+        int ok[N];
+        for (int i = 0; i < N; i++) {
+            p[i] = pt_v3(3.0f * rnd(), 3.0f * rnd(), 1.0f + rnd());
+            rnd3(u[i]);
+        }
+        pt_lights_sample_n(L, &s, N, p, (const float(*)[3])u, a, ok);
+        for (int i = 0; i < N; i++) {
+            int r = pt_lights_sample(L, &s, p[i], u[i], &b);
+            bad += r != ok[i] || memcmp(&a[i], &b, sizeof b) != 0;
+            if (!r)
+                continue;
+            int upper = u[i][2] > u[i][1];
+            float h1 = 0.5f * u[i][1], h2 = 0.5f * u[i][2];
+            float b1 = upper ? h1 : u[i][1] - h2, b2 = upper ? u[i][2] - h1 : h2;
+            pt_vec3 want = pt_emitted(&s, b.tri, b1, b2, pt_v3_neg(b.wi));
+            bad += memcmp(&want, &b.radiance, sizeof want) != 0;
+            valid++;
+        }
+    }
+    CHECKF(bad == 0 && valid > 10000, "%d of %d textured light samples differ from pt_emitted", bad,
+           valid);
+    pt_lights_free(L);
+done:
+    free(pos);
+    free(uv0);
+    free(uv1);
+    free(idx);
+    free(tmat);
+    free(texels);
+}
+
 static void test_no_emitters_and_errors(void)
 {
     tscene t;
@@ -868,6 +980,7 @@ int main(void)
     test_pdf_consistency();
     test_sides();
     test_sample_n();
+    test_emission_copy();
     test_no_emitters_and_errors();
     return check_report();
 }

@@ -7,7 +7,9 @@
  *   to (bsdf.h): a metal (diffuse 0, specular S) is base S, metallic 1; a
  *   dielectric (specular 0.04) is base 0.96 x diffuse, metallic 0; any
  *   other is base c_diff, metallic 0, specular 1, specular colour S / 0.04.
- *   Every field within 1e-6.
+ *   Every field within 1e-6 (the diffuse weight's Fresnel where there is a
+ *   diffuse: 1 - the largest channel of the Fresnel from F0 = S, as
+ *   KHR_materials_specular weighs the conversion's diffuse).
  * - Pairs of files, one a specular-glossiness sphere and one the
  *   metallic-roughness sphere it converts to (the conversions above: a
  *   gold metal, a red dielectric, and one whose diffuse, specular and
@@ -62,13 +64,18 @@ static const char *tpath(const char *name)
 
 /* ---- the BSDF conversion ----------------------------------------------- */
 
+/* Every field within 1e-6; the diffuse weight's dielectric_f0 and f90 only
+ * where there is a diffuse to weigh (a metal's have no effect). */
 static int bsdf_close(pt_bsdf a, pt_bsdf b)
 {
-    const float x[11] = {a.diffuse.x,   a.diffuse.y, a.diffuse.z,     a.f0.x, a.f0.y, a.f0.z,
-                         a.spec_weight, a.alpha,     a.dielectric_f0, 0.0f,   0.0f};
-    const float y[11] = {b.diffuse.x,   b.diffuse.y, b.diffuse.z,     b.f0.x, b.f0.y, b.f0.z,
-                         b.spec_weight, b.alpha,     b.dielectric_f0, 0.0f,   0.0f};
-    for (int i = 0; i < 11; i++)
+    const float x[10] = {a.diffuse.x,     a.diffuse.y,     a.diffuse.z,   a.f0.x,
+                         a.f0.y,          a.f0.z,          a.spec_weight, a.alpha,
+                         a.dielectric_f0, a.dielectric_f90};
+    const float y[10] = {b.diffuse.x,     b.diffuse.y,     b.diffuse.z,   b.f0.x,
+                         b.f0.y,          b.f0.z,          b.spec_weight, b.alpha,
+                         b.dielectric_f0, b.dielectric_f90};
+    int n = pt_v3_max_comp(a.diffuse) > 0.0f || pt_v3_max_comp(b.diffuse) > 0.0f ? 10 : 8;
+    for (int i = 0; i < n; i++)
         if (!(fabsf(x[i] - y[i]) <= 1e-6f))
             return 0;
     return 1;

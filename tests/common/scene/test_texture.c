@@ -134,6 +134,149 @@ static void test_linear(void)
     pt_free(t.rgba);
 }
 
+/* Every byte decodes to the bits of its formula: unorm as (float)b *
+ * (1.0f / 255.0f), sRGB as IEC 61966-2-1's curve in double rounded to float
+ * (scene.c keeps both as compiled-in tables); alpha is unorm either way. */
+static void test_decode_tables(void)
+{
+    int bad = 0;
+    for (int srgb = 0; srgb < 2; srgb++)
+        for (int b = 0; b < 256; b++) {
+            uint8_t px[4] = {(uint8_t)b, (uint8_t)b, (uint8_t)b, (uint8_t)b};
+            pt_texture t;
+            memset(&t, 0, sizeof t);
+            t.width = t.height = 1;
+            t.rgba = px;
+            t.srgb = srgb;
+            t.nearest = 1;
+            float o[4];
+            pt_texture_sample(&t, 0.5f, 0.5f, o);
+            double c = b / 255.0;
+            float want = srgb ? (float)(c <= 0.04045 ? c / 12.92 : pow((c + 0.055) / 1.055, 2.4))
+                              : (float)b * (1.0f / 255.0f);
+            float alpha = (float)b * (1.0f / 255.0f);
+            bad += memcmp(&o[0], &want, sizeof want) != 0 ||
+                   memcmp(&o[2], &want, sizeof want) != 0 ||
+                   memcmp(&o[3], &alpha, sizeof alpha) != 0;
+        }
+    CHECKF(bad == 0, "%d texel bytes decode to other bits than their formula", bad);
+}
+
+/* The lookup as it was written before its fast paths (integer modulo for
+ * every wrap, a decode per channel, sums from 0): pt_texture_sample must give
+ * its bits for every wrap mode, filter and size, at coordinates in range,
+ * far out of it, at the edges a float rounds to, and not finite. */
+static int ref_wrap(int i, int n, int mode)
+{
+    if (mode == PT_WRAP_CLAMP)
+        return i < 0 ? 0 : (i >= n ? n - 1 : i);
+    if (mode == PT_WRAP_MIRROR) {
+        int p = i % (2 * n);
+        if (p < 0)
+            p += 2 * n;
+        return p < n ? p : 2 * n - 1 - p;
+    }
+    int p = i % n;
+    return p < 0 ? p + n : p;
+}
+
+static float ref_reduce(float u, int mode)
+{
+    if (!isfinite(u))
+        return 0.0f;
+    if (mode == PT_WRAP_CLAMP)
+        return fminf(fmaxf(u, -1.0f), 2.0f);
+    if (mode == PT_WRAP_MIRROR)
+        return u - 2.0f * floorf(0.5f * u);
+    return u - floorf(u);
+}
+
+static float ref_decode(int srgb, uint8_t b)
+{
+    double c = b / 255.0;
+    return srgb ? (float)(c <= 0.04045 ? c / 12.92 : pow((c + 0.055) / 1.055, 2.4))
+                : (float)b * (1.0f / 255.0f);
+}
+
+static void ref_sample(const pt_texture *tex, float u, float v, float out[4])
+{
+    int w = (int)tex->width, h = (int)tex->height;
+    if (tex->nearest) {
+        int xi = ref_wrap((int)floorf(ref_reduce(u, tex->wrap_s) * (float)w), w, tex->wrap_s);
+        int yi = ref_wrap((int)floorf(ref_reduce(v, tex->wrap_t) * (float)h), h, tex->wrap_t);
+        const uint8_t *px = tex->rgba + 4 * ((size_t)yi * (size_t)w + (size_t)xi);
+        for (int c = 0; c < 3; c++)
+            out[c] = ref_decode(tex->srgb, px[c]);
+        out[3] = (float)px[3] * (1.0f / 255.0f);
+        return;
+    }
+    float x = ref_reduce(u, tex->wrap_s) * (float)w - 0.5f;
+    float y = ref_reduce(v, tex->wrap_t) * (float)h - 0.5f;
+    float fx0 = floorf(x), fy0 = floorf(y);
+    float fx = x - fx0, fy = y - fy0;
+    int x0 = (int)fx0, y0 = (int)fy0;
+    int xs[2] = {ref_wrap(x0, w, tex->wrap_s), ref_wrap(x0 + 1, w, tex->wrap_s)};
+    int ys[2] = {ref_wrap(y0, h, tex->wrap_t), ref_wrap(y0 + 1, h, tex->wrap_t)};
+    float wt[4] = {(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy};
+    out[0] = out[1] = out[2] = out[3] = 0.0f;
+    for (int k = 0; k < 4; k++) {
+        const uint8_t *px = tex->rgba + 4 * ((size_t)ys[k >> 1] * (size_t)w + (size_t)xs[k & 1]);
+        for (int c = 0; c < 3; c++)
+            out[c] += wt[k] * ref_decode(tex->srgb, px[c]);
+        out[3] += wt[k] * (float)px[3] * (1.0f / 255.0f);
+    }
+}
+
+static void test_against_reference(void)
+{
+    static const uint32_t sizes[][2] = {{1, 1}, {1, 7}, {5, 1}, {2, 3}, {16, 16}, {33, 17}};
+    static const float special[] = {0.0f,           -0.0f,     1.0f,       -1.0f,     0.5f,
+                                    0x1.fffffep-1f, -0x1p-30f, 1.0000001f, 2.0f,      -2.0f,
+                                    3.99999f,       1e7f,      -1e7f,      3e38f,     -3e38f,
+                                    INFINITY,       -INFINITY, NAN,        0x1p-149f, -0.75f};
+    const int nspecial = (int)(sizeof special / sizeof special[0]);
+    uint64_t rng = 0x9e3779b97f4a7c15ull;
+    int bad = 0, n = 0;
+    for (int si = 0; si < 6; si++) {
+        pt_texture t;
+        memset(&t, 0, sizeof t);
+        t.width = sizes[si][0];
+        t.height = sizes[si][1];
+        size_t len = (size_t)t.width * t.height * 4;
+        t.rgba = pt_malloc(len);
+        for (size_t i = 0; i < len; i++) {
+            rng = rng * 6364136223846793005ull + 1442695040888963407ull;
+            t.rgba[i] = (uint8_t)(rng >> 56);
+        }
+        for (int mode = 0; mode < 18; mode++) {
+            t.wrap_s = mode % 3;
+            t.wrap_t = (mode / 3) % 3;
+            t.nearest = mode / 9;
+            for (t.srgb = 0; t.srgb < 2; t.srgb++)
+                for (int k = 0; k < 3000; k++) {
+                    float uv[2];
+                    for (int a = 0; a < 2; a++) {
+                        rng = rng * 6364136223846793005ull + 1442695040888963407ull;
+                        uint32_t r = (uint32_t)(rng >> 32);
+                        if (k < nspecial * nspecial)
+                            uv[a] = special[a ? k / nspecial : k % nspecial];
+                        else if (r % 4 == 0) /* on a texel edge */
+                            uv[a] = (float)(int)(r % 97 - 40) / (float)(a ? t.height : t.width);
+                        else
+                            uv[a] = ((float)(r >> 8) * 0x1p-24f) * 6.0f - 3.0f;
+                    }
+                    float got[4], want[4];
+                    pt_texture_sample(&t, uv[0], uv[1], got);
+                    ref_sample(&t, uv[0], uv[1], want);
+                    bad += memcmp(got, want, sizeof got) != 0;
+                    n++;
+                }
+        }
+        pt_free(t.rgba);
+    }
+    CHECKF(bad == 0, "%d of %d lookups differ from the reference's bits", bad, n);
+}
+
 static void apply(const pt_tex_xform *x, float u, float v, float out[2])
 {
     const float uv[2] = {u, v};
@@ -434,6 +577,8 @@ static void test_shared_tangents(void)
 
 int main(void)
 {
+    test_decode_tables();
+    test_against_reference();
     test_nearest();
     test_linear();
     test_transform();
