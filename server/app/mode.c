@@ -314,7 +314,7 @@ static pt_status setup_queue(srv_server *s, pt_error *err)
 {
     const srv_config *cfg = s->cfg;
     pt_status st;
-    if ((st = srv_state_open(cfg->state_dir, &s->state, err)) != PT_OK ||
+    if ((st = srv_state_open(cfg->state_dir, &srv_job_state_codec, &s->state, err)) != PT_OK ||
         (st = srv_loop_add_fd(s, srv_state_commit_fd(s->state), on_commits, NULL, NULL, err)) !=
             PT_OK)
         return st;
