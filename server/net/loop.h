@@ -141,6 +141,10 @@ struct srv_conn {
     proto_frame_reader in;
     proto_writer out;
     size_t out_off;
+    /* The last send left output unsent (the socket's buffer was full): only
+     * then is EPOLLOUT waited for. Output is otherwise sent by the round's
+     * sweep, with no change of epoll interest per message. */
+    int out_blocked;
     uint8_t nonce[PROTO_NONCE_SIZE];
     /* The HELLO name until WELCOME; from then on the peer's identity: the
      * NAME of the --clients-file token it proved, else the HELLO name. */
