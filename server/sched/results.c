@@ -321,12 +321,12 @@ void srv_queue_committed(srv_server *s, int wait)
     uint64_t done;
     if (!s->state)
         return;
-    while (srv_state_commit_collect(s->state, wait, &done, on_commit, s)) {
-        wait = 0;
+    /* One commit is in flight at a time: once it is collected there is no
+     * other to ask for (asking would only read the eventfd again). */
+    if (srv_state_commit_collect(s->state, wait, &done, on_commit, s))
         for (srv_entry *j = s->jobs; j; j = j->next)
             if (j->npend)
                 merge_durable(s, j, done);
-    }
 }
 
 void srv_queue_commit_all(srv_server *s)
