@@ -244,10 +244,8 @@ void srv_workers_result(srv_server *s, srv_conn *c, const proto_frame *f, proto_
      * commit that holds its record has returned. */
     if (o == SRV_MERGED && s->mode->durable) {
         judge_rendered(s, c, j, &r);
-        if (srv_queue_log_result(s, j, c->id, &r, f->payload - PROTO_FRAME_HEADER,
-                                 (size_t)f->len + PROTO_FRAME_OVERHEAD, own, pt_now_ms(),
-                                 &err) == PT_OK)
-            srv_job_answered(j->job, lease_index);
+        srv_queue_log_result(s, j, c->id, lease_index, &r, f->payload - PROTO_FRAME_HEADER,
+                             (size_t)f->len + PROTO_FRAME_OVERHEAD, own, pt_now_ms(), &err);
         proto_result_fini(&r); /* a failure is logged once, by the queue */
         return;
     }

@@ -255,8 +255,17 @@ srv_outcome srv_job_result_validated(srv_job *job, int lease_index, proto_result
 /* Marks the lease a result srv_job_validate accepted answers (lease_index:
  * what it gave, the job unchanged since) while that result waits to be
  * merged (its log record is being made durable): no backup copy of it is
- * handed out meanwhile. Nothing else changes; deadlines still apply. */
-void srv_job_answered(srv_job *job, int lease_index);
+ * handed out meanwhile. Nothing else changes; deadlines still apply.
+ * Returns a ticket for srv_job_ticket_lease (0 when lease_index names no
+ * live lease). */
+uint64_t srv_job_answered(srv_job *job, int lease_index);
+
+/* The lease a ticket of srv_job_answered names, while it is still that live
+ * lease: what srv_job_validate_checked would give again for the same
+ * result and owner, without judging it again (O(1)). -1 once the lease has
+ * gone (expired, released, dropped because its task was merged or its tile
+ * stopped) or for ticket 0: the result must then be judged anew. */
+int srv_job_ticket_lease(const srv_job *job, uint64_t ticket);
 
 /* Accepts a result from the durable log after a restart: like srv_job_result
  * but without a lease, found by its tile and samples rather than its id (ids

@@ -126,7 +126,7 @@ static pt_status push_pending(srv_server *s, srv_entry *j, uint64_t owner, proto
             return PT_ERR_NOMEM;
         j->pend = n;
     }
-    j->pend[j->npend++] = (srv_pending){*r, owner, srv_state_commit_next(s->state), arrived};
+    j->pend[j->npend++] = (srv_pending){*r, owner, srv_state_commit_next(s->state), arrived, 0};
     j->pend_bytes += queue_pixel_bytes(r);
     r->pixels = NULL;
     r->owns_pixels = 0;
@@ -183,9 +183,9 @@ static void resume(srv_server *s, srv_entry *j, uint64_t now)
     srv_log("job %llu resumed: the state folder takes its writes again (paused %.1f s)",
             (unsigned long long)j->rec.id, (double)(now - j->t_paused) / 1000.0);
 }
-pt_status srv_queue_log_result(srv_server *s, srv_entry *j, uint64_t owner, proto_result *r,
-                               const uint8_t *frame, size_t len, uint8_t **own, uint64_t arrived,
-                               pt_error *err)
+pt_status srv_queue_log_result(srv_server *s, srv_entry *j, uint64_t owner, int lease_index,
+                               proto_result *r, const uint8_t *frame, size_t len, uint8_t **own,
+                               uint64_t arrived, pt_error *err)
 {
     if (j->paused)
         return pt_error_set(err, PT_ERR_IO, "job %llu is paused", (unsigned long long)j->rec.id);
@@ -196,7 +196,9 @@ pt_status srv_queue_log_result(srv_server *s, srv_entry *j, uint64_t owner, prot
         st = push_pending(s, j, owner, r, arrived);
         if (st != PT_OK)
             return pt_error_set(err, st, "out of memory for a result");
-        j->pend[j->npend - 1].commit = commit;
+        srv_pending *p = &j->pend[j->npend - 1];
+        p->commit = commit;
+        p->ticket = srv_job_answered(j->job, lease_index);
         return PT_OK;
     }
     s->counters.state_write_errors++;
@@ -284,20 +286,24 @@ srv_outcome srv_queue_merge(srv_server *s, srv_entry *j, uint64_t owner, int lea
     return o;
 }
 
-/* Merges r, a result of j from owner (a connection id, maybe gone now) held
- * until its log record was durable. */
-static void merge_logged(srv_server *s, srv_entry *j, uint64_t owner, proto_result *r,
-                         uint64_t arrived)
+/* Merges p's result, held until its log record was durable: through the
+ * lease it was judged the answer to when it arrived, while that lease is
+ * live (nothing it was judged by has changed since), else judged anew. */
+static void merge_logged(srv_server *s, srv_entry *j, srv_pending *p)
 {
     pt_error err = {0};
-    int li = -1;
-    /* Validated whole when it arrived: its pixels have not changed since. */
-    srv_outcome o = srv_job_validate_checked(j->job, owner, r, &li, &err);
+    uint64_t owner = p->owner; /* a connection id, maybe gone now */
+    proto_result *r = &p->r;
+    srv_outcome o = SRV_MERGED;
+    int li = srv_job_ticket_lease(j->job, p->ticket);
+    /* Its pixels were checked whole when it arrived and have not changed. */
+    if (li < 0)
+        o = srv_job_validate_checked(j->job, owner, r, &li, &err);
     /* Its lease may have gone since it arrived (expired, its worker left or
      * the job paused): it is still a render of its task, and durable, so it
      * is merged as a restart's replay would (a duplicate changes nothing). */
     if (o == SRV_MERGED || o == SRV_NOT_LEASED)
-        srv_queue_merge(s, j, owner, o == SRV_MERGED ? li : -1, r, arrived, &err);
+        srv_queue_merge(s, j, owner, o == SRV_MERGED ? li : -1, r, p->arrived, &err);
 }
 
 /* Merges j's results whose records the commit done made durable (those of a
@@ -308,7 +314,7 @@ static void merge_durable(srv_server *s, srv_entry *j, uint64_t done)
     for (; i < j->npend && j->pend[i].commit <= done && j->committed >= j->pend[i].commit; i++) {
         srv_pending *p = &j->pend[i];
         if (j->job && srv_entry_active(j))
-            merge_logged(s, j, p->owner, &p->r, p->arrived);
+            merge_logged(s, j, p);
         queue_pending_fini(j, p); /* unless the job took its pixels */
     }
     for (; i < j->npend; i++)
