@@ -24,6 +24,8 @@
 const srv_session *loop_session_of(const srv_server *s, const srv_conn *c)
 {
     static const srv_session none;
+    if (c->ops)
+        return c->ops; /* taken at WELCOME */
     const srv_session *o = c->role < 3 ? s->reg->session[c->role] : NULL;
     return o ? o : &none;
 }
