@@ -209,7 +209,7 @@ static void on_submit(srv_server *s, srv_conn *c, const proto_frame *f)
         srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "SUBMIT during an upload");
         return;
     }
-    if (!s->state) {
+    if (!s->mode->durable) {
         srv_conn_send_error(s, c, PROTO_E_PROTOCOL,
                             "this coordinator renders one job and takes no SUBMIT (a queue is "
                             "ptserve --state-dir)");

@@ -37,6 +37,29 @@
 #include "server/sched/writer.h"
 #include "server/store/state.h"
 
+/* What the queue keeps on disk, a strategy its mode names (srv_mode.durability):
+ * srv_durability_folder, the state folder's (a queue file, each job's
+ * bundle, checkpoint and results log), or srv_durability_none (one job:
+ * nothing is kept; the scene is in memory). Called on the loop thread. */
+typedef struct srv_durability {
+    /* Writes the queue file (every job's record). */
+    pt_status (*journal)(srv_server *s, pt_error *err);
+    /* 1 while the last journal failed (the file on disk is older). */
+    int (*unsaved)(const srv_server *s);
+    /* The files of job id go (it ended). */
+    void (*forget)(srv_server *s, uint64_t id);
+    /* Rebuilds j's fresh job from what was kept of it. */
+    pt_status (*restore)(srv_server *s, srv_entry *j, pt_error *err);
+    /* Loads the bundle of j, which has none in memory. */
+    pt_status (*load_bundle)(srv_server *s, srv_entry *j, pt_error *err);
+    /* Once per round (srv_queue_tick): for each running job, then once. */
+    void (*tick_job)(srv_server *s, srv_entry *j, uint64_t now);
+    void (*tick)(srv_server *s, uint64_t now);
+} srv_durability;
+
+extern const srv_durability srv_durability_folder;
+extern const srv_durability srv_durability_none;
+
 /* A result logged and waiting for the group commit that makes its record
  * durable; merged only then (srv_queue_committed). */
 typedef struct srv_pending {

@@ -16,7 +16,7 @@
 
 static pt_status checkpoint_quiet(srv_server *s, srv_entry *j, pt_error *err)
 {
-    if (!s->state || !j->job)
+    if (!j->job)
         return PT_OK;
     srv_ckpt_extra x = {srv_entry_seconds(j, pt_now_ms()), j->rejected, j->rays};
     double t0 = pt_now_s();
@@ -325,8 +325,6 @@ static void merge_durable(srv_server *s, srv_entry *j, uint64_t done)
 void srv_queue_committed(srv_server *s, int wait)
 {
     uint64_t done;
-    if (!s->state)
-        return;
     /* One commit is in flight at a time: once it is collected there is no
      * other to ask for (asking would only read the eventfd again). */
     if (srv_state_commit_collect(s->state, wait, &done, on_commit, s))
@@ -337,8 +335,6 @@ void srv_queue_committed(srv_server *s, int wait)
 
 void srv_queue_commit_all(srv_server *s)
 {
-    if (!s->state)
-        return;
     srv_queue_committed(s, 1); /* the commit in flight */
     if (srv_state_commit_start(s->state))
         srv_queue_committed(s, 1); /* the rest */
@@ -362,14 +358,70 @@ static void note_saves(srv_entry *j)
     }
 }
 
-void srv_queue_tick(srv_server *s, uint64_t now)
+/* The queue file written again after a failure; a checkpoint's outcome. */
+static void folder_tick(srv_server *s, uint64_t now)
 {
-    if (s->state && srv_state_queue_unsaved(s->state) && now >= s->queue_retry) {
+    if (srv_state_queue_unsaved(s->state) && now >= s->queue_retry) {
         s->queue_retry = now + DISK_RETRY_MS;
         pt_error err = {0};
         if (srv_queue_journal(s, &err) == PT_OK)
             srv_log("the queue file is written again");
     }
+    uint64_t id;
+    pt_status cst;
+    pt_error err = {0};
+    if (srv_state_checkpoint_collect(s->state, &id, &cst, &err) && cst != PT_OK) {
+        srv_entry *j = srv_queue_find_any(s, id);
+        s->counters.state_write_errors++;
+        if (j && j->job && srv_entry_active(j) && err.code == PT_ERR_IO) {
+            j->pending_ckpt = 1;
+            queue_pause_job(s, j, "cannot write its checkpoint", &err);
+        } else {
+            srv_log("error: job %llu: cannot write its checkpoint: %s", (unsigned long long)id,
+                    err.msg);
+        }
+    }
+}
+
+/* Checkpoint cost stays proportional to what the log has taken in. */
+static void folder_tick_job(srv_server *s, srv_entry *j, uint64_t now)
+{
+    (void)now;
+    if (j->paused || srv_state_checkpoint_busy(s->state))
+        return;
+    /* srv_job_film settles: the loop waits here, once a round, for the
+     * merge threads' adds in flight. That wait is their flow control, not
+     * an accident: without it the adds' ring fills and the loop does the
+     * adds itself (farm_scale.sh, unpaced, chunk 64: 5.8-9.0 loop us per
+     * result with it, 19-20 without). */
+    const pt_film *f = srv_job_film(j->job);
+    uint64_t film_bytes = (uint64_t)f->width * f->height * sizeof(pt_pixel_acc);
+    if (srv_state_log_bytes(s->state, j->rec.id) >= srv_state_ckpt_limit(s->state, film_bytes))
+        queue_checkpoint_start(s, j);
+}
+
+static int folder_unsaved(const srv_server *s)
+{
+    return srv_state_queue_unsaved(s->state);
+}
+
+static void folder_forget(srv_server *s, uint64_t id)
+{
+    srv_state_forget_job(s->state, id);
+}
+
+const srv_durability srv_durability_folder = {
+    .journal = queue_journal_folder,
+    .unsaved = folder_unsaved,
+    .forget = folder_forget,
+    .restore = queue_restore_folder,
+    .load_bundle = queue_load_bundle_folder,
+    .tick_job = folder_tick_job,
+    .tick = folder_tick,
+};
+
+void srv_queue_tick(srv_server *s, uint64_t now)
+{
     for (srv_entry *j = s->jobs; j; j = j->next) {
         if (!j->job || !srv_entry_active(j))
             continue;
@@ -395,32 +447,7 @@ void srv_queue_tick(srv_server *s, uint64_t now)
             j->rate_t = now;
             j->rate_samples = merged;
         }
-        /* Checkpoint cost stays proportional to what the log has taken in. */
-        if (s->state && !j->paused && !srv_state_checkpoint_busy(s->state)) {
-            /* srv_job_film settles: the loop waits here, once a round, for
-             * the merge threads' adds in flight. That wait is their flow
-             * control, not an accident: without it the adds' ring fills and
-             * the loop does the adds itself (farm_scale.sh, unpaced, chunk
-             * 64: 5.8-9.0 loop us per result with it, 19-20 without). */
-            const pt_film *f = srv_job_film(j->job);
-            uint64_t film_bytes = (uint64_t)f->width * f->height * sizeof(pt_pixel_acc);
-            if (srv_state_log_bytes(s->state, j->rec.id) >=
-                srv_state_ckpt_limit(s->state, film_bytes))
-                queue_checkpoint_start(s, j);
-        }
+        s->mode->durability->tick_job(s, j, now);
     }
-    uint64_t id;
-    pt_status cst;
-    pt_error err = {0};
-    if (s->state && srv_state_checkpoint_collect(s->state, &id, &cst, &err) && cst != PT_OK) {
-        srv_entry *j = srv_queue_find_any(s, id);
-        s->counters.state_write_errors++;
-        if (j && j->job && srv_entry_active(j) && err.code == PT_ERR_IO) {
-            j->pending_ckpt = 1;
-            queue_pause_job(s, j, "cannot write its checkpoint", &err);
-        } else {
-            srv_log("error: job %llu: cannot write its checkpoint: %s", (unsigned long long)id,
-                    err.msg);
-        }
-    }
+    s->mode->durability->tick(s, now);
 }
