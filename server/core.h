@@ -58,6 +58,10 @@ typedef struct srv_mode {
      * folder: srv_queue_log_result, merged once its commit returns); else
      * it is merged as it arrives (one job). */
     int durable;
+    /* What the scheduler's jobs keep on disk and how (server/sched/queue.h:
+     * the state folder's, or nothing), so that it never asks which mode it
+     * is in. */
+    const struct srv_durability *durability;
     /* Bytes of results waiting for the disk (srv_loop_hold holds the workers
      * past cfg->max_log_mem); 0 where nothing is logged. */
     uint64_t (*backlog)(const srv_server *s);

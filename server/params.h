@@ -3,8 +3,9 @@
  * the queue's defaults) and a client's SUBMIT set, what a job renders with
  * (server/sched/job.h) and what the state folder keeps of it.
  *
- * Under every layer of server/: it includes nothing of server/. Plain data:
- * any thread may read it.
+ * Under every layer of server/: it includes nothing of server/. Plain data
+ * and its codec, which the job's checkpoint (server/sched/) and the state
+ * folder's queue file (server/store/) both write: any thread may call them.
  */
 #ifndef PT_SERVER_PARAMS_H
 #define PT_SERVER_PARAMS_H
@@ -12,6 +13,7 @@
 #include <stdint.h>
 
 #include "protocol/msg.h"
+#include "protocol/wire.h"
 
 typedef struct srv_job_params {
     uint32_t width, height;
@@ -29,5 +31,22 @@ typedef struct srv_job_params {
     double shutter[2]; /* motion blur's shutter, seconds after the frame's time (SHUTTER in
                           protocol/msg.h); 0, 0 off */
 } srv_job_params;
+
+/* The params block as the checkpoint and the state folder's queue file both
+ * store it: nine u32 (width, height, spp, tile, chunk, seed, max depth, rr
+ * depth, min spp), f64 target error, f64 min gain (in the formats that have
+ * it; read as 0 from older ones), str camera, then (in the formats that have
+ * them: no environment and no film flags from older ones) the environment: str
+ * map name, f32 strength, f32 rotation, u8 background flag, f32 x3 colour; and
+ * u32 film flags (an unknown bit is a format error), str material variant
+ * (formats 4 on; "" from older ones), then f64 x2 motion blur's shutter (open,
+ * close; refused unless proto_shutter_problem passes; formats 5 on, 0, 0 from
+ * older ones). srv_job_params_read reads a block with or without the min gain,
+ * with or without both the environment and the film flags (one format version
+ * brought both) and with or without the shutter, as its file's format version
+ * says; a failure is left in r's status. */
+void srv_job_params_write(proto_writer *w, const srv_job_params *p);
+void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, int has_env_film,
+                         int has_shutter);
 
 #endif

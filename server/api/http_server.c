@@ -28,6 +28,7 @@
 #include "protocol/auth.h"
 #include "protocol/jobjson.h"
 #include "server/api/http_assets.h"
+#include "server/api/workers.h"
 #include "server/net/authlimit.h"
 #include "server/net/loop.h"
 #include "server/sched/frames.h"
@@ -81,6 +82,9 @@ void srv_http_publish(srv_server *s, srv_http *h, int force)
             p->nclients++;
             continue;
         }
+        const srv_worker_conn *k = srv_worker_of(c);
+        if (!k)
+            continue;
         if (p->nworkers >= s->nconns)
             break;
         snap_worker *w = &p->workers[p->nworkers++];
@@ -88,12 +92,12 @@ void srv_http_publish(srv_server *s, srv_http *h, int force)
         snprintf(w->name, sizeof w->name, "%s", c->name);
         snprintf(w->peer, sizeof w->peer, "%s", c->peer);
         w->threads = c->threads;
-        w->want = c->want;
-        w->misses = c->misses;
+        w->want = k->want;
+        w->misses = k->misses;
         w->connected_s = (double)(now - c->t_connect) / 1000.0;
-        w->tasks_done = c->tasks_done;
-        w->samples_done = c->samples_done;
-        w->last_result_s = c->t_result ? (double)(now - c->t_result) / 1000.0 : -1.0;
+        w->tasks_done = k->tasks_done;
+        w->samples_done = k->samples_done;
+        w->last_result_s = k->t_result ? (double)(now - k->t_result) / 1000.0 : -1.0;
     }
     if (s->nblocked && (p->blocked = pt_malloc_array(s->nblocked, sizeof *p->blocked)) != NULL) {
         memcpy(p->blocked, s->blocked, s->nblocked * sizeof *p->blocked);

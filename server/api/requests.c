@@ -17,6 +17,7 @@
 #include "common/render/tile.h"
 #include "common/scene/scene.h"
 #include "protocol/msg.h"
+#include "server/api/client.h"
 #include "server/api/upload.h"
 #include "server/net/loop.h"
 #include "server/sched/frames.h"
@@ -29,43 +30,50 @@
 
 static void send_job_info(srv_server *s, srv_conn *c, const srv_entry *j)
 {
+    srv_client_conn *cl = c->session; /* a ready client's */
     proto_job_info m;
     srv_queue_info(s, j, &m);
     size_t mark;
     if (proto_frame_begin(&c->out, PROTO_MSG_JOB_INFO, &mark, NULL) == PT_OK)
         proto_frame_finish(&c->out, mark, proto_msg_encode_job_info(&c->out, &m, NULL), NULL);
-    c->watch_t = pt_now_ms();
-    if (!srv_entry_active(j) && c->watch == j->rec.id)
-        c->watch = 0;
+    cl->watch_t = pt_now_ms();
+    if (!srv_entry_active(j) && cl->watch == j->rec.id)
+        cl->watch = 0;
 }
 
 void srv_requests_notify_watchers(srv_server *s, const srv_entry *j)
 {
-    for (srv_conn *c = s->conns; c; c = c->next)
-        if (c->watch == j->rec.id && !c->closing)
+    for (srv_conn *c = s->conns; c; c = c->next) {
+        const srv_client_conn *cl = srv_client_of(c);
+        if (cl && cl->watch == j->rec.id && !c->closing)
             send_job_info(s, c, j);
+    }
 }
 
 static void fetch_end(srv_conn *c)
 {
-    if (c->fetch)
-        close(c->fetch_fd);
-    c->fetch = 0;
+    srv_client_conn *cl = srv_client_of(c);
+    if (!cl)
+        return;
+    if (cl->fetch)
+        close(cl->fetch_fd);
+    cl->fetch = 0;
 }
 
 void srv_requests_pump_fetch(srv_server *s, srv_conn *c)
 {
     uint8_t *chunk = s->fetch_chunk;
-    while (c->fetch && !c->closing && srv_conn_has_room(c)) {
+    srv_client_conn *cl = srv_client_of(c);
+    while (cl && cl->fetch && !c->closing && srv_conn_has_room(c)) {
         proto_scene_chunk ch;
-        memcpy(ch.hash, c->fetch_hash, 32);
-        ch.offset = c->fetch_off;
-        ch.total = c->fetch_len;
-        size_t left = c->fetch_len - c->fetch_off;
+        memcpy(ch.hash, cl->fetch_hash, 32);
+        ch.offset = cl->fetch_off;
+        ch.total = cl->fetch_len;
+        size_t left = cl->fetch_len - cl->fetch_off;
         ch.len = (uint32_t)(left < PROTO_MAX_SCENE_CHUNK ? left : PROTO_MAX_SCENE_CHUNK);
         /* The open file is the image as it was hashed: the writer renames
          * a new one into place, never writes into this one. */
-        ssize_t got = pread(c->fetch_fd, chunk, ch.len, (off_t)c->fetch_off);
+        ssize_t got = pread(cl->fetch_fd, chunk, ch.len, (off_t)cl->fetch_off);
         if (got != (ssize_t)ch.len) {
             fetch_end(c);
             srv_conn_send_error(s, c, PROTO_E_INTERNAL, "the image could not be read");
@@ -79,8 +87,8 @@ void srv_requests_pump_fetch(srv_server *s, srv_conn *c)
                                     NULL);
         if (!srv_conn_queued(s, c, st))
             break;
-        c->fetch_off += ch.len;
-        if (c->fetch_off == c->fetch_len)
+        cl->fetch_off += ch.len;
+        if (cl->fetch_off == cl->fetch_len)
             fetch_end(c);
     }
 }
@@ -115,11 +123,13 @@ static uint32_t owner_unfinished(const srv_server *s, const char *owner)
 static void count_uploads(const srv_server *s, const char *name, uint32_t *mine, uint32_t *all)
 {
     *mine = *all = 0;
-    for (const srv_conn *c = s->conns; c; c = c->next)
-        if (!c->closing && (c->uploading || c->verifying)) {
+    for (const srv_conn *c = s->conns; c; c = c->next) {
+        const srv_client_conn *cl = srv_client_of(c);
+        if (!c->closing && (c->uploading || (cl && cl->verifying))) {
             (*all)++;
             *mine += strcmp(c->name, name) == 0;
         }
+    }
 }
 
 /* Checks a SUBMIT's settings against this server's caps and the ranges
@@ -199,7 +209,7 @@ static void on_submit(srv_server *s, srv_conn *c, const proto_frame *f)
         srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "SUBMIT during an upload");
         return;
     }
-    if (!s->state) {
+    if (!s->mode->durable) {
         srv_conn_send_error(s, c, PROTO_E_PROTOCOL,
                             "this coordinator renders one job and takes no SUBMIT (a queue is "
                             "ptserve --state-dir)");
@@ -251,10 +261,12 @@ static void on_submit(srv_server *s, srv_conn *c, const proto_frame *f)
         srv_conn_send_error(s, c, PROTO_E_INTERNAL, "cannot store the upload: %s", strerror(errno));
         return;
     }
-    c->up_fd = fd;
-    c->up_open = 1;
-    c->up = m;
+    srv_client_conn *cl = c->session;
+    cl->up_fd = fd;
+    cl->up_open = 1;
+    cl->up = m;
     c->uploading = 1;
+    c->up_total = m.bundle_size;
     c->up_len = 0;
     c->t_progress = pt_now_ms();
 }
@@ -318,7 +330,8 @@ void srv_requests_verified(srv_server *s, srv_conn *c, srv_upload *k)
     pt_error err = {0};
     pt_status st;
     const proto_submit *m = &k->m;
-    c->verifying = 0;
+    srv_client_conn *cl = c->session;
+    cl->verifying = 0;
     if (!k->ok) {
         srv_conn_send_error(s, c, k->code, "%s", k->msg);
         return;
@@ -392,6 +405,7 @@ static void on_upload(srv_server *s, srv_conn *c, const proto_frame *f)
 {
     proto_scene_chunk ch;
     pt_error err = {0};
+    srv_client_conn *cl = c->session;
     if (!c->uploading) {
         srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "UPLOAD without a SUBMIT");
         return;
@@ -400,25 +414,25 @@ static void on_upload(srv_server *s, srv_conn *c, const proto_frame *f)
         srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "bad UPLOAD: %s", err.msg);
         return;
     }
-    if (memcmp(ch.hash, c->up.bundle_hash, 32) != 0 || ch.total != c->up.bundle_size ||
+    if (memcmp(ch.hash, cl->up.bundle_hash, 32) != 0 || ch.total != c->up_total ||
         ch.offset != c->up_len || ch.len == 0) {
         srv_conn_send_error(s, c, PROTO_E_PROTOCOL,
                             "UPLOAD of %u bytes at %llu of %llu does not "
                             "continue the announced scene (%zu of %llu bytes so far)",
                             ch.len, (unsigned long long)ch.offset, (unsigned long long)ch.total,
-                            c->up_len, (unsigned long long)c->up.bundle_size);
+                            c->up_len, (unsigned long long)c->up_total);
         return;
     }
     /* To disk as it arrives (page cache first): no upload is held in
      * memory. A full disk ends the upload with the reason. */
-    if (pt_write_all(c->up_fd, ch.data, ch.len) != 0) {
+    if (pt_write_all(cl->up_fd, ch.data, ch.len) != 0) {
         int e = errno;
         srv_upload_drop(s, c);
         srv_conn_send_error(s, c, PROTO_E_INTERNAL, "cannot store the upload: %s", strerror(e));
         return;
     }
     c->up_len += ch.len;
-    if (c->up_len == c->up.bundle_size)
+    if (c->up_len == c->up_total)
         srv_upload_start(s, c);
 }
 
@@ -466,8 +480,9 @@ static void on_list(srv_server *s, srv_conn *c, const proto_frame *f)
 
 static void on_fetch(srv_server *s, srv_conn *c, srv_entry *j, const char *path)
 {
+    srv_client_conn *cl = c->session;
     pt_error err = {0};
-    if (c->fetch) {
+    if (cl->fetch) {
         srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "FETCH while a fetch is in progress");
         return;
     }
@@ -494,16 +509,16 @@ static void on_fetch(srv_server *s, srv_conn *c, srv_entry *j, const char *path)
                             (unsigned long long)j->rec.id);
         return;
     }
-    if (pt_sha256_fd(fd, &c->fetch_hash[0], &err) != PT_OK) {
+    if (pt_sha256_fd(fd, &cl->fetch_hash[0], &err) != PT_OK) {
         close(fd);
         srv_conn_send_error(s, c, PROTO_E_INTERNAL, "job %llu: its image could not be read",
                             (unsigned long long)j->rec.id);
         return;
     }
-    c->fetch = 1;
-    c->fetch_fd = fd;
-    c->fetch_len = (size_t)sb.st_size;
-    c->fetch_off = 0;
+    cl->fetch = 1;
+    cl->fetch_fd = fd;
+    cl->fetch_len = (size_t)sb.st_size;
+    cl->fetch_off = 0;
     srv_requests_pump_fetch(s, c);
 }
 
@@ -551,7 +566,8 @@ static int may_change(srv_server *s, srv_conn *c, const srv_entry *j, const char
 void srv_requests_dispatch(srv_server *s, srv_conn *c, const proto_frame *f)
 {
     srv_entry *j;
-    if (c->verifying) {
+    srv_client_conn *cl = c->session;
+    if (cl->verifying) {
         srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "%s before the answer to its SUBMIT",
                             proto_msg_type_name(f->type));
         return;
@@ -572,7 +588,7 @@ void srv_requests_dispatch(srv_server *s, srv_conn *c, const proto_frame *f)
         break;
     case PROTO_MSG_WATCH:
         if (read_job_ref(s, c, f, &j)) {
-            c->watch = j->rec.id;
+            cl->watch = j->rec.id;
             send_job_info(s, c, j);
         }
         break;
@@ -614,13 +630,14 @@ void srv_requests_tick(srv_server *s, uint64_t now)
         return;
     s->t_watch = now;
     for (srv_conn *c = s->conns; c; c = c->next) {
-        if (c->closing || !c->watch || now - c->watch_t < WATCH_MS)
+        srv_client_conn *cl = srv_client_of(c);
+        if (!cl || c->closing || !cl->watch || now - cl->watch_t < WATCH_MS)
             continue;
-        srv_entry *j = srv_queue_find(s, c->watch);
+        srv_entry *j = srv_queue_find(s, cl->watch);
         if (j)
             send_job_info(s, c, j);
         else
-            c->watch = 0;
+            cl->watch = 0;
     }
 }
 
@@ -628,12 +645,22 @@ void srv_requests_conn_gone(srv_server *s, srv_conn *c)
 {
     if (c->uploading)
         srv_log("client %s left during an upload (%zu of %llu bytes); nothing was queued", c->shown,
-                c->up_len, (unsigned long long)c->up.bundle_size);
+                c->up_len, (unsigned long long)c->up_total);
     srv_upload_drop(s, c);
     fetch_end(c);
+    pt_free(c->session);
+    c->session = NULL;
+}
+
+static void *open_client(srv_server *s, srv_conn *c)
+{
+    (void)s;
+    (void)c;
+    return pt_calloc(1, sizeof(srv_client_conn));
 }
 
 const srv_session srv_requests_session = {
+    .open = open_client,
     .on_frame = srv_requests_dispatch,
     .on_gone = srv_requests_conn_gone,
 };

@@ -51,8 +51,8 @@ void srv_requests_tick(srv_server *s, uint64_t now);
 #define SRV_MAX_UPLOADS_PER_CLIENT 4u
 #define SRV_MAX_UPLOADS 16u
 
-/* c is being freed: logs an upload it left unfinished, removes its upload
- * and ends its fetch. */
+/* c is being freed: logs an upload it left unfinished, removes its upload,
+ * ends its fetch and frees its client state (server/api/client.h). */
 void srv_requests_conn_gone(srv_server *s, srv_conn *c);
 
 #endif

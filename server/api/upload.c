@@ -16,6 +16,7 @@
 #include "common/render/render.h"
 #include "common/scene/anim.h"
 #include "common/scene/scene.h"
+#include "server/api/client.h"
 #include "server/net/loop.h"
 #include "server/store/state.h"
 
@@ -209,7 +210,9 @@ static void start_check(srv_server *s, srv_upload *k)
         s->verifications = k->next;
         srv_conn *c = srv_conn_find(s, k->conn_id);
         if (c) {
-            c->verifying = 0;
+            srv_client_conn *cl = srv_client_of(c);
+            if (cl)
+                cl->verifying = 0;
             srv_conn_send_error(s, c, PROTO_E_INTERNAL, "cannot start checking the scene");
         }
         upload_free(k);
@@ -225,19 +228,22 @@ void srv_upload_part_path(const srv_server *s, const srv_conn *c, char *out, siz
 
 void srv_upload_drop(srv_server *s, srv_conn *c)
 {
-    if (c->up_open) {
+    srv_client_conn *cl = srv_client_of(c);
+    if (cl && cl->up_open) {
         char part[PATH_MAX];
         srv_upload_part_path(s, c, part, sizeof part);
-        close(c->up_fd);
+        close(cl->up_fd);
         unlink(part);
-        c->up_open = 0;
+        cl->up_open = 0;
     }
     c->up_len = 0;
+    c->up_total = 0;
     c->uploading = 0;
 }
 
 void srv_upload_start(srv_server *s, srv_conn *c)
 {
+    srv_client_conn *cl = c->session; /* a ready client's upload */
     srv_upload *k = pt_calloc(1, sizeof *k);
     if (!k) {
         srv_conn_send_error(s, c, PROTO_E_INTERNAL, "out of memory");
@@ -245,7 +251,7 @@ void srv_upload_start(srv_server *s, srv_conn *c)
     }
     k->conn_id = c->id;
     k->job_id = s->next_job_id++;
-    k->m = c->up;
+    k->m = cl->up;
     /* The upload's file becomes the check's: renamed, so the connection's
      * end (srv_upload_drop) no longer removes it. */
     char part[PATH_MAX];
@@ -264,7 +270,7 @@ void srv_upload_start(srv_server *s, srv_conn *c)
     snprintf(k->tmp, sizeof k->tmp, "%s/tmp/upload-%llu", srv_state_dir(s->state),
              (unsigned long long)k->job_id);
     k->wake_fd = s->verifypipe[1];
-    c->verifying = 1;
+    cl->verifying = 1;
     if (s->checks_running < SRV_MAX_SCENE_CHECKS) {
         start_check(s, k);
         return;

@@ -3,6 +3,7 @@
 #include <stdio.h>
 #include <string.h>
 
+#include "common/base/alloc.h"
 #include "common/base/text.h"
 #include "protocol/msg.h"
 #include "server/api/requests.h"
@@ -117,10 +118,11 @@ void srv_workers_block(srv_server *s, srv_conn *c, const char *why)
 void srv_workers_missed(srv_server *s, uint64_t owner, uint64_t now)
 {
     srv_conn *c = srv_conn_find(s, owner);
-    if (!c || c->closing || c->missed_at == now)
+    srv_worker_conn *w = c ? srv_worker_of(c) : NULL;
+    if (!w || c->closing || w->missed_at == now)
         return;
-    c->missed_at = now;
-    if (++c->misses >= SRV_MAX_MISSES)
+    w->missed_at = now;
+    if (++w->misses >= SRV_MAX_MISSES)
         s->enforce_due = 1;
 }
 
@@ -129,19 +131,20 @@ void srv_workers_enforce(srv_server *s)
     if (!s->enforce_due)
         return;
     s->enforce_due = 0;
-    for (srv_conn *c = s->conns; c; c = c->next)
-        if (c->state == SRV_C_READY && c->role == PROTO_ROLE_WORKER && !c->closing &&
-            c->misses >= SRV_MAX_MISSES) {
+    for (srv_conn *c = s->conns; c; c = c->next) {
+        const srv_worker_conn *w = srv_worker_of(c);
+        if (w && !c->closing && w->misses >= SRV_MAX_MISSES) {
             char why[160];
-            if (c->empties)
+            if (w->empties)
                 snprintf(why, sizeof why,
                          "returned results that held no sample (%u) or missed lease deadlines "
                          "%u times in a row",
-                         c->empties, c->misses);
+                         w->empties, w->misses);
             else
-                snprintf(why, sizeof why, "missed lease deadlines %u times in a row", c->misses);
+                snprintf(why, sizeof why, "missed lease deadlines %u times in a row", w->misses);
             srv_workers_block(s, c, why);
         }
+    }
 }
 
 static void on_verdict(srv_server *s, srv_entry *j, const srv_verdict *v)
@@ -183,16 +186,17 @@ static void on_verdict(srv_server *s, srv_entry *j, const srv_verdict *v)
  * samples are all NaN blocks no one: then no result of the job holds one. */
 static void judge_rendered(srv_server *s, srv_conn *c, const srv_entry *j, const proto_result *r)
 {
+    srv_worker_conn *w = c->session; /* a ready worker's result */
     uint64_t asked = (uint64_t)r->npixels * (r->s1 - r->s0);
     if (asked == 0 || r->rejected < asked || srv_job_samples_merged(j->job) == 0) {
-        c->misses = c->empties = 0;
+        w->misses = w->empties = 0;
         return;
     }
     srv_log("worker %s: a result of job %llu holds no sample (all %llu rejected)", c->shown,
             (unsigned long long)j->rec.id, (unsigned long long)asked);
     /* Each one counts, however many arrive in one millisecond. */
-    c->empties++;
-    if (++c->misses >= SRV_MAX_MISSES)
+    w->empties++;
+    if (++w->misses >= SRV_MAX_MISSES)
         s->enforce_due = 1;
 }
 
@@ -244,10 +248,8 @@ void srv_workers_result(srv_server *s, srv_conn *c, const proto_frame *f, proto_
      * commit that holds its record has returned. */
     if (o == SRV_MERGED && s->mode->durable) {
         judge_rendered(s, c, j, &r);
-        if (srv_queue_log_result(s, j, c->id, &r, f->payload - PROTO_FRAME_HEADER,
-                                 (size_t)f->len + PROTO_FRAME_OVERHEAD, own, pt_now_ms(),
-                                 &err) == PT_OK)
-            srv_job_answered(j->job, lease_index);
+        srv_queue_log_result(s, j, c->id, lease_index, &r, f->payload - PROTO_FRAME_HEADER,
+                             (size_t)f->len + PROTO_FRAME_OVERHEAD, own, pt_now_ms(), &err);
         proto_result_fini(&r); /* a failure is logged once, by the queue */
         return;
     }
@@ -257,9 +259,11 @@ void srv_workers_result(srv_server *s, srv_conn *c, const proto_frame *f, proto_
     case SRV_MERGED:
         judge_rendered(s, c, j, &r);
         break;
-    case SRV_DUPLICATE:
-        c->misses = c->empties = 0; /* late, but rendered: it is working */
+    case SRV_DUPLICATE: { /* late, but rendered: it is working */
+        srv_worker_conn *w = c->session;
+        w->misses = w->empties = 0;
         break;
+    }
     case SRV_NOT_LEASED: {
         s->counters.results_rejected++;
         char text[PT_TEXT_ESCAPED_SIZE(sizeof err.msg)];
@@ -304,9 +308,10 @@ void srv_workers_dispatch(srv_server *s, srv_conn *c, const proto_frame *f)
             srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "bad WORK_REQUEST: %s", err.msg);
             return;
         }
-        c->want += w.slots;
-        if (c->want > PROTO_MAX_SLOTS)
-            c->want = PROTO_MAX_SLOTS;
+        srv_worker_conn *wc = c->session;
+        wc->want += w.slots;
+        if (wc->want > PROTO_MAX_SLOTS)
+            wc->want = PROTO_MAX_SLOTS;
         break;
     }
     case PROTO_MSG_SCENE_GET:
@@ -356,9 +361,10 @@ static int hand_out_to(srv_server *s, srv_conn *c, void *ctx)
     hand_out *h = ctx;
     if (c->state != SRV_C_READY || c->closing)
         return 0;
-    if (c->fetch)
-        srv_requests_pump_fetch(s, c);
-    while (!h->dry && c->role == PROTO_ROLE_WORKER && c->want > 0 && srv_conn_has_room(c)) {
+    srv_worker_conn *w = srv_worker_of(c);
+    if (!w)
+        srv_requests_pump_fetch(s, c); /* a client's (nothing unless it fetches) */
+    while (!h->dry && w && w->want > 0 && srv_conn_has_room(c)) {
         proto_task t;
         if (!srv_queue_lease(s, c->id, h->now, &t)) {
             h->dry = 1;
@@ -370,10 +376,10 @@ static int hand_out_to(srv_server *s, srv_conn *c, void *ctx)
             st = proto_frame_finish(&c->out, mark, proto_msg_encode_task(&c->out, &t, NULL), NULL);
         if (!srv_conn_queued(s, c, st))
             break;
-        c->want--;
+        w->want--;
     }
     srv_conn_update_events(s, c);
-    return h->dry && c->role == PROTO_ROLE_WORKER && c->want > 0;
+    return h->dry && w && w->want > 0;
 }
 
 void srv_workers_hand_out(srv_server *s)
@@ -400,10 +406,11 @@ void srv_workers_job_ended(srv_server *s, const srv_entry *j)
 void srv_workers_merged(srv_server *s, uint64_t owner, uint64_t merged, uint64_t now)
 {
     srv_conn *c = srv_conn_find(s, owner);
-    if (c) {
-        c->tasks_done++;
-        c->samples_done += merged;
-        c->t_result = now;
+    srv_worker_conn *w = c ? srv_worker_of(c) : NULL;
+    if (w) {
+        w->tasks_done++;
+        w->samples_done += merged;
+        w->t_result = now;
     }
 }
 
@@ -414,10 +421,31 @@ void srv_workers_each(srv_server *s, void (*fn)(void *ctx, uint64_t owner), void
             fn(ctx, c->id);
 }
 
+static void *open_worker(srv_server *s, srv_conn *c)
+{
+    (void)s;
+    (void)c;
+    return pt_calloc(1, sizeof(srv_worker_conn));
+}
+
+static void worker_gone(srv_server *s, srv_conn *c)
+{
+    (void)s;
+    pt_free(c->session);
+    c->session = NULL;
+}
+
+srv_worker_conn *srv_worker_of(const srv_conn *c)
+{
+    return c->state == SRV_C_READY && c->ops == &srv_workers_session ? c->session : NULL;
+}
+
 const srv_session srv_workers_session = {
+    .open = open_worker,
     .on_frame = srv_workers_dispatch,
     .on_result = srv_workers_result,
     .check_result = plausible,
     .refused = srv_workers_refused,
     .on_leave = on_leave,
+    .on_gone = worker_gone,
 };

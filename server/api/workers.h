@@ -35,6 +35,20 @@
 
 #define SRV_MAX_MISSES 3
 
+/* What the worker session keeps of one worker, beside its transport
+ * (srv_conn.session, made at WELCOME, freed when the connection is). */
+typedef struct srv_worker_conn {
+    uint32_t want;      /* free slots it asked tasks for */
+    uint32_t misses;    /* deadline misses since its last result */
+    uint32_t empties;   /* of them, results that held no sample */
+    uint64_t missed_at; /* when the last one was counted */
+    /* results merged, their samples, when the last one was (0: none) */
+    uint64_t tasks_done, samples_done, t_result;
+} srv_worker_conn;
+
+/* c's worker state; NULL unless c is a ready worker. */
+srv_worker_conn *srv_worker_of(const srv_conn *c);
+
 /* The loop's session of workers (srv_loop_set_session): the handlers below. */
 extern const srv_session srv_workers_session;
 

@@ -328,6 +328,7 @@ const srv_mode srv_mode_one_job = {
     .serves_clients = 0,
     .logs_starts = 0,
     .durable = 0,
+    .durability = &srv_durability_none,
     .setup = setup_single,
     .over = single_over,
     .after_leases = single_after_leases,
@@ -350,7 +351,7 @@ static pt_status setup_queue(srv_server *s, pt_error *err)
 {
     const srv_config *cfg = s->cfg;
     pt_status st;
-    if ((st = srv_state_open(cfg->state_dir, &s->state, err)) != PT_OK ||
+    if ((st = srv_state_open(cfg->state_dir, &srv_job_state_codec, &s->state, err)) != PT_OK ||
         (st = srv_loop_add_fd(s, srv_state_commit_fd(s->state), on_commits, NULL, NULL, err)) !=
             PT_OK)
         return st;
@@ -459,6 +460,7 @@ const srv_mode srv_mode_queue = {
     .serves_clients = 1,
     .logs_starts = 1,
     .durable = 1,
+    .durability = &srv_durability_folder,
     .setup = setup_queue,
     .over = queue_over,
     .after_leases = queue_after_leases,

@@ -242,12 +242,11 @@ void loop_conn_check_rate(srv_server *s, srv_conn *c, uint64_t now)
     char why[256];
     if (srv_frame_too_slow(l, &c->in, c->t_frame, now, why, sizeof why)) {
         srv_conn_send_error(s, c, PROTO_E_LIMIT, "%s", why);
-    } else if (c->uploading && c->t_upload &&
-               now - c->t_upload > srv_allowed_ms(l, c->up.bundle_size)) {
+    } else if (c->uploading && c->t_upload && now - c->t_upload > srv_allowed_ms(l, c->up_total)) {
         srv_conn_send_error(s, c, PROTO_E_LIMIT,
                             "upload of %llu bytes too slow: %zu received in %.1f s (the minimum "
                             "is %.1f KiB/s after %.1f s)",
-                            (unsigned long long)c->up.bundle_size, c->up_len,
+                            (unsigned long long)c->up_total, c->up_len,
                             (now - c->t_upload) / 1000.0, kib_s, l->frame_grace_ms / 1000.0);
     } else if ((held > 0 || c->uploading) && now - c->t_progress > l->frame_grace_ms) {
         srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "%s stalled for %.1f s",

@@ -160,10 +160,19 @@ void loop_on_auth(srv_server *s, srv_conn *c, const proto_frame *f)
         srv_conn_send_error(s, c, PROTO_E_INTERNAL, "cannot prove the token: %s", err.msg);
         return;
     }
+    /* The role's session takes the peer from here on, with its own state. */
+    const srv_session *ops = loop_session_of(s, c);
+    void *session = ops->open ? ops->open(s, c) : NULL;
+    if (ops->open && !session) {
+        srv_conn_send_error(s, c, PROTO_E_INTERNAL, "out of memory");
+        return;
+    }
     size_t mark;
     if (proto_frame_begin(&c->out, PROTO_MSG_WELCOME, &mark, NULL) == PT_OK)
         proto_frame_finish(&c->out, mark, proto_msg_encode_welcome(&c->out, &w, NULL), NULL);
     c->state = SRV_C_READY;
+    c->ops = ops;
+    c->session = session;
     c->admin = ident == NULL;
     if (ident && strcmp(ident, c->name) != 0) {
         char id_shown[PT_TEXT_ESCAPED_SIZE(PROTO_MAX_NAME)];

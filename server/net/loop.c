@@ -24,6 +24,8 @@
 const srv_session *loop_session_of(const srv_server *s, const srv_conn *c)
 {
     static const srv_session none;
+    if (c->ops)
+        return c->ops; /* taken at WELCOME */
     const srv_session *o = c->role < 3 ? s->reg->session[c->role] : NULL;
     return o ? o : &none;
 }
@@ -120,7 +122,8 @@ void srv_conn_update_events(srv_server *s, srv_conn *c)
         ev |= EPOLLET; /* its thread reads; a hang-up is reported here once */
     else if (!c->closing && !c->parked && srv_conn_has_room(c))
         ev |= EPOLLIN;
-    if (c->out.len > c->out_off)
+    int pending = c->out.len > c->out_off;
+    if (pending && c->out_blocked)
         ev |= EPOLLOUT;
     if (ev != c->events) {
         struct epoll_event e = {.events = ev, .data.ptr = &c->src};
@@ -128,7 +131,7 @@ void srv_conn_update_events(srv_server *s, srv_conn *c)
         c->events = ev;
     }
     /* Output queued: the sweep sends it this round. */
-    if (ev & EPOLLOUT)
+    if (pending)
         loop_conn_touch(s, c);
 }
 
@@ -185,6 +188,8 @@ void loop_conn_flush(srv_server *s, srv_conn *c)
             if (errno != EAGAIN && errno != EWOULDBLOCK) {
                 srv_conn_close_soon(s, c);
                 c->close_at = 0;
+            } else {
+                c->out_blocked = 1; /* EPOLLOUT says when it takes more */
             }
             break;
         }
@@ -192,6 +197,7 @@ void loop_conn_flush(srv_server *s, srv_conn *c)
         s->bytes_out += (uint64_t)w;
     }
     if (c->out_off == c->out.len) {
+        c->out_blocked = 0;
         proto_writer_reset(&c->out);
         c->out_off = 0;
     } else if (c->out_off > (1u << 20) && c->out_off > c->out.len / 2) {

@@ -110,8 +110,14 @@ typedef struct srv_loop_source {
 } srv_loop_source;
 
 /* What a role's peers are served by once they are ready (installed by
- * srv_loop_set_session before srv_loop_open; each may be NULL). */
+ * srv_loop_set_session before srv_loop_open; each may be NULL). The
+ * connection takes its role's session at WELCOME (srv_conn.ops), with the
+ * session's own state of it (srv_conn.session): the loop knows the
+ * transport, the session what the peer asked and was given. */
 typedef struct srv_session {
+    /* At WELCOME: the session's state of c, kept in c->session until
+     * on_gone frees it; NULL when memory is short (c is then refused). */
+    void *(*open)(srv_server *s, srv_conn *c);
     /* A whole frame from a ready peer. */
     void (*on_frame)(srv_server *s, srv_conn *c, const proto_frame *f);
     /* A RESULT an I/O thread decoded into r (checked: check_result passed
@@ -126,7 +132,7 @@ typedef struct srv_session {
     /* c leaves: it is closing (report 0), or is freed without having closed
      * (report 1: say what it left). */
     void (*on_leave)(srv_server *s, srv_conn *c, int report);
-    /* c is being freed. */
+    /* c is being freed (it frees c->session). */
     void (*on_gone)(srv_server *s, srv_conn *c);
 } srv_session;
 
@@ -141,6 +147,10 @@ struct srv_conn {
     proto_frame_reader in;
     proto_writer out;
     size_t out_off;
+    /* The last send left output unsent (the socket's buffer was full): only
+     * then is EPOLLOUT waited for. Output is otherwise sent by the round's
+     * sweep, with no change of epoll interest per message. */
+    int out_blocked;
     uint8_t nonce[PROTO_NONCE_SIZE];
     /* The HELLO name until WELCOME; from then on the peer's identity: the
      * NAME of the --clients-file token it proved, else the HELLO name. */
@@ -161,30 +171,19 @@ struct srv_conn {
     uint64_t t_parked;
     uint64_t t_frame;  /* the first byte of the frame in progress arrived */
     uint64_t t_upload; /* its upload (c->uploading) began */
-    uint16_t threads;
-    int admin;          /* proved the shared token (every peer, without --clients-file) */
-    uint32_t want;      /* worker: free slots it asked tasks for */
-    uint32_t misses;    /* worker: deadline misses since its last result (workers.h) */
-    uint32_t empties;   /* of them, results that held no sample */
-    uint64_t missed_at; /* when the last one was counted */
+    uint16_t threads;  /* HELLO's */
+    int admin;         /* proved the shared token (every peer, without --clients-file) */
     uint64_t t_connect, t_progress;
-    /* worker: results merged, their samples, when the last one was (0: none) */
-    uint64_t tasks_done, samples_done, t_result;
     uint32_t events;
-    /* client (server/api/requests.c) */
-    uint64_t watch, watch_t; /* job watched, last JOB_INFO sent */
-    int fetch;               /* an EXR is being sent, read from fetch_fd as the output drains */
-    int fetch_fd;            /* open (when fetch) on the image as it was at FETCH */
-    size_t fetch_len, fetch_off;
-    uint8_t fetch_hash[32];
+    /* An upload in progress as its client's session declares it, for the
+     * rate rule (guard.c): its size, the bytes received so far. */
     int uploading;
-    int verifying; /* its upload is being verified (a srv_upload in flight) */
-    proto_submit up;
-    /* The upload goes to a file of the state folder as it arrives
-     * (srv_upload_part_path), open in up_fd while up_open: memory holds
-     * no upload, whatever its size or number. */
-    int up_open, up_fd;
+    uint64_t up_total;
     size_t up_len;
+    /* From WELCOME: its role's session and that session's state of it
+     * (server/api/workers.h, server/api/client.h); NULL before. */
+    const srv_session *ops;
+    void *session;
     srv_conn *next;
 };
 

@@ -449,6 +449,10 @@ static int sweep_one(srv_server *s, srv_conn *c, uint64_t now)
         return 1;
     if (c->parked && loop_in_fits(s, c) && !loop_held(s, c))
         loop_conn_unpark(c, now);
+    /* What the frames served above queued goes now, not after the next
+     * wait: EPOLLOUT is waited for only when the socket is full. */
+    if (c->out.len > c->out_off && !c->out_blocked)
+        loop_conn_flush(s, c);
     srv_conn_update_events(s, c);
     return 0;
 }

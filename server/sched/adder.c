@@ -106,9 +106,14 @@ void srv_adder_post(srv_adder *a, srv_adds *g, pt_film *film, pt_rect tile, pt_p
     a->ring[(a->head + a->len) % SRV_ADDER_QUEUE_MAX] = (add_item){film, tile, px, g};
     a->len++;
     g->pending++;
-    if (a->idle)
-        pthread_cond_signal(&a->work);
+    int wake = a->idle > 0;
     pthread_mutex_unlock(&a->mu);
+    /* Signalled after the unlock: a thread woken under the lock would block
+     * on it at once, and the unlock would then have to wake it again (two
+     * system calls per add where one does). It finds the item either way:
+     * it checks the ring under the lock before it waits. */
+    if (wake)
+        pthread_cond_signal(&a->work);
 }
 
 void srv_adder_settle(srv_adder *a, const srv_adds *g)

@@ -163,7 +163,7 @@ int srv_frames_ready(srv_server *s, srv_entry *p)
 
 static void forget_frame(srv_server *s, const srv_job_record *r, uint32_t idx)
 {
-    srv_state_forget_job(s->state, srv_frame_job_id(r->id, pt_frames_number(&r->frames, idx)));
+    s->mode->durability->forget(s, srv_frame_job_id(r->id, pt_frames_number(&r->frames, idx)));
 }
 
 void srv_frames_forget_done(srv_server *s, const srv_entry *p)

@@ -85,6 +85,7 @@
 #include "protocol/msg.h"
 #include "server/params.h"
 #include "server/sched/adder.h"
+#include "server/store/state.h"
 
 /* Tasks of one job: a job whose fixed chunks would pass this is refused;
  * time-sized tasks are at least one block, or as many more (a power of two)
@@ -254,8 +255,17 @@ srv_outcome srv_job_result_validated(srv_job *job, int lease_index, proto_result
 /* Marks the lease a result srv_job_validate accepted answers (lease_index:
  * what it gave, the job unchanged since) while that result waits to be
  * merged (its log record is being made durable): no backup copy of it is
- * handed out meanwhile. Nothing else changes; deadlines still apply. */
-void srv_job_answered(srv_job *job, int lease_index);
+ * handed out meanwhile. Nothing else changes; deadlines still apply.
+ * Returns a ticket for srv_job_ticket_lease (0 when lease_index names no
+ * live lease). */
+uint64_t srv_job_answered(srv_job *job, int lease_index);
+
+/* The lease a ticket of srv_job_answered names, while it is still that live
+ * lease: what srv_job_validate_checked would give again for the same
+ * result and owner, without judging it again (O(1)). -1 once the lease has
+ * gone (expired, released, dropped because its task was merged or its tile
+ * stopped) or for ticket 0: the result must then be judged anew. */
+int srv_job_ticket_lease(const srv_job *job, uint64_t ticket);
 
 /* Accepts a result from the durable log after a restart: like srv_job_result
  * but without a lease, found by its tile and samples rather than its id (ids
@@ -268,23 +278,6 @@ srv_outcome srv_job_replay(srv_job *job, proto_result *r, pt_error *err);
 
 /* 1 when owner holds a lease of this job. */
 int srv_job_owner_active(const srv_job *job, uint64_t owner);
-
-/* The params block as the checkpoint and the state folder's queue file both
- * store it: nine u32 (width, height, spp, tile, chunk, seed, max depth, rr
- * depth, min spp), f64 target error, f64 min gain (in the formats that have
- * it; read as 0 from older ones), str camera, then (in the formats that have
- * them: no environment and no film flags from older ones) the environment: str
- * map name, f32 strength, f32 rotation, u8 background flag, f32 x3 colour; and
- * u32 film flags (an unknown bit is a format error), str material variant
- * (formats 4 on; "" from older ones), then f64 x2 motion blur's shutter (open,
- * close; refused unless proto_shutter_problem passes; formats 5 on, 0, 0 from
- * older ones). srv_job_params_read reads a block with or without the min gain,
- * with or without both the environment and the film flags (one format version
- * brought both) and with or without the shutter, as its file's format version
- * says; a failure is left in r's status. */
-void srv_job_params_write(proto_writer *w, const srv_job_params *p);
-void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, int has_env_film,
-                         int has_shutter);
 
 /* Checkpoints (format 6). srv_job_save appends the merged state (per tile
  * the samples merged and whether adaptive sampling stopped it, the held early
@@ -301,6 +294,10 @@ pt_status srv_job_save(const srv_job *job, proto_writer *w, pt_error *err);
  * memory. Free with srv_job_free. */
 srv_job *srv_job_snapshot(const srv_job *job);
 pt_status srv_job_load(srv_job *job, const uint8_t *data, size_t len, pt_error *err);
+/* The job as the state folder checkpoints and replays it (srv_job_id,
+ * srv_job_save, srv_job_load, srv_job_replay and srv_job_free): what the
+ * folder is handed at srv_state_open (server/store/state.h). */
+extern const srv_job_codec srv_job_state_codec;
 
 /* Tiles and passes (chunks per tile) of a job with params p, before or
  * without a srv_job: what srv_job_tiles and srv_job_passes of one would say. */

@@ -49,6 +49,8 @@ typedef struct lease {
     uint8_t live;
     uint8_t answered; /* its result arrived and waits for its log record to be
                          durable before it is merged: not a straggler */
+    uint32_t gen;     /* bumped each time the slot is given, never 0: a ticket's
+                         (srv_job_answered) proof that it is still this lease */
 } lease;
 
 typedef struct held {

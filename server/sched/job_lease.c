@@ -56,6 +56,7 @@ static uint32_t add_lease(srv_job *j, owner_stat *o, uint32_t t, uint8_t kind, u
     lease *l = &j->leases[s];
     j->lease_free = l->tnext;
     double v = job_expected_ms_ps(j, o);
+    uint32_t gen = l->gen + 1 ? l->gen + 1 : 1;
     *l = (lease){.owner = o->owner,
                  .start = now_ms,
                  .deadline = now_ms + lease_ms,
@@ -67,7 +68,8 @@ static uint32_t add_lease(srv_job *j, owner_stat *o, uint32_t t, uint8_t kind, u
                  .onext = o->leases,
                  .owner_ix = (uint32_t)(o - j->owners),
                  .kind = kind,
-                 .live = 1};
+                 .live = 1,
+                 .gen = gen};
     j->tasks[t].leases = s;
     if (o->leases != NONE)
         j->leases[o->leases].oprev = s;

@@ -642,10 +642,24 @@ static uint32_t tile_of(const srv_job *j, pt_rect r)
     return memcmp(&e, &r, sizeof e) == 0 ? t : NONE;
 }
 
-void srv_job_answered(srv_job *j, int lease_index)
+uint64_t srv_job_answered(srv_job *j, int lease_index)
 {
-    if (lease_index >= 0 && (uint32_t)lease_index < j->lease_slots && j->leases[lease_index].live)
-        j->leases[lease_index].answered = 1;
+    if (lease_index < 0 || (uint32_t)lease_index >= j->lease_slots || !j->leases[lease_index].live)
+        return 0;
+    lease *l = &j->leases[lease_index];
+    l->answered = 1;
+    return (uint64_t)l->gen << 32 | (uint32_t)lease_index;
+}
+
+int srv_job_ticket_lease(const srv_job *j, uint64_t ticket)
+{
+    uint32_t li = (uint32_t)ticket, gen = (uint32_t)(ticket >> 32);
+    /* A live lease is of a task that is leased (merging a task or stopping
+     * its tile drops its copies; a leased task is never cut again), so the
+     * slot's generation is all that tells it from a later lease. */
+    if (gen == 0 || li >= j->lease_slots || !j->leases[li].live || j->leases[li].gen != gen)
+        return -1;
+    return (int)li;
 }
 
 srv_outcome srv_job_replay(srv_job *j, proto_result *r, pt_error *err)

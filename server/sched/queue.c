@@ -143,8 +143,11 @@ void srv_queue_prune(srv_server *s)
 
 pt_status srv_queue_journal(srv_server *s, pt_error *err)
 {
-    if (!s->state)
-        return PT_OK;
+    return s->mode->durability->journal(s, err);
+}
+
+pt_status queue_journal_folder(srv_server *s, pt_error *err)
+{
     srv_job_record **recs = pt_malloc_array(s->njobs ? s->njobs : 1, sizeof *recs);
     if (!recs)
         return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
@@ -162,7 +165,7 @@ pt_status srv_queue_journal(srv_server *s, pt_error *err)
 static pt_status journal_or_log(srv_server *s)
 {
     pt_error err = {0};
-    int was_unsaved = s->state && srv_state_queue_unsaved(s->state);
+    int was_unsaved = s->mode->durability->unsaved(s);
     pt_status st = srv_queue_journal(s, &err);
     if (st != PT_OK)
         s->counters.state_write_errors++;
@@ -429,8 +432,8 @@ void srv_queue_end_job(srv_server *s, srv_entry *j, uint8_t state, const char *m
     pt_status st = journal_or_log(s);
     /* A failed job's files stay for the operator to look at; an ended one's
      * go once the queue says it ended. */
-    if (s->state && state != PROTO_JOB_FAILED && st == PT_OK)
-        srv_state_forget_job(s->state, j->rec.id);
+    if (state != PROTO_JOB_FAILED && st == PT_OK)
+        s->mode->durability->forget(s, j->rec.id);
     if (state == PROTO_JOB_DONE && j->parent) {
         if (!s->cfg->quiet)
             srv_log("job %llu frame %u done: %llu samples in %.1f s; %s",
@@ -475,6 +478,28 @@ static double resumed_seconds(const srv_entry *j, double ckpt)
     return meta.render_seconds;
 }
 
+pt_status queue_restore_folder(srv_server *s, srv_entry *j, pt_error *err)
+{
+    srv_ckpt_extra x;
+    uint32_t replayed;
+    int torn;
+    pt_status st = srv_state_restore(s->state, j->job, &x, &replayed, &torn, err);
+    if (st != PT_OK)
+        return st;
+    j->seconds_before = resumed_seconds(j, x.seconds);
+    j->rejected = x.rejected;
+    j->rays = x.rays;
+    if (torn)
+        srv_log("job %llu: dropped the incomplete last record of its results log (a "
+                "write cut short by a crash; it was never merged)",
+                (unsigned long long)j->rec.id);
+    if (srv_job_tasks_merged(j->job) > 0)
+        srv_log("job %llu resumed: %llu samples merged (%u from its results log)",
+                (unsigned long long)j->rec.id, (unsigned long long)srv_job_samples_merged(j->job),
+                replayed);
+    return PT_OK;
+}
+
 int srv_entry_ready(srv_server *s, srv_entry *j)
 {
     if (j->job)
@@ -485,25 +510,8 @@ int srv_entry_ready(srv_server *s, srv_entry *j)
     pt_status st = srv_job_new(j->rec.id, &j->rec.params, j->rec.hash, &j->job, &err);
     if (st == PT_OK)
         srv_job_set_adder(j->job, s->adder);
-    if (st == PT_OK && s->state) {
-        srv_ckpt_extra x;
-        uint32_t replayed;
-        int torn;
-        st = srv_state_restore(s->state, j->job, &x, &replayed, &torn, &err);
-        if (st == PT_OK) {
-            j->seconds_before = resumed_seconds(j, x.seconds);
-            j->rejected = x.rejected;
-            j->rays = x.rays;
-            if (torn)
-                srv_log("job %llu: dropped the incomplete last record of its results log (a "
-                        "write cut short by a crash; it was never merged)",
-                        (unsigned long long)j->rec.id);
-            if (srv_job_tasks_merged(j->job) > 0)
-                srv_log("job %llu resumed: %llu samples merged (%u from its results log)",
-                        (unsigned long long)j->rec.id,
-                        (unsigned long long)srv_job_samples_merged(j->job), replayed);
-        }
-    }
+    if (st == PT_OK)
+        st = s->mode->durability->restore(s, j, &err);
     if (st == PT_OK && !j->writer)
         load_manifests(s, j);
     if (st == PT_OK && !j->writer)
@@ -650,8 +658,7 @@ srv_entry *srv_queue_find_scene(srv_server *s, const uint8_t hash[32])
     /* A frame's bundle is its range's (jobs/ID/bundle of the range's id). */
     while (j && !(srv_entry_active(j) && !j->parent && memcmp(hash, j->rec.hash, 32) == 0))
         j = j->next;
-    if (j && !j->bundle && s->state &&
-        srv_state_load_bundle(s->state, j->rec.id, j->rec.hash, &j->bundle, &err) != PT_OK) {
+    if (j && !j->bundle && s->mode->durability->load_bundle(s, j, &err) != PT_OK) {
         char msg[PROTO_MAX_ERROR_TEXT + 1];
         snprintf(msg, sizeof msg, "%s", err.msg);
         srv_queue_end_job(s, j, PROTO_JOB_FAILED, msg);
@@ -699,6 +706,64 @@ int srv_queue_expire(srv_server *s, uint64_t now)
     }
     return 1;
 }
+
+pt_status queue_load_bundle_folder(srv_server *s, srv_entry *j, pt_error *err)
+{
+    return srv_state_load_bundle(s->state, j->rec.id, j->rec.hash, &j->bundle, err);
+}
+
+/* ---- one job: nothing kept (srv_durability_none) ---- */
+
+static pt_status none_journal(srv_server *s, pt_error *err)
+{
+    (void)s;
+    (void)err;
+    return PT_OK;
+}
+
+static int none_unsaved(const srv_server *s)
+{
+    (void)s;
+    return 0;
+}
+
+static void none_forget(srv_server *s, uint64_t id)
+{
+    (void)s;
+    (void)id;
+}
+
+/* A fresh job starts from nothing; the bundle is in memory from setup. */
+static pt_status none_entry(srv_server *s, srv_entry *j, pt_error *err)
+{
+    (void)s;
+    (void)j;
+    (void)err;
+    return PT_OK;
+}
+
+static void none_tick_job(srv_server *s, srv_entry *j, uint64_t now)
+{
+    (void)s;
+    (void)j;
+    (void)now;
+}
+
+static void none_tick(srv_server *s, uint64_t now)
+{
+    (void)s;
+    (void)now;
+}
+
+const srv_durability srv_durability_none = {
+    .journal = none_journal,
+    .unsaved = none_unsaved,
+    .forget = none_forget,
+    .restore = none_entry,
+    .load_bundle = none_entry,
+    .tick_job = none_tick_job,
+    .tick = none_tick,
+};
 
 void srv_queue_free(srv_server *s)
 {

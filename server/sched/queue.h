@@ -37,6 +37,29 @@
 #include "server/sched/writer.h"
 #include "server/store/state.h"
 
+/* What the queue keeps on disk, a strategy its mode names (srv_mode.durability):
+ * srv_durability_folder, the state folder's (a queue file, each job's
+ * bundle, checkpoint and results log), or srv_durability_none (one job:
+ * nothing is kept; the scene is in memory). Called on the loop thread. */
+typedef struct srv_durability {
+    /* Writes the queue file (every job's record). */
+    pt_status (*journal)(srv_server *s, pt_error *err);
+    /* 1 while the last journal failed (the file on disk is older). */
+    int (*unsaved)(const srv_server *s);
+    /* The files of job id go (it ended). */
+    void (*forget)(srv_server *s, uint64_t id);
+    /* Rebuilds j's fresh job from what was kept of it. */
+    pt_status (*restore)(srv_server *s, srv_entry *j, pt_error *err);
+    /* Loads the bundle of j, which has none in memory. */
+    pt_status (*load_bundle)(srv_server *s, srv_entry *j, pt_error *err);
+    /* Once per round (srv_queue_tick): for each running job, then once. */
+    void (*tick_job)(srv_server *s, srv_entry *j, uint64_t now);
+    void (*tick)(srv_server *s, uint64_t now);
+} srv_durability;
+
+extern const srv_durability srv_durability_folder;
+extern const srv_durability srv_durability_none;
+
 /* A result logged and waiting for the group commit that makes its record
  * durable; merged only then (srv_queue_committed). */
 typedef struct srv_pending {
@@ -44,6 +67,7 @@ typedef struct srv_pending {
     uint64_t owner;   /* the connection that sent it */
     uint64_t commit;  /* the group commit that holds its record */
     uint64_t arrived; /* ms */
+    uint64_t ticket;  /* its lease's (srv_job_answered); 0: none (merged as a replay) */
 } srv_pending;
 
 /* A job of the queue (or the one job of one-job mode). */
@@ -153,18 +177,20 @@ void srv_queue_prune(srv_server *s);
 pt_status srv_queue_journal(srv_server *s, pt_error *err);
 
 /* Logs an accepted RESULT of j (frame: its whole frame as received, len
- * bytes; r: that frame decoded into pixels of its own) from owner; the result
- * is merged once its record is durable (srv_queue_committed) and the caller
- * must not merge it. Takes r's pixels (r->pixels is then NULL, r->owns_pixels
- * 0): they wait with the record, decoded once. own: NULL, or the pt_malloc'd
- * buffer frame lies at the start of, which the log takes instead of a copy
+ * bytes; r: that frame decoded into pixels of its own) from owner, which
+ * srv_job_validate judged the answer to lease_index; the result is merged
+ * once its record is durable (srv_queue_committed), through that lease when
+ * it is still live (it is not judged again), and the caller must not merge
+ * it. The lease is marked answered meanwhile (srv_job_answered). Takes r's pixels (r->pixels is
+ * then NULL, r->owns_pixels 0): they wait with the record, decoded once. own: NULL, or the
+ * pt_malloc'd buffer frame lies at the start of, which the log takes instead of a copy
  * (*own is then NULL). When the log cannot take it, j is paused (its leases
  * requeued, the workers told to drop its tasks, the reason logged once) and
  * the frame kept to be logged by a later srv_queue_tick. Also fails, quietly,
  * while j is paused. Needs a state folder. */
-pt_status srv_queue_log_result(srv_server *s, srv_entry *j, uint64_t owner, proto_result *r,
-                               const uint8_t *frame, size_t len, uint8_t **own, uint64_t arrived,
-                               pt_error *err);
+pt_status srv_queue_log_result(srv_server *s, srv_entry *j, uint64_t owner, int lease_index,
+                               proto_result *r, const uint8_t *frame, size_t len, uint8_t **own,
+                               uint64_t arrived, pt_error *err);
 
 /* The bytes of the pixels of every job's results waiting for their commit
  * (decoded: twice their log records' size); srv_loop_hold counts them with

@@ -61,4 +61,10 @@ void queue_disk_reason(const char *folder, const pt_error *err, char *out, size_
  * the next job at once (their results would be dropped anyway). */
 void queue_announce_job_end(srv_server *s, const srv_entry *j);
 
+/* The state folder's side of srv_durability_folder (queue.c); the rest of
+ * it is results.c's. */
+pt_status queue_journal_folder(srv_server *s, pt_error *err);
+pt_status queue_restore_folder(srv_server *s, srv_entry *j, pt_error *err);
+pt_status queue_load_bundle_folder(srv_server *s, srv_entry *j, pt_error *err);
+
 #endif

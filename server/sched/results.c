@@ -16,7 +16,7 @@
 
 static pt_status checkpoint_quiet(srv_server *s, srv_entry *j, pt_error *err)
 {
-    if (!s->state || !j->job)
+    if (!j->job)
         return PT_OK;
     srv_ckpt_extra x = {srv_entry_seconds(j, pt_now_ms()), j->rejected, j->rays};
     double t0 = pt_now_s();
@@ -126,7 +126,7 @@ static pt_status push_pending(srv_server *s, srv_entry *j, uint64_t owner, proto
             return PT_ERR_NOMEM;
         j->pend = n;
     }
-    j->pend[j->npend++] = (srv_pending){*r, owner, srv_state_commit_next(s->state), arrived};
+    j->pend[j->npend++] = (srv_pending){*r, owner, srv_state_commit_next(s->state), arrived, 0};
     j->pend_bytes += queue_pixel_bytes(r);
     r->pixels = NULL;
     r->owns_pixels = 0;
@@ -183,9 +183,9 @@ static void resume(srv_server *s, srv_entry *j, uint64_t now)
     srv_log("job %llu resumed: the state folder takes its writes again (paused %.1f s)",
             (unsigned long long)j->rec.id, (double)(now - j->t_paused) / 1000.0);
 }
-pt_status srv_queue_log_result(srv_server *s, srv_entry *j, uint64_t owner, proto_result *r,
-                               const uint8_t *frame, size_t len, uint8_t **own, uint64_t arrived,
-                               pt_error *err)
+pt_status srv_queue_log_result(srv_server *s, srv_entry *j, uint64_t owner, int lease_index,
+                               proto_result *r, const uint8_t *frame, size_t len, uint8_t **own,
+                               uint64_t arrived, pt_error *err)
 {
     if (j->paused)
         return pt_error_set(err, PT_ERR_IO, "job %llu is paused", (unsigned long long)j->rec.id);
@@ -196,7 +196,9 @@ pt_status srv_queue_log_result(srv_server *s, srv_entry *j, uint64_t owner, prot
         st = push_pending(s, j, owner, r, arrived);
         if (st != PT_OK)
             return pt_error_set(err, st, "out of memory for a result");
-        j->pend[j->npend - 1].commit = commit;
+        srv_pending *p = &j->pend[j->npend - 1];
+        p->commit = commit;
+        p->ticket = srv_job_answered(j->job, lease_index);
         return PT_OK;
     }
     s->counters.state_write_errors++;
@@ -284,20 +286,24 @@ srv_outcome srv_queue_merge(srv_server *s, srv_entry *j, uint64_t owner, int lea
     return o;
 }
 
-/* Merges r, a result of j from owner (a connection id, maybe gone now) held
- * until its log record was durable. */
-static void merge_logged(srv_server *s, srv_entry *j, uint64_t owner, proto_result *r,
-                         uint64_t arrived)
+/* Merges p's result, held until its log record was durable: through the
+ * lease it was judged the answer to when it arrived, while that lease is
+ * live (nothing it was judged by has changed since), else judged anew. */
+static void merge_logged(srv_server *s, srv_entry *j, srv_pending *p)
 {
     pt_error err = {0};
-    int li = -1;
-    /* Validated whole when it arrived: its pixels have not changed since. */
-    srv_outcome o = srv_job_validate_checked(j->job, owner, r, &li, &err);
+    uint64_t owner = p->owner; /* a connection id, maybe gone now */
+    proto_result *r = &p->r;
+    srv_outcome o = SRV_MERGED;
+    int li = srv_job_ticket_lease(j->job, p->ticket);
+    /* Its pixels were checked whole when it arrived and have not changed. */
+    if (li < 0)
+        o = srv_job_validate_checked(j->job, owner, r, &li, &err);
     /* Its lease may have gone since it arrived (expired, its worker left or
      * the job paused): it is still a render of its task, and durable, so it
      * is merged as a restart's replay would (a duplicate changes nothing). */
     if (o == SRV_MERGED || o == SRV_NOT_LEASED)
-        srv_queue_merge(s, j, owner, o == SRV_MERGED ? li : -1, r, arrived, &err);
+        srv_queue_merge(s, j, owner, o == SRV_MERGED ? li : -1, r, p->arrived, &err);
 }
 
 /* Merges j's results whose records the commit done made durable (those of a
@@ -308,7 +314,7 @@ static void merge_durable(srv_server *s, srv_entry *j, uint64_t done)
     for (; i < j->npend && j->pend[i].commit <= done && j->committed >= j->pend[i].commit; i++) {
         srv_pending *p = &j->pend[i];
         if (j->job && srv_entry_active(j))
-            merge_logged(s, j, p->owner, &p->r, p->arrived);
+            merge_logged(s, j, p);
         queue_pending_fini(j, p); /* unless the job took its pixels */
     }
     for (; i < j->npend; i++)
@@ -319,20 +325,16 @@ static void merge_durable(srv_server *s, srv_entry *j, uint64_t done)
 void srv_queue_committed(srv_server *s, int wait)
 {
     uint64_t done;
-    if (!s->state)
-        return;
-    while (srv_state_commit_collect(s->state, wait, &done, on_commit, s)) {
-        wait = 0;
+    /* One commit is in flight at a time: once it is collected there is no
+     * other to ask for (asking would only read the eventfd again). */
+    if (srv_state_commit_collect(s->state, wait, &done, on_commit, s))
         for (srv_entry *j = s->jobs; j; j = j->next)
             if (j->npend)
                 merge_durable(s, j, done);
-    }
 }
 
 void srv_queue_commit_all(srv_server *s)
 {
-    if (!s->state)
-        return;
     srv_queue_committed(s, 1); /* the commit in flight */
     if (srv_state_commit_start(s->state))
         srv_queue_committed(s, 1); /* the rest */
@@ -356,14 +358,70 @@ static void note_saves(srv_entry *j)
     }
 }
 
-void srv_queue_tick(srv_server *s, uint64_t now)
+/* The queue file written again after a failure; a checkpoint's outcome. */
+static void folder_tick(srv_server *s, uint64_t now)
 {
-    if (s->state && srv_state_queue_unsaved(s->state) && now >= s->queue_retry) {
+    if (srv_state_queue_unsaved(s->state) && now >= s->queue_retry) {
         s->queue_retry = now + DISK_RETRY_MS;
         pt_error err = {0};
         if (srv_queue_journal(s, &err) == PT_OK)
             srv_log("the queue file is written again");
     }
+    uint64_t id;
+    pt_status cst;
+    pt_error err = {0};
+    if (srv_state_checkpoint_collect(s->state, &id, &cst, &err) && cst != PT_OK) {
+        srv_entry *j = srv_queue_find_any(s, id);
+        s->counters.state_write_errors++;
+        if (j && j->job && srv_entry_active(j) && err.code == PT_ERR_IO) {
+            j->pending_ckpt = 1;
+            queue_pause_job(s, j, "cannot write its checkpoint", &err);
+        } else {
+            srv_log("error: job %llu: cannot write its checkpoint: %s", (unsigned long long)id,
+                    err.msg);
+        }
+    }
+}
+
+/* Checkpoint cost stays proportional to what the log has taken in. */
+static void folder_tick_job(srv_server *s, srv_entry *j, uint64_t now)
+{
+    (void)now;
+    if (j->paused || srv_state_checkpoint_busy(s->state))
+        return;
+    /* srv_job_film settles: the loop waits here, once a round, for the
+     * merge threads' adds in flight. That wait is their flow control, not
+     * an accident: without it the adds' ring fills and the loop does the
+     * adds itself (farm_scale.sh, unpaced, chunk 64: 5.8-9.0 loop us per
+     * result with it, 19-20 without). */
+    const pt_film *f = srv_job_film(j->job);
+    uint64_t film_bytes = (uint64_t)f->width * f->height * sizeof(pt_pixel_acc);
+    if (srv_state_log_bytes(s->state, j->rec.id) >= srv_state_ckpt_limit(s->state, film_bytes))
+        queue_checkpoint_start(s, j);
+}
+
+static int folder_unsaved(const srv_server *s)
+{
+    return srv_state_queue_unsaved(s->state);
+}
+
+static void folder_forget(srv_server *s, uint64_t id)
+{
+    srv_state_forget_job(s->state, id);
+}
+
+const srv_durability srv_durability_folder = {
+    .journal = queue_journal_folder,
+    .unsaved = folder_unsaved,
+    .forget = folder_forget,
+    .restore = queue_restore_folder,
+    .load_bundle = queue_load_bundle_folder,
+    .tick_job = folder_tick_job,
+    .tick = folder_tick,
+};
+
+void srv_queue_tick(srv_server *s, uint64_t now)
+{
     for (srv_entry *j = s->jobs; j; j = j->next) {
         if (!j->job || !srv_entry_active(j))
             continue;
@@ -389,32 +447,7 @@ void srv_queue_tick(srv_server *s, uint64_t now)
             j->rate_t = now;
             j->rate_samples = merged;
         }
-        /* Checkpoint cost stays proportional to what the log has taken in. */
-        if (s->state && !j->paused && !srv_state_checkpoint_busy(s->state)) {
-            /* srv_job_film settles: the loop waits here, once a round, for
-             * the merge threads' adds in flight. That wait is their flow
-             * control, not an accident: without it the adds' ring fills and
-             * the loop does the adds itself (farm_scale.sh, unpaced, chunk
-             * 64: 5.8-9.0 loop us per result with it, 19-20 without). */
-            const pt_film *f = srv_job_film(j->job);
-            uint64_t film_bytes = (uint64_t)f->width * f->height * sizeof(pt_pixel_acc);
-            if (srv_state_log_bytes(s->state, j->rec.id) >=
-                srv_state_ckpt_limit(s->state, film_bytes))
-                queue_checkpoint_start(s, j);
-        }
+        s->mode->durability->tick_job(s, j, now);
     }
-    uint64_t id;
-    pt_status cst;
-    pt_error err = {0};
-    if (s->state && srv_state_checkpoint_collect(s->state, &id, &cst, &err) && cst != PT_OK) {
-        srv_entry *j = srv_queue_find_any(s, id);
-        s->counters.state_write_errors++;
-        if (j && j->job && srv_entry_active(j) && err.code == PT_ERR_IO) {
-            j->pending_ckpt = 1;
-            queue_pause_job(s, j, "cannot write its checkpoint", &err);
-        } else {
-            srv_log("error: job %llu: cannot write its checkpoint: %s", (unsigned long long)id,
-                    err.msg);
-        }
-    }
+    s->mode->durability->tick(s, now);
 }

@@ -8,7 +8,7 @@
  *   DIR/jobs/ID/cryptomatte  a job with Cryptomatte: its two manifests (objects,
  *                            materials), one JSON object a line, from the scene
  *                            the upload check loaded
- *   DIR/jobs/ID/checkpoint   the job's merged state (srv_job_save) with render
+ *   DIR/jobs/ID/checkpoint   the job's merged state (the codec's save) with render
  *                            seconds and counters; written whole, CRC32C at the end
  *   DIR/jobs/ID/results.log  every result accepted since that checkpoint, appended
  *                            before it is merged: a 16-byte header ("PTRF",
@@ -32,7 +32,7 @@
  * restart the job is rebuilt from the checkpoint, then results.old and
  * results.log are replayed; replay is idempotent, so a crash between writing a
  * checkpoint and removing the log it holds is harmless. Checkpoints are
- * written from a snapshot of the job (srv_job_snapshot) by their own thread
+ * written from a snapshot of the job (its owner's copy) by their own thread
  * (srv_state_checkpoint_start), to a temporary file renamed into place, so a
  * crash during one leaves the previous checkpoint and both logs, which hold
  * everything. A write cut short (a full disk) is cut back at once to the last
@@ -46,6 +46,11 @@
  * with an error that names the file; it is never used silently. A log of an
  * older ptserve ("PTRL": u32 length, u32 CRC32C of the payload, the payload)
  * is read and rewritten in frames at its first replay.
+ *
+ * The folder knows a job only as a handle and what the codec its opener
+ * hands it (srv_job_codec) does with one: it never calls the scheduler,
+ * whose job it keeps; replay yields each record's decoded RESULT to the
+ * codec, which merges it.
  *
  * Threads: called only from the event-loop thread, except srv_state_dir and
  * srv_state_save_bundle, which any thread may call between open and close.
@@ -63,7 +68,8 @@
 #include "common/base/frames.h"
 #include "common/scene/bundle.h"
 #include "protocol/msg.h"
-#include "server/sched/job.h"
+#include "protocol/wire.h"
+#include "server/params.h"
 
 /* Frames of one frame-range job rendering at once (server/sched/frames.h). */
 #define SRV_FRAMES_AHEAD 8u
@@ -108,9 +114,32 @@ typedef struct srv_job_record {
 
 typedef struct srv_state srv_state;
 
+/* A job as the scheduler keeps it (server/sched/job.h): a handle here, reached
+ * only through the codec. */
+typedef struct srv_job srv_job;
+
+/* What the folder asks of a job, handed to it at open by the layer that owns
+ * the jobs. The checkpoint thread calls save on a snapshot (and free once it
+ * is written), so save must touch nothing but the job it is given. */
+typedef struct srv_job_codec {
+    uint64_t (*id)(const srv_job *job);
+    /* Appends the job's merged state to w (a checkpoint's body). */
+    pt_status (*save)(const srv_job *job, proto_writer *w, pt_error *err);
+    /* Restores a checkpoint's body into a fresh job; err says what does not fit. */
+    pt_status (*load)(srv_job *job, const uint8_t *data, size_t len, pt_error *err);
+    /* Merges one record of a results log (the job may take r's pixels):
+     * PT_OK with *merged 1, or 0 for a result the job holds already; any
+     * other status when it does not fit the job (err says why). */
+    pt_status (*replay)(srv_job *job, proto_result *r, int *merged, pt_error *err);
+    void (*free)(srv_job *job); /* a snapshot handed to srv_state_checkpoint_start */
+} srv_job_codec;
+
 /* Opens (creating) DIR and DIR/jobs and takes DIR/lock: PT_ERR_IO naming DIR
- * when another ptserve holds it. */
-pt_status srv_state_open(const char *dir, srv_state **out, pt_error *err);
+ * when another ptserve holds it. codec (kept; NULL when the folder's jobs
+ * are never checkpointed or restored, only its queue file and bundles used)
+ * is what checkpoints and replays call. */
+pt_status srv_state_open(const char *dir, const srv_job_codec *codec, srv_state **out,
+                         pt_error *err);
 void srv_state_close(srv_state *st); /* accepts NULL */
 const char *srv_state_dir(const srv_state *st);
 
@@ -166,13 +195,12 @@ uint64_t srv_state_ckpt_limit(const srv_state *st, uint64_t film_bytes);
 pt_status srv_state_checkpoint(srv_state *st, const srv_job *job, const srv_ckpt_extra *x,
                                pt_error *err);
 
-/* Starts the checkpoint of a job off the loop: snap (srv_job_snapshot of it,
- * owned by the state from here on) is serialised and written durably by the
- * checkpoint thread. The job's results.log is renamed results.old at once and
- * a fresh one opened: records logged from now on go there, and a record of
- * results.old whose result is not merged yet must be logged again (its result
- * is not in snap). PT_AGAIN while another checkpoint is being written;
- * PT_ERR_IO when the log cannot be rotated. */
+/* Starts the checkpoint of a job off the loop: snap (a copy of it that the
+ * codec's save reads and free frees, owned by the state from here on) is serialised and written
+ * durably by the checkpoint thread. The job's results.log is renamed results.old at once and a
+ * fresh one opened: records logged from now on go there, and a record of results.old whose result
+ * is not merged yet must be logged again (its result is not in snap). PT_AGAIN while another
+ * checkpoint is being written; PT_ERR_IO when the log cannot be rotated. */
 pt_status srv_state_checkpoint_start(srv_state *st, srv_job *snap, const srv_ckpt_extra *x,
                                      pt_error *err);
 int srv_state_checkpoint_busy(const srv_state *st);
@@ -180,8 +208,8 @@ int srv_state_checkpoint_busy(const srv_state *st);
  * (err: why not); 0 while it runs or when there is none. */
 int srv_state_checkpoint_collect(srv_state *st, uint64_t *id, pt_status *status, pt_error *err);
 
-/* Rebuilds a fresh job (srv_job_new with its record's settings) from its
- * checkpoint, when there is one, and its results logs. *extra receives the
+/* Rebuilds a fresh job (made with its record's settings) from its
+ * checkpoint, when there is one, and its results logs, through the codec. *extra receives the
  * checkpoint's counters plus the replayed results'; *replayed the number of
  * log records merged; *torn 1 when an incomplete last record was dropped.
  * A results.old found is folded into a new checkpoint at once. */

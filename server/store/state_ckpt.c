@@ -1,6 +1,7 @@
 #define _GNU_SOURCE /* O_CLOEXEC, fdatasync */
 #include "server/store/state_impl.h"
 
+#include <assert.h>
 #include <dirent.h>
 #include <errno.h>
 #include <fcntl.h>
@@ -29,8 +30,8 @@
 
 /* Serialises job into a checkpoint file at path, durably: a temporary file
  * beside it, renamed into place (gate: a test hook, waited for between). */
-static pt_status write_ckpt(const char *path, const srv_job *job, const srv_ckpt_extra *x,
-                            const char *gate, pt_error *err)
+static pt_status write_ckpt(const char *path, const srv_job_codec *codec, const srv_job *job,
+                            const srv_ckpt_extra *x, const char *gate, pt_error *err)
 {
     proto_writer w;
     proto_writer_init(&w, MAX_CKPT_BYTES);
@@ -38,7 +39,7 @@ static pt_status write_ckpt(const char *path, const srv_job *job, const srv_ckpt
     proto_w_f64(&w, x->seconds);
     proto_w_u64(&w, x->rejected);
     proto_w_u64(&w, x->rays);
-    pt_status s = srv_job_save(job, &w, err);
+    pt_status s = codec->save(job, &w, err);
     if (s == PT_OK && proto_writer_status(&w) == PT_OK)
         proto_w_u32(&w, proto_crc32c(0, w.buf, w.len));
     if (s == PT_OK && proto_writer_status(&w) != PT_OK)
@@ -78,7 +79,8 @@ static pt_status log_restart(srv_state *st, uint64_t id, pt_error *err)
 pt_status srv_state_checkpoint(srv_state *st, const srv_job *job, const srv_ckpt_extra *x,
                                pt_error *err)
 {
-    uint64_t id = srv_job_id(job);
+    assert(st->codec); /* srv_state_open's */
+    uint64_t id = st->codec->id(job);
     if (st->ck.running)
         st_ckpt_join(st); /* its older snapshot must not land after this one */
     char p[PATH_MAX], old[PATH_MAX];
@@ -89,7 +91,7 @@ pt_status srv_state_checkpoint(srv_state *st, const srv_job *job, const srv_ckpt
     while (st->cm.has_req)
         pthread_cond_wait(&st->cm.cv, &st->cm.mu);
     pthread_mutex_unlock(&st->cm.mu);
-    if ((s = write_ckpt(p, job, x, "", err)) != PT_OK)
+    if ((s = write_ckpt(p, st->codec, job, x, "", err)) != PT_OK)
         return s;
     /* Everything the logs held is in the checkpoint now: start afresh. */
     st_job_path(st, id, "results.old", old, sizeof old);
@@ -101,7 +103,7 @@ pt_status srv_state_checkpoint(srv_state *st, const srv_job *job, const srv_ckpt
 static void *ckpt_main(void *arg)
 {
     ckpt_work *ck = arg;
-    ck->status = write_ckpt(ck->path, ck->snap, &ck->x, ck->gate, &ck->err);
+    ck->status = write_ckpt(ck->path, ck->codec, ck->snap, &ck->x, ck->gate, &ck->err);
     /* The records of the rotated log are in the checkpoint now. Should the
      * unlink not reach the disk, a restart replays them again: harmless. */
     if (ck->status == PT_OK && unlink(ck->old) != 0 && errno != ENOENT)
@@ -116,7 +118,7 @@ void st_ckpt_join(srv_state *st)
         return;
     pthread_join(st->ck.th, NULL);
     st->ck.running = 0;
-    srv_job_free(st->ck.snap);
+    st->codec->free(st->ck.snap);
     st->ck.snap = NULL;
     if (st->ck.forget)
         st_remove_job(st, st->ck.id);
@@ -132,15 +134,16 @@ pt_status srv_state_checkpoint_start(srv_state *st, srv_job *snap, const srv_ckp
                                      pt_error *err)
 {
     ckpt_work *ck = &st->ck;
-    uint64_t id = srv_job_id(snap);
+    assert(st->codec); /* srv_state_open's */
+    uint64_t id = st->codec->id(snap);
     pt_status s;
     if (ck->running) {
-        srv_job_free(snap);
+        st->codec->free(snap);
         return pt_error_set(err, PT_AGAIN, "a checkpoint is being written");
     }
     char cur[PATH_MAX];
     if ((s = st_job_file(st, id, "checkpoint", ck->path, sizeof ck->path, err)) != PT_OK) {
-        srv_job_free(snap);
+        st->codec->free(snap);
         return s;
     }
     st_job_path(st, id, "results.old", ck->old, sizeof ck->old);
@@ -158,7 +161,7 @@ pt_status srv_state_checkpoint_start(srv_state *st, srv_job *snap, const srv_ckp
          * (its header and folder entry are synced by the next group commit,
          * before any of its records is merged). */
         if (rename(cur, ck->old) != 0) {
-            srv_job_free(snap);
+            st->codec->free(snap);
             return pt_error_errno(err, PT_ERR_IO, "%s: rename", cur);
         }
         st_close_log(st, id);
@@ -170,6 +173,7 @@ pt_status srv_state_checkpoint_start(srv_state *st, srv_job *snap, const srv_ckp
      * then takes results.old away, and the log's records stay (replayed as
      * duplicates at worst). */
     ck->id = id;
+    ck->codec = st->codec;
     ck->snap = snap;
     ck->x = *x;
     ck->status = PT_OK;
@@ -178,7 +182,7 @@ pt_status srv_state_checkpoint_start(srv_state *st, srv_job *snap, const srv_ckp
     atomic_store(&ck->done, 0);
     if (pthread_create(&ck->th, NULL, ckpt_main, ck) != 0) {
         ck->snap = NULL;
-        srv_job_free(snap);
+        st->codec->free(snap);
         return pt_error_set(err, PT_ERR_IO, "cannot start the checkpoint thread");
     }
     ck->running = 1;
@@ -265,10 +269,10 @@ static size_t log_upgrade_fixed(const uint8_t *pl, size_t n, pt_pixel_acc *px, p
     return w->len;
 }
 
-/* Merges one RESULT payload of the log into job. */
-static pt_status replay_one(srv_job *job, const uint8_t *pl, size_t n, pt_pixel_acc *buf,
-                            srv_ckpt_extra *x, uint32_t *replayed, const char *p, size_t at,
-                            pt_error *err)
+/* Hands one RESULT payload of the log to the codec, which merges it into job. */
+static pt_status replay_one(const srv_job_codec *codec, srv_job *job, const uint8_t *pl, size_t n,
+                            pt_pixel_acc *buf, srv_ckpt_extra *x, uint32_t *replayed, const char *p,
+                            size_t at, pt_error *err)
 {
     proto_result r;
     pt_error e2 = {0};
@@ -276,14 +280,15 @@ static pt_status replay_one(srv_job *job, const uint8_t *pl, size_t n, pt_pixel_
         return pt_error_set(err, PT_ERR_FORMAT,
                             "%s: record at byte %zu is damaged (contents: %s); refusing to use it",
                             p, at, e2.msg);
-    srv_outcome o = srv_job_replay(job, &r, &e2);
-    if (o == SRV_MERGED) {
+    int merged = 0;
+    pt_status s = codec->replay(job, &r, &merged, &e2);
+    if (s == PT_OK && merged) {
         x->rejected += r.rejected;
         x->rays += r.rays;
         (*replayed)++;
     }
     proto_result_fini(&r);
-    if (o != SRV_MERGED && o != SRV_DUPLICATE)
+    if (s != PT_OK)
         return pt_error_set(err, PT_ERR_FORMAT, "%s: record at byte %zu does not fit the job: %s",
                             p, at, e2.msg);
     return PT_OK;
@@ -443,10 +448,10 @@ static pt_status crc_record(log_scan *sc, size_t good, const uint8_t **pl, size_
     return PT_OK;
 }
 
-static pt_status replay_log(const char *p, srv_job *job, srv_ckpt_extra *x, uint32_t *replayed,
-                            int *torn, pt_error *err)
+static pt_status replay_log(const char *p, const srv_job_codec *codec, srv_job *job,
+                            srv_ckpt_extra *x, uint32_t *replayed, int *torn, pt_error *err)
 {
-    uint64_t id = srv_job_id(job);
+    uint64_t id = codec->id(job);
     uint8_t *data;
     size_t len;
     pt_status s = pt_read_file(p, (size_t)64 << 30, &data, &len, err);
@@ -497,7 +502,7 @@ static pt_status replay_log(const char *p, srv_job *job, srv_ckpt_extra *x, uint
                 s = rs;
                 break;
             }
-            s = replay_one(job, pl, n, sc.buf, x, replayed, p, good, err);
+            s = replay_one(codec, job, pl, n, sc.buf, x, replayed, p, good, err);
             if (s == PT_OK)
                 good = next;
         }
@@ -529,13 +534,15 @@ pt_status srv_state_restore(srv_state *st, srv_job *job, srv_ckpt_extra *extra, 
     memset(extra, 0, sizeof *extra);
     *replayed = 0;
     *torn = 0;
+    assert(st->codec); /* srv_state_open's */
+    uint64_t id = st->codec->id(job);
     char p[PATH_MAX];
-    st_job_path(st, srv_job_id(job), "checkpoint", p, sizeof p);
+    st_job_path(st, id, "checkpoint", p, sizeof p);
     uint8_t *data;
     const uint8_t *body;
     size_t len;
     int missing;
-    /* The checkpoint body carries its own version (srv_job_restore). */
+    /* The checkpoint body carries its own version (the codec's load). */
     pt_status s =
         st_read_intact(p, CKPT_MAGIC, MAX_CKPT_BYTES, &data, &body, &len, NULL, &missing, err);
     if (s != PT_OK)
@@ -549,7 +556,7 @@ pt_status srv_state_restore(srv_state *st, srv_job *job, srv_ckpt_extra *extra, 
         extra->rejected = proto_get_u64(body + 8);
         extra->rays = proto_get_u64(body + 16);
         pt_error e2 = {0};
-        s = srv_job_load(job, body + 24, len - 24, &e2);
+        s = st->codec->load(job, body + 24, len - 24, &e2);
         pt_free(data);
         if (s != PT_OK)
             return pt_error_set(err, s, "%s: %s; refusing to use it", p, e2.msg);
@@ -561,11 +568,11 @@ pt_status srv_state_restore(srv_state *st, srv_job *job, srv_ckpt_extra *extra, 
      * before the current log's. Replay is idempotent, so records the
      * checkpoint already holds change nothing. */
     char old[PATH_MAX], cur[PATH_MAX];
-    st_job_path(st, srv_job_id(job), "results.old", old, sizeof old);
-    st_job_path(st, srv_job_id(job), "results.log", cur, sizeof cur);
+    st_job_path(st, id, "results.old", old, sizeof old);
+    st_job_path(st, id, "results.log", cur, sizeof cur);
     int torn_old = 0;
-    if ((s = replay_log(old, job, extra, replayed, &torn_old, err)) != PT_OK ||
-        (s = replay_log(cur, job, extra, replayed, torn, err)) != PT_OK)
+    if ((s = replay_log(old, st->codec, job, extra, replayed, &torn_old, err)) != PT_OK ||
+        (s = replay_log(cur, st->codec, job, extra, replayed, torn, err)) != PT_OK)
         return s;
     *torn |= torn_old;
     struct stat sb;
@@ -573,8 +580,8 @@ pt_status srv_state_restore(srv_state *st, srv_job *job, srv_ckpt_extra *extra, 
         return PT_OK;
     /* Fold both into a checkpoint now, so that the next rotation finds no
      * results.old in its way. */
-    if ((s = st_job_file(st, srv_job_id(job), "checkpoint", p, sizeof p, err)) != PT_OK ||
-        (s = write_ckpt(p, job, extra, "", err)) != PT_OK)
+    if ((s = st_job_file(st, id, "checkpoint", p, sizeof p, err)) != PT_OK ||
+        (s = write_ckpt(p, st->codec, job, extra, "", err)) != PT_OK)
         return s;
     if (unlink(old) != 0)
         return pt_error_errno(err, PT_ERR_IO, "%s", old);

@@ -126,6 +126,7 @@ typedef struct ckpt_work {
     int running; /* started and not joined */
     atomic_int done;
     uint64_t id;
+    const srv_job_codec *codec; /* the state's, read by the thread */
     srv_job *snap;
     srv_ckpt_extra x;
     char path[PATH_MAX], old[PATH_MAX];
@@ -138,6 +139,7 @@ typedef struct ckpt_work {
 struct srv_state {
     char dir[PATH_MAX - 64];
     int lock_fd;
+    const srv_job_codec *codec; /* NULL: no checkpoint or restore */
     log_file *logs;
     uint32_t nlogs, logs_cap;
     int queue_unsaved; /* the last queue file write failed */

@@ -411,8 +411,10 @@ int srv_state_commit_start(srv_state *st)
     cm->busy = 1;
     pthread_mutex_lock(&cm->mu);
     cm->has_req = 1;
-    pthread_cond_broadcast(&cm->cv);
     pthread_mutex_unlock(&cm->mu);
+    /* After the unlock, so that the thread does not wake to a held lock;
+     * only the loop thread, which is here, waits on cv besides it. */
+    pthread_cond_broadcast(&cm->cv);
     return 1;
 }
 

@@ -25,7 +25,8 @@
 #include "protocol/frame.h"
 #include "protocol/wire.h"
 
-pt_status srv_state_open(const char *dir, srv_state **out, pt_error *err)
+pt_status srv_state_open(const char *dir, const srv_job_codec *codec, srv_state **out,
+                         pt_error *err)
 {
     if (strlen(dir) >= sizeof((srv_state *)0)->dir)
         return pt_error_set(err, PT_ERR_ARG, "state folder %s: path too long", dir);
@@ -33,6 +34,7 @@ pt_status srv_state_open(const char *dir, srv_state **out, pt_error *err)
     if (!st)
         return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
     snprintf(st->dir, sizeof st->dir, "%s", dir);
+    st->codec = codec;
     st->lock_fd = -1;
     st->cm.efd = -1;
     st->cm.next = 1;

@@ -163,7 +163,8 @@ int main(int argc, char **argv)
         die("mkdtemp", NULL);
     snprintf(jdir, sizeof jdir, "%s/jobs/1", sdir);
     srv_state *st = NULL;
-    if (srv_state_open(sdir, &st, &err) != PT_OK || pt_mkdirs(jdir, 1, &err) != PT_OK)
+    if (srv_state_open(sdir, &srv_job_state_codec, &st, &err) != PT_OK ||
+        pt_mkdirs(jdir, 1, &err) != PT_OK)
         die(sdir, &err);
     srv_job_params p = {0};
     p.width = w;

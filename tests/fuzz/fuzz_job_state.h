@@ -32,7 +32,7 @@ static void open_state(void)
     char dir[600];
     snprintf(dir, sizeof dir, "%s/state", fuzz_dir());
     pt_error err = {0};
-    FUZZ_CHECK(srv_state_open(dir, &state, &err) == PT_OK);
+    FUZZ_CHECK(srv_state_open(dir, &srv_job_state_codec, &state, &err) == PT_OK);
     snprintf(job_dir, sizeof job_dir, "%s/jobs/%u", dir, FUZZ_JOB_ID);
     FUZZ_CHECK(pt_mkdirs(job_dir, 1, &err) == PT_OK);
     atexit(close_state);

@@ -37,7 +37,7 @@ static void open_state(void)
         return;
     snprintf(state_dir, sizeof state_dir, "%s/state", fuzz_dir());
     pt_error err = {0};
-    FUZZ_CHECK(srv_state_open(state_dir, &state, &err) == PT_OK);
+    FUZZ_CHECK(srv_state_open(state_dir, NULL, &state, &err) == PT_OK);
     atexit(close_state);
 }
 

@@ -34,6 +34,7 @@
 #include "protocol/frame.h"
 #include "protocol/msg.h"
 #include "protocol/wire.h"
+#include "server/sched/job.h"
 #include "server/store/state.h"
 #include "tests/fuzz/fuzz_state.h"
 #include "tests/protocol/samples.h"
@@ -928,7 +929,7 @@ static void gen_state(const char *dir, const char *tmp)
     char sdir[4096];
     snprintf(sdir, sizeof sdir, "%s/state", tmp);
     srv_state *st = NULL;
-    if (srv_state_open(sdir, &st, &err) != PT_OK) {
+    if (srv_state_open(sdir, &srv_job_state_codec, &st, &err) != PT_OK) {
         fprintf(stderr, "%s\n", err.msg);
         failures++;
         return;

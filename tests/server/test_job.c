@@ -1290,6 +1290,38 @@ static void answered_no_backup(void)
     srv_job_free(j);
 }
 
+/* The ticket srv_job_answered gives names its lease while that lease lives,
+ * and never a later lease in the same slot: a result logged before its
+ * lease was released, and its task leased again (to the same owner, in the
+ * same slot), must be judged anew rather than merged through the new lease. */
+static void answered_ticket(void)
+{
+    static pt_pixel_acc px[256];
+    srv_job *j = make(16, 16, 16, 16, 8); /* two tasks */
+    proto_task a, b;
+    CHECK(srv_job_lease(j, 1, 0, 100000, &a) == 1 && a.task_id == 0);
+    proto_result r;
+    fake_result(&a, px, &r);
+    pt_error err = {0};
+    int li = -1, li2 = -1;
+    CHECK(srv_job_validate(j, 1, &r, &li, &err) == SRV_MERGED);
+    uint64_t ticket = srv_job_answered(j, li);
+    CHECK(ticket != 0 && srv_job_ticket_lease(j, ticket) == li);
+    CHECK(srv_job_ticket_lease(j, 0) == -1);
+    CHECK(srv_job_release_owner(j, 1) == 1);
+    CHECK(srv_job_ticket_lease(j, ticket) == -1);
+    /* The requeued task, to the same owner, in the slot just freed. */
+    CHECK(srv_job_lease(j, 1, 10, 100000, &b) == 1 && b.task_id == 0);
+    CHECK(srv_job_validate(j, 1, &r, &li2, &err) == SRV_MERGED && li2 == li);
+    CHECK(srv_job_ticket_lease(j, ticket) == -1);
+    uint64_t ticket2 = srv_job_answered(j, li2);
+    CHECK(ticket2 != ticket && srv_job_ticket_lease(j, ticket2) == li2);
+    CHECK(srv_job_result_validated(j, srv_job_ticket_lease(j, ticket2), &r, 20, &err) ==
+          SRV_MERGED);
+    CHECK(srv_job_ticket_lease(j, ticket2) == -1); /* merged: its lease went */
+    srv_job_free(j);
+}
+
 /* A snapshot saves the same bytes as the job it was taken of (per tile
  * state, held results by tile and range, film), and keeps them while the job
  * goes on; its checkpoint resumes to the job's bits. */
@@ -1370,6 +1402,7 @@ int main(void)
     ranges_back();
     many_owners();
     answered_no_backup();
+    answered_ticket();
     snapshot_saves_the_same();
     CHECK(pt_alloc_live() == live);
     return check_report();

@@ -59,7 +59,7 @@ static srv_state *open_state(const char *dir)
 {
     srv_state *st = NULL;
     pt_error err = {0};
-    CHECKF(srv_state_open(dir, &st, &err) == PT_OK, "%s", err.msg);
+    CHECKF(srv_state_open(dir, &srv_job_state_codec, &st, &err) == PT_OK, "%s", err.msg);
     char p[512];
     snprintf(p, sizeof p, "%s/jobs/%u", dir, JOB_ID);
     CHECK(pt_mkdirs(p, 1, &err) == PT_OK);
@@ -94,7 +94,7 @@ static void log_tasks(srv_state *st, uint32_t n, uint64_t *sizes)
 static pt_status restore(const char *dir, uint32_t *replayed, int *torn, pt_error *err)
 {
     srv_state *st = NULL;
-    CHECK(srv_state_open(dir, &st, err) == PT_OK);
+    CHECK(srv_state_open(dir, &srv_job_state_codec, &st, err) == PT_OK);
     srv_job *job = fresh_job();
     srv_ckpt_extra x;
     pt_status s = srv_state_restore(st, job, &x, replayed, torn, err);
@@ -313,7 +313,7 @@ static void test_queue_unsaved(const char *dir)
 {
     srv_state *st = NULL;
     pt_error err = {0};
-    CHECK(srv_state_open(dir, &st, &err) == PT_OK);
+    CHECK(srv_state_open(dir, &srv_job_state_codec, &st, &err) == PT_OK);
     srv_job_record rec = {0};
     rec.id = 1;
     rec.state = PROTO_JOB_QUEUED;
@@ -340,7 +340,7 @@ static void test_queue_env_versions(const char *dir)
 {
     srv_state *st = NULL;
     pt_error err = {0};
-    CHECK(srv_state_open(dir, &st, &err) == PT_OK);
+    CHECK(srv_state_open(dir, &srv_job_state_codec, &st, &err) == PT_OK);
     srv_job_record rec = {0}, *recs[1] = {&rec}, *got = NULL;
     rec.id = 1;
     rec.state = PROTO_JOB_QUEUED;
@@ -407,7 +407,7 @@ static void test_queue_frames(const char *dir)
 {
     srv_state *st = NULL;
     pt_error err = {0};
-    CHECK(srv_state_open(dir, &st, &err) == PT_OK);
+    CHECK(srv_state_open(dir, &srv_job_state_codec, &st, &err) == PT_OK);
     srv_job_record rec = {0}, *recs[1] = {&rec}, *got = NULL;
     rec.id = 4;
     rec.state = PROTO_JOB_RUNNING;
