@@ -76,10 +76,10 @@ wait "$srv_pid" 2> /dev/null || true
 srv_pid=
 serve serve.log # the same port: the workers reconnect to it
 for _ in $(seq 1200); do
-  status && [ "$(json "$tmp/status.json" 'd["state"]')" = done ] && break
+  status && [ "$(json "$tmp/status.json" 'd["state"]')" = "done" ] && break
   sleep 0.1
 done
-[ "$(json "$tmp/status.json" 'd["state"]')" = done ] || fail "not done: $(cat "$tmp/status.json")"
+[ "$(json "$tmp/status.json" 'd["state"]')" = "done" ] || fail "not done: $(cat "$tmp/status.json")"
 "$bin/ptctl" fetch "$id" -o "$tmp/queued.exr"
 same queued
 failed=0
