@@ -1,8 +1,9 @@
 """ptfarm for Blender: render the open scene on a ptfarm render farm.
 
 A panel in Properties > Render holds the coordinator's address, the token
-file, samples, seed and priority (the resolution and the frame range are
-the scene's). "Render frame on ptfarm" and "Render animation on ptfarm"
+file, samples, seed, priority and the render passes (checkboxes as in
+Cycles' View Layer > Passes; passes.py); the resolution and the frame range
+are the scene's. "Render frame on ptfarm" and "Render animation on ptfarm"
 export the scene with Blender's glTF exporter (scene_export.py), submit it
 with ptctl and follow the job in a thread (farm.py); a timer on the main
 thread shows the progress in the status bar and loads each image that
@@ -20,12 +21,12 @@ import os
 import bpy
 from bpy.props import BoolProperty, IntProperty, PointerProperty, StringProperty
 
-from . import farm, scene_export
+from . import farm, passes, scene_export
 
 bl_info = {
     "name": "ptfarm",
     "author": "ptfarm",
-    "version": (1, 0, 0),
+    "version": (1, 1, 0),
     "blender": (3, 4, 0),
     "location": "Properties > Render > ptfarm",
     "description": "Render the scene on a ptfarm render farm and load the images back",
@@ -75,6 +76,24 @@ class PtfarmSettings(bpy.types.PropertyGroup):
                                       subtype="FACTOR")
     last_job: IntProperty(name="Job", default=0)
     last_image: StringProperty(name="Image", default="")
+
+
+def _linked_update(prop):
+    """An update callback: the checkbox that stands for the same farm pass
+    follows this one."""
+    other = passes.LINKED[prop]
+
+    def update(self, _context):
+        if getattr(self, other) != getattr(self, prop):
+            setattr(self, other, getattr(self, prop))
+    return update
+
+
+# One checkbox per pass the panel offers, and no other way to name a pass.
+for _prop, _label, _heading, _names, _tip in passes.PASSES:
+    PtfarmSettings.__annotations__[_prop] = BoolProperty(
+        name=_label, default=False, description=_tip,
+        update=_linked_update(_prop) if _prop in passes.LINKED else None)
 
 
 def _output_folder(scene):
@@ -299,6 +318,14 @@ class RENDER_PT_ptfarm(bpy.types.Panel):
         col.prop(s, "use_bounce_cap")
         col.prop(s, "job_name")
         col.prop(s, "output_dir")
+        # The passes as Cycles' View Layer > Passes shows them: a heading,
+        # checkboxes beside it.
+        heading = None
+        for prop, _label, head, _names, _tip in passes.PASSES:
+            if head != heading:
+                heading = head
+                col = layout.column(heading=head, align=True)
+            col.prop(s, prop)
         w, h = scene_export.resolution(scene)
         info = layout.column(align=True)
         info.label(text="Resolution %d x %d (the scene's)" % (w, h))

@@ -1,0 +1,84 @@
+"""Render passes through the add-on: the panel's checkboxes (Cycles' View
+Layer > Passes) become `--passes`, and a frame rendered with them comes
+back as a MULTILAYER Image whose passes (as the compositor's Image node
+lists them) are the farm's layers, the EXR bit-identical, every layer, to
+ptworker --scene on the exported glTF with the same --passes. An unknown
+pass cannot be asked for: the checkboxes are the only way to name one, and
+each of them alone gives a list the farm's parser accepts (which refuses
+an unknown name).
+"""
+import json
+import os
+import subprocess
+import sys
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import bpy  # noqa: E402
+import farmtest as t  # noqa: E402
+
+t.install_addon()
+from ptfarm_blender import passes  # noqa: E402
+
+scene = t.plane_sphere_scene(res=(48, 32))
+s = scene.ptfarm
+s.spp = 8
+
+# The settings have a checkbox per row of the table and no other property
+# about passes (nothing a name could be typed into).
+rna = type(s).bl_rna.properties
+about = sorted(p.identifier for p in rna if "pass" in p.identifier)
+t.check(about == sorted(row[0] for row in passes.PASSES)
+        and all(rna[p].type == "BOOLEAN" for p in about),
+        "the passes are checkboxes only: %s" % about)
+t.check(all(rna[row[0]].description == row[4] and len(row[4]) > 40 for row in passes.PASSES),
+        "each checkbox's tooltip says what its layers are")
+
+
+def parser_accepts(names):
+    """ptworker's --passes parser on names (a 4x4 render of a tiny scene)."""
+    p = subprocess.run([os.path.join(t.BIN, "ptworker"), "--scene",
+                        os.path.join(t.SRC, "scenes", "cornell_box.gltf"), "--res", "4x4",
+                        "--spp", "1", "--passes", ",".join(names), "-q", "-o",
+                        os.path.join(t.TMP, "parse.exr")],
+                       stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    return p.returncode == 0
+
+
+t.check(not parser_accepts(["albedo", "diffuse_color"]), "the farm refuses an unknown pass")
+for row in passes.PASSES:
+    for other in passes.PASSES:
+        setattr(s, other[0], False)
+    setattr(s, row[0], True)
+    asked = passes.farm_passes(s)
+    t.check(asked and parser_accepts(asked), "%s alone asks for %s, which the farm accepts" % (
+        row[1], ",".join(asked)))
+s.use_pass_cryptomatte_material = False
+t.check(not s.use_pass_cryptomatte_object, "Cryptomatte Object and Material tick together")
+
+# A frame with Denoising Data, Emission and Cryptomatte.
+s.use_pass_denoising_data = True
+s.use_pass_emission = True
+s.use_pass_cryptomatte_object = True
+t.check(s.use_pass_cryptomatte_material, "ticking Object ticks Material")
+ok, msg = t.call_operator(bpy.ops.ptfarm.render_frame)
+t.check(ok, "Render frame on ptfarm with passes finishes (%s)" % (msg or s.status))
+base = os.path.join(s.output_dir, scene.name)
+job = json.load(open(base + ".job.json"))
+args = job["args"]
+t.check("--passes" in args and args[args.index("--passes") + 1] ==
+        "albedo,normal,depth,emission,halves,cryptomatte",
+        "submitted with --passes albedo,normal,depth,emission,halves,cryptomatte")
+img = bpy.data.images.get(s.last_image)
+exr = bpy.path.abspath(img.filepath)
+scene.use_nodes = True
+node = scene.node_tree.nodes.new("CompositorNodeImage")
+node.image = img
+seen = [o.name for o in node.outputs]
+t.check(img.type == "MULTILAYER", "the image is loaded as a MULTILAYER Image '%s'" % img.name)
+want = ["Combined", "albedo", "N", "depth", "emission", "halfA", "halfB", "CryptoObject00",
+        "CryptoObject03", "CryptoMaterial00", "CryptoMaterial03"]
+t.check(all(w in seen for w in want), "Blender sees the passes' layers: %s" % seen)
+ref = os.path.join(t.TMP, "ref_passes.exr")
+t.ptworker(job["scene"], args, ref)
+t.check(t.same_exr(ref, exr), "every layer is bit-identical to ptworker --scene --passes")
+t.finish()
