@@ -70,11 +70,11 @@ t.check("--passes" in args and args[args.index("--passes") + 1] ==
         "submitted with --passes albedo,normal,depth,emission,halves,cryptomatte")
 img = bpy.data.images.get(s.last_image)
 exr = bpy.path.abspath(img.filepath)
+t.check(img.type == "MULTILAYER", "the image is loaded as a MULTILAYER Image '%s'" % img.name)
 scene.use_nodes = True
 node = scene.node_tree.nodes.new("CompositorNodeImage")
 node.image = img
 seen = [o.name for o in node.outputs]
-t.check(img.type == "MULTILAYER", "the image is loaded as a MULTILAYER Image '%s'" % img.name)
 want = ["Combined", "albedo", "N", "depth", "emission", "halfA", "halfB", "CryptoObject00",
         "CryptoObject03", "CryptoMaterial00", "CryptoMaterial03"]
 t.check(all(w in seen for w in want), "Blender sees the passes' layers: %s" % seen)

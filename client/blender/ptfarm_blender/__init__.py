@@ -119,22 +119,32 @@ def _redraw():
                 area.tag_redraw()
 
 
+def _read(path):
+    """An Image of path, read now: Blender reads a file when something first
+    asks for its pixels, and only then knows an EXR with layers for a
+    MULTILAYER Image (asking for the size reads it)."""
+    img = bpy.data.images.load(path, check_existing=False)
+    img.size[0]
+    return img
+
+
 def _load(scene, job_id, fetched, frames):
     """Loads what came back: a still as one Image, a range as an image
-    sequence of its first frame's file. Returns the Image or None."""
+    sequence of its first frame's file (of type MULTILAYER when the EXRs
+    have passes' layers). Returns the Image or None."""
     new = [(f, p) for f, p in fetched if p not in _active["loaded"]]
     if not new:
         return None
     _active["loaded"].update(p for _, p in new)
     if frames is None:
         path = new[-1][1]
-        img = bpy.data.images.load(path, check_existing=False)
+        img = _read(path)
         img.name = "ptfarm %s job %d" % (scene.name, job_id)
     else:
         name = "ptfarm %s job %d" % (scene.name, job_id)
         img = bpy.data.images.get(name)
         if img is None:
-            img = bpy.data.images.load(fetched[0][1], check_existing=False)
+            img = _read(fetched[0][1])
             img.name = name
             img.source = "SEQUENCE"
         else:
