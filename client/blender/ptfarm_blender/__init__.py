@@ -120,11 +120,17 @@ def _redraw():
 
 
 def _read(path):
-    """An Image of path, read now: Blender reads a file when something first
-    asks for its pixels, and only then knows an EXR with layers for a
-    MULTILAYER Image (asking for the size reads it)."""
+    """An Image of path. Blender reads a file when something first asks for
+    its pixels, and only then knows an EXR with layers for a MULTILAYER
+    Image. Headless, the file is read now (asking for the size reads it),
+    so the script that waited for the job gets the Image as it will stay.
+    With a window, reading now would freeze Blender when the job ends
+    (1920 x 1080 with Denoising Data: 1.7 s); the Image Editor or the
+    compositor reads it when the user first looks at it, as Blender does
+    for any image it loads."""
     img = bpy.data.images.load(path, check_existing=False)
-    img.size[0]
+    if bpy.app.background:
+        img.size[0]
     return img
 
 
