@@ -357,8 +357,11 @@ static const char SUBMIT_HELP[] =
     "  --transparent      camera rays that leave the scene add nothing, and the EXR\n"
     "                     gets an A channel (coverage; RGB premultiplied by it)\n"
     "  --passes LIST      render passes written as EXR layers: a comma-separated\n"
-    "                     list of albedo, normal, depth, emission, halves, or all\n"
+    "                     list of albedo, normal, depth, emission, halves,\n"
+    "                     cryptomatte, or all\n"
     "                     (see ptworker --help); merged exactly like the beauty\n"
+    "  --denoise          the coordinator denoises the finished image (NFOR) into\n"
+    "                     the layer denoised.R/G/B; the passes it needs are added\n"
     "  --frames A-B[:STEP] one job of the frames A, A+STEP, ... B of the scene's\n"
     "                     animation (at most 100000, numbers 0 to 999999), each\n"
     "                     written as ID-NAME.####.exr with its zero-padded number;\n"
@@ -495,6 +498,8 @@ static int cmd_submit(int argc, char **argv, globals *g)
     if (ro.given & PT_ROPT(PT_ROPT_TRANSPARENT))
         m.film_flags |= PROTO_FILM_TRANSPARENT;
     m.film_flags |= proto_film_of_passes(ro.passes);
+    if (ro.denoise)
+        m.film_flags |= PROTO_FILM_DENOISE;
     if (ro.camera)
         snprintf(m.camera, sizeof m.camera, "%s", ro.camera);
     if (ro.variant)

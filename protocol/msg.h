@@ -101,7 +101,11 @@ const char *proto_msg_type_name(uint32_t type);
  * renders them and its RESULT carries their sums (PROTO_RESULT_PASSES). */
 #define PROTO_FILM_PASS_SHIFT 1u
 #define PROTO_FILM_PASSES (PT_PASS_ALL << PROTO_FILM_PASS_SHIFT)
-#define PROTO_FILM_KNOWN (PROTO_FILM_TRANSPARENT | PROTO_FILM_PASSES)
+/* Bit 7: the coordinator denoises the finished image (denoise_frame.h) and
+ * writes its layer denoised.R/G/B; the passes it reads are among bits 1-6.
+ * Workers render as the passes ask and otherwise ignore it. */
+#define PROTO_FILM_DENOISE (1u << 7)
+#define PROTO_FILM_KNOWN (PROTO_FILM_TRANSPARENT | PROTO_FILM_PASSES | PROTO_FILM_DENOISE)
 /* The PT_PASS_* mask of film flags, and the flags of a mask. */
 static inline uint32_t proto_film_passes(uint32_t flags)
 {

@@ -126,9 +126,13 @@ static void usage(FILE *f)
         "                         EXR gets an A channel (coverage; RGB premultiplied);\n"
         "                         one-job mode (queued jobs: ptctl submit --transparent)\n"
         "  --passes LIST          render passes as EXR layers: albedo, normal, depth,\n"
-        "                         emission, halves, or all (see ptworker --help); merged\n"
-        "                         exactly like the beauty; one-job mode (queued jobs:\n"
-        "                         ptctl submit --passes)\n"
+        "                         emission, halves, cryptomatte, or all (see ptworker\n"
+        "                         --help); merged exactly like the beauty; one-job\n"
+        "                         mode (queued jobs: ptctl submit --passes)\n"
+        "  --denoise              denoise the finished image (NFOR, with the passes it\n"
+        "                         needs) into the EXR's layer denoised.R/G/B, off the\n"
+        "                         event loop; the preview shows it; one-job mode\n"
+        "                         (queued jobs: ptctl submit --denoise)\n"
         "  --variant NAME         the KHR_materials_variants variant: mapped primitives\n"
         "                         take its material; one-job mode (queued jobs: ptctl\n"
         "                         submit --variant)\n"
@@ -483,6 +487,8 @@ int main(int argc, char **argv)
     if (ro.given & PT_ROPT(PT_ROPT_TRANSPARENT))
         c.job.film_flags |= PROTO_FILM_TRANSPARENT;
     c.job.film_flags |= proto_film_of_passes(ro.passes);
+    if (ro.denoise)
+        c.job.film_flags |= PROTO_FILM_DENOISE;
     c.view = ro.view;
     if (c.state_dir) {
         if (optind != argc || c.out_path) {
@@ -561,6 +567,11 @@ int main(int argc, char **argv)
     if (c.state_dir && (c.job.film_flags & PROTO_FILM_TRANSPARENT)) {
         fprintf(stderr, "ptserve: --transparent is for one-job mode; a queued job asks for it "
                         "with ptctl submit --transparent\n");
+        return 2;
+    }
+    if (c.state_dir && ro.denoise) {
+        fprintf(stderr, "ptserve: --denoise is for one-job mode; a queued job asks for it "
+                        "with ptctl submit --denoise\n");
         return 2;
     }
     if (c.state_dir && ro.passes) {

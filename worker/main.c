@@ -132,7 +132,9 @@ static void usage(FILE *f)
             "                     normal, world space), depth (depth.Z: camera distance\n"
             "                     of the first hit), emission (emission.R/G/B), halves\n"
             "                     (halfA/halfB.R/G/B: the beauty over even and odd\n"
-            "                     sample indices), or all; each pass with its variance\n"
+            "                     sample indices), cryptomatte (CryptoObject00-03 and\n"
+            "                     CryptoMaterial00-03 with their manifests), or all;\n"
+            "                     each of the first four with its variance\n"
             "                     (NAME.variance). The beauty keeps its bits\n"
             "  --transparent      camera rays that leave the scene add nothing (the\n"
             "                     environment still lights the scene), and the EXR gets\n"
@@ -148,6 +150,10 @@ static void usage(FILE *f)
             "                     passes of 16, 32, 64... spp and half of their directions\n"
             "                     drawn from it; standalone only for now, not with\n"
             "                     adaptive sampling; not yet faster on the scenes measured\n"
+            "  --denoise          denoise the finished image (NFOR, guided by the passes\n"
+            "                     albedo, normal, depth and halves, which it turns on):\n"
+            "                     the EXR gets the layer denoised.R/G/B beside the\n"
+            "                     untouched beauty, the PNG shows it; 2 spp or more\n"
             "  --clamp-direct X   clamp each sample's light that reaches the camera or the\n"
             "                     first surface it sees to R+G+B <= X, as Cycles' Clamp\n"
             "                     Direct (biased: fewer fireflies, darker highlights;\n"
@@ -442,6 +448,7 @@ int main(int argc, char **argv)
     o.view = ro.view;
     o.fps = ro.fps;
     o.passes = ro.passes;
+    o.denoise = ro.denoise;
     if (ro.animation)
         o.animate = 1;
     if (has_time || has_frame) {

@@ -12,9 +12,11 @@
 #include "common/base/alloc.h"
 #include "common/base/clock.h"
 #include "common/base/fsutil.h"
+#include "common/image/denoise.h"
 #include "common/image/exr.h"
 #include "common/image/image.h"
 #include "common/render/adaptive.h"
+#include "common/render/denoise_frame.h"
 #include "common/render/env.h"
 #include "common/render/film.h"
 #include "common/render/guide.h"
@@ -454,6 +456,22 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
     img->has_alpha = p.transparent;
     meta.render_seconds = secs;
     snprintf(meta.scene_hash, sizeof meta.scene_hash, "%s", scene->hash);
+    /* --denoise: the denoised layer beside the beauty, and the preview of it. */
+    pt_image shown = *img;
+    double t_denoise = 0.0;
+    if (o->denoise) {
+        float *den[3];
+        double td = pt_now_s();
+        if (pt_denoise_frame(img, nthreads, PT_DENOISE_DESPECKLE, den, &err) != PT_OK) {
+            fprintf(stderr, "\nptworker: --denoise: %s\n", err.msg);
+            goto done;
+        }
+        t_denoise = pt_now_s() - td;
+        shown = *img;
+        shown.r = den[0];
+        shown.g = den[1];
+        shown.b = den[2];
+    }
     /* An .exr with its preview beside it, or a .png alone (check_before). */
     int exr = pt_image_format_of(o->out_path) == PT_IMAGE_FORMAT_EXR;
     char png[4096];
@@ -462,7 +480,7 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
     else
         snprintf(png, sizeof png, "%s", o->out_path);
     if ((exr && pt_exr_write(o->out_path, img, &meta, &err) != PT_OK) ||
-        pt_png_write_preview(png, img, &o->view, &err) != PT_OK) {
+        pt_png_write_preview(png, &shown, &o->view, &err) != PT_OK) {
         fprintf(stderr, "\nptworker: %s\n", err.msg);
         goto done;
     }
@@ -473,6 +491,9 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
             "(NaN/Inf)\nptworker: wrote %s%s%s\n",
             o->scene_path, secs, (double)st.samples / secs, (double)st.rays / secs,
             (unsigned long long)st.rejected, o->out_path, exr ? " and " : "", exr ? png : "");
+    if (o->denoise)
+        fprintf(stderr, "ptworker: denoised in %.2fs (NFOR; the layer denoised.R/G/B%s)\n",
+                t_denoise, exr ? ", and the PNG" : "");
     if (o->target_error > 0.0 || o->min_gain > 0.0)
         fprintf(stderr,
                 "ptworker: adaptive sampling stopped %u of %u tiles early; %.2f spp on "

@@ -44,6 +44,7 @@ typedef struct wrk_standalone_opts {
     pt_view view;      /* the PNG's exposure and view transform; the EXR stays linear */
     int guiding;       /* --guiding on: path guiding learned in passes (guide.h) */
     float clamp_direct, clamp_indirect; /* sample clamping (pt_render_params; 0: off) */
+    int denoise;     /* --denoise: passes has PT_PASS_DENOISE; denoised.R/G/B added, PNG of it */
     uint32_t passes; /* PT_PASS_* render passes (passes.h) written as EXR layers; 0: none */
     int quiet;
 } wrk_standalone_opts;

@@ -630,3 +630,448 @@ pt_status pt_exr_read_nofollow(const char *path, pt_image **out, pt_exr_meta *me
 {
     return exr_read(path, 0, 0, out, meta, NULL, NULL, err);
 }
+
+/* ---- named channels ---- */
+
+/* An EXR opened for reading every channel of part 0, its layout checked. */
+typedef struct exr_src {
+    exr_context_t ctx;
+    exr_stream s;
+    exr_attr_box2i_t dw;
+    uint32_t w, h;
+    const exr_attr_chlist_t *chl;
+} exr_src;
+
+static void src_close(exr_src *src)
+{
+    if (src->ctx)
+        exr_finish(&src->ctx);
+    if (src->s.fd >= 0)
+        close(src->s.fd);
+    src->s.fd = -1;
+}
+
+/* Opens path and checks what exr_read checks (scanline part 0, a data window
+ * within the caps and possible in the file's bytes, a channel list), and
+ * that no channel is subsampled. */
+static pt_status src_open(const char *path, exr_src *src, pt_error *err)
+{
+    memset(src, 0, sizeof *src);
+    src->s.fd = -1;
+    if (!path)
+        return pt_error_set(err, PT_ERR_ARG, "EXR read: no path");
+    exr_context_initializer_t init;
+    exr_result_t rv;
+    pt_status st;
+    stream_init(&init, &src->s);
+    init.read_fn = stream_read;
+    init.size_fn = stream_size;
+    init.max_image_width = PT_IMAGE_MAX_SIDE;
+    init.max_image_height = PT_IMAGE_MAX_SIDE;
+    init.flags = EXR_CONTEXT_FLAG_DISABLE_CHUNK_RECONSTRUCTION;
+    pt_error oerr = {0};
+    if ((st = pt_open_regular(path, 1, &src->s.fd, &oerr)) != PT_OK) {
+        pt_error_set(err, st, "EXR %s", oerr.msg);
+        if (err)
+            err->sys_errno = oerr.sys_errno;
+        src->s.fd = -1;
+        return st;
+    }
+    struct stat sb;
+    if (fstat(src->s.fd, &sb) != 0) {
+        st = pt_error_errno(err, PT_ERR_IO, "EXR %s: stat", path);
+        goto fail;
+    }
+    src->s.size = (int64_t)sb.st_size;
+    if ((rv = exr_start_read(&src->ctx, path, &init)) != EXR_ERR_SUCCESS) {
+        st = exr_fail(err, &src->s, rv, path, "not a readable OpenEXR file");
+        goto fail;
+    }
+    int parts = 0;
+    exr_storage_t storage = EXR_STORAGE_LAST_TYPE;
+    if ((rv = exr_get_count(src->ctx, &parts)) != EXR_ERR_SUCCESS || parts < 1 ||
+        (rv = exr_get_storage(src->ctx, 0, &storage)) != EXR_ERR_SUCCESS ||
+        storage != EXR_STORAGE_SCANLINE) {
+        st = pt_error_set(err, PT_ERR_FORMAT, "EXR %s: part 0 is not a scanline image", path);
+        goto fail;
+    }
+    if ((rv = exr_get_data_window(src->ctx, 0, &src->dw)) != EXR_ERR_SUCCESS) {
+        st = exr_fail(err, &src->s, rv, path, "no data window");
+        goto fail;
+    }
+    int64_t w = (int64_t)src->dw.max.x - src->dw.min.x + 1,
+            h = (int64_t)src->dw.max.y - src->dw.min.y + 1;
+    if (w < 1 || h < 1 || w > PT_IMAGE_MAX_SIDE || h > PT_IMAGE_MAX_SIDE ||
+        (uint64_t)w * (uint64_t)h > PT_IMAGE_MAX_PIXELS) {
+        st = pt_error_set(err, w < 1 || h < 1 ? PT_ERR_FORMAT : PT_ERR_LIMIT,
+                          "EXR %s: data window %" PRId64 "x%" PRId64 " is empty or over the cap",
+                          path, w, h);
+        goto fail;
+    }
+    /* As exr_read: no more pixels than the file's bytes can hold. */
+    if ((uint64_t)w * (uint64_t)h > (uint64_t)src->s.size * PT_EXR_MAX_PIXELS_PER_BYTE + 65536) {
+        st = pt_error_set(err, PT_ERR_FORMAT,
+                          "EXR %s: %" PRId64 "x%" PRId64 " pixels cannot be in %" PRId64 " bytes",
+                          path, w, h, src->s.size);
+        goto fail;
+    }
+    if ((rv = exr_get_channels(src->ctx, 0, &src->chl)) != EXR_ERR_SUCCESS || !src->chl ||
+        src->chl->num_channels < 1) {
+        st = pt_error_set(err, PT_ERR_FORMAT, "EXR %s: no channel list", path);
+        goto fail;
+    }
+    for (int i = 0; i < src->chl->num_channels; i++) {
+        const exr_attr_chlist_entry_t *e = &src->chl->entries[i];
+        if (e->x_sampling != 1 || e->y_sampling != 1) {
+            st = pt_error_set(err, PT_ERR_FORMAT, "EXR %s: channel %s is subsampled", path,
+                              e->name.str ? e->name.str : "");
+            goto fail;
+        }
+    }
+    src->w = (uint32_t)w;
+    src->h = (uint32_t)h;
+    return PT_OK;
+fail:
+    src_close(src);
+    return st;
+}
+
+static int chl_index(const exr_attr_chlist_t *chl, const char *name)
+{
+    for (int i = 0; i < chl->num_channels; i++)
+        if (chl->entries[i].name.str && !strcmp(chl->entries[i].name.str, name))
+            return i;
+    return -1;
+}
+
+static int pixel_bytes(exr_pixel_type_t t)
+{
+    return t == EXR_PIXEL_HALF ? 2 : 4;
+}
+
+/* Decodes every chunk: channel i of the list into dst[i] (rows of w
+ * elements, float when as_float[i], else its own type), or nowhere when
+ * dst[i] is NULL. */
+static exr_result_t src_decode(exr_src *src, uint8_t *const dst[], const int as_float[])
+{
+    int32_t lines = 0;
+    exr_result_t rv = exr_get_scanlines_per_chunk(src->ctx, 0, &lines);
+    if (rv != EXR_ERR_SUCCESS)
+        return rv;
+    if (lines < 1 || lines > 256)
+        return EXR_ERR_INVALID_ATTR;
+    /* Channels we do not keep still decode somewhere: one chunk's rows. */
+    uint8_t *scratch = pt_malloc_array((size_t)lines * src->w, 4);
+    if (!scratch)
+        return EXR_ERR_OUT_OF_MEMORY;
+    exr_decode_pipeline_t dec = EXR_DECODE_PIPELINE_INITIALIZER;
+    int started = 0;
+    int64_t end_y = (int64_t)src->dw.min.y + src->h;
+    for (int64_t y = src->dw.min.y; y < end_y && rv == EXR_ERR_SUCCESS; y += lines) {
+        exr_chunk_info_t cinfo;
+        rv = exr_read_scanline_chunk_info(src->ctx, 0, (int)y, &cinfo);
+        if (rv != EXR_ERR_SUCCESS)
+            break;
+        int64_t row = (int64_t)cinfo.start_y - src->dw.min.y;
+        if (row < 0 || cinfo.height < 1 || cinfo.height > lines ||
+            row + cinfo.height > (int64_t)src->h || cinfo.width != (int32_t)src->w) {
+            rv = EXR_ERR_CORRUPT_CHUNK;
+            break;
+        }
+        rv = started ? exr_decoding_update(src->ctx, 0, &cinfo, &dec)
+                     : exr_decoding_initialize(src->ctx, 0, &cinfo, &dec);
+        if (rv != EXR_ERR_SUCCESS)
+            break;
+        for (int c = 0; c < dec.channel_count; c++) {
+            exr_coding_channel_info_t *ch = &dec.channels[c];
+            int i = chl_index(src->chl, ch->channel_name ? ch->channel_name : "");
+            if (i < 0 || ch->height != cinfo.height || ch->width != (int32_t)src->w ||
+                ch->bytes_per_element < 1 || ch->bytes_per_element > 4) {
+                rv = EXR_ERR_CORRUPT_CHUNK;
+                break;
+            }
+            int16_t bpe = dst[i] && as_float[i] ? 4 : ch->bytes_per_element;
+            ch->user_bytes_per_element = bpe;
+            ch->user_data_type = dst[i] && as_float[i] ? EXR_PIXEL_FLOAT : ch->data_type;
+            ch->user_pixel_stride = bpe;
+            ch->user_line_stride = bpe * (int32_t)src->w;
+            ch->decode_to_ptr = dst[i] ? dst[i] + (size_t)row * src->w * (size_t)bpe : scratch;
+        }
+        if (rv == EXR_ERR_SUCCESS && !started)
+            rv = exr_decoding_choose_default_routines(src->ctx, 0, &dec);
+        started = 1;
+        if (rv == EXR_ERR_SUCCESS)
+            rv = exr_decoding_run(src->ctx, 0, &dec);
+    }
+    if (started) {
+        exr_result_t rd = exr_decoding_destroy(src->ctx, &dec);
+        if (rv == EXR_ERR_SUCCESS)
+            rv = rd;
+    }
+    pt_free(scratch);
+    return rv;
+}
+
+pt_status pt_exr_read_channels(const char *path, unsigned n, const char *const names[],
+                               float *planes[], uint32_t *width, uint32_t *height, pt_error *err)
+{
+    if (n > PT_EXR_MAX_CHANNELS || (n && (!names || !planes)))
+        return pt_error_set(err, PT_ERR_ARG, "EXR read: %u channels asked, at most %u", n,
+                            PT_EXR_MAX_CHANNELS);
+    exr_src src;
+    pt_status st = src_open(path, &src, err);
+    if (st != PT_OK)
+        return st;
+    int nch = src.chl->num_channels;
+    uint8_t **dst = pt_calloc((size_t)nch, sizeof *dst);
+    int *as_float = pt_calloc((size_t)nch, sizeof *as_float);
+    float **got = pt_calloc(n ? n : 1, sizeof *got);
+    if (!dst || !as_float || !got) {
+        st = pt_error_set(err, PT_ERR_NOMEM, "EXR %s: out of memory", path);
+        goto done;
+    }
+    size_t npix = (size_t)src.w * src.h;
+    for (unsigned i = 0; i < n; i++) {
+        int c = names[i] ? chl_index(src.chl, names[i]) : -1;
+        if (c < 0)
+            continue;
+        if (!dst[c]) {
+            dst[c] = pt_malloc_array(npix, sizeof(float));
+            if (!dst[c]) {
+                st = pt_error_set(err, PT_ERR_NOMEM, "EXR %s: out of memory for %ux%u", path, src.w,
+                                  src.h);
+                goto done;
+            }
+            as_float[c] = 1;
+        }
+    }
+    exr_result_t rv = src_decode(&src, dst, as_float);
+    if (rv != EXR_ERR_SUCCESS) {
+        st = exr_fail(err, &src.s, rv, path, "cannot decode the pixels");
+        goto done;
+    }
+    /* A name asked twice gets its own copy, so each plane is freed once. */
+    for (unsigned i = 0; i < n; i++) {
+        int c = names[i] ? chl_index(src.chl, names[i]) : -1;
+        if (c < 0)
+            continue;
+        if (dst[c]) {
+            got[i] = (float *)(void *)dst[c];
+            dst[c] = NULL;
+            continue;
+        }
+        unsigned j = 0;
+        while (j < i && !(got[j] && !strcmp(names[j], names[i])))
+            j++;
+        got[i] = pt_malloc_array(npix, sizeof(float));
+        if (!got[i]) {
+            st = pt_error_set(err, PT_ERR_NOMEM, "EXR %s: out of memory", path);
+            goto done;
+        }
+        memcpy(got[i], got[j], npix * sizeof(float));
+    }
+    for (unsigned i = 0; i < n; i++)
+        planes[i] = got[i];
+    *width = src.w;
+    *height = src.h;
+done:
+    if (st != PT_OK && got)
+        for (unsigned i = 0; i < n; i++)
+            pt_free(got[i]);
+    if (dst)
+        for (int c = 0; c < nch; c++)
+            pt_free(dst[c]);
+    pt_free(dst);
+    pt_free(as_float);
+    pt_free(got);
+    src_close(&src);
+    return st;
+}
+
+/* The header of dst: src's required attributes (ZIP compression), src's
+ * channels but the replaced ones, the new ones, then every other attribute
+ * of src. */
+static exr_result_t define_copy(exr_context_t ctx, const exr_src *src, unsigned n,
+                                const char *const names[], const int keep[])
+{
+    int part = 0;
+    exr_attr_box2i_t disp;
+    float par = 1.0f, sww = 1.0f;
+    exr_attr_v2f_t swc = {{{0.0f, 0.0f}}};
+    exr_lineorder_t lo = EXR_LINEORDER_INCREASING_Y;
+    exr_result_t rv = exr_add_part(ctx, NULL, EXR_STORAGE_SCANLINE, &part);
+    if (rv == EXR_ERR_SUCCESS)
+        rv = exr_get_display_window(src->ctx, 0, &disp);
+    if (rv == EXR_ERR_SUCCESS) {
+        /* Optional in practice: the library's defaults where src lacks them. */
+        exr_get_pixel_aspect_ratio(src->ctx, 0, &par);
+        exr_get_screen_window_center(src->ctx, 0, &swc);
+        exr_get_screen_window_width(src->ctx, 0, &sww);
+        exr_get_lineorder(src->ctx, 0, &lo);
+        if (lo != EXR_LINEORDER_INCREASING_Y && lo != EXR_LINEORDER_DECREASING_Y)
+            lo = EXR_LINEORDER_INCREASING_Y;
+        rv = exr_initialize_required_attr(ctx, part, &disp, &src->dw, par, &swc, sww, lo,
+                                          EXR_COMPRESSION_ZIP);
+    }
+    for (int i = 0; i < src->chl->num_channels && rv == EXR_ERR_SUCCESS; i++) {
+        const exr_attr_chlist_entry_t *e = &src->chl->entries[i];
+        if (keep[i])
+            rv = exr_add_channel(ctx, part, e->name.str, e->pixel_type, e->p_linear ? 1 : 0, 1, 1);
+    }
+    for (unsigned i = 0; i < n && rv == EXR_ERR_SUCCESS; i++)
+        rv = exr_add_channel(ctx, part, names[i], EXR_PIXEL_FLOAT, EXR_PERCEPTUALLY_LOGARITHMIC, 1,
+                             1);
+    if (rv == EXR_ERR_SUCCESS)
+        rv = exr_copy_unset_attributes(ctx, part, src->ctx, 0);
+    return rv;
+}
+
+static exr_result_t write_copy(exr_context_t ctx, const exr_src *src, uint8_t *const kept[],
+                               unsigned n, const char *const names[], const float *const planes[])
+{
+    int32_t lines = 0;
+    exr_result_t rv = exr_get_scanlines_per_chunk(ctx, 0, &lines);
+    if (rv != EXR_ERR_SUCCESS)
+        return rv;
+    if (lines < 1)
+        return EXR_ERR_INVALID_ARGUMENT;
+    exr_encode_pipeline_t enc = EXR_ENCODE_PIPELINE_INITIALIZER;
+    int started = 0;
+    int64_t end_y = (int64_t)src->dw.min.y + src->h;
+    for (int64_t y = src->dw.min.y; y < end_y && rv == EXR_ERR_SUCCESS; y += lines) {
+        exr_chunk_info_t cinfo;
+        rv = exr_write_scanline_chunk_info(ctx, 0, (int)y, &cinfo);
+        if (rv != EXR_ERR_SUCCESS)
+            break;
+        size_t row = (size_t)((int64_t)cinfo.start_y - src->dw.min.y);
+        rv = started ? exr_encoding_update(ctx, 0, &cinfo, &enc)
+                     : exr_encoding_initialize(ctx, 0, &cinfo, &enc);
+        if (rv != EXR_ERR_SUCCESS)
+            break;
+        for (int c = 0; c < enc.channel_count; c++) {
+            exr_coding_channel_info_t *ch = &enc.channels[c];
+            const uint8_t *from = NULL;
+            int16_t bpe = 4;
+            exr_pixel_type_t type = EXR_PIXEL_FLOAT;
+            for (unsigned i = 0; i < n && !from; i++)
+                if (!strcmp(names[i], ch->channel_name))
+                    from = (const uint8_t *)planes[i];
+            if (!from) {
+                int i = chl_index(src->chl, ch->channel_name);
+                if (i < 0 || !kept[i]) {
+                    rv = EXR_ERR_INVALID_ARGUMENT;
+                    break;
+                }
+                from = kept[i];
+                type = src->chl->entries[i].pixel_type;
+                bpe = (int16_t)pixel_bytes(type);
+            }
+            ch->user_pixel_stride = bpe;
+            ch->user_line_stride = bpe * (int32_t)src->w;
+            ch->user_bytes_per_element = bpe;
+            ch->user_data_type = (uint16_t)type;
+            ch->encode_from_ptr = from + row * src->w * (size_t)bpe;
+        }
+        if (rv == EXR_ERR_SUCCESS && !started)
+            rv = exr_encoding_choose_default_routines(ctx, 0, &enc);
+        started = 1;
+        if (rv == EXR_ERR_SUCCESS)
+            rv = exr_encoding_run(ctx, 0, &enc);
+    }
+    if (started) {
+        exr_result_t rd = exr_encoding_destroy(ctx, &enc);
+        if (rv == EXR_ERR_SUCCESS)
+            rv = rd;
+    }
+    return rv;
+}
+
+pt_status pt_exr_write_with_channels(const char *src_path, const char *dst_path, unsigned n,
+                                     const char *const names[], const float *const planes[],
+                                     pt_error *err)
+{
+    if (!dst_path || n > PT_EXR_MAX_CHANNELS || (n && (!names || !planes)))
+        return pt_error_set(err, PT_ERR_ARG, "EXR write: no path or bad channels");
+    for (unsigned i = 0; i < n; i++)
+        if (!names[i] || !names[i][0] || !planes[i])
+            return pt_error_set(err, PT_ERR_ARG, "EXR %s: channel %u has no name or pixels",
+                                dst_path, i);
+    exr_src src;
+    pt_status st = src_open(src_path, &src, err);
+    if (st != PT_OK)
+        return st;
+    int nch = src.chl->num_channels;
+    exr_context_t ctx = NULL;
+    exr_stream s = {.fd = -1};
+    pt_temp tmp;
+    int have_tmp = 0;
+    exr_result_t rv;
+    uint8_t **kept = pt_calloc((size_t)nch, sizeof *kept);
+    int *keep = pt_calloc((size_t)nch, sizeof *keep),
+        *as_float = pt_calloc((size_t)nch, sizeof *as_float);
+    if (!kept || !keep || !as_float) {
+        st = pt_error_set(err, PT_ERR_NOMEM, "EXR %s: out of memory", src_path);
+        goto done;
+    }
+    for (int i = 0; i < nch; i++) {
+        const exr_attr_chlist_entry_t *e = &src.chl->entries[i];
+        keep[i] = 1;
+        for (unsigned j = 0; j < n; j++)
+            keep[i] &= strcmp(names[j], e->name.str ? e->name.str : "") != 0;
+        if (!keep[i])
+            continue;
+        kept[i] = pt_malloc_array((size_t)src.w * src.h, (size_t)pixel_bytes(e->pixel_type));
+        if (!kept[i]) {
+            st = pt_error_set(err, PT_ERR_NOMEM, "EXR %s: out of memory", src_path);
+            goto done;
+        }
+    }
+    if ((rv = src_decode(&src, kept, as_float)) != EXR_ERR_SUCCESS) {
+        st = exr_fail(err, &src.s, rv, src_path, "cannot decode the pixels");
+        goto done;
+    }
+    exr_context_initializer_t init;
+    stream_init(&init, &s);
+    init.write_fn = stream_write;
+    if ((st = pt_temp_open(dst_path, 0644, &tmp, err)) != PT_OK)
+        goto done;
+    have_tmp = 1;
+    s.fd = tmp.fd;
+    if ((rv = exr_start_write(&ctx, tmp.path, EXR_WRITE_FILE_DIRECTLY, &init)) != EXR_ERR_SUCCESS) {
+        st = exr_fail(err, &s, rv, dst_path, "cannot start writing");
+        goto done;
+    }
+    if ((rv = define_copy(ctx, &src, n, names, keep)) != EXR_ERR_SUCCESS) {
+        st = exr_fail(err, &s, rv, dst_path, "cannot define the header");
+        goto done;
+    }
+    if ((rv = exr_write_header(ctx)) != EXR_ERR_SUCCESS) {
+        st = exr_fail(err, &s, rv, dst_path, "cannot write the header");
+        goto done;
+    }
+    if ((rv = write_copy(ctx, &src, kept, n, names, planes)) != EXR_ERR_SUCCESS) {
+        st = exr_fail(err, &s, rv, dst_path, "cannot write the pixels");
+        goto done;
+    }
+    rv = exr_finish(&ctx);
+    ctx = NULL;
+    if (rv != EXR_ERR_SUCCESS) {
+        st = exr_fail(err, &s, rv, dst_path, "cannot finish");
+        goto done;
+    }
+    st = pt_temp_commit(&tmp, dst_path, err);
+    have_tmp = 0;
+done:
+    if (ctx)
+        exr_finish(&ctx);
+    if (have_tmp)
+        pt_temp_abort(&tmp);
+    if (kept)
+        for (int i = 0; i < nch; i++)
+            pt_free(kept[i]);
+    pt_free(kept);
+    pt_free(keep);
+    pt_free(as_float);
+    src_close(&src);
+    return st;
+}

@@ -81,4 +81,25 @@ pt_status pt_exr_read_attr(const char *path, const char *name, char **out, pt_er
  * anything but a regular file, and a FIFO never blocks them. */
 pt_status pt_exr_read_nofollow(const char *path, pt_image **out, pt_exr_meta *meta, pt_error *err);
 
+/* Named channels (layers), for the passes: "albedo.R", "N.X", "denoised.G".
+ *
+ * pt_exr_read_channels reads the channels names[0..n-1] of part 0 of path
+ * (a scanline EXR, any pixel type) as float planes of *width x *height:
+ * planes[i] is pt_malloc'd (pt_free), or NULL when the file has no channel
+ * names[i]. The same checks of the layout as pt_exr_read (and a channel
+ * that is subsampled is PT_ERR_FORMAT); on failure nothing is allocated and
+ * the out-parameters are untouched. n at most PT_EXR_MAX_CHANNELS. */
+#define PT_EXR_MAX_CHANNELS 1024u
+pt_status pt_exr_read_channels(const char *path, unsigned n, const char *const names[],
+                               float *planes[], uint32_t *width, uint32_t *height, pt_error *err);
+
+/* Writes dst (atomically, as pt_exr_write) as a copy of src with n float
+ * channels added: every channel of src in its own pixel type, bit for bit,
+ * and every header attribute of src, plus names[i] from planes[i] (src's
+ * size; a channel of src with the same name is replaced). ZIP compression.
+ * dst may be src. */
+pt_status pt_exr_write_with_channels(const char *src, const char *dst, unsigned n,
+                                     const char *const names[], const float *const planes[],
+                                     pt_error *err);
+
 #endif

@@ -275,21 +275,12 @@ int pt_crypto_manifest_find(const char *manifest, uint32_t id, char *name, size_
     }
 }
 
-pt_status pt_crypto_meta_init(pt_crypto_meta *m, const pt_scene *s, pt_error *err)
+/* The attributes of m's manifests (set). */
+static void meta_attrs(pt_crypto_meta *m)
 {
-    memset(m, 0, sizeof *m);
-    uint32_t most = s->num_objects > s->num_materials ? s->num_objects : s->num_materials;
-    const char **names = pt_malloc_array(most ? most : 1, sizeof *names);
-    if (!names)
-        return pt_error_set(err, PT_ERR_NOMEM, "Cryptomatte manifest: out of memory");
-    pt_status st = PT_OK;
     static const char *const what[4] = {"name", "hash", "conversion", "manifest"};
-    for (int k = 0; k < PT_CRYPTO_KINDS && st == PT_OK; k++) {
-        uint32_t n = k == PT_CRYPTO_OBJECT ? s->num_objects : s->num_materials;
-        for (uint32_t i = 0; i < n; i++)
-            names[i] = k == PT_CRYPTO_OBJECT ? s->object_names[i].s : s->materials[i].name;
-        if ((st = pt_crypto_manifest(names, n, &m->manifest[k], err)) != PT_OK)
-            break;
+    m->nattrs = 0;
+    for (int k = 0; k < PT_CRYPTO_KINDS; k++) {
         char key[8];
         pt_crypto_key(k, key);
         const char *value[4] = {pt_crypto_type(k), "MurmurHash3_32", "uint32_to_float32",
@@ -299,9 +290,68 @@ pt_status pt_crypto_meta_init(pt_crypto_meta *m, const pt_scene *s, pt_error *er
             m->attrs[m->nattrs++] = (pt_exr_attr){m->key[k][a], value[a]};
         }
     }
+}
+
+pt_status pt_crypto_meta_text(const pt_crypto_meta *m, char **out, pt_error *err)
+{
+    size_t a = strlen(m->manifest[0]), b = strlen(m->manifest[1]);
+    char *t = pt_malloc(a + b + 2);
+    if (!t)
+        return pt_error_set(err, PT_ERR_NOMEM, "Cryptomatte manifests: out of memory");
+    memcpy(t, m->manifest[0], a);
+    t[a] = '\n';
+    memcpy(t + a + 1, m->manifest[1], b + 1);
+    *out = t;
+    return PT_OK;
+}
+
+pt_status pt_crypto_meta_from_text(pt_crypto_meta *m, const char *text, pt_error *err)
+{
+    memset(m, 0, sizeof *m);
+    const char *nl = strchr(text, '\n');
+    if (!nl || strchr(nl + 1, '\n'))
+        return pt_error_set(err, PT_ERR_FORMAT, "Cryptomatte manifests: not two lines");
+    size_t a = (size_t)(nl - text), b = strlen(nl + 1);
+    m->manifest[0] = pt_malloc(a + 1);
+    m->manifest[1] = pt_malloc(b + 1);
+    if (!m->manifest[0] || !m->manifest[1]) {
+        pt_crypto_meta_fini(m);
+        return pt_error_set(err, PT_ERR_NOMEM, "Cryptomatte manifests: out of memory");
+    }
+    memcpy(m->manifest[0], text, a);
+    m->manifest[0][a] = '\0';
+    memcpy(m->manifest[1], nl + 1, b + 1);
+    char name[8];
+    for (int k = 0; k < PT_CRYPTO_KINDS; k++)
+        if (pt_crypto_manifest_find(m->manifest[k], 0, name, sizeof name) < 0) {
+            pt_crypto_meta_fini(m);
+            return pt_error_set(err, PT_ERR_FORMAT, "Cryptomatte manifests: line %d is not one",
+                                k + 1);
+        }
+    meta_attrs(m);
+    return PT_OK;
+}
+
+pt_status pt_crypto_meta_init(pt_crypto_meta *m, const pt_scene *s, pt_error *err)
+{
+    memset(m, 0, sizeof *m);
+    uint32_t most = s->num_objects > s->num_materials ? s->num_objects : s->num_materials;
+    const char **names = pt_malloc_array(most ? most : 1, sizeof *names);
+    if (!names)
+        return pt_error_set(err, PT_ERR_NOMEM, "Cryptomatte manifest: out of memory");
+    pt_status st = PT_OK;
+    for (int k = 0; k < PT_CRYPTO_KINDS && st == PT_OK; k++) {
+        uint32_t n = k == PT_CRYPTO_OBJECT ? s->num_objects : s->num_materials;
+        for (uint32_t i = 0; i < n; i++)
+            names[i] = k == PT_CRYPTO_OBJECT ? s->object_names[i].s : s->materials[i].name;
+        if ((st = pt_crypto_manifest(names, n, &m->manifest[k], err)) != PT_OK)
+            break;
+    }
     pt_free(names);
     if (st != PT_OK)
         pt_crypto_meta_fini(m);
+    else
+        meta_attrs(m);
     return st;
 }
 

@@ -78,6 +78,12 @@ typedef struct pt_crypto_meta {
     uint32_t nattrs;
 } pt_crypto_meta;
 pt_status pt_crypto_meta_init(pt_crypto_meta *m, const pt_scene *s, pt_error *err);
+/* Both manifests as one text, objects' then materials', a line each (a
+ * manifest has no raw newline): *out pt_malloc'd. */
+pt_status pt_crypto_meta_text(const pt_crypto_meta *m, char **out, pt_error *err);
+/* The attributes of such a text; PT_ERR_FORMAT when it is not two
+ * manifests. */
+pt_status pt_crypto_meta_from_text(pt_crypto_meta *m, const char *text, pt_error *err);
 void pt_crypto_meta_fini(pt_crypto_meta *m);
 
 #endif

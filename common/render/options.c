@@ -5,6 +5,7 @@
 
 #include "common/base/frames.h"
 #include "common/base/opt.h"
+#include "common/render/denoise_frame.h"
 #include "common/render/passes.h"
 #include "common/render/render.h"
 #include "common/render/tile.h"
@@ -39,6 +40,7 @@ static const struct {
     [PT_ROPT_EXPOSURE] = {"exposure", required_argument},
     [PT_ROPT_VIEW] = {"view", required_argument},
     [PT_ROPT_PASSES] = {"passes", required_argument},
+    [PT_ROPT_DENOISE] = {"denoise", no_argument},
 };
 
 void pt_render_opts_init(pt_render_opts *o)
@@ -166,6 +168,9 @@ pt_status pt_render_opt_set(pt_render_opts *o, int c, const char *text, pt_error
     case PT_ROPT_PASSES:
         st = pt_passes_parse(opt, text, &o->passes, err);
         break;
+    case PT_ROPT_DENOISE:
+        o->denoise = 1;
+        break;
     case PT_ROPT_COUNT:
         break;
     }
@@ -190,5 +195,14 @@ pt_status pt_render_opts_finish(pt_render_opts *o, pt_error *err)
         return st;
     if (placed)
         o->camera = o->camera_text;
+    if (o->denoise) {
+        /* The denoiser reads these passes, and both halves of every pixel. */
+        o->passes |= PT_PASS_DENOISE;
+        if (o->spp < 2 || ((o->given & PT_ROPT(PT_ROPT_MIN_SPP)) && o->min_spp < 2))
+            return pt_error_set(err, PT_ERR_ARG,
+                                "--denoise needs 2 samples a pixel or more (--spp%s): each "
+                                "pixel's even and odd samples are its two halves",
+                                (o->given & PT_ROPT(PT_ROPT_MIN_SPP)) ? ", --min-spp" : "");
+    }
     return PT_OK;
 }

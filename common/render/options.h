@@ -54,6 +54,7 @@ typedef enum pt_ropt_id {
     PT_ROPT_EXPOSURE,
     PT_ROPT_VIEW,
     PT_ROPT_PASSES,
+    PT_ROPT_DENOISE,
     PT_ROPT_COUNT
 } pt_ropt_id;
 
@@ -86,7 +87,9 @@ typedef struct pt_render_opts {
     uint32_t tile;    /* 32 unless given */
     uint32_t chunk;   /* 16 unless given */
     pt_view view;
-    uint32_t passes; /* PT_PASS_* (tile.h), 0 unless given */
+    uint32_t passes; /* PT_PASS_* (tile.h), 0 unless given; with denoise,
+                        PT_PASS_DENOISE's too after finish */
+    int denoise;     /* --denoise: the finished image denoised (denoise_frame.h) */
 } pt_render_opts;
 
 /* The defaults above, nothing given. */

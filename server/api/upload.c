@@ -11,6 +11,7 @@
 #include "common/base/frames.h"
 #include "common/base/fsutil.h"
 #include "common/base/hash.h"
+#include "common/render/crypto.h"
 #include "common/render/env.h"
 #include "common/render/render.h"
 #include "common/scene/anim.h"
@@ -150,6 +151,27 @@ static void verify_upload(srv_upload *k)
     snprintf(k->scene, sizeof k->scene, "%.255s", base ? base + 1 : entry);
     k->ntris = scene->num_triangles;
     k->aspect = scene->camera.aspect;
+    /* Cryptomatte's manifests name the scene's objects and materials, which
+     * the coordinator only knows here: kept beside the bundle for the job's
+     * writer. */
+    char *manifests = NULL;
+    if (proto_film_passes(k->m.film_flags) & PT_PASS_CRYPTOMATTE) {
+        pt_crypto_meta cm;
+        st = pt_crypto_meta_init(&cm, scene, &err);
+        if (st == PT_OK) {
+            st = pt_crypto_meta_text(&cm, &manifests, &err);
+            pt_crypto_meta_fini(&cm);
+        }
+        if (st == PT_OK)
+            st = srv_state_save_manifests(k->state, k->job_id, manifests, &err);
+        pt_free(manifests);
+        if (st != PT_OK) {
+            pt_scene_free(scene);
+            verify_refuse(k, PROTO_E_INTERNAL, "cannot store the Cryptomatte manifests: %s",
+                          err.msg);
+            return;
+        }
+    }
     pt_scene_free(scene);
     st = srv_state_save_bundle(k->state, k->job_id, k->bundle->data, k->bundle->size, &err);
     if (st != PT_OK) {

@@ -7,6 +7,7 @@
 #include "common/base/alloc.h"
 #include "common/base/fsutil.h"
 #include "common/base/hash.h"
+#include "common/render/crypto.h"
 #include "common/render/env.h"
 #include "common/render/render.h"
 #include "common/render/tile.h"
@@ -133,12 +134,27 @@ static pt_status setup_single(srv_server *s, pt_error *err)
         snprintf(jp.env.name, sizeof jp.env.name, "%s", PT_BUNDLE_ENV_NAME);
     }
     st = pt_render_check_lit(scene, proto_env_any(&jp.env), cfg->scene_path, err);
+    /* Cryptomatte's manifests come from the names of the scene loaded here. */
+    pt_crypto_meta *crypto = NULL;
+    if (st == PT_OK && (proto_film_passes(jp.film_flags) & PT_PASS_CRYPTOMATTE)) {
+        if (!(crypto = pt_calloc(1, sizeof *crypto)))
+            st = pt_error_set(err, PT_ERR_NOMEM, "out of memory");
+        else if ((st = pt_crypto_meta_init(crypto, scene, err)) != PT_OK) {
+            pt_free(crypto);
+            crypto = NULL;
+        }
+    }
     pt_scene_free(scene);
     if (st != PT_OK)
         return st;
     srv_entry *j = pt_calloc(1, sizeof *j);
-    if (!j)
+    if (!j) {
+        if (crypto)
+            pt_crypto_meta_fini(crypto);
+        pt_free(crypto);
         return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
+    }
+    j->crypto = crypto;
     srv_queue_insert(s, j);
     s->single = j;
     if ((st = pt_bundle_pack_env(cfg->scene_path, cfg->env_path, &j->bundle, err)) != PT_OK)
@@ -180,7 +196,7 @@ static int finish_frames(srv_server *s)
     srv_entry *f;
     for (uint32_t i = 0; (f = srv_frames_at(p, i)); i++)
         if (f->job && srv_entry_active(f)) {
-            srv_entry_save_image(f);
+            srv_entry_save_image(f, srv_job_complete(f->job));
             if (srv_writer_flush(f->writer, &err) != PT_OK)
                 fprintf(stderr, "\nptserve: cannot write %s: %s", f->out_path, err.msg);
         }
@@ -218,7 +234,7 @@ static int finish_single(srv_server *s)
         return finish_frames(s);
     if (!j->job)
         return 1;
-    srv_entry_save_image(j);
+    srv_entry_save_image(j, srv_job_complete(j->job));
     pt_status st = srv_writer_flush(j->writer, &err);
     if (!cfg->quiet)
         print_progress(s, pt_now_ms());
@@ -389,7 +405,7 @@ static int finish_queue(srv_server *s)
             continue;
         pt_error err = {0};
         srv_entry_checkpoint(s, j, &err); /* logged; the results log holds the rest */
-        srv_entry_save_image(j);
+        srv_entry_save_image(j, srv_job_complete(j->job));
         if (srv_writer_flush(j->writer, &err) != PT_OK)
             srv_log("job %llu: cannot write its image: %s", (unsigned long long)j->rec.id, err.msg);
         n++;

@@ -11,6 +11,7 @@
 #include "common/base/text.h"
 #include "common/image/exr.h"
 #include "common/render/adaptive.h"
+#include "common/render/crypto.h"
 #include "common/render/film.h"
 #include "protocol/frame.h"
 
@@ -107,6 +108,9 @@ void srv_entry_free(srv_entry *j)
     if (!j)
         return;
     free_run(j);
+    if (j->crypto)
+        pt_crypto_meta_fini(j->crypto);
+    pt_free(j->crypto);
     pt_free(j->frames); /* a range's bookkeeping (server/sched/frames.h): plain memory */
     j->frames = NULL;
     pt_free(j);
@@ -276,7 +280,34 @@ void srv_queue_info(const srv_server *s, const srv_entry *j, proto_job_info *m)
         snprintf(m->message, sizeof m->message, "%s", r->message);
 }
 
-void srv_entry_save_image(srv_entry *j)
+/* A queued job with Cryptomatte: the manifests its upload check kept in the
+ * state folder (a frame: its range's, read once for the range), for its
+ * image's header. A job without them (a file lost or damaged) writes the
+ * layers without a manifest, which the specification allows, and says so. */
+static void load_manifests(srv_server *s, srv_entry *j)
+{
+    srv_entry *owner = j->parent ? j->parent : j;
+    if (owner->crypto || !s->state ||
+        !(proto_film_passes(srv_job_params_of(j->job)->film_flags) & PT_PASS_CRYPTOMATTE))
+        return;
+    char *text = NULL;
+    pt_error err = {0};
+    pt_crypto_meta *m = pt_calloc(1, sizeof *m);
+    pt_status st = m ? srv_state_load_manifests(s->state, owner->rec.id, &text, &err)
+                     : pt_error_set(&err, PT_ERR_NOMEM, "out of memory");
+    if (st == PT_OK)
+        st = pt_crypto_meta_from_text(m, text, &err);
+    pt_free(text);
+    if (st != PT_OK) {
+        srv_log("job %llu: its image gets no Cryptomatte manifest: %s",
+                (unsigned long long)owner->rec.id, err.msg);
+        pt_free(m);
+        return;
+    }
+    owner->crypto = m;
+}
+
+void srv_entry_save_image(srv_entry *j, int final)
 {
     srv_job_settle(j->job); /* the image holds every sample counted merged */
     pt_exr_meta meta = {0};
@@ -290,7 +321,12 @@ void srv_entry_save_image(srv_entry *j)
         meta.fps = j->parent->rec.fps;
         meta.time = pt_frames_time(j->frame, meta.fps);
     }
-    srv_writer_submit(j->writer, &meta);
+    const srv_entry *owner = j->parent ? j->parent : j;
+    if (owner->crypto) {
+        meta.attrs = owner->crypto->attrs;
+        meta.nattrs = owner->crypto->nattrs;
+    }
+    srv_writer_submit(j->writer, &meta, final);
     j->t_last_save = pt_now_ms();
     j->saved_passes = srv_job_passes_done(j->job);
     j->saved_samples = meta.total_samples;
@@ -343,7 +379,7 @@ void srv_queue_end_job(srv_server *s, srv_entry *j, uint8_t state, const char *m
          * one) while the loop goes on serving the other jobs' workers;
          * srv_queue_tick comes back once it is on disk. */
         if (!j->final_writing) {
-            srv_entry_save_image(j);
+            srv_entry_save_image(j, 1);
             j->final_writing = 1;
         }
         if (!srv_writer_idle(j->writer))
@@ -469,9 +505,14 @@ int srv_entry_ready(srv_server *s, srv_entry *j)
         }
     }
     if (st == PT_OK && !j->writer)
+        load_manifests(s, j);
+    if (st == PT_OK && !j->writer)
         st = srv_writer_new(j->out_path, srv_job_film(j->job),
                             (srv_job_params_of(j->job)->film_flags & PROTO_FILM_TRANSPARENT) != 0,
                             &s->cfg->view, &j->writer, &err);
+    if (st == PT_OK)
+        srv_writer_set_denoise(j->writer,
+                               (srv_job_params_of(j->job)->film_flags & PROTO_FILM_DENOISE) != 0);
     if (st != PT_OK) {
         char msg[PROTO_MAX_ERROR_TEXT + 1];
         snprintf(msg, sizeof msg, "%s", err.msg);

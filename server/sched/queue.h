@@ -52,6 +52,11 @@ struct srv_entry {
     srv_job *job;      /* NULL until it is first scheduled (and after it ends) */
     pt_bundle *bundle; /* loaded when a worker first asks for it */
     srv_writer *writer;
+    /* Cryptomatte's header attributes (its manifests), known where the
+     * coordinator loaded the scene itself (one-job mode), else NULL: a
+     * queued job's EXR has the layers and no manifest. A frame uses its
+     * range's. Owned. */
+    struct pt_crypto_meta *crypto;
     char out_path[PATH_MAX];
     double seconds_before; /* render seconds of earlier coordinator runs */
     uint64_t t_started;    /* when this run started rendering it (ms), 0: not yet */
@@ -118,8 +123,9 @@ void srv_entry_free(srv_entry *j);
  * when it cannot be (j is then ended FAILED, with the reason). */
 int srv_entry_ready(srv_server *s, srv_entry *j);
 
-/* Hands j's film, resolved, to its writer (a progressive or final image). */
-void srv_entry_save_image(srv_entry *j);
+/* Hands j's film, resolved, to its writer: a progressive image, or with
+ * final the finished one (denoised when the job asks, srv_writer.h). */
+void srv_entry_save_image(srv_entry *j, int final);
 
 /* Writes j's checkpoint when there is a state folder; an error is logged
  * and returned. */

@@ -381,7 +381,7 @@ void srv_queue_tick(srv_server *s, uint64_t now)
             (double)(now - j->t_last_save) >= s->cfg->save_interval * 1000.0 &&
             !srv_job_complete(j->job)) {
             double t0 = pt_now_s();
-            srv_entry_save_image(j);
+            srv_entry_save_image(j, 0);
             srv_histogram_add(&s->counters.save, pt_now_s() - t0);
         }
         if (now - j->rate_t >= 1000) {

@@ -3,9 +3,12 @@
 #include <pthread.h>
 #include <stdio.h>
 #include <stdlib.h>
+#include <unistd.h>
 
 #include "common/base/alloc.h"
 #include "common/base/fsutil.h"
+#include "common/image/denoise.h"
+#include "common/render/denoise_frame.h"
 
 struct srv_writer {
     pthread_mutex_t mu;
@@ -18,6 +21,10 @@ struct srv_writer {
     pt_view view;  /* the preview's */
     pt_image *img; /* the thread's, made at the first write and kept */
     int pending;   /* a request not yet taken */
+    int final;     /* the pending request is the finished image's */
+    int denoise;   /* final images are denoised (srv_writer_set_denoise) */
+    int denoised;  /* img holds denoised planes, of denoised_samples samples */
+    uint64_t denoised_samples;
     pt_exr_meta meta;
     int busy, stop;
     unsigned long written, failures;
@@ -25,6 +32,28 @@ struct srv_writer {
     pt_status last;
     pt_error last_err;
 };
+
+/* The finished image denoised (once for a count of samples): its layer
+ * denoised.R/G/B added to w->img, and *shown the image the preview shows. */
+static pt_status denoise_final(srv_writer *w, uint64_t samples, pt_image *shown, pt_error *err)
+{
+    if (!w->denoised || w->denoised_samples != samples) {
+        long n = sysconf(_SC_NPROCESSORS_ONLN);
+        unsigned threads = n < 1                              ? 1u
+                           : n > (long)PT_DENOISE_MAX_THREADS ? PT_DENOISE_MAX_THREADS
+                                                              : (unsigned)n;
+        w->denoised = 0;
+        pt_status st = pt_denoise_frame(w->img, threads, PT_DENOISE_DESPECKLE, NULL, err);
+        if (st != PT_OK)
+            return st;
+        w->denoised = 1;
+        w->denoised_samples = samples;
+    }
+    shown->r = pt_image_find_plane(w->img, "denoised.R");
+    shown->g = pt_image_find_plane(w->img, "denoised.G");
+    shown->b = pt_image_find_plane(w->img, "denoised.B");
+    return PT_OK;
+}
 
 static void *writer_main(void *p)
 {
@@ -36,6 +65,7 @@ static void *writer_main(void *p)
         if (!w->pending && w->stop)
             break;
         pt_exr_meta meta = w->meta;
+        int final = w->final;
         w->pending = 0;
         w->busy = 1;
         pthread_mutex_unlock(&w->mu);
@@ -46,14 +76,18 @@ static void *writer_main(void *p)
         if (!w->img)
             st = pt_image_new(w->film->width, w->film->height, &w->img, &err);
         pt_wait_for_file(w->gate);
+        pt_image shown;
         if (st == PT_OK) {
             meta.total_samples = pt_film_resolve_measured(w->film, w->img, &e);
             w->img->has_alpha = w->has_alpha;
-            if (w->exr[0])
+            shown = *w->img;
+            if (final && w->denoise)
+                st = denoise_final(w, meta.total_samples, &shown, &err);
+            if (st == PT_OK && w->exr[0])
                 st = pt_exr_write(w->exr, w->img, &meta, &err);
         }
         if (st == PT_OK)
-            st = pt_png_write_preview(w->png, w->img, &w->view, &err);
+            st = pt_png_write_preview(w->png, &shown, &w->view, &err);
 
         pthread_mutex_lock(&w->mu);
         w->busy = 0;
@@ -108,10 +142,18 @@ pt_status srv_writer_new(const char *exr_path, const pt_film *film, int has_alph
     return PT_OK;
 }
 
-void srv_writer_submit(srv_writer *w, const pt_exr_meta *meta)
+void srv_writer_set_denoise(srv_writer *w, int on)
+{
+    pthread_mutex_lock(&w->mu);
+    w->denoise = on;
+    pthread_mutex_unlock(&w->mu);
+}
+
+void srv_writer_submit(srv_writer *w, const pt_exr_meta *meta, int final)
 {
     pthread_mutex_lock(&w->mu);
     w->pending = 1;
+    w->final = final;
     w->meta = *meta;
     pthread_cond_broadcast(&w->cv);
     pthread_mutex_unlock(&w->mu);

@@ -39,7 +39,15 @@ pt_status srv_writer_new(const char *exr_path, const pt_film *film, int has_alph
 /* Asks for the film as it is when the thread takes the request, written with
  * meta; meta's total_samples is replaced by the samples of the pixels
  * resolved, so the file says what its pixels hold. */
-void srv_writer_submit(srv_writer *w, const pt_exr_meta *meta);
+void srv_writer_submit(srv_writer *w, const pt_exr_meta *meta, int final);
+/* --denoise (PROTO_FILM_DENOISE): a write submitted as final (the image
+ * holds every sample the job will have) first denoises the resolved image
+ * (pt_denoise_frame, on the processors online; the same bits on any
+ * number), so the EXR gets the layer denoised.R/G/B and the preview shows
+ * it; a final write of the same samples again (a retry, a second flush)
+ * reuses it. Progressive writes are not denoised. Call before the first
+ * submit. */
+void srv_writer_set_denoise(srv_writer *w, int on);
 /* Waits until the last submitted snapshot is on disk; returns the status of
  * the last write (its error in err). */
 pt_status srv_writer_flush(srv_writer *w, pt_error *err);

@@ -363,6 +363,41 @@ pt_status srv_state_save_bundle(const srv_state *st, uint64_t id, const uint8_t 
     return pt_write_file_atomic(p, data, n, err);
 }
 
+pt_status srv_state_save_manifests(const srv_state *st, uint64_t id, const char *text,
+                                   pt_error *err)
+{
+    char p[PATH_MAX];
+    size_t n = strlen(text);
+    if (n > SRV_STATE_MAX_MANIFESTS)
+        return pt_error_set(err, PT_ERR_LIMIT, "Cryptomatte manifests of %zu bytes, over %u", n,
+                            SRV_STATE_MAX_MANIFESTS);
+    pt_status s = st_job_file(st, id, "cryptomatte", p, sizeof p, err);
+    if (s != PT_OK)
+        return s;
+    return pt_write_file_atomic(p, (const uint8_t *)text, n, err);
+}
+
+pt_status srv_state_load_manifests(srv_state *st, uint64_t id, char **out, pt_error *err)
+{
+    char p[PATH_MAX];
+    st_job_path(st, id, "cryptomatte", p, sizeof p);
+    uint8_t *data;
+    size_t len;
+    pt_status s = pt_read_file(p, SRV_STATE_MAX_MANIFESTS, &data, &len, err);
+    if (s != PT_OK)
+        return s;
+    char *text = pt_malloc(len + 1);
+    if (!text) {
+        pt_free(data);
+        return pt_error_set(err, PT_ERR_NOMEM, "%s: out of memory", p);
+    }
+    memcpy(text, data, len);
+    text[len] = '\0';
+    pt_free(data);
+    *out = text;
+    return PT_OK;
+}
+
 pt_status srv_state_load_bundle(srv_state *st, uint64_t id, const uint8_t hash[32], pt_bundle **out,
                                 pt_error *err)
 {

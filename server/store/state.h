@@ -5,6 +5,9 @@
  *   DIR/queue                every job's record; rewritten whole on each
  *                            change (temp, fsync, rename), CRC32C at the end
  *   DIR/jobs/ID/bundle       the scene bundle as submitted (SHA-256 checked on load)
+ *   DIR/jobs/ID/cryptomatte  a job with Cryptomatte: its two manifests (objects,
+ *                            materials), one JSON object a line, from the scene
+ *                            the upload check loaded
  *   DIR/jobs/ID/checkpoint   the job's merged state (srv_job_save) with render
  *                            seconds and counters; written whole, CRC32C at the end
  *   DIR/jobs/ID/results.log  every result accepted since that checkpoint, appended
@@ -128,6 +131,15 @@ pt_status srv_state_save_bundle(const srv_state *st, uint64_t id, const uint8_t 
                                 pt_error *err);
 pt_status srv_state_load_bundle(srv_state *st, uint64_t id, const uint8_t hash[32], pt_bundle **out,
                                 pt_error *err);
+
+/* The Cryptomatte manifests of job id (text of at most
+ * SRV_STATE_MAX_MANIFESTS bytes): saved durably by the upload check (as a
+ * bundle is, from its thread), loaded when the job's writer is made.
+ * *out is pt_malloc'd and NUL-terminated. */
+#define SRV_STATE_MAX_MANIFESTS (4u << 20)
+pt_status srv_state_save_manifests(const srv_state *st, uint64_t id, const char *text,
+                                   pt_error *err);
+pt_status srv_state_load_manifests(srv_state *st, uint64_t id, char **out, pt_error *err);
 
 /* Counters a checkpoint carries beside the job's merged state. */
 typedef struct srv_ckpt_extra {

@@ -7,7 +7,7 @@
  *   ptbench SCENE --reference REF.exr --spp LIST --bound [--min-spp M] [--tile T] [...]
  *   ptbench SCENE --reference REF.exr (--target-error LIST | --min-gain LIST)
  *           [--min-spp M] [--max-spp N] [--chunk C] [--tile T] [other options as above]
- *   ptbench error IMAGE.exr (REFERENCE.exr | --constant V)
+ *   ptbench error IMAGE.exr (REFERENCE.exr | --constant V) [--layer NAME]
  *   ptbench plot OUT.png IN.csv...
  *   ptbench gain REFERENCE.exr [TILE [IMAGE.exr]]
  *
@@ -307,7 +307,7 @@ static int parse_list(const char *s, int as_double, double *out)
 static void usage(FILE *f)
 {
     fprintf(f, "usage: ptbench SCENE (--reference REF.exr | --constant V) [options]\n"
-               "       ptbench error IMAGE.exr (REFERENCE.exr | --constant V)\n"
+               "       ptbench error IMAGE.exr (REFERENCE.exr | --constant V) [--layer NAME]\n"
                "       ptbench plot OUT.png IN.csv...\n"
                "       ptbench gain REFERENCE.exr [TILE [IMAGE.exr]]\n"
                "  --spp LIST          sample counts per pixel (default 1,2,4,8,16,32,64,128,256)\n"
@@ -338,8 +338,38 @@ static void usage(FILE *f)
 
 /* ---- subcommands ---------------------------------------------------------------- */
 
+/* The layer NAME.R/G/B of the EXR path into img's R, G, B (the same file:
+ * the same size), for `ptbench error ... --layer denoised`. */
+static pt_status read_layer(const char *path, const char *layer, pt_image *img, pt_error *err)
+{
+    char names[3][96];
+    const char *np[3] = {names[0], names[1], names[2]};
+    float *pl[3] = {0};
+    uint32_t w, h;
+    for (int c = 0; c < 3; c++)
+        snprintf(names[c], sizeof names[c], "%s.%c", layer, "RGB"[c]);
+    pt_status st = pt_exr_read_channels(path, 3, np, pl, &w, &h, err);
+    if (st == PT_OK && (!pl[0] || !pl[1] || !pl[2]))
+        st = pt_error_set(err, PT_ERR_FORMAT, "%s has no layer %s (%s, %s, %s)", path, layer,
+                          names[0], names[1], names[2]);
+    if (st == PT_OK) {
+        size_t n = (size_t)w * h * sizeof(float);
+        memcpy(img->r, pl[0], n);
+        memcpy(img->g, pl[1], n);
+        memcpy(img->b, pl[2], n);
+    }
+    for (int c = 0; c < 3; c++)
+        pt_free(pl[c]);
+    return st;
+}
+
 static int cmd_error(int argc, char **argv)
 {
+    const char *layer = NULL;
+    if (argc >= 6 && !strcmp(argv[argc - 2], "--layer")) {
+        layer = argv[argc - 1];
+        argc -= 2;
+    }
     if (argc != 4 && !(argc == 5 && !strcmp(argv[3], "--constant"))) {
         usage(stderr);
         return 2;
@@ -355,6 +385,10 @@ static int cmd_error(int argc, char **argv)
     }
     if (pt_exr_read(argv[2], &img, NULL, &err) != PT_OK ||
         (argc == 4 && pt_exr_read(argv[3], &refimg, NULL, &err) != PT_OK)) {
+        fprintf(stderr, "ptbench: %s\n", err.msg);
+        goto done;
+    }
+    if (layer && read_layer(argv[2], layer, img, &err) != PT_OK) {
         fprintf(stderr, "ptbench: %s\n", err.msg);
         goto done;
     }

@@ -850,7 +850,7 @@ static void emit_state_file(const char *dir, const char *target, const char *nam
 
 /* Deterministic pixels for a task; varied, so that adaptive sampling has
  * some tiles to stop and some to go on with. */
-static void fake_result(const proto_task *t, pt_pixel_acc *px, proto_result *r)
+static void fake_result(const proto_task *t, pt_pixel_acc *px, pt_pass_acc *pa, proto_result *r)
 {
     uint32_t n = (t->tile.x1 - t->tile.x0) * (t->tile.y1 - t->tile.y0);
     uint32_t ns = t->s1 - t->s0;
@@ -875,6 +875,24 @@ static void fake_result(const proto_task *t, pt_pixel_acc *px, proto_result *r)
     r->rays = 1000 + t->task_id;
     r->npixels = n;
     r->pixels = px;
+    if (proto_film_passes(t->film_flags)) {
+        /* The passes' sums: some of each, and two Cryptomatte ids. */
+        memset(pa, 0, (size_t)n * sizeof *pa);
+        for (uint32_t i = 0; i < n; i++) {
+            for (int k = 0; k < PT_PASS_SUMS; k++)
+                pa[i].s[k] = pt_fixed_of(0.125 * (k + 1) * px[i].n);
+            for (int k = 0; k < PT_PASS_SQS; k++)
+                pa[i].sq[k] = pt_ufixed_of(0.5 * px[i].n);
+            pa[i].n_even = px[i].n / 2;
+            for (int k = 0; k < PT_CRYPTO_KINDS; k++) {
+                pa[i].cid[k][0] = 7u + (uint32_t)k;
+                pa[i].cid[k][1] = 0xdeadbeefu;
+                pa[i].ccnt[k][0] = 1;
+                pa[i].ccnt[k][1] = px[i].n - 1;
+            }
+        }
+        r->pass = pa;
+    }
 }
 
 /* Validates, logs (its frame), then merges a task's result, as the
@@ -883,8 +901,9 @@ static void fake_result(const proto_task *t, pt_pixel_acc *px, proto_result *r)
 static void log_and_merge(srv_state *st, srv_job *job, const proto_task *t)
 {
     static pt_pixel_acc px[64];
+    static pt_pass_acc pa[64];
     proto_result r;
-    fake_result(t, px, &r);
+    fake_result(t, px, pa, &r);
     pt_error err = {0};
     int lease = -1;
     srv_outcome o = srv_job_validate(job, 1, &r, &lease, &err);

@@ -1,7 +1,10 @@
 #!/usr/bin/env bash
 # Render passes on the farm (common/render/passes.h): every pass is merged
 # exactly like the beauty, so the farm's EXR equals the standalone render's
-# bit for bit in all 52 pass channels (ptexr-diff compares every layer):
+# bit for bit in all 52 pass channels (ptexr-diff compares every layer), and
+# its header has the Cryptomatte manifests (one-job ptserve from the scene it
+# loads, a queued job from what its upload check kept in the state folder,
+# across a restart too):
 #  1. one-job ptserve --passes with two local workers;
 #  2. ptctl submit --passes through a queue, one of two workers killed (-9)
 #     while it holds tasks, which are requeued;
@@ -29,10 +32,14 @@ json() { python3 -c "import json,sys; d=json.load(open(sys.argv[1])); print(eval
 
 view=(--res 48x32 --spp 64 --seed 3 --passes all)
 "$bin/ptworker" --scene "$scene" "${view[@]}" --tile 16 --chunk 8 -q -o "$tmp/ref.exr" 2> /dev/null
-same() { # NAME: its EXR is the reference's, every layer
+same() { # NAME: its EXR is the reference's, every layer, with the Cryptomatte manifests
   "$bin/ptexr-diff" "$tmp/ref.exr" "$tmp/$1.exr" > "$tmp/$1.diff" ||
     fail "$1: $(cat "$tmp/$1.diff")"
   grep -q "and 52 named channels" "$tmp/$1.diff" || fail "$1: $(cat "$tmp/$1.diff")"
+  # The header is not compressed: the manifests' names are there as text.
+  for name in '"tall_block":"' '"right_wall_green":"' '"white":"'; do
+    grep -a -q "$name" "$tmp/$1.exr" || fail "$1: no $name in its Cryptomatte manifests"
+  done
 }
 
 # 1. One job.

@@ -22,7 +22,7 @@ version=$(sed -n 's/^project(ptfarm VERSION \([0-9.]*\).*/\1/p' "$src/CMakeLists
 [[ -n $version ]] || fail "no project version in $src/CMakeLists.txt"
 
 ids=()
-for prog in ptserve ptworker ptctl ptbench ptbench-throughput ptbench-merge ptexr-diff; do
+for prog in ptserve ptworker ptctl ptdenoise ptbench ptbench-throughput ptbench-merge ptexr-diff; do
   if [[ ! -x $bin/$prog ]]; then
     fail "$bin/$prog missing"
     continue

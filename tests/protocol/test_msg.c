@@ -609,7 +609,12 @@ static void test_task(void)
     CHECK(proto_msg_encode_task(&w, &t, &err) == PT_OK);
     CHECK(proto_msg_decode_task(w.buf, w.len, &back, &err) == PT_OK &&
           back.film_flags == PROTO_FILM_TRANSPARENT);
-    t.film_flags = 1u << 7;
+    t.film_flags = PROTO_FILM_DENOISE | proto_film_of_passes(PT_PASS_ALBEDO);
+    proto_writer_reset(&w);
+    CHECK(proto_msg_encode_task(&w, &t, &err) == PT_OK);
+    CHECK(proto_msg_decode_task(w.buf, w.len, &back, &err) == PT_OK &&
+          back.film_flags == t.film_flags);
+    t.film_flags = 1u << 8;
     proto_writer_reset(&w);
     CHECK(proto_msg_encode_task(&w, &t, &err) == PT_ERR_ARG && w.len == 0);
     raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
@@ -1117,7 +1122,9 @@ static void test_submit(void)
     CHECK(submit_check(&m, "bundle size") == PT_ERR_PROTO);
     m = sample_submit(1);
     CHECK(m.film_flags == PROTO_FILM_TRANSPARENT && submit_check(&m, NULL) == PT_OK);
-    m.film_flags = PROTO_FILM_TRANSPARENT | (1u << 7);
+    m.film_flags = PROTO_FILM_TRANSPARENT | PROTO_FILM_DENOISE;
+    CHECK(submit_check(&m, NULL) == PT_OK);
+    m.film_flags = PROTO_FILM_TRANSPARENT | (1u << 8);
     CHECK(submit_check(&m, "film flags") == PT_ERR_PROTO);
     /* The variant: at its cap accepted, one over refused both ways. */
     m = sample_submit(0);

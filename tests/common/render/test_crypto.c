@@ -227,6 +227,30 @@ static void render_coverage(void)
         return;
     CHECK(s->num_objects == 2 && !strcmp(s->object_names[0].s, "left") &&
           !strcmp(s->object_names[1].s, "right"));
+    /* The header's attributes of the scene, and through the text the state
+     * folder keeps: the same attributes. */
+    pt_crypto_meta cm, back;
+    char *text = NULL;
+    CHECK(pt_crypto_meta_init(&cm, s, &err) == PT_OK && cm.nattrs == 8);
+    CHECK(pt_crypto_meta_text(&cm, &text, &err) == PT_OK);
+    CHECK(text && pt_crypto_meta_from_text(&back, text, &err) == PT_OK && back.nattrs == 8);
+    for (uint32_t a = 0; a < cm.nattrs && a < back.nattrs; a++)
+        CHECK(!strcmp(cm.attrs[a].name, back.attrs[a].name) &&
+              !strcmp(cm.attrs[a].value, back.attrs[a].value));
+    char found[32];
+    CHECK(pt_crypto_manifest_find(cm.manifest[PT_CRYPTO_OBJECT], pt_crypto_id("right"), found,
+                                  sizeof found) == 1 &&
+          !strcmp(found, "right"));
+    CHECK(pt_crypto_manifest_find(cm.manifest[PT_CRYPTO_MATERIAL], pt_crypto_id("slate"), found,
+                                  sizeof found) == 1);
+    CHECK(!strcmp(cm.attrs[0].value, "CryptoObject") &&
+          !strcmp(cm.attrs[1].value, "MurmurHash3_32") &&
+          !strcmp(cm.attrs[2].value, "uint32_to_float32"));
+    pt_crypto_meta_fini(&back);
+    CHECK(pt_crypto_meta_from_text(&back, "{}", &err) == PT_ERR_FORMAT);
+    CHECK(pt_crypto_meta_from_text(&back, "{}\n{\"a\":1}", &err) == PT_ERR_FORMAT);
+    pt_free(text);
+    pt_crypto_meta_fini(&cm);
     pt_env *env = NULL;
     CHECK(pt_env_uniform(pt_v3(1, 1, 1), &env, &err) == PT_OK);
     pt_render_params p = {0};

@@ -1,0 +1,917 @@
+#include "common/image/denoise.h"
+
+#include <math.h>
+#include <pthread.h>
+#include <stdatomic.h>
+#include <stddef.h>
+#include <stdio.h>
+#include <string.h>
+
+#include "common/base/alloc.h"
+#include "common/image/image.h"
+#include "common/math/simd.h"
+
+/* Tiles: the unit of parallel work and of the fixed summation order. */
+#define TILE 32
+/* The paper's parameters (NFOR sec. 5 and its reference implementation). */
+#define REG_F 3     /* patch radius of the regression's weights */
+#define REG_R 9     /* window radius of the regression: 19 x 19 */
+#define FEAT_F 3    /* feature prefilter: patch radius */
+#define FEAT_R 5    /* ... window radius */
+#define FEAT_K 0.5f /* ... and k */
+#define MSE_F 1     /* MSE and selection-map smoothing: patch radius */
+#define MSE_R 9     /* ... window radius */
+#define MAX_F 3     /* the largest patch radius above: scratch sizes */
+#define MAX_R 9     /* the largest window radius */
+#define WIN ((2 * MAX_R + 1) * (2 * MAX_R + 1))
+/* Regression unknowns: a constant, the screen offset (x, y), the features. */
+#define DIM (3 + PT_DENOISE_FEATURES)
+
+/* NL-means patch distance (Rousselle, Knaus and Zwicker 2012, eq. 8):
+ * d^2 = ((u_p - u_q)^2 - (var_p + min(var_p, var_q))) / (eps + k^2 (var_p + var_q)),
+ * averaged over the patch; weight exp(-max(0, d^2)). eps keeps a noise-free
+ * image's weights defined (identical patches weigh 1, others ~0); distances
+ * are clamped so that the exponential never sees an overflowing argument. */
+#define NLM_EPS 1e-10f
+#define NLM_CLAMP 10000.0f
+/* The distance of a pixel pair that does not exist: weight 0 at any k. */
+#define NLM_FAR 1e30f
+/* The centre pixel always keeps some weight, so a window never sums to 0. */
+#define NLM_MIN_CENTER 1e-4f
+/* The largest factor a channel's variance gets over luminance's: pure blue's
+ * (1 / 0.0722)^2 is 192. */
+#define VAR_RATIO_MAX 200.0f
+
+typedef struct rect {
+    int x0, y0, x1, y1; /* [x0, x1) x [y0, y1) */
+} rect;
+
+/* The parallel runner: threads take tile indices from a counter; what a
+ * tile computes depends only on its index, never on the thread. */
+typedef int (*tile_fn)(void *ctx, int tile, void *scratch); /* 0, or -1: out of memory */
+
+typedef struct tile_job {
+    tile_fn fn;
+    void *ctx;
+    int ntiles;
+    size_t scratch_bytes;
+    atomic_int next;
+    atomic_int failed;
+} tile_job;
+
+static void *tile_worker(void *arg)
+{
+    tile_job *job = arg;
+    void *scratch = pt_malloc(job->scratch_bytes);
+    if (!scratch) {
+        atomic_store(&job->failed, 1);
+        return NULL;
+    }
+    for (;;) {
+        int t = atomic_fetch_add(&job->next, 1);
+        if (t >= job->ntiles || atomic_load(&job->failed))
+            break;
+        if (job->fn(job->ctx, t, scratch) != 0)
+            atomic_store(&job->failed, 1);
+    }
+    pt_free(scratch);
+    return NULL;
+}
+
+static pt_status run_tiles(unsigned threads, int ntiles, size_t scratch_bytes, tile_fn fn,
+                           void *ctx, pt_error *err)
+{
+    tile_job job = {.fn = fn, .ctx = ctx, .ntiles = ntiles, .scratch_bytes = scratch_bytes};
+    atomic_init(&job.next, 0);
+    atomic_init(&job.failed, 0);
+    pthread_t tid[PT_DENOISE_MAX_THREADS];
+    unsigned started = 0;
+    unsigned want = threads < (unsigned)ntiles ? threads : (unsigned)ntiles;
+    /* A thread that cannot be started leaves its tiles to the others: the
+     * result does not depend on how many run. */
+    while (started + 1 < want && pthread_create(&tid[started], NULL, tile_worker, &job) == 0)
+        started++;
+    tile_worker(&job);
+    for (unsigned i = 0; i < started; i++)
+        pthread_join(tid[i], NULL);
+    if (atomic_load(&job.failed))
+        return pt_error_set(err, PT_ERR_NOMEM, "denoise: out of memory");
+    return PT_OK;
+}
+
+typedef struct dims {
+    int w, h, tx, ty; /* image size; tiles across and down */
+} dims;
+
+static rect tile_rect(const dims *d, int t)
+{
+    int tx = t % d->tx, ty = t / d->tx;
+    rect r = {tx * TILE, ty * TILE, tx * TILE + TILE, ty * TILE + TILE};
+    if (r.x1 > d->w)
+        r.x1 = d->w;
+    if (r.y1 > d->h)
+        r.y1 = d->h;
+    return r;
+}
+
+static int imax(int a, int b)
+{
+    return a > b ? a : b;
+}
+static int imin(int a, int b)
+{
+    return a < b ? a : b;
+}
+/* Not fminf/fmaxf: those are calls where NaN rules differ; no NaN reaches here. */
+static float fmin2(float a, float b)
+{
+    return a < b ? a : b;
+}
+static float fmax2(float a, float b)
+{
+    return a > b ? a : b;
+}
+
+/* e^-d for d >= 0; 0 from d = 80 on (under 2e-35: nothing next to the
+ * centre's weight). Written out rather than expf so that every machine
+ * computes the same bits (libm's expf picks code by processor) and loops
+ * over it vectorise: 2^-t with t = d log2(e) split into its integer part n
+ * and fraction, e^-u for u = fraction x ln 2 in [0, ln 2) by Taylor's
+ * series to degree 9 (truncation under 1e-7 relative), times 2^-n built in
+ * the exponent bits. */
+static inline float exp_neg(float d)
+{
+    float dc = d < 80.0f ? d : 80.0f;
+    float t = dc * 1.44269504f;
+    int n = (int)t;
+    float u = (t - (float)n) * 0.693147181f;
+    float p =
+        1.0f +
+        u * (-1.0f +
+             u * (0.5f +
+                  u * (-1.0f / 6.0f +
+                       u * (1.0f / 24.0f +
+                            u * (-1.0f / 120.0f +
+                                 u * (1.0f / 720.0f +
+                                      u * (-1.0f / 5040.0f +
+                                           u * (1.0f / 40320.0f + u * (-1.0f / 362880.0f)))))))));
+    uint32_t bits = (uint32_t)(127 - n) << 23;
+    float scale;
+    memcpy(&scale, &bits, sizeof scale);
+    return d < 80.0f ? p * scale : 0.0f;
+}
+
+/* exp_neg of 8 lanes in place, the same operations lane by lane: the same
+ * bits. Vectors go by pointer (as in simd.h): no AVX argument ABI. */
+static inline void exp_neg8(v8f *x)
+{
+    v8f d = *x;
+    const v8f lim = {80, 80, 80, 80, 80, 80, 80, 80}, zero = {0};
+    v8i below = d < lim;
+    v8f dc = V8_SELECT(below, d, lim);
+    v8f t = dc * 1.44269504f;
+    v8i n = __builtin_convertvector(t, v8i);
+    v8f u = (t - __builtin_convertvector(n, v8f)) * 0.693147181f;
+    v8f p =
+        1.0f +
+        u * (-1.0f +
+             u * (0.5f +
+                  u * (-1.0f / 6.0f +
+                       u * (1.0f / 24.0f +
+                            u * (-1.0f / 120.0f +
+                                 u * (1.0f / 720.0f +
+                                      u * (-1.0f / 5040.0f +
+                                           u * (1.0f / 40320.0f + u * (-1.0f / 362880.0f)))))))));
+    v8i bits = (127 - n) << 23;
+    *x = V8_SELECT(below, p * (v8f)bits, zero);
+}
+
+/* x[i] = exp_neg(x[i]) for i < n. */
+static inline void exp_neg_row(float *x, int n)
+{
+    int i = 0;
+    for (; i + 8 <= n; i += 8) {
+        v8f v;
+        memcpy(&v, x + i, sizeof v);
+        exp_neg8(&v);
+        memcpy(x + i, &v, sizeof v);
+    }
+    for (; i < n; i++)
+        x[i] = exp_neg(x[i]);
+}
+
+/* What NL-means weights are computed from: nc guide channels and the
+ * variance of each (pointers may repeat), scaled by vscale. */
+typedef struct guide {
+    int nc;
+    const float *g[3];
+    const float *v[3];
+    float vscale;
+    int f; /* patch radius */
+} guide;
+
+/* Scratch of patch_weights. */
+typedef struct wscratch {
+    float *d;  /* 3 x PAD^2: per-pixel distances of each channel */
+    float *hs; /* 2 x PAD: a row's column sums, then its patch sums */
+    float *hc; /* PAD: each output's patch width */
+} wscratch;
+
+#define PAD (TILE + 2 * MAX_F)
+#define WSCRATCH_BYTES ((3 * PAD * PAD + 3 * PAD + 2) * sizeof(float))
+
+static wscratch wscratch_at(void *mem)
+{
+    wscratch s;
+    s.d = mem;
+    s.hs = s.d + 3 * PAD * PAD;
+    s.hc = s.hs + 2 * PAD;
+    return s;
+}
+
+/* The NL-means patch distances at k = 1 between each pixel p of tile r and
+ * p + (dx, dy): per channel into out[c * TILE * TILE + i] (per_channel) or,
+ * for the regression, the largest over the channels into out[i], where i =
+ * (y - r.y0) * TILE + (x - r.x0); NLM_FAR where p + (dx, dy) is outside the
+ * image and past the tile's edge. A distance at k is this one / k^2 (eps
+ * scales with it), so candidates of several k share it. The patch distance is the mean of the
+ * per-pixel distances over the part of the patch where both patches are inside the image: column
+ * sums, then row sums, each loop running along x so that it vectorises (every element's sum keeps
+ * its order). */
+PT_SIMD_CLONES
+static void patch_dist(const dims *dm, const guide *gd, rect r, int dx, int dy, int per_channel,
+                       wscratch *s, float *out)
+{
+    int w = dm->w, f = gd->f;
+    const int tn = TILE * TILE;
+    for (int i = 0; i < tn * (per_channel ? gd->nc : 1); i++)
+        out[i] = NLM_FAR;
+    /* p and p + (dx, dy) both inside the image */
+    int vx0 = imax(r.x0, -dx), vx1 = imin(r.x1, w - dx);
+    int vy0 = imax(r.y0, -dy), vy1 = imin(r.y1, dm->h - dy);
+    if (vx0 >= vx1 || vy0 >= vy1)
+        return;
+    int px0 = imax(vx0 - f, imax(0, -dx)), px1 = imin(vx1 + f, imin(w, w - dx));
+    int py0 = imax(vy0 - f, imax(0, -dy)), py1 = imin(vy1 + f, imin(dm->h, dm->h - dy));
+    int pw = px1 - px0;
+    /* pixels in each output's patch row: the columns inside [px0, px1) */
+    for (int x = vx0; x < vx1; x++)
+        s->hc[x - vx0] = (float)(imin(x + f + 1, px1) - imax(x - f, px0));
+    for (int c = 0; c < gd->nc; c++) {
+        const float *g = gd->g[c], *v = gd->v[c];
+        float *d = s->d + (size_t)c * PAD * PAD;
+        for (int y = py0; y < py1; y++) {
+            const float *gp = g + (size_t)y * w + px0, *gq = g + (size_t)(y + dy) * w + px0 + dx;
+            const float *vp = v + (size_t)y * w + px0, *vq = v + (size_t)(y + dy) * w + px0 + dx;
+            float *drow = d + (size_t)(y - py0) * pw;
+            for (int x = 0; x < pw; x++) {
+                float a = vp[x] * gd->vscale, b = vq[x] * gd->vscale;
+                float diff = gp[x] - gq[x];
+                float dist = (diff * diff - (a + fmin2(a, b))) / (NLM_EPS + a + b);
+                drow[x] = fmin2(dist, NLM_CLAMP);
+            }
+        }
+        float *col = s->hs;
+        float *o = out + (per_channel ? (size_t)c * tn : 0);
+        for (int y = vy0; y < vy1; y++) {
+            int i0 = imax(y - f, py0), i1 = imin(y + f + 1, py1);
+            for (int x = 0; x < pw; x++)
+                col[x] = 0.0f;
+            for (int i = i0; i < i1; i++) {
+                const float *drow = d + (size_t)(i - py0) * pw;
+                for (int x = 0; x < pw; x++)
+                    col[x] += drow[x];
+            }
+            float *orow = o + (y - r.y0) * TILE + (vx0 - r.x0);
+            float *sum = s->hs + PAD;
+            int nx = vx1 - vx0;
+            for (int x = 0; x < nx; x++)
+                sum[x] = 0.0f;
+            for (int t = -f; t <= f; t++) {
+                /* x + t inside [px0, px1) */
+                int lo = imax(0, px0 - t - vx0), hi = imin(nx, px1 - t - vx0);
+                const float *cs = col + (vx0 + t - px0);
+                for (int x = lo; x < hi; x++)
+                    sum[x] += cs[x];
+            }
+            float rows = (float)(i1 - i0);
+            for (int x = 0; x < nx; x++)
+                sum[x] = fmax2(sum[x] / (rows * s->hc[x]), 0.0f);
+            if (per_channel || c == 0)
+                memcpy(orow, sum, sizeof(float) * (size_t)nx);
+            else
+                for (int x = 0; x < nx; x++)
+                    orow[x] = fmax2(orow[x], sum[x]);
+        }
+    }
+}
+
+/* Weights of n distances at 1 / k^2 = inv_k2: exp(-d / k^2); the tile's
+ * own pixels keep NLM_MIN_CENTER at least when this is the centre offset. */
+PT_SIMD_CLONES
+static void dist_weights(const float *dist, float inv_k2, rect r, int center, float *wt, int n)
+{
+    int i = 0;
+    for (; i + 8 <= n; i += 8) {
+        v8f v;
+        memcpy(&v, dist + i, sizeof v);
+        v *= inv_k2;
+        exp_neg8(&v);
+        memcpy(wt + i, &v, sizeof v);
+    }
+    for (; i < n; i++)
+        wt[i] = exp_neg(dist[i] * inv_k2);
+    if (center)
+        for (int c = 0; c < n / (TILE * TILE); c++)
+            for (int y = r.y0; y < r.y1; y++)
+                for (int x = r.x0; x < r.x1; x++) {
+                    float *o = wt + (size_t)c * TILE * TILE + (y - r.y0) * TILE + (x - r.x0);
+                    *o = fmax2(*o, NLM_MIN_CENTER);
+                }
+}
+
+/* ---- NL-means (per-channel weights), for the features, MSE and selection ---- */
+
+typedef struct nlm_ctx {
+    dims dm;
+    guide gd;
+    float inv_k2; /* 1 / k^2 */
+    int r;        /* window radius */
+    int ns;       /* channels filtered: channel j with the guide's j % nc weights */
+    const float *src[6];
+    float *dst[6];
+} nlm_ctx;
+
+#define NLM_SCRATCH_BYTES (WSCRATCH_BYTES + 6 * TILE * TILE * (sizeof(float) + 2 * sizeof(double)))
+
+static int nlm_tile(void *vctx, int t, void *mem)
+{
+    nlm_ctx *cx = vctx;
+    const dims *dm = &cx->dm;
+    rect r = tile_rect(dm, t);
+    const int tn = TILE * TILE;
+    int nc = cx->gd.nc, ns = cx->ns;
+    wscratch s = wscratch_at(mem);
+    float *dist = (float *)(void *)((char *)mem + WSCRATCH_BYTES), *wt = dist + 3 * tn;
+    double *acc = (double *)(void *)(wt + 3 * tn), *wsum = acc + 6 * tn;
+    memset(acc, 0, sizeof(double) * 12 * tn);
+    for (int dy = -cx->r; dy <= cx->r; dy++) {
+        for (int dx = -cx->r; dx <= cx->r; dx++) {
+            patch_dist(dm, &cx->gd, r, dx, dy, 1, &s, dist);
+            dist_weights(dist, cx->inv_k2, r, dx == 0 && dy == 0, wt, nc * tn);
+            int vx0 = imax(r.x0, -dx), vx1 = imin(r.x1, dm->w - dx);
+            int vy0 = imax(r.y0, -dy), vy1 = imin(r.y1, dm->h - dy);
+            for (int c = 0; c < ns; c++) {
+                const float *wc = wt + (size_t)(c % nc) * tn;
+                for (int y = vy0; y < vy1; y++) {
+                    const float *q = cx->src[c] + (size_t)(y + dy) * dm->w + dx;
+                    for (int x = vx0; x < vx1; x++) {
+                        int i = (y - r.y0) * TILE + (x - r.x0);
+                        acc[c * tn + i] += (double)wc[i] * q[x];
+                        wsum[c * tn + i] += wc[i];
+                    }
+                }
+            }
+        }
+    }
+    for (int c = 0; c < ns; c++)
+        for (int y = r.y0; y < r.y1; y++)
+            for (int x = r.x0; x < r.x1; x++) {
+                int i = (y - r.y0) * TILE + (x - r.x0);
+                cx->dst[c][(size_t)y * dm->w + x] = (float)(acc[c * tn + i] / wsum[c * tn + i]);
+            }
+    return 0;
+}
+
+/* NL-means of ns channels (at most 6, a multiple of gd->nc) with the
+ * weights of gd at k: channel j with the guide channel j % nc's. */
+static pt_status nlmeans(const dims *dm, unsigned threads, const guide *gd, float k, int radius,
+                         int ns, const float *const src[], float *const dst[], pt_error *err)
+{
+    nlm_ctx cx = {.dm = *dm, .gd = *gd, .inv_k2 = 1.0f / (k * k), .r = radius, .ns = ns};
+    for (int c = 0; c < ns; c++) {
+        cx.src[c] = src[c];
+        cx.dst[c] = dst[c];
+    }
+    return run_tiles(threads, dm->tx * dm->ty, NLM_SCRATCH_BYTES, nlm_tile, &cx, err);
+}
+
+/* ---- first-order regression with collaborative accumulation ---- */
+
+/* Weighted least squares by the normal equations in double, Gaussian
+ * elimination with the pivots in column order; a column whose pivot falls
+ * to 1e-10 of its own weighted sum of squares (a feature constant over the
+ * window, or a combination of the columns before it: grey albedo, a flat
+ * depth) is dropped, its coefficient 0, so the fit stays defined. The
+ * constant's column has the centre weight at least: never dropped. */
+static void solve_wls(double a[DIM][DIM], double b[DIM][3], double beta[DIM][3])
+{
+    double diag0[DIM];
+    int drop[DIM];
+    for (int i = 0; i < DIM; i++) {
+        for (int j = 0; j < i; j++)
+            a[i][j] = a[j][i];
+        diag0[i] = a[i][i];
+    }
+    for (int j = 0; j < DIM; j++) {
+        double piv = a[j][j];
+        drop[j] = !(diag0[j] > 0.0) || !(piv > 1e-10 * diag0[j]);
+        if (drop[j])
+            continue;
+        for (int i = j + 1; i < DIM; i++) {
+            double m = a[i][j] / piv;
+            if (m == 0.0)
+                continue;
+            for (int k = j; k < DIM; k++)
+                a[i][k] -= m * a[j][k];
+            for (int c = 0; c < 3; c++)
+                b[i][c] -= m * b[j][c];
+        }
+    }
+    for (int j = DIM - 1; j >= 0; j--) {
+        for (int c = 0; c < 3; c++) {
+            if (drop[j]) {
+                beta[j][c] = 0.0;
+                continue;
+            }
+            double s = b[j][c];
+            for (int k = j + 1; k < DIM; k++)
+                s -= a[j][k] * beta[k][c];
+            beta[j][c] = s / a[j][j];
+        }
+    }
+}
+
+/* Candidates one regression computes: the same fits at several k. */
+#define MAX_CAND 2
+
+typedef struct reg_ctx {
+    dims dm;
+    guide gd;  /* weights: the other half (or the image itself) */
+    int ncand; /* candidates: one per k */
+    float inv_k2[MAX_CAND];
+    const float *y[3]; /* the colour fitted */
+    const float *feat[PT_DENOISE_FEATURES];
+    double **tile_acc; /* per tile and candidate: 4 planes (R, G, B, weight) of RPAD x RPAD */
+} reg_ctx;
+
+/* A tile's neighbourhood: the tile (always TILE wide here) and the window's
+ * reach around it, from (x0 - REG_R, y0 - REG_R); what lies outside the
+ * image is 0 and has weight 0. */
+#define RPAD (TILE + 2 * REG_R)
+/* Unknowns' products: the upper triangle of the normal matrix. */
+#define NTRI (DIM * (DIM + 1) / 2)
+/* Four pixels of a row fitted at once, one per lane; each lane's sums are
+ * taken in the order the scalar code would take them. */
+#define LANES 4
+typedef double v4d __attribute__((vector_size(LANES * sizeof(double))));
+
+#define REG_SCRATCH_BYTES                                                                          \
+    (WSCRATCH_BYTES + (size_t)(MAX_CAND * WIN + 1) * TILE * TILE * sizeof(float) +                 \
+     (size_t)(PT_DENOISE_FEATURES + 3) * RPAD * RPAD * sizeof(float))
+
+#define load4(p) ((v4d){(p)[0], (p)[1], (p)[2], (p)[3]})
+
+/* Every fit of one row group of a tile: 4 pixels from (lx0, ly) (tile
+ * coordinates); pixels past the tile's width have no weight and no fit. */
+PT_SIMD_CLONES
+static void fit_lanes(const float *wt, const float *loc, int lx0, int ly, int tw, double *acc)
+{
+    const int side = 2 * REG_R + 1, rn = RPAD * RPAD;
+    const int pc = (ly + REG_R) * RPAD + lx0 + REG_R;
+    const float *feat = loc, *col = loc + (size_t)PT_DENOISE_FEATURES * rn;
+    v4d a[NTRI], b[DIM][3], fp[PT_DENOISE_FEATURES], x[DIM];
+    memset(a, 0, sizeof a);
+    memset(b, 0, sizeof b);
+    for (int k = 0; k < PT_DENOISE_FEATURES; k++)
+        fp[k] = load4(feat + (size_t)k * rn + pc);
+    for (int dy = -REG_R; dy <= REG_R; dy++) {
+        for (int dx = -REG_R; dx <= REG_R; dx++) {
+            const float *wp =
+                wt + (size_t)((dy + REG_R) * side + dx + REG_R) * TILE * TILE + ly * TILE + lx0;
+            if (wp[0] == 0.0f && wp[1] == 0.0f && wp[2] == 0.0f && wp[3] == 0.0f)
+                continue;
+            v4d wv = load4(wp);
+            int qc = pc + dy * RPAD + dx;
+            x[0] = (v4d){1.0, 1.0, 1.0, 1.0};
+            x[1] = (v4d){dx, dx, dx, dx};
+            x[2] = (v4d){dy, dy, dy, dy};
+            for (int k = 0; k < PT_DENOISE_FEATURES; k++)
+                x[3 + k] = load4(feat + (size_t)k * rn + qc) - fp[k];
+            v4d y[3] = {load4(col + qc), load4(col + rn + qc), load4(col + 2 * rn + qc)};
+            int m = 0;
+            for (int j = 0; j < DIM; j++) {
+                v4d wx = wv * x[j];
+                for (int k = j; k < DIM; k++)
+                    a[m++] += wx * x[k];
+                for (int c = 0; c < 3; c++)
+                    b[j][c] += wx * y[c];
+            }
+        }
+    }
+    v4d beta[DIM][3];
+    memset(beta, 0, sizeof beta);
+    for (int l = 0; l < LANES && lx0 + l < tw; l++) {
+        double al[DIM][DIM], bl[DIM][3], bt[DIM][3];
+        int m = 0;
+        for (int j = 0; j < DIM; j++) {
+            for (int k = j; k < DIM; k++)
+                al[j][k] = a[m++][l];
+            for (int c = 0; c < 3; c++)
+                bl[j][c] = b[j][c][l];
+        }
+        solve_wls(al, bl, bt);
+        for (int j = 0; j < DIM; j++)
+            for (int c = 0; c < 3; c++)
+                beta[j][c][l] = bt[j][c];
+    }
+    /* Each fit predicts its window; the predictions land with their weights. */
+    for (int dy = -REG_R; dy <= REG_R; dy++) {
+        for (int dx = -REG_R; dx <= REG_R; dx++) {
+            const float *wp =
+                wt + (size_t)((dy + REG_R) * side + dx + REG_R) * TILE * TILE + ly * TILE + lx0;
+            if (wp[0] == 0.0f && wp[1] == 0.0f && wp[2] == 0.0f && wp[3] == 0.0f)
+                continue;
+            v4d wv = load4(wp);
+            int qc = pc + dy * RPAD + dx;
+            x[0] = (v4d){1.0, 1.0, 1.0, 1.0};
+            x[1] = (v4d){dx, dx, dx, dx};
+            x[2] = (v4d){dy, dy, dy, dy};
+            for (int k = 0; k < PT_DENOISE_FEATURES; k++)
+                x[3 + k] = load4(feat + (size_t)k * rn + qc) - fp[k];
+            for (int c = 0; c < 4; c++) {
+                v4d add = wv;
+                if (c < 3) {
+                    v4d pred = x[0] * beta[0][c];
+                    for (int j = 1; j < DIM; j++)
+                        pred += x[j] * beta[j][c];
+                    add = wv * pred;
+                }
+                v4d cur;
+                memcpy(&cur, acc + (size_t)c * rn + qc, sizeof cur);
+                cur += add;
+                memcpy(acc + (size_t)c * rn + qc, &cur, sizeof cur);
+            }
+        }
+    }
+}
+
+static int reg_tile(void *vctx, int t, void *mem)
+{
+    reg_ctx *cx = vctx;
+    const dims *dm = &cx->dm;
+    const int rn = RPAD * RPAD, tn = TILE * TILE;
+    rect r = tile_rect(dm, t);
+    int tw = r.x1 - r.x0;
+    wscratch s = wscratch_at(mem);
+    float *wt = (float *)(void *)((char *)mem + WSCRATCH_BYTES);
+    float *dist = wt + (size_t)MAX_CAND * WIN * tn;
+    float *loc = dist + tn;
+    for (int m = 0; m < cx->ncand; m++) {
+        double *acc = pt_calloc(4 * (size_t)rn, sizeof(double));
+        if (!acc)
+            return -1;
+        cx->tile_acc[t * cx->ncand + m] = acc;
+    }
+    /* The features and the colour around the tile, 0 outside the image. */
+    for (int k = 0; k < PT_DENOISE_FEATURES + 3; k++) {
+        const float *src = k < PT_DENOISE_FEATURES ? cx->feat[k] : cx->y[k - PT_DENOISE_FEATURES];
+        float *dst = loc + (size_t)k * rn;
+        for (int ly = 0; ly < RPAD; ly++) {
+            int gy = r.y0 - REG_R + ly;
+            for (int lx = 0; lx < RPAD; lx++) {
+                int gx = r.x0 - REG_R + lx;
+                int in = gx >= 0 && gx < dm->w && gy >= 0 && gy < dm->h;
+                dst[ly * RPAD + lx] = in ? src[(size_t)gy * dm->w + gx] : 0.0f;
+            }
+        }
+    }
+    /* One distance per offset, a weight per candidate. */
+    const int side = 2 * REG_R + 1;
+    for (int dy = -REG_R; dy <= REG_R; dy++)
+        for (int dx = -REG_R; dx <= REG_R; dx++) {
+            int o = (dy + REG_R) * side + dx + REG_R;
+            patch_dist(dm, &cx->gd, r, dx, dy, 0, &s, dist);
+            for (int m = 0; m < cx->ncand; m++)
+                dist_weights(dist, cx->inv_k2[m], r, dx == 0 && dy == 0,
+                             wt + ((size_t)m * WIN + o) * tn, tn);
+        }
+    for (int m = 0; m < cx->ncand; m++)
+        for (int ly = 0; ly < r.y1 - r.y0; ly++)
+            for (int lx0 = 0; lx0 < tw; lx0 += LANES)
+                fit_lanes(wt + (size_t)m * WIN * tn, loc, lx0, ly, tw,
+                          cx->tile_acc[t * cx->ncand + m]);
+    return 0;
+}
+
+/* Filters y (3 channels) by collaborative first-order regression on the
+ * features with weights from gd, once per k in ks[0..ncand-1] into
+ * out[m][0..2] (which may not alias y). */
+static pt_status regression(const dims *dm, unsigned threads, const guide *gd, int ncand,
+                            const float *ks, const float *const y[3], const float *const feat[],
+                            float *const *const out[], pt_error *err)
+{
+    int ntiles = dm->tx * dm->ty;
+    size_t n = (size_t)dm->w * dm->h;
+    reg_ctx cx = {.dm = *dm, .gd = *gd, .ncand = ncand};
+    for (int m = 0; m < ncand; m++)
+        cx.inv_k2[m] = 1.0f / (ks[m] * ks[m]);
+    for (int c = 0; c < 3; c++)
+        cx.y[c] = y[c];
+    for (int k = 0; k < PT_DENOISE_FEATURES; k++)
+        cx.feat[k] = feat[k];
+    cx.tile_acc = pt_calloc((size_t)ntiles * (size_t)ncand, sizeof(double *));
+    double *sum = pt_malloc_array(4 * n, sizeof(double));
+    pt_status st = PT_OK;
+    if (!cx.tile_acc || !sum) {
+        st = pt_error_set(err, PT_ERR_NOMEM, "denoise: out of memory");
+        goto done;
+    }
+    if ((st = run_tiles(threads, ntiles, REG_SCRATCH_BYTES, reg_tile, &cx, err)) != PT_OK)
+        goto done;
+    for (int m = 0; m < ncand; m++) {
+        memset(sum, 0, 4 * n * sizeof(double));
+        /* Tile order: the sums do not depend on which thread made them. */
+        for (int t = 0; t < ntiles; t++) {
+            rect r = tile_rect(dm, t);
+            int ox = r.x0 - REG_R, oy = r.y0 - REG_R;
+            double *acc = cx.tile_acc[t * ncand + m];
+            for (int c = 0; c < 4; c++)
+                for (int yy = imax(oy, 0); yy < imin(oy + RPAD, dm->h); yy++)
+                    for (int xx = imax(ox, 0); xx < imin(ox + RPAD, dm->w); xx++)
+                        sum[(size_t)c * n + (size_t)yy * dm->w + xx] +=
+                            acc[(size_t)c * RPAD * RPAD + (size_t)(yy - oy) * RPAD + (xx - ox)];
+            pt_free(acc);
+            cx.tile_acc[t * ncand + m] = NULL;
+        }
+        for (size_t i = 0; i < n; i++)
+            for (int c = 0; c < 3; c++)
+                out[m][c][i] = (float)(sum[c * n + i] / sum[3 * n + i]);
+    }
+done:
+    if (cx.tile_acc)
+        for (int t = 0; t < ntiles * ncand; t++)
+            pt_free(cx.tile_acc[t]);
+    pt_free(cx.tile_acc);
+    pt_free(sum);
+    return st;
+}
+
+/* ---- input checks ---- */
+
+static pt_status check_plane(const pt_denoise_input *in, const float *p, const char *name, float lo,
+                             float hi, pt_error *err)
+{
+    if (!p)
+        return pt_error_set(err, PT_ERR_ARG, "denoise: no %s plane", name);
+    size_t n = (size_t)in->width * in->height;
+    for (size_t i = 0; i < n; i++) {
+        float v = p[i];
+        if (isfinite(v) && v >= lo && v <= hi)
+            continue;
+        return pt_error_set(err, PT_ERR_FORMAT, "denoise: %s at (%zu, %zu) is %g, not in [%g, %g]",
+                            name, i % in->width, i / in->width, (double)v, (double)lo, (double)hi);
+    }
+    return PT_OK;
+}
+
+pt_status pt_denoise_check(const pt_denoise_input *in, pt_error *err)
+{
+    if (!in)
+        return pt_error_set(err, PT_ERR_ARG, "denoise: no input");
+    pt_status st = pt_image_check_size("denoise input", in->width, in->height, err);
+    if (st != PT_OK)
+        return st;
+    static const char *const rgb[3] = {"R", "G", "B"}, *const xyz[3] = {"X", "Y", "Z"};
+    const float M = PT_DENOISE_MAX_VALUE;
+    char name[32];
+    for (int c = 0; c < 3; c++) {
+        snprintf(name, sizeof name, "halfA.%s", rgb[c]);
+        if ((st = check_plane(in, in->half_a[c], name, -M, M, err)) != PT_OK)
+            return st;
+        snprintf(name, sizeof name, "halfB.%s", rgb[c]);
+        if ((st = check_plane(in, in->half_b[c], name, -M, M, err)) != PT_OK)
+            return st;
+        if ((st = check_plane(in, in->color[c], rgb[c], -M, M, err)) != PT_OK)
+            return st;
+        snprintf(name, sizeof name, "albedo.%s", rgb[c]);
+        if ((st = check_plane(in, in->albedo[c], name, 0.0f, M, err)) != PT_OK)
+            return st;
+        snprintf(name, sizeof name, "N.%s", xyz[c]);
+        if ((st = check_plane(in, in->normal[c], name, -1.001f, 1.001f, err)) != PT_OK)
+            return st;
+    }
+    if (!(in->despeckle == 0.0f ||
+          (in->despeckle >= 1.0f && in->despeckle <= PT_DENOISE_DESPECKLE_MAX)))
+        return pt_error_set(err, PT_ERR_ARG, "denoise: despeckle %g is not 0 or in [1, %g]",
+                            (double)in->despeckle, (double)PT_DENOISE_DESPECKLE_MAX);
+    if ((st = check_plane(in, in->variance, "variance", 0.0f, M, err)) != PT_OK ||
+        (st = check_plane(in, in->albedo_var, "albedo.variance", 0.0f, M, err)) != PT_OK ||
+        (st = check_plane(in, in->normal_var, "N.variance", 0.0f, M, err)) != PT_OK ||
+        (st = check_plane(in, in->depth, "depth.Z", 0.0f, M, err)) != PT_OK ||
+        (st = check_plane(in, in->depth_var, "depth.variance", 0.0f, M, err)) != PT_OK)
+        return st;
+    return PT_OK;
+}
+
+/* ---- the pipeline ---- */
+
+static float lum3(const float *const p[3], size_t i)
+{
+    return 0.2126f * p[0][i] + 0.7152f * p[1][i] + 0.0722f * p[2][i];
+}
+
+/* Fireflies, before NFOR (which has no rule for them: a spike's huge
+ * variance makes it "similar" to every neighbour, and its fit spreads it):
+ * one half's pixel whose luminance is over factor x the largest luminance
+ * of the other half's 3 x 3 neighbourhood is scaled down to that. A spike
+ * that one half's samples have and the other half's do not, around it
+ * either, is one rare sample; a feature of the picture, even one pixel
+ * wide, is seen by both halves' samples and stays. The pixel's variance
+ * is scaled by the square of the factor applied (*vscale, 1 elsewhere),
+ * as the spike made it. factor 0: nothing changes. */
+static void despeckle(const pt_denoise_input *in, float factor, float *const da[3],
+                      float *const db[3], float *vscale)
+{
+    for (size_t i = 0; i < (size_t)in->width * in->height; i++)
+        vscale[i] = 1.0f;
+    int w = (int)in->width, h = (int)in->height;
+    for (int k = 0; k < 2; k++) {
+        const float *const *src = k ? in->half_b : in->half_a, *const *oth =
+                                                                   k ? in->half_a : in->half_b;
+        float *const *dst = k ? db : da;
+        for (int y = 0; y < h; y++)
+            for (int x = 0; x < w; x++) {
+                size_t i = (size_t)y * w + x;
+                float scale = 1.0f;
+                if (factor > 0.0f) {
+                    float m = 0.0f;
+                    for (int yy = imax(y - 1, 0); yy <= imin(y + 1, h - 1); yy++)
+                        for (int xx = imax(x - 1, 0); xx <= imin(x + 1, w - 1); xx++)
+                            m = fmax2(m, lum3(oth, (size_t)yy * w + xx));
+                    float l = lum3(src, i), cap = factor * m;
+                    if (l > cap && l > 0.0f)
+                        scale = cap / l;
+                }
+                for (int c = 0; c < 3; c++)
+                    dst[c][i] = src[c][i] * scale;
+                vscale[i] = fmin2(vscale[i], scale * scale);
+            }
+    }
+}
+
+/* Internal planes, one allocation. */
+enum {
+    P_FEAT = 0,                          /* 7 prefiltered features */
+    P_FA = P_FEAT + PT_DENOISE_FEATURES, /* 2 candidates x 3: half A filtered */
+    P_FB = P_FA + 6,                     /* 2 x 3: half B filtered */
+    P_MSE = P_FB + 6,                    /* 2 x 3: smoothed MSE estimates */
+    P_TMP = P_MSE + 6,                   /* 6: noisy MSE, then the noisy selection */
+    P_SEL = P_TMP + 6,                   /* 3: the smoothed selection map */
+    P_VAR = P_SEL + 3,                   /* 3: variance of the blend's mean */
+    P_CVAR = P_VAR + 3,                  /* 3: the beauty's variance per channel */
+    P_HVAR = P_CVAR + 3,                 /* 3: a half's variance per channel (2 x) */
+    P_COMB = P_HVAR + 3,                 /* 3: the blend's mean */
+    P_HA = P_COMB + 3,                   /* 3 + 3: the halves, spikes clamped */
+    P_HB = P_HA + 3,
+    P_VS = P_HB + 3, /* 1: the variance's factor after despeckling */
+    P_COUNT = P_VS + 1
+};
+
+pt_status pt_denoise(const pt_denoise_input *in, unsigned threads, float *const out[3],
+                     pt_error *err)
+{
+    pt_status st = pt_denoise_check(in, err);
+    if (st != PT_OK)
+        return st;
+    if (!out || !out[0] || !out[1] || !out[2])
+        return pt_error_set(err, PT_ERR_ARG, "denoise: no output planes");
+    if (threads == 0)
+        threads = 1;
+    if (threads > PT_DENOISE_MAX_THREADS)
+        return pt_error_set(err, PT_ERR_ARG, "denoise: %u threads, at most %u", threads,
+                            PT_DENOISE_MAX_THREADS);
+    dims dm = {(int)in->width, (int)in->height, ((int)in->width + TILE - 1) / TILE,
+               ((int)in->height + TILE - 1) / TILE};
+    size_t n = (size_t)in->width * in->height;
+    float *mem = pt_malloc_array(n * P_COUNT, sizeof(float));
+    if (!mem)
+        return pt_error_set(err, PT_ERR_NOMEM, "denoise: out of memory for %ux%u", in->width,
+                            in->height);
+    float *pl[P_COUNT];
+    for (int i = 0; i < P_COUNT; i++)
+        pl[i] = mem + (size_t)i * n;
+
+    const float *ha[3], *hb[3];
+    despeckle(in, in->despeckle, pl + P_HA, pl + P_HB, pl[P_VS]);
+    for (int c = 0; c < 3; c++) {
+        ha[c] = pl[P_HA + c];
+        hb[c] = pl[P_HB + c];
+    }
+
+    /* 1. Features, each through NL-means guided by itself (sec. 5.1). */
+    const float *fin[PT_DENOISE_FEATURES] = {in->albedo[0], in->albedo[1], in->albedo[2],
+                                             in->normal[0], in->normal[1], in->normal[2],
+                                             in->depth};
+    const float *fvar[3] = {in->albedo_var, in->normal_var, in->depth_var};
+    for (int g = 0; g < 3 && st == PT_OK; g++) {
+        int first = 3 * g, nc = g < 2 ? 3 : 1;
+        guide gd = {.nc = nc, .vscale = 1.0f, .f = FEAT_F};
+        for (int c = 0; c < nc; c++) {
+            gd.g[c] = fin[first + c];
+            gd.v[c] = fvar[g];
+        }
+        st = nlmeans(&dm, threads, &gd, FEAT_K, FEAT_R, nc, fin + first, pl + P_FEAT + first, err);
+    }
+    if (st != PT_OK)
+        goto done;
+    const float *const *feat = (const float *const *)(pl + P_FEAT);
+
+    /* 2. Two candidates (k = 0.5, 1), each half filtered with the other's
+     * weights (sec. 5.2); the candidates share the patch distances. */
+    /* The beauty's variance is luminance's; a channel's is taken as
+     * luminance's x (channel / luminance)^2, exact for noise that scales
+     * the pixel's colour (a path's throughput times a random factor): a
+     * red wall's R varies more than its luminance. A half has half the
+     * samples: twice the variance. */
+    for (size_t i = 0; i < n; i++) {
+        float lum =
+            0.2126f * in->color[0][i] + 0.7152f * in->color[1][i] + 0.0722f * in->color[2][i];
+        for (int c = 0; c < 3; c++) {
+            float ratio = lum > 0.0f && in->color[c][i] > 0.0f ? in->color[c][i] / lum : 1.0f;
+            float v = in->variance[i] * pl[P_VS][i] * fmin2(ratio * ratio, VAR_RATIO_MAX);
+            pl[P_CVAR + c][i] = v;
+            pl[P_HVAR + c][i] = 2.0f * v;
+        }
+    }
+    static const float cand_k[2] = {0.5f, 1.0f};
+    guide ga = {.nc = 3, .vscale = 1.0f, .f = REG_F};
+    guide gb = ga;
+    for (int c = 0; c < 3; c++) {
+        ga.g[c] = hb[c]; /* A is filtered with B's weights */
+        gb.g[c] = ha[c];
+        ga.v[c] = gb.v[c] = pl[P_HVAR + c];
+    }
+    float *const fa[2][3] = {{pl[P_FA], pl[P_FA + 1], pl[P_FA + 2]},
+                             {pl[P_FA + 3], pl[P_FA + 4], pl[P_FA + 5]}};
+    float *const fb[2][3] = {{pl[P_FB], pl[P_FB + 1], pl[P_FB + 2]},
+                             {pl[P_FB + 3], pl[P_FB + 4], pl[P_FB + 5]}};
+    float *const *const outa[2] = {fa[0], fa[1]}, *const *const outb[2] = {fb[0], fb[1]};
+    if ((st = regression(&dm, threads, &ga, 2, cand_k, ha, feat, outa, err)) != PT_OK ||
+        (st = regression(&dm, threads, &gb, 2, cand_k, hb, feat, outb, err)) != PT_OK)
+        goto done;
+    /* 3. Each candidate's MSE from the halves' cross errors (sec. 5.3). */
+    for (int k = 0; k < 2; k++) {
+        for (int c = 0; c < 3; c++) {
+            const float *fak = pl[P_FA + 3 * k + c], *fbk = pl[P_FB + 3 * k + c];
+            float *noisy = pl[P_TMP + 3 * k + c];
+            for (size_t i = 0; i < n; i++) {
+                float hv = pl[P_HVAR + c][i];
+                float ea = (hb[c][i] - fak[i]) * (hb[c][i] - fak[i]) - hv;
+                float eb = (ha[c][i] - fbk[i]) * (ha[c][i] - fbk[i]) - hv;
+                float res = 0.25f * (fbk[i] - fak[i]) * (fbk[i] - fak[i]);
+                noisy[i] = 0.5f * (ea + eb) - res;
+            }
+        }
+    }
+    /* Both estimates smoothed with one set of weights, from the colour. */
+    guide gc = {.nc = 3, .vscale = 1.0f, .f = MSE_F};
+    for (int c = 0; c < 3; c++) {
+        gc.g[c] = in->color[c];
+        gc.v[c] = pl[P_CVAR + c];
+    }
+    if ((st = nlmeans(&dm, threads, &gc, 1.0f, MSE_R, 6, (const float *const *)(pl + P_TMP),
+                      pl + P_MSE, err)) != PT_OK)
+        goto done;
+    /* The choice map, smoothed like the estimates, blends the candidates. */
+    for (int c = 0; c < 3; c++)
+        for (size_t i = 0; i < n; i++)
+            pl[P_TMP + c][i] = pl[P_MSE + c][i] < pl[P_MSE + 3 + c][i] ? 0.0f : 1.0f;
+    if ((st = nlmeans(&dm, threads, &gc, 1.0f, MSE_R, 3, (const float *const *)(pl + P_TMP),
+                      pl + P_SEL, err)) != PT_OK)
+        goto done;
+    for (int c = 0; c < 3; c++) {
+        for (size_t i = 0; i < n; i++) {
+            float sel = pl[P_SEL + c][i];
+            /* a + s (b - a): exactly a where the candidates agree */
+            float a0 = pl[P_FA + c][i], a1 = pl[P_FA + 3 + c][i];
+            float b0 = pl[P_FB + c][i], b1 = pl[P_FB + 3 + c][i];
+            float ra = a0 + sel * (a1 - a0), rb = b0 + sel * (b1 - b0);
+            pl[P_COMB + c][i] = 0.5f * (ra + rb);
+            pl[P_VAR + c][i] = 0.25f * (rb - ra) * (rb - ra);
+        }
+    }
+    /* 4. The second pass over the blend's mean (sec. 5.4). */
+    guide gf = {.nc = 3, .vscale = 1.0f, .f = REG_F};
+    for (int c = 0; c < 3; c++) {
+        gf.g[c] = pl[P_COMB + c];
+        gf.v[c] = pl[P_VAR + c];
+    }
+    static const float final_k[1] = {1.0f};
+    float *const *const outf[1] = {out};
+    st = regression(&dm, threads, &gf, 1, final_k, (const float *const *)(pl + P_COMB), feat, outf,
+                    err);
+done:
+    pt_free(mem);
+    return st;
+}

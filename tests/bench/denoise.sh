@@ -1,0 +1,133 @@
+#!/usr/bin/env bash
+# denoise.sh - the denoiser against more samples, and its cost.
+#
+#   tests/bench/denoise.sh BIN_DIR [REPS]
+#
+# Part 1, quality (needs a ptworker that writes the denoiser's passes,
+# `--passes albedo,normal,depth,halves`; skipped with a note otherwise): for
+# each scene, a reference of REF_SPP samples with another seed, a LOW_SPP
+# render with the passes denoised by ptdenoise, and a HIGH_SPP raw render;
+# relMSE of each against the reference (`ptbench error`, the denoised layer
+# with --layer denoised), the mean of the denoised image against the raw
+# one's, and whether the denoised LOW_SPP image beats the raw HIGH_SPP one.
+# Part 2, cost: ptdenoise on a 1920x1080 EXR with every pass
+# (ptpasses-exr: the synthetic render of the tests; the denoiser's work does
+# not depend on the picture) on THREADS threads, REPS times: median wall and
+# CPU seconds. With HD_RENDER=1 and the passes, also a LOW_SPP 1920x1080
+# render of the first scene, for the denoiser's share of it.
+#
+# Environment (defaults in brackets):
+#   SCENES   "SCENE[@ENV]" entries [the Cornell box; DamagedHelmet in the studio]
+#   RES      image size [256x256]      THREADS  threads [2]
+#   LOW_SPP  [64]   HIGH_SPP [1024]    REF_SPP  reference spp [16384]
+#   OUT      folder [/tmp/ptfarm-denoise]; a reference already there is reused
+#   WORKER   the ptworker that renders [BIN_DIR/ptworker]: another build's, with
+#            the passes, while this one has none
+#   COST     0: part 1 only [1]
+set -euo pipefail
+
+if [[ $# -lt 1 || $# -gt 2 || ! -x "$1/ptdenoise" || ! -x "$1/ptworker" ]]; then
+    echo "usage: $0 BIN_DIR [REPS]   (BIN_DIR holds ptdenoise, ptworker, ptbench, ptpasses-exr)" >&2
+    exit 2
+fi
+BIN=$1
+REPS=${2:-3}
+ROOT=$(cd "$(dirname "$0")/../.." && pwd)
+SHARED=$ROOT/../shared
+SCENES=${SCENES:-"$ROOT/scenes/cornell_box.gltf $SHARED/scenes/DamagedHelmet/DamagedHelmet.glb@$SHARED/envs/studio_small_03_1k.hdr"}
+RES=${RES:-256x256}
+THREADS=${THREADS:-2}
+LOW_SPP=${LOW_SPP:-64}
+HIGH_SPP=${HIGH_SPP:-1024}
+REF_SPP=${REF_SPP:-16384}
+OUT=${OUT:-/tmp/ptfarm-denoise}
+WORKER=${WORKER:-$BIN/ptworker}
+mkdir -p "$OUT"
+
+# Median of the numbers on stdin.
+median() { sort -g | awk '{ v[NR] = $1 } END { print (NR % 2) ? v[(NR + 1) / 2] : 0.5 * (v[NR / 2] + v[NR / 2 + 1]) }'; }
+
+# Wall and CPU seconds of one command (its stderr to $OUT/last.log): "WALL CPU".
+timed() {
+    local t0 t1 c0 c1 me=$BASHPID
+    t0=$(date +%s.%N)
+    c0=$(awk '{ print $14 + $15 + $16 + $17 }' "/proc/$me/stat")
+    "$@" 2> "$OUT/last.log"
+    t1=$(date +%s.%N)
+    # Children's CPU time lands in this shell's cutime/cstime once reaped.
+    c1=$(awk '{ print $14 + $15 + $16 + $17 }' "/proc/$me/stat")
+    awk -v a="$t0" -v b="$t1" -v c="$c0" -v d="$c1" -v hz="$(getconf CLK_TCK)" \
+        'BEGIN { printf "%.3f %.3f\n", b - a, (d - c) / hz }'
+}
+
+relmse() { # IMAGE REF [--layer NAME]
+    "$BIN/ptbench" error "$@" | awk '$1 == "relMSE" { print $2 }'
+}
+mean_of() { # IMAGE REF [--layer NAME]
+    "$BIN/ptbench" error "$@" | awk '$1 == "mean" { printf "%.6g", ($2 + $3 + $4) / 3 }'
+}
+
+echo "== quality: relMSE against a $REF_SPP-spp reference of another seed, $RES, $THREADS threads"
+if ! "$WORKER" --help 2>&1 | grep -q -- '--passes'; then
+    echo "skipped: this ptworker writes no passes (--passes); part 2 only"
+else
+    printf '%-28s %12s %12s %12s %8s %10s\n' scene "raw@$LOW_SPP" "dn@$LOW_SPP" \
+        "raw@$HIGH_SPP" "dn<raw" "mean dn/raw"
+    for entry in $SCENES; do
+        scene=${entry%@*}
+        env=()
+        name=$(basename "${scene%.*}")
+        if [[ $entry == *@* ]]; then
+            env=(--env "${entry#*@}")
+            name=$name-$(basename "${entry#*@}" | cut -d_ -f1)
+        fi
+        if [[ ! -f $scene ]]; then
+            echo "$name: $scene is missing" >&2
+            continue
+        fi
+        common=(--scene "$scene" "${env[@]}" --res "$RES" --threads "$THREADS" -q)
+        ref=$OUT/$name-ref$REF_SPP-$RES.exr
+        [[ -f $ref ]] || "$WORKER" "${common[@]}" --spp "$REF_SPP" --seed 9001 -o "$ref" 2> /dev/null
+        "$WORKER" "${common[@]}" --spp "$LOW_SPP" --seed 1 \
+            --passes albedo,normal,depth,halves -o "$OUT/$name-low.exr" 2> /dev/null
+        "$BIN/ptdenoise" "$OUT/$name-low.exr" -o "$OUT/$name-dn.exr" --threads "$THREADS" 2> /dev/null
+        "$WORKER" "${common[@]}" --spp "$HIGH_SPP" --seed 1 -o "$OUT/$name-high.exr" 2> /dev/null
+        raw_lo=$(relmse "$OUT/$name-dn.exr" "$ref")
+        dn_lo=$(relmse "$OUT/$name-dn.exr" "$ref" --layer denoised)
+        raw_hi=$(relmse "$OUT/$name-high.exr" "$ref")
+        m_raw=$(mean_of "$OUT/$name-dn.exr" "$ref")
+        m_dn=$(mean_of "$OUT/$name-dn.exr" "$ref" --layer denoised)
+        printf '%-28s %12s %12s %12s %8s %10s\n' "$name" "$raw_lo" "$dn_lo" "$raw_hi" \
+            "$(awk -v a="$dn_lo" -v b="$raw_hi" 'BEGIN { print (a < b) ? "yes" : "no" }')" \
+            "$(awk -v a="$m_dn" -v b="$m_raw" 'BEGIN { printf "%.4f", a / b }')"
+    done
+fi
+
+if [[ ${COST:-1} == 0 ]]; then
+    exit 0
+fi
+echo "== cost: ptdenoise on 1920x1080 with every pass, $THREADS threads, median of $REPS"
+hd=$OUT/hd-passes.exr
+[[ -f $hd ]] || "$BIN/ptpasses-exr" "$hd" 1920 1080 0.1 1
+walls=() cpus=()
+for ((i = 0; i < REPS; i++)); do
+    read -r w c < <(timed "$BIN/ptdenoise" "$hd" -o "$OUT/hd-dn.exr" --threads "$THREADS" --no-preview)
+    walls+=("$w")
+    cpus+=("$c")
+done
+dn_wall=$(printf '%s\n' "${walls[@]}" | median)
+dn_cpu=$(printf '%s\n' "${cpus[@]}" | median)
+echo "ptdenoise 1920x1080 (read, denoise, write): wall $dn_wall s, CPU $dn_cpu s (runs: ${walls[*]})"
+grep -o 'denoised in [0-9.]* s' "$OUT/last.log" | sed 's/^/last run: /'
+
+if [[ ${HD_RENDER:-0} == 1 ]] && "$WORKER" --help 2>&1 | grep -q -- '--passes'; then
+    first=${SCENES%% *}
+    scene=${first%@*}
+    env=()
+    [[ $first == *@* ]] && env=(--env "${first#*@}")
+    read -r w c < <(timed "$WORKER" --scene "$scene" "${env[@]}" --res 1920x1080 \
+        --spp "$LOW_SPP" --threads "$THREADS" -q --passes albedo,normal,depth,halves \
+        -o "$OUT/hd-render.exr")
+    echo "render $(basename "$scene") 1920x1080 at $LOW_SPP spp: wall $w s, CPU $c s;" \
+        "denoising adds $(awk -v a="$dn_wall" -v b="$w" 'BEGIN { printf "%.1f", 100 * a / b }') % of it"
+fi
