@@ -1,8 +1,9 @@
-"""Render passes through the add-on: the panel's checkboxes (Cycles' View
-Layer > Passes) become `--passes`, and a frame rendered with them comes
-back as a MULTILAYER Image whose passes (as the compositor's Image node
-lists them) are the farm's layers, the EXR bit-identical, every layer, to
-ptworker --scene on the exported glTF with the same --passes. An unknown
+"""Render passes and denoising through the add-on: the panel's checkboxes
+(Cycles' View Layer > Passes) become `--passes`, its Denoise `--denoise`,
+and a frame rendered with them comes back as a MULTILAYER Image whose
+passes (as the compositor's Image node lists them) are the farm's layers,
+the denoised one too, the EXR bit-identical, every layer, to ptworker
+--scene on the exported glTF with the same --passes and --denoise. An unknown
 pass cannot be asked for: the checkboxes are the only way to name one, and
 each of them alone gives a list the farm's parser accepts (which refuses
 an unknown name).
@@ -60,6 +61,7 @@ s.use_pass_denoising_data = True
 s.use_pass_emission = True
 s.use_pass_cryptomatte_object = True
 t.check(s.use_pass_cryptomatte_material, "ticking Object ticks Material")
+s.use_denoise = True
 ok, msg = t.call_operator(bpy.ops.ptfarm.render_frame)
 t.check(ok, "Render frame on ptfarm with passes finishes (%s)" % (msg or s.status))
 base = os.path.join(s.output_dir, scene.name)
@@ -68,6 +70,7 @@ args = job["args"]
 t.check("--passes" in args and args[args.index("--passes") + 1] ==
         "albedo,normal,depth,emission,halves,cryptomatte",
         "submitted with --passes albedo,normal,depth,emission,halves,cryptomatte")
+t.check("--denoise" in args, "and with --denoise")
 img = bpy.data.images.get(s.last_image)
 exr = bpy.path.abspath(img.filepath)
 t.check(img.type == "MULTILAYER", "the image is loaded as a MULTILAYER Image '%s'" % img.name)
@@ -75,10 +78,11 @@ scene.use_nodes = True
 node = scene.node_tree.nodes.new("CompositorNodeImage")
 node.image = img
 seen = [o.name for o in node.outputs]
-want = ["Combined", "albedo", "N", "depth", "emission", "halfA", "halfB", "CryptoObject00",
+want = ["Combined", "denoised", "albedo", "N", "depth", "emission", "halfA", "halfB", "CryptoObject00",
         "CryptoObject03", "CryptoMaterial00", "CryptoMaterial03"]
 t.check(all(w in seen for w in want), "Blender sees the passes' layers: %s" % seen)
 ref = os.path.join(t.TMP, "ref_passes.exr")
 t.ptworker(job["scene"], args, ref)
-t.check(t.same_exr(ref, exr), "every layer is bit-identical to ptworker --scene --passes")
+t.check(t.same_exr(ref, exr),
+        "every layer is bit-identical to ptworker --scene --passes --denoise")
 t.finish()

@@ -59,6 +59,12 @@ class PtfarmSettings(bpy.types.PropertyGroup):
     seed: IntProperty(name="Seed", default=0, min=0, description="Same seed, same image")
     priority: IntProperty(name="Priority", default=0,
                           description="Higher runs first; ties in submission order")
+    use_denoise: BoolProperty(name="Denoise", default=False,
+                              description="The coordinator denoises the finished image "
+                              "(NFOR, as ptworker --denoise): the layer denoised (R, G, B) "
+                              "beside the untouched beauty (Combined), pick it in the Image "
+                              "Editor's pass menu; the Denoising Data passes it reads come "
+                              "back too. Needs at least 2 samples")
     use_bounce_cap: BoolProperty(name="Cycles' bounce cap", default=True,
                                  description="Cap paths at Cycles' Max Bounces, as Cycles "
                                  "does (off: the farm's unbiased default)")
@@ -329,6 +335,7 @@ class RENDER_PT_ptfarm(bpy.types.Panel):
         col.prop(s, "token_file")
         col = layout.column()
         col.prop(s, "spp")
+        col.prop(s, "use_denoise")
         col.prop(s, "seed")
         col.prop(s, "priority")
         col.prop(s, "use_bounce_cap")

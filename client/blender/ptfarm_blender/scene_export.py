@@ -373,7 +373,7 @@ def export(scene, folder, animation, settings):
 
     animation: False for the current frame, True for the timeline's range;
     settings: the add-on's scene settings (spp, seed, priority, max bounces,
-    the passes' checkboxes).
+    the passes' checkboxes, denoise).
     Raises ExportError for a scene that cannot render on the farm."""
     cam = scene.camera
     if cam is None or cam.type != "CAMERA":
@@ -436,6 +436,8 @@ def export(scene, folder, animation, settings):
     asked = passes.farm_passes(settings)
     if asked:
         args += ["--passes", ",".join(asked)]
+    if settings.use_denoise:
+        args += ["--denoise"]
     args += world_options(scene, folder, warn)
     frames = None
     fps = scene.render.fps
