@@ -2,7 +2,8 @@
 (Cycles' View Layer > Passes) become `--passes`, its Denoise `--denoise`,
 and a frame rendered with them comes back as a MULTILAYER Image whose
 passes (as the compositor's Image node lists them) are the farm's layers,
-the denoised one too, the EXR bit-identical, every layer, to ptworker
+the denoised one too, from which Blender's Cryptomatte node mattes the
+ball out by its name, the EXR bit-identical, every layer, to ptworker
 --scene on the exported glTF with the same --passes and --denoise. An unknown
 pass cannot be asked for: the checkboxes are the only way to name one, and
 each of them alone gives a list the farm's parser accepts (which refuses
@@ -78,9 +79,26 @@ scene.use_nodes = True
 node = scene.node_tree.nodes.new("CompositorNodeImage")
 node.image = img
 seen = [o.name for o in node.outputs]
-want = ["Combined", "denoised", "albedo", "N", "depth", "emission", "halfA", "halfB", "CryptoObject00",
-        "CryptoObject03", "CryptoMaterial00", "CryptoMaterial03"]
+want = ["Combined", "denoised", "albedo", "N", "depth", "emission", "halfA", "halfB",
+        "CryptoObject00", "CryptoObject03", "CryptoMaterial00", "CryptoMaterial03"]
 t.check(all(w in seen for w in want), "Blender sees the passes' layers: %s" % seen)
+# Blender's own Cryptomatte node reads the layers and the manifest in the
+# header: the ball's matte covers part of the frame, not all of it.
+tree = scene.node_tree
+crypto = tree.nodes.new("CompositorNodeCryptomatteV2")
+crypto.source, crypto.image = "IMAGE", img
+crypto.layer_name = "CryptoObject"
+crypto.matte_id = "Ball"
+tree.links.new(node.outputs["Combined"], crypto.inputs["Image"])
+tree.links.new(crypto.outputs["Matte"], tree.nodes["Composite"].inputs["Image"])
+scene.render.engine = "BLENDER_WORKBENCH"  # the compositor's input is the EXR, not a render
+scene.render.image_settings.file_format = "OPEN_EXR"
+scene.render.filepath = os.path.join(t.TMP, "matte.exr")
+bpy.ops.render.render(write_still=True)
+matte = t.pixels(bpy.data.images.load(scene.render.filepath))[0::4]
+t.check(0 < sum(matte) < 0.5 * len(matte) and max(matte) == 1.0,
+        "Blender's Cryptomatte node mattes the ball out (%.1f of %d pixels)" % (
+            sum(matte), len(matte)))
 ref = os.path.join(t.TMP, "ref_passes.exr")
 t.ptworker(job["scene"], args, ref)
 t.check(t.same_exr(ref, exr),
