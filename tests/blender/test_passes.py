@@ -63,6 +63,11 @@ s.use_pass_emission = True
 s.use_pass_cryptomatte_object = True
 t.check(s.use_pass_cryptomatte_material, "ticking Object ticks Material")
 s.use_denoise = True
+s.spp = 1
+ok, msg = t.call_operator(bpy.ops.ptfarm.render_frame)
+t.check(not ok and "--denoise needs 2 samples" in s.error and "--help" not in s.error,
+        "Denoise with 1 sample says why it is refused: '%s'" % s.error)
+s.spp = 8
 ok, msg = t.call_operator(bpy.ops.ptfarm.render_frame)
 t.check(ok, "Render frame on ptfarm with passes finishes (%s)" % (msg or s.status))
 base = os.path.join(s.output_dir, scene.name)
