@@ -144,7 +144,7 @@ def ptworker(scene, args, out, extra=()):
         if args[i] in skip:
             i += 2
             continue
-        if args[i] == "--transparent":
+        if args[i] in ("--transparent", "--denoise"):
             keep.append(args[i])
             i += 1
             continue

@@ -53,7 +53,9 @@ def find_ptctl(configured=""):
 
 def explain(stderr, rc, server):
     """One readable sentence from ptctl's stderr and exit status."""
-    lines = [ln.strip() for ln in (stderr or "").splitlines() if ln.strip()]
+    # A usage error ends with "try 'ptctl submit --help'" after the reason.
+    lines = [ln.strip() for ln in (stderr or "").splitlines()
+             if ln.strip() and not ln.strip().startswith("try 'ptctl")]
     # ptctl prints "ptctl: <reason>"; the last such line is the one that ended it.
     said = lines[-1] if lines else "exit status %d" % rc
     if said.startswith("ptctl: "):

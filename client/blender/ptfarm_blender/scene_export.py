@@ -31,6 +31,8 @@ import struct
 
 import bpy
 
+from . import passes
+
 # Object types the glTF exporter writes (gather_tree / gather_nodes in
 # Blender 3.4's io_scene_gltf2: curves, surfaces and text become meshes).
 EXPORTED_TYPES = {"MESH", "CURVE", "SURFACE", "FONT", "EMPTY", "CAMERA", "LIGHT", "ARMATURE"}
@@ -370,7 +372,8 @@ def export(scene, folder, animation, settings):
     """Exports scene to folder/NAME.glb and returns an Export.
 
     animation: False for the current frame, True for the timeline's range;
-    settings: the add-on's scene settings (spp, seed, priority, max bounces).
+    settings: the add-on's scene settings (spp, seed, priority, max bounces,
+    the passes' checkboxes, denoise).
     Raises ExportError for a scene that cannot render on the farm."""
     cam = scene.camera
     if cam is None or cam.type != "CAMERA":
@@ -430,6 +433,11 @@ def export(scene, folder, animation, settings):
         args += ["--max-depth", str(int(cycles.max_bounces))]
     if scene.render.film_transparent:
         args += ["--transparent"]
+    asked = passes.farm_passes(settings)
+    if asked:
+        args += ["--passes", ",".join(asked)]
+    if settings.use_denoise:
+        args += ["--denoise"]
     args += world_options(scene, folder, warn)
     frames = None
     fps = scene.render.fps
