@@ -220,96 +220,393 @@ static void usage(FILE *f)
         "interrupted (the last progressive EXR is valid)\n");
 }
 
+/* What main's checks need besides the configuration: options given and
+ * values before they are converted. */
+typedef struct parsed {
+    double lease, handshake, grace; /* seconds */
+    int has_task_time, log_given, has_chunk, has_shutter, env_opts, placed;
+    double shutter[2]; /* fractions of a frame */
+} parsed;
+
+enum {
+    O_LOCAL = 256,
+    O_WTHREADS,
+    O_LISTEN,
+    O_TOKEN,
+    O_SAVE,
+    O_LEASE,
+    O_PORTFILE,
+    O_WBIN,
+    O_HANDSHAKE,
+    O_STATE,
+    O_OUTDIR,
+    O_MAXRES,
+    O_MAXPIX,
+    O_MAXSPP,
+    O_MAXSCENE,
+    O_MAXQUEUED,
+    O_FRAMES,
+    O_CLIENTS,
+    O_MAXINPUT,
+    O_MAXHS,
+    O_MAXHSIP,
+    O_GRACE,
+    O_MINRATE,
+    O_VERIFY,
+    O_HTTP,
+    O_HTTPPORT,
+    O_HTTPHOST,
+    O_TASKTIME,
+    O_MERGETHREADS,
+    O_IOTHREADS,
+    O_MAXLOG
+};
+static const struct option own[] = {
+    {"output", required_argument, NULL, 'o'},
+    {"local", required_argument, NULL, O_LOCAL},
+    {"worker-threads", required_argument, NULL, O_WTHREADS},
+    {"listen", required_argument, NULL, O_LISTEN},
+    {"token-file", required_argument, NULL, O_TOKEN},
+    {"clients-file", required_argument, NULL, O_CLIENTS},
+    {"frames", required_argument, NULL, O_FRAMES},
+    {"task-time", required_argument, NULL, O_TASKTIME},
+    {"merge-threads", required_argument, NULL, O_MERGETHREADS},
+    {"io-threads", required_argument, NULL, O_IOTHREADS},
+    {"max-log-mb", required_argument, NULL, O_MAXLOG},
+    {"save-interval", required_argument, NULL, O_SAVE},
+    {"lease-timeout", required_argument, NULL, O_LEASE},
+    {"port-file", required_argument, NULL, O_PORTFILE},
+    {"handshake-timeout", required_argument, NULL, O_HANDSHAKE},
+    {"verify-fraction", required_argument, NULL, O_VERIFY},
+    {"worker-bin", required_argument, NULL, O_WBIN},
+    {"state-dir", required_argument, NULL, O_STATE},
+    {"output-dir", required_argument, NULL, O_OUTDIR},
+    {"max-res", required_argument, NULL, O_MAXRES},
+    {"max-pixels", required_argument, NULL, O_MAXPIX},
+    {"max-spp", required_argument, NULL, O_MAXSPP},
+    {"max-scene-mb", required_argument, NULL, O_MAXSCENE},
+    {"max-queued", required_argument, NULL, O_MAXQUEUED},
+    {"max-input-mb", required_argument, NULL, O_MAXINPUT},
+    {"max-handshakes", required_argument, NULL, O_MAXHS},
+    {"max-handshakes-per-ip", required_argument, NULL, O_MAXHSIP},
+    {"frame-grace", required_argument, NULL, O_GRACE},
+    {"min-rate", required_argument, NULL, O_MINRATE},
+    {"http", required_argument, NULL, O_HTTP},
+    {"http-port-file", required_argument, NULL, O_HTTPPORT},
+    {"http-host", required_argument, NULL, O_HTTPHOST},
+    {"quiet", no_argument, NULL, 'q'},
+    {"help", no_argument, NULL, 'h'},
+    {"version", no_argument, NULL, 'V'},
+};
+
+/* The defaults of every option of ptserve's own. */
+static void config_defaults(srv_config *c, parsed *x)
+{
+    memset(c, 0, sizeof *c);
+    memset(x, 0, sizeof *x);
+    c->task_ms = SRV_DEFAULT_TASK_MS;
+    c->job.rr_depth = 3;
+    c->save_interval = 5.0;
+    c->merge_threads = SRV_DEFAULT_MERGE_THREADS;
+    c->io_threads = SRV_DEFAULT_IO_THREADS;
+    c->max_log_mem = SRV_DEFAULT_MAX_LOG_MEM;
+    c->verify_fraction = 0.02;
+    c->caps.max_side = PT_RENDER_MAX_SIDE;
+    c->caps.max_pixels = 16777216;
+    c->caps.max_spp = 65536;
+    c->caps.max_scene = 512ull << 20;
+    c->caps.max_queued = 64;
+    proto_env_none(&c->job.env);
+    x->lease = 20.0;
+    x->handshake = 10.0;
+    x->grace = 30.0;
+}
+
+/* One of ptserve's own options (ch, its text optarg) into c and x. */
+static pt_status own_option(int ch, srv_config *c, parsed *x, pt_error *err)
+{
+    pt_status st = PT_OK;
+    uint32_t v;
+    switch (ch) {
+    case 'o':
+        c->out_path = optarg;
+        break;
+    case O_LOCAL:
+        st = pt_opt_u32("--local", optarg, 1, 256, &c->local_workers, err);
+        break;
+    case O_WTHREADS:
+        st = pt_opt_u32("--worker-threads", optarg, 1, 1024, &c->worker_threads, err);
+        break;
+    case O_IOTHREADS:
+        st = pt_opt_u32("--io-threads", optarg, 0, SRV_IO_MAX_THREADS, &c->io_threads, err);
+        break;
+    case O_MERGETHREADS:
+        st =
+            pt_opt_u32("--merge-threads", optarg, 0, SRV_ADDER_MAX_THREADS, &c->merge_threads, err);
+        break;
+    case O_LISTEN:
+        c->listen = optarg;
+        break;
+    case O_TOKEN:
+        c->token_path = optarg;
+        break;
+    case O_CLIENTS:
+        c->clients_path = optarg;
+        break;
+    case O_FRAMES:
+        st = pt_frames_parse("--frames", optarg, &c->frames, err);
+        break;
+    case O_TASKTIME:
+        st = pt_opt_u32("--task-time", optarg, 1, 3600000, &c->task_ms, err);
+        x->has_task_time = 1;
+        break;
+    case O_SAVE:
+        st = pt_opt_seconds("--save-interval", optarg, 0, 86400, &c->save_interval, err);
+        break;
+    case O_LEASE:
+        st = pt_opt_seconds("--lease-timeout", optarg, 0, 86400, &x->lease, err);
+        break;
+    case O_PORTFILE:
+        c->port_file = optarg;
+        break;
+    case O_HANDSHAKE:
+        st = pt_opt_seconds("--handshake-timeout", optarg, 0, 86400, &x->handshake, err);
+        break;
+    case O_VERIFY:
+        st = pt_opt_double("--verify-fraction", optarg, 0.0, 1.0, &c->verify_fraction, err);
+        break;
+    case O_WBIN:
+        c->worker_bin = optarg;
+        break;
+    case O_STATE:
+        c->state_dir = optarg;
+        break;
+    case O_OUTDIR:
+        c->output_dir = optarg;
+        break;
+    case O_MAXRES:
+        st = pt_opt_u32("--max-res", optarg, 1, 65536, &c->caps.max_side, err);
+        break;
+    case O_MAXPIX:
+        if ((st = pt_opt_u32("--max-pixels", optarg, 1, UINT32_MAX, &v, err)) == PT_OK)
+            c->caps.max_pixels = v;
+        break;
+    case O_MAXSPP:
+        st = pt_opt_u32("--max-spp", optarg, 1, 1u << 24, &c->caps.max_spp, err);
+        break;
+    case O_MAXSCENE:
+        if ((st = pt_opt_u32("--max-scene-mb", optarg, 1, 2048, &v, err)) == PT_OK)
+            c->caps.max_scene = (uint64_t)v << 20;
+        break;
+    case O_MAXQUEUED:
+        st = pt_opt_u32("--max-queued", optarg, 1, 100000, &c->caps.max_queued, err);
+        break;
+    case O_MAXLOG:
+        if ((st = pt_opt_u32("--max-log-mb", optarg, 1, 1u << 20, &v, err)) == PT_OK)
+            c->max_log_mem = (uint64_t)v << 20;
+        x->log_given = 1;
+        break;
+    case O_MAXINPUT:
+        if ((st = pt_opt_u32("--max-input-mb", optarg, 3, 1u << 20, &v, err)) == PT_OK)
+            c->limits.max_input_mem = (uint64_t)v << 20;
+        break;
+    case O_MAXHS:
+        st = pt_opt_u32("--max-handshakes", optarg, 1, 512, &c->limits.max_handshakes, err);
+        break;
+    case O_MAXHSIP:
+        st = pt_opt_u32("--max-handshakes-per-ip", optarg, 1, 512, &c->limits.max_handshakes_ip,
+                        err);
+        break;
+    case O_GRACE:
+        st = pt_opt_seconds("--frame-grace", optarg, 0.1, 3600, &x->grace, err);
+        break;
+    case O_MINRATE:
+        if ((st = pt_opt_u32("--min-rate", optarg, 1, 1u << 20, &v, err)) == PT_OK)
+            c->limits.min_rate = v << 10;
+        break;
+    case O_HTTP:
+        c->http = optarg;
+        break;
+    case O_HTTPPORT:
+        c->http_port_file = optarg;
+        break;
+    case O_HTTPHOST:
+        c->http_hosts = optarg;
+        break;
+    case 'q':
+        c->quiet = 1;
+        break;
+    }
+    return st;
+}
+
+/* The shared render options into the job (one-job mode) or the defaults
+ * of submitted jobs (queue mode: tile, chunk, max depth). */
+static void job_from_options(srv_config *c, const pt_render_opts *ro, parsed *x)
+{
+    c->job.spp = ro->spp;
+    c->job.width = ro->width;
+    c->job.height = ro->height;
+    c->job.seed = ro->seed;
+    c->job.max_depth = ro->max_depth;
+    c->job.tile = ro->tile;
+    c->job.chunk = ro->chunk;
+    c->job.target_error = ro->target_error;
+    c->job.min_gain = ro->min_gain;
+    c->job.min_spp = ro->min_spp;
+    x->has_chunk = (ro->given & PT_ROPT(PT_ROPT_CHUNK)) != 0;
+    x->has_shutter = (ro->given & PT_ROPT(PT_ROPT_SHUTTER)) != 0;
+    x->env_opts = (ro->given & (PT_ROPT(PT_ROPT_ENV_STRENGTH) | PT_ROPT(PT_ROPT_ENV_ROTATE))) != 0;
+    x->placed = (ro->given & PT_ROPT(PT_ROPT_CAMERA_FROM)) != 0;
+    x->shutter[0] = ro->shutter[0];
+    x->shutter[1] = ro->shutter[1];
+    if (ro->camera)
+        snprintf(c->job.camera, sizeof c->job.camera, "%s", ro->camera);
+    if (ro->variant)
+        snprintf(c->job.variant, sizeof c->job.variant, "%s", ro->variant);
+    c->animation = ro->animation;
+    c->fps = (ro->given & PT_ROPT(PT_ROPT_FPS)) ? ro->fps : 0.0;
+    c->env_path = ro->env_path;
+    c->job.env.strength = (float)ro->env_strength;
+    c->job.env.rotate_deg = (float)ro->env_rotate;
+    if (ro->given & PT_ROPT(PT_ROPT_BACKGROUND)) {
+        c->job.env.background = 1;
+        for (int k = 0; k < 3; k++)
+            c->job.env.rgb[k] = (float)ro->background[k];
+    }
+    if (ro->given & PT_ROPT(PT_ROPT_TRANSPARENT))
+        c->job.film_flags |= PROTO_FILM_TRANSPARENT;
+    c->job.film_flags |= proto_film_of_passes(ro->passes);
+    if (ro->denoise)
+        c->job.film_flags |= PROTO_FILM_DENOISE;
+    c->view = ro->view;
+}
+
+/* The options that go together, for the mode they ask for (nargs: the
+ * scenes named); the last conversions into c. 0, or an exit status after
+ * saying why. */
+static int check_options(srv_config *c, const pt_render_opts *ro, parsed *x, int nargs)
+{
+    if (c->state_dir) {
+        if (nargs != 0 || c->out_path) {
+            fprintf(stderr, "ptserve: --state-dir runs a queue: no SCENE or -o (submit jobs "
+                            "with ptctl)\n");
+            return 2;
+        }
+    } else if (nargs != 1 || !c->out_path) {
+        fprintf(stderr, "ptserve: need -o OUT.exr and exactly one SCENE, or --state-dir DIR\n");
+        usage(stderr);
+        return 2;
+    } else if (c->output_dir || x->log_given) {
+        fprintf(stderr, "ptserve: %s is for queue mode (--state-dir)\n",
+                c->output_dir ? "--output-dir" : "--max-log-mb");
+        return 2;
+    }
+    if (c->state_dir && (c->env_path || c->job.env.background || x->env_opts)) {
+        fprintf(stderr, "ptserve: --env, --env-strength, --env-rotate and --background are a "
+                        "job's: in queue mode give them to ptctl submit\n");
+        return 2;
+    }
+    if (c->clients_path && (!c->token_path || !c->state_dir)) {
+        fprintf(stderr, "ptserve: --clients-file needs --token-file (the admin and worker token) "
+                        "and --state-dir (clients use the queue)\n");
+        return 2;
+    }
+    if (c->state_dir && x->has_shutter) {
+        fprintf(stderr, "ptserve: --shutter is for one-job mode; a queued job asks for it "
+                        "with ptctl submit --shutter\n");
+        return 2;
+    }
+    if (c->state_dir && (c->frames.step || c->fps > 0 || c->animation)) {
+        fprintf(stderr, "ptserve: --frames, --fps and --animation are for one-job mode; a queued "
+                        "job asks for them with ptctl submit --frames\n");
+        return 2;
+    }
+    if (!c->frames.step && c->animation) {
+        fprintf(stderr, "ptserve: --animation poses the frames of --frames A-B[:STEP]; "
+                        "give --frames\n");
+        return 2;
+    }
+    if (!c->frames.step && !x->has_shutter && c->fps > 0) {
+        fprintf(stderr, "ptserve: --fps is the frame rate of --frames A-B[:STEP] and --shutter; "
+                        "give --frames or --shutter\n");
+        return 2;
+    }
+    if (c->state_dir && x->placed) {
+        fprintf(stderr, "ptserve: --camera-from and --camera-at are a job's: in queue mode give "
+                        "them to ptctl submit\n");
+        return 2;
+    }
+    if (c->out_path && pt_image_format_of(c->out_path) == PT_IMAGE_FORMAT_NONE) {
+        fprintf(stderr, "ptserve: -o %s: " PT_IMAGE_FORMATS "\n", c->out_path);
+        return 2;
+    }
+    if (c->frames.step && !pt_frames_has_pattern(c->out_path)) {
+        fprintf(stderr,
+                "ptserve: -o %s: a frame range needs a '#' run in the output name for "
+                "the frame number (e.g. -o shot.####.exr: frame 7 is shot.0007.exr)\n",
+                c->out_path);
+        return 2;
+    }
+    /* One frame rate serves both: the shutter's fractions of a frame become seconds
+     * after the frame's time (SHUTTER, protocol/msg.h) by the same R that times the
+     * frames. c->fps stays 0 for a still so the job keeps a still's parameters. */
+    double rate = c->fps > 0 ? c->fps : PT_FRAMES_DEFAULT_FPS;
+    c->job.shutter[0] = x->shutter[0] / rate;
+    c->job.shutter[1] = x->shutter[1] / rate;
+    if (c->frames.step && c->fps == 0)
+        c->fps = PT_FRAMES_DEFAULT_FPS;
+    if (c->state_dir && c->job.variant[0]) {
+        fprintf(stderr, "ptserve: --variant is for one-job mode; a queued job asks for it "
+                        "with ptctl submit --variant\n");
+        return 2;
+    }
+    if (c->state_dir && (c->job.film_flags & PROTO_FILM_TRANSPARENT)) {
+        fprintf(stderr, "ptserve: --transparent is for one-job mode; a queued job asks for it "
+                        "with ptctl submit --transparent\n");
+        return 2;
+    }
+    if (c->state_dir && ro->denoise) {
+        fprintf(stderr, "ptserve: --denoise is for one-job mode; a queued job asks for it "
+                        "with ptctl submit --denoise\n");
+        return 2;
+    }
+    if (c->state_dir && ro->passes) {
+        fprintf(stderr, "ptserve: --passes is for one-job mode; a queued job asks for them "
+                        "with ptctl submit --passes\n");
+        return 2;
+    }
+    if (x->has_chunk && x->has_task_time) {
+        fprintf(stderr, "ptserve: --chunk gives fixed tasks and --task-time sizes them by "
+                        "time; give one\n");
+        return 2;
+    }
+    if (x->has_chunk)
+        c->task_ms = 0;
+    if (c->job.chunk != pt_chunk_whole_blocks(c->job.chunk)) {
+        /* A task that ends inside a block changes the image's last bits. */
+        fprintf(stderr,
+                "ptserve: --chunk %u rounded up to %u: samples are summed in blocks of %u\n",
+                c->job.chunk, pt_chunk_whole_blocks(c->job.chunk), PT_SAMPLE_BLOCK);
+        c->job.chunk = pt_chunk_whole_blocks(c->job.chunk);
+    }
+    if (x->lease < 0.1) {
+        fprintf(stderr, "ptserve: --x->lease-timeout must be at least 0.1 s\n");
+        return 2;
+    }
+    if (c->job.min_spp == 0)
+        c->job.min_spp = c->job.chunk > 1 ? c->job.chunk : 2;
+    c->lease_ms = (uint32_t)(x->lease * 1000.0);
+    c->handshake_ms = (uint32_t)(x->handshake * 1000.0);
+    c->limits.frame_grace_ms = (uint32_t)(x->grace * 1000.0);
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
     srv_config c;
-    memset(&c, 0, sizeof c);
-    c.task_ms = SRV_DEFAULT_TASK_MS;
-    int has_task_time = 0;
-    c.job.rr_depth = 3;
-    c.save_interval = 5.0;
-    c.merge_threads = SRV_DEFAULT_MERGE_THREADS;
-    c.io_threads = SRV_DEFAULT_IO_THREADS;
-    c.max_log_mem = SRV_DEFAULT_MAX_LOG_MEM;
-    c.verify_fraction = 0.02;
-    c.caps.max_side = PT_RENDER_MAX_SIDE;
-    c.caps.max_pixels = 16777216;
-    c.caps.max_spp = 65536;
-    c.caps.max_scene = 512ull << 20;
-    c.caps.max_queued = 64;
-    double lease = 20.0, handshake = 10.0, grace = 30.0;
-    int log_given = 0; /* --max-log-mb: queue mode only */
-    proto_env_none(&c.job.env);
-    enum {
-        O_LOCAL = 256,
-        O_WTHREADS,
-        O_LISTEN,
-        O_TOKEN,
-        O_SAVE,
-        O_LEASE,
-        O_PORTFILE,
-        O_WBIN,
-        O_HANDSHAKE,
-        O_STATE,
-        O_OUTDIR,
-        O_MAXRES,
-        O_MAXPIX,
-        O_MAXSPP,
-        O_MAXSCENE,
-        O_MAXQUEUED,
-        O_FRAMES,
-        O_CLIENTS,
-        O_MAXINPUT,
-        O_MAXHS,
-        O_MAXHSIP,
-        O_GRACE,
-        O_MINRATE,
-        O_VERIFY,
-        O_HTTP,
-        O_HTTPPORT,
-        O_HTTPHOST,
-        O_TASKTIME,
-        O_MERGETHREADS,
-        O_IOTHREADS,
-        O_MAXLOG
-    };
-    static const struct option own[] = {
-        {"output", required_argument, NULL, 'o'},
-        {"local", required_argument, NULL, O_LOCAL},
-        {"worker-threads", required_argument, NULL, O_WTHREADS},
-        {"listen", required_argument, NULL, O_LISTEN},
-        {"token-file", required_argument, NULL, O_TOKEN},
-        {"clients-file", required_argument, NULL, O_CLIENTS},
-        {"frames", required_argument, NULL, O_FRAMES},
-        {"task-time", required_argument, NULL, O_TASKTIME},
-        {"merge-threads", required_argument, NULL, O_MERGETHREADS},
-        {"io-threads", required_argument, NULL, O_IOTHREADS},
-        {"max-log-mb", required_argument, NULL, O_MAXLOG},
-        {"save-interval", required_argument, NULL, O_SAVE},
-        {"lease-timeout", required_argument, NULL, O_LEASE},
-        {"port-file", required_argument, NULL, O_PORTFILE},
-        {"handshake-timeout", required_argument, NULL, O_HANDSHAKE},
-        {"verify-fraction", required_argument, NULL, O_VERIFY},
-        {"worker-bin", required_argument, NULL, O_WBIN},
-        {"state-dir", required_argument, NULL, O_STATE},
-        {"output-dir", required_argument, NULL, O_OUTDIR},
-        {"max-res", required_argument, NULL, O_MAXRES},
-        {"max-pixels", required_argument, NULL, O_MAXPIX},
-        {"max-spp", required_argument, NULL, O_MAXSPP},
-        {"max-scene-mb", required_argument, NULL, O_MAXSCENE},
-        {"max-queued", required_argument, NULL, O_MAXQUEUED},
-        {"max-input-mb", required_argument, NULL, O_MAXINPUT},
-        {"max-handshakes", required_argument, NULL, O_MAXHS},
-        {"max-handshakes-per-ip", required_argument, NULL, O_MAXHSIP},
-        {"frame-grace", required_argument, NULL, O_GRACE},
-        {"min-rate", required_argument, NULL, O_MINRATE},
-        {"http", required_argument, NULL, O_HTTP},
-        {"http-port-file", required_argument, NULL, O_HTTPPORT},
-        {"http-host", required_argument, NULL, O_HTTPHOST},
-        {"quiet", no_argument, NULL, 'q'},
-        {"help", no_argument, NULL, 'h'},
-        {"version", no_argument, NULL, 'V'},
-    };
+    parsed x;
+    config_defaults(&c, &x);
     /* Its own options, then every render option of the shared table
      * (common/render/options.h), then the end. */
     enum { NOWN = sizeof own / sizeof own[0] };
@@ -321,128 +618,20 @@ int main(int argc, char **argv)
     pt_error err = {0};
     int ch;
     while ((ch = getopt_long(argc, argv, "o:qh", opts, NULL)) != -1) {
-        pt_status st = PT_OK;
-        uint32_t v;
-        switch (ch) {
-        case 'o':
-            c.out_path = optarg;
-            break;
-        case O_LOCAL:
-            st = pt_opt_u32("--local", optarg, 1, 256, &c.local_workers, &err);
-            break;
-        case O_WTHREADS:
-            st = pt_opt_u32("--worker-threads", optarg, 1, 1024, &c.worker_threads, &err);
-            break;
-        case O_IOTHREADS:
-            st = pt_opt_u32("--io-threads", optarg, 0, SRV_IO_MAX_THREADS, &c.io_threads, &err);
-            break;
-        case O_MERGETHREADS:
-            st = pt_opt_u32("--merge-threads", optarg, 0, SRV_ADDER_MAX_THREADS, &c.merge_threads,
-                            &err);
-            break;
-        case O_LISTEN:
-            c.listen = optarg;
-            break;
-        case O_TOKEN:
-            c.token_path = optarg;
-            break;
-        case O_CLIENTS:
-            c.clients_path = optarg;
-            break;
-        case O_FRAMES:
-            st = pt_frames_parse("--frames", optarg, &c.frames, &err);
-            break;
-        case O_TASKTIME:
-            st = pt_opt_u32("--task-time", optarg, 1, 3600000, &c.task_ms, &err);
-            has_task_time = 1;
-            break;
-        case O_SAVE:
-            st = pt_opt_seconds("--save-interval", optarg, 0, 86400, &c.save_interval, &err);
-            break;
-        case O_LEASE:
-            st = pt_opt_seconds("--lease-timeout", optarg, 0, 86400, &lease, &err);
-            break;
-        case O_PORTFILE:
-            c.port_file = optarg;
-            break;
-        case O_HANDSHAKE:
-            st = pt_opt_seconds("--handshake-timeout", optarg, 0, 86400, &handshake, &err);
-            break;
-        case O_VERIFY:
-            st = pt_opt_double("--verify-fraction", optarg, 0.0, 1.0, &c.verify_fraction, &err);
-            break;
-        case O_WBIN:
-            c.worker_bin = optarg;
-            break;
-        case O_STATE:
-            c.state_dir = optarg;
-            break;
-        case O_OUTDIR:
-            c.output_dir = optarg;
-            break;
-        case O_MAXRES:
-            st = pt_opt_u32("--max-res", optarg, 1, 65536, &c.caps.max_side, &err);
-            break;
-        case O_MAXPIX:
-            if ((st = pt_opt_u32("--max-pixels", optarg, 1, UINT32_MAX, &v, &err)) == PT_OK)
-                c.caps.max_pixels = v;
-            break;
-        case O_MAXSPP:
-            st = pt_opt_u32("--max-spp", optarg, 1, 1u << 24, &c.caps.max_spp, &err);
-            break;
-        case O_MAXSCENE:
-            if ((st = pt_opt_u32("--max-scene-mb", optarg, 1, 2048, &v, &err)) == PT_OK)
-                c.caps.max_scene = (uint64_t)v << 20;
-            break;
-        case O_MAXQUEUED:
-            st = pt_opt_u32("--max-queued", optarg, 1, 100000, &c.caps.max_queued, &err);
-            break;
-        case O_MAXLOG:
-            if ((st = pt_opt_u32("--max-log-mb", optarg, 1, 1u << 20, &v, &err)) == PT_OK)
-                c.max_log_mem = (uint64_t)v << 20;
-            log_given = 1;
-            break;
-        case O_MAXINPUT:
-            if ((st = pt_opt_u32("--max-input-mb", optarg, 3, 1u << 20, &v, &err)) == PT_OK)
-                c.limits.max_input_mem = (uint64_t)v << 20;
-            break;
-        case O_MAXHS:
-            st = pt_opt_u32("--max-handshakes", optarg, 1, 512, &c.limits.max_handshakes, &err);
-            break;
-        case O_MAXHSIP:
-            st = pt_opt_u32("--max-handshakes-per-ip", optarg, 1, 512, &c.limits.max_handshakes_ip,
-                            &err);
-            break;
-        case O_GRACE:
-            st = pt_opt_seconds("--frame-grace", optarg, 0.1, 3600, &grace, &err);
-            break;
-        case O_MINRATE:
-            if ((st = pt_opt_u32("--min-rate", optarg, 1, 1u << 20, &v, &err)) == PT_OK)
-                c.limits.min_rate = v << 10;
-            break;
-        case O_HTTP:
-            c.http = optarg;
-            break;
-        case O_HTTPPORT:
-            c.http_port_file = optarg;
-            break;
-        case O_HTTPHOST:
-            c.http_hosts = optarg;
-            break;
-        case 'q':
-            c.quiet = 1;
-            break;
-        case 'h':
+        pt_status st;
+        if (ch == 'h') {
             usage(stdout);
             return 0;
-        case 'V':
+        }
+        if (ch == 'V')
             return pt_version_print("ptserve");
-        default:
-            if (!pt_render_opt_is(ch)) {
-                usage(stderr);
-                return 2;
-            }
+        if (pt_render_opt_is(ch)) {
             st = pt_render_opt_set(&ro, ch, optarg, &err);
+        } else if (ch == '?' || ch == ':') {
+            usage(stderr);
+            return 2;
+        } else {
+            st = own_option(ch, &c, &x, &err);
         }
         if (st != PT_OK) {
             fprintf(stderr, "ptserve: %s\n", err.msg);
@@ -453,155 +642,10 @@ int main(int argc, char **argv)
         fprintf(stderr, "ptserve: %s\n", err.msg);
         return 2;
     }
-    /* The shared options into the job (one-job mode) or the defaults of
-     * submitted jobs (queue mode: tile, chunk, max depth). */
-    c.job.spp = ro.spp;
-    c.job.width = ro.width;
-    c.job.height = ro.height;
-    c.job.seed = ro.seed;
-    c.job.max_depth = ro.max_depth;
-    c.job.tile = ro.tile;
-    c.job.chunk = ro.chunk;
-    c.job.target_error = ro.target_error;
-    c.job.min_gain = ro.min_gain;
-    c.job.min_spp = ro.min_spp;
-    int has_chunk = (ro.given & PT_ROPT(PT_ROPT_CHUNK)) != 0;
-    int has_shutter = (ro.given & PT_ROPT(PT_ROPT_SHUTTER)) != 0;
-    int env_opts = (ro.given & (PT_ROPT(PT_ROPT_ENV_STRENGTH) | PT_ROPT(PT_ROPT_ENV_ROTATE))) != 0;
-    int placed = (ro.given & PT_ROPT(PT_ROPT_CAMERA_FROM)) != 0;
-    double shutter[2] = {ro.shutter[0], ro.shutter[1]};
-    if (ro.camera)
-        snprintf(c.job.camera, sizeof c.job.camera, "%s", ro.camera);
-    if (ro.variant)
-        snprintf(c.job.variant, sizeof c.job.variant, "%s", ro.variant);
-    c.animation = ro.animation;
-    c.fps = (ro.given & PT_ROPT(PT_ROPT_FPS)) ? ro.fps : 0.0;
-    c.env_path = ro.env_path;
-    c.job.env.strength = (float)ro.env_strength;
-    c.job.env.rotate_deg = (float)ro.env_rotate;
-    if (ro.given & PT_ROPT(PT_ROPT_BACKGROUND)) {
-        c.job.env.background = 1;
-        for (int k = 0; k < 3; k++)
-            c.job.env.rgb[k] = (float)ro.background[k];
-    }
-    if (ro.given & PT_ROPT(PT_ROPT_TRANSPARENT))
-        c.job.film_flags |= PROTO_FILM_TRANSPARENT;
-    c.job.film_flags |= proto_film_of_passes(ro.passes);
-    if (ro.denoise)
-        c.job.film_flags |= PROTO_FILM_DENOISE;
-    c.view = ro.view;
-    if (c.state_dir) {
-        if (optind != argc || c.out_path) {
-            fprintf(stderr, "ptserve: --state-dir runs a queue: no SCENE or -o (submit jobs "
-                            "with ptctl)\n");
-            return 2;
-        }
-    } else if (optind + 1 != argc || !c.out_path) {
-        fprintf(stderr, "ptserve: need -o OUT.exr and exactly one SCENE, or --state-dir DIR\n");
-        usage(stderr);
-        return 2;
-    } else if (c.output_dir || log_given) {
-        fprintf(stderr, "ptserve: %s is for queue mode (--state-dir)\n",
-                c.output_dir ? "--output-dir" : "--max-log-mb");
-        return 2;
-    }
-    if (c.state_dir && (c.env_path || c.job.env.background || env_opts)) {
-        fprintf(stderr, "ptserve: --env, --env-strength, --env-rotate and --background are a "
-                        "job's: in queue mode give them to ptctl submit\n");
-        return 2;
-    }
-    if (c.clients_path && (!c.token_path || !c.state_dir)) {
-        fprintf(stderr, "ptserve: --clients-file needs --token-file (the admin and worker token) "
-                        "and --state-dir (clients use the queue)\n");
-        return 2;
-    }
-    if (c.state_dir && has_shutter) {
-        fprintf(stderr, "ptserve: --shutter is for one-job mode; a queued job asks for it "
-                        "with ptctl submit --shutter\n");
-        return 2;
-    }
-    if (c.state_dir && (c.frames.step || c.fps > 0 || c.animation)) {
-        fprintf(stderr, "ptserve: --frames, --fps and --animation are for one-job mode; a queued "
-                        "job asks for them with ptctl submit --frames\n");
-        return 2;
-    }
-    if (!c.frames.step && c.animation) {
-        fprintf(stderr, "ptserve: --animation poses the frames of --frames A-B[:STEP]; "
-                        "give --frames\n");
-        return 2;
-    }
-    if (!c.frames.step && !has_shutter && c.fps > 0) {
-        fprintf(stderr, "ptserve: --fps is the frame rate of --frames A-B[:STEP] and --shutter; "
-                        "give --frames or --shutter\n");
-        return 2;
-    }
-    if (c.state_dir && placed) {
-        fprintf(stderr, "ptserve: --camera-from and --camera-at are a job's: in queue mode give "
-                        "them to ptctl submit\n");
-        return 2;
-    }
-    if (c.out_path && pt_image_format_of(c.out_path) == PT_IMAGE_FORMAT_NONE) {
-        fprintf(stderr, "ptserve: -o %s: " PT_IMAGE_FORMATS "\n", c.out_path);
-        return 2;
-    }
-    if (c.frames.step && !pt_frames_has_pattern(c.out_path)) {
-        fprintf(stderr,
-                "ptserve: -o %s: a frame range needs a '#' run in the output name for "
-                "the frame number (e.g. -o shot.####.exr: frame 7 is shot.0007.exr)\n",
-                c.out_path);
-        return 2;
-    }
-    /* One frame rate serves both: the shutter's fractions of a frame become seconds
-     * after the frame's time (SHUTTER, protocol/msg.h) by the same R that times the
-     * frames. c.fps stays 0 for a still so the job keeps a still's parameters. */
-    double rate = c.fps > 0 ? c.fps : PT_FRAMES_DEFAULT_FPS;
-    c.job.shutter[0] = shutter[0] / rate;
-    c.job.shutter[1] = shutter[1] / rate;
-    if (c.frames.step && c.fps == 0)
-        c.fps = PT_FRAMES_DEFAULT_FPS;
-    if (c.state_dir && c.job.variant[0]) {
-        fprintf(stderr, "ptserve: --variant is for one-job mode; a queued job asks for it "
-                        "with ptctl submit --variant\n");
-        return 2;
-    }
-    if (c.state_dir && (c.job.film_flags & PROTO_FILM_TRANSPARENT)) {
-        fprintf(stderr, "ptserve: --transparent is for one-job mode; a queued job asks for it "
-                        "with ptctl submit --transparent\n");
-        return 2;
-    }
-    if (c.state_dir && ro.denoise) {
-        fprintf(stderr, "ptserve: --denoise is for one-job mode; a queued job asks for it "
-                        "with ptctl submit --denoise\n");
-        return 2;
-    }
-    if (c.state_dir && ro.passes) {
-        fprintf(stderr, "ptserve: --passes is for one-job mode; a queued job asks for them "
-                        "with ptctl submit --passes\n");
-        return 2;
-    }
-    if (has_chunk && has_task_time) {
-        fprintf(stderr, "ptserve: --chunk gives fixed tasks and --task-time sizes them by "
-                        "time; give one\n");
-        return 2;
-    }
-    if (has_chunk)
-        c.task_ms = 0;
-    if (c.job.chunk != pt_chunk_whole_blocks(c.job.chunk)) {
-        /* A task that ends inside a block changes the image's last bits. */
-        fprintf(stderr,
-                "ptserve: --chunk %u rounded up to %u: samples are summed in blocks of %u\n",
-                c.job.chunk, pt_chunk_whole_blocks(c.job.chunk), PT_SAMPLE_BLOCK);
-        c.job.chunk = pt_chunk_whole_blocks(c.job.chunk);
-    }
-    if (lease < 0.1) {
-        fprintf(stderr, "ptserve: --lease-timeout must be at least 0.1 s\n");
-        return 2;
-    }
-    if (c.job.min_spp == 0)
-        c.job.min_spp = c.job.chunk > 1 ? c.job.chunk : 2;
+    job_from_options(&c, &ro, &x);
+    int rc = check_options(&c, &ro, &x, argc - optind);
+    if (rc)
+        return rc;
     c.scene_path = c.state_dir ? NULL : argv[optind];
-    c.lease_ms = (uint32_t)(lease * 1000.0);
-    c.handshake_ms = (uint32_t)(handshake * 1000.0);
-    c.limits.frame_grace_ms = (uint32_t)(grace * 1000.0);
     return srv_serve(&c);
 }
