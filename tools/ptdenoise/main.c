@@ -52,7 +52,7 @@ static void usage(FILE *f)
                "  --despeckle F       fireflies: a pixel of one half brighter than F times the\n"
                "                      brightest of the other half around it is scaled down to\n"
                "                      that, and a variance over 16 times its neighbours'\n"
-               "                      median is capped (default 2; 0: off, pure NFOR)\n"
+               "                      median is capped (default 3; 0: off, pure NFOR)\n"
                "  -h, --help          this help\n"
                "  --version           version and build id\n"
                "\n"
