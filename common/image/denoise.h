@@ -100,8 +100,8 @@ pt_status pt_denoise_check(const pt_denoise_input *in, pt_error *err);
  * may not alias the input) with `threads` threads (0: 1; at most
  * PT_DENOISE_MAX_THREADS). Runs pt_denoise_check first and returns its
  * refusal; PT_ERR_NOMEM when memory runs out (out then partly written). The
- * output is the same bits for any thread count. Memory: about 45 floats and
- * 10 doubles a pixel besides the input. */
+ * output is the same bits for any thread count. Memory: 53 floats and about
+ * 14 doubles a pixel besides the input. */
 pt_status pt_denoise(const pt_denoise_input *in, unsigned threads, float *const out[3],
                      pt_error *err);
 
