@@ -68,7 +68,10 @@ mean_of() { # IMAGE REF [--layer NAME]
 }
 
 echo "== quality: relMSE against a $REF_SPP-spp reference of another seed, $RES, $THREADS threads"
-if ! "$WORKER" --help 2>&1 | grep -q -- '--passes'; then
+# The help text whole, then matched: grep -q closing the pipe early would
+# fail the pipeline (pipefail) by the writer's SIGPIPE.
+worker_help=$("$WORKER" --help 2>&1 || true)
+if [[ $worker_help != *--passes* ]]; then
     echo "skipped: this ptworker writes no passes (--passes); part 2 only"
 else
     printf '%-28s %12s %12s %12s %8s %10s\n' scene "raw@$LOW_SPP" "dn@$LOW_SPP" \
@@ -120,7 +123,7 @@ dn_cpu=$(printf '%s\n' "${cpus[@]}" | median)
 echo "ptdenoise 1920x1080 (read, denoise, write): wall $dn_wall s, CPU $dn_cpu s (runs: ${walls[*]})"
 grep -o 'denoised in [0-9.]* s' "$OUT/last.log" | sed 's/^/last run: /'
 
-if [[ ${HD_RENDER:-0} == 1 ]] && "$WORKER" --help 2>&1 | grep -q -- '--passes'; then
+if [[ ${HD_RENDER:-0} == 1 && $worker_help == *--passes* ]]; then
     first=${SCENES%% *}
     scene=${first%@*}
     env=()

@@ -4,7 +4,8 @@
 # another seed, the denoised image has a lower relMSE than the raw one at
 # 16 and at 64 spp, its error falls from 16 to 64 spp, and its mean stays
 # within 1 % of the raw image's; the denoised layer is the same bytes for 1
-# and 3 threads; the beauty and every pass are kept bit for bit.
+# and 3 threads; the beauty and every pass are kept bit for bit; a
+# transparent render's preview is RGBA.
 # Skipped (77) while ptworker writes no passes (before the render passes
 # are in the build).
 set -euo pipefail
@@ -16,7 +17,9 @@ trap cleanup EXIT
 failed=1
 fail() { echo "FAIL: $*" >&2; exit 1; }
 
-if ! "$bin/ptworker" --help 2>&1 | grep -q -- '--passes'; then
+# The help text whole, then matched (grep -q would close the pipe early).
+help=$("$bin/ptworker" --help 2>&1 || true)
+if [[ $help != *--passes* ]]; then
   echo "skipped: this ptworker has no --passes"
   failed=0
   exit 77
@@ -53,5 +56,11 @@ done
 "$bin/ptexr-diff" --base "$tmp/low64.exr" "$tmp/dn64.exr" > /dev/null || fail "the beauty changed"
 "$bin/ptdenoise" "$tmp/low64.exr" -o "$tmp/dn64t3.exr" --threads 3 --no-preview 2> /dev/null
 cmp -s "$tmp/dn64.exr" "$tmp/dn64t3.exr" || fail "3 threads wrote another file than 1"
+# A transparent render: its preview is RGBA (PNG colour type 6, byte 25).
+"$bin/ptworker" "${view[@]}" --spp 16 --seed 1 --transparent \
+  --passes albedo,normal,depth,halves -o "$tmp/alpha.exr" 2> /dev/null
+"$bin/ptdenoise" "$tmp/alpha.exr" -o "$tmp/alpha_dn.exr" 2> /dev/null || fail "transparent: exit $?"
+[ "$(od -An -tu1 -j25 -N1 "$tmp/alpha_dn.png" | tr -d ' ')" = 6 ] ||
+  fail "the transparent render's preview is not RGBA"
 failed=0
 echo ok

@@ -51,7 +51,8 @@ static void usage(FILE *f)
                "  --no-preview        no PNG beside OUT.exr\n"
                "  --despeckle F       fireflies: a pixel of one half brighter than F times the\n"
                "                      brightest of the other half around it is scaled down to\n"
-               "                      that (default 2; 0: off, pure NFOR)\n"
+               "                      that, and a variance over 16 times its neighbours'\n"
+               "                      median is capped (default 3; 0: off, pure NFOR)\n"
                "  -h, --help          this help\n"
                "  --version           version and build id\n"
                "\n"
@@ -63,8 +64,11 @@ static void usage(FILE *f)
 static const char *const CHANNELS[] = {
     "halfA.R", "halfA.G", "halfA.B",  "halfB.R",    "halfB.G",  "halfB.B",        "R",
     "G",       "B",       "variance", "albedo.R",   "albedo.G", "albedo.B",       "albedo.variance",
-    "N.X",     "N.Y",     "N.Z",      "N.variance", "depth.Z",  "depth.variance", "samples"};
-enum { NCH = sizeof CHANNELS / sizeof CHANNELS[0] };
+    "N.X",     "N.Y",     "N.Z",      "N.variance", "depth.Z",  "depth.variance", "samples",
+    "A"};
+/* All but the last are required; A (a transparent render's coverage) only
+ * makes the preview RGBA. */
+enum { NCH = sizeof CHANNELS / sizeof CHANNELS[0], NREQ = NCH - 1, CH_A = NCH - 1 };
 
 int main(int argc, char **argv)
 {
@@ -153,7 +157,7 @@ int main(int argc, char **argv)
         goto done;
     }
     char missing[512] = "";
-    for (int i = 0; i < NCH; i++) {
+    for (int i = 0; i < NREQ; i++) {
         if (pl[i])
             continue;
         size_t len = strlen(missing);
@@ -216,7 +220,15 @@ int main(int argc, char **argv)
             snprintf(png, sizeof png, "%s", out_path);
         else
             pt_png_preview_path(out_path, png, sizeof png);
-        pt_image img = {.width = w, .height = h, .r = out[0], .g = out[1], .b = out[2]};
+        /* A transparent render's halves are premultiplied like its beauty:
+         * the preview divides by the coverage, as ptworker's does. */
+        pt_image img = {.width = w,
+                        .height = h,
+                        .r = out[0],
+                        .g = out[1],
+                        .b = out[2],
+                        .a = pl[CH_A],
+                        .has_alpha = pl[CH_A] != NULL};
         if (pt_png_write_preview(png, &img, &view, &err) != PT_OK) {
             fprintf(stderr, "ptdenoise: %s\n", err.msg);
             goto done;
