@@ -189,20 +189,6 @@ static inline void exp_neg8(v8f *x)
     *x = V8_SELECT(below, p * (v8f)bits, zero);
 }
 
-/* x[i] = exp_neg(x[i]) for i < n. */
-static inline void exp_neg_row(float *x, int n)
-{
-    int i = 0;
-    for (; i + 8 <= n; i += 8) {
-        v8f v;
-        memcpy(&v, x + i, sizeof v);
-        exp_neg8(&v);
-        memcpy(x + i, &v, sizeof v);
-    }
-    for (; i < n; i++)
-        x[i] = exp_neg(x[i]);
-}
-
 /* What NL-means weights are computed from: nc guide channels and the
  * variance of each (pointers may repeat), scaled by vscale. */
 typedef struct guide {
