@@ -6,6 +6,7 @@
 #include <stddef.h>
 #include <stdio.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "common/base/alloc.h"
 #include "common/image/image.h"
@@ -939,4 +940,10 @@ pt_status pt_denoise(const pt_denoise_input *in, unsigned threads, float *const 
 done:
     pt_free(mem);
     return st;
+}
+
+unsigned pt_denoise_default_threads(void)
+{
+    long n = sysconf(_SC_NPROCESSORS_ONLN);
+    return n < 1 ? 1u : n > (long)PT_DENOISE_MAX_THREADS ? PT_DENOISE_MAX_THREADS : (unsigned)n;
 }

@@ -67,6 +67,10 @@
 /* The most threads pt_denoise starts. */
 #define PT_DENOISE_MAX_THREADS 256u
 
+/* The processors online, within [1, PT_DENOISE_MAX_THREADS]: the threads a
+ * program denoises with when not told (the result is the same bits). */
+unsigned pt_denoise_default_threads(void);
+
 /* The image to denoise: planar float arrays of width x height, row 0 at the
  * top, every one required (borrowed; not modified). */
 typedef struct pt_denoise_input {

@@ -3,7 +3,6 @@
 #include <pthread.h>
 #include <stdio.h>
 #include <stdlib.h>
-#include <unistd.h>
 
 #include "common/base/alloc.h"
 #include "common/base/fsutil.h"
@@ -38,12 +37,9 @@ struct srv_writer {
 static pt_status denoise_final(srv_writer *w, uint64_t samples, pt_image *shown, pt_error *err)
 {
     if (!w->denoised || w->denoised_samples != samples) {
-        long n = sysconf(_SC_NPROCESSORS_ONLN);
-        unsigned threads = n < 1                              ? 1u
-                           : n > (long)PT_DENOISE_MAX_THREADS ? PT_DENOISE_MAX_THREADS
-                                                              : (unsigned)n;
         w->denoised = 0;
-        pt_status st = pt_denoise_frame(w->img, threads, PT_DENOISE_DESPECKLE, NULL, err);
+        pt_status st =
+            pt_denoise_frame(w->img, pt_denoise_default_threads(), PT_DENOISE_DESPECKLE, NULL, err);
         if (st != PT_OK)
             return st;
         w->denoised = 1;

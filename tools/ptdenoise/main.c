@@ -142,12 +142,8 @@ int main(int argc, char **argv)
         fprintf(stderr, "ptdenoise: -o %s: " PT_IMAGE_FORMATS "\n", out_path);
         return EXIT_USAGE;
     }
-    if (threads == 0) {
-        long n = sysconf(_SC_NPROCESSORS_ONLN);
-        threads = n < 1                              ? 1
-                  : n > (long)PT_DENOISE_MAX_THREADS ? PT_DENOISE_MAX_THREADS
-                                                     : (uint32_t)n;
-    }
+    if (threads == 0)
+        threads = pt_denoise_default_threads();
 
     int rc = EXIT_ERROR;
     float *pl[NCH] = {0}, *out[3] = {0};
