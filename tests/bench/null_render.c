@@ -1,9 +1,10 @@
 /*
  * null_render.c - the renderer of ptworker-null, the benchmark build of the
  * worker (tests/bench/CMakeLists.txt): the worker's own sources compiled
- * with pt_render_tile defined to ptbench_null_render_tile, so everything but
- * the rendering is the shipped worker's code (protocol, authentication,
- * scene fetch and cache, render threads, RESULT frames of the real size).
+ * with pt_render_tile and pt_render_tile_passes defined to the fills
+ * below, so everything but the rendering is the shipped worker's code
+ * (protocol, authentication, scene fetch and cache, render threads, RESULT
+ * frames of the real size).
  * Never installed: its images are not renders.
  *
  * The fill is one that the coordinator accepts as it would a render: every
@@ -29,6 +30,9 @@
 
 void ptbench_null_render_tile(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,
                               pt_pixel_acc *out, pt_render_stats *stats);
+void ptbench_null_render_tile_passes(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,
+                                     pt_pixel_acc *out, pt_pass_acc *pout, pt_render_stats *stats,
+                                     const pt_render_guiding *gd);
 
 static pthread_once_t rate_once = PTHREAD_ONCE_INIT;
 static double rate; /* samples per second per thread; 0: as fast as it can */
@@ -64,4 +68,16 @@ void ptbench_null_render_tile(const pt_renderer *r, pt_rect tile, uint32_t s0, u
         while (nanosleep(&ts, &ts) != 0 && errno == EINTR) {
         }
     }
+}
+
+/* The farm worker renders through pt_render_tile_passes: the same fill, with
+ * any pass sums zeroed as a renderer without passes writes them. */
+void ptbench_null_render_tile_passes(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1,
+                                     pt_pixel_acc *out, pt_pass_acc *pout, pt_render_stats *stats,
+                                     const pt_render_guiding *gd)
+{
+    (void)gd;
+    if (pout)
+        memset(pout, 0, (size_t)(tile.x1 - tile.x0) * (size_t)(tile.y1 - tile.y0) * sizeof *pout);
+    ptbench_null_render_tile(r, tile, s0, s1, out, stats);
 }
