@@ -341,7 +341,7 @@ void srv_requests_verified(srv_server *s, srv_conn *c, srv_upload *k)
     srv_entry *j = pt_calloc(1, sizeof *j);
     if (!j) {
         pt_bundle_free(b);
-        srv_state_forget_job(s->state, k->job_id);
+        s->mode->durability->forget(s, k->job_id);
         srv_conn_send_error(s, c, PROTO_E_INTERNAL, "out of memory");
         return;
     }
@@ -372,7 +372,7 @@ void srv_requests_verified(srv_server *s, srv_conn *c, srv_upload *k)
     if ((st = srv_job_new(r->id, &p, r->hash, &probe, &err)) != PT_OK) {
         pt_free(j);
         pt_bundle_free(b);
-        srv_state_forget_job(s->state, k->job_id);
+        s->mode->durability->forget(s, k->job_id);
         srv_conn_send_error(s, c, PROTO_E_LIMIT, "%s", err.msg);
         return;
     }
@@ -383,7 +383,7 @@ void srv_requests_verified(srv_server *s, srv_conn *c, srv_upload *k)
     if (srv_queue_journal(s, &err) != PT_OK) {
         /* Not durable, so not accepted. */
         srv_queue_unlink(s, j);
-        srv_state_forget_job(s->state, r->id);
+        s->mode->durability->forget(s, r->id);
         srv_entry_free(j);
         srv_conn_send_error(s, c, PROTO_E_INTERNAL, "cannot write the queue: %s", err.msg);
         return;

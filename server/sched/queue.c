@@ -290,14 +290,18 @@ void srv_queue_info(const srv_server *s, const srv_entry *j, proto_job_info *m)
 static void load_manifests(srv_server *s, srv_entry *j)
 {
     srv_entry *owner = j->parent ? j->parent : j;
-    if (owner->crypto || !s->state ||
+    if (owner->crypto ||
         !(proto_film_passes(srv_job_params_of(j->job)->film_flags) & PT_PASS_CRYPTOMATTE))
         return;
     char *text = NULL;
     pt_error err = {0};
     pt_crypto_meta *m = pt_calloc(1, sizeof *m);
-    pt_status st = m ? srv_state_load_manifests(s->state, owner->rec.id, &text, &err)
+    pt_status st = m ? s->mode->durability->load_manifests(s, owner->rec.id, &text, &err)
                      : pt_error_set(&err, PT_ERR_NOMEM, "out of memory");
+    if (st == PT_OK && !text) {
+        pt_free(m);
+        return;
+    }
     if (st == PT_OK)
         st = pt_crypto_meta_from_text(m, text, &err);
     pt_free(text);
@@ -712,6 +716,11 @@ pt_status queue_load_bundle_folder(srv_server *s, srv_entry *j, pt_error *err)
     return srv_state_load_bundle(s->state, j->rec.id, j->rec.hash, &j->bundle, err);
 }
 
+pt_status queue_load_manifests_folder(srv_server *s, uint64_t id, char **text, pt_error *err)
+{
+    return srv_state_load_manifests(s->state, id, text, err);
+}
+
 /* ---- one job: nothing kept (srv_durability_none) ---- */
 
 static pt_status none_journal(srv_server *s, pt_error *err)
@@ -742,6 +751,15 @@ static pt_status none_entry(srv_server *s, srv_entry *j, pt_error *err)
     return PT_OK;
 }
 
+static pt_status none_manifests(srv_server *s, uint64_t id, char **text, pt_error *err)
+{
+    (void)s;
+    (void)id;
+    (void)err;
+    *text = NULL;
+    return PT_OK;
+}
+
 static void none_tick_job(srv_server *s, srv_entry *j, uint64_t now)
 {
     (void)s;
@@ -761,6 +779,7 @@ const srv_durability srv_durability_none = {
     .forget = none_forget,
     .restore = none_entry,
     .load_bundle = none_entry,
+    .load_manifests = none_manifests,
     .tick_job = none_tick_job,
     .tick = none_tick,
 };

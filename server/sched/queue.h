@@ -52,6 +52,9 @@ typedef struct srv_durability {
     pt_status (*restore)(srv_server *s, srv_entry *j, pt_error *err);
     /* Loads the bundle of j, which has none in memory. */
     pt_status (*load_bundle)(srv_server *s, srv_entry *j, pt_error *err);
+    /* The Cryptomatte manifests kept for job id (*text: NULL when this
+     * durability keeps none: the job has them in memory from setup). */
+    pt_status (*load_manifests)(srv_server *s, uint64_t id, char **text, pt_error *err);
     /* Once per round (srv_queue_tick): for each running job, then once. */
     void (*tick_job)(srv_server *s, srv_entry *j, uint64_t now);
     void (*tick)(srv_server *s, uint64_t now);

@@ -66,5 +66,6 @@ void queue_announce_job_end(srv_server *s, const srv_entry *j);
 pt_status queue_journal_folder(srv_server *s, pt_error *err);
 pt_status queue_restore_folder(srv_server *s, srv_entry *j, pt_error *err);
 pt_status queue_load_bundle_folder(srv_server *s, srv_entry *j, pt_error *err);
+pt_status queue_load_manifests_folder(srv_server *s, uint64_t id, char **text, pt_error *err);
 
 #endif

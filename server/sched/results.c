@@ -416,6 +416,7 @@ const srv_durability srv_durability_folder = {
     .forget = folder_forget,
     .restore = queue_restore_folder,
     .load_bundle = queue_load_bundle_folder,
+    .load_manifests = queue_load_manifests_folder,
     .tick_job = folder_tick_job,
     .tick = folder_tick,
 };
