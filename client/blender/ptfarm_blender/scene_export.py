@@ -292,29 +292,6 @@ def _write_glb_json(path, doc, data, old_n):
         f.write(out + text + rest)
 
 
-def _no_specular(doc):
-    """Materials whose Principled Specular is 0. Blender's exporter writes
-    them as KHR_materials_specular with specularColorFactor [0, 0, 0] and
-    specularFactor 1: an F0 of 0 but an F90 of 1, as Cycles' Principled
-    does. ptfarm weighs the diffuse lobe by the scalar F0 0.04 x
-    specularFactor whatever the colour (common/render/bsdf.h), so such a
-    material would lose 4 % of its diffuse light against Cycles' (measured
-    by tests/blender/test_light_units.py); specularFactor 0, glTF's "no
-    specular layer", gives it the whole base colour. Only the grazing
-    specular of Cycles' F90 is lost. Returns how many were changed."""
-    changed = 0
-    for mat in doc.get("materials", []):
-        spec = mat.get("extensions", {}).get("KHR_materials_specular")
-        if not isinstance(spec, dict) or "specularTexture" in spec or \
-                "specularColorTexture" in spec:
-            continue
-        if spec.get("specularColorFactor") == [0, 0, 0]:
-            spec.pop("specularColorFactor")
-            spec["specularFactor"] = 0
-            changed += 1
-    return changed
-
-
 def convert_lights(doc, scene):
     """Rewrites the file's punctual lights in ptfarm's units from the Blender
     lights' data (for an exporter without the Unitless mode): intensity
@@ -334,16 +311,18 @@ def convert_lights(doc, scene):
 
 
 def fix_up(path, scene, lights):
-    """The exported file adjusted for ptfarm: materials without specular
-    (_no_specular), and with lights True the lights' units (convert_lights).
-    Rewrites the GLB's JSON chunk only when something changed."""
+    """The exported file adjusted for ptfarm: with lights True, the lights'
+    units (convert_lights). Materials are kept as exported: a Principled
+    Specular of 0 comes out as KHR_materials_specular with a black
+    specularColorFactor, which ptfarm reads as Cycles does (F0 0, F90 1, the
+    diffuse weighted by the coloured Fresnel; tests/blender/
+    test_light_units.py). Rewrites the GLB's JSON chunk only when something
+    changed."""
+    if not lights:
+        return
     doc, data, n = _read_glb_json(path)
-    changed = _no_specular(doc)
-    if lights:
-        convert_lights(doc, scene)
-        changed += 1
-    if changed:
-        _write_glb_json(path, doc, data, n)
+    convert_lights(doc, scene)
+    _write_glb_json(path, doc, data, n)
 
 
 def glb_summary(path):
