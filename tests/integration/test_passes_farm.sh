@@ -119,11 +119,16 @@ for _ in $(seq 1200); do
 done
 compgen -G "$tmp/state/jobs/$id/checkpoint*" > /dev/null || fail "no checkpoint written"
 until_status "$id" 'd["samples_done"] > 0 or d["state"] != "running"'
+# The workers are held while the coordinator is killed, so the job cannot
+# end in between however loaded the machine is.
+for p in $wrk_pids; do kill -STOP "$p"; done
+status "$id"
 [ "$(json "$tmp/status.json" 'd["state"]')" = running ] || fail "the job ended before the kill"
 before=$(json "$tmp/status.json" 'd["samples_done"]')
 kill -9 "$srv_pid"
 wait "$srv_pid" 2> /dev/null || true
 srv_pid=
+for p in $wrk_pids; do kill -CONT "$p"; done
 serve serve2.log # the same port: the workers reconnect to it
 status "$id"
 after=$(json "$tmp/status.json" 'd["samples_done"]')
