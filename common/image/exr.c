@@ -146,7 +146,6 @@ static float *plane_of(const pt_image *img, const char *name)
     return pt_image_find_plane(img, name);
 }
 
-/* Declares the part, channels and attributes of the file being written. */
 /* OpenEXR's framesPerSecond is a rational: the NTSC rates as N x 1000 / 1001
  * (as ImfFramesPerSecond's), a whole rate as R/1, anything else to 1/1000. */
 static exr_attr_rational_t fps_rational(double fps)
@@ -167,6 +166,7 @@ static exr_attr_rational_t fps_rational(double fps)
     return r;
 }
 
+/* Declares the part, channels and attributes of the file being written. */
 static exr_result_t define_part(exr_context_t ctx, const pt_image *img, const pt_exr_meta *meta)
 {
     int part = 0;
@@ -219,8 +219,15 @@ static exr_result_t define_part(exr_context_t ctx, const pt_image *img, const pt
     return rv;
 }
 
-/* Encodes every scanline chunk straight from the planar arrays. */
-static exr_result_t write_chunks(exr_context_t ctx, const pt_image *img)
+/* Points channel ch of a chunk at the caller's pixels for its rows from
+ * row (counted from the data window's top); EXR_ERR_INVALID_ARGUMENT for a
+ * channel the caller has no pixels for. */
+typedef exr_result_t (*exr_bind_fn)(const void *user, exr_coding_channel_info_t *ch, size_t row);
+
+/* Encodes every scanline chunk of part 0 (rows min_y .. min_y + height - 1),
+ * each channel straight from where bind points it. */
+static exr_result_t encode_chunks(exr_context_t ctx, int64_t min_y, int64_t height,
+                                  exr_bind_fn bind, const void *user)
 {
     int32_t lines = 0;
     exr_result_t rv = exr_get_scanlines_per_chunk(ctx, 0, &lines);
@@ -230,29 +237,18 @@ static exr_result_t write_chunks(exr_context_t ctx, const pt_image *img)
         return EXR_ERR_INVALID_ARGUMENT;
     exr_encode_pipeline_t enc = EXR_ENCODE_PIPELINE_INITIALIZER;
     int started = 0;
-    int32_t stride = (int32_t)(img->width * sizeof(float));
-    for (int32_t y = 0; y < (int32_t)img->height && rv == EXR_ERR_SUCCESS; y += lines) {
+    for (int64_t y = min_y; y < min_y + height && rv == EXR_ERR_SUCCESS; y += lines) {
         exr_chunk_info_t cinfo;
-        rv = exr_write_scanline_chunk_info(ctx, 0, y, &cinfo);
+        rv = exr_write_scanline_chunk_info(ctx, 0, (int)y, &cinfo);
         if (rv != EXR_ERR_SUCCESS)
             break;
         rv = started ? exr_encoding_update(ctx, 0, &cinfo, &enc)
                      : exr_encoding_initialize(ctx, 0, &cinfo, &enc);
         if (rv != EXR_ERR_SUCCESS)
             break;
-        for (int c = 0; c < enc.channel_count; c++) {
-            exr_coding_channel_info_t *ch = &enc.channels[c];
-            const float *plane = plane_of(img, ch->channel_name);
-            if (!plane) {
-                rv = EXR_ERR_INVALID_ARGUMENT;
-                break;
-            }
-            ch->user_pixel_stride = (int32_t)sizeof(float);
-            ch->user_line_stride = stride;
-            ch->user_bytes_per_element = (int16_t)sizeof(float);
-            ch->user_data_type = EXR_PIXEL_FLOAT;
-            ch->encode_from_ptr = (const uint8_t *)(plane + (size_t)cinfo.start_y * img->width);
-        }
+        size_t row = (size_t)((int64_t)cinfo.start_y - min_y);
+        for (int c = 0; c < enc.channel_count && rv == EXR_ERR_SUCCESS; c++)
+            rv = bind(user, &enc.channels[c], row);
         if (rv == EXR_ERR_SUCCESS && !started)
             rv = exr_encoding_choose_default_routines(ctx, 0, &enc);
         started = 1;
@@ -267,13 +263,16 @@ static exr_result_t write_chunks(exr_context_t ctx, const pt_image *img)
     return rv;
 }
 
-pt_status pt_exr_write(const char *path, const pt_image *img, const pt_exr_meta *meta,
-                       pt_error *err)
+/* Writes path as one file. A temporary with an unpredictable name, opened
+ * exclusively and never through a link (common/base/fsutil.h), so a file
+ * planted in the output folder is not written to; define declares part 0,
+ * pixels encodes its chunks; then fsync, a rename over whatever is at path
+ * (a link is replaced, not followed) and fsync of the folder. The temporary
+ * goes on failure. */
+static pt_status write_file(const char *path, exr_result_t (*define)(exr_context_t, const void *),
+                            exr_result_t (*pixels)(exr_context_t, const void *), const void *user,
+                            pt_error *err)
 {
-    if (!path || !img || img->width == 0 || img->height == 0 || img->width > PT_IMAGE_MAX_SIDE ||
-        img->height > PT_IMAGE_MAX_SIDE)
-        return pt_error_set(err, PT_ERR_ARG, "EXR %s: no image or a bad size",
-                            path ? path : "(null)");
     pt_status st = PT_OK;
     exr_context_t ctx = NULL;
     exr_stream s = {.fd = -1};
@@ -282,10 +281,6 @@ pt_status pt_exr_write(const char *path, const pt_image *img, const pt_exr_meta 
     pt_temp tmp;
     stream_init(&init, &s);
     init.write_fn = stream_write;
-
-    /* An unpredictable name opened exclusively, never through a link
-     * (common/base/fsutil.h), so a file planted in the output folder is not
-     * written to. */
     if ((st = pt_temp_open(path, 0644, &tmp, err)) != PT_OK)
         return st;
     s.fd = tmp.fd;
@@ -293,7 +288,7 @@ pt_status pt_exr_write(const char *path, const pt_image *img, const pt_exr_meta 
         st = exr_fail(err, &s, rv, path, "cannot start writing");
         goto fail;
     }
-    if ((rv = define_part(ctx, img, meta)) != EXR_ERR_SUCCESS) {
+    if ((rv = define(ctx, user)) != EXR_ERR_SUCCESS) {
         st = exr_fail(err, &s, rv, path, "cannot define the header");
         goto fail;
     }
@@ -301,7 +296,7 @@ pt_status pt_exr_write(const char *path, const pt_image *img, const pt_exr_meta 
         st = exr_fail(err, &s, rv, path, "cannot write the header");
         goto fail;
     }
-    if ((rv = write_chunks(ctx, img)) != EXR_ERR_SUCCESS) {
+    if ((rv = pixels(ctx, user)) != EXR_ERR_SUCCESS) {
         st = exr_fail(err, &s, rv, path, "cannot write the pixels");
         goto fail;
     }
@@ -312,8 +307,6 @@ pt_status pt_exr_write(const char *path, const pt_image *img, const pt_exr_meta 
         st = exr_fail(err, &s, rv, path, "cannot finish");
         goto fail;
     }
-    /* fsync, rename over whatever is at path (a link is replaced, not
-     * followed), fsync of the folder; the temporary goes on failure. */
     return pt_temp_commit(&tmp, path, err);
 
 fail:
@@ -321,6 +314,48 @@ fail:
         exr_finish(&ctx);
     pt_temp_abort(&tmp);
     return st;
+}
+
+/* pt_exr_write's image and header, for write_file. */
+typedef struct image_out {
+    const pt_image *img;
+    const pt_exr_meta *meta;
+} image_out;
+
+static exr_result_t bind_plane(const void *user, exr_coding_channel_info_t *ch, size_t row)
+{
+    const pt_image *img = ((const image_out *)user)->img;
+    const float *plane = plane_of(img, ch->channel_name);
+    if (!plane)
+        return EXR_ERR_INVALID_ARGUMENT;
+    ch->user_pixel_stride = (int32_t)sizeof(float);
+    ch->user_line_stride = (int32_t)(img->width * sizeof(float));
+    ch->user_bytes_per_element = (int16_t)sizeof(float);
+    ch->user_data_type = EXR_PIXEL_FLOAT;
+    ch->encode_from_ptr = (const uint8_t *)(plane + row * img->width);
+    return EXR_ERR_SUCCESS;
+}
+
+static exr_result_t image_define(exr_context_t ctx, const void *user)
+{
+    const image_out *o = user;
+    return define_part(ctx, o->img, o->meta);
+}
+
+static exr_result_t image_pixels(exr_context_t ctx, const void *user)
+{
+    return encode_chunks(ctx, 0, ((const image_out *)user)->img->height, bind_plane, user);
+}
+
+pt_status pt_exr_write(const char *path, const pt_image *img, const pt_exr_meta *meta,
+                       pt_error *err)
+{
+    if (!path || !img || img->width == 0 || img->height == 0 || img->width > PT_IMAGE_MAX_SIDE ||
+        img->height > PT_IMAGE_MAX_SIDE)
+        return pt_error_set(err, PT_ERR_ARG, "EXR %s: no image or a bad size",
+                            path ? path : "(null)");
+    image_out o = {img, meta};
+    return write_file(path, image_define, image_pixels, &o, err);
 }
 
 /* Copies an optional string attribute into dst (truncated to fit). */
@@ -926,64 +961,51 @@ static exr_result_t define_copy(exr_context_t ctx, const exr_src *src, unsigned 
     return rv;
 }
 
-static exr_result_t write_copy(exr_context_t ctx, const exr_src *src, uint8_t *const kept[],
-                               unsigned n, const char *const names[], const float *const planes[])
+/* pt_exr_write_with_channels' source, its kept planes and the new ones. */
+typedef struct copy_out {
+    const exr_src *src;
+    uint8_t *const *kept;
+    const int *keep;
+    unsigned n;
+    const char *const *names;
+    const float *const *planes;
+} copy_out;
+
+static exr_result_t bind_copy(const void *user, exr_coding_channel_info_t *ch, size_t row)
 {
-    int32_t lines = 0;
-    exr_result_t rv = exr_get_scanlines_per_chunk(ctx, 0, &lines);
-    if (rv != EXR_ERR_SUCCESS)
-        return rv;
-    if (lines < 1)
-        return EXR_ERR_INVALID_ARGUMENT;
-    exr_encode_pipeline_t enc = EXR_ENCODE_PIPELINE_INITIALIZER;
-    int started = 0;
-    int64_t end_y = (int64_t)src->dw.min.y + src->h;
-    for (int64_t y = src->dw.min.y; y < end_y && rv == EXR_ERR_SUCCESS; y += lines) {
-        exr_chunk_info_t cinfo;
-        rv = exr_write_scanline_chunk_info(ctx, 0, (int)y, &cinfo);
-        if (rv != EXR_ERR_SUCCESS)
-            break;
-        size_t row = (size_t)((int64_t)cinfo.start_y - src->dw.min.y);
-        rv = started ? exr_encoding_update(ctx, 0, &cinfo, &enc)
-                     : exr_encoding_initialize(ctx, 0, &cinfo, &enc);
-        if (rv != EXR_ERR_SUCCESS)
-            break;
-        for (int c = 0; c < enc.channel_count; c++) {
-            exr_coding_channel_info_t *ch = &enc.channels[c];
-            const uint8_t *from = NULL;
-            int16_t bpe = 4;
-            exr_pixel_type_t type = EXR_PIXEL_FLOAT;
-            for (unsigned i = 0; i < n && !from; i++)
-                if (!strcmp(names[i], ch->channel_name))
-                    from = (const uint8_t *)planes[i];
-            if (!from) {
-                int i = chl_index(src->chl, ch->channel_name);
-                if (i < 0 || !kept[i]) {
-                    rv = EXR_ERR_INVALID_ARGUMENT;
-                    break;
-                }
-                from = kept[i];
-                type = src->chl->entries[i].pixel_type;
-                bpe = (int16_t)pixel_bytes(type);
-            }
-            ch->user_pixel_stride = bpe;
-            ch->user_line_stride = bpe * (int32_t)src->w;
-            ch->user_bytes_per_element = bpe;
-            ch->user_data_type = (uint16_t)type;
-            ch->encode_from_ptr = from + row * src->w * (size_t)bpe;
-        }
-        if (rv == EXR_ERR_SUCCESS && !started)
-            rv = exr_encoding_choose_default_routines(ctx, 0, &enc);
-        started = 1;
-        if (rv == EXR_ERR_SUCCESS)
-            rv = exr_encoding_run(ctx, 0, &enc);
+    const copy_out *o = user;
+    const uint8_t *from = NULL;
+    int16_t bpe = 4;
+    exr_pixel_type_t type = EXR_PIXEL_FLOAT;
+    for (unsigned i = 0; i < o->n && !from; i++)
+        if (!strcmp(o->names[i], ch->channel_name))
+            from = (const uint8_t *)o->planes[i];
+    if (!from) {
+        int i = chl_index(o->src->chl, ch->channel_name);
+        if (i < 0 || !o->kept[i])
+            return EXR_ERR_INVALID_ARGUMENT;
+        from = o->kept[i];
+        type = o->src->chl->entries[i].pixel_type;
+        bpe = (int16_t)pixel_bytes(type);
     }
-    if (started) {
-        exr_result_t rd = exr_encoding_destroy(ctx, &enc);
-        if (rv == EXR_ERR_SUCCESS)
-            rv = rd;
-    }
-    return rv;
+    ch->user_pixel_stride = bpe;
+    ch->user_line_stride = bpe * (int32_t)o->src->w;
+    ch->user_bytes_per_element = bpe;
+    ch->user_data_type = (uint16_t)type;
+    ch->encode_from_ptr = from + row * o->src->w * (size_t)bpe;
+    return EXR_ERR_SUCCESS;
+}
+
+static exr_result_t copy_define(exr_context_t ctx, const void *user)
+{
+    const copy_out *o = user;
+    return define_copy(ctx, o->src, o->n, o->names, o->keep);
+}
+
+static exr_result_t copy_pixels(exr_context_t ctx, const void *user)
+{
+    const copy_out *o = user;
+    return encode_chunks(ctx, o->src->dw.min.y, o->src->h, bind_copy, user);
 }
 
 pt_status pt_exr_write_with_channels(const char *src_path, const char *dst_path, unsigned n,
@@ -1001,10 +1023,6 @@ pt_status pt_exr_write_with_channels(const char *src_path, const char *dst_path,
     if (st != PT_OK)
         return st;
     int nch = src.chl->num_channels;
-    exr_context_t ctx = NULL;
-    exr_stream s = {.fd = -1};
-    pt_temp tmp;
-    int have_tmp = 0;
     exr_result_t rv;
     uint8_t **kept = pt_calloc((size_t)nch, sizeof *kept);
     int *keep = pt_calloc((size_t)nch, sizeof *keep),
@@ -1030,42 +1048,9 @@ pt_status pt_exr_write_with_channels(const char *src_path, const char *dst_path,
         st = exr_fail(err, &src.s, rv, src_path, "cannot decode the pixels");
         goto done;
     }
-    exr_context_initializer_t init;
-    stream_init(&init, &s);
-    init.write_fn = stream_write;
-    if ((st = pt_temp_open(dst_path, 0644, &tmp, err)) != PT_OK)
-        goto done;
-    have_tmp = 1;
-    s.fd = tmp.fd;
-    if ((rv = exr_start_write(&ctx, tmp.path, EXR_WRITE_FILE_DIRECTLY, &init)) != EXR_ERR_SUCCESS) {
-        st = exr_fail(err, &s, rv, dst_path, "cannot start writing");
-        goto done;
-    }
-    if ((rv = define_copy(ctx, &src, n, names, keep)) != EXR_ERR_SUCCESS) {
-        st = exr_fail(err, &s, rv, dst_path, "cannot define the header");
-        goto done;
-    }
-    if ((rv = exr_write_header(ctx)) != EXR_ERR_SUCCESS) {
-        st = exr_fail(err, &s, rv, dst_path, "cannot write the header");
-        goto done;
-    }
-    if ((rv = write_copy(ctx, &src, kept, n, names, planes)) != EXR_ERR_SUCCESS) {
-        st = exr_fail(err, &s, rv, dst_path, "cannot write the pixels");
-        goto done;
-    }
-    rv = exr_finish(&ctx);
-    ctx = NULL;
-    if (rv != EXR_ERR_SUCCESS) {
-        st = exr_fail(err, &s, rv, dst_path, "cannot finish");
-        goto done;
-    }
-    st = pt_temp_commit(&tmp, dst_path, err);
-    have_tmp = 0;
+    copy_out o = {&src, kept, keep, n, names, planes};
+    st = write_file(dst_path, copy_define, copy_pixels, &o, err);
 done:
-    if (ctx)
-        exr_finish(&ctx);
-    if (have_tmp)
-        pt_temp_abort(&tmp);
     if (kept)
         for (int i = 0; i < nch; i++)
             pt_free(kept[i]);
