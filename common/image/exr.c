@@ -401,6 +401,131 @@ static void read_meta(exr_const_context_t ctx, pt_exr_meta *meta)
     }
 }
 
+/* An EXR opened for reading every channel of part 0, its layout checked. */
+typedef struct exr_src {
+    exr_context_t ctx;
+    exr_stream s;
+    exr_attr_box2i_t dw;
+    uint32_t w, h;
+    const exr_attr_chlist_t *chl;
+} exr_src;
+
+static void src_close(exr_src *src)
+{
+    if (src->ctx)
+        exr_finish(&src->ctx);
+    if (src->s.fd >= 0)
+        close(src->s.fd);
+    src->s.fd = -1;
+}
+
+/* Opens path (through a link at its last component only when follow) and
+ * checks its layout: part 0 a scanline image, a data window within the caps,
+ * a channel list. max_pixels is 0 when only the header will be read; else
+ * the pixels will be decoded, and the window must hold at most max_pixels
+ * and be possible in the file's bytes. */
+static pt_status src_open(const char *path, int follow, uint64_t max_pixels, exr_src *src,
+                          pt_error *err)
+{
+    memset(src, 0, sizeof *src);
+    src->s.fd = -1;
+    if (!path)
+        return pt_error_set(err, PT_ERR_ARG, "EXR read: no path");
+    exr_context_initializer_t init;
+    exr_result_t rv;
+    pt_status st;
+    stream_init(&init, &src->s);
+    init.read_fn = stream_read;
+    init.size_fn = stream_size;
+    init.max_image_width = PT_IMAGE_MAX_SIDE;
+    init.max_image_height = PT_IMAGE_MAX_SIDE;
+    /* A truncated file is an error, not something to guess around. */
+    init.flags = EXR_CONTEXT_FLAG_DISABLE_CHUNK_RECONSTRUCTION;
+    pt_error oerr = {0};
+    if ((st = pt_open_regular(path, follow, &src->s.fd, &oerr)) != PT_OK) {
+        pt_error_set(err, st, "EXR %s", oerr.msg);
+        if (err)
+            err->sys_errno = oerr.sys_errno;
+        src->s.fd = -1;
+        return st;
+    }
+    struct stat sb;
+    if (fstat(src->s.fd, &sb) != 0) {
+        st = pt_error_errno(err, PT_ERR_IO, "EXR %s: stat", path);
+        goto fail;
+    }
+    src->s.size = (int64_t)sb.st_size;
+    if ((rv = exr_start_read(&src->ctx, path, &init)) != EXR_ERR_SUCCESS) {
+        st = exr_fail(err, &src->s, rv, path, "not a readable OpenEXR file");
+        goto fail;
+    }
+    int parts = 0;
+    exr_storage_t storage = EXR_STORAGE_LAST_TYPE;
+    if ((rv = exr_get_count(src->ctx, &parts)) != EXR_ERR_SUCCESS || parts < 1 ||
+        (rv = exr_get_storage(src->ctx, 0, &storage)) != EXR_ERR_SUCCESS) {
+        st = rv ? exr_fail(err, &src->s, rv, path, "no image part")
+                : pt_error_set(err, PT_ERR_FORMAT, "EXR %s: no image part", path);
+        goto fail;
+    }
+    if (storage != EXR_STORAGE_SCANLINE) {
+        st = pt_error_set(err, PT_ERR_FORMAT, "EXR %s: part 0 is %s; only scanline images are read",
+                          path, storage == EXR_STORAGE_TILED ? "tiled" : "deep");
+        goto fail;
+    }
+    if ((rv = exr_get_data_window(src->ctx, 0, &src->dw)) != EXR_ERR_SUCCESS) {
+        st = exr_fail(err, &src->s, rv, path, "no data window");
+        goto fail;
+    }
+    int64_t w = (int64_t)src->dw.max.x - src->dw.min.x + 1,
+            h = (int64_t)src->dw.max.y - src->dw.min.y + 1;
+    if (w < 1 || h < 1 || w > PT_IMAGE_MAX_SIDE || h > PT_IMAGE_MAX_SIDE ||
+        (max_pixels && (uint64_t)w * (uint64_t)h > max_pixels)) {
+        st = pt_error_set(err, w < 1 || h < 1 ? PT_ERR_FORMAT : PT_ERR_LIMIT,
+                          "EXR %s: data window %" PRId64 "x%" PRId64 " is empty or over the cap",
+                          path, w, h);
+        goto fail;
+    }
+    /* Deflate, the strongest of the lossless codecs, expands a byte to at
+     * most 1032; at 6 bytes a pixel (half R, G, B) that is 172 pixels a
+     * byte. A header claiming more pixels than its file can hold is refused
+     * before the allocation, so that a few hundred hostile bytes cannot make
+     * the reader ask for gigabytes (a map arrives from clients). */
+    if (max_pixels &&
+        (uint64_t)w * (uint64_t)h > (uint64_t)src->s.size * PT_EXR_MAX_PIXELS_PER_BYTE + 65536) {
+        st = pt_error_set(err, PT_ERR_FORMAT,
+                          "EXR %s: %" PRId64 "x%" PRId64 " pixels cannot be in %" PRId64 " bytes",
+                          path, w, h, src->s.size);
+        goto fail;
+    }
+    if ((rv = exr_get_channels(src->ctx, 0, &src->chl)) != EXR_ERR_SUCCESS || !src->chl ||
+        src->chl->num_channels < 1) {
+        st = rv ? exr_fail(err, &src->s, rv, path, "no channel list")
+                : pt_error_set(err, PT_ERR_FORMAT, "EXR %s: no channel list", path);
+        goto fail;
+    }
+    src->w = (uint32_t)w;
+    src->h = (uint32_t)h;
+    return PT_OK;
+fail:
+    src_close(src);
+    return st;
+}
+
+/* src_open for reading or copying every channel: none may be subsampled. */
+static pt_status src_open_full(const char *path, exr_src *src, pt_error *err)
+{
+    pt_status st = src_open(path, 1, PT_IMAGE_MAX_PIXELS, src, err);
+    for (int i = 0; st == PT_OK && i < src->chl->num_channels; i++) {
+        const exr_attr_chlist_entry_t *e = &src->chl->entries[i];
+        if (e->x_sampling != 1 || e->y_sampling != 1) {
+            st = pt_error_set(err, PT_ERR_FORMAT, "EXR %s: channel %s is subsampled", path,
+                              e->name.str ? e->name.str : "");
+            src_close(src);
+        }
+    }
+    return st;
+}
+
 /* Decodes every scanline chunk of part 0 into img, whose top row is data
  * window row min_y. Channels other than ours are decoded into scratch: the
  * specialised unpackers of OpenEXRCore 3.1 (four half channels, say) assume
@@ -481,81 +606,15 @@ static exr_result_t read_chunks(exr_const_context_t ctx, int32_t min_y, pt_image
 static pt_status exr_read(const char *path, int follow, int layers, pt_image **out,
                           pt_exr_meta *meta, const char *attr, char **attr_out, pt_error *err)
 {
-    if (!path)
-        return pt_error_set(err, PT_ERR_ARG, "EXR read: no path");
-    pt_status st = PT_OK;
-    exr_context_t ctx = NULL;
-    pt_image *img = NULL;
-    exr_stream s = {.fd = -1};
-    exr_context_initializer_t init;
-    exr_result_t rv;
-    stream_init(&init, &s);
-    init.read_fn = stream_read;
-    init.size_fn = stream_size;
-    init.max_image_width = PT_IMAGE_MAX_SIDE;
-    init.max_image_height = PT_IMAGE_MAX_SIDE;
-    /* A truncated file is an error, not something to guess around. */
-    init.flags = EXR_CONTEXT_FLAG_DISABLE_CHUNK_RECONSTRUCTION;
-
-    pt_error oerr = {0};
-    if ((st = pt_open_regular(path, follow, &s.fd, &oerr)) != PT_OK) {
-        pt_error_set(err, st, "EXR %s", oerr.msg);
-        if (err)
-            err->sys_errno = oerr.sys_errno;
+    exr_src src;
+    pt_status st = src_open(path, follow, out ? UINT64_MAX : 0, &src, err);
+    if (st != PT_OK)
         return st;
-    }
-    struct stat sb;
-    if (fstat(s.fd, &sb) != 0) {
-        st = pt_error_errno(err, PT_ERR_IO, "EXR %s: stat", path);
-        goto fail;
-    }
-    s.size = (int64_t)sb.st_size;
-    if ((rv = exr_start_read(&ctx, path, &init)) != EXR_ERR_SUCCESS) {
-        st = exr_fail(err, &s, rv, path, "not a readable OpenEXR file");
-        goto fail;
-    }
-    int parts = 0;
-    exr_storage_t storage = EXR_STORAGE_LAST_TYPE;
-    if ((rv = exr_get_count(ctx, &parts)) != EXR_ERR_SUCCESS || parts < 1 ||
-        (rv = exr_get_storage(ctx, 0, &storage)) != EXR_ERR_SUCCESS) {
-        st = rv ? exr_fail(err, &s, rv, path, "no image part")
-                : pt_error_set(err, PT_ERR_FORMAT, "EXR %s: no image part", path);
-        goto fail;
-    }
-    if (storage != EXR_STORAGE_SCANLINE) {
-        st = pt_error_set(err, PT_ERR_FORMAT, "EXR %s: part 0 is %s; only scanline images are read",
-                          path, storage == EXR_STORAGE_TILED ? "tiled" : "deep");
-        goto fail;
-    }
-    exr_attr_box2i_t dw;
-    if ((rv = exr_get_data_window(ctx, 0, &dw)) != EXR_ERR_SUCCESS) {
-        st = exr_fail(err, &s, rv, path, "no data window");
-        goto fail;
-    }
-    int64_t w = (int64_t)dw.max.x - dw.min.x + 1, h = (int64_t)dw.max.y - dw.min.y + 1;
-    if (w < 1 || h < 1 || w > PT_IMAGE_MAX_SIDE || h > PT_IMAGE_MAX_SIDE) {
-        st = pt_error_set(err, w < 1 || h < 1 ? PT_ERR_FORMAT : PT_ERR_LIMIT,
-                          "EXR %s: data window %" PRId64 "x%" PRId64 " is empty or over the cap",
-                          path, w, h);
-        goto fail;
-    }
-    /* Deflate, the strongest of the lossless codecs, expands a byte to at
-     * most 1032; at 6 bytes a pixel (half R, G, B) that is 172 pixels a
-     * byte. A header claiming more pixels than its file can hold is refused
-     * before the allocation, so that a few hundred hostile bytes cannot make
-     * the reader ask for gigabytes (a map arrives from clients). */
-    if (out && (uint64_t)w * (uint64_t)h > (uint64_t)s.size * PT_EXR_MAX_PIXELS_PER_BYTE + 65536) {
-        st = pt_error_set(err, PT_ERR_FORMAT,
-                          "EXR %s: %" PRId64 "x%" PRId64 " pixels cannot be in %" PRId64 " bytes",
-                          path, w, h, s.size);
-        goto fail;
-    }
-    const exr_attr_chlist_t *chl = NULL;
-    if ((rv = exr_get_channels(ctx, 0, &chl)) != EXR_ERR_SUCCESS || !chl) {
-        st = rv ? exr_fail(err, &s, rv, path, "no channel list")
-                : pt_error_set(err, PT_ERR_FORMAT, "EXR %s: no channel list", path);
-        goto fail;
-    }
+    exr_context_t ctx = src.ctx;
+    int64_t w = src.w, h = src.h;
+    const exr_attr_chlist_t *chl = src.chl;
+    pt_image *img = NULL;
+    exr_result_t rv;
     int have_rgb = 0;
     uint32_t has_alpha = 0, extra = 0;
     for (int i = 0; i < chl->num_channels; i++) {
@@ -583,11 +642,11 @@ static pt_status exr_read(const char *path, int follow, int layers, pt_image **o
      * bound on the file's pixels, over all the planes read. */
     if (out && extra > 0 &&
         (uint64_t)w * (uint64_t)h * (extra + 6) >
-            ((uint64_t)s.size * PT_EXR_MAX_PIXELS_PER_BYTE + 65536) * 6) {
+            ((uint64_t)src.s.size * PT_EXR_MAX_PIXELS_PER_BYTE + 65536) * 6) {
         st = pt_error_set(err, PT_ERR_FORMAT,
                           "EXR %s: %u layers' channels of %" PRId64 "x%" PRId64
                           " pixels cannot be in %" PRId64 " bytes",
-                          path, extra, w, h, s.size);
+                          path, extra, w, h, src.s.size);
         goto fail;
     }
     pt_error ierr = {0};
@@ -610,8 +669,8 @@ static pt_status exr_read(const char *path, int follow, int layers, pt_image **o
     }
     if (img)
         img->has_alpha = has_alpha;
-    if (out && (rv = read_chunks(ctx, dw.min.y, img)) != EXR_ERR_SUCCESS) {
-        st = exr_fail(err, &s, rv, path, "cannot decode the pixels");
+    if (out && (rv = read_chunks(ctx, src.dw.min.y, img)) != EXR_ERR_SUCCESS) {
+        st = exr_fail(err, &src.s, rv, path, "cannot decode the pixels");
         goto fail;
     }
     if (meta)
@@ -632,17 +691,14 @@ static pt_status exr_read(const char *path, int follow, int layers, pt_image **o
         copy[alen] = '\0';
         *attr_out = copy;
     }
-    exr_finish(&ctx);
-    close(s.fd);
+    src_close(&src);
     if (out)
         *out = img;
     return PT_OK;
 
 fail:
     pt_image_free(img);
-    if (ctx)
-        exr_finish(&ctx);
-    close(s.fd);
+    src_close(&src);
     return st;
 }
 
@@ -667,109 +723,6 @@ pt_status pt_exr_read_nofollow(const char *path, pt_image **out, pt_exr_meta *me
 }
 
 /* ---- named channels ---- */
-
-/* An EXR opened for reading every channel of part 0, its layout checked. */
-typedef struct exr_src {
-    exr_context_t ctx;
-    exr_stream s;
-    exr_attr_box2i_t dw;
-    uint32_t w, h;
-    const exr_attr_chlist_t *chl;
-} exr_src;
-
-static void src_close(exr_src *src)
-{
-    if (src->ctx)
-        exr_finish(&src->ctx);
-    if (src->s.fd >= 0)
-        close(src->s.fd);
-    src->s.fd = -1;
-}
-
-/* Opens path and checks what exr_read checks (scanline part 0, a data window
- * within the caps and possible in the file's bytes, a channel list), and
- * that no channel is subsampled. */
-static pt_status src_open(const char *path, exr_src *src, pt_error *err)
-{
-    memset(src, 0, sizeof *src);
-    src->s.fd = -1;
-    if (!path)
-        return pt_error_set(err, PT_ERR_ARG, "EXR read: no path");
-    exr_context_initializer_t init;
-    exr_result_t rv;
-    pt_status st;
-    stream_init(&init, &src->s);
-    init.read_fn = stream_read;
-    init.size_fn = stream_size;
-    init.max_image_width = PT_IMAGE_MAX_SIDE;
-    init.max_image_height = PT_IMAGE_MAX_SIDE;
-    init.flags = EXR_CONTEXT_FLAG_DISABLE_CHUNK_RECONSTRUCTION;
-    pt_error oerr = {0};
-    if ((st = pt_open_regular(path, 1, &src->s.fd, &oerr)) != PT_OK) {
-        pt_error_set(err, st, "EXR %s", oerr.msg);
-        if (err)
-            err->sys_errno = oerr.sys_errno;
-        src->s.fd = -1;
-        return st;
-    }
-    struct stat sb;
-    if (fstat(src->s.fd, &sb) != 0) {
-        st = pt_error_errno(err, PT_ERR_IO, "EXR %s: stat", path);
-        goto fail;
-    }
-    src->s.size = (int64_t)sb.st_size;
-    if ((rv = exr_start_read(&src->ctx, path, &init)) != EXR_ERR_SUCCESS) {
-        st = exr_fail(err, &src->s, rv, path, "not a readable OpenEXR file");
-        goto fail;
-    }
-    int parts = 0;
-    exr_storage_t storage = EXR_STORAGE_LAST_TYPE;
-    if ((rv = exr_get_count(src->ctx, &parts)) != EXR_ERR_SUCCESS || parts < 1 ||
-        (rv = exr_get_storage(src->ctx, 0, &storage)) != EXR_ERR_SUCCESS ||
-        storage != EXR_STORAGE_SCANLINE) {
-        st = pt_error_set(err, PT_ERR_FORMAT, "EXR %s: part 0 is not a scanline image", path);
-        goto fail;
-    }
-    if ((rv = exr_get_data_window(src->ctx, 0, &src->dw)) != EXR_ERR_SUCCESS) {
-        st = exr_fail(err, &src->s, rv, path, "no data window");
-        goto fail;
-    }
-    int64_t w = (int64_t)src->dw.max.x - src->dw.min.x + 1,
-            h = (int64_t)src->dw.max.y - src->dw.min.y + 1;
-    if (w < 1 || h < 1 || w > PT_IMAGE_MAX_SIDE || h > PT_IMAGE_MAX_SIDE ||
-        (uint64_t)w * (uint64_t)h > PT_IMAGE_MAX_PIXELS) {
-        st = pt_error_set(err, w < 1 || h < 1 ? PT_ERR_FORMAT : PT_ERR_LIMIT,
-                          "EXR %s: data window %" PRId64 "x%" PRId64 " is empty or over the cap",
-                          path, w, h);
-        goto fail;
-    }
-    /* As exr_read: no more pixels than the file's bytes can hold. */
-    if ((uint64_t)w * (uint64_t)h > (uint64_t)src->s.size * PT_EXR_MAX_PIXELS_PER_BYTE + 65536) {
-        st = pt_error_set(err, PT_ERR_FORMAT,
-                          "EXR %s: %" PRId64 "x%" PRId64 " pixels cannot be in %" PRId64 " bytes",
-                          path, w, h, src->s.size);
-        goto fail;
-    }
-    if ((rv = exr_get_channels(src->ctx, 0, &src->chl)) != EXR_ERR_SUCCESS || !src->chl ||
-        src->chl->num_channels < 1) {
-        st = pt_error_set(err, PT_ERR_FORMAT, "EXR %s: no channel list", path);
-        goto fail;
-    }
-    for (int i = 0; i < src->chl->num_channels; i++) {
-        const exr_attr_chlist_entry_t *e = &src->chl->entries[i];
-        if (e->x_sampling != 1 || e->y_sampling != 1) {
-            st = pt_error_set(err, PT_ERR_FORMAT, "EXR %s: channel %s is subsampled", path,
-                              e->name.str ? e->name.str : "");
-            goto fail;
-        }
-    }
-    src->w = (uint32_t)w;
-    src->h = (uint32_t)h;
-    return PT_OK;
-fail:
-    src_close(src);
-    return st;
-}
 
 static int chl_index(const exr_attr_chlist_t *chl, const char *name)
 {
@@ -854,7 +807,7 @@ pt_status pt_exr_read_channels(const char *path, unsigned n, const char *const n
         return pt_error_set(err, PT_ERR_ARG, "EXR read: %u channels asked, at most %u", n,
                             PT_EXR_MAX_CHANNELS);
     exr_src src;
-    pt_status st = src_open(path, &src, err);
+    pt_status st = src_open_full(path, &src, err);
     if (st != PT_OK)
         return st;
     int nch = src.chl->num_channels;
@@ -1019,7 +972,7 @@ pt_status pt_exr_write_with_channels(const char *src_path, const char *dst_path,
             return pt_error_set(err, PT_ERR_ARG, "EXR %s: channel %u has no name or pixels",
                                 dst_path, i);
     exr_src src;
-    pt_status st = src_open(src_path, &src, err);
+    pt_status st = src_open_full(src_path, &src, err);
     if (st != PT_OK)
         return st;
     int nch = src.chl->num_channels;
