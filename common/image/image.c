@@ -1,7 +1,6 @@
 #include "common/image/image.h"
 
 #include <errno.h>
-#include <math.h>
 #include <stdio.h>
 #include <string.h>
 #include <strings.h>
@@ -103,21 +102,6 @@ pt_status pt_image_add_plane(pt_image *img, const char *name, float **out, pt_er
     if (out)
         *out = d;
     return PT_OK;
-}
-
-/* IEC 61966-2-1:1999, section 5.2 (encoding) and its inverse. */
-float pt_srgb_to_linear(float c)
-{
-    if (c <= 0.04045f)
-        return c / 12.92f;
-    return powf((c + 0.055f) / 1.055f, 2.4f);
-}
-
-float pt_linear_to_srgb(float c)
-{
-    if (c <= 0.0031308f)
-        return c * 12.92f;
-    return 1.055f * powf(c, 1.0f / 2.4f) - 0.055f;
 }
 
 /* stb's PNG bytes, gathered in memory for one atomic write. */

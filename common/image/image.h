@@ -98,8 +98,4 @@ pt_status pt_png_write_preview(const char *path, const pt_image *img, const pt_v
 pt_status pt_png_encode_rgb8(const uint8_t *rgb, uint32_t width, uint32_t height, uint8_t **out,
                              size_t *len, pt_error *err);
 
-/* sRGB transfer functions (IEC 61966-2-1). */
-float pt_srgb_to_linear(float c);
-float pt_linear_to_srgb(float c);
-
 #endif

@@ -3,9 +3,22 @@
 #include <math.h>
 #include <string.h>
 
-#include "common/image/image.h"
-
 static const char *const names[] = {"standard", "filmic", "agx"};
+
+/* IEC 61966-2-1:1999, section 5.2 (encoding) and its inverse. */
+float pt_srgb_to_linear(float c)
+{
+    if (c <= 0.04045f)
+        return c / 12.92f;
+    return powf((c + 0.055f) / 1.055f, 2.4f);
+}
+
+float pt_linear_to_srgb(float c)
+{
+    if (c <= 0.0031308f)
+        return c * 12.92f;
+    return 1.055f * powf(c, 1.0f / 2.4f) - 0.055f;
+}
 
 pt_status pt_view_parse(const char *opt, const char *name, pt_view_kind *out, pt_error *err)
 {

@@ -54,6 +54,10 @@ const char *pt_view_name(pt_view_kind kind);
  * into display values 0..255 (sRGB-encoded). NaN and negatives go to 0. */
 void pt_view_pixel(const pt_view *v, const float rgb[3], uint8_t out[3]);
 
+/* sRGB transfer functions (IEC 61966-2-1). */
+float pt_srgb_to_linear(float c);
+float pt_linear_to_srgb(float c);
+
 /* The transform alone on one channel value x (already exposed), as a display
  * value in [0, 1] before rounding: the tests' window into the curves. For
  * agx the channel is taken as a grey (r = g = b = x). */
