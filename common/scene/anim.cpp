@@ -60,26 +60,10 @@ void mat_mul(const double *a, const double *b, double *r)
     memcpy(r, t, sizeof t);
 }
 
-// Cofactor matrix of the upper 3x3 (the inverse transpose times the
-// determinant), c[row][col], and the determinant.
-double normal_matrix(const double *m, double c[3][3])
-{
-    double a[3][3];
-    for (int r = 0; r < 3; r++)
-        for (int k = 0; k < 3; k++)
-            a[r][k] = m[k * 4 + r];
-    for (int r = 0; r < 3; r++)
-        for (int k = 0; k < 3; k++) {
-            int r1 = (r + 1) % 3, r2 = (r + 2) % 3, k1 = (k + 1) % 3, k2 = (k + 2) % 3;
-            c[r][k] = a[r1][k1] * a[r2][k2] - a[r1][k2] * a[r2][k1];
-        }
-    return a[0][0] * c[0][0] + a[0][1] * c[0][1] + a[0][2] * c[0][2];
-}
-
 // Spherical linear interpolation of unit quaternions along the shorter arc
 // (glTF 2.0, Appendix C "Interpolation"), falling back to a normalised lerp
 // where the two are too close for the sine ratio.
-void slerp(const float *a, const float *b_in, double u, double *out)
+static void slerp(const float *a, const float *b_in, double u, double *out)
 {
     double b[4] = {b_in[0], b_in[1], b_in[2], b_in[3]};
     double d =
@@ -333,7 +317,7 @@ pt_status pose(const pt_anim &a, double t, const pt_scene *s, pt_anim_pose_out *
             for (size_t j = 0; j < sk.joints.size(); j++)
                 mat_mul(&ps.global[16 * size_t(sk.joints[j])], &sk.ibm[16 * j], &jm[16 * j]);
         } else {
-            det = normal_matrix(W, c);
+            det = pt_normal_matrix(W, c);
         }
         (void)nd;
         bool geo = p.nrm.empty();
@@ -377,7 +361,7 @@ pt_status pose(const pt_anim &a, double t, const pt_scene *s, pt_anim_pose_out *
                         skinned[e] += wi * J[e];
                 }
                 M = skinned;
-                det = normal_matrix(M, c);
+                det = pt_normal_matrix(M, c);
             }
             double *o = &P[3 * (size_t(p.v0) + v)];
             for (int r = 0; r < 3; r++)

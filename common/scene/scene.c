@@ -542,9 +542,7 @@ pt_status pt_scene_builder_add_camera(pt_scene_builder *b, const pt_camera *cam,
     return pt_scene_builder_add_camera_at(b, cam, p, err);
 }
 
-/* 3x3 cofactor matrix of the column-major 4x4's upper-left block, as rows
- * c[r][k] so that n' = c * n, and the determinant. cof(A) = det(A) inv(A)^T. */
-static double normal_matrix(const double *m, double c[3][3])
+double pt_normal_matrix(const double *m, double c[3][3])
 {
     double a[3][3]; /* a[row][col] */
     for (int r = 0; r < 3; r++)
@@ -682,7 +680,7 @@ pt_status pt_scene_builder_add_mesh_extra(pt_scene_builder *b, const char *what,
         return pt_error_set(err, PT_ERR_NOMEM, "%s: out of memory", what);
 
     double c[3][3];
-    double det = normal_matrix(xform, c);
+    double det = pt_normal_matrix(xform, c);
     double nsign = det < 0 ? -1.0 : 1.0;
     double *P = b->pos + 3 * (size_t)b->nv;
     float *N = b->nrm + 3 * (size_t)b->nv;

@@ -520,6 +520,12 @@ pt_status pt_scene_list(const char *path, FILE *out, pt_error *err);
  * bounds (empty, infinite) get a unit sphere's view. framed is set. */
 void pt_camera_frame(pt_vec3 lo, pt_vec3 hi, float aspect, pt_camera *out);
 
+/* The 3x3 cofactor matrix of the column-major 4x4 m's upper-left block (m
+ * NULL: the identity), as rows c[r][k] so that a normal goes to c * n, and
+ * the block's determinant. cof(A) = det(A) inv(A)^T: normals stay
+ * perpendicular to transformed surfaces without an inverse. */
+double pt_normal_matrix(const double *m, double c[3][3]);
+
 /* Sets scene->camera to pt_camera_frame of its bounds for `aspect`. The
  * renderer frames such a camera again for its image's aspect from the
  * bounds as they are then (posed at the requested time). */
