@@ -21,6 +21,7 @@
 typedef struct srv_caps {
     uint32_t max_side;   /* longest image side a client may ask for */
     uint64_t max_pixels; /* width x height */
+    uint64_t max_film;   /* bytes of one job's film on the coordinator (srv_film_bytes) */
     uint32_t max_spp;
     uint64_t max_scene;  /* bundle bytes */
     uint32_t max_queued; /* unfinished jobs per client identity */

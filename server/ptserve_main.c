@@ -58,6 +58,9 @@ static void usage(FILE *f)
         "                         ID-NAME.exr with NAME reduced to [A-Za-z0-9._-]\n"
         "  --max-res N            longest image side a client may ask for (default 16384)\n"
         "  --max-pixels N         width x height a client may ask for (default 16777216)\n"
+        "  --max-film-mb N        coordinator memory one job's film may take, its render\n"
+        "                         passes included (72 bytes a pixel, 480 with passes;\n"
+        "                         default 4096: a 3840x2160 frame with every pass)\n"
         "  --max-spp N            samples per pixel a client may ask for (default 65536)\n"
         "  --max-scene-mb N       scene upload size limit in MiB (default 512)\n"
         "  --max-queued N         unfinished jobs per client identity (default 64)\n"
@@ -259,7 +262,8 @@ enum {
     O_TASKTIME,
     O_MERGETHREADS,
     O_IOTHREADS,
-    O_MAXLOG
+    O_MAXLOG,
+    O_MAXFILM
 };
 static const struct option own[] = {
     {"output", required_argument, NULL, 'o'},
@@ -283,6 +287,7 @@ static const struct option own[] = {
     {"output-dir", required_argument, NULL, O_OUTDIR},
     {"max-res", required_argument, NULL, O_MAXRES},
     {"max-pixels", required_argument, NULL, O_MAXPIX},
+    {"max-film-mb", required_argument, NULL, O_MAXFILM},
     {"max-spp", required_argument, NULL, O_MAXSPP},
     {"max-scene-mb", required_argument, NULL, O_MAXSCENE},
     {"max-queued", required_argument, NULL, O_MAXQUEUED},
@@ -315,6 +320,7 @@ static void config_defaults(srv_config *c, parsed *x)
     c->caps.max_pixels = 16777216;
     c->caps.max_spp = 65536;
     c->caps.max_scene = 512ull << 20;
+    c->caps.max_film = 4096ull << 20;
     c->caps.max_queued = 64;
     proto_env_none(&c->job.env);
     x->lease = 20.0;
@@ -400,6 +406,10 @@ static pt_status own_option(int ch, srv_config *c, parsed *x, pt_error *err)
         break;
     case O_MAXQUEUED:
         st = pt_opt_u32("--max-queued", optarg, 1, 100000, &c->caps.max_queued, err);
+        break;
+    case O_MAXFILM:
+        if ((st = pt_opt_u32("--max-film-mb", optarg, 1, 1u << 22, &v, err)) == PT_OK)
+            c->caps.max_film = (uint64_t)v << 20;
         break;
     case O_MAXLOG:
         if ((st = pt_opt_u32("--max-log-mb", optarg, 1, 1u << 20, &v, err)) == PT_OK)

@@ -160,6 +160,17 @@ static int submit_refused(srv_server *s, srv_conn *c, const proto_submit *m)
                             (unsigned long long)cap->max_pixels);
         return 1;
     }
+    uint64_t film = srv_film_bytes(m->width, m->height, m->film_flags);
+    if (cap->max_film && film > cap->max_film) {
+        srv_conn_send_error(s, c, PROTO_E_LIMIT,
+                            "a %ux%u film%s takes %llu MiB on the coordinator, over this "
+                            "server's limit of %llu MiB (ptserve --max-film-mb)",
+                            m->width, m->height,
+                            proto_film_passes(m->film_flags) ? " with render passes" : "",
+                            (unsigned long long)((film + (1u << 20) - 1) >> 20),
+                            (unsigned long long)(cap->max_film >> 20));
+        return 1;
+    }
     if (m->max_depth > PT_RENDER_MAX_DEPTH || (m->min_spp && m->min_spp < 2) ||
         m->min_spp > m->spp) {
         srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "max depth %u or min spp %u is out of range",

@@ -107,9 +107,13 @@ static srv_entry *new_frame(srv_server *s, srv_entry *p, uint32_t number, pt_err
     return f;
 }
 
-uint32_t srv_frames_in_flight(const srv_caps *caps, uint32_t width, uint32_t height)
+uint32_t srv_frames_in_flight(const srv_caps *caps, uint32_t width, uint32_t height,
+                              uint32_t film_flags)
 {
     uint64_t px = (uint64_t)width * height, n = px ? caps->max_pixels / px : SRV_FRAMES_AHEAD;
+    uint64_t film = srv_film_bytes(width, height, film_flags);
+    if (caps->max_film && film && caps->max_film / film < n)
+        n = caps->max_film / film;
     return n < 1 ? 1 : n > SRV_FRAMES_AHEAD ? SRV_FRAMES_AHEAD : (uint32_t)n;
 }
 
@@ -120,7 +124,7 @@ static int fill_window(srv_server *s, srv_entry *p)
 {
     struct srv_frames *fr = p->frames;
     const srv_job_params *jp = &p->rec.params;
-    uint32_t ahead = srv_frames_in_flight(&s->cfg->caps, jp->width, jp->height);
+    uint32_t ahead = srv_frames_in_flight(&s->cfg->caps, jp->width, jp->height, jp->film_flags);
     while (fr->nwin < ahead && fr->next < fr->count && fr->next < p->rec.frames_done + ahead) {
         uint32_t idx = fr->next++;
         if (is_done(&p->rec, idx))

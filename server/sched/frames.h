@@ -13,13 +13,12 @@
  * done (server/store/state.h).
  *
  * At most srv_frames_in_flight frames render at once (SRV_FRAMES_AHEAD, fewer
- * for large frames: no more pixels than --max-pixels, so a range holds no
- * more film than the largest still could): the first frame not done and the
- * ones after it (never one that many or more past it). A free
- * worker slot gets a task of the earliest of them that has one to hand out,
- * so early frames finish first and the farm moves on to later ones only when
- * earlier ones have nothing left to hand out (their last pass). Each task
- * carries its frame's pose (TASK: animate, time = frame / fps, animation).
+ * for large frames: no more pixels than --max-pixels and no more film than
+ * --max-film-mb, so a range holds no more film than the largest still could): the first frame not
+ * done and the ones after it (never one that many or more past it). A free worker slot gets a task
+ * of the earliest of them that has one to hand out, so early frames finish first and the farm moves
+ * on to later ones only when earlier ones have nothing left to hand out (their last pass). Each
+ * task carries its frame's pose (TASK: animate, time = frame / fps, animation).
  *
  * A frame that is done has its image written, then its index recorded in
  * the range's record and the queue file written, and only then are its
@@ -90,8 +89,10 @@ pt_status srv_frames_path(const srv_entry *p, uint32_t number, char *out, size_t
  * the last one done; "" when none. */
 void srv_frames_latest(const srv_entry *p, char *out, size_t cap);
 
-/* How many frames of width x height pixels a range renders at once: as many
- * as fit in caps->max_pixels, at least 1, at most SRV_FRAMES_AHEAD. */
-uint32_t srv_frames_in_flight(const srv_caps *caps, uint32_t width, uint32_t height);
+/* How many frames of width x height pixels with film_flags' passes a range
+ * renders at once: as many as fit in caps->max_pixels and whose films fit in
+ * caps->max_film (0: no such cap), at least 1, at most SRV_FRAMES_AHEAD. */
+uint32_t srv_frames_in_flight(const srv_caps *caps, uint32_t width, uint32_t height,
+                              uint32_t film_flags);
 
 #endif

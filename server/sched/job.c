@@ -18,6 +18,12 @@ void job_settle(const srv_job *j)
         srv_adder_settle(j->adder, &j->adds);
 }
 
+uint64_t srv_film_bytes(uint32_t width, uint32_t height, uint32_t film_flags)
+{
+    return (uint64_t)width * height *
+           (sizeof(pt_pixel_acc) + (proto_film_passes(film_flags) ? sizeof(pt_pass_acc) : 0));
+}
+
 size_t job_px_bytes(const srv_job *j, size_t npx)
 {
     return npx * (sizeof(pt_pixel_acc) + (j->film->pass ? sizeof(pt_pass_acc) : 0));

@@ -160,6 +160,11 @@ pt_status srv_job_new(uint64_t id, const srv_job_params *p, const uint8_t scene_
                       srv_job **out, pt_error *err);
 void srv_job_free(srv_job *job); /* accepts NULL; settles first */
 
+/* The bytes of a width x height film with film_flags' passes on the
+ * coordinator: every pixel's exact sums, and its pass sums when it has any
+ * (72 and 408 bytes). */
+uint64_t srv_film_bytes(uint32_t width, uint32_t height, uint32_t film_flags);
+
 /* Film adds through a (server/sched/adder.h; NULL: made at once, the default):
  * a merged task's add is posted when the job may free its pixels (a result
  * that owns them, a held one) and the task ends at no adaptive decision

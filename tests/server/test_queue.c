@@ -1552,6 +1552,16 @@ static void hostile_clients(void)
     submit_begin(&c, &m);
     CHECK(reply(&c, &f) == -2 && strstr(err_text, "over this server's limit"));
     cli_close(&c);
+    /* A film over --max-film-mb (default 4096 MiB): 4096x4096 is within the
+     * pixel cap, but with render passes its film would take 7.5 GiB. */
+    CHECK(cli_open(&c, g_port) == 0);
+    m = job_of("film", 4096, 4096, 16, 0);
+    m.film_flags = proto_film_of_passes(PT_PASS_ALL);
+    m.bundle_size = N;
+    submit_begin(&c, &m);
+    CHECK(reply(&c, &f) == -2 && strstr(err_text, "with render passes takes 7680 MiB") &&
+          strstr(err_text, "--max-film-mb"));
+    cli_close(&c);
     /* Uploads that do not continue what SUBMIT announced: a wrong total, a gap. */
     for (int k = 0; k < 2; k++) {
         CHECK(cli_open(&c, g_port) == 0);

@@ -20,6 +20,9 @@
  *  e. A job ended early (cancelled) raises job_ended (workers drop its
  *     tasks) and job_changed; a queued one never started raises no
  *     job_ended.
+ *  f. Frames in flight hold no more pixels than --max-pixels and no more
+ *     film than --max-film-mb: render passes (480 bytes a pixel against 72)
+ *     leave fewer frames in flight.
  */
 #define _DEFAULT_SOURCE /* usleep, mkdtemp */
 #include <stdio.h>
@@ -354,6 +357,25 @@ static void ended_early(void)
     srv_queue_free(&s);
 }
 
+static void frames_in_flight(void)
+{
+    srv_caps caps = {.max_pixels = 16777216, .max_film = 4096ull << 20};
+    uint32_t all = proto_film_of_passes(PT_PASS_ALL);
+    CHECK(srv_film_bytes(1920, 1080, 0) == 1920ull * 1080 * 72);
+    CHECK(srv_film_bytes(1920, 1080, all) == 1920ull * 1080 * 480);
+    /* 1080p: 8 frames' pixels fit, and 8 beauty films (1.2 GB); with passes
+     * a film is 995 MB, so 4 fit in 4 GiB. */
+    CHECK(srv_frames_in_flight(&caps, 1920, 1080, 0) == SRV_FRAMES_AHEAD);
+    CHECK(srv_frames_in_flight(&caps, 1920, 1080, all) == 4);
+    /* 4K with passes: one film (3.98 GB) at a time; larger: still one. */
+    CHECK(srv_frames_in_flight(&caps, 3840, 2160, all) == 1);
+    CHECK(srv_frames_in_flight(&caps, 4096, 4096, all) == 1);
+    /* No film cap (0): pixels alone, as before. */
+    caps.max_film = 0;
+    CHECK(srv_frames_in_flight(&caps, 1920, 1080, all) == SRV_FRAMES_AHEAD);
+    CHECK(srv_frames_in_flight(&caps, 4096, 2048, all) == 2);
+}
+
 int main(void)
 {
     if (!mkdtemp(dir)) {
@@ -365,6 +387,7 @@ int main(void)
     verification();
     frame_range();
     ended_early();
+    frames_in_flight();
     char cmd[128];
     snprintf(cmd, sizeof cmd, "rm -rf %s", dir);
     if (system(cmd) != 0)
