@@ -59,8 +59,9 @@ typedef struct tile_job {
     void *ctx;
     int ntiles;
     size_t scratch_bytes;
+    const atomic_int *cancel; /* NULL, or set from outside: stop */
     atomic_int next;
-    atomic_int failed;
+    atomic_int failed; /* 1: out of memory; 2: cancelled */
 } tile_job;
 
 static void *tile_worker(void *arg)
@@ -75,6 +76,10 @@ static void *tile_worker(void *arg)
         int t = atomic_fetch_add(&job->next, 1);
         if (t >= job->ntiles || atomic_load(&job->failed))
             break;
+        if (job->cancel && atomic_load(job->cancel)) {
+            atomic_store(&job->failed, 2);
+            break;
+        }
         if (job->fn(job->ctx, t, scratch) != 0)
             atomic_store(&job->failed, 1);
     }
@@ -82,10 +87,11 @@ static void *tile_worker(void *arg)
     return NULL;
 }
 
-static pt_status run_tiles(unsigned threads, int ntiles, size_t scratch_bytes, tile_fn fn,
-                           void *ctx, pt_error *err)
+static pt_status run_tiles(unsigned threads, const atomic_int *cancel, int ntiles,
+                           size_t scratch_bytes, tile_fn fn, void *ctx, pt_error *err)
 {
-    tile_job job = {.fn = fn, .ctx = ctx, .ntiles = ntiles, .scratch_bytes = scratch_bytes};
+    tile_job job = {
+        .fn = fn, .ctx = ctx, .ntiles = ntiles, .scratch_bytes = scratch_bytes, .cancel = cancel};
     atomic_init(&job.next, 0);
     atomic_init(&job.failed, 0);
     pthread_t tid[PT_DENOISE_MAX_THREADS];
@@ -98,13 +104,16 @@ static pt_status run_tiles(unsigned threads, int ntiles, size_t scratch_bytes, t
     tile_worker(&job);
     for (unsigned i = 0; i < started; i++)
         pthread_join(tid[i], NULL);
+    if (atomic_load(&job.failed) == 2)
+        return pt_error_set(err, PT_AGAIN, "denoise: cancelled");
     if (atomic_load(&job.failed))
         return pt_error_set(err, PT_ERR_NOMEM, "denoise: out of memory");
     return PT_OK;
 }
 
 typedef struct dims {
-    int w, h, tx, ty; /* image size; tiles across and down */
+    int w, h, tx, ty;         /* image size; tiles across and down */
+    const atomic_int *cancel; /* pt_denoise_input's */
 } dims;
 
 static rect tile_rect(const dims *d, int t)
@@ -383,7 +392,7 @@ static pt_status nlmeans(const dims *dm, unsigned threads, const guide *gd, floa
         cx.src[c] = src[c];
         cx.dst[c] = dst[c];
     }
-    return run_tiles(threads, dm->tx * dm->ty, NLM_SCRATCH_BYTES, nlm_tile, &cx, err);
+    return run_tiles(threads, dm->cancel, dm->tx * dm->ty, NLM_SCRATCH_BYTES, nlm_tile, &cx, err);
 }
 
 /* ---- first-order regression with collaborative accumulation ---- */
@@ -617,7 +626,8 @@ static pt_status regression(const dims *dm, unsigned threads, const guide *gd, i
         st = pt_error_set(err, PT_ERR_NOMEM, "denoise: out of memory");
         goto done;
     }
-    if ((st = run_tiles(threads, ntiles, REG_SCRATCH_BYTES, reg_tile, &cx, err)) != PT_OK)
+    if ((st = run_tiles(threads, dm->cancel, ntiles, REG_SCRATCH_BYTES, reg_tile, &cx, err)) !=
+        PT_OK)
         goto done;
     for (int m = 0; m < ncand; m++) {
         memset(sum, 0, 4 * n * sizeof(double));
@@ -895,7 +905,7 @@ pt_status pt_denoise(const pt_denoise_input *in, unsigned threads, float *const 
         return pt_error_set(err, PT_ERR_ARG, "denoise: %u threads, at most %u", threads,
                             PT_DENOISE_MAX_THREADS);
     dims dm = {(int)in->width, (int)in->height, ((int)in->width + TILE - 1) / TILE,
-               ((int)in->height + TILE - 1) / TILE};
+               ((int)in->height + TILE - 1) / TILE, in->cancel};
     size_t n = (size_t)in->width * in->height;
     float *mem = pt_malloc_array(n * P_COUNT, sizeof(float));
     if (!mem)

@@ -56,6 +56,7 @@
 #ifndef PT_COMMON_IMAGE_DENOISE_H
 #define PT_COMMON_IMAGE_DENOISE_H
 
+#include <stdatomic.h>
 #include <stdint.h>
 
 #include "common/base/error.h"
@@ -88,6 +89,10 @@ typedef struct pt_denoise_input {
      * maximum is scaled down to it; 0 turns it off, PT_DENOISE_DESPECKLE is
      * the default of the programs; at least 1 otherwise. */
     float despeckle;
+    /* NULL, or a flag another thread may set to stop the work early:
+     * pt_denoise then returns PT_AGAIN ("cancelled") with out partly
+     * written. Read between tiles. */
+    const atomic_int *cancel;
 } pt_denoise_input;
 
 #define PT_DENOISE_DESPECKLE 3.0f
@@ -106,7 +111,8 @@ pt_status pt_denoise_check(const pt_denoise_input *in, pt_error *err);
 /* Denoises in into out[0..2] (R, G, B; width x height floats each, caller's;
  * may not alias the input) with `threads` threads (0: 1; at most
  * PT_DENOISE_MAX_THREADS). Runs pt_denoise_check first and returns its
- * refusal; PT_ERR_NOMEM when memory runs out (out then partly written). The
+ * refusal; PT_ERR_NOMEM when memory runs out, PT_AGAIN when in->cancel was
+ * set (out then partly written). The
  * output is the same bits for any thread count. Memory: 53 floats and about
  * 14 doubles a pixel besides the input. */
 pt_status pt_denoise(const pt_denoise_input *in, unsigned threads, float *const out[3],

@@ -273,6 +273,26 @@ static void test_despeckle_keeps_light(void)
     scene_free(&s);
 }
 
+/* A cancel flag set before the call stops it: PT_AGAIN naming it; clear,
+ * the work is done. */
+static void test_cancel(void)
+{
+    scene s;
+    CHECK(scene_alloc(&s, 40, 40) == 0);
+    scene_truth(&s);
+    scene_noise(&s, 0.05, 23);
+    pt_denoise_input in = scene_input(&s);
+    atomic_int flag;
+    atomic_init(&flag, 1);
+    in.cancel = &flag;
+    pt_error err = {0};
+    CHECK(pt_denoise(&in, 2, s.out, &err) == PT_AGAIN);
+    CHECKF(strstr(err.msg, "cancelled") != NULL, "%s", err.msg);
+    atomic_store(&flag, 0);
+    CHECKF(pt_denoise(&in, 2, s.out, &err) == PT_OK, "%s", err.msg);
+    scene_free(&s);
+}
+
 /* The same bits for 1, 2, 3 and 8 threads on an image whose tiles are not
  * whole (the edges are cut). */
 static void test_threads(void)
@@ -390,6 +410,7 @@ int main(void)
     test_despeckle();
     test_despeckle_keeps_light();
     test_threads();
+    test_cancel();
     test_hostile();
     test_alloc_failures();
     return check_report();
