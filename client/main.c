@@ -362,6 +362,8 @@ static const char SUBMIT_HELP[] =
     "                     (see ptworker --help); merged exactly like the beauty\n"
     "  --denoise          the coordinator denoises the finished image (NFOR) into\n"
     "                     the layer denoised.R/G/B; the passes it needs are added\n"
+    "  --denoise-progressive  --denoise, and the coordinator's progressive saves\n"
+    "                     denoised too (the newest save while one is denoised)\n"
     "  --frames A-B[:STEP] one job of the frames A, A+STEP, ... B of the scene's\n"
     "                     animation (at most 100000, numbers 0 to 999999), each\n"
     "                     written as ID-NAME.####.exr with its zero-padded number;\n"
@@ -500,6 +502,8 @@ static int cmd_submit(int argc, char **argv, globals *g)
     m.film_flags |= proto_film_of_passes(ro.passes);
     if (ro.denoise)
         m.film_flags |= PROTO_FILM_DENOISE;
+    if (ro.denoise_progressive)
+        m.film_flags |= PROTO_FILM_DENOISE_PROGRESSIVE;
     if (ro.camera)
         snprintf(m.camera, sizeof m.camera, "%s", ro.camera);
     if (ro.variant)

@@ -105,7 +105,11 @@ const char *proto_msg_type_name(uint32_t type);
  * writes its layer denoised.R/G/B; the passes it reads are among bits 1-6.
  * Workers render as the passes ask and otherwise ignore it. */
 #define PROTO_FILM_DENOISE (1u << 7)
-#define PROTO_FILM_KNOWN (PROTO_FILM_TRANSPARENT | PROTO_FILM_PASSES | PROTO_FILM_DENOISE)
+/* Bit 8, with bit 7: progressive saves are denoised too (server/sched/writer.h). */
+#define PROTO_FILM_DENOISE_PROGRESSIVE (1u << 8)
+#define PROTO_FILM_KNOWN                                                                           \
+    (PROTO_FILM_TRANSPARENT | PROTO_FILM_PASSES | PROTO_FILM_DENOISE |                             \
+     PROTO_FILM_DENOISE_PROGRESSIVE)
 /* The PT_PASS_* mask of film flags, and the flags of a mask. */
 static inline uint32_t proto_film_passes(uint32_t flags)
 {

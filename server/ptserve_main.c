@@ -136,6 +136,10 @@ static void usage(FILE *f)
         "                         needs) into the EXR's layer denoised.R/G/B, off the\n"
         "                         event loop; the preview shows it; one-job mode\n"
         "                         (queued jobs: ptctl submit --denoise)\n"
+        "  --denoise-progressive  --denoise, and every progressive save denoised too,\n"
+        "                         off the event loop; saves that come while one is\n"
+        "                         denoised wait and only the newest is taken; the\n"
+        "                         finished image stops a progressive one at once\n"
         "  --variant NAME         the KHR_materials_variants variant: mapped primitives\n"
         "                         take its material; one-job mode (queued jobs: ptctl\n"
         "                         submit --variant)\n"
@@ -489,6 +493,8 @@ static void job_from_options(srv_config *c, const pt_render_opts *ro, parsed *x)
     c->job.film_flags |= proto_film_of_passes(ro->passes);
     if (ro->denoise)
         c->job.film_flags |= PROTO_FILM_DENOISE;
+    if (ro->denoise_progressive)
+        c->job.film_flags |= PROTO_FILM_DENOISE_PROGRESSIVE;
     c->view = ro->view;
 }
 

@@ -269,7 +269,9 @@ int main(int argc, char **argv)
      * (common/render/options.h), then the end. */
     enum { NOWN = sizeof own / sizeof own[0] };
     struct option longopts[NOWN + PT_ROPT_COUNT + 1];
-    pt_render_getopt_table(own, NOWN, PT_ROPT_ALL, longopts);
+    /* Progressive saves are the coordinator's: no --denoise-progressive. */
+    pt_render_getopt_table(own, NOWN, PT_ROPT_ALL & ~PT_ROPT(PT_ROPT_DENOISE_PROGRESSIVE),
+                           longopts);
     int c, li = 0;
     pt_error err = {0};
     while ((c = getopt_long(argc, argv, "o:qh", longopts, &li)) != -1) {

@@ -59,8 +59,9 @@ typedef struct tile_job {
     void *ctx;
     int ntiles;
     size_t scratch_bytes;
+    const atomic_int *cancel; /* NULL, or set from outside: stop */
     atomic_int next;
-    atomic_int failed;
+    atomic_int failed; /* 1: out of memory; 2: cancelled */
 } tile_job;
 
 static void *tile_worker(void *arg)
@@ -75,6 +76,10 @@ static void *tile_worker(void *arg)
         int t = atomic_fetch_add(&job->next, 1);
         if (t >= job->ntiles || atomic_load(&job->failed))
             break;
+        if (job->cancel && atomic_load(job->cancel)) {
+            atomic_store(&job->failed, 2);
+            break;
+        }
         if (job->fn(job->ctx, t, scratch) != 0)
             atomic_store(&job->failed, 1);
     }
@@ -82,10 +87,11 @@ static void *tile_worker(void *arg)
     return NULL;
 }
 
-static pt_status run_tiles(unsigned threads, int ntiles, size_t scratch_bytes, tile_fn fn,
-                           void *ctx, pt_error *err)
+static pt_status run_tiles(unsigned threads, const atomic_int *cancel, int ntiles,
+                           size_t scratch_bytes, tile_fn fn, void *ctx, pt_error *err)
 {
-    tile_job job = {.fn = fn, .ctx = ctx, .ntiles = ntiles, .scratch_bytes = scratch_bytes};
+    tile_job job = {
+        .fn = fn, .ctx = ctx, .ntiles = ntiles, .scratch_bytes = scratch_bytes, .cancel = cancel};
     atomic_init(&job.next, 0);
     atomic_init(&job.failed, 0);
     pthread_t tid[PT_DENOISE_MAX_THREADS];
@@ -98,13 +104,16 @@ static pt_status run_tiles(unsigned threads, int ntiles, size_t scratch_bytes, t
     tile_worker(&job);
     for (unsigned i = 0; i < started; i++)
         pthread_join(tid[i], NULL);
+    if (atomic_load(&job.failed) == 2)
+        return pt_error_set(err, PT_AGAIN, "denoise: cancelled");
     if (atomic_load(&job.failed))
         return pt_error_set(err, PT_ERR_NOMEM, "denoise: out of memory");
     return PT_OK;
 }
 
 typedef struct dims {
-    int w, h, tx, ty; /* image size; tiles across and down */
+    int w, h, tx, ty;         /* image size; tiles across and down */
+    const atomic_int *cancel; /* pt_denoise_input's */
 } dims;
 
 static rect tile_rect(const dims *d, int t)
@@ -383,7 +392,7 @@ static pt_status nlmeans(const dims *dm, unsigned threads, const guide *gd, floa
         cx.src[c] = src[c];
         cx.dst[c] = dst[c];
     }
-    return run_tiles(threads, dm->tx * dm->ty, NLM_SCRATCH_BYTES, nlm_tile, &cx, err);
+    return run_tiles(threads, dm->cancel, dm->tx * dm->ty, NLM_SCRATCH_BYTES, nlm_tile, &cx, err);
 }
 
 /* ---- first-order regression with collaborative accumulation ---- */
@@ -617,7 +626,8 @@ static pt_status regression(const dims *dm, unsigned threads, const guide *gd, i
         st = pt_error_set(err, PT_ERR_NOMEM, "denoise: out of memory");
         goto done;
     }
-    if ((st = run_tiles(threads, ntiles, REG_SCRATCH_BYTES, reg_tile, &cx, err)) != PT_OK)
+    if ((st = run_tiles(threads, dm->cancel, ntiles, REG_SCRATCH_BYTES, reg_tile, &cx, err)) !=
+        PT_OK)
         goto done;
     for (int m = 0; m < ncand; m++) {
         memset(sum, 0, 4 * n * sizeof(double));
@@ -750,6 +760,84 @@ static void despeckle(const pt_denoise_input *in, float factor, float *const da[
     }
 }
 
+/* Light the despeckling took, put back: the clamp alone lost 4.2 % of
+ * ToyCar's mean in the park, whose glass and sunlit roof make fireflies that
+ * hold that much of the picture's light. What a pixel's halves lost,
+ * rem = ((A - A') + (B - B')) / 2 per channel, is splatted over the pixels
+ * of the same surface around it, the pixel itself left out (a firefly
+ * splatted onto itself comes back): weights
+ *   w_ij = exp(-|p_i - p_j|^2 / (2 SPLAT_SIGMA^2) - |n_i - n_j|^2 / SPLAT_NORMAL^2
+ *              - ((z_i - z_j) / z_j)^2 / SPLAT_DEPTH^2)
+ * on the prefiltered normal and depth over a (2 SPLAT_R + 1)^2 window,
+ * normalised for each source j, so every source hands out exactly what it
+ * lost: the image's sum is kept. The expectation a firefly stands for is
+ * spread over its neighbourhood (which pixels, no estimator of 64 samples
+ * can tell), and spread wide its squared error is small: E^2 / N over N
+ * pixels. This is the energy-conserving side of firefly splatting (Zirr,
+ * Hanika and Dachsbacher 2018, "Re-weighting firefly samples for improved
+ * finite-sample Monte Carlo estimates", Computer Graphics Forum 37(6): a
+ * clamped sample's excess is redistributed, not dropped). Measured, 64 spp
+ * against a 4096-spp reference: on 9 x 9 windows, or weighted by albedo
+ * too (a textured surface has few pixels alike), the light came back to
+ * the firefly's few neighbours and DamagedHelmet in the studio rose from
+ * 4.7e-3 to 8.5e-3 relMSE; without the normal and depth, ToyCar's sunlit
+ * roof lit the grass behind it (4.1e-2). Sources in pixel order, one
+ * thread: the same bits always; sources are few. */
+#define SPLAT_R 24
+#define SPLAT_SIGMA 12.0f
+#define SPLAT_NORMAL 0.5f
+#define SPLAT_DEPTH 0.1f
+
+static void splat_removed(const dims *dm, const float *const rem[3], const float *const feat[],
+                          float *const out[3])
+{
+    int w = dm->w, h = dm->h;
+    const int side = 2 * SPLAT_R + 1;
+    float wt[(2 * SPLAT_R + 1) * (2 * SPLAT_R + 1)];
+    for (int y = 0; y < h; y++)
+        for (int x = 0; x < w; x++) {
+            size_t j = (size_t)y * w + x;
+            if (rem[0][j] == 0.0f && rem[1][j] == 0.0f && rem[2][j] == 0.0f)
+                continue;
+            float zj = feat[6][j];
+            double sum = 0.0;
+            for (int dy = -SPLAT_R; dy <= SPLAT_R; dy++)
+                for (int dx = -SPLAT_R; dx <= SPLAT_R; dx++) {
+                    int xx = x + dx, yy = y + dy, o = (dy + SPLAT_R) * side + dx + SPLAT_R;
+                    wt[o] = 0.0f;
+                    if (xx < 0 || xx >= w || yy < 0 || yy >= h || (dx == 0 && dy == 0))
+                        continue;
+                    size_t i = (size_t)yy * w + xx;
+                    float dn = 0.0f;
+                    for (int c = 0; c < 3; c++) {
+                        float nv = feat[3 + c][i] - feat[3 + c][j];
+                        dn += nv * nv;
+                    }
+                    /* an escaped ray's depth is 0: the same "surface" only as another */
+                    float dz = zj > 0.0f ? (feat[6][i] - zj) / zj : feat[6][i] > 0.0f ? 1.0f : 0.0f;
+                    float d = (float)(dx * dx + dy * dy) / (2.0f * SPLAT_SIGMA * SPLAT_SIGMA) +
+                              dn / (SPLAT_NORMAL * SPLAT_NORMAL) +
+                              dz * dz / (SPLAT_DEPTH * SPLAT_DEPTH);
+                    wt[o] = exp_neg(d);
+                    sum += wt[o];
+                }
+            if (!(sum > 0.0)) {
+                /* nothing alike around (a 1 x 1 image): the light stays */
+                wt[SPLAT_R * side + SPLAT_R] = 1.0f;
+                sum = 1.0;
+            }
+            for (int dy = -SPLAT_R; dy <= SPLAT_R; dy++)
+                for (int dx = -SPLAT_R; dx <= SPLAT_R; dx++) {
+                    float wv = wt[(dy + SPLAT_R) * side + dx + SPLAT_R];
+                    if (wv == 0.0f)
+                        continue;
+                    size_t i = (size_t)(y + dy) * w + (x + dx);
+                    for (int c = 0; c < 3; c++)
+                        out[c][i] += (float)((double)rem[c][j] * wv / sum);
+                }
+        }
+}
+
 /* A variance estimate that one rare sample inflated makes its pixel
  * "similar" to every neighbour in the patch distances, and the fits
  * centred there reach far: a pixel's variance over VAR_CAP x the median of
@@ -798,8 +886,9 @@ enum {
     P_COMB = P_HVAR + 3,                 /* 3: the blend's mean */
     P_HA = P_COMB + 3,                   /* 3 + 3: the halves, spikes clamped */
     P_HB = P_HA + 3,
-    P_VS = P_HB + 3, /* 1: the variance's factor after despeckling */
-    P_COUNT = P_VS + 1
+    P_VS = P_HB + 3,  /* 1: the variance's factor after despeckling */
+    P_REM = P_VS + 1, /* 3: the light despeckling took */
+    P_COUNT = P_REM + 3
 };
 
 pt_status pt_denoise(const pt_denoise_input *in, unsigned threads, float *const out[3],
@@ -816,7 +905,7 @@ pt_status pt_denoise(const pt_denoise_input *in, unsigned threads, float *const 
         return pt_error_set(err, PT_ERR_ARG, "denoise: %u threads, at most %u", threads,
                             PT_DENOISE_MAX_THREADS);
     dims dm = {(int)in->width, (int)in->height, ((int)in->width + TILE - 1) / TILE,
-               ((int)in->height + TILE - 1) / TILE};
+               ((int)in->height + TILE - 1) / TILE, in->cancel};
     size_t n = (size_t)in->width * in->height;
     float *mem = pt_malloc_array(n * P_COUNT, sizeof(float));
     if (!mem)
@@ -937,6 +1026,13 @@ pt_status pt_denoise(const pt_denoise_input *in, unsigned threads, float *const 
     float *const *const outf[1] = {out};
     st = regression(&dm, threads, &gf, 1, final_k, (const float *const *)(pl + P_COMB), feat, outf,
                     err);
+    if (st == PT_OK && in->despeckle > 0.0f) {
+        for (int c = 0; c < 3; c++)
+            for (size_t i = 0; i < n; i++)
+                pl[P_REM + c][i] =
+                    0.5f * ((in->half_a[c][i] - ha[c][i]) + (in->half_b[c][i] - hb[c][i]));
+        splat_removed(&dm, (const float *const *)(pl + P_REM), feat, out);
+    }
 done:
     pt_free(mem);
     return st;

@@ -34,7 +34,10 @@
  * variance with it (a spike only one half has is one rare sample; what
  * the picture holds, both halves see); then a variance over 16 x the
  * median of its 3 x 3 neighbourhood's is capped to that (one rare sample
- * inflated it, and it made the pixel "similar" to everything).
+ * inflated it, and it made the pixel "similar" to everything). The light
+ * the clamp took is splatted back, after NFOR, over the pixels of the same
+ * surface (normal, depth) within 24 pixels, so the image's sum is kept
+ * (ToyCar in the park: 4.2 % of its mean lost without it, 0.2 % with).
  *
  * The halves are the means over even and odd sample indices (the EXR
  * convention: halfA, halfB); their variance is twice the beauty's variance
@@ -53,6 +56,7 @@
 #ifndef PT_COMMON_IMAGE_DENOISE_H
 #define PT_COMMON_IMAGE_DENOISE_H
 
+#include <stdatomic.h>
 #include <stdint.h>
 
 #include "common/base/error.h"
@@ -85,6 +89,10 @@ typedef struct pt_denoise_input {
      * maximum is scaled down to it; 0 turns it off, PT_DENOISE_DESPECKLE is
      * the default of the programs; at least 1 otherwise. */
     float despeckle;
+    /* NULL, or a flag another thread may set to stop the work early:
+     * pt_denoise then returns PT_AGAIN ("cancelled") with out partly
+     * written. Read between tiles. */
+    const atomic_int *cancel;
 } pt_denoise_input;
 
 #define PT_DENOISE_DESPECKLE 3.0f
@@ -103,7 +111,8 @@ pt_status pt_denoise_check(const pt_denoise_input *in, pt_error *err);
 /* Denoises in into out[0..2] (R, G, B; width x height floats each, caller's;
  * may not alias the input) with `threads` threads (0: 1; at most
  * PT_DENOISE_MAX_THREADS). Runs pt_denoise_check first and returns its
- * refusal; PT_ERR_NOMEM when memory runs out (out then partly written). The
+ * refusal; PT_ERR_NOMEM when memory runs out, PT_AGAIN when in->cancel was
+ * set (out then partly written). The
  * output is the same bits for any thread count. Memory: 53 floats and about
  * 14 doubles a pixel besides the input. */
 pt_status pt_denoise(const pt_denoise_input *in, unsigned threads, float *const out[3],

@@ -21,8 +21,15 @@ static pt_status need(const pt_image *img, const char *name, const float **out, 
 pt_status pt_denoise_frame(pt_image *img, unsigned threads, float despeckle, float *out[3],
                            pt_error *err)
 {
+    return pt_denoise_frame_until(img, threads, despeckle, NULL, out, err);
+}
+
+pt_status pt_denoise_frame_until(pt_image *img, unsigned threads, float despeckle,
+                                 const atomic_int *cancel, float *out[3], pt_error *err)
+{
     static const char *const rgb[3] = {"R", "G", "B"}, *const xyz[3] = {"X", "Y", "Z"};
-    pt_denoise_input in = {.width = img->width, .height = img->height, .despeckle = despeckle};
+    pt_denoise_input in = {
+        .width = img->width, .height = img->height, .despeckle = despeckle, .cancel = cancel};
     pt_status st = PT_OK;
     char name[PT_IMAGE_PLANE_NAME];
     for (int c = 0; c < 3 && st == PT_OK; c++) {

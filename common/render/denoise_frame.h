@@ -12,6 +12,8 @@
 #ifndef PT_COMMON_RENDER_DENOISE_FRAME_H
 #define PT_COMMON_RENDER_DENOISE_FRAME_H
 
+#include <stdatomic.h>
+
 #include "common/base/error.h"
 #include "common/image/image.h"
 #include "common/render/tile.h"
@@ -27,5 +29,12 @@
  * img is unchanged on failure but for a denoised plane already added. */
 pt_status pt_denoise_frame(pt_image *img, unsigned threads, float despeckle, float *out[3],
                            pt_error *err);
+
+/* pt_denoise_frame that another thread may stop by setting *cancel (not
+ * NULL): PT_AGAIN ("cancelled") then, img without a new denoised layer (one
+ * already there may be partly overwritten). The coordinator's writer drops
+ * a progressive save's denoising so when the finished image arrives. */
+pt_status pt_denoise_frame_until(pt_image *img, unsigned threads, float despeckle,
+                                 const atomic_int *cancel, float *out[3], pt_error *err);
 
 #endif

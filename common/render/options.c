@@ -41,6 +41,7 @@ static const struct {
     [PT_ROPT_VIEW] = {"view", required_argument},
     [PT_ROPT_PASSES] = {"passes", required_argument},
     [PT_ROPT_DENOISE] = {"denoise", no_argument},
+    [PT_ROPT_DENOISE_PROGRESSIVE] = {"denoise-progressive", no_argument},
 };
 
 void pt_render_opts_init(pt_render_opts *o)
@@ -170,6 +171,10 @@ pt_status pt_render_opt_set(pt_render_opts *o, int c, const char *text, pt_error
         break;
     case PT_ROPT_DENOISE:
         o->denoise = 1;
+        break;
+    case PT_ROPT_DENOISE_PROGRESSIVE:
+        o->denoise = 1;
+        o->denoise_progressive = 1;
         break;
     case PT_ROPT_COUNT:
         break;

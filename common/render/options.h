@@ -55,6 +55,7 @@ typedef enum pt_ropt_id {
     PT_ROPT_VIEW,
     PT_ROPT_PASSES,
     PT_ROPT_DENOISE,
+    PT_ROPT_DENOISE_PROGRESSIVE,
     PT_ROPT_COUNT
 } pt_ropt_id;
 
@@ -87,9 +88,11 @@ typedef struct pt_render_opts {
     uint32_t tile;    /* 32 unless given */
     uint32_t chunk;   /* 16 unless given */
     pt_view view;
-    uint32_t passes; /* PT_PASS_* (tile.h), 0 unless given; with denoise,
-                        PT_PASS_DENOISE's too after finish */
-    int denoise;     /* --denoise: the finished image denoised (denoise_frame.h) */
+    uint32_t passes;         /* PT_PASS_* (tile.h), 0 unless given; with denoise,
+                                PT_PASS_DENOISE's too after finish */
+    int denoise;             /* --denoise: the finished image denoised (denoise_frame.h) */
+    int denoise_progressive; /* --denoise-progressive: progressive saves too
+                                (the coordinator's; denoise is set with it) */
 } pt_render_opts;
 
 /* The defaults above, nothing given. */

@@ -522,9 +522,13 @@ int srv_entry_ready(srv_server *s, srv_entry *j)
         st = srv_writer_new(j->out_path, srv_job_film(j->job),
                             (srv_job_params_of(j->job)->film_flags & PROTO_FILM_TRANSPARENT) != 0,
                             &s->cfg->view, &j->writer, &err);
-    if (st == PT_OK)
-        srv_writer_set_denoise(j->writer,
-                               (srv_job_params_of(j->job)->film_flags & PROTO_FILM_DENOISE) != 0);
+    if (st == PT_OK) {
+        uint32_t ff = srv_job_params_of(j->job)->film_flags;
+        srv_writer_set_denoise(j->writer, !(ff & PROTO_FILM_DENOISE) ? 0
+                                          : (ff & PROTO_FILM_DENOISE_PROGRESSIVE)
+                                              ? SRV_WRITER_DENOISE_ALL
+                                              : SRV_WRITER_DENOISE_FINAL);
+    }
     if (st != PT_OK) {
         char msg[PROTO_MAX_ERROR_TEXT + 1];
         snprintf(msg, sizeof msg, "%s", err.msg);

@@ -1,6 +1,7 @@
 #include "server/sched/writer.h"
 
 #include <pthread.h>
+#include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
 
@@ -17,12 +18,14 @@ struct srv_writer {
     char gate[4096];           /* test hook: wait for this file before each write */
     const pt_film *film;
     int has_alpha;
-    pt_view view;  /* the preview's */
-    pt_image *img; /* the thread's, made at the first write and kept */
-    int pending;   /* a request not yet taken */
-    int final;     /* the pending request is the finished image's */
-    int denoise;   /* final images are denoised (srv_writer_set_denoise) */
-    int denoised;  /* img holds denoised planes, of denoised_samples samples */
+    pt_view view;         /* the preview's */
+    pt_image *img;        /* the thread's, made at the first write and kept */
+    int pending;          /* a request not yet taken */
+    int final;            /* the pending request is the finished image's */
+    int denoise;          /* SRV_WRITER_DENOISE_*, 0 (srv_writer_set_denoise) */
+    int busy_progressive; /* the thread denoises a progressive write */
+    atomic_int cancel;    /* set by a final submit: stop that denoising */
+    int denoised;         /* img holds denoised planes, of denoised_samples samples */
     uint64_t denoised_samples;
     pt_exr_meta meta;
     int busy, stop;
@@ -32,14 +35,15 @@ struct srv_writer {
     pt_error last_err;
 };
 
-/* The finished image denoised (once for a count of samples): its layer
- * denoised.R/G/B added to w->img, and *shown the image the preview shows. */
-static pt_status denoise_final(srv_writer *w, uint64_t samples, pt_image *shown, pt_error *err)
+/* The image denoised (once for a count of samples): its layer
+ * denoised.R/G/B added to w->img, and *shown the image the preview shows.
+ * PT_AGAIN when w->cancel stopped it. */
+static pt_status denoise_image(srv_writer *w, uint64_t samples, pt_image *shown, pt_error *err)
 {
     if (!w->denoised || w->denoised_samples != samples) {
         w->denoised = 0;
-        pt_status st =
-            pt_denoise_frame(w->img, pt_denoise_default_threads(), PT_DENOISE_DESPECKLE, NULL, err);
+        pt_status st = pt_denoise_frame_until(w->img, pt_denoise_default_threads(),
+                                              PT_DENOISE_DESPECKLE, &w->cancel, NULL, err);
         if (st != PT_OK)
             return st;
         w->denoised = 1;
@@ -62,8 +66,12 @@ static void *writer_main(void *p)
             break;
         pt_exr_meta meta = w->meta;
         int final = w->final;
+        int denoise = w->denoise == SRV_WRITER_DENOISE_ALL ||
+                      (final && w->denoise == SRV_WRITER_DENOISE_FINAL);
         w->pending = 0;
         w->busy = 1;
+        w->busy_progressive = denoise && !final;
+        atomic_store(&w->cancel, 0);
         pthread_mutex_unlock(&w->mu);
 
         pt_error err = {0};
@@ -77,16 +85,25 @@ static void *writer_main(void *p)
             meta.total_samples = pt_film_resolve_measured(w->film, w->img, &e);
             w->img->has_alpha = w->has_alpha;
             shown = *w->img;
-            if (final && w->denoise)
-                st = denoise_final(w, meta.total_samples, &shown, &err);
-            if (st == PT_OK && w->exr[0])
-                st = pt_exr_write(w->exr, w->img, &meta, &err);
+            if (denoise)
+                st = denoise_image(w, meta.total_samples, &shown, &err);
         }
+        if (st == PT_AGAIN) {
+            /* a final write came while this progressive one was denoised:
+             * dropped, not a failure; the final one is pending */
+            pthread_mutex_lock(&w->mu);
+            w->busy = w->busy_progressive = 0;
+            w->error = e;
+            pthread_cond_broadcast(&w->cv);
+            continue;
+        }
+        if (st == PT_OK && w->exr[0])
+            st = pt_exr_write(w->exr, w->img, &meta, &err);
         if (st == PT_OK)
             st = pt_png_write_preview(w->png, &shown, &w->view, &err);
 
         pthread_mutex_lock(&w->mu);
-        w->busy = 0;
+        w->busy = w->busy_progressive = 0;
         if (e != -1.0)
             w->error = e;
         w->last = st;
@@ -114,6 +131,7 @@ pt_status srv_writer_new(const char *exr_path, const pt_film *film, int has_alph
     if (view)
         w->view = *view;
     w->error = -1.0;
+    atomic_init(&w->cancel, 0);
     if (pt_image_format_of(exr_path) == PT_IMAGE_FORMAT_PNG) {
         /* A .png output is the PNG alone: no EXR is written. */
         snprintf(w->png, sizeof w->png, "%s", exr_path);
@@ -138,10 +156,10 @@ pt_status srv_writer_new(const char *exr_path, const pt_film *film, int has_alph
     return PT_OK;
 }
 
-void srv_writer_set_denoise(srv_writer *w, int on)
+void srv_writer_set_denoise(srv_writer *w, int mode)
 {
     pthread_mutex_lock(&w->mu);
-    w->denoise = on;
+    w->denoise = mode;
     pthread_mutex_unlock(&w->mu);
 }
 
@@ -151,6 +169,8 @@ void srv_writer_submit(srv_writer *w, const pt_exr_meta *meta, int final)
     w->pending = 1;
     w->final = final;
     w->meta = *meta;
+    if (final && w->busy_progressive)
+        atomic_store(&w->cancel, 1);
     pthread_cond_broadcast(&w->cv);
     pthread_mutex_unlock(&w->mu);
 }

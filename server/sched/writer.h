@@ -40,14 +40,20 @@ pt_status srv_writer_new(const char *exr_path, const pt_film *film, int has_alph
  * meta; meta's total_samples is replaced by the samples of the pixels
  * resolved, so the file says what its pixels hold. */
 void srv_writer_submit(srv_writer *w, const pt_exr_meta *meta, int final);
-/* --denoise (PROTO_FILM_DENOISE): a write submitted as final (the image
- * holds every sample the job will have) first denoises the resolved image
- * (pt_denoise_frame, on the processors online; the same bits on any
- * number), so the EXR gets the layer denoised.R/G/B and the preview shows
- * it; a final write of the same samples again (a retry, a second flush)
- * reuses it. Progressive writes are not denoised. Call before the first
- * submit. */
-void srv_writer_set_denoise(srv_writer *w, int on);
+/* --denoise (PROTO_FILM_DENOISE), SRV_WRITER_DENOISE_FINAL: a write
+ * submitted as final (the image holds every sample the job will have) first
+ * denoises the resolved image (pt_denoise_frame, on the processors online;
+ * the same bits on any number), so the EXR gets the layer denoised.R/G/B and
+ * the preview shows it; a write of the same samples again (a retry, a
+ * second flush) reuses it. --denoise-progressive (with
+ * PROTO_FILM_DENOISE_PROGRESSIVE), SRV_WRITER_DENOISE_ALL: progressive
+ * writes are denoised too, on this thread, so saves asked for meanwhile
+ * coalesce into the newest as any write does; a final write asked for
+ * while a progressive one is denoised stops it (pt_denoise_frame_until):
+ * that progressive image is dropped, never written, and the finished one
+ * taken at once. 0: nothing is denoised. Call before the first submit. */
+enum { SRV_WRITER_DENOISE_FINAL = 1, SRV_WRITER_DENOISE_ALL = 2 };
+void srv_writer_set_denoise(srv_writer *w, int mode);
 /* Waits until the last submitted snapshot is on disk; returns the status of
  * the last write (its error in err). */
 pt_status srv_writer_flush(srv_writer *w, pt_error *err);

@@ -15,6 +15,13 @@
 # not depend on the picture) on THREADS threads, REPS times: median wall and
 # CPU seconds. With HD_RENDER=1 and the passes, also a LOW_SPP 1920x1080
 # render of the first scene, for the denoiser's share of it.
+# Part 3 (CURVE=1), relMSE against time: for each scene and each sample
+# count of CURVE_SPP, a render with the passes (raw) and its denoised layer,
+# scored against the reference; time is CPU seconds (the render's, scene
+# load included; the denoised point adds ptdenoise's), which a machine
+# shared with other work does not inflate as it does wall time. Writes
+# OUT/NAME-curve.csv (label raw or denoised) and OUT/NAME-curve.png
+# (ptbench plot --y relmse).
 #
 # Environment (defaults in brackets):
 #   SCENES   "SCENE[@ENV]" entries [the Cornell box; DamagedHelmet in the studio]
@@ -23,7 +30,9 @@
 #   OUT      folder [/tmp/ptfarm-denoise]; a reference already there is reused
 #   WORKER   the ptworker that renders [BIN_DIR/ptworker]: another build's, with
 #            the passes, while this one has none
-#   COST     0: part 1 only [1]
+#   QUALITY  0: no part 1 [1]          COST     0: no part 2 [1]
+#   CURVE    1: part 3 [0]
+#   CURVE_SPP  [4,16,64,256]
 set -euo pipefail
 
 if [[ $# -lt 1 || $# -gt 2 || ! -x "$1/ptdenoise" || ! -x "$1/ptworker" ]]; then
@@ -41,6 +50,7 @@ LOW_SPP=${LOW_SPP:-64}
 HIGH_SPP=${HIGH_SPP:-1024}
 REF_SPP=${REF_SPP:-16384}
 OUT=${OUT:-/tmp/ptfarm-denoise}
+CURVE_SPP=${CURVE_SPP:-4,16,64,256}
 WORKER=${WORKER:-$BIN/ptworker}
 mkdir -p "$OUT"
 
@@ -73,7 +83,7 @@ echo "== quality: relMSE against a $REF_SPP-spp reference of another seed, $RES,
 worker_help=$("$WORKER" --help 2>&1 || true)
 if [[ $worker_help != *--passes* ]]; then
     echo "skipped: this ptworker writes no passes (--passes); part 2 only"
-else
+elif [[ ${QUALITY:-1} == 1 ]]; then
     printf '%-28s %12s %12s %12s %8s %10s\n' scene "raw@$LOW_SPP" "dn@$LOW_SPP" \
         "raw@$HIGH_SPP" "dn<raw" "mean dn/raw"
     for entry in $SCENES; do
@@ -103,6 +113,38 @@ else
         printf '%-28s %12s %12s %12s %8s %10s\n' "$name" "$raw_lo" "$dn_lo" "$raw_hi" \
             "$(awk -v a="$dn_lo" -v b="$raw_hi" 'BEGIN { print (a < b) ? "yes" : "no" }')" \
             "$(awk -v a="$m_dn" -v b="$m_raw" 'BEGIN { printf "%.4f", a / b }')"
+    done
+fi
+
+if [[ ${CURVE:-0} == 1 && $worker_help == *--passes* ]]; then
+    echo "== relMSE against CPU seconds: raw and denoised, $RES, $THREADS threads"
+    for entry in $SCENES; do
+        scene=${entry%@*}
+        env=()
+        name=$(basename "${scene%.*}")
+        if [[ $entry == *@* ]]; then
+            env=(--env "${entry#*@}")
+            name=$name-$(basename "${entry#*@}" | cut -d_ -f1)
+        fi
+        ref=$OUT/$name-ref$REF_SPP-$RES.exr
+        [[ -f $ref ]] || "$WORKER" --scene "$scene" "${env[@]}" --res "$RES" --threads "$THREADS" \
+            -q --spp "$REF_SPP" --seed 9001 -o "$ref" 2> /dev/null
+        csv=$OUT/$name-curve.csv
+        echo "label,scene,spp,seconds,relmse" > "$csv"
+        for spp in ${CURVE_SPP//,/ }; do
+            img=$OUT/$name-c$spp.exr
+            read -r _ c_render < <(timed "$WORKER" --scene "$scene" "${env[@]}" --res "$RES" \
+                --threads "$THREADS" -q --spp "$spp" --seed 1 \
+                --passes albedo,normal,depth,halves -o "$img")
+            read -r _ c_dn < <(timed "$BIN/ptdenoise" "$img" -o "$OUT/$name-c$spp-dn.exr" \
+                --threads "$THREADS" --no-preview)
+            e_raw=$(relmse "$img" "$ref")
+            e_dn=$(relmse "$OUT/$name-c$spp-dn.exr" "$ref" --layer denoised)
+            echo "raw,$name,$spp,$c_render,$e_raw" >> "$csv"
+            echo "denoised,$name,$spp,$(awk -v a="$c_render" -v b="$c_dn" 'BEGIN { print a + b }'),$e_dn" >> "$csv"
+            echo "$name $spp spp: raw $e_raw ($c_render s), denoised $e_dn (+$c_dn s)"
+        done
+        "$BIN/ptbench" plot "$OUT/$name-curve.png" --y relmse --title "$name: RELMSE AGAINST CPU SECONDS" "$csv"
     done
 fi
 

@@ -352,21 +352,21 @@ static void draw_grid(canvas *c, const axes *a)
     line(c, a->right, a->top, a->right, a->bottom, 0, 0, ink);
 }
 
-/* The -1/2 slope guide through (x0, y0), clipped to the plot's decades. */
-static void draw_guide(canvas *c, const axes *a, double x0, double y0, rgb col)
+/* The slope guide (-e) through (x0, y0), clipped to the plot's decades. */
+static void draw_guide(canvas *c, const axes *a, double x0, double y0, double e, rgb col)
 {
     double xa = pow(10.0, a->xlo), xb = pow(10.0, a->xhi);
-    /* y = y0 * (x / x0)^-1/2; clip x so that y stays within [ylo, yhi]. */
+    /* y = y0 * (x / x0)^-e; clip x so that y stays within [ylo, yhi]. */
     double ymax = pow(10.0, a->yhi), ymin = pow(10.0, a->ylo);
-    double xa_clip = x0 * (y0 / ymax) * (y0 / ymax), xb_clip = x0 * (y0 / ymin) * (y0 / ymin);
+    double xa_clip = x0 * pow(y0 / ymax, 1.0 / e), xb_clip = x0 * pow(y0 / ymin, 1.0 / e);
     if (xa_clip > xa)
         xa = xa_clip;
     if (xb_clip < xb)
         xb = xb_clip;
     if (xa >= xb)
         return;
-    line(c, map_x(a, xa), map_y(a, y0 * sqrt(x0 / xa)), map_x(a, xb), map_y(a, y0 * sqrt(x0 / xb)),
-         0, 4, col);
+    line(c, map_x(a, xa), map_y(a, y0 * pow(x0 / xa, e)), map_x(a, xb),
+         map_y(a, y0 * pow(x0 / xb, e)), 0, 4, col);
 }
 
 pt_status plot_write_png(const plot *p, const char *path, uint32_t width, uint32_t height,
@@ -406,7 +406,8 @@ pt_status plot_write_png(const plot *p, const char *path, uint32_t width, uint32
     text(&c, (a.left + a.right - text_width(p->xlabel)) / 2, a.bottom + 40, p->xlabel, ink);
 
     const plot_series *s0 = &p->series[first / PLOT_MAX_POINTS];
-    draw_guide(&c, &a, s0->x[first % PLOT_MAX_POINTS], s0->y[first % PLOT_MAX_POINTS], guide);
+    draw_guide(&c, &a, s0->x[first % PLOT_MAX_POINTS], s0->y[first % PLOT_MAX_POINTS],
+               p->squared ? 1.0 : 0.5, guide);
 
     for (uint32_t i = 0; i < p->num_series; i++) {
         const plot_series *s = &p->series[i];
@@ -428,7 +429,8 @@ pt_status plot_write_png(const plot *p, const char *path, uint32_t width, uint32
     }
 
     /* Legend in the top-right corner, where error-against-time curves are not. */
-    int rows = (int)p->num_series + 1, widest = text_width("SLOPE -1/2");
+    const char *slope = p->squared ? "SLOPE -1" : "SLOPE -1/2";
+    int rows = (int)p->num_series + 1, widest = text_width(slope);
     for (uint32_t i = 0; i < p->num_series; i++)
         if (text_width(p->series[i].label) > widest)
             widest = text_width(p->series[i].label);
@@ -447,7 +449,7 @@ pt_status plot_write_png(const plot *p, const char *path, uint32_t width, uint32
             text(&c, lx + 50, y - GLYPH_H * TEXT_SCALE / 2, p->series[i].label, ink);
         } else {
             line(&c, lx + 10, y, lx + 40, y, 0, 4, guide);
-            text(&c, lx + 50, y - GLYPH_H * TEXT_SCALE / 2, "SLOPE -1/2", ink);
+            text(&c, lx + 50, y - GLYPH_H * TEXT_SCALE / 2, slope, ink);
         }
     }
 

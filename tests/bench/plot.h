@@ -6,13 +6,12 @@
  * time). plot_write_png draws both axes in log10 with a grid line at every
  * decade (lighter ones at 2..9 x each decade), joins each series' points in
  * the order given, marks them, and draws a legend with the labels and a dashed
- * guide of slope -1/2 (Monte Carlo's error ~ time^-1/2) through the first
- * series' first point. Text uses a built-in 5x7 bitmap font (digits, upper
- * case letters, a lower case 'e' for exponents, a little punctuation); lower
- * case letters in labels are drawn as upper case. Points with a non-finite or
- * non-positive coordinate cannot be placed on log axes and are skipped.
- * The PNG is written with stb_image_write (implementation in libptcore).
- * Not thread-safe: one owner per plot.
+ * guide of slope -1/2 (Monte Carlo's error ~ time^-1/2; -1 for a squared
+ * error, `squared`) through the first series' first point. Text uses a built-in 5x7 bitmap font
+ * (digits, upper case letters, a lower case 'e' for exponents, a little punctuation); lower case
+ * letters in labels are drawn as upper case. Points with a non-finite or non-positive coordinate
+ * cannot be placed on log axes and are skipped. The PNG is written with stb_image_write
+ * (implementation in libptcore). Not thread-safe: one owner per plot.
  */
 #ifndef PT_TESTS_BENCH_PLOT_H
 #define PT_TESTS_BENCH_PLOT_H
@@ -34,6 +33,7 @@ typedef struct plot_series {
 typedef struct plot {
     char title[96], xlabel[48], ylabel[48];
     uint32_t num_series;
+    int squared; /* y is a squared error (MSE, relMSE): the guide's slope is -1 */
     plot_series series[PLOT_MAX_SERIES];
 } plot;
 

@@ -8,7 +8,7 @@
  *   ptbench SCENE --reference REF.exr (--target-error LIST | --min-gain LIST)
  *           [--min-spp M] [--max-spp N] [--chunk C] [--tile T] [other options as above]
  *   ptbench error IMAGE.exr (REFERENCE.exr | --constant V) [--layer NAME]
- *   ptbench plot OUT.png IN.csv...
+ *   ptbench plot OUT.png [--y COLUMN] [--title TEXT] IN.csv...
  *   ptbench gain REFERENCE.exr [TILE [IMAGE.exr]]
  *
  * For each sample count of --spp (default 1,2,4,...,256) the whole image is
@@ -308,7 +308,7 @@ static void usage(FILE *f)
 {
     fprintf(f, "usage: ptbench SCENE (--reference REF.exr | --constant V) [options]\n"
                "       ptbench error IMAGE.exr (REFERENCE.exr | --constant V) [--layer NAME]\n"
-               "       ptbench plot OUT.png IN.csv...\n"
+               "       ptbench plot OUT.png [--y COLUMN] [--title TEXT] IN.csv...\n"
                "       ptbench gain REFERENCE.exr [TILE [IMAGE.exr]]\n"
                "  --spp LIST          sample counts per pixel (default 1,2,4,8,16,32,64,128,256)\n"
                "  --time LIST         time budgets in seconds instead: spp reached in each\n"
@@ -542,8 +542,26 @@ static int cmd_plot(int argc, char **argv)
     static plot p;
     plot_init(&p);
     pt_error err = {0};
-    for (int i = 3; i < argc; i++)
-        if (plot_read_csv(&p, argv[i], "seconds", "rmse", &err) != PT_OK) {
+    /* --y COLUMN (default rmse) and --title TEXT before the CSVs */
+    const char *ycol = "rmse";
+    int i = 3;
+    for (; i + 1 < argc && (!strcmp(argv[i], "--y") || !strcmp(argv[i], "--title")); i += 2) {
+        if (!strcmp(argv[i], "--y")) {
+            ycol = argv[i + 1];
+            /* MSE-like columns fall as 1/time */
+            p.squared = strstr(ycol, "mse") != NULL && strstr(ycol, "rmse") == NULL;
+            snprintf(p.ylabel, sizeof p.ylabel, "%s", ycol);
+            snprintf(p.title, sizeof p.title, "%s AGAINST RENDER TIME", ycol);
+        } else {
+            snprintf(p.title, sizeof p.title, "%s", argv[i + 1]);
+        }
+    }
+    if (i >= argc) {
+        usage(stderr);
+        return 2;
+    }
+    for (; i < argc; i++)
+        if (plot_read_csv(&p, argv[i], "seconds", ycol, &err) != PT_OK) {
             fprintf(stderr, "ptbench: %s\n", err.msg);
             return 1;
         }

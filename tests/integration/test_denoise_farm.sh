@@ -1,31 +1,35 @@
 #!/usr/bin/env bash
-# --denoise on the farm: the coordinator denoises the finished merged image
-# off its event loop (its writer thread), so the farm's EXR - beauty, passes
-# and the layer denoised.R/G/B - equals ptworker --denoise's bit for bit:
+# --denoise on the farm: the coordinator denoises the merged image off its
+# event loop (its writer thread), so the farm's EXR - beauty, passes and
+# the layer denoised.R/G/B - equals ptworker --denoise's bit for bit:
 #  1. one-job ptserve --local 2 --denoise;
-#  2. ptctl submit --denoise through a queue with two workers, the
-#     coordinator killed (-9) mid-job and restarted: the job resumes and its
-#     image is still the standalone one, the PNG preview the denoised layer's.
+#  2. one-job --denoise-progressive: progressive saves (taken while the job
+#     runs) carry a denoised layer too, which is ptdenoise's of the same
+#     save bit for bit, and the finished image is still the standalone one;
+#  3. ptctl submit --denoise through a queue with two workers, one killed
+#     (-9) while it holds tasks, which are requeued;
+#  4. ptctl submit --denoise-progressive, the coordinator killed (-9)
+#     mid-job with checkpoints written often and restarted: the job resumes
+#     and its image is still the standalone one, the PNG preview the
+#     denoised layer's.
 # A queue refuses --denoise of its own (queued jobs ask with ptctl submit).
 set -euo pipefail
-bin=${PT_BIN:?}
-src=${PT_SOURCE_DIR:?}
-scene=$src/scenes/cornell_box.gltf
-tmp=$(mktemp -d /tmp/pt_denoise_farm_XXXXXX)
-srv_pid=
-wrk_pids=
-cleanup() {
-  for p in $wrk_pids; do kill "$p" 2>/dev/null || true; done
-  if [ -n "$srv_pid" ] && kill "$srv_pid" 2>/dev/null; then wait "$srv_pid" 2>/dev/null || true; fi
-  if [ "${failed:-0}" = 0 ]; then rm -rf "$tmp"; else echo "logs kept in $tmp" >&2; fi
-}
-trap cleanup EXIT
-failed=1
-fail() { echo "FAIL: $*" >&2; exit 1; }
-json() { python3 -c "import json,sys; d=json.load(open(sys.argv[1])); print(eval(sys.argv[2]))" "$@"; }
+# shellcheck source=tests/integration/lib_farm.sh
+. "$(dirname "$0")/lib_farm.sh"
+farm_init denoise_farm
+
 same() { # NAME: its EXR is the reference's, every layer, the denoised one too
   "$bin/ptexr-diff" "$tmp/ref.exr" "$tmp/$1.exr" > "$tmp/$1.diff" || fail "$1: $(cat "$tmp/$1.diff")"
   grep -q "denoised" "$tmp/$1.exr" || fail "$1: no denoised layer"
+}
+samples_of() { # EXR: its header's ptfarm.samples (a string attribute)
+  python3 - "$1" << 'PY'
+import struct, sys
+h = open(sys.argv[1], "rb").read(65536)
+k = h.index(b"ptfarm.samples\0string\0") + len(b"ptfarm.samples\0string\0")
+n = struct.unpack("<i", h[k:k + 4])[0]
+print(int(h[k + 4:k + 4 + n].decode()))
+PY
 }
 
 # 1. One job.
@@ -40,47 +44,68 @@ rc=0
 if [ "$rc" != 2 ] || ! grep -q "ptctl submit --denoise" "$tmp/refused.err"; then
   fail "a queue took --denoise: exit $rc: $(cat "$tmp/refused.err")"
 fi
+rc=0
+"$bin/ptworker" --scene "$scene" --denoise-progressive -o "$tmp/w.exr" 2> /dev/null || rc=$?
+[ "$rc" = 2 ] || fail "ptworker took --denoise-progressive (exit $rc): its saves are not progressive"
 
-# 2. A queue whose coordinator is killed mid-job and restarted.
-view=(--res 40x32 --spp 1024 --seed 3 --denoise)
-"$bin/ptworker" --scene "$scene" "${view[@]}" --tile 16 --chunk 8 -q -o "$tmp/ref.exr" 2> /dev/null
-port=0
-serve() { # LOG: a queue on $port (0: any; kept for the restart)
-  rm -f "$tmp/port"
-  PTSERVE_TEST_CKPT_LOG_BYTES=40000 "$bin/ptserve" --state-dir "$tmp/state" \
-    --output-dir "$tmp/out" --listen "127.0.0.1:$port" --port-file "$tmp/port" --tile 16 \
-    --chunk 8 --lease-timeout 1 2>> "$tmp/$1" &
-  srv_pid=$!
-  for _ in $(seq 400); do [ -s "$tmp/port" ] && break; sleep 0.05; done
-  [ -s "$tmp/port" ] || fail "ptserve did not start: $(cat "$tmp/$1")"
-  port=$(cat "$tmp/port")
-  PTFARM_SERVER=127.0.0.1:$port
-  export PTFARM_SERVER
-}
-serve serve.log
-for w in 1 2; do
-  "$bin/ptworker" --server "$PTFARM_SERVER" --threads 1 --prefetch 2 --name "w$w" \
-    --cache-dir "$tmp/cache$w" 2>> "$tmp/worker.log" &
-  wrk_pids="$wrk_pids $!"
+# 2. Progressive saves denoised: copies of the output taken while it runs.
+view=(--res 48x32 --spp 2048 --seed 3)
+"$bin/ptworker" --scene "$scene" "${view[@]}" --denoise --tile 16 --chunk 8 -q \
+  -o "$tmp/ref.exr" 2> /dev/null
+"$bin/ptserve" --local 2 --worker-threads 1 --tile 16 --chunk 8 --save-interval 0 "${view[@]}" \
+  --denoise-progressive -o "$tmp/prog.exr" "$scene" 2> "$tmp/prog.log" &
+srv_pid=$!
+snaps=0
+while kill -0 "$srv_pid" 2> /dev/null; do
+  if [ -f "$tmp/prog.exr" ] && ! cmp -s "$tmp/prog.exr" "$tmp/snap$snaps.exr" 2> /dev/null; then
+    snaps=$((snaps + 1))
+    cp "$tmp/prog.exr" "$tmp/snap$snaps.exr"
+  fi
+  sleep 0.02
 done
-id=$("$bin/ptctl" submit "$scene" "${view[@]}" --name denoised)
-status() { "$bin/ptctl" --timeout 20 status "$id" --json > "$tmp/status.json"; }
-for _ in $(seq 1200); do
-  status && [ "$(json "$tmp/status.json" 'd["samples_done"] > 0 or d["state"] != "running"')" = True ] &&
-    break
-  sleep 0.1
-done
-[ "$(json "$tmp/status.json" 'd["state"]')" = running ] || fail "the job ended before the kill"
-kill -9 "$srv_pid"
-wait "$srv_pid" 2> /dev/null || true
+wait "$srv_pid" || fail "one-job --denoise-progressive: $(cat "$tmp/prog.log")"
 srv_pid=
-serve serve.log # the same port: the workers reconnect to it
-for _ in $(seq 1200); do
-  status && [ "$(json "$tmp/status.json" 'd["state"]')" = "done" ] && break
-  sleep 0.1
+same prog
+final=$(samples_of "$tmp/prog.exr")
+checked=0
+for ((k = 1; k <= snaps; k++)); do
+  s=$(samples_of "$tmp/snap$k.exr")
+  [ "$s" -lt "$final" ] || continue
+  grep -q "denoised" "$tmp/snap$k.exr" || fail "progressive save $k ($s samples) has no denoised layer"
+  "$bin/ptdenoise" "$tmp/snap$k.exr" -o "$tmp/snap${k}_dn.exr" --no-preview 2> /dev/null
+  "$bin/ptexr-diff" "$tmp/snap$k.exr" "$tmp/snap${k}_dn.exr" > "$tmp/snap$k.diff" ||
+    fail "progressive save $k: its denoised layer is not ptdenoise's: $(cat "$tmp/snap$k.diff")"
+  checked=$((checked + 1))
 done
-[ "$(json "$tmp/status.json" 'd["state"]')" = "done" ] || fail "not done: $(cat "$tmp/status.json")"
-"$bin/ptctl" fetch "$id" -o "$tmp/queued.exr"
-same queued
+echo "progressive saves: $snaps taken, $checked before the end checked"
+[ "$checked" -gt 0 ] || fail "no progressive save seen before the end ($snaps copies)"
+
+# 3. A queue, one of two workers killed while it renders.
+view=(--res 40x32 --spp 512 --seed 3 --denoise)
+"$bin/ptworker" --scene "$scene" "${view[@]}" --tile 16 --chunk 8 -q -o "$tmp/ref.exr" 2> /dev/null
+serve serve1.log
+workers 2
+id=$("$bin/ptctl" submit "$scene" "${view[@]}" --name killed-worker)
+until_status "$id" 'd["samples_done"] > 0'
+kill_worker
+finish "$id" worker_killed
+stop_workers
+stop_server
+
+# 4. A queue whose coordinator is killed mid-job and restarted.
+view=(--res 40x32 --spp 1024 --seed 3)
+"$bin/ptworker" --scene "$scene" "${view[@]}" --denoise --tile 16 --chunk 8 -q \
+  -o "$tmp/ref.exr" 2> /dev/null
+port=0
+serve serve2.log PTSERVE_TEST_CKPT_LOG_BYTES=40000
+workers 2
+id=$("$bin/ptctl" submit "$scene" "${view[@]}" --denoise-progressive --name denoised)
+until_status "$id" 'd["samples_done"] > 0 or d["state"] != "running"'
+[ "$(json "$tmp/status.json" 'd["state"]')" = running ] || fail "the job ended before the kill"
+stop_server -9
+serve serve2.log # the same port: the workers reconnect to it
+finish "$id" server_killed
+cmp -s "$tmp/ref.png" "$tmp/out/$id-denoised.png" ||
+  fail "queued: the preview is not the denoised layer's"
 failed=0
 echo "denoise farm: ok"

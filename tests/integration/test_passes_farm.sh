@@ -14,21 +14,9 @@
 # A job's passes are refused by a ptserve --state-dir (queued jobs ask for
 # them with ptctl submit).
 set -euo pipefail
-bin=${PT_BIN:?}
-src=${PT_SOURCE_DIR:?}
-scene=$src/scenes/cornell_box.gltf
-tmp=$(mktemp -d /tmp/pt_passes_farm_XXXXXX)
-srv_pid=
-wrk_pids=
-cleanup() {
-  for p in $wrk_pids; do kill "$p" 2>/dev/null || true; done
-  if [ -n "$srv_pid" ] && kill "$srv_pid" 2>/dev/null; then wait "$srv_pid" 2>/dev/null || true; fi
-  if [ "${failed:-0}" = 0 ]; then rm -rf "$tmp"; else echo "logs kept in $tmp" >&2; fi
-}
-trap cleanup EXIT
-failed=1
-fail() { echo "FAIL: $*" >&2; exit 1; }
-json() { python3 -c "import json,sys; d=json.load(open(sys.argv[1])); print(eval(sys.argv[2]))" "$@"; }
+# shellcheck source=tests/integration/lib_farm.sh
+. "$(dirname "$0")/lib_farm.sh"
+farm_init passes_farm
 
 view=(--res 48x32 --spp 64 --seed 3 --passes all)
 "$bin/ptworker" --scene "$scene" "${view[@]}" --tile 16 --chunk 8 -q -o "$tmp/ref.exr" 2> /dev/null
@@ -52,42 +40,6 @@ if [ "$rc" != 2 ] || ! grep -q "ptctl submit --passes" "$tmp/refused.err"; then
   fail "a queue took --passes: exit $rc: $(cat "$tmp/refused.err")"
 fi
 
-port=0
-serve() { # LOG [VAR=VALUE...]: a queue on $port (0: any; kept for a restart), workers apart
-  local log=$1
-  shift
-  rm -f "$tmp/port"
-  env "$@" "$bin/ptserve" --state-dir "$tmp/state" --output-dir "$tmp/out" \
-    --listen "127.0.0.1:$port" --port-file "$tmp/port" --tile 16 --chunk 8 --lease-timeout 1 \
-    2>> "$tmp/$log" &
-  srv_pid=$!
-  for _ in $(seq 400); do [ -s "$tmp/port" ] && break; sleep 0.05; done
-  [ -s "$tmp/port" ] || fail "ptserve did not start: $(cat "$tmp/$log")"
-  port=$(cat "$tmp/port")
-  PTFARM_SERVER=127.0.0.1:$port
-  export PTFARM_SERVER
-}
-workers() { # N: that many workers of one thread
-  for w in $(seq "$1"); do
-    "$bin/ptworker" --server "$PTFARM_SERVER" --threads 1 --prefetch 2 --name "w$w" \
-      --cache-dir "$tmp/cache$w" 2>> "$tmp/worker.log" &
-    wrk_pids="$wrk_pids $!"
-  done
-}
-status() { "$bin/ptctl" --timeout 20 status "$1" --json > "$tmp/status.json"; }
-until_status() { # ID EXPR: polls (up to 120 s) until EXPR over the status (d) holds
-  for _ in $(seq 1200); do
-    status "$1" && [ "$(json "$tmp/status.json" "$2")" = True ] && return 0
-    sleep 0.1
-  done
-  fail "job $1: never $2: $(cat "$tmp/status.json")"
-}
-finish() { # ID NAME
-  until_status "$1" 'd["state"] == "done"'
-  "$bin/ptctl" fetch "$1" -o "$tmp/$2.exr"
-  same "$2"
-}
-
 # 2. A worker killed while it renders: its tasks are requeued.
 view=(--res 48x32 --spp 512 --seed 3 --passes all)
 "$bin/ptworker" --scene "$scene" "${view[@]}" --tile 16 --chunk 8 -q -o "$tmp/ref.exr" 2> /dev/null
@@ -96,15 +48,10 @@ serve serve1.log
 workers 2
 id=$("$bin/ptctl" submit "$scene" "${view[@]}" --name killed-worker)
 until_status "$id" 'd["samples_done"] > 0'
-read -r victim _ <<< "$wrk_pids"
-kill -9 "$victim"
-wait "$victim" 2> /dev/null || true
+kill_worker
 finish "$id" worker_killed
-for p in $wrk_pids; do kill "$p" 2>/dev/null || true; done
-wrk_pids=
-kill "$srv_pid"
-wait "$srv_pid" || true
-srv_pid=
+stop_workers
+stop_server
 
 # 3. The coordinator killed with checkpoints written every 40 kB of log.
 view=(--res 48x32 --spp 2048 --seed 3 --passes all)
@@ -125,9 +72,7 @@ for p in $wrk_pids; do kill -STOP "$p"; done
 status "$id"
 [ "$(json "$tmp/status.json" 'd["state"]')" = running ] || fail "the job ended before the kill"
 before=$(json "$tmp/status.json" 'd["samples_done"]')
-kill -9 "$srv_pid"
-wait "$srv_pid" 2> /dev/null || true
-srv_pid=
+stop_server -9
 for p in $wrk_pids; do kill -CONT "$p"; done
 serve serve2.log # the same port: the workers reconnect to it
 status "$id"

@@ -89,7 +89,10 @@ refused "a bad format" 2 "the output's format follows its name" "$tmp/in.exr" -o
 refused "bad threads" 2 "threads" "$tmp/in.exr" -o "$tmp/bad.exr" --threads 0
 refused "bad view" 2 "standard, filmic or agx" "$tmp/in.exr" -o "$tmp/bad.exr" --view aces
 refused "bad despeckle" 2 "not 0 or at least 1" "$tmp/in.exr" -o "$tmp/bad.exr" --despeckle 0.5
-"$bin/ptdenoise" --help | grep -q "usage: ptdenoise" || fail "--help"
+help=$("$bin/ptdenoise" --help)
+[[ $help == "usage: ptdenoise"* ]] || fail "--help"
+# Worked examples first, as the other programs' help: within its first lines.
+head -12 <<< "$help" | grep -q "^examples:" || fail "--help does not open with examples"
 "$bin/ptdenoise" --version | grep -q "^ptdenoise " || fail "--version"
 failed=0
 echo "ok"

@@ -614,7 +614,7 @@ static void test_task(void)
     CHECK(proto_msg_encode_task(&w, &t, &err) == PT_OK);
     CHECK(proto_msg_decode_task(w.buf, w.len, &back, &err) == PT_OK &&
           back.film_flags == t.film_flags);
-    t.film_flags = 1u << 8;
+    t.film_flags = PROTO_FILM_KNOWN + 1u; /* the lowest bit not defined */
     proto_writer_reset(&w);
     CHECK(proto_msg_encode_task(&w, &t, &err) == PT_ERR_ARG && w.len == 0);
     raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
@@ -1124,7 +1124,7 @@ static void test_submit(void)
     CHECK(m.film_flags == PROTO_FILM_TRANSPARENT && submit_check(&m, NULL) == PT_OK);
     m.film_flags = PROTO_FILM_TRANSPARENT | PROTO_FILM_DENOISE;
     CHECK(submit_check(&m, NULL) == PT_OK);
-    m.film_flags = PROTO_FILM_TRANSPARENT | (1u << 8);
+    m.film_flags = PROTO_FILM_TRANSPARENT | (PROTO_FILM_KNOWN + 1u);
     CHECK(submit_check(&m, "film flags") == PT_ERR_PROTO);
     /* The variant: at its cap accepted, one over refused both ways. */
     m = sample_submit(0);
