@@ -82,6 +82,9 @@ enum { PT_FEAT_DIFFUSE_TRANSMISSION = 1u << 21 };
 /* KHR_materials_dispersion: some transmitting, not thin-walled material has
  * a dispersion > 0 (common/render/dielectric.h). */
 enum { PT_FEAT_DISPERSION = 1u << 22 };
+/* EXT_mesh_gpu_instancing kept as instances (pt_scene.instances): a hit
+ * may come through an instance, whose transform shading applies. */
+enum { PT_FEAT_INSTANCES = 1u << 23 };
 
 /* pt_material.ext: what the BSDF of a material reads past the core
  * metallic-roughness inputs, set by the builder from the material's fields,
@@ -281,6 +284,32 @@ typedef struct pt_punctual {
 
 typedef struct pt_motion pt_motion; /* common/scene/motion.h */
 
+/* A mesh kept once for its instances (EXT_mesh_gpu_instancing): its
+ * triangles and vertices, contiguous at the end of the scene's arrays
+ * (after every flat one), are in the mesh's own space. */
+typedef struct pt_prototype {
+    uint32_t first_tri, num_tris;
+    uint32_t first_vertex, num_vertices;
+} pt_prototype;
+
+/* One instance of a prototype: the affine map from the prototype's space
+ * to scene space (opts' scale and translation and the origin included). A
+ * point p goes to xf[0..2] p.x + xf[3..5] p.y + xf[6..8] p.z + xf[9..11]
+ * (column-major 3x4, Embree's RTC_FORMAT_FLOAT3X4_COLUMN_MAJOR); a normal
+ * to nm (the inverse transpose of the 3x3, column-major too), then
+ * normalised; a tangent to the 3x3, with its handedness w times tan_sign
+ * (-1 where the map mirrors), as the builder transforms a copy's. */
+typedef struct pt_instance {
+    float xf[12];
+    float nm[9];
+    float tan_sign;
+    uint32_t proto; /* index into pt_scene.prototypes */
+} pt_instance;
+
+/* The most instances a scene may have (PT_FEAT_INSTANCES): each costs
+ * about 330 bytes, its record and Embree's (OPERATIONS.md). */
+#define PT_SCENE_MAX_INSTANCES (4u * 1024u * 1024u)
+
 typedef struct pt_scene {
     uint32_t num_vertices;
     uint32_t num_triangles;
@@ -322,6 +351,16 @@ typedef struct pt_scene {
                                        origin; a multiple of a power of two near the centre
                                        of the bounds, or 0 (see above) */
     pt_motion *motion;              /* what moves within the shutter, or NULL (motion.h) */
+    /* Instancing (PT_FEAT_INSTANCES; 0 and NULL without): triangles
+     * [0, num_flat_triangles) and vertices [0, num_flat_vertices) are in
+     * scene space; the rest are the prototypes', each in its own space,
+     * seen only through the instances. Without instances the counts are
+     * num_triangles and num_vertices. */
+    uint32_t num_flat_triangles, num_flat_vertices;
+    uint32_t num_prototypes;
+    pt_prototype *prototypes;
+    uint32_t num_instances;
+    pt_instance *instances;
 } pt_scene;
 
 typedef void (*pt_warn_fn)(void *user, const char *message);
@@ -614,6 +653,22 @@ pt_status pt_scene_builder_add_mesh_motion(pt_scene_builder *b, const char *what
                                            const float *const *normals, const float *uvs,
                                            uint32_t nv, const uint32_t *indices, uint32_t nt,
                                            uint32_t material, pt_error *err);
+/* Instancing: the meshes added between begin and end make prototype
+ * *proto, kept in their own space (their xform is the mesh's place within
+ * the prototype, normally NULL); pt_scene_builder_add_instance then places
+ * it. Every flat mesh must come before the first prototype (PT_ERR_ARG
+ * otherwise), and a scene with prototypes cannot have moving meshes or
+ * emissive prototype triangles (PT_ERR_ARG): lights and motion need every
+ * copy in scene space. */
+pt_status pt_scene_builder_begin_prototype(pt_scene_builder *b, uint32_t *proto, pt_error *err);
+pt_status pt_scene_builder_end_prototype(pt_scene_builder *b, pt_error *err);
+/* Places prototype `proto` by the column-major 4x4 world matrix xform
+ * (before opts' scale and translation, as a mesh's). PT_ERR_FORMAT for a
+ * non-finite matrix or one whose last row is not (0, 0, 0, 1), PT_ERR_LIMIT
+ * past PT_SCENE_MAX_INSTANCES. A singular matrix (a scale of 0, which
+ * hides an instance) places nothing. */
+pt_status pt_scene_builder_add_instance(pt_scene_builder *b, uint32_t proto, const double xform[16],
+                                        pt_error *err);
 /* Adds a camera (copied) in world space. Rejects (PT_ERR_FORMAT) non-finite
  * vectors, a position over PT_SCENE_MAX_COORD, yfov outside (0, pi), aspect
  * outside [0, 1e6), a negative or non-finite znear. */
