@@ -1555,6 +1555,35 @@ static void box_under(const double m[3][4], const double plo[3], const double ph
     }
 }
 
+/* Whether the bounds take every instance's every vertex (then they are
+ * the copies' bounds, bit for bit, and so is a framed camera), or, past
+ * 64 Mi vertex maps (a second or so), each prototype's box under each
+ * instance (a larger box that holds them). */
+static int tight_bounds(const pt_scene_builder *b, const pt_scene *s)
+{
+    uint64_t work = 0;
+    for (uint32_t i = 0; i < b->ninst; i++)
+        work += s->prototypes[b->inst_proto[i]].num_vertices;
+    return work <= (64u << 20);
+}
+
+/* The box of prototype p's vertices (double, pos) under m, less origin
+ * (NULL: 0), into [lo, hi]: the values a copy's builder computes. */
+static void vertices_under(const double m[3][4], const double *pos, const pt_prototype *p,
+                           const double *origin, double lo[3], double hi[3])
+{
+    for (uint32_t v = p->first_vertex; v < p->first_vertex + p->num_vertices; v++) {
+        const double *q = pos + 3 * (size_t)v;
+        for (int r = 0; r < 3; r++) {
+            double y = m[r][0] * q[0] + m[r][1] * q[1] + m[r][2] * q[2] + m[r][3];
+            if (origin)
+                y -= origin[r];
+            lo[r] = fmin(lo[r], y);
+            hi[r] = fmax(hi[r], y);
+        }
+    }
+}
+
 /* The prototypes' own boxes (double, 6 per prototype, from b->pos) and the
  * scene's instances (their records filled but for the origin, which the
  * caller subtracts in place_instances); the world boxes of the instances
@@ -1577,6 +1606,7 @@ static pt_status finish_instances(pt_scene_builder *b, pt_scene *s, double sc, c
         return pt_error_set(err, PT_ERR_NOMEM, "scene: out of memory for instances");
     }
     s->num_instances = b->ninst;
+    const int tight = tight_bounds(b, s);
     for (uint32_t i = 0; i < s->num_prototypes; i++) {
         const pt_prototype *p = &s->prototypes[i];
         double *bx = box + 6 * (size_t)i;
@@ -1600,7 +1630,10 @@ static pt_status finish_instances(pt_scene_builder *b, pt_scene *s, double sc, c
             for (int k = 0; k < 3; k++)
                 in->nm[3 * k + r] = (float)(c[r][k] / det); /* inverse transpose */
         const double *bx = box + 6 * (size_t)in->proto;
-        if (s->prototypes[in->proto].num_tris > 0)
+        const pt_prototype *p = &s->prototypes[in->proto];
+        if (p->num_tris > 0 && tight)
+            vertices_under(m, b->pos, p, NULL, lo, hi);
+        else if (p->num_tris > 0)
             box_under(m, bx, bx + 3, lo, hi);
         for (int r = 0; r < 3; r++) {
             if (!(fabs(m[r][3]) <= (double)PT_SCENE_MAX_COORD)) {
@@ -1619,6 +1652,7 @@ static pt_status finish_instances(pt_scene_builder *b, pt_scene *s, double sc, c
 static void place_instances(const pt_scene_builder *b, pt_scene *s, double sc, const double t[3],
                             pt_vec3 *flo, pt_vec3 *fhi)
 {
+    const int tight = s->num_instances > 0 && tight_bounds(b, s);
     for (uint32_t i = 0; i < s->num_instances; i++) {
         pt_instance *in = &s->instances[i];
         double m[3][4];
@@ -1631,6 +1665,19 @@ static void place_instances(const pt_scene_builder *b, pt_scene *s, double sc, c
         const pt_prototype *p = &s->prototypes[in->proto];
         if (p->num_tris == 0)
             continue;
+        if (tight) {
+            /* As a copy's stored vertices: float(world - origin). */
+            double lo[3] = {INFINITY, INFINITY, INFINITY},
+                   hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+            double w[3][4];
+            instance_world(b->inst_xf + 16 * (size_t)i, sc, t, w);
+            vertices_under(w, b->pos, p, s->origin, lo, hi);
+            *flo = pt_v3(fminf(flo->x, (float)lo[0]), fminf(flo->y, (float)lo[1]),
+                         fminf(flo->z, (float)lo[2]));
+            *fhi = pt_v3(fmaxf(fhi->x, (float)hi[0]), fmaxf(fhi->y, (float)hi[1]),
+                         fmaxf(fhi->z, (float)hi[2]));
+            continue;
+        }
         /* The float corners of the map of the prototype's float box. */
         double plo[3] = {INFINITY, INFINITY, INFINITY}, phi[3] = {-INFINITY, -INFINITY, -INFINITY};
         for (uint32_t v = p->first_vertex; v < p->first_vertex + p->num_vertices; v++)
