@@ -6,8 +6,10 @@
  * A pt_scene is immutable after it is built and may be shared by any number of
  * render threads. It owns all of its memory (freed by pt_scene_free).
  * Geometry is flattened: every mesh instance of the glTF default scene is
- * transformed to world space. Per-vertex arrays are shared by all triangles;
- * tri_material[i] is an index into materials[] for triangle i.
+ * transformed to world space, but for EXT_mesh_gpu_instancing's, kept once
+ * in the mesh's own space as a prototype placed by its instances
+ * (PT_FEAT_INSTANCES, pt_instance). Per-vertex arrays are shared by all
+ * triangles; tri_material[i] is an index into materials[] for triangle i.
  *
  * Coordinate spaces: positions, camera positions and bounds are stored in the
  * "scene space" of world space translated by -origin (world = stored + origin),
