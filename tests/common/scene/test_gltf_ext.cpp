@@ -932,6 +932,50 @@ void test_instances_vs_copies()
                 "4194304");
 }
 
+// Several material extensions on one material: what the closure builder
+// cannot compose is warned once, by name; what it composes is not.
+void test_combined_materials()
+{
+    struct {
+        const char *ext, *want; // want: the warning's text, or nullptr for none
+    } cases[] = {
+        {"\"KHR_materials_iridescence\":{\"iridescenceFactor\":1},"
+         "\"KHR_materials_anisotropy\":{\"anisotropyStrength\":0.5}",
+         "KHR_materials_iridescence beside KHR_materials_anisotropy is ignored"},
+        {"\"KHR_materials_iridescence\":{\"iridescenceFactor\":1},"
+         "\"KHR_materials_diffuse_transmission\":{\"diffuseTransmissionFactor\":0.5}",
+         "KHR_materials_iridescence beside KHR_materials_diffuse_transmission is ignored"},
+        {"\"KHR_materials_pbrSpecularGlossiness\":{},\"KHR_materials_clearcoat\":{"
+         "\"clearcoatFactor\":1}",
+         "KHR_materials_clearcoat beside KHR_materials_pbrSpecularGlossiness is ignored"},
+        // These compose: diffuse transmission with anisotropy, and every
+        // layer over them with a specular colour.
+        {"\"KHR_materials_diffuse_transmission\":{\"diffuseTransmissionFactor\":0.5},"
+         "\"KHR_materials_anisotropy\":{\"anisotropyStrength\":0.5},"
+         "\"KHR_materials_clearcoat\":{\"clearcoatFactor\":1},"
+         "\"KHR_materials_sheen\":{\"sheenColorFactor\":[1,1,1]},"
+         "\"KHR_materials_specular\":{\"specularColorFactor\":[1,0.5,0.5]}",
+         nullptr},
+        {"\"KHR_materials_iridescence\":{\"iridescenceFactor\":1},"
+         "\"KHR_materials_transmission\":{\"transmissionFactor\":1},"
+         "\"KHR_materials_clearcoat\":{\"clearcoatFactor\":1},"
+         "\"KHR_materials_sheen\":{\"sheenColorFactor\":[1,1,1]}",
+         nullptr},
+    };
+    for (const auto &c : cases) {
+        std::string p = write_tmp(ext_file("", "", c.ext), "combined");
+        loaded l;
+        load(p, l);
+        CHECKF(l.st == PT_OK, "%s", l.err.msg);
+        if (c.want)
+            CHECKF(count_of(l.warnings, c.want) == 1, "%s: warnings '%s'", c.want,
+                   l.warnings.c_str());
+        else
+            CHECKF(l.nwarn == 0, "%s: warnings '%s'", c.ext, l.warnings.c_str());
+        unlink(p.c_str());
+    }
+}
+
 // ---- EXT_texture_webp and KHR_texture_basisu ------------------------------------------
 
 std::vector<unsigned char> png_of(const unsigned char *rgba, int w, int h)
@@ -1183,6 +1227,7 @@ int main(void)
     test_draco_hostile();
     test_instancing();
     test_instances_vs_copies();
+    test_combined_materials();
     test_texture_formats();
     test_meshopt();
     return check_report();
