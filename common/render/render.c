@@ -1285,9 +1285,11 @@ static int aniso_at(const pt_renderer *r, const surface *sf, const pt_frame *fr,
 #define BASE_MATX (PT_MATX_DIFFUSE_TRANSMISSION | PT_MATX_ANISOTROPY | PT_MATX_IRIDESCENCE)
 
 /* The base's lobes of a material with one of BASE_MATX, into cl: diffuse
- * transmission, else anisotropy, else iridescence (a material with several
- * keeps the first); out of line, so that the core path stays as small as it
- * was. */
+ * transmission (its specular lobe anisotropic when the material has
+ * anisotropy too), else anisotropy, else iridescence (there is no thin film
+ * over an anisotropic or a transmitting lobe: the loader warns that the film
+ * is dropped beside them); out of line, so that the core path stays as
+ * small as it was. */
 static __attribute__((noinline)) void add_base_ext(const pt_renderer *r, const surface *sf,
                                                    const pt_frame *fr, const pt_bsdf *bsdf,
                                                    pt_closure *cl, const uint32_t features)
@@ -1296,10 +1298,16 @@ static __attribute__((noinline)) void add_base_ext(const pt_renderer *r, const s
     float as, ac, an, dt;
     pt_vec3 dtc;
     if ((features & PT_FEAT_DIFFUSE_TRANSMISSION) &&
-        (sf->mat->ext & PT_MATX_DIFFUSE_TRANSMISSION) && dt_at(r, sf, features, &dt, &dtc))
-        pt_closure_add_base_dt(cl, bsdf, dt, dtc);
-    else if ((features & PT_FEAT_ANISOTROPY) && sf->aniso &&
-             aniso_at(r, sf, fr, features, &as, &ac, &an))
+        (sf->mat->ext & PT_MATX_DIFFUSE_TRANSMISSION) && dt_at(r, sf, features, &dt, &dtc)) {
+        /* With anisotropy too: both compose (the film does not: the
+         * loader warns). */
+        if ((features & PT_FEAT_ANISOTROPY) && sf->aniso &&
+            aniso_at(r, sf, fr, features, &as, &ac, &an))
+            pt_closure_add_base_dt_aniso(cl, bsdf, dt, dtc, as, ac, an);
+        else
+            pt_closure_add_base_dt(cl, bsdf, dt, dtc);
+    } else if ((features & PT_FEAT_ANISOTROPY) && sf->aniso &&
+               aniso_at(r, sf, fr, features, &as, &ac, &an))
         pt_closure_add_base_aniso(cl, bsdf, as, ac, an);
     else if ((features & PT_FEAT_IRIDESCENCE) && (sf->mat->ext & PT_MATX_IRIDESCENCE) &&
              film_at(r, sf, features, &film))
@@ -1473,7 +1481,9 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     else
         lambert = material_bsdf(r, sf, features);
     uint32_t mi = (uint32_t)(sf->mat - s->materials);
-    int thin = glass && !(sf->mat->thickness > 0.0f);
+    /* Glass, or a diffuse transmitter, with a volume (KHR_materials_volume)
+     * crosses into it or out of it (medium_across); a thin one does not. */
+    int thin = through && !(sf->mat->thickness > 0.0f);
     if ((features & FEAT_PASSES) && pa->pr && !pa->pr->found) {
         /* The passes' vertex: the first non-specular one. Through a specular
          * one the path goes on, and beta carries the chain's throughput to
@@ -1560,7 +1570,7 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
                         w = power_heuristic(ls->pdf, bpdf) / ls->pdf;
                 }
                 pt_vec3 c = pt_v3_mul(pa->beta, pt_v3_scale(pt_v3_mul(f, lrad), w));
-                if ((features & PT_FEAT_VOLUME) && glass) {
+                if ((features & PT_FEAT_VOLUME) && through) {
                     int32_t med =
                         side > 0.0f ? pa->medium : medium_across(s, pa->medium, mi, front, thin);
                     c = pt_v3_mul(c, medium_transmittance(s, med, sr->dist));
@@ -1621,7 +1631,7 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
             return ret;
         beta = pt_v3_scale(beta, 1.0f / survive);
     }
-    if (glass && side < 0.0f)
+    if ((features & PT_FEAT_VOLUME) && through && side < 0.0f)
         pa->medium = medium_across(s, pa->medium, mi, front, thin);
     pa->beta = beta;
     pa->prev_p = sf->p;

@@ -249,9 +249,10 @@ static pt_status check_transmission(const pt_scene_builder *b, const pt_material
         return pt_error_set(err, PT_ERR_FORMAT,
                             "material '%.64s': transmissionFactor %g is outside [0, 1]", name,
                             (double)m->transmission);
-    if (m->transmission == 0.0f)
+    /* A diffuse transmitter's volume is checked too (its medium). */
+    if (m->transmission == 0.0f && !(m->diffuse_transmission > 0.0f))
         return PT_OK;
-    if (!(m->ior == 0.0f || (m->ior >= 1.0f && isfinite(m->ior))))
+    if (m->transmission > 0.0f && !(m->ior == 0.0f || (m->ior >= 1.0f && isfinite(m->ior))))
         return pt_error_set(err, PT_ERR_FORMAT, "material '%.64s': ior %g is not 0 or >= 1", name,
                             (double)m->ior);
     if (!(m->thickness >= 0.0f && isfinite(m->thickness)))
@@ -1429,6 +1430,8 @@ static uint32_t scene_features(const pt_scene *s, int has_uv, pt_error *err, pt_
             if (m->dispersion > 0.0f && m->thickness > 0.0f)
                 f |= PT_FEAT_DISPERSION;
         }
+        if (m->diffuse_transmission > 0.0f && !(m->transmission > 0.0f) && pt_material_absorbs(m))
+            f |= PT_FEAT_VOLUME; /* a diffuse transmitter's volume */
         if (m->normal_tex >= 0)
             f |= PT_FEAT_NORMAL_MAP;
         /* Layers have GGX-like lobes: the Lambert paths must not run. */

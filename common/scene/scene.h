@@ -169,7 +169,8 @@ typedef struct pt_material {
     int32_t transmission_tex;   /* R = transmission (linear), or -1 */
     float ior;                  /* index of refraction, >= 1 (default 1.5), or 0: F0 = 1 */
     float thickness;            /* thicknessFactor >= 0: 0 is thin-walled (the default), else the
-                                   mesh is a closed volume; its value is not otherwise used */
+                                   mesh is a closed volume (glass's, or a diffuse transmitter's);
+                                   its value is not otherwise used */
     float attenuation_color[3]; /* in [0, 1] (default 1,1,1) */
     float attenuation_distance; /* > 0; 0 (or +inf in glTF) means no absorption */
     int double_sided;
@@ -574,12 +575,14 @@ void pt_scene_frame_camera(pt_scene *scene, float aspect);
  * a near-zero aspect cannot overflow. Pure: any thread may call it. */
 uint32_t pt_camera_height(float aspect, uint32_t width, uint32_t max_height);
 
-/* Whether m absorbs inside its volume (Beer-Lambert): it transmits, is not
- * thin-walled, and has a finite attenuation distance with a colour below 1. */
+/* Whether m absorbs inside its volume (Beer-Lambert): it transmits (glass,
+ * or KHR_materials_diffuse_transmission: the transmitted light enters the
+ * volume), is not thin-walled, and has a finite attenuation distance with a
+ * colour below 1. */
 static inline int pt_material_absorbs(const pt_material *m)
 {
-    return m->transmission > 0.0f && m->thickness > 0.0f && m->attenuation_distance > 0.0f &&
-           m->attenuation_distance < 3.4e38f &&
+    return (m->transmission > 0.0f || m->diffuse_transmission > 0.0f) && m->thickness > 0.0f &&
+           m->attenuation_distance > 0.0f && m->attenuation_distance < 3.4e38f &&
            (m->attenuation_color[0] < 1.0f || m->attenuation_color[1] < 1.0f ||
             m->attenuation_color[2] < 1.0f);
 }
