@@ -56,16 +56,17 @@ static void usage(FILE *f)
         "\n"
         "Scene limits (both modes; ptserve checks uploads the same way): at most\n"
         "%u triangles and 3 times as many vertices, every instance of a mesh\n"
-        "counted; images of at most %llu texels (%u a side) and %llu\n"
+        "counted (an EXT_mesh_gpu_instancing mesh once, with at most %u instances\n"
+        "of about 500 bytes); images of at most %llu texels (%u a side) and %llu\n"
         "texels over all textures; PNG data no longer than an image's size needs;\n"
         "with --time, --frame or --shutter, %llu morph target deltas (vertices x\n"
         "targets, every instance). They are read from the files before anything is\n"
         "built or decoded; a scene past them is refused. --shutter stops doubling\n"
         "its time steps at %llu triangles x steps. A worker needs 170 to 500 bytes\n"
         "a triangle and 4 a texel (docs/OPERATIONS.md, Limits).\n",
-        PT_SCENE_MAX_TRIANGLES, (unsigned long long)PT_SCENE_MAX_IMAGE_TEXELS,
-        PT_SCENE_MAX_TEXTURE_DIM, (unsigned long long)PT_SCENE_MAX_TEXELS,
-        (unsigned long long)PT_ANIM_MAX_MORPH_DELTAS,
+        PT_SCENE_MAX_TRIANGLES, PT_SCENE_MAX_INSTANCES,
+        (unsigned long long)PT_SCENE_MAX_IMAGE_TEXELS, PT_SCENE_MAX_TEXTURE_DIM,
+        (unsigned long long)PT_SCENE_MAX_TEXELS, (unsigned long long)PT_ANIM_MAX_MORPH_DELTAS,
         (unsigned long long)PT_MOTION_MAX_TRIANGLE_STEPS);
     fprintf(f,
             "\n"

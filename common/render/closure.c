@@ -96,7 +96,10 @@ void pt_closure_add_base_aniso(pt_closure *c, const pt_bsdf *b, float strength, 
         add_lobe(c, g, PT_LOBE_DIFFUSE, 1.0f - ps)->p.diffuse = pt_bsdf_diffuse(b);
 }
 
-void pt_closure_add_base_dt(pt_closure *c, const pt_bsdf *b, float dt, pt_vec3 through)
+/* pt_closure_add_base_dt with the specular lobe anisotropic when aniso
+ * (strength, dc, ds as pt_closure_add_base_aniso's). */
+static void add_base_dt(pt_closure *c, const pt_bsdf *b, float dt, pt_vec3 through, int aniso,
+                        float strength, float dc, float ds)
 {
     if (c->dead)
         return;
@@ -109,7 +112,9 @@ void pt_closure_add_base_dt(pt_closure *c, const pt_bsdf *b, float dt, pt_vec3 t
     float lr = pt_luminance(refl), lt = pt_luminance(through);
     float pr = lr + lt > 0.0f ? lr / (lr + lt) : 0.5f;
     pt_closure_group *g = open_group(c, 0.0f);
-    if (ps > 0.0f)
+    if (ps > 0.0f && aniso)
+        add_lobe(c, g, PT_LOBE_SPECULAR_ANISO, ps)->p.aniso = pt_aniso_setup(b, strength, dc, ds);
+    else if (ps > 0.0f)
         add_lobe(c, g, PT_LOBE_SPECULAR, ps)->p.specular = pt_bsdf_specular(b);
     if (ps < 1.0f && pr > 0.0f) {
         pt_diffuse_lobe d = {refl, b->dielectric_f0, b->dielectric_f90};
@@ -119,6 +124,17 @@ void pt_closure_add_base_dt(pt_closure *c, const pt_bsdf *b, float dt, pt_vec3 t
         pt_diffuse_lobe d = {through, b->dielectric_f0, b->dielectric_f90};
         add_lobe(c, g, PT_LOBE_DIFFUSE_TRANSMIT, (1.0f - ps) * (1.0f - pr))->p.diffuse = d;
     }
+}
+
+void pt_closure_add_base_dt(pt_closure *c, const pt_bsdf *b, float dt, pt_vec3 through)
+{
+    add_base_dt(c, b, dt, through, 0, 0.0f, 1.0f, 0.0f);
+}
+
+void pt_closure_add_base_dt_aniso(pt_closure *c, const pt_bsdf *b, float dt, pt_vec3 through,
+                                  float strength, float dc, float ds)
+{
+    add_base_dt(c, b, dt, through, 1, strength, dc, ds);
 }
 
 void pt_closure_add_glass(pt_closure *c, const pt_glass *gl)

@@ -111,6 +111,11 @@ void pt_closure_add_base_aniso(pt_closure *c, const pt_bsdf *b, float strength, 
  * KHR_materials_diffuse_transmission): reflected albedo b's diffuse x
  * (1 - dt), transmitted albedo `through` (dt x colour x (1 - metallic)). */
 void pt_closure_add_base_dt(pt_closure *c, const pt_bsdf *b, float dt, pt_vec3 through);
+/* Both: the diffuse shares of pt_closure_add_base_dt beside the
+ * anisotropic GGX lobe of pt_closure_add_base_aniso (a material with
+ * KHR_materials_diffuse_transmission and KHR_materials_anisotropy). */
+void pt_closure_add_base_dt_aniso(pt_closure *c, const pt_bsdf *b, float dt, pt_vec3 through,
+                                  float strength, float dc, float ds);
 /* Glass (dielectric.h): its opaque share as the base, then the interface
  * beside it; in place of pt_closure_add_base. */
 void pt_closure_add_glass(pt_closure *c, const pt_glass *g);

@@ -183,12 +183,34 @@ typedef struct surface {
     float tan_w;
     int aniso;
     const pt_material *mat;
+    /* The instance the hit came through (PT_FEAT_INSTANCES), else NULL:
+     * the tangents, in its prototype's space, go through its transform. */
+    const pt_instance *inst;
 } surface;
 
 /* The UV that slot x reads: its coordinate set, transformed. */
 static inline void slot_uv(const surface *sf, const pt_tex_xform *x, float out[2])
 {
     pt_tex_xform_apply(x, x->texcoord ? sf->uv1 : sf->uv, out);
+}
+
+/* Through an instance, vertex attributes are taken to scene space vertex
+ * by vertex, then interpolated, as the builder makes a copy's (a tangent
+ * by the 3x3 and normalised, a normal by the inverse transpose and
+ * normalised): under a non-uniform scale, transforming the interpolated
+ * value would weight the vertices otherwise. */
+static __attribute__((noinline)) pt_vec3 instance_tangent(const pt_instance *in, const float *T,
+                                                          const uint32_t *tri, const pt_hit *hit)
+{
+    const float w[3] = {1.0f - hit->b1 - hit->b2, hit->b1, hit->b2};
+    pt_vec3 t = pt_v3(0.0f, 0.0f, 0.0f);
+    for (int k = 0; k < 3; k++) {
+        pt_vec3 v = pt_instance_vector(in, vert4(T, tri[k]));
+        float len = pt_v3_len(v);
+        if (len > 0.0f && isfinite(len))
+            t = pt_v3_add(t, pt_v3_scale(v, w[k] / len));
+    }
+    return t;
 }
 
 /*
@@ -202,16 +224,20 @@ static inline void slot_uv(const surface *sf, const pt_tex_xform *x, float out[2
  * clear coat's clearcoatNormalTexture both go through here, in the same frame.
  */
 static int tangent_normal(const pt_scene *s, const pt_hit *hit, const surface *sf, int32_t tex,
-                          float scale, int slot, pt_vec3 *out)
+                          float scale, int slot, pt_vec3 *out, const uint32_t features)
 {
     const pt_material *m = sf->mat;
+    const pt_instance *inst = (features & PT_FEAT_INSTANCES) ? sf->inst : NULL;
     const uint32_t *tri = &s->indices[3 * hit->tri];
     const float *T = s->tangents;
     float b0 = 1.0f - hit->b1 - hit->b2;
-    pt_vec3 t = pt_v3_add(
-        pt_v3_add(pt_v3_scale(vert4(T, tri[0]), b0), pt_v3_scale(vert4(T, tri[1]), hit->b1)),
-        pt_v3_scale(vert4(T, tri[2]), hit->b2));
+    pt_vec3 t = inst ? instance_tangent(inst, T, tri, hit)
+                     : pt_v3_add(pt_v3_add(pt_v3_scale(vert4(T, tri[0]), b0),
+                                           pt_v3_scale(vert4(T, tri[1]), hit->b1)),
+                                 pt_v3_scale(vert4(T, tri[2]), hit->b2));
     float w = b0 * T[4 * tri[0] + 3] + hit->b1 * T[4 * tri[1] + 3] + hit->b2 * T[4 * tri[2] + 3];
+    if (inst)
+        w *= inst->tan_sign;
     pt_vec3 n = sf->ns;
     t = pt_v3_sub(t, pt_v3_scale(n, pt_v3_dot(n, t)));
     float len = pt_v3_len(t);
@@ -239,20 +265,22 @@ static int tangent_normal(const pt_scene *s, const pt_hit *hit, const surface *s
 }
 
 /* The base's normal map: sf->ns mapped (unchanged for a degenerate frame). */
-static void normal_map(const pt_scene *s, const pt_hit *hit, surface *sf)
+static void normal_map(const pt_scene *s, const pt_hit *hit, surface *sf, const uint32_t features)
 {
     const pt_material *m = sf->mat;
-    if (tangent_normal(s, hit, sf, m->normal_tex, m->normal_scale, PT_SLOT_NORMAL, &sf->ns))
+    if (tangent_normal(s, hit, sf, m->normal_tex, m->normal_scale, PT_SLOT_NORMAL, &sf->ns,
+                       features))
         sf->mapped = 1;
 }
 
 /* The clear coat's normal map, from the interpolated normal (so before
  * normal_map replaces it): sf->nc, and sf->coat_mapped where it took. */
-static void coat_normal_map(const pt_scene *s, const pt_hit *hit, surface *sf)
+static void coat_normal_map(const pt_scene *s, const pt_hit *hit, surface *sf,
+                            const uint32_t features)
 {
     const pt_material *m = sf->mat;
     sf->coat_mapped = tangent_normal(s, hit, sf, m->clearcoat_normal_tex, m->clearcoat_normal_scale,
-                                     PT_SLOT_CLEARCOAT_NORMAL, &sf->nc);
+                                     PT_SLOT_CLEARCOAT_NORMAL, &sf->nc, features);
 }
 
 /*
@@ -361,6 +389,30 @@ static __attribute__((noinline)) void surface_moving(const pt_motion *m, uint32_
     sf->ns = (len > 0.0f && isfinite(len)) ? pt_v3_scale(n, 1.0f / len) : sf->ng;
 }
 
+/* A hit through an instance (PT_FEAT_INSTANCES): the point and normals,
+ * computed in its prototype's space, taken to scene space (a point by the
+ * 3x4, normals by the inverse transpose, as the builder takes a copy's:
+ * the same up to float rounding). */
+static __attribute__((noinline)) void surface_instance(const pt_scene *s, const pt_instance *in,
+                                                       const pt_hit *hit, int flat, surface *sf)
+{
+    sf->inst = in;
+    sf->p = pt_instance_point(in, sf->p);
+    sf->ng = pt_instance_normal(in, sf->ng, sf->ng);
+    if (flat) { /* three equal normals: the record's, transformed */
+        sf->ns = pt_instance_normal(in, sf->ns, sf->ng);
+        return;
+    }
+    const uint32_t *tri = &s->indices[3 * hit->tri];
+    const float w[3] = {1.0f - hit->b1 - hit->b2, hit->b1, hit->b2};
+    pt_vec3 n = pt_v3(0.0f, 0.0f, 0.0f);
+    for (int k = 0; k < 3; k++)
+        n = pt_v3_add(n,
+                      pt_v3_scale(pt_instance_normal(in, vert(s->normals, tri[k]), sf->ng), w[k]));
+    float len = pt_v3_len(n);
+    sf->ns = (len > 0.0f && isfinite(len)) ? pt_v3_scale(n, 1.0f / len) : sf->ng;
+}
+
 static inline void surface_at(const pt_renderer *r, const pt_hit *hit, float time, surface *sf,
                               const uint32_t features)
 {
@@ -385,6 +437,11 @@ static inline void surface_at(const pt_renderer *r, const pt_hit *hit, float tim
         uint32_t k = r->motion->moving[hit->tri];
         if (k != UINT32_MAX)
             surface_moving(r->motion, k, hit, time, sf);
+    }
+    if (features & PT_FEAT_INSTANCES) {
+        sf->inst = NULL;
+        if (hit->inst)
+            surface_instance(s, &s->instances[hit->inst - 1], hit, (t->mat & TRI_FLAT) != 0, sf);
     }
     sf->uv[0] = sf->uv[1] = 0.0f;
     if ((features & PT_FEAT_TEXTURES) && s->uvs) {
@@ -431,9 +488,9 @@ static inline void surface_at(const pt_renderer *r, const pt_hit *hit, float tim
                 }
             }
             if (coat)
-                coat_normal_map(s, hit, sf);
+                coat_normal_map(s, hit, sf, features);
             if (m->normal_tex >= 0)
-                normal_map(s, hit, sf);
+                normal_map(s, hit, sf, features);
         }
     }
     if (features & PT_FEAT_ANISOTROPY) {
@@ -445,6 +502,10 @@ static inline void surface_at(const pt_renderer *r, const pt_hit *hit, float tim
                                 pt_v3_scale(vert4(T, tri[2]), hit->b2));
             sf->tan_w =
                 b0 * T[4 * tri[0] + 3] + hit->b1 * T[4 * tri[1] + 3] + hit->b2 * T[4 * tri[2] + 3];
+            if ((features & PT_FEAT_INSTANCES) && sf->inst) {
+                sf->tan = instance_tangent(sf->inst, T, tri, hit);
+                sf->tan_w *= sf->inst->tan_sign;
+            }
         }
     }
 }
@@ -466,7 +527,7 @@ static tri_rec *tri_recs_new(const pt_scene *s, void **base)
     for (size_t i = 0; i < n; i++) {
         const uint32_t *tri = &s->indices[3 * i];
         tri_rec *t = &recs[i];
-        pt_hit hit = {0.0f, 0.0f, 0.0f, (uint32_t)i};
+        pt_hit hit = {0.0f, 0.0f, 0.0f, (uint32_t)i, 0};
         pt_vec3 p;
         pt_accel_hit_point(s, &hit, &p, &t->ng);
         t->v0 = vert(s->positions, tri[0]);
@@ -1224,9 +1285,11 @@ static int aniso_at(const pt_renderer *r, const surface *sf, const pt_frame *fr,
 #define BASE_MATX (PT_MATX_DIFFUSE_TRANSMISSION | PT_MATX_ANISOTROPY | PT_MATX_IRIDESCENCE)
 
 /* The base's lobes of a material with one of BASE_MATX, into cl: diffuse
- * transmission, else anisotropy, else iridescence (a material with several
- * keeps the first); out of line, so that the core path stays as small as it
- * was. */
+ * transmission (its specular lobe anisotropic when the material has
+ * anisotropy too), else anisotropy, else iridescence (there is no thin film
+ * over an anisotropic or a transmitting lobe: the loader warns that the film
+ * is dropped beside them); out of line, so that the core path stays as
+ * small as it was. */
 static __attribute__((noinline)) void add_base_ext(const pt_renderer *r, const surface *sf,
                                                    const pt_frame *fr, const pt_bsdf *bsdf,
                                                    pt_closure *cl, const uint32_t features)
@@ -1235,10 +1298,16 @@ static __attribute__((noinline)) void add_base_ext(const pt_renderer *r, const s
     float as, ac, an, dt;
     pt_vec3 dtc;
     if ((features & PT_FEAT_DIFFUSE_TRANSMISSION) &&
-        (sf->mat->ext & PT_MATX_DIFFUSE_TRANSMISSION) && dt_at(r, sf, features, &dt, &dtc))
-        pt_closure_add_base_dt(cl, bsdf, dt, dtc);
-    else if ((features & PT_FEAT_ANISOTROPY) && sf->aniso &&
-             aniso_at(r, sf, fr, features, &as, &ac, &an))
+        (sf->mat->ext & PT_MATX_DIFFUSE_TRANSMISSION) && dt_at(r, sf, features, &dt, &dtc)) {
+        /* With anisotropy too: both compose (the film does not: the
+         * loader warns). */
+        if ((features & PT_FEAT_ANISOTROPY) && sf->aniso &&
+            aniso_at(r, sf, fr, features, &as, &ac, &an))
+            pt_closure_add_base_dt_aniso(cl, bsdf, dt, dtc, as, ac, an);
+        else
+            pt_closure_add_base_dt(cl, bsdf, dt, dtc);
+    } else if ((features & PT_FEAT_ANISOTROPY) && sf->aniso &&
+               aniso_at(r, sf, fr, features, &as, &ac, &an))
         pt_closure_add_base_aniso(cl, bsdf, as, ac, an);
     else if ((features & PT_FEAT_IRIDESCENCE) && (sf->mat->ext & PT_MATX_IRIDESCENCE) &&
              film_at(r, sf, features, &film))
@@ -1412,7 +1481,9 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     else
         lambert = material_bsdf(r, sf, features);
     uint32_t mi = (uint32_t)(sf->mat - s->materials);
-    int thin = glass && !(sf->mat->thickness > 0.0f);
+    /* Glass, or a diffuse transmitter, with a volume (KHR_materials_volume)
+     * crosses into it or out of it (medium_across); a thin one does not. */
+    int thin = through && !(sf->mat->thickness > 0.0f);
     if ((features & FEAT_PASSES) && pa->pr && !pa->pr->found) {
         /* The passes' vertex: the first non-specular one. Through a specular
          * one the path goes on, and beta carries the chain's throughput to
@@ -1499,7 +1570,7 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
                         w = power_heuristic(ls->pdf, bpdf) / ls->pdf;
                 }
                 pt_vec3 c = pt_v3_mul(pa->beta, pt_v3_scale(pt_v3_mul(f, lrad), w));
-                if ((features & PT_FEAT_VOLUME) && glass) {
+                if ((features & PT_FEAT_VOLUME) && through) {
                     int32_t med =
                         side > 0.0f ? pa->medium : medium_across(s, pa->medium, mi, front, thin);
                     c = pt_v3_mul(c, medium_transmittance(s, med, sr->dist));
@@ -1560,7 +1631,7 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
             return ret;
         beta = pt_v3_scale(beta, 1.0f / survive);
     }
-    if (glass && side < 0.0f)
+    if ((features & PT_FEAT_VOLUME) && through && side < 0.0f)
         pa->medium = medium_across(s, pa->medium, mi, front, thin);
     pa->beta = beta;
     pa->prev_p = sf->p;
@@ -2217,9 +2288,10 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
                PT_FEAT_DIFFUSE_TRANSMISSION | PT_FEAT_DISPERSION)
 /* Features that only the general variant has code for. */
 /* Motion blur (PT_FEAT_MOTION) too: a path's time reaches every ray query. */
+/* Instancing (PT_FEAT_INSTANCES) too: a hit's instance transform. */
 #define GENERAL_ONLY                                                                               \
     (uint32_t)(OTHER_LIGHTS | PT_FEAT_ALPHA | GLASS | SURFACE_EXTRAS | LAYERS | PT_FEAT_MOTION |   \
-               MATERIAL_EXTS)
+               MATERIAL_EXTS | PT_FEAT_INSTANCES)
 VARIANT(li_guided_passes, tile_guided_passes, ALL_FEATURES)
 VARIANT(li_passes, tile_passes, ALL_FEATURES & ~FEAT_GUIDE)
 VARIANT(li_guided, tile_guided, ALL_FEATURES & ~FEAT_PASSES)

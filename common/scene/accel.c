@@ -30,6 +30,16 @@
  * pass the ray's time in [0, 1] (the shutter's); Embree interpolates the
  * moving vertices linearly between the two steps around it. A scene without
  * moving triangles is built and queried exactly as before.
+ *
+ * Instancing (PT_FEAT_INSTANCES, EXT_mesh_gpu_instancing): geometry 0 holds
+ * the flat triangles, and each prototype is a scene of its own (one
+ * triangle geometry over its vertices, copied once) that instance
+ * geometries 1 + i place by instance i's 3x4 (rtcNewGeometry
+ * RTC_GEOMETRY_TYPE_INSTANCE): a mesh placed a million times is stored
+ * once, with about 300 bytes an instance. A hit through instance i has
+ * instID[0] = 1 + i (pt_hit.inst) and the prototype's primID; the
+ * prototype's geometry carries its first triangle as user data, which the
+ * alpha filter reads too. A scene without instances is built as before.
  */
 #include "common/scene/accel.h"
 
@@ -54,6 +64,9 @@ struct pt_accel {
     int moving;                /* two geometries (still, moving): map[geomID][primID] is the
                                   scene triangle */
     const uint32_t *map[2];
+    uint32_t nproto; /* instancing: the prototypes' scenes */
+    RTCScene *protos;
+    const pt_scene *scene_ref; /* instancing: the scene, for the prototypes' first triangles */
 };
 
 /* What a query passes to the alpha filter. rtc comes first: Embree hands the
@@ -93,7 +106,9 @@ static void alpha_filter(const struct RTCFilterFunctionNArguments *args)
         if (args->valid[i] == 0)
             continue;
         uint32_t tri = hitn_prim(args->hit, args->N, i);
-        if (c->accel->moving) {
+        if (args->geometryUserPtr) { /* a prototype's: its first triangle */
+            tri += ((const pt_prototype *)args->geometryUserPtr)->first_tri;
+        } else if (c->accel->moving) {
             uint32_t gid;
             memcpy(&gid, (const char *)args->hit + 4 * ((size_t)6 * args->N + i), sizeof gid);
             tri = c->accel->map[gid][tri];
@@ -150,9 +165,26 @@ static pt_status check_device(RTCDevice device, const char *step, pt_error *err)
  * sel[i] (sel NULL: i), its vertices indices[3 sel[i] ..] into nv vertices
  * of `steps` time steps, step k at pos + k * step_stride (floats). With
  * alpha materials it gets the filters. Its id is `id`. */
+static pt_status add_geometry_to(pt_accel *a, RTCScene into, const pt_prototype *proto,
+                                 const pt_scene *scene, unsigned id, uint32_t steps, uint32_t nv,
+                                 const float *pos, size_t step_stride, uint32_t nt,
+                                 const uint32_t *sel, const uint32_t *indices, pt_error *err);
+
 static pt_status add_geometry(pt_accel *a, const pt_scene *scene, unsigned id, uint32_t steps,
                               uint32_t nv, const float *pos, size_t step_stride, uint32_t nt,
                               const uint32_t *sel, const uint32_t *indices, pt_error *err)
+{
+    return add_geometry_to(a, a->scene, NULL, scene, id, steps, nv, pos, step_stride, nt, sel,
+                           indices, err);
+}
+
+/* add_geometry into the scene `into`; proto: the geometry is that
+ * prototype's (its vertices from proto->first_vertex, its indices rebased,
+ * proto its user data), else NULL. */
+static pt_status add_geometry_to(pt_accel *a, RTCScene into, const pt_prototype *proto,
+                                 const pt_scene *scene, unsigned id, uint32_t steps, uint32_t nv,
+                                 const float *pos, size_t step_stride, uint32_t nt,
+                                 const uint32_t *sel, const uint32_t *indices, pt_error *err)
 {
     pt_status st;
     RTCGeometry g = rtcNewGeometry(a->device, RTC_GEOMETRY_TYPE_TRIANGLE);
@@ -176,6 +208,10 @@ static pt_status add_geometry(pt_accel *a, const pt_scene *scene, unsigned id, u
     if (sel) {
         for (uint32_t i = 0; i < nt; i++)
             memcpy(ib + 3 * (size_t)i, indices + 3 * (size_t)sel[i], 3 * sizeof(uint32_t));
+    } else if (proto) {
+        for (size_t i = 0; i < 3 * (size_t)nt; i++)
+            ib[i] = indices[i] - proto->first_vertex;
+        rtcSetGeometryUserData(g, (void *)proto);
     } else if (nt > 0) {
         memcpy(ib, indices, (size_t)nt * 3 * sizeof(uint32_t));
     }
@@ -191,7 +227,7 @@ static pt_status add_geometry(pt_accel *a, const pt_scene *scene, unsigned id, u
         a->alpha = scene;
     }
     rtcCommitGeometry(g);
-    rtcAttachGeometryByID(a->scene, g, id);
+    rtcAttachGeometryByID(into, g, id);
     rtcReleaseGeometry(g);
     return check_device(a->device, "geometry", err);
 nomem:
@@ -199,6 +235,48 @@ nomem:
     if ((st = check_device(a->device, "vertex/index buffers", err)) == PT_OK)
         st = pt_error_set(err, PT_ERR_NOMEM, "embree: vertex/index buffers: out of memory");
     return st;
+}
+
+/* The prototypes' scenes, and an instance geometry (id 1 + i) for each
+ * instance i, in the top scene. */
+static pt_status add_instances(pt_accel *a, const pt_scene *scene, pt_error *err)
+{
+    pt_status st;
+    a->protos = pt_calloc(scene->num_prototypes, sizeof *a->protos);
+    if (!a->protos)
+        return pt_error_set(err, PT_ERR_NOMEM, "embree: out of memory for prototypes");
+    a->nproto = scene->num_prototypes;
+    a->scene_ref = scene;
+    for (uint32_t i = 0; i < scene->num_prototypes; i++) {
+        const pt_prototype *p = &scene->prototypes[i];
+        a->protos[i] = rtcNewScene(a->device);
+        if ((st = check_device(a->device, "rtcNewScene", err)) != PT_OK)
+            return st;
+        rtcSetSceneFlags(a->protos[i], RTC_SCENE_FLAG_ROBUST);
+        rtcSetSceneBuildQuality(a->protos[i], RTC_BUILD_QUALITY_HIGH);
+        if (p->num_tris > 0 &&
+            (st = add_geometry_to(a, a->protos[i], p, scene, 0, 1, p->num_vertices,
+                                  scene->positions + 3 * (size_t)p->first_vertex, 0, p->num_tris,
+                                  NULL, scene->indices + 3 * (size_t)p->first_tri, err)) != PT_OK)
+            return st;
+        rtcCommitScene(a->protos[i]);
+        if ((st = check_device(a->device, "rtcCommitScene (prototype)", err)) != PT_OK)
+            return st;
+    }
+    for (uint32_t i = 0; i < scene->num_instances; i++) {
+        const pt_instance *in = &scene->instances[i];
+        RTCGeometry g = rtcNewGeometry(a->device, RTC_GEOMETRY_TYPE_INSTANCE);
+        if ((st = check_device(a->device, "rtcNewGeometry (instance)", err)) != PT_OK)
+            return st;
+        rtcSetGeometryInstancedScene(g, a->protos[in->proto]);
+        rtcSetGeometryTransform(g, 0, RTC_FORMAT_FLOAT3X4_COLUMN_MAJOR, in->xf);
+        rtcCommitGeometry(g);
+        rtcAttachGeometryByID(a->scene, g, 1 + i);
+        rtcReleaseGeometry(g);
+        if ((st = check_device(a->device, "instance", err)) != PT_OK)
+            return st;
+    }
+    return PT_OK;
 }
 
 pt_status pt_accel_new(const pt_scene *scene, pt_accel **out, pt_error *err)
@@ -239,6 +317,13 @@ pt_status pt_accel_new(const pt_scene *scene, pt_accel **out, pt_error *err)
                                (size_t)m->num_vertices * 3, m->num_triangles, NULL, m->indices,
                                err)) != PT_OK)
             goto fail;
+    } else if (scene->num_instances > 0) {
+        if (scene->num_flat_triangles > 0 &&
+            (st = add_geometry(a, scene, 0, 1, scene->num_flat_vertices, scene->positions, 0,
+                               scene->num_flat_triangles, NULL, scene->indices, err)) != PT_OK)
+            goto fail;
+        if ((st = add_instances(a, scene, err)) != PT_OK)
+            goto fail;
     } else if (scene->num_triangles > 0) {
         if ((st = add_geometry(a, scene, 0, 1, scene->num_vertices, scene->positions, 0,
                                scene->num_triangles, NULL, scene->indices, err)) != PT_OK)
@@ -274,6 +359,10 @@ void pt_accel_free(pt_accel *accel)
         return;
     if (accel->scene)
         rtcReleaseScene(accel->scene);
+    for (uint32_t i = 0; i < accel->nproto; i++)
+        if (accel->protos[i])
+            rtcReleaseScene(accel->protos[i]);
+    pt_free(accel->protos);
     if (accel->device)
         rtcReleaseDevice(accel->device);
     pt_free(accel);
@@ -320,6 +409,15 @@ static inline int intersect(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float t
     hit->t = rh.ray.tfar;
     hit->b1 = rh.hit.u;
     hit->b2 = rh.hit.v;
+    hit->inst = 0;
+    if (rh.hit.instID[0] != RTC_INVALID_GEOMETRY_ID) {
+        /* Through instance instID - 1 (add_instances): its prototype's
+         * triangle. */
+        const pt_scene *s = accel->scene_ref;
+        hit->inst = rh.hit.instID[0];
+        hit->tri = s->prototypes[s->instances[hit->inst - 1].proto].first_tri + rh.hit.primID;
+        return 1;
+    }
     hit->tri = accel->moving ? accel->map[rh.hit.geomID][rh.hit.primID] : rh.hit.primID;
     return 1;
 }

@@ -26,6 +26,10 @@ typedef struct pt_hit {
     float t;
     float b1, b2; /* barycentrics of vertices 1 and 2 (Embree's u, v) */
     uint32_t tri; /* triangle index, or UINT32_MAX on a miss */
+    /* 1 + the index in scene->instances of the instance the triangle was
+     * hit through (PT_FEAT_INSTANCES; tri is then a prototype's, in its own
+     * space), else 0: a zeroed hit is a flat one. */
+    uint32_t inst;
 } pt_hit;
 
 pt_status pt_accel_new(const pt_scene *scene, pt_accel **out, pt_error *err);
@@ -60,8 +64,38 @@ int pt_accel_occluded_time(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tf
  * (computed in double; (0,0,1) when it has no direction). */
 pt_vec3 pt_accel_degenerate_normal(pt_vec3 n);
 
-/* World-space point and geometric normal (unit, from the winding) of a hit.
- * Inline: the integrator calls it at every bounce. */
+/* The point p of an instance's prototype in scene space. */
+static inline pt_vec3 pt_instance_point(const pt_instance *in, pt_vec3 p)
+{
+    const float *m = in->xf;
+    return pt_v3(m[0] * p.x + m[3] * p.y + m[6] * p.z + m[9],
+                 m[1] * p.x + m[4] * p.y + m[7] * p.z + m[10],
+                 m[2] * p.x + m[5] * p.y + m[8] * p.z + m[11]);
+}
+
+/* A direction on the surface (a tangent) of an instance's prototype in
+ * scene space, not normalised. */
+static inline pt_vec3 pt_instance_vector(const pt_instance *in, pt_vec3 v)
+{
+    const float *m = in->xf;
+    return pt_v3(m[0] * v.x + m[3] * v.y + m[6] * v.z, m[1] * v.x + m[4] * v.y + m[7] * v.z,
+                 m[2] * v.x + m[5] * v.y + m[8] * v.z);
+}
+
+/* A unit normal of an instance's prototype in scene space (the inverse
+ * transpose, normalised; fallback when that has no length). */
+static inline pt_vec3 pt_instance_normal(const pt_instance *in, pt_vec3 n, pt_vec3 fallback)
+{
+    const float *m = in->nm;
+    pt_vec3 r = pt_v3(m[0] * n.x + m[3] * n.y + m[6] * n.z, m[1] * n.x + m[4] * n.y + m[7] * n.z,
+                      m[2] * n.x + m[5] * n.y + m[8] * n.z);
+    float len = pt_v3_len(r);
+    return (len > 0.0f && isfinite(len)) ? pt_v3_scale(r, 1.0f / len) : fallback;
+}
+
+/* World-space point and geometric normal (unit, from the winding) of a hit;
+ * through an instance, its transform applied. Inline: the integrator calls
+ * it at every bounce. */
 static inline void pt_accel_hit_point(const pt_scene *scene, const pt_hit *hit, pt_vec3 *p,
                                       pt_vec3 *ng)
 {
@@ -80,6 +114,11 @@ static inline void pt_accel_hit_point(const pt_scene *scene, const pt_hit *hit, 
     float len = pt_v3_len(n);
     *ng =
         (len > 0.0f && isfinite(len)) ? pt_v3_scale(n, 1.0f / len) : pt_accel_degenerate_normal(n);
+    if (hit->inst) {
+        const pt_instance *in = &scene->instances[hit->inst - 1];
+        *p = pt_instance_point(in, *p);
+        *ng = pt_instance_normal(in, *ng, *ng);
+    }
 }
 
 /* Offsets p along the geometric normal n (towards the side the ray leaves on)

@@ -135,6 +135,14 @@ struct importer {
     bool still = false;        // the rig poses a still: no animation, time 0 (load_still)
     pt_status fs_st = PT_OK;   // the first failure of a read tinygltf asked for
     std::string fs_msg;        // and its message (names the URI only)
+    // EXT_mesh_gpu_instancing kept as instances (gpu_instanced): the visits
+    // of such nodes, placed once the flat meshes are all added.
+    struct instanced_visit {
+        int node;
+        std::array<double, 16> world;
+    };
+    std::vector<instanced_visit> instanced;
+    std::vector<char> gpu_instanced; // per node: its instances are kept as instances
 
     importer() = default;
     importer(const importer &) = delete;
@@ -1372,6 +1380,25 @@ void add_diffuse_transmission(importer &im, int mi, const tinygltf::Material &g,
                                      "material is ignored (its glass is kept)");
 }
 
+// The combinations of base extensions that the closure builder cannot
+// compose (render.c, add_base_ext), each warned once by name: a thin film
+// (KHR_materials_iridescence) has no lobe over an anisotropic GGX lobe or
+// beside a diffuse transmission, so the film is dropped there. Diffuse
+// transmission with anisotropy composes; clearcoat and sheen go over
+// every base, glass included; specular is the base's own.
+void warn_uncomposed(importer &im, int mi, const pt_material &pm)
+{
+    if (pm.transmission > 0.0f || !(pm.iridescence > 0.0f))
+        return; // over glass the film is kept; the rest is ignored (warned)
+    const char *other = pm.anisotropy > 0.0f             ? "KHR_materials_anisotropy"
+                        : pm.diffuse_transmission > 0.0f ? "KHR_materials_diffuse_transmission"
+                                                         : nullptr;
+    if (other)
+        im.warn_once(std::string("irid-with:") + other,
+                     "material " + std::to_string(mi) + ": KHR_materials_iridescence beside " +
+                         other + " is ignored (no thin film over that lobe; the rest is kept)");
+}
+
 void read_materials(importer &im)
 {
     const tinygltf::Model &m = im.model;
@@ -1426,6 +1453,20 @@ void read_materials(importer &im)
             auto ds = g.extensions.find("KHR_materials_dispersion");
             if (ds != g.extensions.end())
                 pm.dispersion = float(ext_number(ds->second, "dispersion", 0.0));
+            warn_uncomposed(im, mi, pm);
+        } else if (pm.spec_gloss) {
+            // The extension replaces metallic-roughness and the extensions
+            // built on it.
+            for (const char *x :
+                 {"KHR_materials_transmission", "KHR_materials_clearcoat", "KHR_materials_sheen",
+                  "KHR_materials_iridescence", "KHR_materials_anisotropy",
+                  "KHR_materials_diffuse_transmission", "KHR_materials_specular",
+                  "KHR_materials_ior", "KHR_materials_volume", "KHR_materials_dispersion"})
+                if (g.extensions.count(x))
+                    im.warn_once(std::string("sg-") + x,
+                                 "material " + std::to_string(mi) + ": " + x +
+                                     " beside KHR_materials_pbrSpecularGlossiness is ignored "
+                                     "(it extends metallic-roughness)");
         }
         pm.double_sided = g.doubleSided ? 1 : 0;
         for (const auto &e : g.extensions)
@@ -2549,6 +2590,10 @@ void visit(importer &im, int ni, const mat4 &parent, int depth, std::vector<char
         pt_error oe{};
         std::string oname = n.name.empty() ? "node " + std::to_string(ni) : n.name;
         im.check_builder(pt_scene_builder_set_object(im.b, oname.c_str(), &oe), &oe);
+        if (!im.gpu_instanced.empty() && im.gpu_instanced[size_t(ni)]) {
+            im.instanced.push_back({ni, w}); // add_instanced
+            goto children;
+        }
         std::vector<mat4> inst = instance_matrices(im, ni);
         size_t copies = inst.empty() ? 1 : inst.size();
         for (size_t k = 0; k < copies; k++) {
@@ -2565,6 +2610,7 @@ void visit(importer &im, int ni, const mat4 &parent, int depth, std::vector<char
             }
         }
     }
+children:
     if (n.camera >= 0) {
         if (im.rig)
             pt_scene_builder_counts(im.b, before);
@@ -2589,6 +2635,68 @@ void visit(importer &im, int ni, const mat4 &parent, int depth, std::vector<char
     on_path[size_t(ni)] = 0;
 }
 
+// Whether node n's EXT_mesh_gpu_instancing instances can be kept as
+// instances (a prototype placed by each, PT_FEAT_INSTANCES) rather than
+// copies: a still without a rig (a pose moves each copy's vertices), and
+// a mesh with nothing emissive (each light needs its triangles in scene
+// space) and no KHR_materials_variants mapping (which could pick an
+// emissive material).
+bool gpu_instanced(const importer &im, const tinygltf::Node &n)
+{
+    const tinygltf::Model &m = im.model;
+    if (im.rig || n.mesh < 0 || size_t(n.mesh) >= m.meshes.size() || instance_count(m, n).first < 0)
+        return false;
+    for (const auto &p : m.meshes[size_t(n.mesh)].primitives) {
+        if (p.extensions.count("KHR_materials_variants"))
+            return false;
+        if (p.material < 0 || size_t(p.material) >= m.materials.size())
+            continue;
+        const tinygltf::Material &g = m.materials[size_t(p.material)];
+        double strength = 1.0;
+        auto es = g.extensions.find("KHR_materials_emissive_strength");
+        if (es != g.extensions.end())
+            strength = ext_number(es->second, "emissiveStrength", 1.0);
+        for (double f : g.emissiveFactor)
+            if (!(f * strength <= 0.0)) // NaN too: let the copies' checks name it
+                return false;
+    }
+    return true;
+}
+
+// The instanced visits (visit): each node's mesh once as a prototype,
+// shared by every node that instances it (the first such node names its
+// Cryptomatte object), then one instance for each of the node's instances
+// under its world matrix. After every flat mesh, as the builder wants.
+void add_instanced(importer &im)
+{
+    std::map<int, uint32_t> proto_of_mesh;
+    for (const auto &v : im.instanced) {
+        const tinygltf::Node &n = im.model.nodes[size_t(v.node)];
+        std::vector<mat4> inst = instance_matrices(im, v.node);
+        auto it = proto_of_mesh.find(n.mesh);
+        uint32_t proto;
+        pt_error e{};
+        if (it == proto_of_mesh.end()) {
+            std::string oname = n.name.empty() ? "node " + std::to_string(v.node) : n.name;
+            im.check_builder(pt_scene_builder_set_object(im.b, oname.c_str(), &e), &e);
+            im.check_builder(pt_scene_builder_begin_prototype(im.b, &proto, &e), &e);
+            const tinygltf::Mesh &mesh = im.model.meshes[size_t(n.mesh)];
+            for (size_t p = 0; p < mesh.primitives.size(); p++)
+                add_primitive(im, n.mesh, int(p), identity());
+            im.check_builder(pt_scene_builder_end_prototype(im.b, &e), &e);
+            proto_of_mesh[n.mesh] = proto;
+        } else {
+            proto = it->second;
+        }
+        for (size_t k = 0; k < inst.size(); k++) {
+            mat4 wk = mat_mul(v.world, inst[k]);
+            pt_status st = pt_scene_builder_add_instance(im.b, proto, wk.data(), &e);
+            if (st != PT_OK)
+                im.fail(st, "node %d: EXT_mesh_gpu_instancing instance %zu: %s", v.node, k, e.msg);
+        }
+    }
+}
+
 uint64_t sat_add(uint64_t a, uint64_t b)
 {
     return a > UINT64_MAX - b ? UINT64_MAX : a + b;
@@ -2602,13 +2710,15 @@ uint64_t sat_mul(uint64_t a, uint64_t b)
 
 // Triangles and vertices, as the builder counts them, and morph target
 // deltas (vertices x targets), as the rig keeps them.
+// inst: EXT_mesh_gpu_instancing instances kept as instances.
 struct geo_count {
-    uint64_t tri = 0, vtx = 0, deltas = 0;
+    uint64_t tri = 0, vtx = 0, deltas = 0, inst = 0;
     void add(const geo_count &o)
     {
         tri = sat_add(tri, o.tri);
         vtx = sat_add(vtx, o.vtx);
         deltas = sat_add(deltas, o.deltas);
+        inst = sat_add(inst, o.inst);
     }
 };
 
@@ -2651,7 +2761,7 @@ geo_count mesh_count(const tinygltf::Model &m, int mi)
 // depth count nothing here; visit() refuses them.
 geo_count node_count(const tinygltf::Model &m, int ni, int depth,
                      const std::vector<geo_count> &per_mesh, std::vector<geo_count> &memo,
-                     std::vector<char> &state)
+                     std::vector<char> &state, const std::vector<char> &instanced)
 {
     if (ni < 0 || size_t(ni) >= m.nodes.size() || depth > kMaxNodeDepth)
         return geo_count();
@@ -2664,12 +2774,14 @@ geo_count node_count(const tinygltf::Model &m, int ni, int depth,
     if (n.mesh >= 0 && size_t(n.mesh) < m.meshes.size()) {
         t = per_mesh[size_t(n.mesh)];
         uint64_t copies = instance_count(m, n).second;
-        if (copies > 1) // EXT_mesh_gpu_instancing: one copy an instance
-            t = geo_count{sat_mul(t.tri, copies), sat_mul(t.vtx, copies),
-                          sat_mul(t.deltas, copies)};
+        if (instanced[size_t(ni)]) // the mesh once (at most: prototypes are shared)
+            t.inst = copies;
+        else if (copies > 1) // EXT_mesh_gpu_instancing: one copy an instance
+            t = geo_count{sat_mul(t.tri, copies), sat_mul(t.vtx, copies), sat_mul(t.deltas, copies),
+                          0};
     }
     for (int c : n.children)
-        t.add(node_count(m, c, depth + 1, per_mesh, memo, state));
+        t.add(node_count(m, c, depth + 1, per_mesh, memo, state, instanced));
     st = 2;
     memo[size_t(ni)] = t;
     return t;
@@ -2683,15 +2795,23 @@ geo_count node_count(const tinygltf::Model &m, int ni, int depth,
 void check_triangles(importer &im, int si)
 {
     const tinygltf::Model &m = im.model;
-    // EXT_mesh_gpu_instancing: each instance is a copy of the mesh, so a
-    // node's instance count is capped as triangles are, before anything
-    // reads the accessors (a count of 2^31 in a few bytes of JSON).
+    // EXT_mesh_gpu_instancing: a node's instances are capped before
+    // anything reads the accessors (a count of 2^31 in a few bytes of
+    // JSON): kept as instances (gpu_instanced), by PT_SCENE_MAX_INSTANCES;
+    // as copies of the mesh, as triangles are.
+    im.gpu_instanced.assign(m.nodes.size(), 0);
     for (size_t i = 0; i < m.nodes.size(); i++) {
         std::pair<int, uint64_t> ic = instance_count(m, m.nodes[i]);
-        if (ic.second > PT_SCENE_MAX_TRIANGLES)
+        im.gpu_instanced[i] = gpu_instanced(im, m.nodes[i]);
+        if (im.gpu_instanced[i] && ic.second > PT_SCENE_MAX_INSTANCES)
             im.fail(PT_ERR_LIMIT,
                     "node %zu: EXT_mesh_gpu_instancing: %llu instances (accessor %d), over the "
-                    "cap of %u a scene (instances are copied)",
+                    "cap of %u a scene",
+                    i, (unsigned long long)ic.second, ic.first, PT_SCENE_MAX_INSTANCES);
+        if (!im.gpu_instanced[i] && ic.second > PT_SCENE_MAX_TRIANGLES)
+            im.fail(PT_ERR_LIMIT,
+                    "node %zu: EXT_mesh_gpu_instancing: %llu instances (accessor %d), over the "
+                    "cap of %u a scene (instances are copied: the mesh is emissive, or posed)",
                     i, (unsigned long long)ic.second, ic.first, PT_SCENE_MAX_TRIANGLES);
     }
     std::vector<geo_count> per_mesh(m.meshes.size()), memo(m.nodes.size());
@@ -2700,7 +2820,12 @@ void check_triangles(importer &im, int si)
         per_mesh[i] = mesh_count(m, int(i));
     geo_count total;
     for (int ni : m.scenes[size_t(si)].nodes)
-        total.add(node_count(m, ni, 0, per_mesh, memo, state));
+        total.add(node_count(m, ni, 0, per_mesh, memo, state, im.gpu_instanced));
+    if (total.inst > PT_SCENE_MAX_INSTANCES)
+        im.fail(PT_ERR_LIMIT,
+                "scene %d: %llu EXT_mesh_gpu_instancing instances once every node is counted, "
+                "over the cap of %u a scene",
+                si, (unsigned long long)total.inst, PT_SCENE_MAX_INSTANCES);
     uint32_t max_tri = PT_SCENE_MAX_TRIANGLES;
     if (im.opts && im.opts->max_triangles && im.opts->max_triangles < max_tri)
         max_tri = im.opts->max_triangles;
@@ -2994,6 +3119,7 @@ void import(importer &im)
             im.fail(PT_ERR_FORMAT, "scene %d out of range (%zu scenes)", si, m.scenes.size());
         for (int ni : m.scenes[size_t(si)].nodes)
             visit(im, ni, identity(), 0, on_path);
+        add_instanced(im);
         if (im.rig)
             rig_finish(im);
         im.rig = rig;
@@ -3190,6 +3316,15 @@ extern "C" pt_status pt_scene_list(const char *path, FILE *out, pt_error *err)
         return st;
     fprintf(out, "%s: %u triangles, %u materials, %u textures\n", path, s->num_triangles,
             s->num_materials, s->num_textures);
+    if (s->num_instances > 0) {
+        uint64_t seen = s->num_flat_triangles;
+        for (uint32_t i = 0; i < s->num_instances; i++)
+            seen += s->prototypes[s->instances[i].proto].num_tris;
+        fprintf(out,
+                "instances (EXT_mesh_gpu_instancing): %u of %u meshes, %llu triangles "
+                "once placed\n",
+                s->num_instances, s->num_prototypes, (unsigned long long)seen);
+    }
     fprintf(out, "cameras (%u)%s\n", s->num_cameras,
             s->num_cameras ? ": --camera NAME, NODE or INDEX; the first by default"
                            : ": none; a view framing the scene is used");

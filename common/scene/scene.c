@@ -64,6 +64,15 @@ struct pt_scene_builder {
     int hash_set;
     char hash[65];
     pt_motion_build *motion; /* moving meshes' time steps, or NULL (motion.h) */
+    /* Instancing: the prototypes (their triangles and vertices at the end
+     * of the arrays), whether one is being added, and each instance's
+     * world matrix (16 doubles, column-major) and prototype. */
+    pt_prototype *protos;
+    uint32_t nproto, cap_proto;
+    int in_proto;
+    double *inst_xf;
+    uint32_t *inst_proto;
+    uint32_t ninst, cap_inst_xf, cap_inst_proto;
 };
 
 /* Grows *p (elements of `elem` bytes, `per` per item) to hold `need` items. */
@@ -170,6 +179,9 @@ void pt_scene_builder_free(pt_scene_builder *b)
     pt_free(b->puns);
     pt_free(b->pun_pos);
     pt_motion_build_free(b->motion);
+    pt_free(b->protos);
+    pt_free(b->inst_xf);
+    pt_free(b->inst_proto);
     pt_free(b);
 }
 
@@ -237,9 +249,10 @@ static pt_status check_transmission(const pt_scene_builder *b, const pt_material
         return pt_error_set(err, PT_ERR_FORMAT,
                             "material '%.64s': transmissionFactor %g is outside [0, 1]", name,
                             (double)m->transmission);
-    if (m->transmission == 0.0f)
+    /* A diffuse transmitter's volume is checked too (its medium). */
+    if (m->transmission == 0.0f && !(m->diffuse_transmission > 0.0f))
         return PT_OK;
-    if (!(m->ior == 0.0f || (m->ior >= 1.0f && isfinite(m->ior))))
+    if (m->transmission > 0.0f && !(m->ior == 0.0f || (m->ior >= 1.0f && isfinite(m->ior))))
         return pt_error_set(err, PT_ERR_FORMAT, "material '%.64s': ior %g is not 0 or >= 1", name,
                             (double)m->ior);
     if (!(m->thickness >= 0.0f && isfinite(m->thickness)))
@@ -581,6 +594,8 @@ pt_status pt_scene_builder_add_mesh_motion(pt_scene_builder *b, const char *what
     if (!positions || steps < 2 || steps > PT_MOTION_MAX_STEPS)
         return pt_error_set(err, PT_ERR_ARG, "%s: %u time steps, not 2 to %u", what, steps,
                             PT_MOTION_MAX_STEPS);
+    if (b->nproto > 0)
+        return pt_error_set(err, PT_ERR_ARG, "%s: a moving mesh in a scene with instances", what);
     uint32_t v0 = b->nv, t0 = b->nt;
     pt_status st =
         pt_scene_builder_add_mesh_extra(b, what, positions[0], normals ? normals[0] : NULL, uvs,
@@ -627,6 +642,64 @@ static int extra_reserve(float **arr, uint32_t *cap, uint32_t nv_old, uint32_t n
     return 1;
 }
 
+pt_status pt_scene_builder_begin_prototype(pt_scene_builder *b, uint32_t *proto, pt_error *err)
+{
+    if (b->in_proto)
+        return pt_error_set(err, PT_ERR_ARG, "prototype %u is not ended", b->nproto - 1);
+    if (b->motion)
+        return pt_error_set(err, PT_ERR_ARG, "an instanced prototype in a scene with motion");
+    if (!reserve((void **)&b->protos, &b->cap_proto, b->nproto + 1, sizeof(pt_prototype), 1))
+        return pt_error_set(err, PT_ERR_NOMEM, "prototype: out of memory");
+    pt_prototype *p = &b->protos[b->nproto];
+    p->first_tri = b->nt;
+    p->first_vertex = b->nv;
+    p->num_tris = p->num_vertices = 0;
+    b->in_proto = 1;
+    *proto = b->nproto++;
+    return PT_OK;
+}
+
+pt_status pt_scene_builder_end_prototype(pt_scene_builder *b, pt_error *err)
+{
+    if (!b->in_proto)
+        return pt_error_set(err, PT_ERR_ARG, "no prototype to end");
+    pt_prototype *p = &b->protos[b->nproto - 1];
+    p->num_tris = b->nt - p->first_tri;
+    p->num_vertices = b->nv - p->first_vertex;
+    b->in_proto = 0;
+    return PT_OK;
+}
+
+pt_status pt_scene_builder_add_instance(pt_scene_builder *b, uint32_t proto, const double xform[16],
+                                        pt_error *err)
+{
+    if (proto >= b->nproto || (b->in_proto && proto == b->nproto - 1) || !xform)
+        return pt_error_set(err, PT_ERR_ARG, "instance of prototype %u: no such ended prototype",
+                            proto);
+    for (int i = 0; i < 16; i++)
+        if (!isfinite(xform[i]) || fabs(xform[i]) > (double)PT_SCENE_MAX_COORD)
+            return pt_error_set(err, PT_ERR_FORMAT,
+                                "instance %u of prototype %u: its matrix is not finite or over %g",
+                                b->ninst, proto, (double)PT_SCENE_MAX_COORD);
+    if (xform[3] != 0.0 || xform[7] != 0.0 || xform[11] != 0.0 || xform[15] != 1.0)
+        return pt_error_set(err, PT_ERR_FORMAT,
+                            "instance %u of prototype %u: its matrix is not affine", b->ninst,
+                            proto);
+    double c[3][3];
+    double det = normal_matrix(xform, c);
+    if (!(fabs(det) > 0.0) || !isfinite(det))
+        return PT_OK; /* no area: nothing to see */
+    if (b->ninst >= PT_SCENE_MAX_INSTANCES)
+        return pt_error_set(err, PT_ERR_LIMIT, "instance %u: over the cap of %u instances a scene",
+                            b->ninst, PT_SCENE_MAX_INSTANCES);
+    if (!reserve((void **)&b->inst_xf, &b->cap_inst_xf, b->ninst + 1, sizeof(double), 16) ||
+        !reserve((void **)&b->inst_proto, &b->cap_inst_proto, b->ninst + 1, sizeof(uint32_t), 1))
+        return pt_error_set(err, PT_ERR_NOMEM, "instance: out of memory");
+    memcpy(b->inst_xf + 16 * (size_t)b->ninst, xform, 16 * sizeof(double));
+    b->inst_proto[b->ninst++] = proto;
+    return PT_OK;
+}
+
 pt_status pt_scene_builder_add_mesh_extra(pt_scene_builder *b, const char *what,
                                           const float *positions, const float *normals,
                                           const float *uvs, const pt_mesh_extra *extra, uint32_t nv,
@@ -647,6 +720,11 @@ pt_status pt_scene_builder_add_mesh_extra(pt_scene_builder *b, const char *what,
         return PT_OK;
     if (!positions)
         return pt_error_set(err, PT_ERR_ARG, "%s: no positions", what);
+    if (b->nproto > 0 && !b->in_proto)
+        return pt_error_set(err, PT_ERR_ARG,
+                            "%s: a mesh in scene space after an instanced prototype (flat meshes "
+                            "come first)",
+                            what);
     if (!indices && (uint64_t)nv != 3 * (uint64_t)nt)
         return pt_error_set(err, PT_ERR_FORMAT,
                             "%s: non-indexed mesh with %u vertices for %u triangles", what, nv, nt);
@@ -896,6 +974,10 @@ static pt_status hash_scene(const pt_scene *s, char out[65], pt_error *err)
     EVP_DigestUpdate(ctx, s->materials, sizeof(pt_material) * s->num_materials);
     if (s->motion) /* only then: a still scene keeps its hash */
         pt_motion_hash(s->motion, ctx);
+    if (s->num_instances > 0) { /* likewise */
+        EVP_DigestUpdate(ctx, s->prototypes, sizeof(pt_prototype) * s->num_prototypes);
+        EVP_DigestUpdate(ctx, s->instances, sizeof(pt_instance) * s->num_instances);
+    }
     for (uint32_t i = 0; i < s->num_textures; i++) {
         const pt_texture *t = &s->textures[i];
         int32_t h[5] = {(int32_t)t->width, (int32_t)t->height, t->srgb, t->wrap_s, t->wrap_t};
@@ -1019,6 +1101,8 @@ void pt_scene_free(pt_scene *s)
     pt_free(s->cameras);
     pt_free(s->punctual);
     pt_motion_free(s->motion);
+    pt_free(s->prototypes);
+    pt_free(s->instances);
     pt_free(s);
 }
 
@@ -1344,6 +1428,8 @@ static uint32_t scene_features(const pt_scene *s, int has_uv, pt_error *err, pt_
             if (m->dispersion > 0.0f && m->thickness > 0.0f)
                 f |= PT_FEAT_DISPERSION;
         }
+        if (m->diffuse_transmission > 0.0f && !(m->transmission > 0.0f) && pt_material_absorbs(m))
+            f |= PT_FEAT_VOLUME; /* a diffuse transmitter's volume */
         if (m->normal_tex >= 0)
             f |= PT_FEAT_NORMAL_MAP;
         /* Layers have GGX-like lobes: the Lambert paths must not run. */
@@ -1445,6 +1531,174 @@ static pt_status finish_extra(pt_scene_builder *b, pt_scene *s, pt_error *err)
     return st;
 }
 
+/* World matrix x (column-major 4x4) after opts' scale sc and translation
+ * t: y = sc x + t, as the 3x4 of its rows. */
+static void instance_world(const double *x, double sc, const double t[3], double m[3][4])
+{
+    for (int r = 0; r < 3; r++) {
+        for (int k = 0; k < 4; k++)
+            m[r][k] = sc * x[4 * k + r];
+        m[r][3] += t[r];
+    }
+}
+
+/* The box of the 8 corners of [plo, phi] under m, into [lo, hi]. */
+static void box_under(const double m[3][4], const double plo[3], const double phi[3], double lo[3],
+                      double hi[3])
+{
+    for (int c = 0; c < 8; c++) {
+        double p[3] = {c & 1 ? phi[0] : plo[0], c & 2 ? phi[1] : plo[1], c & 4 ? phi[2] : plo[2]};
+        for (int r = 0; r < 3; r++) {
+            double y = m[r][0] * p[0] + m[r][1] * p[1] + m[r][2] * p[2] + m[r][3];
+            lo[r] = fmin(lo[r], y);
+            hi[r] = fmax(hi[r], y);
+        }
+    }
+}
+
+/* Whether the bounds take every instance's every vertex (then they are
+ * the copies' bounds, bit for bit, and so is a framed camera), or, past
+ * 64 Mi vertex maps (a second or so), each prototype's box under each
+ * instance (a larger box that holds them). */
+static int tight_bounds(const pt_scene_builder *b, const pt_scene *s)
+{
+    uint64_t work = 0;
+    for (uint32_t i = 0; i < b->ninst; i++)
+        work += s->prototypes[b->inst_proto[i]].num_vertices;
+    return work <= (64u << 20);
+}
+
+/* The box of prototype p's vertices (double, pos) under m, less origin
+ * (NULL: 0), into [lo, hi]: the values a copy's builder computes. */
+static void vertices_under(const double m[3][4], const double *pos, const pt_prototype *p,
+                           const double *origin, double lo[3], double hi[3])
+{
+    for (uint32_t v = p->first_vertex; v < p->first_vertex + p->num_vertices; v++) {
+        const double *q = pos + 3 * (size_t)v;
+        for (int r = 0; r < 3; r++) {
+            double y = m[r][0] * q[0] + m[r][1] * q[1] + m[r][2] * q[2] + m[r][3];
+            if (origin)
+                y -= origin[r];
+            lo[r] = fmin(lo[r], y);
+            hi[r] = fmax(hi[r], y);
+        }
+    }
+}
+
+/* The prototypes' own boxes (double, 6 per prototype, from b->pos) and the
+ * scene's instances (their records filled but for the origin, which the
+ * caller subtracts in place_instances); the world boxes of the instances
+ * widen [lo, hi]. */
+static pt_status finish_instances(pt_scene_builder *b, pt_scene *s, double sc, const double t[3],
+                                  double lo[3], double hi[3], pt_error *err)
+{
+    if (b->nproto == 0)
+        return PT_OK;
+    s->prototypes = b->protos;
+    s->num_prototypes = b->nproto;
+    b->protos = NULL;
+    b->nproto = 0;
+    if (b->ninst == 0)
+        return PT_OK;
+    double *box = pt_malloc_array((size_t)s->num_prototypes * 6, sizeof(double));
+    s->instances = pt_malloc_array(b->ninst, sizeof(pt_instance));
+    if (!box || !s->instances) {
+        pt_free(box);
+        return pt_error_set(err, PT_ERR_NOMEM, "scene: out of memory for instances");
+    }
+    s->num_instances = b->ninst;
+    const int tight = tight_bounds(b, s);
+    for (uint32_t i = 0; i < s->num_prototypes; i++) {
+        const pt_prototype *p = &s->prototypes[i];
+        double *bx = box + 6 * (size_t)i;
+        bx[0] = bx[1] = bx[2] = INFINITY;
+        bx[3] = bx[4] = bx[5] = -INFINITY;
+        for (uint32_t v = p->first_vertex; v < p->first_vertex + p->num_vertices; v++)
+            for (int r = 0; r < 3; r++) {
+                bx[r] = fmin(bx[r], b->pos[3 * (size_t)v + r]);
+                bx[3 + r] = fmax(bx[3 + r], b->pos[3 * (size_t)v + r]);
+            }
+    }
+    for (uint32_t i = 0; i < b->ninst; i++) {
+        const double *x = b->inst_xf + 16 * (size_t)i;
+        pt_instance *in = &s->instances[i];
+        double m[3][4], c[3][3];
+        instance_world(x, sc, t, m);
+        double det = normal_matrix(x, c);
+        in->proto = b->inst_proto[i];
+        in->tan_sign = det < 0.0 ? -1.0f : 1.0f;
+        for (int r = 0; r < 3; r++)
+            for (int k = 0; k < 3; k++)
+                in->nm[3 * k + r] = (float)(c[r][k] / det); /* inverse transpose */
+        const double *bx = box + 6 * (size_t)in->proto;
+        const pt_prototype *p = &s->prototypes[in->proto];
+        if (p->num_tris > 0 && tight)
+            vertices_under(m, b->pos, p, NULL, lo, hi);
+        else if (p->num_tris > 0)
+            box_under(m, bx, bx + 3, lo, hi);
+        for (int r = 0; r < 3; r++) {
+            if (!(fabs(m[r][3]) <= (double)PT_SCENE_MAX_COORD)) {
+                pt_free(box);
+                return pt_error_set(err, PT_ERR_ARG, "instance %u is over %g after scaling by %g",
+                                    i, (double)PT_SCENE_MAX_COORD, sc);
+            }
+        }
+    }
+    pt_free(box);
+    return PT_OK;
+}
+
+/* The instances' 3x4 maps into scene space (the origin subtracted), and
+ * their corners in the float bounds. */
+static void place_instances(const pt_scene_builder *b, pt_scene *s, double sc, const double t[3],
+                            pt_vec3 *flo, pt_vec3 *fhi)
+{
+    const int tight = s->num_instances > 0 && tight_bounds(b, s);
+    for (uint32_t i = 0; i < s->num_instances; i++) {
+        pt_instance *in = &s->instances[i];
+        double m[3][4];
+        instance_world(b->inst_xf + 16 * (size_t)i, sc, t, m);
+        for (int r = 0; r < 3; r++) {
+            m[r][3] -= s->origin[r];
+            for (int k = 0; k < 4; k++)
+                in->xf[3 * k + r] = (float)m[r][k];
+        }
+        const pt_prototype *p = &s->prototypes[in->proto];
+        if (p->num_tris == 0)
+            continue;
+        if (tight) {
+            /* As a copy's stored vertices: float(world - origin). */
+            double lo[3] = {INFINITY, INFINITY, INFINITY},
+                   hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+            double w[3][4];
+            instance_world(b->inst_xf + 16 * (size_t)i, sc, t, w);
+            vertices_under(w, b->pos, p, s->origin, lo, hi);
+            *flo = pt_v3(fminf(flo->x, (float)lo[0]), fminf(flo->y, (float)lo[1]),
+                         fminf(flo->z, (float)lo[2]));
+            *fhi = pt_v3(fmaxf(fhi->x, (float)hi[0]), fmaxf(fhi->y, (float)hi[1]),
+                         fmaxf(fhi->z, (float)hi[2]));
+            continue;
+        }
+        /* The float corners of the map of the prototype's float box. */
+        double plo[3] = {INFINITY, INFINITY, INFINITY}, phi[3] = {-INFINITY, -INFINITY, -INFINITY};
+        for (uint32_t v = p->first_vertex; v < p->first_vertex + p->num_vertices; v++)
+            for (int r = 0; r < 3; r++) {
+                plo[r] = fmin(plo[r], s->positions[3 * (size_t)v + r]);
+                phi[r] = fmax(phi[r], s->positions[3 * (size_t)v + r]);
+            }
+        double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+        box_under(m, plo, phi, lo, hi);
+        /* Outward by a float's rounding, so that the box holds the points
+         * shading computes in float. */
+        *flo = pt_v3(fminf(flo->x, nextafterf((float)lo[0], -INFINITY)),
+                     fminf(flo->y, nextafterf((float)lo[1], -INFINITY)),
+                     fminf(flo->z, nextafterf((float)lo[2], -INFINITY)));
+        *fhi = pt_v3(fmaxf(fhi->x, nextafterf((float)hi[0], INFINITY)),
+                     fmaxf(fhi->y, nextafterf((float)hi[1], INFINITY)),
+                     fmaxf(fhi->z, nextafterf((float)hi[2], INFINITY)));
+    }
+}
+
 pt_status pt_scene_builder_finish(pt_scene_builder *b, const pt_scene_opts *opts, pt_scene **out,
                                   pt_error *err)
 {
@@ -1452,9 +1706,26 @@ pt_status pt_scene_builder_finish(pt_scene_builder *b, const pt_scene_opts *opts
     pt_scene *s = NULL;
     float scale = opts && opts->scale != 0.0f ? opts->scale : 1.0f;
     pt_vec3 tr = opts ? opts->translate : pt_v3(0, 0, 0);
-    if (b->nt == 0) {
+    /* Flat triangles and vertices first, then the prototypes'. */
+    const uint32_t nvf = b->nproto ? b->protos[0].first_vertex : b->nv;
+    const uint32_t ntf = b->nproto ? b->protos[0].first_tri : b->nt;
+    if (ntf == 0 && b->ninst == 0) {
         st = pt_error_set(err, PT_ERR_FORMAT, "no triangles");
         goto fail;
+    }
+    if (b->in_proto) {
+        st = pt_error_set(err, PT_ERR_ARG, "prototype %u is not ended", b->nproto - 1);
+        goto fail;
+    }
+    for (uint32_t i = ntf; i < b->nt; i++) {
+        const pt_material *m = &b->mats[b->tmat[i]];
+        if (m->emissive[0] > 0.0f || m->emissive[1] > 0.0f || m->emissive[2] > 0.0f) {
+            st = pt_error_set(err, PT_ERR_ARG,
+                              "material '%.64s' of an instanced prototype is emissive (lights "
+                              "need their copies)",
+                              m->name);
+            goto fail;
+        }
     }
     if (!(scale > 0.0f) || !isfinite(scale) || !pt_isfinite3(tr)) {
         st = pt_error_set(err, PT_ERR_ARG, "scale %g / translation is invalid", (double)scale);
@@ -1505,7 +1776,11 @@ pt_status pt_scene_builder_finish(pt_scene_builder *b, const pt_scene_opts *opts
     /* opts' scale and translation in double, in place, with the double bounds. */
     const double sc = scale, t[3] = {tr.x, tr.y, tr.z};
     double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-    for (uint32_t v = 0; v < b->nv; v++) {
+    s->num_flat_triangles = ntf;
+    s->num_flat_vertices = nvf;
+    if ((st = finish_instances(b, s, sc, t, lo, hi, err)) != PT_OK)
+        goto fail;
+    for (uint32_t v = 0; v < nvf; v++) {
         double *p = b->pos + 3 * (size_t)v;
         for (int r = 0; r < 3; r++) {
             p[r] = p[r] * sc + t[r];
@@ -1530,6 +1805,11 @@ pt_status pt_scene_builder_finish(pt_scene_builder *b, const pt_scene_opts *opts
     for (uint32_t v = 0; v < b->nv; v++) {
         const double *p = b->pos + 3 * (size_t)v;
         float *q = s->positions + 3 * (size_t)v;
+        if (v >= nvf) { /* a prototype's: its own space, and instance_bounds' */
+            for (int r = 0; r < 3; r++)
+                q[r] = (float)p[r];
+            continue;
+        }
         for (int r = 0; r < 3; r++)
             q[r] = (float)(p[r] - s->origin[r]);
         if (!finite_n(q, 3)) {
@@ -1539,6 +1819,7 @@ pt_status pt_scene_builder_finish(pt_scene_builder *b, const pt_scene_opts *opts
         flo = pt_v3(fminf(flo.x, q[0]), fminf(flo.y, q[1]), fminf(flo.z, q[2]));
         fhi = pt_v3(fmaxf(fhi.x, q[0]), fmaxf(fhi.y, q[1]), fmaxf(fhi.z, q[2]));
     }
+    place_instances(b, s, sc, t, &flo, &fhi);
     s->bounds_min = flo;
     s->bounds_max = fhi;
     pt_free(b->pos);
@@ -1578,6 +1859,8 @@ pt_status pt_scene_builder_finish(pt_scene_builder *b, const pt_scene_opts *opts
         goto fail;
     if (s->num_punctual > 0)
         s->features |= PT_FEAT_PUNCTUAL;
+    if (s->num_instances > 0)
+        s->features |= PT_FEAT_INSTANCES;
     if ((st = finish_extra(b, s, err)) != PT_OK)
         goto fail;
     if ((st = pt_motion_build_finish(b->motion, s, sc, t, err)) != PT_OK)

@@ -6,8 +6,10 @@
  * A pt_scene is immutable after it is built and may be shared by any number of
  * render threads. It owns all of its memory (freed by pt_scene_free).
  * Geometry is flattened: every mesh instance of the glTF default scene is
- * transformed to world space. Per-vertex arrays are shared by all triangles;
- * tri_material[i] is an index into materials[] for triangle i.
+ * transformed to world space, but for EXT_mesh_gpu_instancing's, kept once
+ * in the mesh's own space as a prototype placed by its instances
+ * (PT_FEAT_INSTANCES, pt_instance). Per-vertex arrays are shared by all
+ * triangles; tri_material[i] is an index into materials[] for triangle i.
  *
  * Coordinate spaces: positions, camera positions and bounds are stored in the
  * "scene space" of world space translated by -origin (world = stored + origin),
@@ -82,6 +84,9 @@ enum { PT_FEAT_DIFFUSE_TRANSMISSION = 1u << 21 };
 /* KHR_materials_dispersion: some transmitting, not thin-walled material has
  * a dispersion > 0 (common/render/dielectric.h). */
 enum { PT_FEAT_DISPERSION = 1u << 22 };
+/* EXT_mesh_gpu_instancing kept as instances (pt_scene.instances): a hit
+ * may come through an instance, whose transform shading applies. */
+enum { PT_FEAT_INSTANCES = 1u << 23 };
 
 /* pt_material.ext: what the BSDF of a material reads past the core
  * metallic-roughness inputs, set by the builder from the material's fields,
@@ -164,7 +169,8 @@ typedef struct pt_material {
     int32_t transmission_tex;   /* R = transmission (linear), or -1 */
     float ior;                  /* index of refraction, >= 1 (default 1.5), or 0: F0 = 1 */
     float thickness;            /* thicknessFactor >= 0: 0 is thin-walled (the default), else the
-                                   mesh is a closed volume; its value is not otherwise used */
+                                   mesh is a closed volume (glass's, or a diffuse transmitter's);
+                                   its value is not otherwise used */
     float attenuation_color[3]; /* in [0, 1] (default 1,1,1) */
     float attenuation_distance; /* > 0; 0 (or +inf in glTF) means no absorption */
     int double_sided;
@@ -281,6 +287,32 @@ typedef struct pt_punctual {
 
 typedef struct pt_motion pt_motion; /* common/scene/motion.h */
 
+/* A mesh kept once for its instances (EXT_mesh_gpu_instancing): its
+ * triangles and vertices, contiguous at the end of the scene's arrays
+ * (after every flat one), are in the mesh's own space. */
+typedef struct pt_prototype {
+    uint32_t first_tri, num_tris;
+    uint32_t first_vertex, num_vertices;
+} pt_prototype;
+
+/* One instance of a prototype: the affine map from the prototype's space
+ * to scene space (opts' scale and translation and the origin included). A
+ * point p goes to xf[0..2] p.x + xf[3..5] p.y + xf[6..8] p.z + xf[9..11]
+ * (column-major 3x4, Embree's RTC_FORMAT_FLOAT3X4_COLUMN_MAJOR); a normal
+ * to nm (the inverse transpose of the 3x3, column-major too), then
+ * normalised; a tangent to the 3x3, with its handedness w times tan_sign
+ * (-1 where the map mirrors), as the builder transforms a copy's. */
+typedef struct pt_instance {
+    float xf[12];
+    float nm[9];
+    float tan_sign;
+    uint32_t proto; /* index into pt_scene.prototypes */
+} pt_instance;
+
+/* The most instances a scene may have (PT_FEAT_INSTANCES): each costs
+ * about 330 bytes, its record and Embree's (OPERATIONS.md). */
+#define PT_SCENE_MAX_INSTANCES (4u * 1024u * 1024u)
+
 typedef struct pt_scene {
     uint32_t num_vertices;
     uint32_t num_triangles;
@@ -322,6 +354,16 @@ typedef struct pt_scene {
                                        origin; a multiple of a power of two near the centre
                                        of the bounds, or 0 (see above) */
     pt_motion *motion;              /* what moves within the shutter, or NULL (motion.h) */
+    /* Instancing (PT_FEAT_INSTANCES; 0 and NULL without): triangles
+     * [0, num_flat_triangles) and vertices [0, num_flat_vertices) are in
+     * scene space; the rest are the prototypes', each in its own space,
+     * seen only through the instances. Without instances the counts are
+     * num_triangles and num_vertices. */
+    uint32_t num_flat_triangles, num_flat_vertices;
+    uint32_t num_prototypes;
+    pt_prototype *prototypes;
+    uint32_t num_instances;
+    pt_instance *instances;
 } pt_scene;
 
 typedef void (*pt_warn_fn)(void *user, const char *message);
@@ -539,12 +581,14 @@ void pt_scene_frame_camera(pt_scene *scene, float aspect);
  * a near-zero aspect cannot overflow. Pure: any thread may call it. */
 uint32_t pt_camera_height(float aspect, uint32_t width, uint32_t max_height);
 
-/* Whether m absorbs inside its volume (Beer-Lambert): it transmits, is not
- * thin-walled, and has a finite attenuation distance with a colour below 1. */
+/* Whether m absorbs inside its volume (Beer-Lambert): it transmits (glass,
+ * or KHR_materials_diffuse_transmission: the transmitted light enters the
+ * volume), is not thin-walled, and has a finite attenuation distance with a
+ * colour below 1. */
 static inline int pt_material_absorbs(const pt_material *m)
 {
-    return m->transmission > 0.0f && m->thickness > 0.0f && m->attenuation_distance > 0.0f &&
-           m->attenuation_distance < 3.4e38f &&
+    return (m->transmission > 0.0f || m->diffuse_transmission > 0.0f) && m->thickness > 0.0f &&
+           m->attenuation_distance > 0.0f && m->attenuation_distance < 3.4e38f &&
            (m->attenuation_color[0] < 1.0f || m->attenuation_color[1] < 1.0f ||
             m->attenuation_color[2] < 1.0f);
 }
@@ -620,6 +664,22 @@ pt_status pt_scene_builder_add_mesh_motion(pt_scene_builder *b, const char *what
                                            const float *const *normals, const float *uvs,
                                            uint32_t nv, const uint32_t *indices, uint32_t nt,
                                            uint32_t material, pt_error *err);
+/* Instancing: the meshes added between begin and end make prototype
+ * *proto, kept in their own space (their xform is the mesh's place within
+ * the prototype, normally NULL); pt_scene_builder_add_instance then places
+ * it. Every flat mesh must come before the first prototype (PT_ERR_ARG
+ * otherwise), and a scene with prototypes cannot have moving meshes or
+ * emissive prototype triangles (PT_ERR_ARG): lights and motion need every
+ * copy in scene space. */
+pt_status pt_scene_builder_begin_prototype(pt_scene_builder *b, uint32_t *proto, pt_error *err);
+pt_status pt_scene_builder_end_prototype(pt_scene_builder *b, pt_error *err);
+/* Places prototype `proto` by the column-major 4x4 world matrix xform
+ * (before opts' scale and translation, as a mesh's). PT_ERR_FORMAT for a
+ * non-finite matrix or one whose last row is not (0, 0, 0, 1), PT_ERR_LIMIT
+ * past PT_SCENE_MAX_INSTANCES. A singular matrix (a scale of 0, which
+ * hides an instance) places nothing. */
+pt_status pt_scene_builder_add_instance(pt_scene_builder *b, uint32_t proto, const double xform[16],
+                                        pt_error *err);
 /* Adds a camera (copied) in world space. Rejects (PT_ERR_FORMAT) non-finite
  * vectors, a position over PT_SCENE_MAX_COORD, yfov outside (0, pi), aspect
  * outside [0, 1e6), a negative or non-finite znear. */

@@ -8,8 +8,24 @@
  * (the first differing pixel and the count are printed), 2 when a file
  * cannot be read or the sizes differ. Header attributes (render time, job
  * id) are not compared: they legitimately differ between runs.
+ *
+ * ptexr-diff --z MAX A.exr B.exr: for two renders of one image whose
+ * results may differ by float rounding (the same scene built another way),
+ * a paired z-test instead: per channel (R, G, B), the pixel differences
+ * d = a - b have mean 0 when both estimate the same image, and the pixels
+ * are independent of each other (their own sample streams), so
+ * z = mean(d) / (sd(d) / sqrt(n)) is standard normal for n in the
+ * thousands, whatever the correlation of a and b within a pixel. Exit 0
+ * when |z| <= MAX on every channel (and the samples agree), else 1; the z
+ * values are printed. Identical images pass (sd 0, mean 0). A paired test
+ * of images that differ only by rounding has a tiny sd, so that a rounding
+ * bias (the same sign of a last bit in many pixels) would read as
+ * significant: a mean difference within 1e-6 of the channel's mean (16
+ * float ulps, far below any sample's weight) passes too.
  */
+#include <math.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include "common/base/version.h"
@@ -43,17 +59,61 @@ static int diff_planes(const pt_image *a, const pt_image *b)
     return 0;
 }
 
+/* --z: the paired z-test above. */
+static int diff_z(const pt_image *a, const pt_image *b, double zmax)
+{
+    size_t n = (size_t)a->width * a->height;
+    const float *pa[3] = {a->r, a->g, a->b}, *pb[3] = {b->r, b->g, b->b};
+    int rc = 0;
+    for (size_t i = 0; i < n; i++)
+        if (a->samples[i] != b->samples[i]) {
+            printf("pixel (%zu, %zu): %g vs %g samples\n", i % a->width, i / a->width,
+                   a->samples[i], b->samples[i]);
+            return 1;
+        }
+    for (int c = 0; c < 3; c++) {
+        double sum = 0.0, sum2 = 0.0, level = 0.0;
+        size_t nd = 0;
+        for (size_t i = 0; i < n; i++) {
+            double d = (double)pa[c][i] - (double)pb[c][i];
+            level += 0.5 * (fabs((double)pa[c][i]) + fabs((double)pb[c][i])) / (double)n;
+            sum += d;
+            sum2 += d * d;
+            nd += d != 0.0;
+        }
+        double mean = sum / (double)n, var = sum2 / (double)n - mean * mean;
+        double se = sqrt(var > 0.0 ? var / (double)(n > 1 ? n - 1 : 1) : 0.0);
+        double z = se > 0.0 ? mean / se : (mean == 0.0 ? 0.0 : INFINITY);
+        printf("%c: %zu of %zu pixels differ, mean difference %.3g, z %.3f\n", "RGB"[c], nd, n,
+               mean, z);
+        if (!(fabs(z) <= zmax) && !(fabs(mean) <= 1e-6 * level))
+            rc = 1;
+    }
+    return rc;
+}
+
 int main(int argc, char **argv)
 {
     if (argc == 2 && !strcmp(argv[1], "--version"))
         return pt_version_print("ptexr-diff");
+    double zmax = -1.0;
+    if (argc == 5 && !strcmp(argv[1], "--z")) {
+        char *end;
+        zmax = strtod(argv[2], &end);
+        if (*end || !(zmax > 0.0)) {
+            fprintf(stderr, "ptexr-diff: --z %s: not a positive number\n", argv[2]);
+            return 2;
+        }
+        argv += 2;
+        argc -= 2;
+    }
     int base = argc == 4 && !strcmp(argv[1], "--base");
     if (base) {
         argv++;
         argc--;
     }
     if (argc != 3 || !strcmp(argv[1], "-h") || !strcmp(argv[1], "--help")) {
-        fprintf(argc == 3 ? stdout : stderr, "usage: ptexr-diff [--base] A.exr B.exr\n"
+        fprintf(argc == 3 ? stdout : stderr, "usage: ptexr-diff [--base | --z MAX] A.exr B.exr\n"
                                              "       ptexr-diff --version\n");
         return argc == 3 ? 0 : 2;
     }
@@ -70,6 +130,8 @@ int main(int argc, char **argv)
         fprintf(stderr, "ptexr-diff: sizes differ: %ux%u vs %ux%u\n", a->width, a->height, b->width,
                 b->height);
         rc = 2;
+    } else if (zmax > 0.0) {
+        rc = diff_z(a, b, zmax);
     } else if (a->has_alpha != b->has_alpha) {
         printf("one image has an A channel, the other not\n");
         rc = 1;

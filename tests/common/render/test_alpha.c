@@ -655,7 +655,7 @@ static void asset(void)
         if (!pt_alpha_tri(s, t))
             continue;
         const pt_material *m = &s->materials[s->tri_material[t]];
-        pt_hit h0 = {0.0f, 0.0f, 0.0f, t};
+        pt_hit h0 = {0.0f, 0.0f, 0.0f, t, 0};
         for (int k = 0; k < 9; k++) {
             float b1 = 0.1f + 0.1f * (float)(k % 3), b2 = 0.1f + 0.1f * (float)(k / 3);
             h0.b1 = b1;

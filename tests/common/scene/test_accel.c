@@ -125,7 +125,7 @@ static void rnd_surface_point(const pt_scene *s, uint32_t tri, pt_vec3 *p, pt_ve
         a = 1.0f - a;
         b = 1.0f - b;
     }
-    pt_hit h = {0.0f, a, b, tri};
+    pt_hit h = {0.0f, a, b, tri, 0};
     pt_accel_hit_point(s, &h, p, ng);
 }
 

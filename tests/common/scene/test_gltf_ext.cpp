@@ -36,6 +36,7 @@
 
 extern "C" {
 #include "common/base/alloc.h"
+#include "common/scene/accel.h"
 #include "common/scene/scene.h"
 }
 #include "tests/check.h"
@@ -701,14 +702,34 @@ void test_instancing()
         CHECKF(pt_scene_load(p.c_str(), &o, &s, &err) == PT_OK, "%s", err.msg);
         if (!s)
             continue;
-        CHECK(s->num_triangles == 2 && s->num_vertices == 6);
-        for (size_t v = 0; v < 6 && v < s->num_vertices; v++)
+        // The still keeps them as instances of the one triangle (its
+        // vertices in the mesh's space, each instance's map applied here);
+        // posed, every copy is in scene space.
+        if (!posed) {
+            CHECKF(s->num_instances == 2 && s->num_prototypes == 1 && s->num_triangles == 1 &&
+                       s->num_flat_triangles == 0 && (s->features & PT_FEAT_INSTANCES),
+                   "%u instances, %u triangles", s->num_instances, s->num_triangles);
+        } else {
+            CHECK(s->num_triangles == 2 && s->num_vertices == 6 && s->num_instances == 0);
+        }
+        for (size_t v = 0; v < 6; v++) {
+            pt_vec3 q;
+            if (!posed && s->num_instances == 2)
+                q = pt_instance_point(&s->instances[v / 3], pt_v3(s->positions[3 * (v % 3)],
+                                                                  s->positions[3 * (v % 3) + 1],
+                                                                  s->positions[3 * (v % 3) + 2]));
+            else if (posed && v < s->num_vertices)
+                q = pt_v3(s->positions[3 * v], s->positions[3 * v + 1], s->positions[3 * v + 2]);
+            else
+                continue;
+            const float qa[3] = {q.x, q.y, q.z};
             for (int r = 0; r < 3; r++) {
-                double got = s->positions[3 * v + size_t(r)] + s->origin[r];
+                double got = qa[r] + s->origin[r];
                 double w = want[v][r] + (posed && r == 2 ? 2.0 : 0.0);
                 CHECKF(std::fabs(got - w) < 1e-5, "posed %d vertex %zu axis %d: %g, want %g", posed,
                        v, r, got, w);
             }
+        }
         pt_scene_free(s);
     }
     unlink(p.c_str());
@@ -720,7 +741,8 @@ void test_instancing()
     load(path, l);
     CHECKF(l.st == PT_OK && l.nwarn == 0, "%s %s", l.err.msg, l.warnings.c_str());
     if (l.s)
-        CHECKF(l.s->num_triangles == 1500, "%u triangles", l.s->num_triangles);
+        CHECKF(l.s->num_triangles == 12 && l.s->num_instances == 125, "%u triangles, %u instances",
+               l.s->num_triangles, l.s->num_instances);
 
     // Attributes that disagree on the count.
     gltf h;
@@ -733,6 +755,225 @@ void test_instancing()
              t2, s3);
     expect_fail(h.json(m), "inst_disagree", PT_ERR_FORMAT,
                 "EXT_mesh_gpu_instancing attributes disagree on the count");
+}
+
+// N instances of an octahedron with smooth normals (its positions) over
+// a floor, written once with EXT_mesh_gpu_instancing (node 1) and once
+// as N nodes with each instance's TRS (the same floats): rotations about
+// several axes, non-uniform scales and one mirror (SCALE (-1, 1, 1)).
+// copies 1: the nodes; bad: "nan" puts a NaN in a TRANSLATION, "huge"
+// claims 2^31 instances.
+std::string instancing_file(int n, bool copies, const char *bad = "")
+{
+    gltf g;
+    const float r = 1.0f;
+    std::vector<float> oct = {r, 0, 0, -r, 0, 0, 0, r, 0, 0, -r, 0, 0, 0, r, 0, 0, -r};
+    const std::vector<unsigned short> oi = {0, 2, 4, 2, 1, 4, 1, 3, 4, 3, 0, 4,
+                                            2, 0, 5, 1, 2, 5, 3, 1, 5, 0, 3, 5};
+    int pa = g.floats(oct, "VEC3", 3), na = g.floats(oct, "VEC3", 3);
+    int ia = g.add(oi.data(), oi.size() * 2, 5123, "SCALAR", oi.size());
+    std::vector<float> fl = {-20, -20, -3, 20, -20, -3, 20, 20, -3, -20, 20, -3};
+    const std::vector<unsigned short> fi = {0, 1, 2, 0, 2, 3};
+    int fa = g.floats(fl, "VEC3", 3);
+    int fia = g.add(fi.data(), fi.size() * 2, 5123, "SCALAR", fi.size());
+    std::vector<float> t, q, sc;
+    uint32_t h = 12345;
+    auto rnd = [&h]() {
+        h = h * 1664525u + 1013904223u;
+        return float(h >> 8) / 16777216.0f;
+    };
+    for (int i = 0; i < n; i++) {
+        t.insert(t.end(), {float(i % 6) * 3.0f - 7.5f, float(i / 6) * 3.0f - 7.5f, rnd() - 0.5f});
+        float ax[3] = {rnd() - 0.5f, rnd() - 0.5f, rnd() - 0.5f};
+        float al = std::sqrt(ax[0] * ax[0] + ax[1] * ax[1] + ax[2] * ax[2]);
+        float ang = 6.0f * rnd(), sh = std::sin(ang / 2) / al;
+        q.insert(q.end(), {ax[0] * sh, ax[1] * sh, ax[2] * sh, std::cos(ang / 2)});
+        if (i == 3)
+            sc.insert(sc.end(), {-1.0f, 1.0f, 1.0f});
+        else
+            sc.insert(sc.end(), {0.5f + rnd(), 0.5f + rnd(), 0.5f + rnd()});
+    }
+    if (!strcmp(bad, "nan"))
+        t[4] = NAN;
+    int ta = g.floats(t, "VEC3", 3), ra = g.floats(q, "VEC4", 4), sa = g.floats(sc, "VEC3", 3);
+    if (!strcmp(bad, "huge"))
+        g.accessors.replace(g.accessors.rfind("\"count\":" + std::to_string(n)),
+                            8 + std::to_string(n).size(), "\"count\":2147483648");
+    char head[600];
+    snprintf(head, sizeof head,
+             "\"meshes\":[{\"primitives\":[{\"attributes\":{\"POSITION\":%d,\"NORMAL\":%d},"
+             "\"indices\":%d}]},{\"primitives\":[{\"attributes\":{\"POSITION\":%d},\"indices\":%"
+             "d}]}]",
+             pa, na, ia, fa, fia);
+    std::string nodes;
+    if (!copies) {
+        char n1[300];
+        snprintf(n1, sizeof n1,
+                 "{\"children\":[1,2]},{\"mesh\":0,\"extensions\":{\"EXT_mesh_gpu_instancing\":{"
+                 "\"attributes\":{\"TRANSLATION\":%d,\"ROTATION\":%d,\"SCALE\":%d}}}},{\"mesh\":1}",
+                 ta, ra, sa);
+        nodes = n1;
+    } else {
+        nodes = "{\"children\":[1";
+        for (int i = 0; i < n; i++)
+            nodes += "," + std::to_string(2 + i);
+        nodes += "]},{\"mesh\":1}";
+        for (int i = 0; i < n; i++) {
+            char ni[300];
+            snprintf(ni, sizeof ni,
+                     ",{\"mesh\":0,\"translation\":[%.9g,%.9g,%.9g],\"rotation\":[%.9g,%.9g,%.9g,%."
+                     "9g],\"scale\":[%.9g,%.9g,%.9g]}",
+                     double(t[3 * i]), double(t[3 * i + 1]), double(t[3 * i + 2]), double(q[4 * i]),
+                     double(q[4 * i + 1]), double(q[4 * i + 2]), double(q[4 * i + 3]),
+                     double(sc[3 * i]), double(sc[3 * i + 1]), double(sc[3 * i + 2]));
+            nodes += ni;
+        }
+    }
+    std::string ext = copies ? "" : ",\"extensionsUsed\":[\"EXT_mesh_gpu_instancing\"]";
+    return g.json(std::string(head) + ",\"nodes\":[" + nodes + "]" + ext);
+}
+
+// The shading normal of a hit, interpolated and normalised, through its
+// instance's inverse transpose when it has one.
+pt_vec3 shading_normal(const pt_scene *s, const pt_hit &h)
+{
+    const uint32_t *t = &s->indices[3 * h.tri];
+    float b0 = 1.0f - h.b1 - h.b2;
+    pt_vec3 n = pt_v3(0, 0, 0);
+    const float w[3] = {b0, h.b1, h.b2};
+    for (int k = 0; k < 3; k++) {
+        pt_vec3 v = pt_v3(s->normals[3 * t[k]], s->normals[3 * t[k] + 1], s->normals[3 * t[k] + 2]);
+        if (h.inst) // vertex by vertex, as the builder makes a copy's
+            v = pt_instance_normal(&s->instances[h.inst - 1], v, v);
+        n = pt_v3_add(n, pt_v3_scale(v, w[k]));
+    }
+    return pt_v3_norm(n);
+}
+
+// The instanced file and its copies, ray by ray: 4,096 rays from above
+// hit the same surfaces at the same distance, point, geometric and
+// shading normal, up to float rounding (1e-4 of the scene's size: an
+// instance's point is its float map of the mesh's float vertices, a
+// copy's vertices are mapped in double and rounded); a ray that grazes
+// an edge may hit one and miss the other (at most 4). Then the caps and
+// a NaN.
+void test_instances_vs_copies()
+{
+    const int n = 36;
+    std::string pi = write_tmp(instancing_file(n, false), "inst_n"),
+                pc = write_tmp(instancing_file(n, true), "inst_copies");
+    loaded li, lc;
+    load(pi, li);
+    load(pc, lc);
+    CHECKF(li.st == PT_OK && lc.st == PT_OK, "%s / %s", li.err.msg, lc.err.msg);
+    if (li.s && lc.s) {
+        CHECKF(li.s->num_instances == uint32_t(n) && li.s->num_triangles == 8 + 2 &&
+                   lc.s->num_instances == 0 && lc.s->num_triangles == 8u * n + 2,
+               "%u instances, %u / %u triangles", li.s->num_instances, li.s->num_triangles,
+               lc.s->num_triangles);
+        CHECK(li.nwarn == 0 && lc.nwarn == 0);
+        pt_accel *ai = nullptr, *ac = nullptr;
+        pt_error err{};
+        CHECKF(pt_accel_new(li.s, &ai, &err) == PT_OK, "%s", err.msg);
+        CHECKF(pt_accel_new(lc.s, &ac, &err) == PT_OK, "%s", err.msg);
+        int hits = 0, odd = 0, far = 0, through = 0, mirrored = 0;
+        for (int k = 0; ai && ac && k < 4096; k++) {
+            // World (0, 0, 20) looking down over the grid; origins are 0.
+            double o[3] = {0, 0, 20};
+            pt_vec3 oi = pt_v3(float(o[0] - li.s->origin[0]), float(o[1] - li.s->origin[1]),
+                               float(o[2] - li.s->origin[2]));
+            pt_vec3 oc = pt_v3(float(o[0] - lc.s->origin[0]), float(o[1] - lc.s->origin[1]),
+                               float(o[2] - lc.s->origin[2]));
+            pt_vec3 d = pt_v3_norm(pt_v3((float(k % 64) - 31.5f) / 64.0f * 0.9f,
+                                         (float(k / 64) - 31.5f) / 64.0f * 0.9f, -1.0f));
+            pt_hit hi{}, hc{};
+            int a = pt_accel_intersect(ai, oi, d, INFINITY, &hi);
+            int c = pt_accel_intersect(ac, oc, d, INFINITY, &hc);
+            if (a != c) {
+                odd++;
+                continue;
+            }
+            if (!a)
+                continue;
+            hits++;
+            through += hi.inst != 0;
+            if (hi.inst && li.s->instances[hi.inst - 1].tan_sign < 0.0f)
+                mirrored++;
+            pt_vec3 p1, n1, p2, n2;
+            pt_accel_hit_point(li.s, &hi, &p1, &n1);
+            pt_accel_hit_point(lc.s, &hc, &p2, &n2);
+            pt_vec3 s1 = shading_normal(li.s, hi), s2 = shading_normal(lc.s, hc);
+            double dp = 0;
+            const float a1[3] = {p1.x, p1.y, p1.z}, a2[3] = {p2.x, p2.y, p2.z};
+            for (int r = 0; r < 3; r++)
+                dp =
+                    std::fmax(dp, std::fabs((a1[r] + li.s->origin[r]) - (a2[r] + lc.s->origin[r])));
+            if (std::fabs(hi.t - hc.t) > 1e-4f || dp > 1e-4 || pt_v3_dot(n1, n2) < 1.0f - 1e-5f ||
+                pt_v3_dot(s1, s2) < 1.0f - 1e-5f) {
+                if (far++ < 3)
+                    fprintf(stderr,
+                            "ray %d: t %.7g vs %.7g, point off by %g, ng.ng %.7g, ns.ns %.7g\n", k,
+                            double(hi.t), double(hc.t), dp, double(pt_v3_dot(n1, n2)),
+                            double(pt_v3_dot(s1, s2)));
+            }
+        }
+        CHECKF(hits > 3000 && through > 500 && mirrored > 10,
+               "%d hits, %d through instances, %d mirrored", hits, through, mirrored);
+        CHECKF(odd <= 4, "%d rays hit one and miss the other", odd);
+        CHECKF(far == 0, "%d hits differ", far);
+        pt_accel_free(ai);
+        pt_accel_free(ac);
+    }
+    unlink(pi.c_str());
+    unlink(pc.c_str());
+    expect_fail(instancing_file(n, false, "nan"), "inst_nan", PT_ERR_FORMAT, "not finite");
+    expect_fail(instancing_file(n, false, "huge"), "inst_huge", PT_ERR_LIMIT,
+                "EXT_mesh_gpu_instancing: 2147483648 instances (accessor 7), over the cap of "
+                "4194304");
+}
+
+// Several material extensions on one material: what the closure builder
+// cannot compose is warned once, by name; what it composes is not.
+void test_combined_materials()
+{
+    struct {
+        const char *ext, *want; // want: the warning's text, or nullptr for none
+    } cases[] = {
+        {"\"KHR_materials_iridescence\":{\"iridescenceFactor\":1},"
+         "\"KHR_materials_anisotropy\":{\"anisotropyStrength\":0.5}",
+         "KHR_materials_iridescence beside KHR_materials_anisotropy is ignored"},
+        {"\"KHR_materials_iridescence\":{\"iridescenceFactor\":1},"
+         "\"KHR_materials_diffuse_transmission\":{\"diffuseTransmissionFactor\":0.5}",
+         "KHR_materials_iridescence beside KHR_materials_diffuse_transmission is ignored"},
+        {"\"KHR_materials_pbrSpecularGlossiness\":{},\"KHR_materials_clearcoat\":{"
+         "\"clearcoatFactor\":1}",
+         "KHR_materials_clearcoat beside KHR_materials_pbrSpecularGlossiness is ignored"},
+        // These compose: diffuse transmission with anisotropy, and every
+        // layer over them with a specular colour.
+        {"\"KHR_materials_diffuse_transmission\":{\"diffuseTransmissionFactor\":0.5},"
+         "\"KHR_materials_anisotropy\":{\"anisotropyStrength\":0.5},"
+         "\"KHR_materials_clearcoat\":{\"clearcoatFactor\":1},"
+         "\"KHR_materials_sheen\":{\"sheenColorFactor\":[1,1,1]},"
+         "\"KHR_materials_specular\":{\"specularColorFactor\":[1,0.5,0.5]}",
+         nullptr},
+        {"\"KHR_materials_iridescence\":{\"iridescenceFactor\":1},"
+         "\"KHR_materials_transmission\":{\"transmissionFactor\":1},"
+         "\"KHR_materials_clearcoat\":{\"clearcoatFactor\":1},"
+         "\"KHR_materials_sheen\":{\"sheenColorFactor\":[1,1,1]}",
+         nullptr},
+    };
+    for (const auto &c : cases) {
+        std::string p = write_tmp(ext_file("", "", c.ext), "combined");
+        loaded l;
+        load(p, l);
+        CHECKF(l.st == PT_OK, "%s", l.err.msg);
+        if (c.want)
+            CHECKF(count_of(l.warnings, c.want) == 1, "%s: warnings '%s'", c.want,
+                   l.warnings.c_str());
+        else
+            CHECKF(l.nwarn == 0, "%s: warnings '%s'", c.ext, l.warnings.c_str());
+        unlink(p.c_str());
+    }
 }
 
 // ---- EXT_texture_webp and KHR_texture_basisu ------------------------------------------
@@ -985,6 +1226,8 @@ int main(void)
     test_draco();
     test_draco_hostile();
     test_instancing();
+    test_instances_vs_copies();
+    test_combined_materials();
     test_texture_formats();
     test_meshopt();
     return check_report();
