@@ -38,6 +38,7 @@
 #include "common/base/alloc.h"
 #include "common/render/env.h"
 #include "common/render/light_lanes.h"
+#include "common/render/light_tree.h"
 #include "common/scene/accel.h"
 #include "common/scene/motion.h"
 
@@ -56,10 +57,10 @@ typedef struct alias_slot {
 typedef struct light_entry {
     pt_vec3 v[3];      /* vertices */
     pt_vec3 normal;    /* unit geometric normal (tri_geom) */
-    float pmf_area;    /* probability of choosing the light / its area */
+    float pmf_area;    /* probability of choosing the light / its area (without a tree) */
     uint32_t tri;      /* triangle in the scene */
     uint32_t material; /* its material */
-    float pmf;         /* probability of choosing this light */
+    float area;        /* its area */
 } light_entry;
 _Static_assert(sizeof(light_entry) == 64, "a light entry is one cache line");
 
@@ -73,7 +74,8 @@ struct pt_lights {
      * (emission_at), so that a sample reads neither the index nor the
      * vertices' coordinates; NULL when no light's material has one. */
     float *tex_uv;
-    alias_slot *alias;      /* count columns */
+    alias_slot *alias;   /* count columns */
+    pt_light_tree *tree; /* where it chooses the triangle (light_tree.h); NULL: the alias table */
     uint32_t *tri_to_light; /* num_triangles entries, UINT32_MAX: not a light; NULL if count 0 */
     /* punctual lights */
     uint32_t npunct;
@@ -286,6 +288,32 @@ static void build_alias(alias_slot *lights, double *q, uint32_t *scratch, uint32
     }
 }
 
+/* The light tree over the n triangle lights of L (entries filled) with
+ * their powers. A triangle's cone is its normal alone (theta_o = 0). */
+static pt_status build_tree(const pt_scene *scene, pt_lights *L, const double *power, uint32_t n,
+                            pt_error *err)
+{
+    pt_light_tree_item *items = pt_malloc_array(n, sizeof *items);
+    if (!items)
+        return pt_error_set(err, PT_ERR_NOMEM, "pt_lights_new: out of memory for the light tree");
+    for (uint32_t i = 0; i < n; i++) {
+        const light_entry *le = &L->lights[i];
+        const pt_vec3 *v = le->v;
+        pt_light_tree_item *it = &items[i];
+        it->lo = pt_v3(fminf(fminf(v[0].x, v[1].x), v[2].x), fminf(fminf(v[0].y, v[1].y), v[2].y),
+                       fminf(fminf(v[0].z, v[1].z), v[2].z));
+        it->hi = pt_v3(fmaxf(fmaxf(v[0].x, v[1].x), v[2].x), fmaxf(fmaxf(v[0].y, v[1].y), v[2].y),
+                       fmaxf(fmaxf(v[0].z, v[1].z), v[2].z));
+        it->axis = le->normal;
+        it->cos_o = 1.0f;
+        it->power = (float)power[i];
+        it->two_sided = scene->materials[le->material].double_sided;
+    }
+    pt_status st = pt_light_tree_new(items, n, &L->tree, err);
+    pt_free(items);
+    return st;
+}
+
 pt_status pt_lights_new(const pt_scene *scene, pt_lights **out, pt_error *err)
 {
     return pt_lights_new_env(scene, NULL, PT_ENV_FULL, out, err);
@@ -293,6 +321,12 @@ pt_status pt_lights_new(const pt_scene *scene, pt_lights **out, pt_error *err)
 
 pt_status pt_lights_new_env(const pt_scene *scene, const pt_env *env, int env_dist, pt_lights **out,
                             pt_error *err)
+{
+    return pt_lights_new_select(scene, env, env_dist, PT_LIGHT_SELECT_AUTO, out, err);
+}
+
+pt_status pt_lights_new_select(const pt_scene *scene, const pt_env *env, int env_dist,
+                               uint32_t select, pt_lights **out, pt_error *err)
 {
     pt_status st = PT_OK;
     pt_vec3 *tex_mean = NULL;
@@ -411,7 +445,7 @@ pt_status pt_lights_new_env(const pt_scene *scene, const pt_env *env, int env_di
         le->material = scene->tri_material[i];
         float a2;
         tri_geom(scene, i, le->v, &le->normal, &a2);
-        le->pmf_area = area; /* divided below */
+        le->area = area;
         const pt_material *m = &scene->materials[le->material];
         if (L->tex_uv && textured(scene, m)) {
             const float *set = m->tex_xf[PT_SLOT_EMISSIVE].texcoord ? scene->uvs1 : scene->uvs;
@@ -428,8 +462,13 @@ pt_status pt_lights_new_env(const pt_scene *scene, const pt_env *env, int env_di
     int others = L->npunct || L->env;
     L->p_tri = others ? total / (total + punct_total + env_power) : 1.0;
     for (uint32_t i = 0; i < n; i++) {
-        L->lights[i].pmf = (float)(others ? power[i] / total * L->p_tri : power[i] / total);
-        L->lights[i].pmf_area = L->lights[i].pmf / L->lights[i].pmf_area;
+        float pmf = (float)(others ? power[i] / total * L->p_tri : power[i] / total);
+        L->lights[i].pmf_area = pmf / L->lights[i].area;
+    }
+    if (select == PT_LIGHT_SELECT_TREE ? n >= 2
+                                       : select == PT_LIGHT_SELECT_AUTO && n >= PT_LIGHT_TREE_MIN) {
+        if ((st = build_tree(scene, L, power, n, err)) != PT_OK)
+            goto fail;
     }
     build_alias(L->alias, power, scratch, n, total);
     L->count = n;
@@ -474,6 +513,7 @@ void pt_lights_free(pt_lights *lights)
     pt_free(lights->lights_mem);
     pt_free(lights->tex_uv);
     pt_free(lights->alias);
+    pt_light_tree_free(lights->tree);
     pt_free(lights->tri_to_light);
     pt_free(lights->punct_cdf);
     pt_free(lights->punct_pmf);
@@ -488,6 +528,11 @@ uint32_t pt_lights_count(const pt_lights *lights)
 uint32_t pt_lights_punctual_count(const pt_lights *lights)
 {
     return lights ? lights->npunct : 0;
+}
+
+int pt_lights_has_tree(const pt_lights *lights)
+{
+    return lights && lights->tree;
 }
 
 int pt_lights_has_env(const pt_lights *lights)
@@ -612,11 +657,11 @@ static inline uint32_t pick_index(const pt_lights *lights, float u0)
     return r < c->prob ? col : c->alias;
 }
 
-static inline const light_entry *pick_point(const pt_lights *lights, const float u[3], pt_vec3 *pos,
-                                            float *b1_out, float *b2_out)
+/* The point of light le that (u1, u2) picks, and its barycentrics. */
+static inline const light_entry *point_on(const light_entry *le, float u1, float u2, pt_vec3 *pos,
+                                          float *b1_out, float *b2_out)
 {
-    const light_entry *le = &lights->lights[pick_index(lights, u[0])];
-
+    const float u[3] = {0.0f, u1, u2};
     /* Heitz 2019, sec. 3: the square is cut along its diagonal and each half
      * sheared onto the triangle; the Jacobian is constant, so the density is
      * uniform in area. */
@@ -630,6 +675,40 @@ static inline const light_entry *pick_point(const pt_lights *lights, const float
         pt_v3_add(pt_v3_add(pt_v3_scale(v[0], b0), pt_v3_scale(v[1], b1)), pt_v3_scale(v[2], b2));
     *b1_out = b1;
     *b2_out = b2;
+    return le;
+}
+
+static inline const light_entry *pick_point(const pt_lights *lights, const float u[3], pt_vec3 *pos,
+                                            float *b1_out, float *b2_out)
+{
+    return point_on(&lights->lights[pick_index(lights, u[0])], u[1], u[2], pos, b1_out, b2_out);
+}
+
+/* pmf / area of light le chosen by the tree with probability q within the
+ * triangles' class. */
+static inline float tree_pmf_area(const pt_lights *lights, const light_entry *le, double q)
+{
+    return (float)(q * lights->p_tri) / le->area;
+}
+
+/* The light and point u picks seen from p, through the tree when there is
+ * one; *pmf_area its probability / area, 0 when no light can be chosen. */
+static inline const light_entry *choose(const pt_lights *lights, pt_vec3 p, const float u[3],
+                                        pt_vec3 *pos, float *b1, float *b2, float *pmf_area)
+{
+    if (lights->tree) {
+        double q;
+        uint32_t k = pt_light_tree_sample(lights->tree, p, (double)u[0], &q);
+        if (k == UINT32_MAX) {
+            *pmf_area = 0.0f;
+            return point_on(&lights->lights[0], u[1], u[2], pos, b1, b2);
+        }
+        const light_entry *le = point_on(&lights->lights[k], u[1], u[2], pos, b1, b2);
+        *pmf_area = tree_pmf_area(lights, le, q);
+        return le;
+    }
+    const light_entry *le = pick_point(lights, u, pos, b1, b2);
+    *pmf_area = le->pmf_area;
     return le;
 }
 
@@ -657,8 +736,10 @@ int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, 
         u = ut;
     }
 
-    float b1, b2;
-    const light_entry *le = pick_point(lights, u, &s->position, &b1, &b2);
+    float b1, b2, pmf_area;
+    const light_entry *le = choose(lights, p, u, &s->position, &b1, &b2, &pmf_area);
+    if (!(pmf_area > 0.0f))
+        return 0;
     s->tri = le->tri;
     s->normal = le->normal;
     pt_vec3 d = pt_v3_sub(s->position, p);
@@ -668,7 +749,7 @@ int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, 
         return 0;
     s->wi = pt_v3_scale(d, 1.0f / s->dist);
     const pt_material *m = &scene->materials[le->material];
-    s->pdf = solid_angle_pdf_d(le->pmf_area, m->double_sided, d, d2, s->dist, le->normal);
+    s->pdf = solid_angle_pdf_d(pmf_area, m->double_sided, d, d2, s->dist, le->normal);
     if (!(s->pdf > 0.0f))
         return 0;
     s->radiance = emission_at(lights, scene, le, b1, b2);
@@ -676,20 +757,22 @@ int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, 
 }
 
 void pt_lights_pick_n(const pt_lights *lights, const pt_scene *scene, uint32_t n, const float *pick,
-                      const float *point, size_t stride, pt_light_picks *out)
+                      const float *point, size_t stride, const float *const p[3],
+                      pt_light_picks *out)
 {
     for (uint32_t j = 0; j < n; j++) {
         const float u[3] = {pick[j * stride], point[j * stride], point[j * stride + 1]};
         pt_vec3 pos;
-        float b1, b2;
-        const light_entry *le = pick_point(lights, u, &pos, &b1, &b2);
+        float b1, b2, pmf_area;
+        const light_entry *le =
+            choose(lights, pt_v3(p[0][j], p[1][j], p[2][j]), u, &pos, &b1, &b2, &pmf_area);
         const pt_material *m = &scene->materials[le->material];
         /* The emission of every pick, also of those that the checks will
          * reject: without a branch on the checks, which the lanes make. */
         pt_vec3 e = emission_at(lights, scene, le, b1, b2);
         PT_LANE_PUT3(out->pos, j, pos);
         PT_LANE_PUT3(out->normal, j, le->normal);
-        out->pmf_area[j] = le->pmf_area;
+        out->pmf_area[j] = pmf_area;
         out->two_sided[j] = m->double_sided ? -1 : 0;
         PT_LANE_PUT3(out->radiance, j, e);
     }
@@ -713,7 +796,7 @@ PT_SIMD_CLONES
 void pt_lights_sample_n(const pt_lights *lights, const pt_scene *scene, uint32_t n,
                         const pt_vec3 *p, const float (*u)[3], pt_light_sample *s, int *ok)
 {
-    if (!lights || lights->count == 0) {
+    if (!lights || lights->count == 0 || lights->tree) {
         for (uint32_t i = 0; i < n; i++)
             ok[i] = pt_lights_sample(lights, scene, p[i], u[i], &s[i]);
         return;
@@ -806,5 +889,8 @@ float pt_lights_pdf(const pt_lights *lights, const pt_scene *scene, uint32_t tri
         return 0.0f;
     const light_entry *le = &lights->lights[k];
     const pt_material *m = &scene->materials[le->material];
-    return solid_angle_pdf(le->pmf_area, m->double_sided, p, hit, n_light);
+    float pmf_area = le->pmf_area;
+    if (lights->tree)
+        pmf_area = tree_pmf_area(lights, le, pt_light_tree_pmf(lights->tree, p, k));
+    return solid_angle_pdf(pmf_area, m->double_sided, p, hit, n_light);
 }

@@ -366,7 +366,9 @@ static void test_choice_many(void)
     }
     expected_pmf(&t.s, 1.0, pmf);
     pt_lights *L = NULL;
-    CHECK(pt_lights_new(&t.s, &L, NULL) == PT_OK);
+    /* By power: from PT_LIGHT_TREE_MIN lights on the default is the light
+     * tree (test_light_tree.c). */
+    CHECK(pt_lights_new_select(&t.s, NULL, 0, PT_LIGHT_SELECT_POWER, &L, NULL) == PT_OK);
     if (!L)
         return;
     const int n = 200000;

@@ -1,0 +1,480 @@
+/*
+ * light_tree.c - the light hierarchy of light_tree.h: build (binned SAOH),
+ * importance, sampling and the pmf of a given light.
+ *
+ * Orientation bounds: a cone (axis, half-angle theta_o) holds every emitting
+ * normal of a node; emission reaches theta_e = pi/2 beyond it. Two cones are
+ * merged into the smallest cone around both found by rotating the wider one's
+ * axis towards the other (the construction of Conty & Kulla 2018, sec. 4.1).
+ * The cost of a cluster (their eq. 1-2) is power x surface area x M_Omega,
+ * M_Omega = 2 pi (1 - cos theta_o)
+ *         + pi/2 (2 theta_w sin theta_o - cos(theta_o - 2 theta_w)
+ *                 - 2 theta_o sin theta_o + cos theta_o),
+ * theta_w = min(theta_o + theta_e, pi), the measure of directions the cluster
+ * emits into weighted by cosine; a split's cost is the two sides' sum times
+ * K_r = (longest extent of the node) / (extent along the split axis), which
+ * keeps clusters from growing thin.
+ */
+#include "common/render/light_tree.h"
+
+#include <math.h>
+#include <string.h>
+
+#include "common/base/alloc.h"
+
+#define BUCKETS 12
+/* From this depth on a node is split in half by count: the leaves below it
+ * are then at most log2(PT_LIGHT_TREE_MAX) = 26 deeper, within the 64
+ * branch bits. */
+#define FORCE_MEDIAN_DEPTH 36u
+#define PI_D 3.14159265358979323846
+
+/* One node, 64 bytes. Children of an inner node: index + 1 and `next`. */
+typedef struct lt_node {
+    float lo[3], hi[3];
+    float axis[3];
+    float cos_o, sin_o;
+    float power;
+    float r2;      /* (half-diagonal)^2 */
+    uint32_t next; /* inner: the right child; leaf: the light */
+    uint32_t leaf;
+    uint32_t two_sided;
+} lt_node;
+_Static_assert(sizeof(lt_node) == 64, "a node is one cache line");
+
+struct pt_light_tree {
+    uint32_t n, nodes_used, depth;
+    lt_node *nodes;  /* 2n - 1 */
+    uint64_t *bits;  /* per light: its branch bits, root's first (1 = right) */
+    uint8_t *levels; /* per light: its leaf's depth */
+};
+
+/* A cluster while building: box, cone (in double), power. */
+typedef struct cluster {
+    double lo[3], hi[3];
+    double axis[3];
+    double theta_o; /* half-angle, [0, pi]; negative: empty cone */
+    double power;
+    int two_sided;
+} cluster;
+
+static void cluster_empty(cluster *c)
+{
+    for (int i = 0; i < 3; i++) {
+        c->lo[i] = INFINITY;
+        c->hi[i] = -INFINITY;
+        c->axis[i] = 0.0;
+    }
+    c->axis[2] = 1.0;
+    c->theta_o = -1.0;
+    c->power = 0.0;
+    c->two_sided = 0;
+}
+
+static double dot3(const double a[3], const double b[3])
+{
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+}
+
+/* The smallest cone (by this construction) holding cones a and b, into a. */
+static void cone_union(double a_axis[3], double *a_theta, const double b_axis[3], double b_theta)
+{
+    if (b_theta < 0.0)
+        return;
+    if (*a_theta < 0.0) {
+        memcpy(a_axis, b_axis, 3 * sizeof *a_axis);
+        *a_theta = b_theta;
+        return;
+    }
+    double wa[3], wb[3], ta, tb;
+    if (b_theta > *a_theta) { /* wa: the wider */
+        memcpy(wa, b_axis, sizeof wa);
+        memcpy(wb, a_axis, sizeof wb);
+        ta = b_theta;
+        tb = *a_theta;
+    } else {
+        memcpy(wa, a_axis, sizeof wa);
+        memcpy(wb, b_axis, sizeof wb);
+        ta = *a_theta;
+        tb = b_theta;
+    }
+    double c = dot3(wa, wb);
+    double td = acos(c < -1.0 ? -1.0 : c > 1.0 ? 1.0 : c);
+    if (fmin(td + tb, PI_D) <= ta) {
+        memcpy(a_axis, wa, sizeof wa);
+        *a_theta = ta;
+        return;
+    }
+    double to = 0.5 * (ta + td + tb);
+    /* k x wa with k = wa x wb / |wa x wb|: (wb - wa cos td) / sin td, the
+     * direction in the plane of both axes towards wb. */
+    double t[3] = {wb[0] - wa[0] * c, wb[1] - wa[1] * c, wb[2] - wa[2] * c};
+    double tl = sqrt(dot3(t, t));
+    if (to >= PI_D || !(tl > 1e-12)) { /* all around, or opposite axes */
+        memcpy(a_axis, wa, sizeof wa);
+        *a_theta = PI_D;
+        return;
+    }
+    double rot = to - ta, cr = cos(rot), sr = sin(rot);
+    double ax[3];
+    for (int i = 0; i < 3; i++)
+        ax[i] = wa[i] * cr + t[i] / tl * sr;
+    double al = sqrt(dot3(ax, ax));
+    for (int i = 0; i < 3; i++)
+        a_axis[i] = ax[i] / al;
+    *a_theta = to;
+}
+
+static void cluster_add(cluster *c, const cluster *o)
+{
+    for (int i = 0; i < 3; i++) {
+        c->lo[i] = fmin(c->lo[i], o->lo[i]);
+        c->hi[i] = fmax(c->hi[i], o->hi[i]);
+    }
+    cone_union(c->axis, &c->theta_o, o->axis, o->theta_o);
+    c->power += o->power;
+    c->two_sided |= o->two_sided;
+}
+
+static void cluster_of(const pt_light_tree_item *it, cluster *c)
+{
+    c->lo[0] = it->lo.x;
+    c->lo[1] = it->lo.y;
+    c->lo[2] = it->lo.z;
+    c->hi[0] = it->hi.x;
+    c->hi[1] = it->hi.y;
+    c->hi[2] = it->hi.z;
+    c->axis[0] = it->axis.x;
+    c->axis[1] = it->axis.y;
+    c->axis[2] = it->axis.z;
+    double co = it->cos_o < -1.0f ? -1.0 : it->cos_o > 1.0f ? 1.0 : (double)it->cos_o;
+    c->theta_o = acos(co);
+    c->power = it->power;
+    c->two_sided = it->two_sided != 0;
+}
+
+/* M_Omega of the top of the file. */
+static double orientation_measure(double theta_o)
+{
+    if (theta_o < 0.0)
+        return 0.0;
+    double tw = fmin(theta_o + 0.5 * PI_D, PI_D), so = sin(theta_o), co = cos(theta_o);
+    return 2.0 * PI_D * (1.0 - co) +
+           0.5 * PI_D * (2.0 * tw * so - cos(theta_o - 2.0 * tw) - 2.0 * theta_o * so + co);
+}
+
+static double surface_area(const cluster *c)
+{
+    double e[3];
+    for (int i = 0; i < 3; i++)
+        e[i] = c->hi[i] > c->lo[i] ? c->hi[i] - c->lo[i] : 0.0;
+    return 2.0 * (e[0] * e[1] + e[1] * e[2] + e[2] * e[0]);
+}
+
+static double cluster_cost(const cluster *c)
+{
+    if (c->power <= 0.0)
+        return 0.0;
+    return c->power * orientation_measure(c->theta_o) * surface_area(c);
+}
+
+typedef struct builder {
+    const pt_light_tree_item *items;
+    const cluster *leaf; /* per item */
+    double (*centroid)[3];
+    uint32_t *perm, *tmp;
+    pt_light_tree *t;
+} builder;
+
+static void node_store(lt_node *nd, const cluster *c)
+{
+    double d2 = 0.0;
+    for (int i = 0; i < 3; i++) {
+        nd->lo[i] = (float)c->lo[i];
+        nd->hi[i] = (float)c->hi[i];
+        nd->axis[i] = (float)c->axis[i];
+        double e = c->hi[i] - c->lo[i];
+        d2 += e * e;
+    }
+    nd->cos_o = (float)cos(c->theta_o);
+    nd->sin_o = (float)sin(c->theta_o);
+    if (c->theta_o >= PI_D) {
+        nd->cos_o = -1.0f;
+        nd->sin_o = 0.0f;
+    }
+    nd->power = (float)c->power;
+    nd->r2 = (float)(0.25 * d2);
+    nd->two_sided = (uint32_t)c->two_sided;
+}
+
+/* Splits perm[b..e) (e - b >= 2) into [b, mid) and [mid, e), stably. */
+static uint32_t split(builder *B, uint32_t b, uint32_t e, const cluster *node, uint32_t depth)
+{
+    uint32_t n = e - b;
+    double clo[3] = {INFINITY, INFINITY, INFINITY}, chi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (uint32_t i = b; i < e; i++) {
+        const double *c = B->centroid[B->perm[i]];
+        for (int a = 0; a < 3; a++) {
+            clo[a] = fmin(clo[a], c[a]);
+            chi[a] = fmax(chi[a], c[a]);
+        }
+    }
+    double ext[3], emax = 0.0;
+    for (int a = 0; a < 3; a++) {
+        ext[a] = node->hi[a] - node->lo[a];
+        emax = fmax(emax, ext[a]);
+    }
+    int best_axis = -1, best_split = 0;
+    double best_cost = INFINITY;
+    for (int a = 0; a < 3 && depth < FORCE_MEDIAN_DEPTH; a++) {
+        double cext = chi[a] - clo[a];
+        if (!(cext > 0.0))
+            continue;
+        cluster bk[BUCKETS];
+        for (int k = 0; k < BUCKETS; k++)
+            cluster_empty(&bk[k]);
+        for (uint32_t i = b; i < e; i++) {
+            uint32_t l = B->perm[i];
+            int k = (int)((double)BUCKETS * (B->centroid[l][a] - clo[a]) / cext);
+            k = k < 0 ? 0 : k >= BUCKETS ? BUCKETS - 1 : k;
+            cluster_add(&bk[k], &B->leaf[l]);
+        }
+        double kr = ext[a] > 0.0 ? emax / ext[a] : 1.0;
+        for (int s = 1; s < BUCKETS; s++) {
+            cluster L, R;
+            cluster_empty(&L);
+            cluster_empty(&R);
+            for (int k = 0; k < s; k++)
+                cluster_add(&L, &bk[k]);
+            for (int k = s; k < BUCKETS; k++)
+                cluster_add(&R, &bk[k]);
+            if (L.power <= 0.0 || R.power <= 0.0)
+                continue;
+            double cost = kr * (cluster_cost(&L) + cluster_cost(&R));
+            if (cost < best_cost) {
+                best_cost = cost;
+                best_axis = a;
+                best_split = s;
+            }
+        }
+    }
+    uint32_t mid = b;
+    if (best_axis >= 0) {
+        double cext = chi[best_axis] - clo[best_axis];
+        uint32_t nl = 0, nr = 0;
+        for (uint32_t i = b; i < e; i++) {
+            uint32_t l = B->perm[i];
+            int k = (int)((double)BUCKETS * (B->centroid[l][best_axis] - clo[best_axis]) / cext);
+            k = k < 0 ? 0 : k >= BUCKETS ? BUCKETS - 1 : k;
+            if (k < best_split)
+                B->perm[b + nl++] = l;
+            else
+                B->tmp[nr++] = l;
+        }
+        memcpy(&B->perm[b + nl], B->tmp, nr * sizeof *B->tmp);
+        mid = b + nl;
+    }
+    if (mid == b || mid == e)
+        mid = b + n / 2; /* no useful split (equal centroids, or deep): by count */
+    return mid;
+}
+
+static uint32_t build(builder *B, uint32_t b, uint32_t e, uint32_t depth, uint64_t bits)
+{
+    pt_light_tree *t = B->t;
+    uint32_t id = t->nodes_used++;
+    cluster c;
+    cluster_empty(&c);
+    for (uint32_t i = b; i < e; i++)
+        cluster_add(&c, &B->leaf[B->perm[i]]);
+    node_store(&t->nodes[id], &c);
+    if (depth > t->depth)
+        t->depth = depth;
+    if (e - b == 1) {
+        uint32_t l = B->perm[b];
+        t->nodes[id].leaf = 1;
+        t->nodes[id].next = l;
+        t->bits[l] = bits;
+        t->levels[l] = (uint8_t)depth;
+        return id;
+    }
+    t->nodes[id].leaf = 0;
+    uint32_t mid = split(B, b, e, &c, depth);
+    build(B, b, mid, depth + 1, bits);
+    t->nodes[id].next = build(B, mid, e, depth + 1, bits | (uint64_t)1 << depth);
+    return id;
+}
+
+static int item_ok(const pt_light_tree_item *it)
+{
+    const float f[] = {it->lo.x, it->lo.y,   it->lo.z,   it->hi.x,   it->hi.y,
+                       it->hi.z, it->axis.x, it->axis.y, it->axis.z, it->cos_o};
+    for (size_t i = 0; i < sizeof f / sizeof f[0]; i++)
+        if (!isfinite(f[i]))
+            return 0;
+    return it->power > 0.0f && isfinite(it->power) && it->lo.x <= it->hi.x &&
+           it->lo.y <= it->hi.y && it->lo.z <= it->hi.z;
+}
+
+pt_status pt_light_tree_new(const pt_light_tree_item *items, uint32_t n, pt_light_tree **out,
+                            pt_error *err)
+{
+    if (!items || !out || n < 2 || n > PT_LIGHT_TREE_MAX)
+        return pt_error_set(err, PT_ERR_ARG, "light tree: %u lights (2 to %u)", n,
+                            PT_LIGHT_TREE_MAX);
+    for (uint32_t i = 0; i < n; i++)
+        if (!item_ok(&items[i]))
+            return pt_error_set(err, PT_ERR_ARG,
+                                "light tree: light %u has no finite bounds, "
+                                "cone or positive power",
+                                i);
+    builder B = {0};
+    pt_light_tree *t = pt_calloc(1, sizeof *t);
+    cluster *leaf = NULL;
+    if (!t)
+        goto nomem;
+    t->n = n;
+    t->nodes = pt_malloc_array(2 * (size_t)n - 1, sizeof *t->nodes);
+    t->bits = pt_malloc_array(n, sizeof *t->bits);
+    t->levels = pt_malloc_array(n, sizeof *t->levels);
+    leaf = pt_malloc_array(n, sizeof *leaf);
+    B.centroid = pt_malloc_array(n, sizeof *B.centroid);
+    B.perm = pt_malloc_array(n, sizeof *B.perm);
+    B.tmp = pt_malloc_array(n, sizeof *B.tmp);
+    if (!t->nodes || !t->bits || !t->levels || !leaf || !B.centroid || !B.perm || !B.tmp)
+        goto nomem;
+    for (uint32_t i = 0; i < n; i++) {
+        cluster_of(&items[i], &leaf[i]);
+        for (int a = 0; a < 3; a++)
+            B.centroid[i][a] = 0.5 * (leaf[i].lo[a] + leaf[i].hi[a]);
+        B.perm[i] = i;
+    }
+    B.items = items;
+    B.leaf = leaf;
+    B.t = t;
+    build(&B, 0, n, 0, 0);
+    pt_free(B.tmp);
+    pt_free(B.perm);
+    pt_free(B.centroid);
+    pt_free(leaf);
+    *out = t;
+    return PT_OK;
+nomem:
+    pt_free(B.tmp);
+    pt_free(B.perm);
+    pt_free(B.centroid);
+    pt_free(leaf);
+    pt_light_tree_free(t);
+    return pt_error_set(err, PT_ERR_NOMEM, "light tree: out of memory for %u lights", n);
+}
+
+void pt_light_tree_free(pt_light_tree *tree)
+{
+    if (!tree)
+        return;
+    pt_free(tree->nodes);
+    pt_free(tree->bits);
+    pt_free(tree->levels);
+    pt_free(tree);
+}
+
+uint32_t pt_light_tree_nodes(const pt_light_tree *tree)
+{
+    return tree ? tree->nodes_used : 0;
+}
+
+uint32_t pt_light_tree_depth(const pt_light_tree *tree)
+{
+    return tree ? tree->depth : 0;
+}
+
+/* The node's importance seen from p (the top of light_tree.h). Angles are
+ * subtracted through their cosines and sines: cos(a - b) = cos a cos b +
+ * sin a sin b, clamped to 1 where a <= b. */
+static inline float importance(const lt_node *nd, pt_vec3 p)
+{
+    float c[3] = {0.5f * (nd->lo[0] + nd->hi[0]), 0.5f * (nd->lo[1] + nd->hi[1]),
+                  0.5f * (nd->lo[2] + nd->hi[2])};
+    float d[3] = {p.x - c[0], p.y - c[1], p.z - c[2]};
+    float d2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+    float cos_p = 1.0f;
+    int inside = p.x >= nd->lo[0] && p.x <= nd->hi[0] && p.y >= nd->lo[1] && p.y <= nd->hi[1] &&
+                 p.z >= nd->lo[2] && p.z <= nd->hi[2];
+    if (!inside && d2 > nd->r2) {
+        float len = sqrtf(d2);
+        /* theta_w: between the cone's axis and the direction to p */
+        float cos_w = (nd->axis[0] * d[0] + nd->axis[1] * d[1] + nd->axis[2] * d[2]) / len;
+        if (nd->two_sided)
+            cos_w = fabsf(cos_w);
+        cos_w = fminf(fmaxf(cos_w, -1.0f), 1.0f);
+        float sin_w = sqrtf(fmaxf(0.0f, 1.0f - cos_w * cos_w));
+        /* theta_x = max(0, theta_w - theta_o) */
+        float cos_x = 1.0f, sin_x = 0.0f;
+        if (cos_w < nd->cos_o) {
+            cos_x = cos_w * nd->cos_o + sin_w * nd->sin_o;
+            sin_x = sin_w * nd->cos_o - cos_w * nd->sin_o;
+        }
+        /* theta' = max(0, theta_x - theta_b), sin theta_b = r / d */
+        float sin2_b = nd->r2 / d2;
+        float cos_b = sqrtf(fmaxf(0.0f, 1.0f - sin2_b)), sin_b = sqrtf(sin2_b);
+        if (cos_x < cos_b)
+            cos_p = cos_x * cos_b + sin_x * sin_b;
+        if (!(cos_p > 0.0f)) /* theta' >= theta_e = pi/2 */
+            return 0.0f;
+    }
+    float imp = nd->power * cos_p / fmaxf(d2, nd->r2);
+    return isfinite(imp) ? imp : 0.0f;
+}
+
+uint32_t pt_light_tree_sample(const pt_light_tree *tree, pt_vec3 p, double u, double *pmf)
+{
+    const lt_node *nodes = tree->nodes;
+    uint32_t id = 0;
+    double q = 1.0;
+    while (!nodes[id].leaf) {
+        float il = importance(&nodes[id + 1], p), ir = importance(&nodes[nodes[id].next], p);
+        double sum = (double)il + (double)ir;
+        if (!(sum > 0.0)) {
+            *pmf = 0.0;
+            return UINT32_MAX;
+        }
+        double pl = (double)il / sum;
+        if (u < pl) {
+            u /= pl;
+            q *= pl;
+            id = id + 1;
+        } else {
+            u = (u - pl) / (1.0 - pl);
+            q *= 1.0 - pl;
+            id = nodes[id].next;
+        }
+        u = fmin(u, 0x1.fffffffffffffp-1);
+    }
+    *pmf = q;
+    return nodes[id].next;
+}
+
+double pt_light_tree_pmf(const pt_light_tree *tree, pt_vec3 p, uint32_t light)
+{
+    if (!tree || light >= tree->n)
+        return 0.0;
+    const lt_node *nodes = tree->nodes;
+    uint64_t bits = tree->bits[light];
+    uint32_t id = 0, levels = tree->levels[light];
+    double q = 1.0;
+    for (uint32_t k = 0; k < levels; k++) {
+        float il = importance(&nodes[id + 1], p), ir = importance(&nodes[nodes[id].next], p);
+        double sum = (double)il + (double)ir;
+        if (!(sum > 0.0))
+            return 0.0;
+        double pl = (double)il / sum;
+        if ((bits >> k) & 1) {
+            q *= 1.0 - pl;
+            id = nodes[id].next;
+        } else {
+            q *= pl;
+            id = id + 1;
+        }
+    }
+    return q;
+}
