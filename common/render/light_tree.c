@@ -29,18 +29,20 @@
 #define FORCE_MEDIAN_DEPTH 36u
 #define PI_D 3.14159265358979323846
 
-/* One node, 64 bytes. Children of an inner node: index + 1 and `next`. */
+/* One node, 48 bytes. Children of an inner node: index + 1 and `next`. The
+ * box is kept as its centre and the sphere around it (radius^2 r2): a point
+ * inside the box is inside the sphere. */
 typedef struct lt_node {
-    float lo[3], hi[3];
+    float center[3];
     float axis[3];
     float cos_o, sin_o;
     float power;
-    float r2;      /* (half-diagonal)^2 */
-    uint32_t next; /* inner: the right child; leaf: the light */
-    uint32_t leaf;
-    uint32_t two_sided;
+    float r2;       /* (half-diagonal)^2 */
+    uint32_t next;  /* inner: the right child; leaf: the light */
+    uint32_t flags; /* LT_LEAF, LT_TWO_SIDED */
 } lt_node;
-_Static_assert(sizeof(lt_node) == 64, "a node is one cache line");
+_Static_assert(sizeof(lt_node) == 48, "a node is 48 bytes");
+enum { LT_LEAF = 1, LT_TWO_SIDED = 2 };
 
 struct pt_light_tree {
     uint32_t n, nodes_used, depth;
@@ -190,8 +192,7 @@ static void node_store(lt_node *nd, const cluster *c)
 {
     double d2 = 0.0;
     for (int i = 0; i < 3; i++) {
-        nd->lo[i] = (float)c->lo[i];
-        nd->hi[i] = (float)c->hi[i];
+        nd->center[i] = (float)(0.5 * (c->lo[i] + c->hi[i]));
         nd->axis[i] = (float)c->axis[i];
         double e = c->hi[i] - c->lo[i];
         d2 += e * e;
@@ -204,7 +205,7 @@ static void node_store(lt_node *nd, const cluster *c)
     }
     nd->power = (float)c->power;
     nd->r2 = (float)(0.25 * d2);
-    nd->two_sided = (uint32_t)c->two_sided;
+    nd->flags = c->two_sided ? LT_TWO_SIDED : 0;
 }
 
 /* Splits perm[b..e) (e - b >= 2) into [b, mid) and [mid, e), stably. */
@@ -292,13 +293,12 @@ static uint32_t build(builder *B, uint32_t b, uint32_t e, uint32_t depth, uint64
         t->depth = depth;
     if (e - b == 1) {
         uint32_t l = B->perm[b];
-        t->nodes[id].leaf = 1;
+        t->nodes[id].flags |= LT_LEAF;
         t->nodes[id].next = l;
         t->bits[l] = bits;
         t->levels[l] = (uint8_t)depth;
         return id;
     }
-    t->nodes[id].leaf = 0;
     uint32_t mid = split(B, b, e, &c, depth);
     build(B, b, mid, depth + 1, bits);
     t->nodes[id].next = build(B, mid, e, depth + 1, bits | (uint64_t)1 << depth);
@@ -390,40 +390,40 @@ uint32_t pt_light_tree_depth(const pt_light_tree *tree)
 
 /* The node's importance seen from p (the top of light_tree.h). Angles are
  * subtracted through their cosines and sines: cos(a - b) = cos a cos b +
- * sin a sin b, clamped to 1 where a <= b. */
+ * sin a sin b, clamped to 1 where a <= b. Inside the node's bounding sphere
+ * every direction is possible (theta' = 0) and the distance is the
+ * sphere's radius. Comparisons, not fminf/fmaxf: those are library calls
+ * without -ffinite-math-only. */
 static inline float importance(const lt_node *nd, pt_vec3 p)
 {
-    float c[3] = {0.5f * (nd->lo[0] + nd->hi[0]), 0.5f * (nd->lo[1] + nd->hi[1]),
-                  0.5f * (nd->lo[2] + nd->hi[2])};
-    float d[3] = {p.x - c[0], p.y - c[1], p.z - c[2]};
+    float d[3] = {p.x - nd->center[0], p.y - nd->center[1], p.z - nd->center[2]};
     float d2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
     float cos_p = 1.0f;
-    int inside = p.x >= nd->lo[0] && p.x <= nd->hi[0] && p.y >= nd->lo[1] && p.y <= nd->hi[1] &&
-                 p.z >= nd->lo[2] && p.z <= nd->hi[2];
-    if (!inside && d2 > nd->r2) {
-        float len = sqrtf(d2);
+    if (d2 > nd->r2) {
+        float inv = 1.0f / sqrtf(d2);
         /* theta_w: between the cone's axis and the direction to p */
-        float cos_w = (nd->axis[0] * d[0] + nd->axis[1] * d[1] + nd->axis[2] * d[2]) / len;
-        if (nd->two_sided)
+        float cos_w = (nd->axis[0] * d[0] + nd->axis[1] * d[1] + nd->axis[2] * d[2]) * inv;
+        if (nd->flags & LT_TWO_SIDED)
             cos_w = fabsf(cos_w);
-        cos_w = fminf(fmaxf(cos_w, -1.0f), 1.0f);
-        float sin_w = sqrtf(fmaxf(0.0f, 1.0f - cos_w * cos_w));
+        cos_w = cos_w > 1.0f ? 1.0f : cos_w < -1.0f ? -1.0f : cos_w;
         /* theta_x = max(0, theta_w - theta_o) */
-        float cos_x = 1.0f, sin_x = 0.0f;
         if (cos_w < nd->cos_o) {
-            cos_x = cos_w * nd->cos_o + sin_w * nd->sin_o;
-            sin_x = sin_w * nd->cos_o - cos_w * nd->sin_o;
+            float sin_w = sqrtf(1.0f - cos_w * cos_w);
+            float cos_x = cos_w * nd->cos_o + sin_w * nd->sin_o;
+            float sin_x = sin_w * nd->cos_o - cos_w * nd->sin_o;
+            /* theta' = max(0, theta_x - theta_b), sin theta_b = r / d */
+            float sin2_b = nd->r2 / d2;
+            float cos_b = sqrtf(1.0f - sin2_b);
+            if (cos_x < cos_b)
+                cos_p = cos_x * cos_b + sin_x * sqrtf(sin2_b);
+            if (!(cos_p > 0.0f)) /* theta' >= theta_e = pi/2 */
+                return 0.0f;
         }
-        /* theta' = max(0, theta_x - theta_b), sin theta_b = r / d */
-        float sin2_b = nd->r2 / d2;
-        float cos_b = sqrtf(fmaxf(0.0f, 1.0f - sin2_b)), sin_b = sqrtf(sin2_b);
-        if (cos_x < cos_b)
-            cos_p = cos_x * cos_b + sin_x * sin_b;
-        if (!(cos_p > 0.0f)) /* theta' >= theta_e = pi/2 */
-            return 0.0f;
+    } else {
+        d2 = nd->r2;
     }
-    float imp = nd->power * cos_p / fmaxf(d2, nd->r2);
-    return isfinite(imp) ? imp : 0.0f;
+    float imp = nd->power * cos_p / d2;
+    return imp < 3.4e38f ? imp : 0.0f; /* not finite (or NaN): 0 */
 }
 
 uint32_t pt_light_tree_sample(const pt_light_tree *tree, pt_vec3 p, double u, double *pmf)
@@ -431,7 +431,7 @@ uint32_t pt_light_tree_sample(const pt_light_tree *tree, pt_vec3 p, double u, do
     const lt_node *nodes = tree->nodes;
     uint32_t id = 0;
     double q = 1.0;
-    while (!nodes[id].leaf) {
+    while (!(nodes[id].flags & LT_LEAF)) {
         float il = importance(&nodes[id + 1], p), ir = importance(&nodes[nodes[id].next], p);
         double sum = (double)il + (double)ir;
         if (!(sum > 0.0)) {
@@ -439,16 +439,13 @@ uint32_t pt_light_tree_sample(const pt_light_tree *tree, pt_vec3 p, double u, do
             return UINT32_MAX;
         }
         double pl = (double)il / sum;
-        if (u < pl) {
-            u /= pl;
-            q *= pl;
-            id = id + 1;
-        } else {
-            u = (u - pl) / (1.0 - pl);
-            q *= 1.0 - pl;
-            id = nodes[id].next;
-        }
-        u = fmin(u, 0x1.fffffffffffffp-1);
+        /* Selects, not branches: the side is random. */
+        int right = !(u < pl);
+        double pc = right ? 1.0 - pl : pl;
+        u = (u - (right ? pl : 0.0)) / pc;
+        q *= pc;
+        id = right ? nodes[id].next : id + 1;
+        u = u < 0x1.fffffffffffffp-1 ? u : 0x1.fffffffffffffp-1;
     }
     *pmf = q;
     return nodes[id].next;
