@@ -3,14 +3,16 @@
  * alias table, uniform area sampling, conversion to solid angle.
  *
  * Power of a light triangle (only the ratios matter):
- *     area x luminance(emissive factor (x) mean of the emissive texture)
+ *     area x luminance(emissive factor (x) mean of the emissive texture
+ *                      over the triangle's UV footprint)
  *          x (2 if double-sided) x pi
- * The texture term is the mean of the whole texture in linear RGB, computed
- * once per texture, not the mean over the triangle's UV footprint: it makes
- * the choice a little less proportional to the true power on textured
- * emitters, which costs variance, never bias (the pdf is the one used to
- * choose). Triangles with zero or non-finite power (black emission, zero
- * area) are left out: they could never be chosen.
+ * The footprint's mean (footprint_mean) reads the texels the triangle covers,
+ * once at load, so a triangle over the black part of an emissive texture is
+ * no light and a bright one is chosen for its own brightness; it is an
+ * estimate (texel centres, or a grid over large footprints), which costs
+ * variance, never bias (the pdf is the one used to choose). Triangles with
+ * zero or non-finite power (black emission, zero area) are left out: NEE
+ * never chooses them, and BSDF sampling finds them with MIS weight 1.
  *
  * Choice: Vose 1991, "A Linear Algorithm for Generating Random Numbers with a
  * Given Distribution" (IEEE TSE 17(9)): Walker's alias method built in O(n).
@@ -182,57 +184,114 @@ pt_vec3 pt_emitted(const pt_scene *scene, uint32_t tri, float b1, float b2, pt_v
     return emission(scene, m, tri, b1, b2);
 }
 
-/* Mean linear RGB of a texture, read at texel centres through the same lookup
- * the renderer uses (bilinear at a centre is that texel). Huge textures are
- * read on a strided grid of about 2^20 texels: this is an estimate anyway. */
-static pt_vec3 texture_mean(const pt_texture *tex)
+/* The texels per triangle footprint_mean reads one by one; a larger
+ * footprint is read at FOOTPRINT_GRID^2 points spread evenly over the
+ * triangle. */
+#define FOOTPRINT_TEXELS 4096u
+#define FOOTPRINT_GRID 32u
+
+/* Mean linear RGB of material m's emissive texture over triangle tri: the
+ * texels whose centres its UV triangle covers, read through the renderer's
+ * lookup (at a centre, that texel), or at its centroid and corners when it
+ * covers none; a footprint of more than FOOTPRINT_TEXELS texels (by its
+ * bounding box) is read at points uniform in area (Heitz 2019's map over a
+ * grid). The UV map is affine over a triangle (pt_scene_slot_uv:
+ * barycentric interpolation, then KHR_texture_transform), so the footprint
+ * is the triangle of its corners' UVs. It is an estimate of power, used
+ * only to choose: a poor one costs variance, never bias. */
+static pt_vec3 footprint_mean(const pt_scene *s, const pt_material *m, uint32_t tri)
 {
-    uint64_t texels = (uint64_t)tex->width * tex->height;
-    uint32_t step = 1;
-    while ((texels / ((uint64_t)step * step)) > (1u << 20))
-        step++;
+    const pt_texture *tex = &s->textures[m->emissive_tex];
+    const float w = (float)tex->width, h = (float)tex->height;
+    float uv[3][2];
+    pt_scene_slot_uv(s, m, PT_SLOT_EMISSIVE, tri, 0.0f, 0.0f, uv[0]);
+    pt_scene_slot_uv(s, m, PT_SLOT_EMISSIVE, tri, 1.0f, 0.0f, uv[1]);
+    pt_scene_slot_uv(s, m, PT_SLOT_EMISSIVE, tri, 0.0f, 1.0f, uv[2]);
+    /* In texel units, texel (x, y)'s centre at the integers. */
+    double x[3], y[3];
+    for (int i = 0; i < 3; i++) {
+        x[i] = (double)uv[i][0] * w - 0.5;
+        y[i] = (double)uv[i][1] * h - 0.5;
+    }
+    double x0 = fmin(fmin(x[0], x[1]), x[2]), x1 = fmax(fmax(x[0], x[1]), x[2]);
+    double y0 = fmin(fmin(y[0], y[1]), y[2]), y1 = fmax(fmax(y[0], y[1]), y[2]);
     double sum[3] = {0, 0, 0};
     uint64_t n = 0;
-    for (uint32_t y = step / 2; y < tex->height; y += step) {
-        for (uint32_t x = step / 2; x < tex->width; x += step) {
-            float c[4];
-            pt_texture_sample(tex, ((float)x + 0.5f) / (float)tex->width,
-                              ((float)y + 0.5f) / (float)tex->height, c);
+    float c[4];
+    double bx = ceil(x1) - floor(x0) + 1.0, by = ceil(y1) - floor(y0) + 1.0;
+    if (isfinite(bx) && isfinite(by) && bx * by <= (double)FOOTPRINT_TEXELS) {
+        /* Edge functions of the UV triangle, either winding. */
+        double area2 = (x[1] - x[0]) * (y[2] - y[0]) - (x[2] - x[0]) * (y[1] - y[0]);
+        for (double ty = ceil(y0); ty <= y1 && area2 != 0.0; ty += 1.0) {
+            for (double tx = ceil(x0); tx <= x1; tx += 1.0) {
+                double e0 = ((x[1] - tx) * (y[2] - ty) - (x[2] - tx) * (y[1] - ty)) / area2;
+                double e1 = ((x[2] - tx) * (y[0] - ty) - (x[0] - tx) * (y[2] - ty)) / area2;
+                double e2 = 1.0 - e0 - e1;
+                if (e0 < 0.0 || e1 < 0.0 || e2 < 0.0)
+                    continue;
+                pt_texture_sample(tex, (float)((tx + 0.5) / w), (float)((ty + 0.5) / h), c);
+                sum[0] += c[0];
+                sum[1] += c[1];
+                sum[2] += c[2];
+                n++;
+            }
+        }
+        if (n == 0) { /* smaller than a texel: its centroid and corners */
+            const float b[4][2] = {{1.0f / 3.0f, 1.0f / 3.0f}, {0, 0}, {1, 0}, {0, 1}};
+            for (int i = 0; i < 4; i++) {
+                float t[2];
+                pt_scene_slot_uv(s, m, PT_SLOT_EMISSIVE, tri, b[i][0], b[i][1], t);
+                pt_texture_sample(tex, t[0], t[1], c);
+                sum[0] += c[0];
+                sum[1] += c[1];
+                sum[2] += c[2];
+                n++;
+            }
+        }
+    } else {
+        for (uint32_t j = 0; j < FOOTPRINT_GRID * FOOTPRINT_GRID; j++) {
+            /* Heitz 2019 (pick_point's map) at the grid cell's centre */
+            float u1 = ((float)(j % FOOTPRINT_GRID) + 0.5f) / (float)FOOTPRINT_GRID;
+            float u2 = ((float)(j / FOOTPRINT_GRID) + 0.5f) / (float)FOOTPRINT_GRID;
+            int upper = u2 > u1;
+            float b1 = upper ? 0.5f * u1 : u1 - 0.5f * u2;
+            float b2 = upper ? u2 - 0.5f * u1 : 0.5f * u2;
+            float t[2];
+            pt_scene_slot_uv(s, m, PT_SLOT_EMISSIVE, tri, b1, b2, t);
+            pt_texture_sample(tex, t[0], t[1], c);
             sum[0] += c[0];
             sum[1] += c[1];
             sum[2] += c[2];
             n++;
         }
     }
-    if (n == 0)
-        return pt_v3(0.0f, 0.0f, 0.0f);
     return pt_v3((float)(sum[0] / (double)n), (float)(sum[1] / (double)n),
                  (float)(sum[2] / (double)n));
 }
 
-/* Power of triangle tri (see the top of the file); 0 when it is not a light. */
-static double tri_power(const pt_scene *s, uint32_t tri, const pt_vec3 *tex_mean, float *area_out)
+/* Whether triangle tri can be a light: its material emits and it does not
+ * move. A moving emitter is no light to sample (its area and place depend on
+ * the path's time): BSDF sampling alone finds it, with MIS weight 1. */
+static int candidate(const pt_scene *s, uint32_t tri)
+{
+    return emits(&s->materials[s->tri_material[tri]]) &&
+           !(s->motion && s->motion->moving[tri] != UINT32_MAX);
+}
+
+/* Power of candidate triangle tri (see the top of the file); 0 when it is
+ * not a light (no area, or black over its whole footprint). */
+static double tri_power(const pt_scene *s, uint32_t tri)
 {
     const pt_material *m = &s->materials[s->tri_material[tri]];
-    *area_out = 0.0f;
-    if (!emits(m))
-        return 0.0;
-    /* A moving emitter is no light to sample (its area and place depend on
-     * the path's time): BSDF sampling alone finds it, with MIS weight 1. */
-    if (s->motion && s->motion->moving[tri] != UINT32_MAX)
-        return 0.0;
     pt_vec3 v[3], n;
     float area;
     tri_geom(s, tri, v, &n, &area);
     pt_vec3 e = pt_v3(m->emissive[0], m->emissive[1], m->emissive[2]);
-    if (m->emissive_tex >= 0 && s->uvs)
-        e = pt_v3_mul(e, tex_mean[m->emissive_tex]);
+    if (textured(s, m))
+        e = pt_v3_mul(e, footprint_mean(s, m, tri));
     double p = (double)area * (double)pt_luminance(e) * (m->double_sided ? 2.0 : 1.0) *
                3.14159265358979323846;
-    if (!(p > 0.0) || !isfinite(p))
-        return 0.0;
-    *area_out = area;
-    return p;
+    return p > 0.0 && isfinite(p) ? p : 0.0;
 }
 
 /* The estimated flux of a punctual light (the top of the file); 0 when it
@@ -329,7 +388,7 @@ pt_status pt_lights_new_select(const pt_scene *scene, const pt_env *env, int env
                                uint32_t select, pt_lights **out, pt_error *err)
 {
     pt_status st = PT_OK;
-    pt_vec3 *tex_mean = NULL;
+    double *cand_power = NULL; /* per candidate triangle, in order */
     double *power = NULL;
     uint32_t *scratch = NULL;
     if (!scene || !out)
@@ -341,7 +400,7 @@ pt_status pt_lights_new_select(const pt_scene *scene, const pt_env *env, int env
     L->num_triangles = scene->num_triangles;
     L->env_dist = env_dist;
 
-    /* Check what we will index, and the mean of each emissive texture. */
+    /* Check what we will index. */
     int any_tex = 0;
     for (uint32_t i = 0; i < scene->num_materials; i++) {
         const pt_material *m = &scene->materials[i];
@@ -359,20 +418,6 @@ pt_status pt_lights_new_select(const pt_scene *scene, const pt_env *env, int env
         }
         any_tex = 1;
     }
-    if (any_tex) {
-        tex_mean = pt_malloc_array(scene->num_textures, sizeof *tex_mean);
-        if (!tex_mean)
-            goto nomem;
-        /* NaN: not computed yet; each texture is read once. */
-        for (uint32_t i = 0; i < scene->num_textures; i++)
-            tex_mean[i] = pt_v3(NAN, NAN, NAN);
-        for (uint32_t i = 0; i < scene->num_materials; i++) {
-            const pt_material *m = &scene->materials[i];
-            if (emits(m) && m->emissive_tex >= 0 && isnan(tex_mean[m->emissive_tex].x))
-                tex_mean[m->emissive_tex] = texture_mean(&scene->textures[m->emissive_tex]);
-        }
-    }
-
     /* Punctual lights and the environment: their power, and the triangles'
      * share. */
     double punct_total = 0.0, env_power = 0.0;
@@ -402,7 +447,7 @@ pt_status pt_lights_new_select(const pt_scene *scene, const pt_env *env, int env
         }
     }
 
-    uint32_t n = 0;
+    uint32_t n = 0, nc = 0;
     double total = 0.0; /* the triangles' power */
     for (uint32_t i = 0; i < scene->num_triangles; i++) {
         if (scene->tri_material[i] >= scene->num_materials) {
@@ -410,9 +455,16 @@ pt_status pt_lights_new_select(const pt_scene *scene, const pt_env *env, int env
                               scene->tri_material[i], scene->num_materials);
             goto fail;
         }
-        float area;
-        if (tri_power(scene, i, tex_mean, &area) > 0.0)
-            n++;
+        nc += (uint32_t)candidate(scene, i);
+    }
+    /* Each candidate's power once: a textured one reads its footprint. */
+    if (nc > 0 && !(cand_power = pt_malloc_array(nc, sizeof *cand_power)))
+        goto nomem;
+    for (uint32_t i = 0, c = 0; i < scene->num_triangles; i++) {
+        if (!candidate(scene, i))
+            continue;
+        cand_power[c] = tri_power(scene, i);
+        n += cand_power[c++] > 0.0;
     }
     if (n == 0) {
         L->p_tri = 0.0;
@@ -433,19 +485,18 @@ pt_status pt_lights_new_select(const pt_scene *scene, const pt_env *env, int env
         goto nomem;
 
     uint32_t k = 0;
-    for (uint32_t i = 0; i < scene->num_triangles; i++) {
-        float area;
-        double p = tri_power(scene, i, tex_mean, &area);
+    for (uint32_t i = 0, ci = 0; i < scene->num_triangles; i++) {
         L->tri_to_light[i] = UINT32_MAX;
+        if (!candidate(scene, i))
+            continue;
+        double p = cand_power[ci++];
         if (!(p > 0.0))
             continue;
         L->tri_to_light[i] = k;
         light_entry *le = &L->lights[k];
         le->tri = i;
         le->material = scene->tri_material[i];
-        float a2;
-        tri_geom(scene, i, le->v, &le->normal, &a2);
-        le->area = area;
+        tri_geom(scene, i, le->v, &le->normal, &le->area);
         const pt_material *m = &scene->materials[le->material];
         if (L->tex_uv && textured(scene, m)) {
             const float *set = m->tex_xf[PT_SLOT_EMISSIVE].texcoord ? scene->uvs1 : scene->uvs;
@@ -492,7 +543,7 @@ others : {
 
     pt_free(scratch);
     pt_free(power);
-    pt_free(tex_mean);
+    pt_free(cand_power);
     *out = L;
     return PT_OK;
 
@@ -501,7 +552,7 @@ nomem:
 fail:
     pt_free(scratch);
     pt_free(power);
-    pt_free(tex_mean);
+    pt_free(cand_power);
     pt_lights_free(L);
     return st;
 }
