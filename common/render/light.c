@@ -80,7 +80,9 @@ struct pt_lights {
     pt_light_tree *tree; /* where it chooses the triangle (light_tree.h); NULL: the alias table */
     uint32_t *tri_to_light; /* num_triangles entries, UINT32_MAX: not a light; NULL if count 0 */
     /* punctual lights */
-    uint32_t npunct;
+    uint32_t npunct;          /* the punctual class's lights (0: no class) */
+    uint32_t npunct_all;      /* punctual lights NEE can choose, by class or tree */
+    uint32_t *tree_punct;     /* tree light count + i: the scene's punctual light */
     const pt_punctual *punct; /* the scene's */
     double *punct_cdf;        /* npunct + 1: cumulative power among them, 0 to 1 */
     float *punct_pmf;         /* the probability of choosing each, class included */
@@ -348,13 +350,18 @@ static void build_alias(alias_slot *lights, double *q, uint32_t *scratch, uint32
 }
 
 /* The light tree over the n triangle lights of L (entries filled) with
- * their powers. A triangle's cone is its normal alone (theta_o = 0). */
+ * their powers, then the m point and spot lights of the scene with a power
+ * (punct_power) in their order. A triangle's cone is its normal alone
+ * (theta_o = 0); a point light's is every direction, a spot light's its
+ * outer cone (the tree's bound adds pi/2 to it: loose, never too tight). */
 static pt_status build_tree(const pt_scene *scene, pt_lights *L, const double *power, uint32_t n,
-                            pt_error *err)
+                            const double *punct_power, uint32_t m, pt_error *err)
 {
-    pt_light_tree_item *items = pt_malloc_array(n, sizeof *items);
-    if (!items)
+    pt_light_tree_item *items = pt_malloc_array((size_t)n + m, sizeof *items);
+    if (!items || (m > 0 && !(L->tree_punct = pt_malloc_array(m, sizeof *L->tree_punct)))) {
+        pt_free(items);
         return pt_error_set(err, PT_ERR_NOMEM, "pt_lights_new: out of memory for the light tree");
+    }
     for (uint32_t i = 0; i < n; i++) {
         const light_entry *le = &L->lights[i];
         const pt_vec3 *v = le->v;
@@ -368,7 +375,20 @@ static pt_status build_tree(const pt_scene *scene, pt_lights *L, const double *p
         it->power = (float)power[i];
         it->two_sided = scene->materials[le->material].double_sided;
     }
-    pt_status st = pt_light_tree_new(items, n, &L->tree, err);
+    for (uint32_t i = 0, j = 0; j < m; i++) {
+        const pt_punctual *l = &scene->punctual[i];
+        if (l->type == PT_PUNCTUAL_DIRECTIONAL || !(punct_power[i] > 0.0))
+            continue;
+        pt_light_tree_item *it = &items[n + j];
+        it->lo = it->hi = l->position;
+        int spot = l->type == PT_PUNCTUAL_SPOT;
+        it->axis = spot ? l->direction : pt_v3(0.0f, 0.0f, 1.0f);
+        it->cos_o = spot ? l->cos_outer : -1.0f;
+        it->power = (float)punct_power[i];
+        it->two_sided = 0;
+        L->tree_punct[j++] = i;
+    }
+    pt_status st = pt_light_tree_new(items, n + m, &L->tree, err);
     pt_free(items);
     return st;
 }
@@ -388,7 +408,8 @@ pt_status pt_lights_new_select(const pt_scene *scene, const pt_env *env, int env
                                uint32_t select, pt_lights **out, pt_error *err)
 {
     pt_status st = PT_OK;
-    double *cand_power = NULL; /* per candidate triangle, in order */
+    double *cand_power = NULL;  /* per candidate triangle, in order */
+    double *punct_power = NULL; /* per punctual light */
     double *power = NULL;
     uint32_t *scratch = NULL;
     if (!scene || !out)
@@ -434,17 +455,15 @@ pt_status pt_lights_new_select(const pt_scene *scene, const pt_env *env, int env
     if (scene->num_punctual > 0) {
         L->punct_cdf = pt_malloc_array((size_t)scene->num_punctual + 1, sizeof *L->punct_cdf);
         L->punct_pmf = pt_malloc_array(scene->num_punctual, sizeof *L->punct_pmf);
-        if (!L->punct_cdf || !L->punct_pmf)
+        punct_power = pt_malloc_array(scene->num_punctual, sizeof *punct_power);
+        if (!L->punct_cdf || !L->punct_pmf || !punct_power)
             goto nomem;
-        L->punct_cdf[0] = 0.0;
         for (uint32_t i = 0; i < scene->num_punctual; i++) {
-            punct_total += punctual_power(&scene->punctual[i], radius);
-            L->punct_cdf[i + 1] = punct_total;
+            punct_power[i] = punctual_power(&scene->punctual[i], radius);
+            punct_total += punct_power[i];
         }
-        if (punct_total > 0.0) {
-            L->npunct = scene->num_punctual;
+        if (punct_total > 0.0)
             L->punct = scene->punctual;
-        }
     }
 
     uint32_t n = 0, nc = 0;
@@ -508,31 +527,55 @@ pt_status pt_lights_new_select(const pt_scene *scene, const pt_env *env, int env
         total += p;
         k++;
     }
+    L->count = n;
+
+others : {
+    /* The tree takes the point and spot lights too (a directional light has
+     * no place to bound): then the first class is the tree's, and the
+     * punctual class keeps the directional lights. */
+    uint32_t m = 0; /* point and spot lights that can be chosen */
+    double tree_punct = 0.0;
+    for (uint32_t i = 0; L->punct && i < scene->num_punctual; i++)
+        if (scene->punctual[i].type != PT_PUNCTUAL_DIRECTIONAL && punct_power[i] > 0.0) {
+            m++;
+            tree_punct += punct_power[i];
+        }
+    int use_tree = select == PT_LIGHT_SELECT_TREE   ? n + m >= 2
+                   : select == PT_LIGHT_SELECT_AUTO ? n + m >= PT_LIGHT_TREE_MIN
+                                                    : 0;
+    double first = use_tree ? total + tree_punct : total; /* the first class's power */
+    double class_punct = use_tree ? punct_total - tree_punct : punct_total;
+    if (!(class_punct > 0.0))
+        class_punct = 0.0;
+    double all = first + class_punct + env_power;
     /* Without other lights p_tri is 1 and the pmfs are the bits they were
      * before there were any. */
-    int others = L->npunct || L->env;
-    L->p_tri = others ? total / (total + punct_total + env_power) : 1.0;
+    int others = class_punct > 0.0 || L->env;
+    L->p_tri = others ? first / all : 1.0;
     for (uint32_t i = 0; i < n; i++) {
         float pmf = (float)(others ? power[i] / total * L->p_tri : power[i] / total);
         L->lights[i].pmf_area = pmf / L->lights[i].area;
     }
-    if (select == PT_LIGHT_SELECT_TREE ? n >= 2
-                                       : select == PT_LIGHT_SELECT_AUTO && n >= PT_LIGHT_TREE_MIN) {
-        if ((st = build_tree(scene, L, power, n, err)) != PT_OK)
-            goto fail;
-    }
-    build_alias(L->alias, power, scratch, n, total);
-    L->count = n;
-
-others : {
-    double all = total + punct_total + env_power;
-    double p_punct = L->npunct ? punct_total / all : 0.0;
-    for (uint32_t i = 0; i < L->npunct; i++) {
-        L->punct_cdf[i + 1] /= punct_total;
-        L->punct_pmf[i] = (float)(p_punct * (L->punct_cdf[i + 1] - L->punct_cdf[i]));
-    }
-    if (L->npunct)
+    if (use_tree && (st = build_tree(scene, L, power, n, punct_power, m, err)) != PT_OK)
+        goto fail;
+    if (n > 0) /* last: it scales power[] in place */
+        build_alias(L->alias, power, scratch, n, total);
+    double p_punct = class_punct > 0.0 ? class_punct / all : 0.0;
+    if (class_punct > 0.0) {
+        L->npunct = scene->num_punctual;
+        L->punct_cdf[0] = 0.0;
+        for (uint32_t i = 0; i < L->npunct; i++) {
+            /* the tree's lights take no room in the class */
+            int in_tree = use_tree && scene->punctual[i].type != PT_PUNCTUAL_DIRECTIONAL;
+            L->punct_cdf[i + 1] = L->punct_cdf[i] + (in_tree ? 0.0 : punct_power[i]);
+        }
+        for (uint32_t i = 0; i < L->npunct; i++) {
+            L->punct_cdf[i + 1] /= class_punct;
+            L->punct_pmf[i] = (float)(p_punct * (L->punct_cdf[i + 1] - L->punct_cdf[i]));
+        }
         L->punct_cdf[L->npunct] = 1.0;
+    }
+    L->npunct_all = (class_punct > 0.0 || (use_tree && m > 0)) ? scene->num_punctual : 0;
     L->c_env = L->env ? L->p_tri + p_punct : 1.0;
     L->p_env = L->env ? (float)(env_power / all) : 0.0f;
     if (L->env && !(L->p_env > 0.0f)) {
@@ -544,6 +587,7 @@ others : {
     pt_free(scratch);
     pt_free(power);
     pt_free(cand_power);
+    pt_free(punct_power);
     *out = L;
     return PT_OK;
 
@@ -553,6 +597,7 @@ fail:
     pt_free(scratch);
     pt_free(power);
     pt_free(cand_power);
+    pt_free(punct_power);
     pt_lights_free(L);
     return st;
 }
@@ -568,6 +613,7 @@ void pt_lights_free(pt_lights *lights)
     pt_free(lights->tri_to_light);
     pt_free(lights->punct_cdf);
     pt_free(lights->punct_pmf);
+    pt_free(lights->tree_punct);
     pt_free(lights);
 }
 
@@ -578,7 +624,7 @@ uint32_t pt_lights_count(const pt_lights *lights)
 
 uint32_t pt_lights_punctual_count(const pt_lights *lights)
 {
-    return lights ? lights->npunct : 0;
+    return lights ? lights->npunct_all : 0;
 }
 
 int pt_lights_has_tree(const pt_lights *lights)
@@ -612,6 +658,8 @@ static int sample_env(const pt_lights *lights, const float u[3], pt_light_sample
     return s->pdf > 0.0f && isfinite(s->pdf);
 }
 
+static int eval_punctual(const pt_punctual *l, pt_vec3 p, float pmf, pt_light_sample *s);
+
 /* A sample of the punctual light that v (in [0,1)) picks, seen from p. */
 static int sample_punctual(const pt_lights *lights, pt_vec3 p, double v, pt_light_sample *s)
 {
@@ -623,8 +671,13 @@ static int sample_punctual(const pt_lights *lights, pt_vec3 p, double v, pt_ligh
         else
             lo = mid + 1;
     }
-    const pt_punctual *l = &lights->punct[lo];
-    s->pdf = lights->punct_pmf[lo];
+    return eval_punctual(&lights->punct[lo], p, lights->punct_pmf[lo], s);
+}
+
+/* A sample of punctual light l seen from p, chosen with probability pmf. */
+static int eval_punctual(const pt_punctual *l, pt_vec3 p, float pmf, pt_light_sample *s)
+{
+    s->pdf = pmf;
     if (!(s->pdf > 0.0f))
         return 0;
     if (l->type == PT_PUNCTUAL_DIRECTIONAL) {
@@ -750,7 +803,7 @@ static inline const light_entry *choose(const pt_lights *lights, pt_vec3 p, cons
     if (lights->tree) {
         double q;
         uint32_t k = pt_light_tree_sample(lights->tree, p, (double)u[0], &q);
-        if (k == UINT32_MAX) {
+        if (k >= lights->count) { /* none, or a punctual light: not in the lanes */
             *pmf_area = 0.0f;
             return point_on(&lights->lights[0], u[1], u[2], pos, b1, b2);
         }
@@ -768,7 +821,7 @@ int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, 
 {
     memset(s, 0, sizeof *s);
     s->tri = UINT32_MAX;
-    if (!lights || (lights->count == 0 && lights->npunct == 0 && !lights->env))
+    if (!lights || (lights->count == 0 && lights->npunct == 0 && !lights->env && !lights->tree))
         return 0;
     float ut[3];
     if (lights->npunct > 0 || lights->env) {
@@ -788,7 +841,21 @@ int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, 
     }
 
     float b1, b2, pmf_area;
-    const light_entry *le = choose(lights, p, u, &s->position, &b1, &b2, &pmf_area);
+    const light_entry *le;
+    if (lights->tree) {
+        double q;
+        uint32_t k = pt_light_tree_sample(lights->tree, p, (double)u[0], &q);
+        if (k == UINT32_MAX)
+            return 0;
+        if (k >= lights->count) /* a point or spot light */
+            return eval_punctual(&lights->punct[lights->tree_punct[k - lights->count]], p,
+                                 (float)(q * lights->p_tri), s);
+        le = point_on(&lights->lights[k], u[1], u[2], &s->position, &b1, &b2);
+        pmf_area = tree_pmf_area(lights, le, q);
+    } else {
+        le = pick_point(lights, u, &s->position, &b1, &b2);
+        pmf_area = le->pmf_area;
+    }
     if (!(pmf_area > 0.0f))
         return 0;
     s->tri = le->tri;

@@ -15,8 +15,9 @@
  * - Through pt_lights, with an environment too: pt_lights_pdf at a sample's
  *   point equals the sample's pdf (the bits that the MIS weight of a BSDF hit
  *   needs), and the same build twice gives the same bits.
- * - Images: EmissiveStrengthTest (five emissive cubes, 60 light triangles) and
- *   a ring of 48 small lights over a floor, rendered with the tree and with
+ * - Images: EmissiveStrengthTest (five emissive cubes, 60 light triangles), a
+ *   ring of 48 small lights over a floor, and the ring with 18 point and spot
+ *   lights (in the tree) and a directional one, rendered with the tree and with
  *   the power-proportional choice, agree per 8 x 8 block: the difference of
  *   the block means over its standard error, the pixels' own sample variances
  *   (conservative under the sampler's stratification), stays under the
@@ -183,8 +184,10 @@ static void test_chi2(void)
 #define RING 48
 
 /* A floor of [-4, 4]^2 at z = 0 under RING small triangles of varied colour,
- * strength and height facing down (odd ones two-sided), seen from above. */
-static pt_scene *ring_scene(void)
+ * strength and height facing down (odd ones two-sided), seen from above;
+ * with punct, also 12 point lights (every third with a range), 6 spot lights
+ * and a directional light. */
+static pt_scene *ring_scene(int punct)
 {
     pt_scene_builder *b = NULL;
     pt_scene *s = NULL;
@@ -217,6 +220,19 @@ static pt_scene *ring_scene(void)
              pt_scene_builder_add_mesh(b, "light", tv, NULL, NULL, 3, NULL, 1, NULL, mat, &err) ==
                  PT_OK;
     }
+    for (int i = 0; i < 19 && ok && punct; i++) {
+        pt_punctual l = {0};
+        double a = 0.7 * i, rad = 0.5 + 0.2 * i;
+        double pos[3] = {rad * cos(a), rad * sin(a), 0.4 + 0.1 * (i % 6)};
+        l.type = i < 12 ? PT_PUNCTUAL_POINT : i < 18 ? PT_PUNCTUAL_SPOT : PT_PUNCTUAL_DIRECTIONAL;
+        l.intensity = pt_v3(10.0f * (float)(1 + i % 4), 15.0f, 10.0f * (float)(1 + i % 3));
+        l.range = i % 3 == 0 && i < 12 ? 2.0f : 0.0f;
+        l.direction = i < 18 ? pt_v3(0, 0, -1) : pt_v3_norm(pt_v3(0.3f, 0.2f, -1));
+        l.cos_inner = 0.9f;
+        l.cos_outer = 0.7f;
+        snprintf(l.name, sizeof l.name, "light %d", i);
+        ok = pt_scene_builder_add_punctual(b, &l, pos, &err) == PT_OK;
+    }
     pt_camera cam = {0};
     cam.yfov = 0.9f;
     cam.znear = 0.01f;
@@ -239,7 +255,7 @@ static pt_scene *ring_scene(void)
  * environment as a second class. */
 static void test_lights_pdf(void)
 {
-    pt_scene *rs = ring_scene();
+    pt_scene *rs = ring_scene(0);
     if (!rs)
         return;
     pt_env *env = NULL;
@@ -364,10 +380,21 @@ static int blocks_differing(const pt_scene *s, const pt_env *env, const char *wh
 
 static void test_images(void)
 {
-    pt_scene *rs = ring_scene();
+    pt_scene *rs = ring_scene(0);
     if (rs) {
         int d = blocks_differing(rs, NULL, "ring of 48 lights");
         CHECKF(d == 0, "ring: %d blocks differ", d);
+        pt_scene_free(rs);
+    }
+    /* point and spot lights in the tree, a directional one in its class */
+    rs = ring_scene(1);
+    if (rs) {
+        pt_lights *L = NULL;
+        CHECK(pt_lights_new_select(rs, NULL, PT_ENV_MIS, PT_LIGHT_SELECT_TREE, &L, NULL) == PT_OK);
+        CHECK(L && pt_lights_has_tree(L) && pt_lights_punctual_count(L) == 19);
+        pt_lights_free(L);
+        int d = blocks_differing(rs, NULL, "ring with 18 point and spot lights");
+        CHECKF(d == 0, "ring with punctual lights: %d blocks differ", d);
         pt_scene_free(rs);
     }
 
