@@ -29,26 +29,45 @@
 #define FORCE_MEDIAN_DEPTH 36u
 #define PI_D 3.14159265358979323846
 
-/* One node, 48 bytes. Children of an inner node: index + 1 and `next`. The
- * box is kept as its centre and the sphere around it (radius^2 r2): a point
- * inside the box is inside the sphere. */
+/* A node whose normals lie within acos(COARSE_COS) of its axis and whose
+ * bounding sphere is seen from p under less than asin(1 / COARSE_RATIO) is
+ * "coarse" there: its lights would all get about the same importance per
+ * unit of power, so the walk stops and chooses among them by power (a
+ * binary search of the cumulative power over the leaves' order, where each
+ * subtree's lights are contiguous). On a smooth emitter of thousands of
+ * triangles this ends the walk many levels early. */
+#define COARSE_COS 0.9f
+#define COARSE_RATIO 8.0f
+
+/* One node, 64 bytes. The children of an inner node are a pair, `next` and
+ * `next` + 1, so that the walk, which reads both, reads two adjacent cache
+ * lines. The box is kept as its centre and the sphere around it (radius r):
+ * a point inside the box is inside the sphere. */
 typedef struct lt_node {
     float center[3];
     float axis[3];
     float cos_o, sin_o;
     float power;
-    float r2;       /* (half-diagonal)^2 */
-    uint32_t next;  /* inner: the right child; leaf: the light */
+    float r;        /* half its diagonal */
+    uint32_t next;  /* inner: the left child (the right one follows); leaf: the light */
     uint32_t flags; /* LT_LEAF, LT_TWO_SIDED */
+    uint32_t first; /* its lights: order[first .. first + count) */
+    uint32_t count;
+    uint32_t pad[2];
 } lt_node;
-_Static_assert(sizeof(lt_node) == 48, "a node is 48 bytes");
+_Static_assert(sizeof(lt_node) == 64, "a node is one cache line");
 enum { LT_LEAF = 1, LT_TWO_SIDED = 2 };
 
 struct pt_light_tree {
     uint32_t n, nodes_used, depth;
-    lt_node *nodes;  /* 2n - 1 */
+    lt_node *nodes; /* 2n - 1, 64-byte aligned in nodes_mem */
+    void *nodes_mem;
     uint64_t *bits;  /* per light: its branch bits, root's first (1 = right) */
     uint8_t *levels; /* per light: its leaf's depth */
+    uint32_t *order; /* the lights in leaf order */
+    uint32_t *rank;  /* per light: its place in order */
+    double *cdf;     /* n + 1: cumulative power over order */
+    uint32_t ranked; /* while building */
 };
 
 /* A cluster while building: box, cone (in double), power. */
@@ -204,7 +223,7 @@ static void node_store(lt_node *nd, const cluster *c)
         nd->sin_o = 0.0f;
     }
     nd->power = (float)c->power;
-    nd->r2 = (float)(0.25 * d2);
+    nd->r = (float)(0.5 * sqrt(d2));
     nd->flags = c->two_sided ? LT_TWO_SIDED : 0;
 }
 
@@ -241,17 +260,22 @@ static uint32_t split(builder *B, uint32_t b, uint32_t e, const cluster *node, u
             cluster_add(&bk[k], &B->leaf[l]);
         }
         double kr = ext[a] > 0.0 ? emax / ext[a] : 1.0;
+        /* The costs of buckets [s, BUCKETS) by one sweep from the right,
+         * then of [0, s) from the left. */
+        double rcost[BUCKETS], rpower[BUCKETS];
+        cluster acc;
+        cluster_empty(&acc);
+        for (int k = BUCKETS - 1; k >= 1; k--) {
+            cluster_add(&acc, &bk[k]);
+            rcost[k] = cluster_cost(&acc);
+            rpower[k] = acc.power;
+        }
+        cluster_empty(&acc);
         for (int s = 1; s < BUCKETS; s++) {
-            cluster L, R;
-            cluster_empty(&L);
-            cluster_empty(&R);
-            for (int k = 0; k < s; k++)
-                cluster_add(&L, &bk[k]);
-            for (int k = s; k < BUCKETS; k++)
-                cluster_add(&R, &bk[k]);
-            if (L.power <= 0.0 || R.power <= 0.0)
+            cluster_add(&acc, &bk[s - 1]);
+            if (acc.power <= 0.0 || rpower[s] <= 0.0)
                 continue;
-            double cost = kr * (cluster_cost(&L) + cluster_cost(&R));
+            double cost = kr * (cluster_cost(&acc) + rcost[s]);
             if (cost < best_cost) {
                 best_cost = cost;
                 best_axis = a;
@@ -280,15 +304,18 @@ static uint32_t split(builder *B, uint32_t b, uint32_t e, const cluster *node, u
     return mid;
 }
 
-static uint32_t build(builder *B, uint32_t b, uint32_t e, uint32_t depth, uint64_t bits)
+/* Node id over perm[b..e), its children allocated as a pair. */
+static void build(builder *B, uint32_t id, uint32_t b, uint32_t e, uint32_t depth, uint64_t bits)
 {
     pt_light_tree *t = B->t;
-    uint32_t id = t->nodes_used++;
     cluster c;
     cluster_empty(&c);
     for (uint32_t i = b; i < e; i++)
         cluster_add(&c, &B->leaf[B->perm[i]]);
     node_store(&t->nodes[id], &c);
+    t->nodes[id].pad[0] = t->nodes[id].pad[1] = 0;
+    t->nodes[id].first = t->ranked;
+    t->nodes[id].count = e - b;
     if (depth > t->depth)
         t->depth = depth;
     if (e - b == 1) {
@@ -297,12 +324,16 @@ static uint32_t build(builder *B, uint32_t b, uint32_t e, uint32_t depth, uint64
         t->nodes[id].next = l;
         t->bits[l] = bits;
         t->levels[l] = (uint8_t)depth;
-        return id;
+        t->rank[l] = t->ranked;
+        t->order[t->ranked++] = l;
+        return;
     }
     uint32_t mid = split(B, b, e, &c, depth);
-    build(B, b, mid, depth + 1, bits);
-    t->nodes[id].next = build(B, mid, e, depth + 1, bits | (uint64_t)1 << depth);
-    return id;
+    uint32_t pair = t->nodes_used;
+    t->nodes_used += 2;
+    t->nodes[id].next = pair;
+    build(B, pair, b, mid, depth + 1, bits);
+    build(B, pair + 1, mid, e, depth + 1, bits | (uint64_t)1 << depth);
 }
 
 static int item_ok(const pt_light_tree_item *it)
@@ -334,14 +365,21 @@ pt_status pt_light_tree_new(const pt_light_tree_item *items, uint32_t n, pt_ligh
     if (!t)
         goto nomem;
     t->n = n;
-    t->nodes = pt_malloc_array(2 * (size_t)n - 1, sizeof *t->nodes);
+    /* one spare node's room to align the array to a cache line */
+    t->nodes_mem = pt_malloc_array(2 * (size_t)n, sizeof *t->nodes);
+    if (t->nodes_mem)
+        t->nodes = (lt_node *)(((uintptr_t)t->nodes_mem + 63) & ~(uintptr_t)63);
     t->bits = pt_malloc_array(n, sizeof *t->bits);
     t->levels = pt_malloc_array(n, sizeof *t->levels);
+    t->order = pt_malloc_array(n, sizeof *t->order);
+    t->rank = pt_malloc_array(n, sizeof *t->rank);
+    t->cdf = pt_malloc_array((size_t)n + 1, sizeof *t->cdf);
     leaf = pt_malloc_array(n, sizeof *leaf);
     B.centroid = pt_malloc_array(n, sizeof *B.centroid);
     B.perm = pt_malloc_array(n, sizeof *B.perm);
     B.tmp = pt_malloc_array(n, sizeof *B.tmp);
-    if (!t->nodes || !t->bits || !t->levels || !leaf || !B.centroid || !B.perm || !B.tmp)
+    if (!t->nodes || !t->bits || !t->levels || !t->order || !t->rank || !t->cdf || !leaf ||
+        !B.centroid || !B.perm || !B.tmp)
         goto nomem;
     for (uint32_t i = 0; i < n; i++) {
         cluster_of(&items[i], &leaf[i]);
@@ -352,7 +390,11 @@ pt_status pt_light_tree_new(const pt_light_tree_item *items, uint32_t n, pt_ligh
     B.items = items;
     B.leaf = leaf;
     B.t = t;
-    build(&B, 0, n, 0, 0);
+    t->nodes_used = 1;
+    build(&B, 0, 0, n, 0, 0);
+    t->cdf[0] = 0.0;
+    for (uint32_t i = 0; i < n; i++)
+        t->cdf[i + 1] = t->cdf[i] + (double)items[t->order[i]].power;
     pt_free(B.tmp);
     pt_free(B.perm);
     pt_free(B.centroid);
@@ -372,9 +414,12 @@ void pt_light_tree_free(pt_light_tree *tree)
 {
     if (!tree)
         return;
-    pt_free(tree->nodes);
+    pt_free(tree->nodes_mem);
     pt_free(tree->bits);
     pt_free(tree->levels);
+    pt_free(tree->order);
+    pt_free(tree->rank);
+    pt_free(tree->cdf);
     pt_free(tree);
 }
 
@@ -398,41 +443,78 @@ static inline float importance(const lt_node *nd, pt_vec3 p)
 {
     float d[3] = {p.x - nd->center[0], p.y - nd->center[1], p.z - nd->center[2]};
     float d2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
-    float cos_p = 1.0f;
-    if (d2 > nd->r2) {
-        float inv = 1.0f / sqrtf(d2);
-        /* theta_w: between the cone's axis and the direction to p */
-        float cos_w = (nd->axis[0] * d[0] + nd->axis[1] * d[1] + nd->axis[2] * d[2]) * inv;
-        if (nd->flags & LT_TWO_SIDED)
-            cos_w = fabsf(cos_w);
-        cos_w = cos_w > 1.0f ? 1.0f : cos_w < -1.0f ? -1.0f : cos_w;
-        /* theta_x = max(0, theta_w - theta_o) */
-        if (cos_w < nd->cos_o) {
-            float sin_w = sqrtf(1.0f - cos_w * cos_w);
-            float cos_x = cos_w * nd->cos_o + sin_w * nd->sin_o;
-            float sin_x = sin_w * nd->cos_o - cos_w * nd->sin_o;
-            /* theta' = max(0, theta_x - theta_b), sin theta_b = r / d */
-            float sin2_b = nd->r2 / d2;
-            float cos_b = sqrtf(1.0f - sin2_b);
-            if (cos_x < cos_b)
-                cos_p = cos_x * cos_b + sin_x * sqrtf(sin2_b);
-            if (!(cos_p > 0.0f)) /* theta' >= theta_e = pi/2 */
-                return 0.0f;
-        }
-    } else {
-        d2 = nd->r2;
+    float r2 = nd->r * nd->r;
+    if (!(d2 > r2)) /* inside the sphere (or NaN): every direction, distance r */
+        return r2 > 0.0f && nd->power / r2 < 3.4e38f ? nd->power / r2 : 0.0f;
+    float inv = 1.0f / sqrtf(d2), cos_p = 1.0f;
+    /* theta_w: between the cone's axis and the direction to p */
+    float cos_w = (nd->axis[0] * d[0] + nd->axis[1] * d[1] + nd->axis[2] * d[2]) * inv;
+    if (nd->flags & LT_TWO_SIDED)
+        cos_w = fabsf(cos_w);
+    cos_w = cos_w > 1.0f ? 1.0f : cos_w < -1.0f ? -1.0f : cos_w;
+    /* theta_x = max(0, theta_w - theta_o) */
+    if (cos_w < nd->cos_o) {
+        float sin_w = sqrtf(1.0f - cos_w * cos_w);
+        float cos_x = cos_w * nd->cos_o + sin_w * nd->sin_o;
+        float sin_x = sin_w * nd->cos_o - cos_w * nd->sin_o;
+        /* theta' = max(0, theta_x - theta_b), sin theta_b = r / d */
+        float sin_b = nd->r * inv;
+        float cos_b = sqrtf(1.0f - sin_b * sin_b);
+        if (cos_x < cos_b)
+            cos_p = cos_x * cos_b + sin_x * sin_b;
+        if (!(cos_p > 0.0f)) /* theta' >= theta_e = pi/2 */
+            return 0.0f;
     }
-    float imp = nd->power * cos_p / d2;
-    return imp < 3.4e38f ? imp : 0.0f; /* not finite (or NaN): 0 */
+    float imp = nd->power * cos_p * (inv * inv);
+    return imp < 3.4e38f ? imp : 0.0f; /* not finite: 0 */
+}
+
+/* Whether the walk stops at node nd seen from p (COARSE_COS above). */
+static inline int coarse(const lt_node *nd, pt_vec3 p)
+{
+    if (nd->cos_o < COARSE_COS)
+        return 0;
+    float d[3] = {p.x - nd->center[0], p.y - nd->center[1], p.z - nd->center[2]};
+    float rr = COARSE_RATIO * nd->r;
+    return d[0] * d[0] + d[1] * d[1] + d[2] * d[2] > rr * rr;
+}
+
+/* The share of the light at place i of the order among node nd's lights. */
+static inline double power_share(const pt_light_tree *t, const lt_node *nd, uint32_t i)
+{
+    return (t->cdf[i + 1] - t->cdf[i]) / (t->cdf[nd->first + nd->count] - t->cdf[nd->first]);
 }
 
 uint32_t pt_light_tree_sample(const pt_light_tree *tree, pt_vec3 p, double u, double *pmf)
 {
     const lt_node *nodes = tree->nodes;
     uint32_t id = 0;
-    double q = 1.0;
+    /* u stays; the interval [base, base + width) of it that leads to the
+     * node shrinks (a product, not a division, in the walk's chain). */
+    double q = 1.0, base = 0.0, width = 1.0;
     while (!(nodes[id].flags & LT_LEAF)) {
-        float il = importance(&nodes[id + 1], p), ir = importance(&nodes[nodes[id].next], p);
+        if (coarse(&nodes[id], p)) {
+            /* the first place i of the node's lights with target < cdf[i + 1] */
+            const lt_node *nd = &nodes[id];
+            uint32_t lo = nd->first, hi = nd->first + nd->count - 1;
+            double c0 = tree->cdf[lo], v = (u - base) / width;
+            v = v < 0.0 ? 0.0 : v < 0x1.fffffffffffffp-1 ? v : 0x1.fffffffffffffp-1;
+            double target = c0 + v * (tree->cdf[hi + 1] - c0);
+            while (lo < hi) {
+                uint32_t mid = lo + (hi - lo) / 2;
+                if (target < tree->cdf[mid + 1])
+                    hi = mid;
+                else
+                    lo = mid + 1;
+            }
+            double share = power_share(tree, nd, lo);
+            if (!(share > 0.0))
+                break;
+            *pmf = q * share;
+            return tree->order[lo];
+        }
+        uint32_t c = nodes[id].next;
+        float il = importance(&nodes[c], p), ir = importance(&nodes[c + 1], p);
         double sum = (double)il + (double)ir;
         if (!(sum > 0.0)) {
             *pmf = 0.0;
@@ -440,12 +522,17 @@ uint32_t pt_light_tree_sample(const pt_light_tree *tree, pt_vec3 p, double u, do
         }
         double pl = (double)il / sum;
         /* Selects, not branches: the side is random. */
-        int right = !(u < pl);
+        double cut = base + pl * width;
+        int right = !(u < cut);
         double pc = right ? 1.0 - pl : pl;
-        u = (u - (right ? pl : 0.0)) / pc;
+        base = right ? cut : base;
+        width *= pc;
         q *= pc;
-        id = right ? nodes[id].next : id + 1;
-        u = u < 0x1.fffffffffffffp-1 ? u : 0x1.fffffffffffffp-1;
+        id = c + (uint32_t)right;
+    }
+    if (!(nodes[id].flags & LT_LEAF)) { /* a rounded search found no light */
+        *pmf = 0.0;
+        return UINT32_MAX;
     }
     *pmf = q;
     return nodes[id].next;
@@ -460,18 +547,17 @@ double pt_light_tree_pmf(const pt_light_tree *tree, pt_vec3 p, uint32_t light)
     uint32_t id = 0, levels = tree->levels[light];
     double q = 1.0;
     for (uint32_t k = 0; k < levels; k++) {
-        float il = importance(&nodes[id + 1], p), ir = importance(&nodes[nodes[id].next], p);
+        if (coarse(&nodes[id], p))
+            return q * power_share(tree, &nodes[id], tree->rank[light]);
+        uint32_t c = nodes[id].next;
+        float il = importance(&nodes[c], p), ir = importance(&nodes[c + 1], p);
         double sum = (double)il + (double)ir;
         if (!(sum > 0.0))
             return 0.0;
         double pl = (double)il / sum;
-        if ((bits >> k) & 1) {
-            q *= 1.0 - pl;
-            id = nodes[id].next;
-        } else {
-            q *= pl;
-            id = id + 1;
-        }
+        uint32_t right = (uint32_t)(bits >> k) & 1u;
+        q *= right ? 1.0 - pl : pl;
+        id = c + right;
     }
     return q;
 }
