@@ -23,6 +23,8 @@
  *   (conservative under the sampler's stratification), stays under the
  *   two-sided normal quantile for a family-wise false alarm of 1e-3 over all
  *   blocks and channels (Bonferroni).
+ * - Coarse nodes: coplanar lights seen from far are chosen by power alone
+ *   (pmf and sampler), from close by by the tree.
  * - Bad input (counts, NaN, zero power) and allocation failure.
  */
 #include "common/render/light_tree.h"
@@ -409,6 +411,51 @@ static void test_images(void)
     }
 }
 
+/* 64 coplanar triangles facing +z in a unit square: seen from far above,
+ * the root is coarse and the choice is by power alone, the same in the pmf;
+ * seen from close by, it is not (a near triangle gets more than its power's
+ * share). */
+static void test_coarse(void)
+{
+    enum { N = 64 };
+    pt_light_tree_item it[N];
+    for (int i = 0; i < N; i++) {
+        float x = (float)(i % 8) / 8.0f, y = (float)(i / 8) / 8.0f;
+        it[i].lo = pt_v3(x, y, 0);
+        it[i].hi = pt_v3(x + 0.1f, y + 0.1f, 0);
+        it[i].axis = pt_v3(0, 0, 1);
+        it[i].cos_o = 1.0f;
+        it[i].power = (float)(1 + i % 5);
+        it[i].two_sided = 0;
+    }
+    double total = 0.0;
+    for (int i = 0; i < N; i++)
+        total += it[i].power;
+    pt_light_tree *t = NULL;
+    CHECK(pt_light_tree_new(it, N, &t, NULL) == PT_OK);
+    if (!t)
+        return;
+    int far_off = 0;
+    for (int i = 0; i < N; i++)
+        far_off += fabs(pt_light_tree_pmf(t, pt_v3(0.5f, 0.5f, 100), (uint32_t)i) -
+                        it[i].power / total) > 1e-12;
+    CHECKF(far_off == 0, "far: %d pmfs are not the power's share", far_off);
+    double near = pt_light_tree_pmf(t, pt_v3(0.05f, 0.05f, 0.05f), 0);
+    CHECKF(near > 3.0 * it[0].power / total, "near: pmf %g, power share %g", near,
+           it[0].power / total);
+    /* the sampler agrees at both */
+    rng_state = 4;
+    int bad = 0;
+    for (int k = 0; k < 20000; k++) {
+        pt_vec3 p = k % 2 ? pt_v3(0.5f, 0.5f, 100) : pt_v3(0.05f, 0.05f, 0.05f);
+        double q;
+        uint32_t l = pt_light_tree_sample(t, p, rnd(), &q);
+        bad += l >= N || q != pt_light_tree_pmf(t, p, l);
+    }
+    CHECK(bad == 0);
+    pt_light_tree_free(t);
+}
+
 static void test_errors(void)
 {
     pt_light_tree_item it[4];
@@ -453,6 +500,7 @@ int main(void)
     test_pmf_sums_and_sides();
     test_chi2();
     test_lights_pdf();
+    test_coarse();
     test_errors();
     test_images();
     return check_report();
