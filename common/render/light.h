@@ -2,15 +2,19 @@
  * light.h - the lights of next-event estimation: emissive triangles and
  * punctual lights (scene.h, pt_punctual), and the environment (env.h).
  *
- * Every triangle whose material emits (emissive factor > 0) becomes a light.
- * Lights are chosen in proportion to power (area x luminance of the emission,
- * with the emissive texture's mean luminance when it has one) through an alias
- * table (Walker 1977 / Vose 1991), or, from PT_LIGHT_TREE_MIN of them on, by
+ * Every triangle whose material emits (emissive factor > 0 and, with an
+ * emissive texture, some non-black texel under its UV footprint) becomes a
+ * light. Lights are chosen in proportion to power (area x luminance of the
+ * emission, with the emissive texture's mean over the triangle's footprint)
+ * through an alias table (Walker 1977 / Vose 1991), or, from
+ * PT_LIGHT_TREE_MIN lights on (triangles, point and spot lights together), by
  * a light tree (light_tree.h) in proportion to an estimate of what each gives
  * the shading point (power, distance and orientation bounds); then a point is
  * sampled uniformly by area and the pdf converted to solid angle:
  * pdf_w = pdf_A * d^2 / |cos theta_light|. pt_lights_pdf gives the same
  * number for a BSDF ray that hits the light (the tree's pmf recomputed for it).
+ * With fewer lights the tree is not built and every sample keeps the bits of
+ * the alias table.
  * Single-sided emitters emit on the side of their geometric normal (counter-
  * clockwise winding); double-sided ones on both sides.
  *
@@ -18,7 +22,9 @@
  * the class (triangles, punctual lights, environment) by the classes' total
  * power, then the light within it by its own power (the environment: a
  * direction by its map's distribution, env.h), so each light is chosen in
- * proportion to its estimated power (light.c says how it is estimated). A
+ * proportion to its estimated power (light.c says how it is estimated).
+ * With a tree, the first class is the tree's (triangles, point and spot
+ * lights) and the punctual class keeps the directional lights. A
  * punctual sample is a delta: its pdf is the probability of choosing it, and
  * BSDF sampling never finds it, so it takes no MIS weight; an environment
  * sample is weighed by MIS like a triangle's. A scene with triangles alone
