@@ -3,14 +3,16 @@
  * alias table, uniform area sampling, conversion to solid angle.
  *
  * Power of a light triangle (only the ratios matter):
- *     area x luminance(emissive factor (x) mean of the emissive texture)
+ *     area x luminance(emissive factor (x) mean of the emissive texture
+ *                      over the triangle's UV footprint)
  *          x (2 if double-sided) x pi
- * The texture term is the mean of the whole texture in linear RGB, computed
- * once per texture, not the mean over the triangle's UV footprint: it makes
- * the choice a little less proportional to the true power on textured
- * emitters, which costs variance, never bias (the pdf is the one used to
- * choose). Triangles with zero or non-finite power (black emission, zero
- * area) are left out: they could never be chosen.
+ * The footprint's mean (footprint_mean) reads the texels the triangle covers,
+ * once at load, so a triangle over the black part of an emissive texture is
+ * no light and a bright one is chosen for its own brightness; it is an
+ * estimate (texel centres, or a grid over large footprints), which costs
+ * variance, never bias (the pdf is the one used to choose). Triangles with
+ * zero or non-finite power (black emission, zero area) are left out: NEE
+ * never chooses them, and BSDF sampling finds them with MIS weight 1.
  *
  * Choice: Vose 1991, "A Linear Algorithm for Generating Random Numbers with a
  * Given Distribution" (IEEE TSE 17(9)): Walker's alias method built in O(n).
@@ -38,6 +40,7 @@
 #include "common/base/alloc.h"
 #include "common/render/env.h"
 #include "common/render/light_lanes.h"
+#include "common/render/light_tree.h"
 #include "common/scene/accel.h"
 #include "common/scene/motion.h"
 
@@ -56,10 +59,10 @@ typedef struct alias_slot {
 typedef struct light_entry {
     pt_vec3 v[3];      /* vertices */
     pt_vec3 normal;    /* unit geometric normal (tri_geom) */
-    float pmf_area;    /* probability of choosing the light / its area */
+    float pmf_area;    /* probability of choosing the light / its area (without a tree) */
     uint32_t tri;      /* triangle in the scene */
     uint32_t material; /* its material */
-    float pmf;         /* probability of choosing this light */
+    float area;        /* its area */
 } light_entry;
 _Static_assert(sizeof(light_entry) == 64, "a light entry is one cache line");
 
@@ -73,10 +76,13 @@ struct pt_lights {
      * (emission_at), so that a sample reads neither the index nor the
      * vertices' coordinates; NULL when no light's material has one. */
     float *tex_uv;
-    alias_slot *alias;      /* count columns */
+    alias_slot *alias;   /* count columns */
+    pt_light_tree *tree; /* where it chooses the triangle (light_tree.h); NULL: the alias table */
     uint32_t *tri_to_light; /* num_triangles entries, UINT32_MAX: not a light; NULL if count 0 */
     /* punctual lights */
-    uint32_t npunct;
+    uint32_t npunct;          /* the punctual class's lights (0: no class) */
+    uint32_t npunct_all;      /* punctual lights NEE can choose, by class or tree */
+    uint32_t *tree_punct;     /* tree light count + i: the scene's punctual light */
     const pt_punctual *punct; /* the scene's */
     double *punct_cdf;        /* npunct + 1: cumulative power among them, 0 to 1 */
     float *punct_pmf;         /* the probability of choosing each, class included */
@@ -180,57 +186,114 @@ pt_vec3 pt_emitted(const pt_scene *scene, uint32_t tri, float b1, float b2, pt_v
     return emission(scene, m, tri, b1, b2);
 }
 
-/* Mean linear RGB of a texture, read at texel centres through the same lookup
- * the renderer uses (bilinear at a centre is that texel). Huge textures are
- * read on a strided grid of about 2^20 texels: this is an estimate anyway. */
-static pt_vec3 texture_mean(const pt_texture *tex)
+/* The texels per triangle footprint_mean reads one by one; a larger
+ * footprint is read at FOOTPRINT_GRID^2 points spread evenly over the
+ * triangle. */
+#define FOOTPRINT_TEXELS 4096u
+#define FOOTPRINT_GRID 32u
+
+/* Mean linear RGB of material m's emissive texture over triangle tri: the
+ * texels whose centres its UV triangle covers, read through the renderer's
+ * lookup (at a centre, that texel), or at its centroid and corners when it
+ * covers none; a footprint of more than FOOTPRINT_TEXELS texels (by its
+ * bounding box) is read at points uniform in area (Heitz 2019's map over a
+ * grid). The UV map is affine over a triangle (pt_scene_slot_uv:
+ * barycentric interpolation, then KHR_texture_transform), so the footprint
+ * is the triangle of its corners' UVs. It is an estimate of power, used
+ * only to choose: a poor one costs variance, never bias. */
+static pt_vec3 footprint_mean(const pt_scene *s, const pt_material *m, uint32_t tri)
 {
-    uint64_t texels = (uint64_t)tex->width * tex->height;
-    uint32_t step = 1;
-    while ((texels / ((uint64_t)step * step)) > (1u << 20))
-        step++;
+    const pt_texture *tex = &s->textures[m->emissive_tex];
+    const float w = (float)tex->width, h = (float)tex->height;
+    float uv[3][2];
+    pt_scene_slot_uv(s, m, PT_SLOT_EMISSIVE, tri, 0.0f, 0.0f, uv[0]);
+    pt_scene_slot_uv(s, m, PT_SLOT_EMISSIVE, tri, 1.0f, 0.0f, uv[1]);
+    pt_scene_slot_uv(s, m, PT_SLOT_EMISSIVE, tri, 0.0f, 1.0f, uv[2]);
+    /* In texel units, texel (x, y)'s centre at the integers. */
+    double x[3], y[3];
+    for (int i = 0; i < 3; i++) {
+        x[i] = (double)uv[i][0] * w - 0.5;
+        y[i] = (double)uv[i][1] * h - 0.5;
+    }
+    double x0 = fmin(fmin(x[0], x[1]), x[2]), x1 = fmax(fmax(x[0], x[1]), x[2]);
+    double y0 = fmin(fmin(y[0], y[1]), y[2]), y1 = fmax(fmax(y[0], y[1]), y[2]);
     double sum[3] = {0, 0, 0};
     uint64_t n = 0;
-    for (uint32_t y = step / 2; y < tex->height; y += step) {
-        for (uint32_t x = step / 2; x < tex->width; x += step) {
-            float c[4];
-            pt_texture_sample(tex, ((float)x + 0.5f) / (float)tex->width,
-                              ((float)y + 0.5f) / (float)tex->height, c);
+    float c[4];
+    double bx = ceil(x1) - floor(x0) + 1.0, by = ceil(y1) - floor(y0) + 1.0;
+    if (isfinite(bx) && isfinite(by) && bx * by <= (double)FOOTPRINT_TEXELS) {
+        /* Edge functions of the UV triangle, either winding. */
+        double area2 = (x[1] - x[0]) * (y[2] - y[0]) - (x[2] - x[0]) * (y[1] - y[0]);
+        for (double ty = ceil(y0); ty <= y1 && area2 != 0.0; ty += 1.0) {
+            for (double tx = ceil(x0); tx <= x1; tx += 1.0) {
+                double e0 = ((x[1] - tx) * (y[2] - ty) - (x[2] - tx) * (y[1] - ty)) / area2;
+                double e1 = ((x[2] - tx) * (y[0] - ty) - (x[0] - tx) * (y[2] - ty)) / area2;
+                double e2 = 1.0 - e0 - e1;
+                if (e0 < 0.0 || e1 < 0.0 || e2 < 0.0)
+                    continue;
+                pt_texture_sample(tex, (float)((tx + 0.5) / w), (float)((ty + 0.5) / h), c);
+                sum[0] += c[0];
+                sum[1] += c[1];
+                sum[2] += c[2];
+                n++;
+            }
+        }
+        if (n == 0) { /* smaller than a texel: its centroid and corners */
+            const float b[4][2] = {{1.0f / 3.0f, 1.0f / 3.0f}, {0, 0}, {1, 0}, {0, 1}};
+            for (int i = 0; i < 4; i++) {
+                float t[2];
+                pt_scene_slot_uv(s, m, PT_SLOT_EMISSIVE, tri, b[i][0], b[i][1], t);
+                pt_texture_sample(tex, t[0], t[1], c);
+                sum[0] += c[0];
+                sum[1] += c[1];
+                sum[2] += c[2];
+                n++;
+            }
+        }
+    } else {
+        for (uint32_t j = 0; j < FOOTPRINT_GRID * FOOTPRINT_GRID; j++) {
+            /* Heitz 2019 (pick_point's map) at the grid cell's centre */
+            float u1 = ((float)(j % FOOTPRINT_GRID) + 0.5f) / (float)FOOTPRINT_GRID;
+            float u2 = ((float)(j / FOOTPRINT_GRID) + 0.5f) / (float)FOOTPRINT_GRID;
+            int upper = u2 > u1;
+            float b1 = upper ? 0.5f * u1 : u1 - 0.5f * u2;
+            float b2 = upper ? u2 - 0.5f * u1 : 0.5f * u2;
+            float t[2];
+            pt_scene_slot_uv(s, m, PT_SLOT_EMISSIVE, tri, b1, b2, t);
+            pt_texture_sample(tex, t[0], t[1], c);
             sum[0] += c[0];
             sum[1] += c[1];
             sum[2] += c[2];
             n++;
         }
     }
-    if (n == 0)
-        return pt_v3(0.0f, 0.0f, 0.0f);
     return pt_v3((float)(sum[0] / (double)n), (float)(sum[1] / (double)n),
                  (float)(sum[2] / (double)n));
 }
 
-/* Power of triangle tri (see the top of the file); 0 when it is not a light. */
-static double tri_power(const pt_scene *s, uint32_t tri, const pt_vec3 *tex_mean, float *area_out)
+/* Whether triangle tri can be a light: its material emits and it does not
+ * move. A moving emitter is no light to sample (its area and place depend on
+ * the path's time): BSDF sampling alone finds it, with MIS weight 1. */
+static int candidate(const pt_scene *s, uint32_t tri)
+{
+    return emits(&s->materials[s->tri_material[tri]]) &&
+           !(s->motion && s->motion->moving[tri] != UINT32_MAX);
+}
+
+/* Power of candidate triangle tri (see the top of the file); 0 when it is
+ * not a light (no area, or black over its whole footprint). */
+static double tri_power(const pt_scene *s, uint32_t tri)
 {
     const pt_material *m = &s->materials[s->tri_material[tri]];
-    *area_out = 0.0f;
-    if (!emits(m))
-        return 0.0;
-    /* A moving emitter is no light to sample (its area and place depend on
-     * the path's time): BSDF sampling alone finds it, with MIS weight 1. */
-    if (s->motion && s->motion->moving[tri] != UINT32_MAX)
-        return 0.0;
     pt_vec3 v[3], n;
     float area;
     tri_geom(s, tri, v, &n, &area);
     pt_vec3 e = pt_v3(m->emissive[0], m->emissive[1], m->emissive[2]);
-    if (m->emissive_tex >= 0 && s->uvs)
-        e = pt_v3_mul(e, tex_mean[m->emissive_tex]);
+    if (textured(s, m))
+        e = pt_v3_mul(e, footprint_mean(s, m, tri));
     double p = (double)area * (double)pt_luminance(e) * (m->double_sided ? 2.0 : 1.0) *
                3.14159265358979323846;
-    if (!(p > 0.0) || !isfinite(p))
-        return 0.0;
-    *area_out = area;
-    return p;
+    return p > 0.0 && isfinite(p) ? p : 0.0;
 }
 
 /* The estimated flux of a punctual light (the top of the file); 0 when it
@@ -286,6 +349,50 @@ static void build_alias(alias_slot *lights, double *q, uint32_t *scratch, uint32
     }
 }
 
+/* The light tree over the n triangle lights of L (entries filled) with
+ * their powers, then the m point and spot lights of the scene with a power
+ * (punct_power) in their order. A triangle's cone is its normal alone
+ * (theta_o = 0); a point light's is every direction, a spot light's its
+ * outer cone (the tree's bound adds pi/2 to it: loose, never too tight). */
+static pt_status build_tree(const pt_scene *scene, pt_lights *L, const double *power, uint32_t n,
+                            const double *punct_power, uint32_t m, pt_error *err)
+{
+    pt_light_tree_item *items = pt_malloc_array((size_t)n + m, sizeof *items);
+    if (!items || (m > 0 && !(L->tree_punct = pt_malloc_array(m, sizeof *L->tree_punct)))) {
+        pt_free(items);
+        return pt_error_set(err, PT_ERR_NOMEM, "pt_lights_new: out of memory for the light tree");
+    }
+    for (uint32_t i = 0; i < n; i++) {
+        const light_entry *le = &L->lights[i];
+        const pt_vec3 *v = le->v;
+        pt_light_tree_item *it = &items[i];
+        it->lo = pt_v3(fminf(fminf(v[0].x, v[1].x), v[2].x), fminf(fminf(v[0].y, v[1].y), v[2].y),
+                       fminf(fminf(v[0].z, v[1].z), v[2].z));
+        it->hi = pt_v3(fmaxf(fmaxf(v[0].x, v[1].x), v[2].x), fmaxf(fmaxf(v[0].y, v[1].y), v[2].y),
+                       fmaxf(fmaxf(v[0].z, v[1].z), v[2].z));
+        it->axis = le->normal;
+        it->cos_o = 1.0f;
+        it->power = (float)power[i];
+        it->two_sided = scene->materials[le->material].double_sided;
+    }
+    for (uint32_t i = 0, j = 0; j < m; i++) {
+        const pt_punctual *l = &scene->punctual[i];
+        if (l->type == PT_PUNCTUAL_DIRECTIONAL || !(punct_power[i] > 0.0))
+            continue;
+        pt_light_tree_item *it = &items[n + j];
+        it->lo = it->hi = l->position;
+        int spot = l->type == PT_PUNCTUAL_SPOT;
+        it->axis = spot ? l->direction : pt_v3(0.0f, 0.0f, 1.0f);
+        it->cos_o = spot ? l->cos_outer : -1.0f;
+        it->power = (float)punct_power[i];
+        it->two_sided = 0;
+        L->tree_punct[j++] = i;
+    }
+    pt_status st = pt_light_tree_new(items, n + m, &L->tree, err);
+    pt_free(items);
+    return st;
+}
+
 pt_status pt_lights_new(const pt_scene *scene, pt_lights **out, pt_error *err)
 {
     return pt_lights_new_env(scene, NULL, PT_ENV_FULL, out, err);
@@ -294,8 +401,15 @@ pt_status pt_lights_new(const pt_scene *scene, pt_lights **out, pt_error *err)
 pt_status pt_lights_new_env(const pt_scene *scene, const pt_env *env, int env_dist, pt_lights **out,
                             pt_error *err)
 {
+    return pt_lights_new_select(scene, env, env_dist, PT_LIGHT_SELECT_AUTO, out, err);
+}
+
+pt_status pt_lights_new_select(const pt_scene *scene, const pt_env *env, int env_dist,
+                               uint32_t select, pt_lights **out, pt_error *err)
+{
     pt_status st = PT_OK;
-    pt_vec3 *tex_mean = NULL;
+    double *cand_power = NULL;  /* per candidate triangle, in order */
+    double *punct_power = NULL; /* per punctual light */
     double *power = NULL;
     uint32_t *scratch = NULL;
     if (!scene || !out)
@@ -307,7 +421,7 @@ pt_status pt_lights_new_env(const pt_scene *scene, const pt_env *env, int env_di
     L->num_triangles = scene->num_triangles;
     L->env_dist = env_dist;
 
-    /* Check what we will index, and the mean of each emissive texture. */
+    /* Check what we will index. */
     int any_tex = 0;
     for (uint32_t i = 0; i < scene->num_materials; i++) {
         const pt_material *m = &scene->materials[i];
@@ -325,20 +439,6 @@ pt_status pt_lights_new_env(const pt_scene *scene, const pt_env *env, int env_di
         }
         any_tex = 1;
     }
-    if (any_tex) {
-        tex_mean = pt_malloc_array(scene->num_textures, sizeof *tex_mean);
-        if (!tex_mean)
-            goto nomem;
-        /* NaN: not computed yet; each texture is read once. */
-        for (uint32_t i = 0; i < scene->num_textures; i++)
-            tex_mean[i] = pt_v3(NAN, NAN, NAN);
-        for (uint32_t i = 0; i < scene->num_materials; i++) {
-            const pt_material *m = &scene->materials[i];
-            if (emits(m) && m->emissive_tex >= 0 && isnan(tex_mean[m->emissive_tex].x))
-                tex_mean[m->emissive_tex] = texture_mean(&scene->textures[m->emissive_tex]);
-        }
-    }
-
     /* Punctual lights and the environment: their power, and the triangles'
      * share. */
     double punct_total = 0.0, env_power = 0.0;
@@ -355,20 +455,18 @@ pt_status pt_lights_new_env(const pt_scene *scene, const pt_env *env, int env_di
     if (scene->num_punctual > 0) {
         L->punct_cdf = pt_malloc_array((size_t)scene->num_punctual + 1, sizeof *L->punct_cdf);
         L->punct_pmf = pt_malloc_array(scene->num_punctual, sizeof *L->punct_pmf);
-        if (!L->punct_cdf || !L->punct_pmf)
+        punct_power = pt_malloc_array(scene->num_punctual, sizeof *punct_power);
+        if (!L->punct_cdf || !L->punct_pmf || !punct_power)
             goto nomem;
-        L->punct_cdf[0] = 0.0;
         for (uint32_t i = 0; i < scene->num_punctual; i++) {
-            punct_total += punctual_power(&scene->punctual[i], radius);
-            L->punct_cdf[i + 1] = punct_total;
+            punct_power[i] = punctual_power(&scene->punctual[i], radius);
+            punct_total += punct_power[i];
         }
-        if (punct_total > 0.0) {
-            L->npunct = scene->num_punctual;
+        if (punct_total > 0.0)
             L->punct = scene->punctual;
-        }
     }
 
-    uint32_t n = 0;
+    uint32_t n = 0, nc = 0;
     double total = 0.0; /* the triangles' power */
     for (uint32_t i = 0; i < scene->num_triangles; i++) {
         if (scene->tri_material[i] >= scene->num_materials) {
@@ -376,9 +474,16 @@ pt_status pt_lights_new_env(const pt_scene *scene, const pt_env *env, int env_di
                               scene->tri_material[i], scene->num_materials);
             goto fail;
         }
-        float area;
-        if (tri_power(scene, i, tex_mean, &area) > 0.0)
-            n++;
+        nc += (uint32_t)candidate(scene, i);
+    }
+    /* Each candidate's power once: a textured one reads its footprint. */
+    if (nc > 0 && !(cand_power = pt_malloc_array(nc, sizeof *cand_power)))
+        goto nomem;
+    for (uint32_t i = 0, c = 0; i < scene->num_triangles; i++) {
+        if (!candidate(scene, i))
+            continue;
+        cand_power[c] = tri_power(scene, i);
+        n += cand_power[c++] > 0.0;
     }
     if (n == 0) {
         L->p_tri = 0.0;
@@ -399,19 +504,18 @@ pt_status pt_lights_new_env(const pt_scene *scene, const pt_env *env, int env_di
         goto nomem;
 
     uint32_t k = 0;
-    for (uint32_t i = 0; i < scene->num_triangles; i++) {
-        float area;
-        double p = tri_power(scene, i, tex_mean, &area);
+    for (uint32_t i = 0, ci = 0; i < scene->num_triangles; i++) {
         L->tri_to_light[i] = UINT32_MAX;
+        if (!candidate(scene, i))
+            continue;
+        double p = cand_power[ci++];
         if (!(p > 0.0))
             continue;
         L->tri_to_light[i] = k;
         light_entry *le = &L->lights[k];
         le->tri = i;
         le->material = scene->tri_material[i];
-        float a2;
-        tri_geom(scene, i, le->v, &le->normal, &a2);
-        le->pmf_area = area; /* divided below */
+        tri_geom(scene, i, le->v, &le->normal, &le->area);
         const pt_material *m = &scene->materials[le->material];
         if (L->tex_uv && textured(scene, m)) {
             const float *set = m->tex_xf[PT_SLOT_EMISSIVE].texcoord ? scene->uvs1 : scene->uvs;
@@ -423,26 +527,55 @@ pt_status pt_lights_new_env(const pt_scene *scene, const pt_env *env, int env_di
         total += p;
         k++;
     }
-    /* Without other lights p_tri is 1 and the pmfs are the bits they were
-     * before there were any. */
-    int others = L->npunct || L->env;
-    L->p_tri = others ? total / (total + punct_total + env_power) : 1.0;
-    for (uint32_t i = 0; i < n; i++) {
-        L->lights[i].pmf = (float)(others ? power[i] / total * L->p_tri : power[i] / total);
-        L->lights[i].pmf_area = L->lights[i].pmf / L->lights[i].pmf_area;
-    }
-    build_alias(L->alias, power, scratch, n, total);
     L->count = n;
 
 others : {
-    double all = total + punct_total + env_power;
-    double p_punct = L->npunct ? punct_total / all : 0.0;
-    for (uint32_t i = 0; i < L->npunct; i++) {
-        L->punct_cdf[i + 1] /= punct_total;
-        L->punct_pmf[i] = (float)(p_punct * (L->punct_cdf[i + 1] - L->punct_cdf[i]));
+    /* The tree takes the point and spot lights too (a directional light has
+     * no place to bound): then the first class is the tree's, and the
+     * punctual class keeps the directional lights. */
+    uint32_t m = 0; /* point and spot lights that can be chosen */
+    double tree_punct = 0.0;
+    for (uint32_t i = 0; L->punct && i < scene->num_punctual; i++)
+        if (scene->punctual[i].type != PT_PUNCTUAL_DIRECTIONAL && punct_power[i] > 0.0) {
+            m++;
+            tree_punct += punct_power[i];
+        }
+    int use_tree = select == PT_LIGHT_SELECT_TREE   ? n + m >= 2
+                   : select == PT_LIGHT_SELECT_AUTO ? n + m >= PT_LIGHT_TREE_MIN
+                                                    : 0;
+    double first = use_tree ? total + tree_punct : total; /* the first class's power */
+    double class_punct = use_tree ? punct_total - tree_punct : punct_total;
+    if (!(class_punct > 0.0))
+        class_punct = 0.0;
+    double all = first + class_punct + env_power;
+    /* Without other lights p_tri is 1 and the pmfs are the bits they were
+     * before there were any. */
+    int others = class_punct > 0.0 || L->env;
+    L->p_tri = others ? first / all : 1.0;
+    for (uint32_t i = 0; i < n; i++) {
+        float pmf = (float)(others ? power[i] / total * L->p_tri : power[i] / total);
+        L->lights[i].pmf_area = pmf / L->lights[i].area;
     }
-    if (L->npunct)
+    if (use_tree && (st = build_tree(scene, L, power, n, punct_power, m, err)) != PT_OK)
+        goto fail;
+    if (n > 0) /* last: it scales power[] in place */
+        build_alias(L->alias, power, scratch, n, total);
+    double p_punct = class_punct > 0.0 ? class_punct / all : 0.0;
+    if (class_punct > 0.0) {
+        L->npunct = scene->num_punctual;
+        L->punct_cdf[0] = 0.0;
+        for (uint32_t i = 0; i < L->npunct; i++) {
+            /* the tree's lights take no room in the class */
+            int in_tree = use_tree && scene->punctual[i].type != PT_PUNCTUAL_DIRECTIONAL;
+            L->punct_cdf[i + 1] = L->punct_cdf[i] + (in_tree ? 0.0 : punct_power[i]);
+        }
+        for (uint32_t i = 0; i < L->npunct; i++) {
+            L->punct_cdf[i + 1] /= class_punct;
+            L->punct_pmf[i] = (float)(p_punct * (L->punct_cdf[i + 1] - L->punct_cdf[i]));
+        }
         L->punct_cdf[L->npunct] = 1.0;
+    }
+    L->npunct_all = (class_punct > 0.0 || (use_tree && m > 0)) ? scene->num_punctual : 0;
     L->c_env = L->env ? L->p_tri + p_punct : 1.0;
     L->p_env = L->env ? (float)(env_power / all) : 0.0f;
     if (L->env && !(L->p_env > 0.0f)) {
@@ -453,7 +586,8 @@ others : {
 
     pt_free(scratch);
     pt_free(power);
-    pt_free(tex_mean);
+    pt_free(cand_power);
+    pt_free(punct_power);
     *out = L;
     return PT_OK;
 
@@ -462,7 +596,8 @@ nomem:
 fail:
     pt_free(scratch);
     pt_free(power);
-    pt_free(tex_mean);
+    pt_free(cand_power);
+    pt_free(punct_power);
     pt_lights_free(L);
     return st;
 }
@@ -474,9 +609,11 @@ void pt_lights_free(pt_lights *lights)
     pt_free(lights->lights_mem);
     pt_free(lights->tex_uv);
     pt_free(lights->alias);
+    pt_light_tree_free(lights->tree);
     pt_free(lights->tri_to_light);
     pt_free(lights->punct_cdf);
     pt_free(lights->punct_pmf);
+    pt_free(lights->tree_punct);
     pt_free(lights);
 }
 
@@ -487,7 +624,12 @@ uint32_t pt_lights_count(const pt_lights *lights)
 
 uint32_t pt_lights_punctual_count(const pt_lights *lights)
 {
-    return lights ? lights->npunct : 0;
+    return lights ? lights->npunct_all : 0;
+}
+
+int pt_lights_has_tree(const pt_lights *lights)
+{
+    return lights && lights->tree;
 }
 
 int pt_lights_has_env(const pt_lights *lights)
@@ -516,6 +658,8 @@ static int sample_env(const pt_lights *lights, const float u[3], pt_light_sample
     return s->pdf > 0.0f && isfinite(s->pdf);
 }
 
+static int eval_punctual(const pt_punctual *l, pt_vec3 p, float pmf, pt_light_sample *s);
+
 /* A sample of the punctual light that v (in [0,1)) picks, seen from p. */
 static int sample_punctual(const pt_lights *lights, pt_vec3 p, double v, pt_light_sample *s)
 {
@@ -527,8 +671,13 @@ static int sample_punctual(const pt_lights *lights, pt_vec3 p, double v, pt_ligh
         else
             lo = mid + 1;
     }
-    const pt_punctual *l = &lights->punct[lo];
-    s->pdf = lights->punct_pmf[lo];
+    return eval_punctual(&lights->punct[lo], p, lights->punct_pmf[lo], s);
+}
+
+/* A sample of punctual light l seen from p, chosen with probability pmf. */
+static int eval_punctual(const pt_punctual *l, pt_vec3 p, float pmf, pt_light_sample *s)
+{
+    s->pdf = pmf;
     if (!(s->pdf > 0.0f))
         return 0;
     if (l->type == PT_PUNCTUAL_DIRECTIONAL) {
@@ -612,11 +761,11 @@ static inline uint32_t pick_index(const pt_lights *lights, float u0)
     return r < c->prob ? col : c->alias;
 }
 
-static inline const light_entry *pick_point(const pt_lights *lights, const float u[3], pt_vec3 *pos,
-                                            float *b1_out, float *b2_out)
+/* The point of light le that (u1, u2) picks, and its barycentrics. */
+static inline const light_entry *point_on(const light_entry *le, float u1, float u2, pt_vec3 *pos,
+                                          float *b1_out, float *b2_out)
 {
-    const light_entry *le = &lights->lights[pick_index(lights, u[0])];
-
+    const float u[3] = {0.0f, u1, u2};
     /* Heitz 2019, sec. 3: the square is cut along its diagonal and each half
      * sheared onto the triangle; the Jacobian is constant, so the density is
      * uniform in area. */
@@ -633,12 +782,46 @@ static inline const light_entry *pick_point(const pt_lights *lights, const float
     return le;
 }
 
+static inline const light_entry *pick_point(const pt_lights *lights, const float u[3], pt_vec3 *pos,
+                                            float *b1_out, float *b2_out)
+{
+    return point_on(&lights->lights[pick_index(lights, u[0])], u[1], u[2], pos, b1_out, b2_out);
+}
+
+/* pmf / area of light le chosen by the tree with probability q within the
+ * triangles' class. */
+static inline float tree_pmf_area(const pt_lights *lights, const light_entry *le, double q)
+{
+    return (float)(q * lights->p_tri) / le->area;
+}
+
+/* The light and point u picks seen from p, through the tree when there is
+ * one; *pmf_area its probability / area, 0 when no light can be chosen. */
+static inline const light_entry *choose(const pt_lights *lights, pt_vec3 p, const float u[3],
+                                        pt_vec3 *pos, float *b1, float *b2, float *pmf_area)
+{
+    if (lights->tree) {
+        double q;
+        uint32_t k = pt_light_tree_sample(lights->tree, p, (double)u[0], &q);
+        if (k >= lights->count) { /* none, or a punctual light: not in the lanes */
+            *pmf_area = 0.0f;
+            return point_on(&lights->lights[0], u[1], u[2], pos, b1, b2);
+        }
+        const light_entry *le = point_on(&lights->lights[k], u[1], u[2], pos, b1, b2);
+        *pmf_area = tree_pmf_area(lights, le, q);
+        return le;
+    }
+    const light_entry *le = pick_point(lights, u, pos, b1, b2);
+    *pmf_area = le->pmf_area;
+    return le;
+}
+
 int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, const float u[3],
                      pt_light_sample *s)
 {
     memset(s, 0, sizeof *s);
     s->tri = UINT32_MAX;
-    if (!lights || (lights->count == 0 && lights->npunct == 0 && !lights->env))
+    if (!lights || (lights->count == 0 && lights->npunct == 0 && !lights->env && !lights->tree))
         return 0;
     float ut[3];
     if (lights->npunct > 0 || lights->env) {
@@ -657,8 +840,24 @@ int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, 
         u = ut;
     }
 
-    float b1, b2;
-    const light_entry *le = pick_point(lights, u, &s->position, &b1, &b2);
+    float b1, b2, pmf_area;
+    const light_entry *le;
+    if (lights->tree) {
+        double q;
+        uint32_t k = pt_light_tree_sample(lights->tree, p, (double)u[0], &q);
+        if (k == UINT32_MAX)
+            return 0;
+        if (k >= lights->count) /* a point or spot light */
+            return eval_punctual(&lights->punct[lights->tree_punct[k - lights->count]], p,
+                                 (float)(q * lights->p_tri), s);
+        le = point_on(&lights->lights[k], u[1], u[2], &s->position, &b1, &b2);
+        pmf_area = tree_pmf_area(lights, le, q);
+    } else {
+        le = pick_point(lights, u, &s->position, &b1, &b2);
+        pmf_area = le->pmf_area;
+    }
+    if (!(pmf_area > 0.0f))
+        return 0;
     s->tri = le->tri;
     s->normal = le->normal;
     pt_vec3 d = pt_v3_sub(s->position, p);
@@ -668,7 +867,7 @@ int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, 
         return 0;
     s->wi = pt_v3_scale(d, 1.0f / s->dist);
     const pt_material *m = &scene->materials[le->material];
-    s->pdf = solid_angle_pdf_d(le->pmf_area, m->double_sided, d, d2, s->dist, le->normal);
+    s->pdf = solid_angle_pdf_d(pmf_area, m->double_sided, d, d2, s->dist, le->normal);
     if (!(s->pdf > 0.0f))
         return 0;
     s->radiance = emission_at(lights, scene, le, b1, b2);
@@ -676,20 +875,22 @@ int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, 
 }
 
 void pt_lights_pick_n(const pt_lights *lights, const pt_scene *scene, uint32_t n, const float *pick,
-                      const float *point, size_t stride, pt_light_picks *out)
+                      const float *point, size_t stride, const float *const p[3],
+                      pt_light_picks *out)
 {
     for (uint32_t j = 0; j < n; j++) {
         const float u[3] = {pick[j * stride], point[j * stride], point[j * stride + 1]};
         pt_vec3 pos;
-        float b1, b2;
-        const light_entry *le = pick_point(lights, u, &pos, &b1, &b2);
+        float b1, b2, pmf_area;
+        const light_entry *le =
+            choose(lights, pt_v3(p[0][j], p[1][j], p[2][j]), u, &pos, &b1, &b2, &pmf_area);
         const pt_material *m = &scene->materials[le->material];
         /* The emission of every pick, also of those that the checks will
          * reject: without a branch on the checks, which the lanes make. */
         pt_vec3 e = emission_at(lights, scene, le, b1, b2);
         PT_LANE_PUT3(out->pos, j, pos);
         PT_LANE_PUT3(out->normal, j, le->normal);
-        out->pmf_area[j] = le->pmf_area;
+        out->pmf_area[j] = pmf_area;
         out->two_sided[j] = m->double_sided ? -1 : 0;
         PT_LANE_PUT3(out->radiance, j, e);
     }
@@ -713,7 +914,7 @@ PT_SIMD_CLONES
 void pt_lights_sample_n(const pt_lights *lights, const pt_scene *scene, uint32_t n,
                         const pt_vec3 *p, const float (*u)[3], pt_light_sample *s, int *ok)
 {
-    if (!lights || lights->count == 0) {
+    if (!lights || lights->count == 0 || lights->tree) {
         for (uint32_t i = 0; i < n; i++)
             ok[i] = pt_lights_sample(lights, scene, p[i], u[i], &s[i]);
         return;
@@ -806,5 +1007,8 @@ float pt_lights_pdf(const pt_lights *lights, const pt_scene *scene, uint32_t tri
         return 0.0f;
     const light_entry *le = &lights->lights[k];
     const pt_material *m = &scene->materials[le->material];
-    return solid_angle_pdf(le->pmf_area, m->double_sided, p, hit, n_light);
+    float pmf_area = le->pmf_area;
+    if (lights->tree)
+        pmf_area = tree_pmf_area(lights, le, pt_light_tree_pmf(lights->tree, p, k));
+    return solid_angle_pdf(pmf_area, m->double_sided, p, hit, n_light);
 }

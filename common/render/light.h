@@ -2,11 +2,19 @@
  * light.h - the lights of next-event estimation: emissive triangles and
  * punctual lights (scene.h, pt_punctual), and the environment (env.h).
  *
- * Every triangle whose material emits (emissive factor > 0) becomes a light.
- * Lights are chosen in proportion to power (area x luminance of the emission,
- * with the emissive texture's mean luminance when it has one) through an alias
- * table (Walker 1977 / Vose 1991), then a point is sampled uniformly by area and
- * the pdf converted to solid angle: pdf_w = pdf_A * d^2 / |cos theta_light|.
+ * Every triangle whose material emits (emissive factor > 0 and, with an
+ * emissive texture, some non-black texel under its UV footprint) becomes a
+ * light. Lights are chosen in proportion to power (area x luminance of the
+ * emission, with the emissive texture's mean over the triangle's footprint)
+ * through an alias table (Walker 1977 / Vose 1991), or, from
+ * PT_LIGHT_TREE_MIN lights on (triangles, point and spot lights together), by
+ * a light tree (light_tree.h) in proportion to an estimate of what each gives
+ * the shading point (power, distance and orientation bounds); then a point is
+ * sampled uniformly by area and the pdf converted to solid angle:
+ * pdf_w = pdf_A * d^2 / |cos theta_light|. pt_lights_pdf gives the same
+ * number for a BSDF ray that hits the light (the tree's pmf recomputed for it).
+ * With fewer lights the tree is not built and every sample keeps the bits of
+ * the alias table.
  * Single-sided emitters emit on the side of their geometric normal (counter-
  * clockwise winding); double-sided ones on both sides.
  *
@@ -14,7 +22,9 @@
  * the class (triangles, punctual lights, environment) by the classes' total
  * power, then the light within it by its own power (the environment: a
  * direction by its map's distribution, env.h), so each light is chosen in
- * proportion to its estimated power (light.c says how it is estimated). A
+ * proportion to its estimated power (light.c says how it is estimated).
+ * With a tree, the first class is the tree's (triangles, point and spot
+ * lights) and the punctual class keeps the directional lights. A
  * punctual sample is a delta: its pdf is the probability of choosing it, and
  * BSDF sampling never finds it, so it takes no MIS weight; an environment
  * sample is weighed by MIS like a triangle's. A scene with triangles alone
@@ -35,6 +45,13 @@ typedef struct pt_lights pt_lights;
 enum { PT_LIGHT_AREA = 0, PT_LIGHT_AT = 1, PT_LIGHT_FAR = 2, PT_LIGHT_ENV = 3 };
 
 typedef struct pt_env pt_env; /* common/render/env.h */
+
+/* How the triangles' class chooses a triangle: PT_LIGHT_SELECT_AUTO, the
+ * light tree from PT_LIGHT_TREE_MIN triangles on (with fewer it costs more
+ * than it saves, and the samples keep the bits of the alias table);
+ * _POWER, the alias table by power always; _TREE, the tree from 2 on. */
+enum { PT_LIGHT_SELECT_AUTO = 0, PT_LIGHT_SELECT_POWER = 1, PT_LIGHT_SELECT_TREE = 2 };
+#define PT_LIGHT_TREE_MIN 16u
 
 typedef struct pt_light_sample {
     pt_vec3 position; /* on the light */
@@ -59,7 +76,12 @@ pt_status pt_lights_new(const pt_scene *scene, pt_lights **out, pt_error *err);
  * BSDF sampling, PT_ENV_FULL when it runs alone); it must outlive the set. */
 pt_status pt_lights_new_env(const pt_scene *scene, const pt_env *env, int env_dist, pt_lights **out,
                             pt_error *err);
+/* The same choosing among triangles as select (PT_LIGHT_SELECT_*) says. */
+pt_status pt_lights_new_select(const pt_scene *scene, const pt_env *env, int env_dist,
+                               uint32_t select, pt_lights **out, pt_error *err);
 void pt_lights_free(pt_lights *lights); /* accepts NULL */
+/* 1 when a light tree chooses the triangle. */
+int pt_lights_has_tree(const pt_lights *lights);
 
 /* Emissive triangles that can be chosen / punctual lights. */
 uint32_t pt_lights_count(const pt_lights *lights);

@@ -122,6 +122,7 @@ void pt_render_params_default(pt_render_params *p)
     p->passes = 0;
     p->clamp_direct = 0.0f;
     p->clamp_indirect = 0.0f;
+    p->light_select = PT_LIGHT_SELECT_AUTO;
 }
 
 const pt_render_params *pt_renderer_params(const pt_renderer *r)
@@ -2103,9 +2104,11 @@ trace_batch(const pt_renderer *r, path *paths, uint32_t n, stage_lanes *sl, cons
                 PT_LANE_PUT3(sl->diffuse, j, b.diffuse);
             }
             int nee = (features & PT_FEAT_EMITTERS) && r->nee;
-            if (nee)
+            if (nee) {
+                const float *const sp[3] = {sl->p[0], sl->p[1], sl->p[2]};
                 pt_lights_pick_n(r->lights, r->scene, nh, &u[0][OFF_LIGHT_PICK],
-                                 &u[0][OFF_LIGHT_POINT], DIM_PER_BOUNCE, &sl->lights);
+                                 &u[0][OFF_LIGHT_POINT], DIM_PER_BOUNCE, sp, &sl->lights);
+            }
             for (uint32_t j0 = 0; j0 < nh; j0 += 8)
                 shade_lanes(r, paths, live, j0, nh - j0 < 8 ? nh - j0 : 8, sl,
                             (const float(*)[DIM_PER_BOUNCE])u, nee, sr, &flags[j0]);
@@ -2369,9 +2372,9 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
     r->tan_half_fov = tanf(0.5f * r->camera.yfov);
     if ((st = pt_accel_new(scene, &r->accel, err)) != PT_OK)
         goto fail;
-    if ((st = pt_lights_new_env(scene, params->env,
-                                params->light_strategy == PT_LIGHT_MIS ? PT_ENV_MIS : PT_ENV_FULL,
-                                &r->lights, err)) != PT_OK)
+    if ((st = pt_lights_new_select(
+             scene, params->env, params->light_strategy == PT_LIGHT_MIS ? PT_ENV_MIS : PT_ENV_FULL,
+             params->light_select, &r->lights, err)) != PT_OK)
         goto fail;
     r->offset = pt_accel_offset(r->accel);
     if (scene->num_materials > 0) {

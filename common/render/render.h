@@ -229,10 +229,14 @@ typedef struct pt_render_params {
      * the first surface the camera sees; indirect: after more bounces.
      * Either non-zero picks the clamped variant (or the guided one). */
     float clamp_direct, clamp_indirect;
-    uint32_t passes; /* PT_PASS_* (tile.h): render passes; non-zero picks the
-                        passes variant (the general one that also records them,
-                        pt_render_tile_passes); the beauty keeps its bits;
-                        default 0 */
+    uint32_t passes;       /* PT_PASS_* (tile.h): render passes; non-zero picks the
+                              passes variant (the general one that also records them,
+                              pt_render_tile_passes); the beauty keeps its bits;
+                              default 0 */
+    uint32_t light_select; /* PT_LIGHT_SELECT_* (light.h): how NEE chooses among the
+                              emissive triangles; for tests and benchmarks; default
+                              PT_LIGHT_SELECT_AUTO (0: the light tree from
+                              PT_LIGHT_TREE_MIN of them on) */
 } pt_render_params;
 
 typedef struct pt_render_stats {

@@ -71,6 +71,7 @@
 #include "common/render/adaptive.h"
 #include "common/render/env.h"
 #include "common/render/film.h"
+#include "common/render/light.h"
 #include "common/render/render.h"
 #include "common/scene/scene.h"
 #include "tests/bench/plot.h"
@@ -320,6 +321,8 @@ static void usage(FILE *f)
                "  --env PATH          environment map, as ptworker's (--env-strength S,\n"
                "                      --env-rotate DEG)\n"
                "  --reps R            repetitions; the median time is reported (default 1)\n"
+               "  --light-select M    how NEE chooses an emissive triangle: auto (default: the\n"
+               "                      light tree from 16 of them on), power or tree\n"
                "  --label NAME        series name in CSV and plot (default: the scene's name)\n"
                "  --csv OUT.csv       write the table\n"
                "  --plot OUT.png      log-log plot of RMSE against seconds\n"
@@ -586,6 +589,7 @@ typedef struct opts {
     int threads;
     const char *env_path; /* --env, as ptworker's */
     double env_strength, env_rotate;
+    uint32_t light_select; /* PT_LIGHT_SELECT_* */
 } opts;
 
 static int parse_opts(int argc, char **argv, opts *o)
@@ -656,6 +660,12 @@ static int parse_opts(int argc, char **argv, opts *o)
             bad = pt_opt_double(a, v, 0.0, 1e20, &o->env_strength, NULL) != PT_OK;
         } else if (!strcmp(a, "--env-rotate")) {
             bad = pt_opt_double(a, v, -1e6, 1e6, &o->env_rotate, NULL) != PT_OK;
+        } else if (!strcmp(a, "--light-select")) {
+            o->light_select = !strcmp(v, "auto")    ? PT_LIGHT_SELECT_AUTO
+                              : !strcmp(v, "power") ? PT_LIGHT_SELECT_POWER
+                              : !strcmp(v, "tree")  ? PT_LIGHT_SELECT_TREE
+                                                    : UINT32_MAX;
+            bad = o->light_select == UINT32_MAX;
         } else if (!strcmp(a, "--label")) {
             o->label = v;
         } else if (!strcmp(a, "--csv")) {
@@ -924,6 +934,7 @@ static int cmd_bench(int argc, char **argv)
     p.height = o.h;
     p.seed = o.seed;
     p.max_depth = o.max_depth;
+    p.light_select = o.light_select;
     if (o.env_path) {
         if (pt_env_load(o.env_path, (float)o.env_strength, (float)o.env_rotate, &env, &err) !=
             PT_OK) {

@@ -6,7 +6,9 @@
  * point is uniform in area, the sampled directions follow the solid-angle pdf
  * the module reports (integrated numerically over (cos theta, phi) bins), and
  * that pdf integrates to the visible share of the power (Monte Carlo, within
- * 4 standard errors). Then the contract's edges: pt_lights_pdf equals the
+ * 4 standard errors). A textured emitter's power is its texture's mean over
+ * its own UV footprint: a triangle over black texels is no light. Then the
+ * contract's edges: pt_lights_pdf equals the
  * sample's pdf, back faces of single-sided emitters, scenes without emitters,
  * bad input and allocation failure.
  *
@@ -296,7 +298,11 @@ static void build_main(tscene *t)
     t->s.num_textures = 1;
 }
 
-#define MAIN_TEX_MEAN 0.25
+/* Triangle 2's emission over its UV footprint: UVs (0,0), (1,0), (0,1) are
+ * texel coordinates (-0.5,-0.5), (1.5,-0.5), (-0.5,1.5), which cover the
+ * centres of texels (0,0) (white), (1,0) and (0,1) (black, on the edge x +
+ * y = 1): a mean of 1/3, where the whole texture's is 1/4. */
+#define MAIN_TEX_MEAN (1.0 / 3.0)
 #define MAIN_NUM_LIGHTS 5
 
 /* ---- the choice of triangle ------------------------------------------------------------ */
@@ -366,7 +372,9 @@ static void test_choice_many(void)
     }
     expected_pmf(&t.s, 1.0, pmf);
     pt_lights *L = NULL;
-    CHECK(pt_lights_new(&t.s, &L, NULL) == PT_OK);
+    /* By power: from PT_LIGHT_TREE_MIN lights on the default is the light
+     * tree (test_light_tree.c). */
+    CHECK(pt_lights_new_select(&t.s, NULL, 0, PT_LIGHT_SELECT_POWER, &L, NULL) == PT_OK);
     if (!L)
         return;
     const int n = 200000;
@@ -971,8 +979,48 @@ static void test_no_emitters_and_errors(void)
     CHECK(pt_alloc_live() == live);
 }
 
+/* Two triangles under one emissive texture whose only white texel is (0,0):
+ * one maps into that texel, the other into the black texel (1,1). Chosen by
+ * their footprints, only the first is a light; by the texture's mean both
+ * would be, equally. */
+static void test_footprint(void)
+{
+    static tscene t;
+    build_main(&t);
+    t.s.num_triangles = 0;
+    t.s.num_vertices = 0;
+    uint32_t m2 = 2; /* white x the texture */
+    const float uv[2][3][2] = {{{0.05f, 0.05f}, {0.45f, 0.05f}, {0.05f, 0.45f}},
+                               {{0.55f, 0.55f}, {0.95f, 0.55f}, {0.55f, 0.95f}}};
+    for (int k = 0; k < 2; k++) {
+        float x = 2.0f * (float)k;
+        uint32_t tri =
+            ts_tri(&t, pt_v3(x, 0, 1), pt_v3(x + 1, 0, 1), pt_v3(x, 1, 1), m2, pt_v3(0, 0, 0));
+        for (int c = 0; c < 3; c++) {
+            uint32_t v = t.idx[3 * tri + c];
+            /* the vertex's corner of the UV triangle, by its position */
+            float px = t.pos[3 * v] - x, py = t.pos[3 * v + 1];
+            int corner = px > 0.5f ? 1 : py > 0.5f ? 2 : 0;
+            t.uv[2 * v] = uv[k][corner][0];
+            t.uv[2 * v + 1] = uv[k][corner][1];
+        }
+    }
+    pt_lights *L = NULL;
+    CHECK(pt_lights_new(&t.s, &L, NULL) == PT_OK);
+    if (!L)
+        return;
+    CHECKF(pt_lights_count(L) == 1, "%u lights, expected the one over the white texel",
+           pt_lights_count(L));
+    CHECK(pt_lights_pdf(L, &t.s, 1, pt_v3(2.2f, 0.2f, 0), pt_v3(2.2f, 0.2f, 1), pt_v3(0, 0, -1)) ==
+          0.0f);
+    CHECK(pt_lights_pdf(L, &t.s, 0, pt_v3(0.2f, 0.2f, 0), pt_v3(0.2f, 0.2f, 1), pt_v3(0, 0, -1)) >
+          0.0f);
+    pt_lights_free(L);
+}
+
 int main(void)
 {
+    test_footprint();
     test_choice();
     test_choice_many();
     test_area_uniform();

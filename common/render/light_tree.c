@@ -1,0 +1,563 @@
+/*
+ * light_tree.c - the light hierarchy of light_tree.h: build (binned SAOH),
+ * importance, sampling and the pmf of a given light.
+ *
+ * Orientation bounds: a cone (axis, half-angle theta_o) holds every emitting
+ * normal of a node; emission reaches theta_e = pi/2 beyond it. Two cones are
+ * merged into the smallest cone around both found by rotating the wider one's
+ * axis towards the other (the construction of Conty & Kulla 2018, sec. 4.1).
+ * The cost of a cluster (their eq. 1-2) is power x surface area x M_Omega,
+ * M_Omega = 2 pi (1 - cos theta_o)
+ *         + pi/2 (2 theta_w sin theta_o - cos(theta_o - 2 theta_w)
+ *                 - 2 theta_o sin theta_o + cos theta_o),
+ * theta_w = min(theta_o + theta_e, pi), the measure of directions the cluster
+ * emits into weighted by cosine; a split's cost is the two sides' sum times
+ * K_r = (longest extent of the node) / (extent along the split axis), which
+ * keeps clusters from growing thin.
+ */
+#include "common/render/light_tree.h"
+
+#include <math.h>
+#include <string.h>
+
+#include "common/base/alloc.h"
+
+#define BUCKETS 12
+/* From this depth on a node is split in half by count: the leaves below it
+ * are then at most log2(PT_LIGHT_TREE_MAX) = 26 deeper, within the 64
+ * branch bits. */
+#define FORCE_MEDIAN_DEPTH 36u
+#define PI_D 3.14159265358979323846
+
+/* A node whose normals lie within acos(COARSE_COS) of its axis and whose
+ * bounding sphere is seen from p under less than asin(1 / COARSE_RATIO) is
+ * "coarse" there: its lights would all get about the same importance per
+ * unit of power, so the walk stops and chooses among them by power (a
+ * binary search of the cumulative power over the leaves' order, where each
+ * subtree's lights are contiguous). On a smooth emitter of thousands of
+ * triangles this ends the walk many levels early. */
+#define COARSE_COS 0.9f
+#define COARSE_RATIO 8.0f
+
+/* One node, 64 bytes. The children of an inner node are a pair, `next` and
+ * `next` + 1, so that the walk, which reads both, reads two adjacent cache
+ * lines. The box is kept as its centre and the sphere around it (radius r):
+ * a point inside the box is inside the sphere. */
+typedef struct lt_node {
+    float center[3];
+    float axis[3];
+    float cos_o, sin_o;
+    float power;
+    float r;        /* half its diagonal */
+    uint32_t next;  /* inner: the left child (the right one follows); leaf: the light */
+    uint32_t flags; /* LT_LEAF, LT_TWO_SIDED */
+    uint32_t first; /* its lights: order[first .. first + count) */
+    uint32_t count;
+    uint32_t pad[2];
+} lt_node;
+_Static_assert(sizeof(lt_node) == 64, "a node is one cache line");
+enum { LT_LEAF = 1, LT_TWO_SIDED = 2 };
+
+struct pt_light_tree {
+    uint32_t n, nodes_used, depth;
+    lt_node *nodes; /* 2n - 1, 64-byte aligned in nodes_mem */
+    void *nodes_mem;
+    uint64_t *bits;  /* per light: its branch bits, root's first (1 = right) */
+    uint8_t *levels; /* per light: its leaf's depth */
+    uint32_t *order; /* the lights in leaf order */
+    uint32_t *rank;  /* per light: its place in order */
+    double *cdf;     /* n + 1: cumulative power over order */
+    uint32_t ranked; /* while building */
+};
+
+/* A cluster while building: box, cone (in double), power. */
+typedef struct cluster {
+    double lo[3], hi[3];
+    double axis[3];
+    double theta_o; /* half-angle, [0, pi]; negative: empty cone */
+    double power;
+    int two_sided;
+} cluster;
+
+static void cluster_empty(cluster *c)
+{
+    for (int i = 0; i < 3; i++) {
+        c->lo[i] = INFINITY;
+        c->hi[i] = -INFINITY;
+        c->axis[i] = 0.0;
+    }
+    c->axis[2] = 1.0;
+    c->theta_o = -1.0;
+    c->power = 0.0;
+    c->two_sided = 0;
+}
+
+static double dot3(const double a[3], const double b[3])
+{
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+}
+
+/* The smallest cone (by this construction) holding cones a and b, into a. */
+static void cone_union(double a_axis[3], double *a_theta, const double b_axis[3], double b_theta)
+{
+    if (b_theta < 0.0)
+        return;
+    if (*a_theta < 0.0) {
+        memcpy(a_axis, b_axis, 3 * sizeof *a_axis);
+        *a_theta = b_theta;
+        return;
+    }
+    double wa[3], wb[3], ta, tb;
+    if (b_theta > *a_theta) { /* wa: the wider */
+        memcpy(wa, b_axis, sizeof wa);
+        memcpy(wb, a_axis, sizeof wb);
+        ta = b_theta;
+        tb = *a_theta;
+    } else {
+        memcpy(wa, a_axis, sizeof wa);
+        memcpy(wb, b_axis, sizeof wb);
+        ta = *a_theta;
+        tb = b_theta;
+    }
+    double c = dot3(wa, wb);
+    double td = acos(c < -1.0 ? -1.0 : c > 1.0 ? 1.0 : c);
+    if (fmin(td + tb, PI_D) <= ta) {
+        memcpy(a_axis, wa, sizeof wa);
+        *a_theta = ta;
+        return;
+    }
+    double to = 0.5 * (ta + td + tb);
+    /* k x wa with k = wa x wb / |wa x wb|: (wb - wa cos td) / sin td, the
+     * direction in the plane of both axes towards wb. */
+    double t[3] = {wb[0] - wa[0] * c, wb[1] - wa[1] * c, wb[2] - wa[2] * c};
+    double tl = sqrt(dot3(t, t));
+    if (to >= PI_D || !(tl > 1e-12)) { /* all around, or opposite axes */
+        memcpy(a_axis, wa, sizeof wa);
+        *a_theta = PI_D;
+        return;
+    }
+    double rot = to - ta, cr = cos(rot), sr = sin(rot);
+    double ax[3];
+    for (int i = 0; i < 3; i++)
+        ax[i] = wa[i] * cr + t[i] / tl * sr;
+    double al = sqrt(dot3(ax, ax));
+    for (int i = 0; i < 3; i++)
+        a_axis[i] = ax[i] / al;
+    *a_theta = to;
+}
+
+static void cluster_add(cluster *c, const cluster *o)
+{
+    for (int i = 0; i < 3; i++) {
+        c->lo[i] = fmin(c->lo[i], o->lo[i]);
+        c->hi[i] = fmax(c->hi[i], o->hi[i]);
+    }
+    cone_union(c->axis, &c->theta_o, o->axis, o->theta_o);
+    c->power += o->power;
+    c->two_sided |= o->two_sided;
+}
+
+static void cluster_of(const pt_light_tree_item *it, cluster *c)
+{
+    c->lo[0] = it->lo.x;
+    c->lo[1] = it->lo.y;
+    c->lo[2] = it->lo.z;
+    c->hi[0] = it->hi.x;
+    c->hi[1] = it->hi.y;
+    c->hi[2] = it->hi.z;
+    c->axis[0] = it->axis.x;
+    c->axis[1] = it->axis.y;
+    c->axis[2] = it->axis.z;
+    double co = it->cos_o < -1.0f ? -1.0 : it->cos_o > 1.0f ? 1.0 : (double)it->cos_o;
+    c->theta_o = acos(co);
+    c->power = it->power;
+    c->two_sided = it->two_sided != 0;
+}
+
+/* M_Omega of the top of the file. */
+static double orientation_measure(double theta_o)
+{
+    if (theta_o < 0.0)
+        return 0.0;
+    double tw = fmin(theta_o + 0.5 * PI_D, PI_D), so = sin(theta_o), co = cos(theta_o);
+    return 2.0 * PI_D * (1.0 - co) +
+           0.5 * PI_D * (2.0 * tw * so - cos(theta_o - 2.0 * tw) - 2.0 * theta_o * so + co);
+}
+
+static double surface_area(const cluster *c)
+{
+    double e[3];
+    for (int i = 0; i < 3; i++)
+        e[i] = c->hi[i] > c->lo[i] ? c->hi[i] - c->lo[i] : 0.0;
+    return 2.0 * (e[0] * e[1] + e[1] * e[2] + e[2] * e[0]);
+}
+
+static double cluster_cost(const cluster *c)
+{
+    if (c->power <= 0.0)
+        return 0.0;
+    return c->power * orientation_measure(c->theta_o) * surface_area(c);
+}
+
+typedef struct builder {
+    const pt_light_tree_item *items;
+    const cluster *leaf; /* per item */
+    double (*centroid)[3];
+    uint32_t *perm, *tmp;
+    pt_light_tree *t;
+} builder;
+
+static void node_store(lt_node *nd, const cluster *c)
+{
+    double d2 = 0.0;
+    for (int i = 0; i < 3; i++) {
+        nd->center[i] = (float)(0.5 * (c->lo[i] + c->hi[i]));
+        nd->axis[i] = (float)c->axis[i];
+        double e = c->hi[i] - c->lo[i];
+        d2 += e * e;
+    }
+    nd->cos_o = (float)cos(c->theta_o);
+    nd->sin_o = (float)sin(c->theta_o);
+    if (c->theta_o >= PI_D) {
+        nd->cos_o = -1.0f;
+        nd->sin_o = 0.0f;
+    }
+    nd->power = (float)c->power;
+    nd->r = (float)(0.5 * sqrt(d2));
+    nd->flags = c->two_sided ? LT_TWO_SIDED : 0;
+}
+
+/* Splits perm[b..e) (e - b >= 2) into [b, mid) and [mid, e), stably. */
+static uint32_t split(builder *B, uint32_t b, uint32_t e, const cluster *node, uint32_t depth)
+{
+    uint32_t n = e - b;
+    double clo[3] = {INFINITY, INFINITY, INFINITY}, chi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (uint32_t i = b; i < e; i++) {
+        const double *c = B->centroid[B->perm[i]];
+        for (int a = 0; a < 3; a++) {
+            clo[a] = fmin(clo[a], c[a]);
+            chi[a] = fmax(chi[a], c[a]);
+        }
+    }
+    double ext[3], emax = 0.0;
+    for (int a = 0; a < 3; a++) {
+        ext[a] = node->hi[a] - node->lo[a];
+        emax = fmax(emax, ext[a]);
+    }
+    int best_axis = -1, best_split = 0;
+    double best_cost = INFINITY;
+    for (int a = 0; a < 3 && depth < FORCE_MEDIAN_DEPTH; a++) {
+        double cext = chi[a] - clo[a];
+        if (!(cext > 0.0))
+            continue;
+        cluster bk[BUCKETS];
+        for (int k = 0; k < BUCKETS; k++)
+            cluster_empty(&bk[k]);
+        for (uint32_t i = b; i < e; i++) {
+            uint32_t l = B->perm[i];
+            int k = (int)((double)BUCKETS * (B->centroid[l][a] - clo[a]) / cext);
+            k = k < 0 ? 0 : k >= BUCKETS ? BUCKETS - 1 : k;
+            cluster_add(&bk[k], &B->leaf[l]);
+        }
+        double kr = ext[a] > 0.0 ? emax / ext[a] : 1.0;
+        /* The costs of buckets [s, BUCKETS) by one sweep from the right,
+         * then of [0, s) from the left. */
+        double rcost[BUCKETS], rpower[BUCKETS];
+        cluster acc;
+        cluster_empty(&acc);
+        for (int k = BUCKETS - 1; k >= 1; k--) {
+            cluster_add(&acc, &bk[k]);
+            rcost[k] = cluster_cost(&acc);
+            rpower[k] = acc.power;
+        }
+        cluster_empty(&acc);
+        for (int s = 1; s < BUCKETS; s++) {
+            cluster_add(&acc, &bk[s - 1]);
+            if (acc.power <= 0.0 || rpower[s] <= 0.0)
+                continue;
+            double cost = kr * (cluster_cost(&acc) + rcost[s]);
+            if (cost < best_cost) {
+                best_cost = cost;
+                best_axis = a;
+                best_split = s;
+            }
+        }
+    }
+    uint32_t mid = b;
+    if (best_axis >= 0) {
+        double cext = chi[best_axis] - clo[best_axis];
+        uint32_t nl = 0, nr = 0;
+        for (uint32_t i = b; i < e; i++) {
+            uint32_t l = B->perm[i];
+            int k = (int)((double)BUCKETS * (B->centroid[l][best_axis] - clo[best_axis]) / cext);
+            k = k < 0 ? 0 : k >= BUCKETS ? BUCKETS - 1 : k;
+            if (k < best_split)
+                B->perm[b + nl++] = l;
+            else
+                B->tmp[nr++] = l;
+        }
+        memcpy(&B->perm[b + nl], B->tmp, nr * sizeof *B->tmp);
+        mid = b + nl;
+    }
+    if (mid == b || mid == e)
+        mid = b + n / 2; /* no useful split (equal centroids, or deep): by count */
+    return mid;
+}
+
+/* Node id over perm[b..e), its children allocated as a pair. */
+static void build(builder *B, uint32_t id, uint32_t b, uint32_t e, uint32_t depth, uint64_t bits)
+{
+    pt_light_tree *t = B->t;
+    cluster c;
+    cluster_empty(&c);
+    for (uint32_t i = b; i < e; i++)
+        cluster_add(&c, &B->leaf[B->perm[i]]);
+    node_store(&t->nodes[id], &c);
+    t->nodes[id].pad[0] = t->nodes[id].pad[1] = 0;
+    t->nodes[id].first = t->ranked;
+    t->nodes[id].count = e - b;
+    if (depth > t->depth)
+        t->depth = depth;
+    if (e - b == 1) {
+        uint32_t l = B->perm[b];
+        t->nodes[id].flags |= LT_LEAF;
+        t->nodes[id].next = l;
+        t->bits[l] = bits;
+        t->levels[l] = (uint8_t)depth;
+        t->rank[l] = t->ranked;
+        t->order[t->ranked++] = l;
+        return;
+    }
+    uint32_t mid = split(B, b, e, &c, depth);
+    uint32_t pair = t->nodes_used;
+    t->nodes_used += 2;
+    t->nodes[id].next = pair;
+    build(B, pair, b, mid, depth + 1, bits);
+    build(B, pair + 1, mid, e, depth + 1, bits | (uint64_t)1 << depth);
+}
+
+static int item_ok(const pt_light_tree_item *it)
+{
+    const float f[] = {it->lo.x, it->lo.y,   it->lo.z,   it->hi.x,   it->hi.y,
+                       it->hi.z, it->axis.x, it->axis.y, it->axis.z, it->cos_o};
+    for (size_t i = 0; i < sizeof f / sizeof f[0]; i++)
+        if (!isfinite(f[i]))
+            return 0;
+    return it->power > 0.0f && isfinite(it->power) && it->lo.x <= it->hi.x &&
+           it->lo.y <= it->hi.y && it->lo.z <= it->hi.z;
+}
+
+pt_status pt_light_tree_new(const pt_light_tree_item *items, uint32_t n, pt_light_tree **out,
+                            pt_error *err)
+{
+    if (!items || !out || n < 2 || n > PT_LIGHT_TREE_MAX)
+        return pt_error_set(err, PT_ERR_ARG, "light tree: %u lights (2 to %u)", n,
+                            PT_LIGHT_TREE_MAX);
+    for (uint32_t i = 0; i < n; i++)
+        if (!item_ok(&items[i]))
+            return pt_error_set(err, PT_ERR_ARG,
+                                "light tree: light %u has no finite bounds, "
+                                "cone or positive power",
+                                i);
+    builder B = {0};
+    pt_light_tree *t = pt_calloc(1, sizeof *t);
+    cluster *leaf = NULL;
+    if (!t)
+        goto nomem;
+    t->n = n;
+    /* one spare node's room to align the array to a cache line */
+    t->nodes_mem = pt_malloc_array(2 * (size_t)n, sizeof *t->nodes);
+    if (t->nodes_mem)
+        t->nodes = (lt_node *)(((uintptr_t)t->nodes_mem + 63) & ~(uintptr_t)63);
+    t->bits = pt_malloc_array(n, sizeof *t->bits);
+    t->levels = pt_malloc_array(n, sizeof *t->levels);
+    t->order = pt_malloc_array(n, sizeof *t->order);
+    t->rank = pt_malloc_array(n, sizeof *t->rank);
+    t->cdf = pt_malloc_array((size_t)n + 1, sizeof *t->cdf);
+    leaf = pt_malloc_array(n, sizeof *leaf);
+    B.centroid = pt_malloc_array(n, sizeof *B.centroid);
+    B.perm = pt_malloc_array(n, sizeof *B.perm);
+    B.tmp = pt_malloc_array(n, sizeof *B.tmp);
+    if (!t->nodes || !t->bits || !t->levels || !t->order || !t->rank || !t->cdf || !leaf ||
+        !B.centroid || !B.perm || !B.tmp)
+        goto nomem;
+    for (uint32_t i = 0; i < n; i++) {
+        cluster_of(&items[i], &leaf[i]);
+        for (int a = 0; a < 3; a++)
+            B.centroid[i][a] = 0.5 * (leaf[i].lo[a] + leaf[i].hi[a]);
+        B.perm[i] = i;
+    }
+    B.items = items;
+    B.leaf = leaf;
+    B.t = t;
+    t->nodes_used = 1;
+    build(&B, 0, 0, n, 0, 0);
+    t->cdf[0] = 0.0;
+    for (uint32_t i = 0; i < n; i++)
+        t->cdf[i + 1] = t->cdf[i] + (double)items[t->order[i]].power;
+    pt_free(B.tmp);
+    pt_free(B.perm);
+    pt_free(B.centroid);
+    pt_free(leaf);
+    *out = t;
+    return PT_OK;
+nomem:
+    pt_free(B.tmp);
+    pt_free(B.perm);
+    pt_free(B.centroid);
+    pt_free(leaf);
+    pt_light_tree_free(t);
+    return pt_error_set(err, PT_ERR_NOMEM, "light tree: out of memory for %u lights", n);
+}
+
+void pt_light_tree_free(pt_light_tree *tree)
+{
+    if (!tree)
+        return;
+    pt_free(tree->nodes_mem);
+    pt_free(tree->bits);
+    pt_free(tree->levels);
+    pt_free(tree->order);
+    pt_free(tree->rank);
+    pt_free(tree->cdf);
+    pt_free(tree);
+}
+
+uint32_t pt_light_tree_nodes(const pt_light_tree *tree)
+{
+    return tree ? tree->nodes_used : 0;
+}
+
+uint32_t pt_light_tree_depth(const pt_light_tree *tree)
+{
+    return tree ? tree->depth : 0;
+}
+
+/* The node's importance seen from p (the top of light_tree.h). Angles are
+ * subtracted through their cosines and sines: cos(a - b) = cos a cos b +
+ * sin a sin b, clamped to 1 where a <= b. Inside the node's bounding sphere
+ * every direction is possible (theta' = 0) and the distance is the
+ * sphere's radius. Comparisons, not fminf/fmaxf: those are library calls
+ * without -ffinite-math-only. */
+static inline float importance(const lt_node *nd, pt_vec3 p)
+{
+    float d[3] = {p.x - nd->center[0], p.y - nd->center[1], p.z - nd->center[2]};
+    float d2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+    float r2 = nd->r * nd->r;
+    if (!(d2 > r2)) /* inside the sphere (or NaN): every direction, distance r */
+        return r2 > 0.0f && nd->power / r2 < 3.4e38f ? nd->power / r2 : 0.0f;
+    float inv = 1.0f / sqrtf(d2), cos_p = 1.0f;
+    /* theta_w: between the cone's axis and the direction to p */
+    float cos_w = (nd->axis[0] * d[0] + nd->axis[1] * d[1] + nd->axis[2] * d[2]) * inv;
+    if (nd->flags & LT_TWO_SIDED)
+        cos_w = fabsf(cos_w);
+    cos_w = cos_w > 1.0f ? 1.0f : cos_w < -1.0f ? -1.0f : cos_w;
+    /* theta_x = max(0, theta_w - theta_o) */
+    if (cos_w < nd->cos_o) {
+        float sin_w = sqrtf(1.0f - cos_w * cos_w);
+        float cos_x = cos_w * nd->cos_o + sin_w * nd->sin_o;
+        float sin_x = sin_w * nd->cos_o - cos_w * nd->sin_o;
+        /* theta' = max(0, theta_x - theta_b), sin theta_b = r / d */
+        float sin_b = nd->r * inv;
+        float cos_b = sqrtf(1.0f - sin_b * sin_b);
+        if (cos_x < cos_b)
+            cos_p = cos_x * cos_b + sin_x * sin_b;
+        if (!(cos_p > 0.0f)) /* theta' >= theta_e = pi/2 */
+            return 0.0f;
+    }
+    float imp = nd->power * cos_p * (inv * inv);
+    return imp < 3.4e38f ? imp : 0.0f; /* not finite: 0 */
+}
+
+/* Whether the walk stops at node nd seen from p (COARSE_COS above). */
+static inline int coarse(const lt_node *nd, pt_vec3 p)
+{
+    if (nd->cos_o < COARSE_COS)
+        return 0;
+    float d[3] = {p.x - nd->center[0], p.y - nd->center[1], p.z - nd->center[2]};
+    float rr = COARSE_RATIO * nd->r;
+    return d[0] * d[0] + d[1] * d[1] + d[2] * d[2] > rr * rr;
+}
+
+/* The share of the light at place i of the order among node nd's lights. */
+static inline double power_share(const pt_light_tree *t, const lt_node *nd, uint32_t i)
+{
+    return (t->cdf[i + 1] - t->cdf[i]) / (t->cdf[nd->first + nd->count] - t->cdf[nd->first]);
+}
+
+uint32_t pt_light_tree_sample(const pt_light_tree *tree, pt_vec3 p, double u, double *pmf)
+{
+    const lt_node *nodes = tree->nodes;
+    uint32_t id = 0;
+    /* u stays; the interval [base, base + width) of it that leads to the
+     * node shrinks (a product, not a division, in the walk's chain). */
+    double q = 1.0, base = 0.0, width = 1.0;
+    while (!(nodes[id].flags & LT_LEAF)) {
+        if (coarse(&nodes[id], p)) {
+            /* the first place i of the node's lights with target < cdf[i + 1] */
+            const lt_node *nd = &nodes[id];
+            uint32_t lo = nd->first, hi = nd->first + nd->count - 1;
+            double c0 = tree->cdf[lo], v = (u - base) / width;
+            v = v < 0.0 ? 0.0 : v < 0x1.fffffffffffffp-1 ? v : 0x1.fffffffffffffp-1;
+            double target = c0 + v * (tree->cdf[hi + 1] - c0);
+            while (lo < hi) {
+                uint32_t mid = lo + (hi - lo) / 2;
+                if (target < tree->cdf[mid + 1])
+                    hi = mid;
+                else
+                    lo = mid + 1;
+            }
+            double share = power_share(tree, nd, lo);
+            if (!(share > 0.0))
+                break;
+            *pmf = q * share;
+            return tree->order[lo];
+        }
+        uint32_t c = nodes[id].next;
+        float il = importance(&nodes[c], p), ir = importance(&nodes[c + 1], p);
+        double sum = (double)il + (double)ir;
+        if (!(sum > 0.0)) {
+            *pmf = 0.0;
+            return UINT32_MAX;
+        }
+        double pl = (double)il / sum;
+        /* Selects, not branches: the side is random. */
+        double cut = base + pl * width;
+        int right = !(u < cut);
+        double pc = right ? 1.0 - pl : pl;
+        base = right ? cut : base;
+        width *= pc;
+        q *= pc;
+        id = c + (uint32_t)right;
+    }
+    if (!(nodes[id].flags & LT_LEAF)) { /* a rounded search found no light */
+        *pmf = 0.0;
+        return UINT32_MAX;
+    }
+    *pmf = q;
+    return nodes[id].next;
+}
+
+double pt_light_tree_pmf(const pt_light_tree *tree, pt_vec3 p, uint32_t light)
+{
+    if (!tree || light >= tree->n)
+        return 0.0;
+    const lt_node *nodes = tree->nodes;
+    uint64_t bits = tree->bits[light];
+    uint32_t id = 0, levels = tree->levels[light];
+    double q = 1.0;
+    for (uint32_t k = 0; k < levels; k++) {
+        if (coarse(&nodes[id], p))
+            return q * power_share(tree, &nodes[id], tree->rank[light]);
+        uint32_t c = nodes[id].next;
+        float il = importance(&nodes[c], p), ir = importance(&nodes[c + 1], p);
+        double sum = (double)il + (double)ir;
+        if (!(sum > 0.0))
+            return 0.0;
+        double pl = (double)il / sum;
+        uint32_t right = (uint32_t)(bits >> k) & 1u;
+        q *= right ? 1.0 - pl : pl;
+        id = c + right;
+    }
+    return q;
+}

@@ -1,0 +1,507 @@
+/*
+ * test_light_tree.c - the light tree (common/render/light_tree.c) and NEE
+ * through it (common/render/light.c).
+ *
+ * - The pmf sums to at most 1 over the lights at every shading point (within
+ *   double rounding, 1e-9), and to more than 0.9 here: the rest is the chance
+ *   of a walk that ends at a node whose children both have importance 0 (no
+ *   light chosen, no bias).
+ * - Chi-square goodness of fit of the lights the tree samples (and of the
+ *   walks that choose none) against its own pmf, at several shading points
+ *   (200,000 draws, p > 1e-3; bins expected below 5 pooled), and the pmf the
+ *   sampler returns has the bits of pt_light_tree_pmf.
+ * - Conservative bounds: every light that can light a point (some vertex in
+ *   front of it) has a pmf above 0 there, else NEE would lose its light.
+ * - Through pt_lights, with an environment too: pt_lights_pdf at a sample's
+ *   point equals the sample's pdf (the bits that the MIS weight of a BSDF hit
+ *   needs), and the same build twice gives the same bits.
+ * - Images: EmissiveStrengthTest (five emissive cubes, 60 light triangles), a
+ *   ring of 48 small lights over a floor, and the ring with 18 point and spot
+ *   lights (in the tree) and a directional one, rendered with the tree and with
+ *   the power-proportional choice, agree per 8 x 8 block: the difference of
+ *   the block means over its standard error, the pixels' own sample variances
+ *   (conservative under the sampler's stratification), stays under the
+ *   two-sided normal quantile for a family-wise false alarm of 1e-3 over all
+ *   blocks and channels (Bonferroni).
+ * - Coarse nodes: coplanar lights seen from far are chosen by power alone
+ *   (pmf and sampler), from close by by the tree.
+ * - Bad input (counts, NaN, zero power) and allocation failure.
+ */
+#include "common/render/light_tree.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <string.h>
+
+#include "common/base/alloc.h"
+#include "common/render/env.h"
+#include "common/render/light.h"
+#include "common/render/render.h"
+#include "tests/check.h"
+#include "tests/common/render/paired.h"
+#include "tests/stats.h"
+
+#define NL 300
+#define P_MIN 1e-3
+
+static uint64_t rng_state;
+
+static double rnd(void)
+{
+    /* splitmix64 (Steele, Lea & Flood 2014) */
+    uint64_t z = (rng_state += 0x9e3779b97f4a7c15ull);
+    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
+    z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
+    z ^= z >> 31;
+    return (double)(z >> 11) * 0x1p-53;
+}
+
+static pt_vec3 rnd_dir(void)
+{
+    double z = 2.0 * rnd() - 1.0, phi = 2.0 * 3.14159265358979323846 * rnd();
+    double r = sqrt(fmax(0.0, 1.0 - z * z));
+    return pt_v3((float)(r * cos(phi)), (float)(r * sin(phi)), (float)z);
+}
+
+/* NL random triangles in a 20-unit box, random sizes, normals and powers;
+ * every third two-sided. Their vertices go to v (3 per light). */
+static void random_lights(pt_light_tree_item *it, pt_vec3 *v, int n)
+{
+    for (int i = 0; i < n; i++) {
+        pt_vec3 c = pt_v3((float)(20 * rnd() - 10), (float)(20 * rnd() - 10), (float)(20 * rnd()));
+        float sz = (float)(0.05 + 0.5 * rnd());
+        pt_vec3 a = pt_v3_add(c, pt_v3_scale(rnd_dir(), sz));
+        pt_vec3 b = pt_v3_add(c, pt_v3_scale(rnd_dir(), sz));
+        pt_vec3 d = pt_v3_add(c, pt_v3_scale(rnd_dir(), sz));
+        v[3 * i] = a;
+        v[3 * i + 1] = b;
+        v[3 * i + 2] = d;
+        it[i].lo = pt_v3(fminf(fminf(a.x, b.x), d.x), fminf(fminf(a.y, b.y), d.y),
+                         fminf(fminf(a.z, b.z), d.z));
+        it[i].hi = pt_v3(fmaxf(fmaxf(a.x, b.x), d.x), fmaxf(fmaxf(a.y, b.y), d.y),
+                         fmaxf(fmaxf(a.z, b.z), d.z));
+        it[i].axis = pt_v3_norm(pt_v3_cross(pt_v3_sub(b, a), pt_v3_sub(d, a)));
+        it[i].cos_o = 1.0f;
+        it[i].power = (float)(0.1 + 10.0 * rnd() * rnd());
+        it[i].two_sided = i % 3 == 0;
+    }
+}
+
+static const pt_vec3 points[] = {{0, 0, 0}, {3, -2, 10}, {-9, 9, 19}, {0.5f, 0.5f, 5}, {30, 0, 2}};
+#define NPOINTS (int)(sizeof points / sizeof points[0])
+
+static void test_pmf_sums_and_sides(void)
+{
+    rng_state = 1;
+    static pt_light_tree_item it[NL];
+    static pt_vec3 v[3 * NL];
+    random_lights(it, v, NL);
+    pt_light_tree *t = NULL;
+    pt_error err = {0};
+    CHECKF(pt_light_tree_new(it, NL, &t, &err) == PT_OK, "%s", err.msg);
+    if (!t)
+        return;
+    CHECK(pt_light_tree_nodes(t) == 2 * NL - 1);
+    /* Balanced enough: well under the 64 branch bits. */
+    CHECKF(pt_light_tree_depth(t) < 40, "depth %u", pt_light_tree_depth(t));
+    int missed = 0;
+    for (int k = 0; k < NPOINTS; k++) {
+        pt_vec3 p = points[k];
+        double sum = 0.0;
+        for (uint32_t i = 0; i < NL; i++) {
+            double q = pt_light_tree_pmf(t, p, i);
+            sum += q;
+            int front = 0;
+            for (int c = 0; c < 3; c++)
+                front |= pt_v3_dot(it[i].axis, pt_v3_sub(p, v[3 * i + c])) > 1e-4f;
+            int back = 0;
+            for (int c = 0; c < 3; c++)
+                back |= pt_v3_dot(it[i].axis, pt_v3_sub(p, v[3 * i + c])) < -1e-4f;
+            if ((front || (it[i].two_sided && back)) && !(q > 0.0))
+                missed++;
+        }
+        CHECKF(sum < 1.0 + 1e-9 && sum > 0.9, "point %d: pmfs sum to %.12f", k, sum);
+    }
+    CHECKF(missed == 0, "%d lights that light a point have pmf 0 there", missed);
+    CHECK(pt_light_tree_pmf(t, points[0], NL) == 0.0);
+    pt_light_tree_free(t);
+}
+
+static void test_chi2(void)
+{
+    rng_state = 2;
+    static pt_light_tree_item it[NL];
+    static pt_vec3 v[3 * NL];
+    random_lights(it, v, NL);
+    pt_light_tree *t = NULL;
+    CHECK(pt_light_tree_new(it, NL, &t, NULL) == PT_OK);
+    if (!t)
+        return;
+    const int n = 200000;
+    for (int k = 0; k < NPOINTS; k++) {
+        pt_vec3 p = points[k];
+        /* bin NL: no light chosen */
+        static double obs[NL + 1], expd[NL + 1];
+        memset(obs, 0, sizeof obs);
+        int bad_pmf = 0;
+        for (int s = 0; s < n; s++) {
+            double q;
+            uint32_t l = pt_light_tree_sample(t, p, rnd(), &q);
+            if (l >= NL) {
+                bad_pmf += l != UINT32_MAX || q != 0.0;
+                obs[NL] += 1;
+                continue;
+            }
+            obs[l] += 1;
+            bad_pmf += q != pt_light_tree_pmf(t, p, l);
+        }
+        double sum = 0.0;
+        for (uint32_t i = 0; i < NL; i++) {
+            expd[i] = n * pt_light_tree_pmf(t, p, i);
+            sum += expd[i];
+        }
+        expd[NL] = fmax(0.0, n - sum);
+        double chi;
+        int dof;
+        double pv = stats_chi2_gof(obs, expd, NL + 1, 5.0, &chi, &dof);
+        CHECKF(pv > P_MIN, "point %d: chi2 %.1f dof %d p %.3g", k, chi, dof, pv);
+        CHECKF(bad_pmf == 0, "point %d: %d samples whose pmf is not pt_light_tree_pmf's", k,
+               bad_pmf);
+        printf("tree choice at point %d: chi2 %.1f dof %d p %.3f\n", k, chi, dof, pv);
+    }
+    /* The same items, the same tree: the same bits. */
+    pt_light_tree *t2 = NULL;
+    CHECK(pt_light_tree_new(it, NL, &t2, NULL) == PT_OK);
+    int same = t2 != NULL;
+    for (int k = 0; k < NPOINTS && t2; k++)
+        for (uint32_t i = 0; i < NL; i++)
+            same &= pt_light_tree_pmf(t, points[k], i) == pt_light_tree_pmf(t2, points[k], i);
+    CHECK(same);
+    pt_light_tree_free(t2);
+    pt_light_tree_free(t);
+}
+
+/* ---- a scene of many small lights over a floor ------------------------------------------- */
+
+#define RING 48
+
+/* A floor of [-4, 4]^2 at z = 0 under RING small triangles of varied colour,
+ * strength and height facing down (odd ones two-sided), seen from above;
+ * with punct, also 12 point lights (every third with a range), 6 spot lights
+ * and a directional light. */
+static pt_scene *ring_scene(int punct)
+{
+    pt_scene_builder *b = NULL;
+    pt_scene *s = NULL;
+    pt_error err = {0};
+    CHECK(pt_scene_builder_new(&b, &err) == PT_OK);
+    if (!b)
+        return NULL;
+    pt_material m = pt_material_default();
+    m.base_color[0] = m.base_color[1] = m.base_color[2] = 0.8f;
+    m.metallic = 0.0f;
+    m.double_sided = 1;
+    uint32_t mat;
+    const float fl[12] = {-4, -4, 0, 4, -4, 0, 4, 4, 0, -4, 4, 0};
+    const uint32_t fi[6] = {0, 1, 2, 0, 2, 3};
+    int ok =
+        pt_scene_builder_add_material(b, &m, &mat, &err) == PT_OK &&
+        pt_scene_builder_add_mesh(b, "floor", fl, NULL, NULL, 4, fi, 2, NULL, mat, &err) == PT_OK;
+    for (uint32_t i = 0; i < RING && ok; i++) {
+        float e = 2.0f + 30.0f * (float)(i % 7);
+        m.emissive[0] = e * (float)(1 + i % 3);
+        m.emissive[1] = e;
+        m.emissive[2] = e * (float)(1 + i % 2);
+        m.double_sided = (int)(i % 2);
+        double a = 2.0 * 3.14159265358979323846 * i / RING;
+        float rad = 1.0f + 2.5f * (float)(i % 4) / 3.0f, h = 0.3f + 0.4f * (float)(i % 5);
+        float cx = rad * (float)cos(a), cy = rad * (float)sin(a), w = 0.08f;
+        /* wound to face -z */
+        const float tv[9] = {cx - w, cy - w, h, cx - w, cy + w, h, cx + w, cy, h};
+        ok = pt_scene_builder_add_material(b, &m, &mat, &err) == PT_OK &&
+             pt_scene_builder_add_mesh(b, "light", tv, NULL, NULL, 3, NULL, 1, NULL, mat, &err) ==
+                 PT_OK;
+    }
+    for (int i = 0; i < 19 && ok && punct; i++) {
+        pt_punctual l = {0};
+        double a = 0.7 * i, rad = 0.5 + 0.2 * i;
+        double pos[3] = {rad * cos(a), rad * sin(a), 0.4 + 0.1 * (i % 6)};
+        l.type = i < 12 ? PT_PUNCTUAL_POINT : i < 18 ? PT_PUNCTUAL_SPOT : PT_PUNCTUAL_DIRECTIONAL;
+        l.intensity = pt_v3(10.0f * (float)(1 + i % 4), 15.0f, 10.0f * (float)(1 + i % 3));
+        l.range = i % 3 == 0 && i < 12 ? 2.0f : 0.0f;
+        l.direction = i < 18 ? pt_v3(0, 0, -1) : pt_v3_norm(pt_v3(0.3f, 0.2f, -1));
+        l.cos_inner = 0.9f;
+        l.cos_outer = 0.7f;
+        snprintf(l.name, sizeof l.name, "light %d", i);
+        ok = pt_scene_builder_add_punctual(b, &l, pos, &err) == PT_OK;
+    }
+    pt_camera cam = {0};
+    cam.yfov = 0.9f;
+    cam.znear = 0.01f;
+    cam.position = pt_v3(0, -5.0f, 7.0f);
+    cam.forward = pt_v3_norm(pt_v3(0, 5.0f, -7.0f));
+    cam.right = pt_v3_norm(pt_v3_cross(cam.forward, pt_v3(0, 0, 1)));
+    cam.up = pt_v3_cross(cam.right, cam.forward);
+    ok = ok && pt_scene_builder_add_camera(b, &cam, &err) == PT_OK;
+    pt_scene_opts o = {0};
+    o.scale = 1.0f;
+    if (ok)
+        ok = pt_scene_builder_finish(b, &o, &s, &err) == PT_OK;
+    else
+        pt_scene_builder_free(b);
+    CHECKF(ok, "ring scene: %s", err.msg);
+    return s;
+}
+
+/* Through pt_lights: sample pdf against pt_lights_pdf at its point, with an
+ * environment as a second class. */
+static void test_lights_pdf(void)
+{
+    pt_scene *rs = ring_scene(0);
+    if (!rs)
+        return;
+    pt_env *env = NULL;
+    CHECK(pt_env_uniform(pt_v3(0.2f, 0.2f, 0.2f), &env, NULL) == PT_OK);
+    for (int with_env = 0; with_env < 2; with_env++) {
+        pt_lights *L = NULL;
+        CHECK(pt_lights_new_select(rs, with_env ? env : NULL, PT_ENV_MIS, PT_LIGHT_SELECT_AUTO, &L,
+                                   NULL) == PT_OK);
+        if (!L)
+            continue;
+        CHECK(pt_lights_has_tree(L));
+        rng_state = 5;
+        int tested = 0, bad = 0;
+        for (int i = 0; i < 20000; i++) {
+            pt_vec3 p = pt_v3((float)(8 * rnd() - 4), (float)(8 * rnd() - 4), (float)(2 * rnd()));
+            float u[3] = {(float)rnd(), (float)rnd(), (float)rnd()};
+            pt_light_sample ls;
+            if (!pt_lights_sample(L, rs, p, u, &ls) || ls.delta != PT_LIGHT_AREA)
+                continue;
+            tested++;
+            float q = pt_lights_pdf(L, rs, ls.tri, p, ls.position, ls.normal);
+            bad += q != ls.pdf;
+        }
+        CHECKF(tested > 1000 && bad == 0, "env %d: %d of %d pdfs differ", with_env, bad, tested);
+        pt_lights_free(L);
+    }
+    pt_lights *L = NULL;
+    CHECK(pt_lights_new_select(rs, NULL, PT_ENV_MIS, PT_LIGHT_SELECT_POWER, &L, NULL) == PT_OK);
+    CHECK(L && !pt_lights_has_tree(L));
+    pt_lights_free(L);
+    pt_env_free(env);
+    pt_scene_free(rs);
+}
+
+/* The two-sided standard normal quantile for a false alarm alpha over m
+ * tests (Bonferroni), by bisection on erfc. */
+static double z_crit(double alpha, int m)
+{
+    double lo = 0.0, hi = 20.0, target = alpha / m;
+    for (int i = 0; i < 200; i++) {
+        double mid = 0.5 * (lo + hi);
+        if (erfc(mid / sqrt(2.0)) > target)
+            lo = mid;
+        else
+            hi = mid;
+    }
+    return hi;
+}
+
+static pt_renderer *renderer_select(const pt_scene *s, const pt_env *env, uint32_t side,
+                                    uint32_t select, uint32_t seed)
+{
+    pt_render_params p = {0};
+    pt_render_params_default(&p);
+    p.width = p.height = side;
+    p.seed = seed;
+    p.env = env;
+    p.light_select = select;
+    pt_renderer *r = NULL;
+    pt_error err = {0};
+    CHECKF(pt_renderer_new(s, &p, &r, &err) == PT_OK, "%s", err.msg);
+    return r;
+}
+
+/* Renders s with the tree and by power (different seeds, independent) and
+ * returns the blocks x channels whose means differ by more than z_crit
+ * standard errors; -1 when a renderer could not be made. */
+static int blocks_differing(const pt_scene *s, const pt_env *env, const char *what)
+{
+    enum { SIDE = 32, BLOCK = 8, SPP = 256 };
+    pt_renderer *r[2] = {renderer_select(s, env, SIDE, PT_LIGHT_SELECT_TREE, 11),
+                         renderer_select(s, env, SIDE, PT_LIGHT_SELECT_POWER, 12)};
+    int count = -1;
+    if (r[0] && r[1]) {
+        const int nb = (SIDE / BLOCK) * (SIDE / BLOCK);
+        double zc = z_crit(1e-3, nb * 3), zmax = 0.0;
+        count = 0;
+        uint64_t bad = 0;
+        for (int b = 0; b < nb; b++) {
+            int bx = b % (SIDE / BLOCK), by = b / (SIDE / BLOCK);
+            double mean[2][3] = {{0}}, var[2][3] = {{0}};
+            for (int k = 0; k < 2; k++)
+                for (int y = by * BLOCK; y < (by + 1) * BLOCK; y++)
+                    for (int x = bx * BLOCK; x < (bx + 1) * BLOCK; x++) {
+                        double sum[3] = {0}, sq[3] = {0};
+                        for (uint32_t i = 0; i < SPP; i++) {
+                            pt_render_stats st = {0};
+                            int cov = 0;
+                            pt_vec3 c =
+                                pt_render_sample(r[k], (uint32_t)x, (uint32_t)y, i, &st, &cov);
+                            const double ca[3] = {c.x, c.y, c.z};
+                            for (int ch = 0; ch < 3; ch++) {
+                                bad += !isfinite(ca[ch]);
+                                sum[ch] += ca[ch];
+                                sq[ch] += ca[ch] * ca[ch];
+                            }
+                        }
+                        for (int ch = 0; ch < 3; ch++) {
+                            double m = sum[ch] / SPP;
+                            mean[k][ch] += m / (BLOCK * BLOCK);
+                            /* the pixel mean's variance, over the block's count squared */
+                            var[k][ch] += fmax(sq[ch] / SPP - m * m, 0.0) / (SPP - 1.0) /
+                                          (BLOCK * BLOCK * BLOCK * BLOCK);
+                        }
+                    }
+            for (int ch = 0; ch < 3; ch++) {
+                double se = sqrt(var[0][ch] + var[1][ch]);
+                double d = fabs(mean[0][ch] - mean[1][ch]);
+                double z = se > 0.0 ? d / se : (d > 0.0 ? INFINITY : 0.0);
+                zmax = fmax(zmax, z);
+                count += z > zc;
+            }
+        }
+        CHECK(bad == 0);
+        printf("%s: tree vs power, largest block z %.2f (limit %.2f over %d tests)\n", what, zmax,
+               zc, nb * 3);
+    }
+    pt_renderer_free(r[0]);
+    pt_renderer_free(r[1]);
+    return count;
+}
+
+static void test_images(void)
+{
+    pt_scene *rs = ring_scene(0);
+    if (rs) {
+        int d = blocks_differing(rs, NULL, "ring of 48 lights");
+        CHECKF(d == 0, "ring: %d blocks differ", d);
+        pt_scene_free(rs);
+    }
+    /* point and spot lights in the tree, a directional one in its class */
+    rs = ring_scene(1);
+    if (rs) {
+        pt_lights *L = NULL;
+        CHECK(pt_lights_new_select(rs, NULL, PT_ENV_MIS, PT_LIGHT_SELECT_TREE, &L, NULL) == PT_OK);
+        CHECK(L && pt_lights_has_tree(L) && pt_lights_punctual_count(L) == 19);
+        pt_lights_free(L);
+        int d = blocks_differing(rs, NULL, "ring with 18 point and spot lights");
+        CHECKF(d == 0, "ring with punctual lights: %d blocks differ", d);
+        pt_scene_free(rs);
+    }
+
+    pt_scene *s = load_shared_asset("EmissiveStrengthTest/EmissiveStrengthTest.glb", "emissive");
+    if (s) {
+        pt_env *env = NULL;
+        CHECK(pt_env_uniform(pt_v3(0.1f, 0.1f, 0.1f), &env, NULL) == PT_OK);
+        int d = blocks_differing(s, env, "EmissiveStrengthTest");
+        CHECKF(d == 0, "EmissiveStrengthTest: %d blocks differ", d);
+        pt_env_free(env);
+        pt_scene_free(s);
+    }
+}
+
+/* 64 coplanar triangles facing +z in a unit square: seen from far above,
+ * the root is coarse and the choice is by power alone, the same in the pmf;
+ * seen from close by, it is not (a near triangle gets more than its power's
+ * share). */
+static void test_coarse(void)
+{
+    enum { N = 64 };
+    pt_light_tree_item it[N];
+    for (int i = 0; i < N; i++) {
+        float x = (float)(i % 8) / 8.0f, y = (float)(i / 8) / 8.0f;
+        it[i].lo = pt_v3(x, y, 0);
+        it[i].hi = pt_v3(x + 0.1f, y + 0.1f, 0);
+        it[i].axis = pt_v3(0, 0, 1);
+        it[i].cos_o = 1.0f;
+        it[i].power = (float)(1 + i % 5);
+        it[i].two_sided = 0;
+    }
+    double total = 0.0;
+    for (int i = 0; i < N; i++)
+        total += it[i].power;
+    pt_light_tree *t = NULL;
+    CHECK(pt_light_tree_new(it, N, &t, NULL) == PT_OK);
+    if (!t)
+        return;
+    int far_off = 0;
+    for (int i = 0; i < N; i++)
+        far_off += fabs(pt_light_tree_pmf(t, pt_v3(0.5f, 0.5f, 100), (uint32_t)i) -
+                        it[i].power / total) > 1e-12;
+    CHECKF(far_off == 0, "far: %d pmfs are not the power's share", far_off);
+    double near = pt_light_tree_pmf(t, pt_v3(0.05f, 0.05f, 0.05f), 0);
+    CHECKF(near > 3.0 * it[0].power / total, "near: pmf %g, power share %g", near,
+           it[0].power / total);
+    /* the sampler agrees at both */
+    rng_state = 4;
+    int bad = 0;
+    for (int k = 0; k < 20000; k++) {
+        pt_vec3 p = k % 2 ? pt_v3(0.5f, 0.5f, 100) : pt_v3(0.05f, 0.05f, 0.05f);
+        double q;
+        uint32_t l = pt_light_tree_sample(t, p, rnd(), &q);
+        bad += l >= N || q != pt_light_tree_pmf(t, p, l);
+    }
+    CHECK(bad == 0);
+    pt_light_tree_free(t);
+}
+
+static void test_errors(void)
+{
+    pt_light_tree_item it[4];
+    pt_vec3 v[12];
+    rng_state = 9;
+    random_lights(it, v, 4);
+    pt_light_tree *t = NULL;
+    pt_error err = {0};
+    CHECK(pt_light_tree_new(it, 1, &t, &err) == PT_ERR_ARG && !t);
+    CHECK(pt_light_tree_new(it, 0, &t, &err) == PT_ERR_ARG && !t);
+    CHECK(pt_light_tree_new(NULL, 4, &t, &err) == PT_ERR_ARG && !t);
+    it[2].power = NAN;
+    CHECK(pt_light_tree_new(it, 4, &t, &err) == PT_ERR_ARG && !t);
+    it[2].power = 0.0f;
+    CHECK(pt_light_tree_new(it, 4, &t, &err) == PT_ERR_ARG && !t);
+    it[2].power = 1.0f;
+    it[1].lo.y = INFINITY;
+    CHECK(pt_light_tree_new(it, 4, &t, &err) == PT_ERR_ARG && !t);
+    it[1].lo.y = it[1].hi.y;
+    /* two equal lights: one split by count */
+    pt_light_tree_item same[2] = {it[0], it[0]};
+    CHECK(pt_light_tree_new(same, 2, &t, &err) == PT_OK);
+    CHECK(pt_light_tree_pmf(t, pt_v3(0, 0, 50), 0) == 0.5 ||
+          pt_light_tree_pmf(t, pt_v3(0, 0, 50), 0) == 0.0);
+    pt_light_tree_free(t);
+    pt_light_tree_free(NULL);
+    /* allocation failure at every allocation: no leak, no crash */
+    int64_t live = pt_alloc_live();
+    for (uint64_t k = 1; k < 20; k++) {
+        t = NULL;
+        pt_alloc_fail_at(k);
+        pt_status st = pt_light_tree_new(it, 4, &t, &err);
+        pt_alloc_fail_at(0);
+        CHECK(st == PT_OK || (st == PT_ERR_NOMEM && !t));
+        pt_light_tree_free(t);
+    }
+    CHECK(pt_alloc_live() == live);
+}
+
+int main(void)
+{
+    test_pmf_sums_and_sides();
+    test_chi2();
+    test_lights_pdf();
+    test_coarse();
+    test_errors();
+    test_images();
+    return check_report();
+}
