@@ -210,15 +210,6 @@ static uint32_t run_threads(job *j, uint32_t n, pthread_t *threads, thread_arg *
 
 #define GUIDE_SPLIT_C 3000.0
 
-/* The end of guided pass k (exclusive): training passes of 16, 32, 64...
- * samples per pixel (Mueller et al. 2017 double them), each learning from
- * the one before; the last takes what is left of spp. */
-static uint32_t pass_end(uint32_t k, uint32_t spp)
-{
-    uint64_t end = 16ull * ((1ull << (k + 1 < 32 ? k + 1 : 31)) - 1);
-    return end < spp ? (uint32_t)end : spp;
-}
-
 /* Renders every pass of a guided image (--guiding on): pass 0 records into
  * statistics of a uniform guide without sampling it; each later pass samples
  * the guide built from the pass before, half of a guided vertex's
@@ -243,7 +234,7 @@ static int run_guided(job *j, const pt_scene *scene, uint32_t n, pthread_t *thre
     }
     uint32_t k = 0;
     for (uint32_t s0 = 0; s0 < j->o->spp; k++) {
-        uint32_t s1 = pass_end(k, j->o->spp);
+        uint32_t s1 = pt_guide_pass_end(k, j->o->spp);
         for (uint32_t i = 0; i < n; i++) {
             if (pt_guide_stats_new(g, &st[i], &err) != PT_OK) {
                 fprintf(stderr, "ptworker: guiding: %s\n", err.msg);

@@ -524,6 +524,18 @@ nomem:
                         PT_GUIDE_MAX_NODES);
 }
 
+/* ---- passes ---------------------------------------------------------------- */
+
+uint32_t pt_guide_pass_end(uint32_t k, uint32_t spp)
+{
+    if (k >= 26)
+        return spp;
+    uint64_t end = 16ull * ((1ull << (k + 1)) - 1), next = 16ull << (k + 1);
+    if (end >= spp || (uint64_t)spp - end < next)
+        return spp;
+    return (uint32_t)end;
+}
+
 /* ---- checking ------------------------------------------------------------ */
 
 pt_status pt_guide_check(const pt_guide *g, pt_error *err)

@@ -132,6 +132,14 @@ pt_status pt_guide_stats_merge(pt_guide_stats *into, const pt_guide_stats *from,
 pt_status pt_guide_build(const pt_guide *g, const pt_guide_stats *s, uint64_t split_count,
                          pt_guide **out, pt_error *err);
 
+/* The end (exclusive, in samples per pixel) of guided pass k of a render
+ * of spp samples: training passes of 16, 32, 64... spp, each learning
+ * from the one before (Mueller et al. 2017 double them); a pass after
+ * which fewer samples are left than the next pass would take runs to spp,
+ * so the last guide renders a full pass rather than a stub. The standalone
+ * worker and the farm cut passes here alike. */
+uint32_t pt_guide_pass_end(uint32_t k, uint32_t spp);
+
 /* PT_OK when g's trees are well formed (children in range, after their
  * parent and referenced once, leaves' trees in range, energies finite and
  * >= 0, depths within the caps); else PT_ERR_FORMAT naming the fault. For a
