@@ -353,11 +353,17 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
     p.clamp_direct = o->clamp_direct;
     p.clamp_indirect = o->clamp_indirect;
     p.passes = o->passes;
-    /* Guiding samples glossy closures only (main refuses it with adaptive
-     * sampling). */
-    p.guiding = o->guiding && (scene->features & PT_FEAT_GLOSSY) ? 1u : 0u;
-    if (o->guiding && !p.guiding && !o->quiet)
+    /* Guiding samples glossy closures only (main refuses on with adaptive
+     * sampling; auto is then off: a tile's stop would depend on its pass). */
+    if (o->guiding == WRK_GUIDING_ON)
+        p.guiding = scene->features & PT_FEAT_GLOSSY ? 1u : 0u;
+    else if (o->guiding == WRK_GUIDING_AUTO)
+        p.guiding = o->target_error <= 0.0 && o->min_gain <= 0.0 && pt_guide_auto(scene);
+    if (o->guiding == WRK_GUIDING_ON && !p.guiding && !o->quiet)
         fprintf(stderr, "ptworker: --guiding: every material is Lambert; nothing to guide\n");
+    if (o->guiding == WRK_GUIDING_AUTO && !o->quiet)
+        fprintf(stderr, "ptworker: --guiding auto: %s\n",
+                p.guiding ? "on (a metal, glass or smooth surface)" : "off");
     if (pt_render_check_lit(scene, env != NULL, o->scene_path, &err) != PT_OK) {
         /* It would render black: say how to light it instead. */
         fprintf(stderr, "ptworker: %s\n", err.msg);
@@ -409,7 +415,7 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
     double t_render = pt_now_s();
     uint64_t total = (uint64_t)p.width * p.height * o->spp;
     uint32_t passes = 1;
-    if (o->guiding && p.guiding) {
+    if (p.guiding) {
         if (run_guided(&j, scene, nthreads, threads, args, total, t_render, &passes) != 0)
             goto done;
     } else {

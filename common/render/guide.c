@@ -8,6 +8,7 @@
 #include <string.h>
 
 #include "common/base/alloc.h"
+#include "common/scene/scene.h"
 
 #define PI_F 3.14159265358979323846f
 #define ONE_BELOW 0x1.fffffep-1f
@@ -524,7 +525,7 @@ nomem:
                         PT_GUIDE_MAX_NODES);
 }
 
-/* ---- passes ---------------------------------------------------------------- */
+/* ---- passes and the auto rule --------------------------------------------- */
 
 uint32_t pt_guide_pass_end(uint32_t k, uint32_t spp)
 {
@@ -534,6 +535,23 @@ uint32_t pt_guide_pass_end(uint32_t k, uint32_t spp)
     if (end >= spp || (uint64_t)spp - end < next)
         return spp;
     return (uint32_t)end;
+}
+
+int pt_guide_auto(const pt_scene *scene)
+{
+    if (!(scene->features & PT_FEAT_GLOSSY))
+        return 0;
+    if (scene->features & (PT_FEAT_TRANSMISSION | PT_FEAT_DIFFUSE_TRANSMISSION))
+        return 1;
+    for (uint32_t i = 0; i < scene->num_materials; i++) {
+        const pt_material *m = &scene->materials[i];
+        if (m->unlit)
+            continue;
+        if (m->spec_gloss || m->metallic > 0.0f || m->metal_rough_tex >= 0 || m->clearcoat > 0.0f ||
+            (m->specular > 0.0f && m->roughness < PT_GUIDE_AUTO_ROUGHNESS))
+            return 1;
+    }
+    return 0;
 }
 
 /* ---- checking ------------------------------------------------------------ */

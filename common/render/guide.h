@@ -140,6 +140,18 @@ pt_status pt_guide_build(const pt_guide *g, const pt_guide_stats *s, uint64_t sp
  * worker and the farm cut passes here alike. */
 uint32_t pt_guide_pass_end(uint32_t k, uint32_t spp);
 
+/* --guiding auto: 1 when scene has a surface that redirects light sharply
+ * onto others, where guiding finds what BSDF sampling and NEE miss: glass
+ * or diffuse transmission, a metal (metallic factor above 0 or a metal
+ * texture), or a smooth surface (roughness below PT_GUIDE_AUTO_ROUGHNESS,
+ * or a clearcoat) in its feature mask and materials; 0 for an all-Lambert
+ * or all-rough dielectric scene, which then runs its unguided variant and
+ * pays nothing. A pure function of the scene: ptworker, ptserve and the
+ * farm's workers decide alike. */
+#define PT_GUIDE_AUTO_ROUGHNESS 0.3f
+typedef struct pt_scene pt_scene;
+int pt_guide_auto(const pt_scene *scene);
+
 /* PT_OK when g's trees are well formed (children in range, after their
  * parent and referenced once, leaves' trees in range, energies finite and
  * >= 0, depths within the caps); else PT_ERR_FORMAT naming the fault. For a

@@ -19,6 +19,9 @@
  * - Bits: a guided tile equals the same samples traced one path at a time
  *   (pt_render_sample_guided) and summed in order, and the statistics of a
  *   tile equal, exactly, the merged statistics of its halves rendered apart.
+ * - The auto rule (pt_guide_auto): off for a Lambert sphere and a rough
+ *   dielectric one (roughness 1), on for a metal one and a smooth dielectric
+ *   one (roughness 0.1), and for glass.
  * - Off costs nothing: a renderer made without params.guiding ignores a
  *   guide it is handed (the same bits as pt_render_tile), and a Lambert scene
  *   with guiding asked keeps its own variant.
@@ -393,9 +396,36 @@ static void lambert_keeps_variant(void)
     pt_scene_free(s);
 }
 
+static void auto_rule(void)
+{
+    static const struct {
+        float metallic, roughness, specular;
+        int want;
+        const char *what;
+    } c[] = {{0.0f, 1.0f, 0.0f, 0, "Lambert"},
+             {0.0f, 1.0f, 1.0f, 0, "rough dielectric"},
+             {1.0f, 0.5f, 1.0f, 1, "metal"},
+             {0.0f, 0.1f, 1.0f, 1, "smooth dielectric"}};
+    for (size_t i = 0; i < sizeof c / sizeof c[0]; i++) {
+        pt_scene *s = furnace(0.5f, c[i].metallic, c[i].roughness, c[i].specular);
+        if (!s)
+            continue;
+        CHECKF(pt_guide_auto(s) == c[i].want, "auto guiding for a %s sphere: %d", c[i].what,
+               pt_guide_auto(s));
+        /* Glass: transmission on the rough dielectric. */
+        if (i == 1) {
+            s->materials[0].transmission = 1.0f;
+            s->features |= PT_FEAT_TRANSMISSION;
+            CHECKF(pt_guide_auto(s) == 1, "auto guiding off for glass");
+        }
+        pt_scene_free(s);
+    }
+}
+
 int main(void)
 {
     int64_t live = pt_alloc_live();
+    auto_rule();
     bits();
     lambert_keeps_variant();
     learns_the_lamp();
