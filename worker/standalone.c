@@ -240,7 +240,8 @@ static int run_guided(job *j, const pt_scene *scene, uint32_t n, pthread_t *thre
                 fprintf(stderr, "ptworker: guiding: %s\n", err.msg);
                 goto done;
             }
-            gd[i] = (pt_render_guiding){g, k == 0 ? 0.0f : 0.5f, st[i]};
+            /* The last pass builds no guide: it records nothing. */
+            gd[i] = (pt_render_guiding){g, k == 0 ? 0.0f : 0.5f, s1 < j->o->spp ? st[i] : NULL};
         }
         j->gd = gd;
         j->pass0 = s0;
@@ -249,10 +250,10 @@ static int run_guided(job *j, const pt_scene *scene, uint32_t n, pthread_t *thre
             fprintf(stderr, "ptworker: cannot start render threads\n");
             goto done;
         }
-        /* Integer sums: the same statistics in any order. */
-        for (uint32_t i = 1; i < n; i++)
-            pt_guide_stats_merge(st[0], st[i], &err);
         if (s1 < j->o->spp) {
+            /* Integer sums: the same statistics in any order. */
+            for (uint32_t i = 1; i < n; i++)
+                pt_guide_stats_merge(st[0], st[i], &err);
             pt_guide *ng = NULL;
             /* Mueller et al.'s split threshold, c sqrt(2^k) (they take c =
              * 12000 for 1280 x 720 images); c = 3000 did better on a 64 x 64
