@@ -164,6 +164,18 @@ static float quadrant_probs(const float e[4], float *px, float *py0, float *py1)
     return 1.0f;
 }
 
+/* The probability the sampler picks quadrant q of a node with children
+ * energies e: its column's, then its row's within the column, which is
+ * e[q] over their sum (a node with none: 1/4). The sampler reports it and
+ * the pdf computes it alike, one division a level. */
+static float quadrant_prob(const float e[4], uint32_t q)
+{
+    float tot = (e[0] + e[2]) + (e[1] + e[3]);
+    if (!(tot > 0.0f) || !isfinite(tot))
+        return 0.25f;
+    return e[q] / tot;
+}
+
 static void child_energies(const pt_guide *g, uint32_t c, float e[4])
 {
     for (int i = 0; i < 4; i++)
@@ -184,22 +196,19 @@ pt_vec3 pt_guide_sample(const pt_guide *g, uint32_t cell, const float u[2], floa
         if (ux < px) {
             qx = 0;
             ux = clamp_below1(ux / px);
-            prob *= px;
         } else {
             qx = 1;
             ux = clamp_below1((ux - px) / (1.0f - px));
-            prob *= 1.0f - px;
         }
         float py = qx ? py1 : py0;
         if (uy < py) {
             qy = 0;
             uy = clamp_below1(uy / py);
-            prob *= py;
         } else {
             qy = 1;
             uy = clamp_below1((uy - py) / (1.0f - py));
-            prob *= 1.0f - py;
         }
+        prob *= quadrant_prob(e, qx + 2 * qy);
         size *= 0.5f;
         x0 += (float)qx * size;
         y0 += (float)qy * size;
@@ -217,14 +226,11 @@ static uint32_t find_qleaf(const pt_guide *g, uint32_t n, float u, float v, floa
     float x0 = 0.0f, y0 = 0.0f, s = 1.0f, p = 1.0f;
     while (g->qnode[n].child) {
         uint32_t c = g->qnode[n].child;
-        float e[4], px, py0, py1;
+        float e[4];
         child_energies(g, c, e);
-        quadrant_probs(e, &px, &py0, &py1);
         s *= 0.5f;
         uint32_t qx = u >= x0 + s, qy = v >= y0 + s;
-        p *= qx ? 1.0f - px : px;
-        float py = qx ? py1 : py0;
-        p *= qy ? 1.0f - py : py;
+        p *= quadrant_prob(e, qx + 2 * qy);
         x0 += (float)qx * s;
         y0 += (float)qy * s;
         n = c + qx + 2 * qy;

@@ -17,9 +17,11 @@
  * node covers a square of side 2^-depth; a leaf's share of its tree is
  * spread uniformly over its square. Sampling descends from the root, each
  * step picking a child in proportion to its energy, one number rescaled at
- * every level; the pdf of a direction is the product of the same choices
- * divided by the leaf's area, so it is the sampler's density whatever the
- * stored energies are (no sum over children is assumed).
+ * every level; the pdf of a direction is the product, level by level, of
+ * the probability of the child it lies in (its energy over its siblings'
+ * sum: the sampler's column choice times its row choice) divided by the
+ * leaf's area, so it is the sampler's density whatever the stored
+ * energies are (a node's own energy is not assumed to be its children's sum).
  *
  * Learning runs in passes. A pass renders with a distribution G and records
  * into statistics made for G: each record is a spatial leaf, a direction and
