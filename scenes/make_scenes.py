@@ -3,7 +3,8 @@
 
     python3 scenes/make_scenes.py          (from the repository root)
 
-writes scenes/cornell_box.gltf and scenes/furnace.gltf next to this script.
+writes scenes/cornell_box.gltf, scenes/furnace.gltf and scenes/glass_things.gltf
+next to this script.
 The output is deterministic: running it again gives byte-identical files.
 Standard library only (json, struct, base64, math).
 
@@ -387,6 +388,89 @@ def furnace():
     write(b.finish(doc), "furnace.gltf")
 
 
+# --------------------------------------------------------------------------
+# Glass with things inside
+# --------------------------------------------------------------------------
+
+def uv_sphere(centre, radius, n_lon=48, n_lat=24):
+    """Closed UV sphere, outward normals, counter-clockwise from outside."""
+    pos = [(0.0, 1.0, 0.0)]
+    for i in range(1, n_lat):
+        theta = math.pi * i / n_lat
+        for j in range(n_lon):
+            phi = 2.0 * math.pi * j / n_lon
+            pos.append((math.sin(theta) * math.cos(phi), math.cos(theta),
+                        -math.sin(theta) * math.sin(phi)))
+    pos.append((0.0, -1.0, 0.0))
+    south = len(pos) - 1
+
+    def ring(i, j):
+        return 1 + (i - 1) * n_lon + (j % n_lon)
+
+    tris = []
+    for j in range(n_lon):
+        tris.append((0, ring(1, j), ring(1, j + 1)))
+        tris.append((south, ring(n_lat - 1, j + 1), ring(n_lat - 1, j)))
+    for i in range(1, n_lat - 1):
+        for j in range(n_lon):
+            a, b = ring(i, j), ring(i, j + 1)
+            c, d = ring(i + 1, j), ring(i + 1, j + 1)
+            tris += [(a, c, d), (a, d, b)]
+    idx = []
+    for t in tris:
+        a, b, c = (pos[k] for k in t)
+        if dot(cross(sub(b, a), sub(c, a)), a) < 0:  # points inward: flip
+            t = (t[0], t[2], t[1])
+        idx += list(t)
+    world = [(centre[0] + radius * p[0], centre[1] + radius * p[1], centre[2] + radius * p[2])
+             for p in pos]
+    return world, list(pos), idx
+
+
+def glass_things():
+    """A solid glass ball on a floor with a metal ball and a matte ball inside
+    it, for an environment map to light (path guiding's benchmark: light
+    that reaches what is inside only through glass)."""
+    b = Builder()
+    floor = [(-3.0, 0.0, -3.0), (-3.0, 0.0, 3.0), (3.0, 0.0, 3.0), (3.0, 0.0, -3.0)]
+    up = [(0.0, 1.0, 0.0)] * 4
+    meshes = [{"name": "floor", "primitives": [b.primitive(floor, up, [0, 1, 2, 0, 2, 3], 0)]}]
+    for name, centre, radius, mat in (("glass", (0.0, 0.6, 0.0), 0.6, 1),
+                                      ("metal", (-0.2, 0.45, 0.1), 0.2, 2),
+                                      ("matte", (0.22, 0.55, -0.1), 0.16, 3)):
+        pos, nrm, idx = uv_sphere(centre, radius)
+        meshes.append({"name": name, "primitives": [b.primitive(pos, nrm, idx, mat)]})
+    materials = [
+        lambert("floor", (0.6, 0.6, 0.6)),
+        {"name": "glass",
+         "pbrMetallicRoughness": {"baseColorFactor": [1.0, 1.0, 1.0, 1.0],
+                                  "metallicFactor": 0.0, "roughnessFactor": 0.0},
+         "extensions": {"KHR_materials_transmission": {"transmissionFactor": 1.0},
+                        "KHR_materials_volume": {"thicknessFactor": 1.2}}},
+        {"name": "gold",
+         "pbrMetallicRoughness": {"baseColorFactor": [1.0, 0.78, 0.34, 1.0],
+                                  "metallicFactor": 1.0, "roughnessFactor": 0.25}},
+        lambert("matte", (0.8, 0.15, 0.1)),
+    ]
+    doc = {
+        "asset": {"version": "2.0", "generator": "ptfarm scenes/make_scenes.py"},
+        "extensionsUsed": ["KHR_materials_specular", "KHR_materials_transmission",
+                           "KHR_materials_volume"],
+        "scene": 0,
+        "scenes": [{"name": "glass_things", "nodes": [0, 1, 2, 3, 4]}],
+        "nodes": [{"name": "floor", "mesh": 0}, {"name": "glass", "mesh": 1},
+                  {"name": "metal", "mesh": 2}, {"name": "matte", "mesh": 3},
+                  {"name": "Camera", "camera": 0, "translation": [0.0, 1.3, 3.6],
+                   "rotation": [-0.0998334, 0.0, 0.0, 0.9950042]}],
+        "meshes": meshes,
+        "materials": materials,
+        "cameras": [{"name": "Camera", "type": "perspective",
+                     "perspective": {"yfov": 0.6, "aspectRatio": 1.0, "znear": 0.01}}],
+    }
+    write(b.finish(doc), "glass_things.gltf")
+
+
 if __name__ == "__main__":
     cornell_box()
     furnace()
+    glass_things()

@@ -146,11 +146,13 @@ static void usage(FILE *f)
             "  --view V           the PNG's view transform: standard (clamp + sRGB, the\n"
             "                     default), filmic (Hable's curve: bright areas roll off)\n"
             "                     or agx (Blender 4's AgX: bright colours desaturate)\n"
-            "  --guiding on|off   path guiding, experimental (default off): the light\n"
-            "                     arriving at diffuse and rough surfaces is learned in\n"
-            "                     passes of 16, 32, 64... spp and half of their directions\n"
-            "                     drawn from it; standalone only for now, not with\n"
-            "                     adaptive sampling; not yet faster on the scenes measured\n"
+            "  --guiding auto|on|off  path guiding, experimental (default off): the\n"
+            "                     light arriving at diffuse and rough surfaces is learned\n"
+            "                     in passes of 16, 32, 64... spp and half of their\n"
+            "                     directions drawn from it; on: wherever a material is\n"
+            "                     glossy; auto: where a metal, glass or smooth surface can\n"
+            "                     redirect light (off with adaptive sampling); standalone\n"
+            "                     only for now; not yet faster on the scenes measured\n"
             "  --denoise          denoise the finished image (NFOR, guided by the passes\n"
             "                     albedo, normal, depth and halves, which it turns on):\n"
             "                     the EXR gets the layer denoised.R/G/B beside the\n"
@@ -303,10 +305,13 @@ int main(int argc, char **argv)
             }
             return 0;
         case OPT_GUIDING:
-            if (strcmp(optarg, "on") == 0 || strcmp(optarg, "off") == 0) {
-                o.guiding = strcmp(optarg, "on") == 0;
+            if (strcmp(optarg, "on") == 0 || strcmp(optarg, "off") == 0 ||
+                strcmp(optarg, "auto") == 0) {
+                o.guiding = strcmp(optarg, "on") == 0     ? WRK_GUIDING_ON
+                            : strcmp(optarg, "auto") == 0 ? WRK_GUIDING_AUTO
+                                                          : WRK_GUIDING_OFF;
             } else {
-                fprintf(stderr, "ptworker: --guiding: '%s' is not on or off\n", optarg);
+                fprintf(stderr, "ptworker: --guiding: '%s' is not auto, on or off\n", optarg);
                 bad = 1;
             }
             break;
@@ -431,7 +436,7 @@ int main(int argc, char **argv)
     o.chunk = ro.chunk;
     o.target_error = ro.target_error;
     o.min_gain = ro.min_gain;
-    if (o.guiding && (o.target_error > 0.0 || o.min_gain > 0.0)) {
+    if (o.guiding == WRK_GUIDING_ON && (o.target_error > 0.0 || o.min_gain > 0.0)) {
         /* A tile's adaptive stop would depend on the pass it is in. */
         fprintf(stderr, "ptworker: --guiding on does not combine with --target-error or "
                         "--min-gain yet\n");

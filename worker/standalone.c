@@ -210,15 +210,6 @@ static uint32_t run_threads(job *j, uint32_t n, pthread_t *threads, thread_arg *
 
 #define GUIDE_SPLIT_C 3000.0
 
-/* The end of guided pass k (exclusive): training passes of 16, 32, 64...
- * samples per pixel (Mueller et al. 2017 double them), each learning from
- * the one before; the last takes what is left of spp. */
-static uint32_t pass_end(uint32_t k, uint32_t spp)
-{
-    uint64_t end = 16ull * ((1ull << (k + 1 < 32 ? k + 1 : 31)) - 1);
-    return end < spp ? (uint32_t)end : spp;
-}
-
 /* Renders every pass of a guided image (--guiding on): pass 0 records into
  * statistics of a uniform guide without sampling it; each later pass samples
  * the guide built from the pass before, half of a guided vertex's
@@ -243,13 +234,14 @@ static int run_guided(job *j, const pt_scene *scene, uint32_t n, pthread_t *thre
     }
     uint32_t k = 0;
     for (uint32_t s0 = 0; s0 < j->o->spp; k++) {
-        uint32_t s1 = pass_end(k, j->o->spp);
+        uint32_t s1 = pt_guide_pass_end(k, j->o->spp);
         for (uint32_t i = 0; i < n; i++) {
             if (pt_guide_stats_new(g, &st[i], &err) != PT_OK) {
                 fprintf(stderr, "ptworker: guiding: %s\n", err.msg);
                 goto done;
             }
-            gd[i] = (pt_render_guiding){g, k == 0 ? 0.0f : 0.5f, st[i]};
+            /* The last pass builds no guide: it records nothing. */
+            gd[i] = (pt_render_guiding){g, k == 0 ? 0.0f : 0.5f, s1 < j->o->spp ? st[i] : NULL};
         }
         j->gd = gd;
         j->pass0 = s0;
@@ -258,10 +250,10 @@ static int run_guided(job *j, const pt_scene *scene, uint32_t n, pthread_t *thre
             fprintf(stderr, "ptworker: cannot start render threads\n");
             goto done;
         }
-        /* Integer sums: the same statistics in any order. */
-        for (uint32_t i = 1; i < n; i++)
-            pt_guide_stats_merge(st[0], st[i], &err);
         if (s1 < j->o->spp) {
+            /* Integer sums: the same statistics in any order. */
+            for (uint32_t i = 1; i < n; i++)
+                pt_guide_stats_merge(st[0], st[i], &err);
             pt_guide *ng = NULL;
             /* Mueller et al.'s split threshold, c sqrt(2^k) (they take c =
              * 12000 for 1280 x 720 images); c = 3000 did better on a 64 x 64
@@ -362,11 +354,17 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
     p.clamp_direct = o->clamp_direct;
     p.clamp_indirect = o->clamp_indirect;
     p.passes = o->passes;
-    /* Guiding samples glossy closures only (main refuses it with adaptive
-     * sampling). */
-    p.guiding = o->guiding && (scene->features & PT_FEAT_GLOSSY) ? 1u : 0u;
-    if (o->guiding && !p.guiding && !o->quiet)
+    /* Guiding samples glossy closures only (main refuses on with adaptive
+     * sampling; auto is then off: a tile's stop would depend on its pass). */
+    if (o->guiding == WRK_GUIDING_ON)
+        p.guiding = scene->features & PT_FEAT_GLOSSY ? 1u : 0u;
+    else if (o->guiding == WRK_GUIDING_AUTO)
+        p.guiding = o->target_error <= 0.0 && o->min_gain <= 0.0 && pt_guide_auto(scene);
+    if (o->guiding == WRK_GUIDING_ON && !p.guiding && !o->quiet)
         fprintf(stderr, "ptworker: --guiding: every material is Lambert; nothing to guide\n");
+    if (o->guiding == WRK_GUIDING_AUTO && !o->quiet)
+        fprintf(stderr, "ptworker: --guiding auto: %s\n",
+                p.guiding ? "on (a metal, glass or smooth surface)" : "off");
     if (pt_render_check_lit(scene, env != NULL, o->scene_path, &err) != PT_OK) {
         /* It would render black: say how to light it instead. */
         fprintf(stderr, "ptworker: %s\n", err.msg);
@@ -418,7 +416,7 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
     double t_render = pt_now_s();
     uint64_t total = (uint64_t)p.width * p.height * o->spp;
     uint32_t passes = 1;
-    if (o->guiding && p.guiding) {
+    if (p.guiding) {
         if (run_guided(&j, scene, nthreads, threads, args, total, t_render, &passes) != 0)
             goto done;
     } else {

@@ -8,6 +8,7 @@
 #include <string.h>
 
 #include "common/base/alloc.h"
+#include "common/scene/scene.h"
 
 #define PI_F 3.14159265358979323846f
 #define ONE_BELOW 0x1.fffffep-1f
@@ -163,6 +164,18 @@ static float quadrant_probs(const float e[4], float *px, float *py0, float *py1)
     return 1.0f;
 }
 
+/* The probability the sampler picks quadrant q of a node with children
+ * energies e: its column's, then its row's within the column, which is
+ * e[q] over their sum (a node with none: 1/4). The sampler reports it and
+ * the pdf computes it alike, one division a level. */
+static float quadrant_prob(const float e[4], uint32_t q)
+{
+    float tot = (e[0] + e[2]) + (e[1] + e[3]);
+    if (!(tot > 0.0f) || !isfinite(tot))
+        return 0.25f;
+    return e[q] / tot;
+}
+
 static void child_energies(const pt_guide *g, uint32_t c, float e[4])
 {
     for (int i = 0; i < 4; i++)
@@ -183,22 +196,19 @@ pt_vec3 pt_guide_sample(const pt_guide *g, uint32_t cell, const float u[2], floa
         if (ux < px) {
             qx = 0;
             ux = clamp_below1(ux / px);
-            prob *= px;
         } else {
             qx = 1;
             ux = clamp_below1((ux - px) / (1.0f - px));
-            prob *= 1.0f - px;
         }
         float py = qx ? py1 : py0;
         if (uy < py) {
             qy = 0;
             uy = clamp_below1(uy / py);
-            prob *= py;
         } else {
             qy = 1;
             uy = clamp_below1((uy - py) / (1.0f - py));
-            prob *= 1.0f - py;
         }
+        prob *= quadrant_prob(e, qx + 2 * qy);
         size *= 0.5f;
         x0 += (float)qx * size;
         y0 += (float)qy * size;
@@ -216,14 +226,11 @@ static uint32_t find_qleaf(const pt_guide *g, uint32_t n, float u, float v, floa
     float x0 = 0.0f, y0 = 0.0f, s = 1.0f, p = 1.0f;
     while (g->qnode[n].child) {
         uint32_t c = g->qnode[n].child;
-        float e[4], px, py0, py1;
+        float e[4];
         child_energies(g, c, e);
-        quadrant_probs(e, &px, &py0, &py1);
         s *= 0.5f;
         uint32_t qx = u >= x0 + s, qy = v >= y0 + s;
-        p *= qx ? 1.0f - px : px;
-        float py = qx ? py1 : py0;
-        p *= qy ? 1.0f - py : py;
+        p *= quadrant_prob(e, qx + 2 * qy);
         x0 += (float)qx * s;
         y0 += (float)qy * s;
         n = c + qx + 2 * qy;
@@ -522,6 +529,35 @@ nomem:
     pt_free(map);
     return pt_error_set(err, PT_ERR_NOMEM, "out of memory (or past %u nodes) building a guide",
                         PT_GUIDE_MAX_NODES);
+}
+
+/* ---- passes and the auto rule --------------------------------------------- */
+
+uint32_t pt_guide_pass_end(uint32_t k, uint32_t spp)
+{
+    if (k >= 26)
+        return spp;
+    uint64_t end = 16ull * ((1ull << (k + 1)) - 1), next = 16ull << (k + 1);
+    if (end >= spp || (uint64_t)spp - end < next)
+        return spp;
+    return (uint32_t)end;
+}
+
+int pt_guide_auto(const pt_scene *scene)
+{
+    if (!(scene->features & PT_FEAT_GLOSSY))
+        return 0;
+    if (scene->features & (PT_FEAT_TRANSMISSION | PT_FEAT_DIFFUSE_TRANSMISSION))
+        return 1;
+    for (uint32_t i = 0; i < scene->num_materials; i++) {
+        const pt_material *m = &scene->materials[i];
+        if (m->unlit)
+            continue;
+        if (m->spec_gloss || m->metallic > 0.0f || m->metal_rough_tex >= 0 || m->clearcoat > 0.0f ||
+            (m->specular > 0.0f && m->roughness < PT_GUIDE_AUTO_ROUGHNESS))
+            return 1;
+    }
+    return 0;
 }
 
 /* ---- checking ------------------------------------------------------------ */

@@ -17,9 +17,11 @@
  * node covers a square of side 2^-depth; a leaf's share of its tree is
  * spread uniformly over its square. Sampling descends from the root, each
  * step picking a child in proportion to its energy, one number rescaled at
- * every level; the pdf of a direction is the product of the same choices
- * divided by the leaf's area, so it is the sampler's density whatever the
- * stored energies are (no sum over children is assumed).
+ * every level; the pdf of a direction is the product, level by level, of
+ * the probability of the child it lies in (its energy over its siblings'
+ * sum: the sampler's column choice times its row choice) divided by the
+ * leaf's area, so it is the sampler's density whatever the stored
+ * energies are (a node's own energy is not assumed to be its children's sum).
  *
  * Learning runs in passes. A pass renders with a distribution G and records
  * into statistics made for G: each record is a spatial leaf, a direction and
@@ -131,6 +133,26 @@ pt_status pt_guide_stats_merge(pt_guide_stats *into, const pt_guide_stats *from,
  * or fewer (at most PT_GUIDE_MAX_SPLIT_LEVELS levels a build). */
 pt_status pt_guide_build(const pt_guide *g, const pt_guide_stats *s, uint64_t split_count,
                          pt_guide **out, pt_error *err);
+
+/* The end (exclusive, in samples per pixel) of guided pass k of a render
+ * of spp samples: training passes of 16, 32, 64... spp, each learning
+ * from the one before (Mueller et al. 2017 double them); a pass after
+ * which fewer samples are left than the next pass would take runs to spp,
+ * so the last guide renders a full pass rather than a stub. The standalone
+ * worker and the farm cut passes here alike. */
+uint32_t pt_guide_pass_end(uint32_t k, uint32_t spp);
+
+/* --guiding auto: 1 when scene has a surface that redirects light sharply
+ * onto others, where guiding finds what BSDF sampling and NEE miss: glass
+ * or diffuse transmission, a metal (metallic factor above 0 or a metal
+ * texture), or a smooth surface (roughness below PT_GUIDE_AUTO_ROUGHNESS,
+ * or a clearcoat) in its feature mask and materials; 0 for an all-Lambert
+ * or all-rough dielectric scene, which then runs its unguided variant and
+ * pays nothing. A pure function of the scene: ptworker, ptserve and the
+ * farm's workers decide alike. */
+#define PT_GUIDE_AUTO_ROUGHNESS 0.3f
+typedef struct pt_scene pt_scene;
+int pt_guide_auto(const pt_scene *scene);
 
 /* PT_OK when g's trees are well formed (children in range, after their
  * parent and referenced once, leaves' trees in range, energies finite and

@@ -366,6 +366,8 @@ static pt_status read_layer(const char *path, const char *layer, pt_image *img, 
     return st;
 }
 
+static double worst_share(const pt_image *img, const pt_image *ref);
+
 static int cmd_error(int argc, char **argv)
 {
     const char *layer = NULL;
@@ -403,6 +405,14 @@ static int cmd_error(int argc, char **argv)
     }
     printf("RMSE     %.6e\nrelMSE   %.6e\nmean     %.6g %.6g %.6g\nnonfinite %llu\n", m.rmse,
            m.rel_mse, m.mean[0], m.mean[1], m.mean[2], (unsigned long long)m.nonfinite);
+    if (refimg) {
+        double share = worst_share(img, refimg);
+        if (share < 0.0) {
+            fprintf(stderr, "ptbench: out of memory\n");
+            goto done;
+        }
+        printf("worst0.1%% %.4f\n", share);
+    }
     rc = 0;
 done:
     pt_image_free(img);
@@ -427,6 +437,26 @@ static void add_pixel_sq_error(const pt_image *meas, const pt_image *ref, size_t
         double v = d * d / (rel ? r * r + PT_METRICS_REL_EPS : 1.0);
         *s += isfinite(v) ? v : 0;
     }
+}
+
+/* The share of relMSE's sum that the worst 0.1 % of pixels (at least one)
+ * carry: how much of an image's error is fireflies. -1 out of memory. */
+static double worst_share(const pt_image *img, const pt_image *ref)
+{
+    size_t n = (size_t)img->width * img->height, k = (n + 999) / 1000;
+    double *e = pt_malloc_array(n, sizeof *e), tot = 0.0, top = 0.0;
+    if (!e)
+        return -1.0;
+    for (size_t i = 0; i < n; i++) {
+        e[i] = 0.0;
+        add_pixel_sq_error(img, ref, i, 1, &e[i]);
+        tot += e[i];
+    }
+    qsort(e, n, sizeof *e, cmp_double_desc);
+    for (size_t i = 0; i < k; i++)
+        top += e[i];
+    pt_free(e);
+    return tot > 0.0 ? top / tot : 0.0;
 }
 
 /* The summed squared error (rel: relative) of the tile of size ts at (x0, y0)

@@ -154,6 +154,19 @@ int main(void)
     a = read_exr("t1.exr", &m1);
     b = read_exr("g1.exr", &m2);
     CHECKF(a && b && same_pixels(a, b), "--guiding on changed a Lambert scene's image");
+    pt_image_free(b);
+    /* auto: off for the Lambert box (the same bits), and off, not refused,
+     * with adaptive sampling. */
+    snprintf(args, sizeof args,
+             "--scene %s -o %s/g2.exr --res 40x30 --spp 8 --threads 1 --tile 16 --guiding auto",
+             cornell, tmpdir);
+    CHECK(run(args) == 0 && stderr_has("auto: off"));
+    b = read_exr("g2.exr", &m2);
+    CHECKF(a && b && same_pixels(a, b), "--guiding auto changed a Lambert scene's image");
+    snprintf(args, sizeof args,
+             "--scene %s -o %s/g3.exr --res 8x8 --spp 8 --guiding auto --target-error 0.1", cornell,
+             tmpdir);
+    CHECK(run(args) == 0);
     pt_image_free(a);
     pt_image_free(b);
     const char *spheres =

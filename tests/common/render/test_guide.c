@@ -20,6 +20,9 @@
  *   guides identical to the byte.
  * - Space: a leaf with more records than the split count becomes two, and
  *   points on the two sides of the middle find different leaves.
+ * - Passes: pt_guide_pass_end cuts [0, spp) into passes that follow on from
+ *   each other, of 16, 32, 64... spp, the last one running to spp when what
+ *   is left after a pass is shorter than the pass after it would be.
  * - Hostile trees: a child before its parent, a child shared by two nodes, a
  *   NaN energy, a leaf's tree out of range and a node outside every tree
  *   are each refused by pt_guide_check.
@@ -338,9 +341,41 @@ static void hostile(void)
     pt_guide_free(g);
 }
 
+static void passes(void)
+{
+    /* Examples of the rule, then the rule over every spp up to 5000. */
+    static const uint32_t want256[] = {16, 48, 112, 256}, want100[] = {16, 100};
+    for (uint32_t k = 0; k < 4; k++)
+        CHECKF(pt_guide_pass_end(k, 256) == want256[k], "256 spp: pass %u ends at %u", k,
+               pt_guide_pass_end(k, 256));
+    for (uint32_t k = 0; k < 2; k++)
+        CHECK(pt_guide_pass_end(k, 100) == want100[k]);
+    CHECK(pt_guide_pass_end(0, 8) == 8 && pt_guide_pass_end(0, 16) == 16);
+    CHECK(pt_guide_pass_end(40, 1u << 30) == 1u << 30);
+    for (uint32_t spp = 1; spp <= 5000; spp++) {
+        uint32_t s0 = 0, k = 0, len = 16;
+        for (; s0 < spp; k++, len *= 2) {
+            uint32_t s1 = pt_guide_pass_end(k, spp);
+            /* A full pass, or the last one: at least a full pass unless
+             * spp itself is shorter, and shorter than the next pass plus
+             * this one. */
+            int full = s1 == s0 + len,
+                last = s1 == spp && (s1 - s0 >= len || s0 == 0) && s1 - s0 < 3 * len;
+            if (!(s1 > s0 && (full || last))) {
+                CHECKF(0, "spp %u: pass %u is [%u, %u)", spp, k, s0, s1);
+                return;
+            }
+            s0 = s1;
+        }
+        CHECK(s0 == spp);
+    }
+    printf("passes: 256 spp in 16, 32, 64, 144\n");
+}
+
 int main(void)
 {
     int64_t live = pt_alloc_live();
+    passes();
     equal_area();
     learning_and_sampling();
     exact_merge();

@@ -1,0 +1,124 @@
+#!/usr/bin/env bash
+# guiding.sh - time to equal relMSE with path guiding on against a base build.
+#
+#   tests/bench/guiding.sh BIN_DIR BASE_BIN_DIR [REPS]
+#
+# For each scene of SCENES: renders a reference with BIN_DIR's ptworker
+# (REF_SPP samples, unguided, another seed), then REPS times, alternating so
+# that a change of machine load hits both alike, each sample count of SPP
+# with the base build's ptworker as a user runs it (BASE_ARGS, by default
+# nothing: guiding off) and with this build's (NEW_ARGS, by default
+# --guiding on). Each repetition has its own seed, so the relMSE of a row is
+# the mean over REPS images (fireflies make one image's error a poor
+# estimate); its time is the median CPU time of the renders (user + system of
+# the whole process, less the median CPU time of a 1-spp run of the same
+# build: the scene's load and BVH, which a longer render does not repeat).
+# CPU time counts the work on a shared machine, where wall time counts the
+# waits for a core too. The worst-0.1 % share is the part of relMSE's sum
+# that the worst 0.1 % of pixels hold (ptbench error), at the largest spp.
+#
+# For each base row, the new build's time to the same relMSE is interpolated
+# log-log between its rows around it; the ratio base / new (above 1: the new
+# build is faster) is printed per level with its median, and each scene's
+# relMSE against CPU time is drawn, both builds, as PLOTS/guiding_NAME.svg.
+#
+# Environment (defaults in brackets):
+#   SCENES    names from the table below [cornell toycar transmission glass
+#             lamp helmet]
+#   RES       image size [128x128]       THREADS  render threads [2]
+#   REF_SPP   reference spp [4096]       SPP      list [16,32,64,128,256]
+#   NEW_ARGS  [--guiding on]             BASE_ARGS [""]
+#   OUT       folder for references, images and CSV [/tmp/ptfarm-guiding];
+#             a reference already there (same scene, size, spp) is reused
+#   PLOTS     folder for the SVG plots [OUT]
+set -euo pipefail
+
+if [[ $# -lt 2 || $# -gt 3 || ! -x "$1/ptworker" || ! -x "$1/ptbench" || ! -x "$2/ptworker" ]]; then
+    echo "usage: $0 BIN_DIR BASE_BIN_DIR [REPS]   (BIN_DIR holds ptworker and ptbench)" >&2
+    exit 2
+fi
+ROOT=$(cd "$(dirname "$0")/../.." && pwd)
+SHARED=$ROOT/../shared
+REPS=${3:-3}
+SCENES=${SCENES:-"cornell toycar transmission glass lamp helmet"}
+RES=${RES:-128x128}
+THREADS=${THREADS:-2}
+REF_SPP=${REF_SPP:-4096}
+SPP=${SPP:-16,32,64,128,256}
+NEW_ARGS=${NEW_ARGS:---guiding on}
+BASE_ARGS=${BASE_ARGS:-}
+OUT=${OUT:-/tmp/ptfarm-guiding}
+PLOTS=${PLOTS:-$OUT}
+mkdir -p "$OUT/new" "$OUT/base" "$PLOTS"
+
+# Private copies of the programs: a rebuild during the run cannot touch them.
+cp "$1/ptworker" "$1/ptbench" "$OUT/new/"
+cp "$2/ptworker" "$OUT/base/"
+
+# The scenes: name -> ptworker arguments (the scene and its light).
+scene_args() {
+    case $1 in
+    cornell) echo "--scene $SHARED/scenes/CornellBox/cornellBox.gltf" ;;
+    toycar) echo "--scene $SHARED/scenes/ToyCar/ToyCar.gltf --env $SHARED/envs/studio_small_03_1k.hdr" ;;
+    transmission) echo "--scene $SHARED/scenes/TransmissionTest/TransmissionTest.glb --env $SHARED/envs/studio_small_03_1k.hdr" ;;
+    glass) echo "--scene $ROOT/scenes/glass_things.gltf --env $SHARED/envs/studio_small_03_1k.hdr" ;;
+    lamp) echo "--scene $SHARED/scenes/StainedGlassLamp/StainedGlassLamp.gltf" ;;
+    helmet) echo "--scene $SHARED/scenes/DamagedHelmet/DamagedHelmet.glb --env $SHARED/envs/rooitou_park_1k.hdr" ;;
+    *) return 1 ;;
+    esac
+}
+
+# CPU seconds (user + system) of one ptworker run: BUILD SEED SPP OUT ARGS...
+cpu_run() {
+    local build=$1 seed=$2 spp=$3 out=$4
+    shift 4
+    /usr/bin/time -o "$OUT/time.txt" -f "%U %S" "$OUT/$build/ptworker" "$@" --res "$RES" \
+        --threads "$THREADS" --spp "$spp" --seed "$seed" -q -o "$out" >/dev/null 2>&1
+    awk '{ printf "%.3f\n", $1 + $2 }' "$OUT/time.txt"
+}
+
+# extra: a build's own ptworker arguments (NEW_ARGS or BASE_ARGS), as words.
+build_args() {
+    if [[ $1 == new ]]; then
+        read -r -a extra <<<"$NEW_ARGS"
+    else
+        read -r -a extra <<<"$BASE_ARGS"
+    fi
+}
+
+CSV=$OUT/guiding.csv
+echo "scene,build,spp,rep,cpu,relmse,worst" >"$CSV"
+IFS=, read -r -a spps <<<"$SPP"
+for name in $SCENES; do
+    args=$(scene_args "$name") || { echo "guiding.sh: no scene '$name'" >&2; exit 2; }
+    # shellcheck disable=SC2086 # the arguments are words
+    set -- $args
+    ref=$OUT/ref_${name}_${RES}_${REF_SPP}.exr
+    if [[ ! -f $ref ]]; then
+        echo "$name: reference, $REF_SPP spp" >&2
+        "$OUT/new/ptworker" "$@" --res "$RES" --threads "$THREADS" --spp "$REF_SPP" \
+            --seed 90001 -q -o "$ref" >/dev/null 2>&1
+    fi
+    for build in base new; do
+        build_args "$build"
+        for rep in $(seq 1 "$REPS"); do
+            c=$(cpu_run "$build" "$rep" 1 "$OUT/load.exr" "$@" "${extra[@]}")
+            echo "$name,$build,0,$rep,$c,0,0" >>"$CSV"
+        done
+    done
+    for rep in $(seq 1 "$REPS"); do
+        for spp in "${spps[@]}"; do
+            for build in base new; do
+                build_args "$build"
+                img=$OUT/${name}_${build}_${spp}_${rep}.exr
+                c=$(cpu_run "$build" "$rep" "$spp" "$img" "$@" "${extra[@]}")
+                e=$("$OUT/new/ptbench" error "$img" "$ref" |
+                    awk '/^relMSE/ { r = $2 } /^worst0/ { w = $2 } END { print r "," w }')
+                echo "$name,$build,$spp,$rep,$c,$e" >>"$CSV"
+                echo "$name $build $spp spp rep $rep: cpu $c s, relMSE,worst $e" >&2
+            done
+        done
+    done
+done
+
+python3 "$ROOT/tests/bench/guiding_report.py" "$CSV" "$PLOTS"
