@@ -686,7 +686,7 @@ pt_status pt_scene_builder_add_instance(pt_scene_builder *b, uint32_t proto, con
                             "instance %u of prototype %u: its matrix is not affine", b->ninst,
                             proto);
     double c[3][3];
-    double det = normal_matrix(xform, c);
+    double det = pt_normal_matrix(xform, c);
     if (!(fabs(det) > 0.0) || !isfinite(det))
         return PT_OK; /* no area: nothing to see */
     if (b->ninst >= PT_SCENE_MAX_INSTANCES)
@@ -1624,7 +1624,7 @@ static pt_status finish_instances(pt_scene_builder *b, pt_scene *s, double sc, c
         pt_instance *in = &s->instances[i];
         double m[3][4], c[3][3];
         instance_world(x, sc, t, m);
-        double det = normal_matrix(x, c);
+        double det = pt_normal_matrix(x, c);
         in->proto = b->inst_proto[i];
         in->tan_sign = det < 0.0 ? -1.0f : 1.0f;
         for (int r = 0; r < 3; r++)
