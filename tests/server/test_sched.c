@@ -317,7 +317,9 @@ static void frame_range(void)
     uint64_t now = pt_now_ms();
     uint32_t last = 0, tasks = 0;
     int ordered = 1;
-    for (int round = 0; round < 64 && srv_entry_active(p); round++) {
+    /* Rounds until the range ends (each frame's writer is a thread: on a
+     * loaded machine a frame's image may take a while), at most 60 s. */
+    for (uint64_t end = now + 60000; srv_entry_active(p) && pt_now_ms() < end;) {
         proto_task t;
         while (srv_queue_lease(&s, 1, now, &t)) {
             uint32_t frame = (uint32_t)(t.job_id - srv_frame_job_id(5, 0));
