@@ -374,6 +374,11 @@ static const char SUBMIT_HELP[] =
     "                     what the scene's animation moves then blurs\n"
     "  --fps R            frames per second of --frames and --shutter: frame F is\n"
     "                     at F / R seconds (default 24)\n"
+    "  --clamp-direct X   clamp each sample's light that reaches the camera or the\n"
+    "                     first surface it sees to R+G+B <= X, as Cycles' Clamp\n"
+    "                     Direct (biased; default 0, off)\n"
+    "  --clamp-indirect X the same for light after more bounces (Cycles' Clamp\n"
+    "                     Indirect); the image is ptworker --clamp-* 's, bit for bit\n"
     "  --watch            then follow the job as 'ptctl watch' does (exit status 4\n"
     "                     when it ends cancelled or failed)\n";
 
@@ -500,6 +505,8 @@ static int cmd_submit(int argc, char **argv, globals *g)
     m.film_flags |= proto_film_of_passes(ro.passes);
     if (ro.denoise)
         m.film_flags |= PROTO_FILM_DENOISE;
+    m.clamp[0] = ro.clamp_direct;
+    m.clamp[1] = ro.clamp_indirect;
     if (ro.camera)
         snprintf(m.camera, sizeof m.camera, "%s", ro.camera);
     if (ro.variant)

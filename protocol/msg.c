@@ -399,6 +399,16 @@ const char *proto_shutter_problem(const double shutter[2])
     return NULL;
 }
 
+const char *proto_clamp_problem(const float clamp[2])
+{
+    /* Written so that NaN fails too. */
+    for (int k = 0; k < 2; k++)
+        if (!(clamp[k] >= 0.0f && clamp[k] <= PROTO_MAX_CLAMP))
+            return k == 0 ? "clamp direct not finite and in [0, 1e30]"
+                          : "clamp indirect not finite and in [0, 1e30]";
+    return NULL;
+}
+
 static const char *task_problem(const proto_task *m)
 {
     const char *why = rect_problem(m->tile);
@@ -416,6 +426,8 @@ static const char *task_problem(const proto_task *m)
     if (!(m->time >= 0.0) || !isfinite(m->time) || (!m->animate && m->time != 0.0))
         return "time not finite and >= 0 (0 for a still)";
     why = proto_shutter_problem(m->shutter);
+    if (!why)
+        why = proto_clamp_problem(m->clamp);
     return why ? why : env_problem(&m->env);
 }
 
@@ -454,6 +466,8 @@ pt_status proto_msg_encode_task(proto_writer *w, const proto_task *m, pt_error *
     proto_w_str(w, m->animation);
     proto_w_f64(w, m->shutter[0]);
     proto_w_f64(w, m->shutter[1]);
+    proto_w_f32(w, m->clamp[0]);
+    proto_w_f32(w, m->clamp[1]);
     return w_done(w, start, "TASK", err);
 }
 
@@ -482,6 +496,8 @@ pt_status proto_msg_decode_task(const uint8_t *p, size_t len, proto_task *out, p
     proto_r_str(&r, m.animation, PROTO_MAX_NAME, "animation");
     m.shutter[0] = proto_r_f64(&r, "shutter open");
     m.shutter[1] = proto_r_f64(&r, "shutter close");
+    m.clamp[0] = proto_r_f32(&r, "clamp direct");
+    m.clamp[1] = proto_r_f32(&r, "clamp indirect");
     pt_status st = proto_r_finish(&r, "TASK", err);
     if (st != PT_OK)
         return st;
@@ -937,6 +953,8 @@ static const char *submit_problem(const proto_submit *m)
         return "frames per second not finite and > 0 for a range (0 and no animation for a "
                "still)";
     const char *why = proto_shutter_problem(m->shutter);
+    if (!why)
+        why = proto_clamp_problem(m->clamp);
     return why ? why : env_problem(&m->env);
 }
 
@@ -975,6 +993,8 @@ pt_status proto_msg_encode_submit(proto_writer *w, const proto_submit *m, pt_err
     proto_w_str(w, m->animation);
     proto_w_f64(w, m->shutter[0]);
     proto_w_f64(w, m->shutter[1]);
+    proto_w_f32(w, m->clamp[0]);
+    proto_w_f32(w, m->clamp[1]);
     return w_done(w, start, "SUBMIT", err);
 }
 
@@ -1005,6 +1025,8 @@ pt_status proto_msg_decode_submit(const uint8_t *p, size_t len, proto_submit *ou
     proto_r_str(&r, m.animation, PROTO_MAX_NAME, "animation");
     m.shutter[0] = proto_r_f64(&r, "shutter open");
     m.shutter[1] = proto_r_f64(&r, "shutter close");
+    m.clamp[0] = proto_r_f32(&r, "clamp direct");
+    m.clamp[1] = proto_r_f32(&r, "clamp indirect");
     pt_status st = proto_r_finish(&r, "SUBMIT", err);
     if (st != PT_OK)
         return st;

@@ -250,7 +250,8 @@ int proto_env_same(const proto_env *a, const proto_env *b);
  *   132+c+e+v 2+n str  animation: "" every animation, else a name or decimal
  *                      index (pt_scene_opts.animation), n <= PROTO_MAX_NAME
  *   134+c+e+v+n 16 SHUTTER motion blur's shutter (SHUTTER layout, below)
- *   size 150+c+e+v+n
+ *   150+c+e+v+n 8 CLAMP  sample clamping (CLAMP layout, below)
+ *   size 158+c+e+v+n
  * A frame-range job's frames are separate jobs on the wire: each has its own
  * job id (srv_frame_job_id, server/sched/frames.h), so a task id, a RESULT and a
  * JOB_END name one frame's tasks. */
@@ -271,6 +272,7 @@ typedef struct proto_task {
     double time;                        /* seconds */
     char animation[PROTO_MAX_NAME + 1]; /* "" every animation */
     double shutter[2];                  /* SHUTTER: open, close; 0, 0 off */
+    float clamp[2];                     /* CLAMP: direct, indirect; 0 off */
 } proto_task;
 
 /* SHUTTER (in TASK and SUBMIT): motion blur's shutter, in seconds after the
@@ -285,6 +287,20 @@ typedef struct proto_task {
 #define PROTO_MAX_SHUTTER_S 3600.0
 /* NULL when open and close make a shutter, else what is wrong. */
 const char *proto_shutter_problem(const double shutter[2]);
+
+/* CLAMP (in TASK and SUBMIT): sample clamping, biased and off by default
+ * (pt_render_params.clamp_direct, clamp_indirect: a contribution whose
+ * R + G + B passes the limit is scaled down to it, as Cycles' Clamp Direct
+ * and Clamp Indirect).
+ *   0    4    f32      direct: light reaching the camera or the first surface it sees
+ *   4    4    f32      indirect: light after more bounces
+ *   size 8
+ * Each finite with 0 <= limit <= PROTO_MAX_CLAMP; 0 is off. The floats are
+ * sent as their bits, so a worker clamps exactly as ptworker --clamp-direct
+ * of the same value does. */
+#define PROTO_MAX_CLAMP 1e30f
+/* NULL when both limits are finite and in [0, PROTO_MAX_CLAMP], else what is wrong. */
+const char *proto_clamp_problem(const float clamp[2]);
 
 /* SCENE_GET
  *   0    32   u8[32]  scene content hash
@@ -444,7 +460,8 @@ typedef struct proto_fetch_frame {
  *   135+a+c+e+v 2+n str animation: "" every animation, else a name or decimal
  *                  index, n <= PROTO_MAX_NAME ("" for a still)
  *   137+a+c+e+v+n 16 SHUTTER motion blur's shutter (SHUTTER layout, above)
- *   size 153+a+c+e+v+n
+ *   153+a+c+e+v+n 8 CLAMP sample clamping (CLAMP layout, above)
+ *   size 161+a+c+e+v+n
  * The decoder checks shape only (width and height both 0 or both > 0, spp > 0,
  * size > 0, target error and min gain finite and >= 0); caps, and whether the
  * two rules may be combined, are the server's business. */
@@ -466,6 +483,7 @@ typedef struct proto_submit {
     double fps;
     char animation[PROTO_MAX_NAME + 1];
     double shutter[2]; /* SHUTTER: open, close; 0, 0 off */
+    float clamp[2];    /* CLAMP: direct, indirect; 0 off */
 } proto_submit;
 
 enum {

@@ -24,10 +24,12 @@ void srv_job_params_write(proto_writer *w, const srv_job_params *p)
     proto_w_str(w, p->variant);
     proto_w_f64(w, p->shutter[0]);
     proto_w_f64(w, p->shutter[1]);
+    proto_w_f32(w, p->clamp[0]);
+    proto_w_f32(w, p->clamp[1]);
 }
 
 void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, int has_env_film,
-                         int has_shutter)
+                         int has_shutter, int has_clamp)
 {
     p->width = proto_r_u32(r, "width");
     p->height = proto_r_u32(r, "height");
@@ -46,6 +48,7 @@ void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, i
     p->film_flags = 0;
     p->variant[0] = '\0';
     p->shutter[0] = p->shutter[1] = 0.0;
+    p->clamp[0] = p->clamp[1] = 0.0f;
     if (!has_env_film)
         return;
     proto_r_str(r, p->env.name, PROTO_MAX_PATH, "environment map name");
@@ -64,4 +67,10 @@ void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, i
     p->shutter[1] = proto_r_f64(r, "shutter close");
     if (r->status == PT_OK && proto_shutter_problem(p->shutter))
         proto_r_fail(r, PT_ERR_FORMAT, "bad", "shutter");
+    if (!has_clamp)
+        return;
+    p->clamp[0] = proto_r_f32(r, "clamp direct");
+    p->clamp[1] = proto_r_f32(r, "clamp indirect");
+    if (r->status == PT_OK && proto_clamp_problem(p->clamp))
+        proto_r_fail(r, PT_ERR_FORMAT, "bad", "clamp");
 }

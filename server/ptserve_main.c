@@ -133,6 +133,12 @@ static void usage(FILE *f)
         "                         needs) into the EXR's layer denoised.R/G/B, off the\n"
         "                         event loop; the preview shows it; one-job mode\n"
         "                         (queued jobs: ptctl submit --denoise)\n"
+        "  --clamp-direct X       clamp each sample's light that reaches the camera or\n"
+        "                         the first surface it sees to R+G+B <= X, as Cycles'\n"
+        "                         Clamp Direct (biased; default 0, off); one-job mode\n"
+        "                         (queued jobs: ptctl submit --clamp-direct)\n"
+        "  --clamp-indirect X     the same for light after more bounces (Cycles' Clamp\n"
+        "                         Indirect); the image is ptworker --clamp-* 's, bit for bit\n"
         "  --variant NAME         the KHR_materials_variants variant: mapped primitives\n"
         "                         take its material; one-job mode (queued jobs: ptctl\n"
         "                         submit --variant)\n"
@@ -479,6 +485,8 @@ static void job_from_options(srv_config *c, const pt_render_opts *ro, parsed *x)
     c->job.film_flags |= proto_film_of_passes(ro->passes);
     if (ro->denoise)
         c->job.film_flags |= PROTO_FILM_DENOISE;
+    c->job.clamp[0] = ro->clamp_direct;
+    c->job.clamp[1] = ro->clamp_indirect;
     c->view = ro->view;
 }
 
@@ -564,6 +572,12 @@ static int check_options(srv_config *c, const pt_render_opts *ro, parsed *x, int
     if (c->state_dir && (c->job.film_flags & PROTO_FILM_TRANSPARENT)) {
         fprintf(stderr, "ptserve: --transparent is for one-job mode; a queued job asks for it "
                         "with ptctl submit --transparent\n");
+        return 2;
+    }
+    if (c->state_dir &&
+        (ro->given & (PT_ROPT(PT_ROPT_CLAMP_DIRECT) | PT_ROPT(PT_ROPT_CLAMP_INDIRECT)))) {
+        fprintf(stderr, "ptserve: --clamp-direct and --clamp-indirect are for one-job mode; a "
+                        "queued job asks for them with ptctl submit --clamp-direct\n");
         return 2;
     }
     if (c->state_dir && ro->denoise) {

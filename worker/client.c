@@ -220,6 +220,8 @@ static void render_one(worker *w, const task_item *t, done_item *d)
     p.light_strategy = PT_LIGHT_MIS;
     p.transparent = (k->film_flags & PROTO_FILM_TRANSPARENT) ? 1u : 0u;
     p.passes = proto_film_passes(k->film_flags);
+    p.clamp_direct = k->clamp[0];
+    p.clamp_indirect = k->clamp[1];
     size_t npx = (size_t)(k->tile.x1 - k->tile.x0) * (k->tile.y1 - k->tile.y0);
     d->pixels = pt_malloc_array(npx, sizeof *d->pixels);
     if (p.passes)

@@ -241,9 +241,7 @@ int main(int argc, char **argv)
         OPT_TOKEN,
         OPT_CACHE,
         OPT_NAME,
-        OPT_LINK_TIMEOUT,
-        OPT_CLAMP_DIRECT,
-        OPT_CLAMP_INDIRECT
+        OPT_LINK_TIMEOUT
     };
     static const struct option own[] = {
         {"scene", required_argument, NULL, OPT_SCENE},
@@ -253,8 +251,6 @@ int main(int argc, char **argv)
         {"frame", required_argument, NULL, OPT_FRAME},
         {"list", required_argument, NULL, OPT_LIST},
         {"guiding", required_argument, NULL, OPT_GUIDING},
-        {"clamp-direct", required_argument, NULL, OPT_CLAMP_DIRECT},
-        {"clamp-indirect", required_argument, NULL, OPT_CLAMP_INDIRECT},
         {"quiet", no_argument, NULL, 'q'},
         {"server", required_argument, NULL, OPT_SERVER},
         {"prefetch", required_argument, NULL, OPT_PREFETCH},
@@ -307,14 +303,6 @@ int main(int argc, char **argv)
                 bad = 1;
             }
             break;
-        case OPT_CLAMP_DIRECT:
-        case OPT_CLAMP_INDIRECT: {
-            const char *name = c == OPT_CLAMP_DIRECT ? "--clamp-direct" : "--clamp-indirect";
-            double v = 0.0;
-            bad = bad_value(pt_opt_double(name, optarg, 0.0, 1e30, &v, &err), &err);
-            *(c == OPT_CLAMP_DIRECT ? &o.clamp_direct : &o.clamp_indirect) = (float)v;
-            break;
-        }
         case 'q':
             o.quiet = 1;
             break;
@@ -448,6 +436,8 @@ int main(int argc, char **argv)
     o.view = ro.view;
     o.fps = ro.fps;
     o.passes = ro.passes;
+    o.clamp_direct = ro.clamp_direct;
+    o.clamp_indirect = ro.clamp_indirect;
     o.denoise = ro.denoise;
     if (ro.animation)
         o.animate = 1;

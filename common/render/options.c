@@ -41,6 +41,8 @@ static const struct {
     [PT_ROPT_VIEW] = {"view", required_argument},
     [PT_ROPT_PASSES] = {"passes", required_argument},
     [PT_ROPT_DENOISE] = {"denoise", no_argument},
+    [PT_ROPT_CLAMP_DIRECT] = {"clamp-direct", required_argument},
+    [PT_ROPT_CLAMP_INDIRECT] = {"clamp-indirect", required_argument},
 };
 
 void pt_render_opts_init(pt_render_opts *o)
@@ -171,6 +173,17 @@ pt_status pt_render_opt_set(pt_render_opts *o, int c, const char *text, pt_error
     case PT_ROPT_DENOISE:
         o->denoise = 1;
         break;
+    case PT_ROPT_CLAMP_DIRECT:
+    case PT_ROPT_CLAMP_INDIRECT: {
+        /* A float on the wire and in the renderer: the limit is checked as
+         * the double read (NaN, negative and infinite refused) and sent as
+         * the float it rounds to, the same bits in every program. */
+        double v = 0.0;
+        st = pt_opt_double(opt, text, 0.0, PT_ROPT_MAX_CLAMP, &v, err);
+        if (st == PT_OK)
+            *(id == PT_ROPT_CLAMP_DIRECT ? &o->clamp_direct : &o->clamp_indirect) = (float)v;
+        break;
+    }
     case PT_ROPT_COUNT:
         break;
     }

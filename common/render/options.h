@@ -4,8 +4,8 @@
  * ptworker --scene, ptserve (one job) and ptctl submit describe the same
  * render: samples, size, seed, bounce cap, camera, variant, animation,
  * environment, film, shutter, adaptive sampling, tiles, the preview's
- * view and the render passes. Their names, their value syntax and their limits are here once, so
- * a job that one program accepts the others accept too, and "--spp 0" or
+ * view, the render passes and sample clamping. Their names, their value syntax and their limits are
+ * here once, so a job that one program accepts the others accept too, and "--spp 0" or
  * "--res 64x" is refused with the same words everywhere. A program builds
  * its getopt table from its own options and pt_render_longopts (those of
  * the table it takes), hands every value whose id is PT_ROPT_BASE + k to
@@ -55,6 +55,8 @@ typedef enum pt_ropt_id {
     PT_ROPT_VIEW,
     PT_ROPT_PASSES,
     PT_ROPT_DENOISE,
+    PT_ROPT_CLAMP_DIRECT,
+    PT_ROPT_CLAMP_INDIRECT,
     PT_ROPT_COUNT
 } pt_ropt_id;
 
@@ -64,7 +66,8 @@ typedef enum pt_ropt_id {
 
 /* The limits, one set for every program. */
 #define PT_ROPT_MAX_SPP (1u << 24)
-#define PT_ROPT_MAX_NAME 64u /* camera, variant, animation: a farm job's fields */
+#define PT_ROPT_MAX_NAME 64u   /* camera, variant, animation: a farm job's fields */
+#define PT_ROPT_MAX_CLAMP 1e30 /* --clamp-direct, --clamp-indirect (CLAMP, protocol/msg.h) */
 
 typedef struct pt_render_opts {
     uint32_t given;         /* PT_ROPT(id) for each option given */
@@ -90,6 +93,7 @@ typedef struct pt_render_opts {
     uint32_t passes; /* PT_PASS_* (tile.h), 0 unless given; with denoise,
                         PT_PASS_DENOISE's too after finish */
     int denoise;     /* --denoise: the finished image denoised (denoise_frame.h) */
+    float clamp_direct, clamp_indirect; /* sample clamping (pt_render_params); 0: off */
 } pt_render_opts;
 
 /* The defaults above, nothing given. */

@@ -292,6 +292,8 @@ static void submitted_params(const srv_config *cfg, const srv_upload *k, srv_job
     snprintf(p.variant, sizeof p.variant, "%s", m->variant);
     p.shutter[0] = m->shutter[0];
     p.shutter[1] = m->shutter[1];
+    p.clamp[0] = m->clamp[0];
+    p.clamp[1] = m->clamp[1];
     p.env = m->env;
     if (p.width == 0) {
         p.width = 512;

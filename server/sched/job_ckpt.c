@@ -13,7 +13,7 @@
 /* ---- checkpoints ---- */
 
 #define CKPT_MAGIC 0x434a5450u /* "PTJC" */
-#define CKPT_VERSION 8u
+#define CKPT_VERSION 9u
 #define CKPT_OLDEST_VERSION 2u   /* no min gain: read as 0 */
 #define CKPT_MIN_GAIN_VERSION 3u /* the first with the min gain */
 /* The first with the environment (older: none), and the first with the film
@@ -31,7 +31,9 @@
  * each pixel's sums, held or in the film, are then followed by its pass
  * sums (put_pass). */
 #define CKPT_PASSES_VERSION 8u
-#define CKPT_PASS_SIZE 404u /* bytes of one pixel's pass sums */
+#define CKPT_PASS_SIZE 404u
+/* The first with sample clamping in the params (older: none). */
+#define CKPT_CLAMP_VERSION 9u /* bytes of one pixel's pass sums */
 
 /* A pixel as the checkpoint stores it: each sum as two u64, low half first
  * (RESULT's wide layout, msg.h), then n and hits. */
@@ -306,7 +308,7 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
      * CKPT_FIXED_VERSION), n, and hits (from CKPT_FILM_VERSION on). */
     size_t acc_size = version >= CKPT_FIXED_VERSION ? 72 : film ? 40 : 36;
     srv_job_params_read(&r, &p, version >= CKPT_MIN_GAIN_VERSION, version >= CKPT_ENV_VERSION,
-                        version >= CKPT_SHUTTER_VERSION);
+                        version >= CKPT_SHUTTER_VERSION, version >= CKPT_CLAMP_VERSION);
     uint64_t capped = film ? proto_r_u64(&r, "paths capped") : 0;
     uint32_t ntiles = proto_r_u32(&r, "tiles"), nchunks = proto_r_u32(&r, "chunks");
     if (r.status != PT_OK)
@@ -325,7 +327,8 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
         memcmp(&p.min_gain, &j->p.min_gain, sizeof p.min_gain) != 0 ||
         strcmp(p.camera, j->p.camera) != 0 || !proto_env_same(&p.env, &j->p.env) ||
         p.film_flags != j->p.film_flags || strcmp(p.variant, j->p.variant) != 0 ||
-        memcmp(p.shutter, j->p.shutter, sizeof p.shutter) != 0 || ntiles != j->ntiles ||
+        memcmp(p.shutter, j->p.shutter, sizeof p.shutter) != 0 ||
+        memcmp(p.clamp, j->p.clamp, sizeof p.clamp) != 0 || ntiles != j->ntiles ||
         nchunks != j->npasses)
         return pt_error_set(err, PT_ERR_FORMAT,
                             "checkpoint is of another job or other settings "

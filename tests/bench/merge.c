@@ -59,8 +59,8 @@ int main(int argc, char **argv)
         return 2;
     }
     srv_job_params p = {
-        w, h,  2 * chunk, tile, chunk, 1, 16, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
-        0, "", {0, 0}};
+        w, h,  2 * chunk, tile,  chunk, 1, 16, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+        0, "", {0, 0},    {0, 0}};
     uint8_t hash[32] = {0};
     double rates[99], mbs[99];
     size_t total_bytes = 0;

@@ -212,13 +212,14 @@ static void check_round_trip(int s, int v, const uint8_t *p, size_t len)
     }
     case 6: {
         proto_task a = sample_task(v), b;
-        CHECK(len == 150 + strlen(a.camera) + strlen(a.env.name) + strlen(a.variant) +
+        CHECK(len == 158 + strlen(a.camera) + strlen(a.env.name) + strlen(a.variant) +
                          strlen(a.animation) &&
               proto_msg_decode_task(p, len, &b, &err) == PT_OK);
         CHECK(a.animate == b.animate && proto_f64_bits(a.time) == proto_f64_bits(b.time) &&
               strcmp(a.animation, b.animation) == 0);
         CHECK(strcmp(a.camera, b.camera) == 0 && a.film_flags == b.film_flags);
         CHECK(memcmp(a.shutter, b.shutter, sizeof a.shutter) == 0);
+        CHECK(memcmp(a.clamp, b.clamp, sizeof a.clamp) == 0);
         CHECK(strcmp(a.variant, b.variant) == 0);
         CHECK(proto_env_same(&a.env, &b.env));
         CHECK(a.job_id == b.job_id && a.task_id == b.task_id);
@@ -289,13 +290,14 @@ static void check_round_trip(int s, int v, const uint8_t *p, size_t len)
     case 12: {
         proto_submit a = sample_submit(v), b;
         CHECK(proto_msg_decode_submit(p, len, &b, &err) == PT_OK);
-        CHECK(len == 153 + strlen(a.name) + strlen(a.camera) + strlen(a.env.name) +
+        CHECK(len == 161 + strlen(a.name) + strlen(a.camera) + strlen(a.env.name) +
                          strlen(a.variant) + strlen(a.animation));
         CHECK(a.frame_first == b.frame_first && a.frame_last == b.frame_last &&
               a.frame_step == b.frame_step && proto_f64_bits(a.fps) == proto_f64_bits(b.fps) &&
               strcmp(a.animation, b.animation) == 0);
         CHECK(strcmp(a.camera, b.camera) == 0 && a.film_flags == b.film_flags);
         CHECK(memcmp(a.shutter, b.shutter, sizeof a.shutter) == 0);
+        CHECK(memcmp(a.clamp, b.clamp, sizeof a.clamp) == 0);
         CHECK(strcmp(a.variant, b.variant) == 0);
         CHECK(proto_env_same(&a.env, &b.env));
         CHECK(strcmp(a.name, b.name) == 0 && a.width == b.width && a.height == b.height);
@@ -493,6 +495,8 @@ static proto_writer task_raw(pt_rect t, uint32_t s0, uint32_t s1, uint32_t width
     proto_w_u16(&w, 0);   /* animation: "" */
     proto_w_f64(&w, 0.0); /* shutter: off */
     proto_w_f64(&w, 0.0);
+    proto_w_f32(&w, 0.0f); /* clamps: off */
+    proto_w_f32(&w, 0.0f);
     return w;
 }
 
@@ -561,9 +565,10 @@ static void test_task(void)
         proto_task good = sample_task(k & 1);
         CHECK(proto_msg_encode_task(&ew, &good, &err) == PT_OK);
         /* Patch the bad value into the good bytes: the ENV block, then the
-         * film flags, the variant, the pose and the shutter end the message. */
-        uint8_t *env_at = ew.buf + ew.len - 16 - POSE_TAIL(good) - 2 - strlen(good.variant) - 4 -
-                          23 - strlen(good.env.name);
+         * film flags, the variant, the pose, the shutter and the clamps end
+         * the message. */
+        uint8_t *env_at = ew.buf + ew.len - 8 - 16 - POSE_TAIL(good) - 2 - strlen(good.variant) -
+                          4 - 23 - strlen(good.env.name);
         if (k == 0)
             proto_put_u32(env_at + 19, 0x7FC00000u); /* rgb[2], the name empty */
         else if (k == 1)
@@ -589,8 +594,8 @@ static void test_task(void)
           strcmp(back.camera, t.camera) == 0);
     proto_writer_reset(&w);
     proto_writer raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
-    raw.len -= 2 + 23 + 4 + 2 + 11 + 16; /* the empty camera, ENV, film flags, variant, pose,
-                                            shutter */
+    raw.len -= 2 + 23 + 4 + 2 + 11 + 16 + 8; /* the empty camera, ENV, film flags, variant,
+                                                pose, shutter, clamps */
     proto_w_u16(&raw, PROTO_MAX_NAME + 1);
     for (uint32_t i = 0; i <= PROTO_MAX_NAME; i++)
         proto_w_u8(&raw, 'c');
@@ -618,7 +623,7 @@ static void test_task(void)
     proto_writer_reset(&w);
     CHECK(proto_msg_encode_task(&w, &t, &err) == PT_ERR_ARG && w.len == 0);
     raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
-    proto_put_u32(raw.buf + raw.len - 16 - 11 - 6, 0x80000000u);
+    proto_put_u32(raw.buf + raw.len - 8 - 16 - 11 - 6, 0x80000000u);
     CHECK(decode_any(PROTO_MSG_TASK, raw.buf, raw.len, &err) == PT_ERR_PROTO &&
           strstr(err.msg, "film flags"));
     proto_writer_fini(&raw);
@@ -635,7 +640,7 @@ static void test_task(void)
     CHECK(proto_msg_decode_task(w.buf, w.len, &back, &err) == PT_OK &&
           strcmp(back.variant, t.variant) == 0);
     raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
-    raw.len -= 2 + 11 + 16; /* the empty variant, the still's pose and the shutter */
+    raw.len -= 2 + 11 + 16 + 8; /* the empty variant, the still's pose, the shutter, the clamps */
     proto_w_u16(&raw, PROTO_MAX_NAME + 1);
     for (uint32_t i = 0; i <= PROTO_MAX_NAME; i++)
         proto_w_u8(&raw, 'v');
@@ -648,9 +653,8 @@ static void test_task(void)
     proto_writer_reset(&w);
     CHECK(proto_msg_encode_task(&w, &t, &err) == PT_ERR_ARG && w.len == 0);
 
-    /* The shutter ends the message: it round-trips; open after close,
-     * negative, NaN or over the cap is refused both ways; the protocol-3
-     * layout without it is a truncated TASK. */
+    /* The shutter comes before the clamps: it round-trips; open after close,
+     * negative, NaN or over the cap is refused both ways. */
     t = sample_task(0);
     CHECK(t.shutter[1] > t.shutter[0]);
     proto_writer_reset(&w);
@@ -665,16 +669,43 @@ static void test_task(void)
         proto_writer_reset(&w);
         CHECKF(proto_msg_encode_task(&w, &t, &err) == PT_ERR_ARG && w.len == 0, "shutter %zu", k);
         raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
-        raw.len -= 16;
+        raw.len -= 16 + 8;
         proto_w_f64(&raw, bad_shutters[k][0]);
         proto_w_f64(&raw, bad_shutters[k][1]);
+        proto_w_f32(&raw, 0.0f);
+        proto_w_f32(&raw, 0.0f);
         CHECKF(decode_any(PROTO_MSG_TASK, raw.buf, raw.len, &err) == PT_ERR_PROTO &&
                    strstr(err.msg, "shutter"),
                "shutter %zu: %s", k, err.msg);
         proto_writer_fini(&raw);
     }
+
+    /* The clamps end the message: they round-trip bit for bit; negative,
+     * NaN, infinite or over the cap is refused both ways, naming the limit;
+     * the protocol-7 layout without them is a truncated TASK. */
+    t = sample_task(0);
+    CHECK(t.clamp[1] == 10.0f);
+    proto_writer_reset(&w);
+    CHECK(proto_msg_encode_task(&w, &t, &err) == PT_OK);
+    CHECK(proto_msg_decode_task(w.buf, w.len, &back, &err) == PT_OK &&
+          memcmp(back.clamp, t.clamp, sizeof t.clamp) == 0);
+    const float bad_clamps[] = {-1.0f, -1e-30f, NAN, -NAN, INFINITY, 2e30f};
+    for (size_t k = 0; k < sizeof bad_clamps / sizeof *bad_clamps; k++) {
+        for (int c = 0; c < 2; c++) {
+            t = sample_task(1);
+            t.clamp[c] = bad_clamps[k];
+            proto_writer_reset(&w);
+            CHECKF(proto_msg_encode_task(&w, &t, &err) == PT_ERR_ARG && w.len == 0, "clamp %zu", k);
+            raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
+            proto_put_u32(raw.buf + raw.len - 8 + 4 * c, proto_f32_bits(bad_clamps[k]));
+            CHECKF(decode_any(PROTO_MSG_TASK, raw.buf, raw.len, &err) == PT_ERR_PROTO &&
+                       strstr(err.msg, c ? "clamp indirect" : "clamp direct"),
+                   "clamp %zu: %s", k, err.msg);
+            proto_writer_fini(&raw);
+        }
+    }
     raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
-    raw.len -= 16;
+    raw.len -= 8;
     CHECK(decode_any(PROTO_MSG_TASK, raw.buf, raw.len, &err) == PT_ERR_PROTO &&
           strstr(err.msg, "truncated"));
     proto_writer_fini(&raw);
@@ -1088,6 +1119,8 @@ static pt_status submit_check(const proto_submit *m, const char *want)
     proto_w_bytes(&w, m->animation, strnlen(m->animation, sizeof m->animation));
     proto_w_f64(&w, m->shutter[0]);
     proto_w_f64(&w, m->shutter[1]);
+    proto_w_f32(&w, m->clamp[0]);
+    proto_w_f32(&w, m->clamp[1]);
     pt_error err = {0};
     pt_status st = decode_any(PROTO_MSG_SUBMIT, w.buf, w.len, &err);
     if (st != PT_OK && want && !strstr(err.msg, want)) {
@@ -1144,6 +1177,17 @@ static void test_submit(void)
     CHECK(submit_check(&m, "shutter") == PT_ERR_PROTO);
     m.shutter[0] = NAN;
     CHECK(submit_check(&m, "shutter") == PT_ERR_PROTO);
+    /* The clamps: 0 (off) to 1e30 travel; negative, NaN or infinite is
+     * refused both ways. */
+    m = sample_submit(1);
+    CHECK(m.clamp[1] == PROTO_MAX_CLAMP && submit_check(&m, NULL) == PT_OK);
+    m.clamp[0] = -2.0f;
+    CHECK(submit_check(&m, "clamp direct") == PT_ERR_PROTO);
+    m = sample_submit(0);
+    m.clamp[1] = NAN;
+    CHECK(submit_check(&m, "clamp indirect") == PT_ERR_PROTO);
+    m.clamp[1] = INFINITY;
+    CHECK(submit_check(&m, "clamp indirect") == PT_ERR_PROTO);
     static const uint64_t bad_errors[] = {
         0x7FF8000000000000ull, /* NaN */
         0xFFF8000000000000ull, /* -NaN */
@@ -1228,7 +1272,7 @@ static void test_submit(void)
     m = sample_submit(0);
     CHECK(proto_msg_encode_submit(&w, &m, &err) == PT_OK);
     CHECK(decode_any(PROTO_MSG_SUBMIT, w.buf,
-                     w.len - 16 - 22 - strlen(m.animation) - 2 - strlen(m.variant) - 4 - 1,
+                     w.len - 8 - 16 - 22 - strlen(m.animation) - 2 - strlen(m.variant) - 4 - 1,
                      &err) == PT_ERR_PROTO);
     CHECK(strstr(err.msg, "background colour") != NULL);
     proto_writer_reset(&w);
@@ -1502,7 +1546,7 @@ static void test_frames(void)
         /* By hand: the good bytes with the bad pose patched in. */
         proto_task good = sample_task(k < 2);
         CHECK(proto_msg_encode_task(&w, &good, &err) == PT_OK);
-        uint8_t *pose = w.buf + w.len - 16 - POSE_TAIL(good); /* the shutter after it */
+        uint8_t *pose = w.buf + w.len - 8 - 16 - POSE_TAIL(good); /* the shutter, clamps after */
         pose[0] = t.animate;
         proto_put_u64(pose + 1, proto_f64_bits(t.time));
         CHECKF(decode_any(PROTO_MSG_TASK, w.buf, w.len, &err) == PT_ERR_PROTO &&

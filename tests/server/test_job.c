@@ -39,8 +39,8 @@ static void fake_result(const proto_task *t, pt_pixel_acc *px, proto_result *r)
 static srv_job *make(uint32_t w, uint32_t h, uint32_t spp, uint32_t tile, uint32_t chunk)
 {
     srv_job_params p = {
-        w, h,  spp,   tile, chunk, 5, 16, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
-        0, "", {0, 0}};
+        w, h,  spp,    tile,  chunk, 5, 16, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+        0, "", {0, 0}, {0, 0}};
     srv_job *j = NULL;
     pt_error err = {0};
     CHECKF(srv_job_new(9, &p, HASH, &j, &err) == PT_OK, "%s", err.msg);
@@ -185,8 +185,8 @@ static void bit_identical(void)
 static void adaptive(void)
 {
     srv_job_params p = {
-        64, 32, 64,    32, 8, 1, 16, 3, 0.01, 16, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
-        0,  "", {0, 0}};
+        64, 32, 64,     32,    8, 1, 16, 3, 0.01, 16, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+        0,  "", {0, 0}, {0, 0}};
     srv_job *j = NULL;
     CHECK(srv_job_new(2, &p, HASH, &j, NULL) == PT_OK);
     if (!j)
@@ -266,8 +266,8 @@ static void gain_pixels(const proto_task *t, pt_pixel_acc *px, proto_result *r)
 static void adaptive_min_gain(void)
 {
     srv_job_params p = {
-        64, 32, 64,    32, 8, 1, 16, 3, 0.0, 8, 1e-5, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
-        0,  "", {0, 0}};
+        64, 32, 64,     32,    8, 1, 16, 3, 0.0, 8, 1e-5, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+        0,  "", {0, 0}, {0, 0}};
     srv_job *a = NULL, *b = NULL, *c = NULL, *d = NULL;
     CHECK(srv_job_new(3, &p, HASH, &a, NULL) == PT_OK);
     CHECK(srv_job_new(3, &p, HASH, &b, NULL) == PT_OK);
@@ -346,16 +346,38 @@ static void adaptive_min_gain(void)
     }
     srv_job_free(d);
     d = NULL;
-    /* The params end with the shutter (16 bytes), which formats before 7 lack. */
+    /* So are other clamps, and a clamped job's checkpoint resumes with its
+     * clamps in every task. */
+    q = p;
+    q.clamp[1] = 10.0f;
+    CHECK(srv_job_new(3, &q, HASH, &d, NULL) == PT_OK);
+    CHECKF(d && srv_job_load(d, w.buf, w.len, &err) == PT_ERR_FORMAT, "%s", err.msg);
+    {
+        srv_job *e = NULL;
+        proto_writer wc;
+        proto_writer_init(&wc, 1u << 20);
+        CHECK(d && srv_job_save(d, &wc, NULL) == PT_OK);
+        CHECK(srv_job_new(3, &q, HASH, &e, NULL) == PT_OK);
+        CHECKF(e && srv_job_load(e, wc.buf, wc.len, &err) == PT_OK, "%s", err.msg);
+        proto_task ct;
+        CHECK(e && srv_job_lease(e, 1, 0, 1000, &ct) && ct.clamp[0] == 0.0f &&
+              ct.clamp[1] == 10.0f);
+        srv_job_free(e);
+        proto_writer_fini(&wc);
+    }
+    srv_job_free(d);
+    d = NULL;
+    /* The params end with the shutter (16 bytes), which formats before 7
+     * lack, and the clamps (8), which formats before 9 lack. */
     const size_t pend = 4 + 4 + 8 + 32 + 9 * 4 + 2 * 8 + 2 + strlen(p.camera) + 23 + 4 + 2;
-    const size_t head = pend + 16 + 8;
+    const size_t head = pend + 24 + 8;
     /* A version 6 checkpoint (time-sized tasks, no shutter: the same bytes
      * without it) loads to the same bits. */
     {
         proto_writer v6;
         proto_writer_init(&v6, 1u << 20);
         proto_w_bytes(&v6, w.buf, pend);
-        proto_w_bytes(&v6, w.buf + pend + 16, w.len - pend - 16);
+        proto_w_bytes(&v6, w.buf + pend + 24, w.len - pend - 24);
         proto_put_u32(v6.buf + 4, 6);
         srv_job *e = NULL;
         CHECK(proto_writer_status(&v6) == PT_OK);
@@ -375,7 +397,7 @@ static void adaptive_min_gain(void)
         uint32_t ntiles = proto_get_u32(w.buf + head);
         size_t at = head + 8;
         proto_w_bytes(&v5, w.buf, pend);
-        proto_w_bytes(&v5, w.buf + pend + 16, at - pend - 16);
+        proto_w_bytes(&v5, w.buf + pend + 24, at - pend - 24);
         proto_put_u32(v5.buf + 4, 5);
         for (uint32_t ti = 0; ti < ntiles; ti++, at += 5) {
             proto_w_u32(&v5, proto_get_u32(w.buf + at) / 8);
@@ -419,8 +441,8 @@ static void adaptive_min_gain(void)
          * name the task, chunk x tiles + tile. */
         uint32_t ntiles = proto_get_u32(w.buf + head);
         size_t at = head + 8;
-        proto_w_bytes(&v4, w.buf, pend); /* without the shutter */
-        proto_w_bytes(&v4, w.buf + pend + 16, at - pend - 16);
+        proto_w_bytes(&v4, w.buf, pend); /* without the shutter and the clamps */
+        proto_w_bytes(&v4, w.buf + pend + 24, at - pend - 24);
         proto_put_u32(v4.buf + 4, 4);
         for (uint32_t ti = 0; ti < ntiles; ti++, at += 5) {
             proto_w_u32(&v4, proto_get_u32(w.buf + at) / 8);
@@ -514,8 +536,8 @@ done:
 static void adaptive_min_gain_black(void)
 {
     srv_job_params p = {
-        64, 32, 64,    32, 8, 1, 16, 3, 0.0, 8, 1e-5, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
-        0,  "", {0, 0}};
+        64, 32, 64,     32,    8, 1, 16, 3, 0.0, 8, 1e-5, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+        0,  "", {0, 0}, {0, 0}};
     srv_job *j = NULL;
     CHECK(srv_job_new(3, &p, HASH, &j, NULL) == PT_OK);
     if (!j)
@@ -539,7 +561,8 @@ static void adaptive_min_gain_black(void)
 static void bad_params(void)
 {
     srv_job_params p = {
-        0, 10, 4, 16, 4, 0, 4, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}, 0, "", {0, 0}};
+        0, 10, 4,      16,    4, 0, 4, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+        0, "", {0, 0}, {0, 0}};
     srv_job *j = NULL;
     pt_error err = {0};
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
@@ -547,15 +570,16 @@ static void bad_params(void)
     p.tile = 1000;
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
     p = (srv_job_params){
-        16, 16, 4, 16, 4, 0, 4, 3, 0.0, 0, NAN, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}, 0, "", {0, 0}};
+        16, 16, 4,      16,    4, 0, 4, 3, 0.0, 0, NAN, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+        0,  "", {0, 0}, {0, 0}};
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
     p.min_gain = -1e-6;
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
     p.min_gain = INFINITY;
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
     p = (srv_job_params){
-        16384, 16384, 1u << 24, 16, 1, 0, 4, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
-        0,     "",    {0, 0}};
+        16384, 16384, 1u << 24, 16,    1, 0, 4, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+        0,     "",    {0, 0},   {0, 0}};
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_LIMIT);
     CHECK(j == NULL);
 }
@@ -822,6 +846,7 @@ static void film_and_cap(void)
                         {"", 1.0f, 0.0f, 0, {0, 0, 0}},
                         PROTO_FILM_TRANSPARENT,
                         "",
+                        {0, 0},
                         {0, 0}};
     srv_job *j = NULL, *k = NULL, *o = NULL;
     pt_error err = {0};
@@ -1010,7 +1035,8 @@ static srv_job_params sized_params(uint32_t spp, double target_error)
                         {"", 1.0f, 0.0f, 0, {0, 0, 0}},
                         0,
                         "",
-                        {0.0, 0.0}};
+                        {0.0, 0.0},
+                        {0, 0}};
     return p;
 }
 

@@ -30,7 +30,8 @@
 
 static const uint8_t HASH[32] = {7, 7, 7};
 static const srv_job_params PARAMS = {
-    64, 32, 32, 32, 16, 5, 8, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}, 0, "", {0, 0}};
+    64, 32, 32,     32,    16, 5, 8, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+    0,  "", {0, 0}, {0, 0}};
 #define JOB_ID 4u
 
 /* The RESULT frame of task t of a PARAMS job, with synthetic pixels: a log
@@ -366,8 +367,8 @@ static void test_queue_env_versions(const char *dir)
     got = NULL;
 
     /* Version 3: the same record without the ENV block (23 bytes with no map
-     * name), the film flags (4), the variant (2, empty) and the shutter (16),
-     * which sit after the camera, and without the depth-cap count (8),
+     * name), the film flags (4), the variant (2, empty), the shutter (16) and
+     * the clamps (8), which sit after the camera, and without the depth-cap count (8),
      * version 8's rejected count (8) and version 6's frame block (27 with no
      * animation and no frame done ahead), its last fields. */
     rec.params.env = PARAMS.env;
@@ -379,9 +380,9 @@ static void test_queue_env_versions(const char *dir)
     CHECK(pt_read_file(qp, 1 << 20, &f, &len, &err) == PT_OK);
     size_t at = 8 + 8 + 4 + 8 + 8 + 1 + 4 + (2 + strlen(rec.name)) + 2 + 2 + 2 + 8 + 9 * 4 + 2 * 8 +
                 2 + strlen(rec.params.camera);
-    if (f && len > at + 45 + 12 + 35) {
-        memmove(f + at, f + at + 45, len - at - 45);
-        len -= 45;
+    if (f && len > at + 53 + 12 + 35) {
+        memmove(f + at, f + at + 53, len - at - 53);
+        len -= 53;
         /* the capped and rejected counts and frames before the CRC */
         memmove(f + len - 47, f + len - 4, 4);
         len -= 43;
