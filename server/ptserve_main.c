@@ -133,6 +133,9 @@ static void usage(FILE *f)
         "                         needs) into the EXR's layer denoised.R/G/B, off the\n"
         "                         event loop; the preview shows it; one-job mode\n"
         "                         (queued jobs: ptctl submit --denoise)\n"
+        "  --guiding on|off|auto  path guiding learned by the farm (default off): as\n"
+        "                         ptworker --guiding, whose image it gives bit for bit;\n"
+        "                         one-job mode (queued jobs: ptctl submit --guiding)\n"
         "  --clamp-direct X       clamp each sample's light that reaches the camera or\n"
         "                         the first surface it sees to R+G+B <= X, as Cycles'\n"
         "                         Clamp Direct (biased; default 0, off); one-job mode\n"
@@ -487,6 +490,7 @@ static void job_from_options(srv_config *c, const pt_render_opts *ro, parsed *x)
         c->job.film_flags |= PROTO_FILM_DENOISE;
     c->job.clamp[0] = ro->clamp_direct;
     c->job.clamp[1] = ro->clamp_indirect;
+    c->guiding = ro->guiding;
     c->view = ro->view;
 }
 
@@ -579,6 +583,26 @@ static int check_options(srv_config *c, const pt_render_opts *ro, parsed *x, int
         fprintf(stderr, "ptserve: --clamp-direct and --clamp-indirect are for one-job mode; a "
                         "queued job asks for them with ptctl submit --clamp-direct\n");
         return 2;
+    }
+    if (c->state_dir && (ro->given & PT_ROPT(PT_ROPT_GUIDING))) {
+        fprintf(stderr, "ptserve: --guiding is for one-job mode; a queued job asks for it "
+                        "with ptctl submit --guiding\n");
+        return 2;
+    }
+    if (c->guiding) {
+        /* Guided passes are learned from whole passes of every tile: no
+         * adaptive stops, one pose. auto leaves guiding off there. */
+        const char *why = c->job.target_error > 0.0 || c->job.min_gain > 0.0
+                              ? "--target-error or --min-gain"
+                          : c->frames.step                        ? "--frames"
+                          : c->job.shutter[1] > c->job.shutter[0] ? "--shutter"
+                                                                  : NULL;
+        if (why && c->guiding == PT_GUIDING_ON) {
+            fprintf(stderr, "ptserve: --guiding on does not combine with %s yet\n", why);
+            return 2;
+        }
+        if (why)
+            c->guiding = PT_GUIDING_OFF;
     }
     if (c->state_dir && ro->denoise) {
         fprintf(stderr, "ptserve: --denoise is for one-job mode; a queued job asks for it "

@@ -145,11 +145,13 @@ static void usage(FILE *f)
             "  --view V           the PNG's view transform: standard (clamp + sRGB, the\n"
             "                     default), filmic (Hable's curve: bright areas roll off)\n"
             "                     or agx (Blender 4's AgX: bright colours desaturate)\n"
-            "  --guiding on|off   path guiding, experimental (default off): the light\n"
+            "  --guiding on|off|auto  path guiding, experimental (default off): the light\n"
             "                     arriving at diffuse and rough surfaces is learned in\n"
             "                     passes of 16, 32, 64... spp and half of their directions\n"
-            "                     drawn from it; standalone only for now, not with\n"
-            "                     adaptive sampling; not yet faster on the scenes measured\n"
+            "                     drawn from it, where the scene has glossy materials (auto:\n"
+            "                     the same, and off with adaptive sampling, which on\n"
+            "                     refuses); the farm's image is this one, bit for bit; not\n"
+            "                     yet faster on the scenes measured\n"
             "  --denoise          denoise the finished image (NFOR, guided by the passes\n"
             "                     albedo, normal, depth and halves, which it turns on):\n"
             "                     the EXR gets the layer denoised.R/G/B beside the\n"
@@ -235,7 +237,6 @@ int main(int argc, char **argv)
         OPT_TIME,
         OPT_FRAME,
         OPT_LIST,
-        OPT_GUIDING,
         OPT_SERVER, /* the farm worker's, from here on */
         OPT_PREFETCH,
         OPT_TOKEN,
@@ -250,7 +251,6 @@ int main(int argc, char **argv)
         {"time", required_argument, NULL, OPT_TIME},
         {"frame", required_argument, NULL, OPT_FRAME},
         {"list", required_argument, NULL, OPT_LIST},
-        {"guiding", required_argument, NULL, OPT_GUIDING},
         {"quiet", no_argument, NULL, 'q'},
         {"server", required_argument, NULL, OPT_SERVER},
         {"prefetch", required_argument, NULL, OPT_PREFETCH},
@@ -295,14 +295,6 @@ int main(int argc, char **argv)
                 return 1;
             }
             return 0;
-        case OPT_GUIDING:
-            if (strcmp(optarg, "on") == 0 || strcmp(optarg, "off") == 0) {
-                o.guiding = strcmp(optarg, "on") == 0;
-            } else {
-                fprintf(stderr, "ptworker: --guiding: '%s' is not on or off\n", optarg);
-                bad = 1;
-            }
-            break;
         case 'q':
             o.quiet = 1;
             break;
@@ -416,11 +408,16 @@ int main(int argc, char **argv)
     o.chunk = ro.chunk;
     o.target_error = ro.target_error;
     o.min_gain = ro.min_gain;
+    o.guiding = (int)ro.guiding;
     if (o.guiding && (o.target_error > 0.0 || o.min_gain > 0.0)) {
-        /* A tile's adaptive stop would depend on the pass it is in. */
-        fprintf(stderr, "ptworker: --guiding on does not combine with --target-error or "
-                        "--min-gain yet\n");
-        return 2;
+        /* A tile's adaptive stop would depend on the pass it is in: auto
+         * leaves guiding off, on is refused. */
+        if (o.guiding == PT_GUIDING_ON) {
+            fprintf(stderr, "ptworker: --guiding on does not combine with --target-error or "
+                            "--min-gain yet\n");
+            return 2;
+        }
+        o.guiding = PT_GUIDING_OFF;
     }
     o.min_spp = ro.min_spp;
     o.env_path = ro.env_path;

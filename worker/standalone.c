@@ -20,6 +20,8 @@
 #include "common/render/env.h"
 #include "common/render/film.h"
 #include "common/render/guide.h"
+#include "common/render/guide_sched.h"
+#include "common/render/options.h"
 #include "common/render/passes.h"
 #include "common/render/render.h"
 #include "common/render/tile.h"
@@ -208,17 +210,6 @@ static uint32_t run_threads(job *j, uint32_t n, pthread_t *threads, thread_arg *
     return started;
 }
 
-#define GUIDE_SPLIT_C 3000.0
-
-/* The end of guided pass k (exclusive): training passes of 16, 32, 64...
- * samples per pixel (Mueller et al. 2017 double them), each learning from
- * the one before; the last takes what is left of spp. */
-static uint32_t pass_end(uint32_t k, uint32_t spp)
-{
-    uint64_t end = 16ull * ((1ull << (k + 1 < 32 ? k + 1 : 31)) - 1);
-    return end < spp ? (uint32_t)end : spp;
-}
-
 /* Renders every pass of a guided image (--guiding on): pass 0 records into
  * statistics of a uniform guide without sampling it; each later pass samples
  * the guide built from the pass before, half of a guided vertex's
@@ -232,24 +223,22 @@ static int run_guided(job *j, const pt_scene *scene, uint32_t n, pthread_t *thre
     pt_render_guiding *gd = pt_calloc(n, sizeof *gd);
     int rc = -1;
     double last_print = 0.0;
-    /* The bounds, a little larger, so a point on them is inside. */
-    pt_vec3 ext = pt_v3_scale(pt_v3_sub(scene->bounds_max, scene->bounds_min), 1e-3f);
-    ext = pt_v3_add(ext, pt_v3(1e-3f, 1e-3f, 1e-3f));
-    if (!st || !gd ||
-        pt_guide_new_uniform(pt_v3_sub(scene->bounds_min, ext), pt_v3_add(scene->bounds_max, ext),
-                             &g, &err) != PT_OK) {
+    /* The schedule and the bounds are the farm's too (guide_sched.h). */
+    pt_vec3 lo = scene->bounds_min, hi = scene->bounds_max;
+    pt_guide_grow_bounds(&lo, &hi);
+    if (!st || !gd || pt_guide_new_uniform(lo, hi, &g, &err) != PT_OK) {
         fprintf(stderr, "ptworker: guiding: %s\n", err.msg[0] ? err.msg : "out of memory");
         goto done;
     }
     uint32_t k = 0;
     for (uint32_t s0 = 0; s0 < j->o->spp; k++) {
-        uint32_t s1 = pass_end(k, j->o->spp);
+        uint32_t s1 = pt_guide_pass_end(k, j->o->spp);
         for (uint32_t i = 0; i < n; i++) {
             if (pt_guide_stats_new(g, &st[i], &err) != PT_OK) {
                 fprintf(stderr, "ptworker: guiding: %s\n", err.msg);
                 goto done;
             }
-            gd[i] = (pt_render_guiding){g, k == 0 ? 0.0f : 0.5f, st[i]};
+            gd[i] = (pt_render_guiding){g, pt_guide_pass_prob(k), st[i]};
         }
         j->gd = gd;
         j->pass0 = s0;
@@ -263,10 +252,7 @@ static int run_guided(job *j, const pt_scene *scene, uint32_t n, pthread_t *thre
             pt_guide_stats_merge(st[0], st[i], &err);
         if (s1 < j->o->spp) {
             pt_guide *ng = NULL;
-            /* Mueller et al.'s split threshold, c sqrt(2^k) (they take c =
-             * 12000 for 1280 x 720 images); c = 3000 did better on a 64 x 64
-             * Cornell box, whose passes hold fewer records. */
-            uint64_t split = (uint64_t)(GUIDE_SPLIT_C * sqrt((double)(1u << (k < 20 ? k : 20))));
+            uint64_t split = pt_guide_split_count(k);
             if (pt_guide_build(g, st[0], split, &ng, &err) != PT_OK) {
                 fprintf(stderr, "ptworker: guiding: %s\n", err.msg);
                 goto done;
@@ -364,8 +350,8 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
     p.passes = o->passes;
     /* Guiding samples glossy closures only (main refuses it with adaptive
      * sampling). */
-    p.guiding = o->guiding && (scene->features & PT_FEAT_GLOSSY) ? 1u : 0u;
-    if (o->guiding && !p.guiding && !o->quiet)
+    p.guiding = pt_guiding_applies((uint32_t)o->guiding, scene->features) ? 1u : 0u;
+    if (o->guiding == PT_GUIDING_ON && !p.guiding && !o->quiet)
         fprintf(stderr, "ptworker: --guiding: every material is Lambert; nothing to guide\n");
     if (pt_render_check_lit(scene, env != NULL, o->scene_path, &err) != PT_OK) {
         /* It would render black: say how to light it instead. */

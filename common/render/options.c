@@ -43,6 +43,7 @@ static const struct {
     [PT_ROPT_DENOISE] = {"denoise", no_argument},
     [PT_ROPT_CLAMP_DIRECT] = {"clamp-direct", required_argument},
     [PT_ROPT_CLAMP_INDIRECT] = {"clamp-indirect", required_argument},
+    [PT_ROPT_GUIDING] = {"guiding", required_argument},
 };
 
 void pt_render_opts_init(pt_render_opts *o)
@@ -184,6 +185,16 @@ pt_status pt_render_opt_set(pt_render_opts *o, int c, const char *text, pt_error
             *(id == PT_ROPT_CLAMP_DIRECT ? &o->clamp_direct : &o->clamp_indirect) = (float)v;
         break;
     }
+    case PT_ROPT_GUIDING:
+        if (strcmp(text, "off") == 0)
+            o->guiding = PT_GUIDING_OFF;
+        else if (strcmp(text, "on") == 0)
+            o->guiding = PT_GUIDING_ON;
+        else if (strcmp(text, "auto") == 0)
+            o->guiding = PT_GUIDING_AUTO;
+        else
+            st = pt_error_set(err, PT_ERR_ARG, "%s: '%s' is not on, off or auto", opt, text);
+        break;
     case PT_ROPT_COUNT:
         break;
     }

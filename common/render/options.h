@@ -4,8 +4,9 @@
  * ptworker --scene, ptserve (one job) and ptctl submit describe the same
  * render: samples, size, seed, bounce cap, camera, variant, animation,
  * environment, film, shutter, adaptive sampling, tiles, the preview's
- * view, the render passes and sample clamping. Their names, their value syntax and their limits are
- * here once, so a job that one program accepts the others accept too, and "--spp 0" or
+ * view, the render passes, sample clamping and path guiding. Their names, their value syntax and
+ * their limits are here once, so a job that one program accepts the others accept too, and "--spp
+ * 0" or
  * "--res 64x" is refused with the same words everywhere. A program builds
  * its getopt table from its own options and pt_render_longopts (those of
  * the table it takes), hands every value whose id is PT_ROPT_BASE + k to
@@ -57,6 +58,7 @@ typedef enum pt_ropt_id {
     PT_ROPT_DENOISE,
     PT_ROPT_CLAMP_DIRECT,
     PT_ROPT_CLAMP_INDIRECT,
+    PT_ROPT_GUIDING,
     PT_ROPT_COUNT
 } pt_ropt_id;
 
@@ -94,7 +96,21 @@ typedef struct pt_render_opts {
                         PT_PASS_DENOISE's too after finish */
     int denoise;     /* --denoise: the finished image denoised (denoise_frame.h) */
     float clamp_direct, clamp_indirect; /* sample clamping (pt_render_params); 0: off */
+    uint32_t guiding;                   /* PT_GUIDING_*; off unless given */
 } pt_render_opts;
+
+/* --guiding: off, on, or auto (on where pt_guiding_applies says guiding
+ * can help). The values are SUBMIT's (PROTO_GUIDING_*, protocol/msg.h). */
+enum { PT_GUIDING_OFF = 0, PT_GUIDING_ON = 1, PT_GUIDING_AUTO = 2 };
+
+/* 1 when a render asked for guiding mode (PT_GUIDING_*) of a scene with
+ * these features (PT_FEAT_*) is guided: the guided integrator variant
+ * samples glossy closures only (render.c), so a scene whose materials are
+ * all Lambert is not, whether on or auto; the same rule in every program. */
+static inline int pt_guiding_applies(uint32_t mode, uint32_t features)
+{
+    return mode != PT_GUIDING_OFF && (features & PT_FEAT_GLOSSY) != 0;
+}
 
 /* The defaults above, nothing given. */
 void pt_render_opts_init(pt_render_opts *o);

@@ -8,6 +8,7 @@
 #include "common/base/alloc.h"
 #include "common/base/hash.h"
 #include "common/render/adaptive.h"
+#include "common/render/guide_sched.h"
 #include "common/render/render.h"
 
 /* ---- checkpoints ---- */
@@ -161,6 +162,7 @@ pt_status srv_job_save(const srv_job *j, proto_writer *w, pt_error *err)
         proto_w_u32(w, j->tiles[t].merged);
         proto_w_u8(w, j->tiles[t].stopped);
     }
+    job_guide_save(j, w); /* a guided job's (format 9 on) */
     proto_w_u32(w, j->nheld);
     for (uint32_t i = 0; i < j->nheld; i++) {
         const task *k = &j->tasks[j->held[i].task];
@@ -328,7 +330,8 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
         strcmp(p.camera, j->p.camera) != 0 || !proto_env_same(&p.env, &j->p.env) ||
         p.film_flags != j->p.film_flags || strcmp(p.variant, j->p.variant) != 0 ||
         memcmp(p.shutter, j->p.shutter, sizeof p.shutter) != 0 ||
-        memcmp(p.clamp, j->p.clamp, sizeof p.clamp) != 0 || ntiles != j->ntiles ||
+        memcmp(p.clamp, j->p.clamp, sizeof p.clamp) != 0 || p.guiding != j->p.guiding ||
+        memcmp(p.guide_box, j->p.guide_box, sizeof p.guide_box) != 0 || ntiles != j->ntiles ||
         nchunks != j->npasses)
         return pt_error_set(err, PT_ERR_FORMAT,
                             "checkpoint is of another job or other settings "
@@ -336,6 +339,8 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
                             (unsigned long long)id, p.width, p.height, p.spp);
     pt_status st = load_tiles(j, &r, ntiles, nchunks, ranges, err);
     if (st != PT_OK)
+        return st;
+    if ((st = job_guide_load(j, &r, err)) != PT_OK)
         return st;
     j->heap_dirty = 1;
     uint32_t nheld = proto_r_u32(&r, "held results");
@@ -366,6 +371,9 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
     j->samples = pt_film_total_samples(j->film);
     j->capped = capped;
     job_passes_recount(j);
+    j->gtiles = 0;
+    for (uint32_t t = 0; j->p.guiding && t < j->ntiles; t++)
+        j->gtiles += j->tiles[t].merged >= pt_guide_pass_end(j->gpass, j->p.spp);
     return PT_OK;
 }
 
@@ -396,6 +404,10 @@ srv_job *srv_job_snapshot(const srv_job *j)
         return NULL;
     }
     memcpy(c->tiles, j->tiles, (size_t)j->ntiles * sizeof *c->tiles);
+    if (job_guide_copy(c, j) != 0) {
+        srv_job_free(c);
+        return NULL;
+    }
     memcpy(c->film->px, j->film->px,
            (size_t)j->film->width * j->film->height * sizeof *c->film->px);
     if (j->film->pass)

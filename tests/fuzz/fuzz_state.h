@@ -49,7 +49,9 @@ static const srv_job_params FUZZ_JOB_PARAMS[2] = {
      0,
      "",
      {0, 0},
-     {0, 0}},
+     {0, 0},
+     0,
+     {0}},
     {8,
      8,
      64,
@@ -66,7 +68,9 @@ static const srv_job_params FUZZ_JOB_PARAMS[2] = {
      PROTO_FILM_TRANSPARENT | PROTO_FILM_PASSES,
      "Peacock Velvet",
      {0.0, 0.5 / 24.0},
-     {0.0f, 4.0f}},
+     {0.0f, 4.0f},
+     0,
+     {0}},
 };
 
 /* Rewrites the trailing CRC32C of a whole-file format (queue, checkpoint). */

@@ -39,8 +39,8 @@ static void fake_result(const proto_task *t, pt_pixel_acc *px, proto_result *r)
 static srv_job *make(uint32_t w, uint32_t h, uint32_t spp, uint32_t tile, uint32_t chunk)
 {
     srv_job_params p = {
-        w, h,  spp,    tile,  chunk, 5, 16, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
-        0, "", {0, 0}, {0, 0}};
+        w, h,  spp,    tile,   chunk, 5,  16, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+        0, "", {0, 0}, {0, 0}, 0,     {0}};
     srv_job *j = NULL;
     pt_error err = {0};
     CHECKF(srv_job_new(9, &p, HASH, &j, &err) == PT_OK, "%s", err.msg);
@@ -185,8 +185,8 @@ static void bit_identical(void)
 static void adaptive(void)
 {
     srv_job_params p = {
-        64, 32, 64,     32,    8, 1, 16, 3, 0.01, 16, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
-        0,  "", {0, 0}, {0, 0}};
+        64, 32, 64,     32,     8, 1,  16, 3, 0.01, 16, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+        0,  "", {0, 0}, {0, 0}, 0, {0}};
     srv_job *j = NULL;
     CHECK(srv_job_new(2, &p, HASH, &j, NULL) == PT_OK);
     if (!j)
@@ -211,7 +211,8 @@ static void adaptive(void)
             double sq = tile == 0 ? ns * 0.25 : 2.0 * v * v * ns;
             px[i] = pt_pixel_acc_of(sum, sum, sum, sq, ns, 0);
         }
-        proto_result r = {t.job_id, t.task_id, t.tile, t.s0, t.s1, 0, 0, 0, 32 * 32, px, 0, NULL};
+        proto_result r = {t.job_id, t.task_id, t.tile, t.s0, t.s1, 0, 0, 0,    32 * 32,
+                          px,       0,         NULL,   0,    0,    0, 0, NULL, 0};
         srv_outcome o = srv_job_result(j, 1, &r, NULL);
         dup += o == SRV_DUPLICATE;
         CHECK(o == SRV_MERGED || o == SRV_DUPLICATE);
@@ -237,8 +238,8 @@ static void gain_pixels_of(const proto_task *t, pt_pixel_acc *px, proto_result *
         double v = t->tile.x0 == 0 ? (black0 ? 0.0 : 0.5) : (double)((chunk + 1) % 2);
         px[i] = pt_pixel_acc_of(v * ns, v * ns, v * ns, v * v * ns, ns, 0);
     }
-    *r =
-        (proto_result){t->job_id, t->task_id, t->tile, t->s0, t->s1, 0, 0, 0, 32 * 32, px, 0, NULL};
+    *r = (proto_result){t->job_id, t->task_id, t->tile, t->s0, t->s1, 0, 0, 0,    32 * 32,
+                        px,        0,          NULL,    0,     0,     0, 0, NULL, 0};
 }
 
 /* A pixel of a version 5 checkpoint (72 bytes: sums as u64 pairs, low half
@@ -266,8 +267,8 @@ static void gain_pixels(const proto_task *t, pt_pixel_acc *px, proto_result *r)
 static void adaptive_min_gain(void)
 {
     srv_job_params p = {
-        64, 32, 64,     32,    8, 1, 16, 3, 0.0, 8, 1e-5, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
-        0,  "", {0, 0}, {0, 0}};
+        64, 32, 64,     32,     8, 1,  16, 3, 0.0, 8, 1e-5, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+        0,  "", {0, 0}, {0, 0}, 0, {0}};
     srv_job *a = NULL, *b = NULL, *c = NULL, *d = NULL;
     CHECK(srv_job_new(3, &p, HASH, &a, NULL) == PT_OK);
     CHECK(srv_job_new(3, &p, HASH, &b, NULL) == PT_OK);
@@ -368,16 +369,16 @@ static void adaptive_min_gain(void)
     srv_job_free(d);
     d = NULL;
     /* The params end with the shutter (16 bytes), which formats before 7
-     * lack, and the clamps (8), which formats before 9 lack. */
+     * lack, and the clamps and guiding (8 + 25), which formats before 9 lack. */
     const size_t pend = 4 + 4 + 8 + 32 + 9 * 4 + 2 * 8 + 2 + strlen(p.camera) + 23 + 4 + 2;
-    const size_t head = pend + 24 + 8;
+    const size_t head = pend + 49 + 8;
     /* A version 6 checkpoint (time-sized tasks, no shutter: the same bytes
      * without it) loads to the same bits. */
     {
         proto_writer v6;
         proto_writer_init(&v6, 1u << 20);
         proto_w_bytes(&v6, w.buf, pend);
-        proto_w_bytes(&v6, w.buf + pend + 24, w.len - pend - 24);
+        proto_w_bytes(&v6, w.buf + pend + 49, w.len - pend - 49);
         proto_put_u32(v6.buf + 4, 6);
         srv_job *e = NULL;
         CHECK(proto_writer_status(&v6) == PT_OK);
@@ -397,7 +398,7 @@ static void adaptive_min_gain(void)
         uint32_t ntiles = proto_get_u32(w.buf + head);
         size_t at = head + 8;
         proto_w_bytes(&v5, w.buf, pend);
-        proto_w_bytes(&v5, w.buf + pend + 24, at - pend - 24);
+        proto_w_bytes(&v5, w.buf + pend + 49, at - pend - 49);
         proto_put_u32(v5.buf + 4, 5);
         for (uint32_t ti = 0; ti < ntiles; ti++, at += 5) {
             proto_w_u32(&v5, proto_get_u32(w.buf + at) / 8);
@@ -442,7 +443,7 @@ static void adaptive_min_gain(void)
         uint32_t ntiles = proto_get_u32(w.buf + head);
         size_t at = head + 8;
         proto_w_bytes(&v4, w.buf, pend); /* without the shutter and the clamps */
-        proto_w_bytes(&v4, w.buf + pend + 24, at - pend - 24);
+        proto_w_bytes(&v4, w.buf + pend + 49, at - pend - 49);
         proto_put_u32(v4.buf + 4, 4);
         for (uint32_t ti = 0; ti < ntiles; ti++, at += 5) {
             proto_w_u32(&v4, proto_get_u32(w.buf + at) / 8);
@@ -536,8 +537,8 @@ done:
 static void adaptive_min_gain_black(void)
 {
     srv_job_params p = {
-        64, 32, 64,     32,    8, 1, 16, 3, 0.0, 8, 1e-5, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
-        0,  "", {0, 0}, {0, 0}};
+        64, 32, 64,     32,     8, 1,  16, 3, 0.0, 8, 1e-5, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+        0,  "", {0, 0}, {0, 0}, 0, {0}};
     srv_job *j = NULL;
     CHECK(srv_job_new(3, &p, HASH, &j, NULL) == PT_OK);
     if (!j)
@@ -561,8 +562,8 @@ static void adaptive_min_gain_black(void)
 static void bad_params(void)
 {
     srv_job_params p = {
-        0, 10, 4,      16,    4, 0, 4, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
-        0, "", {0, 0}, {0, 0}};
+        0, 10, 4,      16,     4, 0,  4, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+        0, "", {0, 0}, {0, 0}, 0, {0}};
     srv_job *j = NULL;
     pt_error err = {0};
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
@@ -570,16 +571,32 @@ static void bad_params(void)
     p.tile = 1000;
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
     p = (srv_job_params){
-        16, 16, 4,      16,    4, 0, 4, 3, 0.0, 0, NAN, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
-        0,  "", {0, 0}, {0, 0}};
+        16, 16, 4,      16,     4, 0,  4, 3, 0.0, 0, NAN, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+        0,  "", {0, 0}, {0, 0}, 0, {0}};
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
     p.min_gain = -1e-6;
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
     p.min_gain = INFINITY;
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
-    p = (srv_job_params){
-        16384, 16384, 1u << 24, 16,    1, 0, 4, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
-        0,     "",    {0, 0},   {0, 0}};
+    p = (srv_job_params){16384,
+                         16384,
+                         1u << 24,
+                         16,
+                         1,
+                         0,
+                         4,
+                         3,
+                         0.0,
+                         0,
+                         0.0,
+                         "",
+                         {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+                         0,
+                         "",
+                         {0, 0},
+                         {0, 0},
+                         0,
+                         {0}};
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_LIMIT);
     CHECK(j == NULL);
 }
@@ -847,7 +864,9 @@ static void film_and_cap(void)
                         PROTO_FILM_TRANSPARENT,
                         "",
                         {0, 0},
-                        {0, 0}};
+                        {0, 0},
+                        0,
+                        {0}};
     srv_job *j = NULL, *k = NULL, *o = NULL;
     pt_error err = {0};
     CHECK(srv_job_new(4, &p, HASH, &j, &err) == PT_OK);
@@ -910,7 +929,8 @@ static void exact_result(const proto_task *t, pt_pixel_acc *px, proto_result *r)
         }
         px[i] = pt_pixel_acc_of(sum, sum, sum, sq, t->s1 - t->s0, t->s1 - t->s0);
     }
-    *r = (proto_result){t->job_id, t->task_id, t->tile, t->s0, t->s1, 0, 0, 0, n, px, 0, NULL};
+    *r = (proto_result){t->job_id, t->task_id, t->tile, t->s0, t->s1, 0, 0, 0,    n,
+                        px,        0,          NULL,    0,     0,     0, 0, NULL, 0};
 }
 
 typedef struct sim_owner {
@@ -1036,7 +1056,9 @@ static srv_job_params sized_params(uint32_t spp, double target_error)
                         0,
                         "",
                         {0.0, 0.0},
-                        {0, 0}};
+                        {0, 0},
+                        0,
+                        {0}};
     return p;
 }
 

@@ -184,7 +184,7 @@ static void submit_begin(cli *c, const proto_submit *m)
         proto_put_u32(w.buf + 10 + strlen(m->name), 0);
     if (reversed) { /* the range: the last fields but the fps, the animation, the shutter,
                        the clamps */
-        uint8_t *range = w.buf + w.len - 8 - 16 - 2 - strlen(m->animation) - 8 - 12;
+        uint8_t *range = w.buf + w.len - 1 - 8 - 16 - 2 - strlen(m->animation) - 8 - 12;
         proto_put_u32(range, m->frame_first);
         proto_put_u32(range + 4, m->frame_last);
     }
@@ -835,7 +835,7 @@ static void queue_to_v6(const char *name)
         at += 8; /* submitted */
         size_t sh = shutter_at(d, at);
         proto_w_bytes(&w, d + done, sh - done);
-        at = sh + 16 + 8; /* the shutter and the clamps */
+        at = sh + 16 + 8 + 25; /* the shutter, the clamps and guiding */
         done = at;
         at += 32 + 8 + 8 + 8 + 8;
         at += 2 + proto_get_u16(d + at); /* message */
@@ -868,7 +868,7 @@ static void checkpoint_to_v6(const char *name)
     /* envelope 8, seconds/rejected/rays 24, magic, version, id, hash, params */
     size_t sh = shutter_at(d, 8 + 24 + 4 + 4 + 8 + 32);
     proto_w_bytes(&w, d, sh);
-    proto_w_bytes(&w, d + sh + 24, n - 4 - (sh + 24)); /* the shutter and the clamps */
+    proto_w_bytes(&w, d + sh + 49, n - 4 - (sh + 49)); /* shutter, clamps, guiding */
     const long vers[] = {4, 36};
     write_ver(name, &w, vers, 2, 1, 6);
     pt_free(d);
