@@ -10,6 +10,8 @@
 #include <string.h>
 
 #include "common/base/alloc.h"
+#include "common/base/hash.h"
+#include "protocol/guide.h"
 #include "server/sched/job.h"
 #include "tests/check.h"
 
@@ -1429,9 +1431,122 @@ static void snapshot_saves_the_same(void)
     srv_job_free(j);
 }
 
+/* A guided result of task t (16 samples a pixel) with the statistics
+ * entries e (nc counts, ns sums) made for a guide of nsn + nqn nodes. */
+static proto_result guided_result(const proto_task *t, pt_pixel_acc *px, proto_guide_entry *e,
+                                  uint32_t nc, uint32_t ns, uint32_t nsn, uint32_t nqn)
+{
+    uint32_t n = (t->tile.x1 - t->tile.x0) * (t->tile.y1 - t->tile.y0);
+    for (uint32_t i = 0; i < n; i++)
+        px[i] = pt_pixel_acc_of(0.5, 0.25, 0.125, 0.0625, t->s1 - t->s0, t->s1 - t->s0);
+    proto_result r = {t->job_id, t->task_id, t->tile, t->s0, t->s1, 0,  0,  0, n,
+                      px,        0,          NULL,    nsn,   nqn,   nc, ns, e, 0};
+    return r;
+}
+
+/* Path guiding (job_guide.c): tasks never cross a pass's end and those of
+ * pass 1 wait for its distribution, named by the hash of bytes the job
+ * hands out; a result without statistics, with a guide's of another size,
+ * with more records than bounces or sums over the record cap is refused
+ * and leaves the film as it was; the pass's statistics, once every tile is
+ * merged, make the next distribution, which a checkpoint keeps. */
+static void guided(void)
+{
+    pt_error err = {0};
+    srv_job_params p = {64,
+                        32,
+                        64,
+                        32,
+                        16,
+                        5,
+                        8,
+                        3,
+                        0.0,
+                        0,
+                        0.0,
+                        "",
+                        {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+                        0,
+                        "",
+                        {0, 0},
+                        {0, 0},
+                        1,
+                        {-1.0f, -1.0f, -1.0f, 1.0f, 1.0f, 1.0f}};
+    srv_job *j = NULL;
+    CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_OK);
+    if (!j)
+        return;
+    proto_task t[3];
+    CHECK(srv_job_lease(j, 7, 0, 1000, &t[0]) && srv_job_lease(j, 7, 0, 1000, &t[1]));
+    CHECK(!srv_job_lease(j, 7, 0, 1000, &t[2])); /* pass 1 waits for its distribution */
+    const uint8_t *blob = NULL;
+    size_t len = 0;
+    for (int k = 0; k < 2; k++) {
+        CHECK(t[k].s0 == 0 && t[k].s1 == 16 && t[k].guided && t[k].guide_pass == 0);
+        CHECK(srv_job_guide_bytes(j, t[k].guide_hash, &blob, &len) && len > 0);
+    }
+    uint8_t h[32];
+    pt_sha256(blob, len, h);
+    CHECK(memcmp(h, t[0].guide_hash, 32) == 0);
+    static pt_pixel_acc px[32 * 32];
+    proto_guide_entry good[2] = {{0, 1000}, {100, 1000ull << 16}};
+    proto_guide_entry absurd[1] = {{0, 32ull * 32 * 16 * 9 + 1}}; /* > a record per bounce */
+    proto_guide_entry over[2] = {{0, 1},
+                                 {5, (uint64_t)1e9 * 65536 + 2}}; /* a record over the cap */
+    struct {
+        proto_guide_entry *e;
+        uint32_t nc, ns, nsn, nqn;
+        const char *why;
+    } bad[] = {{NULL, 0, 0, 0, 0, "lacks"},
+               {good, 1, 1, 1, 2047, "nodes"},
+               {good, 1, 1, 2, 2046, "nodes"},
+               {absurd, 1, 0, 1, 2046, "plausible"},
+               {over, 1, 1, 1, 2046, "plausible"}};
+    for (size_t k = 0; k < sizeof bad / sizeof *bad; k++) {
+        proto_result r =
+            guided_result(&t[0], px, bad[k].e, bad[k].nc, bad[k].ns, bad[k].nsn, bad[k].nqn);
+        CHECKF(srv_job_result(j, 7, &r, &err) == SRV_INVALID && strstr(err.msg, bad[k].why),
+               "case %zu: %s", k, err.msg);
+    }
+    CHECK(pt_film_total_samples(srv_job_film(j)) == 0); /* nothing merged */
+    for (int k = 0; k < 2; k++) {
+        proto_result r = guided_result(&t[k], px, good, 1, 1, 1, 2046);
+        CHECKF(srv_job_result(j, 7, &r, &err) == SRV_MERGED, "%s", err.msg);
+    }
+    /* Both tiles at pass 0's end: pass 1's distribution exists, another. */
+    CHECK(srv_job_guide_pass(j) == 1);
+    CHECK(srv_job_lease(j, 7, 0, 1000, &t[2]) && t[2].s0 == 16 && t[2].s1 <= 48 && t[2].guided &&
+          t[2].guide_pass == 1 && memcmp(t[2].guide_hash, h, 32) != 0);
+    CHECK(srv_job_guide_bytes(j, t[2].guide_hash, &blob, &len));
+    /* A checkpoint keeps pass 1's distribution and statistics. */
+    proto_writer w;
+    proto_writer_init(&w, 1u << 24);
+    CHECK(srv_job_save(j, &w, &err) == PT_OK);
+    srv_job *c = NULL;
+    CHECK(srv_job_new(1, &p, HASH, &c, &err) == PT_OK);
+    CHECKF(c && srv_job_load(c, w.buf, w.len, &err) == PT_OK, "%s", err.msg);
+    proto_task ct;
+    CHECK(c && srv_job_guide_pass(c) == 1 && srv_job_lease(c, 8, 0, 1000, &ct) &&
+          ct.guide_pass == 1 && memcmp(ct.guide_hash, t[2].guide_hash, 32) == 0);
+    /* A damaged distribution in it is refused. */
+    size_t at = 4 + 4 + 8 + 32; /* the params follow; find the guide's magic */
+    while (at + 4 <= w.len && proto_get_u32(w.buf + at) != PROTO_GUIDE_MAGIC)
+        at++;
+    CHECK(at + 40 < w.len);
+    proto_put_u32(w.buf + at + 40, 99); /* the root's child */
+    srv_job *d = NULL;
+    CHECK(srv_job_new(1, &p, HASH, &d, &err) == PT_OK);
+    CHECK(d && srv_job_load(d, w.buf, w.len, &err) == PT_ERR_FORMAT);
+    srv_job_free(d);
+    srv_job_free(c);
+    proto_writer_fini(&w);
+    srv_job_free(j);
+}
+
 int main(void)
 {
     int64_t live = pt_alloc_live();
+    guided();
     pass_order();
     leases();
     bit_identical();
