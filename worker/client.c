@@ -58,6 +58,7 @@ typedef struct guide_rec {
     uint8_t *buf;
     size_t len, cap;
     uint64_t total;
+    uint64_t t_fetch; /* when its first GUIDE_GET went (ms) */
     struct guide_rec *next;
 } guide_rec;
 
@@ -791,6 +792,7 @@ static int on_task(worker *w, const proto_frame *f)
                 return -1;
             }
             g->fetching = 1;
+            g->t_fetch = pt_now_ms();
         }
     }
     return enqueue_when_ready(w, t, s);
@@ -842,8 +844,8 @@ static int on_guide_chunk(worker *w, const proto_frame *f)
     if (st != PT_OK)
         return fail_proto(w, "distribution %.16s: %s", hex, err.msg);
     g->guide = gd;
-    fprintf(stderr, "ptworker: guiding distribution %.16s (%llu bytes)\n", hex,
-            (unsigned long long)c.total);
+    fprintf(stderr, "ptworker: guiding distribution %.16s (%llu bytes) fetched in %llu ms\n", hex,
+            (unsigned long long)c.total, (unsigned long long)(pt_now_ms() - g->t_fetch));
     guides_trim(w);
     return pending_ready(w);
 }

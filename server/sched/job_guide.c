@@ -13,6 +13,7 @@
 #include <string.h>
 
 #include "common/base/alloc.h"
+#include "common/base/clock.h"
 #include "common/base/hash.h"
 #include "common/render/guide_sched.h"
 #include "server/log.h"
@@ -140,6 +141,8 @@ void job_guide_accept(srv_job *j, const proto_result *r)
     if (!j->p.guiding || pt_guide_pass_of(r->s0, j->p.spp) != j->gpass)
         return;
     pt_error err = {0};
+    if (r->gcount + r->gsum > j->gmost)
+        j->gmost = r->gcount + r->gsum;
     /* Checked by job_guide_result_ok: the sizes are the pass's. */
     if (proto_guide_stats_add(j->gstats, r, &err) != PT_OK)
         srv_log("job %llu: %s", (unsigned long long)j->id, err.msg);
@@ -155,6 +158,7 @@ void job_guide_advance(srv_job *j)
     pt_guide *ng = NULL;
     pt_guide_stats *ns = NULL;
     pt_guide *old = j->guide;
+    uint64_t t0 = pt_now_ms();
     /* Done on the loop: a build reads the pass's statistics once (measured
      * in docs/ARCHITECTURE.md, "Guiding on the farm"). */
     if (pt_guide_build(j->guide, j->gstats, pt_guide_split_count(j->gpass), &ng, &err) != PT_OK ||
@@ -177,6 +181,11 @@ void job_guide_advance(srv_job *j)
     pt_guide_stats_free(j->gstats);
     j->gstats = ns;
     j->gpass++;
+    srv_log("job %llu: guiding pass %u: a distribution of %zu bytes (%u spatial, %u directional "
+            "nodes) built in %llu ms; pass %u's results carried at most %u statistics entries",
+            (unsigned long long)j->id, j->gpass, j->glen[j->gpass], j->guide->nsnode,
+            j->guide->nqnode, (unsigned long long)(pt_now_ms() - t0), j->gpass - 1, j->gmost);
+    j->gmost = 0;
     end = pt_guide_pass_end(j->gpass, j->p.spp);
     j->gtiles = 0;
     for (uint32_t t = 0; t < j->ntiles; t++)

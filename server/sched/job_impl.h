@@ -159,6 +159,7 @@ struct srv_job {
      * [k], NULL for passes before a resume: only verification copies ask
      * for an older one). */
     uint32_t gpass, gtiles;
+    uint32_t gmost; /* the most statistics entries one result of the pass carried */
     pt_guide *guide;
     pt_guide_stats *gstats;
     uint8_t *gblob[PROTO_MAX_GUIDE_PASS + 1];
