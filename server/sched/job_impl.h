@@ -160,6 +160,9 @@ struct srv_job {
      * for an older one). */
     uint32_t gpass, gtiles;
     uint32_t gmost; /* the most statistics entries one result of the pass carried */
+    /* A large build runs on a thread of its own (job_guide.c); the loop
+     * installs what it made at the next lease or result after gdone. */
+    struct job_guide_build *gbuild;
     pt_guide *guide;
     pt_guide_stats *gstats;
     uint8_t *gblob[PROTO_MAX_GUIDE_PASS + 1];
@@ -273,8 +276,13 @@ void job_guide_accept(srv_job *j, const proto_result *r);
  * pass's end and builds the next distribution when all are. */
 void job_guide_tile_moved(srv_job *j, uint32_t from, uint32_t to);
 /* Builds the next pass's distribution when every tile is merged to the
- * current pass's end (a retry after a failed build). */
+ * current pass's end (a retry after a failed build): at once when the
+ * pass's guide is small, else on a thread whose distribution a later call
+ * installs. */
 void job_guide_advance(srv_job *j);
+/* Waits for a build in flight and installs it (a replay, which must see
+ * the next pass's distribution before that pass's results). */
+void job_guide_settle(srv_job *j);
 /* The checkpoint's guiding section (after the tiles' count): gpass, the
  * pass's distribution, its statistics. */
 void job_guide_save(const srv_job *j, proto_writer *w);

@@ -669,6 +669,9 @@ int srv_job_ticket_lease(const srv_job *j, uint64_t ticket)
 
 srv_outcome srv_job_replay(srv_job *j, proto_result *r, pt_error *err)
 {
+    /* A pass that ended during the replay has its distribution before the
+     * next pass's results are judged. */
+    job_guide_settle(j);
     if (r->job_id != j->id) {
         pt_error_set(err, PT_ERR_PROTO, "result for job %llu, not the running job %llu",
                      (unsigned long long)r->job_id, (unsigned long long)j->id);
