@@ -159,7 +159,7 @@ static void usage(FILE *f)
             "  --clamp-direct X   clamp each sample's light that reaches the camera or the\n"
             "                     first surface it sees to R+G+B <= X, as Cycles' Clamp\n"
             "                     Direct (biased: fewer fireflies, darker highlights;\n"
-            "                     default 0, off); standalone only for now\n"
+            "                     default 0, off); ptserve and ptctl submit take it too\n"
             "  --clamp-indirect X the same for light after more bounces (Cycles' Clamp\n"
             "                     Indirect; 10 is a common start); counted in the summary\n"
             "  --shutter O,C      motion blur: the shutter opens and closes at these\n"
