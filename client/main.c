@@ -376,6 +376,13 @@ static const char SUBMIT_HELP[] =
     "                     what the scene's animation moves then blurs\n"
     "  --fps R            frames per second of --frames and --shutter: frame F is\n"
     "                     at F / R seconds (default 24)\n"
+    "  --guiding on|off|auto  path guiding learned by the farm (default off; as\n"
+    "                     ptworker --guiding, whose image it gives bit for bit)\n"
+    "  --clamp-direct X   clamp each sample's light that reaches the camera or the\n"
+    "                     first surface it sees to R+G+B <= X, as Cycles' Clamp\n"
+    "                     Direct (biased; default 0, off)\n"
+    "  --clamp-indirect X the same for light after more bounces (Cycles' Clamp\n"
+    "                     Indirect); the image is ptworker --clamp-* 's, bit for bit\n"
     "  --watch            then follow the job as 'ptctl watch' does (exit status 4\n"
     "                     when it ends cancelled or failed)\n";
 
@@ -504,6 +511,13 @@ static int cmd_submit(int argc, char **argv, globals *g)
         m.film_flags |= PROTO_FILM_DENOISE;
     if (ro.denoise_progressive)
         m.film_flags |= PROTO_FILM_DENOISE_PROGRESSIVE;
+    m.clamp[0] = ro.clamp_direct;
+    m.clamp[1] = ro.clamp_indirect;
+    m.guiding = (uint8_t)ro.guiding;
+    if (m.guiding == PT_GUIDING_ON && (m.target_error > 0.0 || m.min_gain > 0.0 || m.frame_step ||
+                                       (ro.given & PT_ROPT(PT_ROPT_SHUTTER))))
+        return bad_usage("submit", "--guiding on does not combine with --target-error, "
+                                   "--min-gain, --frames or --shutter yet");
     if (ro.camera)
         snprintf(m.camera, sizeof m.camera, "%s", ro.camera);
     if (ro.variant)

@@ -39,6 +39,10 @@ const char *proto_msg_type_name(uint32_t type)
         return "HEARTBEAT";
     case PROTO_MSG_JOB_END:
         return "JOB_END";
+    case PROTO_MSG_GUIDE_GET:
+        return "GUIDE_GET";
+    case PROTO_MSG_GUIDE_CHUNK:
+        return "GUIDE_CHUNK";
     case PROTO_MSG_SUBMIT:
         return "SUBMIT";
     case PROTO_MSG_LIST:
@@ -399,6 +403,16 @@ const char *proto_shutter_problem(const double shutter[2])
     return NULL;
 }
 
+const char *proto_clamp_problem(const float clamp[2])
+{
+    /* Written so that NaN fails too. */
+    for (int k = 0; k < 2; k++)
+        if (!(clamp[k] >= 0.0f && clamp[k] <= PROTO_MAX_CLAMP))
+            return k == 0 ? "clamp direct not finite and in [0, 1e30]"
+                          : "clamp indirect not finite and in [0, 1e30]";
+    return NULL;
+}
+
 static const char *task_problem(const proto_task *m)
 {
     const char *why = rect_problem(m->tile);
@@ -416,6 +430,16 @@ static const char *task_problem(const proto_task *m)
     if (!(m->time >= 0.0) || !isfinite(m->time) || (!m->animate && m->time != 0.0))
         return "time not finite and >= 0 (0 for a still)";
     why = proto_shutter_problem(m->shutter);
+    if (!why)
+        why = proto_clamp_problem(m->clamp);
+    if (!why && (m->guided > 1 || m->guide_pass > PROTO_MAX_GUIDE_PASS ||
+                 (!m->guided && m->guide_pass != 0)))
+        why = "guide flag not 0 or 1, or pass over 31 (0 when not guided)";
+    if (!why && !m->guided) {
+        for (unsigned k = 0; k < PROTO_HASH_SIZE; k++)
+            if (m->guide_hash[k])
+                why = "guide hash without guiding";
+    }
     return why ? why : env_problem(&m->env);
 }
 
@@ -454,6 +478,11 @@ pt_status proto_msg_encode_task(proto_writer *w, const proto_task *m, pt_error *
     proto_w_str(w, m->animation);
     proto_w_f64(w, m->shutter[0]);
     proto_w_f64(w, m->shutter[1]);
+    proto_w_f32(w, m->clamp[0]);
+    proto_w_f32(w, m->clamp[1]);
+    proto_w_u8(w, m->guided);
+    proto_w_u32(w, m->guide_pass);
+    proto_w_bytes(w, m->guide_hash, PROTO_HASH_SIZE);
     return w_done(w, start, "TASK", err);
 }
 
@@ -482,10 +511,16 @@ pt_status proto_msg_decode_task(const uint8_t *p, size_t len, proto_task *out, p
     proto_r_str(&r, m.animation, PROTO_MAX_NAME, "animation");
     m.shutter[0] = proto_r_f64(&r, "shutter open");
     m.shutter[1] = proto_r_f64(&r, "shutter close");
+    m.clamp[0] = proto_r_f32(&r, "clamp direct");
+    m.clamp[1] = proto_r_f32(&r, "clamp indirect");
+    m.guided = proto_r_u8(&r, "guided");
+    m.guide_pass = proto_r_u32(&r, "guide pass");
+    const uint8_t *ghash = proto_r_bytes(&r, PROTO_HASH_SIZE, "guide hash");
     pt_status st = proto_r_finish(&r, "TASK", err);
     if (st != PT_OK)
         return st;
     memcpy(m.scene_hash, hash, PROTO_HASH_SIZE);
+    memcpy(m.guide_hash, ghash, PROTO_HASH_SIZE);
     const char *why = task_problem(&m);
     if (why)
         return bad(err, PT_ERR_PROTO, "TASK", why);
@@ -580,6 +615,25 @@ static const char *result_problem(const proto_result *m)
     return NULL;
 }
 
+/* The guiding statistics' shape (PROTO_RESULT_GUIDE): counts within the
+ * guide's sizes, nodes strictly ascending and in range, values above 0. */
+static const char *guide_problem(uint32_t nsnode, uint32_t nqnode, uint32_t nc, uint32_t ns,
+                                 const proto_guide_entry *e)
+{
+    if (nsnode == 0 || nqnode == 0 || nsnode > PROTO_MAX_GUIDE_NODES ||
+        nqnode > PROTO_MAX_GUIDE_NODES)
+        return "guide sizes out of range";
+    if (nc > nsnode || ns > nqnode)
+        return "more guiding entries than the guide has nodes";
+    for (uint32_t i = 0; e && i < nc + ns; i++) {
+        uint32_t lim = i < nc ? nsnode : nqnode;
+        if (e[i].node >= lim || e[i].value == 0 ||
+            (i != 0 && i != nc && e[i].node <= e[i - 1].node))
+            return "guiding entries not ascending, in range and above 0";
+    }
+    return NULL;
+}
+
 /* The pixel's count and hits, checked as the decoder checks them. */
 static const char *result_pixel_problem(uint32_t n, uint32_t hits, uint32_t nmax)
 {
@@ -660,6 +714,8 @@ pt_status proto_msg_encode_result(proto_writer *w, const proto_result *m, pt_err
 {
     size_t start = w->len;
     const char *why = result_problem(m);
+    if (!why && m->guide)
+        why = guide_problem(m->g_nsnode, m->g_nqnode, m->gcount, m->gsum, m->guide);
     if (why)
         return bad(err, PT_ERR_ARG, "RESULT", why);
     uint32_t nmax = m->s1 - m->s0;
@@ -690,7 +746,8 @@ pt_status proto_msg_encode_result(proto_writer *w, const proto_result *m, pt_err
         wide_pass |= pass_wide(&m->pass[i]);
     proto_w_u8(w, (uint8_t)(wide_rgb * PROTO_RESULT_WIDE_RGB + wide_sq * PROTO_RESULT_WIDE_SQ +
                             (m->pass ? PROTO_RESULT_PASSES : 0u) +
-                            wide_pass * PROTO_RESULT_WIDE_PASSES));
+                            wide_pass * PROTO_RESULT_WIDE_PASSES +
+                            (m->guide ? PROTO_RESULT_GUIDE : 0u)));
     size_t rgb = wide_rgb ? 16 : 8, sq = wide_sq ? 16 : 8, psize = 3 * rgb + sq + 8;
     /* One reservation for all pixels: a 64k-pixel tile is 2.6 MB narrow. */
     uint8_t *q = proto_w_reserve(w, (size_t)m->npixels * psize);
@@ -716,7 +773,53 @@ pt_status proto_msg_encode_result(proto_writer *w, const proto_result *m, pt_err
         for (uint32_t i = 0; i < m->npixels; i++, q += qsize)
             put_pass(q, &m->pass[i], wide_pass);
     }
+    if (m->guide) {
+        proto_w_u32(w, m->g_nsnode);
+        proto_w_u32(w, m->g_nqnode);
+        proto_w_u32(w, m->gcount);
+        proto_w_u32(w, m->gsum);
+        for (uint32_t i = 0; i < m->gcount + m->gsum; i++) {
+            proto_w_u32(w, m->guide[i].node);
+            proto_w_u64(w, m->guide[i].value);
+        }
+    }
     return w_done(w, start, "RESULT", err);
+}
+
+/* The guiding statistics at r (GUIDE's layout) into out: the entries in an
+ * allocation of their own. */
+static pt_status decode_guide(proto_reader *r, proto_result *m, pt_error *err)
+{
+    if (proto_r_left(r) < 16)
+        return pt_error_set(err, PT_ERR_PROTO, "RESULT: truncated guiding statistics");
+    m->g_nsnode = proto_r_u32(r, "guide spatial nodes");
+    m->g_nqnode = proto_r_u32(r, "guide directional nodes");
+    m->gcount = proto_r_u32(r, "guiding counts");
+    m->gsum = proto_r_u32(r, "guiding sums");
+    const char *why = guide_problem(m->g_nsnode, m->g_nqnode, m->gcount, m->gsum, NULL);
+    if (why)
+        return bad(err, PT_ERR_PROTO, "RESULT", why);
+    uint64_t n = (uint64_t)m->gcount + m->gsum;
+    if (proto_r_left(r) != n * 12)
+        return pt_error_set(err, PT_ERR_PROTO,
+                            "RESULT: guiding statistics of %llu entries in %zu bytes",
+                            (unsigned long long)n, proto_r_left(r));
+    /* One entry at least, so an empty list is an allocation too. */
+    proto_guide_entry *e = pt_malloc_array(n ? (size_t)n : 1, sizeof *e);
+    if (!e)
+        return pt_error_set(err, PT_ERR_NOMEM, "RESULT: %llu guiding entries",
+                            (unsigned long long)n);
+    for (uint64_t i = 0; i < n; i++) {
+        e[i].node = proto_r_u32(r, "guide node");
+        e[i].value = proto_r_u64(r, "guide value");
+    }
+    if ((why = guide_problem(m->g_nsnode, m->g_nqnode, m->gcount, m->gsum, e)) != NULL) {
+        pt_free(e);
+        return bad(err, PT_ERR_PROTO, "RESULT", why);
+    }
+    m->guide = e;
+    m->owns_guide = 1;
+    return PT_OK;
 }
 
 pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *buf, size_t buf_cap,
@@ -737,6 +840,9 @@ pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *bu
     m.pixels = NULL;
     m.owns_pixels = 0;
     m.pass = NULL;
+    m.guide = NULL;
+    m.owns_guide = 0;
+    m.g_nsnode = m.g_nqnode = m.gcount = m.gsum = 0;
     if (r.status != PT_OK)
         return proto_r_finish(&r, "RESULT", err);
     /* Everything about the count is settled before a byte is allocated: the
@@ -746,7 +852,7 @@ pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *bu
     if (why)
         return bad(err, PT_ERR_PROTO, "RESULT", why);
     if (form & ~(PROTO_RESULT_WIDE_RGB | PROTO_RESULT_WIDE_SQ | PROTO_RESULT_PASSES |
-                 PROTO_RESULT_WIDE_PASSES) ||
+                 PROTO_RESULT_WIDE_PASSES | PROTO_RESULT_GUIDE) ||
         ((form & PROTO_RESULT_WIDE_PASSES) && !(form & PROTO_RESULT_PASSES)))
         return bad(err, PT_ERR_PROTO, "RESULT", "unknown pixel form");
     int wide_rgb = (form & PROTO_RESULT_WIDE_RGB) != 0,
@@ -758,7 +864,7 @@ pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *bu
     if (proto_r_left(&r) < body)
         return pt_error_set(err, PT_ERR_PROTO, "RESULT: truncated pixels (%zu of %zu bytes)",
                             proto_r_left(&r), body);
-    if (proto_r_left(&r) > body)
+    if (proto_r_left(&r) > body && !(form & PROTO_RESULT_GUIDE))
         return pt_error_set(err, PT_ERR_PROTO, "RESULT: %zu trailing bytes",
                             proto_r_left(&r) - body);
     const uint8_t *q = r.p;
@@ -821,6 +927,16 @@ pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *bu
             pt_free(px);
         return bad(err, PT_ERR_PROTO, "RESULT", "a wide pixel form that no pixel needs");
     }
+    if (form & PROTO_RESULT_GUIDE) {
+        /* The statistics after the pixels (GUIDE's layout, above). */
+        proto_reader gr = proto_reader_make(r.p + body, proto_r_left(&r) - body);
+        pt_status gst = decode_guide(&gr, &m, err);
+        if (gst != PT_OK) {
+            if (m.owns_pixels)
+                pt_free(px);
+            return gst;
+        }
+    }
     m.pixels = px;
     *out = m;
     return PT_OK;
@@ -832,6 +948,10 @@ void proto_result_fini(proto_result *r)
         return;
     if (r->owns_pixels)
         pt_free(r->pixels);
+    if (r->owns_guide)
+        pt_free(r->guide);
+    r->guide = NULL;
+    r->owns_guide = 0;
     r->pixels = NULL;
     r->pass = NULL;
     r->owns_pixels = 0;
@@ -937,6 +1057,10 @@ static const char *submit_problem(const proto_submit *m)
         return "frames per second not finite and > 0 for a range (0 and no animation for a "
                "still)";
     const char *why = proto_shutter_problem(m->shutter);
+    if (!why)
+        why = proto_clamp_problem(m->clamp);
+    if (!why && m->guiding > PROTO_GUIDING_AUTO)
+        why = "guiding mode not off (0), on (1) or auto (2)";
     return why ? why : env_problem(&m->env);
 }
 
@@ -975,6 +1099,9 @@ pt_status proto_msg_encode_submit(proto_writer *w, const proto_submit *m, pt_err
     proto_w_str(w, m->animation);
     proto_w_f64(w, m->shutter[0]);
     proto_w_f64(w, m->shutter[1]);
+    proto_w_f32(w, m->clamp[0]);
+    proto_w_f32(w, m->clamp[1]);
+    proto_w_u8(w, m->guiding);
     return w_done(w, start, "SUBMIT", err);
 }
 
@@ -1005,6 +1132,9 @@ pt_status proto_msg_decode_submit(const uint8_t *p, size_t len, proto_submit *ou
     proto_r_str(&r, m.animation, PROTO_MAX_NAME, "animation");
     m.shutter[0] = proto_r_f64(&r, "shutter open");
     m.shutter[1] = proto_r_f64(&r, "shutter close");
+    m.clamp[0] = proto_r_f32(&r, "clamp direct");
+    m.clamp[1] = proto_r_f32(&r, "clamp indirect");
+    m.guiding = proto_r_u8(&r, "guiding");
     pt_status st = proto_r_finish(&r, "SUBMIT", err);
     if (st != PT_OK)
         return st;

@@ -50,6 +50,8 @@ typedef enum proto_msg_type {
     PROTO_MSG_RESULT = 20,       /* worker -> server */
     PROTO_MSG_HEARTBEAT = 21,    /* worker -> server */
     PROTO_MSG_JOB_END = 22,      /* server -> worker, JOB_REF layout: drop that job's tasks */
+    PROTO_MSG_GUIDE_GET = 23,    /* worker -> server, SCENE_GET layout: a guiding distribution */
+    PROTO_MSG_GUIDE_CHUNK = 24,  /* server -> worker, SCENE_CHUNK layout: a piece of one */
     /* client (ptctl) -> server */
     PROTO_MSG_SUBMIT = 32, /* then UPLOAD frames with the scene bundle */
     PROTO_MSG_LIST = 33,
@@ -91,6 +93,7 @@ const char *proto_msg_type_name(uint32_t type);
 #define PROTO_RESULT_WIDE_SQ 2u          /* RESULT pixel form: sum of squares in 16 bytes */
 #define PROTO_RESULT_PASSES 4u           /* RESULT pixel form: pass sums follow the pixels */
 #define PROTO_RESULT_WIDE_PASSES 8u      /* RESULT pixel form: pass sums in 16 bytes */
+#define PROTO_RESULT_GUIDE 16u           /* RESULT pixel form: guiding statistics follow */
 #define PROTO_RESULT_PASS_SIZE 268u      /* bytes per pixel of narrow pass sums */
 #define PROTO_RESULT_WIDE_PASS_SIZE 404u /* bytes per pixel of wide pass sums (the most) */
 #define PROTO_RESULT_HEADER_SIZE 69u     /* bytes of RESULT before its pixels */
@@ -254,7 +257,9 @@ int proto_env_same(const proto_env *a, const proto_env *b);
  *   132+c+e+v 2+n str  animation: "" every animation, else a name or decimal
  *                      index (pt_scene_opts.animation), n <= PROTO_MAX_NAME
  *   134+c+e+v+n 16 SHUTTER motion blur's shutter (SHUTTER layout, below)
- *   size 150+c+e+v+n
+ *   150+c+e+v+n 8 CLAMP  sample clamping (CLAMP layout, below)
+ *   158+c+e+v+n 37 GUIDE path guiding (GUIDE layout, below)
+ *   size 195+c+e+v+n
  * A frame-range job's frames are separate jobs on the wire: each has its own
  * job id (srv_frame_job_id, server/sched/frames.h), so a task id, a RESULT and a
  * JOB_END name one frame's tasks. */
@@ -275,6 +280,10 @@ typedef struct proto_task {
     double time;                        /* seconds */
     char animation[PROTO_MAX_NAME + 1]; /* "" every animation */
     double shutter[2];                  /* SHUTTER: open, close; 0, 0 off */
+    float clamp[2];                     /* CLAMP: direct, indirect; 0 off */
+    uint8_t guided;                     /* GUIDE: 1 the task renders guided pass guide_pass */
+    uint32_t guide_pass;
+    uint8_t guide_hash[PROTO_HASH_SIZE]; /* the pass's distribution (proto_guide_encode) */
 } proto_task;
 
 /* SHUTTER (in TASK and SUBMIT): motion blur's shutter, in seconds after the
@@ -289,6 +298,39 @@ typedef struct proto_task {
 #define PROTO_MAX_SHUTTER_S 3600.0
 /* NULL when open and close make a shutter, else what is wrong. */
 const char *proto_shutter_problem(const double shutter[2]);
+
+/* CLAMP (in TASK and SUBMIT): sample clamping, biased and off by default
+ * (pt_render_params.clamp_direct, clamp_indirect: a contribution whose
+ * R + G + B passes the limit is scaled down to it, as Cycles' Clamp Direct
+ * and Clamp Indirect).
+ *   0    4    f32      direct: light reaching the camera or the first surface it sees
+ *   4    4    f32      indirect: light after more bounces
+ *   size 8
+ * Each finite with 0 <= limit <= PROTO_MAX_CLAMP; 0 is off. The floats are
+ * sent as their bits, so a worker clamps exactly as ptworker --clamp-direct
+ * of the same value does. */
+#define PROTO_MAX_CLAMP 1e30f
+/* NULL when both limits are finite and in [0, PROTO_MAX_CLAMP], else what is wrong. */
+const char *proto_clamp_problem(const float clamp[2]);
+
+/* GUIDE (in TASK): path guiding (common/render/guide.h), learned by the farm
+ * in passes at fixed sample boundaries (pt_guide_pass_end).
+ *   0    1    u8       guided: 1 the task is samples of guided pass `pass`, 0 not guided
+ *   1    4    u32      pass (0 when not guided; <= PROTO_MAX_GUIDE_PASS)
+ *   5    32   u8[32]   SHA-256 of the pass's distribution as proto_guide_encode
+ *                      writes it (zeros when not guided); the worker fetches it
+ *                      with GUIDE_GET (SCENE_GET layout) once and keeps it
+ *   size 37
+ * A guided task renders with the distribution, draws directions from it with
+ * probability 0 in pass 0 and 0.5 after (as ptworker --guiding on), and
+ * returns its statistics in RESULT (PROTO_RESULT_GUIDE). GUIDE_CHUNK has the
+ * SCENE_CHUNK layout, the total at most PROTO_MAX_GUIDE_BYTES. */
+#define PROTO_MAX_GUIDE_PASS 31u
+#define PROTO_MAX_GUIDE_NODES (1u << 24) /* PT_GUIDE_MAX_NODES */
+#define PROTO_MAX_GUIDE_BYTES (256u << 20)
+
+/* SUBMIT's guiding mode, ptctl submit --guiding. */
+enum { PROTO_GUIDING_OFF = 0, PROTO_GUIDING_ON = 1, PROTO_GUIDING_AUTO = 2 };
 
 /* SCENE_GET
  *   0    32   u8[32]  scene content hash
@@ -314,6 +356,12 @@ typedef struct proto_scene_chunk {
     const uint8_t *data;
 } proto_scene_chunk;
 
+/* One entry of RESULT's guiding statistics: a node and its value. */
+typedef struct proto_guide_entry {
+    uint32_t node;
+    uint64_t value;
+} proto_guide_entry;
+
 /* RESULT
  *   0    8    u64   job id
  *   8    8    u64   task id
@@ -325,8 +373,8 @@ typedef struct proto_scene_chunk {
  *   56   8    u64   paths ended by the depth cap (pt_render_stats.capped)
  *   64   4    u32   N: pixels; must equal (x1-x0)*(y1-y0) and be <= PROTO_MAX_TILE_PIXELS
  *   68   1    u8    pixel form: PROTO_RESULT_WIDE_RGB | PROTO_RESULT_WIDE_SQ |
- *                   PROTO_RESULT_PASSES | PROTO_RESULT_WIDE_PASSES, no other bit
- *                   (WIDE_PASSES only with PASSES)
+ *                   PROTO_RESULT_PASSES | PROTO_RESULT_WIDE_PASSES |
+ *                   PROTO_RESULT_GUIDE, no other bit (WIDE_PASSES only with PASSES)
  *   69   PN         pixels, row-major over the tile, P = 40 to 72 bytes, each:
  *                     the sums of pt_pixel_acc (tile.h) in fixed point: R, G, B
  *                     (signed, units of 2^-32), each an i64 (8 bytes) or, with
@@ -348,8 +396,17 @@ typedef struct proto_scene_chunk {
  *                     u32 ids then 8 u32 sample counts each, in the merge's
  *                     canonical form (pt_crypto_canonical: ascending ids,
  *                     unused entries 0 last, counts summing to <= n)
- *   size 69+PN[+QN] (PROTO_RESULT_HEADER_SIZE + P x N; P = PROTO_RESULT_PIXEL_SIZE
- *   narrow, PROTO_RESULT_WIDE_PIXEL_SIZE with both bits)
+ *   ..   with GUIDE (the task was guided): the statistics it recorded
+ *                   (pt_guide_stats), sparse, in canonical form:
+ *                     +0  4  u32  the guide's spatial nodes (its nsnode)
+ *                     +4  4  u32  the guide's directional nodes (its nqnode)
+ *                     +8  4  u32  C: record counts listed, C <= nsnode
+ *                     +12 4  u32  S: fixed-point sums listed, S <= nqnode
+ *                     +16 12C     (u32 spatial node, u64 count), nodes ascending,
+ *                                 each < nsnode, counts > 0
+ *                     ..  12S     (u32 directional node, u64 sum), likewise < nqnode
+ *   size 69+PN[+QN][+16+12(C+S)] (PROTO_RESULT_HEADER_SIZE + P x N; P =
+ *   PROTO_RESULT_PIXEL_SIZE narrow, PROTO_RESULT_WIDE_PIXEL_SIZE with both bits)
  * The encoder sets a bit only when some pixel's sum of that kind does not fit
  * 64 bits: RGB sums fit below 2^31 per task, squares below 2^16, so a pixel of
  * ordinary radiance costs 40 bytes on the wire as with double sums. The sums
@@ -366,6 +423,12 @@ typedef struct proto_result {
     pt_pass_acc *pass;    /* NULL, or npixels pass sums; decoded, they lie right after
                              pixels[npixels - 1] in the same allocation (pt_film_add_tile
                              of a film with passes reads them there) */
+    /* Guiding statistics (PROTO_RESULT_GUIDE): guide == NULL when none. The
+     * decoder allocates guide (gcount + gsum entries, counts first); encoders
+     * read it; proto_result_fini frees what the decoder allocated. */
+    uint32_t g_nsnode, g_nqnode, gcount, gsum;
+    proto_guide_entry *guide;
+    int owns_guide;
 } proto_result;
 
 /* HEARTBEAT
@@ -448,7 +511,10 @@ typedef struct proto_fetch_frame {
  *   135+a+c+e+v 2+n str animation: "" every animation, else a name or decimal
  *                  index, n <= PROTO_MAX_NAME ("" for a still)
  *   137+a+c+e+v+n 16 SHUTTER motion blur's shutter (SHUTTER layout, above)
- *   size 153+a+c+e+v+n
+ *   153+a+c+e+v+n 8 CLAMP sample clamping (CLAMP layout, above)
+ *   161+a+c+e+v+n 1 u8 guiding: PROTO_GUIDING_OFF, _ON or _AUTO (the server turns
+ *                  on or auto into guiding where the scene has glossy surfaces)
+ *   size 162+a+c+e+v+n
  * The decoder checks shape only (width and height both 0 or both > 0, spp > 0,
  * size > 0, target error and min gain finite and >= 0); caps, and whether the
  * two rules may be combined, are the server's business. */
@@ -470,6 +536,8 @@ typedef struct proto_submit {
     double fps;
     char animation[PROTO_MAX_NAME + 1];
     double shutter[2]; /* SHUTTER: open, close; 0, 0 off */
+    float clamp[2];    /* CLAMP: direct, indirect; 0 off */
+    uint8_t guiding;   /* PROTO_GUIDING_* */
 } proto_submit;
 
 enum {

@@ -76,6 +76,8 @@ typedef struct srv_config {
     double fps;           /* its frames per second */
     const char *animation; /* its animation; NULL: every one */
     pt_view view;          /* every PNG preview's exposure and view transform */
+    uint32_t guiding;      /* one-job mode: --guiding (PT_GUIDING_*), resolved against the
+                            * scene into job.guiding when the job is set up */
 } srv_config;
 
 #endif

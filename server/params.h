@@ -30,6 +30,13 @@ typedef struct srv_job_params {
     char variant[PROTO_MAX_NAME + 1]; /* KHR_materials_variants name; "" the default materials */
     double shutter[2]; /* motion blur's shutter, seconds after the frame's time (SHUTTER in
                           protocol/msg.h); 0, 0 off */
+    float clamp[2];    /* sample clamping, direct and indirect (CLAMP in protocol/msg.h); 0 off */
+    /* Path guiding, learned by the farm (server/sched/job.h): 1 when the job
+     * is guided (--guiding on or auto, resolved against the scene: glossy
+     * surfaces), with the bounds of its first, uniform distribution: the
+     * scene's, grown as ptworker --guiding grows them. */
+    uint32_t guiding;
+    float guide_box[6]; /* lo x, y, z, hi x, y, z; zeros when not guided */
 } srv_job_params;
 
 /* The params block as the checkpoint and the state folder's queue file both
@@ -41,12 +48,16 @@ typedef struct srv_job_params {
  * u32 film flags (an unknown bit is a format error), str material variant
  * (formats 4 on; "" from older ones), then f64 x2 motion blur's shutter (open,
  * close; refused unless proto_shutter_problem passes; formats 5 on, 0, 0 from
- * older ones). srv_job_params_read reads a block with or without the min gain,
- * with or without both the environment and the film flags (one format version
- * brought both) and with or without the shutter, as its file's format version
- * says; a failure is left in r's status. */
+ * older ones), then f32 x2 sample clamping (direct, indirect; refused unless
+ * proto_clamp_problem passes) and path guiding: u8 guided (0 or 1), f32 x6 its
+ * first distribution's bounds (finite, ordered; zeros when not guided) (format
+ * 9 brought both; off from older ones). srv_job_params_read reads a block with
+ * or without the min gain, with or without both the environment and the film
+ * flags (one format version brought both), with or without the shutter and
+ * with or without the clamps and guiding, as its file's format version says; a
+ * failure is left in r's status. */
 void srv_job_params_write(proto_writer *w, const srv_job_params *p);
 void srv_job_params_read(proto_reader *r, srv_job_params *p, int has_min_gain, int has_env_film,
-                         int has_shutter);
+                         int has_shutter, int has_clamp_guide);
 
 #endif

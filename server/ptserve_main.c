@@ -140,6 +140,15 @@ static void usage(FILE *f)
         "                         off the event loop; saves that come while one is\n"
         "                         denoised wait and only the newest is taken; the\n"
         "                         finished image stops a progressive one at once\n"
+        "  --guiding on|off|auto  path guiding learned by the farm (default off): as\n"
+        "                         ptworker --guiding, whose image it gives bit for bit;\n"
+        "                         one-job mode (queued jobs: ptctl submit --guiding)\n"
+        "  --clamp-direct X       clamp each sample's light that reaches the camera or\n"
+        "                         the first surface it sees to R+G+B <= X, as Cycles'\n"
+        "                         Clamp Direct (biased; default 0, off); one-job mode\n"
+        "                         (queued jobs: ptctl submit --clamp-direct)\n"
+        "  --clamp-indirect X     the same for light after more bounces (Cycles' Clamp\n"
+        "                         Indirect); the image is ptworker --clamp-* 's, bit for bit\n"
         "  --variant NAME         the KHR_materials_variants variant: mapped primitives\n"
         "                         take its material; one-job mode (queued jobs: ptctl\n"
         "                         submit --variant)\n"
@@ -495,6 +504,9 @@ static void job_from_options(srv_config *c, const pt_render_opts *ro, parsed *x)
         c->job.film_flags |= PROTO_FILM_DENOISE;
     if (ro->denoise_progressive)
         c->job.film_flags |= PROTO_FILM_DENOISE_PROGRESSIVE;
+    c->job.clamp[0] = ro->clamp_direct;
+    c->job.clamp[1] = ro->clamp_indirect;
+    c->guiding = ro->guiding;
     c->view = ro->view;
 }
 
@@ -581,6 +593,32 @@ static int check_options(srv_config *c, const pt_render_opts *ro, parsed *x, int
         fprintf(stderr, "ptserve: --transparent is for one-job mode; a queued job asks for it "
                         "with ptctl submit --transparent\n");
         return 2;
+    }
+    if (c->state_dir &&
+        (ro->given & (PT_ROPT(PT_ROPT_CLAMP_DIRECT) | PT_ROPT(PT_ROPT_CLAMP_INDIRECT)))) {
+        fprintf(stderr, "ptserve: --clamp-direct and --clamp-indirect are for one-job mode; a "
+                        "queued job asks for them with ptctl submit --clamp-direct\n");
+        return 2;
+    }
+    if (c->state_dir && (ro->given & PT_ROPT(PT_ROPT_GUIDING))) {
+        fprintf(stderr, "ptserve: --guiding is for one-job mode; a queued job asks for it "
+                        "with ptctl submit --guiding\n");
+        return 2;
+    }
+    if (c->guiding) {
+        /* Guided passes are learned from whole passes of every tile: no
+         * adaptive stops, one pose. auto leaves guiding off there. */
+        const char *why = c->job.target_error > 0.0 || c->job.min_gain > 0.0
+                              ? "--target-error or --min-gain"
+                          : c->frames.step                        ? "--frames"
+                          : c->job.shutter[1] > c->job.shutter[0] ? "--shutter"
+                                                                  : NULL;
+        if (why && c->guiding == PT_GUIDING_ON) {
+            fprintf(stderr, "ptserve: --guiding on does not combine with %s yet\n", why);
+            return 2;
+        }
+        if (why)
+            c->guiding = PT_GUIDING_OFF;
     }
     if (c->state_dir && ro->denoise) {
         fprintf(stderr, "ptserve: --denoise is for one-job mode; a queued job asks for it "

@@ -21,10 +21,13 @@
 #include "common/base/hash.h"
 #include "common/base/net.h"
 #include "common/base/text.h"
+#include "common/render/guide.h"
+#include "common/render/guide_sched.h"
 #include "common/render/render.h"
 #include "common/scene/bundle.h"
 #include "protocol/auth.h"
 #include "protocol/frame.h"
+#include "protocol/guide.h"
 #include "protocol/msg.h"
 #include "worker/cache.h"
 
@@ -46,15 +49,35 @@
 
 /* ---- shared between the I/O thread and the render threads ---------------------------- */
 
+/* A guiding distribution (GUIDE in protocol/msg.h), fetched by hash once.
+ * The I/O thread owns the list; render threads read a fetched guide. */
+typedef struct guide_rec {
+    uint8_t hash[PROTO_HASH_SIZE];
+    pt_guide *guide; /* NULL until fetched and checked */
+    int fetching;    /* a GUIDE_GET is outstanding on this connection */
+    uint8_t *buf;
+    size_t len, cap;
+    uint64_t total;
+    uint64_t t_fetch; /* when its first GUIDE_GET went (ms) */
+    struct guide_rec *next;
+} guide_rec;
+
+/* Distributions kept besides the newest: a job's passes are fetched one
+ * after another, each once; older ones are freed only while no task is
+ * queued or rendering (no render thread can be reading one). */
+#define GUIDES_KEPT 2u
+
 typedef struct task_item {
     proto_task t;
-    char *entry;    /* the scene's entry file (pt_strdup) once known */
-    uint64_t epoch; /* connection it belongs to */
+    guide_rec *guide; /* a guided task's distribution, once fetched */
+    char *entry;      /* the scene's entry file (pt_strdup) once known */
+    uint64_t epoch;   /* connection it belongs to */
     struct task_item *next;
 } task_item;
 
 typedef struct done_item {
     proto_task t;
+    proto_result gres; /* a guided task's statistics (guide, owns_guide), else zeros */
     uint64_t epoch;
     pt_status st; /* PT_OK: pixels hold the result */
     pt_error err; /* why not */
@@ -131,9 +154,10 @@ struct worker {
     proto_writer out;
     size_t out_sent;
     uint32_t requested; /* slots asked for, TASKs not yet received */
-    task_item *pending; /* tasks waiting for their scene */
+    task_item *pending; /* tasks waiting for their scene or distribution */
     uint32_t npending;
     scene_rec *scenes_known;
+    guide_rec *guides; /* the I/O thread's */
     uint64_t t_connect, t_heartbeat;
     char reason[1600]; /* why the session ended */
 
@@ -198,6 +222,7 @@ static void task_free(task_item *t)
 static void done_free(done_item *d)
 {
     if (d) {
+        proto_result_fini(&d->gres);
         pt_free(d->pixels);
         pt_free(d->pass);
         pt_free(d);
@@ -220,6 +245,8 @@ static void render_one(worker *w, const task_item *t, done_item *d)
     p.light_strategy = PT_LIGHT_MIS;
     p.transparent = (k->film_flags & PROTO_FILM_TRANSPARENT) ? 1u : 0u;
     p.passes = proto_film_passes(k->film_flags);
+    p.clamp_direct = k->clamp[0];
+    p.clamp_indirect = k->clamp[1];
     size_t npx = (size_t)(k->tile.x1 - k->tile.x0) * (k->tile.y1 - k->tile.y0);
     d->pixels = pt_malloc_array(npx, sizeof *d->pixels);
     if (p.passes)
@@ -228,15 +255,31 @@ static void render_one(worker *w, const task_item *t, done_item *d)
         d->st = pt_error_set(&d->err, PT_ERR_NOMEM, "out of memory for %zu pixels", npx);
         return;
     }
+    /* A guided task: the pass's distribution, statistics of its own (they
+     * add exactly at the coordinator, whatever the tasks). */
+    p.guiding = k->guided;
+    pt_guide_stats *gs = NULL;
+    pt_render_guiding gd = {0};
+    if (k->guided) {
+        d->st = pt_guide_stats_new(t->guide->guide, &gs, &d->err);
+        if (d->st != PT_OK)
+            return;
+        gd = (pt_render_guiding){t->guide->guide, pt_guide_pass_prob(k->guide_pass), gs};
+    }
     wrk_scene_ref *ref = NULL;
     wrk_pose pose = {k->animate, k->time, k->animation};
     wrk_scene_look look = {k->camera, k->variant, &k->env, &pose, k->shutter};
     d->st = wrk_scenes_acquire(w->scenes, k->scene_hash, &p, &look, t->entry, &ref, &d->err);
-    if (d->st != PT_OK)
+    if (d->st != PT_OK) {
+        pt_guide_stats_free(gs);
         return;
+    }
     pt_render_tile_passes(wrk_scene_renderer(ref), k->tile, k->s0, k->s1, d->pixels, d->pass,
-                          &d->stats, NULL);
+                          &d->stats, k->guided ? &gd : NULL);
     wrk_scenes_release(w->scenes, ref);
+    if (gs)
+        d->st = proto_guide_stats_to_result(gs, &d->gres, &d->err);
+    pt_guide_stats_free(gs);
 }
 
 static void wake_io(worker *w)
@@ -568,27 +611,118 @@ static void fetch_reset(scene_rec *s)
     s->fetching = 0;
 }
 
+static guide_rec *guide_find(worker *w, const uint8_t *hash, int create)
+{
+    for (guide_rec *g = w->guides; g; g = g->next)
+        if (memcmp(g->hash, hash, PROTO_HASH_SIZE) == 0)
+            return g;
+    if (!create)
+        return NULL;
+    guide_rec *g = pt_calloc(1, sizeof *g);
+    if (!g)
+        return NULL;
+    memcpy(g->hash, hash, PROTO_HASH_SIZE);
+    g->next = w->guides;
+    w->guides = g;
+    return g;
+}
+
+static void guide_fetch_reset(guide_rec *g)
+{
+    pt_free(g->buf);
+    g->buf = NULL;
+    g->len = g->cap = 0;
+    g->total = 0;
+    g->fetching = 0;
+}
+
+static int send_guide_get(worker *w, const uint8_t *hash, uint64_t offset)
+{
+    proto_scene_get g;
+    memcpy(g.hash, hash, PROTO_HASH_SIZE);
+    g.offset = offset;
+    size_t mark;
+    pt_error e = {0};
+    pt_status st = proto_frame_begin(&w->out, PROTO_MSG_GUIDE_GET, &mark, &e);
+    if (st == PT_OK)
+        st = proto_frame_finish(&w->out, mark, proto_msg_encode_scene_get(&w->out, &g, &e), &e);
+    return queued(w, PROTO_MSG_GUIDE_GET, st, &e);
+}
+
+/* Frees fetched distributions past the newest GUIDES_KEPT + 1 while no task
+ * is queued or rendering (then no render thread reads one). */
+static void guides_trim(worker *w)
+{
+    pthread_mutex_lock(&w->mu);
+    int idle = w->nqueued == 0;
+    for (uint32_t i = 0; idle && i < w->threads_alive; i++)
+        idle = !w->running[i].active;
+    pthread_mutex_unlock(&w->mu);
+    if (!idle)
+        return;
+    uint32_t kept = 0;
+    for (guide_rec **pp = &w->guides; *pp;) {
+        guide_rec *g = *pp;
+        if (g->guide && !g->fetching && kept++ > GUIDES_KEPT) {
+            *pp = g->next;
+            pt_guide_free(g->guide);
+            guide_fetch_reset(g);
+            pt_free(g);
+            continue;
+        }
+        pp = &g->next;
+    }
+}
+
+/* t goes to the render queue once its scene is on disk and (guided) its
+ * distribution is here; else it waits in pending. -1 without memory. */
+static int enqueue_when_ready(worker *w, task_item *t, const scene_rec *s)
+{
+    if (t->t.guided && !t->guide) {
+        guide_rec *g = guide_find(w, t->t.guide_hash, 0);
+        if (g && g->guide)
+            t->guide = g;
+    }
+    if (s && s->entry && !t->entry && !(t->entry = pt_strdup(s->entry))) {
+        snprintf(w->reason, sizeof w->reason, "out of memory");
+        task_free(t);
+        return -1;
+    }
+    if (t->entry && (!t->t.guided || t->guide)) {
+        enqueue(w, t);
+    } else {
+        t->next = w->pending;
+        w->pending = t;
+        w->npending++;
+    }
+    return 0;
+}
+
+/* A scene is on disk or a distribution arrived: the tasks waiting on it
+ * that have all they need go to the render queue. */
+static int pending_ready(worker *w)
+{
+    task_item *list = w->pending;
+    w->pending = NULL;
+    w->npending = 0;
+    int rc = 0;
+    while (list) {
+        task_item *t = list;
+        list = t->next;
+        t->next = NULL;
+        if (rc == 0)
+            rc = enqueue_when_ready(w, t, scene_find(w, t->t.scene_hash, 0));
+        else
+            task_free(t);
+    }
+    return rc;
+}
+
 /* The scene is on disk: its waiting tasks go to the render queue. */
 static int scene_ready(worker *w, scene_rec *s)
 {
-    task_item **pp = &w->pending;
-    while (*pp) {
-        task_item *t = *pp;
-        if (memcmp(t->t.scene_hash, s->hash, PROTO_HASH_SIZE) != 0) {
-            pp = &t->next;
-            continue;
-        }
-        *pp = t->next;
-        w->npending--;
-        t->entry = pt_strdup(s->entry);
-        if (!t->entry) {
-            snprintf(w->reason, sizeof w->reason, "out of memory");
-            task_free(t);
-            return -1;
-        }
-        enqueue(w, t);
-    }
-    return 0;
+    (void)s;
+    return pending_ready(w);
 }
 
 static int on_task(worker *w, const proto_frame *f)
@@ -645,20 +779,75 @@ static int on_task(worker *w, const proto_frame *f)
             s->fetching = 1;
         }
     }
-    if (s->entry) {
-        t->entry = pt_strdup(s->entry);
-        if (!t->entry) {
+    if (t->t.guided) {
+        guide_rec *g = guide_find(w, t->t.guide_hash, 1);
+        if (!g) {
             snprintf(w->reason, sizeof w->reason, "out of memory");
             pt_free(t);
             return -1;
         }
-        enqueue(w, t);
-    } else {
-        t->next = w->pending;
-        w->pending = t;
-        w->npending++;
+        if (!g->guide && !g->fetching) {
+            if (send_guide_get(w, g->hash, 0) != 0) {
+                pt_free(t);
+                return -1;
+            }
+            g->fetching = 1;
+            g->t_fetch = pt_now_ms();
+        }
     }
-    return 0;
+    return enqueue_when_ready(w, t, s);
+}
+
+static int on_guide_chunk(worker *w, const proto_frame *f)
+{
+    pt_error err = {0};
+    proto_scene_chunk c;
+    if (proto_msg_decode_scene_chunk(f->payload, f->len, &c, &err) != PT_OK)
+        return fail_proto(w, "bad GUIDE_CHUNK: %s", err.msg);
+    char hex[65];
+    pt_hash_hex(c.hash, hex);
+    guide_rec *g = guide_find(w, c.hash, 0);
+    if (!g || !g->fetching)
+        return fail_proto(w, "GUIDE_CHUNK for distribution %.16s, not asked for", hex);
+    if (c.offset != g->len || (g->len > 0 && c.total != g->total) || c.total == 0 ||
+        c.total > PROTO_MAX_GUIDE_BYTES || (c.len == 0 && c.offset < c.total))
+        return fail_proto(w, "GUIDE_CHUNK for %.16s at %llu of %llu, expected %zu of %llu", hex,
+                          (unsigned long long)c.offset, (unsigned long long)c.total, g->len,
+                          (unsigned long long)g->total);
+    g->total = c.total;
+    if (g->len + c.len > g->cap) {
+        size_t cap = (size_t)g->total;
+        uint8_t *nb = pt_realloc(g->buf, cap);
+        if (!nb) {
+            snprintf(w->reason, sizeof w->reason, "out of memory for distribution %.16s", hex);
+            return -1;
+        }
+        g->buf = nb;
+        g->cap = cap;
+    }
+    memcpy(g->buf + g->len, c.data, c.len);
+    g->len += c.len;
+    if (g->len < g->total)
+        return send_guide_get(w, g->hash, g->len);
+    /* Its bytes must be the ones TASK named, and a tree that samples safely. */
+    uint8_t h[32];
+    pt_sha256(g->buf, g->len, h);
+    pt_guide *gd = NULL;
+    pt_status st = memcmp(h, g->hash, 32) == 0
+                       ? proto_guide_decode(g->buf, g->len, &gd, &err)
+                       : pt_error_set(&err, PT_ERR_FORMAT, "its bytes do not hash to its name");
+    if (st == PT_OK && (st = pt_guide_check(gd, &err)) != PT_OK) {
+        pt_guide_free(gd);
+        gd = NULL;
+    }
+    guide_fetch_reset(g);
+    if (st != PT_OK)
+        return fail_proto(w, "distribution %.16s: %s", hex, err.msg);
+    g->guide = gd;
+    fprintf(stderr, "ptworker: guiding distribution %.16s (%llu bytes) fetched in %llu ms\n", hex,
+            (unsigned long long)c.total, (unsigned long long)(pt_now_ms() - g->t_fetch));
+    guides_trim(w);
+    return pending_ready(w);
 }
 
 static int on_scene_chunk(worker *w, const proto_frame *f)
@@ -768,6 +957,11 @@ static int collect_results(worker *w)
         r.pixels = d->pixels;
         r.pass = d->pass;
         r.owns_pixels = 0;
+        r.g_nsnode = d->gres.g_nsnode;
+        r.g_nqnode = d->gres.g_nqnode;
+        r.gcount = d->gres.gcount;
+        r.gsum = d->gres.gsum;
+        r.guide = d->gres.guide; /* d's, freed with it */
         uint64_t samples = d->stats.samples;
         size_t mark;
         pt_error e = {0};
@@ -941,6 +1135,8 @@ static int dispatch(worker *w, const proto_frame *f, int *end)
             return on_task(w, f);
         if (f->type == PROTO_MSG_SCENE_CHUNK)
             return on_scene_chunk(w, f);
+        if (f->type == PROTO_MSG_GUIDE_CHUNK)
+            return on_guide_chunk(w, f);
         if (f->type == PROTO_MSG_JOB_END)
             return on_job_end(w, f);
         break;
@@ -1019,6 +1215,8 @@ static void drop_session(worker *w)
     w->npending = 0;
     for (scene_rec *s = w->scenes_known; s; s = s->next)
         fetch_reset(s);
+    for (guide_rec *g = w->guides; g; g = g->next)
+        guide_fetch_reset(g);
     w->requested = 0;
     proto_frame_reader_reset(&w->in);
     proto_writer_reset(&w->out);
@@ -1327,6 +1525,13 @@ int wrk_client_run(const wrk_client_opts *o)
         pt_free(w->scenes_known->entry);
         pt_free(w->scenes_known);
         w->scenes_known = next;
+    }
+    while (w->guides) {
+        guide_rec *next = w->guides->next;
+        guide_fetch_reset(w->guides);
+        pt_guide_free(w->guides->guide);
+        pt_free(w->guides);
+        w->guides = next;
     }
     pt_free(threads);
     pt_free(args);

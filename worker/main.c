@@ -146,13 +146,14 @@ static void usage(FILE *f)
             "  --view V           the PNG's view transform: standard (clamp + sRGB, the\n"
             "                     default), filmic (Hable's curve: bright areas roll off)\n"
             "                     or agx (Blender 4's AgX: bright colours desaturate)\n"
-            "  --guiding auto|on|off  path guiding, experimental (default off): the\n"
-            "                     light arriving at diffuse and rough surfaces is learned\n"
-            "                     in passes of 16, 32, 64... spp and half of their\n"
-            "                     directions drawn from it; on: wherever a material is\n"
-            "                     glossy; auto: where a metal, glass or smooth surface can\n"
-            "                     redirect light (off with adaptive sampling); standalone\n"
-            "                     only for now; not yet faster on the scenes measured\n"
+            "  --guiding on|off|auto  path guiding, experimental (default off): the light\n"
+            "                     arriving at diffuse and rough surfaces is learned in\n"
+            "                     passes of 16, 32, 64... spp and half of their directions\n"
+            "                     drawn from it; on: wherever a material is glossy; auto:\n"
+            "                     where a metal, glass or smooth surface can redirect light\n"
+            "                     (off with adaptive sampling, which on refuses); the\n"
+            "                     farm's image is this one, bit for bit; not yet faster on\n"
+            "                     the scenes measured\n"
             "  --denoise          denoise the finished image (NFOR, guided by the passes\n"
             "                     albedo, normal, depth and halves, which it turns on):\n"
             "                     the EXR gets the layer denoised.R/G/B beside the\n"
@@ -160,7 +161,7 @@ static void usage(FILE *f)
             "  --clamp-direct X   clamp each sample's light that reaches the camera or the\n"
             "                     first surface it sees to R+G+B <= X, as Cycles' Clamp\n"
             "                     Direct (biased: fewer fireflies, darker highlights;\n"
-            "                     default 0, off); standalone only for now\n"
+            "                     default 0, off); ptserve and ptctl submit take it too\n"
             "  --clamp-indirect X the same for light after more bounces (Cycles' Clamp\n"
             "                     Indirect; 10 is a common start); counted in the summary\n"
             "  --shutter O,C      motion blur: the shutter opens and closes at these\n"
@@ -238,15 +239,12 @@ int main(int argc, char **argv)
         OPT_TIME,
         OPT_FRAME,
         OPT_LIST,
-        OPT_GUIDING,
         OPT_SERVER, /* the farm worker's, from here on */
         OPT_PREFETCH,
         OPT_TOKEN,
         OPT_CACHE,
         OPT_NAME,
-        OPT_LINK_TIMEOUT,
-        OPT_CLAMP_DIRECT,
-        OPT_CLAMP_INDIRECT
+        OPT_LINK_TIMEOUT
     };
     static const struct option own[] = {
         {"scene", required_argument, NULL, OPT_SCENE},
@@ -255,9 +253,6 @@ int main(int argc, char **argv)
         {"time", required_argument, NULL, OPT_TIME},
         {"frame", required_argument, NULL, OPT_FRAME},
         {"list", required_argument, NULL, OPT_LIST},
-        {"guiding", required_argument, NULL, OPT_GUIDING},
-        {"clamp-direct", required_argument, NULL, OPT_CLAMP_DIRECT},
-        {"clamp-indirect", required_argument, NULL, OPT_CLAMP_INDIRECT},
         {"quiet", no_argument, NULL, 'q'},
         {"server", required_argument, NULL, OPT_SERVER},
         {"prefetch", required_argument, NULL, OPT_PREFETCH},
@@ -304,25 +299,6 @@ int main(int argc, char **argv)
                 return 1;
             }
             return 0;
-        case OPT_GUIDING:
-            if (strcmp(optarg, "on") == 0 || strcmp(optarg, "off") == 0 ||
-                strcmp(optarg, "auto") == 0) {
-                o.guiding = strcmp(optarg, "on") == 0     ? WRK_GUIDING_ON
-                            : strcmp(optarg, "auto") == 0 ? WRK_GUIDING_AUTO
-                                                          : WRK_GUIDING_OFF;
-            } else {
-                fprintf(stderr, "ptworker: --guiding: '%s' is not auto, on or off\n", optarg);
-                bad = 1;
-            }
-            break;
-        case OPT_CLAMP_DIRECT:
-        case OPT_CLAMP_INDIRECT: {
-            const char *name = c == OPT_CLAMP_DIRECT ? "--clamp-direct" : "--clamp-indirect";
-            double v = 0.0;
-            bad = bad_value(pt_opt_double(name, optarg, 0.0, 1e30, &v, &err), &err);
-            *(c == OPT_CLAMP_DIRECT ? &o.clamp_direct : &o.clamp_indirect) = (float)v;
-            break;
-        }
         case 'q':
             o.quiet = 1;
             break;
@@ -436,11 +412,16 @@ int main(int argc, char **argv)
     o.chunk = ro.chunk;
     o.target_error = ro.target_error;
     o.min_gain = ro.min_gain;
-    if (o.guiding == WRK_GUIDING_ON && (o.target_error > 0.0 || o.min_gain > 0.0)) {
-        /* A tile's adaptive stop would depend on the pass it is in. */
-        fprintf(stderr, "ptworker: --guiding on does not combine with --target-error or "
-                        "--min-gain yet\n");
-        return 2;
+    o.guiding = (int)ro.guiding;
+    if (o.guiding && (o.target_error > 0.0 || o.min_gain > 0.0)) {
+        /* A tile's adaptive stop would depend on the pass it is in: auto
+         * leaves guiding off, on is refused. */
+        if (o.guiding == PT_GUIDING_ON) {
+            fprintf(stderr, "ptworker: --guiding on does not combine with --target-error or "
+                            "--min-gain yet\n");
+            return 2;
+        }
+        o.guiding = PT_GUIDING_OFF;
     }
     o.min_spp = ro.min_spp;
     o.env_path = ro.env_path;
@@ -456,6 +437,8 @@ int main(int argc, char **argv)
     o.view = ro.view;
     o.fps = ro.fps;
     o.passes = ro.passes;
+    o.clamp_direct = ro.clamp_direct;
+    o.clamp_indirect = ro.clamp_indirect;
     o.denoise = ro.denoise;
     if (ro.animation)
         o.animate = 1;

@@ -20,6 +20,8 @@
 #include "common/render/env.h"
 #include "common/render/film.h"
 #include "common/render/guide.h"
+#include "common/render/guide_sched.h"
+#include "common/render/options.h"
 #include "common/render/passes.h"
 #include "common/render/render.h"
 #include "common/render/tile.h"
@@ -208,8 +210,6 @@ static uint32_t run_threads(job *j, uint32_t n, pthread_t *threads, thread_arg *
     return started;
 }
 
-#define GUIDE_SPLIT_C 3000.0
-
 /* Renders every pass of a guided image (--guiding on): pass 0 records into
  * statistics of a uniform guide without sampling it; each later pass samples
  * the guide built from the pass before, half of a guided vertex's
@@ -223,12 +223,10 @@ static int run_guided(job *j, const pt_scene *scene, uint32_t n, pthread_t *thre
     pt_render_guiding *gd = pt_calloc(n, sizeof *gd);
     int rc = -1;
     double last_print = 0.0;
-    /* The bounds, a little larger, so a point on them is inside. */
-    pt_vec3 ext = pt_v3_scale(pt_v3_sub(scene->bounds_max, scene->bounds_min), 1e-3f);
-    ext = pt_v3_add(ext, pt_v3(1e-3f, 1e-3f, 1e-3f));
-    if (!st || !gd ||
-        pt_guide_new_uniform(pt_v3_sub(scene->bounds_min, ext), pt_v3_add(scene->bounds_max, ext),
-                             &g, &err) != PT_OK) {
+    /* The schedule and the bounds are the farm's too (guide_sched.h). */
+    pt_vec3 lo = scene->bounds_min, hi = scene->bounds_max;
+    pt_guide_grow_bounds(&lo, &hi);
+    if (!st || !gd || pt_guide_new_uniform(lo, hi, &g, &err) != PT_OK) {
         fprintf(stderr, "ptworker: guiding: %s\n", err.msg[0] ? err.msg : "out of memory");
         goto done;
     }
@@ -241,7 +239,7 @@ static int run_guided(job *j, const pt_scene *scene, uint32_t n, pthread_t *thre
                 goto done;
             }
             /* The last pass builds no guide: it records nothing. */
-            gd[i] = (pt_render_guiding){g, k == 0 ? 0.0f : 0.5f, s1 < j->o->spp ? st[i] : NULL};
+            gd[i] = (pt_render_guiding){g, pt_guide_pass_prob(k), s1 < j->o->spp ? st[i] : NULL};
         }
         j->gd = gd;
         j->pass0 = s0;
@@ -255,10 +253,7 @@ static int run_guided(job *j, const pt_scene *scene, uint32_t n, pthread_t *thre
             for (uint32_t i = 1; i < n; i++)
                 pt_guide_stats_merge(st[0], st[i], &err);
             pt_guide *ng = NULL;
-            /* Mueller et al.'s split threshold, c sqrt(2^k) (they take c =
-             * 12000 for 1280 x 720 images); c = 3000 did better on a 64 x 64
-             * Cornell box, whose passes hold fewer records. */
-            uint64_t split = (uint64_t)(GUIDE_SPLIT_C * sqrt((double)(1u << (k < 20 ? k : 20))));
+            uint64_t split = pt_guide_split_count(k);
             if (pt_guide_build(g, st[0], split, &ng, &err) != PT_OK) {
                 fprintf(stderr, "ptworker: guiding: %s\n", err.msg);
                 goto done;
@@ -356,13 +351,14 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
     p.passes = o->passes;
     /* Guiding samples glossy closures only (main refuses on with adaptive
      * sampling; auto is then off: a tile's stop would depend on its pass). */
-    if (o->guiding == WRK_GUIDING_ON)
-        p.guiding = scene->features & PT_FEAT_GLOSSY ? 1u : 0u;
-    else if (o->guiding == WRK_GUIDING_AUTO)
-        p.guiding = o->target_error <= 0.0 && o->min_gain <= 0.0 && pt_guide_auto(scene);
-    if (o->guiding == WRK_GUIDING_ON && !p.guiding && !o->quiet)
+    p.guiding =
+        pt_guide_enabled((uint32_t)o->guiding, scene) &&
+                !(o->guiding == PT_GUIDING_AUTO && (o->target_error > 0.0 || o->min_gain > 0.0))
+            ? 1u
+            : 0u;
+    if (o->guiding == PT_GUIDING_ON && !p.guiding && !o->quiet)
         fprintf(stderr, "ptworker: --guiding: every material is Lambert; nothing to guide\n");
-    if (o->guiding == WRK_GUIDING_AUTO && !o->quiet)
+    if (o->guiding == PT_GUIDING_AUTO && !o->quiet)
         fprintf(stderr, "ptworker: --guiding auto: %s\n",
                 p.guiding ? "on (a metal, glass or smooth surface)" : "off");
     if (pt_render_check_lit(scene, env != NULL, o->scene_path, &err) != PT_OK) {

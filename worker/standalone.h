@@ -12,11 +12,6 @@
 
 #include "common/image/view.h"
 
-/* --guiding: off (the default), on (wherever a surface is glossy), or auto
- * (where pt_guide_auto finds a surface that redirects light sharply, and
- * not with adaptive sampling). */
-enum { WRK_GUIDING_OFF = 0, WRK_GUIDING_ON = 1, WRK_GUIDING_AUTO = 2 };
-
 typedef struct wrk_standalone_opts {
     const char *scene_path;
     const char *out_path; /* .exr; a .png preview is written beside it */
@@ -47,7 +42,7 @@ typedef struct wrk_standalone_opts {
     double shutter[2]; /* fractions of a frame, 0 <= open <= close <= 1 (pt_opt_shutter) */
     double fps;        /* frames per second (24 by default; --fps) */
     pt_view view;      /* the PNG's exposure and view transform; the EXR stays linear */
-    int guiding;       /* --guiding: WRK_GUIDING_*, path guiding learned in passes (guide.h) */
+    int guiding;       /* --guiding: PT_GUIDING_* (options.h); guided where pt_guide_enabled */
     float clamp_direct, clamp_indirect; /* sample clamping (pt_render_params; 0: off) */
     int denoise;     /* --denoise: passes has PT_PASS_DENOISE; denoised.R/G/B added, PNG of it */
     uint32_t passes; /* PT_PASS_* render passes (passes.h) written as EXR layers; 0: none */

@@ -8,6 +8,7 @@
 #include <string.h>
 
 #include "common/base/alloc.h"
+#include "common/render/options.h"
 #include "common/scene/scene.h"
 
 #define PI_F 3.14159265358979323846f
@@ -558,6 +559,13 @@ int pt_guide_auto(const pt_scene *scene)
             return 1;
     }
     return 0;
+}
+
+int pt_guide_enabled(uint32_t mode, const pt_scene *scene)
+{
+    if (mode == PT_GUIDING_ON)
+        return (scene->features & PT_FEAT_GLOSSY) != 0;
+    return mode == PT_GUIDING_AUTO && pt_guide_auto(scene);
 }
 
 /* ---- checking ------------------------------------------------------------ */

@@ -154,6 +154,13 @@ uint32_t pt_guide_pass_end(uint32_t k, uint32_t spp);
 typedef struct pt_scene pt_scene;
 int pt_guide_auto(const pt_scene *scene);
 
+/* 1 when a render asked for guiding mode (PT_GUIDING_*, options.h) of scene
+ * is guided: on wherever a material is glossy (the guided integrator variant
+ * samples glossy closures only, so an all-Lambert scene is not), auto where
+ * pt_guide_auto says, off never. The one rule of every program: ptworker,
+ * the coordinator and its upload check decide alike. */
+int pt_guide_enabled(uint32_t mode, const pt_scene *scene);
+
 /* PT_OK when g's trees are well formed (children in range, after their
  * parent and referenced once, leaves' trees in range, energies finite and
  * >= 0, depths within the caps); else PT_ERR_FORMAT naming the fault. For a

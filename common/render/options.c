@@ -42,6 +42,9 @@ static const struct {
     [PT_ROPT_PASSES] = {"passes", required_argument},
     [PT_ROPT_DENOISE] = {"denoise", no_argument},
     [PT_ROPT_DENOISE_PROGRESSIVE] = {"denoise-progressive", no_argument},
+    [PT_ROPT_CLAMP_DIRECT] = {"clamp-direct", required_argument},
+    [PT_ROPT_CLAMP_INDIRECT] = {"clamp-indirect", required_argument},
+    [PT_ROPT_GUIDING] = {"guiding", required_argument},
 };
 
 void pt_render_opts_init(pt_render_opts *o)
@@ -175,6 +178,27 @@ pt_status pt_render_opt_set(pt_render_opts *o, int c, const char *text, pt_error
     case PT_ROPT_DENOISE_PROGRESSIVE:
         o->denoise = 1;
         o->denoise_progressive = 1;
+        break;
+    case PT_ROPT_CLAMP_DIRECT:
+    case PT_ROPT_CLAMP_INDIRECT: {
+        /* A float on the wire and in the renderer: the limit is checked as
+         * the double read (NaN, negative and infinite refused) and sent as
+         * the float it rounds to, the same bits in every program. */
+        double v = 0.0;
+        st = pt_opt_double(opt, text, 0.0, PT_ROPT_MAX_CLAMP, &v, err);
+        if (st == PT_OK)
+            *(id == PT_ROPT_CLAMP_DIRECT ? &o->clamp_direct : &o->clamp_indirect) = (float)v;
+        break;
+    }
+    case PT_ROPT_GUIDING:
+        if (strcmp(text, "off") == 0)
+            o->guiding = PT_GUIDING_OFF;
+        else if (strcmp(text, "on") == 0)
+            o->guiding = PT_GUIDING_ON;
+        else if (strcmp(text, "auto") == 0)
+            o->guiding = PT_GUIDING_AUTO;
+        else
+            st = pt_error_set(err, PT_ERR_ARG, "%s: '%s' is not on, off or auto", opt, text);
         break;
     case PT_ROPT_COUNT:
         break;

@@ -4,8 +4,9 @@
  * ptworker --scene, ptserve (one job) and ptctl submit describe the same
  * render: samples, size, seed, bounce cap, camera, variant, animation,
  * environment, film, shutter, adaptive sampling, tiles, the preview's
- * view and the render passes. Their names, their value syntax and their limits are here once, so
- * a job that one program accepts the others accept too, and "--spp 0" or
+ * view, the render passes, sample clamping and path guiding. Their names, their value syntax and
+ * their limits are here once, so a job that one program accepts the others accept too, and "--spp
+ * 0" or
  * "--res 64x" is refused with the same words everywhere. A program builds
  * its getopt table from its own options and pt_render_longopts (those of
  * the table it takes), hands every value whose id is PT_ROPT_BASE + k to
@@ -56,6 +57,9 @@ typedef enum pt_ropt_id {
     PT_ROPT_PASSES,
     PT_ROPT_DENOISE,
     PT_ROPT_DENOISE_PROGRESSIVE,
+    PT_ROPT_CLAMP_DIRECT,
+    PT_ROPT_CLAMP_INDIRECT,
+    PT_ROPT_GUIDING,
     PT_ROPT_COUNT
 } pt_ropt_id;
 
@@ -65,7 +69,8 @@ typedef enum pt_ropt_id {
 
 /* The limits, one set for every program. */
 #define PT_ROPT_MAX_SPP (1u << 24)
-#define PT_ROPT_MAX_NAME 64u /* camera, variant, animation: a farm job's fields */
+#define PT_ROPT_MAX_NAME 64u   /* camera, variant, animation: a farm job's fields */
+#define PT_ROPT_MAX_CLAMP 1e30 /* --clamp-direct, --clamp-indirect (CLAMP, protocol/msg.h) */
 
 typedef struct pt_render_opts {
     uint32_t given;         /* PT_ROPT(id) for each option given */
@@ -93,7 +98,13 @@ typedef struct pt_render_opts {
     int denoise;             /* --denoise: the finished image denoised (denoise_frame.h) */
     int denoise_progressive; /* --denoise-progressive: progressive saves too
                                 (the coordinator's; denoise is set with it) */
+    float clamp_direct, clamp_indirect; /* sample clamping (pt_render_params); 0: off */
+    uint32_t guiding;                   /* PT_GUIDING_*; off unless given */
 } pt_render_opts;
+
+/* --guiding: off, on, or auto (pt_guide_enabled, guide.h, says where each
+ * guides). The values are SUBMIT's (PROTO_GUIDING_*, protocol/msg.h). */
+enum { PT_GUIDING_OFF = 0, PT_GUIDING_ON = 1, PT_GUIDING_AUTO = 2 };
 
 /* The defaults above, nothing given. */
 void pt_render_opts_init(pt_render_opts *o);

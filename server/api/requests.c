@@ -183,6 +183,15 @@ static int submit_refused(srv_server *s, srv_conn *c, const proto_submit *m)
                             "rules; a job takes one");
         return 1;
     }
+    /* Guided passes are learned from whole passes of every tile, in one
+     * pose (auto leaves guiding off there: server/api/upload.c). */
+    if (m->guiding == PROTO_GUIDING_ON && (m->target_error > 0.0 || m->min_gain > 0.0 ||
+                                           m->frame_step || m->shutter[1] > m->shutter[0])) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL,
+                            "guiding on does not combine with adaptive sampling, a frame range "
+                            "or a shutter yet");
+        return 1;
+    }
     /* The map must be the one file the bundle keeps for it: the server opens
      * no other path a client names (server/api/upload.c decodes it). */
     if (m->env.name[0] && strcmp(m->env.name, PT_BUNDLE_ENV_NAME) != 0) {
@@ -303,6 +312,10 @@ static void submitted_params(const srv_config *cfg, const srv_upload *k, srv_job
     snprintf(p.variant, sizeof p.variant, "%s", m->variant);
     p.shutter[0] = m->shutter[0];
     p.shutter[1] = m->shutter[1];
+    p.clamp[0] = m->clamp[0];
+    p.clamp[1] = m->clamp[1];
+    p.guiding = k->guided;
+    memcpy(p.guide_box, k->guide_box, sizeof p.guide_box);
     p.env = m->env;
     if (p.width == 0) {
         p.width = 512;

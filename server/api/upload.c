@@ -13,6 +13,8 @@
 #include "common/base/hash.h"
 #include "common/render/crypto.h"
 #include "common/render/env.h"
+#include "common/render/guide_sched.h"
+#include "common/render/options.h"
 #include "common/render/render.h"
 #include "common/scene/anim.h"
 #include "common/scene/scene.h"
@@ -152,6 +154,17 @@ static void verify_upload(srv_upload *k)
     snprintf(k->scene, sizeof k->scene, "%.255s", base ? base + 1 : entry);
     k->ntris = scene->num_triangles;
     k->aspect = scene->camera.aspect;
+    /* Guiding as ptworker resolves it (options.h), and the bounds it grows
+     * (guide_sched.h); never with adaptive sampling, a range or a shutter. */
+    const proto_submit *sm = &k->m;
+    if (pt_guide_enabled(sm->guiding, scene) && !(sm->target_error > 0.0) &&
+        !(sm->min_gain > 0.0) && !sm->frame_step && !(sm->shutter[1] > sm->shutter[0])) {
+        pt_vec3 lo = scene->bounds_min, hi = scene->bounds_max;
+        pt_guide_grow_bounds(&lo, &hi);
+        const float box[6] = {lo.x, lo.y, lo.z, hi.x, hi.y, hi.z};
+        k->guided = 1;
+        memcpy(k->guide_box, box, sizeof box);
+    }
     /* Cryptomatte's manifests name the scene's objects and materials, which
      * the coordinator only knows here: kept beside the bundle for the job's
      * writer. */

@@ -52,6 +52,8 @@ struct srv_upload {
     float aspect;
     char look[PROTO_MAX_NAME + 1]; /* a range's view when the file has no camera
                                       (pt_anim_range_view), else "" */
+    uint32_t guided;               /* SUBMIT's guiding resolved against the scene */
+    float guide_box[6];            /* then the first distribution's bounds */
     srv_upload *next;
 };
 

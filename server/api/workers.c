@@ -45,6 +45,42 @@ static void on_scene_get(srv_server *s, srv_conn *c, const proto_frame *f)
     srv_conn_queued(s, c, st);
 }
 
+/* GUIDE_GET: a piece of a guided job's distribution, by hash (GUIDE in
+ * protocol/msg.h), as SCENE_GET hands out a scene. */
+static void on_guide_get(srv_server *s, srv_conn *c, const proto_frame *f)
+{
+    proto_scene_get g;
+    pt_error err = {0};
+    if (proto_msg_decode_scene_get(f->payload, f->len, &g, &err) != PT_OK) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "bad GUIDE_GET: %s", err.msg);
+        return;
+    }
+    const uint8_t *data = NULL;
+    size_t size = 0;
+    if (!srv_queue_find_guide(s, g.hash, &data, &size)) {
+        srv_conn_send_error(s, c, PROTO_E_NOT_FOUND, "no guiding distribution with that hash");
+        return;
+    }
+    if (g.offset > size) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "guide offset %llu is past its end (%zu)",
+                            (unsigned long long)g.offset, size);
+        return;
+    }
+    proto_scene_chunk ch;
+    memcpy(ch.hash, g.hash, 32);
+    ch.offset = g.offset;
+    ch.total = size;
+    size_t left = size - (size_t)g.offset;
+    ch.len = (uint32_t)(left < PROTO_MAX_SCENE_CHUNK ? left : PROTO_MAX_SCENE_CHUNK);
+    ch.data = data + g.offset;
+    size_t mark;
+    pt_status st = proto_frame_begin(&c->out, PROTO_MSG_GUIDE_CHUNK, &mark, NULL);
+    if (st == PT_OK)
+        st = proto_frame_finish(&c->out, mark, proto_msg_encode_scene_chunk(&c->out, &ch, NULL),
+                                NULL);
+    srv_conn_queued(s, c, st);
+}
+
 /* The address part of a peer's "host:port". */
 static void peer_host(const srv_conn *c, char *out, size_t size)
 {
@@ -222,6 +258,8 @@ void srv_workers_result(srv_server *s, srv_conn *c, const proto_frame *f, proto_
     proto_result r = *rp; /* the caller's is left empty: this one is fini'd here */
     rp->pixels = NULL;
     rp->owns_pixels = 0;
+    rp->guide = NULL;
+    rp->owns_guide = 0;
     pt_error err = {0};
     srv_entry *j = srv_queue_find_any(s, r.job_id); /* a frame's too */
     if (!j || !srv_entry_active(j) || !j->job || j->paused) {
@@ -316,6 +354,9 @@ void srv_workers_dispatch(srv_server *s, srv_conn *c, const proto_frame *f)
     }
     case PROTO_MSG_SCENE_GET:
         on_scene_get(s, c, f);
+        break;
+    case PROTO_MSG_GUIDE_GET:
+        on_guide_get(s, c, f);
         break;
     case PROTO_MSG_RESULT:
         on_result(s, c, f);

@@ -9,6 +9,8 @@
 #include "common/base/hash.h"
 #include "common/render/crypto.h"
 #include "common/render/env.h"
+#include "common/render/guide_sched.h"
+#include "common/render/options.h"
 #include "common/render/render.h"
 #include "common/render/tile.h"
 #include "common/scene/anim.h"
@@ -132,6 +134,17 @@ static pt_status setup_single(srv_server *s, pt_error *err)
         }
         pt_env_free(env);
         snprintf(jp.env.name, sizeof jp.env.name, "%s", PT_BUNDLE_ENV_NAME);
+    }
+    /* Guiding, resolved against the scene as ptworker resolves it, from the
+     * bounds ptworker grows (guide_sched.h). */
+    if (pt_guide_enabled(cfg->guiding, scene)) {
+        pt_vec3 lo = scene->bounds_min, hi = scene->bounds_max;
+        pt_guide_grow_bounds(&lo, &hi);
+        jp.guiding = 1;
+        const float box[6] = {lo.x, lo.y, lo.z, hi.x, hi.y, hi.z};
+        memcpy(jp.guide_box, box, sizeof box);
+    } else if (cfg->guiding == PT_GUIDING_ON) {
+        srv_log("--guiding: every material is Lambert; nothing to guide");
     }
     st = pt_render_check_lit(scene, proto_env_any(&jp.env), cfg->scene_path, err);
     /* Cryptomatte's manifests come from the names of the scene loaded here. */

@@ -81,10 +81,13 @@
 /* The largest payload each role sends once authenticated (the frame cap):
  * a worker's RESULT of a PT_TILE_MAX x PT_TILE_MAX tile, 69 bytes of header
  * and at most 72 per pixel (4,718,661 bytes; HEARTBEAT, WORK_REQUEST, SCENE_GET and
- * ERROR are smaller); a client's UPLOAD chunk, 52 bytes of header and
- * PROTO_MAX_SCENE_CHUNK of data (SUBMIT and the rest are smaller). */
+ * ERROR are smaller), and a guided task's statistics, up to 2^18 entries of 12
+ * bytes (a pass's distribution is far smaller; RESULT in protocol/msg.h); a
+ * client's UPLOAD chunk, 52 bytes of header and PROTO_MAX_SCENE_CHUNK of data
+ * (SUBMIT and the rest are smaller). */
 #define SRV_WORKER_MAX_PAYLOAD                                                                     \
-    (PROTO_RESULT_HEADER_SIZE + PROTO_RESULT_WIDE_PIXEL_SIZE * PROTO_MAX_TILE_PIXELS)
+    (PROTO_RESULT_HEADER_SIZE + PROTO_RESULT_WIDE_PIXEL_SIZE * PROTO_MAX_TILE_PIXELS + 16u +       \
+     12u * (1u << 18))
 #define SRV_CLIENT_MAX_PAYLOAD (52u + PROTO_MAX_SCENE_CHUNK)
 
 /* Defaults of srv_peer_limits (server/serve.h): a field left 0 takes these. */

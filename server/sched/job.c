@@ -80,7 +80,9 @@ int job_decision_point(const srv_job *j, uint32_t s)
  * alone. */
 uint32_t job_max_end(const srv_job *j, uint32_t s0)
 {
-    uint32_t e = j->p.spp;
+    /* A guided job's passes (job_guide.c) are never crossed either: its
+     * tasks render with one pass's distribution. It is never adaptive. */
+    uint32_t e = job_guide_end(j, s0);
     if (!j->adaptive)
         return e;
     uint64_t c = j->p.chunk;
@@ -258,6 +260,8 @@ pt_status srv_job_new(uint64_t id, const srv_job_params *p, const uint8_t scene_
     if (proto_film_passes(p->film_flags) &&
         (st = pt_film_enable_passes(j->film, proto_film_passes(p->film_flags), err)) != PT_OK)
         goto fail;
+    if ((st = job_guide_init(j, err)) != PT_OK)
+        goto fail;
     *out = j;
     return PT_OK;
 fail:
@@ -282,6 +286,7 @@ void srv_job_free(srv_job *j)
     pt_free(j->tiles);
     pt_free(j->heap);
     pt_film_free(j->film);
+    job_guide_free(j);
     pt_free(j);
 }
 
@@ -430,6 +435,13 @@ uint32_t job_cut_next(srv_job *j, const owner_stat *o)
             j->heap[0] = j->heap[--j->nheap];
             heap_down(j, 0);
             continue;
+        }
+        /* The tile with the fewest samples cut is at the guided pass's end:
+         * every tile is, and the next pass waits for its distribution. */
+        if (job_guide_gated(j, ts->frontier)) {
+            job_guide_advance(j);
+            if (job_guide_gated(j, ts->frontier))
+                return NONE;
         }
         uint32_t s0 = ts->frontier, s1 = next_end(j, tile, s0, o);
         uint32_t t = job_task_add(j, tile, s0, s1, NONE);

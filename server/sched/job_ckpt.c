@@ -8,12 +8,13 @@
 #include "common/base/alloc.h"
 #include "common/base/hash.h"
 #include "common/render/adaptive.h"
+#include "common/render/guide_sched.h"
 #include "common/render/render.h"
 
 /* ---- checkpoints ---- */
 
 #define CKPT_MAGIC 0x434a5450u /* "PTJC" */
-#define CKPT_VERSION 8u
+#define CKPT_VERSION 9u
 #define CKPT_OLDEST_VERSION 2u   /* no min gain: read as 0 */
 #define CKPT_MIN_GAIN_VERSION 3u /* the first with the min gain */
 /* The first with the environment (older: none), and the first with the film
@@ -31,7 +32,9 @@
  * each pixel's sums, held or in the film, are then followed by its pass
  * sums (put_pass). */
 #define CKPT_PASSES_VERSION 8u
-#define CKPT_PASS_SIZE 404u /* bytes of one pixel's pass sums */
+#define CKPT_PASS_SIZE 404u
+/* The first with sample clamping in the params (older: none). */
+#define CKPT_CLAMP_VERSION 9u /* bytes of one pixel's pass sums */
 
 /* A pixel as the checkpoint stores it: each sum as two u64, low half first
  * (RESULT's wide layout, msg.h), then n and hits. */
@@ -159,6 +162,7 @@ pt_status srv_job_save(const srv_job *j, proto_writer *w, pt_error *err)
         proto_w_u32(w, j->tiles[t].merged);
         proto_w_u8(w, j->tiles[t].stopped);
     }
+    job_guide_save(j, w); /* a guided job's (format 9 on) */
     proto_w_u32(w, j->nheld);
     for (uint32_t i = 0; i < j->nheld; i++) {
         const task *k = &j->tasks[j->held[i].task];
@@ -306,7 +310,7 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
      * CKPT_FIXED_VERSION), n, and hits (from CKPT_FILM_VERSION on). */
     size_t acc_size = version >= CKPT_FIXED_VERSION ? 72 : film ? 40 : 36;
     srv_job_params_read(&r, &p, version >= CKPT_MIN_GAIN_VERSION, version >= CKPT_ENV_VERSION,
-                        version >= CKPT_SHUTTER_VERSION);
+                        version >= CKPT_SHUTTER_VERSION, version >= CKPT_CLAMP_VERSION);
     uint64_t capped = film ? proto_r_u64(&r, "paths capped") : 0;
     uint32_t ntiles = proto_r_u32(&r, "tiles"), nchunks = proto_r_u32(&r, "chunks");
     if (r.status != PT_OK)
@@ -325,7 +329,9 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
         memcmp(&p.min_gain, &j->p.min_gain, sizeof p.min_gain) != 0 ||
         strcmp(p.camera, j->p.camera) != 0 || !proto_env_same(&p.env, &j->p.env) ||
         p.film_flags != j->p.film_flags || strcmp(p.variant, j->p.variant) != 0 ||
-        memcmp(p.shutter, j->p.shutter, sizeof p.shutter) != 0 || ntiles != j->ntiles ||
+        memcmp(p.shutter, j->p.shutter, sizeof p.shutter) != 0 ||
+        memcmp(p.clamp, j->p.clamp, sizeof p.clamp) != 0 || p.guiding != j->p.guiding ||
+        memcmp(p.guide_box, j->p.guide_box, sizeof p.guide_box) != 0 || ntiles != j->ntiles ||
         nchunks != j->npasses)
         return pt_error_set(err, PT_ERR_FORMAT,
                             "checkpoint is of another job or other settings "
@@ -333,6 +339,8 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
                             (unsigned long long)id, p.width, p.height, p.spp);
     pt_status st = load_tiles(j, &r, ntiles, nchunks, ranges, err);
     if (st != PT_OK)
+        return st;
+    if ((st = job_guide_load(j, &r, err)) != PT_OK)
         return st;
     j->heap_dirty = 1;
     uint32_t nheld = proto_r_u32(&r, "held results");
@@ -363,6 +371,9 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
     j->samples = pt_film_total_samples(j->film);
     j->capped = capped;
     job_passes_recount(j);
+    j->gtiles = 0;
+    for (uint32_t t = 0; j->p.guiding && t < j->ntiles; t++)
+        j->gtiles += j->tiles[t].merged >= pt_guide_pass_end(j->gpass, j->p.spp);
     return PT_OK;
 }
 
@@ -393,6 +404,10 @@ srv_job *srv_job_snapshot(const srv_job *j)
         return NULL;
     }
     memcpy(c->tiles, j->tiles, (size_t)j->ntiles * sizeof *c->tiles);
+    if (job_guide_copy(c, j) != 0) {
+        srv_job_free(c);
+        return NULL;
+    }
     memcpy(c->film->px, j->film->px,
            (size_t)j->film->width * j->film->height * sizeof *c->film->px);
     if (j->film->pass)

@@ -12,6 +12,8 @@
 
 #include <stdint.h>
 
+#include "common/render/guide.h"
+#include "protocol/guide.h"
 #include "server/sched/job.h"
 
 enum { T_PENDING = 0, T_LEASED = 1, T_HELD = 2, T_MERGED = 3, T_SKIPPED = 4 };
@@ -149,6 +151,23 @@ struct srv_job {
     uint32_t *owner_map; /* open addressing: owner index + 1, 0 empty */
     uint32_t owner_map_cap;
     srv_verify_stats vs;
+    /* Path guiding (p.guiding, job_guide.c): tasks of pass gpass are leased
+     * (pt_guide_pass_end: none of a later pass before its distribution
+     * exists); guide is its distribution, gstats the statistics of its
+     * results accepted so far; gtiles the tiles merged to its end. Each
+     * pass's distribution is kept as the bytes TASK names by hash (gblob
+     * [k], NULL for passes before a resume: only verification copies ask
+     * for an older one). */
+    uint32_t gpass, gtiles;
+    uint32_t gmost; /* the most statistics entries one result of the pass carried */
+    /* A large build runs on a thread of its own (job_guide.c); the loop
+     * installs what it made at the next lease or result after gdone. */
+    struct job_guide_build *gbuild;
+    pt_guide *guide;
+    pt_guide_stats *gstats;
+    uint8_t *gblob[PROTO_MAX_GUIDE_PASS + 1];
+    size_t glen[PROTO_MAX_GUIDE_PASS + 1];
+    uint8_t ghash[PROTO_MAX_GUIDE_PASS + 1][32];
 };
 
 pt_rect job_tile_rect(const srv_job *j, uint32_t tile);
@@ -233,6 +252,43 @@ int job_decision_point(const srv_job *j, uint32_t s);
  * consistent. The sum of squares is unsigned and saturates (tile.h): any
  * value is possible but 0 is the only one for no samples. */
 int job_acc_sane(const pt_pixel_acc *a, uint32_t max_n);
+
+/* ---- path guiding (job_guide.c) ---- */
+
+/* The first distribution (uniform over p.guide_box), its bytes and empty
+ * statistics, for a guided job. PT_ERR_NOMEM, PT_ERR_ARG. */
+pt_status job_guide_init(srv_job *j, pt_error *err);
+void job_guide_free(srv_job *j);
+/* The end of the pass that a task starting at s0 is in (spp when not guided). */
+uint32_t job_guide_end(const srv_job *j, uint32_t s0);
+/* 1 when a tile cut to frontier waits for the next pass's distribution. */
+int job_guide_gated(const srv_job *j, uint32_t frontier);
+/* TASK's GUIDE block for task samples from s0. 0 when the distribution of
+ * its pass is not held (a verification copy of a pass before a resume). */
+int job_guide_fill(const srv_job *j, uint32_t s0, proto_task *t);
+/* 1 when r's statistics fit the job: present exactly when it is guided,
+ * made for its pass's distribution, counts and sums plausible for its
+ * samples; else 0 with err. */
+int job_guide_result_ok(const srv_job *j, const proto_result *r, pt_error *err);
+/* Adds the statistics of r (accepted, job_guide_result_ok) to the pass's. */
+void job_guide_accept(srv_job *j, const proto_result *r);
+/* A tile's merged samples went from `from` to `to`: counts the tiles at the
+ * pass's end and builds the next distribution when all are. */
+void job_guide_tile_moved(srv_job *j, uint32_t from, uint32_t to);
+/* Builds the next pass's distribution when every tile is merged to the
+ * current pass's end (a retry after a failed build): at once when the
+ * pass's guide is small, else on a thread whose distribution a later call
+ * installs. */
+void job_guide_advance(srv_job *j);
+/* Waits for a build in flight and installs it (a replay, which must see
+ * the next pass's distribution before that pass's results). */
+void job_guide_settle(srv_job *j);
+/* The checkpoint's guiding section (after the tiles' count): gpass, the
+ * pass's distribution, its statistics. */
+void job_guide_save(const srv_job *j, proto_writer *w);
+pt_status job_guide_load(srv_job *j, proto_reader *r, pt_error *err);
+/* Copies what job_guide_save reads into c (a snapshot). -1 without memory. */
+int job_guide_copy(srv_job *c, const srv_job *j);
 /* The bytes of npx pixels' sums as the job keeps a tile's (held, posted to
  * the adder): the pixels, then their pass sums when the job has passes. */
 size_t job_px_bytes(const srv_job *j, size_t npx);

@@ -256,6 +256,9 @@ int srv_job_lease(srv_job *j, uint64_t owner, uint64_t now_ms, uint32_t lease_ms
     snprintf(task_out->variant, sizeof task_out->variant, "%s", j->p.variant);
     task_out->shutter[0] = j->p.shutter[0];
     task_out->shutter[1] = j->p.shutter[1];
+    task_out->clamp[0] = j->p.clamp[0];
+    task_out->clamp[1] = j->p.clamp[1];
+    job_guide_fill(j, k->s0, task_out);
     return 1;
 }
 

@@ -122,6 +122,7 @@ static void merge_now(srv_job *j, uint32_t t, pt_pixel_acc *px, uint64_t samples
     if (ts->merged == j->p.spp)
         j->tiles_done++;
     tile_moved(j, from, ts->merged);
+    job_guide_tile_moved(j, from, ts->merged);
     pt_adaptive rule = {j->p.target_error, j->p.min_gain, j->p.min_spp};
     uint32_t tw = r.x1 - r.x0;
     if (decide && pt_tile_stops(&j->film->px[(size_t)r.y0 * j->p.width + r.x0], j->p.width, px, tw,
@@ -268,7 +269,7 @@ static srv_outcome validate_result(const srv_job *j, uint64_t owner, const proto
     /* Checked for its own range, which is the task's (just above). */
     if (!pixels_checked && !pixels_plausible(r, k->s1 - k->s0, err))
         return SRV_INVALID;
-    if (!passes_match(j, r, err))
+    if (!passes_match(j, r, err) || !job_guide_result_ok(j, r, err))
         return SRV_INVALID;
     *lease_index = li;
     return verify ? SRV_CHECK : SRV_MERGED;
@@ -476,6 +477,9 @@ static srv_outcome merge_task(srv_job *j, uint32_t t, int li, const proto_result
         }
         note_accepted(j, t, li, r, now_ms);
         j->capped += r->capped;
+        /* Before the merge, which may end the pass and build the next
+         * distribution from the statistics. */
+        job_guide_accept(j, r);
         merge_now(j, t, px, samples, own);
         merge_held(j, tile);
         return SRV_MERGED;
@@ -500,6 +504,7 @@ static srv_outcome merge_task(srv_job *j, uint32_t t, int li, const proto_result
     j->tasks[t].held = j->nheld++;
     note_accepted(j, t, li, r, now_ms);
     j->capped += r->capped;
+    job_guide_accept(j, r);
     j->tasks[t].state = T_HELD;
     return SRV_MERGED;
 nomem:
@@ -664,6 +669,9 @@ int srv_job_ticket_lease(const srv_job *j, uint64_t ticket)
 
 srv_outcome srv_job_replay(srv_job *j, proto_result *r, pt_error *err)
 {
+    /* A pass that ended during the replay has its distribution before the
+     * next pass's results are judged. */
+    job_guide_settle(j);
     if (r->job_id != j->id) {
         pt_error_set(err, PT_ERR_PROTO, "result for job %llu, not the running job %llu",
                      (unsigned long long)r->job_id, (unsigned long long)j->id);
@@ -681,7 +689,8 @@ srv_outcome srv_job_replay(srv_job *j, proto_result *r, pt_error *err)
     uint8_t st = j->tasks[t].state;
     if (st == T_MERGED || st == T_HELD || st == T_SKIPPED)
         return SRV_DUPLICATE;
-    if (!pixels_plausible(r, r->s1 - r->s0, err) || !passes_match(j, r, err))
+    if (!pixels_plausible(r, r->s1 - r->s0, err) || !passes_match(j, r, err) ||
+        !job_guide_result_ok(j, r, err))
         return SRV_INVALID;
     return merge_taking(j, t, -1, r, 0, err);
 }

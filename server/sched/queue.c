@@ -675,6 +675,14 @@ srv_entry *srv_queue_find_scene(srv_server *s, const uint8_t hash[32])
     return j && j->bundle ? j : NULL;
 }
 
+int srv_queue_find_guide(srv_server *s, const uint8_t hash[32], const uint8_t **data, size_t *len)
+{
+    for (srv_entry *j = s->jobs; j; j = j->next)
+        if (j->job && srv_job_guide_bytes(j->job, hash, data, len))
+            return 1;
+    return 0;
+}
+
 typedef struct expiry {
     srv_server *s;
     uint64_t now;

@@ -130,6 +130,8 @@ static pt_status push_pending(srv_server *s, srv_entry *j, uint64_t owner, proto
     j->pend_bytes += queue_pixel_bytes(r);
     r->pixels = NULL;
     r->owns_pixels = 0;
+    r->guide = NULL; /* the guiding statistics go with the pending result too */
+    r->owns_guide = 0;
     return PT_OK;
 }
 

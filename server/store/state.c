@@ -321,7 +321,8 @@ pt_status srv_state_load_queue(srv_state *st, srv_job_record **recs, uint32_t *n
         proto_r_str(&r, j->output, sizeof j->output - 1, "output");
         j->submitted = proto_r_u64(&r, "submitted");
         srv_job_params_read(&r, &j->params, version >= STATE_MIN_GAIN_VERSION,
-                            version >= STATE_ENV_VERSION, version >= STATE_SHUTTER_VERSION);
+                            version >= STATE_ENV_VERSION, version >= STATE_SHUTTER_VERSION,
+                            version >= STATE_CLAMP_VERSION);
         const uint8_t *h = proto_r_bytes(&r, 32, "scene hash");
         if (h)
             memcpy(j->hash, h, 32);

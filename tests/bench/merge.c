@@ -59,8 +59,8 @@ int main(int argc, char **argv)
         return 2;
     }
     srv_job_params p = {
-        w, h,  2 * chunk, tile, chunk, 1, 16, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
-        0, "", {0, 0}};
+        w, h,  2 * chunk, tile,   chunk, 1,  16, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+        0, "", {0, 0},    {0, 0}, 0,     {0}};
     uint8_t hash[32] = {0};
     double rates[99], mbs[99];
     size_t total_bytes = 0;
@@ -85,8 +85,8 @@ int main(int argc, char **argv)
                                    pt_ufixed_of(0.3),
                                    t.s1 - t.s0,
                                    0};
-            proto_result res = {t.job_id, t.task_id, t.tile, t.s0, t.s1, 0,
-                                1000,     0,         n,      px,   0,    NULL};
+            proto_result res = {t.job_id, t.task_id, t.tile, t.s0, t.s1, 0, 1000, 0,    n,
+                                px,       0,         NULL,   0,    0,    0, 0,    NULL, 0};
             size_t mark;
             if (proto_frame_begin(&wr, PROTO_MSG_RESULT, &mark, NULL) != PT_OK ||
                 proto_msg_encode_result(&wr, &res, NULL) != PT_OK ||

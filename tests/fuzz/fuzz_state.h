@@ -30,9 +30,28 @@ static const uint8_t FUZZ_JOB_HASH[32] = {0x50, 0x54, 0x46, 0x5a, 7};
 /* Small, so that a checkpoint or log is a few KiB: 12x8 at 48 spp in 4x4
  * tiles and 16-sample chunks (6 tiles, 3 passes); 8x8 at 64 spp, adaptive
  * from 32 samples on, with a named camera, an environment map, a material
- * variant, a shutter and every render pass (4 tiles, 4 passes). */
+ * variant, a shutter, an indirect clamp and every render pass (4 tiles, 4
+ * passes). */
 static const srv_job_params FUZZ_JOB_PARAMS[2] = {
-    {12, 8, 48, 4, 16, 7, 8, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}, 0, "", {0, 0}},
+    {12,
+     8,
+     48,
+     4,
+     16,
+     7,
+     8,
+     3,
+     0.0,
+     0,
+     0.0,
+     "",
+     {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+     0,
+     "",
+     {0, 0},
+     {0, 0},
+     0,
+     {0}},
     {8,
      8,
      64,
@@ -48,7 +67,10 @@ static const srv_job_params FUZZ_JOB_PARAMS[2] = {
      {".ptfarm/environment", 2.0f, 30.0f, 0, {0, 0, 0}},
      PROTO_FILM_TRANSPARENT | PROTO_FILM_PASSES,
      "Peacock Velvet",
-     {0.0, 0.5 / 24.0}},
+     {0.0, 0.5 / 24.0},
+     {0.0f, 4.0f},
+     0,
+     {0}},
 };
 
 /* Rewrites the trailing CRC32C of a whole-file format (queue, checkpoint). */

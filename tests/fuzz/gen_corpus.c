@@ -30,8 +30,10 @@
 
 #include "common/base/alloc.h"
 #include "common/base/fsutil.h"
+#include "common/render/guide.h"
 #include "common/scene/bundle.h"
 #include "protocol/frame.h"
+#include "protocol/guide.h"
 #include "protocol/msg.h"
 #include "protocol/wire.h"
 #include "server/sched/job.h"
@@ -41,8 +43,8 @@
 
 static int write_mode;
 static int failures;
-static const char *const file_targets[] = {"fuzz_gltf", "fuzz_bundle", "fuzz_checkpoint",
-                                           "fuzz_queue", "fuzz_results_log"};
+static const char *const file_targets[] = {"fuzz_gltf",  "fuzz_bundle",      "fuzz_checkpoint",
+                                           "fuzz_queue", "fuzz_results_log", "fuzz_guide"};
 
 static void emit(const char *dir, const char *target, const char *name, const uint8_t *data,
                  size_t len)
@@ -1040,6 +1042,57 @@ static void gen_state(const char *dir, const char *tmp)
     srv_state_close(st);
 }
 
+/* fuzz_guide: a first pass's uniform guide, one built from statistics of
+ * records in two directions, and three refused: cut, a bad magic, a tree
+ * whose node shares a child (pt_guide_check's). */
+static void gen_guide(const char *dir)
+{
+    pt_guide *g = NULL, *b = NULL;
+    pt_guide_stats *st = NULL;
+    proto_writer w;
+    proto_writer_init(&w, PROTO_MAX_GUIDE_BYTES);
+    if (pt_guide_new_uniform(pt_v3(-1, -1, -1), pt_v3(1, 1, 1), &g, NULL) != PT_OK ||
+        pt_guide_stats_new(g, &st, NULL) != PT_OK) {
+        failures++;
+        goto done;
+    }
+    for (int k = 0; k < 4000; k++) {
+        pt_vec3 p = pt_v3((float)(k % 7) / 7.0f - 0.5f, (float)(k % 5) / 5.0f - 0.5f, 0.1f);
+        uint32_t cell = pt_guide_cell(g, p, pt_v3(0, 0, 1));
+        pt_guide_stats_record(st, g, cell, pt_v3_norm(pt_v3(0.1f, 0.2f, 1.0f)), 5.0f);
+        pt_guide_stats_record(st, g, cell, pt_v3_norm(pt_v3(-1.0f, 0.0f, 0.3f)), 0.5f);
+    }
+    if (pt_guide_build(g, st, 500, &b, NULL) != PT_OK) {
+        failures++;
+        goto done;
+    }
+    const pt_guide *gs[2] = {g, b};
+    const char *names[2] = {"uniform", "built"};
+    for (int k = 0; k < 2; k++) {
+        proto_writer_reset(&w);
+        if (proto_guide_encode(&w, gs[k], NULL) != PT_OK) {
+            failures++;
+            goto done;
+        }
+        emit(dir, "fuzz_guide", names[k], w.buf, w.len);
+        if (k == 0) {
+            emit(dir, "fuzz_guide", "cut", w.buf, w.len - 5);
+            w.buf[0] ^= 1;
+            emit(dir, "fuzz_guide", "bad_magic", w.buf, w.len);
+            w.buf[0] ^= 1;
+            /* qnode 1's child (a leaf of face 1's tree) pointed at face 0's first children */
+            size_t at = PROTO_GUIDE_HEADER + 12 * (size_t)g->nsnode + 8 * 1;
+            proto_put_u32(w.buf + at, g->qnode[0].child);
+            emit(dir, "fuzz_guide", "shared_child", w.buf, w.len);
+        }
+    }
+done:
+    proto_writer_fini(&w);
+    pt_guide_stats_free(st);
+    pt_guide_free(g);
+    pt_guide_free(b);
+}
+
 static void gen_files(const char *dir)
 {
     char tmp[] = "/tmp/ptfuzz-gen.XXXXXX";
@@ -1053,6 +1106,7 @@ static void gen_files(const char *dir)
     gen_gltf_anim(dir);
     gen_bundle(dir, tmp);
     gen_state(dir, tmp);
+    gen_guide(dir);
     pt_remove_tree(tmp);
 }
 

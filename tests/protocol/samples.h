@@ -79,6 +79,9 @@ static inline proto_task sample_task(int v)
     /* v 0: a 180-degree shutter at 24 frames per second; v 1: off. */
     m.shutter[0] = 0.0;
     m.shutter[1] = v ? 0.0 : 0.5 / 24.0;
+    /* v 0: indirect light clamped at 10; v 1: direct at 0.5. */
+    m.clamp[0] = v ? 0.5f : 0.0f;
+    m.clamp[1] = v ? 0.0f : 10.0f;
     return m;
 }
 
@@ -185,6 +188,8 @@ static inline proto_submit sample_submit(int v)
     }
     m.shutter[0] = v ? 0.25 / 30.0 : 0.0;
     m.shutter[1] = v ? 0.75 / 30.0 : 0.0;
+    m.clamp[0] = v ? 0.0f : 3.0f;
+    m.clamp[1] = v ? 1e30f : 0.25f;
     return m;
 }
 

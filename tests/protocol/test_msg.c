@@ -212,13 +212,14 @@ static void check_round_trip(int s, int v, const uint8_t *p, size_t len)
     }
     case 6: {
         proto_task a = sample_task(v), b;
-        CHECK(len == 150 + strlen(a.camera) + strlen(a.env.name) + strlen(a.variant) +
+        CHECK(len == 195 + strlen(a.camera) + strlen(a.env.name) + strlen(a.variant) +
                          strlen(a.animation) &&
               proto_msg_decode_task(p, len, &b, &err) == PT_OK);
         CHECK(a.animate == b.animate && proto_f64_bits(a.time) == proto_f64_bits(b.time) &&
               strcmp(a.animation, b.animation) == 0);
         CHECK(strcmp(a.camera, b.camera) == 0 && a.film_flags == b.film_flags);
         CHECK(memcmp(a.shutter, b.shutter, sizeof a.shutter) == 0);
+        CHECK(memcmp(a.clamp, b.clamp, sizeof a.clamp) == 0);
         CHECK(strcmp(a.variant, b.variant) == 0);
         CHECK(proto_env_same(&a.env, &b.env));
         CHECK(a.job_id == b.job_id && a.task_id == b.task_id);
@@ -289,13 +290,14 @@ static void check_round_trip(int s, int v, const uint8_t *p, size_t len)
     case 12: {
         proto_submit a = sample_submit(v), b;
         CHECK(proto_msg_decode_submit(p, len, &b, &err) == PT_OK);
-        CHECK(len == 153 + strlen(a.name) + strlen(a.camera) + strlen(a.env.name) +
+        CHECK(len == 162 + strlen(a.name) + strlen(a.camera) + strlen(a.env.name) +
                          strlen(a.variant) + strlen(a.animation));
         CHECK(a.frame_first == b.frame_first && a.frame_last == b.frame_last &&
               a.frame_step == b.frame_step && proto_f64_bits(a.fps) == proto_f64_bits(b.fps) &&
               strcmp(a.animation, b.animation) == 0);
         CHECK(strcmp(a.camera, b.camera) == 0 && a.film_flags == b.film_flags);
         CHECK(memcmp(a.shutter, b.shutter, sizeof a.shutter) == 0);
+        CHECK(memcmp(a.clamp, b.clamp, sizeof a.clamp) == 0);
         CHECK(strcmp(a.variant, b.variant) == 0);
         CHECK(proto_env_same(&a.env, &b.env));
         CHECK(strcmp(a.name, b.name) == 0 && a.width == b.width && a.height == b.height);
@@ -493,6 +495,12 @@ static proto_writer task_raw(pt_rect t, uint32_t s0, uint32_t s1, uint32_t width
     proto_w_u16(&w, 0);   /* animation: "" */
     proto_w_f64(&w, 0.0); /* shutter: off */
     proto_w_f64(&w, 0.0);
+    proto_w_f32(&w, 0.0f); /* clamps: off */
+    proto_w_f32(&w, 0.0f);
+    proto_w_u8(&w, 0); /* not guided: pass 0, no hash */
+    proto_w_u32(&w, 0);
+    for (int i = 0; i < 32; i++)
+        proto_w_u8(&w, 0);
     return w;
 }
 
@@ -561,9 +569,10 @@ static void test_task(void)
         proto_task good = sample_task(k & 1);
         CHECK(proto_msg_encode_task(&ew, &good, &err) == PT_OK);
         /* Patch the bad value into the good bytes: the ENV block, then the
-         * film flags, the variant, the pose and the shutter end the message. */
-        uint8_t *env_at = ew.buf + ew.len - 16 - POSE_TAIL(good) - 2 - strlen(good.variant) - 4 -
-                          23 - strlen(good.env.name);
+         * film flags, the variant, the pose, the shutter and the clamps end
+         * the message. */
+        uint8_t *env_at = ew.buf + ew.len - 37 - 8 - 16 - POSE_TAIL(good) - 2 -
+                          strlen(good.variant) - 4 - 23 - strlen(good.env.name);
         if (k == 0)
             proto_put_u32(env_at + 19, 0x7FC00000u); /* rgb[2], the name empty */
         else if (k == 1)
@@ -589,8 +598,8 @@ static void test_task(void)
           strcmp(back.camera, t.camera) == 0);
     proto_writer_reset(&w);
     proto_writer raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
-    raw.len -= 2 + 23 + 4 + 2 + 11 + 16; /* the empty camera, ENV, film flags, variant, pose,
-                                            shutter */
+    raw.len -= 2 + 23 + 4 + 2 + 11 + 16 + 8 + 37; /* the empty camera, ENV, film flags, variant,
+                                                pose, shutter, clamps */
     proto_w_u16(&raw, PROTO_MAX_NAME + 1);
     for (uint32_t i = 0; i <= PROTO_MAX_NAME; i++)
         proto_w_u8(&raw, 'c');
@@ -618,7 +627,7 @@ static void test_task(void)
     proto_writer_reset(&w);
     CHECK(proto_msg_encode_task(&w, &t, &err) == PT_ERR_ARG && w.len == 0);
     raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
-    proto_put_u32(raw.buf + raw.len - 16 - 11 - 6, 0x80000000u);
+    proto_put_u32(raw.buf + raw.len - 37 - 8 - 16 - 11 - 6, 0x80000000u);
     CHECK(decode_any(PROTO_MSG_TASK, raw.buf, raw.len, &err) == PT_ERR_PROTO &&
           strstr(err.msg, "film flags"));
     proto_writer_fini(&raw);
@@ -635,7 +644,7 @@ static void test_task(void)
     CHECK(proto_msg_decode_task(w.buf, w.len, &back, &err) == PT_OK &&
           strcmp(back.variant, t.variant) == 0);
     raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
-    raw.len -= 2 + 11 + 16; /* the empty variant, the still's pose and the shutter */
+    raw.len -= 2 + 11 + 16 + 8 + 37; /* the empty variant, the pose, shutter, clamps, guide */
     proto_w_u16(&raw, PROTO_MAX_NAME + 1);
     for (uint32_t i = 0; i <= PROTO_MAX_NAME; i++)
         proto_w_u8(&raw, 'v');
@@ -648,9 +657,8 @@ static void test_task(void)
     proto_writer_reset(&w);
     CHECK(proto_msg_encode_task(&w, &t, &err) == PT_ERR_ARG && w.len == 0);
 
-    /* The shutter ends the message: it round-trips; open after close,
-     * negative, NaN or over the cap is refused both ways; the protocol-3
-     * layout without it is a truncated TASK. */
+    /* The shutter comes before the clamps: it round-trips; open after close,
+     * negative, NaN or over the cap is refused both ways. */
     t = sample_task(0);
     CHECK(t.shutter[1] > t.shutter[0]);
     proto_writer_reset(&w);
@@ -665,16 +673,40 @@ static void test_task(void)
         proto_writer_reset(&w);
         CHECKF(proto_msg_encode_task(&w, &t, &err) == PT_ERR_ARG && w.len == 0, "shutter %zu", k);
         raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
-        raw.len -= 16;
-        proto_w_f64(&raw, bad_shutters[k][0]);
-        proto_w_f64(&raw, bad_shutters[k][1]);
+        proto_put_f64(raw.buf + raw.len - 37 - 8 - 16, bad_shutters[k][0]);
+        proto_put_f64(raw.buf + raw.len - 37 - 8 - 8, bad_shutters[k][1]);
         CHECKF(decode_any(PROTO_MSG_TASK, raw.buf, raw.len, &err) == PT_ERR_PROTO &&
                    strstr(err.msg, "shutter"),
                "shutter %zu: %s", k, err.msg);
         proto_writer_fini(&raw);
     }
+
+    /* The clamps end the message: they round-trip bit for bit; negative,
+     * NaN, infinite or over the cap is refused both ways, naming the limit;
+     * the protocol-7 layout without them is a truncated TASK. */
+    t = sample_task(0);
+    CHECK(t.clamp[1] == 10.0f);
+    proto_writer_reset(&w);
+    CHECK(proto_msg_encode_task(&w, &t, &err) == PT_OK);
+    CHECK(proto_msg_decode_task(w.buf, w.len, &back, &err) == PT_OK &&
+          memcmp(back.clamp, t.clamp, sizeof t.clamp) == 0);
+    const float bad_clamps[] = {-1.0f, -1e-30f, NAN, -NAN, INFINITY, 2e30f};
+    for (size_t k = 0; k < sizeof bad_clamps / sizeof *bad_clamps; k++) {
+        for (int c = 0; c < 2; c++) {
+            t = sample_task(1);
+            t.clamp[c] = bad_clamps[k];
+            proto_writer_reset(&w);
+            CHECKF(proto_msg_encode_task(&w, &t, &err) == PT_ERR_ARG && w.len == 0, "clamp %zu", k);
+            raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
+            proto_put_u32(raw.buf + raw.len - 37 - 8 + 4 * c, proto_f32_bits(bad_clamps[k]));
+            CHECKF(decode_any(PROTO_MSG_TASK, raw.buf, raw.len, &err) == PT_ERR_PROTO &&
+                       strstr(err.msg, c ? "clamp indirect" : "clamp direct"),
+                   "clamp %zu: %s", k, err.msg);
+            proto_writer_fini(&raw);
+        }
+    }
     raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
-    raw.len -= 16;
+    raw.len -= 8 + 37;
     CHECK(decode_any(PROTO_MSG_TASK, raw.buf, raw.len, &err) == PT_ERR_PROTO &&
           strstr(err.msg, "truncated"));
     proto_writer_fini(&raw);
@@ -866,9 +898,12 @@ static void test_result(void)
         raw.buf[68] = 1; /* wide RGB, but 40-byte pixels: 8 x 64 bytes are not there */
         CHECK(proto_msg_decode_result(raw.buf, raw.len, NULL, 0, &r, &e) == PT_ERR_PROTO &&
               strstr(e.msg, "truncated"));
-        raw.buf[68] = 16;
+        raw.buf[68] = 32;
         CHECK(proto_msg_decode_result(raw.buf, raw.len, NULL, 0, &r, &e) == PT_ERR_PROTO &&
               strstr(e.msg, "pixel form"));
+        raw.buf[68] = PROTO_RESULT_GUIDE; /* statistics announced, none there */
+        CHECK(proto_msg_decode_result(raw.buf, raw.len, NULL, 0, &r, &e) == PT_ERR_PROTO &&
+              strstr(e.msg, "guiding"));
         raw.buf[68] = PROTO_RESULT_WIDE_PASSES; /* wide passes without passes */
         CHECK(proto_msg_decode_result(raw.buf, raw.len, NULL, 0, &r, &e) == PT_ERR_PROTO &&
               strstr(e.msg, "pixel form"));
@@ -883,7 +918,8 @@ static void test_result(void)
             px[1].fsum_sq = ((pt_u128)1 << 64) + 5;
         else
             px[1].fsum[2] = -((pt_i128)1 << 64) - 5;
-        proto_result m = {1, 2, {0, 0, 2, 1}, 0, 8, 0, 0, 0, 2, px, 0, NULL}, b;
+        proto_result m = {1, 2, {0, 0, 2, 1}, 0, 8, 0, 0, 0, 2, px, 0, NULL, 0, 0, 0, 0, NULL, 0},
+                     b;
         proto_writer ww;
         proto_writer_init(&ww, 1 << 20);
         CHECK(proto_msg_encode_result(&ww, &m, NULL) == PT_OK);
@@ -922,7 +958,7 @@ static void test_result(void)
         pa[0].cid[1][0] = 12345, pa[0].ccnt[1][0] = 8;
         if (k == 1)
             pa[1].sq[2] = ((pt_u128)7 << 64) + 1;
-        proto_result m = {1, 2, {0, 0, 2, 1}, 0, 8, 0, 0, 0, 2, px, 0, pa}, b;
+        proto_result m = {1, 2, {0, 0, 2, 1}, 0, 8, 0, 0, 0, 2, px, 0, pa, 0, 0, 0, 0, NULL, 0}, b;
         proto_writer ww;
         proto_writer_init(&ww, 1 << 20);
         CHECK(proto_msg_encode_result(&ww, &m, NULL) == PT_OK);
@@ -1027,6 +1063,64 @@ static void test_result(void)
     }
 }
 
+/* RESULT's guiding statistics: they round-trip to the same bytes; each
+ * hostile shape (nodes out of range, not ascending, a zero value, more
+ * entries than nodes, no nodes, a count that the bytes do not hold) is
+ * refused by name, and the encoder refuses what the decoder would. */
+static void test_result_guide(void)
+{
+    pt_error e = {0};
+    pt_pixel_acc px[2] = {pt_pixel_acc_of(1.0, 2.0, 3.0, 4.0, 8, 8),
+                          pt_pixel_acc_of(0.5, 0.25, 0.125, 0.0625, 8, 3)};
+    proto_guide_entry ent[5] = {{0, 7}, {3, 1}, {6, 65536}, {9, 1ull << 40}, {2045, 3}};
+    proto_result m = {1, 2, {0, 0, 2, 1}, 0, 8, 0, 0, 0, 2, px, 0, NULL, 4, 2046, 2, 3, ent, 0};
+    proto_writer w, w2;
+    proto_writer_init(&w, 1 << 20);
+    proto_writer_init(&w2, 1 << 20);
+    CHECK(proto_msg_encode_result(&w, &m, &e) == PT_OK);
+    CHECK(w.len == PROTO_RESULT_HEADER_SIZE + 2 * PROTO_RESULT_PIXEL_SIZE + 16 + 5 * 12);
+    CHECK(w.buf[68] == PROTO_RESULT_GUIDE);
+    proto_result b;
+    CHECK(proto_msg_decode_result(w.buf, w.len, NULL, 0, &b, &e) == PT_OK);
+    CHECK(b.guide && b.owns_guide && b.g_nsnode == 4 && b.g_nqnode == 2046 && b.gcount == 2 &&
+          b.gsum == 3);
+    for (int k = 0; b.guide && k < 5; k++)
+        CHECK(b.guide[k].node == ent[k].node && b.guide[k].value == ent[k].value);
+    CHECK(proto_msg_encode_result(&w2, &b, &e) == PT_OK && w2.len == w.len &&
+          memcmp(w.buf, w2.buf, w.len) == 0);
+    proto_result_fini(&b);
+    CHECK(b.guide == NULL && !b.owns_guide);
+    const size_t at = PROTO_RESULT_HEADER_SIZE + 2 * PROTO_RESULT_PIXEL_SIZE;
+    struct {
+        size_t off;
+        uint32_t v;
+        const char *why;
+    } bad[] = {
+        {at + 16, 4, "ascending"},               /* count node 0 -> 4: out of range */
+        {at + 16 + 12, 0, "ascending"},          /* count nodes 0, 0 */
+        {at + 16 + 24 + 24, 2046, "ascending"},  /* sum node 9 -> 2046 */
+        {at + 16 + 12 + 4, 0, "ascending"},      /* count 1 -> 0 (low word) */
+        {at + 8, 5, "more guiding entries"},     /* 5 counts of a guide of 4 nodes */
+        {at, 0, "guide sizes"},                  /* a guide of no spatial node */
+        {at + 4, (1u << 24) + 1, "guide sizes"}, /* over the cap */
+        {at + 12, 4, "entries in"},              /* 4 sums listed, 3 there */
+    };
+    for (size_t k = 0; k < sizeof bad / sizeof *bad; k++) {
+        proto_writer_reset(&w2);
+        proto_w_bytes(&w2, w.buf, w.len);
+        proto_put_u32(w2.buf + bad[k].off, bad[k].v);
+        CHECKF(proto_msg_decode_result(w2.buf, w2.len, NULL, 0, &b, &e) == PT_ERR_PROTO &&
+                   strstr(e.msg, bad[k].why),
+               "case %zu: %s", k, e.msg);
+    }
+    proto_writer_reset(&w2);
+    CHECK(proto_msg_decode_result(w.buf, w.len - 1, NULL, 0, &b, &e) == PT_ERR_PROTO);
+    ent[1].node = 0; /* not ascending */
+    CHECK(proto_msg_encode_result(&w2, &m, &e) == PT_ERR_ARG && w2.len == 0);
+    proto_writer_fini(&w);
+    proto_writer_fini(&w2);
+}
+
 static void test_types(void)
 {
     CHECK(proto_msg_type_known(PROTO_MSG_HELLO) && proto_msg_type_known(PROTO_MSG_FETCH));
@@ -1088,6 +1182,9 @@ static pt_status submit_check(const proto_submit *m, const char *want)
     proto_w_bytes(&w, m->animation, strnlen(m->animation, sizeof m->animation));
     proto_w_f64(&w, m->shutter[0]);
     proto_w_f64(&w, m->shutter[1]);
+    proto_w_f32(&w, m->clamp[0]);
+    proto_w_f32(&w, m->clamp[1]);
+    proto_w_u8(&w, m->guiding);
     pt_error err = {0};
     pt_status st = decode_any(PROTO_MSG_SUBMIT, w.buf, w.len, &err);
     if (st != PT_OK && want && !strstr(err.msg, want)) {
@@ -1144,6 +1241,17 @@ static void test_submit(void)
     CHECK(submit_check(&m, "shutter") == PT_ERR_PROTO);
     m.shutter[0] = NAN;
     CHECK(submit_check(&m, "shutter") == PT_ERR_PROTO);
+    /* The clamps: 0 (off) to 1e30 travel; negative, NaN or infinite is
+     * refused both ways. */
+    m = sample_submit(1);
+    CHECK(m.clamp[1] == PROTO_MAX_CLAMP && submit_check(&m, NULL) == PT_OK);
+    m.clamp[0] = -2.0f;
+    CHECK(submit_check(&m, "clamp direct") == PT_ERR_PROTO);
+    m = sample_submit(0);
+    m.clamp[1] = NAN;
+    CHECK(submit_check(&m, "clamp indirect") == PT_ERR_PROTO);
+    m.clamp[1] = INFINITY;
+    CHECK(submit_check(&m, "clamp indirect") == PT_ERR_PROTO);
     static const uint64_t bad_errors[] = {
         0x7FF8000000000000ull, /* NaN */
         0xFFF8000000000000ull, /* -NaN */
@@ -1228,7 +1336,7 @@ static void test_submit(void)
     m = sample_submit(0);
     CHECK(proto_msg_encode_submit(&w, &m, &err) == PT_OK);
     CHECK(decode_any(PROTO_MSG_SUBMIT, w.buf,
-                     w.len - 16 - 22 - strlen(m.animation) - 2 - strlen(m.variant) - 4 - 1,
+                     w.len - 1 - 8 - 16 - 22 - strlen(m.animation) - 2 - strlen(m.variant) - 4 - 1,
                      &err) == PT_ERR_PROTO);
     CHECK(strstr(err.msg, "background colour") != NULL);
     proto_writer_reset(&w);
@@ -1502,7 +1610,7 @@ static void test_frames(void)
         /* By hand: the good bytes with the bad pose patched in. */
         proto_task good = sample_task(k < 2);
         CHECK(proto_msg_encode_task(&w, &good, &err) == PT_OK);
-        uint8_t *pose = w.buf + w.len - 16 - POSE_TAIL(good); /* the shutter after it */
+        uint8_t *pose = w.buf + w.len - 37 - 8 - 16 - POSE_TAIL(good); /* shutter... after */
         pose[0] = t.animate;
         proto_put_u64(pose + 1, proto_f64_bits(t.time));
         CHECKF(decode_any(PROTO_MSG_TASK, w.buf, w.len, &err) == PT_ERR_PROTO &&
@@ -1513,7 +1621,8 @@ static void test_frames(void)
     t = sample_task(0);
     proto_writer_reset(&w);
     CHECK(proto_msg_encode_task(&w, &t, &err) == PT_OK);
-    CHECK(decode_any(PROTO_MSG_TASK, w.buf, w.len - 16 - POSE_TAIL(t), &err) == PT_ERR_PROTO);
+    CHECK(decode_any(PROTO_MSG_TASK, w.buf, w.len - 37 - 8 - 16 - POSE_TAIL(t), &err) ==
+          PT_ERR_PROTO);
     CHECK(proto_msg_decode_task(w.buf, w.len, &back, &err) == PT_OK && back.animate == 0 &&
           back.time == 0.0);
 
@@ -1537,6 +1646,7 @@ int main(void)
     test_task();
     test_counts();
     test_result();
+    test_result_guide();
     test_submit();
     test_job_info();
     test_job_list();

@@ -10,6 +10,8 @@
 #include <string.h>
 
 #include "common/base/alloc.h"
+#include "common/base/hash.h"
+#include "protocol/guide.h"
 #include "server/sched/job.h"
 #include "tests/check.h"
 
@@ -39,8 +41,8 @@ static void fake_result(const proto_task *t, pt_pixel_acc *px, proto_result *r)
 static srv_job *make(uint32_t w, uint32_t h, uint32_t spp, uint32_t tile, uint32_t chunk)
 {
     srv_job_params p = {
-        w, h,  spp,   tile, chunk, 5, 16, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
-        0, "", {0, 0}};
+        w, h,  spp,    tile,   chunk, 5,  16, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+        0, "", {0, 0}, {0, 0}, 0,     {0}};
     srv_job *j = NULL;
     pt_error err = {0};
     CHECKF(srv_job_new(9, &p, HASH, &j, &err) == PT_OK, "%s", err.msg);
@@ -185,8 +187,8 @@ static void bit_identical(void)
 static void adaptive(void)
 {
     srv_job_params p = {
-        64, 32, 64,    32, 8, 1, 16, 3, 0.01, 16, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
-        0,  "", {0, 0}};
+        64, 32, 64,     32,     8, 1,  16, 3, 0.01, 16, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+        0,  "", {0, 0}, {0, 0}, 0, {0}};
     srv_job *j = NULL;
     CHECK(srv_job_new(2, &p, HASH, &j, NULL) == PT_OK);
     if (!j)
@@ -211,7 +213,8 @@ static void adaptive(void)
             double sq = tile == 0 ? ns * 0.25 : 2.0 * v * v * ns;
             px[i] = pt_pixel_acc_of(sum, sum, sum, sq, ns, 0);
         }
-        proto_result r = {t.job_id, t.task_id, t.tile, t.s0, t.s1, 0, 0, 0, 32 * 32, px, 0, NULL};
+        proto_result r = {t.job_id, t.task_id, t.tile, t.s0, t.s1, 0, 0, 0,    32 * 32,
+                          px,       0,         NULL,   0,    0,    0, 0, NULL, 0};
         srv_outcome o = srv_job_result(j, 1, &r, NULL);
         dup += o == SRV_DUPLICATE;
         CHECK(o == SRV_MERGED || o == SRV_DUPLICATE);
@@ -237,8 +240,8 @@ static void gain_pixels_of(const proto_task *t, pt_pixel_acc *px, proto_result *
         double v = t->tile.x0 == 0 ? (black0 ? 0.0 : 0.5) : (double)((chunk + 1) % 2);
         px[i] = pt_pixel_acc_of(v * ns, v * ns, v * ns, v * v * ns, ns, 0);
     }
-    *r =
-        (proto_result){t->job_id, t->task_id, t->tile, t->s0, t->s1, 0, 0, 0, 32 * 32, px, 0, NULL};
+    *r = (proto_result){t->job_id, t->task_id, t->tile, t->s0, t->s1, 0, 0, 0,    32 * 32,
+                        px,        0,          NULL,    0,     0,     0, 0, NULL, 0};
 }
 
 /* A pixel of a version 5 checkpoint (72 bytes: sums as u64 pairs, low half
@@ -266,8 +269,8 @@ static void gain_pixels(const proto_task *t, pt_pixel_acc *px, proto_result *r)
 static void adaptive_min_gain(void)
 {
     srv_job_params p = {
-        64, 32, 64,    32, 8, 1, 16, 3, 0.0, 8, 1e-5, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
-        0,  "", {0, 0}};
+        64, 32, 64,     32,     8, 1,  16, 3, 0.0, 8, 1e-5, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+        0,  "", {0, 0}, {0, 0}, 0, {0}};
     srv_job *a = NULL, *b = NULL, *c = NULL, *d = NULL;
     CHECK(srv_job_new(3, &p, HASH, &a, NULL) == PT_OK);
     CHECK(srv_job_new(3, &p, HASH, &b, NULL) == PT_OK);
@@ -346,16 +349,38 @@ static void adaptive_min_gain(void)
     }
     srv_job_free(d);
     d = NULL;
-    /* The params end with the shutter (16 bytes), which formats before 7 lack. */
+    /* So are other clamps, and a clamped job's checkpoint resumes with its
+     * clamps in every task. */
+    q = p;
+    q.clamp[1] = 10.0f;
+    CHECK(srv_job_new(3, &q, HASH, &d, NULL) == PT_OK);
+    CHECKF(d && srv_job_load(d, w.buf, w.len, &err) == PT_ERR_FORMAT, "%s", err.msg);
+    {
+        srv_job *e = NULL;
+        proto_writer wc;
+        proto_writer_init(&wc, 1u << 20);
+        CHECK(d && srv_job_save(d, &wc, NULL) == PT_OK);
+        CHECK(srv_job_new(3, &q, HASH, &e, NULL) == PT_OK);
+        CHECKF(e && srv_job_load(e, wc.buf, wc.len, &err) == PT_OK, "%s", err.msg);
+        proto_task ct;
+        CHECK(e && srv_job_lease(e, 1, 0, 1000, &ct) && ct.clamp[0] == 0.0f &&
+              ct.clamp[1] == 10.0f);
+        srv_job_free(e);
+        proto_writer_fini(&wc);
+    }
+    srv_job_free(d);
+    d = NULL;
+    /* The params end with the shutter (16 bytes), which formats before 7
+     * lack, and the clamps and guiding (8 + 25), which formats before 9 lack. */
     const size_t pend = 4 + 4 + 8 + 32 + 9 * 4 + 2 * 8 + 2 + strlen(p.camera) + 23 + 4 + 2;
-    const size_t head = pend + 16 + 8;
+    const size_t head = pend + 49 + 8;
     /* A version 6 checkpoint (time-sized tasks, no shutter: the same bytes
      * without it) loads to the same bits. */
     {
         proto_writer v6;
         proto_writer_init(&v6, 1u << 20);
         proto_w_bytes(&v6, w.buf, pend);
-        proto_w_bytes(&v6, w.buf + pend + 16, w.len - pend - 16);
+        proto_w_bytes(&v6, w.buf + pend + 49, w.len - pend - 49);
         proto_put_u32(v6.buf + 4, 6);
         srv_job *e = NULL;
         CHECK(proto_writer_status(&v6) == PT_OK);
@@ -375,7 +400,7 @@ static void adaptive_min_gain(void)
         uint32_t ntiles = proto_get_u32(w.buf + head);
         size_t at = head + 8;
         proto_w_bytes(&v5, w.buf, pend);
-        proto_w_bytes(&v5, w.buf + pend + 16, at - pend - 16);
+        proto_w_bytes(&v5, w.buf + pend + 49, at - pend - 49);
         proto_put_u32(v5.buf + 4, 5);
         for (uint32_t ti = 0; ti < ntiles; ti++, at += 5) {
             proto_w_u32(&v5, proto_get_u32(w.buf + at) / 8);
@@ -419,8 +444,8 @@ static void adaptive_min_gain(void)
          * name the task, chunk x tiles + tile. */
         uint32_t ntiles = proto_get_u32(w.buf + head);
         size_t at = head + 8;
-        proto_w_bytes(&v4, w.buf, pend); /* without the shutter */
-        proto_w_bytes(&v4, w.buf + pend + 16, at - pend - 16);
+        proto_w_bytes(&v4, w.buf, pend); /* without the shutter and the clamps */
+        proto_w_bytes(&v4, w.buf + pend + 49, at - pend - 49);
         proto_put_u32(v4.buf + 4, 4);
         for (uint32_t ti = 0; ti < ntiles; ti++, at += 5) {
             proto_w_u32(&v4, proto_get_u32(w.buf + at) / 8);
@@ -514,8 +539,8 @@ done:
 static void adaptive_min_gain_black(void)
 {
     srv_job_params p = {
-        64, 32, 64,    32, 8, 1, 16, 3, 0.0, 8, 1e-5, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
-        0,  "", {0, 0}};
+        64, 32, 64,     32,     8, 1,  16, 3, 0.0, 8, 1e-5, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+        0,  "", {0, 0}, {0, 0}, 0, {0}};
     srv_job *j = NULL;
     CHECK(srv_job_new(3, &p, HASH, &j, NULL) == PT_OK);
     if (!j)
@@ -539,7 +564,8 @@ static void adaptive_min_gain_black(void)
 static void bad_params(void)
 {
     srv_job_params p = {
-        0, 10, 4, 16, 4, 0, 4, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}, 0, "", {0, 0}};
+        0, 10, 4,      16,     4, 0,  4, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+        0, "", {0, 0}, {0, 0}, 0, {0}};
     srv_job *j = NULL;
     pt_error err = {0};
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
@@ -547,15 +573,32 @@ static void bad_params(void)
     p.tile = 1000;
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
     p = (srv_job_params){
-        16, 16, 4, 16, 4, 0, 4, 3, 0.0, 0, NAN, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}}, 0, "", {0, 0}};
+        16, 16, 4,      16,     4, 0,  4, 3, 0.0, 0, NAN, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+        0,  "", {0, 0}, {0, 0}, 0, {0}};
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
     p.min_gain = -1e-6;
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
     p.min_gain = INFINITY;
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_ARG);
-    p = (srv_job_params){
-        16384, 16384, 1u << 24, 16, 1, 0, 4, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
-        0,     "",    {0, 0}};
+    p = (srv_job_params){16384,
+                         16384,
+                         1u << 24,
+                         16,
+                         1,
+                         0,
+                         4,
+                         3,
+                         0.0,
+                         0,
+                         0.0,
+                         "",
+                         {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+                         0,
+                         "",
+                         {0, 0},
+                         {0, 0},
+                         0,
+                         {0}};
     CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_ERR_LIMIT);
     CHECK(j == NULL);
 }
@@ -822,7 +865,10 @@ static void film_and_cap(void)
                         {"", 1.0f, 0.0f, 0, {0, 0, 0}},
                         PROTO_FILM_TRANSPARENT,
                         "",
-                        {0, 0}};
+                        {0, 0},
+                        {0, 0},
+                        0,
+                        {0}};
     srv_job *j = NULL, *k = NULL, *o = NULL;
     pt_error err = {0};
     CHECK(srv_job_new(4, &p, HASH, &j, &err) == PT_OK);
@@ -885,7 +931,8 @@ static void exact_result(const proto_task *t, pt_pixel_acc *px, proto_result *r)
         }
         px[i] = pt_pixel_acc_of(sum, sum, sum, sq, t->s1 - t->s0, t->s1 - t->s0);
     }
-    *r = (proto_result){t->job_id, t->task_id, t->tile, t->s0, t->s1, 0, 0, 0, n, px, 0, NULL};
+    *r = (proto_result){t->job_id, t->task_id, t->tile, t->s0, t->s1, 0, 0, 0,    n,
+                        px,        0,          NULL,    0,     0,     0, 0, NULL, 0};
 }
 
 typedef struct sim_owner {
@@ -1010,7 +1057,10 @@ static srv_job_params sized_params(uint32_t spp, double target_error)
                         {"", 1.0f, 0.0f, 0, {0, 0, 0}},
                         0,
                         "",
-                        {0.0, 0.0}};
+                        {0.0, 0.0},
+                        {0, 0},
+                        0,
+                        {0}};
     return p;
 }
 
@@ -1381,9 +1431,122 @@ static void snapshot_saves_the_same(void)
     srv_job_free(j);
 }
 
+/* A guided result of task t (16 samples a pixel) with the statistics
+ * entries e (nc counts, ns sums) made for a guide of nsn + nqn nodes. */
+static proto_result guided_result(const proto_task *t, pt_pixel_acc *px, proto_guide_entry *e,
+                                  uint32_t nc, uint32_t ns, uint32_t nsn, uint32_t nqn)
+{
+    uint32_t n = (t->tile.x1 - t->tile.x0) * (t->tile.y1 - t->tile.y0);
+    for (uint32_t i = 0; i < n; i++)
+        px[i] = pt_pixel_acc_of(0.5, 0.25, 0.125, 0.0625, t->s1 - t->s0, t->s1 - t->s0);
+    proto_result r = {t->job_id, t->task_id, t->tile, t->s0, t->s1, 0,  0,  0, n,
+                      px,        0,          NULL,    nsn,   nqn,   nc, ns, e, 0};
+    return r;
+}
+
+/* Path guiding (job_guide.c): tasks never cross a pass's end and those of
+ * pass 1 wait for its distribution, named by the hash of bytes the job
+ * hands out; a result without statistics, with a guide's of another size,
+ * with more records than bounces or sums over the record cap is refused
+ * and leaves the film as it was; the pass's statistics, once every tile is
+ * merged, make the next distribution, which a checkpoint keeps. */
+static void guided(void)
+{
+    pt_error err = {0};
+    srv_job_params p = {64,
+                        32,
+                        64,
+                        32,
+                        16,
+                        5,
+                        8,
+                        3,
+                        0.0,
+                        0,
+                        0.0,
+                        "",
+                        {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+                        0,
+                        "",
+                        {0, 0},
+                        {0, 0},
+                        1,
+                        {-1.0f, -1.0f, -1.0f, 1.0f, 1.0f, 1.0f}};
+    srv_job *j = NULL;
+    CHECK(srv_job_new(1, &p, HASH, &j, &err) == PT_OK);
+    if (!j)
+        return;
+    proto_task t[3];
+    CHECK(srv_job_lease(j, 7, 0, 1000, &t[0]) && srv_job_lease(j, 7, 0, 1000, &t[1]));
+    CHECK(!srv_job_lease(j, 7, 0, 1000, &t[2])); /* pass 1 waits for its distribution */
+    const uint8_t *blob = NULL;
+    size_t len = 0;
+    for (int k = 0; k < 2; k++) {
+        CHECK(t[k].s0 == 0 && t[k].s1 == 16 && t[k].guided && t[k].guide_pass == 0);
+        CHECK(srv_job_guide_bytes(j, t[k].guide_hash, &blob, &len) && len > 0);
+    }
+    uint8_t h[32];
+    pt_sha256(blob, len, h);
+    CHECK(memcmp(h, t[0].guide_hash, 32) == 0);
+    static pt_pixel_acc px[32 * 32];
+    proto_guide_entry good[2] = {{0, 1000}, {100, 1000ull << 16}};
+    proto_guide_entry absurd[1] = {{0, 32ull * 32 * 16 * 9 + 1}}; /* > a record per bounce */
+    proto_guide_entry over[2] = {{0, 1},
+                                 {5, (uint64_t)1e9 * 65536 + 2}}; /* a record over the cap */
+    struct {
+        proto_guide_entry *e;
+        uint32_t nc, ns, nsn, nqn;
+        const char *why;
+    } bad[] = {{NULL, 0, 0, 0, 0, "lacks"},
+               {good, 1, 1, 1, 2047, "nodes"},
+               {good, 1, 1, 2, 2046, "nodes"},
+               {absurd, 1, 0, 1, 2046, "plausible"},
+               {over, 1, 1, 1, 2046, "plausible"}};
+    for (size_t k = 0; k < sizeof bad / sizeof *bad; k++) {
+        proto_result r =
+            guided_result(&t[0], px, bad[k].e, bad[k].nc, bad[k].ns, bad[k].nsn, bad[k].nqn);
+        CHECKF(srv_job_result(j, 7, &r, &err) == SRV_INVALID && strstr(err.msg, bad[k].why),
+               "case %zu: %s", k, err.msg);
+    }
+    CHECK(pt_film_total_samples(srv_job_film(j)) == 0); /* nothing merged */
+    for (int k = 0; k < 2; k++) {
+        proto_result r = guided_result(&t[k], px, good, 1, 1, 1, 2046);
+        CHECKF(srv_job_result(j, 7, &r, &err) == SRV_MERGED, "%s", err.msg);
+    }
+    /* Both tiles at pass 0's end: pass 1's distribution exists, another. */
+    CHECK(srv_job_guide_pass(j) == 1);
+    CHECK(srv_job_lease(j, 7, 0, 1000, &t[2]) && t[2].s0 == 16 && t[2].s1 <= 48 && t[2].guided &&
+          t[2].guide_pass == 1 && memcmp(t[2].guide_hash, h, 32) != 0);
+    CHECK(srv_job_guide_bytes(j, t[2].guide_hash, &blob, &len));
+    /* A checkpoint keeps pass 1's distribution and statistics. */
+    proto_writer w;
+    proto_writer_init(&w, 1u << 24);
+    CHECK(srv_job_save(j, &w, &err) == PT_OK);
+    srv_job *c = NULL;
+    CHECK(srv_job_new(1, &p, HASH, &c, &err) == PT_OK);
+    CHECKF(c && srv_job_load(c, w.buf, w.len, &err) == PT_OK, "%s", err.msg);
+    proto_task ct;
+    CHECK(c && srv_job_guide_pass(c) == 1 && srv_job_lease(c, 8, 0, 1000, &ct) &&
+          ct.guide_pass == 1 && memcmp(ct.guide_hash, t[2].guide_hash, 32) == 0);
+    /* A damaged distribution in it is refused. */
+    size_t at = 4 + 4 + 8 + 32; /* the params follow; find the guide's magic */
+    while (at + 4 <= w.len && proto_get_u32(w.buf + at) != PROTO_GUIDE_MAGIC)
+        at++;
+    CHECK(at + 40 < w.len);
+    proto_put_u32(w.buf + at + 40, 99); /* the root's child */
+    srv_job *d = NULL;
+    CHECK(srv_job_new(1, &p, HASH, &d, &err) == PT_OK);
+    CHECK(d && srv_job_load(d, w.buf, w.len, &err) == PT_ERR_FORMAT);
+    srv_job_free(d);
+    srv_job_free(c);
+    proto_writer_fini(&w);
+    srv_job_free(j);
+}
+
 int main(void)
 {
     int64_t live = pt_alloc_live();
+    guided();
     pass_order();
     leases();
     bit_identical();

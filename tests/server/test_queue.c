@@ -182,8 +182,9 @@ static void submit_begin(cli *c, const proto_submit *m)
     CHECK(proto_msg_encode_submit(&w, &fixed, NULL) == PT_OK);
     if (m->spp == 0)
         proto_put_u32(w.buf + 10 + strlen(m->name), 0);
-    if (reversed) { /* the range: the last fields but the fps, the animation, the shutter */
-        uint8_t *range = w.buf + w.len - 16 - 2 - strlen(m->animation) - 8 - 12;
+    if (reversed) { /* the range: the last fields but the fps, the animation, the shutter,
+                       the clamps */
+        uint8_t *range = w.buf + w.len - 1 - 8 - 16 - 2 - strlen(m->animation) - 8 - 12;
         proto_put_u32(range, m->frame_first);
         proto_put_u32(range + 4, m->frame_last);
     }
@@ -816,8 +817,8 @@ static size_t shutter_at(const uint8_t *d, size_t at)
     return at;
 }
 
-/* The queue file of format 6: the same records without the shutter and
- * without format 8's count of rejected samples. */
+/* The queue file of format 6: the same records without the shutter, format
+ * 9's clamps and format 8's count of rejected samples. */
 static void queue_to_v6(const char *name)
 {
     uint8_t *d;
@@ -834,7 +835,7 @@ static void queue_to_v6(const char *name)
         at += 8; /* submitted */
         size_t sh = shutter_at(d, at);
         proto_w_bytes(&w, d + done, sh - done);
-        at = sh + 16;
+        at = sh + 16 + 8 + 25; /* the shutter, the clamps and guiding */
         done = at;
         at += 32 + 8 + 8 + 8 + 8;
         at += 2 + proto_get_u16(d + at); /* message */
@@ -854,7 +855,8 @@ static void queue_to_v6(const char *name)
     pt_free(d);
 }
 
-/* A checkpoint of format 6: the same bytes without the shutter. */
+/* A checkpoint of format 6: the same bytes without the shutter and format
+ * 9's clamps. */
 static void checkpoint_to_v6(const char *name)
 {
     uint8_t *d;
@@ -866,7 +868,7 @@ static void checkpoint_to_v6(const char *name)
     /* envelope 8, seconds/rejected/rays 24, magic, version, id, hash, params */
     size_t sh = shutter_at(d, 8 + 24 + 4 + 4 + 8 + 32);
     proto_w_bytes(&w, d, sh);
-    proto_w_bytes(&w, d + sh + 16, n - 4 - (sh + 16));
+    proto_w_bytes(&w, d + sh + 49, n - 4 - (sh + 49)); /* shutter, clamps, guiding */
     const long vers[] = {4, 36};
     write_ver(name, &w, vers, 2, 1, 6);
     pt_free(d);

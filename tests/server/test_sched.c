@@ -121,8 +121,8 @@ static srv_entry *add_job(srv_server *s, uint64_t id, uint32_t w, uint32_t h, ui
     j->rec.state = PROTO_JOB_QUEUED;
     j->rec.error = -1.0;
     srv_job_params p = {
-        w, h,  spp,   16, chunk, 5, 16, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
-        0, "", {0, 0}};
+        w, h,  spp,    16,     chunk, 5,  16, 3, 0.0, 0, 0.0, "", {"", 1.0f, 0.0f, 0, {0, 0, 0}},
+        0, "", {0, 0}, {0, 0}, 0,     {0}};
     j->rec.params = p;
     j->rec.hash[0] = (uint8_t)id;
     snprintf(j->rec.scene, sizeof j->rec.scene, "scene.gltf");

@@ -51,6 +51,20 @@ static void test_values(void)
     CHECK(set(&o, PT_ROPT_EXPOSURE, "-1.5", &err) == PT_OK && o.view.exposure == -1.5f);
     CHECK(set(&o, PT_ROPT_TRANSPARENT, NULL, &err) == PT_OK);
     CHECK(set(&o, PT_ROPT_BACKGROUND, "1,0.5,0", &err) == PT_OK && o.background[1] == 0.5);
+    /* The clamps: 0 (off) to 1e30, kept as the float the farm sends;
+     * negative, NaN, infinite and over the cap refused naming the option. */
+    CHECK(set(&o, PT_ROPT_CLAMP_DIRECT, "0.1", &err) == PT_OK && o.clamp_direct == 0.1f);
+    CHECK(set(&o, PT_ROPT_CLAMP_INDIRECT, "1e30", &err) == PT_OK && o.clamp_indirect == 1e30f);
+    CHECK(set(&o, PT_ROPT_CLAMP_INDIRECT, "0", &err) == PT_OK && o.clamp_indirect == 0.0f);
+    const char *bad_clamps[] = {"-1", "nan", "inf", "1e31", "x", ""};
+    for (size_t k = 0; k < sizeof bad_clamps / sizeof *bad_clamps; k++) {
+        CHECKF(set(&o, PT_ROPT_CLAMP_DIRECT, bad_clamps[k], &err) == PT_ERR_ARG &&
+                   strstr(err.msg, "--clamp-direct") && o.clamp_direct == 0.1f,
+               "'%s'", bad_clamps[k]);
+        CHECKF(set(&o, PT_ROPT_CLAMP_INDIRECT, bad_clamps[k], &err) == PT_ERR_ARG &&
+                   strstr(err.msg, "--clamp-indirect") && o.clamp_indirect == 0.0f,
+               "'%s'", bad_clamps[k]);
+    }
     char long_name[80];
     memset(long_name, 'c', 65);
     long_name[65] = '\0';
@@ -58,7 +72,8 @@ static void test_values(void)
     CHECK(set(&o, PT_ROPT_CAMERA, "", &err) == PT_ERR_ARG);
     uint32_t want = PT_ROPT(PT_ROPT_SPP) | PT_ROPT(PT_ROPT_RES) | PT_ROPT(PT_ROPT_VIEW) |
                     PT_ROPT(PT_ROPT_EXPOSURE) | PT_ROPT(PT_ROPT_TRANSPARENT) |
-                    PT_ROPT(PT_ROPT_BACKGROUND);
+                    PT_ROPT(PT_ROPT_BACKGROUND) | PT_ROPT(PT_ROPT_CLAMP_DIRECT) |
+                    PT_ROPT(PT_ROPT_CLAMP_INDIRECT);
     CHECKF(o.given == want, "given %#x, want %#x", o.given, want);
     CHECK(pt_render_opts_finish(&o, &err) == PT_OK);
 }

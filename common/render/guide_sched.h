@@ -1,0 +1,72 @@
+/*
+ * guide_sched.h - the schedule of path guiding's training passes, one for
+ * every program: ptworker --guiding renders it on one machine, the farm's
+ * coordinator (server/sched/job_guide.c) hands its passes out as tasks, and
+ * both must learn the same distributions from the same samples for the
+ * image to be the same bits.
+ *
+ * Pass k covers samples [pt_guide_pass_start(k), pt_guide_pass_end(k))
+ * (guide.h): 16, 32, 64... samples per pixel (Mueller, Gross & Novak 2017
+ * double them), each pass rendered with the distribution learned from the
+ * pass before, the last running to spp when less than the next pass would
+ * take is left after it. Pass 0 renders with a uniform guide
+ * over the scene's bounds (grown by pt_guide_grow_bounds) and samples
+ * nothing from it; later passes draw PT_GUIDE_PASS_PROB of a guided
+ * vertex's directions from theirs. Pass k's statistics build pass k + 1's
+ * distribution with the split threshold pt_guide_split_count(k).
+ *
+ * Pure inline functions; any thread.
+ */
+#ifndef PT_COMMON_RENDER_GUIDE_SCHED_H
+#define PT_COMMON_RENDER_GUIDE_SCHED_H
+
+#include <math.h>
+#include <stdint.h>
+
+#include "common/math/vec.h"
+#include "common/render/guide.h" /* pt_guide_pass_end: where each pass ends */
+
+#define PT_GUIDE_FIRST_PASS 16u /* samples of pass 0 */
+#define PT_GUIDE_PASS_PROB 0.5f /* a guided vertex's chance to sample the guide, pass 1 on */
+/* Mueller et al.'s split threshold, c sqrt(2^k) (they take c = 12000 for
+ * 1280 x 720 images); c = 3000 did better on a 64 x 64 Cornell box, whose
+ * passes hold fewer records. */
+#define PT_GUIDE_SPLIT_C 3000.0
+
+static inline uint32_t pt_guide_pass_start(uint32_t k, uint32_t spp)
+{
+    return k == 0 ? 0 : pt_guide_pass_end(k - 1, spp);
+}
+
+/* The pass that sample index s (< spp) belongs to. */
+static inline uint32_t pt_guide_pass_of(uint32_t s, uint32_t spp)
+{
+    uint32_t k = 0;
+    while (pt_guide_pass_end(k, spp) <= s && k < 31)
+        k++;
+    return k;
+}
+
+/* The chance a guided vertex of pass k draws from the guide. */
+static inline float pt_guide_pass_prob(uint32_t k)
+{
+    return k == 0 ? 0.0f : PT_GUIDE_PASS_PROB;
+}
+
+/* The split threshold of the build after pass k. */
+static inline uint64_t pt_guide_split_count(uint32_t k)
+{
+    return (uint64_t)(PT_GUIDE_SPLIT_C * sqrt((double)(1u << (k < 20 ? k : 20))));
+}
+
+/* The first guide's bounds from the scene's: a little larger, so that a
+ * point on them is inside. */
+static inline void pt_guide_grow_bounds(pt_vec3 *lo, pt_vec3 *hi)
+{
+    pt_vec3 ext = pt_v3_scale(pt_v3_sub(*hi, *lo), 1e-3f);
+    ext = pt_v3_add(ext, pt_v3(1e-3f, 1e-3f, 1e-3f));
+    *lo = pt_v3_sub(*lo, ext);
+    *hi = pt_v3_add(*hi, ext);
+}
+
+#endif

@@ -1,0 +1,69 @@
+#!/usr/bin/env bash
+# Path guiding on the farm: what the coordinator holds and sends per
+# training pass (server/sched/job_guide.c).
+#
+# Runs ptserve --local N --guiding on over a scene at a given size (default
+# 1920x1080, the NVIDIA Cornell box of ../shared/scenes) and reads from the
+# logs, for each pass's distribution: its bytes (the GUIDE encoding that TASK
+# names by hash and workers fetch once, protocol/guide.h), its nodes, the
+# coordinator's build time on its event loop, and each worker's fetch time
+# (first GUIDE_GET to the distribution checked, over loopback). Writes a
+# table on stdout and the logs in --work.
+#
+#   tests/bench/guide_transfer.sh [--bin DIR] [--scene FILE] [--res WxH]
+#                                 [--spp N] [--workers N] [--work DIR]
+#
+# The training passes end at 16, 48, 112... samples per pixel: --spp 48
+# builds one learned distribution (pass 1's, from 16 samples of every
+# pixel), --spp 112 two. Guiding never runs with adaptive sampling.
+set -euo pipefail
+here=$(cd "$(dirname "$0")" && pwd)
+bin=$here/../../build/bin
+scene=$here/../../../shared/scenes/CornellBox/cornellBox.gltf
+res=1920x1080
+spp=48
+workers=2
+work=$(mktemp -d /tmp/pt_guide_transfer_XXXXXX)
+while [ $# -gt 0 ]; do
+  case $1 in
+  --bin) bin=$2 ;;
+  --scene) scene=$2 ;;
+  --res) res=$2 ;;
+  --spp) spp=$2 ;;
+  --workers) workers=$2 ;;
+  --work) work=$2 ;;
+  -h | --help)
+    sed -n '2,20p' "$0"
+    exit 0
+    ;;
+  *)
+    echo "guide_transfer.sh: unknown option $1" >&2
+    exit 2
+    ;;
+  esac
+  shift 2
+done
+mkdir -p "$work"
+log=$work/ptserve.log
+t0=$(date +%s.%N)
+"$bin/ptserve" --local "$workers" --res "$res" --spp "$spp" --guiding on \
+  -o "$work/out.exr" "$scene" > "$log" 2>&1
+t1=$(date +%s.%N)
+echo "scene $(basename "$scene") $res, $spp spp, $workers workers: $(echo "$t1 - $t0" | bc) s"
+printf '%-6s %12s %10s %12s %10s %s\n' pass bytes spatial directional build_ms fetch_ms
+# The first distribution (pass 0) is uniform: its size from the fetch lines.
+first=$(grep -o 'guiding distribution [0-9a-f]* ([0-9]* bytes) fetched in [0-9]* ms' "$log" |
+  head -n "$workers")
+if [ -n "$first" ]; then
+  b=$(echo "$first" | head -n 1 | sed 's/.*(\([0-9]*\) bytes).*/\1/')
+  ms=$(echo "$first" | sed 's/.* in \([0-9]*\) ms/\1/' | tr '\n' ' ')
+  printf '%-6s %12s %10s %12s %10s %s\n' 0 "$b" 1 "-" "-" "$ms"
+fi
+grep -o 'guiding pass [0-9]*: a distribution of [0-9]* bytes ([0-9]* spatial, [0-9]* directional nodes) built in [0-9]* ms' "$log" |
+  while read -r _ _ k _ _ _ b _ s _ q _ _ _ _ ms _; do
+    k=${k%:}
+    s=${s#(}
+    fetch=$(grep -o "guiding distribution [0-9a-f]* ($b bytes) fetched in [0-9]* ms" "$log" |
+      sed 's/.* in \([0-9]*\) ms/\1/' | tr '\n' ' ')
+    printf '%-6s %12s %10s %12s %10s %s\n' "$k" "$b" "$s" "$q" "$ms" "$fetch"
+  done
