@@ -621,8 +621,10 @@ static int check_options(srv_config *c, const pt_render_opts *ro, parsed *x, int
             c->guiding = PT_GUIDING_OFF;
     }
     if (c->state_dir && ro->denoise) {
-        fprintf(stderr, "ptserve: --denoise is for one-job mode; a queued job asks for it "
-                        "with ptctl submit --denoise\n");
+        const char *opt = ro->denoise_progressive ? "--denoise-progressive" : "--denoise";
+        fprintf(stderr,
+                "ptserve: %s is for one-job mode; a queued job asks for it with ptctl submit %s\n",
+                opt, opt);
         return 2;
     }
     if (c->state_dir && ro->passes) {

@@ -45,6 +45,11 @@ if [ "$rc" != 2 ] || ! grep -q "ptctl submit --denoise" "$tmp/refused.err"; then
   fail "a queue took --denoise: exit $rc: $(cat "$tmp/refused.err")"
 fi
 rc=0
+"$bin/ptserve" --state-dir "$tmp/x" --denoise-progressive 2> "$tmp/refused.err" || rc=$?
+if [ "$rc" != 2 ] || ! grep -q "ptctl submit --denoise-progressive" "$tmp/refused.err"; then
+  fail "a queue took --denoise-progressive: exit $rc: $(cat "$tmp/refused.err")"
+fi
+rc=0
 "$bin/ptworker" --scene "$scene" --denoise-progressive -o "$tmp/w.exr" 2> /dev/null || rc=$?
 [ "$rc" = 2 ] || fail "ptworker took --denoise-progressive (exit $rc): its saves are not progressive"
 
