@@ -288,7 +288,7 @@ pt_vec3 pt_closure_sample(const pt_closure *c, const float u[3], pt_vec3 *wi, fl
         }
         for (uint32_t j = 0; j < i; j++)
             u0 -= c->lobe[gr->first + j].prob;
-        u0 = fminf(u0 / (pick ? pick->prob : gr->below), below1);
+        u0 = pt_fminf(u0 / (pick ? pick->prob : gr->below), below1);
         if (!(u0 >= 0.0f))
             u0 = 0.0f;
         if (pick)
