@@ -927,6 +927,18 @@ void test_instances_vs_copies()
     unlink(pi.c_str());
     unlink(pc.c_str());
     expect_fail(instancing_file(n, false, "nan"), "inst_nan", PT_ERR_FORMAT, "not finite");
+    // Instances of a mesh of points only: nothing to see, said as a scene
+    // without triangles (not an empty accelerator).
+    gltf pts;
+    pts.floats(k_tri, "VEC3", 3);
+    int pt2 = pts.floats({0, 0, 0, 10, 0, 0}, "VEC3", 3);
+    char pm[400];
+    snprintf(pm, sizeof pm,
+             "\"nodes\":[{\"mesh\":0,\"extensions\":{\"EXT_mesh_gpu_instancing\":{"
+             "\"attributes\":{\"TRANSLATION\":%d}}}}],\"meshes\":[{\"primitives\":[{"
+             "\"attributes\":{\"POSITION\":0},\"mode\":0}]}]",
+             pt2);
+    expect_fail(pts.json(pm), "inst_points", PT_ERR_FORMAT, "no triangles");
     expect_fail(instancing_file(n, false, "huge"), "inst_huge", PT_ERR_LIMIT,
                 "EXT_mesh_gpu_instancing: 2147483648 instances (accessor 7), over the cap of "
                 "4194304");
