@@ -65,13 +65,19 @@ void pt_closure_add_base(pt_closure *c, const pt_bsdf *b)
         add_lobe(c, g, PT_LOBE_DIFFUSE, 1.0f - ps)->p.diffuse = pt_bsdf_diffuse(b);
 }
 
-void pt_closure_add_base_irid(pt_closure *c, const pt_bsdf *b, const pt_irid *film)
+/* The base under a film, its GGX lobe anisotropic when aniso. */
+static void add_base_irid(pt_closure *c, const pt_bsdf *b, const pt_irid *film, int aniso,
+                          float strength, float dc, float ds)
 {
     if (c->dead)
         return;
     float ps = pt_bsdf_spec_prob(b, c->wo.z);
     pt_closure_group *g = open_group(c, 0.0f);
-    if (ps > 0.0f) {
+    if (ps > 0.0f && aniso) {
+        pt_irid_aniso_lobe *l = &add_lobe(c, g, PT_LOBE_SPECULAR_ANISO_IRID, ps)->p.irid_aniso;
+        l->a = pt_aniso_setup(b, strength, dc, ds);
+        l->film = *film;
+    } else if (ps > 0.0f) {
         pt_irid_specular_lobe *l = &add_lobe(c, g, PT_LOBE_SPECULAR_IRID, ps)->p.irid_specular;
         l->s = pt_bsdf_specular(b);
         l->film = *film;
@@ -82,6 +88,17 @@ void pt_closure_add_base_irid(pt_closure *c, const pt_bsdf *b, const pt_irid *fi
         l->f0 = b->f0;
         l->film = *film;
     }
+}
+
+void pt_closure_add_base_irid(pt_closure *c, const pt_bsdf *b, const pt_irid *film)
+{
+    add_base_irid(c, b, film, 0, 0.0f, 1.0f, 0.0f);
+}
+
+void pt_closure_add_base_irid_aniso(pt_closure *c, const pt_bsdf *b, const pt_irid *film,
+                                    float strength, float dc, float ds)
+{
+    add_base_irid(c, b, film, 1, strength, dc, ds);
 }
 
 void pt_closure_add_base_aniso(pt_closure *c, const pt_bsdf *b, float strength, float dc, float ds)
@@ -195,6 +212,8 @@ lobe_eval(const pt_lobe *l, pt_vec3 wo, pt_vec3 wi, float *share, float *below)
         return pt_aniso_eval(&l->p.aniso, wo, wi, l->prob, share);
     case PT_LOBE_DIFFUSE_TRANSMIT:
         return pt_diffuse_transmit_eval(&l->p.diffuse, wo, wi, l->prob, share);
+    case PT_LOBE_SPECULAR_ANISO_IRID:
+        return pt_irid_aniso_eval(&l->p.irid_aniso, wo, wi, l->prob, share);
     }
     *share = 0.0f;
     return pt_v3(0.0f, 0.0f, 0.0f);
@@ -311,6 +330,9 @@ pt_vec3 pt_closure_sample(const pt_closure *c, const float u[3], pt_vec3 *wi, fl
     case PT_LOBE_SPECULAR_ANISO:
         ok = pt_aniso_sample(&pick->p.aniso, c->wo, ul, wi);
         break;
+    case PT_LOBE_SPECULAR_ANISO_IRID:
+        ok = pt_aniso_sample(&pick->p.irid_aniso.a, c->wo, ul, wi);
+        break;
     case PT_LOBE_DIFFUSE_TRANSMIT:
         ok = pt_diffuse_transmit_sample(ul, wi);
         break;
@@ -399,6 +421,10 @@ int pt_closure_albedo(const pt_closure *c, pt_vec3 *albedo)
             case PT_LOBE_SPECULAR_ANISO:
                 col = l->p.aniso.f0;
                 is_rough = l->p.aniso.ax * l->p.aniso.ay > ra * ra;
+                break;
+            case PT_LOBE_SPECULAR_ANISO_IRID:
+                col = l->p.irid_aniso.a.f0;
+                is_rough = l->p.irid_aniso.a.ax * l->p.irid_aniso.a.ay > ra * ra;
                 break;
             case PT_LOBE_DIELECTRIC:
                 col = pt_v3_scale(l->p.dielectric.tint, l->p.dielectric.weight);

@@ -62,8 +62,9 @@ enum {
     PT_LOBE_COAT,
     PT_LOBE_SPECULAR_IRID, /* thinfilm.h: the base's lobes under an iridescent film */
     PT_LOBE_DIFFUSE_IRID,
-    PT_LOBE_SPECULAR_ANISO,   /* aniso.h: the base's GGX lobe, anisotropic */
-    PT_LOBE_DIFFUSE_TRANSMIT, /* bsdf.h: Lambertian transmission to the far side */
+    PT_LOBE_SPECULAR_ANISO,      /* aniso.h: the base's GGX lobe, anisotropic */
+    PT_LOBE_DIFFUSE_TRANSMIT,    /* bsdf.h: Lambertian transmission to the far side */
+    PT_LOBE_SPECULAR_ANISO_IRID, /* thinfilm.h: the anisotropic lobe under the film */
 };
 
 typedef struct pt_lobe {
@@ -79,6 +80,7 @@ typedef struct pt_lobe {
         pt_irid_specular_lobe irid_specular;
         pt_irid_diffuse_lobe irid_diffuse;
         pt_aniso_lobe aniso;
+        pt_irid_aniso_lobe irid_aniso;
     } p;
 } pt_lobe;
 
@@ -107,6 +109,10 @@ void pt_closure_add_base_irid(pt_closure *c, const pt_bsdf *b, const pt_irid *fi
 /* The base with its GGX lobe anisotropic (aniso.h, KHR_materials_anisotropy):
  * strength in [0, 1], the direction (c, s) in the shading frame. */
 void pt_closure_add_base_aniso(pt_closure *c, const pt_bsdf *b, float strength, float dc, float ds);
+/* Both: the film over the anisotropic GGX lobe and over the diffuse one
+ * (KHR_materials_iridescence with KHR_materials_anisotropy). */
+void pt_closure_add_base_irid_aniso(pt_closure *c, const pt_bsdf *b, const pt_irid *film,
+                                    float strength, float dc, float ds);
 /* The base with a share of its diffuse transmitted (bsdf.h,
  * KHR_materials_diffuse_transmission): reflected albedo b's diffuse x
  * (1 - dt), transmitted albedo `through` (dt x colour x (1 - metallic)). */

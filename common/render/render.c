@@ -1286,10 +1286,10 @@ static int aniso_at(const pt_renderer *r, const surface *sf, const pt_frame *fr,
 
 /* The base's lobes of a material with one of BASE_MATX, into cl: diffuse
  * transmission (its specular lobe anisotropic when the material has
- * anisotropy too), else anisotropy, else iridescence (there is no thin film
- * over an anisotropic or a transmitting lobe: the loader warns that the film
- * is dropped beside them); out of line, so that the core path stays as
- * small as it was. */
+ * anisotropy too), else anisotropy (under the film when the material is
+ * iridescent too), else iridescence. There is no film beside a diffuse
+ * transmission: the loader warns that it is dropped there. Out of line, so
+ * that the core path stays as small as it was. */
 static __attribute__((noinline)) void add_base_ext(const pt_renderer *r, const surface *sf,
                                                    const pt_frame *fr, const pt_bsdf *bsdf,
                                                    pt_closure *cl, const uint32_t features)
@@ -1307,10 +1307,15 @@ static __attribute__((noinline)) void add_base_ext(const pt_renderer *r, const s
         else
             pt_closure_add_base_dt(cl, bsdf, dt, dtc);
     } else if ((features & PT_FEAT_ANISOTROPY) && sf->aniso &&
-               aniso_at(r, sf, fr, features, &as, &ac, &an))
-        pt_closure_add_base_aniso(cl, bsdf, as, ac, an);
-    else if ((features & PT_FEAT_IRIDESCENCE) && (sf->mat->ext & PT_MATX_IRIDESCENCE) &&
-             film_at(r, sf, features, &film))
+               aniso_at(r, sf, fr, features, &as, &ac, &an)) {
+        /* With iridescence too: the film over the anisotropic lobe. */
+        if ((features & PT_FEAT_IRIDESCENCE) && (sf->mat->ext & PT_MATX_IRIDESCENCE) &&
+            film_at(r, sf, features, &film))
+            pt_closure_add_base_irid_aniso(cl, bsdf, &film, as, ac, an);
+        else
+            pt_closure_add_base_aniso(cl, bsdf, as, ac, an);
+    } else if ((features & PT_FEAT_IRIDESCENCE) && (sf->mat->ext & PT_MATX_IRIDESCENCE) &&
+               film_at(r, sf, features, &film))
         pt_closure_add_base_irid(cl, bsdf, &film);
     else
         pt_closure_add_base(cl, bsdf);

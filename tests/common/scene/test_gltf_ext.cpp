@@ -953,15 +953,16 @@ void test_combined_materials()
     } cases[] = {
         {"\"KHR_materials_iridescence\":{\"iridescenceFactor\":1},"
          "\"KHR_materials_anisotropy\":{\"anisotropyStrength\":0.5}",
-         "KHR_materials_iridescence beside KHR_materials_anisotropy is ignored"},
+         nullptr},
         {"\"KHR_materials_iridescence\":{\"iridescenceFactor\":1},"
          "\"KHR_materials_diffuse_transmission\":{\"diffuseTransmissionFactor\":0.5}",
          "KHR_materials_iridescence beside KHR_materials_diffuse_transmission is ignored"},
         {"\"KHR_materials_pbrSpecularGlossiness\":{},\"KHR_materials_clearcoat\":{"
          "\"clearcoatFactor\":1}",
          "KHR_materials_clearcoat beside KHR_materials_pbrSpecularGlossiness is ignored"},
-        // These compose: diffuse transmission with anisotropy, and every
-        // layer over them with a specular colour.
+        // These compose: iridescence over anisotropy (above), diffuse
+        // transmission with anisotropy, and every layer over them with a
+        // specular colour.
         {"\"KHR_materials_diffuse_transmission\":{\"diffuseTransmissionFactor\":0.5},"
          "\"KHR_materials_anisotropy\":{\"anisotropyStrength\":0.5},"
          "\"KHR_materials_clearcoat\":{\"clearcoatFactor\":1},"
