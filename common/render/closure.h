@@ -62,9 +62,10 @@ enum {
     PT_LOBE_COAT,
     PT_LOBE_SPECULAR_IRID, /* thinfilm.h: the base's lobes under an iridescent film */
     PT_LOBE_DIFFUSE_IRID,
-    PT_LOBE_SPECULAR_ANISO,      /* aniso.h: the base's GGX lobe, anisotropic */
-    PT_LOBE_DIFFUSE_TRANSMIT,    /* bsdf.h: Lambertian transmission to the far side */
-    PT_LOBE_SPECULAR_ANISO_IRID, /* thinfilm.h: the anisotropic lobe under the film */
+    PT_LOBE_SPECULAR_ANISO,        /* aniso.h: the base's GGX lobe, anisotropic */
+    PT_LOBE_DIFFUSE_TRANSMIT,      /* bsdf.h: Lambertian transmission to the far side */
+    PT_LOBE_SPECULAR_ANISO_IRID,   /* thinfilm.h: the anisotropic lobe under the film */
+    PT_LOBE_DIFFUSE_TRANSMIT_IRID, /* thinfilm.h: the transmitted diffuse under the film */
 };
 
 typedef struct pt_lobe {
@@ -122,6 +123,13 @@ void pt_closure_add_base_dt(pt_closure *c, const pt_bsdf *b, float dt, pt_vec3 t
  * KHR_materials_diffuse_transmission and KHR_materials_anisotropy). */
 void pt_closure_add_base_dt_aniso(pt_closure *c, const pt_bsdf *b, float dt, pt_vec3 through,
                                   float strength, float dc, float ds);
+/* Either under a film too (KHR_materials_iridescence): every lobe of the
+ * base takes the film's Fresnel, the transmitted diffuse as the reflected
+ * one (pt_irid_transmit_eval). aniso 0: the GGX lobe isotropic (strength,
+ * dc, ds unread). */
+void pt_closure_add_base_dt_irid(pt_closure *c, const pt_bsdf *b, float dt, pt_vec3 through,
+                                 const pt_irid *film, int aniso, float strength, float dc,
+                                 float ds);
 /* Glass (dielectric.h): its opaque share as the base, then the interface
  * beside it; in place of pt_closure_add_base. */
 void pt_closure_add_glass(pt_closure *c, const pt_glass *g);

@@ -72,6 +72,11 @@ pt_vec3 pt_irid_specular_eval(const pt_irid_specular_lobe *l, pt_vec3 wo, pt_vec
                               float *share);
 pt_vec3 pt_irid_diffuse_eval(const pt_irid_diffuse_lobe *l, pt_vec3 wo, pt_vec3 wi, float prob,
                              float *share);
+/* pt_irid_diffuse_eval on the far side (pt_diffuse_transmit_eval's
+ * geometry: wi below, the cosine min(wo.z, -wi.z)); sampled by
+ * pt_diffuse_transmit_sample. */
+pt_vec3 pt_irid_transmit_eval(const pt_irid_diffuse_lobe *l, pt_vec3 wo, pt_vec3 wi, float prob,
+                              float *share);
 /* The same for the anisotropic lobe (pt_aniso_eval with the film's
  * Fresnel); sampled by pt_aniso_sample. */
 pt_vec3 pt_irid_aniso_eval(const pt_irid_aniso_lobe *l, pt_vec3 wo, pt_vec3 wi, float prob,
