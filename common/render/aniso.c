@@ -56,26 +56,36 @@ static inline float lambda_root(pt_vec3 w, float ax, float ay)
     return sqrtf(w.z * w.z + ax * ax * w.x * w.x + ay * ay * w.y * w.y);
 }
 
-pt_vec3 pt_aniso_eval(const pt_aniso_lobe *l, pt_vec3 wo, pt_vec3 wi, float prob, float *share)
+float pt_aniso_geom(const pt_aniso_lobe *l, pt_vec3 wo, pt_vec3 wi, float prob, float *share,
+                    float *c)
 {
-    pt_vec3 zero = pt_v3(0.0f, 0.0f, 0.0f);
     *share = 0.0f;
+    *c = 0.0f;
     if (!(wo.z > 0.0f) || !(wi.z > 0.0f))
-        return zero;
+        return 0.0f;
     pt_vec3 o = to_lobe(l, wo), i = to_lobe(l, wi);
     pt_vec3 h = pt_v3_add(o, i);
     float hl = pt_v3_len(h);
     if (!(hl > 0.0f))
-        return zero;
+        return 0.0f;
     h = pt_v3_scale(h, 1.0f / hl);
     float d = pt_aniso_d(h, l->ax, l->ay);
     float so = lambda_root(o, l->ax, l->ay), si = lambda_root(i, l->ax, l->ay);
     float den = i.z * so + o.z * si;
     if (!(den > 0.0f) || !(d > 0.0f))
-        return zero;
+        return 0.0f;
     *share = prob * d / (2.0f * (o.z + so));
-    pt_vec3 F = pt_bsdf_spec_fresnel(l->f0, l->f90, pt_v3_dot(o, h));
-    return pt_v3_scale(F, d * i.z / (2.0f * den));
+    *c = pt_v3_dot(o, h);
+    return d * i.z / (2.0f * den);
+}
+
+pt_vec3 pt_aniso_eval(const pt_aniso_lobe *l, pt_vec3 wo, pt_vec3 wi, float prob, float *share)
+{
+    float c;
+    float g = pt_aniso_geom(l, wo, wi, prob, share, &c);
+    if (g == 0.0f)
+        return pt_v3(0.0f, 0.0f, 0.0f);
+    return pt_v3_scale(pt_bsdf_spec_fresnel(l->f0, l->f90, c), g);
 }
 
 int pt_aniso_sample(const pt_aniso_lobe *l, pt_vec3 wo, const float u[3], pt_vec3 *wi)

@@ -43,6 +43,12 @@ float pt_aniso_d(pt_vec3 m, float ax, float ay);
  * is not above the surface. */
 pt_vec3 pt_aniso_eval(const pt_aniso_lobe *l, pt_vec3 wo, pt_vec3 wi, float prob, float *share);
 
+/* pt_aniso_eval without its Fresnel: the scalar F multiplies (D G2 wi.z /
+ * (4 wo.z), 0 where eval gives 0), with *c the cosine of wo to the half
+ * vector that the Fresnel reads (a thin film's too: thinfilm.h). */
+float pt_aniso_geom(const pt_aniso_lobe *l, pt_vec3 wo, pt_vec3 wi, float prob, float *share,
+                    float *c);
+
 /* A direction from u[1..2]: the reflection of wo about a visible normal;
  * 1 when it lies above the surface, else 0. */
 int pt_aniso_sample(const pt_aniso_lobe *l, pt_vec3 wo, const float u[3], pt_vec3 *wi);

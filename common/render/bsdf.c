@@ -51,8 +51,8 @@ static inline float maxf(float a, float b)
 
 static inline pt_vec3 clamp3(pt_vec3 c, float hi)
 {
-    return pt_v3(fminf(fmaxf(c.x, 0.0f), hi), fminf(fmaxf(c.y, 0.0f), hi),
-                 fminf(fmaxf(c.z, 0.0f), hi));
+    return pt_v3(pt_fminf(pt_fmaxf(c.x, 0.0f), hi), pt_fminf(pt_fmaxf(c.y, 0.0f), hi),
+                 pt_fminf(pt_fmaxf(c.z, 0.0f), hi));
 }
 
 pt_bsdf pt_bsdf_setup(pt_vec3 base_color, float metallic, float roughness, float specular,
@@ -161,5 +161,5 @@ float pt_bsdf_spec_prob(const pt_bsdf *b, float cos_o)
                (1.0f - pt_bsdf_diffuse_fresnel(b->dielectric_f0, b->dielectric_f90, cos_o));
     float es = pt_luminance(pt_bsdf_spec_fresnel(b->f0, b->spec_weight, cos_o));
     float p = es + ed > 0.0f ? es / (es + ed) : 0.5f;
-    return fminf(fmaxf(p, MIN_LOBE_PROB), 1.0f - MIN_LOBE_PROB);
+    return pt_fminf(pt_fmaxf(p, MIN_LOBE_PROB), 1.0f - MIN_LOBE_PROB);
 }

@@ -27,6 +27,19 @@
 #include "common/math/vec.h"
 #include "common/render/sampler.h"
 
+/* fminf and fmaxf by comparisons, with their NaN rule (a NaN argument is
+ * ignored): without -ffinite-math-only GCC calls the library for them, on
+ * every lobe's eval. Only the sign of a zero result may differ, which no
+ * caller can see (none compares a +0 with a -0 argument). */
+static inline float pt_fminf(float a, float b)
+{
+    return (a < b || b != b) ? a : b;
+}
+static inline float pt_fmaxf(float a, float b)
+{
+    return (a > b || b != b) ? a : b;
+}
+
 typedef struct pt_bsdf {
     pt_vec3 diffuse;   /* Lambert albedo (already x (1 - metallic)), 0 when absent */
     pt_vec3 f0;        /* specular reflectance at normal incidence */
@@ -156,7 +169,7 @@ static inline pt_vec3 pt_diffuse_eval(const pt_diffuse_lobe *l, pt_vec3 wo, pt_v
         *share = 0.0f;
         return pt_v3(0.0f, 0.0f, 0.0f);
     }
-    float fd = pt_bsdf_diffuse_fresnel(l->dielectric_f0, l->dielectric_f90, fminf(wo.z, wi.z));
+    float fd = pt_bsdf_diffuse_fresnel(l->dielectric_f0, l->dielectric_f90, pt_fminf(wo.z, wi.z));
     *share = prob * wi.z * PT_INV_PI;
     return pt_v3_scale(l->albedo, (1.0f - fd) * wi.z * PT_INV_PI);
 }
@@ -209,7 +222,7 @@ static inline pt_vec3 pt_diffuse_transmit_eval(const pt_diffuse_lobe *l, pt_vec3
         *share = 0.0f;
         return pt_v3(0.0f, 0.0f, 0.0f);
     }
-    float fd = pt_bsdf_diffuse_fresnel(l->dielectric_f0, l->dielectric_f90, fminf(wo.z, -wi.z));
+    float fd = pt_bsdf_diffuse_fresnel(l->dielectric_f0, l->dielectric_f90, pt_fminf(wo.z, -wi.z));
     *share = prob * -wi.z * PT_INV_PI;
     return pt_v3_scale(l->albedo, (1.0f - fd) * -wi.z * PT_INV_PI);
 }

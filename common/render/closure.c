@@ -65,13 +65,19 @@ void pt_closure_add_base(pt_closure *c, const pt_bsdf *b)
         add_lobe(c, g, PT_LOBE_DIFFUSE, 1.0f - ps)->p.diffuse = pt_bsdf_diffuse(b);
 }
 
-void pt_closure_add_base_irid(pt_closure *c, const pt_bsdf *b, const pt_irid *film)
+/* The base under a film, its GGX lobe anisotropic when aniso. */
+static void add_base_irid(pt_closure *c, const pt_bsdf *b, const pt_irid *film, int aniso,
+                          float strength, float dc, float ds)
 {
     if (c->dead)
         return;
     float ps = pt_bsdf_spec_prob(b, c->wo.z);
     pt_closure_group *g = open_group(c, 0.0f);
-    if (ps > 0.0f) {
+    if (ps > 0.0f && aniso) {
+        pt_irid_aniso_lobe *l = &add_lobe(c, g, PT_LOBE_SPECULAR_ANISO_IRID, ps)->p.irid_aniso;
+        l->a = pt_aniso_setup(b, strength, dc, ds);
+        l->film = *film;
+    } else if (ps > 0.0f) {
         pt_irid_specular_lobe *l = &add_lobe(c, g, PT_LOBE_SPECULAR_IRID, ps)->p.irid_specular;
         l->s = pt_bsdf_specular(b);
         l->film = *film;
@@ -82,6 +88,17 @@ void pt_closure_add_base_irid(pt_closure *c, const pt_bsdf *b, const pt_irid *fi
         l->f0 = b->f0;
         l->film = *film;
     }
+}
+
+void pt_closure_add_base_irid(pt_closure *c, const pt_bsdf *b, const pt_irid *film)
+{
+    add_base_irid(c, b, film, 0, 0.0f, 1.0f, 0.0f);
+}
+
+void pt_closure_add_base_irid_aniso(pt_closure *c, const pt_bsdf *b, const pt_irid *film,
+                                    float strength, float dc, float ds)
+{
+    add_base_irid(c, b, film, 1, strength, dc, ds);
 }
 
 void pt_closure_add_base_aniso(pt_closure *c, const pt_bsdf *b, float strength, float dc, float ds)
@@ -97,9 +114,10 @@ void pt_closure_add_base_aniso(pt_closure *c, const pt_bsdf *b, float strength, 
 }
 
 /* pt_closure_add_base_dt with the specular lobe anisotropic when aniso
- * (strength, dc, ds as pt_closure_add_base_aniso's). */
+ * (strength, dc, ds as pt_closure_add_base_aniso's), every lobe under
+ * the film when film is not NULL. */
 static void add_base_dt(pt_closure *c, const pt_bsdf *b, float dt, pt_vec3 through, int aniso,
-                        float strength, float dc, float ds)
+                        float strength, float dc, float ds, const pt_irid *film)
 {
     if (c->dead)
         return;
@@ -112,29 +130,61 @@ static void add_base_dt(pt_closure *c, const pt_bsdf *b, float dt, pt_vec3 throu
     float lr = pt_luminance(refl), lt = pt_luminance(through);
     float pr = lr + lt > 0.0f ? lr / (lr + lt) : 0.5f;
     pt_closure_group *g = open_group(c, 0.0f);
-    if (ps > 0.0f && aniso)
+    if (ps > 0.0f && film && aniso) {
+        pt_irid_aniso_lobe *l = &add_lobe(c, g, PT_LOBE_SPECULAR_ANISO_IRID, ps)->p.irid_aniso;
+        l->a = pt_aniso_setup(b, strength, dc, ds);
+        l->film = *film;
+    } else if (ps > 0.0f && film) {
+        pt_irid_specular_lobe *l = &add_lobe(c, g, PT_LOBE_SPECULAR_IRID, ps)->p.irid_specular;
+        l->s = pt_bsdf_specular(b);
+        l->film = *film;
+    } else if (ps > 0.0f && aniso) {
         add_lobe(c, g, PT_LOBE_SPECULAR_ANISO, ps)->p.aniso = pt_aniso_setup(b, strength, dc, ds);
-    else if (ps > 0.0f)
+    } else if (ps > 0.0f) {
         add_lobe(c, g, PT_LOBE_SPECULAR, ps)->p.specular = pt_bsdf_specular(b);
+    }
     if (ps < 1.0f && pr > 0.0f) {
         pt_diffuse_lobe d = {refl, b->dielectric_f0, b->dielectric_f90};
-        add_lobe(c, g, PT_LOBE_DIFFUSE, (1.0f - ps) * pr)->p.diffuse = d;
+        float p = (1.0f - ps) * pr;
+        if (film) {
+            pt_irid_diffuse_lobe *l = &add_lobe(c, g, PT_LOBE_DIFFUSE_IRID, p)->p.irid_diffuse;
+            l->d = d;
+            l->f0 = b->f0;
+            l->film = *film;
+        } else {
+            add_lobe(c, g, PT_LOBE_DIFFUSE, p)->p.diffuse = d;
+        }
     }
     if (ps < 1.0f && pr < 1.0f) {
         pt_diffuse_lobe d = {through, b->dielectric_f0, b->dielectric_f90};
-        add_lobe(c, g, PT_LOBE_DIFFUSE_TRANSMIT, (1.0f - ps) * (1.0f - pr))->p.diffuse = d;
+        float p = (1.0f - ps) * (1.0f - pr);
+        if (film) {
+            pt_irid_diffuse_lobe *l =
+                &add_lobe(c, g, PT_LOBE_DIFFUSE_TRANSMIT_IRID, p)->p.irid_diffuse;
+            l->d = d;
+            l->f0 = b->f0;
+            l->film = *film;
+        } else {
+            add_lobe(c, g, PT_LOBE_DIFFUSE_TRANSMIT, p)->p.diffuse = d;
+        }
     }
 }
 
 void pt_closure_add_base_dt(pt_closure *c, const pt_bsdf *b, float dt, pt_vec3 through)
 {
-    add_base_dt(c, b, dt, through, 0, 0.0f, 1.0f, 0.0f);
+    add_base_dt(c, b, dt, through, 0, 0.0f, 1.0f, 0.0f, NULL);
 }
 
 void pt_closure_add_base_dt_aniso(pt_closure *c, const pt_bsdf *b, float dt, pt_vec3 through,
                                   float strength, float dc, float ds)
 {
-    add_base_dt(c, b, dt, through, 1, strength, dc, ds);
+    add_base_dt(c, b, dt, through, 1, strength, dc, ds, NULL);
+}
+
+void pt_closure_add_base_dt_irid(pt_closure *c, const pt_bsdf *b, float dt, pt_vec3 through,
+                                 const pt_irid *film, int aniso, float strength, float dc, float ds)
+{
+    add_base_dt(c, b, dt, through, aniso, strength, dc, ds, film);
 }
 
 void pt_closure_add_glass(pt_closure *c, const pt_glass *gl)
@@ -195,6 +245,10 @@ lobe_eval(const pt_lobe *l, pt_vec3 wo, pt_vec3 wi, float *share, float *below)
         return pt_aniso_eval(&l->p.aniso, wo, wi, l->prob, share);
     case PT_LOBE_DIFFUSE_TRANSMIT:
         return pt_diffuse_transmit_eval(&l->p.diffuse, wo, wi, l->prob, share);
+    case PT_LOBE_SPECULAR_ANISO_IRID:
+        return pt_irid_aniso_eval(&l->p.irid_aniso, wo, wi, l->prob, share);
+    case PT_LOBE_DIFFUSE_TRANSMIT_IRID:
+        return pt_irid_transmit_eval(&l->p.irid_diffuse, wo, wi, l->prob, share);
     }
     *share = 0.0f;
     return pt_v3(0.0f, 0.0f, 0.0f);
@@ -288,7 +342,7 @@ pt_vec3 pt_closure_sample(const pt_closure *c, const float u[3], pt_vec3 *wi, fl
         }
         for (uint32_t j = 0; j < i; j++)
             u0 -= c->lobe[gr->first + j].prob;
-        u0 = fminf(u0 / (pick ? pick->prob : gr->below), below1);
+        u0 = pt_fminf(u0 / (pick ? pick->prob : gr->below), below1);
         if (!(u0 >= 0.0f))
             u0 = 0.0f;
         if (pick)
@@ -311,7 +365,11 @@ pt_vec3 pt_closure_sample(const pt_closure *c, const float u[3], pt_vec3 *wi, fl
     case PT_LOBE_SPECULAR_ANISO:
         ok = pt_aniso_sample(&pick->p.aniso, c->wo, ul, wi);
         break;
+    case PT_LOBE_SPECULAR_ANISO_IRID:
+        ok = pt_aniso_sample(&pick->p.irid_aniso.a, c->wo, ul, wi);
+        break;
     case PT_LOBE_DIFFUSE_TRANSMIT:
+    case PT_LOBE_DIFFUSE_TRANSMIT_IRID:
         ok = pt_diffuse_transmit_sample(ul, wi);
         break;
     case PT_LOBE_SPECULAR:
@@ -386,6 +444,7 @@ int pt_closure_albedo(const pt_closure *c, pt_vec3 *albedo)
                 col = l->p.diffuse.albedo;
                 break;
             case PT_LOBE_DIFFUSE_IRID:
+            case PT_LOBE_DIFFUSE_TRANSMIT_IRID:
                 col = l->p.irid_diffuse.d.albedo;
                 break;
             case PT_LOBE_SPECULAR:
@@ -399,6 +458,10 @@ int pt_closure_albedo(const pt_closure *c, pt_vec3 *albedo)
             case PT_LOBE_SPECULAR_ANISO:
                 col = l->p.aniso.f0;
                 is_rough = l->p.aniso.ax * l->p.aniso.ay > ra * ra;
+                break;
+            case PT_LOBE_SPECULAR_ANISO_IRID:
+                col = l->p.irid_aniso.a.f0;
+                is_rough = l->p.irid_aniso.a.ax * l->p.irid_aniso.a.ay > ra * ra;
                 break;
             case PT_LOBE_DIELECTRIC:
                 col = pt_v3_scale(l->p.dielectric.tint, l->p.dielectric.weight);

@@ -62,8 +62,10 @@ enum {
     PT_LOBE_COAT,
     PT_LOBE_SPECULAR_IRID, /* thinfilm.h: the base's lobes under an iridescent film */
     PT_LOBE_DIFFUSE_IRID,
-    PT_LOBE_SPECULAR_ANISO,   /* aniso.h: the base's GGX lobe, anisotropic */
-    PT_LOBE_DIFFUSE_TRANSMIT, /* bsdf.h: Lambertian transmission to the far side */
+    PT_LOBE_SPECULAR_ANISO,        /* aniso.h: the base's GGX lobe, anisotropic */
+    PT_LOBE_DIFFUSE_TRANSMIT,      /* bsdf.h: Lambertian transmission to the far side */
+    PT_LOBE_SPECULAR_ANISO_IRID,   /* thinfilm.h: the anisotropic lobe under the film */
+    PT_LOBE_DIFFUSE_TRANSMIT_IRID, /* thinfilm.h: the transmitted diffuse under the film */
 };
 
 typedef struct pt_lobe {
@@ -79,6 +81,7 @@ typedef struct pt_lobe {
         pt_irid_specular_lobe irid_specular;
         pt_irid_diffuse_lobe irid_diffuse;
         pt_aniso_lobe aniso;
+        pt_irid_aniso_lobe irid_aniso;
     } p;
 } pt_lobe;
 
@@ -107,6 +110,10 @@ void pt_closure_add_base_irid(pt_closure *c, const pt_bsdf *b, const pt_irid *fi
 /* The base with its GGX lobe anisotropic (aniso.h, KHR_materials_anisotropy):
  * strength in [0, 1], the direction (c, s) in the shading frame. */
 void pt_closure_add_base_aniso(pt_closure *c, const pt_bsdf *b, float strength, float dc, float ds);
+/* Both: the film over the anisotropic GGX lobe and over the diffuse one
+ * (KHR_materials_iridescence with KHR_materials_anisotropy). */
+void pt_closure_add_base_irid_aniso(pt_closure *c, const pt_bsdf *b, const pt_irid *film,
+                                    float strength, float dc, float ds);
 /* The base with a share of its diffuse transmitted (bsdf.h,
  * KHR_materials_diffuse_transmission): reflected albedo b's diffuse x
  * (1 - dt), transmitted albedo `through` (dt x colour x (1 - metallic)). */
@@ -116,6 +123,13 @@ void pt_closure_add_base_dt(pt_closure *c, const pt_bsdf *b, float dt, pt_vec3 t
  * KHR_materials_diffuse_transmission and KHR_materials_anisotropy). */
 void pt_closure_add_base_dt_aniso(pt_closure *c, const pt_bsdf *b, float dt, pt_vec3 through,
                                   float strength, float dc, float ds);
+/* Either under a film too (KHR_materials_iridescence): every lobe of the
+ * base takes the film's Fresnel, the transmitted diffuse as the reflected
+ * one (pt_irid_transmit_eval). aniso 0: the GGX lobe isotropic (strength,
+ * dc, ds unread). */
+void pt_closure_add_base_dt_irid(pt_closure *c, const pt_bsdf *b, float dt, pt_vec3 through,
+                                 const pt_irid *film, int aniso, float strength, float dc,
+                                 float ds);
 /* Glass (dielectric.h): its opaque share as the base, then the interface
  * beside it; in place of pt_closure_add_base. */
 void pt_closure_add_glass(pt_closure *c, const pt_glass *g);

@@ -36,7 +36,7 @@ float pt_sheen_charlie(float alpha, pt_vec3 wo, pt_vec3 wi)
     if (!(hl > 0.0f))
         return 0.0f;
     float hz = h.z / hl;
-    float sin2 = fmaxf(1.0f - hz * hz, 0.0f);
+    float sin2 = pt_fmaxf(1.0f - hz * hz, 0.0f);
     float inv_a = 1.0f / alpha;
     /* D_charlie = (2 + 1/a) sin(theta_h)^(1/a) / (2 pi) */
     float d = (2.0f + inv_a) * powf(sin2, 0.5f * inv_a) * (0.5f * PT_INV_PI);
@@ -65,7 +65,7 @@ int pt_layers_setup(pt_layers *l, const pt_bsdf *base, float clearcoat, float co
     l->base = *base;
     l->clearcoat = clamp01(clearcoat == clearcoat ? clearcoat : 0.0f);
     float cr = clamp01(coat_roughness == coat_roughness ? coat_roughness : 0.0f);
-    l->coat_alpha = fmaxf(cr * cr, PT_BSDF_MIN_ALPHA);
+    l->coat_alpha = pt_fmaxf(cr * cr, PT_BSDF_MIN_ALPHA);
     l->sheen = pt_v3(clamp01(sheen_color[0] == sheen_color[0] ? sheen_color[0] : 0.0f),
                      clamp01(sheen_color[1] == sheen_color[1] ? sheen_color[1] : 0.0f),
                      clamp01(sheen_color[2] == sheen_color[2] ? sheen_color[2] : 0.0f));
@@ -128,7 +128,10 @@ int pt_layers_lobes(const pt_layers *l, pt_vec3 wo, pt_coat_lobe *coat, pt_sheen
     if (!(mu_o > 0.0f) || !(mu_c > 0.0f))
         return 0;
     float fc = coat_fresnel(l, mu_c);
-    float eo = l->sheen_max > 0.0f ? fminf(pt_sheen_albedo(mu_o, l->sheen_rough), 1.0f) : 0.0f;
+    /* E(mu_o) once: the lobes' weights read it clamped, the sheen's
+     * normalisation raw. */
+    float eo_raw = l->sheen_max > 0.0f ? pt_sheen_albedo(mu_o, l->sheen_rough) : 0.0f;
+    float eo = l->sheen_max > 0.0f ? pt_fminf(eo_raw, 1.0f) : 0.0f;
     float wc = fc, ws = (1.0f - fc) * l->sheen_max * eo;
     float wb = (1.0f - fc) * (1.0f - l->sheen_max * eo);
     float sum = wc + ws + wb;
@@ -147,7 +150,6 @@ int pt_layers_lobes(const pt_layers *l, pt_vec3 wo, pt_coat_lobe *coat, pt_sheen
         /* With Ashikhmin's visibility a sharp sheen seen at grazing
          * reflects more than it receives (E > 1): the lobe is scaled down to
          * albedo 1 there, and the base's scaling reads E clamped to 1. */
-        float eo_raw = pt_sheen_albedo(mu_o, l->sheen_rough);
         sheen->norm = eo_raw > 1.0f ? 1.0f / eo_raw : 1.0f;
     }
     return 1;
@@ -179,8 +181,8 @@ pt_vec3 pt_sheen_eval(const pt_sheen_lobe *l, pt_vec3 wo, pt_vec3 wi, float prob
         *below = l->keep_o;
         return pt_v3(0.0f, 0.0f, 0.0f);
     }
-    float ei = fminf(pt_sheen_albedo(wi.z, l->rough), 1.0f);
-    *below = fminf(l->keep_o, 1.0f - l->color_max * ei);
+    float ei = pt_fminf(pt_sheen_albedo(wi.z, l->rough), 1.0f);
+    *below = pt_fminf(l->keep_o, 1.0f - l->color_max * ei);
     *share = prob * (0.5f * PT_INV_PI);
     return pt_v3_scale(l->color, pt_sheen_charlie(l->alpha, wo, wi) * l->norm);
 }
@@ -200,7 +202,7 @@ int pt_coat_sample(const pt_coat_lobe *l, pt_vec3 wo, const float u[3], pt_vec3 
 int pt_sheen_sample(const float u[3], pt_vec3 *wi)
 {
     /* Uniform over the hemisphere: z = cos theta is uniform. */
-    float z = u[1], r = sqrtf(fmaxf(0.0f, 1.0f - z * z)), ph = 2.0f * PT_PI * u[2];
+    float z = u[1], r = sqrtf(pt_fmaxf(0.0f, 1.0f - z * z)), ph = 2.0f * PT_PI * u[2];
     *wi = pt_v3(r * cosf(ph), r * sinf(ph), z);
     return wi->z > 0.0f;
 }

@@ -1286,32 +1286,40 @@ static int aniso_at(const pt_renderer *r, const surface *sf, const pt_frame *fr,
 #define BASE_MATX (PT_MATX_DIFFUSE_TRANSMISSION | PT_MATX_ANISOTROPY | PT_MATX_IRIDESCENCE)
 
 /* The base's lobes of a material with one of BASE_MATX, into cl: diffuse
- * transmission (its specular lobe anisotropic when the material has
- * anisotropy too), else anisotropy, else iridescence (there is no thin film
- * over an anisotropic or a transmitting lobe: the loader warns that the film
- * is dropped beside them); out of line, so that the core path stays as
- * small as it was. */
+ * transmission (its specular lobe anisotropic, and every lobe under the
+ * film, when the material has those too), else anisotropy (under the film
+ * when the material is iridescent too), else iridescence: every
+ * combination composes. Out of line, so that the core path stays as small
+ * as it was. */
 static __attribute__((noinline)) void add_base_ext(const pt_renderer *r, const surface *sf,
                                                    const pt_frame *fr, const pt_bsdf *bsdf,
                                                    pt_closure *cl, const uint32_t features)
 {
     pt_irid film;
-    float as, ac, an, dt;
+    float as = 0.0f, ac = 1.0f, an = 0.0f, dt;
     pt_vec3 dtc;
     if ((features & PT_FEAT_DIFFUSE_TRANSMISSION) &&
         (sf->mat->ext & PT_MATX_DIFFUSE_TRANSMISSION) && dt_at(r, sf, features, &dt, &dtc)) {
-        /* With anisotropy too: both compose (the film does not: the
-         * loader warns). */
-        if ((features & PT_FEAT_ANISOTROPY) && sf->aniso &&
-            aniso_at(r, sf, fr, features, &as, &ac, &an))
+        /* With anisotropy, iridescence or both too: they compose. */
+        int aniso = (features & PT_FEAT_ANISOTROPY) && sf->aniso &&
+                    aniso_at(r, sf, fr, features, &as, &ac, &an);
+        if ((features & PT_FEAT_IRIDESCENCE) && (sf->mat->ext & PT_MATX_IRIDESCENCE) &&
+            film_at(r, sf, features, &film))
+            pt_closure_add_base_dt_irid(cl, bsdf, dt, dtc, &film, aniso, as, ac, an);
+        else if (aniso)
             pt_closure_add_base_dt_aniso(cl, bsdf, dt, dtc, as, ac, an);
         else
             pt_closure_add_base_dt(cl, bsdf, dt, dtc);
     } else if ((features & PT_FEAT_ANISOTROPY) && sf->aniso &&
-               aniso_at(r, sf, fr, features, &as, &ac, &an))
-        pt_closure_add_base_aniso(cl, bsdf, as, ac, an);
-    else if ((features & PT_FEAT_IRIDESCENCE) && (sf->mat->ext & PT_MATX_IRIDESCENCE) &&
-             film_at(r, sf, features, &film))
+               aniso_at(r, sf, fr, features, &as, &ac, &an)) {
+        /* With iridescence too: the film over the anisotropic lobe. */
+        if ((features & PT_FEAT_IRIDESCENCE) && (sf->mat->ext & PT_MATX_IRIDESCENCE) &&
+            film_at(r, sf, features, &film))
+            pt_closure_add_base_irid_aniso(cl, bsdf, &film, as, ac, an);
+        else
+            pt_closure_add_base_aniso(cl, bsdf, as, ac, an);
+    } else if ((features & PT_FEAT_IRIDESCENCE) && (sf->mat->ext & PT_MATX_IRIDESCENCE) &&
+               film_at(r, sf, features, &film))
         pt_closure_add_base_irid(cl, bsdf, &film);
     else
         pt_closure_add_base(cl, bsdf);
@@ -1371,7 +1379,8 @@ static inline int closure_guidable(const pt_closure *cl)
     int any = 0;
     for (uint32_t i = 0; i < cl->n_lobes; i++) {
         const pt_lobe *l = &cl->lobe[i];
-        if (l->kind == PT_LOBE_DIELECTRIC || l->kind == PT_LOBE_DIFFUSE_TRANSMIT)
+        if (l->kind == PT_LOBE_DIELECTRIC || l->kind == PT_LOBE_DIFFUSE_TRANSMIT ||
+            l->kind == PT_LOBE_DIFFUSE_TRANSMIT_IRID)
             return 0;
         any |= l->kind == PT_LOBE_DIFFUSE ||
                (l->kind == PT_LOBE_SPECULAR && l->p.specular.alpha >= GUIDE_MIN_ALPHA);

@@ -138,6 +138,33 @@ pt_vec3 pt_irid_specular_eval(const pt_irid_specular_lobe *l, pt_vec3 wo, pt_vec
     return pt_v3_scale(pt_v3_lerp(F, Ff, l->film.strength), g);
 }
 
+pt_vec3 pt_irid_transmit_eval(const pt_irid_diffuse_lobe *l, pt_vec3 wo, pt_vec3 wi, float prob,
+                              float *share)
+{
+    if (!(wo.z > 0.0f) || !(wi.z < 0.0f)) {
+        *share = 0.0f;
+        return pt_v3(0.0f, 0.0f, 0.0f);
+    }
+    float c = pt_fminf(wo.z, -wi.z);
+    float fd = pt_bsdf_diffuse_fresnel(l->d.dielectric_f0, l->d.dielectric_f90, c);
+    float ff = pt_v3_max_comp(pt_thinfilm_fresnel(1.0f, l->film.eta, c, l->film.d_nm, l->f0));
+    float w = 1.0f - (fd + (ff - fd) * l->film.strength);
+    *share = prob * -wi.z * PT_INV_PI;
+    return pt_v3_scale(l->d.albedo, (w > 0.0f ? w : 0.0f) * -wi.z * PT_INV_PI);
+}
+
+pt_vec3 pt_irid_aniso_eval(const pt_irid_aniso_lobe *l, pt_vec3 wo, pt_vec3 wi, float prob,
+                           float *share)
+{
+    float c;
+    float g = pt_aniso_geom(&l->a, wo, wi, prob, share, &c);
+    if (g == 0.0f)
+        return pt_v3(0.0f, 0.0f, 0.0f);
+    pt_vec3 F = pt_bsdf_spec_fresnel(l->a.f0, l->a.f90, c);
+    pt_vec3 Ff = pt_thinfilm_fresnel(1.0f, l->film.eta, c, l->film.d_nm, l->a.f0);
+    return pt_v3_scale(pt_v3_lerp(F, Ff, l->film.strength), g);
+}
+
 pt_vec3 pt_irid_diffuse_eval(const pt_irid_diffuse_lobe *l, pt_vec3 wo, pt_vec3 wi, float prob,
                              float *share)
 {

@@ -28,6 +28,7 @@
 #define PT_COMMON_RENDER_THINFILM_H
 
 #include "common/math/vec.h"
+#include "common/render/aniso.h"
 #include "common/render/bsdf.h"
 
 /* The film's reflectance (linear Rec.709, each >= 0) at cos theta_1 =
@@ -52,6 +53,13 @@ typedef struct pt_irid_specular_lobe {
     pt_irid film;
 } pt_irid_specular_lobe;
 
+/* The anisotropic GGX lobe (aniso.h, KHR_materials_anisotropy) under the
+ * film: its D and G2, the film's Fresnel as the isotropic lobe's. */
+typedef struct pt_irid_aniso_lobe {
+    pt_aniso_lobe a;
+    pt_irid film;
+} pt_irid_aniso_lobe;
+
 typedef struct pt_irid_diffuse_lobe {
     pt_diffuse_lobe d;
     pt_vec3 f0; /* the base's F0, under the film */
@@ -64,5 +72,14 @@ pt_vec3 pt_irid_specular_eval(const pt_irid_specular_lobe *l, pt_vec3 wo, pt_vec
                               float *share);
 pt_vec3 pt_irid_diffuse_eval(const pt_irid_diffuse_lobe *l, pt_vec3 wo, pt_vec3 wi, float prob,
                              float *share);
+/* pt_irid_diffuse_eval on the far side (pt_diffuse_transmit_eval's
+ * geometry: wi below, the cosine min(wo.z, -wi.z)); sampled by
+ * pt_diffuse_transmit_sample. */
+pt_vec3 pt_irid_transmit_eval(const pt_irid_diffuse_lobe *l, pt_vec3 wo, pt_vec3 wi, float prob,
+                              float *share);
+/* The same for the anisotropic lobe (pt_aniso_eval with the film's
+ * Fresnel); sampled by pt_aniso_sample. */
+pt_vec3 pt_irid_aniso_eval(const pt_irid_aniso_lobe *l, pt_vec3 wo, pt_vec3 wi, float prob,
+                           float *share);
 
 #endif

@@ -1380,25 +1380,6 @@ void add_diffuse_transmission(importer &im, int mi, const tinygltf::Material &g,
                                      "material is ignored (its glass is kept)");
 }
 
-// The combinations of base extensions that the closure builder cannot
-// compose (render.c, add_base_ext), each warned once by name: a thin film
-// (KHR_materials_iridescence) has no lobe over an anisotropic GGX lobe or
-// beside a diffuse transmission, so the film is dropped there. Diffuse
-// transmission with anisotropy composes; clearcoat and sheen go over
-// every base, glass included; specular is the base's own.
-void warn_uncomposed(importer &im, int mi, const pt_material &pm)
-{
-    if (pm.transmission > 0.0f || !(pm.iridescence > 0.0f))
-        return; // over glass the film is kept; the rest is ignored (warned)
-    const char *other = pm.anisotropy > 0.0f             ? "KHR_materials_anisotropy"
-                        : pm.diffuse_transmission > 0.0f ? "KHR_materials_diffuse_transmission"
-                                                         : nullptr;
-    if (other)
-        im.warn_once(std::string("irid-with:") + other,
-                     "material " + std::to_string(mi) + ": KHR_materials_iridescence beside " +
-                         other + " is ignored (no thin film over that lobe; the rest is kept)");
-}
-
 void read_materials(importer &im)
 {
     const tinygltf::Model &m = im.model;
@@ -1453,7 +1434,6 @@ void read_materials(importer &im)
             auto ds = g.extensions.find("KHR_materials_dispersion");
             if (ds != g.extensions.end())
                 pm.dispersion = float(ext_number(ds->second, "dispersion", 0.0));
-            warn_uncomposed(im, mi, pm);
         } else if (pm.spec_gloss) {
             // The extension replaces metallic-roughness and the extensions
             // built on it.

@@ -1709,7 +1709,10 @@ pt_status pt_scene_builder_finish(pt_scene_builder *b, const pt_scene_opts *opts
     /* Flat triangles and vertices first, then the prototypes'. */
     const uint32_t nvf = b->nproto ? b->protos[0].first_vertex : b->nv;
     const uint32_t ntf = b->nproto ? b->protos[0].first_tri : b->nt;
-    if (ntf == 0 && b->ninst == 0) {
+    uint32_t placed = 0; /* instances of a prototype with triangles */
+    for (uint32_t i = 0; i < b->ninst; i++)
+        placed += b->protos[b->inst_proto[i]].num_tris > 0;
+    if (ntf == 0 && placed == 0) {
         st = pt_error_set(err, PT_ERR_FORMAT, "no triangles");
         goto fail;
     }

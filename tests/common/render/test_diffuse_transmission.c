@@ -22,8 +22,10 @@
  * - A builder material with diffuseTransmissionFactor 2 is refused.
  * - Every base extension and layer on one material: a dielectric base with
  *   a specular colour, diffuse transmission 0.5, anisotropy 0.7 (its GGX
- *   lobe anisotropic beside the transmitted one), clearcoat 0.8 and sheen
- *   over it. The closure has all five lobes; its white furnace over both
+ *   lobe anisotropic beside the transmitted one), an iridescent film of
+ *   350 nm over all three (and, a second material, without the film),
+ *   clearcoat 0.8 and sheen over it. The closure has exactly those five
+ *   lobes; its white furnace over both
  *   hemispheres is at most 1 within 5 standard errors at every incidence
  *   (layers only take energy from what is under them), each sampled weight
  *   is eval / pdf, and its sampling passes the chi-square test against its
@@ -61,7 +63,7 @@
 #include "tests/check.h"
 
 #define PI_D 3.14159265358979323846
-#define N_CHI2_TESTS 2
+#define N_CHI2_TESTS 3
 #include "tests/common/render/dir_chi2.h"
 
 static const float RHO = 0.7f, T = 0.6f, L = 2.0f;
@@ -214,14 +216,19 @@ static void refused(void)
     pt_scene_builder_free(b);
 }
 
-/* The combined closure at wo (see the top). */
-static pt_closure combined_closure(pt_vec3 wo)
+/* The combined closure at wo (see the top); film: with iridescence. */
+static pt_closure combined_closure(pt_vec3 wo, int film)
 {
     pt_bsdf b = pt_bsdf_setup(pt_v3(0.9f, 0.85f, 0.8f), 0.0f, 0.45f, 1.0f, pt_v3(1.0f, 0.8f, 0.6f));
     pt_closure c;
     pt_closure_init(&c, wo);
-    pt_closure_add_base_dt_aniso(&c, &b, 0.5f, pt_v3(0.45f, 0.4f, 0.35f), 0.7f, cosf(0.5f),
-                                 sinf(0.5f));
+    const pt_irid irid = {1.0f, 1.6f, 350.0f};
+    if (film)
+        pt_closure_add_base_dt_irid(&c, &b, 0.5f, pt_v3(0.45f, 0.4f, 0.35f), &irid, 1, 0.7f,
+                                    cosf(0.5f), sinf(0.5f));
+    else
+        pt_closure_add_base_dt_aniso(&c, &b, 0.5f, pt_v3(0.45f, 0.4f, 0.35f), 0.7f, cosf(0.5f),
+                                     sinf(0.5f));
     pt_layers lay;
     const float sheen[3] = {0.6f, 0.5f, 0.4f};
     CHECK(pt_layers_setup(&lay, &b, 0.8f, 0.2f, sheen, 0.5f));
@@ -229,19 +236,22 @@ static pt_closure combined_closure(pt_vec3 wo)
     return c;
 }
 
-static void combined(void)
+static void combined_one(int film)
 {
-    pt_closure c0 = combined_closure(dir_at(30.0f, 0.3f));
+    pt_closure c0 = combined_closure(dir_at(30.0f, 0.3f), film);
     uint32_t kinds = 0;
     for (uint32_t i = 0; i < c0.n_lobes; i++)
         kinds |= 1u << c0.lobe[i].kind;
-    const uint32_t want = 1u << PT_LOBE_SPECULAR_ANISO | 1u << PT_LOBE_DIFFUSE |
-                          1u << PT_LOBE_DIFFUSE_TRANSMIT | 1u << PT_LOBE_COAT | 1u << PT_LOBE_SHEEN;
-    CHECKF((kinds & want) == want, "lobes %#x, want %#x", kinds, want);
-    pcg32 rng = pcg32_make(29, 3);
+    const uint32_t want =
+        film ? 1u << PT_LOBE_SPECULAR_ANISO_IRID | 1u << PT_LOBE_DIFFUSE_IRID |
+                   1u << PT_LOBE_DIFFUSE_TRANSMIT_IRID | 1u << PT_LOBE_COAT | 1u << PT_LOBE_SHEEN
+             : 1u << PT_LOBE_SPECULAR_ANISO | 1u << PT_LOBE_DIFFUSE |
+                   1u << PT_LOBE_DIFFUSE_TRANSMIT | 1u << PT_LOBE_COAT | 1u << PT_LOBE_SHEEN;
+    CHECKF(kinds == want, "film %d: lobes %#x, want %#x", film, kinds, want);
+    pcg32 rng = pcg32_make(29, 3 + (uint64_t)film);
     const int n = 40000;
     for (int deg = 0; deg <= 85; deg += 17) {
-        pt_closure c = combined_closure(dir_at((float)deg, 0.7f));
+        pt_closure c = combined_closure(dir_at((float)deg, 0.7f), film);
         double s = 0.0, sq = 0.0;
         int bad = 0, inconsistent = 0, below = 0;
         for (int i = 0; i < n; i++) {
@@ -267,7 +277,15 @@ static void combined(void)
         CHECKF(m <= 1.0 + 5.0 * se, "combined at %d deg: albedo %g (se %g)", deg, m, se);
     }
     binning bn = {pt_frame_from_normal(pt_v3(0, 0, 1)), 1.0, closure_pdf_fn, &c0};
-    chi2_run("every base extension and layer, 30 deg", &bn, closure_sample_fn, &c0, 300000, 51);
+    chi2_run(film ? "every base extension and layer, 30 deg"
+                  : "every base extension but the film, and the layers, 30 deg",
+             &bn, closure_sample_fn, &c0, 300000, 51);
+}
+
+static void combined(void)
+{
+    combined_one(0);
+    combined_one(1);
 }
 
 /* The sheet of `slab` with a 1 x 1 normal map of bytes px (UVs and
