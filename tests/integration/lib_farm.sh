@@ -16,6 +16,8 @@
 #   workers N               N ptworker of one thread each (pids in wrk_pids)
 #   stop_workers            stops them
 #   kill_worker             SIGKILL to the first of them
+#   hold_workers            SIGSTOP to them (around a coordinator's kill -9)
+#   release_workers         SIGCONT to them
 #   status ID               ptctl status ID --json into $tmp/status.json
 #   until_status ID EXPR    polls (up to 120 s) until EXPR over the status holds
 #   same NAME               $tmp/NAME.exr equals $tmp/ref.exr in every channel
@@ -64,6 +66,11 @@ serve() {
   PTFARM_SERVER=127.0.0.1:$port
   export PTFARM_SERVER
 }
+
+# The workers held (SIGSTOP) and let go again: a coordinator killed while
+# they are held cannot see its job end in between, however loaded the machine.
+hold_workers() { for p in $wrk_pids; do kill -STOP "$p"; done; }
+release_workers() { for p in $wrk_pids; do kill -CONT "$p"; done; }
 
 stop_server() {
   if [ "${1:-}" = -9 ]; then

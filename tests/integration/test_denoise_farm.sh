@@ -106,8 +106,11 @@ serve serve2.log PTSERVE_TEST_CKPT_LOG_BYTES=40000
 workers 2
 id=$("$bin/ptctl" submit "$scene" "${view[@]}" --denoise-progressive --name denoised)
 until_status "$id" 'd["samples_done"] > 0 or d["state"] != "running"'
+hold_workers
+status "$id"
 [ "$(json "$tmp/status.json" 'd["state"]')" = running ] || fail "the job ended before the kill"
 stop_server -9
+release_workers
 serve serve2.log # the same port: the workers reconnect to it
 finish "$id" server_killed
 cmp -s "$tmp/ref.png" "$tmp/out/$id-denoised.png" ||

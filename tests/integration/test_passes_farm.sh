@@ -66,14 +66,12 @@ for _ in $(seq 1200); do
 done
 compgen -G "$tmp/state/jobs/$id/checkpoint*" > /dev/null || fail "no checkpoint written"
 until_status "$id" 'd["samples_done"] > 0 or d["state"] != "running"'
-# The workers are held while the coordinator is killed, so the job cannot
-# end in between however loaded the machine is.
-for p in $wrk_pids; do kill -STOP "$p"; done
+hold_workers
 status "$id"
 [ "$(json "$tmp/status.json" 'd["state"]')" = running ] || fail "the job ended before the kill"
 before=$(json "$tmp/status.json" 'd["samples_done"]')
 stop_server -9
-for p in $wrk_pids; do kill -CONT "$p"; done
+release_workers
 serve serve2.log # the same port: the workers reconnect to it
 status "$id"
 after=$(json "$tmp/status.json" 'd["samples_done"]')
