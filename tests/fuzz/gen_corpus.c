@@ -1066,6 +1066,19 @@ static void gen_guide(const char *dir)
         failures++;
         goto done;
     }
+    /* The smallest guide, under the fuzzers' input cap: one spatial leaf
+     * whose six trees are single leaves. */
+    {
+        pt_guide_snode sn = {0, 0, 0};
+        pt_guide_qnode qn[PT_GUIDE_FACES] = {{0, 0.0f}, {0, 1.0f}, {0, 0.0f},
+                                             {0, 1.0f}, {0, 0.0f}, {0, 1.0f}};
+        pt_guide small = {pt_v3(-1, -1, -1), pt_v3(1, 1, 1), 1, PT_GUIDE_FACES, &sn, qn};
+        proto_writer_reset(&w);
+        if (proto_guide_encode(&w, &small, NULL) != PT_OK)
+            failures++;
+        else
+            emit(dir, "fuzz_guide", "smallest", w.buf, w.len);
+    }
     const pt_guide *gs[2] = {g, b};
     const char *names[2] = {"uniform", "built"};
     for (int k = 0; k < 2; k++) {
