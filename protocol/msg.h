@@ -320,7 +320,9 @@ const char *proto_clamp_problem(const float clamp[2]);
  * A guided task renders with the distribution, draws directions from it with
  * probability 0 in pass 0 and 0.5 after (as ptworker --guiding on), and
  * returns its statistics in RESULT (PROTO_RESULT_GUIDE). GUIDE_CHUNK has the
- * SCENE_CHUNK layout, the total at most PROTO_MAX_GUIDE_BYTES. */
+ * SCENE_CHUNK layout, the total at most PROTO_MAX_GUIDE_BYTES; its data is
+ * the distribution packed with zlib (proto_guide_pack, protocol/guide.h),
+ * which the worker unpacks before it checks the hash. */
 #define PROTO_MAX_GUIDE_PASS 31u
 #define PROTO_MAX_GUIDE_NODES (1u << 24) /* PT_GUIDE_MAX_NODES */
 #define PROTO_MAX_GUIDE_BYTES (256u << 20)

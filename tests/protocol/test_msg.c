@@ -20,6 +20,7 @@
 #include "common/base/alloc.h"
 #include "common/render/render.h"
 #include "protocol/frame.h"
+#include "protocol/guide.h"
 #include "protocol/msg.h"
 #include "tests/check.h"
 #include "tests/protocol/samples.h"
@@ -1121,6 +1122,99 @@ static void test_result_guide(void)
     proto_writer_fini(&w2);
 }
 
+/* GUIDE_CHUNK's packing (protocol/guide.h): a distribution's bytes come back
+ * exactly, smaller when they repeat; every hostile shape is refused by name
+ * with nothing left allocated, and a declared length is never exceeded
+ * however much the stream would inflate to. */
+static void test_guide_pack(void)
+{
+    pt_error e = {0};
+    int64_t live = pt_alloc_live();
+    /* GUIDE-like bytes: ascending child indices beside energies. */
+    const size_t n = 1u << 20;
+    uint8_t *raw = pt_malloc(n);
+    CHECK(raw != NULL);
+    if (!raw)
+        return;
+    uint32_t x = 12345;
+    for (size_t i = 0; i + 8 <= n; i += 8) {
+        x = x * 1664525u + 1013904223u;
+        proto_put_u32(raw + i, (uint32_t)(i / 16));
+        proto_put_f32(raw + i + 4, (float)(x >> 20) / 4096.0f);
+    }
+    uint8_t *pk = NULL, *un = NULL;
+    size_t plen = 0, ulen = 0;
+    CHECK(proto_guide_pack(raw, n, &pk, &plen, &e) == PT_OK);
+    CHECK(pk && plen > PROTO_GUIDE_PACK_HEADER && plen < n / 2);
+    CHECK(pk && proto_get_u32(pk) == PROTO_GUIDE_PACK_MAGIC && proto_get_u64(pk + 4) == n);
+    CHECK(proto_guide_unpack(pk, plen, &un, &ulen, &e) == PT_OK && ulen == n && un &&
+          memcmp(un, raw, n) == 0);
+    pt_free(un);
+    CHECK(proto_guide_pack(raw, PROTO_GUIDE_HEADER - 1, &un, &ulen, &e) == PT_ERR_ARG && !un);
+
+    /* Hostile packs, each from the good one. */
+    uint8_t *bad = pt_malloc(plen + 1);
+    CHECK(bad != NULL);
+    struct {
+        int what; /* 0 set the u64 at 4, 1 flip a byte at off, 2 cut to off, 3 add a byte */
+        size_t off;
+        uint64_t v;
+        const char *why;
+    } cases[] = {
+        {1, 0, 0, "bad magic"},
+        {0, 0, (uint64_t)PROTO_MAX_GUIDE_BYTES + 1, "declared"},
+        {0, 0, PROTO_GUIDE_HEADER - 1, "declared"},
+        {0, 0, 1ull << 40, "declared"},
+        {0, 0, n - 1, "more than"},
+        {0, 0, n + 1, "unpacked"},
+        {1, plen - 2, 0, "corrupt"}, /* the stream's Adler-32 */
+        {1, PROTO_GUIDE_PACK_HEADER, 0, "corrupt"},
+        {2, plen - 9, 0, "ends before"},
+        {2, PROTO_GUIDE_PACK_HEADER - 1, 0, "header"},
+        {3, 0, 0, "after its zlib data"},
+    };
+    for (size_t k = 0; bad && k < sizeof cases / sizeof *cases; k++) {
+        memcpy(bad, pk, plen);
+        size_t len = plen;
+        if (cases[k].what == 0)
+            proto_put_u64(bad + 4, cases[k].v);
+        else if (cases[k].what == 1)
+            bad[cases[k].off] ^= 0x55;
+        else if (cases[k].what == 2)
+            len = cases[k].off;
+        else
+            bad[len++] = 0;
+        un = NULL;
+        pt_status st = proto_guide_unpack(bad, len, &un, &ulen, &e);
+        CHECKF(st == PT_ERR_FORMAT && !un && strstr(e.msg, cases[k].why), "case %zu: %s", k, e.msg);
+        pt_free(un);
+    }
+    pt_free(bad);
+    pt_free(pk);
+
+    /* A bomb: 64 MiB of zeros deflate to a few hundred KiB; declared as 1 MiB it
+     * is refused, inflating stopped at 1 MiB. Declared as its length but
+     * with a stream too short for it, it is refused before any allocation. */
+    const size_t big = 64u << 20;
+    uint8_t *zeros = pt_calloc(big, 1);
+    CHECK(zeros != NULL);
+    if (zeros && proto_guide_pack(zeros, big, &pk, &plen, &e) == PT_OK) {
+        CHECK(plen < big / 100);
+        proto_put_u64(pk + 4, 1u << 20);
+        CHECK(proto_guide_unpack(pk, plen, &un, &ulen, &e) == PT_ERR_FORMAT &&
+              strstr(e.msg, "more than") && !un);
+        uint8_t tiny[PROTO_GUIDE_PACK_HEADER + 8] = {0};
+        proto_put_u32(tiny, PROTO_GUIDE_PACK_MAGIC);
+        proto_put_u64(tiny + 4, PROTO_MAX_GUIDE_BYTES);
+        CHECK(proto_guide_unpack(tiny, sizeof tiny, &un, &ulen, &e) == PT_ERR_FORMAT &&
+              strstr(e.msg, "can hold") && !un);
+        pt_free(pk);
+    }
+    pt_free(zeros);
+    pt_free(raw);
+    CHECK(pt_alloc_live() == live);
+}
+
 static void test_types(void)
 {
     CHECK(proto_msg_type_known(PROTO_MSG_HELLO) && proto_msg_type_known(PROTO_MSG_FETCH));
@@ -1647,6 +1741,7 @@ int main(void)
     test_counts();
     test_result();
     test_result_guide();
+    test_guide_pack();
     test_submit();
     test_job_info();
     test_job_list();
