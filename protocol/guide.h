@@ -2,9 +2,8 @@
  * guide.h - path guiding's data on the wire: a learned distribution
  * (pt_guide, common/render/guide.h) as the bytes the coordinator hashes,
  * keeps in checkpoints and hands workers in GUIDE_CHUNK frames (packed with
- * zlib, below), and a pass's
- * statistics (pt_guide_stats) as RESULT's sparse entries (protocol/msg.h,
- * PROTO_RESULT_GUIDE).
+ * zlib, below), and a pass's statistics (pt_guide_stats) as RESULT's sparse
+ * entries (protocol/msg.h, PROTO_RESULT_GUIDE).
  *
  * GUIDE (the distribution), little-endian:
  *   offset   size     type     meaning
