@@ -154,12 +154,14 @@ static int job_info_same(const proto_job_info *a, const proto_job_info *b)
            a->capped == b->capped && a->rejected == b->rejected &&
            a->frame_first == b->frame_first && a->frame_last == b->frame_last &&
            a->frame_step == b->frame_step && a->frames_done == b->frames_done &&
-           a->frames_rendering == b->frames_rendering && a->nshown == b->nshown && shown_same(a, b);
+           a->frames_rendering == b->frames_rendering && a->nshown == b->nshown &&
+           shown_same(a, b) && a->guided == b->guided && a->guide_pass == b->guide_pass &&
+           a->guide_spp == b->guide_spp;
 }
 
 static size_t job_info_size(const proto_job_info *m)
 {
-    return 144 + strlen(m->name) + strlen(m->owner) + strlen(m->scene) + strlen(m->output) +
+    return 153 + strlen(m->name) + strlen(m->owner) + strlen(m->scene) + strlen(m->output) +
            strlen(m->message) + 20u * m->nshown;
 }
 
@@ -1462,6 +1464,9 @@ static void job_info_raw(proto_writer *w, int f, size_t n)
     for (int k = 0; k < 5; k++)
         proto_w_u32(w, 0); /* a still: no frame range, no frames */
     proto_w_u8(w, 0);      /* no frames listed */
+    proto_w_u8(w, 0);      /* not guided */
+    proto_w_u32(w, 0);
+    proto_w_u32(w, 0);
 }
 
 static void test_job_info(void)
@@ -1472,7 +1477,7 @@ static void test_job_info(void)
     /* Every string at its cap round-trips; one byte over is refused by both sides. */
     proto_job_info m = sample_job_info(2);
     CHECK(proto_msg_encode_job_info(&w, &m, &err) == PT_OK);
-    CHECK(w.len == 144 + 2 * PROTO_MAX_NAME + 2 * PROTO_MAX_PATH + PROTO_MAX_ERROR_TEXT);
+    CHECK(w.len == 153 + 2 * PROTO_MAX_NAME + 2 * PROTO_MAX_PATH + PROTO_MAX_ERROR_TEXT);
     static proto_job_info b;
     CHECK(proto_msg_decode_job_info(w.buf, w.len, &b, &err) == PT_OK);
     CHECK(job_info_same(&m, &b));
@@ -1499,6 +1504,24 @@ static void test_job_info(void)
         job_info_raw(&w, f, caps[f]);
         CHECKF(decode_any(PROTO_MSG_JOB_INFO, w.buf, w.len, &err) == PT_OK, "%s at its cap",
                names[f]);
+    }
+    /* Guiding: a flag of 0 or 1, and no pass for an unguided job. */
+    for (int k = 0; k < 3; k++) {
+        proto_writer_reset(&w);
+        job_info_raw(&w, 0, 0);
+        if (k == 0)
+            w.buf[w.len - 9] = 2; /* guided 2 */
+        else
+            proto_put_u32(w.buf + w.len - (k == 1 ? 8 : 4), 16); /* a pass, unguided */
+        CHECKF(decode_any(PROTO_MSG_JOB_INFO, w.buf, w.len, &err) == PT_ERR_PROTO &&
+                   strstr(err.msg, "guiding"),
+               "case %d: %s", k, err.msg);
+        m = sample_job_info(1);
+        m.guided = k == 0 ? 2 : 0;
+        m.guide_pass = k == 1;
+        m.guide_spp = k == 2;
+        proto_writer_reset(&w);
+        CHECKF(proto_msg_encode_job_info(&w, &m, &err) == PT_ERR_ARG && w.len == 0, "case %d", k);
     }
     /* Any state value decodes; names for the known ones. */
     m = sample_job_info(0);
@@ -1563,8 +1586,8 @@ static void test_job_list(void)
     CHECK(job_list_check(head, 4, "cap", &alloc) == PT_ERR_PROTO && alloc == 0);
     /* A count that the bytes present cannot hold: refused before allocating. */
     proto_writer_reset(&w);
-    jobs[0] = sample_job_info(1); /* the smallest entry: 144 bytes */
-    CHECK(proto_msg_encode_job_list(&w, jobs, 1, &err) == PT_OK && w.len == 4 + 144);
+    jobs[0] = sample_job_info(1); /* the smallest entry: 153 bytes */
+    CHECK(proto_msg_encode_job_list(&w, jobs, 1, &err) == PT_OK && w.len == 4 + 153);
     CHECK(job_list_check(w.buf, w.len, NULL, &alloc) == PT_OK && alloc == 1);
     proto_put_u32(w.buf, 2);
     CHECK(job_list_check(w.buf, w.len, "bytes", &alloc) == PT_ERR_PROTO && alloc == 0);
