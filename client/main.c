@@ -809,6 +809,13 @@ static void print_status(const proto_job_info *j)
     printf("tiles      %lu (%lu stopped by adaptive sampling)\n", (unsigned long)j->tiles,
            (unsigned long)j->tiles_stopped);
     printf("workers    %lu\n", (unsigned long)j->workers);
+    if (j->guided && j->state != PROTO_JOB_RUNNING)
+        printf("guiding    on\n");
+    else if (j->guided && j->guide_pass > 0)
+        printf("guiding    pass %lu, its distribution learned from %lu spp\n",
+               (unsigned long)j->guide_pass, (unsigned long)j->guide_spp);
+    else if (j->guided)
+        printf("guiding    pass 0, learning (a uniform distribution)\n");
     if (j->capped > 0)
         printf("depth cap  %llu paths reached it; raise --max-depth if this matters\n",
                (unsigned long long)j->capped);

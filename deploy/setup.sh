@@ -19,6 +19,7 @@ build_pkgs=(
   libdraco-dev                         # KHR_draco_mesh_compression meshes in glTF
   libwebp-dev                          # EXT_texture_webp images in glTF
   libmeshoptimizer-dev                 # EXT_meshopt_compression buffers in glTF
+  zlib1g-dev                           # the guiding distribution, deflated on the wire
 )
 test_pkgs=(
   clang libclang-rt-14-dev             # libFuzzer targets, sanitizer runtime
@@ -34,7 +35,7 @@ test_pkgs=(
   xvfb                                 # tests/blender: the panel's screenshot under a virtual display
 )
 # One line: test_deploy reads it to check the release image's libraries.
-runtime_pkgs=(libembree3-3 libopenexr-3-1-30 libstb0 libssl3 libmicrohttpd12 libdraco7 libwebp7 libmeshoptimizer2d)
+runtime_pkgs=(libembree3-3 libopenexr-3-1-30 libstb0 libssl3 libmicrohttpd12 libdraco7 libwebp7 libmeshoptimizer2d zlib1g)
 
 case "${1:-}" in
 "") pkgs=("${build_pkgs[@]}" "${test_pkgs[@]}") ;;

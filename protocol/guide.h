@@ -1,9 +1,9 @@
 /*
  * guide.h - path guiding's data on the wire: a learned distribution
  * (pt_guide, common/render/guide.h) as the bytes the coordinator hashes,
- * keeps in checkpoints and hands workers in GUIDE_CHUNK frames, and a pass's
- * statistics (pt_guide_stats) as RESULT's sparse entries (protocol/msg.h,
- * PROTO_RESULT_GUIDE).
+ * keeps in checkpoints and hands workers in GUIDE_CHUNK frames (packed with
+ * zlib, below), and a pass's statistics (pt_guide_stats) as RESULT's sparse
+ * entries (protocol/msg.h, PROTO_RESULT_GUIDE).
  *
  * GUIDE (the distribution), little-endian:
  *   offset   size     type     meaning
@@ -48,6 +48,35 @@ pt_status proto_guide_encode(proto_writer *w, const pt_guide *g, pt_error *err);
 /* A new guide from p[0, len): PT_ERR_FORMAT naming the fault (the shape
  * only; run pt_guide_check before sampling it), PT_ERR_NOMEM. */
 pt_status proto_guide_decode(const uint8_t *p, size_t len, pt_guide **out, pt_error *err);
+
+/* GUIDE_CHUNK's bytes: a distribution's GUIDE bytes compressed losslessly
+ * with zlib (deflate, RFC 1950/1951), so a 1080p job's 59 MB distribution
+ * crosses the network as a fraction of that. Little-endian:
+ *   0    4    u32  magic "PTGZ"
+ *   4    8    u64  n: the GUIDE bytes' length, PROTO_GUIDE_HEADER <= n <= PROTO_MAX_GUIDE_BYTES
+ *   12   ..        one zlib stream of exactly those n bytes, nothing after it
+ * TASK names a distribution by the SHA-256 of its GUIDE bytes, never of
+ * these: a receiver unpacks, then checks the hash, so it samples exactly the
+ * bytes the coordinator built whatever the compressor did. */
+#define PROTO_GUIDE_PACK_MAGIC 0x5a475450u /* "PTGZ" */
+#define PROTO_GUIDE_PACK_HEADER 12u
+/* The most one byte of deflate data expands to (a 258-byte match coded in
+ * two 1-bit codes: 1032 to 1, zlib's technical notes), which bounds n by the
+ * stream's length before anything is allocated. */
+#define PROTO_GUIDE_PACK_RATIO 1032u
+
+/* *out (pt_malloc'd, the caller's) = raw[0, n) packed as above. PT_ERR_ARG
+ * for n out of range, PT_ERR_NOMEM (zlib's failures too). */
+pt_status proto_guide_pack(const uint8_t *raw, size_t n, uint8_t **out, size_t *out_len,
+                           pt_error *err);
+/* *out (pt_malloc'd, the caller's) = the GUIDE bytes that p[0, len) packs.
+ * The declared length is checked against PROTO_MAX_GUIDE_BYTES and against
+ * what the stream's length can expand to before the output is allocated,
+ * and inflating stops at it: PT_ERR_FORMAT naming the fault (a bad magic, a
+ * length out of range, a corrupt, short, long or trailed stream) with
+ * nothing allocated, PT_ERR_NOMEM. The bytes are not decoded or hashed. */
+pt_status proto_guide_unpack(const uint8_t *p, size_t len, uint8_t **out, size_t *out_len,
+                             pt_error *err);
 
 /* r's guiding statistics (g_nsnode ... guide, owns_guide) from s: its
  * non-zero counts and sums, ascending. PT_ERR_NOMEM. */

@@ -145,9 +145,15 @@ void proto_json_job(FILE *f, const proto_job_info *j)
         fputs("null", f);
     fprintf(f,
             ", \"paths_capped\": %llu, \"samples_rejected\": %llu, \"submitted\": %llu, "
-            "\"queue_position\": %lu, \"message\": ",
+            "\"queue_position\": %lu, \"guiding\": ",
             (unsigned long long)j->capped, (unsigned long long)j->rejected,
             (unsigned long long)j->submitted, (unsigned long)j->queue_pos);
+    if (j->guided)
+        fprintf(f, "{\"pass\": %lu, \"learned_spp\": %lu}", (unsigned long)j->guide_pass,
+                (unsigned long)j->guide_spp);
+    else
+        fputs("null", f);
+    fputs(", \"message\": ", f);
     proto_json_string(f, j->message);
     if (j->frame_step) {
         /* A frame-range job: its range, and its frames rendering. */

@@ -1150,7 +1150,7 @@ pt_status proto_msg_decode_submit(const uint8_t *p, size_t len, proto_submit *ou
 
 /* Bytes of a JOB_INFO with every string empty: the least an entry of
  * JOB_LIST can take, so a count is checked against the bytes present. */
-#define JOB_INFO_FIXED 144u
+#define JOB_INFO_FIXED 153u
 
 static const char *job_info_problem(const proto_job_info *m)
 {
@@ -1166,6 +1166,8 @@ static const char *job_info_problem(const proto_job_info *m)
         return "message over the length cap";
     if (m->nshown > PROTO_MAX_FRAMES_SHOWN)
         return "frames listed over the cap";
+    if (m->guided > 1 || (!m->guided && (m->guide_pass || m->guide_spp)))
+        return "guiding pass of an unguided job";
     return NULL;
 }
 
@@ -1207,6 +1209,9 @@ static void w_job_info(proto_writer *w, const proto_job_info *m)
         proto_w_u64(w, m->shown[i].samples_done);
         proto_w_u64(w, m->shown[i].samples_total);
     }
+    proto_w_u8(w, m->guided);
+    proto_w_u32(w, m->guide_pass);
+    proto_w_u32(w, m->guide_spp);
 }
 
 /* Reads one JOB_INFO into m (which may be left half-filled on failure). */
@@ -1250,6 +1255,11 @@ static void r_job_info(proto_reader *r, proto_job_info *m)
         m->shown[i].samples_done = proto_r_u64(r, "frame samples merged");
         m->shown[i].samples_total = proto_r_u64(r, "frame samples total");
     }
+    m->guided = proto_r_u8(r, "guided");
+    m->guide_pass = proto_r_u32(r, "guiding pass");
+    m->guide_spp = proto_r_u32(r, "guiding samples");
+    if (r->status == PT_OK && (m->guided > 1 || (!m->guided && (m->guide_pass || m->guide_spp))))
+        proto_r_fail(r, PT_ERR_PROTO, "out of range:", "guiding");
 }
 
 pt_status proto_msg_encode_job_info(proto_writer *w, const proto_job_info *m, pt_error *err)

@@ -324,7 +324,9 @@ const char *proto_clamp_problem(const float clamp[2]);
  * A guided task renders with the distribution, draws directions from it with
  * probability 0 in pass 0 and 0.5 after (as ptworker --guiding on), and
  * returns its statistics in RESULT (PROTO_RESULT_GUIDE). GUIDE_CHUNK has the
- * SCENE_CHUNK layout, the total at most PROTO_MAX_GUIDE_BYTES. */
+ * SCENE_CHUNK layout, the total at most PROTO_MAX_GUIDE_BYTES; its data is
+ * the distribution packed with zlib (proto_guide_pack, protocol/guide.h),
+ * which the worker unpacks before it checks the hash. */
 #define PROTO_MAX_GUIDE_PASS 31u
 #define PROTO_MAX_GUIDE_NODES (1u << 24) /* PT_GUIDE_MAX_NODES */
 #define PROTO_MAX_GUIDE_BYTES (256u << 20)
@@ -588,7 +590,11 @@ const char *proto_job_state_name(uint32_t state);
  *                    +0  4  u32  frame number
  *                    +4  8  u64  samples merged
  *                    +12 8  u64  samples total
- *   size 144+a+b+c+d+e+20K */
+ *   ..   1    u8   guiding: 1 the job is guided (path guiding learned by the farm), 0 not
+ *   ..   4    u32  the guiding pass whose samples are being rendered (0 when not guided
+ *                  or not running)
+ *   ..   4    u32  the samples per pixel its distribution was learned from (0 in pass 0)
+ *   size 153+a+b+c+d+e+20K */
 typedef struct proto_job_info {
     uint64_t job_id;
     uint8_t state;
@@ -615,6 +621,9 @@ typedef struct proto_job_info {
         uint32_t frame;
         uint64_t samples_done, samples_total;
     } shown[PROTO_MAX_FRAMES_SHOWN];
+    uint8_t guided;      /* 1: path guiding learned by the farm */
+    uint32_t guide_pass; /* the pass being rendered (0 when not guided) */
+    uint32_t guide_spp;  /* samples per pixel its distribution was learned from */
 } proto_job_info;
 
 /* JOB_LIST
@@ -622,7 +631,7 @@ typedef struct proto_job_info {
  *   4    ...       N JOB_INFO entries, back to back
  * Decoded, jobs is a pt_malloc'd array of N entries (NULL when N is 0) that
  * the caller frees with pt_free; N is checked against the bytes present (each
- * entry needs at least 144 bytes) before anything is allocated. */
+ * entry needs at least 153 bytes) before anything is allocated. */
 typedef struct proto_job_list {
     uint32_t count;
     proto_job_info *jobs;

@@ -829,13 +829,22 @@ static int on_guide_chunk(worker *w, const proto_frame *f)
     g->len += c.len;
     if (g->len < g->total)
         return send_guide_get(w, g->hash, g->len);
-    /* Its bytes must be the ones TASK named, and a tree that samples safely. */
-    uint8_t h[32];
-    pt_sha256(g->buf, g->len, h);
+    /* Unpacked (the size bounded before anything is allocated), its bytes
+     * must be the ones TASK named, and a tree that samples safely. */
+    uint64_t t_unpack = pt_now_ms();
+    uint8_t *raw = NULL;
+    size_t rawlen = 0;
+    pt_status st = proto_guide_unpack(g->buf, g->len, &raw, &rawlen, &err);
+    uint64_t unpack_ms = pt_now_ms() - t_unpack;
     pt_guide *gd = NULL;
-    pt_status st = memcmp(h, g->hash, 32) == 0
-                       ? proto_guide_decode(g->buf, g->len, &gd, &err)
-                       : pt_error_set(&err, PT_ERR_FORMAT, "its bytes do not hash to its name");
+    if (st == PT_OK) {
+        uint8_t h[32];
+        pt_sha256(raw, rawlen, h);
+        st = memcmp(h, g->hash, 32) == 0
+                 ? proto_guide_decode(raw, rawlen, &gd, &err)
+                 : pt_error_set(&err, PT_ERR_FORMAT, "its bytes do not hash to its name");
+    }
+    pt_free(raw);
     if (st == PT_OK && (st = pt_guide_check(gd, &err)) != PT_OK) {
         pt_guide_free(gd);
         gd = NULL;
@@ -844,8 +853,11 @@ static int on_guide_chunk(worker *w, const proto_frame *f)
     if (st != PT_OK)
         return fail_proto(w, "distribution %.16s: %s", hex, err.msg);
     g->guide = gd;
-    fprintf(stderr, "ptworker: guiding distribution %.16s (%llu bytes) fetched in %llu ms\n", hex,
-            (unsigned long long)c.total, (unsigned long long)(pt_now_ms() - g->t_fetch));
+    fprintf(stderr,
+            "ptworker: guiding distribution %.16s (%llu bytes, %zu unpacked) fetched in %llu ms "
+            "(unpacked in %llu ms)\n",
+            hex, (unsigned long long)c.total, rawlen,
+            (unsigned long long)(pt_now_ms() - g->t_fetch), (unsigned long long)unpack_ms);
     guides_trim(w);
     return pending_ready(w);
 }

@@ -332,8 +332,10 @@ int srv_job_complete(const srv_job *job);
 /* The job's film, settled (srv_job_set_adder). */
 const pt_film *srv_job_film(const srv_job *job);
 
-/* The bytes of the guiding distribution j holds under hash (a guided job's,
- * job_guide.c), borrowed until j's next merge or free; 0 when it holds none. */
+/* The guiding distribution j holds under hash (a guided job's, job_guide.c)
+ * as GUIDE_CHUNK carries it: its bytes packed (proto_guide_pack; hash is
+ * the SHA-256 of the unpacked bytes), borrowed until j's next merge or
+ * free; 0 when it holds none. */
 int srv_job_guide_bytes(const srv_job *j, const uint8_t hash[32], const uint8_t **data,
                         size_t *len);
 /* A guided job's pass being learned (its tasks are leased), 0 when not guided. */

@@ -33,9 +33,19 @@ static pt_status keep_blob(srv_job *j, uint32_t k, pt_error *err)
         proto_writer_fini(&w);
         return st;
     }
+    uint8_t *pack = NULL;
+    size_t plen = 0;
+    st = proto_guide_pack(w.buf, w.len, &pack, &plen, err);
+    if (st != PT_OK) {
+        proto_writer_fini(&w);
+        return st;
+    }
     pt_free(j->gblob[k]);
+    pt_free(j->gpack[k]);
     j->gblob[k] = w.buf; /* the writer's buffer is pt_malloc'd: the job's now */
     j->glen[k] = w.len;
+    j->gpack[k] = pack;
+    j->gplen[k] = plen;
     pt_sha256(w.buf, w.len, j->ghash[k]);
     return PT_OK;
 }
@@ -56,8 +66,9 @@ struct job_guide_build {
     uint64_t split, t0;
     pt_guide *guide;
     pt_guide_stats *nstats;
-    uint8_t *blob;
-    size_t len;
+    uint8_t *blob, *pack;
+    size_t len, plen;
+    uint64_t pack_ms; /* the time proto_guide_pack took */
     uint8_t hash[32];
     pt_status st;
     pt_error err;
@@ -76,6 +87,9 @@ static void build_run(struct job_guide_build *b)
             b->blob = w.buf; /* pt_malloc'd: the job's once installed */
             b->len = w.len;
             pt_sha256(w.buf, w.len, b->hash);
+            uint64_t t = pt_now_ms();
+            b->st = proto_guide_pack(b->blob, b->len, &b->pack, &b->plen, &b->err);
+            b->pack_ms = pt_now_ms() - t;
         } else {
             proto_writer_fini(&w);
         }
@@ -97,6 +111,7 @@ static void build_free(struct job_guide_build *b)
     pt_guide_free(b->guide);
     pt_guide_stats_free(b->nstats);
     pt_free(b->blob);
+    pt_free(b->pack);
     pt_free(b);
 }
 
@@ -126,8 +141,10 @@ void job_guide_free(srv_job *j)
     }
     pt_guide_free(j->guide);
     pt_guide_stats_free(j->gstats);
-    for (uint32_t k = 0; k <= PROTO_MAX_GUIDE_PASS; k++)
+    for (uint32_t k = 0; k <= PROTO_MAX_GUIDE_PASS; k++) {
         pt_free(j->gblob[k]);
+        pt_free(j->gpack[k]);
+    }
 }
 
 uint32_t job_guide_end(const srv_job *j, uint32_t s0)
@@ -232,16 +249,22 @@ static void install(srv_job *j, struct job_guide_build *b, int threaded)
     pt_free(j->gblob[b->pass]);
     j->gblob[b->pass] = b->blob;
     j->glen[b->pass] = b->len;
+    pt_free(j->gpack[b->pass]);
+    j->gpack[b->pass] = b->pack;
+    j->gplen[b->pass] = b->plen;
     memcpy(j->ghash[b->pass], b->hash, 32);
     b->guide = NULL;
     b->nstats = NULL;
     b->blob = NULL;
+    b->pack = NULL;
     j->gpass = b->pass;
-    srv_log("job %llu: guiding pass %u: a distribution of %zu bytes (%u spatial, %u directional "
-            "nodes) built in %llu ms%s; pass %u's results carried at most %u statistics entries",
-            (unsigned long long)j->id, j->gpass, j->glen[j->gpass], j->guide->nsnode,
-            j->guide->nqnode, (unsigned long long)(pt_now_ms() - b->t0),
-            threaded ? " off the loop" : "", j->gpass - 1, j->gmost);
+    srv_log("job %llu: guiding pass %u: a distribution of %zu bytes, %zu packed (%u spatial, %u "
+            "directional nodes) built in %llu ms%s (packed in %llu ms); pass %u's results carried "
+            "at most %u statistics entries",
+            (unsigned long long)j->id, j->gpass, j->glen[j->gpass], j->gplen[j->gpass],
+            j->guide->nsnode, j->guide->nqnode, (unsigned long long)(pt_now_ms() - b->t0),
+            threaded ? " off the loop" : "", (unsigned long long)b->pack_ms, j->gpass - 1,
+            j->gmost);
     build_free(b);
     j->gmost = 0;
     uint32_t end = pt_guide_pass_end(j->gpass, j->p.spp);
@@ -348,9 +371,12 @@ pt_status job_guide_load(srv_job *j, proto_reader *r, pt_error *err)
     const uint8_t *blob = proto_r_bytes(r, len, "guide");
     pt_guide *g = NULL;
     pt_guide_stats *s = NULL;
-    uint8_t *copy = pt_malloc(len ? len : 1);
+    uint8_t *copy = pt_malloc(len ? len : 1), *pack = NULL;
+    size_t plen = 0;
     pt_status st = copy ? proto_guide_decode(blob, len, &g, err)
                         : pt_error_set(err, PT_ERR_NOMEM, "checkpoint: guide of %u bytes", len);
+    if (st == PT_OK)
+        st = proto_guide_pack(blob, len, &pack, &plen, err);
     if (st == PT_OK)
         st = pt_guide_check(g, err);
     if (st == PT_OK)
@@ -369,6 +395,7 @@ pt_status job_guide_load(srv_job *j, proto_reader *r, pt_error *err)
     }
     if (st != PT_OK) {
         pt_free(copy);
+        pt_free(pack);
         pt_guide_free(g);
         pt_guide_stats_free(s);
         return st;
@@ -378,14 +405,17 @@ pt_status job_guide_load(srv_job *j, proto_reader *r, pt_error *err)
     pt_guide_stats_free(j->gstats);
     for (uint32_t i = 0; i <= PROTO_MAX_GUIDE_PASS; i++) {
         pt_free(j->gblob[i]);
-        j->gblob[i] = NULL;
-        j->glen[i] = 0;
+        pt_free(j->gpack[i]);
+        j->gblob[i] = j->gpack[i] = NULL;
+        j->glen[i] = j->gplen[i] = 0;
     }
     j->guide = g;
     j->gstats = s;
     j->gpass = k;
     j->gblob[k] = copy;
     j->glen[k] = len;
+    j->gpack[k] = pack;
+    j->gplen[k] = plen;
     pt_sha256(copy, len, j->ghash[k]);
     return PT_OK;
 }
@@ -398,9 +428,12 @@ int job_guide_copy(srv_job *c, const srv_job *j)
     c->gpass = k;
     c->glen[k] = j->glen[k];
     c->gblob[k] = pt_malloc(j->glen[k]);
-    if (pt_guide_stats_new(j->guide, &c->gstats, NULL) != PT_OK || !c->gblob[k])
+    c->gplen[k] = j->gplen[k];
+    c->gpack[k] = pt_malloc(j->gplen[k]);
+    if (pt_guide_stats_new(j->guide, &c->gstats, NULL) != PT_OK || !c->gblob[k] || !c->gpack[k])
         return -1;
     memcpy(c->gblob[k], j->gblob[k], j->glen[k]);
+    memcpy(c->gpack[k], j->gpack[k], j->gplen[k]);
     pt_guide_stats_merge(c->gstats, j->gstats, NULL);
     return 0;
 }
@@ -408,9 +441,9 @@ int job_guide_copy(srv_job *c, const srv_job *j)
 int srv_job_guide_bytes(const srv_job *j, const uint8_t hash[32], const uint8_t **data, size_t *len)
 {
     for (uint32_t k = 0; j->p.guiding && k <= j->gpass && k <= PROTO_MAX_GUIDE_PASS; k++)
-        if (j->gblob[k] && memcmp(j->ghash[k], hash, 32) == 0) {
-            *data = j->gblob[k];
-            *len = j->glen[k];
+        if (j->gpack[k] && memcmp(j->ghash[k], hash, 32) == 0) {
+            *data = j->gpack[k];
+            *len = j->gplen[k];
             return 1;
         }
     return 0;

@@ -157,7 +157,8 @@ struct srv_job {
      * results accepted so far; gtiles the tiles merged to its end. Each
      * pass's distribution is kept as the bytes TASK names by hash (gblob
      * [k], NULL for passes before a resume: only verification copies ask
-     * for an older one). */
+     * for an older one); gpack[k] is those bytes packed for the wire
+     * (proto_guide_pack), what GUIDE_GET hands out. */
     uint32_t gpass, gtiles;
     uint32_t gmost; /* the most statistics entries one result of the pass carried */
     /* A large build runs on a thread of its own (job_guide.c); the loop
@@ -168,6 +169,8 @@ struct srv_job {
     uint8_t *gblob[PROTO_MAX_GUIDE_PASS + 1];
     size_t glen[PROTO_MAX_GUIDE_PASS + 1];
     uint8_t ghash[PROTO_MAX_GUIDE_PASS + 1][32];
+    uint8_t *gpack[PROTO_MAX_GUIDE_PASS + 1];
+    size_t gplen[PROTO_MAX_GUIDE_PASS + 1];
 };
 
 pt_rect job_tile_rect(const srv_job *j, uint32_t tile);

@@ -13,6 +13,7 @@
 #include "common/render/adaptive.h"
 #include "common/render/crypto.h"
 #include "common/render/film.h"
+#include "common/render/guide_sched.h"
 #include "protocol/frame.h"
 
 #define MAX_FINISHED 1000 /* ended jobs kept in the queue's history */
@@ -253,6 +254,13 @@ void srv_queue_info(const srv_server *s, const srv_entry *j, proto_job_info *m)
     if (!j->job) {
         m->capped = r->capped;
         m->rejected = r->rejected;
+    }
+    /* The pass being rendered, its distribution learned from the samples
+     * before it (job_guide.c); a job not running shows none. */
+    m->guided = r->params.guiding != 0;
+    if (m->guided && j->job) {
+        m->guide_pass = srv_job_guide_pass(j->job);
+        m->guide_spp = pt_guide_pass_start(m->guide_pass, r->params.spp);
     }
     m->seconds = srv_entry_seconds(j, now);
     m->rate = j->rate;

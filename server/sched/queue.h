@@ -169,8 +169,9 @@ srv_entry *srv_queue_find_any(srv_server *s, uint64_t id);
  * that does not load fails the job); NULL when there is none. */
 srv_entry *srv_queue_find_scene(srv_server *s, const uint8_t hash[32]);
 
-/* The bytes of a guiding distribution some active job holds under this
- * SHA-256 (GUIDE_GET; borrowed until the loop's next merge); 0 when none. */
+/* The packed bytes (proto_guide_pack) of a guiding distribution some
+ * active job holds under this SHA-256 of its unpacked bytes (GUIDE_GET;
+ * borrowed until the loop's next merge); 0 when none. */
 int srv_queue_find_guide(srv_server *s, const uint8_t hash[32], const uint8_t **data, size_t *len);
 
 /* Puts j in its place in the queue order / takes it out again. */

@@ -5,17 +5,20 @@
 # Runs ptserve --local N --guiding on over a scene at a given size (default
 # 1920x1080, the NVIDIA Cornell box of ../shared/scenes) and reads from the
 # logs, for each pass's distribution: its bytes (the GUIDE encoding that TASK
-# names by hash and workers fetch once, protocol/guide.h), its nodes, the
-# coordinator's build time on its event loop, and each worker's fetch time
-# (first GUIDE_GET to the distribution checked, over loopback). Writes a
-# table on stdout and the logs in --work.
+# names by hash, protocol/guide.h), the bytes on the wire (packed with zlib,
+# what workers fetch once), its nodes, the coordinator's build and pack
+# times, and each worker's fetch time (first GUIDE_GET to the distribution
+# unpacked and checked, over loopback). Writes a table on stdout and the
+# logs in --work.
 #
 #   tests/bench/guide_transfer.sh [--bin DIR] [--scene FILE] [--res WxH]
 #                                 [--spp N] [--workers N] [--work DIR]
 #
 # The training passes end at 16, 48, 112... samples per pixel: --spp 48
 # builds one learned distribution (pass 1's, from 16 samples of every
-# pixel), --spp 112 two. Guiding never runs with adaptive sampling.
+# pixel), --spp 112 two; --spp 17 builds pass 1's and renders one sample
+# with it, the shortest run that measures it. Guiding never runs with
+# adaptive sampling.
 set -euo pipefail
 here=$(cd "$(dirname "$0")" && pwd)
 bin=$here/../../build/bin
@@ -33,7 +36,7 @@ while [ $# -gt 0 ]; do
   --workers) workers=$2 ;;
   --work) work=$2 ;;
   -h | --help)
-    sed -n '2,20p' "$0"
+    sed -n '2,23p' "$0"
     exit 0
     ;;
   *)
@@ -50,20 +53,28 @@ t0=$(date +%s.%N)
   -o "$work/out.exr" "$scene" > "$log" 2>&1
 t1=$(date +%s.%N)
 echo "scene $(basename "$scene") $res, $spp spp, $workers workers: $(echo "$t1 - $t0" | bc) s"
-printf '%-6s %12s %10s %12s %10s %s\n' pass bytes spatial directional build_ms fetch_ms
-# The first distribution (pass 0) is uniform: its size from the fetch lines.
-first=$(grep -o 'guiding distribution [0-9a-f]* ([0-9]* bytes) fetched in [0-9]* ms' "$log" |
-  head -n "$workers")
+printf '%-6s %12s %12s %10s %12s %10s %8s %s\n' pass bytes wire spatial directional build_ms pack_ms \
+  fetch_ms
+# The first distribution (pass 0) is uniform: its sizes from the fetch lines.
+fetched='guiding distribution [0-9a-f]* ([0-9]* bytes, [0-9]* unpacked) fetched in [0-9]* ms'
+first=$(grep -o "$fetched" "$log" | head -n "$workers")
 if [ -n "$first" ]; then
-  b=$(echo "$first" | head -n 1 | sed 's/.*(\([0-9]*\) bytes).*/\1/')
+  p=$(echo "$first" | head -n 1 | sed 's/.*(\([0-9]*\) bytes.*/\1/')
+  b=$(echo "$first" | head -n 1 | sed 's/.* \([0-9]*\) unpacked.*/\1/')
   ms=$(echo "$first" | sed 's/.* in \([0-9]*\) ms/\1/' | tr '\n' ' ')
-  printf '%-6s %12s %10s %12s %10s %s\n' 0 "$b" 1 "-" "-" "$ms"
+  printf '%-6s %12s %12s %10s %12s %10s %8s %s\n' 0 "$b" "$p" 1 "-" "-" "-" "$ms"
 fi
-grep -o 'guiding pass [0-9]*: a distribution of [0-9]* bytes ([0-9]* spatial, [0-9]* directional nodes) built in [0-9]* ms' "$log" |
-  while read -r _ _ k _ _ _ b _ s _ q _ _ _ _ ms _; do
+grep -o 'guiding pass [0-9]*: a distribution of [0-9]* bytes, [0-9]* packed ([0-9]* spatial, [0-9]* directional nodes) built in [0-9]* ms[a-z ]* (packed in [0-9]* ms)' "$log" |
+  while read -r line; do
+    read -r _ _ k _ _ _ b _ p _ s _ q _ _ _ _ <<<"$line"
     k=${k%:}
+    b=${b%,}
     s=${s#(}
-    fetch=$(grep -o "guiding distribution [0-9a-f]* ($b bytes) fetched in [0-9]* ms" "$log" |
+    ms=${line#* built in }
+    ms=${ms%% ms*}
+    pms=${line##*packed in }
+    pms=${pms% ms)}
+    fetch=$(grep -o "guiding distribution [0-9a-f]* ($p bytes, $b unpacked) fetched in [0-9]* ms" "$log" |
       sed 's/.* in \([0-9]*\) ms/\1/' | tr '\n' ' ')
-    printf '%-6s %12s %10s %12s %10s %s\n' "$k" "$b" "$s" "$q" "$ms" "$fetch"
+    printf '%-6s %12s %12s %10s %12s %10s %8s %s\n' "$k" "$b" "$p" "$s" "$q" "$ms" "$pms" "$fetch"
   done

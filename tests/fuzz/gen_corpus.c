@@ -43,8 +43,9 @@
 
 static int write_mode;
 static int failures;
-static const char *const file_targets[] = {"fuzz_gltf",  "fuzz_bundle",      "fuzz_checkpoint",
-                                           "fuzz_queue", "fuzz_results_log", "fuzz_guide"};
+static const char *const file_targets[] = {"fuzz_gltf",      "fuzz_bundle",      "fuzz_checkpoint",
+                                           "fuzz_queue",     "fuzz_results_log", "fuzz_guide",
+                                           "fuzz_guide_pack"};
 
 static void emit(const char *dir, const char *target, const char *name, const uint8_t *data,
                  size_t len)
@@ -1042,6 +1043,42 @@ static void gen_state(const char *dir, const char *tmp)
     srv_state_close(st);
 }
 
+/* fuzz_guide_pack: guide bytes packed as GUIDE_CHUNK carries them and, with
+ * hostile, refused ones made from them: cut, a declared length one short,
+ * trailing bytes, and a bomb. */
+static void gen_guide_pack(const char *dir, const char *name, const uint8_t *raw, size_t n,
+                           int hostile)
+{
+    uint8_t *pk = NULL;
+    size_t len = 0;
+    if (proto_guide_pack(raw, n, &pk, &len, NULL) != PT_OK) {
+        failures++;
+        return;
+    }
+    emit(dir, "fuzz_guide_pack", name, pk, len);
+    if (hostile) {
+        emit(dir, "fuzz_guide_pack", "cut", pk, len - 7);
+        proto_put_u64(pk + 4, n - 1);
+        emit(dir, "fuzz_guide_pack", "one_short", pk, len);
+        proto_put_u64(pk + 4, n);
+        uint8_t *more = pt_malloc(len + 3);
+        if (more) {
+            memcpy(more, pk, len);
+            memset(more + len, 0xab, 3);
+            emit(dir, "fuzz_guide_pack", "trailing", more, len + 3);
+        }
+        pt_free(more);
+        /* 256 MiB declared, a few bytes of stream: refused before allocating. */
+        uint8_t bomb[PROTO_GUIDE_PACK_HEADER + 8] = {0};
+        proto_put_u32(bomb, PROTO_GUIDE_PACK_MAGIC);
+        bomb[PROTO_GUIDE_PACK_HEADER] = 0x78; /* a zlib header */
+        bomb[PROTO_GUIDE_PACK_HEADER + 1] = 0x01;
+        proto_put_u64(bomb + 4, PROTO_MAX_GUIDE_BYTES);
+        emit(dir, "fuzz_guide_pack", "bomb", bomb, sizeof bomb);
+    }
+    pt_free(pk);
+}
+
 /* fuzz_guide: a first pass's uniform guide, one built from statistics of
  * records in two directions, and three refused: cut, a bad magic, a tree
  * whose node shares a child (pt_guide_check's). */
@@ -1066,6 +1103,21 @@ static void gen_guide(const char *dir)
         failures++;
         goto done;
     }
+    /* The smallest guide, under the fuzzers' input cap: one spatial leaf
+     * whose six trees are single leaves. */
+    {
+        pt_guide_snode sn = {0, 0, 0};
+        pt_guide_qnode qn[PT_GUIDE_FACES] = {{0, 0.0f}, {0, 1.0f}, {0, 0.0f},
+                                             {0, 1.0f}, {0, 0.0f}, {0, 1.0f}};
+        pt_guide small = {pt_v3(-1, -1, -1), pt_v3(1, 1, 1), 1, PT_GUIDE_FACES, &sn, qn};
+        proto_writer_reset(&w);
+        if (proto_guide_encode(&w, &small, NULL) != PT_OK)
+            failures++;
+        else {
+            emit(dir, "fuzz_guide", "smallest", w.buf, w.len);
+            gen_guide_pack(dir, "smallest", w.buf, w.len, 0);
+        }
+    }
     const pt_guide *gs[2] = {g, b};
     const char *names[2] = {"uniform", "built"};
     for (int k = 0; k < 2; k++) {
@@ -1075,6 +1127,7 @@ static void gen_guide(const char *dir)
             goto done;
         }
         emit(dir, "fuzz_guide", names[k], w.buf, w.len);
+        gen_guide_pack(dir, names[k], w.buf, w.len, k == 0);
         if (k == 0) {
             emit(dir, "fuzz_guide", "cut", w.buf, w.len - 5);
             w.buf[0] ^= 1;

@@ -25,7 +25,7 @@ targets=("$@")
 [[ ${#targets[@]} -gt 0 ]] ||
   targets=(fuzz_frame fuzz_msg fuzz_gltf fuzz_bundle fuzz_queue fuzz_checkpoint fuzz_results_log
     fuzz_exr fuzz_envmap fuzz_draco fuzz_webp fuzz_meshopt fuzz_camera_look fuzz_manifest
-    fuzz_guide)
+    fuzz_guide fuzz_guide_pack)
 build=${PT_FUZZ_BUILD:-build-fuzz}
 jobs=${PT_JOBS:-$(nproc)}
 max_len=${PT_FUZZ_MAX_LEN:-16384}

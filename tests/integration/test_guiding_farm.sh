@@ -109,6 +109,14 @@ done
 id=$("$bin/ptctl" submit "$scene" "${view[@]}" --guiding on --name killw)
 until_status "$id" "d['samples_done'] > $((3 * pass1)) or d['state'] != 'running'"
 [ "$(json "$tmp/status.json" 'd["state"]')" = running ] || fail "the job ended before the kill"
+# Status shows the pass being rendered: past 48 spp of samples merged, pass 1
+# or later, its distribution learned from the samples before it.
+[ "$(json "$tmp/status.json" \
+  'd["guiding"]["pass"] >= 1 and d["guiding"]["learned_spp"] == 16 * (2 ** d["guiding"]["pass"] - 1)')" = True ] ||
+  fail "status shows no learned guiding pass: $(cat "$tmp/status.json")"
+"$bin/ptctl" --timeout 20 status "$id" > "$tmp/status.txt"
+grep -Eq '^guiding +pass [1-9][0-9]*, its distribution learned from [0-9]+ spp$' "$tmp/status.txt" ||
+  fail "ptctl status shows no guiding pass: $(cat "$tmp/status.txt")"
 kill -9 "${wpids[0]}"
 finish "$id" killw
 stop

@@ -230,6 +230,9 @@ static inline proto_job_info sample_job_info(int v)
     m.queue_pos = v == 1 ? 2 : 0;
     m.capped = v == 0 ? 12 : v == 2 ? UINT64_MAX : 0;
     m.rejected = v == 0 ? 34 : v == 2 ? UINT64_MAX : 0;
+    m.guided = v != 1;
+    m.guide_pass = v == 0 ? 2 : v == 2 ? UINT32_MAX : 0;
+    m.guide_spp = v == 0 ? 48 : v == 2 ? UINT32_MAX : 0;
     if (v == 0) { /* a frame range, two frames rendering */
         m.frame_first = 1001;
         m.frame_last = 1100;

@@ -20,6 +20,7 @@
 #include "common/base/alloc.h"
 #include "common/render/render.h"
 #include "protocol/frame.h"
+#include "protocol/guide.h"
 #include "protocol/msg.h"
 #include "tests/check.h"
 #include "tests/protocol/samples.h"
@@ -153,12 +154,14 @@ static int job_info_same(const proto_job_info *a, const proto_job_info *b)
            a->capped == b->capped && a->rejected == b->rejected &&
            a->frame_first == b->frame_first && a->frame_last == b->frame_last &&
            a->frame_step == b->frame_step && a->frames_done == b->frames_done &&
-           a->frames_rendering == b->frames_rendering && a->nshown == b->nshown && shown_same(a, b);
+           a->frames_rendering == b->frames_rendering && a->nshown == b->nshown &&
+           shown_same(a, b) && a->guided == b->guided && a->guide_pass == b->guide_pass &&
+           a->guide_spp == b->guide_spp;
 }
 
 static size_t job_info_size(const proto_job_info *m)
 {
-    return 144 + strlen(m->name) + strlen(m->owner) + strlen(m->scene) + strlen(m->output) +
+    return 153 + strlen(m->name) + strlen(m->owner) + strlen(m->scene) + strlen(m->output) +
            strlen(m->message) + 20u * m->nshown;
 }
 
@@ -1121,6 +1124,99 @@ static void test_result_guide(void)
     proto_writer_fini(&w2);
 }
 
+/* GUIDE_CHUNK's packing (protocol/guide.h): a distribution's bytes come back
+ * exactly, smaller when they repeat; every hostile shape is refused by name
+ * with nothing left allocated, and a declared length is never exceeded
+ * however much the stream would inflate to. */
+static void test_guide_pack(void)
+{
+    pt_error e = {0};
+    int64_t live = pt_alloc_live();
+    /* GUIDE-like bytes: ascending child indices beside energies. */
+    const size_t n = 1u << 20;
+    uint8_t *raw = pt_malloc(n);
+    CHECK(raw != NULL);
+    if (!raw)
+        return;
+    uint32_t x = 12345;
+    for (size_t i = 0; i + 8 <= n; i += 8) {
+        x = x * 1664525u + 1013904223u;
+        proto_put_u32(raw + i, (uint32_t)(i / 16));
+        proto_put_f32(raw + i + 4, (float)(x >> 20) / 4096.0f);
+    }
+    uint8_t *pk = NULL, *un = NULL;
+    size_t plen = 0, ulen = 0;
+    CHECK(proto_guide_pack(raw, n, &pk, &plen, &e) == PT_OK);
+    CHECK(pk && plen > PROTO_GUIDE_PACK_HEADER && plen < n / 2);
+    CHECK(pk && proto_get_u32(pk) == PROTO_GUIDE_PACK_MAGIC && proto_get_u64(pk + 4) == n);
+    CHECK(proto_guide_unpack(pk, plen, &un, &ulen, &e) == PT_OK && ulen == n && un &&
+          memcmp(un, raw, n) == 0);
+    pt_free(un);
+    CHECK(proto_guide_pack(raw, PROTO_GUIDE_HEADER - 1, &un, &ulen, &e) == PT_ERR_ARG && !un);
+
+    /* Hostile packs, each from the good one. */
+    uint8_t *bad = pt_malloc(plen + 1);
+    CHECK(bad != NULL);
+    struct {
+        int what; /* 0 set the u64 at 4, 1 flip a byte at off, 2 cut to off, 3 add a byte */
+        size_t off;
+        uint64_t v;
+        const char *why;
+    } cases[] = {
+        {1, 0, 0, "bad magic"},
+        {0, 0, (uint64_t)PROTO_MAX_GUIDE_BYTES + 1, "declared"},
+        {0, 0, PROTO_GUIDE_HEADER - 1, "declared"},
+        {0, 0, 1ull << 40, "declared"},
+        {0, 0, n - 1, "more than"},
+        {0, 0, n + 1, "unpacked"},
+        {1, plen - 2, 0, "corrupt"}, /* the stream's Adler-32 */
+        {1, PROTO_GUIDE_PACK_HEADER, 0, "corrupt"},
+        {2, plen - 9, 0, "ends before"},
+        {2, PROTO_GUIDE_PACK_HEADER - 1, 0, "header"},
+        {3, 0, 0, "after its zlib data"},
+    };
+    for (size_t k = 0; bad && k < sizeof cases / sizeof *cases; k++) {
+        memcpy(bad, pk, plen);
+        size_t len = plen;
+        if (cases[k].what == 0)
+            proto_put_u64(bad + 4, cases[k].v);
+        else if (cases[k].what == 1)
+            bad[cases[k].off] ^= 0x55;
+        else if (cases[k].what == 2)
+            len = cases[k].off;
+        else
+            bad[len++] = 0;
+        un = NULL;
+        pt_status st = proto_guide_unpack(bad, len, &un, &ulen, &e);
+        CHECKF(st == PT_ERR_FORMAT && !un && strstr(e.msg, cases[k].why), "case %zu: %s", k, e.msg);
+        pt_free(un);
+    }
+    pt_free(bad);
+    pt_free(pk);
+
+    /* A bomb: 64 MiB of zeros deflate to a few hundred KiB; declared as 1 MiB it
+     * is refused, inflating stopped at 1 MiB. Declared as its length but
+     * with a stream too short for it, it is refused before any allocation. */
+    const size_t big = 64u << 20;
+    uint8_t *zeros = pt_calloc(big, 1);
+    CHECK(zeros != NULL);
+    if (zeros && proto_guide_pack(zeros, big, &pk, &plen, &e) == PT_OK) {
+        CHECK(plen < big / 100);
+        proto_put_u64(pk + 4, 1u << 20);
+        CHECK(proto_guide_unpack(pk, plen, &un, &ulen, &e) == PT_ERR_FORMAT &&
+              strstr(e.msg, "more than") && !un);
+        uint8_t tiny[PROTO_GUIDE_PACK_HEADER + 8] = {0};
+        proto_put_u32(tiny, PROTO_GUIDE_PACK_MAGIC);
+        proto_put_u64(tiny + 4, PROTO_MAX_GUIDE_BYTES);
+        CHECK(proto_guide_unpack(tiny, sizeof tiny, &un, &ulen, &e) == PT_ERR_FORMAT &&
+              strstr(e.msg, "can hold") && !un);
+        pt_free(pk);
+    }
+    pt_free(zeros);
+    pt_free(raw);
+    CHECK(pt_alloc_live() == live);
+}
+
 static void test_types(void)
 {
     CHECK(proto_msg_type_known(PROTO_MSG_HELLO) && proto_msg_type_known(PROTO_MSG_FETCH));
@@ -1368,6 +1464,9 @@ static void job_info_raw(proto_writer *w, int f, size_t n)
     for (int k = 0; k < 5; k++)
         proto_w_u32(w, 0); /* a still: no frame range, no frames */
     proto_w_u8(w, 0);      /* no frames listed */
+    proto_w_u8(w, 0);      /* not guided */
+    proto_w_u32(w, 0);
+    proto_w_u32(w, 0);
 }
 
 static void test_job_info(void)
@@ -1378,7 +1477,7 @@ static void test_job_info(void)
     /* Every string at its cap round-trips; one byte over is refused by both sides. */
     proto_job_info m = sample_job_info(2);
     CHECK(proto_msg_encode_job_info(&w, &m, &err) == PT_OK);
-    CHECK(w.len == 144 + 2 * PROTO_MAX_NAME + 2 * PROTO_MAX_PATH + PROTO_MAX_ERROR_TEXT);
+    CHECK(w.len == 153 + 2 * PROTO_MAX_NAME + 2 * PROTO_MAX_PATH + PROTO_MAX_ERROR_TEXT);
     static proto_job_info b;
     CHECK(proto_msg_decode_job_info(w.buf, w.len, &b, &err) == PT_OK);
     CHECK(job_info_same(&m, &b));
@@ -1405,6 +1504,24 @@ static void test_job_info(void)
         job_info_raw(&w, f, caps[f]);
         CHECKF(decode_any(PROTO_MSG_JOB_INFO, w.buf, w.len, &err) == PT_OK, "%s at its cap",
                names[f]);
+    }
+    /* Guiding: a flag of 0 or 1, and no pass for an unguided job. */
+    for (int k = 0; k < 3; k++) {
+        proto_writer_reset(&w);
+        job_info_raw(&w, 0, 0);
+        if (k == 0)
+            w.buf[w.len - 9] = 2; /* guided 2 */
+        else
+            proto_put_u32(w.buf + w.len - (k == 1 ? 8 : 4), 16); /* a pass, unguided */
+        CHECKF(decode_any(PROTO_MSG_JOB_INFO, w.buf, w.len, &err) == PT_ERR_PROTO &&
+                   strstr(err.msg, "guiding"),
+               "case %d: %s", k, err.msg);
+        m = sample_job_info(1);
+        m.guided = k == 0 ? 2 : 0;
+        m.guide_pass = k == 1;
+        m.guide_spp = k == 2;
+        proto_writer_reset(&w);
+        CHECKF(proto_msg_encode_job_info(&w, &m, &err) == PT_ERR_ARG && w.len == 0, "case %d", k);
     }
     /* Any state value decodes; names for the known ones. */
     m = sample_job_info(0);
@@ -1469,8 +1586,8 @@ static void test_job_list(void)
     CHECK(job_list_check(head, 4, "cap", &alloc) == PT_ERR_PROTO && alloc == 0);
     /* A count that the bytes present cannot hold: refused before allocating. */
     proto_writer_reset(&w);
-    jobs[0] = sample_job_info(1); /* the smallest entry: 144 bytes */
-    CHECK(proto_msg_encode_job_list(&w, jobs, 1, &err) == PT_OK && w.len == 4 + 144);
+    jobs[0] = sample_job_info(1); /* the smallest entry: 153 bytes */
+    CHECK(proto_msg_encode_job_list(&w, jobs, 1, &err) == PT_OK && w.len == 4 + 153);
     CHECK(job_list_check(w.buf, w.len, NULL, &alloc) == PT_OK && alloc == 1);
     proto_put_u32(w.buf, 2);
     CHECK(job_list_check(w.buf, w.len, "bytes", &alloc) == PT_ERR_PROTO && alloc == 0);
@@ -1647,6 +1764,7 @@ int main(void)
     test_counts();
     test_result();
     test_result_guide();
+    test_guide_pack();
     test_submit();
     test_job_info();
     test_job_list();

@@ -66,11 +66,15 @@ static int hostile_result(int port, int k)
     CHECK(got && ch.offset == 0 && ch.len == ch.total);
     uint32_t nsn = 0, nqn = 0;
     if (got) {
-        uint8_t h[32];
-        pt_sha256(ch.data, ch.len, h);
+        /* Packed on the wire; the hash is of the unpacked bytes. */
+        uint8_t h[32], *raw = NULL;
+        size_t rawlen = 0;
+        CHECK(proto_guide_unpack(ch.data, ch.len, &raw, &rawlen, NULL) == PT_OK && rawlen > ch.len);
+        pt_sha256(raw, rawlen, h);
         CHECK(memcmp(h, t.guide_hash, 32) == 0);
         pt_guide *gd = NULL;
-        CHECK(proto_guide_decode(ch.data, ch.len, &gd, NULL) == PT_OK);
+        CHECK(proto_guide_decode(raw, rawlen, &gd, NULL) == PT_OK);
+        pt_free(raw);
         if (gd) {
             nsn = gd->nsnode;
             nqn = gd->nqnode;
