@@ -142,15 +142,15 @@ pt_status pt_guide_build(const pt_guide *g, const pt_guide_stats *s, uint64_t sp
  * worker and the farm cut passes here alike. */
 uint32_t pt_guide_pass_end(uint32_t k, uint32_t spp);
 
-/* --guiding auto: 1 when scene has a surface that redirects light sharply
- * onto others, where guiding finds what BSDF sampling and NEE miss: glass
- * or diffuse transmission, a metal (metallic factor above 0 or a metal
- * texture), or a smooth surface (roughness below PT_GUIDE_AUTO_ROUGHNESS,
- * or a clearcoat) in its feature mask and materials; 0 for an all-Lambert
- * or all-rough dielectric scene, which then runs its unguided variant and
- * pays nothing. A pure function of the scene: ptworker, ptserve and the
+/* --guiding auto: 1 when scene has glass or a diffuse transmitter (its
+ * feature mask), whose light path tracing with NEE finds by chance and
+ * where guiding came out even with the build before it
+ * (docs/bench/guiding.md: 1.03x and 0.94x the time to equal relMSE on a
+ * glass ball and TransmissionTest); 0 otherwise, where it measured slower
+ * (metals and mirrors: the NVIDIA Cornell box 0.65x, DamagedHelmet 0.55x,
+ * StainedGlassLamp 0.69x), so those scenes keep their unguided variant and
+ * pay nothing. A pure function of the scene: ptworker, ptserve and the
  * farm's workers decide alike. */
-#define PT_GUIDE_AUTO_ROUGHNESS 0.3f
 typedef struct pt_scene pt_scene;
 int pt_guide_auto(const pt_scene *scene);
 

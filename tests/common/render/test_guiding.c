@@ -23,9 +23,8 @@
  * - Bits: a guided tile equals the same samples traced one path at a time
  *   (pt_render_sample_guided) and summed in order, and the statistics of a
  *   tile equal, exactly, the merged statistics of its halves rendered apart.
- * - The auto rule (pt_guide_auto): off for a Lambert sphere and a rough
- *   dielectric one (roughness 1), on for a metal one and a smooth dielectric
- *   one (roughness 0.1), and for glass.
+ * - The auto rule (pt_guide_auto): off for a Lambert sphere, a rough and a
+ *   smooth dielectric one and a metal one; on for glass.
  * - Off costs nothing: a renderer made without params.guiding ignores a
  *   guide it is handed (the same bits as pt_render_tile), and a Lambert scene
  *   with guiding asked keeps its own variant.
@@ -497,8 +496,8 @@ static void auto_rule(void)
         const char *what;
     } c[] = {{0.0f, 1.0f, 0.0f, 0, "Lambert"},
              {0.0f, 1.0f, 1.0f, 0, "rough dielectric"},
-             {1.0f, 0.5f, 1.0f, 1, "metal"},
-             {0.0f, 0.1f, 1.0f, 1, "smooth dielectric"}};
+             {1.0f, 0.5f, 1.0f, 0, "metal"},
+             {0.0f, 0.1f, 1.0f, 0, "smooth dielectric"}};
     for (size_t i = 0; i < sizeof c / sizeof c[0]; i++) {
         pt_scene *s = furnace(0.5f, c[i].metallic, c[i].roughness, c[i].specular);
         if (!s)
