@@ -360,7 +360,7 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
         fprintf(stderr, "ptworker: --guiding: every material is Lambert; nothing to guide\n");
     if (o->guiding == PT_GUIDING_AUTO && !o->quiet)
         fprintf(stderr, "ptworker: --guiding auto: %s\n",
-                p.guiding ? "on (a metal, glass or smooth surface)" : "off");
+                p.guiding ? "on (glass in the scene)" : "off");
     if (pt_render_check_lit(scene, env != NULL, o->scene_path, &err) != PT_OK) {
         /* It would render black: say how to light it instead. */
         fprintf(stderr, "ptworker: %s\n", err.msg);

@@ -546,19 +546,7 @@ uint32_t pt_guide_pass_end(uint32_t k, uint32_t spp)
 
 int pt_guide_auto(const pt_scene *scene)
 {
-    if (!(scene->features & PT_FEAT_GLOSSY))
-        return 0;
-    if (scene->features & (PT_FEAT_TRANSMISSION | PT_FEAT_DIFFUSE_TRANSMISSION))
-        return 1;
-    for (uint32_t i = 0; i < scene->num_materials; i++) {
-        const pt_material *m = &scene->materials[i];
-        if (m->unlit)
-            continue;
-        if (m->spec_gloss || m->metallic > 0.0f || m->metal_rough_tex >= 0 || m->clearcoat > 0.0f ||
-            (m->specular > 0.0f && m->roughness < PT_GUIDE_AUTO_ROUGHNESS))
-            return 1;
-    }
-    return 0;
+    return (scene->features & (PT_FEAT_TRANSMISSION | PT_FEAT_DIFFUSE_TRANSMISSION)) != 0;
 }
 
 int pt_guide_enabled(uint32_t mode, const pt_scene *scene)

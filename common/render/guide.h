@@ -142,15 +142,14 @@ pt_status pt_guide_build(const pt_guide *g, const pt_guide_stats *s, uint64_t sp
  * worker and the farm cut passes here alike. */
 uint32_t pt_guide_pass_end(uint32_t k, uint32_t spp);
 
-/* --guiding auto: 1 when scene has a surface that redirects light sharply
- * onto others, where guiding finds what BSDF sampling and NEE miss: glass
- * or diffuse transmission, a metal (metallic factor above 0 or a metal
- * texture), or a smooth surface (roughness below PT_GUIDE_AUTO_ROUGHNESS,
- * or a clearcoat) in its feature mask and materials; 0 for an all-Lambert
- * or all-rough dielectric scene, which then runs its unguided variant and
- * pays nothing. A pure function of the scene: ptworker, ptserve and the
- * farm's workers decide alike. */
-#define PT_GUIDE_AUTO_ROUGHNESS 0.3f
+/* --guiding auto: 1 when scene has glass or a diffuse transmitter (its
+ * feature mask), whose light path tracing with NEE finds by chance and
+ * where guiding came closest to paying (docs/bench/guiding.md: 1.03x,
+ * 0.82x and 0.88x the time to equal relMSE on a glass ball,
+ * TransmissionTest and ToyCar); 0 otherwise (the NVIDIA Cornell box 0.69x,
+ * DamagedHelmet 0.83x, StainedGlassLamp 0.79x), so those scenes keep their
+ * unguided variant and pay nothing. A pure function of the scene:
+ * ptworker, ptserve and the farm's workers decide alike. */
 typedef struct pt_scene pt_scene;
 int pt_guide_auto(const pt_scene *scene);
 

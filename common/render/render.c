@@ -1388,6 +1388,31 @@ static inline int closure_guidable(const pt_closure *cl)
     return any;
 }
 
+/* The share of cl's sampling probability held by lobes that a guide of
+ * incident radiance alone can stand in for: diffuse ones and GGX lobes of
+ * alpha >= GUIDE_BROAD_ALPHA, broad enough that the light's shape matters
+ * more than the lobe's. A narrower lobe's directions drawn from the guide
+ * mostly land where it reflects nothing; the guide's share of a vertex's
+ * directions is scaled by this, so a glossy vertex keeps its BSDF sampling
+ * (the selection probability is a function of the vertex: one-sample MIS
+ * stays unbiased, Mueller et al. 2017 sec. 5; Mueller 2019 learns it). */
+#define GUIDE_BROAD_ALPHA 0.5f
+static inline float closure_guide_share(const pt_closure *cl)
+{
+    float reach = 1.0f, share = 0.0f;
+    for (uint32_t g = cl->n_groups; g-- > 0;) {
+        const pt_closure_group *gr = &cl->group[g];
+        for (uint32_t i = 0; i < gr->n; i++) {
+            const pt_lobe *l = &cl->lobe[gr->first + i];
+            if (l->kind == PT_LOBE_DIFFUSE ||
+                (l->kind == PT_LOBE_SPECULAR && l->p.specular.alpha >= GUIDE_BROAD_ALPHA))
+                share += reach * l->prob;
+        }
+        reach *= gr->below;
+    }
+    return share < 1.0f ? share : 1.0f;
+}
+
 /* The passes at an unlit surface (PT_FEAT_UNLIT), where the path ends: its
  * colour is the albedo, its interpolated normal turned to the ray the
  * normal. */
@@ -1520,7 +1545,7 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     if ((features & FEAT_GUIDE) && pa->gp && pa->gp->gd && pa->gp->gd->guide && !glass &&
         pa->depth < GUIDE_MAX_DEPTH && (features & PT_FEAT_GLOSSY) && closure_guidable(&cl)) {
         guide = pa->gp->gd->guide;
-        gprob = pa->gp->gd->prob;
+        gprob = pa->gp->gd->prob * closure_guide_share(&cl);
         gleaf = pt_guide_cell(guide, sf->p, ns);
         /* A cell no record reached is uniform: recorded into, not sampled. */
         if (!pt_guide_learned(guide, gleaf))

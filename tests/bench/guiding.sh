@@ -28,6 +28,8 @@
 #   RES       image size [128x128]       THREADS  render threads [2]
 #   REF_SPP   reference spp [4096]       SPP      list [16,32,64,128,256]
 #   NEW_ARGS  [--guiding on]             BASE_ARGS [""]
+#   SEED0     repetition r renders with seed SEED0 + r [0]: another run
+#             with other seeds adds repetitions (concatenate the CSVs)
 #   OUT       folder for references, images and CSV [/tmp/ptfarm-guiding];
 #             a reference already there (same scene, size, spp) is reused
 #   PLOTS     folder for the SVG plots [OUT]
@@ -47,6 +49,7 @@ REF_SPP=${REF_SPP:-4096}
 SPP=${SPP:-16,32,64,128,256}
 NEW_ARGS=${NEW_ARGS:---guiding on}
 BASE_ARGS=${BASE_ARGS:-}
+SEED0=${SEED0:-0}
 OUT=${OUT:-/tmp/ptfarm-guiding}
 PLOTS=${PLOTS:-$OUT}
 mkdir -p "$OUT/new" "$OUT/base" "$PLOTS"
@@ -102,7 +105,7 @@ for name in $SCENES; do
     for build in base new; do
         build_args "$build"
         for rep in $(seq 1 "$REPS"); do
-            c=$(cpu_run "$build" "$rep" 1 "$OUT/load.exr" "$@" "${extra[@]}")
+            c=$(cpu_run "$build" $((SEED0 + rep)) 1 "$OUT/load.exr" "$@" "${extra[@]}")
             echo "$name,$build,0,$rep,$c,0,0" >>"$CSV"
         done
     done
@@ -111,7 +114,7 @@ for name in $SCENES; do
             for build in base new; do
                 build_args "$build"
                 img=$OUT/${name}_${build}_${spp}_${rep}.exr
-                c=$(cpu_run "$build" "$rep" "$spp" "$img" "$@" "${extra[@]}")
+                c=$(cpu_run "$build" $((SEED0 + rep)) "$spp" "$img" "$@" "${extra[@]}")
                 e=$("$OUT/new/ptbench" error "$img" "$ref" |
                     awk '/^relMSE/ { r = $2 } /^worst0/ { w = $2 } END { print r "," w }')
                 echo "$name,$build,$spp,$rep,$c,$e" >>"$CSV"

@@ -115,7 +115,7 @@ def main():
             ratio = b[1] / t if t else None
             if ratio:
                 ratios.append(ratio)
-            print("| %d | %.2f | %.4f | %.2f | %.4f | %s | %s |" % (
+            print("| %d | %.2f | %.4g | %.2f | %.4g | %s | %s |" % (
                 b[0], b[1], b[2], n[1], n[2], "%.2f" % t if t else "-",
                 "%.2fx" % ratio if ratio else "-"))
         med = statistics.median(ratios) if ratios else None
@@ -128,7 +128,7 @@ def main():
     print("\n| scene | time ratio base/new | relMSE base | relMSE new | worst 0.1 % base | new |")
     print("|---|---:|---:|---:|---:|---:|")
     for scene, med, rb, rn, wb, wn in summary:
-        print("| %s | %s | %.4f | %.4f | %.3f | %.3f |" % (
+        print("| %s | %s | %.4g | %.4g | %.3f | %.3f |" % (
             scene, "%.2fx" % med if med else "-", rb, rn, wb, wn))
 
 
