@@ -265,10 +265,10 @@ static void test_variance(void)
 {
     /* a 2 x 2 triangle standing at x = 0.05 over a wall z = 0 */
     const double t[3][3] = {{0.05, -1, 0.02}, {0.05, 1, 0.02}, {0.05, 0, 2}};
-    const double xs[] = {0.1, 0.3, 1.0, 3.0};
+    const double xs[] = {0.1, 0.3, 0.5, 1.0, 3.0};
     rng_state = 3;
     double ratio_near = 0.0;
-    for (int k = 0; k < 4; k++) {
+    for (int k = 0; k < 5; k++) {
         const double q[3] = {xs[k], 0.0, 0.0};
         const int n = 400000;
         double m[2], var[2];
