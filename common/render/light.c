@@ -17,7 +17,10 @@
  * Choice: Vose 1991, "A Linear Algorithm for Generating Random Numbers with a
  * Given Distribution" (IEEE TSE 17(9)): Walker's alias method built in O(n).
  * Point: Heitz 2019, "A Low-Distortion Map Between Triangle and Square"
- * (HAL hal-02073696), which keeps the stratification of the sampler's points.
+ * (HAL hal-02073696), which keeps the stratification of the sampler's points;
+ * with PT_LIGHT_SOLID_ANGLE, a triangle seen under SA_MIN sr or more is
+ * sampled by solid angle instead (Arvo 1995, sphtri.h). Many lights: the
+ * light tree (light_tree.h) from PT_LIGHT_TREE_MIN of them on.
  *
  * Punctual lights (scene.h) are chosen among themselves by a cumulative
  * table, and against the triangles by the two classes' total power, on the
@@ -834,6 +837,18 @@ static inline double sa_omega(const pt_lights *lights, const light_entry *le, pt
     double h = fabs((double)pt_v3_dot(le->normal, pt_v3_sub(p, le->v[0])));
     if (!((double)le->area > SA_MIN * h * h))
         return 0.0;
+    /* and at most area / d^2, d the distance to the triangle, at least the
+     * distance to its centroid less its farthest vertex's */
+    pt_vec3 c = pt_v3_scale(pt_v3_add(pt_v3_add(le->v[0], le->v[1]), le->v[2]), 1.0f / 3.0f);
+    double r2 = 0.0;
+    for (int i = 0; i < 3; i++) {
+        pt_vec3 e = pt_v3_sub(le->v[i], c);
+        r2 = fmax(r2, (double)pt_v3_dot(e, e));
+    }
+    pt_vec3 dc = pt_v3_sub(p, c);
+    double d = sqrt((double)pt_v3_dot(dc, dc)) - sqrt(r2);
+    if (d > 0.0 && !((double)le->area > SA_MIN * d * d))
+        return 0.0;
     double om = pt_sphtri_solid_angle(p, le->v[0], le->v[1], le->v[2]);
     return om >= SA_MIN ? om : 0.0;
 }
@@ -849,11 +864,12 @@ static inline float sa_pdf(const light_entry *le, float pmf_area, double omega)
  * sphtri.h): the direction from u1, u2, the point where it meets the
  * light's plane, its barycentrics for the emission. */
 static int sample_solid_angle(const pt_lights *lights, const pt_scene *scene, const light_entry *le,
-                              pt_vec3 p, float pmf_area, float u1, float u2, pt_light_sample *s)
+                              pt_vec3 p, float pmf_area, double omega, float u1, float u2,
+                              pt_light_sample *s)
 {
-    double omega;
+    double arvo_omega; /* from the inner angles: omega up to rounding */
     pt_vec3 wi;
-    if (!pt_sphtri_sample(p, le->v[0], le->v[1], le->v[2], u1, u2, &wi, &omega))
+    if (!pt_sphtri_sample(p, le->v[0], le->v[1], le->v[2], u1, u2, &wi, &arvo_omega))
         return 0;
     const pt_material *m = &scene->materials[le->material];
     float dn = pt_v3_dot(wi, le->normal);
@@ -927,7 +943,7 @@ int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, 
         return 0;
     double omega = sa_omega(lights, le, p);
     if (omega > 0.0)
-        return sample_solid_angle(lights, scene, le, p, pmf_area, u[1], u[2], s);
+        return sample_solid_angle(lights, scene, le, p, pmf_area, omega, u[1], u[2], s);
     point_on(le, u[1], u[2], &s->position, &b1, &b2);
     s->tri = le->tri;
     s->normal = le->normal;

@@ -74,18 +74,25 @@ static double setup(pt_vec3 p, pt_vec3 a, pt_vec3 b, pt_vec3 c, d3 v[3], double 
     return omega > 0.0 && isfinite(omega) ? omega : 0.0;
 }
 
+/* Van Oosterom & Strackee 1983 ("The Solid Angle of a Plane Triangle",
+ * IEEE TBME 30(2)): tan(Omega / 2) = |a.(b x c)| / (|a||b||c| + (a.b)|c| +
+ * (a.c)|b| + (b.c)|a|) for the vectors from p: one atan2 where the inner
+ * angles take three acos. It agrees with them to rounding (test_sphtri). */
 double pt_sphtri_solid_angle(pt_vec3 p, pt_vec3 a, pt_vec3 b, pt_vec3 c)
 {
-    d3 v[3];
-    double ang[3];
-    return setup(p, a, b, c, v, ang);
+    d3 A = d3_of(a, p), B = d3_of(b, p), C = d3_of(c, p);
+    double la = sqrt(dot(A, A)), lb = sqrt(dot(B, B)), lc = sqrt(dot(C, C));
+    double num = fabs(dot(A, cross(B, C)));
+    double den = la * lb * lc + dot(A, B) * lc + dot(A, C) * lb + dot(B, C) * la;
+    double o = 2.0 * atan2(num, den);
+    return o > 0.0 && isfinite(o) && num > 0.0 ? o : 0.0;
 }
 
 int pt_sphtri_sample(pt_vec3 p, pt_vec3 a, pt_vec3 b, pt_vec3 c, float u1, float u2, pt_vec3 *wi,
                      double *omega)
 {
-    d3 v[3];
-    double ang[3];
+    d3 v[3] = {{0, 0, 0}, {0, 0, 0}, {0, 0, 0}};
+    double ang[3] = {0, 0, 0};
     double area = setup(p, a, b, c, v, ang);
     *omega = area;
     if (!(area > 0.0))

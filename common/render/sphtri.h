@@ -12,8 +12,10 @@
  * variance of the distance and light cosine: what counts for a large
  * triangle close to the shading point.
  *
- * pt_sphtri_solid_angle gives the Omega that pt_sphtri_sample divides by,
- * from the same formula, so a pdf computed later (MIS) has its bits.
+ * pt_sphtri_solid_angle gives Omega by Van Oosterom & Strackee's closed
+ * form (one atan2; the sampler's inner angles agree with it to rounding):
+ * a caller divides by this one number both when it samples and when it
+ * weighs a BSDF hit, so the two pdfs have the same bits.
  * Pure functions; any thread. Single precision in, double inside: the
  * inner angles of a small spherical triangle lose their digits in float.
  */
