@@ -17,7 +17,10 @@
  * Choice: Vose 1991, "A Linear Algorithm for Generating Random Numbers with a
  * Given Distribution" (IEEE TSE 17(9)): Walker's alias method built in O(n).
  * Point: Heitz 2019, "A Low-Distortion Map Between Triangle and Square"
- * (HAL hal-02073696), which keeps the stratification of the sampler's points.
+ * (HAL hal-02073696), which keeps the stratification of the sampler's points;
+ * with PT_LIGHT_SOLID_ANGLE, a triangle seen under SA_MIN sr or more is
+ * sampled by solid angle instead (Arvo 1995, sphtri.h). Many lights: the
+ * light tree (light_tree.h) from PT_LIGHT_TREE_MIN of them on.
  *
  * Punctual lights (scene.h) are chosen among themselves by a cumulative
  * table, and against the triangles by the two classes' total power, on the
@@ -41,6 +44,7 @@
 #include "common/render/env.h"
 #include "common/render/light_lanes.h"
 #include "common/render/light_tree.h"
+#include "common/render/sphtri.h"
 #include "common/scene/accel.h"
 #include "common/scene/motion.h"
 
@@ -78,6 +82,7 @@ struct pt_lights {
     float *tex_uv;
     alias_slot *alias;   /* count columns */
     pt_light_tree *tree; /* where it chooses the triangle (light_tree.h); NULL: the alias table */
+    int solid_angle;     /* PT_LIGHT_SOLID_ANGLE: large near triangles by solid angle */
     uint32_t *tri_to_light; /* num_triangles entries, UINT32_MAX: not a light; NULL if count 0 */
     /* punctual lights */
     uint32_t npunct;          /* the punctual class's lights (0: no class) */
@@ -420,6 +425,8 @@ pt_status pt_lights_new_select(const pt_scene *scene, const pt_env *env, int env
         return pt_error_set(err, PT_ERR_NOMEM, "pt_lights_new: out of memory");
     L->num_triangles = scene->num_triangles;
     L->env_dist = env_dist;
+    L->solid_angle = (select & PT_LIGHT_SOLID_ANGLE) != 0;
+    select &= ~(uint32_t)PT_LIGHT_SOLID_ANGLE;
 
     /* Check what we will index. */
     int any_tex = 0;
@@ -816,6 +823,82 @@ static inline const light_entry *choose(const pt_lights *lights, pt_vec3 p, cons
     return le;
 }
 
+/* The solid angle of light le seen from p when it is sampled by solid
+ * angle there (PT_LIGHT_SOLID_ANGLE and at least SA_MIN sr), else 0. The
+ * solid angle is at most area / h^2, h the distance to the light's plane
+ * (it is the integral of h / r^3 over the triangle, r >= h), which skips
+ * its computation for every light seen smaller. Sampling and
+ * pt_lights_pdf decide by this one function, so their pdfs agree. */
+#define SA_MIN 1.5
+static inline double sa_omega(const pt_lights *lights, const light_entry *le, pt_vec3 p)
+{
+    if (!lights->solid_angle)
+        return 0.0;
+    double h = fabs((double)pt_v3_dot(le->normal, pt_v3_sub(p, le->v[0])));
+    if (!((double)le->area > SA_MIN * h * h))
+        return 0.0;
+    /* and at most area / d^2, d the distance to the triangle, at least the
+     * distance to its centroid less its farthest vertex's */
+    pt_vec3 c = pt_v3_scale(pt_v3_add(pt_v3_add(le->v[0], le->v[1]), le->v[2]), 1.0f / 3.0f);
+    double r2 = 0.0;
+    for (int i = 0; i < 3; i++) {
+        pt_vec3 e = pt_v3_sub(le->v[i], c);
+        r2 = fmax(r2, (double)pt_v3_dot(e, e));
+    }
+    pt_vec3 dc = pt_v3_sub(p, c);
+    double d = sqrt((double)pt_v3_dot(dc, dc)) - sqrt(r2);
+    if (d > 0.0 && !((double)le->area > SA_MIN * d * d))
+        return 0.0;
+    double om = pt_sphtri_solid_angle(p, le->v[0], le->v[1], le->v[2]);
+    return om >= SA_MIN ? om : 0.0;
+}
+
+/* The pdf of a direction to light le sampled by solid angle: its pmf over
+ * the solid angle. */
+static inline float sa_pdf(const light_entry *le, float pmf_area, double omega)
+{
+    return (float)((double)(pmf_area * le->area) / omega);
+}
+
+/* pt_lights_sample's light point for le by solid angle (Arvo 1995,
+ * sphtri.h): the direction from u1, u2, the point where it meets the
+ * light's plane, its barycentrics for the emission. */
+static int sample_solid_angle(const pt_lights *lights, const pt_scene *scene, const light_entry *le,
+                              pt_vec3 p, float pmf_area, double omega, float u1, float u2,
+                              pt_light_sample *s)
+{
+    double arvo_omega; /* from the inner angles: omega up to rounding */
+    pt_vec3 wi;
+    if (!pt_sphtri_sample(p, le->v[0], le->v[1], le->v[2], u1, u2, &wi, &arvo_omega))
+        return 0;
+    const pt_material *m = &scene->materials[le->material];
+    float dn = pt_v3_dot(wi, le->normal);
+    if (!m->double_sided && !(dn < 0.0f)) /* the back of a single-sided light */
+        return 0;
+    float t = pt_v3_dot(pt_v3_sub(le->v[0], p), le->normal) / dn;
+    if (!(t > 0.0f) || !isfinite(t))
+        return 0;
+    s->position = pt_v3_add(p, pt_v3_scale(wi, t));
+    s->wi = wi;
+    s->dist = t;
+    s->normal = le->normal;
+    s->tri = le->tri;
+    s->pdf = sa_pdf(le, pmf_area, omega);
+    if (!(s->pdf > 0.0f) || !isfinite(s->pdf))
+        return 0;
+    /* barycentrics of the point, clamped into the triangle */
+    pt_vec3 e1 = pt_v3_sub(le->v[1], le->v[0]), e2 = pt_v3_sub(le->v[2], le->v[0]);
+    pt_vec3 x = pt_v3_sub(s->position, le->v[0]);
+    pt_vec3 c = pt_v3_cross(e1, e2);
+    float cc = pt_v3_dot(c, c);
+    float b1 = cc > 0.0f ? pt_v3_dot(pt_v3_cross(x, e2), c) / cc : 0.0f;
+    float b2 = cc > 0.0f ? pt_v3_dot(pt_v3_cross(e1, x), c) / cc : 0.0f;
+    b1 = b1 < 0.0f ? 0.0f : b1 > 1.0f ? 1.0f : b1;
+    b2 = b2 < 0.0f ? 0.0f : b2 > 1.0f - b1 ? 1.0f - b1 : b2;
+    s->radiance = emission_at(lights, scene, le, b1, b2);
+    return 1;
+}
+
 int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, const float u[3],
                      pt_light_sample *s)
 {
@@ -850,14 +933,18 @@ int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, 
         if (k >= lights->count) /* a point or spot light */
             return eval_punctual(&lights->punct[lights->tree_punct[k - lights->count]], p,
                                  (float)(q * lights->p_tri), s);
-        le = point_on(&lights->lights[k], u[1], u[2], &s->position, &b1, &b2);
+        le = &lights->lights[k];
         pmf_area = tree_pmf_area(lights, le, q);
     } else {
-        le = pick_point(lights, u, &s->position, &b1, &b2);
+        le = &lights->lights[pick_index(lights, u[0])];
         pmf_area = le->pmf_area;
     }
     if (!(pmf_area > 0.0f))
         return 0;
+    double omega = sa_omega(lights, le, p);
+    if (omega > 0.0)
+        return sample_solid_angle(lights, scene, le, p, pmf_area, omega, u[1], u[2], s);
+    point_on(le, u[1], u[2], &s->position, &b1, &b2);
     s->tri = le->tri;
     s->normal = le->normal;
     pt_vec3 d = pt_v3_sub(s->position, p);
@@ -914,7 +1001,7 @@ PT_SIMD_CLONES
 void pt_lights_sample_n(const pt_lights *lights, const pt_scene *scene, uint32_t n,
                         const pt_vec3 *p, const float (*u)[3], pt_light_sample *s, int *ok)
 {
-    if (!lights || lights->count == 0 || lights->tree) {
+    if (!lights || lights->count == 0 || lights->tree || lights->solid_angle) {
         for (uint32_t i = 0; i < n; i++)
             ok[i] = pt_lights_sample(lights, scene, p[i], u[i], &s[i]);
         return;
@@ -1010,5 +1097,13 @@ float pt_lights_pdf(const pt_lights *lights, const pt_scene *scene, uint32_t tri
     float pmf_area = le->pmf_area;
     if (lights->tree)
         pmf_area = tree_pmf_area(lights, le, pt_light_tree_pmf(lights->tree, p, k));
+    double omega = sa_omega(lights, le, p);
+    if (omega > 0.0) {
+        /* sample_solid_angle's pdf, on the side it samples */
+        if (!m->double_sided && !(pt_v3_dot(n_light, pt_v3_sub(hit, p)) < 0.0f))
+            return 0.0f;
+        float pdf = sa_pdf(le, pmf_area, omega);
+        return pdf > 0.0f && isfinite(pdf) ? pdf : 0.0f;
+    }
     return solid_angle_pdf(pmf_area, m->double_sided, p, hit, n_light);
 }

@@ -2406,9 +2406,18 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
     r->tan_half_fov = tanf(0.5f * r->camera.yfov);
     if ((st = pt_accel_new(scene, &r->accel, err)) != PT_OK)
         goto fail;
+    /* Solid-angle sampling of large near lights (light.h), when asked for,
+     * where the scene runs a variant that samples lights one path at a
+     * time: the Lambert variants' lanes compute area sampling's pdf, so a
+     * Lambert-only scene keeps area sampling in all its variants and their
+     * bits. */
+    uint32_t scene_feats = scene->features | (params->env ? (uint32_t)PT_FEAT_ENV : 0u);
+    uint32_t select = params->light_select;
+    if (!(scene_feats & (PT_FEAT_GLOSSY | GENERAL_ONLY)))
+        select &= ~(uint32_t)PT_LIGHT_SOLID_ANGLE;
     if ((st = pt_lights_new_select(
              scene, params->env, params->light_strategy == PT_LIGHT_MIS ? PT_ENV_MIS : PT_ENV_FULL,
-             params->light_select, &r->lights, err)) != PT_OK)
+             select, &r->lights, err)) != PT_OK)
         goto fail;
     r->offset = pt_accel_offset(r->accel);
     if (scene->num_materials > 0) {

@@ -234,9 +234,11 @@ typedef struct pt_render_params {
                               pt_render_tile_passes); the beauty keeps its bits;
                               default 0 */
     uint32_t light_select; /* PT_LIGHT_SELECT_* (light.h): how NEE chooses among the
-                              emissive triangles; for tests and benchmarks; default
-                              PT_LIGHT_SELECT_AUTO (0: the light tree from
-                              PT_LIGHT_TREE_MIN of them on) */
+                              emissive triangles, with PT_LIGHT_SOLID_ANGLE or'd in to
+                              sample large near lights by solid angle (taken only in
+                              scenes that are not Lambert-only); for tests and
+                              benchmarks; default PT_LIGHT_SELECT_AUTO (0: the light
+                              tree from PT_LIGHT_TREE_MIN lights on, area sampling) */
 } pt_render_params;
 
 typedef struct pt_render_stats {

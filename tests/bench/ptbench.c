@@ -323,6 +323,8 @@ static void usage(FILE *f)
                "  --reps R            repetitions; the median time is reported (default 1)\n"
                "  --light-select M    how NEE chooses an emissive triangle: auto (default: the\n"
                "                      light tree from 16 of them on), power or tree\n"
+               "  --solid-angle on|off large near lights by solid angle where the scene is not\n"
+               "                      Lambert-only, or by area everywhere (default off)\n"
                "  --label NAME        series name in CSV and plot (default: the scene's name)\n"
                "  --csv OUT.csv       write the table\n"
                "  --plot OUT.png      log-log plot of RMSE against seconds\n"
@@ -620,6 +622,7 @@ typedef struct opts {
     const char *env_path; /* --env, as ptworker's */
     double env_strength, env_rotate;
     uint32_t light_select; /* PT_LIGHT_SELECT_* */
+    int sa_on;             /* --solid-angle on */
 } opts;
 
 static int parse_opts(int argc, char **argv, opts *o)
@@ -696,6 +699,9 @@ static int parse_opts(int argc, char **argv, opts *o)
                               : !strcmp(v, "tree")  ? PT_LIGHT_SELECT_TREE
                                                     : UINT32_MAX;
             bad = o->light_select == UINT32_MAX;
+        } else if (!strcmp(a, "--solid-angle")) {
+            o->sa_on = !strcmp(v, "on");
+            bad = !o->sa_on && strcmp(v, "off");
         } else if (!strcmp(a, "--label")) {
             o->label = v;
         } else if (!strcmp(a, "--csv")) {
@@ -964,7 +970,7 @@ static int cmd_bench(int argc, char **argv)
     p.height = o.h;
     p.seed = o.seed;
     p.max_depth = o.max_depth;
-    p.light_select = o.light_select;
+    p.light_select = o.light_select | (o.sa_on ? PT_LIGHT_SOLID_ANGLE : 0u);
     if (o.env_path) {
         if (pt_env_load(o.env_path, (float)o.env_strength, (float)o.env_rotate, &env, &err) !=
             PT_OK) {

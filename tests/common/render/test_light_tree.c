@@ -38,6 +38,7 @@
 #include "common/render/light.h"
 #include "common/render/render.h"
 #include "tests/check.h"
+#include "tests/common/render/blocks.h"
 #include "tests/common/render/paired.h"
 #include "tests/stats.h"
 
@@ -292,99 +293,12 @@ static void test_lights_pdf(void)
     pt_scene_free(rs);
 }
 
-/* The two-sided standard normal quantile for a false alarm alpha over m
- * tests (Bonferroni), by bisection on erfc. */
-static double z_crit(double alpha, int m)
-{
-    double lo = 0.0, hi = 20.0, target = alpha / m;
-    for (int i = 0; i < 200; i++) {
-        double mid = 0.5 * (lo + hi);
-        if (erfc(mid / sqrt(2.0)) > target)
-            lo = mid;
-        else
-            hi = mid;
-    }
-    return hi;
-}
-
-static pt_renderer *renderer_select(const pt_scene *s, const pt_env *env, uint32_t side,
-                                    uint32_t select, uint32_t seed)
-{
-    pt_render_params p = {0};
-    pt_render_params_default(&p);
-    p.width = p.height = side;
-    p.seed = seed;
-    p.env = env;
-    p.light_select = select;
-    pt_renderer *r = NULL;
-    pt_error err = {0};
-    CHECKF(pt_renderer_new(s, &p, &r, &err) == PT_OK, "%s", err.msg);
-    return r;
-}
-
-/* Renders s with the tree and by power (different seeds, independent) and
- * returns the blocks x channels whose means differ by more than z_crit
- * standard errors; -1 when a renderer could not be made. */
-static int blocks_differing(const pt_scene *s, const pt_env *env, const char *what)
-{
-    enum { SIDE = 32, BLOCK = 8, SPP = 256 };
-    pt_renderer *r[2] = {renderer_select(s, env, SIDE, PT_LIGHT_SELECT_TREE, 11),
-                         renderer_select(s, env, SIDE, PT_LIGHT_SELECT_POWER, 12)};
-    int count = -1;
-    if (r[0] && r[1]) {
-        const int nb = (SIDE / BLOCK) * (SIDE / BLOCK);
-        double zc = z_crit(1e-3, nb * 3), zmax = 0.0;
-        count = 0;
-        uint64_t bad = 0;
-        for (int b = 0; b < nb; b++) {
-            int bx = b % (SIDE / BLOCK), by = b / (SIDE / BLOCK);
-            double mean[2][3] = {{0}}, var[2][3] = {{0}};
-            for (int k = 0; k < 2; k++)
-                for (int y = by * BLOCK; y < (by + 1) * BLOCK; y++)
-                    for (int x = bx * BLOCK; x < (bx + 1) * BLOCK; x++) {
-                        double sum[3] = {0}, sq[3] = {0};
-                        for (uint32_t i = 0; i < SPP; i++) {
-                            pt_render_stats st = {0};
-                            int cov = 0;
-                            pt_vec3 c =
-                                pt_render_sample(r[k], (uint32_t)x, (uint32_t)y, i, &st, &cov);
-                            const double ca[3] = {c.x, c.y, c.z};
-                            for (int ch = 0; ch < 3; ch++) {
-                                bad += !isfinite(ca[ch]);
-                                sum[ch] += ca[ch];
-                                sq[ch] += ca[ch] * ca[ch];
-                            }
-                        }
-                        for (int ch = 0; ch < 3; ch++) {
-                            double m = sum[ch] / SPP;
-                            mean[k][ch] += m / (BLOCK * BLOCK);
-                            /* the pixel mean's variance, over the block's count squared */
-                            var[k][ch] += fmax(sq[ch] / SPP - m * m, 0.0) / (SPP - 1.0) /
-                                          (BLOCK * BLOCK * BLOCK * BLOCK);
-                        }
-                    }
-            for (int ch = 0; ch < 3; ch++) {
-                double se = sqrt(var[0][ch] + var[1][ch]);
-                double d = fabs(mean[0][ch] - mean[1][ch]);
-                double z = se > 0.0 ? d / se : (d > 0.0 ? INFINITY : 0.0);
-                zmax = fmax(zmax, z);
-                count += z > zc;
-            }
-        }
-        CHECK(bad == 0);
-        printf("%s: tree vs power, largest block z %.2f (limit %.2f over %d tests)\n", what, zmax,
-               zc, nb * 3);
-    }
-    pt_renderer_free(r[0]);
-    pt_renderer_free(r[1]);
-    return count;
-}
-
 static void test_images(void)
 {
     pt_scene *rs = ring_scene(0);
     if (rs) {
-        int d = blocks_differing(rs, NULL, "ring of 48 lights");
+        int d = blocks_differing(rs, NULL, PT_LIGHT_SELECT_TREE, PT_LIGHT_SELECT_POWER,
+                                 "ring of 48 lights", NULL);
         CHECKF(d == 0, "ring: %d blocks differ", d);
         pt_scene_free(rs);
     }
@@ -395,7 +309,8 @@ static void test_images(void)
         CHECK(pt_lights_new_select(rs, NULL, PT_ENV_MIS, PT_LIGHT_SELECT_TREE, &L, NULL) == PT_OK);
         CHECK(L && pt_lights_has_tree(L) && pt_lights_punctual_count(L) == 19);
         pt_lights_free(L);
-        int d = blocks_differing(rs, NULL, "ring with 18 point and spot lights");
+        int d = blocks_differing(rs, NULL, PT_LIGHT_SELECT_TREE, PT_LIGHT_SELECT_POWER,
+                                 "ring with 18 point and spot lights", NULL);
         CHECKF(d == 0, "ring with punctual lights: %d blocks differ", d);
         pt_scene_free(rs);
     }
@@ -404,7 +319,8 @@ static void test_images(void)
     if (s) {
         pt_env *env = NULL;
         CHECK(pt_env_uniform(pt_v3(0.1f, 0.1f, 0.1f), &env, NULL) == PT_OK);
-        int d = blocks_differing(s, env, "EmissiveStrengthTest");
+        int d = blocks_differing(s, env, PT_LIGHT_SELECT_TREE, PT_LIGHT_SELECT_POWER,
+                                 "EmissiveStrengthTest", NULL);
         CHECKF(d == 0, "EmissiveStrengthTest: %d blocks differ", d);
         pt_env_free(env);
         pt_scene_free(s);
