@@ -180,7 +180,7 @@ static void white_furnace(void)
     pt_scene *s = furnace(ALBEDO, 0.0f, 1.0f, 0.0f);
     if (!s)
         return;
-    enum { W = 32, H = 32, SPP = 3072 };
+    enum { W = 32, H = 32, SPP = 6144 };
     /* PT_FEAT_GLOSSY: the guided variant for a Lambert material. */
     pt_renderer *r = renderer(s, W, H, 1, PT_FEAT_GLOSSY);
     CHECK(r && strcmp(pt_renderer_variant(r), "guided") == 0);
