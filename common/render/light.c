@@ -20,7 +20,7 @@
  * (HAL hal-02073696), which keeps the stratification of the sampler's points;
  * with PT_LIGHT_SOLID_ANGLE, a triangle seen under SA_MIN sr or more is
  * sampled by solid angle instead (Arvo 1995, sphtri.h). Many lights: the
- * light tree (light_tree.h) from PT_LIGHT_TREE_MIN of them on.
+ * light tree (light_tree.h) from PT_LIGHT_TREE_MIN to PT_LIGHT_TREE_AUTO_MAX of them.
  *
  * Punctual lights (scene.h) are chosen among themselves by a cumulative
  * table, and against the triangles by the two classes' total power, on the
@@ -547,9 +547,10 @@ others : {
             m++;
             tree_punct += punct_power[i];
         }
-    int use_tree = select == PT_LIGHT_SELECT_TREE   ? n + m >= 2
-                   : select == PT_LIGHT_SELECT_AUTO ? n + m >= PT_LIGHT_TREE_MIN
-                                                    : 0;
+    int use_tree = select == PT_LIGHT_SELECT_TREE ? n + m >= 2
+                   : select == PT_LIGHT_SELECT_AUTO
+                       ? n + m >= PT_LIGHT_TREE_MIN && n + m <= PT_LIGHT_TREE_AUTO_MAX
+                       : 0;
     double first = use_tree ? total + tree_punct : total; /* the first class's power */
     double class_punct = use_tree ? punct_total - tree_punct : punct_total;
     if (!(class_punct > 0.0))

@@ -7,7 +7,8 @@
  * light. Lights are chosen in proportion to power (area x luminance of the
  * emission, with the emissive texture's mean over the triangle's footprint)
  * through an alias table (Walker 1977 / Vose 1991), or, from
- * PT_LIGHT_TREE_MIN lights on (triangles, point and spot lights together), by
+ * PT_LIGHT_TREE_MIN to PT_LIGHT_TREE_AUTO_MAX lights (triangles, point and
+ * spot lights together), by
  * a light tree (light_tree.h) in proportion to an estimate of what each gives
  * the shading point (power, distance and orientation bounds); then a point is
  * sampled uniformly by area and the pdf converted to solid angle:
@@ -47,11 +48,19 @@ enum { PT_LIGHT_AREA = 0, PT_LIGHT_AT = 1, PT_LIGHT_FAR = 2, PT_LIGHT_ENV = 3 };
 typedef struct pt_env pt_env; /* common/render/env.h */
 
 /* How the triangles' class chooses a triangle: PT_LIGHT_SELECT_AUTO, the
- * light tree from PT_LIGHT_TREE_MIN triangles on (with fewer it costs more
- * than it saves, and the samples keep the bits of the alias table);
+ * light tree from PT_LIGHT_TREE_MIN to PT_LIGHT_TREE_AUTO_MAX lights (with
+ * fewer or more it costs more than it saves; the samples then keep the bits
+ * of the alias table);
  * _POWER, the alias table by power always; _TREE, the tree from 2 on. */
 enum { PT_LIGHT_SELECT_AUTO = 0, PT_LIGHT_SELECT_POWER = 1, PT_LIGHT_SELECT_TREE = 2 };
 #define PT_LIGHT_TREE_MIN 16u
+/* ... and up to PT_LIGHT_TREE_AUTO_MAX: past it _AUTO chooses by power.
+ * Measured (tests/bench/light_tree.sh, time to equal relMSE, power/tree):
+ * EmissiveStrengthTest's 60 lights 1.85x faster with the tree, but
+ * DamagedHelmet's 370 textured ones 0.81x, ToyCar's 2,720 0.81x and
+ * StainedGlassLamp's 16,704 0.71x: there the walk costs more than the
+ * better choice saves. */
+#define PT_LIGHT_TREE_AUTO_MAX 256u
 /* Or'd into select: a triangle seen under at least 1.5 sr is sampled by solid
  * angle (Arvo 1995, sphtri.h) instead of area, where that pays (a large
  * light close to the shading point); pt_lights_pdf follows. Not for the

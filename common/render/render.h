@@ -238,7 +238,7 @@ typedef struct pt_render_params {
                               sample large near lights by solid angle (taken only in
                               scenes that are not Lambert-only); for tests and
                               benchmarks; default PT_LIGHT_SELECT_AUTO (0: the light
-                              tree from PT_LIGHT_TREE_MIN lights on, area sampling) */
+                              tree from PT_LIGHT_TREE_MIN to _AUTO_MAX lights, area sampling) */
 } pt_render_params;
 
 typedef struct pt_render_stats {

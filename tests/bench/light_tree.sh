@@ -8,8 +8,8 @@
 # max depth 16 as ptbench renders), then REPS times, alternating so that a
 # change of machine load hits both alike, the "old" series (ptbench
 # --light-select power, or BASE's ptbench: another build, e.g. main's) and
-# the "new" one (ptbench, default selection: the tree from 16 emissive
-# triangles on) at each sample count of SPP, timed in-process (scene load and
+# the "new" one (ptbench, default selection: the tree for 16 to 256 emissive
+# triangles) at each sample count of SPP, timed in-process (scene load and
 # BVH build excluded). The images are the same bits every repetition; the
 # times are medians over REPS, wall and CPU (all render threads: on a shared
 # machine the CPU time counts the work and not the waits for a core).

@@ -26,6 +26,9 @@
  * - Coarse nodes: coplanar lights seen from far are chosen by power alone
  *   (pmf and sampler), from close by by the tree.
  * - Bad input (counts, NaN, zero power) and allocation failure.
+ * - The default (PT_LIGHT_SELECT_AUTO) takes the tree from PT_LIGHT_TREE_MIN
+ *   to PT_LIGHT_TREE_AUTO_MAX lights, the alias table by power outside that;
+ *   PT_LIGHT_SELECT_TREE takes the tree whatever the count.
  */
 #include "common/render/light_tree.h"
 
@@ -411,6 +414,59 @@ static void test_errors(void)
     CHECK(pt_alloc_live() == live);
 }
 
+/* A strip of n small emissive triangles over a floor, one mesh. */
+static pt_scene *strip_scene(uint32_t n)
+{
+    pt_scene_builder *b = NULL;
+    pt_scene *s = NULL;
+    pt_error err = {0};
+    CHECK(pt_scene_builder_new(&b, &err) == PT_OK);
+    if (!b)
+        return NULL;
+    pt_material m = pt_material_default();
+    m.emissive[0] = m.emissive[1] = m.emissive[2] = 1.0f;
+    uint32_t mat;
+    float *v = pt_calloc((size_t)n * 9, sizeof *v);
+    int ok = v && pt_scene_builder_add_material(b, &m, &mat, &err) == PT_OK;
+    for (uint32_t i = 0; ok && i < n; i++) {
+        float x = 0.1f * (float)i;
+        const float tv[9] = {x, 0, 1, x + 0.05f, 0, 1, x, 0.05f, 1};
+        memcpy(v + 9 * i, tv, sizeof tv);
+    }
+    ok = ok && pt_scene_builder_add_mesh(b, "strip", v, NULL, NULL, 3 * n, NULL, n, NULL, mat,
+                                         &err) == PT_OK;
+    pt_scene_opts o = {0};
+    o.scale = 1.0f;
+    if (ok)
+        ok = pt_scene_builder_finish(b, &o, &s, &err) == PT_OK;
+    else
+        pt_scene_builder_free(b);
+    CHECKF(ok, "strip of %u lights: %s", n, err.msg);
+    pt_free(v);
+    return s;
+}
+
+static void test_auto_range(void)
+{
+    const uint32_t counts[] = {PT_LIGHT_TREE_MIN - 1, PT_LIGHT_TREE_MIN, PT_LIGHT_TREE_AUTO_MAX,
+                               PT_LIGHT_TREE_AUTO_MAX + 1, 1000};
+    for (size_t i = 0; i < sizeof counts / sizeof counts[0]; i++) {
+        pt_scene *s = strip_scene(counts[i]);
+        if (!s)
+            continue;
+        int want = counts[i] >= PT_LIGHT_TREE_MIN && counts[i] <= PT_LIGHT_TREE_AUTO_MAX;
+        pt_lights *a = NULL, *t = NULL;
+        CHECK(pt_lights_new_select(s, NULL, 0, PT_LIGHT_SELECT_AUTO, &a, NULL) == PT_OK);
+        CHECK(pt_lights_new_select(s, NULL, 0, PT_LIGHT_SELECT_TREE, &t, NULL) == PT_OK);
+        CHECKF(a && pt_lights_has_tree(a) == want, "%u lights: auto %s the tree", counts[i],
+               want ? "without" : "with");
+        CHECKF(t && pt_lights_has_tree(t), "%u lights: no tree when asked for", counts[i]);
+        pt_lights_free(a);
+        pt_lights_free(t);
+        pt_scene_free(s);
+    }
+}
+
 int main(void)
 {
     test_pmf_sums_and_sides();
@@ -419,5 +475,6 @@ int main(void)
     test_coarse();
     test_errors();
     test_images();
+    test_auto_range();
     return check_report();
 }
