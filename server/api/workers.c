@@ -11,6 +11,32 @@
 #include "server/sched/job.h"
 #include "server/sched/queue.h"
 
+/* Sends the piece of data (size bytes, named by hash) from offset on in one
+ * chunk message of type (SCENE_CHUNK's layout), or an error when offset is
+ * past its end; what names the data in that error. */
+static void send_chunk(srv_server *s, srv_conn *c, uint16_t type, const uint8_t hash[32],
+                       const uint8_t *data, size_t size, uint64_t offset, const char *what)
+{
+    if (offset > size) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "%s offset %llu is past its end (%zu)", what,
+                            (unsigned long long)offset, size);
+        return;
+    }
+    proto_scene_chunk ch;
+    memcpy(ch.hash, hash, 32);
+    ch.offset = offset;
+    ch.total = size;
+    size_t left = size - (size_t)offset;
+    ch.len = (uint32_t)(left < PROTO_MAX_SCENE_CHUNK ? left : PROTO_MAX_SCENE_CHUNK);
+    ch.data = data + offset;
+    size_t mark;
+    pt_status st = proto_frame_begin(&c->out, type, &mark, NULL);
+    if (st == PT_OK)
+        st = proto_frame_finish(&c->out, mark, proto_msg_encode_scene_chunk(&c->out, &ch, NULL),
+                                NULL);
+    srv_conn_queued(s, c, st);
+}
+
 static void on_scene_get(srv_server *s, srv_conn *c, const proto_frame *f)
 {
     proto_scene_get g;
@@ -24,25 +50,8 @@ static void on_scene_get(srv_server *s, srv_conn *c, const proto_frame *f)
         srv_conn_send_error(s, c, PROTO_E_NOT_FOUND, "no scene with that hash");
         return;
     }
-    const pt_bundle *b = j->bundle;
-    if (g.offset > b->size) {
-        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "scene offset %llu is past its end (%zu)",
-                            (unsigned long long)g.offset, b->size);
-        return;
-    }
-    proto_scene_chunk ch;
-    memcpy(ch.hash, j->rec.hash, 32);
-    ch.offset = g.offset;
-    ch.total = b->size;
-    size_t left = b->size - (size_t)g.offset;
-    ch.len = (uint32_t)(left < PROTO_MAX_SCENE_CHUNK ? left : PROTO_MAX_SCENE_CHUNK);
-    ch.data = b->data + g.offset;
-    size_t mark;
-    pt_status st = proto_frame_begin(&c->out, PROTO_MSG_SCENE_CHUNK, &mark, NULL);
-    if (st == PT_OK)
-        st = proto_frame_finish(&c->out, mark, proto_msg_encode_scene_chunk(&c->out, &ch, NULL),
-                                NULL);
-    srv_conn_queued(s, c, st);
+    send_chunk(s, c, PROTO_MSG_SCENE_CHUNK, j->rec.hash, j->bundle->data, j->bundle->size, g.offset,
+               "scene");
 }
 
 /* GUIDE_GET: a piece of a guided job's distribution, by hash (GUIDE in
@@ -61,24 +70,7 @@ static void on_guide_get(srv_server *s, srv_conn *c, const proto_frame *f)
         srv_conn_send_error(s, c, PROTO_E_NOT_FOUND, "no guiding distribution with that hash");
         return;
     }
-    if (g.offset > size) {
-        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "guide offset %llu is past its end (%zu)",
-                            (unsigned long long)g.offset, size);
-        return;
-    }
-    proto_scene_chunk ch;
-    memcpy(ch.hash, g.hash, 32);
-    ch.offset = g.offset;
-    ch.total = size;
-    size_t left = size - (size_t)g.offset;
-    ch.len = (uint32_t)(left < PROTO_MAX_SCENE_CHUNK ? left : PROTO_MAX_SCENE_CHUNK);
-    ch.data = data + g.offset;
-    size_t mark;
-    pt_status st = proto_frame_begin(&c->out, PROTO_MSG_GUIDE_CHUNK, &mark, NULL);
-    if (st == PT_OK)
-        st = proto_frame_finish(&c->out, mark, proto_msg_encode_scene_chunk(&c->out, &ch, NULL),
-                                NULL);
-    srv_conn_queued(s, c, st);
+    send_chunk(s, c, PROTO_MSG_GUIDE_CHUNK, g.hash, data, size, g.offset, "guide");
 }
 
 /* The address part of a peer's "host:port". */
