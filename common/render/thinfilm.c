@@ -126,16 +126,23 @@ pt_vec3 pt_thinfilm_xyz(float eta_out, float eta_film, float cos1, float d_nm, f
     return pt_v3(x[0], x[1], x[2]);
 }
 
+/* A microfacet lobe's value under the film: its geometric factor g (0: none)
+ * times its Fresnel (f0, f90) blended with the film's at cos c. */
+static pt_vec3 filmed(const pt_irid *film, pt_vec3 f0, float f90, float g, float c)
+{
+    if (g == 0.0f)
+        return pt_v3(0.0f, 0.0f, 0.0f);
+    pt_vec3 F = pt_bsdf_spec_fresnel(f0, f90, c);
+    pt_vec3 Ff = pt_thinfilm_fresnel(1.0f, film->eta, c, film->d_nm, f0);
+    return pt_v3_scale(pt_v3_lerp(F, Ff, film->strength), g);
+}
+
 pt_vec3 pt_irid_specular_eval(const pt_irid_specular_lobe *l, pt_vec3 wo, pt_vec3 wi, float prob,
                               float *share)
 {
-    float c;
+    float c = 0.0f;
     float g = pt_specular_geom(&l->s, wo, wi, prob, share, &c);
-    if (g == 0.0f)
-        return pt_v3(0.0f, 0.0f, 0.0f);
-    pt_vec3 F = pt_bsdf_spec_fresnel(l->s.f0, l->s.f90, c);
-    pt_vec3 Ff = pt_thinfilm_fresnel(1.0f, l->film.eta, c, l->film.d_nm, l->s.f0);
-    return pt_v3_scale(pt_v3_lerp(F, Ff, l->film.strength), g);
+    return filmed(&l->film, l->s.f0, l->s.f90, g, c);
 }
 
 pt_vec3 pt_irid_transmit_eval(const pt_irid_diffuse_lobe *l, pt_vec3 wo, pt_vec3 wi, float prob,
@@ -156,13 +163,9 @@ pt_vec3 pt_irid_transmit_eval(const pt_irid_diffuse_lobe *l, pt_vec3 wo, pt_vec3
 pt_vec3 pt_irid_aniso_eval(const pt_irid_aniso_lobe *l, pt_vec3 wo, pt_vec3 wi, float prob,
                            float *share)
 {
-    float c;
+    float c = 0.0f;
     float g = pt_aniso_geom(&l->a, wo, wi, prob, share, &c);
-    if (g == 0.0f)
-        return pt_v3(0.0f, 0.0f, 0.0f);
-    pt_vec3 F = pt_bsdf_spec_fresnel(l->a.f0, l->a.f90, c);
-    pt_vec3 Ff = pt_thinfilm_fresnel(1.0f, l->film.eta, c, l->film.d_nm, l->a.f0);
-    return pt_v3_scale(pt_v3_lerp(F, Ff, l->film.strength), g);
+    return filmed(&l->film, l->a.f0, l->a.f90, g, c);
 }
 
 pt_vec3 pt_irid_diffuse_eval(const pt_irid_diffuse_lobe *l, pt_vec3 wo, pt_vec3 wi, float prob,
