@@ -36,6 +36,21 @@
 #include "common/scene/accel.h"
 #include "common/scene/scene.h"
 #include "tests/check.h"
+
+/* The most peak memory an instance may add: about 513 bytes here (Embree's
+ * instance and top-level BVH, and our record). AddressSanitizer's allocator
+ * pads and quarantines every block, so under it the bound is looser; the
+ * bound against copies below holds either way. */
+#if defined(__SANITIZE_ADDRESS__)
+#define PER_INSTANCE_MAX 4000.0
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer)
+#define PER_INSTANCE_MAX 4000.0
+#endif
+#endif
+#ifndef PER_INSTANCE_MAX
+#define PER_INSTANCE_MAX 1000.0
+#endif
 #include "tests/common/render/paired.h"
 
 #define PI_D 3.14159265358979323846
@@ -278,7 +293,7 @@ static void test_memory(void)
             printf("%u instances of %u triangles: peak RSS +%.1f MB (%.0f bytes an instance); "
                    "copies would take about %.0f MB\n",
                    n, sp.nt, (after - before) / 1e6, per, copies / 1e6);
-        CHECKF(per < 1000.0, "%.0f bytes an instance", per);
+        CHECKF(per < PER_INSTANCE_MAX, "%.0f bytes an instance", per);
         CHECKF((double)(after - before) < copies / 10.0, "%.1f MB for %u instances",
                (after - before) / 1e6, n);
         /* It renders: a few samples through the instances, none rejected. */
