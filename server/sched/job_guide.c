@@ -222,7 +222,17 @@ int job_guide_result_ok(const srv_job *j, const proto_result *r, pt_error *err)
 
 void job_guide_accept(srv_job *j, const proto_result *r)
 {
-    if (!j->p.guiding || pt_guide_pass_of(r->s0, j->p.spp) != j->gpass)
+    if (!j->p.guiding)
+        return;
+    uint32_t k = pt_guide_pass_of(r->s0, j->p.spp);
+    /* No task of the next pass is leased before its distribution exists, but
+     * after a restart the results log can replay one while that
+     * distribution is still being built off the loop (the checkpoint was
+     * taken during the build): wait for it, so that the result's statistics
+     * count in its own pass and are not dropped. */
+    if (k == j->gpass + 1 && j->gbuild)
+        job_guide_settle(j);
+    if (k != j->gpass)
         return;
     pt_error err = {0};
     if (r->gcount + r->gsum > j->gmost)
