@@ -1285,9 +1285,8 @@ void warn_ext_ignored(importer &im, const std::string &name, const std::string &
 // KHR_materials_pbrSpecularGlossiness into pm (scene.h): the diffuse as the
 // base colour (its factor, its sRGB texture with alpha), the specular and
 // glossiness factors and their texture. The metallic-roughness inputs are
-// then not read, nor the extensions that must not be used with this one
-// (specular, transmission, volume, ior, clearcoat, sheen): each is warned
-// about by name.
+// then not read, nor the extensions built on them (the material's loader
+// warns about each by name).
 void add_spec_gloss(importer &im, int mi, const tinygltf::Value &sg, pt_material &pm)
 {
     pm.spec_gloss = 1;
@@ -1303,15 +1302,6 @@ void add_spec_gloss(importer &im, int mi, const tinygltf::Value &sg, pt_material
                                     true, &pm.tex_xf[PT_SLOT_BASE]);
     pm.sg_tex = texture_for(im, mi, "specularGlossinessTexture", gt.index, gt.texCoord,
                             gt.extensions, true, &pm.tex_xf[PT_SLOT_SPEC_GLOSS]);
-    const tinygltf::Material &g = im.model.materials[size_t(mi)];
-    for (const char *x :
-         {"KHR_materials_specular", "KHR_materials_transmission", "KHR_materials_volume",
-          "KHR_materials_ior", "KHR_materials_clearcoat", "KHR_materials_sheen"})
-        if (g.extensions.count(x))
-            im.warn_once(std::string("sg:") + x,
-                         "material " + std::to_string(mi) + " uses " + x +
-                             " with KHR_materials_pbrSpecularGlossiness, which the extension "
-                             "forbids; it is ignored");
 }
 
 // KHR_materials_iridescence into pm (scene.h): the factor and its texture
