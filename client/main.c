@@ -819,6 +819,10 @@ static void print_status(const proto_job_info *j)
     if (j->capped > 0)
         printf("depth cap  %llu paths reached it; raise --max-depth if this matters\n",
                (unsigned long long)j->capped);
+    if (j->clamped > 0)
+        printf("clamped    %llu contributions scaled down by --clamp-direct/--clamp-indirect "
+               "(biased)\n",
+               (unsigned long long)j->clamped);
     if (j->rejected > 0)
         printf("rejected   %llu samples (%.2f%% of those merged): NaN or Inf, or results that "
                "held no sample\n",

@@ -144,10 +144,11 @@ void proto_json_job(FILE *f, const proto_job_info *j)
     else
         fputs("null", f);
     fprintf(f,
-            ", \"paths_capped\": %llu, \"samples_rejected\": %llu, \"submitted\": %llu, "
-            "\"queue_position\": %lu, \"guiding\": ",
-            (unsigned long long)j->capped, (unsigned long long)j->rejected,
-            (unsigned long long)j->submitted, (unsigned long)j->queue_pos);
+            ", \"paths_capped\": %llu, \"contributions_clamped\": %llu, \"samples_rejected\": "
+            "%llu, \"submitted\": %llu, \"queue_position\": %lu, \"guiding\": ",
+            (unsigned long long)j->capped, (unsigned long long)j->clamped,
+            (unsigned long long)j->rejected, (unsigned long long)j->submitted,
+            (unsigned long)j->queue_pos);
     if (j->guided)
         fprintf(f, "{\"pass\": %lu, \"learned_spp\": %lu}", (unsigned long)j->guide_pass,
                 (unsigned long)j->guide_spp);

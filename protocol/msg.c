@@ -744,10 +744,11 @@ pt_status proto_msg_encode_result(proto_writer *w, const proto_result *m, pt_err
     int wide_pass = 0;
     for (uint32_t i = 0; m->pass && i < m->npixels; i++)
         wide_pass |= pass_wide(&m->pass[i]);
-    proto_w_u8(w, (uint8_t)(wide_rgb * PROTO_RESULT_WIDE_RGB + wide_sq * PROTO_RESULT_WIDE_SQ +
-                            (m->pass ? PROTO_RESULT_PASSES : 0u) +
-                            wide_pass * PROTO_RESULT_WIDE_PASSES +
-                            (m->guide ? PROTO_RESULT_GUIDE : 0u)));
+    proto_w_u8(
+        w,
+        (uint8_t)(wide_rgb * PROTO_RESULT_WIDE_RGB + wide_sq * PROTO_RESULT_WIDE_SQ +
+                  (m->pass ? PROTO_RESULT_PASSES : 0u) + wide_pass * PROTO_RESULT_WIDE_PASSES +
+                  (m->guide ? PROTO_RESULT_GUIDE : 0u) + (m->clamped ? PROTO_RESULT_CLAMPED : 0u)));
     size_t rgb = wide_rgb ? 16 : 8, sq = wide_sq ? 16 : 8, psize = 3 * rgb + sq + 8;
     /* One reservation for all pixels: a 64k-pixel tile is 2.6 MB narrow. */
     uint8_t *q = proto_w_reserve(w, (size_t)m->npixels * psize);
@@ -773,6 +774,8 @@ pt_status proto_msg_encode_result(proto_writer *w, const proto_result *m, pt_err
         for (uint32_t i = 0; i < m->npixels; i++, q += qsize)
             put_pass(q, &m->pass[i], wide_pass);
     }
+    if (m->clamped)
+        proto_w_u64(w, m->clamped);
     if (m->guide) {
         proto_w_u32(w, m->g_nsnode);
         proto_w_u32(w, m->g_nqnode);
@@ -835,6 +838,7 @@ pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *bu
     m.rejected = proto_r_u64(&r, "rejected");
     m.rays = proto_r_u64(&r, "rays");
     m.capped = proto_r_u64(&r, "paths capped");
+    m.clamped = 0;
     m.npixels = proto_r_u32(&r, "pixel count");
     uint8_t form = proto_r_u8(&r, "pixel form");
     m.pixels = NULL;
@@ -852,7 +856,7 @@ pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *bu
     if (why)
         return bad(err, PT_ERR_PROTO, "RESULT", why);
     if (form & ~(PROTO_RESULT_WIDE_RGB | PROTO_RESULT_WIDE_SQ | PROTO_RESULT_PASSES |
-                 PROTO_RESULT_WIDE_PASSES | PROTO_RESULT_GUIDE) ||
+                 PROTO_RESULT_WIDE_PASSES | PROTO_RESULT_GUIDE | PROTO_RESULT_CLAMPED) ||
         ((form & PROTO_RESULT_WIDE_PASSES) && !(form & PROTO_RESULT_PASSES)))
         return bad(err, PT_ERR_PROTO, "RESULT", "unknown pixel form");
     int wide_rgb = (form & PROTO_RESULT_WIDE_RGB) != 0,
@@ -860,7 +864,7 @@ pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *bu
         wide_pass = (form & PROTO_RESULT_WIDE_PASSES) != 0;
     size_t rgb = wide_rgb ? 16 : 8, psize = 3 * rgb + (wide_sq ? 16 : 8) + 8;
     size_t qsize = !passes ? 0 : wide_pass ? PROTO_RESULT_WIDE_PASS_SIZE : PROTO_RESULT_PASS_SIZE;
-    size_t body = (size_t)m.npixels * (psize + qsize);
+    size_t body = (size_t)m.npixels * (psize + qsize) + ((form & PROTO_RESULT_CLAMPED) ? 8 : 0);
     if (proto_r_left(&r) < body)
         return pt_error_set(err, PT_ERR_PROTO, "RESULT: truncated pixels (%zu of %zu bytes)",
                             proto_r_left(&r), body);
@@ -926,6 +930,16 @@ pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *bu
         if (m.owns_pixels)
             pt_free(px);
         return bad(err, PT_ERR_PROTO, "RESULT", "a wide pixel form that no pixel needs");
+    }
+    if (form & PROTO_RESULT_CLAMPED) {
+        /* The count after the pixels and passes; never 0, so that a RESULT's
+         * bytes are a function of its values. */
+        m.clamped = proto_get_u64(q);
+        if (m.clamped == 0) {
+            if (m.owns_pixels)
+                pt_free(px);
+            return bad(err, PT_ERR_PROTO, "RESULT", "a clamped count of 0");
+        }
     }
     if (form & PROTO_RESULT_GUIDE) {
         /* The statistics after the pixels (GUIDE's layout, above). */
@@ -1150,7 +1164,7 @@ pt_status proto_msg_decode_submit(const uint8_t *p, size_t len, proto_submit *ou
 
 /* Bytes of a JOB_INFO with every string empty: the least an entry of
  * JOB_LIST can take, so a count is checked against the bytes present. */
-#define JOB_INFO_FIXED 153u
+#define JOB_INFO_FIXED 161u
 
 static const char *job_info_problem(const proto_job_info *m)
 {
@@ -1212,6 +1226,7 @@ static void w_job_info(proto_writer *w, const proto_job_info *m)
     proto_w_u8(w, m->guided);
     proto_w_u32(w, m->guide_pass);
     proto_w_u32(w, m->guide_spp);
+    proto_w_u64(w, m->clamped);
 }
 
 /* Reads one JOB_INFO into m (which may be left half-filled on failure). */
@@ -1258,6 +1273,7 @@ static void r_job_info(proto_reader *r, proto_job_info *m)
     m->guided = proto_r_u8(r, "guided");
     m->guide_pass = proto_r_u32(r, "guiding pass");
     m->guide_spp = proto_r_u32(r, "guiding samples");
+    m->clamped = proto_r_u64(r, "contributions clamped");
     if (r->status == PT_OK && (m->guided > 1 || (!m->guided && (m->guide_pass || m->guide_spp))))
         proto_r_fail(r, PT_ERR_PROTO, "out of range:", "guiding");
 }

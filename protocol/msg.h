@@ -94,7 +94,8 @@ const char *proto_msg_type_name(uint32_t type);
 #define PROTO_RESULT_PASSES 4u           /* RESULT pixel form: pass sums follow the pixels */
 #define PROTO_RESULT_WIDE_PASSES 8u      /* RESULT pixel form: pass sums in 16 bytes */
 #define PROTO_RESULT_GUIDE 16u           /* RESULT pixel form: guiding statistics follow */
-#define PROTO_RESULT_PASS_SIZE 268u      /* bytes per pixel of narrow pass sums */
+#define PROTO_RESULT_CLAMPED 32u    /* RESULT pixel form: a clamped-contribution count follows */
+#define PROTO_RESULT_PASS_SIZE 268u /* bytes per pixel of narrow pass sums */
 #define PROTO_RESULT_WIDE_PASS_SIZE 404u /* bytes per pixel of wide pass sums (the most) */
 #define PROTO_RESULT_HEADER_SIZE 69u     /* bytes of RESULT before its pixels */
 
@@ -376,7 +377,8 @@ typedef struct proto_guide_entry {
  *   64   4    u32   N: pixels; must equal (x1-x0)*(y1-y0) and be <= PROTO_MAX_TILE_PIXELS
  *   68   1    u8    pixel form: PROTO_RESULT_WIDE_RGB | PROTO_RESULT_WIDE_SQ |
  *                   PROTO_RESULT_PASSES | PROTO_RESULT_WIDE_PASSES |
- *                   PROTO_RESULT_GUIDE, no other bit (WIDE_PASSES only with PASSES)
+ *                   PROTO_RESULT_GUIDE | PROTO_RESULT_CLAMPED, no other bit
+ *                   (WIDE_PASSES only with PASSES)
  *   69   PN         pixels, row-major over the tile, P = 40 to 72 bytes, each:
  *                     the sums of pt_pixel_acc (tile.h) in fixed point: R, G, B
  *                     (signed, units of 2^-32), each an i64 (8 bytes) or, with
@@ -398,6 +400,11 @@ typedef struct proto_guide_entry {
  *                     u32 ids then 8 u32 sample counts each, in the merge's
  *                     canonical form (pt_crypto_canonical: ascending ids,
  *                     unused entries 0 last, counts summing to <= n)
+ *   ..   with CLAMPED (set exactly when the count is not 0; the task had
+ *                   --clamp-direct or --clamp-indirect): a u64, the
+ *                   contributions its samples scaled down to the clamp
+ *                   (pt_render_stats.clamped), at most 2 (max depth + 2) per
+ *                   sample (the server checks)
  *   ..   with GUIDE (the task was guided): the statistics it recorded
  *                   (pt_guide_stats), sparse, in canonical form:
  *                     +0  4  u32  the guide's spatial nodes (its nsnode)
@@ -407,7 +414,7 @@ typedef struct proto_guide_entry {
  *                     +16 12C     (u32 spatial node, u64 count), nodes ascending,
  *                                 each < nsnode, counts > 0
  *                     ..  12S     (u32 directional node, u64 sum), likewise < nqnode
- *   size 69+PN[+QN][+16+12(C+S)] (PROTO_RESULT_HEADER_SIZE + P x N; P =
+ *   size 69+PN[+QN][+8][+16+12(C+S)] (PROTO_RESULT_HEADER_SIZE + P x N; P =
  *   PROTO_RESULT_PIXEL_SIZE narrow, PROTO_RESULT_WIDE_PIXEL_SIZE with both bits)
  * The encoder sets a bit only when some pixel's sum of that kind does not fit
  * 64 bits: RGB sums fit below 2^31 per task, squares below 2^16, so a pixel of
@@ -431,6 +438,7 @@ typedef struct proto_result {
     uint32_t g_nsnode, g_nqnode, gcount, gsum;
     proto_guide_entry *guide;
     int owns_guide;
+    uint64_t clamped; /* contributions clamped (PROTO_RESULT_CLAMPED when not 0) */
 } proto_result;
 
 /* HEARTBEAT
@@ -594,7 +602,9 @@ const char *proto_job_state_name(uint32_t state);
  *   ..   4    u32  the guiding pass whose samples are being rendered (0 when not guided
  *                  or not running)
  *   ..   4    u32  the samples per pixel its distribution was learned from (0 in pass 0)
- *   size 153+a+b+c+d+e+20K */
+ *   ..   8    u64  contributions clamped (--clamp-direct/--clamp-indirect), over the
+ *                  results merged
+ *   size 161+a+b+c+d+e+20K */
 typedef struct proto_job_info {
     uint64_t job_id;
     uint8_t state;
@@ -613,6 +623,7 @@ typedef struct proto_job_info {
     uint32_t queue_pos;
     char message[PROTO_MAX_ERROR_TEXT + 1];
     uint64_t capped;                              /* paths ended by the depth cap */
+    uint64_t clamped;                             /* contributions clamped (--clamp-*) */
     uint64_t rejected;                            /* samples merged as rejected */
     uint32_t frame_first, frame_last, frame_step; /* step 0: a still */
     uint32_t frames_done, frames_rendering;

@@ -965,6 +965,7 @@ static int collect_results(worker *w)
         r.rejected = d->stats.rejected;
         r.rays = d->stats.rays;
         r.capped = d->stats.capped;
+        r.clamped = d->stats.clamped;
         r.npixels = (d->t.tile.x1 - d->t.tile.x0) * (d->t.tile.y1 - d->t.tile.y0);
         r.pixels = d->pixels;
         r.pass = d->pass;

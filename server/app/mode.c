@@ -278,6 +278,12 @@ static int finish_single(srv_server *s)
                     "ptserve: %llu paths reached the depth cap of %u; raise --max-depth if this "
                     "matters\n",
                     (unsigned long long)srv_job_paths_capped(j->job), cfg->job.max_depth);
+        if (srv_job_clamped(j->job) > 0)
+            fprintf(stderr,
+                    "ptserve: %llu contributions clamped (--clamp-direct %g, --clamp-indirect "
+                    "%g)\n",
+                    (unsigned long long)srv_job_clamped(j->job), (double)cfg->job.clamp[0],
+                    (double)cfg->job.clamp[1]);
         fprintf(stderr,
                 "ptserve: wire: %llu bytes in, %llu out (scene %zu); %.3f bytes per "
                 "sample, %.0f per task\n",

@@ -72,6 +72,7 @@ void srv_frames_note_done(srv_entry *f)
     if (f->job) {
         r->samples_done += srv_job_samples_merged(f->job);
         r->capped += srv_job_paths_capped(f->job);
+        r->clamped += srv_job_clamped(f->job);
         r->rejected += f->rejected;
     }
     /* Journaled with the frame: a restart's range counts on from here. */
@@ -95,7 +96,7 @@ static srv_entry *new_frame(srv_server *s, srv_entry *p, uint32_t number, pt_err
     f->rec.state = PROTO_JOB_RUNNING; /* the range's state is the one journaled */
     memset(&f->rec.frames, 0, sizeof f->rec.frames);
     f->rec.frames_done = f->rec.ndone_ahead = 0;
-    f->rec.samples_done = f->rec.capped = f->rec.rejected = 0;
+    f->rec.samples_done = f->rec.capped = f->rec.clamped = f->rec.rejected = 0;
     f->rec.message[0] = '\0';
     f->parent = p;
     f->frame = number;
@@ -256,6 +257,7 @@ void srv_frames_info(const srv_server *s, const srv_entry *p, proto_job_info *m)
     m->samples_total = per * count;
     m->samples_done = r->samples_done;
     m->capped = r->capped;
+    m->clamped = r->clamped;
     m->rejected = r->rejected;
     m->error = -1.0;
     if (!srv_entry_active(p)) {
@@ -271,6 +273,7 @@ void srv_frames_info(const srv_server *s, const srv_entry *p, proto_job_info *m)
         uint64_t merged = srv_job_samples_merged(f->job);
         m->samples_done += merged;
         m->capped += srv_job_paths_capped(f->job);
+        m->clamped += srv_job_clamped(f->job);
         m->rejected += f->rejected;
         m->rate += f->rate;
         if (i == 0) { /* the earliest frame's passes */

@@ -344,6 +344,10 @@ uint64_t srv_job_paths_capped(const srv_job *j)
 {
     return j->capped;
 }
+uint64_t srv_job_clamped(const srv_job *j)
+{
+    return j->clamped;
+}
 uint32_t srv_job_leases(const srv_job *j)
 {
     return j->nleases;

@@ -323,6 +323,8 @@ uint64_t srv_job_tasks_merged(const srv_job *job);
 uint64_t srv_job_samples_merged(const srv_job *job);
 /* Paths that the results accepted so far report ended by the depth cap. */
 uint64_t srv_job_paths_capped(const srv_job *job);
+/* Contributions that the results accepted so far report clamped (--clamp-*). */
+uint64_t srv_job_clamped(const srv_job *job);
 uint32_t srv_job_tiles_stopped(const srv_job *job); /* tiles adaptive sampling stopped early */
 uint32_t srv_job_leases(const srv_job *job);
 /* 1 when every tile has all its samples merged (or stopped) and no verification mismatch

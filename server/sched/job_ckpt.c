@@ -14,7 +14,7 @@
 /* ---- checkpoints ---- */
 
 #define CKPT_MAGIC 0x434a5450u /* "PTJC" */
-#define CKPT_VERSION 9u
+#define CKPT_VERSION 10u
 #define CKPT_OLDEST_VERSION 2u   /* no min gain: read as 0 */
 #define CKPT_MIN_GAIN_VERSION 3u /* the first with the min gain */
 /* The first with the environment (older: none), and the first with the film
@@ -32,9 +32,11 @@
  * each pixel's sums, held or in the film, are then followed by its pass
  * sums (put_pass). */
 #define CKPT_PASSES_VERSION 8u
-#define CKPT_PASS_SIZE 404u
+#define CKPT_PASS_SIZE 404u /* bytes of one pixel's pass sums */
 /* The first with sample clamping in the params (older: none). */
-#define CKPT_CLAMP_VERSION 9u /* bytes of one pixel's pass sums */
+#define CKPT_CLAMP_VERSION 9u
+/* The first with the contributions clamped (older: 0). */
+#define CKPT_CLAMPED_VERSION 10u
 
 /* A pixel as the checkpoint stores it: each sum as two u64, low half first
  * (RESULT's wide layout, msg.h), then n and hits. */
@@ -156,6 +158,7 @@ pt_status srv_job_save(const srv_job *j, proto_writer *w, pt_error *err)
     proto_w_bytes(w, j->hash, 32);
     srv_job_params_write(w, &j->p);
     proto_w_u64(w, j->capped);
+    proto_w_u64(w, j->clamped);
     proto_w_u32(w, j->ntiles);
     proto_w_u32(w, j->npasses);
     for (uint32_t t = 0; t < j->ntiles; t++) {
@@ -312,6 +315,8 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
     srv_job_params_read(&r, &p, version >= CKPT_MIN_GAIN_VERSION, version >= CKPT_ENV_VERSION,
                         version >= CKPT_SHUTTER_VERSION, version >= CKPT_CLAMP_VERSION);
     uint64_t capped = film ? proto_r_u64(&r, "paths capped") : 0;
+    uint64_t clamped =
+        version >= CKPT_CLAMPED_VERSION ? proto_r_u64(&r, "contributions clamped") : 0;
     uint32_t ntiles = proto_r_u32(&r, "tiles"), nchunks = proto_r_u32(&r, "chunks");
     if (r.status != PT_OK)
         return proto_r_finish(&r, "checkpoint", err);
@@ -370,6 +375,7 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
         return st;
     j->samples = pt_film_total_samples(j->film);
     j->capped = capped;
+    j->clamped = clamped;
     job_passes_recount(j);
     j->gtiles = 0;
     for (uint32_t t = 0; j->p.guiding && t < j->ntiles; t++)
@@ -394,6 +400,7 @@ srv_job *srv_job_snapshot(const srv_job *j)
     c->ntiles = j->ntiles;
     c->npasses = j->npasses;
     c->capped = j->capped;
+    c->clamped = j->clamped;
     c->tiles = pt_malloc_array(j->ntiles ? j->ntiles : 1, sizeof *c->tiles);
     c->tasks = pt_malloc_array(j->nheld ? j->nheld : 1, sizeof *c->tasks);
     c->held = pt_malloc_array(j->nheld ? j->nheld : 1, sizeof *c->held);

@@ -130,7 +130,8 @@ struct srv_job {
     uint32_t nheld, held_cap;
     uint64_t merged; /* tasks merged or skipped */
     uint64_t samples;
-    uint64_t capped; /* paths ended by the depth cap, over the results accepted */
+    uint64_t capped;  /* paths ended by the depth cap, over the results accepted */
+    uint64_t clamped; /* contributions clamped (--clamp-*), likewise */
     uint32_t stopped, tiles_done;
     uint32_t passes_done, at_level; /* tiles with merged >= the next pass's samples */
     uint64_t uncut;                 /* pixel-samples of every tile's [frontier, spp) */

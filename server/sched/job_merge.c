@@ -206,6 +206,29 @@ static int pixels_plausible(const proto_result *r, uint32_t samples, pt_error *e
     return 1;
 }
 
+/* A result counts clamped contributions only when its job clamps, and at
+ * most two per vertex of each sample's path (its emission and its light
+ * sample, common/render/render.c), max_depth + 2 vertices with the camera's. */
+static int clamps_plausible(const srv_job *j, const proto_result *r, pt_error *err)
+{
+    if (r->clamped == 0)
+        return 1;
+    if (!(j->p.clamp[0] > 0.0f || j->p.clamp[1] > 0.0f)) {
+        pt_error_set(err, PT_ERR_PROTO,
+                     "result for task %llu: clamped samples of a job without clamps",
+                     (unsigned long long)r->task_id);
+        return 0;
+    }
+    uint64_t most = (uint64_t)r->npixels * (r->s1 - r->s0) * 2u * ((uint64_t)j->p.max_depth + 2u);
+    if (r->clamped > most) {
+        pt_error_set(err, PT_ERR_PROTO,
+                     "result for task %llu: %llu contributions clamped, more than its paths hold",
+                     (unsigned long long)r->task_id, (unsigned long long)r->clamped);
+        return 0;
+    }
+    return 1;
+}
+
 /* A result carries pass sums exactly when its job asks for passes: the film
  * reads a tile's passes after its pixels, so a result without them would
  * be read past its end. (Their values are sums like any: n_even <= n was
@@ -269,7 +292,7 @@ static srv_outcome validate_result(const srv_job *j, uint64_t owner, const proto
     /* Checked for its own range, which is the task's (just above). */
     if (!pixels_checked && !pixels_plausible(r, k->s1 - k->s0, err))
         return SRV_INVALID;
-    if (!passes_match(j, r, err) || !job_guide_result_ok(j, r, err))
+    if (!passes_match(j, r, err) || !clamps_plausible(j, r, err) || !job_guide_result_ok(j, r, err))
         return SRV_INVALID;
     *lease_index = li;
     return verify ? SRV_CHECK : SRV_MERGED;
@@ -477,6 +500,7 @@ static srv_outcome merge_task(srv_job *j, uint32_t t, int li, const proto_result
         }
         note_accepted(j, t, li, r, now_ms);
         j->capped += r->capped;
+        j->clamped += r->clamped;
         /* Before the merge, which may end the pass and build the next
          * distribution from the statistics. */
         job_guide_accept(j, r);
@@ -504,6 +528,7 @@ static srv_outcome merge_task(srv_job *j, uint32_t t, int li, const proto_result
     j->tasks[t].held = j->nheld++;
     note_accepted(j, t, li, r, now_ms);
     j->capped += r->capped;
+    j->clamped += r->clamped;
     job_guide_accept(j, r);
     j->tasks[t].state = T_HELD;
     return SRV_MERGED;
@@ -690,7 +715,7 @@ srv_outcome srv_job_replay(srv_job *j, proto_result *r, pt_error *err)
     if (st == T_MERGED || st == T_HELD || st == T_SKIPPED)
         return SRV_DUPLICATE;
     if (!pixels_plausible(r, r->s1 - r->s0, err) || !passes_match(j, r, err) ||
-        !job_guide_result_ok(j, r, err))
+        !clamps_plausible(j, r, err) || !job_guide_result_ok(j, r, err))
         return SRV_INVALID;
     return merge_taking(j, t, -1, r, 0, err);
 }

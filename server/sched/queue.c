@@ -242,6 +242,7 @@ void srv_queue_info(const srv_server *s, const srv_entry *j, proto_job_info *m)
         m->workers = job_workers(s, j);
         m->error = job_error(j);
         m->capped = srv_job_paths_capped(j->job);
+        m->clamped = srv_job_clamped(j->job);
         m->rejected = j->rejected;
     } else if (r->state == PROTO_JOB_DONE) {
         m->samples_done = r->samples_done;
@@ -253,6 +254,7 @@ void srv_queue_info(const srv_server *s, const srv_entry *j, proto_job_info *m)
     }
     if (!j->job) {
         m->capped = r->capped;
+        m->clamped = r->clamped;
         m->rejected = r->rejected;
     }
     /* The pass being rendered, its distribution learned from the samples
@@ -431,6 +433,7 @@ void srv_queue_end_job(srv_server *s, srv_entry *j, uint8_t state, const char *m
         j->rec.samples_done = srv_job_samples_merged(j->job);
         j->rec.error = job_error(j);
         j->rec.capped = srv_job_paths_capped(j->job);
+        j->rec.clamped = srv_job_clamped(j->job);
         j->rec.rejected = j->rejected;
     }
     if (state != PROTO_JOB_DONE && j->t_started)

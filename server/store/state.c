@@ -238,6 +238,7 @@ pt_status srv_state_save_queue(srv_state *st, srv_job_record *const *recs, uint3
         proto_w_u8(&w, (uint8_t)j->ndone_ahead);
         for (uint32_t k = 0; k < j->ndone_ahead; k++)
             proto_w_u32(&w, j->done_ahead[k]);
+        proto_w_u64(&w, j->clamped);
     }
     pt_status s = st_end_file(&w, path, err);
     proto_writer_fini(&w);
@@ -335,6 +336,8 @@ pt_status srv_state_load_queue(srv_state *st, srv_job_record **recs, uint32_t *n
         j->rejected = version >= STATE_REJECTED_VERSION ? proto_r_u64(&r, "samples rejected") : 0;
         if (version >= STATE_FRAMES_VERSION)
             read_frames(&r, j);
+        j->clamped =
+            version >= STATE_CLAMPED_VERSION ? proto_r_u64(&r, "contributions clamped") : 0;
         if (r.status == PT_OK && (j->id == 0 || j->id >= nid || j->state < PROTO_JOB_QUEUED ||
                                   j->state > PROTO_JOB_FAILED))
             proto_r_fail(&r, PT_ERR_FORMAT, "bad", "job id or state");

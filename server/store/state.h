@@ -91,7 +91,8 @@ typedef struct srv_job_record {
     double seconds;        /* render seconds, set when the job ends */
     double error;          /* estimated relative error when it ended; < 0 unknown */
     char message[PROTO_MAX_ERROR_TEXT + 1];
-    uint64_t capped; /* paths ended by the depth cap, set when the job ends */
+    uint64_t capped;  /* paths ended by the depth cap, set when the job ends */
+    uint64_t clamped; /* contributions clamped (--clamp-*), likewise */
     /* Samples merged as rejected (proto_job_info.rejected), set when the job
      * ends (format 8; 0 from older ones). */
     uint64_t rejected;

@@ -22,7 +22,7 @@
 #define CKPT_MAGIC 0x4b435450u  /* "PTCK" */
 #define LOG_MAGIC 0x4c525450u   /* "PTRL": records of u32 length, u32 CRC32C, payload */
 #define FLOG_MAGIC 0x46525450u  /* "PTRF": records are RESULT frames as received */
-#define STATE_VERSION 9u
+#define STATE_VERSION 10u
 /* The oldest format still read: version 2 has no min gain (read as 0, the
  * rule off), versions 2 and 3 no environment and no film flags (read as
  * none) and protocol 2's RESULT in the log, so a state folder survives the
@@ -47,6 +47,8 @@
 #define STATE_REJECTED_VERSION 8u
 /* The first with sample clamping in the job params (older: none). */
 #define STATE_CLAMP_VERSION 9u
+/* The first with a job's contributions clamped in its queue record (older: 0). */
+#define STATE_CLAMPED_VERSION 10u
 #define LOG_HEADER 16u
 #define MAX_QUEUE_BYTES (256u << 20)
 #define MAX_CKPT_BYTES ((size_t)8 << 30)

@@ -25,7 +25,10 @@ view=(--res 48x32 --spp 32 --seed 3)
 clamp=(--clamp-direct 0.75 --clamp-indirect 0.05)
 "$bin/ptworker" --scene "$scene" "${view[@]}" "${clamp[@]}" --tile 16 --chunk 16 -q \
   -o "$tmp/ref.exr" 2> "$tmp/ref.log" || fail "ptworker --clamp-*: $(cat "$tmp/ref.log")"
-grep -q "contributions clamped" "$tmp/ref.log" || fail "ptworker counted no clamped sample"
+count=$(sed -n 's/^ptworker: \([0-9]*\) contributions clamped.*/\1/p' "$tmp/ref.log")
+if [ -z "$count" ] || [ "$count" -eq 0 ]; then
+  fail "ptworker counted no clamped sample: $(cat "$tmp/ref.log")"
+fi
 "$bin/ptworker" --scene "$scene" "${view[@]}" --tile 16 --chunk 16 -q \
   -o "$tmp/plain.exr" 2> "$tmp/plain.log" || fail "ptworker: $(cat "$tmp/plain.log")"
 if "$bin/ptexr-diff" "$tmp/ref.exr" "$tmp/plain.exr" > /dev/null 2>&1; then
@@ -69,10 +72,31 @@ job=$("$bin/ptctl" submit "$scene" "${view[@]}" "${clamp[@]}")
 "$bin/ptctl" watch "$job" 2> /dev/null || fail "watch exited $?"
 "$bin/ptctl" fetch "$job" -o "$tmp/queued.exr"
 "$bin/ptexr-diff" "$tmp/ref.exr" "$tmp/queued.exr" || fail "ptctl submit --clamp-* image differs"
+"$bin/ptctl" status "$job" > "$tmp/status.txt"
+grep -q "^clamped  *$count contributions" "$tmp/status.txt" ||
+  fail "ptctl status does not give ptworker's $count clamped: $(cat "$tmp/status.txt")"
+"$bin/ptctl" status --json "$job" | grep -q "\"contributions_clamped\": $count," ||
+  fail "ptctl status --json does not give $count clamped"
+# The finished job's count is in the queue file: a restarted coordinator shows it.
+kill "$srv_pid"
+wait "$srv_pid" 2> /dev/null || true
+srv_pid=
+rm -f "$tmp/port"
+"$bin/ptserve" --state-dir "$tmp/state" --output-dir "$tmp/out" --listen 127.0.0.1:0 \
+  --port-file "$tmp/port" 2> "$tmp/serve2.log" &
+srv_pid=$!
+for _ in $(seq 100); do [ -s "$tmp/port" ] && break; sleep 0.05; done
+[ -s "$tmp/port" ] || fail "ptserve did not restart: $(cat "$tmp/serve2.log")"
+PTFARM_SERVER=127.0.0.1:$(cat "$tmp/port")
+"$bin/ptctl" status "$job" > "$tmp/status2.txt"
+grep -q "^clamped  *$count contributions" "$tmp/status2.txt" ||
+  fail "after a restart, ptctl status lost the clamped count: $(cat "$tmp/status2.txt")"
 
 "$bin/ptserve" --local 2 --worker-threads 1 "${view[@]}" "${clamp[@]}" --tile 16 --task-time 50 \
-  -q -o "$tmp/local.exr" "$scene" 2> "$tmp/local.log" ||
+  -o "$tmp/local.exr" "$scene" 2> "$tmp/local.log" ||
   fail "ptserve --local --clamp-*: $(cat "$tmp/local.log")"
 "$bin/ptexr-diff" "$tmp/ref.exr" "$tmp/local.exr" || fail "ptserve --clamp-* image differs"
+grep -q "^ptserve: $count contributions clamped" "$tmp/local.log" ||
+  fail "ptserve --local does not report ptworker's $count clamped: $(cat "$tmp/local.log")"
 failed=0
 echo "ok"

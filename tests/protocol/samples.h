@@ -230,6 +230,7 @@ static inline proto_job_info sample_job_info(int v)
     m.queue_pos = v == 1 ? 2 : 0;
     m.capped = v == 0 ? 12 : v == 2 ? UINT64_MAX : 0;
     m.rejected = v == 0 ? 34 : v == 2 ? UINT64_MAX : 0;
+    m.clamped = v == 0 ? 56 : v == 2 ? UINT64_MAX : 0;
     m.guided = v != 1;
     m.guide_pass = v == 0 ? 2 : v == 2 ? UINT32_MAX : 0;
     m.guide_spp = v == 0 ? 48 : v == 2 ? UINT32_MAX : 0;

@@ -156,12 +156,12 @@ static int job_info_same(const proto_job_info *a, const proto_job_info *b)
            a->frame_step == b->frame_step && a->frames_done == b->frames_done &&
            a->frames_rendering == b->frames_rendering && a->nshown == b->nshown &&
            shown_same(a, b) && a->guided == b->guided && a->guide_pass == b->guide_pass &&
-           a->guide_spp == b->guide_spp;
+           a->guide_spp == b->guide_spp && a->clamped == b->clamped;
 }
 
 static size_t job_info_size(const proto_job_info *m)
 {
-    return 153 + strlen(m->name) + strlen(m->owner) + strlen(m->scene) + strlen(m->output) +
+    return 161 + strlen(m->name) + strlen(m->owner) + strlen(m->scene) + strlen(m->output) +
            strlen(m->message) + 20u * m->nshown;
 }
 
@@ -901,7 +901,7 @@ static void test_result(void)
         raw.buf[68] = 1; /* wide RGB, but 40-byte pixels: 8 x 64 bytes are not there */
         CHECK(proto_msg_decode_result(raw.buf, raw.len, NULL, 0, &r, &e) == PT_ERR_PROTO &&
               strstr(e.msg, "truncated"));
-        raw.buf[68] = 32;
+        raw.buf[68] = 64;
         CHECK(proto_msg_decode_result(raw.buf, raw.len, NULL, 0, &r, &e) == PT_ERR_PROTO &&
               strstr(e.msg, "pixel form"));
         raw.buf[68] = PROTO_RESULT_GUIDE; /* statistics announced, none there */
@@ -921,7 +921,8 @@ static void test_result(void)
             px[1].fsum_sq = ((pt_u128)1 << 64) + 5;
         else
             px[1].fsum[2] = -((pt_i128)1 << 64) - 5;
-        proto_result m = {1, 2, {0, 0, 2, 1}, 0, 8, 0, 0, 0, 2, px, 0, NULL, 0, 0, 0, 0, NULL, 0},
+        proto_result m = {1, 2, {0, 0, 2, 1}, 0, 8, 0, 0, 0, 2, px, 0, NULL, 0, 0,
+                          0, 0, NULL,         0, 0},
                      b;
         proto_writer ww;
         proto_writer_init(&ww, 1 << 20);
@@ -961,7 +962,8 @@ static void test_result(void)
         pa[0].cid[1][0] = 12345, pa[0].ccnt[1][0] = 8;
         if (k == 1)
             pa[1].sq[2] = ((pt_u128)7 << 64) + 1;
-        proto_result m = {1, 2, {0, 0, 2, 1}, 0, 8, 0, 0, 0, 2, px, 0, pa, 0, 0, 0, 0, NULL, 0}, b;
+        proto_result m = {1, 2, {0, 0, 2, 1}, 0, 8, 0, 0, 0, 2, px, 0, pa, 0, 0, 0, 0, NULL, 0, 0},
+                     b;
         proto_writer ww;
         proto_writer_init(&ww, 1 << 20);
         CHECK(proto_msg_encode_result(&ww, &m, NULL) == PT_OK);
@@ -1066,6 +1068,50 @@ static void test_result(void)
     }
 }
 
+/* RESULT's clamped count: absent (no byte, no bit) when 0, so an unclamped
+ * task's bytes are those of protocol 8; 8 bytes after the pixels and before
+ * the guiding statistics otherwise, round-tripping to the same bytes; the
+ * bit with a count of 0 is refused (one encoding per value). */
+static void test_result_clamped(void)
+{
+    pt_error e = {0};
+    pt_pixel_acc px[2] = {pt_pixel_acc_of(1.0, 2.0, 3.0, 4.0, 8, 8),
+                          pt_pixel_acc_of(0.5, 0.25, 0.125, 0.0625, 8, 3)};
+    proto_guide_entry ent[2] = {{1, 7}, {5, 9}};
+    proto_result m = {1, 2, {0, 0, 2, 1}, 0, 8, 0, 0, 0, 2, px, 0, NULL, 4, 2046, 1, 1, ent, 0, 0};
+    proto_writer w, w2;
+    proto_writer_init(&w, 1 << 20);
+    proto_writer_init(&w2, 1 << 20);
+    CHECK(proto_msg_encode_result(&w, &m, &e) == PT_OK);
+    size_t plain = w.len;
+    CHECK(w.buf[68] == PROTO_RESULT_GUIDE);
+    m.clamped = 0x123456789ull;
+    proto_writer_reset(&w);
+    CHECK(proto_msg_encode_result(&w, &m, &e) == PT_OK);
+    CHECK(w.len == plain + 8 && w.buf[68] == (PROTO_RESULT_GUIDE | PROTO_RESULT_CLAMPED));
+    const size_t at = PROTO_RESULT_HEADER_SIZE + 2 * PROTO_RESULT_PIXEL_SIZE;
+    CHECK(proto_get_u64(w.buf + at) == 0x123456789ull);
+    proto_result b;
+    CHECK(proto_msg_decode_result(w.buf, w.len, NULL, 0, &b, &e) == PT_OK);
+    CHECK(b.clamped == 0x123456789ull && b.guide && b.gcount == 1 && b.gsum == 1 &&
+          b.guide[1].node == 5);
+    CHECK(proto_msg_encode_result(&w2, &b, &e) == PT_OK && w2.len == w.len &&
+          memcmp(w.buf, w2.buf, w.len) == 0);
+    proto_result_fini(&b);
+    proto_put_u64(w.buf + at, 0);
+    CHECK(proto_msg_decode_result(w.buf, w.len, NULL, 0, &b, &e) == PT_ERR_PROTO &&
+          strstr(e.msg, "clamped count of 0"));
+    /* The bit on a RESULT without the count: its guiding statistics are
+     * then read 8 bytes late and do not add up. */
+    m.clamped = 0;
+    proto_writer_reset(&w);
+    CHECK(proto_msg_encode_result(&w, &m, &e) == PT_OK);
+    w.buf[68] |= PROTO_RESULT_CLAMPED;
+    CHECK(proto_msg_decode_result(w.buf, w.len, NULL, 0, &b, &e) == PT_ERR_PROTO);
+    proto_writer_fini(&w);
+    proto_writer_fini(&w2);
+}
+
 /* RESULT's guiding statistics: they round-trip to the same bytes; each
  * hostile shape (nodes out of range, not ascending, a zero value, more
  * entries than nodes, no nodes, a count that the bytes do not hold) is
@@ -1076,7 +1122,7 @@ static void test_result_guide(void)
     pt_pixel_acc px[2] = {pt_pixel_acc_of(1.0, 2.0, 3.0, 4.0, 8, 8),
                           pt_pixel_acc_of(0.5, 0.25, 0.125, 0.0625, 8, 3)};
     proto_guide_entry ent[5] = {{0, 7}, {3, 1}, {6, 65536}, {9, 1ull << 40}, {2045, 3}};
-    proto_result m = {1, 2, {0, 0, 2, 1}, 0, 8, 0, 0, 0, 2, px, 0, NULL, 4, 2046, 2, 3, ent, 0};
+    proto_result m = {1, 2, {0, 0, 2, 1}, 0, 8, 0, 0, 0, 2, px, 0, NULL, 4, 2046, 2, 3, ent, 0, 0};
     proto_writer w, w2;
     proto_writer_init(&w, 1 << 20);
     proto_writer_init(&w2, 1 << 20);
@@ -1467,6 +1513,7 @@ static void job_info_raw(proto_writer *w, int f, size_t n)
     proto_w_u8(w, 0);      /* not guided */
     proto_w_u32(w, 0);
     proto_w_u32(w, 0);
+    proto_w_u64(w, 0); /* contributions clamped */
 }
 
 static void test_job_info(void)
@@ -1477,7 +1524,7 @@ static void test_job_info(void)
     /* Every string at its cap round-trips; one byte over is refused by both sides. */
     proto_job_info m = sample_job_info(2);
     CHECK(proto_msg_encode_job_info(&w, &m, &err) == PT_OK);
-    CHECK(w.len == 153 + 2 * PROTO_MAX_NAME + 2 * PROTO_MAX_PATH + PROTO_MAX_ERROR_TEXT);
+    CHECK(w.len == 161 + 2 * PROTO_MAX_NAME + 2 * PROTO_MAX_PATH + PROTO_MAX_ERROR_TEXT);
     static proto_job_info b;
     CHECK(proto_msg_decode_job_info(w.buf, w.len, &b, &err) == PT_OK);
     CHECK(job_info_same(&m, &b));
@@ -1510,9 +1557,9 @@ static void test_job_info(void)
         proto_writer_reset(&w);
         job_info_raw(&w, 0, 0);
         if (k == 0)
-            w.buf[w.len - 9] = 2; /* guided 2 */
+            w.buf[w.len - 17] = 2; /* guided 2 */
         else
-            proto_put_u32(w.buf + w.len - (k == 1 ? 8 : 4), 16); /* a pass, unguided */
+            proto_put_u32(w.buf + w.len - (k == 1 ? 16 : 12), 16); /* a pass, unguided */
         CHECKF(decode_any(PROTO_MSG_JOB_INFO, w.buf, w.len, &err) == PT_ERR_PROTO &&
                    strstr(err.msg, "guiding"),
                "case %d: %s", k, err.msg);
@@ -1586,8 +1633,8 @@ static void test_job_list(void)
     CHECK(job_list_check(head, 4, "cap", &alloc) == PT_ERR_PROTO && alloc == 0);
     /* A count that the bytes present cannot hold: refused before allocating. */
     proto_writer_reset(&w);
-    jobs[0] = sample_job_info(1); /* the smallest entry: 153 bytes */
-    CHECK(proto_msg_encode_job_list(&w, jobs, 1, &err) == PT_OK && w.len == 4 + 153);
+    jobs[0] = sample_job_info(1); /* the smallest entry: 161 bytes */
+    CHECK(proto_msg_encode_job_list(&w, jobs, 1, &err) == PT_OK && w.len == 4 + 161);
     CHECK(job_list_check(w.buf, w.len, NULL, &alloc) == PT_OK && alloc == 1);
     proto_put_u32(w.buf, 2);
     CHECK(job_list_check(w.buf, w.len, "bytes", &alloc) == PT_ERR_PROTO && alloc == 0);
@@ -1763,6 +1810,7 @@ int main(void)
     test_task();
     test_counts();
     test_result();
+    test_result_clamped();
     test_result_guide();
     test_guide_pack();
     test_submit();

@@ -213,8 +213,8 @@ static void adaptive(void)
             double sq = tile == 0 ? ns * 0.25 : 2.0 * v * v * ns;
             px[i] = pt_pixel_acc_of(sum, sum, sum, sq, ns, 0);
         }
-        proto_result r = {t.job_id, t.task_id, t.tile, t.s0, t.s1, 0, 0, 0,    32 * 32,
-                          px,       0,         NULL,   0,    0,    0, 0, NULL, 0};
+        proto_result r = {t.job_id, t.task_id, t.tile, t.s0, t.s1, 0, 0,    0, 32 * 32, px,
+                          0,        NULL,      0,      0,    0,    0, NULL, 0, 0};
         srv_outcome o = srv_job_result(j, 1, &r, NULL);
         dup += o == SRV_DUPLICATE;
         CHECK(o == SRV_MERGED || o == SRV_DUPLICATE);
@@ -240,8 +240,8 @@ static void gain_pixels_of(const proto_task *t, pt_pixel_acc *px, proto_result *
         double v = t->tile.x0 == 0 ? (black0 ? 0.0 : 0.5) : (double)((chunk + 1) % 2);
         px[i] = pt_pixel_acc_of(v * ns, v * ns, v * ns, v * v * ns, ns, 0);
     }
-    *r = (proto_result){t->job_id, t->task_id, t->tile, t->s0, t->s1, 0, 0, 0,    32 * 32,
-                        px,        0,          NULL,    0,     0,     0, 0, NULL, 0};
+    *r = (proto_result){t->job_id, t->task_id, t->tile, t->s0, t->s1, 0, 0,    0, 32 * 32, px,
+                        0,         NULL,       0,       0,     0,     0, NULL, 0, 0};
 }
 
 /* A pixel of a version 5 checkpoint (72 bytes: sums as u64 pairs, low half
@@ -374,13 +374,29 @@ static void adaptive_min_gain(void)
      * lack, and the clamps and guiding (8 + 25), which formats before 9 lack. */
     const size_t pend = 4 + 4 + 8 + 32 + 9 * 4 + 2 * 8 + 2 + strlen(p.camera) + 23 + 4 + 2;
     const size_t head = pend + 49 + 8;
+    /* Format 10 put the contributions clamped after the depth-cap count; the
+     * older formats below are built from a version 9 checkpoint, the same
+     * bytes without it, which loads to the same bits. */
+    proto_writer w9;
+    proto_writer_init(&w9, 1u << 20);
+    proto_w_bytes(&w9, w.buf, head);
+    proto_w_bytes(&w9, w.buf + head + 8, w.len - head - 8);
+    proto_put_u32(w9.buf + 4, 9);
+    {
+        srv_job *e = NULL;
+        CHECK(proto_writer_status(&w9) == PT_OK);
+        CHECK(srv_job_new(3, &p, HASH, &e, NULL) == PT_OK);
+        CHECKF(e && srv_job_load(e, w9.buf, w9.len, &err) == PT_OK, "%s", err.msg);
+        CHECK(e && memcmp(srv_job_film(e)->px, srv_job_film(b)->px, 64 * 32 * sizeof *f->px) == 0);
+        srv_job_free(e);
+    }
     /* A version 6 checkpoint (time-sized tasks, no shutter: the same bytes
      * without it) loads to the same bits. */
     {
         proto_writer v6;
         proto_writer_init(&v6, 1u << 20);
-        proto_w_bytes(&v6, w.buf, pend);
-        proto_w_bytes(&v6, w.buf + pend + 49, w.len - pend - 49);
+        proto_w_bytes(&v6, w9.buf, pend);
+        proto_w_bytes(&v6, w9.buf + pend + 49, w9.len - pend - 49);
         proto_put_u32(v6.buf + 4, 6);
         srv_job *e = NULL;
         CHECK(proto_writer_status(&v6) == PT_OK);
@@ -397,26 +413,26 @@ static void adaptive_min_gain(void)
     {
         proto_writer v5;
         proto_writer_init(&v5, 1u << 20);
-        uint32_t ntiles = proto_get_u32(w.buf + head);
+        uint32_t ntiles = proto_get_u32(w9.buf + head);
         size_t at = head + 8;
-        proto_w_bytes(&v5, w.buf, pend);
-        proto_w_bytes(&v5, w.buf + pend + 49, at - pend - 49);
+        proto_w_bytes(&v5, w9.buf, pend);
+        proto_w_bytes(&v5, w9.buf + pend + 49, at - pend - 49);
         proto_put_u32(v5.buf + 4, 5);
         for (uint32_t ti = 0; ti < ntiles; ti++, at += 5) {
-            proto_w_u32(&v5, proto_get_u32(w.buf + at) / 8);
-            proto_w_u8(&v5, w.buf[at + 4]);
+            proto_w_u32(&v5, proto_get_u32(w9.buf + at) / 8);
+            proto_w_u8(&v5, w9.buf[at + 4]);
         }
-        uint32_t nheld = proto_get_u32(w.buf + at);
+        uint32_t nheld = proto_get_u32(w9.buf + at);
         proto_w_u32(&v5, nheld);
         at += 4;
         for (uint32_t i = 0; i < nheld; i++) {
-            uint32_t tile = proto_get_u32(w.buf + at), s0 = proto_get_u32(w.buf + at + 4);
+            uint32_t tile = proto_get_u32(w9.buf + at), s0 = proto_get_u32(w9.buf + at + 4);
             proto_w_u64(&v5, (uint64_t)(s0 / 8) * ntiles + tile); /* task id */
             at += 12;
-            proto_w_bytes(&v5, w.buf + at, 32 * 32 * 72);
+            proto_w_bytes(&v5, w9.buf + at, 32 * 32 * 72);
             at += 32 * 32 * 72;
         }
-        proto_w_bytes(&v5, w.buf + at, w.len - at);
+        proto_w_bytes(&v5, w9.buf + at, w9.len - at);
         srv_job *e = NULL;
         CHECK(proto_writer_status(&v5) == PT_OK);
         CHECK(srv_job_new(3, &p, HASH, &e, NULL) == PT_OK);
@@ -442,29 +458,29 @@ static void adaptive_min_gain(void)
         /* Format 6 counts a tile's samples merged and names a held result by
          * its tile and samples; older ones count chunks (8 samples here) and
          * name the task, chunk x tiles + tile. */
-        uint32_t ntiles = proto_get_u32(w.buf + head);
+        uint32_t ntiles = proto_get_u32(w9.buf + head);
         size_t at = head + 8;
-        proto_w_bytes(&v4, w.buf, pend); /* without the shutter and the clamps */
-        proto_w_bytes(&v4, w.buf + pend + 49, at - pend - 49);
+        proto_w_bytes(&v4, w9.buf, pend); /* without the shutter and the clamps */
+        proto_w_bytes(&v4, w9.buf + pend + 49, at - pend - 49);
         proto_put_u32(v4.buf + 4, 4);
         for (uint32_t ti = 0; ti < ntiles; ti++, at += 5) {
-            proto_w_u32(&v4, proto_get_u32(w.buf + at) / 8);
-            proto_w_u8(&v4, w.buf[at + 4]);
+            proto_w_u32(&v4, proto_get_u32(w9.buf + at) / 8);
+            proto_w_u8(&v4, w9.buf[at + 4]);
         }
-        uint32_t nheld = proto_get_u32(w.buf + at);
+        uint32_t nheld = proto_get_u32(w9.buf + at);
         proto_w_u32(&v4, nheld);
         at += 4;
-        for (uint32_t i = 0; i <= nheld && at < w.len; i++) {
+        for (uint32_t i = 0; i <= nheld && at < w9.len; i++) {
             size_t npx = i < nheld ? 32 * 32 : 64 * 32; /* held tiles, then the film */
             if (i < nheld) {
-                uint32_t tile = proto_get_u32(w.buf + at), s0 = proto_get_u32(w.buf + at + 4);
+                uint32_t tile = proto_get_u32(w9.buf + at), s0 = proto_get_u32(w9.buf + at + 4);
                 proto_w_u64(&v4, (uint64_t)(s0 / 8) * ntiles + tile); /* task id */
                 at += 12;
             }
             for (size_t k = 0; k < npx; k++, at += 72)
-                put_old_pixel(&v4, w.buf + at);
+                put_old_pixel(&v4, w9.buf + at);
         }
-        CHECK(at == w.len && proto_writer_status(&v4) == PT_OK);
+        CHECK(at == w9.len && proto_writer_status(&v4) == PT_OK);
     }
     srv_job_free(d);
     d = NULL;
@@ -525,6 +541,7 @@ static void adaptive_min_gain(void)
     CHECK(h && h->px[0].n > 0 && h->px[0].hits == h->px[0].n); /* read as fully covered */
     proto_writer_fini(&v3);
     proto_writer_fini(&v4);
+    proto_writer_fini(&w9);
     proto_writer_fini(&w);
 done:
     srv_job_free(a);
@@ -931,8 +948,8 @@ static void exact_result(const proto_task *t, pt_pixel_acc *px, proto_result *r)
         }
         px[i] = pt_pixel_acc_of(sum, sum, sum, sq, t->s1 - t->s0, t->s1 - t->s0);
     }
-    *r = (proto_result){t->job_id, t->task_id, t->tile, t->s0, t->s1, 0, 0, 0,    n,
-                        px,        0,          NULL,    0,     0,     0, 0, NULL, 0};
+    *r = (proto_result){t->job_id, t->task_id, t->tile, t->s0, t->s1, 0, 0,    0, n, px,
+                        0,         NULL,       0,       0,     0,     0, NULL, 0, 0};
 }
 
 typedef struct sim_owner {
@@ -1439,8 +1456,8 @@ static proto_result guided_result(const proto_task *t, pt_pixel_acc *px, proto_g
     uint32_t n = (t->tile.x1 - t->tile.x0) * (t->tile.y1 - t->tile.y0);
     for (uint32_t i = 0; i < n; i++)
         px[i] = pt_pixel_acc_of(0.5, 0.25, 0.125, 0.0625, t->s1 - t->s0, t->s1 - t->s0);
-    proto_result r = {t->job_id, t->task_id, t->tile, t->s0, t->s1, 0,  0,  0, n,
-                      px,        0,          NULL,    nsn,   nqn,   nc, ns, e, 0};
+    proto_result r = {t->job_id, t->task_id, t->tile, t->s0, t->s1, 0,  0, 0, n, px,
+                      0,         NULL,       nsn,     nqn,   nc,    ns, e, 0, 0};
     return r;
 }
 

@@ -838,6 +838,63 @@ static size_t shutter_at(const uint8_t *d, size_t at)
     return at;
 }
 
+/* The end of a queue record's frame block at d + at (format 6 on). */
+static size_t frames_end(const uint8_t *d, size_t at)
+{
+    at += 4 * 3 + 8;                   /* the frame range and fps */
+    at += 2 + proto_get_u16(d + at);   /* the animation */
+    at += 4;                           /* frames done */
+    return at + 1 + 4 * (size_t)d[at]; /* frames done ahead */
+}
+
+/* The queue file of format 9: the same records without format 10's
+ * contributions clamped, their last field. */
+static void queue_to_v9(const char *name)
+{
+    uint8_t *d;
+    size_t n;
+    if (!read_state(name, &d, &n))
+        return;
+    proto_writer w;
+    proto_writer_init(&w, 1 << 30);
+    size_t at = 8 + 8 + 4, done = 0;
+    for (uint32_t i = 0, count = proto_get_u32(d + 16); i < count; i++) {
+        at += 8 + 8 + 1 + 4;
+        for (int k = 0; k < 4; k++) /* name, owner, scene, output */
+            at += 2 + proto_get_u16(d + at);
+        at = shutter_at(d, at + 8) + 16 + 8 + 25; /* submitted, params */
+        at += 32 + 8 + 8 + 8 + 8;
+        at += 2 + proto_get_u16(d + at); /* message */
+        at = frames_end(d, at + 8 + 8);  /* paths capped, samples rejected */
+        proto_w_bytes(&w, d + done, at - done);
+        at += 8; /* contributions clamped */
+        done = at;
+    }
+    CHECK(at + 4 == n);
+    const long vers[] = {4};
+    write_ver(name, &w, vers, 1, 1, 9);
+    pt_free(d);
+}
+
+/* A checkpoint of format 9: the same bytes without format 10's
+ * contributions clamped after the depth-cap count. */
+static void checkpoint_to_v9(const char *name)
+{
+    uint8_t *d;
+    size_t n;
+    if (!read_state(name, &d, &n))
+        return;
+    proto_writer w;
+    proto_writer_init(&w, 1 << 30);
+    /* envelope 8, seconds/rejected/rays 24, magic, version, id, hash, params */
+    size_t at = shutter_at(d, 8 + 24 + 4 + 4 + 8 + 32) + 16 + 8 + 25 + 8;
+    proto_w_bytes(&w, d, at);
+    proto_w_bytes(&w, d + at + 8, n - 4 - (at + 8));
+    const long vers[] = {4, 36};
+    write_ver(name, &w, vers, 2, 1, 9);
+    pt_free(d);
+}
+
 /* The queue file of format 6: the same records without the shutter, format
  * 9's clamps and format 8's count of rejected samples. */
 static void queue_to_v6(const char *name)
@@ -864,10 +921,7 @@ static void queue_to_v6(const char *name)
         proto_w_bytes(&w, d + done, at - done);
         at += 8; /* samples rejected */
         done = at;
-        at += 4 * 3 + 8;                 /* the frame range and fps */
-        at += 2 + proto_get_u16(d + at); /* the animation */
-        at += 4;                         /* frames done */
-        at += 1 + 4 * (size_t)d[at];     /* frames done ahead */
+        at = frames_end(d, at);
     }
     CHECK(at + 4 == n);
     proto_w_bytes(&w, d + done, n - 4 - done);
@@ -921,10 +975,7 @@ static void queue_to_v5(const char *name)
         at += 2 + proto_get_u16(d + at); /* message */
         at += 8;                         /* paths capped */
         proto_w_bytes(&w, d + start, at - start);
-        at += 4 * 3 + 8;                 /* the frame range and fps */
-        at += 2 + proto_get_u16(d + at); /* the animation */
-        at += 4;                         /* frames done */
-        at += 1 + 4 * (size_t)d[at];     /* frames done ahead */
+        at = frames_end(d, at);
     }
     CHECK(at + 4 == n);
     const long vers[] = {4};
@@ -1345,10 +1396,10 @@ static void damaged(void)
     kill_server(SIGTERM);
     CHECK(log_has("damage_torn.log", "incomplete last record"));
 
-    /* State folders in format 5 (before frame ranges), 4 (before fixed-point sums), 3 (before the
-     * environment light and the film flags as well) and 2 (before --min-gain
-     * as well): the same job resumes with the same samples as from the
-     * current format. */
+    /* State folders in format 9 (before the clamped count), 5 (before frame ranges), 4 (before
+     * fixed-point sums), 3 (before the environment light and the film flags as well) and 2 (before
+     * --min-gain as well): the same job resumes with the same samples as from the current format.
+     */
     CHECK(system(cmd) == 0); /* state3.good again */
     CHECK(start_damaged("migrate_v5.log") == -1);
     proto_job_info v4;
@@ -1358,13 +1409,19 @@ static void damaged(void)
     /* checkpoint: header 8, seconds/rejected/rays 24, magic, version, id, hash,
      * nine u32 parameters, target error; then the min gain */
     const long ck_gain = 8 + 24 + 4 + 4 + 8 + 32 + 36 + 8;
-    for (uint32_t format = 6; format >= 2; format--) {
+    for (uint32_t format = 9; format >= 2; format = format == 9 ? 6 : format - 1) {
         snprintf(cmd, sizeof cmd, "rm -rf '%s' && cp -a '%s' '%s'", path("state3"),
                  path("state3.good"), path("state3"));
         CHECK(system(cmd) == 0);
+        /* Format 9: no contributions clamped in the queue's records and
+         * the checkpoint. */
+        queue_to_v9("state3/queue");
+        checkpoint_to_v9(ck);
         /* Format 6: no shutter in the queue's records and the checkpoint. */
-        queue_to_v6("state3/queue");
-        checkpoint_to_v6(ck);
+        if (format <= 6) {
+            queue_to_v6("state3/queue");
+            checkpoint_to_v6(ck);
+        }
         /* Format 5: no frame ranges in the queue's records; the results
          * log's frames of protocol 4 (RESULT as today's: read as they are). */
         if (format <= 5) {

@@ -47,8 +47,8 @@ static void payload_of(srv_job *job, uint64_t t, proto_writer *w)
     uint32_t n = (task.tile.x1 - task.tile.x0) * (task.tile.y1 - task.tile.y0);
     for (uint32_t i = 0; i < n; i++)
         px[i] = pt_pixel_acc_of(0.25 * (double)(t + 1), 0.5, 0.125 * i, 1.0, task.s1 - task.s0, 0);
-    proto_result r = {JOB_ID, t, task.tile, task.s0, task.s1, 0, 0, 0,    n,
-                      px,     0, NULL,      0,       0,       0, 0, NULL, 0};
+    proto_result r = {JOB_ID, t,    task.tile, task.s0, task.s1, 0, 0,    0, n, px,
+                      0,      NULL, 0,         0,       0,       0, NULL, 0, 0};
     proto_writer_init(w, (size_t)1 << 20);
     size_t mark;
     CHECK(proto_frame_begin(w, PROTO_MSG_RESULT, &mark, NULL) == PT_OK);
@@ -370,8 +370,8 @@ static void test_queue_env_versions(const char *dir)
     /* Version 3: the same record without the ENV block (23 bytes with no map
      * name), the film flags (4), the variant (2, empty), the shutter (16) and
      * the clamps and guiding (8 + 25), which sit after the camera, and without the depth-cap count
-     * (8), version 8's rejected count (8) and version 6's frame block (27 with no animation and no
-     * frame done ahead), its last fields. */
+     * (8), version 8's rejected count (8), version 6's frame block (27 with no animation and no
+     * frame done ahead) and version 10's clamped count (8), its last fields. */
     rec.params.env = PARAMS.env;
     CHECK(srv_state_save_queue(st, recs, 1, 2, &err) == PT_OK);
     char qp[512];
@@ -381,12 +381,12 @@ static void test_queue_env_versions(const char *dir)
     CHECK(pt_read_file(qp, 1 << 20, &f, &len, &err) == PT_OK);
     size_t at = 8 + 8 + 4 + 8 + 8 + 1 + 4 + (2 + strlen(rec.name)) + 2 + 2 + 2 + 8 + 9 * 4 + 2 * 8 +
                 2 + strlen(rec.params.camera);
-    if (f && len > at + 78 + 12 + 35) {
+    if (f && len > at + 78 + 12 + 43) {
         memmove(f + at, f + at + 78, len - at - 78);
         len -= 78;
-        /* the capped and rejected counts and frames before the CRC */
-        memmove(f + len - 47, f + len - 4, 4);
-        len -= 43;
+        /* the capped and rejected counts, frames and clamped count before the CRC */
+        memmove(f + len - 55, f + len - 4, 4);
+        len -= 51;
         proto_put_u32(f + 4, 3);
         proto_put_u32(f + len - 4, proto_crc32c(0, f, len - 4));
         CHECK(pt_write_file_atomic(qp, f, len, &err) == PT_OK);
