@@ -35,8 +35,10 @@
 #define CKPT_PASS_SIZE 404u /* bytes of one pixel's pass sums */
 /* The first with sample clamping in the params (older: none). */
 #define CKPT_CLAMP_VERSION 9u
-/* The first with the contributions clamped (older: 0). */
+/* The first with the contributions clamped (older: 0), and with a guided
+ * job's distribution packed (older: its GUIDE bytes). */
 #define CKPT_CLAMPED_VERSION 10u
+#define CKPT_PACKED_GUIDE_VERSION CKPT_CLAMPED_VERSION
 
 /* A pixel as the checkpoint stores it: each sum as two u64, low half first
  * (RESULT's wide layout, msg.h), then n and hits. */
@@ -345,7 +347,7 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
     pt_status st = load_tiles(j, &r, ntiles, nchunks, ranges, err);
     if (st != PT_OK)
         return st;
-    if ((st = job_guide_load(j, &r, err)) != PT_OK)
+    if ((st = job_guide_load(j, &r, version >= CKPT_PACKED_GUIDE_VERSION, err)) != PT_OK)
         return st;
     j->heap_dirty = 1;
     uint32_t nheld = proto_r_u32(&r, "held results");

@@ -4,7 +4,11 @@
  * statistics of each pass's accepted results merged exactly (integers,
  * saturating: any order gives the same sums), the next pass's distribution
  * built once every tile is merged to the pass's end, and each distribution
- * kept as the bytes TASK names by hash. A pass's distribution is then a pure
+ * kept only packed (proto_guide_pack: what GUIDE_CHUNK sends), named by the
+ * hash of its GUIDE bytes as TASK names it; a build unpacks and decodes the
+ * pass's distribution on its own thread and drops it once the next one is
+ * packed, so a 1080p job holds 8 MB of distribution instead of about 120.
+ * A pass's distribution is then a pure
  * function of the samples before it, as in ptworker --guiding on, so the
  * image is the standalone one bit for bit however the work was split.
  */
@@ -23,77 +27,102 @@
 /* The largest fixed-point value one record adds (pt_guide_stats_record). */
 #define RECORD_CAP ((uint64_t)(PT_GUIDE_MAX_RECORD * (double)(1u << PT_GUIDE_FIXED_BITS) + 0.5))
 
-/* Encodes j->guide as pass k's bytes and hash. */
-static pt_status keep_blob(srv_job *j, uint32_t k, pt_error *err)
+/* A distribution as the job keeps it: the SHA-256 and length of its GUIDE
+ * bytes, and those bytes packed. */
+typedef struct sealed {
+    uint8_t hash[32];
+    size_t len;
+    uint8_t *pack;
+    size_t plen;
+} sealed;
+
+/* GUIDE bytes raw[0, n) sealed into *out. */
+static pt_status seal_bytes(const uint8_t *raw, size_t n, sealed *out, pt_error *err)
+{
+    pt_sha256(raw, n, out->hash);
+    out->len = n;
+    return proto_guide_pack(raw, n, &out->pack, &out->plen, err);
+}
+
+/* g encoded and sealed into *out; the GUIDE bytes are not kept. */
+static pt_status seal(const pt_guide *g, sealed *out, pt_error *err)
 {
     proto_writer w;
     proto_writer_init(&w, PROTO_MAX_GUIDE_BYTES);
-    pt_status st = proto_guide_encode(&w, j->guide, err);
-    if (st != PT_OK) {
-        proto_writer_fini(&w);
-        return st;
+    pt_status st = proto_guide_encode(&w, g, err);
+    if (st == PT_OK)
+        st = seal_bytes(w.buf, w.len, out, err);
+    proto_writer_fini(&w);
+    return st;
+}
+
+/* *out = the guide that pack[0, plen) holds, checked for sampling. */
+static pt_status unseal(const uint8_t *pack, size_t plen, pt_guide **out, pt_error *err)
+{
+    uint8_t *raw = NULL;
+    size_t n = 0;
+    pt_status st = proto_guide_unpack(pack, plen, &raw, &n, err);
+    if (st == PT_OK)
+        st = proto_guide_decode(raw, n, out, err);
+    pt_free(raw);
+    if (st == PT_OK && (st = pt_guide_check(*out, err)) != PT_OK) {
+        pt_guide_free(*out);
+        *out = NULL;
     }
-    uint8_t *pack = NULL;
-    size_t plen = 0;
-    st = proto_guide_pack(w.buf, w.len, &pack, &plen, err);
-    if (st != PT_OK) {
-        proto_writer_fini(&w);
-        return st;
-    }
-    pt_free(j->gblob[k]);
+    return st;
+}
+
+/* Makes s pass k's distribution (the job takes its packed bytes). */
+static void keep(srv_job *j, uint32_t k, sealed *s)
+{
     pt_free(j->gpack[k]);
-    j->gblob[k] = w.buf; /* the writer's buffer is pt_malloc'd: the job's now */
-    j->glen[k] = w.len;
-    j->gpack[k] = pack;
-    j->gplen[k] = plen;
-    pt_sha256(w.buf, w.len, j->ghash[k]);
-    return PT_OK;
+    j->gpack[k] = s->pack;
+    j->gplen[k] = s->plen;
+    j->glen[k] = s->len;
+    memcpy(j->ghash[k], s->hash, 32);
+    s->pack = NULL;
 }
 
 /* Guides of more directional nodes than this are built off the loop (a
  * 1080p job's second pass: 7.4 million nodes, 1.4 s); smaller ones at once. */
 #define BUILD_ON_THREAD_NODES (1u << 16)
 
-/* A build: from the pass's guide and statistics (read only while it runs:
- * the pass's results are all accepted) to the next guide, its bytes and
- * hash and empty statistics. */
+/* A build: from the pass's packed distribution and its statistics (read
+ * only while it runs: the pass's results are all accepted) to the next
+ * distribution, sealed, and empty statistics for it. */
 struct job_guide_build {
     pthread_t thread;
     atomic_int done;
-    const pt_guide *from;
+    const uint8_t *from; /* the pass's packed distribution */
+    size_t from_len;
     const pt_guide_stats *stats;
     uint32_t pass; /* the pass it builds for */
     uint64_t split, t0;
-    pt_guide *guide;
+    uint32_t nsnode, nqnode; /* the new distribution's nodes */
     pt_guide_stats *nstats;
-    uint8_t *blob, *pack;
-    size_t len, plen;
-    uint64_t pack_ms; /* the time proto_guide_pack took */
-    uint8_t hash[32];
+    sealed out;
+    uint64_t pack_ms; /* the time encoding, hashing and packing took */
     pt_status st;
     pt_error err;
 };
 
 static void build_run(struct job_guide_build *b)
 {
-    b->st = pt_guide_build(b->from, b->stats, b->split, &b->guide, &b->err);
+    pt_guide *from = NULL, *g = NULL;
+    b->st = unseal(b->from, b->from_len, &from, &b->err);
     if (b->st == PT_OK)
-        b->st = pt_guide_stats_new(b->guide, &b->nstats, &b->err);
+        b->st = pt_guide_build(from, b->stats, b->split, &g, &b->err);
+    pt_guide_free(from);
+    if (b->st == PT_OK)
+        b->st = pt_guide_stats_new(g, &b->nstats, &b->err);
     if (b->st == PT_OK) {
-        proto_writer w;
-        proto_writer_init(&w, PROTO_MAX_GUIDE_BYTES);
-        b->st = proto_guide_encode(&w, b->guide, &b->err);
-        if (b->st == PT_OK) {
-            b->blob = w.buf; /* pt_malloc'd: the job's once installed */
-            b->len = w.len;
-            pt_sha256(w.buf, w.len, b->hash);
-            uint64_t t = pt_now_ms();
-            b->st = proto_guide_pack(b->blob, b->len, &b->pack, &b->plen, &b->err);
-            b->pack_ms = pt_now_ms() - t;
-        } else {
-            proto_writer_fini(&w);
-        }
+        b->nsnode = g->nsnode;
+        b->nqnode = g->nqnode;
+        uint64_t t = pt_now_ms();
+        b->st = seal(g, &b->out, &b->err);
+        b->pack_ms = pt_now_ms() - t;
     }
+    pt_guide_free(g);
 }
 
 static void *build_thread(void *arg)
@@ -108,10 +137,8 @@ static void build_free(struct job_guide_build *b)
 {
     if (!b)
         return;
-    pt_guide_free(b->guide);
     pt_guide_stats_free(b->nstats);
-    pt_free(b->blob);
-    pt_free(b->pack);
+    pt_free(b->out.pack);
     pt_free(b);
 }
 
@@ -123,12 +150,17 @@ pt_status job_guide_init(srv_job *j, pt_error *err)
         return pt_error_set(err, PT_ERR_ARG,
                             "job: guiding does not combine with adaptive sampling");
     const float *b = j->p.guide_box;
-    pt_status st =
-        pt_guide_new_uniform(pt_v3(b[0], b[1], b[2]), pt_v3(b[3], b[4], b[5]), &j->guide, err);
+    pt_guide *g = NULL;
+    sealed s = {0};
+    pt_status st = pt_guide_new_uniform(pt_v3(b[0], b[1], b[2]), pt_v3(b[3], b[4], b[5]), &g, err);
     if (st == PT_OK)
-        st = pt_guide_stats_new(j->guide, &j->gstats, err);
+        st = pt_guide_stats_new(g, &j->gstats, err);
     if (st == PT_OK)
-        st = keep_blob(j, 0, err);
+        st = seal(g, &s, err);
+    if (st == PT_OK)
+        keep(j, 0, &s);
+    pt_free(s.pack);
+    pt_guide_free(g);
     return st;
 }
 
@@ -139,12 +171,9 @@ void job_guide_free(srv_job *j)
         build_free(j->gbuild);
         j->gbuild = NULL;
     }
-    pt_guide_free(j->guide);
     pt_guide_stats_free(j->gstats);
-    for (uint32_t k = 0; k <= PROTO_MAX_GUIDE_PASS; k++) {
-        pt_free(j->gblob[k]);
+    for (uint32_t k = 0; k <= PROTO_MAX_GUIDE_PASS; k++)
         pt_free(j->gpack[k]);
-    }
 }
 
 uint32_t job_guide_end(const srv_job *j, uint32_t s0)
@@ -167,7 +196,7 @@ int job_guide_fill(const srv_job *j, uint32_t s0, proto_task *t)
     if (!j->p.guiding)
         return 1;
     uint32_t k = pt_guide_pass_of(s0, j->p.spp);
-    if (k > PROTO_MAX_GUIDE_PASS || !j->gblob[k])
+    if (k > PROTO_MAX_GUIDE_PASS || !j->gpack[k])
         return 0;
     t->guided = 1;
     t->guide_pass = k;
@@ -252,29 +281,17 @@ static void install(srv_job *j, struct job_guide_build *b, int threaded)
         build_free(b);
         return;
     }
-    pt_guide_free(j->guide);
     pt_guide_stats_free(j->gstats);
-    j->guide = b->guide;
     j->gstats = b->nstats;
-    pt_free(j->gblob[b->pass]);
-    j->gblob[b->pass] = b->blob;
-    j->glen[b->pass] = b->len;
-    pt_free(j->gpack[b->pass]);
-    j->gpack[b->pass] = b->pack;
-    j->gplen[b->pass] = b->plen;
-    memcpy(j->ghash[b->pass], b->hash, 32);
-    b->guide = NULL;
     b->nstats = NULL;
-    b->blob = NULL;
-    b->pack = NULL;
+    keep(j, b->pass, &b->out);
     j->gpass = b->pass;
     srv_log("job %llu: guiding pass %u: a distribution of %zu bytes, %zu packed (%u spatial, %u "
             "directional nodes) built in %llu ms%s (packed in %llu ms); pass %u's results carried "
             "at most %u statistics entries",
-            (unsigned long long)j->id, j->gpass, j->glen[j->gpass], j->gplen[j->gpass],
-            j->guide->nsnode, j->guide->nqnode, (unsigned long long)(pt_now_ms() - b->t0),
-            threaded ? " off the loop" : "", (unsigned long long)b->pack_ms, j->gpass - 1,
-            j->gmost);
+            (unsigned long long)j->id, j->gpass, j->glen[j->gpass], j->gplen[j->gpass], b->nsnode,
+            b->nqnode, (unsigned long long)(pt_now_ms() - b->t0), threaded ? " off the loop" : "",
+            (unsigned long long)b->pack_ms, j->gpass - 1, j->gmost);
     build_free(b);
     j->gmost = 0;
     uint32_t end = pt_guide_pass_end(j->gpass, j->p.spp);
@@ -310,7 +327,8 @@ void job_guide_advance(srv_job *j)
                 (unsigned long long)j->id, j->gpass + 1);
         return;
     }
-    b->from = j->guide;
+    b->from = j->gpack[j->gpass];
+    b->from_len = j->gplen[j->gpass];
     b->stats = j->gstats;
     b->pass = j->gpass + 1;
     b->split = pt_guide_split_count(j->gpass);
@@ -319,7 +337,7 @@ void job_guide_advance(srv_job *j)
     j->gbuild = b;
     /* The result is the same bits on either path: a pure function of the
      * guide and the statistics. */
-    if (j->guide->nqnode > BUILD_ON_THREAD_NODES &&
+    if (j->gstats->nqnode > BUILD_ON_THREAD_NODES &&
         pthread_create(&b->thread, NULL, build_thread, b) == 0)
         return;
     build_run(b);
@@ -337,16 +355,18 @@ void job_guide_tile_moved(srv_job *j, uint32_t from, uint32_t to)
     }
 }
 
-/* The statistics as the checkpoint keeps them: u32 counts listed, u32 sums
- * listed, then (u32 node, u64 value) each, ascending (RESULT's form). */
+/* The checkpoint's guiding section: u32 the pass, u32 n and n bytes of its
+ * distribution (packed from format 10 on, GUIDE bytes before), then its
+ * statistics: u32 counts listed, u32 sums listed, then (u32 node, u64
+ * value) each, ascending (RESULT's form). */
 void job_guide_save(const srv_job *j, proto_writer *w)
 {
     if (!j->p.guiding)
         return;
     uint32_t k = j->gpass;
     proto_w_u32(w, k);
-    proto_w_u32(w, (uint32_t)j->glen[k]);
-    proto_w_bytes(w, j->gblob[k], j->glen[k]);
+    proto_w_u32(w, (uint32_t)j->gplen[k]);
+    proto_w_bytes(w, j->gpack[k], j->gplen[k]);
     const pt_guide_stats *s = j->gstats;
     uint32_t nc = 0, ns = 0;
     for (uint32_t i = 0; i < s->nsnode; i++)
@@ -367,7 +387,41 @@ void job_guide_save(const srv_job *j, proto_writer *w)
         }
 }
 
-pt_status job_guide_load(srv_job *j, proto_reader *r, pt_error *err)
+/* The distribution of a checkpoint's n bytes at p (packed, or its GUIDE
+ * bytes when !packed) sealed into *out, and *g decoded and checked. */
+static pt_status load_distribution(const uint8_t *p, size_t n, int packed, sealed *out,
+                                   pt_guide **g, pt_error *err)
+{
+    if (packed) {
+        pt_status st = unseal(p, n, g, err);
+        if (st != PT_OK)
+            return st;
+        uint8_t *raw = NULL;
+        size_t len = 0;
+        /* The hash is of the GUIDE bytes: unpacked once more, so that
+         * nothing but the packed bytes stays. */
+        st = proto_guide_unpack(p, n, &raw, &len, err);
+        if (st == PT_OK) {
+            pt_sha256(raw, len, out->hash);
+            out->len = len;
+            out->plen = n;
+            if (!(out->pack = pt_malloc(n)))
+                st = pt_error_set(err, PT_ERR_NOMEM, "checkpoint: guide of %zu bytes", n);
+            else
+                memcpy(out->pack, p, n);
+        }
+        pt_free(raw);
+        return st;
+    }
+    pt_status st = proto_guide_decode(p, n, g, err);
+    if (st == PT_OK && (st = pt_guide_check(*g, err)) != PT_OK) {
+        pt_guide_free(*g);
+        *g = NULL;
+    }
+    return st == PT_OK ? seal_bytes(p, n, out, err) : st;
+}
+
+pt_status job_guide_load(srv_job *j, proto_reader *r, int packed, pt_error *err)
 {
     if (!j->p.guiding)
         return PT_OK;
@@ -381,14 +435,8 @@ pt_status job_guide_load(srv_job *j, proto_reader *r, pt_error *err)
     const uint8_t *blob = proto_r_bytes(r, len, "guide");
     pt_guide *g = NULL;
     pt_guide_stats *s = NULL;
-    uint8_t *copy = pt_malloc(len ? len : 1), *pack = NULL;
-    size_t plen = 0;
-    pt_status st = copy ? proto_guide_decode(blob, len, &g, err)
-                        : pt_error_set(err, PT_ERR_NOMEM, "checkpoint: guide of %u bytes", len);
-    if (st == PT_OK)
-        st = proto_guide_pack(blob, len, &pack, &plen, err);
-    if (st == PT_OK)
-        st = pt_guide_check(g, err);
+    sealed sl = {0};
+    pt_status st = load_distribution(blob, len, packed, &sl, &g, err);
     if (st == PT_OK)
         st = pt_guide_stats_new(g, &s, err);
     uint32_t nc = proto_r_u32(r, "guiding counts"), ns = proto_r_u32(r, "guiding sums");
@@ -403,30 +451,21 @@ pt_status job_guide_load(srv_job *j, proto_reader *r, pt_error *err)
         else
             (i < nc ? s->count : s->sum)[node] = v;
     }
+    pt_guide_free(g);
     if (st != PT_OK) {
-        pt_free(copy);
-        pt_free(pack);
-        pt_guide_free(g);
+        pt_free(sl.pack);
         pt_guide_stats_free(s);
         return st;
     }
-    memcpy(copy, blob, len);
-    pt_guide_free(j->guide);
     pt_guide_stats_free(j->gstats);
     for (uint32_t i = 0; i <= PROTO_MAX_GUIDE_PASS; i++) {
-        pt_free(j->gblob[i]);
         pt_free(j->gpack[i]);
-        j->gblob[i] = j->gpack[i] = NULL;
+        j->gpack[i] = NULL;
         j->glen[i] = j->gplen[i] = 0;
     }
-    j->guide = g;
     j->gstats = s;
     j->gpass = k;
-    j->gblob[k] = copy;
-    j->glen[k] = len;
-    j->gpack[k] = pack;
-    j->gplen[k] = plen;
-    pt_sha256(copy, len, j->ghash[k]);
+    keep(j, k, &sl);
     return PT_OK;
 }
 
@@ -437,12 +476,16 @@ int job_guide_copy(srv_job *c, const srv_job *j)
     uint32_t k = j->gpass;
     c->gpass = k;
     c->glen[k] = j->glen[k];
-    c->gblob[k] = pt_malloc(j->glen[k]);
     c->gplen[k] = j->gplen[k];
+    memcpy(c->ghash[k], j->ghash[k], 32);
     c->gpack[k] = pt_malloc(j->gplen[k]);
-    if (pt_guide_stats_new(j->guide, &c->gstats, NULL) != PT_OK || !c->gblob[k] || !c->gpack[k])
+    /* Statistics of the same sizes: pt_guide_stats_new reads a guide's node
+     * counts only. */
+    pt_guide shape = {0};
+    shape.nsnode = j->gstats->nsnode;
+    shape.nqnode = j->gstats->nqnode;
+    if (pt_guide_stats_new(&shape, &c->gstats, NULL) != PT_OK || !c->gpack[k])
         return -1;
-    memcpy(c->gblob[k], j->gblob[k], j->glen[k]);
     memcpy(c->gpack[k], j->gpack[k], j->gplen[k]);
     pt_guide_stats_merge(c->gstats, j->gstats, NULL);
     return 0;

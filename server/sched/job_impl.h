@@ -156,18 +156,17 @@ struct srv_job {
      * (pt_guide_pass_end: none of a later pass before its distribution
      * exists); guide is its distribution, gstats the statistics of its
      * results accepted so far; gtiles the tiles merged to its end. Each
-     * pass's distribution is kept as the bytes TASK names by hash (gblob
-     * [k], NULL for passes before a resume: only verification copies ask
-     * for an older one); gpack[k] is those bytes packed for the wire
-     * (proto_guide_pack), what GUIDE_GET hands out. */
+     * pass's distribution is kept only packed for the wire (gpack[k],
+     * proto_guide_pack: what GUIDE_GET hands out; NULL for passes before a
+     * resume: only verification copies ask for an older one), with the
+     * length (glen) and SHA-256 (ghash, what TASK names) of its GUIDE
+     * bytes; a build unpacks the pass's (job_guide.c). */
     uint32_t gpass, gtiles;
     uint32_t gmost; /* the most statistics entries one result of the pass carried */
     /* A large build runs on a thread of its own (job_guide.c); the loop
      * installs what it made at the next lease or result after gdone. */
     struct job_guide_build *gbuild;
-    pt_guide *guide;
     pt_guide_stats *gstats;
-    uint8_t *gblob[PROTO_MAX_GUIDE_PASS + 1];
     size_t glen[PROTO_MAX_GUIDE_PASS + 1];
     uint8_t ghash[PROTO_MAX_GUIDE_PASS + 1][32];
     uint8_t *gpack[PROTO_MAX_GUIDE_PASS + 1];
@@ -288,9 +287,10 @@ void job_guide_advance(srv_job *j);
  * the next pass's distribution before that pass's results). */
 void job_guide_settle(srv_job *j);
 /* The checkpoint's guiding section (after the tiles' count): gpass, the
- * pass's distribution, its statistics. */
+ * pass's distribution (packed; GUIDE bytes in a checkpoint before format 10,
+ * !packed), its statistics. */
 void job_guide_save(const srv_job *j, proto_writer *w);
-pt_status job_guide_load(srv_job *j, proto_reader *r, pt_error *err);
+pt_status job_guide_load(srv_job *j, proto_reader *r, int packed, pt_error *err);
 /* Copies what job_guide_save reads into c (a snapshot). -1 without memory. */
 int job_guide_copy(srv_job *c, const srv_job *j);
 /* The bytes of npx pixels' sums as the job keeps a tile's (held, posted to

@@ -1549,16 +1549,54 @@ static void guided(void)
     proto_task ct;
     CHECK(c && srv_job_guide_pass(c) == 1 && srv_job_lease(c, 8, 0, 1000, &ct) &&
           ct.guide_pass == 1 && memcmp(ct.guide_hash, t[2].guide_hash, 32) == 0);
-    /* A damaged distribution in it is refused. */
-    size_t at = 4 + 4 + 8 + 32; /* the params follow; find the guide's magic */
-    while (at + 4 <= w.len && proto_get_u32(w.buf + at) != PROTO_GUIDE_MAGIC)
+    /* It holds the distribution packed (format 10), the bytes GUIDE_GET
+     * hands out; after it, u32 counts and sums listed. */
+    size_t at = 4 + 4 + 8 + 32; /* the params follow; find the packed guide's magic */
+    while (at + 4 <= w.len && proto_get_u32(w.buf + at) != PROTO_GUIDE_PACK_MAGIC)
         at++;
-    CHECK(at + 40 < w.len);
-    proto_put_u32(w.buf + at + 40, 99); /* the root's child */
+    CHECK(at + 40 < w.len && proto_get_u32(w.buf + at - 4) == len &&
+          memcmp(w.buf + at, blob, len) == 0);
+    /* A version 9 checkpoint: no clamped count after the depth-cap count
+     * (the params are this job's: no environment map, no variant) and the
+     * distribution's GUIDE bytes; it loads to the same distribution. */
+    uint8_t *raw1 = NULL;
+    size_t raw1len = 0;
+    CHECK(proto_guide_unpack(blob, len, &raw1, &raw1len, &err) == PT_OK);
+    const size_t capped_at =
+        4 + 4 + 8 + 32 + 9 * 4 + 2 * 8 + 2 + strlen(p.camera) + 23 + 4 + 2 + 49;
+    proto_writer v9;
+    proto_writer_init(&v9, 1u << 24);
+    proto_w_bytes(&v9, w.buf, capped_at + 8);
+    proto_w_bytes(&v9, w.buf + capped_at + 16, at - 4 - (capped_at + 16));
+    proto_w_u32(&v9, (uint32_t)raw1len);
+    proto_w_bytes(&v9, raw1, raw1len);
+    proto_w_bytes(&v9, w.buf + at + len, w.len - at - len);
+    proto_put_u32(v9.buf + 4, 9);
     srv_job *d = NULL;
+    CHECK(srv_job_new(1, &p, HASH, &d, &err) == PT_OK);
+    CHECKF(d && srv_job_load(d, v9.buf, v9.len, &err) == PT_OK, "%s", err.msg);
+    const uint8_t *blob9 = NULL;
+    size_t len9 = 0;
+    CHECK(d && srv_job_guide_pass(d) == 1 && srv_job_lease(d, 8, 0, 1000, &ct) &&
+          memcmp(ct.guide_hash, t[2].guide_hash, 32) == 0 &&
+          srv_job_guide_bytes(d, ct.guide_hash, &blob9, &len9));
+    srv_job_free(d);
+    d = NULL;
+    /* A damaged distribution is refused: GUIDE bytes that do not decode (a
+     * version 9 checkpoint), a packed stream that does not unpack. */
+    size_t g9 = v9.len - (w.len - at - len) - raw1len;
+    CHECK(proto_get_u32(v9.buf + g9) == PROTO_GUIDE_MAGIC);
+    proto_put_u32(v9.buf + g9 + 40, 99); /* the root's child */
+    CHECK(srv_job_new(1, &p, HASH, &d, &err) == PT_OK);
+    CHECK(d && srv_job_load(d, v9.buf, v9.len, &err) == PT_ERR_FORMAT);
+    srv_job_free(d);
+    d = NULL;
+    w.buf[at + len / 2] ^= 0x5a;
     CHECK(srv_job_new(1, &p, HASH, &d, &err) == PT_OK);
     CHECK(d && srv_job_load(d, w.buf, w.len, &err) == PT_ERR_FORMAT);
     srv_job_free(d);
+    pt_free(raw1);
+    proto_writer_fini(&v9);
     srv_job_free(c);
     proto_writer_fini(&w);
     srv_job_free(j);
