@@ -50,9 +50,28 @@ mkdir -p "$work"
 log=$work/ptserve.log
 t0=$(date +%s.%N)
 "$bin/ptserve" --local "$workers" --res "$res" --spp "$spp" --guiding on \
-  -o "$work/out.exr" "$scene" > "$log" 2>&1
+  -o "$work/out.exr" "$scene" > "$log" 2>&1 &
+pid=$!
+# The coordinator's resident memory every 0.2 s, each sample with the
+# passes whose distribution was installed by then (its log's lines).
+rss=$work/rss.txt
+: > "$rss"
+while kill -0 "$pid" 2> /dev/null; do
+  kb=$(sed -n 's/^VmRSS: *\([0-9]*\) kB/\1/p' "/proc/$pid/status" 2> /dev/null || true)
+  hwm=$(sed -n 's/^VmHWM: *\([0-9]*\) kB/\1/p' "/proc/$pid/status" 2> /dev/null || true)
+  n=$(grep -c 'guiding pass [0-9]*: a distribution' "$log" || true)
+  if [ -n "$kb" ]; then echo "$n $kb $hwm" >> "$rss"; fi
+  sleep 0.2
+done
+wait "$pid"
 t1=$(date +%s.%N)
 echo "scene $(basename "$scene") $res, $spp spp, $workers workers: $(echo "$t1 - $t0" | bc) s"
+# Per pass rendered: the most the coordinator held while its tasks ran (a
+# distribution installed and, before the last, the next one's statistics),
+# and its peak (VmHWM) so far, in MiB.
+awk '{ if ($2 > m[$1]) m[$1] = $2; h[$1] = $3 }
+     END { for (k in m) printf "coordinator, pass %d rendering: resident %.1f MiB, peak so far %.1f MiB\n", k, m[k] / 1024, h[k] / 1024 }' "$rss" |
+  sort
 printf '%-6s %12s %12s %10s %12s %10s %8s %s\n' pass bytes wire spatial directional build_ms pack_ms \
   fetch_ms
 # The first distribution (pass 0) is uniform: its sizes from the fetch lines.

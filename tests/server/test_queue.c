@@ -481,11 +481,13 @@ static void crash_restart(void)
                          NULL};
     CHECK(run(ref, "crash_ref.log", 600) == 0);
     g_port = 0;
-    /* Tasks sized by time, the default task time: the image is still the
-     * standalone render's (chunks of 48: with exact sums any cut at
-     * multiples of 16 samples gives the same bits) after every kill. */
+    /* Tasks sized by time: the image is still the standalone render's
+     * (with exact sums any cut at multiples of 16 samples gives the same
+     * bits) after every kill. 250 ms a task, not the default 2 s: on an idle
+     * machine the whole job renders in about 3 s, which 2-second tasks cut
+     * into so few results that it ended before the kills below. */
     g_sizing[0] = "--task-time";
-    g_sizing[1] = "2000";
+    g_sizing[1] = "250";
     start_server("state1", "crash.log", NULL);
     pid_t w1 = start_worker("c1"), w2 = start_worker("c2");
     uint64_t id = submit(g_port, job_of("crash", 64, 48, spp, 0));
