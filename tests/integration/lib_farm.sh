@@ -1,6 +1,7 @@
 # shellcheck shell=bash
-# lib_farm.sh - what the farm tests of passes and the denoiser share
-# (test_passes_farm.sh, test_denoise_farm.sh): a queue on loopback, workers,
+# lib_farm.sh - what the farm tests share (test_passes_farm.sh,
+# test_denoise_farm.sh, test_clamp_farm.sh, test_transparent_ctl.sh, ...):
+# a queue on loopback, workers,
 # polling a job, and comparing its EXR with the standalone render's.
 # Source it after `set -euo pipefail`; it reads PT_BIN, PT_SOURCE_DIR and
 # makes $tmp (kept, with the logs, when the test fails).
@@ -13,6 +14,7 @@
 #                           chunks of 8, leases of 1 s; sets srv_pid and
 #                           exports PTFARM_SERVER
 #   stop_server [-9]        stops it (SIGTERM, or SIGKILL with -9)
+#   restart_server LOG      stops it (SIGTERM) and serves again on its port
 #   workers N               N ptworker of one thread each (pids in wrk_pids)
 #   stop_workers            stops them
 #   kill_worker             SIGKILL to the first of them
@@ -80,6 +82,11 @@ stop_server() {
   fi
   wait "$srv_pid" 2> /dev/null || true
   srv_pid=
+}
+
+restart_server() {
+  stop_server -15
+  serve "$1"
 }
 
 workers() {

@@ -8,28 +8,19 @@
 # runs, and queue mode refuses ptserve's own clamps (a queued job asks with
 # ptctl submit).
 set -euo pipefail
-bin=${PT_BIN:?}
-src=${PT_SOURCE_DIR:?}
-tmp=$(mktemp -d /tmp/pt_clamp_farm_XXXXXX)
-srv_pid=
-cleanup() {
-  if [ -n "$srv_pid" ] && kill "$srv_pid" 2>/dev/null; then wait "$srv_pid" 2>/dev/null || true; fi
-  if [ "${failed:-0}" = 0 ]; then rm -rf "$tmp"; else echo "logs kept in $tmp" >&2; fi
-}
-trap cleanup EXIT
-failed=1
-fail() { echo "FAIL: $*" >&2; exit 1; }
+# shellcheck source=tests/integration/lib_farm.sh
+. "$(dirname "$0")/lib_farm.sh"
+farm_init clamp_farm
 
-scene=$src/scenes/cornell_box.gltf
 view=(--res 48x32 --spp 32 --seed 3)
 clamp=(--clamp-direct 0.75 --clamp-indirect 0.05)
-"$bin/ptworker" --scene "$scene" "${view[@]}" "${clamp[@]}" --tile 16 --chunk 16 -q \
+"$bin/ptworker" --scene "$scene" "${view[@]}" "${clamp[@]}" --tile 16 --chunk 8 -q \
   -o "$tmp/ref.exr" 2> "$tmp/ref.log" || fail "ptworker --clamp-*: $(cat "$tmp/ref.log")"
 count=$(sed -n 's/^ptworker: \([0-9]*\) contributions clamped.*/\1/p' "$tmp/ref.log")
 if [ -z "$count" ] || [ "$count" -eq 0 ]; then
   fail "ptworker counted no clamped sample: $(cat "$tmp/ref.log")"
 fi
-"$bin/ptworker" --scene "$scene" "${view[@]}" --tile 16 --chunk 16 -q \
+"$bin/ptworker" --scene "$scene" "${view[@]}" --tile 16 --chunk 8 -q \
   -o "$tmp/plain.exr" 2> "$tmp/plain.log" || fail "ptworker: $(cat "$tmp/plain.log")"
 if "$bin/ptexr-diff" "$tmp/ref.exr" "$tmp/plain.exr" > /dev/null 2>&1; then
   fail "the clamps change nothing here: the test could not tell them from none"
@@ -61,13 +52,8 @@ done
 expect_refusal "ptserve --state-dir --clamp-direct" "$tmp/q.log" "one-job mode" \
   "$bin/ptserve" --state-dir "$tmp/qstate" --listen 127.0.0.1:0 --clamp-direct 1
 
-"$bin/ptserve" --state-dir "$tmp/state" --output-dir "$tmp/out" --listen 127.0.0.1:0 \
-  --port-file "$tmp/port" --local 2 --worker-threads 1 --tile 16 --chunk 16 2> "$tmp/serve.log" &
-srv_pid=$!
-for _ in $(seq 100); do [ -s "$tmp/port" ] && break; sleep 0.05; done
-[ -s "$tmp/port" ] || fail "ptserve did not start: $(cat "$tmp/serve.log")"
-PTFARM_SERVER=127.0.0.1:$(cat "$tmp/port")
-export PTFARM_SERVER
+serve serve.log
+workers 2
 job=$("$bin/ptctl" submit "$scene" "${view[@]}" "${clamp[@]}")
 "$bin/ptctl" watch "$job" 2> /dev/null || fail "watch exited $?"
 "$bin/ptctl" fetch "$job" -o "$tmp/queued.exr"
@@ -78,16 +64,7 @@ grep -q "^clamped  *$count contributions" "$tmp/status.txt" ||
 "$bin/ptctl" status --json "$job" | grep -q "\"contributions_clamped\": $count," ||
   fail "ptctl status --json does not give $count clamped"
 # The finished job's count is in the queue file: a restarted coordinator shows it.
-kill "$srv_pid"
-wait "$srv_pid" 2> /dev/null || true
-srv_pid=
-rm -f "$tmp/port"
-"$bin/ptserve" --state-dir "$tmp/state" --output-dir "$tmp/out" --listen 127.0.0.1:0 \
-  --port-file "$tmp/port" 2> "$tmp/serve2.log" &
-srv_pid=$!
-for _ in $(seq 100); do [ -s "$tmp/port" ] && break; sleep 0.05; done
-[ -s "$tmp/port" ] || fail "ptserve did not restart: $(cat "$tmp/serve2.log")"
-PTFARM_SERVER=127.0.0.1:$(cat "$tmp/port")
+restart_server serve.log
 "$bin/ptctl" status "$job" > "$tmp/status2.txt"
 grep -q "^clamped  *$count contributions" "$tmp/status2.txt" ||
   fail "after a restart, ptctl status lost the clamped count: $(cat "$tmp/status2.txt")"

@@ -7,25 +7,11 @@
 # the depth cap (the closed white furnace with --max-depth 2) shows the exact
 # count in `ptctl status`, which says nothing of it otherwise.
 set -euo pipefail
-bin=${PT_BIN:?}
-src=${PT_SOURCE_DIR:?}
-tmp=$(mktemp -d /tmp/pt_transparent_ctl_XXXXXX)
-srv_pid=
-cleanup() {
-  if [ -n "$srv_pid" ] && kill "$srv_pid" 2>/dev/null; then wait "$srv_pid" 2>/dev/null || true; fi
-  if [ "${failed:-0}" = 0 ]; then rm -rf "$tmp"; else echo "logs kept in $tmp" >&2; fi
-}
-trap cleanup EXIT
-failed=1
-fail() { echo "FAIL: $*" >&2; exit 1; }
-
-"$bin/ptserve" --state-dir "$tmp/state" --output-dir "$tmp/out" --listen 127.0.0.1:0 \
-  --port-file "$tmp/port" --local 2 --worker-threads 1 --tile 16 --chunk 8 2> "$tmp/serve.log" &
-srv_pid=$!
-for _ in $(seq 100); do [ -s "$tmp/port" ] && break; sleep 0.05; done
-[ -s "$tmp/port" ] || fail "ptserve did not start: $(cat "$tmp/serve.log")"
-PTFARM_SERVER=127.0.0.1:$(cat "$tmp/port")
-export PTFARM_SERVER
+# shellcheck source=tests/integration/lib_farm.sh
+. "$(dirname "$0")/lib_farm.sh"
+farm_init transparent_ctl
+serve serve.log
+workers 2
 ctl() { "$bin/ptctl" "$@"; }
 
 view=(--res 64x16 --spp 16 --seed 5 --background "0.25,0.5,1")
@@ -57,14 +43,7 @@ grep -q "depth cap  1024 paths reached it" "$tmp/cap.txt" || fail "status: $(cat
 ctl status "$cap" --json > "$tmp/cap.json"
 grep -q '"paths_capped": 1024,' "$tmp/cap.json" || fail "status --json: $(cat "$tmp/cap.json")"
 # After a restart the finished job keeps its count (the queue file has it).
-kill "$srv_pid"; wait "$srv_pid" 2>/dev/null || true; srv_pid=
-rm -f "$tmp/port"
-"$bin/ptserve" --state-dir "$tmp/state" --output-dir "$tmp/out" --listen 127.0.0.1:0 \
-  --port-file "$tmp/port" 2>> "$tmp/serve.log" &
-srv_pid=$!
-for _ in $(seq 100); do [ -s "$tmp/port" ] && break; sleep 0.05; done
-[ -s "$tmp/port" ] || fail "ptserve did not restart: $(cat "$tmp/serve.log")"
-PTFARM_SERVER=127.0.0.1:$(cat "$tmp/port")
+restart_server serve.log
 ctl status "$cap" > "$tmp/cap2.txt"
 grep -q "depth cap  1024 paths reached it" "$tmp/cap2.txt" || fail "after restart: $(cat "$tmp/cap2.txt")"
 failed=0
