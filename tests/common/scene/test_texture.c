@@ -575,10 +575,138 @@ static void test_shared_tangents(void)
     compare_asset("LightsPunctualLamp/LightsPunctualLamp.gltf", 0.1, 0.1, 90.0);
 }
 
+/* A texture in rows holding `bytes` (w x h RGBA8), for the reference. */
+static pt_texture rows_of(const uint8_t *bytes, uint32_t w, uint32_t h)
+{
+    pt_texture t;
+    memset(&t, 0, sizeof t);
+    t.width = w;
+    t.height = h;
+    t.rgba = (uint8_t *)bytes;
+    return t;
+}
+
+/* Textures that a material reads at the same coordinates share a block,
+ * texel by texel (scene.h, pt_texture): a material with base colour,
+ * metal-rough, normal and emissive textures of 9 x 5 on TEXCOORD_0 and a
+ * clearcoat texture of another size, and a second material whose base
+ * colour texture is read through a transform and whose normal texture is
+ * the first material's. The first four must end in one block of 16 bytes a
+ * texel, in slot order, the others alone; the bytes at the places the
+ * layout gives, every texel through pt_texture_texel, and lookups at
+ * random and special coordinates under every wrap mode and filter must be
+ * those of the same bytes in rows, bit for bit. */
+static void test_shared_blocks(void)
+{
+    enum { W = 9, H = 5, NT = 6 };
+    static const uint32_t dims[NT][2] = {{W, H}, {W, H}, {W, H}, {W, H}, {4, 4}, {W, H}};
+    uint8_t *src[NT];
+    uint64_t rng = 0x2545f4914f6cdd1dull;
+    pt_scene_builder *b = NULL;
+    pt_error err = {0};
+    CHECK(pt_scene_builder_new(&b, &err) == PT_OK);
+    uint32_t ti[NT];
+    for (int k = 0; k < NT; k++) {
+        size_t len = (size_t)dims[k][0] * dims[k][1] * 4;
+        src[k] = malloc(len);
+        pt_texture t;
+        memset(&t, 0, sizeof t);
+        t.width = dims[k][0];
+        t.height = dims[k][1];
+        t.rgba = pt_malloc(len);
+        t.srgb = k == 0 || k == 3;
+        for (size_t i = 0; i < len; i++) {
+            rng = rng * 6364136223846793005ull + 1442695040888963407ull;
+            src[k][i] = t.rgba[i] = (uint8_t)(rng >> 56);
+        }
+        CHECKF(pt_scene_builder_add_texture(b, &t, &ti[k], &err) == PT_OK, "%s", err.msg);
+    }
+    pt_material m = pt_material_default();
+    m.base_color_tex = (int32_t)ti[0];
+    m.metal_rough_tex = (int32_t)ti[1];
+    m.normal_tex = (int32_t)ti[2];
+    m.emissive_tex = (int32_t)ti[3];
+    m.emissive[0] = m.emissive[1] = m.emissive[2] = 1.0f;
+    m.clearcoat = 1.0f;
+    m.clearcoat_tex = (int32_t)ti[4];
+    uint32_t mi, mi2;
+    CHECKF(pt_scene_builder_add_material(b, &m, &mi, &err) == PT_OK, "%s", err.msg);
+    pt_material m2 = pt_material_default();
+    m2.normal_tex = (int32_t)ti[2];
+    m2.base_color_tex = (int32_t)ti[5];
+    const float of[2] = {0.25f, 0.0f}, one[2] = {1.0f, 1.0f};
+    m2.tex_xf[PT_SLOT_BASE] = pt_tex_xform_make(of, 0.0f, one, 0);
+    CHECKF(pt_scene_builder_add_material(b, &m2, &mi2, &err) == PT_OK, "%s", err.msg);
+    const float pos[9] = {0, 0, 0, 1, 0, 0, 0, 1, 0}, pos2[9] = {0, 0, 1, 1, 0, 1, 0, 1, 1};
+    const float uv0[6] = {0, 0, 1, 0, 0, 1};
+    CHECK(pt_scene_builder_add_mesh(b, "a", pos, NULL, uv0, 3, NULL, 1, NULL, mi, &err) == PT_OK);
+    CHECK(pt_scene_builder_add_mesh(b, "b", pos2, NULL, uv0, 3, NULL, 1, NULL, mi2, &err) == PT_OK);
+    pt_scene *s = NULL;
+    CHECKF(pt_scene_builder_finish(b, NULL, &s, &err) == PT_OK, "%s", err.msg);
+    if (s && s->num_textures == NT) {
+        const pt_texture *t = s->textures;
+        /* Base, metal-rough, normal, emissive: one block, in slot order
+         * (core slots: base, metal-rough, normal, emissive). */
+        for (uint32_t j = 0; j < 4; j++)
+            CHECKF(t[j].step == 16 && t[j].member == j && t[j].rgba == t[0].rgba + 4 * j,
+                   "texture %u: step %u, member %u", j, t[j].step, t[j].member);
+        for (uint32_t j = 4; j < NT; j++) /* another size; another transform */
+            CHECKF((t[j].step == 0 || t[j].step == 4) && t[j].member == 0,
+                   "texture %u: step %u, member %u", j, t[j].step, t[j].member);
+        int bad_layout = 0, bad_texel = 0, bad_sample = 0, n = 0;
+        for (size_t i = 0; i < (size_t)W * H; i++)
+            for (uint32_t j = 0; j < 4; j++)
+                bad_layout += memcmp(t[0].rgba + 16 * i + 4 * j, src[j] + 4 * i, 4) != 0;
+        for (int k = 0; k < NT; k++) {
+            pt_texture ref = rows_of(src[k], dims[k][0], dims[k][1]);
+            for (uint32_t y = 0; y < ref.height; y++)
+                for (uint32_t x = 0; x < ref.width; x++) {
+                    uint8_t got[4];
+                    pt_texture_texel(&t[k], x, y, got);
+                    bad_texel += memcmp(got, src[k] + 4 * ((size_t)y * ref.width + x), 4) != 0;
+                }
+            pt_texture tk = t[k];
+            ref.srgb = tk.srgb;
+            for (int mode = 0; mode < 18; mode++) {
+                tk.wrap_s = ref.wrap_s = mode % 3;
+                tk.wrap_t = ref.wrap_t = (mode / 3) % 3;
+                tk.nearest = ref.nearest = mode / 9;
+                for (int q = 0; q < 400; q++) {
+                    float uv[2];
+                    for (int a = 0; a < 2; a++) {
+                        rng = rng * 6364136223846793005ull + 1442695040888963407ull;
+                        uint32_t r = (uint32_t)(rng >> 32);
+                        uv[a] = r % 5 == 0 ? (float)(int)(r % 31 - 10) / (float)(a ? H : W)
+                                           : ((float)(r >> 8) * 0x1p-24f) * 4.0f - 2.0f;
+                    }
+                    float got[4], want[4];
+                    pt_texture_sample(&tk, uv[0], uv[1], got);
+                    ref_sample(&ref, uv[0], uv[1], want);
+                    bad_sample += memcmp(got, want, sizeof got) != 0;
+                    n++;
+                }
+            }
+        }
+        CHECKF(bad_layout == 0, "%d texels not where the shared layout puts them", bad_layout);
+        CHECKF(bad_texel == 0, "%d texels read back wrong", bad_texel);
+        CHECKF(bad_sample == 0, "%d of %d lookups differ from the rows' bits", bad_sample, n);
+        /* A hint on shared blocks: it must not fault. */
+        const uint32_t tris[2] = {0, 1};
+        const float b1[2] = {0.3f, 0.1f}, b2[2] = {0.3f, 0.8f};
+        pt_scene_prefetch_hits(s, 2, tris, b1, b2);
+    } else {
+        CHECK(!"the scene has its six textures");
+    }
+    pt_scene_free(s);
+    for (int k = 0; k < NT; k++)
+        free(src[k]);
+}
+
 int main(void)
 {
     test_decode_tables();
     test_against_reference();
+    test_shared_blocks();
     test_nearest();
     test_linear();
     test_transform();
