@@ -947,29 +947,6 @@ static pt_status add_vertex_extra(pt_scene_builder *b, const char *what, const p
     return PT_OK;
 }
 
-/* The texels as decoded, row by row, wherever the texture keeps them, so
- * that the hash does not depend on the layout. */
-static void hash_texels(EVP_MD_CTX *ctx, const pt_texture *t)
-{
-    if (t->step == 0 || t->step == 4) {
-        EVP_DigestUpdate(ctx, t->rgba, (size_t)t->width * t->height * 4);
-        return;
-    }
-    uint8_t buf[4096];
-    size_t n = 0;
-    for (uint32_t y = 0; y < t->height; y++) {
-        for (uint32_t x = 0; x < t->width; x++) {
-            pt_texture_texel(t, x, y, buf + n);
-            n += 4;
-            if (n == sizeof buf) {
-                EVP_DigestUpdate(ctx, buf, n);
-                n = 0;
-            }
-        }
-    }
-    EVP_DigestUpdate(ctx, buf, n);
-}
-
 /* The slots whose textures interleave_textures puts side by side, and
  * pt_scene_prefetch_hits asks for: those every hit on a material reads
  * (the others depend on extensions that few materials have). */
@@ -1050,8 +1027,10 @@ static void interleave_textures(pt_scene *s)
             continue;
         for (uint32_t j = 0; j < n; j++) {
             pt_texture *t = &s->textures[group[j]];
-            for (size_t i = 0; i < texels; i++)
-                memcpy(block + 4 * (i * n + j), t->rgba + 4 * i, 4);
+            const uint8_t *from = t->rgba;
+            uint8_t *to = block + 4 * (size_t)j;
+            for (size_t i = 0; i < texels; i++, from += 4, to += 4 * (size_t)n)
+                memcpy(to, from, 4);
             pt_free(t->rgba);
             t->rgba = block + 4 * j;
             t->step = 4 * n;
@@ -1098,7 +1077,8 @@ static pt_status hash_scene(const pt_scene *s, char out[65], pt_error *err)
         EVP_DigestUpdate(ctx, h, sizeof h);
         if (t->nearest)
             EVP_DigestUpdate(ctx, &t->nearest, sizeof t->nearest);
-        hash_texels(ctx, t);
+        /* Each texture's own block yet: interleave_textures runs after. */
+        EVP_DigestUpdate(ctx, t->rgba, (size_t)t->width * t->height * 4);
     }
     for (uint32_t i = 0; i < s->num_cameras; i++) {
         const pt_camera *c = &s->cameras[i];
@@ -1982,12 +1962,12 @@ pt_status pt_scene_builder_finish(pt_scene_builder *b, const pt_scene_opts *opts
         goto fail;
     if ((st = pt_motion_build_finish(b->motion, s, sc, t, err)) != PT_OK)
         goto fail;
-    interleave_textures(s);
     if (b->hash_set) {
         memcpy(s->hash, b->hash, sizeof s->hash);
     } else if ((st = hash_scene(s, s->hash, err)) != PT_OK) {
         goto fail;
     }
+    interleave_textures(s); /* after the hash, which reads each texture's own block */
     if (opts && opts->camera_name &&
         strncmp(opts->camera_name, PT_CAMERA_LOOK_PREFIX, strlen(PT_CAMERA_LOOK_PREFIX)) == 0 &&
         pt_scene_find_camera(s, opts->camera_name) < 0) {
