@@ -9,6 +9,11 @@
  * convention (texel i covers [i/w, (i+1)/w), its centre at (i + 0.5)/w; v = 0
  * is the top row). Tolerance 1e-6: one float rounding of a weighted sum.
  *
+ * Shared blocks (scene.h, pt_texture): the textures a material reads at the
+ * same coordinates, put side by side by the builder, must sit at the bytes
+ * the layout gives and read back, texel by texel and through every lookup,
+ * the bits of the same texels in rows.
+ *
  * Tangents: on planes and on a latitude-longitude sphere the generated
  * tangent must be dP/du made orthogonal to the normal (analytic), with the
  * handedness that a mirrored UV layout implies; on the shared asset
