@@ -154,7 +154,8 @@ pt_status pt_scene_builder_new(pt_scene_builder **out, pt_error *err)
 static void free_textures(pt_texture *t, uint32_t n)
 {
     for (uint32_t i = 0; i < n; i++)
-        pt_free(t[i].rgba);
+        if (t[i].member == 0) /* the others' texels are in the block of a member 0 */
+            pt_free(t[i].rgba);
     pt_free(t);
 }
 
@@ -946,6 +947,98 @@ static pt_status add_vertex_extra(pt_scene_builder *b, const char *what, const p
     return PT_OK;
 }
 
+/* The slots whose textures interleave_textures puts side by side, and
+ * pt_scene_prefetch_hits asks for: those every hit on a material reads
+ * (the others depend on extensions that few materials have). */
+static const struct {
+    size_t tex; /* offset of the texture index in pt_material */
+    int slot;
+} core_slots[] = {
+    {offsetof(pt_material, base_color_tex), PT_SLOT_BASE},
+    {offsetof(pt_material, metal_rough_tex), PT_SLOT_METAL_ROUGH},
+    {offsetof(pt_material, normal_tex), PT_SLOT_NORMAL},
+    {offsetof(pt_material, emissive_tex), PT_SLOT_EMISSIVE},
+    {offsetof(pt_material, transmission_tex), PT_SLOT_TRANSMISSION},
+    {offsetof(pt_material, clearcoat_tex), PT_SLOT_CLEARCOAT},
+    {offsetof(pt_material, clearcoat_rough_tex), PT_SLOT_CLEARCOAT_ROUGH},
+    {offsetof(pt_material, clearcoat_normal_tex), PT_SLOT_CLEARCOAT_NORMAL},
+    {offsetof(pt_material, sheen_color_tex), PT_SLOT_SHEEN_COLOR},
+    {offsetof(pt_material, sheen_rough_tex), PT_SLOT_SHEEN_ROUGH},
+};
+#define NUM_CORE_SLOTS (sizeof core_slots / sizeof core_slots[0])
+
+static int32_t slot_texture(const pt_material *m, size_t k)
+{
+    int32_t ti;
+    memcpy(&ti, (const char *)m + core_slots[k].tex, sizeof ti);
+    return ti;
+}
+
+static int same_xform(const pt_tex_xform *a, const pt_tex_xform *b)
+{
+    if (a->texcoord != b->texcoord || a->active != b->active)
+        return 0;
+    return !a->active || memcmp(a->m, b->m, sizeof a->m) == 0;
+}
+
+/* Puts side by side, texel by texel, the textures that a material reads at
+ * the same coordinates (pt_texture): for each material in order, its core
+ * slots' textures not yet placed that have the first one's size and read
+ * through the same coordinate set and transform. Each texture joins at most
+ * one block; the texels' values do not change, nor does any lookup's
+ * result. A block holds at most PT_SCENE_MAX_IMAGE_TEXELS texels in all
+ * (256 MiB), so the copy adds at most that to the load's peak, less than
+ * the decoding of one image at that cap holds. Where memory runs out for a
+ * block, its textures stay as they are: the layout is only faster. */
+static void interleave_textures(pt_scene *s)
+{
+    for (uint32_t mi = 0; mi < s->num_materials; mi++) {
+        const pt_material *m = &s->materials[mi];
+        uint32_t group[NUM_CORE_SLOTS];
+        uint32_t n = 0;
+        const pt_tex_xform *xf = NULL;
+        for (size_t k = 0; k < NUM_CORE_SLOTS; k++) {
+            int32_t ti = slot_texture(m, k);
+            if (ti < 0 || (uint32_t)ti >= s->num_textures)
+                continue;
+            const pt_texture *t = &s->textures[ti];
+            if ((t->step != 0 && t->step != 4) || !t->rgba)
+                continue; /* already in a block */
+            const pt_tex_xform *x = &m->tex_xf[core_slots[k].slot];
+            if (n > 0) {
+                const pt_texture *t0 = &s->textures[group[0]];
+                int dup = 0;
+                for (uint32_t j = 0; j < n; j++)
+                    dup |= group[j] == (uint32_t)ti;
+                if (dup || t->width != t0->width || t->height != t0->height || !same_xform(x, xf))
+                    continue;
+                if ((uint64_t)(n + 1) * t->width * t->height > PT_SCENE_MAX_IMAGE_TEXELS)
+                    continue; /* the block at most one largest image's bytes */
+            } else {
+                xf = x;
+            }
+            group[n++] = (uint32_t)ti;
+        }
+        if (n < 2)
+            continue;
+        size_t texels = (size_t)s->textures[group[0]].width * s->textures[group[0]].height;
+        uint8_t *block = pt_malloc_array(texels, 4 * (size_t)n);
+        if (!block)
+            continue;
+        for (uint32_t j = 0; j < n; j++) {
+            pt_texture *t = &s->textures[group[j]];
+            const uint8_t *from = t->rgba;
+            uint8_t *to = block + 4 * (size_t)j;
+            for (size_t i = 0; i < texels; i++, from += 4, to += 4 * (size_t)n)
+                memcpy(to, from, 4);
+            pt_free(t->rgba);
+            t->rgba = block + 4 * j;
+            t->step = 4 * n;
+            t->member = j;
+        }
+    }
+}
+
 /* SHA-256 (FIPS 180-4) of the built data, for scenes made by code. */
 static pt_status hash_scene(const pt_scene *s, char out[65], pt_error *err)
 {
@@ -984,6 +1077,7 @@ static pt_status hash_scene(const pt_scene *s, char out[65], pt_error *err)
         EVP_DigestUpdate(ctx, h, sizeof h);
         if (t->nearest)
             EVP_DigestUpdate(ctx, &t->nearest, sizeof t->nearest);
+        /* Each texture's own block yet: interleave_textures runs after. */
         EVP_DigestUpdate(ctx, t->rgba, (size_t)t->width * t->height * 4);
     }
     for (uint32_t i = 0; i < s->num_cameras; i++) {
@@ -1873,6 +1967,7 @@ pt_status pt_scene_builder_finish(pt_scene_builder *b, const pt_scene_opts *opts
     } else if ((st = hash_scene(s, s->hash, err)) != PT_OK) {
         goto fail;
     }
+    interleave_textures(s); /* after the hash, which reads each texture's own block */
     if (opts && opts->camera_name &&
         strncmp(opts->camera_name, PT_CAMERA_LOOK_PREFIX, strlen(PT_CAMERA_LOOK_PREFIX)) == 0 &&
         pt_scene_find_camera(s, opts->camera_name) < 0) {
@@ -2048,15 +2143,27 @@ static inline float reduce_coord(float u, int mode)
     }
 }
 
+/* Bytes from a texel to the next (pt_texture.step; 0 means 4). */
+static inline size_t texel_step(const pt_texture *tex)
+{
+    return tex->step ? tex->step : 4;
+}
+
+void pt_texture_texel(const pt_texture *tex, uint32_t x, uint32_t y, uint8_t out[4])
+{
+    memcpy(out, tex->rgba + texel_step(tex) * ((size_t)y * tex->width + x), 4);
+}
+
 void pt_texture_sample(const pt_texture *tex, float u, float v, float out[4])
 {
     const float *lut = texel_lut[tex->srgb != 0], *unorm = texel_lut[0];
     int w = (int)tex->width, h = (int)tex->height;
+    const size_t step = texel_step(tex);
     if (tex->nearest) {
         /* The texel whose square holds (u, v): index floor(u w), wrapped. */
         int xi = wrap_index((int)floorf(reduce_coord(u, tex->wrap_s) * (float)w), w, tex->wrap_s);
         int yi = wrap_index((int)floorf(reduce_coord(v, tex->wrap_t) * (float)h), h, tex->wrap_t);
-        const uint8_t *px = tex->rgba + 4 * ((size_t)yi * (size_t)w + (size_t)xi);
+        const uint8_t *px = tex->rgba + step * ((size_t)yi * (size_t)w + (size_t)xi);
         for (int c = 0; c < 3; c++)
             out[c] = lut[px[c]];
         out[3] = unorm[px[3]];
@@ -2073,8 +2180,8 @@ void pt_texture_sample(const pt_texture *tex, float u, float v, float out[4])
     size_t ys[2] = {(size_t)wrap_index(y0, h, tex->wrap_t) * (size_t)w,
                     (size_t)wrap_index(y0 + 1, h, tex->wrap_t) * (size_t)w};
     const float wt[4] = {(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy};
-    const uint8_t *px[4] = {tex->rgba + 4 * (ys[0] + xs[0]), tex->rgba + 4 * (ys[0] + xs[1]),
-                            tex->rgba + 4 * (ys[1] + xs[0]), tex->rgba + 4 * (ys[1] + xs[1])};
+    const uint8_t *px[4] = {tex->rgba + step * (ys[0] + xs[0]), tex->rgba + step * (ys[0] + xs[1]),
+                            tex->rgba + step * (ys[1] + xs[0]), tex->rgba + step * (ys[1] + xs[1])};
     /* The sum in the order k = 0..3 from +0: each term is >= +0, so starting
      * from the first term gives the bits that 0 + term gives. */
     for (int c = 0; c < 3; c++) {
@@ -2109,8 +2216,18 @@ static inline __attribute__((always_inline)) void texture_prefetch(const pt_text
      * the row above, else the row below. */
     uint32_t y2 =
         fv * (float)h - (float)y < 0.5f ? (y > 0 ? y - 1 : h - 1) : (y + 1 < h ? y + 1 : 0);
-    __builtin_prefetch(tex->rgba + 4 * ((size_t)y * w + x));
-    __builtin_prefetch(tex->rgba + 4 * ((size_t)y2 * w + x));
+    size_t step = texel_step(tex);
+    const uint8_t *p = tex->rgba + step * ((size_t)y * w + x);
+    const uint8_t *p2 = tex->rgba + step * ((size_t)y2 * w + x);
+    __builtin_prefetch(p);
+    __builtin_prefetch(p2);
+    if (step > 4) {
+        /* In a shared block a row's two texels span 2 step bytes, often two
+         * lines: the column after too (the one before is the other case
+         * of the footprint, not asked for). */
+        __builtin_prefetch(p + 2 * step - 1);
+        __builtin_prefetch(p2 + 2 * step - 1);
+    }
 }
 
 void pt_texture_prefetch(const pt_texture *tex, float u, float v)
@@ -2118,25 +2235,11 @@ void pt_texture_prefetch(const pt_texture *tex, float u, float v)
     texture_prefetch(tex, u, v);
 }
 
-/* The texels of the core slots of tri's material at (b1, b2). */
+/* The texels of the core slots of tri's material at (b1, b2): once for
+ * the textures that share a block (pt_texture) and a transform. */
 static inline __attribute__((always_inline)) void prefetch_texels(const pt_scene *s, uint32_t tri,
                                                                   float b1, float b2)
 {
-    static const struct {
-        size_t tex;
-        int slot;
-    } core[] = {
-        {offsetof(pt_material, base_color_tex), PT_SLOT_BASE},
-        {offsetof(pt_material, metal_rough_tex), PT_SLOT_METAL_ROUGH},
-        {offsetof(pt_material, normal_tex), PT_SLOT_NORMAL},
-        {offsetof(pt_material, emissive_tex), PT_SLOT_EMISSIVE},
-        {offsetof(pt_material, transmission_tex), PT_SLOT_TRANSMISSION},
-        {offsetof(pt_material, clearcoat_tex), PT_SLOT_CLEARCOAT},
-        {offsetof(pt_material, clearcoat_rough_tex), PT_SLOT_CLEARCOAT_ROUGH},
-        {offsetof(pt_material, clearcoat_normal_tex), PT_SLOT_CLEARCOAT_NORMAL},
-        {offsetof(pt_material, sheen_color_tex), PT_SLOT_SHEEN_COLOR},
-        {offsetof(pt_material, sheen_rough_tex), PT_SLOT_SHEEN_ROUGH},
-    };
     if (!s->uvs || tri >= s->num_triangles)
         return;
     uint32_t mi = s->tri_material[tri];
@@ -2155,15 +2258,24 @@ static inline __attribute__((always_inline)) void prefetch_texels(const pt_scene
         uv[set][0] = b0 * t[2 * i[0]] + b1 * t[2 * i[1]] + b2 * t[2 * i[2]];
         uv[set][1] = b0 * t[2 * i[0] + 1] + b1 * t[2 * i[1] + 1] + b2 * t[2 * i[2] + 1];
     }
-    for (size_t k = 0; k < sizeof core / sizeof core[0]; k++) {
-        int32_t ti;
-        memcpy(&ti, (const char *)m + core[k].tex, sizeof ti);
+    const uint8_t *done = NULL; /* the shared block asked for, at done_xf */
+    const pt_tex_xform *done_xf = NULL;
+    for (size_t k = 0; k < NUM_CORE_SLOTS; k++) {
+        int32_t ti = slot_texture(m, k);
         if (ti < 0 || (uint32_t)ti >= s->num_textures)
             continue;
-        const pt_tex_xform *x = &m->tex_xf[core[k].slot];
+        const pt_texture *tex = &s->textures[ti];
+        const pt_tex_xform *x = &m->tex_xf[core_slots[k].slot];
+        if (tex->step > 4) {
+            const uint8_t *block = tex->rgba - 4 * (size_t)tex->member;
+            if (block == done && same_xform(x, done_xf))
+                continue;
+            done = block;
+            done_xf = x;
+        }
         float t[2];
         pt_tex_xform_apply(x, uv[x->texcoord ? 1 : 0], t);
-        texture_prefetch(&s->textures[ti], t[0], t[1]);
+        texture_prefetch(tex, t[0], t[1]);
     }
 }
 

@@ -24,8 +24,9 @@
  * Scenes come from glTF 2.0 files (pt_scene_load, backed by tinygltf in
  * gltf_import.cpp) or are built by code (pt_scene_builder, used by the
  * importer itself and by tests for procedural scenes).
- * Colours are linear Rec.709. Textures are kept as RGBA8; sRGB ones are decoded
- * to linear at lookup (pt_texture_sample).
+ * Colours are linear Rec.709. Textures are kept as RGBA8, those a material
+ * reads at the same coordinates side by side (pt_texture); sRGB ones are
+ * decoded to linear at lookup (pt_texture_sample).
  */
 #ifndef PT_COMMON_SCENE_SCENE_H
 #define PT_COMMON_SCENE_SCENE_H
@@ -106,12 +107,24 @@ enum { PT_ALPHA_OPAQUE = 0, PT_ALPHA_MASK = 1, PT_ALPHA_BLEND = 2 };
 
 enum { PT_WRAP_REPEAT = 0, PT_WRAP_CLAMP = 1, PT_WRAP_MIRROR = 2 };
 
+/* Texels are RGBA8, row 0 at the top (v = 0): texel (x, y) is the 4 bytes
+ * at rgba + step (y width + x). A texture has its block to itself (step 4,
+ * or 0 meaning 4, as decoders and the builder make it), or shares one with
+ * the other textures that a material reads at the same texture coordinates
+ * (pt_scene_builder_finish), texel by texel: n textures of one size in one
+ * block of 4 n bytes a texel, step 4 n, texture `member` at byte 4 member
+ * of each. Every lookup of such a material at a point then reads the same
+ * few cache lines, where separate textures each cost their own (the misses
+ * are what textured scenes wait for: docs/bench/throughput.md, seventh
+ * round). The member 0 owns (frees) the block. */
 typedef struct pt_texture {
     uint32_t width, height;
-    uint8_t *rgba;      /* width*height*4 bytes, row 0 at the top (v = 0) */
+    uint8_t *rgba;      /* texel (0, 0); see above */
     int srgb;           /* 1: colour data in sRGB, decoded to linear at lookup */
     int wrap_s, wrap_t; /* PT_WRAP_* */
     int nearest;        /* 1: the sampler's magFilter is NEAREST (see pt_texture_sample) */
+    uint32_t step;      /* bytes from a texel to the next: 0 or 4 alone, 4 n in a block of n */
+    uint32_t member;    /* its place in a shared block (0: first, or alone) */
 } pt_texture;
 
 /* A material's texture slots, each with its KHR_texture_transform and its
@@ -439,6 +452,10 @@ pt_status pt_scene_load(const char *path, const pt_scene_opts *opts, pt_scene **
 
 /* Frees the scene and all it owns. Accepts NULL. */
 void pt_scene_free(pt_scene *scene);
+
+/* The four bytes (RGBA8, as decoded) of texel (x, y), x < width and
+ * y < height, wherever the texture keeps them. */
+void pt_texture_texel(const pt_texture *tex, uint32_t x, uint32_t y, uint8_t out[4]);
 
 /* Lookup with the texture's wrap modes (per axis) and filter: bilinear, or
  * the nearest texel when tex->nearest. Without ray footprints the renderer

@@ -599,7 +599,7 @@ static pt_scene *textured_lambert_scene(uint32_t grid)
     floor.metallic = 0.0f;
     floor.specular = 0.0f;
     floor.double_sided = 1;
-    pt_texture tex = {2, 2, pt_malloc(16), 1, PT_WRAP_REPEAT, PT_WRAP_REPEAT, 0};
+    pt_texture tex = {2, 2, pt_malloc(16), 1, PT_WRAP_REPEAT, PT_WRAP_REPEAT, 0, 0, 0};
     const uint8_t texels[16] = {255, 40, 40,  255, 40,  255, 40,  255,
                                 40,  40, 255, 255, 200, 200, 200, 255};
     memcpy(tex.rgba, texels, 16);

@@ -313,12 +313,12 @@ static void test_texture(void)
     pt_texture_sample(&t, 0.75f, 0.5f, o);
     CHECK(near(o[0], 1, 1e-6f) && near(o[1], 0.2158605f, 1e-5f));
     uint8_t g[4] = {10, 10, 10, 10};
-    pt_texture t1 = {1, 1, g, 1, 0, 0, 0};
+    pt_texture t1 = {1, 1, g, 1, 0, 0, 0, 0, 0};
     pt_texture_sample(&t1, 0.3f, 0.3f, o);
     CHECK(near(o[0], 10 / 255.0f / 12.92f, 1e-6f) && near(o[3], 10 / 255.0f, 1e-6f));
     /* v = 0 is the top row. */
     uint8_t col[8] = {255, 0, 0, 255, 0, 0, 255, 255};
-    pt_texture tv = {1, 2, col, 0, PT_WRAP_CLAMP, PT_WRAP_CLAMP, 0};
+    pt_texture tv = {1, 2, col, 0, PT_WRAP_CLAMP, PT_WRAP_CLAMP, 0, 0, 0};
     pt_texture_sample(&tv, 0.5f, 0.0f, o);
     CHECK(o[0] == 1 && o[2] == 0);
     pt_texture_sample(&tv, 0.5f, 1.0f, o);
@@ -461,7 +461,7 @@ static void test_hash_and_nomem(void)
         pt_material m = pt_material_default();
         if ((st = pt_scene_builder_new(&b, &err)) != PT_OK)
             goto done;
-        pt_texture t = {1, 1, pt_malloc(4), 0, 0, 0, 0};
+        pt_texture t = {1, 1, pt_malloc(4), 0, 0, 0, 0, 0, 0};
         if (!t.rgba) {
             st = PT_ERR_NOMEM;
             pt_scene_builder_free(b);

@@ -9,6 +9,11 @@
  * convention (texel i covers [i/w, (i+1)/w), its centre at (i + 0.5)/w; v = 0
  * is the top row). Tolerance 1e-6: one float rounding of a weighted sum.
  *
+ * Shared blocks (scene.h, pt_texture): the textures a material reads at the
+ * same coordinates, put side by side by the builder, must sit at the bytes
+ * the layout gives and read back, texel by texel and through every lookup,
+ * the bits of the same texels in rows.
+ *
  * Tangents: on planes and on a latitude-longitude sphere the generated
  * tangent must be dP/du made orthogonal to the normal (analytic), with the
  * handedness that a mirrored UV layout implies; on the shared asset
@@ -575,10 +580,221 @@ static void test_shared_tangents(void)
     compare_asset("LightsPunctualLamp/LightsPunctualLamp.gltf", 0.1, 0.1, 90.0);
 }
 
+/* A texture in rows holding `bytes` (w x h RGBA8), for the reference. */
+static pt_texture rows_of(const uint8_t *bytes, uint32_t w, uint32_t h)
+{
+    pt_texture t;
+    memset(&t, 0, sizeof t);
+    t.width = w;
+    t.height = h;
+    t.rgba = (uint8_t *)bytes;
+    return t;
+}
+
+/* Textures that a material reads at the same coordinates share a block,
+ * texel by texel (scene.h, pt_texture): a material with base colour,
+ * metal-rough, normal and emissive textures of 9 x 5 on TEXCOORD_0 and a
+ * clearcoat texture of another size, and a second material whose base
+ * colour texture is read through a transform and whose normal texture is
+ * the first material's. The first four must end in one block of 16 bytes a
+ * texel, in slot order, the others alone; the bytes at the places the
+ * layout gives, every texel through pt_texture_texel, and lookups at
+ * random and special coordinates under every wrap mode and filter must be
+ * those of the same bytes in rows, bit for bit. */
+enum { SB_W = 9, SB_H = 5, SB_NT = 6 };
+static const uint32_t sb_dims[SB_NT][2] = {{SB_W, SB_H}, {SB_W, SB_H}, {SB_W, SB_H},
+                                           {SB_W, SB_H}, {4, 4},       {SB_W, SB_H}};
+
+/* The scene of test_shared_blocks, its texels from src (filled here when
+ * fill); PT_OK and *out, or a failure with nothing leaked. */
+static pt_status shared_scene(uint8_t *src[SB_NT], int fill, pt_scene **out, pt_error *err)
+{
+    uint64_t rng = 0x2545f4914f6cdd1dull;
+    pt_scene_builder *b = NULL;
+    pt_status st = pt_scene_builder_new(&b, err);
+    if (st != PT_OK)
+        return st;
+    uint32_t ti[SB_NT];
+    for (int k = 0; k < SB_NT; k++) {
+        size_t len = (size_t)sb_dims[k][0] * sb_dims[k][1] * 4;
+        pt_texture t;
+        memset(&t, 0, sizeof t);
+        t.width = sb_dims[k][0];
+        t.height = sb_dims[k][1];
+        t.rgba = pt_malloc(len);
+        t.srgb = k == 0 || k == 3;
+        if (!t.rgba) {
+            pt_scene_builder_free(b);
+            return PT_ERR_NOMEM;
+        }
+        for (size_t i = 0; i < len; i++) {
+            rng = rng * 6364136223846793005ull + 1442695040888963407ull;
+            if (fill)
+                src[k][i] = (uint8_t)(rng >> 56);
+            t.rgba[i] = src[k][i];
+        }
+        if ((st = pt_scene_builder_add_texture(b, &t, &ti[k], err)) != PT_OK) {
+            pt_scene_builder_free(b);
+            return st;
+        }
+    }
+    pt_material m = pt_material_default();
+    m.base_color_tex = (int32_t)ti[0];
+    m.metal_rough_tex = (int32_t)ti[1];
+    m.normal_tex = (int32_t)ti[2];
+    m.emissive_tex = (int32_t)ti[3];
+    m.emissive[0] = m.emissive[1] = m.emissive[2] = 1.0f;
+    m.clearcoat = 1.0f;
+    m.clearcoat_tex = (int32_t)ti[4];
+    pt_material m2 = pt_material_default();
+    m2.normal_tex = (int32_t)ti[2];
+    m2.base_color_tex = (int32_t)ti[5];
+    const float of[2] = {0.25f, 0.0f}, one[2] = {1.0f, 1.0f};
+    m2.tex_xf[PT_SLOT_BASE] = pt_tex_xform_make(of, 0.0f, one, 0);
+    const float pos[9] = {0, 0, 0, 1, 0, 0, 0, 1, 0}, pos2[9] = {0, 0, 1, 1, 0, 1, 0, 1, 1};
+    const float uv0[6] = {0, 0, 1, 0, 0, 1};
+    uint32_t mi, mi2;
+    if ((st = pt_scene_builder_add_material(b, &m, &mi, err)) != PT_OK ||
+        (st = pt_scene_builder_add_material(b, &m2, &mi2, err)) != PT_OK ||
+        (st = pt_scene_builder_add_mesh(b, "a", pos, NULL, uv0, 3, NULL, 1, NULL, mi, err)) !=
+            PT_OK ||
+        (st = pt_scene_builder_add_mesh(b, "b", pos2, NULL, uv0, 3, NULL, 1, NULL, mi2, err)) !=
+            PT_OK) {
+        pt_scene_builder_free(b);
+        return st;
+    }
+    return pt_scene_builder_finish(b, NULL, out, err); /* frees b */
+}
+
+/* Every texel of the scene's textures read back as src holds it. */
+static int shared_texels_bad(const pt_scene *s, uint8_t *src[SB_NT])
+{
+    int bad = 0;
+    for (int k = 0; k < SB_NT; k++)
+        for (uint32_t y = 0; y < sb_dims[k][1]; y++)
+            for (uint32_t x = 0; x < sb_dims[k][0]; x++) {
+                uint8_t got[4];
+                pt_texture_texel(&s->textures[k], x, y, got);
+                bad += memcmp(got, src[k] + 4 * ((size_t)y * sb_dims[k][0] + x), 4) != 0;
+            }
+    return bad;
+}
+
+static void test_shared_blocks(void)
+{
+    enum { W = SB_W, H = SB_H, NT = SB_NT };
+    uint8_t *src[NT];
+    for (int k = 0; k < NT; k++)
+        src[k] = malloc((size_t)sb_dims[k][0] * sb_dims[k][1] * 4);
+    uint64_t rng = 0x9e3779b97f4a7c15ull;
+    pt_error err = {0};
+    pt_scene *s = NULL;
+    CHECKF(shared_scene(src, 1, &s, &err) == PT_OK, "%s", err.msg);
+    if (s && s->num_textures == NT) {
+        const pt_texture *t = s->textures;
+        /* Base, metal-rough, normal, emissive: one block, in slot order
+         * (core slots: base, metal-rough, normal, emissive). */
+        for (uint32_t j = 0; j < 4; j++)
+            CHECKF(t[j].step == 16 && t[j].member == j && t[j].rgba == t[0].rgba + 4 * j,
+                   "texture %u: step %u, member %u", j, t[j].step, t[j].member);
+        for (uint32_t j = 4; j < NT; j++) /* another size; another transform */
+            CHECKF((t[j].step == 0 || t[j].step == 4) && t[j].member == 0,
+                   "texture %u: step %u, member %u", j, t[j].step, t[j].member);
+        int bad_layout = 0, bad_texel = 0, bad_sample = 0, n = 0;
+        for (size_t i = 0; i < (size_t)W * H; i++)
+            for (uint32_t j = 0; j < 4; j++)
+                bad_layout += memcmp(t[0].rgba + 16 * i + 4 * j, src[j] + 4 * i, 4) != 0;
+        bad_texel = shared_texels_bad(s, src);
+        for (int k = 0; k < NT; k++) {
+            pt_texture ref = rows_of(src[k], sb_dims[k][0], sb_dims[k][1]);
+            pt_texture tk = t[k];
+            ref.srgb = tk.srgb;
+            for (int mode = 0; mode < 18; mode++) {
+                tk.wrap_s = ref.wrap_s = mode % 3;
+                tk.wrap_t = ref.wrap_t = (mode / 3) % 3;
+                tk.nearest = ref.nearest = mode / 9;
+                for (int q = 0; q < 400; q++) {
+                    float uv[2];
+                    for (int a = 0; a < 2; a++) {
+                        rng = rng * 6364136223846793005ull + 1442695040888963407ull;
+                        uint32_t r = (uint32_t)(rng >> 32);
+                        uv[a] = r % 5 == 0 ? (float)(int)(r % 31 - 10) / (float)(a ? H : W)
+                                           : ((float)(r >> 8) * 0x1p-24f) * 4.0f - 2.0f;
+                    }
+                    float got[4], want[4];
+                    pt_texture_sample(&tk, uv[0], uv[1], got);
+                    ref_sample(&ref, uv[0], uv[1], want);
+                    bad_sample += memcmp(got, want, sizeof got) != 0;
+                    n++;
+                }
+            }
+        }
+        CHECKF(bad_layout == 0, "%d texels not where the shared layout puts them", bad_layout);
+        CHECKF(bad_texel == 0, "%d texels read back wrong", bad_texel);
+        CHECKF(bad_sample == 0, "%d of %d lookups differ from the rows' bits", bad_sample, n);
+        /* A hint on shared blocks: it must not fault. */
+        const uint32_t tris[2] = {0, 1};
+        const float b1[2] = {0.3f, 0.1f}, b2[2] = {0.3f, 0.8f};
+        pt_scene_prefetch_hits(s, 2, tris, b1, b2);
+    } else {
+        CHECK(!"the scene has its six textures");
+    }
+    pt_scene_free(s);
+    for (int k = 0; k < NT; k++)
+        free(src[k]);
+}
+
+/* Allocation failure at every step of building that scene: a failure with
+ * nothing leaked, or a scene whose texels all read back right, its blocks
+ * shared or, where the block's allocation failed, left as they were. */
+static void test_shared_blocks_nomem(void)
+{
+    uint8_t *src[SB_NT];
+    for (int k = 0; k < SB_NT; k++)
+        src[k] = malloc((size_t)sb_dims[k][0] * sb_dims[k][1] * 4);
+    pt_error err = {0};
+    pt_scene *s = NULL;
+    CHECK(shared_scene(src, 1, &s, &err) == PT_OK);
+    pt_scene_free(s);
+    int64_t live = pt_alloc_live();
+    int failed = 0, apart = 0, shared = 0, bad = 0;
+    for (uint64_t n = 1; n < 2000; n++) {
+        pt_alloc_fail_at(n);
+        s = NULL;
+        pt_status st = shared_scene(src, 0, &s, &err);
+        pt_alloc_fail_at(0);
+        if (st != PT_OK) {
+            failed++;
+            CHECKF(st == PT_ERR_NOMEM && !s, "allocation %llu: status %d", (unsigned long long)n,
+                   (int)st);
+        } else {
+            bad += shared_texels_bad(s, src);
+            if (s->textures[0].step == 16)
+                shared++;
+            else
+                apart++;
+            pt_scene_free(s);
+        }
+        CHECKF(pt_alloc_live() == live, "allocation %llu: %lld blocks leaked",
+               (unsigned long long)n, (long long)(pt_alloc_live() - live));
+        if (st == PT_OK && shared)
+            break; /* past the last allocation */
+    }
+    CHECKF(bad == 0, "%d texels read back wrong", bad);
+    CHECKF(failed > 0 && apart >= 1 && shared == 1, "%d failed, %d apart, %d shared", failed, apart,
+           shared);
+    printf("shared blocks under failing allocations: %d failed, %d built apart, %d shared\n",
+           failed, apart, shared);
+    for (int k = 0; k < SB_NT; k++)
+        free(src[k]);
+}
+
 int main(void)
 {
     test_decode_tables();
     test_against_reference();
+    test_shared_blocks();
+    test_shared_blocks_nomem();
     test_nearest();
     test_linear();
     test_transform();
