@@ -618,8 +618,13 @@ pt_status pt_scene_builder_add_texture(pt_scene_builder *b, const pt_texture *te
 /* Vertex attributes beyond position, normal and TEXCOORD_0; any may be NULL.
  * uvs1: 2 per vertex (TEXCOORD_1). tangents: 4 per vertex in the mesh's
  * space (glTF TANGENT: xyz, w = +-1), transformed with the mesh (a
- * mirroring transform flips w); vertices without one get tangents generated
- * at finish when a material needs them (tangent.h). colors: 4 per vertex
+ * mirroring transform flips w). Without tangents, when the mesh's material
+ * needs them (a normal map, a coat normal map, anisotropy), they are
+ * generated (tangent.h) in the mesh's own space from its positions, its
+ * normals and the map's UV set, then transformed as given ones are, so a
+ * node's matrix, non-uniform scale included, maps them as viewers do and an
+ * instance's prototype gets the same; a given tangent of zero length is
+ * generated at finish, in world space. colors: 4 per vertex
  * (COLOR_0, linear RGBA; a VEC3 is given with alpha 1). */
 typedef struct pt_mesh_extra {
     const float *uvs1;
