@@ -1520,7 +1520,12 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     if ((features & FEAT_PASSES) && pa->pr && pa->depth == 0) {
         pa->pr->v.depth = hit->t; /* the camera ray's direction is a unit vector */
         if (r->crypto_obj) {
-            pa->pr->v.crypto[PT_CRYPTO_OBJECT] = r->crypto_obj[s->tri_object[hit->tri]];
+            /* Through an instance, its node's object (a prototype's
+             * triangles are shared by every node instancing the mesh). */
+            uint32_t obj = (features & PT_FEAT_INSTANCES) && hit->inst
+                               ? s->instances[hit->inst - 1].object
+                               : s->tri_object[hit->tri];
+            pa->pr->v.crypto[PT_CRYPTO_OBJECT] = r->crypto_obj[obj];
             pa->pr->v.crypto[PT_CRYPTO_MATERIAL] = r->crypto_mat[sf->mat - s->materials];
         }
     }

@@ -2634,9 +2634,11 @@ bool gpu_instanced(const importer &im, const tinygltf::Node &n)
 }
 
 // The instanced visits (visit): each node's mesh once as a prototype,
-// shared by every node that instances it (the first such node names its
-// Cryptomatte object), then one instance for each of the node's instances
-// under its world matrix. After every flat mesh, as the builder wants.
+// shared by every node that instances it, then one instance for each of the
+// node's instances under its world matrix, in the node's Cryptomatte object
+// (its name, else "node N"), as its copies would be: the prototype's
+// triangles are named by the first node, its instances each by their own.
+// After every flat mesh, as the builder wants.
 void add_instanced(importer &im)
 {
     std::map<int, uint32_t> proto_of_mesh;
@@ -2646,9 +2648,9 @@ void add_instanced(importer &im)
         auto it = proto_of_mesh.find(n.mesh);
         uint32_t proto;
         pt_error e{};
+        std::string oname = n.name.empty() ? "node " + std::to_string(v.node) : n.name;
+        im.check_builder(pt_scene_builder_set_object(im.b, oname.c_str(), &e), &e);
         if (it == proto_of_mesh.end()) {
-            std::string oname = n.name.empty() ? "node " + std::to_string(v.node) : n.name;
-            im.check_builder(pt_scene_builder_set_object(im.b, oname.c_str(), &e), &e);
             im.check_builder(pt_scene_builder_begin_prototype(im.b, &proto, &e), &e);
             const tinygltf::Mesh &mesh = im.model.meshes[size_t(n.mesh)];
             for (size_t p = 0; p < mesh.primitives.size(); p++)

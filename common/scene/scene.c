@@ -72,7 +72,8 @@ struct pt_scene_builder {
     int in_proto;
     double *inst_xf;
     uint32_t *inst_proto;
-    uint32_t ninst, cap_inst_xf, cap_inst_proto;
+    uint32_t *inst_obj; /* the object at add_instance, or UINT32_MAX: the prototype's */
+    uint32_t ninst, cap_inst_xf, cap_inst_proto, cap_inst_obj;
 };
 
 /* Grows *p (elements of `elem` bytes, `per` per item) to hold `need` items. */
@@ -182,6 +183,7 @@ void pt_scene_builder_free(pt_scene_builder *b)
     pt_free(b->protos);
     pt_free(b->inst_xf);
     pt_free(b->inst_proto);
+    pt_free(b->inst_obj);
     pt_free(b);
 }
 
@@ -693,9 +695,11 @@ pt_status pt_scene_builder_add_instance(pt_scene_builder *b, uint32_t proto, con
         return pt_error_set(err, PT_ERR_LIMIT, "instance %u: over the cap of %u instances a scene",
                             b->ninst, PT_SCENE_MAX_INSTANCES);
     if (!reserve((void **)&b->inst_xf, &b->cap_inst_xf, b->ninst + 1, sizeof(double), 16) ||
-        !reserve((void **)&b->inst_proto, &b->cap_inst_proto, b->ninst + 1, sizeof(uint32_t), 1))
+        !reserve((void **)&b->inst_proto, &b->cap_inst_proto, b->ninst + 1, sizeof(uint32_t), 1) ||
+        !reserve((void **)&b->inst_obj, &b->cap_inst_obj, b->ninst + 1, sizeof(uint32_t), 1))
         return pt_error_set(err, PT_ERR_NOMEM, "instance: out of memory");
     memcpy(b->inst_xf + 16 * (size_t)b->ninst, xform, 16 * sizeof(double));
+    b->inst_obj[b->ninst] = b->cur_obj >= 0 ? (uint32_t)b->cur_obj : UINT32_MAX;
     b->inst_proto[b->ninst++] = proto;
     return PT_OK;
 }
@@ -1741,6 +1745,11 @@ static pt_status finish_instances(pt_scene_builder *b, pt_scene *s, double sc, c
         instance_world(x, sc, t, m);
         double det = pt_normal_matrix(x, c);
         in->proto = b->inst_proto[i];
+        in->object = b->inst_obj[i];
+        if (in->object == UINT32_MAX) {
+            const pt_prototype *pp = &s->prototypes[in->proto];
+            in->object = pp->num_tris > 0 ? s->tri_object[pp->first_tri] : 0;
+        }
         in->tan_sign = det < 0.0 ? -1.0f : 1.0f;
         for (int r = 0; r < 3; r++)
             for (int k = 0; k < 3; k++)

@@ -306,7 +306,8 @@ typedef struct pt_instance {
     float xf[12];
     float nm[9];
     float tan_sign;
-    uint32_t proto; /* index into pt_scene.prototypes */
+    uint32_t proto;  /* index into pt_scene.prototypes */
+    uint32_t object; /* its object, an index into object_names (Cryptomatte) */
 } pt_instance;
 
 /* The most instances a scene may have (PT_FEAT_INSTANCES): each costs
@@ -682,7 +683,10 @@ pt_status pt_scene_builder_end_prototype(pt_scene_builder *b, pt_error *err);
  * (before opts' scale and translation, as a mesh's). PT_ERR_FORMAT for a
  * non-finite matrix or one whose last row is not (0, 0, 0, 1), PT_ERR_LIMIT
  * past PT_SCENE_MAX_INSTANCES. A singular matrix (a scale of 0, which
- * hides an instance) places nothing. */
+ * hides an instance) places nothing. The instance belongs to the object of
+ * the last pt_scene_builder_set_object (else to its prototype's first
+ * triangle's), whatever object the prototype's triangles have: each node
+ * that instances a shared mesh keeps its own Cryptomatte name. */
 pt_status pt_scene_builder_add_instance(pt_scene_builder *b, uint32_t proto, const double xform[16],
                                         pt_error *err);
 /* Adds a camera (copied) in world space. Rejects (PT_ERR_FORMAT) non-finite
