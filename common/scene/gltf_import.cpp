@@ -1674,6 +1674,64 @@ void draco_primitive(importer &im, int mesh, int pi, const char *what)
     }
 }
 
+// The triangles of primitive p (of nv vertices) as a list of vertex
+// indices: its indices, else 0 .. nv - 1, with strips and fans unrolled.
+std::vector<uint32_t> triangle_list(importer &im, const tinygltf::Primitive &p, uint64_t nv,
+                                    const char *what)
+{
+    int mode = p.mode < 0 ? TINYGLTF_MODE_TRIANGLES : p.mode;
+    char w2[160];
+    std::vector<uint32_t> idx;
+    if (p.indices >= 0) {
+        snprintf(w2, sizeof w2, "indices of %s", what);
+        read_indices(im, p.indices, w2, idx);
+        for (size_t i = 0; i < idx.size(); i++)
+            if (idx[i] >= nv)
+                im.fail(PT_ERR_FORMAT,
+                        "accessor %d (%s): index %u at %zu out of range (%llu "
+                        "vertices)",
+                        p.indices, w2, idx[i], i, (unsigned long long)nv);
+    } else {
+        idx.resize(size_t(nv));
+        for (size_t i = 0; i < idx.size(); i++)
+            idx[i] = uint32_t(i);
+    }
+    // Strips and fans to a triangle list (spec 3.7.2.1, primitive modes).
+    std::vector<uint32_t> tri;
+    if (mode == TINYGLTF_MODE_TRIANGLES) {
+        if (idx.size() % 3 != 0)
+            im.fail(PT_ERR_FORMAT, "%s: %zu indices is not a multiple of 3", what, idx.size());
+        tri.swap(idx);
+    } else {
+        for (size_t i = 2; i < idx.size(); i++) {
+            if (mode == TINYGLTF_MODE_TRIANGLE_STRIP) {
+                bool odd = i % 2 == 1;
+                tri.push_back(idx[odd ? i - 1 : i - 2]);
+                tri.push_back(idx[odd ? i - 2 : i - 1]);
+            } else {
+                tri.push_back(idx[0]);
+                tri.push_back(idx[i - 1]);
+            }
+            tri.push_back(idx[i]);
+        }
+    }
+    return tri;
+}
+
+// Attribute a (per floats a vertex) at the corners tri names, one vertex a
+// corner (empty stays empty).
+std::vector<float> unweld(const std::vector<float> &a, const std::vector<uint32_t> &tri, size_t per)
+{
+    std::vector<float> out;
+    if (a.empty())
+        return out;
+    out.resize(tri.size() * per);
+    for (size_t k = 0; k < tri.size(); k++)
+        for (size_t c = 0; c < per; c++)
+            out[k * per + c] = a[size_t(tri[k]) * per + c];
+    return out;
+}
+
 void add_primitive(importer &im, int mesh, int pi, const mat4 &world)
 {
     const tinygltf::Primitive &p = im.model.meshes[size_t(mesh)].primitives[size_t(pi)];
@@ -1759,39 +1817,19 @@ void add_primitive(importer &im, int mesh, int pi, const mat4 &world)
             for (int c = 0; c < nc; c++)
                 col[v * 4 + size_t(c)] = raw[v * size_t(nc) + size_t(c)];
     }
-    std::vector<uint32_t> idx;
-    if (p.indices >= 0) {
-        snprintf(w2, sizeof w2, "indices of %s", what);
-        read_indices(im, p.indices, w2, idx);
-        for (size_t i = 0; i < idx.size(); i++)
-            if (idx[i] >= nv)
-                im.fail(PT_ERR_FORMAT,
-                        "accessor %d (%s): index %u at %zu out of range (%llu "
-                        "vertices)",
-                        p.indices, w2, idx[i], i, (unsigned long long)nv);
-    } else {
-        idx.resize(size_t(nv));
-        for (size_t i = 0; i < idx.size(); i++)
-            idx[i] = uint32_t(i);
-    }
-    // Strips and fans to a triangle list (spec 3.7.2.1, primitive modes).
-    std::vector<uint32_t> tri;
-    if (mode == TINYGLTF_MODE_TRIANGLES) {
-        if (idx.size() % 3 != 0)
-            im.fail(PT_ERR_FORMAT, "%s: %zu indices is not a multiple of 3", what, idx.size());
-        tri.swap(idx);
-    } else {
-        for (size_t i = 2; i < idx.size(); i++) {
-            if (mode == TINYGLTF_MODE_TRIANGLE_STRIP) {
-                bool odd = i % 2 == 1;
-                tri.push_back(idx[odd ? i - 1 : i - 2]);
-                tri.push_back(idx[odd ? i - 2 : i - 1]);
-            } else {
-                tri.push_back(idx[0]);
-                tri.push_back(idx[i - 1]);
-            }
-            tri.push_back(idx[i]);
-        }
+    std::vector<uint32_t> tri = triangle_list(im, p, nv, what);
+    if (nrm.empty()) {
+        // glTF 2.0 (3.7.2.1): without NORMAL, flat normals, and TANGENT is
+        // ignored. Each triangle gets corners of its own, whose area-weighted
+        // normal (the builder's) is the face's.
+        pos = unweld(pos, tri, 3);
+        uv = unweld(uv, tri, 2);
+        uv1 = unweld(uv1, tri, 2);
+        col = unweld(col, tri, 4);
+        tan.clear();
+        nv = tri.size();
+        for (size_t k = 0; k < tri.size(); k++)
+            tri[k] = uint32_t(k);
     }
     uint32_t mat = material_index(im, variant_material(im, p, what), what);
     float xf[16];
@@ -2032,6 +2070,12 @@ void rig_add_primitive(importer &im, int ni, int mesh, int pi, const uint32_t be
     char w2[160];
     snprintf(w2, sizeof w2, "POSITION of %s", what);
     read_floats(im, p.attributes.at("POSITION"), w2, TINYGLTF_TYPE_VEC3, COMP_INT16, rp.pos);
+    // Without NORMAL the builder stored one vertex a corner (add_primitive):
+    // read the file's vertices, then do the same.
+    const bool flat = p.attributes.find("NORMAL") == p.attributes.end();
+    const uint32_t nv_built = rp.nv;
+    if (flat)
+        rp.nv = uint32_t(rp.pos.size() / 3);
     auto n_it = p.attributes.find("NORMAL");
     if (n_it != p.attributes.end()) {
         snprintf(w2, sizeof w2, "NORMAL of %s", what);
@@ -2074,6 +2118,28 @@ void rig_add_primitive(importer &im, int ni, int mesh, int pi, const uint32_t be
                     im.model.skins.size());
         rp.skin = n.skin;
         rig_skin_attrs(im, p, what, n.skin, rp);
+    }
+    if (flat) {
+        std::vector<uint32_t> tri = triangle_list(im, p, rp.nv, what);
+        if (tri.size() != nv_built)
+            im.fail(PT_ERR_FORMAT, "%s: attribute counts disagree", what);
+        rp.pos = unweld(rp.pos, tri, 3);
+        rp.tan.clear(); // ignored without NORMAL (glTF 2.0, 3.7.2.1)
+        for (size_t k = 0; k < rp.dpos.size(); k++) {
+            rp.dpos[k] = unweld(rp.dpos[k], tri, 3);
+            rp.dnrm[k].clear();
+            rp.dtan[k].clear();
+        }
+        if (rp.influences > 0) {
+            size_t in = size_t(rp.influences);
+            std::vector<uint32_t> j(tri.size() * in);
+            for (size_t k = 0; k < tri.size(); k++)
+                for (size_t c = 0; c < in; c++)
+                    j[k * in + c] = rp.joints[size_t(tri[k]) * in + c];
+            rp.joints.swap(j);
+            rp.weights = unweld(rp.weights, tri, in);
+        }
+        rp.nv = nv_built;
     }
     if (inst) {
         rp.has_inst = true;
@@ -2718,10 +2784,11 @@ geo_count mesh_count(const tinygltf::Model &m, int mi)
         if (c > PT_SCENE_MAX_TRIANGLES * 3ull || v > PT_SCENE_MAX_TRIANGLES * 3ull)
             continue;
         geo_count g;
-        g.vtx = v;
-        g.deltas = v * uint64_t(p.targets.size() < PT_ANIM_MAX_TARGETS ? p.targets.size()
-                                                                       : PT_ANIM_MAX_TARGETS);
         g.tri = mode == TINYGLTF_MODE_TRIANGLES ? c / 3 : c >= 3 ? c - 2 : 0;
+        // Without NORMAL, one vertex a corner (add_primitive).
+        g.vtx = p.attributes.count("NORMAL") ? v : 3 * g.tri;
+        g.deltas = g.vtx * uint64_t(p.targets.size() < PT_ANIM_MAX_TARGETS ? p.targets.size()
+                                                                           : PT_ANIM_MAX_TARGETS);
         n.add(g);
     }
     return n;
