@@ -2074,8 +2074,9 @@ void rig_add_primitive(importer &im, int ni, int mesh, int pi, const uint32_t be
     // read the file's vertices, then do the same.
     const bool flat = p.attributes.find("NORMAL") == p.attributes.end();
     const uint32_t nv_built = rp.nv;
+    const uint32_t nv_file = uint32_t(rp.pos.size() / 3);
     if (flat)
-        rp.nv = uint32_t(rp.pos.size() / 3);
+        rp.nv = nv_file;
     auto n_it = p.attributes.find("NORMAL");
     if (n_it != p.attributes.end()) {
         snprintf(w2, sizeof w2, "NORMAL of %s", what);
@@ -2140,6 +2141,51 @@ void rig_add_primitive(importer &im, int ni, int mesh, int pi, const uint32_t be
             rp.weights = unweld(rp.weights, tri, in);
         }
         rp.nv = nv_built;
+    }
+    if (rp.tan.empty()) {
+        // The tangents the load generated in the mesh's space (the builder's,
+        // from the same numbers), mapped by the pose as a TANGENT would be.
+        std::vector<float> uvs[2];
+        for (int set = 0; set < 2; set++) {
+            auto it = p.attributes.find(set ? "TEXCOORD_1" : "TEXCOORD_0");
+            if (it == p.attributes.end())
+                continue;
+            snprintf(w2, sizeof w2, "TEXCOORD_%d of %s", set, what);
+            read_floats(im, it->second, w2, TINYGLTF_TYPE_VEC2, COMP_INT16, uvs[set]);
+        }
+        std::vector<uint32_t> tri;
+        if (flat) {
+            tri.resize(rp.nv);
+            for (uint32_t k = 0; k < rp.nv; k++)
+                tri[k] = k;
+            if (!uvs[0].empty() || !uvs[1].empty()) {
+                std::vector<uint32_t> corners = triangle_list(im, p, nv_file, what);
+                for (auto &u : uvs) {
+                    if (!u.empty() && u.size() / 2 != nv_file)
+                        im.fail(PT_ERR_FORMAT, "%s: attribute counts disagree", what);
+                    if (!u.empty())
+                        u = unweld(u, corners, 2);
+                }
+            }
+        } else {
+            tri = triangle_list(im, p, rp.nv, what);
+        }
+        bool ok = tri.size() % 3 == 0;
+        for (auto &u : uvs)
+            ok = ok && (u.empty() || u.size() / 2 == rp.nv);
+        if (!ok)
+            im.fail(PT_ERR_FORMAT, "%s: attribute counts disagree", what);
+        uint32_t mat = material_index(im, variant_material(im, p, what), what);
+        std::vector<float> tg(size_t(rp.nv) * 4);
+        int made = 0;
+        pt_error e{};
+        pt_status st = pt_scene_builder_mesh_tangents(
+            im.b, mat, rp.pos.data(), rp.nrm.empty() ? nullptr : rp.nrm.data(),
+            uvs[0].empty() ? nullptr : uvs[0].data(), uvs[1].empty() ? nullptr : uvs[1].data(),
+            rp.nv, tri.data(), uint32_t(tri.size() / 3), tg.data(), &made, &e);
+        im.check_builder(st, &e);
+        if (made)
+            rp.tan.swap(tg);
     }
     if (inst) {
         rp.has_inst = true;

@@ -795,6 +795,22 @@ fail:
     return st;
 }
 
+pt_status pt_scene_builder_mesh_tangents(const pt_scene_builder *b, uint32_t material,
+                                         const float *positions, const float *normals,
+                                         const float *uvs, const float *uvs1, uint32_t nv,
+                                         const uint32_t *indices, uint32_t nt, float *tan,
+                                         int *made, pt_error *err)
+{
+    int set = 0;
+    *made = 0;
+    if (material >= b->nmat || !material_tangent_set(&b->mats[material], &set))
+        return PT_OK;
+    pt_status st =
+        mesh_space_tangents(positions, normals, set ? uvs1 : uvs, nv, indices, nt, tan, err);
+    *made = st == PT_OK;
+    return st;
+}
+
 pt_status pt_scene_builder_add_mesh_extra(pt_scene_builder *b, const char *what,
                                           const float *positions, const float *normals,
                                           const float *uvs, const pt_mesh_extra *extra, uint32_t nv,
@@ -844,12 +860,12 @@ pt_status pt_scene_builder_add_mesh_extra(pt_scene_builder *b, const char *what,
     }
     int tan_set = 0;
     if (!extra->tangents && material_tangent_set(&b->mats[material], &tan_set)) {
-        const float *uv = tan_set ? extra->uvs1 : uvs;
+        int made = 0;
         gen_tan = pt_malloc((size_t)nv * 4 * sizeof(float));
         if (!gen_tan)
             return pt_error_set(err, PT_ERR_NOMEM, "%s: out of memory for tangents", what);
-        if ((st = mesh_space_tangents(positions, normals, uv, nv, indices, nt, gen_tan, err)) !=
-            PT_OK)
+        if ((st = pt_scene_builder_mesh_tangents(b, material, positions, normals, uvs, extra->uvs1,
+                                                 nv, indices, nt, gen_tan, &made, err)) != PT_OK)
             goto fail;
         with_tan = *extra;
         with_tan.tangents = gen_tan;

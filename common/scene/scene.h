@@ -633,6 +633,17 @@ typedef struct pt_mesh_extra {
     const float *colors;
 } pt_mesh_extra;
 
+/* The tangents pt_scene_builder_add_mesh_extra generates for a mesh without
+ * them, in the mesh's own space (4 per vertex into tan; *made 1), when
+ * material needs them; else *made 0 and tan untouched. The arguments are
+ * add_mesh_extra's (uvs1: extra's TEXCOORD_1). For a rig that poses the
+ * mesh and must map the load's tangents. PT_ERR_NOMEM. */
+pt_status pt_scene_builder_mesh_tangents(const pt_scene_builder *b, uint32_t material,
+                                         const float *positions, const float *normals,
+                                         const float *uvs, const float *uvs1, uint32_t nv,
+                                         const uint32_t *indices, uint32_t nt, float *tan,
+                                         int *made, pt_error *err);
+
 /* Adds a triangle mesh. positions: 3*nv floats; normals: 3*nv or NULL (then
  * computed, area-weighted); uvs: 2*nv or NULL; indices: 3*nt, or NULL for
  * non-indexed (nv must then be 3*nt). xform: column-major 4x4 world matrix or

@@ -19,6 +19,7 @@
 // - EXT_meshopt_compression: lossless positions and indices bit-identical
 //   to the plain file, octahedral normals within their quantization.
 // - A primitive without NORMAL gets flat normals, as a still and posed.
+// - Generated tangents under a non-uniform scale: a pose gives the still's.
 // The test reads the shared files with tinygltf itself (its implementation is
 // the one compiled into ptcore).
 #define TINYGLTF_NO_STB_IMAGE_WRITE
@@ -1296,6 +1297,87 @@ void test_flat_normals()
     unlink(path.c_str());
 }
 
+// ---- generated tangents, still and posed --------------------------------------------
+
+// A normal-mapped 3 x 3 grid with bumps, NORMAL and TEXCOORD_0 but no
+// TANGENT, under a node rotated and scaled (2, 0.5, 1), whose animation
+// holds that scale. The still (no rig) generates the tangents in the mesh's
+// space and maps them by the node; posed at 0.5 s the rig must give the
+// same ones, not tangents generated anew from the posed, non-uniformly
+// scaled positions.
+void test_generated_tangents_posed()
+{
+    std::vector<float> pos, nrm, uv;
+    for (int y = 0; y < 4; y++)
+        for (int x = 0; x < 4; x++) {
+            float z = 0.3f * float((x * 5 + y * 3) % 4);
+            pos.insert(pos.end(), {float(x), float(y), z});
+            float n[3] = {0.2f * float(x - 1), -0.15f * float(y - 2), 1.0f};
+            float l = std::sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+            nrm.insert(nrm.end(), {n[0] / l, n[1] / l, n[2] / l});
+            uv.insert(uv.end(), {0.3f * float(x) + 0.05f * float(y), 0.25f * float(y)});
+        }
+    std::vector<uint16_t> idx;
+    for (int y = 0; y < 3; y++)
+        for (int x = 0; x < 3; x++) {
+            uint16_t a = uint16_t(y * 4 + x), b = uint16_t(a + 1), c = uint16_t(a + 4),
+                     d = uint16_t(a + 5);
+            idx.insert(idx.end(), {a, b, d, a, d, c});
+        }
+    gltf g;
+    int pa = g.floats(pos, "VEC3", 3), na = g.floats(nrm, "VEC3", 3), ua = g.floats(uv, "VEC2", 2);
+    int ia = g.add(idx.data(), idx.size() * 2, 5123, "SCALAR", idx.size());
+    const float key[2] = {0, 1};
+    int ta = g.accessor("{\"bufferView\":" + std::to_string(g.view(key, 8)) +
+                        ",\"componentType\":5126,\"count\":2,\"type\":\"SCALAR\",\"min\":[0],"
+                        "\"max\":[1]}");
+    int oa = g.floats({2, 0.5f, 1, 2, 0.5f, 1}, "VEC3", 3);
+    const unsigned char px[16] = {128, 128, 255, 255, 200, 90,  230, 255,
+                                  60,  160, 220, 255, 128, 128, 255, 255};
+    std::vector<unsigned char> png = png_of(px, 2, 2);
+    char m[1200];
+    snprintf(m, sizeof m,
+             "\"nodes\":[{\"mesh\":0,\"scale\":[2,0.5,1],\"rotation\":[0.2,0.3,0.1,0.927362]}],"
+             "\"meshes\":[{\"primitives\":[{\"attributes\":{\"POSITION\":%d,\"NORMAL\":%d,"
+             "\"TEXCOORD_0\":%d},\"indices\":%d,\"material\":0}]}],"
+             "\"materials\":[{\"normalTexture\":{\"index\":0}}],\"textures\":[{\"source\":0}],"
+             "\"images\":[{\"uri\":\"data:image/png;base64,%s\"}],"
+             "\"animations\":[{\"channels\":[{\"sampler\":0,\"target\":{\"node\":0,"
+             "\"path\":\"scale\"}}],\"samplers\":[{\"input\":%d,\"output\":%d,"
+             "\"interpolation\":\"STEP\"}]}]",
+             pa, na, ua, ia, pt_test::base64(png).c_str(), ta, oa);
+    std::string path = write_tmp(g.json(m), "tangent_pose");
+    pt_scene *s[2] = {nullptr, nullptr};
+    for (int posed = 0; posed < 2; posed++) {
+        pt_scene_opts o{};
+        o.animate = posed;
+        o.time = 0.5;
+        pt_error err{};
+        CHECKF(pt_scene_load(path.c_str(), &o, &s[posed], &err) == PT_OK, "%s", err.msg);
+    }
+    if (s[0] && s[1] && s[0]->tangents && s[1]->tangents &&
+        s[0]->num_vertices == s[1]->num_vertices) {
+        double worst = 0;
+        int w_differ = 0;
+        for (size_t v = 0; v < s[0]->num_vertices; v++) {
+            for (int r = 0; r < 3; r++)
+                worst = std::fmax(worst, std::fabs(double(s[0]->tangents[4 * v + r]) -
+                                                   double(s[1]->tangents[4 * v + r])));
+            w_differ += s[0]->tangents[4 * v + 3] != s[1]->tangents[4 * v + 3];
+        }
+        // Both map the same float tangents through the node's matrix in
+        // double; the pose's matrix comes from its TRS keys, the still's
+        // from the node's, each rounded: a few float ULPs of a unit vector.
+        CHECKF(worst < 1e-6 && w_differ == 0,
+               "posed tangents differ from the still's by %g, %d handedness", worst, w_differ);
+    } else {
+        CHECKF(0, "no tangents to compare");
+    }
+    pt_scene_free(s[0]);
+    pt_scene_free(s[1]);
+    unlink(path.c_str());
+}
+
 } // namespace
 
 int main(void)
@@ -1312,5 +1394,6 @@ int main(void)
     test_texture_formats();
     test_meshopt();
     test_flat_normals();
+    test_generated_tangents_posed();
     return check_report();
 }
