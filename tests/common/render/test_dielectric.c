@@ -29,8 +29,9 @@
  *   of thickness d with attenuation colour c at distance D transmits
  *   Le (1 - F)^2 tau / (1 - F^2 tau^2), tau = c^(d / D) per channel.
  * - Media measured exactly: through a slab of ior 1 at large coordinates
- *   (offsets of 0.25) and at the origin, at 0, 60 and 80 degrees, every
- *   sample is E c^(L / (D cos theta)) to float precision (media_exact);
+ *   (offsets of 0.25; also as an instance) and at the origin, at 0, 60 and
+ *   80 degrees, every sample is E c^(L / (D cos theta)) to float precision
+ *   (media_exact);
  *   a point light inside a rough absorbing box renders the same with ray
  *   offsets of 0.002 and of 0.25 (media_nee).
  * - Estimators: a rough thin pane before an emitter reads the same with MIS,
@@ -700,10 +701,13 @@ static void media_exact(void)
     pt_env *env = NULL;
     pt_error err = {0};
     CHECKF(pt_env_uniform(pt_v3(E, E, E), &env, &err) == PT_OK, "%s", err.msg);
-    const float z0s[2] = {0.0f, 12288.0f}, degs[3] = {0.0f, 60.0f, 80.0f};
-    for (int zi = 0; zi < 2; zi++)
+    /* z0, and whether the slab is an instance of a prototype at the origin
+     * (EXT_mesh_gpu_instancing: medium_length takes the hit through it). */
+    const float z0s[3] = {0.0f, 12288.0f, 12288.0f}, degs[3] = {0.0f, 60.0f, 80.0f};
+    for (int zi = 0; zi < 3; zi++)
         for (int di = 0; di < 3; di++) {
             float z0 = z0s[zi];
+            int inst = zi == 2;
             double th = degs[di] * PI_D / 180.0;
             pt_scene_builder *b = NULL;
             CHECK(pt_scene_builder_new(&b, &err) == PT_OK);
@@ -712,7 +716,9 @@ static void media_exact(void)
             for (int k = 0; k < 3; k++)
                 g.attenuation_color[k] = c;
             g.attenuation_distance = D;
-            add_box(b, pt_v3(-100, -100, z0 - L), pt_v3(100, 100, z0), add_mat(b, &g));
+            uint32_t gm = add_mat(b, &g);
+            if (!inst)
+                add_box(b, pt_v3(-100, -100, z0 - L), pt_v3(100, 100, z0), gm);
             if (z0 > 0.0f) {
                 /* Far below, out of every ray's way: the scene spans
                  * 2 z0, so its origin stays at 0. */
@@ -722,6 +728,14 @@ static void media_exact(void)
                 CHECKF(pt_scene_builder_add_mesh(b, "far", tri, NULL, NULL, 3, NULL, 1, NULL, fm,
                                                  &err) == PT_OK,
                        "%s", err.msg);
+            }
+            if (inst) {
+                uint32_t proto = 0;
+                const double xf[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, z0, 1};
+                CHECK(pt_scene_builder_begin_prototype(b, &proto, &err) == PT_OK);
+                add_box(b, pt_v3(-100, -100, -L), pt_v3(100, 100, 0), gm);
+                CHECK(pt_scene_builder_end_prototype(b, &err) == PT_OK);
+                CHECKF(pt_scene_builder_add_instance(b, proto, xf, &err) == PT_OK, "%s", err.msg);
             }
             pt_camera cam = {0};
             cam.forward = pt_v3((float)sin(th), 0.0f, (float)-cos(th));
@@ -740,6 +754,7 @@ static void media_exact(void)
                 continue;
             CHECK(s->features & PT_FEAT_VOLUME);
             CHECK(s->origin[2] == 0.0);
+            CHECK(!inst || s->num_instances == 1);
             /* The camera's direction as the renderer takes it (float). */
             double cz = fabs((double)pt_v3_norm(cam.forward).z);
             double sigma = log(1.0 / c) / D, len = L / cz;
@@ -747,9 +762,10 @@ static void media_exact(void)
             double ulp = z0 > 0.0f ? ldexp(1.0, ilogb(z0) - 23) : ldexp(1.0, -23);
             double tol = sigma * 4.0 * ulp / cz + 1e-5;
             image_stats is = render_stats(s, env, 8, 4, 1000, PT_LIGHT_MIS, want);
-            printf("medium at z %g, %g degrees: a sample off E exp(-sigma %.4f) = %.6f by %.3g "
+            printf("medium at z %g%s, %g degrees: a sample off E exp(-sigma %.4f) = %.6f by %.3g "
                    "(tolerance %.3g)\n",
-                   (double)z0, (double)degs[di], len, want, is.max_dev, tol);
+                   (double)z0, inst ? " (instance)" : "", (double)degs[di], len, want, is.max_dev,
+                   tol);
             CHECKF(is.max_dev <= tol,
                    "slab at z %g, %g degrees: a sample is off %.6f by %.3g of it, over %.3g",
                    (double)z0, (double)degs[di], want, is.max_dev, tol);
