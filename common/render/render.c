@@ -364,6 +364,18 @@ typedef struct tri_rec {
 #define TRI_FLAT 0x80000000u
 _Static_assert(sizeof(tri_rec) == 64, "tri_rec is one cache line");
 
+/* A hit's point as surface_at computes it (pt_accel_hit_point's expression)
+ * and its triangle's unit winding normal, in its prototype's space for a hit
+ * through an instance. */
+static pt_vec3 tri_point(const pt_renderer *r, const pt_hit *hit, pt_vec3 *ng)
+{
+    const tri_rec *t = &r->tris[hit->tri];
+    float b0 = 1.0f - hit->b1 - hit->b2;
+    *ng = t->ng;
+    return pt_v3_add(pt_v3_add(pt_v3_scale(t->v0, b0), pt_v3_scale(t->v1, hit->b1)),
+                     pt_v3_scale(t->v2, hit->b2));
+}
+
 /* A moving triangle's hit point, winding normal and interpolated shading
  * normal at the path's time (common/scene/motion.h), in place of the
  * triangle record's (which hold its step 0). */
@@ -1120,12 +1132,47 @@ static inline pt_vec3 medium_transmittance(const pt_scene *s, int32_t medium, fl
     return tr;
 }
 
-/* The path's segment of length t ended (a hit, or +inf on a miss). */
-static inline __attribute__((always_inline)) void medium_segment(const pt_renderer *r, path *pa,
-                                                                 float t, const uint32_t features)
+/*
+ * The length of the path's segment in a medium, from its previous vertex to
+ * the hit: the true points, not the ray's origin, which the self-intersection
+ * offset moved into the medium (by 256 ULPs of the coordinates far from the
+ * origin: 0.25 at 12,288), so that measured from it each crossing was short
+ * by the offset over the cosine. Along the direction to the plane of the
+ * face hit, which is exact for a plane at any incidence; the chord between
+ * the points where the face is seen near edge-on or moves (motion blur).
+ */
+static __attribute__((noinline)) float medium_length(const pt_renderer *r, const path *pa,
+                                                     const pt_hit *hit, const uint32_t features)
 {
-    if ((features & PT_FEAT_VOLUME) && pa->medium >= 0)
+    pt_vec3 n;
+    pt_vec3 h = tri_point(r, hit, &n);
+    if ((features & PT_FEAT_MOTION) && r->motion && r->motion->num_triangles > 0 &&
+        r->motion->moving[hit->tri] != UINT32_MAX) {
+        h = pt_v3_add(pa->o, pt_v3_scale(pa->d, hit->t));
+        n = pt_v3(0.0f, 0.0f, 0.0f);
+    } else if ((features & PT_FEAT_INSTANCES) && hit->inst) {
+        const pt_instance *in = &r->scene->instances[hit->inst - 1];
+        h = pt_instance_point(in, h);
+        n = pt_instance_normal(in, n, n);
+    }
+    pt_vec3 e = pt_v3_sub(h, pa->prev_p);
+    float dn = pt_v3_dot(pa->d, n);
+    if (fabsf(dn) > 0.05f) {
+        float l = pt_v3_dot(e, n) / dn;
+        if (l >= 0.0f && isfinite(l))
+            return l;
+    }
+    return pt_v3_len(e);
+}
+
+/* The path's segment ended at hit (NULL: a miss, an infinite segment). */
+static inline __attribute__((always_inline)) void
+medium_segment(const pt_renderer *r, path *pa, const pt_hit *hit, const uint32_t features)
+{
+    if ((features & PT_FEAT_VOLUME) && pa->medium >= 0) {
+        float t = hit ? medium_length(r, pa, hit, features) : INFINITY;
         pa->beta = pt_v3_mul(pa->beta, medium_transmittance(r->scene, pa->medium, t));
+    }
 }
 
 static inline int transmits(const pt_material *m)
@@ -1473,7 +1520,12 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     if ((features & FEAT_PASSES) && pa->pr && pa->depth == 0) {
         pa->pr->v.depth = hit->t; /* the camera ray's direction is a unit vector */
         if (r->crypto_obj) {
-            pa->pr->v.crypto[PT_CRYPTO_OBJECT] = r->crypto_obj[s->tri_object[hit->tri]];
+            /* Through an instance, its node's object (a prototype's
+             * triangles are shared by every node instancing the mesh). */
+            uint32_t obj = (features & PT_FEAT_INSTANCES) && hit->inst
+                               ? s->instances[hit->inst - 1].object
+                               : s->tri_object[hit->tri];
+            pa->pr->v.crypto[PT_CRYPTO_OBJECT] = r->crypto_obj[obj];
             pa->pr->v.crypto[PT_CRYPTO_MATERIAL] = r->crypto_mat[sf->mat - s->materials];
         }
     }
@@ -1606,9 +1658,13 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
                 }
                 pt_vec3 c = pt_v3_mul(pa->beta, pt_v3_scale(pt_v3_mul(f, lrad), w));
                 if ((features & PT_FEAT_VOLUME) && through) {
+                    /* From the hit point to the light's (medium_length),
+                     * not between the offset ends of the shadow ray. */
                     int32_t med =
                         side > 0.0f ? pa->medium : medium_across(s, pa->medium, mi, front, thin);
-                    c = pt_v3_mul(c, medium_transmittance(s, med, sr->dist));
+                    float md =
+                        isfinite(sr->dist) ? pt_v3_len(pt_v3_sub(ls->position, sf->p)) : INFINITY;
+                    c = pt_v3_mul(c, medium_transmittance(s, med, md));
                 }
                 /* Light sampled at depth d arrives at vertex d: direct at 0. */
                 sr->contrib = clamp_sample(r, pa, c, pa->depth == 0, features);
@@ -1957,11 +2013,11 @@ li_impl(const pt_renderer *r, pixel_ctx *pc, uint32_t index, pt_render_stats *st
         pt_hit hit;
         rays++;
         if (!closest_hit(r, pa.o, pa.d, pa.time, u[OFF_ALPHA], &hit, features)) {
-            medium_segment(r, &pa, INFINITY, features);
+            medium_segment(r, &pa, NULL, features);
             shade_miss(r, &pa, features);
             break;
         }
-        medium_segment(r, &pa, hit.t, features);
+        medium_segment(r, &pa, &hit, features);
         capped += pa.depth >= r->params.max_depth; /* shade() ends it: it may not scatter */
         shadow_ray sr = {{0, 0, 0}, {0, 0, 0}, 0.0f, {0, 0, 0}, 0}; /* set when SHADE_SHADOW */
         surface sf;
@@ -2096,13 +2152,13 @@ trace_batch(const pt_renderer *r, path *paths, uint32_t n, stage_lanes *sl, cons
                 sink->ray(sink->user, paths[k].o, paths[k].d, INFINITY, 0);
             if (closest_hit(r, paths[k].o, paths[k].d, paths[k].time,
                             alpha ? u[j][OFF_ALPHA] : 0.0f, &hits[k], features)) {
-                medium_segment(r, &paths[k], hits[k].t, features);
+                medium_segment(r, &paths[k], &hits[k], features);
                 if (alpha && nh != j) /* u follows live[]'s compaction */
                     memcpy(u[nh], u[j], sizeof u[nh]);
                 live[nh++] = (uint8_t)k;
                 ncapped += paths[k].depth >= r->params.max_depth;
             } else {
-                medium_segment(r, &paths[k], INFINITY, features);
+                medium_segment(r, &paths[k], NULL, features);
                 shade_miss(r, &paths[k], features);
             }
         }

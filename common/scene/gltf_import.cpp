@@ -1674,6 +1674,64 @@ void draco_primitive(importer &im, int mesh, int pi, const char *what)
     }
 }
 
+// The triangles of primitive p (of nv vertices) as a list of vertex
+// indices: its indices, else 0 .. nv - 1, with strips and fans unrolled.
+std::vector<uint32_t> triangle_list(importer &im, const tinygltf::Primitive &p, uint64_t nv,
+                                    const char *what)
+{
+    int mode = p.mode < 0 ? TINYGLTF_MODE_TRIANGLES : p.mode;
+    char w2[160];
+    std::vector<uint32_t> idx;
+    if (p.indices >= 0) {
+        snprintf(w2, sizeof w2, "indices of %s", what);
+        read_indices(im, p.indices, w2, idx);
+        for (size_t i = 0; i < idx.size(); i++)
+            if (idx[i] >= nv)
+                im.fail(PT_ERR_FORMAT,
+                        "accessor %d (%s): index %u at %zu out of range (%llu "
+                        "vertices)",
+                        p.indices, w2, idx[i], i, (unsigned long long)nv);
+    } else {
+        idx.resize(size_t(nv));
+        for (size_t i = 0; i < idx.size(); i++)
+            idx[i] = uint32_t(i);
+    }
+    // Strips and fans to a triangle list (spec 3.7.2.1, primitive modes).
+    std::vector<uint32_t> tri;
+    if (mode == TINYGLTF_MODE_TRIANGLES) {
+        if (idx.size() % 3 != 0)
+            im.fail(PT_ERR_FORMAT, "%s: %zu indices is not a multiple of 3", what, idx.size());
+        tri.swap(idx);
+    } else {
+        for (size_t i = 2; i < idx.size(); i++) {
+            if (mode == TINYGLTF_MODE_TRIANGLE_STRIP) {
+                bool odd = i % 2 == 1;
+                tri.push_back(idx[odd ? i - 1 : i - 2]);
+                tri.push_back(idx[odd ? i - 2 : i - 1]);
+            } else {
+                tri.push_back(idx[0]);
+                tri.push_back(idx[i - 1]);
+            }
+            tri.push_back(idx[i]);
+        }
+    }
+    return tri;
+}
+
+// Attribute a (per floats a vertex) at the corners tri names, one vertex a
+// corner (empty stays empty).
+std::vector<float> unweld(const std::vector<float> &a, const std::vector<uint32_t> &tri, size_t per)
+{
+    std::vector<float> out;
+    if (a.empty())
+        return out;
+    out.resize(tri.size() * per);
+    for (size_t k = 0; k < tri.size(); k++)
+        for (size_t c = 0; c < per; c++)
+            out[k * per + c] = a[size_t(tri[k]) * per + c];
+    return out;
+}
+
 void add_primitive(importer &im, int mesh, int pi, const mat4 &world)
 {
     const tinygltf::Primitive &p = im.model.meshes[size_t(mesh)].primitives[size_t(pi)];
@@ -1759,39 +1817,19 @@ void add_primitive(importer &im, int mesh, int pi, const mat4 &world)
             for (int c = 0; c < nc; c++)
                 col[v * 4 + size_t(c)] = raw[v * size_t(nc) + size_t(c)];
     }
-    std::vector<uint32_t> idx;
-    if (p.indices >= 0) {
-        snprintf(w2, sizeof w2, "indices of %s", what);
-        read_indices(im, p.indices, w2, idx);
-        for (size_t i = 0; i < idx.size(); i++)
-            if (idx[i] >= nv)
-                im.fail(PT_ERR_FORMAT,
-                        "accessor %d (%s): index %u at %zu out of range (%llu "
-                        "vertices)",
-                        p.indices, w2, idx[i], i, (unsigned long long)nv);
-    } else {
-        idx.resize(size_t(nv));
-        for (size_t i = 0; i < idx.size(); i++)
-            idx[i] = uint32_t(i);
-    }
-    // Strips and fans to a triangle list (spec 3.7.2.1, primitive modes).
-    std::vector<uint32_t> tri;
-    if (mode == TINYGLTF_MODE_TRIANGLES) {
-        if (idx.size() % 3 != 0)
-            im.fail(PT_ERR_FORMAT, "%s: %zu indices is not a multiple of 3", what, idx.size());
-        tri.swap(idx);
-    } else {
-        for (size_t i = 2; i < idx.size(); i++) {
-            if (mode == TINYGLTF_MODE_TRIANGLE_STRIP) {
-                bool odd = i % 2 == 1;
-                tri.push_back(idx[odd ? i - 1 : i - 2]);
-                tri.push_back(idx[odd ? i - 2 : i - 1]);
-            } else {
-                tri.push_back(idx[0]);
-                tri.push_back(idx[i - 1]);
-            }
-            tri.push_back(idx[i]);
-        }
+    std::vector<uint32_t> tri = triangle_list(im, p, nv, what);
+    if (nrm.empty()) {
+        // glTF 2.0 (3.7.2.1): without NORMAL, flat normals, and TANGENT is
+        // ignored. Each triangle gets corners of its own, whose area-weighted
+        // normal (the builder's) is the face's.
+        pos = unweld(pos, tri, 3);
+        uv = unweld(uv, tri, 2);
+        uv1 = unweld(uv1, tri, 2);
+        col = unweld(col, tri, 4);
+        tan.clear();
+        nv = tri.size();
+        for (size_t k = 0; k < tri.size(); k++)
+            tri[k] = uint32_t(k);
     }
     uint32_t mat = material_index(im, variant_material(im, p, what), what);
     float xf[16];
@@ -2032,6 +2070,13 @@ void rig_add_primitive(importer &im, int ni, int mesh, int pi, const uint32_t be
     char w2[160];
     snprintf(w2, sizeof w2, "POSITION of %s", what);
     read_floats(im, p.attributes.at("POSITION"), w2, TINYGLTF_TYPE_VEC3, COMP_INT16, rp.pos);
+    // Without NORMAL the builder stored one vertex a corner (add_primitive):
+    // read the file's vertices, then do the same.
+    const bool flat = p.attributes.find("NORMAL") == p.attributes.end();
+    const uint32_t nv_built = rp.nv;
+    const uint32_t nv_file = uint32_t(rp.pos.size() / 3);
+    if (flat)
+        rp.nv = nv_file;
     auto n_it = p.attributes.find("NORMAL");
     if (n_it != p.attributes.end()) {
         snprintf(w2, sizeof w2, "NORMAL of %s", what);
@@ -2074,6 +2119,73 @@ void rig_add_primitive(importer &im, int ni, int mesh, int pi, const uint32_t be
                     im.model.skins.size());
         rp.skin = n.skin;
         rig_skin_attrs(im, p, what, n.skin, rp);
+    }
+    if (flat) {
+        std::vector<uint32_t> tri = triangle_list(im, p, rp.nv, what);
+        if (tri.size() != nv_built)
+            im.fail(PT_ERR_FORMAT, "%s: attribute counts disagree", what);
+        rp.pos = unweld(rp.pos, tri, 3);
+        rp.tan.clear(); // ignored without NORMAL (glTF 2.0, 3.7.2.1)
+        for (size_t k = 0; k < rp.dpos.size(); k++) {
+            rp.dpos[k] = unweld(rp.dpos[k], tri, 3);
+            rp.dnrm[k].clear();
+            rp.dtan[k].clear();
+        }
+        if (rp.influences > 0) {
+            size_t in = size_t(rp.influences);
+            std::vector<uint32_t> j(tri.size() * in);
+            for (size_t k = 0; k < tri.size(); k++)
+                for (size_t c = 0; c < in; c++)
+                    j[k * in + c] = rp.joints[size_t(tri[k]) * in + c];
+            rp.joints.swap(j);
+            rp.weights = unweld(rp.weights, tri, in);
+        }
+        rp.nv = nv_built;
+    }
+    if (rp.tan.empty()) {
+        // The tangents the load generated in the mesh's space (the builder's,
+        // from the same numbers), mapped by the pose as a TANGENT would be.
+        std::vector<float> uvs[2];
+        for (int set = 0; set < 2; set++) {
+            auto it = p.attributes.find(set ? "TEXCOORD_1" : "TEXCOORD_0");
+            if (it == p.attributes.end())
+                continue;
+            snprintf(w2, sizeof w2, "TEXCOORD_%d of %s", set, what);
+            read_floats(im, it->second, w2, TINYGLTF_TYPE_VEC2, COMP_INT16, uvs[set]);
+        }
+        std::vector<uint32_t> tri;
+        if (flat) {
+            tri.resize(rp.nv);
+            for (uint32_t k = 0; k < rp.nv; k++)
+                tri[k] = k;
+            if (!uvs[0].empty() || !uvs[1].empty()) {
+                std::vector<uint32_t> corners = triangle_list(im, p, nv_file, what);
+                for (auto &u : uvs) {
+                    if (!u.empty() && u.size() / 2 != nv_file)
+                        im.fail(PT_ERR_FORMAT, "%s: attribute counts disagree", what);
+                    if (!u.empty())
+                        u = unweld(u, corners, 2);
+                }
+            }
+        } else {
+            tri = triangle_list(im, p, rp.nv, what);
+        }
+        bool ok = tri.size() % 3 == 0;
+        for (auto &u : uvs)
+            ok = ok && (u.empty() || u.size() / 2 == rp.nv);
+        if (!ok)
+            im.fail(PT_ERR_FORMAT, "%s: attribute counts disagree", what);
+        uint32_t mat = material_index(im, variant_material(im, p, what), what);
+        std::vector<float> tg(size_t(rp.nv) * 4);
+        int made = 0;
+        pt_error e{};
+        pt_status st = pt_scene_builder_mesh_tangents(
+            im.b, mat, rp.pos.data(), rp.nrm.empty() ? nullptr : rp.nrm.data(),
+            uvs[0].empty() ? nullptr : uvs[0].data(), uvs[1].empty() ? nullptr : uvs[1].data(),
+            rp.nv, tri.data(), uint32_t(tri.size() / 3), tg.data(), &made, &e);
+        im.check_builder(st, &e);
+        if (made)
+            rp.tan.swap(tg);
     }
     if (inst) {
         rp.has_inst = true;
@@ -2634,9 +2746,11 @@ bool gpu_instanced(const importer &im, const tinygltf::Node &n)
 }
 
 // The instanced visits (visit): each node's mesh once as a prototype,
-// shared by every node that instances it (the first such node names its
-// Cryptomatte object), then one instance for each of the node's instances
-// under its world matrix. After every flat mesh, as the builder wants.
+// shared by every node that instances it, then one instance for each of the
+// node's instances under its world matrix, in the node's Cryptomatte object
+// (its name, else "node N"), as its copies would be: the prototype's
+// triangles are named by the first node, its instances each by their own.
+// After every flat mesh, as the builder wants.
 void add_instanced(importer &im)
 {
     std::map<int, uint32_t> proto_of_mesh;
@@ -2646,9 +2760,9 @@ void add_instanced(importer &im)
         auto it = proto_of_mesh.find(n.mesh);
         uint32_t proto;
         pt_error e{};
+        std::string oname = n.name.empty() ? "node " + std::to_string(v.node) : n.name;
+        im.check_builder(pt_scene_builder_set_object(im.b, oname.c_str(), &e), &e);
         if (it == proto_of_mesh.end()) {
-            std::string oname = n.name.empty() ? "node " + std::to_string(v.node) : n.name;
-            im.check_builder(pt_scene_builder_set_object(im.b, oname.c_str(), &e), &e);
             im.check_builder(pt_scene_builder_begin_prototype(im.b, &proto, &e), &e);
             const tinygltf::Mesh &mesh = im.model.meshes[size_t(n.mesh)];
             for (size_t p = 0; p < mesh.primitives.size(); p++)
@@ -2716,10 +2830,11 @@ geo_count mesh_count(const tinygltf::Model &m, int mi)
         if (c > PT_SCENE_MAX_TRIANGLES * 3ull || v > PT_SCENE_MAX_TRIANGLES * 3ull)
             continue;
         geo_count g;
-        g.vtx = v;
-        g.deltas = v * uint64_t(p.targets.size() < PT_ANIM_MAX_TARGETS ? p.targets.size()
-                                                                       : PT_ANIM_MAX_TARGETS);
         g.tri = mode == TINYGLTF_MODE_TRIANGLES ? c / 3 : c >= 3 ? c - 2 : 0;
+        // Without NORMAL, one vertex a corner (add_primitive).
+        g.vtx = p.attributes.count("NORMAL") ? v : 3 * g.tri;
+        g.deltas = g.vtx * uint64_t(p.targets.size() < PT_ANIM_MAX_TARGETS ? p.targets.size()
+                                                                           : PT_ANIM_MAX_TARGETS);
         n.add(g);
     }
     return n;

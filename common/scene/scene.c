@@ -72,7 +72,8 @@ struct pt_scene_builder {
     int in_proto;
     double *inst_xf;
     uint32_t *inst_proto;
-    uint32_t ninst, cap_inst_xf, cap_inst_proto;
+    uint32_t *inst_obj; /* the object at add_instance, or UINT32_MAX: the prototype's */
+    uint32_t ninst, cap_inst_xf, cap_inst_proto, cap_inst_obj;
 };
 
 /* Grows *p (elements of `elem` bytes, `per` per item) to hold `need` items. */
@@ -183,6 +184,7 @@ void pt_scene_builder_free(pt_scene_builder *b)
     pt_free(b->protos);
     pt_free(b->inst_xf);
     pt_free(b->inst_proto);
+    pt_free(b->inst_obj);
     pt_free(b);
 }
 
@@ -694,11 +696,120 @@ pt_status pt_scene_builder_add_instance(pt_scene_builder *b, uint32_t proto, con
         return pt_error_set(err, PT_ERR_LIMIT, "instance %u: over the cap of %u instances a scene",
                             b->ninst, PT_SCENE_MAX_INSTANCES);
     if (!reserve((void **)&b->inst_xf, &b->cap_inst_xf, b->ninst + 1, sizeof(double), 16) ||
-        !reserve((void **)&b->inst_proto, &b->cap_inst_proto, b->ninst + 1, sizeof(uint32_t), 1))
+        !reserve((void **)&b->inst_proto, &b->cap_inst_proto, b->ninst + 1, sizeof(uint32_t), 1) ||
+        !reserve((void **)&b->inst_obj, &b->cap_inst_obj, b->ninst + 1, sizeof(uint32_t), 1))
         return pt_error_set(err, PT_ERR_NOMEM, "instance: out of memory");
     memcpy(b->inst_xf + 16 * (size_t)b->ninst, xform, 16 * sizeof(double));
+    b->inst_obj[b->ninst] = b->cur_obj >= 0 ? (uint32_t)b->cur_obj : UINT32_MAX;
     b->inst_proto[b->ninst++] = proto;
     return PT_OK;
+}
+
+/* Whether material m reads tangents, and from which UV set (0 or 1): the
+ * rule finish_extra applies, one tangent per vertex from the base normal
+ * map's set, else the coat normal map's, else the anisotropy texture's. */
+static int material_tangent_set(const pt_material *m, int *set)
+{
+    int coat = m->clearcoat > 0.0f && m->clearcoat_normal_tex >= 0;
+    int slot = m->normal_tex >= 0 ? PT_SLOT_NORMAL
+                                  : (coat ? PT_SLOT_CLEARCOAT_NORMAL : PT_SLOT_ANISOTROPY);
+    *set = m->tex_xf[slot].texcoord;
+    return m->normal_tex >= 0 || coat || (m->ext & PT_MATX_ANISOTROPY);
+}
+
+/*
+ * Tangents generated for a mesh without TANGENT, in the mesh's own space, into
+ * tan (4 per vertex, zeroed here): the builder then takes them to world space
+ * as it takes a given TANGENT (through the 3x3, the handedness flipped by a
+ * mirror). glTF 2.0 (3.7.2.1) asks for MikkTSpace over the mesh's vertex
+ * positions, and viewers generate them on the mesh and transform them with
+ * the node, so a node's non-uniform scale bends the tangents as it bends a
+ * given TANGENT; generated from world-space positions they would differ.
+ * It also makes an EXT_mesh_gpu_instancing instance, whose prototype is
+ * the mesh in its own space, shade as its copy does. The normals are the
+ * mesh-space ones the builder gives a mesh placed without a matrix (each
+ * normalised in double, or area-weighted from the positions where none is
+ * usable), so a copy and a prototype generate from the same numbers. A
+ * vertex whose tangent is not finite (a hostile position, refused later)
+ * is left zero with w = 1, which the builder leaves to finish.
+ */
+static pt_status mesh_space_tangents(const float *positions, const float *normals, const float *uv,
+                                     uint32_t nv, const uint32_t *indices, uint32_t nt, float *tan,
+                                     pt_error *err)
+{
+    float *n = pt_malloc((size_t)nv * 3 * sizeof(float));
+    double *acc = pt_calloc((size_t)nv * 3, sizeof(double));
+    float *flat = uv ? NULL : pt_calloc((size_t)nv * 2, sizeof(float));
+    uint32_t *idx = indices ? NULL : pt_malloc((size_t)nt * 3 * sizeof(uint32_t));
+    pt_status st = PT_OK;
+    if (!n || !acc || (!uv && !flat) || (!indices && !idx)) {
+        st = pt_error_set(err, PT_ERR_NOMEM, "tangents: out of memory for %u vertices", nv);
+        goto fail;
+    }
+    if (!indices)
+        for (uint32_t i = 0; i < 3 * nt; i++)
+            idx[i] = i;
+    const uint32_t *I = indices ? indices : idx;
+    for (uint32_t t = 0; t < nt; t++) {
+        const float *p0 = positions + 3 * (size_t)I[3 * t],
+                    *p1 = positions + 3 * (size_t)I[3 * t + 1],
+                    *p2 = positions + 3 * (size_t)I[3 * t + 2];
+        double e1[3] = {(double)p1[0] - p0[0], (double)p1[1] - p0[1], (double)p1[2] - p0[2]};
+        double e2[3] = {(double)p2[0] - p0[0], (double)p2[1] - p0[1], (double)p2[2] - p0[2]};
+        double g[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2],
+                       e1[0] * e2[1] - e1[1] * e2[0]};
+        if (!isfinite(g[0]) || !isfinite(g[1]) || !isfinite(g[2]))
+            continue;
+        for (int k = 0; k < 3; k++)
+            for (int r = 0; r < 3; r++)
+                acc[3 * (size_t)I[3 * t + k] + r] += g[r];
+    }
+    for (uint32_t v = 0; v < nv; v++) {
+        const double *a = acc + 3 * (size_t)v;
+        double m[3] = {a[0], a[1], a[2]};
+        if (normals) {
+            const float *g = normals + 3 * (size_t)v;
+            double l2 = (double)g[0] * g[0] + (double)g[1] * g[1] + (double)g[2] * g[2];
+            if (l2 > 0.0 && isfinite(l2))
+                m[0] = g[0], m[1] = g[1], m[2] = g[2];
+        }
+        double len = sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2]);
+        for (int r = 0; r < 3; r++)
+            n[3 * (size_t)v + r] = len > 0.0 && isfinite(len) ? (float)(m[r] / len) : (r == 2);
+    }
+    memset(tan, 0, (size_t)nv * 4 * sizeof(float));
+    st = pt_tangents_generate(positions, n, uv ? uv : flat, I, nt, NULL, nv, tan, err);
+    for (uint32_t v = 0; st == PT_OK && v < nv; v++) {
+        float *d = tan + 4 * (size_t)v;
+        if (!finite_n(d, 4)) {
+            d[0] = d[1] = d[2] = 0.0f;
+            d[3] = 1.0f;
+        } else if (d[3] == 0.0f) { /* no triangle reached it: left to finish */
+            d[3] = 1.0f;
+        }
+    }
+fail:
+    pt_free(n);
+    pt_free(acc);
+    pt_free(flat);
+    pt_free(idx);
+    return st;
+}
+
+pt_status pt_scene_builder_mesh_tangents(const pt_scene_builder *b, uint32_t material,
+                                         const float *positions, const float *normals,
+                                         const float *uvs, const float *uvs1, uint32_t nv,
+                                         const uint32_t *indices, uint32_t nt, float *tan,
+                                         int *made, pt_error *err)
+{
+    int set = 0;
+    *made = 0;
+    if (material >= b->nmat || !material_tangent_set(&b->mats[material], &set))
+        return PT_OK;
+    pt_status st =
+        mesh_space_tangents(positions, normals, set ? uvs1 : uvs, nv, indices, nt, tan, err);
+    *made = st == PT_OK;
+    return st;
 }
 
 pt_status pt_scene_builder_add_mesh_extra(pt_scene_builder *b, const char *what,
@@ -721,6 +832,8 @@ pt_status pt_scene_builder_add_mesh_extra(pt_scene_builder *b, const char *what,
         return PT_OK;
     if (!positions)
         return pt_error_set(err, PT_ERR_ARG, "%s: no positions", what);
+    float *gen_tan = NULL; /* tangents generated in the mesh's space */
+    pt_mesh_extra with_tan;
     if (b->nproto > 0 && !b->in_proto)
         return pt_error_set(err, PT_ERR_ARG,
                             "%s: a mesh in scene space after an instanced prototype (flat meshes "
@@ -746,6 +859,19 @@ pt_status pt_scene_builder_add_mesh_extra(pt_scene_builder *b, const char *what,
                                     "%s: index %u of triangle %u out of range (%u vertices)", what,
                                     indices[i], (uint32_t)(i / 3), nv);
     }
+    int tan_set = 0;
+    if (!extra->tangents && material_tangent_set(&b->mats[material], &tan_set)) {
+        int made = 0;
+        gen_tan = pt_malloc((size_t)nv * 4 * sizeof(float));
+        if (!gen_tan)
+            return pt_error_set(err, PT_ERR_NOMEM, "%s: out of memory for tangents", what);
+        if ((st = pt_scene_builder_mesh_tangents(b, material, positions, normals, uvs, extra->uvs1,
+                                                 nv, indices, nt, gen_tan, &made, err)) != PT_OK)
+            goto fail;
+        with_tan = *extra;
+        with_tan.tangents = gen_tan;
+        extra = &with_tan;
+    }
     uint32_t nv_all = b->nv + nv, nt_all = b->nt + nt;
     if (!reserve((void **)&b->pos, &b->cap_pos, nv_all, sizeof(double), 3) ||
         !reserve((void **)&b->nrm, &b->cap_nrm, nv_all, sizeof(float), 3) ||
@@ -755,8 +881,10 @@ pt_status pt_scene_builder_add_mesh_extra(pt_scene_builder *b, const char *what,
         !reserve((void **)&b->tobj, &b->cap_tobj, nt_all, sizeof(uint32_t), 1) ||
         !extra_reserve(&b->uv1, &b->cap_uv1, b->nv, nv_all, 2, extra->uvs1, zero4) ||
         !extra_reserve(&b->tan, &b->cap_tan, b->nv, nv_all, 4, extra->tangents, zero4) ||
-        !extra_reserve(&b->col, &b->cap_col, b->nv, nv_all, 4, extra->colors, one4))
-        return pt_error_set(err, PT_ERR_NOMEM, "%s: out of memory", what);
+        !extra_reserve(&b->col, &b->cap_col, b->nv, nv_all, 4, extra->colors, one4)) {
+        st = pt_error_set(err, PT_ERR_NOMEM, "%s: out of memory", what);
+        goto fail;
+    }
 
     double c[3][3];
     double det = pt_normal_matrix(xform, c);
@@ -772,19 +900,23 @@ pt_status pt_scene_builder_add_mesh_extra(pt_scene_builder *b, const char *what,
             q[r] = xform
                        ? xform[r] * p[0] + xform[4 + r] * p[1] + xform[8 + r] * p[2] + xform[12 + r]
                        : (double)p[r];
-            if (!isfinite(q[r]) || fabs(q[r]) > (double)PT_SCENE_MAX_COORD)
-                return pt_error_set(err, PT_ERR_FORMAT,
-                                    "%s: vertex %u position (%g, %g, %g) is not finite or over "
-                                    "%g in world space",
-                                    what, v, (double)p[0], (double)p[1], (double)p[2],
-                                    (double)PT_SCENE_MAX_COORD);
+            if (!isfinite(q[r]) || fabs(q[r]) > (double)PT_SCENE_MAX_COORD) {
+                st = pt_error_set(err, PT_ERR_FORMAT,
+                                  "%s: vertex %u position (%g, %g, %g) is not finite or over "
+                                  "%g in world space",
+                                  what, v, (double)p[0], (double)p[1], (double)p[2],
+                                  (double)PT_SCENE_MAX_COORD);
+                goto fail;
+            }
             P[3 * v + r] = q[r];
         }
         if (normals) {
             const float *n = normals + 3 * (size_t)v;
-            if (!finite_n(n, 3))
-                return pt_error_set(err, PT_ERR_FORMAT, "%s: vertex %u normal is not finite", what,
-                                    v);
+            if (!finite_n(n, 3)) {
+                st =
+                    pt_error_set(err, PT_ERR_FORMAT, "%s: vertex %u normal is not finite", what, v);
+                goto fail;
+            }
             double m[3], len2 = 0;
             for (int r = 0; r < 3; r++) {
                 m[r] = nsign * (c[r][0] * n[0] + c[r][1] * n[1] + c[r][2] * n[2]);
@@ -801,22 +933,24 @@ pt_status pt_scene_builder_add_mesh_extra(pt_scene_builder *b, const char *what,
         }
         if (uvs) {
             const float *t = uvs + 2 * (size_t)v;
-            if (!finite_n(t, 2))
-                return pt_error_set(err, PT_ERR_FORMAT, "%s: vertex %u TEXCOORD is not finite",
-                                    what, v);
+            if (!finite_n(t, 2)) {
+                st = pt_error_set(err, PT_ERR_FORMAT, "%s: vertex %u TEXCOORD is not finite", what,
+                                  v);
+                goto fail;
+            }
             UV[2 * v] = t[0];
             UV[2 * v + 1] = t[1];
         } else {
             UV[2 * v] = UV[2 * v + 1] = 0.0f;
         }
         if ((st = add_vertex_extra(b, what, extra, v, xform, nsign, err)) != PT_OK)
-            return st;
+            goto fail;
     }
     uint32_t obj = 0;
     if (b->cur_obj >= 0)
         obj = (uint32_t)b->cur_obj;
     else if ((st = object_of(b, what, &obj, err)) != PT_OK)
-        return st;
+        goto fail;
     uint32_t *I = b->idx + 3 * (size_t)b->nt;
     for (uint32_t t = 0; t < nt; t++) {
         b->tobj[b->nt + t] = obj;
@@ -884,6 +1018,7 @@ pt_status pt_scene_builder_add_mesh_extra(pt_scene_builder *b, const char *what,
     b->nt = nt_all;
 fail:
     pt_free(acc);
+    pt_free(gen_tan);
     return st;
 }
 
@@ -1720,6 +1855,11 @@ static pt_status finish_instances(pt_scene_builder *b, pt_scene *s, double sc, c
         instance_world(x, sc, t, m);
         double det = pt_normal_matrix(x, c);
         in->proto = b->inst_proto[i];
+        in->object = b->inst_obj[i];
+        if (in->object == UINT32_MAX) {
+            const pt_prototype *pp = &s->prototypes[in->proto];
+            in->object = pp->num_tris > 0 ? s->tri_object[pp->first_tri] : 0;
+        }
         in->tan_sign = det < 0.0 ? -1.0f : 1.0f;
         for (int r = 0; r < 3; r++)
             for (int k = 0; k < 3; k++)

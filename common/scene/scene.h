@@ -319,7 +319,8 @@ typedef struct pt_instance {
     float xf[12];
     float nm[9];
     float tan_sign;
-    uint32_t proto; /* index into pt_scene.prototypes */
+    uint32_t proto;  /* index into pt_scene.prototypes */
+    uint32_t object; /* its object, an index into object_names (Cryptomatte) */
 } pt_instance;
 
 /* The most instances a scene may have (PT_FEAT_INSTANCES): each costs
@@ -635,14 +636,30 @@ pt_status pt_scene_builder_add_texture(pt_scene_builder *b, const pt_texture *te
 /* Vertex attributes beyond position, normal and TEXCOORD_0; any may be NULL.
  * uvs1: 2 per vertex (TEXCOORD_1). tangents: 4 per vertex in the mesh's
  * space (glTF TANGENT: xyz, w = +-1), transformed with the mesh (a
- * mirroring transform flips w); vertices without one get tangents generated
- * at finish when a material needs them (tangent.h). colors: 4 per vertex
+ * mirroring transform flips w). Without tangents, when the mesh's material
+ * needs them (a normal map, a coat normal map, anisotropy), they are
+ * generated (tangent.h) in the mesh's own space from its positions, its
+ * normals and the map's UV set, then transformed as given ones are, so a
+ * node's matrix, non-uniform scale included, maps them as viewers do and an
+ * instance's prototype gets the same; a given tangent of zero length is
+ * generated at finish, in world space. colors: 4 per vertex
  * (COLOR_0, linear RGBA; a VEC3 is given with alpha 1). */
 typedef struct pt_mesh_extra {
     const float *uvs1;
     const float *tangents;
     const float *colors;
 } pt_mesh_extra;
+
+/* The tangents pt_scene_builder_add_mesh_extra generates for a mesh without
+ * them, in the mesh's own space (4 per vertex into tan; *made 1), when
+ * material needs them; else *made 0 and tan untouched. The arguments are
+ * add_mesh_extra's (uvs1: extra's TEXCOORD_1). For a rig that poses the
+ * mesh and must map the load's tangents. PT_ERR_NOMEM. */
+pt_status pt_scene_builder_mesh_tangents(const pt_scene_builder *b, uint32_t material,
+                                         const float *positions, const float *normals,
+                                         const float *uvs, const float *uvs1, uint32_t nv,
+                                         const uint32_t *indices, uint32_t nt, float *tan,
+                                         int *made, pt_error *err);
 
 /* Adds a triangle mesh. positions: 3*nv floats; normals: 3*nv or NULL (then
  * computed, area-weighted); uvs: 2*nv or NULL; indices: 3*nt, or NULL for
@@ -694,7 +711,10 @@ pt_status pt_scene_builder_end_prototype(pt_scene_builder *b, pt_error *err);
  * (before opts' scale and translation, as a mesh's). PT_ERR_FORMAT for a
  * non-finite matrix or one whose last row is not (0, 0, 0, 1), PT_ERR_LIMIT
  * past PT_SCENE_MAX_INSTANCES. A singular matrix (a scale of 0, which
- * hides an instance) places nothing. */
+ * hides an instance) places nothing. The instance belongs to the object of
+ * the last pt_scene_builder_set_object (else to its prototype's first
+ * triangle's), whatever object the prototype's triangles have: each node
+ * that instances a shared mesh keeps its own Cryptomatte name. */
 pt_status pt_scene_builder_add_instance(pt_scene_builder *b, uint32_t proto, const double xform[16],
                                         pt_error *err);
 /* Adds a camera (copied) in world space. Rejects (PT_ERR_FORMAT) non-finite

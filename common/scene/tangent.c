@@ -62,6 +62,15 @@ pt_status pt_tangents_generate(const float *pos, const float *nrm, const float *
             if (tv[0] == 0.0f && tv[1] == 0.0f && tv[2] == 0.0f && tv[3] == 0.0f)
                 want[i[k]] = 1;
         }
+    }
+    for (uint32_t t = 0; t < nt; t++) {
+        if (use && !use[t])
+            continue;
+        const uint32_t *i = &idx[3 * (size_t)t];
+        /* A triangle none of whose corners is wanted adds to no sum that is
+         * read: skipped (a scene whose tangents the builder made already). */
+        if (!want[i[0]] && !want[i[1]] && !want[i[2]])
+            continue;
         const float *p0 = &pos[3 * (size_t)i[0]], *p1 = &pos[3 * (size_t)i[1]],
                     *p2 = &pos[3 * (size_t)i[2]];
         const float *t0 = &uv[2 * (size_t)i[0]], *t1 = &uv[2 * (size_t)i[1]],
@@ -82,6 +91,8 @@ pt_status pt_tangents_generate(const float *pos, const float *nrm, const float *
             tu[r] = sg * (e1[r] * dv2 - e2[r] * dv1);
         const float *ps[3] = {p0, p1, p2};
         for (int k = 0; k < 3; k++) {
+            if (!want[i[k]])
+                continue;
             double w = corner_angle(ps[k], ps[(k + 1) % 3], ps[(k + 2) % 3]);
             double tp[3];
             if (!(w > 0.0) || !project_unit(tu, &nrm[3 * (size_t)i[k]], tp))

@@ -19,6 +19,9 @@
  *   (whole sample counts over n), each is its area's share within 5 binomial
  *   standard deviations, and the ids are the hashes of the objects' and
  *   materials' names.
+ * - Instancing: a glTF whose nodes instance one mesh (EXT_mesh_gpu_instancing)
+ *   gives, kept as instances, the object layers and manifest of its copies:
+ *   each instance its own node's name (instanced_names).
  */
 #include <math.h>
 #include <stdio.h>
@@ -324,6 +327,177 @@ static void render_coverage(void)
     pt_scene_free(s);
 }
 
+/*
+ * Cryptomatte through EXT_mesh_gpu_instancing: nodes "left" and "right"
+ * instance one quad mesh twice each, side by side; a third, unnamed node
+ * (node 2) instances it once. Loaded as a still the mesh is one prototype
+ * under five instances; loaded for animation (the camera's node has one,
+ * which keeps its place) it is five copies.
+ * Every pixel's object ids and coverages are the same in both, each quad
+ * carries its own node's name (the prototype's first node would name all
+ * five otherwise), and the object manifests are equal.
+ */
+static pt_scene *load_quads(const char *path, int copies)
+{
+    pt_scene_opts o = {0};
+    o.animate = copies;
+    pt_scene *s = NULL;
+    pt_error err = {0};
+    CHECKF(pt_scene_load(path, &o, &s, &err) == PT_OK, "%s", err.msg);
+    return s;
+}
+
+enum { QW = 40, QSPP = 32 };
+
+/* The scene's CryptoObject00 and 01 planes (R, G, B, A each) into ids. */
+static void object_planes(const pt_scene *s, float *ids)
+{
+    pt_render_params p = {0};
+    pt_render_params_default(&p);
+    p.width = p.height = QW;
+    p.seed = 3;
+    p.passes = PT_PASS_CRYPTOMATTE;
+    pt_renderer *r = NULL;
+    pt_error err = {0};
+    CHECKF(pt_renderer_new(s, &p, &r, &err) == PT_OK, "%s", err.msg);
+    static pt_pixel_acc acc[QW * QW];
+    static pt_pass_acc pacc[QW * QW];
+    const pt_rect all = {0, 0, QW, QW};
+    pt_film *film = NULL;
+    pt_image *img = NULL;
+    CHECK(pt_film_new(QW, QW, &film, &err) == PT_OK);
+    CHECK(pt_film_enable_passes(film, PT_PASS_CRYPTOMATTE, &err) == PT_OK);
+    CHECK(pt_image_new(QW, QW, &img, &err) == PT_OK);
+    if (r && film && img) {
+        memset(acc, 0, sizeof acc);
+        memset(pacc, 0, sizeof pacc);
+        pt_render_tile_passes(r, all, 0, QSPP, acc, pacc, NULL, NULL);
+        pt_film_add_tile_passes(film, all, acc, pacc);
+        pt_film_resolve(film, img);
+        const char *names[8] = {"CryptoObject00.R", "CryptoObject00.G", "CryptoObject00.B",
+                                "CryptoObject00.A", "CryptoObject01.R", "CryptoObject01.G",
+                                "CryptoObject01.B", "CryptoObject01.A"};
+        for (int k = 0; k < 8; k++) {
+            const float *pl = pt_image_find_plane(img, names[k]);
+            CHECK(pl != NULL);
+            if (pl)
+                memcpy(ids + (size_t)k * QW * QW, pl, sizeof(float) * QW * QW);
+        }
+    }
+    pt_image_free(img);
+    pt_film_free(film);
+    pt_renderer_free(r);
+}
+
+static void instanced_names(void)
+{
+    char dir[] = "/tmp/ptcrypto.XXXXXX";
+    if (!mkdtemp(dir)) {
+        CHECK(0);
+        return;
+    }
+    /* 4 positions, 6 indices, then 2 + 2 + 1 instance translations. */
+    struct {
+        float pos[12];
+        uint16_t idx[6];
+        float tr[15];
+        float key[2], cam[6]; /* the camera's (still) animation */
+    } bin = {{0, 0, 0, 1, 0, 0, 1, 1, 0, 0, 1, 0},
+             {0, 1, 2, 0, 2, 3},
+             {-4.0f, 0, 0, -2.5f, 0, 0, -1.0f, 0, 0, 0.5f, 0, 0, 2.0f, 0, 0},
+             {0, 1},
+             {-0.5f, 0.5f, 5, -0.5f, 0.5f, 5}};
+    _Static_assert(sizeof bin == 48 + 12 + 60 + 32, "packed");
+    static const char json[] =
+        "{\"asset\":{\"version\":\"2.0\"},\"extensionsUsed\":[\"EXT_mesh_gpu_instancing\"],"
+        "\"buffers\":[{\"uri\":\"q.bin\",\"byteLength\":152}],"
+        "\"bufferViews\":[{\"buffer\":0,\"byteOffset\":0,\"byteLength\":48},"
+        "{\"buffer\":0,\"byteOffset\":48,\"byteLength\":12},"
+        "{\"buffer\":0,\"byteOffset\":60,\"byteLength\":60},"
+        "{\"buffer\":0,\"byteOffset\":120,\"byteLength\":32}],"
+        "\"accessors\":[{\"bufferView\":0,\"componentType\":5126,\"count\":4,\"type\":\"VEC3\","
+        "\"min\":[0,0,0],\"max\":[1,1,0]},"
+        "{\"bufferView\":1,\"componentType\":5123,\"count\":6,\"type\":\"SCALAR\"},"
+        "{\"bufferView\":2,\"componentType\":5126,\"count\":2,\"type\":\"VEC3\"},"
+        "{\"bufferView\":2,\"byteOffset\":24,\"componentType\":5126,\"count\":2,"
+        "\"type\":\"VEC3\"},"
+        "{\"bufferView\":2,\"byteOffset\":48,\"componentType\":5126,\"count\":1,"
+        "\"type\":\"VEC3\"},"
+        "{\"bufferView\":3,\"componentType\":5126,\"count\":2,\"type\":\"SCALAR\","
+        "\"min\":[0],\"max\":[1]},"
+        "{\"bufferView\":3,\"byteOffset\":8,\"componentType\":5126,\"count\":2,"
+        "\"type\":\"VEC3\"}],"
+        "\"animations\":[{\"channels\":[{\"sampler\":0,\"target\":{\"node\":3,"
+        "\"path\":\"translation\"}}],\"samplers\":[{\"input\":5,\"output\":6}]}],"
+        "\"meshes\":[{\"primitives\":[{\"attributes\":{\"POSITION\":0},\"indices\":1}]}],"
+        "\"cameras\":[{\"type\":\"orthographic\",\"orthographic\":{\"xmag\":3.5,"
+        "\"ymag\":3.5,\"znear\":0.1,\"zfar\":100}}],"
+        "\"nodes\":[{\"name\":\"left\",\"mesh\":0,\"extensions\":{\"EXT_mesh_gpu_instancing\":"
+        "{\"attributes\":{\"TRANSLATION\":2}}}},"
+        "{\"name\":\"right\",\"mesh\":0,\"extensions\":{\"EXT_mesh_gpu_instancing\":"
+        "{\"attributes\":{\"TRANSLATION\":3}}}},"
+        "{\"mesh\":0,\"extensions\":{\"EXT_mesh_gpu_instancing\":"
+        "{\"attributes\":{\"TRANSLATION\":4}}}},"
+        "{\"camera\":0,\"translation\":[-0.5,0.5,5]}],"
+        "\"scenes\":[{\"nodes\":[0,1,2,3]}],\"scene\":0}";
+    char gltf[300], qbin[300];
+    snprintf(gltf, sizeof gltf, "%s/quads.gltf", dir);
+    snprintf(qbin, sizeof qbin, "%s/q.bin", dir);
+    FILE *f = fopen(qbin, "wb");
+    CHECK(f && fwrite(&bin, sizeof bin, 1, f) == 1);
+    if (f)
+        fclose(f);
+    f = fopen(gltf, "wb");
+    CHECK(f && fwrite(json, strlen(json), 1, f) == 1);
+    if (f)
+        fclose(f);
+    pt_scene *si = load_quads(gltf, 0), *sc = load_quads(gltf, 1);
+    if (si && sc) {
+        CHECK(si->num_instances == 5 && (si->features & PT_FEAT_INSTANCES));
+        CHECKF(sc->num_instances == 0 && sc->num_triangles == 10, "%u instances, %u triangles",
+               sc->num_instances, sc->num_triangles);
+        pt_error err = {0};
+        pt_crypto_meta mi, mc;
+        CHECK(pt_crypto_meta_init(&mi, si, &err) == PT_OK);
+        CHECK(pt_crypto_meta_init(&mc, sc, &err) == PT_OK);
+        CHECKF(!strcmp(mi.manifest[PT_CRYPTO_OBJECT], mc.manifest[PT_CRYPTO_OBJECT]),
+               "manifests %s and %s", mi.manifest[PT_CRYPTO_OBJECT], mc.manifest[PT_CRYPTO_OBJECT]);
+        char found[32];
+        CHECK(pt_crypto_manifest_find(mi.manifest[PT_CRYPTO_OBJECT], pt_crypto_id("node 2"), found,
+                                      sizeof found) == 1);
+        pt_crypto_meta_fini(&mi);
+        pt_crypto_meta_fini(&mc);
+        static float a[8 * QW * QW], b[8 * QW * QW];
+        object_planes(si, a);
+        object_planes(sc, b);
+        int differ = 0;
+        for (size_t i = 0; i < 8 * QW * QW; i++)
+            differ += bits_of(a[i]) != bits_of(b[i]);
+        CHECKF(differ == 0, "%d values of the object layers differ between instances and copies",
+               differ);
+        /* Each quad's middle (quad q spans x in [x_q, x_q + 1], y in [0, 1];
+         * the view is x in [-4, 3], y in [-3, 4]): its node's name, wholly. */
+        const struct {
+            float x;
+            const char *name;
+        } quads[5] = {
+            {-4.0f, "left"}, {-2.5f, "left"}, {-1.0f, "right"}, {0.5f, "right"}, {2.0f, "node 2"}};
+        for (int q = 0; q < 5; q++) {
+            uint32_t px = (uint32_t)((quads[q].x + 0.5f + 4.0f) / 7.0f * QW);
+            uint32_t py = (uint32_t)((4.0f - 0.5f) / 7.0f * QW);
+            size_t i = (size_t)py * QW + px;
+            CHECKF(a[i] == pt_crypto_float(pt_crypto_id(quads[q].name)) && a[QW * QW + i] == 1.0f,
+                   "quad %d: id %08x, coverage %g, want %s", q, bits_of(a[i]),
+                   (double)a[QW * QW + i], quads[q].name);
+        }
+    }
+    pt_scene_free(si);
+    pt_scene_free(sc);
+    unlink(gltf);
+    unlink(qbin);
+    rmdir(dir);
+}
+
 int main(void)
 {
     hash_vectors();
@@ -331,6 +505,7 @@ int main(void)
     manifest();
     merge_associative();
     render_coverage();
+    instanced_names();
     CHECK(pt_alloc_live() == 0);
     return check_report();
 }

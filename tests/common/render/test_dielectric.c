@@ -28,6 +28,12 @@
  *   (both faces and their multiple reflections); over an emitter Le, a slab
  *   of thickness d with attenuation colour c at distance D transmits
  *   Le (1 - F)^2 tau / (1 - F^2 tau^2), tau = c^(d / D) per channel.
+ * - Media measured exactly: through a slab of ior 1 at large coordinates
+ *   (offsets of 0.25; also as an instance) and at the origin, at 0, 60 and
+ *   80 degrees, every sample is E c^(L / (D cos theta)) to float precision
+ *   (media_exact);
+ *   a point light inside a rough absorbing box renders the same with ray
+ *   offsets of 0.002 and of 0.25 (media_nee).
  * - Estimators: a rough thin pane before an emitter reads the same with MIS,
  *   NEE only and BSDF sampling only (NEE through a rough BTDF works); so it
  *   does before a BLEND emitter of alpha 0.5 (NEE from glass weighs the
@@ -56,6 +62,7 @@
 #include "common/scene/scene.h"
 #include "tests/check.h"
 #include "tests/common/render/closure_of.h"
+#include "tests/common/render/paired.h"
 #include "tests/stats.h"
 
 #define PI_D 3.14159265358979323846
@@ -674,6 +681,149 @@ static void slabs(void)
     pt_scene_free(s);
 }
 
+/*
+ * The distance a path travels in a medium is the true one: a smooth slab of
+ * ior 1 (light goes straight through, weight 1), thickness L and
+ * attenuation c^(x / D), under a uniform sky E, seen by an orthographic
+ * camera at incidence theta, gives every sample E c^(L / (D cos theta)).
+ * The slab's top is at z0: 0, or 12288 in a scene 24,576 across, where a
+ * ray's origin is offset from a hit by 256 ULPs of 12288 (0.25, Waechter
+ * & Binder); measured from the offset origins instead of the hit points,
+ * each crossing would be shortened by about the offset over cos theta.
+ * Tolerance, from float precision: the two hit points' z are each within
+ * 2 ULPs of their faces', so the length is within 4 ULP(z0) / cos theta,
+ * which moves the transmittance by sigma times that, sigma = ln(1 / c) / D;
+ * plus 1e-5 for expf and logf.
+ */
+static void media_exact(void)
+{
+    const float E = 1.5f, L = 1.0f, D = 0.8f, c = 0.5f;
+    pt_env *env = NULL;
+    pt_error err = {0};
+    CHECKF(pt_env_uniform(pt_v3(E, E, E), &env, &err) == PT_OK, "%s", err.msg);
+    /* z0, and whether the slab is an instance of a prototype at the origin
+     * (EXT_mesh_gpu_instancing: medium_length takes the hit through it). */
+    const float z0s[3] = {0.0f, 12288.0f, 12288.0f}, degs[3] = {0.0f, 60.0f, 80.0f};
+    for (int zi = 0; zi < 3; zi++)
+        for (int di = 0; di < 3; di++) {
+            float z0 = z0s[zi];
+            int inst = zi == 2;
+            double th = degs[di] * PI_D / 180.0;
+            pt_scene_builder *b = NULL;
+            CHECK(pt_scene_builder_new(&b, &err) == PT_OK);
+            pt_material g = glass_mat(0.0f, L);
+            g.ior = 1.0f;
+            for (int k = 0; k < 3; k++)
+                g.attenuation_color[k] = c;
+            g.attenuation_distance = D;
+            uint32_t gm = add_mat(b, &g);
+            if (!inst)
+                add_box(b, pt_v3(-100, -100, z0 - L), pt_v3(100, 100, z0), gm);
+            if (z0 > 0.0f) {
+                /* Far below, out of every ray's way: the scene spans
+                 * 2 z0, so its origin stays at 0. */
+                pt_material f = pt_material_default();
+                uint32_t fm = add_mat(b, &f);
+                const float tri[9] = {-z0, -z0, -z0, 1 - z0, -z0, -z0, -z0, 1 - z0, -z0};
+                CHECKF(pt_scene_builder_add_mesh(b, "far", tri, NULL, NULL, 3, NULL, 1, NULL, fm,
+                                                 &err) == PT_OK,
+                       "%s", err.msg);
+            }
+            if (inst) {
+                uint32_t proto = 0;
+                const double xf[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, z0, 1};
+                CHECK(pt_scene_builder_begin_prototype(b, &proto, &err) == PT_OK);
+                add_box(b, pt_v3(-100, -100, -L), pt_v3(100, 100, 0), gm);
+                CHECK(pt_scene_builder_end_prototype(b, &err) == PT_OK);
+                CHECKF(pt_scene_builder_add_instance(b, proto, xf, &err) == PT_OK, "%s", err.msg);
+            }
+            pt_camera cam = {0};
+            cam.forward = pt_v3((float)sin(th), 0.0f, (float)-cos(th));
+            cam.position = pt_v3_sub(pt_v3(0, 0, z0), pt_v3_scale(cam.forward, 4.0f));
+            cam.right = pt_v3(0, 1, 0);
+            cam.up = pt_v3_cross(cam.right, cam.forward);
+            cam.ortho = 1; /* 0.5 wide: every origin above the slab */
+            cam.xmag = cam.ymag = 0.25f;
+            cam.aspect = 1.0f;
+            snprintf(cam.name, sizeof cam.name, "cam");
+            CHECKF(pt_scene_builder_add_camera(b, &cam, &err) == PT_OK, "%s", err.msg);
+            pt_scene_opts o = {0};
+            pt_scene *s = NULL;
+            CHECKF(pt_scene_builder_finish(b, &o, &s, &err) == PT_OK, "%s", err.msg);
+            if (!s)
+                continue;
+            CHECK(s->features & PT_FEAT_VOLUME);
+            CHECK(s->origin[2] == 0.0);
+            CHECK(!inst || s->num_instances == 1);
+            /* The camera's direction as the renderer takes it (float). */
+            double cz = fabs((double)pt_v3_norm(cam.forward).z);
+            double sigma = log(1.0 / c) / D, len = L / cz;
+            double want = E * exp(-sigma * len);
+            double ulp = z0 > 0.0f ? ldexp(1.0, ilogb(z0) - 23) : ldexp(1.0, -23);
+            double tol = sigma * 4.0 * ulp / cz + 1e-5;
+            image_stats is = render_stats(s, env, 8, 4, 1000, PT_LIGHT_MIS, want);
+            printf("medium at z %g%s, %g degrees: a sample off E exp(-sigma %.4f) = %.6f by %.3g "
+                   "(tolerance %.3g)\n",
+                   (double)z0, inst ? " (instance)" : "", (double)degs[di], len, want, is.max_dev,
+                   tol);
+            CHECKF(is.max_dev <= tol,
+                   "slab at z %g, %g degrees: a sample is off %.6f by %.3g of it, over %.3g",
+                   (double)z0, (double)degs[di], want, is.max_dev, tol);
+            CHECK(is.rejected == 0);
+            pt_scene_free(s);
+        }
+    pt_env_free(env);
+}
+
+/*
+ * Light sampled from inside a medium crosses it the true distance too: a
+ * point light inside a rough absorbing glass box, seen from above, renders
+ * the same, paired sample by sample (paired.h), whether the scene is alone
+ * (ray offsets of 0.002) or has a triangle 12,288 away (offsets of 0.25,
+ * scaled to the scene): every shadow ray from a face of the box measures
+ * its medium from the face's hit point to the light, not from the offset
+ * origin, which would brighten the far-anchored scene by exp(sigma 0.25).
+ */
+static void media_nee(void)
+{
+    pt_scene *sc[2] = {NULL, NULL};
+    for (int far = 0; far < 2; far++) {
+        pt_error err = {0};
+        pt_scene_builder *b = NULL;
+        CHECK(pt_scene_builder_new(&b, &err) == PT_OK);
+        pt_material g = glass_mat(0.4f, 1.0f);
+        for (int k = 0; k < 3; k++)
+            g.attenuation_color[k] = 0.5f;
+        g.attenuation_distance = 0.8f;
+        add_box(b, pt_v3(-2, -2, -1), pt_v3(2, 2, 0), add_mat(b, &g));
+        if (far) {
+            pt_material f = pt_material_default();
+            uint32_t fm = add_mat(b, &f);
+            const float tri[9] = {-12288, -12288, -12288, -12287, -12288,
+                                  -12288, -12288, -12287, -12288};
+            CHECKF(pt_scene_builder_add_mesh(b, "far", tri, NULL, NULL, 3, NULL, 1, NULL, fm,
+                                             &err) == PT_OK,
+                   "%s", err.msg);
+        }
+        pt_punctual l;
+        memset(&l, 0, sizeof l);
+        l.type = PT_PUNCTUAL_POINT;
+        l.intensity = pt_v3(1.0f, 1.0f, 1.0f);
+        l.direction = pt_v3(0.0f, 0.0f, -1.0f);
+        snprintf(l.name, sizeof l.name, "inside");
+        const double lp[3] = {0.1, 0.2, -0.5};
+        CHECKF(pt_scene_builder_add_punctual(b, &l, lp, &err) == PT_OK, "%s", err.msg);
+        sc[far] = finish(b, 2.0f, 1, 0.0f);
+    }
+    if (sc[0] && sc[1]) {
+        int d = paired_differing(sc[0], sc[1], NULL, 8, 64);
+        printf("a light inside a medium, offsets of 0.002 and 0.25: %d channels differ\n", d);
+        CHECKF(d == 0, "%d pixel channels differ with larger ray offsets", d);
+    }
+    pt_scene_free(sc[0]);
+    pt_scene_free(sc[1]);
+}
+
 /* A thin rough pane at z = 0 before an emitter quad at z = -1, both 1.2
  * wide; the three strategies agree. blend: the emitter is a BLEND surface of
  * alpha 0.5, which a BSDF-sampled ray meets half the time, so NEE from the
@@ -957,6 +1107,8 @@ int main(void)
     energy();
     furnace();
     slabs();
+    media_exact();
+    media_nee();
     strategies(0);
     strategies(1);
     determinism();

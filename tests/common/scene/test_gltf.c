@@ -594,7 +594,7 @@ static void test_hostile(void)
  * node that mirrors x (so the tangent's x and its w flip). */
 static void test_attributes(void)
 {
-    unsigned char bin[144];
+    unsigned char bin[180];
     memset(bin, 0, sizeof bin);
     const float pos[9] = {0, 0, 0, 1, 0, 0, 0, 1, 0};
     const float uv0[6] = {0, 0, 1, 0, 0, 1};
@@ -606,6 +606,9 @@ static void test_attributes(void)
     memcpy(bin + 60, uv1, 24);
     memcpy(bin + 84, tan, 48);
     memcpy(bin + 132, col, 12);
+    /* NORMAL: without it a file's TANGENT is ignored (glTF 2.0, 3.7.2.1). */
+    const float nrm[9] = {0, 0, 1, 0, 0, 1, 0, 0, 1};
+    memcpy(bin + 144, nrm, 36);
     write_file("attr.bin", bin, sizeof bin);
     unsigned char px[16] = {255, 0, 0, 255, 0, 255, 0, 255, 0, 0, 255, 255, 255, 255, 255, 255};
     CHECK(stbi_write_png(tpath("attr.png"), 2, 2, 4, px, 8) != 0);
@@ -613,12 +616,13 @@ static void test_attributes(void)
         "{\"asset\":{\"version\":\"2.0\"},"
         "\"extensionsUsed\":[\"KHR_texture_transform\"],"
         "\"extensionsRequired\":[\"KHR_texture_transform\"],"
-        "\"buffers\":[{\"uri\":\"attr.bin\",\"byteLength\":144}],"
+        "\"buffers\":[{\"uri\":\"attr.bin\",\"byteLength\":180}],"
         "\"bufferViews\":[{\"buffer\":0,\"byteOffset\":0,\"byteLength\":36},"
         "{\"buffer\":0,\"byteOffset\":36,\"byteLength\":24},"
         "{\"buffer\":0,\"byteOffset\":60,\"byteLength\":24},"
         "{\"buffer\":0,\"byteOffset\":84,\"byteLength\":48},"
-        "{\"buffer\":0,\"byteOffset\":132,\"byteLength\":12}],"
+        "{\"buffer\":0,\"byteOffset\":132,\"byteLength\":12},"
+        "{\"buffer\":0,\"byteOffset\":144,\"byteLength\":36}],"
         "\"accessors\":["
         "{\"bufferView\":0,\"componentType\":5126,\"count\":3,\"type\":\"VEC3\","
         "\"min\":[0,0,0],\"max\":[1,1,0]},"
@@ -626,9 +630,10 @@ static void test_attributes(void)
         "{\"bufferView\":2,\"componentType\":5126,\"count\":3,\"type\":\"VEC2\"},"
         "{\"bufferView\":3,\"componentType\":5126,\"count\":3,\"type\":\"VEC4\"},"
         "{\"bufferView\":4,\"componentType\":5121,\"normalized\":true,\"count\":3,"
-        "\"type\":\"VEC4\"}],"
+        "\"type\":\"VEC4\"},"
+        "{\"bufferView\":5,\"componentType\":5126,\"count\":3,\"type\":\"VEC3\"}],"
         "\"meshes\":[{\"primitives\":[{\"attributes\":{\"POSITION\":0,\"TEXCOORD_0\":1,"
-        "\"TEXCOORD_1\":2,\"TANGENT\":3,\"COLOR_0\":4},\"material\":0}]}],"
+        "\"TEXCOORD_1\":2,\"TANGENT\":3,\"COLOR_0\":4,\"NORMAL\":5},\"material\":0}]}],"
         "\"materials\":[{\"pbrMetallicRoughness\":{\"metallicFactor\":0,"
         "\"baseColorTexture\":{\"index\":0,\"extensions\":{\"KHR_texture_transform\":"
         "{\"offset\":[0.5,0],\"texCoord\":1}}}},"
@@ -1320,7 +1325,8 @@ static void make_many_vertices(const char *name, int n)
     snprintf(json, jcap,
              "{\"asset\":{\"version\":\"2.0\"},\"scene\":0,\"scenes\":[{\"nodes\":[0]}],"
              "\"nodes\":%s,"
-             "\"meshes\":[{\"primitives\":[{\"attributes\":{\"POSITION\":0},\"indices\":1}]}],"
+             "\"meshes\":[{\"primitives\":[{\"attributes\":{\"POSITION\":0,\"NORMAL\":0},"
+             "\"indices\":1}]}],"
              "\"buffers\":[{\"uri\":\"verts.bin\",\"byteLength\":%u}],"
              "\"bufferViews\":[{\"buffer\":0,\"byteOffset\":0,\"byteLength\":%u},"
              "{\"buffer\":0,\"byteOffset\":%u,\"byteLength\":3}],"
@@ -1360,7 +1366,8 @@ static void test_instancing_caps(void)
     expect_fail("dag.gltf", PT_ERR_LIMIT, "1099511627776 triangles once every instance");
 
     /* Vertices count too, referenced or not: 769 instances of one triangle
-     * over 64 Ki vertices are 50397184, over 3 x 16 Mi. */
+     * over 64 Ki vertices are 50397184, over 3 x 16 Mi. (With NORMAL: a
+     * primitive without it gets one vertex a corner.) */
     make_many_vertices("vtx_over.gltf", 769);
     expect_fail("vtx_over.gltf", PT_ERR_LIMIT,
                 "50397184 vertices once every instance of its meshes is counted, over the cap of "

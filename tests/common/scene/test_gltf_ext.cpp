@@ -18,6 +18,8 @@
 //   fallback) and KHR_texture_basisu (the PNG fallback; KTX2 alone refused).
 // - EXT_meshopt_compression: lossless positions and indices bit-identical
 //   to the plain file, octahedral normals within their quantization.
+// - A primitive without NORMAL gets flat normals, as a still and posed.
+// - Generated tangents under a non-uniform scale: a pose gives the still's.
 // The test reads the shared files with tinygltf itself (its implementation is
 // the one compiled into ptcore).
 #define TINYGLTF_NO_STB_IMAGE_WRITE
@@ -394,7 +396,8 @@ void test_sparse()
                 "sparse count 0 is not in [1, 3]");
 
     // SimpleSparseAccessor: its 14 positions computed here from the .bin
-    // (base view 1, indices u16 at byte 240, values at 248), in order.
+    // (indices u16 at byte 0, base view 1 at 72, sparse indices u16 at byte
+    // 240, values at 248).
     std::string path = shared("SimpleSparseAccessor/SimpleSparseAccessor.gltf");
     if (!have_shared(path))
         return;
@@ -414,11 +417,15 @@ void test_sparse()
     CHECKF(l.st == PT_OK && l.nwarn == 0, "%s %s", l.err.msg, l.warnings.c_str());
     if (!l.s)
         return;
-    CHECK(l.s->num_vertices == 14 && l.s->num_triangles == 12);
+    // No NORMAL: flat normals (glTF 2.0, 3.7.2.1), so one vertex a corner
+    // of the 12 triangles, corner c at the vertex of index c (u16 at 2 c).
+    CHECK(l.s->num_vertices == 36 && l.s->num_triangles == 12);
     int bad = 0;
-    for (size_t v = 0; v < 14 && v < l.s->num_vertices; v++)
+    for (size_t c = 0; c < 36 && c < l.s->num_vertices; c++) {
+        size_t v = size_t(bin[2 * c] | bin[2 * c + 1] << 8);
         for (int r = 0; r < 3; r++)
-            bad += l.pos(v, r) != double(want[3 * v + size_t(r)]);
+            bad += v >= 14 || l.pos(c, r) != double(want[3 * v + size_t(r)]);
+    }
     CHECKF(bad == 0, "%d coordinates differ from the sparse substitution", bad);
     // The accessor's max (6, 4, 0) holds the displaced vertices.
     CHECKF(l.s->bounds_max.y + l.s->origin[1] == 4.0, "max y %g",
@@ -1229,6 +1236,148 @@ void test_meshopt()
                 "EXT_meshopt_compression: the stream does not decode");
 }
 
+// ---- flat normals without NORMAL ---------------------------------------------------
+
+// glTF 2.0 (3.7.2.1): "When normals are not specified, client
+// implementations MUST calculate flat normals and the provided tangents
+// (if present) MUST be ignored." Two triangles folded along a shared edge,
+// indexed, without NORMAL (a welded mesh, as gltfpack writes the Fox): every
+// corner's normal is its own face's, so the shared vertices are split;
+// area-weighted vertex normals would blend the two faces there. As a still
+// and posed by an animation (the rig, which must split them the same way).
+void test_flat_normals()
+{
+    gltf g;
+    int pa = g.floats({0, 0, 0, 1, 0, 0, 0, 1, 0, 1, 1, 1}, "VEC3", 3);
+    const uint16_t idx[6] = {0, 1, 2, 1, 3, 2};
+    int ia = g.add(idx, sizeof idx, 5123, "SCALAR", 6);
+    int ta = g.accessor("{\"bufferView\":" + std::to_string(g.view((const float[2]){0, 1}, 8)) +
+                        ",\"componentType\":5126,\"count\":2,\"type\":\"SCALAR\",\"min\":[0],"
+                        "\"max\":[1]}");
+    int oa = g.floats({0, 0, 0, 0, 0, 0}, "VEC3", 3);
+    char m[600];
+    snprintf(m, sizeof m,
+             "\"nodes\":[{\"mesh\":0}],\"meshes\":[{\"primitives\":[{\"attributes\":{"
+             "\"POSITION\":%d},\"indices\":%d}]}],\"animations\":[{\"channels\":[{\"sampler\":0,"
+             "\"target\":{\"node\":0,\"path\":\"translation\"}}],\"samplers\":[{\"input\":%d,"
+             "\"output\":%d}]}]",
+             pa, ia, ta, oa);
+    std::string path = write_tmp(g.json(m), "flat");
+    const double s3 = 1.0 / std::sqrt(3.0);
+    const double face[2][3] = {{0, 0, 1}, {-s3, -s3, s3}};
+    for (int posed = 0; posed < 2; posed++) {
+        pt_scene_opts o{};
+        o.animate = posed;
+        o.time = 0.5;
+        pt_scene *s = nullptr;
+        pt_error err{};
+        CHECKF(pt_scene_load(path.c_str(), &o, &s, &err) == PT_OK, "%s", err.msg);
+        if (!s)
+            continue;
+        CHECKF(s->num_vertices == 6 && s->num_triangles == 2, "%s: %u vertices",
+               posed ? "posed" : "still", s->num_vertices);
+        double worst = 0;
+        for (uint32_t t = 0; t < s->num_triangles && s->num_vertices == 6; t++) {
+            // Which face: the one whose normal the triangle's winding gives.
+            const uint32_t *I = s->indices + 3 * t;
+            const float *a = s->positions + 3 * I[0], *b = s->positions + 3 * I[1],
+                        *c = s->positions + 3 * I[2];
+            double e1[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
+            double e2[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
+            double x = e1[1] * e2[2] - e1[2] * e2[1];
+            const double *f = x < -0.5 ? face[1] : face[0];
+            for (int k = 0; k < 3; k++)
+                for (int r = 0; r < 3; r++)
+                    worst = std::fmax(worst, std::fabs(s->normals[3 * I[k] + r] - f[r]));
+        }
+        CHECKF(worst < 1e-6, "%s: a corner's normal is %g off its face's",
+               posed ? "posed" : "still", worst);
+        pt_scene_free(s);
+    }
+    unlink(path.c_str());
+}
+
+// ---- generated tangents, still and posed --------------------------------------------
+
+// A normal-mapped 3 x 3 grid with bumps, NORMAL and TEXCOORD_0 but no
+// TANGENT, under a node rotated and scaled (2, 0.5, 1), whose animation
+// holds that scale. The still (no rig) generates the tangents in the mesh's
+// space and maps them by the node; posed at 0.5 s the rig must give the
+// same ones, not tangents generated anew from the posed, non-uniformly
+// scaled positions.
+void test_generated_tangents_posed()
+{
+    std::vector<float> pos, nrm, uv;
+    for (int y = 0; y < 4; y++)
+        for (int x = 0; x < 4; x++) {
+            float z = 0.3f * float((x * 5 + y * 3) % 4);
+            pos.insert(pos.end(), {float(x), float(y), z});
+            float n[3] = {0.2f * float(x - 1), -0.15f * float(y - 2), 1.0f};
+            float l = std::sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+            nrm.insert(nrm.end(), {n[0] / l, n[1] / l, n[2] / l});
+            uv.insert(uv.end(), {0.3f * float(x) + 0.05f * float(y), 0.25f * float(y)});
+        }
+    std::vector<uint16_t> idx;
+    for (int y = 0; y < 3; y++)
+        for (int x = 0; x < 3; x++) {
+            uint16_t a = uint16_t(y * 4 + x), b = uint16_t(a + 1), c = uint16_t(a + 4),
+                     d = uint16_t(a + 5);
+            idx.insert(idx.end(), {a, b, d, a, d, c});
+        }
+    gltf g;
+    int pa = g.floats(pos, "VEC3", 3), na = g.floats(nrm, "VEC3", 3), ua = g.floats(uv, "VEC2", 2);
+    int ia = g.add(idx.data(), idx.size() * 2, 5123, "SCALAR", idx.size());
+    const float key[2] = {0, 1};
+    int ta = g.accessor("{\"bufferView\":" + std::to_string(g.view(key, 8)) +
+                        ",\"componentType\":5126,\"count\":2,\"type\":\"SCALAR\",\"min\":[0],"
+                        "\"max\":[1]}");
+    int oa = g.floats({2, 0.5f, 1, 2, 0.5f, 1}, "VEC3", 3);
+    const unsigned char px[16] = {128, 128, 255, 255, 200, 90,  230, 255,
+                                  60,  160, 220, 255, 128, 128, 255, 255};
+    std::vector<unsigned char> png = png_of(px, 2, 2);
+    char m[1200];
+    snprintf(m, sizeof m,
+             "\"nodes\":[{\"mesh\":0,\"scale\":[2,0.5,1],\"rotation\":[0.2,0.3,0.1,0.927362]}],"
+             "\"meshes\":[{\"primitives\":[{\"attributes\":{\"POSITION\":%d,\"NORMAL\":%d,"
+             "\"TEXCOORD_0\":%d},\"indices\":%d,\"material\":0}]}],"
+             "\"materials\":[{\"normalTexture\":{\"index\":0}}],\"textures\":[{\"source\":0}],"
+             "\"images\":[{\"uri\":\"data:image/png;base64,%s\"}],"
+             "\"animations\":[{\"channels\":[{\"sampler\":0,\"target\":{\"node\":0,"
+             "\"path\":\"scale\"}}],\"samplers\":[{\"input\":%d,\"output\":%d,"
+             "\"interpolation\":\"STEP\"}]}]",
+             pa, na, ua, ia, pt_test::base64(png).c_str(), ta, oa);
+    std::string path = write_tmp(g.json(m), "tangent_pose");
+    pt_scene *s[2] = {nullptr, nullptr};
+    for (int posed = 0; posed < 2; posed++) {
+        pt_scene_opts o{};
+        o.animate = posed;
+        o.time = 0.5;
+        pt_error err{};
+        CHECKF(pt_scene_load(path.c_str(), &o, &s[posed], &err) == PT_OK, "%s", err.msg);
+    }
+    if (s[0] && s[1] && s[0]->tangents && s[1]->tangents &&
+        s[0]->num_vertices == s[1]->num_vertices) {
+        double worst = 0;
+        int w_differ = 0;
+        for (size_t v = 0; v < s[0]->num_vertices; v++) {
+            for (int r = 0; r < 3; r++)
+                worst = std::fmax(worst, std::fabs(double(s[0]->tangents[4 * v + r]) -
+                                                   double(s[1]->tangents[4 * v + r])));
+            w_differ += s[0]->tangents[4 * v + 3] != s[1]->tangents[4 * v + 3];
+        }
+        // Both map the same float tangents through the node's matrix in
+        // double; the pose's matrix comes from its TRS keys, the still's
+        // from the node's, each rounded: a few float ULPs of a unit vector.
+        CHECKF(worst < 1e-6 && w_differ == 0,
+               "posed tangents differ from the still's by %g, %d handedness", worst, w_differ);
+    } else {
+        CHECKF(0, "no tangents to compare");
+    }
+    pt_scene_free(s[0]);
+    pt_scene_free(s[1]);
+    unlink(path.c_str());
+}
+
 } // namespace
 
 int main(void)
@@ -1244,5 +1393,7 @@ int main(void)
     test_combined_materials();
     test_texture_formats();
     test_meshopt();
+    test_flat_normals();
+    test_generated_tangents_posed();
     return check_report();
 }
