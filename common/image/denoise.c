@@ -35,6 +35,21 @@
  * are clamped so that the exponential never sees an overflowing argument. */
 #define NLM_EPS 1e-10f
 #define NLM_CLAMP 10000.0f
+/* The regression's weights take each pixel's variance as at least
+ * NLM_TOL2 (u^2 + 0.01): a difference under 0.55 % of sqrt(u^2 + 0.01),
+ * the scale relMSE measures errors on (common/image/metrics.h's epsilon), is
+ * treated as noise. Without it, a noisy pixel beside a noise-free textured
+ * one (an object's silhouette against an environment map seen directly, of
+ * variance 0) finds no neighbour: the noise-free half of every patch differs
+ * by thousands of times a variance of ~0 and the patch distance shuts every
+ * offset out, whatever the pixel's own noise. Measured, 64 spp against
+ * 4,096-spp references (docs/bench/denoise.md): SheenChair in the studio
+ * 4.69e-4 -> 3.52e-4, the Cornell box 1.12e-4 -> 1.10e-4, ToyCar in the park
+ * 1.56e-3 -> 1.55e-3 (its mean 0.998 -> 0.997 of the raw image's), both
+ * DamagedHelmets as before; 1e-4 took SheenChair to 3.45e-4 but ToyCar's
+ * mean to 0.9925, 1e-5 SheenChair only to 3.80e-4. The bias a noise-free
+ * neighbour can add is of the same 0.55 %. */
+#define NLM_TOL2 3e-5f
 /* The distance of a pixel pair that does not exist: weight 0 at any k. */
 #define NLM_FAR 1e30f
 /* The centre pixel always keeps some weight, so a window never sums to 0. */
@@ -200,13 +215,15 @@ static inline void exp_neg8(v8f *x)
 }
 
 /* What NL-means weights are computed from: nc guide channels and the
- * variance of each (pointers may repeat), scaled by vscale. */
+ * variance of each (pointers may repeat), scaled by vscale, plus tol2 (g^2 +
+ * 0.01) (0, or NLM_TOL2 for the regression's weights). */
 typedef struct guide {
     int nc;
     const float *g[3];
     const float *v[3];
     float vscale;
     int f; /* patch radius */
+    float tol2;
 } guide;
 
 /* Scratch of patch_weights. */
@@ -264,7 +281,8 @@ static void patch_dist(const dims *dm, const guide *gd, rect r, int dx, int dy, 
             const float *vp = v + (size_t)y * w + px0, *vq = v + (size_t)(y + dy) * w + px0 + dx;
             float *drow = d + (size_t)(y - py0) * pw;
             for (int x = 0; x < pw; x++) {
-                float a = vp[x] * gd->vscale, b = vq[x] * gd->vscale;
+                float a = vp[x] * gd->vscale + gd->tol2 * (gp[x] * gp[x] + 0.01f),
+                      b = vq[x] * gd->vscale + gd->tol2 * (gq[x] * gq[x] + 0.01f);
                 float diff = gp[x] - gq[x];
                 float dist = (diff * diff - (a + fmin2(a, b))) / (NLM_EPS + a + b);
                 drow[x] = fmin2(dist, NLM_CLAMP);
@@ -981,7 +999,7 @@ pt_status pt_denoise(const pt_denoise_input *in, unsigned threads, float *const 
         }
     }
     static const float cand_k[2] = {0.5f, 1.0f};
-    guide ga = {.nc = 3, .vscale = 1.0f, .f = REG_F};
+    guide ga = {.nc = 3, .vscale = 1.0f, .f = REG_F, .tol2 = NLM_TOL2};
     guide gb = ga;
     for (int c = 0; c < 3; c++) {
         ga.g[c] = hb[c]; /* A is filtered with B's weights */

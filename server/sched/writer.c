@@ -4,6 +4,7 @@
 #include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
+#include <time.h>
 
 #include "common/base/alloc.h"
 #include "common/base/fsutil.h"
@@ -16,6 +17,7 @@ struct srv_writer {
     pthread_t thread;
     char exr[4096], png[4096]; /* exr "": a .png output, the PNG alone */
     char gate[4096];           /* test hook: wait for this file before each write */
+    int hold_progressive;      /* test hook: a progressive denoise waits for a final */
     const pt_film *film;
     int has_alpha;
     pt_view view;         /* the preview's */
@@ -42,6 +44,16 @@ static pt_status denoise_image(srv_writer *w, uint64_t samples, pt_image *shown,
 {
     if (!w->denoised || w->denoised_samples != samples) {
         w->denoised = 0;
+        if (w->hold_progressive && w->busy_progressive) {
+            /* Test hook (tests/integration/test_denoise_farm.sh): this
+             * progressive denoise starts only once a final write was asked
+             * for (or after 60 s), so the final comes while it runs. */
+            struct timespec ts = {0, 10 * 1000 * 1000};
+            fprintf(stderr,
+                    "ptserve: test hook: a progressive denoise waits for the final write\n");
+            for (int i = 0; i < 6000 && !atomic_load(&w->cancel); i++)
+                nanosleep(&ts, NULL);
+        }
         pt_status st = pt_denoise_frame_until(w->img, pt_denoise_default_threads(),
                                               PT_DENOISE_DESPECKLE, &w->cancel, NULL, err);
         if (st != PT_OK)
@@ -144,6 +156,9 @@ pt_status srv_writer_new(const char *exr_path, const pt_film *film, int has_alph
     const char *gate = getenv("PTSERVE_TEST_WRITE_GATE");
     if (gate)
         snprintf(w->gate, sizeof w->gate, "%s", gate);
+    /* Test hook (tests/integration/test_denoise_farm.sh): a progressive
+     * denoise held until a final write stops it. Unset in production. */
+    w->hold_progressive = getenv("PTSERVE_TEST_DENOISE_HOLD") != NULL;
     pthread_mutex_init(&w->mu, NULL);
     pthread_cond_init(&w->cv, NULL);
     if (pthread_create(&w->thread, NULL, writer_main, w) != 0) {

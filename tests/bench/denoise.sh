@@ -10,6 +10,8 @@
 # relMSE of each against the reference (`ptbench error`, the denoised layer
 # with --layer denoised), the mean of the denoised image against the raw
 # one's, and whether the denoised LOW_SPP image beats the raw HIGH_SPP one.
+# Also the share of relMSE the worst 0.1 % of pixels carry (denoised LOW_SPP /
+# raw HIGH_SPP): a large one is fireflies or glints, not noise spread evenly.
 # Part 2, cost: ptdenoise on a 1920x1080 EXR with every pass
 # (ptpasses-exr: the synthetic render of the tests; the denoiser's work does
 # not depend on the picture) on THREADS threads, REPS times: median wall and
@@ -27,7 +29,10 @@
 #   SCENES   "SCENE[@ENV]" entries [the Cornell box; DamagedHelmet in the studio]
 #   RES      image size [256x256]      THREADS  threads [2]
 #   LOW_SPP  [64]   HIGH_SPP [1024]    REF_SPP  reference spp [16384]
-#   OUT      folder [/tmp/ptfarm-denoise]; a reference already there is reused
+#   OUT      folder [/tmp/ptfarm-denoise]; a reference already there,
+#            NAME-refN-RES.exr, is reused: of several, the one of most samples
+#            (a longer one rendered elsewhere may be dropped in), whose N the
+#            table shows
 #   WORKER   the ptworker that renders [BIN_DIR/ptworker]: another build's, with
 #            the passes, while this one has none
 #   QUALITY  0: no part 1 [1]          COST     0: no part 2 [1]
@@ -73,19 +78,42 @@ timed() {
 relmse() { # IMAGE REF [--layer NAME]
     "$BIN/ptbench" error "$@" | awk '$1 == "relMSE" { print $2 }'
 }
+worst_of() { # IMAGE REF [--layer NAME]: the share of relMSE in the worst 0.1 % of pixels
+    "$BIN/ptbench" error "$@" | awk '$1 == "worst0.1%" { print $2 }'
+}
+# The reference of a scene (NAME SPP ARGS...): the one of most samples in OUT,
+# else SPP samples of seed 9001 rendered there; its path in $ref, its samples
+# in $ref_spp.
+reference() {
+    local name=$1 spp=$2 f n
+    shift 2
+    ref="" ref_spp=0
+    for f in "$OUT/$name"-ref*-"$RES".exr; do
+        [[ -f $f ]] || continue
+        n=${f##*/"$name"-ref}
+        n=${n%%-*}
+        if [[ $n =~ ^[0-9]+$ ]] && ((n > ref_spp)); then
+            ref=$f ref_spp=$n
+        fi
+    done
+    if [[ -z $ref ]]; then
+        ref=$OUT/$name-ref$spp-$RES.exr ref_spp=$spp
+        "$WORKER" "$@" --spp "$spp" --seed 9001 -o "$ref" 2> /dev/null
+    fi
+}
 mean_of() { # IMAGE REF [--layer NAME]
     "$BIN/ptbench" error "$@" | awk '$1 == "mean" { printf "%.6g", ($2 + $3 + $4) / 3 }'
 }
 
-echo "== quality: relMSE against a $REF_SPP-spp reference of another seed, $RES, $THREADS threads"
+echo "== quality: relMSE against a reference of another seed (ref_spp samples), $RES, $THREADS threads"
 # The help text whole, then matched: grep -q closing the pipe early would
 # fail the pipeline (pipefail) by the writer's SIGPIPE.
 worker_help=$("$WORKER" --help 2>&1 || true)
 if [[ $worker_help != *--passes* ]]; then
     echo "skipped: this ptworker writes no passes (--passes); part 2 only"
 elif [[ ${QUALITY:-1} == 1 ]]; then
-    printf '%-28s %12s %12s %12s %8s %10s\n' scene "raw@$LOW_SPP" "dn@$LOW_SPP" \
-        "raw@$HIGH_SPP" "dn<raw" "mean dn/raw"
+    printf '%-28s %8s %12s %12s %12s %8s %10s %11s\n' scene ref_spp "raw@$LOW_SPP" "dn@$LOW_SPP" \
+        "raw@$HIGH_SPP" "dn<raw" "mean dn/raw" "worst0.1%"
     for entry in $SCENES; do
         scene=${entry%@*}
         env=()
@@ -99,8 +127,7 @@ elif [[ ${QUALITY:-1} == 1 ]]; then
             continue
         fi
         common=(--scene "$scene" "${env[@]}" --res "$RES" --threads "$THREADS" -q)
-        ref=$OUT/$name-ref$REF_SPP-$RES.exr
-        [[ -f $ref ]] || "$WORKER" "${common[@]}" --spp "$REF_SPP" --seed 9001 -o "$ref" 2> /dev/null
+        reference "$name" "$REF_SPP" "${common[@]}"
         "$WORKER" "${common[@]}" --spp "$LOW_SPP" --seed 1 \
             --passes albedo,normal,depth,halves -o "$OUT/$name-low.exr" 2> /dev/null
         "$BIN/ptdenoise" "$OUT/$name-low.exr" -o "$OUT/$name-dn.exr" --threads "$THREADS" 2> /dev/null
@@ -110,9 +137,12 @@ elif [[ ${QUALITY:-1} == 1 ]]; then
         raw_hi=$(relmse "$OUT/$name-high.exr" "$ref")
         m_raw=$(mean_of "$OUT/$name-dn.exr" "$ref")
         m_dn=$(mean_of "$OUT/$name-dn.exr" "$ref" --layer denoised)
-        printf '%-28s %12s %12s %12s %8s %10s\n' "$name" "$raw_lo" "$dn_lo" "$raw_hi" \
-            "$(awk -v a="$dn_lo" -v b="$raw_hi" 'BEGIN { print (a < b) ? "yes" : "no" }')" \
-            "$(awk -v a="$m_dn" -v b="$m_raw" 'BEGIN { printf "%.4f", a / b }')"
+        # the share of each error in the worst 0.1 % of pixels: denoised, raw high
+        w_dn=$(worst_of "$OUT/$name-dn.exr" "$ref" --layer denoised)
+        w_hi=$(worst_of "$OUT/$name-high.exr" "$ref")
+        printf '%-28s %8s %12s %12s %12s %8s %10s %11s\n' "$name" "$ref_spp" "$raw_lo" "$dn_lo" \
+            "$raw_hi" "$(awk -v a="$dn_lo" -v b="$raw_hi" 'BEGIN { print (a < b) ? "yes" : "no" }')" \
+            "$(awk -v a="$m_dn" -v b="$m_raw" 'BEGIN { printf "%.4f", a / b }')" "$w_dn/$w_hi"
     done
 fi
 
@@ -126,9 +156,8 @@ if [[ ${CURVE:-0} == 1 && $worker_help == *--passes* ]]; then
             env=(--env "${entry#*@}")
             name=$name-$(basename "${entry#*@}" | cut -d_ -f1)
         fi
-        ref=$OUT/$name-ref$REF_SPP-$RES.exr
-        [[ -f $ref ]] || "$WORKER" --scene "$scene" "${env[@]}" --res "$RES" --threads "$THREADS" \
-            -q --spp "$REF_SPP" --seed 9001 -o "$ref" 2> /dev/null
+        reference "$name" "$REF_SPP" --scene "$scene" "${env[@]}" --res "$RES" \
+            --threads "$THREADS" -q
         csv=$OUT/$name-curve.csv
         echo "label,scene,spp,seconds,relmse" > "$csv"
         for spp in ${CURVE_SPP//,/ }; do
