@@ -14,11 +14,12 @@
 #   tests/bench/guide_transfer.sh [--bin DIR] [--scene FILE] [--res WxH]
 #                                 [--spp N] [--workers N] [--work DIR]
 #
-# The training passes end at 16, 48, 112... samples per pixel: --spp 48
-# builds one learned distribution (pass 1's, from 16 samples of every
-# pixel), --spp 112 two; --spp 17 builds pass 1's and renders one sample
-# with it, the shortest run that measures it. Guiding never runs with
-# adaptive sampling.
+# The training passes end at 16, 48, 112... samples per pixel, the last
+# running to spp when less than the next pass is left: --spp 48 builds one
+# learned distribution (pass 1's, from 16 samples of every pixel), the
+# shortest run that measures it; --spp 112 two. Guiding never runs with
+# adaptive sampling. The coordinator's resident memory is sampled every
+# 0.2 s: the most it held while each pass rendered, and its peak.
 set -euo pipefail
 here=$(cd "$(dirname "$0")" && pwd)
 bin=$here/../../build/bin
@@ -36,7 +37,7 @@ while [ $# -gt 0 ]; do
   --workers) workers=$2 ;;
   --work) work=$2 ;;
   -h | --help)
-    sed -n '2,23p' "$0"
+    sed -n '2,22p' "$0"
     exit 0
     ;;
   *)
@@ -57,8 +58,8 @@ pid=$!
 rss=$work/rss.txt
 : > "$rss"
 while kill -0 "$pid" 2> /dev/null; do
-  kb=$(sed -n 's/^VmRSS: *\([0-9]*\) kB/\1/p' "/proc/$pid/status" 2> /dev/null || true)
-  hwm=$(sed -n 's/^VmHWM: *\([0-9]*\) kB/\1/p' "/proc/$pid/status" 2> /dev/null || true)
+  kb=$(sed -n 's/^VmRSS:[[:space:]]*\([0-9]*\) kB/\1/p' "/proc/$pid/status" 2> /dev/null || true)
+  hwm=$(sed -n 's/^VmHWM:[[:space:]]*\([0-9]*\) kB/\1/p' "/proc/$pid/status" 2> /dev/null || true)
   n=$(grep -c 'guiding pass [0-9]*: a distribution' "$log" || true)
   if [ -n "$kb" ]; then echo "$n $kb $hwm" >> "$rss"; fi
   sleep 0.2
