@@ -436,6 +436,8 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
         st.rays += tstats[i].rays;
         st.capped += tstats[i].capped;
         st.clamped += tstats[i].clamped;
+        st.crossings += tstats[i].crossings;
+        st.dropped += tstats[i].dropped;
     }
     pt_exr_meta meta = {0};
     if (o->passes & PT_PASS_CRYPTOMATTE) {
@@ -499,6 +501,12 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
                 "ptworker: %llu contributions clamped (--clamp-direct %g, --clamp-indirect "
                 "%g; 0 is off)\n",
                 (unsigned long long)st.clamped, (double)p.clamp_direct, (double)p.clamp_indirect);
+    if (st.dropped > 0)
+        fprintf(stderr,
+                "ptworker: %llu shadow rays met more than %u thin glass walls and were "
+                "blocked (%llu walls crossed)\n",
+                (unsigned long long)st.dropped, PT_SHADOW_CROSSINGS,
+                (unsigned long long)st.crossings);
     if (st.capped > 0)
         fprintf(stderr,
                 "ptworker: %llu paths reached the depth cap of %u; raise --max-depth if this "

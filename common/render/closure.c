@@ -424,6 +424,50 @@ pt_vec3 pt_closure_sample(const pt_closure *c, const float u[3], pt_vec3 *wi, fl
     return pt_v3_scale(f, 1.0f / *pdf);
 }
 
+pt_vec3 pt_closure_straight(const pt_closure *c, int *smooth)
+{
+    pt_vec3 w = pt_v3(0.0f, 0.0f, 0.0f);
+    if (smooth)
+        *smooth = 0;
+    if (c->dead)
+        return w;
+    for (uint32_t g = 0; g < c->n_groups; g++) {
+        const pt_closure_group *gr = &c->group[g];
+        for (uint32_t i = 0; i < gr->n; i++) {
+            const pt_lobe *l = &c->lobe[gr->first + i];
+            if (l->kind != PT_LOBE_DIELECTRIC)
+                continue;
+            const pt_dielectric_lobe *d = &l->p.dielectric;
+            if (!d->thin || d->alpha != 0.0f || d->disp)
+                return w;
+            if (smooth)
+                *smooth = 1;
+            /* A lobe that sampling never picks passes nothing: the BSDF
+             * strategy could not cross where NEE did. */
+            if (!(l->prob > 0.0f))
+                return w;
+            for (uint32_t k = g + 1; k < c->n_groups; k++)
+                if (!(c->group[k].below > 0.0f))
+                    return w;
+            /* As pt_closure_sample weighs the delta: picking the lobe (its
+             * prob and each outer group's below) cancels against the
+             * weight's 1 / prob, leaving the outer lobes' below factors. */
+            w = pt_dielectric_straight(d, c->wo);
+            pt_vec3 wi = pt_v3_neg(c->wo);
+            for (uint32_t k = g + 1; k < c->n_groups; k++) {
+                const pt_closure_group *go = &c->group[k];
+                for (uint32_t j = go->n; j-- > 0;) {
+                    float sh, below;
+                    lobe_eval(&c->lobe[go->first + j], c->wo, wi, &sh, &below);
+                    w = pt_v3_scale(w, below);
+                }
+            }
+            return w;
+        }
+    }
+    return w;
+}
+
 int pt_closure_albedo(const pt_closure *c, pt_vec3 *albedo)
 {
     pt_vec3 a = pt_v3(0.0f, 0.0f, 0.0f);

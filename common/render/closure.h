@@ -149,6 +149,14 @@ float pt_closure_pdf(const pt_closure *c, pt_vec3 wi);
 pt_vec3 pt_closure_sample(const pt_closure *c, const float u[3], pt_vec3 *wi, float *pdf,
                           int *delta);
 
+/* The expected weight of the closure's straight-through delta transmission
+ * (wi = -wo): what pt_closure_sample returns when it takes that lobe, times
+ * the probability that it does - a smooth thin-walled interface's
+ * pt_dielectric_straight, times below(wo, -wo) of every lobe in the groups
+ * around it. *smooth (may be NULL) is 1 when the closure has such a lobe.
+ * Zero without one (opaque, rough or thick glass). */
+pt_vec3 pt_closure_straight(const pt_closure *c, int *smooth);
+
 /* The closure's albedo for the render passes (the albedo pass, a guide for
  * the denoiser, not an energy: Cycles' denoising albedo) into *albedo: the
  * sum of its lobes' colours (a diffuse lobe's albedo, a GGX lobe's F0, the

@@ -374,6 +374,19 @@ static pt_vec3 smooth_sample(const pt_dielectric_lobe *g, pt_vec3 wo, float uc, 
     return pt_v3_scale(g->tint, 1.0f / (g->eta * g->eta));
 }
 
+pt_vec3 pt_dielectric_straight(const pt_dielectric_lobe *l, pt_vec3 wo)
+{
+    if (!l->thin || l->alpha != 0.0f || l->disp || !(wo.z > 0.0f))
+        return pt_v3(0.0f, 0.0f, 0.0f);
+    /* smooth_sample / film_smooth_sample: the transmission is taken with
+     * probability 1 - mean(F) and weighs tint (1 - F) / (1 - mean(F)). */
+    float F = pt_fresnel_dielectric(wo.z, l->eta);
+    pt_vec3 keep = pt_v3(1.0f - F, 1.0f - F, 1.0f - F);
+    if (l->film[0] > 0.0f)
+        keep = pt_v3_sub(pt_v3(1.0f, 1.0f, 1.0f), film_fresnel(l, wo.z, F));
+    return pt_v3_scale(pt_v3_mul(l->tint, keep), l->weight);
+}
+
 int pt_dielectric_sample(const pt_dielectric_lobe *l, pt_vec3 wo, const float u[3], float prob,
                          pt_vec3 *wi, pt_vec3 *weight, float *pdf)
 {

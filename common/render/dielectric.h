@@ -127,6 +127,14 @@ enum { PT_DIELECTRIC_NONE = 0, PT_DIELECTRIC_DIR = 1, PT_DIELECTRIC_DELTA = 2 };
 int pt_dielectric_sample(const pt_dielectric_lobe *l, pt_vec3 wo, const float u[3], float prob,
                          pt_vec3 *wi, pt_vec3 *weight, float *pdf);
 
+/* The expected weight of a smooth thin wall's straight-through delta lobe
+ * (wi = -wo): weight x tint x (1 - F(wo.z)), the filmed Fresnel per channel
+ * where the lobe has a film; what pt_dielectric_sample's transmission
+ * returns times the probability that it takes it. A shadow ray may cross
+ * such a wall with this factor (it is a partial transparency along the
+ * ray). Zero when the lobe is rough, not thin, dispersive or wo.z <= 0. */
+pt_vec3 pt_dielectric_straight(const pt_dielectric_lobe *l, pt_vec3 wo);
+
 /* Exact Fresnel reflectance of unpolarised light at a dielectric interface,
  * cos_i >= 0 on the incident side, eta = n_transmitted / n_incident; 1 under
  * total internal reflection. */

@@ -99,6 +99,8 @@ struct pt_renderer {
     int nee;      /* next-event estimation runs: lights exist, the strategy uses them */
     int nee_n;    /* nee, with lights enough to sample them for a stage at once */
     int alpha;    /* the scene has MASK/BLEND materials: rays pass through them */
+    /* PT_FEAT_THIN_GLASS: shadow rays cross thin smooth glass */
+    int thin_glass;
     const char *variant;
     int lanes; /* the Lambert variants shade in lanes (shade_lanes) */
     float tan_half_fov;
@@ -123,6 +125,7 @@ void pt_render_params_default(pt_render_params *p)
     p->clamp_direct = 0.0f;
     p->clamp_indirect = 0.0f;
     p->light_select = PT_LIGHT_SELECT_AUTO;
+    p->opaque_thin_glass = 0;
 }
 
 const pt_render_params *pt_renderer_params(const pt_renderer *r)
@@ -892,6 +895,11 @@ typedef struct path {
     uint32_t escaped; /* 1: the camera ray left the scene (the sample does not cover the pixel) */
     float time;       /* in the shutter, [0, 1) (PT_FEAT_MOTION; else 0) */
     uint32_t clamped; /* FEAT_CLAMP: contributions clamp_sample scaled down */
+    /* PT_FEAT_THIN_GLASS: thin smooth walls crossed straight through since
+     * the last real vertex (whose prev_p and prev_pdf the path keeps), and
+     * for the stats the walls shadow rays crossed and the shadow rays that
+     * met more than they may cross. */
+    uint32_t cross, crossings, dropped;
     pixel_ctx *pc;
     struct guide_path *gp; /* FEAT_GUIDE: its guided vertices; else NULL */
     struct pass_rec *pr;   /* FEAT_PASSES: what the passes record; else NULL */
@@ -956,6 +964,7 @@ typedef struct shadow_ray {
     float dist;
     pt_vec3 contrib;    /* beta * (f * Le * w), beta before this bounce's weight */
     uint32_t alpha_key; /* pass-through key (PT_FEAT_ALPHA) */
+    uint32_t cross_max; /* thin smooth walls it may cross (PT_FEAT_THIN_GLASS) */
 } shadow_ray;
 
 enum { SHADE_SHADOW = 1u, SHADE_CONTINUE = 2u }; /* bits 0 and 1: the batch counts with them */
@@ -988,6 +997,7 @@ path_start(const pt_renderer *r, pixel_ctx *pc, uint32_t index, path *pa, const 
     pa->index = index;
     pa->escaped = 0;
     pa->clamped = 0;
+    pa->cross = pa->crossings = pa->dropped = 0;
     pa->pc = pc;
     pa->gp = NULL;
     pa->pr = NULL;
@@ -1626,6 +1636,14 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
                 pt_vec3 from = pt_offset_apply(r->offset, sf->p, side > 0.0f ? ng : pt_v3_neg(ng));
                 float w;
                 sr->from = from;
+                if ((features & PT_FEAT_THIN_GLASS) && r->thin_glass) {
+                    /* A path that samples its way through k walls shades
+                     * them at depths depth + 1 .. depth + k, which must be
+                     * below max_depth for it to reach the light: NEE crosses
+                     * as many, so both strategies see the same light. */
+                    uint32_t left = r->params.max_depth - 1u - pa->depth;
+                    sr->cross_max = left < PT_SHADOW_CROSSINGS ? left : PT_SHADOW_CROSSINGS;
+                }
                 if (!(features & (PT_FEAT_PUNCTUAL | PT_FEAT_ENV)) || ls->delta == PT_LIGHT_AREA) {
                     pt_vec3 nl = ls->normal;
                     if (pt_v3_dot(nl, ls->wi) > 0.0f)
@@ -1725,8 +1743,21 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     if ((features & PT_FEAT_VOLUME) && through && side < 0.0f)
         pa->medium = medium_across(s, pa->medium, mi, front, thin);
     pa->beta = beta;
-    pa->prev_p = sf->p;
-    pa->prev_pdf = delta ? 0.0f : pdf;
+    if ((features & PT_FEAT_THIN_GLASS) && r->thin_glass && delta && thin && wi_l.z < 0.0f &&
+        pa->cross < PT_SHADOW_CROSSINGS) {
+        /* Straight through a smooth thin wall (its delta transmission is
+         * -wo), which shadow rays cross too (trace_shadow): the light found
+         * behind it is weighed against NEE from the last real vertex, as if
+         * the wall were not there, so prev_p and prev_pdf stay. Past
+         * PT_SHADOW_CROSSINGS walls NEE is blocked, and what the path finds
+         * counts in full (prev_pdf 0), as after any delta lobe. */
+        pa->cross++;
+    } else {
+        pa->prev_p = sf->p;
+        pa->prev_pdf = delta ? 0.0f : pdf;
+        if ((features & PT_FEAT_THIN_GLASS) && r->thin_glass)
+            pa->cross = 0;
+    }
     pa->o = pt_offset_apply(r->offset, sf->p, side > 0.0f ? ng : pt_v3_neg(ng));
     pa->d = wi;
     pa->depth++;
@@ -1742,10 +1773,113 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     return ret | SHADE_CONTINUE;
 }
 
+/* A thin-walled transmitter (glass_at's thin: no KHR_materials_volume
+ * thickness), which shadow rays may cross where it is smooth. */
+static inline int thin_wall(const pt_material *m)
+{
+    return transmits(m) && !(m->thickness > 0.0f);
+}
+
+/* What a shadow ray along d keeps crossing the thin wall it hit at sf: the
+ * closure's expected straight-through weight (pt_closure_straight), built
+ * as shade() builds it for a path arriving along d (wo = -d; a wall turns
+ * its normals to the side the ray comes from and reads no normal map), so
+ * the textures at the hit and every layer over the glass count. Zero where
+ * the interface is rough (not a delta: it blocks) or the ray grazes it
+ * (shade() lets no path cross there either). */
+static pt_vec3 wall_transmittance(const pt_renderer *r, const surface *sf, pt_vec3 d,
+                                  const uint32_t features)
+{
+    pt_vec3 wo = pt_v3_neg(d);
+    float wng = pt_v3_dot(sf->ng, wo);
+    if (wng == 0.0f || !(features & PT_FEAT_GLOSSY))
+        return pt_v3(0.0f, 0.0f, 0.0f);
+    int front = wng > 0.0f;
+    pt_vec3 ng = front ? sf->ng : pt_v3_neg(sf->ng);
+    pt_vec3 ns = sf->ns;
+    if (pt_v3_dot(ns, ng) < 0.0f)
+        ns = pt_v3_neg(ns);
+    if (pt_v3_dot(ns, wo) <= 0.0f)
+        ns = ng;
+    pt_frame fr = pt_frame_from_normal(ns);
+    pt_closure cl;
+    material_closure(r, sf, 1, front, &fr, wo, pt_frame_to_local(&fr, wo), ng, &cl, features);
+    return pt_closure_straight(&cl, NULL);
+}
+
+/* The closest hit of a shadow ray's segment, through the MASK/BLEND
+ * surfaces it passes with its key (as the occlusion queries below). */
+static inline __attribute__((always_inline)) int shadow_hit(const pt_renderer *r, pt_vec3 o,
+                                                            pt_vec3 d, float tfar, float time,
+                                                            uint32_t key, pt_hit *hit,
+                                                            const uint32_t features)
+{
+    int alpha = (features & PT_FEAT_ALPHA) && r->alpha;
+    if ((features & PT_FEAT_MOTION) && r->motion)
+        return pt_accel_intersect_time(r->accel, o, d, tfar, time, alpha, alpha ? key : 0, hit);
+    if (alpha)
+        return pt_accel_intersect_alpha(r->accel, o, d, tfar, key, hit);
+    return pt_accel_intersect(r->accel, o, d, tfar, hit);
+}
+
+/* A shadow ray in a scene with thin smooth glass (PT_FEAT_THIN_GLASS): the
+ * closest hit, segment by segment; a smooth thin wall is a partial
+ * transparency along the ray (its straight-through delta lobe), so the ray
+ * goes on past it with the wall's transmittance multiplied into *tr, which
+ * keeps NEE unbiased: a path that samples the BSDF crosses it with that
+ * expected weight. Anything else blocks, and so does a wall past
+ * sr->cross_max. Returns 1 when the ray reaches its end. */
+static int shadow_through(const pt_renderer *r, path *pa, const shadow_ray *sr,
+                          const pt_ray_sink *sink, pt_vec3 *tr, const uint32_t features)
+{
+    const pt_scene *s = r->scene;
+    pt_vec3 o = sr->from, t = pt_v3(1.0f, 1.0f, 1.0f);
+    float left = sr->dist;
+    for (uint32_t k = 0;; k++) {
+        pt_hit hit;
+        /* Occlusion excludes the far end, intersection includes it: the
+         * end point is offset off the light, so nothing sits there. */
+        if (!shadow_hit(r, o, sr->dir, left, pa->time, sr->alpha_key, &hit, features)) {
+            *tr = t;
+            return 1;
+        }
+        if (!(hit.t < left)) {
+            *tr = t;
+            return 1;
+        }
+        if (!thin_wall(&s->materials[s->tri_material[hit.tri]]))
+            return 0;
+        if (k >= sr->cross_max) {
+            pa->dropped++;
+            return 0;
+        }
+        surface sf;
+        surface_at(r, &hit, pa->time, &sf, features);
+        t = pt_v3_mul(t, wall_transmittance(r, &sf, sr->dir, features));
+        if (!any_positive(t))
+            return 0;
+        pa->crossings++;
+        /* On past the wall, from its far side; the rest of the segment. */
+        float wng = pt_v3_dot(sf.ng, sr->dir);
+        pt_vec3 np = pt_offset_apply(r->offset, sf.p, wng > 0.0f ? sf.ng : pt_v3_neg(sf.ng));
+        if (isfinite(left))
+            left = sr->dist - pt_v3_dot(pt_v3_sub(np, sr->from), sr->dir);
+        if (!(left > 0.0f)) {
+            *tr = t;
+            return 1;
+        }
+        o = np;
+        if (sink)
+            sink->ray(sink->user, o, sr->dir, left, 0);
+    }
+}
+
 /* Traces the shadow ray shade() asked for and adds its contribution. MASK
  * and BLEND surfaces on the way block it only where the ray meets them
  * (stochastically for BLEND: transmittance 1 - alpha on average), as a
- * BSDF-sampled ray towards the same light would pass them. */
+ * BSDF-sampled ray towards the same light would pass them; so do smooth
+ * thin walls (PT_FEAT_THIN_GLASS, shadow_through), with their
+ * transmittance. */
 static inline __attribute__((always_inline)) void trace_shadow(const pt_renderer *r, path *pa,
                                                                const shadow_ray *sr,
                                                                const pt_ray_sink *sink,
@@ -1754,7 +1888,14 @@ static inline __attribute__((always_inline)) void trace_shadow(const pt_renderer
     if (!(sr->dist > 0.0f))
         return;
     if (sink)
-        sink->ray(sink->user, sr->from, sr->dir, sr->dist, 1);
+        sink->ray(sink->user, sr->from, sr->dir, sr->dist,
+                  !((features & PT_FEAT_THIN_GLASS) && r->thin_glass));
+    if ((features & PT_FEAT_THIN_GLASS) && r->thin_glass) {
+        pt_vec3 tr;
+        if (shadow_through(r, pa, sr, sink, &tr, features))
+            pa->L = pt_v3_add(pa->L, pt_v3_mul(sr->contrib, tr));
+        return;
+    }
     int blocked;
     if ((features & PT_FEAT_MOTION) && r->motion) {
         int alpha = (features & PT_FEAT_ALPHA) && r->alpha;
@@ -2019,7 +2160,7 @@ li_impl(const pt_renderer *r, pixel_ctx *pc, uint32_t index, pt_render_stats *st
         }
         medium_segment(r, &pa, &hit, features);
         capped += pa.depth >= r->params.max_depth; /* shade() ends it: it may not scatter */
-        shadow_ray sr = {{0, 0, 0}, {0, 0, 0}, 0.0f, {0, 0, 0}, 0}; /* set when SHADE_SHADOW */
+        shadow_ray sr = {{0, 0, 0}, {0, 0, 0}, 0.0f, {0, 0, 0}, 0, 0}; /* set when SHADE_SHADOW */
         surface sf;
         surface_at(r, &hit, pa.time, &sf, features);
         pt_light_sample ls;
@@ -2033,9 +2174,11 @@ li_impl(const pt_renderer *r, pixel_ctx *pc, uint32_t index, pt_render_stats *st
             break;
     }
     if (stats) {
-        stats->rays += rays;
+        stats->rays += rays + pa.crossings; /* a shadow segment past each wall */
         stats->capped += capped;
         stats->clamped += pa.clamped;
+        stats->crossings += pa.crossings;
+        stats->dropped += pa.dropped;
     }
     if (covered)
         *covered = !pa.escaped;
@@ -2325,6 +2468,11 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
                     }
                     if (features & FEAT_CLAMP)
                         local.clamped += pa->clamped;
+                    if (features & PT_FEAT_THIN_GLASS) {
+                        local.rays += pa->crossings; /* a segment past each wall */
+                        local.crossings += pa->crossings;
+                        local.dropped += pa->dropped;
+                    }
                 }
                 pt_pixel_acc_add_block(&out[p0 + g], &blk);
                 if ((features & FEAT_PASSES) && pout)
@@ -2340,6 +2488,8 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
         stats->rays += local.rays;
         stats->capped += local.capped;
         stats->clamped += local.clamped;
+        stats->crossings += local.crossings;
+        stats->dropped += local.dropped;
     }
 }
 
@@ -2370,7 +2520,7 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
 /* Lights besides emissive triangles: only the general variant has their code. */
 #define OTHER_LIGHTS (uint32_t)(PT_FEAT_PUNCTUAL | PT_FEAT_ENV)
 /* Glass and media: likewise only in the general variant. */
-#define GLASS (uint32_t)(PT_FEAT_TRANSMISSION | PT_FEAT_VOLUME)
+#define GLASS (uint32_t)(PT_FEAT_TRANSMISSION | PT_FEAT_VOLUME | PT_FEAT_THIN_GLASS)
 /* The material features beyond the core's (normal maps, vertex colours). */
 #define SURFACE_EXTRAS (uint32_t)(PT_FEAT_NORMAL_MAP | PT_FEAT_VERTEX_COLOR)
 /* The glTF material extensions past the core's: unlit, specular-glossiness,
@@ -2432,6 +2582,22 @@ static void pick_variant(pt_renderer *r, uint32_t features)
         r->tile = tex ? tile_lambert : tile_lambert_untextured;
         r->variant = tex ? "lambert" : "lambert-untextured";
     }
+}
+
+/* 1 when some material is a thin wall (thin_wall) that may be smooth where
+ * shading reads it (a roughness factor below glass_at's smooth threshold, a
+ * metallic-roughness texture that may lower it, specular-glossiness, or an
+ * ior of 1, which pt_glass_setup treats as smooth): PT_FEAT_THIN_GLASS. */
+static int scene_thin_glass(const pt_scene *s)
+{
+    for (uint32_t i = 0; i < s->num_materials; i++) {
+        const pt_material *m = &s->materials[i];
+        if (thin_wall(m) &&
+            (m->roughness * m->roughness < PT_GLASS_SMOOTH_ALPHA || m->metal_rough_tex >= 0 ||
+             (m->ext & PT_MATX_SPEC_GLOSS) || m->ior == 1.0f))
+            return 1;
+    }
+    return 0;
 }
 
 pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params, pt_renderer **out,
@@ -2499,6 +2665,12 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
     r->motion = (scene->features & PT_FEAT_MOTION) ? scene->motion : NULL;
     if (params->env)
         features |= PT_FEAT_ENV;
+    /* Variants are compiled for feature masks; the general one has this
+     * code, which r->thin_glass turns on. */
+    features &= ~(uint32_t)PT_FEAT_THIN_GLASS;
+    r->thin_glass = !params->opaque_thin_glass && r->nee && scene_thin_glass(scene);
+    if (r->thin_glass)
+        features |= PT_FEAT_THIN_GLASS;
     /* Guiding samples glossy closures only (closure_guidable): a
      * Lambert-only scene keeps its variant. */
     if (params->guiding && (features & PT_FEAT_GLOSSY))

@@ -239,7 +239,17 @@ typedef struct pt_render_params {
                               scenes that are not Lambert-only); for tests and
                               benchmarks; default PT_LIGHT_SELECT_AUTO (0: the light
                               tree from PT_LIGHT_TREE_MIN to _AUTO_MAX lights, area sampling) */
+    /* 1: shadow rays stop at thin smooth glass as they did before
+     * PT_FEAT_THIN_GLASS (BSDF sampling alone finds light through it); for
+     * tests and benchmarks; default 0 */
+    uint32_t opaque_thin_glass;
 } pt_render_params;
+
+/* The most thin smooth walls (PT_FEAT_THIN_GLASS) a shadow ray crosses; one
+ * that meets more is blocked (pt_render_stats.dropped), and a path that
+ * crosses more by sampling counts what it then finds in full, so the two
+ * strategies still sum to the same expectation. */
+#define PT_SHADOW_CROSSINGS 8u
 
 typedef struct pt_render_stats {
     uint64_t samples;  /* accepted samples */
@@ -248,6 +258,10 @@ typedef struct pt_render_stats {
     uint64_t capped;   /* paths ended by max_depth (a hit they could not scatter from),
                           not by Russian roulette, absorption or escape */
     uint64_t clamped;  /* contributions scaled down by clamp_direct / clamp_indirect */
+    /* Thin smooth walls that shadow rays crossed (PT_FEAT_THIN_GLASS), and
+     * shadow rays blocked for meeting more than they may cross. */
+    uint64_t crossings;
+    uint64_t dropped;
 } pt_render_stats;
 
 typedef struct pt_renderer pt_renderer;

@@ -88,6 +88,12 @@ enum { PT_FEAT_DISPERSION = 1u << 22 };
 /* EXT_mesh_gpu_instancing kept as instances (pt_scene.instances): a hit
  * may come through an instance, whose transform shading applies. */
 enum { PT_FEAT_INSTANCES = 1u << 23 };
+/* Thin smooth glass: some thin-walled transmitting material (no
+ * KHR_materials_volume thickness) may be smooth, so that its transmission
+ * is a delta lobe straight through, which shadow rays cross with its
+ * transmittance (common/render/render.c, trace_shadow). Set by the renderer
+ * (pt_renderer_new), not the file: a render may turn it off. */
+enum { PT_FEAT_THIN_GLASS = 1u << 24 };
 
 /* pt_material.ext: what the BSDF of a material reads past the core
  * metallic-roughness inputs, set by the builder from the material's fields,

@@ -63,6 +63,7 @@ scene_args() {
     case $1 in
     cornell) echo "--scene $SHARED/scenes/CornellBox/cornellBox.gltf" ;;
     toycar) echo "--scene $SHARED/scenes/ToyCar/ToyCar.gltf --env $SHARED/envs/studio_small_03_1k.hdr" ;;
+    toycar_cabin) echo "--scene $SHARED/scenes/ToyCar/ToyCar.gltf --camera Camera008 --env $SHARED/envs/studio_small_03_1k.hdr" ;;
     transmission) echo "--scene $SHARED/scenes/TransmissionTest/TransmissionTest.glb --env $SHARED/envs/studio_small_03_1k.hdr" ;;
     glass) echo "--scene $ROOT/scenes/glass_things.gltf --env $SHARED/envs/studio_small_03_1k.hdr" ;;
     lamp) echo "--scene $SHARED/scenes/StainedGlassLamp/StainedGlassLamp.gltf" ;;
