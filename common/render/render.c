@@ -890,6 +890,10 @@ typedef struct path {
     pt_vec3 prev_p;
     float prev_pdf; /* 0: the previous vertex was the camera or a delta lobe (no MIS) */
     int32_t medium; /* the absorbing material whose volume the path is in, or -1 */
+    /* PT_FEAT_VOLUME: the previous vertex, a thin wall crossed straight
+     * through included (prev_p stays at the last real one), where the
+     * segment in a medium starts (medium_length). */
+    pt_vec3 seg_p;
     uint32_t depth;
     uint32_t index;   /* the sample index */
     uint32_t escaped; /* 1: the camera ray left the scene (the sample does not cover the pixel) */
@@ -992,6 +996,7 @@ path_start(const pt_renderer *r, pixel_ctx *pc, uint32_t index, path *pa, const 
     pa->beta = pt_v3(1, 1, 1);
     pa->prev_p = pa->o;
     pa->prev_pdf = 0.0f;
+    pa->seg_p = pa->o;
     pa->medium = -1;
     pa->depth = 0;
     pa->index = index;
@@ -1165,7 +1170,7 @@ static __attribute__((noinline)) float medium_length(const pt_renderer *r, const
         h = pt_instance_point(in, h);
         n = pt_instance_normal(in, n, n);
     }
-    pt_vec3 e = pt_v3_sub(h, pa->prev_p);
+    pt_vec3 e = pt_v3_sub(h, pa->seg_p);
     float dn = pt_v3_dot(pa->d, n);
     if (fabsf(dn) > 0.05f) {
         float l = pt_v3_dot(e, n) / dn;
@@ -1758,6 +1763,8 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
         if ((features & PT_FEAT_THIN_GLASS) && r->thin_glass)
             pa->cross = 0;
     }
+    if (features & PT_FEAT_VOLUME)
+        pa->seg_p = sf->p;
     pa->o = pt_offset_apply(r->offset, sf->p, side > 0.0f ? ng : pt_v3_neg(ng));
     pa->d = wi;
     pa->depth++;

@@ -29,9 +29,10 @@
  *   of thickness d with attenuation colour c at distance D transmits
  *   Le (1 - F)^2 tau / (1 - F^2 tau^2), tau = c^(d / D) per channel.
  * - Media measured exactly: through a slab of ior 1 at large coordinates
- *   (offsets of 0.25; also as an instance) and at the origin, at 0, 60 and
- *   80 degrees, every sample is E c^(L / (D cos theta)) to float precision
- *   (media_exact);
+ *   (offsets of 0.25; also as an instance) and at the origin (also with a
+ *   thin smooth pane inside, which paths cross straight through), at 0, 60
+ *   and 80 degrees, every sample is E c^(L / (D cos theta)) to float
+ *   precision (media_exact);
  *   a point light inside a rough absorbing box renders the same with ray
  *   offsets of 0.002 and of 0.25 (media_nee).
  * - Estimators: a rough thin pane before an emitter reads the same with MIS,
@@ -702,12 +703,15 @@ static void media_exact(void)
     pt_error err = {0};
     CHECKF(pt_env_uniform(pt_v3(E, E, E), &env, &err) == PT_OK, "%s", err.msg);
     /* z0, and whether the slab is an instance of a prototype at the origin
-     * (EXT_mesh_gpu_instancing: medium_length takes the hit through it). */
-    const float z0s[3] = {0.0f, 12288.0f, 12288.0f}, degs[3] = {0.0f, 60.0f, 80.0f};
-    for (int zi = 0; zi < 3; zi++)
+     * (EXT_mesh_gpu_instancing: medium_length takes the hit through it), or
+     * holds a thin smooth pane of ior 1 half way down, which paths cross
+     * straight through (PT_FEAT_THIN_GLASS: their MIS keeps the slab's top
+     * as the last vertex, the medium must not). */
+    const float z0s[4] = {0.0f, 12288.0f, 12288.0f, 0.0f}, degs[3] = {0.0f, 60.0f, 80.0f};
+    for (int zi = 0; zi < 4; zi++)
         for (int di = 0; di < 3; di++) {
             float z0 = z0s[zi];
-            int inst = zi == 2;
+            int inst = zi == 2, pane = zi == 3;
             double th = degs[di] * PI_D / 180.0;
             pt_scene_builder *b = NULL;
             CHECK(pt_scene_builder_new(&b, &err) == PT_OK);
@@ -719,6 +723,17 @@ static void media_exact(void)
             uint32_t gm = add_mat(b, &g);
             if (!inst)
                 add_box(b, pt_v3(-100, -100, z0 - L), pt_v3(100, 100, z0), gm);
+            if (pane) {
+                pt_material t = glass_mat(0.0f, 0.0f);
+                t.ior = 1.0f;
+                uint32_t tm = add_mat(b, &t);
+                const float h = -0.5f * L;
+                const float quad[18] = {-99, -99, h, 99, -99, h, 99,  99, h,
+                                        -99, -99, h, 99, 99,  h, -99, 99, h};
+                CHECKF(pt_scene_builder_add_mesh(b, "pane", quad, NULL, NULL, 6, NULL, 2, NULL, tm,
+                                                 &err) == PT_OK,
+                       "%s", err.msg);
+            }
             if (z0 > 0.0f) {
                 /* Far below, out of every ray's way: the scene spans
                  * 2 z0, so its origin stays at 0. */
@@ -764,8 +779,11 @@ static void media_exact(void)
             image_stats is = render_stats(s, env, 8, 4, 1000, PT_LIGHT_MIS, want);
             printf("medium at z %g%s, %g degrees: a sample off E exp(-sigma %.4f) = %.6f by %.3g "
                    "(tolerance %.3g)\n",
-                   (double)z0, inst ? " (instance)" : "", (double)degs[di], len, want, is.max_dev,
-                   tol);
+                   (double)z0,
+                   inst   ? " (instance)"
+                   : pane ? " (a pane inside)"
+                          : "",
+                   (double)degs[di], len, want, is.max_dev, tol);
             CHECKF(is.max_dev <= tol,
                    "slab at z %g, %g degrees: a sample is off %.6f by %.3g of it, over %.3g",
                    (double)z0, (double)degs[di], want, is.max_dev, tol);
