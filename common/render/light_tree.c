@@ -39,29 +39,44 @@
 #define COARSE_COS 0.9f
 #define COARSE_RATIO 8.0f
 
-/* One node, 64 bytes. The children of an inner node are a pair, `next` and
- * `next` + 1, so that the walk, which reads both, reads two adjacent cache
- * lines. The box is kept as its centre and the sphere around it (radius r):
- * a point inside the box is inside the sphere. */
+/* One node, 32 bytes, so that the pair of children the walk reads is one
+ * cache line: the pairs start at even places of a 64-byte aligned array
+ * (the root is node 0, node 1 is unused). The box is kept as its centre and
+ * the sphere around it (radius r): a point inside the box is inside the
+ * sphere. The cone's axis and cosine are quantized to 16 bits, the cone
+ * widened by the rounding so that it still holds every emitting normal
+ * (node_store): the bound stays conservative, only a little looser. The
+ * lights of a node (its place in the leaves' order) are read only when the
+ * walk stops at a coarse node, so they sit apart, in span. */
 typedef struct lt_node {
     float center[3];
-    float axis[3];
-    float cos_o, sin_o;
+    float r; /* half its diagonal */
     float power;
-    float r;        /* half its diagonal */
-    uint32_t next;  /* inner: the left child (the right one follows); leaf: the light */
-    uint32_t flags; /* LT_LEAF, LT_TWO_SIDED */
-    uint32_t first; /* its lights: order[first .. first + count) */
-    uint32_t count;
-    uint32_t pad[2];
+    uint32_t next;   /* inner: the left child (the right one follows); leaf: the light;
+                      * and LT_LEAF, LT_TWO_SIDED in the top bits */
+    int16_t axis[3]; /* the cone's axis x 32767 (not quite unit: see node_store) */
+    int16_t cos_o;   /* cosine of the cone's half-angle x 32767, rounded down */
 } lt_node;
-_Static_assert(sizeof(lt_node) == 64, "a node is one cache line");
-enum { LT_LEAF = 1, LT_TWO_SIDED = 2 };
+_Static_assert(sizeof(lt_node) == 32, "a pair of nodes is one cache line");
+#define LT_LEAF 0x80000000u
+#define LT_TWO_SIDED 0x40000000u
+#define LT_INDEX 0x3fffffffu
+#define Q16 32767.0f
+/* The most the quantized axis's direction and length move cos theta_w
+ * (node_store), as an angle the cone is widened by: the axis's direction
+ * is within 3e-5 rad of the true one, its length within 5e-5 of 1. */
+#define AXIS_SLACK 1e-3
+
+/* A node's lights: order[first .. first + count). */
+typedef struct lt_span {
+    uint32_t first, count;
+} lt_span;
 
 struct pt_light_tree {
     uint32_t n, nodes_used, depth;
-    lt_node *nodes; /* 2n - 1, 64-byte aligned in nodes_mem */
+    lt_node *nodes; /* 2n, 64-byte aligned in nodes_mem */
     void *nodes_mem;
+    lt_span *span;   /* per node */
     uint64_t *bits;  /* per light: its branch bits, root's first (1 = right) */
     uint8_t *levels; /* per light: its leaf's depth */
     uint32_t *order; /* the lights in leaf order */
@@ -212,19 +227,30 @@ static void node_store(lt_node *nd, const cluster *c)
     double d2 = 0.0;
     for (int i = 0; i < 3; i++) {
         nd->center[i] = (float)(0.5 * (c->lo[i] + c->hi[i]));
-        nd->axis[i] = (float)c->axis[i];
         double e = c->hi[i] - c->lo[i];
         d2 += e * e;
     }
-    nd->cos_o = (float)cos(c->theta_o);
-    nd->sin_o = (float)sin(c->theta_o);
-    if (c->theta_o >= PI_D) {
-        nd->cos_o = -1.0f;
-        nd->sin_o = 0.0f;
+    /* The axis to 16 bits a component; the cone widened by the angle
+     * between the stored axis and the true one, and by AXIS_SLACK for the
+     * stored axis's length (up to 5e-5 from 1, which the walk does not
+     * divide out: a change of cos theta_w of that much is an angle of at
+     * most 1e-2 near theta_w = 0, where the bound is 1 anyway, and of 5e-5
+     * near pi/2, where the importance drops to 0). */
+    double q[3], ql = 0.0, qd = 0.0;
+    for (int i = 0; i < 3; i++) {
+        double a = c->axis[i] < -1.0 ? -1.0 : c->axis[i] > 1.0 ? 1.0 : c->axis[i];
+        nd->axis[i] = (int16_t)lrint(a * (double)Q16);
+        q[i] = (double)nd->axis[i] / (double)Q16;
+        ql += q[i] * q[i];
+        qd += q[i] * c->axis[i];
     }
+    double cq = ql > 0.0 ? qd / sqrt(ql) : -1.0;
+    double th = c->theta_o + acos(cq < -1.0 ? -1.0 : cq > 1.0 ? 1.0 : cq) + AXIS_SLACK;
+    /* rounded down: the cone only grows */
+    nd->cos_o = th >= PI_D ? (int16_t)-32767 : (int16_t)floor(cos(th) * (double)Q16);
     nd->power = (float)c->power;
     nd->r = (float)(0.5 * sqrt(d2));
-    nd->flags = c->two_sided ? LT_TWO_SIDED : 0;
+    nd->next = c->two_sided ? LT_TWO_SIDED : 0;
 }
 
 /* Splits perm[b..e) (e - b >= 2) into [b, mid) and [mid, e), stably. */
@@ -313,15 +339,13 @@ static void build(builder *B, uint32_t id, uint32_t b, uint32_t e, uint32_t dept
     for (uint32_t i = b; i < e; i++)
         cluster_add(&c, &B->leaf[B->perm[i]]);
     node_store(&t->nodes[id], &c);
-    t->nodes[id].pad[0] = t->nodes[id].pad[1] = 0;
-    t->nodes[id].first = t->ranked;
-    t->nodes[id].count = e - b;
+    t->span[id].first = t->ranked;
+    t->span[id].count = e - b;
     if (depth > t->depth)
         t->depth = depth;
     if (e - b == 1) {
         uint32_t l = B->perm[b];
-        t->nodes[id].flags |= LT_LEAF;
-        t->nodes[id].next = l;
+        t->nodes[id].next |= LT_LEAF | l;
         t->bits[l] = bits;
         t->levels[l] = (uint8_t)depth;
         t->rank[l] = t->ranked;
@@ -331,7 +355,7 @@ static void build(builder *B, uint32_t id, uint32_t b, uint32_t e, uint32_t dept
     uint32_t mid = split(B, b, e, &c, depth);
     uint32_t pair = t->nodes_used;
     t->nodes_used += 2;
-    t->nodes[id].next = pair;
+    t->nodes[id].next |= pair;
     build(B, pair, b, mid, depth + 1, bits);
     build(B, pair + 1, mid, e, depth + 1, bits | (uint64_t)1 << depth);
 }
@@ -350,6 +374,7 @@ static int item_ok(const pt_light_tree_item *it)
 pt_status pt_light_tree_new(const pt_light_tree_item *items, uint32_t n, pt_light_tree **out,
                             pt_error *err)
 {
+    _Static_assert(2 * (uint64_t)PT_LIGHT_TREE_MAX <= LT_INDEX, "node ids fit next");
     if (!items || !out || n < 2 || n > PT_LIGHT_TREE_MAX)
         return pt_error_set(err, PT_ERR_ARG, "light tree: %u lights (2 to %u)", n,
                             PT_LIGHT_TREE_MAX);
@@ -365,10 +390,14 @@ pt_status pt_light_tree_new(const pt_light_tree_item *items, uint32_t n, pt_ligh
     if (!t)
         goto nomem;
     t->n = n;
-    /* one spare node's room to align the array to a cache line */
-    t->nodes_mem = pt_malloc_array(2 * (size_t)n, sizeof *t->nodes);
-    if (t->nodes_mem)
+    /* 2n - 1 nodes from place 0, place 1 unused; two spare nodes' room to
+     * align the array to a cache line */
+    t->nodes_mem = pt_malloc_array(2 * (size_t)n + 2, sizeof *t->nodes);
+    if (t->nodes_mem) {
         t->nodes = (lt_node *)(((uintptr_t)t->nodes_mem + 63) & ~(uintptr_t)63);
+        memset(&t->nodes[1], 0, sizeof t->nodes[1]);
+    }
+    t->span = pt_malloc_array(2 * (size_t)n, sizeof *t->span);
     t->bits = pt_malloc_array(n, sizeof *t->bits);
     t->levels = pt_malloc_array(n, sizeof *t->levels);
     t->order = pt_malloc_array(n, sizeof *t->order);
@@ -378,8 +407,8 @@ pt_status pt_light_tree_new(const pt_light_tree_item *items, uint32_t n, pt_ligh
     B.centroid = pt_malloc_array(n, sizeof *B.centroid);
     B.perm = pt_malloc_array(n, sizeof *B.perm);
     B.tmp = pt_malloc_array(n, sizeof *B.tmp);
-    if (!t->nodes || !t->bits || !t->levels || !t->order || !t->rank || !t->cdf || !leaf ||
-        !B.centroid || !B.perm || !B.tmp)
+    if (!t->nodes || !t->span || !t->bits || !t->levels || !t->order || !t->rank || !t->cdf ||
+        !leaf || !B.centroid || !B.perm || !B.tmp)
         goto nomem;
     for (uint32_t i = 0; i < n; i++) {
         cluster_of(&items[i], &leaf[i]);
@@ -390,7 +419,7 @@ pt_status pt_light_tree_new(const pt_light_tree_item *items, uint32_t n, pt_ligh
     B.items = items;
     B.leaf = leaf;
     B.t = t;
-    t->nodes_used = 1;
+    t->nodes_used = 2;
     build(&B, 0, 0, n, 0, 0);
     t->cdf[0] = 0.0;
     for (uint32_t i = 0; i < n; i++)
@@ -415,6 +444,7 @@ void pt_light_tree_free(pt_light_tree *tree)
     if (!tree)
         return;
     pt_free(tree->nodes_mem);
+    pt_free(tree->span);
     pt_free(tree->bits);
     pt_free(tree->levels);
     pt_free(tree->order);
@@ -425,7 +455,7 @@ void pt_light_tree_free(pt_light_tree *tree)
 
 uint32_t pt_light_tree_nodes(const pt_light_tree *tree)
 {
-    return tree ? tree->nodes_used : 0;
+    return tree ? tree->nodes_used - 1 : 0; /* less the unused place 1 */
 }
 
 uint32_t pt_light_tree_depth(const pt_light_tree *tree)
@@ -448,15 +478,19 @@ static inline float importance(const lt_node *nd, pt_vec3 p)
         return r2 > 0.0f && nd->power / r2 < 3.4e38f ? nd->power / r2 : 0.0f;
     float inv = 1.0f / sqrtf(d2), cos_p = 1.0f;
     /* theta_w: between the cone's axis and the direction to p */
-    float cos_w = (nd->axis[0] * d[0] + nd->axis[1] * d[1] + nd->axis[2] * d[2]) * inv;
-    if (nd->flags & LT_TWO_SIDED)
+    float cos_w =
+        ((float)nd->axis[0] * d[0] + (float)nd->axis[1] * d[1] + (float)nd->axis[2] * d[2]) *
+        (inv * (1.0f / Q16));
+    if (nd->next & LT_TWO_SIDED)
         cos_w = fabsf(cos_w);
     cos_w = cos_w > 1.0f ? 1.0f : cos_w < -1.0f ? -1.0f : cos_w;
     /* theta_x = max(0, theta_w - theta_o) */
-    if (cos_w < nd->cos_o) {
+    float cos_o = (float)nd->cos_o * (1.0f / Q16);
+    if (cos_w < cos_o) {
+        float sin_o = sqrtf(1.0f - cos_o * cos_o);
         float sin_w = sqrtf(1.0f - cos_w * cos_w);
-        float cos_x = cos_w * nd->cos_o + sin_w * nd->sin_o;
-        float sin_x = sin_w * nd->cos_o - cos_w * nd->sin_o;
+        float cos_x = cos_w * cos_o + sin_w * sin_o;
+        float sin_x = sin_w * cos_o - cos_w * sin_o;
         /* theta' = max(0, theta_x - theta_b), sin theta_b = r / d */
         float sin_b = nd->r * inv;
         float cos_b = sqrtf(1.0f - sin_b * sin_b);
@@ -472,17 +506,31 @@ static inline float importance(const lt_node *nd, pt_vec3 p)
 /* Whether the walk stops at node nd seen from p (COARSE_COS above). */
 static inline int coarse(const lt_node *nd, pt_vec3 p)
 {
-    if (nd->cos_o < COARSE_COS)
+    if ((float)nd->cos_o * (1.0f / Q16) < COARSE_COS)
         return 0;
     float d[3] = {p.x - nd->center[0], p.y - nd->center[1], p.z - nd->center[2]};
     float rr = COARSE_RATIO * nd->r;
     return d[0] * d[0] + d[1] * d[1] + d[2] * d[2] > rr * rr;
 }
 
-/* The share of the light at place i of the order among node nd's lights. */
-static inline double power_share(const pt_light_tree *t, const lt_node *nd, uint32_t i)
+/* The share of the light at place i of the order among node id's lights. */
+static inline double power_share(const pt_light_tree *t, uint32_t id, uint32_t i)
 {
-    return (t->cdf[i + 1] - t->cdf[i]) / (t->cdf[nd->first + nd->count] - t->cdf[nd->first]);
+    const lt_span *sp = &t->span[id];
+    return (t->cdf[i + 1] - t->cdf[i]) / (t->cdf[sp->first + sp->count] - t->cdf[sp->first]);
+}
+
+/* The walk's next reads asked for before the current ones are used: both
+ * children's pairs of children (one of them is read next), so that a
+ * level's cache miss overlaps the one before it. A leaf's next names a
+ * light, not a node: its "pair" is masked into the array, read for
+ * nothing. */
+static inline void prefetch_below(const pt_light_tree *t, uint32_t c)
+{
+    const lt_node *nodes = t->nodes;
+    uint32_t mask = t->nodes_used - 1; /* nodes_used is even: 2n */
+    __builtin_prefetch(&nodes[(nodes[c].next & LT_INDEX) & mask]);
+    __builtin_prefetch(&nodes[(nodes[c + 1].next & LT_INDEX) & mask]);
 }
 
 uint32_t pt_light_tree_sample(const pt_light_tree *tree, pt_vec3 p, double u, double *pmf)
@@ -492,11 +540,11 @@ uint32_t pt_light_tree_sample(const pt_light_tree *tree, pt_vec3 p, double u, do
     /* u stays; the interval [base, base + width) of it that leads to the
      * node shrinks (a product, not a division, in the walk's chain). */
     double q = 1.0, base = 0.0, width = 1.0;
-    while (!(nodes[id].flags & LT_LEAF)) {
+    while (!(nodes[id].next & LT_LEAF)) {
         if (coarse(&nodes[id], p)) {
             /* the first place i of the node's lights with target < cdf[i + 1] */
-            const lt_node *nd = &nodes[id];
-            uint32_t lo = nd->first, hi = nd->first + nd->count - 1;
+            const lt_span *sp = &tree->span[id];
+            uint32_t lo = sp->first, hi = sp->first + sp->count - 1;
             double c0 = tree->cdf[lo], v = (u - base) / width;
             v = v < 0.0 ? 0.0 : v < 0x1.fffffffffffffp-1 ? v : 0x1.fffffffffffffp-1;
             double target = c0 + v * (tree->cdf[hi + 1] - c0);
@@ -507,13 +555,14 @@ uint32_t pt_light_tree_sample(const pt_light_tree *tree, pt_vec3 p, double u, do
                 else
                     lo = mid + 1;
             }
-            double share = power_share(tree, nd, lo);
+            double share = power_share(tree, id, lo);
             if (!(share > 0.0))
                 break;
             *pmf = q * share;
             return tree->order[lo];
         }
-        uint32_t c = nodes[id].next;
+        uint32_t c = nodes[id].next & LT_INDEX;
+        prefetch_below(tree, c);
         float il = importance(&nodes[c], p), ir = importance(&nodes[c + 1], p);
         double sum = (double)il + (double)ir;
         if (!(sum > 0.0)) {
@@ -530,12 +579,12 @@ uint32_t pt_light_tree_sample(const pt_light_tree *tree, pt_vec3 p, double u, do
         q *= pc;
         id = c + (uint32_t)right;
     }
-    if (!(nodes[id].flags & LT_LEAF)) { /* a rounded search found no light */
+    if (!(nodes[id].next & LT_LEAF)) { /* a rounded search found no light */
         *pmf = 0.0;
         return UINT32_MAX;
     }
     *pmf = q;
-    return nodes[id].next;
+    return nodes[id].next & LT_INDEX;
 }
 
 double pt_light_tree_pmf(const pt_light_tree *tree, pt_vec3 p, uint32_t light)
@@ -548,14 +597,16 @@ double pt_light_tree_pmf(const pt_light_tree *tree, pt_vec3 p, uint32_t light)
     double q = 1.0;
     for (uint32_t k = 0; k < levels; k++) {
         if (coarse(&nodes[id], p))
-            return q * power_share(tree, &nodes[id], tree->rank[light]);
-        uint32_t c = nodes[id].next;
+            return q * power_share(tree, id, tree->rank[light]);
+        uint32_t c = nodes[id].next & LT_INDEX;
+        uint32_t right = (uint32_t)(bits >> k) & 1u;
+        /* the path is known: only its next pair is asked for */
+        __builtin_prefetch(&nodes[(nodes[c + right].next & LT_INDEX) & (tree->nodes_used - 1)]);
         float il = importance(&nodes[c], p), ir = importance(&nodes[c + 1], p);
         double sum = (double)il + (double)ir;
         if (!(sum > 0.0))
             return 0.0;
         double pl = (double)il / sum;
-        uint32_t right = (uint32_t)(bits >> k) & 1u;
         q *= right ? 1.0 - pl : pl;
         id = c + right;
     }
