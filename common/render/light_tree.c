@@ -19,6 +19,9 @@
 
 #include <math.h>
 #include <string.h>
+#if defined(__SSE__)
+#include <xmmintrin.h>
+#endif
 
 #include "common/base/alloc.h"
 
@@ -463,44 +466,78 @@ uint32_t pt_light_tree_depth(const pt_light_tree *tree)
     return tree ? tree->depth : 0;
 }
 
-/* The node's importance seen from p (the top of light_tree.h). Angles are
- * subtracted through their cosines and sines: cos(a - b) = cos a cos b +
- * sin a sin b, clamped to 1 where a <= b. Inside the node's bounding sphere
- * every direction is possible (theta' = 0) and the distance is the
- * sphere's radius. Comparisons, not fminf/fmaxf: those are library calls
- * without -ffinite-math-only. */
-static inline float importance(const lt_node *nd, pt_vec3 p)
+/* Four floats, of which the walk uses the first two: a pair of children. */
+typedef float v4f __attribute__((vector_size(16)));
+typedef int32_t v4i __attribute__((vector_size(16)));
+
+static inline v4f v4_sel(v4i m, v4f a, v4f b)
 {
-    float d[3] = {p.x - nd->center[0], p.y - nd->center[1], p.z - nd->center[2]};
-    float d2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
-    float r2 = nd->r * nd->r;
-    if (!(d2 > r2)) /* inside the sphere (or NaN): every direction, distance r */
-        return r2 > 0.0f && nd->power / r2 < 3.4e38f ? nd->power / r2 : 0.0f;
-    float inv = 1.0f / sqrtf(d2), cos_p = 1.0f;
+    return (v4f)(((v4i)a & m) | ((v4i)b & ~m));
+}
+
+static inline v4f v4_sqrt(v4f x)
+{
+#if defined(__SSE__)
+    return (v4f)_mm_sqrt_ps((__m128)x);
+#else
+    for (int l = 0; l < 4; l++)
+        x[l] = __builtin_sqrtf(x[l]);
+    return x;
+#endif
+}
+
+/* The importances of the pair of nodes c[0], c[1] seen from p (the top of
+ * light_tree.h) into out[0], out[1], both in one set of SIMD lanes: the
+ * walk is bound by the square roots and divisions, four a pair here instead
+ * of ten. Angles are subtracted through their cosines and sines: cos(a - b)
+ * = cos a cos b + sin a sin b, clamped to 1 where a <= b. Inside a node's
+ * bounding sphere every direction is possible (theta' = 0) and the distance
+ * is the sphere's radius. Every case is computed and the answer selected:
+ * which holds is as random as the shading points. Sampling and the pmf both
+ * call this, so they see the same bits. */
+static inline __attribute__((always_inline)) void importance2(const lt_node *c, pt_vec3 p,
+                                                              float out[2])
+{
+    const lt_node *a = &c[0], *b = &c[1];
+    v4f dx = p.x - (v4f){a->center[0], b->center[0], 0.0f, 0.0f};
+    v4f dy = p.y - (v4f){a->center[1], b->center[1], 0.0f, 0.0f};
+    v4f dz = p.z - (v4f){a->center[2], b->center[2], 0.0f, 0.0f};
+    v4f r = {a->r, b->r, 0.0f, 0.0f}, power = {a->power, b->power, 0.0f, 0.0f};
+    v4f d2 = dx * dx + dy * dy + dz * dz, r2 = r * r;
+    v4i outside = d2 > r2; /* else inside the sphere (or NaN): every direction, distance r */
+    v4f inv = 1.0f / v4_sqrt(v4_sel(outside, d2, (v4f){1.0f, 1.0f, 1.0f, 1.0f}));
     /* theta_w: between the cone's axis and the direction to p */
-    float cos_w =
-        ((float)nd->axis[0] * d[0] + (float)nd->axis[1] * d[1] + (float)nd->axis[2] * d[2]) *
-        (inv * (1.0f / Q16));
-    if (nd->next & LT_TWO_SIDED)
-        cos_w = fabsf(cos_w);
-    cos_w = cos_w > 1.0f ? 1.0f : cos_w < -1.0f ? -1.0f : cos_w;
-    /* theta_x = max(0, theta_w - theta_o) */
-    float cos_o = (float)nd->cos_o * (1.0f / Q16);
-    if (cos_w < cos_o) {
-        float sin_o = sqrtf(1.0f - cos_o * cos_o);
-        float sin_w = sqrtf(1.0f - cos_w * cos_w);
-        float cos_x = cos_w * cos_o + sin_w * sin_o;
-        float sin_x = sin_w * cos_o - cos_w * sin_o;
-        /* theta' = max(0, theta_x - theta_b), sin theta_b = r / d */
-        float sin_b = nd->r * inv;
-        float cos_b = sqrtf(1.0f - sin_b * sin_b);
-        if (cos_x < cos_b)
-            cos_p = cos_x * cos_b + sin_x * sin_b;
-        if (!(cos_p > 0.0f)) /* theta' >= theta_e = pi/2 */
-            return 0.0f;
-    }
-    float imp = nd->power * cos_p * (inv * inv);
-    return imp < 3.4e38f ? imp : 0.0f; /* not finite: 0 */
+    v4f ax = {(float)a->axis[0], (float)b->axis[0], 0.0f, 0.0f};
+    v4f ay = {(float)a->axis[1], (float)b->axis[1], 0.0f, 0.0f};
+    v4f az = {(float)a->axis[2], (float)b->axis[2], 0.0f, 0.0f};
+    v4f cos_w = (ax * dx + ay * dy + az * dz) * (inv * (1.0f / Q16));
+    v4i two = {(a->next & LT_TWO_SIDED) ? -1 : 0, (b->next & LT_TWO_SIDED) ? -1 : 0, 0, 0};
+    cos_w = v4_sel(two, (v4f)((v4i)cos_w & 0x7fffffff), cos_w);
+    cos_w = v4_sel(cos_w > 1.0f, (v4f){1.0f, 1.0f, 1.0f, 1.0f}, cos_w);
+    cos_w = v4_sel(cos_w < -1.0f, (v4f){-1.0f, -1.0f, -1.0f, -1.0f}, cos_w);
+    /* theta_x = max(0, theta_w - theta_o); sin theta_w and sin theta_o by
+     * one square root, in lanes 0-1 and 2-3 */
+    v4f cos_o = (v4f){(float)a->cos_o, (float)b->cos_o, 0.0f, 0.0f} * (1.0f / Q16);
+    v4f cc = {cos_w[0], cos_w[1], cos_o[0], cos_o[1]};
+    v4f sines = v4_sqrt(1.0f - cc * cc);
+    v4f sin_w = {sines[0], sines[1], 0.0f, 0.0f}, sin_o = {sines[2], sines[3], 0.0f, 0.0f};
+    v4i apart = cos_w < cos_o;
+    v4f cos_x = v4_sel(apart, cos_w * cos_o + sin_w * sin_o, (v4f){1.0f, 1.0f, 1.0f, 1.0f});
+    v4f sin_x = v4_sel(apart, sin_w * cos_o - cos_w * sin_o, (v4f){0.0f, 0.0f, 0.0f, 0.0f});
+    /* theta' = max(0, theta_x - theta_b), sin theta_b = r / d < 1 outside */
+    v4f sin_b = r * inv;
+    sin_b = v4_sel(sin_b < 1.0f, sin_b, (v4f){1.0f, 1.0f, 1.0f, 1.0f});
+    v4f cos_b = v4_sqrt(1.0f - sin_b * sin_b);
+    v4f cos_p = v4_sel(cos_x < cos_b, cos_x * cos_b + sin_x * sin_b, (v4f){1.0f, 1.0f, 1.0f, 1.0f});
+    v4f imp_out = power * cos_p * (inv * inv);
+    imp_out = (v4f)((v4i)imp_out & (cos_p > 0.0f)); /* theta' >= theta_e = pi/2: 0 */
+    v4i r_ok = r2 > 0.0f;
+    v4f imp_in = power / v4_sel(r_ok, r2, (v4f){1.0f, 1.0f, 1.0f, 1.0f});
+    imp_in = (v4f)((v4i)imp_in & r_ok);
+    v4f imp = v4_sel(outside, imp_out, imp_in);
+    imp = (v4f)((v4i)imp & (imp < 3.4e38f)); /* not finite: 0 */
+    out[0] = imp[0];
+    out[1] = imp[1];
 }
 
 /* Whether the walk stops at node nd seen from p (COARSE_COS above). */
@@ -533,58 +570,113 @@ static inline void prefetch_below(const pt_light_tree *t, uint32_t c)
     __builtin_prefetch(&nodes[(nodes[c + 1].next & LT_INDEX) & mask]);
 }
 
-uint32_t pt_light_tree_sample(const pt_light_tree *tree, pt_vec3 p, double u, double *pmf)
+/* One walk of pt_light_tree_sample: u stays; the interval [base, base +
+ * width) of it that leads to node id shrinks (a product, not a division, in
+ * the walk's chain), q is the probability of reaching id. */
+typedef struct lt_walk {
+    double q, base, width;
+    uint32_t id;
+} lt_walk;
+
+/* The walk w one level down from p and u; 1 while it goes on, 0 once it has
+ * chosen: the light in *light (UINT32_MAX for none) and its pmf in *pmf.
+ * pt_light_tree_sample and pt_light_tree_sample_n both walk by it, so that
+ * their choices are the same bits. */
+static inline __attribute__((always_inline)) int
+walk_step(const pt_light_tree *tree, lt_walk *w, pt_vec3 p, double u, uint32_t *light, double *pmf)
 {
     const lt_node *nodes = tree->nodes;
-    uint32_t id = 0;
-    /* u stays; the interval [base, base + width) of it that leads to the
-     * node shrinks (a product, not a division, in the walk's chain). */
-    double q = 1.0, base = 0.0, width = 1.0;
-    while (!(nodes[id].next & LT_LEAF)) {
-        if (coarse(&nodes[id], p)) {
-            /* the first place i of the node's lights with target < cdf[i + 1] */
-            const lt_span *sp = &tree->span[id];
-            uint32_t lo = sp->first, hi = sp->first + sp->count - 1;
-            double c0 = tree->cdf[lo], v = (u - base) / width;
-            v = v < 0.0 ? 0.0 : v < 0x1.fffffffffffffp-1 ? v : 0x1.fffffffffffffp-1;
-            double target = c0 + v * (tree->cdf[hi + 1] - c0);
-            while (lo < hi) {
-                uint32_t mid = lo + (hi - lo) / 2;
-                if (target < tree->cdf[mid + 1])
-                    hi = mid;
-                else
-                    lo = mid + 1;
-            }
-            double share = power_share(tree, id, lo);
-            if (!(share > 0.0))
-                break;
-            *pmf = q * share;
-            return tree->order[lo];
+    uint32_t id = w->id;
+    if (nodes[id].next & LT_LEAF) {
+        *pmf = w->q;
+        *light = nodes[id].next & LT_INDEX;
+        return 0;
+    }
+    if (coarse(&nodes[id], p)) {
+        /* the first place i of the node's lights with target < cdf[i + 1] */
+        const lt_span *sp = &tree->span[id];
+        uint32_t lo = sp->first, hi = sp->first + sp->count - 1;
+        double c0 = tree->cdf[lo], v = (u - w->base) / w->width;
+        v = v < 0.0 ? 0.0 : v < 0x1.fffffffffffffp-1 ? v : 0x1.fffffffffffffp-1;
+        double target = c0 + v * (tree->cdf[hi + 1] - c0);
+        while (lo < hi) {
+            uint32_t mid = lo + (hi - lo) / 2;
+            if (target < tree->cdf[mid + 1])
+                hi = mid;
+            else
+                lo = mid + 1;
         }
-        uint32_t c = nodes[id].next & LT_INDEX;
-        prefetch_below(tree, c);
-        float il = importance(&nodes[c], p), ir = importance(&nodes[c + 1], p);
-        double sum = (double)il + (double)ir;
-        if (!(sum > 0.0)) {
+        double share = power_share(tree, id, lo);
+        if (!(share > 0.0)) { /* a rounded search found no light */
             *pmf = 0.0;
-            return UINT32_MAX;
+            *light = UINT32_MAX;
+            return 0;
         }
-        double pl = (double)il / sum;
-        /* Selects, not branches: the side is random. */
-        double cut = base + pl * width;
-        int right = !(u < cut);
-        double pc = right ? 1.0 - pl : pl;
-        base = right ? cut : base;
-        width *= pc;
-        q *= pc;
-        id = c + (uint32_t)right;
+        *pmf = w->q * share;
+        *light = tree->order[lo];
+        return 0;
     }
-    if (!(nodes[id].next & LT_LEAF)) { /* a rounded search found no light */
+    uint32_t c = nodes[id].next & LT_INDEX;
+    prefetch_below(tree, c);
+    float imp[2];
+    importance2(&nodes[c], p, imp);
+    float il = imp[0], ir = imp[1];
+    double sum = (double)il + (double)ir;
+    if (!(sum > 0.0)) {
         *pmf = 0.0;
-        return UINT32_MAX;
+        *light = UINT32_MAX;
+        return 0;
     }
-    *pmf = q;
-    return nodes[id].next & LT_INDEX;
+    double pl = (double)il / sum;
+    /* Selects, not branches: the side is random. */
+    double cut = w->base + pl * w->width;
+    int right = !(u < cut);
+    double pc = right ? 1.0 - pl : pl;
+    w->base = right ? cut : w->base;
+    w->width *= pc;
+    w->q *= pc;
+    w->id = c + (uint32_t)right;
+    return 1;
+}
+
+uint32_t pt_light_tree_sample(const pt_light_tree *tree, pt_vec3 p, double u, double *pmf)
+{
+    lt_walk w = {1.0, 0.0, 1.0, 0};
+    uint32_t light;
+    while (walk_step(tree, &w, p, u, &light, pmf))
+        ;
+    return light;
+}
+
+/* The walks in flight at once in pt_light_tree_sample_n: enough for their
+ * cache misses to overlap, few enough for their state to stay in L1. */
+#define WALKS 16u
+
+void pt_light_tree_sample_n(const pt_light_tree *tree, uint32_t n, const pt_vec3 *p,
+                            const double *u, uint32_t *light, double *pmf)
+{
+    lt_walk w[WALKS];
+    uint32_t who[WALKS]; /* the point each slot walks for */
+    uint32_t next = 0, live = 0;
+    /* Slots refill as walks end, so that WALKS are in flight until the
+     * points run out; each walk's steps are walk_step's, whatever the
+     * interleaving. */
+    while (live > 0 || next < n) {
+        while (live < WALKS && next < n) {
+            w[live] = (lt_walk){1.0, 0.0, 1.0, 0};
+            who[live++] = next++;
+        }
+        for (uint32_t k = 0; k < live;) {
+            uint32_t i = who[k];
+            if (walk_step(tree, &w[k], p[i], u[i], &light[i], &pmf[i])) {
+                k++;
+                continue;
+            }
+            live--; /* the last slot takes this one's place */
+            w[k] = w[live];
+            who[k] = who[live];
+        }
+    }
 }
 
 double pt_light_tree_pmf(const pt_light_tree *tree, pt_vec3 p, uint32_t light)
@@ -602,7 +694,9 @@ double pt_light_tree_pmf(const pt_light_tree *tree, pt_vec3 p, uint32_t light)
         uint32_t right = (uint32_t)(bits >> k) & 1u;
         /* the path is known: only its next pair is asked for */
         __builtin_prefetch(&nodes[(nodes[c + right].next & LT_INDEX) & (tree->nodes_used - 1)]);
-        float il = importance(&nodes[c], p), ir = importance(&nodes[c + 1], p);
+        float imp[2];
+        importance2(&nodes[c], p, imp);
+        float il = imp[0], ir = imp[1];
         double sum = (double)il + (double)ir;
         if (!(sum > 0.0))
             return 0.0;

@@ -59,6 +59,12 @@ void pt_light_tree_free(pt_light_tree *tree); /* accepts NULL */
  * UINT32_MAX with *pmf 0 when no light can light p. */
 uint32_t pt_light_tree_sample(const pt_light_tree *tree, pt_vec3 p, double u, double *pmf);
 
+/* pt_light_tree_sample(tree, p[i], u[i], &pmf[i]) into light[i] for i < n,
+ * the same bits, with the walks of up to 16 points interleaved so that their
+ * cache misses overlap. */
+void pt_light_tree_sample_n(const pt_light_tree *tree, uint32_t n, const pt_vec3 *p,
+                            const double *u, uint32_t *light, double *pmf);
+
 /* The probability that pt_light_tree_sample chooses light from p, the same
  * bits; 0 for a light it cannot choose there. */
 double pt_light_tree_pmf(const pt_light_tree *tree, pt_vec3 p, uint32_t light);
