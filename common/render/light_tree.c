@@ -486,41 +486,46 @@ static inline v4f v4_sqrt(v4f x)
 #endif
 }
 
-/* The importances of the pair of nodes c[0], c[1] seen from p (the top of
- * light_tree.h) into out[0], out[1], both in one set of SIMD lanes: the
- * walk is bound by the square roots and divisions, four a pair here instead
- * of ten. Angles are subtracted through their cosines and sines: cos(a - b)
- * = cos a cos b + sin a sin b, clamped to 1 where a <= b. Inside a node's
- * bounding sphere every direction is possible (theta' = 0) and the distance
- * is the sphere's radius. Every case is computed and the answer selected:
- * which holds is as random as the shading points. Sampling and the pmf both
- * call this, so they see the same bits. */
-static inline __attribute__((always_inline)) void importance2(const lt_node *c, pt_vec3 p,
-                                                              float out[2])
+/* The importances of nodes g[0..3] seen from p (the top of light_tree.h)
+ * into out[0..3], all four in one set of SIMD lanes: the walk is bound by
+ * the square roots and divisions, four for four nodes here instead of
+ * twenty. A node of zero power (the unused place 1) has importance 0. Angles are subtracted through
+ * their cosines and sines: cos(a - b) = cos a cos b + sin a sin b, clamped to 1 where a <= b.
+ * Inside a node's bounding sphere every direction is possible (theta' = 0) and the distance is the
+ * sphere's radius. Every case is computed and the answer selected: which holds is as random as the
+ * shading points. Sampling and the pmf both call this, so they see the same bits. */
+static inline __attribute__((always_inline)) void importance4(const lt_node *const g[4], pt_vec3 p,
+                                                              float out[4])
 {
-    const lt_node *a = &c[0], *b = &c[1];
-    v4f dx = p.x - (v4f){a->center[0], b->center[0], 0.0f, 0.0f};
-    v4f dy = p.y - (v4f){a->center[1], b->center[1], 0.0f, 0.0f};
-    v4f dz = p.z - (v4f){a->center[2], b->center[2], 0.0f, 0.0f};
-    v4f r = {a->r, b->r, 0.0f, 0.0f}, power = {a->power, b->power, 0.0f, 0.0f};
+#define LANES(f) {g[0]->f, g[1]->f, g[2]->f, g[3]->f}
+#define LANES_F(f)                                                                                 \
+    {                                                                                              \
+        (float)g[0]->f, (float)g[1]->f, (float)g[2]->f, (float)g[3]->f                             \
+    }
+#define LANES_2(f)                                                                                 \
+    {                                                                                              \
+        (g[0]->next & LT_TWO_SIDED) ? -1 : 0, (g[1]->next & LT_TWO_SIDED) ? -1 : 0,                \
+            (g[2]->next & LT_TWO_SIDED) ? -1 : 0, (g[3]->next & LT_TWO_SIDED) ? -1 : 0             \
+    }
+    v4f dx = p.x - (v4f)LANES(center[0]);
+    v4f dy = p.y - (v4f)LANES(center[1]);
+    v4f dz = p.z - (v4f)LANES(center[2]);
+    v4f r = LANES(r), power = LANES(power);
     v4f d2 = dx * dx + dy * dy + dz * dz, r2 = r * r;
     v4i outside = d2 > r2; /* else inside the sphere (or NaN): every direction, distance r */
     v4f inv = 1.0f / v4_sqrt(v4_sel(outside, d2, (v4f){1.0f, 1.0f, 1.0f, 1.0f}));
     /* theta_w: between the cone's axis and the direction to p */
-    v4f ax = {(float)a->axis[0], (float)b->axis[0], 0.0f, 0.0f};
-    v4f ay = {(float)a->axis[1], (float)b->axis[1], 0.0f, 0.0f};
-    v4f az = {(float)a->axis[2], (float)b->axis[2], 0.0f, 0.0f};
+    v4f ax = LANES_F(axis[0]);
+    v4f ay = LANES_F(axis[1]);
+    v4f az = LANES_F(axis[2]);
     v4f cos_w = (ax * dx + ay * dy + az * dz) * (inv * (1.0f / Q16));
-    v4i two = {(a->next & LT_TWO_SIDED) ? -1 : 0, (b->next & LT_TWO_SIDED) ? -1 : 0, 0, 0};
+    v4i two = LANES_2(next);
     cos_w = v4_sel(two, (v4f)((v4i)cos_w & 0x7fffffff), cos_w);
     cos_w = v4_sel(cos_w > 1.0f, (v4f){1.0f, 1.0f, 1.0f, 1.0f}, cos_w);
     cos_w = v4_sel(cos_w < -1.0f, (v4f){-1.0f, -1.0f, -1.0f, -1.0f}, cos_w);
-    /* theta_x = max(0, theta_w - theta_o); sin theta_w and sin theta_o by
-     * one square root, in lanes 0-1 and 2-3 */
-    v4f cos_o = (v4f){(float)a->cos_o, (float)b->cos_o, 0.0f, 0.0f} * (1.0f / Q16);
-    v4f cc = {cos_w[0], cos_w[1], cos_o[0], cos_o[1]};
-    v4f sines = v4_sqrt(1.0f - cc * cc);
-    v4f sin_w = {sines[0], sines[1], 0.0f, 0.0f}, sin_o = {sines[2], sines[3], 0.0f, 0.0f};
+    /* theta_x = max(0, theta_w - theta_o) */
+    v4f cos_o = (v4f)LANES_F(cos_o) * (1.0f / Q16);
+    v4f sin_w = v4_sqrt(1.0f - cos_w * cos_w), sin_o = v4_sqrt(1.0f - cos_o * cos_o);
     v4i apart = cos_w < cos_o;
     v4f cos_x = v4_sel(apart, cos_w * cos_o + sin_w * sin_o, (v4f){1.0f, 1.0f, 1.0f, 1.0f});
     v4f sin_x = v4_sel(apart, sin_w * cos_o - cos_w * sin_o, (v4f){0.0f, 0.0f, 0.0f, 0.0f});
@@ -536,8 +541,10 @@ static inline __attribute__((always_inline)) void importance2(const lt_node *c, 
     imp_in = (v4f)((v4i)imp_in & r_ok);
     v4f imp = v4_sel(outside, imp_out, imp_in);
     imp = (v4f)((v4i)imp & (imp < 3.4e38f)); /* not finite: 0 */
-    out[0] = imp[0];
-    out[1] = imp[1];
+    memcpy(out, &imp, sizeof imp);
+#undef LANES
+#undef LANES_F
+#undef LANES_2
 }
 
 /* Whether the walk stops at node nd seen from p (COARSE_COS above). */
@@ -557,17 +564,38 @@ static inline double power_share(const pt_light_tree *t, uint32_t id, uint32_t i
     return (t->cdf[i + 1] - t->cdf[i]) / (t->cdf[sp->first + sp->count] - t->cdf[sp->first]);
 }
 
-/* The walk's next reads asked for before the current ones are used: both
- * children's pairs of children (one of them is read next), so that a
- * level's cache miss overlaps the one before it. A leaf's next names a
- * light, not a node: its "pair" is masked into the array, read for
- * nothing. */
-static inline void prefetch_below(const pt_light_tree *t, uint32_t c)
+/* The walk steps two levels at a time: from a node, it chooses among its
+ * grandchildren at once (a child that is a leaf takes its own place, its
+ * second place empty), each in proportion to its importance. This is the
+ * 4-wide tree whose nodes are the binary tree's even levels: half the
+ * steps, each one set of four SIMD lanes (importance4), and the same
+ * function of the tree for the sampler and the pmf. The four places of
+ * node id's step, and the node each stands for, into g and to: */
+static inline __attribute__((always_inline)) void step_places(const pt_light_tree *t, uint32_t id,
+                                                              const lt_node *g[4], uint32_t to[4])
 {
     const lt_node *nodes = t->nodes;
-    uint32_t mask = t->nodes_used - 1; /* nodes_used is even: 2n */
-    __builtin_prefetch(&nodes[(nodes[c].next & LT_INDEX) & mask]);
-    __builtin_prefetch(&nodes[(nodes[c + 1].next & LT_INDEX) & mask]);
+    uint32_t c = nodes[id].next & LT_INDEX;
+    for (uint32_t j = 0; j < 2; j++) {
+        uint32_t nx = nodes[c + j].next;
+        uint32_t gc = nx & LT_INDEX;
+        int leaf = (nx & LT_LEAF) != 0;
+        to[2 * j] = leaf ? c + j : gc;
+        to[2 * j + 1] = leaf ? 1u : gc + 1; /* 1: the unused place, power 0 */
+        g[2 * j] = &nodes[to[2 * j]];
+        g[2 * j + 1] = &nodes[to[2 * j + 1]];
+    }
+}
+
+/* The walk's next reads asked for before the current ones are used: the
+ * children of the four places (one of them is read next), so that a
+ * step's cache miss overlaps the one before it. A leaf's next names a
+ * light, not a node: masked into the array, read for nothing. */
+static inline void prefetch_below(const pt_light_tree *t, const lt_node *const g[4])
+{
+    uint32_t mask = t->nodes_used - 1; /* x & mask <= mask < nodes_used */
+    for (int k = 0; k < 4; k++)
+        __builtin_prefetch(&t->nodes[(g[k]->next & LT_INDEX) & mask]);
 }
 
 /* One walk of pt_light_tree_sample: u stays; the interval [base, base +
@@ -578,7 +606,7 @@ typedef struct lt_walk {
     uint32_t id;
 } lt_walk;
 
-/* The walk w one level down from p and u; 1 while it goes on, 0 once it has
+/* The walk w one step down from p and u; 1 while it goes on, 0 once it has
  * chosen: the light in *light (UINT32_MAX for none) and its pmf in *pmf.
  * pt_light_tree_sample and pt_light_tree_sample_n both walk by it, so that
  * their choices are the same bits. */
@@ -616,26 +644,39 @@ walk_step(const pt_light_tree *tree, lt_walk *w, pt_vec3 p, double u, uint32_t *
         *light = tree->order[lo];
         return 0;
     }
-    uint32_t c = nodes[id].next & LT_INDEX;
-    prefetch_below(tree, c);
-    float imp[2];
-    importance2(&nodes[c], p, imp);
-    float il = imp[0], ir = imp[1];
-    double sum = (double)il + (double)ir;
+    const lt_node *g[4];
+    uint32_t to[4];
+    step_places(tree, id, g, to);
+    prefetch_below(tree, g);
+    float imp[4];
+    importance4(g, p, imp);
+    double sum = ((double)imp[0] + (double)imp[1]) + ((double)imp[2] + (double)imp[3]);
     if (!(sum > 0.0)) {
         *pmf = 0.0;
         *light = UINT32_MAX;
         return 0;
     }
-    double pl = (double)il / sum;
-    /* Selects, not branches: the side is random. */
-    double cut = w->base + pl * w->width;
-    int right = !(u < cut);
-    double pc = right ? 1.0 - pl : pl;
-    w->base = right ? cut : w->base;
-    w->width *= pc;
-    w->q *= pc;
-    w->id = c + (uint32_t)right;
+    /* place k takes [cut_k, cut_k + width p_k); selects, not branches:
+     * the place is random. An empty place's interval is empty. */
+    double pk[4], cut[4], acc = 0.0;
+    uint32_t k = 0;
+    for (int j = 0; j < 4; j++) {
+        pk[j] = (double)imp[j] / sum;
+        cut[j] = w->base + acc * w->width;
+        k = u < cut[j] ? k : (uint32_t)j;
+        acc += pk[j];
+    }
+    /* rounding can leave u past the last non-empty place: then an empty
+     * one, never chosen with a weight */
+    if (!(pk[k] > 0.0)) {
+        *pmf = 0.0;
+        *light = UINT32_MAX;
+        return 0;
+    }
+    w->base = cut[k];
+    w->width *= pk[k];
+    w->q *= pk[k];
+    w->id = to[k];
     return 1;
 }
 
@@ -687,22 +728,25 @@ double pt_light_tree_pmf(const pt_light_tree *tree, pt_vec3 p, uint32_t light)
     uint64_t bits = tree->bits[light];
     uint32_t id = 0, levels = tree->levels[light];
     double q = 1.0;
-    for (uint32_t k = 0; k < levels; k++) {
+    for (uint32_t k = 0; k < levels;) {
         if (coarse(&nodes[id], p))
             return q * power_share(tree, id, tree->rank[light]);
-        uint32_t c = nodes[id].next & LT_INDEX;
-        uint32_t right = (uint32_t)(bits >> k) & 1u;
-        /* the path is known: only its next pair is asked for */
-        __builtin_prefetch(&nodes[(nodes[c + right].next & LT_INDEX) & (tree->nodes_used - 1)]);
-        float imp[2];
-        importance2(&nodes[c], p, imp);
-        float il = imp[0], ir = imp[1];
-        double sum = (double)il + (double)ir;
+        const lt_node *g[4];
+        uint32_t to[4];
+        step_places(tree, id, g, to);
+        /* the place on the light's path: its child's side, then, when that
+         * child is not the leaf, the grandchild's */
+        uint32_t b0 = (uint32_t)(bits >> k) & 1u, slot = 2 * b0;
+        if (k + 1 < levels)
+            slot += (uint32_t)(bits >> (k + 1)) & 1u;
+        k += k + 1 < levels ? 2 : 1;
+        float imp[4];
+        importance4(g, p, imp);
+        double sum = ((double)imp[0] + (double)imp[1]) + ((double)imp[2] + (double)imp[3]);
         if (!(sum > 0.0))
             return 0.0;
-        double pl = (double)il / sum;
-        q *= right ? 1.0 - pl : pl;
-        id = c + right;
+        q *= (double)imp[slot] / sum;
+        id = to[slot];
     }
     return q;
 }

@@ -27,6 +27,8 @@
 #   OUT      folder for references and CSVs [/tmp/ptfarm-light-tree]; a
 #            reference already there (same scene, size, spp) is reused
 #   BASE     another build's BIN_DIR [none]: its ptbench is the old series
+#   SELECT   --light-select for both series when BASE is set [none: each
+#            build's default], e.g. tree to time one tree against another
 set -euo pipefail
 
 if [[ $# -lt 1 || $# -gt 2 || ! -x "$1/ptbench" || ! -x "$1/ptworker" ]]; then
@@ -44,6 +46,7 @@ SPP=${SPP:-16,64,256}
 REF_SPP=${REF_SPP:-4096}
 OUT=${OUT:-/tmp/ptfarm-light-tree}
 BASE=${BASE:-}
+SELECT=${SELECT:-}
 mkdir -p "$OUT"
 
 # median over the CSVs of one series: spp, wall s, CPU s, relMSE
@@ -80,6 +83,9 @@ for scene in $SCENES; do
     rm -f "$OUT/$name"-old-*.csv "$OUT/$name"-new-*.csv
     for ((rep = 1; rep <= REPS; rep++)); do
         common=("$scene" --reference "$ref" --res "$RES" --spp "$SPP" --threads "$THREADS")
+        if [[ -n $SELECT ]]; then
+            common+=(--light-select "$SELECT")
+        fi
         if [[ -n $BASE ]]; then
             "$BASE/ptbench" "${common[@]}" --csv "$OUT/$name-old-$rep.csv" >/dev/null
         else
