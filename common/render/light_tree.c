@@ -598,6 +598,17 @@ static inline void prefetch_below(const pt_light_tree *t, const lt_node *const g
         __builtin_prefetch(&t->nodes[(g[k]->next & LT_INDEX) & mask]);
 }
 
+/* The functions that walk the tree are compiled at -O2 under GCC: at -O3
+ * (the Release build's) the batched walk took 1.45x the time a choice
+ * (16,704 lights on a sphere, 200,000 points: 265 ns against 182 ns),
+ * and the one-at-a-time walk 1.07x; no single -O3 flag alone accounts for
+ * it. Other compilers take the build's level. */
+#if defined(__GNUC__) && !defined(__clang__)
+#define LT_WALK_OPT __attribute__((optimize("O2")))
+#else
+#define LT_WALK_OPT
+#endif
+
 /* One walk of pt_light_tree_sample: u stays; the interval [base, base +
  * width) of it that leads to node id shrinks (a product, not a division, in
  * the walk's chain), q is the probability of reaching id. */
@@ -680,6 +691,7 @@ walk_step(const pt_light_tree *tree, lt_walk *w, pt_vec3 p, double u, uint32_t *
     return 1;
 }
 
+LT_WALK_OPT
 uint32_t pt_light_tree_sample(const pt_light_tree *tree, pt_vec3 p, double u, double *pmf)
 {
     lt_walk w = {1.0, 0.0, 1.0, 0};
@@ -693,6 +705,7 @@ uint32_t pt_light_tree_sample(const pt_light_tree *tree, pt_vec3 p, double u, do
  * cache misses to overlap, few enough for their state to stay in L1. */
 #define WALKS 16u
 
+LT_WALK_OPT
 void pt_light_tree_sample_n(const pt_light_tree *tree, uint32_t n, const pt_vec3 *p,
                             const double *u, uint32_t *light, double *pmf)
 {
@@ -720,6 +733,7 @@ void pt_light_tree_sample_n(const pt_light_tree *tree, uint32_t n, const pt_vec3
     }
 }
 
+LT_WALK_OPT
 double pt_light_tree_pmf(const pt_light_tree *tree, pt_vec3 p, uint32_t light)
 {
     if (!tree || light >= tree->n)
