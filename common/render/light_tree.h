@@ -13,11 +13,17 @@
  * d the distance to the box's centre, r its half-diagonal, theta' the
  * smallest angle any emitting normal in the cone can make with the direction
  * to p once the box's angular size is allowed for (0 when no light in the node
- * can face p: theta' >= pi/2). A light is chosen by walking down from the root,
- * taking each child with probability importance / (sum of both); its
- * probability is the product along the way, which pt_light_tree_pmf recomputes
- * for any light from the branch bits stored with it, with the same float
- * operations, so NEE and the MIS weight of a BSDF hit see the same number.
+ * can face p: theta' >= pi/2). A light is chosen by walking down from the root
+ * two levels a step: among a node's four grandchildren (a child that is a
+ * leaf stands for itself), each with probability importance / (sum of the
+ * four), the four importances in one set of SIMD lanes - the 4-wide tree
+ * whose nodes are the binary tree's even levels. Its probability is the
+ * product along the way, which pt_light_tree_pmf recomputes for any light
+ * from the branch bits stored with it, with the same float operations, so
+ * NEE and the MIS weight of a BSDF hit see the same number. Nodes are 32
+ * bytes (the cone's axis and cosine in 16 bits, rounded outwards), a pair
+ * of children one cache line; pt_light_tree_sample_n interleaves the walks
+ * of many points so that their cache misses overlap.
  *
  * Build: binned surface-area-orientation heuristic (SAOH, Conty & Kulla eq. 2)
  * over 12 buckets per axis; one light per leaf. It is a pure function of the
