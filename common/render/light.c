@@ -900,6 +900,48 @@ static int sample_solid_angle(const pt_lights *lights, const pt_scene *scene, co
     return 1;
 }
 
+/* pt_lights_sample's point on triangle light le, chosen with probability
+ * pmf_area x its area, from u[1], u[2]. */
+static int sample_on(const pt_lights *lights, const pt_scene *scene, const light_entry *le,
+                     pt_vec3 p, float pmf_area, const float u[3], pt_light_sample *s)
+{
+    if (!(pmf_area > 0.0f))
+        return 0;
+    double omega = sa_omega(lights, le, p);
+    if (omega > 0.0)
+        return sample_solid_angle(lights, scene, le, p, pmf_area, omega, u[1], u[2], s);
+    float b1, b2;
+    point_on(le, u[1], u[2], &s->position, &b1, &b2);
+    s->tri = le->tri;
+    s->normal = le->normal;
+    pt_vec3 d = pt_v3_sub(s->position, p);
+    float d2 = pt_v3_dot(d, d);
+    s->dist = sqrtf(d2);
+    if (!(s->dist > 0.0f) || !isfinite(s->dist))
+        return 0;
+    s->wi = pt_v3_scale(d, 1.0f / s->dist);
+    const pt_material *m = &scene->materials[le->material];
+    s->pdf = solid_angle_pdf_d(pmf_area, m->double_sided, d, d2, s->dist, le->normal);
+    if (!(s->pdf > 0.0f))
+        return 0;
+    s->radiance = emission_at(lights, scene, le, b1, b2);
+    return 1;
+}
+
+/* pt_lights_sample's sample once the tree has chosen light k (UINT32_MAX:
+ * none) with probability q within the first class. */
+static int sample_tree_light(const pt_lights *lights, const pt_scene *scene, pt_vec3 p,
+                             const float u[3], uint32_t k, double q, pt_light_sample *s)
+{
+    if (k == UINT32_MAX)
+        return 0;
+    if (k >= lights->count) /* a point or spot light */
+        return eval_punctual(&lights->punct[lights->tree_punct[k - lights->count]], p,
+                             (float)(q * lights->p_tri), s);
+    const light_entry *le = &lights->lights[k];
+    return sample_on(lights, scene, le, p, tree_pmf_area(lights, le, q), u, s);
+}
+
 int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, const float u[3],
                      pt_light_sample *s)
 {
@@ -924,42 +966,13 @@ int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, 
         u = ut;
     }
 
-    float b1, b2, pmf_area;
-    const light_entry *le;
     if (lights->tree) {
         double q;
         uint32_t k = pt_light_tree_sample(lights->tree, p, (double)u[0], &q);
-        if (k == UINT32_MAX)
-            return 0;
-        if (k >= lights->count) /* a point or spot light */
-            return eval_punctual(&lights->punct[lights->tree_punct[k - lights->count]], p,
-                                 (float)(q * lights->p_tri), s);
-        le = &lights->lights[k];
-        pmf_area = tree_pmf_area(lights, le, q);
-    } else {
-        le = &lights->lights[pick_index(lights, u[0])];
-        pmf_area = le->pmf_area;
+        return sample_tree_light(lights, scene, p, u, k, q, s);
     }
-    if (!(pmf_area > 0.0f))
-        return 0;
-    double omega = sa_omega(lights, le, p);
-    if (omega > 0.0)
-        return sample_solid_angle(lights, scene, le, p, pmf_area, omega, u[1], u[2], s);
-    point_on(le, u[1], u[2], &s->position, &b1, &b2);
-    s->tri = le->tri;
-    s->normal = le->normal;
-    pt_vec3 d = pt_v3_sub(s->position, p);
-    float d2 = pt_v3_dot(d, d);
-    s->dist = sqrtf(d2);
-    if (!(s->dist > 0.0f) || !isfinite(s->dist))
-        return 0;
-    s->wi = pt_v3_scale(d, 1.0f / s->dist);
-    const pt_material *m = &scene->materials[le->material];
-    s->pdf = solid_angle_pdf_d(pmf_area, m->double_sided, d, d2, s->dist, le->normal);
-    if (!(s->pdf > 0.0f))
-        return 0;
-    s->radiance = emission_at(lights, scene, le, b1, b2);
-    return 1;
+    const light_entry *le = &lights->lights[pick_index(lights, u[0])];
+    return sample_on(lights, scene, le, p, le->pmf_area, u, s);
 }
 
 void pt_lights_pick_n(const pt_lights *lights, const pt_scene *scene, uint32_t n, const float *pick,
@@ -998,11 +1011,77 @@ void pt_lights_pick_n(const pt_lights *lights, const pt_scene *scene, uint32_t n
  * reads: 512 entries are 32 KB. */
 #define PREFETCH_LIGHTS 512u
 
+/* pt_lights_sample_n through the tree: the points whose number picks the
+ * tree's class walk it together (pt_light_tree_sample_n, their cache misses
+ * overlapping), then the chosen lights' entries and texels are asked for
+ * before any is read, then each sample is finished as pt_lights_sample
+ * finishes it: the same bits. */
+#define TREE_BATCH 64u
+static void sample_n_tree(const pt_lights *lights, const pt_scene *scene, uint32_t n,
+                          const pt_vec3 *p, const float (*u)[3], pt_light_sample *s, int *ok)
+{
+    for (uint32_t i0 = 0; i0 < n; i0 += TREE_BATCH) {
+        uint32_t m = 0, idx[TREE_BATCH], k[TREE_BATCH];
+        float ut[TREE_BATCH][3];
+        pt_vec3 pt[TREE_BATCH];
+        double u0[TREE_BATCH], q[TREE_BATCH];
+        for (uint32_t i = i0; i < n && i < i0 + TREE_BATCH; i++) {
+            /* pt_lights_sample's choice of the class, from one number */
+            ut[m][0] = u[i][0];
+            ut[m][1] = u[i][1];
+            ut[m][2] = u[i][2];
+            if (lights->npunct > 0 || lights->env) {
+                double v = u[i][0];
+                if (!(v < lights->p_tri)) { /* the environment or a punctual light */
+                    ok[i] = pt_lights_sample(lights, scene, p[i], u[i], &s[i]);
+                    continue;
+                }
+                ut[m][0] = (float)(v / lights->p_tri);
+            }
+            u0[m] = (double)ut[m][0];
+            pt[m] = p[i];
+            idx[m++] = i;
+        }
+        pt_light_tree_sample_n(lights->tree, m, pt, u0, k, q);
+        for (uint32_t j = 0; j < m; j++) {
+            if (k[j] >= lights->count)
+                continue;
+            const light_entry *le = &lights->lights[k[j]];
+            __builtin_prefetch(le);
+            if (lights->tex_uv)
+                __builtin_prefetch(&lights->tex_uv[6 * (size_t)k[j]]);
+        }
+        for (uint32_t j = 0; j < m && lights->tex_uv; j++) {
+            if (k[j] >= lights->count)
+                continue;
+            const light_entry *le = &lights->lights[k[j]];
+            const pt_material *lm = &scene->materials[le->material];
+            if (!textured(scene, lm))
+                continue;
+            pt_vec3 pos;
+            float b1, b2, tuv[2];
+            point_on(le, ut[j][1], ut[j][2], &pos, &b1, &b2);
+            light_uv(lights, scene, lm, k[j], b1, b2, tuv);
+            pt_texture_prefetch(&scene->textures[lm->emissive_tex], tuv[0], tuv[1]);
+        }
+        for (uint32_t j = 0; j < m; j++) {
+            pt_light_sample *si = &s[idx[j]];
+            memset(si, 0, sizeof *si);
+            si->tri = UINT32_MAX;
+            ok[idx[j]] = sample_tree_light(lights, scene, pt[j], ut[j], k[j], q[j], si);
+        }
+    }
+}
+
 PT_SIMD_CLONES
 void pt_lights_sample_n(const pt_lights *lights, const pt_scene *scene, uint32_t n,
                         const pt_vec3 *p, const float (*u)[3], pt_light_sample *s, int *ok)
 {
-    if (!lights || lights->count == 0 || lights->tree || lights->solid_angle) {
+    if (lights && lights->tree) {
+        sample_n_tree(lights, scene, n, p, u, s, ok);
+        return;
+    }
+    if (!lights || lights->count == 0 || lights->solid_angle) {
         for (uint32_t i = 0; i < n; i++)
             ok[i] = pt_lights_sample(lights, scene, p[i], u[i], &s[i]);
         return;

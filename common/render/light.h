@@ -55,10 +55,10 @@ typedef struct pt_env pt_env; /* common/render/env.h */
 enum { PT_LIGHT_SELECT_AUTO = 0, PT_LIGHT_SELECT_POWER = 1, PT_LIGHT_SELECT_TREE = 2 };
 #define PT_LIGHT_TREE_MIN 16u
 /* ... and up to PT_LIGHT_TREE_AUTO_MAX: past it _AUTO chooses by power.
- * Measured (tests/bench/light_tree.sh, time to equal relMSE, power/tree):
- * EmissiveStrengthTest's 60 lights 1.85x faster with the tree, but
- * DamagedHelmet's 370 textured ones 0.81x, ToyCar's 2,720 0.81x and
- * StainedGlassLamp's 16,704 0.71x: there the walk costs more than the
+ * Measured (tests/bench/light_tree.sh, time to equal relMSE, power/tree,
+ * CPU): EmissiveStrengthTest's 60 lights 2.42x faster with the tree, but
+ * DamagedHelmet's 370 textured ones 0.77x, ToyCar's 2,720 0.88x and
+ * StainedGlassLamp's 16,704 0.87x: there the walk costs more than the
  * better choice saves. */
 #define PT_LIGHT_TREE_AUTO_MAX 256u
 /* Or'd into select: a triangle seen under at least 1.5 sr is sampled by solid

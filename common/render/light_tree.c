@@ -19,6 +19,9 @@
 
 #include <math.h>
 #include <string.h>
+#if defined(__SSE__)
+#include <xmmintrin.h>
+#endif
 
 #include "common/base/alloc.h"
 
@@ -39,29 +42,44 @@
 #define COARSE_COS 0.9f
 #define COARSE_RATIO 8.0f
 
-/* One node, 64 bytes. The children of an inner node are a pair, `next` and
- * `next` + 1, so that the walk, which reads both, reads two adjacent cache
- * lines. The box is kept as its centre and the sphere around it (radius r):
- * a point inside the box is inside the sphere. */
+/* One node, 32 bytes, so that the pair of children the walk reads is one
+ * cache line: the pairs start at even places of a 64-byte aligned array
+ * (the root is node 0, node 1 is unused). The box is kept as its centre and
+ * the sphere around it (radius r): a point inside the box is inside the
+ * sphere. The cone's axis and cosine are quantized to 16 bits, the cone
+ * widened by the rounding so that it still holds every emitting normal
+ * (node_store): the bound stays conservative, only a little looser. The
+ * lights of a node (its place in the leaves' order) are read only when the
+ * walk stops at a coarse node, so they sit apart, in span. */
 typedef struct lt_node {
     float center[3];
-    float axis[3];
-    float cos_o, sin_o;
+    float r; /* half its diagonal */
     float power;
-    float r;        /* half its diagonal */
-    uint32_t next;  /* inner: the left child (the right one follows); leaf: the light */
-    uint32_t flags; /* LT_LEAF, LT_TWO_SIDED */
-    uint32_t first; /* its lights: order[first .. first + count) */
-    uint32_t count;
-    uint32_t pad[2];
+    uint32_t next;   /* inner: the left child (the right one follows); leaf: the light;
+                      * and LT_LEAF, LT_TWO_SIDED in the top bits */
+    int16_t axis[3]; /* the cone's axis x 32767 (not quite unit: see node_store) */
+    int16_t cos_o;   /* cosine of the cone's half-angle x 32767, rounded down */
 } lt_node;
-_Static_assert(sizeof(lt_node) == 64, "a node is one cache line");
-enum { LT_LEAF = 1, LT_TWO_SIDED = 2 };
+_Static_assert(sizeof(lt_node) == 32, "a pair of nodes is one cache line");
+#define LT_LEAF 0x80000000u
+#define LT_TWO_SIDED 0x40000000u
+#define LT_INDEX 0x3fffffffu
+#define Q16 32767.0f
+/* The most the quantized axis's direction and length move cos theta_w
+ * (node_store), as an angle the cone is widened by: the axis's direction
+ * is within 3e-5 rad of the true one, its length within 5e-5 of 1. */
+#define AXIS_SLACK 1e-3
+
+/* A node's lights: order[first .. first + count). */
+typedef struct lt_span {
+    uint32_t first, count;
+} lt_span;
 
 struct pt_light_tree {
     uint32_t n, nodes_used, depth;
-    lt_node *nodes; /* 2n - 1, 64-byte aligned in nodes_mem */
+    lt_node *nodes; /* 2n, 64-byte aligned in nodes_mem */
     void *nodes_mem;
+    lt_span *span;   /* per node */
     uint64_t *bits;  /* per light: its branch bits, root's first (1 = right) */
     uint8_t *levels; /* per light: its leaf's depth */
     uint32_t *order; /* the lights in leaf order */
@@ -212,19 +230,30 @@ static void node_store(lt_node *nd, const cluster *c)
     double d2 = 0.0;
     for (int i = 0; i < 3; i++) {
         nd->center[i] = (float)(0.5 * (c->lo[i] + c->hi[i]));
-        nd->axis[i] = (float)c->axis[i];
         double e = c->hi[i] - c->lo[i];
         d2 += e * e;
     }
-    nd->cos_o = (float)cos(c->theta_o);
-    nd->sin_o = (float)sin(c->theta_o);
-    if (c->theta_o >= PI_D) {
-        nd->cos_o = -1.0f;
-        nd->sin_o = 0.0f;
+    /* The axis to 16 bits a component; the cone widened by the angle
+     * between the stored axis and the true one, and by AXIS_SLACK for the
+     * stored axis's length (up to 5e-5 from 1, which the walk does not
+     * divide out: a change of cos theta_w of that much is an angle of at
+     * most 1e-2 near theta_w = 0, where the bound is 1 anyway, and of 5e-5
+     * near pi/2, where the importance drops to 0). */
+    double q[3], ql = 0.0, qd = 0.0;
+    for (int i = 0; i < 3; i++) {
+        double a = c->axis[i] < -1.0 ? -1.0 : c->axis[i] > 1.0 ? 1.0 : c->axis[i];
+        nd->axis[i] = (int16_t)lrint(a * (double)Q16);
+        q[i] = (double)nd->axis[i] / (double)Q16;
+        ql += q[i] * q[i];
+        qd += q[i] * c->axis[i];
     }
+    double cq = ql > 0.0 ? qd / sqrt(ql) : -1.0;
+    double th = c->theta_o + acos(cq < -1.0 ? -1.0 : cq > 1.0 ? 1.0 : cq) + AXIS_SLACK;
+    /* rounded down: the cone only grows */
+    nd->cos_o = th >= PI_D ? (int16_t)-32767 : (int16_t)floor(cos(th) * (double)Q16);
     nd->power = (float)c->power;
     nd->r = (float)(0.5 * sqrt(d2));
-    nd->flags = c->two_sided ? LT_TWO_SIDED : 0;
+    nd->next = c->two_sided ? LT_TWO_SIDED : 0;
 }
 
 /* Splits perm[b..e) (e - b >= 2) into [b, mid) and [mid, e), stably. */
@@ -313,15 +342,13 @@ static void build(builder *B, uint32_t id, uint32_t b, uint32_t e, uint32_t dept
     for (uint32_t i = b; i < e; i++)
         cluster_add(&c, &B->leaf[B->perm[i]]);
     node_store(&t->nodes[id], &c);
-    t->nodes[id].pad[0] = t->nodes[id].pad[1] = 0;
-    t->nodes[id].first = t->ranked;
-    t->nodes[id].count = e - b;
+    t->span[id].first = t->ranked;
+    t->span[id].count = e - b;
     if (depth > t->depth)
         t->depth = depth;
     if (e - b == 1) {
         uint32_t l = B->perm[b];
-        t->nodes[id].flags |= LT_LEAF;
-        t->nodes[id].next = l;
+        t->nodes[id].next |= LT_LEAF | l;
         t->bits[l] = bits;
         t->levels[l] = (uint8_t)depth;
         t->rank[l] = t->ranked;
@@ -331,7 +358,7 @@ static void build(builder *B, uint32_t id, uint32_t b, uint32_t e, uint32_t dept
     uint32_t mid = split(B, b, e, &c, depth);
     uint32_t pair = t->nodes_used;
     t->nodes_used += 2;
-    t->nodes[id].next = pair;
+    t->nodes[id].next |= pair;
     build(B, pair, b, mid, depth + 1, bits);
     build(B, pair + 1, mid, e, depth + 1, bits | (uint64_t)1 << depth);
 }
@@ -350,6 +377,7 @@ static int item_ok(const pt_light_tree_item *it)
 pt_status pt_light_tree_new(const pt_light_tree_item *items, uint32_t n, pt_light_tree **out,
                             pt_error *err)
 {
+    _Static_assert(2 * (uint64_t)PT_LIGHT_TREE_MAX <= LT_INDEX, "node ids fit next");
     if (!items || !out || n < 2 || n > PT_LIGHT_TREE_MAX)
         return pt_error_set(err, PT_ERR_ARG, "light tree: %u lights (2 to %u)", n,
                             PT_LIGHT_TREE_MAX);
@@ -365,10 +393,14 @@ pt_status pt_light_tree_new(const pt_light_tree_item *items, uint32_t n, pt_ligh
     if (!t)
         goto nomem;
     t->n = n;
-    /* one spare node's room to align the array to a cache line */
-    t->nodes_mem = pt_malloc_array(2 * (size_t)n, sizeof *t->nodes);
-    if (t->nodes_mem)
+    /* 2n - 1 nodes from place 0, place 1 unused; two spare nodes' room to
+     * align the array to a cache line */
+    t->nodes_mem = pt_malloc_array(2 * (size_t)n + 2, sizeof *t->nodes);
+    if (t->nodes_mem) {
         t->nodes = (lt_node *)(((uintptr_t)t->nodes_mem + 63) & ~(uintptr_t)63);
+        memset(&t->nodes[1], 0, sizeof t->nodes[1]);
+    }
+    t->span = pt_malloc_array(2 * (size_t)n, sizeof *t->span);
     t->bits = pt_malloc_array(n, sizeof *t->bits);
     t->levels = pt_malloc_array(n, sizeof *t->levels);
     t->order = pt_malloc_array(n, sizeof *t->order);
@@ -378,8 +410,8 @@ pt_status pt_light_tree_new(const pt_light_tree_item *items, uint32_t n, pt_ligh
     B.centroid = pt_malloc_array(n, sizeof *B.centroid);
     B.perm = pt_malloc_array(n, sizeof *B.perm);
     B.tmp = pt_malloc_array(n, sizeof *B.tmp);
-    if (!t->nodes || !t->bits || !t->levels || !t->order || !t->rank || !t->cdf || !leaf ||
-        !B.centroid || !B.perm || !B.tmp)
+    if (!t->nodes || !t->span || !t->bits || !t->levels || !t->order || !t->rank || !t->cdf ||
+        !leaf || !B.centroid || !B.perm || !B.tmp)
         goto nomem;
     for (uint32_t i = 0; i < n; i++) {
         cluster_of(&items[i], &leaf[i]);
@@ -390,7 +422,7 @@ pt_status pt_light_tree_new(const pt_light_tree_item *items, uint32_t n, pt_ligh
     B.items = items;
     B.leaf = leaf;
     B.t = t;
-    t->nodes_used = 1;
+    t->nodes_used = 2;
     build(&B, 0, 0, n, 0, 0);
     t->cdf[0] = 0.0;
     for (uint32_t i = 0; i < n; i++)
@@ -415,6 +447,7 @@ void pt_light_tree_free(pt_light_tree *tree)
     if (!tree)
         return;
     pt_free(tree->nodes_mem);
+    pt_free(tree->span);
     pt_free(tree->bits);
     pt_free(tree->levels);
     pt_free(tree->order);
@@ -425,7 +458,7 @@ void pt_light_tree_free(pt_light_tree *tree)
 
 uint32_t pt_light_tree_nodes(const pt_light_tree *tree)
 {
-    return tree ? tree->nodes_used : 0;
+    return tree ? tree->nodes_used - 1 : 0; /* less the unused place 1 */
 }
 
 uint32_t pt_light_tree_depth(const pt_light_tree *tree)
@@ -433,111 +466,274 @@ uint32_t pt_light_tree_depth(const pt_light_tree *tree)
     return tree ? tree->depth : 0;
 }
 
-/* The node's importance seen from p (the top of light_tree.h). Angles are
- * subtracted through their cosines and sines: cos(a - b) = cos a cos b +
- * sin a sin b, clamped to 1 where a <= b. Inside the node's bounding sphere
- * every direction is possible (theta' = 0) and the distance is the
- * sphere's radius. Comparisons, not fminf/fmaxf: those are library calls
- * without -ffinite-math-only. */
-static inline float importance(const lt_node *nd, pt_vec3 p)
+/* Four floats, of which the walk uses the first two: a pair of children. */
+typedef float v4f __attribute__((vector_size(16)));
+typedef int32_t v4i __attribute__((vector_size(16)));
+
+static inline v4f v4_sel(v4i m, v4f a, v4f b)
 {
-    float d[3] = {p.x - nd->center[0], p.y - nd->center[1], p.z - nd->center[2]};
-    float d2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
-    float r2 = nd->r * nd->r;
-    if (!(d2 > r2)) /* inside the sphere (or NaN): every direction, distance r */
-        return r2 > 0.0f && nd->power / r2 < 3.4e38f ? nd->power / r2 : 0.0f;
-    float inv = 1.0f / sqrtf(d2), cos_p = 1.0f;
-    /* theta_w: between the cone's axis and the direction to p */
-    float cos_w = (nd->axis[0] * d[0] + nd->axis[1] * d[1] + nd->axis[2] * d[2]) * inv;
-    if (nd->flags & LT_TWO_SIDED)
-        cos_w = fabsf(cos_w);
-    cos_w = cos_w > 1.0f ? 1.0f : cos_w < -1.0f ? -1.0f : cos_w;
-    /* theta_x = max(0, theta_w - theta_o) */
-    if (cos_w < nd->cos_o) {
-        float sin_w = sqrtf(1.0f - cos_w * cos_w);
-        float cos_x = cos_w * nd->cos_o + sin_w * nd->sin_o;
-        float sin_x = sin_w * nd->cos_o - cos_w * nd->sin_o;
-        /* theta' = max(0, theta_x - theta_b), sin theta_b = r / d */
-        float sin_b = nd->r * inv;
-        float cos_b = sqrtf(1.0f - sin_b * sin_b);
-        if (cos_x < cos_b)
-            cos_p = cos_x * cos_b + sin_x * sin_b;
-        if (!(cos_p > 0.0f)) /* theta' >= theta_e = pi/2 */
-            return 0.0f;
+    return (v4f)(((v4i)a & m) | ((v4i)b & ~m));
+}
+
+static inline v4f v4_sqrt(v4f x)
+{
+#if defined(__SSE__)
+    return (v4f)_mm_sqrt_ps((__m128)x);
+#else
+    for (int l = 0; l < 4; l++)
+        x[l] = __builtin_sqrtf(x[l]);
+    return x;
+#endif
+}
+
+/* The importances of nodes g[0..3] seen from p (the top of light_tree.h)
+ * into out[0..3], all four in one set of SIMD lanes: the walk is bound by
+ * the square roots and divisions, four for four nodes here instead of
+ * twenty. A node of zero power (the unused place 1) has importance 0. Angles are subtracted through
+ * their cosines and sines: cos(a - b) = cos a cos b + sin a sin b, clamped to 1 where a <= b.
+ * Inside a node's bounding sphere every direction is possible (theta' = 0) and the distance is the
+ * sphere's radius. Every case is computed and the answer selected: which holds is as random as the
+ * shading points. Sampling and the pmf both call this, so they see the same bits. */
+static inline __attribute__((always_inline)) void importance4(const lt_node *const g[4], pt_vec3 p,
+                                                              float out[4])
+{
+#define LANES(f) {g[0]->f, g[1]->f, g[2]->f, g[3]->f}
+#define LANES_F(f)                                                                                 \
+    {                                                                                              \
+        (float)g[0]->f, (float)g[1]->f, (float)g[2]->f, (float)g[3]->f                             \
     }
-    float imp = nd->power * cos_p * (inv * inv);
-    return imp < 3.4e38f ? imp : 0.0f; /* not finite: 0 */
+#define LANES_2(f)                                                                                 \
+    {                                                                                              \
+        (g[0]->next & LT_TWO_SIDED) ? -1 : 0, (g[1]->next & LT_TWO_SIDED) ? -1 : 0,                \
+            (g[2]->next & LT_TWO_SIDED) ? -1 : 0, (g[3]->next & LT_TWO_SIDED) ? -1 : 0             \
+    }
+    v4f dx = p.x - (v4f)LANES(center[0]);
+    v4f dy = p.y - (v4f)LANES(center[1]);
+    v4f dz = p.z - (v4f)LANES(center[2]);
+    v4f r = LANES(r), power = LANES(power);
+    v4f d2 = dx * dx + dy * dy + dz * dz, r2 = r * r;
+    v4i outside = d2 > r2; /* else inside the sphere (or NaN): every direction, distance r */
+    v4f inv = 1.0f / v4_sqrt(v4_sel(outside, d2, (v4f){1.0f, 1.0f, 1.0f, 1.0f}));
+    /* theta_w: between the cone's axis and the direction to p */
+    v4f ax = LANES_F(axis[0]);
+    v4f ay = LANES_F(axis[1]);
+    v4f az = LANES_F(axis[2]);
+    v4f cos_w = (ax * dx + ay * dy + az * dz) * (inv * (1.0f / Q16));
+    v4i two = LANES_2(next);
+    cos_w = v4_sel(two, (v4f)((v4i)cos_w & 0x7fffffff), cos_w);
+    cos_w = v4_sel(cos_w > 1.0f, (v4f){1.0f, 1.0f, 1.0f, 1.0f}, cos_w);
+    cos_w = v4_sel(cos_w < -1.0f, (v4f){-1.0f, -1.0f, -1.0f, -1.0f}, cos_w);
+    /* theta_x = max(0, theta_w - theta_o) */
+    v4f cos_o = (v4f)LANES_F(cos_o) * (1.0f / Q16);
+    v4f sin_w = v4_sqrt(1.0f - cos_w * cos_w), sin_o = v4_sqrt(1.0f - cos_o * cos_o);
+    v4i apart = cos_w < cos_o;
+    v4f cos_x = v4_sel(apart, cos_w * cos_o + sin_w * sin_o, (v4f){1.0f, 1.0f, 1.0f, 1.0f});
+    v4f sin_x = v4_sel(apart, sin_w * cos_o - cos_w * sin_o, (v4f){0.0f, 0.0f, 0.0f, 0.0f});
+    /* theta' = max(0, theta_x - theta_b), sin theta_b = r / d < 1 outside */
+    v4f sin_b = r * inv;
+    sin_b = v4_sel(sin_b < 1.0f, sin_b, (v4f){1.0f, 1.0f, 1.0f, 1.0f});
+    v4f cos_b = v4_sqrt(1.0f - sin_b * sin_b);
+    v4f cos_p = v4_sel(cos_x < cos_b, cos_x * cos_b + sin_x * sin_b, (v4f){1.0f, 1.0f, 1.0f, 1.0f});
+    v4f imp_out = power * cos_p * (inv * inv);
+    imp_out = (v4f)((v4i)imp_out & (cos_p > 0.0f)); /* theta' >= theta_e = pi/2: 0 */
+    v4i r_ok = r2 > 0.0f;
+    v4f imp_in = power / v4_sel(r_ok, r2, (v4f){1.0f, 1.0f, 1.0f, 1.0f});
+    imp_in = (v4f)((v4i)imp_in & r_ok);
+    v4f imp = v4_sel(outside, imp_out, imp_in);
+    imp = (v4f)((v4i)imp & (imp < 3.4e38f)); /* not finite: 0 */
+    memcpy(out, &imp, sizeof imp);
+#undef LANES
+#undef LANES_F
+#undef LANES_2
 }
 
 /* Whether the walk stops at node nd seen from p (COARSE_COS above). */
 static inline int coarse(const lt_node *nd, pt_vec3 p)
 {
-    if (nd->cos_o < COARSE_COS)
+    if ((float)nd->cos_o * (1.0f / Q16) < COARSE_COS)
         return 0;
     float d[3] = {p.x - nd->center[0], p.y - nd->center[1], p.z - nd->center[2]};
     float rr = COARSE_RATIO * nd->r;
     return d[0] * d[0] + d[1] * d[1] + d[2] * d[2] > rr * rr;
 }
 
-/* The share of the light at place i of the order among node nd's lights. */
-static inline double power_share(const pt_light_tree *t, const lt_node *nd, uint32_t i)
+/* The share of the light at place i of the order among node id's lights. */
+static inline double power_share(const pt_light_tree *t, uint32_t id, uint32_t i)
 {
-    return (t->cdf[i + 1] - t->cdf[i]) / (t->cdf[nd->first + nd->count] - t->cdf[nd->first]);
+    const lt_span *sp = &t->span[id];
+    return (t->cdf[i + 1] - t->cdf[i]) / (t->cdf[sp->first + sp->count] - t->cdf[sp->first]);
 }
 
-uint32_t pt_light_tree_sample(const pt_light_tree *tree, pt_vec3 p, double u, double *pmf)
+/* The walk steps two levels at a time: from a node, it chooses among its
+ * grandchildren at once (a child that is a leaf takes its own place, its
+ * second place empty), each in proportion to its importance. This is the
+ * 4-wide tree whose nodes are the binary tree's even levels: half the
+ * steps, each one set of four SIMD lanes (importance4), and the same
+ * function of the tree for the sampler and the pmf. The four places of
+ * node id's step, and the node each stands for, into g and to: */
+static inline __attribute__((always_inline)) void step_places(const pt_light_tree *t, uint32_t id,
+                                                              const lt_node *g[4], uint32_t to[4])
+{
+    const lt_node *nodes = t->nodes;
+    uint32_t c = nodes[id].next & LT_INDEX;
+    for (uint32_t j = 0; j < 2; j++) {
+        uint32_t nx = nodes[c + j].next;
+        uint32_t gc = nx & LT_INDEX;
+        int leaf = (nx & LT_LEAF) != 0;
+        to[2 * j] = leaf ? c + j : gc;
+        to[2 * j + 1] = leaf ? 1u : gc + 1; /* 1: the unused place, power 0 */
+        g[2 * j] = &nodes[to[2 * j]];
+        g[2 * j + 1] = &nodes[to[2 * j + 1]];
+    }
+}
+
+/* The walk's next reads asked for before the current ones are used: the
+ * children of the four places (one of them is read next), so that a
+ * step's cache miss overlaps the one before it. A leaf's next names a
+ * light, not a node: masked into the array, read for nothing. */
+static inline void prefetch_below(const pt_light_tree *t, const lt_node *const g[4])
+{
+    uint32_t mask = t->nodes_used - 1; /* x & mask <= mask < nodes_used */
+    for (int k = 0; k < 4; k++)
+        __builtin_prefetch(&t->nodes[(g[k]->next & LT_INDEX) & mask]);
+}
+
+/* The functions that walk the tree are compiled at -O2 under GCC: at -O3
+ * (the Release build's) the batched walk took 1.45x the time a choice
+ * (16,704 lights on a sphere, 200,000 points: 265 ns against 182 ns),
+ * and the one-at-a-time walk 1.07x; no single -O3 flag alone accounts for
+ * it. Other compilers take the build's level. */
+#if defined(__GNUC__) && !defined(__clang__)
+#define LT_WALK_OPT __attribute__((optimize("O2")))
+#else
+#define LT_WALK_OPT
+#endif
+
+/* One walk of pt_light_tree_sample: u stays; the interval [base, base +
+ * width) of it that leads to node id shrinks (a product, not a division, in
+ * the walk's chain), q is the probability of reaching id. */
+typedef struct lt_walk {
+    double q, base, width;
+    uint32_t id;
+} lt_walk;
+
+/* The walk w one step down from p and u; 1 while it goes on, 0 once it has
+ * chosen: the light in *light (UINT32_MAX for none) and its pmf in *pmf.
+ * pt_light_tree_sample and pt_light_tree_sample_n both walk by it, so that
+ * their choices are the same bits. */
+static inline __attribute__((always_inline)) int
+walk_step(const pt_light_tree *tree, lt_walk *w, pt_vec3 p, double u, uint32_t *light, double *pmf)
 {
     const lt_node *nodes = tree->nodes;
-    uint32_t id = 0;
-    /* u stays; the interval [base, base + width) of it that leads to the
-     * node shrinks (a product, not a division, in the walk's chain). */
-    double q = 1.0, base = 0.0, width = 1.0;
-    while (!(nodes[id].flags & LT_LEAF)) {
-        if (coarse(&nodes[id], p)) {
-            /* the first place i of the node's lights with target < cdf[i + 1] */
-            const lt_node *nd = &nodes[id];
-            uint32_t lo = nd->first, hi = nd->first + nd->count - 1;
-            double c0 = tree->cdf[lo], v = (u - base) / width;
-            v = v < 0.0 ? 0.0 : v < 0x1.fffffffffffffp-1 ? v : 0x1.fffffffffffffp-1;
-            double target = c0 + v * (tree->cdf[hi + 1] - c0);
-            while (lo < hi) {
-                uint32_t mid = lo + (hi - lo) / 2;
-                if (target < tree->cdf[mid + 1])
-                    hi = mid;
-                else
-                    lo = mid + 1;
-            }
-            double share = power_share(tree, nd, lo);
-            if (!(share > 0.0))
-                break;
-            *pmf = q * share;
-            return tree->order[lo];
+    uint32_t id = w->id;
+    if (nodes[id].next & LT_LEAF) {
+        *pmf = w->q;
+        *light = nodes[id].next & LT_INDEX;
+        return 0;
+    }
+    if (coarse(&nodes[id], p)) {
+        /* the first place i of the node's lights with target < cdf[i + 1] */
+        const lt_span *sp = &tree->span[id];
+        uint32_t lo = sp->first, hi = sp->first + sp->count - 1;
+        double c0 = tree->cdf[lo], v = (u - w->base) / w->width;
+        v = v < 0.0 ? 0.0 : v < 0x1.fffffffffffffp-1 ? v : 0x1.fffffffffffffp-1;
+        double target = c0 + v * (tree->cdf[hi + 1] - c0);
+        while (lo < hi) {
+            uint32_t mid = lo + (hi - lo) / 2;
+            if (target < tree->cdf[mid + 1])
+                hi = mid;
+            else
+                lo = mid + 1;
         }
-        uint32_t c = nodes[id].next;
-        float il = importance(&nodes[c], p), ir = importance(&nodes[c + 1], p);
-        double sum = (double)il + (double)ir;
-        if (!(sum > 0.0)) {
+        double share = power_share(tree, id, lo);
+        if (!(share > 0.0)) { /* a rounded search found no light */
             *pmf = 0.0;
-            return UINT32_MAX;
+            *light = UINT32_MAX;
+            return 0;
         }
-        double pl = (double)il / sum;
-        /* Selects, not branches: the side is random. */
-        double cut = base + pl * width;
-        int right = !(u < cut);
-        double pc = right ? 1.0 - pl : pl;
-        base = right ? cut : base;
-        width *= pc;
-        q *= pc;
-        id = c + (uint32_t)right;
+        *pmf = w->q * share;
+        *light = tree->order[lo];
+        return 0;
     }
-    if (!(nodes[id].flags & LT_LEAF)) { /* a rounded search found no light */
+    const lt_node *g[4];
+    uint32_t to[4];
+    step_places(tree, id, g, to);
+    prefetch_below(tree, g);
+    float imp[4];
+    importance4(g, p, imp);
+    double sum = ((double)imp[0] + (double)imp[1]) + ((double)imp[2] + (double)imp[3]);
+    if (!(sum > 0.0)) {
         *pmf = 0.0;
-        return UINT32_MAX;
+        *light = UINT32_MAX;
+        return 0;
     }
-    *pmf = q;
-    return nodes[id].next;
+    /* place k takes [cut_k, cut_k + width p_k); selects, not branches:
+     * the place is random. An empty place's interval is empty. */
+    double pk[4], cut[4], acc = 0.0;
+    uint32_t k = 0;
+    for (int j = 0; j < 4; j++) {
+        pk[j] = (double)imp[j] / sum;
+        cut[j] = w->base + acc * w->width;
+        k = u < cut[j] ? k : (uint32_t)j;
+        acc += pk[j];
+    }
+    /* rounding can leave u past the last non-empty place: then an empty
+     * one, never chosen with a weight */
+    if (!(pk[k] > 0.0)) {
+        *pmf = 0.0;
+        *light = UINT32_MAX;
+        return 0;
+    }
+    w->base = cut[k];
+    w->width *= pk[k];
+    w->q *= pk[k];
+    w->id = to[k];
+    return 1;
 }
 
+LT_WALK_OPT
+uint32_t pt_light_tree_sample(const pt_light_tree *tree, pt_vec3 p, double u, double *pmf)
+{
+    lt_walk w = {1.0, 0.0, 1.0, 0};
+    uint32_t light;
+    while (walk_step(tree, &w, p, u, &light, pmf))
+        ;
+    return light;
+}
+
+/* The walks in flight at once in pt_light_tree_sample_n: enough for their
+ * cache misses to overlap, few enough for their state to stay in L1. */
+#define WALKS 16u
+
+LT_WALK_OPT
+void pt_light_tree_sample_n(const pt_light_tree *tree, uint32_t n, const pt_vec3 *p,
+                            const double *u, uint32_t *light, double *pmf)
+{
+    lt_walk w[WALKS];
+    uint32_t who[WALKS]; /* the point each slot walks for */
+    uint32_t next = 0, live = 0;
+    /* Slots refill as walks end, so that WALKS are in flight until the
+     * points run out; each walk's steps are walk_step's, whatever the
+     * interleaving. */
+    while (live > 0 || next < n) {
+        while (live < WALKS && next < n) {
+            w[live] = (lt_walk){1.0, 0.0, 1.0, 0};
+            who[live++] = next++;
+        }
+        for (uint32_t k = 0; k < live;) {
+            uint32_t i = who[k];
+            if (walk_step(tree, &w[k], p[i], u[i], &light[i], &pmf[i])) {
+                k++;
+                continue;
+            }
+            live--; /* the last slot takes this one's place */
+            w[k] = w[live];
+            who[k] = who[live];
+        }
+    }
+}
+
+LT_WALK_OPT
 double pt_light_tree_pmf(const pt_light_tree *tree, pt_vec3 p, uint32_t light)
 {
     if (!tree || light >= tree->n)
@@ -546,18 +742,25 @@ double pt_light_tree_pmf(const pt_light_tree *tree, pt_vec3 p, uint32_t light)
     uint64_t bits = tree->bits[light];
     uint32_t id = 0, levels = tree->levels[light];
     double q = 1.0;
-    for (uint32_t k = 0; k < levels; k++) {
+    for (uint32_t k = 0; k < levels;) {
         if (coarse(&nodes[id], p))
-            return q * power_share(tree, &nodes[id], tree->rank[light]);
-        uint32_t c = nodes[id].next;
-        float il = importance(&nodes[c], p), ir = importance(&nodes[c + 1], p);
-        double sum = (double)il + (double)ir;
+            return q * power_share(tree, id, tree->rank[light]);
+        const lt_node *g[4];
+        uint32_t to[4];
+        step_places(tree, id, g, to);
+        /* the place on the light's path: its child's side, then, when that
+         * child is not the leaf, the grandchild's */
+        uint32_t b0 = (uint32_t)(bits >> k) & 1u, slot = 2 * b0;
+        if (k + 1 < levels)
+            slot += (uint32_t)(bits >> (k + 1)) & 1u;
+        k += k + 1 < levels ? 2 : 1;
+        float imp[4];
+        importance4(g, p, imp);
+        double sum = ((double)imp[0] + (double)imp[1]) + ((double)imp[2] + (double)imp[3]);
         if (!(sum > 0.0))
             return 0.0;
-        double pl = (double)il / sum;
-        uint32_t right = (uint32_t)(bits >> k) & 1u;
-        q *= right ? 1.0 - pl : pl;
-        id = c + right;
+        q *= (double)imp[slot] / sum;
+        id = to[slot];
     }
     return q;
 }

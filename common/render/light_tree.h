@@ -13,11 +13,17 @@
  * d the distance to the box's centre, r its half-diagonal, theta' the
  * smallest angle any emitting normal in the cone can make with the direction
  * to p once the box's angular size is allowed for (0 when no light in the node
- * can face p: theta' >= pi/2). A light is chosen by walking down from the root,
- * taking each child with probability importance / (sum of both); its
- * probability is the product along the way, which pt_light_tree_pmf recomputes
- * for any light from the branch bits stored with it, with the same float
- * operations, so NEE and the MIS weight of a BSDF hit see the same number.
+ * can face p: theta' >= pi/2). A light is chosen by walking down from the root
+ * two levels a step: among a node's four grandchildren (a child that is a
+ * leaf stands for itself), each with probability importance / (sum of the
+ * four), the four importances in one set of SIMD lanes - the 4-wide tree
+ * whose nodes are the binary tree's even levels. Its probability is the
+ * product along the way, which pt_light_tree_pmf recomputes for any light
+ * from the branch bits stored with it, with the same float operations, so
+ * NEE and the MIS weight of a BSDF hit see the same number. Nodes are 32
+ * bytes (the cone's axis and cosine in 16 bits, rounded outwards), a pair
+ * of children one cache line; pt_light_tree_sample_n interleaves the walks
+ * of many points so that their cache misses overlap.
  *
  * Build: binned surface-area-orientation heuristic (SAOH, Conty & Kulla eq. 2)
  * over 12 buckets per axis; one light per leaf. It is a pure function of the
@@ -58,6 +64,12 @@ void pt_light_tree_free(pt_light_tree *tree); /* accepts NULL */
 /* The light u (in [0,1)) chooses seen from p, and its probability in *pmf;
  * UINT32_MAX with *pmf 0 when no light can light p. */
 uint32_t pt_light_tree_sample(const pt_light_tree *tree, pt_vec3 p, double u, double *pmf);
+
+/* pt_light_tree_sample(tree, p[i], u[i], &pmf[i]) into light[i] for i < n,
+ * the same bits, with the walks of up to 16 points interleaved so that their
+ * cache misses overlap. */
+void pt_light_tree_sample_n(const pt_light_tree *tree, uint32_t n, const pt_vec3 *p,
+                            const double *u, uint32_t *light, double *pmf);
 
 /* The probability that pt_light_tree_sample chooses light from p, the same
  * bits; 0 for a light it cannot choose there. */

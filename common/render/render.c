@@ -2665,8 +2665,12 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
     uint32_t others = pt_lights_punctual_count(r->lights) + (uint32_t)pt_lights_has_env(r->lights);
     r->nee =
         pt_lights_count(r->lights) + others > 0 && params->light_strategy != PT_LIGHT_BSDF_ONLY;
-    /* The stage-wide light sampling and the lanes know only triangles. */
-    r->nee_n = r->nee && pt_lights_count(r->lights) >= LIGHTS_N_MIN && others == 0;
+    /* The stage-wide light sampling and the lanes know only triangles; with
+     * a light tree it takes any class and pays at any count (the walks of a
+     * stage's points interleave: EmissiveStrengthTest's 60 lights, see
+     * docs/bench/light_tree.md). */
+    r->nee_n = r->nee && ((pt_lights_count(r->lights) >= LIGHTS_N_MIN && others == 0) ||
+                          pt_lights_has_tree(r->lights));
     uint32_t features = scene->features | (params->extra_features & ~PARAM_FEATURES);
     r->alpha = (scene->features & PT_FEAT_ALPHA) != 0;
     r->motion = (scene->features & PT_FEAT_MOTION) ? scene->motion : NULL;

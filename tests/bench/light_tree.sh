@@ -27,6 +27,9 @@
 #   OUT      folder for references and CSVs [/tmp/ptfarm-light-tree]; a
 #            reference already there (same scene, size, spp) is reused
 #   BASE     another build's BIN_DIR [none]: its ptbench is the old series
+#   SELECT   --light-select of the new series, and of the old one too when
+#            BASE is set [none: each build's default]; e.g. tree to time
+#            the tree past PT_LIGHT_TREE_AUTO_MAX lights
 set -euo pipefail
 
 if [[ $# -lt 1 || $# -gt 2 || ! -x "$1/ptbench" || ! -x "$1/ptworker" ]]; then
@@ -44,6 +47,7 @@ SPP=${SPP:-16,64,256}
 REF_SPP=${REF_SPP:-4096}
 OUT=${OUT:-/tmp/ptfarm-light-tree}
 BASE=${BASE:-}
+SELECT=${SELECT:-}
 mkdir -p "$OUT"
 
 # median over the CSVs of one series: spp, wall s, CPU s, relMSE
@@ -80,13 +84,17 @@ for scene in $SCENES; do
     rm -f "$OUT/$name"-old-*.csv "$OUT/$name"-new-*.csv
     for ((rep = 1; rep <= REPS; rep++)); do
         common=("$scene" --reference "$ref" --res "$RES" --spp "$SPP" --threads "$THREADS")
+        select=()
+        if [[ -n $SELECT ]]; then
+            select=(--light-select "$SELECT")
+        fi
         if [[ -n $BASE ]]; then
-            "$BASE/ptbench" "${common[@]}" --csv "$OUT/$name-old-$rep.csv" >/dev/null
+            "$BASE/ptbench" "${common[@]}" "${select[@]}" --csv "$OUT/$name-old-$rep.csv" >/dev/null
         else
             "$BIN/ptbench" "${common[@]}" --light-select power --csv "$OUT/$name-old-$rep.csv" \
                 >/dev/null
         fi
-        "$BIN/ptbench" "${common[@]}" --csv "$OUT/$name-new-$rep.csv" >/dev/null
+        "$BIN/ptbench" "${common[@]}" "${select[@]}" --csv "$OUT/$name-new-$rep.csv" >/dev/null
     done
     medians "$OUT/$name"-old-*.csv >"$OUT/$name-old.txt"
     medians "$OUT/$name"-new-*.csv >"$OUT/$name-new.txt"

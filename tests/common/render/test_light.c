@@ -752,7 +752,8 @@ static void test_sides(void)
 /* pt_lights_sample_n gives pt_lights_sample's results bit for bit: points all
  * around the lights (both sides of the single-sided ones, on a light's
  * vertex, not finite), every length of a batch around its 8-lane steps,
- * and a scene without lights. */
+ * with the alias table and with the light tree, and a scene without
+ * lights. */
 static void check_sample_n(const pt_lights *L, const pt_scene *s, const char *what)
 {
     enum { N = 77 };
@@ -795,6 +796,13 @@ static void test_sample_n(void)
     CHECK(pt_lights_new(&t.s, &L, NULL) == PT_OK);
     if (L)
         check_sample_n(L, &t.s, "main scene");
+    pt_lights_free(L);
+    /* through the light tree: the batched walks (pt_light_tree_sample_n) */
+    L = NULL;
+    CHECK(pt_lights_new_select(&t.s, NULL, 0, PT_LIGHT_SELECT_TREE, &L, NULL) == PT_OK);
+    CHECK(pt_lights_has_tree(L));
+    if (L)
+        check_sample_n(L, &t.s, "main scene, light tree");
     pt_lights_free(L);
 
     ts_init(&t);

@@ -23,6 +23,9 @@
  *   (conservative under the sampler's stratification), stays under the
  *   two-sided normal quantile for a family-wise false alarm of 1e-3 over all
  *   blocks and channels (Bonferroni).
+ * - One step chooses among four nodes: four lights two levels deep get
+ *   pmfs in proportion to their own importances; pt_light_tree_sample_n
+ *   gives pt_light_tree_sample's bits.
  * - Coarse nodes: coplanar lights seen from far are chosen by power alone
  *   (pmf and sampler), from close by by the tree.
  * - Bad input (counts, NaN, zero power) and allocation failure.
@@ -467,10 +470,94 @@ static void test_auto_range(void)
     }
 }
 
+/* Four small triangles in two clusters far apart, seen from the origin: the
+ * tree is two levels deep and a walk chooses among the four leaves in one
+ * step, so each light's pmf is its own importance over the four's sum,
+ * power x cos(theta') / d^2 (light_tree.h). theta' is theta_w, the tilt,
+ * less the cone's stored half-angle (at most acos(32766 / 32767) = 7.9e-3
+ * for a triangle's, rounded to 16 bits) and the leaf's angular radius
+ * (asin(r / d) < 1.4e-3): delta < 9.3e-3, a relative change of cos of at
+ * most delta x tan(theta_w) + delta^2 / 2 < 3.5e-2 at the steepest tilt
+ * here (75 degrees), and the shares, normalized, move by at most twice
+ * that: 7e-2. A walk that chose a cluster first, by the cluster's bound
+ * (its summed power, its merged cone), gives the tilted lights shares
+ * 20-27 % off. */
+static void test_four_at_once(void)
+{
+    enum { N = 4 };
+    const pt_vec3 pos[N] = {{-3, 0.3f, 6}, {-3, -0.3f, 6}, {3, 0.3f, 6}, {3, -0.3f, 6}};
+    const float tilt[N] = {0.0f, 75.0f, 0.0f, 60.0f}; /* degrees from facing the origin */
+    const float power[N] = {1.0f, 2.0f, 1.5f, 1.0f};
+    pt_light_tree_item it[N];
+    double imp[N], sum = 0.0;
+    for (int i = 0; i < N; i++) {
+        pt_vec3 to_p = pt_v3_norm(pt_v3_scale(pos[i], -1.0f));
+        /* the normal: to_p turned by tilt towards a side */
+        pt_vec3 side = pt_v3_norm(pt_v3_cross(to_p, pt_v3(0, 1, 0)));
+        double a = tilt[i] * 3.14159265358979323846 / 180.0;
+        it[i].axis = pt_v3_norm(
+            pt_v3_add(pt_v3_scale(to_p, (float)cos(a)), pt_v3_scale(side, (float)sin(a))));
+        it[i].lo = pt_v3_sub(pos[i], pt_v3(0.005f, 0.005f, 0.005f));
+        it[i].hi = pt_v3_add(pos[i], pt_v3(0.005f, 0.005f, 0.005f));
+        it[i].cos_o = 1.0f;
+        it[i].power = power[i];
+        it[i].two_sided = 0;
+        double d2 = (double)pt_v3_dot(pos[i], pos[i]);
+        imp[i] = power[i] * cos(a) / d2;
+        sum += imp[i];
+    }
+    pt_light_tree *t = NULL;
+    CHECK(pt_light_tree_new(it, N, &t, NULL) == PT_OK);
+    if (!t)
+        return;
+    CHECKF(pt_light_tree_depth(t) == 2, "depth %u", pt_light_tree_depth(t));
+    for (int i = 0; i < N; i++) {
+        double q = pt_light_tree_pmf(t, pt_v3(0, 0, 0), (uint32_t)i), e = imp[i] / sum;
+        CHECKF(fabs(q - e) < 7e-2 * e, "light %d: pmf %.5f, importance share %.5f", i, q, e);
+    }
+    pt_light_tree_free(t);
+}
+
+/* pt_light_tree_sample_n gives pt_light_tree_sample's bits, for counts
+ * below, at and past the walks it interleaves. */
+static void test_sample_n(void)
+{
+    rng_state = 7;
+    static pt_light_tree_item it[NL];
+    static pt_vec3 v[3 * NL];
+    random_lights(it, v, NL);
+    pt_light_tree *t = NULL;
+    CHECK(pt_light_tree_new(it, NL, &t, NULL) == PT_OK);
+    if (!t)
+        return;
+    enum { M = 101 };
+    pt_vec3 p[M];
+    double u[M], q[M];
+    uint32_t l[M];
+    int bad = 0;
+    for (int i = 0; i < M; i++) {
+        p[i] = pt_v3((float)(30 * rnd() - 15), (float)(30 * rnd() - 15), (float)(25 * rnd() - 2));
+        u[i] = rnd();
+    }
+    const uint32_t counts[] = {0, 1, 15, 16, 17, M};
+    for (size_t c = 0; c < sizeof counts / sizeof counts[0]; c++) {
+        pt_light_tree_sample_n(t, counts[c], p, u, l, q);
+        for (uint32_t i = 0; i < counts[c]; i++) {
+            double q1;
+            uint32_t l1 = pt_light_tree_sample(t, p[i], u[i], &q1);
+            bad += l1 != l[i] || memcmp(&q1, &q[i], sizeof q1) != 0;
+        }
+    }
+    CHECKF(bad == 0, "%d batched choices differ from single ones", bad);
+    pt_light_tree_free(t);
+}
+
 int main(void)
 {
     test_pmf_sums_and_sides();
     test_chi2();
+    test_four_at_once();
+    test_sample_n();
     test_lights_pdf();
     test_coarse();
     test_errors();
