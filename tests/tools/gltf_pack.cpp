@@ -32,6 +32,9 @@
 // - other attributes and indices as they are. Skins, morph targets, sparse
 //   accessors and instanced nodes are refused (exit 2).
 //
+// MODE quantize+meshopt: both, as gltfpack writes by default (-c): the
+// quantized views then coded as in meshopt.
+//
 // Exit 0 when written, 2 with a message otherwise. A test tool: it trusts
 // the sample assets' structure (checked, not hardened like the importer).
 #include <meshoptimizer.h>
@@ -149,7 +152,7 @@ struct packer {
     bytes out;           // the GLB's buffer
     size_t fallback = 0; // bytes of the meshopt fallback buffer
     json views = json::array();
-    bool meshopt = false, sequence = false, corrupt = false, corrupted = false;
+    bool meshopt = false, quantize = false, sequence = false, corrupt = false, corrupted = false;
     double scale_error = 1.0;
 
     size_t append(const void *p, size_t n)
@@ -435,7 +438,7 @@ struct packer {
         // Quantization's per-mesh position frames and the file's UV frame.
         std::map<int, std::vector<double>> frame; // mesh -> cx, cy, cz, s
         double uv_lo[2] = {1e300, 1e300}, uv_hi[2] = {-1e300, -1e300};
-        if (!meshopt) {
+        if (quantize) {
             std::map<int, std::vector<double>> box;
             for (auto &r : role) {
                 if (r.second == "POSITION") {
@@ -482,7 +485,7 @@ struct packer {
                 size_t count = a["count"];
                 a["bufferView"] = view(e, count, elem, false, k == "indices" && count % 3 == 0);
                 a.erase("byteOffset");
-            } else if (meshopt) {
+            } else if (!quantize) {
                 copy_attribute(a);
             } else if (k == "POSITION") {
                 const auto &f = frame[mesh_of[r.first]];
@@ -498,7 +501,7 @@ struct packer {
             }
         }
 
-        if (!meshopt) {
+        if (quantize) {
             // Dequantization of positions: a child node per mesh node.
             json &nodes = doc["nodes"];
             size_t n0 = nodes.size();
@@ -541,9 +544,9 @@ struct packer {
                 add_extension("KHR_texture_transform", false);
             }
             add_extension("KHR_mesh_quantization", true);
-        } else {
-            add_extension("EXT_meshopt_compression", true);
         }
+        if (meshopt)
+            add_extension("EXT_meshopt_compression", true);
         doc["bufferViews"] = views;
         json buffers = json::array();
         buffers.push_back({{"byteLength", out.size()}});
@@ -582,16 +585,18 @@ struct packer {
 int main(int argc, char **argv)
 {
     if (argc < 4) {
-        fprintf(stderr, "usage: ptgltf-pack meshopt|quantize IN.(gltf|glb) OUT.glb "
-                        "[--sequence] [--corrupt] [--scale-error F]\n");
+        fprintf(stderr,
+                "usage: ptgltf-pack meshopt|quantize|quantize+meshopt IN.(gltf|glb) OUT.glb "
+                "[--sequence] [--corrupt] [--scale-error F]\n");
         return 2;
     }
     try {
         packer p;
         std::string mode = argv[1];
-        if (mode != "meshopt" && mode != "quantize")
-            die("mode '" + mode + "': meshopt or quantize");
-        p.meshopt = mode == "meshopt";
+        if (mode != "meshopt" && mode != "quantize" && mode != "quantize+meshopt")
+            die("mode '" + mode + "': meshopt, quantize or quantize+meshopt");
+        p.meshopt = mode != "quantize";
+        p.quantize = mode != "meshopt";
         for (int i = 4; i < argc; i++) {
             if (strcmp(argv[i], "--sequence") == 0)
                 p.sequence = true;
