@@ -60,7 +60,7 @@ render() { # NAME FILE SEED [camera options]
 for asset in helmet car; do
   if [ $asset = helmet ]; then
     src=$helmet
-    cam=(--camera-from 0,0.3,3 --camera-at 0,0,0 --fov 45) # fixed: no framing by the bounds
+    cam=(--camera-from "0,0.3,3" --camera-at "0,0,0" --fov 45) # fixed: no framing by the bounds
   else
     src=$car
     cam=() # the file's camera
