@@ -1,9 +1,9 @@
-// ptgltf-pack MODE IN.(gltf|glb) OUT.glb [--scale-error F] [--corrupt]
+// ptgltf-pack MODE IN.(gltf|glb) OUT.glb [--sequence] [--corrupt] [--scale-error F]
 //
 // Writes a compressed or quantized variant of a sample asset, as gltfpack
 // would, so that tests can render it against the original (gltfpack is not
-// packaged in Debian). Every accessor of a mesh primitive (attributes and
-// indices) gets a buffer view of its own; the other views (images,
+// packaged in Debian). Every accessor of a mesh primitive (attributes,
+// morph targets and indices) gets a buffer view of its own; the other views (images,
 // animations, skins) are copied as they are; the output is one GLB.
 //
 // MODE meshopt (EXT_meshopt_compression, lossless, no filter): each
@@ -19,8 +19,9 @@
 // the middle of the first attribute stream.
 //
 // MODE quantize (KHR_mesh_quantization; the types its README allows):
-// - POSITION: SHORT (not normalized), per mesh q = round((p - c) / s) with c
-//   the centre of the mesh's bounds and s = half its largest extent / 32767,
+// - POSITION: SHORT (not normalized), per mesh (meshes that share a POSITION
+//   accessor: per group) q = round((p - c) / s) with c the centre of the
+//   bounds and s = half the largest extent / 32767,
 //   so |q| <= 32767; the dequantization c + s q is the matrix of a new child
 //   node that carries the mesh (uniform scale: normals stay normals);
 //   --scale-error F writes s F there instead, a deliberately wrong decoder;
@@ -29,8 +30,9 @@
 //   [0, 1], q = round(65535 (uv - lo) / (hi - lo)) over the file's bounds
 //   and every texture reference gets KHR_texture_transform offset lo,
 //   scale hi - lo (composed with its own transform, which must not rotate);
-// - other attributes and indices as they are. Skins, morph targets, sparse
-//   accessors and instanced nodes are refused (exit 2).
+// - other attributes and indices as they are. Skins, morph targets and
+//   instanced nodes are refused (exit 2).
+// Both modes refuse sparse accessors and Draco primitives.
 //
 // MODE quantize+meshopt: both, as gltfpack writes by default (-c): the
 // quantized views then coded as in meshopt.
@@ -371,16 +373,36 @@ struct packer {
     void run()
     {
         json &acc = doc["accessors"];
-        if (doc.contains("skins"))
-            die("skins are not handled");
+        if (quantize && doc.contains("skins"))
+            die("skins are not handled by quantize");
         // Accessors of the meshes, by role; which views they use.
         std::map<size_t, std::string> role; // accessor -> attribute or "indices"
         std::map<size_t, int> mesh_of;      // POSITION accessor -> mesh
+        // Meshes that share a POSITION accessor share a frame: each mesh's
+        // group, by union-find.
+        std::vector<int> group(doc["meshes"].size());
+        for (size_t i = 0; i < group.size(); i++)
+            group[i] = int(i);
+        auto root = [&](int m) {
+            while (group[size_t(m)] != m)
+                m = group[size_t(m)] = group[size_t(group[size_t(m)])];
+            return m;
+        };
         std::set<size_t> mesh_views;
         for (size_t mi = 0; mi < doc["meshes"].size(); mi++)
             for (auto &pr : doc["meshes"][mi]["primitives"]) {
-                if (pr.contains("targets"))
-                    die("morph targets are not handled");
+                if (pr.contains("targets")) {
+                    if (quantize)
+                        die("morph targets are not handled by quantize");
+                    for (auto &t : pr["targets"])
+                        for (auto it = t.begin(); it != t.end(); ++it) {
+                            size_t ai = it.value();
+                            std::string k = "target " + it.key();
+                            if (role.count(ai) && role[ai] != k)
+                                die("an accessor used as two attributes");
+                            role[ai] = k;
+                        }
+                }
                 if (pr.contains("extensions") &&
                     pr["extensions"].contains("KHR_draco_mesh_compression"))
                     die("Draco primitives are not handled");
@@ -390,9 +412,10 @@ struct packer {
                         die("an accessor used as two attributes");
                     role[ai] = it.key();
                     if (it.key() == "POSITION") {
-                        if (mesh_of.count(ai) && mesh_of[ai] != int(mi))
-                            die("a POSITION accessor shared by two meshes");
-                        mesh_of[ai] = int(mi);
+                        if (mesh_of.count(ai))
+                            group[size_t(root(int(mi)))] = root(mesh_of[ai]);
+                        else
+                            mesh_of[ai] = int(mi);
                     }
                 }
                 if (pr.contains("indices")) {
@@ -443,7 +466,7 @@ struct packer {
             for (auto &r : role) {
                 if (r.second == "POSITION") {
                     std::vector<float> f = floats(acc[r.first], 3);
-                    auto &b = box[mesh_of[r.first]];
+                    auto &b = box[root(mesh_of[r.first])];
                     if (b.empty())
                         b = {1e300, 1e300, 1e300, -1e300, -1e300, -1e300};
                     for (size_t i = 0; i < f.size(); i++) {
@@ -488,7 +511,7 @@ struct packer {
             } else if (!quantize) {
                 copy_attribute(a);
             } else if (k == "POSITION") {
-                const auto &f = frame[mesh_of[r.first]];
+                const auto &f = frame[root(mesh_of[r.first])];
                 quantize_position(a, f.data(), f[3]);
             } else if (k == "NORMAL") {
                 quantize_unit(a, 3);
@@ -512,9 +535,9 @@ struct packer {
                     nodes[ni]["extensions"].contains("EXT_mesh_gpu_instancing"))
                     die("instanced nodes are not handled");
                 int mi = nodes[ni]["mesh"];
-                if (!frame.count(mi))
+                if (!frame.count(root(mi)))
                     continue;
-                const auto &f = frame[mi];
+                const auto &f = frame[root(mi)];
                 double s = f[3] * scale_error;
                 json child = {
                     {"mesh", mi},
