@@ -1,4 +1,5 @@
-// ptgltf-pack MODE IN.(gltf|glb) OUT.glb [--sequence] [--corrupt] [--scale-error F]
+// ptgltf-pack MODE IN.(gltf|glb) OUT.glb [--sequence] [--filter] [--corrupt]
+//     [--scale-error F]
 //
 // Writes a compressed or quantized variant of a sample asset, as gltfpack
 // would, so that tests can render it against the original (gltfpack is not
@@ -35,7 +36,9 @@
 // Both modes refuse sparse accessors and Draco primitives.
 //
 // MODE quantize+meshopt: both, as gltfpack writes by default (-c): the
-// quantized views then coded as in meshopt.
+// quantized views then coded as in meshopt; with --filter the normals go
+// through meshoptimizer's OCTAHEDRAL filter (8 bits, as gltfpack -cc)
+// instead of being rounded to BYTE.
 //
 // Exit 0 when written, 2 with a message otherwise. A test tool: it trusts
 // the sample assets' structure (checked, not hardened like the importer).
@@ -155,6 +158,8 @@ struct packer {
     size_t fallback = 0; // bytes of the meshopt fallback buffer
     json views = json::array();
     bool meshopt = false, quantize = false, sequence = false, corrupt = false, corrupted = false;
+    bool octahedral = false;           // --filter: normals through the OCTAHEDRAL filter
+    const char *next_filter = nullptr; // the filter of the view being written
     double scale_error = 1.0;
 
     size_t append(const void *p, size_t n)
@@ -241,6 +246,8 @@ struct packer {
                      {"byteStride", stride},
                      {"count", count},
                      {"mode", mode}}}}}};
+            if (next_filter)
+                v["extensions"]["EXT_meshopt_compression"]["filter"] = next_filter;
             fallback += data.size();
         }
         if (vertex)
@@ -284,11 +291,22 @@ struct packer {
                 double q = std::round(127.0 * std::fmax(-1.0, std::fmin(1.0, f[i * n + k])));
                 p[i * 4 + k] = uint8_t(int8_t(q));
             }
+        if (octahedral && meshopt && n == 3) {
+            // The filter's input: unit vectors as 4 floats (meshoptimizer.h,
+            // meshopt_encodeFilterOct); its output decodes to 8-bit snorm.
+            std::vector<float> f4(count * 4, 0.0f);
+            for (size_t i = 0; i < count; i++)
+                for (int k = 0; k < 3; k++)
+                    f4[i * 4 + size_t(k)] = f[i * 3 + size_t(k)];
+            meshopt_encodeFilterOct(p.data(), count, 4, 8, f4.data());
+            next_filter = "OCTAHEDRAL";
+        }
         a["componentType"] = 5120;
         a["normalized"] = true;
         a.erase("min");
         a.erase("max");
         a["bufferView"] = view(p, count, 4, true, false);
+        next_filter = nullptr;
         a.erase("byteOffset");
     }
 
@@ -610,7 +628,7 @@ int main(int argc, char **argv)
     if (argc < 4) {
         fprintf(stderr,
                 "usage: ptgltf-pack meshopt|quantize|quantize+meshopt IN.(gltf|glb) OUT.glb "
-                "[--sequence] [--corrupt] [--scale-error F]\n");
+                "[--sequence] [--filter] [--corrupt] [--scale-error F]\n");
         return 2;
     }
     try {
@@ -621,7 +639,9 @@ int main(int argc, char **argv)
         p.meshopt = mode != "quantize";
         p.quantize = mode != "meshopt";
         for (int i = 4; i < argc; i++) {
-            if (strcmp(argv[i], "--sequence") == 0)
+            if (strcmp(argv[i], "--filter") == 0)
+                p.octahedral = true;
+            else if (strcmp(argv[i], "--sequence") == 0)
                 p.sequence = true;
             else if (strcmp(argv[i], "--corrupt") == 0)
                 p.corrupt = true;
