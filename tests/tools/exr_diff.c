@@ -22,6 +22,17 @@
  * bias (the same sign of a last bit in many pixels) would read as
  * significant: a mean difference within 1e-6 of the channel's mean (16
  * float ulps, far below any sample's weight) passes too.
+ *
+ * ptexr-diff --noise MAX A.exr B.exr C.exr: for B, a render of A's scene
+ * with its geometry slightly perturbed (quantized), with A's seed, and C, a
+ * render of A's scene with another seed: per channel (R, G, B), the ratio
+ * r = rms(B - A) / rms(C - A). C - A is the difference of two independent
+ * estimates, so rms(C - A)^2 is twice the per-pixel variance; B shares A's
+ * random numbers, so B - A holds only the paths the perturbation turned
+ * aside (each as far from A as an independent sample) and a bias as small
+ * as the perturbation: r is near 0 for a small perturbation and near or
+ * above 1 when the geometry is wrong. Exit 0 when r <= MAX on every channel
+ * (and the samples agree), else 1; the ratios are printed.
  */
 #include <math.h>
 #include <stdio.h>
@@ -92,10 +103,64 @@ static int diff_z(const pt_image *a, const pt_image *b, double zmax)
     return rc;
 }
 
+/* --noise: the ratio above. */
+static int diff_noise(const pt_image *a, const pt_image *b, const pt_image *c, double rmax)
+{
+    size_t n = (size_t)a->width * a->height;
+    const float *pa[3] = {a->r, a->g, a->b}, *pb[3] = {b->r, b->g, b->b},
+                *pc[3] = {c->r, c->g, c->b};
+    int rc = 0;
+    for (size_t i = 0; i < n; i++)
+        if (a->samples[i] != b->samples[i] || a->samples[i] != c->samples[i]) {
+            printf("pixel (%zu, %zu): the sample counts differ\n", i % a->width, i / a->width);
+            return 1;
+        }
+    for (int k = 0; k < 3; k++) {
+        double db = 0.0, dc = 0.0;
+        for (size_t i = 0; i < n; i++) {
+            double x = (double)pb[k][i] - (double)pa[k][i], y = (double)pc[k][i] - (double)pa[k][i];
+            db += x * x;
+            dc += y * y;
+        }
+        double r = dc > 0.0 ? sqrt(db / dc) : (db > 0.0 ? INFINITY : 0.0);
+        printf("%c: rms(B - A) %.3g, rms(C - A) %.3g, ratio %.4f\n", "RGB"[k], sqrt(db / (double)n),
+               sqrt(dc / (double)n), r);
+        if (!(r <= rmax))
+            rc = 1;
+    }
+    return rc;
+}
+
 int main(int argc, char **argv)
 {
     if (argc == 2 && !strcmp(argv[1], "--version"))
         return pt_version_print("ptexr-diff");
+    if (argc >= 2 && !strcmp(argv[1], "--noise")) {
+        char *end = NULL;
+        double rmax = argc == 6 ? strtod(argv[2], &end) : 0.0;
+        if (argc != 6 || *end || !(rmax > 0.0)) {
+            fprintf(stderr, "usage: ptexr-diff --noise MAX A.exr B.exr C.exr (MAX > 0)\n");
+            return 2;
+        }
+        pt_image *im[3] = {NULL, NULL, NULL};
+        pt_error err = {0};
+        int rc = 0;
+        for (int k = 0; k < 3 && rc == 0; k++)
+            if (pt_exr_read_layers(argv[3 + k], &im[k], NULL, &err) != PT_OK) {
+                fprintf(stderr, "ptexr-diff: %s\n", err.msg);
+                rc = 2;
+            }
+        for (int k = 1; k < 3 && rc == 0; k++)
+            if (im[k]->width != im[0]->width || im[k]->height != im[0]->height) {
+                fprintf(stderr, "ptexr-diff: sizes differ: %s\n", argv[3 + k]);
+                rc = 2;
+            }
+        if (rc == 0)
+            rc = diff_noise(im[0], im[1], im[2], rmax);
+        for (int k = 0; k < 3; k++)
+            pt_image_free(im[k]);
+        return rc;
+    }
     double zmax = -1.0;
     if (argc == 5 && !strcmp(argv[1], "--z")) {
         char *end;
@@ -114,6 +179,7 @@ int main(int argc, char **argv)
     }
     if (argc != 3 || !strcmp(argv[1], "-h") || !strcmp(argv[1], "--help")) {
         fprintf(argc == 3 ? stdout : stderr, "usage: ptexr-diff [--base | --z MAX] A.exr B.exr\n"
+                                             "       ptexr-diff --noise MAX A.exr B.exr C.exr\n"
                                              "       ptexr-diff --version\n");
         return argc == 3 ? 0 : 2;
     }
