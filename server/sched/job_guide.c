@@ -392,33 +392,30 @@ void job_guide_save(const srv_job *j, proto_writer *w)
 static pt_status load_distribution(const uint8_t *p, size_t n, int packed, sealed *out,
                                    pt_guide **g, pt_error *err)
 {
-    if (packed) {
-        pt_status st = unseal(p, n, g, err);
-        if (st != PT_OK)
-            return st;
-        uint8_t *raw = NULL;
-        size_t len = 0;
-        /* The hash is of the GUIDE bytes: unpacked once more, so that
-         * nothing but the packed bytes stays. */
-        st = proto_guide_unpack(p, n, &raw, &len, err);
-        if (st == PT_OK) {
-            pt_sha256(raw, len, out->hash);
-            out->len = len;
-            out->plen = n;
-            if (!(out->pack = pt_malloc(n)))
-                st = pt_error_set(err, PT_ERR_NOMEM, "checkpoint: guide of %zu bytes", n);
-            else
-                memcpy(out->pack, p, n);
-        }
-        pt_free(raw);
-        return st;
-    }
-    pt_status st = proto_guide_decode(p, n, g, err);
+    uint8_t *raw = NULL;
+    size_t len = n;
+    pt_status st = packed ? proto_guide_unpack(p, n, &raw, &len, err) : PT_OK;
+    const uint8_t *bytes = packed ? raw : p;
+    if (st == PT_OK)
+        st = proto_guide_decode(bytes, len, g, err);
     if (st == PT_OK && (st = pt_guide_check(*g, err)) != PT_OK) {
         pt_guide_free(*g);
         *g = NULL;
     }
-    return st == PT_OK ? seal_bytes(p, n, out, err) : st;
+    if (st == PT_OK && packed) {
+        /* The packed bytes as they are; the hash is of the GUIDE bytes. */
+        pt_sha256(raw, len, out->hash);
+        out->len = len;
+        out->plen = n;
+        if (!(out->pack = pt_malloc(n)))
+            st = pt_error_set(err, PT_ERR_NOMEM, "checkpoint: guide of %zu bytes", n);
+        else
+            memcpy(out->pack, p, n);
+    } else if (st == PT_OK) {
+        st = seal_bytes(p, n, out, err);
+    }
+    pt_free(raw);
+    return st;
 }
 
 pt_status job_guide_load(srv_job *j, proto_reader *r, int packed, pt_error *err)
