@@ -16,7 +16,7 @@
 # the source tree; a crash is saved as <build>/fuzz-artifacts/<target>-crash-*
 # and fails the script. To keep a crash as a regression seed, copy it into
 # tests/fuzz/corpus/<target>/ once fixed.
-# Environment: PT_JOBS (build jobs, default nproc), PT_FUZZ_MAX_LEN (default 16384: room for a HEARTBEAT past its cap).
+# Environment: PT_JOBS (build jobs and fuzzers run at once, default nproc), PT_FUZZ_MAX_LEN (default 16384: room for a HEARTBEAT past its cap).
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 seconds=${1:?usage: run_fuzzers.sh SECONDS [TARGET...]}
@@ -37,22 +37,43 @@ if [[ ! -f "$build/CMakeCache.txt" ]]; then
 fi
 cmake --build "$build" -j "$jobs" --target "${targets[@]}"
 
-mkdir -p "$build/fuzz-artifacts"
-status=0
-for t in "${targets[@]}"; do
+mkdir -p "$build/fuzz-artifacts" "$build/fuzz-logs"
+# One fuzzer per job, PT_JOBS at a time: each still gets SECONDS of its own
+# core, and the run takes SECONDS x targets / jobs. Each one's output goes to
+# its log, printed when it ends, so the outputs do not interleave.
+run_one() {
+  local t=$1
   mkdir -p "$build/fuzz-corpus/$t"
-  echo "== $t: ${seconds}s"
-  extra=()
+  local extra=() seeds=("tests/fuzz/corpus/$t")
   [[ -f tests/fuzz/$t.dict ]] && extra+=("-dict=tests/fuzz/$t.dict")
-  seeds=("tests/fuzz/corpus/$t")
   [[ $t == fuzz_gltf ]] && seeds+=(scenes)
-  if ! ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1 \
-      "$build/bin/$t" -max_total_time="$seconds" -timeout=10 -rss_limit_mb=2048 \
-      -max_len="$max_len" -print_final_stats=1 "${extra[@]}" \
-      -artifact_prefix="$build/fuzz-artifacts/$t-" \
-      "$build/fuzz-corpus/$t" "${seeds[@]}"; then
+  ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1 \
+    "$build/bin/$t" -max_total_time="$seconds" -timeout=10 -rss_limit_mb=2048 \
+    -max_len="$max_len" -print_final_stats=1 "${extra[@]}" \
+    -artifact_prefix="$build/fuzz-artifacts/$t-" \
+    "$build/fuzz-corpus/$t" "${seeds[@]}"
+}
+status=0
+pids=()
+names=()
+# Waits for the oldest running fuzzer and reports it.
+reap() {
+  local t=${names[0]} rc=0
+  wait "${pids[0]}" || rc=$?
+  echo "== $t: ${seconds}s"
+  cat "$build/fuzz-logs/$t.log"
+  if ((rc != 0)); then
     echo "== $t: FAILED (see $build/fuzz-artifacts/)" >&2
     status=1
   fi
+  pids=("${pids[@]:1}")
+  names=("${names[@]:1}")
+}
+for t in "${targets[@]}"; do
+  ((${#pids[@]} < jobs)) || reap
+  run_one "$t" >"$build/fuzz-logs/$t.log" 2>&1 &
+  pids+=($!)
+  names+=("$t")
 done
+while ((${#pids[@]} > 0)); do reap; done
 exit $status
