@@ -13,6 +13,7 @@
 #include <string.h>
 
 #include "common/image/denoise.h"
+#include "tests/rng.h"
 
 /* The buffers of one test image: truth and everything pt_denoise reads. */
 typedef struct scene {
@@ -29,10 +30,7 @@ static uint64_t rng_state;
 
 static inline uint64_t splitmix64(void)
 {
-    uint64_t z = (rng_state += 0x9e3779b97f4a7c15ull);
-    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
-    z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
-    return z ^ (z >> 31);
+    return rng_u64(&rng_state);
 }
 
 /* A standard normal number (Box-Muller). */

@@ -38,6 +38,7 @@
 #include <stdint.h>
 
 #include "tests/check.h"
+#include "tests/rng.h"
 #include "tests/stats.h"
 
 #define N_CHI2_TESTS 2
@@ -47,11 +48,7 @@
 static uint64_t rng = 0x2545f4914f6cdd1dull;
 static float rndf(void)
 {
-    uint64_t z = (rng += 0x9e3779b97f4a7c15ull);
-    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
-    z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
-    z ^= z >> 31;
-    return (float)(z >> 40) * 0x1p-24f;
+    return rng_f24(&rng);
 }
 
 static pt_vec3 random_upper(void)

@@ -64,6 +64,7 @@
 #include "tests/check.h"
 #include "tests/common/render/closure_of.h"
 #include "tests/common/render/paired.h"
+#include "tests/rng.h"
 #include "tests/stats.h"
 
 #define PI_D 3.14159265358979323846
@@ -72,11 +73,7 @@
 static uint64_t rng = 0x9e3779b97f4a7c15ull;
 static float rndf(void)
 {
-    uint64_t z = (rng += 0x9e3779b97f4a7c15ull);
-    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
-    z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
-    z ^= z >> 31;
-    return (float)(z >> 40) * 0x1.0p-24f;
+    return rng_f24(&rng);
 }
 
 static pt_vec3 incidence(float deg)

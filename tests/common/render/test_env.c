@@ -36,6 +36,7 @@
 #include "common/render/render.h"
 #include "common/scene/scene.h"
 #include "tests/check.h"
+#include "tests/rng.h"
 #include "tests/stats.h"
 
 #define PI_D 3.14159265358979323846
@@ -46,11 +47,7 @@ static char tmp[256];
 static uint64_t rng = 0x9e3779b97f4a7c15ull;
 static double rnd(void)
 {
-    uint64_t z = (rng += 0x9e3779b97f4a7c15ull);
-    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
-    z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
-    z ^= z >> 31;
-    return (double)(z >> 11) * 0x1.0p-53;
+    return rng_f53(&rng);
 }
 
 /* This test's (u, v) of a direction: env.h's formula, written again. */

@@ -34,6 +34,7 @@
 #include "common/base/alloc.h"
 #include "common/render/guide.h"
 #include "tests/check.h"
+#include "tests/rng.h"
 #include "tests/stats.h"
 
 #define PI_D 3.14159265358979323846
@@ -41,11 +42,7 @@
 static uint64_t rng = 0x2545f4914f6cdd1dull;
 static double rnd(void)
 {
-    uint64_t z = (rng += 0x9e3779b97f4a7c15ull);
-    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
-    z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
-    z ^= z >> 31;
-    return (double)(z >> 11) * 0x1.0p-53;
+    return rng_f53(&rng);
 }
 
 static pt_vec3 uniform_dir(void)

@@ -46,6 +46,7 @@
 #include "tests/check.h"
 #include "tests/common/render/blocks.h"
 #include "tests/common/render/paired.h"
+#include "tests/rng.h"
 #include "tests/stats.h"
 
 #define NL 300
@@ -55,12 +56,7 @@ static uint64_t rng_state;
 
 static double rnd(void)
 {
-    /* splitmix64 (Steele, Lea & Flood 2014) */
-    uint64_t z = (rng_state += 0x9e3779b97f4a7c15ull);
-    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
-    z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
-    z ^= z >> 31;
-    return (double)(z >> 11) * 0x1p-53;
+    return rng_f53(&rng_state);
 }
 
 static pt_vec3 rnd_dir(void)

@@ -28,6 +28,7 @@
 #include "common/render/light.h"
 #include "tests/check.h"
 #include "tests/common/render/blocks.h"
+#include "tests/rng.h"
 #include "tests/stats.h"
 
 #define PI_D 3.14159265358979323846
@@ -36,12 +37,7 @@ static uint64_t rng_state;
 
 static double rnd(void)
 {
-    /* splitmix64 (Steele, Lea & Flood 2014) */
-    uint64_t z = (rng_state += 0x9e3779b97f4a7c15ull);
-    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
-    z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
-    z ^= z >> 31;
-    return (double)(z >> 40) * 0x1p-24;
+    return rng_f24(&rng_state);
 }
 
 static void sub3(const double a[3], const double b[3], double o[3])

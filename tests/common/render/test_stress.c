@@ -35,6 +35,7 @@
 #include "common/scene/accel.h"
 #include "common/scene/scene.h"
 #include "tests/check.h"
+#include "tests/rng.h"
 
 /* ---- rendering and statistics ---------------------------------------------------------- */
 
@@ -608,11 +609,7 @@ static uint64_t rng_state;
 
 static double rnd(void)
 {
-    /* splitmix64 (Steele, Lea, Flood 2014): a fixed, portable stream. */
-    uint64_t z = (rng_state += 0x9e3779b97f4a7c15ull);
-    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
-    z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
-    return (double)((z ^ (z >> 31)) >> 11) * 0x1p-53;
+    return rng_f53(&rng_state);
 }
 
 typedef struct offset_stats {

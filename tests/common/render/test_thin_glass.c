@@ -68,17 +68,14 @@
 #include "common/scene/scene.h"
 #include "tests/check.h"
 #include "tests/common/render/paired.h"
+#include "tests/rng.h"
 
 #define PI_D 3.14159265358979323846
 
 static uint64_t rng = 0x2545f4914f6cdd1dull;
 static float rndf(void)
 {
-    uint64_t z = (rng += 0x9e3779b97f4a7c15ull);
-    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
-    z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
-    z ^= z >> 31;
-    return (float)(z >> 40) * 0x1.0p-24f;
+    return rng_f24(&rng);
 }
 
 /* ---- pt_closure_straight against sampling ---- */

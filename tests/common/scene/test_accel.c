@@ -14,6 +14,7 @@
 
 #include "common/base/alloc.h"
 #include "tests/check.h"
+#include "tests/rng.h"
 
 /* ---- small helpers ------------------------------------------------------------------ */
 
@@ -21,11 +22,7 @@ static uint64_t rng_state;
 
 static uint64_t rng_next(void)
 {
-    /* splitmix64 (Steele, Lea & Flood 2014). */
-    uint64_t z = (rng_state += 0x9e3779b97f4a7c15ull);
-    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
-    z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
-    return z ^ (z >> 31);
+    return rng_u64(&rng_state);
 }
 
 static float rnd(void)
