@@ -808,9 +808,28 @@ static void write_ver(const char *name, proto_writer *w, const long *vers, int n
     proto_writer_fini(w);
 }
 
-static void write_v3(const char *name, proto_writer *w, const long *vers, int nvers, int crc)
+/* One step down the state formats: fn writes the older layout of the file's
+ * n bytes d (its trailing CRC32C included) into w; convert then sets the
+ * version fields at vers to version and appends a fresh CRC32C when crc. */
+typedef struct state_converter {
+    void (*fn)(const uint8_t *d, size_t n, proto_writer *w);
+    long vers[2];
+    int nvers, crc;
+    uint32_t version;
+} state_converter;
+
+/* Rewrites the state file name in c's older format. */
+static void convert(const char *name, const state_converter *c)
 {
-    write_ver(name, w, vers, nvers, crc, 3);
+    uint8_t *d;
+    size_t n;
+    if (!read_state(name, &d, &n))
+        return;
+    proto_writer w;
+    proto_writer_init(&w, 1 << 30);
+    c->fn(d, n, &w);
+    write_ver(name, &w, c->vers, c->nvers, c->crc, c->version);
+    pt_free(d);
 }
 
 /* A fixed-point sum (two u64, low half first) at q as format 4's f64. */
@@ -851,14 +870,8 @@ static size_t frames_end(const uint8_t *d, size_t at)
 
 /* The queue file of format 9: the same records without format 10's
  * contributions clamped, their last field. */
-static void queue_to_v9(const char *name)
+static void queue_v9(const uint8_t *d, size_t n, proto_writer *w)
 {
-    uint8_t *d;
-    size_t n;
-    if (!read_state(name, &d, &n))
-        return;
-    proto_writer w;
-    proto_writer_init(&w, 1 << 30);
     size_t at = 8 + 8 + 4, done = 0;
     for (uint32_t i = 0, count = proto_get_u32(d + 16); i < count; i++) {
         at += 8 + 8 + 1 + 4;
@@ -868,45 +881,29 @@ static void queue_to_v9(const char *name)
         at += 32 + 8 + 8 + 8 + 8;
         at += 2 + proto_get_u16(d + at); /* message */
         at = frames_end(d, at + 8 + 8);  /* paths capped, samples rejected */
-        proto_w_bytes(&w, d + done, at - done);
+        proto_w_bytes(w, d + done, at - done);
         at += 8; /* contributions clamped */
         done = at;
     }
     CHECK(at + 4 == n);
-    const long vers[] = {4};
-    write_ver(name, &w, vers, 1, 1, 9);
-    pt_free(d);
 }
+static const state_converter QUEUE_V9 = {queue_v9, {4}, 1, 1, 9};
 
 /* A checkpoint of format 9: the same bytes without format 10's
  * contributions clamped after the depth-cap count. */
-static void checkpoint_to_v9(const char *name)
+static void checkpoint_v9(const uint8_t *d, size_t n, proto_writer *w)
 {
-    uint8_t *d;
-    size_t n;
-    if (!read_state(name, &d, &n))
-        return;
-    proto_writer w;
-    proto_writer_init(&w, 1 << 30);
     /* envelope 8, seconds/rejected/rays 24, magic, version, id, hash, params */
     size_t at = shutter_at(d, 8 + 24 + 4 + 4 + 8 + 32) + 16 + 8 + 25 + 8;
-    proto_w_bytes(&w, d, at);
-    proto_w_bytes(&w, d + at + 8, n - 4 - (at + 8));
-    const long vers[] = {4, 36};
-    write_ver(name, &w, vers, 2, 1, 9);
-    pt_free(d);
+    proto_w_bytes(w, d, at);
+    proto_w_bytes(w, d + at + 8, n - 4 - (at + 8));
 }
+static const state_converter CHECKPOINT_V9 = {checkpoint_v9, {4, 36}, 2, 1, 9};
 
 /* The queue file of format 6: the same records without the shutter, format
  * 9's clamps and format 8's count of rejected samples. */
-static void queue_to_v6(const char *name)
+static void queue_v6(const uint8_t *d, size_t n, proto_writer *w)
 {
-    uint8_t *d;
-    size_t n;
-    if (!read_state(name, &d, &n))
-        return;
-    proto_writer w;
-    proto_writer_init(&w, 1 << 30);
     size_t at = 8 + 8 + 4, done = 0;
     for (uint32_t i = 0, count = proto_get_u32(d + 16); i < count; i++) {
         at += 8 + 8 + 1 + 4;
@@ -914,55 +911,39 @@ static void queue_to_v6(const char *name)
             at += 2 + proto_get_u16(d + at);
         at += 8; /* submitted */
         size_t sh = shutter_at(d, at);
-        proto_w_bytes(&w, d + done, sh - done);
+        proto_w_bytes(w, d + done, sh - done);
         at = sh + 16 + 8 + 25; /* the shutter, the clamps and guiding */
         done = at;
         at += 32 + 8 + 8 + 8 + 8;
         at += 2 + proto_get_u16(d + at); /* message */
         at += 8;                         /* paths capped */
-        proto_w_bytes(&w, d + done, at - done);
+        proto_w_bytes(w, d + done, at - done);
         at += 8; /* samples rejected */
         done = at;
         at = frames_end(d, at);
     }
     CHECK(at + 4 == n);
-    proto_w_bytes(&w, d + done, n - 4 - done);
-    const long vers[] = {4};
-    write_ver(name, &w, vers, 1, 1, 6);
-    pt_free(d);
+    proto_w_bytes(w, d + done, n - 4 - done);
 }
+static const state_converter QUEUE_V6 = {queue_v6, {4}, 1, 1, 6};
 
 /* A checkpoint of format 6: the same bytes without the shutter and format
  * 9's clamps. */
-static void checkpoint_to_v6(const char *name)
+static void checkpoint_v6(const uint8_t *d, size_t n, proto_writer *w)
 {
-    uint8_t *d;
-    size_t n;
-    if (!read_state(name, &d, &n))
-        return;
-    proto_writer w;
-    proto_writer_init(&w, 1 << 30);
     /* envelope 8, seconds/rejected/rays 24, magic, version, id, hash, params */
     size_t sh = shutter_at(d, 8 + 24 + 4 + 4 + 8 + 32);
-    proto_w_bytes(&w, d, sh);
-    proto_w_bytes(&w, d + sh + 49, n - 4 - (sh + 49)); /* shutter, clamps, guiding */
-    const long vers[] = {4, 36};
-    write_ver(name, &w, vers, 2, 1, 6);
-    pt_free(d);
+    proto_w_bytes(w, d, sh);
+    proto_w_bytes(w, d + sh + 49, n - 4 - (sh + 49)); /* shutter, clamps, guiding */
 }
+static const state_converter CHECKPOINT_V6 = {checkpoint_v6, {4, 36}, 2, 1, 6};
 
 /* The queue file of format 5: each record without format 6's frame range,
  * pose and frames done, its last fields (read in format 6's layout). */
-static void queue_to_v5(const char *name)
+static void queue_v5(const uint8_t *d, size_t n, proto_writer *w)
 {
-    uint8_t *d;
-    size_t n;
-    if (!read_state(name, &d, &n))
-        return;
-    proto_writer w;
-    proto_writer_init(&w, 1 << 30);
     size_t at = 8 + 8 + 4;
-    proto_w_bytes(&w, d, at);
+    proto_w_bytes(w, d, at);
     for (uint32_t i = 0, count = proto_get_u32(d + 16); i < count; i++) {
         size_t start = at;
         at += 8 + 8 + 1 + 4;
@@ -976,39 +957,23 @@ static void queue_to_v5(const char *name)
         at += 32 + 8 + 8 + 8 + 8;
         at += 2 + proto_get_u16(d + at); /* message */
         at += 8;                         /* paths capped */
-        proto_w_bytes(&w, d + start, at - start);
+        proto_w_bytes(w, d + start, at - start);
         at = frames_end(d, at);
     }
     CHECK(at + 4 == n);
-    const long vers[] = {4};
-    write_ver(name, &w, vers, 1, 1, 5);
-    pt_free(d);
 }
+static const state_converter QUEUE_V5 = {queue_v5, {4}, 1, 1, 5};
 
 /* The queue file of format 4: the same records as format 5. */
-static void queue_to_v4(const char *name)
+static void queue_v4(const uint8_t *d, size_t n, proto_writer *w)
 {
-    uint8_t *d;
-    size_t n;
-    if (!read_state(name, &d, &n))
-        return;
-    proto_writer w;
-    proto_writer_init(&w, 1 << 30);
-    proto_w_bytes(&w, d, n - 4);
-    const long vers[] = {4};
-    write_ver(name, &w, vers, 1, 1, 4);
-    pt_free(d);
+    proto_w_bytes(w, d, n - 4);
 }
+static const state_converter QUEUE_V4 = {queue_v4, {4}, 1, 1, 4};
 
 /* A checkpoint of format 4: double sums, 40-byte pixels. */
-static void checkpoint_to_v4(const char *name)
+static void checkpoint_v4(const uint8_t *d, size_t n, proto_writer *w)
 {
-    uint8_t *d;
-    size_t n;
-    if (!read_state(name, &d, &n))
-        return;
-    proto_writer w;
-    proto_writer_init(&w, 1 << 30);
     /* envelope 8, seconds/rejected/rays 24, magic, version, id, hash, params */
     size_t at = 8 + 24 + 4 + 4 + 8 + 32;
     uint32_t wd = proto_get_u32(d + at), ht = proto_get_u32(d + at + 4),
@@ -1025,15 +990,15 @@ static void checkpoint_to_v4(const char *name)
      * tiles + tile (the job's tasks are fixed chunks here). */
     uint32_t ntiles = proto_get_u32(d + at);
     at += 8;
-    proto_w_bytes(&w, d, at);
+    proto_w_bytes(w, d, at);
     for (uint32_t i = 0; i < ntiles; i++, at += 5) {
         uint32_t m = proto_get_u32(d + at);
         CHECK(m % chunk == 0 || m == spp);
-        proto_w_u32(&w, (m + chunk - 1) / chunk);
-        proto_w_u8(&w, d[at + 4]);
+        proto_w_u32(w, (m + chunk - 1) / chunk);
+        proto_w_u8(w, d[at + 4]);
     }
     uint32_t nheld = proto_get_u32(d + at);
-    proto_w_u32(&w, nheld);
+    proto_w_u32(w, nheld);
     at += 4;
     uint32_t tiles_x = (wd + tile - 1) / tile;
     for (uint32_t i = 0; i < nheld; i++) {
@@ -1042,18 +1007,16 @@ static void checkpoint_to_v4(const char *name)
         uint32_t tw = wd - tx * tile < tile ? wd - tx * tile : tile;
         uint32_t th = ht - ty * tile < tile ? ht - ty * tile : tile;
         CHECK(s0 % chunk == 0);
-        proto_w_u64(&w, (uint64_t)(s0 / chunk) * ntiles + t);
+        proto_w_u64(w, (uint64_t)(s0 / chunk) * ntiles + t);
         at += 12;
         for (uint32_t k = 0; k < tw * th; k++, at += 72)
-            pixel_to_v4(&w, d + at);
+            pixel_to_v4(w, d + at);
     }
     for (uint64_t k = 0; k < (uint64_t)wd * ht; k++, at += 72)
-        pixel_to_v4(&w, d + at);
+        pixel_to_v4(w, d + at);
     CHECK(at + 4 == n);
-    const long vers[] = {4, 36};
-    write_ver(name, &w, vers, 2, 1, 4);
-    pt_free(d);
 }
+static const state_converter CHECKPOINT_V4 = {checkpoint_v4, {4, 36}, 2, 1, 4};
 
 /* A RESULT payload of the current layout as protocol 3 wrote it (68 bytes of
  * header, f64 sums) into rec (reset first). */
@@ -1076,32 +1039,25 @@ static void payload_to_p3(const uint8_t *pl, uint32_t len, proto_writer *rec)
 /* A results log of frames ("PTRF") into one of format 4: records ("PTRL")
  * of a RESULT of protocol 3 (68 bytes of header, f64 sums), with their
  * checksum. */
-static void log_to_v4(const char *name)
+static void log_v4(const uint8_t *d, size_t n, proto_writer *w)
 {
-    uint8_t *d;
-    size_t n;
-    if (!read_state(name, &d, &n))
-        return;
-    proto_writer w, rec;
-    proto_writer_init(&w, 1 << 30);
+    proto_writer rec;
     proto_writer_init(&rec, 1 << 30);
     CHECK(n >= 16 && proto_get_u32(d) == 0x46525450u);
-    proto_w_u32(&w, 0x4c525450u);
-    proto_w_bytes(&w, d + 4, 12);
+    proto_w_u32(w, 0x4c525450u);
+    proto_w_bytes(w, d + 4, 12);
     for (size_t at = 16; at + PROTO_FRAME_OVERHEAD <= n;) {
         uint32_t len = proto_frame_payload_len(d + at);
         CHECK(at + PROTO_FRAME_OVERHEAD + len <= n && len >= 69);
         payload_to_p3(d + at + PROTO_FRAME_HEADER, len, &rec);
-        proto_w_u32(&w, (uint32_t)rec.len);
-        proto_w_u32(&w, proto_crc32c(0, rec.buf, rec.len));
-        proto_w_bytes(&w, rec.buf, rec.len);
+        proto_w_u32(w, (uint32_t)rec.len);
+        proto_w_u32(w, proto_crc32c(0, rec.buf, rec.len));
+        proto_w_bytes(w, rec.buf, rec.len);
         at += PROTO_FRAME_OVERHEAD + len;
     }
     proto_writer_fini(&rec);
-    const long vers[] = {4};
-    write_ver(name, &w, vers, 1, 0, 4);
-    pt_free(d);
 }
+static const state_converter LOG_V4 = {log_v4, {4}, 1, 0, 4};
 
 /* A results log of frames with every frame's protocol version set to v (its
  * CRC32C redone): from 4 on the payload is kept (RESULT has not changed
@@ -1162,54 +1118,40 @@ static void copy_params_v3(proto_writer *w, const uint8_t *d, size_t *at, uint32
 
 /* The queue file: each record without its environment, film flags, variant
  * and depth-cap count. */
-static void queue_to_v3(const char *name)
+static void queue_v3(const uint8_t *d, size_t n, proto_writer *w)
 {
-    uint8_t *d;
-    size_t n;
-    if (!read_state(name, &d, &n))
-        return;
-    proto_writer w;
-    proto_writer_init(&w, 1 << 30);
     size_t at = 8 + 8 + 4;
-    proto_w_bytes(&w, d, at);
+    proto_w_bytes(w, d, at);
     for (uint32_t i = 0, count = proto_get_u32(d + 16); i < count; i++) {
-        proto_w_bytes(&w, d + at, 8 + 8 + 1 + 4);
+        proto_w_bytes(w, d + at, 8 + 8 + 1 + 4);
         at += 8 + 8 + 1 + 4;
         for (int k = 0; k < 4; k++) /* name, owner, scene, output */
-            copy_str(&w, d, &at);
-        proto_w_bytes(&w, d + at, 8); /* submitted */
+            copy_str(w, d, &at);
+        proto_w_bytes(w, d + at, 8); /* submitted */
         at += 8;
         uint32_t wht[3];
-        copy_params_v3(&w, d, &at, wht);
-        proto_w_bytes(&w, d + at, 32 + 8 + 8 + 8 + 8);
+        copy_params_v3(w, d, &at, wht);
+        proto_w_bytes(w, d + at, 32 + 8 + 8 + 8 + 8);
         at += 32 + 8 + 8 + 8 + 8;
-        copy_str(&w, d, &at); /* message */
-        at += 8;              /* paths capped */
+        copy_str(w, d, &at); /* message */
+        at += 8;             /* paths capped */
     }
     CHECK(at + 4 == n);
-    const long vers[] = {4};
-    write_v3(name, &w, vers, 1, 1);
-    pt_free(d);
 }
+static const state_converter QUEUE_V3 = {queue_v3, {4}, 1, 1, 3};
 
 /* A checkpoint: no environment, no film flags, no variant, no depth-cap
  * count, 36-byte pixels. */
-static void checkpoint_to_v3(const char *name)
+static void checkpoint_v3(const uint8_t *d, size_t n, proto_writer *w)
 {
-    uint8_t *d;
-    size_t n;
-    if (!read_state(name, &d, &n))
-        return;
-    proto_writer w;
-    proto_writer_init(&w, 1 << 30);
     /* envelope 8, seconds/rejected/rays 24, magic, version, id, hash */
     size_t at = 8 + 24 + 4 + 4 + 8 + 32;
-    proto_w_bytes(&w, d, at);
+    proto_w_bytes(w, d, at);
     uint32_t wht[3];
-    copy_params_v3(&w, d, &at, wht);
+    copy_params_v3(w, d, &at, wht);
     at += 8; /* paths capped */
     uint32_t ntiles = proto_get_u32(d + at);
-    proto_w_bytes(&w, d + at, 8 + (size_t)ntiles * 5 + 4);
+    proto_w_bytes(w, d + at, 8 + (size_t)ntiles * 5 + 4);
     at += 8 + (size_t)ntiles * 5;
     uint32_t nheld = proto_get_u32(d + at);
     at += 4;
@@ -1220,30 +1162,22 @@ static void checkpoint_to_v3(const char *name)
         uint32_t tx = (uint32_t)(t % tiles_x), ty = (uint32_t)(t / tiles_x);
         uint32_t tw = wht[0] - tx * wht[2] < wht[2] ? wht[0] - tx * wht[2] : wht[2];
         uint32_t th = wht[1] - ty * wht[2] < wht[2] ? wht[1] - ty * wht[2] : wht[2];
-        proto_w_bytes(&w, d + at, 8);
+        proto_w_bytes(w, d + at, 8);
         at += 8;
         for (uint32_t k = 0; k < tw * th; k++, at += 40)
-            proto_w_bytes(&w, d + at, 36);
+            proto_w_bytes(w, d + at, 36);
     }
     for (uint64_t k = 0; k < (uint64_t)wht[0] * wht[1]; k++, at += 40)
-        proto_w_bytes(&w, d + at, 36);
+        proto_w_bytes(w, d + at, 36);
     CHECK(at + 4 == n);
-    const long vers[] = {4, 36};
-    write_v3(name, &w, vers, 2, 1);
-    pt_free(d);
 }
+static const state_converter CHECKPOINT_V3 = {checkpoint_v3, {4, 36}, 2, 1, 3};
 
 /* A results log: each record a RESULT of protocol 2 (no depth-cap count,
  * 36-byte pixels), with its checksum. */
-static void log_to_v3(const char *name)
+static void log_v3(const uint8_t *d, size_t n, proto_writer *w)
 {
-    uint8_t *d;
-    size_t n;
-    if (!read_state(name, &d, &n))
-        return;
-    proto_writer w;
-    proto_writer_init(&w, 1 << 30);
-    proto_w_bytes(&w, d, 16);
+    proto_w_bytes(w, d, 16);
     uint8_t *rec = pt_malloc(n);
     for (size_t at = 16; rec && at + 8 <= n;) {
         uint32_t len = proto_get_u32(d + at);
@@ -1255,16 +1189,14 @@ static void log_to_v3(const char *name)
         m = 60;
         for (uint32_t k = 0; k < (len - 68) / 40; k++, m += 36)
             memcpy(rec + m, pl + 68 + (size_t)k * 40, 36);
-        proto_w_u32(&w, (uint32_t)m);
-        proto_w_u32(&w, proto_crc32c(0, rec, m));
-        proto_w_bytes(&w, rec, m);
+        proto_w_u32(w, (uint32_t)m);
+        proto_w_u32(w, proto_crc32c(0, rec, m));
+        proto_w_bytes(w, rec, m);
         at += 8 + len;
     }
     pt_free(rec);
-    const long vers[] = {4};
-    write_v3(name, &w, vers, 1, 0);
-    pt_free(d);
 }
+static const state_converter LOG_V3 = {log_v3, {4}, 1, 0, 3};
 
 /* The format before the min-gain rule (see set_format). */
 static void to_format2(const char *name, long at, const long *vers, int nvers, int crc)
@@ -1417,32 +1349,32 @@ static void damaged(void)
         CHECK(system(cmd) == 0);
         /* Format 9: no contributions clamped in the queue's records and
          * the checkpoint. */
-        queue_to_v9("state3/queue");
-        checkpoint_to_v9(ck);
+        convert("state3/queue", &QUEUE_V9);
+        convert(ck, &CHECKPOINT_V9);
         /* Format 6: no shutter in the queue's records and the checkpoint. */
         if (format <= 6) {
-            queue_to_v6("state3/queue");
-            checkpoint_to_v6(ck);
+            convert("state3/queue", &QUEUE_V6);
+            convert(ck, &CHECKPOINT_V6);
         }
         /* Format 5: no frame ranges in the queue's records; the results
          * log's frames of protocol 4 (RESULT as today's: read as they are). */
         if (format <= 5) {
-            queue_to_v5("state3/queue");
+            convert("state3/queue", &QUEUE_V5);
             log_frames_to(lg, 4);
         }
         /* Format 4: double sums in the checkpoint, protocol 3's RESULT in
          * the results log (converted as read, and rewritten). */
         if (format <= 4) {
-            queue_to_v4("state3/queue");
-            checkpoint_to_v4(ck);
-            log_to_v4(lg);
+            convert("state3/queue", &QUEUE_V4);
+            convert(ck, &CHECKPOINT_V4);
+            convert(lg, &LOG_V4);
         }
         /* Format 3: no environment, no film flags, and the results log in
          * protocol 2's RESULT layout (read so, and rewritten). */
         if (format <= 3) {
-            queue_to_v3("state3/queue");
-            checkpoint_to_v3(ck);
-            log_to_v3(lg);
+            convert("state3/queue", &QUEUE_V3);
+            convert(ck, &CHECKPOINT_V3);
+            convert(lg, &LOG_V3);
         }
         if (format == 2) {
             to_format2("state3/queue", queue_min_gain_at("state3/queue"), qv, 1, 1);
