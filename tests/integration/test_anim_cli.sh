@@ -9,11 +9,9 @@ set -euo pipefail
 bin=${PT_BIN:?}
 scenes=${PT_SHARED_SCENES:?}
 box=$scenes/BoxAnimated/BoxAnimated.glb
-if [ ! -f "$box" ]; then
-  case "${CI:-}" in true | 1 | yes) echo "FAIL: $box is missing" >&2; exit 1 ;; esac
-  echo "skipped: $box is missing"
-  exit 77
-fi
+# shellcheck source=tests/integration/lib_shared.sh
+. "$(dirname "$0")/lib_shared.sh"
+need_shared "$box"
 tmp=$(mktemp -d /tmp/pt_anim_cli_XXXXXX)
 cleanup() { if [ "${failed:-0}" = 0 ]; then rm -rf "$tmp"; else echo "logs kept in $tmp" >&2; fi; }
 trap cleanup EXIT

@@ -16,13 +16,9 @@ scenes=${PT_SHARED_SCENES:?}
 envs=$scenes/../envs
 need=("$scenes/DamagedHelmet/DamagedHelmet.glb" "$scenes/ToyCar/ToyCar.gltf"
   "$scenes/SheenChair/SheenChair.gltf" "$envs/studio_small_03_1k.hdr" "$envs/rooitou_park_1k.hdr")
-for f in "${need[@]}"; do
-  if [ ! -f "$f" ]; then
-    case "${CI:-}" in true | 1 | yes) echo "FAIL: $f is missing" >&2; exit 1 ;; esac
-    echo "skipped: $f is missing"
-    exit 77
-  fi
-done
+# shellcheck source=tests/integration/lib_shared.sh
+. "$(dirname "$0")/lib_shared.sh"
+need_shared "${need[@]}"
 tmp=$(mktemp -d /tmp/pt_denoise_scenes_XXXXXX)
 cleanup() { if [ "${failed:-0}" = 0 ]; then rm -rf "$tmp"; else echo "files kept in $tmp" >&2; fi; }
 trap cleanup EXIT

@@ -24,11 +24,9 @@ bin=${PT_BIN:?}
 src=${PT_SOURCE_DIR:?}
 scenes=${PT_SHARED_SCENES:?}
 inst=$scenes/SimpleInstancing/SimpleInstancing.glb
-if [ ! -f "$inst" ]; then
-  case "${CI:-}" in true | 1 | yes) echo "FAIL: $inst is missing" >&2; exit 1 ;; esac
-  echo "skipped: $inst is missing"
-  exit 77
-fi
+# shellcheck source=tests/integration/lib_shared.sh
+. "$(dirname "$0")/lib_shared.sh"
+need_shared "$inst"
 tmp=$(mktemp -d /tmp/pt_gltf_ext_cli_XXXXXX)
 cleanup() { if [ "${failed:-0}" = 0 ]; then rm -rf "$tmp"; else echo "logs kept in $tmp" >&2; fi; }
 trap cleanup EXIT

@@ -41,13 +41,9 @@ bin=${PT_BIN:?}
 scenes=${PT_SHARED_SCENES:?}
 helmet=$scenes/DamagedHelmet/DamagedHelmet.glb
 car=$scenes/ToyCar/ToyCar.gltf
-for f in "$helmet" "$car"; do
-  if [ ! -f "$f" ]; then
-    case "${CI:-}" in true | 1 | yes) echo "FAIL: $f is missing" >&2; exit 1 ;; esac
-    echo "skipped: $f is missing"
-    exit 77
-  fi
-done
+# shellcheck source=tests/integration/lib_shared.sh
+. "$(dirname "$0")/lib_shared.sh"
+need_shared "$helmet" "$car"
 tmp=$(mktemp -d /tmp/pt_gltf_pack_XXXXXX)
 cleanup() { if [ "${failed:-0}" = 0 ]; then rm -rf "$tmp"; else echo "logs kept in $tmp" >&2; fi; }
 trap cleanup EXIT

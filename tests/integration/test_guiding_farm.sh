@@ -20,11 +20,9 @@ bin=${PT_BIN:?}
 src=${PT_SOURCE_DIR:?}
 scenes=${PT_SHARED_SCENES:-$src/../shared/scenes}
 scene=$scenes/CornellBox/cornellBox.gltf
-if [ ! -f "$scene" ]; then
-  case "${CI:-}" in true | 1 | yes) echo "FAIL: $scene is missing" >&2; exit 1 ;; esac
-  echo "skipped: $scene is missing"
-  exit 77
-fi
+# shellcheck source=tests/integration/lib_shared.sh
+. "$(dirname "$0")/lib_shared.sh"
+need_shared "$scene"
 tmp=$(mktemp -d /tmp/pt_guiding_farm_XXXXXX)
 srv_pid=
 wpids=()

@@ -10,11 +10,9 @@ bin=${PT_BIN:?}
 scenes=${PT_SHARED_SCENES:?}
 box=$scenes/BoxAnimated/BoxAnimated.glb
 fox=$scenes/Fox/Fox.glb
-if [ ! -f "$box" ] || [ ! -f "$fox" ]; then
-  case "${CI:-}" in true | 1 | yes) echo "FAIL: $box or $fox is missing" >&2; exit 1 ;; esac
-  echo "skipped: $box or $fox is missing"
-  exit 77
-fi
+# shellcheck source=tests/integration/lib_shared.sh
+. "$(dirname "$0")/lib_shared.sh"
+need_shared "$box" "$fox"
 tmp=$(mktemp -d /tmp/pt_motion_anim_XXXXXX)
 cleanup() { if [ "${failed:-0}" = 0 ]; then rm -rf "$tmp"; else echo "logs kept in $tmp" >&2; fi; }
 trap cleanup EXIT
