@@ -249,6 +249,12 @@ pt_status proto_frame_reader_space(proto_frame_reader *r, uint8_t **p, size_t *r
             return pt_error_set(err, PT_ERR_LIMIT, "frame of %zu bytes over the input buffer's %zu",
                                 need, r->max);
         size_t ncap = need > r->initial ? need : r->initial;
+        /* Whole frames not yet decoded fill the buffer: it grows by half
+         * again, not by the one byte more it needs, or a peer that sends
+         * faster than the frames are taken out costs a copy of the buffer
+         * per byte. A frame whose length is known gets just its size. */
+        if (need == r->len + 1 && ncap < r->cap + r->cap / 2)
+            ncap = r->cap + r->cap / 2 < r->max ? r->cap + r->cap / 2 : r->max;
         uint8_t *nb = pt_realloc(r->buf, ncap);
         if (!nb)
             return pt_error_set(err, PT_ERR_NOMEM, "input buffer of %zu bytes", ncap);

@@ -431,14 +431,18 @@ static void test_finish_and_len(void)
     proto_writer_fini(&w);
 }
 
+/* How many times reader_put saw the reader's buffer grow. */
+static int g_growths;
+
 /* Puts n bytes into r through proto_frame_reader_space, at most step at a time. */
 static int reader_put(proto_frame_reader *r, const uint8_t *p, size_t n, size_t step, pt_error *err)
 {
     while (n > 0) {
         uint8_t *dst;
-        size_t room;
+        size_t room, cap = r->cap;
         if (proto_frame_reader_space(r, &dst, &room, err) != PT_OK)
             return -1;
+        g_growths += r->cap != cap;
         size_t k = n < step ? n : step;
         k = k < room ? k : room;
         memcpy(dst, p, k);
@@ -471,6 +475,7 @@ static void test_reader(void)
         CHECK(proto_frame_reader_next(&r, PROTO_MAX_PAYLOAD, &f, &err) == PT_AGAIN);
         int got = 0, bad = 0;
         size_t off = 0;
+        g_growths = 0;
         while (off < n && !bad) {
             size_t k = steps[t] < n - off ? steps[t] : n - off;
             bad = reader_put(&r, stream + off, k, k, &err) != 0;
@@ -484,6 +489,10 @@ static void test_reader(void)
             bad |= st != PT_AGAIN;
         }
         CHECKF(!bad && got == 3, "step %zu: %d frames", steps[t], got);
+        /* All at once, the buffer fills with whole frames before any is
+         * taken out: it grows geometrically, not a byte per call (which
+         * copied the buffer once per byte). */
+        CHECKF(g_growths <= 16, "step %zu: %d growths", steps[t], g_growths);
         CHECK(proto_frame_reader_pending(&r) == 0);
         /* Grown to the large frame, not far past it. */
         CHECKF(r.cap >= 16 + sizeof big && r.cap < 2 * (16 + sizeof big) + 4096, "cap %zu", r.cap);
