@@ -14,6 +14,7 @@
 #include "common/render/layers.h"
 #include "common/render/light.h"
 #include "common/render/light_lanes.h"
+#include "common/render/path_trace.h"
 #include "common/render/sampler.h"
 #include "common/scene/accel.h"
 #include "common/scene/alpha.h"
@@ -1074,6 +1075,13 @@ static inline __attribute__((always_inline)) void shade_emission(const pt_render
         float lp = pt_lights_pdf(r->lights, s, hit->tri, pa->prev_p, sf->p, sf->ng);
         le = pt_v3_scale(le, power_heuristic(pa->prev_pdf, lp));
     }
+    PT_TRACE_EVENT(PT_TRACE_EMIT, pa->depth, (int32_t)(sf->mat - s->materials), -1, 0, pa->prev_pdf,
+                   pt_lights_pdf(r->lights, s, hit->tri, pa->prev_p, sf->p, sf->ng),
+                   pa->prev_pdf > 0.0f
+                       ? power_heuristic(pa->prev_pdf, pt_lights_pdf(r->lights, s, hit->tri,
+                                                                     pa->prev_p, sf->p, sf->ng))
+                       : 1.0f,
+                   pt_v3_mul(pa->beta, le));
     /* Found at depth d, the light arrives at vertex d - 1: direct up to 1. */
     if (pa->prev_pdf == 0.0f || strategy != PT_LIGHT_NEE_ONLY)
         pa->L = pt_v3_add(pa->L,
@@ -1101,6 +1109,11 @@ static inline __attribute__((always_inline)) void shade_miss(const pt_renderer *
     pt_vec3 le = pt_env_eval(r->params.env, pa->d);
     if (pa->prev_pdf > 0.0f && strategy == PT_LIGHT_MIS)
         le = pt_v3_scale(le, power_heuristic(pa->prev_pdf, pt_lights_env_pdf(r->lights, pa->d)));
+    PT_TRACE_EVENT(
+        PT_TRACE_ENV, pa->depth, -1, -1, 0, pa->prev_pdf, pt_lights_env_pdf(r->lights, pa->d),
+        pa->prev_pdf > 0.0f ? power_heuristic(pa->prev_pdf, pt_lights_env_pdf(r->lights, pa->d))
+                            : 1.0f,
+        pt_v3_mul(pa->beta, le));
     if (pa->prev_pdf == 0.0f || strategy != PT_LIGHT_NEE_ONLY)
         pa->L = pt_v3_add(pa->L,
                           clamp_sample(r, pa, pt_v3_mul(pa->beta, le), pa->depth <= 1, features));
@@ -1691,6 +1704,8 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
                 }
                 /* Light sampled at depth d arrives at vertex d: direct at 0. */
                 sr->contrib = clamp_sample(r, pa, c, pa->depth == 0, features);
+                PT_TRACE_EVENT(PT_TRACE_NEE, pa->depth, (int32_t)mi, ls->delta, 0, ls->pdf, bpdf,
+                               w * ls->pdf, c);
                 ret = SHADE_SHADOW;
             }
         }
@@ -1730,6 +1745,7 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     }
     if (!(pdf > 0.0f) || !any_positive(weight))
         return ret;
+    PT_TRACE_EVENT(PT_TRACE_BOUNCE, pa->depth, (int32_t)mi, -1, delta, pdf, wo_l.z, wi_l.z, weight);
     pt_vec3 wi = pt_frame_to_world(&fr, wi_l);
     float side = pt_v3_dot(wi, ng);
     if (through ? side == 0.0f || (side > 0.0f) != (wi_l.z > 0.0f) : side <= 0.0f)
@@ -1899,8 +1915,11 @@ static inline __attribute__((always_inline)) void trace_shadow(const pt_renderer
                   !((features & PT_FEAT_THIN_GLASS) && r->thin_glass));
     if ((features & PT_FEAT_THIN_GLASS) && r->thin_glass) {
         pt_vec3 tr;
-        if (shadow_through(r, pa, sr, sink, &tr, features))
+        if (shadow_through(r, pa, sr, sink, &tr, features)) {
             pa->L = pt_v3_add(pa->L, pt_v3_mul(sr->contrib, tr));
+            PT_TRACE_EVENT(PT_TRACE_SHADOW, pa->depth, -1, -1, 0, 0.0f, 0.0f, 0.0f,
+                           pt_v3_mul(sr->contrib, tr));
+        }
         return;
     }
     int blocked;
@@ -1914,8 +1933,10 @@ static inline __attribute__((always_inline)) void trace_shadow(const pt_renderer
                 ? pt_accel_occluded_alpha(r->accel, sr->from, sr->dir, sr->dist, sr->alpha_key)
                 : pt_accel_occluded(r->accel, sr->from, sr->dir, sr->dist);
     }
-    if (!blocked)
+    if (!blocked) {
         pa->L = pt_v3_add(pa->L, sr->contrib);
+        PT_TRACE_EVENT(PT_TRACE_SHADOW, pa->depth, -1, -1, 0, 0.0f, 0.0f, 0.0f, sr->contrib);
+    }
 }
 
 /* Paths in flight in the tile loop, and the most pixels they come from. */
