@@ -15,7 +15,8 @@
  * what it added, each emitter or environment hit with its MIS weight. Last,
  * a table of the events that carried those samples' radiance, grouped by
  * the technique and the lobes the path took, weighed by their share of the
- * worst pixels' squared error.
+ * worst pixels' squared error, and the same shares by technique and by the
+ * number of bounces before the light was found.
  *
  * Built with its own copy of render.c and closure.c compiled with
  * PT_PATH_TRACE (tests/bench/CMakeLists.txt): the log costs the renderer
@@ -135,6 +136,15 @@ static uint32_t nsigs;
 /* The same shares by technique: NEE; a BSDF-sampled hit; a BSDF-sampled
  * hit after a rough bounce and then a smooth one (a caustic). */
 static double by_kind[3];
+/* And by the bounces before the event that added it: 0 to 4, 5 to 8, 9 and
+ * more. */
+#define DEPTH_BINS 7
+static double by_depth[DEPTH_BINS];
+
+static void add_depth(uint32_t bounces, double share)
+{
+    by_depth[bounces <= 4 ? bounces : bounces <= 8 ? 5 : 6] += share;
+}
 
 static void add_sig(const char *text, double share)
 {
@@ -200,6 +210,7 @@ static void classify(const pt_scene *s, double share, float total)
     /* A rough bounce, then a smooth one since it: light found now is a
      * caustic's (no light sample can reach it through the smooth one). */
     int rough = 0, caustic = 0;
+    uint32_t bounces = 0, nee_bounces = 0;
     for (uint32_t k = 0; k < nev; k++) {
         const event *e = &ev[k];
         const char *mat =
@@ -216,6 +227,7 @@ static void classify(const pt_scene *s, double share, float total)
                                                              : "");
             if (len >= sizeof path)
                 len = sizeof path - 1;
+            bounces++;
             if (!e->delta && e->a < SMOOTH_PDF)
                 rough = 1;
             else if (rough)
@@ -224,6 +236,7 @@ static void classify(const pt_scene *s, double share, float total)
         case PT_TRACE_NEE:
             nee = e;
             nee_len = len;
+            nee_bounces = bounces;
             break;
         case PT_TRACE_SHADOW:
             if (nee && total > 0.0f) {
@@ -236,6 +249,7 @@ static void classify(const pt_scene *s, double share, float total)
                          light_name(nee->lobe), nm);
                 add_sig(text, share * lum / total);
                 by_kind[0] += share * lum / total;
+                add_depth(nee_bounces, share * lum / total);
             }
             break;
         case PT_TRACE_EMIT:
@@ -243,6 +257,7 @@ static void classify(const pt_scene *s, double share, float total)
             if (total > 0.0f) {
                 add_sig(text, share * lum / total);
                 by_kind[caustic ? 2 : 1] += share * lum / total;
+                add_depth(bounces, share * lum / total);
             }
             break;
         case PT_TRACE_ENV:
@@ -250,6 +265,7 @@ static void classify(const pt_scene *s, double share, float total)
             if (total > 0.0f) {
                 add_sig(text, share * lum / total);
                 by_kind[caustic ? 2 : 1] += share * lum / total;
+                add_depth(bounces, share * lum / total);
             }
             break;
         }
@@ -442,6 +458,10 @@ int main(int argc, char **argv)
     printf("by technique: NEE %.4f, BSDF hit %.4f, BSDF hit through a smooth bounce after a "
            "rough one (caustic) %.4f\n",
            by_kind[0], by_kind[1], by_kind[2]);
+    printf("by bounces before the light was found: 0 %.4f, 1 %.4f, 2 %.4f, 3 %.4f, 4 %.4f, "
+           "5-8 %.4f, 9+ %.4f\n",
+           by_depth[0], by_depth[1], by_depth[2], by_depth[3], by_depth[4], by_depth[5],
+           by_depth[6]);
     rc = 0;
 done:
     pt_free(px);
