@@ -151,6 +151,18 @@ int pt_renderer_lanes(const pt_renderer *r)
 /* Features with lights that next-event estimation samples. */
 #define NEE_LIGHTS (uint32_t)(PT_FEAT_EMITTERS | PT_FEAT_PUNCTUAL | PT_FEAT_ENV)
 
+/* Russian roulette's largest survival probability. A path survives a bounce
+ * with probability max(beta) and carries beta / that, so a path whose
+ * throughput stays near 1 (white walls, chrome: bounce weights above this cap)
+ * is ended anyway and the survivors' beta grows by weight / cap a bounce. Below
+ * 1 so that a closed white scene still ends its paths (in about 100 bounces,
+ * not max_depth); 0.99 rather than 0.95 because the second moment of a path
+ * through surfaces of albedo a grows by a^2 / cap a bounce: with 0.95 it
+ * diverges for a above 0.975, which is the light trapped between the NVIDIA
+ * Cornell box's white ceiling and its light (docs/bench/toycar.md; the
+ * closed forms in test_roulette). */
+#define RR_MAX_SURVIVE 0.99f
+
 /* Power heuristic with beta = 2 (Veach 1997, eq. 9.13). */
 static inline float power_heuristic(float pa, float pb)
 {
@@ -1508,7 +1520,7 @@ pass_unlit(const pt_renderer *r, path *pa, const surface *sf, pt_vec3 wo, const 
  * that hits an emitter adds its emission weighted by the power heuristic
  * against the light pdf, so each light path is counted once (Veach 1997,
  * sec. 9.2). Russian roulette after rr_depth bounces keeps throughput-weighted
- * survival (survival probability max(beta), at most 0.95).
+ * survival (survival probability max(beta), at most RR_MAX_SURVIVE).
  *
  * Opaque surfaces reflect only: single-sided surfaces are treated as
  * two-sided for scattering (only emission is one-sided), a direction below
@@ -1753,10 +1765,10 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     pt_vec3 beta = pt_v3_mul(pa->beta, weight);
 
     if (pa->depth + 1 >= r->params.rr_depth) {
-        /* fminf(pt_v3_max_comp(beta), 0.95f) by comparisons (a NaN max
-         * gives 0.95 as fminf does). */
+        /* fminf(pt_v3_max_comp(beta), RR_MAX_SURVIVE) by comparisons (a
+         * NaN max gives RR_MAX_SURVIVE as fminf does). */
         float m = max2(beta.x, max2(beta.y, beta.z));
-        float survive = m < 0.95f ? m : 0.95f;
+        float survive = m < RR_MAX_SURVIVE ? m : RR_MAX_SURVIVE;
         if (!(u[OFF_RR] < survive))
             return ret;
         beta = pt_v3_scale(beta, 1.0f / survive);
@@ -2122,10 +2134,10 @@ static void shade_lanes(const pt_renderer *r, path *paths, const uint8_t *live, 
     btx = btx * wx;
     bty = bty * wy;
     btz = btz * wz;
-    /* Russian roulette: max2(x, max2(y, z)), capped at 0.95. */
+    /* Russian roulette: max2(x, max2(y, z)), capped at RR_MAX_SURVIVE. */
     v8f mx = V8_SELECT((bty > btz) | (btz != btz), bty, btz);
     mx = V8_SELECT((btx > mx) | (mx != mx), btx, mx);
-    v8f survive = V8_SELECT(mx < 0.95f, mx, V8_SPLAT(0.95f));
+    v8f survive = V8_SELECT(mx < RR_MAX_SURVIVE, mx, V8_SPLAT(RR_MAX_SURVIVE));
     v8i roulette = (v8i)(depth + 1u >= (v8u){0} + r->params.rr_depth);
     cont &= ~roulette | (urr < survive);
     v8f isurv = 1.0f / survive;
