@@ -14,6 +14,8 @@
 #include <assert.h>
 #include <math.h>
 
+#include "common/render/path_trace.h"
+
 void pt_closure_init(pt_closure *c, pt_vec3 wo)
 {
     c->wo = wo;
@@ -352,6 +354,7 @@ pt_vec3 pt_closure_sample(const pt_closure *c, const float u[3], pt_vec3 *wi, fl
         g--;
     }
 
+    PT_TRACE_LOBE(pick->kind);
     const float ul[3] = {u0, u[1], u[2]};
     int ok = 0;
     switch (pick->kind) {

@@ -14,6 +14,7 @@
 #include "common/render/layers.h"
 #include "common/render/light.h"
 #include "common/render/light_lanes.h"
+#include "common/render/path_trace.h"
 #include "common/render/sampler.h"
 #include "common/scene/accel.h"
 #include "common/scene/alpha.h"
@@ -149,6 +150,18 @@ int pt_renderer_lanes(const pt_renderer *r)
 
 /* Features with lights that next-event estimation samples. */
 #define NEE_LIGHTS (uint32_t)(PT_FEAT_EMITTERS | PT_FEAT_PUNCTUAL | PT_FEAT_ENV)
+
+/* Russian roulette's largest survival probability. A path survives a bounce
+ * with probability max(beta) and carries beta / that, so a path whose
+ * throughput stays near 1 (white walls, chrome: bounce weights above this cap)
+ * is ended anyway and the survivors' beta grows by weight / cap a bounce. Below
+ * 1 so that a closed white scene still ends its paths (in about 100 bounces,
+ * not max_depth); 0.99 rather than 0.95 because the second moment of a path
+ * through surfaces of albedo a grows by a^2 / cap a bounce: with 0.95 it
+ * diverges for a above 0.975, which is the light trapped between the NVIDIA
+ * Cornell box's white ceiling and its light (docs/bench/toycar.md; the
+ * closed forms in test_roulette). */
+#define RR_MAX_SURVIVE 0.99f
 
 /* Power heuristic with beta = 2 (Veach 1997, eq. 9.13). */
 static inline float power_heuristic(float pa, float pb)
@@ -1074,6 +1087,13 @@ static inline __attribute__((always_inline)) void shade_emission(const pt_render
         float lp = pt_lights_pdf(r->lights, s, hit->tri, pa->prev_p, sf->p, sf->ng);
         le = pt_v3_scale(le, power_heuristic(pa->prev_pdf, lp));
     }
+    PT_TRACE_EVENT(PT_TRACE_EMIT, pa->depth, (int32_t)(sf->mat - s->materials), -1, 0, pa->prev_pdf,
+                   pt_lights_pdf(r->lights, s, hit->tri, pa->prev_p, sf->p, sf->ng),
+                   pa->prev_pdf > 0.0f
+                       ? power_heuristic(pa->prev_pdf, pt_lights_pdf(r->lights, s, hit->tri,
+                                                                     pa->prev_p, sf->p, sf->ng))
+                       : 1.0f,
+                   pt_v3_mul(pa->beta, le));
     /* Found at depth d, the light arrives at vertex d - 1: direct up to 1. */
     if (pa->prev_pdf == 0.0f || strategy != PT_LIGHT_NEE_ONLY)
         pa->L = pt_v3_add(pa->L,
@@ -1101,6 +1121,11 @@ static inline __attribute__((always_inline)) void shade_miss(const pt_renderer *
     pt_vec3 le = pt_env_eval(r->params.env, pa->d);
     if (pa->prev_pdf > 0.0f && strategy == PT_LIGHT_MIS)
         le = pt_v3_scale(le, power_heuristic(pa->prev_pdf, pt_lights_env_pdf(r->lights, pa->d)));
+    PT_TRACE_EVENT(
+        PT_TRACE_ENV, pa->depth, -1, -1, 0, pa->prev_pdf, pt_lights_env_pdf(r->lights, pa->d),
+        pa->prev_pdf > 0.0f ? power_heuristic(pa->prev_pdf, pt_lights_env_pdf(r->lights, pa->d))
+                            : 1.0f,
+        pt_v3_mul(pa->beta, le));
     if (pa->prev_pdf == 0.0f || strategy != PT_LIGHT_NEE_ONLY)
         pa->L = pt_v3_add(pa->L,
                           clamp_sample(r, pa, pt_v3_mul(pa->beta, le), pa->depth <= 1, features));
@@ -1495,7 +1520,7 @@ pass_unlit(const pt_renderer *r, path *pa, const surface *sf, pt_vec3 wo, const 
  * that hits an emitter adds its emission weighted by the power heuristic
  * against the light pdf, so each light path is counted once (Veach 1997,
  * sec. 9.2). Russian roulette after rr_depth bounces keeps throughput-weighted
- * survival (survival probability max(beta), at most 0.95).
+ * survival (survival probability max(beta), at most RR_MAX_SURVIVE).
  *
  * Opaque surfaces reflect only: single-sided surfaces are treated as
  * two-sided for scattering (only emission is one-sided), a direction below
@@ -1691,6 +1716,8 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
                 }
                 /* Light sampled at depth d arrives at vertex d: direct at 0. */
                 sr->contrib = clamp_sample(r, pa, c, pa->depth == 0, features);
+                PT_TRACE_EVENT(PT_TRACE_NEE, pa->depth, (int32_t)mi, ls->delta, 0, ls->pdf, bpdf,
+                               w * ls->pdf, c);
                 ret = SHADE_SHADOW;
             }
         }
@@ -1730,6 +1757,7 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     }
     if (!(pdf > 0.0f) || !any_positive(weight))
         return ret;
+    PT_TRACE_EVENT(PT_TRACE_BOUNCE, pa->depth, (int32_t)mi, -1, delta, pdf, wo_l.z, wi_l.z, weight);
     pt_vec3 wi = pt_frame_to_world(&fr, wi_l);
     float side = pt_v3_dot(wi, ng);
     if (through ? side == 0.0f || (side > 0.0f) != (wi_l.z > 0.0f) : side <= 0.0f)
@@ -1737,10 +1765,10 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     pt_vec3 beta = pt_v3_mul(pa->beta, weight);
 
     if (pa->depth + 1 >= r->params.rr_depth) {
-        /* fminf(pt_v3_max_comp(beta), 0.95f) by comparisons (a NaN max
-         * gives 0.95 as fminf does). */
+        /* fminf(pt_v3_max_comp(beta), RR_MAX_SURVIVE) by comparisons (a
+         * NaN max gives RR_MAX_SURVIVE as fminf does). */
         float m = max2(beta.x, max2(beta.y, beta.z));
-        float survive = m < 0.95f ? m : 0.95f;
+        float survive = m < RR_MAX_SURVIVE ? m : RR_MAX_SURVIVE;
         if (!(u[OFF_RR] < survive))
             return ret;
         beta = pt_v3_scale(beta, 1.0f / survive);
@@ -1899,8 +1927,11 @@ static inline __attribute__((always_inline)) void trace_shadow(const pt_renderer
                   !((features & PT_FEAT_THIN_GLASS) && r->thin_glass));
     if ((features & PT_FEAT_THIN_GLASS) && r->thin_glass) {
         pt_vec3 tr;
-        if (shadow_through(r, pa, sr, sink, &tr, features))
+        if (shadow_through(r, pa, sr, sink, &tr, features)) {
             pa->L = pt_v3_add(pa->L, pt_v3_mul(sr->contrib, tr));
+            PT_TRACE_EVENT(PT_TRACE_SHADOW, pa->depth, -1, -1, 0, 0.0f, 0.0f, 0.0f,
+                           pt_v3_mul(sr->contrib, tr));
+        }
         return;
     }
     int blocked;
@@ -1914,8 +1945,10 @@ static inline __attribute__((always_inline)) void trace_shadow(const pt_renderer
                 ? pt_accel_occluded_alpha(r->accel, sr->from, sr->dir, sr->dist, sr->alpha_key)
                 : pt_accel_occluded(r->accel, sr->from, sr->dir, sr->dist);
     }
-    if (!blocked)
+    if (!blocked) {
         pa->L = pt_v3_add(pa->L, sr->contrib);
+        PT_TRACE_EVENT(PT_TRACE_SHADOW, pa->depth, -1, -1, 0, 0.0f, 0.0f, 0.0f, sr->contrib);
+    }
 }
 
 /* Paths in flight in the tile loop, and the most pixels they come from. */
@@ -2101,10 +2134,10 @@ static void shade_lanes(const pt_renderer *r, path *paths, const uint8_t *live, 
     btx = btx * wx;
     bty = bty * wy;
     btz = btz * wz;
-    /* Russian roulette: max2(x, max2(y, z)), capped at 0.95. */
+    /* Russian roulette: max2(x, max2(y, z)), capped at RR_MAX_SURVIVE. */
     v8f mx = V8_SELECT((bty > btz) | (btz != btz), bty, btz);
     mx = V8_SELECT((btx > mx) | (mx != mx), btx, mx);
-    v8f survive = V8_SELECT(mx < 0.95f, mx, V8_SPLAT(0.95f));
+    v8f survive = V8_SELECT(mx < RR_MAX_SURVIVE, mx, V8_SPLAT(RR_MAX_SURVIVE));
     v8i roulette = (v8i)(depth + 1u >= (v8u){0} + r->params.rr_depth);
     cont &= ~roulette | (urr < survive);
     v8f isurv = 1.0f / survive;

@@ -1,0 +1,473 @@
+/*
+ * ptbench-paths - which paths make an image's fireflies.
+ *
+ *   ptbench-paths SCENE --reference REF.exr [--env HDR | --background R,G,B] [--camera NAME]
+ *                 [--res WxH] [--spp N] [--seed S] [--max-depth D]
+ *                 [--worst FRACTION] [--top K]
+ *
+ * Renders SCENE sample by sample (pt_render_sample, one thread, unguided:
+ * the samples ptworker --guiding off takes), scores each pixel's mean
+ * against REF as relMSE counts it (common/image/metrics.h) and takes the
+ * worst FRACTION of pixels (default 0.001). For each of them it renders its
+ * K largest samples (by luminance) again with the path log on and prints
+ * every event of the path (common/render/path_trace.h): each bounce's
+ * material, lobe, pdf and weight, each light sample's pdfs and MIS weight and
+ * what it added, each emitter or environment hit with its MIS weight. Last,
+ * a table of the events that carried those samples' radiance, grouped by
+ * the technique and the lobes the path took, weighed by their share of the
+ * worst pixels' squared error, and the same shares by technique and by the
+ * number of bounces before the light was found.
+ *
+ * Built with its own copy of render.c and closure.c compiled with
+ * PT_PATH_TRACE (tests/bench/CMakeLists.txt): the log costs the renderer
+ * that users run nothing. The reference must come from another seed.
+ */
+#include <float.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "common/base/alloc.h"
+#include "common/base/error.h"
+#include "common/base/opt.h"
+#include "common/image/exr.h"
+#include "common/image/image.h"
+#include "common/image/metrics.h"
+#include "common/render/closure.h"
+#include "common/render/env.h"
+#include "common/render/light.h"
+#include "common/render/path_trace.h"
+#include "common/render/render.h"
+#include "common/scene/scene.h"
+
+#define MAX_EVENTS 256
+/* A bounce whose pdf at its direction is at least this counts as smooth
+ * (a near-mirror lobe: GGX alpha below about 0.03) in the summary. */
+#define SMOOTH_PDF 100.0f
+#define MAX_TOP 16
+
+typedef struct event {
+    int kind;
+    uint32_t depth;
+    int32_t mat, lobe;
+    int delta;
+    float a, b, c;
+    pt_vec3 v;
+} event;
+
+static _Thread_local event ev[MAX_EVENTS];
+static _Thread_local uint32_t nev;
+static _Thread_local int32_t last_lobe = -1;
+
+void pt_trace_event(int kind, uint32_t depth, int32_t mat, int32_t lobe, int delta, float a,
+                    float b, float c, pt_vec3 v)
+{
+    if (kind == PT_TRACE_BOUNCE) {
+        lobe = last_lobe;
+        last_lobe = -1;
+    }
+    if (nev < MAX_EVENTS)
+        ev[nev++] = (event){kind, depth, mat, lobe, delta, a, b, c, v};
+}
+
+void pt_trace_lobe(uint32_t kind)
+{
+    last_lobe = (int32_t)kind;
+}
+
+static const char *lobe_name(int32_t k)
+{
+    if (k == -1)
+        return "lambert"; /* a Lambert variant: no closure */
+    static const char *names[] = {"diffuse",      "specular",       "dielectric",
+                                  "sheen",        "coat",           "specular-irid",
+                                  "diffuse-irid", "specular-aniso", "diffuse-transmit",
+                                  "aniso-irid",   "dt-irid"};
+    if (k < 0 || k >= (int32_t)(sizeof names / sizeof names[0]))
+        return "?";
+    return names[k];
+}
+
+static const char *light_name(int32_t k)
+{
+    switch (k) {
+    case PT_LIGHT_AREA:
+        return "emitter";
+    case PT_LIGHT_AT:
+        return "point";
+    case PT_LIGHT_FAR:
+        return "directional";
+    case PT_LIGHT_ENV:
+        return "env";
+    }
+    return "?";
+}
+
+typedef struct sample_rec {
+    uint32_t index;
+    float lum;
+} sample_rec;
+
+typedef struct pixel_rec {
+    double sum[3];
+    sample_rec top[MAX_TOP];
+    uint32_t ntop;
+    double err;
+    uint32_t i;
+} pixel_rec;
+
+static int cmp_err_desc(const void *a, const void *b)
+{
+    double x = ((const pixel_rec *)a)->err, y = ((const pixel_rec *)b)->err;
+    return (x < y) - (x > y);
+}
+
+/* The path signature that carried a contribution: its lobes from the camera
+ * up to the event, then the technique. */
+#define MAX_SIGS 256
+typedef struct sig {
+    char text[200];
+    double share;
+    uint32_t count;
+} sig;
+static sig sigs[MAX_SIGS];
+static uint32_t nsigs;
+/* The same shares by technique: NEE; a BSDF-sampled hit; a BSDF-sampled
+ * hit after a rough bounce and then a smooth one (a caustic). */
+static double by_kind[3];
+/* And by the bounces before the event that added it: 0 to 4, 5 to 8, 9 and
+ * more. */
+#define DEPTH_BINS 7
+static double by_depth[DEPTH_BINS];
+
+static void add_depth(uint32_t bounces, double share)
+{
+    by_depth[bounces <= 4 ? bounces : bounces <= 8 ? 5 : 6] += share;
+}
+
+static void add_sig(const char *text, double share)
+{
+    for (uint32_t i = 0; i < nsigs; i++)
+        if (!strcmp(sigs[i].text, text)) {
+            sigs[i].share += share;
+            sigs[i].count++;
+            return;
+        }
+    if (nsigs < MAX_SIGS) {
+        snprintf(sigs[nsigs].text, sizeof sigs[nsigs].text, "%s", text);
+        sigs[nsigs].share = share;
+        sigs[nsigs].count = 1;
+        nsigs++;
+    }
+}
+
+static int cmp_sig_desc(const void *a, const void *b)
+{
+    double x = ((const sig *)a)->share, y = ((const sig *)b)->share;
+    return (x < y) - (x > y);
+}
+
+static void print_events(const pt_scene *s)
+{
+    for (uint32_t k = 0; k < nev; k++) {
+        const event *e = &ev[k];
+        const char *mat =
+            e->mat >= 0 && (uint32_t)e->mat < s->num_materials ? s->materials[e->mat].name : "-";
+        float lum = pt_luminance(e->v);
+        switch (e->kind) {
+        case PT_TRACE_BOUNCE:
+            printf("      d%u bounce  %-24s %-16s%s pdf %.4g wo.z %.3f wi.z %.3f weight %.4g\n",
+                   e->depth, mat, lobe_name(e->lobe), e->delta ? " delta" : "", e->a, e->b, e->c,
+                   lum);
+            break;
+        case PT_TRACE_NEE:
+            printf("      d%u nee     %-24s %-16s light pdf %.4g bsdf pdf %.4g mis %.4f -> %.4g\n",
+                   e->depth, mat, light_name(e->lobe), e->a, e->b, e->c, lum);
+            break;
+        case PT_TRACE_SHADOW:
+            printf("      d%u   unblocked, adds %.4g\n", e->depth, lum);
+            break;
+        case PT_TRACE_EMIT:
+            printf("      d%u emitter %-24s bsdf pdf %.4g light pdf %.4g mis %.4f adds %.4g\n",
+                   e->depth, mat, e->a, e->b, e->c, lum);
+            break;
+        case PT_TRACE_ENV:
+            printf("      d%u env hit bsdf pdf %.4g env pdf %.4g mis %.4f adds %.4g\n", e->depth,
+                   e->a, e->b, e->c, lum);
+            break;
+        }
+    }
+}
+
+/* Adds each contributing event's share (its part of the sample's luminance
+ * times the sample's share) to the signature table. */
+static void classify(const pt_scene *s, double share, float total)
+{
+    char path[200] = "";
+    size_t len = 0, nee_len = 0;
+    const event *nee = NULL;
+    /* A rough bounce, then a smooth one since it: light found now is a
+     * caustic's (no light sample can reach it through the smooth one). */
+    int rough = 0, caustic = 0;
+    uint32_t bounces = 0, nee_bounces = 0;
+    for (uint32_t k = 0; k < nev; k++) {
+        const event *e = &ev[k];
+        const char *mat =
+            e->mat >= 0 && (uint32_t)e->mat < s->num_materials ? s->materials[e->mat].name : "-";
+        char text[400];
+        float lum = pt_luminance(e->v);
+        switch (e->kind) {
+        case PT_TRACE_BOUNCE:
+            if (len < sizeof path - 1)
+                len += (size_t)snprintf(path + len, sizeof path - len, "%s:%s%s > ", mat,
+                                        lobe_name(e->lobe),
+                                        e->delta             ? "(delta)"
+                                        : e->a >= SMOOTH_PDF ? "(smooth)"
+                                                             : "");
+            if (len >= sizeof path)
+                len = sizeof path - 1;
+            bounces++;
+            if (!e->delta && e->a < SMOOTH_PDF)
+                rough = 1;
+            else if (rough)
+                caustic = 1;
+            break;
+        case PT_TRACE_NEE:
+            nee = e;
+            nee_len = len;
+            nee_bounces = bounces;
+            break;
+        case PT_TRACE_SHADOW:
+            if (nee && total > 0.0f) {
+                const char *nm = nee->mat >= 0 && (uint32_t)nee->mat < s->num_materials
+                                     ? s->materials[nee->mat].name
+                                     : "-";
+                /* The bounces logged so far include the one after this NEE
+                 * vertex; the NEE is at nee->depth. */
+                snprintf(text, sizeof text, "%.*s| NEE %s at %s", (int)nee_len, path,
+                         light_name(nee->lobe), nm);
+                add_sig(text, share * lum / total);
+                by_kind[0] += share * lum / total;
+                add_depth(nee_bounces, share * lum / total);
+            }
+            break;
+        case PT_TRACE_EMIT:
+            snprintf(text, sizeof text, "%s| BSDF hit emitter %s", path, mat);
+            if (total > 0.0f) {
+                add_sig(text, share * lum / total);
+                by_kind[caustic ? 2 : 1] += share * lum / total;
+                add_depth(bounces, share * lum / total);
+            }
+            break;
+        case PT_TRACE_ENV:
+            snprintf(text, sizeof text, "%s| BSDF hit env", path);
+            if (total > 0.0f) {
+                add_sig(text, share * lum / total);
+                by_kind[caustic ? 2 : 1] += share * lum / total;
+                add_depth(bounces, share * lum / total);
+            }
+            break;
+        }
+    }
+}
+
+static void usage(void)
+{
+    fprintf(stderr, "usage: ptbench-paths SCENE --reference REF.exr [--env HDR | --background "
+                    "R,G,B] [--camera NAME]\n"
+                    "       [--res WxH] [--spp N] [--seed S] [--max-depth D] [--worst F] [--top "
+                    "K]\n");
+}
+
+int main(int argc, char **argv)
+{
+    const char *scene_path = NULL, *ref_path = NULL, *env_path = NULL, *camera = NULL;
+    uint32_t w = 128, h = 128, spp = 256, seed = 1, max_depth = PT_RENDER_DEFAULT_MAX_DEPTH,
+             top = 4;
+    double worst = 0.001, bg[3];
+    int has_bg = 0;
+    pt_error err = {0};
+    pt_status st = PT_OK;
+    for (int i = 1; i < argc; i++) {
+        const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
+        if (a[0] != '-') {
+            scene_path = a;
+            continue;
+        }
+        if (!v) {
+            usage();
+            return 2;
+        }
+        i++;
+        if (!strcmp(a, "--reference"))
+            ref_path = v;
+        else if (!strcmp(a, "--env"))
+            env_path = v;
+        else if (!strcmp(a, "--background")) {
+            st = pt_opt_rgb(a, v, 1e6, bg, &err);
+            has_bg = 1;
+        } else if (!strcmp(a, "--camera"))
+            camera = v;
+        else if (!strcmp(a, "--res"))
+            st = pt_opt_res(a, v, 16384, &w, &h, &err);
+        else if (!strcmp(a, "--spp"))
+            st = pt_opt_u32(a, v, 1, 1u << 20, &spp, &err);
+        else if (!strcmp(a, "--seed"))
+            st = pt_opt_u32(a, v, 0, UINT32_MAX, &seed, &err);
+        else if (!strcmp(a, "--max-depth"))
+            st = pt_opt_u32(a, v, 1, 1u << 16, &max_depth, &err);
+        else if (!strcmp(a, "--top"))
+            st = pt_opt_u32(a, v, 1, MAX_TOP, &top, &err);
+        else if (!strcmp(a, "--worst"))
+            st = pt_opt_double(a, v, 0.0, 1.0, &worst, &err);
+        else {
+            usage();
+            return 2;
+        }
+        if (st != PT_OK) {
+            fprintf(stderr, "ptbench-paths: %s\n", err.msg);
+            return 2;
+        }
+    }
+    if (!scene_path || !ref_path || (env_path && has_bg)) {
+        usage();
+        return 2;
+    }
+
+    int rc = 1;
+    pt_scene *scene = NULL;
+    pt_env *env = NULL;
+    pt_renderer *r = NULL;
+    pt_image *ref = NULL;
+    pixel_rec *px = NULL;
+    pt_scene_opts so = {0};
+    so.camera_name = camera;
+    if (pt_exr_read(ref_path, &ref, NULL, &err) != PT_OK ||
+        pt_scene_load(scene_path, &so, &scene, &err) != PT_OK ||
+        (env_path && pt_env_load(env_path, 1.0f, 0.0f, &env, &err) != PT_OK) ||
+        (has_bg &&
+         pt_env_uniform(pt_v3((float)bg[0], (float)bg[1], (float)bg[2]), &env, &err) != PT_OK)) {
+        fprintf(stderr, "ptbench-paths: %s\n", err.msg);
+        goto done;
+    }
+    if (ref->width != w || ref->height != h) {
+        fprintf(stderr, "ptbench-paths: the reference is %ux%u, --res %ux%u\n", ref->width,
+                ref->height, w, h);
+        goto done;
+    }
+    pt_render_params p;
+    pt_render_params_default(&p);
+    p.width = w;
+    p.height = h;
+    p.seed = seed;
+    p.max_depth = max_depth;
+    p.env = env;
+    if (pt_renderer_new(scene, &p, &r, &err) != PT_OK) {
+        fprintf(stderr, "ptbench-paths: %s\n", err.msg);
+        goto done;
+    }
+    size_t n = (size_t)w * h;
+    if (!(px = pt_calloc(n, sizeof *px))) {
+        fprintf(stderr, "ptbench-paths: out of memory\n");
+        goto done;
+    }
+    /* The image, keeping each pixel's largest samples. */
+    for (uint32_t y = 0; y < h; y++)
+        for (uint32_t x = 0; x < w; x++) {
+            pixel_rec *pr = &px[(size_t)y * w + x];
+            pr->i = y * w + x;
+            for (uint32_t k = 0; k < spp; k++) {
+                nev = 0;
+                pt_vec3 L = pt_render_sample(r, x, y, k, NULL, NULL);
+                if (!(isfinite(L.x) && isfinite(L.y) && isfinite(L.z)))
+                    continue; /* the film drops these too */
+                pr->sum[0] += L.x;
+                pr->sum[1] += L.y;
+                pr->sum[2] += L.z;
+                float lum = pt_luminance(L);
+                uint32_t j;
+                if (pr->ntop < top)
+                    j = pr->ntop++;
+                else if (lum > pr->top[top - 1].lum)
+                    j = top - 1;
+                else
+                    continue;
+                pr->top[j] = (sample_rec){k, lum};
+                while (j > 0 && pr->top[j - 1].lum < pr->top[j].lum) {
+                    sample_rec t = pr->top[j - 1];
+                    pr->top[j - 1] = pr->top[j];
+                    pr->top[j] = t;
+                    j--;
+                }
+            }
+        }
+    /* Each pixel's squared error as relMSE counts it. */
+    const float *rc3[3] = {ref->r, ref->g, ref->b};
+    double total = 0.0;
+    for (size_t i = 0; i < n; i++) {
+        double e = 0.0;
+        for (int c = 0; c < 3; c++) {
+            double m = px[i].sum[c] / spp, rv = rc3[c][i];
+            double v = (m - rv) * (m - rv) / (rv * rv + PT_METRICS_REL_EPS);
+            e += isfinite(v) ? v : 0.0;
+        }
+        px[i].err = e;
+        total += e;
+    }
+    qsort(px, n, sizeof *px, cmp_err_desc);
+    size_t nw = (size_t)ceil(worst * (double)n);
+    if (nw < 1)
+        nw = 1;
+    double wsum = 0.0;
+    for (size_t i = 0; i < nw; i++)
+        wsum += px[i].err;
+    printf("relMSE %.6g, worst %zu pixels hold %.4f of it\n", total / (3.0 * (double)n), nw,
+           total > 0.0 ? wsum / total : 0.0);
+    for (size_t i = 0; i < nw; i++) {
+        pixel_rec *pr = &px[i];
+        uint32_t x = pr->i % w, y = pr->i / w;
+        float ref_lum = pt_luminance(pt_v3(ref->r[pr->i], ref->g[pr->i], ref->b[pr->i]));
+        float mean_lum = pt_luminance(
+            pt_v3((float)(pr->sum[0] / spp), (float)(pr->sum[1] / spp), (float)(pr->sum[2] / spp)));
+        double share = total > 0.0 ? pr->err / total : 0.0;
+        printf("pixel %u,%u: mean %.4g ref %.4g, share of the squared error %.4f\n", x, y, mean_lum,
+               ref_lum, share);
+        /* The pixel's excess over the reference, spread over its top samples
+         * by their luminance above the reference. */
+        double excess = 0.0;
+        for (uint32_t k = 0; k < pr->ntop; k++)
+            excess += fmax(pr->top[k].lum - ref_lum, 0.0);
+        for (uint32_t k = 0; k < pr->ntop; k++) {
+            nev = 0;
+            last_lobe = -1;
+            pt_vec3 L = pt_render_sample(r, x, y, pr->top[k].index, NULL, NULL);
+            float lum = pt_luminance(L);
+            printf("    sample %u: L %.4g %.4g %.4g (lum %.4g, /spp %.4g)\n", pr->top[k].index, L.x,
+                   L.y, L.z, lum, lum / spp);
+            print_events(scene);
+            double sshare =
+                excess > 0.0 ? share * fmax(pr->top[k].lum - ref_lum, 0.0) / excess : 0.0;
+            classify(scene, sshare, lum);
+        }
+    }
+    qsort(sigs, nsigs, sizeof sigs[0], cmp_sig_desc);
+    printf("\nshare of the whole image's squared error, by the path that carried it:\n");
+    for (uint32_t i = 0; i < nsigs && i < 40; i++)
+        printf("  %.4f  %4u  %s\n", sigs[i].share, sigs[i].count, sigs[i].text);
+    printf("by technique: NEE %.4f, BSDF hit %.4f, BSDF hit through a smooth bounce after a "
+           "rough one (caustic) %.4f\n",
+           by_kind[0], by_kind[1], by_kind[2]);
+    printf("by bounces before the light was found: 0 %.4f, 1 %.4f, 2 %.4f, 3 %.4f, 4 %.4f, "
+           "5-8 %.4f, 9+ %.4f\n",
+           by_depth[0], by_depth[1], by_depth[2], by_depth[3], by_depth[4], by_depth[5],
+           by_depth[6]);
+    rc = 0;
+done:
+    pt_free(px);
+    pt_renderer_free(r);
+    pt_env_free(env);
+    pt_scene_free(scene);
+    pt_image_free(ref);
+    return rc;
+}

@@ -1,0 +1,73 @@
+#!/usr/bin/env bash
+# ptbench-paths (tests/bench/paths.c), the firefly finder: it renders the
+# samples ptworker --guiding off renders (its relMSE against a reference is
+# ptbench error's for ptworker's image of the same seed), logs the paths of
+# the worst pixels' largest samples through the renderer's own code
+# (common/render/path_trace.h), and the renderer that users run has none of
+# that log compiled in. glass_things.gltf under a uniform background: a
+# glass ball on a floor, whose caustic the summary must find among paths
+# that reach the light through a smooth bounce after a rough one.
+#
+# Environment (set by ctest): PT_BIN (the build's bin folder), PT_SOURCE_DIR.
+set -euo pipefail
+BIN=${PT_BIN:?}
+SRC=${PT_SOURCE_DIR:?}
+tmp=$(mktemp -d)
+trap 'rm -rf "$tmp"' EXIT
+scene=$SRC/scenes/glass_things.gltf
+common=(--res 32x24 --background 1,1,1 --guiding off --threads 1 -q)
+
+"$BIN/ptworker" --scene "$scene" "${common[@]}" --spp 256 --seed 7 -o "$tmp/ref.exr" >/dev/null 2>&1
+"$BIN/ptworker" --scene "$scene" "${common[@]}" --spp 8 --seed 1 -o "$tmp/img.exr" >/dev/null 2>&1
+want=$("$BIN/ptbench" error "$tmp/img.exr" "$tmp/ref.exr" | awk '/^relMSE/ { print $2 }')
+"$BIN/ptbench-paths" "$scene" --reference "$tmp/ref.exr" --res 32x24 --background 1,1,1 \
+    --spp 8 --seed 1 --worst 0.05 --top 2 >"$tmp/out.txt" 2>"$tmp/err.txt"
+head -3 "$tmp/out.txt"
+tail -12 "$tmp/out.txt"
+got=$(awk '/^relMSE/ { sub(",", "", $2); print $2 }' "$tmp/out.txt")
+# The same samples: equal to the printed digits (ptbench prints 7, this 6).
+awk -v a="$got" -v b="$want" 'BEGIN { d = a - b; if (d < 0) d = -d; exit !(d <= 1e-5 * b) }' ||
+    { echo "FAIL: ptbench-paths relMSE $got, ptworker's image $want"; exit 1; }
+
+# Every path logged: bounces with their lobes, light samples, hits.
+for what in ' bounce  floor ' ' dielectric ' ' nee ' ' env hit ' 'unblocked, adds'; do
+    grep -q -- "$what" "$tmp/out.txt" || { echo "FAIL: no '$what' in the log"; exit 1; }
+done
+# The summary's shares are parts of the worst pixels' share.
+awk '/^relMSE/ { worst = $(NF - 2) + 0 }
+     /^by technique/ {
+        gsub(",", "")
+        s = $4 + $7 + $NF
+        if (!(s >= 0 && s <= worst + 1e-4 && $NF > 0)) { print "FAIL: " $0; bad = 1 }
+        found = 1
+     }
+     END { exit bad || !found }' "$tmp/out.txt" ||
+    { echo "FAIL: the summary's shares"; exit 1; }
+grep -q 'glass:dielectric(delta) > .*| BSDF hit env' "$tmp/out.txt" ||
+    { echo "FAIL: no path through the glass to the background"; exit 1; }
+
+# The renderer that users run has no path log.
+nm "$BIN/ptworker" >"$tmp/worker.nm"
+nm "$BIN/ptbench-paths" >"$tmp/paths.nm"
+if grep -q pt_trace_event "$tmp/worker.nm"; then
+    echo "FAIL: ptworker has the path log compiled in"
+    exit 1
+fi
+grep -q ' T pt_trace_event' "$tmp/paths.nm" || { echo "FAIL: no log in ptbench-paths"; exit 1; }
+
+# Bad input: a clear message and a non-zero exit. expect_fail RC TEXT ARGS...
+expect_fail() {
+    local want=$1 text=$2 rc=0
+    shift 2
+    "$BIN/ptbench-paths" "$scene" "$@" >/dev/null 2>"$tmp/e" || rc=$?
+    if [[ $rc != "$want" ]] || ! grep -q -- "$text" "$tmp/e"; then
+        echo "FAIL: ptbench-paths $* exited $rc, want $want and '$text':"
+        cat "$tmp/e"
+        exit 1
+    fi
+}
+expect_fail 2 --worst --reference "$tmp/ref.exr" --res 32x24 --worst 2
+expect_fail 1 'reference is 32x24' --reference "$tmp/ref.exr" --res 16x16
+expect_fail 1 nothing.exr --reference "$tmp/nothing.exr" --res 32x24
+expect_fail 2 usage --reference "$tmp/ref.exr" --res 32x24 --background 1,1,1 --env x.hdr
+echo "test_bench_paths: ok"
