@@ -805,12 +805,13 @@ static inline float tree_pmf_area(const pt_lights *lights, const light_entry *le
 
 /* The light and point u picks seen from p, through the tree when there is
  * one; *pmf_area its probability / area, 0 when no light can be chosen. */
-static inline const light_entry *choose(const pt_lights *lights, pt_vec3 p, const float u[3],
-                                        pt_vec3 *pos, float *b1, float *b2, float *pmf_area)
+static inline const light_entry *choose(const pt_lights *lights, pt_vec3 p, pt_vec3 n,
+                                        const float u[3], pt_vec3 *pos, float *b1, float *b2,
+                                        float *pmf_area)
 {
     if (lights->tree) {
         double q;
-        uint32_t k = pt_light_tree_sample(lights->tree, p, (double)u[0], &q);
+        uint32_t k = pt_light_tree_sample(lights->tree, p, n, (double)u[0], &q);
         if (k >= lights->count) { /* none, or a punctual light: not in the lanes */
             *pmf_area = 0.0f;
             return point_on(&lights->lights[0], u[1], u[2], pos, b1, b2);
@@ -942,8 +943,8 @@ static int sample_tree_light(const pt_lights *lights, const pt_scene *scene, pt_
     return sample_on(lights, scene, le, p, tree_pmf_area(lights, le, q), u, s);
 }
 
-int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, const float u[3],
-                     pt_light_sample *s)
+int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, pt_vec3 n,
+                     const float u[3], pt_light_sample *s)
 {
     memset(s, 0, sizeof *s);
     s->tri = UINT32_MAX;
@@ -968,7 +969,7 @@ int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, 
 
     if (lights->tree) {
         double q;
-        uint32_t k = pt_light_tree_sample(lights->tree, p, (double)u[0], &q);
+        uint32_t k = pt_light_tree_sample(lights->tree, p, n, (double)u[0], &q);
         return sample_tree_light(lights, scene, p, u, k, q, s);
     }
     const light_entry *le = &lights->lights[pick_index(lights, u[0])];
@@ -977,14 +978,15 @@ int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, 
 
 void pt_lights_pick_n(const pt_lights *lights, const pt_scene *scene, uint32_t n, const float *pick,
                       const float *point, size_t stride, const float *const p[3],
-                      pt_light_picks *out)
+                      const float *const nrm[3], pt_light_picks *out)
 {
     for (uint32_t j = 0; j < n; j++) {
         const float u[3] = {pick[j * stride], point[j * stride], point[j * stride + 1]};
         pt_vec3 pos;
         float b1, b2, pmf_area;
         const light_entry *le =
-            choose(lights, pt_v3(p[0][j], p[1][j], p[2][j]), u, &pos, &b1, &b2, &pmf_area);
+            choose(lights, pt_v3(p[0][j], p[1][j], p[2][j]), pt_v3(nrm[0][j], nrm[1][j], nrm[2][j]),
+                   u, &pos, &b1, &b2, &pmf_area);
         const pt_material *m = &scene->materials[le->material];
         /* The emission of every pick, also of those that the checks will
          * reject: without a branch on the checks, which the lanes make. */
@@ -1018,12 +1020,13 @@ void pt_lights_pick_n(const pt_lights *lights, const pt_scene *scene, uint32_t n
  * finishes it: the same bits. */
 #define TREE_BATCH 64u
 static void sample_n_tree(const pt_lights *lights, const pt_scene *scene, uint32_t n,
-                          const pt_vec3 *p, const float (*u)[3], pt_light_sample *s, int *ok)
+                          const pt_vec3 *p, const pt_vec3 *nrm, const float (*u)[3],
+                          pt_light_sample *s, int *ok)
 {
     for (uint32_t i0 = 0; i0 < n; i0 += TREE_BATCH) {
         uint32_t m = 0, idx[TREE_BATCH], k[TREE_BATCH];
         float ut[TREE_BATCH][3];
-        pt_vec3 pt[TREE_BATCH];
+        pt_vec3 pt[TREE_BATCH], nt[TREE_BATCH];
         double u0[TREE_BATCH], q[TREE_BATCH];
         for (uint32_t i = i0; i < n && i < i0 + TREE_BATCH; i++) {
             /* pt_lights_sample's choice of the class, from one number */
@@ -1033,16 +1036,17 @@ static void sample_n_tree(const pt_lights *lights, const pt_scene *scene, uint32
             if (lights->npunct > 0 || lights->env) {
                 double v = u[i][0];
                 if (!(v < lights->p_tri)) { /* the environment or a punctual light */
-                    ok[i] = pt_lights_sample(lights, scene, p[i], u[i], &s[i]);
+                    ok[i] = pt_lights_sample(lights, scene, p[i], nrm[i], u[i], &s[i]);
                     continue;
                 }
                 ut[m][0] = (float)(v / lights->p_tri);
             }
             u0[m] = (double)ut[m][0];
             pt[m] = p[i];
+            nt[m] = nrm[i];
             idx[m++] = i;
         }
-        pt_light_tree_sample_n(lights->tree, m, pt, u0, k, q);
+        pt_light_tree_sample_n(lights->tree, m, pt, nt, u0, k, q);
         for (uint32_t j = 0; j < m; j++) {
             if (k[j] >= lights->count)
                 continue;
@@ -1075,15 +1079,16 @@ static void sample_n_tree(const pt_lights *lights, const pt_scene *scene, uint32
 
 PT_SIMD_CLONES
 void pt_lights_sample_n(const pt_lights *lights, const pt_scene *scene, uint32_t n,
-                        const pt_vec3 *p, const float (*u)[3], pt_light_sample *s, int *ok)
+                        const pt_vec3 *p, const pt_vec3 *nrm, const float (*u)[3],
+                        pt_light_sample *s, int *ok)
 {
     if (lights && lights->tree) {
-        sample_n_tree(lights, scene, n, p, u, s, ok);
+        sample_n_tree(lights, scene, n, p, nrm, u, s, ok);
         return;
     }
     if (!lights || lights->count == 0 || lights->solid_angle) {
         for (uint32_t i = 0; i < n; i++)
-            ok[i] = pt_lights_sample(lights, scene, p[i], u[i], &s[i]);
+            ok[i] = pt_lights_sample(lights, scene, p[i], nrm[i], u[i], &s[i]);
         return;
     }
     /* The reads of the picks, asked for in two passes before the first
@@ -1165,7 +1170,7 @@ void pt_lights_sample_n(const pt_lights *lights, const pt_scene *scene, uint32_t
 }
 
 float pt_lights_pdf(const pt_lights *lights, const pt_scene *scene, uint32_t tri, pt_vec3 p,
-                    pt_vec3 hit, pt_vec3 n_light)
+                    pt_vec3 n, pt_vec3 hit, pt_vec3 n_light)
 {
     if (!lights || lights->count == 0 || tri >= lights->num_triangles)
         return 0.0f;
@@ -1176,7 +1181,7 @@ float pt_lights_pdf(const pt_lights *lights, const pt_scene *scene, uint32_t tri
     const pt_material *m = &scene->materials[le->material];
     float pmf_area = le->pmf_area;
     if (lights->tree)
-        pmf_area = tree_pmf_area(lights, le, pt_light_tree_pmf(lights->tree, p, k));
+        pmf_area = tree_pmf_area(lights, le, pt_light_tree_pmf(lights->tree, p, n, k));
     double omega = sa_omega(lights, le, p);
     if (omega > 0.0) {
         /* sample_solid_angle's pdf, on the side it samples */

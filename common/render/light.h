@@ -10,7 +10,8 @@
  * PT_LIGHT_TREE_MIN to PT_LIGHT_TREE_AUTO_MAX lights (triangles, point and
  * spot lights together), by
  * a light tree (light_tree.h) in proportion to an estimate of what each gives
- * the shading point (power, distance and orientation bounds); then a point is
+ * the shading point (power, distance and orientation bounds, and the side of
+ * the receiver's tangent plane it lies on); then a point is
  * sampled uniformly by area and the pdf converted to solid angle:
  * pdf_w = pdf_A * d^2 / |cos theta_light|. pt_lights_pdf gives the same
  * number for a BSDF ray that hits the light (the tree's pmf recomputed for it).
@@ -108,22 +109,28 @@ int pt_lights_has_env(const pt_lights *lights);
  * environment, its class's share included; 0 without one. */
 float pt_lights_env_pdf(const pt_lights *lights, pt_vec3 dir);
 
-/* Samples a light point seen from p. u: 3 numbers in [0,1) (u[0] picks the
- * triangle, u[1..2] the point). Returns 0 when there are no lights or the
- * sample is impossible (then s->pdf is 0). */
-int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, const float u[3],
-                     pt_light_sample *s);
+/* Samples a light point seen from p. n: the receiver's unit normal on the
+ * side it reflects light to, or a zero vector for a receiver that scatters
+ * to both sides; a light tree gives no probability to lights wholly below
+ * that side's tangent plane (the alias table ignores n). u: 3 numbers in
+ * [0,1) (u[0] picks the triangle, u[1..2] the point). Returns 0 when there
+ * are no lights or the sample is impossible (then s->pdf is 0). */
+int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, pt_vec3 n,
+                     const float u[3], pt_light_sample *s);
 
-/* pt_lights_sample(lights, scene, p[i], u[i], &s[i]) into ok[i] for i < n,
- * the same bits, computed a few points at a time in SIMD lanes. Triangles
- * only: not for a set with punctual lights. */
+/* pt_lights_sample(lights, scene, p[i], nrm[i], u[i], &s[i]) into ok[i] for
+ * i < n, the same bits, computed a few points at a time in SIMD lanes.
+ * Triangles only: not for a set with punctual lights. */
 void pt_lights_sample_n(const pt_lights *lights, const pt_scene *scene, uint32_t n,
-                        const pt_vec3 *p, const float (*u)[3], pt_light_sample *s, int *ok);
+                        const pt_vec3 *p, const pt_vec3 *nrm, const float (*u)[3],
+                        pt_light_sample *s, int *ok);
 
 /* Solid-angle pdf that pt_lights_sample would give for reaching point `hit` on
- * triangle `tri` (normal n_light) from p; 0 when tri is not a light. */
+ * triangle `tri` (normal n_light) from p with receiver normal n (the same n
+ * NEE was given there: MIS needs the same function); 0 when tri is not a
+ * light. */
 float pt_lights_pdf(const pt_lights *lights, const pt_scene *scene, uint32_t tri, pt_vec3 p,
-                    pt_vec3 hit, pt_vec3 n_light);
+                    pt_vec3 n, pt_vec3 hit, pt_vec3 n_light);
 
 /* Emitted radiance of triangle tri at barycentrics (b1, b2) towards direction
  * w_out (unit, away from the light); 0 on the back of a single-sided emitter. */
