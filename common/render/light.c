@@ -805,12 +805,13 @@ static inline float tree_pmf_area(const pt_lights *lights, const light_entry *le
 
 /* The light and point u picks seen from p, through the tree when there is
  * one; *pmf_area its probability / area, 0 when no light can be chosen. */
-static inline const light_entry *choose(const pt_lights *lights, pt_vec3 p, pt_vec3 n,
-                                        const float u[3], pt_vec3 *pos, float *b1, float *b2,
-                                        float *pmf_area)
+static inline const light_entry *choose(const pt_lights *lights, pt_vec3 p,
+                                        const float *const nrm[3], uint32_t j, const float u[3],
+                                        pt_vec3 *pos, float *b1, float *b2, float *pmf_area)
 {
     if (lights->tree) {
         double q;
+        pt_vec3 n = pt_v3(nrm[0][j], nrm[1][j], nrm[2][j]); /* read only here */
         uint32_t k = pt_light_tree_sample(lights->tree, p, n, (double)u[0], &q);
         if (k >= lights->count) { /* none, or a punctual light: not in the lanes */
             *pmf_area = 0.0f;
@@ -985,8 +986,7 @@ void pt_lights_pick_n(const pt_lights *lights, const pt_scene *scene, uint32_t n
         pt_vec3 pos;
         float b1, b2, pmf_area;
         const light_entry *le =
-            choose(lights, pt_v3(p[0][j], p[1][j], p[2][j]), pt_v3(nrm[0][j], nrm[1][j], nrm[2][j]),
-                   u, &pos, &b1, &b2, &pmf_area);
+            choose(lights, pt_v3(p[0][j], p[1][j], p[2][j]), nrm, j, u, &pos, &b1, &b2, &pmf_area);
         const pt_material *m = &scene->materials[le->material];
         /* The emission of every pick, also of those that the checks will
          * reject: without a branch on the checks, which the lanes make. */

@@ -101,6 +101,8 @@ struct pt_renderer {
     int alpha;    /* the scene has MASK/BLEND materials: rays pass through them */
     /* PT_FEAT_THIN_GLASS: shadow rays cross thin smooth glass */
     int thin_glass;
+    /* a light tree chooses: light_normal computes the receiver's normal */
+    int light_tree;
     const char *variant;
     int lanes; /* the Lambert variants shade in lanes (shade_lanes) */
     float tan_half_fov;
@@ -1037,11 +1039,12 @@ static inline int transmits(const pt_material *m);
  * lights the tree gives no probability there would have added nothing, with
  * NEE alone too; zero (no bound) where the surface scatters to both sides
  * (shade()'s `through`). NEE at sf and the MIS weight of the hit the path
- * finds next (pa->prev_n) both take it from here. */
-static inline __attribute__((always_inline)) pt_vec3 light_normal(const surface *sf, pt_vec3 wo,
-                                                                  const uint32_t features)
+ * finds next (pa->prev_n) both take it from here. Without a tree nothing
+ * reads it: zero, for nothing. */
+static inline __attribute__((always_inline)) pt_vec3
+light_normal(const pt_renderer *r, const surface *sf, pt_vec3 wo, const uint32_t features)
 {
-    if (((features & PT_FEAT_TRANSMISSION) && transmits(sf->mat)) ||
+    if (!r->light_tree || ((features & PT_FEAT_TRANSMISSION) && transmits(sf->mat)) ||
         ((features & PT_FEAT_DIFFUSE_TRANSMISSION) &&
          (sf->mat->ext & PT_MATX_DIFFUSE_TRANSMISSION)))
         return pt_v3(0.0f, 0.0f, 0.0f);
@@ -1063,7 +1066,7 @@ bounce_light(const pt_renderer *r, const surface *sf, const path *pa, const floa
     u3[0] = u[OFF_LIGHT_PICK];
     u3[1] = u[OFF_LIGHT_POINT];
     u3[2] = u[OFF_LIGHT_POINT + 1];
-    pt_vec3 n = light_normal(sf, pt_v3_neg(pa->d), features);
+    pt_vec3 n = light_normal(r, sf, pt_v3_neg(pa->d), features);
     return pt_lights_sample(r->lights, r->scene, sf->p, n, u3, ls);
 }
 
@@ -1781,7 +1784,7 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
         pa->cross++;
     } else {
         pa->prev_p = sf->p;
-        pa->prev_n = light_normal(sf, wo, features);
+        pa->prev_n = light_normal(r, sf, wo, features);
         pa->prev_pdf = delta ? 0.0f : pdf;
         if ((features & PT_FEAT_THIN_GLASS) && r->thin_glass)
             pa->cross = 0;
@@ -2148,7 +2151,8 @@ static void shade_lanes(const pt_renderer *r, path *paths, const uint8_t *live, 
         s->contrib = pt_v3(cx[l], cy[l], cz[l]);
         pa->beta = pt_v3(btx[l], bty[l], btz[l]);
         pa->prev_p = pt_v3(px[l], py[l], pz[l]);
-        pa->prev_n = pt_v3(sl->ln[0][j0 + l], sl->ln[1][j0 + l], sl->ln[2][j0 + l]);
+        if (r->light_tree) /* else nothing reads it */
+            pa->prev_n = pt_v3(sl->ln[0][j0 + l], sl->ln[1][j0 + l], sl->ln[2][j0 + l]);
         pa->prev_pdf = pdf[l];
         pa->o = pt_v3(ox[l], oy[l], oz[l]);
         pa->d = pt_v3(dx[l], dy[l], dz[l]);
@@ -2242,7 +2246,7 @@ lights_stage(const pt_renderer *r, uint32_t n, const surface *sfs, const path *p
     float lu[BATCH][3];
     for (uint32_t j = 0; j < n; j++) {
         p[j] = sfs[j].p;
-        nrm[j] = light_normal(&sfs[j], pt_v3_neg(paths[live[j]].d), features);
+        nrm[j] = light_normal(r, &sfs[j], pt_v3_neg(paths[live[j]].d), features);
         lu[j][0] = u[j][OFF_LIGHT_PICK];
         lu[j][1] = u[j][OFF_LIGHT_POINT];
         lu[j][2] = u[j][OFF_LIGHT_POINT + 1];
@@ -2368,7 +2372,8 @@ trace_batch(const pt_renderer *r, path *paths, uint32_t n, stage_lanes *sl, cons
                 PT_LANE_PUT3(sl->ng, j, sf.ng);
                 PT_LANE_PUT3(sl->ns, j, sf.ns);
                 PT_LANE_PUT3(sl->diffuse, j, b.diffuse);
-                PT_LANE_PUT3(sl->ln, j, light_normal(&sf, pt_v3_neg(paths[k].d), features));
+                if (r->light_tree)
+                    PT_LANE_PUT3(sl->ln, j, light_normal(r, &sf, pt_v3_neg(paths[k].d), features));
             }
             int nee = (features & PT_FEAT_EMITTERS) && r->nee;
             if (nee) {
@@ -2699,6 +2704,7 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
      * docs/bench/light_tree.md). */
     r->nee_n = r->nee && ((pt_lights_count(r->lights) >= LIGHTS_N_MIN && others == 0) ||
                           pt_lights_has_tree(r->lights));
+    r->light_tree = pt_lights_has_tree(r->lights);
     uint32_t features = scene->features | (params->extra_features & ~PARAM_FEATURES);
     r->alpha = (scene->features & PT_FEAT_ALPHA) != 0;
     r->motion = (scene->features & PT_FEAT_MOTION) ? scene->motion : NULL;
