@@ -57,10 +57,10 @@ enum { PT_LIGHT_SELECT_AUTO = 0, PT_LIGHT_SELECT_POWER = 1, PT_LIGHT_SELECT_TREE
 #define PT_LIGHT_TREE_MIN 16u
 /* ... and up to PT_LIGHT_TREE_AUTO_MAX: past it _AUTO chooses by power.
  * Measured (tests/bench/light_tree.sh, time to equal relMSE, power/tree,
- * CPU): EmissiveStrengthTest's 60 lights 2.42x faster with the tree, but
- * DamagedHelmet's 370 textured ones 0.77x, ToyCar's 2,720 0.88x and
- * StainedGlassLamp's 16,704 0.87x: there the walk costs more than the
- * better choice saves. */
+ * CPU, with the receiver's normal in the tree): EmissiveStrengthTest's 60
+ * lights 3.31x faster with the tree, but DamagedHelmet's 370 textured ones
+ * 0.78x, ToyCar's 2,720 0.86x and StainedGlassLamp's 16,704 0.87x: there
+ * the walk costs more than the better choice saves. */
 #define PT_LIGHT_TREE_AUTO_MAX 256u
 /* Or'd into select: a triangle seen under at least 1.5 sr is sampled by solid
  * angle (Arvo 1995, sphtri.h) instead of area, where that pays (a large

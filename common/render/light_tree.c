@@ -538,8 +538,8 @@ static inline __attribute__((always_inline)) void importance4(const lt_node *con
      * direction from p to the centre, less theta_b; cos(max(0, theta_i -
      * theta_b)), and 0 where that is >= pi/2: the node's sphere lies wholly
      * below p's tangent plane, where nothing it holds can light p. A zero n
-     * (a receiver that scatters to both sides) gives cos_i 0, sin_i 1,
-     * so cos_ip sin_b > 0: never 0, and no bound is set (has_n). */
+     * (a receiver that scatters to both sides) sets no bound: 1 (has_n).
+     * One more square root for the four lanes. */
     v4f cos_i = -(n.x * dx + n.y * dy + n.z * dz) * inv;
     cos_i = v4_sel(cos_i > 1.0f, (v4f){1.0f, 1.0f, 1.0f, 1.0f}, cos_i);
     cos_i = v4_sel(cos_i < -1.0f, (v4f){-1.0f, -1.0f, -1.0f, -1.0f}, cos_i);
