@@ -589,8 +589,9 @@ static pt_scene *finish_with_camera(pt_scene_builder *b, pt_vec3 position, pt_ve
 
 /* A textured Lambertian floor lit by an emissive quad, built by code. With
  * grid > 1 the quad is grid x grid cells of two triangles, textured in its
- * emission too: with 512 triangles or more, the renderer samples a stage's
- * lights in one call (pt_lights_sample_n). */
+ * emission too: from 16 triangles a light tree chooses, and with 512 or
+ * more the renderer samples a stage's lights in one call
+ * (pt_lights_sample_n). */
 static pt_scene *textured_lambert_scene(uint32_t grid)
 {
     pt_scene_builder *b = NULL;
@@ -720,6 +721,14 @@ static void variants(void)
     }
     pt_scene_free(s);
     s = textured_lambert_scene(16); /* 512 lights */
+    if (s) {
+        same_as_general(s, "lambert");
+        batched(s, 0);
+    }
+    pt_scene_free(s);
+    /* 32 lights: a light tree chooses, with the receiver's normal (the
+     * lanes' picks and the MIS pdf of the next hit, prev_n) */
+    s = textured_lambert_scene(4);
     if (s) {
         same_as_general(s, "lambert");
         batched(s, 0);
