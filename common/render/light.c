@@ -803,24 +803,11 @@ static inline float tree_pmf_area(const pt_lights *lights, const light_entry *le
     return (float)(q * lights->p_tri) / le->area;
 }
 
-/* The light and point u picks seen from p, through the tree when there is
- * one; *pmf_area its probability / area, 0 when no light can be chosen. */
-static inline const light_entry *choose(const pt_lights *lights, pt_vec3 p,
-                                        const float *const nrm[3], uint32_t j, const float u[3],
-                                        pt_vec3 *pos, float *b1, float *b2, float *pmf_area)
+/* The light and point u picks through the alias table; *pmf_area its
+ * probability / area. */
+static inline const light_entry *choose(const pt_lights *lights, const float u[3], pt_vec3 *pos,
+                                        float *b1, float *b2, float *pmf_area)
 {
-    if (lights->tree) {
-        double q;
-        pt_vec3 n = pt_v3(nrm[0][j], nrm[1][j], nrm[2][j]); /* read only here */
-        uint32_t k = pt_light_tree_sample(lights->tree, p, n, (double)u[0], &q);
-        if (k >= lights->count) { /* none, or a punctual light: not in the lanes */
-            *pmf_area = 0.0f;
-            return point_on(&lights->lights[0], u[1], u[2], pos, b1, b2);
-        }
-        const light_entry *le = point_on(&lights->lights[k], u[1], u[2], pos, b1, b2);
-        *pmf_area = tree_pmf_area(lights, le, q);
-        return le;
-    }
     const light_entry *le = pick_point(lights, u, pos, b1, b2);
     *pmf_area = le->pmf_area;
     return le;
@@ -981,12 +968,35 @@ void pt_lights_pick_n(const pt_lights *lights, const pt_scene *scene, uint32_t n
                       const float *point, size_t stride, const float *const p[3],
                       const float *const nrm[3], pt_light_picks *out)
 {
+    /* Through the tree, the n points walk it together (pt_light_tree_sample_n:
+     * their cache misses overlap), then each takes its light as
+     * pt_lights_sample does: the same bits as one at a time. */
+    uint32_t k[PT_LIGHT_PICKS];
+    double q[PT_LIGHT_PICKS];
+    if (lights->tree) {
+        pt_vec3 pp[PT_LIGHT_PICKS], nn[PT_LIGHT_PICKS];
+        double u0[PT_LIGHT_PICKS];
+        for (uint32_t j = 0; j < n; j++) {
+            pp[j] = pt_v3(p[0][j], p[1][j], p[2][j]);
+            nn[j] = pt_v3(nrm[0][j], nrm[1][j], nrm[2][j]);
+            u0[j] = (double)pick[j * stride];
+        }
+        pt_light_tree_sample_n(lights->tree, n, pp, nn, u0, k, q);
+    }
     for (uint32_t j = 0; j < n; j++) {
         const float u[3] = {pick[j * stride], point[j * stride], point[j * stride + 1]};
         pt_vec3 pos;
         float b1, b2, pmf_area;
-        const light_entry *le =
-            choose(lights, pt_v3(p[0][j], p[1][j], p[2][j]), nrm, j, u, &pos, &b1, &b2, &pmf_area);
+        const light_entry *le;
+        if (!lights->tree) {
+            le = choose(lights, u, &pos, &b1, &b2, &pmf_area);
+        } else if (k[j] >= lights->count) { /* none, or a punctual light: not in the lanes */
+            pmf_area = 0.0f;
+            le = point_on(&lights->lights[0], u[1], u[2], &pos, &b1, &b2);
+        } else {
+            le = point_on(&lights->lights[k[j]], u[1], u[2], &pos, &b1, &b2);
+            pmf_area = tree_pmf_area(lights, le, q[j]);
+        }
         const pt_material *m = &scene->materials[le->material];
         /* The emission of every pick, also of those that the checks will
          * reject: without a branch on the checks, which the lanes make. */
