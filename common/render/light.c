@@ -398,6 +398,44 @@ static pt_status build_tree(const pt_scene *scene, pt_lights *L, const double *p
     return st;
 }
 
+/* The diagonal of the box around the tree's lights (the n triangle lights'
+ * vertices, the point and spot lights' positions) over that of the box
+ * around the scene and them: PT_LIGHT_TREE_MIN_SPREAD says why. 1 for a
+ * scene of no extent. */
+static double lights_spread(const pt_scene *scene, const pt_lights *L, uint32_t n,
+                            const double *punct_power)
+{
+    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (uint32_t i = 0; i < n; i++)
+        for (int c = 0; c < 3; c++) {
+            const float x[3] = {L->lights[i].v[c].x, L->lights[i].v[c].y, L->lights[i].v[c].z};
+            for (int a = 0; a < 3; a++) {
+                lo[a] = fmin(lo[a], (double)x[a]);
+                hi[a] = fmax(hi[a], (double)x[a]);
+            }
+        }
+    for (uint32_t i = 0; L->punct && i < scene->num_punctual; i++) {
+        const pt_punctual *l = &scene->punctual[i];
+        if (l->type == PT_PUNCTUAL_DIRECTIONAL || !(punct_power[i] > 0.0))
+            continue;
+        const float x[3] = {l->position.x, l->position.y, l->position.z};
+        for (int a = 0; a < 3; a++) {
+            lo[a] = fmin(lo[a], (double)x[a]);
+            hi[a] = fmax(hi[a], (double)x[a]);
+        }
+    }
+    const float smin[3] = {scene->bounds_min.x, scene->bounds_min.y, scene->bounds_min.z};
+    const float smax[3] = {scene->bounds_max.x, scene->bounds_max.y, scene->bounds_max.z};
+    double dl = 0.0, ds = 0.0;
+    for (int a = 0; a < 3; a++) {
+        double e = hi[a] > lo[a] ? hi[a] - lo[a] : 0.0;
+        double f = fmax(hi[a], (double)smax[a]) - fmin(lo[a], (double)smin[a]);
+        dl += e * e;
+        ds += isfinite(f) && f > 0.0 ? f * f : 0.0;
+    }
+    return ds > 0.0 ? sqrt(dl / ds) : 1.0;
+}
+
 pt_status pt_lights_new(const pt_scene *scene, pt_lights **out, pt_error *err)
 {
     return pt_lights_new_env(scene, NULL, PT_ENV_FULL, out, err);
@@ -549,7 +587,8 @@ others : {
         }
     int use_tree = select == PT_LIGHT_SELECT_TREE ? n + m >= 2
                    : select == PT_LIGHT_SELECT_AUTO
-                       ? n + m >= PT_LIGHT_TREE_MIN && n + m <= PT_LIGHT_TREE_AUTO_MAX
+                       ? n + m >= PT_LIGHT_TREE_MIN && n + m <= PT_LIGHT_TREE_AUTO_MAX &&
+                             lights_spread(scene, L, n, punct_power) >= PT_LIGHT_TREE_MIN_SPREAD
                        : 0;
     double first = use_tree ? total + tree_punct : total; /* the first class's power */
     double class_punct = use_tree ? punct_total - tree_punct : punct_total;

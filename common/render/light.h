@@ -8,7 +8,7 @@
  * emission, with the emissive texture's mean over the triangle's footprint)
  * through an alias table (Walker 1977 / Vose 1991), or, from
  * PT_LIGHT_TREE_MIN to PT_LIGHT_TREE_AUTO_MAX lights (triangles, point and
- * spot lights together), by
+ * spot lights together) spread over PT_LIGHT_TREE_MIN_SPREAD of the scene, by
  * a light tree (light_tree.h) in proportion to an estimate of what each gives
  * the shading point (power, distance and orientation bounds, and the side of
  * the receiver's tangent plane it lies on); then a point is
@@ -49,9 +49,9 @@ enum { PT_LIGHT_AREA = 0, PT_LIGHT_AT = 1, PT_LIGHT_FAR = 2, PT_LIGHT_ENV = 3 };
 typedef struct pt_env pt_env; /* common/render/env.h */
 
 /* How the triangles' class chooses a triangle: PT_LIGHT_SELECT_AUTO, the
- * light tree from PT_LIGHT_TREE_MIN to PT_LIGHT_TREE_AUTO_MAX lights (with
- * fewer or more it costs more than it saves; the samples then keep the bits
- * of the alias table);
+ * light tree from PT_LIGHT_TREE_MIN to PT_LIGHT_TREE_AUTO_MAX lights spread
+ * over PT_LIGHT_TREE_MIN_SPREAD of the scene or more (otherwise it costs
+ * more than it saves; the samples then keep the bits of the alias table);
  * _POWER, the alias table by power always; _TREE, the tree from 2 on. */
 enum { PT_LIGHT_SELECT_AUTO = 0, PT_LIGHT_SELECT_POWER = 1, PT_LIGHT_SELECT_TREE = 2 };
 #define PT_LIGHT_TREE_MIN 16u
@@ -62,6 +62,14 @@ enum { PT_LIGHT_SELECT_AUTO = 0, PT_LIGHT_SELECT_POWER = 1, PT_LIGHT_SELECT_TREE
  * 0.78x, ToyCar's 2,720 0.86x and StainedGlassLamp's 16,704 0.87x: there
  * the walk costs more than the better choice saves. */
 #define PT_LIGHT_TREE_AUTO_MAX 256u
+/* ... and only when the lights spread over at least this share of the scene
+ * (the diagonal of the box around them over the scene's): lights gathered
+ * in one small place (a panel cut into many triangles) look alike from
+ * every shading point, and the walk costs more than its choice saves.
+ * Measured (tests/bench/light_tree.sh, CPU): a Cornell box whose ceiling
+ * light is 128 triangles, spread 0.17, 0.77x with the tree against power;
+ * EmissiveStrengthTest's five cubes, spread 0.68, 3.31x. */
+#define PT_LIGHT_TREE_MIN_SPREAD (1.0 / 3.0)
 /* Or'd into select: a triangle seen under at least 1.5 sr is sampled by solid
  * angle (Arvo 1995, sphtri.h) instead of area, where that pays (a large
  * light close to the shading point); pt_lights_pdf follows. Not for the

@@ -39,7 +39,8 @@
  *   (pmf and sampler), from close by by the tree.
  * - Bad input (counts, NaN, zero power) and allocation failure.
  * - The default (PT_LIGHT_SELECT_AUTO) takes the tree from PT_LIGHT_TREE_MIN
- *   to PT_LIGHT_TREE_AUTO_MAX lights, the alias table by power outside that;
+ *   to PT_LIGHT_TREE_AUTO_MAX lights spread over PT_LIGHT_TREE_MIN_SPREAD of
+ *   the scene or more, the alias table by power outside that;
  *   PT_LIGHT_SELECT_TREE takes the tree whatever the count.
  */
 #include "common/render/light_tree.h"
@@ -470,8 +471,9 @@ static void test_errors(void)
     CHECK(pt_alloc_live() == live);
 }
 
-/* A strip of n small emissive triangles over a floor, one mesh. */
-static pt_scene *strip_scene(uint32_t n)
+/* A strip of n small emissive triangles, one mesh; with floor > 0, over a
+ * square floor of that half-side at z = 0. */
+static pt_scene *strip_scene(uint32_t n, float floor)
 {
     pt_scene_builder *b = NULL;
     pt_scene *s = NULL;
@@ -491,6 +493,15 @@ static pt_scene *strip_scene(uint32_t n)
     }
     ok = ok && pt_scene_builder_add_mesh(b, "strip", v, NULL, NULL, 3 * n, NULL, n, NULL, mat,
                                          &err) == PT_OK;
+    if (ok && floor > 0.0f) {
+        pt_material fm = pt_material_default();
+        const float fl[12] = {-floor, -floor, 0, floor,  -floor, 0,
+                              floor,  floor,  0, -floor, floor,  0};
+        const uint32_t fi[6] = {0, 1, 2, 0, 2, 3};
+        ok = pt_scene_builder_add_material(b, &fm, &mat, &err) == PT_OK &&
+             pt_scene_builder_add_mesh(b, "floor", fl, NULL, NULL, 4, fi, 2, NULL, mat, &err) ==
+                 PT_OK;
+    }
     pt_scene_opts o = {0};
     o.scale = 1.0f;
     if (ok)
@@ -507,7 +518,7 @@ static void test_auto_range(void)
     const uint32_t counts[] = {PT_LIGHT_TREE_MIN - 1, PT_LIGHT_TREE_MIN, PT_LIGHT_TREE_AUTO_MAX,
                                PT_LIGHT_TREE_AUTO_MAX + 1, 1000};
     for (size_t i = 0; i < sizeof counts / sizeof counts[0]; i++) {
-        pt_scene *s = strip_scene(counts[i]);
+        pt_scene *s = strip_scene(counts[i], 0.0f);
         if (!s)
             continue;
         int want = counts[i] >= PT_LIGHT_TREE_MIN && counts[i] <= PT_LIGHT_TREE_AUTO_MAX;
@@ -517,6 +528,24 @@ static void test_auto_range(void)
         CHECKF(a && pt_lights_has_tree(a) == want, "%u lights: auto %s the tree", counts[i],
                want ? "without" : "with");
         CHECKF(t && pt_lights_has_tree(t), "%u lights: no tree when asked for", counts[i]);
+        pt_lights_free(a);
+        pt_lights_free(t);
+        pt_scene_free(s);
+    }
+    /* 32 lights over a floor 20 wide: gathered in 3.2 of the scene's 28,
+     * a spread under PT_LIGHT_TREE_MIN_SPREAD, so the choice by power; over
+     * a floor 4 wide they spread over most of it, and the tree chooses */
+    const float floors[2] = {10.0f, 2.0f};
+    for (int k = 0; k < 2; k++) {
+        pt_scene *s = strip_scene(32, floors[k]);
+        if (!s)
+            continue;
+        pt_lights *a = NULL, *t = NULL;
+        CHECK(pt_lights_new_select(s, NULL, 0, PT_LIGHT_SELECT_AUTO, &a, NULL) == PT_OK);
+        CHECK(pt_lights_new_select(s, NULL, 0, PT_LIGHT_SELECT_TREE, &t, NULL) == PT_OK);
+        CHECKF(a && pt_lights_has_tree(a) == (k == 1), "32 lights over a floor %g wide: auto %s",
+               2.0 * floors[k], k == 1 ? "without the tree" : "with the tree");
+        CHECK(t && pt_lights_has_tree(t));
         pt_lights_free(a);
         pt_lights_free(t);
         pt_scene_free(s);
