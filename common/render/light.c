@@ -1003,48 +1003,63 @@ int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, 
     return sample_on(lights, scene, le, p, le->pmf_area, u, s);
 }
 
+/* Slot j of out: light le's point pos at barycentrics (b1, b2), chosen with
+ * pmf_area. The emission of every pick, also of those that the checks will
+ * reject: without a branch on the checks, which the lanes make. */
+static inline void put_pick(const pt_lights *lights, const pt_scene *scene, pt_light_picks *out,
+                            uint32_t j, const light_entry *le, pt_vec3 pos, float b1, float b2,
+                            float pmf_area)
+{
+    const pt_material *m = &scene->materials[le->material];
+    pt_vec3 e = emission_at(lights, scene, le, b1, b2);
+    PT_LANE_PUT3(out->pos, j, pos);
+    PT_LANE_PUT3(out->normal, j, le->normal);
+    out->pmf_area[j] = pmf_area;
+    out->two_sided[j] = m->double_sided ? -1 : 0;
+    PT_LANE_PUT3(out->radiance, j, e);
+}
+
 void pt_lights_pick_n(const pt_lights *lights, const pt_scene *scene, uint32_t n, const float *pick,
                       const float *point, size_t stride, const float *const p[3],
                       const float *const nrm[3], pt_light_picks *out)
 {
+    if (n == 0)
+        return;
+    if (!lights->tree) {
+        for (uint32_t j = 0; j < n; j++) {
+            const float u[3] = {pick[j * stride], point[j * stride], point[j * stride + 1]};
+            pt_vec3 pos;
+            float b1, b2, pmf_area;
+            const light_entry *le = choose(lights, u, &pos, &b1, &b2, &pmf_area);
+            put_pick(lights, scene, out, j, le, pos, b1, b2, pmf_area);
+        }
+        return;
+    }
     /* Through the tree, the n points walk it together (pt_light_tree_sample_n:
      * their cache misses overlap), then each takes its light as
      * pt_lights_sample does: the same bits as one at a time. */
+    pt_vec3 pp[PT_LIGHT_PICKS], nn[PT_LIGHT_PICKS];
+    double u0[PT_LIGHT_PICKS], q[PT_LIGHT_PICKS];
     uint32_t k[PT_LIGHT_PICKS];
-    double q[PT_LIGHT_PICKS];
-    if (lights->tree) {
-        pt_vec3 pp[PT_LIGHT_PICKS], nn[PT_LIGHT_PICKS];
-        double u0[PT_LIGHT_PICKS];
-        for (uint32_t j = 0; j < n; j++) {
-            pp[j] = pt_v3(p[0][j], p[1][j], p[2][j]);
-            nn[j] = pt_v3(nrm[0][j], nrm[1][j], nrm[2][j]);
-            u0[j] = (double)pick[j * stride];
-        }
-        pt_light_tree_sample_n(lights->tree, n, pp, nn, u0, k, q);
-    }
     for (uint32_t j = 0; j < n; j++) {
-        const float u[3] = {pick[j * stride], point[j * stride], point[j * stride + 1]};
+        pp[j] = pt_v3(p[0][j], p[1][j], p[2][j]);
+        nn[j] = pt_v3(nrm[0][j], nrm[1][j], nrm[2][j]);
+        u0[j] = (double)pick[j * stride];
+    }
+    pt_light_tree_sample_n(lights->tree, n, pp, nn, u0, k, q);
+    for (uint32_t j = 0; j < n; j++) {
         pt_vec3 pos;
-        float b1, b2, pmf_area;
+        float b1, b2, pmf_area = 0.0f;
         const light_entry *le;
-        if (!lights->tree) {
-            le = choose(lights, u, &pos, &b1, &b2, &pmf_area);
-        } else if (k[j] >= lights->count) { /* none, or a punctual light: not in the lanes */
-            pmf_area = 0.0f;
-            le = point_on(&lights->lights[0], u[1], u[2], &pos, &b1, &b2);
+        if (k[j] >= lights->count) { /* none, or a punctual light: not in the lanes */
+            le = point_on(&lights->lights[0], point[j * stride], point[j * stride + 1], &pos, &b1,
+                          &b2);
         } else {
-            le = point_on(&lights->lights[k[j]], u[1], u[2], &pos, &b1, &b2);
+            le = point_on(&lights->lights[k[j]], point[j * stride], point[j * stride + 1], &pos,
+                          &b1, &b2);
             pmf_area = tree_pmf_area(lights, le, q[j]);
         }
-        const pt_material *m = &scene->materials[le->material];
-        /* The emission of every pick, also of those that the checks will
-         * reject: without a branch on the checks, which the lanes make. */
-        pt_vec3 e = emission_at(lights, scene, le, b1, b2);
-        PT_LANE_PUT3(out->pos, j, pos);
-        PT_LANE_PUT3(out->normal, j, le->normal);
-        out->pmf_area[j] = pmf_area;
-        out->two_sided[j] = m->double_sided ? -1 : 0;
-        PT_LANE_PUT3(out->radiance, j, e);
+        put_pick(lights, scene, out, j, le, pos, b1, b2, pmf_area);
     }
 }
 
