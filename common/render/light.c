@@ -398,6 +398,44 @@ static pt_status build_tree(const pt_scene *scene, pt_lights *L, const double *p
     return st;
 }
 
+/* The diagonal of the box around the tree's lights (the n triangle lights'
+ * vertices, the point and spot lights' positions) over that of the box
+ * around the scene and them: PT_LIGHT_TREE_MIN_SPREAD says why. 1 for a
+ * scene of no extent. */
+static double lights_spread(const pt_scene *scene, const pt_lights *L, uint32_t n,
+                            const double *punct_power)
+{
+    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (uint32_t i = 0; i < n; i++)
+        for (int c = 0; c < 3; c++) {
+            const float x[3] = {L->lights[i].v[c].x, L->lights[i].v[c].y, L->lights[i].v[c].z};
+            for (int a = 0; a < 3; a++) {
+                lo[a] = fmin(lo[a], (double)x[a]);
+                hi[a] = fmax(hi[a], (double)x[a]);
+            }
+        }
+    for (uint32_t i = 0; L->punct && i < scene->num_punctual; i++) {
+        const pt_punctual *l = &scene->punctual[i];
+        if (l->type == PT_PUNCTUAL_DIRECTIONAL || !(punct_power[i] > 0.0))
+            continue;
+        const float x[3] = {l->position.x, l->position.y, l->position.z};
+        for (int a = 0; a < 3; a++) {
+            lo[a] = fmin(lo[a], (double)x[a]);
+            hi[a] = fmax(hi[a], (double)x[a]);
+        }
+    }
+    const float smin[3] = {scene->bounds_min.x, scene->bounds_min.y, scene->bounds_min.z};
+    const float smax[3] = {scene->bounds_max.x, scene->bounds_max.y, scene->bounds_max.z};
+    double dl = 0.0, ds = 0.0;
+    for (int a = 0; a < 3; a++) {
+        double e = hi[a] > lo[a] ? hi[a] - lo[a] : 0.0;
+        double f = fmax(hi[a], (double)smax[a]) - fmin(lo[a], (double)smin[a]);
+        dl += e * e;
+        ds += isfinite(f) && f > 0.0 ? f * f : 0.0;
+    }
+    return ds > 0.0 ? sqrt(dl / ds) : 1.0;
+}
+
 pt_status pt_lights_new(const pt_scene *scene, pt_lights **out, pt_error *err)
 {
     return pt_lights_new_env(scene, NULL, PT_ENV_FULL, out, err);
@@ -549,7 +587,8 @@ others : {
         }
     int use_tree = select == PT_LIGHT_SELECT_TREE ? n + m >= 2
                    : select == PT_LIGHT_SELECT_AUTO
-                       ? n + m >= PT_LIGHT_TREE_MIN && n + m <= PT_LIGHT_TREE_AUTO_MAX
+                       ? n + m >= PT_LIGHT_TREE_MIN && n + m <= PT_LIGHT_TREE_AUTO_MAX &&
+                             lights_spread(scene, L, n, punct_power) >= PT_LIGHT_TREE_MIN_SPREAD
                        : 0;
     double first = use_tree ? total + tree_punct : total; /* the first class's power */
     double class_punct = use_tree ? punct_total - tree_punct : punct_total;
@@ -803,22 +842,11 @@ static inline float tree_pmf_area(const pt_lights *lights, const light_entry *le
     return (float)(q * lights->p_tri) / le->area;
 }
 
-/* The light and point u picks seen from p, through the tree when there is
- * one; *pmf_area its probability / area, 0 when no light can be chosen. */
-static inline const light_entry *choose(const pt_lights *lights, pt_vec3 p, const float u[3],
-                                        pt_vec3 *pos, float *b1, float *b2, float *pmf_area)
+/* The light and point u picks through the alias table; *pmf_area its
+ * probability / area. */
+static inline const light_entry *choose(const pt_lights *lights, const float u[3], pt_vec3 *pos,
+                                        float *b1, float *b2, float *pmf_area)
 {
-    if (lights->tree) {
-        double q;
-        uint32_t k = pt_light_tree_sample(lights->tree, p, (double)u[0], &q);
-        if (k >= lights->count) { /* none, or a punctual light: not in the lanes */
-            *pmf_area = 0.0f;
-            return point_on(&lights->lights[0], u[1], u[2], pos, b1, b2);
-        }
-        const light_entry *le = point_on(&lights->lights[k], u[1], u[2], pos, b1, b2);
-        *pmf_area = tree_pmf_area(lights, le, q);
-        return le;
-    }
     const light_entry *le = pick_point(lights, u, pos, b1, b2);
     *pmf_area = le->pmf_area;
     return le;
@@ -942,8 +970,8 @@ static int sample_tree_light(const pt_lights *lights, const pt_scene *scene, pt_
     return sample_on(lights, scene, le, p, tree_pmf_area(lights, le, q), u, s);
 }
 
-int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, const float u[3],
-                     pt_light_sample *s)
+int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, pt_vec3 n,
+                     const float u[3], pt_light_sample *s)
 {
     memset(s, 0, sizeof *s);
     s->tri = UINT32_MAX;
@@ -968,32 +996,70 @@ int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, 
 
     if (lights->tree) {
         double q;
-        uint32_t k = pt_light_tree_sample(lights->tree, p, (double)u[0], &q);
+        uint32_t k = pt_light_tree_sample(lights->tree, p, n, (double)u[0], &q);
         return sample_tree_light(lights, scene, p, u, k, q, s);
     }
     const light_entry *le = &lights->lights[pick_index(lights, u[0])];
     return sample_on(lights, scene, le, p, le->pmf_area, u, s);
 }
 
+/* Slot j of out: light le's point pos at barycentrics (b1, b2), chosen with
+ * pmf_area. The emission of every pick, also of those that the checks will
+ * reject: without a branch on the checks, which the lanes make. */
+static inline void put_pick(const pt_lights *lights, const pt_scene *scene, pt_light_picks *out,
+                            uint32_t j, const light_entry *le, pt_vec3 pos, float b1, float b2,
+                            float pmf_area)
+{
+    const pt_material *m = &scene->materials[le->material];
+    pt_vec3 e = emission_at(lights, scene, le, b1, b2);
+    PT_LANE_PUT3(out->pos, j, pos);
+    PT_LANE_PUT3(out->normal, j, le->normal);
+    out->pmf_area[j] = pmf_area;
+    out->two_sided[j] = m->double_sided ? -1 : 0;
+    PT_LANE_PUT3(out->radiance, j, e);
+}
+
 void pt_lights_pick_n(const pt_lights *lights, const pt_scene *scene, uint32_t n, const float *pick,
                       const float *point, size_t stride, const float *const p[3],
-                      pt_light_picks *out)
+                      const float *const nrm[3], pt_light_picks *out)
 {
+    if (n == 0)
+        return;
+    if (!lights->tree) {
+        for (uint32_t j = 0; j < n; j++) {
+            const float u[3] = {pick[j * stride], point[j * stride], point[j * stride + 1]};
+            pt_vec3 pos;
+            float b1, b2, pmf_area;
+            const light_entry *le = choose(lights, u, &pos, &b1, &b2, &pmf_area);
+            put_pick(lights, scene, out, j, le, pos, b1, b2, pmf_area);
+        }
+        return;
+    }
+    /* Through the tree, the n points walk it together (pt_light_tree_sample_n:
+     * their cache misses overlap), then each takes its light as
+     * pt_lights_sample does: the same bits as one at a time. */
+    pt_vec3 pp[PT_LIGHT_PICKS], nn[PT_LIGHT_PICKS];
+    double u0[PT_LIGHT_PICKS], q[PT_LIGHT_PICKS];
+    uint32_t k[PT_LIGHT_PICKS];
     for (uint32_t j = 0; j < n; j++) {
-        const float u[3] = {pick[j * stride], point[j * stride], point[j * stride + 1]};
+        pp[j] = pt_v3(p[0][j], p[1][j], p[2][j]);
+        nn[j] = pt_v3(nrm[0][j], nrm[1][j], nrm[2][j]);
+        u0[j] = (double)pick[j * stride];
+    }
+    pt_light_tree_sample_n(lights->tree, n, pp, nn, u0, k, q);
+    for (uint32_t j = 0; j < n; j++) {
         pt_vec3 pos;
-        float b1, b2, pmf_area;
-        const light_entry *le =
-            choose(lights, pt_v3(p[0][j], p[1][j], p[2][j]), u, &pos, &b1, &b2, &pmf_area);
-        const pt_material *m = &scene->materials[le->material];
-        /* The emission of every pick, also of those that the checks will
-         * reject: without a branch on the checks, which the lanes make. */
-        pt_vec3 e = emission_at(lights, scene, le, b1, b2);
-        PT_LANE_PUT3(out->pos, j, pos);
-        PT_LANE_PUT3(out->normal, j, le->normal);
-        out->pmf_area[j] = pmf_area;
-        out->two_sided[j] = m->double_sided ? -1 : 0;
-        PT_LANE_PUT3(out->radiance, j, e);
+        float b1, b2, pmf_area = 0.0f;
+        const light_entry *le;
+        if (k[j] >= lights->count) { /* none, or a punctual light: not in the lanes */
+            le = point_on(&lights->lights[0], point[j * stride], point[j * stride + 1], &pos, &b1,
+                          &b2);
+        } else {
+            le = point_on(&lights->lights[k[j]], point[j * stride], point[j * stride + 1], &pos,
+                          &b1, &b2);
+            pmf_area = tree_pmf_area(lights, le, q[j]);
+        }
+        put_pick(lights, scene, out, j, le, pos, b1, b2, pmf_area);
     }
 }
 
@@ -1018,12 +1084,13 @@ void pt_lights_pick_n(const pt_lights *lights, const pt_scene *scene, uint32_t n
  * finishes it: the same bits. */
 #define TREE_BATCH 64u
 static void sample_n_tree(const pt_lights *lights, const pt_scene *scene, uint32_t n,
-                          const pt_vec3 *p, const float (*u)[3], pt_light_sample *s, int *ok)
+                          const pt_vec3 *p, const pt_vec3 *nrm, const float (*u)[3],
+                          pt_light_sample *s, int *ok)
 {
     for (uint32_t i0 = 0; i0 < n; i0 += TREE_BATCH) {
         uint32_t m = 0, idx[TREE_BATCH], k[TREE_BATCH];
         float ut[TREE_BATCH][3];
-        pt_vec3 pt[TREE_BATCH];
+        pt_vec3 pt[TREE_BATCH], nt[TREE_BATCH];
         double u0[TREE_BATCH], q[TREE_BATCH];
         for (uint32_t i = i0; i < n && i < i0 + TREE_BATCH; i++) {
             /* pt_lights_sample's choice of the class, from one number */
@@ -1033,16 +1100,17 @@ static void sample_n_tree(const pt_lights *lights, const pt_scene *scene, uint32
             if (lights->npunct > 0 || lights->env) {
                 double v = u[i][0];
                 if (!(v < lights->p_tri)) { /* the environment or a punctual light */
-                    ok[i] = pt_lights_sample(lights, scene, p[i], u[i], &s[i]);
+                    ok[i] = pt_lights_sample(lights, scene, p[i], nrm[i], u[i], &s[i]);
                     continue;
                 }
                 ut[m][0] = (float)(v / lights->p_tri);
             }
             u0[m] = (double)ut[m][0];
             pt[m] = p[i];
+            nt[m] = nrm[i];
             idx[m++] = i;
         }
-        pt_light_tree_sample_n(lights->tree, m, pt, u0, k, q);
+        pt_light_tree_sample_n(lights->tree, m, pt, nt, u0, k, q);
         for (uint32_t j = 0; j < m; j++) {
             if (k[j] >= lights->count)
                 continue;
@@ -1075,15 +1143,16 @@ static void sample_n_tree(const pt_lights *lights, const pt_scene *scene, uint32
 
 PT_SIMD_CLONES
 void pt_lights_sample_n(const pt_lights *lights, const pt_scene *scene, uint32_t n,
-                        const pt_vec3 *p, const float (*u)[3], pt_light_sample *s, int *ok)
+                        const pt_vec3 *p, const pt_vec3 *nrm, const float (*u)[3],
+                        pt_light_sample *s, int *ok)
 {
     if (lights && lights->tree) {
-        sample_n_tree(lights, scene, n, p, u, s, ok);
+        sample_n_tree(lights, scene, n, p, nrm, u, s, ok);
         return;
     }
     if (!lights || lights->count == 0 || lights->solid_angle) {
         for (uint32_t i = 0; i < n; i++)
-            ok[i] = pt_lights_sample(lights, scene, p[i], u[i], &s[i]);
+            ok[i] = pt_lights_sample(lights, scene, p[i], nrm[i], u[i], &s[i]);
         return;
     }
     /* The reads of the picks, asked for in two passes before the first
@@ -1165,7 +1234,7 @@ void pt_lights_sample_n(const pt_lights *lights, const pt_scene *scene, uint32_t
 }
 
 float pt_lights_pdf(const pt_lights *lights, const pt_scene *scene, uint32_t tri, pt_vec3 p,
-                    pt_vec3 hit, pt_vec3 n_light)
+                    pt_vec3 n, pt_vec3 hit, pt_vec3 n_light)
 {
     if (!lights || lights->count == 0 || tri >= lights->num_triangles)
         return 0.0f;
@@ -1176,7 +1245,7 @@ float pt_lights_pdf(const pt_lights *lights, const pt_scene *scene, uint32_t tri
     const pt_material *m = &scene->materials[le->material];
     float pmf_area = le->pmf_area;
     if (lights->tree)
-        pmf_area = tree_pmf_area(lights, le, pt_light_tree_pmf(lights->tree, p, k));
+        pmf_area = tree_pmf_area(lights, le, pt_light_tree_pmf(lights->tree, p, n, k));
     double omega = sa_omega(lights, le, p);
     if (omega > 0.0) {
         /* sample_solid_angle's pdf, on the side it samples */

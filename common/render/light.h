@@ -8,9 +8,10 @@
  * emission, with the emissive texture's mean over the triangle's footprint)
  * through an alias table (Walker 1977 / Vose 1991), or, from
  * PT_LIGHT_TREE_MIN to PT_LIGHT_TREE_AUTO_MAX lights (triangles, point and
- * spot lights together), by
+ * spot lights together) spread over PT_LIGHT_TREE_MIN_SPREAD of the scene, by
  * a light tree (light_tree.h) in proportion to an estimate of what each gives
- * the shading point (power, distance and orientation bounds); then a point is
+ * the shading point (power, distance and orientation bounds, and the side of
+ * the receiver's tangent plane it lies on); then a point is
  * sampled uniformly by area and the pdf converted to solid angle:
  * pdf_w = pdf_A * d^2 / |cos theta_light|. pt_lights_pdf gives the same
  * number for a BSDF ray that hits the light (the tree's pmf recomputed for it).
@@ -48,19 +49,27 @@ enum { PT_LIGHT_AREA = 0, PT_LIGHT_AT = 1, PT_LIGHT_FAR = 2, PT_LIGHT_ENV = 3 };
 typedef struct pt_env pt_env; /* common/render/env.h */
 
 /* How the triangles' class chooses a triangle: PT_LIGHT_SELECT_AUTO, the
- * light tree from PT_LIGHT_TREE_MIN to PT_LIGHT_TREE_AUTO_MAX lights (with
- * fewer or more it costs more than it saves; the samples then keep the bits
- * of the alias table);
+ * light tree from PT_LIGHT_TREE_MIN to PT_LIGHT_TREE_AUTO_MAX lights spread
+ * over PT_LIGHT_TREE_MIN_SPREAD of the scene or more (otherwise it costs
+ * more than it saves; the samples then keep the bits of the alias table);
  * _POWER, the alias table by power always; _TREE, the tree from 2 on. */
 enum { PT_LIGHT_SELECT_AUTO = 0, PT_LIGHT_SELECT_POWER = 1, PT_LIGHT_SELECT_TREE = 2 };
 #define PT_LIGHT_TREE_MIN 16u
 /* ... and up to PT_LIGHT_TREE_AUTO_MAX: past it _AUTO chooses by power.
  * Measured (tests/bench/light_tree.sh, time to equal relMSE, power/tree,
- * CPU): EmissiveStrengthTest's 60 lights 2.42x faster with the tree, but
- * DamagedHelmet's 370 textured ones 0.77x, ToyCar's 2,720 0.88x and
- * StainedGlassLamp's 16,704 0.87x: there the walk costs more than the
- * better choice saves. */
+ * CPU, with the receiver's normal in the tree): EmissiveStrengthTest's 60
+ * lights 3.31x faster with the tree, but DamagedHelmet's 370 textured ones
+ * 0.78x, ToyCar's 2,720 0.86x and StainedGlassLamp's 16,704 0.87x: there
+ * the walk costs more than the better choice saves. */
 #define PT_LIGHT_TREE_AUTO_MAX 256u
+/* ... and only when the lights spread over at least this share of the scene
+ * (the diagonal of the box around them over the scene's): lights gathered
+ * in one small place (a panel cut into many triangles) look alike from
+ * every shading point, and the walk costs more than its choice saves.
+ * Measured (tests/bench/light_tree.sh, CPU): a Cornell box whose ceiling
+ * light is 128 triangles, spread 0.17, 0.77x with the tree against power;
+ * EmissiveStrengthTest's five cubes, spread 0.68, 3.31x. */
+#define PT_LIGHT_TREE_MIN_SPREAD (1.0 / 3.0)
 /* Or'd into select: a triangle seen under at least 1.5 sr is sampled by solid
  * angle (Arvo 1995, sphtri.h) instead of area, where that pays (a large
  * light close to the shading point); pt_lights_pdf follows. Not for the
@@ -108,22 +117,28 @@ int pt_lights_has_env(const pt_lights *lights);
  * environment, its class's share included; 0 without one. */
 float pt_lights_env_pdf(const pt_lights *lights, pt_vec3 dir);
 
-/* Samples a light point seen from p. u: 3 numbers in [0,1) (u[0] picks the
- * triangle, u[1..2] the point). Returns 0 when there are no lights or the
- * sample is impossible (then s->pdf is 0). */
-int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, const float u[3],
-                     pt_light_sample *s);
+/* Samples a light point seen from p. n: the receiver's unit normal on the
+ * side it reflects light to, or a zero vector for a receiver that scatters
+ * to both sides; a light tree gives no probability to lights wholly below
+ * that side's tangent plane (the alias table ignores n). u: 3 numbers in
+ * [0,1) (u[0] picks the triangle, u[1..2] the point). Returns 0 when there
+ * are no lights or the sample is impossible (then s->pdf is 0). */
+int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, pt_vec3 n,
+                     const float u[3], pt_light_sample *s);
 
-/* pt_lights_sample(lights, scene, p[i], u[i], &s[i]) into ok[i] for i < n,
- * the same bits, computed a few points at a time in SIMD lanes. Triangles
- * only: not for a set with punctual lights. */
+/* pt_lights_sample(lights, scene, p[i], nrm[i], u[i], &s[i]) into ok[i] for
+ * i < n, the same bits, computed a few points at a time in SIMD lanes.
+ * Triangles only: not for a set with punctual lights. */
 void pt_lights_sample_n(const pt_lights *lights, const pt_scene *scene, uint32_t n,
-                        const pt_vec3 *p, const float (*u)[3], pt_light_sample *s, int *ok);
+                        const pt_vec3 *p, const pt_vec3 *nrm, const float (*u)[3],
+                        pt_light_sample *s, int *ok);
 
 /* Solid-angle pdf that pt_lights_sample would give for reaching point `hit` on
- * triangle `tri` (normal n_light) from p; 0 when tri is not a light. */
+ * triangle `tri` (normal n_light) from p with receiver normal n (the same n
+ * NEE was given there: MIS needs the same function); 0 when tri is not a
+ * light. */
 float pt_lights_pdf(const pt_lights *lights, const pt_scene *scene, uint32_t tri, pt_vec3 p,
-                    pt_vec3 hit, pt_vec3 n_light);
+                    pt_vec3 n, pt_vec3 hit, pt_vec3 n_light);
 
 /* Emitted radiance of triangle tri at barycentrics (b1, b2) towards direction
  * w_out (unit, away from the light); 0 on the back of a single-sided emitter. */

@@ -39,11 +39,12 @@ typedef struct pt_light_picks {
 /* pt_lights_sample's lights and points for n <= PT_LIGHT_PICKS points (lights
  * must not be empty), into slots 0..n-1 of out: point k's numbers u[0..2] are
  * pick[k * stride], point[k * stride] and point[k * stride + 1], its shading
- * point (p[0][k], p[1][k], p[2][k]) (read where a light tree chooses). A pick
- * the tree cannot make has pmf_area 0. */
+ * point (p[0][k], p[1][k], p[2][k]) and receiver normal (nrm[0][k], ...)
+ * (read where a light tree chooses). A pick the tree cannot make has
+ * pmf_area 0. */
 void pt_lights_pick_n(const pt_lights *lights, const pt_scene *scene, uint32_t n, const float *pick,
                       const float *point, size_t stride, const float *const p[3],
-                      pt_light_picks *out);
+                      const float *const nrm[3], pt_light_picks *out);
 
 /* Lanes whose float is finite (isfinite): the magnitude's bits below
  * infinity's. A macro: vectors passed by value would change the ABI. */

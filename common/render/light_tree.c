@@ -495,7 +495,7 @@ static inline v4f v4_sqrt(v4f x)
  * sphere's radius. Every case is computed and the answer selected: which holds is as random as the
  * shading points. Sampling and the pmf both call this, so they see the same bits. */
 static inline __attribute__((always_inline)) void importance4(const lt_node *const g[4], pt_vec3 p,
-                                                              float out[4])
+                                                              pt_vec3 n, float out[4])
 {
 #define LANES(f) {g[0]->f, g[1]->f, g[2]->f, g[3]->f}
 #define LANES_F(f)                                                                                 \
@@ -534,8 +534,23 @@ static inline __attribute__((always_inline)) void importance4(const lt_node *con
     sin_b = v4_sel(sin_b < 1.0f, sin_b, (v4f){1.0f, 1.0f, 1.0f, 1.0f});
     v4f cos_b = v4_sqrt(1.0f - sin_b * sin_b);
     v4f cos_p = v4_sel(cos_x < cos_b, cos_x * cos_b + sin_x * sin_b, (v4f){1.0f, 1.0f, 1.0f, 1.0f});
-    v4f imp_out = power * cos_p * (inv * inv);
-    imp_out = (v4f)((v4i)imp_out & (cos_p > 0.0f)); /* theta' >= theta_e = pi/2: 0 */
+    /* The receiver (Conty & Kulla 2018, eq. 3): theta_i between n and the
+     * direction from p to the centre, less theta_b; cos(max(0, theta_i -
+     * theta_b)), and 0 where that is >= pi/2: the node's sphere lies wholly
+     * below p's tangent plane, where nothing it holds can light p. A zero n
+     * (a receiver that scatters to both sides) sets no bound: 1 (has_n).
+     * One more square root for the four lanes. */
+    v4f cos_i = -(n.x * dx + n.y * dy + n.z * dz) * inv;
+    cos_i = v4_sel(cos_i > 1.0f, (v4f){1.0f, 1.0f, 1.0f, 1.0f}, cos_i);
+    cos_i = v4_sel(cos_i < -1.0f, (v4f){-1.0f, -1.0f, -1.0f, -1.0f}, cos_i);
+    v4f sin_i = v4_sqrt(1.0f - cos_i * cos_i);
+    v4f cos_ip =
+        v4_sel(cos_i < cos_b, cos_i * cos_b + sin_i * sin_b, (v4f){1.0f, 1.0f, 1.0f, 1.0f});
+    v4i has_n = (v4i){0, 0, 0, 0} - (int32_t)(n.x != 0.0f || n.y != 0.0f || n.z != 0.0f);
+    cos_ip = v4_sel(has_n, cos_ip, (v4f){1.0f, 1.0f, 1.0f, 1.0f});
+    v4f imp_out = power * cos_p * (inv * inv) * cos_ip;
+    /* theta' >= theta_e = pi/2, or theta_i' >= pi/2: 0 */
+    imp_out = (v4f)((v4i)imp_out & (cos_p > 0.0f) & (cos_ip > 0.0f));
     v4i r_ok = r2 > 0.0f;
     v4f imp_in = power / v4_sel(r_ok, r2, (v4f){1.0f, 1.0f, 1.0f, 1.0f});
     imp_in = (v4f)((v4i)imp_in & r_ok);
@@ -621,8 +636,9 @@ typedef struct lt_walk {
  * chosen: the light in *light (UINT32_MAX for none) and its pmf in *pmf.
  * pt_light_tree_sample and pt_light_tree_sample_n both walk by it, so that
  * their choices are the same bits. */
-static inline __attribute__((always_inline)) int
-walk_step(const pt_light_tree *tree, lt_walk *w, pt_vec3 p, double u, uint32_t *light, double *pmf)
+static inline __attribute__((always_inline)) int walk_step(const pt_light_tree *tree, lt_walk *w,
+                                                           pt_vec3 p, pt_vec3 n, double u,
+                                                           uint32_t *light, double *pmf)
 {
     const lt_node *nodes = tree->nodes;
     uint32_t id = w->id;
@@ -660,7 +676,7 @@ walk_step(const pt_light_tree *tree, lt_walk *w, pt_vec3 p, double u, uint32_t *
     step_places(tree, id, g, to);
     prefetch_below(tree, g);
     float imp[4];
-    importance4(g, p, imp);
+    importance4(g, p, n, imp);
     double sum = ((double)imp[0] + (double)imp[1]) + ((double)imp[2] + (double)imp[3]);
     if (!(sum > 0.0)) {
         *pmf = 0.0;
@@ -692,11 +708,12 @@ walk_step(const pt_light_tree *tree, lt_walk *w, pt_vec3 p, double u, uint32_t *
 }
 
 LT_WALK_OPT
-uint32_t pt_light_tree_sample(const pt_light_tree *tree, pt_vec3 p, double u, double *pmf)
+uint32_t pt_light_tree_sample(const pt_light_tree *tree, pt_vec3 p, pt_vec3 n, double u,
+                              double *pmf)
 {
     lt_walk w = {1.0, 0.0, 1.0, 0};
     uint32_t light;
-    while (walk_step(tree, &w, p, u, &light, pmf))
+    while (walk_step(tree, &w, p, n, u, &light, pmf))
         ;
     return light;
 }
@@ -707,7 +724,7 @@ uint32_t pt_light_tree_sample(const pt_light_tree *tree, pt_vec3 p, double u, do
 
 LT_WALK_OPT
 void pt_light_tree_sample_n(const pt_light_tree *tree, uint32_t n, const pt_vec3 *p,
-                            const double *u, uint32_t *light, double *pmf)
+                            const pt_vec3 *nrm, const double *u, uint32_t *light, double *pmf)
 {
     lt_walk w[WALKS];
     uint32_t who[WALKS]; /* the point each slot walks for */
@@ -722,7 +739,7 @@ void pt_light_tree_sample_n(const pt_light_tree *tree, uint32_t n, const pt_vec3
         }
         for (uint32_t k = 0; k < live;) {
             uint32_t i = who[k];
-            if (walk_step(tree, &w[k], p[i], u[i], &light[i], &pmf[i])) {
+            if (walk_step(tree, &w[k], p[i], nrm[i], u[i], &light[i], &pmf[i])) {
                 k++;
                 continue;
             }
@@ -734,7 +751,7 @@ void pt_light_tree_sample_n(const pt_light_tree *tree, uint32_t n, const pt_vec3
 }
 
 LT_WALK_OPT
-double pt_light_tree_pmf(const pt_light_tree *tree, pt_vec3 p, uint32_t light)
+double pt_light_tree_pmf(const pt_light_tree *tree, pt_vec3 p, pt_vec3 n, uint32_t light)
 {
     if (!tree || light >= tree->n)
         return 0.0;
@@ -755,7 +772,7 @@ double pt_light_tree_pmf(const pt_light_tree *tree, pt_vec3 p, uint32_t light)
             slot += (uint32_t)(bits >> (k + 1)) & 1u;
         k += k + 1 < levels ? 2 : 1;
         float imp[4];
-        importance4(g, p, imp);
+        importance4(g, p, n, imp);
         double sum = ((double)imp[0] + (double)imp[1]) + ((double)imp[2] + (double)imp[3]);
         if (!(sum > 0.0))
             return 0.0;

@@ -8,12 +8,18 @@
  * sampler (Pharr, Jakob & Humphreys, 4th ed., sec. 12.6.3): every node bounds
  * its lights' positions (a box), their emitting normals (a cone of half-angle
  * theta_o around an axis; the emission spreads pi/2 further, Lambertian) and
- * their power. Seen from p, a node's importance is
- *     power x cos(theta') / max(d^2, r^2),
+ * their power. Seen from p with normal n, a node's importance is
+ *     power x cos(theta') x cos(theta_i') / d^2   (outside its sphere)
+ *     power / r^2                                  (p inside it),
  * d the distance to the box's centre, r its half-diagonal, theta' the
  * smallest angle any emitting normal in the cone can make with the direction
- * to p once the box's angular size is allowed for (0 when no light in the node
- * can face p: theta' >= pi/2). A light is chosen by walking down from the root
+ * to p once the box's angular size theta_b = asin(r / d) is allowed for (0
+ * when no light in the node can face p: theta' >= pi/2), and theta_i' =
+ * max(0, theta_i - theta_b), theta_i the angle between n and the direction
+ * from p to the centre (Conty & Kulla eq. 3): 0 when the node lies wholly
+ * below p's tangent plane. n is the receiver's normal on the side it
+ * reflects to; a zero n (a receiver that scatters to both sides) sets no
+ * such bound. A light is chosen by walking down from the root
  * two levels a step: among a node's four grandchildren (a child that is a
  * leaf stands for itself), each with probability importance / (sum of the
  * four), the four importances in one set of SIMD lanes - the 4-wide tree
@@ -61,19 +67,21 @@ pt_status pt_light_tree_new(const pt_light_tree_item *items, uint32_t n, pt_ligh
                             pt_error *err);
 void pt_light_tree_free(pt_light_tree *tree); /* accepts NULL */
 
-/* The light u (in [0,1)) chooses seen from p, and its probability in *pmf;
+/* The light u (in [0,1)) chooses seen from p with unit normal n (or a zero
+ * n: no bound by the receiver's side), and its probability in *pmf;
  * UINT32_MAX with *pmf 0 when no light can light p. */
-uint32_t pt_light_tree_sample(const pt_light_tree *tree, pt_vec3 p, double u, double *pmf);
+uint32_t pt_light_tree_sample(const pt_light_tree *tree, pt_vec3 p, pt_vec3 n, double u,
+                              double *pmf);
 
-/* pt_light_tree_sample(tree, p[i], u[i], &pmf[i]) into light[i] for i < n,
- * the same bits, with the walks of up to 16 points interleaved so that their
- * cache misses overlap. */
+/* pt_light_tree_sample(tree, p[i], nrm[i], u[i], &pmf[i]) into light[i] for
+ * i < n, the same bits, with the walks of up to 16 points interleaved so
+ * that their cache misses overlap. */
 void pt_light_tree_sample_n(const pt_light_tree *tree, uint32_t n, const pt_vec3 *p,
-                            const double *u, uint32_t *light, double *pmf);
+                            const pt_vec3 *nrm, const double *u, uint32_t *light, double *pmf);
 
-/* The probability that pt_light_tree_sample chooses light from p, the same
- * bits; 0 for a light it cannot choose there. */
-double pt_light_tree_pmf(const pt_light_tree *tree, pt_vec3 p, uint32_t light);
+/* The probability that pt_light_tree_sample chooses light from p with
+ * normal n, the same bits; 0 for a light it cannot choose there. */
+double pt_light_tree_pmf(const pt_light_tree *tree, pt_vec3 p, pt_vec3 n, uint32_t light);
 
 /* Nodes, and the deepest leaf's depth (the root's is 0). */
 uint32_t pt_light_tree_nodes(const pt_light_tree *tree);

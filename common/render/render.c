@@ -102,6 +102,8 @@ struct pt_renderer {
     int alpha;    /* the scene has MASK/BLEND materials: rays pass through them */
     /* PT_FEAT_THIN_GLASS: shadow rays cross thin smooth glass */
     int thin_glass;
+    /* a light tree chooses: light_normal computes the receiver's normal */
+    int light_tree;
     const char *variant;
     int lanes; /* the Lambert variants shade in lanes (shade_lanes) */
     float tan_half_fov;
@@ -901,6 +903,7 @@ typedef struct path {
     pt_vec3 o, d; /* the next closest-hit ray */
     pt_vec3 L, beta;
     pt_vec3 prev_p;
+    pt_vec3 prev_n; /* light_normal at prev_p: its NEE's receiver normal, for the MIS pdf */
     float prev_pdf; /* 0: the previous vertex was the camera or a delta lobe (no MIS) */
     int32_t medium; /* the absorbing material whose volume the path is in, or -1 */
     /* PT_FEAT_VOLUME: the previous vertex, a thin wall crossed straight
@@ -1008,6 +1011,7 @@ path_start(const pt_renderer *r, pixel_ctx *pc, uint32_t index, path *pa, const 
     pa->L = pt_v3(0, 0, 0);
     pa->beta = pt_v3(1, 1, 1);
     pa->prev_p = pa->o;
+    pa->prev_n = pt_v3(0.0f, 0.0f, 0.0f);
     pa->prev_pdf = 0.0f;
     pa->seg_p = pa->o;
     pa->medium = -1;
@@ -1040,13 +1044,33 @@ clamp_sample(const pt_renderer *r, path *pa, pt_vec3 c, int direct, const uint32
     return pt_v3_scale(c, lim / sum);
 }
 
-/* The light sample of a bounce at sf, when NEE runs. Like the hit's surface
- * (surface_at) it is a pure function of the hit and the bounce's numbers, so
- * the batched loop computes both for all paths, stage by stage, before
- * shading any: short loops of independent iterations, which the processor
- * overlaps. */
+static inline int transmits(const pt_material *m);
+
+/* The receiver normal by which a light tree bounds its choice at sf seen
+ * along -wo (pt_lights_sample's n): the geometric normal on wo's side, the
+ * plane below which shade() takes no light sample (wi.ng > 0), so that the
+ * lights the tree gives no probability there would have added nothing, with
+ * NEE alone too; zero (no bound) where the surface scatters to both sides
+ * (shade()'s `through`). NEE at sf and the MIS weight of the hit the path
+ * finds next (pa->prev_n) both take it from here. Without a tree nothing
+ * reads it: zero, for nothing. */
+static inline __attribute__((always_inline)) pt_vec3
+light_normal(const pt_renderer *r, const surface *sf, pt_vec3 wo, const uint32_t features)
+{
+    if (!r->light_tree || ((features & PT_FEAT_TRANSMISSION) && transmits(sf->mat)) ||
+        ((features & PT_FEAT_DIFFUSE_TRANSMISSION) &&
+         (sf->mat->ext & PT_MATX_DIFFUSE_TRANSMISSION)))
+        return pt_v3(0.0f, 0.0f, 0.0f);
+    return pt_v3_dot(sf->ng, wo) < 0.0f ? pt_v3_neg(sf->ng) : sf->ng;
+}
+
+/* The light sample of a bounce at sf, reached by path pa, when NEE runs.
+ * Like the hit's surface (surface_at) it is a pure function of the hit and
+ * the bounce's numbers, so the batched loop computes both for all paths,
+ * stage by stage, before shading any: short loops of independent
+ * iterations, which the processor overlaps. */
 static inline __attribute__((always_inline)) int
-bounce_light(const pt_renderer *r, const surface *sf, const float u[DIM_PER_BOUNCE],
+bounce_light(const pt_renderer *r, const surface *sf, const path *pa, const float u[DIM_PER_BOUNCE],
              pt_light_sample *ls, const uint32_t features)
 {
     if (!((features & NEE_LIGHTS) && r->nee))
@@ -1055,7 +1079,8 @@ bounce_light(const pt_renderer *r, const surface *sf, const float u[DIM_PER_BOUN
     u3[0] = u[OFF_LIGHT_PICK];
     u3[1] = u[OFF_LIGHT_POINT];
     u3[2] = u[OFF_LIGHT_POINT + 1];
-    return pt_lights_sample(r->lights, r->scene, sf->p, u3, ls);
+    pt_vec3 n = light_normal(r, sf, pt_v3_neg(pa->d), features);
+    return pt_lights_sample(r->lights, r->scene, sf->p, n, u3, ls);
 }
 
 /* shade()'s first step: the hit's emission into pa->L, weighted by the
@@ -1084,16 +1109,17 @@ static inline __attribute__((always_inline)) void shade_emission(const pt_render
     if ((features & FEAT_PASSES) && pa->pr && pa->depth == 0)
         pa->pr->v.emission = le;
     if (pa->prev_pdf > 0.0f && strategy == PT_LIGHT_MIS) {
-        float lp = pt_lights_pdf(r->lights, s, hit->tri, pa->prev_p, sf->p, sf->ng);
+        float lp = pt_lights_pdf(r->lights, s, hit->tri, pa->prev_p, pa->prev_n, sf->p, sf->ng);
         le = pt_v3_scale(le, power_heuristic(pa->prev_pdf, lp));
     }
-    PT_TRACE_EVENT(PT_TRACE_EMIT, pa->depth, (int32_t)(sf->mat - s->materials), -1, 0, pa->prev_pdf,
-                   pt_lights_pdf(r->lights, s, hit->tri, pa->prev_p, sf->p, sf->ng),
-                   pa->prev_pdf > 0.0f
-                       ? power_heuristic(pa->prev_pdf, pt_lights_pdf(r->lights, s, hit->tri,
-                                                                     pa->prev_p, sf->p, sf->ng))
-                       : 1.0f,
-                   pt_v3_mul(pa->beta, le));
+    PT_TRACE_EVENT(
+        PT_TRACE_EMIT, pa->depth, (int32_t)(sf->mat - s->materials), -1, 0, pa->prev_pdf,
+        pt_lights_pdf(r->lights, s, hit->tri, pa->prev_p, pa->prev_n, sf->p, sf->ng),
+        pa->prev_pdf > 0.0f
+            ? power_heuristic(pa->prev_pdf, pt_lights_pdf(r->lights, s, hit->tri, pa->prev_p,
+                                                          pa->prev_n, sf->p, sf->ng))
+            : 1.0f,
+        pt_v3_mul(pa->beta, le));
     /* Found at depth d, the light arrives at vertex d - 1: direct up to 1. */
     if (pa->prev_pdf == 0.0f || strategy != PT_LIGHT_NEE_ONLY)
         pa->L = pt_v3_add(pa->L,
@@ -1787,6 +1813,7 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
         pa->cross++;
     } else {
         pa->prev_p = sf->p;
+        pa->prev_n = light_normal(r, sf, wo, features);
         pa->prev_pdf = delta ? 0.0f : pdf;
         if ((features & PT_FEAT_THIN_GLASS) && r->thin_glass)
             pa->cross = 0;
@@ -1981,6 +2008,7 @@ typedef struct stage_lanes {
     float ns[3][BATCH];      /* shading normal */
     float diffuse[3][BATCH]; /* Lambert albedo (material_bsdf) */
     float cos_wi[3][BATCH];  /* pt_sample_cosine_hemisphere of the bounce's numbers */
+    float ln[3][BATCH];      /* light_normal: the light picks' receiver normal */
     pt_light_picks lights;   /* when NEE runs */
 } stage_lanes;
 
@@ -2157,6 +2185,8 @@ static void shade_lanes(const pt_renderer *r, path *paths, const uint8_t *live, 
         s->contrib = pt_v3(cx[l], cy[l], cz[l]);
         pa->beta = pt_v3(btx[l], bty[l], btz[l]);
         pa->prev_p = pt_v3(px[l], py[l], pz[l]);
+        if (r->light_tree) /* else nothing reads it */
+            pa->prev_n = pt_v3(sl->ln[0][j0 + l], sl->ln[1][j0 + l], sl->ln[2][j0 + l]);
         pa->prev_pdf = pdf[l];
         pa->o = pt_v3(ox[l], oy[l], oz[l]);
         pa->d = pt_v3(dx[l], dy[l], dz[l]);
@@ -2204,7 +2234,7 @@ li_impl(const pt_renderer *r, pixel_ctx *pc, uint32_t index, pt_render_stats *st
         surface sf;
         surface_at(r, &hit, pa.time, &sf, features);
         pt_light_sample ls;
-        int ls_ok = bounce_light(r, &sf, u, &ls, features);
+        int ls_ok = bounce_light(r, &sf, &pa, u, &ls, features);
         uint32_t st = shade(r, &pa, &hit, u, &sf, &ls, ls_ok, NULL, &sr, features);
         if (st & SHADE_SHADOW) {
             rays++;
@@ -2241,20 +2271,21 @@ li_impl(const pt_renderer *r, pixel_ctx *pc, uint32_t index, pt_render_stats *st
  * calls bounce_light per point, which is faster there (the copies and staging
  * cost more than they save). Not inlined, so that it leaves those variants'
  * loop as it was. */
-static __attribute__((noinline)) void lights_stage(const pt_renderer *r, uint32_t n,
-                                                   const surface *sfs,
-                                                   const float (*u)[DIM_PER_BOUNCE],
-                                                   pt_light_sample *lss, int *ls_ok)
+static __attribute__((noinline)) void
+lights_stage(const pt_renderer *r, uint32_t n, const surface *sfs, const path *paths,
+             const uint8_t *live, const float (*u)[DIM_PER_BOUNCE], pt_light_sample *lss,
+             int *ls_ok, const uint32_t features)
 {
-    pt_vec3 p[BATCH];
+    pt_vec3 p[BATCH], nrm[BATCH];
     float lu[BATCH][3];
     for (uint32_t j = 0; j < n; j++) {
         p[j] = sfs[j].p;
+        nrm[j] = light_normal(r, &sfs[j], pt_v3_neg(paths[live[j]].d), features);
         lu[j][0] = u[j][OFF_LIGHT_PICK];
         lu[j][1] = u[j][OFF_LIGHT_POINT];
         lu[j][2] = u[j][OFF_LIGHT_POINT + 1];
     }
-    pt_lights_sample_n(r->lights, r->scene, n, p, (const float(*)[3])lu, lss, ls_ok);
+    pt_lights_sample_n(r->lights, r->scene, n, p, nrm, (const float(*)[3])lu, lss, ls_ok);
 }
 
 /* What the stage's hits will read (their triangle records, vertices and
@@ -2375,12 +2406,15 @@ trace_batch(const pt_renderer *r, path *paths, uint32_t n, stage_lanes *sl, cons
                 PT_LANE_PUT3(sl->ng, j, sf.ng);
                 PT_LANE_PUT3(sl->ns, j, sf.ns);
                 PT_LANE_PUT3(sl->diffuse, j, b.diffuse);
+                if (r->light_tree)
+                    PT_LANE_PUT3(sl->ln, j, light_normal(r, &sf, pt_v3_neg(paths[k].d), features));
             }
             int nee = (features & PT_FEAT_EMITTERS) && r->nee;
             if (nee) {
                 const float *const sp[3] = {sl->p[0], sl->p[1], sl->p[2]};
+                const float *const sn[3] = {sl->ln[0], sl->ln[1], sl->ln[2]};
                 pt_lights_pick_n(r->lights, r->scene, nh, &u[0][OFF_LIGHT_PICK],
-                                 &u[0][OFF_LIGHT_POINT], DIM_PER_BOUNCE, sp, &sl->lights);
+                                 &u[0][OFF_LIGHT_POINT], DIM_PER_BOUNCE, sp, sn, &sl->lights);
             }
             for (uint32_t j0 = 0; j0 < nh; j0 += 8)
                 shade_lanes(r, paths, live, j0, nh - j0 < 8 ? nh - j0 : 8, sl,
@@ -2405,10 +2439,10 @@ trace_batch(const pt_renderer *r, path *paths, uint32_t n, stage_lanes *sl, cons
             for (uint32_t j = 0; j < nh; j++)
                 surface_at(r, &hits[live[j]], paths[live[j]].time, &sfs[j], features);
             if ((features & PT_FEAT_EMITTERS) && r->nee_n) {
-                lights_stage(r, nh, sfs, u, lss, ls_ok);
+                lights_stage(r, nh, sfs, paths, live, u, lss, ls_ok, features);
             } else {
                 for (uint32_t j = 0; j < nh; j++)
-                    ls_ok[j] = bounce_light(r, &sfs[j], u[j], &lss[j], features);
+                    ls_ok[j] = bounce_light(r, &sfs[j], &paths[live[j]], u[j], &lss[j], features);
             }
             for (uint32_t j = 0; j < nh; j++) {
                 uint32_t k = live[j];
@@ -2704,6 +2738,7 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
      * docs/bench/light_tree.md). */
     r->nee_n = r->nee && ((pt_lights_count(r->lights) >= LIGHTS_N_MIN && others == 0) ||
                           pt_lights_has_tree(r->lights));
+    r->light_tree = pt_lights_has_tree(r->lights);
     uint32_t features = scene->features | (params->extra_features & ~PARAM_FEATURES);
     r->alpha = (scene->features & PT_FEAT_ALPHA) != 0;
     r->motion = (scene->features & PT_FEAT_MOTION) ? scene->motion : NULL;

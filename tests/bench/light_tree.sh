@@ -9,7 +9,7 @@
 # change of machine load hits both alike, the "old" series (ptbench
 # --light-select power, or BASE's ptbench: another build, e.g. main's) and
 # the "new" one (ptbench, default selection: the tree for 16 to 256 emissive
-# triangles) at each sample count of SPP, timed in-process (scene load and
+# triangles spread over a third of the scene) at each sample count of SPP, timed in-process (scene load and
 # BVH build excluded). The images are the same bits every repetition; the
 # times are medians over REPS, wall and CPU (all render threads: on a shared
 # machine the CPU time counts the work and not the waits for a core).

@@ -25,6 +25,8 @@
 #include "tests/stats.h"
 
 #define PI_D 3.14159265358979323846
+/* No receiver normal: a light tree sets no bound by the receiver's side. */
+#define NO_N pt_v3(0.0f, 0.0f, 0.0f)
 
 /* ---- small helpers ------------------------------------------------------------------ */
 
@@ -324,7 +326,7 @@ static void test_choice(void)
         float u[3];
         rnd3(u);
         pt_light_sample s;
-        pt_lights_sample(L, &t.s, p, u, &s);
+        pt_lights_sample(L, &t.s, p, NO_N, u, &s);
         if (s.tri < t.s.num_triangles)
             obs[s.tri] += 1;
         else
@@ -344,11 +346,11 @@ static void test_choice(void)
      * u[0] just below 1 stays in range. */
     float u[3] = {0.37f, 0.5f, 0.5f};
     pt_light_sample a, b;
-    pt_lights_sample(L, &t.s, p, u, &a);
-    pt_lights_sample(L, &t.s, p, u, &b);
+    pt_lights_sample(L, &t.s, p, NO_N, u, &a);
+    pt_lights_sample(L, &t.s, p, NO_N, u, &b);
     CHECK(a.tri == b.tri && a.pdf == b.pdf);
     u[0] = 0x1.fffffep-1f;
-    pt_lights_sample(L, &t.s, p, u, &a);
+    pt_lights_sample(L, &t.s, p, NO_N, u, &a);
     CHECK(a.tri < 5);
     pt_lights_free(L);
 }
@@ -379,7 +381,7 @@ static void test_choice_many(void)
         float u[3];
         rnd3(u);
         pt_light_sample s;
-        pt_lights_sample(L, &t.s, pt_v3(0, 0, 0), u, &s);
+        pt_lights_sample(L, &t.s, pt_v3(0, 0, 0), NO_N, u, &s);
         if (s.tri < MAX_T)
             obs[s.tri] += 1;
     }
@@ -420,7 +422,7 @@ static void test_area_uniform(void)
         float u[3];
         rnd3(u);
         pt_light_sample s;
-        if (!pt_lights_sample(L, &t.s, pt_v3(0, 0, 0), u, &s))
+        if (!pt_lights_sample(L, &t.s, pt_v3(0, 0, 0), NO_N, u, &s))
             continue;
         double b1, b2;
         barycentrics(&t.s, 0, s.position, &b1, &b2);
@@ -463,7 +465,7 @@ static double direction_pdf(const pt_lights *L, const pt_scene *s, pt_vec3 p, co
         tri_area(s, i, n);
         pt_vec3 hit =
             pt_v3((float)(o[0] + t * d[0]), (float)(o[1] + t * d[1]), (float)(o[2] + t * d[2]));
-        sum += pt_lights_pdf(L, s, i, p, hit, pt_v3((float)n[0], (float)n[1], (float)n[2]));
+        sum += pt_lights_pdf(L, s, i, p, NO_N, hit, pt_v3((float)n[0], (float)n[1], (float)n[2]));
     }
     return sum;
 }
@@ -490,7 +492,7 @@ static double directions_chi2(const pt_lights *L, const pt_scene *s, pt_vec3 p, 
         float u[3];
         rnd3(u);
         pt_light_sample ls;
-        if (!pt_lights_sample(L, s, p, u, &ls))
+        if (!pt_lights_sample(L, s, p, NO_N, u, &ls))
             continue;
         accepted++;
         double z = ls.wi.z, phi = atan2(ls.wi.y, ls.wi.x);
@@ -527,8 +529,8 @@ static double directions_chi2(const pt_lights *L, const pt_scene *s, pt_vec3 p, 
                     d[2] = x[2] - p.z;
                     double d2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2], dl = sqrt(d2);
                     double cosl = fabs(nrm[0] * d[0] + nrm[1] * d[1] + nrm[2] * d[2]) / dl;
-                    float pdf =
-                        pt_lights_pdf(L, s, k, p, pt_v3((float)x[0], (float)x[1], (float)x[2]), nf);
+                    float pdf = pt_lights_pdf(L, s, k, p, NO_N,
+                                              pt_v3((float)x[0], (float)x[1], (float)x[2]), nf);
                     if (!(pdf > 0.0f))
                         continue;
                     double w = pdf * cosl / d2 * da;
@@ -622,7 +624,7 @@ static void test_pdf_consistency(void)
         float u[3];
         rnd3(u);
         pt_light_sample s;
-        int r = pt_lights_sample(L, &t.s, p, u, &s);
+        int r = pt_lights_sample(L, &t.s, p, NO_N, u, &s);
         if (!r) {
             zero++;
             bad_zero += s.pdf != 0.0f || pt_v3_max_comp(s.radiance) != 0.0f;
@@ -630,7 +632,7 @@ static void test_pdf_consistency(void)
         }
         ok++;
         /* pt_lights_pdf for the same point is the same number. */
-        float pdf = pt_lights_pdf(L, &t.s, s.tri, p, s.position, s.normal);
+        float pdf = pt_lights_pdf(L, &t.s, s.tri, p, NO_N, s.position, s.normal);
         bad_eq += pdf != s.pdf;
         /* ... and the documented formula, evaluated here in double. */
         double n[3];
@@ -663,9 +665,11 @@ static void test_pdf_consistency(void)
     CHECK(ok > 1000 && zero > 1000); /* both cases exercised */
 
     /* Not a light, or out of range: 0. */
-    CHECK(pt_lights_pdf(L, &t.s, 5, pt_v3(0, 0, 0), pt_v3(0.2f, 2, 0.2f), pt_v3(0, -1, 0)) == 0.0f);
-    CHECK(pt_lights_pdf(L, &t.s, 6, pt_v3(0, 0, 0), pt_v3(1, -3, 0), pt_v3(0, 0, 1)) == 0.0f);
-    CHECK(pt_lights_pdf(L, &t.s, 1000, pt_v3(0, 0, 0), pt_v3(1, 1, 1), pt_v3(0, 0, 1)) == 0.0f);
+    CHECK(pt_lights_pdf(L, &t.s, 5, pt_v3(0, 0, 0), NO_N, pt_v3(0.2f, 2, 0.2f), pt_v3(0, -1, 0)) ==
+          0.0f);
+    CHECK(pt_lights_pdf(L, &t.s, 6, pt_v3(0, 0, 0), NO_N, pt_v3(1, -3, 0), pt_v3(0, 0, 1)) == 0.0f);
+    CHECK(pt_lights_pdf(L, &t.s, 1000, pt_v3(0, 0, 0), NO_N, pt_v3(1, 1, 1), pt_v3(0, 0, 1)) ==
+          0.0f);
     pt_lights_free(L);
 }
 
@@ -692,12 +696,12 @@ static void test_sides(void)
         float u[3];
         rnd3(u);
         pt_light_sample s;
-        int r = pt_lights_sample(L, &t.s, above, u, &s);
+        int r = pt_lights_sample(L, &t.s, above, NO_N, u, &s);
         if (s.tri != 0)
             continue;
         light0++;
         bad += r != 0 || s.pdf != 0.0f || pt_v3_max_comp(s.radiance) != 0.0f;
-        bad += pt_lights_pdf(L, &t.s, 0, above, s.position, s.normal) != 0.0f;
+        bad += pt_lights_pdf(L, &t.s, 0, above, NO_N, s.position, s.normal) != 0.0f;
     }
     CHECK(light0 > 100 && bad == 0);
 
@@ -726,7 +730,7 @@ static void test_sides(void)
         float u[3];
         rnd3(u);
         pt_light_sample s;
-        int r = pt_lights_sample(L, &t.s, pt_v3(0, 0, 0), u, &s);
+        int r = pt_lights_sample(L, &t.s, pt_v3(0, 0, 0), NO_N, u, &s);
         if (s.tri != 1)
             continue;
         light1++;
@@ -738,7 +742,7 @@ static void test_sides(void)
     pt_vec3 v[3];
     tri_verts(&t.s, 0, v);
     pt_vec3 inplane = pt_v3_add(v[0], pt_v3_scale(pt_v3_sub(v[0], v[1]), 1.0f));
-    float pdf = pt_lights_pdf(L, &t.s, 0, inplane, pt_v3_scale(pt_v3_add(v[0], v[2]), 0.5f),
+    float pdf = pt_lights_pdf(L, &t.s, 0, inplane, NO_N, pt_v3_scale(pt_v3_add(v[0], v[2]), 0.5f),
                               pt_v3((float)n0[0], (float)n0[1], (float)n0[2]));
     CHECK(isfinite(pdf));
     pt_lights_free(L);
@@ -754,7 +758,7 @@ static void test_sides(void)
 static void check_sample_n(const pt_lights *L, const pt_scene *s, const char *what)
 {
     enum { N = 77 };
-    pt_vec3 p[N];
+    pt_vec3 p[N], nrm[N];
     float u[N][3];
     pt_light_sample a[N], b;
     int ok[N];
@@ -763,6 +767,11 @@ static void check_sample_n(const pt_lights *L, const pt_scene *s, const char *wh
         for (int i = 0; i < N; i++) {
             p[i] = pt_v3(4.0f * rnd() - 2.0f, 4.0f * rnd() - 2.0f, 4.0f * rnd() - 2.0f);
             rnd3(u[i]);
+            /* a receiver normal, or none (every fourth) */
+            float un[3];
+            rnd3(un);
+            nrm[i] =
+                i % 4 == 0 ? NO_N : pt_v3_norm(pt_v3(un[0] - 0.5f, un[1] - 0.5f, un[2] - 0.5f));
         }
         p[3] = pt_v3(-0.6f, -0.5f, 1); /* light 0's first vertex */
         u[3][1] = u[3][2] = 0.0f;
@@ -772,9 +781,9 @@ static void check_sample_n(const pt_lights *L, const pt_scene *s, const char *wh
         u[8][0] = 0x1.fffffep-1f;
         for (uint32_t n = 0; n <= N; n += (n < 18 ? 1 : 19)) {
             memset(a, 0xa5, sizeof a);
-            pt_lights_sample_n(L, s, n, p, (const float(*)[3])u, a, ok);
+            pt_lights_sample_n(L, s, n, p, nrm, (const float(*)[3])u, a, ok);
             for (uint32_t i = 0; i < n; i++) {
-                int r = pt_lights_sample(L, s, p[i], u[i], &b);
+                int r = pt_lights_sample(L, s, p[i], nrm[i], u[i], &b);
                 bad += r != ok[i] || memcmp(&a[i], &b, sizeof b) != 0;
                 valid += r;
             }
@@ -890,17 +899,18 @@ static void test_emission_copy(void)
     enum { N = 64 };
     int bad = 0, valid = 0;
     for (int round = 0; round < 200; round++) {
-        pt_vec3 p[N];
+        pt_vec3 p[N], nrm[N];
         float u[N][3];
         pt_light_sample a[N], b;
         int ok[N];
         for (int i = 0; i < N; i++) {
             p[i] = pt_v3(3.0f * rnd(), 3.0f * rnd(), 1.0f + rnd());
             rnd3(u[i]);
+            nrm[i] = pt_v3(0.0f, 0.0f, -1.0f); /* facing the lights */
         }
-        pt_lights_sample_n(L, &s, N, p, (const float(*)[3])u, a, ok);
+        pt_lights_sample_n(L, &s, N, p, nrm, (const float(*)[3])u, a, ok);
         for (int i = 0; i < N; i++) {
-            int r = pt_lights_sample(L, &s, p[i], u[i], &b);
+            int r = pt_lights_sample(L, &s, p[i], nrm[i], u[i], &b);
             bad += r != ok[i] || memcmp(&a[i], &b, sizeof b) != 0;
             if (!r)
                 continue;
@@ -936,9 +946,10 @@ static void test_no_emitters_and_errors(void)
     CHECK(L && pt_lights_count(L) == 0);
     float u[3] = {0.5f, 0.5f, 0.5f};
     pt_light_sample s;
-    CHECK(pt_lights_sample(L, &t.s, pt_v3(0, 0, 0), u, &s) == 0);
+    CHECK(pt_lights_sample(L, &t.s, pt_v3(0, 0, 0), NO_N, u, &s) == 0);
     CHECK(s.pdf == 0.0f);
-    CHECK(pt_lights_pdf(L, &t.s, 0, pt_v3(0, 0, 0), pt_v3(0.2f, 0.2f, 1), pt_v3(0, 0, -1)) == 0.0f);
+    CHECK(pt_lights_pdf(L, &t.s, 0, pt_v3(0, 0, 0), NO_N, pt_v3(0.2f, 0.2f, 1), pt_v3(0, 0, -1)) ==
+          0.0f);
     pt_lights_free(L);
     pt_lights_free(NULL);
     CHECK(pt_lights_count(NULL) == 0);
@@ -1016,10 +1027,10 @@ static void test_footprint(void)
         return;
     CHECKF(pt_lights_count(L) == 1, "%u lights, expected the one over the white texel",
            pt_lights_count(L));
-    CHECK(pt_lights_pdf(L, &t.s, 1, pt_v3(2.2f, 0.2f, 0), pt_v3(2.2f, 0.2f, 1), pt_v3(0, 0, -1)) ==
-          0.0f);
-    CHECK(pt_lights_pdf(L, &t.s, 0, pt_v3(0.2f, 0.2f, 0), pt_v3(0.2f, 0.2f, 1), pt_v3(0, 0, -1)) >
-          0.0f);
+    CHECK(pt_lights_pdf(L, &t.s, 1, pt_v3(2.2f, 0.2f, 0), NO_N, pt_v3(2.2f, 0.2f, 1),
+                        pt_v3(0, 0, -1)) == 0.0f);
+    CHECK(pt_lights_pdf(L, &t.s, 0, pt_v3(0.2f, 0.2f, 0), NO_N, pt_v3(0.2f, 0.2f, 1),
+                        pt_v3(0, 0, -1)) > 0.0f);
     pt_lights_free(L);
 }
 

@@ -32,6 +32,7 @@
 #include "common/base/alloc.h"
 #include "common/math/simd.h"
 #include "common/render/film.h"
+#include "common/render/light.h"
 #include "common/render/render.h"
 #include "common/scene/scene.h"
 #include "tests/check.h"
@@ -589,8 +590,9 @@ static pt_scene *finish_with_camera(pt_scene_builder *b, pt_vec3 position, pt_ve
 
 /* A textured Lambertian floor lit by an emissive quad, built by code. With
  * grid > 1 the quad is grid x grid cells of two triangles, textured in its
- * emission too: with 512 triangles or more, the renderer samples a stage's
- * lights in one call (pt_lights_sample_n). */
+ * emission too: from 16 triangles a light tree chooses, and with 512 or
+ * more the renderer samples a stage's lights in one call
+ * (pt_lights_sample_n). */
 static pt_scene *textured_lambert_scene(uint32_t grid)
 {
     pt_scene_builder *b = NULL;
@@ -625,6 +627,10 @@ static pt_scene *textured_lambert_scene(uint32_t grid)
               PT_OK);
     } else {
         uint32_t nv = (grid + 1) * (grid + 1);
+        /* 0.6 wide; with a light tree (grid 4: 32 lights), 1.8, so that the
+         * lights spread over enough of the scene for the default to take it
+         * (PT_LIGHT_TREE_MIN_SPREAD) */
+        float half = grid == 4 ? 0.9f : 0.3f;
         float *gp = pt_malloc_array(nv, 3 * sizeof(float));
         float *guv = pt_malloc_array(nv, 2 * sizeof(float));
         uint32_t *gidx = pt_malloc_array(grid * grid, 6 * sizeof(uint32_t));
@@ -633,9 +639,9 @@ static pt_scene *textured_lambert_scene(uint32_t grid)
             for (uint32_t j = 0; j <= grid; j++)
                 for (uint32_t i = 0; i <= grid; i++) {
                     uint32_t v = j * (grid + 1) + i;
-                    gp[3 * v] = -0.3f + 0.6f * (float)i / (float)grid;
+                    gp[3 * v] = -half + 2.0f * half * (float)i / (float)grid;
                     gp[3 * v + 1] = 1.0f;
-                    gp[3 * v + 2] = -0.3f + 0.6f * (float)j / (float)grid;
+                    gp[3 * v + 2] = -half + 2.0f * half * (float)j / (float)grid;
                     guv[2 * v] = (float)i / (float)grid;
                     guv[2 * v + 1] = (float)j / (float)grid;
                 }
@@ -721,6 +727,17 @@ static void variants(void)
     pt_scene_free(s);
     s = textured_lambert_scene(16); /* 512 lights */
     if (s) {
+        same_as_general(s, "lambert");
+        batched(s, 0);
+    }
+    pt_scene_free(s);
+    /* 32 lights: a light tree chooses, with the receiver's normal (the
+     * lanes' picks and the MIS pdf of the next hit, prev_n) */
+    s = textured_lambert_scene(4);
+    if (s) {
+        pt_lights *L = NULL;
+        CHECK(pt_lights_new(s, &L, NULL) == PT_OK && pt_lights_has_tree(L));
+        pt_lights_free(L);
         same_as_general(s, "lambert");
         batched(s, 0);
     }
