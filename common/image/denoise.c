@@ -216,7 +216,8 @@ static inline void exp_neg8(v8f *x)
 
 /* What NL-means weights are computed from: nc guide channels and the
  * variance of each (pointers may repeat), scaled by vscale, plus tol2 (g^2 +
- * 0.01) (0, or NLM_TOL2 for the regression's weights). */
+ * 0.01) (0, or NLM_TOL2 for the regression's weights). guide_terms turns
+ * v into that sum, pixel by pixel, before patch_dist reads it. */
 typedef struct guide {
     int nc;
     const float *g[3];
@@ -225,6 +226,26 @@ typedef struct guide {
     int f; /* patch radius */
     float tol2;
 } guide;
+
+/* Each pixel's term of the patch distances, v vscale + tol2 (g^2 + 0.01),
+ * computed once per pixel instead of once per pixel and offset (the same
+ * operations: the same bits): gd->v[c] then points to it. Returns the
+ * planes to free, or NULL (out of memory). */
+static float *guide_terms(const dims *dm, guide *gd)
+{
+    size_t n = (size_t)dm->w * dm->h;
+    float *t = pt_malloc_array((size_t)gd->nc * n, sizeof(float));
+    if (!t)
+        return NULL;
+    for (int c = 0; c < gd->nc; c++) {
+        const float *g = gd->g[c], *v = gd->v[c];
+        float *o = t + (size_t)c * n;
+        for (size_t i = 0; i < n; i++)
+            o[i] = v[i] * gd->vscale + gd->tol2 * (g[i] * g[i] + 0.01f);
+        gd->v[c] = o;
+    }
+    return t;
+}
 
 /* Scratch of patch_weights. */
 typedef struct wscratch {
@@ -281,8 +302,7 @@ static void patch_dist(const dims *dm, const guide *gd, rect r, int dx, int dy, 
             const float *vp = v + (size_t)y * w + px0, *vq = v + (size_t)(y + dy) * w + px0 + dx;
             float *drow = d + (size_t)(y - py0) * pw;
             for (int x = 0; x < pw; x++) {
-                float a = vp[x] * gd->vscale + gd->tol2 * (gp[x] * gp[x] + 0.01f),
-                      b = vq[x] * gd->vscale + gd->tol2 * (gq[x] * gq[x] + 0.01f);
+                float a = vp[x], b = vq[x];
                 float diff = gp[x] - gq[x];
                 float dist = (diff * diff - (a + fmin2(a, b))) / (NLM_EPS + a + b);
                 drow[x] = fmin2(dist, NLM_CLAMP);
@@ -290,26 +310,56 @@ static void patch_dist(const dims *dm, const guide *gd, rect r, int dx, int dy, 
         }
         float *col = s->hs;
         float *o = out + (per_channel ? (size_t)c * tn : 0);
+        int nx = vx1 - vx0;
+        /* outputs whose whole patch row is inside [px0, px1) */
+        int xa = imin(nx, imax(0, px0 - vx0 + f)), xb = imax(xa, imin(nx, px1 - vx0 - f));
         for (int y = vy0; y < vy1; y++) {
             int i0 = imax(y - f, py0), i1 = imin(y + f + 1, py1);
-            for (int x = 0; x < pw; x++)
-                col[x] = 0.0f;
-            for (int i = i0; i < i1; i++) {
-                const float *drow = d + (size_t)(i - py0) * pw;
-                for (int x = 0; x < pw; x++)
-                    col[x] += drow[x];
+            /* Each sum in registers, 8 columns at a time, its terms in row
+             * order from 0: the bits of adding row by row into memory,
+             * without a store and a reload per term. */
+            int xi = 0;
+            for (; xi + 8 <= pw; xi += 8) {
+                v8f acc = {0};
+                for (int i = i0; i < i1; i++) {
+                    v8f dv;
+                    memcpy(&dv, d + (size_t)(i - py0) * pw + xi, sizeof dv);
+                    acc += dv;
+                }
+                memcpy(col + xi, &acc, sizeof acc);
+            }
+            for (; xi < pw; xi++) {
+                float acc = 0.0f;
+                for (int i = i0; i < i1; i++)
+                    acc += d[(size_t)(i - py0) * pw + xi];
+                col[xi] = acc;
             }
             float *orow = o + (y - r.y0) * TILE + (vx0 - r.x0);
             float *sum = s->hs + PAD;
-            int nx = vx1 - vx0;
-            for (int x = 0; x < nx; x++)
-                sum[x] = 0.0f;
-            for (int t = -f; t <= f; t++) {
-                /* x + t inside [px0, px1) */
-                int lo = imax(0, px0 - t - vx0), hi = imin(nx, px1 - t - vx0);
-                const float *cs = col + (vx0 + t - px0);
-                for (int x = lo; x < hi; x++)
-                    sum[x] += cs[x];
+            /* the patch row's columns in order from 0, those inside [px0, px1) */
+            const float *cs = col + (vx0 - px0);
+            for (xi = 0; xi < xa; xi++) {
+                float acc = 0.0f;
+                for (int t = -f; t <= f; t++)
+                    if (xi + t + vx0 >= px0 && xi + t + vx0 < px1)
+                        acc += cs[xi + t];
+                sum[xi] = acc;
+            }
+            for (; xi + 8 <= xb; xi += 8) {
+                v8f acc = {0};
+                for (int t = -f; t <= f; t++) {
+                    v8f cv;
+                    memcpy(&cv, cs + xi + t, sizeof cv);
+                    acc += cv;
+                }
+                memcpy(sum + xi, &acc, sizeof acc);
+            }
+            for (; xi < nx; xi++) {
+                float acc = 0.0f;
+                for (int t = -f; t <= f; t++)
+                    if (xi + t + vx0 >= px0 && xi + t + vx0 < px1)
+                        acc += cs[xi + t];
+                sum[xi] = acc;
             }
             float rows = (float)(i1 - i0);
             for (int x = 0; x < nx; x++)
@@ -410,7 +460,13 @@ static pt_status nlmeans(const dims *dm, unsigned threads, const guide *gd, floa
         cx.src[c] = src[c];
         cx.dst[c] = dst[c];
     }
-    return run_tiles(threads, dm->cancel, dm->tx * dm->ty, NLM_SCRATCH_BYTES, nlm_tile, &cx, err);
+    float *terms = guide_terms(dm, &cx.gd);
+    if (!terms)
+        return pt_error_set(err, PT_ERR_NOMEM, "denoise: out of memory");
+    pt_status st =
+        run_tiles(threads, dm->cancel, dm->tx * dm->ty, NLM_SCRATCH_BYTES, nlm_tile, &cx, err);
+    pt_free(terms);
+    return st;
 }
 
 /* ---- first-order regression with collaborative accumulation ---- */
@@ -639,8 +695,9 @@ static pt_status regression(const dims *dm, unsigned threads, const guide *gd, i
         cx.feat[k] = feat[k];
     cx.tile_acc = pt_calloc((size_t)ntiles * (size_t)ncand, sizeof(double *));
     double *sum = pt_malloc_array(4 * n, sizeof(double));
+    float *terms = guide_terms(dm, &cx.gd);
     pt_status st = PT_OK;
-    if (!cx.tile_acc || !sum) {
+    if (!cx.tile_acc || !sum || !terms) {
         st = pt_error_set(err, PT_ERR_NOMEM, "denoise: out of memory");
         goto done;
     }
@@ -672,6 +729,7 @@ done:
             pt_free(cx.tile_acc[t]);
     pt_free(cx.tile_acc);
     pt_free(sum);
+    pt_free(terms);
     return st;
 }
 
