@@ -556,6 +556,7 @@ static void fit_lanes(const float *wt, const float *loc, int lx0, int ly, int tw
     v4d a[NTRI], b[DIM][3], fp[PT_DENOISE_FEATURES], x[DIM];
     memset(a, 0, sizeof a);
     memset(b, 0, sizeof b);
+    memset(x, 0, sizeof x);
     for (int k = 0; k < PT_DENOISE_FEATURES; k++)
         fp[k] = load4(feat + (size_t)k * rn + pc);
     for (int dy = -REG_R; dy <= REG_R; dy++) {
@@ -573,10 +574,13 @@ static void fit_lanes(const float *wt, const float *loc, int lx0, int ly, int tw
                 x[3 + k] = load4(feat + (size_t)k * rn + qc) - fp[k];
             v4d y[3] = {load4(col + qc), load4(col + rn + qc), load4(col + 2 * rn + qc)};
             int m = 0;
+#pragma GCC unroll 16
             for (int j = 0; j < DIM; j++) {
                 v4d wx = wv * x[j];
+#pragma GCC unroll 16
                 for (int k = j; k < DIM; k++)
                     a[m++] += wx * x[k];
+#pragma GCC unroll 4
                 for (int c = 0; c < 3; c++)
                     b[j][c] += wx * y[c];
             }
@@ -612,10 +616,12 @@ static void fit_lanes(const float *wt, const float *loc, int lx0, int ly, int tw
             x[2] = (v4d){dy, dy, dy, dy};
             for (int k = 0; k < PT_DENOISE_FEATURES; k++)
                 x[3 + k] = load4(feat + (size_t)k * rn + qc) - fp[k];
+#pragma GCC unroll 4
             for (int c = 0; c < 4; c++) {
                 v4d add = wv;
                 if (c < 3) {
                     v4d pred = x[0] * beta[0][c];
+#pragma GCC unroll 16
                     for (int j = 1; j < DIM; j++)
                         pred += x[j] * beta[j][c];
                     add = wv * pred;
