@@ -471,50 +471,6 @@ static pt_status nlmeans(const dims *dm, unsigned threads, const guide *gd, floa
 
 /* ---- first-order regression with collaborative accumulation ---- */
 
-/* Weighted least squares by the normal equations in double, Gaussian
- * elimination with the pivots in column order; a column whose pivot falls
- * to 1e-10 of its own weighted sum of squares (a feature constant over the
- * window, or a combination of the columns before it: grey albedo, a flat
- * depth) is dropped, its coefficient 0, so the fit stays defined. The
- * constant's column has the centre weight at least: never dropped. */
-static void solve_wls(double a[DIM][DIM], double b[DIM][3], double beta[DIM][3])
-{
-    double diag0[DIM];
-    int drop[DIM];
-    for (int i = 0; i < DIM; i++) {
-        for (int j = 0; j < i; j++)
-            a[i][j] = a[j][i];
-        diag0[i] = a[i][i];
-    }
-    for (int j = 0; j < DIM; j++) {
-        double piv = a[j][j];
-        drop[j] = !(diag0[j] > 0.0) || !(piv > 1e-10 * diag0[j]);
-        if (drop[j])
-            continue;
-        for (int i = j + 1; i < DIM; i++) {
-            double m = a[i][j] / piv;
-            if (m == 0.0)
-                continue;
-            for (int k = j; k < DIM; k++)
-                a[i][k] -= m * a[j][k];
-            for (int c = 0; c < 3; c++)
-                b[i][c] -= m * b[j][c];
-        }
-    }
-    for (int j = DIM - 1; j >= 0; j--) {
-        for (int c = 0; c < 3; c++) {
-            if (drop[j]) {
-                beta[j][c] = 0.0;
-                continue;
-            }
-            double s = b[j][c];
-            for (int k = j + 1; k < DIM; k++)
-                s -= a[j][k] * beta[k][c];
-            beta[j][c] = s / a[j][j];
-        }
-    }
-}
-
 /* Candidates one regression computes: the same fits at several k. */
 #define MAX_CAND 2
 
@@ -544,6 +500,53 @@ typedef double v4d __attribute__((vector_size(LANES * sizeof(double))));
      (size_t)(PT_DENOISE_FEATURES + 3) * RPAD * RPAD * sizeof(float))
 
 #define load4(p) ((v4d){(p)[0], (p)[1], (p)[2], (p)[3]})
+
+/* Weighted least squares by the normal equations in double, Gaussian
+ * elimination with the pivots in column order; a column whose pivot falls
+ * to 1e-10 of its own weighted sum of squares (a feature constant over the
+ * window, or a combination of the columns before it: grey albedo, a flat
+ * depth) is dropped, its coefficient 0, so the fit stays defined. The
+ * constant's column has the centre weight at least: never dropped. The
+ * four lanes' systems at once (tri: the upper triangle by rows), each lane
+ * with the operations one system alone would take: a dropped column's
+ * multipliers are 0 in its lane, and subtracting 0 x a finite value
+ * leaves every element's bits as skipping it did. */
+typedef long long v4l __attribute__((vector_size(LANES * sizeof(long long))));
+static inline __attribute__((always_inline)) void
+solve_wls4(const v4d tri[NTRI], const v4d rhs[DIM][3], v4d beta[DIM][3])
+{
+    v4d a[DIM][DIM], b[DIM][3], diag0[DIM];
+    v4l keep[DIM];
+    const v4d zero = {0.0, 0.0, 0.0, 0.0};
+    int m = 0;
+    for (int j = 0; j < DIM; j++) {
+        for (int k = j; k < DIM; k++)
+            a[j][k] = a[k][j] = tri[m++];
+        for (int c = 0; c < 3; c++)
+            b[j][c] = rhs[j][c];
+        diag0[j] = a[j][j];
+    }
+    for (int j = 0; j < DIM; j++) {
+        v4d piv = a[j][j];
+        keep[j] = (diag0[j] > zero) & (piv > 1e-10 * diag0[j]);
+        for (int i = j + 1; i < DIM; i++) {
+            v4d mj = a[i][j] / piv;
+            mj = (v4d)((v4l)mj & keep[j]);
+            for (int k = j; k < DIM; k++)
+                a[i][k] -= mj * a[j][k];
+            for (int c = 0; c < 3; c++)
+                b[i][c] -= mj * b[j][c];
+        }
+    }
+    for (int j = DIM - 1; j >= 0; j--) {
+        for (int c = 0; c < 3; c++) {
+            v4d sum = b[j][c];
+            for (int k = j + 1; k < DIM; k++)
+                sum -= a[j][k] * beta[k][c];
+            beta[j][c] = (v4d)((v4l)(sum / a[j][j]) & keep[j]);
+        }
+    }
+}
 
 /* Every fit of one row group of a tile: 4 pixels from (lx0, ly) (tile
  * coordinates); pixels past the tile's width have no weight and no fit. */
@@ -587,21 +590,12 @@ static void fit_lanes(const float *wt, const float *loc, int lx0, int ly, int tw
         }
     }
     v4d beta[DIM][3];
-    memset(beta, 0, sizeof beta);
-    for (int l = 0; l < LANES && lx0 + l < tw; l++) {
-        double al[DIM][DIM], bl[DIM][3], bt[DIM][3];
-        int m = 0;
-        for (int j = 0; j < DIM; j++) {
-            for (int k = j; k < DIM; k++)
-                al[j][k] = a[m++][l];
-            for (int c = 0; c < 3; c++)
-                bl[j][c] = b[j][c][l];
-        }
-        solve_wls(al, bl, bt);
+    solve_wls4(a, b, beta);
+    /* lanes past the tile's width: no fit */
+    for (int l = tw - lx0; l < LANES; l++)
         for (int j = 0; j < DIM; j++)
             for (int c = 0; c < 3; c++)
-                beta[j][c][l] = bt[j][c];
-    }
+                beta[j][c][l] = 0.0;
     /* Each fit predicts its window; the predictions land with their weights. */
     for (int dy = -REG_R; dy <= REG_R; dy++) {
         for (int dx = -REG_R; dx <= REG_R; dx++) {
