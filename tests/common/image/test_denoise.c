@@ -225,7 +225,7 @@ static void test_silhouette(void)
  * floor in that smoothing the edge column's 3 x 3 patches, one third
  * noise-free, shut every neighbour out and each pixel keeps its own toss:
  * the column keeps 0.44 to 0.47 of its raw MSE (seeds 4242, +7919,
- * +15838), against 0.25 to 0.28 with it (and 0.22 to 0.27 for the column
+ * +15838), against 0.25 to 0.28 with it (and 0.22 to 0.26 for the column
  * two pixels in). Its raw MSE is sigma^2 / 2 over 768 values (relative
  * standard deviation 5 %): the bound 0.36 lies halfway. */
 static void test_selection_edge(void)
