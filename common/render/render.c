@@ -928,6 +928,10 @@ typedef struct guide_vert {
 } guide_vert;
 typedef struct guide_path {
     const pt_render_guiding *gd;
+    /* The product, over the path's guided vertices, of the mixture's pdf
+     * over the BSDF's: the throughput times it is the throughput sampling
+     * the BSDF alone would have left, which Russian roulette reads. */
+    float rr;
     uint32_t n;       /* vertices in v */
     uint32_t pending; /* the last vertex's snap is taken at the path's next event */
     guide_vert v[GUIDE_VERTS];
@@ -1704,6 +1708,7 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     float pdf;
     int delta = 0;
     pt_vec3 weight;
+    float rr_scale = 1.0f; /* FEAT_GUIDE: the mixture's pdf over the BSDF's */
     if ((features & FEAT_GUIDE) && guide && gprob > 0.0f) {
         /* u3[0] picks the guide or the closure, rescaled for the closure's
          * own lobe pick; the weight is f / the mixture's pdf. */
@@ -1723,6 +1728,8 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
         }
         pdf = gprob * gpdf + (1.0f - gprob) * bp;
         weight = pdf > 0.0f ? pt_v3_scale(f, 1.0f / pdf) : pt_v3(0.0f, 0.0f, 0.0f);
+        if (bp > 0.0f && pdf > 0.0f)
+            rr_scale = pdf / bp;
     } else {
         weight = (features & PT_FEAT_GLOSSY)
                      ? pt_closure_sample(&cl, u3, &wi_l, &pdf, &delta)
@@ -1735,11 +1742,24 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     if (through ? side == 0.0f || (side > 0.0f) != (wi_l.z > 0.0f) : side <= 0.0f)
         return ret; /* opaque: below the geometric surface, reflection only */
     pt_vec3 beta = pt_v3_mul(pa->beta, weight);
+    if ((features & FEAT_GUIDE) && guide)
+        pa->gp->rr *= rr_scale;
 
     if (pa->depth + 1 >= r->params.rr_depth) {
         /* fminf(pt_v3_max_comp(beta), 0.95f) by comparisons (a NaN max
          * gives 0.95 as fminf does). */
         float m = max2(beta.x, max2(beta.y, beta.z));
+        /* Guided: the throughput the BSDF alone would have left. A
+         * direction the guide chose for its light has a small weight (its
+         * pdf is large) and a large radiance to come; roulette by the
+         * weight alone would kill it as often as the guide made it likely,
+         * and undo the guide (Vorba & Krivanek 2016, "Adjoint-Driven
+         * Russian Roulette and Splitting in Light Transport Simulation":
+         * roulette by the expected contribution; the guide's pdf over the
+         * BSDF's stands in for the radiance to come over its mean). Any
+         * survival probability in (0, 1] keeps the estimate unbiased. */
+        if ((features & FEAT_GUIDE) && pa->gp)
+            m *= pa->gp->rr;
         float survive = m < 0.95f ? m : 0.95f;
         if (!(u[OFF_RR] < survive))
             return ret;
@@ -2149,6 +2169,7 @@ li_impl(const pt_renderer *r, pixel_ctx *pc, uint32_t index, pt_render_stats *st
     if ((features & FEAT_GUIDE) && gd) {
         gp.gd = gd;
         gp.n = gp.pending = 0;
+        gp.rr = 1.0f;
         pa.gp = &gp;
     }
     uint64_t rays = 0, capped = 0;
@@ -2448,6 +2469,7 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
                         guide_path *gp = &gps[g * nb + i];
                         gp->gd = gd;
                         gp->n = gp->pending = 0;
+                        gp->rr = 1.0f;
                         pa->gp = gp;
                     }
                     if ((features & FEAT_PASSES) && pout) {
