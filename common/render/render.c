@@ -1608,8 +1608,11 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     }
     /* Path guiding (FEAT_GUIDE): at a guidable closure the continuation is
      * drawn from the mixture gprob x guide + (1 - gprob) x closure (one-sample
-     * MIS, Mueller et al. 2017, sec. 5), and the BSDF strategy's pdf that
-     * MIS weighs against light sampling is the mixture's. */
+     * MIS, Mueller et al. 2017, sec. 5). MIS against light sampling weighs
+     * the closure's own pdf, not the mixture's: light sampling and the
+     * emission a continuation finds weigh the same pdf, so their weights
+     * still sum to 1 (Veach 1997, sec. 9.2: any such weights are unbiased),
+     * and a light sample costs no lookup of the guide's pdf. */
     const pt_guide *guide = NULL;
     uint32_t gleaf = 0;
     float gprob = 0.0f;
@@ -1639,8 +1642,6 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
                 f = lambert_eval(&lambert, wo_l, wi_ll, &bpdf);
             else if (!through || (side != 0.0f && (side > 0.0f) == (wi_ll.z > 0.0f)))
                 f = pt_closure_eval(&cl, wi_ll, &bpdf);
-            if ((features & FEAT_GUIDE) && guide && gprob > 0.0f && any_positive(f))
-                bpdf = gprob * pt_guide_pdf(guide, gleaf, ls->wi) + (1.0f - gprob) * bpdf;
             if (any_positive(f)) {
                 pt_vec3 from = pt_offset_apply(r->offset, sf->p, side > 0.0f ? ng : pt_v3_neg(ng));
                 float w;
@@ -1709,6 +1710,7 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     int delta = 0;
     pt_vec3 weight;
     float rr_scale = 1.0f; /* FEAT_GUIDE: the mixture's pdf over the BSDF's */
+    float bp_mis = 0.0f;   /* FEAT_GUIDE: the BSDF's pdf, which MIS weighs */
     if ((features & FEAT_GUIDE) && guide && gprob > 0.0f) {
         /* u3[0] picks the guide or the closure, rescaled for the closure's
          * own lobe pick; the weight is f / the mixture's pdf. */
@@ -1730,6 +1732,7 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
         weight = pdf > 0.0f ? pt_v3_scale(f, 1.0f / pdf) : pt_v3(0.0f, 0.0f, 0.0f);
         if (bp > 0.0f && pdf > 0.0f)
             rr_scale = pdf / bp;
+        bp_mis = bp > 0.0f ? bp : 0x1p-126f;
     } else {
         weight = (features & PT_FEAT_GLOSSY)
                      ? pt_closure_sample(&cl, u3, &wi_l, &pdf, &delta)
@@ -1779,7 +1782,8 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
         pa->cross++;
     } else {
         pa->prev_p = sf->p;
-        pa->prev_pdf = delta ? 0.0f : pdf;
+        pa->prev_pdf =
+            delta ? 0.0f : ((features & FEAT_GUIDE) && guide && gprob > 0.0f ? bp_mis : pdf);
         if ((features & PT_FEAT_THIN_GLASS) && r->thin_glass)
             pa->cross = 0;
     }
