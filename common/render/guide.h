@@ -144,12 +144,13 @@ uint32_t pt_guide_pass_end(uint32_t k, uint32_t spp);
 
 /* --guiding auto: 1 when scene has glass or a diffuse transmitter (its
  * feature mask), whose light path tracing with NEE finds by chance and
- * where guiding came closest to paying (docs/bench/guiding.md: 1.03x,
- * 0.82x and 0.88x the time to equal relMSE on a glass ball,
- * TransmissionTest and ToyCar); 0 otherwise (the NVIDIA Cornell box 0.69x,
- * DamagedHelmet 0.83x, StainedGlassLamp 0.79x), so those scenes keep their
- * unguided variant and pay nothing. A pure function of the scene:
- * ptworker, ptserve and the farm's workers decide alike. */
+ * where guiding pays or came closest (docs/bench/guiding.md: 1.46x the
+ * time to equal relMSE on a glass ball; TransmissionTest and ToyCar,
+ * whose references are too noisy to rank, 0.59x and 0.70x); 0 otherwise
+ * (the NVIDIA Cornell box 0.77x, DamagedHelmet 0.88x, StainedGlassLamp
+ * 0.80x), so those scenes keep their unguided variant and pay nothing. A
+ * pure function of the scene: ptworker, ptserve and the farm's workers
+ * decide alike. */
 typedef struct pt_scene pt_scene;
 int pt_guide_auto(const pt_scene *scene);
 

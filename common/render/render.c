@@ -944,6 +944,10 @@ typedef struct guide_vert {
 } guide_vert;
 typedef struct guide_path {
     const pt_render_guiding *gd;
+    /* The product, over the path's guided vertices, of the mixture's pdf
+     * over the BSDF's: the throughput times it is the throughput sampling
+     * the BSDF alone would have left, which Russian roulette reads. */
+    float rr;
     uint32_t n;       /* vertices in v */
     uint32_t pending; /* the last vertex's snap is taken at the path's next event */
     guide_vert v[GUIDE_VERTS];
@@ -1655,8 +1659,11 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     }
     /* Path guiding (FEAT_GUIDE): at a guidable closure the continuation is
      * drawn from the mixture gprob x guide + (1 - gprob) x closure (one-sample
-     * MIS, Mueller et al. 2017, sec. 5), and the BSDF strategy's pdf that
-     * MIS weighs against light sampling is the mixture's. */
+     * MIS, Mueller et al. 2017, sec. 5). MIS against light sampling weighs
+     * the closure's own pdf, not the mixture's: light sampling and the
+     * emission a continuation finds weigh the same pdf, so their weights
+     * still sum to 1 (Veach 1997, sec. 9.2: any such weights are unbiased),
+     * and a light sample costs no lookup of the guide's pdf. */
     const pt_guide *guide = NULL;
     uint32_t gleaf = 0;
     float gprob = 0.0f;
@@ -1686,8 +1693,6 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
                 f = lambert_eval(&lambert, wo_l, wi_ll, &bpdf);
             else if (!through || (side != 0.0f && (side > 0.0f) == (wi_ll.z > 0.0f)))
                 f = pt_closure_eval(&cl, wi_ll, &bpdf);
-            if ((features & FEAT_GUIDE) && guide && gprob > 0.0f && any_positive(f))
-                bpdf = gprob * pt_guide_pdf(guide, gleaf, ls->wi) + (1.0f - gprob) * bpdf;
             if (any_positive(f)) {
                 pt_vec3 from = pt_offset_apply(r->offset, sf->p, side > 0.0f ? ng : pt_v3_neg(ng));
                 float w;
@@ -1757,6 +1762,8 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     float pdf;
     int delta = 0;
     pt_vec3 weight;
+    float rr_scale = 1.0f; /* FEAT_GUIDE: the mixture's pdf over the BSDF's */
+    float bp_mis = 0.0f;   /* FEAT_GUIDE: the BSDF's pdf, which MIS weighs */
     if ((features & FEAT_GUIDE) && guide && gprob > 0.0f) {
         /* u3[0] picks the guide or the closure, rescaled for the closure's
          * own lobe pick; the weight is f / the mixture's pdf. */
@@ -1776,6 +1783,9 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
         }
         pdf = gprob * gpdf + (1.0f - gprob) * bp;
         weight = pdf > 0.0f ? pt_v3_scale(f, 1.0f / pdf) : pt_v3(0.0f, 0.0f, 0.0f);
+        if (bp > 0.0f && pdf > 0.0f)
+            rr_scale = pdf / bp;
+        bp_mis = bp > 0.0f ? bp : 0x1p-126f;
     } else {
         weight = (features & PT_FEAT_GLOSSY)
                      ? pt_closure_sample(&cl, u3, &wi_l, &pdf, &delta)
@@ -1789,11 +1799,24 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     if (through ? side == 0.0f || (side > 0.0f) != (wi_l.z > 0.0f) : side <= 0.0f)
         return ret; /* opaque: below the geometric surface, reflection only */
     pt_vec3 beta = pt_v3_mul(pa->beta, weight);
+    if ((features & FEAT_GUIDE) && guide)
+        pa->gp->rr *= rr_scale;
 
     if (pa->depth + 1 >= r->params.rr_depth) {
         /* fminf(pt_v3_max_comp(beta), RR_MAX_SURVIVE) by comparisons (a
          * NaN max gives RR_MAX_SURVIVE as fminf does). */
         float m = max2(beta.x, max2(beta.y, beta.z));
+        /* Guided: the throughput the BSDF alone would have left. A
+         * direction the guide chose for its light has a small weight (its
+         * pdf is large) and a large radiance to come; roulette by the
+         * weight alone would kill it as often as the guide made it likely,
+         * and undo the guide (Vorba & Krivanek 2016, "Adjoint-Driven
+         * Russian Roulette and Splitting in Light Transport Simulation":
+         * roulette by the expected contribution; the guide's pdf over the
+         * BSDF's stands in for the radiance to come over its mean). Any
+         * survival probability in (0, 1] keeps the estimate unbiased. */
+        if ((features & FEAT_GUIDE) && pa->gp)
+            m *= pa->gp->rr;
         float survive = m < RR_MAX_SURVIVE ? m : RR_MAX_SURVIVE;
         if (!(u[OFF_RR] < survive))
             return ret;
@@ -1814,7 +1837,8 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     } else {
         pa->prev_p = sf->p;
         pa->prev_n = light_normal(r, sf, wo, features);
-        pa->prev_pdf = delta ? 0.0f : pdf;
+        pa->prev_pdf =
+            delta ? 0.0f : ((features & FEAT_GUIDE) && guide && gprob > 0.0f ? bp_mis : pdf);
         if ((features & PT_FEAT_THIN_GLASS) && r->thin_glass)
             pa->cross = 0;
     }
@@ -2212,6 +2236,7 @@ li_impl(const pt_renderer *r, pixel_ctx *pc, uint32_t index, pt_render_stats *st
     if ((features & FEAT_GUIDE) && gd) {
         gp.gd = gd;
         gp.n = gp.pending = 0;
+        gp.rr = 1.0f;
         pa.gp = &gp;
     }
     uint64_t rays = 0, capped = 0;
@@ -2515,6 +2540,7 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
                         guide_path *gp = &gps[g * nb + i];
                         gp->gd = gd;
                         gp->n = gp->pending = 0;
+                        gp->rr = 1.0f;
                         pa->gp = gp;
                     }
                     if ((features & FEAT_PASSES) && pout) {
