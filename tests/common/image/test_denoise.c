@@ -154,6 +154,35 @@ static void test_noisy_features(void)
     scene_free(&s);
 }
 
+/* A noise-free curtain (columns 0 to 31: stripes three wide, a ripple of
+ * 2.5e-4 down y, no features) beside a surface (from column 32: truth
+ * 0.5 + stripes sin(2 pi y / 4), albedo 0.5, normal +z, depth 2, halves
+ * with noise of sigma), denoised into s->out with the default despeckle. */
+static void curtain_edge(scene *s, double sigma, double stripes)
+{
+    for (uint32_t y = 0; y < s->h; y++)
+        for (uint32_t x = 0; x < s->w; x++) {
+            size_t i = (size_t)y * s->w + x;
+            int surface = x >= 32;
+            for (int c = 0; c < 3; c++) {
+                double t = surface ? 0.5 + stripes * sin(6.283185307 * y / 4.0)
+                                   : 0.05 + 0.02 * ((x / 3) & 1) + 2.5e-4 * sin(0.7 * y);
+                s->truth[c][i] = (float)t;
+                s->a[c][i] = (float)(t + (surface ? sigma * gauss() : 0.0));
+                s->b[c][i] = (float)(t + (surface ? sigma * gauss() : 0.0));
+                s->color[c][i] = 0.5f * (s->a[c][i] + s->b[c][i]);
+                s->albedo[c][i] = surface ? 0.5f : 0.0f;
+                s->normal[c][i] = surface && c == 2 ? 1.0f : 0.0f;
+            }
+            s->var[i] = surface ? (float)(sigma * sigma / 2.0) : 0.0f;
+            s->depth[i] = surface ? 2.0f : 0.0f;
+        }
+    pt_denoise_input in = scene_input(s);
+    in.despeckle = PT_DENOISE_DESPECKLE;
+    pt_error err = {0};
+    CHECKF(pt_denoise(&in, 2, s->out, &err) == PT_OK, "%s", err.msg);
+}
+
 /* A silhouette against an environment seen directly: the left half is
  * noise-free (variance 0, no features) with stripes across x and a faint
  * ripple of 5e-4 down y, as a dark studio curtain; the right half a grey
@@ -171,26 +200,7 @@ static void test_silhouette(void)
     CHECK(scene_alloc(&s, 64, 64) == 0);
     const double sigma = 0.1;
     rng_state = 4242;
-    for (uint32_t y = 0; y < s.h; y++)
-        for (uint32_t x = 0; x < s.w; x++) {
-            size_t i = (size_t)y * s.w + x;
-            int surface = x >= 32;
-            for (int c = 0; c < 3; c++) {
-                double t = surface ? 0.5 : 0.05 + 0.02 * ((x / 3) & 1) + 2.5e-4 * sin(0.7 * y);
-                s.truth[c][i] = (float)t;
-                s.a[c][i] = (float)(t + (surface ? sigma * gauss() : 0.0));
-                s.b[c][i] = (float)(t + (surface ? sigma * gauss() : 0.0));
-                s.color[c][i] = 0.5f * (s.a[c][i] + s.b[c][i]);
-                s.albedo[c][i] = surface ? 0.5f : 0.0f;
-                s.normal[c][i] = surface && c == 2 ? 1.0f : 0.0f;
-            }
-            s.var[i] = surface ? (float)(sigma * sigma / 2.0) : 0.0f;
-            s.depth[i] = surface ? 2.0f : 0.0f;
-        }
-    pt_denoise_input in = scene_input(&s);
-    in.despeckle = PT_DENOISE_DESPECKLE;
-    pt_error err = {0};
-    CHECKF(pt_denoise(&in, 2, s.out, &err) == PT_OK, "%s", err.msg);
+    curtain_edge(&s, sigma, 0.0);
     double raw = 0.0, den = 0.0, left = 0.0;
     for (uint32_t y = 0; y < s.h; y++)
         for (uint32_t x = 0; x < s.w; x++) {
@@ -234,27 +244,7 @@ static void test_selection_edge(void)
     CHECK(scene_alloc(&s, 64, 256) == 0);
     const double sigma = 0.1;
     rng_state = 4242;
-    for (uint32_t y = 0; y < s.h; y++)
-        for (uint32_t x = 0; x < s.w; x++) {
-            size_t i = (size_t)y * s.w + x;
-            int surface = x >= 32;
-            for (int c = 0; c < 3; c++) {
-                double t = surface ? 0.5 + 0.2 * sin(6.283185307 * y / 4.0)
-                                   : 0.05 + 0.02 * ((x / 3) & 1) + 2.5e-4 * sin(0.7 * y);
-                s.truth[c][i] = (float)t;
-                s.a[c][i] = (float)(t + (surface ? sigma * gauss() : 0.0));
-                s.b[c][i] = (float)(t + (surface ? sigma * gauss() : 0.0));
-                s.color[c][i] = 0.5f * (s.a[c][i] + s.b[c][i]);
-                s.albedo[c][i] = surface ? 0.5f : 0.0f;
-                s.normal[c][i] = surface && c == 2 ? 1.0f : 0.0f;
-            }
-            s.var[i] = surface ? (float)(sigma * sigma / 2.0) : 0.0f;
-            s.depth[i] = surface ? 2.0f : 0.0f;
-        }
-    pt_denoise_input in = scene_input(&s);
-    in.despeckle = PT_DENOISE_DESPECKLE;
-    pt_error err = {0};
-    CHECKF(pt_denoise(&in, 2, s.out, &err) == PT_OK, "%s", err.msg);
+    curtain_edge(&s, sigma, 0.2);
     double raw = 0.0, den = 0.0;
     for (uint32_t y = 0; y < s.h; y++) {
         size_t i = (size_t)y * s.w + 32;
