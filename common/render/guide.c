@@ -127,11 +127,13 @@ int pt_guide_learned(const pt_guide *g, uint32_t cell)
     return g->qnode[cell_root(g, cell)].energy > 0.0f;
 }
 
-uint32_t pt_guide_leaf(const pt_guide *g, pt_vec3 p)
+/* The walk down to p's spatial leaf; inlined, what a caller drops of depth
+ * and extent costs nothing. */
+static inline uint32_t leaf_walk(const pt_guide *g, pt_vec3 p, uint32_t *depth, pt_vec3 *extent)
 {
     float lo[3] = {g->lo.x, g->lo.y, g->lo.z}, hi[3] = {g->hi.x, g->hi.y, g->hi.z};
     float q[3] = {p.x, p.y, p.z};
-    uint32_t n = 0;
+    uint32_t n = 0, d = 0;
     while (g->snode[n].child) {
         uint32_t a = g->snode[n].axis;
         float mid = 0.5f * (lo[a] + hi[a]);
@@ -142,8 +144,23 @@ uint32_t pt_guide_leaf(const pt_guide *g, pt_vec3 p)
             lo[a] = mid;
             n = g->snode[n].child + 1;
         }
+        d++;
     }
+    *depth = d;
+    *extent = pt_v3(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]);
     return n;
+}
+
+uint32_t pt_guide_leaf(const pt_guide *g, pt_vec3 p)
+{
+    uint32_t d;
+    pt_vec3 e;
+    return leaf_walk(g, p, &d, &e);
+}
+
+uint32_t pt_guide_leaf_box(const pt_guide *g, pt_vec3 p, uint32_t *depth, pt_vec3 *extent)
+{
+    return leaf_walk(g, p, depth, extent);
 }
 
 /*

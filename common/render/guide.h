@@ -97,6 +97,9 @@ void pt_guide_free(pt_guide *g); /* accepts NULL */
 
 /* The spatial leaf holding p (clamped into the bounds). */
 uint32_t pt_guide_leaf(const pt_guide *g, pt_vec3 p);
+/* The same leaf, with its depth in the tree and its extent (for tools that
+ * read what a guide learned). */
+uint32_t pt_guide_leaf_box(const pt_guide *g, pt_vec3 p, uint32_t *depth, pt_vec3 *extent);
 /* The cell of a surface point p with normal n: its leaf and n's face. */
 uint32_t pt_guide_cell(const pt_guide *g, pt_vec3 p, pt_vec3 n);
 

@@ -113,29 +113,6 @@ static uint32_t qdepth(const pt_guide *g, uint32_t cell, pt_vec3 dir)
     return d;
 }
 
-/* The spatial leaf of p: its depth and its extent. */
-static uint32_t sleaf(const pt_guide *g, pt_vec3 p, uint32_t *depth, pt_vec3 *ext)
-{
-    float lo[3] = {g->lo.x, g->lo.y, g->lo.z}, hi[3] = {g->hi.x, g->hi.y, g->hi.z};
-    float q[3] = {p.x, p.y, p.z};
-    uint32_t n = 0, d = 0;
-    while (g->snode[n].child) {
-        uint32_t a = g->snode[n].axis;
-        float mid = 0.5f * (lo[a] + hi[a]);
-        if (q[a] < mid) {
-            hi[a] = mid;
-            n = g->snode[n].child;
-        } else {
-            lo[a] = mid;
-            n = g->snode[n].child + 1;
-        }
-        d++;
-    }
-    *depth = d;
-    *ext = pt_v3(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]);
-    return n;
-}
-
 /* The recorded energy at the tree rooted at n (square x0, y0, size s) whose
  * leaves' centres point into b from p: *in, and all of it: *all. */
 static void stat_energy(const pt_guide *g, const pt_guide_stats *st, uint32_t n, float x0, float y0,
@@ -167,7 +144,7 @@ static void probe_guide(const pt_guide *g, const pt_guide_stats *st, const probe
 {
     uint32_t depth;
     pt_vec3 ext;
-    uint32_t leaf = sleaf(g, pr->p, &depth, &ext);
+    uint32_t leaf = pt_guide_leaf_box(g, pr->p, &depth, &ext);
     uint32_t cell = pt_guide_cell(g, pr->p, pr->n);
     uint64_t seed = 12345;
     /* The cosine's and the guide's probability of the target. */
