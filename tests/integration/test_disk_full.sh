@@ -60,7 +60,10 @@ if ! mount -t tmpfs -o size=32m tmpfs "$tmp/state" || ! mount -t tmpfs -o size=4
   exit 77
 fi
 
-view=(--res 64x48 --spp 2048 --seed 5)
+# 192 tasks of 32 passes: the worker is held after the first result merges,
+# so that the job is still running when the folders fill.
+spp=512
+view=(--res 64x48 --spp "$spp" --seed 5)
 serve() { # $1: log file
   rm -f "$tmp/port"
   "$bin/ptserve" --state-dir "$tmp/state" --output-dir "$tmp/out" --listen 127.0.0.1:0 \
@@ -140,7 +143,7 @@ grep -q "resumed: the state folder takes its writes again" "$tmp/serve2.log" ||
 # Space returns to the output folder: the image is written, the job done.
 rm "$tmp/out/filler"
 wait_for 'd["state"] == "done"' "the job done"
-[ "$(json "$tmp/status.json" 'd["samples_done"]')" = $((64 * 48 * 2048)) ] ||
+[ "$(json "$tmp/status.json" 'd["samples_done"]')" = $((64 * 48 * spp)) ] ||
   fail "samples: $(cat "$tmp/status.json")"
 "$bin/ptworker" --scene "$src/scenes/cornell_box.gltf" "${view[@]}" --tile 16 --chunk 32 \
   --threads 2 -q -o "$tmp/ref.exr"

@@ -116,8 +116,10 @@ grep -q "job $id resumed" "$tmp/serve2.log" || fail "the resume is not logged"
 stop
 
 # 3. kill -9 with a checkpoint half done: written, not renamed into place. A
-# longer job, so that it is still running then.
-view=(--res 64x48 --spp 2048 --seed 7)
+# longer job, so that it is still running then: 1,536 results, of which the
+# checkpoint needs about 50. Step 4 renders the same view, against the same
+# reference.
+view=(--res 64x48 --spp 1024 --seed 7)
 ref ref
 serve serve3.log PTSERVE_TEST_CKPT_LOG_BYTES=400000 PTSERVE_TEST_CKPT_GATE="$tmp/ckpt_go"
 id=$(submit killed)
@@ -148,9 +150,8 @@ finish "$id" killed
 stop
 
 # 4. The disk behind: commits held, 1 MiB of the log's records in memory at
-# most. 1,536 results of 9 kB: 14 MB of log were nothing held back.
-view=(--res 64x48 --spp 1024 --seed 7)
-ref ref
+# most. 1,536 results of 9 kB: 14 MB of log were nothing held back. The view
+# and its reference are step 3's.
 metric() { # NAME: its value in /metrics
   python3 - "http://127.0.0.1:$(cat "$tmp/hport")/metrics" "$1" << 'PY'
 import sys, urllib.request

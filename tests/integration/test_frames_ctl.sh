@@ -159,8 +159,10 @@ bad "ends before it starts" ctl submit "$scene" --frames 5-1 --server 127.0.0.1:
 bad "give --frames" ctl submit "$scene" --animation 0 --server 127.0.0.1:1
 
 serve "$tmp/serve1.log"
-# Many passes a frame, so that the kill finds frames done and frames in flight.
-long=(--res 40x30 --spp 2048 --seed 3 "${bg[@]}")
+# Many passes a frame (384 tasks each), so that the kill finds frames done and
+# frames in flight: the workers are held (SIGSTOP) from the first frame done
+# until the kill, however slow the checks in between.
+long=(--res 40x30 --spp 512 --seed 3 "${bg[@]}")
 id=$(ctl submit "$scene" "${long[@]}" --frames 0-5 --fps 24 --name shot)
 [[ "$id" =~ ^[0-9]+$ ]] || fail "submit printed '$id'"
 end=$((SECONDS + 300))
@@ -168,6 +170,7 @@ until grep -q "job $id frame [0-9]* done" "$tmp/serve1.log"; do
   [ $SECONDS -lt $end ] || fail "no frame done"
   sleep 0.05
 done
+for p in $wrk_pids; do kill -STOP "$p"; done
 ctl status "$id" > "$tmp/status.txt"
 grep -q "^frames     0-5:1, [1-6] done" "$tmp/status.txt" || fail "status: $(cat "$tmp/status.txt")"
 ctl status "$id" --json > "$tmp/status.json"

@@ -34,7 +34,7 @@
 # - every other sample asset in ../shared, coded by meshopt (INDICES),
 #   renders bit-identical to itself at 32x24, 1 spp (skins and morph
 #   targets included; the sparse and the Draco files are left out, which
-#   ptgltf-pack refuses).
+#   ptgltf-pack refuses; the two assets above are not rendered again).
 # Needs ../shared (skipped without it, a failure when CI=true).
 set -euo pipefail
 bin=${PT_BIN:?}
@@ -128,10 +128,12 @@ for asset in helmet car; do
   fi
 done
 
-# Every sample asset, coded by meshopt.
+# Every sample asset, coded by meshopt. The two above are: their meshopt
+# (INDICES) variants were just found bit-identical at a larger size.
 mkdir "$tmp/all"
-n=0
+n=2
 while IFS= read -r f; do
+  if [ "$f" = "$helmet" ] || [ "$f" = "$car" ]; then continue; fi
   rm -f "$tmp"/all/*
   for img in "$(dirname "$f")"/*.png "$(dirname "$f")"/*.jpg "$(dirname "$f")"/*.jpeg; do
     if [ -f "$img" ]; then cp "$img" "$tmp/all/"; fi

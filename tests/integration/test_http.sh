@@ -42,6 +42,16 @@ as() { # as WHO curl-args...: a request with WHO's bearer token
   curl -sS -H "Authorization: Bearer $(cat "$tmp/$who.token")" "$@"
 }
 code() { curl -sS -o /dev/null -w '%{http_code}' "$@"; }
+# held_by PID LOG: waits (up to 60 s) until the client PID, which holds its
+# connections until killed, has said on its first line of LOG how many.
+held_by() {
+  for _ in $(seq 600); do
+    [ -s "$2" ] && return 0
+    kill -0 "$1" 2> /dev/null || fail "the client holding connections exited: $(cat "$2")"
+    sleep 0.1
+  done
+  fail "the client holding connections never said how many: $(cat "$2")"
+}
 
 # Alice submits a long job and a short one; bob one of his own.
 long=$(PTFARM_TOKEN_FILE=$tmp/alice.token "$bin/ptctl" submit "$src/scenes/cornell_box.gltf" \
@@ -218,19 +228,20 @@ for _ in range(48):
     except OSError:
         pass
 print(len(held), flush=True)
-time.sleep(4)
+time.sleep(120)  # held until killed
 PY
 slow_pid=$!
-sleep 1
+held_by "$slow_pid" "$tmp/slow.log"
 for _ in 1 2 3; do
   [ "$(code -H "Authorization: Bearer $(cat "$tmp/admin.token")" --max-time 10 "$web/api/jobs")" = 200 ] ||
     fail "a request while slow clients hold connections"
 done
+kill "$slow_pid"
 wait "$slow_pid" || true
 # One network holds at most 16 connections: slow clients from four
 # addresses of 127.0.9.0/24 keep 16 of their 32 open, and the rest of the
 # farm is served.
-python3 - "$(cat "$tmp/hport")" > "$tmp/net.log" 2>&1 <<'PY'
+python3 - "$(cat "$tmp/hport")" > "$tmp/net.log" 2>&1 <<'PY' &
 import select, socket, sys, time
 held = []
 for a in range(2, 6):
@@ -256,11 +267,15 @@ for s in held:
         except OSError:
             pass
 print(open_, flush=True)
-time.sleep(2)
+time.sleep(120)  # held until killed
 PY
+net_pid=$!
+held_by "$net_pid" "$tmp/net.log"
 [ "$(head -n 1 "$tmp/net.log")" = 16 ] || fail "one network held $(cat "$tmp/net.log") connections"
 [ "$(code -H "Authorization: Bearer $(cat "$tmp/admin.token")" --max-time 10 "$web/api/jobs")" = 200 ] ||
   fail "a request while one network holds its share"
+kill "$net_pid"
+wait "$net_pid" || true
 # A client that sends its headers a byte a second is closed once it has
 # not finished them in 10 s (it would otherwise hold its connection for as
 # long as it keeps sending).

@@ -363,9 +363,11 @@ static void queue(void)
 {
     /* The environment job (a uniform one when the shared maps are absent) and
      * a --background job queued behind it; references rendered standalone. */
-    /* Long enough that the environment job still runs at the kill below,
-     * after the submissions in between. */
-    const char *spp = "4096";
+    /* The worker is held (SIGSTOP) from the job's first samples until after
+     * the kill below, so the job still runs then however long the
+     * submissions in between take: 768 tasks of 8 passes, of which a few
+     * are done when it is held. */
+    const char *spp = "1024";
     const char *env_solo[] = {PT_BIN_DIR "/ptworker",
                               "--scene",
                               SCENE,
@@ -433,8 +435,9 @@ static void queue(void)
     while (pt_now_s() < end && json_u64(status_json(a), "samples_done") == 0)
         sleep_ms(50);
     CHECK(json_u64(status_json(a), "samples_done") > 0);
+    kill(w1, SIGSTOP);
 
-    /* Bad maps and a dark scene, refused at upload while the job renders. */
+    /* Bad maps and a dark scene, refused at upload while the job runs. */
     for (size_t i = 0; i < sizeof BAD / sizeof BAD[0]; i++) {
         const char *args[] = {"submit", SCENE,   "--res",         "16x16", "--spp",
                               "8",      "--env", path(BAD[i][0]), NULL};
@@ -476,8 +479,9 @@ static void queue(void)
     uint64_t b = submit("submit_bg.log", bg_args);
     CHECK(b > 0);
 
-    /* The environment job kept rendering through all that; now a kill -9
-     * mid-job, and a restart on the same state folder and port. */
+    /* The environment job still runs, its tasks leased to the held worker;
+     * now a kill -9 mid-job, and a restart on the same state folder and
+     * port. */
     const char *js = status_json(a);
     CHECKF(json_state_is(js, "running"), "before the kill: %s", js);
     uint64_t before = json_u64(js, "samples_done");
@@ -486,6 +490,7 @@ static void queue(void)
     start_server();
     js = status_json(a);
     CHECKF(json_u64(js, "samples_done") >= before, "after the restart: %s", js);
+    kill(w1, SIGCONT); /* it finds its coordinator gone and joins the new one */
 
     end = pt_now_s() + 600;
     while (pt_now_s() < end && !json_state_is(status_json(d), "done"))
@@ -502,7 +507,7 @@ static void queue(void)
     CHECK(ctl("fetch.out", "fetch.log", fb) == 0);
     CHECKF(same_pixels("qenv_ref.exr", "qenv.exr"),
            "the environment job differs from standalone after a restart");
-    CHECK(all_samples("qenv.exr", 4096.0f));
+    CHECK(all_samples("qenv.exr", (float)atoi(spp)));
     CHECKF(same_pixels("qbg_ref.exr", "qbg.exr"), "the --background job differs from standalone");
     CHECK(log_has("serve.log", "resumed"));
 
