@@ -15,7 +15,7 @@ SRC=${PT_SOURCE_DIR:?}
 tmp=$(mktemp -d)
 trap 'rm -rf "$tmp"' EXIT
 scene=$SRC/scenes/glass_things.gltf
-common=(--res 32x24 --background 1,1,1 --guiding off --threads 1 -q)
+common=(--res 32x24 --background "1,1,1" --guiding off --threads 1 -q)
 
 "$BIN/ptworker" --scene "$scene" "${common[@]}" --spp 256 --seed 7 -o "$tmp/ref.exr" >/dev/null 2>&1
 "$BIN/ptworker" --scene "$scene" "${common[@]}" --spp 8 --seed 1 -o "$tmp/img.exr" >/dev/null 2>&1
