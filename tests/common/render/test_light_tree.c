@@ -216,6 +216,18 @@ static void test_chi2(void)
 
 #define RING 48
 
+/* Finishes b into *s at scale 1 when ok, else frees it: whether all went well. */
+static int finish_scene(pt_scene_builder *b, int ok, pt_scene **s, pt_error *err)
+{
+    pt_scene_opts o = {0};
+    o.scale = 1.0f;
+    if (!ok) {
+        pt_scene_builder_free(b);
+        return 0;
+    }
+    return pt_scene_builder_finish(b, &o, s, err) == PT_OK;
+}
+
 /* A floor of [-4, 4]^2 at z = 0 under RING small triangles of varied colour,
  * strength and height facing down (odd ones two-sided), seen from above;
  * with punct, also 12 point lights (every third with a range), 6 spot lights
@@ -288,12 +300,7 @@ static pt_scene *ring_scene(int punct, int below)
     cam.right = pt_v3_norm(pt_v3_cross(cam.forward, pt_v3(0, 0, 1)));
     cam.up = pt_v3_cross(cam.right, cam.forward);
     ok = ok && pt_scene_builder_add_camera(b, &cam, &err) == PT_OK;
-    pt_scene_opts o = {0};
-    o.scale = 1.0f;
-    if (ok)
-        ok = pt_scene_builder_finish(b, &o, &s, &err) == PT_OK;
-    else
-        pt_scene_builder_free(b);
+    ok = finish_scene(b, ok, &s, &err);
     CHECKF(ok, "ring scene: %s", err.msg);
     return s;
 }
@@ -498,12 +505,7 @@ static pt_scene *strip_scene(uint32_t n, float floor)
              pt_scene_builder_add_mesh(b, "floor", fl, NULL, NULL, 4, fi, 2, NULL, mat, &err) ==
                  PT_OK;
     }
-    pt_scene_opts o = {0};
-    o.scale = 1.0f;
-    if (ok)
-        ok = pt_scene_builder_finish(b, &o, &s, &err) == PT_OK;
-    else
-        pt_scene_builder_free(b);
+    ok = finish_scene(b, ok, &s, &err);
     CHECKF(ok, "strip of %u lights: %s", n, err.msg);
     pt_free(v);
     return s;
@@ -724,12 +726,7 @@ static pt_scene *sides_scene(void)
              pt_scene_builder_add_mesh(b, "light", under ? up : dn, NULL, NULL, 3, NULL, 1, NULL,
                                        mat, &err) == PT_OK;
     }
-    pt_scene_opts o = {0};
-    o.scale = 1.0f;
-    if (ok)
-        ok = pt_scene_builder_finish(b, &o, &s, &err) == PT_OK;
-    else
-        pt_scene_builder_free(b);
+    ok = finish_scene(b, ok, &s, &err);
     CHECKF(ok, "sides scene: %s", err.msg);
     return s;
 }
