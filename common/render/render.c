@@ -1112,18 +1112,14 @@ static inline __attribute__((always_inline)) void shade_emission(const pt_render
     pt_vec3 le = pt_emitted(s, hit->tri, hit->b1, hit->b2, wo);
     if ((features & FEAT_PASSES) && pa->pr && pa->depth == 0)
         pa->pr->v.emission = le;
+    float lp = 0.0f, mis = 1.0f; /* the light's pdf and the MIS weight (the path log's too) */
     if (pa->prev_pdf > 0.0f && strategy == PT_LIGHT_MIS) {
-        float lp = pt_lights_pdf(r->lights, s, hit->tri, pa->prev_p, pa->prev_n, sf->p, sf->ng);
-        le = pt_v3_scale(le, power_heuristic(pa->prev_pdf, lp));
+        lp = pt_lights_pdf(r->lights, s, hit->tri, pa->prev_p, pa->prev_n, sf->p, sf->ng);
+        mis = power_heuristic(pa->prev_pdf, lp);
+        le = pt_v3_scale(le, mis);
     }
-    PT_TRACE_EVENT(
-        PT_TRACE_EMIT, pa->depth, (int32_t)(sf->mat - s->materials), -1, 0, pa->prev_pdf,
-        pt_lights_pdf(r->lights, s, hit->tri, pa->prev_p, pa->prev_n, sf->p, sf->ng),
-        pa->prev_pdf > 0.0f
-            ? power_heuristic(pa->prev_pdf, pt_lights_pdf(r->lights, s, hit->tri, pa->prev_p,
-                                                          pa->prev_n, sf->p, sf->ng))
-            : 1.0f,
-        pt_v3_mul(pa->beta, le));
+    PT_TRACE_EVENT(PT_TRACE_EMIT, pa->depth, (int32_t)(sf->mat - s->materials), -1, 0, pa->prev_pdf,
+                   lp, mis, pt_v3_mul(pa->beta, le));
     /* Found at depth d, the light arrives at vertex d - 1: direct up to 1. */
     if (pa->prev_pdf == 0.0f || strategy != PT_LIGHT_NEE_ONLY)
         pa->L = pt_v3_add(pa->L,
@@ -1149,13 +1145,14 @@ static inline __attribute__((always_inline)) void shade_miss(const pt_renderer *
         return;
     const uint32_t strategy = r->params.light_strategy;
     pt_vec3 le = pt_env_eval(r->params.env, pa->d);
-    if (pa->prev_pdf > 0.0f && strategy == PT_LIGHT_MIS)
-        le = pt_v3_scale(le, power_heuristic(pa->prev_pdf, pt_lights_env_pdf(r->lights, pa->d)));
-    PT_TRACE_EVENT(
-        PT_TRACE_ENV, pa->depth, -1, -1, 0, pa->prev_pdf, pt_lights_env_pdf(r->lights, pa->d),
-        pa->prev_pdf > 0.0f ? power_heuristic(pa->prev_pdf, pt_lights_env_pdf(r->lights, pa->d))
-                            : 1.0f,
-        pt_v3_mul(pa->beta, le));
+    float lp = 0.0f, mis = 1.0f; /* the map's pdf and the MIS weight (the path log's too) */
+    if (pa->prev_pdf > 0.0f && strategy == PT_LIGHT_MIS) {
+        lp = pt_lights_env_pdf(r->lights, pa->d);
+        mis = power_heuristic(pa->prev_pdf, lp);
+        le = pt_v3_scale(le, mis);
+    }
+    PT_TRACE_EVENT(PT_TRACE_ENV, pa->depth, -1, -1, 0, pa->prev_pdf, lp, mis,
+                   pt_v3_mul(pa->beta, le));
     if (pa->prev_pdf == 0.0f || strategy != PT_LIGHT_NEE_ONLY)
         pa->L = pt_v3_add(pa->L,
                           clamp_sample(r, pa, pt_v3_mul(pa->beta, le), pa->depth <= 1, features));
