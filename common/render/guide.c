@@ -122,32 +122,45 @@ static uint32_t cell_root(const pt_guide *g, uint32_t cell)
     return g->snode[cell / PT_GUIDE_FACES].tree + cell % PT_GUIDE_FACES;
 }
 
+void pt_guide_prefetch(const pt_guide *g, uint32_t cell)
+{
+    __builtin_prefetch(&g->qnode[cell_root(g, cell)]);
+}
+
 int pt_guide_learned(const pt_guide *g, uint32_t cell)
 {
     return g->qnode[cell_root(g, cell)].energy > 0.0f;
 }
 
 /* The walk down to p's spatial leaf; inlined, what a caller drops of depth
- * and extent costs nothing. */
+ * and extent costs nothing. Branch-free: which side of a split a point lies
+ * on is a coin toss to the branch predictor, and the bounds stay in
+ * registers (selected by axis, not indexed), so each level is a few
+ * dependent selects rather than a mispredicted branch and a store reloaded. */
 static inline uint32_t leaf_walk(const pt_guide *g, pt_vec3 p, uint32_t *depth, pt_vec3 *extent)
 {
-    float lo[3] = {g->lo.x, g->lo.y, g->lo.z}, hi[3] = {g->hi.x, g->hi.y, g->hi.z};
-    float q[3] = {p.x, p.y, p.z};
+    float lx = g->lo.x, ly = g->lo.y, lz = g->lo.z, hx = g->hi.x, hy = g->hi.y, hz = g->hi.z;
     uint32_t n = 0, d = 0;
-    while (g->snode[n].child) {
-        uint32_t a = g->snode[n].axis;
-        float mid = 0.5f * (lo[a] + hi[a]);
-        if (q[a] < mid) {
-            hi[a] = mid;
-            n = g->snode[n].child;
-        } else {
-            lo[a] = mid;
-            n = g->snode[n].child + 1;
-        }
+    const pt_guide_snode *sn = g->snode;
+    while (sn[n].child) {
+        uint32_t a = sn[n].axis;
+        float lo = a == 0 ? lx : (a == 1 ? ly : lz);
+        float hi = a == 0 ? hx : (a == 1 ? hy : hz);
+        float q = a == 0 ? p.x : (a == 1 ? p.y : p.z);
+        float mid = 0.5f * (lo + hi);
+        uint32_t right = !(q < mid);
+        float nlo = right ? mid : lo, nhi = right ? hi : mid;
+        lx = a == 0 ? nlo : lx;
+        ly = a == 1 ? nlo : ly;
+        lz = a == 2 ? nlo : lz;
+        hx = a == 0 ? nhi : hx;
+        hy = a == 1 ? nhi : hy;
+        hz = a == 2 ? nhi : hz;
+        n = sn[n].child + right;
         d++;
     }
     *depth = d;
-    *extent = pt_v3(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]);
+    *extent = pt_v3(hx - lx, hy - ly, hz - lz);
     return n;
 }
 
@@ -209,6 +222,11 @@ pt_vec3 pt_guide_sample(const pt_guide *g, uint32_t cell, const float u[2], floa
         uint32_t c = g->qnode[n].child;
         float e[4], px, py0, py1;
         child_energies(g, c, e);
+        /* The next level's nodes, whichever child is taken: their fetch
+         * (a large guide's nodes are far apart) overlaps this level's
+         * divisions instead of following them. */
+        for (uint32_t i = 0; i < 4; i++)
+            __builtin_prefetch(&g->qnode[g->qnode[c + i].child]);
         quadrant_probs(e, &px, &py0, &py1);
         uint32_t qx, qy;
         if (ux < px) {
@@ -258,12 +276,18 @@ static uint32_t find_qleaf(const pt_guide *g, uint32_t n, float u, float v, floa
     return n;
 }
 
-float pt_guide_pdf(const pt_guide *g, uint32_t cell, pt_vec3 dir)
+float pt_guide_pdf_leaf(const pt_guide *g, uint32_t cell, pt_vec3 dir, uint32_t *qleaf)
 {
     float u, v, prob, size;
     pt_guide_dir_to_square(dir, &u, &v);
-    find_qleaf(g, cell_root(g, cell), u, v, &prob, &size);
+    *qleaf = find_qleaf(g, cell_root(g, cell), u, v, &prob, &size);
     return prob / (size * size) * (0.25f / PI_F);
+}
+
+float pt_guide_pdf(const pt_guide *g, uint32_t cell, pt_vec3 dir)
+{
+    uint32_t leaf;
+    return pt_guide_pdf_leaf(g, cell, dir, &leaf);
 }
 
 /* ---- statistics ---------------------------------------------------------- */
@@ -300,6 +324,13 @@ static uint64_t sat_add(uint64_t a, uint64_t b)
     return __builtin_add_overflow(a, b, &r) ? UINT64_MAX : r;
 }
 
+/* The fixed-point value of a record (value >= 0, finite). */
+static uint64_t record_fixed(float value)
+{
+    double v = value < PT_GUIDE_MAX_RECORD ? (double)value : PT_GUIDE_MAX_RECORD;
+    return (uint64_t)(v * (double)(1u << PT_GUIDE_FIXED_BITS) + 0.5);
+}
+
 void pt_guide_stats_record(pt_guide_stats *s, const pt_guide *g, uint32_t cell, pt_vec3 dir,
                            float value)
 {
@@ -309,12 +340,20 @@ void pt_guide_stats_record(pt_guide_stats *s, const pt_guide *g, uint32_t cell, 
     s->count[leaf] = sat_add(s->count[leaf], 1);
     if (!(value > 0.0f))
         return;
-    double v = value < PT_GUIDE_MAX_RECORD ? (double)value : PT_GUIDE_MAX_RECORD;
-    uint64_t q = (uint64_t)(v * (double)(1u << PT_GUIDE_FIXED_BITS) + 0.5);
     float u, w, prob, size;
     pt_guide_dir_to_square(dir, &u, &w);
     uint32_t n = find_qleaf(g, cell_root(g, cell), u, w, &prob, &size);
-    s->sum[n] = sat_add(s->sum[n], q);
+    s->sum[n] = sat_add(s->sum[n], record_fixed(value));
+}
+
+void pt_guide_stats_add(pt_guide_stats *s, uint32_t cell, uint32_t qleaf, float value)
+{
+    if (!(value >= 0.0f) || !isfinite(value))
+        return;
+    uint32_t leaf = cell / PT_GUIDE_FACES;
+    s->count[leaf] = sat_add(s->count[leaf], 1);
+    if (value > 0.0f)
+        s->sum[qleaf] = sat_add(s->sum[qleaf], record_fixed(value));
 }
 
 pt_status pt_guide_stats_merge(pt_guide_stats *into, const pt_guide_stats *from, pt_error *err)

@@ -107,12 +107,20 @@ uint32_t pt_guide_cell(const pt_guide *g, pt_vec3 p, pt_vec3 n);
  * 0: it is the uniform tree it started as (root energy 0), and sampling it
  * would waste directions. Sampling reads only children's energies. */
 int pt_guide_learned(const pt_guide *g, uint32_t cell);
+/* Starts fetching cell's quadtree root, which pt_guide_learned and the
+ * lookups read first: a caller with other work to do before them hides
+ * the fetch behind it. */
+void pt_guide_prefetch(const pt_guide *g, uint32_t cell);
 
 /* A direction from cell's quadtree for u (2 numbers in [0,1)), and its
  * solid-angle pdf (> 0). */
 pt_vec3 pt_guide_sample(const pt_guide *g, uint32_t cell, const float u[2], float *pdf);
 /* The solid-angle pdf pt_guide_sample gives dir (unit) at cell. */
 float pt_guide_pdf(const pt_guide *g, uint32_t cell, pt_vec3 dir);
+/* The same, and the quadtree leaf dir falls in (*qleaf), which
+ * pt_guide_stats_add takes: a record along dir then costs no second
+ * lookup. */
+float pt_guide_pdf_leaf(const pt_guide *g, uint32_t cell, pt_vec3 dir, uint32_t *qleaf);
 
 /* Direction <-> the unit square (the equal-area map above). */
 void pt_guide_dir_to_square(pt_vec3 dir, float *u, float *v);
@@ -127,6 +135,10 @@ void pt_guide_stats_free(pt_guide_stats *s); /* accepts NULL */
  * finite is dropped. */
 void pt_guide_stats_record(pt_guide_stats *s, const pt_guide *g, uint32_t cell, pt_vec3 dir,
                            float value);
+/* pt_guide_stats_record for a direction whose quadtree leaf qleaf the
+ * guide the statistics were made for gave (pt_guide_pdf_leaf at cell): the
+ * same sums. */
+void pt_guide_stats_add(pt_guide_stats *s, uint32_t cell, uint32_t qleaf, float value);
 /* into += from (saturating); PT_ERR_ARG when they were made for different
  * guides' shapes. */
 pt_status pt_guide_stats_merge(pt_guide_stats *into, const pt_guide_stats *from, pt_error *err);

@@ -933,13 +933,16 @@ typedef struct pass_rec {
 } pass_rec;
 
 /* The vertices of a path where it sampled its next direction from the
- * guide's mixture, for the statistics: each one's leaf, direction, mixture
- * pdf, throughput after it (luminance) and the path's radiance (luminance)
- * before anything it found along that direction was added. */
+ * guide's mixture, for the statistics: each one's cell, direction, the
+ * quadtree leaf the direction falls in when the guide's pdf lookup found it
+ * (else GUIDE_NO_QLEAF: the record looks it up), mixture pdf, throughput
+ * after it (luminance) and the path's radiance (luminance) before anything
+ * it found along that direction was added. */
 #define GUIDE_VERTS 8u
+#define GUIDE_NO_QLEAF 0xffffffffu
 typedef struct guide_vert {
     pt_vec3 dir;
-    uint32_t leaf;
+    uint32_t leaf, qleaf;
     float pdf, beta, snap;
 } guide_vert;
 typedef struct guide_path {
@@ -975,8 +978,11 @@ static void guide_record(const path *pa)
     for (uint32_t i = 0; i < gp->n; i++) {
         const guide_vert *v = &gp->v[i];
         float li = v->beta > 0.0f ? (l - v->snap) / v->beta : 0.0f;
-        pt_guide_stats_record(gp->gd->stats, gp->gd->guide, v->leaf, v->dir,
-                              li > 0.0f ? li / v->pdf : 0.0f);
+        float value = li > 0.0f ? li / v->pdf : 0.0f;
+        if (v->qleaf != GUIDE_NO_QLEAF)
+            pt_guide_stats_add(gp->gd->stats, v->leaf, v->qleaf, value);
+        else
+            pt_guide_stats_record(gp->gd->stats, gp->gd->guide, v->leaf, v->dir, value);
     }
 }
 
@@ -1669,9 +1675,9 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
         guide = pa->gp->gd->guide;
         gprob = pa->gp->gd->prob * closure_guide_share(&cl);
         gleaf = pt_guide_cell(guide, sf->p, ns);
-        /* A cell no record reached is uniform: recorded into, not sampled. */
-        if (!pt_guide_learned(guide, gleaf))
-            gprob = 0.0f;
+        /* Whether it was learned is read after light sampling, which
+         * hides the fetch of its tree. */
+        pt_guide_prefetch(guide, gleaf);
     }
 
     if ((features & NEE_LIGHTS) && r->nee) {
@@ -1759,8 +1765,12 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     float pdf;
     int delta = 0;
     pt_vec3 weight;
-    float rr_scale = 1.0f; /* FEAT_GUIDE: the mixture's pdf over the BSDF's */
-    float bp_mis = 0.0f;   /* FEAT_GUIDE: the BSDF's pdf, which MIS weighs */
+    float rr_scale = 1.0f;           /* FEAT_GUIDE: the mixture's pdf over the BSDF's */
+    float bp_mis = 0.0f;             /* FEAT_GUIDE: the BSDF's pdf, which MIS weighs */
+    uint32_t qleaf = GUIDE_NO_QLEAF; /* FEAT_GUIDE: the guide's leaf of wi, when looked up */
+    /* A cell no record reached is uniform: recorded into, not sampled. */
+    if ((features & FEAT_GUIDE) && guide && !pt_guide_learned(guide, gleaf))
+        gprob = 0.0f;
     if ((features & FEAT_GUIDE) && guide && gprob > 0.0f) {
         /* u3[0] picks the guide or the closure, rescaled for the closure's
          * own lobe pick; the weight is f / the mixture's pdf. */
@@ -1775,7 +1785,9 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
             pt_vec3 w = pt_closure_sample(&cl, uc, &wi_l, &bp, &delta);
             if (bp > 0.0f) {
                 f = pt_v3_scale(w, bp);
-                gpdf = pt_guide_pdf(guide, gleaf, pt_frame_to_world(&fr, wi_l));
+                /* The leaf of the direction recorded (wi below, the same
+                 * bits), kept for the record. */
+                gpdf = pt_guide_pdf_leaf(guide, gleaf, pt_frame_to_world(&fr, wi_l), &qleaf);
             }
         }
         pdf = gprob * gpdf + (1.0f - gprob) * bp;
@@ -1848,6 +1860,7 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
         guide_vert *gv = &pa->gp->v[pa->gp->n++];
         gv->dir = wi;
         gv->leaf = gleaf;
+        gv->qleaf = qleaf;
         gv->pdf = pdf;
         gv->beta = pt_luminance(beta);
         gv->snap = 0.0f;

@@ -19,7 +19,12 @@
  *   different ways, merged in different orders, give identical sums and
  *   guides identical to the byte.
  * - Space: a leaf with more records than the split count becomes two, and
- *   points on the two sides of the middle find different leaves.
+ *   points on the two sides of the middle find different leaves; random
+ *   points, and points on the split planes, find the leaf a plain walk
+ *   (bounds halved at each node's midpoint) finds.
+ * - Known leaves: records made with the quadtree leaf pt_guide_pdf_leaf
+ *   found (pt_guide_stats_add) sum to the same statistics as
+ *   pt_guide_stats_record's, and its pdf is pt_guide_pdf's.
  * - Passes: pt_guide_pass_end cuts [0, spp) into passes that follow on from
  *   each other, of 16, 32, 64... spp, the last one running to spp when what
  *   is left after a pass is shorter than the pass after it would be.
@@ -223,12 +228,14 @@ static void exact_merge(void)
         return;
     pt_error err = {0};
     /* The same 30,000 records as [10k, 10k, 10k] and as [1k, 25k, 4k]. */
-    pt_guide_stats *a[3] = {NULL, NULL, NULL}, *b[3] = {NULL, NULL, NULL};
+    pt_guide_stats *a[3] = {NULL, NULL, NULL}, *b[3] = {NULL, NULL, NULL}, *c = NULL;
+    CHECK(pt_guide_stats_new(g, &c, &err) == PT_OK);
+    int pdf_differs = 0;
     for (int i = 0; i < 3; i++) {
         CHECK(pt_guide_stats_new(g, &a[i], &err) == PT_OK);
         CHECK(pt_guide_stats_new(g, &b[i], &err) == PT_OK);
     }
-    if (!a[2] || !b[2])
+    if (!a[2] || !b[2] || !c)
         return;
     uint64_t keep = rng;
     rng = 77;
@@ -243,6 +250,19 @@ static void exact_merge(void)
         while (left_b == 0)
             left_b = split_b[++which_b];
         pt_guide_stats_record(b[which_b], g, leaf, d, v);
+        uint32_t qleaf;
+        float pdf = pt_guide_pdf_leaf(g, leaf, d, &qleaf);
+        pdf_differs += pdf != pt_guide_pdf(g, leaf, d);
+        pt_guide_stats_add(c, leaf, qleaf, v);
+        /* Records of 0 are counted, hostile ones dropped, alike. */
+        if (i % 97 == 0) {
+            pt_guide_stats_record(b[which_b], g, leaf, d, 0.0f);
+            pt_guide_stats_record(b[which_b], g, leaf, d, NAN);
+            pt_guide_stats_record(a[i / 10000], g, leaf, d, 0.0f);
+            pt_guide_stats_add(c, leaf, qleaf, 0.0f);
+            pt_guide_stats_add(c, leaf, qleaf, -1.0f);
+            pt_guide_stats_add(c, leaf, qleaf, INFINITY);
+        }
         left_b--;
         k++;
     }
@@ -253,6 +273,9 @@ static void exact_merge(void)
     CHECK(pt_guide_stats_merge(b[2], b[1], &err) == PT_OK);
     CHECK(memcmp(a[0]->sum, b[2]->sum, g->nqnode * sizeof *a[0]->sum) == 0);
     CHECK(memcmp(a[0]->count, b[2]->count, g->nsnode * sizeof *a[0]->count) == 0);
+    CHECK(memcmp(c->sum, b[2]->sum, g->nqnode * sizeof *c->sum) == 0);
+    CHECK(memcmp(c->count, b[2]->count, g->nsnode * sizeof *c->count) == 0);
+    CHECKF(pdf_differs == 0, "%d pdfs of pt_guide_pdf_leaf differ", pdf_differs);
     pt_guide *ga = NULL, *gb = NULL;
     CHECK(pt_guide_build(g, a[0], 5000, &ga, &err) == PT_OK);
     CHECK(pt_guide_build(g, b[2], 5000, &gb, &err) == PT_OK);
@@ -281,8 +304,88 @@ static void exact_merge(void)
         pt_guide_stats_free(a[i]);
         pt_guide_stats_free(b[i]);
     }
+    pt_guide_stats_free(c);
     pt_guide_free(g);
     (void)k;
+}
+
+/* The spatial leaf of p by a plain walk: bounds halved at each node's
+ * midpoint, p < mid going to the first child. */
+static uint32_t plain_leaf(const pt_guide *g, pt_vec3 p)
+{
+    float lo[3] = {g->lo.x, g->lo.y, g->lo.z}, hi[3] = {g->hi.x, g->hi.y, g->hi.z};
+    float q[3] = {p.x, p.y, p.z};
+    uint32_t n = 0;
+    while (g->snode[n].child) {
+        uint32_t a = g->snode[n].axis;
+        float mid = 0.5f * (lo[a] + hi[a]);
+        if (q[a] < mid) {
+            hi[a] = mid;
+            n = g->snode[n].child;
+        } else {
+            lo[a] = mid;
+            n = g->snode[n].child + 1;
+        }
+    }
+    return n;
+}
+
+/* A guide split a few levels deep; random points, points on its split
+ * planes and points outside its bounds find plain_leaf's leaf. */
+static void space(void)
+{
+    pt_guide *g = learn(1);
+    if (!g)
+        return;
+    pt_error err = {0};
+    pt_guide_stats *s = NULL;
+    CHECK(pt_guide_stats_new(g, &s, &err) == PT_OK);
+    if (!s) {
+        pt_guide_free(g);
+        return;
+    }
+    uint64_t keep = rng;
+    rng = 991;
+    /* Two builds, the records crowded towards one corner: the second
+     * splits the leaves there deeper than the others. */
+    pt_guide *ng = NULL;
+    for (int pass = 0; pass < 2 && s; pass++) {
+        for (int i = 0; i < 200000; i++) {
+            double t = rnd();
+            pt_vec3 p = pt_v3((float)(t * t - 0.5), (float)(rnd() - 0.5), (float)(t * rnd() - 0.5));
+            pt_guide_stats_record(s, g, pt_guide_cell(g, p, UP), uniform_dir(), 1.0f);
+        }
+        CHECK(pt_guide_build(g, s, 500 << (pass * 3), &ng, &err) == PT_OK);
+        pt_guide_stats_free(s);
+        s = NULL;
+        pt_guide_free(g);
+        g = ng;
+        ng = NULL;
+        if (g && pass == 0)
+            CHECK(pt_guide_stats_new(g, &s, &err) == PT_OK);
+    }
+    ng = g;
+    g = NULL;
+    int wrong = 0, n = 0;
+    for (int i = 0; ng && i < 100000; i++) {
+        /* Points on dyadic planes of the bounds: on the splits themselves. */
+        float x = (float)(rnd() * 1.2 - 0.6), y = (float)(rnd() * 1.2 - 0.6),
+              z = (float)(rnd() * 1.2 - 0.6);
+        if (i % 2)
+            x = (float)(floor(x * 64.0) / 64.0);
+        if (i % 3 == 0)
+            z = (float)(floor(z * 64.0) / 64.0);
+        pt_vec3 p = pt_v3(x, y, z);
+        wrong += pt_guide_leaf(ng, p) != plain_leaf(ng, p);
+        n++;
+    }
+    CHECKF(ng && ng->nsnode > 15, "the guide split into %u nodes only", ng ? ng->nsnode : 0);
+    CHECKF(wrong == 0, "%d of %d points found another leaf than a plain walk's", wrong, n);
+    printf("space: %u spatial nodes, %d points\n", ng ? ng->nsnode : 0, n);
+    rng = keep;
+    pt_guide_stats_free(s);
+    pt_guide_free(ng);
+    pt_guide_free(g);
 }
 
 static void cells(void)
@@ -376,6 +479,7 @@ int main(void)
     equal_area();
     learning_and_sampling();
     exact_merge();
+    space();
     cells();
     hostile();
     CHECKF(pt_alloc_live() == live, "%lld allocations left", (long long)(pt_alloc_live() - live));
