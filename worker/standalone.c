@@ -19,8 +19,7 @@
 #include "common/render/denoise_frame.h"
 #include "common/render/env.h"
 #include "common/render/film.h"
-#include "common/render/guide.h"
-#include "common/render/guide_sched.h"
+#include "common/render/guide_run.h"
 #include "common/render/options.h"
 #include "common/render/passes.h"
 #include "common/render/render.h"
@@ -218,63 +217,31 @@ static int run_guided(job *j, const pt_scene *scene, uint32_t n, pthread_t *thre
                       thread_arg *args, uint64_t total, double t_render, uint32_t *passes)
 {
     pt_error err = {0};
-    pt_guide *g = NULL;
-    pt_guide_stats **st = pt_calloc(n, sizeof *st);
-    pt_render_guiding *gd = pt_calloc(n, sizeof *gd);
-    int rc = -1;
+    pt_guide_run run;
     double last_print = 0.0;
-    /* The schedule and the bounds are the farm's too (guide_sched.h). */
-    pt_vec3 lo = scene->bounds_min, hi = scene->bounds_max;
-    pt_guide_grow_bounds(&lo, &hi);
-    if (!st || !gd || pt_guide_new_uniform(lo, hi, &g, &err) != PT_OK) {
-        fprintf(stderr, "ptworker: guiding: %s\n", err.msg[0] ? err.msg : "out of memory");
-        goto done;
-    }
-    uint32_t k = 0;
-    for (uint32_t s0 = 0; s0 < j->o->spp; k++) {
-        uint32_t s1 = pt_guide_pass_end(k, j->o->spp);
-        for (uint32_t i = 0; i < n; i++) {
-            if (pt_guide_stats_new(g, &st[i], &err) != PT_OK) {
-                fprintf(stderr, "ptworker: guiding: %s\n", err.msg);
-                goto done;
-            }
-            /* The last pass builds no guide: it records nothing. */
-            gd[i] = (pt_render_guiding){g, pt_guide_pass_prob(k), s1 < j->o->spp ? st[i] : NULL};
-        }
-        j->gd = gd;
-        j->pass0 = s0;
-        j->pass1 = s1;
+    int rc = -1;
+    pt_status st =
+        pt_guide_run_new(&run, scene->bounds_min, scene->bounds_max, j->o->spp, n, 0, &err);
+    while (st == PT_OK && (st = pt_guide_run_begin(&run, &err)) == PT_OK && run.s0 < run.spp) {
+        j->gd = run.gd;
+        j->pass0 = run.s0;
+        j->pass1 = run.s1;
         if (run_threads(j, n, threads, args, total, t_render, &last_print) != n) {
             fprintf(stderr, "ptworker: cannot start render threads\n");
             goto done;
         }
-        if (s1 < j->o->spp) {
-            /* Integer sums: the same statistics in any order. */
-            for (uint32_t i = 1; i < n; i++)
-                pt_guide_stats_merge(st[0], st[i], &err);
-            pt_guide *ng = NULL;
-            uint64_t split = pt_guide_split_count(k);
-            if (pt_guide_build(g, st[0], split, &ng, &err) != PT_OK) {
-                fprintf(stderr, "ptworker: guiding: %s\n", err.msg);
-                goto done;
-            }
-            pt_guide_free(g);
-            g = ng;
-        }
-        for (uint32_t i = 0; i < n; i++) {
-            pt_guide_stats_free(st[i]);
-            st[i] = NULL;
-        }
-        s0 = s1;
+        st = pt_guide_run_merge(&run, &err);
+        if (st == PT_OK)
+            st = pt_guide_run_end(&run, &err);
     }
-    *passes = k;
+    if (st != PT_OK) {
+        fprintf(stderr, "ptworker: guiding: %s\n", err.msg);
+        goto done;
+    }
+    *passes = run.pass;
     rc = 0;
 done:
-    for (uint32_t i = 0; st && i < n; i++)
-        pt_guide_stats_free(st[i]);
-    pt_free(st);
-    pt_free(gd);
-    pt_guide_free(g);
+    pt_guide_run_free(&run);
     j->gd = NULL;
     return rc;
 }

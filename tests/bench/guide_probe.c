@@ -25,8 +25,7 @@
 #include <string.h>
 
 #include "common/base/alloc.h"
-#include "common/render/guide.h"
-#include "common/render/guide_sched.h"
+#include "common/render/guide_run.h"
 #include "common/render/render.h"
 #include "common/scene/scene.h"
 
@@ -239,63 +238,46 @@ int main(int argc, char **argv)
     printf("bounds (%.3f %.3f %.3f) - (%.3f %.3f %.3f), variant %s\n", (double)s->bounds_min.x,
            (double)s->bounds_min.y, (double)s->bounds_min.z, (double)s->bounds_max.x,
            (double)s->bounds_max.y, (double)s->bounds_max.z, pt_renderer_variant(r));
-    pt_vec3 lo = s->bounds_min, hi = s->bounds_max;
-    pt_guide_grow_bounds(&lo, &hi);
-    pt_guide *g = NULL;
-    if (pt_guide_new_uniform(lo, hi, &g, &err) != PT_OK)
-        return 1;
+    pt_guide_run run;
     pt_pixel_acc *acc = pt_calloc((size_t)w * h, sizeof *acc);
     job *jobs = pt_calloc(nt, sizeof *jobs);
     pthread_t *th = pt_calloc(nt, sizeof *th);
-    pt_guide_stats **st = pt_calloc(nt, sizeof *st);
-    if (!acc || !jobs || !th || !st)
+    /* Every pass records, the last too: the probes read its statistics. */
+    pt_status st = pt_guide_run_new(&run, s->bounds_min, s->bounds_max, spp, nt, 1, &err);
+    if (!acc || !jobs || !th || st != PT_OK)
         return 1;
-    for (uint32_t k = 0, s0 = 0; s0 < spp; k++) {
-        uint32_t s1 = pt_guide_pass_end(k, spp);
+    while ((st = pt_guide_run_begin(&run, &err)) == PT_OK && run.s0 < spp) {
+        const pt_guide *g = run.guide;
         for (uint32_t i = 0; i < nt; i++) {
-            if (pt_guide_stats_new(g, &st[i], &err) != PT_OK)
-                return 1;
-            jobs[i] = (job){r,
-                            {0, h * i / nt, w, h * (i + 1) / nt},
-                            s0,
-                            s1,
-                            acc + (size_t)w * (h * i / nt),
-                            (pt_render_guiding){g, pt_guide_pass_prob(k), st[i]}};
+            jobs[i] = (job){r,      {0, h * i / nt, w, h * (i + 1) / nt}, run.s0,
+                            run.s1, acc + (size_t)w * (h * i / nt),       run.gd[i]};
             pthread_create(&th[i], NULL, run_job, &jobs[i]);
         }
         for (uint32_t i = 0; i < nt; i++)
             pthread_join(th[i], NULL);
-        for (uint32_t i = 1; i < nt; i++)
-            pt_guide_stats_merge(st[0], st[i], &err);
+        if ((st = pt_guide_run_merge(&run, &err)) != PT_OK)
+            break;
+        const pt_guide_stats *sum = run.stats[0];
         uint64_t recs = 0;
-        for (uint32_t i = 0; i < st[0]->nsnode; i++)
-            recs += st[0]->count[i];
+        for (uint32_t i = 0; i < sum->nsnode; i++)
+            recs += sum->count[i];
         printf("pass %u [%u, %u): guide of %u spatial and %u directional nodes sampled with "
                "probability %.2f; %llu records\n",
-               k, s0, s1, g->nsnode, g->nqnode, (double)pt_guide_pass_prob(k),
+               run.pass, run.s0, run.s1, g->nsnode, g->nqnode, (double)run.gd[0].prob,
                (unsigned long long)recs);
         for (uint32_t i = 0; i < np; i++)
-            probe_guide(g, st[0], &pr[i], &b, k);
-        pt_guide *ng = NULL;
-        if (s1 < spp) {
-            if (pt_guide_build(g, st[0], pt_guide_split_count(k), &ng, &err) != PT_OK) {
-                fprintf(stderr, "guide_probe: %s\n", err.msg);
-                return 1;
-            }
-            pt_guide_free(g);
-            g = ng;
-        }
-        for (uint32_t i = 0; i < nt; i++) {
-            pt_guide_stats_free(st[i]);
-            st[i] = NULL;
-        }
-        s0 = s1;
+            probe_guide(g, sum, &pr[i], &b, run.pass);
+        if ((st = pt_guide_run_end(&run, &err)) != PT_OK)
+            break;
     }
-    pt_guide_free(g);
+    if (st != PT_OK) {
+        fprintf(stderr, "guide_probe: %s\n", err.msg);
+        return 1;
+    }
+    pt_guide_run_free(&run);
     pt_free(acc);
     pt_free(jobs);
     pt_free(th);
-    pt_free(st);
     pt_renderer_free(r);
     pt_scene_free(s);
     return 0;
