@@ -389,9 +389,11 @@ int pt_env_sample(const pt_env *env, const float u[2], int which, pt_vec3 *dir, 
     if (!(st > 0.0))
         return 0;
     *dir = pt_v3((float)(st * sin(phi)), (float)cos(theta), (float)(-st * cos(phi)));
-    /* The radiance the direction's own lookup gives, as a BSDF-sampled ray
-     * along it would see. */
-    *radiance = pt_env_eval(env, *dir);
+    /* The lookup a BSDF-sampled ray along it reads (pt_env_eval), at the
+     * sampled point itself rather than at the point the float direction
+     * maps back to: the same function, without the arc tangent and cosine
+     * of the way back, and where the pdf was taken. */
+    *radiance = lookup(env, (float)uu, (float)vv);
     double f = (1.0 - s) * p0 + s * p1;
     *pdf = (float)(d->norm * (double)d->row_sin[r] * f / (2.0 * PI_D * PI_D * st));
     return isfinite(*pdf) && *pdf > 0.0f;

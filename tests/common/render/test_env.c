@@ -10,8 +10,10 @@
  *   from the map read independently - on the three shared maps (one with
  *   66 % of its energy in 52 texels), at a rotation, and on a small map in
  *   4 x 4 bins a texel (how a cell's samples spread between its texels).
- *   The pdf a sample reports equals pt_env_pdf of its direction, and the pdf
- *   integrates to 1 over the sphere (a midpoint sum on a grid).
+ *   The pdf and radiance a sample reports equal pt_env_pdf's and
+ *   pt_env_eval's of its direction (within the float direction's rounding:
+ *   the sample reads them at the point it sampled), and the pdf integrates
+ *   to 1 over the sphere (a midpoint sum on a grid).
  * - A one-texel sun: NEE's luminance over pdf is constant within the sin
  *   ratio across a cell and float rounding (relative standard deviation
  *   under 1e-3; a density constant over each texel gives 1.04), and its
@@ -183,8 +185,17 @@ static void chi2_env(const char *what, const pt_envmap *map, double rot_deg, int
         bv = bv < 0 ? 0 : bv >= BV ? BV - 1 : bv;
         obs[bv * BU + bu] += 1.0;
         float p2 = pt_env_pdf(env, d, which);
+        /* The sample reads the lookup at the point it sampled; the
+         * direction, rounded to floats, maps back to within a few float
+         * steps of it, where the lookup differs by at most its slope (the
+         * brightest of the texels around) times that step. */
         pt_vec3 look = pt_env_eval(env, d);
-        if (!(look.x == rad.x && look.y == rad.y && look.z == rad.z))
+        long tx = (long)floor(uu * map->width - 0.5), ty = (long)floor(vv * map->height - 0.5);
+        double top = 0.0;
+        for (int j = 0; j < 2; j++)
+            for (int k = 0; k < 2; k++)
+                top = fmax(top, map_lum(map, tx + k, ty + j));
+        if (!(fabs(pt_luminance(look) - pt_luminance(rad)) <= 1e-3 * top + 1e-9))
             rad_bad++;
         if (!(fabsf(p2 - pdf) <= 1e-3f * pdf))
             pdf_bad++;
@@ -196,9 +207,10 @@ static void chi2_env(const char *what, const pt_envmap *map, double rot_deg, int
     p = stats_chi2_gof(obs, expd, BU * BV, 5.0, &stat, &dof);
     CHECKF(p > 1e-3, "%s: chi-square %.1f with %d degrees of freedom, p = %.2e", what, stat, dof,
            p);
-    /* A direction on a texel's edge may round into its neighbour: rare. */
+    /* A direction on a cell's edge may round into its neighbour, and one
+     * near a pole maps back less precisely (acos): rare. */
     CHECKF(pdf_bad < N / 10000, "%s: %d samples' pdf differs from pt_env_pdf", what, pdf_bad);
-    CHECKF(rad_bad == 0, "%s: %d samples' radiance differs from pt_env_eval", what, rad_bad);
+    CHECKF(rad_bad < N / 10000, "%s: %d samples' radiance differs from pt_env_eval", what, rad_bad);
     printf("%s: chi-square %.1f, %d dof, p = %.3f\n", what, stat, dof, p);
     free(expd);
     free(obs);
