@@ -93,6 +93,19 @@ static int dist_build(env_dist *d, float *corner, uint32_t w, uint32_t h)
     return 1;
 }
 
+/* Column x wrapped into [0, w): one step either way without a division
+ * (what a lookup at u in [0, 1] needs), any x with one. */
+static inline int64_t wrap_x(int64_t x, int64_t w)
+{
+    if (x < 0)
+        x += w;
+    else if (x >= w)
+        x -= w;
+    if (x < 0 || x >= w)
+        x = ((x % w) + w) % w;
+    return x;
+}
+
 /* Texel (x, y)'s luminance; x wraps, y is clamped (the bilinear lookup's
  * neighbours, pt_env_eval). */
 static double lum_at(const pt_env *e, int64_t x, int64_t y)
@@ -267,7 +280,7 @@ static void cell_of(const pt_env *e, float u, float v, uint32_t *x, uint32_t *r,
     *s = fx - x0;
     *t = fy - y0;
     int64_t xi = (int64_t)x0, w = e->w;
-    *x = (uint32_t)(((xi % w) + w) % w);
+    *x = (uint32_t)wrap_x(xi, w);
     int64_t ri = (int64_t)y0 + 1;
     *r = (uint32_t)(ri < 0 ? 0 : (ri > (int64_t)e->h ? (int64_t)e->h : ri));
 }
@@ -303,7 +316,7 @@ static pt_vec3 lookup(const pt_env *e, float u, float v)
     float ax = fx - x0f, ay = fy - y0f;
     int64_t w = e->w, h = e->h;
     int64_t x0 = (int64_t)x0f, y0 = (int64_t)y0f;
-    int64_t xs[2] = {((x0 % w) + w) % w, (((x0 + 1) % w) + w) % w};
+    int64_t xs[2] = {wrap_x(x0, w), wrap_x(x0 + 1, w)};
     int64_t ys[2] = {y0 < 0 ? 0 : (y0 >= h ? h - 1 : y0),
                      y0 + 1 >= h ? h - 1 : (y0 + 1 < 0 ? 0 : y0 + 1)};
     float k[4] = {(1.0f - ax) * (1.0f - ay), ax * (1.0f - ay), (1.0f - ax) * ay, ax * ay};
