@@ -8,18 +8,25 @@
 #define PI_F 3.14159265358979323846f
 #define PI_D 3.14159265358979323846
 
-/* A piecewise-constant distribution over the map's texels (env.h). */
+/* A distribution over the map (env.h) whose density in (u, v) is, in each
+ * cell between four texel centres, the bilinear interpolant of a value per
+ * texel (`corner`), times sin(theta) at the cell's centre row. The cells:
+ * column x spans texel centres x and x + 1 (wrapping), row r (0 .. h) texel
+ * rows r - 1 and r, clamped: rows 0 and h are the half-height cells at the
+ * poles, where the lookup is constant in v. */
 typedef struct env_dist {
-    double *row_cdf;  /* h + 1: the marginal over rows, 0 .. 1 */
-    double *col_cdf;  /* h * (w + 1): per row, 0 .. 1 (uniform for a black row) */
-    float *texel_pdf; /* w * h: the density over [0,1)^2 of each texel's rectangle */
-    int black;        /* nothing to sample */
+    double *row_cdf; /* h + 2: the marginal over cell rows, 0 .. 1 */
+    double *col_cdf; /* (h + 1) * (w + 1): per cell row, 0 .. 1 (uniform for a black row) */
+    float *corner;   /* w * h: the value per texel the density interpolates */
+    float *row_sin;  /* h + 1: sin(theta) at each cell row's centre */
+    double norm;     /* w * h / the cells' total weight: pdf(u, v) = norm sin f(u, v) */
+    int black;       /* nothing to sample */
 } env_dist;
 
 struct pt_env {
     uint32_t w, h;
     float *rgb;      /* w * h * 3, strength applied */
-    env_dist full;   /* weights: the texel's mean luminance x sin(theta) */
+    env_dist full;   /* corners: the texel's luminance */
     env_dist comp;   /* the same less the sphere's mean (MIS compensation) */
     float rot;       /* rotate_deg in turns, in [0, 1) */
     double mean_lum; /* over the sphere */
@@ -29,7 +36,8 @@ static void dist_free(env_dist *d)
 {
     pt_free(d->row_cdf);
     pt_free(d->col_cdf);
-    pt_free(d->texel_pdf);
+    pt_free(d->corner);
+    pt_free(d->row_sin);
 }
 
 void pt_env_free(pt_env *env)
@@ -42,37 +50,60 @@ void pt_env_free(pt_env *env)
     pt_free(env);
 }
 
-/* The distribution with texel weights wgt (>= 0, w * h, row-major); sums in
- * double. Returns 0 when out of memory. */
-static int dist_build(env_dist *d, const double *wgt, uint32_t w, uint32_t h)
+/* The distribution whose density interpolates corner (>= 0, w * h,
+ * row-major; kept); sums in double. A cell's weight is the integral of its
+ * interpolant, the mean of its four corners times its height (1/2 at the
+ * poles), times sin(theta) at its centre row. Returns 0 when out of memory. */
+static int dist_build(env_dist *d, float *corner, uint32_t w, uint32_t h)
 {
-    size_t n = (size_t)w * h;
-    d->row_cdf = pt_malloc_array((size_t)h + 1, sizeof *d->row_cdf);
-    d->col_cdf = pt_malloc_array((size_t)h * (w + 1), sizeof *d->col_cdf);
-    d->texel_pdf = pt_malloc_array(n, sizeof *d->texel_pdf);
-    if (!d->row_cdf || !d->col_cdf || !d->texel_pdf)
+    d->corner = corner;
+    d->row_cdf = pt_malloc_array((size_t)h + 2, sizeof *d->row_cdf);
+    d->col_cdf = pt_malloc_array((size_t)(h + 1) * (w + 1), sizeof *d->col_cdf);
+    d->row_sin = pt_malloc_array((size_t)h + 1, sizeof *d->row_sin);
+    if (!d->corner || !d->row_cdf || !d->col_cdf || !d->row_sin)
         return 0;
     double total = 0.0;
     d->row_cdf[0] = 0.0;
-    for (uint32_t y = 0; y < h; y++) {
-        double *cdf = d->col_cdf + (size_t)y * (w + 1);
+    for (uint32_t r = 0; r <= h; r++) {
+        uint32_t y0 = r == 0 ? 0 : r - 1, y1 = r == h ? h - 1 : r;
+        double vc = r == 0 ? 0.25 / h : (r == h ? 1.0 - 0.25 / h : (double)r / h);
+        double height = r == 0 || r == h ? 0.5 : 1.0;
+        d->row_sin[r] = (float)sin(PI_D * vc);
+        double k = 0.25 * height * (double)d->row_sin[r];
+        const float *c0 = corner + (size_t)y0 * w, *c1 = corner + (size_t)y1 * w;
+        double *cdf = d->col_cdf + (size_t)r * (w + 1);
         cdf[0] = 0.0;
-        for (uint32_t x = 0; x < w; x++)
-            cdf[x + 1] = cdf[x] + wgt[(size_t)y * w + x];
+        for (uint32_t x = 0; x < w; x++) {
+            uint32_t x1 = x + 1 == w ? 0 : x + 1;
+            double m = (double)c0[x] + c0[x1] + c1[x] + c1[x1];
+            cdf[x + 1] = cdf[x] + k * m;
+        }
         double row = cdf[w];
         for (uint32_t x = 1; x <= w; x++)
             cdf[x] = row > 0.0 ? cdf[x] / row : (double)x / (double)w;
         cdf[w] = 1.0;
         total += row;
-        d->row_cdf[y + 1] = total;
+        d->row_cdf[r + 1] = total;
     }
     d->black = !(total > 0.0) || !isfinite(total);
-    for (size_t i = 0; i < n; i++)
-        d->texel_pdf[i] = d->black ? 0.0f : (float)(wgt[i] / total * (double)n);
-    for (uint32_t y = 0; y < h && !d->black; y++)
-        d->row_cdf[y + 1] /= total;
-    d->row_cdf[h] = 1.0;
+    d->norm = d->black ? 0.0 : (double)w * h / total;
+    for (uint32_t r = 0; r <= h && !d->black; r++)
+        d->row_cdf[r + 1] /= total;
+    d->row_cdf[h + 1] = 1.0;
     return 1;
+}
+
+/* Column x wrapped into [0, w): one step either way without a division
+ * (what a lookup at u in [0, 1] needs), any x with one. */
+static inline int64_t wrap_x(int64_t x, int64_t w)
+{
+    if (x < 0)
+        x += w;
+    else if (x >= w)
+        x -= w;
+    if (x < 0 || x >= w)
+        x = ((x % w) + w) % w;
+    return x;
 }
 
 /* Texel (x, y)'s luminance; x wraps, y is clamped (the bilinear lookup's
@@ -104,9 +135,7 @@ pt_status pt_env_new(const pt_envmap *map, float strength, float rotate_deg, pt_
     e->w = w;
     e->h = h;
     e->rgb = pt_malloc_array(n * 3, sizeof *e->rgb);
-    double *wgt = pt_malloc_array(n, sizeof *wgt);
-    if (!e->rgb || !wgt) {
-        pt_free(wgt);
+    if (!e->rgb) {
         pt_env_free(e);
         return pt_error_set(err, PT_ERR_NOMEM, "out of memory for a %ux%u environment", w, h);
     }
@@ -117,20 +146,16 @@ pt_status pt_env_new(const pt_envmap *map, float strength, float rotate_deg, pt_
     for (size_t i = 0; i < n * 3; i++) {
         e->rgb[i] = map->rgb[i] * strength;
         if (!isfinite(e->rgb[i]) || e->rgb[i] < 0.0f) {
-            pt_free(wgt);
             pt_env_free(e);
             return pt_error_set(err, PT_ERR_ARG,
                                 "environment strength %g makes a texel overflow a float",
                                 (double)strength);
         }
     }
-    /* Each texel's mean luminance under the bilinear lookup: the integral
-     * of the interpolant over the texel's rectangle weighs the 3 x 3 texels
-     * around it by (1/8, 3/4, 1/8) in each direction. Every texel whose
-     * lookup can be above 0 gets a weight above 0, so the full distribution
-     * covers the whole lookup. Times sin(theta at the row's centre), and
-     * the mean over the sphere (solid angle of texel (x, y): (2 pi / w)
-     * (pi / h) sin(theta)). */
+    /* The mean luminance over the sphere: the integral of the bilinear
+     * interpolant over a texel's rectangle weighs the 3 x 3 texels around it
+     * by (1/8, 3/4, 1/8) in each direction; times the texel's solid angle,
+     * (2 pi / w) (pi / h) sin(theta at its centre). */
     static const double k3[3] = {0.125, 0.75, 0.125};
     double lum_sphere = 0.0;
     for (uint32_t y = 0; y < h; y++) {
@@ -140,38 +165,47 @@ pt_status pt_env_new(const pt_envmap *map, float strength, float rotate_deg, pt_
             for (int j = 0; j < 3; j++)
                 for (int i = 0; i < 3; i++)
                     m += k3[j] * k3[i] * lum_at(e, (int64_t)x + i - 1, (int64_t)y + j - 1);
-            wgt[(size_t)y * w + x] = m;
             lum_sphere += m * s;
         }
     }
     e->mean_lum = lum_sphere * (2.0 * PI_D / w) * (PI_D / h) / (4.0 * PI_D);
-    /* The compensated weights (Karlik, Sik, Vevoda, Skrivan, Krivanek 2019,
-     * "MIS Compensation: Optimizing Sampling Techniques in Multiple
-     * Importance Sampling", SIGGRAPH Asia): max(0, mean luminance - the
-     * sphere's mean) x sin(theta). Where the map is no brighter than its
-     * mean, BSDF sampling, which MIS weighs fully there, finds it better;
-     * NEE's samples go to the bright parts. A map with nothing above its
-     * mean (a uniform one) keeps the full weights. */
-    double *cw = pt_malloc_array(n, sizeof *cw);
-    int ok = cw != NULL;
+    /* The full distribution interpolates each texel's luminance as the
+     * lookup interpolates its colour: within a cell its density is the
+     * lookup's luminance (times sin(theta) at the cell's centre row, not at
+     * the point), so a light sample's luminance over its pdf is the same
+     * wherever it lands but for that ratio of sines. A sun of a few texels
+     * spreads over their neighbours' cells, whose lookup falls to a small
+     * fraction of the sun across each; a distribution constant over each
+     * texel (the lookup's mean there) gave samples on the side nearer the
+     * sun up to four times their share. The compensated corners (Karlik,
+     * Sik, Vevoda, Skrivan, Krivanek 2019, "MIS Compensation: Optimizing
+     * Sampling Techniques in Multiple Importance Sampling", SIGGRAPH Asia)
+     * are the texel's luminance less the sphere's mean, 0 where that is
+     * negative: where the map is no brighter than its mean, BSDF sampling,
+     * which MIS weighs fully there, finds it better; NEE's samples go to the
+     * bright parts. A map with nothing above its mean (a uniform one) keeps
+     * the full corners. */
+    float *fc = pt_malloc_array(n, sizeof *fc), *cc = pt_malloc_array(n, sizeof *cc);
+    int ok = fc && cc;
     double comp_total = 0.0;
-    for (uint32_t y = 0; ok && y < h; y++) {
-        double s = sin(PI_D * ((double)y + 0.5) / (double)h);
-        for (uint32_t x = 0; x < w; x++) {
-            size_t i = (size_t)y * w + x;
-            double c = wgt[i] - e->mean_lum;
-            cw[i] = c > 0.0 ? c * s : 0.0;
-            comp_total += cw[i];
-            wgt[i] *= s;
-        }
+    for (size_t i = 0; ok && i < n; i++) {
+        const float *c = &e->rgb[3 * i];
+        double l = pt_luminance(pt_v3(c[0], c[1], c[2]));
+        double k = l - e->mean_lum;
+        fc[i] = (float)l;
+        cc[i] = k > 0.0 ? (float)k : 0.0f;
+        comp_total += cc[i];
     }
     /* A compensated share under 1e-6 of the map is left to the full one:
      * rounding, not light. */
     if (ok && !(comp_total > 1e-6 * e->mean_lum * (double)n))
-        memcpy(cw, wgt, n * sizeof *cw);
-    ok = ok && dist_build(&e->full, wgt, w, h) && dist_build(&e->comp, cw, w, h);
-    pt_free(wgt);
-    pt_free(cw);
+        memcpy(cc, fc, n * sizeof *cc);
+    ok = ok && dist_build(&e->full, fc, w, h);
+    if (!e->full.corner)
+        pt_free(fc);
+    ok = ok && dist_build(&e->comp, cc, w, h);
+    if (!e->comp.corner)
+        pt_free(cc);
     if (!ok) {
         pt_env_free(e);
         return pt_error_set(err, PT_ERR_NOMEM, "out of memory for a %ux%u environment", w, h);
@@ -236,14 +270,41 @@ static void dir_to_uv(const pt_env *e, pt_vec3 d, float *u, float *v)
     *v = vv < 1.0f ? vv : nextafterf(1.0f, 0.0f);
 }
 
-static size_t texel_of(const pt_env *e, float u, float v)
+/* The cell of d under (u, v) and where in it: column x (texel centres x
+ * and x + 1, wrapping), row r (texel rows r - 1 and r, clamped), s and t in
+ * [0, 1] from the first centre to the second. */
+static void cell_of(const pt_env *e, float u, float v, uint32_t *x, uint32_t *r, float *s, float *t)
 {
-    uint32_t x = (uint32_t)(u * (float)e->w), y = (uint32_t)(v * (float)e->h);
-    if (x >= e->w)
-        x = e->w - 1;
-    if (y >= e->h)
-        y = e->h - 1;
-    return (size_t)y * e->w + x;
+    float fx = u * (float)e->w - 0.5f, fy = v * (float)e->h - 0.5f;
+    float x0 = floorf(fx), y0 = floorf(fy);
+    *s = fx - x0;
+    *t = fy - y0;
+    int64_t xi = (int64_t)x0, w = e->w;
+    *x = (uint32_t)wrap_x(xi, w);
+    int64_t ri = (int64_t)y0 + 1;
+    *r = (uint32_t)(ri < 0 ? 0 : (ri > (int64_t)e->h ? (int64_t)e->h : ri));
+}
+
+/* The interpolant of d's corners in cell (x, r) at (s, t). */
+static float cell_value(const env_dist *d, const pt_env *e, uint32_t x, uint32_t r, float s,
+                        float t)
+{
+    uint32_t w = e->w, h = e->h;
+    uint32_t y0 = r == 0 ? 0 : r - 1, y1 = r >= h ? h - 1 : r, x1 = x + 1 == w ? 0 : x + 1;
+    const float *c0 = d->corner + (size_t)y0 * w, *c1 = d->corner + (size_t)y1 * w;
+    return (1.0f - t) * ((1.0f - s) * c0[x] + s * c0[x1]) + t * ((1.0f - s) * c1[x] + s * c1[x1]);
+}
+
+/* A sample of the density on [0, 1] that is linear from p0 at 0 to p1 at 1
+ * (both >= 0, not both 0) by inverting its distribution function with uniform
+ * xi, in the form that stays accurate where p0 and p1 are close (Pharr,
+ * Jakob & Humphreys, "Physically Based Rendering", 4th ed., A.4.2). */
+static double sample_linear(double xi, double p0, double p1)
+{
+    if (p0 == p1 || xi <= 0.0)
+        return xi;
+    double x = xi * (p0 + p1) / (p0 + sqrt((1.0 - xi) * p0 * p0 + xi * p1 * p1));
+    return x < 1.0 ? x : nextafter(1.0, 0.0);
 }
 
 /* The bilinear lookup at (u, v) in [0,1]^2: texel centres at ((x + 0.5) / w,
@@ -255,7 +316,7 @@ static pt_vec3 lookup(const pt_env *e, float u, float v)
     float ax = fx - x0f, ay = fy - y0f;
     int64_t w = e->w, h = e->h;
     int64_t x0 = (int64_t)x0f, y0 = (int64_t)y0f;
-    int64_t xs[2] = {((x0 % w) + w) % w, (((x0 + 1) % w) + w) % w};
+    int64_t xs[2] = {wrap_x(x0, w), wrap_x(x0 + 1, w)};
     int64_t ys[2] = {y0 < 0 ? 0 : (y0 >= h ? h - 1 : y0),
                      y0 + 1 >= h ? h - 1 : (y0 + 1 < 0 ? 0 : y0 + 1)};
     float k[4] = {(1.0f - ax) * (1.0f - ay), ax * (1.0f - ay), (1.0f - ax) * ay, ax * ay};
@@ -288,10 +349,14 @@ float pt_env_pdf(const pt_env *env, pt_vec3 dir, int which)
         return 0.0f;
     float u, v;
     dir_to_uv(env, dir, &u, &v);
-    float s = sinf(PI_F * v);
-    if (!(s > 0.0f))
+    float sn = sinf(PI_F * v);
+    if (!(sn > 0.0f))
         return 0.0f;
-    return d->texel_pdf[texel_of(env, u, v)] / (2.0f * PI_F * PI_F * s);
+    uint32_t x, r;
+    float s, t;
+    cell_of(env, u, v, &x, &r, &s, &t);
+    float f = cell_value(d, env, x, r, s, t);
+    return (float)(d->norm * (double)d->row_sin[r] * (double)f / (2.0 * PI_D * PI_D * sn));
 }
 
 int pt_env_sample(const pt_env *env, const float u[2], int which, pt_vec3 *dir, pt_vec3 *radiance,
@@ -301,30 +366,49 @@ int pt_env_sample(const pt_env *env, const float u[2], int which, pt_vec3 *dir, 
     *pdf = 0.0f;
     if (d->black)
         return 0;
-    /* The row by the marginal, then the column in it; each number's
-     * remainder places the point inside the texel. */
+    /* The cell row by the marginal, then the column in it; each number's
+     * remainder places the point in the cell by the interpolant: t by its
+     * mean over s (linear in t; uniform over the half of a pole's cell that
+     * lies on the sphere, where it is constant in t), then s given t. */
+    uint32_t w = env->w, h = env->h;
     double rv = u[1];
-    uint32_t y = find_interval(d->row_cdf, env->h, rv);
-    double r0 = d->row_cdf[y], r1 = d->row_cdf[y + 1];
+    uint32_t r = find_interval(d->row_cdf, h + 1, rv);
+    double r0 = d->row_cdf[r], r1 = d->row_cdf[r + 1];
     double fy = r1 > r0 ? (rv - r0) / (r1 - r0) : 0.5;
-    const double *cdf = d->col_cdf + (size_t)y * (env->w + 1);
+    const double *cdf = d->col_cdf + (size_t)r * (w + 1);
     double ru = u[0];
-    uint32_t x = find_interval(cdf, env->w, ru);
+    uint32_t x = find_interval(cdf, w, ru);
     double c0 = cdf[x], c1 = cdf[x + 1];
     double fx = c1 > c0 ? (ru - c0) / (c1 - c0) : 0.5;
-    float tp = d->texel_pdf[(size_t)y * env->w + x];
-    if (!(tp > 0.0f))
+    uint32_t y0 = r == 0 ? 0 : r - 1, y1 = r >= h ? h - 1 : r, x1 = x + 1 == w ? 0 : x + 1;
+    const float *k0 = d->corner + (size_t)y0 * w, *k1 = d->corner + (size_t)y1 * w;
+    double a = k0[x], b = k0[x1], c = k1[x], e = k1[x1];
+    double t;
+    if (r == 0)
+        t = 0.5 + 0.5 * fy;
+    else if (r == h)
+        t = 0.5 * fy;
+    else
+        t = sample_linear(fy, a + b, c + e);
+    double p0 = (1.0 - t) * a + t * c, p1 = (1.0 - t) * b + t * e;
+    if (!(p0 + p1 > 0.0))
         return 0;
-    double uu = ((double)x + fx) / env->w, vv = ((double)y + fy) / env->h;
+    double s = sample_linear(fx, p0, p1);
+    double uu = ((double)x + 0.5 + s) / w, vv = ((double)r - 0.5 + t) / h;
+    if (uu >= 1.0)
+        uu -= 1.0;
     double theta = PI_D * vv, phi = 2.0 * PI_D * (uu - 0.5 - (double)env->rot);
     double st = sin(theta);
     if (!(st > 0.0))
         return 0;
     *dir = pt_v3((float)(st * sin(phi)), (float)cos(theta), (float)(-st * cos(phi)));
-    /* The radiance the direction's own lookup gives, as a BSDF-sampled ray
-     * along it would see. */
-    *radiance = pt_env_eval(env, *dir);
-    *pdf = (float)(tp / (2.0 * PI_D * PI_D * st));
+    /* The lookup a BSDF-sampled ray along it reads (pt_env_eval), at the
+     * sampled point itself rather than at the point the float direction
+     * maps back to: the same function, without the arc tangent and cosine
+     * of the way back, and where the pdf was taken. */
+    *radiance = lookup(env, (float)uu, (float)vv);
+    double f = (1.0 - s) * p0 + s * p1;
+    *pdf = (float)(d->norm * (double)d->row_sin[r] * f / (2.0 * PI_D * PI_D * st));
     return isfinite(*pdf) && *pdf > 0.0f;
 }
 

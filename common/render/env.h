@@ -15,15 +15,20 @@
  * Radiance is the map's bilinear lookup under the direction (texel centres
  * at ((x + 0.5) / w, (y + 0.5) / h), u wrapping, v clamped at the poles)
  * times strength; NEE and a BSDF-sampled ray that leaves the scene read the
- * same lookup. Sampling is a piecewise-constant 2-D distribution over (u, v),
- * a marginal over rows and a conditional per row (Pharr, Jakob & Humphreys,
- * "Physically Based Rendering", 3rd ed., 13.6.7 and 14.2.4), with each
- * texel weighted by the lookup's mean luminance over it times sin(theta);
- * its solid-angle pdf is pdf(u, v) / (2 pi^2 sin theta). A tiny hot sun (66 %
- * of a map's energy in 52 texels) is then found by NEE with its share of the
- * samples, not by chance. Two distributions: PT_ENV_FULL, above 0 wherever
- * the lookup is (for light sampling alone), and PT_ENV_MIS, whose weights
- * are the texel's mean less the sphere's mean luminance, 0 where that is
+ * same lookup. Sampling is a 2-D distribution over (u, v), a marginal over
+ * rows and a conditional per row (Pharr, Jakob & Humphreys, "Physically
+ * Based Rendering", 3rd ed., 13.6.7 and 14.2.4), over the cells between
+ * four texel centres (the lookup's own cells; half-height ones at the
+ * poles): in each, the density is the bilinear interpolant of a value per
+ * texel times sin(theta) at the cell's centre row, sampled exactly within
+ * the cell (a linear marginal, then a linear conditional). Its solid-angle
+ * pdf is pdf(u, v) / (2 pi^2 sin theta). With the texel's luminance as that
+ * value (PT_ENV_FULL) the density is the lookup's luminance itself, but for
+ * sin(theta) across a cell's height, so a light sample's luminance over its
+ * pdf is nearly constant: a tiny hot sun (66 % of a map's energy in 52
+ * texels, its bilinear spread over their neighbours' cells) is found by NEE
+ * with its share of the samples, each weighed alike. PT_ENV_MIS takes the
+ * texel's luminance less the sphere's mean luminance, 0 where that is
  * negative (MIS compensation, Karlik et al. 2019): for NEE combined with
  * BSDF sampling by MIS, which finds the dim rest.
  *

@@ -3,7 +3,7 @@
  *
  *   ptbench-paths SCENE --reference REF.exr [--env HDR | --background R,G,B] [--camera NAME]
  *                 [--res WxH] [--spp N] [--seed S] [--max-depth D]
- *                 [--worst FRACTION] [--top K]
+ *                 [--worst FRACTION] [--top K] [--pixel X,Y]
  *
  * Renders SCENE sample by sample (pt_render_sample, one thread, unguided:
  * the samples ptworker --guiding off takes), scores each pixel's mean
@@ -16,7 +16,9 @@
  * a table of the events that carried those samples' radiance, grouped by
  * the technique and the lobes the path took, weighed by their share of the
  * worst pixels' squared error, and the same shares by technique and by the
- * number of bounces before the light was found.
+ * number of bounces before the light was found. --pixel X,Y renders that
+ * pixel alone (its share is then of its own squared error): a glint that a
+ * few of many samples find, seen at the reference's sample count.
  *
  * Built with its own copy of render.c and closure.c compiled with
  * PT_PATH_TRACE (tests/bench/CMakeLists.txt): the log costs the renderer
@@ -116,6 +118,38 @@ typedef struct pixel_rec {
     double err;
     uint32_t i;
 } pixel_rec;
+
+/* --pixel: the first bounce's environment light samples by their pdf, in
+ * bands (the sun's core texels, their fringe, the sky): how many were taken,
+ * how many reached the light, and what they added. */
+#define NBANDS 3
+static const float band_min[NBANDS] = {3000.0f, 100.0f, 0.0f};
+static const char *band_name[NBANDS] = {"pdf >= 3000", "100 .. 3000", "< 100"};
+typedef struct band {
+    uint64_t taken, unblocked;
+    double added;
+} band;
+
+static void tally_nee(band *b)
+{
+    for (uint32_t k = 0; k < nev; k++) {
+        const event *e = &ev[k];
+        if (e->kind != PT_TRACE_NEE || e->depth != 0 || e->lobe != PT_LIGHT_ENV)
+            continue;
+        int i = 0;
+        while (i < NBANDS - 1 && !(e->a >= band_min[i]))
+            i++;
+        b[i].taken++;
+        for (uint32_t j = k + 1; j < nev; j++)
+            if (ev[j].kind == PT_TRACE_SHADOW && ev[j].v.x == e->v.x && ev[j].v.y == e->v.y &&
+                ev[j].v.z == e->v.z) {
+                b[i].unblocked++;
+                b[i].added += pt_luminance(e->v);
+                break;
+            }
+        return;
+    }
+}
 
 static int cmp_err_desc(const void *a, const void *b)
 {
@@ -277,7 +311,7 @@ static void usage(void)
     fprintf(stderr, "usage: ptbench-paths SCENE --reference REF.exr [--env HDR | --background "
                     "R,G,B] [--camera NAME]\n"
                     "       [--res WxH] [--spp N] [--seed S] [--max-depth D] [--worst F] [--top "
-                    "K]\n");
+                    "K] [--pixel X,Y]\n");
 }
 
 int main(int argc, char **argv)
@@ -287,6 +321,7 @@ int main(int argc, char **argv)
              top = 4;
     double worst = 0.001, bg[3];
     int has_bg = 0;
+    long pix_x = -1, pix_y = -1; /* --pixel: that pixel alone */
     pt_error err = {0};
     pt_status st = PT_OK;
     for (int i = 1; i < argc; i++) {
@@ -319,7 +354,16 @@ int main(int argc, char **argv)
             st = pt_opt_u32(a, v, 1, 1u << 16, &max_depth, &err);
         else if (!strcmp(a, "--top"))
             st = pt_opt_u32(a, v, 1, MAX_TOP, &top, &err);
-        else if (!strcmp(a, "--worst"))
+        else if (!strcmp(a, "--pixel")) {
+            char *end;
+            pix_x = strtol(v, &end, 10);
+            if (*end == ',')
+                pix_y = strtol(end + 1, &end, 10);
+            if (*end != '\0' || pix_x < 0 || pix_y < 0) {
+                fprintf(stderr, "ptbench-paths: --pixel wants X,Y (integers >= 0), not %s\n", v);
+                return 2;
+            }
+        } else if (!strcmp(a, "--worst"))
             st = pt_opt_double(a, v, 0.0, 1.0, &worst, &err);
         else {
             usage();
@@ -341,6 +385,7 @@ int main(int argc, char **argv)
     pt_renderer *r = NULL;
     pt_image *ref = NULL;
     pixel_rec *px = NULL;
+    band bands[NBANDS] = {{0}};
     pt_scene_opts so = {0};
     so.camera_name = camera;
     if (pt_exr_read(ref_path, &ref, NULL, &err) != PT_OK ||
@@ -354,6 +399,11 @@ int main(int argc, char **argv)
     if (ref->width != w || ref->height != h) {
         fprintf(stderr, "ptbench-paths: the reference is %ux%u, --res %ux%u\n", ref->width,
                 ref->height, w, h);
+        goto done;
+    }
+    if (pix_x >= 0 && (pix_x >= (long)w || pix_y >= (long)h)) {
+        fprintf(stderr, "ptbench-paths: --pixel %ld,%ld is outside the %ux%u image\n", pix_x, pix_y,
+                w, h);
         goto done;
     }
     pt_render_params p;
@@ -377,9 +427,13 @@ int main(int argc, char **argv)
         for (uint32_t x = 0; x < w; x++) {
             pixel_rec *pr = &px[(size_t)y * w + x];
             pr->i = y * w + x;
+            if (pix_x >= 0 && (x != (uint32_t)pix_x || y != (uint32_t)pix_y))
+                continue;
             for (uint32_t k = 0; k < spp; k++) {
                 nev = 0;
                 pt_vec3 L = pt_render_sample(r, x, y, k, NULL, NULL);
+                if (pix_x >= 0)
+                    tally_nee(bands);
                 if (!(isfinite(L.x) && isfinite(L.y) && isfinite(L.z)))
                     continue; /* the film drops these too */
                 pr->sum[0] += L.x;
@@ -412,11 +466,15 @@ int main(int argc, char **argv)
             double v = (m - rv) * (m - rv) / (rv * rv + PT_METRICS_REL_EPS);
             e += isfinite(v) ? v : 0.0;
         }
+        if (pix_x >= 0 && px[i].i != (uint32_t)pix_y * w + (uint32_t)pix_x)
+            e = 0.0; /* --pixel: not rendered */
         px[i].err = e;
         total += e;
     }
     qsort(px, n, sizeof *px, cmp_err_desc);
     size_t nw = (size_t)ceil(worst * (double)n);
+    if (pix_x >= 0)
+        nw = 1;
     if (nw < 1)
         nw = 1;
     double wsum = 0.0;
@@ -462,6 +520,13 @@ int main(int argc, char **argv)
            "5-8 %.4f, 9+ %.4f\n",
            by_depth[0], by_depth[1], by_depth[2], by_depth[3], by_depth[4], by_depth[5],
            by_depth[6]);
+    if (pix_x >= 0) {
+        printf("the first bounce's environment light samples, of %u:\n", spp);
+        for (int i = 0; i < NBANDS; i++)
+            printf("  light pdf %-12s taken %8llu  unblocked %8llu  adds %.4g per sample\n",
+                   band_name[i], (unsigned long long)bands[i].taken,
+                   (unsigned long long)bands[i].unblocked, bands[i].added / spp);
+    }
     rc = 0;
 done:
     pt_free(px);
