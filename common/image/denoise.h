@@ -18,7 +18,11 @@
  *      (cross-filtering: half A is filtered with weights from half B and the
  *      reverse, so a half's noise does not select its own neighbours); every
  *      fit predicts its whole window and the predictions are averaged with
- *      their weights (collaborative filtering). Two candidates, k = 0.5 and 1.
+ *      their weights (collaborative filtering). Two candidates, k = 0.5 and 1;
+ *      not in the paper, the k = 0.5 one compares 3 x 3 patches instead of
+ *      7 x 7, so that a pixel beside an edge no feature explains (a shadow's
+ *      border, a corner) finds the neighbours along it (the Cornell box at
+ *      64 spp: relMSE 8.84e-5 -> 7.79e-5).
  *      Not in the paper: a pixel's variance in these patch distances is at
  *      least 3e-5 (u^2 + 0.01), so that a noisy pixel beside noise-free
  *      texture (an environment seen directly) is not shut out of every
