@@ -303,6 +303,22 @@ static void sampling_within_texels(void)
     chi2_env("16 x 8 map, compensated, 4 x 4 bins a texel", &m, 0.0, PT_ENV_MIS, 4 * W, 4 * H);
 }
 
+/* A black SUN_W x SUN_H map but for one texel (sx, sy) of radiance rgb:
+ * a sun of a single texel. NULL after a failed check. */
+enum { SUN_W = 512, SUN_H = 256 };
+static pt_env *one_texel_sun(int sx, int sy, const float rgb[3])
+{
+    static float px[SUN_W * SUN_H * 3];
+    memset(px, 0, sizeof px);
+    for (int c = 0; c < 3; c++)
+        px[3 * (sy * SUN_W + sx) + c] = rgb[c];
+    pt_envmap m = {SUN_W, SUN_H, px};
+    pt_env *env = NULL;
+    pt_error err = {0};
+    CHECKF(pt_env_new(&m, 1.0f, 0.0f, &env, &err) == PT_OK, "%s", err.msg);
+    return env;
+}
+
 /* A sun of one texel: NEE by the full distribution of a black map with one
  * hot texel at the equator. The density follows the lookup's luminance
  * across each cell, so a sample's luminance over its pdf is the same
@@ -320,17 +336,9 @@ static void sampling_within_texels(void)
  * them, where the lookup falls from half the sun's luminance to nothing. */
 static void sun_ratio(void)
 {
-    enum { W = 512, H = 256 };
-    static float px[W * H * 3];
-    memset(px, 0, sizeof px);
-    const int sx = 200, sy = H / 2;
+    const int W = SUN_W, H = SUN_H, sx = 200, sy = H / 2;
     const float sun[3] = {4e4f, 3.5e4f, 2.5e4f};
-    for (int c = 0; c < 3; c++)
-        px[3 * (sy * W + sx) + c] = sun[c];
-    pt_envmap m = {W, H, px};
-    pt_env *env = NULL;
-    pt_error err = {0};
-    CHECKF(pt_env_new(&m, 1.0f, 0.0f, &env, &err) == PT_OK, "%s", err.msg);
+    pt_env *env = one_texel_sun(sx, sy, sun);
     if (!env)
         return;
     double sum = 0.0, sum2 = 0.0;
@@ -547,17 +555,9 @@ static void strategies_agree(void)
  * 1 (sun_ratio): 8e-3. */
 static void sun_plane(void)
 {
-    enum { W = 512, H = 256 };
-    static float px[W * H * 3];
-    memset(px, 0, sizeof px);
-    const int sx = 300, sy = 64;
+    const int W = SUN_W, H = SUN_H, sx = 300, sy = 64;
     const float V = 2e4f, rho = 0.5f;
-    for (int c = 0; c < 3; c++)
-        px[3 * (sy * W + sx) + c] = V;
-    pt_envmap m = {W, H, px};
-    pt_env *env = NULL;
-    pt_error err = {0};
-    CHECKF(pt_env_new(&m, 1.0f, 0.0f, &env, &err) == PT_OK, "%s", err.msg);
+    pt_env *env = one_texel_sun(sx, sy, (const float[3]){V, V, V});
     if (!env)
         return;
     /* The tent: (1 - |du|) (1 - |dv|) in texels around the texel's centre;
