@@ -21,17 +21,22 @@
 # log-log between its rows around it; the ratio base / new (above 1: the new
 # build is faster) is printed per level with its median, and each scene's
 # relMSE against CPU time is drawn, both builds, as PLOTS/guiding_NAME.svg.
+# The machine's load (the 1-minute load average) after each render is kept in
+# OUT/loadavg.csv, for the note that reports the run.
 #
 # Environment (defaults in brackets):
 #   SCENES    names from the table below [cornell toycar transmission glass
 #             lamp helmet]
 #   RES       image size [128x128]       THREADS  render threads [2]
 #   REF_SPP   reference spp [4096]       SPP      list [16,32,64,128,256]
-#   NEW_ARGS  [--guiding on]             BASE_ARGS [""]
+#   NEW_ARGS  [--guiding on; set but empty: nothing, the defaults]
+#   BASE_ARGS [""]
 #   SEED0     repetition r renders with seed SEED0 + r [0]: another run
 #             with other seeds adds repetitions (concatenate the CSVs)
 #   OUT       folder for references, images and CSV [/tmp/ptfarm-guiding];
 #             a reference already there (same scene, size, spp) is reused
+#   REFS      folder for the references [OUT]: another run (other NEW_ARGS,
+#             another OUT) can share them
 #   PLOTS     folder for the SVG plots [OUT]
 set -euo pipefail
 
@@ -47,12 +52,13 @@ RES=${RES:-128x128}
 THREADS=${THREADS:-2}
 REF_SPP=${REF_SPP:-4096}
 SPP=${SPP:-16,32,64,128,256}
-NEW_ARGS=${NEW_ARGS:---guiding on}
+NEW_ARGS=${NEW_ARGS---guiding on}
 BASE_ARGS=${BASE_ARGS:-}
 SEED0=${SEED0:-0}
 OUT=${OUT:-/tmp/ptfarm-guiding}
+REFS=${REFS:-$OUT}
 PLOTS=${PLOTS:-$OUT}
-mkdir -p "$OUT/new" "$OUT/base" "$PLOTS"
+mkdir -p "$OUT/new" "$OUT/base" "$REFS" "$PLOTS"
 
 # Private copies of the programs: a rebuild during the run cannot touch them.
 cp "$1/ptworker" "$1/ptbench" "$OUT/new/"
@@ -92,12 +98,14 @@ build_args() {
 
 CSV=$OUT/guiding.csv
 echo "scene,build,spp,rep,cpu,relmse,worst" >"$CSV"
+LOADS=$OUT/loadavg.csv
+echo "scene,build,spp,rep,load1" >"$LOADS"
 IFS=, read -r -a spps <<<"$SPP"
 for name in $SCENES; do
     args=$(scene_args "$name") || { echo "guiding.sh: no scene '$name'" >&2; exit 2; }
     # shellcheck disable=SC2086 # the arguments are words
     set -- $args
-    ref=$OUT/ref_${name}_${RES}_${REF_SPP}.exr
+    ref=$REFS/ref_${name}_${RES}_${REF_SPP}.exr
     if [[ ! -f $ref ]]; then
         echo "$name: reference, $REF_SPP spp" >&2
         "$OUT/new/ptworker" "$@" --res "$RES" --threads "$THREADS" --spp "$REF_SPP" \
@@ -119,6 +127,7 @@ for name in $SCENES; do
                 e=$("$OUT/new/ptbench" error "$img" "$ref" |
                     awk '/^relMSE/ { r = $2 } /^worst0/ { w = $2 } END { print r "," w }')
                 echo "$name,$build,$spp,$rep,$c,$e" >>"$CSV"
+                echo "$name,$build,$spp,$rep,$(cut -d' ' -f1 /proc/loadavg)" >>"$LOADS"
                 echo "$name $build $spp spp rep $rep: cpu $c s, relMSE,worst $e" >&2
             done
         done
