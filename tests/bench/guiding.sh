@@ -78,6 +78,21 @@ scene_args() {
     esac
 }
 
+# The view of a scene without a camera of its own: the one that builds before
+# f4e8730 framed (40 degrees high, from the centre of the bounds along
+# (0, 0.25, 1), at 1.05 times the distance at which the bounding sphere fills
+# a square image). Builds since then fit the bounds' projection to the image,
+# closer, so that a base build from before would render another picture than
+# the reference. A build that knows --camera-from gets this view explicitly;
+# one that does not frames it itself.
+scene_view() {
+    case $1 in
+    lamp) echo "--camera-from 0,0.69003,1.38233 --camera-at 0,0.344448,0 --fov 40" ;;
+    helmet) echo "--camera-from -0.002482,1.22456,4.71105 --camera-at -0.002482,0,-0.187155 --fov 40" ;;
+    *) echo "" ;;
+    esac
+}
+
 # CPU seconds (user + system) of one ptworker run: BUILD SEED SPP OUT ARGS...
 cpu_run() {
     local build=$1 seed=$2 spp=$3 out=$4
@@ -87,14 +102,24 @@ cpu_run() {
     awk '{ printf "%.3f\n", $1 + $2 }' "$OUT/time.txt"
 }
 
-# extra: a build's own ptworker arguments (NEW_ARGS or BASE_ARGS), as words.
+# extra: a build's own ptworker arguments (NEW_ARGS or BASE_ARGS, then the
+# scene's view where the build takes it), as words.
 build_args() {
+    local words
     if [[ $1 == new ]]; then
-        read -r -a extra <<<"$NEW_ARGS"
+        words="$NEW_ARGS"
     else
-        read -r -a extra <<<"$BASE_ARGS"
+        words="$BASE_ARGS"
     fi
+    if [[ $1 == new || $base_views == 1 ]]; then
+        words="$words $view"
+    fi
+    read -r -a extra <<<"$words"
 }
+base_views=0
+if "$OUT/base/ptworker" --help 2>&1 | grep -q -- --camera-from; then
+    base_views=1
+fi
 
 CSV=$OUT/guiding.csv
 echo "scene,build,spp,rep,cpu,relmse,worst" >"$CSV"
@@ -105,11 +130,13 @@ for name in $SCENES; do
     args=$(scene_args "$name") || { echo "guiding.sh: no scene '$name'" >&2; exit 2; }
     # shellcheck disable=SC2086 # the arguments are words
     set -- $args
+    view=$(scene_view "$name")
     ref=$REFS/ref_${name}_${RES}_${REF_SPP}.exr
     if [[ ! -f $ref ]]; then
         echo "$name: reference, $REF_SPP spp" >&2
-        "$OUT/new/ptworker" "$@" --res "$RES" --threads "$THREADS" --spp "$REF_SPP" \
-            --seed 90001 -q -o "$ref" >/dev/null 2>&1
+        NEW_ARGS="" build_args new
+        "$OUT/new/ptworker" "$@" "${extra[@]}" --res "$RES" --threads "$THREADS" \
+            --spp "$REF_SPP" --seed 90001 -q -o "$ref" >/dev/null 2>&1
     fi
     for build in base new; do
         build_args "$build"
