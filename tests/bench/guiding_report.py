@@ -46,15 +46,17 @@ def load(paths):
 
 
 def loads(paths):
-    """{scene: [1-minute load averages]} from loadavg.csv beside each CSV."""
+    """{scene: [1-minute load averages]} from loadavg.csv beside each CSV,
+    for the scenes that CSV holds (a CSV cut from a run's keeps its own)."""
     out = {}
     for path in paths.split(","):
         p = os.path.join(os.path.dirname(path) or ".", "loadavg.csv")
         if not os.path.exists(p):
             continue
+        scenes = {s for (s, _, _) in load(path)}
         with open(p) as f:
             for r in csv.DictReader(f):
-                if r["load1"] != "load1":
+                if r["load1"] != "load1" and r["scene"] in scenes:
                     out.setdefault(r["scene"], []).append(float(r["load1"]))
     return out
 
