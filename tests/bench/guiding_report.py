@@ -167,6 +167,7 @@ def main():
         if not path:
             ap.error("--also wants LABEL=CSV, not %r" % spec)
         runs.append((label, load(path), loads(path)))
+    os.makedirs(a.plots, exist_ok=True)
     scenes = []
     for (s, _, _) in runs[0][1]:
         if s not in scenes:
