@@ -21,17 +21,22 @@
 # log-log between its rows around it; the ratio base / new (above 1: the new
 # build is faster) is printed per level with its median, and each scene's
 # relMSE against CPU time is drawn, both builds, as PLOTS/guiding_NAME.svg.
+# The machine's load (the 1-minute load average) after each render is kept in
+# OUT/loadavg.csv, for the note that reports the run.
 #
 # Environment (defaults in brackets):
 #   SCENES    names from the table below [cornell toycar transmission glass
 #             lamp helmet]
 #   RES       image size [128x128]       THREADS  render threads [2]
 #   REF_SPP   reference spp [4096]       SPP      list [16,32,64,128,256]
-#   NEW_ARGS  [--guiding on]             BASE_ARGS [""]
+#   NEW_ARGS  [--guiding on; set but empty: nothing, the defaults]
+#   BASE_ARGS [""]
 #   SEED0     repetition r renders with seed SEED0 + r [0]: another run
 #             with other seeds adds repetitions (concatenate the CSVs)
 #   OUT       folder for references, images and CSV [/tmp/ptfarm-guiding];
 #             a reference already there (same scene, size, spp) is reused
+#   REFS      folder for the references [OUT]: another run (other NEW_ARGS,
+#             another OUT) can share them
 #   PLOTS     folder for the SVG plots [OUT]
 set -euo pipefail
 
@@ -47,12 +52,13 @@ RES=${RES:-128x128}
 THREADS=${THREADS:-2}
 REF_SPP=${REF_SPP:-4096}
 SPP=${SPP:-16,32,64,128,256}
-NEW_ARGS=${NEW_ARGS:---guiding on}
+NEW_ARGS=${NEW_ARGS---guiding on}
 BASE_ARGS=${BASE_ARGS:-}
 SEED0=${SEED0:-0}
 OUT=${OUT:-/tmp/ptfarm-guiding}
+REFS=${REFS:-$OUT}
 PLOTS=${PLOTS:-$OUT}
-mkdir -p "$OUT/new" "$OUT/base" "$PLOTS"
+mkdir -p "$OUT/new" "$OUT/base" "$REFS" "$PLOTS"
 
 # Private copies of the programs: a rebuild during the run cannot touch them.
 cp "$1/ptworker" "$1/ptbench" "$OUT/new/"
@@ -72,6 +78,21 @@ scene_args() {
     esac
 }
 
+# The view of a scene without a camera of its own: the one that builds before
+# f4e8730 framed (40 degrees high, from the centre of the bounds along
+# (0, 0.25, 1), at 1.05 times the distance at which the bounding sphere fills
+# a square image). Builds since then fit the bounds' projection to the image,
+# closer, so that a base build from before would render another picture than
+# the reference. A build that knows --camera-from gets this view explicitly;
+# one that does not frames it itself.
+scene_view() {
+    case $1 in
+    lamp) echo "--camera-from 0,0.69003,1.38233 --camera-at 0,0.344448,0 --fov 40" ;;
+    helmet) echo "--camera-from -0.002482,1.22456,4.71105 --camera-at -0.002482,0,-0.187155 --fov 40" ;;
+    *) echo "" ;;
+    esac
+}
+
 # CPU seconds (user + system) of one ptworker run: BUILD SEED SPP OUT ARGS...
 cpu_run() {
     local build=$1 seed=$2 spp=$3 out=$4
@@ -81,27 +102,41 @@ cpu_run() {
     awk '{ printf "%.3f\n", $1 + $2 }' "$OUT/time.txt"
 }
 
-# extra: a build's own ptworker arguments (NEW_ARGS or BASE_ARGS), as words.
+# extra: a build's own ptworker arguments (NEW_ARGS or BASE_ARGS, then the
+# scene's view where the build takes it), as words.
 build_args() {
+    local words
     if [[ $1 == new ]]; then
-        read -r -a extra <<<"$NEW_ARGS"
+        words="$NEW_ARGS"
     else
-        read -r -a extra <<<"$BASE_ARGS"
+        words="$BASE_ARGS"
     fi
+    if [[ $1 == new || $base_views == 1 ]]; then
+        words="$words $view"
+    fi
+    read -r -a extra <<<"$words"
 }
+base_views=0
+if "$OUT/base/ptworker" --help 2>&1 | grep -q -- --camera-from; then
+    base_views=1
+fi
 
 CSV=$OUT/guiding.csv
 echo "scene,build,spp,rep,cpu,relmse,worst" >"$CSV"
+LOADS=$OUT/loadavg.csv
+echo "scene,build,spp,rep,load1" >"$LOADS"
 IFS=, read -r -a spps <<<"$SPP"
 for name in $SCENES; do
     args=$(scene_args "$name") || { echo "guiding.sh: no scene '$name'" >&2; exit 2; }
     # shellcheck disable=SC2086 # the arguments are words
     set -- $args
-    ref=$OUT/ref_${name}_${RES}_${REF_SPP}.exr
+    view=$(scene_view "$name")
+    ref=$REFS/ref_${name}_${RES}_${REF_SPP}.exr
     if [[ ! -f $ref ]]; then
         echo "$name: reference, $REF_SPP spp" >&2
-        "$OUT/new/ptworker" "$@" --res "$RES" --threads "$THREADS" --spp "$REF_SPP" \
-            --seed 90001 -q -o "$ref" >/dev/null 2>&1
+        NEW_ARGS="" build_args new
+        "$OUT/new/ptworker" "$@" "${extra[@]}" --res "$RES" --threads "$THREADS" \
+            --spp "$REF_SPP" --seed 90001 -q -o "$ref" >/dev/null 2>&1
     fi
     for build in base new; do
         build_args "$build"
@@ -119,6 +154,7 @@ for name in $SCENES; do
                 e=$("$OUT/new/ptbench" error "$img" "$ref" |
                     awk '/^relMSE/ { r = $2 } /^worst0/ { w = $2 } END { print r "," w }')
                 echo "$name,$build,$spp,$rep,$c,$e" >>"$CSV"
+                echo "$name,$build,$spp,$rep,$(cut -d' ' -f1 /proc/loadavg)" >>"$LOADS"
                 echo "$name $build $spp spp rep $rep: cpu $c s, relMSE,worst $e" >&2
             done
         done
