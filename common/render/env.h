@@ -43,8 +43,12 @@
  * other receiver, or a zero n (one that transmits, or no bound), samples
  * the whole map as without the split: each part's selection probability
  * is its power on the receiver's side bounded by the cone (0 or all), so
- * the mixture is the unsplit distribution itself. A map without such a sun
- * has no split and samples the same whatever n.
+ * the mixture is the unsplit distribution itself. The compensated
+ * distribution splits only when half or more of the compensated rest's
+ * weight lies on the far side of the sky from the sun (where a receiver
+ * that hides the sun can see it; not so in the park map, whose
+ * compensated rest is its sunlit haze and ground). A map without such a
+ * sun has no split and samples the same whatever n.
  *
  * A uniform colour (--background) is a 64 x 32 map of that colour, whose
  * density, luminance x sin(theta), is close to uniform over the sphere.
@@ -98,9 +102,9 @@ int pt_env_sample_n(const pt_env *env, const float u[2], int which, pt_vec3 n, p
                     pt_vec3 *radiance, float *pdf);
 float pt_env_pdf_n(const pt_env *env, pt_vec3 dir, int which, pt_vec3 n);
 
-/* 1 when the map is split into a sun and the rest (above): the receiver's
- * normal changes its sampling. */
-int pt_env_splits(const pt_env *env);
+/* 1 when distribution `which` is split into a sun and the rest (above):
+ * the receiver's normal changes its sampling. */
+int pt_env_splits(const pt_env *env, int which);
 
 /* The mean radiance over the sphere (luminance, weighted by solid angle):
  * the flux it sends into a sphere of radius R is 4 pi^2 R^2 times this. */

@@ -2779,8 +2779,11 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
     r->nee_n = r->nee && ((pt_lights_count(r->lights) >= LIGHTS_N_MIN && others == 0) ||
                           pt_lights_has_tree(r->lights));
     r->light_tree = pt_lights_has_tree(r->lights);
-    r->recv_normal = r->light_tree ||
-                     (params->env && pt_lights_has_env(r->lights) && pt_env_splits(params->env));
+    r->recv_normal =
+        r->light_tree ||
+        (params->env && pt_lights_has_env(r->lights) &&
+         pt_env_splits(params->env,
+                       params->light_strategy == PT_LIGHT_MIS ? PT_ENV_MIS : PT_ENV_FULL));
     uint32_t features = scene->features | (params->extra_features & ~PARAM_FEATURES);
     r->alpha = (scene->features & PT_FEAT_ALPHA) != 0;
     r->motion = (scene->features & PT_FEAT_MOTION) ? scene->motion : NULL;

@@ -175,7 +175,7 @@ static void chi2_env(const char *what, const pt_envmap *map, double rot_deg, int
  * times the sphere's mean at 0, the compensation by the rest's own mean
  * (the mean times the rest's share of the full density's integral), the
  * rest's full corners where that leaves nothing - and 1 from
- * pt_env_splits. */
+ * pt_env_splits; else the whole map's density. */
 static void chi2_env_n(const char *what, const pt_envmap *map, double rot_deg, int which, int BU,
                        int BV, pt_vec3 n, int rest)
 {
@@ -214,7 +214,7 @@ static void chi2_env_n(const char *what, const pt_envmap *map, double rot_deg, i
     if (!rest) {
         env_density_bins(map, mean, which, BU, BV, expd);
     } else {
-        CHECKF(pt_env_splits(env), "%s: the map is not split", what);
+        CHECKF(pt_env_splits(env, which), "%s: the map is not split", what);
         double thr = 16.0 * mean;
         double full = env_density_bins_rest(map, INFINITY, mean, PT_ENV_FULL, BU, BV, expd);
         double part = env_density_bins_rest(map, thr, mean, PT_ENV_FULL, BU, BV, expd);
@@ -443,7 +443,7 @@ static void split_normals(void)
     CHECKF(pt_env_new(&m, 1.0f, 0.0f, &env, &err) == PT_OK, "%s", err.msg);
     if (!env)
         return;
-    CHECK(pt_env_splits(env));
+    CHECK(pt_env_splits(env, PT_ENV_FULL));
     pt_vec3 sun = brightest_dir(&m, 0.0);
     int hidden = 0, bad_pdf = 0;
     for (int k = 0; k < 24; k++) {
@@ -487,7 +487,10 @@ static void split_normals(void)
         sun_area /= (double)G * G * W * H;
         CHECKF(fabs(integral - 1.0) < 1e-3, "normal %d: the pdf integrates to %.6f", k, integral);
         double half = 2.0 * PI_D / W + PI_D / H + 1e-3;
-        if (pt_v3_dot(n, sun) < -sin(half + 0.01)) {
+        if (!pt_env_splits(env, which)) {
+            /* The compensated rest of a uniform sky is the sky itself, half
+             * of it away from the sun: the rule's edge either way. */
+        } else if (pt_v3_dot(n, sun) < -sin(half + 0.01)) {
             hidden++;
             /* Around the sun's texel (its cells) the rest's density is
              * the interpolant of the sky's corners and the sun's 0: at
@@ -533,9 +536,12 @@ static void sampling(void)
         CHECK(m.width == 1024 && m.height == 512);
         pt_env *e = NULL;
         if (pt_env_new(&m, 1.0f, 0.0f, &e, &err) == PT_OK)
-            printf("%s: %s\n", maps[i],
-                   pt_env_splits(e) ? "split into the sun and the rest" : "not split");
-        CHECK(e && pt_env_splits(e) == (i == 1)); /* the park's sun: 68 % of its light */
+            printf("%s: full %s, compensated %s\n", maps[i],
+                   pt_env_splits(e, PT_ENV_FULL) ? "split" : "not split",
+                   pt_env_splits(e, PT_ENV_MIS) ? "split" : "not split");
+        /* The park's sun holds 68 % of its light; its compensated rest
+         * lies on the sun's side (85 %). */
+        CHECK(e && pt_env_splits(e, PT_ENV_FULL) == (i == 1) && !pt_env_splits(e, PT_ENV_MIS));
         pt_env_free(e);
         char name[128];
         snprintf(name, sizeof name, "%s, full", maps[i]);
@@ -549,8 +555,10 @@ static void sampling(void)
             pt_vec3 sun = brightest_dir(&m, 0.0);
             chi2_env_n("rooitou_park, full, sun behind", &m, 0.0, PT_ENV_FULL, 64, 32,
                        pt_v3_neg(sun), 1);
+            /* Its compensated rest (the sunlit haze and ground) lies on
+             * the sun's side: the compensated distribution is not split. */
             chi2_env_n("rooitou_park, compensated, sun behind", &m, 0.0, PT_ENV_MIS, 64, 32,
-                       pt_v3_neg(sun), 1);
+                       pt_v3_neg(sun), 0);
             chi2_env_n("rooitou_park, compensated, sun in front", &m, 0.0, PT_ENV_MIS, 64, 32, sun,
                        0);
         }
@@ -800,7 +808,7 @@ static void sun_behind(void)
     CHECKF(pt_env_new(&m, 1.0f, 0.0f, &env, &err) == PT_OK, "%s", err.msg);
     if (!env)
         return;
-    CHECK(pt_env_splits(env));
+    CHECK(pt_env_splits(env, PT_ENV_FULL) && pt_env_splits(env, PT_ENV_MIS));
     const int G = 8;
     double irr = 0.0, m2 = 0.0, phi_all = 0.0, phi_sun = 0.0;
     for (int j = 0; j < G * H; j++) {
