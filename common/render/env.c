@@ -20,6 +20,7 @@ typedef struct env_dist {
     float *corner;   /* w * h: the value per texel the density interpolates */
     float *row_sin;  /* h + 1: sin(theta) at each cell row's centre */
     double norm;     /* w * h / the cells' total weight: pdf(u, v) = norm sin f(u, v) */
+    double total;    /* the cells' total weight */
     int black;       /* nothing to sample */
 } env_dist;
 
@@ -30,6 +31,15 @@ struct pt_env {
     env_dist comp;   /* the same less the sphere's mean (MIS compensation) */
     float rot;       /* rotate_deg in turns, in [0, 1) */
     double mean_lum; /* over the sphere */
+    /* The split (env.h): the sun's texels' support lies within the cone
+     * about sun_axis whose half-angle's sine is -sun_lim; a receiver with
+     * n . sun_axis <= sun_lim sees none of it and samples full_rest or
+     * comp_rest, the distributions with the sun's texels at 0. */
+    int split;      /* PT_ENV_FULL's */
+    int split_comp; /* PT_ENV_MIS's: the compensated rest lies away from the sun */
+    pt_vec3 sun_axis;
+    float sun_lim;
+    env_dist full_rest, comp_rest;
 };
 
 static void dist_free(env_dist *d)
@@ -47,6 +57,8 @@ void pt_env_free(pt_env *env)
     pt_free(env->rgb);
     dist_free(&env->full);
     dist_free(&env->comp);
+    dist_free(&env->full_rest);
+    dist_free(&env->comp_rest);
     pt_free(env);
 }
 
@@ -86,6 +98,7 @@ static int dist_build(env_dist *d, float *corner, uint32_t w, uint32_t h)
         d->row_cdf[r + 1] = total;
     }
     d->black = !(total > 0.0) || !isfinite(total);
+    d->total = d->black ? 0.0 : total;
     d->norm = d->black ? 0.0 : (double)w * h / total;
     for (uint32_t r = 0; r <= h && !d->black; r++)
         d->row_cdf[r + 1] /= total;
@@ -115,6 +128,140 @@ static double lum_at(const pt_env *e, int64_t x, int64_t y)
     y = y < 0 ? 0 : (y >= h ? h - 1 : y);
     const float *c = &e->rgb[3 * ((size_t)y * e->w + (size_t)x)];
     return pt_luminance(pt_v3(c[0], c[1], c[2]));
+}
+
+/* Direction of map point (u, v) (env.h's orientation). */
+static pt_vec3 uv_dir(const pt_env *e, double u, double v)
+{
+    double theta = PI_D * v, phi = 2.0 * PI_D * (u - 0.5 - (double)e->rot);
+    double st = sin(theta);
+    return pt_v3((float)(st * sin(phi)), (float)cos(theta), (float)(-st * cos(phi)));
+}
+
+/* The split's rule (env.h): a sun texel is one brighter than SUN_LUM times
+ * the sphere's mean luminance; the map splits when those texels' support
+ * fits in a cone of half-angle SUN_MAX_HALF and they hold SUN_SHARE or more
+ * of the full distribution's weight. */
+#define SUN_LUM 16.0
+#define SUN_MAX_HALF 0.5 /* radians, about 29 degrees */
+#define SUN_SHARE 0.2
+#define COMP_AWAY 0.5
+
+/* The share of d's weight in the cells whose centre's direction is on the
+ * far side of the plane through the centre normal to axis. */
+static double share_away(const pt_env *e, const env_dist *d, pt_vec3 axis)
+{
+    uint32_t w = e->w, h = e->h;
+    double away = 0.0;
+    for (uint32_t r = 0; r <= h; r++) {
+        double v = r == 0 ? 0.25 / h : (r == h ? 1.0 - 0.25 / h : (double)r / h);
+        double pr = d->row_cdf[r + 1] - d->row_cdf[r];
+        const double *cdf = d->col_cdf + (size_t)r * (w + 1);
+        if (!(pr > 0.0))
+            continue;
+        for (uint32_t x = 0; x < w; x++) {
+            pt_vec3 dir = uv_dir(e, ((double)x + 1.0) / w, v);
+            if (pt_v3_dot(dir, axis) < 0.0f)
+                away += pr * (cdf[x + 1] - cdf[x]);
+        }
+    }
+    return away;
+}
+
+/* Splits e's map into the sun and the rest (env.h) when the rule above
+ * says so; e->full and e->comp are built. Returns 0 when out of memory. */
+static int split_build(pt_env *e)
+{
+    uint32_t w = e->w, h = e->h;
+    size_t n = (size_t)w * h;
+    const float *fc = e->full.corner;
+    double thr = SUN_LUM * e->mean_lum, ax = 0.0, ay = 0.0, az = 0.0;
+    size_t count = 0;
+    if (e->full.black || !(thr > 0.0))
+        return 1;
+    for (uint32_t y = 0; y < h; y++)
+        for (uint32_t x = 0; x < w; x++) {
+            double l = fc[(size_t)y * w + x];
+            if (!(l > thr))
+                continue;
+            double v = ((double)y + 0.5) / h;
+            pt_vec3 d = uv_dir(e, ((double)x + 0.5) / w, v);
+            double k = l * sin(PI_D * v);
+            ax += k * d.x;
+            ay += k * d.y;
+            az += k * d.z;
+            count++;
+        }
+    double len = sqrt(ax * ax + ay * ay + az * az);
+    if (count == 0 || count > n / 8 || !(len > 0.0) || !isfinite(len))
+        return 1;
+    pt_vec3 axis = pt_v3((float)(ax / len), (float)(ay / len), (float)(az / len));
+    /* The cone: the widest angle from the axis to a sun texel's centre,
+     * plus the reach of its support (the cells it is a corner of, one texel
+     * centre on every side): at most pi / h in theta and 2 pi / w in phi,
+     * an arc of sin(theta) 2 pi / w <= 2 pi / w along a parallel, so by the
+     * triangle inequality 2 pi / w + pi / h in all; 1e-3 more for the
+     * float directions and normals. */
+    double widest = 0.0;
+    for (uint32_t y = 0; y < h; y++)
+        for (uint32_t x = 0; x < w; x++) {
+            if (!((double)fc[(size_t)y * w + x] > thr))
+                continue;
+            pt_vec3 d = uv_dir(e, ((double)x + 0.5) / w, ((double)y + 0.5) / h);
+            double c = (double)d.x * axis.x + (double)d.y * axis.y + (double)d.z * axis.z;
+            double a = acos(c < -1.0 ? -1.0 : (c > 1.0 ? 1.0 : c));
+            widest = a > widest ? a : widest;
+        }
+    double half = widest + 2.0 * PI_D / w + PI_D / h + 1e-3;
+    if (!(half <= SUN_MAX_HALF))
+        return 1;
+    float *fr = pt_malloc_array(n, sizeof *fr);
+    if (!fr)
+        return 0;
+    for (size_t i = 0; i < n; i++)
+        fr[i] = (double)fc[i] > thr ? 0.0f : fc[i];
+    if (!dist_build(&e->full_rest, fr, w, h))
+        return 0;
+    double rest_share = e->full_rest.total / e->full.total;
+    if (!(rest_share <= 1.0 - SUN_SHARE)) {
+        dist_free(&e->full_rest);
+        memset(&e->full_rest, 0, sizeof e->full_rest);
+        return 1;
+    }
+    /* The rest's own MIS compensation: its luminance less its own mean
+     * over the sphere (the sun's share of the mean taken out), 0 where
+     * negative; where that leaves nothing, the rest's full corners. */
+    double rest_mean = e->mean_lum * rest_share, comp_total = 0.0;
+    float *cr = pt_malloc_array(n, sizeof *cr);
+    if (!cr)
+        return 0;
+    for (size_t i = 0; i < n; i++) {
+        double k = (double)fr[i] - rest_mean;
+        cr[i] = k > 0.0 ? (float)k : 0.0f;
+        comp_total += cr[i];
+    }
+    if (!(comp_total > 1e-6 * rest_mean * (double)n))
+        memcpy(cr, fr, n * sizeof *cr);
+    if (!dist_build(&e->comp_rest, cr, w, h))
+        return 0;
+    /* Under MIS a receiver that hides the sun samples the compensated
+     * rest, whose every sample above its tangent plane costs a shadow ray
+     * that BSDF sampling, which MIS weighs fully where the map is no
+     * brighter than its mean, mostly did not need; where that rest lies
+     * mostly on the sun's side of the sky (the park map's sunlit haze and
+     * ground: 85 % for a receiver facing straight away from the sun), the
+     * receiver sees little of it and the split costs more shadow rays than
+     * it saves variance (docs/bench/helmet_park.md). The compensated rest
+     * splits only when half its weight or more lies away from the sun. */
+    e->split_comp = !e->comp_rest.black && share_away(e, &e->comp_rest, axis) >= COMP_AWAY;
+    if (!e->split_comp) {
+        dist_free(&e->comp_rest);
+        memset(&e->comp_rest, 0, sizeof e->comp_rest);
+    }
+    e->split = 1;
+    e->sun_axis = axis;
+    e->sun_lim = -(float)sin(half);
+    return 1;
 }
 
 pt_status pt_env_new(const pt_envmap *map, float strength, float rotate_deg, pt_env **out,
@@ -206,6 +353,7 @@ pt_status pt_env_new(const pt_envmap *map, float strength, float rotate_deg, pt_
     ok = ok && dist_build(&e->comp, cc, w, h);
     if (!e->comp.corner)
         pt_free(cc);
+    ok = ok && split_build(e);
     if (!ok) {
         pt_env_free(e);
         return pt_error_set(err, PT_ERR_NOMEM, "out of memory for a %ux%u environment", w, h);
@@ -337,14 +485,29 @@ pt_vec3 pt_env_eval(const pt_env *env, pt_vec3 dir)
     return lookup(env, u, v);
 }
 
-static const env_dist *dist_of(const pt_env *env, int which)
+/* The distribution `which` for a receiver with normal n (env.h): the
+ * rest's where the sun is wholly below n's tangent plane. */
+static const env_dist *dist_of(const pt_env *env, int which, pt_vec3 n)
 {
-    return which == PT_ENV_MIS ? &env->comp : &env->full;
+    if (which == PT_ENV_MIS)
+        return env->split_comp && pt_v3_dot(n, env->sun_axis) <= env->sun_lim ? &env->comp_rest
+                                                                              : &env->comp;
+    return env->split && pt_v3_dot(n, env->sun_axis) <= env->sun_lim ? &env->full_rest : &env->full;
+}
+
+int pt_env_splits(const pt_env *env, int which)
+{
+    return which == PT_ENV_MIS ? env->split_comp : env->split;
 }
 
 float pt_env_pdf(const pt_env *env, pt_vec3 dir, int which)
 {
-    const env_dist *d = dist_of(env, which);
+    return pt_env_pdf_n(env, dir, which, pt_v3(0.0f, 0.0f, 0.0f));
+}
+
+float pt_env_pdf_n(const pt_env *env, pt_vec3 dir, int which, pt_vec3 n)
+{
+    const env_dist *d = dist_of(env, which, n);
     if (d->black)
         return 0.0f;
     float u, v;
@@ -362,7 +525,13 @@ float pt_env_pdf(const pt_env *env, pt_vec3 dir, int which)
 int pt_env_sample(const pt_env *env, const float u[2], int which, pt_vec3 *dir, pt_vec3 *radiance,
                   float *pdf)
 {
-    const env_dist *d = dist_of(env, which);
+    return pt_env_sample_n(env, u, which, pt_v3(0.0f, 0.0f, 0.0f), dir, radiance, pdf);
+}
+
+int pt_env_sample_n(const pt_env *env, const float u[2], int which, pt_vec3 n, pt_vec3 *dir,
+                    pt_vec3 *radiance, float *pdf)
+{
+    const env_dist *d = dist_of(env, which, n);
     *pdf = 0.0f;
     if (d->black)
         return 0;

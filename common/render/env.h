@@ -32,6 +32,24 @@
  * negative (MIS compensation, Karlik et al. 2019): for NEE combined with
  * BSDF sampling by MIS, which finds the dim rest.
  *
+ * The receiver's side: a map with a sun (texels brighter than 16 times the
+ * sphere's mean luminance, within a cone of half-angle under 29 degrees
+ * once their bilinear support is allowed for, holding 20 % or more of the
+ * full distribution's weight) is split at load into the sun and the rest.
+ * A receiver whose tangent plane (normal n) has the whole cone below it
+ * samples, and weighs by MIS, the rest alone (the rest's distributions:
+ * the map with the sun's texels at 0, and its MIS compensation by the
+ * rest's own mean), where the sun's samples would have added nothing; any
+ * other receiver, or a zero n (one that transmits, or no bound), samples
+ * the whole map as without the split: each part's selection probability
+ * is its power on the receiver's side bounded by the cone (0 or all), so
+ * the mixture is the unsplit distribution itself. The compensated
+ * distribution splits only when half or more of the compensated rest's
+ * weight lies on the far side of the sky from the sun (where a receiver
+ * that hides the sun can see it; not so in the park map, whose
+ * compensated rest is its sunlit haze and ground). A map without such a
+ * sun has no split and samples the same whatever n.
+ *
  * A uniform colour (--background) is a 64 x 32 map of that colour, whose
  * density, luminance x sin(theta), is close to uniform over the sphere.
  *
@@ -75,6 +93,18 @@ int pt_env_sample(const pt_env *env, const float u[2], int which, pt_vec3 *dir, 
 
 /* The solid-angle pdf pt_env_sample with `which` gives dir. */
 float pt_env_pdf(const pt_env *env, pt_vec3 dir, int which);
+
+/* The same for a receiver with normal n (unit, on the side it takes light
+ * from; zero: no bound, as pt_env_sample): NEE at it samples by
+ * pt_env_sample_n, and the MIS weight of a BSDF-sampled ray from it that
+ * leaves the scene takes pt_env_pdf_n with the same n. */
+int pt_env_sample_n(const pt_env *env, const float u[2], int which, pt_vec3 n, pt_vec3 *dir,
+                    pt_vec3 *radiance, float *pdf);
+float pt_env_pdf_n(const pt_env *env, pt_vec3 dir, int which, pt_vec3 n);
+
+/* 1 when distribution `which` is split into a sun and the rest (above):
+ * the receiver's normal changes its sampling. */
+int pt_env_splits(const pt_env *env, int which);
 
 /* The mean radiance over the sphere (luminance, weighted by solid angle):
  * the flux it sends into a sphere of radius R is 4 pi^2 R^2 times this. */

@@ -684,22 +684,23 @@ int pt_lights_has_env(const pt_lights *lights)
     return lights && lights->env;
 }
 
-float pt_lights_env_pdf(const pt_lights *lights, pt_vec3 dir)
+float pt_lights_env_pdf(const pt_lights *lights, pt_vec3 dir, pt_vec3 n)
 {
     if (!lights || !lights->env)
         return 0.0f;
-    return lights->p_env * pt_env_pdf(lights->env, dir, lights->env_dist);
+    return lights->p_env * pt_env_pdf_n(lights->env, dir, lights->env_dist, n);
 }
 
-/* A sample of the environment from u[1..2]: a direction and the radiance
- * from it, not a delta (MIS weighs it against BSDF sampling). */
-static int sample_env(const pt_lights *lights, const float u[3], pt_light_sample *s)
+/* A sample of the environment from u[1..2] for a receiver with normal n
+ * (env.h: the sun's share by n): a direction and the radiance from it, not
+ * a delta (MIS weighs it against BSDF sampling). */
+static int sample_env(const pt_lights *lights, pt_vec3 n, const float u[3], pt_light_sample *s)
 {
     s->delta = PT_LIGHT_ENV;
     s->tri = UINT32_MAX;
     s->dist = INFINITY;
     float pdf;
-    if (!pt_env_sample(lights->env, &u[1], lights->env_dist, &s->wi, &s->radiance, &pdf))
+    if (!pt_env_sample_n(lights->env, &u[1], lights->env_dist, n, &s->wi, &s->radiance, &pdf))
         return 0;
     s->pdf = lights->p_env * pdf;
     return s->pdf > 0.0f && isfinite(s->pdf);
@@ -982,7 +983,7 @@ int pt_lights_sample(const pt_lights *lights, const pt_scene *scene, pt_vec3 p, 
         /* The class first, then the light within it, from one number. */
         double u0 = u[0];
         if (!(u0 < lights->c_env))
-            return sample_env(lights, u, s);
+            return sample_env(lights, n, u, s);
         if (!(u0 < lights->p_tri)) {
             s->tri = UINT32_MAX;
             return sample_punctual(lights, p,

@@ -104,6 +104,9 @@ struct pt_renderer {
     int thin_glass;
     /* a light tree chooses: light_normal computes the receiver's normal */
     int light_tree;
+    /* a light tree, or an environment split into a sun and the rest
+     * (env.h): the receiver's normal bounds the light sampling */
+    int recv_normal;
     const char *variant;
     int lanes; /* the Lambert variants shade in lanes (shade_lanes) */
     float tan_half_fov;
@@ -1062,12 +1065,13 @@ static inline int transmits(const pt_material *m);
  * lights the tree gives no probability there would have added nothing, with
  * NEE alone too; zero (no bound) where the surface scatters to both sides
  * (shade()'s `through`). NEE at sf and the MIS weight of the hit the path
- * finds next (pa->prev_n) both take it from here. Without a tree nothing
+ * finds next (pa->prev_n) both take it from here; an environment split
+ * into a sun and the rest (env.h) bounds by it too. Without either nothing
  * reads it: zero, for nothing. */
 static inline __attribute__((always_inline)) pt_vec3
 light_normal(const pt_renderer *r, const surface *sf, pt_vec3 wo, const uint32_t features)
 {
-    if (!r->light_tree || ((features & PT_FEAT_TRANSMISSION) && transmits(sf->mat)) ||
+    if (!r->recv_normal || ((features & PT_FEAT_TRANSMISSION) && transmits(sf->mat)) ||
         ((features & PT_FEAT_DIFFUSE_TRANSMISSION) &&
          (sf->mat->ext & PT_MATX_DIFFUSE_TRANSMISSION)))
         return pt_v3(0.0f, 0.0f, 0.0f);
@@ -1153,7 +1157,7 @@ static inline __attribute__((always_inline)) void shade_miss(const pt_renderer *
     pt_vec3 le = pt_env_eval(r->params.env, pa->d);
     float lp = 0.0f, mis = 1.0f; /* the map's pdf and the MIS weight (the path log's too) */
     if (pa->prev_pdf > 0.0f && strategy == PT_LIGHT_MIS) {
-        lp = pt_lights_env_pdf(r->lights, pa->d);
+        lp = pt_lights_env_pdf(r->lights, pa->d, pa->prev_n);
         mis = power_heuristic(pa->prev_pdf, lp);
         le = pt_v3_scale(le, mis);
     }
@@ -2219,7 +2223,7 @@ static void shade_lanes(const pt_renderer *r, path *paths, const uint8_t *live, 
         s->contrib = pt_v3(cx[l], cy[l], cz[l]);
         pa->beta = pt_v3(btx[l], bty[l], btz[l]);
         pa->prev_p = pt_v3(px[l], py[l], pz[l]);
-        if (r->light_tree) /* else nothing reads it */
+        if (r->recv_normal) /* else nothing reads it */
             pa->prev_n = pt_v3(sl->ln[0][j0 + l], sl->ln[1][j0 + l], sl->ln[2][j0 + l]);
         pa->prev_pdf = pdf[l];
         pa->o = pt_v3(ox[l], oy[l], oz[l]);
@@ -2441,7 +2445,7 @@ trace_batch(const pt_renderer *r, path *paths, uint32_t n, stage_lanes *sl, cons
                 PT_LANE_PUT3(sl->ng, j, sf.ng);
                 PT_LANE_PUT3(sl->ns, j, sf.ns);
                 PT_LANE_PUT3(sl->diffuse, j, b.diffuse);
-                if (r->light_tree)
+                if (r->recv_normal)
                     PT_LANE_PUT3(sl->ln, j, light_normal(r, &sf, pt_v3_neg(paths[k].d), features));
             }
             int nee = (features & PT_FEAT_EMITTERS) && r->nee;
@@ -2775,6 +2779,11 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
     r->nee_n = r->nee && ((pt_lights_count(r->lights) >= LIGHTS_N_MIN && others == 0) ||
                           pt_lights_has_tree(r->lights));
     r->light_tree = pt_lights_has_tree(r->lights);
+    r->recv_normal =
+        r->light_tree ||
+        (params->env && pt_lights_has_env(r->lights) &&
+         pt_env_splits(params->env,
+                       params->light_strategy == PT_LIGHT_MIS ? PT_ENV_MIS : PT_ENV_FULL));
     uint32_t features = scene->features | (params->extra_features & ~PARAM_FEATURES);
     r->alpha = (scene->features & PT_FEAT_ALPHA) != 0;
     r->motion = (scene->features & PT_FEAT_MOTION) ? scene->motion : NULL;

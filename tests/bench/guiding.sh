@@ -74,6 +74,7 @@ scene_args() {
     glass) echo "--scene $ROOT/scenes/glass_things.gltf --env $SHARED/envs/studio_small_03_1k.hdr" ;;
     lamp) echo "--scene $SHARED/scenes/StainedGlassLamp/StainedGlassLamp.gltf" ;;
     helmet) echo "--scene $SHARED/scenes/DamagedHelmet/DamagedHelmet.glb --env $SHARED/envs/rooitou_park_1k.hdr" ;;
+    toycar_park) echo "--scene $SHARED/scenes/ToyCar/ToyCar.gltf --env $SHARED/envs/rooitou_park_1k.hdr" ;;
     *) return 1 ;;
     esac
 }

@@ -14,6 +14,17 @@
  *   pt_env_eval's of its direction (within the float direction's rounding:
  *   the sample reads them at the point it sampled), and the pdf integrates
  *   to 1 over the sphere (a midpoint sum on a grid).
+ * - The split by the receiver's normal (env.h): chi-square of the park
+ *   map's samples for a receiver facing away from its sun against the
+ *   rest's density (full and compensated), and facing it against the whole
+ *   map's; on random normals a sample's pdf is pt_env_pdf_n's with the same
+ *   normal (NEE's and the BSDF hit's MIS weights sum to 1), the pdf
+ *   integrates to 1, and where the sun's cone is below the tangent plane
+ *   the pdf leaves it and puts half its mass above the plane; a Lambert
+ *   plane facing away from a one-texel sun under a sky reads its closed
+ *   form by NEE alone, MIS and BSDF sampling, NEE at the standard error
+ *   predicted for the rest alone (3 times lower than the whole map's) and
+ *   MIS at under half BSDF sampling's. Only the park map splits.
  * - A one-texel sun: NEE's luminance over pdf is constant within the sin
  *   ratio across a cell and float rounding (relative standard deviation
  *   under 1e-3; a density constant over each texel gives 1.04), and its
@@ -91,8 +102,19 @@ static double map_lum(const pt_envmap *map, long x, long y)
  * over a rectangle is its value at the centre times the area, so each cell
  * is cut into k x k squares (k even, bins lying on their edges) and each
  * square's integral goes to the bin holding it. */
+static double env_density_bins_rest(const pt_envmap *map, double thr, double mean, int which,
+                                    int bu, int bv, double *expd);
 static void env_density_bins(const pt_envmap *map, double mean, int which, int bu, int bv,
                              double *expd)
+{
+    env_density_bins_rest(map, INFINITY, mean, which, bu, bv, expd);
+}
+
+/* The same for the map with the texels brighter than thr at 0 (a split's
+ * rest, env.h), less mean for PT_ENV_MIS; returns the density's integral
+ * before normalising (the cells' total weight). */
+static double env_density_bins_rest(const pt_envmap *map, double thr, double mean, int which,
+                                    int bu, int bv, double *expd)
 {
     uint32_t w = map->width, h = map->height;
     int k = 2 * (bu / (int)w > 1 ? bu / (int)w : 1);
@@ -108,6 +130,7 @@ static void env_density_bins(const pt_envmap *map, double mean, int which, int b
             double c[4];
             for (int i = 0; i < 4; i++) {
                 double l = map_lum(map, (long)x + (i & 1), i < 2 ? y0 : y1);
+                l = l > thr ? 0.0 : l;
                 c[i] = which == PT_ENV_MIS ? fmax(l - mean, 0.0) : l;
             }
             for (int j = 0; j < k; j++) {
@@ -130,6 +153,7 @@ static void env_density_bins(const pt_envmap *map, double mean, int which, int b
     }
     for (int b = 0; b < bu * bv; b++)
         expd[b] /= total;
+    return total;
 }
 
 /* Chi-square of n samples of env (built from map, rotated) by distribution
@@ -138,8 +162,22 @@ static void env_density_bins(const pt_envmap *map, double mean, int which, int b
  * is the mean over it of the bilinear lookup's luminance: over a texel's
  * rectangle, the 3 x 3 texels around it weighed (1/8, 3/4, 1/8) in each
  * direction (the integral of the tent), times sin(theta at its centre). */
+static void chi2_env_n(const char *what, const pt_envmap *map, double rot_deg, int which, int BU,
+                       int BV, pt_vec3 n, int rest);
 static void chi2_env(const char *what, const pt_envmap *map, double rot_deg, int which, int BU,
                      int BV)
+{
+    chi2_env_n(what, map, rot_deg, which, BU, BV, pt_v3(0.0f, 0.0f, 0.0f), 0);
+}
+
+/* The same for a receiver with normal n, sampled by pt_env_sample_n; rest:
+ * the test expects the split's rest (env.h) - the texels brighter than 16
+ * times the sphere's mean at 0, the compensation by the rest's own mean
+ * (the mean times the rest's share of the full density's integral), the
+ * rest's full corners where that leaves nothing - and 1 from
+ * pt_env_splits; else the whole map's density. */
+static void chi2_env_n(const char *what, const pt_envmap *map, double rot_deg, int which, int BU,
+                       int BV, pt_vec3 n, int rest)
 {
     pt_env *env = NULL;
     pt_error err = {0};
@@ -173,13 +211,24 @@ static void chi2_env(const char *what, const pt_envmap *map, double rot_deg, int
     double mean = sphere * (2.0 * PI_D / w) * (PI_D / h) / (4.0 * PI_D);
     CHECKF(fabs(pt_env_mean_luminance(env) - mean) <= 1e-3 * mean + 1e-9,
            "%s: mean luminance %g, want %g", what, pt_env_mean_luminance(env), mean);
-    env_density_bins(map, mean, which, BU, BV, expd);
+    if (!rest) {
+        env_density_bins(map, mean, which, BU, BV, expd);
+    } else {
+        CHECKF(pt_env_splits(env, which), "%s: the map is not split", what);
+        double thr = 16.0 * mean;
+        double full = env_density_bins_rest(map, INFINITY, mean, PT_ENV_FULL, BU, BV, expd);
+        double part = env_density_bins_rest(map, thr, mean, PT_ENV_FULL, BU, BV, expd);
+        if (which == PT_ENV_MIS &&
+            !(env_density_bins_rest(map, thr, mean * part / full, PT_ENV_MIS, BU, BV, expd) > 0.0))
+            env_density_bins_rest(map, thr, mean, PT_ENV_FULL, BU, BV, expd);
+        printf("%s: the rest holds %.4f of the full density\n", what, part / full);
+    }
     const int N = 400000;
     int pdf_bad = 0, rad_bad = 0;
     for (int i = 0; i < N; i++) {
         float u[2] = {(float)rnd(), (float)rnd()}, pdf;
         pt_vec3 d, rad;
-        if (!pt_env_sample(env, u, which, &d, &rad, &pdf))
+        if (!pt_env_sample_n(env, u, which, n, &d, &rad, &pdf))
             continue;
         double uu, vv;
         uv_of(d, rot_deg, &uu, &vv);
@@ -187,7 +236,7 @@ static void chi2_env(const char *what, const pt_envmap *map, double rot_deg, int
         bu = bu < 0 ? 0 : bu >= BU ? BU - 1 : bu;
         bv = bv < 0 ? 0 : bv >= BV ? BV - 1 : bv;
         obs[bv * BU + bu] += 1.0;
-        float p2 = pt_env_pdf(env, d, which);
+        float p2 = pt_env_pdf_n(env, d, which, n);
         /* The sample reads the lookup at the point it sampled; the
          * direction, rounded to floats, maps back to within a few float
          * steps of it, where the lookup differs by at most its slope (the
@@ -231,7 +280,7 @@ static void chi2_env(const char *what, const pt_envmap *map, double rot_deg, int
         for (uint32_t i = 0; i < gu; i++) {
             double u = (i + 0.5) / gu, phi = 2.0 * PI_D * (u - 0.5 - rot_deg / 360.0);
             pt_vec3 d = pt_v3((float)(st * sin(phi)), (float)cos(th), (float)(-st * cos(phi)));
-            integral += pt_env_pdf(env, d, which) * 2.0 * PI_D * PI_D * st;
+            integral += pt_env_pdf_n(env, d, which, n) * 2.0 * PI_D * PI_D * st;
         }
     }
     integral /= (double)gu * gv;
@@ -365,6 +414,114 @@ static void sun_ratio(void)
     pt_env_free(env);
 }
 
+/* The direction of map's brightest texel's centre (uv_of's inverse). */
+static pt_vec3 brightest_dir(const pt_envmap *map, double rot_deg)
+{
+    long bx = 0, by = 0;
+    for (long y = 0; y < (long)map->height; y++)
+        for (long x = 0; x < (long)map->width; x++)
+            if (map_lum(map, x, y) > map_lum(map, bx, by)) {
+                bx = x;
+                by = y;
+            }
+    double u = (bx + 0.5) / map->width, th = PI_D * (by + 0.5) / map->height;
+    double phi = 2.0 * PI_D * (u - 0.5 - rot_deg / 360.0);
+    return pt_v3((float)(sin(th) * sin(phi)), (float)cos(th), (float)(-sin(th) * cos(phi)));
+}
+
+/* The split by the receiver's normal (env.h) on random normals: for each,
+ * a sample's pdf is pt_env_pdf_n's with the same normal (what makes NEE's
+ * and the BSDF hit's MIS weights sum to 1), the pdf integrates to 1 over
+ * the sphere, and where the sun's cone is wholly below the tangent plane
+ * it is 0 on the sun's texels, so that all of it lies where the rest can
+ * send light: on a 128 x 64 map, a uniform sky of 1 and one texel of 4e4
+ * (85 % of the light). */
+static void split_normals(void)
+{
+    enum { W = 128, H = 64 };
+    static float px[W * H * 3];
+    for (int i = 0; i < W * H * 3; i++)
+        px[i] = 1.0f;
+    const int sx = 40, sy = 48;
+    for (int c = 0; c < 3; c++)
+        px[3 * (sy * W + sx) + c] = 4e4f;
+    pt_envmap m = {W, H, px};
+    pt_env *env = NULL;
+    pt_error err = {0};
+    CHECKF(pt_env_new(&m, 1.0f, 0.0f, &env, &err) == PT_OK, "%s", err.msg);
+    if (!env)
+        return;
+    CHECK(pt_env_splits(env, PT_ENV_FULL));
+    pt_vec3 sun = brightest_dir(&m, 0.0);
+    int hidden = 0, bad_pdf = 0;
+    for (int k = 0; k < 24; k++) {
+        /* A uniform normal on the sphere; every fourth one the sun's opposite. */
+        double z = 2.0 * rnd() - 1.0, a = 2.0 * PI_D * rnd(), r = sqrt(fmax(0.0, 1.0 - z * z));
+        pt_vec3 n = pt_v3((float)(r * cos(a)), (float)z, (float)(r * sin(a)));
+        if (k % 4 == 0)
+            n = pt_v3_neg(sun);
+        int which = k & 1 ? PT_ENV_MIS : PT_ENV_FULL;
+        for (int i = 0; i < 2000; i++) {
+            float u[2] = {(float)rnd(), (float)rnd()}, pdf;
+            pt_vec3 d, rad;
+            if (!pt_env_sample_n(env, u, which, n, &d, &rad, &pdf))
+                continue;
+            if (!(fabsf(pt_env_pdf_n(env, d, which, n) - pdf) <= 1e-3f * pdf))
+                bad_pdf++;
+        }
+        /* The sun's cone (its texel and the cells around it) is wholly
+         * below the plane when n . sun < -sin(angle to the support's edge
+         * + margin); the pdf there is then 0. */
+        double integral = 0.0, on_sun = 0.0, above = 0.0, sun_area = 0.0;
+        const int G = 4;
+        for (int j = 0; j < G * H; j++) {
+            double v = (j + 0.5) / (G * H), th = PI_D * v, st = sin(th);
+            for (int i = 0; i < G * W; i++) {
+                double u = (i + 0.5) / (G * W), phi = 2.0 * PI_D * (u - 0.5);
+                pt_vec3 d = pt_v3((float)(st * sin(phi)), (float)cos(th), (float)(-st * cos(phi)));
+                double p = pt_env_pdf_n(env, d, which, n) * 2.0 * PI_D * PI_D * st;
+                integral += p;
+                if (fabs(u * W - (sx + 0.5)) < 1.0 && fabs(v * H - (sy + 0.5)) < 1.0) {
+                    on_sun += p;
+                    sun_area += 2.0 * PI_D * PI_D * st;
+                }
+                if (pt_v3_dot(d, n) > 0.0f)
+                    above += p;
+            }
+        }
+        integral /= (double)G * G * W * H;
+        on_sun /= (double)G * G * W * H;
+        above /= (double)G * G * W * H;
+        sun_area /= (double)G * G * W * H;
+        CHECKF(fabs(integral - 1.0) < 1e-3, "normal %d: the pdf integrates to %.6f", k, integral);
+        double half = 2.0 * PI_D / W + PI_D / H + 1e-3;
+        if (!pt_env_splits(env, which)) {
+            /* The compensated rest of a uniform sky is the sky itself, half
+             * of it away from the sun: the rule's edge either way. */
+        } else if (pt_v3_dot(n, sun) < -sin(half + 0.01)) {
+            hidden++;
+            /* Around the sun's texel (its cells) the rest's density is
+             * the interpolant of the sky's corners and the sun's 0: at
+             * most the uniform rest's, 1 / (4 pi) of the solid angle (the
+             * whole map's gives the sun 85 %). */
+            CHECKF(on_sun <= 1.01 * sun_area / (4.0 * PI_D),
+                   "normal %d: %.3g of the pdf on the hidden sun, over %.3g", k, on_sun,
+                   sun_area / (4.0 * PI_D));
+            /* The uniform rest: half its mass on the receiver's side. */
+            CHECKF(fabs(above - 0.5) < 0.02, "normal %d: %.4f of the pdf above the plane", k,
+                   above);
+        } else if (pt_v3_dot(n, sun) > 0.0f) {
+            CHECKF(on_sun > 0.5, "normal %d: the visible sun has %.3g of the pdf", k, on_sun);
+        }
+    }
+    /* A direction on a cell's edge may round into its neighbour: rare. */
+    CHECKF(bad_pdf < 24 * 2000 / 10000,
+           "%d samples' pdf differs from pt_env_pdf_n with their normal", bad_pdf);
+    CHECK(hidden >= 6);
+    printf("split: %d of 24 normals with the sun hidden\n", hidden);
+    pt_env_free(env);
+}
+
 static void sampling(void)
 {
     const char *maps[] = {"studio_small_03_1k.hdr", "rooitou_park_1k.hdr",
@@ -385,13 +542,34 @@ static void sampling(void)
         if (!m.rgb)
             continue;
         CHECK(m.width == 1024 && m.height == 512);
+        pt_env *e = NULL;
+        if (pt_env_new(&m, 1.0f, 0.0f, &e, &err) == PT_OK)
+            printf("%s: full %s, compensated %s\n", maps[i],
+                   pt_env_splits(e, PT_ENV_FULL) ? "split" : "not split",
+                   pt_env_splits(e, PT_ENV_MIS) ? "split" : "not split");
+        /* The park's sun holds 68 % of its light; its compensated rest
+         * lies on the sun's side (85 %). */
+        CHECK(e && pt_env_splits(e, PT_ENV_FULL) == (i == 1) && !pt_env_splits(e, PT_ENV_MIS));
+        pt_env_free(e);
         char name[128];
         snprintf(name, sizeof name, "%s, full", maps[i]);
         chi2_env(name, &m, 0.0, PT_ENV_FULL, 64, 32);
         snprintf(name, sizeof name, "%s, compensated", maps[i]);
         chi2_env(name, &m, 0.0, PT_ENV_MIS, 64, 32);
-        if (i == 1)
+        if (i == 1) {
             chi2_env("rooitou_park rotated 37 deg", &m, 37.0, PT_ENV_MIS, 64, 32);
+            /* The low sun (its brightest texel) behind the receiver: the
+             * rest alone; in front of it, the whole map. */
+            pt_vec3 sun = brightest_dir(&m, 0.0);
+            chi2_env_n("rooitou_park, full, sun behind", &m, 0.0, PT_ENV_FULL, 64, 32,
+                       pt_v3_neg(sun), 1);
+            /* Its compensated rest (the sunlit haze and ground) lies on
+             * the sun's side: the compensated distribution is not split. */
+            chi2_env_n("rooitou_park, compensated, sun behind", &m, 0.0, PT_ENV_MIS, 64, 32,
+                       pt_v3_neg(sun), 0);
+            chi2_env_n("rooitou_park, compensated, sun in front", &m, 0.0, PT_ENV_MIS, 64, 32, sun,
+                       0);
+        }
         pt_envmap_free(&m);
     }
 }
@@ -583,6 +761,96 @@ static void sun_plane(void)
     pt_env_free(env);
 }
 
+/* The bilinear lookup's luminance at (u, v) (env.h), written again. */
+static double lookup_lum(const pt_envmap *map, double u, double v)
+{
+    double fx = u * map->width - 0.5, fy = v * map->height - 0.5;
+    long x0 = (long)floor(fx), y0 = (long)floor(fy);
+    double s = fx - x0, t = fy - y0;
+    return (1 - t) * ((1 - s) * map_lum(map, x0, y0) + s * map_lum(map, x0 + 1, y0)) +
+           t * ((1 - s) * map_lum(map, x0, y0 + 1) + s * map_lum(map, x0 + 1, y0 + 1));
+}
+
+/* A Lambert plane (normal +Y, albedo rho) facing away from a one-texel sun
+ * (85 % of the map's light, 44 degrees below the horizon) under a sky of 1
+ * with a patch of 3 x 3 texels of 30 at 35 degrees from the zenith, on a
+ * 128 x 64 map. Its radiance is rho / pi times the integral of the lookup
+ * times cos(theta) over the upper hemisphere (computed here on a grid of
+ * 8 x 8 points a texel); the sun adds nothing. NEE alone: a sample of a
+ * density proportional to the lookup L, of total Phi, weighs
+ * rho / pi cos Phi wherever it lands, so its variance is
+ * (rho / pi)^2 Phi int L cos^2 - mean^2 over the upper hemisphere: with the
+ * split (the rest alone: Phi the sky's) its standard error over 16 x 16
+ * pixels of 64 samples is predicted below; the whole map's Phi is 6.7 times
+ * larger, its standard error 2.4 times. The test asks for under their
+ * geometric mean. Under MIS the unsplit compensated distribution is the
+ * sun alone but for 0.4 %, so BSDF sampling finds the patch by chance, as
+ * it does alone (a standard error 0.68 times BSDF sampling's alone); the
+ * rest's compensation (its own mean, about 1) is the patch alone, which
+ * NEE then finds every time (0.05 times): the test asks MIS for under half
+ * BSDF sampling's standard error. */
+static void sun_behind(void)
+{
+    enum { W = 128, H = 64 };
+    static float px[W * H * 3];
+    const int sx = 40, sy = 48;
+    const float rho = 0.5f;
+    for (int y = 0; y < H; y++)
+        for (int x = 0; x < W; x++) {
+            float l =
+                x == sx && y == sy ? 4e4f : (abs(x - 80) <= 1 && abs(y - 12) <= 1 ? 30.0f : 1.0f);
+            for (int c = 0; c < 3; c++)
+                px[3 * (y * W + x) + c] = l;
+        }
+    pt_envmap m = {W, H, px};
+    pt_env *env = NULL;
+    pt_error err = {0};
+    CHECKF(pt_env_new(&m, 1.0f, 0.0f, &env, &err) == PT_OK, "%s", err.msg);
+    if (!env)
+        return;
+    CHECK(pt_env_splits(env, PT_ENV_FULL) && pt_env_splits(env, PT_ENV_MIS));
+    const int G = 8;
+    double irr = 0.0, m2 = 0.0, phi_all = 0.0, phi_sun = 0.0;
+    for (int j = 0; j < G * H; j++) {
+        double v = (j + 0.5) / (G * H), th = PI_D * v;
+        double dw = 2.0 * PI_D * PI_D * sin(th) / ((double)G * G * W * H);
+        for (int i = 0; i < G * W; i++) {
+            double u = (i + 0.5) / (G * W), l = lookup_lum(&m, u, v);
+            phi_all += l * dw;
+            if (fabs(u * W - (sx + 0.5)) < 1.0 && fabs(v * H - (sy + 0.5)) < 1.0)
+                phi_sun += (l - 1.0) * dw; /* the sun's tent over the sky */
+            if (th < 0.5 * PI_D) {
+                irr += l * cos(th) * dw;
+                m2 += l * cos(th) * cos(th) * dw;
+            }
+        }
+    }
+    double want = rho / PI_D * irr, N = 16.0 * 16.0 * 64.0;
+    double phi_rest = phi_all - phi_sun;
+    double se_split = sqrt(fmax((rho / PI_D) * (rho / PI_D) * phi_rest * m2 - want * want, 0) / N);
+    double se_whole = sqrt(fmax((rho / PI_D) * (rho / PI_D) * phi_all * m2 - want * want, 0) / N);
+    pt_scene *s = plane_scene(rho, 0, 0.6f);
+    double se_n, se_m, se_b;
+    double nee = render_mean(s, env, PT_LIGHT_NEE_ONLY, 16, 64, &se_n);
+    double mis = render_mean(s, env, PT_LIGHT_MIS, 16, 64, &se_m);
+    double bsdf = render_mean(s, env, PT_LIGHT_BSDF_ONLY, 16, 64, &se_b);
+    printf("sun behind: want %.5f; NEE %.5f (se %.2e, predicted %.2e split, %.2e whole), "
+           "MIS %.5f (se %.2e), BSDF %.5f (se %.2e)\n",
+           want, nee, se_n, se_split, se_whole, mis, se_m, bsdf, se_b);
+    CHECKF(fabs(nee - want) < 5.0 * se_n + 1e-4 * want, "sun behind: NEE %.5f, want %.5f", nee,
+           want);
+    CHECKF(fabs(mis - want) < 5.0 * se_m + 1e-4 * want, "sun behind: MIS %.5f, want %.5f", mis,
+           want);
+    CHECKF(fabs(bsdf - want) < 5.0 * se_b + 1e-4 * want, "sun behind: BSDF %.5f, want %.5f", bsdf,
+           want);
+    CHECKF(se_n < sqrt(se_split * se_whole), "sun behind: NEE's standard error %.2e, over %.2e",
+           se_n, sqrt(se_split * se_whole));
+    CHECKF(se_m < 0.5 * se_b, "sun behind: MIS's standard error %.2e, BSDF sampling's %.2e", se_m,
+           se_b);
+    pt_scene_free(s);
+    pt_env_free(env);
+}
+
 /* ---- bad maps ------------------------------------------------------------------------ */
 
 static void write_bytes(const char *name, const void *d, size_t n)
@@ -673,6 +941,8 @@ int main(void)
     sampling_within_texels();
     sun_ratio();
     sun_plane();
+    split_normals();
+    sun_behind();
     sampling();
     CHECK(pt_alloc_live() == live0);
     if (pt_remove_tree(tmp) != 0)
