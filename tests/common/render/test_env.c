@@ -352,6 +352,16 @@ static void sampling_within_texels(void)
     chi2_env("16 x 8 map, compensated, 4 x 4 bins a texel", &m, 0.0, PT_ENV_MIS, 4 * W, 4 * H);
 }
 
+/* The environment of map m at strength 1, unrotated; NULL after a failed
+ * check. */
+static pt_env *new_env(const pt_envmap *m)
+{
+    pt_env *env = NULL;
+    pt_error err = {0};
+    CHECKF(pt_env_new(m, 1.0f, 0.0f, &env, &err) == PT_OK, "%s", err.msg);
+    return env;
+}
+
 /* A black SUN_W x SUN_H map but for one texel (sx, sy) of radiance rgb:
  * a sun of a single texel. NULL after a failed check. */
 enum { SUN_W = 512, SUN_H = 256 };
@@ -361,11 +371,7 @@ static pt_env *one_texel_sun(int sx, int sy, const float rgb[3])
     memset(px, 0, sizeof px);
     for (int c = 0; c < 3; c++)
         px[3 * (sy * SUN_W + sx) + c] = rgb[c];
-    pt_envmap m = {SUN_W, SUN_H, px};
-    pt_env *env = NULL;
-    pt_error err = {0};
-    CHECKF(pt_env_new(&m, 1.0f, 0.0f, &env, &err) == PT_OK, "%s", err.msg);
-    return env;
+    return new_env(&(pt_envmap){SUN_W, SUN_H, px});
 }
 
 /* A sun of one texel: NEE by the full distribution of a black map with one
@@ -446,9 +452,7 @@ static void split_normals(void)
     for (int c = 0; c < 3; c++)
         px[3 * (sy * W + sx) + c] = 4e4f;
     pt_envmap m = {W, H, px};
-    pt_env *env = NULL;
-    pt_error err = {0};
-    CHECKF(pt_env_new(&m, 1.0f, 0.0f, &env, &err) == PT_OK, "%s", err.msg);
+    pt_env *env = new_env(&m);
     if (!env)
         return;
     CHECK(pt_env_splits(env, PT_ENV_FULL));
@@ -803,9 +807,7 @@ static void sun_behind(void)
                 px[3 * (y * W + x) + c] = l;
         }
     pt_envmap m = {W, H, px};
-    pt_env *env = NULL;
-    pt_error err = {0};
-    CHECKF(pt_env_new(&m, 1.0f, 0.0f, &env, &err) == PT_OK, "%s", err.msg);
+    pt_env *env = new_env(&m);
     if (!env)
         return;
     CHECK(pt_env_splits(env, PT_ENV_FULL) && pt_env_splits(env, PT_ENV_MIS));
