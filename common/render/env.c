@@ -500,12 +500,7 @@ int pt_env_splits(const pt_env *env, int which)
     return which == PT_ENV_MIS ? env->split_comp : env->split;
 }
 
-float pt_env_pdf(const pt_env *env, pt_vec3 dir, int which)
-{
-    return pt_env_pdf_n(env, dir, which, pt_v3(0.0f, 0.0f, 0.0f));
-}
-
-float pt_env_pdf_n(const pt_env *env, pt_vec3 dir, int which, pt_vec3 n)
+float pt_env_pdf(const pt_env *env, pt_vec3 dir, int which, pt_vec3 n)
 {
     const env_dist *d = dist_of(env, which, n);
     if (d->black)
@@ -522,14 +517,8 @@ float pt_env_pdf_n(const pt_env *env, pt_vec3 dir, int which, pt_vec3 n)
     return (float)(d->norm * (double)d->row_sin[r] * (double)f / (2.0 * PI_D * PI_D * sn));
 }
 
-int pt_env_sample(const pt_env *env, const float u[2], int which, pt_vec3 *dir, pt_vec3 *radiance,
-                  float *pdf)
-{
-    return pt_env_sample_n(env, u, which, pt_v3(0.0f, 0.0f, 0.0f), dir, radiance, pdf);
-}
-
-int pt_env_sample_n(const pt_env *env, const float u[2], int which, pt_vec3 n, pt_vec3 *dir,
-                    pt_vec3 *radiance, float *pdf)
+int pt_env_sample(const pt_env *env, const float u[2], int which, pt_vec3 n, pt_vec3 *dir,
+                  pt_vec3 *radiance, float *pdf)
 {
     const env_dist *d = dist_of(env, which, n);
     *pdf = 0.0f;

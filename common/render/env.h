@@ -85,22 +85,17 @@ pt_vec3 pt_env_eval(const pt_env *env, pt_vec3 dir);
 enum { PT_ENV_FULL = 0, PT_ENV_MIS = 1 };
 
 /* Samples a direction by distribution `which` (PT_ENV_*) from u (2 numbers
- * in [0,1)): *dir, the radiance from it (pt_env_eval's) and the solid-angle
- * pdf. Returns 0 when the distribution is black or the sample is impossible
- * (pdf 0). */
-int pt_env_sample(const pt_env *env, const float u[2], int which, pt_vec3 *dir, pt_vec3 *radiance,
-                  float *pdf);
+ * in [0,1)) for a receiver with normal n (unit, on the side it takes light
+ * from; zero: no bound): *dir, the radiance from it (pt_env_eval's) and the
+ * solid-angle pdf. Returns 0 when the distribution is black or the sample
+ * is impossible (pdf 0). NEE at a receiver samples by it, and the MIS weight
+ * of a BSDF-sampled ray from there that leaves the scene takes pt_env_pdf
+ * with the same n. */
+int pt_env_sample(const pt_env *env, const float u[2], int which, pt_vec3 n, pt_vec3 *dir,
+                  pt_vec3 *radiance, float *pdf);
 
-/* The solid-angle pdf pt_env_sample with `which` gives dir. */
-float pt_env_pdf(const pt_env *env, pt_vec3 dir, int which);
-
-/* The same for a receiver with normal n (unit, on the side it takes light
- * from; zero: no bound, as pt_env_sample): NEE at it samples by
- * pt_env_sample_n, and the MIS weight of a BSDF-sampled ray from it that
- * leaves the scene takes pt_env_pdf_n with the same n. */
-int pt_env_sample_n(const pt_env *env, const float u[2], int which, pt_vec3 n, pt_vec3 *dir,
-                    pt_vec3 *radiance, float *pdf);
-float pt_env_pdf_n(const pt_env *env, pt_vec3 dir, int which, pt_vec3 n);
+/* The solid-angle pdf pt_env_sample with `which` and n gives dir. */
+float pt_env_pdf(const pt_env *env, pt_vec3 dir, int which, pt_vec3 n);
 
 /* 1 when distribution `which` is split into a sun and the rest (above):
  * the receiver's normal changes its sampling. */

@@ -688,7 +688,7 @@ float pt_lights_env_pdf(const pt_lights *lights, pt_vec3 dir, pt_vec3 n)
 {
     if (!lights || !lights->env)
         return 0.0f;
-    return lights->p_env * pt_env_pdf_n(lights->env, dir, lights->env_dist, n);
+    return lights->p_env * pt_env_pdf(lights->env, dir, lights->env_dist, n);
 }
 
 /* A sample of the environment from u[1..2] for a receiver with normal n
@@ -700,7 +700,7 @@ static int sample_env(const pt_lights *lights, pt_vec3 n, const float u[3], pt_l
     s->tri = UINT32_MAX;
     s->dist = INFINITY;
     float pdf;
-    if (!pt_env_sample_n(lights->env, &u[1], lights->env_dist, n, &s->wi, &s->radiance, &pdf))
+    if (!pt_env_sample(lights->env, &u[1], lights->env_dist, n, &s->wi, &s->radiance, &pdf))
         return 0;
     s->pdf = lights->p_env * pdf;
     return s->pdf > 0.0f && isfinite(s->pdf);

@@ -8,7 +8,7 @@
  * no map; a map read is within PT_ENVMAP_MAX_SIDE, about 2:1, and every
  * texel is a finite radiance in [0, PT_ENVMAP_MAX_VALUE]; its environment
  * builds, and a few samples have unit directions and a finite positive pdf
- * that pt_env_pdf_n agrees with, with and without a receiver's normal (or
+ * that pt_env_pdf agrees with, with and without a receiver's normal (or
  * the map is black); nothing is left
  * allocated. Seeds (corpus/fuzz_envmap/): a flat map, a run-length one and
  * one cut short, committed as written. stb_image, which the decoder
@@ -49,11 +49,11 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
             /* Half the samples for a receiver facing down (env.h's
              * split by the normal, where the map has a sun). */
             pt_vec3 n = k % 4 < 2 ? pt_v3(0.0f, 0.0f, 0.0f) : pt_v3(0.0f, -1.0f, 0.0f);
-            if (!pt_env_sample_n(env, u, which, n, &d, &rad, &pdf))
+            if (!pt_env_sample(env, u, which, n, &d, &rad, &pdf))
                 continue;
             FUZZ_CHECK(fabsf(pt_v3_len(d) - 1.0f) < 1e-3f && isfinite(pdf) && pdf > 0.0f);
             FUZZ_CHECK(pt_isfinite3(rad) && rad.x >= 0.0f && rad.y >= 0.0f && rad.z >= 0.0f);
-            float p2 = pt_env_pdf_n(env, d, which, n);
+            float p2 = pt_env_pdf(env, d, which, n);
             FUZZ_CHECK(isfinite(p2) && p2 >= 0.0f);
         }
         pt_env_free(env);

@@ -17,7 +17,7 @@
  * - The split by the receiver's normal (env.h): chi-square of the park
  *   map's samples for a receiver facing away from its sun against the
  *   rest's density (full and compensated), and facing it against the whole
- *   map's; on random normals a sample's pdf is pt_env_pdf_n's with the same
+ *   map's; on random normals a sample's pdf is pt_env_pdf's with the same
  *   normal (NEE's and the BSDF hit's MIS weights sum to 1), the pdf
  *   integrates to 1, and where the sun's cone is below the tangent plane
  *   the pdf leaves it and puts half its mass above the plane; a Lambert
@@ -170,7 +170,7 @@ static void chi2_env(const char *what, const pt_envmap *map, double rot_deg, int
     chi2_env_n(what, map, rot_deg, which, BU, BV, pt_v3(0.0f, 0.0f, 0.0f), 0);
 }
 
-/* The same for a receiver with normal n, sampled by pt_env_sample_n; rest:
+/* The same for a receiver with normal n, sampled by pt_env_sample; rest:
  * the test expects the split's rest (env.h) - the texels brighter than 16
  * times the sphere's mean at 0, the compensation by the rest's own mean
  * (the mean times the rest's share of the full density's integral), the
@@ -228,7 +228,7 @@ static void chi2_env_n(const char *what, const pt_envmap *map, double rot_deg, i
     for (int i = 0; i < N; i++) {
         float u[2] = {(float)rnd(), (float)rnd()}, pdf;
         pt_vec3 d, rad;
-        if (!pt_env_sample_n(env, u, which, n, &d, &rad, &pdf))
+        if (!pt_env_sample(env, u, which, n, &d, &rad, &pdf))
             continue;
         double uu, vv;
         uv_of(d, rot_deg, &uu, &vv);
@@ -236,7 +236,7 @@ static void chi2_env_n(const char *what, const pt_envmap *map, double rot_deg, i
         bu = bu < 0 ? 0 : bu >= BU ? BU - 1 : bu;
         bv = bv < 0 ? 0 : bv >= BV ? BV - 1 : bv;
         obs[bv * BU + bu] += 1.0;
-        float p2 = pt_env_pdf_n(env, d, which, n);
+        float p2 = pt_env_pdf(env, d, which, n);
         /* The sample reads the lookup at the point it sampled; the
          * direction, rounded to floats, maps back to within a few float
          * steps of it, where the lookup differs by at most its slope (the
@@ -280,7 +280,7 @@ static void chi2_env_n(const char *what, const pt_envmap *map, double rot_deg, i
         for (uint32_t i = 0; i < gu; i++) {
             double u = (i + 0.5) / gu, phi = 2.0 * PI_D * (u - 0.5 - rot_deg / 360.0);
             pt_vec3 d = pt_v3((float)(st * sin(phi)), (float)cos(th), (float)(-st * cos(phi)));
-            integral += pt_env_pdf_n(env, d, which, n) * 2.0 * PI_D * PI_D * st;
+            integral += pt_env_pdf(env, d, which, n) * 2.0 * PI_D * PI_D * st;
         }
     }
     integral /= (double)gu * gv;
@@ -402,7 +402,7 @@ static void sun_ratio(void)
     for (int i = 0; i < N; i++) {
         float u[2] = {(float)rnd(), (float)rnd()}, pdf;
         pt_vec3 d, rad;
-        if (!pt_env_sample(env, u, PT_ENV_FULL, &d, &rad, &pdf))
+        if (!pt_env_sample(env, u, PT_ENV_FULL, pt_v3(0.0f, 0.0f, 0.0f), &d, &rad, &pdf))
             continue;
         double q = pt_luminance(rad) / pdf;
         sum += q;
@@ -436,7 +436,7 @@ static pt_vec3 brightest_dir(const pt_envmap *map, double rot_deg)
 }
 
 /* The split by the receiver's normal (env.h) on random normals: for each,
- * a sample's pdf is pt_env_pdf_n's with the same normal (what makes NEE's
+ * a sample's pdf is pt_env_pdf's with the same normal (what makes NEE's
  * and the BSDF hit's MIS weights sum to 1), the pdf integrates to 1 over
  * the sphere, and where the sun's cone is wholly below the tangent plane
  * it is 0 on the sun's texels, so that all of it lies where the rest can
@@ -468,9 +468,9 @@ static void split_normals(void)
         for (int i = 0; i < 2000; i++) {
             float u[2] = {(float)rnd(), (float)rnd()}, pdf;
             pt_vec3 d, rad;
-            if (!pt_env_sample_n(env, u, which, n, &d, &rad, &pdf))
+            if (!pt_env_sample(env, u, which, n, &d, &rad, &pdf))
                 continue;
-            if (!(fabsf(pt_env_pdf_n(env, d, which, n) - pdf) <= 1e-3f * pdf))
+            if (!(fabsf(pt_env_pdf(env, d, which, n) - pdf) <= 1e-3f * pdf))
                 bad_pdf++;
         }
         /* The sun's cone (its texel and the cells around it) is wholly
@@ -483,7 +483,7 @@ static void split_normals(void)
             for (int i = 0; i < G * W; i++) {
                 double u = (i + 0.5) / (G * W), phi = 2.0 * PI_D * (u - 0.5);
                 pt_vec3 d = pt_v3((float)(st * sin(phi)), (float)cos(th), (float)(-st * cos(phi)));
-                double p = pt_env_pdf_n(env, d, which, n) * 2.0 * PI_D * PI_D * st;
+                double p = pt_env_pdf(env, d, which, n) * 2.0 * PI_D * PI_D * st;
                 integral += p;
                 if (fabs(u * W - (sx + 0.5)) < 1.0 && fabs(v * H - (sy + 0.5)) < 1.0) {
                     on_sun += p;
@@ -519,8 +519,8 @@ static void split_normals(void)
         }
     }
     /* A direction on a cell's edge may round into its neighbour: rare. */
-    CHECKF(bad_pdf < 24 * 2000 / 10000,
-           "%d samples' pdf differs from pt_env_pdf_n with their normal", bad_pdf);
+    CHECKF(bad_pdf < 24 * 2000 / 10000, "%d samples' pdf differs from pt_env_pdf with their normal",
+           bad_pdf);
     CHECK(hidden >= 6);
     printf("split: %d of 24 normals with the sun hidden\n", hidden);
     pt_env_free(env);
