@@ -62,6 +62,26 @@ void pt_env_free(pt_env *env)
     pt_free(env);
 }
 
+/* The direction v of cell row r's centre (rows 0 and h: the half-height
+ * cells at the poles). */
+static inline double cell_row_v(uint32_t r, uint32_t h)
+{
+    return r == 0 ? 0.25 / h : (r == h ? 1.0 - 0.25 / h : (double)r / h);
+}
+
+/* The corners of d's interpolant in cell (x, r): k[0], k[1] on texel row
+ * r - 1 at columns x, x + 1 (wrapping), k[2], k[3] on row r (rows clamped). */
+static inline void cell_corners(const float *corner, uint32_t w, uint32_t h, uint32_t x, uint32_t r,
+                                float k[4])
+{
+    uint32_t y0 = r == 0 ? 0 : r - 1, y1 = r >= h ? h - 1 : r, x1 = x + 1 == w ? 0 : x + 1;
+    const float *c0 = corner + (size_t)y0 * w, *c1 = corner + (size_t)y1 * w;
+    k[0] = c0[x];
+    k[1] = c0[x1];
+    k[2] = c1[x];
+    k[3] = c1[x1];
+}
+
 /* The distribution whose density interpolates corner (>= 0, w * h,
  * row-major; kept); sums in double. A cell's weight is the integral of its
  * interpolant, the mean of its four corners times its height (1/2 at the
@@ -77,17 +97,15 @@ static int dist_build(env_dist *d, float *corner, uint32_t w, uint32_t h)
     double total = 0.0;
     d->row_cdf[0] = 0.0;
     for (uint32_t r = 0; r <= h; r++) {
-        uint32_t y0 = r == 0 ? 0 : r - 1, y1 = r == h ? h - 1 : r;
-        double vc = r == 0 ? 0.25 / h : (r == h ? 1.0 - 0.25 / h : (double)r / h);
         double height = r == 0 || r == h ? 0.5 : 1.0;
-        d->row_sin[r] = (float)sin(PI_D * vc);
+        d->row_sin[r] = (float)sin(PI_D * cell_row_v(r, h));
         double k = 0.25 * height * (double)d->row_sin[r];
-        const float *c0 = corner + (size_t)y0 * w, *c1 = corner + (size_t)y1 * w;
         double *cdf = d->col_cdf + (size_t)r * (w + 1);
         cdf[0] = 0.0;
         for (uint32_t x = 0; x < w; x++) {
-            uint32_t x1 = x + 1 == w ? 0 : x + 1;
-            double m = (double)c0[x] + c0[x1] + c1[x] + c1[x1];
+            float c[4];
+            cell_corners(corner, w, h, x, r, c);
+            double m = (double)c[0] + c[1] + c[2] + c[3];
             cdf[x + 1] = cdf[x] + k * m;
         }
         double row = cdf[w];
@@ -154,7 +172,7 @@ static double share_away(const pt_env *e, const env_dist *d, pt_vec3 axis)
     uint32_t w = e->w, h = e->h;
     double away = 0.0;
     for (uint32_t r = 0; r <= h; r++) {
-        double v = r == 0 ? 0.25 / h : (r == h ? 1.0 - 0.25 / h : (double)r / h);
+        double v = cell_row_v(r, h);
         double pr = d->row_cdf[r + 1] - d->row_cdf[r];
         const double *cdf = d->col_cdf + (size_t)r * (w + 1);
         if (!(pr > 0.0))
@@ -437,10 +455,9 @@ static void cell_of(const pt_env *e, float u, float v, uint32_t *x, uint32_t *r,
 static float cell_value(const env_dist *d, const pt_env *e, uint32_t x, uint32_t r, float s,
                         float t)
 {
-    uint32_t w = e->w, h = e->h;
-    uint32_t y0 = r == 0 ? 0 : r - 1, y1 = r >= h ? h - 1 : r, x1 = x + 1 == w ? 0 : x + 1;
-    const float *c0 = d->corner + (size_t)y0 * w, *c1 = d->corner + (size_t)y1 * w;
-    return (1.0f - t) * ((1.0f - s) * c0[x] + s * c0[x1]) + t * ((1.0f - s) * c1[x] + s * c1[x1]);
+    float k[4];
+    cell_corners(d->corner, e->w, e->h, x, r, k);
+    return (1.0f - t) * ((1.0f - s) * k[0] + s * k[1]) + t * ((1.0f - s) * k[2] + s * k[3]);
 }
 
 /* A sample of the density on [0, 1] that is linear from p0 at 0 to p1 at 1
@@ -538,9 +555,9 @@ int pt_env_sample(const pt_env *env, const float u[2], int which, pt_vec3 n, pt_
     uint32_t x = find_interval(cdf, w, ru);
     double c0 = cdf[x], c1 = cdf[x + 1];
     double fx = c1 > c0 ? (ru - c0) / (c1 - c0) : 0.5;
-    uint32_t y0 = r == 0 ? 0 : r - 1, y1 = r >= h ? h - 1 : r, x1 = x + 1 == w ? 0 : x + 1;
-    const float *k0 = d->corner + (size_t)y0 * w, *k1 = d->corner + (size_t)y1 * w;
-    double a = k0[x], b = k0[x1], c = k1[x], e = k1[x1];
+    float k[4];
+    cell_corners(d->corner, w, h, x, r, k);
+    double a = k[0], b = k[1], c = k[2], e = k[3];
     double t;
     if (r == 0)
         t = 0.5 + 0.5 * fy;
