@@ -398,6 +398,16 @@ static pt_status build_tree(const pt_scene *scene, pt_lights *L, const double *p
     return st;
 }
 
+/* Grows the box [lo, hi] to hold point x. */
+static inline void grow_box(double lo[3], double hi[3], pt_vec3 x)
+{
+    const float c[3] = {x.x, x.y, x.z};
+    for (int a = 0; a < 3; a++) {
+        lo[a] = fmin(lo[a], (double)c[a]);
+        hi[a] = fmax(hi[a], (double)c[a]);
+    }
+}
+
 /* The diagonal of the box around the tree's lights (the n triangle lights'
  * vertices, the point and spot lights' positions) over that of the box
  * around the scene and them: PT_LIGHT_TREE_MIN_SPREAD says why. 1 for a
@@ -407,22 +417,12 @@ static double lights_spread(const pt_scene *scene, const pt_lights *L, uint32_t 
 {
     double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
     for (uint32_t i = 0; i < n; i++)
-        for (int c = 0; c < 3; c++) {
-            const float x[3] = {L->lights[i].v[c].x, L->lights[i].v[c].y, L->lights[i].v[c].z};
-            for (int a = 0; a < 3; a++) {
-                lo[a] = fmin(lo[a], (double)x[a]);
-                hi[a] = fmax(hi[a], (double)x[a]);
-            }
-        }
+        for (int c = 0; c < 3; c++)
+            grow_box(lo, hi, L->lights[i].v[c]);
     for (uint32_t i = 0; L->punct && i < scene->num_punctual; i++) {
         const pt_punctual *l = &scene->punctual[i];
-        if (l->type == PT_PUNCTUAL_DIRECTIONAL || !(punct_power[i] > 0.0))
-            continue;
-        const float x[3] = {l->position.x, l->position.y, l->position.z};
-        for (int a = 0; a < 3; a++) {
-            lo[a] = fmin(lo[a], (double)x[a]);
-            hi[a] = fmax(hi[a], (double)x[a]);
-        }
+        if (l->type != PT_PUNCTUAL_DIRECTIONAL && punct_power[i] > 0.0)
+            grow_box(lo, hi, l->position);
     }
     const float smin[3] = {scene->bounds_min.x, scene->bounds_min.y, scene->bounds_min.z};
     const float smax[3] = {scene->bounds_max.x, scene->bounds_max.y, scene->bounds_max.z};
