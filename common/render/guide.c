@@ -334,16 +334,13 @@ static uint64_t record_fixed(float value)
 void pt_guide_stats_record(pt_guide_stats *s, const pt_guide *g, uint32_t cell, pt_vec3 dir,
                            float value)
 {
-    if (!(value >= 0.0f) || !isfinite(value))
-        return;
-    uint32_t leaf = cell / PT_GUIDE_FACES;
-    s->count[leaf] = sat_add(s->count[leaf], 1);
-    if (!(value > 0.0f))
-        return;
-    float u, w, prob, size;
-    pt_guide_dir_to_square(dir, &u, &w);
-    uint32_t n = find_qleaf(g, cell_root(g, cell), u, w, &prob, &size);
-    s->sum[n] = sat_add(s->sum[n], record_fixed(value));
+    uint32_t n = 0; /* read only for a value above 0 */
+    if (value > 0.0f && isfinite(value)) {
+        float u, w, prob, size;
+        pt_guide_dir_to_square(dir, &u, &w);
+        n = find_qleaf(g, cell_root(g, cell), u, w, &prob, &size);
+    }
+    pt_guide_stats_add(s, cell, n, value);
 }
 
 void pt_guide_stats_add(pt_guide_stats *s, uint32_t cell, uint32_t qleaf, float value)
