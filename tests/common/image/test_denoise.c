@@ -183,6 +183,18 @@ static void curtain_edge(scene *s, double sigma, double stripes)
     CHECKF(pt_denoise(&in, 2, s->out, &err) == PT_OK, "%s", err.msg);
 }
 
+/* Adds pixel i's squared errors against the truth over its three channels:
+ * the raw colour's to *raw, the denoised output's to *den. */
+static void add_sq_err(const scene *s, size_t i, double *raw, double *den)
+{
+    for (int c = 0; c < 3; c++) {
+        double dr = (double)s->color[c][i] - s->truth[c][i];
+        double dd = (double)s->out[c][i] - s->truth[c][i];
+        *raw += dr * dr;
+        *den += dd * dd;
+    }
+}
+
 /* A silhouette against an environment seen directly: the left half is
  * noise-free (variance 0, no features) with stripes across x and a faint
  * ripple of 5e-4 down y, as a dark studio curtain; the right half a grey
@@ -250,13 +262,7 @@ static void test_selection_edge(void)
     curtain_edge(&s, sigma, 0.2);
     double raw = 0.0, den = 0.0;
     for (uint32_t y = 0; y < s.h; y++) {
-        size_t i = (size_t)y * s.w + 32;
-        for (int c = 0; c < 3; c++) {
-            double dr = (double)s.color[c][i] - s.truth[c][i];
-            double dd = (double)s.out[c][i] - s.truth[c][i];
-            raw += dr * dr;
-            den += dd * dd;
-        }
+        add_sq_err(&s, (size_t)y * s.w + 32, &raw, &den);
     }
     printf("selection at an edge: the edge column's MSE raw %.3g, denoised %.3g (%.2f)\n",
            raw / 768.0, den / 768.0, den / raw);
@@ -300,17 +306,9 @@ static double shadow_edge(double sigma, uint64_t seed)
         for (uint32_t x = 0; x < s.w; x++) {
             size_t i = (size_t)y * s.w + x;
             double dx = x + 0.5 - 48.0, dy = y + 0.5 - 45.0;
-            int near = fabs(sqrt(dx * dx + dy * dy) - 24.0) < 3.0;
-            for (int c = 0; c < 3; c++) {
-                double dr = (double)s.color[c][i] - s.truth[c][i];
-                double dd = (double)s.out[c][i] - s.truth[c][i];
-                all_raw += dr * dr;
-                all_den += dd * dd;
-                if (near) {
-                    raw += dr * dr;
-                    den += dd * dd;
-                }
-            }
+            add_sq_err(&s, i, &all_raw, &all_den);
+            if (fabs(sqrt(dx * dx + dy * dy) - 24.0) < 3.0)
+                add_sq_err(&s, i, &raw, &den);
         }
     printf("shadow border, sigma %.2f: denoised MSE %.3f of the raw on the border, %.3f on the "
            "whole image\n",
