@@ -35,6 +35,7 @@
 #include "common/render/render.h"
 #include "common/scene/scene.h"
 #include "tests/check.h"
+#include "tests/common/render/normal_texel.h"
 
 #define RHO 0.5
 #define E_IRR 2.0
@@ -180,25 +181,6 @@ static double render(const pt_scene *s, uint32_t spp, double *se)
     *se = sqrt(fmax(sq / n - mean * mean, 0.0) / n);
     pt_renderer_free(r);
     return mean;
-}
-
-/* The mapped normal of texel c at scale s, in (tangent, bitangent, n). */
-static void mapped(const uint8_t c[3], double s, double n[3])
-{
-    double x = (2.0 * c[0] / 255.0 - 1.0) * s, y = (2.0 * c[1] / 255.0 - 1.0) * s,
-           z = 2.0 * c[2] / 255.0 - 1.0;
-    double l = sqrt(x * x + y * y + z * z);
-    n[0] = x / l;
-    n[1] = y / l;
-    n[2] = z / l;
-}
-
-static void texel_for(double deg, double az, uint8_t c[3])
-{
-    double t = deg * PI_D / 180.0;
-    double v[3] = {sin(t) * cos(az), sin(t) * sin(az), cos(t)};
-    for (int k = 0; k < 3; k++)
-        c[k] = (uint8_t)lrint((v[k] + 1.0) * 0.5 * 255.0);
 }
 
 /* The coat's Fresnel (factor 1, F0 0.04) at cosine c. */

@@ -65,6 +65,7 @@
 #define PI_D 3.14159265358979323846
 #define N_CHI2_TESTS 3
 #include "tests/common/render/dir_chi2.h"
+#include "tests/common/render/sample_mean.h"
 
 static const float RHO = 0.7f, T = 0.6f, L = 2.0f;
 static const float C[3] = {0.9f, 0.5f, 0.2f};
@@ -122,24 +123,12 @@ static void expect_radiance(const char *what, pt_scene *s, const double want[3],
     pt_renderer *r = NULL;
     pt_error err = {0};
     CHECKF(pt_renderer_new(s, &p, &r, &err) == PT_OK, "%s", err.msg);
-    double sum[3] = {0, 0, 0}, sq[3] = {0, 0, 0};
-    const int n = 8 * 8 * 256;
-    for (int i = 0; r && i < n; i++) {
-        pt_render_stats st = {0};
-        int cov = 0;
-        pt_vec3 v = pt_render_sample(r, (uint32_t)(i % 64) % 8, (uint32_t)(i % 64) / 8,
-                                     (uint32_t)(i / 64), &st, &cov);
-        const double va[3] = {v.x, v.y, v.z};
-        for (int c = 0; c < 3; c++) {
-            sum[c] += va[c];
-            sq[c] += va[c] * va[c];
-        }
-    }
-    for (int c = 0; r && c < 3; c++) {
-        double m = sum[c] / n, se = sqrt(fmax(sq[c] / n - m * m, 0.0) / (n - 1));
-        CHECKF(fabs(m - want[c]) <= 5.0 * se + tol, "%s: channel %d is %g, want %g (se %g)", what,
-               c, m, want[c], se);
-    }
+    double m[3], se[3];
+    if (r)
+        sample_mean(r, 8, 256, m, se);
+    for (int c = 0; r && c < 3; c++)
+        CHECKF(fabs(m[c] - want[c]) <= 5.0 * se[c] + tol, "%s: channel %d is %g, want %g (se %g)",
+               what, c, m[c], want[c], se[c]);
     pt_renderer_free(r);
     pt_scene_free(s);
 }

@@ -63,6 +63,7 @@
 #include "common/scene/scene.h"
 #include "tests/check.h"
 #include "tests/common/render/paired.h"
+#include "tests/common/render/sample_mean.h"
 
 #define PI_D 3.14159265358979323846
 #define N_CHI2_TESTS 4
@@ -452,26 +453,15 @@ static void rendered_one(int glass)
     pt_renderer *r = NULL;
     if (s)
         CHECKF(pt_renderer_new(s, &p, &r, &err) == PT_OK, "%s", err.msg);
-    double sum[3] = {0, 0, 0}, sq[3] = {0, 0, 0};
-    const int n = 8 * 8 * 64;
-    for (int i = 0; r && i < n; i++) {
-        pt_render_stats st = {0};
-        int cov = 0;
-        pt_vec3 v = pt_render_sample(r, (uint32_t)(i % 64) % 8, (uint32_t)(i % 64) / 8,
-                                     (uint32_t)(i / 64), &st, &cov);
-        const double va[3] = {v.x, v.y, v.z};
-        for (int c = 0; c < 3; c++) {
-            sum[c] += va[c];
-            sq[c] += va[c] * va[c];
-        }
-    }
+    double mean[3], se[3];
+    if (r)
+        sample_mean(r, 8, 64, mean, se);
     pt_vec3 want = pt_thinfilm_fresnel(1.0f, 1.8f, 1.0f, 300.0f, pt_v3(0.04f, 0.04f, 0.04f));
     const double wa[3] = {want.x, want.y, want.z};
-    for (int c = 0; r && c < 3; c++) {
-        double mean = sum[c] / n, se = sqrt(fmax(sq[c] / n - mean * mean, 0.0) / (n - 1));
-        CHECKF(fabs(mean - wa[c]) <= 5.0 * se + 2e-3, "%s: channel %d: %g, the film's Fresnel %g",
-               glass ? "glass" : "opaque", c, mean, wa[c]);
-    }
+    for (int c = 0; r && c < 3; c++)
+        CHECKF(fabs(mean[c] - wa[c]) <= 5.0 * se[c] + 2e-3,
+               "%s: channel %d: %g, the film's Fresnel %g", glass ? "glass" : "opaque", c, mean[c],
+               wa[c]);
     pt_renderer_free(r);
     pt_env_free(env);
     pt_scene_free(s);

@@ -51,6 +51,7 @@
 #include "common/render/render.h"
 #include "common/scene/scene.h"
 #include "tests/check.h"
+#include "tests/common/render/normal_texel.h"
 
 #define RHO 0.5
 #define E_IRR 2.0
@@ -188,27 +189,6 @@ static void expect_close(const char *what, double got, double want)
 {
     double tol = want == 0.0 ? 1e-9 : 1e-4 * fabs(want);
     CHECKF(fabs(got - want) <= tol, "%s: %.8g, expected %.8g", what, got, want);
-}
-
-/* The mapped normal of texel c at scale s, in (tangent, bitangent, n). */
-static void mapped(const uint8_t c[3], double s, double n[3])
-{
-    double x = (2.0 * c[0] / 255.0 - 1.0) * s, y = (2.0 * c[1] / 255.0 - 1.0) * s,
-           z = 2.0 * c[2] / 255.0 - 1.0;
-    double l = sqrt(x * x + y * y + z * z);
-    n[0] = x / l;
-    n[1] = y / l;
-    n[2] = z / l;
-}
-
-/* The texel that encodes a tilt of deg degrees towards azimuth az (radians
- * from the tangent). */
-static void texel_for(double deg, double az, uint8_t c[3])
-{
-    double t = deg * PI_D / 180.0;
-    double v[3] = {sin(t) * cos(az), sin(t) * sin(az), cos(t)};
-    for (int k = 0; k < 3; k++)
-        c[k] = (uint8_t)lrint((v[k] + 1.0) * 0.5 * 255.0);
 }
 
 static void tilted_plane(void)
