@@ -100,6 +100,7 @@ struct pt_renderer {
     int nee;      /* next-event estimation runs: lights exist, the strategy uses them */
     int nee_n;    /* nee, with lights enough to sample them for a stage at once */
     int alpha;    /* the scene has MASK/BLEND materials: rays pass through them */
+    int blend;    /* ... BLEND ones: shadow rays take their transmittance (trace_shadow) */
     /* PT_FEAT_THIN_GLASS: shadow rays cross thin smooth glass */
     int thin_glass;
     /* a light tree chooses: light_normal computes the receiver's normal */
@@ -1975,10 +1976,13 @@ static int shadow_through(const pt_renderer *r, path *pa, const shadow_ray *sr,
 }
 
 /* Traces the shadow ray shade() asked for and adds its contribution. MASK
- * and BLEND surfaces on the way block it only where the ray meets them
- * (stochastically for BLEND: transmittance 1 - alpha on average), as a
- * BSDF-sampled ray towards the same light would pass them; so do smooth
- * thin walls (PT_FEAT_THIN_GLASS, shadow_through), with their
+ * and BLEND surfaces on the way block it only where the ray meets them, as
+ * a BSDF-sampled ray towards the same light would pass them: BLEND ones by
+ * their transmittance 1 - alpha (pt_accel_transmittance_alpha: the
+ * expectation of the stochastic pass-through that BSDF-sampled rays take,
+ * so MIS weighs the same integrand, with none of its variance), or with
+ * motion blur or thin glass stochastically, passing with 1 - alpha. Smooth
+ * thin walls (PT_FEAT_THIN_GLASS, shadow_through) pass it with their
  * transmittance. */
 static inline __attribute__((always_inline)) void trace_shadow(const pt_renderer *r, path *pa,
                                                                const shadow_ray *sr,
@@ -1996,6 +2000,16 @@ static inline __attribute__((always_inline)) void trace_shadow(const pt_renderer
             pa->L = pt_v3_add(pa->L, pt_v3_mul(sr->contrib, tr));
             PT_TRACE_EVENT(PT_TRACE_SHADOW, pa->depth, -1, -1, 0, 0.0f, 0.0f, 0.0f,
                            pt_v3_mul(sr->contrib, tr));
+        }
+        return;
+    }
+    if ((features & PT_FEAT_ALPHA) && r->blend && !((features & PT_FEAT_MOTION) && r->motion)) {
+        float t =
+            pt_accel_transmittance_alpha(r->accel, sr->from, sr->dir, sr->dist, sr->alpha_key);
+        if (t > 0.0f) {
+            pt_vec3 c = pt_v3_scale(sr->contrib, t);
+            pa->L = pt_v3_add(pa->L, c);
+            PT_TRACE_EVENT(PT_TRACE_SHADOW, pa->depth, -1, -1, 0, 0.0f, 0.0f, 0.0f, c);
         }
         return;
     }
@@ -2786,6 +2800,8 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
                        params->light_strategy == PT_LIGHT_MIS ? PT_ENV_MIS : PT_ENV_FULL));
     uint32_t features = scene->features | (params->extra_features & ~PARAM_FEATURES);
     r->alpha = (scene->features & PT_FEAT_ALPHA) != 0;
+    for (uint32_t i = 0; r->alpha && i < scene->num_materials; i++)
+        r->blend |= scene->materials[i].alpha_mode == PT_ALPHA_BLEND;
     r->motion = (scene->features & PT_FEAT_MOTION) ? scene->motion : NULL;
     if (params->env)
         features |= PT_FEAT_ENV;

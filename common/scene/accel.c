@@ -76,6 +76,14 @@ typedef struct alpha_ctx {
     const pt_scene *scene; /* NULL: the query ignores alpha */
     uint32_t key;
     const pt_accel *accel; /* for the triangle maps of a moving scene */
+    /* pt_accel_transmittance_alpha: the product of 1 - alpha over the BLEND
+     * triangles met so far (NULL: BLEND by the key, as for every other
+     * query), and those triangles (with their instance), each counted once
+     * however often Embree offers it (a triangle split into several leaves by
+     * the high-quality build is tested once per leaf). */
+    float *trans;
+    uint32_t nseen;
+    uint32_t seen[PT_ACCEL_TRANS_MAX][2];
 } alpha_ctx;
 
 /* Field i of an RTCHitN of N hits: Embree's RTCHitN_u/v/primID, which its
@@ -95,11 +103,43 @@ static inline uint32_t hitn_prim(const struct RTCHitN *hit, unsigned n, unsigned
     return v;
 }
 
+/* instID[0] of hit i (field 7), RTC_INVALID_GEOMETRY_ID outside an instance. */
+static inline uint32_t hitn_inst(const struct RTCHitN *hit, unsigned n, unsigned i)
+{
+    uint32_t v;
+    memcpy(&v, (const char *)hit + 4 * ((size_t)7 * n + i), sizeof v);
+    return v;
+}
+
+/* A transmittance query's BLEND triangle tri (through instance inst) at
+ * (b1, b2): 1 when the ray goes on past it, its 1 - alpha multiplied into
+ * *c->trans once. 0 for a triangle that is not BLEND, one of alpha 1 (it
+ * blocks), and a new one when PT_ACCEL_TRANS_MAX are counted already: the
+ * caller decides those by the key (unbiased either way: each triangle is
+ * either weighed by its transmittance or passed with that probability). */
+static int blend_through(alpha_ctx *c, uint32_t tri, uint32_t inst, float b1, float b2)
+{
+    const pt_scene *s = c->scene;
+    if (s->materials[s->tri_material[tri]].alpha_mode != PT_ALPHA_BLEND)
+        return 0;
+    for (uint32_t k = 0; k < c->nseen; k++)
+        if (c->seen[k][0] == tri && c->seen[k][1] == inst)
+            return 1;
+    float t = 1.0f - pt_alpha_coverage(s, tri, b1, b2);
+    if (!(t > 0.0f) || c->nseen == PT_ACCEL_TRANS_MAX)
+        return 0;
+    c->seen[c->nseen][0] = tri;
+    c->seen[c->nseen][1] = inst;
+    c->nseen++;
+    *c->trans *= t;
+    return 1;
+}
+
 /* The intersection and occlusion filter of a scene with alpha materials:
  * drops the candidate hits that the ray passes through. */
 static void alpha_filter(const struct RTCFilterFunctionNArguments *args)
 {
-    const alpha_ctx *c = (const alpha_ctx *)args->context;
+    alpha_ctx *c = (alpha_ctx *)args->context;
     if (!c->scene)
         return;
     for (unsigned i = 0; i < args->N; i++) {
@@ -115,8 +155,12 @@ static void alpha_filter(const struct RTCFilterFunctionNArguments *args)
         }
         if (!pt_alpha_tri(c->scene, tri))
             continue;
-        if (!pt_alpha_hit(c->scene, tri, hitn_float(args->hit, args->N, 3, i),
-                          hitn_float(args->hit, args->N, 4, i), c->key))
+        float b1 = hitn_float(args->hit, args->N, 3, i), b2 = hitn_float(args->hit, args->N, 4, i);
+        if (c->trans && blend_through(c, tri, hitn_inst(args->hit, args->N, i), b1, b2)) {
+            args->valid[i] = 0;
+            continue;
+        }
+        if (!pt_alpha_hit(c->scene, tri, b1, b2, c->key))
             args->valid[i] = 0;
     }
 }
@@ -398,6 +442,8 @@ static inline int intersect(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float t
     ctx.scene = scene;
     ctx.key = key;
     ctx.accel = accel;
+    ctx.trans = NULL;
+    ctx.nseen = 0;
     struct RTCRayHit rh;
     init_ray(&rh.ray, o, d, tfar, time);
     rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
@@ -445,7 +491,7 @@ static inline float below(float t)
 }
 
 static inline int occluded(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, float time,
-                           const pt_scene *scene, uint32_t key)
+                           const pt_scene *scene, uint32_t key, float *trans)
 {
     if (!(tfar > 0.0f))
         return 0;
@@ -454,6 +500,8 @@ static inline int occluded(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tf
     ctx.scene = scene;
     ctx.key = key;
     ctx.accel = accel;
+    ctx.trans = trans;
+    ctx.nseen = 0;
     struct RTCRay r;
     /* The contract is the half-open [0, tfar): the end point itself (a light
      * point the caller offset towards the shading point) must not occlude.
@@ -466,12 +514,12 @@ static inline int occluded(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tf
 
 int pt_accel_occluded(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar)
 {
-    return occluded(accel, o, d, tfar, 0.0f, NULL, 0);
+    return occluded(accel, o, d, tfar, 0.0f, NULL, 0, NULL);
 }
 
 int pt_accel_occluded_alpha(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, uint32_t key)
 {
-    return occluded(accel, o, d, tfar, 0.0f, accel->alpha, key);
+    return occluded(accel, o, d, tfar, 0.0f, accel->alpha, key, NULL);
 }
 
 int pt_accel_intersect_time(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, float time,
@@ -483,7 +531,16 @@ int pt_accel_intersect_time(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float t
 int pt_accel_occluded_time(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, float time,
                            int alpha, uint32_t key)
 {
-    return occluded(accel, o, d, tfar, time, alpha ? accel->alpha : NULL, key);
+    return occluded(accel, o, d, tfar, time, alpha ? accel->alpha : NULL, key, NULL);
+}
+
+float pt_accel_transmittance_alpha(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar,
+                                   uint32_t key)
+{
+    float t = 1.0f;
+    if (occluded(accel, o, d, tfar, 0.0f, accel->alpha, key, &t))
+        return 0.0f;
+    return t;
 }
 
 pt_vec3 pt_accel_degenerate_normal(pt_vec3 n)

@@ -10,7 +10,8 @@
  * surface with probability alpha and passes through it with 1 - alpha, so
  * the expected radiance is alpha * L_surface + (1 - alpha) * L_behind
  * (Enderton et al. 2010, "Stochastic Transparency"; Cycles and pbrt-v4 do
- * the same for shadow and camera rays alike).
+ * the same for camera rays). Shadow rays take the expectation instead, the
+ * product of 1 - alpha along the ray (pt_accel_transmittance_alpha).
  *
  * The random number of a pass-through comes from the caller as a 32-bit key
  * (from the keyed sampler: pixel, sample index, dimension) and is hashed with

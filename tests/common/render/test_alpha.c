@@ -13,8 +13,11 @@
  * - MASK, by texture alpha and by factor, above and below the cutoff: every
  *   sample reads the same value, exactly Ls (opaque) or Lb (invisible).
  * - shadow rays: a black BLEND occluder between a point light and a Lambert
- *   floor of albedo RHO; a sample reads V = RHO/pi I cos/d^2 with probability
- *   1 - a, else 0: mean (1 - a) V, variance a (1 - a) V^2.
+ *   floor of albedo RHO: the shadow ray takes the occluder's transmittance,
+ *   so every sample reads (1 - a) V, V = RHO/pi I cos/d^2 (a draw would read
+ *   V with probability 1 - a: variance a (1 - a) V^2); and
+ *   pt_accel_transmittance_alpha through stacked BLEND sheets, a wall and
+ *   MASK sheets gives the product of 1 - alpha, 0 or 1 on every ray.
  * - an area light behind a BLEND occluder, and a BLEND area light: NEE
  *   alone, BSDF sampling alone and MIS each read (1 - a) (or a) RHO/pi E,
  *   E from Lambert's polygon formula, within 5 standard errors estimated
@@ -308,6 +311,13 @@ static void blend_shadow_point(void)
         char what[96];
         snprintf(what, sizeof what, "point light through BLEND a=%.2f", (double)a);
         expect_bernoulli(what, st, 1.0 - a, v, 0.0);
+        /* The shadow ray takes the sheet's transmittance, not a draw of it:
+         * every sample reads (1 - a) V, where a draw would give a standard
+         * error of sqrt(a (1 - a) / n) V (5e-4 at a = 0.3). Allowed: 5 % of
+         * that, for the rounding of the accumulated squares (5e-6 here). */
+        double draw_se = sqrt(a * (1.0 - a) / (double)st.n) * v;
+        CHECKF(a == 0.0f || a == 1.0f || st.se <= 0.05 * draw_se,
+               "%s: standard error %.3g, a draw's %.3g (transmittance)", what, st.se, draw_se);
         pt_scene_free(s);
     }
 }
@@ -726,8 +736,69 @@ static void asset(void)
     pt_scene_free(s);
 }
 
+/* pt_accel_transmittance_alpha through n parallel BLEND sheets of alpha a
+ * (x = 1 .. n, one triangle pair each) and, with opaque, an opaque wall
+ * behind them: prod (1 - a) = (1 - a)^n for every key while n is at most
+ * PT_ACCEL_TRANS_MAX / 2 (two triangles could be offered per sheet; the ray
+ * crosses one), 0 with the wall; past that the sheets beyond the count pass
+ * by the key, and the mean over keys is still (1 - a)^n, within KSIGMA
+ * standard errors of the draws. A MASK sheet under its cutoff passes (1),
+ * over it blocks (0). */
+static void transmittance_query(uint32_t n, int opaque, int mask)
+{
+    const float a = 0.25f;
+    pt_scene_builder *b = NULL;
+    pt_error err = {0};
+    CHECK(pt_scene_builder_new(&b, &err) == PT_OK);
+    pt_material sheet = black(0.0f), wall = black(0.0f);
+    sheet.alpha_mode = mask ? PT_ALPHA_MASK : PT_ALPHA_BLEND;
+    sheet.base_color[3] = mask == 2 ? 0.9f : a; /* cutoff 0.5: 2 blocks, 1 passes */
+    uint32_t ms = 0, mw = 0;
+    CHECK(pt_scene_builder_add_material(b, &sheet, &ms, &err) == PT_OK);
+    CHECK(pt_scene_builder_add_material(b, &wall, &mw, &err) == PT_OK);
+    for (uint32_t k = 0; k < n + (opaque != 0); k++) {
+        float x = 1.0f + (float)k;
+        float q[12] = {x, -1, -1, x, 1, -1, x, 1, 1, x, -1, 1};
+        CHECK(pt_scene_builder_add_mesh(b, "sheet", q, NULL, NULL, 4, QUAD_IDX, 2, NULL,
+                                        k < n ? ms : mw, &err) == PT_OK);
+    }
+    pt_scene *s = finish_down(b, pt_v3(0, 0, 5));
+    if (!s)
+        return;
+    pt_accel *acc = NULL;
+    CHECK(pt_accel_new(s, &acc, &err) == PT_OK);
+    double want = opaque || mask == 2 ? 0.0 : mask ? 1.0 : pow(1.0 - a, (double)n);
+    double sum = 0.0, sq = 0.0;
+    const uint32_t keys = 4096;
+    int exact = 1;
+    for (uint32_t key = 0; acc && key < keys; key++) {
+        /* Off the sheets' diagonal, where either triangle could be offered. */
+        pt_vec3 o = pt_v3(0.0f, 0.1f + 0.3f * (float)key / keys, -0.2f);
+        double t = pt_accel_transmittance_alpha(acc, o, pt_v3(1, 0, 0), (float)n + 2.0f,
+                                                key * 2654435761u);
+        exact &= fabs(t - want) <= 1e-6;
+        sum += t;
+        sq += t * t;
+    }
+    double mean = sum / keys, se = sqrt(fmax(sq / keys - mean * mean, 0.0) / (keys - 1.0));
+    if (n <= PT_ACCEL_TRANS_MAX / 2 || opaque || mask)
+        CHECKF(exact, "%u sheets%s%s: transmittance not %.6g on every ray (mean %.6g)", n,
+               opaque ? " and a wall" : "", mask ? " (MASK)" : "", want, mean);
+    else
+        CHECKF(fabs(mean - want) <= KSIGMA * se + 1e-6,
+               "%u sheets: mean %.6g, expected %.6g (+- %.3g)", n, mean, want, KSIGMA * se);
+    pt_accel_free(acc);
+    pt_scene_free(s);
+}
+
 int main(void)
 {
+    transmittance_query(1, 0, 0);
+    transmittance_query(3, 0, 0);
+    transmittance_query(3, 1, 0);
+    transmittance_query(1, 0, 1);
+    transmittance_query(1, 0, 2);
+    transmittance_query(20, 0, 0);
     blend_camera();
     mask_camera();
     blend_shadow_point();
