@@ -100,7 +100,8 @@ struct pt_renderer {
     int nee;      /* next-event estimation runs: lights exist, the strategy uses them */
     int nee_n;    /* nee, with lights enough to sample them for a stage at once */
     int alpha;    /* the scene has MASK/BLEND materials: rays pass through them */
-    int blend;    /* ... BLEND ones: shadow rays take their transmittance (trace_shadow) */
+    int blend;    /* ... BLEND ones: shadow rays take their transmittance (trace_shadow),
+                     path rays choose their layer by one number (closest_hit) */
     /* PT_FEAT_THIN_GLASS: shadow rays cross thin smooth glass */
     int thin_glass;
     /* a light tree chooses: light_normal computes the receiver's normal */
@@ -863,11 +864,19 @@ static inline void draw_bounce(pixel_ctx *pc, uint32_t depth, uint32_t index,
 
 /* The closest hit of a path's ray, through the MASK/BLEND surfaces it
  * passes (their emission and BSDF are then not applied: the ray never meets
- * them) when the scene has any; u_alpha is the bounce's OFF_ALPHA number. */
+ * them) when the scene has any; u_alpha is the bounce's OFF_ALPHA number.
+ * With BLEND surfaces u_alpha itself chooses the layer the ray stops at
+ * (pt_accel_intersect_layers), so a pixel's samples, whose numbers are
+ * stratified, see a BLEND surface and what is behind it in stratified
+ * proportions rather than by independent draws. */
 static inline __attribute__((always_inline)) int closest_hit(const pt_renderer *r, pt_vec3 o,
                                                              pt_vec3 d, float time, float u_alpha,
                                                              pt_hit *hit, const uint32_t features)
 {
+    if ((features & PT_FEAT_ALPHA) && r->blend)
+        return pt_accel_intersect_layers(r->accel, o, d, INFINITY,
+                                         (features & PT_FEAT_MOTION) && r->motion ? time : 0.0f,
+                                         u_alpha, pt_alpha_key(u_alpha, ALPHA_SALT_RAY), hit);
     if ((features & PT_FEAT_MOTION) && r->motion) {
         int alpha = (features & PT_FEAT_ALPHA) && r->alpha;
         return pt_accel_intersect_time(r->accel, o, d, INFINITY, time, alpha,

@@ -82,9 +82,20 @@ typedef struct alpha_ctx {
      * however often Embree offers it (a triangle split into several leaves by
      * the high-quality build is tested once per leaf). */
     float *trans;
+    /* pt_accel_intersect_layers: BLEND triangles are hits (the caller
+     * chooses among them), but for those in seen, which the ray passed. */
+    int layered;
     uint32_t nseen;
     uint32_t seen[PT_ACCEL_TRANS_MAX][2];
 } alpha_ctx;
+
+static int seen_before(const alpha_ctx *c, uint32_t tri, uint32_t inst)
+{
+    for (uint32_t k = 0; k < c->nseen; k++)
+        if (c->seen[k][0] == tri && c->seen[k][1] == inst)
+            return 1;
+    return 0;
+}
 
 /* Field i of an RTCHitN of N hits: Embree's RTCHitN_u/v/primID, which its
  * header defines for C++ only. The layout is a structure of arrays of N
@@ -122,9 +133,6 @@ static int blend_through(alpha_ctx *c, uint32_t tri, uint32_t inst, float b1, fl
     const pt_scene *s = c->scene;
     if (s->materials[s->tri_material[tri]].alpha_mode != PT_ALPHA_BLEND)
         return 0;
-    for (uint32_t k = 0; k < c->nseen; k++)
-        if (c->seen[k][0] == tri && c->seen[k][1] == inst)
-            return 1;
     float t = 1.0f - pt_alpha_coverage(s, tri, b1, b2);
     if (!(t > 0.0f) || c->nseen == PT_ACCEL_TRANS_MAX)
         return 0;
@@ -156,10 +164,18 @@ static void alpha_filter(const struct RTCFilterFunctionNArguments *args)
         if (!pt_alpha_tri(c->scene, tri))
             continue;
         float b1 = hitn_float(args->hit, args->N, 3, i), b2 = hitn_float(args->hit, args->N, 4, i);
-        if (c->trans && blend_through(c, tri, hitn_inst(args->hit, args->N, i), b1, b2)) {
+        uint32_t inst = hitn_inst(args->hit, args->N, i);
+        if (c->nseen && seen_before(c, tri, inst)) {
+            args->valid[i] = 0; /* counted, or passed, once already */
+            continue;
+        }
+        if (c->trans && blend_through(c, tri, inst, b1, b2)) {
             args->valid[i] = 0;
             continue;
         }
+        if (c->layered &&
+            c->scene->materials[c->scene->tri_material[tri]].alpha_mode == PT_ALPHA_BLEND)
+            continue;
         if (!pt_alpha_hit(c->scene, tri, b1, b2, c->key))
             args->valid[i] = 0;
     }
@@ -412,12 +428,12 @@ void pt_accel_free(pt_accel *accel)
     pt_free(accel);
 }
 
-static void init_ray(struct RTCRay *r, pt_vec3 o, pt_vec3 d, float tfar, float time)
+static void init_ray(struct RTCRay *r, pt_vec3 o, pt_vec3 d, float tnear, float tfar, float time)
 {
     r->org_x = o.x;
     r->org_y = o.y;
     r->org_z = o.z;
-    r->tnear = 0.0f;
+    r->tnear = tnear;
     r->dir_x = d.x;
     r->dir_y = d.y;
     r->dir_z = d.z;
@@ -428,28 +444,19 @@ static void init_ray(struct RTCRay *r, pt_vec3 o, pt_vec3 d, float tfar, float t
     r->flags = 0;
 }
 
-/* The closest hit; scene NULL ignores alpha. */
-static inline int intersect(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, float time,
-                            const pt_scene *scene, uint32_t key, pt_hit *hit)
+/* The closest hit in [tnear, tfar] under ctx (initialised). */
+static inline int intersect_ctx(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tnear,
+                                float tfar, float time, alpha_ctx *ctx, pt_hit *hit)
 {
     hit->tri = UINT32_MAX;
-    /* Embree accepts hits with tnear <= t <= tfar. tnear = 0: a hit at exactly
-     * t = 0 is a measure-zero event once origins are offset (pt_offset_ray). */
     if (!(tfar > 0.0f))
         return 0;
-    alpha_ctx ctx;
-    rtcInitIntersectContext(&ctx.rtc);
-    ctx.scene = scene;
-    ctx.key = key;
-    ctx.accel = accel;
-    ctx.trans = NULL;
-    ctx.nseen = 0;
     struct RTCRayHit rh;
-    init_ray(&rh.ray, o, d, tfar, time);
+    init_ray(&rh.ray, o, d, tnear, tfar, time);
     rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
     rh.hit.primID = RTC_INVALID_GEOMETRY_ID;
     rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
-    rtcIntersect1(accel->scene, &ctx.rtc, &rh);
+    rtcIntersect1(accel->scene, &ctx->rtc, &rh);
     if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID)
         return 0;
     hit->t = rh.ray.tfar;
@@ -466,6 +473,61 @@ static inline int intersect(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float t
     }
     hit->tri = accel->moving ? accel->map[rh.hit.geomID][rh.hit.primID] : rh.hit.primID;
     return 1;
+}
+
+static void ctx_init(alpha_ctx *ctx, const pt_accel *accel, const pt_scene *scene, uint32_t key)
+{
+    rtcInitIntersectContext(&ctx->rtc);
+    ctx->scene = scene;
+    ctx->key = key;
+    ctx->accel = accel;
+    ctx->trans = NULL;
+    ctx->layered = 0;
+    ctx->nseen = 0;
+}
+
+/* The closest hit; scene NULL ignores alpha. Embree accepts hits with
+ * tnear <= t <= tfar. tnear = 0: a hit at exactly t = 0 is a measure-zero
+ * event once origins are offset (pt_offset_ray). */
+static inline int intersect(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, float time,
+                            const pt_scene *scene, uint32_t key, pt_hit *hit)
+{
+    alpha_ctx ctx;
+    ctx_init(&ctx, accel, scene, key);
+    return intersect_ctx(accel, o, d, 0.0f, tfar, time, &ctx, hit);
+}
+
+int pt_accel_intersect_layers(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, float time,
+                              float u, uint32_t key, pt_hit *hit)
+{
+    const pt_scene *s = accel->alpha;
+    alpha_ctx ctx;
+    ctx_init(&ctx, accel, s, key);
+    ctx.layered = s != NULL;
+    float tnear = 0.0f;
+    for (;;) {
+        if (!intersect_ctx(accel, o, d, tnear, tfar, time, &ctx, hit))
+            return 0;
+        if (!ctx.layered || s->materials[s->tri_material[hit->tri]].alpha_mode != PT_ALPHA_BLEND)
+            return 1;
+        /* The layers in the order the ray meets them, each hit with
+         * probability alpha given the ray came to it: u < alpha hits this
+         * one, else (u - alpha) / (1 - alpha) is uniform again and chooses
+         * among the rest (the inverse of the discrete distribution of the
+         * layer the ray stops at, one layer at a time). */
+        float a = pt_alpha_coverage(s, hit->tri, hit->b1, hit->b2);
+        if (u < a)
+            return 1;
+        u = (u - a) / (1.0f - a);
+        if (!(u < 1.0f))
+            u = 0x1.fffffep-1f;
+        ctx.seen[ctx.nseen][0] = hit->tri;
+        ctx.seen[ctx.nseen][1] = hit->inst ? hit->inst : RTC_INVALID_GEOMETRY_ID;
+        /* Past PT_ACCEL_TRANS_MAX layers the rest pass by the key. */
+        if (++ctx.nseen == PT_ACCEL_TRANS_MAX)
+            ctx.layered = 0;
+        tnear = hit->t;
+    }
 }
 
 int pt_accel_intersect(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, pt_hit *hit)
@@ -496,18 +558,14 @@ static inline int occluded(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tf
     if (!(tfar > 0.0f))
         return 0;
     alpha_ctx ctx;
-    rtcInitIntersectContext(&ctx.rtc);
-    ctx.scene = scene;
-    ctx.key = key;
-    ctx.accel = accel;
+    ctx_init(&ctx, accel, scene, key);
     ctx.trans = trans;
-    ctx.nseen = 0;
     struct RTCRay r;
     /* The contract is the half-open [0, tfar): the end point itself (a light
      * point the caller offset towards the shading point) must not occlude.
      * Embree's test is closed, so pass the next float below tfar: exactly the
      * open interval, not a hand-picked shortening. */
-    init_ray(&r, o, d, below(tfar), time);
+    init_ray(&r, o, d, 0.0f, below(tfar), time);
     rtcOccluded1(accel->scene, &ctx.rtc, &r);
     return r.tfar == -INFINITY;
 }

@@ -61,6 +61,19 @@ int pt_accel_occluded_alpha(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float t
  * key, as in pt_accel_occluded_alpha. Without alpha materials it is
  * 1 - pt_accel_occluded. */
 #define PT_ACCEL_TRANS_MAX 16u
+
+/* The closest hit as pt_accel_intersect_time with alpha, but the BLEND
+ * surfaces along the ray are met or passed by one number u in [0, 1), in
+ * the order the ray meets them: the first (alpha a) is hit when u < a,
+ * else u becomes (u - a) / (1 - a) for the next. Each is hit with
+ * probability alpha given that the ray reached it, as with the key, but
+ * the layer a ray stops at is a monotone function of u, so samples whose
+ * u are stratified stop at the layers in stratified proportions. Each
+ * layer passed costs a query of the rest of the ray; past
+ * PT_ACCEL_TRANS_MAX of them the others pass by the key. MASK surfaces
+ * pass as with the key. */
+int pt_accel_intersect_layers(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, float time,
+                              float u, uint32_t key, pt_hit *hit);
 float pt_accel_transmittance_alpha(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar,
                                    uint32_t key);
 

@@ -11,7 +11,10 @@
  * the expected radiance is alpha * L_surface + (1 - alpha) * L_behind
  * (Enderton et al. 2010, "Stochastic Transparency"; Cycles and pbrt-v4 do
  * the same for camera rays). Shadow rays take the expectation instead, the
- * product of 1 - alpha along the ray (pt_accel_transmittance_alpha).
+ * product of 1 - alpha along the ray (pt_accel_transmittance_alpha), and
+ * path rays in a scene with BLEND materials choose the layer they stop at
+ * by one stratified number (pt_accel_intersect_layers); the key below then
+ * decides MASK surfaces and BLEND ones past the sixteenth on a ray.
  *
  * The random number of a pass-through comes from the caller as a 32-bit key
  * (from the keyed sampler: pixel, sample index, dimension) and is hashed with

@@ -10,6 +10,9 @@
  *   an emitter (or a uniform environment) of radiance Lb. A sample reads Ls
  *   with probability a, Lb otherwise: mean a Ls + (1 - a) Lb, variance
  *   a (1 - a) (Ls - Lb)^2 per sample; checked within 5 standard errors.
+ *   Two BLEND planes over an emitter: the layer a ray stops at is chosen by
+ *   one stratified number, so each pixel's mean is within 2/n of the
+ *   layers' spread of the expectation (independent draws: 15 times that).
  * - MASK, by texture alpha and by factor, above and below the cutoff: every
  *   sample reads the same value, exactly Ls (opaque) or Lb (invisible).
  * - shadow rays: a black BLEND occluder between a point light and a Lambert
@@ -218,6 +221,62 @@ static void blend_camera(void)
         pt_env_free(env);
         pt_scene_free(s);
     }
+}
+
+/* Two black BLEND planes, alpha A2 emitting 2 at z = 2 and A1 emitting 1 at
+ * z = 1, over an emitter of 4: a camera ray stops at the upper plane with
+ * probability A2, at the lower with (1 - A2) A1, else at the emitter. The
+ * layer is chosen by the bounce's one stratified number
+ * (pt_accel_intersect_layers), so over 1024 samples (a power of 2: each of
+ * [k/1024, (k+1)/1024) holds one number) each pixel's share of each layer
+ * is within 2/1024 of its probability, and its mean within 2/1024 x 3 of
+ * the expectation; independent draws per sample would miss by about
+ * sqrt(p (1 - p) / 1024) x 3 = 0.045 (a pixel lands within the bound with
+ * probability about 0.1). */
+static void blend_layers_stratified(void)
+{
+    const float A1 = 0.4f, A2 = 0.3f;
+    const uint32_t SPP = 1024, W = 2, H = 2;
+    pt_scene_builder *b = NULL;
+    pt_error err = {0};
+    CHECK(pt_scene_builder_new(&b, &err) == PT_OK);
+    pt_material p1 = black(1.0f), p2 = black(2.0f), back = black(4.0f);
+    p1.alpha_mode = p2.alpha_mode = PT_ALPHA_BLEND;
+    p1.base_color[3] = A1;
+    p2.base_color[3] = A2;
+    uint32_t m1 = 0, m2 = 0, mb = 0;
+    CHECK(pt_scene_builder_add_material(b, &p1, &m1, &err) == PT_OK);
+    CHECK(pt_scene_builder_add_material(b, &p2, &m2, &err) == PT_OK);
+    CHECK(pt_scene_builder_add_material(b, &back, &mb, &err) == PT_OK);
+    add_quad_z(b, -10, 10, -10, 10, 2.0f, 1, m2);
+    add_quad_z(b, -10, 10, -10, 10, 1.0f, 1, m1);
+    add_quad_z(b, -10, 10, -10, 10, 0.0f, 1, mb);
+    pt_scene *s = finish_down(b, pt_v3(0.3f, 0.2f, 5.0f));
+    if (!s)
+        return;
+    pt_render_params p = {0};
+    pt_render_params_default(&p);
+    p.width = W;
+    p.height = H;
+    p.seed = 11;
+    pt_renderer *r = NULL;
+    CHECKF(pt_renderer_new(s, &p, &r, &err) == PT_OK, "%s", err.msg);
+    if (r) {
+        pt_pixel_acc acc[4];
+        pt_render_stats st = {0};
+        pt_rect all = {0, 0, W, H};
+        pt_render_tile(r, all, 0, SPP, acc, &st);
+        double want = A2 * 2.0 + (1.0 - A2) * (A1 * 1.0 + (1.0 - A1) * 4.0);
+        double tol = 2.0 / SPP * 3.0 + 1e-5 * want;
+        for (uint32_t i = 0; i < W * H; i++) {
+            double mean = pt_acc_sum(&acc[i], 1) / acc[i].n;
+            CHECKF(fabs(mean - want) <= tol,
+                   "two BLEND layers, pixel %u: %.6g, expected %.6g (+- %.3g, stratified)", i, mean,
+                   want, tol);
+        }
+    }
+    pt_renderer_free(r);
+    pt_scene_free(s);
 }
 
 /* A black MASK (or OPAQUE) plane emitting 1 in front of an emitter of 4;
@@ -781,6 +840,34 @@ static void transmittance_query(uint32_t n, int opaque, int mask)
         sq += t * t;
     }
     double mean = sum / keys, se = sqrt(fmax(sq / keys - mean * mean, 0.0) / (keys - 1.0));
+    /* The closest hit by layers (pt_accel_intersect_layers) with u on a
+     * grid: the share of rays stopping at sheet j (x = 1 + j) is within
+     * 2 / keys of a (1 - a)^j while the layers are chosen by u; past
+     * PT_ACCEL_TRANS_MAX (n = 20) the rest pass by the key, and the share
+     * that passes all is (1 - a)^n within KSIGMA standard errors. */
+    if (!opaque && !mask && acc) {
+        uint32_t stop[24] = {0}, through = 0;
+        for (uint32_t key = 0; key < keys; key++) {
+            pt_vec3 o = pt_v3(0.0f, 0.1f + 0.3f * (float)key / keys, -0.2f);
+            pt_hit h;
+            float u = ((float)key + 0.5f) / (float)keys;
+            if (!pt_accel_intersect_layers(acc, o, pt_v3(1, 0, 0), (float)n + 2.0f, 0.0f, u,
+                                           key * 2654435761u, &h))
+                through++;
+            else if (h.t >= 0.5f && h.t < 23.5f)
+                stop[(uint32_t)(h.t - 0.5f)]++;
+        }
+        for (uint32_t j = 0; j < n && j < PT_ACCEL_TRANS_MAX; j++) {
+            double pj = a * pow(1.0 - a, (double)j);
+            CHECKF(fabs((double)stop[j] / keys - pj) <= 2.0 / keys,
+                   "%u sheets by layers: %.5f stop at sheet %u, expected %.5f", n,
+                   (double)stop[j] / keys, j, pj);
+        }
+        double pt_ = pow(1.0 - a, (double)n);
+        double sd = sqrt(pt_ * (1.0 - pt_) / keys);
+        CHECKF(fabs((double)through / keys - pt_) <= KSIGMA * sd + 2.0 / keys,
+               "%u sheets by layers: %.5f pass all, expected %.5f", n, (double)through / keys, pt_);
+    }
     if (n <= PT_ACCEL_TRANS_MAX / 2 || opaque || mask)
         CHECKF(exact, "%u sheets%s%s: transmittance not %.6g on every ray (mean %.6g)", n,
                opaque ? " and a wall" : "", mask ? " (MASK)" : "", want, mean);
@@ -800,6 +887,7 @@ int main(void)
     transmittance_query(1, 0, 2);
     transmittance_query(20, 0, 0);
     blend_camera();
+    blend_layers_stratified();
     mask_camera();
     blend_shadow_point();
     blend_shadow_twice();
