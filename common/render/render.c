@@ -100,8 +100,10 @@ struct pt_renderer {
     int nee;      /* next-event estimation runs: lights exist, the strategy uses them */
     int nee_n;    /* nee, with lights enough to sample them for a stage at once */
     int alpha;    /* the scene has MASK/BLEND materials: rays pass through them */
-    int blend;    /* ... BLEND ones: shadow rays take their transmittance (trace_shadow),
-                     path rays choose their layer by one number (closest_hit) */
+    const uint8_t *alpha_solid; /* with alpha: the whole MASK triangles (a light sample on
+                                   one has coverage 1 without a lookup) */
+    int blend; /* ... BLEND ones: shadow rays take their transmittance (trace_shadow),
+                  path rays choose their layer by one number (closest_hit) */
     /* PT_FEAT_THIN_GLASS: shadow rays cross thin smooth glass */
     int thin_glass;
     /* a light tree chooses: light_normal computes the receiver's normal */
@@ -1697,7 +1699,7 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     if ((features & NEE_LIGHTS) && r->nee) {
         pt_vec3 lrad = ls_ok ? ls->radiance : pt_v3(0.0f, 0.0f, 0.0f);
         if ((features & PT_FEAT_ALPHA) && r->alpha && ls_ok && ls->delta == PT_LIGHT_AREA &&
-            pt_alpha_tri(r->scene, ls->tri))
+            pt_alpha_tri(r->scene, ls->tri) && !(r->alpha_solid && r->alpha_solid[ls->tri]))
             lrad = pt_v3_scale(lrad, light_coverage(r, ls));
         if (features & PT_FEAT_ALPHA)
             sr->alpha_key = pt_alpha_key(u[OFF_ALPHA], ALPHA_SALT_SHADOW);
@@ -2765,6 +2767,7 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
     r->tan_half_fov = tanf(0.5f * r->camera.yfov);
     if ((st = pt_accel_new(scene, &r->accel, err)) != PT_OK)
         goto fail;
+    r->alpha_solid = pt_accel_alpha_solid(r->accel);
     /* Solid-angle sampling of large near lights (light.h), when asked for,
      * where the scene runs a variant that samples lights one path at a
      * time: the Lambert variants' lanes compute area sampling's pdf, so a

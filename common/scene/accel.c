@@ -61,6 +61,8 @@ struct pt_accel {
     RTCScene scene;
     float origin, float_scale; /* pt_accel_offset_ray's constants for this scene */
     const pt_scene *alpha;     /* the scene, when it has alpha filters; else NULL */
+    uint8_t *solid;            /* with alpha: pt_alpha_solid_new's flags (whole MASK
+                                  triangles, which the filter passes without a lookup) */
     int moving;                /* two geometries (still, moving): map[geomID][primID] is the
                                   scene triangle */
     const uint32_t *map[2];
@@ -161,7 +163,7 @@ static void alpha_filter(const struct RTCFilterFunctionNArguments *args)
             memcpy(&gid, (const char *)args->hit + 4 * ((size_t)6 * args->N + i), sizeof gid);
             tri = c->accel->map[gid][tri];
         }
-        if (!pt_alpha_tri(c->scene, tri))
+        if (!pt_alpha_tri(c->scene, tri) || c->accel->solid[tri])
             continue;
         float b1 = hitn_float(args->hit, args->N, 3, i), b2 = hitn_float(args->hit, args->N, 4, i);
         uint32_t inst = hitn_inst(args->hit, args->N, i);
@@ -390,6 +392,8 @@ pt_status pt_accel_new(const pt_scene *scene, pt_accel **out, pt_error *err)
             goto fail;
     }
     rtcCommitScene(a->scene);
+    if (a->alpha && (st = pt_alpha_solid_new(a->alpha, &a->solid, err)) != PT_OK)
+        goto fail;
     {
         /* The scene's coordinate magnitude, rounded up to a power of two so the
          * scaled constants are exact. */
@@ -423,6 +427,7 @@ void pt_accel_free(pt_accel *accel)
         if (accel->protos[i])
             rtcReleaseScene(accel->protos[i]);
     pt_free(accel->protos);
+    pt_free(accel->solid);
     if (accel->device)
         rtcReleaseDevice(accel->device);
     pt_free(accel);
@@ -599,6 +604,11 @@ float pt_accel_transmittance_alpha(const pt_accel *accel, pt_vec3 o, pt_vec3 d, 
     if (occluded(accel, o, d, tfar, 0.0f, accel->alpha, key, &t))
         return 0.0f;
     return t;
+}
+
+const uint8_t *pt_accel_alpha_solid(const pt_accel *accel)
+{
+    return accel->solid;
 }
 
 pt_vec3 pt_accel_degenerate_normal(pt_vec3 n)

@@ -87,6 +87,12 @@ int pt_accel_intersect_time(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float t
 int pt_accel_occluded_time(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, float time,
                            int alpha, uint32_t key);
 
+/* With alpha materials, one byte per triangle: 1 for a whole MASK triangle
+ * (pt_alpha_solid_new), which the queries take as opaque without a texture
+ * lookup (the answer the lookup would give); NULL without alpha. Owned by
+ * the accel. */
+const uint8_t *pt_accel_alpha_solid(const pt_accel *accel);
+
 /* The unit normal of a degenerate or overflowing triangle's cross product n
  * (computed in double; (0,0,1) when it has no direction). */
 pt_vec3 pt_accel_degenerate_normal(pt_vec3 n);

@@ -28,6 +28,7 @@
 
 #include <stdint.h>
 
+#include "common/base/error.h"
 #include "common/scene/scene.h"
 
 /* glTF alpha value at barycentrics (b1, b2) of triangle tri (vertices 1 and
@@ -45,6 +46,21 @@ float pt_alpha_coverage(const pt_scene *s, uint32_t tri, float b1, float b2);
  * for BLEND 1 with probability alpha over uniformly distributed keys, from
  * a hash of (key, tri). */
 int pt_alpha_hit(const pt_scene *s, uint32_t tri, float b1, float b2, uint32_t key);
+
+/* Most texels PT_ALPHA_SOLID_TEXELS that pt_alpha_solid_new reads for one
+ * triangle; a triangle whose UVs span more is left to the lookups. */
+#define PT_ALPHA_SOLID_TEXELS 16384u
+
+/* Per triangle of s (s->num_triangles bytes, pt_free'd by the caller) into
+ * *out: 1 where a MASK triangle is whole, its alpha at least its cutoff at
+ * every point, so that pt_alpha_coverage is 1 and pt_alpha_hit 1 there
+ * without a lookup; else 0 (every other mode, and a triangle whose bound is
+ * not known: its UVs over more than PT_ALPHA_SOLID_TEXELS texels). The bound
+ * is conservative: alpha factor x the least alpha of the texels that a
+ * lookup anywhere in the box of the triangle's (transformed) UVs can read,
+ * widened by a texel, x the least COLOR_0 alpha of its corners, with a
+ * margin for the lookup's rounding. PT_ERR_NOMEM. */
+pt_status pt_alpha_solid_new(const pt_scene *s, uint8_t **out, pt_error *err);
 
 /* 1 when triangle tri's material is MASK or BLEND (quick test before the
  * lookups). */

@@ -878,8 +878,105 @@ static void transmittance_query(uint32_t n, int opaque, int mask)
     pt_scene_free(s);
 }
 
+/* pt_alpha_solid_new: a MASK quad whose UVs lie in the texture's opaque
+ * half (alpha 0.8 over a cutoff of 0.5) is whole, one in its clear half or
+ * across both is not; by factor alone 0.8 is whole and 0.3 not; OPAQUE and
+ * BLEND triangles are never flagged. */
+static void solid_flags(void)
+{
+    pt_scene_builder *b = NULL;
+    pt_error err = {0};
+    CHECK(pt_scene_builder_new(&b, &err) == PT_OK);
+    uint32_t tex = add_alpha_texture(b, 51, 204);
+    pt_material mt = black(0.0f), m8 = black(0.0f), m3 = black(0.0f), op = black(0.0f),
+                bl = black(0.0f);
+    mt.alpha_mode = m8.alpha_mode = m3.alpha_mode = PT_ALPHA_MASK;
+    mt.base_color_tex = (int32_t)tex;
+    m8.base_color[3] = 0.8f;
+    m3.base_color[3] = 0.3f;
+    bl.alpha_mode = PT_ALPHA_BLEND;
+    uint32_t m[5] = {0};
+    const pt_material *ms[5] = {&mt, &m8, &m3, &op, &bl};
+    for (int k = 0; k < 5; k++)
+        CHECK(pt_scene_builder_add_material(b, ms[k], &m[k], &err) == PT_OK);
+    /* Quads 0-2 textured: u in [0.6, 0.9] (texels 4..7: alpha 0.8), [0.1,
+     * 0.4] (0.2), [0.3, 0.7] (both); 3-6: the other materials. */
+    const float u0[3] = {0.6f, 0.1f, 0.3f}, u1[3] = {0.9f, 0.4f, 0.7f};
+    const uint32_t mat[7] = {m[0], m[0], m[0], m[1], m[2], m[3], m[4]};
+    for (int k = 0; k < 7; k++) {
+        float z = (float)k;
+        float q[12] = {0, 0, z, 1, 0, z, 1, 1, z, 0, 1, z};
+        float a = k < 3 ? u0[k] : 0.0f, c = k < 3 ? u1[k] : 1.0f;
+        float uv[8] = {a, 0.3f, c, 0.3f, c, 0.6f, a, 0.6f};
+        CHECK(pt_scene_builder_add_mesh(b, "quad", q, NULL, uv, 4, QUAD_IDX, 2, NULL, mat[k],
+                                        &err) == PT_OK);
+    }
+    pt_scene *s = finish_down(b, pt_v3(0, 0, 10));
+    if (!s)
+        return;
+    uint8_t *f = NULL;
+    CHECK(pt_alpha_solid_new(s, &f, &err) == PT_OK);
+    const uint8_t want[7] = {1, 0, 0, 1, 0, 0, 0};
+    for (uint32_t t = 0; f && t < 14 && t < s->num_triangles; t++)
+        CHECKF(f[t] == want[t / 2], "triangle %u (quad %u): whole %d, expected %d", t, t / 2, f[t],
+               want[t / 2]);
+    pt_free(f);
+    pt_scene_free(s);
+}
+
+/* StainedGlassLamp's MASK triangles: the flags hold (each flagged
+ * triangle's coverage is 1 at 64 random points of it) and most of the
+ * stained glass is whole (0.8 % of its texture is clear). */
+static void solid_lamp(void)
+{
+    char path[512];
+    snprintf(path, sizeof path, "%s/StainedGlassLamp/StainedGlassLamp.gltf", PT_SHARED_SCENES);
+    struct stat sb;
+    if (stat(path, &sb) != 0) {
+        if (check_shared_required())
+            CHECKF(0, "%s not found", path);
+        else
+            CHECK_SKIP("shared assets: %s not found", path);
+        return;
+    }
+    pt_scene_opts o = {0};
+    pt_scene *s = NULL;
+    pt_error err = {0};
+    CHECKF(pt_scene_load(path, &o, &s, &err) == PT_OK, "%s", err.msg);
+    if (!s)
+        return;
+    uint8_t *f = NULL;
+    CHECK(pt_alpha_solid_new(s, &f, &err) == PT_OK);
+    uint32_t masks = 0, whole = 0, wrong = 0, rng = 12345;
+    for (uint32_t t = 0; f && t < s->num_triangles; t++) {
+        if (s->materials[s->tri_material[t]].alpha_mode != PT_ALPHA_MASK)
+            continue;
+        masks++;
+        if (!f[t])
+            continue;
+        whole++;
+        for (int k = 0; k < 64; k++) {
+            rng = rng * 1664525u + 1013904223u;
+            float b1 = (float)(rng >> 8) * 0x1p-24f;
+            rng = rng * 1664525u + 1013904223u;
+            float b2 = (float)(rng >> 8) * 0x1p-24f;
+            if (b1 + b2 > 1.0f) {
+                b1 = 1.0f - b1;
+                b2 = 1.0f - b2;
+            }
+            wrong += pt_alpha_coverage(s, t, b1, b2) != 1.0f;
+        }
+    }
+    CHECKF(wrong == 0, "%u points of whole triangles are not covered", wrong);
+    CHECKF(whole >= masks / 2, "%u of %u MASK triangles whole, expected most", whole, masks);
+    pt_free(f);
+    pt_scene_free(s);
+}
+
 int main(void)
 {
+    solid_flags();
+    solid_lamp();
     transmittance_query(1, 0, 0);
     transmittance_query(3, 0, 0);
     transmittance_query(3, 1, 0);
