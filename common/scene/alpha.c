@@ -108,7 +108,7 @@ static void axis_range(float lo, float hi, uint32_t n, uint32_t *i0, uint32_t *i
 
 /* The least alpha that pt_alpha_value can give on triangle tri (MASK),
  * or -1 when it is not bounded cheaply (see pt_alpha_solid_new). */
-static float alpha_floor(const pt_scene *s, uint32_t tri)
+static float alpha_floor(const pt_scene *s, uint32_t tri, uint64_t *budget)
 {
     const pt_material *m = &s->materials[s->tri_material[tri]];
     const uint32_t *t = &s->indices[3 * tri];
@@ -150,8 +150,10 @@ static float alpha_floor(const pt_scene *s, uint32_t tri)
     uint32_t x0, x1, y0, y1;
     axis_range(lo[0], hi[0], tex->width, &x0, &x1);
     axis_range(lo[1], hi[1], tex->height, &y0, &y1);
-    if ((uint64_t)(x1 - x0 + 1) * (y1 - y0 + 1) > PT_ALPHA_SOLID_TEXELS)
+    uint64_t n = (uint64_t)(x1 - x0 + 1) * (y1 - y0 + 1);
+    if (n > PT_ALPHA_SOLID_TEXELS || n > *budget)
         return -1.0f;
+    *budget -= n;
     uint8_t least = 255;
     for (uint32_t y = y0; y <= y1 && least > 0; y++)
         for (uint32_t xx = x0; xx <= x1; xx++) {
@@ -168,13 +170,14 @@ pt_status pt_alpha_solid_new(const pt_scene *s, uint8_t **out, pt_error *err)
     if (!f)
         return pt_error_set(err, PT_ERR_NOMEM, "alpha: out of memory for %u triangles' flags",
                             s->num_triangles);
+    uint64_t budget = PT_ALPHA_SOLID_BUDGET;
     for (uint32_t tri = 0; tri < s->num_triangles; tri++) {
         const pt_material *m = &s->materials[s->tri_material[tri]];
         if (m->alpha_mode != PT_ALPHA_MASK)
             continue;
         /* The lookup's sums of weights x bytes may round a little under the
          * least texel: a relative margin far above float's. */
-        float a = alpha_floor(s, tri);
+        float a = alpha_floor(s, tri, &budget);
         f[tri] = a >= 0.0f && a * (1.0f - 1e-5f) >= m->alpha_cutoff;
     }
     *out = f;

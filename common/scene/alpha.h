@@ -47,15 +47,19 @@ float pt_alpha_coverage(const pt_scene *s, uint32_t tri, float b1, float b2);
  * a hash of (key, tri). */
 int pt_alpha_hit(const pt_scene *s, uint32_t tri, float b1, float b2, uint32_t key);
 
-/* Most texels PT_ALPHA_SOLID_TEXELS that pt_alpha_solid_new reads for one
- * triangle; a triangle whose UVs span more is left to the lookups. */
+/* Most texels that pt_alpha_solid_new reads for one triangle, and for the
+ * whole scene: a triangle whose UVs span more, and those after the budget
+ * is spent, are left to the lookups (a scene of a million MASK leaves
+ * loads in a fraction of a second more, not minutes). */
 #define PT_ALPHA_SOLID_TEXELS 16384u
+#define PT_ALPHA_SOLID_BUDGET (1u << 26)
 
 /* Per triangle of s (s->num_triangles bytes, pt_free'd by the caller) into
  * *out: 1 where a MASK triangle is whole, its alpha at least its cutoff at
  * every point, so that pt_alpha_coverage is 1 and pt_alpha_hit 1 there
  * without a lookup; else 0 (every other mode, and a triangle whose bound is
- * not known: its UVs over more than PT_ALPHA_SOLID_TEXELS texels). The bound
+ * not known: its UVs over more than PT_ALPHA_SOLID_TEXELS texels, or past
+ * PT_ALPHA_SOLID_BUDGET texels read in all). The bound
  * is conservative: alpha factor x the least alpha of the texels that a
  * lookup anywhere in the box of the triangle's (transformed) UVs can read,
  * widened by a texel, x the least COLOR_0 alpha of its corners, with a
