@@ -100,6 +100,10 @@ struct pt_renderer {
     int nee;      /* next-event estimation runs: lights exist, the strategy uses them */
     int nee_n;    /* nee, with lights enough to sample them for a stage at once */
     int alpha;    /* the scene has MASK/BLEND materials: rays pass through them */
+    const uint8_t *alpha_solid; /* with alpha: the whole MASK triangles (a light sample on
+                                   one has coverage 1 without a lookup) */
+    int blend; /* ... BLEND ones: shadow rays take their transmittance (trace_shadow),
+                  path rays choose their layer by one number (closest_hit) */
     /* PT_FEAT_THIN_GLASS: shadow rays cross thin smooth glass */
     int thin_glass;
     /* a light tree chooses: light_normal computes the receiver's normal */
@@ -862,11 +866,19 @@ static inline void draw_bounce(pixel_ctx *pc, uint32_t depth, uint32_t index,
 
 /* The closest hit of a path's ray, through the MASK/BLEND surfaces it
  * passes (their emission and BSDF are then not applied: the ray never meets
- * them) when the scene has any; u_alpha is the bounce's OFF_ALPHA number. */
+ * them) when the scene has any; u_alpha is the bounce's OFF_ALPHA number.
+ * With BLEND surfaces u_alpha itself chooses the layer the ray stops at
+ * (pt_accel_intersect_layers), so a pixel's samples, whose numbers are
+ * stratified, see a BLEND surface and what is behind it in stratified
+ * proportions rather than by independent draws. */
 static inline __attribute__((always_inline)) int closest_hit(const pt_renderer *r, pt_vec3 o,
                                                              pt_vec3 d, float time, float u_alpha,
                                                              pt_hit *hit, const uint32_t features)
 {
+    if ((features & PT_FEAT_ALPHA) && r->blend)
+        return pt_accel_intersect_layers(r->accel, o, d, INFINITY,
+                                         (features & PT_FEAT_MOTION) && r->motion ? time : 0.0f,
+                                         u_alpha, pt_alpha_key(u_alpha, ALPHA_SALT_RAY), hit);
     if ((features & PT_FEAT_MOTION) && r->motion) {
         int alpha = (features & PT_FEAT_ALPHA) && r->alpha;
         return pt_accel_intersect_time(r->accel, o, d, INFINITY, time, alpha,
@@ -1687,7 +1699,7 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     if ((features & NEE_LIGHTS) && r->nee) {
         pt_vec3 lrad = ls_ok ? ls->radiance : pt_v3(0.0f, 0.0f, 0.0f);
         if ((features & PT_FEAT_ALPHA) && r->alpha && ls_ok && ls->delta == PT_LIGHT_AREA &&
-            pt_alpha_tri(r->scene, ls->tri))
+            pt_alpha_tri(r->scene, ls->tri) && !(r->alpha_solid && r->alpha_solid[ls->tri]))
             lrad = pt_v3_scale(lrad, light_coverage(r, ls));
         if (features & PT_FEAT_ALPHA)
             sr->alpha_key = pt_alpha_key(u[OFF_ALPHA], ALPHA_SALT_SHADOW);
@@ -1975,10 +1987,13 @@ static int shadow_through(const pt_renderer *r, path *pa, const shadow_ray *sr,
 }
 
 /* Traces the shadow ray shade() asked for and adds its contribution. MASK
- * and BLEND surfaces on the way block it only where the ray meets them
- * (stochastically for BLEND: transmittance 1 - alpha on average), as a
- * BSDF-sampled ray towards the same light would pass them; so do smooth
- * thin walls (PT_FEAT_THIN_GLASS, shadow_through), with their
+ * and BLEND surfaces on the way block it only where the ray meets them, as
+ * a BSDF-sampled ray towards the same light would pass them: BLEND ones by
+ * their transmittance 1 - alpha (pt_accel_transmittance_alpha: the
+ * expectation of the stochastic pass-through that BSDF-sampled rays take,
+ * so MIS weighs the same integrand, with none of its variance), or with
+ * motion blur or thin glass stochastically, passing with 1 - alpha. Smooth
+ * thin walls (PT_FEAT_THIN_GLASS, shadow_through) pass it with their
  * transmittance. */
 static inline __attribute__((always_inline)) void trace_shadow(const pt_renderer *r, path *pa,
                                                                const shadow_ray *sr,
@@ -1996,6 +2011,16 @@ static inline __attribute__((always_inline)) void trace_shadow(const pt_renderer
             pa->L = pt_v3_add(pa->L, pt_v3_mul(sr->contrib, tr));
             PT_TRACE_EVENT(PT_TRACE_SHADOW, pa->depth, -1, -1, 0, 0.0f, 0.0f, 0.0f,
                            pt_v3_mul(sr->contrib, tr));
+        }
+        return;
+    }
+    if ((features & PT_FEAT_ALPHA) && r->blend && !((features & PT_FEAT_MOTION) && r->motion)) {
+        float t =
+            pt_accel_transmittance_alpha(r->accel, sr->from, sr->dir, sr->dist, sr->alpha_key);
+        if (t > 0.0f) {
+            pt_vec3 c = pt_v3_scale(sr->contrib, t);
+            pa->L = pt_v3_add(pa->L, c);
+            PT_TRACE_EVENT(PT_TRACE_SHADOW, pa->depth, -1, -1, 0, 0.0f, 0.0f, 0.0f, c);
         }
         return;
     }
@@ -2742,6 +2767,7 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
     r->tan_half_fov = tanf(0.5f * r->camera.yfov);
     if ((st = pt_accel_new(scene, &r->accel, err)) != PT_OK)
         goto fail;
+    r->alpha_solid = pt_accel_alpha_solid(r->accel);
     /* Solid-angle sampling of large near lights (light.h), when asked for,
      * where the scene runs a variant that samples lights one path at a
      * time: the Lambert variants' lanes compute area sampling's pdf, so a
@@ -2786,6 +2812,8 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
                        params->light_strategy == PT_LIGHT_MIS ? PT_ENV_MIS : PT_ENV_FULL));
     uint32_t features = scene->features | (params->extra_features & ~PARAM_FEATURES);
     r->alpha = (scene->features & PT_FEAT_ALPHA) != 0;
+    for (uint32_t i = 0; r->alpha && i < scene->num_materials; i++)
+        r->blend |= scene->materials[i].alpha_mode == PT_ALPHA_BLEND;
     r->motion = (scene->features & PT_FEAT_MOTION) ? scene->motion : NULL;
     if (params->env)
         features |= PT_FEAT_ENV;

@@ -61,6 +61,8 @@ struct pt_accel {
     RTCScene scene;
     float origin, float_scale; /* pt_accel_offset_ray's constants for this scene */
     const pt_scene *alpha;     /* the scene, when it has alpha filters; else NULL */
+    uint8_t *solid;            /* with alpha: pt_alpha_solid_new's flags (whole MASK
+                                  triangles, which the filter passes without a lookup) */
     int moving;                /* two geometries (still, moving): map[geomID][primID] is the
                                   scene triangle */
     const uint32_t *map[2];
@@ -76,7 +78,26 @@ typedef struct alpha_ctx {
     const pt_scene *scene; /* NULL: the query ignores alpha */
     uint32_t key;
     const pt_accel *accel; /* for the triangle maps of a moving scene */
+    /* pt_accel_transmittance_alpha: the product of 1 - alpha over the BLEND
+     * triangles met so far (NULL: BLEND by the key, as for every other
+     * query), and those triangles (with their instance), each counted once
+     * however often Embree offers it (a triangle split into several leaves by
+     * the high-quality build is tested once per leaf). */
+    float *trans;
+    /* pt_accel_intersect_layers: BLEND triangles are hits (the caller
+     * chooses among them), but for those in seen, which the ray passed. */
+    int layered;
+    uint32_t nseen;
+    uint32_t seen[PT_ACCEL_TRANS_MAX][2];
 } alpha_ctx;
+
+static int seen_before(const alpha_ctx *c, uint32_t tri, uint32_t inst)
+{
+    for (uint32_t k = 0; k < c->nseen; k++)
+        if (c->seen[k][0] == tri && c->seen[k][1] == inst)
+            return 1;
+    return 0;
+}
 
 /* Field i of an RTCHitN of N hits: Embree's RTCHitN_u/v/primID, which its
  * header defines for C++ only. The layout is a structure of arrays of N
@@ -95,11 +116,40 @@ static inline uint32_t hitn_prim(const struct RTCHitN *hit, unsigned n, unsigned
     return v;
 }
 
+/* instID[0] of hit i (field 7), RTC_INVALID_GEOMETRY_ID outside an instance. */
+static inline uint32_t hitn_inst(const struct RTCHitN *hit, unsigned n, unsigned i)
+{
+    uint32_t v;
+    memcpy(&v, (const char *)hit + 4 * ((size_t)7 * n + i), sizeof v);
+    return v;
+}
+
+/* A transmittance query's BLEND triangle tri (through instance inst) at
+ * (b1, b2): 1 when the ray goes on past it, its 1 - alpha multiplied into
+ * *c->trans once. 0 for a triangle that is not BLEND, one of alpha 1 (it
+ * blocks), and a new one when PT_ACCEL_TRANS_MAX are counted already: the
+ * caller decides those by the key (unbiased either way: each triangle is
+ * either weighed by its transmittance or passed with that probability). */
+static int blend_through(alpha_ctx *c, uint32_t tri, uint32_t inst, float b1, float b2)
+{
+    const pt_scene *s = c->scene;
+    if (s->materials[s->tri_material[tri]].alpha_mode != PT_ALPHA_BLEND)
+        return 0;
+    float t = 1.0f - pt_alpha_coverage(s, tri, b1, b2);
+    if (!(t > 0.0f) || c->nseen == PT_ACCEL_TRANS_MAX)
+        return 0;
+    c->seen[c->nseen][0] = tri;
+    c->seen[c->nseen][1] = inst;
+    c->nseen++;
+    *c->trans *= t;
+    return 1;
+}
+
 /* The intersection and occlusion filter of a scene with alpha materials:
  * drops the candidate hits that the ray passes through. */
 static void alpha_filter(const struct RTCFilterFunctionNArguments *args)
 {
-    const alpha_ctx *c = (const alpha_ctx *)args->context;
+    alpha_ctx *c = (alpha_ctx *)args->context;
     if (!c->scene)
         return;
     for (unsigned i = 0; i < args->N; i++) {
@@ -113,10 +163,22 @@ static void alpha_filter(const struct RTCFilterFunctionNArguments *args)
             memcpy(&gid, (const char *)args->hit + 4 * ((size_t)6 * args->N + i), sizeof gid);
             tri = c->accel->map[gid][tri];
         }
-        if (!pt_alpha_tri(c->scene, tri))
+        if (!pt_alpha_tri(c->scene, tri) || c->accel->solid[tri])
             continue;
-        if (!pt_alpha_hit(c->scene, tri, hitn_float(args->hit, args->N, 3, i),
-                          hitn_float(args->hit, args->N, 4, i), c->key))
+        float b1 = hitn_float(args->hit, args->N, 3, i), b2 = hitn_float(args->hit, args->N, 4, i);
+        uint32_t inst = hitn_inst(args->hit, args->N, i);
+        if (c->nseen && seen_before(c, tri, inst)) {
+            args->valid[i] = 0; /* counted, or passed, once already */
+            continue;
+        }
+        if (c->trans && blend_through(c, tri, inst, b1, b2)) {
+            args->valid[i] = 0;
+            continue;
+        }
+        if (c->layered &&
+            c->scene->materials[c->scene->tri_material[tri]].alpha_mode == PT_ALPHA_BLEND)
+            continue;
+        if (!pt_alpha_hit(c->scene, tri, b1, b2, c->key))
             args->valid[i] = 0;
     }
 }
@@ -330,6 +392,8 @@ pt_status pt_accel_new(const pt_scene *scene, pt_accel **out, pt_error *err)
             goto fail;
     }
     rtcCommitScene(a->scene);
+    if (a->alpha && (st = pt_alpha_solid_new(a->alpha, &a->solid, err)) != PT_OK)
+        goto fail;
     {
         /* The scene's coordinate magnitude, rounded up to a power of two so the
          * scaled constants are exact. */
@@ -363,17 +427,18 @@ void pt_accel_free(pt_accel *accel)
         if (accel->protos[i])
             rtcReleaseScene(accel->protos[i]);
     pt_free(accel->protos);
+    pt_free(accel->solid);
     if (accel->device)
         rtcReleaseDevice(accel->device);
     pt_free(accel);
 }
 
-static void init_ray(struct RTCRay *r, pt_vec3 o, pt_vec3 d, float tfar, float time)
+static void init_ray(struct RTCRay *r, pt_vec3 o, pt_vec3 d, float tnear, float tfar, float time)
 {
     r->org_x = o.x;
     r->org_y = o.y;
     r->org_z = o.z;
-    r->tnear = 0.0f;
+    r->tnear = tnear;
     r->dir_x = d.x;
     r->dir_y = d.y;
     r->dir_z = d.z;
@@ -384,26 +449,19 @@ static void init_ray(struct RTCRay *r, pt_vec3 o, pt_vec3 d, float tfar, float t
     r->flags = 0;
 }
 
-/* The closest hit; scene NULL ignores alpha. */
-static inline int intersect(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, float time,
-                            const pt_scene *scene, uint32_t key, pt_hit *hit)
+/* The closest hit in [tnear, tfar] under ctx (initialised). */
+static inline int intersect_ctx(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tnear,
+                                float tfar, float time, alpha_ctx *ctx, pt_hit *hit)
 {
     hit->tri = UINT32_MAX;
-    /* Embree accepts hits with tnear <= t <= tfar. tnear = 0: a hit at exactly
-     * t = 0 is a measure-zero event once origins are offset (pt_offset_ray). */
     if (!(tfar > 0.0f))
         return 0;
-    alpha_ctx ctx;
-    rtcInitIntersectContext(&ctx.rtc);
-    ctx.scene = scene;
-    ctx.key = key;
-    ctx.accel = accel;
     struct RTCRayHit rh;
-    init_ray(&rh.ray, o, d, tfar, time);
+    init_ray(&rh.ray, o, d, tnear, tfar, time);
     rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
     rh.hit.primID = RTC_INVALID_GEOMETRY_ID;
     rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
-    rtcIntersect1(accel->scene, &ctx.rtc, &rh);
+    rtcIntersect1(accel->scene, &ctx->rtc, &rh);
     if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID)
         return 0;
     hit->t = rh.ray.tfar;
@@ -420,6 +478,61 @@ static inline int intersect(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float t
     }
     hit->tri = accel->moving ? accel->map[rh.hit.geomID][rh.hit.primID] : rh.hit.primID;
     return 1;
+}
+
+static void ctx_init(alpha_ctx *ctx, const pt_accel *accel, const pt_scene *scene, uint32_t key)
+{
+    rtcInitIntersectContext(&ctx->rtc);
+    ctx->scene = scene;
+    ctx->key = key;
+    ctx->accel = accel;
+    ctx->trans = NULL;
+    ctx->layered = 0;
+    ctx->nseen = 0;
+}
+
+/* The closest hit; scene NULL ignores alpha. Embree accepts hits with
+ * tnear <= t <= tfar. tnear = 0: a hit at exactly t = 0 is a measure-zero
+ * event once origins are offset (pt_offset_ray). */
+static inline int intersect(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, float time,
+                            const pt_scene *scene, uint32_t key, pt_hit *hit)
+{
+    alpha_ctx ctx;
+    ctx_init(&ctx, accel, scene, key);
+    return intersect_ctx(accel, o, d, 0.0f, tfar, time, &ctx, hit);
+}
+
+int pt_accel_intersect_layers(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, float time,
+                              float u, uint32_t key, pt_hit *hit)
+{
+    const pt_scene *s = accel->alpha;
+    alpha_ctx ctx;
+    ctx_init(&ctx, accel, s, key);
+    ctx.layered = s != NULL;
+    float tnear = 0.0f;
+    for (;;) {
+        if (!intersect_ctx(accel, o, d, tnear, tfar, time, &ctx, hit))
+            return 0;
+        if (!ctx.layered || s->materials[s->tri_material[hit->tri]].alpha_mode != PT_ALPHA_BLEND)
+            return 1;
+        /* The layers in the order the ray meets them, each hit with
+         * probability alpha given the ray came to it: u < alpha hits this
+         * one, else (u - alpha) / (1 - alpha) is uniform again and chooses
+         * among the rest (the inverse of the discrete distribution of the
+         * layer the ray stops at, one layer at a time). */
+        float a = pt_alpha_coverage(s, hit->tri, hit->b1, hit->b2);
+        if (u < a)
+            return 1;
+        u = (u - a) / (1.0f - a);
+        if (!(u < 1.0f))
+            u = 0x1.fffffep-1f;
+        ctx.seen[ctx.nseen][0] = hit->tri;
+        ctx.seen[ctx.nseen][1] = hit->inst ? hit->inst : RTC_INVALID_GEOMETRY_ID;
+        /* Past PT_ACCEL_TRANS_MAX layers the rest pass by the key. */
+        if (++ctx.nseen == PT_ACCEL_TRANS_MAX)
+            ctx.layered = 0;
+        tnear = hit->t;
+    }
 }
 
 int pt_accel_intersect(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, pt_hit *hit)
@@ -445,33 +558,31 @@ static inline float below(float t)
 }
 
 static inline int occluded(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, float time,
-                           const pt_scene *scene, uint32_t key)
+                           const pt_scene *scene, uint32_t key, float *trans)
 {
     if (!(tfar > 0.0f))
         return 0;
     alpha_ctx ctx;
-    rtcInitIntersectContext(&ctx.rtc);
-    ctx.scene = scene;
-    ctx.key = key;
-    ctx.accel = accel;
+    ctx_init(&ctx, accel, scene, key);
+    ctx.trans = trans;
     struct RTCRay r;
     /* The contract is the half-open [0, tfar): the end point itself (a light
      * point the caller offset towards the shading point) must not occlude.
      * Embree's test is closed, so pass the next float below tfar: exactly the
      * open interval, not a hand-picked shortening. */
-    init_ray(&r, o, d, below(tfar), time);
+    init_ray(&r, o, d, 0.0f, below(tfar), time);
     rtcOccluded1(accel->scene, &ctx.rtc, &r);
     return r.tfar == -INFINITY;
 }
 
 int pt_accel_occluded(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar)
 {
-    return occluded(accel, o, d, tfar, 0.0f, NULL, 0);
+    return occluded(accel, o, d, tfar, 0.0f, NULL, 0, NULL);
 }
 
 int pt_accel_occluded_alpha(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, uint32_t key)
 {
-    return occluded(accel, o, d, tfar, 0.0f, accel->alpha, key);
+    return occluded(accel, o, d, tfar, 0.0f, accel->alpha, key, NULL);
 }
 
 int pt_accel_intersect_time(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, float time,
@@ -483,7 +594,21 @@ int pt_accel_intersect_time(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float t
 int pt_accel_occluded_time(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, float time,
                            int alpha, uint32_t key)
 {
-    return occluded(accel, o, d, tfar, time, alpha ? accel->alpha : NULL, key);
+    return occluded(accel, o, d, tfar, time, alpha ? accel->alpha : NULL, key, NULL);
+}
+
+float pt_accel_transmittance_alpha(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar,
+                                   uint32_t key)
+{
+    float t = 1.0f;
+    if (occluded(accel, o, d, tfar, 0.0f, accel->alpha, key, &t))
+        return 0.0f;
+    return t;
+}
+
+const uint8_t *pt_accel_alpha_solid(const pt_accel *accel)
+{
+    return accel->solid;
 }
 
 pt_vec3 pt_accel_degenerate_normal(pt_vec3 n)

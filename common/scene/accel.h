@@ -50,6 +50,33 @@ int pt_accel_intersect_alpha(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float 
                              pt_hit *hit);
 int pt_accel_occluded_alpha(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, uint32_t key);
 
+/* The share of light that o + t d, t in (0, tfar), lets through: 0 when an
+ * opaque or MASK surface (or a BLEND one of alpha 1) blocks it, else the
+ * product of 1 - alpha over the BLEND surfaces it crosses: the expectation
+ * of pt_accel_occluded_alpha's pass-through over its key, which a shadow
+ * ray can take instead of one draw of it (Enderton et al. 2010's
+ * stochastic transparency, averaged along the ray as Cycles' transparent
+ * shadows do). Each BLEND triangle is counted once; past
+ * PT_ACCEL_TRANS_MAX of them on one ray the others pass or block by the
+ * key, as in pt_accel_occluded_alpha. Without alpha materials it is
+ * 1 - pt_accel_occluded. */
+#define PT_ACCEL_TRANS_MAX 16u
+
+/* The closest hit as pt_accel_intersect_time with alpha, but the BLEND
+ * surfaces along the ray are met or passed by one number u in [0, 1), in
+ * the order the ray meets them: the first (alpha a) is hit when u < a,
+ * else u becomes (u - a) / (1 - a) for the next. Each is hit with
+ * probability alpha given that the ray reached it, as with the key, but
+ * the layer a ray stops at is a monotone function of u, so samples whose
+ * u are stratified stop at the layers in stratified proportions. Each
+ * layer passed costs a query of the rest of the ray; past
+ * PT_ACCEL_TRANS_MAX of them the others pass by the key. MASK surfaces
+ * pass as with the key. */
+int pt_accel_intersect_layers(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, float time,
+                              float u, uint32_t key, pt_hit *hit);
+float pt_accel_transmittance_alpha(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar,
+                                   uint32_t key);
+
 /* The same at a time in [0, 1] of the shutter (motion blur,
  * common/scene/motion.h): moving triangles are where they are at that time
  * (between time steps on the straight line, as Embree interpolates); still
@@ -59,6 +86,12 @@ int pt_accel_intersect_time(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float t
                             int alpha, uint32_t key, pt_hit *hit);
 int pt_accel_occluded_time(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, float time,
                            int alpha, uint32_t key);
+
+/* With alpha materials, one byte per triangle: 1 for a whole MASK triangle
+ * (pt_alpha_solid_new), which the queries take as opaque without a texture
+ * lookup (the answer the lookup would give); NULL without alpha. Owned by
+ * the accel. */
+const uint8_t *pt_accel_alpha_solid(const pt_accel *accel);
 
 /* The unit normal of a degenerate or overflowing triangle's cross product n
  * (computed in double; (0,0,1) when it has no direction). */

@@ -1,7 +1,8 @@
 /*
  * ptbench-paths - which paths make an image's fireflies.
  *
- *   ptbench-paths SCENE --reference REF.exr [--env HDR | --background R,G,B] [--camera NAME]
+ *   ptbench-paths SCENE --reference REF.exr [--env HDR | --background R,G,B]
+ *                 [--camera NAME | --camera-from X,Y,Z --camera-at X,Y,Z [--fov DEG]]
  *                 [--res WxH] [--spp N] [--seed S] [--max-depth D]
  *                 [--worst FRACTION] [--top K] [--pixel X,Y]
  *
@@ -309,7 +310,8 @@ static void classify(const pt_scene *s, double share, float total)
 static void usage(void)
 {
     fprintf(stderr, "usage: ptbench-paths SCENE --reference REF.exr [--env HDR | --background "
-                    "R,G,B] [--camera NAME]\n"
+                    "R,G,B]\n"
+                    "       [--camera NAME | --camera-from X,Y,Z --camera-at X,Y,Z [--fov DEG]]\n"
                     "       [--res WxH] [--spp N] [--seed S] [--max-depth D] [--worst F] [--top "
                     "K] [--pixel X,Y]\n");
 }
@@ -324,6 +326,10 @@ int main(int argc, char **argv)
     long pix_x = -1, pix_y = -1; /* --pixel: that pixel alone */
     pt_error err = {0};
     pt_status st = PT_OK;
+    /* A view of one's own, as ptworker takes it (the benchmark's view of a
+     * scene without a camera). */
+    pt_camera_look_opts look = {0};
+    char look_text[sizeof((pt_camera *)0)->name];
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
         if (a[0] != '-') {
@@ -344,6 +350,8 @@ int main(int argc, char **argv)
             has_bg = 1;
         } else if (!strcmp(a, "--camera"))
             camera = v;
+        else if (!strcmp(a, "--camera-from") || !strcmp(a, "--camera-at") || !strcmp(a, "--fov"))
+            st = pt_camera_look_option(&look, a, v, &err);
         else if (!strcmp(a, "--res"))
             st = pt_opt_res(a, v, 16384, &w, &h, &err);
         else if (!strcmp(a, "--spp"))
@@ -378,6 +386,13 @@ int main(int argc, char **argv)
         usage();
         return 2;
     }
+    int placed = 0;
+    if (pt_camera_look_finish(&look, camera, look_text, sizeof look_text, &placed, &err) != PT_OK) {
+        fprintf(stderr, "ptbench-paths: %s\n", err.msg);
+        return 2;
+    }
+    if (placed)
+        camera = look_text;
 
     int rc = 1;
     pt_scene *scene = NULL;

@@ -10,11 +10,17 @@
  *   an emitter (or a uniform environment) of radiance Lb. A sample reads Ls
  *   with probability a, Lb otherwise: mean a Ls + (1 - a) Lb, variance
  *   a (1 - a) (Ls - Lb)^2 per sample; checked within 5 standard errors.
+ *   Two BLEND planes over an emitter: the layer a ray stops at is chosen by
+ *   one stratified number, so each pixel's mean is within 2/n of the
+ *   layers' spread of the expectation (independent draws: 15 times that).
  * - MASK, by texture alpha and by factor, above and below the cutoff: every
  *   sample reads the same value, exactly Ls (opaque) or Lb (invisible).
  * - shadow rays: a black BLEND occluder between a point light and a Lambert
- *   floor of albedo RHO; a sample reads V = RHO/pi I cos/d^2 with probability
- *   1 - a, else 0: mean (1 - a) V, variance a (1 - a) V^2.
+ *   floor of albedo RHO: the shadow ray takes the occluder's transmittance,
+ *   so every sample reads (1 - a) V, V = RHO/pi I cos/d^2 (a draw would read
+ *   V with probability 1 - a: variance a (1 - a) V^2); and
+ *   pt_accel_transmittance_alpha through stacked BLEND sheets, a wall and
+ *   MASK sheets gives the product of 1 - alpha, 0 or 1 on every ray.
  * - an area light behind a BLEND occluder, and a BLEND area light: NEE
  *   alone, BSDF sampling alone and MIS each read (1 - a) (or a) RHO/pi E,
  *   E from Lambert's polygon formula, within 5 standard errors estimated
@@ -217,6 +223,62 @@ static void blend_camera(void)
     }
 }
 
+/* Two black BLEND planes, alpha A2 emitting 2 at z = 2 and A1 emitting 1 at
+ * z = 1, over an emitter of 4: a camera ray stops at the upper plane with
+ * probability A2, at the lower with (1 - A2) A1, else at the emitter. The
+ * layer is chosen by the bounce's one stratified number
+ * (pt_accel_intersect_layers), so over 1024 samples (a power of 2: each of
+ * [k/1024, (k+1)/1024) holds one number) each pixel's share of each layer
+ * is within 2/1024 of its probability, and its mean within 2/1024 x 3 of
+ * the expectation; independent draws per sample would miss by about
+ * sqrt(p (1 - p) / 1024) x 3 = 0.045 (a pixel lands within the bound with
+ * probability about 0.1). */
+static void blend_layers_stratified(void)
+{
+    const float A1 = 0.4f, A2 = 0.3f;
+    const uint32_t SPP = 1024, W = 2, H = 2;
+    pt_scene_builder *b = NULL;
+    pt_error err = {0};
+    CHECK(pt_scene_builder_new(&b, &err) == PT_OK);
+    pt_material p1 = black(1.0f), p2 = black(2.0f), back = black(4.0f);
+    p1.alpha_mode = p2.alpha_mode = PT_ALPHA_BLEND;
+    p1.base_color[3] = A1;
+    p2.base_color[3] = A2;
+    uint32_t m1 = 0, m2 = 0, mb = 0;
+    CHECK(pt_scene_builder_add_material(b, &p1, &m1, &err) == PT_OK);
+    CHECK(pt_scene_builder_add_material(b, &p2, &m2, &err) == PT_OK);
+    CHECK(pt_scene_builder_add_material(b, &back, &mb, &err) == PT_OK);
+    add_quad_z(b, -10, 10, -10, 10, 2.0f, 1, m2);
+    add_quad_z(b, -10, 10, -10, 10, 1.0f, 1, m1);
+    add_quad_z(b, -10, 10, -10, 10, 0.0f, 1, mb);
+    pt_scene *s = finish_down(b, pt_v3(0.3f, 0.2f, 5.0f));
+    if (!s)
+        return;
+    pt_render_params p = {0};
+    pt_render_params_default(&p);
+    p.width = W;
+    p.height = H;
+    p.seed = 11;
+    pt_renderer *r = NULL;
+    CHECKF(pt_renderer_new(s, &p, &r, &err) == PT_OK, "%s", err.msg);
+    if (r) {
+        pt_pixel_acc acc[4];
+        pt_render_stats st = {0};
+        pt_rect all = {0, 0, W, H};
+        pt_render_tile(r, all, 0, SPP, acc, &st);
+        double want = A2 * 2.0 + (1.0 - A2) * (A1 * 1.0 + (1.0 - A1) * 4.0);
+        double tol = 2.0 / SPP * 3.0 + 1e-5 * want;
+        for (uint32_t i = 0; i < W * H; i++) {
+            double mean = pt_acc_sum(&acc[i], 1) / acc[i].n;
+            CHECKF(fabs(mean - want) <= tol,
+                   "two BLEND layers, pixel %u: %.6g, expected %.6g (+- %.3g, stratified)", i, mean,
+                   want, tol);
+        }
+    }
+    pt_renderer_free(r);
+    pt_scene_free(s);
+}
+
 /* A black MASK (or OPAQUE) plane emitting 1 in front of an emitter of 4;
  * tex: an alpha texture 0.2 | 0.8 across u (the camera sees u = 0.25 or
  * 0.75 by look_x = -0.5 or 0.5), else alpha is the factor. */
@@ -308,6 +370,13 @@ static void blend_shadow_point(void)
         char what[96];
         snprintf(what, sizeof what, "point light through BLEND a=%.2f", (double)a);
         expect_bernoulli(what, st, 1.0 - a, v, 0.0);
+        /* The shadow ray takes the sheet's transmittance, not a draw of it:
+         * every sample reads (1 - a) V, where a draw would give a standard
+         * error of sqrt(a (1 - a) / n) V (5e-4 at a = 0.3). Allowed: 5 % of
+         * that, for the rounding of the accumulated squares (5e-6 here). */
+        double draw_se = sqrt(a * (1.0 - a) / (double)st.n) * v;
+        CHECKF(a == 0.0f || a == 1.0f || st.se <= 0.05 * draw_se,
+               "%s: standard error %.3g, a draw's %.3g (transmittance)", what, st.se, draw_se);
         pt_scene_free(s);
     }
 }
@@ -726,9 +795,196 @@ static void asset(void)
     pt_scene_free(s);
 }
 
+/* pt_accel_transmittance_alpha through n parallel BLEND sheets of alpha a
+ * (x = 1 .. n, one triangle pair each) and, with opaque, an opaque wall
+ * behind them: prod (1 - a) = (1 - a)^n for every key while n is at most
+ * PT_ACCEL_TRANS_MAX / 2 (two triangles could be offered per sheet; the ray
+ * crosses one), 0 with the wall; past that the sheets beyond the count pass
+ * by the key, and the mean over keys is still (1 - a)^n, within KSIGMA
+ * standard errors of the draws. A MASK sheet under its cutoff passes (1),
+ * over it blocks (0). */
+static void transmittance_query(uint32_t n, int opaque, int mask)
+{
+    const float a = 0.25f;
+    pt_scene_builder *b = NULL;
+    pt_error err = {0};
+    CHECK(pt_scene_builder_new(&b, &err) == PT_OK);
+    pt_material sheet = black(0.0f), wall = black(0.0f);
+    sheet.alpha_mode = mask ? PT_ALPHA_MASK : PT_ALPHA_BLEND;
+    sheet.base_color[3] = mask == 2 ? 0.9f : a; /* cutoff 0.5: 2 blocks, 1 passes */
+    uint32_t ms = 0, mw = 0;
+    CHECK(pt_scene_builder_add_material(b, &sheet, &ms, &err) == PT_OK);
+    CHECK(pt_scene_builder_add_material(b, &wall, &mw, &err) == PT_OK);
+    for (uint32_t k = 0; k < n + (opaque != 0); k++) {
+        float x = 1.0f + (float)k;
+        float q[12] = {x, -1, -1, x, 1, -1, x, 1, 1, x, -1, 1};
+        CHECK(pt_scene_builder_add_mesh(b, "sheet", q, NULL, NULL, 4, QUAD_IDX, 2, NULL,
+                                        k < n ? ms : mw, &err) == PT_OK);
+    }
+    pt_scene *s = finish_down(b, pt_v3(0, 0, 5));
+    if (!s)
+        return;
+    pt_accel *acc = NULL;
+    CHECK(pt_accel_new(s, &acc, &err) == PT_OK);
+    double want = opaque || mask == 2 ? 0.0 : mask ? 1.0 : pow(1.0 - a, (double)n);
+    double sum = 0.0, sq = 0.0;
+    const uint32_t keys = 4096;
+    int exact = 1;
+    for (uint32_t key = 0; acc && key < keys; key++) {
+        /* Off the sheets' diagonal, where either triangle could be offered. */
+        pt_vec3 o = pt_v3(0.0f, 0.1f + 0.3f * (float)key / keys, -0.2f);
+        double t = pt_accel_transmittance_alpha(acc, o, pt_v3(1, 0, 0), (float)n + 2.0f,
+                                                key * 2654435761u);
+        exact &= fabs(t - want) <= 1e-6;
+        sum += t;
+        sq += t * t;
+    }
+    double mean = sum / keys, se = sqrt(fmax(sq / keys - mean * mean, 0.0) / (keys - 1.0));
+    /* The closest hit by layers (pt_accel_intersect_layers) with u on a
+     * grid: the share of rays stopping at sheet j (x = 1 + j) is within
+     * 2 / keys of a (1 - a)^j while the layers are chosen by u; past
+     * PT_ACCEL_TRANS_MAX (n = 20) the rest pass by the key, and the share
+     * that passes all is (1 - a)^n within KSIGMA standard errors. */
+    if (!opaque && !mask && acc) {
+        uint32_t stop[24] = {0}, through = 0;
+        for (uint32_t key = 0; key < keys; key++) {
+            pt_vec3 o = pt_v3(0.0f, 0.1f + 0.3f * (float)key / keys, -0.2f);
+            pt_hit h;
+            float u = ((float)key + 0.5f) / (float)keys;
+            if (!pt_accel_intersect_layers(acc, o, pt_v3(1, 0, 0), (float)n + 2.0f, 0.0f, u,
+                                           key * 2654435761u, &h))
+                through++;
+            else if (h.t >= 0.5f && h.t < 23.5f)
+                stop[(uint32_t)(h.t - 0.5f)]++;
+        }
+        for (uint32_t j = 0; j < n && j < PT_ACCEL_TRANS_MAX; j++) {
+            double pj = a * pow(1.0 - a, (double)j);
+            CHECKF(fabs((double)stop[j] / keys - pj) <= 2.0 / keys,
+                   "%u sheets by layers: %.5f stop at sheet %u, expected %.5f", n,
+                   (double)stop[j] / keys, j, pj);
+        }
+        double pt_ = pow(1.0 - a, (double)n);
+        double sd = sqrt(pt_ * (1.0 - pt_) / keys);
+        CHECKF(fabs((double)through / keys - pt_) <= KSIGMA * sd + 2.0 / keys,
+               "%u sheets by layers: %.5f pass all, expected %.5f", n, (double)through / keys, pt_);
+    }
+    if (n <= PT_ACCEL_TRANS_MAX / 2 || opaque || mask)
+        CHECKF(exact, "%u sheets%s%s: transmittance not %.6g on every ray (mean %.6g)", n,
+               opaque ? " and a wall" : "", mask ? " (MASK)" : "", want, mean);
+    else
+        CHECKF(fabs(mean - want) <= KSIGMA * se + 1e-6,
+               "%u sheets: mean %.6g, expected %.6g (+- %.3g)", n, mean, want, KSIGMA * se);
+    pt_accel_free(acc);
+    pt_scene_free(s);
+}
+
+/* pt_alpha_solid_new: a MASK quad whose UVs lie in the texture's opaque
+ * half (alpha 0.8 over a cutoff of 0.5) is whole, one in its clear half or
+ * across both is not; by factor alone 0.8 is whole and 0.3 not; OPAQUE and
+ * BLEND triangles are never flagged. */
+static void solid_flags(void)
+{
+    pt_scene_builder *b = NULL;
+    pt_error err = {0};
+    CHECK(pt_scene_builder_new(&b, &err) == PT_OK);
+    uint32_t tex = add_alpha_texture(b, 51, 204);
+    pt_material mt = black(0.0f), m8 = black(0.0f), m3 = black(0.0f), op = black(0.0f),
+                bl = black(0.0f);
+    mt.alpha_mode = m8.alpha_mode = m3.alpha_mode = PT_ALPHA_MASK;
+    mt.base_color_tex = (int32_t)tex;
+    m8.base_color[3] = 0.8f;
+    m3.base_color[3] = 0.3f;
+    bl.alpha_mode = PT_ALPHA_BLEND;
+    uint32_t m[5] = {0};
+    const pt_material *ms[5] = {&mt, &m8, &m3, &op, &bl};
+    for (int k = 0; k < 5; k++)
+        CHECK(pt_scene_builder_add_material(b, ms[k], &m[k], &err) == PT_OK);
+    /* Quads 0-2 textured: u in [0.6, 0.9] (texels 4..7: alpha 0.8), [0.1,
+     * 0.4] (0.2), [0.3, 0.7] (both); 3-6: the other materials. */
+    const float u0[3] = {0.6f, 0.1f, 0.3f}, u1[3] = {0.9f, 0.4f, 0.7f};
+    const uint32_t mat[7] = {m[0], m[0], m[0], m[1], m[2], m[3], m[4]};
+    for (int k = 0; k < 7; k++) {
+        float z = (float)k;
+        float q[12] = {0, 0, z, 1, 0, z, 1, 1, z, 0, 1, z};
+        float a = k < 3 ? u0[k] : 0.0f, c = k < 3 ? u1[k] : 1.0f;
+        float uv[8] = {a, 0.3f, c, 0.3f, c, 0.6f, a, 0.6f};
+        CHECK(pt_scene_builder_add_mesh(b, "quad", q, NULL, uv, 4, QUAD_IDX, 2, NULL, mat[k],
+                                        &err) == PT_OK);
+    }
+    pt_scene *s = finish_down(b, pt_v3(0, 0, 10));
+    if (!s)
+        return;
+    uint8_t *f = NULL;
+    CHECK(pt_alpha_solid_new(s, &f, &err) == PT_OK);
+    const uint8_t want[7] = {1, 0, 0, 1, 0, 0, 0};
+    for (uint32_t t = 0; f && t < 14 && t < s->num_triangles; t++)
+        CHECKF(f[t] == want[t / 2], "triangle %u (quad %u): whole %d, expected %d", t, t / 2, f[t],
+               want[t / 2]);
+    pt_free(f);
+    pt_scene_free(s);
+}
+
+/* StainedGlassLamp's MASK triangles: the flags hold (each flagged
+ * triangle's coverage is 1 at 64 random points of it) and most of the
+ * stained glass is whole (0.8 % of its texture is clear). */
+static void solid_lamp(void)
+{
+    char path[512];
+    snprintf(path, sizeof path, "%s/StainedGlassLamp/StainedGlassLamp.gltf", PT_SHARED_SCENES);
+    struct stat sb;
+    if (stat(path, &sb) != 0) {
+        if (check_shared_required())
+            CHECKF(0, "%s not found", path);
+        else
+            CHECK_SKIP("shared assets: %s not found", path);
+        return;
+    }
+    pt_scene_opts o = {0};
+    pt_scene *s = NULL;
+    pt_error err = {0};
+    CHECKF(pt_scene_load(path, &o, &s, &err) == PT_OK, "%s", err.msg);
+    if (!s)
+        return;
+    uint8_t *f = NULL;
+    CHECK(pt_alpha_solid_new(s, &f, &err) == PT_OK);
+    uint32_t masks = 0, whole = 0, wrong = 0, rng = 12345;
+    for (uint32_t t = 0; f && t < s->num_triangles; t++) {
+        if (s->materials[s->tri_material[t]].alpha_mode != PT_ALPHA_MASK)
+            continue;
+        masks++;
+        if (!f[t])
+            continue;
+        whole++;
+        for (int k = 0; k < 64; k++) {
+            rng = rng * 1664525u + 1013904223u;
+            float b1 = (float)(rng >> 8) * 0x1p-24f;
+            rng = rng * 1664525u + 1013904223u;
+            float b2 = (float)(rng >> 8) * 0x1p-24f;
+            if (b1 + b2 > 1.0f) {
+                b1 = 1.0f - b1;
+                b2 = 1.0f - b2;
+            }
+            wrong += pt_alpha_coverage(s, t, b1, b2) != 1.0f;
+        }
+    }
+    CHECKF(wrong == 0, "%u points of whole triangles are not covered", wrong);
+    CHECKF(whole >= masks / 2, "%u of %u MASK triangles whole, expected most", whole, masks);
+    pt_free(f);
+    pt_scene_free(s);
+}
+
 int main(void)
 {
+    solid_flags();
+    solid_lamp();
+    transmittance_query(1, 0, 0);
+    transmittance_query(3, 0, 0);
+    transmittance_query(3, 1, 0);
+    transmittance_query(1, 0, 1);
+    transmittance_query(1, 0, 2);
+    transmittance_query(20, 0, 0);
     blend_camera();
+    blend_layers_stratified();
     mask_camera();
     blend_shadow_point();
     blend_shadow_twice();
