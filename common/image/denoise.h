@@ -37,7 +37,8 @@
  *      with the variance of their difference, k = 1.
  *
  * Before them, outliers (not in the paper; measured on DamagedHelmet in the
- * studio at 64 spp: relMSE 1.39e-2 -> 4.7e-3, the mean 0.5 % lower): a
+ * studio at 64 spp: relMSE 1.39e-2 -> 4.7e-3 at a despeckle of 3, the mean
+ * 0.5 % lower; 4.2e-3 at the default 2): a
  * pixel of one half brighter than `despeckle` x the brightest of the other
  * half's 3 x 3 neighbourhood (luminance) is scaled down to that, and its
  * variance with it (a spike only one half has is one rare sample; what
@@ -104,7 +105,15 @@ typedef struct pt_denoise_input {
     const atomic_int *cancel;
 } pt_denoise_input;
 
-#define PT_DENOISE_DESPECKLE 3.0f
+/* 2, not the 3 it was: since the light the clamp takes is splatted back,
+ * a lower threshold no longer costs the mean (DamagedHelmet in the park had
+ * lost 1.3 % at 2 without the splat). Measured, 64 spp against 16,384-spp
+ * references (docs/bench/denoise.md): DamagedHelmet in the studio 5.06e-3
+ * -> 4.18e-3 relMSE, ToyCar in the park 1.250e-3 -> 1.226e-3, SheenChair
+ * 3.05e-4 -> 3.03e-4, the Cornell box and the park helmet within 0.3 %,
+ * every mean within 0.14 %; 1.5 took the studio helmet to 3.99e-3 but the
+ * park helmet up 1.4 %. */
+#define PT_DENOISE_DESPECKLE 2.0f
 #define PT_DENOISE_DESPECKLE_MAX 1e6f
 
 /* PT_OK when in can be denoised: a size within PT_IMAGE_MAX_SIDE and

@@ -63,7 +63,7 @@ static void usage(FILE *f)
                "                      that, its light spread back over the same surface\n"
                "                      around it (the image's mean is kept), and a variance\n"
                "                      over 16 times its neighbours' median is capped\n"
-               "                      (default 3; 0: off, pure NFOR)\n"
+               "                      (default 2; 0: off, pure NFOR)\n"
                "  -h, --help          this help\n"
                "  --version           version and build id\n"
                "\n"
