@@ -1805,6 +1805,8 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
             }
         }
         pdf = gprob * gpdf + (1.0f - gprob) * bp;
+        PT_TRACE_EVENT(PT_TRACE_GUIDE, pa->depth, (int32_t)mi, -1, u3[0] < gprob, gprob, gpdf, bp,
+                       pt_v3(0.0f, 0.0f, 0.0f));
         weight = pdf > 0.0f ? pt_v3_scale(f, 1.0f / pdf) : pt_v3(0.0f, 0.0f, 0.0f);
         if (bp > 0.0f && pdf > 0.0f)
             rr_scale = pdf / bp;
@@ -1814,6 +1816,9 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
                      ? pt_closure_sample(&cl, u3, &wi_l, &pdf, &delta)
                      : lambert_sample(&lambert, wo_l, u3, &wi_l, &pdf, cos_wi);
     }
+    if ((features & FEAT_GUIDE) && guide && !(gprob > 0.0f))
+        PT_TRACE_EVENT(PT_TRACE_GUIDE, pa->depth, (int32_t)mi, -1, 0, 0.0f, 0.0f, pdf,
+                       pt_v3(0.0f, 0.0f, 0.0f));
     if (!(pdf > 0.0f) || !any_positive(weight))
         return ret;
     PT_TRACE_EVENT(PT_TRACE_BOUNCE, pa->depth, (int32_t)mi, -1, delta, pdf, wo_l.z, wi_l.z, weight);
