@@ -232,28 +232,39 @@ static void images_agree(const pt_pixel_acc *ag, const pt_pixel_acc *au, uint32_
     printf("%s: guided vs unguided z %.2f, %d of %u pixels beyond 5 se\n", what, z, off, n);
 }
 
-static void glossy_agrees(void)
+/* Scene s (freed here) rendered w x h at spp guided (render_guided: the
+ * guide learned from samples [0, first)) and unguided: the images agree
+ * (images_agree, at most 1 pixel beyond), and same_bits 1: they are the
+ * same bits; -1: they are not (the guide drew directions); 0: either. */
+static void guided_vs_unguided(pt_scene *s, uint32_t w, uint32_t h, uint32_t first, uint32_t spp,
+                               int same_bits, const char *what)
 {
-    pt_scene *s = furnace(0.8f, 0.0f, 0.4f, 1.0f);
     if (!s)
         return;
-    enum { W = 16, H = 16, SPP = 2048 };
-    pt_renderer *rg = renderer(s, W, H, 1, 0), *ru = renderer(s, W, H, 0, 0);
-    pt_pixel_acc *ag = pt_calloc(W * H, sizeof *ag), *au = pt_calloc(W * H, sizeof *au);
+    pt_renderer *rg = renderer(s, w, h, 1, 0), *ru = renderer(s, w, h, 0, 0);
+    pt_pixel_acc *ag = pt_calloc((size_t)w * h, sizeof *ag),
+                 *au = pt_calloc((size_t)w * h, sizeof *au);
     pt_guide *g2 = NULL;
     if (rg && ru && ag && au) {
         CHECK(strcmp(pt_renderer_variant(rg), "guided") == 0);
-        g2 = render_guided(s, rg, W, H, 256, SPP, ag);
-        render_pass(ru, W, H, 0, SPP, NULL, 0.0f, NULL, au);
+        g2 = render_guided(s, rg, w, h, first, spp, ag);
+        render_pass(ru, w, h, 0, spp, NULL, 0.0f, NULL, au);
+        images_agree(ag, au, w * h, 1, what);
+        int same = memcmp(ag, au, (size_t)w * h * sizeof *ag) == 0;
+        CHECKF(same_bits == 0 || same == (same_bits > 0),
+               "%s: guided and unguided %s the same bits", what, same ? "are" : "are not");
     }
-    if (ag && au)
-        images_agree(ag, au, W * H, 1, "glossy furnace");
     pt_guide_free(g2);
     pt_free(ag);
     pt_free(au);
     pt_renderer_free(rg);
     pt_renderer_free(ru);
     pt_scene_free(s);
+}
+
+static void glossy_agrees(void)
+{
+    guided_vs_unguided(furnace(0.8f, 0.0f, 0.4f, 1.0f), 16, 16, 256, 2048, 0, "glossy furnace");
 }
 
 static void bits(void)
@@ -470,27 +481,7 @@ static void learns_behind_glass(void)
  * floor's directions were drawn from the guide. */
 static void behind_glass_agrees(void)
 {
-    pt_scene *s = floor_and_lamp(1, 3);
-    if (!s)
-        return;
-    enum { W = 16, H = 16, SPP = 2048 };
-    pt_renderer *rg = renderer(s, W, H, 1, 0), *ru = renderer(s, W, H, 0, 0);
-    pt_pixel_acc *ag = pt_calloc(W * H, sizeof *ag), *au = pt_calloc(W * H, sizeof *au);
-    pt_guide *g2 = NULL;
-    if (rg && ru && ag && au) {
-        CHECK(strcmp(pt_renderer_variant(rg), "guided") == 0);
-        g2 = render_guided(s, rg, W, H, 64, SPP, ag);
-        render_pass(ru, W, H, 0, SPP, NULL, 0.0f, NULL, au);
-        images_agree(ag, au, W * H, 1, "floor behind three panes");
-        CHECKF(memcmp(ag, au, W * H * sizeof *ag) != 0,
-               "the floor behind the panes was not guided (the unguided bits)");
-    }
-    pt_guide_free(g2);
-    pt_free(ag);
-    pt_free(au);
-    pt_renderer_free(rg);
-    pt_renderer_free(ru);
-    pt_scene_free(s);
+    guided_vs_unguided(floor_and_lamp(1, 3), 16, 16, 64, 2048, -1, "floor behind three panes");
 }
 
 /* A vertex whose lobes are all narrower than a guide of radiance alone can
@@ -611,26 +602,7 @@ static void roulette_ignores_guide(void)
 
 static void glossy_keeps_bsdf(void)
 {
-    pt_scene *s = furnace(0.8f, 1.0f, 0.5f, 1.0f);
-    if (!s)
-        return;
-    enum { W = 8, H = 8, SPP = 128 };
-    pt_renderer *rg = renderer(s, W, H, 1, 0), *ru = renderer(s, W, H, 0, 0);
-    pt_pixel_acc *ag = pt_calloc(W * H, sizeof *ag), *au = pt_calloc(W * H, sizeof *au);
-    pt_guide *g2 = NULL;
-    if (rg && ru && ag && au) {
-        CHECK(strcmp(pt_renderer_variant(rg), "guided") == 0);
-        g2 = render_guided(s, rg, W, H, 32, SPP, ag);
-        render_pass(ru, W, H, 0, SPP, NULL, 0.0f, NULL, au);
-        CHECKF(memcmp(ag, au, W * H * sizeof *ag) == 0,
-               "a glossy metal's vertices drew directions from the guide");
-    }
-    pt_guide_free(g2);
-    pt_free(ag);
-    pt_free(au);
-    pt_renderer_free(rg);
-    pt_renderer_free(ru);
-    pt_scene_free(s);
+    guided_vs_unguided(furnace(0.8f, 1.0f, 0.5f, 1.0f), 8, 8, 32, 128, 1, "glossy metal");
 }
 
 static void lambert_keeps_variant(void)
