@@ -27,7 +27,14 @@
 #include "common/render/guide.h" /* pt_guide_pass_end: where each pass ends */
 
 #define PT_GUIDE_FIRST_PASS 16u /* samples of pass 0 */
-#define PT_GUIDE_PASS_PROB 0.5f /* a guided vertex's chance to sample the guide, pass 1 on */
+/* A guided vertex's chance to sample the guide, pass 1 on. Where the guide
+ * has not learned a caustic (its pdf there below the BSDF's, as at most of
+ * the rough vertices that send the glass scenes' fireflies to a lamp through
+ * glass or chrome: ptbench-paths --guiding on, docs/bench/guiding.md), the
+ * one-sample mixture weighs those paths up to 1 / (1 - p) times the BSDF's
+ * own weight: 2 at 0.5, 1.33 at 0.25, which lowered the error per sample of
+ * the glass ball, TransmissionTest and ToyCar. */
+#define PT_GUIDE_PASS_PROB 0.25f
 /* Mueller et al.'s split threshold, c sqrt(2^k) (they take c = 12000 for
  * 1280 x 720 images); c = 3000 did better on a 64 x 64 Cornell box, whose
  * passes hold fewer records. */

@@ -22,6 +22,11 @@ enum {
     PT_TRACE_SHADOW, /* the light sample's contribution, added (unblocked) */
     PT_TRACE_EMIT,   /* an emitter hit: a = BSDF pdf, b = light pdf, c = MIS weight */
     PT_TRACE_ENV,    /* an environment hit: a = BSDF pdf, b = env pdf, c = MIS weight */
+    /* A vertex the guided variant offered the guide (before its bounce):
+     * a = the chance it drew from the guide (0: its cell is unlearned or
+     * its lobes too narrow), b = the guide's pdf at the direction taken (0
+     * when a is), c = the BSDF's pdf there; delta: drawn from the guide. */
+    PT_TRACE_GUIDE,
 };
 
 #ifdef PT_PATH_TRACE

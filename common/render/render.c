@@ -967,6 +967,7 @@ typedef struct guide_path {
      * the BSDF alone would have left, which Russian roulette reads. */
     float rr;
     uint32_t n;       /* vertices in v */
+    uint32_t rough;   /* guidable vertices met so far (GUIDE_MAX_ROUGH) */
     uint32_t pending; /* the last vertex's snap is taken at the path's next event */
     guide_vert v[GUIDE_VERTS];
 } guide_path;
@@ -1509,7 +1510,15 @@ material_closure(const pt_renderer *r, const surface *sf, int glass, int front, 
  * lobes, a thin wall's diffuse transmission: a face's tree learns one side
  * of a surface); the BSDF alone samples those. */
 #define GUIDE_MIN_ALPHA 0.1f
-#define GUIDE_MAX_DEPTH 3u
+/* A path samples the guide's mixture (and records) at its first
+ * GUIDE_MAX_ROUGH guidable vertices, however many smooth bounces (glass,
+ * mirrors, chrome) lie before or between them: the backdrop seen through two
+ * glass interfaces, or a car's cabin behind its windshield, is the path's
+ * first rough vertex and is guided as a wall seen directly is. Counting every
+ * bounce instead left those vertices unguided and unrecorded. Guiding more
+ * rough vertices than this compounds the throughput's variance (the Cornell
+ * box's long diffuse paths, docs/bench/guiding.md). */
+#define GUIDE_MAX_ROUGH 3u
 static inline int closure_guidable(const pt_closure *cl)
 {
     int any = 0;
@@ -1687,7 +1696,8 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     uint32_t gleaf = 0;
     float gprob = 0.0f;
     if ((features & FEAT_GUIDE) && pa->gp && pa->gp->gd && pa->gp->gd->guide && !glass &&
-        pa->depth < GUIDE_MAX_DEPTH && (features & PT_FEAT_GLOSSY) && closure_guidable(&cl)) {
+        pa->gp->rough < GUIDE_MAX_ROUGH && (features & PT_FEAT_GLOSSY) && closure_guidable(&cl)) {
+        pa->gp->rough++;
         guide = pa->gp->gd->guide;
         gprob = pa->gp->gd->prob * closure_guide_share(&cl);
         gleaf = pt_guide_cell(guide, sf->p, ns);
@@ -1807,6 +1817,8 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
             }
         }
         pdf = gprob * gpdf + (1.0f - gprob) * bp;
+        PT_TRACE_EVENT(PT_TRACE_GUIDE, pa->depth, (int32_t)mi, -1, u3[0] < gprob, gprob, gpdf, bp,
+                       pt_v3(0.0f, 0.0f, 0.0f));
         weight = pdf > 0.0f ? pt_v3_scale(f, 1.0f / pdf) : pt_v3(0.0f, 0.0f, 0.0f);
         if (bp > 0.0f && pdf > 0.0f)
             rr_scale = pdf / bp;
@@ -1816,6 +1828,9 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
                      ? pt_closure_sample(&cl, u3, &wi_l, &pdf, &delta)
                      : lambert_sample(&lambert, wo_l, u3, &wi_l, &pdf, cos_wi);
     }
+    if ((features & FEAT_GUIDE) && guide && !(gprob > 0.0f))
+        PT_TRACE_EVENT(PT_TRACE_GUIDE, pa->depth, (int32_t)mi, -1, 0, 0.0f, 0.0f, pdf,
+                       pt_v3(0.0f, 0.0f, 0.0f));
     if (!(pdf > 0.0f) || !any_positive(weight))
         return ret;
     PT_TRACE_EVENT(PT_TRACE_BOUNCE, pa->depth, (int32_t)mi, -1, delta, pdf, wo_l.z, wi_l.z, weight);
@@ -2274,7 +2289,7 @@ li_impl(const pt_renderer *r, pixel_ctx *pc, uint32_t index, pt_render_stats *st
     guide_path gp;
     if ((features & FEAT_GUIDE) && gd) {
         gp.gd = gd;
-        gp.n = gp.pending = 0;
+        gp.n = gp.rough = gp.pending = 0;
         gp.rr = 1.0f;
         pa.gp = &gp;
     }
@@ -2578,7 +2593,7 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
                     if ((features & FEAT_GUIDE) && gd) {
                         guide_path *gp = &gps[g * nb + i];
                         gp->gd = gd;
-                        gp->n = gp->pending = 0;
+                        gp->n = gp->rough = gp->pending = 0;
                         gp->rr = 1.0f;
                         pa->gp = gp;
                     }

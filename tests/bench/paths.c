@@ -4,10 +4,13 @@
  *   ptbench-paths SCENE --reference REF.exr [--env HDR | --background R,G,B]
  *                 [--camera NAME | --camera-from X,Y,Z --camera-at X,Y,Z [--fov DEG]]
  *                 [--res WxH] [--spp N] [--seed S] [--max-depth D]
- *                 [--worst FRACTION] [--top K] [--pixel X,Y]
+ *                 [--worst FRACTION] [--top K] [--pixel X,Y] [--guiding on|off]
  *
- * Renders SCENE sample by sample (pt_render_sample, one thread, unguided:
- * the samples ptworker --guiding off takes), scores each pixel's mean
+ * Renders SCENE sample by sample (pt_render_sample_guided, one thread:
+ * the samples ptworker --guiding off takes, or with --guiding on those of
+ * ptworker --guiding on, pass by pass, each pass's records building the
+ * next pass's guide as guide_run.h does, every guide kept so that a logged
+ * sample is rendered again with its own), scores each pixel's mean
  * against REF as relMSE counts it (common/image/metrics.h) and takes the
  * worst FRACTION of pixels (default 0.001). For each of them it renders its
  * K largest samples (by luminance) again with the path log on and prints
@@ -19,7 +22,12 @@
  * worst pixels' squared error, and the same shares by technique and by the
  * number of bounces before the light was found. --pixel X,Y renders that
  * pixel alone (its share is then of its own squared error): a glint that a
- * few of many samples find, seen at the reference's sample count.
+ * few of many samples find, seen at the reference's sample count. Guided,
+ * the log shows each guided vertex (its chance to draw from the guide, the
+ * guide's and the BSDF's pdfs at the direction taken, which of them drew
+ * it), and the summary splits the caustics' share by the rough vertex they
+ * left from: not offered the guide, in pass 0, offered with probability 0,
+ * or guided, by the guide's pdf over the BSDF's there.
  *
  * Built with its own copy of render.c and closure.c compiled with
  * PT_PATH_TRACE (tests/bench/CMakeLists.txt): the log costs the renderer
@@ -39,6 +47,9 @@
 #include "common/image/metrics.h"
 #include "common/render/closure.h"
 #include "common/render/env.h"
+#include "common/render/guide.h"
+#include "common/render/guide_run.h"
+#include "common/render/guide_sched.h"
 #include "common/render/light.h"
 #include "common/render/path_trace.h"
 #include "common/render/render.h"
@@ -69,6 +80,9 @@ void pt_trace_event(int kind, uint32_t depth, int32_t mat, int32_t lobe, int del
     if (kind == PT_TRACE_BOUNCE) {
         lobe = last_lobe;
         last_lobe = -1;
+        /* A direction the guide drew: no lobe was sampled. */
+        if (nev > 0 && ev[nev - 1].kind == PT_TRACE_GUIDE && ev[nev - 1].delta)
+            lobe = -2;
     }
     if (nev < MAX_EVENTS)
         ev[nev++] = (event){kind, depth, mat, lobe, delta, a, b, c, v};
@@ -83,6 +97,8 @@ static const char *lobe_name(int32_t k)
 {
     if (k == -1)
         return "lambert"; /* a Lambert variant: no closure */
+    if (k == -2)
+        return "guide"; /* drawn from the guide (--guiding on) */
     static const char *names[] = {"diffuse",      "specular",       "dielectric",
                                   "sheen",        "coat",           "specular-irid",
                                   "diffuse-irid", "specular-aniso", "diffuse-transmit",
@@ -175,6 +191,33 @@ static double by_kind[3];
  * more. */
 #define DEPTH_BINS 7
 static double by_depth[DEPTH_BINS];
+/* --guiding on: the caustics' shares (by_kind[2]) by the rough vertex the
+ * path left towards the light from (its last rough bounce): not offered the
+ * guide (not guidable, or past the path's first guided vertices); in pass
+ * 0, which draws nothing from its guide; offered with probability 0 later
+ * (its cell unlearned or its lobes too narrow); guided, by the guide's pdf
+ * over the BSDF's at the direction taken: below 0.5, 0.5 to 2, 2 to 10, 10
+ * and above. */
+#define GUIDE_BINS 7
+static double by_guide[GUIDE_BINS];
+static const char *guide_bin_name[GUIDE_BINS] = {"not offered the guide",
+                                                 "pass 0",
+                                                 "probability 0",
+                                                 "guide/BSDF pdf < 0.5",
+                                                 "0.5 .. 2",
+                                                 "2 .. 10",
+                                                 ">= 10"};
+static uint32_t log_pass; /* the pass of the sample being classified */
+
+static int guide_bin(const event *g)
+{
+    if (!g)
+        return 0;
+    if (!(g->a > 0.0f))
+        return log_pass == 0 ? 1 : 2;
+    float ratio = g->c > 0.0f ? g->b / g->c : INFINITY;
+    return ratio < 0.5f ? 3 : ratio < 2.0f ? 4 : ratio < 10.0f ? 5 : 6;
+}
 
 static void add_depth(uint32_t bounces, double share)
 {
@@ -231,6 +274,10 @@ static void print_events(const pt_scene *s)
             printf("      d%u env hit bsdf pdf %.4g env pdf %.4g mis %.4f adds %.4g\n", e->depth,
                    e->a, e->b, e->c, lum);
             break;
+        case PT_TRACE_GUIDE:
+            printf("      d%u guided  %-24s %-16s prob %.3g guide pdf %.4g bsdf pdf %.4g\n",
+                   e->depth, mat, e->delta ? "from the guide" : "from the BSDF", e->a, e->b, e->c);
+            break;
         }
     }
 }
@@ -246,6 +293,8 @@ static void classify(const pt_scene *s, double share, float total)
      * caustic's (no light sample can reach it through the smooth one). */
     int rough = 0, caustic = 0;
     uint32_t bounces = 0, nee_bounces = 0;
+    /* The GUIDE event before the next bounce, and the last rough bounce's. */
+    const event *guided = NULL, *leave = NULL;
     for (uint32_t k = 0; k < nev; k++) {
         const event *e = &ev[k];
         const char *mat =
@@ -263,10 +312,15 @@ static void classify(const pt_scene *s, double share, float total)
             if (len >= sizeof path)
                 len = sizeof path - 1;
             bounces++;
-            if (!e->delta && e->a < SMOOTH_PDF)
+            if (!e->delta && e->a < SMOOTH_PDF) {
                 rough = 1;
-            else if (rough)
+                leave = guided;
+            } else if (rough)
                 caustic = 1;
+            guided = NULL;
+            break;
+        case PT_TRACE_GUIDE:
+            guided = e;
             break;
         case PT_TRACE_NEE:
             nee = e;
@@ -292,6 +346,8 @@ static void classify(const pt_scene *s, double share, float total)
             if (total > 0.0f) {
                 add_sig(text, share * lum / total);
                 by_kind[caustic ? 2 : 1] += share * lum / total;
+                if (caustic)
+                    by_guide[guide_bin(leave)] += share * lum / total;
                 add_depth(bounces, share * lum / total);
             }
             break;
@@ -300,6 +356,8 @@ static void classify(const pt_scene *s, double share, float total)
             if (total > 0.0f) {
                 add_sig(text, share * lum / total);
                 by_kind[caustic ? 2 : 1] += share * lum / total;
+                if (caustic)
+                    by_guide[guide_bin(leave)] += share * lum / total;
                 add_depth(bounces, share * lum / total);
             }
             break;
@@ -313,7 +371,8 @@ static void usage(void)
                     "R,G,B]\n"
                     "       [--camera NAME | --camera-from X,Y,Z --camera-at X,Y,Z [--fov DEG]]\n"
                     "       [--res WxH] [--spp N] [--seed S] [--max-depth D] [--worst F] [--top "
-                    "K] [--pixel X,Y]\n");
+                    "K] [--pixel X,Y]\n"
+                    "       [--guiding on|off]\n");
 }
 
 int main(int argc, char **argv)
@@ -322,7 +381,7 @@ int main(int argc, char **argv)
     uint32_t w = 128, h = 128, spp = 256, seed = 1, max_depth = PT_RENDER_DEFAULT_MAX_DEPTH,
              top = 4;
     double worst = 0.001, bg[3];
-    int has_bg = 0;
+    int has_bg = 0, guiding = 0;
     long pix_x = -1, pix_y = -1; /* --pixel: that pixel alone */
     pt_error err = {0};
     pt_status st = PT_OK;
@@ -371,6 +430,12 @@ int main(int argc, char **argv)
                 fprintf(stderr, "ptbench-paths: --pixel wants X,Y (integers >= 0), not %s\n", v);
                 return 2;
             }
+        } else if (!strcmp(a, "--guiding")) {
+            if (strcmp(v, "on") && strcmp(v, "off")) {
+                fprintf(stderr, "ptbench-paths: --guiding wants on or off, not %s\n", v);
+                return 2;
+            }
+            guiding = !strcmp(v, "on");
         } else if (!strcmp(a, "--worst"))
             st = pt_opt_double(a, v, 0.0, 1.0, &worst, &err);
         else {
@@ -401,6 +466,11 @@ int main(int argc, char **argv)
     pt_image *ref = NULL;
     pixel_rec *px = NULL;
     band bands[NBANDS] = {{0}};
+    /* --guiding on: each pass's guide (guide_sched.h), kept to render the
+     * logged samples again with the guide they were drawn with. */
+    enum { MAX_PASSES = 32 };
+    pt_guide *guides[MAX_PASSES] = {NULL};
+    pt_guide_stats *gstats = NULL;
     pt_scene_opts so = {0};
     so.camera_name = camera;
     if (pt_exr_read(ref_path, &ref, NULL, &err) != PT_OK ||
@@ -428,6 +498,7 @@ int main(int argc, char **argv)
     p.seed = seed;
     p.max_depth = max_depth;
     p.env = env;
+    p.guiding = (uint32_t)guiding;
     if (pt_renderer_new(scene, &p, &r, &err) != PT_OK) {
         fprintf(stderr, "ptbench-paths: %s\n", err.msg);
         goto done;
@@ -437,40 +508,78 @@ int main(int argc, char **argv)
         fprintf(stderr, "ptbench-paths: out of memory\n");
         goto done;
     }
-    /* The image, keeping each pixel's largest samples. */
-    for (uint32_t y = 0; y < h; y++)
-        for (uint32_t x = 0; x < w; x++) {
-            pixel_rec *pr = &px[(size_t)y * w + x];
-            pr->i = y * w + x;
-            if (pix_x >= 0 && (x != (uint32_t)pix_x || y != (uint32_t)pix_y))
-                continue;
-            for (uint32_t k = 0; k < spp; k++) {
-                nev = 0;
-                pt_vec3 L = pt_render_sample(r, x, y, k, NULL, NULL);
-                if (pix_x >= 0)
-                    tally_nee(bands);
-                if (!(isfinite(L.x) && isfinite(L.y) && isfinite(L.z)))
-                    continue; /* the film drops these too */
-                pr->sum[0] += L.x;
-                pr->sum[1] += L.y;
-                pr->sum[2] += L.z;
-                float lum = pt_luminance(L);
-                uint32_t j;
-                if (pr->ntop < top)
-                    j = pr->ntop++;
-                else if (lum > pr->top[top - 1].lum)
-                    j = top - 1;
-                else
+    if (guiding) {
+        /* The first guide as ptworker makes it (pt_guide_run_new's bounds). */
+        pt_guide_run run;
+        if (pt_guide_run_new(&run, scene->bounds_min, scene->bounds_max, spp, 1, 0, &err) !=
+            PT_OK) {
+            pt_guide_run_free(&run);
+            fprintf(stderr, "ptbench-paths: %s\n", err.msg);
+            goto done;
+        }
+        guides[0] = run.guide;
+        run.guide = NULL;
+        pt_guide_run_free(&run);
+    }
+    /* The image, keeping each pixel's largest samples: pass by pass as
+     * ptworker --guiding on renders it (one pass [0, spp) unguided), each
+     * pass's records building the next pass's guide. */
+    for (uint32_t pass = 0, s0 = 0; s0 < spp; pass++) {
+        uint32_t s1 = guiding ? pt_guide_pass_end(pass, spp) : spp;
+        pt_render_guiding gd = {0};
+        if (guiding) {
+            if (pass + 1 >= MAX_PASSES ||
+                pt_guide_stats_new(guides[pass], &gstats, &err) != PT_OK) {
+                fprintf(stderr, "ptbench-paths: %s\n",
+                        pass + 1 >= MAX_PASSES ? "too many passes" : err.msg);
+                goto done;
+            }
+            gd = (pt_render_guiding){guides[pass], pt_guide_pass_prob(pass), gstats};
+        }
+        for (uint32_t y = 0; y < h; y++)
+            for (uint32_t x = 0; x < w; x++) {
+                pixel_rec *pr = &px[(size_t)y * w + x];
+                pr->i = y * w + x;
+                if (pix_x >= 0 && (x != (uint32_t)pix_x || y != (uint32_t)pix_y))
                     continue;
-                pr->top[j] = (sample_rec){k, lum};
-                while (j > 0 && pr->top[j - 1].lum < pr->top[j].lum) {
-                    sample_rec t = pr->top[j - 1];
-                    pr->top[j - 1] = pr->top[j];
-                    pr->top[j] = t;
-                    j--;
+                for (uint32_t k = s0; k < s1; k++) {
+                    nev = 0;
+                    pt_vec3 L =
+                        pt_render_sample_guided(r, x, y, k, NULL, NULL, guiding ? &gd : NULL);
+                    if (pix_x >= 0)
+                        tally_nee(bands);
+                    if (!(isfinite(L.x) && isfinite(L.y) && isfinite(L.z)))
+                        continue; /* the film drops these too */
+                    pr->sum[0] += L.x;
+                    pr->sum[1] += L.y;
+                    pr->sum[2] += L.z;
+                    float lum = pt_luminance(L);
+                    uint32_t j;
+                    if (pr->ntop < top)
+                        j = pr->ntop++;
+                    else if (lum > pr->top[top - 1].lum)
+                        j = top - 1;
+                    else
+                        continue;
+                    pr->top[j] = (sample_rec){k, lum};
+                    while (j > 0 && pr->top[j - 1].lum < pr->top[j].lum) {
+                        sample_rec t = pr->top[j - 1];
+                        pr->top[j - 1] = pr->top[j];
+                        pr->top[j] = t;
+                        j--;
+                    }
                 }
             }
+        if (guiding && s1 < spp &&
+            pt_guide_build(guides[pass], gstats, pt_guide_split_count(pass), &guides[pass + 1],
+                           &err) != PT_OK) {
+            fprintf(stderr, "ptbench-paths: %s\n", err.msg);
+            goto done;
         }
+        pt_guide_stats_free(gstats);
+        gstats = NULL;
+        s0 = s1;
+    }
     /* Each pixel's squared error as relMSE counts it. */
     const float *rc3[3] = {ref->r, ref->g, ref->b};
     double total = 0.0;
@@ -514,7 +623,11 @@ int main(int argc, char **argv)
         for (uint32_t k = 0; k < pr->ntop; k++) {
             nev = 0;
             last_lobe = -1;
-            pt_vec3 L = pt_render_sample(r, x, y, pr->top[k].index, NULL, NULL);
+            uint32_t pass = guiding ? pt_guide_pass_of(pr->top[k].index, spp) : 0;
+            pt_render_guiding gd = {guides[pass], pt_guide_pass_prob(pass), NULL};
+            log_pass = pass;
+            pt_vec3 L = pt_render_sample_guided(r, x, y, pr->top[k].index, NULL, NULL,
+                                                guiding ? &gd : NULL);
             float lum = pt_luminance(L);
             printf("    sample %u: L %.4g %.4g %.4g (lum %.4g, /spp %.4g)\n", pr->top[k].index, L.x,
                    L.y, L.z, lum, lum / spp);
@@ -535,6 +648,12 @@ int main(int argc, char **argv)
            "5-8 %.4f, 9+ %.4f\n",
            by_depth[0], by_depth[1], by_depth[2], by_depth[3], by_depth[4], by_depth[5],
            by_depth[6]);
+    if (guiding) {
+        printf("caustics by the rough vertex they left from:");
+        for (int i = 0; i < GUIDE_BINS; i++)
+            printf("%s %s %.4f", i ? "," : "", guide_bin_name[i], by_guide[i]);
+        printf("\n");
+    }
     if (pix_x >= 0) {
         printf("the first bounce's environment light samples, of %u:\n", spp);
         for (int i = 0; i < NBANDS; i++)
@@ -544,6 +663,9 @@ int main(int argc, char **argv)
     }
     rc = 0;
 done:
+    pt_guide_stats_free(gstats);
+    for (uint32_t i = 0; i < MAX_PASSES; i++)
+        pt_guide_free(guides[i]);
     pt_free(px);
     pt_renderer_free(r);
     pt_env_free(env);

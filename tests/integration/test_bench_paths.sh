@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # ptbench-paths (tests/bench/paths.c), the firefly finder: it renders the
-# samples ptworker --guiding off renders (its relMSE against a reference is
-# ptbench error's for ptworker's image of the same seed), logs the paths of
+# samples ptworker --guiding off renders, or --guiding on's with --guiding on
+# (its relMSE against a reference is ptbench error's for ptworker's image of
+# the same seed), logs the paths of
 # the worst pixels' largest samples through the renderer's own code
 # (common/render/path_trace.h), and the renderer that users run has none of
 # that log compiled in. glass_things.gltf under a uniform background: a
@@ -46,6 +47,35 @@ awk '/^relMSE/ { worst = $(NF - 2) + 0 }
 grep -q 'glass:dielectric(delta) > .*| BSDF hit env' "$tmp/out.txt" ||
     { echo "FAIL: no path through the glass to the background"; exit 1; }
 
+# Guided (--guiding on): the samples ptworker --guiding on renders, pass by
+# pass with the guide each pass learned (64 spp: passes of 16, 32 and 16),
+# each guided vertex logged with its selection probability and both pdfs,
+# and the caustics' shares by the rough vertex they left from summed within
+# the caustic share.
+"$BIN/ptworker" --scene "$scene" --res 32x24 --background "1,1,1" --guiding on --threads 2 -q \
+    --spp 64 --seed 1 -o "$tmp/guided.exr" >/dev/null 2>&1
+want=$("$BIN/ptbench" error "$tmp/guided.exr" "$tmp/ref.exr" | awk '/^relMSE/ { print $2 }')
+"$BIN/ptbench-paths" "$scene" --reference "$tmp/ref.exr" --res 32x24 --background 1,1,1 \
+    --spp 64 --seed 1 --worst 0.05 --top 2 --guiding on >"$tmp/guided.txt" 2>"$tmp/err.txt"
+got=$(awk '/^relMSE/ { sub(",", "", $2); print $2 }' "$tmp/guided.txt")
+awk -v a="$got" -v b="$want" 'BEGIN { d = a - b; if (d < 0) d = -d; exit !(d <= 1e-5 * b) }' ||
+    { echo "FAIL: ptbench-paths --guiding on relMSE $got, ptworker's guided image $want"; exit 1; }
+grep -Eq ' guided  floor .* prob 0\.[0-9]+ guide pdf ' "$tmp/guided.txt" ||
+    { echo "FAIL: no guided floor vertex in the log"; exit 1; }
+grep 'caustics by the rough vertex' "$tmp/guided.txt"
+awk '/^by technique/ { gsub(",", ""); caustic = $NF + 0 }
+     /^caustics by the rough vertex/ {
+        n = split($0, f, ",")
+        for (i = 1; i <= n; i++) { k = split(f[i], w, " "); s += w[k] }
+        found = 1
+     }
+     END { exit !(found && s > 0 && s <= caustic + 1e-4) }' "$tmp/guided.txt" ||
+    { echo "FAIL: the caustics' shares by guided vertex"; exit 1; }
+if grep -q 'caustics by the rough vertex' "$tmp/out.txt"; then
+    echo "FAIL: an unguided log has the guided summary"
+    exit 1
+fi
+
 # The renderer that users run has no path log.
 nm "$BIN/ptworker" >"$tmp/worker.nm"
 nm "$BIN/ptbench-paths" >"$tmp/paths.nm"
@@ -70,4 +100,5 @@ expect_fail 2 --worst --reference "$tmp/ref.exr" --res 32x24 --worst 2
 expect_fail 1 'reference is 32x24' --reference "$tmp/ref.exr" --res 16x16
 expect_fail 1 nothing.exr --reference "$tmp/nothing.exr" --res 32x24
 expect_fail 2 usage --reference "$tmp/ref.exr" --res 32x24 --background 1,1,1 --env x.hdr
+expect_fail 2 'on or off' --reference "$tmp/ref.exr" --res 32x24 --guiding maybe
 echo "test_bench_paths: ok"

@@ -20,6 +20,10 @@
  *   paths neither render caught has its variance underestimated.
  * - The guide learns: the second pass's guide has more than one directional
  *   node, and its statistics saw records.
+ * - Behind glass: a Lambert floor seen through three thin smooth panes (its
+ *   paths' first rough vertex, their fourth bounce) is guided and recorded:
+ *   its cell learns the lamp, and its guided render agrees with the
+ *   unguided one (images_agree) without being its bits.
  * - Bits: a guided tile equals the same samples traced one path at a time
  *   (pt_render_sample_guided) and summed in order, and the statistics of a
  *   tile equal, exactly, the merged statistics of its halves rendered apart.
@@ -228,28 +232,39 @@ static void images_agree(const pt_pixel_acc *ag, const pt_pixel_acc *au, uint32_
     printf("%s: guided vs unguided z %.2f, %d of %u pixels beyond 5 se\n", what, z, off, n);
 }
 
-static void glossy_agrees(void)
+/* Scene s (freed here) rendered w x h at spp guided (render_guided: the
+ * guide learned from samples [0, first)) and unguided: the images agree
+ * (images_agree, at most 1 pixel beyond), and same_bits 1: they are the
+ * same bits; -1: they are not (the guide drew directions); 0: either. */
+static void guided_vs_unguided(pt_scene *s, uint32_t w, uint32_t h, uint32_t first, uint32_t spp,
+                               int same_bits, const char *what)
 {
-    pt_scene *s = furnace(0.8f, 0.0f, 0.4f, 1.0f);
     if (!s)
         return;
-    enum { W = 16, H = 16, SPP = 2048 };
-    pt_renderer *rg = renderer(s, W, H, 1, 0), *ru = renderer(s, W, H, 0, 0);
-    pt_pixel_acc *ag = pt_calloc(W * H, sizeof *ag), *au = pt_calloc(W * H, sizeof *au);
+    pt_renderer *rg = renderer(s, w, h, 1, 0), *ru = renderer(s, w, h, 0, 0);
+    pt_pixel_acc *ag = pt_calloc((size_t)w * h, sizeof *ag),
+                 *au = pt_calloc((size_t)w * h, sizeof *au);
     pt_guide *g2 = NULL;
     if (rg && ru && ag && au) {
         CHECK(strcmp(pt_renderer_variant(rg), "guided") == 0);
-        g2 = render_guided(s, rg, W, H, 256, SPP, ag);
-        render_pass(ru, W, H, 0, SPP, NULL, 0.0f, NULL, au);
+        g2 = render_guided(s, rg, w, h, first, spp, ag);
+        render_pass(ru, w, h, 0, spp, NULL, 0.0f, NULL, au);
+        images_agree(ag, au, w * h, 1, what);
+        int same = memcmp(ag, au, (size_t)w * h * sizeof *ag) == 0;
+        CHECKF(same_bits == 0 || same == (same_bits > 0),
+               "%s: guided and unguided %s the same bits", what, same ? "are" : "are not");
     }
-    if (ag && au)
-        images_agree(ag, au, W * H, 1, "glossy furnace");
     pt_guide_free(g2);
     pt_free(ag);
     pt_free(au);
     pt_renderer_free(rg);
     pt_renderer_free(ru);
     pt_scene_free(s);
+}
+
+static void glossy_agrees(void)
+{
+    guided_vs_unguided(furnace(0.8f, 0.0f, 0.4f, 1.0f), 16, 16, 256, 2048, 0, "glossy furnace");
 }
 
 static void bits(void)
@@ -334,9 +349,11 @@ done:
     pt_scene_free(s);
 }
 
-/* A rough metal floor (z = 0, +z up) and a small emitter facing it from
- * above and to the side; the camera looks down at the floor. */
-static pt_scene *floor_and_lamp(void)
+/* A floor (z = 0, +z up: a rough metal, or Lambert of albedo 0.8 when
+ * lambert is set) and a small emitter facing it from above and to the side;
+ * the camera looks down at the floor, through `panes` thin smooth glass
+ * panes (z = 2, 2.2, 2.4, ..., wider than the camera's view) when asked. */
+static pt_scene *floor_and_lamp(int lambert, uint32_t panes)
 {
     pt_scene_builder *b = NULL;
     pt_error err = {0};
@@ -344,8 +361,14 @@ static pt_scene *floor_and_lamp(void)
     if (!b)
         return NULL;
     pt_material fl = pt_material_default();
-    fl.metallic = 1.0f;
-    fl.roughness = 0.7f;
+    fl.metallic = lambert ? 0.0f : 1.0f;
+    fl.roughness = lambert ? 1.0f : 0.7f;
+    if (lambert)
+        fl.base_color[0] = fl.base_color[1] = fl.base_color[2] = 0.8f;
+    pt_material glass = pt_material_default();
+    glass.metallic = 0.0f;
+    glass.roughness = 0.0f;
+    glass.transmission = 1.0f;
     pt_material lamp = pt_material_default();
     lamp.base_color[0] = lamp.base_color[1] = lamp.base_color[2] = 0.0f;
     lamp.emissive[0] = lamp.emissive[1] = lamp.emissive[2] = 50.0f;
@@ -361,6 +384,15 @@ static pt_scene *floor_and_lamp(void)
           PT_OK);
     CHECK(pt_scene_builder_add_mesh(b, "lamp", lamp_p, NULL, NULL, 4, idx, 2, NULL, ml, &err) ==
           PT_OK);
+    uint32_t mg;
+    if (panes)
+        CHECK(pt_scene_builder_add_material(b, &glass, &mg, &err) == PT_OK);
+    for (uint32_t i = 0; i < panes; i++) {
+        float z = 2.0f + 0.2f * (float)i;
+        const float pane_p[12] = {-3, -3, z, 3, -3, z, 3, 3, z, -3, 3, z};
+        CHECK(pt_scene_builder_add_mesh(b, "pane", pane_p, NULL, NULL, 4, idx, 2, NULL, mg, &err) ==
+              PT_OK);
+    }
     pt_camera cam = {0};
     cam.position = pt_v3(0, 0, 3);
     cam.forward = pt_v3(0, 0, -1);
@@ -378,10 +410,12 @@ static pt_scene *floor_and_lamp(void)
 /* The guide learns where light comes from: on the floor under BSDF sampling
  * alone (so a ray that finds the lamp records its whole radiance), the cell
  * of the floor's middle, after one recording pass, has a pdf towards the
- * lamp many times its pdf in the mirrored direction. */
-static void learns_the_lamp(void)
+ * lamp many times its pdf in the mirrored direction. The floor is seen
+ * directly or through panes (floor_and_lamp); max_depth lets the path
+ * bounce once off the floor and find the lamp, nothing more. */
+static void learns_the_lamp_at(const char *what, int lambert, uint32_t panes, uint32_t max_depth)
 {
-    pt_scene *s = floor_and_lamp();
+    pt_scene *s = floor_and_lamp(lambert, panes);
     if (!s)
         return;
     enum { W = 16, H = 16 };
@@ -391,7 +425,7 @@ static void learns_the_lamp(void)
     p.height = H;
     p.guiding = 1;
     p.light_strategy = PT_LIGHT_BSDF_ONLY;
-    p.max_depth = 1;
+    p.max_depth = max_depth;
     pt_renderer *r = NULL;
     pt_error err = {0};
     CHECKF(pt_renderer_new(s, &p, &r, &err) == PT_OK, "%s", err.msg);
@@ -413,8 +447,8 @@ static void learns_the_lamp(void)
         pt_vec3 to_lamp = pt_v3_norm(pt_v3(1.5f, 0, 1.5f)),
                 mirror = pt_v3_norm(pt_v3(-1.5f, 0, 1.5f));
         float pl = pt_guide_pdf(g2, cell, to_lamp), pm = pt_guide_pdf(g2, cell, mirror);
-        CHECKF(pl > 10.0f * pm, "pdf towards the lamp %g, mirrored %g", pl, pm);
-        printf("learned lamp: pdf towards it %.3g, mirrored %.3g\n", pl, pm);
+        CHECKF(pl > 10.0f * pm, "%s: pdf towards the lamp %g, mirrored %g", what, pl, pm);
+        printf("%s: pdf towards the lamp %.3g, mirrored %.3g\n", what, pl, pm);
     }
     pt_guide_stats_free(st[0]);
     pt_guide_stats_free(st[1]);
@@ -423,6 +457,31 @@ static void learns_the_lamp(void)
     pt_free(acc);
     pt_renderer_free(r);
     pt_scene_free(s);
+}
+
+static void learns_the_lamp(void)
+{
+    learns_the_lamp_at("learned lamp", 0, 0, 1);
+}
+
+/* Behind glass: a Lambert floor seen through three thin smooth panes is
+ * each camera path's first rough vertex but its fourth bounce (depth 3),
+ * and is guided and recorded all the same (render.c counts guidable
+ * vertices, GUIDE_MAX_ROUGH, not bounces): its cell learns the lamp. When
+ * every bounce counted, the floor was never recorded and its cell stayed
+ * uniform (the pdfs equal). */
+static void learns_behind_glass(void)
+{
+    learns_the_lamp_at("learned lamp behind three panes", 1, 3, 4);
+}
+
+/* The floor behind the panes, guided (MIS against NEE, the guide learned
+ * in a first pass and sampled by half of the floor's directions), renders
+ * what the unguided render does (images_agree), and not its bits: the
+ * floor's directions were drawn from the guide. */
+static void behind_glass_agrees(void)
+{
+    guided_vs_unguided(floor_and_lamp(1, 3), 16, 16, 64, 2048, -1, "floor behind three panes");
 }
 
 /* A vertex whose lobes are all narrower than a guide of radiance alone can
@@ -543,26 +602,7 @@ static void roulette_ignores_guide(void)
 
 static void glossy_keeps_bsdf(void)
 {
-    pt_scene *s = furnace(0.8f, 1.0f, 0.5f, 1.0f);
-    if (!s)
-        return;
-    enum { W = 8, H = 8, SPP = 128 };
-    pt_renderer *rg = renderer(s, W, H, 1, 0), *ru = renderer(s, W, H, 0, 0);
-    pt_pixel_acc *ag = pt_calloc(W * H, sizeof *ag), *au = pt_calloc(W * H, sizeof *au);
-    pt_guide *g2 = NULL;
-    if (rg && ru && ag && au) {
-        CHECK(strcmp(pt_renderer_variant(rg), "guided") == 0);
-        g2 = render_guided(s, rg, W, H, 32, SPP, ag);
-        render_pass(ru, W, H, 0, SPP, NULL, 0.0f, NULL, au);
-        CHECKF(memcmp(ag, au, W * H * sizeof *ag) == 0,
-               "a glossy metal's vertices drew directions from the guide");
-    }
-    pt_guide_free(g2);
-    pt_free(ag);
-    pt_free(au);
-    pt_renderer_free(rg);
-    pt_renderer_free(ru);
-    pt_scene_free(s);
+    guided_vs_unguided(furnace(0.8f, 1.0f, 0.5f, 1.0f), 8, 8, 32, 128, 1, "glossy metal");
 }
 
 static void lambert_keeps_variant(void)
@@ -663,6 +703,8 @@ int main(void)
     bits();
     lambert_keeps_variant();
     learns_the_lamp();
+    learns_behind_glass();
+    behind_glass_agrees();
     white_furnace();
     glossy_agrees();
     glossy_keeps_bsdf();
