@@ -13,6 +13,7 @@
 
 #include <stdio.h>
 #include <stdlib.h>
+#include <unistd.h>
 
 #define CHECK_SKIP_STATUS 77
 
@@ -53,6 +54,19 @@ static inline int check_shared_required(void)
 {
     const char *ci = getenv("CI");
     return ci && *ci && ci[0] != '0' && ci[0] != 'f';
+}
+
+/* 1 when the shared file at path can be read; else 0, after failing the
+ * check where shared assets are required (CI) or noting a skip. */
+static inline int check_shared_file(const char *path)
+{
+    if (access(path, R_OK) == 0)
+        return 1;
+    if (check_shared_required())
+        CHECKF(0, "%s is missing (CI=true)", path);
+    else
+        CHECK_SKIP("%s is missing", path);
+    return 0;
 }
 
 static inline int check_report(void)

@@ -28,7 +28,6 @@
 
 #include <stdio.h>
 #include <string.h>
-#include <unistd.h>
 
 #include "common/base/alloc.h"
 #include "common/render/env.h"
@@ -51,13 +50,8 @@ static inline pt_scene *load_shared_asset(const char *rel, const char *word)
 {
     char path[1024];
     snprintf(path, sizeof path, "%s/%s", PT_SHARED_SCENES, rel);
-    if (access(path, R_OK) != 0) {
-        if (check_shared_required())
-            CHECKF(0, "%s is missing (CI=true)", path);
-        else
-            CHECK_SKIP("%s is missing", path);
+    if (!check_shared_file(path))
         return NULL;
-    }
     asset_warn w = {word, 0};
     pt_scene_opts o = {0};
     o.warn = asset_note;

@@ -35,7 +35,6 @@
  */
 #include <math.h>
 #include <string.h>
-#include <sys/stat.h>
 
 #include "common/base/alloc.h"
 #include "common/render/env.h"
@@ -685,14 +684,8 @@ static void asset(void)
 {
     char path[512];
     snprintf(path, sizeof path, "%s/AlphaBlendModeTest/AlphaBlendModeTest.glb", PT_SHARED_SCENES);
-    struct stat sb;
-    if (stat(path, &sb) != 0) {
-        if (check_shared_required())
-            CHECKF(0, "%s not found", path);
-        else
-            CHECK_SKIP("shared assets: %s not found", path);
+    if (!check_shared_file(path))
         return;
-    }
     int warned = 0;
     pt_scene_opts o = {0};
     o.warn = count_alpha_warnings;
@@ -931,14 +924,8 @@ static void solid_lamp(void)
 {
     char path[512];
     snprintf(path, sizeof path, "%s/StainedGlassLamp/StainedGlassLamp.gltf", PT_SHARED_SCENES);
-    struct stat sb;
-    if (stat(path, &sb) != 0) {
-        if (check_shared_required())
-            CHECKF(0, "%s not found", path);
-        else
-            CHECK_SKIP("shared assets: %s not found", path);
+    if (!check_shared_file(path))
         return;
-    }
     pt_scene_opts o = {0};
     pt_scene *s = NULL;
     pt_error err = {0};
