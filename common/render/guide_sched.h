@@ -35,10 +35,13 @@
  * own weight: 2 at 0.5, 1.33 at 0.25, which lowered the error per sample of
  * the glass ball, TransmissionTest and ToyCar. */
 #define PT_GUIDE_PASS_PROB 0.25f
-/* Mueller et al.'s split threshold, c sqrt(2^k) (they take c = 12000 for
- * 1280 x 720 images); c = 3000 did better on a 64 x 64 Cornell box, whose
- * passes hold fewer records. */
-#define PT_GUIDE_SPLIT_C 3000.0
+/* Mueller et al.'s split threshold, c sqrt(2^k), with their c = 12000. It
+ * was 3000, which did better on a 64 x 64 Cornell box (its passes hold few
+ * records); at the benchmark's 128 x 128 the larger leaves give the same
+ * error per sample on the NVIDIA Cornell box and the glass scenes, a guided
+ * sample of the Cornell box costs 8 % less (docs/bench/guiding.md, "The
+ * spatial split threshold") and a 1080p job's distribution is smaller. */
+#define PT_GUIDE_SPLIT_C 12000.0
 
 static inline uint32_t pt_guide_pass_start(uint32_t k, uint32_t spp)
 {
