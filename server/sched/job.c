@@ -4,6 +4,7 @@
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "common/base/alloc.h"
 #include "common/base/hash.h"
@@ -439,6 +440,14 @@ uint32_t job_cut_next(srv_job *j, const owner_stat *o)
             j->heap[0] = j->heap[--j->nheap];
             heap_down(j, 0);
             continue;
+        }
+        /* The test hook's hold (srv_lease_policy.hold_spp): the tile with
+         * the fewest samples cut is at it, so every tile is; once the gate
+         * file exists the hold is gone for good. */
+        if (j->pol.hold_spp && ts->frontier >= j->pol.hold_spp) {
+            if (access(j->pol.hold_gate, F_OK) != 0)
+                return NONE;
+            j->pol.hold_spp = 0;
         }
         /* The tile with the fewest samples cut is at the guided pass's end:
          * every tile is, and the next pass waits for its distribution. */

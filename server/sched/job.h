@@ -123,6 +123,12 @@ typedef struct srv_lease_policy {
     double verify_fraction; /* [0, 1]: the share of merged tasks rendered again */
     uint64_t verify_seed;   /* picks them with the task id */
     uint32_t task_ms;       /* time-sized tasks of about this long; 0: fixed chunks */
+    /* Test hook (PTSERVE_TEST_LEASE_GATE, server/sched/queue.c): while the
+     * file hold_gate does not exist, no task starting at hold_spp samples or
+     * later is cut, so the job waits there, mid-render, until a test opens
+     * the gate. hold_spp 0 (production): none. */
+    uint32_t hold_spp;
+    const char *hold_gate; /* not copied: the environment's string */
 } srv_lease_policy;
 
 #define SRV_DEADLINE_QUANTILE 0.9 /* of the observed times per pixel-sample */

@@ -4,6 +4,7 @@
 #include <errno.h>
 #include <math.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include "common/base/alloc.h"
@@ -575,11 +576,25 @@ static void set_policy(srv_server *s, srv_entry *j)
         s->verify_seed |= 1; /* made once, even without randomness */
     }
     uint64_t first = (uint64_t)s->cfg->lease_ms * FIRST_FACTOR;
-    srv_lease_policy pol = {
-        s->cfg->lease_ms,        first > UINT32_MAX ? UINT32_MAX : (uint32_t)first,
-        DEADLINE_FACTOR,         BACKUP_FACTOR,
-        s->cfg->verify_fraction, s->verify_seed,
-        s->cfg->task_ms};
+    srv_lease_policy pol = {.floor_ms = s->cfg->lease_ms,
+                            .first_ms = first > UINT32_MAX ? UINT32_MAX : (uint32_t)first,
+                            .factor = DEADLINE_FACTOR,
+                            .backup_factor = BACKUP_FACTOR,
+                            .verify_fraction = s->cfg->verify_fraction,
+                            .verify_seed = s->verify_seed,
+                            .task_ms = s->cfg->task_ms};
+    /* Test hook (tests/integration/test_guiding_farm.sh): with
+     * PTSERVE_TEST_LEASE_GATE=SPP:FILE, no task of a job starting at SPP
+     * samples or later is leased until FILE exists: a job held mid-render
+     * however loaded the machine, for a kill at a known point. Unset in
+     * production. */
+    const char *e = getenv("PTSERVE_TEST_LEASE_GATE");
+    char *rest = NULL;
+    unsigned long long spp = e ? strtoull(e, &rest, 10) : 0;
+    if (e && rest != e && *rest == ':' && rest[1] && spp > 0 && spp <= UINT32_MAX) {
+        pol.hold_spp = (uint32_t)spp;
+        pol.hold_gate = rest + 1;
+    }
     srv_job_set_policy(j->job, &pol);
 }
 

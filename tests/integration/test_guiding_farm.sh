@@ -12,6 +12,10 @@
 #     with checkpoints every few results: the restart replays its results
 #     log onto the checkpoint, rebuilds the same distributions and ends
 #     bit-identical.
+#     In 2 and 3 the coordinator's test hook PTSERVE_TEST_LEASE_GATE holds
+#     the job mid-training (no task starting at 64 spp or later is leased
+#     until a file exists), so the kill comes after a learned pass and
+#     before the end however loaded the machine: no race with the polls.
 #  4. --guiding auto (and on) of an all-Lambert scene is the unguided image
 #     on ptworker and on the farm; on is refused with adaptive sampling and
 #     a bad mode by every program (exit 2).
@@ -88,6 +92,9 @@ finish() { # ID NAME: the job ends done, its image the standalone guided render'
   same "$2"
 }
 pass1=$((64 * 48 * 16)) # samples of the first training pass
+# Cases 2 and 3 hold the job at 64 spp: pass 2 ([48, 112), learned from 48
+# spp) is under way, and no tile can pass 112 spp while held.
+hold=64
 
 serve queue.log --local 3 --worker-threads 1 --chunk 32
 id=$("$bin/ptctl" submit "$scene" "${view[@]}" --guiding on --name queued)
@@ -98,7 +105,7 @@ stop
 view=(--res 64x48 --spp 512 --seed 11)
 "$bin/ptworker" --scene "$scene" "${view[@]}" --tile 16 --guiding on -q -o "$tmp/ref.exr" \
   2> /dev/null || fail "ptworker --guiding on (512 spp)"
-serve killw.log --task-time 200
+PTSERVE_TEST_LEASE_GATE="$hold:$tmp/go_killw" serve killw.log --task-time 200
 for n in 1 2 3; do
   "$bin/ptworker" --server "$PTFARM_SERVER" --threads 1 --name "w$n" --cache-dir "$tmp/cache$n" \
     2> "$tmp/w$n.log" &
@@ -116,6 +123,11 @@ until_status "$id" "d['samples_done'] > $((3 * pass1)) or d['state'] != 'running
 grep -Eq '^guiding +pass [1-9][0-9]*, its distribution learned from [0-9]+ spp$' "$tmp/status.txt" ||
   fail "ptctl status shows no guiding pass: $(cat "$tmp/status.txt")"
 kill -9 "${wpids[0]}"
+# The others render what it held; the job then waits at the hold, mid-pass.
+until_status "$id" "d['samples_done'] >= $((hold * 64 * 48)) or d['state'] != 'running'"
+[ "$(json "$tmp/status.json" "d['state'] == 'running' and d['samples_done'] <= 112 * 64 * 48")" = True ] ||
+  fail "the job went past the hold: $(cat "$tmp/status.json")"
+touch "$tmp/go_killw"
 finish "$id" killw
 stop
 for p in "${wpids[@]}"; do kill "$p" 2>/dev/null || true; done
@@ -123,17 +135,22 @@ wpids=()
 
 # 3. The coordinator killed mid-training, checkpoints every 20 kB of log.
 rm -rf "$tmp/state"
-PTSERVE_TEST_CKPT_LOG_BYTES=20000 serve kill9.log --local 2 --worker-threads 1 --task-time 200
+PTSERVE_TEST_CKPT_LOG_BYTES=20000 PTSERVE_TEST_LEASE_GATE="$hold:$tmp/go_kill9" \
+  serve kill9.log --local 2 --worker-threads 1 --task-time 200
 id=$("$bin/ptctl" submit "$scene" "${view[@]}" --guiding on --name kill9)
 until_status "$id" "d['samples_done'] > $((3 * pass1)) or d['state'] != 'running'"
 [ "$(json "$tmp/status.json" 'd["state"]')" = running ] || fail "the job ended before the kill"
+# Held, the job waits for its checkpoint (written on a thread of its own).
+for _ in $(seq 400); do [ -s "$tmp/state/jobs/$id/checkpoint" ] && break; sleep 0.05; done
 children=$(pgrep -P "$srv_pid" || true)
 kill -9 "$srv_pid"
 wait "$srv_pid" || true
 srv_pid=
 for c in $children; do kill "$c" 2>/dev/null || true; done
 [ -s "$tmp/state/jobs/$id/checkpoint" ] || fail "no checkpoint was written before the kill"
-PTSERVE_TEST_CKPT_LOG_BYTES=20000 serve kill9.log --local 2 --worker-threads 1 --task-time 200
+touch "$tmp/go_kill9" # the restart leases on past the hold
+PTSERVE_TEST_CKPT_LOG_BYTES=20000 PTSERVE_TEST_LEASE_GATE="$hold:$tmp/go_kill9" \
+  serve kill9.log --local 2 --worker-threads 1 --task-time 200
 finish "$id" kill9
 grep -q "job $id resumed" "$tmp/kill9.log" || fail "no resume logged: $(cat "$tmp/kill9.log")"
 stop

@@ -6,8 +6,10 @@
  * the same film, with adaptive sampling and a resume too).
  */
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "common/base/alloc.h"
 #include "common/base/hash.h"
@@ -651,7 +653,7 @@ static srv_outcome render(srv_job *j, uint64_t owner, uint64_t t0, uint64_t t1, 
 static void hard_deadlines(void)
 {
     srv_job *j = make(64, 16, 64, 16, 8); /* 4 tiles x 8 chunks, 2048 samples a task */
-    srv_lease_policy pol = {100, 1000, 8.0, 0.0, 0.0, 0, 0};
+    srv_lease_policy pol = {100, 1000, 8.0, 0.0, 0.0, 0, 0, 0, NULL};
     srv_job_set_policy(j, &pol);
     proto_task a, b, c;
     misses m = {{0}, 0};
@@ -690,7 +692,7 @@ static void backups(void)
 {
     static pt_pixel_acc px[256];
     srv_job *j = make(16, 16, 16, 16, 8); /* two tasks */
-    srv_lease_policy pol = {100000, 100000, 8.0, 3.0, 0.0, 0, 0};
+    srv_lease_policy pol = {100000, 100000, 8.0, 3.0, 0.0, 0, 0, 0, NULL};
     srv_job_set_policy(j, &pol);
     proto_task a, b, c;
     CHECK(srv_job_lease(j, 1, 0, 100000, &a) == 1 && a.task_id == 0);
@@ -701,7 +703,7 @@ static void backups(void)
     CHECK(srv_job_lease(j, 3, 40, 100000, &c) == 0); /* one backup a task */
     CHECK(srv_job_leases(j) == 2);
     /* The first copy expiring leaves the backup: the task stays leased. */
-    srv_lease_policy tight = {50, 50, 8.0, 3.0, 0.0, 0, 0};
+    srv_lease_policy tight = {50, 50, 8.0, 3.0, 0.0, 0, 0, 0, NULL};
     srv_job_set_policy(j, &tight);
     CHECK(srv_job_expire(j, 85, NULL, NULL, NULL) == 1 && srv_job_leases(j) == 1);
     CHECK(srv_job_lease(j, 4, 85, 100000, &c) == 0);
@@ -764,7 +766,7 @@ static void verification(void)
 {
     static pt_pixel_acc px[256];
     srv_job *j = make(16, 16, 16, 16, 8);
-    srv_lease_policy pol = {0, 0, 0.0, 0.0, 1.0, 42, 0};
+    srv_lease_policy pol = {0, 0, 0.0, 0.0, 1.0, 42, 0, 0, NULL};
     srv_job_set_policy(j, &pol);
     proto_task t, v;
     proto_result r;
@@ -830,7 +832,7 @@ static void verification(void)
 
     /* The pick is a function of the seed and the task: about the fraction. */
     j = make(512, 512, 64, 16, 8); /* 8192 tasks */
-    srv_lease_policy f = {0, 0, 0.0, 0.0, 0.02, 7, 0};
+    srv_lease_policy f = {0, 0, 0.0, 0.0, 0.02, 7, 0, 0, NULL};
     srv_job_set_policy(j, &f);
     proto_task x;
     while (srv_job_lease(j, 1, 0, 1000, &x)) {
@@ -849,7 +851,7 @@ static void verification(void)
     for (uint64_t seed = 1; seed <= 50; seed++) {
         j = make(128, 128, 16, 16, 16); /* 64 tiles, one chunk each */
         /* Seeds apart in their high bits: the pick hashes seed ^ task. */
-        srv_lease_policy small = {0, 0, 0.0, 0.0, 0.02, seed * 0x9E3779B97F4A7C15ull, 0};
+        srv_lease_policy small = {0, 0, 0.0, 0.0, 0.02, seed * 0x9E3779B97F4A7C15ull, 0, 0, NULL};
         srv_job_set_policy(j, &small);
         for (uint64_t owner = 1; srv_job_lease(j, owner, 0, 1000, &x); owner = 3 - owner) {
             fake_result(&x, px, &r);
@@ -1339,7 +1341,7 @@ static void answered_no_backup(void)
 {
     static pt_pixel_acc px[256];
     srv_job *j = make(16, 16, 16, 16, 8); /* two tasks */
-    srv_lease_policy pol = {100000, 100000, 8.0, 3.0, 0.0, 0, 0};
+    srv_lease_policy pol = {100000, 100000, 8.0, 3.0, 0.0, 0, 0, 0, NULL};
     srv_job_set_policy(j, &pol);
     proto_task a, b, c;
     CHECK(srv_job_lease(j, 1, 0, 100000, &a) == 1 && a.task_id == 0);
@@ -1602,6 +1604,41 @@ static void guided(void)
     srv_job_free(j);
 }
 
+/* The test hook's hold (srv_lease_policy.hold_spp): no task starting at or
+ * past it is cut while its gate file is missing, whatever is asked; a
+ * requeued task below it still goes out; the file there, cutting goes on. */
+static void lease_hold(void)
+{
+    char gate[64];
+    snprintf(gate, sizeof gate, "/tmp/pt_test_job_gate_%ld", (long)getpid());
+    unlink(gate);
+    srv_job *j = make(64, 64, 64, 32, 16); /* 2x2 tiles, chunks of 16 */
+    srv_lease_policy pol = {0};
+    pol.hold_spp = 32;
+    pol.hold_gate = gate;
+    srv_job_set_policy(j, &pol);
+    proto_task t;
+    uint32_t n = 0, below = 1;
+    while (n < 100 && srv_job_lease(j, 1, 0, 1000, &t)) {
+        below &= t.s0 < 32;
+        n++;
+    }
+    CHECKF(n == 8 && below, "%u tasks before the hold", n);
+    CHECK(srv_job_lease(j, 2, 0, 1000, &t) == 0);
+    CHECK(srv_job_release_owner(j, 1) == 8);
+    CHECK(srv_job_lease(j, 2, 0, 1000, &t) == 1 && t.s0 < 32);
+    FILE *f = fopen(gate, "w");
+    CHECK(f != NULL);
+    if (f)
+        fclose(f);
+    n = 0;
+    while (srv_job_lease(j, 2, 0, 1000, &t))
+        n++;
+    CHECKF(n == 7 + 8, "%u tasks once the gate exists", n);
+    unlink(gate);
+    srv_job_free(j);
+}
+
 int main(void)
 {
     int64_t live = pt_alloc_live();
@@ -1626,6 +1663,7 @@ int main(void)
     answered_no_backup();
     answered_ticket();
     snapshot_saves_the_same();
+    lease_hold();
     CHECK(pt_alloc_live() == live);
     return check_report();
 }
