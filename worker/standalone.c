@@ -232,7 +232,7 @@ static int run_guided(job *j, const pt_scene *scene, uint32_t n, pthread_t *thre
         }
         st = pt_guide_run_merge(&run, &err);
         if (st == PT_OK)
-            st = pt_guide_run_end(&run, &err);
+            st = pt_guide_run_end(&run, NULL, &err);
     }
     if (st != PT_OK) {
         fprintf(stderr, "ptworker: guiding: %s\n", err.msg);

@@ -57,7 +57,7 @@ pt_status pt_guide_run_merge(pt_guide_run *run, pt_error *err)
     return PT_OK;
 }
 
-pt_status pt_guide_run_end(pt_guide_run *run, pt_error *err)
+pt_status pt_guide_run_end(pt_guide_run *run, pt_guide **kept, pt_error *err)
 {
     if (run->s1 < run->spp) {
         pt_guide *next = NULL;
@@ -65,7 +65,10 @@ pt_status pt_guide_run_end(pt_guide_run *run, pt_error *err)
             pt_guide_build(run->guide, run->stats[0], pt_guide_split_count(run->pass), &next, err);
         if (st != PT_OK)
             return st;
-        pt_guide_free(run->guide);
+        if (kept)
+            *kept = run->guide;
+        else
+            pt_guide_free(run->guide);
         run->guide = next;
     }
     free_stats(run);

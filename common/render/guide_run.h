@@ -10,7 +10,7 @@
  *     while (pt_guide_run_begin(&run, &err) == PT_OK && run.s0 < run.spp) {
  *         ... thread i renders samples [run.s0, run.s1) with run.gd[i] ...
  *         pt_guide_run_merge(&run, &err);   (run.stats[0]: the pass's sums)
- *         pt_guide_run_end(&run, &err);     (the next pass's guide)
+ *         pt_guide_run_end(&run, NULL, &err); (the next pass's guide)
  *     }
  *     pt_guide_run_free(&run);
  *
@@ -51,8 +51,11 @@ pt_status pt_guide_run_begin(pt_guide_run *run, pt_error *err);
 pt_status pt_guide_run_merge(pt_guide_run *run, pt_error *err);
 
 /* Ends the pass: builds the next pass's guide from stats[0] (none after the
- * last pass) and frees the pass's statistics. */
-pt_status pt_guide_run_end(pt_guide_run *run, pt_error *err);
+ * last pass) and frees the pass's statistics. kept NULL: the pass's guide is
+ * freed once the next is built; else it is the caller's in *kept (a tool
+ * that renders a pass's samples again later), and the last pass's stays
+ * run->guide, freed with the run. */
+pt_status pt_guide_run_end(pt_guide_run *run, pt_guide **kept, pt_error *err);
 
 void pt_guide_run_free(pt_guide_run *run);
 

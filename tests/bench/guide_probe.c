@@ -267,7 +267,7 @@ int main(int argc, char **argv)
                (unsigned long long)recs);
         for (uint32_t i = 0; i < np; i++)
             probe_guide(g, sum, &pr[i], &b, run.pass);
-        if ((st = pt_guide_run_end(&run, &err)) != PT_OK)
+        if ((st = pt_guide_run_end(&run, NULL, &err)) != PT_OK)
             break;
     }
     if (st != PT_OK) {

@@ -9,7 +9,7 @@
  * Renders SCENE sample by sample (pt_render_sample_guided, one thread:
  * the samples ptworker --guiding off takes, or with --guiding on those of
  * ptworker --guiding on, pass by pass, each pass's records building the
- * next pass's guide as guide_run.h does, every guide kept so that a logged
+ * next pass's guide through guide_run.h, every guide kept so that a logged
  * sample is rendered again with its own), scores each pixel's mean
  * against REF as relMSE counts it (common/image/metrics.h) and takes the
  * worst FRACTION of pixels (default 0.001). For each of them it renders its
@@ -470,7 +470,8 @@ int main(int argc, char **argv)
      * logged samples again with the guide they were drawn with. */
     enum { MAX_PASSES = 32 };
     pt_guide *guides[MAX_PASSES] = {NULL};
-    pt_guide_stats *gstats = NULL;
+    pt_guide_run run;
+    memset(&run, 0, sizeof run);
     pt_scene_opts so = {0};
     so.camera_name = camera;
     if (pt_exr_read(ref_path, &ref, NULL, &err) != PT_OK ||
@@ -508,33 +509,25 @@ int main(int argc, char **argv)
         fprintf(stderr, "ptbench-paths: out of memory\n");
         goto done;
     }
-    if (guiding) {
-        /* The first guide as ptworker makes it (pt_guide_run_new's bounds). */
-        pt_guide_run run;
-        if (pt_guide_run_new(&run, scene->bounds_min, scene->bounds_max, spp, 1, 0, &err) !=
-            PT_OK) {
-            pt_guide_run_free(&run);
-            fprintf(stderr, "ptbench-paths: %s\n", err.msg);
-            goto done;
-        }
-        guides[0] = run.guide;
-        run.guide = NULL;
-        pt_guide_run_free(&run);
+    /* The first guide as ptworker makes it (pt_guide_run_new's bounds). */
+    if (guiding &&
+        pt_guide_run_new(&run, scene->bounds_min, scene->bounds_max, spp, 1, 0, &err) != PT_OK) {
+        fprintf(stderr, "ptbench-paths: %s\n", err.msg);
+        goto done;
     }
     /* The image, keeping each pixel's largest samples: pass by pass as
      * ptworker --guiding on renders it (one pass [0, spp) unguided), each
-     * pass's records building the next pass's guide. */
+     * pass's records building the next pass's guide, each pass's guide
+     * kept. */
     for (uint32_t pass = 0, s0 = 0; s0 < spp; pass++) {
-        uint32_t s1 = guiding ? pt_guide_pass_end(pass, spp) : spp;
-        pt_render_guiding gd = {0};
+        uint32_t s1 = spp;
         if (guiding) {
-            if (pass + 1 >= MAX_PASSES ||
-                pt_guide_stats_new(guides[pass], &gstats, &err) != PT_OK) {
+            if (pass + 1 >= MAX_PASSES || pt_guide_run_begin(&run, &err) != PT_OK) {
                 fprintf(stderr, "ptbench-paths: %s\n",
                         pass + 1 >= MAX_PASSES ? "too many passes" : err.msg);
                 goto done;
             }
-            gd = (pt_render_guiding){guides[pass], pt_guide_pass_prob(pass), gstats};
+            s1 = run.s1;
         }
         for (uint32_t y = 0; y < h; y++)
             for (uint32_t x = 0; x < w; x++) {
@@ -545,7 +538,7 @@ int main(int argc, char **argv)
                 for (uint32_t k = s0; k < s1; k++) {
                     nev = 0;
                     pt_vec3 L =
-                        pt_render_sample_guided(r, x, y, k, NULL, NULL, guiding ? &gd : NULL);
+                        pt_render_sample_guided(r, x, y, k, NULL, NULL, guiding ? run.gd : NULL);
                     if (pix_x >= 0)
                         tally_nee(bands);
                     if (!(isfinite(L.x) && isfinite(L.y) && isfinite(L.z)))
@@ -570,14 +563,16 @@ int main(int argc, char **argv)
                     }
                 }
             }
-        if (guiding && s1 < spp &&
-            pt_guide_build(guides[pass], gstats, pt_guide_split_count(pass), &guides[pass + 1],
-                           &err) != PT_OK) {
-            fprintf(stderr, "ptbench-paths: %s\n", err.msg);
-            goto done;
+        if (guiding) {
+            if (pt_guide_run_end(&run, &guides[pass], &err) != PT_OK) {
+                fprintf(stderr, "ptbench-paths: %s\n", err.msg);
+                goto done;
+            }
+            if (s1 == spp) { /* the last pass's guide, still the run's */
+                guides[pass] = run.guide;
+                run.guide = NULL;
+            }
         }
-        pt_guide_stats_free(gstats);
-        gstats = NULL;
         s0 = s1;
     }
     /* Each pixel's squared error as relMSE counts it. */
@@ -663,7 +658,7 @@ int main(int argc, char **argv)
     }
     rc = 0;
 done:
-    pt_guide_stats_free(gstats);
+    pt_guide_run_free(&run);
     for (uint32_t i = 0; i < MAX_PASSES; i++)
         pt_guide_free(guides[i]);
     pt_free(px);
