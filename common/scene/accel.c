@@ -133,7 +133,7 @@ static inline uint32_t hitn_inst(const struct RTCHitN *hit, unsigned n, unsigned
 static int blend_through(alpha_ctx *c, uint32_t tri, uint32_t inst, float b1, float b2)
 {
     const pt_scene *s = c->scene;
-    if (s->materials[s->tri_material[tri]].alpha_mode != PT_ALPHA_BLEND)
+    if (!pt_alpha_blend_tri(s, tri))
         return 0;
     float t = 1.0f - pt_alpha_coverage(s, tri, b1, b2);
     if (!(t > 0.0f) || c->nseen == PT_ACCEL_TRANS_MAX)
@@ -175,8 +175,7 @@ static void alpha_filter(const struct RTCFilterFunctionNArguments *args)
             args->valid[i] = 0;
             continue;
         }
-        if (c->layered &&
-            c->scene->materials[c->scene->tri_material[tri]].alpha_mode == PT_ALPHA_BLEND)
+        if (c->layered && pt_alpha_blend_tri(c->scene, tri))
             continue;
         if (!pt_alpha_hit(c->scene, tri, b1, b2, c->key))
             args->valid[i] = 0;
@@ -513,7 +512,7 @@ int pt_accel_intersect_layers(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float
     for (;;) {
         if (!intersect_ctx(accel, o, d, tnear, tfar, time, &ctx, hit))
             return 0;
-        if (!ctx.layered || s->materials[s->tri_material[hit->tri]].alpha_mode != PT_ALPHA_BLEND)
+        if (!ctx.layered || !pt_alpha_blend_tri(s, hit->tri))
             return 1;
         /* The layers in the order the ray meets them, each hit with
          * probability alpha given the ray came to it: u < alpha hits this

@@ -50,16 +50,7 @@ int pt_accel_intersect_alpha(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float 
                              pt_hit *hit);
 int pt_accel_occluded_alpha(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, uint32_t key);
 
-/* The share of light that o + t d, t in (0, tfar), lets through: 0 when an
- * opaque or MASK surface (or a BLEND one of alpha 1) blocks it, else the
- * product of 1 - alpha over the BLEND surfaces it crosses: the expectation
- * of pt_accel_occluded_alpha's pass-through over its key, which a shadow
- * ray can take instead of one draw of it (Enderton et al. 2010's
- * stochastic transparency, averaged along the ray as Cycles' transparent
- * shadows do). Each BLEND triangle is counted once; past
- * PT_ACCEL_TRANS_MAX of them on one ray the others pass or block by the
- * key, as in pt_accel_occluded_alpha. Without alpha materials it is
- * 1 - pt_accel_occluded. */
+/* BLEND layers one ray counts or chooses among at most (below). */
 #define PT_ACCEL_TRANS_MAX 16u
 
 /* The closest hit as pt_accel_intersect_time with alpha, but the BLEND
@@ -74,6 +65,17 @@ int pt_accel_occluded_alpha(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float t
  * pass as with the key. */
 int pt_accel_intersect_layers(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar, float time,
                               float u, uint32_t key, pt_hit *hit);
+
+/* The share of light that o + t d, t in (0, tfar), lets through: 0 when an
+ * opaque or MASK surface (or a BLEND one of alpha 1) blocks it, else the
+ * product of 1 - alpha over the BLEND surfaces it crosses: the expectation
+ * of pt_accel_occluded_alpha's pass-through over its key, which a shadow
+ * ray can take instead of one draw of it (Enderton et al. 2010's
+ * stochastic transparency, averaged along the ray as Cycles' transparent
+ * shadows do). Each BLEND triangle is counted once; past
+ * PT_ACCEL_TRANS_MAX of them on one ray the others pass or block by the
+ * key, as in pt_accel_occluded_alpha. Without alpha materials it is
+ * 1 - pt_accel_occluded. */
 float pt_accel_transmittance_alpha(const pt_accel *accel, pt_vec3 o, pt_vec3 d, float tfar,
                                    uint32_t key);
 

@@ -73,6 +73,12 @@ static inline int pt_alpha_tri(const pt_scene *s, uint32_t tri)
     return s->materials[s->tri_material[tri]].alpha_mode != PT_ALPHA_OPAQUE;
 }
 
+/* 1 when triangle tri's material is BLEND. */
+static inline int pt_alpha_blend_tri(const pt_scene *s, uint32_t tri)
+{
+    return s->materials[s->tri_material[tri]].alpha_mode == PT_ALPHA_BLEND;
+}
+
 /* The key of a pass-through decision from a sample value u in [0, 1) and a
  * salt that tells apart the rays that draw from the same u (a bounce's
  * closest-hit ray, 0, and its shadow ray, 1): a surface crossed by both must
