@@ -24,18 +24,17 @@ pt_status proto_guide_encode(proto_writer *w, const pt_guide *g, pt_error *err)
     }
     proto_w_u32(w, g->nsnode);
     proto_w_u32(w, g->nqnode);
-    size_t bytes = (size_t)g->nsnode * PROTO_GUIDE_SNODE + (size_t)g->nqnode * 8;
+    size_t bytes = (size_t)g->nsnode * 12 + (size_t)g->nqnode * 8;
     uint8_t *q = proto_w_reserve(w, bytes);
     if (!q) {
         pt_status st = proto_writer_status(w);
         w->len = start;
         return pt_error_set(err, st, "guide of %zu bytes", bytes);
     }
-    for (uint32_t i = 0; i < g->nsnode; i++, q += PROTO_GUIDE_SNODE) {
+    for (uint32_t i = 0; i < g->nsnode; i++, q += 12) {
         proto_put_u32(q, g->snode[i].child);
         proto_put_u32(q + 4, g->snode[i].axis);
         proto_put_u32(q + 8, g->snode[i].tree);
-        memcpy(q + 12, g->snode[i].share, PT_GUIDE_FACES);
     }
     for (uint32_t i = 0; i < g->nqnode; i++, q += 8) {
         proto_put_u32(q, g->qnode[i].child);
@@ -53,17 +52,15 @@ pt_status proto_guide_decode(const uint8_t *p, size_t len, pt_guide **out, pt_er
 {
     if (len < PROTO_GUIDE_HEADER)
         return pt_error_set(err, PT_ERR_FORMAT, "guide: %zu bytes, under its header", len);
-    uint32_t version = proto_get_u32(p + 4);
-    if (proto_get_u32(p) != PROTO_GUIDE_MAGIC || version < 1 || version > PROTO_GUIDE_VERSION)
-        return pt_error_set(err, PT_ERR_FORMAT, "guide: not a version 1 to %u guide",
+    if (proto_get_u32(p) != PROTO_GUIDE_MAGIC || proto_get_u32(p + 4) != PROTO_GUIDE_VERSION)
+        return pt_error_set(err, PT_ERR_FORMAT, "guide: not a version %u guide",
                             PROTO_GUIDE_VERSION);
-    size_t snode = version == 1 ? 12 : PROTO_GUIDE_SNODE;
     uint32_t ns = proto_get_u32(p + 32), nq = proto_get_u32(p + 36);
     if (!ns || ns > PROTO_MAX_GUIDE_NODES || nq < PT_GUIDE_FACES || nq > PROTO_MAX_GUIDE_NODES)
         return pt_error_set(err, PT_ERR_FORMAT, "guide: %u spatial and %u directional nodes", ns,
                             nq);
     /* The counts are capped at 2^24: this cannot overflow. */
-    size_t want = PROTO_GUIDE_HEADER + (size_t)ns * snode + (size_t)nq * 8;
+    size_t want = PROTO_GUIDE_HEADER + (size_t)ns * 12 + (size_t)nq * 8;
     if (len != want)
         return pt_error_set(err, PT_ERR_FORMAT, "guide: %zu bytes, its counts make %zu", len, want);
     pt_guide *g = pt_calloc(1, sizeof *g);
@@ -85,15 +82,10 @@ pt_status proto_guide_decode(const uint8_t *p, size_t len, pt_guide **out, pt_er
     g->nsnode = ns;
     g->nqnode = nq;
     const uint8_t *q = p + PROTO_GUIDE_HEADER;
-    for (uint32_t i = 0; i < ns; i++, q += snode) {
+    for (uint32_t i = 0; i < ns; i++, q += 12) {
         g->snode[i].child = proto_get_u32(q);
         g->snode[i].axis = proto_get_u32(q + 4);
         g->snode[i].tree = proto_get_u32(q + 8);
-        if (version > 1)
-            memcpy(g->snode[i].share, q + 12, PT_GUIDE_FACES);
-        else
-            memset(g->snode[i].share, g->snode[i].child ? 0 : PT_GUIDE_SHARE_DEFAULT,
-                   PT_GUIDE_FACES);
     }
     for (uint32_t i = 0; i < nq; i++, q += 8) {
         g->qnode[i].child = proto_get_u32(q);
@@ -105,15 +97,12 @@ pt_status proto_guide_decode(const uint8_t *p, size_t len, pt_guide **out, pt_er
 
 pt_status proto_guide_stats_to_result(const pt_guide_stats *s, proto_result *r, pt_error *err)
 {
-    uint32_t nc = 0, nsum = 0, nsh = 0;
-    uint32_t slots = s->nsnode * PT_GUIDE_FACES * PT_GUIDE_SHARE_SLOTS; /* < 2^30 */
+    uint32_t nc = 0, nsum = 0;
     for (uint32_t i = 0; i < s->nsnode; i++)
         nc += s->count[i] != 0;
     for (uint32_t i = 0; i < s->nqnode; i++)
         nsum += s->sum[i] != 0;
-    for (uint32_t i = 0; i < slots; i++)
-        nsh += s->share[i] != 0;
-    size_t n = (size_t)nc + nsum + nsh;
+    size_t n = (size_t)nc + nsum;
     proto_guide_entry *e = pt_malloc_array(n ? n : 1, sizeof *e);
     if (!e)
         return pt_error_set(err, PT_ERR_NOMEM, "out of memory for %zu guiding entries", n);
@@ -124,14 +113,10 @@ pt_status proto_guide_stats_to_result(const pt_guide_stats *s, proto_result *r, 
     for (uint32_t i = 0; i < s->nqnode; i++)
         if (s->sum[i])
             e[k++] = (proto_guide_entry){i, s->sum[i]};
-    for (uint32_t i = 0; i < slots; i++)
-        if (s->share[i])
-            e[k++] = (proto_guide_entry){i, s->share[i]};
     r->g_nsnode = s->nsnode;
     r->g_nqnode = s->nqnode;
     r->gcount = nc;
     r->gsum = nsum;
-    r->gshare = nsh;
     r->guide = e;
     r->owns_guide = 1;
     return PT_OK;
@@ -152,17 +137,13 @@ pt_status proto_guide_stats_add(pt_guide_stats *into, const proto_result *r, pt_
                             "guiding statistics for %u+%u nodes, the pass's guide has %u+%u",
                             r->g_nsnode, r->g_nqnode, into->nsnode, into->nqnode);
     /* The decoder checked nodes in range; an encoder's caller may not have. */
-    uint32_t cs = r->gcount + r->gsum, n = cs + r->gshare;
-    uint32_t slots = into->nsnode * PT_GUIDE_FACES * PT_GUIDE_SHARE_SLOTS;
-    for (uint32_t i = 0; i < n; i++)
-        if (r->guide[i].node >= (i < r->gcount ? into->nsnode : i < cs ? into->nqnode : slots))
+    for (uint32_t i = 0; i < r->gcount + r->gsum; i++)
+        if (r->guide[i].node >= (i < r->gcount ? into->nsnode : into->nqnode))
             return pt_error_set(err, PT_ERR_FORMAT, "guiding entry %u out of range", i);
     for (uint32_t i = 0; i < r->gcount; i++)
         into->count[r->guide[i].node] = sat_add(into->count[r->guide[i].node], r->guide[i].value);
-    for (uint32_t i = r->gcount; i < cs; i++)
+    for (uint32_t i = r->gcount; i < r->gcount + r->gsum; i++)
         into->sum[r->guide[i].node] = sat_add(into->sum[r->guide[i].node], r->guide[i].value);
-    for (uint32_t i = cs; i < n; i++)
-        into->share[r->guide[i].node] = sat_add(into->share[r->guide[i].node], r->guide[i].value);
     return PT_OK;
 }
 

@@ -12,12 +12,9 @@
  *   8        24       f32x6    bounds lo x, y, z, hi x, y, z
  *   32       4        u32      S: spatial nodes, 1 <= S <= PROTO_MAX_GUIDE_NODES
  *   36       4        u32      Q: directional nodes, 6 <= Q <= PROTO_MAX_GUIDE_NODES
- *   40       18S               each (pt_guide_snode): u32 child, u32 axis, u32
- *                              tree, u8 x6 share (each face's candidate)
- *   40+18S   8Q                each: u32 child, f32 energy (pt_guide_qnode)
- *   size 40+18S+8Q
- * Version 1 (checkpoints of older coordinators) has no shares, 12 bytes a
- * spatial node: it decodes with every leaf's cells at the default share.
+ *   40       12S               each: u32 child, u32 axis, u32 tree (pt_guide_snode)
+ *   40+12S   8Q                each: u32 child, f32 energy (pt_guide_qnode)
+ *   size 40+12S+8Q
  * One encoding per distribution (the fields in order, floats as their bits),
  * so equal distributions have equal bytes and equal hashes, and a hash names
  * one distribution. The decoder checks the shape (magic, version, counts
@@ -42,8 +39,7 @@
 #include "protocol/wire.h"
 
 #define PROTO_GUIDE_MAGIC 0x44475450u /* "PTGD" */
-#define PROTO_GUIDE_VERSION 2u
-#define PROTO_GUIDE_SNODE 18u /* bytes of a spatial node (12 in version 1) */
+#define PROTO_GUIDE_VERSION 1u
 #define PROTO_GUIDE_HEADER 40u
 
 /* Appends g's bytes (GUIDE above). PT_ERR_ARG for a guide of counts over the
@@ -83,7 +79,7 @@ pt_status proto_guide_unpack(const uint8_t *p, size_t len, uint8_t **out, size_t
                              pt_error *err);
 
 /* r's guiding statistics (g_nsnode ... guide, owns_guide) from s: its
- * non-zero counts, sums and share slots, ascending. PT_ERR_NOMEM. */
+ * non-zero counts and sums, ascending. PT_ERR_NOMEM. */
 pt_status proto_guide_stats_to_result(const pt_guide_stats *s, proto_result *r, pt_error *err);
 /* into += r's statistics (saturating, as pt_guide_stats_merge). PT_ERR_FORMAT
  * when r carries none or they were made for a guide of other sizes than

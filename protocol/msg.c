@@ -618,20 +618,17 @@ static const char *result_problem(const proto_result *m)
 /* The guiding statistics' shape (PROTO_RESULT_GUIDE): counts within the
  * guide's sizes, nodes strictly ascending and in range, values above 0. */
 static const char *guide_problem(uint32_t nsnode, uint32_t nqnode, uint32_t nc, uint32_t ns,
-                                 uint32_t na, const proto_guide_entry *e)
+                                 const proto_guide_entry *e)
 {
     if (nsnode == 0 || nqnode == 0 || nsnode > PROTO_MAX_GUIDE_NODES ||
         nqnode > PROTO_MAX_GUIDE_NODES)
         return "guide sizes out of range";
-    /* nsnode <= 2^24: the slots fit 32 bits. */
-    uint32_t slots = nsnode * PROTO_GUIDE_SHARE_SLOTS;
-    if (nc > nsnode || ns > nqnode || na > slots)
+    if (nc > nsnode || ns > nqnode)
         return "more guiding entries than the guide has nodes";
-    uint32_t cs = nc + ns;
-    for (uint32_t i = 0; e && i < cs + na; i++) {
-        uint32_t lim = i < nc ? nsnode : i < cs ? nqnode : slots;
+    for (uint32_t i = 0; e && i < nc + ns; i++) {
+        uint32_t lim = i < nc ? nsnode : nqnode;
         if (e[i].node >= lim || e[i].value == 0 ||
-            (i != 0 && i != nc && i != cs && e[i].node <= e[i - 1].node))
+            (i != 0 && i != nc && e[i].node <= e[i - 1].node))
             return "guiding entries not ascending, in range and above 0";
     }
     return NULL;
@@ -718,7 +715,7 @@ pt_status proto_msg_encode_result(proto_writer *w, const proto_result *m, pt_err
     size_t start = w->len;
     const char *why = result_problem(m);
     if (!why && m->guide)
-        why = guide_problem(m->g_nsnode, m->g_nqnode, m->gcount, m->gsum, m->gshare, m->guide);
+        why = guide_problem(m->g_nsnode, m->g_nqnode, m->gcount, m->gsum, m->guide);
     if (why)
         return bad(err, PT_ERR_ARG, "RESULT", why);
     uint32_t nmax = m->s1 - m->s0;
@@ -784,8 +781,7 @@ pt_status proto_msg_encode_result(proto_writer *w, const proto_result *m, pt_err
         proto_w_u32(w, m->g_nqnode);
         proto_w_u32(w, m->gcount);
         proto_w_u32(w, m->gsum);
-        proto_w_u32(w, m->gshare);
-        for (uint32_t i = 0; i < m->gcount + m->gsum + m->gshare; i++) {
+        for (uint32_t i = 0; i < m->gcount + m->gsum; i++) {
             proto_w_u32(w, m->guide[i].node);
             proto_w_u64(w, m->guide[i].value);
         }
@@ -797,17 +793,16 @@ pt_status proto_msg_encode_result(proto_writer *w, const proto_result *m, pt_err
  * allocation of their own. */
 static pt_status decode_guide(proto_reader *r, proto_result *m, pt_error *err)
 {
-    if (proto_r_left(r) < 20)
+    if (proto_r_left(r) < 16)
         return pt_error_set(err, PT_ERR_PROTO, "RESULT: truncated guiding statistics");
     m->g_nsnode = proto_r_u32(r, "guide spatial nodes");
     m->g_nqnode = proto_r_u32(r, "guide directional nodes");
     m->gcount = proto_r_u32(r, "guiding counts");
     m->gsum = proto_r_u32(r, "guiding sums");
-    m->gshare = proto_r_u32(r, "guiding share slots");
-    const char *why = guide_problem(m->g_nsnode, m->g_nqnode, m->gcount, m->gsum, m->gshare, NULL);
+    const char *why = guide_problem(m->g_nsnode, m->g_nqnode, m->gcount, m->gsum, NULL);
     if (why)
         return bad(err, PT_ERR_PROTO, "RESULT", why);
-    uint64_t n = (uint64_t)m->gcount + m->gsum + m->gshare;
+    uint64_t n = (uint64_t)m->gcount + m->gsum;
     if (proto_r_left(r) != n * 12)
         return pt_error_set(err, PT_ERR_PROTO,
                             "RESULT: guiding statistics of %llu entries in %zu bytes",
@@ -821,7 +816,7 @@ static pt_status decode_guide(proto_reader *r, proto_result *m, pt_error *err)
         e[i].node = proto_r_u32(r, "guide node");
         e[i].value = proto_r_u64(r, "guide value");
     }
-    if ((why = guide_problem(m->g_nsnode, m->g_nqnode, m->gcount, m->gsum, m->gshare, e)) != NULL) {
+    if ((why = guide_problem(m->g_nsnode, m->g_nqnode, m->gcount, m->gsum, e)) != NULL) {
         pt_free(e);
         return bad(err, PT_ERR_PROTO, "RESULT", why);
     }
@@ -851,7 +846,7 @@ pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *bu
     m.pass = NULL;
     m.guide = NULL;
     m.owns_guide = 0;
-    m.g_nsnode = m.g_nqnode = m.gcount = m.gsum = m.gshare = 0;
+    m.g_nsnode = m.g_nqnode = m.gcount = m.gsum = 0;
     if (r.status != PT_OK)
         return proto_r_finish(&r, "RESULT", err);
     /* Everything about the count is settled before a byte is allocated: the

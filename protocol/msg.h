@@ -330,8 +330,6 @@ const char *proto_clamp_problem(const float clamp[2]);
  * which the worker unpacks before it checks the hash. */
 #define PROTO_MAX_GUIDE_PASS 31u
 #define PROTO_MAX_GUIDE_NODES (1u << 24) /* PT_GUIDE_MAX_NODES */
-/* Share slots per spatial node: PT_GUIDE_FACES x PT_GUIDE_SHARE_SLOTS. */
-#define PROTO_GUIDE_SHARE_SLOTS 36u
 #define PROTO_MAX_GUIDE_BYTES (256u << 20)
 
 /* SUBMIT's guiding mode, ptctl submit --guiding. */
@@ -413,15 +411,10 @@ typedef struct proto_guide_entry {
  *                     +4  4  u32  the guide's directional nodes (its nqnode)
  *                     +8  4  u32  C: record counts listed, C <= nsnode
  *                     +12 4  u32  S: fixed-point sums listed, S <= nqnode
- *                     +16 4  u32  A: share slots listed, A <= 36 nsnode
- *                     +20 12C     (u32 spatial node, u64 count), nodes ascending,
+ *                     +16 12C     (u32 spatial node, u64 count), nodes ascending,
  *                                 each < nsnode, counts > 0
  *                     ..  12S     (u32 directional node, u64 sum), likewise < nqnode
- *                     ..  12A     (u32 slot, u64 value), likewise < 36 nsnode
- *                                 (PROTO_GUIDE_SHARE_SLOTS): slot 36 i + 6 f + k
- *                                 is spatial node i's face f's share records
- *                                 (k 0) or candidate k - 1's second moment
- *   size 69+PN[+QN][+8][+20+12(C+S+A)] (PROTO_RESULT_HEADER_SIZE + P x N; P =
+ *   size 69+PN[+QN][+8][+16+12(C+S)] (PROTO_RESULT_HEADER_SIZE + P x N; P =
  *   PROTO_RESULT_PIXEL_SIZE narrow, PROTO_RESULT_WIDE_PIXEL_SIZE with both bits)
  * The encoder sets a bit only when some pixel's sum of that kind does not fit
  * 64 bits: RGB sums fit below 2^31 per task, squares below 2^16, so a pixel of
@@ -440,10 +433,9 @@ typedef struct proto_result {
                              pixels[npixels - 1] in the same allocation (pt_film_add_tile
                              of a film with passes reads them there) */
     /* Guiding statistics (PROTO_RESULT_GUIDE): guide == NULL when none. The
-     * decoder allocates guide (gcount + gsum + gshare entries, counts
-     * first, share slots last); encoders read it; proto_result_fini frees
-     * what the decoder allocated. */
-    uint32_t g_nsnode, g_nqnode, gcount, gsum, gshare;
+     * decoder allocates guide (gcount + gsum entries, counts first); encoders
+     * read it; proto_result_fini frees what the decoder allocated. */
+    uint32_t g_nsnode, g_nqnode, gcount, gsum;
     proto_guide_entry *guide;
     int owns_guide;
     uint64_t clamped; /* contributions clamped (PROTO_RESULT_CLAMPED when not 0) */

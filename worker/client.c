@@ -974,7 +974,6 @@ static int collect_results(worker *w)
         r.g_nqnode = d->gres.g_nqnode;
         r.gcount = d->gres.gcount;
         r.gsum = d->gres.gsum;
-        r.gshare = d->gres.gshare;
         r.guide = d->gres.guide; /* d's, freed with it */
         uint64_t samples = d->stats.samples;
         size_t mark;

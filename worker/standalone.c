@@ -211,8 +211,8 @@ static uint32_t run_threads(job *j, uint32_t n, pthread_t *threads, thread_arg *
 
 /* Renders every pass of a guided image (--guiding on): pass 0 records into
  * statistics of a uniform guide without sampling it; each later pass samples
- * the guide built from the pass before, each guided vertex its cell's
- * learned share of its directions from it. Returns 0, or -1 after printing why. */
+ * the guide built from the pass before, PT_GUIDE_PASS_PROB of a guided
+ * vertex's directions from it. Returns 0, or -1 after printing why. */
 static int run_guided(job *j, const pt_scene *scene, uint32_t n, pthread_t *threads,
                       thread_arg *args, uint64_t total, double t_render, uint32_t *passes)
 {

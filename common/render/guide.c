@@ -53,7 +53,6 @@ pt_status pt_guide_new_uniform(pt_vec3 lo, pt_vec3 hi, pt_guide **out, pt_error 
         return pt_error_set(err, PT_ERR_NOMEM, "out of memory for a guide");
     g->lo = lo;
     g->hi = hi;
-    memset(g->snode[0].share, PT_GUIDE_SHARE_DEFAULT, sizeof g->snode[0].share);
     uint32_t next = PT_GUIDE_FACES;
     for (uint32_t f = 0; f < PT_GUIDE_FACES; f++) {
         g->qnode[f].energy = 0.0f;
@@ -302,10 +301,7 @@ pt_status pt_guide_stats_new(const pt_guide *g, pt_guide_stats **out, pt_error *
     s->nqnode = g->nqnode;
     s->count = pt_calloc(g->nsnode, sizeof *s->count);
     s->sum = pt_calloc(g->nqnode, sizeof *s->sum);
-    /* nsnode <= PT_GUIDE_MAX_NODES: the product fits a size_t. */
-    s->share =
-        pt_calloc((size_t)g->nsnode * PT_GUIDE_FACES * PT_GUIDE_SHARE_SLOTS, sizeof *s->share);
-    if (!s->count || !s->sum || !s->share) {
+    if (!s->count || !s->sum) {
         pt_guide_stats_free(s);
         return pt_error_set(err, PT_ERR_NOMEM, "out of memory for guiding statistics");
     }
@@ -319,7 +315,6 @@ void pt_guide_stats_free(pt_guide_stats *s)
         return;
     pt_free(s->count);
     pt_free(s->sum);
-    pt_free(s->share);
     pt_free(s);
 }
 
@@ -358,32 +353,6 @@ void pt_guide_stats_add(pt_guide_stats *s, uint32_t cell, uint32_t qleaf, float 
         s->sum[qleaf] = sat_add(s->sum[qleaf], record_fixed(value));
 }
 
-void pt_guide_stats_share(pt_guide_stats *s, uint32_t cell, float g, float q, float pguide,
-                          float pbsdf, float scale)
-{
-    if (!(q > 0.0f) || !(g >= 0.0f) || !isfinite(g) || !isfinite(q) || !(pguide >= 0.0f) ||
-        !isfinite(pguide) || !(pbsdf >= 0.0f) || !isfinite(pbsdf) || !(scale >= 0.0f) ||
-        !(scale <= 1.0f))
-        return;
-    uint64_t *slot = &s->share[(size_t)cell * PT_GUIDE_SHARE_SLOTS];
-    slot[0] = sat_add(slot[0], 1);
-    if (g == 0.0f)
-        return;
-    /* In double: g^2 of a bright sample exceeds a float's range. The terms
-     * are rounded to fixed point one by one, so the sums do not depend on
-     * the order records arrive in. */
-    double gg = (double)g * (double)g / (double)q;
-    for (uint32_t k = 0; k < PT_GUIDE_SHARES; k++) {
-        double a = (double)pt_guide_share_of(k) * (double)scale;
-        double p = a * (double)pguide + (1.0 - a) * (double)pbsdf;
-        double t = p > 0.0 ? gg / p : PT_GUIDE_SHARE_MAX_TERM;
-        if (!(t < PT_GUIDE_SHARE_MAX_TERM))
-            t = PT_GUIDE_SHARE_MAX_TERM;
-        slot[1 + k] =
-            sat_add(slot[1 + k], (uint64_t)(t * (double)(1u << PT_GUIDE_SHARE_BITS) + 0.5));
-    }
-}
-
 pt_status pt_guide_stats_merge(pt_guide_stats *into, const pt_guide_stats *from, pt_error *err)
 {
     if (into->nsnode != from->nsnode || into->nqnode != from->nqnode)
@@ -394,9 +363,6 @@ pt_status pt_guide_stats_merge(pt_guide_stats *into, const pt_guide_stats *from,
         into->count[i] = sat_add(into->count[i], from->count[i]);
     for (uint32_t i = 0; i < into->nqnode; i++)
         into->sum[i] = sat_add(into->sum[i], from->sum[i]);
-    size_t nshare = (size_t)into->nsnode * PT_GUIDE_FACES * PT_GUIDE_SHARE_SLOTS;
-    for (size_t i = 0; i < nshare; i++)
-        into->share[i] = sat_add(into->share[i], from->share[i]);
     return PT_OK;
 }
 
@@ -498,15 +464,13 @@ static void copy_q(builder *b, uint32_t src, uint32_t dst)
 
 /* Makes new spatial node at a subtree `levels` deep split at the midpoints
  * (axes cycling from axis), whose leaves hold tree q (the first) and copies
- * of it (the others; first: q is not yet used), each with the cells' shares
- * share. */
+ * of it (the others; first: q is not yet used). */
 static void split_leaf(builder *b, uint32_t at, uint32_t axis, uint32_t levels, uint32_t q,
-                       int first, const uint8_t *share)
+                       int first)
 {
     if (levels == 0) {
         b->snode[at].child = 0;
         b->snode[at].axis = axis; /* the axis its next split takes */
-        memcpy(b->snode[at].share, share, PT_GUIDE_FACES);
         if (first) {
             b->snode[at].tree = q;
             return;
@@ -526,27 +490,9 @@ static void split_leaf(builder *b, uint32_t at, uint32_t axis, uint32_t levels, 
     b->snode[at].child = c;
     b->snode[at].axis = axis;
     b->snode[at].tree = 0;
-    memset(b->snode[at].share, 0, PT_GUIDE_FACES);
-    split_leaf(b, c, (axis + 1) % 3, levels - 1, q, first, share);
+    split_leaf(b, c, (axis + 1) % 3, levels - 1, q, first);
     if (!b->nomem)
-        split_leaf(b, c + 1, (axis + 1) % 3, levels - 1, q, 0, share);
-}
-
-/* The share cell takes from the pass's statistics, having had candidate
- * old: the candidate of least second-moment sum, the first (the smaller
- * share: no more lookups) of equal ones; old when the cell holds fewer
- * than PT_GUIDE_SHARE_MIN_RECORDS records, too few to rank heavy-tailed
- * sums, or when the least sum saturated and says nothing. */
-static uint8_t pick_share(const pt_guide_stats *s, uint32_t cell, uint8_t old)
-{
-    const uint64_t *slot = &s->share[(size_t)cell * PT_GUIDE_SHARE_SLOTS];
-    if (slot[0] < PT_GUIDE_SHARE_MIN_RECORDS)
-        return old;
-    uint32_t best = 0;
-    for (uint32_t k = 1; k < PT_GUIDE_SHARES; k++)
-        if (slot[1 + k] < slot[1 + best])
-            best = k;
-    return slot[1 + best] == UINT64_MAX ? old : (uint8_t)best;
+        split_leaf(b, c + 1, (axis + 1) % 3, levels - 1, q, 0);
 }
 
 pt_status pt_guide_build(const pt_guide *g, const pt_guide_stats *s, uint64_t split_count,
@@ -579,7 +525,6 @@ pt_status pt_guide_build(const pt_guide *g, const pt_guide_stats *s, uint64_t sp
             b.ns += 2;
             b.snode[ni].child = c;
             b.snode[ni].axis = o->axis;
-            memset(b.snode[ni].share, 0, PT_GUIDE_FACES);
             map[o->child] = c;
             map[o->child + 1] = c + 1;
             depth[o->child] = depth[o->child + 1] = depth[i] + 1;
@@ -590,9 +535,7 @@ pt_status pt_guide_build(const pt_guide *g, const pt_guide_stats *s, uint64_t sp
         uint32_t q = new_qnodes(&b, PT_GUIDE_FACES);
         if (b.nomem)
             goto nomem;
-        uint8_t share[PT_GUIDE_FACES];
         for (uint32_t f = 0; f < PT_GUIDE_FACES; f++) {
-            share[f] = pick_share(s, i * PT_GUIDE_FACES + f, o->share[f]);
             /* From the pass's records; a cell none reached keeps the
              * distribution it had, learned or not (root energy 0). */
             uint32_t root = g->snode[i].tree + f;
@@ -614,7 +557,7 @@ pt_status pt_guide_build(const pt_guide *g, const pt_guide_stats *s, uint64_t sp
                                        depth[i] + levels < PT_GUIDE_MAX_SPATIAL_DEPTH;
              c /= 2)
             levels++;
-        split_leaf(&b, ni, o->axis, levels, q, 1, share);
+        split_leaf(&b, ni, o->axis, levels, q, 1);
         if (b.nomem)
             goto nomem;
     }
@@ -699,21 +642,15 @@ pt_status pt_guide_check(const pt_guide *g, pt_error *err)
                 st = pt_error_set(err, PT_ERR_FORMAT, "guide spatial node %u: bad children", i);
                 goto done;
             }
-            for (uint32_t f = 0; f < PT_GUIDE_FACES; f++)
-                if (n->share[f]) {
-                    st = pt_error_set(err, PT_ERR_FORMAT,
-                                      "guide spatial node %u: a share on an inner node", i);
-                    goto done;
-                }
             seen_s[n->child] = seen_s[n->child + 1] = 1;
             sdepth[n->child] = sdepth[n->child + 1] = (uint8_t)(sdepth[i] + 1);
         } else {
             int bad = n->tree > g->nqnode - PT_GUIDE_FACES;
             for (uint32_t f = 0; !bad && f < PT_GUIDE_FACES; f++)
-                bad = seen_q[n->tree + f] || n->share[f] >= PT_GUIDE_SHARES;
+                bad = seen_q[n->tree + f];
             if (bad) {
-                st = pt_error_set(err, PT_ERR_FORMAT,
-                                  "guide spatial leaf %u: bad trees at %u or shares", i, n->tree);
+                st = pt_error_set(err, PT_ERR_FORMAT, "guide spatial leaf %u: bad trees at %u", i,
+                                  n->tree);
                 goto done;
             }
             for (uint32_t f = 0; f < PT_GUIDE_FACES; f++)

@@ -38,16 +38,6 @@
  * PT_GUIDE_SUBDIV_SHARE (down to PT_GUIDE_MAX_DEPTH), a leaf new to the tree
  * takes a quarter of its parent's energy. A tree with no energy is uniform.
  *
- * Each cell also has a share: the chance that a guided vertex there draws
- * its direction from the guide rather than the BSDF, one of
- * PT_GUIDE_SHARES candidates (pt_guide_share_of). A pass records, per cell,
- * what each candidate's one-sample mixture would have cost in the second
- * moment of the vertex's estimate (pt_guide_stats_share, below), and the
- * build gives each cell the candidate of least cost (Mueller 2019,
- * "Practical Path Guiding in Production", sec. 10.3 learns the share by
- * gradient descent on the KL divergence; that is order-dependent, while
- * these sums merge exactly like the others).
- *
  * A pt_guide is immutable once built: any number of render threads may
  * sample it. Statistics belong to one thread at a time; merge them after.
  */
@@ -69,39 +59,13 @@
 #define PT_GUIDE_MAX_NODES (1u << 24)  /* spatial or directional nodes at most */
 #define PT_GUIDE_MAX_SPLIT_LEVELS 12u  /* levels one build adds under a leaf at most */
 
-/* The candidate shares (pt_guide_share_of), their count, and the index of
- * the share a cell has before it learned one: 0.25. Where the guide has not
- * learned a caustic (its pdf there below the BSDF's, as at most of the rough
- * vertices that send the glass scenes' fireflies to a lamp through glass or
- * chrome: ptbench-paths --guiding on, docs/bench/guiding.md), the one-sample
- * mixture weighs those paths up to 1 / (1 - a) times the BSDF's own weight:
- * 2 at 0.5, 1.33 at 0.25, which as one share for every cell lowered the
- * error per sample of the glass ball, TransmissionTest and ToyCar. */
-#define PT_GUIDE_SHARES 5u
-#define PT_GUIDE_SHARE_DEFAULT 2u /* 0.25 */
-/* A cell's share statistics: its records, then one second-moment sum per
- * candidate. */
-#define PT_GUIDE_SHARE_SLOTS (PT_GUIDE_SHARES + 1u)
-#define PT_GUIDE_SHARE_BITS 20          /* fractional bits of a second-moment term */
-#define PT_GUIDE_SHARE_MAX_TERM 1.0e10  /* a term above this is clamped to it */
-#define PT_GUIDE_SHARE_MIN_RECORDS 256u /* a cell with fewer keeps the share it had */
-
-/* Candidate k's share (k < PT_GUIDE_SHARES; ascending). */
-static inline float pt_guide_share_of(uint32_t k)
-{
-    static const float share[PT_GUIDE_SHARES] = {0.0f, 0.1f, 0.25f, 0.5f, 0.75f};
-    return share[k];
-}
-
 /* A spatial node: a leaf when child is 0, else its children are child and
  * child + 1, split at the midpoint of axis (a leaf's: the axis its next
- * split takes). A leaf's cells' shares sit beside its trees, so the walk
- * that finds a cell has fetched its share. */
+ * split takes). */
 typedef struct pt_guide_snode {
     uint32_t child;
     uint32_t axis; /* 0, 1, 2 */
     uint32_t tree; /* a leaf's quadtrees: their PT_GUIDE_FACES roots from this index on */
-    uint8_t share[PT_GUIDE_FACES]; /* a leaf's: each face's candidate; an inner node's: 0 */
 } pt_guide_snode;
 
 /* A directional node: a leaf when child is 0, else its children are child
@@ -123,9 +87,6 @@ typedef struct pt_guide_stats {
     uint32_t nsnode, nqnode; /* the guide's they were made for */
     uint64_t *count;         /* per spatial node (leaves): records */
     uint64_t *sum;           /* per directional node (leaves): fixed-point L / p */
-    /* per cell (nsnode * PT_GUIDE_FACES; leaves' cells), PT_GUIDE_SHARE_SLOTS
-     * each: share records, then each candidate's fixed-point second moment */
-    uint64_t *share;
 } pt_guide_stats;
 
 /* A guide of one spatial leaf over [lo, hi] whose quadtrees are uniform and
@@ -146,12 +107,6 @@ uint32_t pt_guide_cell(const pt_guide *g, pt_vec3 p, pt_vec3 n);
  * 0: it is the uniform tree it started as (root energy 0), and sampling it
  * would waste directions. Sampling reads only children's energies. */
 int pt_guide_learned(const pt_guide *g, uint32_t cell);
-/* The chance a guided vertex at cell draws from the guide: its learned
- * candidate's share (PT_GUIDE_SHARE_DEFAULT's until it learned one). */
-static inline float pt_guide_share(const pt_guide *g, uint32_t cell)
-{
-    return pt_guide_share_of(g->snode[cell / PT_GUIDE_FACES].share[cell % PT_GUIDE_FACES]);
-}
 /* Starts fetching cell's quadtree root, which pt_guide_learned and the
  * lookups read first: a caller with other work to do before them hides
  * the fetch behind it. */
@@ -184,30 +139,13 @@ void pt_guide_stats_record(pt_guide_stats *s, const pt_guide *g, uint32_t cell, 
  * guide the statistics were made for gave (pt_guide_pdf_leaf at cell): the
  * same sums. */
 void pt_guide_stats_add(pt_guide_stats *s, uint32_t cell, uint32_t qleaf, float value);
-/* Records one guided vertex at a learned cell for the share's choice: g is
- * the sample's contribution f cos L (luminance; L the incident radiance
- * estimate its record carries), q the pdf of the mixture that drew its
- * direction, pguide and pbsdf the guide's and the BSDF's pdfs of it, and
- * scale the part of the vertex's share the closure lets the guide have
- * (the mixture of candidate a is a scale pguide + (1 - a scale) pbsdf).
- * Adds g^2 / (p_a q) for each candidate a, the one-sample estimate of the
- * second moment of f cos L / p_a under p_a (E_q[g^2 / (p_a q)] =
- * integral of g^2 / p_a), in fixed point (PT_GUIDE_SHARE_BITS, each term
- * clamped to PT_GUIDE_SHARE_MAX_TERM), and counts the record. A q that is
- * not above 0 or a value not finite records nothing. */
-void pt_guide_stats_share(pt_guide_stats *s, uint32_t cell, float g, float q, float pguide,
-                          float pbsdf, float scale);
 /* into += from (saturating); PT_ERR_ARG when they were made for different
  * guides' shapes. */
 pt_status pt_guide_stats_merge(pt_guide_stats *into, const pt_guide_stats *from, pt_error *err);
 
 /* The next pass's guide from g and the statistics s of a pass rendered with
  * it: a spatial leaf is split until a part holds about split_count records
- * or fewer (at most PT_GUIDE_MAX_SPLIT_LEVELS levels a build). Each cell
- * takes the candidate share of least second-moment sum (the smaller share
- * on a tie: it costs no more lookups); a cell of fewer than
- * PT_GUIDE_SHARE_MIN_RECORDS share records, or whose least sum saturated,
- * keeps the share it had; the parts of a split leaf inherit its shares. */
+ * or fewer (at most PT_GUIDE_MAX_SPLIT_LEVELS levels a build). */
 pt_status pt_guide_build(const pt_guide *g, const pt_guide_stats *s, uint64_t split_count,
                          pt_guide **out, pt_error *err);
 
@@ -240,8 +178,7 @@ int pt_guide_enabled(uint32_t mode, const pt_scene *scene);
 
 /* PT_OK when g's trees are well formed (children in range, after their
  * parent and referenced once, leaves' trees in range, energies finite and
- * >= 0, depths within the caps, leaves' shares candidates and inner
- * nodes' 0); else PT_ERR_FORMAT naming the fault. For a
+ * >= 0, depths within the caps); else PT_ERR_FORMAT naming the fault. For a
  * guide that came from elsewhere (a decoder) before it is sampled. */
 pt_status pt_guide_check(const pt_guide *g, pt_error *err);
 

@@ -11,9 +11,9 @@
  * pass before, the last running to spp when less than the next pass would
  * take is left after it. Pass 0 renders with a uniform guide
  * over the scene's bounds (grown by pt_guide_grow_bounds) and samples
- * nothing from it; in later passes a guided vertex draws its cell's
- * learned share of its directions from theirs (pt_guide_share, guide.h). Pass k's statistics build
- * pass k + 1's distribution with the split threshold pt_guide_split_count(k).
+ * nothing from it; later passes draw PT_GUIDE_PASS_PROB of a guided
+ * vertex's directions from theirs. Pass k's statistics build pass k + 1's
+ * distribution with the split threshold pt_guide_split_count(k).
  *
  * Pure inline functions; any thread.
  */
@@ -27,6 +27,14 @@
 #include "common/render/guide.h" /* pt_guide_pass_end: where each pass ends */
 
 #define PT_GUIDE_FIRST_PASS 16u /* samples of pass 0 */
+/* A guided vertex's chance to sample the guide, pass 1 on. Where the guide
+ * has not learned a caustic (its pdf there below the BSDF's, as at most of
+ * the rough vertices that send the glass scenes' fireflies to a lamp through
+ * glass or chrome: ptbench-paths --guiding on, docs/bench/guiding.md), the
+ * one-sample mixture weighs those paths up to 1 / (1 - p) times the BSDF's
+ * own weight: 2 at 0.5, 1.33 at 0.25, which lowered the error per sample of
+ * the glass ball, TransmissionTest and ToyCar. */
+#define PT_GUIDE_PASS_PROB 0.25f
 /* Mueller et al.'s split threshold, c sqrt(2^k), with their c = 12000. It
  * was 3000, which did better on a 64 x 64 Cornell box (its passes hold few
  * records); at the benchmark's 128 x 128 the larger leaves give the same
@@ -49,11 +57,10 @@ static inline uint32_t pt_guide_pass_of(uint32_t s, uint32_t spp)
     return k;
 }
 
-/* pt_render_guiding's prob for pass k: 0, nothing drawn from the guide,
- * in pass 0; 1, each guided vertex draws its cell's share, after. */
+/* The chance a guided vertex of pass k draws from the guide. */
 static inline float pt_guide_pass_prob(uint32_t k)
 {
-    return k == 0 ? 0.0f : 1.0f;
+    return k == 0 ? 0.0f : PT_GUIDE_PASS_PROB;
 }
 
 /* The split threshold of the build after pass k. */

@@ -952,17 +952,13 @@ typedef struct pass_rec {
  * quadtree leaf the direction falls in when the guide's pdf lookup found it
  * (else GUIDE_NO_QLEAF: the record looks it up), mixture pdf, throughput
  * after it (luminance) and the path's radiance (luminance) before anything
- * it found along that direction was added; and for the share's statistics
- * (pt_guide_stats_share) at a learned cell, f cos (luminance), the guide's
- * and the closure's pdfs of the direction and the closure's scale of the
- * share (scale < 0: not recorded). */
+ * it found along that direction was added. */
 #define GUIDE_VERTS 8u
 #define GUIDE_NO_QLEAF 0xffffffffu
 typedef struct guide_vert {
     pt_vec3 dir;
     uint32_t leaf, qleaf;
     float pdf, beta, snap;
-    float f, gpdf, bpdf, scale;
 } guide_vert;
 typedef struct guide_path {
     const pt_render_guiding *gd;
@@ -999,9 +995,6 @@ static void guide_record(const path *pa)
         const guide_vert *v = &gp->v[i];
         float li = v->beta > 0.0f ? (l - v->snap) / v->beta : 0.0f;
         float value = li > 0.0f ? li / v->pdf : 0.0f;
-        if (v->scale >= 0.0f)
-            pt_guide_stats_share(gp->gd->stats, v->leaf, li > 0.0f ? v->f * li : 0.0f, v->pdf,
-                                 v->gpdf, v->bpdf, v->scale);
         if (v->qleaf != GUIDE_NO_QLEAF)
             pt_guide_stats_add(gp->gd->stats, v->leaf, v->qleaf, value);
         else
@@ -1694,31 +1687,23 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     }
     /* Path guiding (FEAT_GUIDE): at a guidable closure the continuation is
      * drawn from the mixture gprob x guide + (1 - gprob) x closure (one-sample
-     * MIS, Mueller et al. 2017, sec. 5), gprob the cell's learned share
-     * (pt_guide_share) scaled by the closure's. MIS against light sampling
-     * weighs the closure's own pdf, not the mixture's: light sampling and the
+     * MIS, Mueller et al. 2017, sec. 5). MIS against light sampling weighs
+     * the closure's own pdf, not the mixture's: light sampling and the
      * emission a continuation finds weigh the same pdf, so their weights
      * still sum to 1 (Veach 1997, sec. 9.2: any such weights are unbiased),
      * and a light sample costs no lookup of the guide's pdf. */
     const pt_guide *guide = NULL;
     uint32_t gleaf = 0;
-    float gprob = 0.0f, gscale = 0.0f;
+    float gprob = 0.0f;
     if ((features & FEAT_GUIDE) && pa->gp && pa->gp->gd && pa->gp->gd->guide && !glass &&
         pa->gp->rough < GUIDE_MAX_ROUGH && (features & PT_FEAT_GLOSSY) && closure_guidable(&cl)) {
         pa->gp->rough++;
         guide = pa->gp->gd->guide;
-        gscale = closure_guide_share(&cl);
+        gprob = pa->gp->gd->prob * closure_guide_share(&cl);
         gleaf = pt_guide_cell(guide, sf->p, ns);
-        gprob = pa->gp->gd->prob > 0.0f ? pt_guide_share(guide, gleaf) * gscale : 0.0f;
-        /* A vertex that draws nothing from the guide and records nothing
-         * (a cell whose share is 0, in a pass that learns nothing) is the
-         * closure's alone: no lookup of the guide at all. */
-        if (!(gprob > 0.0f) && !pa->gp->gd->stats)
-            guide = NULL;
-        else
-            /* Whether it was learned is read after light sampling, which
-             * hides the fetch of its tree. */
-            pt_guide_prefetch(guide, gleaf);
+        /* Whether it was learned is read after light sampling, which
+         * hides the fetch of its tree. */
+        pt_guide_prefetch(guide, gleaf);
     }
 
     if ((features & NEE_LIGHTS) && r->nee) {
@@ -1809,12 +1794,8 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     float rr_scale = 1.0f;           /* FEAT_GUIDE: the mixture's pdf over the BSDF's */
     float bp_mis = 0.0f;             /* FEAT_GUIDE: the BSDF's pdf, which MIS weighs */
     uint32_t qleaf = GUIDE_NO_QLEAF; /* FEAT_GUIDE: the guide's leaf of wi, when looked up */
-    float gv_f = 0.0f, gv_gpdf = 0.0f, gv_bpdf = 0.0f;
-    float gv_scale = -1.0f; /* FEAT_GUIDE: >= 0 when the share's statistics record wi */
-    /* A cell no record reached is uniform: recorded into, not sampled, and
-     * its pdf says nothing of the shares. */
-    int learned = (features & FEAT_GUIDE) && guide && pt_guide_learned(guide, gleaf);
-    if ((features & FEAT_GUIDE) && guide && !learned)
+    /* A cell no record reached is uniform: recorded into, not sampled. */
+    if ((features & FEAT_GUIDE) && guide && !pt_guide_learned(guide, gleaf))
         gprob = 0.0f;
     if ((features & FEAT_GUIDE) && guide && gprob > 0.0f) {
         /* u3[0] picks the guide or the closure, rescaled for the closure's
@@ -1836,12 +1817,6 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
             }
         }
         pdf = gprob * gpdf + (1.0f - gprob) * bp;
-        if (!delta) {
-            gv_f = pt_luminance(f);
-            gv_gpdf = gpdf;
-            gv_bpdf = bp;
-            gv_scale = gscale;
-        }
         PT_TRACE_EVENT(PT_TRACE_GUIDE, pa->depth, (int32_t)mi, -1, u3[0] < gprob, gprob, gpdf, bp,
                        pt_v3(0.0f, 0.0f, 0.0f));
         weight = pdf > 0.0f ? pt_v3_scale(f, 1.0f / pdf) : pt_v3(0.0f, 0.0f, 0.0f);
@@ -1852,15 +1827,6 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
         weight = (features & PT_FEAT_GLOSSY)
                      ? pt_closure_sample(&cl, u3, &wi_l, &pdf, &delta)
                      : lambert_sample(&lambert, wo_l, u3, &wi_l, &pdf, cos_wi);
-        if ((features & FEAT_GUIDE) && learned && pa->gp->gd->stats && !delta && pdf > 0.0f) {
-            /* A learned cell whose share is 0, in a pass that learns: the
-             * guide's pdf of wi tells what the other shares would have
-             * done, and its leaf is the one the record needs anyway. */
-            gv_gpdf = pt_guide_pdf_leaf(guide, gleaf, pt_frame_to_world(&fr, wi_l), &qleaf);
-            gv_f = pt_luminance(weight) * pdf;
-            gv_bpdf = pdf;
-            gv_scale = gscale;
-        }
     }
     if ((features & FEAT_GUIDE) && guide && !(gprob > 0.0f))
         PT_TRACE_EVENT(PT_TRACE_GUIDE, pa->depth, (int32_t)mi, -1, 0, 0.0f, 0.0f, pdf,
@@ -1929,10 +1895,6 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
         gv->pdf = pdf;
         gv->beta = pt_luminance(beta);
         gv->snap = 0.0f;
-        gv->f = gv_f;
-        gv->gpdf = gv_gpdf;
-        gv->bpdf = gv_bpdf;
-        gv->scale = gv_scale;
         pa->gp->pending = 1;
     }
     return ret | SHADE_CONTINUE;

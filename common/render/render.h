@@ -297,12 +297,11 @@ int pt_renderer_lanes(const pt_renderer *r);
 pt_status pt_render_check_lit(const pt_scene *scene, int has_env, const char *name, pt_error *err);
 
 /* Path guiding for one pass (common/render/guide.h): the distribution its
- * renders sample, whether a guided vertex draws from it (prob 0: the guide
+ * renders sample, the chance a guided vertex draws from it (0: the guide
  * only defines the statistics' cells: nothing is sampled from it, as in a
- * first pass; above 0: its cell's share, pt_guide_share), and the calling
- * thread's statistics to record into (NULL: none; with none, a vertex
- * whose share is 0 does not look the guide up). A vertex is guided where the closure has a diffuse
- * lobe or a rough GGX lobe and no glass interface (render.c, closure_guidable). */
+ * first pass), and the calling thread's statistics to record into (NULL:
+ * none). A vertex is guided where the closure has a diffuse lobe or a rough
+ * GGX lobe and no glass interface (render.c, closure_guidable). */
 typedef struct pt_guide pt_guide;
 typedef struct pt_guide_stats pt_guide_stats;
 typedef struct pt_render_guiding {

@@ -14,7 +14,7 @@
 /* ---- checkpoints ---- */
 
 #define CKPT_MAGIC 0x434a5450u /* "PTJC" */
-#define CKPT_VERSION 11u
+#define CKPT_VERSION 10u
 #define CKPT_OLDEST_VERSION 2u   /* no min gain: read as 0 */
 #define CKPT_MIN_GAIN_VERSION 3u /* the first with the min gain */
 /* The first with the environment (older: none), and the first with the film
@@ -38,9 +38,6 @@
 /* The first with the contributions clamped (older: 0), and with a guided
  * job's distribution packed (older: its GUIDE bytes). */
 #define CKPT_CLAMPED_VERSION 10u
-/* The first with a guided job's share statistics (older: none, as if its
- * pass had recorded none). */
-#define CKPT_GUIDE_SHARE_VERSION 11u
 #define CKPT_PACKED_GUIDE_VERSION CKPT_CLAMPED_VERSION
 
 /* A pixel as the checkpoint stores it: each sum as two u64, low half first
@@ -350,8 +347,7 @@ pt_status srv_job_load(srv_job *j, const uint8_t *data, size_t len, pt_error *er
     pt_status st = load_tiles(j, &r, ntiles, nchunks, ranges, err);
     if (st != PT_OK)
         return st;
-    if ((st = job_guide_load(j, &r, version >= CKPT_PACKED_GUIDE_VERSION,
-                             version >= CKPT_GUIDE_SHARE_VERSION, err)) != PT_OK)
+    if ((st = job_guide_load(j, &r, version >= CKPT_PACKED_GUIDE_VERSION, err)) != PT_OK)
         return st;
     j->heap_dirty = 1;
     uint32_t nheld = proto_r_u32(&r, "held results");

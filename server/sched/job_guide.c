@@ -26,35 +26,6 @@
 
 /* The largest fixed-point value one record adds (pt_guide_stats_record). */
 #define RECORD_CAP ((uint64_t)(PT_GUIDE_MAX_RECORD * (double)(1u << PT_GUIDE_FIXED_BITS) + 0.5))
-/* The largest fixed-point term one share record adds to a candidate's sum
- * (pt_guide_stats_share). */
-#define SHARE_CAP ((uint64_t)(PT_GUIDE_SHARE_MAX_TERM * (double)(1u << PT_GUIDE_SHARE_BITS) + 0.5))
-_Static_assert(PROTO_GUIDE_SHARE_SLOTS == PT_GUIDE_FACES * PT_GUIDE_SHARE_SLOTS,
-               "RESULT's share slots are the statistics'");
-
-/* 1 when the share slots e[0, n) (ascending) are a plausible recording: no
- * cell's candidate sum above its records times SHARE_CAP, and at most
- * records share records in all. */
-static int shares_plausible(const proto_guide_entry *e, uint32_t n, pt_u128 records)
-{
-    pt_u128 total = 0;
-    uint32_t cell = UINT32_MAX;
-    uint64_t count = 0;
-    for (uint32_t i = 0; i < n; i++) {
-        uint32_t c = e[i].node / PT_GUIDE_SHARE_SLOTS, k = e[i].node % PT_GUIDE_SHARE_SLOTS;
-        if (c != cell) {
-            cell = c;
-            count = 0;
-        }
-        if (k == 0) {
-            count = e[i].value;
-            total += count;
-        } else if ((pt_u128)e[i].value > (pt_u128)count * SHARE_CAP) {
-            return 0;
-        }
-    }
-    return total <= records;
-}
 
 /* A distribution as the job keeps it: the SHA-256 and length of its GUIDE
  * bytes, and those bytes packed. */
@@ -267,8 +238,7 @@ int job_guide_result_ok(const srv_job *j, const proto_result *r, pt_error *err)
     for (uint32_t i = r->gcount; i < r->gcount + r->gsum; i++)
         sum += r->guide[i].value;
     pt_u128 most = (pt_u128)r->npixels * (r->s1 - r->s0) * ((pt_u128)j->p.max_depth + 1);
-    if (records > most || sum > records * RECORD_CAP ||
-        !shares_plausible(r->guide + r->gcount + r->gsum, r->gshare, records)) {
+    if (records > most || sum > records * RECORD_CAP) {
         pt_error_set(err, PT_ERR_PROTO,
                      "result for task %llu: guiding statistics of %.3g records and %.3g in sums "
                      "are not a plausible render of %u pixels x %u samples",
@@ -294,8 +264,8 @@ void job_guide_accept(srv_job *j, const proto_result *r)
     if (k != j->gpass)
         return;
     pt_error err = {0};
-    if (r->gcount + r->gsum + r->gshare > j->gmost)
-        j->gmost = r->gcount + r->gsum + r->gshare;
+    if (r->gcount + r->gsum > j->gmost)
+        j->gmost = r->gcount + r->gsum;
     /* Checked by job_guide_result_ok: the sizes are the pass's. */
     if (proto_guide_stats_add(j->gstats, r, &err) != PT_OK)
         srv_log("job %llu: %s", (unsigned long long)j->id, err.msg);
@@ -387,9 +357,8 @@ void job_guide_tile_moved(srv_job *j, uint32_t from, uint32_t to)
 
 /* The checkpoint's guiding section: u32 the pass, u32 n and n bytes of its
  * distribution (packed from format 10 on, GUIDE bytes before), then its
- * statistics: u32 counts listed, u32 sums listed, from format 11 on u32
- * share slots listed, then (u32 node, u64 value) each, ascending (RESULT's
- * form). */
+ * statistics: u32 counts listed, u32 sums listed, then (u32 node, u64
+ * value) each, ascending (RESULT's form). */
 void job_guide_save(const srv_job *j, proto_writer *w)
 {
     if (!j->p.guiding)
@@ -399,16 +368,13 @@ void job_guide_save(const srv_job *j, proto_writer *w)
     proto_w_u32(w, (uint32_t)j->gplen[k]);
     proto_w_bytes(w, j->gpack[k], j->gplen[k]);
     const pt_guide_stats *s = j->gstats;
-    uint32_t nc = 0, ns = 0, na = 0, slots = s->nsnode * PROTO_GUIDE_SHARE_SLOTS;
+    uint32_t nc = 0, ns = 0;
     for (uint32_t i = 0; i < s->nsnode; i++)
         nc += s->count[i] != 0;
     for (uint32_t i = 0; i < s->nqnode; i++)
         ns += s->sum[i] != 0;
-    for (uint32_t i = 0; i < slots; i++)
-        na += s->share[i] != 0;
     proto_w_u32(w, nc);
     proto_w_u32(w, ns);
-    proto_w_u32(w, na);
     for (uint32_t i = 0; i < s->nsnode; i++)
         if (s->count[i]) {
             proto_w_u32(w, i);
@@ -418,11 +384,6 @@ void job_guide_save(const srv_job *j, proto_writer *w)
         if (s->sum[i]) {
             proto_w_u32(w, i);
             proto_w_u64(w, s->sum[i]);
-        }
-    for (uint32_t i = 0; i < slots; i++)
-        if (s->share[i]) {
-            proto_w_u32(w, i);
-            proto_w_u64(w, s->share[i]);
         }
 }
 
@@ -457,7 +418,7 @@ static pt_status load_distribution(const uint8_t *p, size_t n, int packed, seale
     return st;
 }
 
-pt_status job_guide_load(srv_job *j, proto_reader *r, int packed, int shares, pt_error *err)
+pt_status job_guide_load(srv_job *j, proto_reader *r, int packed, pt_error *err)
 {
     if (!j->p.guiding)
         return PT_OK;
@@ -476,18 +437,16 @@ pt_status job_guide_load(srv_job *j, proto_reader *r, int packed, int shares, pt
     if (st == PT_OK)
         st = pt_guide_stats_new(g, &s, err);
     uint32_t nc = proto_r_u32(r, "guiding counts"), ns = proto_r_u32(r, "guiding sums");
-    uint32_t na = shares ? proto_r_u32(r, "guiding share slots") : 0;
-    uint32_t slots = g ? g->nsnode * PROTO_GUIDE_SHARE_SLOTS : 0, cs = nc + ns;
-    if (st == PT_OK && (r->status != PT_OK || nc > g->nsnode || ns > g->nqnode || na > slots ||
-                        proto_r_left(r) < ((size_t)nc + ns + na) * 12))
-        st = pt_error_set(err, PT_ERR_FORMAT, "checkpoint: %u+%u+%u guiding entries", nc, ns, na);
-    for (uint32_t i = 0; st == PT_OK && i < cs + na; i++) {
+    if (st == PT_OK && (r->status != PT_OK || nc > g->nsnode || ns > g->nqnode ||
+                        proto_r_left(r) < ((size_t)nc + ns) * 12))
+        st = pt_error_set(err, PT_ERR_FORMAT, "checkpoint: %u+%u guiding entries", nc, ns);
+    for (uint32_t i = 0; st == PT_OK && i < nc + ns; i++) {
         uint32_t node = proto_r_u32(r, "guide node");
         uint64_t v = proto_r_u64(r, "guide value");
-        if (node >= (i < nc ? g->nsnode : i < cs ? g->nqnode : slots) || v == 0)
+        if (node >= (i < nc ? g->nsnode : g->nqnode) || v == 0)
             st = pt_error_set(err, PT_ERR_FORMAT, "checkpoint: guiding entry %u", i);
         else
-            (i < nc ? s->count : i < cs ? s->sum : s->share)[node] = v;
+            (i < nc ? s->count : s->sum)[node] = v;
     }
     pt_guide_free(g);
     if (st != PT_OK) {

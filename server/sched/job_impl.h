@@ -288,9 +288,9 @@ void job_guide_advance(srv_job *j);
 void job_guide_settle(srv_job *j);
 /* The checkpoint's guiding section (after the tiles' count): gpass, the
  * pass's distribution (packed; GUIDE bytes in a checkpoint before format 10,
- * !packed), its statistics (share slots from format 11 on, shares). */
+ * !packed), its statistics. */
 void job_guide_save(const srv_job *j, proto_writer *w);
-pt_status job_guide_load(srv_job *j, proto_reader *r, int packed, int shares, pt_error *err);
+pt_status job_guide_load(srv_job *j, proto_reader *r, int packed, pt_error *err);
 /* Copies what job_guide_save reads into c (a snapshot). -1 without memory. */
 int job_guide_copy(srv_job *c, const srv_job *j);
 /* The bytes of npx pixels' sums as the job keeps a tile's (held, posted to

@@ -203,8 +203,8 @@ int main(int argc, char **argv)
             uint32_t np = (t.tile.x1 - t.tile.x0) * (t.tile.y1 - t.tile.y0);
             for (uint32_t i = 0; i < np; i++)
                 px[i] = (pt_pixel_acc){{(pt_i128)i + 1, 1, 1}, 1, t.s1 - t.s0, 0};
-            proto_result res = {t.job_id, t.task_id, t.tile, t.s0, t.s1, 0, 1000, 0,    np, px,
-                                0,        NULL,      0,      0,    0,    0, 0,    NULL, 0,  0};
+            proto_result res = {t.job_id, t.task_id, t.tile, t.s0, t.s1, 0, 1000, 0, np, px,
+                                0,        NULL,      0,      0,    0,    0, NULL, 0, 0};
             size_t mark;
             offs[n++] = wr.len;
             if (proto_frame_begin(&wr, PROTO_MSG_RESULT, &mark, NULL) != PT_OK ||

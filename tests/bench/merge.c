@@ -85,8 +85,8 @@ int main(int argc, char **argv)
                                    pt_ufixed_of(0.3),
                                    t.s1 - t.s0,
                                    0};
-            proto_result res = {t.job_id, t.task_id, t.tile, t.s0, t.s1, 0, 1000, 0,    n, px,
-                                0,        NULL,      0,      0,    0,    0, 0,    NULL, 0, 0};
+            proto_result res = {t.job_id, t.task_id, t.tile, t.s0, t.s1, 0, 1000, 0, n, px,
+                                0,        NULL,      0,      0,    0,    0, NULL, 0, 0};
             size_t mark;
             if (proto_frame_begin(&wr, PROTO_MSG_RESULT, &mark, NULL) != PT_OK ||
                 proto_msg_encode_result(&wr, &res, NULL) != PT_OK ||

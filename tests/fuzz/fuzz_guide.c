@@ -5,18 +5,15 @@
  * pt_guide_check, as both run it before a distribution is sampled.
  *
  * Input: the bytes. Invariants: a refusal is PT_ERR_FORMAT with a message
- * and allocates nothing; a decoded guide encodes back to the same bytes
- * (version 2; a version 1 guide to bytes that decode to the same guide); a
- * guide that passes pt_guide_check has a candidate share in each cell and
- * samples every face of its first leaf to
+ * and allocates nothing; a decoded guide encodes back to the same bytes; a
+ * guide that passes pt_guide_check samples every face of its first leaf to
  * unit directions whose pdf is finite and > 0, and pt_guide_pdf of each
  * agrees with the pdf the sample gave; pt_guide_pdf_leaf gives the same pdf
  * and a quadtree leaf of the guide, and a record there (pt_guide_stats_add)
  * sums as pt_guide_stats_record's; a point outside the bounds or NaN finds
  * a spatial leaf (pt_guide_prefetch reads its cell safely). Seeds (corpus/fuzz_guide/, written
  * by gen_corpus): a first pass's uniform guide, one built from statistics,
- * the uniform one in version 1, and four refused (cut, a bad magic, a tree
- * with a shared child, a share past the candidates).
+ * and three refused (cut, a bad magic, a tree with a shared child).
  */
 #include <math.h>
 #include <stddef.h>
@@ -44,17 +41,8 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     }
     proto_writer w;
     proto_writer_init(&w, PROTO_MAX_GUIDE_BYTES);
-    FUZZ_CHECK(proto_guide_encode(&w, g, &err) == PT_OK);
-    if (proto_get_u32(data + 4) == PROTO_GUIDE_VERSION) {
-        FUZZ_CHECK(w.len == size && memcmp(w.buf, data, size) == 0);
-    } else {
-        pt_guide *g2 = NULL;
-        FUZZ_CHECK(proto_guide_decode(w.buf, w.len, &g2, &err) == PT_OK);
-        FUZZ_CHECK(g2 && g2->nsnode == g->nsnode && g2->nqnode == g->nqnode);
-        for (uint32_t i = 0; g2 && i < g->nsnode; i++)
-            FUZZ_CHECK(memcmp(g2->snode[i].share, g->snode[i].share, PT_GUIDE_FACES) == 0);
-        pt_guide_free(g2);
-    }
+    FUZZ_CHECK(proto_guide_encode(&w, g, &err) == PT_OK && w.len == size &&
+               memcmp(w.buf, data, size) == 0);
     proto_writer_fini(&w);
     pt_guide_stats *sa = NULL, *sb = NULL;
     if (pt_guide_check(g, &err) == PT_OK && pt_guide_stats_new(g, &sa, &err) == PT_OK &&
@@ -64,8 +52,6 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
                                                         {0, -1, 0}, {0, 0, 1},  {0, 0, -1}};
         for (uint32_t f = 0; f < PT_GUIDE_FACES; f++) {
             uint32_t cell = pt_guide_cell(g, mid, normals[f]);
-            float a = pt_guide_share(g, cell);
-            FUZZ_CHECK(a >= 0.0f && a < 1.0f);
             const float u[2] = {0.3f, 0.7f};
             float pdf = 0.0f;
             pt_vec3 d = pt_guide_sample(g, cell, u, &pdf);

@@ -1106,7 +1106,7 @@ static void gen_guide(const char *dir)
     /* The smallest guide, under the fuzzers' input cap: one spatial leaf
      * whose six trees are single leaves. */
     {
-        pt_guide_snode sn = {0, 0, 0, {2, 2, 2, 2, 2, 2}};
+        pt_guide_snode sn = {0, 0, 0};
         pt_guide_qnode qn[PT_GUIDE_FACES] = {{0, 0.0f}, {0, 1.0f}, {0, 0.0f},
                                              {0, 1.0f}, {0, 0.0f}, {0, 1.0f}};
         pt_guide small = {pt_v3(-1, -1, -1), pt_v3(1, 1, 1), 1, PT_GUIDE_FACES, &sn, qn};
@@ -1134,27 +1134,9 @@ static void gen_guide(const char *dir)
             emit(dir, "fuzz_guide", "bad_magic", w.buf, w.len);
             w.buf[0] ^= 1;
             /* qnode 1's child (a leaf of face 1's tree) pointed at face 0's first children */
-            size_t at = PROTO_GUIDE_HEADER + PROTO_GUIDE_SNODE * (size_t)g->nsnode + 8 * 1;
-            uint32_t was = proto_get_u32(w.buf + at);
+            size_t at = PROTO_GUIDE_HEADER + 12 * (size_t)g->nsnode + 8 * 1;
             proto_put_u32(w.buf + at, g->qnode[0].child);
             emit(dir, "fuzz_guide", "shared_child", w.buf, w.len);
-            proto_put_u32(w.buf + at, was);
-            /* the root leaf's face 3 at a share past the candidates */
-            w.buf[PROTO_GUIDE_HEADER + 12 + 3] = PT_GUIDE_SHARES;
-            emit(dir, "fuzz_guide", "bad_share", w.buf, w.len);
-            w.buf[PROTO_GUIDE_HEADER + 12 + 3] = PT_GUIDE_SHARE_DEFAULT;
-            /* version 1, as an older coordinator's checkpoint holds it: a
-             * spatial node without its shares */
-            proto_writer v1;
-            proto_writer_init(&v1, w.len);
-            proto_w_bytes(&v1, w.buf, PROTO_GUIDE_HEADER);
-            proto_put_u32(v1.buf + 4, 1);
-            for (uint32_t i = 0; i < g->nsnode; i++)
-                proto_w_bytes(&v1, w.buf + PROTO_GUIDE_HEADER + PROTO_GUIDE_SNODE * i, 12);
-            proto_w_bytes(&v1, w.buf + PROTO_GUIDE_HEADER + PROTO_GUIDE_SNODE * g->nsnode,
-                          w.len - PROTO_GUIDE_HEADER - PROTO_GUIDE_SNODE * g->nsnode);
-            emit(dir, "fuzz_guide", "version1", v1.buf, v1.len);
-            proto_writer_fini(&v1);
         }
     }
 done:

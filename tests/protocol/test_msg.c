@@ -921,7 +921,7 @@ static void test_result(void)
             px[1].fsum_sq = ((pt_u128)1 << 64) + 5;
         else
             px[1].fsum[2] = -((pt_i128)1 << 64) - 5;
-        proto_result m = {1, 2, {0, 0, 2, 1}, 0, 8, 0, 0, 0, 2, px, 0, NULL, 0, 0, 0,
+        proto_result m = {1, 2, {0, 0, 2, 1}, 0, 8, 0, 0, 0, 2, px, 0, NULL, 0, 0,
                           0, 0, NULL,         0, 0},
                      b;
         proto_writer ww;
@@ -962,8 +962,7 @@ static void test_result(void)
         pa[0].cid[1][0] = 12345, pa[0].ccnt[1][0] = 8;
         if (k == 1)
             pa[1].sq[2] = ((pt_u128)7 << 64) + 1;
-        proto_result m = {1, 2, {0, 0, 2, 1}, 0, 8, 0, 0, 0, 2, px, 0, pa, 0, 0, 0,
-                          0, 0, NULL,         0, 0},
+        proto_result m = {1, 2, {0, 0, 2, 1}, 0, 8, 0, 0, 0, 2, px, 0, pa, 0, 0, 0, 0, NULL, 0, 0},
                      b;
         proto_writer ww;
         proto_writer_init(&ww, 1 << 20);
@@ -1079,8 +1078,7 @@ static void test_result_clamped(void)
     pt_pixel_acc px[2] = {pt_pixel_acc_of(1.0, 2.0, 3.0, 4.0, 8, 8),
                           pt_pixel_acc_of(0.5, 0.25, 0.125, 0.0625, 8, 3)};
     proto_guide_entry ent[2] = {{1, 7}, {5, 9}};
-    proto_result m = {1,    2, {0, 0, 2, 1}, 0, 8, 0, 0,   0, 2, px, 0,
-                      NULL, 4, 2046,         1, 1, 0, ent, 0, 0};
+    proto_result m = {1, 2, {0, 0, 2, 1}, 0, 8, 0, 0, 0, 2, px, 0, NULL, 4, 2046, 1, 1, ent, 0, 0};
     proto_writer w, w2;
     proto_writer_init(&w, 1 << 20);
     proto_writer_init(&w2, 1 << 20);
@@ -1115,30 +1113,27 @@ static void test_result_clamped(void)
 }
 
 /* RESULT's guiding statistics: they round-trip to the same bytes; each
- * hostile shape (nodes or share slots out of range, not ascending, a zero
- * value, more entries than nodes or slots, no nodes, a count that the bytes
- * do not hold) is refused by name, and the encoder refuses what the decoder
- * would. */
+ * hostile shape (nodes out of range, not ascending, a zero value, more
+ * entries than nodes, no nodes, a count that the bytes do not hold) is
+ * refused by name, and the encoder refuses what the decoder would. */
 static void test_result_guide(void)
 {
     pt_error e = {0};
     pt_pixel_acc px[2] = {pt_pixel_acc_of(1.0, 2.0, 3.0, 4.0, 8, 8),
                           pt_pixel_acc_of(0.5, 0.25, 0.125, 0.0625, 8, 3)};
-    proto_guide_entry ent[7] = {{0, 7},    {3, 1},  {6, 65536}, {9, 1ull << 40},
-                                {2045, 3}, {5, 11}, {143, 2}};
-    proto_result m = {1,    2, {0, 0, 2, 1}, 0, 8, 0, 0,   0, 2, px, 0,
-                      NULL, 4, 2046,         2, 3, 2, ent, 0, 0};
+    proto_guide_entry ent[5] = {{0, 7}, {3, 1}, {6, 65536}, {9, 1ull << 40}, {2045, 3}};
+    proto_result m = {1, 2, {0, 0, 2, 1}, 0, 8, 0, 0, 0, 2, px, 0, NULL, 4, 2046, 2, 3, ent, 0, 0};
     proto_writer w, w2;
     proto_writer_init(&w, 1 << 20);
     proto_writer_init(&w2, 1 << 20);
     CHECK(proto_msg_encode_result(&w, &m, &e) == PT_OK);
-    CHECK(w.len == PROTO_RESULT_HEADER_SIZE + 2 * PROTO_RESULT_PIXEL_SIZE + 20 + 7 * 12);
+    CHECK(w.len == PROTO_RESULT_HEADER_SIZE + 2 * PROTO_RESULT_PIXEL_SIZE + 16 + 5 * 12);
     CHECK(w.buf[68] == PROTO_RESULT_GUIDE);
     proto_result b;
     CHECK(proto_msg_decode_result(w.buf, w.len, NULL, 0, &b, &e) == PT_OK);
     CHECK(b.guide && b.owns_guide && b.g_nsnode == 4 && b.g_nqnode == 2046 && b.gcount == 2 &&
-          b.gsum == 3 && b.gshare == 2);
-    for (int k = 0; b.guide && k < 7; k++)
+          b.gsum == 3);
+    for (int k = 0; b.guide && k < 5; k++)
         CHECK(b.guide[k].node == ent[k].node && b.guide[k].value == ent[k].value);
     CHECK(proto_msg_encode_result(&w2, &b, &e) == PT_OK && w2.len == w.len &&
           memcmp(w.buf, w2.buf, w.len) == 0);
@@ -1150,14 +1145,10 @@ static void test_result_guide(void)
         uint32_t v;
         const char *why;
     } bad[] = {
-        {at + 20, 4, "ascending"},               /* count node 0 -> 4: out of range */
-        {at + 20 + 12, 0, "ascending"},          /* count nodes 0, 0 */
-        {at + 20 + 24 + 24, 2046, "ascending"},  /* sum node 2045 -> 2046 */
-        {at + 20 + 12 + 4, 0, "ascending"},      /* count 1 -> 0 (low word) */
-        {at + 20 + 60, 144, "ascending"},        /* share slot 5 -> 144: out of range */
-        {at + 20 + 72, 5, "ascending"},          /* share slots 5, 5 */
-        {at + 20 + 72 + 4, 0, "ascending"},      /* share value 2 -> 0 */
-        {at + 16, 145, "more guiding entries"},  /* 145 share slots of a guide of 4 nodes */
+        {at + 16, 4, "ascending"},               /* count node 0 -> 4: out of range */
+        {at + 16 + 12, 0, "ascending"},          /* count nodes 0, 0 */
+        {at + 16 + 24 + 24, 2046, "ascending"},  /* sum node 9 -> 2046 */
+        {at + 16 + 12 + 4, 0, "ascending"},      /* count 1 -> 0 (low word) */
         {at + 8, 5, "more guiding entries"},     /* 5 counts of a guide of 4 nodes */
         {at, 0, "guide sizes"},                  /* a guide of no spatial node */
         {at + 4, (1u << 24) + 1, "guide sizes"}, /* over the cap */

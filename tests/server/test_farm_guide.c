@@ -7,8 +7,7 @@
  * (it names pass 0 and its distribution's hash, which GUIDE_GET hands out
  * whole) and answer with a RESULT of plausible pixels whose statistics are
  * hostile: none at all, made for a guide of other sizes, more records than
- * one per bounce of every sample, a sum over the records' cap, a share's
- * second moment over its records' cap, more share records than records. Each is
+ * one per bounce of every sample, a sum over the records' cap. Each is
  * answered with ERROR and the connection closed, the reason logged, and
  * nothing of it merged: honest workers finish the job and its image is
  * ptworker --guiding on's, bit for bit.
@@ -86,7 +85,7 @@ static int hostile_result(int port, int k)
     static pt_pixel_acc px[PROTO_MAX_TILE_PIXELS];
     for (uint32_t i = 0; i < npx; i++)
         px[i] = pt_pixel_acc_of(0.5, 0.5, 0.5, 0.25, n, n);
-    proto_guide_entry e[4] = {{0, 100}, {7, 1000}, {0, 50}, {1, 1000}};
+    proto_guide_entry e[2] = {{0, 100}, {7, 1000}};
     proto_result r = {0};
     r.job_id = t.job_id;
     r.task_id = t.task_id;
@@ -99,7 +98,6 @@ static int hostile_result(int port, int k)
     r.g_nqnode = nqn;
     r.gcount = 1;
     r.gsum = 1;
-    r.gshare = 2;
     r.guide = e;
     if (k == 0) {
         r.guide = NULL; /* none */
@@ -107,12 +105,8 @@ static int hostile_result(int port, int k)
         r.g_nqnode = nqn + 4; /* another guide's size */
     } else if (k == 2) {
         e[0].value = (uint64_t)npx * n * 2000; /* records: far over one per bounce */
-    } else if (k == 3) {
-        e[1].value = UINT64_MAX / 2; /* a sum no 100 records can make */
-    } else if (k == 4) {
-        e[3].value = UINT64_MAX / 2; /* a second moment no 50 share records can make */
     } else {
-        e[2].value = 101; /* share records: more than the 100 records */
+        e[1].value = UINT64_MAX / 2; /* a sum no 100 records can make */
     }
     proto_writer_reset(&p);
     CHECK(proto_msg_encode_result(&p, &r, NULL) == PT_OK);
@@ -163,7 +157,7 @@ int main(void)
     pid_t srv = spawn(serve, "serve.log");
     int port = read_port();
     CHECK(port > 0);
-    for (int k = 0; port > 0 && k < 6; k++)
+    for (int k = 0; port > 0 && k < 4; k++)
         CHECKF(hostile_result(port, k), "hostile statistics %d were not refused", k);
     char server[64];
     snprintf(server, sizeof server, "127.0.0.1:%d", port);

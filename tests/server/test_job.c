@@ -215,8 +215,8 @@ static void adaptive(void)
             double sq = tile == 0 ? ns * 0.25 : 2.0 * v * v * ns;
             px[i] = pt_pixel_acc_of(sum, sum, sum, sq, ns, 0);
         }
-        proto_result r = {t.job_id, t.task_id, t.tile, t.s0, t.s1, 0, 0, 0,    32 * 32, px,
-                          0,        NULL,      0,      0,    0,    0, 0, NULL, 0,       0};
+        proto_result r = {t.job_id, t.task_id, t.tile, t.s0, t.s1, 0, 0,    0, 32 * 32, px,
+                          0,        NULL,      0,      0,    0,    0, NULL, 0, 0};
         srv_outcome o = srv_job_result(j, 1, &r, NULL);
         dup += o == SRV_DUPLICATE;
         CHECK(o == SRV_MERGED || o == SRV_DUPLICATE);
@@ -242,8 +242,8 @@ static void gain_pixels_of(const proto_task *t, pt_pixel_acc *px, proto_result *
         double v = t->tile.x0 == 0 ? (black0 ? 0.0 : 0.5) : (double)((chunk + 1) % 2);
         px[i] = pt_pixel_acc_of(v * ns, v * ns, v * ns, v * v * ns, ns, 0);
     }
-    *r = (proto_result){t->job_id, t->task_id, t->tile, t->s0, t->s1, 0, 0, 0,    32 * 32, px,
-                        0,         NULL,       0,       0,     0,     0, 0, NULL, 0,       0};
+    *r = (proto_result){t->job_id, t->task_id, t->tile, t->s0, t->s1, 0, 0,    0, 32 * 32, px,
+                        0,         NULL,       0,       0,     0,     0, NULL, 0, 0};
 }
 
 /* A pixel of a version 5 checkpoint (72 bytes: sums as u64 pairs, low half
@@ -950,8 +950,8 @@ static void exact_result(const proto_task *t, pt_pixel_acc *px, proto_result *r)
         }
         px[i] = pt_pixel_acc_of(sum, sum, sum, sq, t->s1 - t->s0, t->s1 - t->s0);
     }
-    *r = (proto_result){t->job_id, t->task_id, t->tile, t->s0, t->s1, 0, 0, 0,    n, px,
-                        0,         NULL,       0,       0,     0,     0, 0, NULL, 0, 0};
+    *r = (proto_result){t->job_id, t->task_id, t->tile, t->s0, t->s1, 0, 0,    0, n, px,
+                        0,         NULL,       0,       0,     0,     0, NULL, 0, 0};
 }
 
 typedef struct sim_owner {
@@ -1459,7 +1459,7 @@ static proto_result guided_result(const proto_task *t, pt_pixel_acc *px, proto_g
     for (uint32_t i = 0; i < n; i++)
         px[i] = pt_pixel_acc_of(0.5, 0.25, 0.125, 0.0625, t->s1 - t->s0, t->s1 - t->s0);
     proto_result r = {t->job_id, t->task_id, t->tile, t->s0, t->s1, 0,  0, 0, n, px,
-                      0,         NULL,       nsn,     nqn,   nc,    ns, 0, e, 0, 0};
+                      0,         NULL,       nsn,     nqn,   nc,    ns, e, 0, 0};
     return r;
 }
 
@@ -1552,19 +1552,15 @@ static void guided(void)
     CHECK(c && srv_job_guide_pass(c) == 1 && srv_job_lease(c, 8, 0, 1000, &ct) &&
           ct.guide_pass == 1 && memcmp(ct.guide_hash, t[2].guide_hash, 32) == 0);
     /* It holds the distribution packed (format 10), the bytes GUIDE_GET
-     * hands out; after it, u32 counts, sums and (format 11) share slots
-     * listed, none yet in pass 1. */
+     * hands out; after it, u32 counts and sums listed. */
     size_t at = 4 + 4 + 8 + 32; /* the params follow; find the packed guide's magic */
     while (at + 4 <= w.len && proto_get_u32(w.buf + at) != PROTO_GUIDE_PACK_MAGIC)
         at++;
     CHECK(at + 40 < w.len && proto_get_u32(w.buf + at - 4) == len &&
           memcmp(w.buf + at, blob, len) == 0);
-    CHECK(at + len + 12 <= w.len && proto_get_u32(w.buf + at + len) == 0 &&
-          proto_get_u32(w.buf + at + len + 4) == 0 && proto_get_u32(w.buf + at + len + 8) == 0);
     /* A version 9 checkpoint: no clamped count after the depth-cap count
-     * (the params are this job's: no environment map, no variant), the
-     * distribution's GUIDE bytes and no share slots' count; it loads to the
-     * same distribution. */
+     * (the params are this job's: no environment map, no variant) and the
+     * distribution's GUIDE bytes; it loads to the same distribution. */
     uint8_t *raw1 = NULL;
     size_t raw1len = 0;
     CHECK(proto_guide_unpack(blob, len, &raw1, &raw1len, &err) == PT_OK);
@@ -1576,8 +1572,7 @@ static void guided(void)
     proto_w_bytes(&v9, w.buf + capped_at + 16, at - 4 - (capped_at + 16));
     proto_w_u32(&v9, (uint32_t)raw1len);
     proto_w_bytes(&v9, raw1, raw1len);
-    proto_w_bytes(&v9, w.buf + at + len, 8);
-    proto_w_bytes(&v9, w.buf + at + len + 12, w.len - at - len - 12);
+    proto_w_bytes(&v9, w.buf + at + len, w.len - at - len);
     proto_put_u32(v9.buf + 4, 9);
     srv_job *d = NULL;
     CHECK(srv_job_new(1, &p, HASH, &d, &err) == PT_OK);
@@ -1591,7 +1586,7 @@ static void guided(void)
     d = NULL;
     /* A damaged distribution is refused: GUIDE bytes that do not decode (a
      * version 9 checkpoint), a packed stream that does not unpack. */
-    size_t g9 = v9.len - (w.len - at - len - 4) - raw1len;
+    size_t g9 = v9.len - (w.len - at - len) - raw1len;
     CHECK(proto_get_u32(v9.buf + g9) == PROTO_GUIDE_MAGIC);
     proto_put_u32(v9.buf + g9 + 40, 99); /* the root's child */
     CHECK(srv_job_new(1, &p, HASH, &d, &err) == PT_OK);

@@ -47,8 +47,8 @@ static void payload_of(srv_job *job, uint64_t t, proto_writer *w)
     uint32_t n = (task.tile.x1 - task.tile.x0) * (task.tile.y1 - task.tile.y0);
     for (uint32_t i = 0; i < n; i++)
         px[i] = pt_pixel_acc_of(0.25 * (double)(t + 1), 0.5, 0.125 * i, 1.0, task.s1 - task.s0, 0);
-    proto_result r = {JOB_ID, t,    task.tile, task.s0, task.s1, 0, 0, 0,    n, px,
-                      0,      NULL, 0,         0,       0,       0, 0, NULL, 0, 0};
+    proto_result r = {JOB_ID, t,    task.tile, task.s0, task.s1, 0, 0,    0, n, px,
+                      0,      NULL, 0,         0,       0,       0, NULL, 0, 0};
     proto_writer_init(w, (size_t)1 << 20);
     size_t mark;
     CHECK(proto_frame_begin(w, PROTO_MSG_RESULT, &mark, NULL) == PT_OK);

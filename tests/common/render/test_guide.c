@@ -28,18 +28,9 @@
  * - Passes: pt_guide_pass_end cuts [0, spp) into passes that follow on from
  *   each other, of 16, 32, 64... spp, the last one running to spp when what
  *   is left after a pass is shorter than the pass after it would be.
- * - Shares: at a cell whose guide learned the peaked light, vertices of a
- *   cosine-weighted diffuse BSDF drawn from the 0.25 mixture record each
- *   candidate's second moment, and the build gives the cell the candidate
- *   whose second moment, integrated exactly over a grid of the sphere, is
- *   least (a high share); under a uniform light, where the guide is wrong
- *   and cosine sampling is exact, it gives 0. A cell of fewer records than
- *   PT_GUIDE_SHARE_MIN_RECORDS keeps the default; the parts of a split leaf
- *   inherit the shares; hostile records (NaN, q <= 0) record nothing.
  * - Hostile trees: a child before its parent, a child shared by two nodes, a
  *   NaN energy, a leaf's tree out of range and a node outside every tree
- *   are each refused by pt_guide_check, and so are a share past the
- *   candidates and a share on an inner node.
+ *   are each refused by pt_guide_check.
  */
 #include <math.h>
 #include <stdio.h>
@@ -412,166 +403,6 @@ static void cells(void)
     pt_guide_free(g);
 }
 
-/* The light of the share test: the peaked radiance, or 1 everywhere. */
-static double share_light(pt_vec3 d, int peaked)
-{
-    return peaked ? radiance(d) : 1.0;
-}
-
-/* A cosine-weighted direction about UP and its pdf. */
-static pt_vec3 cosine_dir(float *pdf)
-{
-    double r = sqrt(rnd()), a = 2.0 * PI_D * rnd();
-    double x = r * cos(a), y = r * sin(a), z = sqrt(fmax(0.0, 1.0 - r * r));
-    /* A frame about UP. */
-    pt_vec3 n = pt_v3_norm(UP), t = pt_v3_norm(pt_v3_cross(n, pt_v3(1, 0, 0)));
-    pt_vec3 b = pt_v3_cross(n, t);
-    pt_vec3 d = pt_v3_add(pt_v3_add(pt_v3_scale(t, (float)x), pt_v3_scale(b, (float)y)),
-                          pt_v3_scale(n, (float)z));
-    *pdf = (float)(fmax(0.0, pt_v3_dot(d, n)) / PI_D);
-    return d;
-}
-
-/* The candidate whose exact second moment of f cos L / p_a (f = 1 / pi, a
- * white diffuse BSDF about UP; p_a = a guide + (1 - a) cosine) over the
- * sphere is least, on a grid of the square (dw = 4 pi du dv). */
-static uint32_t exact_best_share(const pt_guide *g, uint32_t cell, int peaked, double *m2)
-{
-    const int G = 512;
-    uint32_t best = 0;
-    for (uint32_t k = 0; k < PT_GUIDE_SHARES; k++) {
-        double a = pt_guide_share_of(k), sum = 0.0;
-        for (int j = 0; j < G; j++)
-            for (int i = 0; i < G; i++) {
-                pt_vec3 d = pt_guide_square_to_dir((float)((i + 0.5) / G), (float)((j + 0.5) / G));
-                double c = pt_v3_dot(d, pt_v3_norm(UP));
-                if (c <= 0.0)
-                    continue;
-                double gv = c / PI_D * share_light(d, peaked);
-                double p = a * pt_guide_pdf(g, cell, d) + (1.0 - a) * c / PI_D;
-                sum += gv * gv / p;
-            }
-        m2[k] = sum * 4.0 * PI_D / ((double)G * G);
-        if (m2[k] < m2[best])
-            best = k;
-    }
-    return best;
-}
-
-/* The terms record_shares added, per candidate, and their squares: the
- * estimates' standard errors. */
-static double term_sum[PT_GUIDE_SHARES], term_sq[PT_GUIDE_SHARES];
-
-/* n vertices at cell drawn from the default mixture, recorded for the
- * shares. */
-static void record_shares(pt_guide_stats *s, const pt_guide *g, uint32_t cell, int n, int peaked)
-{
-    memset(term_sum, 0, sizeof term_sum);
-    memset(term_sq, 0, sizeof term_sq);
-    float a = pt_guide_share(g, cell);
-    for (int i = 0; i < n; i++) {
-        float pg, pb;
-        pt_vec3 d;
-        if (rnd() < a) {
-            float u[2] = {(float)rnd(), (float)rnd()};
-            d = pt_guide_sample(g, cell, u, &pg);
-            pb = (float)(fmax(0.0, pt_v3_dot(d, pt_v3_norm(UP))) / PI_D);
-        } else {
-            d = cosine_dir(&pb);
-            pg = pt_guide_pdf(g, cell, d);
-        }
-        float q = a * pg + (1.0f - a) * pb;
-        double c = fmax(0.0, pt_v3_dot(d, pt_v3_norm(UP)));
-        float gv = (float)(c / PI_D * share_light(d, peaked));
-        pt_guide_stats_share(s, cell, gv, q, pg, pb, 1.0f);
-        for (uint32_t k = 0; k < PT_GUIDE_SHARES; k++) {
-            double ak = pt_guide_share_of(k), p = ak * pg + (1.0 - ak) * pb;
-            double t = p > 0.0 ? (double)gv * gv / (p * q) : 0.0;
-            term_sum[k] += t;
-            term_sq[k] += t * t;
-        }
-    }
-}
-
-static void shares(void)
-{
-    pt_guide *g = learn(2);
-    if (!g)
-        return;
-    pt_error err = {0};
-    uint32_t cell = pt_guide_cell(g, pt_v3(0, 0, 0), UP);
-    CHECK(pt_guide_share(g, cell) == pt_guide_share_of(PT_GUIDE_SHARE_DEFAULT));
-    for (int peaked = 1; peaked >= 0; peaked--) {
-        double m2[PT_GUIDE_SHARES];
-        uint32_t want = exact_best_share(g, cell, peaked, m2);
-        pt_guide_stats *s = NULL;
-        pt_guide *ng = NULL;
-        CHECK(pt_guide_stats_new(g, &s, &err) == PT_OK);
-        if (!s)
-            break;
-        record_shares(s, g, cell, 100000, peaked);
-        double se[PT_GUIDE_SHARES];
-        for (uint32_t k = 0; k < PT_GUIDE_SHARES; k++) {
-            double mean = term_sum[k] / 100000.0;
-            se[k] = sqrt(fmax(0.0, term_sq[k] / 100000.0 - mean * mean) / 100000.0);
-        }
-        record_peak(s, g, 50000, 77); /* records enough to split the leaf */
-        /* A neighbour face with too few records. */
-        uint32_t other = cell - cell % PT_GUIDE_FACES + (cell + 1) % PT_GUIDE_FACES;
-        record_shares(s, g, other, (int)PT_GUIDE_SHARE_MIN_RECORDS - 1, peaked);
-        const uint64_t *slot = &s->share[(size_t)cell * PT_GUIDE_SHARE_SLOTS];
-        printf("shares, %s light: records %llu; exact second moments",
-               peaked ? "peaked" : "uniform", (unsigned long long)slot[0]);
-        for (uint32_t k = 0; k < PT_GUIDE_SHARES; k++)
-            printf(" %.4g (est. %.4g)", m2[k],
-                   (double)slot[1 + k] / (double)(1u << PT_GUIDE_SHARE_BITS) / (double)slot[0]);
-        printf("\n");
-        /* Each estimate is the exact moment within 5 of its standard
-         * errors (measured from the terms), plus 1% for the grid's
-         * quadrature of the exact one. */
-        for (uint32_t k = 0; k < PT_GUIDE_SHARES; k++) {
-            double est =
-                (double)slot[1 + k] / (double)(1u << PT_GUIDE_SHARE_BITS) / (double)slot[0];
-            CHECKF(fabs(est - m2[k]) < 5.0 * se[k] + 0.01 * m2[k],
-                   "candidate %u: estimate %g, exact %g, standard error %g", k, est, m2[k], se[k]);
-        }
-        /* Split it too: both halves inherit the shares. */
-        CHECK(pt_guide_build(g, s, 1000, &ng, &err) == PT_OK);
-        if (ng) {
-            CHECK(pt_guide_check(ng, &err) == PT_OK);
-            CHECK(ng->nsnode > g->nsnode);
-            uint32_t nc = pt_guide_cell(ng, pt_v3(0, 0, 0), UP);
-            uint32_t far = pt_guide_cell(ng, pt_v3(0.9f, 0.9f, 0.9f), UP);
-            uint32_t got = ng->snode[nc / PT_GUIDE_FACES].share[nc % PT_GUIDE_FACES];
-            CHECKF(got == want, "%s light: share %g, the exact best %g",
-                   peaked ? "peaked" : "uniform", (double)pt_guide_share_of(got),
-                   (double)pt_guide_share_of(want));
-            CHECK(nc / PT_GUIDE_FACES != far / PT_GUIDE_FACES &&
-                  ng->snode[far / PT_GUIDE_FACES].share[far % PT_GUIDE_FACES] == got);
-            uint32_t no = nc - nc % PT_GUIDE_FACES + (nc + 1) % PT_GUIDE_FACES;
-            CHECK(pt_guide_share(ng, no) == pt_guide_share_of(PT_GUIDE_SHARE_DEFAULT));
-            printf("shares, %s light: picked %g\n", peaked ? "peaked" : "uniform",
-                   (double)pt_guide_share(ng, nc));
-        }
-        if (peaked)
-            CHECKF(want >= 3, "the exact best share of the peaked light is %g",
-                   (double)pt_guide_share_of(want));
-        else
-            CHECK(want == 0);
-        pt_guide_free(ng);
-        /* Hostile records add nothing. */
-        uint64_t before[PT_GUIDE_SHARE_SLOTS];
-        memcpy(before, slot, sizeof before);
-        pt_guide_stats_share(s, cell, NAN, 1.0f, 1.0f, 1.0f, 1.0f);
-        pt_guide_stats_share(s, cell, 1.0f, 0.0f, 1.0f, 1.0f, 1.0f);
-        pt_guide_stats_share(s, cell, 1.0f, 1.0f, INFINITY, 1.0f, 1.0f);
-        pt_guide_stats_share(s, cell, 1.0f, 1.0f, 1.0f, 1.0f, 2.0f);
-        CHECK(memcmp(before, slot, sizeof before) == 0);
-        pt_guide_stats_free(s);
-    }
-    pt_guide_free(g);
-}
-
 static void hostile(void)
 {
     pt_guide *g = learn(2);
@@ -605,18 +436,6 @@ static void hostile(void)
     g->qnode[inner].child = g->nqnode - 2;
     CHECK(pt_guide_check(g, &err) == PT_ERR_FORMAT);
     g->qnode[inner] = saved;
-    CHECK(pt_guide_check(g, &err) == PT_OK);
-
-    /* A share past the candidates; a share on an inner node. */
-    uint32_t leaf = pt_guide_leaf(g, pt_v3(0, 0, 0));
-    g->snode[leaf].share[3] = PT_GUIDE_SHARES;
-    CHECK(pt_guide_check(g, &err) == PT_ERR_FORMAT);
-    g->snode[leaf].share[3] = PT_GUIDE_SHARE_DEFAULT;
-    if (g->snode[0].child) {
-        g->snode[0].share[0] = 1;
-        CHECK(pt_guide_check(g, &err) == PT_ERR_FORMAT);
-        g->snode[0].share[0] = 0;
-    }
     CHECK(pt_guide_check(g, &err) == PT_OK);
     printf("hostile: last refusal \"%s\"\n", err.msg);
     pt_guide_free(g);
@@ -662,7 +481,6 @@ int main(void)
     exact_merge();
     space();
     cells();
-    shares();
     hostile();
     CHECKF(pt_alloc_live() == live, "%lld allocations left", (long long)(pt_alloc_live() - live));
     return check_report();
