@@ -23,7 +23,9 @@ src=${PT_SOURCE_DIR:?}
 tmp=$(mktemp -d /tmp/pt_durable_XXXXXX)
 srv_pid=
 cleanup() {
-  touch "$tmp/commit_go" # a ptserve stopped mid-test syncs its log first
+  # Every gate open: a ptserve stopped mid-test syncs its log first and
+  # joins its checkpoint thread, which would otherwise wait for them forever.
+  touch "$tmp/commit_go" "$tmp/ckpt_go"
   if [ -n "$srv_pid" ] && kill "$srv_pid" 2>/dev/null; then wait "$srv_pid" 2>/dev/null || true; fi
   if [ "${failed:-0}" = 0 ]; then rm -rf "$tmp"; else echo "logs kept in $tmp" >&2; fi
 }
