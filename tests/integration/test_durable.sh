@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Queue mode's durable steps off the event loop (server/store/state.h), with
-# ptserve's test hooks (environment variables read by server/store/state.c):
+# ptserve's test hooks (environment variables read by server/store/state_open.c
+# and, the lease gate, server/sched/queue.c):
 #  1. While a group commit's fdatasync is held, the loop keeps answering
 #     (ptctl status) and merges nothing: a result is merged only once the
 #     commit that holds its log record has returned. Then the job completes,
@@ -120,10 +121,14 @@ stop
 # 3. kill -9 with a checkpoint half done: written, not renamed into place. A
 # longer job, so that it is still running then: 1,536 results, of which the
 # checkpoint needs about 50. Step 4 renders the same view, against the same
-# reference.
+# reference. No task from 512 samples on is leased (a gate never opened),
+# so that the job cannot end before the kill however loaded the machine
+# (it did, between the status below and the kill): by then its log holds
+# half its results, far past the checkpoint's 400 kB.
 view=(--res 64x48 --spp 1024 --seed 7)
 ref ref
-serve serve3.log PTSERVE_TEST_CKPT_LOG_BYTES=400000 PTSERVE_TEST_CKPT_GATE="$tmp/ckpt_go"
+serve serve3.log PTSERVE_TEST_CKPT_LOG_BYTES=400000 PTSERVE_TEST_CKPT_GATE="$tmp/ckpt_go" \
+  PTSERVE_TEST_LEASE_GATE="512:$tmp/lease_go"
 id=$(submit killed)
 until_file "$tmp/state/jobs/$id/results.old" 16
 until_file "$tmp/state/jobs/$id/results.log" 40000
