@@ -264,6 +264,28 @@ static uint32_t find_qleaf(const pt_guide *g, uint32_t n, float u, float v, floa
     return n;
 }
 
+/* find_qleaf's leaf without its probability: a record's walk, with no
+ * division on it. */
+static uint32_t find_leaf(const pt_guide *g, uint32_t n, float u, float v)
+{
+    float x0 = 0.0f, y0 = 0.0f, s = 1.0f;
+    while (g->qnode[n].child) {
+        s *= 0.5f;
+        uint32_t qx = u >= x0 + s, qy = v >= y0 + s;
+        x0 += (float)qx * s;
+        y0 += (float)qy * s;
+        n = g->qnode[n].child + qx + 2 * qy;
+    }
+    return n;
+}
+
+uint32_t pt_guide_qleaf(const pt_guide *g, uint32_t cell, pt_vec3 dir)
+{
+    float u, v;
+    pt_guide_dir_to_square(dir, &u, &v);
+    return find_leaf(g, cell_root(g, cell), u, v);
+}
+
 float pt_guide_pdf_leaf(const pt_guide *g, uint32_t cell, pt_vec3 dir, uint32_t *qleaf)
 {
     float u, v, prob, size;
@@ -323,11 +345,8 @@ void pt_guide_stats_record(pt_guide_stats *s, const pt_guide *g, uint32_t cell, 
                            float value)
 {
     uint32_t n = 0; /* read only for a value above 0 */
-    if (value > 0.0f && isfinite(value)) {
-        float u, w, prob, size;
-        pt_guide_dir_to_square(dir, &u, &w);
-        n = find_qleaf(g, cell_root(g, cell), u, w, &prob, &size);
-    }
+    if (value > 0.0f && isfinite(value))
+        n = pt_guide_qleaf(g, cell, dir);
     pt_guide_stats_add(s, cell, n, value);
 }
 
