@@ -176,25 +176,6 @@ uint32_t pt_guide_leaf_box(const pt_guide *g, pt_vec3 p, uint32_t *depth, pt_vec
     return leaf_walk(g, p, depth, extent);
 }
 
-/*
- * One step down a quadtree node with children energies e[0..3] (quadrant
- * qx + 2 qy): the column by its energy, then the row within it, each a
- * probability the sampler and the pdf compute alike; a node whose children
- * have no energy is split uniformly. Returns the quadrant's probability.
- */
-static float quadrant_probs(const float e[4], float *px, float *py0, float *py1)
-{
-    float left = e[0] + e[2], right = e[1] + e[3], tot = left + right;
-    if (!(tot > 0.0f) || !isfinite(tot)) {
-        *px = *py0 = *py1 = 0.5f;
-        return 1.0f;
-    }
-    *px = left / tot;
-    *py0 = left > 0.0f ? e[0] / left : 0.5f;
-    *py1 = right > 0.0f ? e[1] / right : 0.5f;
-    return 1.0f;
-}
-
 /* The probability the sampler picks quadrant q of a node with children
  * energies e: its column's, then its row's within the column, which is
  * e[q] over their sum (a node with none: 1/4). The sampler reports it and
@@ -220,14 +201,20 @@ pt_vec3 pt_guide_sample(const pt_guide *g, uint32_t cell, const float u[2], floa
     float x0 = 0.0f, y0 = 0.0f, size = 1.0f, prob = 1.0f;
     while (g->qnode[n].child) {
         uint32_t c = g->qnode[n].child;
-        float e[4], px, py0, py1;
+        float e[4];
         child_energies(g, c, e);
         /* The next level's nodes, whichever child is taken: their fetch
          * (a large guide's nodes are far apart) overlaps this level's
          * divisions instead of following them. */
         for (uint32_t i = 0; i < 4; i++)
             __builtin_prefetch(&g->qnode[g->qnode[c + i].child]);
-        quadrant_probs(e, &px, &py0, &py1);
+        /* The column by its energy, then the row within the column taken
+         * (a node whose children have no energy, or a column with none,
+         * splits in halves); only the row split of that column is divided
+         * out, the level's one dependent division. */
+        float left = e[0] + e[2], right = e[1] + e[3], tot = left + right;
+        int flat = !(tot > 0.0f) || !isfinite(tot);
+        float px = flat ? 0.5f : left / tot;
         uint32_t qx, qy;
         if (ux < px) {
             qx = 0;
@@ -236,7 +223,8 @@ pt_vec3 pt_guide_sample(const pt_guide *g, uint32_t cell, const float u[2], floa
             qx = 1;
             ux = clamp_below1((ux - px) / (1.0f - px));
         }
-        float py = qx ? py1 : py0;
+        float col = qx ? right : left;
+        float py = flat || !(col > 0.0f) ? 0.5f : e[qx] / col;
         if (uy < py) {
             qy = 0;
             uy = clamp_below1(uy / py);
@@ -274,6 +262,28 @@ static uint32_t find_qleaf(const pt_guide *g, uint32_t n, float u, float v, floa
     *prob = p;
     *size = s;
     return n;
+}
+
+/* find_qleaf's leaf without its probability: a record's walk, with no
+ * division on it. */
+static uint32_t find_leaf(const pt_guide *g, uint32_t n, float u, float v)
+{
+    float x0 = 0.0f, y0 = 0.0f, s = 1.0f;
+    while (g->qnode[n].child) {
+        s *= 0.5f;
+        uint32_t qx = u >= x0 + s, qy = v >= y0 + s;
+        x0 += (float)qx * s;
+        y0 += (float)qy * s;
+        n = g->qnode[n].child + qx + 2 * qy;
+    }
+    return n;
+}
+
+uint32_t pt_guide_qleaf(const pt_guide *g, uint32_t cell, pt_vec3 dir)
+{
+    float u, v;
+    pt_guide_dir_to_square(dir, &u, &v);
+    return find_leaf(g, cell_root(g, cell), u, v);
 }
 
 float pt_guide_pdf_leaf(const pt_guide *g, uint32_t cell, pt_vec3 dir, uint32_t *qleaf)
@@ -335,11 +345,8 @@ void pt_guide_stats_record(pt_guide_stats *s, const pt_guide *g, uint32_t cell, 
                            float value)
 {
     uint32_t n = 0; /* read only for a value above 0 */
-    if (value > 0.0f && isfinite(value)) {
-        float u, w, prob, size;
-        pt_guide_dir_to_square(dir, &u, &w);
-        n = find_qleaf(g, cell_root(g, cell), u, w, &prob, &size);
-    }
+    if (value > 0.0f && isfinite(value))
+        n = pt_guide_qleaf(g, cell, dir);
     pt_guide_stats_add(s, cell, n, value);
 }
 

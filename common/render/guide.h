@@ -122,6 +122,12 @@ float pt_guide_pdf(const pt_guide *g, uint32_t cell, pt_vec3 dir);
  * lookup. */
 float pt_guide_pdf_leaf(const pt_guide *g, uint32_t cell, pt_vec3 dir, uint32_t *qleaf);
 
+/* The quadtree leaf dir (unit) falls in at cell: the one
+ * pt_guide_pdf_leaf gives, found without the pdf's divisions. A direction
+ * just sampled from cell finds it in the lines its sampling fetched; its
+ * record (pt_guide_stats_add) then walks no tree at the path's end. */
+uint32_t pt_guide_qleaf(const pt_guide *g, uint32_t cell, pt_vec3 dir);
+
 /* Direction <-> the unit square (the equal-area map above). */
 void pt_guide_dir_to_square(pt_vec3 dir, float *u, float *v);
 pt_vec3 pt_guide_square_to_dir(float u, float v);
@@ -136,8 +142,8 @@ void pt_guide_stats_free(pt_guide_stats *s); /* accepts NULL */
 void pt_guide_stats_record(pt_guide_stats *s, const pt_guide *g, uint32_t cell, pt_vec3 dir,
                            float value);
 /* pt_guide_stats_record for a direction whose quadtree leaf qleaf the
- * guide the statistics were made for gave (pt_guide_pdf_leaf at cell): the
- * same sums. */
+ * guide the statistics were made for gave (pt_guide_pdf_leaf or
+ * pt_guide_qleaf at cell): the same sums. */
 void pt_guide_stats_add(pt_guide_stats *s, uint32_t cell, uint32_t qleaf, float value);
 /* into += from (saturating); PT_ERR_ARG when they were made for different
  * guides' shapes. */

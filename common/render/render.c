@@ -1794,6 +1794,7 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     float rr_scale = 1.0f;           /* FEAT_GUIDE: the mixture's pdf over the BSDF's */
     float bp_mis = 0.0f;             /* FEAT_GUIDE: the BSDF's pdf, which MIS weighs */
     uint32_t qleaf = GUIDE_NO_QLEAF; /* FEAT_GUIDE: the guide's leaf of wi, when looked up */
+    int from_guide = 0;              /* FEAT_GUIDE: wi was drawn from the guide */
     /* A cell no record reached is uniform: recorded into, not sampled. */
     if ((features & FEAT_GUIDE) && guide && !pt_guide_learned(guide, gleaf))
         gprob = 0.0f;
@@ -1803,6 +1804,7 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
         float gpdf = 0.0f, bp = 0.0f;
         pt_vec3 f = pt_v3(0.0f, 0.0f, 0.0f);
         if (u3[0] < gprob) {
+            from_guide = 1;
             pt_vec3 wg = pt_guide_sample(guide, gleaf, &u3[1], &gpdf);
             wi_l = pt_frame_to_local(&fr, wg);
             f = pt_closure_eval(&cl, wi_l, &bp);
@@ -1891,6 +1893,11 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
         guide_vert *gv = &pa->gp->v[pa->gp->n++];
         gv->dir = wi;
         gv->leaf = gleaf;
+        /* A direction the guide drew: its record's leaf is found now,
+         * while the lines its sampling walked are in the cache, not at
+         * the path's end (the same leaf: the same walk of wi). */
+        if (from_guide && pa->gp->gd->stats)
+            qleaf = pt_guide_qleaf(guide, gleaf, wi);
         gv->qleaf = qleaf;
         gv->pdf = pdf;
         gv->beta = pt_luminance(beta);

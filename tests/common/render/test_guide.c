@@ -24,7 +24,8 @@
  *   (bounds halved at each node's midpoint) finds.
  * - Known leaves: records made with the quadtree leaf pt_guide_pdf_leaf
  *   found (pt_guide_stats_add) sum to the same statistics as
- *   pt_guide_stats_record's, and its pdf is pt_guide_pdf's.
+ *   pt_guide_stats_record's, its pdf is pt_guide_pdf's and its leaf
+ *   pt_guide_qleaf's.
  * - Passes: pt_guide_pass_end cuts [0, spp) into passes that follow on from
  *   each other, of 16, 32, 64... spp, the last one running to spp when what
  *   is left after a pass is shorter than the pass after it would be.
@@ -230,7 +231,7 @@ static void exact_merge(void)
     /* The same 30,000 records as [10k, 10k, 10k] and as [1k, 25k, 4k]. */
     pt_guide_stats *a[3] = {NULL, NULL, NULL}, *b[3] = {NULL, NULL, NULL}, *c = NULL;
     CHECK(pt_guide_stats_new(g, &c, &err) == PT_OK);
-    int pdf_differs = 0;
+    int pdf_differs = 0, qleaf_differs = 0;
     for (int i = 0; i < 3; i++) {
         CHECK(pt_guide_stats_new(g, &a[i], &err) == PT_OK);
         CHECK(pt_guide_stats_new(g, &b[i], &err) == PT_OK);
@@ -253,6 +254,7 @@ static void exact_merge(void)
         uint32_t qleaf;
         float pdf = pt_guide_pdf_leaf(g, leaf, d, &qleaf);
         pdf_differs += pdf != pt_guide_pdf(g, leaf, d);
+        qleaf_differs += pt_guide_qleaf(g, leaf, d) != qleaf;
         pt_guide_stats_add(c, leaf, qleaf, v);
         /* Records of 0 are counted, hostile ones dropped, alike. */
         if (i % 97 == 0) {
@@ -276,6 +278,7 @@ static void exact_merge(void)
     CHECK(memcmp(c->sum, b[2]->sum, g->nqnode * sizeof *c->sum) == 0);
     CHECK(memcmp(c->count, b[2]->count, g->nsnode * sizeof *c->count) == 0);
     CHECKF(pdf_differs == 0, "%d pdfs of pt_guide_pdf_leaf differ", pdf_differs);
+    CHECKF(qleaf_differs == 0, "%d leaves of pt_guide_qleaf differ", qleaf_differs);
     pt_guide *ga = NULL, *gb = NULL;
     CHECK(pt_guide_build(g, a[0], 5000, &ga, &err) == PT_OK);
     CHECK(pt_guide_build(g, b[2], 5000, &gb, &err) == PT_OK);
