@@ -9,6 +9,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/wait.h>
+#include <time.h>
 #include <unistd.h>
 
 #include "common/base/alloc.h"
@@ -86,6 +87,18 @@ pt_status srv_local_start(srv_local *l, const srv_config *cfg, uint16_t port, pt
     return PT_OK;
 }
 
+/* Collects the children that exited, without waiting or logging. */
+static void srv_local_reap_quiet(srv_local *l)
+{
+    for (uint32_t i = 0; i < l->nchildren; i++) {
+        int st;
+        if (l->children[i] > 0 && waitpid(l->children[i], &st, WNOHANG) == l->children[i]) {
+            l->children[i] = 0;
+            l->alive--;
+        }
+    }
+}
+
 void srv_local_reap(srv_local *l, int wait_all)
 {
     for (uint32_t i = 0; i < l->nchildren; i++) {
@@ -116,6 +129,21 @@ void srv_local_stop(srv_local *l)
     for (uint32_t i = 0; i < l->nchildren; i++)
         if (l->children[i] > 0)
             kill(l->children[i], SIGTERM);
+    /* A ptworker leaves within about 3 s of SIGTERM (it finishes no task);
+     * a --worker-bin that ignores it, or a child stuck in the kernel, would
+     * hold this coordinator's exit forever: after SRV_LOCAL_STOP_GRACE_MS
+     * it is killed, and the log says so. */
+    for (uint32_t waited = 0; l->alive > 0 && waited < SRV_LOCAL_STOP_GRACE_MS; waited += 50) {
+        srv_local_reap_quiet(l);
+        if (l->alive > 0)
+            nanosleep(&(struct timespec){0, 50 * 1000 * 1000}, NULL);
+    }
+    for (uint32_t i = 0; i < l->nchildren; i++)
+        if (l->children[i] > 0) {
+            srv_log("local worker %u did not stop within %u s of SIGTERM; killed", i + 1,
+                    SRV_LOCAL_STOP_GRACE_MS / 1000);
+            kill(l->children[i], SIGKILL);
+        }
     srv_local_reap(l, 1);
     if (l->cache_dir[0]) {
         /* The cache holds only what the workers unpacked from our bundle. */

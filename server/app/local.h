@@ -5,9 +5,10 @@
  * or cfg->worker_bin) that connect to 127.0.0.1:PORT with the token file, if
  * any, and share a cache folder made for them under $TMPDIR; their stdout
  * goes to /dev/null. srv_local_reap collects the ones that exited (logging
- * how); srv_local_stop sends SIGTERM to the rest, waits for them and removes
- * the cache. The children are ordinary workers to the loop: nothing here
- * knows about connections or jobs.
+ * how); srv_local_stop sends SIGTERM to the rest, waits for them (killing
+ * any still there after a grace period) and removes the cache. The children
+ * are ordinary workers to the loop: nothing here knows about connections or
+ * jobs.
  *
  * Threads: called only from the event-loop thread.
  */
@@ -35,8 +36,13 @@ pt_status srv_local_start(srv_local *l, const srv_config *cfg, uint16_t port, pt
  * (wait_all) waiting for every one, silently. */
 void srv_local_reap(srv_local *l, int wait_all);
 
-/* Stops and reaps every child, removes the cache folder and frees l's
- * memory. Accepts an l that started nothing. */
+/* How long srv_local_stop waits for the children after SIGTERM before it
+ * sends SIGKILL to the ones left. */
+#define SRV_LOCAL_STOP_GRACE_MS 10000u
+
+/* Stops and reaps every child (SIGTERM, then SIGKILL to any still there
+ * after SRV_LOCAL_STOP_GRACE_MS, logged), removes the cache folder and
+ * frees l's memory. Accepts an l that started nothing. */
 void srv_local_stop(srv_local *l);
 
 #endif
