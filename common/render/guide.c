@@ -265,25 +265,30 @@ static uint32_t find_qleaf(const pt_guide *g, uint32_t n, float u, float v, floa
 }
 
 /* find_qleaf's leaf without its probability: a record's walk, with no
- * division on it. */
-static uint32_t find_leaf(const pt_guide *g, uint32_t n, float u, float v)
+ * division on it; its depth into *depth unless NULL (inlined, a NULL
+ * costs nothing). */
+static inline uint32_t find_leaf(const pt_guide *g, uint32_t n, float u, float v, uint32_t *depth)
 {
     float x0 = 0.0f, y0 = 0.0f, s = 1.0f;
+    uint32_t d = 0;
     while (g->qnode[n].child) {
         s *= 0.5f;
         uint32_t qx = u >= x0 + s, qy = v >= y0 + s;
         x0 += (float)qx * s;
         y0 += (float)qy * s;
         n = g->qnode[n].child + qx + 2 * qy;
+        d++;
     }
+    if (depth)
+        *depth = d;
     return n;
 }
 
-uint32_t pt_guide_qleaf(const pt_guide *g, uint32_t cell, pt_vec3 dir)
+uint32_t pt_guide_qleaf(const pt_guide *g, uint32_t cell, pt_vec3 dir, uint32_t *depth)
 {
     float u, v;
     pt_guide_dir_to_square(dir, &u, &v);
-    return find_leaf(g, cell_root(g, cell), u, v);
+    return find_leaf(g, cell_root(g, cell), u, v, depth);
 }
 
 float pt_guide_pdf_leaf(const pt_guide *g, uint32_t cell, pt_vec3 dir, uint32_t *qleaf)
@@ -346,7 +351,7 @@ void pt_guide_stats_record(pt_guide_stats *s, const pt_guide *g, uint32_t cell, 
 {
     uint32_t n = 0; /* read only for a value above 0 */
     if (value > 0.0f && isfinite(value))
-        n = pt_guide_qleaf(g, cell, dir);
+        n = pt_guide_qleaf(g, cell, dir, NULL);
     pt_guide_stats_add(s, cell, n, value);
 }
 

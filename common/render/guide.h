@@ -125,8 +125,10 @@ float pt_guide_pdf_leaf(const pt_guide *g, uint32_t cell, pt_vec3 dir, uint32_t 
 /* The quadtree leaf dir (unit) falls in at cell: the one
  * pt_guide_pdf_leaf gives, found without the pdf's divisions. A direction
  * just sampled from cell finds it in the lines its sampling fetched; its
- * record (pt_guide_stats_add) then walks no tree at the path's end. */
-uint32_t pt_guide_qleaf(const pt_guide *g, uint32_t cell, pt_vec3 dir);
+ * record (pt_guide_stats_add) then walks no tree at the path's end. Its
+ * depth in the tree into *depth unless depth is NULL (for tools that read
+ * what a guide learned). */
+uint32_t pt_guide_qleaf(const pt_guide *g, uint32_t cell, pt_vec3 dir, uint32_t *depth);
 
 /* Direction <-> the unit square (the equal-area map above). */
 void pt_guide_dir_to_square(pt_vec3 dir, float *u, float *v);

@@ -1897,7 +1897,7 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
          * while the lines its sampling walked are in the cache, not at
          * the path's end (the same leaf: the same walk of wi). */
         if (from_guide && pa->gp->gd->stats)
-            qleaf = pt_guide_qleaf(guide, gleaf, wi);
+            qleaf = pt_guide_qleaf(guide, gleaf, wi, NULL);
         gv->qleaf = qleaf;
         gv->pdf = pdf;
         gv->beta = pt_luminance(beta);

@@ -97,18 +97,8 @@ static float rnd(uint64_t *s)
 /* The depth of the quadtree leaf at cell holding dir. */
 static uint32_t qdepth(const pt_guide *g, uint32_t cell, pt_vec3 dir)
 {
-    float u, v;
-    pt_guide_dir_to_square(dir, &u, &v);
-    uint32_t n = g->snode[cell / PT_GUIDE_FACES].tree + cell % PT_GUIDE_FACES, d = 0;
-    float x0 = 0.0f, y0 = 0.0f, s = 1.0f;
-    while (g->qnode[n].child) {
-        s *= 0.5f;
-        uint32_t qx = u >= x0 + s, qy = v >= y0 + s;
-        x0 += (float)qx * s;
-        y0 += (float)qy * s;
-        n = g->qnode[n].child + qx + 2 * qy;
-        d++;
-    }
+    uint32_t d;
+    pt_guide_qleaf(g, cell, dir, &d);
     return d;
 }
 

@@ -254,7 +254,7 @@ static void exact_merge(void)
         uint32_t qleaf;
         float pdf = pt_guide_pdf_leaf(g, leaf, d, &qleaf);
         pdf_differs += pdf != pt_guide_pdf(g, leaf, d);
-        qleaf_differs += pt_guide_qleaf(g, leaf, d) != qleaf;
+        qleaf_differs += pt_guide_qleaf(g, leaf, d, NULL) != qleaf;
         pt_guide_stats_add(c, leaf, qleaf, v);
         /* Records of 0 are counted, hostile ones dropped, alike. */
         if (i % 97 == 0) {
