@@ -61,13 +61,18 @@ if ! mount -t tmpfs -o size=32m tmpfs "$tmp/state" || ! mount -t tmpfs -o size=4
 fi
 
 # 192 tasks of 32 passes: the worker is held after the first result merges,
-# so that the job is still running when the folders fill.
+# so that the job is still running when the folders fill. The first server
+# leases no task past the first two passes (64 spp) until $tmp/lease_go
+# exists (PTSERVE_TEST_LEASE_GATE), so however loaded the machine the job
+# cannot end before the folders are full.
 spp=512
 view=(--res 64x48 --spp "$spp" --seed 5)
-serve() { # $1: log file
+serve() { # $1: log file, then VAR=VAL... for ptserve's environment
+  local log=$1
+  shift
   rm -f "$tmp/port"
-  "$bin/ptserve" --state-dir "$tmp/state" --output-dir "$tmp/out" --listen 127.0.0.1:0 \
-    --port-file "$tmp/port" --tile 16 --chunk 32 --save-interval 0.2 -q 2>> "$1" &
+  env "$@" "$bin/ptserve" --state-dir "$tmp/state" --output-dir "$tmp/out" --listen 127.0.0.1:0 \
+    --port-file "$tmp/port" --tile 16 --chunk 32 --save-interval 0.2 -q 2>> "$log" &
   srv_pid=$!
   for _ in $(seq 200); do [ -s "$tmp/port" ] && break; sleep 0.05; done
   [ -s "$tmp/port" ] || fail "ptserve did not start"
@@ -94,7 +99,7 @@ fill() { # fills the folder $1 to the last byte
   [ "$(df --output=avail "$1" | tail -1)" -le 4 ] || fail "$1 is not full"
 }
 
-serve "$tmp/serve1.log"
+serve "$tmp/serve1.log" PTSERVE_TEST_LEASE_GATE="64:$tmp/lease_go"
 id=$("$bin/ptctl" submit "$src/scenes/cornell_box.gltf" "${view[@]}" --name disk)
 work
 wait_for 'd["samples_done"] > 0' "the first samples"
@@ -104,6 +109,7 @@ status
 [ "$(json "$tmp/status.json" 'd["state"]')" = running ] || fail "the job ended before the folders filled"
 fill "$tmp/state"
 fill "$tmp/out"
+touch "$tmp/lease_go"
 kill -CONT "$wrk_pid"
 
 # The state folder is full: the job pauses with the reason shown.
