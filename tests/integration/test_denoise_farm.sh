@@ -102,7 +102,10 @@ view=(--res 40x32 --spp 1024 --seed 3)
 "$bin/ptworker" --scene "$scene" "${view[@]}" --denoise --tile 16 --chunk 8 -q \
   -o "$tmp/ref.exr" 2> /dev/null
 port=0
-serve serve2.log PTSERVE_TEST_CKPT_LOG_BYTES=40000
+# No task past 512 spp is leased before the kill (the gate never opens), so
+# the job cannot end first however loaded the machine; the restarted
+# coordinator has no gate and finishes it.
+serve serve2.log PTSERVE_TEST_CKPT_LOG_BYTES=40000 PTSERVE_TEST_LEASE_GATE="512:$tmp/never"
 workers 2
 id=$("$bin/ptctl" submit "$scene" "${view[@]}" --denoise-progressive --name denoised)
 until_status "$id" 'd["samples_done"] > 0 or d["state"] != "running"'
