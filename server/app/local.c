@@ -87,27 +87,17 @@ pt_status srv_local_start(srv_local *l, const srv_config *cfg, uint16_t port, pt
     return PT_OK;
 }
 
-/* Collects the children that exited, without waiting or logging. */
-static void srv_local_reap_quiet(srv_local *l)
-{
-    for (uint32_t i = 0; i < l->nchildren; i++) {
-        int st;
-        if (l->children[i] > 0 && waitpid(l->children[i], &st, WNOHANG) == l->children[i]) {
-            l->children[i] = 0;
-            l->alive--;
-        }
-    }
-}
-
-void srv_local_reap(srv_local *l, int wait_all)
+/* Collects the children that exited: waiting for each (options 0) or not
+ * (WNOHANG), logging how each ended when log is set. */
+static void reap(srv_local *l, int options, int log)
 {
     for (uint32_t i = 0; i < l->nchildren; i++) {
         if (l->children[i] <= 0)
             continue;
         int st;
-        pid_t r = waitpid(l->children[i], &st, wait_all ? 0 : WNOHANG);
+        pid_t r = waitpid(l->children[i], &st, options);
         if (r == l->children[i]) {
-            if (!wait_all) {
+            if (log) {
                 if (WIFEXITED(st))
                     srv_log("local worker %u exited with status %d", i + 1, WEXITSTATUS(st));
                 else if (WIFSIGNALED(st))
@@ -117,6 +107,11 @@ void srv_local_reap(srv_local *l, int wait_all)
             l->alive--;
         }
     }
+}
+
+void srv_local_reap(srv_local *l, int wait_all)
+{
+    reap(l, wait_all ? 0 : WNOHANG, !wait_all);
 }
 
 void srv_local_stop(srv_local *l)
@@ -134,7 +129,7 @@ void srv_local_stop(srv_local *l)
      * hold this coordinator's exit forever: after SRV_LOCAL_STOP_GRACE_MS
      * it is killed, and the log says so. */
     for (uint32_t waited = 0; l->alive > 0 && waited < SRV_LOCAL_STOP_GRACE_MS; waited += 50) {
-        srv_local_reap_quiet(l);
+        reap(l, WNOHANG, 0);
         if (l->alive > 0)
             nanosleep(&(struct timespec){0, 50 * 1000 * 1000}, NULL);
     }
@@ -144,7 +139,7 @@ void srv_local_stop(srv_local *l)
                     SRV_LOCAL_STOP_GRACE_MS / 1000);
             kill(l->children[i], SIGKILL);
         }
-    srv_local_reap(l, 1);
+    reap(l, 0, 0);
     if (l->cache_dir[0]) {
         /* The cache holds only what the workers unpacked from our bundle. */
         if (pt_remove_tree(l->cache_dir) != 0)
