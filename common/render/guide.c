@@ -242,42 +242,33 @@ pt_vec3 pt_guide_sample(const pt_guide *g, uint32_t cell, const float u[2], floa
     return pt_guide_square_to_dir(x0 + ux * size, y0 + uy * size);
 }
 
-/* The quadtree leaf of g's tree rooted at n that holds (u, v), and the
- * probability the sampler reaches it with; *size its square's side. */
-static uint32_t find_qleaf(const pt_guide *g, uint32_t n, float u, float v, float *prob,
-                           float *size)
+/* The quadtree leaf of g's tree rooted at n that holds (u, v). With prob,
+ * also the probability the sampler reaches it with (*prob) and its square's
+ * side (*size); without, a record's walk that reads no energies and
+ * divides nothing. *depth its depth unless NULL. Inlined at each caller,
+ * so the NULLs cost nothing. */
+static inline uint32_t find_qleaf(const pt_guide *g, uint32_t n, float u, float v, float *prob,
+                                  float *size, uint32_t *depth)
 {
     float x0 = 0.0f, y0 = 0.0f, s = 1.0f, p = 1.0f;
+    uint32_t d = 0;
     while (g->qnode[n].child) {
         uint32_t c = g->qnode[n].child;
-        float e[4];
-        child_energies(g, c, e);
         s *= 0.5f;
         uint32_t qx = u >= x0 + s, qy = v >= y0 + s;
-        p *= quadrant_prob(e, qx + 2 * qy);
+        if (prob) {
+            float e[4];
+            child_energies(g, c, e);
+            p *= quadrant_prob(e, qx + 2 * qy);
+        }
         x0 += (float)qx * s;
         y0 += (float)qy * s;
         n = c + qx + 2 * qy;
-    }
-    *prob = p;
-    *size = s;
-    return n;
-}
-
-/* find_qleaf's leaf without its probability: a record's walk, with no
- * division on it; its depth into *depth unless NULL (inlined, a NULL
- * costs nothing). */
-static inline uint32_t find_leaf(const pt_guide *g, uint32_t n, float u, float v, uint32_t *depth)
-{
-    float x0 = 0.0f, y0 = 0.0f, s = 1.0f;
-    uint32_t d = 0;
-    while (g->qnode[n].child) {
-        s *= 0.5f;
-        uint32_t qx = u >= x0 + s, qy = v >= y0 + s;
-        x0 += (float)qx * s;
-        y0 += (float)qy * s;
-        n = g->qnode[n].child + qx + 2 * qy;
         d++;
+    }
+    if (prob) {
+        *prob = p;
+        *size = s;
     }
     if (depth)
         *depth = d;
@@ -288,14 +279,14 @@ uint32_t pt_guide_qleaf(const pt_guide *g, uint32_t cell, pt_vec3 dir, uint32_t 
 {
     float u, v;
     pt_guide_dir_to_square(dir, &u, &v);
-    return find_leaf(g, cell_root(g, cell), u, v, depth);
+    return find_qleaf(g, cell_root(g, cell), u, v, NULL, NULL, depth);
 }
 
 float pt_guide_pdf_leaf(const pt_guide *g, uint32_t cell, pt_vec3 dir, uint32_t *qleaf)
 {
     float u, v, prob, size;
     pt_guide_dir_to_square(dir, &u, &v);
-    *qleaf = find_qleaf(g, cell_root(g, cell), u, v, &prob, &size);
+    *qleaf = find_qleaf(g, cell_root(g, cell), u, v, &prob, &size, NULL);
     return prob / (size * size) * (0.25f / PI_F);
 }
 
