@@ -59,12 +59,14 @@ pt_status pt_guide_run_merge(pt_guide_run *run, pt_error *err)
 
 pt_status pt_guide_run_end(pt_guide_run *run, pt_guide **kept, pt_error *err)
 {
-    if (run->s1 < run->spp) {
+    if (run->s1 < run->spp || kept) {
         pt_guide *next = NULL;
-        pt_status st =
-            pt_guide_build(run->guide, run->stats[0], pt_guide_split_count(run->pass), &next, err);
-        if (st != PT_OK)
-            return st;
+        if (run->s1 < run->spp) {
+            pt_status st = pt_guide_build(run->guide, run->stats[0],
+                                          pt_guide_split_count(run->pass), &next, err);
+            if (st != PT_OK)
+                return st;
+        }
         if (kept)
             *kept = run->guide;
         else

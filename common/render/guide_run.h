@@ -52,9 +52,9 @@ pt_status pt_guide_run_merge(pt_guide_run *run, pt_error *err);
 
 /* Ends the pass: builds the next pass's guide from stats[0] (none after the
  * last pass) and frees the pass's statistics. kept NULL: the pass's guide is
- * freed once the next is built; else it is the caller's in *kept (a tool
- * that renders a pass's samples again later), and the last pass's stays
- * run->guide, freed with the run. */
+ * freed once the next is built (the last pass's stays run->guide, freed
+ * with the run); else every pass's, the last one's too, is the caller's in
+ * *kept (a tool that renders a pass's samples again later). */
 pt_status pt_guide_run_end(pt_guide_run *run, pt_guide **kept, pt_error *err);
 
 void pt_guide_run_free(pt_guide_run *run);

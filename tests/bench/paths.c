@@ -563,15 +563,9 @@ int main(int argc, char **argv)
                     }
                 }
             }
-        if (guiding) {
-            if (pt_guide_run_end(&run, &guides[pass], &err) != PT_OK) {
-                fprintf(stderr, "ptbench-paths: %s\n", err.msg);
-                goto done;
-            }
-            if (s1 == spp) { /* the last pass's guide, still the run's */
-                guides[pass] = run.guide;
-                run.guide = NULL;
-            }
+        if (guiding && pt_guide_run_end(&run, &guides[pass], &err) != PT_OK) {
+            fprintf(stderr, "ptbench-paths: %s\n", err.msg);
+            goto done;
         }
         s0 = s1;
     }
