@@ -209,7 +209,8 @@ void loop_conn_flush(srv_server *s, srv_conn *c)
         c->close_at = 0;
 }
 
-/* The signal pipe is readable: a signal came (g_stop says which). */
+/* The signal pipe is readable: a signal came (srv_signal_stopped says
+ * which), or the dashboard woke the loop. */
 static void drain_signals(srv_server *s, void *ctx, uint32_t events)
 {
     (void)ctx;

@@ -3,7 +3,6 @@
 
 #include <errno.h>
 #include <fcntl.h>
-#include <signal.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <string.h>
@@ -19,27 +18,14 @@
 #include "common/base/net.h"
 #include "common/base/text.h"
 #include "server/net/io.h"
+#include "server/net/signal.h"
 
-static volatile sig_atomic_t g_stop;
 static void io_deliver(srv_server *s);
 static void conn_attach(srv_server *s, srv_conn *c);
-static int g_sigpipe_w = -1;
-
-static void on_signal(int sig)
-{
-    g_stop = sig;
-    if (g_sigpipe_w >= 0) {
-        int saved = errno;
-        char c = 1;
-        ssize_t r = write(g_sigpipe_w, &c, 1);
-        (void)r;
-        errno = saved;
-    }
-}
 
 int srv_loop_stopped(void)
 {
-    return g_stop;
+    return srv_signal_stopped();
 }
 
 void loop_conn_free(srv_server *s, srv_conn *c)
@@ -248,13 +234,7 @@ pt_status srv_loop_open(srv_server *s, pt_error *err)
         if ((st = srv_loop_add_fd(s, srv_io_fd(s->io), on_io, NULL, &s->reg->io, err)) != PT_OK)
             return st;
     }
-    g_sigpipe_w = s->sigpipe[1];
-    struct sigaction sa;
-    memset(&sa, 0, sizeof sa);
-    sa.sa_handler = on_signal;
-    sigaction(SIGINT, &sa, NULL);
-    sigaction(SIGTERM, &sa, NULL);
-    signal(SIGPIPE, SIG_IGN);
+    srv_signal_attach(s->sigpipe[1]);
     return PT_OK;
 }
 
@@ -272,7 +252,7 @@ void srv_loop_close(srv_server *s)
     if (s->ep >= 0)
         close(s->ep);
     s->lfd = s->ep = -1;
-    g_sigpipe_w = -1;
+    srv_signal_withdraw();
     if (s->sigpipe[0] >= 0) {
         close(s->sigpipe[0]);
         close(s->sigpipe[1]);
