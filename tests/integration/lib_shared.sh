@@ -13,3 +13,11 @@ need_shared() {
     exit 77
   done
 }
+
+#   sanitized             true in an ASan + UBSan or ThreadSanitizer build
+#                         (PT_BIN's CMakeCache.txt), where a test may render
+#                         less: the sanitizers check the same code on a
+#                         smaller image, the release build the full-size one
+sanitized() {
+  grep -qE '^PT_(SANITIZE|TSAN):BOOL=ON$' "${PT_BIN:?}/../CMakeCache.txt" 2>/dev/null
+}
