@@ -432,9 +432,9 @@ static const char *task_problem(const proto_task *m)
     why = proto_shutter_problem(m->shutter);
     if (!why)
         why = proto_clamp_problem(m->clamp);
-    if (!why && (m->guided > 1 || m->guide_pass > PROTO_MAX_GUIDE_PASS ||
+    if (!why && (m->guided > PROTO_GUIDE_LAST || m->guide_pass > PROTO_MAX_GUIDE_PASS ||
                  (!m->guided && m->guide_pass != 0)))
-        why = "guide flag not 0 or 1, or pass over 31 (0 when not guided)";
+        why = "guide flag not 0, 1 or 2, or pass over 31 (0 when not guided)";
     if (!why && !m->guided) {
         for (unsigned k = 0; k < PROTO_HASH_SIZE; k++)
             if (m->guide_hash[k])

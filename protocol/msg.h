@@ -282,7 +282,7 @@ typedef struct proto_task {
     char animation[PROTO_MAX_NAME + 1]; /* "" every animation */
     double shutter[2];                  /* SHUTTER: open, close; 0, 0 off */
     float clamp[2];                     /* CLAMP: direct, indirect; 0 off */
-    uint8_t guided;                     /* GUIDE: 1 the task renders guided pass guide_pass */
+    uint8_t guided;                     /* GUIDE: PROTO_GUIDE_* of pass guide_pass */
     uint32_t guide_pass;
     uint8_t guide_hash[PROTO_HASH_SIZE]; /* the pass's distribution (proto_guide_encode) */
 } proto_task;
@@ -316,18 +316,27 @@ const char *proto_clamp_problem(const float clamp[2]);
 
 /* GUIDE (in TASK): path guiding (common/render/guide.h), learned by the farm
  * in passes at fixed sample boundaries (pt_guide_pass_end).
- *   0    1    u8       guided: 1 the task is samples of guided pass `pass`, 0 not guided
+ *   0    1    u8       guided: PROTO_GUIDE_NONE (0) not guided;
+ *                      PROTO_GUIDE_RECORD (1) samples of guided pass `pass`,
+ *                      recording statistics; PROTO_GUIDE_LAST (2) samples of
+ *                      guided pass `pass`, the job's last, recording none
  *   1    4    u32      pass (0 when not guided; <= PROTO_MAX_GUIDE_PASS)
  *   5    32   u8[32]   SHA-256 of the pass's distribution as proto_guide_encode
  *                      writes it (zeros when not guided); the worker fetches it
  *                      with GUIDE_GET (SCENE_GET layout) once and keeps it
  *   size 37
  * A guided task renders with the distribution, draws directions from it with
- * probability 0 in pass 0 and 0.5 after (as ptworker --guiding on), and
- * returns its statistics in RESULT (PROTO_RESULT_GUIDE). GUIDE_CHUNK has the
- * SCENE_CHUNK layout, the total at most PROTO_MAX_GUIDE_BYTES; its data is
- * the distribution packed with zlib (proto_guide_pack, protocol/guide.h),
- * which the worker unpacks before it checks the hash. */
+ * probability 0 in pass 0 and PT_GUIDE_PASS_PROB after (as ptworker --guiding
+ * on). Of RECORD it returns its statistics in RESULT (PROTO_RESULT_GUIDE); of
+ * LAST, whose statistics no distribution would be built from (the last pass
+ * runs to the job's spp, pt_guide_pass_end), it records nothing and its
+ * RESULT carries none, as the standalone render's last pass records none
+ * (pt_guide_run_begin). Recording never changes a sample, so the pixels are
+ * the same either way. GUIDE_CHUNK has the SCENE_CHUNK layout, the total at
+ * most PROTO_MAX_GUIDE_BYTES; its data is the distribution packed with zlib
+ * (proto_guide_pack, protocol/guide.h), which the worker unpacks before it
+ * checks the hash. */
+enum { PROTO_GUIDE_NONE = 0, PROTO_GUIDE_RECORD = 1, PROTO_GUIDE_LAST = 2 };
 #define PROTO_MAX_GUIDE_PASS 31u
 #define PROTO_MAX_GUIDE_NODES (1u << 24) /* PT_GUIDE_MAX_NODES */
 #define PROTO_MAX_GUIDE_BYTES (256u << 20)
@@ -405,7 +414,7 @@ typedef struct proto_guide_entry {
  *                   contributions its samples scaled down to the clamp
  *                   (pt_render_stats.clamped), at most 2 (max depth + 2) per
  *                   sample (the server checks)
- *   ..   with GUIDE (the task was guided): the statistics it recorded
+ *   ..   with GUIDE (the task was PROTO_GUIDE_RECORD): the statistics it recorded
  *                   (pt_guide_stats), sparse, in canonical form:
  *                     +0  4  u32  the guide's spatial nodes (its nsnode)
  *                     +4  4  u32  the guide's directional nodes (its nqnode)

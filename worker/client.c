@@ -255,17 +255,19 @@ static void render_one(worker *w, const task_item *t, done_item *d)
         d->st = pt_error_set(&d->err, PT_ERR_NOMEM, "out of memory for %zu pixels", npx);
         return;
     }
-    /* A guided task: the pass's distribution, statistics of its own (they
-     * add exactly at the coordinator, whatever the tasks). */
-    p.guiding = k->guided;
+    /* A guided task: the pass's distribution, and unless the pass is the
+     * job's last (nothing is built from its statistics) statistics of its
+     * own (they add exactly at the coordinator, whatever the tasks). */
+    p.guiding = k->guided != PROTO_GUIDE_NONE;
     pt_guide_stats *gs = NULL;
     pt_render_guiding gd = {0};
-    if (k->guided) {
+    if (k->guided == PROTO_GUIDE_RECORD) {
         d->st = pt_guide_stats_new(t->guide->guide, &gs, &d->err);
         if (d->st != PT_OK)
             return;
-        gd = (pt_render_guiding){t->guide->guide, pt_guide_pass_prob(k->guide_pass), gs};
     }
+    if (k->guided)
+        gd = (pt_render_guiding){t->guide->guide, pt_guide_pass_prob(k->guide_pass), gs};
     wrk_scene_ref *ref = NULL;
     wrk_pose pose = {k->animate, k->time, k->animation};
     wrk_scene_look look = {k->camera, k->variant, &k->env, &pose, k->shutter};

@@ -188,6 +188,11 @@ int job_guide_gated(const srv_job *j, uint32_t frontier)
     return j->p.guiding && frontier >= pt_guide_pass_end(j->gpass, j->p.spp);
 }
 
+int job_guide_last(const srv_job *j, uint32_t k)
+{
+    return pt_guide_pass_end(k, j->p.spp) >= j->p.spp;
+}
+
 int job_guide_fill(const srv_job *j, uint32_t s0, proto_task *t)
 {
     t->guided = 0;
@@ -198,7 +203,9 @@ int job_guide_fill(const srv_job *j, uint32_t s0, proto_task *t)
     uint32_t k = pt_guide_pass_of(s0, j->p.spp);
     if (k > PROTO_MAX_GUIDE_PASS || !j->gpack[k])
         return 0;
-    t->guided = 1;
+    /* No distribution is built from the last pass's statistics: its tasks
+     * record none (as the standalone render's last pass). */
+    t->guided = job_guide_last(j, k) ? PROTO_GUIDE_LAST : PROTO_GUIDE_RECORD;
     t->guide_pass = k;
     memcpy(t->guide_hash, j->ghash[k], 32);
     return 1;
@@ -214,6 +221,18 @@ int job_guide_result_ok(const srv_job *j, const proto_result *r, pt_error *err)
                      (unsigned long long)r->task_id);
         return 0;
     }
+    /* Its task said whether to record (job_guide_fill): statistics exactly
+     * when the pass is not the last. */
+    uint32_t k = pt_guide_pass_of(r->s0, j->p.spp);
+    if (job_guide_last(j, k)) {
+        if (!r->guide)
+            return 1;
+        pt_error_set(err, PT_ERR_PROTO,
+                     "result for task %llu carries guiding statistics; pass %u is the job's "
+                     "last and records none",
+                     (unsigned long long)r->task_id, k);
+        return 0;
+    }
     if (!r->guide) {
         pt_error_set(err, PT_ERR_PROTO, "result for task %llu lacks the guiding statistics",
                      (unsigned long long)r->task_id);
@@ -221,7 +240,6 @@ int job_guide_result_ok(const srv_job *j, const proto_result *r, pt_error *err)
     }
     /* A first copy is of the pass being learned; a verification copy's
      * statistics are compared, not merged, but must be of its pass too. */
-    uint32_t k = pt_guide_pass_of(r->s0, j->p.spp);
     if (k == j->gpass && (r->g_nsnode != j->gstats->nsnode || r->g_nqnode != j->gstats->nqnode)) {
         pt_error_set(err, PT_ERR_PROTO,
                      "result for task %llu: guiding statistics for %u+%u nodes, pass %u's "
@@ -249,9 +267,20 @@ int job_guide_result_ok(const srv_job *j, const proto_result *r, pt_error *err)
     return 1;
 }
 
+void job_guide_logged_last(const srv_job *j, proto_result *r)
+{
+    if (!j->p.guiding || !r->guide || !job_guide_last(j, pt_guide_pass_of(r->s0, j->p.spp)))
+        return;
+    if (r->owns_guide)
+        pt_free(r->guide);
+    r->guide = NULL;
+    r->owns_guide = 0;
+    r->g_nsnode = r->g_nqnode = r->gcount = r->gsum = 0;
+}
+
 void job_guide_accept(srv_job *j, const proto_result *r)
 {
-    if (!j->p.guiding)
+    if (!j->p.guiding || !r->guide)
         return;
     uint32_t k = pt_guide_pass_of(r->s0, j->p.spp);
     /* No task of the next pass is leased before its distribution exists, but

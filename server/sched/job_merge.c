@@ -714,6 +714,7 @@ srv_outcome srv_job_replay(srv_job *j, proto_result *r, pt_error *err)
     uint8_t st = j->tasks[t].state;
     if (st == T_MERGED || st == T_HELD || st == T_SKIPPED)
         return SRV_DUPLICATE;
+    job_guide_logged_last(j, r);
     if (!pixels_plausible(r, r->s1 - r->s0, err) || !passes_match(j, r, err) ||
         !clamps_plausible(j, r, err) || !job_guide_result_ok(j, r, err))
         return SRV_INVALID;

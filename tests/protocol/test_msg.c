@@ -713,6 +713,42 @@ static void test_task(void)
     CHECK(decode_any(PROTO_MSG_TASK, raw.buf, raw.len, &err) == PT_ERR_PROTO &&
           strstr(err.msg, "truncated"));
     proto_writer_fini(&raw);
+
+    /* GUIDE ends the message: the flag (not guided, guided and recording,
+     * guided in the last pass without recording), the pass and the hash
+     * round-trip; a flag over 2, a pass over 31, and a pass or a hash
+     * without guiding are refused both ways. */
+    const uint8_t flags[] = {PROTO_GUIDE_NONE, PROTO_GUIDE_RECORD, PROTO_GUIDE_LAST};
+    for (size_t k = 0; k < sizeof flags; k++) {
+        t = sample_task((int)k & 1);
+        t.guided = flags[k];
+        t.guide_pass = flags[k] ? 31u - (uint32_t)k : 0;
+        for (int i = 0; i < 32; i++)
+            t.guide_hash[i] = flags[k] ? (uint8_t)(i * 7 + k) : 0;
+        proto_writer_reset(&w);
+        CHECK(proto_msg_encode_task(&w, &t, &err) == PT_OK && w.buf[w.len - 37] == flags[k]);
+        memset(&back, 0xAB, sizeof back);
+        CHECKF(proto_msg_decode_task(w.buf, w.len, &back, &err) == PT_OK &&
+                   back.guided == flags[k] && back.guide_pass == t.guide_pass &&
+                   memcmp(back.guide_hash, t.guide_hash, 32) == 0,
+               "guide flag %u: %s", flags[k], err.msg);
+    }
+    for (int k = 0; k < 4; k++) {
+        t = sample_task(0);
+        t.guided = k == 0 ? 3 : k == 1 ? PROTO_GUIDE_LAST : PROTO_GUIDE_NONE;
+        t.guide_pass = k == 1 ? 32 : k == 2 ? 1 : 0;
+        t.guide_hash[5] = k == 3;
+        proto_writer_reset(&w);
+        CHECKF(proto_msg_encode_task(&w, &t, &err) == PT_ERR_ARG && w.len == 0, "guide case %d", k);
+        raw = task_raw((pt_rect){0, 0, 8, 8}, 0, 16, 64, 64);
+        raw.buf[raw.len - 37] = t.guided;
+        proto_put_u32(raw.buf + raw.len - 36, t.guide_pass);
+        raw.buf[raw.len - 32 + 5] = t.guide_hash[5];
+        CHECKF(decode_any(PROTO_MSG_TASK, raw.buf, raw.len, &err) == PT_ERR_PROTO &&
+                   strstr(err.msg, "guid"),
+               "guide case %d: %s", k, err.msg);
+        proto_writer_fini(&raw);
+    }
     proto_writer_fini(&w);
 }
 

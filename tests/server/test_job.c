@@ -1536,11 +1536,36 @@ static void guided(void)
         proto_result r = guided_result(&t[k], px, good, 1, 1, 1, 2046);
         CHECKF(srv_job_result(j, 7, &r, &err) == SRV_MERGED, "%s", err.msg);
     }
-    /* Both tiles at pass 0's end: pass 1's distribution exists, another. */
+    /* Both tiles at pass 0's end: pass 1's distribution exists, another.
+     * Pass 0's tasks recorded; pass 1 runs to spp, the last: its tasks
+     * record nothing, and a result of one with statistics is refused. */
     CHECK(srv_job_guide_pass(j) == 1);
-    CHECK(srv_job_lease(j, 7, 0, 1000, &t[2]) && t[2].s0 == 16 && t[2].s1 <= 48 && t[2].guided &&
-          t[2].guide_pass == 1 && memcmp(t[2].guide_hash, h, 32) != 0);
+    CHECK(srv_job_lease(j, 7, 0, 1000, &t[2]) && t[2].s0 == 16 && t[2].s1 <= 48 &&
+          t[2].guided == PROTO_GUIDE_LAST && t[2].guide_pass == 1 &&
+          memcmp(t[2].guide_hash, h, 32) != 0);
+    CHECK(t[0].guided == PROTO_GUIDE_RECORD && t[1].guided == PROTO_GUIDE_RECORD);
     CHECK(srv_job_guide_bytes(j, t[2].guide_hash, &blob, &len));
+    /* Statistics of pass 1's sizes, as a worker that recorded would send. */
+    uint32_t nsn1 = 0, nqn1 = 0;
+    {
+        pt_guide *g1 = NULL;
+        CHECK(proto_guide_unpack(blob, len, &raw, &rawlen, &err) == PT_OK &&
+              proto_guide_decode(raw, rawlen, &g1, &err) == PT_OK);
+        pt_free(raw);
+        if (g1) {
+            nsn1 = g1->nsnode;
+            nqn1 = g1->nqnode;
+        }
+        pt_guide_free(g1);
+    }
+    CHECK(nqn1 > 100);
+    uint64_t before = pt_film_total_samples(srv_job_film(j));
+    {
+        proto_result r = guided_result(&t[2], px, good, 1, 1, nsn1, nqn1);
+        CHECKF(srv_job_result(j, 7, &r, &err) == SRV_INVALID && strstr(err.msg, "records none"),
+               "%s", err.msg);
+        CHECK(pt_film_total_samples(srv_job_film(j)) == before);
+    }
     /* A checkpoint keeps pass 1's distribution and statistics. */
     proto_writer w;
     proto_writer_init(&w, 1u << 24);
@@ -1599,6 +1624,20 @@ static void guided(void)
     srv_job_free(d);
     pt_free(raw1);
     proto_writer_fini(&v9);
+    /* The last pass's result without statistics merges; so does one that a
+     * coordinator before PROTO_GUIDE_LAST logged with them, replayed (they
+     * are dropped: nothing is built from them). */
+    {
+        proto_result r = guided_result(&t[2], px, NULL, 0, 0, 0, 0);
+        CHECKF(srv_job_result(j, 7, &r, &err) == SRV_MERGED, "%s", err.msg);
+        r = guided_result(&t[2], px, good, 1, 1, nsn1, nqn1);
+        CHECKF(c && srv_job_replay(c, &r, &err) == SRV_MERGED, "%s", err.msg);
+        CHECK(r.guide == NULL);
+        uint64_t want = (uint64_t)(t[2].tile.x1 - t[2].tile.x0) * (t[2].tile.y1 - t[2].tile.y0) *
+                        (t[2].s1 - t[2].s0);
+        CHECK(pt_film_total_samples(srv_job_film(j)) == before + want);
+        CHECK(c && pt_film_total_samples(srv_job_film(c)) == before + want);
+    }
     srv_job_free(c);
     proto_writer_fini(&w);
     srv_job_free(j);
