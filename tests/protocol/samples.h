@@ -82,6 +82,11 @@ static inline proto_task sample_task(int v)
     /* v 0: indirect light clamped at 10; v 1: direct at 0.5. */
     m.clamp[0] = v ? 0.5f : 0.0f;
     m.clamp[1] = v ? 0.0f : 10.0f;
+    /* v 0: guided pass 2, recording; v 1: the last pass, at its largest
+     * number, recording nothing. */
+    m.guided = v ? PROTO_GUIDE_LAST : PROTO_GUIDE_RECORD;
+    m.guide_pass = v ? PROTO_MAX_GUIDE_PASS : 2;
+    sample_hash(m.guide_hash, 40u + (unsigned)v);
     return m;
 }
 
