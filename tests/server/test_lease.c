@@ -497,26 +497,29 @@ static void garbage(void)
 /* ---- d. the liar ---- */
 
 /* The liar's loop: answers every task at once with 0.5 everywhere until it
- * is closed. The honest workers start only once it has lied 8 times, so the
- * verification copies of its first lies are what they render first (those
- * go before new tasks), and a mismatch holds the job until it is decided:
- * the liar is caught however fast the machine renders. */
+ * is closed. The honest workers start only once it has lied 8 times, or
+ * has lied and then been given nothing for 40 rounds (a lease gate, or
+ * tasks sized by its speed, left it fewer than 8), so the verification
+ * copies of its first lies are what they render first (those go before
+ * new tasks), and a mismatch holds the job until it is decided: the liar
+ * is caught however fast the machine renders. */
 static uint32_t lie(peer *l, int port, pid_t *w1, pid_t *w2)
 {
     double end = pt_now_s() + 300;
-    uint32_t lies = 0;
+    uint32_t lies = 0, idle = 0;
     *w1 = *w2 = -1;
     while (!l->closed && pt_now_s() < end) {
         peer_ask(l, 4);
         l->ntasks = l->next = 0;
         peer_read(l, 50);
+        idle = l->ntasks ? 0 : idle + 1;
         for (uint32_t i = 0; i < l->ntasks; i++) {
             pt_pixel_acc px =
                 pt_pixel_acc_of(0.5, 0.5, 0.5, 0.25, l->tasks[i].s1 - l->tasks[i].s0, 0);
             peer_result(l, &l->tasks[i], px, 0);
             lies++;
         }
-        if (*w1 < 0 && lies >= 8) {
+        if (*w1 < 0 && (lies >= 8 || (lies > 0 && idle >= 40))) {
             *w1 = start_worker(port, "good1");
             *w2 = start_worker(port, "good2");
         }
