@@ -600,6 +600,11 @@ uint32_t pt_guide_pass_end(uint32_t k, uint32_t spp)
     return (uint32_t)end;
 }
 
+int pt_guide_pass_last(uint32_t k, uint32_t spp)
+{
+    return pt_guide_pass_end(k, spp) >= spp;
+}
+
 int pt_guide_auto(const pt_scene *scene)
 {
     return (scene->features & (PT_FEAT_TRANSMISSION | PT_FEAT_DIFFUSE_TRANSMISSION)) != 0;

@@ -165,6 +165,11 @@ pt_status pt_guide_build(const pt_guide *g, const pt_guide_stats *s, uint64_t sp
  * worker and the farm cut passes here alike. */
 uint32_t pt_guide_pass_end(uint32_t k, uint32_t spp);
 
+/* 1 when guided pass k is the last of a render of spp samples: it runs to
+ * spp, so nothing is built from its statistics and neither the standalone
+ * render nor a farm worker records them. */
+int pt_guide_pass_last(uint32_t k, uint32_t spp);
+
 /* --guiding auto: 1 when scene has glass or a diffuse transmitter (its
  * feature mask), whose light path tracing with NEE finds by chance and
  * where guiding pays or came closest (docs/bench/guiding.md: 1.46x the

@@ -34,7 +34,7 @@ pt_status pt_guide_run_begin(pt_guide_run *run, pt_error *err)
     if (run->s0 >= run->spp)
         return PT_OK;
     run->s1 = pt_guide_pass_end(run->pass, run->spp);
-    int record = run->record_last || run->s1 < run->spp;
+    int record = run->record_last || !pt_guide_pass_last(run->pass, run->spp);
     for (uint32_t i = 0; i < run->threads; i++) {
         pt_status st = pt_guide_stats_new(run->guide, &run->stats[i], err);
         if (st != PT_OK)
@@ -59,9 +59,10 @@ pt_status pt_guide_run_merge(pt_guide_run *run, pt_error *err)
 
 pt_status pt_guide_run_end(pt_guide_run *run, pt_guide **kept, pt_error *err)
 {
-    if (run->s1 < run->spp || kept) {
+    int last = pt_guide_pass_last(run->pass, run->spp);
+    if (!last || kept) {
         pt_guide *next = NULL;
-        if (run->s1 < run->spp) {
+        if (!last) {
             pt_status st = pt_guide_build(run->guide, run->stats[0],
                                           pt_guide_split_count(run->pass), &next, err);
             if (st != PT_OK)

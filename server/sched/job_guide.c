@@ -188,11 +188,6 @@ int job_guide_gated(const srv_job *j, uint32_t frontier)
     return j->p.guiding && frontier >= pt_guide_pass_end(j->gpass, j->p.spp);
 }
 
-int job_guide_last(const srv_job *j, uint32_t k)
-{
-    return pt_guide_pass_end(k, j->p.spp) >= j->p.spp;
-}
-
 int job_guide_fill(const srv_job *j, uint32_t s0, proto_task *t)
 {
     t->guided = 0;
@@ -205,7 +200,7 @@ int job_guide_fill(const srv_job *j, uint32_t s0, proto_task *t)
         return 0;
     /* No distribution is built from the last pass's statistics: its tasks
      * record none (as the standalone render's last pass). */
-    t->guided = job_guide_last(j, k) ? PROTO_GUIDE_LAST : PROTO_GUIDE_RECORD;
+    t->guided = pt_guide_pass_last(k, j->p.spp) ? PROTO_GUIDE_LAST : PROTO_GUIDE_RECORD;
     t->guide_pass = k;
     memcpy(t->guide_hash, j->ghash[k], 32);
     return 1;
@@ -224,7 +219,7 @@ int job_guide_result_ok(const srv_job *j, const proto_result *r, pt_error *err)
     /* Its task said whether to record (job_guide_fill): statistics exactly
      * when the pass is not the last. */
     uint32_t k = pt_guide_pass_of(r->s0, j->p.spp);
-    if (job_guide_last(j, k)) {
+    if (pt_guide_pass_last(k, j->p.spp)) {
         if (!r->guide)
             return 1;
         pt_error_set(err, PT_ERR_PROTO,
@@ -269,7 +264,8 @@ int job_guide_result_ok(const srv_job *j, const proto_result *r, pt_error *err)
 
 void job_guide_logged_last(const srv_job *j, proto_result *r)
 {
-    if (!j->p.guiding || !r->guide || !job_guide_last(j, pt_guide_pass_of(r->s0, j->p.spp)))
+    if (!j->p.guiding || !r->guide ||
+        !pt_guide_pass_last(pt_guide_pass_of(r->s0, j->p.spp), j->p.spp))
         return;
     if (r->owns_guide)
         pt_free(r->guide);

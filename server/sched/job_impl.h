@@ -269,11 +269,8 @@ int job_guide_gated(const srv_job *j, uint32_t frontier);
 /* TASK's GUIDE block for task samples from s0. 0 when the distribution of
  * its pass is not held (a verification copy of a pass before a resume). */
 int job_guide_fill(const srv_job *j, uint32_t s0, proto_task *t);
-/* 1 when pass k of the guided job j is its last (it runs to spp): its tasks
- * are PROTO_GUIDE_LAST and record no statistics. */
-int job_guide_last(const srv_job *j, uint32_t k);
 /* 1 when r's statistics fit the job: present exactly when it is guided and
- * its pass is not the last (job_guide_last), made for its pass's
+ * its pass is not the last (pt_guide_pass_last), made for its pass's
  * distribution, counts and sums plausible for its samples; else 0 with err. */
 int job_guide_result_ok(const srv_job *j, const proto_result *r, pt_error *err);
 /* Drops the statistics of r, a result replayed from the results log, when
