@@ -260,14 +260,16 @@ static void render_one(worker *w, const task_item *t, done_item *d)
      * own (they add exactly at the coordinator, whatever the tasks). */
     p.guiding = k->guided != PROTO_GUIDE_NONE;
     pt_guide_stats *gs = NULL;
-    pt_render_guiding gd = {0};
-    if (k->guided == PROTO_GUIDE_RECORD) {
-        d->st = pt_guide_stats_new(t->guide->guide, &gs, &d->err);
-        if (d->st != PT_OK)
-            return;
-    }
-    if (k->guided)
+    pt_render_guiding gd = {0}, *gdp = NULL;
+    if (p.guiding) {
+        if (k->guided == PROTO_GUIDE_RECORD) {
+            d->st = pt_guide_stats_new(t->guide->guide, &gs, &d->err);
+            if (d->st != PT_OK)
+                return;
+        }
         gd = (pt_render_guiding){t->guide->guide, pt_guide_pass_prob(k->guide_pass), gs};
+        gdp = &gd;
+    }
     wrk_scene_ref *ref = NULL;
     wrk_pose pose = {k->animate, k->time, k->animation};
     wrk_scene_look look = {k->camera, k->variant, &k->env, &pose, k->shutter};
@@ -277,7 +279,7 @@ static void render_one(worker *w, const task_item *t, done_item *d)
         return;
     }
     pt_render_tile_passes(wrk_scene_renderer(ref), k->tile, k->s0, k->s1, d->pixels, d->pass,
-                          &d->stats, k->guided ? &gd : NULL);
+                          &d->stats, gdp);
     wrk_scenes_release(w->scenes, ref);
     if (gs)
         d->st = proto_guide_stats_to_result(gs, &d->gres, &d->err);
