@@ -20,13 +20,19 @@ if ((${#files[@]} == 0)); then
   exit 1
 fi
 
-bad=()
-for f in "${files[@]}"; do
-  if ! out=$(clang-format --dry-run --Werror -- "$f" 2>&1); then
-    bad+=("$f")
-    [[ ${PT_FORMAT_VERBOSE:-0} == 1 ]] && printf '%s\n' "$out" >&2
-  fi
-done
+# Batches of files per clang-format process, two processes per core: one
+# process per file spent most of the check starting processes.
+jobs=$(nproc)
+rc=0
+out=$(printf '%s\0' "${files[@]}" |
+  xargs -0 -n 16 -P "$((2 * jobs))" clang-format --dry-run --Werror -- 2>&1) || rc=$?
+[[ ${PT_FORMAT_VERBOSE:-0} == 1 && -n $out ]] && printf '%s\n' "$out" >&2
+# Diagnostics start "FILE:LINE:COL: error:"; each bad file once.
+mapfile -t bad < <(printf '%s\n' "$out" | sed -n 's/^\(.*\):[0-9]*:[0-9]*: error:.*/\1/p' | sort -u)
+if ((rc != 0 && ${#bad[@]} == 0)); then
+  printf 'check_format: clang-format failed:\n%s\n' "$out" >&2
+  exit 1
+fi
 if ((${#bad[@]})); then
   echo "check_format: ${#bad[@]} of ${#files[@]} files do not follow .clang-format" \
     "($(clang-format --version | head -n 1)):" >&2
