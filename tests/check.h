@@ -49,6 +49,25 @@ static int check_passed_, check_failed_, check_skipped_;
         putchar('\n');                                                                             \
     } while (0)
 
+/* CHECK_SANITIZED: 1 in a sanitizer build (ASan, TSan; GCC defines
+ * __SANITIZE_*__, clang answers __has_feature), else 0. The few statistical
+ * tests whose power needs millions of samples run a quarter of them there
+ * (CHECK_WORK) and ask a bound twice as loose: the sanitizers look for
+ * memory and thread errors, which a quarter of the paths reach as well, and
+ * the release build holds the full bound. */
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+#define CHECK_SANITIZED 1
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer)
+#define CHECK_SANITIZED 1
+#endif
+#endif
+#ifndef CHECK_SANITIZED
+#define CHECK_SANITIZED 0
+#endif
+/* n samples, or a quarter of them (at least 1) in a sanitizer build. */
+#define CHECK_WORK(n) (CHECK_SANITIZED ? ((n) / 4 > 0 ? (n) / 4 : 1) : (n))
+
 /* Shared assets are required in CI (CI=true); elsewhere they may be absent. */
 static inline int check_shared_required(void)
 {
