@@ -3,7 +3,9 @@
 #   build/       Release, warnings as errors: the whole suite
 #   build-asan/  AddressSanitizer + UndefinedBehaviorSanitizer (no recover),
 #                with assert() on (NDEBUG undefined), clang when present:
-#                the whole suite
+#                the whole suite but the Blender add-on's tests (label
+#                blender: Blender's Python against a ptserve whose queue and
+#                HTTP code the other tests run in this build too)
 #   build-tsan/  ThreadSanitizer (clang), assert() on: the tests labelled
 #                "threads" (worker render threads, the coordinator's
 #                upload-check and writer threads, the farm end to end),
@@ -88,7 +90,7 @@ if [[ "${PT_SKIP_ASAN:-0}" != 1 ]]; then
   cmake --build build-asan -j "$jobs"
   step "tests (sanitizers)"
   ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1 \
-    ctest --test-dir build-asan --output-on-failure -j "$jobs"
+    ctest --test-dir build-asan -LE blender --output-on-failure -j "$jobs"
 fi
 
 # clang: GCC 12's ThreadSanitizer instruments the resolvers of target_clones
