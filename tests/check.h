@@ -67,6 +67,9 @@ static int check_passed_, check_failed_, check_skipped_;
 #endif
 /* n samples, or a quarter of them (at least 1) in a sanitizer build. */
 #define CHECK_WORK(n) (CHECK_SANITIZED ? ((n) / 4 > 0 ? (n) / 4 : 1) : (n))
+/* A bound that a quarter of the samples (CHECK_WORK) holds to: twice b in a
+ * sanitizer build, else b. */
+#define CHECK_LOOSE(b) (CHECK_SANITIZED ? 2.0 * (b) : (b))
 
 /* Shared assets are required in CI (CI=true); elsewhere they may be absent. */
 static inline int check_shared_required(void)

@@ -186,7 +186,7 @@ static void white_furnace(void)
         return;
     /* A sanitizer build: a quarter of the samples, twice the bound (check.h). */
     enum { W = 32, H = 32, SPP = CHECK_WORK(6144) };
-    const double bound = CHECK_SANITIZED ? 0.002 : 0.001;
+    const double bound = CHECK_LOOSE(0.001);
     /* PT_FEAT_GLOSSY: the guided variant for a Lambert material. */
     pt_renderer *r = renderer(s, W, H, 1, PT_FEAT_GLOSSY);
     CHECK(r && strcmp(pt_renderer_variant(r), "guided") == 0);

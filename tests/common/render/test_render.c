@@ -152,7 +152,7 @@ static void furnace_defaults(void)
      * them; two threads, half the rows each. A sanitizer build: a quarter
      * of them, 0.04 % and 0.2 % (check.h). */
     const uint32_t W = 64, H = 64, SPP = CHECK_WORK(3584);
-    const double bound = CHECK_SANITIZED ? 0.002 : 0.001;
+    const double bound = CHECK_LOOSE(0.001);
     pt_render_params p = {0};
     pt_render_params_default(&p);
     p.width = W;
