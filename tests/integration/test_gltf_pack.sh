@@ -134,39 +134,36 @@ done
 
 # Every sample asset, coded by meshopt. The two above are: their meshopt
 # (INDICES) variants were just found bit-identical at a larger size.
-if sanitized; then
-  failed=0
-  echo "ok: meshopt variants bit-identical (INDICES) or within rounding (TRIANGLES), quantized"
-  echo "    variants within their noise ratio and equal to their meshopt coding, a wrong scale"
-  echo "    and a flipped bit caught (sanitizer build: the other sample assets are not coded)"
-  exit 0
+coded="the other sample assets are not coded (sanitizer build)"
+if ! sanitized; then
+  mkdir "$tmp/all"
+  n=2
+  while IFS= read -r f; do
+    if [ "$f" = "$helmet" ] || [ "$f" = "$car" ]; then continue; fi
+    rm -f "$tmp"/all/*
+    for img in "$(dirname "$f")"/*.png "$(dirname "$f")"/*.jpg "$(dirname "$f")"/*.jpeg; do
+      if [ -f "$img" ]; then cp "$img" "$tmp/all/"; fi
+    done
+    if ! "$bin/ptgltf-pack" meshopt "$f" "$tmp/all/x.glb" --sequence 2> "$tmp/all.log"; then
+      grep -q "sparse accessors\|Draco primitives" "$tmp/all.log" || fail "$f: $(cat "$tmp/all.log")"
+      continue
+    fi
+    for v in a x; do
+      file=$f
+      if [ $v = x ]; then file=$tmp/all/x.glb; fi
+      "$bin/ptworker" --scene "$file" --res 32x24 --spp 1 --threads 1 --seed 3 \
+        --background "0.5,0.5,0.5" -q -o "$tmp/all/$v.exr" 2> "$tmp/all.log" ||
+        fail "$f ($v): $(cat "$tmp/all.log")"
+    done
+    "$bin/ptexr-diff" "$tmp/all/a.exr" "$tmp/all/x.exr" > "$tmp/all.log" ||
+      fail "$f: its meshopt variant differs: $(cat "$tmp/all.log")"
+    n=$((n + 1))
+  done < <(find "$scenes" \( -name '*.gltf' -o -name '*.glb' \) | sort)
+  [ $n -ge 20 ] || fail "only $n sample assets coded by meshopt"
+  coded="$n sample assets coded by meshopt render bit-identical"
 fi
-mkdir "$tmp/all"
-n=2
-while IFS= read -r f; do
-  if [ "$f" = "$helmet" ] || [ "$f" = "$car" ]; then continue; fi
-  rm -f "$tmp"/all/*
-  for img in "$(dirname "$f")"/*.png "$(dirname "$f")"/*.jpg "$(dirname "$f")"/*.jpeg; do
-    if [ -f "$img" ]; then cp "$img" "$tmp/all/"; fi
-  done
-  if ! "$bin/ptgltf-pack" meshopt "$f" "$tmp/all/x.glb" --sequence 2> "$tmp/all.log"; then
-    grep -q "sparse accessors\|Draco primitives" "$tmp/all.log" || fail "$f: $(cat "$tmp/all.log")"
-    continue
-  fi
-  for v in a x; do
-    file=$f
-    if [ $v = x ]; then file=$tmp/all/x.glb; fi
-    "$bin/ptworker" --scene "$file" --res 32x24 --spp 1 --threads 1 --seed 3 \
-      --background "0.5,0.5,0.5" -q -o "$tmp/all/$v.exr" 2> "$tmp/all.log" ||
-      fail "$f ($v): $(cat "$tmp/all.log")"
-  done
-  "$bin/ptexr-diff" "$tmp/all/a.exr" "$tmp/all/x.exr" > "$tmp/all.log" ||
-    fail "$f: its meshopt variant differs: $(cat "$tmp/all.log")"
-  n=$((n + 1))
-done < <(find "$scenes" \( -name '*.gltf' -o -name '*.glb' \) | sort)
-[ $n -ge 20 ] || fail "only $n sample assets coded by meshopt"
 
 failed=0
 echo "ok: meshopt variants bit-identical (INDICES) or within rounding (TRIANGLES), quantized"
 echo "    variants within their noise ratio and equal to their meshopt coding, a wrong scale"
-echo "    and a flipped bit caught; $n sample assets coded by meshopt render bit-identical"
+echo "    and a flipped bit caught; $coded"
