@@ -59,6 +59,8 @@ typedef struct srv_config {
     uint32_t handshake_ms;   /* a peer must authenticate within this time */
     uint32_t local_workers;  /* spawn this many ptworker processes */
     uint32_t worker_threads; /* threads per local worker; 0: cores / local_workers */
+    uint32_t local_stop_ms;  /* a local worker still running this long after SIGTERM is
+                                killed (server/app/local.h); 0: SRV_DEFAULT_LOCAL_STOP_MS */
     uint32_t
         merge_threads;    /* threads adding results to films (server/sched/adder.h); 0: the loop */
     uint32_t io_threads;  /* threads reading workers (server/net/io.h); 0: the loop */

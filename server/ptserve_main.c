@@ -18,6 +18,7 @@
 #include "common/render/options.h"
 #include "common/render/tile.h"
 #include "common/scene/scene.h"
+#include "server/app/local.h"
 #include "server/net/io.h"
 #include "server/serve.h"
 
@@ -83,6 +84,8 @@ static void usage(FILE *f)
         "                         is loaded\n"
         "  --local N              start N ptworker processes on this machine\n"
         "  --worker-threads T     threads per local worker (default: cores / N)\n"
+        "  --local-stop-timeout SEC  when ptserve stops, a local worker still running\n"
+        "                         this long after SIGTERM is killed (default 10)\n"
         "  --listen HOST:PORT     where workers connect (default 127.0.0.1:7878; with\n"
         "                         --local, a free loopback port)\n"
         "  --token-file PATH      shared secret workers and clients must prove (mutual\n"
@@ -239,7 +242,7 @@ static void usage(FILE *f)
 /* What main's checks need besides the configuration: options given and
  * values before they are converted. */
 typedef struct parsed {
-    double lease, handshake, grace; /* seconds */
+    double lease, handshake, grace, local_stop; /* seconds */
     int has_task_time, log_given, has_chunk, has_shutter, env_opts, placed;
     double shutter[2]; /* fractions of a frame */
 } parsed;
@@ -276,12 +279,14 @@ enum {
     O_MERGETHREADS,
     O_IOTHREADS,
     O_MAXLOG,
-    O_MAXFILM
+    O_MAXFILM,
+    O_LOCALSTOP
 };
 static const struct option own[] = {
     {"output", required_argument, NULL, 'o'},
     {"local", required_argument, NULL, O_LOCAL},
     {"worker-threads", required_argument, NULL, O_WTHREADS},
+    {"local-stop-timeout", required_argument, NULL, O_LOCALSTOP},
     {"listen", required_argument, NULL, O_LISTEN},
     {"token-file", required_argument, NULL, O_TOKEN},
     {"clients-file", required_argument, NULL, O_CLIENTS},
@@ -339,6 +344,7 @@ static void config_defaults(srv_config *c, parsed *x)
     x->lease = 20.0;
     x->handshake = 10.0;
     x->grace = 30.0;
+    x->local_stop = SRV_DEFAULT_LOCAL_STOP_MS / 1000.0;
 }
 
 /* One of ptserve's own options (ch, its text optarg) into c and x. */
@@ -442,6 +448,9 @@ static pt_status own_option(int ch, srv_config *c, parsed *x, pt_error *err)
         break;
     case O_GRACE:
         st = pt_opt_seconds("--frame-grace", optarg, 0.1, 3600, &x->grace, err);
+        break;
+    case O_LOCALSTOP:
+        st = pt_opt_seconds("--local-stop-timeout", optarg, 0.1, 3600, &x->local_stop, err);
         break;
     case O_MINRATE:
         if ((st = pt_opt_u32("--min-rate", optarg, 1, 1u << 20, &v, err)) == PT_OK)
@@ -655,6 +664,7 @@ static int check_options(srv_config *c, const pt_render_opts *ro, parsed *x, int
     c->lease_ms = (uint32_t)(x->lease * 1000.0);
     c->handshake_ms = (uint32_t)(x->handshake * 1000.0);
     c->limits.frame_grace_ms = (uint32_t)(x->grace * 1000.0);
+    c->local_stop_ms = (uint32_t)(x->local_stop * 1000.0);
     return 0;
 }
 

@@ -20,6 +20,7 @@ extern char **environ;
 
 pt_status srv_local_start(srv_local *l, const srv_config *cfg, uint16_t port, pt_error *err)
 {
+    l->stop_ms = cfg->local_stop_ms ? cfg->local_stop_ms : SRV_DEFAULT_LOCAL_STOP_MS;
     char bin[PATH_MAX];
     if (cfg->worker_bin) {
         snprintf(bin, sizeof bin, "%s", cfg->worker_bin);
@@ -126,17 +127,17 @@ void srv_local_stop(srv_local *l)
             kill(l->children[i], SIGTERM);
     /* A ptworker leaves within about 3 s of SIGTERM (it finishes no task);
      * a --worker-bin that ignores it, or a child stuck in the kernel, would
-     * hold this coordinator's exit forever: after SRV_LOCAL_STOP_GRACE_MS
+     * hold this coordinator's exit forever: after l->stop_ms
      * it is killed, and the log says so. */
-    for (uint32_t waited = 0; l->alive > 0 && waited < SRV_LOCAL_STOP_GRACE_MS; waited += 50) {
+    for (uint32_t waited = 0; l->alive > 0 && waited < l->stop_ms; waited += 50) {
         reap(l, WNOHANG, 0);
         if (l->alive > 0)
             nanosleep(&(struct timespec){0, 50 * 1000 * 1000}, NULL);
     }
     for (uint32_t i = 0; i < l->nchildren; i++)
         if (l->children[i] > 0) {
-            srv_log("local worker %u did not stop within %u s of SIGTERM; killed", i + 1,
-                    SRV_LOCAL_STOP_GRACE_MS / 1000);
+            srv_log("local worker %u did not stop within %g s of SIGTERM; killed", i + 1,
+                    l->stop_ms / 1000.0);
             kill(l->children[i], SIGKILL);
         }
     reap(l, 0, 0);

@@ -24,6 +24,7 @@
 typedef struct srv_local {
     pid_t *children; /* 0 once reaped */
     uint32_t nchildren, alive;
+    uint32_t stop_ms; /* srv_local_stop's wait before SIGKILL */
     char cache_dir[256];
 } srv_local;
 
@@ -36,13 +37,13 @@ pt_status srv_local_start(srv_local *l, const srv_config *cfg, uint16_t port, pt
  * (wait_all) waiting for every one, silently. */
 void srv_local_reap(srv_local *l, int wait_all);
 
-/* How long srv_local_stop waits for the children after SIGTERM before it
- * sends SIGKILL to the ones left. */
-#define SRV_LOCAL_STOP_GRACE_MS 10000u
+/* How long srv_local_stop waits by default for the children after SIGTERM
+ * before it sends SIGKILL to the ones left (ptserve --local-stop-timeout). */
+#define SRV_DEFAULT_LOCAL_STOP_MS 10000u
 
 /* Stops and reaps every child (SIGTERM, then SIGKILL to any still there
- * after SRV_LOCAL_STOP_GRACE_MS, logged), removes the cache folder and
- * frees l's memory. Accepts an l that started nothing. */
+ * after cfg->local_stop_ms, logged), removes the cache folder and frees l's
+ * memory. Accepts an l that started nothing. */
 void srv_local_stop(srv_local *l);
 
 #endif

@@ -1,10 +1,10 @@
 #!/usr/bin/env bash
 # ptserve --local stops its workers when it stops, even one that ignores
-# SIGTERM: after its grace period (SRV_LOCAL_STOP_GRACE_MS, 10 s) such a
+# SIGTERM: after --local-stop-timeout (10 s by default, 1 s here) such a
 # worker is killed, the log names it, and ptserve exits 0 instead of
 # waiting for it forever. The worker here is a stand-in (--worker-bin) that
 # ignores SIGTERM and never connects; the bound on ptserve's exit (90 s) is
-# far above the grace period, so load cannot fail the test, only a hang.
+# far above the timeout, so load cannot fail the test, only a hang.
 # Environment (set by ctest): PT_BIN, PT_SOURCE_DIR.
 set -euo pipefail
 # shellcheck source=tests/integration/lib_farm.sh
@@ -20,7 +20,7 @@ SH
 chmod +x "$tmp/stubborn"
 
 "$bin/ptserve" --state-dir "$tmp/state" --output-dir "$tmp/out" --listen 127.0.0.1:0 \
-  --port-file "$tmp/port" --local 1 --worker-bin "$tmp/stubborn" 2> "$tmp/serve.log" &
+  --port-file "$tmp/port" --local 1 --worker-bin "$tmp/stubborn" --local-stop-timeout 1 2> "$tmp/serve.log" &
 srv_pid=$!
 for _ in $(seq 400); do [ -s "$tmp/stubborn.pid" ] && break; sleep 0.05; done
 [ -s "$tmp/stubborn.pid" ] || fail "the local worker did not start: $(cat "$tmp/serve.log")"
@@ -36,7 +36,7 @@ rc=0
 wait "$srv_pid" || rc=$?
 srv_pid=
 [ "$rc" = 0 ] || fail "ptserve exited $rc: $(tail -n 5 "$tmp/serve.log")"
-grep -q "local worker 1 did not stop within 10 s of SIGTERM; killed" "$tmp/serve.log" ||
+grep -q "local worker 1 did not stop within 1 s of SIGTERM; killed" "$tmp/serve.log" ||
   fail "the log does not say the worker was killed: $(tail -n 5 "$tmp/serve.log")"
 ! kill -0 "$child" 2> /dev/null || fail "the local worker ($child) is still running"
 failed=0
