@@ -588,12 +588,14 @@ static uint8_t *valid_result(size_t *len)
     return w.buf; /* the writer's buffer, now the caller's (pt_free) */
 }
 
-#define MIN_RATE_KIB 32
+/* High enough that the rules below end in seconds (a slow CI runs this
+ * test three times), low enough that each is well past the 1 s grace. */
+#define MIN_RATE_KIB 64
 #define UPLOAD_SIZE (256u << 10)
 
 /* A client announces a 256 KiB scene, then sends it in whole UPLOAD frames
  * of 512 bytes every 100 ms (5 KiB/s): no frame is slow and nothing
- * stalls, but the upload must be whole within max(1 s, 256 / 32 = 8 s). */
+ * stalls, but the upload must be whole within max(1 s, 256 / 64 = 4 s). */
 static void upload_drip_closed(int port)
 {
     int fd = authenticate(port, "", PROTO_ROLE_CLIENT);
@@ -635,9 +637,11 @@ static void upload_drip_closed(int port)
 
 static void drip_closed(void)
 {
-    /* A frame of ~144 KiB may take max(1 s, 144 / 32 = 4.5 s). */
+    /* A frame of ~160 KiB may take max(1 s, 160 / 64 = 2.5 s). */
+    char rate[16];
+    snprintf(rate, sizeof rate, "%d", MIN_RATE_KIB);
     const char *extra[] = {"--state-dir", path("rate"), "--frame-grace", "1", "--min-rate",
-                           "32",          NULL};
+                           rate,          NULL};
     int port;
     pid_t srv = start_serve_port(extra, "rate.log", &port);
     if (srv < 0)
