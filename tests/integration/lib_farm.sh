@@ -26,6 +26,9 @@
 #                           (ptexr-diff; its report in $tmp/NAME.diff); a test
 #                           redefines it to check more (finish calls it)
 #   finish ID NAME          waits for done, fetches $tmp/NAME.exr, same NAME
+#   sanitized               (lib_build.sh) true in a sanitizer build
+# shellcheck source=tests/integration/lib_build.sh
+. "$(dirname "${BASH_SOURCE[0]}")/lib_build.sh"
 # shellcheck disable=SC2034 # bin, src and scene are the sourcing test's
 
 farm_init() {

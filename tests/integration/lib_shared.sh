@@ -14,10 +14,6 @@ need_shared() {
   done
 }
 
-#   sanitized             true in an ASan + UBSan or ThreadSanitizer build
-#                         (PT_BIN's CMakeCache.txt), where a test may render
-#                         less: the sanitizers check the same code on a
-#                         smaller image, the release build the full-size one
-sanitized() {
-  grep -qE '^PT_(SANITIZE|TSAN):BOOL=ON$' "${PT_BIN:?}/../CMakeCache.txt" 2>/dev/null
-}
+# and, from lib_build.sh, sanitized.
+# shellcheck source=tests/integration/lib_build.sh
+. "$(dirname "${BASH_SOURCE[0]}")/lib_build.sh"

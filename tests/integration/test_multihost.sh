@@ -37,15 +37,19 @@ set -euo pipefail
 here=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 # shellcheck source=tests/integration/lib_netns.sh
 source "$here/lib_netns.sh"
+# shellcheck source=tests/integration/lib_build.sh
+source "$here/lib_build.sh"
 
 : "${PT_BIN:?PT_BIN must name the bin folder of the build}"
 : "${PT_SOURCE_DIR:?PT_SOURCE_DIR must name the source tree}"
 scene=$PT_SOURCE_DIR/scenes/cornell_box.gltf
 
 # The job: long enough (the farm takes 11-18 s on 2 shared cores) that the farm is still rendering
-# after the cut, the lease timeout and w1's return.
+# after the cut, the lease timeout and w1's return; half as many samples in a sanitizer build,
+# which renders them three to ten times slower.
 res=96x64
 spp=4096
+if sanitized; then spp=2048; fi
 job=(--res "$res" --spp "$spp" --tile 16 --chunk 8 --seed 3)
 lease=3     # --lease-timeout, seconds
 link=2      # the workers' --link-timeout, seconds; below $outage, so w1 notices the cut
