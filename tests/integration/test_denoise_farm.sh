@@ -53,8 +53,11 @@ rc=0
 "$bin/ptworker" --scene "$scene" --denoise-progressive -o "$tmp/w.exr" 2> /dev/null || rc=$?
 [ "$rc" = 2 ] || fail "ptworker took --denoise-progressive (exit $rc): its saves are not progressive"
 
-# 2. Progressive saves denoised: copies of the output taken while it runs.
-view=(--res 48x32 --spp 2048 --seed 3)
+# 2. Progressive saves denoised: copies of the output taken while it runs
+# (half as many samples in a sanitizer build, which renders them slower).
+spp=2048
+if sanitized; then spp=1024; fi
+view=(--res 48x32 --spp "$spp" --seed 3)
 "$bin/ptworker" --scene "$scene" "${view[@]}" --denoise --tile 16 --chunk 8 -q \
   -o "$tmp/ref.exr" 2> /dev/null
 "$bin/ptserve" --local 2 --worker-threads 1 --tile 16 --chunk 8 --save-interval 0 "${view[@]}" \
