@@ -13,9 +13,14 @@ if ! command -v shellcheck >/dev/null; then
   exit 1
 fi
 scripts=()
+shebang='^#!.*[/ ](ba)?sh( |$)'
 while IFS= read -r -d '' f; do
   [[ -f $f ]] || continue
-  if [[ $f == *.sh ]] || head -n 1 -- "$f" | grep -Eq '^#!.*[/ ](ba)?sh( |$)'; then
+  # The first line read by bash itself: a head and a grep for each of the
+  # tree's 700 files took 9 s.
+  first=
+  [[ $f == *.sh ]] || IFS= read -r -n 200 first < "$f" || true
+  if [[ $f == *.sh || $first =~ $shebang ]]; then
     scripts+=("$f")
   fi
 done < <(git ls-files -z)
@@ -24,8 +29,9 @@ if ((${#scripts[@]} == 0)); then
   exit 1
 fi
 # -x: follow `source` into the files the `# shellcheck source=` lines name
-# (paths from the repository root, where this runs).
-if ! shellcheck -x -- "${scripts[@]}"; then
+# (paths from the repository root, where this runs). Eight scripts a
+# process, two processes a core; xargs exits non-zero when any of them did.
+if ! printf '%s\0' "${scripts[@]}" | xargs -0 -n 8 -P "$((2 * $(nproc)))" shellcheck -x --; then
   echo "check_shell: shellcheck found problems in the scripts above" >&2
   exit 1
 fi
