@@ -5,7 +5,9 @@
 #                with assert() on (NDEBUG undefined), clang when present:
 #                the whole suite but the Blender add-on's tests (label
 #                blender: Blender's Python against a ptserve whose queue and
-#                HTTP code the other tests run in this build too)
+#                HTTP code the other tests run in this build too) and the
+#                dashboard in a browser (label browser: test_http sends its
+#                requests with curl here)
 #   build-tsan/  ThreadSanitizer (clang), assert() on: the tests labelled
 #                "threads" (worker render threads, the coordinator's
 #                upload-check and writer threads, the farm end to end),
@@ -94,7 +96,7 @@ if [[ "${PT_SKIP_ASAN:-0}" != 1 ]]; then
   cmake --build build-asan -j "$jobs"
   step "tests (sanitizers)"
   ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1 \
-    ctest --test-dir build-asan -LE blender --output-on-failure -j "$jobs"
+    ctest --test-dir build-asan -LE 'blender|browser' --output-on-failure -j "$jobs"
 fi
 
 # clang: GCC 12's ThreadSanitizer instruments the resolvers of target_clones
