@@ -20,13 +20,13 @@
 # but fails the run at the end. Prints the time of each step at the end and
 # exits non-zero when any step failed. Environment:
 #   PT_JOBS          parallel build jobs (default: number of cores)
-#   PT_FUZZ_SECONDS  seconds per fuzzer (default 5; 0 skips fuzzing)
+#   PT_FUZZ_SECONDS  seconds per fuzzer (default 3; 0 skips fuzzing)
 #   PT_SKIP_ASAN=1   skip the ASan + UBSan build (for quick local runs)
 #   PT_SKIP_TSAN=1   skip the ThreadSanitizer build (for quick local runs)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 jobs=${PT_JOBS:-$(nproc)}
-fuzz_seconds=${PT_FUZZ_SECONDS:-5}
+fuzz_seconds=${PT_FUZZ_SECONDS:-3}
 
 step_names=()
 step_secs=()
