@@ -56,20 +56,8 @@ print_times() {
 # The times come at the end, also when a step fails.
 trap print_times EXIT
 
-# Ninja where there is one (deploy/setup.sh installs it): make's per-target
-# dependency steps took a quarter of each build (the release build 129 s
-# with make, 96 s with Ninja, 2 cores). A folder configured before keeps its
-# generator, which cmake cannot change. lld where there is one (setup
-# installs it too): the builds link about a hundred programs, each against
-# the same static libraries, and lld links them two to three times faster
-# than the system's ld (an ASan ptworker 0.35 s of CPU against 0.9 s).
-configure() { # DIR CMAKE-ARGS...
-  local dir=$1 gen=() link=()
-  shift
-  if [[ ! -f $dir/CMakeCache.txt ]] && command -v ninja >/dev/null; then gen=(-G Ninja); fi
-  if command -v ld.lld >/dev/null; then link=(-DCMAKE_EXE_LINKER_FLAGS=-fuse-ld=lld); fi
-  cmake -S . -B "$dir" "${gen[@]}" "${link[@]}" "$@" >/dev/null
-}
+# shellcheck source=tests/configure.sh
+. tests/configure.sh
 
 failed_checks=()
 step "format check (clang-format)"
@@ -78,7 +66,7 @@ step "shell script check (shellcheck)"
 tests/check_shell.sh || failed_checks+=("shell script check: tests/check_shell.sh")
 
 step "release build"
-configure build -DCMAKE_BUILD_TYPE=Release -DPT_WERROR=ON
+pt_configure build -DCMAKE_BUILD_TYPE=Release -DPT_WERROR=ON
 cmake --build build -j "$jobs"
 step "tests (release)"
 ctest --test-dir build --output-on-failure -j "$jobs"
@@ -91,7 +79,7 @@ if [[ "${PT_SKIP_ASAN:-0}" != 1 ]]; then
   # warnings as errors.
   asan_cc=()
   if command -v clang >/dev/null; then asan_cc=(-DCMAKE_C_COMPILER=clang -DCMAKE_CXX_COMPILER=clang++); fi
-  configure build-asan -DCMAKE_BUILD_TYPE=RelWithDebInfo -DPT_SANITIZE=ON -DPT_WERROR=ON \
+  pt_configure build-asan -DCMAKE_BUILD_TYPE=RelWithDebInfo -DPT_SANITIZE=ON -DPT_WERROR=ON \
     "${asan_cc[@]}"
   cmake --build build-asan -j "$jobs"
   step "tests (sanitizers)"
@@ -105,7 +93,7 @@ fi
 if [[ "${PT_SKIP_TSAN:-0}" != 1 ]]; then
   step "thread sanitizer build (TSan)"
   # Only what the tests labelled "threads" run (tests/CMakeLists.txt).
-  CC=clang CXX=clang++ configure build-tsan -DCMAKE_BUILD_TYPE=RelWithDebInfo -DPT_TSAN=ON \
+  CC=clang CXX=clang++ pt_configure build-tsan -DCMAKE_BUILD_TYPE=RelWithDebInfo -DPT_TSAN=ON \
     -DPT_WERROR=ON
   cmake --build build-tsan -j "$jobs" --target thread_tests
   step "tests (thread sanitizer, label threads)"

@@ -32,11 +32,10 @@ max_len=${PT_FUZZ_MAX_LEN:-16384}
 
 command -v clang >/dev/null || { echo "run_fuzzers.sh: clang not found" >&2; exit 1; }
 if [[ ! -f "$build/CMakeCache.txt" ]]; then
-  gen=() link=() # Ninja and lld where there are, as tests/run.sh
-  if command -v ninja >/dev/null; then gen=(-G Ninja); fi
-  if command -v ld.lld >/dev/null; then link=(-DCMAKE_EXE_LINKER_FLAGS=-fuse-ld=lld); fi
-  cmake -S . -B "$build" "${gen[@]}" "${link[@]}" -DCMAKE_BUILD_TYPE=Debug -DPT_FUZZ=ON \
-    -DCMAKE_C_COMPILER=clang -DCMAKE_CXX_COMPILER=clang++ >/dev/null
+  # shellcheck source=tests/configure.sh
+  . tests/configure.sh
+  pt_configure "$build" -DCMAKE_BUILD_TYPE=Debug -DPT_FUZZ=ON \
+    -DCMAKE_C_COMPILER=clang -DCMAKE_CXX_COMPILER=clang++
 fi
 cmake --build "$build" -j "$jobs" --target "${targets[@]}"
 
