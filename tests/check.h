@@ -70,6 +70,11 @@ static int check_passed_, check_failed_, check_skipped_;
 /* A bound that a quarter of the samples (CHECK_WORK) holds to: twice b in a
  * sanitizer build, else b. */
 #define CHECK_LOOSE(b) (CHECK_SANITIZED ? 2.0 * (b) : (b))
+/* A farm job's samples that only need to outlast kills or rounds of leases
+ * (which follow merged samples, not time): n, or half of n in a sanitizer
+ * build, which renders them three to ten times slower. The shell tests'
+ * twin is sanitized_spp (tests/integration/lib_build.sh). */
+#define CHECK_JOB_SPP(n) (CHECK_SANITIZED ? (n) / 2 : (n))
 
 /* Shared assets are required in CI (CI=true); elsewhere they may be absent. */
 static inline int check_shared_required(void)

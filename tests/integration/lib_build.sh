@@ -9,3 +9,11 @@
 sanitized() {
   grep -qE '^PT_(SANITIZE|TSAN):BOOL=ON$' "${PT_BIN:?}/../CMakeCache.txt" 2>/dev/null
 }
+
+#   sanitized_spp N
+#               prints N, or half of N in a sanitizer build: the samples of
+#               a farm job that only needs to outlast kills or saves (as
+#               CHECK_JOB_SPP in tests/check.h)
+sanitized_spp() {
+  if sanitized; then echo $(($1 / 2)); else echo "$1"; fi
+}

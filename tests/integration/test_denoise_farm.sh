@@ -55,9 +55,7 @@ rc=0
 
 # 2. Progressive saves denoised: copies of the output taken while it runs
 # (half as many samples in a sanitizer build, which renders them slower).
-spp=2048
-if sanitized; then spp=1024; fi
-view=(--res 48x32 --spp "$spp" --seed 3)
+view=(--res 48x32 --spp "$(sanitized_spp 2048)" --seed 3)
 "$bin/ptworker" --scene "$scene" "${view[@]}" --denoise --tile 16 --chunk 8 -q \
   -o "$tmp/ref.exr" 2> /dev/null
 "$bin/ptserve" --local 2 --worker-threads 1 --tile 16 --chunk 8 --save-interval 0 "${view[@]}" \

@@ -48,8 +48,7 @@ scene=$PT_SOURCE_DIR/scenes/cornell_box.gltf
 # after the cut, the lease timeout and w1's return; half as many samples in a sanitizer build,
 # which renders them three to ten times slower.
 res=96x64
-spp=4096
-if sanitized; then spp=2048; fi
+spp=$(sanitized_spp 4096)
 job=(--res "$res" --spp "$spp" --tile 16 --chunk 8 --seed 3)
 lease=3     # --lease-timeout, seconds
 link=2      # the workers' --link-timeout, seconds; below $outage, so w1 notices the cut

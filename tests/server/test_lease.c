@@ -361,9 +361,8 @@ static void hoarder(void)
                            "--http-port-file",
                            hport,
                            NULL};
-    /* Half the samples in a sanitizer build, which renders them three to ten
-     * times slower: the job still outlasts the hoarder's three missed rounds. */
-    const char *spp = CHECK_SANITIZED ? "4096" : "8192";
+    char spp[16];
+    snprintf(spp, sizeof spp, "%d", CHECK_JOB_SPP(8192));
     pid_t srv = start_server(spp, "64", "hoard.exr", "hoard.log", extra);
     int port = read_port();
     CHECK(port > 0);

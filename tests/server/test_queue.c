@@ -460,10 +460,8 @@ static double done_seconds(const char *log, uint64_t id)
 static void crash_restart(void)
 {
     /* Long enough for six kills: results merge once their commit returns, which
-     * on a busy disk may be seconds behind what the workers returned. Half
-     * as many samples in a sanitizer build, which renders them three to ten
-     * times slower. */
-    const uint32_t spp = CHECK_SANITIZED ? 2048 : 4096;
+     * on a busy disk may be seconds behind what the workers returned. */
+    const uint32_t spp = CHECK_JOB_SPP(4096);
     char spp_text[16];
     snprintf(spp_text, sizeof spp_text, "%u", spp);
     const char *ref[] = {PT_BIN_DIR "/ptworker",
