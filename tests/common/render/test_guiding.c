@@ -41,6 +41,7 @@
 #include <unistd.h>
 
 #include "common/base/alloc.h"
+#include "common/image/envmap.h"
 #include "common/render/env.h"
 #include "common/render/guide.h"
 #include "common/render/render.h"
@@ -486,6 +487,138 @@ static void behind_glass_agrees(void)
     guided_vs_unguided(floor_and_lamp(1, 3), 16, 16, 64, 2048, -1, "floor behind three panes");
 }
 
+/* A Lambert floor (y = 0, |x|, |z| <= 1) beside a vertical mirror (x = 1.2,
+ * 0 <= y <= 2, facing -x), seen from above; no emitter: the light is a map
+ * (mirror_sun_env). */
+static pt_scene *floor_and_mirror(void)
+{
+    pt_scene_builder *b = NULL;
+    pt_error err = {0};
+    CHECK(pt_scene_builder_new(&b, &err) == PT_OK);
+    if (!b)
+        return NULL;
+    pt_material fl = pt_material_default();
+    fl.metallic = 0.0f;
+    fl.roughness = 1.0f;
+    fl.base_color[0] = fl.base_color[1] = fl.base_color[2] = 0.8f;
+    pt_material mirror = pt_material_default();
+    mirror.metallic = 1.0f;
+    mirror.roughness = 0.0f;
+    uint32_t mf, mm;
+    CHECK(pt_scene_builder_add_material(b, &fl, &mf, &err) == PT_OK);
+    CHECK(pt_scene_builder_add_material(b, &mirror, &mm, &err) == PT_OK);
+    const float floor_p[12] = {-1, 0, -1, -1, 0, 1, 1, 0, 1, 1, 0, -1};
+    const float mirror_p[12] = {1.2f, 0, -1, 1.2f, 2, -1, 1.2f, 2, 1, 1.2f, 0, 1};
+    const uint32_t idx[6] = {0, 1, 2, 0, 2, 3};
+    CHECK(pt_scene_builder_add_mesh(b, "floor", floor_p, NULL, NULL, 4, idx, 2, NULL, mf, &err) ==
+          PT_OK);
+    CHECK(pt_scene_builder_add_mesh(b, "mirror", mirror_p, NULL, NULL, 4, idx, 2, NULL, mm, &err) ==
+          PT_OK);
+    pt_camera cam = {0};
+    cam.position = pt_v3(0, 3, 0);
+    cam.forward = pt_v3(0, -1, 0);
+    cam.right = pt_v3(1, 0, 0);
+    cam.up = pt_v3(0, 0, -1);
+    cam.yfov = 0.5f;
+    cam.aspect = 1.0f;
+    snprintf(cam.name, sizeof cam.name, "c");
+    CHECK(pt_scene_builder_add_camera(b, &cam, &err) == PT_OK);
+    pt_scene *s = NULL;
+    CHECKF(pt_scene_builder_finish(b, NULL, &s, &err) == PT_OK, "%s", err.msg);
+    return s;
+}
+
+/* A dim sky (0.1) with a sun of radiance sun in the 2n x 2n texels of a
+ * 1024 x 512 map around the direction (-1, 1, 0) / sqrt 2 (env.h's map:
+ * theta 45 degrees from +y, u = 1/2 + atan2(x, -z) / 2 pi = 1/4). */
+static pt_env *mirror_sun_env(uint32_t n, float sun)
+{
+    enum { MW = 1024, MH = 512 };
+    pt_envmap map = {MW, MH, pt_malloc_array((size_t)MW * MH * 3, sizeof(float))};
+    pt_env *env = NULL;
+    pt_error err = {0};
+    if (!map.rgb)
+        return NULL;
+    for (size_t i = 0; i < (size_t)MW * MH * 3; i++)
+        map.rgb[i] = 0.1f;
+    for (uint32_t y = MH / 4 - n; y < MH / 4 + n; y++)
+        for (uint32_t x = MW / 4 - n; x < MW / 4 + n; x++)
+            for (int c = 0; c < 3; c++)
+                map.rgb[((size_t)y * MW + x) * 3 + c] = sun;
+    CHECKF(pt_env_new(&map, 1.0f, 0.0f, &env, &err) == PT_OK, "%s", err.msg);
+    pt_free(map.rgb);
+    return env;
+}
+
+/* Caustic photons (render.c, photon_trace): the sun reflected by the mirror
+ * lights the floor from (1, 1, 0) / sqrt 2, which a camera path finds only
+ * when its cosine-sampled direction off the floor meets the mirror and then
+ * the sun's few texels (about 5e-5 of them; one path in 16,384 here). After
+ * one recording pass of 64 spp, the floor's cell (unsplit) has a pdf towards
+ * the mirror's light many times its pdf towards the sky beside it: the
+ * photons' records taught it. Without them the two pdfs are alike. */
+static void learns_the_caustic(void)
+{
+    pt_scene *s = floor_and_mirror();
+    pt_env *env = mirror_sun_env(1, 1e5f);
+    enum { W = 16, H = 16 };
+    pt_renderer *r = s && env ? renderer_env(s, W, H, 1, env) : NULL;
+    pt_error err = {0};
+    pt_guide *g = NULL, *g2 = NULL;
+    pt_guide_stats *st[2] = {NULL, NULL};
+    CHECK(pt_guide_new_uniform(pt_v3(-1.1f, -0.1f, -1.1f), pt_v3(1.3f, 2.1f, 1.1f), &g, &err) ==
+          PT_OK);
+    pt_pixel_acc *acc = pt_calloc(W * H, sizeof *acc);
+    if (r && g && acc && pt_guide_stats_new(g, &st[0], &err) == PT_OK &&
+        pt_guide_stats_new(g, &st[1], &err) == PT_OK) {
+        render_pass(r, W, H, 0, 64, g, 0.0f, st, acc);
+        pt_guide_stats_merge(st[0], st[1], &err);
+        CHECK(pt_guide_build(g, st[0], UINT64_MAX, &g2, &err) == PT_OK);
+    }
+    if (g2) {
+        uint32_t cell = pt_guide_cell(g2, pt_v3(0, 0, 0), pt_v3(0, 1, 0));
+        pt_vec3 caustic = pt_v3_norm(pt_v3(1, 1, 0)), sky = pt_v3_norm(pt_v3(0, 1, 1));
+        float pc = pt_guide_pdf(g2, cell, caustic), ps = pt_guide_pdf(g2, cell, sky);
+        CHECKF(pc > 10.0f * ps, "caustic: pdf towards the mirror's sun %g, the sky %g", pc, ps);
+        printf("caustic: pdf towards the mirror's sun %.3g, the sky %.3g\n", pc, ps);
+    }
+    pt_guide_stats_free(st[0]);
+    pt_guide_stats_free(st[1]);
+    pt_guide_free(g);
+    pt_guide_free(g2);
+    pt_free(acc);
+    pt_renderer_free(r);
+    pt_env_free(env);
+    pt_scene_free(s);
+}
+
+/* The floor beside the mirror, guided (the guide learned from the photons'
+ * records in a first pass) and unguided, agree (images_agree): the photons
+ * shape the guide, not the estimate. The sun is 32 x 32 texels here, large
+ * enough for the unguided render to find the caustic often and estimate
+ * its variance (with learns_the_caustic's, 2,048 samples of a pixel would
+ * find it about once in ten pixels). */
+static void caustic_agrees(void)
+{
+    pt_scene *s = floor_and_mirror();
+    pt_env *env = mirror_sun_env(16, 100.0f);
+    enum { W = 16, H = 16 };
+    pt_renderer *rg = s && env ? renderer_env(s, W, H, 1, env) : NULL;
+    pt_renderer *ru = s && env ? renderer_env(s, W, H, 0, env) : NULL;
+    pt_pixel_acc *ag = pt_calloc(W * H, sizeof *ag), *au = pt_calloc(W * H, sizeof *au);
+    if (rg && ru && ag && au) {
+        pt_guide_free(render_guided(s, rg, W, H, 64, 2048, ag));
+        render_pass(ru, W, H, 0, 2048, NULL, 0.0f, NULL, au);
+        images_agree(ag, au, W * H, 2, "floor lit by a mirror");
+    }
+    pt_free(ag);
+    pt_free(au);
+    pt_renderer_free(rg);
+    pt_renderer_free(ru);
+    pt_env_free(env);
+    pt_scene_free(s);
+}
+
 /* A vertex whose lobes are all narrower than a guide of radiance alone can
  * stand in for (render.c, closure_guide_share: a metal of roughness 0.5,
  * GGX alpha 0.25, which closure_guidable guides) keeps its BSDF sampling:
@@ -707,6 +840,8 @@ int main(void)
     learns_the_lamp();
     learns_behind_glass();
     behind_glass_agrees();
+    learns_the_caustic();
+    caustic_agrees();
     white_furnace();
     glossy_agrees();
     glossy_keeps_bsdf();
