@@ -2912,13 +2912,15 @@ static void pick_variant(pt_renderer *r, uint32_t features)
     }
 }
 
-/* A material whose surfaces pass light on without spreading it, so that
- * photon_trace aims at them: glass, or a metal smooth enough that a path is
- * not guided at it (closure_guidable). A roughness texture only lowers the
- * factor. */
+/* A material whose surfaces may pass light on without spreading it, so that
+ * photon_trace aims at them: glass, or a metal that may be smooth enough for
+ * a path not to be guided at it (closure_guidable). The factors multiply
+ * the metallic-roughness texture's values: with one, any point may be such
+ * a metal (ToyCar's chrome is a texel of its one material). */
 static int photon_smooth(const pt_material *m)
 {
-    return transmits(m) || (m->metallic >= 0.5f && m->roughness * m->roughness < GUIDE_MIN_ALPHA);
+    return transmits(m) || m->metal_rough_tex >= 0 ||
+           (m->metallic >= 0.5f && m->roughness * m->roughness < GUIDE_MIN_ALPHA);
 }
 
 /* r->photon for a guided render lit by an environment: on when the scene's
