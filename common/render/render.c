@@ -1982,6 +1982,17 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
 #define PHOTON_MIN_COS 0.05f     /* a grazing arrival's cosine is taken as this */
 #define PHOTON_MIN_CAM_COS 0.25f /* and a point's cosine off the camera's axis */
 
+/* A material whose surfaces may pass light on without spreading it, so that
+ * photon_trace aims at them: glass, or a metal that may be smooth enough for
+ * a path not to be guided at it (closure_guidable). The factors multiply
+ * the metallic-roughness texture's values: with one, any point may be such
+ * a metal (ToyCar's chrome is a texel of its one material). */
+static int photon_smooth(const pt_material *m)
+{
+    return transmits(m) || m->metal_rough_tex >= 0 ||
+           (m->metallic >= 0.5f && m->roughness * m->roughness < GUIDE_MIN_ALPHA);
+}
+
 static void photon_trace(const pt_renderer *r, uint32_t pixel_seed, uint32_t index,
                          const pt_render_guiding *gd, const uint32_t features)
 {
@@ -2014,7 +2025,10 @@ static void photon_trace(const pt_renderer *r, uint32_t pixel_seed, uint32_t ind
             return;
         surface sf;
         surface_at(r, &hit, 0.0f, &sf, features);
-        if ((features & PT_FEAT_UNLIT) && (sf.mat->ext & PT_MATX_UNLIT))
+        /* A first hit that cannot be smooth is direct light: dropped
+         * before its closure is built. */
+        if (((features & PT_FEAT_UNLIT) && (sf.mat->ext & PT_MATX_UNLIT)) ||
+            (b == 0 && !photon_smooth(sf.mat)))
             return;
         const int glass = (features & PT_FEAT_TRANSMISSION) && transmits(sf.mat);
         const int through = glass || ((features & PT_FEAT_DIFFUSE_TRANSMISSION) &&
@@ -2910,17 +2924,6 @@ static void pick_variant(pt_renderer *r, uint32_t features)
         r->tile = tex ? tile_lambert : tile_lambert_untextured;
         r->variant = tex ? "lambert" : "lambert-untextured";
     }
-}
-
-/* A material whose surfaces may pass light on without spreading it, so that
- * photon_trace aims at them: glass, or a metal that may be smooth enough for
- * a path not to be guided at it (closure_guidable). The factors multiply
- * the metallic-roughness texture's values: with one, any point may be such
- * a metal (ToyCar's chrome is a texel of its one material). */
-static int photon_smooth(const pt_material *m)
-{
-    return transmits(m) || m->metal_rough_tex >= 0 ||
-           (m->metallic >= 0.5f && m->roughness * m->roughness < GUIDE_MIN_ALPHA);
 }
 
 /* r->photon for a guided render lit by an environment: on when the scene's
