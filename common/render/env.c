@@ -14,14 +14,23 @@
  * column x spans texel centres x and x + 1 (wrapping), row r (0 .. h) texel
  * rows r - 1 and r, clamped: rows 0 and h are the half-height cells at the
  * poles, where the lookup is constant in v. */
+/* Buckets of the cut-point tables (Chen & Asau 1974, "On Generating Random
+ * Variates from an Empirical Distribution"): the marginal's and each row's. */
+#define ROW_CUTS 256u
+#define COL_CUTS 64u
+
 typedef struct env_dist {
     double *row_cdf; /* h + 2: the marginal over cell rows, 0 .. 1 */
     double *col_cdf; /* (h + 1) * (w + 1): per cell row, 0 .. 1 (uniform for a black row) */
-    float *corner;   /* w * h: the value per texel the density interpolates */
-    float *row_sin;  /* h + 1: sin(theta) at each cell row's centre */
-    double norm;     /* w * h / the cells' total weight: pdf(u, v) = norm sin f(u, v) */
-    double total;    /* the cells' total weight */
-    int black;       /* nothing to sample */
+    /* Cut points: the interval a number in [j / M, (j + 1) / M) falls in
+     * lies between entries j and j + 1 (find_cut): ROW_CUTS + 1 of the
+     * marginal's, COL_CUTS + 1 per cell row of the rows'. */
+    uint32_t *row_cut, *col_cut;
+    float *corner;  /* w * h: the value per texel the density interpolates */
+    float *row_sin; /* h + 1: sin(theta) at each cell row's centre */
+    double norm;    /* w * h / the cells' total weight: pdf(u, v) = norm sin f(u, v) */
+    double total;   /* the cells' total weight */
+    int black;      /* nothing to sample */
 } env_dist;
 
 struct pt_env {
@@ -46,6 +55,8 @@ static void dist_free(env_dist *d)
 {
     pt_free(d->row_cdf);
     pt_free(d->col_cdf);
+    pt_free(d->row_cut);
+    pt_free(d->col_cut);
     pt_free(d->corner);
     pt_free(d->row_sin);
 }
@@ -82,6 +93,49 @@ static inline void cell_corners(const float *corner, uint32_t w, uint32_t h, uin
     k[3] = c1[x1];
 }
 
+/* The index i with cdf[i] <= x < cdf[i + 1] among n intervals (cdf[0] = 0,
+ * cdf[n] = 1); skips empty intervals. */
+static uint32_t find_interval(const double *cdf, uint32_t n, double x)
+{
+    uint32_t lo = 0, hi = n - 1;
+    while (lo < hi) {
+        uint32_t mid = lo + (hi - lo) / 2;
+        if (x < cdf[mid + 1])
+            hi = mid;
+        else
+            lo = mid + 1;
+    }
+    return lo;
+}
+
+/* cut[0 .. m]: the interval (find_interval over cdf's n) of j / m for each
+ * j, and n - 1 at m. */
+static void cuts_build(const double *cdf, uint32_t n, uint32_t *cut, uint32_t m)
+{
+    for (uint32_t j = 0; j < m; j++)
+        cut[j] = find_interval(cdf, n, (double)j / (double)m);
+    cut[m] = n - 1;
+}
+
+/* find_interval(cdf, n, x) for x in [0, 1), by cuts_build's cut over m
+ * buckets: the interval is monotone in x, so x's lies between its bucket's
+ * two cut points, and the search there gives the same index in a step or
+ * two where the whole array's took log2 n dependent loads. */
+static inline uint32_t find_cut(const double *cdf, const uint32_t *cut, uint32_t m, double x)
+{
+    double s = x * (double)m;
+    uint32_t j = s > 0.0 ? (s < (double)m ? (uint32_t)s : m - 1) : 0;
+    uint32_t lo = cut[j], hi = cut[j + 1];
+    while (lo < hi) {
+        uint32_t mid = lo + (hi - lo) / 2;
+        if (x < cdf[mid + 1])
+            hi = mid;
+        else
+            lo = mid + 1;
+    }
+    return lo;
+}
+
 /* The distribution whose density interpolates corner (>= 0, w * h,
  * row-major; kept); sums in double. A cell's weight is the integral of its
  * interpolant, the mean of its four corners times its height (1/2 at the
@@ -92,7 +146,9 @@ static int dist_build(env_dist *d, float *corner, uint32_t w, uint32_t h)
     d->row_cdf = pt_malloc_array((size_t)h + 2, sizeof *d->row_cdf);
     d->col_cdf = pt_malloc_array((size_t)(h + 1) * (w + 1), sizeof *d->col_cdf);
     d->row_sin = pt_malloc_array((size_t)h + 1, sizeof *d->row_sin);
-    if (!d->corner || !d->row_cdf || !d->col_cdf || !d->row_sin)
+    d->row_cut = pt_malloc_array(ROW_CUTS + 1, sizeof *d->row_cut);
+    d->col_cut = pt_malloc_array((size_t)(h + 1) * (COL_CUTS + 1), sizeof *d->col_cut);
+    if (!d->corner || !d->row_cdf || !d->col_cdf || !d->row_sin || !d->row_cut || !d->col_cut)
         return 0;
     double total = 0.0;
     d->row_cdf[0] = 0.0;
@@ -121,6 +177,10 @@ static int dist_build(env_dist *d, float *corner, uint32_t w, uint32_t h)
     for (uint32_t r = 0; r <= h && !d->black; r++)
         d->row_cdf[r + 1] /= total;
     d->row_cdf[h + 1] = 1.0;
+    cuts_build(d->row_cdf, h + 1, d->row_cut, ROW_CUTS);
+    for (uint32_t r = 0; r <= h; r++)
+        cuts_build(d->col_cdf + (size_t)r * (w + 1), w, d->col_cut + (size_t)r * (COL_CUTS + 1),
+                   COL_CUTS);
     return 1;
 }
 
@@ -407,21 +467,6 @@ pt_status pt_env_uniform(pt_vec3 color, pt_env **out, pt_error *err)
     return pt_env_new(&m, 1.0f, 0.0f, out, err);
 }
 
-/* The index i with cdf[i] <= x < cdf[i + 1] among n intervals (cdf[0] = 0,
- * cdf[n] = 1); skips empty intervals. */
-static uint32_t find_interval(const double *cdf, uint32_t n, double x)
-{
-    uint32_t lo = 0, hi = n - 1;
-    while (lo < hi) {
-        uint32_t mid = lo + (hi - lo) / 2;
-        if (x < cdf[mid + 1])
-            hi = mid;
-        else
-            lo = mid + 1;
-    }
-    return lo;
-}
-
 /* (u, v) in [0,1)^2 of a unit direction. */
 static void dir_to_uv(const pt_env *e, pt_vec3 d, float *u, float *v)
 {
@@ -547,12 +592,12 @@ int pt_env_sample(const pt_env *env, const float u[2], int which, pt_vec3 n, pt_
      * lies on the sphere, where it is constant in t), then s given t. */
     uint32_t w = env->w, h = env->h;
     double rv = u[1];
-    uint32_t r = find_interval(d->row_cdf, h + 1, rv);
+    uint32_t r = find_cut(d->row_cdf, d->row_cut, ROW_CUTS, rv);
     double r0 = d->row_cdf[r], r1 = d->row_cdf[r + 1];
     double fy = r1 > r0 ? (rv - r0) / (r1 - r0) : 0.5;
     const double *cdf = d->col_cdf + (size_t)r * (w + 1);
     double ru = u[0];
-    uint32_t x = find_interval(cdf, w, ru);
+    uint32_t x = find_cut(cdf, d->col_cut + (size_t)r * (COL_CUTS + 1), COL_CUTS, ru);
     double c0 = cdf[x], c1 = cdf[x + 1];
     double fx = c1 > c0 ? (ru - c0) / (c1 - c0) : 0.5;
     float k[4];
