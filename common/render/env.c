@@ -26,7 +26,11 @@ typedef struct env_dist {
      * lies between entries j and j + 1 (find_cut): ROW_CUTS + 1 of the
      * marginal's, COL_CUTS + 1 per cell row of the rows'. */
     uint32_t *row_cut, *col_cut;
-    float *corner;  /* w * h: the value per texel the density interpolates */
+    float *corner; /* w * h: the value per texel the density interpolates */
+    /* The corners as sampling and pdfs read them: corner (stride 1), or a
+     * copy beside each texel's colour (pt_env.px, stride 4). */
+    const float *cv;
+    uint32_t cs;
     float *row_sin; /* h + 1: sin(theta) at each cell row's centre */
     double norm;    /* w * h / the cells' total weight: pdf(u, v) = norm sin f(u, v) */
     double total;   /* the cells' total weight */
@@ -35,7 +39,10 @@ typedef struct env_dist {
 
 struct pt_env {
     uint32_t w, h;
-    float *rgb;      /* w * h * 3, strength applied */
+    /* w * h texels of 4 floats: the colour (strength applied) and the
+     * compensated distribution's corner, which NEE's samples and the pdf of
+     * a ray that leaves the scene read with the colour: one line for both. */
+    float *px;
     env_dist full;   /* corners: the texel's luminance */
     env_dist comp;   /* the same less the sphere's mean (MIS compensation) */
     float rot;       /* rotate_deg in turns, in [0, 1) */
@@ -65,7 +72,7 @@ void pt_env_free(pt_env *env)
 {
     if (!env)
         return;
-    pt_free(env->rgb);
+    pt_free(env->px);
     dist_free(&env->full);
     dist_free(&env->comp);
     dist_free(&env->full_rest);
@@ -82,15 +89,15 @@ static inline double cell_row_v(uint32_t r, uint32_t h)
 
 /* The corners of d's interpolant in cell (x, r): k[0], k[1] on texel row
  * r - 1 at columns x, x + 1 (wrapping), k[2], k[3] on row r (rows clamped). */
-static inline void cell_corners(const float *corner, uint32_t w, uint32_t h, uint32_t x, uint32_t r,
-                                float k[4])
+static inline void cell_corners(const float *corner, uint32_t stride, uint32_t w, uint32_t h,
+                                uint32_t x, uint32_t r, float k[4])
 {
     uint32_t y0 = r == 0 ? 0 : r - 1, y1 = r >= h ? h - 1 : r, x1 = x + 1 == w ? 0 : x + 1;
-    const float *c0 = corner + (size_t)y0 * w, *c1 = corner + (size_t)y1 * w;
-    k[0] = c0[x];
-    k[1] = c0[x1];
-    k[2] = c1[x];
-    k[3] = c1[x1];
+    const float *c0 = corner + (size_t)y0 * w * stride, *c1 = corner + (size_t)y1 * w * stride;
+    k[0] = c0[(size_t)x * stride];
+    k[1] = c0[(size_t)x1 * stride];
+    k[2] = c1[(size_t)x * stride];
+    k[3] = c1[(size_t)x1 * stride];
 }
 
 /* The index i with cdf[i] <= x < cdf[i + 1] among n intervals (cdf[0] = 0,
@@ -143,6 +150,8 @@ static inline uint32_t find_cut(const double *cdf, const uint32_t *cut, uint32_t
 static int dist_build(env_dist *d, float *corner, uint32_t w, uint32_t h)
 {
     d->corner = corner;
+    d->cv = corner;
+    d->cs = 1;
     d->row_cdf = pt_malloc_array((size_t)h + 2, sizeof *d->row_cdf);
     d->col_cdf = pt_malloc_array((size_t)(h + 1) * (w + 1), sizeof *d->col_cdf);
     d->row_sin = pt_malloc_array((size_t)h + 1, sizeof *d->row_sin);
@@ -160,7 +169,7 @@ static int dist_build(env_dist *d, float *corner, uint32_t w, uint32_t h)
         cdf[0] = 0.0;
         for (uint32_t x = 0; x < w; x++) {
             float c[4];
-            cell_corners(corner, w, h, x, r, c);
+            cell_corners(corner, 1, w, h, x, r, c);
             double m = (double)c[0] + c[1] + c[2] + c[3];
             cdf[x + 1] = cdf[x] + k * m;
         }
@@ -204,7 +213,7 @@ static double lum_at(const pt_env *e, int64_t x, int64_t y)
     int64_t w = e->w, h = e->h;
     x = ((x % w) + w) % w;
     y = y < 0 ? 0 : (y >= h ? h - 1 : y);
-    const float *c = &e->rgb[3 * ((size_t)y * e->w + (size_t)x)];
+    const float *c = &e->px[4 * ((size_t)y * e->w + (size_t)x)];
     return pt_luminance(pt_v3(c[0], c[1], c[2]));
 }
 
@@ -359,8 +368,8 @@ pt_status pt_env_new(const pt_envmap *map, float strength, float rotate_deg, pt_
         return pt_error_set(err, PT_ERR_NOMEM, "out of memory for the environment");
     e->w = w;
     e->h = h;
-    e->rgb = pt_malloc_array(n * 3, sizeof *e->rgb);
-    if (!e->rgb) {
+    e->px = pt_malloc_array(n * 4, sizeof *e->px);
+    if (!e->px) {
         pt_env_free(e);
         return pt_error_set(err, PT_ERR_NOMEM, "out of memory for a %ux%u environment", w, h);
     }
@@ -369,8 +378,8 @@ pt_status pt_env_new(const pt_envmap *map, float strength, float rotate_deg, pt_
     if (e->rot >= 1.0f)
         e->rot = 0.0f;
     for (size_t i = 0; i < n * 3; i++) {
-        e->rgb[i] = map->rgb[i] * strength;
-        if (!isfinite(e->rgb[i]) || e->rgb[i] < 0.0f) {
+        float c = e->px[4 * (i / 3) + i % 3] = map->rgb[i] * strength;
+        if (!isfinite(c) || c < 0.0f) {
             pt_env_free(e);
             return pt_error_set(err, PT_ERR_ARG,
                                 "environment strength %g makes a texel overflow a float",
@@ -414,7 +423,7 @@ pt_status pt_env_new(const pt_envmap *map, float strength, float rotate_deg, pt_
     int ok = fc && cc;
     double comp_total = 0.0;
     for (size_t i = 0; ok && i < n; i++) {
-        const float *c = &e->rgb[3 * i];
+        const float *c = &e->px[4 * i];
         double l = pt_luminance(pt_v3(c[0], c[1], c[2]));
         double k = l - e->mean_lum;
         fc[i] = (float)l;
@@ -431,6 +440,12 @@ pt_status pt_env_new(const pt_envmap *map, float strength, float rotate_deg, pt_
     ok = ok && dist_build(&e->comp, cc, w, h);
     if (!e->comp.corner)
         pt_free(cc);
+    if (ok) {
+        for (size_t i = 0; i < n; i++)
+            e->px[4 * i + 3] = cc[i];
+        e->comp.cv = e->px + 3;
+        e->comp.cs = 4;
+    }
     ok = ok && split_build(e);
     if (!ok) {
         pt_env_free(e);
@@ -501,7 +516,7 @@ static float cell_value(const env_dist *d, const pt_env *e, uint32_t x, uint32_t
                         float t)
 {
     float k[4];
-    cell_corners(d->corner, e->w, e->h, x, r, k);
+    cell_corners(d->cv, d->cs, e->w, e->h, x, r, k);
     return (1.0f - t) * ((1.0f - s) * k[0] + s * k[1]) + t * ((1.0f - s) * k[2] + s * k[3]);
 }
 
@@ -532,7 +547,7 @@ static pt_vec3 lookup(const pt_env *e, float u, float v)
     float k[4] = {(1.0f - ax) * (1.0f - ay), ax * (1.0f - ay), (1.0f - ax) * ay, ax * ay};
     float r = 0.0f, g = 0.0f, b = 0.0f;
     for (int i = 0; i < 4; i++) {
-        const float *c = &e->rgb[3 * ((size_t)ys[i >> 1] * e->w + (size_t)xs[i & 1])];
+        const float *c = &e->px[4 * ((size_t)ys[i >> 1] * e->w + (size_t)xs[i & 1])];
         r += k[i] * c[0];
         g += k[i] * c[1];
         b += k[i] * c[2];
@@ -601,7 +616,7 @@ int pt_env_sample(const pt_env *env, const float u[2], int which, pt_vec3 n, pt_
     double c0 = cdf[x], c1 = cdf[x + 1];
     double fx = c1 > c0 ? (ru - c0) / (c1 - c0) : 0.5;
     float k[4];
-    cell_corners(d->corner, w, h, x, r, k);
+    cell_corners(d->cv, d->cs, w, h, x, r, k);
     double a = k[0], b = k[1], c = k[2], e = k[3];
     double t;
     if (r == 0)
