@@ -87,13 +87,14 @@ typedef void (*tile_fn)(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_
 #define PARAM_FEATURES (FEAT_GUIDE | FEAT_CLAMP | FEAT_PASSES)
 
 /* Caustic photons' source (photon_trace): the environment's light aimed at
- * a sphere (c, radius) around the scene's smooth surfaces, from reach beyond
+ * a sphere (c, radius) around the scene's smooth triangles, from reach beyond
  * it along the light's direction (outside the whole scene); plane: the
  * camera's image plane area at unit distance (an orthographic view's area). */
 typedef struct photon_src {
     int on;
     pt_vec3 c;
     float radius, reach, plane;
+    uint8_t *smooth; /* per flat triangle: 1 when it may be smooth (photon_tri_smooth) */
 } photon_src;
 
 struct pt_renderer {
@@ -2028,7 +2029,8 @@ static void photon_trace(const pt_renderer *r, uint32_t pixel_seed, uint32_t ind
         /* A first hit that cannot be smooth is direct light: dropped
          * before its closure is built. */
         if (((features & PT_FEAT_UNLIT) && (sf.mat->ext & PT_MATX_UNLIT)) ||
-            (b == 0 && !photon_smooth(sf.mat)))
+            (b == 0 && ((features & PT_FEAT_INSTANCES) && hit.inst ? !photon_smooth(sf.mat)
+                                                                   : !src->smooth[hit.tri])))
             return;
         const int glass = (features & PT_FEAT_TRANSMISSION) && transmits(sf.mat);
         const int through = glass || ((features & PT_FEAT_DIFFUSE_TRANSMISSION) &&
@@ -2929,14 +2931,39 @@ static void pick_variant(pt_renderer *r, uint32_t features)
 /* r->photon for a guided render lit by an environment: on when the scene's
  * own (not instanced) triangles include smooth ones, the sphere around
  * them, the scene's reach beyond it and the camera's image plane. */
-static void photon_setup(pt_renderer *r)
+/* 1 when flat triangle i may pass light on without spreading it: its
+ * material may (photon_smooth), and where a metallic-roughness texture
+ * decides, the texel at its centre says a smooth metal (ToyCar's chrome is
+ * a few triangles of a material whose other texels are paint and rubber). */
+static int photon_tri_smooth(const pt_renderer *r, uint32_t i, const uint32_t features)
+{
+    const pt_material *m = &r->scene->materials[r->tris[i].mat & ~TRI_FLAT];
+    if (!photon_smooth(m))
+        return 0;
+    if (transmits(m) || m->metal_rough_tex < 0 || !(features & PT_FEAT_TEXTURES))
+        return 1;
+    pt_hit hit = {0.0f, 1.0f / 3.0f, 1.0f / 3.0f, i, 0};
+    surface sf;
+    surface_at(r, &hit, 0.0f, &sf, features);
+    pt_vec3 base;
+    float metallic, roughness;
+    base_inputs(r->scene, &sf, features, &base, &metallic, &roughness);
+    return metallic >= 0.5f && roughness * roughness < GUIDE_MIN_ALPHA;
+}
+
+static void photon_setup(pt_renderer *r, const uint32_t features)
 {
     const pt_scene *s = r->scene;
     uint32_t flat = s->num_prototypes ? s->prototypes[0].first_tri : s->num_triangles;
+    photon_src *src = &r->photon;
+    src->smooth = pt_malloc_array(flat ? flat : 1, sizeof *src->smooth);
+    if (!src->smooth)
+        return; /* no photons: the guide learns from the camera alone */
     pt_vec3 lo = pt_v3(INFINITY, INFINITY, INFINITY), hi = pt_v3(-INFINITY, -INFINITY, -INFINITY);
     for (uint32_t i = 0; i < flat; i++) {
         const tri_rec *t = &r->tris[i];
-        if (!photon_smooth(&s->materials[t->mat & ~TRI_FLAT]))
+        src->smooth[i] = (uint8_t)photon_tri_smooth(r, i, features);
+        if (!src->smooth[i])
             continue;
         const pt_vec3 v[3] = {t->v0, t->v1, t->v2};
         for (int k = 0; k < 3; k++) {
@@ -2946,7 +2973,6 @@ static void photon_setup(pt_renderer *r)
     }
     if (!(lo.x <= hi.x))
         return;
-    photon_src *src = &r->photon;
     src->c = pt_v3_scale(pt_v3_add(lo, hi), 0.5f);
     src->radius = 0.5f * pt_v3_len(pt_v3_sub(hi, lo)) * 1.001f + 1e-6f;
     pt_vec3 sc = pt_v3_scale(pt_v3_add(s->bounds_min, s->bounds_max), 0.5f);
@@ -3083,7 +3109,7 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
             r->crypto_mat[i] = pt_crypto_id(scene->materials[i].name);
     }
     if ((features & FEAT_GUIDE) && params->env && r->tris)
-        photon_setup(r);
+        photon_setup(r, features);
     pick_variant(r, features);
     /* Without fast lanes (an x86-64 processor without AVX2 runs shade_lanes'
      * baseline clone, which does the lanes one by one) the per-path shading
@@ -3104,6 +3130,7 @@ void pt_renderer_free(pt_renderer *r)
     pt_free(r->mat_bsdf);
     pt_free(r->crypto_obj);
     pt_free(r->crypto_mat);
+    pt_free(r->photon.smooth);
     pt_free(r->tris_mem);
     pt_lights_free(r->lights);
     pt_accel_free(r->accel);
