@@ -100,11 +100,11 @@ static inline void cell_corners(const float *corner, uint32_t stride, uint32_t w
     k[3] = c1[(size_t)x1 * stride];
 }
 
-/* The index i with cdf[i] <= x < cdf[i + 1] among n intervals (cdf[0] = 0,
- * cdf[n] = 1); skips empty intervals. */
-static uint32_t find_interval(const double *cdf, uint32_t n, double x)
+/* The index i in [lo, hi] with cdf[i] <= x < cdf[i + 1] (hi when none),
+ * skipping empty intervals; find_interval over all n intervals (cdf[0] = 0,
+ * cdf[n] = 1). */
+static inline uint32_t search_interval(const double *cdf, uint32_t lo, uint32_t hi, double x)
 {
-    uint32_t lo = 0, hi = n - 1;
     while (lo < hi) {
         uint32_t mid = lo + (hi - lo) / 2;
         if (x < cdf[mid + 1])
@@ -113,6 +113,11 @@ static uint32_t find_interval(const double *cdf, uint32_t n, double x)
             lo = mid + 1;
     }
     return lo;
+}
+
+static uint32_t find_interval(const double *cdf, uint32_t n, double x)
+{
+    return search_interval(cdf, 0, n - 1, x);
 }
 
 /* cut[0 .. m]: the interval (find_interval over cdf's n) of j / m for each
@@ -132,15 +137,7 @@ static inline uint32_t find_cut(const double *cdf, const uint32_t *cut, uint32_t
 {
     double s = x * (double)m;
     uint32_t j = s > 0.0 ? (s < (double)m ? (uint32_t)s : m - 1) : 0;
-    uint32_t lo = cut[j], hi = cut[j + 1];
-    while (lo < hi) {
-        uint32_t mid = lo + (hi - lo) / 2;
-        if (x < cdf[mid + 1])
-            hi = mid;
-        else
-            lo = mid + 1;
-    }
-    return lo;
+    return search_interval(cdf, cut[j], cut[j + 1], x);
 }
 
 /* The distribution whose density interpolates corner (>= 0, w * h,

@@ -410,6 +410,30 @@ static pt_scene *floor_and_lamp(int lambert, uint32_t panes)
     return s;
 }
 
+/* The guide that one recording pass of samples [0, spp) of r's w x h image
+ * builds over [lo, hi], its spatial leaf left unsplit (NULL when it could
+ * not; the caller frees it). */
+static pt_guide *learn_one_pass(const pt_renderer *r, uint32_t w, uint32_t h, uint32_t spp,
+                                pt_vec3 lo, pt_vec3 hi)
+{
+    pt_error err = {0};
+    pt_guide *g = NULL, *g2 = NULL;
+    pt_guide_stats *st[2] = {NULL, NULL};
+    CHECK(pt_guide_new_uniform(lo, hi, &g, &err) == PT_OK);
+    pt_pixel_acc *acc = pt_calloc((size_t)w * h, sizeof *acc);
+    if (r && g && acc && pt_guide_stats_new(g, &st[0], &err) == PT_OK &&
+        pt_guide_stats_new(g, &st[1], &err) == PT_OK) {
+        render_pass(r, w, h, 0, spp, g, 0.0f, st, acc);
+        pt_guide_stats_merge(st[0], st[1], &err);
+        CHECK(pt_guide_build(g, st[0], UINT64_MAX, &g2, &err) == PT_OK);
+    }
+    pt_guide_stats_free(st[0]);
+    pt_guide_stats_free(st[1]);
+    pt_guide_free(g);
+    pt_free(acc);
+    return g2;
+}
+
 /* The guide learns where light comes from: on the floor under BSDF sampling
  * alone (so a ray that finds the lamp records its whole radiance), the cell
  * of the floor's middle, after one recording pass, has a pdf towards the
@@ -432,19 +456,10 @@ static void learns_the_lamp_at(const char *what, int lambert, uint32_t panes, ui
     pt_renderer *r = NULL;
     pt_error err = {0};
     CHECKF(pt_renderer_new(s, &p, &r, &err) == PT_OK, "%s", err.msg);
-    pt_guide *g = NULL, *g2 = NULL;
-    pt_guide_stats *st[2] = {NULL, NULL};
-    CHECK(pt_guide_new_uniform(pt_v3(-1.1f, -1.1f, -0.1f), pt_v3(1.7f, 1.1f, 1.6f), &g, &err) ==
-          PT_OK);
-    pt_pixel_acc *acc = pt_calloc(W * H, sizeof *acc);
-    if (r && g && acc && pt_guide_stats_new(g, &st[0], &err) == PT_OK &&
-        pt_guide_stats_new(g, &st[1], &err) == PT_OK) {
-        render_pass(r, W, H, 0, 1024, g, 0.0f, st, acc);
-        pt_guide_stats_merge(st[0], st[1], &err);
-        /* No split: one cell for the whole floor, whose middle sees the
-         * lamp 45 degrees up towards +x. */
-        CHECK(pt_guide_build(g, st[0], UINT64_MAX, &g2, &err) == PT_OK);
-    }
+    /* No split: one cell for the whole floor, whose middle sees the lamp 45
+     * degrees up towards +x. */
+    pt_guide *g2 =
+        learn_one_pass(r, W, H, 1024, pt_v3(-1.1f, -1.1f, -0.1f), pt_v3(1.7f, 1.1f, 1.6f));
     if (g2) {
         uint32_t cell = pt_guide_cell(g2, pt_v3(0, 0, 0), pt_v3(0, 0, 1));
         pt_vec3 to_lamp = pt_v3_norm(pt_v3(1.5f, 0, 1.5f)),
@@ -453,11 +468,7 @@ static void learns_the_lamp_at(const char *what, int lambert, uint32_t panes, ui
         CHECKF(pl > 10.0f * pm, "%s: pdf towards the lamp %g, mirrored %g", what, pl, pm);
         printf("%s: pdf towards the lamp %.3g, mirrored %.3g\n", what, pl, pm);
     }
-    pt_guide_stats_free(st[0]);
-    pt_guide_stats_free(st[1]);
-    pt_guide_free(g);
     pt_guide_free(g2);
-    pt_free(acc);
     pt_renderer_free(r);
     pt_scene_free(s);
 }
@@ -563,18 +574,8 @@ static void learns_the_caustic(void)
     pt_env *env = mirror_sun_env(1, 1e5f);
     enum { W = 16, H = 16 };
     pt_renderer *r = s && env ? renderer_env(s, W, H, 1, env) : NULL;
-    pt_error err = {0};
-    pt_guide *g = NULL, *g2 = NULL;
-    pt_guide_stats *st[2] = {NULL, NULL};
-    CHECK(pt_guide_new_uniform(pt_v3(-1.1f, -0.1f, -1.1f), pt_v3(1.3f, 2.1f, 1.1f), &g, &err) ==
-          PT_OK);
-    pt_pixel_acc *acc = pt_calloc(W * H, sizeof *acc);
-    if (r && g && acc && pt_guide_stats_new(g, &st[0], &err) == PT_OK &&
-        pt_guide_stats_new(g, &st[1], &err) == PT_OK) {
-        render_pass(r, W, H, 0, 64, g, 0.0f, st, acc);
-        pt_guide_stats_merge(st[0], st[1], &err);
-        CHECK(pt_guide_build(g, st[0], UINT64_MAX, &g2, &err) == PT_OK);
-    }
+    pt_guide *g2 =
+        r ? learn_one_pass(r, W, H, 64, pt_v3(-1.1f, -0.1f, -1.1f), pt_v3(1.3f, 2.1f, 1.1f)) : NULL;
     if (g2) {
         uint32_t cell = pt_guide_cell(g2, pt_v3(0, 0, 0), pt_v3(0, 1, 0));
         pt_vec3 caustic = pt_v3_norm(pt_v3(1, 1, 0)), sky = pt_v3_norm(pt_v3(0, 1, 1));
@@ -582,11 +583,7 @@ static void learns_the_caustic(void)
         CHECKF(pc > 10.0f * ps, "caustic: pdf towards the mirror's sun %g, the sky %g", pc, ps);
         printf("caustic: pdf towards the mirror's sun %.3g, the sky %.3g\n", pc, ps);
     }
-    pt_guide_stats_free(st[0]);
-    pt_guide_stats_free(st[1]);
-    pt_guide_free(g);
     pt_guide_free(g2);
-    pt_free(acc);
     pt_renderer_free(r);
     pt_env_free(env);
     pt_scene_free(s);
