@@ -352,6 +352,26 @@ done:
     pt_scene_free(s);
 }
 
+/* b finished with a camera of 0.5 rad at pos looking along forward (unit)
+ * with up (unit, normal to it) its up: right is up x -forward. NULL when it
+ * fails. */
+static pt_scene *finish_looking(pt_scene_builder *b, pt_vec3 pos, pt_vec3 forward, pt_vec3 up)
+{
+    pt_error err = {0};
+    pt_camera cam = {0};
+    cam.position = pos;
+    cam.forward = forward;
+    cam.right = pt_v3_cross(up, pt_v3_neg(forward));
+    cam.up = up;
+    cam.yfov = 0.5f;
+    cam.aspect = 1.0f;
+    snprintf(cam.name, sizeof cam.name, "c");
+    CHECK(pt_scene_builder_add_camera(b, &cam, &err) == PT_OK);
+    pt_scene *s = NULL;
+    CHECKF(pt_scene_builder_finish(b, NULL, &s, &err) == PT_OK, "%s", err.msg);
+    return s;
+}
+
 /* A floor (z = 0, +z up: a rough metal, or Lambert of albedo 0.8 when
  * lambert is set) and a small emitter facing it from above and to the side;
  * the camera looks down at the floor, through `panes` thin smooth glass
@@ -396,18 +416,7 @@ static pt_scene *floor_and_lamp(int lambert, uint32_t panes)
         CHECK(pt_scene_builder_add_mesh(b, "pane", pane_p, NULL, NULL, 4, idx, 2, NULL, mg, &err) ==
               PT_OK);
     }
-    pt_camera cam = {0};
-    cam.position = pt_v3(0, 0, 3);
-    cam.forward = pt_v3(0, 0, -1);
-    cam.right = pt_v3(1, 0, 0);
-    cam.up = pt_v3(0, 1, 0);
-    cam.yfov = 0.5f;
-    cam.aspect = 1.0f;
-    snprintf(cam.name, sizeof cam.name, "c");
-    CHECK(pt_scene_builder_add_camera(b, &cam, &err) == PT_OK);
-    pt_scene *s = NULL;
-    CHECKF(pt_scene_builder_finish(b, NULL, &s, &err) == PT_OK, "%s", err.msg);
-    return s;
+    return finish_looking(b, pt_v3(0, 0, 3), pt_v3(0, 0, -1), pt_v3(0, 1, 0));
 }
 
 /* The guide that one recording pass of samples [0, spp) of r's w x h image
@@ -525,18 +534,7 @@ static pt_scene *floor_and_mirror(void)
           PT_OK);
     CHECK(pt_scene_builder_add_mesh(b, "mirror", mirror_p, NULL, NULL, 4, idx, 2, NULL, mm, &err) ==
           PT_OK);
-    pt_camera cam = {0};
-    cam.position = pt_v3(0, 3, 0);
-    cam.forward = pt_v3(0, -1, 0);
-    cam.right = pt_v3(1, 0, 0);
-    cam.up = pt_v3(0, 0, -1);
-    cam.yfov = 0.5f;
-    cam.aspect = 1.0f;
-    snprintf(cam.name, sizeof cam.name, "c");
-    CHECK(pt_scene_builder_add_camera(b, &cam, &err) == PT_OK);
-    pt_scene *s = NULL;
-    CHECKF(pt_scene_builder_finish(b, NULL, &s, &err) == PT_OK, "%s", err.msg);
-    return s;
+    return finish_looking(b, pt_v3(0, 3, 0), pt_v3(0, -1, 0), pt_v3(0, 0, -1));
 }
 
 /* A dim sky (0.1) with a sun of radiance sun in the 2n x 2n texels of a
