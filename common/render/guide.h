@@ -28,7 +28,8 @@
  * an estimate of incident radiance over its pdf (Mueller's L / p), summed in
  * fixed point (PT_GUIDE_FIXED_BITS fractional bits, each record clamped to
  * PT_GUIDE_MAX_RECORD) into the quadtree leaf it falls in, with a count per
- * spatial leaf (render.c's caustic photons record too, in those units). Integer sums merge exactly in any order, so the statistics
+ * spatial leaf (render.c's caustic photons record too, in those units).
+ * Integer sums merge exactly in any order, so the statistics
  * of a pass - and the distribution pt_guide_build makes from them - do not
  * depend on how the pass was split into threads, tasks or workers. Building
  * splits a spatial leaf at its midpoints while a part's share of its records
