@@ -1969,8 +1969,8 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
 #define PHOTON_SALT 0x70686f74u /* the photons' numbers: their own scramble */
 /* One camera sample in PHOTON_EVERY traces a photon (its record counts for
  * that many): at 1 the photons cost the glass ball 37 % more CPU than the
- * guided render without them, at 4 about 6 %, and the error at 256 spp was
- * alike (docs/bench/guiding.md, "Caustic photons"). */
+ * guided render without them, at 4 about 15 %, and kept most of the error's
+ * fall at 256 spp (docs/bench/guiding.md, "Caustic photons"). */
 #define PHOTON_EVERY 4u
 /* The caustic's records weigh this many times the units above: the camera's
  * records hold the light NEE already samples well (the lamps seen directly),
@@ -1983,15 +1983,21 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
 #define PHOTON_MIN_COS 0.05f     /* a grazing arrival's cosine is taken as this */
 #define PHOTON_MIN_CAM_COS 0.25f /* and a point's cosine off the camera's axis */
 
+/* A metal smooth enough for a path not to be guided at it
+ * (closure_guidable), by its metallic and roughness. */
+static inline int smooth_metal(float metallic, float roughness)
+{
+    return metallic >= 0.5f && roughness * roughness < GUIDE_MIN_ALPHA;
+}
+
 /* A material whose surfaces may pass light on without spreading it, so that
- * photon_trace aims at them: glass, or a metal that may be smooth enough for
- * a path not to be guided at it (closure_guidable). The factors multiply
- * the metallic-roughness texture's values: with one, any point may be such
- * a metal (ToyCar's chrome is a texel of its one material). */
+ * photon_trace aims at them: glass, or a metal that may be smooth. The
+ * factors multiply the metallic-roughness texture's values (at most 1): with
+ * one, any point of a metallic factor of 0.5 or more may be such a metal
+ * (ToyCar's chrome is a texel of its one material). */
 static int photon_smooth(const pt_material *m)
 {
-    return transmits(m) || m->metal_rough_tex >= 0 ||
-           (m->metallic >= 0.5f && m->roughness * m->roughness < GUIDE_MIN_ALPHA);
+    return transmits(m) || smooth_metal(m->metallic, m->metal_rough_tex >= 0 ? 0.0f : m->roughness);
 }
 
 static void photon_trace(const pt_renderer *r, uint32_t pixel_seed, uint32_t index,
@@ -2048,11 +2054,11 @@ static void photon_trace(const pt_renderer *r, uint32_t pixel_seed, uint32_t ind
                 return; /* direct light, or a diffuse transmitter's */
             const pt_camera *cam = &r->camera;
             float cos_t = pt_fmaxf(pt_v3_dot(ns, wo), PHOTON_MIN_COS);
-            pt_vec3 to_cam = pt_v3_sub(cam->position, sf.p);
             float scale;
             if (cam->ortho) {
                 scale = fabsf(pt_v3_dot(ns, cam->forward)) / src->plane;
             } else {
+                pt_vec3 to_cam = pt_v3_sub(cam->position, sf.p);
                 float d2 = pt_v3_dot(to_cam, to_cam);
                 float dist = sqrtf(d2);
                 if (!(dist > 0.0f))
@@ -2928,9 +2934,6 @@ static void pick_variant(pt_renderer *r, uint32_t features)
     }
 }
 
-/* r->photon for a guided render lit by an environment: on when the scene's
- * own (not instanced) triangles include smooth ones, the sphere around
- * them, the scene's reach beyond it and the camera's image plane. */
 /* 1 when flat triangle i may pass light on without spreading it: its
  * material may (photon_smooth), and where a metallic-roughness texture
  * decides, the texel at its centre says a smooth metal (ToyCar's chrome is
@@ -2948,9 +2951,12 @@ static int photon_tri_smooth(const pt_renderer *r, uint32_t i, const uint32_t fe
     pt_vec3 base;
     float metallic, roughness;
     base_inputs(r->scene, &sf, features, &base, &metallic, &roughness);
-    return metallic >= 0.5f && roughness * roughness < GUIDE_MIN_ALPHA;
+    return smooth_metal(metallic, roughness);
 }
 
+/* r->photon for a guided render lit by an environment: on when the scene's
+ * own (not instanced) triangles include smooth ones, the sphere around
+ * them, the scene's reach beyond it and the camera's image plane. */
 static void photon_setup(pt_renderer *r, const uint32_t features)
 {
     const pt_scene *s = r->scene;
