@@ -26,9 +26,10 @@ typedef struct env_dist {
      * lies between entries j and j + 1 (find_cut): ROW_CUTS + 1 of the
      * marginal's, COL_CUTS + 1 per cell row of the rows'. */
     uint32_t *row_cut, *col_cut;
-    float *corner; /* w * h: the value per texel the density interpolates */
-    /* The corners as sampling and pdfs read them: corner (stride 1), or a
-     * copy beside each texel's colour (pt_env.px, stride 4). */
+    float *corner; /* w * h: the value per texel the density interpolates (the
+                      compensated one's: NULL once built, then only in px) */
+    /* The corners as sampling and pdfs read them: corner (stride 1), or
+     * beside each texel's colour (pt_env.px, stride 4). */
     const float *cv;
     uint32_t cs;
     float *row_sin; /* h + 1: sin(theta) at each cell row's centre */
@@ -438,10 +439,14 @@ pt_status pt_env_new(const pt_envmap *map, float strength, float rotate_deg, pt_
     if (!e->comp.corner)
         pt_free(cc);
     if (ok) {
+        /* Built: its corners are read beside the colours from now on, and
+         * its own array is not kept twice. */
         for (size_t i = 0; i < n; i++)
             e->px[4 * i + 3] = cc[i];
         e->comp.cv = e->px + 3;
         e->comp.cs = 4;
+        pt_free(e->comp.corner);
+        e->comp.corner = NULL;
     }
     ok = ok && split_build(e);
     if (!ok) {
