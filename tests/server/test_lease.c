@@ -361,8 +361,9 @@ static void hoarder(void)
                            "--http-port-file",
                            hport,
                            NULL};
+    const int n = CHECK_JOB_SPP(8192);
     char spp[16];
-    snprintf(spp, sizeof spp, "%d", CHECK_JOB_SPP(8192));
+    snprintf(spp, sizeof spp, "%d", n);
     pid_t srv = start_server(spp, "64", "hoard.exr", "hoard.log", extra);
     int port = read_port();
     CHECK(port > 0);
@@ -417,7 +418,7 @@ static void hoarder(void)
     stop(w2);
     reference(spp, "64", "hoard_ref.exr");
     CHECKF(same_pixels("hoard_ref.exr", "hoard.exr"), "the hoarder changed the image");
-    CHECK(all_samples("hoard.exr", (float)atoi(spp)));
+    CHECK(all_samples("hoard.exr", (float)n));
 }
 
 /* ---- b. backup copies ---- */
