@@ -15,6 +15,10 @@
 #include <stddef.h>
 #include <stdint.h>
 
+/* Blocks of this many bytes or more are backed by transparent huge pages
+ * where the kernel has them (alloc.c). */
+#define PT_ALLOC_HUGE_MIN ((size_t)4 << 20)
+
 void *pt_malloc(size_t size);
 void *pt_calloc(size_t n, size_t size);
 void *pt_realloc(void *p, size_t size);
