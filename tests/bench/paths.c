@@ -19,8 +19,13 @@
  * what it added, each emitter or environment hit with its MIS weight. Last,
  * a table of the events that carried those samples' radiance, grouped by
  * the technique and the lobes the path took, weighed by their share of the
- * worst pixels' squared error, and the same shares by technique and by the
- * number of bounces before the light was found. --pixel X,Y renders that
+ * worst pixels' squared error, and the same shares by technique (NEE; a
+ * BSDF-sampled hit; a caustic, a BSDF-sampled hit through smooth bounces
+ * after a rough one), the BSDF hits no rough bounce came before (seen
+ * from the camera directly or through smooth bounces only: no light sample
+ * or guide reaches them), the caustics by the smooth bounces between their
+ * last rough vertex and the light (1, 2, 3 or more), and by the number of
+ * bounces before the light was found. --pixel X,Y renders that
  * pixel alone (its share is then of its own squared error): a glint that a
  * few of many samples find, seen at the reference's sample count. Guided,
  * the log shows each guided vertex (its chance to draw from the guide, the
@@ -187,6 +192,16 @@ static uint32_t nsigs;
 /* The same shares by technique: NEE; a BSDF-sampled hit; a BSDF-sampled
  * hit after a rough bounce and then a smooth one (a caustic). */
 static double by_kind[3];
+/* The BSDF hits no rough bounce came before: the light seen from the
+ * camera directly (by_camera[0]) or through smooth bounces only
+ * (by_camera[1]), which no light sample and no guide can reach (only more
+ * of the pixel's positions resolve them). */
+static double by_camera[2];
+/* The caustics by the smooth bounces between their last rough vertex and
+ * the light: 1, 2, 3 or more (a manifold walk through one or two smooth
+ * interfaces reaches the first two). */
+#define CHAIN_BINS 3
+static double by_chain[CHAIN_BINS];
 /* And by the bounces before the event that added it: 0 to 4, 5 to 8, 9 and
  * more. */
 #define DEPTH_BINS 7
@@ -282,6 +297,16 @@ static void print_events(const pt_scene *s)
     }
 }
 
+/* A BSDF hit's share into by_camera or by_chain (smooth: the smooth
+ * bounces since the last rough one, or since the camera). */
+static void add_hit(int rough, uint32_t bounces, uint32_t smooth, double share)
+{
+    if (rough && smooth > 0)
+        by_chain[smooth < CHAIN_BINS ? smooth - 1 : CHAIN_BINS - 1] += share;
+    else if (!rough)
+        by_camera[bounces > 0] += share;
+}
+
 /* Adds each contributing event's share (its part of the sample's luminance
  * times the sample's share) to the signature table. */
 static void classify(const pt_scene *s, double share, float total)
@@ -289,10 +314,11 @@ static void classify(const pt_scene *s, double share, float total)
     char path[200] = "";
     size_t len = 0, nee_len = 0;
     const event *nee = NULL;
-    /* A rough bounce, then a smooth one since it: light found now is a
-     * caustic's (no light sample can reach it through the smooth one). */
-    int rough = 0, caustic = 0;
-    uint32_t bounces = 0, nee_bounces = 0;
+    /* A rough bounce, then only smooth ones since it (smooth_run of them):
+     * light found now is a caustic's (no light sample can reach it through
+     * the smooth ones). */
+    int rough = 0;
+    uint32_t bounces = 0, nee_bounces = 0, smooth_run = 0;
     /* The GUIDE event before the next bounce, and the last rough bounce's. */
     const event *guided = NULL, *leave = NULL;
     for (uint32_t k = 0; k < nev; k++) {
@@ -315,8 +341,9 @@ static void classify(const pt_scene *s, double share, float total)
             if (!e->delta && e->a < SMOOTH_PDF) {
                 rough = 1;
                 leave = guided;
-            } else if (rough)
-                caustic = 1;
+                smooth_run = 0;
+            } else
+                smooth_run++;
             guided = NULL;
             break;
         case PT_TRACE_GUIDE:
@@ -345,7 +372,9 @@ static void classify(const pt_scene *s, double share, float total)
             snprintf(text, sizeof text, "%s| BSDF hit emitter %s", path, mat);
             if (total > 0.0f) {
                 add_sig(text, share * lum / total);
+                int caustic = rough && smooth_run > 0;
                 by_kind[caustic ? 2 : 1] += share * lum / total;
+                add_hit(rough, bounces, smooth_run, share * lum / total);
                 if (caustic)
                     by_guide[guide_bin(leave)] += share * lum / total;
                 add_depth(bounces, share * lum / total);
@@ -355,7 +384,9 @@ static void classify(const pt_scene *s, double share, float total)
             snprintf(text, sizeof text, "%s| BSDF hit env", path);
             if (total > 0.0f) {
                 add_sig(text, share * lum / total);
+                int caustic = rough && smooth_run > 0;
                 by_kind[caustic ? 2 : 1] += share * lum / total;
+                add_hit(rough, bounces, smooth_run, share * lum / total);
                 if (caustic)
                     by_guide[guide_bin(leave)] += share * lum / total;
                 add_depth(bounces, share * lum / total);
@@ -633,6 +664,12 @@ int main(int argc, char **argv)
     printf("by technique: NEE %.4f, BSDF hit %.4f, BSDF hit through a smooth bounce after a "
            "rough one (caustic) %.4f\n",
            by_kind[0], by_kind[1], by_kind[2]);
+    printf("BSDF hits with no rough bounce before them: seen directly %.4f, through smooth "
+           "bounces only %.4f\n",
+           by_camera[0], by_camera[1]);
+    printf("caustics by the smooth bounces from their last rough vertex to the light: 1 %.4f, "
+           "2 %.4f, 3+ %.4f\n",
+           by_chain[0], by_chain[1], by_chain[2]);
     printf("by bounces before the light was found: 0 %.4f, 1 %.4f, 2 %.4f, 3 %.4f, 4 %.4f, "
            "5-8 %.4f, 9+ %.4f\n",
            by_depth[0], by_depth[1], by_depth[2], by_depth[3], by_depth[4], by_depth[5],

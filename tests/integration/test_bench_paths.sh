@@ -44,6 +44,18 @@ awk '/^relMSE/ { worst = $(NF - 2) + 0 }
      }
      END { exit bad || !found }' "$tmp/out.txt" ||
     { echo "FAIL: the summary's shares"; exit 1; }
+# The BSDF hits without a rough bounce are part of the BSDF hits' share;
+# the caustics by their smooth bounces to the light add up to the caustics'.
+awk '/^by technique/ { gsub(",", ""); hit = $7 + 0; caustic = $NF + 0 }
+     /^BSDF hits with no rough bounce/ { gsub(",", ""); cam = $(NF - 5) + $NF; c1 = 1 }
+     /^caustics by the smooth bounces/ {
+        gsub(",", ""); chain = $(NF - 4) + $(NF - 2) + $NF; c2 = 1
+     }
+     END {
+        d = chain - caustic; if (d < 0) d = -d
+        exit !(c1 && c2 && cam >= 0 && cam <= hit + 1e-4 && d <= 1e-3 && chain > 0)
+     }' "$tmp/out.txt" ||
+    { echo "FAIL: the BSDF hits' and the caustics' splits"; exit 1; }
 grep -q 'glass:dielectric(delta) > .*| BSDF hit env' "$tmp/out.txt" ||
     { echo "FAIL: no path through the glass to the background"; exit 1; }
 
