@@ -14,6 +14,7 @@
 
 /* Tiles: the unit of parallel work and of the fixed summation order. */
 #define TILE 32
+_Static_assert(TILE == PT_DENOISE_TILE, "denoise.h's tile is this one");
 /* The paper's parameters (NFOR sec. 5 and its reference implementation). */
 #define REG_F 3        /* patch radius of the regression's weights */
 #define REG_F_STRICT 1 /* ... of the k = 0.5 candidate's (not the paper's; pt_denoise) */
@@ -1183,6 +1184,118 @@ pt_status pt_denoise(const pt_denoise_input *in, unsigned threads, float *const 
                       (const float *const *)(pl + P_COMB), pl[P_RECV], out);
     }
 done:
+    pt_free(mem);
+    return st;
+}
+
+uint64_t pt_denoise_bytes(uint32_t width, uint32_t height)
+{
+    uint64_t n = (uint64_t)width * height;
+    uint64_t ntiles = (uint64_t)((width + TILE - 1) / TILE) * ((height + TILE - 1) / TILE);
+    /* the planes; a regression's tiles (two candidates, four planes of
+     * RPAD x RPAD doubles each), its image sums (4 doubles) and patch terms
+     * (3 floats) a pixel */
+    return n * P_COUNT * sizeof(float) +
+           ntiles * MAX_CAND * 4 * (uint64_t)RPAD * RPAD * sizeof(double) +
+           n * (4 * sizeof(double) + 3 * sizeof(float));
+}
+
+/* The planes a crop copies: the input's 20 and the output's 3. */
+#define CROP_PLANES 23
+
+/* The crop of the region from (x0, y0) of a side (clipped to the image):
+ * PT_DENOISE_MARGIN wider on each side, within the image. */
+static rect crop_of(uint32_t w, uint32_t h, uint32_t x0, uint32_t y0, uint32_t side)
+{
+    const uint32_t m = PT_DENOISE_MARGIN;
+    rect c = {(int)(x0 > m ? x0 - m : 0), (int)(y0 > m ? y0 - m : 0),
+              (int)((uint64_t)x0 + side + m < w ? x0 + side + m : w),
+              (int)((uint64_t)y0 + side + m < h ? y0 + side + m : h)};
+    return c;
+}
+
+uint64_t pt_denoise_region_bytes(uint32_t width, uint32_t height, uint32_t side)
+{
+    if (side == 0 || (side >= width && side >= height))
+        return pt_denoise_bytes(width, height);
+    uint32_t cw = side + 2 * PT_DENOISE_MARGIN, ch = cw;
+    cw = cw < width ? cw : width;
+    ch = ch < height ? ch : height;
+    return (uint64_t)cw * ch * CROP_PLANES * sizeof(float) + pt_denoise_bytes(cw, ch);
+}
+
+uint32_t pt_denoise_region_side(uint32_t width, uint32_t height, uint64_t max_bytes)
+{
+    if (pt_denoise_bytes(width, height) <= max_bytes)
+        return 0;
+    uint32_t big = width > height ? width : height;
+    for (uint32_t side = big / TILE * TILE; side >= TILE; side -= TILE)
+        if (pt_denoise_region_bytes(width, height, side) <= max_bytes)
+            return side;
+    return UINT32_MAX;
+}
+
+pt_status pt_denoise_regions(const pt_denoise_input *in, unsigned threads, uint32_t side,
+                             float *const out[3], pt_error *err)
+{
+    if (side % TILE != 0)
+        return pt_error_set(err, PT_ERR_ARG, "denoise: regions of %u pixels, not a multiple of %d",
+                            side, TILE);
+    if (side == 0 || (side >= in->width && side >= in->height))
+        return pt_denoise(in, threads, out, err);
+    pt_status st = pt_denoise_check(in, err);
+    if (st != PT_OK)
+        return st;
+    if (!out || !out[0] || !out[1] || !out[2])
+        return pt_error_set(err, PT_ERR_ARG, "denoise: no output planes");
+    uint32_t w = in->width, h = in->height;
+    uint32_t cw = side + 2 * PT_DENOISE_MARGIN < w ? side + 2 * PT_DENOISE_MARGIN : w;
+    uint32_t chh = side + 2 * PT_DENOISE_MARGIN < h ? side + 2 * PT_DENOISE_MARGIN : h;
+    size_t cn = (size_t)cw * chh;
+    float *mem = pt_malloc_array(cn * CROP_PLANES, sizeof(float));
+    if (!mem)
+        return pt_error_set(err, PT_ERR_NOMEM, "denoise: out of memory for a crop of %ux%u", cw,
+                            chh);
+    const float *const src[CROP_PLANES - 3] = {
+        in->half_a[0], in->half_a[1], in->half_a[2],  in->half_b[0],  in->half_b[1],
+        in->half_b[2], in->color[0],  in->color[1],   in->color[2],   in->variance,
+        in->albedo[0], in->albedo[1], in->albedo[2],  in->albedo_var, in->normal[0],
+        in->normal[1], in->normal[2], in->normal_var, in->depth,      in->depth_var};
+    float *pl[CROP_PLANES];
+    for (int k = 0; k < CROP_PLANES; k++)
+        pl[k] = mem + (size_t)k * cn;
+    for (uint32_t y0 = 0; y0 < h && st == PT_OK; y0 += side)
+        for (uint32_t x0 = 0; x0 < w && st == PT_OK; x0 += side) {
+            rect c = crop_of(w, h, x0, y0, side);
+            uint32_t ow = (uint32_t)(c.x1 - c.x0), oh = (uint32_t)(c.y1 - c.y0);
+            for (int k = 0; k < CROP_PLANES - 3; k++)
+                for (uint32_t y = 0; y < oh; y++)
+                    memcpy(pl[k] + (size_t)y * ow, src[k] + (size_t)(y + c.y0) * w + c.x0,
+                           ow * sizeof(float));
+            pt_denoise_input ci = {
+                .width = ow, .height = oh, .despeckle = in->despeckle, .cancel = in->cancel};
+            for (int k = 0; k < 3; k++) {
+                ci.half_a[k] = pl[k];
+                ci.half_b[k] = pl[3 + k];
+                ci.color[k] = pl[6 + k];
+                ci.albedo[k] = pl[10 + k];
+                ci.normal[k] = pl[14 + k];
+            }
+            ci.variance = pl[9];
+            ci.albedo_var = pl[13];
+            ci.normal_var = pl[17];
+            ci.depth = pl[18];
+            ci.depth_var = pl[19];
+            float *const co[3] = {pl[20], pl[21], pl[22]};
+            if ((st = pt_denoise(&ci, threads, co, err)) != PT_OK)
+                break;
+            uint32_t rw = x0 + side < w ? side : w - x0, rh = y0 + side < h ? side : h - y0;
+            for (int k = 0; k < 3; k++)
+                for (uint32_t y = 0; y < rh; y++)
+                    memcpy(out[k] + (size_t)(y0 + y) * w + x0,
+                           co[k] + (size_t)(y0 + y - (uint32_t)c.y0) * ow + (x0 - (uint32_t)c.x0),
+                           rw * sizeof(float));
+        }
     pt_free(mem);
     return st;
 }

@@ -131,9 +131,53 @@ pt_status pt_denoise_check(const pt_denoise_input *in, pt_error *err);
  * PT_DENOISE_MAX_THREADS). Runs pt_denoise_check first and returns its
  * refusal; PT_ERR_NOMEM when memory runs out, PT_AGAIN when in->cancel was
  * set (out then partly written). The
- * output is the same bits for any thread count. Memory: 53 floats and about
- * 14 doubles a pixel besides the input. */
+ * output is the same bits for any thread count. Memory: pt_denoise_bytes
+ * besides the input (about 0.42 KiB a pixel: 849 MiB for 1920 x 1080). */
 pt_status pt_denoise(const pt_denoise_input *in, unsigned threads, float *const out[3],
                      pt_error *err);
+
+/* The work's unit: 32 x 32 tiles from the image's corner, whose partial
+ * sums are added in tile order. */
+#define PT_DENOISE_TILE 32u
+/* How far from a pixel the inputs that decide its output lie, at most, in
+ * pixels (the sum of the steps' reaches): the fits' weights 21 (a fit
+ * centred 9 away from the pixel, its window 9 more, its patch 3), the
+ * features' prefilter 8, the outliers' rules 2; the MSE estimates'
+ * smoothing 10 and the choice map's 10 after the first regression, the
+ * second regression 21 after those (67 in all), and the splat of the
+ * outliers' light 24 from its source, whose weights read 24 around it
+ * (94). A pixel farther than this from every edge of a crop of the image
+ * comes out of the crop's pt_denoise with the bits the whole image's
+ * gives it, when the crop's corner is a multiple of PT_DENOISE_TILE from
+ * the image's (the tiles then hold the same pixels). */
+#define PT_DENOISE_REACH 94u
+/* The margin a region is cut with: the reach in whole tiles. */
+#define PT_DENOISE_MARGIN                                                                          \
+    ((PT_DENOISE_REACH + PT_DENOISE_TILE - 1) / PT_DENOISE_TILE * PT_DENOISE_TILE)
+
+/* The bytes pt_denoise allocates for a width x height image (its planes,
+ * the regressions' sums and tiles; not the input or output). */
+uint64_t pt_denoise_bytes(uint32_t width, uint32_t height);
+/* The bytes pt_denoise_regions allocates for regions of side x side
+ * pixels (0: the whole image, pt_denoise's) of a width x height image:
+ * the largest crop's copy of the input and output, and pt_denoise's for it. */
+uint64_t pt_denoise_region_bytes(uint32_t width, uint32_t height, uint32_t side);
+
+/* The side of the largest regions (a multiple of PT_DENOISE_TILE) whose
+ * pt_denoise_regions allocates at most max_bytes for a width x height
+ * image: 0 when the whole image fits (pt_denoise), UINT32_MAX when no
+ * region does. */
+uint32_t pt_denoise_region_side(uint32_t width, uint32_t height, uint64_t max_bytes);
+
+/* pt_denoise, the image cut into regions of side x side pixels (a multiple
+ * of PT_DENOISE_TILE; 0, or at least the image: pt_denoise itself), each
+ * denoised from a crop PT_DENOISE_MARGIN larger on every side (within the
+ * image): the same bits as pt_denoise, in the memory of one crop
+ * (pt_denoise_region_bytes) rather than of the image, for more work (a
+ * region of 1024 pixels denoises a crop of 1216). The regions run one after
+ * another, each on `threads` threads. PT_ERR_ARG for a side that is not a
+ * multiple of the tile; else as pt_denoise. */
+pt_status pt_denoise_regions(const pt_denoise_input *in, unsigned threads, uint32_t side,
+                             float *const out[3], pt_error *err);
 
 #endif

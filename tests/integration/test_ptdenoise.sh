@@ -3,7 +3,7 @@
 # synthetic render whose truth is known): the output keeps every channel of
 # the input bit for bit and adds denoised.R/G/B, closer to the truth than
 # the beauty; a PNG preview beside it, or alone with -o X.png; the same
-# bytes for 1 and 3 threads. Refused with exit 1 and a message naming the
+# bytes for 1 and 3 threads, and cut into regions by --max-memory. Refused with exit 1 and a message naming the
 # cause: a render without the passes (a plain ptworker EXR), a missing
 # pass, NaN, an absurd normal or a negative variance, a pixel with fewer than
 # 2 samples, a file that is not an EXR; bad usage exits 2. No refusal leaves
@@ -37,6 +37,17 @@ cat "$tmp/mse"
 "$bin/ptdenoise" "$tmp/in.exr" -o "$tmp/out3.exr" --threads 3 --no-preview 2> /dev/null
 cmp -s "$tmp/out.exr" "$tmp/out3.exr" || fail "3 threads wrote another file than 1"
 [ ! -e "$tmp/out3.png" ] || fail "--no-preview wrote a preview"
+
+# --max-memory: a frame whose denoising needs more is denoised in regions,
+# the same file byte for byte; too little for any region is refused.
+"$bin/ptpasses-exr" "$tmp/wide.exr" 384 64 0.1 7
+"$bin/ptdenoise" "$tmp/wide.exr" -o "$tmp/wide_dn.exr" --threads 2 --no-preview 2> /dev/null
+"$bin/ptdenoise" "$tmp/wide.exr" -o "$tmp/wide_rg.exr" --threads 2 --no-preview \
+  --max-memory 9 2> "$tmp/log" || fail "--max-memory 9: exit $?: $(cat "$tmp/log")"
+grep -q "in regions of 64 pixels" "$tmp/log" || fail "--max-memory 9: no regions: $(cat "$tmp/log")"
+cmp -s "$tmp/wide_dn.exr" "$tmp/wide_rg.exr" || fail "regions wrote another file than the whole frame"
+"$bin/ptdenoise" "$tmp/wide.exr" -o "$tmp/wide_big.exr" --no-preview --max-memory 64 2> "$tmp/log"
+grep -q "384x64 denoised in" "$tmp/log" || fail "--max-memory 64 cut the frame: $(cat "$tmp/log")"
 
 # -o X.png: the preview alone, through the view transform.
 "$bin/ptdenoise" "$tmp/in.exr" -o "$tmp/only.png" --view agx --exposure 1 2> /dev/null ||
@@ -89,6 +100,8 @@ refused "a bad format" 2 "the output's format follows its name" "$tmp/in.exr" -o
 refused "bad threads" 2 "threads" "$tmp/in.exr" -o "$tmp/bad.exr" --threads 0
 refused "bad view" 2 "standard, filmic or agx" "$tmp/in.exr" -o "$tmp/bad.exr" --view aces
 refused "bad despeckle" 2 "not 0 or at least 1" "$tmp/in.exr" -o "$tmp/bad.exr" --despeckle 0.5
+refused "bad max-memory" 2 "max-memory" "$tmp/in.exr" -o "$tmp/bad.exr" --max-memory 0
+refused "too little memory" 1 "is too little" "$tmp/in.exr" -o "$tmp/bad.exr" --max-memory 1
 help=$("$bin/ptdenoise" --help)
 [[ $help == "usage: ptdenoise"* ]] || fail "--help"
 # Worked examples first, as the other programs' help: within its first lines.

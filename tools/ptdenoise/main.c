@@ -2,6 +2,7 @@
  * ptdenoise - denoises a ptfarm EXR that carries the denoiser's passes.
  *
  *   ptdenoise IN.exr -o OUT.exr [--threads N] [--view V] [--exposure EV] [--no-preview]
+ *             [--despeckle F] [--max-memory MIB]
  *   ptdenoise IN.exr -o OUT.png ...
  *
  * Reads the beauty (R, G, B, variance), the half buffers (halfA.*, halfB.*)
@@ -64,6 +65,11 @@ static void usage(FILE *f)
                "                      around it (the image's mean is kept), and a variance\n"
                "                      over 16 times its neighbours' median is capped\n"
                "                      (default 2; 0: off, pure NFOR)\n"
+               "  --max-memory MIB    the denoiser's working memory at most MIB mebibytes\n"
+               "                      (default: what the frame needs, about 0.4 KiB a\n"
+               "                      pixel); a larger frame is denoised in regions, each\n"
+               "                      from a crop 96 pixels wider on every side: the same\n"
+               "                      bits, for more time\n"
                "  -h, --help          this help\n"
                "  --version           version and build id\n"
                "\n"
@@ -83,20 +89,31 @@ enum { NCH = sizeof CHANNELS / sizeof CHANNELS[0], NREQ = NCH - 1, CH_A = NCH - 
 
 int main(int argc, char **argv)
 {
-    enum { OPT_VERSION = 256, OPT_THREADS, OPT_VIEW, OPT_EXPOSURE, OPT_NO_PREVIEW, OPT_DESPECKLE };
-    static const struct option longopts[] = {{"help", no_argument, NULL, 'h'},
-                                             {"version", no_argument, NULL, OPT_VERSION},
-                                             {"threads", required_argument, NULL, OPT_THREADS},
-                                             {"view", required_argument, NULL, OPT_VIEW},
-                                             {"exposure", required_argument, NULL, OPT_EXPOSURE},
-                                             {"no-preview", no_argument, NULL, OPT_NO_PREVIEW},
-                                             {"despeckle", required_argument, NULL, OPT_DESPECKLE},
-                                             {NULL, 0, NULL, 0}};
+    enum {
+        OPT_VERSION = 256,
+        OPT_THREADS,
+        OPT_VIEW,
+        OPT_EXPOSURE,
+        OPT_NO_PREVIEW,
+        OPT_DESPECKLE,
+        OPT_MAX_MEMORY
+    };
+    static const struct option longopts[] = {
+        {"help", no_argument, NULL, 'h'},
+        {"version", no_argument, NULL, OPT_VERSION},
+        {"threads", required_argument, NULL, OPT_THREADS},
+        {"view", required_argument, NULL, OPT_VIEW},
+        {"exposure", required_argument, NULL, OPT_EXPOSURE},
+        {"no-preview", no_argument, NULL, OPT_NO_PREVIEW},
+        {"despeckle", required_argument, NULL, OPT_DESPECKLE},
+        {"max-memory", required_argument, NULL, OPT_MAX_MEMORY},
+        {NULL, 0, NULL, 0}};
     const char *out_path = NULL;
     uint32_t threads = 0;
     pt_view view = {PT_VIEW_STANDARD, 0.0f};
     int preview = 1, c;
     double despeckle = PT_DENOISE_DESPECKLE;
+    uint32_t max_mib = 0; /* 0: no limit */
     pt_error err = {0};
     while ((c = getopt_long(argc, argv, "ho:", longopts, NULL)) != -1) {
         pt_status st = PT_OK;
@@ -129,6 +146,9 @@ int main(int argc, char **argv)
             if (st == PT_OK && despeckle > 0.0 && despeckle < 1.0)
                 st = pt_error_set(&err, PT_ERR_ARG, "--despeckle: %s is not 0 or at least 1",
                                   optarg);
+            break;
+        case OPT_MAX_MEMORY:
+            st = pt_opt_u32("--max-memory", optarg, 1, 1u << 24, &max_mib, &err);
             break;
         default:
             usage(stderr);
@@ -207,8 +227,23 @@ int main(int argc, char **argv)
             goto done;
         }
     }
+    /* Within --max-memory: regions as large as fit, or the whole frame. */
+    uint32_t side = 0;
+    if (max_mib) {
+        side = pt_denoise_region_side(w, h, (uint64_t)max_mib << 20);
+        if (side == UINT32_MAX) {
+            fprintf(stderr,
+                    "ptdenoise: %s: --max-memory %u MiB is too little: regions of %u pixels "
+                    "need %llu MiB\n",
+                    in_path, max_mib, PT_DENOISE_TILE,
+                    (unsigned long long)((pt_denoise_region_bytes(w, h, PT_DENOISE_TILE) +
+                                          (1u << 20) - 1) >>
+                                         20));
+            goto done;
+        }
+    }
     double t0 = pt_now_s();
-    if (pt_denoise(&in, threads, out, &err) != PT_OK) {
+    if (pt_denoise_regions(&in, threads, side, out, &err) != PT_OK) {
         fprintf(stderr, "ptdenoise: %s: %s\n", in_path, err.msg);
         goto done;
     }
@@ -241,8 +276,12 @@ int main(int argc, char **argv)
             goto done;
         }
     }
-    fprintf(stderr, "ptdenoise: %s -> %s: %ux%u denoised in %.2f s on %u threads\n", in_path,
-            out_path, w, h, secs, threads);
+    char how[96] = "";
+    if (side)
+        snprintf(how, sizeof how, " in regions of %u pixels (%llu MiB)", side,
+                 (unsigned long long)(pt_denoise_region_bytes(w, h, side) >> 20));
+    fprintf(stderr, "ptdenoise: %s -> %s: %ux%u denoised%s in %.2f s on %u threads\n", in_path,
+            out_path, w, h, how, secs, threads);
     rc = 0;
 done:
     for (int i = 0; i < NCH; i++)

@@ -649,8 +649,87 @@ static void test_alloc_failures(void)
     scene_free(&s);
 }
 
+/* pt_denoise_regions: the image cut into regions, each denoised from a crop
+ * PT_DENOISE_MARGIN larger, gives pt_denoise's bits, in less memory. The
+ * image holds fireflies in one half (1 pixel in 50, +3), so the splat of
+ * their light (the longest reach) runs. A crop with a margin of 64 (under
+ * the reach of 94) changes the region's bits: the image does reach that
+ * far, and the test would see a margin too small. */
+static void test_regions(void)
+{
+    scene s, c;
+    const uint32_t W = 288, H = 96;
+    CHECK(scene_alloc(&s, W, H) == 0);
+    CHECK(scene_alloc(&c, W, H) == 0);
+    scene_truth(&s);
+    scene_noise(&s, 0.1, 99);
+    rng_state = 4242;
+    for (size_t i = 0; i < (size_t)W * H; i++)
+        if ((splitmix64() >> 11) % 50 == 0)
+            for (int ch = 0; ch < 3; ch++)
+                s.a[ch][i] += 3.0f;
+    pt_denoise_input in = scene_input(&s);
+    in.despeckle = PT_DENOISE_DESPECKLE;
+    pt_error err = {0};
+    size_t n = (size_t)W * H;
+    CHECKF(pt_denoise(&in, 2, s.out, &err) == PT_OK, "%s", err.msg);
+    const uint32_t sides[1] = {128};
+    for (int k = 0; k < 1; k++) {
+        CHECKF(pt_denoise_regions(&in, 3, sides[k], c.out, &err) == PT_OK, "%s", err.msg);
+        for (int ch = 0; ch < 3; ch++)
+            CHECKF(memcmp(c.out[ch], s.out[ch], n * sizeof(float)) == 0,
+                   "regions of %u: channel %d differs from the whole image's", sides[k], ch);
+    }
+    /* The memory rule ptdenoise --max-memory follows, on a 1920 x 1080
+     * frame: whole, 849 MiB (ptdenoise's peak resident memory was 834 MiB
+     * besides its input); within 200 MiB, the largest regions that fit. */
+    uint64_t whole = pt_denoise_bytes(1920, 1080);
+    uint32_t side = pt_denoise_region_side(1920, 1080, 200u << 20);
+    printf("regions: 1920x1080 takes %llu MiB whole; within 200 MiB, regions of %u\n",
+           (unsigned long long)(whole >> 20), side);
+    CHECK(whole >> 20 >= 800 && whole >> 20 <= 900);
+    CHECK(side % PT_DENOISE_TILE == 0 && side >= PT_DENOISE_TILE && side < 1920);
+    CHECK(pt_denoise_region_bytes(1920, 1080, side) <= 200u << 20);
+    CHECK(pt_denoise_region_bytes(1920, 1080, side + PT_DENOISE_TILE) > 200u << 20);
+    CHECK(pt_denoise_region_side(1920, 1080, whole) == 0);
+    CHECK(pt_denoise_region_side(1920, 1080, 1u << 20) == UINT32_MAX);
+    CHECK(pt_denoise_regions(&in, 1, 48, c.out, &err) == PT_ERR_ARG);
+
+    /* A crop with too small a margin: the region [192, 224) x [32, 64)
+     * from [128, 288) x [0, 96). */
+    scene t;
+    const uint32_t x0 = 128, y0 = 0, cw = 160, chh = 96;
+    CHECK(scene_alloc(&t, cw, chh) == 0);
+    float *const from[] = {s.a[0],      s.a[1],      s.a[2],       s.b[0],       s.b[1],
+                           s.b[2],      s.color[0],  s.color[1],   s.color[2],   s.var,
+                           s.albedo[0], s.albedo[1], s.albedo[2],  s.albedo_var, s.normal[0],
+                           s.normal[1], s.normal[2], s.normal_var, s.depth,      s.depth_var};
+    float *const to[] = {t.a[0],      t.a[1],      t.a[2],       t.b[0],       t.b[1],
+                         t.b[2],      t.color[0],  t.color[1],   t.color[2],   t.var,
+                         t.albedo[0], t.albedo[1], t.albedo[2],  t.albedo_var, t.normal[0],
+                         t.normal[1], t.normal[2], t.normal_var, t.depth,      t.depth_var};
+    for (size_t k = 0; k < sizeof from / sizeof from[0]; k++)
+        for (uint32_t y = 0; y < chh; y++)
+            memcpy(to[k] + (size_t)y * cw, from[k] + (size_t)(y + y0) * W + x0, cw * sizeof(float));
+    pt_denoise_input ti = scene_input(&t);
+    ti.despeckle = PT_DENOISE_DESPECKLE;
+    CHECKF(pt_denoise(&ti, 2, t.out, &err) == PT_OK, "%s", err.msg);
+    size_t diff = 0;
+    for (int ch = 0; ch < 3; ch++)
+        for (uint32_t y = 32; y < 64; y++)
+            for (uint32_t x = 192; x < 224; x++)
+                diff += memcmp(&t.out[ch][(size_t)(y - y0) * cw + (x - x0)],
+                               &s.out[ch][(size_t)y * W + x], sizeof(float)) != 0;
+    printf("regions: identical; a margin of 64 changes %zu of 3072 values\n", diff);
+    CHECKF(diff > 0, "a margin of 64 changed nothing: the test image does not reach %u", 64u);
+    scene_free(&t);
+    scene_free(&c);
+    scene_free(&s);
+}
+
 int main(void)
 {
+    test_regions();
     test_constant();
     test_noise_free();
     test_noisy();
