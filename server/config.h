@@ -66,6 +66,8 @@ typedef struct srv_config {
     uint32_t io_threads;  /* threads reading workers (server/net/io.h); 0: the loop */
     uint64_t max_log_mem; /* queue mode: bytes of results not yet durable past which
                            * workers are not read (srv_loop_hold, server/net/loop.h) */
+    uint64_t max_denoise; /* bytes a frame's denoising may take (--max-denoise-mb;
+                           * server/sched/writer.h); 0: what it needs */
     srv_job_params job;   /* one-job mode: the job; queue mode: defaults (tile,
                            * chunk, max depth, rr depth) for submitted jobs.
                            * width/height 0: from the camera, 512 wide */

@@ -143,6 +143,10 @@ static void usage(FILE *f)
         "                         off the event loop; saves that come while one is\n"
         "                         denoised wait and only the newest is taken; the\n"
         "                         finished image stops a progressive one at once\n"
+        "  --max-denoise-mb N     memory one frame's denoising may take (default: what\n"
+        "                         it needs, about 0.42 KiB a pixel); a larger frame is\n"
+        "                         denoised in regions, the same bits for more CPU. At\n"
+        "                         least 32; both modes\n"
         "  --guiding on|off|auto  path guiding learned by the farm (default off): as\n"
         "                         ptworker --guiding, whose image it gives bit for bit;\n"
         "                         one-job mode (queued jobs: ptctl submit --guiding)\n"
@@ -280,6 +284,7 @@ enum {
     O_IOTHREADS,
     O_MAXLOG,
     O_MAXFILM,
+    O_MAXDENOISE,
     O_LOCALSTOP
 };
 static const struct option own[] = {
@@ -306,6 +311,7 @@ static const struct option own[] = {
     {"max-res", required_argument, NULL, O_MAXRES},
     {"max-pixels", required_argument, NULL, O_MAXPIX},
     {"max-film-mb", required_argument, NULL, O_MAXFILM},
+    {"max-denoise-mb", required_argument, NULL, O_MAXDENOISE},
     {"max-spp", required_argument, NULL, O_MAXSPP},
     {"max-scene-mb", required_argument, NULL, O_MAXSCENE},
     {"max-queued", required_argument, NULL, O_MAXQUEUED},
@@ -429,6 +435,11 @@ static pt_status own_option(int ch, srv_config *c, parsed *x, pt_error *err)
     case O_MAXFILM:
         if ((st = pt_opt_u32("--max-film-mb", optarg, 1, 1u << 22, &v, err)) == PT_OK)
             c->caps.max_film = (uint64_t)v << 20;
+        break;
+    case O_MAXDENOISE:
+        /* 32 MiB holds regions of 32 pixels of any frame (crops of 224). */
+        if ((st = pt_opt_u32("--max-denoise-mb", optarg, 32, 1u << 22, &v, err)) == PT_OK)
+            c->max_denoise = (uint64_t)v << 20;
         break;
     case O_MAXLOG:
         if ((st = pt_opt_u32("--max-log-mb", optarg, 1, 1u << 20, &v, err)) == PT_OK)

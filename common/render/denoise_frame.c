@@ -21,11 +21,12 @@ static pt_status need(const pt_image *img, const char *name, const float **out, 
 pt_status pt_denoise_frame(pt_image *img, unsigned threads, float despeckle, float *out[3],
                            pt_error *err)
 {
-    return pt_denoise_frame_until(img, threads, despeckle, NULL, out, err);
+    return pt_denoise_frame_until(img, threads, despeckle, 0, NULL, out, NULL, err);
 }
 
 pt_status pt_denoise_frame_until(pt_image *img, unsigned threads, float despeckle,
-                                 const atomic_int *cancel, float *out[3], pt_error *err)
+                                 uint64_t max_bytes, const atomic_int *cancel, float *out[3],
+                                 uint32_t *side, pt_error *err)
 {
     static const char *const rgb[3] = {"R", "G", "B"}, *const xyz[3] = {"X", "Y", "Z"};
     pt_denoise_input in = {
@@ -67,13 +68,24 @@ pt_status pt_denoise_frame_until(pt_image *img, unsigned threads, float despeckl
                                 "pixel (%zu, %zu) has %g samples; the denoiser's half buffers "
                                 "need 2 or more",
                                 i % img->width, i / img->width, (double)img->samples[i]);
+    uint32_t cut = max_bytes ? pt_denoise_region_side(img->width, img->height, max_bytes) : 0;
+    if (cut == UINT32_MAX)
+        return pt_error_set(
+            err, PT_ERR_LIMIT, "denoising %ux%u in %llu MiB: regions of %u pixels need %llu MiB",
+            img->width, img->height, (unsigned long long)(max_bytes >> 20), PT_DENOISE_TILE,
+            (unsigned long long)(pt_denoise_region_bytes(img->width, img->height,
+                                                         PT_DENOISE_TILE) >>
+                                 20) +
+                1);
+    if (side)
+        *side = cut;
     float *res[3] = {NULL, NULL, NULL};
     for (int c = 0; c < 3; c++)
         if (!(res[c] = pt_malloc_array(n, sizeof(float)))) {
             st = pt_error_set(err, PT_ERR_NOMEM, "out of memory for the denoised frame");
             goto done;
         }
-    if ((st = pt_denoise(&in, threads, res, err)) != PT_OK)
+    if ((st = pt_denoise_regions(&in, threads, cut, res, err)) != PT_OK)
         goto done;
     for (int c = 0; c < 3; c++) {
         float *pl;

@@ -13,6 +13,7 @@
 #define PT_COMMON_RENDER_DENOISE_FRAME_H
 
 #include <stdatomic.h>
+#include <stdint.h>
 
 #include "common/base/error.h"
 #include "common/image/image.h"
@@ -33,8 +34,13 @@ pt_status pt_denoise_frame(pt_image *img, unsigned threads, float despeckle, flo
 /* pt_denoise_frame that another thread may stop by setting *cancel (not
  * NULL): PT_AGAIN ("cancelled") then, img without a new denoised layer (one
  * already there may be partly overwritten). The coordinator's writer drops
- * a progressive save's denoising so when the finished image arrives. */
+ * a progressive save's denoising so when the finished image arrives.
+ * max_bytes (0: no limit) bounds the denoiser's working memory: a frame
+ * that needs more is denoised in the largest regions that fit
+ * (pt_denoise_regions: the same bits), their side into *side (0: whole)
+ * unless side is NULL; PT_ERR_LIMIT when no region fits. */
 pt_status pt_denoise_frame_until(pt_image *img, unsigned threads, float despeckle,
-                                 const atomic_int *cancel, float *out[3], pt_error *err);
+                                 uint64_t max_bytes, const atomic_int *cancel, float *out[3],
+                                 uint32_t *side, pt_error *err);
 
 #endif

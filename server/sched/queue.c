@@ -536,10 +536,11 @@ int srv_entry_ready(srv_server *s, srv_entry *j)
                             &s->cfg->view, &j->writer, &err);
     if (st == PT_OK) {
         uint32_t ff = srv_job_params_of(j->job)->film_flags;
-        srv_writer_set_denoise(j->writer, !(ff & PROTO_FILM_DENOISE) ? 0
-                                          : (ff & PROTO_FILM_DENOISE_PROGRESSIVE)
-                                              ? SRV_WRITER_DENOISE_ALL
-                                              : SRV_WRITER_DENOISE_FINAL);
+        srv_writer_set_denoise(j->writer,
+                               !(ff & PROTO_FILM_DENOISE)              ? 0
+                               : (ff & PROTO_FILM_DENOISE_PROGRESSIVE) ? SRV_WRITER_DENOISE_ALL
+                                                                       : SRV_WRITER_DENOISE_FINAL,
+                               s->cfg->max_denoise);
     }
     if (st != PT_OK) {
         char msg[PROTO_MAX_ERROR_TEXT + 1];

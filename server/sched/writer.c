@@ -25,6 +25,8 @@ struct srv_writer {
     int pending;          /* a request not yet taken */
     int final;            /* the pending request is the finished image's */
     int denoise;          /* SRV_WRITER_DENOISE_*, 0 (srv_writer_set_denoise) */
+    uint64_t denoise_max; /* the denoiser's working memory at most; 0: no limit */
+    uint32_t said_side;   /* the regions last logged (0: none) */
     int busy_progressive; /* the thread denoises a progressive write */
     atomic_int cancel;    /* set by a final submit: stop that denoising */
     int denoised;         /* img holds denoised planes, of denoised_samples samples */
@@ -54,10 +56,17 @@ static pt_status denoise_image(srv_writer *w, uint64_t samples, pt_image *shown,
             for (int i = 0; i < 6000 && !atomic_load(&w->cancel); i++)
                 nanosleep(&ts, NULL);
         }
-        pt_status st = pt_denoise_frame_until(w->img, pt_denoise_default_threads(),
-                                              PT_DENOISE_DESPECKLE, &w->cancel, NULL, err);
+        uint32_t side = 0;
+        pt_status st =
+            pt_denoise_frame_until(w->img, pt_denoise_default_threads(), PT_DENOISE_DESPECKLE,
+                                   w->denoise_max, &w->cancel, NULL, &side, err);
         if (st != PT_OK)
             return st;
+        if (side && side != w->said_side)
+            fprintf(stderr,
+                    "ptserve: %s: denoised in regions of %u pixels, within --max-denoise-mb %llu\n",
+                    w->exr[0] ? w->exr : w->png, side, (unsigned long long)(w->denoise_max >> 20));
+        w->said_side = side;
         w->denoised = 1;
         w->denoised_samples = samples;
     }
@@ -171,10 +180,11 @@ pt_status srv_writer_new(const char *exr_path, const pt_film *film, int has_alph
     return PT_OK;
 }
 
-void srv_writer_set_denoise(srv_writer *w, int mode)
+void srv_writer_set_denoise(srv_writer *w, int mode, uint64_t max_bytes)
 {
     pthread_mutex_lock(&w->mu);
     w->denoise = mode;
+    w->denoise_max = max_bytes;
     pthread_mutex_unlock(&w->mu);
 }
 

@@ -53,7 +53,10 @@ void srv_writer_submit(srv_writer *w, const pt_exr_meta *meta, int final);
  * that progressive image is dropped, never written, and the finished one
  * taken at once. 0: nothing is denoised. Call before the first submit. */
 enum { SRV_WRITER_DENOISE_FINAL = 1, SRV_WRITER_DENOISE_ALL = 2 };
-void srv_writer_set_denoise(srv_writer *w, int mode);
+/* max_bytes: the denoiser's working memory at most (ptserve
+ * --max-denoise-mb; 0: what the frame needs): a larger frame is denoised
+ * in regions, the same bits (pt_denoise_frame_until). */
+void srv_writer_set_denoise(srv_writer *w, int mode, uint64_t max_bytes);
 /* Waits until the last submitted snapshot is on disk; returns the status of
  * the last write (its error in err). */
 pt_status srv_writer_flush(srv_writer *w, pt_error *err);

@@ -2,7 +2,8 @@
 # --denoise on the farm: the coordinator denoises the merged image off its
 # event loop (its writer thread), so the farm's EXR - beauty, passes and
 # the layer denoised.R/G/B - equals ptworker --denoise's bit for bit:
-#  1. one-job ptserve --local 2 --denoise;
+#  1. one-job ptserve --local 2 --denoise, and with --max-denoise-mb under
+#     what the frame needs (denoised in regions);
 #  2. one-job --denoise-progressive: progressive saves (taken while the job
 #     runs) carry a denoised layer too, which is ptdenoise's of the same
 #     save bit for bit, and the finished image is still the standalone one;
@@ -39,6 +40,14 @@ view=(--res 40x32 --spp 32 --seed 3 --denoise)
   "$scene" 2> "$tmp/one.log" || fail "one-job ptserve: $(cat "$tmp/one.log")"
 same one
 cmp -s "$tmp/ref.png" "$tmp/one.png" || fail "one-job: the preview is not the denoised layer's"
+# With --max-denoise-mb under what the frame needs (34 MiB at 400x208), the
+# coordinator denoises it in regions: the same bits.
+view=(--res 400x208 --spp 8 --seed 3 --denoise)
+"$bin/ptworker" --scene "$scene" "${view[@]}" --tile 16 --chunk 8 -q -o "$tmp/ref.exr" 2> /dev/null
+"$bin/ptserve" --local 2 --worker-threads 1 --tile 16 --chunk 8 "${view[@]}" --max-denoise-mb 32 \
+  -o "$tmp/cut.exr" "$scene" 2> "$tmp/cut.log" || fail "--max-denoise-mb: $(cat "$tmp/cut.log")"
+grep -q "denoised in regions of" "$tmp/cut.log" || fail "--max-denoise-mb 32: no regions"
+same cut
 rc=0
 "$bin/ptserve" --state-dir "$tmp/x" --denoise 2> "$tmp/refused.err" || rc=$?
 if [ "$rc" != 2 ] || ! grep -q "ptctl submit --denoise" "$tmp/refused.err"; then
