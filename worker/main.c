@@ -158,6 +158,9 @@ static void usage(FILE *f)
             "                     albedo, normal, depth and halves, which it turns on):\n"
             "                     the EXR gets the layer denoised.R/G/B beside the\n"
             "                     untouched beauty, the PNG shows it; 2 spp or more\n"
+            "  --max-denoise-mb N the memory --denoise may take (default: what the frame\n"
+            "                     needs, about 0.42 KiB a pixel; at least 32): a larger\n"
+            "                     frame is denoised in regions, the same bits\n"
             "  --clamp-direct X   clamp each sample's light that reaches the camera or the\n"
             "                     first surface it sees to R+G+B <= X, as Cycles' Clamp\n"
             "                     Direct (biased: fewer fireflies, darker highlights;\n"
@@ -231,6 +234,7 @@ int main(int argc, char **argv)
     /* Animation: --time, or --frame over --fps (default 24). */
     double anim_time = 0.0, anim_frame = 0.0;
     int has_time = 0, has_frame = 0;
+    uint32_t max_denoise_mb = 0; /* --max-denoise-mb; 0: no limit */
     /* Which options were given, to refuse mixing the modes. */
     char standalone_opt[40] = "", farm_opt[40] = "";
     enum {
@@ -239,6 +243,7 @@ int main(int argc, char **argv)
         OPT_TIME,
         OPT_FRAME,
         OPT_LIST,
+        OPT_MAX_DENOISE,
         OPT_SERVER, /* the farm worker's, from here on */
         OPT_PREFETCH,
         OPT_TOKEN,
@@ -248,6 +253,7 @@ int main(int argc, char **argv)
     };
     static const struct option own[] = {
         {"scene", required_argument, NULL, OPT_SCENE},
+        {"max-denoise-mb", required_argument, NULL, OPT_MAX_DENOISE},
         {"output", required_argument, NULL, 'o'},
         {"threads", required_argument, NULL, OPT_THREADS},
         {"time", required_argument, NULL, OPT_TIME},
@@ -321,6 +327,11 @@ int main(int argc, char **argv)
             break;
         case OPT_LINK_TIMEOUT:
             bad = parse_link_timeout(optarg, &net.link_timeout_ms, &err);
+            break;
+        case OPT_MAX_DENOISE:
+            /* 32 MiB holds regions of 32 pixels of any frame (crops of 224). */
+            bad = bad_value(
+                pt_opt_u32("--max-denoise-mb", optarg, 32, 1u << 22, &max_denoise_mb, &err), &err);
             break;
         case 'h':
             usage(stdout);
@@ -440,6 +451,11 @@ int main(int argc, char **argv)
     o.clamp_direct = ro.clamp_direct;
     o.clamp_indirect = ro.clamp_indirect;
     o.denoise = ro.denoise;
+    o.denoise_max = (uint64_t)max_denoise_mb << 20;
+    if (max_denoise_mb && !ro.denoise) {
+        fprintf(stderr, "ptworker: --max-denoise-mb bounds --denoise, which was not given\n");
+        return 2;
+    }
     if (ro.animation)
         o.animate = 1;
     if (has_time || has_frame) {

@@ -209,6 +209,36 @@ static uint32_t run_threads(job *j, uint32_t n, pthread_t *threads, thread_arg *
     return started;
 }
 
+/* --denoise on a thread of its own, while the progress line runs
+ * (pt_run_reported). */
+typedef struct denoise_job {
+    pt_image *img;
+    unsigned threads;
+    pt_denoise_frame_opts o;
+    float **den;
+    uint32_t side;
+    pt_error *err;
+    pt_status st;
+} denoise_job;
+
+static int denoise_run(void *arg)
+{
+    denoise_job *j = arg;
+    j->st = pt_denoise_frame_until(j->img, j->threads, &j->o, j->den, &j->side, j->err);
+    return 0;
+}
+
+/* The progress line once a second, as the render's. */
+static void denoise_report(unsigned thousandths, double seconds, void *ctx)
+{
+    int *printed = ctx;
+    char eta[32];
+    pt_format_eta(thousandths ? seconds * (1000.0 - thousandths) / thousandths : -1.0, eta,
+                  sizeof eta);
+    fprintf(stderr, "\rptworker: denoising %5.1f%%  ETA %s   ", thousandths / 10.0, eta);
+    *printed = 1;
+}
+
 /* Renders every pass of a guided image (--guiding on): pass 0 records into
  * statistics of a uniform guide without sampling it; each later pass samples
  * the guide built from the pass before, PT_GUIDE_PASS_PROB of a guided
@@ -425,10 +455,31 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
     if (o->denoise) {
         float *den[3];
         double td = pt_now_s();
-        if (pt_denoise_frame(img, nthreads, PT_DENOISE_DESPECKLE, den, &err) != PT_OK) {
+        atomic_uint progress;
+        atomic_init(&progress, 0);
+        denoise_job dj = {
+            img,
+            nthreads,
+            {.despeckle = PT_DENOISE_DESPECKLE, .max_bytes = o->denoise_max, .progress = &progress},
+            den,
+            0,
+            &err,
+            PT_OK};
+        int printed = 0;
+        if (o->quiet)
+            denoise_run(&dj);
+        else
+            pt_run_reported(denoise_run, &dj, &progress, denoise_report, &printed);
+        if (printed)
+            fputc('\n', stderr);
+        uint32_t side = dj.side;
+        if (dj.st != PT_OK) {
             fprintf(stderr, "\nptworker: --denoise: %s\n", err.msg);
             goto done;
         }
+        if (side && !o->quiet)
+            fprintf(stderr, "ptworker: denoised in regions of %u pixels (--max-denoise-mb)\n",
+                    side);
         t_denoise = pt_now_s() - td;
         shown = *img;
         shown.r = den[0];

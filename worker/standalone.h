@@ -44,8 +44,9 @@ typedef struct wrk_standalone_opts {
     pt_view view;      /* the PNG's exposure and view transform; the EXR stays linear */
     int guiding;       /* --guiding: PT_GUIDING_* (options.h); guided where pt_guide_enabled */
     float clamp_direct, clamp_indirect; /* sample clamping (pt_render_params; 0: off) */
-    int denoise;     /* --denoise: passes has PT_PASS_DENOISE; denoised.R/G/B added, PNG of it */
-    uint32_t passes; /* PT_PASS_* render passes (passes.h) written as EXR layers; 0: none */
+    int denoise; /* --denoise: passes has PT_PASS_DENOISE; denoised.R/G/B added, PNG of it */
+    uint64_t denoise_max; /* --max-denoise-mb: the denoiser's memory at most; 0: no limit */
+    uint32_t passes;      /* PT_PASS_* render passes (passes.h) written as EXR layers; 0: none */
     int quiet;
 } wrk_standalone_opts;
 

@@ -1,5 +1,6 @@
 #include "common/base/clock.h"
 
+#include <pthread.h>
 #include <stdio.h>
 #include <time.h>
 
@@ -43,4 +44,41 @@ void pt_format_eta(double s, char *buf, size_t n)
         snprintf(buf, n, "%dm%02ds", (int)(s / 60), (int)s % 60);
     else
         snprintf(buf, n, "%.0fs", s);
+}
+
+typedef struct reported {
+    int (*fn)(void *);
+    void *arg;
+    int ret;
+    atomic_int done;
+} reported;
+
+static void *reported_main(void *p)
+{
+    reported *r = p;
+    r->ret = r->fn(r->arg);
+    atomic_store(&r->done, 1);
+    return NULL;
+}
+
+int pt_run_reported(int (*fn)(void *), void *arg, atomic_uint *progress,
+                    void (*report)(unsigned progress, double seconds, void *ctx), void *ctx)
+{
+    reported r = {.fn = fn, .arg = arg};
+    atomic_init(&r.done, 0);
+    pthread_t t;
+    if (pthread_create(&t, NULL, reported_main, &r) != 0)
+        return fn(arg);
+    double t0 = pt_now_s(), last = t0;
+    while (!atomic_load(&r.done)) {
+        struct timespec ts = {0, 50 * 1000 * 1000};
+        nanosleep(&ts, NULL);
+        double now = pt_now_s();
+        if (now - last >= 1.0 && !atomic_load(&r.done)) {
+            last = now;
+            report(atomic_load(progress), now - t0, ctx);
+        }
+    }
+    pthread_join(t, NULL);
+    return r.ret;
 }

@@ -7,11 +7,13 @@
  * within one process; they are never sent to a peer or written to a file.
  * The CPU clocks measure work, not waits for a core, for the benchmarks.
  * Thread-safety: any thread may call any of these (clock_gettime is
- * reentrant; pt_format_eta writes only to the caller's buffer).
+ * reentrant; pt_format_eta writes only to the caller's buffer;
+ * pt_run_reported starts and joins a thread of its own).
  */
 #ifndef PT_COMMON_BASE_CLOCK_H
 #define PT_COMMON_BASE_CLOCK_H
 
+#include <stdatomic.h>
 #include <stddef.h>
 #include <stdint.h>
 
@@ -31,5 +33,14 @@ double pt_thread_cpu_s(void);
  * "--" when unknown (negative, NaN) or over 100 hours, "1h02m" from an hour,
  * "3m07s" from a minute, "42s" below (rounded to the second). */
 void pt_format_eta(double seconds, char *buf, size_t n);
+
+/* Runs fn(arg) on a thread of its own while the calling thread calls
+ * report(*progress, seconds since the start, ctx) about once a second (not
+ * at all when fn takes under a second; progress in whatever unit fn keeps
+ * it, read atomically), and returns fn's value: a progress line for work
+ * that reports how far it is but runs on its own threads (the denoiser).
+ * When no thread can be started fn runs on the caller, unreported. */
+int pt_run_reported(int (*fn)(void *), void *arg, atomic_uint *progress,
+                    void (*report)(unsigned progress, double seconds, void *ctx), void *ctx);
 
 #endif

@@ -103,6 +103,11 @@ typedef struct pt_denoise_input {
      * pt_denoise then returns PT_AGAIN ("cancelled") with out partly
      * written. Read between tiles. */
     const atomic_int *cancel;
+    /* NULL, or where the work done so far is kept, in thousandths (0 to
+     * 1000; the caller sets it to 0 first): it only rises, 1000 once the
+     * output is written, and any thread may read it while pt_denoise runs
+     * (a status line, the coordinator's job status). */
+    atomic_uint *progress;
 } pt_denoise_input;
 
 /* 2, not the 3 it was: since the light the clamp takes is splatted back,

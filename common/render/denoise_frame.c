@@ -21,16 +21,20 @@ static pt_status need(const pt_image *img, const char *name, const float **out, 
 pt_status pt_denoise_frame(pt_image *img, unsigned threads, float despeckle, float *out[3],
                            pt_error *err)
 {
-    return pt_denoise_frame_until(img, threads, despeckle, 0, NULL, out, NULL, err);
+    pt_denoise_frame_opts o = {.despeckle = despeckle};
+    return pt_denoise_frame_until(img, threads, &o, out, NULL, err);
 }
 
-pt_status pt_denoise_frame_until(pt_image *img, unsigned threads, float despeckle,
-                                 uint64_t max_bytes, const atomic_int *cancel, float *out[3],
-                                 uint32_t *side, pt_error *err)
+pt_status pt_denoise_frame_until(pt_image *img, unsigned threads, const pt_denoise_frame_opts *o,
+                                 float *out[3], uint32_t *side, pt_error *err)
 {
+    uint64_t max_bytes = o->max_bytes;
     static const char *const rgb[3] = {"R", "G", "B"}, *const xyz[3] = {"X", "Y", "Z"};
-    pt_denoise_input in = {
-        .width = img->width, .height = img->height, .despeckle = despeckle, .cancel = cancel};
+    pt_denoise_input in = {.width = img->width,
+                           .height = img->height,
+                           .despeckle = o->despeckle,
+                           .cancel = o->cancel,
+                           .progress = o->progress};
     pt_status st = PT_OK;
     char name[PT_IMAGE_PLANE_NAME];
     for (int c = 0; c < 3 && st == PT_OK; c++) {

@@ -31,16 +31,24 @@
 pt_status pt_denoise_frame(pt_image *img, unsigned threads, float despeckle, float *out[3],
                            pt_error *err);
 
-/* pt_denoise_frame that another thread may stop by setting *cancel (not
- * NULL): PT_AGAIN ("cancelled") then, img without a new denoised layer (one
- * already there may be partly overwritten). The coordinator's writer drops
- * a progressive save's denoising so when the finished image arrives.
- * max_bytes (0: no limit) bounds the denoiser's working memory: a frame
- * that needs more is denoised in the largest regions that fit
- * (pt_denoise_regions: the same bits), their side into *side (0: whole)
- * unless side is NULL; PT_ERR_LIMIT when no region fits. */
-pt_status pt_denoise_frame_until(pt_image *img, unsigned threads, float despeckle,
-                                 uint64_t max_bytes, const atomic_int *cancel, float *out[3],
-                                 uint32_t *side, pt_error *err);
+/* How pt_denoise_frame_until denoises. */
+typedef struct pt_denoise_frame_opts {
+    float despeckle; /* as pt_denoise_input's */
+    /* The denoiser's working memory at most (0: no limit): a frame that
+     * needs more is denoised in the largest regions that fit
+     * (pt_denoise_regions: the same bits); PT_ERR_LIMIT when none does. */
+    uint64_t max_bytes;
+    /* NULL, or a flag another thread may set to stop the work: PT_AGAIN
+     * ("cancelled") then, img without a new denoised layer (one already
+     * there may be partly overwritten). The coordinator's writer drops a
+     * progressive save's denoising so when the finished image arrives. */
+    const atomic_int *cancel;
+    atomic_uint *progress; /* NULL, or the work done in thousandths (pt_denoise_input's) */
+} pt_denoise_frame_opts;
+
+/* pt_denoise_frame as o says; the regions' side into *side (0: the whole
+ * frame) unless side is NULL. */
+pt_status pt_denoise_frame_until(pt_image *img, unsigned threads, const pt_denoise_frame_opts *o,
+                                 float *out[3], uint32_t *side, pt_error *err);
 
 #endif

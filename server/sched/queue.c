@@ -285,6 +285,9 @@ void srv_queue_info(const srv_server *s, const srv_entry *j, proto_job_info *m)
     else if (j->final_pending)
         snprintf(m->message, sizeof m->message, "writing: cannot write the image: %s; retrying",
                  j->out_reason);
+    else if (j->final_writing && j->writer && srv_writer_denoising(j->writer) >= 0)
+        snprintf(m->message, sizeof m->message, "denoising the image: %d %%",
+                 srv_writer_denoising(j->writer) / 10);
     else if (j->final_writing)
         snprintf(m->message, sizeof m->message, "writing the image");
     else if (j->save_fails_logged)

@@ -20,16 +20,19 @@ struct srv_writer {
     int hold_progressive;      /* test hook: a progressive denoise waits for a final */
     const pt_film *film;
     int has_alpha;
-    pt_view view;         /* the preview's */
-    pt_image *img;        /* the thread's, made at the first write and kept */
-    int pending;          /* a request not yet taken */
-    int final;            /* the pending request is the finished image's */
-    int denoise;          /* SRV_WRITER_DENOISE_*, 0 (srv_writer_set_denoise) */
-    uint64_t denoise_max; /* the denoiser's working memory at most; 0: no limit */
-    uint32_t said_side;   /* the regions last logged (0: none) */
-    int busy_progressive; /* the thread denoises a progressive write */
-    atomic_int cancel;    /* set by a final submit: stop that denoising */
-    int denoised;         /* img holds denoised planes, of denoised_samples samples */
+    pt_view view;            /* the preview's */
+    pt_image *img;           /* the thread's, made at the first write and kept */
+    int pending;             /* a request not yet taken */
+    int final;               /* the pending request is the finished image's */
+    int denoise;             /* SRV_WRITER_DENOISE_*, 0 (srv_writer_set_denoise) */
+    uint64_t denoise_max;    /* the denoiser's working memory at most; 0: no limit */
+    uint32_t said_side;      /* the regions last logged (0: none) */
+    atomic_int dn_final;     /* 1 while the finished image is denoised (srv_writer_denoising) */
+    atomic_uint dn_progress; /* ... its work done, thousandths */
+    char dn_gate[4096];      /* test hook: that denoising waits for this file first */
+    int busy_progressive;    /* the thread denoises a progressive write */
+    atomic_int cancel;       /* set by a final submit: stop that denoising */
+    int denoised;            /* img holds denoised planes, of denoised_samples samples */
     uint64_t denoised_samples;
     pt_exr_meta meta;
     int busy, stop;
@@ -42,7 +45,8 @@ struct srv_writer {
 /* The image denoised (once for a count of samples): its layer
  * denoised.R/G/B added to w->img, and *shown the image the preview shows.
  * PT_AGAIN when w->cancel stopped it. */
-static pt_status denoise_image(srv_writer *w, uint64_t samples, pt_image *shown, pt_error *err)
+static pt_status denoise_image(srv_writer *w, uint64_t samples, int final, pt_image *shown,
+                               pt_error *err)
 {
     if (!w->denoised || w->denoised_samples != samples) {
         w->denoised = 0;
@@ -57,9 +61,21 @@ static pt_status denoise_image(srv_writer *w, uint64_t samples, pt_image *shown,
                 nanosleep(&ts, NULL);
         }
         uint32_t side = 0;
+        pt_denoise_frame_opts o = {.despeckle = PT_DENOISE_DESPECKLE,
+                                   .max_bytes = w->denoise_max,
+                                   .cancel = &w->cancel,
+                                   .progress = &w->dn_progress};
+        if (final) {
+            atomic_store(&w->dn_progress, 0);
+            atomic_store(&w->dn_final, 1);
+            /* Test hook (tests/integration/test_denoise_farm.sh): the
+             * finished image's denoising, shown in the job's status, waits
+             * for a file. Unset in production. */
+            pt_wait_for_file(w->dn_gate);
+        }
         pt_status st =
-            pt_denoise_frame_until(w->img, pt_denoise_default_threads(), PT_DENOISE_DESPECKLE,
-                                   w->denoise_max, &w->cancel, NULL, &side, err);
+            pt_denoise_frame_until(w->img, pt_denoise_default_threads(), &o, NULL, &side, err);
+        atomic_store(&w->dn_final, 0);
         if (st != PT_OK)
             return st;
         if (side && side != w->said_side)
@@ -107,7 +123,7 @@ static void *writer_main(void *p)
             w->img->has_alpha = w->has_alpha;
             shown = *w->img;
             if (denoise)
-                st = denoise_image(w, meta.total_samples, &shown, &err);
+                st = denoise_image(w, meta.total_samples, final, &shown, &err);
         }
         if (st == PT_AGAIN) {
             /* a final write came while this progressive one was denoised:
@@ -168,6 +184,11 @@ pt_status srv_writer_new(const char *exr_path, const pt_film *film, int has_alph
     /* Test hook (tests/integration/test_denoise_farm.sh): a progressive
      * denoise held until a final write stops it. Unset in production. */
     w->hold_progressive = getenv("PTSERVE_TEST_DENOISE_HOLD") != NULL;
+    const char *dn_gate = getenv("PTSERVE_TEST_DENOISE_GATE");
+    if (dn_gate)
+        snprintf(w->dn_gate, sizeof w->dn_gate, "%s", dn_gate);
+    atomic_init(&w->dn_final, 0);
+    atomic_init(&w->dn_progress, 0);
     pthread_mutex_init(&w->mu, NULL);
     pthread_cond_init(&w->cv, NULL);
     if (pthread_create(&w->thread, NULL, writer_main, w) != 0) {
@@ -210,6 +231,11 @@ pt_status srv_writer_flush(srv_writer *w, pt_error *err)
         *err = w->last_err;
     pthread_mutex_unlock(&w->mu);
     return st;
+}
+
+int srv_writer_denoising(srv_writer *w)
+{
+    return atomic_load(&w->dn_final) ? (int)atomic_load(&w->dn_progress) : -1;
 }
 
 int srv_writer_idle(srv_writer *w)

@@ -63,6 +63,10 @@ pt_status srv_writer_flush(srv_writer *w, pt_error *err);
 /* Without waiting: 1 when everything submitted has been written (or has
  * failed), so that srv_writer_flush would return at once. */
 int srv_writer_idle(srv_writer *w);
+/* Without waiting: the work done of the finished image's denoising, in
+ * thousandths, while it runs (the job's status: "denoising the image"); -1
+ * when the writer is not denoising it. Any thread. */
+int srv_writer_denoising(srv_writer *w);
 /* Without waiting: the status of the last write that finished (PT_OK before
  * any), its error in err; *failures (may be NULL) receives the number of
  * writes that failed in a row up to it (0 after a success). */

@@ -3,12 +3,13 @@
 # event loop (its writer thread), so the farm's EXR - beauty, passes and
 # the layer denoised.R/G/B - equals ptworker --denoise's bit for bit:
 #  1. one-job ptserve --local 2 --denoise, and with --max-denoise-mb under
-#     what the frame needs (denoised in regions);
+#     what the frame needs (denoised in regions), ptserve's and ptworker's;
 #  2. one-job --denoise-progressive: progressive saves (taken while the job
 #     runs) carry a denoised layer too, which is ptdenoise's of the same
 #     save bit for bit, and the finished image is still the standalone one;
 #  3. ptctl submit --denoise through a queue with two workers, one killed
-#     (-9) while it holds tasks, which are requeued;
+#     (-9) while it holds tasks, which are requeued; while the finished
+#     image is denoised the job's status says so, with its progress;
 #  4. ptctl submit --denoise-progressive, the coordinator killed (-9)
 #     mid-job with checkpoints written often and restarted: the job resumes
 #     and its image is still the standalone one, the PNG preview the
@@ -48,6 +49,13 @@ view=(--res 400x208 --spp 8 --seed 3 --denoise)
   -o "$tmp/cut.exr" "$scene" 2> "$tmp/cut.log" || fail "--max-denoise-mb: $(cat "$tmp/cut.log")"
 grep -q "denoised in regions of" "$tmp/cut.log" || fail "--max-denoise-mb 32: no regions"
 same cut
+"$bin/ptworker" --scene "$scene" "${view[@]}" --tile 16 --chunk 8 --max-denoise-mb 32 \
+  -o "$tmp/wcut.exr" 2> "$tmp/wcut.log" || fail "ptworker --max-denoise-mb: $(cat "$tmp/wcut.log")"
+grep -q "denoised in regions of" "$tmp/wcut.log" || fail "ptworker --max-denoise-mb 32: no regions"
+same wcut
+rc=0
+"$bin/ptworker" --scene "$scene" --max-denoise-mb 64 -o "$tmp/w.exr" 2> /dev/null || rc=$?
+[ "$rc" = 2 ] || fail "ptworker took --max-denoise-mb without --denoise (exit $rc)"
 rc=0
 "$bin/ptserve" --state-dir "$tmp/x" --denoise 2> "$tmp/refused.err" || rc=$?
 if [ "$rc" != 2 ] || ! grep -q "ptctl submit --denoise" "$tmp/refused.err"; then
@@ -98,11 +106,16 @@ echo "progressive saves: $snaps taken, $checked before the end checked"
 # 3. A queue, one of two workers killed while it renders.
 view=(--res 40x32 --spp 512 --seed 3 --denoise)
 "$bin/ptworker" --scene "$scene" "${view[@]}" --tile 16 --chunk 8 -q -o "$tmp/ref.exr" 2> /dev/null
-serve serve1.log
+serve serve1.log PTSERVE_TEST_DENOISE_GATE="$tmp/denoise_gate"
 workers 2
 id=$("$bin/ptctl" submit "$scene" "${view[@]}" --name killed-worker)
 until_status "$id" 'd["samples_done"] > 0'
 kill_worker
+# Once every sample is merged the status says the image is being denoised
+# (held there by the test hook until the gate file exists).
+until_status "$id" 'd["message"].startswith("denoising the image: ")'
+[ "$(json "$tmp/status.json" 'd["state"]')" = running ] || fail "denoising: the job is not running"
+touch "$tmp/denoise_gate"
 finish "$id" worker_killed
 stop_workers
 stop_server

@@ -77,6 +77,34 @@ static void usage(FILE *f)
                "values, I/O; the reason on stderr), 2 bad usage\n");
 }
 
+/* pt_denoise_regions on a thread of its own (pt_run_reported). */
+typedef struct dn_job {
+    const pt_denoise_input *in;
+    unsigned threads;
+    uint32_t side;
+    float *const *out;
+    pt_error *err;
+    pt_status st;
+} dn_job;
+
+static int dn_run(void *arg)
+{
+    dn_job *j = arg;
+    j->st = pt_denoise_regions(j->in, j->threads, j->side, j->out, j->err);
+    return 0;
+}
+
+/* The progress line, once a second: its share done and the time left. */
+static void dn_report(unsigned thousandths, double seconds, void *ctx)
+{
+    int *printed = ctx;
+    char eta[32];
+    pt_format_eta(thousandths ? seconds * (1000.0 - thousandths) / thousandths : -1.0, eta,
+                  sizeof eta);
+    fprintf(stderr, "\rptdenoise: %5.1f%%  ETA %s   ", thousandths / 10.0, eta);
+    *printed = 1;
+}
+
 /* The channels read, in this order: the input's planes. */
 static const char *const CHANNELS[] = {
     "halfA.R", "halfA.G", "halfA.B",  "halfB.R",    "halfB.G",  "halfB.B",        "R",
@@ -243,7 +271,15 @@ int main(int argc, char **argv)
         }
     }
     double t0 = pt_now_s();
-    if (pt_denoise_regions(&in, threads, side, out, &err) != PT_OK) {
+    atomic_uint progress;
+    atomic_init(&progress, 0);
+    in.progress = &progress;
+    dn_job job = {&in, threads, side, out, &err, PT_OK};
+    int printed = 0;
+    pt_run_reported(dn_run, &job, &progress, dn_report, &printed);
+    if (printed)
+        fputc('\n', stderr);
+    if (job.st != PT_OK) {
         fprintf(stderr, "ptdenoise: %s: %s\n", in_path, err.msg);
         goto done;
     }

@@ -10,6 +10,8 @@
  * allocation failure survived without a leak.
  */
 #include <math.h>
+#include <pthread.h>
+#include <stdatomic.h>
 #include <stdint.h>
 #include <string.h>
 
@@ -532,12 +534,65 @@ static void test_cancel(void)
     pt_denoise_input in = scene_input(&s);
     atomic_int flag;
     atomic_init(&flag, 1);
+    atomic_uint progress;
+    atomic_init(&progress, 0);
     in.cancel = &flag;
+    in.progress = &progress;
     pt_error err = {0};
     CHECK(pt_denoise(&in, 2, s.out, &err) == PT_AGAIN);
     CHECKF(strstr(err.msg, "cancelled") != NULL, "%s", err.msg);
+    CHECKF(atomic_load(&progress) < 1000, "cancelled at %u thousandths", atomic_load(&progress));
     atomic_store(&flag, 0);
     CHECKF(pt_denoise(&in, 2, s.out, &err) == PT_OK, "%s", err.msg);
+    CHECKF(atomic_load(&progress) == 1000, "done at %u thousandths", atomic_load(&progress));
+    scene_free(&s);
+}
+
+/* The progress another thread reads while pt_denoise runs: it never falls,
+ * and ends at 1000 (the whole frame, and in regions). */
+typedef struct poll_ctx {
+    atomic_uint *progress;
+    atomic_int stop;
+    unsigned seen, fell, polls;
+} poll_ctx;
+
+static void *poll_progress(void *arg)
+{
+    poll_ctx *p = arg;
+    while (!atomic_load(&p->stop)) {
+        unsigned v = atomic_load(p->progress);
+        p->fell += v < p->seen;
+        p->seen = v > p->seen ? v : p->seen;
+        p->polls++;
+    }
+    return NULL;
+}
+
+static void test_progress(void)
+{
+    scene s;
+    CHECK(scene_alloc(&s, 288, 96) == 0);
+    scene_truth(&s);
+    scene_noise(&s, 0.1, 31);
+    pt_denoise_input in = scene_input(&s);
+    in.despeckle = PT_DENOISE_DESPECKLE;
+    atomic_uint progress;
+    in.progress = &progress;
+    const uint32_t sides[2] = {0, 128};
+    for (int k = 0; k < 2; k++) {
+        atomic_init(&progress, 0);
+        poll_ctx p = {.progress = &progress};
+        atomic_init(&p.stop, 0);
+        pthread_t t;
+        CHECK(pthread_create(&t, NULL, poll_progress, &p) == 0);
+        pt_error err = {0};
+        CHECKF(pt_denoise_regions(&in, 2, sides[k], s.out, &err) == PT_OK, "%s", err.msg);
+        atomic_store(&p.stop, 1);
+        pthread_join(t, NULL);
+        CHECKF(p.fell == 0, "regions of %u: the progress fell %u times", sides[k], p.fell);
+        CHECKF(atomic_load(&progress) == 1000, "regions of %u: done at %u thousandths", sides[k],
+               atomic_load(&progress));
+    }
     scene_free(&s);
 }
 
@@ -742,6 +797,7 @@ int main(void)
     test_moderate_fireflies();
     test_threads();
     test_cancel();
+    test_progress();
     test_hostile();
     test_alloc_failures();
     return check_report();
