@@ -28,7 +28,6 @@ pt_status pt_denoise_frame(pt_image *img, unsigned threads, float despeckle, flo
 pt_status pt_denoise_frame_until(pt_image *img, unsigned threads, const pt_denoise_frame_opts *o,
                                  float *out[3], uint32_t *side, pt_error *err)
 {
-    uint64_t max_bytes = o->max_bytes;
     static const char *const rgb[3] = {"R", "G", "B"}, *const xyz[3] = {"X", "Y", "Z"};
     pt_denoise_input in = {.width = img->width,
                            .height = img->height,
@@ -72,15 +71,14 @@ pt_status pt_denoise_frame_until(pt_image *img, unsigned threads, const pt_denoi
                                 "pixel (%zu, %zu) has %g samples; the denoiser's half buffers "
                                 "need 2 or more",
                                 i % img->width, i / img->width, (double)img->samples[i]);
-    uint32_t cut = max_bytes ? pt_denoise_region_side(img->width, img->height, max_bytes) : 0;
-    if (cut == UINT32_MAX)
-        return pt_error_set(
-            err, PT_ERR_LIMIT, "denoising %ux%u in %llu MiB: regions of %u pixels need %llu MiB",
-            img->width, img->height, (unsigned long long)(max_bytes >> 20), PT_DENOISE_TILE,
-            (unsigned long long)(pt_denoise_region_bytes(img->width, img->height,
-                                                         PT_DENOISE_TILE) >>
-                                 20) +
-                1);
+    uint32_t cut = o->max_bytes ? pt_denoise_region_side(img->width, img->height, o->max_bytes) : 0;
+    if (cut == UINT32_MAX) {
+        uint64_t least = pt_denoise_region_bytes(img->width, img->height, PT_DENOISE_TILE);
+        return pt_error_set(err, PT_ERR_LIMIT,
+                            "denoising %ux%u in %llu MiB: regions of %u pixels need %llu MiB",
+                            img->width, img->height, (unsigned long long)(o->max_bytes >> 20),
+                            PT_DENOISE_TILE, (unsigned long long)((least + (1u << 20) - 1) >> 20));
+    }
     if (side)
         *side = cut;
     float *res[3] = {NULL, NULL, NULL};

@@ -10,6 +10,7 @@
 #include "common/base/fsutil.h"
 #include "common/image/denoise.h"
 #include "common/render/denoise_frame.h"
+#include "server/log.h"
 
 struct srv_writer {
     pthread_mutex_t mu;
@@ -79,8 +80,7 @@ static pt_status denoise_image(srv_writer *w, uint64_t samples, int final, pt_im
         if (st != PT_OK)
             return st;
         if (side && side != w->said_side)
-            fprintf(stderr,
-                    "ptserve: %s: denoised in regions of %u pixels, within --max-denoise-mb %llu\n",
+            srv_log("%s: denoised in regions of %u pixels, within --max-denoise-mb %llu",
                     w->exr[0] ? w->exr : w->png, side, (unsigned long long)(w->denoise_max >> 20));
         w->said_side = side;
         w->denoised = 1;
