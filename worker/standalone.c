@@ -232,10 +232,9 @@ static int denoise_run(void *arg)
 static void denoise_report(unsigned thousandths, double seconds, void *ctx)
 {
     int *printed = ctx;
-    char eta[32];
-    pt_format_eta(thousandths ? seconds * (1000.0 - thousandths) / thousandths : -1.0, eta,
-                  sizeof eta);
-    fprintf(stderr, "\rptworker: denoising %5.1f%%  ETA %s   ", thousandths / 10.0, eta);
+    char line[64];
+    pt_format_progress(thousandths, seconds, line, sizeof line);
+    fprintf(stderr, "\rptworker: denoising %s   ", line);
     *printed = 1;
 }
 

@@ -46,6 +46,14 @@ void pt_format_eta(double s, char *buf, size_t n)
         snprintf(buf, n, "%.0fs", s);
 }
 
+void pt_format_progress(unsigned thousandths, double seconds, char *buf, size_t n)
+{
+    char eta[32];
+    pt_format_eta(thousandths ? seconds * (1000.0 - thousandths) / thousandths : -1.0, eta,
+                  sizeof eta);
+    snprintf(buf, n, "%5.1f%%  ETA %s", thousandths / 10.0, eta);
+}
+
 typedef struct reported {
     int (*fn)(void *);
     void *arg;

@@ -34,6 +34,10 @@ double pt_thread_cpu_s(void);
  * "3m07s" from a minute, "42s" below (rounded to the second). */
 void pt_format_eta(double seconds, char *buf, size_t n);
 
+/* A progress line's "45.3%  ETA 12s" for thousandths of the work done in
+ * seconds so far (the time left extrapolated), into buf (n bytes). */
+void pt_format_progress(unsigned thousandths, double seconds, char *buf, size_t n);
+
 /* Runs fn(arg) on a thread of its own while the calling thread calls
  * report(*progress, seconds since the start, ctx) about once a second (not
  * at all when fn takes under a second; progress in whatever unit fn keeps

@@ -1259,8 +1259,40 @@ uint64_t pt_denoise_bytes(uint32_t width, uint32_t height)
            n * (4 * sizeof(double) + 3 * sizeof(float));
 }
 
-/* The planes a crop copies: the input's 20 and the output's 3. */
-#define CROP_PLANES 23
+void pt_denoise_input_set_planes(pt_denoise_input *in, const float *const p[PT_DENOISE_PLANES])
+{
+    for (int k = 0; k < 3; k++) {
+        in->half_a[k] = p[k];
+        in->half_b[k] = p[3 + k];
+        in->color[k] = p[6 + k];
+        in->albedo[k] = p[10 + k];
+        in->normal[k] = p[14 + k];
+    }
+    in->variance = p[9];
+    in->albedo_var = p[13];
+    in->normal_var = p[17];
+    in->depth = p[18];
+    in->depth_var = p[19];
+}
+
+void pt_denoise_input_planes(const pt_denoise_input *in, const float *p[PT_DENOISE_PLANES])
+{
+    for (int k = 0; k < 3; k++) {
+        p[k] = in->half_a[k];
+        p[3 + k] = in->half_b[k];
+        p[6 + k] = in->color[k];
+        p[10 + k] = in->albedo[k];
+        p[14 + k] = in->normal[k];
+    }
+    p[9] = in->variance;
+    p[13] = in->albedo_var;
+    p[17] = in->normal_var;
+    p[18] = in->depth;
+    p[19] = in->depth_var;
+}
+
+/* The planes a crop copies: the input's and the output's 3. */
+#define CROP_PLANES (PT_DENOISE_PLANES + 3)
 
 /* The crop of the region from (x0, y0) of a side (clipped to the image):
  * PT_DENOISE_MARGIN wider on each side, within the image. */
@@ -1315,11 +1347,8 @@ pt_status pt_denoise_regions(const pt_denoise_input *in, unsigned threads, uint3
     if (!mem)
         return pt_error_set(err, PT_ERR_NOMEM, "denoise: out of memory for a crop of %ux%u", cw,
                             chh);
-    const float *const src[CROP_PLANES - 3] = {
-        in->half_a[0], in->half_a[1], in->half_a[2],  in->half_b[0],  in->half_b[1],
-        in->half_b[2], in->color[0],  in->color[1],   in->color[2],   in->variance,
-        in->albedo[0], in->albedo[1], in->albedo[2],  in->albedo_var, in->normal[0],
-        in->normal[1], in->normal[2], in->normal_var, in->depth,      in->depth_var};
+    const float *src[PT_DENOISE_PLANES];
+    pt_denoise_input_planes(in, src);
     float *pl[CROP_PLANES];
     for (int k = 0; k < CROP_PLANES; k++)
         pl[k] = mem + (size_t)k * cn;
@@ -1334,7 +1363,7 @@ pt_status pt_denoise_regions(const pt_denoise_input *in, unsigned threads, uint3
         for (uint32_t x0 = 0; x0 < w && st == PT_OK; x0 += side) {
             rect c = crop_of(w, h, x0, y0, side);
             uint32_t ow = (uint32_t)(c.x1 - c.x0), oh = (uint32_t)(c.y1 - c.y0);
-            for (int k = 0; k < CROP_PLANES - 3; k++)
+            for (int k = 0; k < PT_DENOISE_PLANES; k++)
                 for (uint32_t y = 0; y < oh; y++)
                     memcpy(pl[k] + (size_t)y * ow, src[k] + (size_t)(y + c.y0) * w + c.x0,
                            ow * sizeof(float));
@@ -1343,19 +1372,9 @@ pt_status pt_denoise_regions(const pt_denoise_input *in, unsigned threads, uint3
                                    .despeckle = in->despeckle,
                                    .cancel = in->cancel,
                                    .progress = in->progress};
-            for (int k = 0; k < 3; k++) {
-                ci.half_a[k] = pl[k];
-                ci.half_b[k] = pl[3 + k];
-                ci.color[k] = pl[6 + k];
-                ci.albedo[k] = pl[10 + k];
-                ci.normal[k] = pl[14 + k];
-            }
-            ci.variance = pl[9];
-            ci.albedo_var = pl[13];
-            ci.normal_var = pl[17];
-            ci.depth = pl[18];
-            ci.depth_var = pl[19];
-            float *const co[3] = {pl[20], pl[21], pl[22]};
+            pt_denoise_input_set_planes(&ci, (const float *const *)pl);
+            float *const co[3] = {pl[PT_DENOISE_PLANES], pl[PT_DENOISE_PLANES + 1],
+                                  pl[PT_DENOISE_PLANES + 2]};
             uint64_t tiles = (uint64_t)((ow + TILE - 1) / TILE) * ((oh + TILE - 1) / TILE);
             uint32_t base = (uint32_t)(before * 1000 / all);
             before += tiles;

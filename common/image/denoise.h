@@ -110,6 +110,13 @@ typedef struct pt_denoise_input {
     atomic_uint *progress;
 } pt_denoise_input;
 
+/* The input's planes in one order, the one ptdenoise reads its EXR's
+ * channels in: half_a R, G, B, half_b R, G, B, color R, G, B, variance,
+ * albedo R, G, B, albedo_var, normal X, Y, Z, normal_var, depth, depth_var. */
+#define PT_DENOISE_PLANES 20
+void pt_denoise_input_set_planes(pt_denoise_input *in, const float *const p[PT_DENOISE_PLANES]);
+void pt_denoise_input_planes(const pt_denoise_input *in, const float *p[PT_DENOISE_PLANES]);
+
 /* 2, not the 3 it was: since the light the clamp takes is splatted back,
  * a lower threshold no longer costs the mean (DamagedHelmet in the park had
  * lost 1.3 % at 2 without the splat). Measured, 64 spp against 16,384-spp

@@ -98,10 +98,9 @@ static int dn_run(void *arg)
 static void dn_report(unsigned thousandths, double seconds, void *ctx)
 {
     int *printed = ctx;
-    char eta[32];
-    pt_format_eta(thousandths ? seconds * (1000.0 - thousandths) / thousandths : -1.0, eta,
-                  sizeof eta);
-    fprintf(stderr, "\rptdenoise: %5.1f%%  ETA %s   ", thousandths / 10.0, eta);
+    char line[64];
+    pt_format_progress(thousandths, seconds, line, sizeof line);
+    fprintf(stderr, "\rptdenoise: %s   ", line);
     *printed = 1;
 }
 
@@ -114,6 +113,7 @@ static const char *const CHANNELS[] = {
 /* All but the last are required; A (a transparent render's coverage) only
  * makes the preview RGBA. */
 enum { NCH = sizeof CHANNELS / sizeof CHANNELS[0], NREQ = NCH - 1, CH_A = NCH - 1 };
+_Static_assert(NCH == PT_DENOISE_PLANES + 2, "the input's planes, then samples and A");
 
 int main(int argc, char **argv)
 {
@@ -236,18 +236,8 @@ int main(int argc, char **argv)
         goto done;
     }
     pt_denoise_input in = {.width = w, .height = h, .despeckle = (float)despeckle};
-    for (int k = 0; k < 3; k++) {
-        in.half_a[k] = pl[k];
-        in.half_b[k] = pl[3 + k];
-        in.color[k] = pl[6 + k];
-        in.albedo[k] = pl[10 + k];
-        in.normal[k] = pl[14 + k];
-    }
-    in.variance = pl[9];
-    in.albedo_var = pl[13];
-    in.normal_var = pl[17];
-    in.depth = pl[18];
-    in.depth_var = pl[19];
+    /* CHANNELS' first PT_DENOISE_PLANES are the input's planes in order. */
+    pt_denoise_input_set_planes(&in, (const float *const *)pl);
     for (int k = 0; k < 3; k++) {
         out[k] = pt_malloc_array((size_t)w * h, sizeof(float));
         if (!out[k]) {
