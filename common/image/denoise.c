@@ -1054,13 +1054,13 @@ enum {
     P_COUNT = P_RECV + 1
 };
 
-/* pt_denoise, its progress mapped to [base, base + span] thousandths. */
+/* pt_denoise of an input pt_denoise_check passed (the caller ran it: the
+ * whole image's check covers its crops), its progress mapped to
+ * [base, base + span] thousandths. */
 static pt_status denoise_run(const pt_denoise_input *in, unsigned threads, float *const out[3],
                              uint32_t base, uint32_t span, pt_error *err)
 {
-    pt_status st = pt_denoise_check(in, err);
-    if (st != PT_OK)
-        return st;
+    pt_status st = PT_OK;
     if (!out || !out[0] || !out[1] || !out[2])
         return pt_error_set(err, PT_ERR_ARG, "denoise: no output planes");
     if (threads == 0)
@@ -1244,7 +1244,8 @@ done:
 pt_status pt_denoise(const pt_denoise_input *in, unsigned threads, float *const out[3],
                      pt_error *err)
 {
-    return denoise_run(in, threads, out, 0, 1000, err);
+    pt_status st = pt_denoise_check(in, err);
+    return st != PT_OK ? st : denoise_run(in, threads, out, 0, 1000, err);
 }
 
 uint64_t pt_denoise_bytes(uint32_t width, uint32_t height)
