@@ -1393,6 +1393,23 @@ pt_status pt_denoise_regions(const pt_denoise_input *in, unsigned threads, uint3
     return st;
 }
 
+pt_status pt_denoise_within(const pt_denoise_input *in, unsigned threads, uint64_t max_bytes,
+                            float *const out[3], uint32_t *side, pt_error *err)
+{
+    uint32_t cut = max_bytes ? pt_denoise_region_side(in->width, in->height, max_bytes) : 0;
+    if (cut == UINT32_MAX) {
+        uint64_t least = pt_denoise_region_bytes(in->width, in->height, TILE);
+        return pt_error_set(err, PT_ERR_LIMIT,
+                            "denoising %ux%u in %llu MiB is too little: regions of %d pixels "
+                            "need %llu MiB",
+                            in->width, in->height, (unsigned long long)(max_bytes >> 20), TILE,
+                            (unsigned long long)((least + (1u << 20) - 1) >> 20));
+    }
+    if (side)
+        *side = cut;
+    return pt_denoise_regions(in, threads, cut, out, err);
+}
+
 unsigned pt_denoise_default_threads(void)
 {
     long n = sysconf(_SC_NPROCESSORS_ONLN);

@@ -181,6 +181,14 @@ uint64_t pt_denoise_region_bytes(uint32_t width, uint32_t height, uint32_t side)
  * region does. */
 uint32_t pt_denoise_region_side(uint32_t width, uint32_t height, uint64_t max_bytes);
 
+/* pt_denoise within max_bytes of working memory (0: no limit): the whole
+ * image when it fits, else pt_denoise_regions with the largest regions
+ * that do (pt_denoise_region_side), their side into *side (0: whole)
+ * unless side is NULL; PT_ERR_LIMIT naming the memory the smallest
+ * regions need when none fit. */
+pt_status pt_denoise_within(const pt_denoise_input *in, unsigned threads, uint64_t max_bytes,
+                            float *const out[3], uint32_t *side, pt_error *err);
+
 /* pt_denoise, the image cut into regions of side x side pixels (a multiple
  * of PT_DENOISE_TILE; 0, or at least the image: pt_denoise itself), each
  * denoised from a crop PT_DENOISE_MARGIN larger on every side (within the

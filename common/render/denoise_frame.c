@@ -71,23 +71,13 @@ pt_status pt_denoise_frame_until(pt_image *img, unsigned threads, const pt_denoi
                                 "pixel (%zu, %zu) has %g samples; the denoiser's half buffers "
                                 "need 2 or more",
                                 i % img->width, i / img->width, (double)img->samples[i]);
-    uint32_t cut = o->max_bytes ? pt_denoise_region_side(img->width, img->height, o->max_bytes) : 0;
-    if (cut == UINT32_MAX) {
-        uint64_t least = pt_denoise_region_bytes(img->width, img->height, PT_DENOISE_TILE);
-        return pt_error_set(err, PT_ERR_LIMIT,
-                            "denoising %ux%u in %llu MiB: regions of %u pixels need %llu MiB",
-                            img->width, img->height, (unsigned long long)(o->max_bytes >> 20),
-                            PT_DENOISE_TILE, (unsigned long long)((least + (1u << 20) - 1) >> 20));
-    }
-    if (side)
-        *side = cut;
     float *res[3] = {NULL, NULL, NULL};
     for (int c = 0; c < 3; c++)
         if (!(res[c] = pt_malloc_array(n, sizeof(float)))) {
             st = pt_error_set(err, PT_ERR_NOMEM, "out of memory for the denoised frame");
             goto done;
         }
-    if ((st = pt_denoise_regions(&in, threads, cut, res, err)) != PT_OK)
+    if ((st = pt_denoise_within(&in, threads, o->max_bytes, res, side, err)) != PT_OK)
         goto done;
     for (int c = 0; c < 3; c++) {
         float *pl;

@@ -77,10 +77,11 @@ static void usage(FILE *f)
                "values, I/O; the reason on stderr), 2 bad usage\n");
 }
 
-/* pt_denoise_regions on a thread of its own (pt_run_reported). */
+/* pt_denoise_within on a thread of its own (pt_run_reported). */
 typedef struct dn_job {
     const pt_denoise_input *in;
     unsigned threads;
+    uint64_t max_bytes;
     uint32_t side;
     float *const *out;
     pt_error *err;
@@ -90,7 +91,7 @@ typedef struct dn_job {
 static int dn_run(void *arg)
 {
     dn_job *j = arg;
-    j->st = pt_denoise_regions(j->in, j->threads, j->side, j->out, j->err);
+    j->st = pt_denoise_within(j->in, j->threads, j->max_bytes, j->out, &j->side, j->err);
     return 0;
 }
 
@@ -245,26 +246,12 @@ int main(int argc, char **argv)
             goto done;
         }
     }
-    /* Within --max-memory: regions as large as fit, or the whole frame. */
-    uint32_t side = 0;
-    if (max_mib) {
-        side = pt_denoise_region_side(w, h, (uint64_t)max_mib << 20);
-        if (side == UINT32_MAX) {
-            fprintf(stderr,
-                    "ptdenoise: %s: --max-memory %u MiB is too little: regions of %u pixels "
-                    "need %llu MiB\n",
-                    in_path, max_mib, PT_DENOISE_TILE,
-                    (unsigned long long)((pt_denoise_region_bytes(w, h, PT_DENOISE_TILE) +
-                                          (1u << 20) - 1) >>
-                                         20));
-            goto done;
-        }
-    }
     double t0 = pt_now_s();
     atomic_uint progress;
     atomic_init(&progress, 0);
     in.progress = &progress;
-    dn_job job = {&in, threads, side, out, &err, PT_OK};
+    /* Within --max-memory: regions as large as fit, or the whole frame. */
+    dn_job job = {&in, threads, (uint64_t)max_mib << 20, 0, out, &err, PT_OK};
     int printed = 0;
     pt_run_reported(dn_run, &job, &progress, dn_report, &printed);
     if (printed)
@@ -273,6 +260,7 @@ int main(int argc, char **argv)
         fprintf(stderr, "ptdenoise: %s: %s\n", in_path, err.msg);
         goto done;
     }
+    uint32_t side = job.side;
     double secs = pt_now_s() - t0;
     if (fmt == PT_IMAGE_FORMAT_EXR) {
         static const char *const names[3] = {"denoised.R", "denoised.G", "denoised.B"};
