@@ -228,16 +228,6 @@ static int denoise_run(void *arg)
     return 0;
 }
 
-/* The progress line once a second, as the render's. */
-static void denoise_report(unsigned thousandths, double seconds, void *ctx)
-{
-    int *printed = ctx;
-    char line[64];
-    pt_format_progress(thousandths, seconds, line, sizeof line);
-    fprintf(stderr, "\rptworker: denoising %s   ", line);
-    *printed = 1;
-}
-
 /* Renders every pass of a guided image (--guiding on): pass 0 records into
  * statistics of a uniform guide without sampling it; each later pass samples
  * the guide built from the pass before, PT_GUIDE_PASS_PROB of a guided
@@ -464,13 +454,12 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
             0,
             &err,
             PT_OK};
-        int printed = 0;
+        pt_progress_line line = {"ptworker: denoising", 0};
         if (o->quiet)
             denoise_run(&dj);
         else
-            pt_run_reported(denoise_run, &dj, &progress, denoise_report, &printed);
-        if (printed)
-            fputc('\n', stderr);
+            pt_run_reported(denoise_run, &dj, &progress, pt_progress_line_report, &line);
+        pt_progress_line_end(&line);
         uint32_t side = dj.side;
         if (dj.st != PT_OK) {
             fprintf(stderr, "\nptworker: --denoise: %s\n", err.msg);

@@ -54,6 +54,22 @@ void pt_format_progress(unsigned thousandths, double seconds, char *buf, size_t 
     snprintf(buf, n, "%5.1f%%  ETA %s", thousandths / 10.0, eta);
 }
 
+void pt_progress_line_report(unsigned thousandths, double seconds, void *line)
+{
+    pt_progress_line *l = line;
+    char text[64];
+    pt_format_progress(thousandths, seconds, text, sizeof text);
+    fprintf(stderr, "\r%s %s   ", l->what, text);
+    l->printed = 1;
+}
+
+void pt_progress_line_end(pt_progress_line *line)
+{
+    if (line->printed)
+        fputc('\n', stderr);
+    line->printed = 0;
+}
+
 typedef struct reported {
     int (*fn)(void *);
     void *arg;

@@ -38,6 +38,16 @@ void pt_format_eta(double seconds, char *buf, size_t n);
  * seconds so far (the time left extrapolated), into buf (n bytes). */
 void pt_format_progress(unsigned thousandths, double seconds, char *buf, size_t n);
 
+/* A progress line on stderr for pt_run_reported: report with
+ * pt_progress_line_report (ctx: the line), "\r<what> 45.3%  ETA 12s";
+ * pt_progress_line_end ends it with a newline once one was printed. */
+typedef struct pt_progress_line {
+    const char *what; /* "ptdenoise:", "ptworker: denoising" */
+    int printed;
+} pt_progress_line;
+void pt_progress_line_report(unsigned thousandths, double seconds, void *line);
+void pt_progress_line_end(pt_progress_line *line);
+
 /* Runs fn(arg) on a thread of its own while the calling thread calls
  * report(*progress, seconds since the start, ctx) about once a second (not
  * at all when fn takes under a second; progress in whatever unit fn keeps

@@ -95,16 +95,6 @@ static int dn_run(void *arg)
     return 0;
 }
 
-/* The progress line, once a second: its share done and the time left. */
-static void dn_report(unsigned thousandths, double seconds, void *ctx)
-{
-    int *printed = ctx;
-    char line[64];
-    pt_format_progress(thousandths, seconds, line, sizeof line);
-    fprintf(stderr, "\rptdenoise: %s   ", line);
-    *printed = 1;
-}
-
 /* The channels read, in this order: the input's planes. */
 static const char *const CHANNELS[] = {
     "halfA.R", "halfA.G", "halfA.B",  "halfB.R",    "halfB.G",  "halfB.B",        "R",
@@ -252,10 +242,9 @@ int main(int argc, char **argv)
     in.progress = &progress;
     /* Within --max-memory: regions as large as fit, or the whole frame. */
     dn_job job = {&in, threads, (uint64_t)max_mib << 20, 0, out, &err, PT_OK};
-    int printed = 0;
-    pt_run_reported(dn_run, &job, &progress, dn_report, &printed);
-    if (printed)
-        fputc('\n', stderr);
+    pt_progress_line line = {"ptdenoise:", 0};
+    pt_run_reported(dn_run, &job, &progress, pt_progress_line_report, &line);
+    pt_progress_line_end(&line);
     if (job.st != PT_OK) {
         fprintf(stderr, "ptdenoise: %s: %s\n", in_path, err.msg);
         goto done;
