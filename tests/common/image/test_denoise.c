@@ -593,7 +593,7 @@ static void denoise_polled(pt_denoise_input *in, uint32_t side, float *const out
 }
 
 /* The same bits for 1, 2, 3 and 8 threads on an image whose tiles are not
- * whole (the edges are cut). */
+ * whole (the edges are cut); 1 and 3 in a sanitizer build. */
 static void test_threads(void)
 {
     scene s;
@@ -605,8 +605,8 @@ static void test_threads(void)
     CHECK(ref != NULL);
     pt_denoise_input in = scene_input(&s);
     in.despeckle = PT_DENOISE_DESPECKLE;
-    const unsigned counts[4] = {1, 2, 3, 8};
-    for (int t = 0; t < 4 && ref; t++) {
+    const unsigned counts[4] = {1, 3, 2, 8};
+    for (int t = 0; t < (CHECK_SANITIZED ? 2 : 4) && ref; t++) {
         pt_error err = {0};
         CHECKF(pt_denoise(&in, counts[t], s.out, &err) == PT_OK, "%s", err.msg);
         for (int c = 0; c < 3; c++) {
@@ -675,11 +675,12 @@ static void test_hostile(void)
 }
 
 /* Allocation N fails, for every N until the whole run succeeds: each
- * failure is PT_ERR_NOMEM and leaves nothing allocated. */
+ * failure is PT_ERR_NOMEM and leaves nothing allocated. Two tiles, so a
+ * failure in the second frees the first's work. */
 static void test_alloc_failures(void)
 {
     scene s;
-    CHECK(scene_alloc(&s, 40, 36) == 0);
+    CHECK(scene_alloc(&s, 40, 20) == 0);
     scene_truth(&s);
     scene_noise(&s, 0.1, 11);
     pt_denoise_input in = scene_input(&s);
@@ -700,17 +701,54 @@ static void test_alloc_failures(void)
     scene_free(&s);
 }
 
+/* A crop with too small a margin: the region [192, 224) x [32, 64) of s
+ * (288 x 96, denoised whole in s->out) from [128, 288) x [0, 96). */
+static void regions_margin_reaches(scene s)
+{
+    const uint32_t W = s.w, H = s.h;
+    pt_error err = {0};
+    scene t;
+    const uint32_t x0 = 128, y0 = 0, cw = 160, chh = H;
+    CHECK(scene_alloc(&t, cw, chh) == 0);
+    float *const from[] = {s.a[0],      s.a[1],      s.a[2],       s.b[0],       s.b[1],
+                           s.b[2],      s.color[0],  s.color[1],   s.color[2],   s.var,
+                           s.albedo[0], s.albedo[1], s.albedo[2],  s.albedo_var, s.normal[0],
+                           s.normal[1], s.normal[2], s.normal_var, s.depth,      s.depth_var};
+    float *const to[] = {t.a[0],      t.a[1],      t.a[2],       t.b[0],       t.b[1],
+                         t.b[2],      t.color[0],  t.color[1],   t.color[2],   t.var,
+                         t.albedo[0], t.albedo[1], t.albedo[2],  t.albedo_var, t.normal[0],
+                         t.normal[1], t.normal[2], t.normal_var, t.depth,      t.depth_var};
+    for (size_t k = 0; k < sizeof from / sizeof from[0]; k++)
+        for (uint32_t y = 0; y < chh; y++)
+            memcpy(to[k] + (size_t)y * cw, from[k] + (size_t)(y + y0) * W + x0, cw * sizeof(float));
+    pt_denoise_input ti = scene_input(&t);
+    ti.despeckle = PT_DENOISE_DESPECKLE;
+    CHECKF(pt_denoise(&ti, 2, t.out, &err) == PT_OK, "%s", err.msg);
+    size_t diff = 0;
+    for (int ch = 0; ch < 3; ch++)
+        for (uint32_t y = 32; y < 64; y++)
+            for (uint32_t x = 192; x < 224; x++)
+                diff += memcmp(&t.out[ch][(size_t)(y - y0) * cw + (x - x0)],
+                               &s.out[ch][(size_t)y * W + x], sizeof(float)) != 0;
+    printf("regions: identical; a margin of 64 changes %zu of 3072 values\n", diff);
+    CHECKF(diff > 0, "a margin of 64 changed nothing: the test image does not reach %u", 64u);
+    scene_free(&t);
+}
+
 /* pt_denoise_regions: the image cut into regions, each denoised from a crop
  * PT_DENOISE_MARGIN larger, gives pt_denoise's bits, in less memory, and
  * its progress, polled, never falls and ends at 1000, whole or in regions. The
  * image holds fireflies in one half (1 pixel in 50, +3), so the splat of
  * their light (the longest reach) runs. A crop with a margin of 64 (under
  * the reach of 94) changes the region's bits: the image does reach that
- * far, and the test would see a margin too small. */
+ * far, and the test would see a margin too small. A sanitizer build takes
+ * one row of tiles and leaves out the margin's check (a property of the
+ * image, which the release build proves): the crops' copies and writes
+ * still run under it. */
 static void test_regions(void)
 {
     scene s, c;
-    const uint32_t W = 288, H = CHECK_SANITIZED ? 64 : 96;
+    const uint32_t W = 288, H = CHECK_SANITIZED ? 32 : 96;
     CHECK(scene_alloc(&s, W, H) == 0);
     CHECK(scene_alloc(&c, W, H) == 0);
     scene_truth(&s);
@@ -743,36 +781,9 @@ static void test_regions(void)
     CHECK(pt_denoise_region_side(1920, 1080, whole) == 0);
     CHECK(pt_denoise_region_side(1920, 1080, 1u << 20) == UINT32_MAX);
     CHECK(pt_denoise_regions(&in, 1, 48, c.out, &err) == PT_ERR_ARG);
-
-    /* A crop with too small a margin: the region [192, 224) x [32, 64)
-     * from [128, 288) x [0, H) (64 high in a sanitizer build, 96 else). */
-    scene t;
-    const uint32_t x0 = 128, y0 = 0, cw = 160, chh = H;
-    CHECK(scene_alloc(&t, cw, chh) == 0);
-    float *const from[] = {s.a[0],      s.a[1],      s.a[2],       s.b[0],       s.b[1],
-                           s.b[2],      s.color[0],  s.color[1],   s.color[2],   s.var,
-                           s.albedo[0], s.albedo[1], s.albedo[2],  s.albedo_var, s.normal[0],
-                           s.normal[1], s.normal[2], s.normal_var, s.depth,      s.depth_var};
-    float *const to[] = {t.a[0],      t.a[1],      t.a[2],       t.b[0],       t.b[1],
-                         t.b[2],      t.color[0],  t.color[1],   t.color[2],   t.var,
-                         t.albedo[0], t.albedo[1], t.albedo[2],  t.albedo_var, t.normal[0],
-                         t.normal[1], t.normal[2], t.normal_var, t.depth,      t.depth_var};
-    for (size_t k = 0; k < sizeof from / sizeof from[0]; k++)
-        for (uint32_t y = 0; y < chh; y++)
-            memcpy(to[k] + (size_t)y * cw, from[k] + (size_t)(y + y0) * W + x0, cw * sizeof(float));
-    pt_denoise_input ti = scene_input(&t);
-    ti.despeckle = PT_DENOISE_DESPECKLE;
-    CHECKF(pt_denoise(&ti, 2, t.out, &err) == PT_OK, "%s", err.msg);
-    size_t diff = 0;
-    for (int ch = 0; ch < 3; ch++)
-        for (uint32_t y = 32; y < 64; y++)
-            for (uint32_t x = 192; x < 224; x++)
-                diff += memcmp(&t.out[ch][(size_t)(y - y0) * cw + (x - x0)],
-                               &s.out[ch][(size_t)y * W + x], sizeof(float)) != 0;
-    printf("regions: identical; a margin of 64 changes %zu of 3072 values\n", diff);
-    CHECKF(diff > 0, "a margin of 64 changed nothing: the test image does not reach %u", 64u);
-    scene_free(&t);
     scene_free(&c);
+    if (!CHECK_SANITIZED)
+        regions_margin_reaches(s);
     scene_free(&s);
 }
 
