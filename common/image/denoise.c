@@ -1327,6 +1327,84 @@ uint32_t pt_denoise_region_side(uint32_t width, uint32_t height, uint64_t max_by
     return UINT32_MAX;
 }
 
+uint32_t pt_denoise_region_count(uint32_t width, uint32_t height, uint32_t side)
+{
+    return side ? ((width + side - 1) / side) * ((height + side - 1) / side) : 0;
+}
+
+void pt_denoise_region_at(uint32_t width, uint32_t height, uint32_t side, uint32_t index,
+                          uint32_t region[4], uint32_t crop[4])
+{
+    uint32_t across = (width + side - 1) / side;
+    uint32_t x0 = index % across * side, y0 = index / across * side;
+    region[0] = x0;
+    region[1] = y0;
+    region[2] = x0 + side < width ? x0 + side : width;
+    region[3] = y0 + side < height ? y0 + side : height;
+    rect c = crop_of(width, height, x0, y0, side);
+    crop[0] = (uint32_t)c.x0;
+    crop[1] = (uint32_t)c.y0;
+    crop[2] = (uint32_t)c.x1;
+    crop[3] = (uint32_t)c.y1;
+}
+
+/* The planes of one crop: its input's, then its output's 3. */
+#define CROP_OUT PT_DENOISE_PLANES
+
+/* Region index of in into out, through the crop planes pl (room for the
+ * largest crop); base and span: its share of in->progress (0, 0: none). */
+static pt_status region_run(const pt_denoise_input *in, unsigned threads, uint32_t side,
+                            uint32_t index, float *const pl[CROP_PLANES], float *const out[3],
+                            uint32_t base, uint32_t span, pt_error *err)
+{
+    uint32_t w = in->width, r[4], c[4];
+    pt_denoise_region_at(w, in->height, side, index, r, c);
+    uint32_t ow = c[2] - c[0], oh = c[3] - c[1];
+    const float *src[PT_DENOISE_PLANES];
+    pt_denoise_input_planes(in, src);
+    for (int k = 0; k < PT_DENOISE_PLANES; k++)
+        for (uint32_t y = 0; y < oh; y++)
+            memcpy(pl[k] + (size_t)y * ow, src[k] + (size_t)(y + c[1]) * w + c[0],
+                   ow * sizeof(float));
+    pt_denoise_input ci = {.width = ow,
+                           .height = oh,
+                           .despeckle = in->despeckle,
+                           .cancel = in->cancel,
+                           .progress = span ? in->progress : NULL};
+    pt_denoise_input_set_planes(&ci, (const float *const *)pl);
+    float *const co[3] = {pl[CROP_OUT], pl[CROP_OUT + 1], pl[CROP_OUT + 2]};
+    pt_status st = denoise_run(&ci, threads, co, base, span, err);
+    if (st != PT_OK)
+        return st;
+    uint32_t rw = r[2] - r[0];
+    for (int k = 0; k < 3; k++)
+        for (uint32_t y = r[1]; y < r[3]; y++)
+            memcpy(out[k] + (size_t)y * w + r[0], co[k] + (size_t)(y - c[1]) * ow + (r[0] - c[0]),
+                   rw * sizeof(float));
+    return PT_OK;
+}
+
+/* A buffer for crops of side (within the image) cut from in: CROP_PLANES
+ * planes of the largest crop, their pointers into pl; NULL when out of
+ * memory. */
+static float *crop_buffer(const pt_denoise_input *in, uint32_t side, float *pl[CROP_PLANES],
+                          pt_error *err)
+{
+    uint32_t cw =
+        side + 2 * PT_DENOISE_MARGIN < in->width ? side + 2 * PT_DENOISE_MARGIN : in->width;
+    uint32_t chh =
+        side + 2 * PT_DENOISE_MARGIN < in->height ? side + 2 * PT_DENOISE_MARGIN : in->height;
+    size_t cn = (size_t)cw * chh;
+    float *mem = pt_malloc_array(cn * CROP_PLANES, sizeof(float));
+    if (!mem) {
+        pt_error_set(err, PT_ERR_NOMEM, "denoise: out of memory for a crop of %ux%u", cw, chh);
+        return NULL;
+    }
+    for (int k = 0; k < CROP_PLANES; k++)
+        pl[k] = mem + (size_t)k * cn;
+    return mem;
+}
+
 pt_status pt_denoise_regions(const pt_denoise_input *in, unsigned threads, uint32_t side,
                              float *const out[3], pt_error *err)
 {
@@ -1340,55 +1418,48 @@ pt_status pt_denoise_regions(const pt_denoise_input *in, unsigned threads, uint3
         return st;
     if (!out || !out[0] || !out[1] || !out[2])
         return pt_error_set(err, PT_ERR_ARG, "denoise: no output planes");
-    uint32_t w = in->width, h = in->height;
-    uint32_t cw = side + 2 * PT_DENOISE_MARGIN < w ? side + 2 * PT_DENOISE_MARGIN : w;
-    uint32_t chh = side + 2 * PT_DENOISE_MARGIN < h ? side + 2 * PT_DENOISE_MARGIN : h;
-    size_t cn = (size_t)cw * chh;
-    float *mem = pt_malloc_array(cn * CROP_PLANES, sizeof(float));
-    if (!mem)
-        return pt_error_set(err, PT_ERR_NOMEM, "denoise: out of memory for a crop of %ux%u", cw,
-                            chh);
-    const float *src[PT_DENOISE_PLANES];
-    pt_denoise_input_planes(in, src);
+    uint32_t w = in->width, h = in->height, n = pt_denoise_region_count(w, h, side);
     float *pl[CROP_PLANES];
-    for (int k = 0; k < CROP_PLANES; k++)
-        pl[k] = mem + (size_t)k * cn;
+    float *mem = crop_buffer(in, side, pl, err);
+    if (!mem)
+        return PT_ERR_NOMEM;
     /* Each crop's share of the progress: its tiles over all crops'. */
     uint64_t all = 0, before = 0;
-    for (uint32_t y0 = 0; y0 < h; y0 += side)
-        for (uint32_t x0 = 0; x0 < w; x0 += side) {
-            rect c = crop_of(w, h, x0, y0, side);
-            all += (uint64_t)((c.x1 - c.x0 + TILE - 1) / TILE) * ((c.y1 - c.y0 + TILE - 1) / TILE);
-        }
-    for (uint32_t y0 = 0; y0 < h && st == PT_OK; y0 += side)
-        for (uint32_t x0 = 0; x0 < w && st == PT_OK; x0 += side) {
-            rect c = crop_of(w, h, x0, y0, side);
-            uint32_t ow = (uint32_t)(c.x1 - c.x0), oh = (uint32_t)(c.y1 - c.y0);
-            for (int k = 0; k < PT_DENOISE_PLANES; k++)
-                for (uint32_t y = 0; y < oh; y++)
-                    memcpy(pl[k] + (size_t)y * ow, src[k] + (size_t)(y + c.y0) * w + c.x0,
-                           ow * sizeof(float));
-            pt_denoise_input ci = {.width = ow,
-                                   .height = oh,
-                                   .despeckle = in->despeckle,
-                                   .cancel = in->cancel,
-                                   .progress = in->progress};
-            pt_denoise_input_set_planes(&ci, (const float *const *)pl);
-            float *const co[3] = {pl[PT_DENOISE_PLANES], pl[PT_DENOISE_PLANES + 1],
-                                  pl[PT_DENOISE_PLANES + 2]};
-            uint64_t tiles = (uint64_t)((ow + TILE - 1) / TILE) * ((oh + TILE - 1) / TILE);
-            uint32_t base = (uint32_t)(before * 1000 / all);
-            before += tiles;
-            if ((st = denoise_run(&ci, threads, co, base, (uint32_t)(before * 1000 / all) - base,
-                                  err)) != PT_OK)
-                break;
-            uint32_t rw = x0 + side < w ? side : w - x0, rh = y0 + side < h ? side : h - y0;
-            for (int k = 0; k < 3; k++)
-                for (uint32_t y = 0; y < rh; y++)
-                    memcpy(out[k] + (size_t)(y0 + y) * w + x0,
-                           co[k] + (size_t)(y0 + y - (uint32_t)c.y0) * ow + (x0 - (uint32_t)c.x0),
-                           rw * sizeof(float));
-        }
+    uint32_t r[4], c[4];
+    for (uint32_t i = 0; i < n; i++) {
+        pt_denoise_region_at(w, h, side, i, r, c);
+        all += (uint64_t)((c[2] - c[0] + TILE - 1) / TILE) * ((c[3] - c[1] + TILE - 1) / TILE);
+    }
+    for (uint32_t i = 0; i < n && st == PT_OK; i++) {
+        pt_denoise_region_at(w, h, side, i, r, c);
+        uint32_t base = (uint32_t)(before * 1000 / all);
+        before += (uint64_t)((c[2] - c[0] + TILE - 1) / TILE) * ((c[3] - c[1] + TILE - 1) / TILE);
+        st = region_run(in, threads, side, i, pl, out, base, (uint32_t)(before * 1000 / all) - base,
+                        err);
+    }
+    pt_free(mem);
+    return st;
+}
+
+pt_status pt_denoise_region(const pt_denoise_input *in, unsigned threads, uint32_t side,
+                            uint32_t index, float *const out[3], pt_error *err)
+{
+    if (side == 0 || side % TILE != 0)
+        return pt_error_set(err, PT_ERR_ARG, "denoise: regions of %u pixels, not a multiple of %d",
+                            side, TILE);
+    if (index >= pt_denoise_region_count(in->width, in->height, side))
+        return pt_error_set(err, PT_ERR_ARG, "denoise: no region %u in %ux%u by %u", index,
+                            in->width, in->height, side);
+    if (!out || !out[0] || !out[1] || !out[2])
+        return pt_error_set(err, PT_ERR_ARG, "denoise: no output planes");
+    pt_status st = pt_denoise_check(in, err);
+    if (st != PT_OK)
+        return st;
+    float *pl[CROP_PLANES];
+    float *mem = crop_buffer(in, side, pl, err);
+    if (!mem)
+        return PT_ERR_NOMEM;
+    st = region_run(in, threads, side, index, pl, out, 0, 0, err);
     pt_free(mem);
     return st;
 }

@@ -200,4 +200,21 @@ pt_status pt_denoise_within(const pt_denoise_input *in, unsigned threads, uint64
 pt_status pt_denoise_regions(const pt_denoise_input *in, unsigned threads, uint32_t side,
                              float *const out[3], pt_error *err);
 
+/* The regions pt_denoise_regions cuts a width x height image into for a
+ * side (a multiple of PT_DENOISE_TILE, > 0): how many, in row-major order. */
+uint32_t pt_denoise_region_count(uint32_t width, uint32_t height, uint32_t side);
+/* Region `index` (< the count) as x0, y0, x1, y1 in the image: its pixels
+ * into region, and the crop it is denoised from into crop (PT_DENOISE_MARGIN
+ * wider on every side, within the image; its corner on the tile grid). */
+void pt_denoise_region_at(uint32_t width, uint32_t height, uint32_t side, uint32_t index,
+                          uint32_t region[4], uint32_t crop[4]);
+/* One region of pt_denoise_regions: its pixels of out (the whole image's
+ * planes) written, no other; the same bits as pt_denoise gives them. The
+ * crop is copied into a buffer of its own (pt_denoise_region_bytes).
+ * in->progress is not moved. Errors as pt_denoise_regions, PT_ERR_ARG for
+ * an index past the count. Regions of one image may run on several
+ * threads at once: they write disjoint pixels. */
+pt_status pt_denoise_region(const pt_denoise_input *in, unsigned threads, uint32_t side,
+                            uint32_t index, float *const out[3], pt_error *err);
+
 #endif

@@ -767,6 +767,22 @@ static void test_regions(void)
     for (int ch = 0; ch < 3; ch++)
         CHECKF(memcmp(c.out[ch], s.out[ch], n * sizeof(float)) == 0,
                "regions of 128: channel %d differs from the whole image's", ch);
+    /* One region at a time, last first (as the coordinator and its workers
+     * race for them): the same bits. Regions of 64 in a 288-wide image: 5
+     * across, the last 32 wide, its crop [160, 288). */
+    CHECK(pt_denoise_region_count(W, H, 64) == 5 * ((H + 63) / 64));
+    uint32_t reg[4], crop[4];
+    pt_denoise_region_at(W, H, 64, 4, reg, crop);
+    CHECK(reg[0] == 256 && reg[2] == 288 && reg[1] == 0 && crop[0] == 160 && crop[2] == 288);
+    for (int ch = 0; ch < 3; ch++)
+        memset(c.out[ch], 0, n * sizeof(float));
+    for (uint32_t i = pt_denoise_region_count(W, H, 64); i-- > 0;)
+        CHECKF(pt_denoise_region(&in, 2, 64, i, c.out, &err) == PT_OK, "%s", err.msg);
+    for (int ch = 0; ch < 3; ch++)
+        CHECKF(memcmp(c.out[ch], s.out[ch], n * sizeof(float)) == 0,
+               "regions of 64 one by one: channel %d differs from the whole image's", ch);
+    CHECK(pt_denoise_region(&in, 1, 64, pt_denoise_region_count(W, H, 64), c.out, &err) ==
+          PT_ERR_ARG);
     /* The memory rule ptdenoise --max-memory follows, on a 1920 x 1080
      * frame: whole, 849 MiB (ptdenoise's peak resident memory was 834 MiB
      * besides its input); within 200 MiB, the largest regions that fit. */
