@@ -43,6 +43,14 @@ const char *proto_msg_type_name(uint32_t type)
         return "GUIDE_GET";
     case PROTO_MSG_GUIDE_CHUNK:
         return "GUIDE_CHUNK";
+    case PROTO_MSG_DENOISE_TASK:
+        return "DENOISE_TASK";
+    case PROTO_MSG_DENOISE_GET:
+        return "DENOISE_GET";
+    case PROTO_MSG_DENOISE_CHUNK:
+        return "DENOISE_CHUNK";
+    case PROTO_MSG_DENOISE_RESULT:
+        return "DENOISE_RESULT";
     case PROTO_MSG_SUBMIT:
         return "SUBMIT";
     case PROTO_MSG_LIST:
@@ -969,6 +977,137 @@ void proto_result_fini(proto_result *r)
     r->pixels = NULL;
     r->pass = NULL;
     r->owns_pixels = 0;
+}
+
+/* ---- DENOISE_TASK, DENOISE_RESULT ---- */
+
+/* Shape of a region: non-empty, ordered, each side within the cap (so its
+ * area, at most 2^20, fits 32 bits). NULL when fine. */
+static const char *region_problem(pt_rect t)
+{
+    if (t.x0 >= t.x1)
+        return "region x0 >= x1";
+    if (t.y0 >= t.y1)
+        return "region y0 >= y1";
+    if (t.x1 - t.x0 > PROTO_MAX_DENOISE_REGION || t.y1 - t.y0 > PROTO_MAX_DENOISE_REGION)
+        return "region side over the cap";
+    return NULL;
+}
+
+static const char *denoise_task_problem(const proto_denoise_task *m)
+{
+    if (!(m->task_id & PROTO_DENOISE_TASK_BIT))
+        return "task id without the denoise bit";
+    if (m->crop_w == 0 || m->crop_h == 0 || m->crop_w > PROTO_MAX_DENOISE_CROP ||
+        m->crop_h > PROTO_MAX_DENOISE_CROP)
+        return "crop width or height not in [1, 1280]";
+    const char *why = region_problem(m->region);
+    if (why)
+        return why;
+    if (m->region.x1 > m->crop_w || m->region.y1 > m->crop_h)
+        return "region outside the crop";
+    /* Written so that NaN fails too. */
+    if (!(m->despeckle == 0.0f || (m->despeckle >= 1.0f && m->despeckle <= PROTO_MAX_DESPECKLE)))
+        return "despeckle not 0 or in [1, 1e6]";
+    if (m->size != (uint64_t)m->crop_w * m->crop_h * PROTO_DENOISE_PLANES * 4)
+        return "input size not crop width x height x 20 planes x 4";
+    return NULL;
+}
+
+pt_status proto_msg_encode_denoise_task(proto_writer *w, const proto_denoise_task *m, pt_error *err)
+{
+    size_t start = w->len;
+    const char *why = denoise_task_problem(m);
+    if (why)
+        return bad(err, PT_ERR_ARG, "DENOISE_TASK", why);
+    proto_w_u64(w, m->job_id);
+    proto_w_u64(w, m->task_id);
+    proto_w_u32(w, m->crop_w);
+    proto_w_u32(w, m->crop_h);
+    w_rect(w, m->region);
+    proto_w_f32(w, m->despeckle);
+    proto_w_u32(w, m->lease_ms);
+    proto_w_bytes(w, m->hash, PROTO_HASH_SIZE);
+    proto_w_u64(w, m->size);
+    return w_done(w, start, "DENOISE_TASK", err);
+}
+
+pt_status proto_msg_decode_denoise_task(const uint8_t *p, size_t len, proto_denoise_task *out,
+                                        pt_error *err)
+{
+    proto_reader r = proto_reader_make(p, len);
+    proto_denoise_task m;
+    m.job_id = proto_r_u64(&r, "job id");
+    m.task_id = proto_r_u64(&r, "task id");
+    m.crop_w = proto_r_u32(&r, "crop width");
+    m.crop_h = proto_r_u32(&r, "crop height");
+    m.region = r_rect(&r);
+    m.despeckle = proto_r_f32(&r, "despeckle");
+    m.lease_ms = proto_r_u32(&r, "lease");
+    const uint8_t *hash = proto_r_bytes(&r, PROTO_HASH_SIZE, "input hash");
+    m.size = proto_r_u64(&r, "input size");
+    pt_status st = proto_r_finish(&r, "DENOISE_TASK", err);
+    if (st != PT_OK)
+        return st;
+    memcpy(m.hash, hash, PROTO_HASH_SIZE);
+    const char *why = denoise_task_problem(&m);
+    if (why)
+        return bad(err, PT_ERR_PROTO, "DENOISE_TASK", why);
+    *out = m;
+    return PT_OK;
+}
+
+static const char *denoise_result_problem(const proto_denoise_result *m)
+{
+    if (!(m->task_id & PROTO_DENOISE_TASK_BIT))
+        return "task id without the denoise bit";
+    const char *why = region_problem(m->region);
+    if (why)
+        return why;
+    if (m->npixels != rect_area(m->region))
+        return "pixel count differs from the region's area";
+    return NULL;
+}
+
+pt_status proto_msg_encode_denoise_result(proto_writer *w, const proto_denoise_result *m,
+                                          pt_error *err)
+{
+    size_t start = w->len;
+    const char *why = denoise_result_problem(m);
+    if (why)
+        return bad(err, PT_ERR_ARG, "DENOISE_RESULT", why);
+    proto_w_u64(w, m->job_id);
+    proto_w_u64(w, m->task_id);
+    w_rect(w, m->region);
+    proto_w_u32(w, m->npixels);
+    /* The caller's bytes are the planes already little-endian. */
+    proto_w_bytes(w, m->data, (size_t)m->npixels * 12);
+    return w_done(w, start, "DENOISE_RESULT", err);
+}
+
+pt_status proto_msg_decode_denoise_result(const uint8_t *p, size_t len, proto_denoise_result *out,
+                                          pt_error *err)
+{
+    proto_reader r = proto_reader_make(p, len);
+    proto_denoise_result m;
+    m.job_id = proto_r_u64(&r, "job id");
+    m.task_id = proto_r_u64(&r, "task id");
+    m.region = r_rect(&r);
+    m.npixels = proto_r_u32(&r, "pixel count");
+    m.data = NULL;
+    if (r.status != PT_OK)
+        return proto_r_finish(&r, "DENOISE_RESULT", err);
+    /* The count is settled (the region's area, at most 2^20) before it is
+     * used as a length. */
+    const char *why = denoise_result_problem(&m);
+    if (why)
+        return bad(err, PT_ERR_PROTO, "DENOISE_RESULT", why);
+    m.data = proto_r_bytes(&r, (size_t)m.npixels * 12, "pixels");
+    pt_status st = proto_r_finish(&r, "DENOISE_RESULT", err);
+    if (st != PT_OK)
+        return st;
+    *out = m;
+    return PT_OK;
 }
 
 /* ---- HEARTBEAT ---- */

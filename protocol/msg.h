@@ -43,15 +43,19 @@ typedef enum proto_msg_type {
     PROTO_MSG_WELCOME = 4,   /* server -> peer */
     PROTO_MSG_ERROR = 5,     /* either way; the sender closes after it */
     /* worker */
-    PROTO_MSG_WORK_REQUEST = 16, /* worker -> server */
-    PROTO_MSG_TASK = 17,         /* server -> worker */
-    PROTO_MSG_SCENE_GET = 18,    /* worker -> server */
-    PROTO_MSG_SCENE_CHUNK = 19,  /* server -> worker */
-    PROTO_MSG_RESULT = 20,       /* worker -> server */
-    PROTO_MSG_HEARTBEAT = 21,    /* worker -> server */
-    PROTO_MSG_JOB_END = 22,      /* server -> worker, JOB_REF layout: drop that job's tasks */
-    PROTO_MSG_GUIDE_GET = 23,    /* worker -> server, SCENE_GET layout: a guiding distribution */
-    PROTO_MSG_GUIDE_CHUNK = 24,  /* server -> worker, SCENE_CHUNK layout: a piece of one */
+    PROTO_MSG_WORK_REQUEST = 16,   /* worker -> server */
+    PROTO_MSG_TASK = 17,           /* server -> worker */
+    PROTO_MSG_SCENE_GET = 18,      /* worker -> server */
+    PROTO_MSG_SCENE_CHUNK = 19,    /* server -> worker */
+    PROTO_MSG_RESULT = 20,         /* worker -> server */
+    PROTO_MSG_HEARTBEAT = 21,      /* worker -> server */
+    PROTO_MSG_JOB_END = 22,        /* server -> worker, JOB_REF layout: drop that job's tasks */
+    PROTO_MSG_GUIDE_GET = 23,      /* worker -> server, SCENE_GET layout: a guiding distribution */
+    PROTO_MSG_GUIDE_CHUNK = 24,    /* server -> worker, SCENE_CHUNK layout: a piece of one */
+    PROTO_MSG_DENOISE_TASK = 25,   /* server -> worker: denoise one region of a frame */
+    PROTO_MSG_DENOISE_GET = 26,    /* worker -> server, SCENE_GET layout: a region's input */
+    PROTO_MSG_DENOISE_CHUNK = 27,  /* server -> worker, SCENE_CHUNK layout: a piece of one */
+    PROTO_MSG_DENOISE_RESULT = 28, /* worker -> server: the region denoised */
     /* client (ptctl) -> server */
     PROTO_MSG_SUBMIT = 32, /* then UPLOAD frames with the scene bundle */
     PROTO_MSG_LIST = 33,
@@ -143,6 +147,11 @@ enum {
  * carries it. */
 const char *proto_build_id(void);
 
+/* HELLO capability bits. */
+/* The worker denoises regions of frames (DENOISE_TASK); the coordinator
+ * leases them only to workers that say so. */
+#define PROTO_CAP_DENOISE 1u
+
 /* HELLO
  *   offset   size  type  meaning
  *   0        2     u16   protocol version the peer speaks (PROTO_VERSION)
@@ -150,7 +159,7 @@ const char *proto_build_id(void);
  *   3        2+a   str   name of the peer (host, user), a <= PROTO_MAX_NAME
  *   5+a      2     u16   render threads (0 for a client)
  *   7+a      2+b   str   renderer build id, b <= PROTO_MAX_BUILD_ID
- *   9+a+b    4     u32   capability bits (none defined yet; unknown bits ignored)
+ *   9+a+b    4     u32   capability bits (PROTO_CAP_*; unknown bits ignored)
  *   size 13+a+b */
 typedef struct proto_hello {
     uint16_t version;
@@ -450,6 +459,71 @@ typedef struct proto_result {
     uint64_t clamped; /* contributions clamped (PROTO_RESULT_CLAMPED when not 0) */
 } proto_result;
 
+/* DENOISE_TASK: one region of a finished frame to denoise (the coordinator
+ * cuts a --denoise job's frame as pt_denoise_regions does,
+ * common/image/denoise.h, and races its workers for the regions). Sent only
+ * to a worker whose HELLO had PROTO_CAP_DENOISE, against a slot it asked for
+ * (WORK_REQUEST), as a TASK is.
+ *   0    8    u64      job id (a frame's wire id, as TASK's)
+ *   8    8    u64      task id: PROTO_DENOISE_TASK_BIT | the region's index
+ *   16   4    u32      crop width  \ the crop around the region, cut from the
+ *   20   4    u32      crop height /  frame: each <= PROTO_MAX_DENOISE_CROP
+ *   24   16   u32×4    region x0, y0, x1, y1 within the crop (x0 < x1 <= crop
+ *                      width, y0 < y1 <= crop height, each side <=
+ *                      PROTO_MAX_DENOISE_REGION)
+ *   40   4    f32      despeckle (0, or finite in [1, PROTO_MAX_DESPECKLE]:
+ *                      pt_denoise_input's)
+ *   44   4    u32      lease in milliseconds (heartbeat the task id before it runs out)
+ *   48   32   u8[32]   SHA-256 of the crop's input (below)
+ *   80   8    u64      its size: crop width x height x PROTO_DENOISE_PLANES x 4
+ *   size 88
+ * The input is fetched with DENOISE_GET (SCENE_GET layout, the hash above)
+ * and comes in DENOISE_CHUNK frames (SCENE_CHUNK layout): the 20 planes in
+ * pt_denoise_input_set_planes' order, each crop width x height little-endian
+ * f32, row-major. The worker checks the hash, denoises the crop as a whole
+ * image (pt_denoise: its checks refuse what is not a denoiser's input) and
+ * returns the region's pixels. A crop's corner lies on the denoiser's tile
+ * grid and its margin covers the denoiser's reach, so they are the bits of
+ * the whole frame's denoising there. A DENOISE_GET for a frame the
+ * coordinator has finished denoising (it races its workers) gets no answer;
+ * JOB_END for the frame follows once its image is written, and the worker
+ * drops the task. */
+#define PROTO_DENOISE_TASK_BIT (1ull << 63)
+#define PROTO_MAX_DENOISE_REGION 1024u
+/* The region and PT_DENOISE_MARGIN (96) on both sides; test_msg checks it. */
+#define PROTO_MAX_DENOISE_CROP (PROTO_MAX_DENOISE_REGION + 256u)
+/* PT_DENOISE_PLANES and PT_DENOISE_DESPECKLE_MAX (common/image/denoise.h),
+ * which protocol/ does not include; test_msg checks that they agree. */
+#define PROTO_DENOISE_PLANES 20u
+#define PROTO_MAX_DESPECKLE 1e6f
+typedef struct proto_denoise_task {
+    uint64_t job_id, task_id;
+    uint32_t crop_w, crop_h;
+    pt_rect region; /* within the crop */
+    float despeckle;
+    uint32_t lease_ms;
+    uint8_t hash[PROTO_HASH_SIZE];
+    uint64_t size;
+} proto_denoise_task;
+
+/* DENOISE_RESULT
+ *   0    8    u64      job id
+ *   8    8    u64      task id (PROTO_DENOISE_TASK_BIT set)
+ *   16   16   u32×4    region x0, y0, x1, y1 within the crop (as the task's)
+ *   32   4    u32      N: pixels, (x1 - x0) x (y1 - y0)
+ *   36   12N  f32      the denoised R plane, then G, then B: N little-endian
+ *                      f32 each, row-major over the region
+ *   size 36+12N
+ * Decoded, data points into the payload (borrowed, no copy); the values are
+ * not checked (the server does: finite, and the same bits as its own when
+ * it verifies one). */
+typedef struct proto_denoise_result {
+    uint64_t job_id, task_id;
+    pt_rect region;
+    uint32_t npixels;
+    const uint8_t *data; /* 12 x npixels bytes */
+} proto_denoise_result;
+
 /* HEARTBEAT
  *   0    2    u16     N: task ids, N <= PROTO_MAX_HEARTBEAT_TASKS
  *   2    8N   u64[N]  the tasks the worker holds (leased, queued or running)
@@ -728,6 +802,18 @@ pt_status proto_msg_decode_result(const uint8_t *p, size_t len, pt_pixel_acc *bu
                                   proto_result *out, pt_error *err);
 /* Frees the pixels when the decoder allocated them, and clears the pointer. Accepts NULL. */
 void proto_result_fini(proto_result *r);
+
+pt_status proto_msg_encode_denoise_task(proto_writer *w, const proto_denoise_task *m,
+                                        pt_error *err);
+pt_status proto_msg_decode_denoise_task(const uint8_t *p, size_t len, proto_denoise_task *out,
+                                        pt_error *err);
+
+/* Encodes 12 x m->npixels bytes from m->data (npixels must equal the region's area). */
+pt_status proto_msg_encode_denoise_result(proto_writer *w, const proto_denoise_result *m,
+                                          pt_error *err);
+/* out->data borrows from p: keep the payload alive while it is used. */
+pt_status proto_msg_decode_denoise_result(const uint8_t *p, size_t len, proto_denoise_result *out,
+                                          pt_error *err);
 
 pt_status proto_msg_encode_heartbeat(proto_writer *w, const proto_heartbeat *m, pt_error *err);
 pt_status proto_msg_decode_heartbeat(const uint8_t *p, size_t len, proto_heartbeat *out,

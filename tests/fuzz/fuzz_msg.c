@@ -1,8 +1,8 @@
 /*
  * fuzz_msg.c - libFuzzer target for the message decoders of protocol/msg.c.
  *
- * Input: byte 0 picks the decoder (byte0 % FUZZ_NTYPES, 15, in the order of
- * fuzz_types) and, for RESULT, the caller-buffer path (bit (byte0 / 15) & 1);
+ * Input: byte 0 picks the decoder (byte0 % FUZZ_NTYPES, 17, in the order of
+ * fuzz_types) and, for RESULT, the caller-buffer path (bit (byte0 / 17) & 1);
  * the rest is the payload. A payload that decodes must re-encode to the same bytes.
  */
 #include <stddef.h>

@@ -55,6 +55,8 @@ static inline pt_status fuzz_decode(uint32_t type, const uint8_t *p, size_t len,
         proto_submit submit;
         proto_job_info info;
         proto_job_list list;
+        proto_denoise_task denoise_task;
+        proto_denoise_result denoise_result;
     } u;
     static pt_pixel_acc pixels[64];
     pt_error err = {0}; /* a decoder that fails must fill it */
@@ -99,11 +101,15 @@ static inline pt_status fuzz_decode(uint32_t type, const uint8_t *p, size_t len,
         }
         break;
     case PROTO_MSG_SCENE_GET:
+    case PROTO_MSG_GUIDE_GET:
+    case PROTO_MSG_DENOISE_GET:
         st = proto_msg_decode_scene_get(p, len, &u.get, &err);
         if (st == PT_OK)
             FUZZ_REENCODE(proto_msg_encode_scene_get, &u.get);
         break;
     case PROTO_MSG_SCENE_CHUNK:
+    case PROTO_MSG_GUIDE_CHUNK:
+    case PROTO_MSG_DENOISE_CHUNK:
     case PROTO_MSG_UPLOAD:
     case PROTO_MSG_IMAGE:
         st = proto_msg_decode_scene_chunk(p, len, &u.chunk, &err);
@@ -124,6 +130,24 @@ static inline pt_status fuzz_decode(uint32_t type, const uint8_t *p, size_t len,
                        u.result.pass == (pt_pass_acc *)(u.result.pixels + u.result.npixels));
             FUZZ_REENCODE(proto_msg_encode_result, &u.result);
             proto_result_fini(&u.result);
+        }
+        break;
+    case PROTO_MSG_DENOISE_TASK:
+        st = proto_msg_decode_denoise_task(p, len, &u.denoise_task, &err);
+        if (st == PT_OK) {
+            FUZZ_CHECK((u.denoise_task.task_id & PROTO_DENOISE_TASK_BIT) &&
+                       u.denoise_task.region.x1 <= u.denoise_task.crop_w &&
+                       u.denoise_task.region.y1 <= u.denoise_task.crop_h);
+            FUZZ_REENCODE(proto_msg_encode_denoise_task, &u.denoise_task);
+        }
+        break;
+    case PROTO_MSG_DENOISE_RESULT:
+        st = proto_msg_decode_denoise_result(p, len, &u.denoise_result, &err);
+        if (st == PT_OK) {
+            /* Borrowed: the pixels are the payload's last 12N bytes. */
+            FUZZ_CHECK(u.denoise_result.data >= p &&
+                       u.denoise_result.data + (size_t)u.denoise_result.npixels * 12 == p + len);
+            FUZZ_REENCODE(proto_msg_encode_denoise_result, &u.denoise_result);
         }
         break;
     case PROTO_MSG_HEARTBEAT:
@@ -182,13 +206,15 @@ static inline pt_status fuzz_decode(uint32_t type, const uint8_t *p, size_t len,
 
 /* The decodable types, indexed by the fuzz_msg selector byte, in the order
  * of the samples of tests/protocol/samples.h (gen_corpus writes selector =
- * sample index). One type per decoder: the other JOB_REF types, UPLOAD and
- * IMAGE share a decoder with one listed here. */
+ * sample index). One type per decoder: the other JOB_REF types, UPLOAD,
+ * IMAGE and the GUIDE_ and DENOISE_ GET and CHUNK share a decoder with one
+ * listed here. */
 static const uint16_t fuzz_types[] = {
-    PROTO_MSG_HELLO,       PROTO_MSG_CHALLENGE,    PROTO_MSG_AUTH,      PROTO_MSG_WELCOME,
-    PROTO_MSG_ERROR,       PROTO_MSG_WORK_REQUEST, PROTO_MSG_TASK,      PROTO_MSG_SCENE_GET,
-    PROTO_MSG_SCENE_CHUNK, PROTO_MSG_RESULT,       PROTO_MSG_HEARTBEAT, PROTO_MSG_WATCH,
-    PROTO_MSG_SUBMIT,      PROTO_MSG_JOB_INFO,     PROTO_MSG_JOB_LIST};
+    PROTO_MSG_HELLO,         PROTO_MSG_CHALLENGE,    PROTO_MSG_AUTH,      PROTO_MSG_WELCOME,
+    PROTO_MSG_ERROR,         PROTO_MSG_WORK_REQUEST, PROTO_MSG_TASK,      PROTO_MSG_SCENE_GET,
+    PROTO_MSG_SCENE_CHUNK,   PROTO_MSG_RESULT,       PROTO_MSG_HEARTBEAT, PROTO_MSG_WATCH,
+    PROTO_MSG_SUBMIT,        PROTO_MSG_JOB_INFO,     PROTO_MSG_JOB_LIST,  PROTO_MSG_DENOISE_TASK,
+    PROTO_MSG_DENOISE_RESULT};
 #define FUZZ_NTYPES (sizeof fuzz_types / sizeof fuzz_types[0])
 
 #endif

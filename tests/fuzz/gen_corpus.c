@@ -9,7 +9,8 @@
  * The seeds are the sample messages of tests/protocol/samples.h: for
  * fuzz_msg a selector byte (see fuzz_msg.c) and a payload; for fuzz_frame a
  * mode byte (see fuzz_frame.c) and frames, alone, in one stream, and a few
- * broken ones. For the decoders of files: small glTF scenes (a data: URI
+ * broken ones, a client's session and a denoised region's exchange. For
+ * the decoders of files: small glTF scenes (a data: URI
  * buffer, an external buffer and image, a .glb, a name leading out of the
  * folder, JSON nested too deep and just deep enough, a PNG whose header
  * claims 16384^2, one whose data inflates past its header's 1x1, meshes
@@ -1274,6 +1275,28 @@ int main(int argc, char **argv)
         proto_frame_encode(&w, PROTO_MSG_LIST, NULL, 0, NULL);
         proto_writer_fini(&pw);
         emit(dir, "fuzz_frame", "client_session", w.buf, w.len);
+    }
+    /* A denoised region: DENOISE_TASK, DENOISE_GET (SCENE_GET layout), the
+     * input in DENOISE_CHUNK (SCENE_CHUNK layout), DENOISE_RESULT. */
+    {
+        static const uint16_t region[][2] = {
+            {15, PROTO_MSG_DENOISE_TASK},
+            {7, PROTO_MSG_DENOISE_GET},
+            {8, PROTO_MSG_DENOISE_CHUNK},
+            {16, PROTO_MSG_DENOISE_RESULT},
+        };
+        proto_writer pw;
+        proto_writer_init(&pw, PROTO_MAX_PAYLOAD);
+        proto_writer_reset(&w);
+        proto_w_u8(&w, 0x0A);
+        for (size_t i = 0; i < sizeof region / sizeof region[0]; i++) {
+            proto_writer_reset(&pw);
+            if (!sample_payload(region[i][0], 0, &pw) ||
+                proto_frame_encode(&w, region[i][1], pw.buf, pw.len, NULL) != PT_OK)
+                failures++;
+        }
+        proto_writer_fini(&pw);
+        emit(dir, "fuzz_frame", "denoise_region", w.buf, w.len);
     }
     /* A header declaring a payload over the pre-auth cap. */
     uint8_t h[13] = {1, 'P', 'T', 'F', '1'};

@@ -4,7 +4,8 @@
  *
  * sample_payload(i, v, w) appends the payload of sample i (0..SAMPLE_COUNT-1)
  * in variant v (0 or 1: different sizes, strings and counts) to w and returns
- * its frame type, or 0 on failure. RESULT samples use a static pixel array.
+ * its frame type, or 0 on failure. RESULT samples use a static pixel array,
+ * DENOISE_RESULT ones a static byte array.
  * The bytes never change with the build (the fuzz corpus is generated from them).
  */
 #ifndef PT_TESTS_PROTOCOL_SAMPLES_H
@@ -17,7 +18,7 @@
 #include "protocol/msg.h"
 
 /* The order is the fuzz_msg selector's (tests/fuzz/fuzz_msg.h, fuzz_types). */
-#define SAMPLE_COUNT 15
+#define SAMPLE_COUNT 17
 
 static pt_pixel_acc sample_pixels[4 * 3];
 static uint8_t sample_scene_bytes[300];
@@ -255,6 +256,42 @@ static inline proto_job_info sample_job_info(int v)
     return m;
 }
 
+/* DENOISE_TASK: v 0 a region inside its crop, despeckled; v 1 the largest
+ * region filling the largest crop, not despeckled. */
+static inline proto_denoise_task sample_denoise_task(int v)
+{
+    proto_denoise_task m;
+    memset(&m, 0, sizeof m);
+    m.job_id = v ? UINT64_MAX : 3;
+    m.task_id = PROTO_DENOISE_TASK_BIT | (v ? 0xFFFFFFFFull : 5);
+    m.crop_w = v ? PROTO_MAX_DENOISE_CROP : 96;
+    m.crop_h = v ? PROTO_MAX_DENOISE_CROP : 80;
+    m.region = v ? (pt_rect){256, 0, 1280, 1024} : (pt_rect){32, 32, 64, 48};
+    m.despeckle = v ? 0.0f : 2.0f;
+    m.lease_ms = v ? 0 : 30000;
+    sample_hash(m.hash, 50u + (unsigned)v);
+    m.size = (uint64_t)m.crop_w * m.crop_h * PROTO_DENOISE_PLANES * 4;
+    return m;
+}
+
+/* DENOISE_RESULT: v 0 a 4 x 3 region, v 1 one pixel; the planes' bytes
+ * (12 a pixel) hold any floats, NaN and -0 among them. */
+static uint8_t sample_denoise_bytes[12 * 12];
+static inline proto_denoise_result sample_denoise_result(int v)
+{
+    static const uint32_t bits[4] = {0x3F800000u, 0x80000000u, 0x7FC00001u, 0x00000001u};
+    for (unsigned i = 0; i < sizeof sample_denoise_bytes / 4; i++)
+        proto_put_u32(sample_denoise_bytes + 4 * i, i < 4 ? bits[i] : 0x3E800000u + i);
+    proto_denoise_result m;
+    memset(&m, 0, sizeof m);
+    m.job_id = v ? 0 : 3;
+    m.task_id = PROTO_DENOISE_TASK_BIT | (v ? 0 : 5);
+    m.region = v ? (pt_rect){0, 0, 1, 1} : (pt_rect){32, 32, 36, 35};
+    m.npixels = v ? 1 : 12;
+    m.data = sample_denoise_bytes;
+    return m;
+}
+
 static inline uint16_t sample_payload(int i, int v, proto_writer *w)
 {
     pt_status st = PT_ERR_ARG;
@@ -368,6 +405,18 @@ static inline uint16_t sample_payload(int i, int v, proto_writer *w)
             jobs[k] = sample_job_info(k);
         type = PROTO_MSG_JOB_LIST;
         st = proto_msg_encode_job_list(w, jobs, v ? 0 : 3, NULL);
+        break;
+    }
+    case 15: {
+        proto_denoise_task m = sample_denoise_task(v);
+        type = PROTO_MSG_DENOISE_TASK;
+        st = proto_msg_encode_denoise_task(w, &m, NULL);
+        break;
+    }
+    case 16: {
+        proto_denoise_result m = sample_denoise_result(v);
+        type = PROTO_MSG_DENOISE_RESULT;
+        st = proto_msg_encode_denoise_result(w, &m, NULL);
         break;
     }
     }

@@ -184,7 +184,7 @@ static void test_rejects(void)
     }
 
     /* Unknown types, from the 8th byte on. */
-    static const uint16_t types[] = {0, 6, 15, 25, 31, 40, 47, 52, 0x0101, 0xFFFF};
+    static const uint16_t types[] = {0, 6, 15, 29, 31, 40, 47, 52, 0x0101, 0xFFFF};
     for (size_t i = 0; i < sizeof types / sizeof types[0]; i++) {
         uint8_t b[64];
         size_t m = hand_frame(b, PROTO_VERSION, types[i], pl, 4);

@@ -11,6 +11,10 @@
  *   role, tile order / area / image bounds, sample range, RESULT pixel count
  *   against the area, counts over their caps (refused before the bytes they
  *   announce are looked for), SCENE_CHUNK past the end of the scene.
+ * - DENOISE_TASK and DENOISE_RESULT: the task bit, crop and region bounds,
+ *   despeckle, the input's size, the pixel count against the region's area
+ *   and the bytes against the count, each refused by the decoder and the
+ *   encoder alike.
  * - RESULT into a caller's buffer and a decoder-allocated one; the allocation
  *   failure loop without leaks; no allocation for a payload refused early.
  */
@@ -18,6 +22,7 @@
 #include <string.h>
 
 #include "common/base/alloc.h"
+#include "common/image/denoise.h"
 #include "common/render/render.h"
 #include "protocol/frame.h"
 #include "protocol/guide.h"
@@ -46,6 +51,8 @@ static pt_status decode_any(uint16_t type, const uint8_t *p, size_t len, pt_erro
         proto_submit submit;
         proto_job_info info;
         proto_job_list list;
+        proto_denoise_task denoise_task;
+        proto_denoise_result denoise_result;
     } u, before;
     memset(&u, 0xCD, sizeof u);
     before = u;
@@ -73,10 +80,18 @@ static pt_status decode_any(uint16_t type, const uint8_t *p, size_t len, pt_erro
         st = proto_msg_decode_task(p, len, &u.task, err);
         break;
     case PROTO_MSG_SCENE_GET:
+    case PROTO_MSG_DENOISE_GET:
         st = proto_msg_decode_scene_get(p, len, &u.get, err);
         break;
     case PROTO_MSG_SCENE_CHUNK:
+    case PROTO_MSG_DENOISE_CHUNK:
         st = proto_msg_decode_scene_chunk(p, len, &u.chunk, err);
+        break;
+    case PROTO_MSG_DENOISE_TASK:
+        st = proto_msg_decode_denoise_task(p, len, &u.denoise_task, err);
+        break;
+    case PROTO_MSG_DENOISE_RESULT:
+        st = proto_msg_decode_denoise_result(p, len, &u.denoise_result, err);
         break;
     case PROTO_MSG_RESULT:
         st = proto_msg_decode_result(p, len, NULL, 0, &u.result, err);
@@ -331,6 +346,31 @@ static void check_round_trip(int s, int v, const uint8_t *p, size_t len)
         CHECK(len == want);
         CHECK(v == 0 || b.jobs == NULL);
         pt_free(b.jobs);
+        break;
+    }
+    case 15: {
+        proto_denoise_task a = sample_denoise_task(v), b;
+        CHECK(len == 88 && proto_msg_decode_denoise_task(p, len, &b, &err) == PT_OK);
+        CHECK(a.job_id == b.job_id && a.task_id == b.task_id && a.crop_w == b.crop_w &&
+              a.crop_h == b.crop_h);
+        CHECK(memcmp(&a.region, &b.region, sizeof a.region) == 0);
+        CHECK(proto_f32_bits(a.despeckle) == proto_f32_bits(b.despeckle));
+        CHECK(a.lease_ms == b.lease_ms && memcmp(a.hash, b.hash, 32) == 0 && a.size == b.size);
+        /* The fields at the table's offsets. */
+        CHECK(proto_get_u32(p + 16) == a.crop_w && proto_get_u32(p + 36) == a.region.y1);
+        CHECK(proto_get_f32(p + 40) == a.despeckle && proto_get_u32(p + 44) == a.lease_ms);
+        CHECK(p[48 + 1] == a.hash[1] && proto_get_u64(p + 80) == a.size);
+        break;
+    }
+    case 16: {
+        proto_denoise_result a = sample_denoise_result(v), b;
+        CHECK(proto_msg_decode_denoise_result(p, len, &b, &err) == PT_OK);
+        CHECK(len == 36 + 12 * (size_t)a.npixels);
+        CHECK(a.job_id == b.job_id && a.task_id == b.task_id && a.npixels == b.npixels);
+        CHECK(memcmp(&a.region, &b.region, sizeof a.region) == 0);
+        /* Borrowed from the payload, the bytes verbatim (NaN's payload too). */
+        CHECK(b.data == p + 36 && memcmp(b.data, a.data, 12 * (size_t)a.npixels) == 0);
+        CHECK(proto_get_u32(p + 32) == a.npixels);
         break;
     }
     }
@@ -1319,6 +1359,290 @@ static void test_types(void)
     CHECK(52 + (uint64_t)PROTO_MAX_SCENE_CHUNK <= PROTO_MAX_PAYLOAD);
 }
 
+/* ---- DENOISE_TASK, DENOISE_RESULT ---- */
+
+/* msg.h restates the denoiser's constants that the layout depends on, and
+ * the largest region's crop (its margin on both sides) fits the crop cap. */
+_Static_assert(PROTO_DENOISE_PLANES == PT_DENOISE_PLANES, "DENOISE_TASK planes");
+_Static_assert(PROTO_MAX_DENOISE_REGION + 2 * PT_DENOISE_MARGIN <= PROTO_MAX_DENOISE_CROP,
+               "DENOISE_TASK crop cap");
+
+/* Writes m by hand at the table's offsets and decodes it; the encoder must
+ * agree (PT_ERR_ARG with nothing written when the decoder refuses). */
+static pt_status denoise_task_check(const proto_denoise_task *m, const char *want)
+{
+    proto_writer w;
+    proto_writer_init(&w, 4096);
+    proto_w_u64(&w, m->job_id);
+    proto_w_u64(&w, m->task_id);
+    proto_w_u32(&w, m->crop_w);
+    proto_w_u32(&w, m->crop_h);
+    proto_w_u32(&w, m->region.x0);
+    proto_w_u32(&w, m->region.y0);
+    proto_w_u32(&w, m->region.x1);
+    proto_w_u32(&w, m->region.y1);
+    proto_w_u32(&w, proto_f32_bits(m->despeckle));
+    proto_w_u32(&w, m->lease_ms);
+    proto_w_bytes(&w, m->hash, 32);
+    proto_w_u64(&w, m->size);
+    pt_error err = {0};
+    pt_status st = decode_any(PROTO_MSG_DENOISE_TASK, w.buf, w.len, &err);
+    if (st != PT_OK && want && !strstr(err.msg, want)) {
+        fprintf(stderr, "wanted \"%s\" in \"%s\"\n", want, err.msg);
+        st = PT_ERR_ARG;
+    }
+    proto_writer_reset(&w);
+    pt_status est = proto_msg_encode_denoise_task(&w, m, &err);
+    if ((st == PT_OK) != (est == PT_OK) || (est != PT_OK && (est != PT_ERR_ARG || w.len != 0))) {
+        fprintf(stderr, "DENOISE_TASK: encoder and decoder disagree\n");
+        st = PT_ERR_ARG;
+    }
+    proto_writer_fini(&w);
+    return st;
+}
+
+static void test_denoise_task(void)
+{
+    proto_denoise_task m = sample_denoise_task(0);
+    CHECK(denoise_task_check(&m, NULL) == PT_OK);
+    m = sample_denoise_task(1); /* the largest crop and region */
+    CHECK(denoise_task_check(&m, NULL) == PT_OK);
+    m.lease_ms = UINT32_MAX; /* any lease */
+    CHECK(denoise_task_check(&m, NULL) == PT_OK);
+
+    /* The task id's bit. */
+    m = sample_denoise_task(0);
+    m.task_id &= ~PROTO_DENOISE_TASK_BIT;
+    CHECK(denoise_task_check(&m, "denoise bit") == PT_ERR_PROTO);
+    m.task_id = 0;
+    CHECK(denoise_task_check(&m, "denoise bit") == PT_ERR_PROTO);
+    m.task_id = PROTO_DENOISE_TASK_BIT; /* region 0 */
+    CHECK(denoise_task_check(&m, NULL) == PT_OK);
+
+    /* The crop: 1 x 1 up to the cap on each side; 0 or one over refused. */
+    m = sample_denoise_task(0);
+    m.crop_w = m.crop_h = 1;
+    m.region = (pt_rect){0, 0, 1, 1};
+    m.size = PROTO_DENOISE_PLANES * 4;
+    CHECK(denoise_task_check(&m, NULL) == PT_OK);
+    for (int k = 0; k < 4; k++) {
+        m = sample_denoise_task(k & 1);
+        uint32_t c = k < 2 ? 0 : PROTO_MAX_DENOISE_CROP + 1;
+        if (k & 1)
+            m.crop_h = c;
+        else
+            m.crop_w = c;
+        m.size = (uint64_t)m.crop_w * m.crop_h * PROTO_DENOISE_PLANES * 4;
+        CHECKF(denoise_task_check(&m, "crop") == PT_ERR_PROTO, "crop case %d", k);
+    }
+    m = sample_denoise_task(0);
+    m.crop_w = m.crop_h = UINT32_MAX; /* the size would be 2^70 */
+    m.size = UINT64_MAX;
+    CHECK(denoise_task_check(&m, "crop") == PT_ERR_PROTO);
+
+    /* The region: empty, reversed, out of the crop (by one, and far), a
+     * side over the cap within a crop that holds it. */
+    static const struct {
+        pt_rect r;
+        const char *why;
+    } regions[] = {
+        {{32, 32, 32, 48}, "x0 >= x1"},
+        {{33, 32, 32, 48}, "x0 >= x1"},
+        {{32, 48, 64, 48}, "y0 >= y1"},
+        {{32, 49, 64, 48}, "y0 >= y1"},
+        {{32, 32, 97, 48}, "outside"},
+        {{32, 32, 64, 81}, "outside"},
+        {{UINT32_MAX - 1, 0, UINT32_MAX, 1}, "outside"},
+        {{0, 0, 96, 80}, NULL}, /* the whole crop */
+    };
+    for (size_t k = 0; k < sizeof regions / sizeof *regions; k++) {
+        m = sample_denoise_task(0);
+        m.region = regions[k].r;
+        CHECKF(denoise_task_check(&m, regions[k].why) == (regions[k].why ? PT_ERR_PROTO : PT_OK),
+               "region %zu", k);
+    }
+    m = sample_denoise_task(1);
+    m.region = (pt_rect){0, 0, PROTO_MAX_DENOISE_REGION + 1, 1};
+    CHECK(denoise_task_check(&m, "side") == PT_ERR_PROTO);
+    m.region = (pt_rect){255, 0, 1280, 1};
+    CHECK(denoise_task_check(&m, "side") == PT_ERR_PROTO);
+    m.region = (pt_rect){0, 0, 1, 1280};
+    CHECK(denoise_task_check(&m, "side") == PT_ERR_PROTO);
+
+    /* Despeckle: 0 (either sign) or [1, 1e6]; anything else, NaN
+     * included, refused. */
+    const float good[] = {0.0f, -0.0f, 1.0f, 2.0f, PROTO_MAX_DESPECKLE};
+    for (size_t k = 0; k < sizeof good / sizeof *good; k++) {
+        m = sample_denoise_task(0);
+        m.despeckle = good[k];
+        CHECKF(denoise_task_check(&m, NULL) == PT_OK, "despeckle %g", (double)good[k]);
+    }
+    const float bad_d[] = {NAN,   -NAN,   nextafterf(PROTO_MAX_DESPECKLE, INFINITY),
+                           0.5f,  2e6f,   nextafterf(1.0f, 0.0f),
+                           -1.0f, 1e-45f, INFINITY};
+    for (size_t k = 0; k < sizeof bad_d / sizeof *bad_d; k++) {
+        m = sample_denoise_task(0);
+        m.despeckle = bad_d[k];
+        CHECKF(denoise_task_check(&m, "despeckle") == PT_ERR_PROTO, "despeckle %zu", k);
+    }
+    CHECK(PROTO_MAX_DESPECKLE == PT_DENOISE_DESPECKLE_MAX);
+
+    /* The input's size: exactly the crop's 20 planes of f32. */
+    const int64_t dsize[] = {1, -1, -4, 4};
+    for (size_t k = 0; k < sizeof dsize / sizeof *dsize; k++) {
+        m = sample_denoise_task(0);
+        m.size += (uint64_t)dsize[k];
+        CHECKF(denoise_task_check(&m, "input size") == PT_ERR_PROTO, "size %zu", k);
+    }
+    m = sample_denoise_task(0);
+    m.size = 0;
+    CHECK(denoise_task_check(&m, "input size") == PT_ERR_PROTO);
+    m.size = (uint64_t)m.crop_w * m.crop_h * 19 * 4;
+    CHECK(denoise_task_check(&m, "input size") == PT_ERR_PROTO);
+
+    /* A writer too small: PT_ERR_LIMIT, nothing of the message left. */
+    proto_writer w;
+    pt_error err = {0};
+    proto_writer_init(&w, 100);
+    proto_w_u32(&w, 0xABCD);
+    m = sample_denoise_task(0);
+    CHECK(proto_msg_encode_denoise_task(&w, &m, &err) == PT_OK && w.len == 4 + 88);
+    CHECK(proto_msg_encode_denoise_task(&w, &m, &err) == PT_ERR_LIMIT && w.len == 4 + 88);
+    proto_writer_fini(&w);
+}
+
+/* A DENOISE_RESULT by hand: its header claiming n pixels of region t, then
+ * `have` bytes of pixels. The decoder's verdict, want in its message; the
+ * encoder must agree when the bytes are the 12n it would write. */
+static pt_status denoise_result_check(uint64_t task_id, pt_rect t, uint32_t n, size_t have,
+                                      const char *want)
+{
+    proto_writer w;
+    proto_writer_init(&w, PROTO_MAX_PAYLOAD);
+    proto_w_u64(&w, 7);
+    proto_w_u64(&w, task_id);
+    proto_w_u32(&w, t.x0);
+    proto_w_u32(&w, t.y0);
+    proto_w_u32(&w, t.x1);
+    proto_w_u32(&w, t.y1);
+    proto_w_u32(&w, n);
+    uint8_t *px = proto_w_reserve(&w, have);
+    if (px)
+        for (size_t i = 0; i < have; i++)
+            px[i] = (uint8_t)(i * 7);
+    pt_error err = {0};
+    pt_status st = decode_any(PROTO_MSG_DENOISE_RESULT, w.buf, w.len, &err);
+    if (st != PT_OK && want && !strstr(err.msg, want)) {
+        fprintf(stderr, "wanted \"%s\" in \"%s\"\n", want, err.msg);
+        st = PT_ERR_ARG;
+    }
+    if (have == 12 * (size_t)n) {
+        proto_writer e;
+        proto_writer_init(&e, PROTO_MAX_PAYLOAD);
+        proto_denoise_result m = {7, task_id, t, n, w.buf + 36};
+        pt_status est = proto_msg_encode_denoise_result(&e, &m, &err);
+        if ((st == PT_OK) != (est == PT_OK) ||
+            (est == PT_OK && (e.len != w.len || memcmp(e.buf, w.buf, w.len) != 0)) ||
+            (est != PT_OK && (est != PT_ERR_ARG || e.len != 0))) {
+            fprintf(stderr, "DENOISE_RESULT: encoder and decoder disagree\n");
+            st = PT_ERR_ARG;
+        }
+        proto_writer_fini(&e);
+    }
+    proto_writer_fini(&w);
+    return st;
+}
+
+static void test_denoise_result(void)
+{
+    const uint64_t id = PROTO_DENOISE_TASK_BIT | 3;
+    const pt_rect r = {8, 16, 12, 19}; /* 4 x 3 */
+    CHECK(denoise_result_check(id, r, 12, 144, NULL) == PT_OK);
+    CHECK(denoise_result_check(id, (pt_rect){0, 0, 1, 1}, 1, 12, NULL) == PT_OK);
+    /* The largest region, 12 MiB of pixels, fits the frame cap. */
+    CHECK(denoise_result_check(PROTO_DENOISE_TASK_BIT, (pt_rect){0, 0, 1024, 1024}, 1u << 20,
+                               12u << 20, NULL) == PT_OK);
+    CHECK(36 + 12 * (uint64_t)PROTO_MAX_DENOISE_REGION * PROTO_MAX_DENOISE_REGION <=
+          PROTO_MAX_PAYLOAD);
+
+    /* The task id's bit. */
+    CHECK(denoise_result_check(3, r, 12, 144, "denoise bit") == PT_ERR_PROTO);
+    CHECK(denoise_result_check(UINT64_MAX >> 1, r, 12, 144, "denoise bit") == PT_ERR_PROTO);
+
+    /* The region: empty, reversed, a side over the cap; an area that
+     * would wrap 32 bits (65536^2 -> 0) with a count of 0 is refused on
+     * its sides. */
+    CHECK(denoise_result_check(id, (pt_rect){4, 0, 4, 2}, 0, 0, "x0 >= x1") == PT_ERR_PROTO);
+    CHECK(denoise_result_check(id, (pt_rect){5, 0, 4, 2}, 0, 0, "x0 >= x1") == PT_ERR_PROTO);
+    CHECK(denoise_result_check(id, (pt_rect){0, 2, 4, 2}, 0, 0, "y0 >= y1") == PT_ERR_PROTO);
+    CHECK(denoise_result_check(id, (pt_rect){0, 0, 1025, 1}, 1025, 12 * 1025, "side") ==
+          PT_ERR_PROTO);
+    CHECK(denoise_result_check(id, (pt_rect){0, 0, 1, 1025}, 1025, 12 * 1025, "side") ==
+          PT_ERR_PROTO);
+    CHECK(denoise_result_check(id, (pt_rect){0, 0, 65536, 65536}, 0, 0, "side") == PT_ERR_PROTO);
+
+    /* The count: the region's area, not one more or less, and a huge one is
+     * refused before it is used as a length. */
+    CHECK(denoise_result_check(id, r, 11, 132, "area") == PT_ERR_PROTO);
+    CHECK(denoise_result_check(id, r, 13, 156, "area") == PT_ERR_PROTO);
+    CHECK(denoise_result_check(id, r, 0, 0, "area") == PT_ERR_PROTO);
+    CHECK(denoise_result_check(id, r, UINT32_MAX, 0, "area") == PT_ERR_PROTO);
+
+    /* The bytes: exactly 12 a pixel. */
+    CHECK(denoise_result_check(id, r, 12, 143, "truncated") == PT_ERR_PROTO);
+    CHECK(denoise_result_check(id, r, 12, 132, "truncated") == PT_ERR_PROTO);
+    CHECK(denoise_result_check(id, r, 12, 0, "truncated") == PT_ERR_PROTO);
+    CHECK(denoise_result_check(id, r, 12, 145, "trailing") == PT_ERR_PROTO);
+    CHECK(denoise_result_check(id, r, 12, 156, "trailing") == PT_ERR_PROTO);
+
+    /* A writer too small: PT_ERR_LIMIT, nothing of the message left. */
+    proto_writer w;
+    pt_error err = {0};
+    proto_writer_init(&w, 200);
+    proto_w_u32(&w, 0xABCD);
+    proto_denoise_result m = sample_denoise_result(0);
+    CHECK(proto_msg_encode_denoise_result(&w, &m, &err) == PT_OK && w.len == 4 + 36 + 144);
+    proto_writer_reset(&w);
+    proto_w_bytes(&w, "abcdefghijklmnopqrstuvwxyz", 26);
+    CHECK(proto_msg_encode_denoise_result(&w, &m, &err) == PT_ERR_LIMIT && w.len == 26);
+    proto_writer_fini(&w);
+}
+
+/* DENOISE_GET and DENOISE_CHUNK are SCENE_GET and SCENE_CHUNK; the four
+ * types are known, named, and not for before authentication. */
+static void test_denoise_types(void)
+{
+    static const struct {
+        uint16_t type;
+        const char *name;
+    } types[] = {{PROTO_MSG_DENOISE_TASK, "DENOISE_TASK"},
+                 {PROTO_MSG_DENOISE_GET, "DENOISE_GET"},
+                 {PROTO_MSG_DENOISE_CHUNK, "DENOISE_CHUNK"},
+                 {PROTO_MSG_DENOISE_RESULT, "DENOISE_RESULT"}};
+    for (size_t i = 0; i < sizeof types / sizeof *types; i++) {
+        CHECK(proto_msg_type_known(types[i].type) && !proto_msg_type_preauth(types[i].type));
+        CHECK(strcmp(proto_msg_type_name(types[i].type), types[i].name) == 0);
+    }
+    CHECK(!proto_msg_type_known(PROTO_MSG_DENOISE_RESULT + 1) && !proto_msg_type_known(31));
+    proto_writer w;
+    pt_error err = {0};
+    proto_writer_init(&w, 4096);
+    CHECK(sample_payload(7, 1, &w) == PROTO_MSG_SCENE_GET);
+    CHECK(decode_any(PROTO_MSG_DENOISE_GET, w.buf, w.len, &err) == PT_OK);
+    CHECK(decode_any(PROTO_MSG_DENOISE_GET, w.buf, w.len - 1, &err) == PT_ERR_PROTO);
+    proto_writer_reset(&w);
+    CHECK(sample_payload(8, 0, &w) == PROTO_MSG_SCENE_CHUNK);
+    CHECK(decode_any(PROTO_MSG_DENOISE_CHUNK, w.buf, w.len, &err) == PT_OK);
+    CHECK(decode_any(PROTO_MSG_DENOISE_CHUNK, w.buf, w.len - 1, &err) == PT_ERR_PROTO);
+    /* A HELLO's capability bit travels. */
+    proto_writer_reset(&w);
+    proto_hello h = sample_hello(0), hb;
+    h.caps = PROTO_CAP_DENOISE;
+    CHECK(proto_msg_encode_hello(&w, &h, &err) == PT_OK);
+    CHECK(proto_msg_decode_hello(w.buf, w.len, &hb, &err) == PT_OK && hb.caps == PROTO_CAP_DENOISE);
+    proto_writer_fini(&w);
+}
+
 /* ---- client messages ---- */
 
 /* Encodes m with the SUBMIT encoder and checks that the decoder agrees on
@@ -1849,6 +2173,9 @@ int main(void)
     test_result_clamped();
     test_result_guide();
     test_guide_pack();
+    test_denoise_task();
+    test_denoise_result();
+    test_denoise_types();
     test_submit();
     test_job_info();
     test_job_list();
