@@ -1,5 +1,6 @@
 #include "worker/client.h"
 
+#include <assert.h>
 #include <errno.h>
 #include <fcntl.h>
 #include <netinet/in.h>
@@ -21,6 +22,7 @@
 #include "common/base/hash.h"
 #include "common/base/net.h"
 #include "common/base/text.h"
+#include "common/image/denoise.h"
 #include "common/render/guide.h"
 #include "common/render/guide_sched.h"
 #include "common/render/render.h"
@@ -46,6 +48,8 @@
  * scenes (each posed at its time), and a worker holds tasks of two or three
  * frames at once where one frame's last tasks meet the next's first. */
 #define SCENES_IN_MEMORY 4u
+/* Denoise inputs whose fetch JOB_END cut short that are remembered (below). */
+#define DN_ABANDONED 8u
 
 /* ---- shared between the I/O thread and the render threads ---------------------------- */
 
@@ -67,11 +71,22 @@ typedef struct guide_rec {
  * queued or rendering (no render thread can be reading one). */
 #define GUIDES_KEPT 2u
 
+/* A task held: a render task, or a denoise task (DENOISE_TASK in
+ * protocol/msg.h), which then also fills t's job id, task id and lease, so
+ * that the render queue, HEARTBEAT and JOB_END treat both kinds alike. */
 typedef struct task_item {
     proto_task t;
     guide_rec *guide; /* a guided task's distribution, once fetched */
     char *entry;      /* the scene's entry file (pt_strdup) once known */
     uint64_t epoch;   /* connection it belongs to */
+    int denoise;      /* 1: a denoise task, dt */
+    proto_denoise_task dt;
+    /* Its input, dt.size bytes (the 20 planes, little-endian as fetched;
+     * denoise_one reads them as floats in place): NULL until its fetch
+     * starts, complete and checked against dt.hash once input_len is
+     * dt.size. */
+    float *input;
+    size_t input_len;
     struct task_item *next;
 } task_item;
 
@@ -84,12 +99,16 @@ typedef struct done_item {
     pt_render_stats stats;
     pt_pixel_acc *pixels;
     pt_pass_acc *pass; /* the render passes' sums, when the task asks for them */
+    int denoise;       /* 1: a denoise task's, dt and rgb (t holds its ids) */
+    proto_denoise_task dt;
+    uint8_t *rgb; /* DENOISE_RESULT's data: the region's R, G, B planes, little-endian */
     struct done_item *next;
 } done_item;
 
 typedef struct running_slot {
     int active;
     int dropped; /* its job ended (JOB_END): the result is discarded */
+    int denoise; /* a denoise task */
     uint64_t job_id, task_id;
     uint32_t lease_ms;
     uint64_t epoch;
@@ -156,13 +175,37 @@ struct worker {
     uint32_t requested; /* slots asked for, TASKs not yet received */
     task_item *pending; /* tasks waiting for their scene or distribution */
     uint32_t npending;
+    /* Denoise tasks not yet in the render queue, in arrival order: waiting,
+     * their input being fetched (one at a time), or fetched. One runs at a
+     * time (pt_denoise starts a thread per render thread itself and needs
+     * about 0.4 KiB a pixel, so a second one at once would only share the
+     * cores and double the memory), and the next one's input is fetched
+     * while it runs. */
+    task_item *dn_head, *dn_tail;
+    uint32_t ndn;
+    int dn_get_out; /* a DENOISE_GET is outstanding, for this: */
+    uint8_t dn_get_hash[PROTO_HASH_SIZE];
+    uint64_t dn_get_offset, dn_get_total;
+    /* The inputs of DENOISE_GETs that JOB_END left unanswered: the
+     * coordinator may answer them still, or never (a frame it finished
+     * itself first), so the fetch goes on with the next task and a
+     * DENOISE_CHUNK of one of these is dropped. The last DN_ABANDONED are
+     * kept: it leases a worker one region at a time and answers in order,
+     * so a late answer comes within a round trip of its JOB_END. */
+    uint8_t dn_abandoned[DN_ABANDONED][PROTO_HASH_SIZE];
+    uint32_t ndn_abandoned; /* ever, this session */
+    /* Test hook, unset in production: with PTWORKER_TEST_DENOISE_LIE in the
+     * environment (any value) the worker flips the lowest mantissa bit of
+     * the first value of every DENOISE_RESULT it sends, so that a
+     * coordinator test can see a lying worker caught. */
+    int test_denoise_lie;
     scene_rec *scenes_known;
     guide_rec *guides; /* the I/O thread's */
     uint64_t t_connect, t_heartbeat;
     char reason[1600]; /* why the session ended */
 
     /* Totals for the summary. */
-    uint64_t tasks_done, samples, failed;
+    uint64_t tasks_done, samples, failed, denoised;
     uint64_t t_start;
 };
 
@@ -215,6 +258,7 @@ static void task_free(task_item *t)
 {
     if (t) {
         pt_free(t->entry);
+        pt_free(t->input);
         pt_free(t);
     }
 }
@@ -225,6 +269,7 @@ static void done_free(done_item *d)
         proto_result_fini(&d->gres);
         pt_free(d->pixels);
         pt_free(d->pass);
+        pt_free(d->rgb);
         pt_free(d);
     }
 }
@@ -286,6 +331,57 @@ static void render_one(worker *w, const task_item *t, done_item *d)
     pt_guide_stats_free(gs);
 }
 
+/* A denoise task: its crop denoised as a whole image (pt_denoise, on as
+ * many threads as the worker renders with), and its region's pixels kept as
+ * DENOISE_RESULT carries them. pt_denoise's refusal of the input is d->st. */
+static void denoise_one(worker *w, const task_item *t, done_item *d)
+{
+    const proto_denoise_task *k = &t->dt;
+    d->denoise = 1;
+    d->dt = *k;
+    size_t plane = (size_t)k->crop_w * k->crop_h;
+    /* The decoder held the size to the crop's, and the region within it. */
+    assert(k->size == plane * PT_DENOISE_PLANES * 4 && t->input_len == k->size);
+    assert(k->region.x1 <= k->crop_w && k->region.y1 <= k->crop_h);
+    /* The planes came little-endian: read in place as floats, so that the
+     * byte order stays wire.h's business (pt_malloc'd, the buffer is
+     * aligned for them). */
+    float *v = t->input;
+    const uint8_t *b = (const uint8_t *)t->input;
+    for (size_t i = 0; i < plane * PT_DENOISE_PLANES; i++)
+        v[i] = proto_get_f32(b + 4 * i);
+    const float *p[PT_DENOISE_PLANES];
+    for (size_t i = 0; i < PT_DENOISE_PLANES; i++)
+        p[i] = v + i * plane;
+    pt_denoise_input in;
+    memset(&in, 0, sizeof in); /* no cancel flag, no progress */
+    in.width = k->crop_w;
+    in.height = k->crop_h;
+    pt_denoise_input_set_planes(&in, p);
+    in.despeckle = k->despeckle;
+    size_t n = (size_t)(k->region.x1 - k->region.x0) * (k->region.y1 - k->region.y0);
+    float *out = pt_malloc_array(plane, 3 * sizeof *out);
+    d->rgb = pt_malloc_array(n, 12);
+    if (!out || !d->rgb) {
+        pt_free(out);
+        d->st = pt_error_set(&d->err, PT_ERR_NOMEM, "out of memory for a %ux%u crop", k->crop_w,
+                             k->crop_h);
+        return;
+    }
+    float *o[3] = {out, out + plane, out + 2 * plane};
+    unsigned threads =
+        w->o->threads < PT_DENOISE_MAX_THREADS ? w->o->threads : PT_DENOISE_MAX_THREADS;
+    d->st = pt_denoise(&in, threads, o, &d->err);
+    if (d->st == PT_OK) {
+        uint8_t *q = d->rgb;
+        for (int c = 0; c < 3; c++)
+            for (uint32_t y = k->region.y0; y < k->region.y1; y++)
+                for (uint32_t x = k->region.x0; x < k->region.x1; x++, q += 4)
+                    proto_put_f32(q, o[c][(size_t)y * k->crop_w + x]);
+    }
+    pt_free(out);
+}
+
 static void wake_io(worker *w)
 {
     char b = 1;
@@ -311,6 +407,7 @@ static void *render_thread(void *p)
         w->nqueued--;
         slot->active = 1;
         slot->dropped = 0;
+        slot->denoise = t->denoise;
         slot->job_id = t->t.job_id;
         slot->task_id = t->t.task_id;
         slot->lease_ms = t->t.lease_ms;
@@ -321,7 +418,10 @@ static void *render_thread(void *p)
         if (d) {
             d->t = t->t;
             d->epoch = t->epoch;
-            render_one(w, t, d);
+            if (t->denoise)
+                denoise_one(w, t, d);
+            else
+                render_one(w, t, d);
         }
         task_free(t);
 
@@ -451,7 +551,7 @@ static int send_hello(worker *w)
     snprintf(h.name, sizeof h.name, "%s", w->name);
     h.threads = (uint16_t)w->o->threads;
     snprintf(h.build_id, sizeof h.build_id, "%s", proto_build_id());
-    h.caps = 0;
+    h.caps = PROTO_CAP_DENOISE;
     size_t mark;
     pt_error e = {0};
     pt_status st = proto_frame_begin(&w->out, PROTO_MSG_HELLO, &mark, &e);
@@ -499,8 +599,9 @@ static int fail_proto(worker *w, const char *fmt, ...)
 
 /* ---- the task pipeline --------------------------------------------------------------- */
 
-/* Slots taken: tasks waiting for a scene, queued, and render threads busy
- * (also with a task of a dropped connection: the thread is not free yet). */
+/* Slots taken: tasks waiting for a scene or a denoise input, queued, and
+ * render threads busy (also with a task of a dropped connection: the thread
+ * is not free yet). */
 static uint32_t slots_taken(worker *w)
 {
     pthread_mutex_lock(&w->mu);
@@ -508,7 +609,7 @@ static uint32_t slots_taken(worker *w)
     for (uint32_t i = 0; i < w->o->threads; i++)
         n += w->running[i].active != 0;
     pthread_mutex_unlock(&w->mu);
-    return n + w->npending + w->requested;
+    return n + w->npending + w->ndn + w->requested;
 }
 
 static int request_work(worker *w)
@@ -531,24 +632,26 @@ static int request_work(worker *w)
     return 0;
 }
 
+/* Lists the tasks of list in hb, and lowers *min_lease to their leases. */
+static void heartbeat_list(proto_heartbeat *hb, uint32_t *min_lease, const task_item *list)
+{
+    for (const task_item *t = list; t; t = t->next) {
+        if (hb->count < PROTO_MAX_HEARTBEAT_TASKS)
+            hb->task_ids[hb->count++] = t->t.task_id;
+        if (t->t.lease_ms < *min_lease)
+            *min_lease = t->t.lease_ms;
+    }
+}
+
 static int send_heartbeat(worker *w, uint64_t now)
 {
     static proto_heartbeat hb; /* large; only the I/O thread uses it */
     uint32_t min_lease = UINT32_MAX;
     hb.count = 0;
-    for (task_item *t = w->pending; t; t = t->next) {
-        if (hb.count < PROTO_MAX_HEARTBEAT_TASKS)
-            hb.task_ids[hb.count++] = t->t.task_id;
-        if (t->t.lease_ms < min_lease)
-            min_lease = t->t.lease_ms;
-    }
+    heartbeat_list(&hb, &min_lease, w->pending);
+    heartbeat_list(&hb, &min_lease, w->dn_head);
     pthread_mutex_lock(&w->mu);
-    for (task_item *t = w->q_head; t; t = t->next) {
-        if (hb.count < PROTO_MAX_HEARTBEAT_TASKS)
-            hb.task_ids[hb.count++] = t->t.task_id;
-        if (t->t.lease_ms < min_lease)
-            min_lease = t->t.lease_ms;
-    }
+    heartbeat_list(&hb, &min_lease, w->q_head);
     for (uint32_t i = 0; i < w->o->threads; i++) {
         const running_slot *s = &w->running[i];
         if (!s->active || s->dropped || s->epoch != w->epoch)
@@ -729,6 +832,14 @@ static int scene_ready(worker *w, scene_rec *s)
     return pending_ready(w);
 }
 
+/* A shorter lease than those held so far brings the next heartbeat closer. */
+static void lease_seen(worker *w, uint32_t lease_ms)
+{
+    uint32_t interval = lease_ms / 3 > HEARTBEAT_MIN_MS ? lease_ms / 3 : HEARTBEAT_MIN_MS;
+    if (pt_now_ms() + interval < w->t_heartbeat)
+        w->t_heartbeat = pt_now_ms() + interval;
+}
+
 static int on_task(worker *w, const proto_frame *f)
 {
     pt_error err = {0};
@@ -747,10 +858,7 @@ static int on_task(worker *w, const proto_frame *f)
         return fail_proto(w, "TASK %llu was not asked for", id);
     }
     w->requested--;
-    /* A shorter lease than those held so far brings the next heartbeat closer. */
-    uint32_t interval = t->t.lease_ms / 3 > HEARTBEAT_MIN_MS ? t->t.lease_ms / 3 : HEARTBEAT_MIN_MS;
-    if (pt_now_ms() + interval < w->t_heartbeat)
-        w->t_heartbeat = pt_now_ms() + interval;
+    lease_seen(w, t->t.lease_ms);
     pthread_mutex_lock(&w->mu);
     t->epoch = w->epoch;
     pthread_mutex_unlock(&w->mu);
@@ -928,6 +1036,215 @@ static int on_scene_chunk(worker *w, const proto_frame *f)
     return scene_ready(w, s);
 }
 
+/* ---- denoise tasks ------------------------------------------------------------------- */
+
+/* Asks for a denoise input from offset on, and remembers what was asked. */
+static int send_denoise_get(worker *w, const proto_denoise_task *k, uint64_t offset)
+{
+    proto_scene_get g;
+    memcpy(g.hash, k->hash, PROTO_HASH_SIZE);
+    g.offset = offset;
+    size_t mark;
+    pt_error e = {0};
+    pt_status st = proto_frame_begin(&w->out, PROTO_MSG_DENOISE_GET, &mark, &e);
+    if (st == PT_OK)
+        st = proto_frame_finish(&w->out, mark, proto_msg_encode_scene_get(&w->out, &g, &e), &e);
+    if (queued(w, PROTO_MSG_DENOISE_GET, st, &e) != 0)
+        return -1;
+    w->dn_get_out = 1;
+    memcpy(w->dn_get_hash, k->hash, PROTO_HASH_SIZE);
+    w->dn_get_offset = offset;
+    w->dn_get_total = k->size;
+    return 0;
+}
+
+/* The denoise task whose input is being fetched (fetched 0) or is complete
+ * (fetched 1), or NULL. */
+static task_item *denoise_find(worker *w, int fetched)
+{
+    for (task_item *t = w->dn_head; t; t = t->next)
+        if (t->input && (t->input_len == t->dt.size) == fetched)
+            return t;
+    return NULL;
+}
+
+/* 1 while a denoise task is queued for a render thread or running on one
+ * (of any connection: its memory is still taken). */
+static int denoiser_busy(worker *w)
+{
+    int busy = 0;
+    pthread_mutex_lock(&w->mu);
+    for (const task_item *t = w->q_head; t && !busy; t = t->next)
+        busy = t->denoise;
+    for (uint32_t i = 0; i < w->o->threads && !busy; i++)
+        busy = w->running[i].active && w->running[i].denoise;
+    pthread_mutex_unlock(&w->mu);
+    return busy;
+}
+
+/* Takes t out of the list *head .. *tail (t is in it). */
+static void unlink_task(task_item **head, task_item **tail, task_item *t)
+{
+    task_item *last = NULL;
+    while (*head != t) {
+        last = *head;
+        head = &last->next;
+    }
+    *head = t->next;
+    if (*tail == t)
+        *tail = last;
+    t->next = NULL;
+}
+
+/* Moves the denoise tasks along: a fetched one to the render queue once no
+ * other is queued or running, and the next one's input fetched once none is
+ * being fetched or waits fetched. 0, or -1 with the reason. */
+static int denoise_advance(worker *w)
+{
+    task_item *ready = denoise_find(w, 1);
+    if (ready && !denoiser_busy(w)) {
+        unlink_task(&w->dn_head, &w->dn_tail, ready);
+        w->ndn--;
+        enqueue(w, ready);
+        ready = NULL;
+    }
+    if (ready || w->dn_get_out || denoise_find(w, 0))
+        return 0;
+    for (task_item *t = w->dn_head, *next; t; t = next) {
+        next = t->next;
+        if (t->input)
+            continue;
+        t->input = pt_malloc((size_t)t->dt.size);
+        if (t->input)
+            return send_denoise_get(w, &t->dt, 0);
+        /* As when pt_denoise runs out of memory: dropped, its lease runs out
+         * and the coordinator denoises the region itself. */
+        fprintf(stderr,
+                "ptworker: denoise region %llu of job %llu: out of memory for its input (%llu "
+                "bytes); dropped\n",
+                (unsigned long long)(t->dt.task_id & ~PROTO_DENOISE_TASK_BIT),
+                (unsigned long long)t->dt.job_id, (unsigned long long)t->dt.size);
+        w->failed++;
+        unlink_task(&w->dn_head, &w->dn_tail, t);
+        w->ndn--;
+        task_free(t);
+    }
+    return 0;
+}
+
+static int on_denoise_task(worker *w, const proto_frame *f)
+{
+    pt_error err = {0};
+    task_item *t = pt_calloc(1, sizeof *t);
+    if (!t) {
+        snprintf(w->reason, sizeof w->reason, "out of memory");
+        return -1;
+    }
+    if (proto_msg_decode_denoise_task(f->payload, f->len, &t->dt, &err) != PT_OK) {
+        pt_free(t);
+        return fail_proto(w, "bad DENOISE_TASK: %s", err.msg);
+    }
+    if (w->requested == 0) {
+        unsigned long long id = t->dt.task_id & ~PROTO_DENOISE_TASK_BIT;
+        pt_free(t);
+        return fail_proto(w, "DENOISE_TASK for region %llu was not asked for", id);
+    }
+    w->requested--;
+    lease_seen(w, t->dt.lease_ms);
+    t->denoise = 1;
+    t->t.job_id = t->dt.job_id;
+    t->t.task_id = t->dt.task_id;
+    t->t.lease_ms = t->dt.lease_ms;
+    pthread_mutex_lock(&w->mu);
+    t->epoch = w->epoch;
+    pthread_mutex_unlock(&w->mu);
+    if (w->dn_tail)
+        w->dn_tail->next = t;
+    else
+        w->dn_head = t;
+    w->dn_tail = t;
+    w->ndn++;
+    return denoise_advance(w);
+}
+
+static int on_denoise_chunk(worker *w, const proto_frame *f)
+{
+    pt_error err = {0};
+    proto_scene_chunk c;
+    if (proto_msg_decode_scene_chunk(f->payload, f->len, &c, &err) != PT_OK)
+        return fail_proto(w, "bad DENOISE_CHUNK: %s", err.msg);
+    char hex[65];
+    pt_hash_hex(c.hash, hex);
+    int asked = w->dn_get_out && memcmp(c.hash, w->dn_get_hash, PROTO_HASH_SIZE) == 0;
+    if (!asked || c.offset != w->dn_get_offset || c.total != w->dn_get_total ||
+        (c.len == 0 && c.offset < c.total)) {
+        for (uint32_t i = 0; i < w->ndn_abandoned && i < DN_ABANDONED; i++)
+            if (memcmp(c.hash, w->dn_abandoned[i], PROTO_HASH_SIZE) == 0)
+                return 0; /* a late answer for a task whose job has ended */
+        if (!asked)
+            return fail_proto(w, "DENOISE_CHUNK for input %.16s, not asked for", hex);
+        return fail_proto(w, "DENOISE_CHUNK for %.16s at %llu of %llu, expected %llu of %llu", hex,
+                          (unsigned long long)c.offset, (unsigned long long)c.total,
+                          (unsigned long long)w->dn_get_offset,
+                          (unsigned long long)w->dn_get_total);
+    }
+    w->dn_get_out = 0;
+    task_item *t = denoise_find(w, 0);
+    assert(t); /* a GET is out only for the task being fetched */
+    /* The decoder held offset + len to the total, which is the buffer's size. */
+    memcpy((uint8_t *)t->input + t->input_len, c.data, c.len);
+    t->input_len += c.len;
+    if (t->input_len < t->dt.size)
+        return send_denoise_get(w, &t->dt, t->input_len);
+    uint8_t h[PROTO_HASH_SIZE];
+    pt_sha256((const uint8_t *)t->input, t->input_len, h);
+    if (memcmp(h, t->dt.hash, PROTO_HASH_SIZE) != 0)
+        return fail_proto(w, "denoise input %.16s: its bytes do not hash to its name", hex);
+    return denoise_advance(w);
+}
+
+/* A finished denoise task: its DENOISE_RESULT. An input pt_denoise refused
+ * came from the coordinator, so that ends the session as a protocol error;
+ * one it had no memory for is dropped (its lease runs out and the
+ * coordinator denoises the region itself). Frees d. 0, or -1 with the
+ * reason. */
+static int send_denoise_result(worker *w, done_item *d)
+{
+    unsigned long long job = d->dt.job_id, region = d->dt.task_id & ~PROTO_DENOISE_TASK_BIT;
+    if (d->st == PT_ERR_FORMAT || d->st == PT_ERR_ARG) {
+        int rc = fail_proto(w, "denoise region %llu of job %llu: not a denoiser's input: %s",
+                            region, job, d->err.msg);
+        done_free(d);
+        return rc;
+    }
+    if (d->st != PT_OK) {
+        fprintf(stderr, "ptworker: denoise region %llu of job %llu failed: %s; dropped\n", region,
+                job, d->err.msg);
+        w->failed++;
+        done_free(d);
+        return 0;
+    }
+    proto_denoise_result r;
+    r.job_id = d->dt.job_id;
+    r.task_id = d->dt.task_id;
+    r.region = d->dt.region;
+    r.npixels = (r.region.x1 - r.region.x0) * (r.region.y1 - r.region.y0);
+    r.data = d->rgb;
+    if (w->test_denoise_lie)
+        proto_put_u32(d->rgb, proto_get_u32(d->rgb) ^ 1u);
+    size_t mark;
+    pt_error e = {0};
+    pt_status st = proto_frame_begin(&w->out, PROTO_MSG_DENOISE_RESULT, &mark, &e);
+    if (st == PT_OK)
+        st =
+            proto_frame_finish(&w->out, mark, proto_msg_encode_denoise_result(&w->out, &r, &e), &e);
+    done_free(d);
+    if (queued(w, PROTO_MSG_DENOISE_RESULT, st, &e) != 0)
+        return -1;
+    w->denoised++;
+    return 0;
+}
+
 /* Moves finished results into the output, while it is not too full. */
 static int collect_results(worker *w)
 {
@@ -944,6 +1261,11 @@ static int collect_results(worker *w)
         pthread_mutex_unlock(&w->mu);
         if (!d)
             return 0;
+        if (d->denoise) {
+            if (send_denoise_result(w, d) != 0)
+                return -1;
+            continue;
+        }
         if (d->st != PT_OK) {
             /* Dropped: the lease runs out and the coordinator hands it to another. */
             fprintf(stderr, "ptworker: task %llu of job %llu failed: %s\n",
@@ -1075,9 +1397,10 @@ static uint32_t drop_job_tasks(task_item **pp, task_item **tail, uint64_t id)
     return n;
 }
 
-/* JOB_END: the job was cancelled or failed. Its tasks waiting for a scene or
- * a thread go, those rendering are marked so that their results are dropped,
- * finished results not yet sent go too; the freed slots are asked for again. */
+/* JOB_END: the job was cancelled or failed. Its tasks waiting for a scene, a
+ * denoise input or a thread go, those rendering or denoising are marked so
+ * that their results are dropped, finished results not yet sent go too; the
+ * freed slots are asked for again. */
 static int on_job_end(worker *w, const proto_frame *f)
 {
     proto_job_ref ref;
@@ -1086,6 +1409,16 @@ static int on_job_end(worker *w, const proto_frame *f)
         return fail_proto(w, "bad JOB_END: %s", err.msg);
     uint32_t pending = drop_job_tasks(&w->pending, NULL, ref.job_id);
     w->npending -= pending;
+    /* A denoise input being fetched goes too, and its DENOISE_GET with it
+     * (a late answer is dropped). */
+    task_item *fetching = denoise_find(w, 0);
+    if (fetching && fetching->t.job_id == ref.job_id) {
+        memcpy(w->dn_abandoned[w->ndn_abandoned++ % DN_ABANDONED], w->dn_get_hash, PROTO_HASH_SIZE);
+        w->dn_get_out = 0;
+    }
+    uint32_t denoise = drop_job_tasks(&w->dn_head, &w->dn_tail, ref.job_id);
+    w->ndn -= denoise;
+    pending += denoise;
     pthread_mutex_lock(&w->mu);
     uint32_t queued = drop_job_tasks(&w->q_head, &w->q_tail, ref.job_id);
     w->nqueued -= queued;
@@ -1154,6 +1487,10 @@ static int dispatch(worker *w, const proto_frame *f, int *end)
             return on_scene_chunk(w, f);
         if (f->type == PROTO_MSG_GUIDE_CHUNK)
             return on_guide_chunk(w, f);
+        if (f->type == PROTO_MSG_DENOISE_TASK)
+            return on_denoise_task(w, f);
+        if (f->type == PROTO_MSG_DENOISE_CHUNK)
+            return on_denoise_chunk(w, f);
         if (f->type == PROTO_MSG_JOB_END)
             return on_job_end(w, f);
         break;
@@ -1230,6 +1567,15 @@ static void drop_session(worker *w)
         w->pending = next;
     }
     w->npending = 0;
+    while (w->dn_head) {
+        task_item *next = w->dn_head->next;
+        task_free(w->dn_head);
+        w->dn_head = next;
+    }
+    w->dn_tail = NULL;
+    w->ndn = 0;
+    w->dn_get_out = 0;
+    w->ndn_abandoned = 0;
     for (scene_rec *s = w->scenes_known; s; s = s->next)
         fetch_reset(s);
     for (guide_rec *g = w->guides; g; g = g->next)
@@ -1277,7 +1623,7 @@ static int session(worker *w, int sig_r, int *connected, int *welcomed)
         uint64_t now = pt_now_ms();
         if (w->state == S_READY) {
             *welcomed = 1;
-            if (collect_results(w) != 0 || request_work(w) != 0)
+            if (collect_results(w) != 0 || denoise_advance(w) != 0 || request_work(w) != 0)
                 goto out;
             if (now >= w->t_heartbeat && send_heartbeat(w, now) != 0)
                 goto out;
@@ -1348,6 +1694,7 @@ static int setup(worker *w, const wrk_client_opts *o)
     w->fd = -1;
     w->wake_r = w->wake_w = -1;
     w->slots_max = o->threads + o->prefetch;
+    w->test_denoise_lie = getenv("PTWORKER_TEST_DENOISE_LIE") != NULL;
     w->link_timeout_ms = o->link_timeout_ms ? o->link_timeout_ms : WRK_LINK_TIMEOUT_MS;
     if (w->link_timeout_ms < WRK_LINK_TIMEOUT_MIN_MS)
         w->link_timeout_ms = WRK_LINK_TIMEOUT_MIN_MS;
@@ -1516,6 +1863,8 @@ int wrk_client_run(const wrk_client_opts *o)
     fprintf(stderr, "ptworker: %s: %llu tasks done, %llu samples, %.4g samples/s over %.1f s",
             rc == 0 ? "stopped" : "giving up", (unsigned long long)w->tasks_done,
             (unsigned long long)w->samples, secs > 0 ? (double)w->samples / secs : 0.0, secs);
+    if (w->denoised)
+        fprintf(stderr, ", %llu regions denoised", (unsigned long long)w->denoised);
     if (w->failed)
         fprintf(stderr, ", %llu failed", (unsigned long long)w->failed);
     /* The set-up cost beside the render time (each frame of a range is a

@@ -14,13 +14,21 @@
  * on-disk cache (worker/cache.h), RESULTs out as render threads finish (they
  * wake the I/O thread through a pipe), and a HEARTBEAT listing every task held
  * every max(200 ms, smallest lease / 3).
+ * HELLO offers PROTO_CAP_DENOISE: a DENOISE_TASK takes a slot as a TASK does;
+ * its input is fetched whole with DENOISE_GET/DENOISE_CHUNK (one at a time,
+ * checked against its SHA-256), denoised on a render thread (pt_denoise on as
+ * many threads as the worker renders with; one denoise task at a time, the
+ * next one's input fetched meanwhile) and its region sent in DENOISE_RESULT.
+ * An input pt_denoise refuses is a protocol error; one it has no memory for
+ * is dropped (the coordinator denoises the region itself).
  * A dead link is noticed even when nothing closes the connection (a cable
  * pulled, a host powered off, a firewall dropping packets): data the
  * coordinator has not acknowledged for link_timeout_ms fails the connection
  * (TCP_USER_TIMEOUT), and an idle connection is probed with TCP keepalive so
  * that it fails within about the same time.
  * A JOB_END (the job was cancelled or failed) drops that job's tasks not yet
- * started and the results of those rendering, and asks for work again.
+ * started (render or denoise) and the results of those running, and asks for
+ * work again.
  * A dropped connection, a malformed frame or a message out of place discards
  * every task held (the coordinator requeues them; results of tasks still
  * rendering are dropped when they finish) and reconnects with exponential
