@@ -62,16 +62,18 @@ typedef struct srv_config {
     uint32_t local_stop_ms;  /* a local worker still running this long after SIGTERM is
                                 killed (server/app/local.h); 0: SRV_DEFAULT_LOCAL_STOP_MS */
     uint32_t
-        merge_threads;    /* threads adding results to films (server/sched/adder.h); 0: the loop */
-    uint32_t io_threads;  /* threads reading workers (server/net/io.h); 0: the loop */
-    uint64_t max_log_mem; /* queue mode: bytes of results not yet durable past which
-                           * workers are not read (srv_loop_hold, server/net/loop.h) */
-    uint64_t max_denoise; /* bytes a frame's denoising may take (--max-denoise-mb;
-                           * server/sched/writer.h); 0: what it needs */
-    srv_job_params job;   /* one-job mode: the job; queue mode: defaults (tile,
-                           * chunk, max depth, rr depth) for submitted jobs.
-                           * width/height 0: from the camera, 512 wide */
-    srv_caps caps;        /* queue mode: what a client may ask for */
+        merge_threads;     /* threads adding results to films (server/sched/adder.h); 0: the loop */
+    uint32_t io_threads;   /* threads reading workers (server/net/io.h); 0: the loop */
+    uint64_t max_log_mem;  /* queue mode: bytes of results not yet durable past which
+                            * workers are not read (srv_loop_hold, server/net/loop.h) */
+    uint64_t max_denoise;  /* bytes a frame's denoising may take (--max-denoise-mb;
+                            * server/sched/writer.h); 0: what it needs */
+    int denoise_share;     /* --denoise-on-workers (server/sched/dnshare.h) */
+    uint32_t denoise_side; /* --denoise-region: its regions' side */
+    srv_job_params job;    /* one-job mode: the job; queue mode: defaults (tile,
+                            * chunk, max depth, rr depth) for submitted jobs.
+                            * width/height 0: from the camera, 512 wide */
+    srv_caps caps;         /* queue mode: what a client may ask for */
     srv_peer_limits limits; /* memory, connections and rates of peers */
     int quiet;
     const char *env_path; /* one-job mode: the environment map packed with the scene

@@ -94,6 +94,9 @@ typedef struct srv_sched_events {
     void (*owner_missed)(srv_server *s, uint64_t owner, uint64_t now);
     /* Calls fn(ctx, id) for each ready worker connection, in their order. */
     void (*each_worker)(srv_server *s, void (*fn)(void *ctx, uint64_t owner), void *ctx);
+    /* Worker connection owner returned a denoised region whose bits differ
+     * from the coordinator's (server/sched/dnshare.h): it is blocked. */
+    void (*owner_lied)(srv_server *s, uint64_t owner, const char *why);
 } srv_sched_events;
 
 /* Totals since the coordinator started, for /metrics (server/api/http.h). */

@@ -13,6 +13,7 @@
 #include "common/base/frames.h"
 #include "common/base/opt.h"
 #include "common/base/version.h"
+#include "common/image/denoise.h"
 #include "common/image/image.h"
 #include "common/image/view.h"
 #include "common/render/options.h"
@@ -20,6 +21,7 @@
 #include "common/scene/scene.h"
 #include "server/app/local.h"
 #include "server/net/io.h"
+#include "server/sched/dnshare.h"
 #include "server/serve.h"
 
 static void usage(FILE *f)
@@ -147,6 +149,13 @@ static void usage(FILE *f)
         "                         it needs, about 0.42 KiB a pixel); a larger frame is\n"
         "                         denoised in regions, the same bits for more CPU. At\n"
         "                         least 32; both modes\n"
+        "  --denoise-on-workers   share a finished frame's denoising with the workers:\n"
+        "                         its regions are leased to them while the\n"
+        "                         coordinator denoises the rest; the same bits, each\n"
+        "                         worker's first region and --verify-fraction of the\n"
+        "                         others denoised again here; a queue's jobs\n"
+        "  --denoise-region N     those regions' side in pixels (default 512; a\n"
+        "                         multiple of 32, 32 to 1024)\n"
         "  --guiding on|off|auto  path guiding learned by the farm (default off): as\n"
         "                         ptworker --guiding, whose image it gives bit for bit;\n"
         "                         one-job mode (queued jobs: ptctl submit --guiding)\n"
@@ -285,6 +294,8 @@ enum {
     O_MAXLOG,
     O_MAXFILM,
     O_MAXDENOISE,
+    O_DNWORKERS,
+    O_DNREGION,
     O_LOCALSTOP
 };
 static const struct option own[] = {
@@ -312,6 +323,8 @@ static const struct option own[] = {
     {"max-pixels", required_argument, NULL, O_MAXPIX},
     {"max-film-mb", required_argument, NULL, O_MAXFILM},
     {"max-denoise-mb", required_argument, NULL, O_MAXDENOISE},
+    {"denoise-on-workers", no_argument, NULL, O_DNWORKERS},
+    {"denoise-region", required_argument, NULL, O_DNREGION},
     {"max-spp", required_argument, NULL, O_MAXSPP},
     {"max-scene-mb", required_argument, NULL, O_MAXSCENE},
     {"max-queued", required_argument, NULL, O_MAXQUEUED},
@@ -340,6 +353,7 @@ static void config_defaults(srv_config *c, parsed *x)
     c->io_threads = SRV_DEFAULT_IO_THREADS;
     c->max_log_mem = SRV_DEFAULT_MAX_LOG_MEM;
     c->verify_fraction = 0.02;
+    c->denoise_side = SRV_DNSHARE_SIDE;
     c->caps.max_side = PT_RENDER_MAX_SIDE;
     c->caps.max_pixels = 16777216;
     c->caps.max_spp = 65536;
@@ -440,6 +454,16 @@ static pt_status own_option(int ch, srv_config *c, parsed *x, pt_error *err)
         /* 32 MiB holds regions of 32 pixels of any frame (crops of 224). */
         if ((st = pt_opt_u32("--max-denoise-mb", optarg, 32, 1u << 22, &v, err)) == PT_OK)
             c->max_denoise = (uint64_t)v << 20;
+        break;
+    case O_DNWORKERS:
+        c->denoise_share = 1;
+        break;
+    case O_DNREGION:
+        if ((st = pt_opt_u32("--denoise-region", optarg, PT_DENOISE_TILE, PROTO_MAX_DENOISE_REGION,
+                             &c->denoise_side, err)) == PT_OK &&
+            c->denoise_side % PT_DENOISE_TILE != 0)
+            st = pt_error_set(err, PT_ERR_ARG, "--denoise-region %u is not a multiple of %u",
+                              c->denoise_side, PT_DENOISE_TILE);
         break;
     case O_MAXLOG:
         if ((st = pt_opt_u32("--max-log-mb", optarg, 1, 1u << 20, &v, err)) == PT_OK)
@@ -645,6 +669,13 @@ static int check_options(srv_config *c, const pt_render_opts *ro, parsed *x, int
         fprintf(stderr,
                 "ptserve: %s is for one-job mode; a queued job asks for it with ptctl submit %s\n",
                 opt, opt);
+        return 2;
+    }
+    if (!c->state_dir && c->denoise_share) {
+        /* One job's image is written once its loop is over: no worker is
+         * served then. */
+        fprintf(stderr, "ptserve: --denoise-on-workers is for a queue (--state-dir): one job's "
+                        "finished image is denoised after its workers are gone\n");
         return 2;
     }
     if (c->state_dir && ro->passes) {

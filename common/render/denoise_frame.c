@@ -77,7 +77,16 @@ pt_status pt_denoise_frame_until(pt_image *img, unsigned threads, const pt_denoi
             st = pt_error_set(err, PT_ERR_NOMEM, "out of memory for the denoised frame");
             goto done;
         }
-    if ((st = pt_denoise_within(&in, threads, o->max_bytes, res, side, err)) != PT_OK)
+    uint32_t cut = 0;
+    if (o->denoise) {
+        if ((st = pt_denoise_check(&in, err)) == PT_OK)
+            st = o->denoise(o->ctx, &in, res, &cut, err);
+    } else {
+        st = pt_denoise_within(&in, threads, o->max_bytes, res, &cut, err);
+    }
+    if (side)
+        *side = cut;
+    if (st != PT_OK)
         goto done;
     for (int c = 0; c < 3; c++) {
         float *pl;

@@ -16,6 +16,7 @@
 #include <stdint.h>
 
 #include "common/base/error.h"
+#include "common/image/denoise.h"
 #include "common/image/image.h"
 #include "common/render/tile.h"
 
@@ -44,6 +45,13 @@ typedef struct pt_denoise_frame_opts {
      * progressive save's denoising so when the finished image arrives. */
     const atomic_int *cancel;
     atomic_uint *progress; /* NULL, or the work done in thousandths (pt_denoise_input's) */
+    /* NULL, or who denoises the frame in place of pt_denoise_within (the
+     * coordinator, sharing the regions with its workers): called with the
+     * frame's input, checked, into out (width x height floats each); it
+     * sets *side to the regions' side it cut (0: whole). */
+    pt_status (*denoise)(void *ctx, const pt_denoise_input *in, float *const out[3], uint32_t *side,
+                         pt_error *err);
+    void *ctx;
 } pt_denoise_frame_opts;
 
 /* pt_denoise_frame as o says; the regions' side into *side (0: the whole

@@ -8,12 +8,16 @@
 #include "protocol/msg.h"
 #include "server/api/requests.h"
 #include "server/net/loop.h"
+#include "server/sched/dnshare.h"
 #include "server/sched/job.h"
 #include "server/sched/queue.h"
 
 /* Sends the piece of data (size bytes, named by hash) from offset on in one
  * chunk message of type (SCENE_CHUNK's layout), or an error when offset is
  * past its end; what names the data in that error. */
+static void send_piece(srv_server *s, srv_conn *c, uint16_t type, const uint8_t hash[32],
+                       const uint8_t *piece, size_t len, uint64_t offset, uint64_t size);
+
 static void send_chunk(srv_server *s, srv_conn *c, uint16_t type, const uint8_t hash[32],
                        const uint8_t *data, size_t size, uint64_t offset, const char *what)
 {
@@ -22,13 +26,22 @@ static void send_chunk(srv_server *s, srv_conn *c, uint16_t type, const uint8_t 
                             (unsigned long long)offset, size);
         return;
     }
+    size_t left = size - (size_t)offset;
+    send_piece(s, c, type, hash, data + offset,
+               left < PROTO_MAX_SCENE_CHUNK ? left : PROTO_MAX_SCENE_CHUNK, offset, size);
+}
+
+/* One chunk message of type: len bytes (at most PROTO_MAX_SCENE_CHUNK) at
+ * offset of data of size bytes named by hash. */
+static void send_piece(srv_server *s, srv_conn *c, uint16_t type, const uint8_t hash[32],
+                       const uint8_t *piece, size_t len, uint64_t offset, uint64_t size)
+{
     proto_scene_chunk ch;
     memcpy(ch.hash, hash, 32);
     ch.offset = offset;
     ch.total = size;
-    size_t left = size - (size_t)offset;
-    ch.len = (uint32_t)(left < PROTO_MAX_SCENE_CHUNK ? left : PROTO_MAX_SCENE_CHUNK);
-    ch.data = data + offset;
+    ch.len = (uint32_t)len;
+    ch.data = piece;
     size_t mark;
     pt_status st = proto_frame_begin(&c->out, type, &mark, NULL);
     if (st == PT_OK)
@@ -71,6 +84,118 @@ static void on_guide_get(srv_server *s, srv_conn *c, const proto_frame *f)
         return;
     }
     send_chunk(s, c, PROTO_MSG_GUIDE_CHUNK, g.hash, data, size, g.offset, "guide");
+}
+
+/* ---- denoising shared with the workers (server/sched/dnshare.h) ---- */
+
+/* The next open share after *it (NULL: from the first job), or NULL: the
+ * shares of entries whose finished image is with their writer. */
+static srv_dnshare *share_next(srv_server *s, srv_entry **it)
+{
+    if (!s->cfg->denoise_share)
+        return NULL;
+    for (srv_entry *j = *it ? (*it)->next : s->jobs; j; j = j->next)
+        if (j->final_writing && j->writer && srv_writer_share(j->writer)) {
+            *it = j;
+            return srv_writer_share(j->writer);
+        }
+    return NULL;
+}
+
+/* DENOISE_GET: a piece of a region's crop, by hash. A hash no share holds
+ * now (the writer finished the frame first) gets no answer: JOB_END follows
+ * once the image is written (srv_queue_end_job). */
+static void on_denoise_get(srv_server *s, srv_conn *c, const proto_frame *f)
+{
+    proto_scene_get g;
+    pt_error err = {0};
+    if (proto_msg_decode_scene_get(f->payload, f->len, &g, &err) != PT_OK) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "bad DENOISE_GET: %s", err.msg);
+        return;
+    }
+    uint8_t *buf = pt_malloc(PROTO_MAX_SCENE_CHUNK);
+    if (!buf) {
+        srv_conn_send_error(s, c, PROTO_E_INTERNAL, "out of memory for a DENOISE_CHUNK");
+        return;
+    }
+    srv_entry *it = NULL;
+    for (srv_dnshare *d; (d = share_next(s, &it));) {
+        size_t len;
+        uint64_t total, job;
+        if (!srv_dnshare_chunk(d, g.hash, g.offset, buf, PROTO_MAX_SCENE_CHUNK, &len, &total, &job))
+            continue;
+        if (g.offset > total)
+            srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "region offset %llu is past its end (%llu)",
+                                (unsigned long long)g.offset, (unsigned long long)total);
+        else
+            send_piece(s, c, PROTO_MSG_DENOISE_CHUNK, g.hash, buf, len, g.offset, total);
+        break;
+    }
+    pt_free(buf);
+}
+
+static void on_denoise_result(srv_server *s, srv_conn *c, const proto_frame *f)
+{
+    proto_denoise_result r;
+    pt_error err = {0};
+    if (proto_msg_decode_denoise_result(f->payload, f->len, &r, &err) != PT_OK) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "bad DENOISE_RESULT: %s", err.msg);
+        return;
+    }
+    srv_entry *j = srv_queue_find_any(s, r.job_id);
+    srv_dnshare *d = j && j->final_writing && j->writer ? srv_writer_share(j->writer) : NULL;
+    if (!d)
+        return; /* late: the image is written */
+    if (!srv_dnshare_result(d, c->id, &r, &err)) {
+        s->counters.results_rejected++;
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "%s", err.msg);
+    }
+}
+
+/* Leases regions to c's free slots, one held at a time. */
+static void lease_regions(srv_server *s, srv_conn *c, srv_worker_conn *w)
+{
+    if (!(c->caps & PROTO_CAP_DENOISE) || w->want == 0 || !srv_conn_has_room(c))
+        return;
+    srv_entry *it = NULL;
+    for (srv_dnshare *d; (d = share_next(s, &it));)
+        if (srv_dnshare_held(d, c->id))
+            return;
+    it = NULL;
+    for (srv_dnshare *d; (d = share_next(s, &it));) {
+        proto_denoise_task t;
+        if (!srv_dnshare_lease(d, c->id, s->cfg->lease_ms, &t))
+            continue;
+        size_t mark;
+        pt_status st = proto_frame_begin(&c->out, PROTO_MSG_DENOISE_TASK, &mark, NULL);
+        if (st == PT_OK)
+            st = proto_frame_finish(&c->out, mark, proto_msg_encode_denoise_task(&c->out, &t, NULL),
+                                    NULL);
+        if (srv_conn_queued(s, c, st))
+            w->want--;
+        else
+            srv_dnshare_release(d, c->id);
+        return;
+    }
+}
+
+/* Workers a share found lying are blocked at once, as a render's liar is
+ * (those found as the frame ends: srv_queue_end_job). */
+static void block_share_liars(srv_server *s)
+{
+    srv_entry *it = NULL;
+    for (srv_dnshare *d; (d = share_next(s, &it));) {
+        uint64_t owner;
+        while (srv_dnshare_take_liar(d, &owner))
+            srv_workers_lied(s, owner, "a region it denoised differs from the coordinator's");
+    }
+}
+
+void srv_workers_lied(srv_server *s, uint64_t owner, const char *why)
+{
+    srv_conn *liar = srv_conn_find(s, owner);
+    if (liar && !liar->closing)
+        srv_workers_block(s, liar, why);
 }
 
 /* The address part of a peer's "host:port". */
@@ -353,6 +478,12 @@ void srv_workers_dispatch(srv_server *s, srv_conn *c, const proto_frame *f)
     case PROTO_MSG_RESULT:
         on_result(s, c, f);
         break;
+    case PROTO_MSG_DENOISE_GET:
+        on_denoise_get(s, c, f);
+        break;
+    case PROTO_MSG_DENOISE_RESULT:
+        on_denoise_result(s, c, f);
+        break;
     case PROTO_MSG_HEARTBEAT:
         on_heartbeat(s, c, f);
         break;
@@ -377,6 +508,9 @@ static void on_leave(srv_server *s, srv_conn *c, int report)
     if (c->role != PROTO_ROLE_WORKER)
         return;
     uint32_t n = srv_queue_release_owner(s, c->id);
+    srv_entry *it = NULL;
+    for (srv_dnshare *d; (d = share_next(s, &it));)
+        srv_dnshare_release(d, c->id);
     if (n && report)
         srv_log("worker %s left; %u leased tasks requeued", c->shown, n);
 }
@@ -411,6 +545,8 @@ static int hand_out_to(srv_server *s, srv_conn *c, void *ctx)
             break;
         w->want--;
     }
+    if (w && h->dry)
+        lease_regions(s, c, w);
     srv_conn_update_events(s, c);
     return h->dry && w && w->want > 0;
 }
@@ -418,6 +554,7 @@ static int hand_out_to(srv_server *s, srv_conn *c, void *ctx)
 void srv_workers_hand_out(srv_server *s)
 {
     hand_out h = {pt_now_ms(), 0};
+    block_share_liars(s);
     srv_loop_each_for_hand_out(s, hand_out_to, &h);
 }
 

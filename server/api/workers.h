@@ -82,6 +82,10 @@ void srv_workers_each(srv_server *s, void (*fn)(void *ctx, uint64_t owner), void
  * (the caller may be iterating a job); srv_workers_enforce does. */
 void srv_workers_missed(srv_server *s, uint64_t owner, uint64_t now);
 
+/* Blocks worker connection owner, found lying (srv_sched_events.owner_lied),
+ * when it is still connected. */
+void srv_workers_lied(srv_server *s, uint64_t owner, const char *why);
+
 /* Blocks each worker with SRV_MAX_MISSES misses. O(1) unless a worker
  * reached them since the last call (then it walks the connections). */
 void srv_workers_enforce(srv_server *s);

@@ -23,6 +23,7 @@ static const srv_sched_events sched_events = {
     .job_changed = srv_requests_notify_watchers,
     .result_merged = srv_workers_merged,
     .owner_missed = srv_workers_missed,
+    .owner_lied = srv_workers_lied,
     .each_worker = srv_workers_each,
 };
 

@@ -97,6 +97,7 @@ void loop_on_hello(srv_server *s, srv_conn *c, const proto_frame *f)
     if (loop_session_of(s, c)->refused && loop_session_of(s, c)->refused(s, c))
         return;
     c->threads = h.threads;
+    c->caps = h.caps;
     proto_challenge ch;
     if (proto_auth_nonce(ch.nonce, &err) != PT_OK) {
         srv_conn_send_error(s, c, PROTO_E_INTERNAL, "cannot make a nonce: %s", err.msg);

@@ -175,6 +175,7 @@ struct srv_conn {
     uint64_t t_frame;  /* the first byte of the frame in progress arrived */
     uint64_t t_upload; /* its upload (c->uploading) began */
     uint16_t threads;  /* HELLO's */
+    uint32_t caps;     /* HELLO's capability bits (PROTO_CAP_*) */
     int admin;         /* proved the shared token (every peer, without --clients-file) */
     uint64_t t_connect, t_progress;
     uint32_t events;

@@ -16,6 +16,7 @@
 #include "common/render/film.h"
 #include "common/render/guide_sched.h"
 #include "protocol/frame.h"
+#include "server/sched/dnshare.h"
 
 #define MAX_FINISHED 1000 /* ended jobs kept in the queue's history */
 
@@ -406,6 +407,14 @@ void srv_queue_end_job(srv_server *s, srv_entry *j, uint8_t state, const char *m
         if (!srv_writer_idle(j->writer))
             return;
         j->final_writing = 0;
+        if (srv_writer_share(j->writer)) {
+            queue_announce_job_end(s, j); /* workers drop the regions they still hold */
+            uint64_t owner;
+            while (srv_dnshare_take_liar(srv_writer_share(j->writer), &owner))
+                if (s->events && s->events->owner_lied)
+                    s->events->owner_lied(s, owner,
+                                          "a region it denoised differs from the coordinator's");
+        }
         if (srv_writer_flush(j->writer, &err) != PT_OK) {
             if (err.code == PT_ERR_IO) {
                 /* A full output folder: every sample stays merged, the job
@@ -519,6 +528,18 @@ pt_status queue_restore_folder(srv_server *s, srv_entry *j, pt_error *err)
     return PT_OK;
 }
 
+/* The per-run seed of verification's picks, made at its first use. */
+static uint64_t verify_seed(srv_server *s)
+{
+    if (!s->verify_seed) {
+        uint8_t b[PROTO_NONCE_SIZE];
+        if (proto_auth_nonce(b, NULL) == PT_OK)
+            memcpy(&s->verify_seed, b, sizeof s->verify_seed);
+        s->verify_seed |= 1; /* made once, even without randomness */
+    }
+    return s->verify_seed;
+}
+
 int srv_entry_ready(srv_server *s, srv_entry *j)
 {
     if (j->job)
@@ -544,6 +565,9 @@ int srv_entry_ready(srv_server *s, srv_entry *j)
                                : (ff & PROTO_FILM_DENOISE_PROGRESSIVE) ? SRV_WRITER_DENOISE_ALL
                                                                        : SRV_WRITER_DENOISE_FINAL,
                                s->cfg->max_denoise);
+        if ((ff & PROTO_FILM_DENOISE) && s->cfg->denoise_share && !srv_writer_share(j->writer))
+            st = srv_writer_share_denoise(j->writer, s->cfg->denoise_side, j->rec.id,
+                                          verify_seed(s), s->cfg->verify_fraction, &err);
     }
     if (st != PT_OK) {
         char msg[PROTO_MAX_ERROR_TEXT + 1];
@@ -573,19 +597,13 @@ int srv_entry_ready(srv_server *s, srv_entry *j)
 
 static void set_policy(srv_server *s, srv_entry *j)
 {
-    if (!s->verify_seed) {
-        uint8_t b[PROTO_NONCE_SIZE];
-        if (proto_auth_nonce(b, NULL) == PT_OK)
-            memcpy(&s->verify_seed, b, sizeof s->verify_seed);
-        s->verify_seed |= 1; /* made once, even without randomness */
-    }
     uint64_t first = (uint64_t)s->cfg->lease_ms * FIRST_FACTOR;
     srv_lease_policy pol = {.floor_ms = s->cfg->lease_ms,
                             .first_ms = first > UINT32_MAX ? UINT32_MAX : (uint32_t)first,
                             .factor = DEADLINE_FACTOR,
                             .backup_factor = BACKUP_FACTOR,
                             .verify_fraction = s->cfg->verify_fraction,
-                            .verify_seed = s->verify_seed,
+                            .verify_seed = verify_seed(s),
                             .task_ms = s->cfg->task_ms};
     /* Test hook (tests/integration/test_guiding_farm.sh): with
      * PTSERVE_TEST_LEASE_GATE=SPP:FILE, no task of a job starting at SPP

@@ -11,6 +11,7 @@
 #include "common/image/denoise.h"
 #include "common/render/denoise_frame.h"
 #include "server/log.h"
+#include "server/sched/dnshare.h"
 
 struct srv_writer {
     pthread_mutex_t mu;
@@ -33,6 +34,9 @@ struct srv_writer {
     char dn_gate[4096];      /* test hook: that denoising waits for this file first */
     int busy_progressive;    /* the thread denoises a progressive write */
     atomic_int cancel;       /* set by a final submit: stop that denoising */
+    srv_dnshare *share;      /* NULL, or the finished image's regions shared with workers */
+    uint32_t share_side;     /* ... cut this wide */
+    uint64_t share_job;      /* ... the frame's id on the wire */
     int denoised;            /* img holds denoised planes, of denoised_samples samples */
     uint64_t denoised_samples;
     pt_exr_meta meta;
@@ -42,6 +46,37 @@ struct srv_writer {
     pt_status last;
     pt_error last_err;
 };
+
+/* pt_denoise_frame_opts.denoise of a final image whose regions are shared
+ * with the workers (srv_writer_share_denoise): the writer denoises those no
+ * worker returns first. */
+static pt_status share_regions(void *ctx, const pt_denoise_input *in, float *const out[3],
+                               uint32_t *side, pt_error *err)
+{
+    srv_writer *w = ctx;
+    uint32_t cut = w->share_side;
+    uint32_t fits =
+        w->denoise_max ? pt_denoise_region_side(in->width, in->height, w->denoise_max) : 0;
+    if (fits && fits < cut)
+        cut = fits; /* --max-denoise-mb holds regions of PT_DENOISE_TILE (ptserve checks) */
+    *side = cut;
+    pt_status st = srv_dnshare_open(w->share, in, cut, out, w->share_job, err);
+    if (st != PT_OK)
+        return st;
+    /* Test hook (tests/integration/test_denoise_share.sh): the writer's own
+     * denoising waits for a file while the workers take regions. Unset in
+     * production. */
+    pt_wait_for_file(w->dn_gate);
+    srv_dnshare_stats ds;
+    st = srv_dnshare_run(w->share, pt_denoise_default_threads(), &ds, err);
+    srv_dnshare_close(w->share);
+    if (st == PT_OK)
+        srv_log("%s: denoised in %u regions of %u pixels: %u from workers (%u of them verified), "
+                "%u by the coordinator; lying workers: %u",
+                w->exr[0] ? w->exr : w->png, ds.regions, cut, ds.by_workers, ds.verified,
+                ds.regions - ds.by_workers, ds.liars);
+    return st;
+}
 
 /* The image denoised (once for a count of samples): its layer
  * denoised.R/G/B added to w->img, and *shown the image the preview shows.
@@ -66,20 +101,25 @@ static pt_status denoise_image(srv_writer *w, uint64_t samples, int final, pt_im
                                    .max_bytes = w->denoise_max,
                                    .cancel = &w->cancel,
                                    .progress = &w->dn_progress};
+        if (final && w->share) {
+            o.denoise = share_regions;
+            o.ctx = w;
+        }
         if (final) {
             atomic_store(&w->dn_progress, 0);
             atomic_store(&w->dn_final, 1);
             /* Test hook (tests/integration/test_denoise_farm.sh): the
              * finished image's denoising, shown in the job's status, waits
              * for a file. Unset in production. */
-            pt_wait_for_file(w->dn_gate);
+            if (!w->share)
+                pt_wait_for_file(w->dn_gate); /* shared: once the regions are open */
         }
         pt_status st =
             pt_denoise_frame_until(w->img, pt_denoise_default_threads(), &o, NULL, &side, err);
         atomic_store(&w->dn_final, 0);
         if (st != PT_OK)
             return st;
-        if (side && side != w->said_side)
+        if (side && side != w->said_side && !o.denoise)
             srv_log("%s: denoised in regions of %u pixels, within --max-denoise-mb %llu",
                     w->exr[0] ? w->exr : w->png, side, (unsigned long long)(w->denoise_max >> 20));
         w->said_side = side;
@@ -209,6 +249,28 @@ void srv_writer_set_denoise(srv_writer *w, int mode, uint64_t max_bytes)
     pthread_mutex_unlock(&w->mu);
 }
 
+pt_status srv_writer_share_denoise(srv_writer *w, uint32_t side, uint64_t job_id,
+                                   uint64_t verify_seed, double verify_fraction, pt_error *err)
+{
+    srv_dnshare *d = NULL;
+    pt_status st = srv_dnshare_new(verify_seed, verify_fraction, &d, err);
+    if (st != PT_OK)
+        return st;
+    pthread_mutex_lock(&w->mu);
+    srv_dnshare *old = w->share;
+    w->share = d;
+    w->share_side = side;
+    w->share_job = job_id;
+    pthread_mutex_unlock(&w->mu);
+    srv_dnshare_free(old); /* set before the first write: never in use */
+    return PT_OK;
+}
+
+srv_dnshare *srv_writer_share(srv_writer *w)
+{
+    return w->share;
+}
+
 void srv_writer_submit(srv_writer *w, const pt_exr_meta *meta, int final)
 {
     pthread_mutex_lock(&w->mu);
@@ -284,6 +346,7 @@ void srv_writer_free(srv_writer *w)
     pthread_mutex_unlock(&w->mu);
     pthread_join(w->thread, NULL);
     pt_image_free(w->img);
+    srv_dnshare_free(w->share);
     pthread_mutex_destroy(&w->mu);
     pthread_cond_destroy(&w->cv);
     pt_free(w);

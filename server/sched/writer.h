@@ -57,6 +57,15 @@ enum { SRV_WRITER_DENOISE_FINAL = 1, SRV_WRITER_DENOISE_ALL = 2 };
  * --max-denoise-mb; 0: what the frame needs): a larger frame is denoised
  * in regions, the same bits (pt_denoise_frame_until). */
 void srv_writer_set_denoise(srv_writer *w, int mode, uint64_t max_bytes);
+/* ptserve --denoise-on-workers: the finished image's denoising is shared
+ * with the workers (server/sched/dnshare.h) in regions of side (a multiple
+ * of PT_DENOISE_TILE; smaller when max_bytes asks), the frame named job_id
+ * on the wire, their results verified as verify_fraction says. Called
+ * before the first write. The same bits as the writer alone. */
+pt_status srv_writer_share_denoise(srv_writer *w, uint32_t side, uint64_t job_id,
+                                   uint64_t verify_seed, double verify_fraction, pt_error *err);
+/* NULL, or w's share, whose regions the loop leases (dnshare.h's loop calls). */
+struct srv_dnshare *srv_writer_share(srv_writer *w);
 /* Waits until the last submitted snapshot is on disk; returns the status of
  * the last write (its error in err). */
 pt_status srv_writer_flush(srv_writer *w, pt_error *err);

@@ -11,7 +11,8 @@
 #   json FILE EXPR          EXPR over the JSON in FILE (d), printed
 #   serve LOG [VAR=VAL...]  a ptserve queue on $port (0: any; kept for a
 #                           restart, so the workers reconnect), tiles of 16,
-#                           chunks of 8, leases of 1 s; sets srv_pid and
+#                           chunks of 8, leases of 1 s, and the options in
+#                           the array serve_args when set; sets srv_pid and
 #                           exports PTFARM_SERVER
 #   stop_server [-9]        stops it (SIGTERM, or SIGKILL with -9)
 #   restart_server LOG      stops it (SIGTERM) and serves again on its port
@@ -61,9 +62,10 @@ serve() {
   local log=$1
   shift
   rm -f "$tmp/port"
+  # shellcheck disable=SC2154 # serve_args: the sourcing test's, when it sets it
   env "$@" "$bin/ptserve" --state-dir "$tmp/state" --output-dir "$tmp/out" \
     --listen "127.0.0.1:$port" --port-file "$tmp/port" --tile 16 --chunk 8 --lease-timeout 1 \
-    2>> "$tmp/$log" &
+    ${serve_args[@]+"${serve_args[@]}"} 2>> "$tmp/$log" &
   srv_pid=$!
   for _ in $(seq 400); do [ -s "$tmp/port" ] && break; sleep 0.05; done
   [ -s "$tmp/port" ] || fail "ptserve did not start: $(cat "$tmp/$log")"

@@ -87,7 +87,8 @@ static void each_worker(srv_server *s, void (*fn)(void *ctx, uint64_t owner), vo
         fn(ctx, ev.owners[i]);
 }
 
-static const srv_sched_events EVENTS = {on_ended, on_changed, on_merged, on_missed, each_worker};
+static const srv_sched_events EVENTS = {on_ended,  on_changed,  on_merged,
+                                        on_missed, each_worker, NULL};
 
 /* ---- a server without sockets ---- */
 
