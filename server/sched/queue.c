@@ -59,7 +59,9 @@ uint64_t queue_pixel_bytes(const proto_result *r)
  * may have taken its pixels) or dropped. */
 void queue_pending_fini(srv_entry *j, srv_pending *p)
 {
-    j->pend_bytes -= queue_pixel_bytes(&p->r);
+    /* What was counted: the job may have taken the pixels and their passes
+     * (r.pass NULL then), which queue_pixel_bytes would count short. */
+    j->pend_bytes -= p->bytes;
     proto_result_fini(&p->r);
 }
 

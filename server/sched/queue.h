@@ -71,6 +71,7 @@ typedef struct srv_pending {
     uint64_t commit;  /* the group commit that holds its record */
     uint64_t arrived; /* ms */
     uint64_t ticket;  /* its lease's (srv_job_answered); 0: none (merged as a replay) */
+    uint64_t bytes;   /* its pixels' bytes when kept, counted in pend_bytes */
 } srv_pending;
 
 /* A job of the queue (or the one job of one-job mode). */

@@ -126,8 +126,10 @@ static pt_status push_pending(srv_server *s, srv_entry *j, uint64_t owner, proto
             return PT_ERR_NOMEM;
         j->pend = n;
     }
-    j->pend[j->npend++] = (srv_pending){*r, owner, srv_state_commit_next(s->state), arrived, 0};
-    j->pend_bytes += queue_pixel_bytes(r);
+    uint64_t bytes = queue_pixel_bytes(r);
+    j->pend[j->npend++] =
+        (srv_pending){*r, owner, srv_state_commit_next(s->state), arrived, 0, bytes};
+    j->pend_bytes += bytes;
     r->pixels = NULL;
     r->owns_pixels = 0;
     r->guide = NULL; /* the guiding statistics go with the pending result too */
