@@ -146,7 +146,11 @@ static void on_denoise_result(srv_server *s, srv_conn *c, const proto_frame *f)
     srv_dnshare *d = j && j->final_writing && j->writer ? srv_writer_share(j->writer) : NULL;
     if (!d)
         return; /* late: the image is written */
-    if (!srv_dnshare_result(d, c->id, &r, &err)) {
+    srv_worker_conn *w = c->session;
+    int got = srv_dnshare_result(d, c->id, !w->dn_verified, &r, &err);
+    if (got == SRV_DNSHARE_TAKEN)
+        w->dn_verified = 1; /* its first is verified; the rest as --verify-fraction says */
+    if (got == SRV_DNSHARE_INVALID) {
         s->counters.results_rejected++;
         srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "%s", err.msg);
     }

@@ -44,6 +44,7 @@ typedef struct srv_worker_conn {
     uint64_t missed_at; /* when the last one was counted */
     /* results merged, their samples, when the last one was (0: none) */
     uint64_t tasks_done, samples_done, t_result;
+    int dn_verified; /* a denoised region of it was taken, to be verified (dnshare.h) */
 } srv_worker_conn;
 
 /* c's worker state; NULL unless c is a ready worker. */

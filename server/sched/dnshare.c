@@ -6,6 +6,7 @@
 #include <string.h>
 
 #include "common/base/alloc.h"
+#include "common/base/clock.h"
 #include "common/base/hash.h"
 #include "protocol/wire.h"
 #include "server/log.h"
@@ -19,13 +20,19 @@ typedef struct region {
     uint64_t owner;            /* R_LEASED: the leaseholder; R_DONE: whose bits (0: the writer's) */
     int verify;                /* R_DONE by a worker: the writer denoises it again */
     int mine;                  /* the writer denoises it now: not leased */
+    uint64_t t_leased;         /* R_LEASED: since when (ms) */
 } region;
 
-#define MAX_SEEN 256u /* workers whose first region is verified, per share */
 #define MAX_LIARS 16u
+/* A leased region is raced (the writer denoises it too) once it has been
+ * out this many times as long as the writer takes for a crop of its size,
+ * and at least the lease timeout: a worker a little slower than the
+ * coordinator is waited for, a stalled one is not. */
+#define STALL_FACTOR 4.0
 
 struct srv_dnshare {
     pthread_mutex_t mu;
+    pthread_cond_t cv; /* a result taken, a lease released: the writer looks again */
     int open;
     pt_denoise_input in; /* the frame's planes: the writer's */
     uint32_t side, n;
@@ -35,8 +42,8 @@ struct srv_dnshare {
     uint32_t cap;
     uint64_t seed;
     double fraction;
-    uint64_t seen[MAX_SEEN];
-    uint32_t nseen;
+    uint32_t lease_ms;         /* the leases' (srv_dnshare_lease) */
+    double ms_per_px;          /* the writer's last region: ms per crop pixel; 0 none yet */
     uint64_t liars[MAX_LIARS]; /* named in this share, each once */
     uint32_t nliars, ntaken;   /* ... and those the loop has taken */
     srv_dnshare_stats st;
@@ -49,6 +56,7 @@ pt_status srv_dnshare_new(uint64_t verify_seed, double verify_fraction, srv_dnsh
     if (!d)
         return pt_error_set(err, PT_ERR_NOMEM, "out of memory");
     pthread_mutex_init(&d->mu, NULL);
+    pthread_cond_init(&d->cv, NULL);
     d->seed = verify_seed;
     d->fraction = verify_fraction;
     *out = d;
@@ -60,6 +68,7 @@ void srv_dnshare_free(srv_dnshare *d)
     if (!d)
         return;
     pthread_mutex_destroy(&d->mu);
+    pthread_cond_destroy(&d->cv);
     pt_free(d->r);
     pt_free(d);
 }
@@ -138,7 +147,8 @@ pt_status srv_dnshare_open(srv_dnshare *d, const pt_denoise_input *in, uint32_t 
     d->job_id = job_id;
     for (int c = 0; c < 3; c++)
         d->out[c] = out[c];
-    d->nseen = d->nliars = d->ntaken = 0;
+    d->nliars = d->ntaken = 0;
+    d->ms_per_px = 0.0;
     memset(&d->st, 0, sizeof d->st);
     d->st.regions = n;
     d->open = 1;
@@ -207,18 +217,47 @@ static void progress_set(const srv_dnshare *d)
     atomic_store(d->in.progress, (unsigned)(done * 1000 / ((uint64_t)d->in.width * d->in.height)));
 }
 
-/* The next region for the writer, or n: free ones, then leased ones, then
- * workers' results to verify. Under the mutex. */
-static uint32_t writer_pick(const srv_dnshare *d)
+/* The next region for the writer, or n: free ones, then workers' results
+ * to verify, then leased ones out past their stall time. With n, *wait_ms
+ * is how long until a leased one stalls (0: every region is done and
+ * verified). Under the mutex. */
+static uint32_t writer_pick(const srv_dnshare *d, uint64_t now, uint64_t *wait_ms)
 {
-    for (int pass = 0; pass < 3; pass++)
-        for (uint32_t i = 0; i < d->n; i++) {
-            const region *g = &d->r[i];
-            if ((pass == 0 && g->state == R_FREE) || (pass == 1 && g->state == R_LEASED) ||
-                (pass == 2 && g->state == R_DONE && g->verify))
-                return i;
-        }
+    *wait_ms = 0;
+    for (uint32_t i = 0; i < d->n; i++)
+        if (d->r[i].state == R_FREE)
+            return i;
+    for (uint32_t i = 0; i < d->n; i++)
+        if (d->r[i].state == R_DONE && d->r[i].verify)
+            return i;
+    uint64_t soonest = UINT64_MAX;
+    for (uint32_t i = 0; i < d->n; i++) {
+        const region *g = &d->r[i];
+        if (g->state != R_LEASED)
+            continue;
+        double own = STALL_FACTOR * d->ms_per_px * rect_w(g->crop) * rect_h(g->crop);
+        uint64_t stall = own > d->lease_ms ? (uint64_t)own : d->lease_ms;
+        if (now - g->t_leased >= stall)
+            return i;
+        soonest = stall - (now - g->t_leased) < soonest ? stall - (now - g->t_leased) : soonest;
+    }
+    if (soonest != UINT64_MAX)
+        *wait_ms = soonest;
     return d->n;
+}
+
+/* Waits on d's condition for at most ms (the mutex held). */
+static void wait_for(srv_dnshare *d, uint64_t ms)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_REALTIME, &ts);
+    ts.tv_sec += (time_t)(ms / 1000);
+    ts.tv_nsec += (long)(ms % 1000) * 1000000L;
+    if (ts.tv_nsec >= 1000000000L) {
+        ts.tv_sec++;
+        ts.tv_nsec -= 1000000000L;
+    }
+    pthread_cond_timedwait(&d->cv, &d->mu, &ts);
 }
 
 pt_status srv_dnshare_run(srv_dnshare *d, unsigned threads, srv_dnshare_stats *st, pt_error *err)
@@ -231,17 +270,29 @@ pt_status srv_dnshare_run(srv_dnshare *d, unsigned threads, srv_dnshare_stats *s
     pt_status s = PT_OK;
     pthread_mutex_lock(&d->mu);
     for (;;) {
-        uint32_t i = writer_pick(d);
-        if (i == d->n)
+        uint64_t wait_ms;
+        uint32_t i = writer_pick(d, pt_now_ms(), &wait_ms);
+        if (i == d->n && wait_ms == 0)
             break;
+        if (i == d->n) {
+            if (d->in.cancel && atomic_load(d->in.cancel)) {
+                s = pt_error_set(err, PT_AGAIN, "denoise: cancelled");
+                break;
+            }
+            wait_for(d, wait_ms < 100 ? wait_ms : 100);
+            continue;
+        }
         region *g = &d->r[i];
         g->mine = 1;
         pthread_mutex_unlock(&d->mu);
+        uint64_t t0 = pt_now_ms();
         s = pt_denoise_region(&d->in, threads, d->side, i, mine, err);
+        uint64_t took = pt_now_ms() - t0;
         pthread_mutex_lock(&d->mu);
         g->mine = 0;
         if (s != PT_OK)
             break;
+        d->ms_per_px = (double)took / ((double)rect_w(g->crop) * rect_h(g->crop));
         if (g->state != R_DONE) {
             copy_pixels(d, g, d->out, mine);
             g->state = R_DONE;
@@ -278,6 +329,8 @@ int srv_dnshare_lease(srv_dnshare *d, uint64_t owner, uint32_t lease_ms, proto_d
         region *g = &d->r[i];
         g->state = R_LEASED;
         g->owner = owner;
+        g->t_leased = pt_now_ms();
+        d->lease_ms = lease_ms;
         memset(t, 0, sizeof *t);
         t->job_id = d->job_id;
         t->task_id = PROTO_DENOISE_TASK_BIT | i;
@@ -313,18 +366,10 @@ int srv_dnshare_chunk(srv_dnshare *d, const uint8_t hash[32], uint64_t offset, u
     return found;
 }
 
-/* The pick of a worker's region to verify: its first in the share, else
- * splitmix64 (Steele et al. 2014) of the seed, job and region as a uniform
- * number under the fraction. Under the mutex. */
-static int verify_picked(srv_dnshare *d, uint64_t owner, uint32_t i)
+/* The pick of a worker's region to verify: splitmix64 (Steele et al. 2014)
+ * of the seed, job and region as a uniform number under the fraction. */
+static int verify_picked(const srv_dnshare *d, uint32_t i)
 {
-    for (uint32_t k = 0; k < d->nseen; k++)
-        if (d->seen[k] == owner)
-            goto seen;
-    if (d->nseen < MAX_SEEN)
-        d->seen[d->nseen++] = owner;
-    return 1;
-seen:
     if (!(d->fraction > 0.0))
         return 0;
     uint64_t z = d->seed ^ (d->job_id * 0xD1B54A32D192ED03ull) ^ i;
@@ -335,15 +380,16 @@ seen:
     return (double)(z >> 11) * 0x1.0p-53 < d->fraction;
 }
 
-int srv_dnshare_result(srv_dnshare *d, uint64_t owner, const proto_denoise_result *r, pt_error *err)
+int srv_dnshare_result(srv_dnshare *d, uint64_t owner, int first, const proto_denoise_result *r,
+                       pt_error *err)
 {
     pthread_mutex_lock(&d->mu);
-    int ok = 1;
+    int ok = SRV_DNSHARE_DROPPED;
     uint64_t i = r->task_id & ~PROTO_DENOISE_TASK_BIT;
     if (!d->open || r->job_id != d->job_id)
         goto out; /* late: the writer finished the frame */
     if (i >= d->n) {
-        ok = 0;
+        ok = SRV_DNSHARE_INVALID;
         pt_error_set(err, PT_ERR_FORMAT, "DENOISE_RESULT for region %llu of %u",
                      (unsigned long long)i, d->n);
         goto out;
@@ -351,7 +397,7 @@ int srv_dnshare_result(srv_dnshare *d, uint64_t owner, const proto_denoise_resul
     region *g = &d->r[i];
     if (r->region.x0 != g->rect[0] - g->crop[0] || r->region.y0 != g->rect[1] - g->crop[1] ||
         r->region.x1 != g->rect[2] - g->crop[0] || r->region.y1 != g->rect[3] - g->crop[1]) {
-        ok = 0;
+        ok = SRV_DNSHARE_INVALID;
         pt_error_set(err, PT_ERR_FORMAT, "DENOISE_RESULT for region %llu has another rectangle",
                      (unsigned long long)i);
         goto out;
@@ -365,7 +411,7 @@ int srv_dnshare_result(srv_dnshare *d, uint64_t owner, const proto_denoise_resul
     for (size_t k = 0; k < 3 * np; k++) {
         float v = proto_get_f32(r->data + 4 * k);
         if (!isfinite(v) || fabsf(v) > PT_DENOISE_MAX_VALUE) {
-            ok = 0;
+            ok = SRV_DNSHARE_INVALID;
             pt_error_set(err, PT_ERR_FORMAT, "DENOISE_RESULT for region %llu holds %g",
                          (unsigned long long)i, (double)v);
             goto out;
@@ -390,9 +436,11 @@ int srv_dnshare_result(srv_dnshare *d, uint64_t owner, const proto_denoise_resul
                 out[c][(y + g->rect[1]) * w + g->rect[0] + x] =
                     proto_get_f32(r->data + 4 * (c * np + y * rw + x));
     g->state = R_DONE;
-    g->verify = verify_picked(d, owner, (uint32_t)i);
+    g->verify = first || verify_picked(d, (uint32_t)i);
     d->st.by_workers++;
     progress_set(d);
+    pthread_cond_signal(&d->cv);
+    ok = SRV_DNSHARE_TAKEN;
 out:
     pthread_mutex_unlock(&d->mu);
     return ok;
@@ -406,6 +454,7 @@ void srv_dnshare_release(srv_dnshare *d, uint64_t owner)
             d->r[i].state = R_FREE;
             d->r[i].owner = 0;
         }
+    pthread_cond_signal(&d->cv);
     pthread_mutex_unlock(&d->mu);
 }
 

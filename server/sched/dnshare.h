@@ -6,14 +6,18 @@
  * common/image/denoise.h) and opens a share; the loop leases regions to
  * workers that can denoise (HELLO's PROTO_CAP_DENOISE), serves each one's
  * crop (DENOISE_GET) and takes their pixels back (DENOISE_RESULT). The
- * writer meanwhile denoises regions itself: those nobody took first, then
- * those leased and not back yet (a race: the same bits either way), then the
- * workers' results picked for verification. So the frame is never later
- * than the writer alone would make it, a worker that dies or stalls costs
- * nothing, and no state needs to outlive the coordinator: after a restart
- * the frame is denoised again from its merged film.
+ * writer meanwhile denoises regions itself: those nobody took, the workers'
+ * results picked for verification, and those leased and out too long (a
+ * race: the same bits either way). So a worker that dies or stalls costs
+ * the frame a bounded wait, and no state needs to outlive the coordinator:
+ * after a restart the frame is denoised again from its merged film.
  *
- * Verification: each worker's first region in a share, and others with
+ * The writer races a leased region only once it has been out
+ * STALL_FACTOR times as long as the writer's own last region took for a
+ * crop that size, and at least the lease timeout: otherwise it waits for
+ * the workers, so their regions are work it does not do.
+ *
+ * Verification: each worker connection's first region, and others with
  * probability --verify-fraction (splitmix64 of the job, the region and a
  * per-run seed), are denoised again by the writer; a region both computed
  * is compared as it arrives. Bits that differ: the writer's are kept, every
@@ -71,10 +75,13 @@ int srv_dnshare_lease(srv_dnshare *d, uint64_t owner, uint32_t lease_ms, proto_d
  * then the last share's job, 0 when none). */
 int srv_dnshare_chunk(srv_dnshare *d, const uint8_t hash[32], uint64_t offset, uint8_t *buf,
                       size_t cap, size_t *len, uint64_t *total, uint64_t *job_id);
-/* Loop: a worker's DENOISE_RESULT. 1 when taken (or dropped as late or
- * as a copy); 0 with *err when it is not one this owner was leased or its
- * pixels are not a denoised image's (the worker is then closed). */
-int srv_dnshare_result(srv_dnshare *d, uint64_t owner, const proto_denoise_result *r,
+/* What srv_dnshare_result did with a result. */
+enum { SRV_DNSHARE_INVALID = 0, SRV_DNSHARE_DROPPED = 1, SRV_DNSHARE_TAKEN = 2 };
+/* Loop: a worker's DENOISE_RESULT; first: the worker's first region taken
+ * on this connection, which the writer verifies. TAKEN; DROPPED (late, a
+ * copy, not leased to owner); INVALID with *err when its region or pixels
+ * are not the leased region's denoised image (the worker is then closed). */
+int srv_dnshare_result(srv_dnshare *d, uint64_t owner, int first, const proto_denoise_result *r,
                        pt_error *err);
 /* Loop: the owner's leases go (it left). */
 void srv_dnshare_release(srv_dnshare *d, uint64_t owner);

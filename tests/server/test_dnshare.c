@@ -5,7 +5,8 @@
  * pieces of any size, takes results (as a worker computes them, from the
  * crop it was served) and refuses hostile ones; the writer's run then
  * finishes the frame to pt_denoise's bits, having verified each worker's
- * first region and caught the one whose bits differ.
+ * first region, caught the one whose bits differ, and denoised the region
+ * of one that stalls once it was out longer than the lease.
  */
 #include <math.h>
 #include <string.h>
@@ -105,20 +106,23 @@ int main(void)
     /* Hostile results are refused with a reason; others' are dropped. */
     proto_denoise_result bad = r;
     bad.region.x1 = SIDE - 1;
-    CHECK(!srv_dnshare_result(d, 1, &bad, &err) && strstr(err.msg, "another rectangle"));
+    CHECK(srv_dnshare_result(d, 1, 1, &bad, &err) == SRV_DNSHARE_INVALID &&
+          strstr(err.msg, "another rectangle"));
     bad = r;
     bad.task_id = PROTO_DENOISE_TASK_BIT | 99;
-    CHECK(!srv_dnshare_result(d, 1, &bad, &err) && strstr(err.msg, "region 99 of 6"));
+    CHECK(srv_dnshare_result(d, 1, 1, &bad, &err) == SRV_DNSHARE_INVALID &&
+          strstr(err.msg, "region 99 of 6"));
     uint8_t keep[4];
     memcpy(keep, data + 40, 4);
     proto_put_f32(data + 40, NAN);
-    CHECK(!srv_dnshare_result(d, 1, &r, &err) && strstr(err.msg, "holds nan"));
+    CHECK(srv_dnshare_result(d, 1, 1, &r, &err) == SRV_DNSHARE_INVALID &&
+          strstr(err.msg, "holds nan"));
     proto_put_f32(data + 40, 1e30f);
-    CHECK(!srv_dnshare_result(d, 1, &r, &err));
+    CHECK(srv_dnshare_result(d, 1, 1, &r, &err) == SRV_DNSHARE_INVALID);
     memcpy(data + 40, keep, 4);
-    CHECK(srv_dnshare_result(d, 2, &r, &err)); /* not leased to 2: dropped */
+    CHECK(srv_dnshare_result(d, 2, 1, &r, &err) == SRV_DNSHARE_DROPPED); /* not leased to 2 */
     CHECK(srv_dnshare_held(d, 1) == 1);
-    CHECK(srv_dnshare_result(d, 1, &r, &err)); /* taken */
+    CHECK(srv_dnshare_result(d, 1, 1, &r, &err) == SRV_DNSHARE_TAKEN);
     CHECK(srv_dnshare_held(d, 1) == 0);
     free(data);
 
@@ -127,12 +131,17 @@ int main(void)
     CHECK(t.task_id == (PROTO_DENOISE_TASK_BIT | 1));
     data = worker_denoise(d, &t, 4096, &r);
     data[0] ^= 1;
-    CHECK(srv_dnshare_result(d, 2, &r, &err));
+    CHECK(srv_dnshare_result(d, 2, 1, &r, &err) == SRV_DNSHARE_TAKEN);
     free(data);
     /* Region 2 to worker 3, which leaves: the region is free again. */
     CHECK(srv_dnshare_lease(d, 3, 1000, &t));
     srv_dnshare_release(d, 3);
     CHECK(srv_dnshare_held(d, 3) == 0);
+
+    /* Region 2 again, to worker 4, which stalls: the writer waits for it, then
+     * races it. */
+    CHECK(srv_dnshare_lease(d, 4, 300, &t));
+    CHECK(t.task_id == (PROTO_DENOISE_TASK_BIT | 2)); /* the one worker 3 left */
 
     /* The writer does the rest and verifies both workers' first regions. */
     uint64_t owner;
@@ -148,7 +157,7 @@ int main(void)
     CHECK(memcmp(got, ref, 3 * n * sizeof(float)) == 0);
     /* After close: nothing leased, a late result dropped. */
     CHECK(!srv_dnshare_lease(d, 1, 1000, &t));
-    CHECK(srv_dnshare_result(d, 1, &r, &err));
+    CHECK(srv_dnshare_result(d, 1, 0, &r, &err) == SRV_DNSHARE_DROPPED);
     srv_dnshare_free(d);
     free(ref);
     free(got);
