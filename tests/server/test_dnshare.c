@@ -5,10 +5,12 @@
  * pieces of any size, takes results (as a worker computes them, from the
  * crop it was served) and refuses hostile ones; the writer's run then
  * finishes the frame to pt_denoise's bits, having verified each worker's
- * first region, caught the one whose bits differ, and denoised the region
- * of one that stalls once it was out longer than the lease.
+ * first region, caught the one whose bits differ, taken a region a worker
+ * returned while it ran on another thread, and denoised the region of one
+ * that stalls once it was out longer than the lease.
  */
 #include <math.h>
+#include <pthread.h>
 #include <string.h>
 
 #include "common/base/hash.h"
@@ -70,6 +72,21 @@ static uint8_t *worker_denoise(srv_dnshare *d, const proto_denoise_task *t, size
     free(v);
     free(o);
     return data;
+}
+
+/* The writer's side on a thread of its own. */
+typedef struct run_ctx {
+    srv_dnshare *d;
+    srv_dnshare_stats stats;
+    pt_status st;
+    pt_error err;
+} run_ctx;
+
+static void *run_writer(void *p)
+{
+    run_ctx *rc = p;
+    rc->st = srv_dnshare_run(rc->d, 2, &rc->stats, &rc->err);
+    return NULL;
 }
 
 int main(void)
@@ -143,15 +160,27 @@ int main(void)
     CHECK(srv_dnshare_lease(d, 4, 300, &t));
     CHECK(t.task_id == (PROTO_DENOISE_TASK_BIT | 2)); /* the one worker 3 left */
 
-    /* The writer does the rest and verifies both workers' first regions. */
+    /* Region 3 to worker 5, which fetches and returns it while the writer
+     * runs on another thread (as the loop and the writer do). */
+    CHECK(srv_dnshare_lease(d, 5, 60000, &t));
+    CHECK(t.task_id == (PROTO_DENOISE_TASK_BIT | 3));
+
+    /* The writer does the rest and verifies the workers' first regions. */
     uint64_t owner;
     CHECK(!srv_dnshare_take_liar(d, &owner));
-    srv_dnshare_stats st;
-    CHECKF(srv_dnshare_run(d, 2, &st, &err) == PT_OK, "%s", err.msg);
+    run_ctx rc = {d, {0}, PT_OK, {0}};
+    pthread_t th;
+    CHECK(pthread_create(&th, NULL, run_writer, &rc) == 0);
+    data = worker_denoise(d, &t, 65536, &r);
+    CHECK(srv_dnshare_result(d, 5, 1, &r, &err) == SRV_DNSHARE_TAKEN);
+    free(data);
+    pthread_join(th, NULL);
+    CHECKF(rc.st == PT_OK, "%s", rc.err.msg);
     srv_dnshare_close(d);
+    srv_dnshare_stats st = rc.stats;
     printf("dnshare: %u regions, %u from workers, %u verified, %u liars\n", st.regions,
            st.by_workers, st.verified, st.liars);
-    CHECK(st.regions == 6 && st.by_workers == 1 && st.verified == 1 && st.liars == 1);
+    CHECK(st.regions == 6 && st.by_workers == 2 && st.verified == 2 && st.liars == 1);
     CHECK(srv_dnshare_take_liar(d, &owner) && owner == 2);
     CHECK(!srv_dnshare_take_liar(d, &owner));
     CHECK(memcmp(got, ref, 3 * n * sizeof(float)) == 0);
