@@ -12,27 +12,8 @@
 #include "server/sched/job.h"
 #include "server/sched/queue.h"
 
-/* Sends the piece of data (size bytes, named by hash) from offset on in one
- * chunk message of type (SCENE_CHUNK's layout), or an error when offset is
- * past its end; what names the data in that error. */
-static void send_piece(srv_server *s, srv_conn *c, uint16_t type, const uint8_t hash[32],
-                       const uint8_t *piece, size_t len, uint64_t offset, uint64_t size);
-
-static void send_chunk(srv_server *s, srv_conn *c, uint16_t type, const uint8_t hash[32],
-                       const uint8_t *data, size_t size, uint64_t offset, const char *what)
-{
-    if (offset > size) {
-        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "%s offset %llu is past its end (%zu)", what,
-                            (unsigned long long)offset, size);
-        return;
-    }
-    size_t left = size - (size_t)offset;
-    send_piece(s, c, type, hash, data + offset,
-               left < PROTO_MAX_SCENE_CHUNK ? left : PROTO_MAX_SCENE_CHUNK, offset, size);
-}
-
-/* One chunk message of type: len bytes (at most PROTO_MAX_SCENE_CHUNK) at
- * offset of data of size bytes named by hash. */
+/* One chunk message of type (SCENE_CHUNK's layout): len bytes (at most
+ * PROTO_MAX_SCENE_CHUNK) at offset of data of size bytes named by hash. */
 static void send_piece(srv_server *s, srv_conn *c, uint16_t type, const uint8_t hash[32],
                        const uint8_t *piece, size_t len, uint64_t offset, uint64_t size)
 {
@@ -48,6 +29,22 @@ static void send_piece(srv_server *s, srv_conn *c, uint16_t type, const uint8_t 
         st = proto_frame_finish(&c->out, mark, proto_msg_encode_scene_chunk(&c->out, &ch, NULL),
                                 NULL);
     srv_conn_queued(s, c, st);
+}
+
+/* Sends the piece of data (size bytes, named by hash) from offset on in one
+ * chunk message of type, or an error when offset is past its end; what
+ * names the data in that error. */
+static void send_chunk(srv_server *s, srv_conn *c, uint16_t type, const uint8_t hash[32],
+                       const uint8_t *data, size_t size, uint64_t offset, const char *what)
+{
+    if (offset > size) {
+        srv_conn_send_error(s, c, PROTO_E_PROTOCOL, "%s offset %llu is past its end (%zu)", what,
+                            (unsigned long long)offset, size);
+        return;
+    }
+    size_t left = size - (size_t)offset;
+    send_piece(s, c, type, hash, data + offset,
+               left < PROTO_MAX_SCENE_CHUNK ? left : PROTO_MAX_SCENE_CHUNK, offset, size);
 }
 
 static void on_scene_get(srv_server *s, srv_conn *c, const proto_frame *f)
