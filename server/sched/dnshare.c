@@ -20,7 +20,8 @@ typedef struct region {
     uint64_t owner;            /* R_LEASED: the leaseholder; R_DONE: whose bits (0: the writer's) */
     int verify;                /* R_DONE by a worker: the writer denoises it again */
     int mine;                  /* the writer denoises it now: not leased */
-    uint64_t t_leased;         /* R_LEASED: since when (ms) */
+    uint64_t t_leased;         /* R_LEASED: since when (ms), */
+    uint32_t lease_ms;         /* ... and its lease's timeout */
 } region;
 
 #define MAX_LIARS 16u
@@ -42,7 +43,6 @@ struct srv_dnshare {
     uint32_t cap;
     uint64_t seed;
     double fraction;
-    uint32_t lease_ms;         /* the leases' (srv_dnshare_lease) */
     double ms_per_px;          /* the writer's last region: ms per crop pixel; 0 none yet */
     uint64_t liars[MAX_LIARS]; /* named in this share, each once */
     uint32_t nliars, ntaken;   /* ... and those the loop has taken */
@@ -236,7 +236,7 @@ static uint32_t writer_pick(const srv_dnshare *d, uint64_t now, uint64_t *wait_m
         if (g->state != R_LEASED)
             continue;
         double own = STALL_FACTOR * d->ms_per_px * rect_w(g->crop) * rect_h(g->crop);
-        uint64_t stall = own > d->lease_ms ? (uint64_t)own : d->lease_ms;
+        uint64_t stall = own > g->lease_ms ? (uint64_t)own : g->lease_ms;
         if (now - g->t_leased >= stall)
             return i;
         soonest = stall - (now - g->t_leased) < soonest ? stall - (now - g->t_leased) : soonest;
@@ -330,7 +330,7 @@ int srv_dnshare_lease(srv_dnshare *d, uint64_t owner, uint32_t lease_ms, proto_d
         g->state = R_LEASED;
         g->owner = owner;
         g->t_leased = pt_now_ms();
-        d->lease_ms = lease_ms;
+        g->lease_ms = lease_ms;
         memset(t, 0, sizeof *t);
         t->job_id = d->job_id;
         t->task_id = PROTO_DENOISE_TASK_BIT | i;
