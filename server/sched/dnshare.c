@@ -10,6 +10,7 @@
 #include "common/base/hash.h"
 #include "protocol/wire.h"
 #include "server/log.h"
+#include "server/sched/job.h"
 
 enum { R_FREE, R_LEASED, R_DONE };
 
@@ -366,20 +367,6 @@ int srv_dnshare_chunk(srv_dnshare *d, const uint8_t hash[32], uint64_t offset, u
     return found;
 }
 
-/* The pick of a worker's region to verify: splitmix64 (Steele et al. 2014)
- * of the seed, job and region as a uniform number under the fraction. */
-static int verify_picked(const srv_dnshare *d, uint32_t i)
-{
-    if (!(d->fraction > 0.0))
-        return 0;
-    uint64_t z = d->seed ^ (d->job_id * 0xD1B54A32D192ED03ull) ^ i;
-    z += 0x9E3779B97F4A7C15ull;
-    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
-    z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
-    z ^= z >> 31;
-    return (double)(z >> 11) * 0x1.0p-53 < d->fraction;
-}
-
 int srv_dnshare_result(srv_dnshare *d, uint64_t owner, int first, const proto_denoise_result *r,
                        pt_error *err)
 {
@@ -436,7 +423,7 @@ int srv_dnshare_result(srv_dnshare *d, uint64_t owner, int first, const proto_de
                 out[c][(y + g->rect[1]) * w + g->rect[0] + x] =
                     proto_get_f32(r->data + 4 * (c * np + y * rw + x));
     g->state = R_DONE;
-    g->verify = first || verify_picked(d, (uint32_t)i);
+    g->verify = first || srv_verify_picked(d->seed, d->job_id, (uint32_t)i, d->fraction);
     d->st.by_workers++;
     progress_set(d);
     pthread_cond_signal(&d->cv);

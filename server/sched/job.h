@@ -133,6 +133,22 @@ typedef struct srv_lease_policy {
 
 #define SRV_DEADLINE_QUANTILE 0.9 /* of the observed times per pixel-sample */
 
+/* Whether item (a task id, a denoise region's index) of job is picked for
+ * verification: splitmix64 (Steele et al. 2014) of the seed, job and item as
+ * a uniform number in [0, 1), under fraction; never when fraction is not
+ * above 0. Deterministic, so the coordinator alone knows the pick. Pure. */
+static inline int srv_verify_picked(uint64_t seed, uint64_t job, uint64_t item, double fraction)
+{
+    if (!(fraction > 0.0))
+        return 0;
+    uint64_t z = seed ^ (job * 0xD1B54A32D192ED03ull) ^ item;
+    z += 0x9E3779B97F4A7C15ull;
+    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+    z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+    z ^= z >> 31;
+    return (double)(z >> 11) * 0x1.0p-53 < fraction;
+}
+
 /* What a verification copy's result said (srv_job_check). */
 typedef enum srv_verdict_kind {
     SRV_V_MATCH = 0, /* same bits as the first result: both verified */

@@ -315,20 +315,6 @@ int srv_job_pixels_plausible(const proto_result *r, pt_error *err)
     return r->s1 > r->s0 && pixels_plausible(r, r->s1 - r->s0, err);
 }
 
-/* The deterministic pick of verification copies: splitmix64 (Steele et al.
- * 2014) of the seed, job and task, as a uniform number in [0, 1). */
-static int verify_picked(const srv_job *j, uint64_t t)
-{
-    if (!(j->pol.verify_fraction > 0.0))
-        return 0;
-    uint64_t z = j->pol.verify_seed ^ (j->id * 0xD1B54A32D192ED03ull) ^ t;
-    z += 0x9E3779B97F4A7C15ull;
-    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
-    z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
-    z ^= z >> 31;
-    return (double)(z >> 11) * 0x1.0p-53 < j->pol.verify_fraction;
-}
-
 static void pixels_hash(const proto_result *r, uint8_t out[32])
 {
     /* pt_pixel_acc has no implicit padding, so the bytes are the result's
@@ -474,7 +460,8 @@ static void note_accepted(srv_job *j, uint32_t t, int li, const proto_result *r,
     /* Each owner's first result in a job is checked too: at a fraction of
      * 0.02 a job of 64 tasks had a 27 % chance of no check at all, and a
      * worker that lied from its first result could go unchecked. */
-    if (verify_picked(j, t) || (j->pol.verify_fraction > 0.0 && o->merged == 1))
+    if (srv_verify_picked(j->pol.verify_seed, j->id, t, j->pol.verify_fraction) ||
+        (j->pol.verify_fraction > 0.0 && o->merged == 1))
         add_check(j, t, l.owner, r);
 }
 
