@@ -710,18 +710,15 @@ static void regions_margin_reaches(scene s)
     scene t;
     const uint32_t x0 = 128, y0 = 0, cw = 160, chh = H;
     CHECK(scene_alloc(&t, cw, chh) == 0);
-    float *const from[] = {s.a[0],      s.a[1],      s.a[2],       s.b[0],       s.b[1],
-                           s.b[2],      s.color[0],  s.color[1],   s.color[2],   s.var,
-                           s.albedo[0], s.albedo[1], s.albedo[2],  s.albedo_var, s.normal[0],
-                           s.normal[1], s.normal[2], s.normal_var, s.depth,      s.depth_var};
-    float *const to[] = {t.a[0],      t.a[1],      t.a[2],       t.b[0],       t.b[1],
-                         t.b[2],      t.color[0],  t.color[1],   t.color[2],   t.var,
-                         t.albedo[0], t.albedo[1], t.albedo[2],  t.albedo_var, t.normal[0],
-                         t.normal[1], t.normal[2], t.normal_var, t.depth,      t.depth_var};
-    for (size_t k = 0; k < sizeof from / sizeof from[0]; k++)
+    pt_denoise_input si = scene_input(&s), ti = scene_input(&t);
+    const float *from[PT_DENOISE_PLANES], *to[PT_DENOISE_PLANES];
+    pt_denoise_input_planes(&si, from);
+    pt_denoise_input_planes(&ti, to);
+    /* to's planes are t's own buffers, writable behind the input's const. */
+    for (size_t k = 0; k < PT_DENOISE_PLANES; k++)
         for (uint32_t y = 0; y < chh; y++)
-            memcpy(to[k] + (size_t)y * cw, from[k] + (size_t)(y + y0) * W + x0, cw * sizeof(float));
-    pt_denoise_input ti = scene_input(&t);
+            memcpy((float *)to[k] + (size_t)y * cw, from[k] + (size_t)(y + y0) * W + x0,
+                   cw * sizeof(float));
     ti.despeckle = PT_DENOISE_DESPECKLE;
     CHECKF(pt_denoise(&ti, 2, t.out, &err) == PT_OK, "%s", err.msg);
     size_t diff = 0;
