@@ -427,6 +427,29 @@ pt_vec3 pt_closure_sample(const pt_closure *c, const float u[3], pt_vec3 *wi, fl
     return pt_v3_scale(f, 1.0f / *pdf);
 }
 
+pt_vec3 pt_closure_refracted(const pt_closure *c, pt_vec3 *wi, float *take)
+{
+    pt_vec3 zero = pt_v3(0.0f, 0.0f, 0.0f);
+    *take = 0.0f;
+    if (c->dead || c->n_groups != 1)
+        return zero;
+    const pt_closure_group *gr = &c->group[0];
+    for (uint32_t i = 0; i < gr->n; i++) {
+        const pt_lobe *l = &c->lobe[gr->first + i];
+        if (l->kind != PT_LOBE_DIELECTRIC)
+            continue;
+        if (!(l->prob > 0.0f))
+            return zero;
+        /* As pt_closure_sample weighs the delta: picking the lobe (prob)
+         * cancels against the weight's 1 / prob. */
+        float t;
+        pt_vec3 w = pt_dielectric_refracted(&l->p.dielectric, c->wo, wi, &t);
+        *take = l->prob * t;
+        return w;
+    }
+    return zero;
+}
+
 pt_vec3 pt_closure_straight(const pt_closure *c, int *smooth)
 {
     pt_vec3 w = pt_v3(0.0f, 0.0f, 0.0f);

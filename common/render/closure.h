@@ -157,6 +157,14 @@ pt_vec3 pt_closure_sample(const pt_closure *c, const float u[3], pt_vec3 *wi, fl
  * Zero without one (opaque, rough or thick glass). */
 pt_vec3 pt_closure_straight(const pt_closure *c, int *smooth);
 
+/* The expected weight of the closure's delta refraction through a smooth
+ * thick interface (manifold next-event estimation, render.c): what
+ * pt_closure_sample returns when it takes the refraction, times the
+ * probability that it does, which goes to *take; the refracted direction
+ * in *wi. Only for a closure of one group (no coat or sheen around the
+ * glass): zero otherwise, and without such a lobe. */
+pt_vec3 pt_closure_refracted(const pt_closure *c, pt_vec3 *wi, float *take);
+
 /* The closure's albedo for the render passes (the albedo pass, a guide for
  * the denoiser, not an energy: Cycles' denoising albedo) into *albedo: the
  * sum of its lobes' colours (a diffuse lobe's albedo, a GGX lobe's F0, the

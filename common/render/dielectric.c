@@ -387,6 +387,20 @@ pt_vec3 pt_dielectric_straight(const pt_dielectric_lobe *l, pt_vec3 wo)
     return pt_v3_scale(pt_v3_mul(l->tint, keep), l->weight);
 }
 
+pt_vec3 pt_dielectric_refracted(const pt_dielectric_lobe *l, pt_vec3 wo, pt_vec3 *wi, float *take)
+{
+    pt_vec3 zero = pt_v3(0.0f, 0.0f, 0.0f);
+    *take = 0.0f;
+    if (l->thin || l->alpha != 0.0f || l->disp || l->film[0] > 0.0f || !(wo.z > 0.0f))
+        return zero;
+    /* smooth_sample's refraction. */
+    float F = pt_fresnel_dielectric(wo.z, l->eta);
+    if (!(F < 1.0f) || !refract(wo, pt_v3(0.0f, 0.0f, 1.0f), l->eta, wi))
+        return zero;
+    *take = 1.0f - F;
+    return pt_v3_scale(l->tint, l->weight * (1.0f - F) / (l->eta * l->eta));
+}
+
 int pt_dielectric_sample(const pt_dielectric_lobe *l, pt_vec3 wo, const float u[3], float prob,
                          pt_vec3 *wi, pt_vec3 *weight, float *pdf)
 {

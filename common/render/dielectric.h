@@ -135,6 +135,14 @@ int pt_dielectric_sample(const pt_dielectric_lobe *l, pt_vec3 wo, const float u[
  * ray). Zero when the lobe is rough, not thin, dispersive or wo.z <= 0. */
 pt_vec3 pt_dielectric_straight(const pt_dielectric_lobe *l, pt_vec3 wo);
 
+/* A smooth thick interface's delta refraction (manifold.h): the refracted
+ * direction *wi and the lobe's expected weight along it, weight x tint x
+ * (1 - F(wo.z)) / eta^2 (what pt_dielectric_sample returns when it takes
+ * the refraction, times the probability 1 - F that it does, which goes to
+ * *take). Zero when the lobe is rough, thin, dispersive or filmed, or
+ * under total internal reflection. */
+pt_vec3 pt_dielectric_refracted(const pt_dielectric_lobe *l, pt_vec3 wo, pt_vec3 *wi, float *take);
+
 /* Exact Fresnel reflectance of unpolarised light at a dielectric interface,
  * cos_i >= 0 on the incident side, eta = n_transmitted / n_incident; 1 under
  * total internal reflection. */

@@ -14,6 +14,7 @@
 #include "common/render/layers.h"
 #include "common/render/light.h"
 #include "common/render/light_lanes.h"
+#include "common/render/manifold.h"
 #include "common/render/path_trace.h"
 #include "common/render/sampler.h"
 #include "common/scene/accel.h"
@@ -117,6 +118,8 @@ struct pt_renderer {
                   path rays choose their layer by one number (closest_hit) */
     /* PT_FEAT_THIN_GLASS: shadow rays cross thin smooth glass */
     int thin_glass;
+    /* PT_FEAT_MANIFOLD: manifold NEE of the environment through thick smooth glass */
+    int manifold;
     /* a light tree chooses: light_normal computes the receiver's normal */
     int light_tree;
     /* a light tree, or an environment split into a sun and the rest
@@ -148,6 +151,7 @@ void pt_render_params_default(pt_render_params *p)
     p->clamp_indirect = 0.0f;
     p->light_select = PT_LIGHT_SELECT_AUTO;
     p->opaque_thin_glass = 0;
+    p->no_manifold = 0;
 }
 
 const pt_render_params *pt_renderer_params(const pt_renderer *r)
@@ -950,7 +954,23 @@ typedef struct path {
     pixel_ctx *pc;
     struct guide_path *gp; /* FEAT_GUIDE: its guided vertices; else NULL */
     struct pass_rec *pr;   /* FEAT_PASSES: what the passes record; else NULL */
+    struct mf_path *mf;    /* PT_FEAT_MANIFOLD: its chain since a rough vertex; else NULL */
 } path;
+
+/* A path's smooth refractions since its last rough vertex x (manifold
+ * next-event estimation, mf_connect): the BSDF's strategy for light that
+ * manifold NEE at x also finds, whose MIS weight shade_miss reads. */
+#define MF_OFF 0xffffffffu
+typedef struct mf_path {
+    uint32_t k;        /* refractions since x, or MF_OFF: no chain from a rough vertex */
+    pt_vec3 x, ng, ln; /* x, its geometric normal on the path's side, its light_normal */
+    float pdf;         /* the BSDF's pdf at x for the direction the path took */
+    float take;        /* the product of the refractions' pick probabilities */
+    int32_t medium;    /* the medium at x */
+    uint32_t depth;    /* x's */
+    uint32_t chains;   /* chains manifold NEE connected on this path (the stats') */
+    pt_vec3 y[PT_MF_MAX];
+} mf_path;
 
 /* A path's render passes (FEAT_PASSES): found is set once the albedo and
  * normal were read at its first non-specular vertex. */
@@ -1061,6 +1081,7 @@ path_start(const pt_renderer *r, pixel_ctx *pc, uint32_t index, path *pa, const 
     pa->pc = pc;
     pa->gp = NULL;
     pa->pr = NULL;
+    pa->mf = NULL;
 }
 
 /* Sample clamping (FEAT_CLAMP; pt_render_params.clamp_direct and
@@ -1161,6 +1182,8 @@ static inline __attribute__((always_inline)) void shade_emission(const pt_render
                           clamp_sample(r, pa, pt_v3_mul(pa->beta, le), pa->depth <= 1, features));
 }
 
+static float mf_bsdf_weight(const pt_renderer *r, const path *pa, const uint32_t features);
+
 /* A ray of the path that left the scene: the environment's radiance along
  * it, weighed by the power heuristic against the environment's NEE pdf when
  * the path got here by sampling its BSDF (as shade_emission weighs an
@@ -1186,6 +1209,8 @@ static inline __attribute__((always_inline)) void shade_miss(const pt_renderer *
         mis = power_heuristic(pa->prev_pdf, lp);
         le = pt_v3_scale(le, mis);
     }
+    if ((features & PT_FEAT_MANIFOLD) && pa->mf && pa->mf->k != MF_OFF && pa->mf->k > 0)
+        le = pt_v3_scale(le, mf_bsdf_weight(r, pa, features));
     PT_TRACE_EVENT(PT_TRACE_ENV, pa->depth, -1, -1, 0, pa->prev_pdf, lp, mis,
                    pt_v3_mul(pa->beta, le));
     if (pa->prev_pdf == 0.0f || strategy != PT_LIGHT_NEE_ONLY)
@@ -1615,6 +1640,296 @@ static inline __attribute__((always_inline)) void shading_normals(const surface 
     *ns_out = ns;
 }
 
+static inline int thin_wall(const pt_material *m);
+
+/*
+ * Manifold next-event estimation (PT_FEAT_MANIFOLD): the environment's
+ * light through thick smooth glass (Hanika, Droske & Fascione 2015,
+ * "Manifold Next Event Estimation"; the chain's solver is manifold.h).
+ *
+ * At a rough vertex x whose light sample is the environment along wl, a ray
+ * from x along wl seeds the chain: if it meets one or two surfaces of smooth
+ * glass (mf_caster) and then nothing, Newton's method moves those points
+ * until light leaving along wl refracts through them to x. The chain is
+ * then checked as the renderer sees it: each segment's ray meets the next
+ * vertex first, the last one escapes, and each vertex's closure refracts
+ * the light from x's side exactly along the chain (pt_closure_refracted,
+ * the same float arithmetic as sampling). Its estimate is
+ *   f(w) T L(wl) J / p(wl),
+ * w the direction from x to y_1, T the refractions' expected weights (with
+ * the media's absorption), J = |d w / d wl| (pt_mf_jacobian), p the light
+ * sample's pdf: a density p / J over the directions at x.
+ *
+ * A path that samples its BSDF at x (not a delta lobe) and reaches the
+ * environment after exactly these refractions is the same light found by
+ * the other strategy, whose density is the BSDF's pdf at x times the
+ * refractions' pick probabilities. Both are weighed by the power heuristic
+ * (Veach 1997, sec. 9.2): shade_miss solves the chain from x for the
+ * direction the path left along (the deterministic seed makes that the
+ * chain manifold NEE would have found, when it finds it at all) and weighs
+ * the path by it; a path whose chain the solver does not give back is the
+ * only strategy for its light and keeps weight 1. Any such pair of weights
+ * is unbiased, whatever the solver fails to find.
+ *
+ * While seeding, the ray along wl answers the light sample's own shadow
+ * ray: nothing met, the environment is seen; glass or anything but a thin
+ * wall met, it is blocked. The scene has no alpha and nothing moves
+ * (pt_renderer_new), so that closest hit and occlusion agree.
+ */
+/* What the seed ray along wl met. */
+enum { MF_SEED_MISS, MF_SEED_BLOCKED, MF_SEED_THIN, MF_SEED_CHAIN };
+
+/* A material whose surfaces a chain may refract at: smooth thick glass,
+ * refracting (ior not 1), with no texture or layer that could make it
+ * rough, bend its normal or split its lobe. */
+static int mf_caster(const pt_material *m)
+{
+    return m->transmission > 0.0f && m->thickness > 0.0f && m->roughness == 0.0f &&
+           m->metal_rough_tex < 0 && m->normal_tex < 0 && m->metallic < 1.0f && m->ior > 0.0f &&
+           m->ior != 1.0f && !(m->dispersion > 0.0f) && !has_layers(m) &&
+           m->alpha_mode == PT_ALPHA_OPAQUE && !(m->ext & ~(uint32_t)PT_MATX_SPECULAR_TEX);
+}
+
+/* A chain vertex at hit; 0 where the chain may not refract. */
+static int mf_vert_of(const pt_renderer *r, const pt_hit *hit, pt_mf_vert *v)
+{
+    const pt_scene *s = r->scene;
+    const tri_rec *t = &r->tris[hit->tri];
+    const pt_material *m = &s->materials[t->mat & ~TRI_FLAT];
+    if (hit->inst || !mf_caster(m))
+        return 0;
+    const uint32_t *tri = &s->indices[3 * hit->tri];
+    pt_vec3 n[3] = {t->ns, t->ns, t->ns};
+    if (!(t->mat & TRI_FLAT))
+        for (int k = 0; k < 3; k++)
+            n[k] = vert(s->normals, tri[k]);
+    const pt_vec3 e1 = pt_v3_sub(t->v1, t->v0), e2 = pt_v3_sub(t->v2, t->v0);
+    const pt_vec3 *src[6] = {&t->v0, &e1, &e2, &n[0], &n[1], &n[2]};
+    double *dst[6] = {v->p0, v->e1, v->e2, v->n0, v->n1, v->n2};
+    for (int k = 0; k < 6; k++) {
+        dst[k][0] = src[k]->x;
+        dst[k][1] = src[k]->y;
+        dst[k][2] = src[k]->z;
+    }
+    v->ng[0] = t->ng.x;
+    v->ng[1] = t->ng.y;
+    v->ng[2] = t->ng.z;
+    v->ior = m->ior;
+    v->b[0] = hit->b1;
+    v->b[1] = hit->b2;
+    v->tri = hit->tri;
+    return 1;
+}
+
+static inline pt_vec3 mf_f3(const double a[3])
+{
+    return pt_v3((float)a[0], (float)a[1], (float)a[2]);
+}
+
+/* A point off a surface of geometric normal n, on the side of d. */
+static inline pt_vec3 mf_off(const pt_renderer *r, pt_vec3 p, pt_vec3 n, pt_vec3 d)
+{
+    return pt_offset_apply(r->offset, p, pt_v3_dot(n, d) < 0.0f ? pt_v3_neg(n) : n);
+}
+
+typedef struct mf_ctx {
+    const pt_renderer *r;
+    pt_vec3 ng; /* x's geometric normal */
+} mf_ctx;
+
+/* pt_mf_project_fn: the first surface along the ray, if a chain's. */
+static int mf_project(void *user, const pt_mf_vert *prev, const double from[3], const double q[3],
+                      pt_mf_vert *out)
+{
+    const mf_ctx *c = user;
+    double d[3] = {q[0] - from[0], q[1] - from[1], q[2] - from[2]};
+    pt_vec3 dir = pt_v3_norm(mf_f3(d));
+    pt_vec3 o = mf_off(c->r, mf_f3(from), prev ? mf_f3(prev->ng) : c->ng, dir);
+    pt_hit hit;
+    if (!pt_accel_intersect(c->r->accel, o, dir, INFINITY, &hit))
+        return 0;
+    return mf_vert_of(c->r, &hit, out);
+}
+
+/* A chain from x to the environment, found and checked. */
+typedef struct mf_link {
+    uint32_t k;
+    pt_vec3 y[PT_MF_MAX];
+    pt_vec3 T;  /* the refractions' expected weights and the media's transmittance */
+    float take; /* the product of the refractions' pick probabilities */
+    float jac;  /* |d w / d wl| */
+} mf_link;
+
+/* The chain from x (geometric normal ng on the side wl leaves, medium
+ * `medium` there) to the environment along wl, in *lk: MF_SEED_CHAIN when
+ * one was found and checked, else what the seed ray met (a seed that met
+ * glass but gave no chain is MF_SEED_BLOCKED). */
+static int mf_connect(const pt_renderer *r, pt_vec3 x, pt_vec3 ng, int32_t medium, pt_vec3 wl,
+                      uint32_t depth, mf_link *lk, const uint32_t features)
+{
+    const pt_scene *s = r->scene;
+    if (!(pt_v3_dot(wl, ng) > 0.0f))
+        return MF_SEED_BLOCKED;
+    pt_mf_chain c;
+    c.k = 0;
+    pt_vec3 o = pt_offset_apply(r->offset, x, ng);
+    for (;;) {
+        pt_hit hit;
+        if (!pt_accel_intersect(r->accel, o, wl, INFINITY, &hit))
+            break;
+        const pt_material *m = &s->materials[s->tri_material[hit.tri] & ~TRI_FLAT];
+        if (c.k == 0 && (features & PT_FEAT_THIN_GLASS) && r->thin_glass && thin_wall(m))
+            return MF_SEED_THIN;
+        if (c.k == PT_MF_MAX || !mf_vert_of(r, &hit, &c.v[c.k]))
+            return MF_SEED_BLOCKED;
+        const tri_rec *t = &r->tris[hit.tri];
+        pt_vec3 p = pt_v3_add(o, pt_v3_scale(wl, hit.t));
+        o = mf_off(r, p, t->ng, wl);
+        c.k++;
+    }
+    if (c.k == 0)
+        return MF_SEED_MISS;
+    /* The path through the chain's last vertex must be one that scatters
+     * (shade: depth below max_depth), as a sampled path's would. */
+    if (depth + c.k >= r->params.max_depth)
+        return MF_SEED_BLOCKED;
+    mf_ctx ctx = {r, ng};
+    double xd[3] = {x.x, x.y, x.z}, wd[3] = {wl.x, wl.y, wl.z};
+    if (!pt_mf_solve(xd, &c, wd, mf_project, &ctx))
+        return MF_SEED_BLOCKED;
+    /* The chain as the renderer sees it. */
+    pt_vec3 from = x, fng = ng, T = pt_v3(1.0f, 1.0f, 1.0f);
+    float take = 1.0f;
+    int32_t med = medium;
+    for (uint32_t i = 0; i < c.k; i++) {
+        double pd[3];
+        pt_mf_point(&c.v[i], c.v[i].b, pd);
+        pt_vec3 y = mf_f3(pd);
+        pt_vec3 d = pt_v3_norm(pt_v3_sub(y, from));
+        pt_hit hit;
+        if (!pt_accel_intersect(r->accel, mf_off(r, from, fng, d), d, INFINITY, &hit) ||
+            hit.tri != c.v[i].tri || hit.inst)
+            return MF_SEED_BLOCKED;
+        hit.b1 = (float)c.v[i].b[0];
+        hit.b2 = (float)c.v[i].b[1];
+        surface sf;
+        surface_at(r, &hit, 0.0f, &sf, features);
+        pt_vec3 wo = pt_v3_neg(d), ngs, ns;
+        int front;
+        shading_normals(&sf, wo, 1, &front, &ngs, &ns, features);
+        pt_frame fr = pt_frame_from_normal(ns);
+        pt_vec3 wo_l = pt_frame_to_local(&fr, wo);
+        pt_closure cl;
+        material_closure(r, &sf, 1, front, &fr, wo, wo_l, ngs, &cl, features);
+        pt_vec3 wi_l;
+        float tk;
+        pt_vec3 w = pt_closure_refracted(&cl, &wi_l, &tk);
+        if (!(tk > 0.0f) || !any_positive(w))
+            return MF_SEED_BLOCKED;
+        pt_vec3 wi = pt_frame_to_world(&fr, wi_l);
+        pt_vec3 next = wl;
+        if (i + 1 < c.k) {
+            double qd[3];
+            pt_mf_point(&c.v[i + 1], c.v[i + 1].b, qd);
+            next = pt_v3_norm(pt_v3_sub(mf_f3(qd), sf.p));
+        }
+        float side = pt_v3_dot(wi, ngs);
+        /* shade's test for a direction through glass, and the solver's
+         * chain within the float refraction's rounding */
+        if (side == 0.0f || (side > 0.0f) != (wi_l.z > 0.0f) || !(pt_v3_dot(wi, next) > 0.9999f))
+            return MF_SEED_BLOCKED;
+        if ((features & PT_FEAT_VOLUME) && med >= 0)
+            T = pt_v3_mul(T, medium_transmittance(s, med, pt_v3_len(pt_v3_sub(sf.p, from))));
+        med = medium_across(s, med, (uint32_t)(sf.mat - s->materials), front, 0);
+        T = pt_v3_mul(T, w);
+        take *= tk;
+        lk->y[i] = sf.p;
+        from = sf.p;
+        fng = sf.ng;
+    }
+    if (med >= 0) /* out into the environment through an absorbing volume: nothing */
+        return MF_SEED_BLOCKED;
+    pt_hit hit;
+    if (pt_accel_intersect(r->accel, mf_off(r, from, fng, wl), wl, INFINITY, &hit))
+        return MF_SEED_BLOCKED;
+    float jac = (float)pt_mf_jacobian(xd, &c, wd);
+    if (!(jac > 0.0f) || !isfinite(jac) || !any_positive(T))
+        return MF_SEED_BLOCKED;
+    lk->k = c.k;
+    lk->T = T;
+    lk->take = take;
+    lk->jac = jac;
+    return MF_SEED_CHAIN;
+}
+
+/* The power heuristic's weight of a sampled path that reached the
+ * environment after pa->mf's refractions from a rough vertex x, against
+ * manifold NEE at x (see above); 1 when manifold NEE would not find it. */
+static float mf_bsdf_weight(const pt_renderer *r, const path *pa, const uint32_t features)
+{
+    const mf_path *m = pa->mf;
+    /* Where light sampling never picks the direction (the dim part of a
+     * map whose sampling is MIS-compensated), no chain is solved. */
+    float lp = pt_lights_env_pdf(r->lights, pa->d, m->ln);
+    if (!(lp > 0.0f))
+        return 1.0f;
+    mf_link lk;
+    if (mf_connect(r, m->x, m->ng, m->medium, pa->d, m->depth, &lk, features) != MF_SEED_CHAIN ||
+        lk.k != m->k)
+        return 1.0f;
+    for (uint32_t i = 0; i < lk.k; i++) {
+        float dist = pt_v3_len(pt_v3_sub(m->y[i], m->x));
+        if (!(pt_v3_len(pt_v3_sub(lk.y[i], m->y[i])) <= 1e-3f * dist))
+            return 1.0f;
+    }
+    return power_heuristic(m->pdf * m->take, lp / lk.jac);
+}
+
+/* Manifold NEE at rough vertex sf (closure cl, frame fr, geometric normal
+ * ng on wo's side) for its light sample ls of the environment, which the
+ * seed ray along it also answers: the shadow ray shade asked for (ret's
+ * SHADE_SHADOW) is settled here unless a thin wall needs crossing. Returns
+ * ret without SHADE_SHADOW when it was settled. */
+static uint32_t mf_nee(const pt_renderer *r, path *pa, const surface *sf, const pt_light_sample *ls,
+                       pt_vec3 ng, const pt_frame *fr, const pt_closure *cl, const shadow_ray *sr,
+                       uint32_t ret, const uint32_t features)
+{
+    mf_link lk;
+    int got = mf_connect(r, sf->p, ng, pa->medium, ls->wi, pa->depth, &lk, features);
+    if (got == MF_SEED_THIN)
+        return ret;
+    if (ret & SHADE_SHADOW) {
+        /* The shadow ray's contribution, added where trace_shadow would
+         * have: after this bounce's emission, before anything else. */
+        if (got == MF_SEED_MISS) {
+            pa->L = pt_v3_add(pa->L, sr->contrib);
+            PT_TRACE_EVENT(PT_TRACE_SHADOW, pa->depth, -1, -1, 0, 0.0f, 0.0f, 0.0f, sr->contrib);
+        }
+        ret &= ~(uint32_t)SHADE_SHADOW;
+    }
+    if (got != MF_SEED_CHAIN)
+        return ret;
+    if (pa->mf)
+        pa->mf->chains++;
+    pt_vec3 w = pt_v3_norm(pt_v3_sub(lk.y[0], sf->p));
+    if (!(pt_v3_dot(w, ng) > 0.0f))
+        return ret;
+    float bpdf = 0.0f;
+    pt_vec3 f = pt_closure_eval(cl, pt_frame_to_local(fr, w), &bpdf);
+    if (!any_positive(f))
+        return ret;
+    float mis = power_heuristic(ls->pdf / lk.jac, bpdf * lk.take);
+    pt_vec3 c = pt_v3_mul(pt_v3_mul(pa->beta, pt_v3_mul(f, lk.T)),
+                          pt_v3_scale(ls->radiance, mis * lk.jac / ls->pdf));
+    /* The light arrives at sf after smooth bounces: indirect, as the
+     * sampled path that finds it counts it. */
+    c = clamp_sample(r, pa, c, 0, features);
+    PT_TRACE_EVENT(PT_TRACE_SHADOW, pa->depth, -1, PT_LIGHT_ENV, (int32_t)lk.k, ls->pdf, bpdf, mis,
+                   c);
+    pa->L = pt_v3_add(pa->L, c);
+    return ret;
+}
+
 /*
  * One bounce of a path whose ray hit `hit`, with the bounce's numbers u. NEE
  * samples an emissive triangle at every vertex; the BSDF-sampled continuation
@@ -1809,6 +2124,10 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
         }
     }
 
+    if ((features & PT_FEAT_MANIFOLD) && r->manifold && (features & PT_FEAT_GLOSSY) && ls_ok &&
+        ls->delta == PT_LIGHT_ENV && !through && ls->pdf > 0.0f && any_positive(ls->radiance))
+        ret = mf_nee(r, pa, sf, ls, ng, &fr, &cl, sr, ret, features);
+
     float u3[3];
     u3[0] = u[OFF_LIGHT_PICK + 1];
     u3[1] = u[OFF_BSDF_DIR];
@@ -1909,6 +2228,27 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
             delta ? 0.0f : ((features & FEAT_GUIDE) && guide && gprob > 0.0f ? bp_mis : pdf);
         if ((features & PT_FEAT_THIN_GLASS) && r->thin_glass)
             pa->cross = 0;
+    }
+    if ((features & PT_FEAT_MANIFOLD) && pa->mf) {
+        /* The chain manifold NEE at a rough vertex would weigh this path
+         * against (mf_bsdf_weight): it starts at a rough direction from an
+         * opaque vertex and grows by smooth refractions at chain glass. */
+        mf_path *m = pa->mf;
+        if (!delta) {
+            m->k = through ? MF_OFF : 0u;
+            m->x = sf->p;
+            m->ng = ng;
+            m->ln = pa->prev_n;
+            m->pdf = pa->prev_pdf;
+            m->take = 1.0f;
+            m->medium = pa->medium;
+            m->depth = pa->depth;
+        } else if (m->k < PT_MF_MAX && glass && wi_l.z < 0.0f && mf_caster(sf->mat)) {
+            m->y[m->k++] = sf->p;
+            m->take *= pdf;
+        } else {
+            m->k = MF_OFF;
+        }
     }
     if (features & PT_FEAT_VOLUME)
         pa->seg_p = sf->p;
@@ -2482,6 +2822,12 @@ li_impl(const pt_renderer *r, pixel_ctx *pc, uint32_t index, pt_render_stats *st
         gp.rr = 1.0f;
         pa.gp = &gp;
     }
+    mf_path mf;
+    if ((features & PT_FEAT_MANIFOLD) && r->manifold) {
+        mf.k = MF_OFF;
+        mf.chains = 0;
+        pa.mf = &mf;
+    }
     uint64_t rays = 0, capped = 0;
     for (;;) {
         /* The bounce's numbers are drawn before the ray is traced: they do
@@ -2517,6 +2863,8 @@ li_impl(const pt_renderer *r, pixel_ctx *pc, uint32_t index, pt_render_stats *st
         stats->clamped += pa.clamped;
         stats->crossings += pa.crossings;
         stats->dropped += pa.dropped;
+        if ((features & PT_FEAT_MANIFOLD) && pa.mf)
+            stats->chains += pa.mf->chains;
     }
     if (covered)
         *covered = !pa.escaped;
@@ -2753,6 +3101,7 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
 {
     guide_path gps[BATCH]; /* FEAT_GUIDE only: folded away in the other variants */
     pass_rec prs[BATCH];   /* FEAT_PASSES only */
+    mf_path mfs[BATCH];    /* PT_FEAT_MANIFOLD only */
     pt_render_stats local = {0};
     uint32_t tw = tile.x1 - tile.x0, npix = tw * (tile.y1 - tile.y0);
     uint32_t span = s1 > s0 ? s1 - s0 : 1;
@@ -2793,6 +3142,11 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
                         memset(&prs[g * nb + i], 0, sizeof prs[0]);
                         pa->pr = &prs[g * nb + i];
                     }
+                    if ((features & PT_FEAT_MANIFOLD) && r->manifold) {
+                        mfs[g * nb + i].k = MF_OFF;
+                        mfs[g * nb + i].chains = 0;
+                        pa->mf = &mfs[g * nb + i];
+                    }
                 }
             local.rays += trace_batch(r, paths, np * nb, sl, features, sink, &local.capped);
             if ((features & FEAT_GUIDE) && gd) {
@@ -2823,6 +3177,8 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
                         local.crossings += pa->crossings;
                         local.dropped += pa->dropped;
                     }
+                    if ((features & PT_FEAT_MANIFOLD) && pa->mf)
+                        local.chains += pa->mf->chains;
                 }
                 pt_pixel_acc_add_block(&out[p0 + g], &blk);
                 if ((features & FEAT_PASSES) && pout)
@@ -2840,6 +3196,7 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
         stats->clamped += local.clamped;
         stats->crossings += local.crossings;
         stats->dropped += local.dropped;
+        stats->chains += local.chains;
     }
 }
 
@@ -2870,7 +3227,8 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
 /* Lights besides emissive triangles: only the general variant has their code. */
 #define OTHER_LIGHTS (uint32_t)(PT_FEAT_PUNCTUAL | PT_FEAT_ENV)
 /* Glass and media: likewise only in the general variant. */
-#define GLASS (uint32_t)(PT_FEAT_TRANSMISSION | PT_FEAT_VOLUME | PT_FEAT_THIN_GLASS)
+#define GLASS                                                                                      \
+    (uint32_t)(PT_FEAT_TRANSMISSION | PT_FEAT_VOLUME | PT_FEAT_THIN_GLASS | PT_FEAT_MANIFOLD)
 /* The material features beyond the core's (normal maps, vertex colours). */
 #define SURFACE_EXTRAS (uint32_t)(PT_FEAT_NORMAL_MAP | PT_FEAT_VERTEX_COLOR)
 /* The glTF material extensions past the core's: unlit, specular-glossiness,
@@ -3007,6 +3365,16 @@ static int scene_thin_glass(const pt_scene *s)
     return 0;
 }
 
+/* 1 when some material is glass a manifold chain may refract at
+ * (mf_caster): PT_FEAT_MANIFOLD. */
+static int scene_manifold(const pt_scene *s)
+{
+    for (uint32_t i = 0; i < s->num_materials; i++)
+        if (mf_caster(&s->materials[i]))
+            return 1;
+    return 0;
+}
+
 pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params, pt_renderer **out,
                           pt_error *err)
 {
@@ -3091,6 +3459,12 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
     r->thin_glass = !params->opaque_thin_glass && r->nee && scene_thin_glass(scene);
     if (r->thin_glass)
         features |= PT_FEAT_THIN_GLASS;
+    features &= ~(uint32_t)PT_FEAT_MANIFOLD;
+    r->manifold = !params->no_manifold && params->env && r->nee &&
+                  params->light_strategy == PT_LIGHT_MIS && (features & PT_FEAT_GLOSSY) &&
+                  !(features & (PT_FEAT_ALPHA | PT_FEAT_MOTION)) && scene_manifold(scene);
+    if (r->manifold)
+        features |= PT_FEAT_MANIFOLD;
     /* Guiding samples glossy closures only (closure_guidable): a
      * Lambert-only scene keeps its variant. */
     if (params->guiding && (features & PT_FEAT_GLOSSY))

@@ -243,6 +243,10 @@ typedef struct pt_render_params {
      * PT_FEAT_THIN_GLASS (BSDF sampling alone finds light through it); for
      * tests and benchmarks; default 0 */
     uint32_t opaque_thin_glass;
+    /* 1: no manifold next-event estimation through thick smooth glass
+     * (PT_FEAT_MANIFOLD; BSDF sampling alone finds the environment's light
+     * through it, as before); for tests and benchmarks; default 0 */
+    uint32_t no_manifold;
 } pt_render_params;
 
 /* The most thin smooth walls (PT_FEAT_THIN_GLASS) a shadow ray crosses; one
@@ -262,6 +266,9 @@ typedef struct pt_render_stats {
      * shadow rays blocked for meeting more than they may cross. */
     uint64_t crossings;
     uint64_t dropped;
+    /* Chains of refractions through thick smooth glass that manifold NEE
+     * connected to the environment (PT_FEAT_MANIFOLD). */
+    uint64_t chains;
 } pt_render_stats;
 
 typedef struct pt_renderer pt_renderer;

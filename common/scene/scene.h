@@ -94,6 +94,12 @@ enum { PT_FEAT_INSTANCES = 1u << 23 };
  * transmittance (common/render/render.c, trace_shadow). Set by the renderer
  * (pt_renderer_new), not the file: a render may turn it off. */
 enum { PT_FEAT_THIN_GLASS = 1u << 24 };
+/* Manifold next-event estimation: light of the environment reaches rough
+ * surfaces through smooth thick glass by chains of refractions solved for
+ * (common/render/manifold.h). Set by the renderer (pt_renderer_new), not
+ * the file: the scene has such glass, an environment and nothing that
+ * moves or is cut out by alpha. */
+enum { PT_FEAT_MANIFOLD = 1u << 25 };
 
 /* pt_material.ext: what the BSDF of a material reads past the core
  * metallic-roughness inputs, set by the builder from the material's fields,
