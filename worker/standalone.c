@@ -424,6 +424,7 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
         st.clamped += tstats[i].clamped;
         st.crossings += tstats[i].crossings;
         st.dropped += tstats[i].dropped;
+        st.chains += tstats[i].chains;
     }
     pt_exr_meta meta = {0};
     if (o->passes & PT_PASS_CRYPTOMATTE) {
@@ -502,6 +503,11 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
                 "average\n",
                 atomic_load(&j.tiles_stopped), nt,
                 (double)st.samples / ((double)p.width * p.height));
+    if (st.chains > 0)
+        fprintf(stderr,
+                "ptworker: %llu light paths through thick glass connected to the "
+                "environment (manifold NEE)\n",
+                (unsigned long long)st.chains);
     if (p.clamp_direct > 0.0f || p.clamp_indirect > 0.0f)
         fprintf(stderr,
                 "ptworker: %llu contributions clamped (--clamp-direct %g, --clamp-indirect "

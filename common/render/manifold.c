@@ -7,14 +7,18 @@
 #include <string.h>
 
 #define MF_N (2u * PT_MF_MAX) /* unknowns at most */
-/* Central differences' step in barycentrics and in radians: the
- * constraint is smooth at that scale, and its rounding (1e-16) over the
- * step stays far below PT_MF_TOL. */
-#define MF_DB 1e-6
-#define MF_DW 1e-6
 /* A step moves a vertex by at most this share of its distance to the
  * previous one (the extrapolated plane is only a guess far away). */
 #define MF_STEP_MAX 0.5
+/* A solve still this far from the root (the constraint's largest part, a
+ * sine) after this many steps gives up: on the glass ball with things
+ * inside (scenes/glass_things.gltf) the chains that converge are below
+ * 0.25 there, those that do not (no chain from x reaches wl) wander at 0.5
+ * to 0.9 until the last step. */
+#define MF_BAIL_ITER 5
+#define MF_BAIL_RES 0.4
+/* Halvings of a step that leaves the glass before the solve gives up. */
+#define MF_HALVINGS 4
 
 static inline double dot3(const double a[3], const double b[3])
 {
@@ -66,94 +70,145 @@ static void tangents(const double n[3], double t1[3], double t2[3])
     t2[2] = -n[1];
 }
 
-/* The constraint at vertex i with the barycentrics bs[] of all vertices. */
-static void constraint_at(const double x[3], const pt_mf_chain *c, const double bs[][2],
-                          const double wl[3], uint32_t i, double out[2])
+/* v - w (w . v): v's part perpendicular to unit w. */
+static inline void perp3(const double w[3], const double v[3], double out[3])
+{
+    double d = dot3(w, v);
+    for (int j = 0; j < 3; j++)
+        out[j] = v[j] - d * w[j];
+}
+
+/* The constraint at vertex i of c, into C[0..1], and where G is given its
+ * derivatives by the barycentrics: G[r][0..1] by those of vertex i - 1,
+ * [2..3] by vertex i's, [4..5] by vertex i + 1's (zero where there is no
+ * such vertex); where K is given (the last vertex), by wl turned along its
+ * unit tangents s[0], s[1]. The chain rule through the unit vectors
+ * (d(v / |v|) = (I - u u^T) dv / |v|): w_a, w_b, h, the interpolated
+ * normal n and the frame's tangent t1 = (e1 - n (n . e1)) / |...|, taken
+ * from the triangle's first edge so that it is smooth in b, t2 = n x t1.
+ * 0 where the vertex is degenerate (a zero h, normal or tangent). */
+static int vertex_eval(const double x[3], const pt_mf_chain *c, const double wl[3], uint32_t i,
+                       double C[2], double G[2][6], const double s[2][3], double K[2][2])
 {
     const pt_mf_vert *v = &c->v[i];
-    double p[3], prev[3], wa[3], wb[3], n[3];
-    pt_mf_point(v, bs[i], p);
+    const int last = i + 1 == c->k;
+    double p[3], prev[3], wa[3], wb[3], h[3], n[3], t1[3], t2[3];
+    pt_mf_point(v, v->b, p);
     if (i == 0)
         memcpy(prev, x, sizeof prev);
     else
-        pt_mf_point(&c->v[i - 1], bs[i - 1], prev);
+        pt_mf_point(&c->v[i - 1], c->v[i - 1].b, prev);
     for (int j = 0; j < 3; j++)
         wa[j] = prev[j] - p[j];
-    if (i + 1 < c->k) {
+    double la = norm3(wa), lb = 1.0;
+    if (!last) {
         double next[3];
-        pt_mf_point(&c->v[i + 1], bs[i + 1], next);
+        pt_mf_point(&c->v[i + 1], c->v[i + 1].b, next);
         for (int j = 0; j < 3; j++)
             wb[j] = next[j] - p[j];
+        lb = norm3(wb);
     } else {
         memcpy(wb, wl, sizeof wb);
     }
-    norm3(wa);
-    norm3(wb);
     double ea = dot3(wa, v->ng) > 0.0 ? 1.0 : v->ior;
     double eb = dot3(wb, v->ng) > 0.0 ? 1.0 : v->ior;
-    double h[3];
     for (int j = 0; j < 3; j++)
         h[j] = ea * wa[j] + eb * wb[j];
-    if (!(norm3(h) > 0.0) || !pt_mf_normal(v, bs[i], n)) {
-        out[0] = out[1] = 1.0;
-        return;
-    }
-    /* The tangents of the normal's frame, made smooth in b by taking them
-     * from the triangle's first edge rather than the normal's signs. */
-    double t1[3], t2[3];
-    memcpy(t1, v->e1, sizeof t1);
-    double en = dot3(t1, n);
+    double lh = norm3(h), b0 = 1.0 - v->b[0] - v->b[1];
     for (int j = 0; j < 3; j++)
-        t1[j] -= en * n[j];
-    if (!(norm3(t1) > 0.0))
-        tangents(n, t1, t2);
-    else
-        cross3(n, t1, t2);
-    out[0] = dot3(h, t1);
-    out[1] = dot3(h, t2);
+        n[j] = b0 * v->n0[j] + v->b[0] * v->n1[j] + v->b[1] * v->n2[j];
+    double ln = norm3(n), ne = dot3(n, v->e1);
+    for (int j = 0; j < 3; j++)
+        t1[j] = v->e1[j] - ne * n[j];
+    double lt = norm3(t1);
+    if (!(la > 0.0 && lb > 0.0 && lh > 0.0 && ln > 0.0 && lt > 1e-12))
+        return 0;
+    cross3(n, t1, t2);
+    C[0] = dot3(h, t1);
+    C[1] = dot3(h, t2);
+    for (int q = 0; G && q < 6; q++) {
+        int who = (int)i + q / 2 - 1;
+        G[0][q] = G[1][q] = 0.0;
+        if (who < 0 || who >= (int)c->k)
+            continue;
+        const pt_mf_vert *u = &c->v[who];
+        const double *e = q % 2 == 0 ? u->e1 : u->e2;
+        double dprev[3] = {0, 0, 0}, dp[3] = {0, 0, 0}, dnext[3] = {0, 0, 0}, dnt[3] = {0, 0, 0};
+        if (who + 1 == (int)i) {
+            memcpy(dprev, e, sizeof dprev);
+        } else if (who == (int)i) {
+            memcpy(dp, e, sizeof dp);
+            for (int j = 0; j < 3; j++)
+                dnt[j] = (q % 2 == 0 ? v->n1[j] : v->n2[j]) - v->n0[j];
+        } else {
+            memcpy(dnext, e, sizeof dnext);
+        }
+        double d[3], dwa[3], dwb[3] = {0, 0, 0}, dh[3], dn[3], dt1[3], dt2[3], tmp[3];
+        for (int j = 0; j < 3; j++)
+            d[j] = (dprev[j] - dp[j]) / la;
+        perp3(wa, d, dwa);
+        if (!last) {
+            for (int j = 0; j < 3; j++)
+                d[j] = (dnext[j] - dp[j]) / lb;
+            perp3(wb, d, dwb);
+        }
+        for (int j = 0; j < 3; j++)
+            d[j] = (ea * dwa[j] + eb * dwb[j]) / lh;
+        perp3(h, d, dh);
+        for (int j = 0; j < 3; j++)
+            d[j] = dnt[j] / ln;
+        perp3(n, d, dn);
+        double dne = dot3(dn, v->e1);
+        for (int j = 0; j < 3; j++)
+            d[j] = (-dn[j] * ne - n[j] * dne) / lt;
+        perp3(t1, d, dt1);
+        cross3(dn, t1, dt2);
+        cross3(n, dt1, tmp);
+        for (int j = 0; j < 3; j++)
+            dt2[j] += tmp[j];
+        G[0][q] = dot3(dh, t1) + dot3(h, dt1);
+        G[1][q] = dot3(dh, t2) + dot3(h, dt2);
+    }
+    for (int q = 0; K && last && q < 2; q++) {
+        /* wl turned by theta along s[q]: d wl = s[q] (perpendicular to wl) */
+        double d[3], dh[3];
+        for (int j = 0; j < 3; j++)
+            d[j] = eb * s[q][j] / lh;
+        perp3(h, d, dh);
+        K[0][q] = dot3(dh, t1);
+        K[1][q] = dot3(dh, t2);
+    }
+    return 1;
 }
 
-static void constraint_b(const double x[3], const pt_mf_chain *c, const double bs[][2],
-                         const double wl[3], double C[])
-{
-    for (uint32_t i = 0; i < c->k; i++)
-        constraint_at(x, c, bs, wl, i, &C[2 * i]);
-}
-
-void pt_mf_constraint(const double x[3], const pt_mf_chain *c, const double wl[3], double C[])
-{
-    double bs[PT_MF_MAX][2];
-    for (uint32_t i = 0; i < c->k; i++)
-        memcpy(bs[i], c->v[i].b, sizeof bs[i]);
-    constraint_b(x, c, bs, wl, C);
-}
-
-/* dC/db: J[r * n + col], n = 2k, by central differences (central) or
- * forward ones from C0, the constraint at c (Newton's steps: a rougher
- * Jacobian only slows their convergence near the root, which the
- * tolerance still decides; the chain's own Jacobian takes central ones). */
-static void jacobian_b(const double x[3], const pt_mf_chain *c, const double wl[3], int central,
-                       const double *C0, double *J)
+/* The constraint C (2k values) and, where J is given, dC/db (J[r * n +
+ * col], n = 2k), and where K is, dC/dtheta for wl's tangents s (K[r * 2 +
+ * q]). 0 where a vertex is degenerate. */
+static int chain_eval(const double x[3], const pt_mf_chain *c, const double wl[3], double *C,
+                      double *J, const double s[2][3], double *K)
 {
     uint32_t n = 2u * c->k;
-    double bs[PT_MF_MAX][2];
-    for (uint32_t i = 0; i < c->k; i++)
-        memcpy(bs[i], c->v[i].b, sizeof bs[i]);
-    for (uint32_t col = 0; col < n; col++) {
-        double cp[MF_N], cm[MF_N];
-        double keep = bs[col / 2][col % 2];
-        bs[col / 2][col % 2] = keep + MF_DB;
-        constraint_b(x, c, bs, wl, cp);
-        if (central) {
-            bs[col / 2][col % 2] = keep - MF_DB;
-            constraint_b(x, c, bs, wl, cm);
-        } else {
-            memcpy(cm, C0, n * sizeof *cm);
-        }
-        bs[col / 2][col % 2] = keep;
-        for (uint32_t r = 0; r < n; r++)
-            J[r * n + col] = (cp[r] - cm[r]) / ((central ? 2.0 : 1.0) * MF_DB);
+    if (J)
+        memset(J, 0, (size_t)n * n * sizeof *J);
+    if (K)
+        memset(K, 0, (size_t)n * 2 * sizeof *K);
+    for (uint32_t i = 0; i < c->k; i++) {
+        double G[2][6], Kv[2][2];
+        if (!vertex_eval(x, c, wl, i, &C[2 * i], J ? G : NULL, s, K ? Kv : NULL))
+            return 0;
+        for (uint32_t r = 0; J && r < 2; r++)
+            for (int q = 0; q < 6; q++) {
+                int col = 2 * ((int)i + q / 2 - 1) + q % 2;
+                if (col >= 0 && col < (int)n)
+                    J[(2 * i + r) * n + (uint32_t)col] = G[r][q];
+            }
+        if (K && i + 1 == c->k)
+            for (uint32_t r = 0; r < 2; r++) {
+                K[(2 * i + r) * 2] = Kv[r][0];
+                K[(2 * i + r) * 2 + 1] = Kv[r][1];
+            }
     }
+    return 1;
 }
 
 /* Solves A X = B in place (A n x n, B n x m, row-major) by Gaussian
@@ -210,6 +265,37 @@ static inline int inside(const double b[2])
     return b[0] >= 0.0 && b[1] >= 0.0 && b[0] + b[1] <= 1.0;
 }
 
+/* c's vertices moved by scale x the step D (in barycentrics): 1, or 0
+ * when a point could not be put back on the glass, -1 on a NaN. */
+static int apply_step(const double x[3], pt_mf_chain *c, const double *D, double scale,
+                      pt_mf_project_fn project, void *user)
+{
+    for (uint32_t i = 0; i < c->k; i++) {
+        pt_mf_vert *v = &c->v[i];
+        double nb[2] = {v->b[0] + scale * D[2 * i], v->b[1] + scale * D[2 * i + 1]};
+        if (!(isfinite(nb[0]) && isfinite(nb[1])))
+            return -1;
+        if (inside(nb)) {
+            v->b[0] = nb[0];
+            v->b[1] = nb[1];
+            continue;
+        }
+        /* Off its triangle: back onto the glass, along the ray from the
+         * vertex before it through the point on the plane. */
+        double q[3], prev[3];
+        pt_mf_point(v, nb, q);
+        if (i == 0)
+            memcpy(prev, x, sizeof prev);
+        else
+            pt_mf_point(&c->v[i - 1], c->v[i - 1].b, prev);
+        pt_mf_vert moved;
+        if (!project(user, i == 0 ? NULL : &c->v[i - 1], prev, q, &moved))
+            return 0;
+        *v = moved;
+    }
+    return 1;
+}
+
 int pt_mf_solve(const double x[3], pt_mf_chain *c, const double wl[3], pt_mf_project_fn project,
                 void *user)
 {
@@ -218,10 +304,13 @@ int pt_mf_solve(const double x[3], pt_mf_chain *c, const double wl[3], pt_mf_pro
     uint32_t n = 2u * c->k;
     for (int it = 0; it < PT_MF_ITERS; it++) {
         double C[MF_N] = {0}, J[MF_N * MF_N];
-        pt_mf_constraint(x, c, wl, C);
-        if (!(max_abs(C, n) >= PT_MF_TOL))
-            return max_abs(C, n) < PT_MF_TOL; /* converged (NaN: not) */
-        jacobian_b(x, c, wl, 0, C, J);
+        if (!chain_eval(x, c, wl, C, J, NULL, NULL))
+            return 0;
+        double res = max_abs(C, n);
+        if (!(res >= PT_MF_TOL))
+            return res < PT_MF_TOL; /* converged (NaN: not) */
+        if (it == MF_BAIL_ITER && res > MF_BAIL_RES)
+            return 0;
         for (uint32_t i = 0; i < n; i++)
             C[i] = -C[i];
         if (!solve_linear(J, C, n, 1))
@@ -245,29 +334,19 @@ int pt_mf_solve(const double x[3], pt_mf_chain *c, const double wl[3], pt_mf_pro
             if (moved > reach)
                 scale = fmin(scale, reach / moved);
         }
-        for (uint32_t i = 0; i < c->k; i++) {
-            pt_mf_vert *v = &c->v[i];
-            double nb[2] = {v->b[0] + scale * C[2 * i], v->b[1] + scale * C[2 * i + 1]};
-            if (!(isfinite(nb[0]) && isfinite(nb[1])))
+        /* A step whose point leaves the glass's outline (the ray back onto
+         * it misses) is halved, up to MF_HALVINGS times. */
+        int done = 0;
+        for (int h = 0; h <= MF_HALVINGS && !done; h++, scale *= 0.5) {
+            pt_mf_chain next = *c;
+            done = apply_step(x, &next, C, scale, project, user);
+            if (done < 0)
                 return 0;
-            if (inside(nb)) {
-                v->b[0] = nb[0];
-                v->b[1] = nb[1];
-                continue;
-            }
-            /* Off its triangle: back onto the glass, along the ray from
-             * the vertex before it through the point on the plane. */
-            double q[3], prev[3];
-            pt_mf_point(v, nb, q);
-            if (i == 0)
-                memcpy(prev, x, sizeof prev);
-            else
-                pt_mf_point(&c->v[i - 1], c->v[i - 1].b, prev);
-            pt_mf_vert moved;
-            if (!project(user, i == 0 ? NULL : &c->v[i - 1], prev, q, &moved))
-                return 0;
-            *v = moved;
+            if (done)
+                *c = next;
         }
+        if (!done)
+            return 0;
     }
     return 0;
 }
@@ -277,25 +356,14 @@ double pt_mf_jacobian(const double x[3], const pt_mf_chain *c, const double wl[3
     if (c->k == 0 || c->k > PT_MF_MAX)
         return 0.0;
     uint32_t n = 2u * c->k;
-    double J[MF_N * MF_N], K[MF_N * 2];
-    jacobian_b(x, c, wl, 1, NULL, J);
+    double J[MF_N * MF_N], K[MF_N * 2], C[MF_N];
     /* dC/dtheta: wl turned by theta along its two tangents. */
-    double s1[3], s2[3];
-    tangents(wl, s1, s2);
-    const double *s[2] = {s1, s2};
-    for (int col = 0; col < 2; col++) {
-        double wp[3], wm[3], cp[MF_N], cm[MF_N];
-        for (int j = 0; j < 3; j++) {
-            wp[j] = wl[j] + MF_DW * s[col][j];
-            wm[j] = wl[j] - MF_DW * s[col][j];
-        }
-        norm3(wp);
-        norm3(wm);
-        pt_mf_constraint(x, c, wp, cp);
-        pt_mf_constraint(x, c, wm, cm);
-        for (uint32_t r = 0; r < n; r++)
-            K[r * 2 + col] = -(cp[r] - cm[r]) / (2.0 * MF_DW);
-    }
+    double s[2][3];
+    tangents(wl, s[0], s[1]);
+    if (!chain_eval(x, c, wl, C, J, (const double(*)[3])s, K))
+        return 0.0;
+    for (uint32_t i = 0; i < 2 * n; i++)
+        K[i] = -K[i];
     /* db/dtheta = -J^-1 dC/dtheta (K holds its negation). */
     if (!solve_linear(J, K, n, 2))
         return 0.0;

@@ -1676,6 +1676,9 @@ static inline int thin_wall(const pt_material *m);
  * wall met, it is blocked. The scene has no alpha and nothing moves
  * (pt_renderer_new), so that closest hit and occlusion agree.
  */
+/* Things inside the glass (not glass) the seed ray passes, at most, on its
+ * way to the glass's far side: the refracted chain may go round them. */
+#define MF_SEED_PASS 4u
 /* What the seed ray along wl met. */
 enum { MF_SEED_MISS, MF_SEED_BLOCKED, MF_SEED_THIN, MF_SEED_CHAIN };
 
@@ -1745,10 +1748,20 @@ static int mf_project(void *user, const pt_mf_vert *prev, const double from[3], 
     double d[3] = {q[0] - from[0], q[1] - from[1], q[2] - from[2]};
     pt_vec3 dir = pt_v3_norm(mf_f3(d));
     pt_vec3 o = mf_off(c->r, mf_f3(from), prev ? mf_f3(prev->ng) : c->ng, dir);
-    pt_hit hit;
-    if (!pt_accel_intersect(c->r->accel, o, dir, INFINITY, &hit))
-        return 0;
-    return mf_vert_of(c->r, &hit, out);
+    /* Through what is not glass (a step's guess may pass behind a thing
+     * inside the glass; the chain found is checked for that at the end). */
+    for (uint32_t passed = 0; passed <= MF_SEED_PASS; passed++) {
+        pt_hit hit;
+        if (!pt_accel_intersect(c->r->accel, o, dir, INFINITY, &hit))
+            return 0;
+        if (mf_vert_of(c->r, &hit, out))
+            return 1;
+        const pt_scene *s = c->r->scene;
+        if (mf_caster(&s->materials[s->tri_material[hit.tri]]))
+            return 0;
+        o = mf_off(c->r, pt_v3_add(o, pt_v3_scale(dir, hit.t)), c->r->tris[hit.tri].ng, dir);
+    }
+    return 0;
 }
 
 /* A chain from x to the environment, found and checked. */
@@ -1772,6 +1785,7 @@ static int mf_connect(const pt_renderer *r, pt_vec3 x, pt_vec3 ng, int32_t mediu
         return MF_SEED_BLOCKED;
     pt_mf_chain c;
     c.k = 0;
+    uint32_t passed = 0;
     pt_vec3 o = pt_offset_apply(r->offset, x, ng);
     for (;;) {
         pt_hit hit;
@@ -1780,12 +1794,13 @@ static int mf_connect(const pt_renderer *r, pt_vec3 x, pt_vec3 ng, int32_t mediu
         const pt_material *m = &s->materials[s->tri_material[hit.tri] & ~TRI_FLAT];
         if (c.k == 0 && (features & PT_FEAT_THIN_GLASS) && r->thin_glass && thin_wall(m))
             return MF_SEED_THIN;
-        if (c.k == PT_MF_MAX || !mf_vert_of(r, &hit, &c.v[c.k]))
+        if (c.k < PT_MF_MAX && mf_vert_of(r, &hit, &c.v[c.k]))
+            c.k++;
+        else if (c.k == 0 || mf_caster(m) || ++passed > MF_SEED_PASS)
             return MF_SEED_BLOCKED;
         const tri_rec *t = &r->tris[hit.tri];
         pt_vec3 p = pt_v3_add(o, pt_v3_scale(wl, hit.t));
         o = mf_off(r, p, t->ng, wl);
-        c.k++;
     }
     if (c.k == 0)
         return MF_SEED_MISS;
