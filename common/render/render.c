@@ -1764,6 +1764,33 @@ static int mf_project(void *user, const pt_mf_vert *prev, const double from[3], 
     return 0;
 }
 
+/* The second seed of a chain through two interfaces (c's first vertex
+ * kept): the ray along wl refracted into the glass there, to where it
+ * leaves. */
+static int mf_seed_bent(const mf_ctx *ctx, pt_vec3 wl, pt_mf_chain *c)
+{
+    double p[3], n[3], d[3] = {wl.x, wl.y, wl.z};
+    pt_mf_point(&c->v[0], c->v[0].b, p);
+    if (!pt_mf_normal(&c->v[0], c->v[0].b, n))
+        return 0;
+    /* Into the glass: the ray meets the front (against ng) from air. */
+    double ng_d = c->v[0].ng[0] * d[0] + c->v[0].ng[1] * d[1] + c->v[0].ng[2] * d[2];
+    double eta = ng_d < 0.0 ? 1.0 / c->v[0].ior : c->v[0].ior;
+    double ci = -(n[0] * d[0] + n[1] * d[1] + n[2] * d[2]);
+    if (ci < 0.0) {
+        for (int j = 0; j < 3; j++)
+            n[j] = -n[j];
+        ci = -ci;
+    }
+    double k = 1.0 - eta * eta * (1.0 - ci * ci);
+    if (!(k > 0.0))
+        return 0;
+    double q[3];
+    for (int j = 0; j < 3; j++)
+        q[j] = p[j] + eta * d[j] + (eta * ci - sqrt(k)) * n[j];
+    return mf_project((void *)ctx, &c->v[0], p, q, &c->v[1]);
+}
+
 /* A chain from x to the environment, found and checked. */
 typedef struct mf_link {
     uint32_t k;
@@ -1810,8 +1837,12 @@ static int mf_connect(const pt_renderer *r, pt_vec3 x, pt_vec3 ng, int32_t mediu
         return MF_SEED_BLOCKED;
     mf_ctx ctx = {r, ng};
     double xd[3] = {x.x, x.y, x.z}, wd[3] = {wl.x, wl.y, wl.z};
-    if (!pt_mf_solve(xd, &c, wd, mf_project, &ctx))
-        return MF_SEED_BLOCKED;
+    pt_mf_chain seed = c;
+    if (!pt_mf_solve(xd, &c, wd, mf_project, &ctx)) {
+        c = seed;
+        if (c.k != 2 || !mf_seed_bent(&ctx, wl, &c) || !pt_mf_solve(xd, &c, wd, mf_project, &ctx))
+            return MF_SEED_BLOCKED;
+    }
     /* The chain as the renderer sees it. */
     pt_vec3 from = x, fng = ng, T = pt_v3(1.0f, 1.0f, 1.0f);
     float take = 1.0f;
