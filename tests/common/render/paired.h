@@ -17,6 +17,15 @@
  * extension it is there for). A missing file fails under CI=true and is
  * skipped elsewhere; either way, and when it does not load, NULL.
  *
+ * paired_blocks_z renders side x side pixels of spp samples with renderers a
+ * and b (the same scene, parameters and seed but for the estimator under
+ * test), sample by sample, and counts the blocks (bs x bs pixels) x
+ * channels where the paired differences' mean is more than z_crit(1e-3,
+ * blocks x 3) standard errors from 0 (blocks.h: Bonferroni), the error
+ * from the differences' own spread; it prints the blocks that differ under
+ * name, and fills the largest |z|, the images' mean green, the samples
+ * that were not finite and each renderer's stats.
+ *
  * render_smoke renders a loaded sample asset at 32 x 32, 8 spp, under a
  * uniform grey sky, and CHECKs that every sample was accepted (no NaN or
  * Inf): the asset's new material through the whole integrator.
@@ -33,6 +42,7 @@
 #include "common/render/env.h"
 #include "common/render/render.h"
 #include "tests/check.h"
+#include "tests/common/render/blocks.h"
 
 typedef struct asset_warn {
     const char *word;
@@ -135,6 +145,63 @@ static inline int paired_differing(const pt_scene *a, const pt_scene *b, const p
     pt_renderer_free(ra);
     pt_renderer_free(rb);
     return count;
+}
+
+typedef struct paired_result {
+    uint32_t bad, tests;   /* block channels past the bound, of */
+    double z_bound, z_max; /* the bound, the largest |z| */
+    double mean_a, mean_b; /* green, over the image */
+    uint64_t nonfinite;
+    pt_render_stats sa, sb;
+} paired_result;
+
+static inline paired_result paired_blocks_z(const char *name, pt_renderer *a, pt_renderer *b,
+                                            uint32_t side, uint32_t bs, uint32_t spp)
+{
+    paired_result pr;
+    memset(&pr, 0, sizeof pr);
+    const uint32_t nb = side / bs;
+    pr.tests = 3 * nb * nb;
+    pr.z_bound = z_crit(0.001, (int)pr.tests);
+    for (uint32_t by = 0; by < nb; by++)
+        for (uint32_t bx = 0; bx < nb; bx++) {
+            double sum[3] = {0, 0, 0}, sq[3] = {0, 0, 0};
+            uint64_t n = 0;
+            for (uint32_t y = by * bs; y < (by + 1) * bs; y++)
+                for (uint32_t x = bx * bs; x < (bx + 1) * bs; x++)
+                    for (uint32_t i = 0; i < spp; i++) {
+                        pt_vec3 va = pt_render_sample(a, x, y, i, &pr.sa, NULL);
+                        pt_vec3 vb = pt_render_sample(b, x, y, i, &pr.sb, NULL);
+                        if (!pt_isfinite3(va) || !pt_isfinite3(vb)) {
+                            pr.nonfinite++;
+                            continue;
+                        }
+                        const double d[3] = {va.x - vb.x, va.y - vb.y, va.z - vb.z};
+                        for (int c = 0; c < 3; c++) {
+                            sum[c] += d[c];
+                            sq[c] += d[c] * d[c];
+                        }
+                        pr.mean_a += va.y;
+                        pr.mean_b += vb.y;
+                        n++;
+                    }
+            for (int c = 0; c < 3; c++) {
+                double m = sum[c] / (double)n;
+                double se = sqrt(fmax(sq[c] / (double)n - m * m, 0.0) / ((double)n - 1.0));
+                if (!(se > 0.0))
+                    continue; /* no difference at all */
+                double z = fabs(m) / se;
+                pr.z_max = fmax(pr.z_max, z);
+                if (z > pr.z_bound) {
+                    pr.bad++;
+                    printf("%s: block %u,%u channel %d differs by %.5f +- %.5f\n", name, bx, by, c,
+                           m, se);
+                }
+            }
+        }
+    pr.mean_a /= (double)side * side * spp;
+    pr.mean_b /= (double)side * side * spp;
+    return pr;
 }
 
 #endif

@@ -133,6 +133,16 @@ static int project(void *user, const pt_mf_vert *prev, const double from[3], con
     return 1;
 }
 
+/* The unit direction from x to the chain's first vertex. */
+static void first_dir(const double x[3], const pt_mf_chain *c, double w[3])
+{
+    double y[3];
+    pt_mf_point(&c->v[0], c->v[0].b, y);
+    for (int j = 0; j < 3; j++)
+        w[j] = y[j] - x[j];
+    unit3(w);
+}
+
 /* Seeds the chain by the straight line from x along wl and solves it. */
 static int solve(const scene2 *sc, uint32_t k, const double x[3], const double wl[3],
                  pt_mf_chain *c)
@@ -178,11 +188,8 @@ static void snell(void)
             continue;
         }
         solved++;
-        double y[3], w[3];
-        pt_mf_point(&c.v[0], c.v[0].b, y);
-        for (int j = 0; j < 3; j++)
-            w[j] = y[j] - x[j];
-        unit3(w);
+        double w[3];
+        first_dir(x, &c, w);
         /* Snell: the tangential parts, eta w_t = wl_t. */
         worst_s = fmax(worst_s, fabs(ETA * w[0] - wl[0]) + fabs(ETA * w[1] - wl[1]));
         double jac = pt_mf_jacobian(x, &c, wl), want = wl[2] / (ETA * ETA * w[2]);
@@ -213,11 +220,8 @@ static void slab(void)
         if (!solve(&sc, 2, x, wl, &c))
             continue;
         solved++;
-        double y[3], w[3];
-        pt_mf_point(&c.v[0], c.v[0].b, y);
-        for (int j = 0; j < 3; j++)
-            w[j] = y[j] - x[j];
-        unit3(w);
+        double w[3];
+        first_dir(x, &c, w);
         worst_d = fmax(worst_d, fabs(w[0] - wl[0]) + fabs(w[1] - wl[1]) + fabs(w[2] - wl[2]));
         worst_j = fmax(worst_j, fabs(pt_mf_jacobian(x, &c, wl) - 1.0));
     }
@@ -235,11 +239,7 @@ static int dir_for(const scene2 *sc, uint32_t k, const double x[3], const double
     pt_mf_chain c = *start;
     if (!pt_mf_solve(x, &c, wl, project, (void *)sc))
         return 0;
-    double y[3];
-    pt_mf_point(&c.v[0], c.v[0].b, y);
-    for (int j = 0; j < 3; j++)
-        w[j] = y[j] - x[j];
-    unit3(w);
+    first_dir(x, &c, w);
     (void)k;
     return 1;
 }
@@ -363,7 +363,7 @@ static pt_env *patch_sky(void)
 /* The scene rendered with manifold NEE and without it, paired by block. */
 static void paired(const char *name, const pt_scene *s, const pt_env *env, uint32_t bs)
 {
-    const uint32_t side = 32, spp = 512, nb = side / bs;
+    const uint32_t side = 32, spp = 512;
     pt_render_params p;
     pt_render_params_default(&p);
     p.width = p.height = side;
@@ -375,60 +375,15 @@ static void paired(const char *name, const pt_scene *s, const pt_env *env, uint3
     p.no_manifold = 1;
     CHECKF(pt_renderer_new(s, &p, &ro, &err) == PT_OK, "%s", err.msg);
     if (rn && ro) {
-        double alpha = 0.001 / (3.0 * nb * nb), lo = 0.0, hi = 40.0;
-        for (int i = 0; i < 100; i++) {
-            double mid = 0.5 * (lo + hi);
-            if (erfc(mid / sqrt(2.0)) > alpha)
-                lo = mid;
-            else
-                hi = mid;
-        }
-        pt_render_stats stn = {0}, sto = {0};
-        uint32_t bad = 0, nonfinite = 0;
-        double worst = 0.0, mean_n = 0.0, mean_o = 0.0;
-        for (uint32_t by = 0; by < nb; by++)
-            for (uint32_t bx = 0; bx < nb; bx++) {
-                double sum[3] = {0, 0, 0}, sq[3] = {0, 0, 0};
-                uint64_t n = 0;
-                for (uint32_t y = by * bs; y < (by + 1) * bs; y++)
-                    for (uint32_t x = bx * bs; x < (bx + 1) * bs; x++)
-                        for (uint32_t i = 0; i < spp; i++) {
-                            pt_vec3 a = pt_render_sample(rn, x, y, i, &stn, NULL);
-                            pt_vec3 b = pt_render_sample(ro, x, y, i, &sto, NULL);
-                            if (!pt_isfinite3(a) || !pt_isfinite3(b)) {
-                                nonfinite++;
-                                continue;
-                            }
-                            const double d[3] = {a.x - b.x, a.y - b.y, a.z - b.z};
-                            for (int c = 0; c < 3; c++) {
-                                sum[c] += d[c];
-                                sq[c] += d[c] * d[c];
-                            }
-                            mean_n += a.y;
-                            mean_o += b.y;
-                            n++;
-                        }
-                for (int c = 0; c < 3; c++) {
-                    double m = sum[c] / (double)n;
-                    double se = sqrt(fmax(sq[c] / (double)n - m * m, 0.0) / ((double)n - 1.0));
-                    if (!(se > 0.0))
-                        continue;
-                    double z = fabs(m) / se;
-                    worst = fmax(worst, z);
-                    bad += z > hi;
-                    if (z > hi)
-                        printf("%s: block %u,%u channel %d differs by %.5f +- %.5f\n", name, bx, by,
-                               c, m, se);
-                }
-            }
+        paired_result pr = paired_blocks_z(name, rn, ro, side, bs, spp);
         printf("%s: %u of %u block channels differ (|z| > %.2f; largest %.2f); image mean %.5f "
                "with manifold NEE, %.5f without; %llu chains\n",
-               name, bad, 3 * nb * nb, hi, worst, mean_n / (side * side * spp),
-               mean_o / (side * side * spp), (unsigned long long)stn.chains);
-        CHECK(nonfinite == 0);
-        CHECKF(bad == 0, "%s: %u block channels differ", name, bad);
-        CHECKF(stn.chains > 0, "%s: manifold NEE connected no chain", name);
-        CHECK(sto.chains == 0);
+               name, pr.bad, pr.tests, pr.z_bound, pr.z_max, pr.mean_a, pr.mean_b,
+               (unsigned long long)pr.sa.chains);
+        CHECK(pr.nonfinite == 0);
+        CHECKF(pr.bad == 0, "%s: %u block channels differ", name, pr.bad);
+        CHECKF(pr.sa.chains > 0, "%s: manifold NEE connected no chain", name);
+        CHECK(pr.sb.chains == 0);
     }
     pt_renderer_free(rn);
     pt_renderer_free(ro);

@@ -608,58 +608,14 @@ static void paired_blocks(const char *name, const pt_scene *s, const pt_env *env
         pt_renderer_free(ro);
         return;
     }
-    const uint32_t bs = 4, nb = side / bs;
-    /* Bonferroni: 0.001 over 3 nb^2 tests; the normal quantile by
-     * bisection on erfc. */
-    double alpha = 0.001 / (3.0 * nb * nb), lo = 0.0, hi = 40.0;
-    for (int i = 0; i < 100; i++) {
-        double mid = 0.5 * (lo + hi);
-        if (erfc(mid / sqrt(2.0)) > alpha)
-            lo = mid;
-        else
-            hi = mid;
-    }
-    double z_max = hi;
-    pt_render_stats stn = {0}, sto = {0};
-    uint32_t bad = 0, nonfinite = 0;
-    double worst = 0.0;
-    for (uint32_t by = 0; by < nb; by++)
-        for (uint32_t bx = 0; bx < nb; bx++) {
-            double sum[3] = {0, 0, 0}, sq[3] = {0, 0, 0};
-            uint64_t n = 0;
-            for (uint32_t y = by * bs; y < (by + 1) * bs; y++)
-                for (uint32_t x = bx * bs; x < (bx + 1) * bs; x++)
-                    for (uint32_t i = 0; i < spp; i++) {
-                        pt_vec3 a = pt_render_sample(rn, x, y, i, &stn, NULL);
-                        pt_vec3 b = pt_render_sample(ro, x, y, i, &sto, NULL);
-                        if (!pt_isfinite3(a) || !pt_isfinite3(b)) {
-                            nonfinite++;
-                            continue;
-                        }
-                        const double d[3] = {a.x - b.x, a.y - b.y, a.z - b.z};
-                        for (int c = 0; c < 3; c++) {
-                            sum[c] += d[c];
-                            sq[c] += d[c] * d[c];
-                        }
-                        n++;
-                    }
-            for (int c = 0; c < 3; c++) {
-                double m = sum[c] / (double)n;
-                double se = sqrt(fmax(sq[c] / (double)n - m * m, 0.0) / ((double)n - 1.0));
-                if (!(se > 0.0))
-                    continue; /* no difference at all */
-                double z = fabs(m) / se;
-                worst = fmax(worst, z);
-                bad += z > z_max;
-            }
-        }
+    paired_result pr = paired_blocks_z(name, rn, ro, side, 4, spp);
     printf("%s: %u of %u block channels differ (|z| > %.2f; largest %.2f); %llu walls "
            "crossed\n",
-           name, bad, 3 * nb * nb, z_max, worst, (unsigned long long)stn.crossings);
-    CHECK(nonfinite == 0);
-    CHECKF(bad == 0, "%s: %u block channels differ", name, bad);
-    CHECKF(stn.crossings > 0, "%s: no shadow ray crossed thin glass", name);
-    CHECK(sto.crossings == 0);
+           name, pr.bad, pr.tests, pr.z_bound, pr.z_max, (unsigned long long)pr.sa.crossings);
+    CHECK(pr.nonfinite == 0);
+    CHECKF(pr.bad == 0, "%s: %u block channels differ", name, pr.bad);
+    CHECKF(pr.sa.crossings > 0, "%s: no shadow ray crossed thin glass", name);
+    CHECK(pr.sb.crossings == 0);
     pt_renderer_free(rn);
     pt_renderer_free(ro);
 }
