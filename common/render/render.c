@@ -120,6 +120,7 @@ struct pt_renderer {
     int thin_glass;
     /* PT_FEAT_MANIFOLD: manifold NEE of the environment through thick smooth glass */
     int manifold;
+    float mf_min_light; /* the luminance a light sample must pass for it (manifold_min_light) */
     /* a light tree chooses: light_normal computes the receiver's normal */
     int light_tree;
     /* a light tree, or an environment split into a sun and the rest
@@ -152,6 +153,7 @@ void pt_render_params_default(pt_render_params *p)
     p->light_select = PT_LIGHT_SELECT_AUTO;
     p->opaque_thin_glass = 0;
     p->no_manifold = 0;
+    p->manifold_min_light = PT_MANIFOLD_MIN_LIGHT;
 }
 
 const pt_render_params *pt_renderer_params(const pt_renderer *r)
@@ -1741,8 +1743,9 @@ typedef struct mf_ctx {
 } mf_ctx;
 
 /* pt_mf_project_fn: the first surface along the ray, if a chain's. */
-static int mf_project(void *user, const pt_mf_vert *prev, const double from[3], const double q[3],
-                      pt_mf_vert *out)
+static __attribute__((noinline)) int mf_project(void *user, const pt_mf_vert *prev,
+                                                const double from[3], const double q[3],
+                                                pt_mf_vert *out)
 {
     const mf_ctx *c = user;
     double d[3] = {q[0] - from[0], q[1] - from[1], q[2] - from[2]};
@@ -1804,8 +1807,9 @@ typedef struct mf_link {
  * `medium` there) to the environment along wl, in *lk: MF_SEED_CHAIN when
  * one was found and checked, else what the seed ray met (a seed that met
  * glass but gave no chain is MF_SEED_BLOCKED). */
-static int mf_connect(const pt_renderer *r, pt_vec3 x, pt_vec3 ng, int32_t medium, pt_vec3 wl,
-                      uint32_t depth, mf_link *lk, const uint32_t features)
+static __attribute__((noinline)) int mf_connect(const pt_renderer *r, pt_vec3 x, pt_vec3 ng,
+                                                int32_t medium, pt_vec3 wl, uint32_t depth,
+                                                mf_link *lk, const uint32_t features)
 {
     const pt_scene *s = r->scene;
     if (!(pt_v3_dot(wl, ng) > 0.0f))
@@ -1911,13 +1915,15 @@ static int mf_connect(const pt_renderer *r, pt_vec3 x, pt_vec3 ng, int32_t mediu
 /* The power heuristic's weight of a sampled path that reached the
  * environment after pa->mf's refractions from a rough vertex x, against
  * manifold NEE at x (see above); 1 when manifold NEE would not find it. */
-static float mf_bsdf_weight(const pt_renderer *r, const path *pa, const uint32_t features)
+static __attribute__((noinline)) float mf_bsdf_weight(const pt_renderer *r, const path *pa,
+                                                      const uint32_t features)
 {
     const mf_path *m = pa->mf;
     /* Where light sampling never picks the direction (the dim part of a
-     * map whose sampling is MIS-compensated), no chain is solved. */
+     * map whose sampling is MIS-compensated), or manifold NEE does not
+     * take it (mf_min_light), no chain is solved. */
     float lp = pt_lights_env_pdf(r->lights, pa->d, m->ln);
-    if (!(lp > 0.0f))
+    if (!(lp > 0.0f) || !(pt_luminance(pt_env_eval(r->params.env, pa->d)) > r->mf_min_light))
         return 1.0f;
     mf_link lk;
     if (mf_connect(r, m->x, m->ng, m->medium, pa->d, m->depth, &lk, features) != MF_SEED_CHAIN ||
@@ -2171,7 +2177,8 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     }
 
     if ((features & PT_FEAT_MANIFOLD) && r->manifold && (features & PT_FEAT_GLOSSY) && ls_ok &&
-        ls->delta == PT_LIGHT_ENV && !through && ls->pdf > 0.0f && any_positive(ls->radiance))
+        ls->delta == PT_LIGHT_ENV && !through && ls->pdf > 0.0f &&
+        pt_luminance(ls->radiance) > r->mf_min_light)
         ret = mf_nee(r, pa, sf, ls, ng, &fr, &cl, sr, ret, features);
 
     float u3[3];
@@ -3509,8 +3516,10 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
     r->manifold = !params->no_manifold && params->env && r->nee &&
                   params->light_strategy == PT_LIGHT_MIS && (features & PT_FEAT_GLOSSY) &&
                   !(features & (PT_FEAT_ALPHA | PT_FEAT_MOTION)) && scene_manifold(scene);
-    if (r->manifold)
+    if (r->manifold) {
         features |= PT_FEAT_MANIFOLD;
+        r->mf_min_light = (float)(params->manifold_min_light * pt_env_mean_luminance(params->env));
+    }
     /* Guiding samples glossy closures only (closure_guidable): a
      * Lambert-only scene keeps its variant. */
     if (params->guiding && (features & PT_FEAT_GLOSSY))

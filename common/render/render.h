@@ -247,7 +247,19 @@ typedef struct pt_render_params {
      * (PT_FEAT_MANIFOLD; BSDF sampling alone finds the environment's light
      * through it, as before); for tests and benchmarks; default 0 */
     uint32_t no_manifold;
+    /* Manifold NEE takes only the environment's light samples brighter
+     * than this many times the map's mean luminance (the lamps, whose
+     * caustics BSDF sampling finds as fireflies); BSDF sampling alone
+     * finds the rest, in both strategies' weights alike, so any value is
+     * unbiased. For tests and benchmarks; default PT_MANIFOLD_MIN_LIGHT. */
+    float manifold_min_light;
 } pt_render_params;
+
+/* pt_render_params.manifold_min_light's default: on the glass ball with
+ * things inside (docs/bench/manifold.md) 16 took 7 % less time than 0 for
+ * 0.1 to 0.4 % more error at 128 spp; 64 and 256 saved more time (12 %,
+ * 16 %) but lost more error (2 to 8 %, 3 to 14 %). */
+#define PT_MANIFOLD_MIN_LIGHT 16.0f
 
 /* The most thin smooth walls (PT_FEAT_THIN_GLASS) a shadow ray crosses; one
  * that meets more is blocked (pt_render_stats.dropped), and a path that

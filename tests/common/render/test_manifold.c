@@ -30,6 +30,12 @@
  *   rare large samples missing, not a bias). With the sampled paths'
  *   weights left at 1 (the chains counted twice) 30 of the 48 block
  *   channels differ, at |z| up to 93.
+ * - Both take every light sample (manifold_min_light 0: the skies have no
+ *   lamp past the default bound, 16 times the mean; with the default a
+ *   uniform sky connects no chain, checked); the glass ball again under a
+ *   patch of two halves (1.6 and 4.8) with only the brighter half's
+ *   samples taken, where both strategies must draw the same line between
+ *   them.
  * - The same for AttenuationTest (absorbing glass, KHR_materials_volume:
  *   the chain's media) under a uniform sky, where the old estimator has no
  *   heavy tail at all (under the patch its tail put 3 of 12 16 x 16 blocks
@@ -339,9 +345,9 @@ static void curved(void)
     CHECKF(worst[0] < 1e-3 && worst[1] < 1e-3, "Jacobians off by %g and %g", worst[0], worst[1]);
 }
 
-/* A sky of radiance 0.2 with a patch 16 times brighter, about 40 by 55
- * degrees, 28 to 68 degrees from the zenith. */
-static pt_env *patch_sky(void)
+/* A sky of radiance 0.2 with a patch, about 40 by 55 degrees, 28 to 68
+ * degrees from the zenith, whose two halves are left and right. */
+static pt_env *patch_sky(float left, float right)
 {
     const uint32_t w = 64, h = 32;
     pt_envmap map = {w, h, pt_malloc_array(w * h * 3, sizeof(float))};
@@ -349,7 +355,7 @@ static pt_env *patch_sky(void)
         return NULL;
     for (uint32_t y = 0; y < h; y++)
         for (uint32_t x = 0; x < w; x++) {
-            float v = (y >= 5 && y < 12 && x >= 6 && x < 16) ? 3.2f : 0.2f;
+            float v = (y >= 5 && y < 12 && x >= 6 && x < 16) ? (x < 11 ? left : right) : 0.2f;
             for (int c = 0; c < 3; c++)
                 map.rgb[3 * (y * w + x) + c] = v;
         }
@@ -361,7 +367,8 @@ static pt_env *patch_sky(void)
 }
 
 /* The scene rendered with manifold NEE and without it, paired by block. */
-static void paired(const char *name, const pt_scene *s, const pt_env *env, uint32_t bs)
+static void paired(const char *name, const pt_scene *s, const pt_env *env, uint32_t bs,
+                   float min_light)
 {
     const uint32_t side = 32, spp = 512;
     pt_render_params p;
@@ -369,6 +376,7 @@ static void paired(const char *name, const pt_scene *s, const pt_env *env, uint3
     p.width = p.height = side;
     p.seed = 3;
     p.env = env;
+    p.manifold_min_light = min_light;
     pt_renderer *rn = NULL, *ro = NULL;
     pt_error err = {0};
     CHECKF(pt_renderer_new(s, &p, &rn, &err) == PT_OK, "%s", err.msg);
@@ -397,9 +405,18 @@ static void unbiased(void)
     pt_scene *s = NULL;
     pt_error err = {0};
     CHECKF(pt_scene_load(path, &o, &s, &err) == PT_OK, "%s", err.msg);
-    pt_env *env = patch_sky();
+    pt_env *env = patch_sky(3.2f, 3.2f);
     if (s && env)
-        paired("glass ball", s, env, 8);
+        paired("glass ball", s, env, 8, 0.0f);
+    pt_env_free(env);
+    /* Halves of 1.6 and 4.8 (past the mean, both sampled), manifold NEE
+     * taking the brighter only: both strategies must draw the same line
+     * between them, or the dimmer half's light through the glass is lost
+     * (or counted twice). */
+    env = patch_sky(1.6f, 4.8f);
+    if (s && env)
+        paired("glass ball, the brighter half alone", s, env, 8,
+               (float)(3.2 / pt_env_mean_luminance(env)));
     pt_scene_free(s);
     /* Absorbing glass (KHR_materials_volume's attenuation): the chain's
      * media. */
@@ -407,8 +424,23 @@ static void unbiased(void)
     s = load_shared_asset("AttenuationTest/AttenuationTest.glb", "volume");
     env = NULL;
     CHECK(pt_env_uniform(pt_v3(0.8f, 0.8f, 0.8f), &env, &err) == PT_OK);
-    if (s && env)
-        paired("AttenuationTest", s, env, 8);
+    if (s && env) {
+        paired("AttenuationTest", s, env, 8, 0.0f);
+        /* With the default bound a uniform sky has no light sample past
+         * it: no chain, BSDF sampling alone (and the image as before). */
+        pt_render_params p;
+        pt_render_params_default(&p);
+        p.width = p.height = 16;
+        p.env = env;
+        pt_renderer *r = NULL;
+        CHECKF(pt_renderer_new(s, &p, &r, &err) == PT_OK, "%s", err.msg);
+        pt_render_stats st = {0};
+        for (uint32_t i = 0; r && i < 16 * 16 * 64; i++)
+            pt_render_sample(r, i % 16, (i / 16) % 16, i / 256, &st, NULL);
+        CHECKF(r && st.chains == 0, "%llu chains under a uniform sky by default",
+               (unsigned long long)st.chains);
+        pt_renderer_free(r);
+    }
     pt_scene_free(s);
     pt_env_free(env);
 }
