@@ -1938,7 +1938,8 @@ static __attribute__((noinline)) float mf_bsdf_weight(const pt_renderer *r, cons
 }
 
 /* Manifold NEE at rough vertex sf (closure cl, frame fr, geometric normal
- * ng on wo's side) for its light sample ls of the environment, which the
+ * ng on wo's side) for its light sample ls of the environment or of a
+ * directional light, which the
  * seed ray along it also answers: the shadow ray shade asked for (ret's
  * SHADE_SHADOW) is settled here unless a thin wall needs crossing. Returns
  * ret without SHADE_SHADOW when it was settled. */
@@ -1970,14 +1971,17 @@ static uint32_t mf_nee(const pt_renderer *r, path *pa, const surface *sf, const 
     pt_vec3 f = pt_closure_eval(cl, pt_frame_to_local(fr, w), &bpdf);
     if (!any_positive(f))
         return ret;
-    float mis = power_heuristic(ls->pdf / lk.jac, bpdf * lk.take);
+    /* A directional light is a delta in wl: no sampled path finds it, and
+     * ls->radiance is its irradiance (J carries it to the directions at
+     * x); the environment is weighed against the sampled paths. */
+    float mis =
+        ls->delta == PT_LIGHT_FAR ? 1.0f : power_heuristic(ls->pdf / lk.jac, bpdf * lk.take);
     pt_vec3 c = pt_v3_mul(pt_v3_mul(pa->beta, pt_v3_mul(f, lk.T)),
                           pt_v3_scale(ls->radiance, mis * lk.jac / ls->pdf));
     /* The light arrives at sf after smooth bounces: indirect, as the
      * sampled path that finds it counts it. */
     c = clamp_sample(r, pa, c, 0, features);
-    PT_TRACE_EVENT(PT_TRACE_SHADOW, pa->depth, -1, PT_LIGHT_ENV, (int32_t)lk.k, ls->pdf, bpdf, mis,
-                   c);
+    PT_TRACE_EVENT(PT_TRACE_SHADOW, pa->depth, -1, ls->delta, (int32_t)lk.k, ls->pdf, bpdf, mis, c);
     pa->L = pt_v3_add(pa->L, c);
     return ret;
 }
@@ -2177,8 +2181,9 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     }
 
     if ((features & PT_FEAT_MANIFOLD) && r->manifold && (features & PT_FEAT_GLOSSY) && ls_ok &&
-        ls->delta == PT_LIGHT_ENV && !through && ls->pdf > 0.0f &&
-        pt_luminance(ls->radiance) > r->mf_min_light)
+        !through && ls->pdf > 0.0f &&
+        ((ls->delta == PT_LIGHT_ENV && pt_luminance(ls->radiance) > r->mf_min_light) ||
+         ((features & PT_FEAT_PUNCTUAL) && ls->delta == PT_LIGHT_FAR)))
         ret = mf_nee(r, pa, sf, ls, ng, &fr, &cl, sr, ret, features);
 
     float u3[3];
@@ -3418,6 +3423,16 @@ static int scene_thin_glass(const pt_scene *s)
     return 0;
 }
 
+/* 1 when the scene has a directional light, which manifold NEE connects
+ * through thick glass as it does the environment. */
+static int scene_directional(const pt_scene *s)
+{
+    for (uint32_t i = 0; i < s->num_punctual; i++)
+        if (s->punctual[i].type == PT_PUNCTUAL_DIRECTIONAL)
+            return 1;
+    return 0;
+}
+
 /* 1 when some material is glass a manifold chain may refract at
  * (mf_caster): PT_FEAT_MANIFOLD. */
 static int scene_manifold(const pt_scene *s)
@@ -3513,12 +3528,14 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
     if (r->thin_glass)
         features |= PT_FEAT_THIN_GLASS;
     features &= ~(uint32_t)PT_FEAT_MANIFOLD;
-    r->manifold = !params->no_manifold && params->env && r->nee &&
+    r->manifold = !params->no_manifold && (params->env || scene_directional(scene)) && r->nee &&
                   params->light_strategy == PT_LIGHT_MIS && (features & PT_FEAT_GLOSSY) &&
                   !(features & (PT_FEAT_ALPHA | PT_FEAT_MOTION)) && scene_manifold(scene);
     if (r->manifold) {
         features |= PT_FEAT_MANIFOLD;
-        r->mf_min_light = (float)(params->manifold_min_light * pt_env_mean_luminance(params->env));
+        r->mf_min_light =
+            params->env ? (float)(params->manifold_min_light * pt_env_mean_luminance(params->env))
+                        : 0.0f;
     }
     /* Guiding samples glossy closures only (closure_guidable): a
      * Lambert-only scene keeps its variant. */
