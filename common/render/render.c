@@ -1184,7 +1184,8 @@ static inline __attribute__((always_inline)) void shade_emission(const pt_render
                           clamp_sample(r, pa, pt_v3_mul(pa->beta, le), pa->depth <= 1, features));
 }
 
-static float mf_bsdf_weight(const pt_renderer *r, const path *pa, const uint32_t features);
+static float mf_bsdf_weight(const pt_renderer *r, const path *pa, pt_vec3 le,
+                            const uint32_t features);
 
 /* A ray of the path that left the scene: the environment's radiance along
  * it, weighed by the power heuristic against the environment's NEE pdf when
@@ -1212,7 +1213,7 @@ static inline __attribute__((always_inline)) void shade_miss(const pt_renderer *
         le = pt_v3_scale(le, mis);
     }
     if ((features & PT_FEAT_MANIFOLD) && pa->mf && pa->mf->k != MF_OFF && pa->mf->k > 0)
-        le = pt_v3_scale(le, mf_bsdf_weight(r, pa, features));
+        le = pt_v3_scale(le, mf_bsdf_weight(r, pa, le, features));
     PT_TRACE_EVENT(PT_TRACE_ENV, pa->depth, -1, -1, 0, pa->prev_pdf, lp, mis,
                    pt_v3_mul(pa->beta, le));
     if (pa->prev_pdf == 0.0f || strategy != PT_LIGHT_NEE_ONLY)
@@ -1913,17 +1914,18 @@ static __attribute__((noinline)) int mf_connect(const pt_renderer *r, pt_vec3 x,
 }
 
 /* The power heuristic's weight of a sampled path that reached the
- * environment after pa->mf's refractions from a rough vertex x, against
+ * environment (radiance le, shade_miss's lookup: after a delta lobe no MIS
+ * has scaled it) after pa->mf's refractions from a rough vertex x, against
  * manifold NEE at x (see above); 1 when manifold NEE would not find it. */
 static __attribute__((noinline)) float mf_bsdf_weight(const pt_renderer *r, const path *pa,
-                                                      const uint32_t features)
+                                                      pt_vec3 le, const uint32_t features)
 {
     const mf_path *m = pa->mf;
     /* Where light sampling never picks the direction (the dim part of a
      * map whose sampling is MIS-compensated), or manifold NEE does not
      * take it (mf_min_light), no chain is solved. */
     float lp = pt_lights_env_pdf(r->lights, pa->d, m->ln);
-    if (!(lp > 0.0f) || !(pt_luminance(pt_env_eval(r->params.env, pa->d)) > r->mf_min_light))
+    if (!(lp > 0.0f) || !(pt_luminance(le) > r->mf_min_light))
         return 1.0f;
     mf_link lk;
     if (mf_connect(r, m->x, m->ng, m->medium, pa->d, m->depth, &lk, features) != MF_SEED_CHAIN ||

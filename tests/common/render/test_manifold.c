@@ -54,6 +54,7 @@
 
 #include "common/base/alloc.h"
 #include "common/image/envmap.h"
+#include "common/render/dielectric.h"
 #include "common/render/env.h"
 #include "common/render/manifold.h"
 #include "common/render/render.h"
@@ -536,26 +537,15 @@ static pt_scene *slab_scene(double tilt_deg)
     return sc;
 }
 
-/* The exact dielectric Fresnel of unpolarised light, from the index ratio
- * eta = n_t / n_i. */
-static double fresnel(double ci, double eta)
-{
-    double st2 = (1.0 - ci * ci) / (eta * eta);
-    if (st2 >= 1.0)
-        return 1.0;
-    double ct = sqrt(1.0 - st2);
-    double rs = (ci - eta * ct) / (ci + eta * ct), rp = (eta * ci - ct) / (eta * ci + ct);
-    return 0.5 * (rs * rs + rp * rp);
-}
-
 static void directional_slab(void)
 {
     for (int tilt = 0; tilt <= 30; tilt += 30) {
         pt_scene *s = slab_scene(tilt);
         if (!s)
             continue;
-        double ct = cos(tilt * 3.14159265358979323846 / 180.0), f1 = fresnel(1.0, ETA),
-               ft = fresnel(ct, ETA);
+        double ct = cos(tilt * 3.14159265358979323846 / 180.0),
+               f1 = pt_fresnel_dielectric(1.0f, (float)ETA),
+               ft = pt_fresnel_dielectric((float)ct, (float)ETA);
         double want = (1.0 - f1) * (1.0 - f1) * RHO_D / 3.14159265358979323846 * E_DIR * ct *
                       (1.0 - ft) * (1.0 - ft);
         for (int off = 0; off <= 1; off++) {
