@@ -63,8 +63,8 @@ struct pt_accel {
     const pt_scene *alpha;     /* the scene, when it has alpha filters; else NULL */
     uint8_t *solid;            /* with alpha: pt_alpha_solid_new's flags (whole MASK
                                   triangles, which the filter passes without a lookup) */
-    int moving;                /* two geometries (still, moving): map[geomID][primID] is the
-                                  scene triangle */
+    int mapped;                /* map[geomID][primID] is the scene triangle: two
+                                  geometries (still, moving) or a subset's one */
     const uint32_t *map[2];
     uint32_t nproto; /* instancing: the prototypes' scenes */
     RTCScene *protos;
@@ -77,7 +77,7 @@ typedef struct alpha_ctx {
     struct RTCIntersectContext rtc;
     const pt_scene *scene; /* NULL: the query ignores alpha */
     uint32_t key;
-    const pt_accel *accel; /* for the triangle maps of a moving scene */
+    const pt_accel *accel; /* for the triangle maps of a moving scene or a subset */
     /* pt_accel_transmittance_alpha: the product of 1 - alpha over the BLEND
      * triangles met so far (NULL: BLEND by the key, as for every other
      * query), and those triangles (with their instance), each counted once
@@ -158,7 +158,7 @@ static void alpha_filter(const struct RTCFilterFunctionNArguments *args)
         uint32_t tri = hitn_prim(args->hit, args->N, i);
         if (args->geometryUserPtr) { /* a prototype's: its first triangle */
             tri += ((const pt_prototype *)args->geometryUserPtr)->first_tri;
-        } else if (c->accel->moving) {
+        } else if (c->accel->mapped) {
             uint32_t gid;
             memcpy(&gid, (const char *)args->hit + 4 * ((size_t)6 * args->N + i), sizeof gid);
             tri = c->accel->map[gid][tri];
@@ -340,6 +340,9 @@ static pt_status add_instances(pt_accel *a, const pt_scene *scene, pt_error *err
     return PT_OK;
 }
 
+static pt_status accel_begin(pt_accel **out, pt_error *err);
+static pt_status accel_commit(pt_accel *a, const pt_scene *scene, pt_error *err);
+
 pt_status pt_accel_new(const pt_scene *scene, pt_accel **out, pt_error *err)
 {
     pt_status st;
@@ -348,26 +351,12 @@ pt_status pt_accel_new(const pt_scene *scene, pt_accel **out, pt_error *err)
     if (scene->num_triangles > 0 && (!scene->positions || !scene->indices))
         return pt_error_set(err, PT_ERR_ARG, "pt_accel_new: scene has triangles but no arrays");
 
-    pt_accel *a = pt_calloc(1, sizeof *a);
-    if (!a)
-        return pt_error_set(err, PT_ERR_NOMEM, "pt_accel_new: out of memory");
-
-    a->device = rtcNewDevice("");
-    if (!a->device) {
-        st = check_device(NULL, "rtcNewDevice", err);
-        if (st == PT_OK)
-            st = pt_error_set(err, PT_ERR_LIMIT, "embree: rtcNewDevice failed");
+    pt_accel *a = NULL;
+    if ((st = accel_begin(&a, err)) != PT_OK)
         goto fail;
-    }
-    a->scene = rtcNewScene(a->device);
-    if ((st = check_device(a->device, "rtcNewScene", err)) != PT_OK)
-        goto fail;
-    rtcSetSceneFlags(a->scene, RTC_SCENE_FLAG_ROBUST);
-    rtcSetSceneBuildQuality(a->scene, RTC_BUILD_QUALITY_HIGH);
-
     if (scene->motion && scene->motion->num_triangles > 0) {
         const pt_motion *m = scene->motion;
-        a->moving = 1;
+        a->mapped = 1;
         a->map[0] = m->static_tri;
         a->map[1] = m->tri;
         if (m->num_static > 0 &&
@@ -390,9 +379,75 @@ pt_status pt_accel_new(const pt_scene *scene, pt_accel **out, pt_error *err)
                                scene->num_triangles, NULL, scene->indices, err)) != PT_OK)
             goto fail;
     }
+    if ((st = accel_commit(a, scene, err)) != PT_OK)
+        goto fail;
+    *out = a;
+    return PT_OK;
+
+fail:
+    pt_accel_free(a);
+    return st;
+}
+
+pt_status pt_accel_new_subset(const pt_scene *scene, const uint32_t *sel, uint32_t n,
+                              pt_accel **out, pt_error *err)
+{
+    pt_status st;
+    if (!scene || !out || (n > 0 && !sel))
+        return pt_error_set(err, PT_ERR_ARG, "pt_accel_new_subset: NULL argument");
+    for (uint32_t i = 0; i < n; i++)
+        if (sel[i] >= scene->num_triangles ||
+            (scene->num_instances > 0 && sel[i] >= scene->num_flat_triangles) ||
+            (scene->motion && scene->motion->num_triangles > 0))
+            return pt_error_set(err, PT_ERR_ARG,
+                                "pt_accel_new_subset: triangle %u is not a still flat one", sel[i]);
+    pt_accel *a = NULL;
+    if ((st = accel_begin(&a, err)) != PT_OK)
+        goto fail;
+    a->mapped = 1;
+    a->map[0] = sel;
+    uint32_t nv = scene->num_instances > 0 ? scene->num_flat_vertices : scene->num_vertices;
+    if (n > 0 && (st = add_geometry(a, scene, 0, 1, nv, scene->positions, 0, n, sel, scene->indices,
+                                    err)) != PT_OK)
+        goto fail;
+    if ((st = accel_commit(a, scene, err)) != PT_OK)
+        goto fail;
+    *out = a;
+    return PT_OK;
+
+fail:
+    pt_accel_free(a);
+    return st;
+}
+
+/* A new accel's device and empty scene, in *out (freed by the caller on an
+ * error). */
+static pt_status accel_begin(pt_accel **out, pt_error *err)
+{
+    pt_status st;
+    pt_accel *a = *out = pt_calloc(1, sizeof *a);
+    if (!a)
+        return pt_error_set(err, PT_ERR_NOMEM, "pt_accel_new: out of memory");
+    a->device = rtcNewDevice("");
+    if (!a->device) {
+        st = check_device(NULL, "rtcNewDevice", err);
+        return st == PT_OK ? pt_error_set(err, PT_ERR_LIMIT, "embree: rtcNewDevice failed") : st;
+    }
+    a->scene = rtcNewScene(a->device);
+    if ((st = check_device(a->device, "rtcNewScene", err)) != PT_OK)
+        return st;
+    rtcSetSceneFlags(a->scene, RTC_SCENE_FLAG_ROBUST);
+    rtcSetSceneBuildQuality(a->scene, RTC_BUILD_QUALITY_HIGH);
+    return PT_OK;
+}
+
+/* Builds a's BVH over what was attached, and the offsets of scene's size. */
+static pt_status accel_commit(pt_accel *a, const pt_scene *scene, pt_error *err)
+{
+    pt_status st;
     rtcCommitScene(a->scene);
     if (a->alpha && (st = pt_alpha_solid_new(a->alpha, &a->solid, err)) != PT_OK)
-        goto fail;
+        return st;
     {
         /* The scene's coordinate magnitude, rounded up to a power of two so the
          * scaled constants are exact. */
@@ -406,14 +461,7 @@ pt_status pt_accel_new(const pt_scene *scene, pt_accel **out, pt_error *err)
         a->origin = ldexpf(OFFSET_ORIGIN, e);
         a->float_scale = ldexpf(OFFSET_FLOAT_SCALE, e);
     }
-    if ((st = check_device(a->device, "rtcCommitScene", err)) != PT_OK)
-        goto fail;
-    *out = a;
-    return PT_OK;
-
-fail:
-    pt_accel_free(a);
-    return st;
+    return check_device(a->device, "rtcCommitScene", err);
 }
 
 void pt_accel_free(pt_accel *accel)
@@ -475,7 +523,7 @@ static inline int intersect_ctx(const pt_accel *accel, pt_vec3 o, pt_vec3 d, flo
         hit->tri = s->prototypes[s->instances[hit->inst - 1].proto].first_tri + rh.hit.primID;
         return 1;
     }
-    hit->tri = accel->moving ? accel->map[rh.hit.geomID][rh.hit.primID] : rh.hit.primID;
+    hit->tri = accel->mapped ? accel->map[rh.hit.geomID][rh.hit.primID] : rh.hit.primID;
     return 1;
 }
 

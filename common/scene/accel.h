@@ -33,6 +33,12 @@ typedef struct pt_hit {
 } pt_hit;
 
 pt_status pt_accel_new(const pt_scene *scene, pt_accel **out, pt_error *err);
+/* An accel over the scene's triangles sel[0 .. n - 1] only (still, not
+ * instanced), for queries that look for those alone (manifold NEE's steps
+ * onto glass): a hit reports the scene's triangle index, and the offsets
+ * are the whole scene's. sel must outlive the accel. */
+pt_status pt_accel_new_subset(const pt_scene *scene, const uint32_t *sel, uint32_t n,
+                              pt_accel **out, pt_error *err);
 void pt_accel_free(pt_accel *accel); /* accepts NULL */
 
 /* Closest hit along o + t d for t in (0, tfar]. Returns 1 on a hit. */

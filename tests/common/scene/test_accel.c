@@ -10,6 +10,7 @@
 
 #include <float.h>
 #include <math.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include "common/base/alloc.h"
@@ -542,6 +543,82 @@ static void test_occluded_agrees(void)
     ts_fini(&t);
 }
 
+/* ---- an accel over a subset of the triangles ------------------------------------------ */
+
+/* The sphere alone (triangles 0 .. ns - 1) inside two quads: a ray from
+ * anywhere meets the sphere where the whole scene's accel, asked again
+ * past everything else, meets it first, with the scene's indices and the
+ * same point (the same bits where nothing was in the way); the quads are
+ * never hit. */
+static void test_subset(void)
+{
+    rng_state = 5;
+    place pl = {0.5f, pt_v3(-1, 2, 0.5f), pt_frame_from_normal(pt_v3(0.3f, 0.1f, 1))};
+    tscene t;
+    ts_init(&t, 2 + 16 * 7 + 12, 2 * 16 * 7 + 6);
+    add_sphere(&t, &pl, 16, 8);
+    uint32_t ns = t.s.num_triangles;
+    add_quad(&t, &pl, pt_v3(-2, -1.5f, -2), pt_v3(4, 0, 0), pt_v3(0, 0, 4));
+    add_quad(&t, &pl, pt_v3(-2, -2, 0.3f), pt_v3(0, 4, 0), pt_v3(4, 0, 0));
+    uint32_t *sel = malloc(ns * sizeof *sel);
+    for (uint32_t i = 0; i < ns; i++)
+        sel[i] = i;
+    pt_accel *a = NULL, *sub = NULL;
+    pt_error err;
+    CHECK(pt_accel_new(&t.s, &a, NULL) == PT_OK);
+    CHECKF(pt_accel_new_subset(&t.s, sel, ns, &sub, &err) == PT_OK, "%s", err.msg);
+    int wrong = 0, far = 0, hits = 0, passed = 0;
+    for (int i = 0; a && sub && i < 20000; i++) {
+        pt_vec3 o = to_world(&pl, pt_v3(4 * rnd() - 2, 4 * rnd() - 2, 4 * rnd() - 2));
+        pt_vec3 d = rnd_dir();
+        pt_hit hs, h;
+        int got = pt_accel_intersect(sub, o, d, INFINITY, &hs);
+        /* The whole scene's first sphere hit along the same ray. */
+        pt_vec3 from = o;
+        int want = 0, through = 0;
+        for (int k = 0; k < 4 && pt_accel_intersect(a, from, d, INFINITY, &h); k++) {
+            if (h.tri < ns) {
+                want = 1;
+                break;
+            }
+            pt_vec3 p, n;
+            pt_accel_hit_point(&t.s, &h, &p, &n);
+            from = pt_offset_ray(p, pt_v3_dot(n, d) < 0.0f ? pt_v3_neg(n) : n);
+            through++;
+        }
+        if (got != want || (got && (hs.tri >= ns || hs.tri != h.tri))) {
+            wrong++;
+            continue;
+        }
+        if (got) {
+            hits++;
+            pt_vec3 p, q, n;
+            pt_accel_hit_point(&t.s, &hs, &p, &n);
+            pt_accel_hit_point(&t.s, &h, &q, &n);
+            /* The same ray: the same bits; one restarted past a quad
+             * (off the line by the offset): nearby. */
+            far += through ? pt_v3_len(pt_v3_sub(p, q)) > 1e-3f
+                           : p.x != q.x || p.y != q.y || p.z != q.z;
+            passed += through > 0;
+        }
+    }
+    CHECKF(wrong == 0 && far == 0, "%d rays disagree, %d hit points apart", wrong, far);
+    CHECKF(hits > 1000 && passed > 200, "%d hits, %d through quads", hits, passed);
+    pt_accel_free(sub);
+    /* Only still, flat triangles: an index past the scene's is an error. */
+    sel[0] = t.s.num_triangles;
+    CHECK(pt_accel_new_subset(&t.s, sel, 1, &sub, &err) == PT_ERR_ARG);
+    CHECK(pt_accel_new_subset(&t.s, NULL, 1, &sub, &err) == PT_ERR_ARG);
+    /* An empty subset misses everything. */
+    CHECK(pt_accel_new_subset(&t.s, sel, 0, &sub, &err) == PT_OK);
+    pt_hit h;
+    CHECK(sub && !pt_accel_intersect(sub, pl.T, pt_v3(0, 0, 1), INFINITY, &h));
+    pt_accel_free(sub);
+    pt_accel_free(a);
+    free(sel);
+    ts_fini(&t);
+}
+
 int main(void)
 {
     test_hit_miss();
@@ -549,5 +626,6 @@ int main(void)
     test_hit_accuracy();
     test_self_intersection();
     test_occluded_agrees();
+    test_subset();
     return check_report();
 }
