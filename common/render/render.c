@@ -121,6 +121,8 @@ struct pt_renderer {
     /* PT_FEAT_MANIFOLD: manifold NEE of the environment through thick smooth glass */
     int manifold;
     float mf_min_light; /* the luminance a light sample must pass for it (manifold_min_light) */
+    pt_accel *mf_accel; /* the chain glass's triangles alone (mf_project's rays) */
+    uint32_t *mf_tris;  /* their indices, mf_accel's map */
     /* a light tree chooses: light_normal computes the receiver's normal */
     int light_tree;
     /* a light tree, or an environment split into a sun and the rest
@@ -1752,20 +1754,11 @@ static __attribute__((noinline)) int mf_project(void *user, const pt_mf_vert *pr
     double d[3] = {q[0] - from[0], q[1] - from[1], q[2] - from[2]};
     pt_vec3 dir = pt_v3_norm(mf_f3(d));
     pt_vec3 o = mf_off(c->r, mf_f3(from), prev ? mf_f3(prev->ng) : c->ng, dir);
-    /* Through what is not glass (a step's guess may pass behind a thing
-     * inside the glass; the chain found is checked for that at the end). */
-    for (uint32_t passed = 0; passed <= MF_SEED_PASS; passed++) {
-        pt_hit hit;
-        if (!pt_accel_intersect(c->r->accel, o, dir, INFINITY, &hit))
-            return 0;
-        if (mf_vert_of(c->r, &hit, out))
-            return 1;
-        const pt_scene *s = c->r->scene;
-        if (mf_caster(&s->materials[s->tri_material[hit.tri]]))
-            return 0;
-        o = mf_off(c->r, pt_v3_add(o, pt_v3_scale(dir, hit.t)), c->r->tris[hit.tri].ng, dir);
-    }
-    return 0;
+    /* The glass alone: a step's guess may pass behind a thing inside the
+     * glass; the chain found is checked for that at the end. */
+    pt_hit hit;
+    return pt_accel_intersect(c->r->mf_accel, o, dir, INFINITY, &hit) &&
+           mf_vert_of(c->r, &hit, out);
 }
 
 /* The second seed of a chain through two interfaces (c's first vertex
@@ -3445,6 +3438,22 @@ static int scene_manifold(const pt_scene *s)
     return 0;
 }
 
+/* r->mf_accel: the still, flat triangles a chain may refract at (mf_vert_of
+ * takes no others), so that a solver's step finds the glass behind the
+ * things inside it with one ray. */
+static pt_status mf_accel_new(pt_renderer *r, pt_error *err)
+{
+    const pt_scene *s = r->scene;
+    uint32_t nt = s->num_instances > 0 ? s->num_flat_triangles : s->num_triangles, n = 0;
+    r->mf_tris = pt_malloc_array(nt ? nt : 1, sizeof *r->mf_tris);
+    if (!r->mf_tris)
+        return pt_error_set(err, PT_ERR_NOMEM, "manifold NEE: out of memory");
+    for (uint32_t i = 0; i < nt; i++)
+        if (mf_caster(&s->materials[s->tri_material[i] & ~TRI_FLAT]))
+            r->mf_tris[n++] = i;
+    return pt_accel_new_subset(s, r->mf_tris, n, &r->mf_accel, err);
+}
+
 pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params, pt_renderer **out,
                           pt_error *err)
 {
@@ -3538,6 +3547,8 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
         r->mf_min_light =
             params->env ? (float)(params->manifold_min_light * pt_env_mean_luminance(params->env))
                         : 0.0f;
+        if ((st = mf_accel_new(r, err)) != PT_OK)
+            goto fail;
     }
     /* Guiding samples glossy closures only (closure_guidable): a
      * Lambert-only scene keeps its variant. */
@@ -3587,6 +3598,8 @@ void pt_renderer_free(pt_renderer *r)
     pt_free(r->photon.smooth);
     pt_free(r->tris_mem);
     pt_lights_free(r->lights);
+    pt_accel_free(r->mf_accel);
+    pt_free(r->mf_tris);
     pt_accel_free(r->accel);
     pt_free(r);
 }
