@@ -158,6 +158,12 @@ static int vertex_eval(const double x[3], const pt_mf_chain *c, const double wl[
         for (int j = 0; j < 3; j++)
             d[j] = (ea * dwa[j] + eb * dwb[j]) / lh;
         perp3(h, d, dh);
+        if (who != (int)i) {
+            /* A neighbour moves h alone: the frame stays. */
+            G[0][q] = dot3(dh, t1);
+            G[1][q] = dot3(dh, t2);
+            continue;
+        }
         for (int j = 0; j < 3; j++)
             d[j] = dnt[j] / ln;
         perp3(n, d, dn);
