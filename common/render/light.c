@@ -722,6 +722,24 @@ static int sample_punctual(const pt_lights *lights, pt_vec3 p, double v, pt_ligh
     return eval_punctual(&lights->punct[lo], p, lights->punct_pmf[lo], s);
 }
 
+/* atten times a point or spot light's falloff towards a point at distance
+ * dist along -wi (wi: the unit direction from that point to the light): the
+ * range's window and the spot's cone (the top of the file). */
+static inline float punctual_falloff(const pt_punctual *l, pt_vec3 wi, float dist, float atten)
+{
+    if (l->range > 0.0f) {
+        float x = dist / l->range, x4 = (x * x) * (x * x);
+        atten *= x4 < 1.0f ? 1.0f - x4 : 0.0f;
+    }
+    if (l->type == PT_PUNCTUAL_SPOT) {
+        float scale = 1.0f / fmaxf(0.001f, l->cos_inner - l->cos_outer);
+        float a = -pt_v3_dot(l->direction, wi) * scale - l->cos_outer * scale;
+        a = a < 0.0f ? 0.0f : a > 1.0f ? 1.0f : a;
+        atten *= a * a;
+    }
+    return atten;
+}
+
 /* A sample of punctual light l seen from p, chosen with probability pmf. */
 static int eval_punctual(const pt_punctual *l, pt_vec3 p, float pmf, pt_light_sample *s)
 {
@@ -743,19 +761,16 @@ static int eval_punctual(const pt_punctual *l, pt_vec3 p, float pmf, pt_light_sa
     if (!(s->dist > 0.0f) || !isfinite(s->dist))
         return 0;
     s->wi = pt_v3_scale(d, 1.0f / s->dist);
-    float atten = 1.0f / d2;
-    if (l->range > 0.0f) {
-        float x = s->dist / l->range, x4 = (x * x) * (x * x);
-        atten *= x4 < 1.0f ? 1.0f - x4 : 0.0f;
-    }
-    if (l->type == PT_PUNCTUAL_SPOT) {
-        float scale = 1.0f / fmaxf(0.001f, l->cos_inner - l->cos_outer);
-        float a = -pt_v3_dot(l->direction, s->wi) * scale - l->cos_outer * scale;
-        a = a < 0.0f ? 0.0f : a > 1.0f ? 1.0f : a;
-        atten *= a * a;
-    }
+    s->punct = l;
+    float atten = punctual_falloff(l, s->wi, s->dist, 1.0f / d2);
     s->radiance = pt_v3_scale(l->intensity, atten);
     return isfinite(atten) && atten > 0.0f;
+}
+
+pt_vec3 pt_punctual_intensity(const pt_punctual *l, pt_vec3 wi, float dist)
+{
+    float atten = punctual_falloff(l, wi, dist, 1.0f);
+    return isfinite(atten) && atten > 0.0f ? pt_v3_scale(l->intensity, atten) : pt_v3(0, 0, 0);
 }
 
 /* pdf_w = pmf / area * d^2 / |cos theta_light| (area to solid angle: dA =

@@ -92,7 +92,15 @@ typedef struct pt_light_sample {
                          (directional: dist infinite, radiance is its irradiance); or
                          PT_LIGHT_ENV (the environment along wi: dist infinite, radiance
                          and a solid-angle pdf, weighed by MIS) */
+    /* PT_LIGHT_AT: the light (else not set) */
+    const pt_punctual *punct;
 } pt_light_sample;
+
+/* The intensity (W/sr, per colour) point or spot light l sends towards a
+ * point at distance dist along -wi (wi: the unit direction from there to
+ * the light), with its range's window and its spot's cone, as a light
+ * sample weighs it (without the 1 / dist^2). */
+pt_vec3 pt_punctual_intensity(const pt_punctual *l, pt_vec3 wi, float dist);
 
 /* Builds the light list. A scene without emitters gives a valid, empty set. */
 pt_status pt_lights_new(const pt_scene *scene, pt_lights **out, pt_error *err);

@@ -104,9 +104,14 @@ static int vertex_eval(const double x[3], const pt_mf_chain *c, const double wl[
     for (int j = 0; j < 3; j++)
         wa[j] = prev[j] - p[j];
     double la = norm3(wa), lb = 1.0;
-    if (!last) {
+    /* towards a point: the next vertex, or the light's point (fixed) */
+    const int towards = !last || c->at;
+    if (towards) {
         double next[3];
-        pt_mf_point(&c->v[i + 1], c->v[i + 1].b, next);
+        if (!last)
+            pt_mf_point(&c->v[i + 1], c->v[i + 1].b, next);
+        else
+            memcpy(next, wl, sizeof next);
         for (int j = 0; j < 3; j++)
             wb[j] = next[j] - p[j];
         lb = norm3(wb);
@@ -150,7 +155,7 @@ static int vertex_eval(const double x[3], const pt_mf_chain *c, const double wl[
         for (int j = 0; j < 3; j++)
             d[j] = (dprev[j] - dp[j]) / la;
         perp3(wa, d, dwa);
-        if (!last) {
+        if (towards) {
             for (int j = 0; j < 3; j++)
                 d[j] = (dnext[j] - dp[j]) / lb;
             perp3(wb, d, dwb);
@@ -178,11 +183,23 @@ static int vertex_eval(const double x[3], const pt_mf_chain *c, const double wl[
         G[0][q] = dot3(dh, t1) + dot3(h, dt1);
         G[1][q] = dot3(dh, t2) + dot3(h, dt2);
     }
-    for (int q = 0; K && last && q < 2; q++) {
+    for (int q = 0; K && !c->at && last && q < 2; q++) {
         /* wl turned by theta along s[q]: d wl = s[q] (perpendicular to wl) */
         double d[3], dh[3];
         for (int j = 0; j < 3; j++)
             d[j] = eb * s[q][j] / lh;
+        perp3(h, d, dh);
+        K[0][q] = dot3(dh, t1);
+        K[1][q] = dot3(dh, t2);
+    }
+    for (int q = 0; K && c->at && i == 0 && q < 2; q++) {
+        /* x moved along s[q]: w_a turns by (I - w_a w_a^T) s[q] / |x - p| */
+        double d[3], dwa[3], dh[3];
+        for (int j = 0; j < 3; j++)
+            d[j] = s[q][j] / la;
+        perp3(wa, d, dwa);
+        for (int j = 0; j < 3; j++)
+            d[j] = ea * dwa[j] / lh;
         perp3(h, d, dh);
         K[0][q] = dot3(dh, t1);
         K[1][q] = dot3(dh, t2);
@@ -211,7 +228,7 @@ static int chain_eval(const double x[3], const pt_mf_chain *c, const double wl[3
                 if (col >= 0 && col < (int)n)
                     J[(2 * i + r) * n + (uint32_t)col] = G[r][q];
             }
-        if (K && i + 1 == c->k)
+        if (K && (c->at ? i == 0 : i + 1 == c->k))
             for (uint32_t r = 0; r < 2; r++) {
                 K[(2 * i + r) * 2] = Kv[r][0];
                 K[(2 * i + r) * 2 + 1] = Kv[r][1];
@@ -362,7 +379,7 @@ int pt_mf_solve(const double x[3], pt_mf_chain *c, const double wl[3], pt_mf_pro
 
 double pt_mf_jacobian(const double x[3], const pt_mf_chain *c, const double wl[3])
 {
-    if (c->k == 0 || c->k > PT_MF_MAX)
+    if (c->k == 0 || c->k > PT_MF_MAX || c->at)
         return 0.0;
     uint32_t n = 2u * c->k;
     double J[MF_N * MF_N], K[MF_N * 2], C[MF_N];
@@ -392,6 +409,50 @@ double pt_mf_jacobian(const double x[3], const pt_mf_chain *c, const double wl[3
         for (int j = 0; j < 3; j++)
             dy[j] = v->e1[j] * K[0 * 2 + col] + v->e2[j] * K[1 * 2 + col];
         /* d(omega) = (I - omega omega^T) dy / dist, read in u1, u2. */
+        M[0][col] = dot3(u1, dy) / dist;
+        M[1][col] = dot3(u2, dy) / dist;
+    }
+    double det = fabs(M[0][0] * M[1][1] - M[0][1] * M[1][0]);
+    return isfinite(det) ? det : 0.0;
+}
+
+double pt_mf_point_jacobian(const double x[3], const pt_mf_chain *c, const double l[3])
+{
+    if (c->k == 0 || c->k > PT_MF_MAX || !c->at)
+        return 0.0;
+    uint32_t n = 2u * c->k;
+    double J[MF_N * MF_N], K[MF_N * 2], C[MF_N];
+    /* dC/dx: x moved along the two unit tangents of its segment's direction. */
+    double y[3], w[3], s[2][3];
+    pt_mf_point(&c->v[0], c->v[0].b, y);
+    for (int j = 0; j < 3; j++)
+        w[j] = y[j] - x[j];
+    if (!(norm3(w) > 0.0))
+        return 0.0;
+    tangents(w, s[0], s[1]);
+    if (!chain_eval(x, c, l, C, J, (const double(*)[3])s, K))
+        return 0.0;
+    for (uint32_t i = 0; i < 2 * n; i++)
+        K[i] = -K[i];
+    if (!solve_linear(J, K, n, 2))
+        return 0.0;
+    /* The last vertex's move turns omega_l = (y_k - l) / |y_k - l|. */
+    const pt_mf_vert *v = &c->v[c->k - 1];
+    uint32_t r0 = 2 * (c->k - 1);
+    double yk[3], wl[3];
+    pt_mf_point(v, v->b, yk);
+    for (int j = 0; j < 3; j++)
+        wl[j] = yk[j] - l[j];
+    double dist = norm3(wl);
+    if (!(dist > 0.0))
+        return 0.0;
+    double u1[3], u2[3];
+    tangents(wl, u1, u2);
+    double M[2][2];
+    for (int col = 0; col < 2; col++) {
+        double dy[3];
+        for (int j = 0; j < 3; j++)
+            dy[j] = v->e1[j] * K[r0 * 2 + col] + v->e2[j] * K[(r0 + 1) * 2 + col];
         M[0][col] = dot3(u1, dy) / dist;
         M[1][col] = dot3(u2, dy) / dist;
     }

@@ -48,7 +48,9 @@ typedef struct pt_mf_vert {
 } pt_mf_vert;
 
 typedef struct pt_mf_chain {
-    uint32_t k; /* vertices, 1 .. PT_MF_MAX */
+    uint32_t k;  /* vertices, 1 .. PT_MF_MAX */
+    uint32_t at; /* 0: light leaves the last vertex along wl (a light at infinity);
+                    1: wl is a point the light comes from (a point or spot light) */
     pt_mf_vert v[PT_MF_MAX];
 } pt_mf_chain;
 
@@ -80,5 +82,14 @@ int pt_mf_solve(const double x[3], pt_mf_chain *c, const double wl[3], pt_mf_pro
 /* |d omega / d omega_L| at a root: the solid angle of directions at x per
  * solid angle of wl; 0 where the chain is singular. */
 double pt_mf_jacobian(const double x[3], const pt_mf_chain *c, const double wl[3]);
+
+/* For a chain that ends at the point l (c->at): |d omega_l / dA_x|, the solid
+ * angle of the directions leaving l per area at x across the chain's first
+ * segment, the implicit function theorem's answer to x moved along the two
+ * tangents of that segment. A point light's intensity I along omega_l then
+ * gives x the irradiance I |d omega_l / dA_x| times the interfaces'
+ * transmittance (flux along a thin tube of rays: no radiance, so no index
+ * squared; 1 / d^2 with no glass between). 0 where the chain is singular. */
+double pt_mf_point_jacobian(const double x[3], const pt_mf_chain *c, const double l[3]);
 
 #endif

@@ -1788,6 +1788,17 @@ static int mf_seed_bent(const mf_ctx *ctx, pt_vec3 wl, pt_mf_chain *c)
     return mf_project((void *)ctx, &c->v[0], p, q, &c->v[1]);
 }
 
+/* The index of refraction on q's side of chain vertex v's surface: 1 in
+ * front of it (its geometric normal's side), its glass's behind. */
+static double mf_side_index(const pt_mf_vert *v, const double q[3])
+{
+    double p[3], side = 0.0;
+    pt_mf_point(v, v->b, p);
+    for (int j = 0; j < 3; j++)
+        side += (q[j] - p[j]) * v->ng[j];
+    return side > 0.0 ? 1.0 : v->ior;
+}
+
 /* A chain from x to the environment, found and checked. */
 typedef struct mf_link {
     uint32_t k;
@@ -1798,23 +1809,28 @@ typedef struct mf_link {
 } mf_link;
 
 /* The chain from x (geometric normal ng on the side wl leaves, medium
- * `medium` there) to the environment along wl, in *lk: MF_SEED_CHAIN when
+ * `medium` there) to the environment along wl, or with `at` to the point
+ * light at *at (wl the unit direction to it), in *lk: MF_SEED_CHAIN when
  * one was found and checked, else what the seed ray met (a seed that met
  * glass but gave no chain is MF_SEED_BLOCKED). */
 static __attribute__((noinline)) int mf_connect(const pt_renderer *r, pt_vec3 x, pt_vec3 ng,
-                                                int32_t medium, pt_vec3 wl, uint32_t depth,
-                                                mf_link *lk, const uint32_t features)
+                                                int32_t medium, pt_vec3 wl, const pt_vec3 *at,
+                                                uint32_t depth, mf_link *lk,
+                                                const uint32_t features)
 {
     const pt_scene *s = r->scene;
     if (!(pt_v3_dot(wl, ng) > 0.0f))
         return MF_SEED_BLOCKED;
     pt_mf_chain c;
     c.k = 0;
+    c.at = at != NULL;
     uint32_t passed = 0;
     pt_vec3 o = pt_offset_apply(r->offset, x, ng);
     for (;;) {
         pt_hit hit;
-        if (!pt_accel_intersect(r->accel, o, wl, INFINITY, &hit))
+        /* Up to the light's point; beyond it nothing matters. */
+        float tfar = at ? pt_v3_dot(pt_v3_sub(*at, o), wl) : INFINITY;
+        if (!pt_accel_intersect(r->accel, o, wl, tfar, &hit))
             break;
         const pt_material *m = &s->materials[s->tri_material[hit.tri] & ~TRI_FLAT];
         if (c.k == 0 && (features & PT_FEAT_THIN_GLASS) && r->thin_glass && thin_wall(m))
@@ -1834,7 +1850,8 @@ static __attribute__((noinline)) int mf_connect(const pt_renderer *r, pt_vec3 x,
     if (depth + c.k >= r->params.max_depth)
         return MF_SEED_BLOCKED;
     mf_ctx ctx = {r, ng};
-    double xd[3] = {x.x, x.y, x.z}, wd[3] = {wl.x, wl.y, wl.z};
+    pt_vec3 end = at ? *at : wl;
+    double xd[3] = {x.x, x.y, x.z}, wd[3] = {end.x, end.y, end.z};
     pt_mf_chain seed = c;
     if (!pt_mf_solve(xd, &c, wd, mf_project, &ctx)) {
         c = seed;
@@ -1871,7 +1888,7 @@ static __attribute__((noinline)) int mf_connect(const pt_renderer *r, pt_vec3 x,
         if (!(tk > 0.0f) || !any_positive(w))
             return MF_SEED_BLOCKED;
         pt_vec3 wi = pt_frame_to_world(&fr, wi_l);
-        pt_vec3 next = wl;
+        pt_vec3 next = at ? pt_v3_norm(pt_v3_sub(*at, sf.p)) : wl;
         if (i + 1 < c.k) {
             double qd[3];
             pt_mf_point(&c.v[i + 1], c.v[i + 1].b, qd);
@@ -1891,12 +1908,31 @@ static __attribute__((noinline)) int mf_connect(const pt_renderer *r, pt_vec3 x,
         from = sf.p;
         fng = sf.ng;
     }
-    if (med >= 0) /* out into the environment through an absorbing volume: nothing */
-        return MF_SEED_BLOCKED;
-    pt_hit hit;
-    if (pt_accel_intersect(r->accel, mf_off(r, from, fng, wl), wl, INFINITY, &hit))
-        return MF_SEED_BLOCKED;
-    float jac = (float)pt_mf_jacobian(xd, &c, wd);
+    float jac;
+    if (at) {
+        /* The last segment reaches the light, through the medium it is in;
+         * the flux along the chain's tube of rays leaves the light in
+         * that medium's index and reaches x in x's: pt_closure_refracted's
+         * weights carry the radiance's change of (index at x / index at the
+         * light)^2, which the flux has not (manifold.h). */
+        pt_vec3 d = pt_v3_sub(*at, from);
+        float dist = pt_v3_len(d);
+        d = pt_v3_scale(d, 1.0f / dist);
+        if (!(dist > 0.0f) || pt_accel_occluded(r->accel, mf_off(r, from, fng, d), d, dist))
+            return MF_SEED_BLOCKED;
+        if ((features & PT_FEAT_VOLUME) && med >= 0)
+            T = pt_v3_mul(T, medium_transmittance(s, med, dist));
+        double n_x = mf_side_index(&c.v[0], xd), n_l = mf_side_index(&c.v[c.k - 1], wd);
+        T = pt_v3_scale(T, (float)((n_l / n_x) * (n_l / n_x)));
+        jac = (float)pt_mf_point_jacobian(xd, &c, wd);
+    } else {
+        if (med >= 0) /* out into the environment through an absorbing volume: nothing */
+            return MF_SEED_BLOCKED;
+        pt_hit hit;
+        if (pt_accel_intersect(r->accel, mf_off(r, from, fng, wl), wl, INFINITY, &hit))
+            return MF_SEED_BLOCKED;
+        jac = (float)pt_mf_jacobian(xd, &c, wd);
+    }
     if (!(jac > 0.0f) || !isfinite(jac) || !any_positive(T))
         return MF_SEED_BLOCKED;
     lk->k = c.k;
@@ -1921,7 +1957,8 @@ static __attribute__((noinline)) float mf_bsdf_weight(const pt_renderer *r, cons
     if (!(lp > 0.0f) || !(pt_luminance(le) > r->mf_min_light))
         return 1.0f;
     mf_link lk;
-    if (mf_connect(r, m->x, m->ng, m->medium, pa->d, m->depth, &lk, features) != MF_SEED_CHAIN ||
+    if (mf_connect(r, m->x, m->ng, m->medium, pa->d, NULL, m->depth, &lk, features) !=
+            MF_SEED_CHAIN ||
         lk.k != m->k)
         return 1.0f;
     for (uint32_t i = 0; i < lk.k; i++) {
@@ -1943,10 +1980,14 @@ static uint32_t mf_nee(const pt_renderer *r, path *pa, const surface *sf, const 
                        uint32_t ret, const uint32_t features)
 {
     mf_link lk;
-    int got = mf_connect(r, sf->p, ng, pa->medium, ls->wi, pa->depth, &lk, features);
-    if (got == MF_SEED_THIN)
+    const int at = ls->delta == PT_LIGHT_AT;
+    int got = mf_connect(r, sf->p, ng, pa->medium, ls->wi, at ? &ls->position : NULL, pa->depth,
+                         &lk, features);
+    /* A point light's shadow ray is shade's, as before: the seed ray ran
+     * from another point towards it. */
+    if (got == MF_SEED_THIN || (at && got != MF_SEED_CHAIN))
         return ret;
-    if (ret & SHADE_SHADOW) {
+    if ((ret & SHADE_SHADOW) && !at) {
         /* The shadow ray's contribution, added where trace_shadow would
          * have: after this bounce's emission, before anything else. */
         if (got == MF_SEED_MISS) {
@@ -1968,11 +2009,26 @@ static uint32_t mf_nee(const pt_renderer *r, path *pa, const surface *sf, const 
         return ret;
     /* A directional light is a delta in wl: no sampled path finds it, and
      * ls->radiance is its irradiance (J carries it to the directions at
-     * x); the environment is weighed against the sampled paths. */
+     * x); the environment is weighed against the sampled paths. A point
+     * or spot light is a delta too: its intensity towards the chain's last
+     * vertex (its range's window over the chain's length) times
+     * |d omega_l / dA_x| (lk.jac) is the irradiance. */
+    pt_vec3 le = ls->radiance;
+    if (at) {
+        pt_vec3 prev = sf->p;
+        float len = 0.0f;
+        for (uint32_t i = 0; i < lk.k; i++) {
+            len += pt_v3_len(pt_v3_sub(lk.y[i], prev));
+            prev = lk.y[i];
+        }
+        pt_vec3 d = pt_v3_sub(ls->position, prev);
+        float dl = pt_v3_len(d);
+        le = pt_punctual_intensity(ls->punct, pt_v3_scale(d, 1.0f / dl), len + dl);
+    }
     float mis =
-        ls->delta == PT_LIGHT_FAR ? 1.0f : power_heuristic(ls->pdf / lk.jac, bpdf * lk.take);
-    pt_vec3 c = pt_v3_mul(pt_v3_mul(pa->beta, pt_v3_mul(f, lk.T)),
-                          pt_v3_scale(ls->radiance, mis * lk.jac / ls->pdf));
+        ls->delta == PT_LIGHT_FAR || at ? 1.0f : power_heuristic(ls->pdf / lk.jac, bpdf * lk.take);
+    pt_vec3 c =
+        pt_v3_mul(pt_v3_mul(pa->beta, pt_v3_mul(f, lk.T)), pt_v3_scale(le, mis * lk.jac / ls->pdf));
     /* The light arrives at sf after smooth bounces: indirect, as the
      * sampled path that finds it counts it. */
     c = clamp_sample(r, pa, c, 0, features);
@@ -2178,7 +2234,8 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     if ((features & PT_FEAT_MANIFOLD) && r->manifold && (features & PT_FEAT_GLOSSY) && ls_ok &&
         !through && ls->pdf > 0.0f &&
         ((ls->delta == PT_LIGHT_ENV && pt_luminance(ls->radiance) > r->mf_min_light) ||
-         ((features & PT_FEAT_PUNCTUAL) && ls->delta == PT_LIGHT_FAR)))
+         ((features & PT_FEAT_PUNCTUAL) &&
+          (ls->delta == PT_LIGHT_FAR || ls->delta == PT_LIGHT_AT))))
         ret = mf_nee(r, pa, sf, ls, ng, &fr, &cl, sr, ret, features);
 
     float u3[3];
@@ -3418,14 +3475,12 @@ static int scene_thin_glass(const pt_scene *s)
     return 0;
 }
 
-/* 1 when the scene has a directional light, which manifold NEE connects
- * through thick glass as it does the environment. */
-static int scene_directional(const pt_scene *s)
+/* 1 when the scene has a punctual light (directional, point or spot),
+ * which manifold NEE connects through thick glass as it does the
+ * environment. */
+static int scene_punctual(const pt_scene *s)
 {
-    for (uint32_t i = 0; i < s->num_punctual; i++)
-        if (s->punctual[i].type == PT_PUNCTUAL_DIRECTIONAL)
-            return 1;
-    return 0;
+    return s->num_punctual > 0;
 }
 
 /* 1 when some material is glass a manifold chain may refract at
@@ -3539,7 +3594,7 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
     if (r->thin_glass)
         features |= PT_FEAT_THIN_GLASS;
     features &= ~(uint32_t)PT_FEAT_MANIFOLD;
-    r->manifold = !params->no_manifold && (params->env || scene_directional(scene)) && r->nee &&
+    r->manifold = !params->no_manifold && (params->env || scene_punctual(scene)) && r->nee &&
                   params->light_strategy == PT_LIGHT_MIS && (features & PT_FEAT_GLOSSY) &&
                   !(features & (PT_FEAT_ALPHA | PT_FEAT_MOTION)) && scene_manifold(scene);
     if (r->manifold) {
