@@ -25,6 +25,7 @@
 #include "common/render/film.h"
 #include "common/render/render.h"
 #include "tests/check.h"
+#include "tests/common/render/ortho.h"
 
 #define W 8u
 #define SPP 256u
@@ -47,14 +48,7 @@ static pt_scene *half_plane(float rho)
     float q[12] = {EDGE, -P, 0, P, -P, 0, P, P, 0, EDGE, P, 0};
     const uint32_t idx[6] = {0, 1, 2, 0, 2, 3};
     CHECK(pt_scene_builder_add_mesh(b, "half", q, NULL, NULL, 4, idx, 2, NULL, mat, &err) == PT_OK);
-    pt_camera cam = {0};
-    cam.position = pt_v3(0, 0, 10);
-    cam.forward = pt_v3(0, 0, -1);
-    cam.right = pt_v3(1, 0, 0);
-    cam.up = pt_v3(0, 1, 0);
-    cam.ortho = 1;
-    cam.xmag = cam.ymag = (float)W / 2;
-    cam.aspect = 1.0f;
+    pt_camera cam = pt_test_ortho_down(0, 0, 10, (float)W / 2);
     CHECK(pt_scene_builder_add_camera(b, &cam, &err) == PT_OK);
     pt_scene *s = NULL;
     CHECKF(pt_scene_builder_finish(b, NULL, &s, &err) == PT_OK, "%s", err.msg);

@@ -37,6 +37,7 @@
 #include "common/render/passes.h"
 #include "common/render/render.h"
 #include "tests/check.h"
+#include "tests/common/render/ortho.h"
 
 static uint32_t bits_of(float f)
 {
@@ -215,14 +216,7 @@ static void render_coverage(void)
     CHECK(pt_scene_builder_add_mesh(b, "left", ql, NULL, NULL, 4, idx, 2, NULL, i1, &err) == PT_OK);
     CHECK(pt_scene_builder_set_object(b, "right", &err) == PT_OK);
     CHECK(pt_scene_builder_add_mesh(b, "r", qr, NULL, NULL, 4, idx, 2, NULL, i2, &err) == PT_OK);
-    pt_camera cam = {0};
-    cam.position = pt_v3(0, 0, 10);
-    cam.forward = pt_v3(0, 0, -1);
-    cam.right = pt_v3(1, 0, 0);
-    cam.up = pt_v3(0, 1, 0);
-    cam.ortho = 1;
-    cam.xmag = cam.ymag = (float)W / 2;
-    cam.aspect = 1.0f;
+    pt_camera cam = pt_test_ortho_down(0, 0, 10, (float)W / 2);
     CHECK(pt_scene_builder_add_camera(b, &cam, &err) == PT_OK);
     pt_scene *s = NULL;
     CHECKF(pt_scene_builder_finish(b, NULL, &s, &err) == PT_OK, "%s", err.msg);

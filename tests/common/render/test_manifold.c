@@ -60,6 +60,7 @@
 #include "common/render/render.h"
 #include "common/scene/scene.h"
 #include "tests/check.h"
+#include "tests/common/render/ortho.h"
 #include "tests/common/render/paired.h"
 
 #define ETA 1.5
@@ -522,15 +523,7 @@ static pt_scene *slab_scene(double tilt_deg)
     snprintf(l.name, sizeof l.name, "sun");
     const double at[3] = {0.0, 0.0, 10.0};
     CHECKF(pt_scene_builder_add_punctual(b, &l, at, &err) == PT_OK, "%s", err.msg);
-    pt_camera cam = {0};
-    cam.position = pt_v3(0, 0, 3);
-    cam.forward = pt_v3(0, 0, -1);
-    cam.right = pt_v3(1, 0, 0);
-    cam.up = pt_v3(0, 1, 0);
-    cam.ortho = 1;
-    cam.xmag = cam.ymag = 0.5f;
-    cam.aspect = 1.0f;
-    snprintf(cam.name, sizeof cam.name, "cam");
+    pt_camera cam = pt_test_ortho_down(0, 0, 3, 0.5f);
     CHECK(pt_scene_builder_add_camera(b, &cam, &err) == PT_OK);
     pt_scene_opts o = {0};
     pt_scene *sc = NULL;
@@ -681,15 +674,7 @@ static pt_scene *point_sphere_scene(int hollow)
     l.intensity = pt_v3((float)I_PT, (float)I_PT, (float)I_PT);
     snprintf(l.name, sizeof l.name, "bulb");
     CHECKF(pt_scene_builder_add_punctual(b, &l, c, &err) == PT_OK, "%s", err.msg);
-    pt_camera cam = {0};
-    cam.position = pt_v3(1.2f, 0.3f, 3.0f);
-    cam.forward = pt_v3(0, 0, -1);
-    cam.right = pt_v3(1, 0, 0);
-    cam.up = pt_v3(0, 1, 0);
-    cam.ortho = 1;
-    cam.xmag = cam.ymag = 5e-4f;
-    cam.aspect = 1.0f;
-    snprintf(cam.name, sizeof cam.name, "cam");
+    pt_camera cam = pt_test_ortho_down(1.2f, 0.3f, 3.0f, 5e-4f);
     CHECK(pt_scene_builder_add_camera(b, &cam, &err) == PT_OK);
     pt_scene_opts o = {0};
     pt_scene *sc = NULL;

@@ -40,6 +40,7 @@
 #include "common/render/passes.h"
 #include "common/render/render.h"
 #include "tests/check.h"
+#include "tests/common/render/ortho.h"
 
 #define W 8u
 #define SPP 64u
@@ -71,19 +72,6 @@ static void parse(void)
     CHECK(!strcmp(t, "depth,halves"));
     pt_passes_text(0, t, sizeof t);
     CHECK(t[0] == '\0');
-}
-
-static pt_camera ortho_down(float height, float half_width)
-{
-    pt_camera cam = {0};
-    cam.position = pt_v3(0, 0, height);
-    cam.forward = pt_v3(0, 0, -1);
-    cam.right = pt_v3(1, 0, 0);
-    cam.up = pt_v3(0, 1, 0);
-    cam.ortho = 1;
-    cam.xmag = cam.ymag = half_width;
-    cam.aspect = 1.0f;
-    return cam;
 }
 
 static pt_renderer *renderer(const pt_scene *s, const pt_env *env, uint32_t w, uint32_t passes)
@@ -160,7 +148,7 @@ static pt_scene *planes_scene(void)
           PT_OK);
     CHECK(pt_scene_builder_add_mesh(b, "plane", qr, NULL, NULL, 4, idx, 2, NULL, mm, &err) ==
           PT_OK);
-    pt_camera cam = ortho_down(HEIGHT, (float)W / 2);
+    pt_camera cam = pt_test_ortho_down(0, 0, HEIGHT, (float)W / 2);
     CHECK(pt_scene_builder_add_camera(b, &cam, &err) == PT_OK);
     pt_scene *s = NULL;
     CHECKF(pt_scene_builder_finish(b, NULL, &s, &err) == PT_OK, "%s", err.msg);
@@ -265,7 +253,7 @@ static pt_scene *sphere_scene(float half_width)
           PT_OK);
     pt_free(pos);
     pt_free(idx);
-    pt_camera cam = ortho_down(HEIGHT, half_width);
+    pt_camera cam = pt_test_ortho_down(0, 0, HEIGHT, half_width);
     CHECK(pt_scene_builder_add_camera(b, &cam, &err) == PT_OK);
     pt_scene *s = NULL;
     CHECKF(pt_scene_builder_finish(b, NULL, &s, &err) == PT_OK, "%s", err.msg);
@@ -359,7 +347,7 @@ static void mirror_albedo(void)
     CHECK(pt_scene_builder_add_mesh(b, "mirror", qm, NULL, NULL, 4, idx, 2, NULL, mm, &err) ==
           PT_OK);
     CHECK(pt_scene_builder_add_mesh(b, "wall", qw, NULL, NULL, 4, idx, 2, NULL, mw, &err) == PT_OK);
-    pt_camera cam = ortho_down(HEIGHT, 1.0f);
+    pt_camera cam = pt_test_ortho_down(0, 0, HEIGHT, 1.0f);
     CHECK(pt_scene_builder_add_camera(b, &cam, &err) == PT_OK);
     pt_scene *s = NULL;
     CHECKF(pt_scene_builder_finish(b, NULL, &s, &err) == PT_OK, "%s", err.msg);

@@ -67,6 +67,7 @@
 #include "common/render/render.h"
 #include "common/scene/scene.h"
 #include "tests/check.h"
+#include "tests/common/render/ortho.h"
 #include "tests/common/render/paired.h"
 #include "tests/rng.h"
 
@@ -278,15 +279,7 @@ static pt_scene *sheet_scene(int with_light, float half, int mode)
         CHECK(pt_scene_builder_add_mesh(b, "sheet", sheet, NULL, NULL, 4, idx, 2, NULL, mg, &err) ==
               PT_OK);
     }
-    pt_camera cam = {0};
-    cam.position = pt_v3(0, 0, 3);
-    cam.forward = pt_v3(0, 0, -1);
-    cam.right = pt_v3(1, 0, 0);
-    cam.up = pt_v3(0, 1, 0);
-    cam.ortho = 1;
-    cam.xmag = cam.ymag = half;
-    cam.aspect = 1.0f;
-    snprintf(cam.name, sizeof cam.name, "cam");
+    pt_camera cam = pt_test_ortho_down(0, 0, 3, half);
     CHECK(pt_scene_builder_add_camera(b, &cam, &err) == PT_OK);
     pt_scene_opts o = {0};
     pt_scene *s = NULL;
@@ -525,15 +518,7 @@ static pt_scene *stack_scene(int n)
         CHECK(pt_scene_builder_add_mesh(b, "sheet", sh, NULL, NULL, 4, idx, 2, NULL, mg, &err) ==
               PT_OK);
     }
-    pt_camera cam = {0};
-    cam.position = pt_v3(0, 0, 0.3f);
-    cam.forward = pt_v3(0, 0, -1);
-    cam.right = pt_v3(1, 0, 0);
-    cam.up = pt_v3(0, 1, 0);
-    cam.ortho = 1;
-    cam.xmag = cam.ymag = 0.25f;
-    cam.aspect = 1.0f;
-    snprintf(cam.name, sizeof cam.name, "cam");
+    pt_camera cam = pt_test_ortho_down(0, 0, 0.3f, 0.25f);
     CHECK(pt_scene_builder_add_camera(b, &cam, &err) == PT_OK);
     pt_scene_opts o = {0};
     pt_scene *s = NULL;
