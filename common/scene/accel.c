@@ -342,6 +342,7 @@ static pt_status add_instances(pt_accel *a, const pt_scene *scene, pt_error *err
 
 static pt_status accel_begin(pt_accel **out, pt_error *err);
 static pt_status accel_commit(pt_accel *a, const pt_scene *scene, pt_error *err);
+static pt_status accel_done(pt_accel *a, const pt_scene *scene, pt_accel **out, pt_error *err);
 
 pt_status pt_accel_new(const pt_scene *scene, pt_accel **out, pt_error *err)
 {
@@ -379,10 +380,7 @@ pt_status pt_accel_new(const pt_scene *scene, pt_accel **out, pt_error *err)
                                scene->num_triangles, NULL, scene->indices, err)) != PT_OK)
             goto fail;
     }
-    if ((st = accel_commit(a, scene, err)) != PT_OK)
-        goto fail;
-    *out = a;
-    return PT_OK;
+    return accel_done(a, scene, out, err);
 
 fail:
     pt_accel_free(a);
@@ -410,10 +408,7 @@ pt_status pt_accel_new_subset(const pt_scene *scene, const uint32_t *sel, uint32
     if (n > 0 && (st = add_geometry(a, scene, 0, 1, nv, scene->positions, 0, n, sel, scene->indices,
                                     err)) != PT_OK)
         goto fail;
-    if ((st = accel_commit(a, scene, err)) != PT_OK)
-        goto fail;
-    *out = a;
-    return PT_OK;
+    return accel_done(a, scene, out, err);
 
 fail:
     pt_accel_free(a);
@@ -439,6 +434,17 @@ static pt_status accel_begin(pt_accel **out, pt_error *err)
     rtcSetSceneFlags(a->scene, RTC_SCENE_FLAG_ROBUST);
     rtcSetSceneBuildQuality(a->scene, RTC_BUILD_QUALITY_HIGH);
     return PT_OK;
+}
+
+/* accel_commit, then a in *out, or freed on an error. */
+static pt_status accel_done(pt_accel *a, const pt_scene *scene, pt_accel **out, pt_error *err)
+{
+    pt_status st = accel_commit(a, scene, err);
+    if (st == PT_OK)
+        *out = a;
+    else
+        pt_accel_free(a);
+    return st;
 }
 
 /* Builds a's BVH over what was attached, and the offsets of scene's size. */

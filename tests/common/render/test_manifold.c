@@ -468,7 +468,10 @@ static void unbiased(void)
 #define RHO_D 0.6
 #define E_DIR 2.0
 
-static pt_scene *slab_scene(double tilt_deg)
+/* A builder holding a Lambert plane (albedo RHO_D) at z = 0, 200 wide, and
+ * in *mg a smooth thick glass material (ior ETA) of the given thickness;
+ * NULL on an error. */
+static pt_scene_builder *plane_and_glass(float thickness, uint32_t *mg)
 {
     pt_error err = {0};
     pt_scene_builder *b = NULL;
@@ -484,16 +487,41 @@ static pt_scene *slab_scene(double tilt_deg)
     gl.metallic = 0.0f;
     gl.roughness = 0.0f;
     gl.transmission = 1.0f;
-    gl.thickness = 0.5f;
+    gl.thickness = thickness;
     gl.ior = (float)ETA;
-    uint32_t ml = 0, mg = 0;
+    uint32_t ml = 0;
     CHECKF(pt_scene_builder_add_material(b, &lam, &ml, &err) == PT_OK, "%s", err.msg);
-    CHECKF(pt_scene_builder_add_material(b, &gl, &mg, &err) == PT_OK, "%s", err.msg);
-    const float R = 100.0f, lo = 1.0f, hi = 1.5f;
+    CHECKF(pt_scene_builder_add_material(b, &gl, mg, &err) == PT_OK, "%s", err.msg);
+    const float R = 100.0f;
     const float plane[12] = {-R, -R, 0, R, -R, 0, R, R, 0, -R, R, 0};
     const uint32_t quad[6] = {0, 1, 2, 0, 2, 3};
     CHECK(pt_scene_builder_add_mesh(b, "plane", plane, NULL, NULL, 4, quad, 2, NULL, ml, &err) ==
           PT_OK);
+    return b;
+}
+
+/* b's scene with light l (at `at`), seen through cam. */
+static pt_scene *lit_scene(pt_scene_builder *b, const pt_punctual *l, const double at[3],
+                           pt_camera cam)
+{
+    pt_error err = {0};
+    CHECKF(pt_scene_builder_add_punctual(b, l, at, &err) == PT_OK, "%s", err.msg);
+    CHECK(pt_scene_builder_add_camera(b, &cam, &err) == PT_OK);
+    pt_scene_opts o = {0};
+    pt_scene *sc = NULL;
+    CHECKF(pt_scene_builder_finish(b, &o, &sc, &err) == PT_OK, "%s", err.msg);
+    return sc;
+}
+
+static pt_scene *slab_scene(double tilt_deg)
+{
+    uint32_t mg = 0;
+    pt_scene_builder *b = plane_and_glass(0.5f, &mg);
+    if (!b)
+        return NULL;
+    pt_error err = {0};
+    const float R = 100.0f, lo = 1.0f, hi = 1.5f;
+    const uint32_t quad[6] = {0, 1, 2, 0, 2, 3};
     /* The slab's six faces, each with its own vertices and outward normal
      * (counter-clockwise seen from outside). */
     const float c[8][3] = {{-R, -R, lo}, {R, -R, lo}, {R, R, lo}, {-R, R, lo},
@@ -522,13 +550,36 @@ static pt_scene *slab_scene(double tilt_deg)
     l.intensity = pt_v3((float)E_DIR, (float)E_DIR, (float)E_DIR);
     snprintf(l.name, sizeof l.name, "sun");
     const double at[3] = {0.0, 0.0, 10.0};
-    CHECKF(pt_scene_builder_add_punctual(b, &l, at, &err) == PT_OK, "%s", err.msg);
-    pt_camera cam = pt_test_ortho_down(0, 0, 3, 0.5f);
-    CHECK(pt_scene_builder_add_camera(b, &cam, &err) == PT_OK);
-    pt_scene_opts o = {0};
-    pt_scene *sc = NULL;
-    CHECKF(pt_scene_builder_finish(b, &o, &sc, &err) == PT_OK, "%s", err.msg);
-    return sc;
+    return lit_scene(b, &l, at, pt_test_ortho_down(0, 0, 3, 0.5f));
+}
+
+/* The mean green of s's w x w image, spp samples a pixel, at max_depth
+ * depth (manifold NEE off when `off`), and its standard error in *se; the
+ * render's stats in *st. */
+static double plane_mean(const pt_scene *s, uint32_t w, uint32_t depth, uint32_t seed, uint32_t spp,
+                         int off, pt_render_stats *st, double *se)
+{
+    pt_render_params p;
+    pt_render_params_default(&p);
+    p.width = p.height = w;
+    p.max_depth = depth;
+    p.seed = seed;
+    p.no_manifold = (uint32_t)off;
+    pt_renderer *r = NULL;
+    pt_error err = {0};
+    CHECKF(pt_renderer_new(s, &p, &r, &err) == PT_OK, "%s", err.msg);
+    if (!r)
+        return NAN;
+    double sum = 0.0, sq = 0.0, n = (double)w * w * spp;
+    for (uint32_t i = 0; i < w * w * spp; i++) {
+        pt_vec3 v = pt_render_sample(r, i % w, (i / w) % w, i / (w * w), st, NULL);
+        sum += v.y;
+        sq += (double)v.y * v.y;
+    }
+    pt_renderer_free(r);
+    double m = sum / n;
+    *se = sqrt(fmax(sq / n - m * m, 0.0) / (n - 1.0));
+    return m;
 }
 
 static void directional_slab(void)
@@ -543,27 +594,8 @@ static void directional_slab(void)
         double want = (1.0 - f1) * (1.0 - f1) * RHO_D / 3.14159265358979323846 * E_DIR * ct *
                       (1.0 - ft) * (1.0 - ft);
         for (int off = 0; off <= 1; off++) {
-            pt_render_params p;
-            pt_render_params_default(&p);
-            p.width = p.height = 8;
-            p.max_depth = 5;
-            p.seed = 4;
-            p.no_manifold = (uint32_t)off;
-            pt_renderer *r = NULL;
-            pt_error err = {0};
-            CHECKF(pt_renderer_new(s, &p, &r, &err) == PT_OK, "%s", err.msg);
-            if (!r)
-                continue;
-            double sum = 0.0, sq = 0.0;
-            uint64_t n = 0;
             pt_render_stats st = {0};
-            for (uint32_t i = 0; i < 8 * 8 * 1024; i++) {
-                pt_vec3 v = pt_render_sample(r, i % 8, (i / 8) % 8, i / 64, &st, NULL);
-                sum += v.y;
-                sq += (double)v.y * v.y;
-                n++;
-            }
-            double m = sum / (double)n, se = sqrt(fmax(sq / (double)n - m * m, 0.0) / (n - 1.0));
+            double se = 0.0, m = plane_mean(s, 8, 5, 4, 1024, off, &st, &se);
             printf("slab, light %d deg off the vertical%s: %.6f +- %.6f, closed form %.6f; %llu "
                    "chains\n",
                    tilt, off ? ", without manifold NEE" : "", m, se, off ? 0.0 : want,
@@ -573,7 +605,6 @@ static void directional_slab(void)
             else
                 CHECKF(fabs(m - want) < 5.0 * se + 1e-6 * want, "%g against %g (+- %g)", m, want,
                        se);
-            pt_renderer_free(r);
         }
         pt_scene_free(s);
     }
@@ -639,30 +670,10 @@ static void sphere_mesh(pt_scene_builder *b, const char *name, const double c[3]
 
 static pt_scene *point_sphere_scene(int hollow)
 {
-    pt_error err = {0};
-    pt_scene_builder *b = NULL;
-    CHECK(pt_scene_builder_new(&b, &err) == PT_OK);
+    uint32_t mg = 0;
+    pt_scene_builder *b = plane_and_glass(0.15f, &mg);
     if (!b)
         return NULL;
-    pt_material lam = pt_material_default();
-    lam.metallic = 0.0f;
-    lam.specular = 0.0f;
-    lam.double_sided = 1;
-    lam.base_color[0] = lam.base_color[1] = lam.base_color[2] = (float)RHO_D;
-    pt_material gl = pt_material_default();
-    gl.metallic = 0.0f;
-    gl.roughness = 0.0f;
-    gl.transmission = 1.0f;
-    gl.thickness = 0.15f;
-    gl.ior = (float)ETA;
-    uint32_t ml = 0, mg = 0;
-    CHECKF(pt_scene_builder_add_material(b, &lam, &ml, &err) == PT_OK, "%s", err.msg);
-    CHECKF(pt_scene_builder_add_material(b, &gl, &mg, &err) == PT_OK, "%s", err.msg);
-    const float R = 100.0f;
-    const float plane[12] = {-R, -R, 0, R, -R, 0, R, R, 0, -R, R, 0};
-    const uint32_t quad[6] = {0, 1, 2, 0, 2, 3};
-    CHECK(pt_scene_builder_add_mesh(b, "plane", plane, NULL, NULL, 4, quad, 2, NULL, ml, &err) ==
-          PT_OK);
     const double c[3] = {0.0, 0.0, 1.0};
     sphere_mesh(b, "outer", c, 0.5, 0, mg);
     if (hollow)
@@ -673,13 +684,7 @@ static pt_scene *point_sphere_scene(int hollow)
     l.direction = pt_v3(0.0f, 0.0f, -1.0f);
     l.intensity = pt_v3((float)I_PT, (float)I_PT, (float)I_PT);
     snprintf(l.name, sizeof l.name, "bulb");
-    CHECKF(pt_scene_builder_add_punctual(b, &l, c, &err) == PT_OK, "%s", err.msg);
-    pt_camera cam = pt_test_ortho_down(1.2f, 0.3f, 3.0f, 5e-4f);
-    CHECK(pt_scene_builder_add_camera(b, &cam, &err) == PT_OK);
-    pt_scene_opts o = {0};
-    pt_scene *sc = NULL;
-    CHECKF(pt_scene_builder_finish(b, &o, &sc, &err) == PT_OK, "%s", err.msg);
-    return sc;
+    return lit_scene(b, &l, c, pt_test_ortho_down(1.2f, 0.3f, 3.0f, 5e-4f));
 }
 
 static void point_sphere(void)
@@ -693,26 +698,8 @@ static void point_sphere(void)
         double want =
             RHO_D / 3.14159265358979323846 * I_PT * pow(1.0 - f1, hollow ? 2 : 1) / d / d2;
         for (int off = 0; off <= 1; off++) {
-            pt_render_params p;
-            pt_render_params_default(&p);
-            p.width = p.height = 4;
-            p.max_depth = 3;
-            p.seed = 5;
-            p.no_manifold = (uint32_t)off;
-            pt_renderer *r = NULL;
-            pt_error err = {0};
-            CHECKF(pt_renderer_new(s, &p, &r, &err) == PT_OK, "%s", err.msg);
-            if (!r)
-                continue;
-            double sum = 0.0;
-            uint64_t n = 0;
             pt_render_stats st = {0};
-            for (uint32_t i = 0; i < 4 * 4 * 64; i++) {
-                pt_vec3 v = pt_render_sample(r, i % 4, (i / 4) % 4, i / 16, &st, NULL);
-                sum += v.y;
-                n++;
-            }
-            double m = sum / (double)n;
+            double se = 0.0, m = plane_mean(s, 4, 3, 5, 64, off, &st, &se);
             printf("point light in a %s glass sphere%s: %.6f, closed form %.6f; %llu chains\n",
                    hollow ? "hollow" : "solid", off ? ", without manifold NEE" : "", m,
                    off ? 0.0 : want, (unsigned long long)st.chains);
@@ -721,7 +708,6 @@ static void point_sphere(void)
                        m);
             else
                 CHECKF(fabs(m - want) < 5e-4 * want, "%g against %g", m, want);
-            pt_renderer_free(r);
         }
         pt_scene_free(s);
     }
