@@ -1150,6 +1150,9 @@ bounce_light(const pt_renderer *r, const surface *sf, const path *pa, const floa
 /* shade()'s first step: the hit's emission into pa->L, weighted by the
  * power heuristic against the light pdf when the path got here by sampling
  * its BSDF (Veach 1997, sec. 9.2). */
+static float mf_emit_weight(const pt_renderer *r, const path *pa, const pt_hit *hit,
+                            const surface *sf, const uint32_t features);
+
 static inline __attribute__((always_inline)) void shade_emission(const pt_renderer *r, path *pa,
                                                                  const pt_hit *hit,
                                                                  const surface *sf,
@@ -1178,6 +1181,9 @@ static inline __attribute__((always_inline)) void shade_emission(const pt_render
         mis = power_heuristic(pa->prev_pdf, lp);
         le = pt_v3_scale(le, mis);
     }
+    if ((features & PT_FEAT_MANIFOLD) && pa->mf && pa->mf->k != MF_OFF && pa->mf->k > 0 &&
+        any_positive(le))
+        le = pt_v3_scale(le, mf_emit_weight(r, pa, hit, sf, features));
     PT_TRACE_EVENT(PT_TRACE_EMIT, pa->depth, (int32_t)(sf->mat - s->materials), -1, 0, pa->prev_pdf,
                    lp, mis, pt_v3_mul(pa->beta, le));
     /* Found at depth d, the light arrives at vertex d - 1: direct up to 1. */
@@ -1805,14 +1811,19 @@ typedef struct mf_link {
     pt_vec3 y[PT_MF_MAX];
     pt_vec3 T;  /* the refractions' expected weights and the media's transmittance */
     float take; /* the product of the refractions' pick probabilities */
-    float jac;  /* |d w / d wl| */
+    float jac;  /* |d w / d wl|; to a point: |d omega_l / dA_x| */
+    float flux; /* to a point: (index at the light / index at x)^2, which turns the
+                   refractions' radiance weights T into the flux's; else 1 */
 } mf_link;
 
 /* The chain from x (geometric normal ng on the side wl leaves, medium
  * `medium` there) to the environment along wl, or with `at` to the point
- * light at *at (wl the unit direction to it), in *lk: MF_SEED_CHAIN when
- * one was found and checked, else what the seed ray met (a seed that met
- * glass but gave no chain is MF_SEED_BLOCKED). */
+ * *at of a point light or an emitter (wl the unit direction to it), in
+ * *lk: MF_SEED_CHAIN when one was found and checked, else what the seed ray
+ * met (a seed that met glass but gave no chain is MF_SEED_BLOCKED). Rays
+ * towards a point stop short of it by MF_AT_SHORT of their length (an
+ * emitter's own triangle lies there). */
+#define MF_AT_SHORT 1e-4f
 static __attribute__((noinline)) int mf_connect(const pt_renderer *r, pt_vec3 x, pt_vec3 ng,
                                                 int32_t medium, pt_vec3 wl, const pt_vec3 *at,
                                                 uint32_t depth, mf_link *lk,
@@ -1829,7 +1840,7 @@ static __attribute__((noinline)) int mf_connect(const pt_renderer *r, pt_vec3 x,
     for (;;) {
         pt_hit hit;
         /* Up to the light's point; beyond it nothing matters. */
-        float tfar = at ? pt_v3_dot(pt_v3_sub(*at, o), wl) : INFINITY;
+        float tfar = at ? (1.0f - MF_AT_SHORT) * pt_v3_dot(pt_v3_sub(*at, o), wl) : INFINITY;
         if (!pt_accel_intersect(r->accel, o, wl, tfar, &hit))
             break;
         const pt_material *m = &s->materials[s->tri_material[hit.tri] & ~TRI_FLAT];
@@ -1917,13 +1928,18 @@ static __attribute__((noinline)) int mf_connect(const pt_renderer *r, pt_vec3 x,
          * light)^2, which the flux has not (manifold.h). */
         pt_vec3 d = pt_v3_sub(*at, from);
         float dist = pt_v3_len(d);
-        d = pt_v3_scale(d, 1.0f / dist);
-        if (!(dist > 0.0f) || pt_accel_occluded(r->accel, mf_off(r, from, fng, d), d, dist))
+        if (!(dist > 0.0f))
+            return MF_SEED_BLOCKED;
+        /* aimed from the offset origin, so that an emitter is met at l */
+        pt_vec3 lo = mf_off(r, from, fng, d), ld = pt_v3_sub(*at, lo);
+        float ll = pt_v3_len(ld);
+        if (!(ll > 0.0f) ||
+            pt_accel_occluded(r->accel, lo, pt_v3_scale(ld, 1.0f / ll), (1.0f - MF_AT_SHORT) * ll))
             return MF_SEED_BLOCKED;
         if ((features & PT_FEAT_VOLUME) && med >= 0)
             T = pt_v3_mul(T, medium_transmittance(s, med, dist));
         double n_x = mf_side_index(&c.v[0], xd), n_l = mf_side_index(&c.v[c.k - 1], wd);
-        T = pt_v3_scale(T, (float)((n_l / n_x) * (n_l / n_x)));
+        lk->flux = (float)((n_l / n_x) * (n_l / n_x));
         jac = (float)pt_mf_point_jacobian(xd, &c, wd);
     } else {
         if (med >= 0) /* out into the environment through an absorbing volume: nothing */
@@ -1932,6 +1948,7 @@ static __attribute__((noinline)) int mf_connect(const pt_renderer *r, pt_vec3 x,
         if (pt_accel_intersect(r->accel, mf_off(r, from, fng, wl), wl, INFINITY, &hit))
             return MF_SEED_BLOCKED;
         jac = (float)pt_mf_jacobian(xd, &c, wd);
+        lk->flux = 1.0f;
     }
     if (!(jac > 0.0f) || !isfinite(jac) || !any_positive(T))
         return MF_SEED_BLOCKED;
@@ -1969,6 +1986,58 @@ static __attribute__((noinline)) float mf_bsdf_weight(const pt_renderer *r, cons
     return power_heuristic(m->pdf * m->take, lp / lk.jac);
 }
 
+/* The density over the directions at x of manifold NEE's chain lk from x
+ * to point l of an emitter (geometric normal n) that light sampling picked
+ * with solid-angle pdf lp along the straight line: its area density lp
+ * |cos_s| / d^2 over |d omega_x / dA_l| = |cos_c| flux |d omega_l / dA_x|
+ * (the etendue n^2 dA dw is kept along the tube), cos_s and cos_c the
+ * cosines at l of the straight line and of the chain's last segment. 0 when
+ * the two leave different sides of the emitter (not taken). */
+static float mf_area_pdf(float lp, pt_vec3 n, pt_vec3 x, pt_vec3 l, const mf_link *lk)
+{
+    pt_vec3 s = pt_v3_sub(x, l), c = pt_v3_sub(lk->y[lk->k - 1], l);
+    float ds = pt_v3_len(s), dc = pt_v3_len(c);
+    float cos_s = pt_v3_dot(n, s) / ds, cos_c = pt_v3_dot(n, c) / dc;
+    if (!(cos_s * cos_c > 0.0f))
+        return 0.0f;
+    float pd = lp * fabsf(cos_s) / (ds * ds) / (fabsf(cos_c) * lk->flux * lk->jac);
+    return isfinite(pd) ? pd : 0.0f;
+}
+
+/* The power heuristic's weight of a sampled path that reached point sf->p
+ * of emitter hit->tri after pa->mf's refractions from a rough vertex x,
+ * against manifold NEE at x of that point (mf_nee); 1 when manifold NEE
+ * would not find it. */
+static __attribute__((noinline)) float mf_emit_weight(const pt_renderer *r, const path *pa,
+                                                      const pt_hit *hit, const surface *sf,
+                                                      const uint32_t features)
+{
+    const mf_path *m = pa->mf;
+    pt_vec3 d = pt_v3_sub(sf->p, m->x);
+    float dist = pt_v3_len(d);
+    float lp = pt_lights_pdf(r->lights, r->scene, hit->tri, m->x, m->ln, sf->p, sf->ng);
+    if (!(lp > 0.0f) || !(dist > 0.0f))
+        return 1.0f;
+    mf_link lk;
+    if (mf_connect(r, m->x, m->ng, m->medium, pt_v3_scale(d, 1.0f / dist), &sf->p, m->depth, &lk,
+                   features) != MF_SEED_CHAIN ||
+        lk.k != m->k)
+        return 1.0f;
+    /* The same chain: on the glass sphere of test_manifold's emitter_sphere
+     * the solver's vertices lie up to 1e-3 of their distance from the
+     * sampled path's (both refract within float rounding of each other
+     * there: the chain's end on the emitter moves little as they move), so
+     * 1e-3, the environment's tolerance, took a third of the same chains for
+     * others and counted their light twice. */
+    for (uint32_t i = 0; i < lk.k; i++) {
+        float di = pt_v3_len(pt_v3_sub(m->y[i], m->x));
+        if (!(pt_v3_len(pt_v3_sub(lk.y[i], m->y[i])) <= 1e-2f * di))
+            return 1.0f;
+    }
+    float pd = mf_area_pdf(lp, r->tris[hit->tri].ng, m->x, sf->p, &lk);
+    return pd > 0.0f ? power_heuristic(m->pdf * m->take, pd) : 1.0f;
+}
+
 /* Manifold NEE at rough vertex sf (closure cl, frame fr, geometric normal
  * ng on wo's side) for its light sample ls of the environment or of a
  * directional light, which the
@@ -1980,14 +2049,18 @@ static uint32_t mf_nee(const pt_renderer *r, path *pa, const surface *sf, const 
                        uint32_t ret, const uint32_t features)
 {
     mf_link lk;
-    const int at = ls->delta == PT_LIGHT_AT;
-    int got = mf_connect(r, sf->p, ng, pa->medium, ls->wi, at ? &ls->position : NULL, pa->depth,
-                         &lk, features);
-    /* A point light's shadow ray is shade's, as before: the seed ray ran
-     * from another point towards it. */
-    if (got == MF_SEED_THIN || (at && got != MF_SEED_CHAIN))
+    const int at = ls->delta == PT_LIGHT_AT, area = ls->delta == PT_LIGHT_AREA;
+    /* An emitter's point whose front the straight line does not see is not
+     * taken (mf_emit_weight's rule too). */
+    if (area && !any_positive(ls->radiance))
         return ret;
-    if ((ret & SHADE_SHADOW) && !at) {
+    int got = mf_connect(r, sf->p, ng, pa->medium, ls->wi, at || area ? &ls->position : NULL,
+                         pa->depth, &lk, features);
+    /* A point light's or an emitter's shadow ray is shade's, as before: the
+     * seed ray ran from another point towards it. */
+    if (got == MF_SEED_THIN || ((at || area) && got != MF_SEED_CHAIN))
+        return ret;
+    if ((ret & SHADE_SHADOW) && !at && !area) {
         /* The shadow ray's contribution, added where trace_shadow would
          * have: after this bounce's emission, before anything else. */
         if (got == MF_SEED_MISS) {
@@ -2027,8 +2100,20 @@ static uint32_t mf_nee(const pt_renderer *r, path *pa, const surface *sf, const 
     }
     float mis =
         ls->delta == PT_LIGHT_FAR || at ? 1.0f : power_heuristic(ls->pdf / lk.jac, bpdf * lk.take);
-    pt_vec3 c =
-        pt_v3_mul(pt_v3_mul(pa->beta, pt_v3_mul(f, lk.T)), pt_v3_scale(le, mis * lk.jac / ls->pdf));
+    float scale = mis * lk.jac / ls->pdf;
+    if (at) {
+        scale *= lk.flux;
+    } else if (area) {
+        /* An emitter's point l: the chain's density over the directions at x
+         * (mf_area_pdf), weighed against the sampled paths that reach l
+         * through the same chain (mf_emit_weight). */
+        float pd = mf_area_pdf(ls->pdf, ls->normal, sf->p, ls->position, &lk);
+        if (!(pd > 0.0f))
+            return ret;
+        mis = power_heuristic(pd, bpdf * lk.take);
+        scale = mis / pd;
+    }
+    pt_vec3 c = pt_v3_mul(pt_v3_mul(pa->beta, pt_v3_mul(f, lk.T)), pt_v3_scale(le, scale));
     /* The light arrives at sf after smooth bounces: indirect, as the
      * sampled path that finds it counts it. */
     c = clamp_sample(r, pa, c, 0, features);
@@ -2235,7 +2320,8 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
         !through && ls->pdf > 0.0f &&
         ((ls->delta == PT_LIGHT_ENV && pt_luminance(ls->radiance) > r->mf_min_light) ||
          ((features & PT_FEAT_PUNCTUAL) &&
-          (ls->delta == PT_LIGHT_FAR || ls->delta == PT_LIGHT_AT))))
+          (ls->delta == PT_LIGHT_FAR || ls->delta == PT_LIGHT_AT)) ||
+         ((features & PT_FEAT_EMITTERS) && ls->delta == PT_LIGHT_AREA)))
         ret = mf_nee(r, pa, sf, ls, ng, &fr, &cl, sr, ret, features);
 
     float u3[3];
@@ -3594,8 +3680,9 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
     if (r->thin_glass)
         features |= PT_FEAT_THIN_GLASS;
     features &= ~(uint32_t)PT_FEAT_MANIFOLD;
-    r->manifold = !params->no_manifold && (params->env || scene_punctual(scene)) && r->nee &&
-                  params->light_strategy == PT_LIGHT_MIS && (features & PT_FEAT_GLOSSY) &&
+    r->manifold = !params->no_manifold &&
+                  (params->env || scene_punctual(scene) || (features & PT_FEAT_EMITTERS)) &&
+                  r->nee && params->light_strategy == PT_LIGHT_MIS && (features & PT_FEAT_GLOSSY) &&
                   !(features & (PT_FEAT_ALPHA | PT_FEAT_MOTION)) && scene_manifold(scene);
     if (r->manifold) {
         features |= PT_FEAT_MANIFOLD;
