@@ -377,6 +377,33 @@ int pt_mf_solve(const double x[3], pt_mf_chain *c, const double wl[3], pt_mf_pro
     return 0;
 }
 
+/* |det| of how the unit direction from `from` to vertex v turns per unit
+ * of the two parameters whose derivatives of v's barycentrics are K's rows
+ * r0, r0 + 1 (2 columns): d(omega) = (I - omega omega^T) dy / dist, read in
+ * omega's tangents. 0 where v is at `from` or the product overflows. */
+static double turn_det(const pt_mf_vert *v, const double *K, uint32_t r0, const double from[3])
+{
+    double y[3], w[3];
+    pt_mf_point(v, v->b, y);
+    for (int j = 0; j < 3; j++)
+        w[j] = y[j] - from[j];
+    double dist = norm3(w);
+    if (!(dist > 0.0))
+        return 0.0;
+    double u1[3], u2[3];
+    tangents(w, u1, u2);
+    double M[2][2];
+    for (int col = 0; col < 2; col++) {
+        double dy[3];
+        for (int j = 0; j < 3; j++)
+            dy[j] = v->e1[j] * K[r0 * 2 + col] + v->e2[j] * K[(r0 + 1) * 2 + col];
+        M[0][col] = dot3(u1, dy) / dist;
+        M[1][col] = dot3(u2, dy) / dist;
+    }
+    double det = fabs(M[0][0] * M[1][1] - M[0][1] * M[1][0]);
+    return isfinite(det) ? det : 0.0;
+}
+
 double pt_mf_jacobian(const double x[3], const pt_mf_chain *c, const double wl[3])
 {
     if (c->k == 0 || c->k > PT_MF_MAX || c->at)
@@ -393,27 +420,7 @@ double pt_mf_jacobian(const double x[3], const pt_mf_chain *c, const double wl[3
     /* db/dtheta = -J^-1 dC/dtheta (K holds its negation). */
     if (!solve_linear(J, K, n, 2))
         return 0.0;
-    const pt_mf_vert *v = &c->v[0];
-    double y[3], w[3];
-    pt_mf_point(v, v->b, y);
-    for (int j = 0; j < 3; j++)
-        w[j] = y[j] - x[j];
-    double dist = norm3(w);
-    if (!(dist > 0.0))
-        return 0.0;
-    double u1[3], u2[3];
-    tangents(w, u1, u2);
-    double M[2][2];
-    for (int col = 0; col < 2; col++) {
-        double dy[3];
-        for (int j = 0; j < 3; j++)
-            dy[j] = v->e1[j] * K[0 * 2 + col] + v->e2[j] * K[1 * 2 + col];
-        /* d(omega) = (I - omega omega^T) dy / dist, read in u1, u2. */
-        M[0][col] = dot3(u1, dy) / dist;
-        M[1][col] = dot3(u2, dy) / dist;
-    }
-    double det = fabs(M[0][0] * M[1][1] - M[0][1] * M[1][0]);
-    return isfinite(det) ? det : 0.0;
+    return turn_det(&c->v[0], K, 0, x);
 }
 
 double pt_mf_point_jacobian(const double x[3], const pt_mf_chain *c, const double l[3])
@@ -437,25 +444,5 @@ double pt_mf_point_jacobian(const double x[3], const pt_mf_chain *c, const doubl
     if (!solve_linear(J, K, n, 2))
         return 0.0;
     /* The last vertex's move turns omega_l = (y_k - l) / |y_k - l|. */
-    const pt_mf_vert *v = &c->v[c->k - 1];
-    uint32_t r0 = 2 * (c->k - 1);
-    double yk[3], wl[3];
-    pt_mf_point(v, v->b, yk);
-    for (int j = 0; j < 3; j++)
-        wl[j] = yk[j] - l[j];
-    double dist = norm3(wl);
-    if (!(dist > 0.0))
-        return 0.0;
-    double u1[3], u2[3];
-    tangents(wl, u1, u2);
-    double M[2][2];
-    for (int col = 0; col < 2; col++) {
-        double dy[3];
-        for (int j = 0; j < 3; j++)
-            dy[j] = v->e1[j] * K[r0 * 2 + col] + v->e2[j] * K[(r0 + 1) * 2 + col];
-        M[0][col] = dot3(u1, dy) / dist;
-        M[1][col] = dot3(u2, dy) / dist;
-    }
-    double det = fabs(M[0][0] * M[1][1] - M[0][1] * M[1][0]);
-    return isfinite(det) ? det : 0.0;
+    return turn_det(&c->v[c->k - 1], K, 2 * (c->k - 1), l);
 }

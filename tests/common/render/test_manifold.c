@@ -320,37 +320,6 @@ static tri lens_at(double z, double tilt, int down)
     return t;
 }
 
-static void curved(void)
-{
-    tri one = lens_at(0.0, 0.5, 0);
-    tri two[2] = {lens_at(0.0, 0.4, 1), lens_at(0.5, -0.3, 0)};
-    const scene2 sc1 = {&one}, sc2 = {two};
-    const double x1[3] = {0.1, 0.05, -0.8}, x2[3] = {0.05, 0.1, -0.7};
-    double worst[2] = {0.0, 0.0};
-    int solved[2] = {0, 0};
-    for (int i = 0; i < 20; i++) {
-        double th = 0.05 + 0.6 * i / 20.0, ph = 2.1 * i;
-        double wl[3] = {sin(th) * cos(ph), sin(th) * sin(ph), cos(th)};
-        for (uint32_t k = 1; k <= 2; k++) {
-            const scene2 *sc = k == 1 ? &sc1 : &sc2;
-            const double *x = k == 1 ? x1 : x2;
-            pt_mf_chain c;
-            if (!solve(sc, k, x, wl, &c))
-                continue;
-            double j = pt_mf_jacobian(x, &c, wl), m = measured_jacobian(sc, k, x, wl, &c);
-            if (!(m > 0.0))
-                continue;
-            solved[k - 1]++;
-            worst[k - 1] = fmax(worst[k - 1], fabs(j / m - 1.0));
-        }
-    }
-    printf("curved: one refraction %d of 20 solved, Jacobian off the measured by %.2g; two %d "
-           "of 20, %.2g\n",
-           solved[0], worst[0], solved[1], worst[1]);
-    CHECK(solved[0] >= 18 && solved[1] >= 18);
-    CHECKF(worst[0] < 1e-3 && worst[1] < 1e-3, "Jacobians off by %g and %g", worst[0], worst[1]);
-}
-
 /* The chain from x to the point l through sc's k triangles, seeded by the
  * straight line and solved (c->at). */
 static int solve_at(const scene2 *sc, uint32_t k, const double x[3], const double l[3],
@@ -411,10 +380,11 @@ static double measured_point_jacobian(const scene2 *sc, uint32_t k, const double
     return fabs(M[0][0] * M[1][1] - M[0][1] * M[1][0]);
 }
 
-/* pt_mf_point_jacobian on the lenses of `curved`, for points l beyond
- * them: equal to the one measured by solving again, to 1e-3; with no glass
- * between, 1 / d^2. */
-static void curved_point(void)
+/* The Jacobians on two lenses (one refraction, two), against the ones
+ * measured by solving again: |d omega / d omega_L| for 20 directions wl,
+ * or with `at`, |d omega_l / dA_x| for 20 points l beyond the lenses; to
+ * 1e-3. */
+static void curved(int at)
 {
     tri one = lens_at(0.0, 0.5, 0);
     tri two[2] = {lens_at(0.0, 0.4, 1), lens_at(0.5, -0.3, 0)};
@@ -424,23 +394,26 @@ static void curved_point(void)
     int solved[2] = {0, 0};
     for (int i = 0; i < 20; i++) {
         double th = 0.05 + 0.6 * i / 20.0, ph = 2.1 * i, r = 0.8 + 0.1 * (i % 5);
-        double l[3] = {r * sin(th) * cos(ph), r * sin(th) * sin(ph), 0.5 + r * cos(th)};
+        double wl[3] = {sin(th) * cos(ph), sin(th) * sin(ph), cos(th)};
+        double l[3] = {r * wl[0], r * wl[1], 0.5 + r * wl[2]};
         for (uint32_t k = 1; k <= 2; k++) {
             const scene2 *sc = k == 1 ? &sc1 : &sc2;
             const double *x = k == 1 ? x1 : x2;
             pt_mf_chain c;
-            if (!solve_at(sc, k, x, l, &c))
+            if (!(at ? solve_at(sc, k, x, l, &c) : solve(sc, k, x, wl, &c)))
                 continue;
-            double j = pt_mf_point_jacobian(x, &c, l), m = measured_point_jacobian(sc, k, x, l, &c);
+            double j = at ? pt_mf_point_jacobian(x, &c, l) : pt_mf_jacobian(x, &c, wl);
+            double m =
+                at ? measured_point_jacobian(sc, k, x, l, &c) : measured_jacobian(sc, k, x, wl, &c);
             if (!(m > 0.0))
                 continue;
             solved[k - 1]++;
             worst[k - 1] = fmax(worst[k - 1], fabs(j / m - 1.0));
         }
     }
-    printf("curved, to a point: %d and %d chains solved; |d omega_l / dA_x| off by %.2g and %.2g "
-           "(relative)\n",
-           solved[0], solved[1], worst[0], worst[1]);
+    printf("curved%s: one refraction %d of 20 solved, Jacobian off the measured by %.2g; two %d "
+           "of 20, %.2g\n",
+           at ? ", to a point" : "", solved[0], worst[0], solved[1], worst[1]);
     CHECK(solved[0] >= 18 && solved[1] >= 18);
     CHECKF(worst[0] < 1e-3 && worst[1] < 1e-3, "Jacobians off by %g and %g", worst[0], worst[1]);
 }
@@ -859,8 +832,8 @@ int main(void)
 {
     snell();
     slab();
-    curved();
-    curved_point();
+    curved(0);
+    curved(1);
     directional_slab();
     point_sphere();
     emitter_sphere();
