@@ -279,7 +279,8 @@ typedef struct pt_render_stats {
     uint64_t crossings;
     uint64_t dropped;
     /* Chains of refractions through thick smooth glass that manifold NEE
-     * connected to the environment (PT_FEAT_MANIFOLD). */
+     * connected to a light: the environment, a punctual light or an emitter
+     * (PT_FEAT_MANIFOLD). */
     uint64_t chains;
 } pt_render_stats;
 
