@@ -1959,6 +1959,20 @@ static __attribute__((noinline)) int mf_connect(const pt_renderer *r, pt_vec3 x,
     return MF_SEED_CHAIN;
 }
 
+/* 1 when manifold NEE's chain lk is the sampled path's m: as many
+ * vertices, each within tol of its distance from x. */
+static int mf_same_chain(const mf_path *m, const mf_link *lk, float tol)
+{
+    if (lk->k != m->k)
+        return 0;
+    for (uint32_t i = 0; i < lk->k; i++) {
+        float dist = pt_v3_len(pt_v3_sub(m->y[i], m->x));
+        if (!(pt_v3_len(pt_v3_sub(lk->y[i], m->y[i])) <= tol * dist))
+            return 0;
+    }
+    return 1;
+}
+
 /* The power heuristic's weight of a sampled path that reached the
  * environment (radiance le, shade_miss's lookup: after a delta lobe no MIS
  * has scaled it) after pa->mf's refractions from a rough vertex x, against
@@ -1976,13 +1990,8 @@ static __attribute__((noinline)) float mf_bsdf_weight(const pt_renderer *r, cons
     mf_link lk;
     if (mf_connect(r, m->x, m->ng, m->medium, pa->d, NULL, m->depth, &lk, features) !=
             MF_SEED_CHAIN ||
-        lk.k != m->k)
+        !mf_same_chain(m, &lk, 1e-3f))
         return 1.0f;
-    for (uint32_t i = 0; i < lk.k; i++) {
-        float dist = pt_v3_len(pt_v3_sub(m->y[i], m->x));
-        if (!(pt_v3_len(pt_v3_sub(lk.y[i], m->y[i])) <= 1e-3f * dist))
-            return 1.0f;
-    }
     return power_heuristic(m->pdf * m->take, lp / lk.jac);
 }
 
@@ -2019,21 +2028,16 @@ static __attribute__((noinline)) float mf_emit_weight(const pt_renderer *r, cons
     if (!(lp > 0.0f) || !(dist > 0.0f))
         return 1.0f;
     mf_link lk;
+    /* The same chain within 1e-2: on the glass sphere of test_manifold's
+     * emitter_sphere the solver's vertices lie up to 1e-3 of their distance
+     * from the sampled path's (both refract within float rounding of each
+     * other there: the chain's end on the emitter moves little as they
+     * move), so 1e-3, the environment's tolerance, took a third of the same
+     * chains for others and counted their light twice. */
     if (mf_connect(r, m->x, m->ng, m->medium, pt_v3_scale(d, 1.0f / dist), &sf->p, m->depth, &lk,
                    features) != MF_SEED_CHAIN ||
-        lk.k != m->k)
+        !mf_same_chain(m, &lk, 1e-2f))
         return 1.0f;
-    /* The same chain: on the glass sphere of test_manifold's emitter_sphere
-     * the solver's vertices lie up to 1e-3 of their distance from the
-     * sampled path's (both refract within float rounding of each other
-     * there: the chain's end on the emitter moves little as they move), so
-     * 1e-3, the environment's tolerance, took a third of the same chains for
-     * others and counted their light twice. */
-    for (uint32_t i = 0; i < lk.k; i++) {
-        float di = pt_v3_len(pt_v3_sub(m->y[i], m->x));
-        if (!(pt_v3_len(pt_v3_sub(lk.y[i], m->y[i])) <= 1e-2f * di))
-            return 1.0f;
-    }
     float pd = mf_area_pdf(lp, r->tris[hit->tri].ng, m->x, sf->p, &lk);
     return pd > 0.0f ? power_heuristic(m->pdf * m->take, pd) : 1.0f;
 }
