@@ -427,7 +427,9 @@ pt_vec3 pt_closure_sample(const pt_closure *c, const float u[3], pt_vec3 *wi, fl
     return pt_v3_scale(f, 1.0f / *pdf);
 }
 
-pt_vec3 pt_closure_refracted(const pt_closure *c, pt_vec3 *wi, float *take)
+/* The delta event `reflect` or not of the closure's one smooth dielectric
+ * lobe (pt_closure_refracted, pt_closure_reflected). */
+static pt_vec3 closure_delta(const pt_closure *c, int reflect, pt_vec3 *wi, float *take)
 {
     pt_vec3 zero = pt_v3(0.0f, 0.0f, 0.0f);
     *take = 0.0f;
@@ -443,11 +445,22 @@ pt_vec3 pt_closure_refracted(const pt_closure *c, pt_vec3 *wi, float *take)
         /* As pt_closure_sample weighs the delta: picking the lobe (prob)
          * cancels against the weight's 1 / prob. */
         float t;
-        pt_vec3 w = pt_dielectric_refracted(&l->p.dielectric, c->wo, wi, &t);
+        pt_vec3 w = reflect ? pt_dielectric_reflected(&l->p.dielectric, c->wo, wi, &t)
+                            : pt_dielectric_refracted(&l->p.dielectric, c->wo, wi, &t);
         *take = l->prob * t;
         return w;
     }
     return zero;
+}
+
+pt_vec3 pt_closure_refracted(const pt_closure *c, pt_vec3 *wi, float *take)
+{
+    return closure_delta(c, 0, wi, take);
+}
+
+pt_vec3 pt_closure_reflected(const pt_closure *c, pt_vec3 *wi, float *take)
+{
+    return closure_delta(c, 1, wi, take);
 }
 
 pt_vec3 pt_closure_straight(const pt_closure *c, int *smooth)

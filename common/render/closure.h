@@ -165,6 +165,10 @@ pt_vec3 pt_closure_straight(const pt_closure *c, int *smooth);
  * glass): zero otherwise, and without such a lobe. */
 pt_vec3 pt_closure_refracted(const pt_closure *c, pt_vec3 *wi, float *take);
 
+/* The same for the closure's delta reflection off a smooth interface, thin
+ * or thick (pt_dielectric_reflected), for the reflection chains. */
+pt_vec3 pt_closure_reflected(const pt_closure *c, pt_vec3 *wi, float *take);
+
 /* The closure's albedo for the render passes (the albedo pass, a guide for
  * the denoiser, not an energy: Cycles' denoising albedo) into *albedo: the
  * sum of its lobes' colours (a diffuse lobe's albedo, a GGX lobe's F0, the

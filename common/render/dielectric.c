@@ -401,6 +401,21 @@ pt_vec3 pt_dielectric_refracted(const pt_dielectric_lobe *l, pt_vec3 wo, pt_vec3
     return pt_v3_scale(l->tint, l->weight * (1.0f - F) / (l->eta * l->eta));
 }
 
+pt_vec3 pt_dielectric_reflected(const pt_dielectric_lobe *l, pt_vec3 wo, pt_vec3 *wi, float *take)
+{
+    pt_vec3 zero = pt_v3(0.0f, 0.0f, 0.0f);
+    *take = 0.0f;
+    if (l->alpha != 0.0f || l->disp || l->film[0] > 0.0f || !(wo.z > 0.0f))
+        return zero;
+    /* smooth_sample's reflection: taken with probability F, weight 1. */
+    float F = pt_fresnel_dielectric(wo.z, l->eta);
+    if (!(F > 0.0f))
+        return zero;
+    *wi = pt_v3(-wo.x, -wo.y, wo.z);
+    *take = F;
+    return pt_v3(l->weight * F, l->weight * F, l->weight * F);
+}
+
 int pt_dielectric_sample(const pt_dielectric_lobe *l, pt_vec3 wo, const float u[3], float prob,
                          pt_vec3 *wi, pt_vec3 *weight, float *pdf)
 {

@@ -143,6 +143,14 @@ pt_vec3 pt_dielectric_straight(const pt_dielectric_lobe *l, pt_vec3 wo);
  * under total internal reflection. */
 pt_vec3 pt_dielectric_refracted(const pt_dielectric_lobe *l, pt_vec3 wo, pt_vec3 *wi, float *take);
 
+/* A smooth interface's delta reflection, thin or thick (manifold NEE's
+ * reflection chains, render.c): the mirrored direction *wi and the lobe's
+ * expected weight along it, weight x F(wo.z) (what pt_dielectric_sample
+ * returns when it takes the reflection, times the probability F that it
+ * does, which goes to *take). Zero when the lobe is rough, dispersive or
+ * filmed (a reflectance per channel), or F is 0. */
+pt_vec3 pt_dielectric_reflected(const pt_dielectric_lobe *l, pt_vec3 wo, pt_vec3 *wi, float *take);
+
 /* Exact Fresnel reflectance of unpolarised light at a dielectric interface,
  * cos_i >= 0 on the incident side, eta = n_transmitted / n_incident; 1 under
  * total internal reflection. */
