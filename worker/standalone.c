@@ -505,7 +505,7 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
                 (double)st.samples / ((double)p.width * p.height));
     if (st.chains > 0)
         fprintf(stderr,
-                "ptworker: %llu light paths through thick glass connected to a light "
+                "ptworker: %llu light paths through or off smooth glass connected to a light "
                 "(manifold NEE)\n",
                 (unsigned long long)st.chains);
     if (p.clamp_direct > 0.0f || p.clamp_indirect > 0.0f)

@@ -1,8 +1,9 @@
 /*
- * manifold.h - chains of smooth refractions between a point and a direction
- * (manifold next-event estimation, Hanika, Droske & Fascione 2015,
- * "Manifold Next Event Estimation", with the half-vector constraint of
- * Jakob & Marschner 2012, "Manifold Exploration").
+ * manifold.h - chains of smooth refractions, or one smooth reflection,
+ * between a point and a direction or a point (manifold next-event
+ * estimation, Hanika, Droske & Fascione 2015, "Manifold Next Event
+ * Estimation", with the half-vector constraint of Jakob & Marschner 2012,
+ * "Manifold Exploration").
  *
  * Light from the environment that reaches a rough point x only through
  * smooth glass (the floor under a glass ball, a thing inside one) is found
@@ -13,9 +14,11 @@
  * vertex the generalised half vector h = eta_a w_a + eta_b w_b (w_a, w_b
  * the unit directions to the neighbours, wl for the last; eta the index on
  * each one's side) is parallel to the shading normal, which is Snell's law
- * (its tangential components cancel). Newton's method solves it in the
- * vertices' barycentrics; a step that leaves a vertex's triangle is put back
- * on the glass by a ray from the previous vertex (the caller's project).
+ * (its tangential components cancel); with both neighbours on one side
+ * (one index), the law of reflection: the same constraint, solver and
+ * Jacobians serve a vertex that mirrors (render.c's reflection chains). Newton's method solves it
+ * in the vertices' barycentrics; a step that leaves a vertex's triangle is put back on the glass by
+ * a ray from the previous vertex (the caller's project).
  *
  * At the root, the implicit function theorem gives how the direction from x
  * to y_1 turns with wl: |d omega / d omega_L|, the ratio of solid angles by

@@ -243,10 +243,13 @@ typedef struct pt_render_params {
      * PT_FEAT_THIN_GLASS (BSDF sampling alone finds light through it); for
      * tests and benchmarks; default 0 */
     uint32_t opaque_thin_glass;
-    /* 1: no manifold next-event estimation through thick smooth glass
-     * (PT_FEAT_MANIFOLD; BSDF sampling alone finds the environment's light
-     * through it, as before); for tests and benchmarks; default 0 */
+    /* 1: no manifold next-event estimation through or off smooth glass
+     * (PT_FEAT_MANIFOLD; BSDF sampling alone finds the light that arrives
+     * through it or off it, as before); for tests and benchmarks; default 0 */
     uint32_t no_manifold;
+    /* 1: manifold NEE through thick glass only, no reflection chains off
+     * smooth glass; for tests and benchmarks; default 0 */
+    uint32_t no_mirror;
     /* Manifold NEE takes only the environment's light samples brighter
      * than this many times the map's mean luminance (the lamps, whose
      * caustics BSDF sampling finds as fireflies); BSDF sampling alone

@@ -418,6 +418,98 @@ static void curved(int at)
     CHECKF(worst[0] < 1e-3 && worst[1] < 1e-3, "Jacobians off by %g and %g", worst[0], worst[1]);
 }
 
+/* The reflection chain off t from x towards wl, seeded where the line from
+ * x along wl mirrored in the xy-plane meets t's plane, and solved. */
+static int solve_mirror(const tri *t, const double x[3], const double wl[3], pt_mf_chain *c)
+{
+    const scene2 sc = {t};
+    double d[3] = {wl[0], wl[1], -wl[2]}, b[2];
+    c->k = 1;
+    c->at = 0;
+    if (!plane_hit(t, x, d, b))
+        return 0;
+    vert_of(t, 0, b[0], b[1], &c->v[0]);
+    return pt_mf_solve(x, c, wl, project, (void *)&sc);
+}
+
+/* The reflection chain off t from x to the point l, seeded towards l's
+ * image in t's plane (the xy-plane), and solved. */
+static int solve_mirror_at(const tri *t, const double x[3], const double l[3], pt_mf_chain *c)
+{
+    const scene2 sc = {t};
+    double d[3] = {l[0] - x[0], l[1] - x[1], -l[2] - x[2]}, b[2];
+    unit3(d);
+    c->k = 1;
+    c->at = 1;
+    if (!plane_hit(t, x, d, b))
+        return 0;
+    vert_of(t, 0, b[0], b[1], &c->v[0]);
+    return pt_mf_solve(x, c, l, project, (void *)&sc);
+}
+
+/*
+ * Reflection chains (manifold.h's constraint with one index on both sides):
+ * off a flat mirror the direction from x is wl mirrored (to 1e-8) and the
+ * Jacobian 1 (a mirror keeps solid angle); to a point l, |d omega_l / dA_x|
+ * is 1 / |x - l'|^2 (l' its mirror image: a light seen in a mirror is that
+ * far). Off a lens-shaped mirror (its normals tilted) both Jacobians match
+ * the ones measured by solving again to 1e-3, for 20 directions and points
+ * each.
+ */
+static void mirror(void)
+{
+    tri flat = flat_at(0.0), lens = lens_at(0.0, 0.5, 0);
+    const scene2 sl = {&lens};
+    const double x[3] = {0.1, -0.05, 0.7};
+    double worst_d = 0.0, worst_f = 0.0, worst_l = 0.0, worst_fa = 0.0, worst_la = 0.0;
+    int solved[2] = {0, 0}, solved_at[2] = {0, 0};
+    for (int i = 0; i < 20; i++) {
+        double th = 0.05 + 1.2 * i / 20.0, ph = 1.7 * i;
+        double wl[3] = {sin(th) * cos(ph), sin(th) * sin(ph), cos(th)};
+        pt_mf_chain c;
+        if (solve_mirror(&flat, x, wl, &c)) {
+            solved[0]++;
+            double w[3];
+            first_dir(x, &c, w);
+            worst_d = fmax(worst_d, fabs(w[0] - wl[0]) + fabs(w[1] - wl[1]) + fabs(w[2] + wl[2]));
+            worst_f = fmax(worst_f, fabs(pt_mf_jacobian(x, &c, wl) - 1.0));
+        }
+        if (th < 0.65 && solve_mirror(&lens, x, wl, &c)) {
+            double m = measured_jacobian(&sl, 1, x, wl, &c);
+            if (m > 0.0) {
+                solved[1]++;
+                worst_l = fmax(worst_l, fabs(pt_mf_jacobian(x, &c, wl) / m - 1.0));
+            }
+        }
+        double r = 0.6 + 0.1 * (i % 5), l[3] = {r * wl[0], r * wl[1], r * wl[2]};
+        if (solve_mirror_at(&flat, x, l, &c)) {
+            solved_at[0]++;
+            double dx = x[0] - l[0], dy = x[1] - l[1], dz = x[2] + l[2];
+            double want = 1.0 / (dx * dx + dy * dy + dz * dz);
+            worst_fa = fmax(worst_fa, fabs(pt_mf_point_jacobian(x, &c, l) / want - 1.0));
+        }
+        if (th < 0.65 && solve_mirror_at(&lens, x, l, &c)) {
+            double m = measured_point_jacobian(&sl, 1, x, l, &c);
+            if (m > 0.0) {
+                solved_at[1]++;
+                worst_la = fmax(worst_la, fabs(pt_mf_point_jacobian(x, &c, l) / m - 1.0));
+            }
+        }
+    }
+    printf("mirror: flat %d of 20 solved, direction off by %.2g, Jacobian off 1 by %.2g; lens %d "
+           "solved, Jacobian off the measured by %.2g\n",
+           solved[0], worst_d, worst_f, solved[1], worst_l);
+    printf("mirror, to a point: flat %d of 20 solved, Jacobian off 1 / |x - l'|^2 by %.2g; lens %d "
+           "solved, off the measured by %.2g\n",
+           solved_at[0], worst_fa, solved_at[1], worst_la);
+    CHECK(solved[0] == 20 && solved[1] >= 9 && solved_at[0] == 20 && solved_at[1] >= 9);
+    CHECKF(worst_fa < 1e-8, "the flat mirror's point Jacobian off by %g", worst_fa);
+    CHECKF(worst_la < 1e-3, "the lens mirror's point Jacobian off by %g", worst_la);
+    CHECKF(worst_d < 1e-8, "the flat mirror turned the light by %g", worst_d);
+    CHECKF(worst_f < 1e-8, "the flat mirror's Jacobian off 1 by %g", worst_f);
+    CHECKF(worst_l < 1e-3, "the lens mirror's Jacobian off by %g", worst_l);
+}
+
 /* A sky of radiance 0.2 with a patch, about 40 by 55 degrees, 28 to 68
  * degrees from the zenith, whose two halves are left and right. */
 static pt_env *patch_sky(float left, float right)
@@ -439,9 +531,10 @@ static pt_env *patch_sky(float left, float right)
     return env;
 }
 
-/* The scene rendered with manifold NEE and without it, paired by block. */
+/* The scene rendered with manifold NEE and without it, paired by block;
+ * with `no_mirror`, the refraction chains alone. */
 static void paired(const char *name, const pt_scene *s, const pt_env *env, uint32_t bs,
-                   float min_light)
+                   float min_light, uint32_t no_mirror)
 {
     const uint32_t side = 32, spp = 512;
     pt_render_params p;
@@ -450,6 +543,7 @@ static void paired(const char *name, const pt_scene *s, const pt_env *env, uint3
     p.seed = 3;
     p.env = env;
     p.manifold_min_light = min_light;
+    p.no_mirror = no_mirror;
     pt_renderer *rn = NULL, *ro = NULL;
     pt_error err = {0};
     CHECKF(pt_renderer_new(s, &p, &rn, &err) == PT_OK, "%s", err.msg);
@@ -481,8 +575,12 @@ static void unbiased(void)
     pt_error err = {0};
     CHECKF(pt_scene_load(path, &o, &s, &err) == PT_OK, "%s", err.msg);
     pt_env *env = patch_sky(3.2f, 3.2f);
+    /* The refraction chains alone: the ball's reflections onto the floor
+     * (mirror_sphere's) are so rare a find for BSDF sampling here that at
+     * 512 spp most blocks hold none, and their paired differences are the
+     * chains' light alone, not a mean a z-test can judge. */
     if (s && env)
-        paired("glass ball", s, env, 8, 0.0f);
+        paired("glass ball", s, env, 8, 0.0f, 1);
     pt_env_free(env);
     /* Halves of 1.6 and 4.8 (past the mean, both sampled), manifold NEE
      * taking the brighter only: both strategies must draw the same line
@@ -491,7 +589,7 @@ static void unbiased(void)
     env = patch_sky(1.6f, 4.8f);
     if (s && env)
         paired("glass ball, the brighter half alone", s, env, 8,
-               (float)(3.2 / pt_env_mean_luminance(env)));
+               (float)(3.2 / pt_env_mean_luminance(env)), 1);
     pt_scene_free(s);
     /* Absorbing glass (KHR_materials_volume's attenuation): the chain's
      * media. */
@@ -500,7 +598,7 @@ static void unbiased(void)
     env = NULL;
     CHECK(pt_env_uniform(pt_v3(0.8f, 0.8f, 0.8f), &env, &err) == PT_OK);
     if (s && env) {
-        paired("AttenuationTest", s, env, 8, 0.0f);
+        paired("AttenuationTest", s, env, 8, 0.0f, 0);
         /* With the default bound a uniform sky has no light sample past
          * it: no chain, BSDF sampling alone (and the image as before). */
         pt_render_params p;
@@ -837,8 +935,174 @@ static void emitter_sphere(void)
 {
     pt_scene *s = bulb_scene();
     if (s)
-        paired("emitter in a glass sphere", s, NULL, 8, 0.0f);
+        paired("emitter in a glass sphere", s, NULL, 8, 0.0f, 0);
     pt_scene_free(s);
+}
+
+/*
+ * A directional light off a glass wall, closed form: a Lambert plane
+ * (albedo RHO_D) at z = 0 and a wall of smooth thin glass (ior 1.5) in the
+ * plane x = 0, 10 high and 200 wide, lit by a directional light of
+ * irradiance E from t = 20 degrees off the vertical on the +x side. The
+ * wall mirrors the light onto the plane beside it (out to x = 10 tan t),
+ * reflecting F(sin t) of it (the wall's Fresnel at its cosine sin t to the
+ * light); a camera straight down sees a patch 1e-3 wide around (1, 0.3, 0),
+ * where the light also falls directly, at max_depth 2 (the plane's own
+ * light samples alone), so each pixel reads
+ *   RHO_D / pi E cos t (1 + F(sin t));
+ * within 5 standard errors. Without reflection chains (no_manifold) no
+ * path finds the mirrored light, a delta seen in a delta: the direct term
+ * alone, exactly.
+ */
+static pt_scene *wall_scene(void)
+{
+    uint32_t mg = 0;
+    pt_scene_builder *b = plane_and_glass(0.0f, &mg);
+    if (!b)
+        return NULL;
+    pt_error err = {0};
+    const float R = 100.0f, H = 10.0f;
+    const float pos[12] = {0, -R, 0, 0, R, 0, 0, R, H, 0, -R, H};
+    const uint32_t quad[6] = {0, 1, 2, 0, 2, 3};
+    CHECK(pt_scene_builder_add_mesh(b, "wall", pos, NULL, NULL, 4, quad, 2, NULL, mg, &err) ==
+          PT_OK);
+    pt_punctual l;
+    memset(&l, 0, sizeof l);
+    l.type = PT_PUNCTUAL_DIRECTIONAL;
+    double t = 20.0 * 3.14159265358979323846 / 180.0;
+    l.direction = pt_v3((float)-sin(t), 0.0f, (float)-cos(t));
+    l.intensity = pt_v3((float)E_DIR, (float)E_DIR, (float)E_DIR);
+    snprintf(l.name, sizeof l.name, "sun");
+    const double at[3] = {0.0, 0.0, 10.0};
+    return lit_scene(b, &l, at, pt_test_ortho_down(1.0f, 0.3f, 3.0f, 5e-4f));
+}
+
+static void directional_wall(void)
+{
+    pt_scene *s = wall_scene();
+    if (!s)
+        return;
+    double t = 20.0 * 3.14159265358979323846 / 180.0;
+    double direct = RHO_D / 3.14159265358979323846 * E_DIR * cos(t);
+    double want = direct * (1.0 + pt_fresnel_dielectric((float)sin(t), (float)ETA));
+    for (int off = 0; off <= 1; off++) {
+        pt_render_stats st = {0};
+        double se = 0.0, m = plane_mean(s, 4, 2, 6, 256, off, &st, &se);
+        printf("wall, directional light%s: %.6f +- %.6f, closed form %.6f; %llu chains\n",
+               off ? ", without reflection chains" : "", m, se, off ? direct : want,
+               (unsigned long long)st.chains);
+        if (off)
+            CHECKF(fabs(m - direct) <= 1e-5 * direct && st.chains == 0,
+                   "%g against the direct light's %g", m, direct);
+        else
+            CHECKF(fabs(m - want) < 5.0 * se + 1e-5 * want && st.chains > 0,
+                   "%g against %g (+- %g)", m, want, se);
+    }
+    pt_scene_free(s);
+}
+
+/*
+ * A point light off the glass wall, closed form: wall_scene's plane and
+ * wall, lit by a point light of intensity I_PT at l = (2, 0.5, 3) instead
+ * of the sun. The plane's point p = (1, 0.3, 0) takes the light directly,
+ * I cos / |p - l|^2, and off the wall as from l's mirror image l' = (-2,
+ * 0.5, 3), I F(c) cos' / |p - l'|^2, reflecting F(c) at the wall (c = 3 /
+ * |p - l'|, the cosine there; the line from l' meets the wall at y = (0,
+ * 0.367, 1)).
+ * A spot at l aimed between p and that point of the wall, nearer the
+ * wall's, whose cone (5 to 20 degrees) dims both lines by different
+ * amounts, scales each term by its own: the intensity is the one towards
+ * the chain's vertex, not towards p. (A spot whose cone misses the straight
+ * line to p is not chained at all: its light sample is not taken there.)
+ * Within 1e-4 (a flat wall: no facets); without reflection chains the
+ * direct term alone, exactly. A pane 0.8 wide around that point instead of
+ * the wall fills about 0.52 sr of p's view, under MR_OMEGA (pi): p chains
+ * off it in about a sixth of its samples, weighed up by as much; the mean
+ * within 5 standard errors.
+ */
+
+/* glTF's spot falloff along unit u for a spot along unit a. */
+static double spot_falloff(const double a[3], const double u[3], double ci, double co)
+{
+    double t = (dot3(a, u) - co) / (ci - co);
+    t = t < 0.0 ? 0.0 : t > 1.0 ? 1.0 : t;
+    return t * t;
+}
+
+static void point_wall(void)
+{
+    const double l[3] = {2.0, 0.5, 3.0}, p[3] = {1.0, 0.3, 0.0};
+    const double li[3] = {-2.0, 0.5, 3.0};
+    double d2 = 0.0, i2 = 0.0;
+    for (int j = 0; j < 3; j++) {
+        d2 += (p[j] - l[j]) * (p[j] - l[j]);
+        i2 += (p[j] - li[j]) * (p[j] - li[j]);
+    }
+    const double c = 3.0 / sqrt(i2), f = pt_fresnel_dielectric((float)c, (float)ETA);
+    /* the unit directions from l to p and to the wall's point y (2/3 of the
+     * way from l' to p), and the spot's axis between them */
+    double up[3] = {p[0] - l[0], p[1] - l[1], p[2] - l[2]}, uy[3], ax[3];
+    for (int j = 0; j < 3; j++)
+        uy[j] = li[j] + 2.0 / 3.0 * (p[j] - li[j]) - l[j];
+    unit3(up);
+    unit3(uy);
+    for (int j = 0; j < 3; j++)
+        ax[j] = 0.3 * up[j] + 0.7 * uy[j];
+    unit3(ax);
+    const double ci = cos(5.0 * 3.14159265358979323846 / 180.0),
+                 co = cos(20.0 * 3.14159265358979323846 / 180.0);
+    for (int v = 0; v < 3; v++) {
+        /* the point light, the spot, the point light off a small pane */
+        const int spot = v == 1, pane = v == 2;
+        double sp = spot ? spot_falloff(ax, up, ci, co) : 1.0,
+               sy = spot ? spot_falloff(ax, uy, ci, co) : 1.0;
+        const double direct = sp * RHO_D / 3.14159265358979323846 * I_PT * (3.0 / sqrt(d2)) / d2;
+        const double mirrored =
+            sy * RHO_D / 3.14159265358979323846 * I_PT * f * (3.0 / sqrt(i2)) / i2;
+        uint32_t mg = 0;
+        pt_scene_builder *b = plane_and_glass(0.0f, &mg);
+        if (!b)
+            return;
+        pt_error err = {0};
+        const float R = 100.0f, H = 10.0f;
+        const float wall[12] = {0, -R, 0, 0, R, 0, 0, R, H, 0, -R, H};
+        const float small[12] = {0, 0, 0.6f, 0, 0.8f, 0.6f, 0, 0.8f, 1.4f, 0, 0, 1.4f};
+        const float *pos = pane ? small : wall;
+        const uint32_t quad[6] = {0, 1, 2, 0, 2, 3};
+        CHECK(pt_scene_builder_add_mesh(b, "wall", pos, NULL, NULL, 4, quad, 2, NULL, mg, &err) ==
+              PT_OK);
+        pt_punctual pl;
+        memset(&pl, 0, sizeof pl);
+        pl.type = spot ? PT_PUNCTUAL_SPOT : PT_PUNCTUAL_POINT;
+        pl.direction = pt_v3((float)ax[0], (float)ax[1], (float)ax[2]);
+        pl.cos_inner = (float)ci;
+        pl.cos_outer = (float)co;
+        pl.intensity = pt_v3((float)I_PT, (float)I_PT, (float)I_PT);
+        snprintf(pl.name, sizeof pl.name, "lamp");
+        pt_scene *s = lit_scene(b, &pl, l, pt_test_ortho_down(1.0f, 0.3f, 3.0f, 5e-4f));
+        if (!s)
+            continue;
+        double want = direct + mirrored;
+        for (int off = 0; off <= 1; off++) {
+            pt_render_stats st = {0};
+            double se = 0.0, m = plane_mean(s, 4, 2, 6, pane ? 4096 : 64, off, &st, &se);
+            double w = off ? want - mirrored : want;
+            printf("%s, %s light%s: %.6f +- %.6f, closed form %.6f; %llu chains\n",
+                   pane ? "pane" : "wall", spot ? "spot" : "point",
+                   off ? ", without reflection chains" : "", m, se, w,
+                   (unsigned long long)st.chains);
+            if (spot && !off)
+                printf("  the spot's falloff towards the plane's point %.4f, the wall's %.4f\n", sp,
+                       sy);
+            if (pane && !off)
+                CHECKF(fabs(m - w) < 5.0 * se + 1e-4 * want && st.chains > 0,
+                       "%g against %g (+- %g)", m, w, se);
+            else
+                CHECKF(fabs(m - w) <= 1e-4 * want && (st.chains > 0) == !off, "%g against %g", m,
+                       w);
+        }
+        pt_scene_free(s);
+    }
 }
 
 int main(void)
@@ -847,9 +1111,12 @@ int main(void)
     slab();
     curved(0);
     curved(1);
+    mirror();
     directional_slab();
     point_sphere();
     emitter_sphere();
+    directional_wall();
+    point_wall();
     unbiased();
     return check_report();
 }
