@@ -2329,16 +2329,46 @@ static int mr_seed(const pt_renderer *r, pt_vec3 x, pt_vec3 ng, pt_vec3 wl, cons
            chain_vert(r, &hit, 1, v) && mr_object_of(r, &hit) == o->object;
 }
 
-/* The reflection chain from x (geometric normal ng on the side of its
- * path, in medium `medium`) off reflecting object k towards the light
- * along wl, or to the point *at, in *lk: MF_SEED_CHAIN when one was found
- * and checked as the renderer sees it (x sees y, y's closure reflects the
- * light from x towards the light, which y sees). */
-static __attribute__((noinline)) int mr_connect(const pt_renderer *r, pt_vec3 x, pt_vec3 ng,
-                                                int32_t medium, pt_vec3 wl, const pt_vec3 *at,
-                                                uint32_t k, uint32_t depth, mf_link *lk,
+static int shadow_through(const pt_renderer *r, path *pa, const shadow_ray *sr,
+                          const pt_ray_sink *sink, pt_vec3 *tr, const uint32_t features);
+
+/* 1 when the light is seen from o along unit d over dist (INFINITY: a light
+ * at infinity), through the smooth thin walls a shadow ray crosses
+ * (shadow_through: their transmittance into *tr, at most as many as a path
+ * whose vertex o is at `depth` could cross, alpha passed by alpha_key), or
+ * past nothing at all without them. */
+static int mr_light_seen(const pt_renderer *r, path *pa, pt_vec3 o, pt_vec3 d, float dist,
+                         uint32_t depth, uint32_t alpha_key, pt_vec3 *tr, const uint32_t features)
+{
+    *tr = pt_v3(1.0f, 1.0f, 1.0f);
+    if ((features & PT_FEAT_THIN_GLASS) && r->thin_glass) {
+        uint32_t left = r->params.max_depth - 1u - depth;
+        shadow_ray sr;
+        sr.from = o;
+        sr.dir = d;
+        sr.dist = dist;
+        sr.alpha_key = alpha_key;
+        sr.cross_max = left < PT_SHADOW_CROSSINGS ? left : PT_SHADOW_CROSSINGS;
+        return shadow_through(r, pa, &sr, NULL, tr, features);
+    }
+    pt_hit hit;
+    return isfinite(dist) ? !pt_accel_occluded(r->accel, o, d, dist)
+                          : !pt_accel_intersect(r->accel, o, d, INFINITY, &hit);
+}
+
+/* The reflection chain from x, pa's vertex (geometric normal ng on the side
+ * of its path), off reflecting object k towards the light along wl, or to
+ * the point *at, in *lk: MF_SEED_CHAIN when one was found and checked as
+ * the renderer sees it (x sees y, y's closure reflects the light from x
+ * towards the light, which y sees, past thin walls with their
+ * transmittance in lk->T; alpha_key passes MASK and BLEND surfaces there). */
+static __attribute__((noinline)) int mr_connect(const pt_renderer *r, path *pa, pt_vec3 x,
+                                                pt_vec3 ng, pt_vec3 wl, const pt_vec3 *at,
+                                                uint32_t k, uint32_t alpha_key, mf_link *lk,
                                                 const uint32_t features)
 {
+    const int32_t medium = pa->medium;
+    const uint32_t depth = pa->depth;
     /* In air, and a vertex at y that scatters, as a sampled path's would. */
     if (medium >= 0 || depth + 1 >= r->params.max_depth)
         return MF_SEED_BLOCKED;
@@ -2360,7 +2390,6 @@ static __attribute__((noinline)) int mr_connect(const pt_renderer *r, pt_vec3 x,
     }
     if (got != MF_SEED_CHAIN)
         return got;
-    pt_hit hit;
     pt_mf_point(&c.v[0], c.v[0].b, pd);
     pt_vec3 w = pt_v3_norm(pt_v3_sub(mf_f3(pd), x));
     surface sf;
@@ -2375,25 +2404,26 @@ static __attribute__((noinline)) int mr_connect(const pt_renderer *r, pt_vec3 x,
      * within the float reflection's rounding */
     if (!(pt_v3_dot(wi, ngs) > 0.0f) || !(wi_l.z > 0.0f) || !(pt_v3_dot(wi, next) > 0.9999f))
         return MF_SEED_BLOCKED;
-    float jac;
+    /* y sees the light (past thin walls, as shade's shadow rays); aimed from
+     * the offset origin, so that nothing at a light's point is met */
+    pt_vec3 lo = mf_off(r, sf.p, sf.ng, next), ld = next, tr;
+    float ll = INFINITY;
     if (at) {
-        /* aimed from the offset origin, so that nothing at l is met */
-        pt_vec3 lo = mf_off(r, sf.p, sf.ng, next), ld = pt_v3_sub(*at, lo);
-        float ll = pt_v3_len(ld);
-        if (!(ll > 0.0f) ||
-            pt_accel_occluded(r->accel, lo, pt_v3_scale(ld, 1.0f / ll), (1.0f - MF_AT_SHORT) * ll))
+        ld = pt_v3_sub(*at, lo);
+        ll = pt_v3_len(ld);
+        if (!(ll > 0.0f))
             return MF_SEED_BLOCKED;
-        jac = (float)pt_mf_point_jacobian(xd, &c, wd);
-    } else {
-        if (pt_accel_intersect(r->accel, mf_off(r, sf.p, sf.ng, wl), wl, INFINITY, &hit))
-            return MF_SEED_BLOCKED;
-        jac = (float)pt_mf_jacobian(xd, &c, wd);
+        ld = pt_v3_scale(ld, 1.0f / ll);
+        ll *= 1.0f - MF_AT_SHORT;
     }
+    if (!mr_light_seen(r, pa, lo, ld, ll, depth + 1u, alpha_key, &tr, features))
+        return MF_SEED_BLOCKED;
+    float jac = (float)(at ? pt_mf_point_jacobian(xd, &c, wd) : pt_mf_jacobian(xd, &c, wd));
     if (!(jac > 0.0f) || !isfinite(jac))
         return MF_SEED_BLOCKED;
     lk->k = 1;
     lk->y[0] = sf.p;
-    lk->T = T;
+    lk->T = pt_v3_mul(T, tr);
     lk->take = tk;
     lk->jac = jac;
     lk->flux = 1.0f;
@@ -2407,14 +2437,14 @@ static __attribute__((noinline)) int mr_connect(const pt_renderer *r, pt_vec3 x,
 static __attribute__((noinline)) void mr_nee(const pt_renderer *r, path *pa, const surface *sf,
                                              const pt_light_sample *ls, pt_vec3 ng,
                                              const pt_frame *fr, const pt_closure *cl, int both,
-                                             float u, const uint32_t features)
+                                             float u, uint32_t alpha_key, const uint32_t features)
 {
     float P;
     const int at = ls->delta == PT_LIGHT_AT;
     uint32_t k = mr_pick(r, sf->p, ng, both, u, &P);
     mf_link lk;
-    if (k == MR_NONE || mr_connect(r, sf->p, ng, pa->medium, ls->wi, at ? &ls->position : NULL, k,
-                                   pa->depth, &lk, features) != MF_SEED_CHAIN)
+    if (k == MR_NONE || mr_connect(r, pa, sf->p, ng, ls->wi, at ? &ls->position : NULL, k,
+                                   alpha_key, &lk, features) != MF_SEED_CHAIN)
         return;
     if (pa->mf)
         pa->mf->chains++;
@@ -2646,7 +2676,8 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     if ((features & PT_FEAT_MANIFOLD) && (features & PT_FEAT_PUNCTUAL) && r->mirror &&
         (features & PT_FEAT_GLOSSY) && ls_ok && (!through || thin) && ls->pdf > 0.0f &&
         (ls->delta == PT_LIGHT_FAR || ls->delta == PT_LIGHT_AT))
-        mr_nee(r, pa, sf, ls, ng, &fr, &cl, through, u[OFF_RR], features);
+        mr_nee(r, pa, sf, ls, ng, &fr, &cl, through, u[OFF_RR],
+               pt_alpha_key(u[OFF_ALPHA], ALPHA_SALT_SHADOW), features);
 
     float u3[3];
     u3[0] = u[OFF_LIGHT_PICK + 1];
