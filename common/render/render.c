@@ -2197,10 +2197,11 @@ static uint32_t mf_nee(const pt_renderer *r, path *pa, const surface *sf, const 
  * (pt_closure_reflected), p the light's pick probability. No MIS: no other
  * strategy finds these paths.
  *
- * The environment's and the emitters' light off glass, which BSDF sampling
- * does find, is not chained: weighed against it by MIS (a sampled path's
- * reflection solved again from x, as for the refractions) it was unbiased
- * but did not pay (docs/bench/manifold.md, "Reflections").
+ * The environment's light off glass, which BSDF sampling does find, is not
+ * chained: weighed against it by MIS (a sampled path's reflection solved
+ * again from x, as for the refractions) it was unbiased but did not pay
+ * (docs/bench/manifold.md, "Reflections"). Nor is an emitter's, which
+ * would take the same weighing (not measured).
  */
 /* Reflecting objects the chains know at most (the first ones met in the
  * scene's triangle order; the others reflect no chain). */
