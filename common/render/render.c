@@ -2265,10 +2265,10 @@ static uint32_t mr_pick(const pt_renderer *r, pt_vec3 x, pt_vec3 ng, int both, f
     return last;
 }
 
-/* The object of a reflectors' BVH hit. */
-static inline uint32_t mr_object_of(const pt_renderer *r, const pt_hit *hit)
+/* The scene's object of triangle tri (0 in a scene without objects). */
+static inline uint32_t mr_object_of(const pt_renderer *r, uint32_t tri)
 {
-    return r->scene->tri_object ? r->scene->tri_object[hit->tri] : 0u;
+    return r->scene->tri_object ? r->scene->tri_object[tri] : 0u;
 }
 
 /* The unit direction from p towards the light: wl, or towards the point
@@ -2309,7 +2309,7 @@ static int mr_seed(const pt_renderer *r, pt_vec3 x, pt_vec3 ng, pt_vec3 wl, cons
         pt_vec3 dc = pt_v3_norm(pt_v3_sub(o->c, x));
         double nd[3];
         if (!pt_accel_intersect(r->mr_accel, mf_off(r, x, ng, dc), dc, INFINITY, &hit) ||
-            !chain_vert(r, &hit, 1, v) || mr_object_of(r, &hit) != o->object ||
+            !chain_vert(r, &hit, 1, v) || mr_object_of(r, hit.tri) != o->object ||
             !pt_mf_normal(v, v->b, nd))
             return 0;
         pt_vec3 n = mf_f3(nd);
@@ -2327,7 +2327,7 @@ static int mr_seed(const pt_renderer *r, pt_vec3 x, pt_vec3 ng, pt_vec3 wl, cons
         return 0;
     d = pt_v3_scale(d, 1.0f / ld);
     return pt_accel_intersect(r->mr_accel, mf_off(r, x, ng, d), d, INFINITY, &hit) &&
-           chain_vert(r, &hit, 1, v) && mr_object_of(r, &hit) == o->object;
+           chain_vert(r, &hit, 1, v) && mr_object_of(r, hit.tri) == o->object;
 }
 
 static int shadow_through(const pt_renderer *r, path *pa, const shadow_ray *sr,
@@ -2384,8 +2384,7 @@ static __attribute__((noinline)) int mr_connect(const pt_renderer *r, path *pa, 
     for (int seed = 0; seed < 2 && got != MF_SEED_CHAIN; seed++) {
         if (!mr_seed(r, x, ng, wl, at, o, seed, &c.v[0]))
             continue;
-        got = pt_mf_solve(xd, &c, wd, mf_project, &ctx) &&
-                      (r->scene->tri_object ? r->scene->tri_object[c.v[0].tri] : 0u) == o->object
+        got = pt_mf_solve(xd, &c, wd, mf_project, &ctx) && mr_object_of(r, c.v[0].tri) == o->object
                   ? MF_SEED_CHAIN
                   : MF_SEED_BLOCKED;
     }
@@ -3968,7 +3967,7 @@ static pt_status mr_new(pt_renderer *r, pt_error *err)
     for (uint32_t i = 0; i < nt; i++) {
         if (!mr_caster(&s->materials[s->tri_material[i] & ~TRI_FLAT]))
             continue;
-        uint32_t obj = s->tri_object ? s->tri_object[i] : 0u;
+        uint32_t obj = mr_object_of(r, i);
         uint32_t k = r->mr_of_object[obj];
         if (k == MR_NONE) {
             if (r->mr_n == MR_MAX)
@@ -3996,7 +3995,7 @@ static pt_status mr_new(pt_renderer *r, pt_error *err)
     /* The radius: the farthest vertex from the centre. */
     for (uint32_t i = 0; i < n; i++) {
         const tri_rec *t = &r->tris[r->mr_tris[i]];
-        mr_object *o = &r->mr[r->mr_of_object[s->tri_object ? s->tri_object[r->mr_tris[i]] : 0u]];
+        mr_object *o = &r->mr[r->mr_of_object[mr_object_of(r, r->mr_tris[i])]];
         o->rad = fmaxf(o->rad, fmaxf(pt_v3_len(pt_v3_sub(t->v0, o->c)),
                                      fmaxf(pt_v3_len(pt_v3_sub(t->v1, o->c)),
                                            pt_v3_len(pt_v3_sub(t->v2, o->c)))));
