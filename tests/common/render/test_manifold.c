@@ -959,7 +959,10 @@ static void emitter_sphere(void)
  * then picks the wall or the roof (whose underside mirrors no sun), each
  * with probability 1/2: within 5 standard errors.
  */
-static pt_scene *wall_scene(int roof)
+/* A builder holding plane_and_glass's plane and, of its thin glass, the
+ * wall in the plane x = 0 (or, with `pane`, point_wall's small pane in it)
+ * and with `roof` the roof; NULL on an error. */
+static pt_scene_builder *wall_builder(int pane, int roof)
 {
     uint32_t mg = 0;
     pt_scene_builder *b = plane_and_glass(0.0f, &mg);
@@ -967,15 +970,24 @@ static pt_scene *wall_scene(int roof)
         return NULL;
     pt_error err = {0};
     const float R = 100.0f, H = 10.0f;
-    const float pos[12] = {0, -R, 0, 0, R, 0, 0, R, H, 0, -R, H};
+    const float wall[12] = {0, -R, 0, 0, R, 0, 0, R, H, 0, -R, H};
+    const float small[12] = {0, 0, 0.6f, 0, 0.8f, 0.6f, 0, 0.8f, 1.4f, 0, 0, 1.4f};
     const uint32_t quad[6] = {0, 1, 2, 0, 2, 3};
-    CHECK(pt_scene_builder_add_mesh(b, "wall", pos, NULL, NULL, 4, quad, 2, NULL, mg, &err) ==
-          PT_OK);
+    CHECK(pt_scene_builder_add_mesh(b, "wall", pane ? small : wall, NULL, NULL, 4, quad, 2, NULL,
+                                    mg, &err) == PT_OK);
     /* wider than the plane, so that no point of it sees the sun past it */
     const float W = 10.0f * R, top[12] = {-W, -W, 12, W, -W, 12, W, W, 12, -W, W, 12};
     if (roof)
         CHECK(pt_scene_builder_add_mesh(b, "roof", top, NULL, NULL, 4, quad, 2, NULL, mg, &err) ==
               PT_OK);
+    return b;
+}
+
+static pt_scene *wall_scene(int roof)
+{
+    pt_scene_builder *b = wall_builder(0, roof);
+    if (!b)
+        return NULL;
     pt_punctual l;
     memset(&l, 0, sizeof l);
     l.type = PT_PUNCTUAL_DIRECTIONAL;
@@ -1072,18 +1084,9 @@ static void point_wall(void)
         const double direct = sp * RHO_D / 3.14159265358979323846 * I_PT * (3.0 / sqrt(d2)) / d2;
         const double mirrored =
             sy * RHO_D / 3.14159265358979323846 * I_PT * f * (3.0 / sqrt(i2)) / i2;
-        uint32_t mg = 0;
-        pt_scene_builder *b = plane_and_glass(0.0f, &mg);
+        pt_scene_builder *b = wall_builder(pane, 0);
         if (!b)
             return;
-        pt_error err = {0};
-        const float R = 100.0f, H = 10.0f;
-        const float wall[12] = {0, -R, 0, 0, R, 0, 0, R, H, 0, -R, H};
-        const float small[12] = {0, 0, 0.6f, 0, 0.8f, 0.6f, 0, 0.8f, 1.4f, 0, 0, 1.4f};
-        const float *pos = pane ? small : wall;
-        const uint32_t quad[6] = {0, 1, 2, 0, 2, 3};
-        CHECK(pt_scene_builder_add_mesh(b, "wall", pos, NULL, NULL, 4, quad, 2, NULL, mg, &err) ==
-              PT_OK);
         pt_punctual pl;
         memset(&pl, 0, sizeof pl);
         pl.type = spot ? PT_PUNCTUAL_SPOT : PT_PUNCTUAL_POINT;
