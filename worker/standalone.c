@@ -504,10 +504,11 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
                 atomic_load(&j.tiles_stopped), nt,
                 (double)st.samples / ((double)p.width * p.height));
     if (st.chains > 0)
-        fprintf(stderr,
-                "ptworker: %llu light paths through or off smooth glass connected to a light "
-                "(manifold NEE)\n",
-                (unsigned long long)st.chains);
+        fprintf(
+            stderr,
+            "ptworker: %llu light paths through or off smooth glass or metal connected to a light "
+            "(manifold NEE)\n",
+            (unsigned long long)st.chains);
     if (p.clamp_direct > 0.0f || p.clamp_indirect > 0.0f)
         fprintf(stderr,
                 "ptworker: %llu contributions clamped (--clamp-direct %g, --clamp-indirect "

@@ -169,6 +169,22 @@ pt_vec3 pt_closure_refracted(const pt_closure *c, pt_vec3 *wi, float *take);
  * or thick (pt_dielectric_reflected), for the reflection chains. */
 pt_vec3 pt_closure_reflected(const pt_closure *c, pt_vec3 *wi, float *take);
 
+/* Its GGX lobes at PT_BSDF_MIN_ALPHA (glTF roughness up to about 0.03),
+ * taken as the mirror they stand for: render.c's reflection chains of a
+ * directional light, which deliver the light such a lobe reflects onto a
+ * rough vertex. The expected weight of that delta reflection (the lobes'
+ * Fresnel at wo.z: their f cos integrated over wi as alpha goes to 0), the
+ * probability that sampling picks them in *take, the mirrored direction in
+ * *wi. Only for a closure of one group: zero otherwise, and without one. */
+pt_vec3 pt_closure_mirrored(const pt_closure *c, pt_vec3 *wi, float *take);
+
+/* pt_closure_eval's f cos at wi into *f, and the share of it that those
+ * mirror lobes give (under the same below factors). */
+pt_vec3 pt_closure_eval_mirror(const pt_closure *c, pt_vec3 wi, pt_vec3 *f);
+
+/* 1 when the closure has such a lobe, 2 when it has no other. */
+int pt_closure_has_mirror(const pt_closure *c);
+
 /* The closure's albedo for the render passes (the albedo pass, a guide for
  * the denoiser, not an energy: Cycles' denoising albedo) into *albedo: the
  * sum of its lobes' colours (a diffuse lobe's albedo, a GGX lobe's F0, the

@@ -125,9 +125,11 @@ struct pt_renderer {
     float mf_min_light; /* the luminance a light sample must pass for it (manifold_min_light) */
     pt_accel *mf_accel; /* the chain glass's triangles alone (mf_project's rays) */
     uint32_t *mf_tris;  /* their indices, mf_accel's map */
-    /* PT_FEAT_MANIFOLD: reflection chains off smooth glass (mr_caster), of a
-     * directional, point or spot light */
+    /* PT_FEAT_MANIFOLD: reflection chains off smooth glass (mr_glass), of a
+     * directional, point or spot light, and off smooth metal (mr_metal), of a
+     * directional light (mr_metal_at) */
     int mirror;
+    int mirror_metal;       /* a reflector is smooth metal (mr_metal) */
     pt_accel *mr_accel;     /* the reflectors' triangles alone */
     uint32_t *mr_tris;      /* their indices, mr_accel's map */
     struct mr_object *mr;   /* the reflecting objects' bounding spheres */
@@ -985,6 +987,11 @@ typedef struct mf_path {
     int32_t medium;    /* the medium at x */
     uint32_t depth;    /* x's */
     uint32_t chains;   /* chains manifold NEE connected on this path (the stats') */
+    /* r->mirror_metal: the share of the throughput that the last vertex's
+     * mirror lobes carried (per channel; 1 where no reflection chain from
+     * it delivers what they find), which NEE at the next vertex's mirror
+     * lobes takes (mr_metal_at) */
+    pt_vec3 mshare;
     pt_vec3 y[PT_MF_MAX];
 } mf_path;
 
@@ -1711,7 +1718,7 @@ enum { MF_SEED_MISS, MF_SEED_BLOCKED, MF_SEED_THIN, MF_SEED_CHAIN };
  * metallic texture may leave it glass in places (a metallic factor of 1
  * too): mr_connect finds the chain's closure and takes it only where it
  * reflects smoothly. */
-static int mr_caster(const pt_material *m)
+static int mr_glass(const pt_material *m)
 {
     return m->transmission > 0.0f && m->roughness == 0.0f && m->normal_tex < 0 &&
            (m->metallic < 1.0f || m->metal_rough_tex >= 0) && m->ior > 0.0f && m->ior != 1.0f &&
@@ -1719,12 +1726,31 @@ static int mr_caster(const pt_material *m)
            !(m->ext & ~(uint32_t)PT_MATX_SPECULAR_TEX);
 }
 
+/* ... or smooth metal: opaque, metallic, its GGX lobe at PT_BSDF_MIN_ALPHA
+ * (roughness up to sqrt(PT_BSDF_MIN_ALPHA), about 0.03), a mirror for the
+ * chains (pt_closure_mirrored), with nothing that could bend its normal or
+ * layer it; a metallic-roughness texture may make it rough or dielectric in
+ * places, where its closure says so. Smooth dielectric materials (F0 0.04)
+ * are left to NEE at their GGX lobe, as before. */
+static int mr_metal(const pt_material *m)
+{
+    return !(m->transmission > 0.0f) && m->normal_tex < 0 && m->metallic > 0.0f &&
+           (m->metal_rough_tex >= 0 || m->roughness * m->roughness <= PT_BSDF_MIN_ALPHA) &&
+           !has_layers(m) && m->alpha_mode == PT_ALPHA_OPAQUE &&
+           !(m->ext & ~(uint32_t)PT_MATX_SPECULAR_TEX);
+}
+
+static int mr_caster(const pt_material *m)
+{
+    return mr_glass(m) || mr_metal(m);
+}
+
 /* A material whose surfaces a chain may refract at: smooth thick glass,
  * refracting (ior not 1), with no texture or layer that could make it
  * rough, bend its normal or split its lobe. */
 static int mf_caster(const pt_material *m)
 {
-    return m->thickness > 0.0f && m->metal_rough_tex < 0 && m->metallic < 1.0f && mr_caster(m);
+    return m->thickness > 0.0f && m->metal_rough_tex < 0 && m->metallic < 1.0f && mr_glass(m);
 }
 
 /* A chain vertex at hit; 0 where the chain may not refract (reflect when
@@ -1841,6 +1867,7 @@ typedef struct mf_link {
     uint32_t k;
     pt_vec3 y[PT_MF_MAX];
     pt_vec3 T;  /* the refractions' expected weights and the media's transmittance */
+    pt_vec3 Tm; /* a reflection's: its mirror lobes' share, apart from T (mr_connect) */
     float take; /* the product of the refractions' pick probabilities */
     float jac;  /* |d w / d wl|; to a point: |d omega_l / dA_x| */
     float flux; /* to a point: (index at the light / index at x)^2, which turns the
@@ -1853,10 +1880,13 @@ typedef struct mf_link {
  * d's side in *ngs, and its closure's smooth refraction (its reflection
  * when `reflect`), shaded as shade would shade the ray: the expected weight
  * (0 when there is none) and its pick probability in *T and *take, the
- * direction in *wi and, in the shading frame, *wi_l. */
+ * direction in *wi and, in the shading frame, *wi_l. A reflection's weight
+ * is the glass's in *T and its mirror lobes' (pt_closure_mirrored) in *Tm;
+ * *take counts both. */
 static int chain_event(const pt_renderer *r, pt_vec3 from, pt_vec3 fng, pt_vec3 d,
                        const pt_mf_vert *v, int reflect, surface *sf, int *front, pt_vec3 *ngs,
-                       pt_vec3 *T, float *take, pt_vec3 *wi, pt_vec3 *wi_l, const uint32_t features)
+                       pt_vec3 *T, pt_vec3 *Tm, float *take, pt_vec3 *wi, pt_vec3 *wi_l,
+                       const uint32_t features)
 {
     pt_hit hit;
     if (!pt_accel_intersect(r->accel, mf_off(r, from, fng, d), d, INFINITY, &hit) ||
@@ -1866,12 +1896,22 @@ static int chain_event(const pt_renderer *r, pt_vec3 from, pt_vec3 fng, pt_vec3 
     hit.b2 = (float)v->b[1];
     surface_at(r, &hit, 0.0f, sf, features);
     pt_vec3 wo = pt_v3_neg(d), ns;
-    shading_normals(sf, wo, 1, front, ngs, &ns, features);
+    /* as shade: glass scatters to both sides, metal to its front */
+    const int glass = transmits(sf->mat);
+    shading_normals(sf, wo, glass, front, ngs, &ns, features);
     pt_frame fr = pt_frame_from_normal(ns);
     pt_vec3 wo_l = pt_frame_to_local(&fr, wo);
     pt_closure cl;
-    material_closure(r, sf, 1, *front, &fr, wo, wo_l, *ngs, &cl, features);
-    *T = reflect ? pt_closure_reflected(&cl, wi_l, take) : pt_closure_refracted(&cl, wi_l, take);
+    material_closure(r, sf, glass, *front, &fr, wo, wo_l, *ngs, &cl, features);
+    if (!reflect) {
+        *T = pt_closure_refracted(&cl, wi_l, take);
+    } else if (glass) {
+        *T = pt_closure_reflected(&cl, wi_l, take);
+        *Tm = pt_v3(0.0f, 0.0f, 0.0f);
+    } else {
+        *T = pt_v3(0.0f, 0.0f, 0.0f);
+        *Tm = pt_closure_mirrored(&cl, wi_l, take);
+    }
     *wi = pt_frame_to_world(&fr, *wi_l);
     return 1;
 }
@@ -1942,7 +1982,7 @@ static __attribute__((noinline)) int mf_connect(const pt_renderer *r, pt_vec3 x,
         int front;
         pt_vec3 ngs, w, wi, wi_l;
         float tk;
-        if (!chain_event(r, from, fng, d, &c.v[i], 0, &sf, &front, &ngs, &w, &tk, &wi, &wi_l,
+        if (!chain_event(r, from, fng, d, &c.v[i], 0, &sf, &front, &ngs, &w, NULL, &tk, &wi, &wi_l,
                          features) ||
             !(tk > 0.0f) || !any_positive(w))
             return MF_SEED_BLOCKED;
@@ -2222,6 +2262,7 @@ typedef struct mr_object {
     pt_vec3 c;       /* its reflecting triangles' bounding sphere: centre */
     float rad;       /* and radius */
     uint32_t object; /* the scene's object */
+    uint32_t glass;  /* it has smooth glass (mr_glass), which point and spot lights chain off */
 } mr_object;
 
 /* The solid angle of o's bounding sphere seen from x; 0 when it lies wholly
@@ -2242,12 +2283,14 @@ static float mr_solid_angle(const mr_object *o, pt_vec3 x, pt_vec3 ng, int both)
 /* Picks a reflecting object for x by u (its index, MR_NONE for none), its
  * probability in *P: its solid angle over their sum, or over MR_OMEGA when
  * they fill less of x's view, so that x far from small reflectors chains
- * rarely (their light there is faint) and weighs what it chains up. */
-static uint32_t mr_pick(const pt_renderer *r, pt_vec3 x, pt_vec3 ng, int both, float u, float *P)
+ * rarely (their light there is faint) and weighs what it chains up. With
+ * glass_only, of the objects with glass (a point or spot light's chain). */
+static uint32_t mr_pick(const pt_renderer *r, pt_vec3 x, pt_vec3 ng, int both, int glass_only,
+                        float u, float *P)
 {
     float w[MR_MAX], sum = 0.0f;
     for (uint32_t i = 0; i < r->mr_n; i++)
-        sum += w[i] = mr_solid_angle(&r->mr[i], x, ng, both);
+        sum += w[i] = glass_only && !r->mr[i].glass ? 0.0f : mr_solid_angle(&r->mr[i], x, ng, both);
     *P = 0.0f;
     float total = fmaxf(sum, MR_OMEGA), t = u * total;
     if (!(sum > 0.0f) || !(t < sum))
@@ -2271,6 +2314,19 @@ static inline uint32_t mr_object_of(const pt_renderer *r, uint32_t tri)
     return r->scene->tri_object ? r->scene->tri_object[tri] : 0u;
 }
 
+/* 1 when NEE of a directional light at hit (surface sf) leaves the mirror
+ * lobes of its closure to the reflection chain of the path's previous
+ * vertex, as far as mf_path's mshare says: a still triangle of smooth metal
+ * on one of the reflectors, as chain_vert takes it. A sun mirrored by such
+ * a lobe onto a rough vertex x is the chain's from x; NEE there found it
+ * only where x's sampled direction fell within the lobe's tenth of a
+ * degree. Seen from the camera, or after a smooth bounce, the lobe keeps
+ * its NEE (the sun's glint on chrome). */
+static inline int mr_metal_at(const pt_renderer *r, const pt_hit *hit, const surface *sf)
+{
+    return !hit->inst && mr_metal(sf->mat) && r->mr_of_object[mr_object_of(r, hit->tri)] != MR_NONE;
+}
+
 /* The unit direction from p towards the light: wl, or towards the point
  * *at. */
 static inline pt_vec3 mr_towards(pt_vec3 p, pt_vec3 wl, const pt_vec3 *at)
@@ -2285,9 +2341,10 @@ static inline pt_vec3 mr_towards(pt_vec3 p, pt_vec3 wl, const pt_vec3 *at)
  * from the sphere's centre: the root on a sphere, near it on a convex
  * object); seed 1, for flat and concave ones: towards the light's mirror
  * image in the plane of the point that the ray from x towards o's centre
- * meets (the root on a plane). */
-static int mr_seed(const pt_renderer *r, pt_vec3 x, pt_vec3 ng, pt_vec3 wl, const pt_vec3 *at,
-                   const mr_object *o, int seed, pt_mf_vert *v)
+ * meets (the root on a plane). Unless `both` (x transmits), a seed below
+ * x's surface is none: x on a convex mirror sees none of it. */
+static int mr_seed(const pt_renderer *r, pt_vec3 x, pt_vec3 ng, int both, pt_vec3 wl,
+                   const pt_vec3 *at, const mr_object *o, int seed, pt_mf_vert *v)
 {
     pt_vec3 d;
     pt_hit hit;
@@ -2323,7 +2380,7 @@ static int mr_seed(const pt_renderer *r, pt_vec3 x, pt_vec3 ng, pt_vec3 wl, cons
         }
     }
     float ld = pt_v3_len(d);
-    if (!(ld > 0.0f))
+    if (!(ld > 0.0f) || (!both && !(pt_v3_dot(d, ng) > 0.0f)))
         return 0;
     d = pt_v3_scale(d, 1.0f / ld);
     return pt_accel_intersect(r->mr_accel, mf_off(r, x, ng, d), d, INFINITY, &hit) &&
@@ -2358,13 +2415,13 @@ static int mr_light_seen(const pt_renderer *r, path *pa, pt_vec3 o, pt_vec3 d, f
 }
 
 /* The reflection chain from x, pa's vertex (geometric normal ng on the side
- * of its path), off reflecting object k towards the light along wl, or to
+ * of its path; `both`: it transmits), off reflecting object k towards the light along wl, or to
  * the point *at, in *lk: MF_SEED_CHAIN when one was found and checked as
  * the renderer sees it (x sees y, y's closure reflects the light from x
  * towards the light, which y sees, past thin walls with their
  * transmittance in lk->T; alpha_key passes MASK and BLEND surfaces there). */
 static __attribute__((noinline)) int mr_connect(const pt_renderer *r, path *pa, pt_vec3 x,
-                                                pt_vec3 ng, pt_vec3 wl, const pt_vec3 *at,
+                                                pt_vec3 ng, int both, pt_vec3 wl, const pt_vec3 *at,
                                                 uint32_t k, uint32_t alpha_key, mf_link *lk,
                                                 const uint32_t features)
 {
@@ -2382,7 +2439,7 @@ static __attribute__((noinline)) int mr_connect(const pt_renderer *r, path *pa, 
     double xd[3] = {x.x, x.y, x.z}, wd[3] = {end.x, end.y, end.z}, pd[3];
     int got = MF_SEED_MISS;
     for (int seed = 0; seed < 2 && got != MF_SEED_CHAIN; seed++) {
-        if (!mr_seed(r, x, ng, wl, at, o, seed, &c.v[0]))
+        if (!mr_seed(r, x, ng, both, wl, at, o, seed, &c.v[0]))
             continue;
         got = pt_mf_solve(xd, &c, wd, mf_project, &ctx) && mr_object_of(r, c.v[0].tri) == o->object
                   ? MF_SEED_CHAIN
@@ -2392,12 +2449,19 @@ static __attribute__((noinline)) int mr_connect(const pt_renderer *r, path *pa, 
         return got;
     pt_mf_point(&c.v[0], c.v[0].b, pd);
     pt_vec3 w = pt_v3_norm(pt_v3_sub(mf_f3(pd), x));
+    if (!both && !(pt_v3_dot(w, ng) > 0.0f))
+        return MF_SEED_BLOCKED;
     surface sf;
     int front;
-    pt_vec3 ngs, T, wi, wi_l;
+    pt_vec3 ngs, T, Tm, wi, wi_l;
     float tk;
-    if (!chain_event(r, x, ng, w, &c.v[0], 1, &sf, &front, &ngs, &T, &tk, &wi, &wi_l, features) ||
-        !(tk > 0.0f) || !any_positive(T))
+    if (!chain_event(r, x, ng, w, &c.v[0], 1, &sf, &front, &ngs, &T, &Tm, &tk, &wi, &wi_l,
+                     features))
+        return MF_SEED_BLOCKED;
+    /* Smooth metal mirrors a directional light only (mr_metal_at). */
+    if (at)
+        Tm = pt_v3(0.0f, 0.0f, 0.0f);
+    if (!(tk > 0.0f) || !(any_positive(T) || any_positive(Tm)))
         return MF_SEED_BLOCKED;
     pt_vec3 next = mr_towards(sf.p, wl, at);
     /* shade's test for a reflected direction, and the solver's chain
@@ -2424,6 +2488,7 @@ static __attribute__((noinline)) int mr_connect(const pt_renderer *r, path *pa, 
     lk->k = 1;
     lk->y[0] = sf.p;
     lk->T = pt_v3_mul(T, tr);
+    lk->Tm = pt_v3_mul(Tm, tr);
     lk->take = tk;
     lk->jac = jac;
     lk->flux = 1.0f;
@@ -2441,9 +2506,12 @@ static __attribute__((noinline)) void mr_nee(const pt_renderer *r, path *pa, con
 {
     float P;
     const int at = ls->delta == PT_LIGHT_AT;
-    uint32_t k = mr_pick(r, sf->p, ng, both, u, &P);
+    /* A closure of mirror lobes alone leaves metal mirrors to its sampled
+     * paths (mf_path's mshare 1): it chains off glass only. */
+    const int glass_only = at || (r->mirror_metal && pt_closure_has_mirror(cl) == 2);
+    uint32_t k = mr_pick(r, sf->p, ng, both, glass_only, u, &P);
     mf_link lk;
-    if (k == MR_NONE || mr_connect(r, pa, sf->p, ng, ls->wi, at ? &ls->position : NULL, k,
+    if (k == MR_NONE || mr_connect(r, pa, sf->p, ng, both, ls->wi, at ? &ls->position : NULL, k,
                                    alpha_key, &lk, features) != MF_SEED_CHAIN)
         return;
     if (pa->mf)
@@ -2452,9 +2520,19 @@ static __attribute__((noinline)) void mr_nee(const pt_renderer *r, path *pa, con
     if (!both && !(pt_v3_dot(w, ng) > 0.0f))
         return;
     float bpdf = 0.0f;
-    pt_vec3 f = pt_closure_eval(cl, pt_frame_to_local(fr, w), &bpdf);
+    pt_vec3 w_l = pt_frame_to_local(fr, w);
+    pt_vec3 f = pt_closure_eval(cl, w_l, &bpdf);
     if (!any_positive(f))
         return;
+    pt_vec3 ft = pt_v3_mul(f, lk.T);
+    if (any_positive(lk.Tm)) {
+        /* Off a metal mirror: what x's own mirror lobes send towards y is
+         * its sampled paths' (the next vertex's NEE, mf_path's mshare). */
+        pt_vec3 fa, fm = pt_closure_eval_mirror(cl, w_l, &fa);
+        pt_vec3 rest = pt_v3_sub(fa, fm);
+        rest = pt_v3(fmaxf(rest.x, 0.0f), fmaxf(rest.y, 0.0f), fmaxf(rest.z, 0.0f));
+        ft = pt_v3_add(ft, pt_v3_mul(rest, lk.Tm));
+    }
     /* A directional light's ls->radiance is its irradiance; a point or spot
      * light's intensity is the one towards y, over the chain's length. */
     pt_vec3 le = ls->radiance;
@@ -2464,8 +2542,7 @@ static __attribute__((noinline)) void mr_nee(const pt_renderer *r, path *pa, con
         le = pt_punctual_intensity(ls->punct, pt_v3_scale(d, 1.0f / dl),
                                    pt_v3_len(pt_v3_sub(lk.y[0], sf->p)) + dl);
     }
-    pt_vec3 c =
-        pt_v3_mul(pt_v3_mul(pa->beta, pt_v3_mul(f, lk.T)), pt_v3_scale(le, lk.jac / (ls->pdf * P)));
+    pt_vec3 c = pt_v3_mul(pt_v3_mul(pa->beta, ft), pt_v3_scale(le, lk.jac / (ls->pdf * P)));
     /* The light arrives at sf off a smooth bounce: indirect. */
     c = clamp_sample(r, pa, c, 0, features);
     PT_TRACE_EVENT(PT_TRACE_SHADOW, pa->depth, -1, ls->delta, 1, ls->pdf, bpdf, 1.0f, c);
@@ -2605,6 +2682,17 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
                 f = lambert_eval(&lambert, wo_l, wi_ll, &bpdf);
             else if (!through || (side != 0.0f && (side > 0.0f) == (wi_ll.z > 0.0f)))
                 f = pt_closure_eval(&cl, wi_ll, &bpdf);
+            if ((features & PT_FEAT_MANIFOLD) && r->mirror_metal && ls->delta == PT_LIGHT_FAR &&
+                (features & PT_FEAT_GLOSSY) && pa->mf && mr_metal_at(r, hit, sf) &&
+                any_positive(f)) {
+                /* The share of the mirror lobes' light that the previous
+                 * vertex's chain delivers is not taken again. */
+                pt_vec3 fa, fm = pt_closure_eval_mirror(&cl, wi_ll, &fa);
+                pt_vec3 ms = pa->mf->mshare;
+                f = pt_v3(fmaxf(fa.x - fm.x * (1.0f - ms.x), 0.0f),
+                          fmaxf(fa.y - fm.y * (1.0f - ms.y), 0.0f),
+                          fmaxf(fa.z - fm.z * (1.0f - ms.z), 0.0f));
+            }
             if (any_positive(f)) {
                 pt_vec3 from = pt_offset_apply(r->offset, sf->p, side > 0.0f ? ng : pt_v3_neg(ng));
                 float w;
@@ -2759,6 +2847,23 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
         if (!(u[OFF_RR] < survive))
             return ret;
         beta = pt_v3_scale(beta, 1.0f / survive);
+    }
+    if ((features & PT_FEAT_MANIFOLD) && r->mirror_metal && (features & PT_FEAT_GLOSSY) && pa->mf) {
+        /* At a vertex whose reflection chains (mr_nee; mr_connect's tests)
+         * take a sun off metal mirrors, the path keeps only the share its
+         * own mirror lobes sampled: the chains evaluate the rest of its
+         * closure towards the mirror. */
+        pt_vec3 ms = pt_v3(1.0f, 1.0f, 1.0f);
+        if (!delta && (!through || thin) && pa->medium < 0 && pa->depth + 1 < r->params.max_depth) {
+            ms = pt_v3(0.0f, 0.0f, 0.0f);
+            if (pt_closure_has_mirror(&cl)) {
+                pt_vec3 fa, fm = pt_closure_eval_mirror(&cl, wi_l, &fa);
+                ms = pt_v3(fa.x > 0.0f ? fminf(fm.x / fa.x, 1.0f) : 0.0f,
+                           fa.y > 0.0f ? fminf(fm.y / fa.y, 1.0f) : 0.0f,
+                           fa.z > 0.0f ? fminf(fm.z / fa.z, 1.0f) : 0.0f);
+            }
+        }
+        pa->mf->mshare = ms;
     }
     if ((features & PT_FEAT_VOLUME) && through && side < 0.0f)
         pa->medium = medium_across(s, pa->medium, mi, front, thin);
@@ -3379,6 +3484,7 @@ li_impl(const pt_renderer *r, pixel_ctx *pc, uint32_t index, pt_render_stats *st
     if ((features & PT_FEAT_MANIFOLD) && r->manifold) {
         mf.k = MF_OFF;
         mf.chains = 0;
+        mf.mshare = pt_v3(1.0f, 1.0f, 1.0f);
         pa.mf = &mf;
     }
     uint64_t rays = 0, capped = 0;
@@ -3698,6 +3804,7 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
                     if ((features & PT_FEAT_MANIFOLD) && r->manifold) {
                         mfs[g * nb + i].k = MF_OFF;
                         mfs[g * nb + i].chains = 0;
+                        mfs[g * nb + i].mshare = pt_v3(1.0f, 1.0f, 1.0f);
                         pa->mf = &mfs[g * nb + i];
                     }
                 }
@@ -3952,6 +4059,10 @@ static int scene_mirror(const pt_scene *s)
 static pt_status mr_new(pt_renderer *r, pt_error *err)
 {
     const pt_scene *s = r->scene;
+    /* Smooth metal mirrors a directional light only. */
+    int sun = 0;
+    for (uint32_t i = 0; i < s->num_punctual; i++)
+        sun |= s->punctual[i].type == PT_PUNCTUAL_DIRECTIONAL;
     uint32_t nt = s->num_instances > 0 ? s->num_flat_triangles : s->num_triangles, n = 0;
     uint32_t nobj = s->tri_object && s->num_objects > 0 ? s->num_objects : 1u;
     r->mr_tris = pt_malloc_array(nt ? nt : 1, sizeof *r->mr_tris);
@@ -3965,7 +4076,9 @@ static pt_status mr_new(pt_renderer *r, pt_error *err)
     for (uint32_t i = 0; i < nobj; i++)
         r->mr_of_object[i] = MR_NONE;
     for (uint32_t i = 0; i < nt; i++) {
-        if (!mr_caster(&s->materials[s->tri_material[i] & ~TRI_FLAT]))
+        const pt_material *m = &s->materials[s->tri_material[i] & ~TRI_FLAT];
+        const int glass = mr_glass(m);
+        if (!glass && !(sun && mr_metal(m)))
             continue;
         uint32_t obj = mr_object_of(r, i);
         uint32_t k = r->mr_of_object[obj];
@@ -3979,6 +4092,8 @@ static pt_status mr_new(pt_renderer *r, pt_error *err)
                 box[k][3 + j] = -INFINITY;
             }
         }
+        r->mr[k].glass |= (uint32_t)glass;
+        r->mirror_metal |= !glass;
         r->mr_tris[n++] = i;
         const tri_rec *t = &r->tris[i];
         const pt_vec3 *v[3] = {&t->v0, &t->v1, &t->v2};

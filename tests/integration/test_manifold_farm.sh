@@ -3,9 +3,11 @@
 # own numbers and the scene: a farm's image of the glass ball with things
 # inside under the studio map (refraction chains), and of the same ball under
 # a sun (a directional light: refraction chains and reflection chains, whose
-# reflector the sample's own numbers pick), is the standalone render's, bit
-# for bit, with 1 and 3 local workers, and each standalone render did connect
-# chains. Needs ../shared's map (skipped without it, unless CI=true).
+# reflector the sample's own numbers pick), and of a chrome ball in its place
+# (reflection chains off smooth metal, which keep a share of the throughput
+# from vertex to vertex), is the standalone render's, bit for bit, with 1 and
+# 3 local workers, and each standalone render did connect chains. Needs
+# ../shared's map (skipped without it, unless CI=true).
 set -euo pipefail
 bin=${PT_BIN:?}
 src=${PT_SOURCE_DIR:?}
@@ -22,10 +24,15 @@ if [[ ! -f $env_map ]]; then
     exit 77
 fi
 # The ball under a sun instead of the map: glass_things.gltf with a
-# directional light (KHR_lights_punctual) from 35 degrees above the floor.
-python3 - "$src/scenes/glass_things.gltf" "$tmp/glass_sun.gltf" <<'PY' || fail "could not write the sun's scene"
+# directional light (KHR_lights_punctual) from 35 degrees above the floor;
+# with a third argument, the ball of chrome (metallic 1, roughness 0).
+sun_scene() {
+    python3 - "$src/scenes/glass_things.gltf" "$@" <<'PY'
 import json, math, sys
 g = json.load(open(sys.argv[1]))
+if len(sys.argv) > 3:
+    g["materials"][1] = {"name": "chrome", "pbrMetallicRoughness": {
+        "baseColorFactor": [0.9, 0.9, 0.9, 1.0], "metallicFactor": 1.0, "roughnessFactor": 0.0}}
 g.setdefault("extensionsUsed", []).append("KHR_lights_punctual")
 g.setdefault("extensions", {})["KHR_lights_punctual"] = {
     "lights": [{"type": "directional", "intensity": 3.0, "name": "sun"}]}
@@ -35,6 +42,9 @@ g["nodes"].append({"name": "sun", "rotation": [math.sin(a / 2), 0.0, 0.0, math.c
 g["scenes"][g.get("scene", 0)]["nodes"].append(len(g["nodes"]) - 1)
 json.dump(g, open(sys.argv[2], "w"))
 PY
+}
+sun_scene "$tmp/glass_sun.gltf" || fail "could not write the sun's scene"
+sun_scene "$tmp/chrome_sun.gltf" chrome || fail "could not write the chrome ball's scene"
 
 run() { # NAME SCENE ARGS...: the standalone render connects chains; the farm's is it
     local name=$1 scene=$2
@@ -42,7 +52,7 @@ run() { # NAME SCENE ARGS...: the standalone render connects chains; the farm's 
     local common=(--res 48x32 --spp 16 --tile 16 "$@")
     "$bin/ptworker" --scene "$scene" "${common[@]}" --threads 2 -o "$tmp/$name.exr" \
         2> "$tmp/$name.log" || fail "ptworker, $name: $(cat "$tmp/$name.log")"
-    grep -q 'light paths through or off smooth glass connected' "$tmp/$name.log" ||
+    grep -q 'light paths through or off smooth glass or metal connected' "$tmp/$name.log" ||
         fail "$name: no chain was connected: $(cat "$tmp/$name.log")"
     for n in 1 3; do
         "$bin/ptserve" --local "$n" --worker-threads 1 "${common[@]}" -q \
@@ -54,4 +64,5 @@ run() { # NAME SCENE ARGS...: the standalone render connects chains; the farm's 
 }
 run map "$src/scenes/glass_things.gltf" --env "$env_map"
 run sun "$tmp/glass_sun.gltf"
+run chrome "$tmp/chrome_sun.gltf"
 echo "PASS"
