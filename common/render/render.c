@@ -2217,8 +2217,9 @@ static uint32_t mf_nee(const pt_renderer *r, path *pa, const surface *sf, const 
  * Reflection chains (PT_FEAT_MANIFOLD, r->mirror): the light of a
  * directional, point or spot light that reaches a rough vertex x off one
  * smooth reflecting surface (glass's Fresnel reflection, thin or thick:
- * mr_caster): a sun mirrored by a window onto the floor, a lamp in a glass
- * cabinet's door. No path finds it otherwise: the light is a delta, the
+ * mr_glass; and, of a directional light, smooth metal: mr_metal): a sun
+ * mirrored by a window onto the floor, a lamp in a glass cabinet's door, a
+ * chrome ball in the sun. No path finds it otherwise: the light is a delta, the
  * reflection is a delta, and a shadow ray towards the light ends at the
  * glass (or crosses a thin wall, but never turns), so the renderer left it
  * out. The chain is one vertex y whose half vector of the directions to x
@@ -2236,6 +2237,21 @@ static uint32_t mf_nee(const pt_renderer *r, path *pa, const surface *sf, const 
  * w the direction from x to y, T the reflection's expected weight
  * (pt_closure_reflected), p the light's pick probability. No MIS: no other
  * strategy finds these paths.
+ *
+ * Smooth metal (mr_metal: a GGX lobe at PT_BSDF_MIN_ALPHA, glTF roughness
+ * up to about 0.03) is a mirror to the chains of a directional light (T
+ * its Fresnel at y, pt_closure_mirrored). Its lobe is not a delta, so a
+ * sampled path does find that light, by NEE at y, where x's direction fell
+ * within the lobe's tenth of a degree (rare spikes: the light was all but
+ * missing). That NEE leaves the light of y's mirror lobes to x's chain: the
+ * chain evaluates x's closure without its own mirror lobes, the path keeps
+ * what those sampled (mf_path's mshare, 1 after the camera or a delta
+ * bounce, which no chain covers), and the sun's glint on chrome, seen
+ * directly or in a mirror, keeps its NEE. A directional light's choice
+ * does not depend on x (punctual lights outside the light tree), so the
+ * chain covers every x the NEE leaves; a point or spot light, which a
+ * tree or a cone may deny x, keeps NEE at metal, which it is not chained
+ * off.
  *
  * The environment's light off glass, which BSDF sampling does find, is not
  * chained: weighed against it by MIS (a sampled path's reflection solved
