@@ -3,8 +3,8 @@
 
     python3 scenes/make_scenes.py          (from the repository root)
 
-writes scenes/cornell_box.gltf, scenes/furnace.gltf and scenes/glass_things.gltf
-next to this script.
+writes scenes/cornell_box.gltf, scenes/furnace.gltf, scenes/glass_things.gltf
+and scenes/chrome_sun.gltf next to this script.
 The output is deterministic: running it again gives byte-identical files.
 Standard library only (json, struct, base64, math).
 
@@ -470,7 +470,51 @@ def glass_things():
     write(b.finish(doc), "glass_things.gltf")
 
 
+def chrome_sun():
+    """A chrome ball (metallic 1, roughness 0) and a matte ball on a floor
+    under a sun (a directional light, KHR_lights_punctual, 35 degrees above
+    the horizon): the sun the chrome mirrors onto the floor and the matte
+    ball, light that only reflection chains off smooth metal find."""
+    b = Builder()
+    floor = [(-3.0, 0.0, -3.0), (-3.0, 0.0, 3.0), (3.0, 0.0, 3.0), (3.0, 0.0, -3.0)]
+    up = [(0.0, 1.0, 0.0)] * 4
+    meshes = [{"name": "floor", "primitives": [b.primitive(floor, up, [0, 1, 2, 0, 2, 3], 0)]}]
+    for name, centre, radius, mat in (("chrome", (0.0, 0.6, 0.0), 0.6, 1),
+                                      ("matte", (1.1, 0.3, 0.5), 0.3, 2)):
+        pos, nrm, idx = uv_sphere(centre, radius)
+        meshes.append({"name": name, "primitives": [b.primitive(pos, nrm, idx, mat)]})
+    materials = [
+        lambert("floor", (0.6, 0.6, 0.6)),
+        {"name": "chrome",
+         "pbrMetallicRoughness": {"baseColorFactor": [0.9, 0.9, 0.9, 1.0],
+                                  "metallicFactor": 1.0, "roughnessFactor": 0.0}},
+        lambert("matte", (0.8, 0.15, 0.1)),
+    ]
+    a = math.radians(-35.0)
+    doc = {
+        "asset": {"version": "2.0", "generator": "ptfarm scenes/make_scenes.py"},
+        "extensionsUsed": ["KHR_lights_punctual", "KHR_materials_specular"],
+        "extensions": {"KHR_lights_punctual": {"lights": [
+            {"name": "sun", "type": "directional", "intensity": 3.0}]}},
+        "scene": 0,
+        "scenes": [{"name": "chrome_sun", "nodes": [0, 1, 2, 3, 4]}],
+        "nodes": [{"name": "floor", "mesh": 0}, {"name": "chrome", "mesh": 1},
+                  {"name": "matte", "mesh": 2},
+                  {"name": "sun", "rotation": [f32(math.sin(a / 2)), 0.0, 0.0,
+                                               f32(math.cos(a / 2))],
+                   "extensions": {"KHR_lights_punctual": {"light": 0}}},
+                  {"name": "Camera", "camera": 0, "translation": [0.3, 1.4, 4.8],
+                   "rotation": [-0.0998334, 0.0, 0.0, 0.9950042]}],
+        "meshes": meshes,
+        "materials": materials,
+        "cameras": [{"name": "Camera", "type": "perspective",
+                     "perspective": {"yfov": 0.6, "aspectRatio": 1.0, "znear": 0.01}}],
+    }
+    write(b.finish(doc), "chrome_sun.gltf")
+
+
 if __name__ == "__main__":
     cornell_box()
     furnace()
     glass_things()
+    chrome_sun()
