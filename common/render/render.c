@@ -126,10 +126,11 @@ struct pt_renderer {
     pt_accel *mf_accel; /* the chain glass's triangles alone (mf_project's rays) */
     uint32_t *mf_tris;  /* their indices, mf_accel's map */
     /* PT_FEAT_MANIFOLD: reflection chains off smooth glass (mr_glass), of a
-     * directional, point or spot light, and off smooth metal (mr_metal), of a
-     * directional light (mr_metal_at) */
+     * directional, point or spot light, and off smooth metal (mr_metal), of
+     * the lights mr_metal_light takes */
     int mirror;
     int mirror_metal;       /* a reflector is smooth metal (mr_metal) */
+    int metal_at;           /* point and spot lights chain off it too (mr_metal_light) */
     pt_accel *mr_accel;     /* the reflectors' triangles alone */
     uint32_t *mr_tris;      /* their indices, mr_accel's map */
     struct mr_object *mr;   /* the reflecting objects' bounding spheres */
@@ -2217,9 +2218,9 @@ static uint32_t mf_nee(const pt_renderer *r, path *pa, const surface *sf, const 
  * Reflection chains (PT_FEAT_MANIFOLD, r->mirror): the light of a
  * directional, point or spot light that reaches a rough vertex x off one
  * smooth reflecting surface (glass's Fresnel reflection, thin or thick:
- * mr_glass; and, of a directional light, smooth metal: mr_metal): a sun
- * mirrored by a window onto the floor, a lamp in a glass cabinet's door, a
- * chrome ball in the sun. No path finds it otherwise: the light is a delta, the
+ * mr_glass; and smooth metal, mr_metal, for the lights mr_metal_light
+ * takes): a sun mirrored by a window onto the floor, a lamp in a glass
+ * cabinet's door, a chrome ball in the sun. No path finds it otherwise: the light is a delta, the
  * reflection is a delta, and a shadow ray towards the light ends at the
  * glass (or crosses a thin wall, but never turns), so the renderer left it
  * out. The chain is one vertex y whose half vector of the directions to x
@@ -2247,11 +2248,11 @@ static uint32_t mf_nee(const pt_renderer *r, path *pa, const surface *sf, const 
  * chain evaluates x's closure without its own mirror lobes, the path keeps
  * what those sampled (mf_path's mshare, 1 after the camera or a delta
  * bounce, which no chain covers), and the sun's glint on chrome, seen
- * directly or in a mirror, keeps its NEE. A directional light's choice
- * does not depend on x (punctual lights outside the light tree), so the
- * chain covers every x the NEE leaves; a point or spot light, which a
- * tree or a cone may deny x, keeps NEE at metal, which it is not chained
- * off.
+ * directly or in a mirror, keeps its NEE. The chain must cover every x the
+ * NEE gives way to, so only lights whose choice at x cannot be denied are
+ * chained off metal (mr_metal_light): directional ones, and point and spot
+ * lights without a range in a scene without a light tree, for an x inside
+ * the spot's cone; the others keep NEE at metal.
  *
  * The environment's light off glass, which BSDF sampling does find, is not
  * chained: weighed against it by MIS (a sampled path's reflection solved
@@ -2330,10 +2331,28 @@ static inline uint32_t mr_object_of(const pt_renderer *r, uint32_t tri)
     return r->scene->tri_object ? r->scene->tri_object[tri] : 0u;
 }
 
-/* 1 when NEE of a directional light at hit (surface sf) leaves the mirror
- * lobes of its closure to the reflection chain of the path's previous
- * vertex, as far as mf_path's mshare says: a still triangle of smooth metal
- * on one of the reflectors, as chain_vert takes it. A sun mirrored by such
+/* 1 when light l (a point or spot light when `at`, else directional) chains
+ * off smooth metal for a receiver at x: a directional light always, its
+ * choice the same at every x (the light tree holds point and spot lights
+ * only); a point or spot light without a range, where no light tree may
+ * deny x its choice (r->metal_at) and x is inside its cone, as x's light
+ * sample of it is taken (a range would window the chain's length and NEE's
+ * distance apart). */
+static inline int mr_metal_light(const pt_renderer *r, const pt_punctual *l, int at, pt_vec3 x)
+{
+    if (!at)
+        return 1;
+    if (!r->metal_at || l->range > 0.0f)
+        return 0;
+    pt_vec3 d = pt_v3_sub(l->position, x);
+    float dist = pt_v3_len(d);
+    return dist > 0.0f && any_positive(pt_punctual_intensity(l, pt_v3_scale(d, 1.0f / dist), dist));
+}
+
+/* 1 when NEE at hit (surface sf) of a light mr_metal_light takes leaves
+ * the mirror lobes of its closure to the reflection chain of the path's
+ * previous vertex, as far as mf_path's mshare says: a still triangle of
+ * smooth metal on one of the reflectors, as chain_vert takes it. A sun mirrored by such
  * a lobe onto a rough vertex x is the chain's from x; NEE there found it
  * only where x's sampled direction fell within the lobe's tenth of a
  * degree. Seen from the camera, or after a smooth bounce, the lobe keeps
@@ -2438,8 +2457,8 @@ static int mr_light_seen(const pt_renderer *r, path *pa, pt_vec3 o, pt_vec3 d, f
  * transmittance in lk->T; alpha_key passes MASK and BLEND surfaces there). */
 static __attribute__((noinline)) int mr_connect(const pt_renderer *r, path *pa, pt_vec3 x,
                                                 pt_vec3 ng, int both, pt_vec3 wl, const pt_vec3 *at,
-                                                uint32_t k, uint32_t alpha_key, mf_link *lk,
-                                                const uint32_t features)
+                                                int metal, uint32_t k, uint32_t alpha_key,
+                                                mf_link *lk, const uint32_t features)
 {
     const int32_t medium = pa->medium;
     const uint32_t depth = pa->depth;
@@ -2474,8 +2493,8 @@ static __attribute__((noinline)) int mr_connect(const pt_renderer *r, path *pa, 
     if (!chain_event(r, x, ng, w, &c.v[0], 1, &sf, &front, &ngs, &T, &Tm, &tk, &wi, &wi_l,
                      features))
         return MF_SEED_BLOCKED;
-    /* Smooth metal mirrors a directional light only (mr_metal_at). */
-    if (at)
+    /* Smooth metal mirrors only the lights mr_metal_light takes. */
+    if (!metal)
         Tm = pt_v3(0.0f, 0.0f, 0.0f);
     if (!(tk > 0.0f) || !(any_positive(T) || any_positive(Tm)))
         return MF_SEED_BLOCKED;
@@ -2524,11 +2543,12 @@ static __attribute__((noinline)) void mr_nee(const pt_renderer *r, path *pa, con
     const int at = ls->delta == PT_LIGHT_AT;
     /* A closure of mirror lobes alone leaves metal mirrors to its sampled
      * paths (mf_path's mshare 1): it chains off glass only. */
-    const int glass_only = at || (r->mirror_metal && pt_closure_has_mirror(cl) == 2);
+    const int metal = r->mirror_metal && mr_metal_light(r, ls->punct, at, sf->p);
+    const int glass_only = !metal || pt_closure_has_mirror(cl) == 2;
     uint32_t k = mr_pick(r, sf->p, ng, both, glass_only, u, &P);
     mf_link lk;
-    if (k == MR_NONE || mr_connect(r, pa, sf->p, ng, both, ls->wi, at ? &ls->position : NULL, k,
-                                   alpha_key, &lk, features) != MF_SEED_CHAIN)
+    if (k == MR_NONE || mr_connect(r, pa, sf->p, ng, both, ls->wi, at ? &ls->position : NULL, metal,
+                                   k, alpha_key, &lk, features) != MF_SEED_CHAIN)
         return;
     if (pa->mf)
         pa->mf->chains++;
@@ -2698,9 +2718,11 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
                 f = lambert_eval(&lambert, wo_l, wi_ll, &bpdf);
             else if (!through || (side != 0.0f && (side > 0.0f) == (wi_ll.z > 0.0f)))
                 f = pt_closure_eval(&cl, wi_ll, &bpdf);
-            if ((features & PT_FEAT_MANIFOLD) && r->mirror_metal && ls->delta == PT_LIGHT_FAR &&
+            if ((features & PT_FEAT_MANIFOLD) && r->mirror_metal &&
+                (ls->delta == PT_LIGHT_FAR || ls->delta == PT_LIGHT_AT) &&
                 (features & PT_FEAT_GLOSSY) && pa->mf && mr_metal_at(r, hit, sf) &&
-                any_positive(f)) {
+                any_positive(f) &&
+                mr_metal_light(r, ls->punct, ls->delta == PT_LIGHT_AT, pa->mf->x)) {
                 /* The share of the mirror lobes' light that the previous
                  * vertex's chain delivers is not taken again. */
                 pt_vec3 fa, fm = pt_closure_eval_mirror(&cl, wi_ll, &fa);
@@ -4075,10 +4097,15 @@ static int scene_mirror(const pt_scene *s)
 static pt_status mr_new(pt_renderer *r, pt_error *err)
 {
     const pt_scene *s = r->scene;
-    /* Smooth metal mirrors a directional light only. */
-    int sun = 0;
-    for (uint32_t i = 0; i < s->num_punctual; i++)
-        sun |= s->punctual[i].type == PT_PUNCTUAL_DIRECTIONAL;
+    /* Smooth metal mirrors the lights mr_metal_light takes. */
+    int metal_lights = 0;
+    for (uint32_t i = 0; i < s->num_punctual; i++) {
+        const pt_punctual *l = &s->punctual[i];
+        if (l->type == PT_PUNCTUAL_DIRECTIONAL)
+            metal_lights = 1;
+        else if (!r->light_tree && !(l->range > 0.0f))
+            metal_lights = r->metal_at = 1;
+    }
     uint32_t nt = s->num_instances > 0 ? s->num_flat_triangles : s->num_triangles, n = 0;
     uint32_t nobj = s->tri_object && s->num_objects > 0 ? s->num_objects : 1u;
     r->mr_tris = pt_malloc_array(nt ? nt : 1, sizeof *r->mr_tris);
@@ -4094,7 +4121,7 @@ static pt_status mr_new(pt_renderer *r, pt_error *err)
     for (uint32_t i = 0; i < nt; i++) {
         const pt_material *m = &s->materials[s->tri_material[i] & ~TRI_FLAT];
         const int glass = mr_glass(m);
-        if (!glass && !(sun && mr_metal(m)))
+        if (!glass && !(metal_lights && mr_metal(m)))
             continue;
         uint32_t obj = mr_object_of(r, i);
         uint32_t k = r->mr_of_object[obj];
