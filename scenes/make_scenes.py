@@ -427,19 +427,43 @@ def uv_sphere(centre, radius, n_lon=48, n_lat=24):
     return world, list(pos), idx
 
 
+def balls_on_floor(b, balls):
+    """A 6 x 6 floor (material 0) and UV spheres (name, centre, radius,
+    material) on it: the meshes of glass_things and chrome_sun."""
+    floor = [(-3.0, 0.0, -3.0), (-3.0, 0.0, 3.0), (3.0, 0.0, 3.0), (3.0, 0.0, -3.0)]
+    up = [(0.0, 1.0, 0.0)] * 4
+    meshes = [{"name": "floor", "primitives": [b.primitive(floor, up, [0, 1, 2, 0, 2, 3], 0)]}]
+    for name, centre, radius, mat in balls:
+        pos, nrm, idx = uv_sphere(centre, radius)
+        meshes.append({"name": name, "primitives": [b.primitive(pos, nrm, idx, mat)]})
+    return meshes
+
+
+def balls_doc(name, extensions, nodes, meshes, materials, camera_at):
+    """glass_things' and chrome_sun's document: nodes, then a camera at
+    camera_at looking a little down (yfov 0.6)."""
+    return {
+        "asset": {"version": "2.0", "generator": "ptfarm scenes/make_scenes.py"},
+        "extensionsUsed": extensions,
+        "scene": 0,
+        "scenes": [{"name": name, "nodes": list(range(len(nodes) + 1))}],
+        "nodes": nodes + [{"name": "Camera", "camera": 0, "translation": camera_at,
+                           "rotation": [-0.0998334, 0.0, 0.0, 0.9950042]}],
+        "meshes": meshes,
+        "materials": materials,
+        "cameras": [{"name": "Camera", "type": "perspective",
+                     "perspective": {"yfov": 0.6, "aspectRatio": 1.0, "znear": 0.01}}],
+    }
+
+
 def glass_things():
     """A solid glass ball on a floor with a metal ball and a matte ball inside
     it, for an environment map to light (path guiding's benchmark: light
     that reaches what is inside only through glass)."""
     b = Builder()
-    floor = [(-3.0, 0.0, -3.0), (-3.0, 0.0, 3.0), (3.0, 0.0, 3.0), (3.0, 0.0, -3.0)]
-    up = [(0.0, 1.0, 0.0)] * 4
-    meshes = [{"name": "floor", "primitives": [b.primitive(floor, up, [0, 1, 2, 0, 2, 3], 0)]}]
-    for name, centre, radius, mat in (("glass", (0.0, 0.6, 0.0), 0.6, 1),
-                                      ("metal", (-0.2, 0.45, 0.1), 0.2, 2),
-                                      ("matte", (0.22, 0.55, -0.1), 0.16, 3)):
-        pos, nrm, idx = uv_sphere(centre, radius)
-        meshes.append({"name": name, "primitives": [b.primitive(pos, nrm, idx, mat)]})
+    meshes = balls_on_floor(b, (("glass", (0.0, 0.6, 0.0), 0.6, 1),
+                                ("metal", (-0.2, 0.45, 0.1), 0.2, 2),
+                                ("matte", (0.22, 0.55, -0.1), 0.16, 3)))
     materials = [
         lambert("floor", (0.6, 0.6, 0.6)),
         {"name": "glass",
@@ -452,21 +476,11 @@ def glass_things():
                                   "metallicFactor": 1.0, "roughnessFactor": 0.25}},
         lambert("matte", (0.8, 0.15, 0.1)),
     ]
-    doc = {
-        "asset": {"version": "2.0", "generator": "ptfarm scenes/make_scenes.py"},
-        "extensionsUsed": ["KHR_materials_specular", "KHR_materials_transmission",
-                           "KHR_materials_volume"],
-        "scene": 0,
-        "scenes": [{"name": "glass_things", "nodes": [0, 1, 2, 3, 4]}],
-        "nodes": [{"name": "floor", "mesh": 0}, {"name": "glass", "mesh": 1},
-                  {"name": "metal", "mesh": 2}, {"name": "matte", "mesh": 3},
-                  {"name": "Camera", "camera": 0, "translation": [0.0, 1.3, 3.6],
-                   "rotation": [-0.0998334, 0.0, 0.0, 0.9950042]}],
-        "meshes": meshes,
-        "materials": materials,
-        "cameras": [{"name": "Camera", "type": "perspective",
-                     "perspective": {"yfov": 0.6, "aspectRatio": 1.0, "znear": 0.01}}],
-    }
+    doc = balls_doc("glass_things", ["KHR_materials_specular", "KHR_materials_transmission",
+                                     "KHR_materials_volume"],
+                    [{"name": "floor", "mesh": 0}, {"name": "glass", "mesh": 1},
+                     {"name": "metal", "mesh": 2}, {"name": "matte", "mesh": 3}],
+                    meshes, materials, [0.0, 1.3, 3.6])
     write(b.finish(doc), "glass_things.gltf")
 
 
@@ -476,13 +490,8 @@ def chrome_sun():
     the horizon): the sun the chrome mirrors onto the floor and the matte
     ball, light that only reflection chains off smooth metal find."""
     b = Builder()
-    floor = [(-3.0, 0.0, -3.0), (-3.0, 0.0, 3.0), (3.0, 0.0, 3.0), (3.0, 0.0, -3.0)]
-    up = [(0.0, 1.0, 0.0)] * 4
-    meshes = [{"name": "floor", "primitives": [b.primitive(floor, up, [0, 1, 2, 0, 2, 3], 0)]}]
-    for name, centre, radius, mat in (("chrome", (0.0, 0.6, 0.0), 0.6, 1),
-                                      ("matte", (1.1, 0.3, 0.5), 0.3, 2)):
-        pos, nrm, idx = uv_sphere(centre, radius)
-        meshes.append({"name": name, "primitives": [b.primitive(pos, nrm, idx, mat)]})
+    meshes = balls_on_floor(b, (("chrome", (0.0, 0.6, 0.0), 0.6, 1),
+                                ("matte", (1.1, 0.3, 0.5), 0.3, 2)))
     materials = [
         lambert("floor", (0.6, 0.6, 0.6)),
         {"name": "chrome",
@@ -491,25 +500,15 @@ def chrome_sun():
         lambert("matte", (0.8, 0.15, 0.1)),
     ]
     a = math.radians(-35.0)
-    doc = {
-        "asset": {"version": "2.0", "generator": "ptfarm scenes/make_scenes.py"},
-        "extensionsUsed": ["KHR_lights_punctual", "KHR_materials_specular"],
-        "extensions": {"KHR_lights_punctual": {"lights": [
-            {"name": "sun", "type": "directional", "intensity": 3.0}]}},
-        "scene": 0,
-        "scenes": [{"name": "chrome_sun", "nodes": [0, 1, 2, 3, 4]}],
-        "nodes": [{"name": "floor", "mesh": 0}, {"name": "chrome", "mesh": 1},
-                  {"name": "matte", "mesh": 2},
-                  {"name": "sun", "rotation": [f32(math.sin(a / 2)), 0.0, 0.0,
-                                               f32(math.cos(a / 2))],
-                   "extensions": {"KHR_lights_punctual": {"light": 0}}},
-                  {"name": "Camera", "camera": 0, "translation": [0.3, 1.4, 4.8],
-                   "rotation": [-0.0998334, 0.0, 0.0, 0.9950042]}],
-        "meshes": meshes,
-        "materials": materials,
-        "cameras": [{"name": "Camera", "type": "perspective",
-                     "perspective": {"yfov": 0.6, "aspectRatio": 1.0, "znear": 0.01}}],
-    }
+    doc = balls_doc("chrome_sun", ["KHR_lights_punctual", "KHR_materials_specular"],
+                    [{"name": "floor", "mesh": 0}, {"name": "chrome", "mesh": 1},
+                     {"name": "matte", "mesh": 2},
+                     {"name": "sun", "rotation": [f32(math.sin(a / 2)), 0.0, 0.0,
+                                                  f32(math.cos(a / 2))],
+                      "extensions": {"KHR_lights_punctual": {"light": 0}}}],
+                    meshes, materials, [0.3, 1.4, 4.8])
+    doc["extensions"] = {"KHR_lights_punctual": {"lights": [
+        {"name": "sun", "type": "directional", "intensity": 3.0}]}}
     write(b.finish(doc), "chrome_sun.gltf")
 
 
