@@ -4097,9 +4097,12 @@ static int scene_mirror(const pt_scene *s)
 static pt_status mr_new(pt_renderer *r, pt_error *err)
 {
     const pt_scene *s = r->scene;
-    /* Smooth metal mirrors the lights mr_metal_light takes. */
+    /* Smooth metal mirrors the lights mr_metal_light takes, in a scene
+     * without MASK or BLEND surfaces: a path passes their cutouts, a
+     * chain's ray does not, so the metal's NEE would give way where no
+     * chain was offered. */
     int metal_lights = 0;
-    for (uint32_t i = 0; i < s->num_punctual; i++) {
+    for (uint32_t i = 0; i < s->num_punctual && !r->alpha; i++) {
         const pt_punctual *l = &s->punctual[i];
         if (l->type == PT_PUNCTUAL_DIRECTIONAL)
             metal_lights = 1;
