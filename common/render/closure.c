@@ -463,11 +463,13 @@ pt_vec3 pt_closure_reflected(const pt_closure *c, pt_vec3 *wi, float *take)
     return closure_delta(c, 1, wi, take);
 }
 
-/* 1 when l is the base's GGX lobe at PT_BSDF_MIN_ALPHA: glTF's roughness
- * up to about 0.03, a mirror in all but the last tenth of a degree. */
+/* 1 when l is the base's GGX lobe, or a coat on the base's normal, at
+ * PT_BSDF_MIN_ALPHA: glTF's roughness up to about 0.03, a mirror in all
+ * but the last tenth of a degree. */
 static inline int lobe_mirror(const pt_lobe *l)
 {
-    return l->kind == PT_LOBE_SPECULAR && !(l->p.specular.alpha > PT_BSDF_MIN_ALPHA);
+    return (l->kind == PT_LOBE_SPECULAR && !(l->p.specular.alpha > PT_BSDF_MIN_ALPHA)) ||
+           (l->kind == PT_LOBE_COAT && !l->p.coat.own && !(l->p.coat.alpha > PT_BSDF_MIN_ALPHA));
 }
 
 pt_vec3 pt_closure_mirrored(const pt_closure *c, pt_vec3 *wi, float *take)
@@ -475,17 +477,31 @@ pt_vec3 pt_closure_mirrored(const pt_closure *c, pt_vec3 *wi, float *take)
     pt_vec3 w = pt_v3(0.0f, 0.0f, 0.0f);
     *take = 0.0f;
     *wi = pt_v3(-c->wo.x, -c->wo.y, c->wo.z);
-    if (c->dead || c->n_groups != 1)
+    if (c->dead)
         return w;
-    const pt_closure_group *gr = &c->group[0];
-    for (uint32_t i = 0; i < gr->n; i++) {
-        const pt_lobe *l = &c->lobe[gr->first + i];
-        if (!lobe_mirror(l) || !(l->prob > 0.0f))
-            continue;
-        /* GGX's f cos integrated over wi as alpha goes to 0: D's mass at
-         * the mirror direction, G2 1, the Fresnel at wo.h = wo.z. */
-        w = pt_v3_add(w, pt_bsdf_spec_fresnel(l->p.specular.f0, l->p.specular.f90, c->wo.z));
-        *take += l->prob;
+    /* Outermost group first: what the lobes met so far pass on (their below
+     * factors at wi), and the probability of sampling inside them. */
+    float pass = 1.0f, pick = 1.0f;
+    for (uint32_t g = c->n_groups; g-- > 0;) {
+        const pt_closure_group *gr = &c->group[g];
+        for (uint32_t i = 0; i < gr->n; i++) {
+            const pt_lobe *l = &c->lobe[gr->first + i];
+            float share, below;
+            lobe_eval(l, c->wo, *wi, &share, &below);
+            if (lobe_mirror(l) && l->prob > 0.0f) {
+                /* GGX's f cos integrated over wi as alpha goes to 0: D's
+                 * mass at the mirror direction, G2 1, the Fresnel at wo.h
+                 * = wo.z (the coat's, Fc(wo), is its weight). */
+                pt_vec3 f =
+                    l->kind == PT_LOBE_COAT
+                        ? pt_v3(l->p.coat.fc, l->p.coat.fc, l->p.coat.fc)
+                        : pt_bsdf_spec_fresnel(l->p.specular.f0, l->p.specular.f90, c->wo.z);
+                w = pt_v3_add(w, pt_v3_scale(f, pass));
+                *take += pick * l->prob;
+            }
+            pass *= below;
+        }
+        pick *= gr->below;
     }
     return w;
 }

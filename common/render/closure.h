@@ -169,13 +169,14 @@ pt_vec3 pt_closure_refracted(const pt_closure *c, pt_vec3 *wi, float *take);
  * or thick (pt_dielectric_reflected), for the reflection chains. */
 pt_vec3 pt_closure_reflected(const pt_closure *c, pt_vec3 *wi, float *take);
 
-/* Its GGX lobes at PT_BSDF_MIN_ALPHA (glTF roughness up to about 0.03),
- * taken as the mirror they stand for: render.c's reflection chains of a
- * directional light, which deliver the light such a lobe reflects onto a
- * rough vertex. The expected weight of that delta reflection (the lobes'
- * Fresnel at wo.z: their f cos integrated over wi as alpha goes to 0), the
- * probability that sampling picks them in *take, the mirrored direction in
- * *wi. Only for a closure of one group: zero otherwise, and without one. */
+/* Its GGX lobes at PT_BSDF_MIN_ALPHA (glTF roughness up to about 0.03: the
+ * base's, and a coat's on the base's normal), taken as the mirror they
+ * stand for: render.c's reflection chains, which deliver the light such a
+ * lobe reflects onto a rough vertex. The expected weight of that delta
+ * reflection (each lobe's Fresnel at wo.z, its f cos integrated over wi as
+ * alpha goes to 0, times the below factors of the lobes around it at the
+ * mirrored direction), the probability that sampling picks them in *take,
+ * the mirrored direction in *wi. Zero without one. */
 pt_vec3 pt_closure_mirrored(const pt_closure *c, pt_vec3 *wi, float *take);
 
 /* pt_closure_eval's f cos at wi into *f, and the share of it that those

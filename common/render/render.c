@@ -1727,18 +1727,23 @@ static int mr_glass(const pt_material *m)
            !(m->ext & ~(uint32_t)PT_MATX_SPECULAR_TEX);
 }
 
-/* ... or smooth metal: opaque, metallic, its GGX lobe at PT_BSDF_MIN_ALPHA
- * (roughness up to sqrt(PT_BSDF_MIN_ALPHA), about 0.03), a mirror for the
- * chains (pt_closure_mirrored), with nothing that could bend its normal or
- * layer it; a metallic-roughness texture may make it rough or dielectric in
- * places, where its closure says so. Smooth dielectric materials (F0 0.04)
- * are left to NEE at their GGX lobe, as before. */
+/* ... or smooth metal, or a smooth clear coat (car paint): opaque, with a
+ * GGX lobe at PT_BSDF_MIN_ALPHA (roughness up to sqrt(PT_BSDF_MIN_ALPHA),
+ * about 0.03) on the shading normal, which the chains take as a mirror
+ * (pt_closure_mirrored): the metallic base's, or a clearcoat's without a
+ * normal of its own; nothing may bend the base's normal. A texture may make
+ * either rough (or the base dielectric) in places, where the closure says
+ * so. Smooth dielectric bases (F0 0.04) are left to NEE at their GGX lobe,
+ * as before. */
 static int mr_metal(const pt_material *m)
 {
-    return !(m->transmission > 0.0f) && m->normal_tex < 0 && m->metallic > 0.0f &&
-           (m->metal_rough_tex >= 0 || m->roughness * m->roughness <= PT_BSDF_MIN_ALPHA) &&
-           !has_layers(m) && m->alpha_mode == PT_ALPHA_OPAQUE &&
-           !(m->ext & ~(uint32_t)PT_MATX_SPECULAR_TEX);
+    const int base = m->metallic > 0.0f &&
+                     (m->metal_rough_tex >= 0 || m->roughness * m->roughness <= PT_BSDF_MIN_ALPHA);
+    const int coat = m->clearcoat > 0.0f && m->clearcoat_normal_tex < 0 &&
+                     (m->clearcoat_rough_tex >= 0 ||
+                      m->clearcoat_roughness * m->clearcoat_roughness <= PT_BSDF_MIN_ALPHA);
+    return !(m->transmission > 0.0f) && m->normal_tex < 0 && (base || coat) &&
+           m->alpha_mode == PT_ALPHA_OPAQUE && !(m->ext & ~(uint32_t)PT_MATX_SPECULAR_TEX);
 }
 
 static int mr_caster(const pt_material *m)

@@ -966,14 +966,19 @@ static void emitter_sphere(void)
  * the closed form, to a standard error under 1e-6 of it (with the wall's
  * NEE it is 7e-4). Without the chains the GGX's light is found by the
  * plane's samples that happen to fall within its lobe (0.3605 +- 0.0007
- * against the direct 0.3589), so only their count (none) is checked.
+ * against the direct 0.3589), so only their count (none) is checked. A
+ * black wall under a smooth clear coat (car paint without its paint): the
+ * coat's F = Fc(sin t) = 0.04 + 0.96 (1 - sin t)^5, the same way.
  */
 #define G_METAL 0.8
+/* The wall's material: wall_builder's kind. */
+enum { WALL_GLASS, WALL_METAL, WALL_COAT };
+
 /* A builder holding plane_and_glass's plane and, of its thin glass (of
- * smooth metal with `metal`), the wall in the plane x = 0 (or, with `pane`,
- * point_wall's small pane in it) and with `roof` the roof, of thin glass;
- * NULL on an error. */
-static pt_scene_builder *wall_builder(int pane, int roof, int metal)
+ * smooth metal, or black under a smooth clear coat, by kind), the wall in
+ * the plane x = 0 (or, with `pane`, point_wall's small pane in it) and
+ * with `roof` the roof, of thin glass; NULL on an error. */
+static pt_scene_builder *wall_builder(int pane, int roof, int kind)
 {
     uint32_t mg = 0, mw = 0;
     pt_scene_builder *b = plane_and_glass(0.0f, &mg);
@@ -981,15 +986,23 @@ static pt_scene_builder *wall_builder(int pane, int roof, int metal)
         return NULL;
     pt_error err = {0};
     mw = mg;
-    if (metal) {
-        pt_material chrome = pt_material_default();
-        chrome.metallic = 1.0f;
-        chrome.roughness = 0.0f;
-        chrome.double_sided = 1;
-        chrome.base_color[0] = 0.9f;
-        chrome.base_color[1] = (float)G_METAL;
-        chrome.base_color[2] = 0.7f;
-        CHECKF(pt_scene_builder_add_material(b, &chrome, &mw, &err) == PT_OK, "%s", err.msg);
+    if (kind != WALL_GLASS) {
+        pt_material m = pt_material_default();
+        m.double_sided = 1;
+        if (kind == WALL_METAL) {
+            m.metallic = 1.0f;
+            m.roughness = 0.0f;
+            m.base_color[0] = 0.9f;
+            m.base_color[1] = (float)G_METAL;
+            m.base_color[2] = 0.7f;
+        } else {
+            m.metallic = 0.0f;
+            m.specular = 0.0f;
+            m.base_color[0] = m.base_color[1] = m.base_color[2] = 0.0f;
+            m.clearcoat = 1.0f;
+            m.clearcoat_roughness = 0.0f;
+        }
+        CHECKF(pt_scene_builder_add_material(b, &m, &mw, &err) == PT_OK, "%s", err.msg);
     }
     const float R = 100.0f, H = 10.0f;
     const float wall[12] = {0, -R, 0, 0, R, 0, 0, R, H, 0, -R, H};
@@ -1005,9 +1018,9 @@ static pt_scene_builder *wall_builder(int pane, int roof, int metal)
     return b;
 }
 
-static pt_scene *wall_scene(int roof, int metal)
+static pt_scene *wall_scene(int roof, int kind)
 {
-    pt_scene_builder *b = wall_builder(0, roof, metal);
+    pt_scene_builder *b = wall_builder(0, roof, kind);
     if (!b)
         return NULL;
     pt_punctual l;
@@ -1023,24 +1036,27 @@ static pt_scene *wall_scene(int roof, int metal)
 
 static void directional_wall(void)
 {
-    for (int v = 0; v < 4; v++) {
-        const int roof = v & 1, metal = v >> 1;
-        pt_scene *s = wall_scene(roof, metal);
+    for (int v = 0; v < 6; v++) {
+        const int roof = v & 1, kind = v >> 1, metal = kind != WALL_GLASS;
+        pt_scene *s = wall_scene(roof, kind);
         if (!s)
             continue;
         double t = 20.0 * 3.14159265358979323846 / 180.0;
         double pass = roof ? 1.0 - pt_fresnel_dielectric((float)cos(t), (float)ETA) : 1.0;
         double direct = pass * RHO_D / 3.14159265358979323846 * E_DIR * cos(t);
-        double f = metal ? G_METAL + (1.0 - G_METAL) * pow(1.0 - sin(t), 5.0)
-                         : pt_fresnel_dielectric((float)sin(t), (float)ETA);
+        double f = kind == WALL_METAL  ? G_METAL + (1.0 - G_METAL) * pow(1.0 - sin(t), 5.0)
+                   : kind == WALL_COAT ? 0.04 + 0.96 * pow(1.0 - sin(t), 5.0)
+                                       : pt_fresnel_dielectric((float)sin(t), (float)ETA);
         double want = direct * (1.0 + f);
         for (int off = 0; off <= 1; off++) {
             pt_render_stats st = {0};
             double se = 0.0, m = plane_mean(s, 4, roof ? 3 : 2, 6, 256, off, &st, &se);
             printf("%s wall%s, directional light%s: %.6f +- %.6f, closed form %.6f; %llu chains\n",
-                   metal ? "metal" : "glass", roof ? " under a glass roof" : "",
-                   off ? ", without reflection chains" : "", m, se, off ? direct : want,
-                   (unsigned long long)st.chains);
+                   kind == WALL_METAL  ? "metal"
+                   : kind == WALL_COAT ? "coated"
+                                       : "glass",
+                   roof ? " under a glass roof" : "", off ? ", without reflection chains" : "", m,
+                   se, off ? direct : want, (unsigned long long)st.chains);
             if (off && metal)
                 CHECK(st.chains == 0);
             else if (off)
@@ -1124,7 +1140,7 @@ static void point_wall(void)
         const double direct = sp * RHO_D / 3.14159265358979323846 * I_PT * (3.0 / sqrt(d2)) / d2;
         const double mirrored =
             sy * RHO_D / 3.14159265358979323846 * I_PT * (metal ? fm : fg) * (3.0 / sqrt(i2)) / i2;
-        pt_scene_builder *b = wall_builder(pane, 0, metal);
+        pt_scene_builder *b = wall_builder(pane, 0, metal ? WALL_METAL : WALL_GLASS);
         if (!b)
             return;
         pt_punctual pl;
