@@ -2244,17 +2244,16 @@ static uint32_t mf_nee(const pt_renderer *r, path *pa, const surface *sf, const 
  * (pt_closure_reflected), p the light's pick probability. No MIS: no other
  * strategy finds these paths.
  *
- * Smooth metal (mr_metal: a GGX lobe at PT_BSDF_MIN_ALPHA, glTF roughness
- * up to about 0.03) is a mirror to the chains of a directional light (T
- * its Fresnel at y, pt_closure_mirrored). Its lobe is not a delta, so a
- * sampled path does find that light, by NEE at y, where x's direction fell
- * within the lobe's tenth of a degree (rare spikes: the light was all but
- * missing). That NEE leaves the light of y's mirror lobes to x's chain: the
- * chain evaluates x's closure without its own mirror lobes, the path keeps
- * what those sampled (mf_path's mshare, 1 after the camera or a delta
- * bounce, which no chain covers), and the sun's glint on chrome, seen
- * directly or in a mirror, keeps its NEE. The chain must cover every x the
- * NEE gives way to, so only lights whose choice at x cannot be denied are
+ * Smooth metal, or a smooth clear coat (mr_metal: a GGX lobe at
+ * PT_BSDF_MIN_ALPHA, glTF roughness up to about 0.03), is a mirror to the
+ * chains (T its Fresnel at y under the lobes around it,
+ * pt_closure_mirrored). Its lobe is not a delta, so a sampled path does
+ * find that light, by NEE at y, where x's direction fell within the lobe's
+ * tenth of a degree (rare spikes: the light was all but missing). That NEE leaves the light of y's
+ * mirror lobes to x's chain: the chain evaluates x's closure without its own mirror lobes, the path
+ * keeps what those sampled (mf_path's mshare, 1 after the camera or a delta bounce, which no chain
+ * covers), and the sun's glint on chrome, seen directly or in a mirror, keeps its NEE. The chain
+ * must cover every x the NEE gives way to, so only lights whose choice at x cannot be denied are
  * chained off metal (mr_metal_light): directional ones, and point and spot
  * lights without a range in a scene without a light tree, for an x inside
  * the spot's cone; the others keep NEE at metal.
