@@ -1791,11 +1791,6 @@ static int chain_vert(const pt_renderer *r, const pt_hit *hit, int mirror, pt_mf
     return 1;
 }
 
-static int mf_vert_of(const pt_renderer *r, const pt_hit *hit, pt_mf_vert *v)
-{
-    return chain_vert(r, hit, 0, v);
-}
-
 static inline pt_vec3 mf_f3(const double a[3])
 {
     return pt_v3((float)a[0], (float)a[1], (float)a[2]);
@@ -1952,7 +1947,7 @@ static __attribute__((noinline)) int mf_connect(const pt_renderer *r, pt_vec3 x,
         const pt_material *m = &s->materials[s->tri_material[hit.tri] & ~TRI_FLAT];
         if (c.k == 0 && (features & PT_FEAT_THIN_GLASS) && r->thin_glass && thin_wall(m))
             return MF_SEED_THIN;
-        if (c.k < PT_MF_MAX && mf_vert_of(r, &hit, &c.v[c.k]))
+        if (c.k < PT_MF_MAX && chain_vert(r, &hit, 0, &c.v[c.k]))
             c.k++;
         else if (c.k == 0 || mf_caster(m) || ++passed > MF_SEED_PASS)
             return MF_SEED_BLOCKED;
@@ -4170,7 +4165,7 @@ static pt_status mr_new(pt_renderer *r, pt_error *err)
     return pt_accel_new_subset(s, r->mr_tris, n, &r->mr_accel, err);
 }
 
-/* r->mf_accel: the still, flat triangles a chain may refract at (mf_vert_of
+/* r->mf_accel: the still, flat triangles a chain may refract at (chain_vert
  * takes no others), so that a solver's step finds the glass behind the
  * things inside it with one ray. */
 static pt_status mf_accel_new(pt_renderer *r, pt_error *err)

@@ -418,33 +418,23 @@ static void curved(int at)
     CHECKF(worst[0] < 1e-3 && worst[1] < 1e-3, "Jacobians off by %g and %g", worst[0], worst[1]);
 }
 
-/* The reflection chain off t from x towards wl, seeded where the line from
- * x along wl mirrored in the xy-plane meets t's plane, and solved. */
-static int solve_mirror(const tri *t, const double x[3], const double wl[3], pt_mf_chain *c)
+/* The reflection chain off t from x towards wl (with `at`, to the point
+ * wl), seeded towards the light's image in t's plane (the xy-plane: wl
+ * mirrored, or the point's image), and solved. */
+static int solve_mirror(const tri *t, const double x[3], const double wl[3], int at, pt_mf_chain *c)
 {
     const scene2 sc = {t};
     double d[3] = {wl[0], wl[1], -wl[2]}, b[2];
+    if (at) {
+        set3(d, wl[0] - x[0], wl[1] - x[1], -wl[2] - x[2]);
+        unit3(d);
+    }
     c->k = 1;
-    c->at = 0;
+    c->at = (uint32_t)at;
     if (!plane_hit(t, x, d, b))
         return 0;
     vert_of(t, 0, b[0], b[1], &c->v[0]);
     return pt_mf_solve(x, c, wl, project, (void *)&sc);
-}
-
-/* The reflection chain off t from x to the point l, seeded towards l's
- * image in t's plane (the xy-plane), and solved. */
-static int solve_mirror_at(const tri *t, const double x[3], const double l[3], pt_mf_chain *c)
-{
-    const scene2 sc = {t};
-    double d[3] = {l[0] - x[0], l[1] - x[1], -l[2] - x[2]}, b[2];
-    unit3(d);
-    c->k = 1;
-    c->at = 1;
-    if (!plane_hit(t, x, d, b))
-        return 0;
-    vert_of(t, 0, b[0], b[1], &c->v[0]);
-    return pt_mf_solve(x, c, l, project, (void *)&sc);
 }
 
 /*
@@ -467,14 +457,14 @@ static void mirror(void)
         double th = 0.05 + 1.2 * i / 20.0, ph = 1.7 * i;
         double wl[3] = {sin(th) * cos(ph), sin(th) * sin(ph), cos(th)};
         pt_mf_chain c;
-        if (solve_mirror(&flat, x, wl, &c)) {
+        if (solve_mirror(&flat, x, wl, 0, &c)) {
             solved[0]++;
             double w[3];
             first_dir(x, &c, w);
             worst_d = fmax(worst_d, fabs(w[0] - wl[0]) + fabs(w[1] - wl[1]) + fabs(w[2] + wl[2]));
             worst_f = fmax(worst_f, fabs(pt_mf_jacobian(x, &c, wl) - 1.0));
         }
-        if (th < 0.65 && solve_mirror(&lens, x, wl, &c)) {
+        if (th < 0.65 && solve_mirror(&lens, x, wl, 0, &c)) {
             double m = measured_jacobian(&sl, 1, x, wl, &c);
             if (m > 0.0) {
                 solved[1]++;
@@ -482,13 +472,13 @@ static void mirror(void)
             }
         }
         double r = 0.6 + 0.1 * (i % 5), l[3] = {r * wl[0], r * wl[1], r * wl[2]};
-        if (solve_mirror_at(&flat, x, l, &c)) {
+        if (solve_mirror(&flat, x, l, 1, &c)) {
             solved_at[0]++;
             double dx = x[0] - l[0], dy = x[1] - l[1], dz = x[2] + l[2];
             double want = 1.0 / (dx * dx + dy * dy + dz * dz);
             worst_fa = fmax(worst_fa, fabs(pt_mf_point_jacobian(x, &c, l) / want - 1.0));
         }
-        if (th < 0.65 && solve_mirror_at(&lens, x, l, &c)) {
+        if (th < 0.65 && solve_mirror(&lens, x, l, 1, &c)) {
             double m = measured_point_jacobian(&sl, 1, x, l, &c);
             if (m > 0.0) {
                 solved_at[1]++;
