@@ -126,11 +126,12 @@ struct pt_renderer {
     pt_accel *mf_accel; /* the chain glass's triangles alone (mf_project's rays) */
     uint32_t *mf_tris;  /* their indices, mf_accel's map */
     /* PT_FEAT_MANIFOLD: reflection chains off smooth glass (mr_glass), of a
-     * directional, point or spot light, and off smooth metal (mr_metal), of
-     * the lights mr_metal_light takes */
+     * directional, point or spot light, and off smooth opaque surfaces
+     * (mr_smooth: metal, polished dielectrics, clear coats), of
+     * the lights mr_smooth_light takes */
     int mirror;
-    int mirror_metal;       /* a reflector is smooth metal (mr_metal) */
-    int metal_at;           /* point and spot lights chain off it too (mr_metal_light) */
+    int mirror_smooth;      /* a reflector is smooth and opaque (mr_smooth) */
+    int smooth_at;          /* point and spot lights chain off it too (mr_smooth_light) */
     pt_accel *mr_accel;     /* the reflectors' triangles alone */
     uint32_t *mr_tris;      /* their indices, mr_accel's map */
     struct mr_object *mr;   /* the reflecting objects' bounding spheres */
@@ -988,10 +989,10 @@ typedef struct mf_path {
     int32_t medium;    /* the medium at x */
     uint32_t depth;    /* x's */
     uint32_t chains;   /* chains manifold NEE connected on this path (the stats') */
-    /* r->mirror_metal: the share of the throughput that the last vertex's
+    /* r->mirror_smooth: the share of the throughput that the last vertex's
      * mirror lobes carried (per channel; 1 where no reflection chain from
      * it delivers what they find), which NEE at the next vertex's mirror
-     * lobes takes (mr_metal_at) */
+     * lobes takes (mr_smooth_at) */
     pt_vec3 mshare;
     pt_vec3 y[PT_MF_MAX];
 } mf_path;
@@ -1727,17 +1728,16 @@ static int mr_glass(const pt_material *m)
            !(m->ext & ~(uint32_t)PT_MATX_SPECULAR_TEX);
 }
 
-/* ... or smooth metal, or a smooth clear coat (car paint): opaque, with a
- * GGX lobe at PT_BSDF_MIN_ALPHA (roughness up to sqrt(PT_BSDF_MIN_ALPHA),
- * about 0.03) on the shading normal, which the chains take as a mirror
- * (pt_closure_mirrored): the metallic base's, or a clearcoat's without a
- * normal of its own; nothing may bend the base's normal. A texture may make
- * either rough (or the base dielectric) in places, where the closure says
- * so. Smooth dielectric bases (F0 0.04) are left to NEE at their GGX lobe,
- * as before. */
-static int mr_metal(const pt_material *m)
+/* ... or an opaque surface with a GGX lobe at PT_BSDF_MIN_ALPHA (roughness
+ * up to sqrt(PT_BSDF_MIN_ALPHA), about 0.03) on the shading normal, which
+ * the chains take as a mirror (pt_closure_mirrored): smooth metal, a smooth
+ * dielectric (a polished floor, plastic: F0 0.04 times its specular), or a
+ * smooth clear coat without a normal of its own (car paint); nothing may
+ * bend the base's normal. A texture may make either lobe rough in places,
+ * where the closure says so. */
+static int mr_smooth(const pt_material *m)
 {
-    const int base = m->metallic > 0.0f &&
+    const int base = (m->metallic > 0.0f || m->specular > 0.0f) &&
                      (m->metal_rough_tex >= 0 || m->roughness * m->roughness <= PT_BSDF_MIN_ALPHA);
     const int coat = m->clearcoat > 0.0f && m->clearcoat_normal_tex < 0 &&
                      (m->clearcoat_rough_tex >= 0 ||
@@ -1748,7 +1748,7 @@ static int mr_metal(const pt_material *m)
 
 static int mr_caster(const pt_material *m)
 {
-    return mr_glass(m) || mr_metal(m);
+    return mr_glass(m) || mr_smooth(m);
 }
 
 /* A material whose surfaces a chain may refract at: smooth thick glass,
@@ -1897,7 +1897,7 @@ static int chain_event(const pt_renderer *r, pt_vec3 from, pt_vec3 fng, pt_vec3 
     hit.b2 = (float)v->b[1];
     surface_at(r, &hit, 0.0f, sf, features);
     pt_vec3 wo = pt_v3_neg(d), ns;
-    /* as shade: glass scatters to both sides, metal to its front */
+    /* as shade: glass scatters to both sides, an opaque surface to its front */
     const int glass = transmits(sf->mat);
     shading_normals(sf, wo, glass, front, ngs, &ns, features);
     pt_frame fr = pt_frame_from_normal(ns);
@@ -2218,14 +2218,15 @@ static uint32_t mf_nee(const pt_renderer *r, path *pa, const surface *sf, const 
  * Reflection chains (PT_FEAT_MANIFOLD, r->mirror): the light of a
  * directional, point or spot light that reaches a rough vertex x off one
  * smooth reflecting surface (glass's Fresnel reflection, thin or thick:
- * mr_glass; and smooth metal, mr_metal, for the lights mr_metal_light
- * takes): a sun mirrored by a window onto the floor, a lamp in a glass
- * cabinet's door, a chrome ball in the sun. No path finds it otherwise: the light is a delta, the
- * reflection is a delta, and a shadow ray towards the light ends at the
- * glass (or crosses a thin wall, but never turns), so the renderer left it
- * out. The chain is one vertex y whose half vector of the directions to x
- * and to the light is the shading normal there: manifold.h's constraint
- * with the same index on both sides, solved by the same Newton steps.
+ * mr_glass; and smooth opaque surfaces, mr_smooth, for the lights
+ * mr_smooth_light takes): a sun mirrored by a window onto the floor, a lamp
+ * in a glass cabinet's door, a chrome ball in the sun. No path finds it
+ * otherwise: the light is a delta, the reflection is a delta, and a shadow
+ * ray towards the light ends at the glass (or crosses a thin wall, but never
+ * turns), so the renderer left it out. The chain is one vertex y whose half
+ * vector of the directions to x and to the light is the shading normal
+ * there: manifold.h's constraint with the same index on both sides, solved
+ * by the same Newton steps.
  *
  * No ray towards the light seeds it (that ray passes the reflector by), so
  * x picks one reflecting object k, with probability P_k(x) by the solid
@@ -2239,19 +2240,21 @@ static uint32_t mf_nee(const pt_renderer *r, path *pa, const surface *sf, const 
  * (pt_closure_reflected), p the light's pick probability. No MIS: no other
  * strategy finds these paths.
  *
- * Smooth metal, or a smooth clear coat (mr_metal: a GGX lobe at
- * PT_BSDF_MIN_ALPHA, glTF roughness up to about 0.03), is a mirror to the
- * chains (T its Fresnel at y under the lobes around it,
- * pt_closure_mirrored). Its lobe is not a delta, so a sampled path does
- * find that light, by NEE at y, where x's direction fell within the lobe's
- * tenth of a degree (rare spikes: the light was all but missing). That NEE leaves the light of y's
- * mirror lobes to x's chain: the chain evaluates x's closure without its own mirror lobes, the path
- * keeps what those sampled (mf_path's mshare, 1 after the camera or a delta bounce, which no chain
- * covers), and the sun's glint on chrome, seen directly or in a mirror, keeps its NEE. The chain
- * must cover every x the NEE gives way to, so only lights whose choice at x cannot be denied are
- * chained off metal (mr_metal_light): directional ones, and point and spot
+ * Smooth metal, a smooth dielectric (a polished floor) or a smooth clear
+ * coat (mr_smooth: a GGX lobe at PT_BSDF_MIN_ALPHA, glTF roughness up to
+ * about 0.03) is a mirror to the chains (T its Fresnel at y under the lobes
+ * around it, pt_closure_mirrored). Its lobe is not a delta, so a sampled
+ * path does find that light, by NEE at y, where x's direction fell within
+ * the lobe's tenth of a degree (rare spikes: the light was all but missing).
+ * That NEE leaves the light of y's mirror lobes to x's chain: the chain
+ * evaluates x's closure without its own mirror lobes, the path keeps what
+ * those sampled (mf_path's mshare, 1 after the camera or a delta bounce,
+ * which no chain covers), and the sun's glint on chrome, seen directly or in
+ * a mirror, keeps its NEE. The chain must cover every x the NEE gives way
+ * to, so only lights whose choice at x cannot be denied are chained off
+ * these surfaces (mr_smooth_light): directional ones, and point and spot
  * lights without a range in a scene without a light tree, for an x inside
- * the spot's cone; the others keep NEE at metal.
+ * the spot's cone; the others keep their NEE there.
  *
  * The environment's light off glass, which BSDF sampling does find, is not
  * chained: weighed against it by MIS (a sampled path's reflection solved
@@ -2331,34 +2334,35 @@ static inline uint32_t mr_object_of(const pt_renderer *r, uint32_t tri)
 }
 
 /* 1 when light l (a point or spot light when `at`, else directional) chains
- * off smooth metal for a receiver at x: a directional light always, its
+ * off smooth opaque surfaces (mr_smooth) for a receiver at x: a directional light always, its
  * choice the same at every x (the light tree holds point and spot lights
  * only); a point or spot light without a range, where no light tree may
- * deny x its choice (r->metal_at) and x is inside its cone, as x's light
+ * deny x its choice (r->smooth_at) and x is inside its cone, as x's light
  * sample of it is taken (a range would window the chain's length and NEE's
  * distance apart). */
-static inline int mr_metal_light(const pt_renderer *r, const pt_punctual *l, int at, pt_vec3 x)
+static inline int mr_smooth_light(const pt_renderer *r, const pt_punctual *l, int at, pt_vec3 x)
 {
     if (!at)
         return 1;
-    if (!r->metal_at || l->range > 0.0f)
+    if (!r->smooth_at || l->range > 0.0f)
         return 0;
     pt_vec3 d = pt_v3_sub(l->position, x);
     float dist = pt_v3_len(d);
     return dist > 0.0f && any_positive(pt_punctual_intensity(l, pt_v3_scale(d, 1.0f / dist), dist));
 }
 
-/* 1 when NEE at hit (surface sf) of a light mr_metal_light takes leaves
- * the mirror lobes of its closure to the reflection chain of the path's
- * previous vertex, as far as mf_path's mshare says: a still triangle of
- * smooth metal on one of the reflectors, as chain_vert takes it. A sun mirrored by such
- * a lobe onto a rough vertex x is the chain's from x; NEE there found it
- * only where x's sampled direction fell within the lobe's tenth of a
- * degree. Seen from the camera, or after a smooth bounce, the lobe keeps
- * its NEE (the sun's glint on chrome). */
-static inline int mr_metal_at(const pt_renderer *r, const pt_hit *hit, const surface *sf)
+/* 1 when NEE at hit (surface sf) of a light mr_smooth_light takes leaves the
+ * mirror lobes of its closure to the reflection chain of the path's previous
+ * vertex, as far as mf_path's mshare says: a still triangle of a smooth
+ * opaque surface (mr_smooth) on one of the reflectors, as chain_vert takes
+ * it. A sun mirrored by such a lobe onto a rough vertex x is the chain's
+ * from x; NEE there found it only where x's sampled direction fell within
+ * the lobe's tenth of a degree. Seen from the camera, or after a smooth
+ * bounce, the lobe keeps its NEE (the sun's glint on chrome). */
+static inline int mr_smooth_at(const pt_renderer *r, const pt_hit *hit, const surface *sf)
 {
-    return !hit->inst && mr_metal(sf->mat) && r->mr_of_object[mr_object_of(r, hit->tri)] != MR_NONE;
+    return !hit->inst && mr_smooth(sf->mat) &&
+           r->mr_of_object[mr_object_of(r, hit->tri)] != MR_NONE;
 }
 
 /* The unit direction from p towards the light: wl, or towards the point
@@ -2456,7 +2460,7 @@ static int mr_light_seen(const pt_renderer *r, path *pa, pt_vec3 o, pt_vec3 d, f
  * transmittance in lk->T; alpha_key passes MASK and BLEND surfaces there). */
 static __attribute__((noinline)) int mr_connect(const pt_renderer *r, path *pa, pt_vec3 x,
                                                 pt_vec3 ng, int both, pt_vec3 wl, const pt_vec3 *at,
-                                                int metal, uint32_t k, uint32_t alpha_key,
+                                                int opaque, uint32_t k, uint32_t alpha_key,
                                                 mf_link *lk, const uint32_t features)
 {
     const int32_t medium = pa->medium;
@@ -2492,8 +2496,8 @@ static __attribute__((noinline)) int mr_connect(const pt_renderer *r, path *pa, 
     if (!chain_event(r, x, ng, w, &c.v[0], 1, &sf, &front, &ngs, &T, &Tm, &tk, &wi, &wi_l,
                      features))
         return MF_SEED_BLOCKED;
-    /* Smooth metal mirrors only the lights mr_metal_light takes. */
-    if (!metal)
+    /* Smooth opaque surfaces mirror only the lights mr_smooth_light takes. */
+    if (!opaque)
         Tm = pt_v3(0.0f, 0.0f, 0.0f);
     if (!(tk > 0.0f) || !(any_positive(T) || any_positive(Tm)))
         return MF_SEED_BLOCKED;
@@ -2540,14 +2544,14 @@ static __attribute__((noinline)) void mr_nee(const pt_renderer *r, path *pa, con
 {
     float P;
     const int at = ls->delta == PT_LIGHT_AT;
-    /* A closure of mirror lobes alone leaves metal mirrors to its sampled
+    /* A closure of mirror lobes alone leaves opaque mirrors to its sampled
      * paths (mf_path's mshare 1): it chains off glass only. */
-    const int metal = r->mirror_metal && mr_metal_light(r, ls->punct, at, sf->p);
-    const int glass_only = !metal || pt_closure_has_mirror(cl) == 2;
+    const int opaque = r->mirror_smooth && mr_smooth_light(r, ls->punct, at, sf->p);
+    const int glass_only = !opaque || pt_closure_has_mirror(cl) == 2;
     uint32_t k = mr_pick(r, sf->p, ng, both, glass_only, u, &P);
     mf_link lk;
-    if (k == MR_NONE || mr_connect(r, pa, sf->p, ng, both, ls->wi, at ? &ls->position : NULL, metal,
-                                   k, alpha_key, &lk, features) != MF_SEED_CHAIN)
+    if (k == MR_NONE || mr_connect(r, pa, sf->p, ng, both, ls->wi, at ? &ls->position : NULL,
+                                   opaque, k, alpha_key, &lk, features) != MF_SEED_CHAIN)
         return;
     if (pa->mf)
         pa->mf->chains++;
@@ -2561,7 +2565,7 @@ static __attribute__((noinline)) void mr_nee(const pt_renderer *r, path *pa, con
         return;
     pt_vec3 ft = pt_v3_mul(f, lk.T);
     if (any_positive(lk.Tm)) {
-        /* Off a metal mirror: what x's own mirror lobes send towards y is
+        /* Off an opaque mirror: what x's own mirror lobes send towards y is
          * its sampled paths' (the next vertex's NEE, mf_path's mshare). */
         pt_vec3 fa, fm = pt_closure_eval_mirror(cl, w_l, &fa);
         pt_vec3 rest = pt_v3_sub(fa, fm);
@@ -2717,11 +2721,11 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
                 f = lambert_eval(&lambert, wo_l, wi_ll, &bpdf);
             else if (!through || (side != 0.0f && (side > 0.0f) == (wi_ll.z > 0.0f)))
                 f = pt_closure_eval(&cl, wi_ll, &bpdf);
-            if ((features & PT_FEAT_MANIFOLD) && r->mirror_metal &&
+            if ((features & PT_FEAT_MANIFOLD) && r->mirror_smooth &&
                 (ls->delta == PT_LIGHT_FAR || ls->delta == PT_LIGHT_AT) &&
-                (features & PT_FEAT_GLOSSY) && pa->mf && mr_metal_at(r, hit, sf) &&
+                (features & PT_FEAT_GLOSSY) && pa->mf && mr_smooth_at(r, hit, sf) &&
                 any_positive(f) &&
-                mr_metal_light(r, ls->punct, ls->delta == PT_LIGHT_AT, pa->mf->x)) {
+                mr_smooth_light(r, ls->punct, ls->delta == PT_LIGHT_AT, pa->mf->x)) {
                 /* The share of the mirror lobes' light that the previous
                  * vertex's chain delivers is not taken again. */
                 pt_vec3 fa, fm = pt_closure_eval_mirror(&cl, wi_ll, &fa);
@@ -2885,9 +2889,10 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
             return ret;
         beta = pt_v3_scale(beta, 1.0f / survive);
     }
-    if ((features & PT_FEAT_MANIFOLD) && r->mirror_metal && (features & PT_FEAT_GLOSSY) && pa->mf) {
+    if ((features & PT_FEAT_MANIFOLD) && r->mirror_smooth && (features & PT_FEAT_GLOSSY) &&
+        pa->mf) {
         /* At a vertex whose reflection chains (mr_nee; mr_connect's tests)
-         * take a sun off metal mirrors, the path keeps only the share its
+         * take a sun off opaque mirrors, the path keeps only the share its
          * own mirror lobes sampled: the chains evaluate the rest of its
          * closure towards the mirror. */
         pt_vec3 ms = pt_v3(1.0f, 1.0f, 1.0f);
@@ -4096,17 +4101,17 @@ static int scene_mirror(const pt_scene *s)
 static pt_status mr_new(pt_renderer *r, pt_error *err)
 {
     const pt_scene *s = r->scene;
-    /* Smooth metal mirrors the lights mr_metal_light takes, in a scene
+    /* Smooth opaque surfaces mirror the lights mr_smooth_light takes, in a scene
      * without MASK or BLEND surfaces: a path passes their cutouts, a
-     * chain's ray does not, so the metal's NEE would give way where no
+     * chain's ray does not, so their NEE would give way where no
      * chain was offered. */
-    int metal_lights = 0;
+    int smooth_lights = 0;
     for (uint32_t i = 0; i < s->num_punctual && !r->alpha; i++) {
         const pt_punctual *l = &s->punctual[i];
         if (l->type == PT_PUNCTUAL_DIRECTIONAL)
-            metal_lights = 1;
+            smooth_lights = 1;
         else if (!r->light_tree && !(l->range > 0.0f))
-            metal_lights = r->metal_at = 1;
+            smooth_lights = r->smooth_at = 1;
     }
     uint32_t nt = s->num_instances > 0 ? s->num_flat_triangles : s->num_triangles, n = 0;
     uint32_t nobj = s->tri_object && s->num_objects > 0 ? s->num_objects : 1u;
@@ -4123,7 +4128,7 @@ static pt_status mr_new(pt_renderer *r, pt_error *err)
     for (uint32_t i = 0; i < nt; i++) {
         const pt_material *m = &s->materials[s->tri_material[i] & ~TRI_FLAT];
         const int glass = mr_glass(m);
-        if (!glass && !(metal_lights && mr_metal(m)))
+        if (!glass && !(smooth_lights && mr_smooth(m)))
             continue;
         uint32_t obj = mr_object_of(r, i);
         uint32_t k = r->mr_of_object[obj];
@@ -4138,7 +4143,7 @@ static pt_status mr_new(pt_renderer *r, pt_error *err)
             }
         }
         r->mr[k].glass |= (uint32_t)glass;
-        r->mirror_metal |= !glass;
+        r->mirror_smooth |= !glass;
         r->mr_tris[n++] = i;
         const tri_rec *t = &r->tris[i];
         const pt_vec3 *v[3] = {&t->v0, &t->v1, &t->v2};

@@ -958,14 +958,16 @@ static void emitter_sphere(void)
  * plane's samples that happen to fall within its lobe (0.3605 +- 0.0007
  * against the direct 0.3589), so only their count (none) is checked. A
  * black wall under a smooth clear coat (car paint without its paint): the
- * coat's F = Fc(sin t) = 0.04 + 0.96 (1 - sin t)^5, the same way.
+ * coat's F = Fc(sin t) = 0.04 + 0.96 (1 - sin t)^5, the same way; a wall of
+ * smooth black plastic (a dielectric base of F0 0.04) the same.
  */
 #define G_METAL 0.8
 /* The wall's material: wall_builder's kind. */
-enum { WALL_GLASS, WALL_METAL, WALL_COAT };
+enum { WALL_GLASS, WALL_METAL, WALL_COAT, WALL_PLASTIC };
 
 /* A builder holding plane_and_glass's plane and, of its thin glass (of
- * smooth metal, or black under a smooth clear coat, by kind), the wall in
+ * smooth metal, black under a smooth clear coat, or smooth black plastic,
+ * by kind), the wall in
  * the plane x = 0 (or, with `pane`, point_wall's small pane in it) and
  * with `roof` the roof, of thin glass; NULL on an error. */
 static pt_scene_builder *wall_builder(int pane, int roof, int kind)
@@ -987,10 +989,14 @@ static pt_scene_builder *wall_builder(int pane, int roof, int kind)
             m.base_color[2] = 0.7f;
         } else {
             m.metallic = 0.0f;
-            m.specular = 0.0f;
+            m.roughness = 0.0f;
             m.base_color[0] = m.base_color[1] = m.base_color[2] = 0.0f;
-            m.clearcoat = 1.0f;
-            m.clearcoat_roughness = 0.0f;
+            if (kind == WALL_COAT) {
+                m.specular = 0.0f;
+                m.roughness = 1.0f;
+                m.clearcoat = 1.0f;
+                m.clearcoat_roughness = 0.0f;
+            }
         }
         CHECKF(pt_scene_builder_add_material(b, &m, &mw, &err) == PT_OK, "%s", err.msg);
     }
@@ -1026,7 +1032,7 @@ static pt_scene *wall_scene(int roof, int kind)
 
 static void directional_wall(void)
 {
-    for (int v = 0; v < 6; v++) {
+    for (int v = 0; v < 8; v++) {
         const int roof = v & 1, kind = v >> 1, metal = kind != WALL_GLASS;
         pt_scene *s = wall_scene(roof, kind);
         if (!s)
@@ -1034,17 +1040,18 @@ static void directional_wall(void)
         double t = 20.0 * 3.14159265358979323846 / 180.0;
         double pass = roof ? 1.0 - pt_fresnel_dielectric((float)cos(t), (float)ETA) : 1.0;
         double direct = pass * RHO_D / 3.14159265358979323846 * E_DIR * cos(t);
-        double f = kind == WALL_METAL  ? G_METAL + (1.0 - G_METAL) * pow(1.0 - sin(t), 5.0)
-                   : kind == WALL_COAT ? 0.04 + 0.96 * pow(1.0 - sin(t), 5.0)
-                                       : pt_fresnel_dielectric((float)sin(t), (float)ETA);
+        double f = kind == WALL_METAL   ? G_METAL + (1.0 - G_METAL) * pow(1.0 - sin(t), 5.0)
+                   : kind != WALL_GLASS ? 0.04 + 0.96 * pow(1.0 - sin(t), 5.0)
+                                        : pt_fresnel_dielectric((float)sin(t), (float)ETA);
         double want = direct * (1.0 + f);
         for (int off = 0; off <= 1; off++) {
             pt_render_stats st = {0};
             double se = 0.0, m = plane_mean(s, 4, roof ? 3 : 2, 6, 256, off, &st, &se);
             printf("%s wall%s, directional light%s: %.6f +- %.6f, closed form %.6f; %llu chains\n",
-                   kind == WALL_METAL  ? "metal"
-                   : kind == WALL_COAT ? "coated"
-                                       : "glass",
+                   kind == WALL_METAL     ? "metal"
+                   : kind == WALL_COAT    ? "coated"
+                   : kind == WALL_PLASTIC ? "plastic"
+                                          : "glass",
                    roof ? " under a glass roof" : "", off ? ", without reflection chains" : "", m,
                    se, off ? direct : want, (unsigned long long)st.chains);
             if (off && metal)
