@@ -526,7 +526,8 @@ pt_vec3 pt_closure_eval_mirror(const pt_closure *c, pt_vec3 wi, pt_vec3 *f)
                 fm = pt_v3_add(fl, fm);
         }
     }
-    *f = fa;
+    if (f)
+        *f = fa;
     return fm;
 }
 

@@ -179,8 +179,8 @@ pt_vec3 pt_closure_reflected(const pt_closure *c, pt_vec3 *wi, float *take);
  * the mirrored direction in *wi. Zero without one. */
 pt_vec3 pt_closure_mirrored(const pt_closure *c, pt_vec3 *wi, float *take);
 
-/* pt_closure_eval's f cos at wi into *f, and the share of it that those
- * mirror lobes give (under the same below factors). */
+/* The share of pt_closure_eval's f cos at wi that those mirror lobes give
+ * (under the same below factors), and the whole into *f (may be NULL). */
 pt_vec3 pt_closure_eval_mirror(const pt_closure *c, pt_vec3 wi, pt_vec3 *f);
 
 /* 1 when the closure has such a lobe, 2 when it has no other. */

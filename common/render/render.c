@@ -1868,7 +1868,7 @@ typedef struct mf_link {
     uint32_t k;
     pt_vec3 y[PT_MF_MAX];
     pt_vec3 T;  /* the refractions' expected weights and the media's transmittance */
-    pt_vec3 Tm; /* a reflection's: its mirror lobes' share, apart from T (mr_connect) */
+    int opaque; /* a reflection off an opaque mirror (mr_smooth), not glass (mr_connect) */
     float take; /* the product of the refractions' pick probabilities */
     float jac;  /* |d w / d wl|; to a point: |d omega_l / dA_x| */
     float flux; /* to a point: (index at the light / index at x)^2, which turns the
@@ -1881,13 +1881,11 @@ typedef struct mf_link {
  * d's side in *ngs, and its closure's smooth refraction (its reflection
  * when `reflect`), shaded as shade would shade the ray: the expected weight
  * (0 when there is none) and its pick probability in *T and *take, the
- * direction in *wi and, in the shading frame, *wi_l. A reflection's weight
- * is the glass's in *T and its mirror lobes' (pt_closure_mirrored) in *Tm;
- * *take counts both. */
+ * direction in *wi and, in the shading frame, *wi_l. An opaque surface's
+ * reflection is its mirror lobes' (pt_closure_mirrored). */
 static int chain_event(const pt_renderer *r, pt_vec3 from, pt_vec3 fng, pt_vec3 d,
                        const pt_mf_vert *v, int reflect, surface *sf, int *front, pt_vec3 *ngs,
-                       pt_vec3 *T, pt_vec3 *Tm, float *take, pt_vec3 *wi, pt_vec3 *wi_l,
-                       const uint32_t features)
+                       pt_vec3 *T, float *take, pt_vec3 *wi, pt_vec3 *wi_l, const uint32_t features)
 {
     pt_hit hit;
     if (!pt_accel_intersect(r->accel, mf_off(r, from, fng, d), d, INFINITY, &hit) ||
@@ -1904,15 +1902,9 @@ static int chain_event(const pt_renderer *r, pt_vec3 from, pt_vec3 fng, pt_vec3 
     pt_vec3 wo_l = pt_frame_to_local(&fr, wo);
     pt_closure cl;
     material_closure(r, sf, glass, *front, &fr, wo, wo_l, *ngs, &cl, features);
-    if (!reflect) {
-        *T = pt_closure_refracted(&cl, wi_l, take);
-    } else if (glass) {
-        *T = pt_closure_reflected(&cl, wi_l, take);
-        *Tm = pt_v3(0.0f, 0.0f, 0.0f);
-    } else {
-        *T = pt_v3(0.0f, 0.0f, 0.0f);
-        *Tm = pt_closure_mirrored(&cl, wi_l, take);
-    }
+    *T = !reflect ? pt_closure_refracted(&cl, wi_l, take)
+         : glass  ? pt_closure_reflected(&cl, wi_l, take)
+                  : pt_closure_mirrored(&cl, wi_l, take);
     *wi = pt_frame_to_world(&fr, *wi_l);
     return 1;
 }
@@ -1983,7 +1975,7 @@ static __attribute__((noinline)) int mf_connect(const pt_renderer *r, pt_vec3 x,
         int front;
         pt_vec3 ngs, w, wi, wi_l;
         float tk;
-        if (!chain_event(r, from, fng, d, &c.v[i], 0, &sf, &front, &ngs, &w, NULL, &tk, &wi, &wi_l,
+        if (!chain_event(r, from, fng, d, &c.v[i], 0, &sf, &front, &ngs, &w, &tk, &wi, &wi_l,
                          features) ||
             !(tk > 0.0f) || !any_positive(w))
             return MF_SEED_BLOCKED;
@@ -2333,6 +2325,15 @@ static inline uint32_t mr_object_of(const pt_renderer *r, uint32_t tri)
     return r->scene->tri_object ? r->scene->tri_object[tri] : 0u;
 }
 
+/* 1 when pa's vertex (`through`: it scatters to both sides, `thin`: a thin
+ * wall) offers reflection chains: not thick glass, in air, and with a
+ * vertex at y that scatters, as a sampled path's would (mr_nee; mf_path's
+ * mshare). */
+static inline int mr_chains_at(const pt_renderer *r, const path *pa, int through, int thin)
+{
+    return (!through || thin) && pa->medium < 0 && pa->depth + 1 < r->params.max_depth;
+}
+
 /* 1 when light l (a point or spot light when `at`, else directional) chains
  * off smooth opaque surfaces (mr_smooth) for a receiver at x: a directional light always, its
  * choice the same at every x (the light tree holds point and spot lights
@@ -2463,11 +2464,7 @@ static __attribute__((noinline)) int mr_connect(const pt_renderer *r, path *pa, 
                                                 int opaque, uint32_t k, uint32_t alpha_key,
                                                 mf_link *lk, const uint32_t features)
 {
-    const int32_t medium = pa->medium;
     const uint32_t depth = pa->depth;
-    /* In air, and a vertex at y that scatters, as a sampled path's would. */
-    if (medium >= 0 || depth + 1 >= r->params.max_depth)
-        return MF_SEED_BLOCKED;
     const mr_object *o = &r->mr[k];
     pt_mf_chain c;
     c.k = 1;
@@ -2491,15 +2488,11 @@ static __attribute__((noinline)) int mr_connect(const pt_renderer *r, path *pa, 
         return MF_SEED_BLOCKED;
     surface sf;
     int front;
-    pt_vec3 ngs, T, Tm, wi, wi_l;
+    pt_vec3 ngs, T, wi, wi_l;
     float tk;
-    if (!chain_event(r, x, ng, w, &c.v[0], 1, &sf, &front, &ngs, &T, &Tm, &tk, &wi, &wi_l,
-                     features))
-        return MF_SEED_BLOCKED;
     /* Smooth opaque surfaces mirror only the lights mr_smooth_light takes. */
-    if (!opaque)
-        Tm = pt_v3(0.0f, 0.0f, 0.0f);
-    if (!(tk > 0.0f) || !(any_positive(T) || any_positive(Tm)))
+    if (!chain_event(r, x, ng, w, &c.v[0], 1, &sf, &front, &ngs, &T, &tk, &wi, &wi_l, features) ||
+        (!opaque && !transmits(sf.mat)) || !(tk > 0.0f) || !any_positive(T))
         return MF_SEED_BLOCKED;
     pt_vec3 next = mr_towards(sf.p, wl, at);
     /* shade's test for a reflected direction, and the solver's chain
@@ -2526,7 +2519,7 @@ static __attribute__((noinline)) int mr_connect(const pt_renderer *r, path *pa, 
     lk->k = 1;
     lk->y[0] = sf.p;
     lk->T = pt_v3_mul(T, tr);
-    lk->Tm = pt_v3_mul(Tm, tr);
+    lk->opaque = !transmits(sf.mat);
     lk->take = tk;
     lk->jac = jac;
     lk->flux = 1.0f;
@@ -2563,14 +2556,11 @@ static __attribute__((noinline)) void mr_nee(const pt_renderer *r, path *pa, con
     pt_vec3 f = pt_closure_eval(cl, w_l, &bpdf);
     if (!any_positive(f))
         return;
-    pt_vec3 ft = pt_v3_mul(f, lk.T);
-    if (any_positive(lk.Tm)) {
+    if (lk.opaque) {
         /* Off an opaque mirror: what x's own mirror lobes send towards y is
          * its sampled paths' (the next vertex's NEE, mf_path's mshare). */
-        pt_vec3 fa, fm = pt_closure_eval_mirror(cl, w_l, &fa);
-        pt_vec3 rest = pt_v3_sub(fa, fm);
-        rest = pt_v3(fmaxf(rest.x, 0.0f), fmaxf(rest.y, 0.0f), fmaxf(rest.z, 0.0f));
-        ft = pt_v3_add(ft, pt_v3_mul(rest, lk.Tm));
+        pt_vec3 fm = pt_closure_eval_mirror(cl, w_l, NULL);
+        f = pt_v3(fmaxf(f.x - fm.x, 0.0f), fmaxf(f.y - fm.y, 0.0f), fmaxf(f.z - fm.z, 0.0f));
     }
     /* A directional light's ls->radiance is its irradiance; a point or spot
      * light's intensity is the one towards y, over the chain's length. */
@@ -2581,7 +2571,8 @@ static __attribute__((noinline)) void mr_nee(const pt_renderer *r, path *pa, con
         le = pt_punctual_intensity(ls->punct, pt_v3_scale(d, 1.0f / dl),
                                    pt_v3_len(pt_v3_sub(lk.y[0], sf->p)) + dl);
     }
-    pt_vec3 c = pt_v3_mul(pt_v3_mul(pa->beta, ft), pt_v3_scale(le, lk.jac / (ls->pdf * P)));
+    pt_vec3 c =
+        pt_v3_mul(pt_v3_mul(pa->beta, pt_v3_mul(f, lk.T)), pt_v3_scale(le, lk.jac / (ls->pdf * P)));
     /* The light arrives at sf off a smooth bounce: indirect. */
     c = clamp_sample(r, pa, c, 0, features);
     PT_TRACE_EVENT(PT_TRACE_SHADOW, pa->depth, -1, ls->delta, 1, ls->pdf, bpdf, 1.0f, c);
@@ -2728,11 +2719,11 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
                 mr_smooth_light(r, ls->punct, ls->delta == PT_LIGHT_AT, pa->mf->x)) {
                 /* The share of the mirror lobes' light that the previous
                  * vertex's chain delivers is not taken again. */
-                pt_vec3 fa, fm = pt_closure_eval_mirror(&cl, wi_ll, &fa);
+                pt_vec3 fm = pt_closure_eval_mirror(&cl, wi_ll, NULL);
                 pt_vec3 ms = pa->mf->mshare;
-                f = pt_v3(fmaxf(fa.x - fm.x * (1.0f - ms.x), 0.0f),
-                          fmaxf(fa.y - fm.y * (1.0f - ms.y), 0.0f),
-                          fmaxf(fa.z - fm.z * (1.0f - ms.z), 0.0f));
+                f = pt_v3(fmaxf(f.x - fm.x * (1.0f - ms.x), 0.0f),
+                          fmaxf(f.y - fm.y * (1.0f - ms.y), 0.0f),
+                          fmaxf(f.z - fm.z * (1.0f - ms.z), 0.0f));
             }
             if (any_positive(f)) {
                 pt_vec3 from = pt_offset_apply(r->offset, sf->p, side > 0.0f ? ng : pt_v3_neg(ng));
@@ -2803,8 +2794,9 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
          ((features & PT_FEAT_EMITTERS) && ls->delta == PT_LIGHT_AREA)))
         ret = mf_nee(r, pa, sf, ls, ng, &fr, &cl, sr, ret, features);
     if ((features & PT_FEAT_MANIFOLD) && (features & PT_FEAT_PUNCTUAL) && r->mirror &&
-        (features & PT_FEAT_GLOSSY) && ls_ok && (!through || thin) && ls->pdf > 0.0f &&
-        (ls->delta == PT_LIGHT_FAR || ls->delta == PT_LIGHT_AT))
+        (features & PT_FEAT_GLOSSY) && ls_ok && ls->pdf > 0.0f &&
+        (ls->delta == PT_LIGHT_FAR || ls->delta == PT_LIGHT_AT) &&
+        mr_chains_at(r, pa, through, thin))
         mr_nee(r, pa, sf, ls, ng, &fr, &cl, through, u[OFF_RR],
                pt_alpha_key(u[OFF_ALPHA], ALPHA_SALT_SHADOW), features);
 
@@ -2896,7 +2888,7 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
          * own mirror lobes sampled: the chains evaluate the rest of its
          * closure towards the mirror. */
         pt_vec3 ms = pt_v3(1.0f, 1.0f, 1.0f);
-        if (!delta && (!through || thin) && pa->medium < 0 && pa->depth + 1 < r->params.max_depth) {
+        if (!delta && mr_chains_at(r, pa, through, thin)) {
             ms = pt_v3(0.0f, 0.0f, 0.0f);
             if (pt_closure_has_mirror(&cl)) {
                 pt_vec3 fa, fm = pt_closure_eval_mirror(&cl, wi_l, &fa);
@@ -4085,7 +4077,7 @@ static int scene_manifold(const pt_scene *s)
     return 0;
 }
 
-/* 1 when some material is glass a reflection chain may reflect at
+/* 1 when some material is one a reflection chain may reflect at
  * (mr_caster). */
 static int scene_mirror(const pt_scene *s)
 {
