@@ -11,14 +11,15 @@
  * ends at the glass. Given x and a direction wl of the environment, the
  * chain y_1 .. y_k (k <= PT_MF_MAX) on the glass's triangles where light
  * leaving along wl refracts towards x is the root of a constraint: at every
- * vertex the generalised half vector h = eta_a w_a + eta_b w_b (w_a, w_b
- * the unit directions to the neighbours, wl for the last; eta the index on
- * each one's side) is parallel to the shading normal, which is Snell's law
- * (its tangential components cancel); with both neighbours on one side
- * (one index), the law of reflection: the same constraint, solver and
- * Jacobians serve a vertex that mirrors (render.c's reflection chains). Newton's method solves it
- * in the vertices' barycentrics; a step that leaves a vertex's triangle is put back on the glass by
- * a ray from the previous vertex (the caller's project).
+ * vertex the generalised half vector h = eta_a w_a + eta_b w_b (w_a, w_b the
+ * unit directions to the neighbours, wl for the last; eta the index on each
+ * one's side) is parallel to the shading normal, which is Snell's law (its
+ * tangential components cancel); with both neighbours on one side (one
+ * index), the law of reflection: the same constraint, solver and Jacobians
+ * serve a vertex that mirrors (render.c's reflection chains). Newton's
+ * method solves it in the vertices' barycentrics; a step that leaves a
+ * vertex's triangle is put back on the glass by a ray from the previous
+ * vertex (the caller's project).
  *
  * At the root, the implicit function theorem gives how the direction from x
  * to y_1 turns with wl: |d omega / d omega_L|, the ratio of solid angles by

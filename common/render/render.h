@@ -248,7 +248,8 @@ typedef struct pt_render_params {
      * through it or off it, as before); for tests and benchmarks; default 0 */
     uint32_t no_manifold;
     /* 1: manifold NEE through thick glass only, no reflection chains off
-     * smooth glass; for tests and benchmarks; default 0 */
+     * smooth glass or smooth opaque surfaces; for tests and benchmarks;
+     * default 0 */
     uint32_t no_mirror;
     /* Manifold NEE takes only the environment's light samples brighter
      * than this many times the map's mean luminance (the lamps, whose
