@@ -127,11 +127,12 @@ struct pt_renderer {
     uint32_t *mf_tris;  /* their indices, mf_accel's map */
     /* PT_FEAT_MANIFOLD: reflection chains off smooth glass (mr_glass), of a
      * directional, point or spot light, and off smooth opaque surfaces
-     * (mr_smooth: metal, polished dielectrics, clear coats), of
-     * the lights mr_smooth_light takes */
+     * (mr_smooth: metal, polished dielectrics, clear coats), of the lights
+     * mr_smooth_light takes and of the environment's lamps */
     int mirror;
     int mirror_smooth;      /* a reflector is smooth and opaque (mr_smooth) */
     int smooth_at;          /* point and spot lights chain off it too (mr_smooth_light) */
+    int mirror_env;         /* the environment's lamps chain off it too (mr_env_nee) */
     pt_accel *mr_accel;     /* the reflectors' triangles alone */
     uint32_t *mr_tris;      /* their indices, mr_accel's map */
     struct mr_object *mr;   /* the reflecting objects' bounding spheres */
@@ -994,6 +995,12 @@ typedef struct mf_path {
      * it delivers what they find), which NEE at the next vertex's mirror
      * lobes takes (mr_smooth_at) */
     pt_vec3 mshare;
+    /* r->mirror_env: the share of the environment's light that the path
+     * keeps when its last vertex's sampled direction leaves the scene (per
+     * channel; less than 1 where the vertex is a mirror whose lobes mirror
+     * the environment's lamps to the vertex before, which mr_env_nee
+     * chained) */
+    pt_vec3 ekeep;
     pt_vec3 y[PT_MF_MAX];
 } mf_path;
 
@@ -1216,6 +1223,15 @@ static inline __attribute__((always_inline)) void shade_emission(const pt_render
 static float mf_bsdf_weight(const pt_renderer *r, const path *pa, pt_vec3 le,
                             const uint32_t features);
 
+/* 1 when the environment's radiance le along a direction is a lamp that
+ * mr_env_nee chains off smooth opaque surfaces (brighter than
+ * r->mf_min_light, as manifold NEE's); the dimmer rest is left to the
+ * sampled paths, which find it often. */
+static inline int mr_env_lamp(const pt_renderer *r, pt_vec3 le)
+{
+    return pt_luminance(le) > r->mf_min_light;
+}
+
 /* A ray of the path that left the scene: the environment's radiance along
  * it, weighed by the power heuristic against the environment's NEE pdf when
  * the path got here by sampling its BSDF (as shade_emission weighs an
@@ -1235,6 +1251,8 @@ static inline __attribute__((always_inline)) void shade_miss(const pt_renderer *
         return;
     const uint32_t strategy = r->params.light_strategy;
     pt_vec3 le = pt_env_eval(r->params.env, pa->d);
+    if ((features & PT_FEAT_MANIFOLD) && pa->mf && r->mirror_env && mr_env_lamp(r, le))
+        le = pt_v3_mul(le, pa->mf->ekeep); /* a lamp off a mirror, chained (mr_env_nee) */
     float lp = 0.0f, mis = 1.0f; /* the map's pdf and the MIS weight (the path log's too) */
     if (pa->prev_pdf > 0.0f && strategy == PT_LIGHT_MIS) {
         lp = pt_lights_env_pdf(r->lights, pa->d, pa->prev_n);
@@ -2248,7 +2266,11 @@ static uint32_t mf_nee(const pt_renderer *r, path *pa, const surface *sf, const 
  * lights without a range in a scene without a light tree, for an x inside
  * the spot's cone; the others keep their NEE there.
  *
- * The environment's light off glass, which BSDF sampling does find, is not
+ * The environment's lamps off smooth opaque surfaces are chained the same
+ * way (mr_env_nee: a direction of the map taken as a sun), and the sampled
+ * path gives way to the chain as for a sun, its NEE at y and the map its
+ * sampled direction from y finds (mf_path's ekeep). The environment's
+ * light off glass, which BSDF sampling finds at a delta reflection, is not
  * chained: weighed against it by MIS (a sampled path's reflection solved
  * again from x, as for the refractions) it was unbiased but did not pay
  * (docs/bench/manifold.md, "Reflections"). Nor is an emitter's, which
@@ -2269,11 +2291,17 @@ static uint32_t mf_nee(const pt_renderer *r, path *pa, const surface *sf, const 
  * angle, so the smallest of the three (docs/bench/manifold.md). */
 #define MR_OMEGA PT_PI
 
+/* What a reflecting object has (mr_object.kinds; mr_pick's filter). */
+enum {
+    MR_GLASS = 1u,  /* smooth glass (mr_glass), which every chained light reflects off */
+    MR_SMOOTH = 2u, /* smooth opaque surfaces (mr_smooth) */
+};
+
 typedef struct mr_object {
     pt_vec3 c;       /* its reflecting triangles' bounding sphere: centre */
     float rad;       /* and radius */
     uint32_t object; /* the scene's object */
-    uint32_t glass;  /* it has smooth glass (mr_glass), which point and spot lights chain off */
+    uint32_t kinds;  /* MR_GLASS | MR_SMOOTH: what its reflecting triangles are */
 } mr_object;
 
 /* The solid angle of o's bounding sphere seen from x; 0 when it lies wholly
@@ -2294,14 +2322,14 @@ static float mr_solid_angle(const mr_object *o, pt_vec3 x, pt_vec3 ng, int both)
 /* Picks a reflecting object for x by u (its index, MR_NONE for none), its
  * probability in *P: its solid angle over their sum, or over MR_OMEGA when
  * they fill less of x's view, so that x far from small reflectors chains
- * rarely (their light there is faint) and weighs what it chains up. With
- * glass_only, of the objects with glass (a point or spot light's chain). */
-static uint32_t mr_pick(const pt_renderer *r, pt_vec3 x, pt_vec3 ng, int both, int glass_only,
+ * rarely (their light there is faint) and weighs what it chains up. Of the
+ * objects that have one of `kinds` (MR_GLASS, MR_SMOOTH). */
+static uint32_t mr_pick(const pt_renderer *r, pt_vec3 x, pt_vec3 ng, int both, uint32_t kinds,
                         float u, float *P)
 {
     float w[MR_MAX], sum = 0.0f;
     for (uint32_t i = 0; i < r->mr_n; i++)
-        sum += w[i] = glass_only && !r->mr[i].glass ? 0.0f : mr_solid_angle(&r->mr[i], x, ng, both);
+        sum += w[i] = r->mr[i].kinds & kinds ? mr_solid_angle(&r->mr[i], x, ng, both) : 0.0f;
     *P = 0.0f;
     float total = fmaxf(sum, MR_OMEGA), t = u * total;
     if (!(sum > 0.0f) || !(t < sum))
@@ -2526,6 +2554,29 @@ static __attribute__((noinline)) int mr_connect(const pt_renderer *r, path *pa, 
     return MF_SEED_CHAIN;
 }
 
+/* What x's closure cl (frame fr, geometric normal ng on wo's side; `both`:
+ * it transmits) sends along the chain lk, its pdf in *bpdf: 0 when y is
+ * below x's surface. Off an opaque mirror, without x's own mirror lobes:
+ * what they send towards y is its sampled paths' (the next vertex's NEE
+ * and the environment they find, mf_path's mshare and ekeep). Counts the
+ * chain in the path's stats. */
+static pt_vec3 mr_eval(path *pa, pt_vec3 x, pt_vec3 ng, const pt_frame *fr, const pt_closure *cl,
+                       int both, const mf_link *lk, float *bpdf)
+{
+    if (pa->mf)
+        pa->mf->chains++;
+    pt_vec3 w = pt_v3_norm(pt_v3_sub(lk->y[0], x));
+    if (!both && !(pt_v3_dot(w, ng) > 0.0f))
+        return pt_v3(0.0f, 0.0f, 0.0f);
+    pt_vec3 w_l = pt_frame_to_local(fr, w);
+    pt_vec3 f = pt_closure_eval(cl, w_l, bpdf);
+    if (lk->opaque && any_positive(f)) {
+        pt_vec3 fm = pt_closure_eval_mirror(cl, w_l, NULL);
+        f = pt_v3(fmaxf(f.x - fm.x, 0.0f), fmaxf(f.y - fm.y, 0.0f), fmaxf(f.z - fm.z, 0.0f));
+    }
+    return f;
+}
+
 /* The reflection chain at rough vertex sf (closure cl, frame fr, geometric
  * normal ng on wo's side; `both`: it transmits) for its light sample ls of
  * a directional, point or spot light, off the object u picks. Adds to
@@ -2541,27 +2592,15 @@ static __attribute__((noinline)) void mr_nee(const pt_renderer *r, path *pa, con
      * paths (mf_path's mshare 1): it chains off glass only. */
     const int opaque = r->mirror_smooth && mr_smooth_light(r, ls->punct, at, sf->p);
     const int glass_only = !opaque || pt_closure_has_mirror(cl) == 2;
-    uint32_t k = mr_pick(r, sf->p, ng, both, glass_only, u, &P);
+    uint32_t k = mr_pick(r, sf->p, ng, both, glass_only ? MR_GLASS : MR_GLASS | MR_SMOOTH, u, &P);
     mf_link lk;
     if (k == MR_NONE || mr_connect(r, pa, sf->p, ng, both, ls->wi, at ? &ls->position : NULL,
                                    opaque, k, alpha_key, &lk, features) != MF_SEED_CHAIN)
         return;
-    if (pa->mf)
-        pa->mf->chains++;
-    pt_vec3 w = pt_v3_norm(pt_v3_sub(lk.y[0], sf->p));
-    if (!both && !(pt_v3_dot(w, ng) > 0.0f))
-        return;
     float bpdf = 0.0f;
-    pt_vec3 w_l = pt_frame_to_local(fr, w);
-    pt_vec3 f = pt_closure_eval(cl, w_l, &bpdf);
+    pt_vec3 f = mr_eval(pa, sf->p, ng, fr, cl, both, &lk, &bpdf);
     if (!any_positive(f))
         return;
-    if (lk.opaque) {
-        /* Off an opaque mirror: what x's own mirror lobes send towards y is
-         * its sampled paths' (the next vertex's NEE, mf_path's mshare). */
-        pt_vec3 fm = pt_closure_eval_mirror(cl, w_l, NULL);
-        f = pt_v3(fmaxf(f.x - fm.x, 0.0f), fmaxf(f.y - fm.y, 0.0f), fmaxf(f.z - fm.z, 0.0f));
-    }
     /* A directional light's ls->radiance is its irradiance; a point or spot
      * light's intensity is the one towards y, over the chain's length. */
     pt_vec3 le = ls->radiance;
@@ -2576,6 +2615,50 @@ static __attribute__((noinline)) void mr_nee(const pt_renderer *r, path *pa, con
     /* The light arrives at sf off a smooth bounce: indirect. */
     c = clamp_sample(r, pa, c, 0, features);
     PT_TRACE_EVENT(PT_TRACE_SHADOW, pa->depth, -1, ls->delta, 1, ls->pdf, bpdf, 1.0f, c);
+    pa->L = pt_v3_add(pa->L, c);
+}
+
+/* The environment's light that reaches rough vertex sf (as mr_nee) off one
+ * smooth opaque surface (r->mirror_env): a studio's lamps mirrored by
+ * chrome onto the floor. A sampled path finds it where x's direction falls
+ * within the mirror lobe's tenth of a degree of the lamp: caustic
+ * fireflies. The chain takes a direction wl from the whole map's
+ * distribution (numbers ud, the light sample's own: no new dimension) and
+ * treats it as a sun of irradiance L(wl) / p(wl): f(w) T L J / (p P_k).
+ * Only the lamps (mr_env_lamp): the path keeps the rest, and what the
+ * mirror lobes at the next vertex y send of a lamp is taken out of its NEE
+ * and of the map its sampled direction finds (mshare, ekeep), so that the
+ * chain's directions cover all it gives way to: the whole map's
+ * distribution is positive wherever the lookup is. */
+static __attribute__((noinline)) void mr_env_nee(const pt_renderer *r, path *pa, const surface *sf,
+                                                 pt_vec3 ng, const pt_frame *fr,
+                                                 const pt_closure *cl, int both, float u,
+                                                 const float ud[2], uint32_t alpha_key,
+                                                 const uint32_t features)
+{
+    /* All of x's light off mirrors is then its sampled paths' (mshare 1). */
+    if (pt_closure_has_mirror(cl) == 2)
+        return;
+    pt_vec3 wl, le;
+    float lpdf, P;
+    if (!pt_env_sample(r->params.env, ud, PT_ENV_FULL, pt_v3(0.0f, 0.0f, 0.0f), &wl, &le, &lpdf) ||
+        !mr_env_lamp(r, le))
+        return;
+    uint32_t k = mr_pick(r, sf->p, ng, both, MR_SMOOTH, u, &P);
+    mf_link lk;
+    if (k == MR_NONE ||
+        mr_connect(r, pa, sf->p, ng, both, wl, NULL, 1, k, alpha_key, &lk, features) !=
+            MF_SEED_CHAIN ||
+        !lk.opaque)
+        return;
+    float bpdf = 0.0f;
+    pt_vec3 f = mr_eval(pa, sf->p, ng, fr, cl, both, &lk, &bpdf);
+    if (!any_positive(f))
+        return;
+    pt_vec3 c =
+        pt_v3_mul(pt_v3_mul(pa->beta, pt_v3_mul(f, lk.T)), pt_v3_scale(le, lk.jac / (lpdf * P)));
+    c = clamp_sample(r, pa, c, 0, features);
+    PT_TRACE_EVENT(PT_TRACE_SHADOW, pa->depth, -1, PT_LIGHT_ENV, 1, lpdf, bpdf, 1.0f, c);
     pa->L = pt_v3_add(pa->L, c);
 }
 
@@ -2712,11 +2795,12 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
                 f = lambert_eval(&lambert, wo_l, wi_ll, &bpdf);
             else if (!through || (side != 0.0f && (side > 0.0f) == (wi_ll.z > 0.0f)))
                 f = pt_closure_eval(&cl, wi_ll, &bpdf);
-            if ((features & PT_FEAT_MANIFOLD) && r->mirror_smooth &&
-                (ls->delta == PT_LIGHT_FAR || ls->delta == PT_LIGHT_AT) &&
-                (features & PT_FEAT_GLOSSY) && pa->mf && mr_smooth_at(r, hit, sf) &&
-                any_positive(f) &&
-                mr_smooth_light(r, ls->punct, ls->delta == PT_LIGHT_AT, pa->mf->x)) {
+            if ((features & PT_FEAT_MANIFOLD) && r->mirror_smooth && (features & PT_FEAT_GLOSSY) &&
+                pa->mf && mr_smooth_at(r, hit, sf) && any_positive(f) &&
+                (((ls->delta == PT_LIGHT_FAR || ls->delta == PT_LIGHT_AT) &&
+                  mr_smooth_light(r, ls->punct, ls->delta == PT_LIGHT_AT, pa->mf->x)) ||
+                 ((features & PT_FEAT_ENV) && ls->delta == PT_LIGHT_ENV && r->mirror_env &&
+                  mr_env_lamp(r, ls->radiance)))) {
                 /* The share of the mirror lobes' light that the previous
                  * vertex's chain delivers is not taken again. */
                 pt_vec3 fm = pt_closure_eval_mirror(&cl, wi_ll, NULL);
@@ -2799,6 +2883,10 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
         mr_chains_at(r, pa, through, thin))
         mr_nee(r, pa, sf, ls, ng, &fr, &cl, through, u[OFF_RR],
                pt_alpha_key(u[OFF_ALPHA], ALPHA_SALT_SHADOW), features);
+    if ((features & PT_FEAT_MANIFOLD) && (features & PT_FEAT_ENV) && r->mirror_env &&
+        (features & PT_FEAT_GLOSSY) && pa->mf && mr_chains_at(r, pa, through, thin))
+        mr_env_nee(r, pa, sf, ng, &fr, &cl, through, u[OFF_RR], &u[OFF_LIGHT_POINT],
+                   pt_alpha_key(u[OFF_ALPHA], ALPHA_SALT_SHADOW), features);
 
     float u3[3];
     u3[0] = u[OFF_LIGHT_PICK + 1];
@@ -2888,6 +2976,22 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
          * own mirror lobes sampled: the chains evaluate the rest of its
          * closure towards the mirror. */
         pt_vec3 ms = pt_v3(1.0f, 1.0f, 1.0f);
+        if ((features & PT_FEAT_ENV) && r->mirror_env &&
+            !((features & PT_FEAT_THIN_GLASS) && r->thin_glass && delta && thin && wi_l.z < 0.0f &&
+              pa->cross < PT_SHADOW_CROSSINGS)) {
+            /* A lamp this vertex's mirror lobes send back along the path is
+             * the previous vertex's chain's (mr_env_nee) as far as its
+             * mshare says; straight through a thin wall (below) the last
+             * real vertex's share stands, as the chain's light crosses it. */
+            pt_vec3 ek = pt_v3(1.0f, 1.0f, 1.0f), pm = pa->mf->mshare;
+            if (!delta && mr_smooth_at(r, hit, sf) && (pm.x < 1.0f || pm.y < 1.0f || pm.z < 1.0f)) {
+                pt_vec3 fa, fm = pt_closure_eval_mirror(&cl, wi_l, &fa);
+                ek = pt_v3(fa.x > 0.0f ? 1.0f - fminf(fm.x / fa.x, 1.0f) * (1.0f - pm.x) : 1.0f,
+                           fa.y > 0.0f ? 1.0f - fminf(fm.y / fa.y, 1.0f) * (1.0f - pm.y) : 1.0f,
+                           fa.z > 0.0f ? 1.0f - fminf(fm.z / fa.z, 1.0f) * (1.0f - pm.z) : 1.0f);
+            }
+            pa->mf->ekeep = ek;
+        }
         if (!delta && mr_chains_at(r, pa, through, thin)) {
             ms = pt_v3(0.0f, 0.0f, 0.0f);
             if (pt_closure_has_mirror(&cl)) {
@@ -3518,7 +3622,7 @@ li_impl(const pt_renderer *r, pixel_ctx *pc, uint32_t index, pt_render_stats *st
     if ((features & PT_FEAT_MANIFOLD) && r->manifold) {
         mf.k = MF_OFF;
         mf.chains = 0;
-        mf.mshare = pt_v3(1.0f, 1.0f, 1.0f);
+        mf.mshare = mf.ekeep = pt_v3(1.0f, 1.0f, 1.0f);
         pa.mf = &mf;
     }
     uint64_t rays = 0, capped = 0;
@@ -3838,7 +3942,7 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
                     if ((features & PT_FEAT_MANIFOLD) && r->manifold) {
                         mfs[g * nb + i].k = MF_OFF;
                         mfs[g * nb + i].chains = 0;
-                        mfs[g * nb + i].mshare = pt_v3(1.0f, 1.0f, 1.0f);
+                        mfs[g * nb + i].mshare = mfs[g * nb + i].ekeep = pt_v3(1.0f, 1.0f, 1.0f);
                         pa->mf = &mfs[g * nb + i];
                     }
                 }
@@ -4077,6 +4181,16 @@ static int scene_manifold(const pt_scene *s)
     return 0;
 }
 
+/* 1 when some material is smooth and opaque (mr_smooth): the
+ * environment's lamps chain off it (mr_env_nee). */
+static int scene_smooth(const pt_scene *s)
+{
+    for (uint32_t i = 0; i < s->num_materials; i++)
+        if (mr_smooth(&s->materials[i]))
+            return 1;
+    return 0;
+}
+
 /* 1 when some material is one a reflection chain may reflect at
  * (mr_caster). */
 static int scene_mirror(const pt_scene *s)
@@ -4105,6 +4219,9 @@ static pt_status mr_new(pt_renderer *r, pt_error *err)
         else if (!r->light_tree && !(l->range > 0.0f))
             smooth_lights = r->smooth_at = 1;
     }
+    /* ... and the environment's lamps (mr_env_nee) */
+    const int smooth_env = !r->alpha && r->params.env && pt_lights_has_env(r->lights);
+    smooth_lights |= smooth_env;
     uint32_t nt = s->num_instances > 0 ? s->num_flat_triangles : s->num_triangles, n = 0;
     uint32_t nobj = s->tri_object && s->num_objects > 0 ? s->num_objects : 1u;
     r->mr_tris = pt_malloc_array(nt ? nt : 1, sizeof *r->mr_tris);
@@ -4134,8 +4251,9 @@ static pt_status mr_new(pt_renderer *r, pt_error *err)
                 box[k][3 + j] = -INFINITY;
             }
         }
-        r->mr[k].glass |= (uint32_t)glass;
+        r->mr[k].kinds |= glass ? MR_GLASS : MR_SMOOTH;
         r->mirror_smooth |= !glass;
+        r->mirror_env |= !glass && smooth_env;
         r->mr_tris[n++] = i;
         const tri_rec *t = &r->tris[i];
         const pt_vec3 *v[3] = {&t->v0, &t->v1, &t->v2};
@@ -4273,7 +4391,10 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
     r->refract = chains && !(features & PT_FEAT_ALPHA) &&
                  (params->env || scene_punctual(scene) || (features & PT_FEAT_EMITTERS)) &&
                  scene_manifold(scene);
-    const int mirror = chains && !params->no_mirror && scene_punctual(scene) && scene_mirror(scene);
+    const int mirror = chains && !params->no_mirror &&
+                       ((scene_punctual(scene) && scene_mirror(scene)) ||
+                        (params->env && pt_lights_has_env(r->lights) &&
+                         !(features & PT_FEAT_ALPHA) && scene_smooth(scene)));
     r->manifold = r->refract || mirror;
     if (r->manifold) {
         features |= PT_FEAT_MANIFOLD;

@@ -556,6 +556,8 @@ static void paired(const char *name, const pt_scene *s, const pt_env *env, uint3
     pt_renderer_free(ro);
 }
 
+static pt_scene *chrome_ball_scene(void);
+
 static void unbiased(void)
 {
     char path[1024];
@@ -604,6 +606,16 @@ static void unbiased(void)
                (unsigned long long)st.chains);
         pt_renderer_free(r);
     }
+    pt_scene_free(s);
+    pt_env_free(env);
+    /* A chrome ball on the plane under the sky's patch, the brighter half
+     * chained off it (mr_env_nee), the dimmer half left to the sampled
+     * paths: both must draw the same line between them. */
+    s = chrome_ball_scene();
+    env = patch_sky(1.6f, 4.8f);
+    if (s && env)
+        paired("chrome ball, the brighter half chained", s, env, 8,
+               (float)(3.2 / pt_env_mean_luminance(env)), 0);
     pt_scene_free(s);
     pt_env_free(env);
 }
@@ -657,12 +669,14 @@ static pt_scene_builder *plane_and_glass(float thickness, uint32_t *mg)
     return b;
 }
 
-/* b's scene with light l (at `at`), seen through cam. */
+/* b's scene with light l (at `at`; none when l is NULL), seen through
+ * cam. */
 static pt_scene *lit_scene(pt_scene_builder *b, const pt_punctual *l, const double at[3],
                            pt_camera cam)
 {
     pt_error err = {0};
-    CHECKF(pt_scene_builder_add_punctual(b, l, at, &err) == PT_OK, "%s", err.msg);
+    if (l)
+        CHECKF(pt_scene_builder_add_punctual(b, l, at, &err) == PT_OK, "%s", err.msg);
     CHECK(pt_scene_builder_add_camera(b, &cam, &err) == PT_OK);
     pt_scene_opts o = {0};
     pt_scene *sc = NULL;
@@ -713,6 +727,9 @@ static pt_scene *slab_scene(double tilt_deg)
 /* The mean green of s's w x w image, spp samples a pixel, at max_depth
  * depth (manifold NEE off when `off`), and its standard error in *se; the
  * render's stats in *st. */
+static double params_mean(const pt_scene *s, const pt_render_params *params, uint32_t spp,
+                          pt_render_stats *st, double *se);
+
 static double plane_mean(const pt_scene *s, uint32_t w, uint32_t depth, uint32_t seed, uint32_t spp,
                          int off, pt_render_stats *st, double *se)
 {
@@ -722,9 +739,17 @@ static double plane_mean(const pt_scene *s, uint32_t w, uint32_t depth, uint32_t
     p.max_depth = depth;
     p.seed = seed;
     p.no_manifold = (uint32_t)off;
+    return params_mean(s, &p, spp, st, se);
+}
+
+/* plane_mean's with the parameters p (its image p->width wide). */
+static double params_mean(const pt_scene *s, const pt_render_params *p, uint32_t spp,
+                          pt_render_stats *st, double *se)
+{
+    const uint32_t w = p->width;
     pt_renderer *r = NULL;
     pt_error err = {0};
-    CHECKF(pt_renderer_new(s, &p, &r, &err) == PT_OK, "%s", err.msg);
+    CHECKF(pt_renderer_new(s, p, &r, &err) == PT_OK, "%s", err.msg);
     if (!r)
         return NAN;
     double sum = 0.0, sq = 0.0, n = (double)w * w * spp;
@@ -1243,6 +1268,103 @@ static void glint_in_mirror(void)
     pt_scene_free(s);
 }
 
+/* A chrome ball (radius 0.5, Schlick's F of F0 0.9) on plane_and_glass's
+ * plane, seen from above with the plane around it. */
+static pt_scene *chrome_ball_scene(void)
+{
+    uint32_t mg = 0, mc = 0;
+    pt_scene_builder *b = plane_and_glass(0.0f, &mg);
+    if (!b)
+        return NULL;
+    pt_material m = pt_material_default();
+    m.metallic = 1.0f;
+    m.roughness = 0.0f;
+    m.base_color[0] = m.base_color[1] = m.base_color[2] = 0.9f;
+    pt_error err = {0};
+    CHECKF(pt_scene_builder_add_material(b, &m, &mc, &err) == PT_OK, "%s", err.msg);
+    const double c[3] = {0.0, 0.0, 0.5};
+    sphere_mesh(b, "ball", c, 0.5, 0, mc);
+    return lit_scene(b, NULL, NULL, pt_test_ortho_down(0.6f, 0.2f, 3.0f, 1.4f));
+}
+
+/*
+ * The environment off a metal wall, closed form: wall_scene's plane and
+ * metal wall (Schlick's F, green F0 G_METAL) under a uniform sky of
+ * radiance L_SKY and no other light, at max_depth 2, the plane's point p =
+ * (1, 0.3, 0) seen. Each direction of p's hemisphere either sees the sky
+ * or, through the wall (those that meet it), the sky mirrored with F(c),
+ * c the cosine at the wall: E = L (pi - int_wall (1 - F(c)) cos dw), the
+ * integral by the midpoint rule (wall_loss), and p reads RHO_D / pi E.
+ * Every direction chained (manifold_min_light 0: mr_env_nee), none
+ * (no_mirror: the sampled paths alone) and the default (a uniform sky has
+ * no lamp: no chain), each within 5 standard errors; the wall's NEE and
+ * the sky its sampled paths find leave what the chain took (mshare,
+ * ekeep), or the chained image reads E plus the mirrored sky again.
+ */
+#define L_SKY 0.5
+
+/* int (1 - F(c)) cos dw over the directions from p that meet the wall
+ * (x = 0, |y| < 100, 0 < z < 10), F Schlick's of F0 g. */
+static double wall_loss(const double p[3], double g)
+{
+    const int nt = 1200, np = 2400;
+    const double pi = 3.14159265358979323846;
+    double sum = 0.0;
+    for (int i = 0; i < nt; i++) {
+        double th = (i + 0.5) * 0.5 * pi / nt, st = sin(th), ct = cos(th);
+        for (int j = 0; j < np; j++) {
+            double ph = (j + 0.5) * 2.0 * pi / np, dx = st * cos(ph), dy = st * sin(ph);
+            if (!(dx < 0.0))
+                continue;
+            double t = -p[0] / dx, y = p[1] + t * dy, z = p[2] + t * ct;
+            if (fabs(y) >= 100.0 || z >= 10.0)
+                continue;
+            double c = -dx, f = g + (1.0 - g) * pow(1.0 - c, 5.0);
+            sum += (1.0 - f) * ct * st;
+        }
+    }
+    return sum * (0.5 * pi / nt) * (2.0 * pi / np);
+}
+
+static void env_wall(void)
+{
+    pt_scene_builder *b = wall_builder(0, 0, WALL_METAL);
+    if (!b)
+        return;
+    pt_scene *s = lit_scene(b, NULL, NULL, pt_test_ortho_down(1.0f, 0.3f, 3.0f, 5e-4f));
+    pt_env *env = NULL;
+    pt_error err = {0};
+    CHECK(pt_env_uniform(pt_v3((float)L_SKY, (float)L_SKY, (float)L_SKY), &env, &err) == PT_OK);
+    if (s && env) {
+        const double p[3] = {1.0, 0.3, 0.0}, pi = 3.14159265358979323846;
+        double want = RHO_D / pi * L_SKY * (pi - wall_loss(p, G_METAL));
+        static const char *const what[3] = {"every direction chained", "no chain (no_mirror)",
+                                            "the default bound: no lamp, no chain"};
+        for (int v = 0; v < 3; v++) {
+            pt_render_params q;
+            pt_render_params_default(&q);
+            q.width = q.height = 4;
+            q.max_depth = 2;
+            q.seed = 6;
+            q.env = env;
+            if (v == 0)
+                q.manifold_min_light = 0.0f;
+            q.no_mirror = v == 1;
+            pt_render_stats st = {0};
+            double se = 0.0, m = params_mean(s, &q, 1024, &st, &se);
+            printf("metal wall under a uniform sky, %s: %.6f +- %.6f, closed form %.6f; %llu "
+                   "chains\n",
+                   what[v], m, se, want, (unsigned long long)st.chains);
+            CHECKF(fabs(m - want) < 5.0 * se + 1e-4 * want, "%s: %g against %g (+- %g)", what[v], m,
+                   want, se);
+            CHECKF(v == 0 ? st.chains > 0 : st.chains == 0, "%s: %llu chains", what[v],
+                   (unsigned long long)st.chains);
+        }
+    }
+    pt_env_free(env);
+    pt_scene_free(s);
+}
+
 int main(void)
 {
     snell();
@@ -1256,6 +1378,7 @@ int main(void)
     directional_wall();
     point_wall();
     glint_in_mirror();
+    env_wall();
     unbiased();
     return check_report();
 }
