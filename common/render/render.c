@@ -138,6 +138,8 @@ struct pt_renderer {
     struct mr_object *mr;   /* the reflecting objects' bounding spheres */
     uint32_t mr_n;          /* how many (at most MR_MAX) */
     uint32_t *mr_of_object; /* the scene's object -> its index in mr, or MR_NONE */
+    int8_t *mr_side;        /* mirror_env: per triangle of an MR_HULL object, its hull's outward
+                               side (mr_front): 1 along ng, -1 against it, 0 either (flat) */
     /* a light tree chooses: light_normal computes the receiver's normal */
     int light_tree;
     /* a light tree, or an environment split into a sun and the rest
@@ -1885,12 +1887,13 @@ static double mf_side_index(const pt_mf_vert *v, const double q[3])
 typedef struct mf_link {
     uint32_t k;
     pt_vec3 y[PT_MF_MAX];
-    pt_vec3 T;  /* the refractions' expected weights and the media's transmittance */
-    int opaque; /* a reflection off an opaque mirror (mr_smooth), not glass (mr_connect) */
-    float take; /* the product of the refractions' pick probabilities */
-    float jac;  /* |d w / d wl|; to a point: |d omega_l / dA_x| */
-    float flux; /* to a point: (index at the light / index at x)^2, which turns the
-                   refractions' radiance weights T into the flux's; else 1 */
+    pt_vec3 T;    /* the refractions' expected weights and the media's transmittance */
+    int opaque;   /* a reflection off an opaque mirror (mr_smooth), not glass (mr_connect) */
+    float take;   /* the product of the refractions' pick probabilities */
+    float jac;    /* |d w / d wl|; to a point: |d omega_l / dA_x| */
+    float flux;   /* to a point: (index at the light / index at x)^2, which turns the
+                     refractions' radiance weights T into the flux's; else 1 */
+    uint32_t tri; /* a reflection chain's: its vertex's triangle (mr_connect) */
 } mf_link;
 
 /* What a chain's vertex v is as the renderer sees it from `from` (geometric
@@ -2295,7 +2298,13 @@ static uint32_t mf_nee(const pt_renderer *r, path *pa, const surface *sf, const 
 enum {
     MR_GLASS = 1u,  /* smooth glass (mr_glass), which every chained light reflects off */
     MR_SMOOTH = 2u, /* smooth opaque surfaces (mr_smooth) */
+    MR_HULL = 4u,   /* ... that lie on their convex hull (mr_new), which the map's lamps
+                       chain off (mr_env_nee) */
 };
+/* The most smooth triangles of an object whose hull mr_new checks (their
+ * planes against their corners: 3 n^2 tests, 2e8 at this size); a larger
+ * object is not MR_HULL. */
+#define MR_HULL_TRIS 8192u
 
 typedef struct mr_object {
     pt_vec3 c;       /* its reflecting triangles' bounding sphere: centre */
@@ -2392,6 +2401,26 @@ static inline int mr_smooth_at(const pt_renderer *r, const pt_hit *hit, const su
 {
     return !hit->inst && mr_smooth(sf->mat) &&
            r->mr_of_object[mr_object_of(r, hit->tri)] != MR_NONE;
+}
+
+/* 1 when x lies on the outward side of triangle tri's plane (r->mr_side),
+ * at its point y: x sees that MR_HULL object from outside its hull, where
+ * one point of it at most mirrors a direction to x (the Gauss map of a
+ * convex surface is one to one), the chain's root. */
+static inline int mr_front(const pt_renderer *r, uint32_t tri, pt_vec3 x, pt_vec3 y)
+{
+    const int8_t side = r->mr_side[tri];
+    return side == 0 || (float)side * pt_v3_dot(pt_v3_sub(x, y), r->tris[tri].ng) > 0.0f;
+}
+
+/* 1 when the map's lamps that hit's point p mirrors back to the path's
+ * last vertex x are x's chain's (mr_env_nee): p is on an MR_HULL object,
+ * seen from outside its hull. Inside a bowl, where several points mirror
+ * one lamp to x, the chain would deliver one: the path keeps them all. */
+static inline int mr_hull_at(const pt_renderer *r, const pt_hit *hit, pt_vec3 x, pt_vec3 p)
+{
+    return (r->mr[r->mr_of_object[mr_object_of(r, hit->tri)]].kinds & MR_HULL) &&
+           mr_front(r, hit->tri, x, p);
 }
 
 /* The unit direction from p towards the light: wl, or towards the point
@@ -2545,6 +2574,7 @@ static __attribute__((noinline)) int mr_connect(const pt_renderer *r, path *pa, 
     if (!(jac > 0.0f) || !isfinite(jac))
         return MF_SEED_BLOCKED;
     lk->k = 1;
+    lk->tri = c.v[0].tri;
     lk->y[0] = sf.p;
     lk->T = pt_v3_mul(T, tr);
     lk->opaque = !transmits(sf.mat);
@@ -2644,12 +2674,12 @@ static __attribute__((noinline)) void mr_env_nee(const pt_renderer *r, path *pa,
     if (!pt_env_sample(r->params.env, ud, PT_ENV_FULL, pt_v3(0.0f, 0.0f, 0.0f), &wl, &le, &lpdf) ||
         !mr_env_lamp(r, le))
         return;
-    uint32_t k = mr_pick(r, sf->p, ng, both, MR_SMOOTH, u, &P);
+    uint32_t k = mr_pick(r, sf->p, ng, both, MR_HULL, u, &P);
     mf_link lk;
     if (k == MR_NONE ||
         mr_connect(r, pa, sf->p, ng, both, wl, NULL, 1, k, alpha_key, &lk, features) !=
             MF_SEED_CHAIN ||
-        !lk.opaque)
+        !lk.opaque || !mr_front(r, lk.tri, sf->p, lk.y[0]))
         return;
     float bpdf = 0.0f;
     pt_vec3 f = mr_eval(pa, sf->p, ng, fr, cl, both, &lk, &bpdf);
@@ -2800,7 +2830,7 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
                 (((ls->delta == PT_LIGHT_FAR || ls->delta == PT_LIGHT_AT) &&
                   mr_smooth_light(r, ls->punct, ls->delta == PT_LIGHT_AT, pa->mf->x)) ||
                  ((features & PT_FEAT_ENV) && ls->delta == PT_LIGHT_ENV && r->mirror_env &&
-                  mr_env_lamp(r, ls->radiance)))) {
+                  mr_env_lamp(r, ls->radiance) && mr_hull_at(r, hit, pa->mf->x, sf->p)))) {
                 /* The share of the mirror lobes' light that the previous
                  * vertex's chain delivers is not taken again. */
                 pt_vec3 fm = pt_closure_eval_mirror(&cl, wi_ll, NULL);
@@ -2984,7 +3014,8 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
              * mshare says; straight through a thin wall (below) the last
              * real vertex's share stands, as the chain's light crosses it. */
             pt_vec3 ek = pt_v3(1.0f, 1.0f, 1.0f), pm = pa->mf->mshare;
-            if (!delta && mr_smooth_at(r, hit, sf) && (pm.x < 1.0f || pm.y < 1.0f || pm.z < 1.0f)) {
+            if (!delta && mr_smooth_at(r, hit, sf) && (pm.x < 1.0f || pm.y < 1.0f || pm.z < 1.0f) &&
+                mr_hull_at(r, hit, pa->mf->x, sf->p)) {
                 pt_vec3 fa, fm = pt_closure_eval_mirror(&cl, wi_l, &fa);
                 ek = pt_v3(fa.x > 0.0f ? 1.0f - fminf(fm.x / fa.x, 1.0f) * (1.0f - pm.x) : 1.0f,
                            fa.y > 0.0f ? 1.0f - fminf(fm.y / fa.y, 1.0f) * (1.0f - pm.y) : 1.0f,
@@ -4201,6 +4232,73 @@ static int scene_mirror(const pt_scene *s)
     return 0;
 }
 
+/* The objects whose n smooth reflecting triangles (r->mr_tris) lie on
+ * their convex hull: each one's plane has every corner of the others on
+ * one side, within 1e-4 of the object's radius (on neither: a flat
+ * mirror; a degenerate triangle, which no ray meets, has no side);
+ * MR_HULL, and the outward side in r->mr_side. */
+static pt_status mr_hulls(pt_renderer *r, uint32_t n)
+{
+    const pt_scene *s = r->scene;
+    uint32_t nt = s->num_instances > 0 ? s->num_flat_triangles : s->num_triangles;
+    uint32_t *start = pt_calloc(r->mr_n + 1u, sizeof *start);
+    uint32_t *at = pt_calloc(r->mr_n, sizeof *at);
+    uint32_t *tri = pt_malloc_array(n ? n : 1, sizeof *tri);
+    r->mr_side = pt_calloc(nt ? nt : 1, sizeof *r->mr_side);
+    if (!start || !at || !tri || !r->mr_side) {
+        pt_free(start);
+        pt_free(at);
+        pt_free(tri);
+        return PT_ERR_NOMEM;
+    }
+    /* each object's smooth triangles, by a counting sort */
+    for (uint32_t i = 0; i < n; i++)
+        if (!mr_glass(&s->materials[s->tri_material[r->mr_tris[i]] & ~TRI_FLAT]))
+            start[r->mr_of_object[mr_object_of(r, r->mr_tris[i])] + 1u]++;
+    for (uint32_t k = 0; k < r->mr_n; k++)
+        start[k + 1] += start[k];
+    for (uint32_t i = 0; i < n; i++) {
+        uint32_t t = r->mr_tris[i];
+        if (mr_glass(&s->materials[s->tri_material[t] & ~TRI_FLAT]))
+            continue;
+        uint32_t k = r->mr_of_object[mr_object_of(r, t)];
+        tri[start[k] + at[k]++] = t;
+    }
+    pt_free(at);
+    for (uint32_t k = 0; k < r->mr_n; k++) {
+        uint32_t a = start[k], b = start[k + 1];
+        if (b == a || b - a > MR_HULL_TRIS)
+            continue;
+        const float eps = 1e-4f * r->mr[k].rad;
+        int hull = 1;
+        for (uint32_t i = a; i < b && hull; i++) {
+            const tri_rec *t = &r->tris[tri[i]];
+            /* a degenerate triangle (a UV sphere's pole) has no plane */
+            pt_vec3 cr = pt_v3_cross(pt_v3_sub(t->v1, t->v0), pt_v3_sub(t->v2, t->v0));
+            if (!(pt_v3_len(cr) > eps * eps))
+                continue;
+            float d0 = pt_v3_dot(t->ng, t->v0);
+            int pos = 0, neg = 0;
+            for (uint32_t j = a; j < b && !(pos && neg); j++) {
+                const tri_rec *u = &r->tris[tri[j]];
+                const pt_vec3 *v[3] = {&u->v0, &u->v1, &u->v2};
+                for (int c = 0; c < 3; c++) {
+                    float h = pt_v3_dot(t->ng, *v[c]) - d0;
+                    pos |= h > eps;
+                    neg |= h < -eps;
+                }
+            }
+            hull = !(pos && neg);
+            r->mr_side[tri[i]] = (int8_t)(neg - pos);
+        }
+        if (hull)
+            r->mr[k].kinds |= MR_HULL;
+    }
+    pt_free(start);
+    pt_free(tri);
+    return PT_OK;
+}
+
 /* The reflection chains' objects (r->mr: each one's still, flat reflecting
  * triangles, their bounding sphere) and their triangles' BVH (r->mr_accel);
  * r->mirror when there is one. */
@@ -4276,6 +4374,8 @@ static pt_status mr_new(pt_renderer *r, pt_error *err)
                                            pt_v3_len(pt_v3_sub(t->v2, o->c)))));
     }
     pt_free(box);
+    if (r->mirror_env && mr_hulls(r, n) != PT_OK)
+        return pt_error_set(err, PT_ERR_NOMEM, "manifold NEE: out of memory");
     r->mirror = r->mr_n > 0;
     return pt_accel_new_subset(s, r->mr_tris, n, &r->mr_accel, err);
 }
@@ -4460,6 +4560,7 @@ void pt_renderer_free(pt_renderer *r)
     pt_free(r->mr_tris);
     pt_free(r->mr);
     pt_free(r->mr_of_object);
+    pt_free(r->mr_side);
     pt_accel_free(r->accel);
     pt_free(r);
 }

@@ -556,7 +556,7 @@ static void paired(const char *name, const pt_scene *s, const pt_env *env, uint3
     pt_renderer_free(ro);
 }
 
-static pt_scene *chrome_ball_scene(void);
+static pt_scene *chrome_ball_scene(int two);
 
 static void unbiased(void)
 {
@@ -611,11 +611,32 @@ static void unbiased(void)
     /* A chrome ball on the plane under the sky's patch, the brighter half
      * chained off it (mr_env_nee), the dimmer half left to the sampled
      * paths: both must draw the same line between them. */
-    s = chrome_ball_scene();
+    s = chrome_ball_scene(0);
     env = patch_sky(1.6f, 4.8f);
     if (s && env)
         paired("chrome ball, the brighter half chained", s, env, 8,
                (float)(3.2 / pt_env_mean_luminance(env)), 0);
+    pt_scene_free(s);
+    /* Two balls in one object: between them a point of the plane sees a
+     * lamp in both, which a chain (one root) would not deliver. The map's
+     * lamps chain off objects on their convex hull only; this one keeps
+     * its sampled paths. */
+    s = chrome_ball_scene(1);
+    if (s && env) {
+        pt_render_params p;
+        pt_render_params_default(&p);
+        p.width = p.height = 8;
+        p.env = env;
+        p.manifold_min_light = 0.0f;
+        pt_renderer *r = NULL;
+        CHECKF(pt_renderer_new(s, &p, &r, &err) == PT_OK, "%s", err.msg);
+        pt_render_stats st = {0};
+        for (uint32_t i = 0; r && i < 8 * 8 * 16; i++)
+            pt_render_sample(r, i % 8, (i / 8) % 8, i / 64, &st, NULL);
+        CHECKF(r && st.chains == 0, "two balls in one object: %llu chains",
+               (unsigned long long)st.chains);
+        pt_renderer_free(r);
+    }
     pt_scene_free(s);
     pt_env_free(env);
 }
@@ -813,41 +834,52 @@ static void directional_slab(void)
  */
 #define I_PT 3.0
 
-/* A UV sphere of radius rad around c, normals out (in when `in`: the
- * cavity's surface, whose front, where the index is 1, faces c). */
-static void sphere_mesh(pt_scene_builder *b, const char *name, const double c[3], double rad,
-                        int in, uint32_t mat)
+/* UV spheres of radius rad around c[0 .. count - 1], one mesh, normals out
+ * (in when `in`: the cavity's surface, whose front, where the index is 1,
+ * faces c). */
+static void spheres_mesh(pt_scene_builder *b, const char *name, const double (*c)[3],
+                         uint32_t count, double rad, int in, uint32_t mat)
 {
-    enum { NU = 64, NV = 32 };
-    float *pos = malloc(sizeof(float) * 3 * (NV + 1) * (NU + 1));
-    float *nrm = malloc(sizeof(float) * 3 * (NV + 1) * (NU + 1));
-    uint32_t *idx = malloc(sizeof(uint32_t) * 6 * NV * NU), n = 0;
-    for (int j = 0; j <= NV; j++)
-        for (int i = 0; i <= NU; i++) {
-            double th = 3.14159265358979323846 * j / NV, ph = 2.0 * 3.14159265358979323846 * i / NU;
-            double d[3] = {sin(th) * cos(ph), sin(th) * sin(ph), cos(th)};
-            uint32_t v = (uint32_t)(j * (NU + 1) + i);
-            for (int k = 0; k < 3; k++) {
-                pos[3 * v + k] = (float)(c[k] + rad * d[k]);
-                nrm[3 * v + k] = (float)(in ? -d[k] : d[k]);
+    enum { NU = 64, NV = 32, NVERT = (NV + 1) * (NU + 1) };
+    float *pos = malloc(sizeof(float) * 3 * NVERT * count);
+    float *nrm = malloc(sizeof(float) * 3 * NVERT * count);
+    uint32_t *idx = malloc(sizeof(uint32_t) * 6 * NV * NU * count), n = 0;
+    for (uint32_t s = 0; s < count; s++) {
+        for (int j = 0; j <= NV; j++)
+            for (int i = 0; i <= NU; i++) {
+                double th = 3.14159265358979323846 * j / NV,
+                       ph = 2.0 * 3.14159265358979323846 * i / NU;
+                double d[3] = {sin(th) * cos(ph), sin(th) * sin(ph), cos(th)};
+                uint32_t v = s * NVERT + (uint32_t)(j * (NU + 1) + i);
+                for (int k = 0; k < 3; k++) {
+                    pos[3 * v + k] = (float)(c[s][k] + rad * d[k]);
+                    nrm[3 * v + k] = (float)(in ? -d[k] : d[k]);
+                }
             }
-        }
-    for (int j = 0; j < NV; j++)
-        for (int i = 0; i < NU; i++) {
-            uint32_t a = (uint32_t)(j * (NU + 1) + i), bb = a + NU + 1;
-            /* counter-clockwise seen from outside (from inside when `in`) */
-            uint32_t t[6] = {a, bb, bb + 1, a, bb + 1, a + 1};
-            for (int k = 0; k < 6; k++)
-                idx[n + (uint32_t)k] = t[in ? 5 - k : k];
-            n += 6;
-        }
+        for (int j = 0; j < NV; j++)
+            for (int i = 0; i < NU; i++) {
+                uint32_t a = s * NVERT + (uint32_t)(j * (NU + 1) + i), bb = a + NU + 1;
+                /* counter-clockwise seen from outside (from inside when `in`) */
+                uint32_t t[6] = {a, bb, bb + 1, a, bb + 1, a + 1};
+                for (int k = 0; k < 6; k++)
+                    idx[n + (uint32_t)k] = t[in ? 5 - k : k];
+                n += 6;
+            }
+    }
     pt_error err = {0};
-    CHECKF(pt_scene_builder_add_mesh(b, name, pos, nrm, NULL, (NV + 1) * (NU + 1), idx, n / 3, NULL,
-                                     mat, &err) == PT_OK,
+    CHECKF(pt_scene_builder_add_mesh(b, name, pos, nrm, NULL, NVERT * count, idx, n / 3, NULL, mat,
+                                     &err) == PT_OK,
            "%s", err.msg);
     free(pos);
     free(nrm);
     free(idx);
+}
+
+/* One UV sphere (spheres_mesh's). */
+static void sphere_mesh(pt_scene_builder *b, const char *name, const double c[3], double rad,
+                        int in, uint32_t mat)
+{
+    spheres_mesh(b, name, (const double(*)[3])c, 1, rad, in, mat);
 }
 
 /* Spot variants of the point light: none, aimed at the plane's point seen
@@ -1269,8 +1301,9 @@ static void glint_in_mirror(void)
 }
 
 /* A chrome ball (radius 0.5, Schlick's F of F0 0.9) on plane_and_glass's
- * plane, seen from above with the plane around it. */
-static pt_scene *chrome_ball_scene(void)
+ * plane, seen from above with the plane around it; with `two`, two such
+ * balls side by side, one object (not on its convex hull). */
+static pt_scene *chrome_ball_scene(int two)
 {
     uint32_t mg = 0, mc = 0;
     pt_scene_builder *b = plane_and_glass(0.0f, &mg);
@@ -1282,8 +1315,8 @@ static pt_scene *chrome_ball_scene(void)
     m.base_color[0] = m.base_color[1] = m.base_color[2] = 0.9f;
     pt_error err = {0};
     CHECKF(pt_scene_builder_add_material(b, &m, &mc, &err) == PT_OK, "%s", err.msg);
-    const double c[3] = {0.0, 0.0, 0.5};
-    sphere_mesh(b, "ball", c, 0.5, 0, mc);
+    const double c[2][3] = {{0.0, 0.0, 0.5}, {0.0, 1.2, 0.5}};
+    spheres_mesh(b, "ball", c, two ? 2 : 1, 0.5, 0, mc);
     return lit_scene(b, NULL, NULL, pt_test_ortho_down(0.6f, 0.2f, 3.0f, 1.4f));
 }
 
