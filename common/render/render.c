@@ -138,7 +138,7 @@ struct pt_renderer {
     struct mr_object *mr;   /* the reflecting objects' bounding spheres */
     uint32_t mr_n;          /* how many (at most MR_MAX) */
     uint32_t *mr_of_object; /* the scene's object -> its index in mr, or MR_NONE */
-    int8_t *mr_side;        /* mirror_env: per triangle of an MR_HULL object, its hull's outward
+    int8_t *mr_side;        /* mirror_smooth: per triangle of an MR_HULL object, its hull's outward
                                side (mr_front): 1 along ng, -1 against it, 0 either (flat) */
     /* a light tree chooses: light_normal computes the receiver's normal */
     int light_tree;
@@ -2298,8 +2298,8 @@ static uint32_t mf_nee(const pt_renderer *r, path *pa, const surface *sf, const 
 enum {
     MR_GLASS = 1u,  /* smooth glass (mr_glass), which every chained light reflects off */
     MR_SMOOTH = 2u, /* smooth opaque surfaces (mr_smooth) */
-    MR_HULL = 4u,   /* ... that lie on their convex hull (mr_new), which the map's lamps
-                       chain off (mr_env_nee) */
+    MR_HULL = 4u,   /* ... that lie on their convex hull (mr_hulls): the chains take
+                       smooth opaque surfaces on such objects only */
 };
 /* The most smooth triangles of an object whose hull mr_new checks (their
  * planes against their corners: 3 n^2 tests, 2e8 at this size); a larger
@@ -2413,14 +2413,14 @@ static inline int mr_front(const pt_renderer *r, uint32_t tri, pt_vec3 x, pt_vec
     return side == 0 || (float)side * pt_v3_dot(pt_v3_sub(x, y), r->tris[tri].ng) > 0.0f;
 }
 
-/* 1 when the map's lamps that hit's point p mirrors back to the path's
- * last vertex x are x's chain's (mr_env_nee): p is on an MR_HULL object,
- * seen from outside its hull. Inside a bowl, where several points mirror
- * one lamp to x, the chain would deliver one: the path keeps them all. */
-static inline int mr_hull_at(const pt_renderer *r, const pt_hit *hit, pt_vec3 x, pt_vec3 p)
+/* 1 when the light that point p of triangle tri (of a reflecting object)
+ * mirrors to x may be x's chain's (mr_nee, mr_env_nee): p is on an MR_HULL
+ * object, seen from outside its hull. Inside a bowl, where several points
+ * mirror one light to x, a chain would deliver one: the sampled paths
+ * keep them all. */
+static inline int mr_hull_at(const pt_renderer *r, uint32_t tri, pt_vec3 x, pt_vec3 p)
 {
-    return (r->mr[r->mr_of_object[mr_object_of(r, hit->tri)]].kinds & MR_HULL) &&
-           mr_front(r, hit->tri, x, p);
+    return (r->mr[r->mr_of_object[mr_object_of(r, tri)]].kinds & MR_HULL) && mr_front(r, tri, x, p);
 }
 
 /* The unit direction from p towards the light: wl, or towards the point
@@ -2622,10 +2622,12 @@ static __attribute__((noinline)) void mr_nee(const pt_renderer *r, path *pa, con
      * paths (mf_path's mshare 1): it chains off glass only. */
     const int opaque = r->mirror_smooth && mr_smooth_light(r, ls->punct, at, sf->p);
     const int glass_only = !opaque || pt_closure_has_mirror(cl) == 2;
-    uint32_t k = mr_pick(r, sf->p, ng, both, glass_only ? MR_GLASS : MR_GLASS | MR_SMOOTH, u, &P);
+    uint32_t k = mr_pick(r, sf->p, ng, both, glass_only ? MR_GLASS : MR_GLASS | MR_HULL, u, &P);
     mf_link lk;
-    if (k == MR_NONE || mr_connect(r, pa, sf->p, ng, both, ls->wi, at ? &ls->position : NULL,
-                                   opaque, k, alpha_key, &lk, features) != MF_SEED_CHAIN)
+    if (k == MR_NONE ||
+        mr_connect(r, pa, sf->p, ng, both, ls->wi, at ? &ls->position : NULL, opaque, k, alpha_key,
+                   &lk, features) != MF_SEED_CHAIN ||
+        (lk.opaque && !mr_hull_at(r, lk.tri, sf->p, lk.y[0])))
         return;
     float bpdf = 0.0f;
     pt_vec3 f = mr_eval(pa, sf->p, ng, fr, cl, both, &lk, &bpdf);
@@ -2679,7 +2681,7 @@ static __attribute__((noinline)) void mr_env_nee(const pt_renderer *r, path *pa,
     if (k == MR_NONE ||
         mr_connect(r, pa, sf->p, ng, both, wl, NULL, 1, k, alpha_key, &lk, features) !=
             MF_SEED_CHAIN ||
-        !lk.opaque || !mr_front(r, lk.tri, sf->p, lk.y[0]))
+        !lk.opaque || !mr_hull_at(r, lk.tri, sf->p, lk.y[0]))
         return;
     float bpdf = 0.0f;
     pt_vec3 f = mr_eval(pa, sf->p, ng, fr, cl, both, &lk, &bpdf);
@@ -2830,7 +2832,8 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
                 (((ls->delta == PT_LIGHT_FAR || ls->delta == PT_LIGHT_AT) &&
                   mr_smooth_light(r, ls->punct, ls->delta == PT_LIGHT_AT, pa->mf->x)) ||
                  ((features & PT_FEAT_ENV) && ls->delta == PT_LIGHT_ENV && r->mirror_env &&
-                  mr_env_lamp(r, ls->radiance) && mr_hull_at(r, hit, pa->mf->x, sf->p)))) {
+                  mr_env_lamp(r, ls->radiance))) &&
+                mr_hull_at(r, hit->tri, pa->mf->x, sf->p)) {
                 /* The share of the mirror lobes' light that the previous
                  * vertex's chain delivers is not taken again. */
                 pt_vec3 fm = pt_closure_eval_mirror(&cl, wi_ll, NULL);
@@ -3015,7 +3018,7 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
              * real vertex's share stands, as the chain's light crosses it. */
             pt_vec3 ek = pt_v3(1.0f, 1.0f, 1.0f), pm = pa->mf->mshare;
             if (!delta && mr_smooth_at(r, hit, sf) && (pm.x < 1.0f || pm.y < 1.0f || pm.z < 1.0f) &&
-                mr_hull_at(r, hit, pa->mf->x, sf->p)) {
+                mr_hull_at(r, hit->tri, pa->mf->x, sf->p)) {
                 pt_vec3 fa, fm = pt_closure_eval_mirror(&cl, wi_l, &fa);
                 ek = pt_v3(fa.x > 0.0f ? 1.0f - fminf(fm.x / fa.x, 1.0f) * (1.0f - pm.x) : 1.0f,
                            fa.y > 0.0f ? 1.0f - fminf(fm.y / fa.y, 1.0f) * (1.0f - pm.y) : 1.0f,
@@ -4374,7 +4377,7 @@ static pt_status mr_new(pt_renderer *r, pt_error *err)
                                            pt_v3_len(pt_v3_sub(t->v2, o->c)))));
     }
     pt_free(box);
-    if (r->mirror_env && mr_hulls(r, n) != PT_OK)
+    if (r->mirror_smooth && mr_hulls(r, n) != PT_OK)
         return pt_error_set(err, PT_ERR_NOMEM, "manifold NEE: out of memory");
     r->mirror = r->mr_n > 0;
     return pt_accel_new_subset(s, r->mr_tris, n, &r->mr_accel, err);

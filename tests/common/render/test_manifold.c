@@ -556,7 +556,7 @@ static void paired(const char *name, const pt_scene *s, const pt_env *env, uint3
     pt_renderer_free(ro);
 }
 
-static pt_scene *chrome_ball_scene(int two);
+static pt_scene *chrome_ball_scene(int two, int sun);
 
 static void unbiased(void)
 {
@@ -611,33 +611,35 @@ static void unbiased(void)
     /* A chrome ball on the plane under the sky's patch, the brighter half
      * chained off it (mr_env_nee), the dimmer half left to the sampled
      * paths: both must draw the same line between them. */
-    s = chrome_ball_scene(0);
+    s = chrome_ball_scene(0, 0);
     env = patch_sky(1.6f, 4.8f);
     if (s && env)
         paired("chrome ball, the brighter half chained", s, env, 8,
                (float)(3.2 / pt_env_mean_luminance(env)), 0);
     pt_scene_free(s);
     /* Two balls in one object: between them a point of the plane sees a
-     * lamp in both, which a chain (one root) would not deliver. The map's
-     * lamps chain off objects on their convex hull only; this one keeps
-     * its sampled paths. */
-    s = chrome_ball_scene(1);
-    if (s && env) {
+     * lamp or the sun in both, which a chain (one root) would not deliver.
+     * Chains take smooth opaque surfaces of objects on their convex hull
+     * only (with one ball in the sun: chains); these keep their sampled
+     * paths. */
+    for (int v = 0; v < 3; v++) {
+        s = chrome_ball_scene(v != 2, v != 0);
         pt_render_params p;
         pt_render_params_default(&p);
         p.width = p.height = 8;
-        p.env = env;
+        p.env = v == 0 ? env : NULL;
         p.manifold_min_light = 0.0f;
         pt_renderer *r = NULL;
-        CHECKF(pt_renderer_new(s, &p, &r, &err) == PT_OK, "%s", err.msg);
+        CHECKF(s && pt_renderer_new(s, &p, &r, &err) == PT_OK, "%s", err.msg);
         pt_render_stats st = {0};
         for (uint32_t i = 0; r && i < 8 * 8 * 16; i++)
             pt_render_sample(r, i % 8, (i / 8) % 8, i / 64, &st, NULL);
-        CHECKF(r && st.chains == 0, "two balls in one object: %llu chains",
+        CHECKF(r && (st.chains > 0) == (v == 2), "%s in one object%s: %llu chains",
+               v == 2 ? "one ball" : "two balls", v ? " in the sun" : "",
                (unsigned long long)st.chains);
         pt_renderer_free(r);
+        pt_scene_free(s);
     }
-    pt_scene_free(s);
     pt_env_free(env);
 }
 
@@ -1302,8 +1304,9 @@ static void glint_in_mirror(void)
 
 /* A chrome ball (radius 0.5, Schlick's F of F0 0.9) on plane_and_glass's
  * plane, seen from above with the plane around it; with `two`, two such
- * balls side by side, one object (not on its convex hull). */
-static pt_scene *chrome_ball_scene(int two)
+ * balls side by side, one object (not on its convex hull); with `sun`, a
+ * directional light. */
+static pt_scene *chrome_ball_scene(int two, int sun)
 {
     uint32_t mg = 0, mc = 0;
     pt_scene_builder *b = plane_and_glass(0.0f, &mg);
@@ -1317,7 +1320,14 @@ static pt_scene *chrome_ball_scene(int two)
     CHECKF(pt_scene_builder_add_material(b, &m, &mc, &err) == PT_OK, "%s", err.msg);
     const double c[2][3] = {{0.0, 0.0, 0.5}, {0.0, 1.2, 0.5}};
     spheres_mesh(b, "ball", c, two ? 2 : 1, 0.5, 0, mc);
-    return lit_scene(b, NULL, NULL, pt_test_ortho_down(0.6f, 0.2f, 3.0f, 1.4f));
+    pt_punctual l;
+    memset(&l, 0, sizeof l);
+    l.type = PT_PUNCTUAL_DIRECTIONAL;
+    l.direction = pt_v3_norm(pt_v3(0.3f, -0.5f, -1.0f));
+    l.intensity = pt_v3((float)E_DIR, (float)E_DIR, (float)E_DIR);
+    snprintf(l.name, sizeof l.name, "sun");
+    const double at[3] = {0.0, 0.0, 10.0};
+    return lit_scene(b, sun ? &l : NULL, at, pt_test_ortho_down(0.6f, 0.2f, 3.0f, 1.4f));
 }
 
 /*
