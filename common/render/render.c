@@ -2301,10 +2301,9 @@ enum {
     MR_HULL = 4u,   /* ... that lie on their convex hull (mr_hulls): the chains take
                        smooth opaque surfaces on such objects only */
 };
-/* The most smooth triangles of an object whose hull mr_new checks (their
- * planes against their corners: 3 n^2 tests, 2e8 at this size); a larger
- * object is not MR_HULL. */
-#define MR_HULL_TRIS 8192u
+/* The most smooth triangles of an object whose hull mr_hulls checks; a
+ * larger object is not MR_HULL. */
+#define MR_HULL_TRIS (1u << 20)
 
 typedef struct mr_object {
     pt_vec3 c;       /* its reflecting triangles' bounding sphere: centre */
@@ -4235,10 +4234,107 @@ static int scene_mirror(const pt_scene *s)
     return 0;
 }
 
+/* mr_hulls' tree of an object's corners p[0 .. n): node i holds the box
+ * (lo xyz, hi xyz) of p[a .. b), its children 2i + 1 and 2i + 2 the halves
+ * at (a + b) / 2 after a selection along its longest side. */
+#define HULL_LEAF 8u
+typedef struct hull_tree {
+    pt_vec3 *p;
+    float (*box)[6];
+} hull_tree;
+
+static inline float v3_at(pt_vec3 v, int k)
+{
+    return k == 0 ? v.x : k == 1 ? v.y : v.z;
+}
+
+/* Reorders p[0 .. n) so that p[m] is the one of rank m by component k,
+ * none after it smaller and none before it larger (Hoare's selection). */
+static void hull_select(pt_vec3 *p, int64_t n, int64_t m, int k)
+{
+    int64_t lo = 0, hi = n - 1;
+    while (lo < hi) {
+        float piv = v3_at(p[(lo + hi) / 2], k);
+        int64_t i = lo, j = hi;
+        while (i <= j) {
+            while (v3_at(p[i], k) < piv)
+                i++;
+            while (v3_at(p[j], k) > piv)
+                j--;
+            if (i <= j) {
+                pt_vec3 t = p[i];
+                p[i++] = p[j];
+                p[j--] = t;
+            }
+        }
+        if (m <= j)
+            hi = j;
+        else if (m >= i)
+            lo = i;
+        else
+            return;
+    }
+}
+
+/* qsort's order of points: by x, then y, then z. */
+static int v3_order(const void *pa, const void *pb)
+{
+    const pt_vec3 *a = pa, *b = pb;
+    for (int k = 0; k < 3; k++) {
+        float x = v3_at(*a, k), y = v3_at(*b, k);
+        if (x != y)
+            return x < y ? -1 : 1;
+    }
+    return 0;
+}
+
+static void hull_build(hull_tree *t, uint32_t node, uint32_t a, uint32_t b)
+{
+    float *bx = t->box[node];
+    bx[0] = bx[1] = bx[2] = INFINITY;
+    bx[3] = bx[4] = bx[5] = -INFINITY;
+    for (uint32_t i = a; i < b; i++)
+        for (int k = 0; k < 3; k++) {
+            bx[k] = fminf(bx[k], v3_at(t->p[i], k));
+            bx[3 + k] = fmaxf(bx[3 + k], v3_at(t->p[i], k));
+        }
+    if (b - a <= HULL_LEAF)
+        return;
+    int k = 0;
+    for (int j = 1; j < 3; j++)
+        if (bx[3 + j] - bx[j] > bx[3 + k] - bx[k])
+            k = j;
+    uint32_t mid = a + (b - a) / 2;
+    hull_select(t->p + a, b - a, mid - a, k);
+    hull_build(t, 2 * node + 1, a, mid);
+    hull_build(t, 2 * node + 2, mid, b);
+}
+
+/* 1 when a corner p of node's p[a .. b) has n . p > thr. */
+static int hull_beyond(const hull_tree *t, uint32_t node, uint32_t a, uint32_t b, pt_vec3 n,
+                       float thr)
+{
+    const float *bx = t->box[node];
+    float m = fmaxf(n.x * bx[0], n.x * bx[3]) + fmaxf(n.y * bx[1], n.y * bx[4]) +
+              fmaxf(n.z * bx[2], n.z * bx[5]);
+    if (!(m > thr))
+        return 0;
+    if (b - a <= HULL_LEAF) {
+        for (uint32_t i = a; i < b; i++)
+            if (pt_v3_dot(n, t->p[i]) > thr)
+                return 1;
+        return 0;
+    }
+    uint32_t mid = a + (b - a) / 2;
+    return hull_beyond(t, 2 * node + 1, a, mid, n, thr) ||
+           hull_beyond(t, 2 * node + 2, mid, b, n, thr);
+}
+
 /* The objects whose n smooth reflecting triangles (r->mr_tris) lie on
  * their convex hull: each one's plane has every corner of the others on
  * one side, within 1e-4 of the object's radius (on neither: a flat
- * mirror; a degenerate triangle, which no ray meets, has no side);
+ * mirror; a degenerate triangle, which no ray meets, has no side), a
+ * tree of the corners' boxes sparing the corners far behind the plane;
  * MR_HULL, and the outward side in r->mr_side. */
 static pt_status mr_hulls(pt_renderer *r, uint32_t n)
 {
@@ -4268,38 +4364,53 @@ static pt_status mr_hulls(pt_renderer *r, uint32_t n)
         tri[start[k] + at[k]++] = t;
     }
     pt_free(at);
-    for (uint32_t k = 0; k < r->mr_n; k++) {
-        uint32_t a = start[k], b = start[k + 1];
+    pt_status st = PT_OK;
+    for (uint32_t k = 0; k < r->mr_n && st == PT_OK; k++) {
+        uint32_t a = start[k], b = start[k + 1], nc = 3u * (b - a);
         if (b == a || b - a > MR_HULL_TRIS)
             continue;
-        const float eps = 1e-4f * r->mr[k].rad;
-        int hull = 1;
-        for (uint32_t i = a; i < b && hull; i++) {
-            const tri_rec *t = &r->tris[tri[i]];
-            /* a degenerate triangle (a UV sphere's pole) has no plane */
-            pt_vec3 cr = pt_v3_cross(pt_v3_sub(t->v1, t->v0), pt_v3_sub(t->v2, t->v0));
-            if (!(pt_v3_len(cr) > eps * eps))
-                continue;
-            float d0 = pt_v3_dot(t->ng, t->v0);
-            int pos = 0, neg = 0;
-            for (uint32_t j = a; j < b && !(pos && neg); j++) {
-                const tri_rec *u = &r->tris[tri[j]];
-                const pt_vec3 *v[3] = {&u->v0, &u->v1, &u->v2};
-                for (int c = 0; c < 3; c++) {
-                    float h = pt_v3_dot(t->ng, *v[c]) - d0;
-                    pos |= h > eps;
-                    neg |= h < -eps;
-                }
+        hull_tree ht = {pt_malloc_array(nc, sizeof *ht.p),
+                        pt_malloc_array(4u * (nc / HULL_LEAF + 1u), sizeof *ht.box)};
+        if (!ht.p || !ht.box) {
+            st = PT_ERR_NOMEM;
+        } else {
+            for (uint32_t i = a; i < b; i++) {
+                const tri_rec *t = &r->tris[tri[i]];
+                ht.p[3 * (i - a)] = t->v0;
+                ht.p[3 * (i - a) + 1] = t->v1;
+                ht.p[3 * (i - a) + 2] = t->v2;
             }
-            hull = !(pos && neg);
-            r->mr_side[tri[i]] = (int8_t)(neg - pos);
+            /* each corner once: a closed mesh shares one among six triangles */
+            qsort(ht.p, nc, sizeof *ht.p, v3_order);
+            uint32_t u = 0;
+            for (uint32_t i = 0; i < nc; i++)
+                if (u == 0 || v3_order(&ht.p[u - 1], &ht.p[i]) != 0)
+                    ht.p[u++] = ht.p[i];
+            nc = u;
+            hull_build(&ht, 0, 0, nc);
+            const float eps = 2e-2f * r->mr[k].rad;
+            int hull = 1;
+            for (uint32_t i = a; i < b && hull; i++) {
+                const tri_rec *t = &r->tris[tri[i]];
+                /* a degenerate triangle (a UV sphere's pole) has no plane */
+                pt_vec3 cr = pt_v3_cross(pt_v3_sub(t->v1, t->v0), pt_v3_sub(t->v2, t->v0));
+                if (!(pt_v3_len(cr) > eps * eps))
+                    continue;
+                float d0 = pt_v3_dot(t->ng, t->v0);
+                int pos = hull_beyond(&ht, 0, 0, nc, t->ng, d0 + eps);
+                int neg = hull_beyond(&ht, 0, 0, nc, pt_v3_neg(t->ng), eps - d0);
+                hull = !(pos && neg);
+                r->mr_side[tri[i]] = (int8_t)(neg - pos);
+            }
+            if (hull)
+                r->mr[k].kinds |= MR_HULL;
         }
-        if (hull)
-            r->mr[k].kinds |= MR_HULL;
+        pt_free(ht.p);
+        pt_free(ht.box);
     }
     pt_free(start);
     pt_free(tri);
-    return PT_OK;
+    return st;
 }
 
 /* The reflection chains' objects (r->mr: each one's still, flat reflecting
