@@ -2606,6 +2606,17 @@ static pt_vec3 mr_eval(path *pa, pt_vec3 x, pt_vec3 ng, const pt_frame *fr, cons
     return f;
 }
 
+/* The share of closure cl's f cos at wi (local) that its mirror lobes
+ * give, per channel in [0, 1] (0 where f is 0): of a sampled direction,
+ * the part of the throughput they carried (mf_path's mshare, ekeep). */
+static pt_vec3 mirror_share(const pt_closure *cl, pt_vec3 wi)
+{
+    pt_vec3 fa, fm = pt_closure_eval_mirror(cl, wi, &fa);
+    return pt_v3(fa.x > 0.0f ? fminf(fm.x / fa.x, 1.0f) : 0.0f,
+                 fa.y > 0.0f ? fminf(fm.y / fa.y, 1.0f) : 0.0f,
+                 fa.z > 0.0f ? fminf(fm.z / fa.z, 1.0f) : 0.0f);
+}
+
 /* The reflection chain at rough vertex sf (closure cl, frame fr, geometric
  * normal ng on wo's side; `both`: it transmits) for its light sample ls of
  * a directional, point or spot light, off the object u picks. Adds to
@@ -3008,6 +3019,10 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
          * own mirror lobes sampled: the chains evaluate the rest of its
          * closure towards the mirror. */
         pt_vec3 ms = pt_v3(1.0f, 1.0f, 1.0f);
+        /* the share of f at wi that the closure's mirror lobes give, per
+         * channel (both uses below read it; computed once) */
+        pt_vec3 share = pt_v3(0.0f, 0.0f, 0.0f);
+        int shared = 0;
         if ((features & PT_FEAT_ENV) && r->mirror_env &&
             !((features & PT_FEAT_THIN_GLASS) && r->thin_glass && delta && thin && wi_l.z < 0.0f &&
               pa->cross < PT_SHADOW_CROSSINGS)) {
@@ -3018,21 +3033,19 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
             pt_vec3 ek = pt_v3(1.0f, 1.0f, 1.0f), pm = pa->mf->mshare;
             if (!delta && mr_smooth_at(r, hit, sf) && (pm.x < 1.0f || pm.y < 1.0f || pm.z < 1.0f) &&
                 mr_hull_at(r, hit->tri, pa->mf->x, sf->p)) {
-                pt_vec3 fa, fm = pt_closure_eval_mirror(&cl, wi_l, &fa);
-                ek = pt_v3(fa.x > 0.0f ? 1.0f - fminf(fm.x / fa.x, 1.0f) * (1.0f - pm.x) : 1.0f,
-                           fa.y > 0.0f ? 1.0f - fminf(fm.y / fa.y, 1.0f) * (1.0f - pm.y) : 1.0f,
-                           fa.z > 0.0f ? 1.0f - fminf(fm.z / fa.z, 1.0f) * (1.0f - pm.z) : 1.0f);
+                share = mirror_share(&cl, wi_l);
+                shared = 1;
+                ek = pt_v3(1.0f - share.x * (1.0f - pm.x), 1.0f - share.y * (1.0f - pm.y),
+                           1.0f - share.z * (1.0f - pm.z));
             }
             pa->mf->ekeep = ek;
         }
         if (!delta && mr_chains_at(r, pa, through, thin)) {
             ms = pt_v3(0.0f, 0.0f, 0.0f);
-            if (pt_closure_has_mirror(&cl)) {
-                pt_vec3 fa, fm = pt_closure_eval_mirror(&cl, wi_l, &fa);
-                ms = pt_v3(fa.x > 0.0f ? fminf(fm.x / fa.x, 1.0f) : 0.0f,
-                           fa.y > 0.0f ? fminf(fm.y / fa.y, 1.0f) : 0.0f,
-                           fa.z > 0.0f ? fminf(fm.z / fa.z, 1.0f) : 0.0f);
-            }
+            if (shared)
+                ms = share;
+            else if (pt_closure_has_mirror(&cl))
+                ms = mirror_share(&cl, wi_l);
         }
         pa->mf->mshare = ms;
     }
