@@ -558,6 +558,28 @@ static void paired(const char *name, const pt_scene *s, const pt_env *env, uint3
 
 static pt_scene *chrome_ball_scene(int two, int sun);
 
+/* The chains connected in a side x side render of s, spp samples a pixel,
+ * under env with manifold_min_light min_light; -1 when no renderer. */
+static long long chains_of(const pt_scene *s, const pt_env *env, float min_light, uint32_t side,
+                           uint32_t spp)
+{
+    pt_render_params p;
+    pt_render_params_default(&p);
+    p.width = p.height = side;
+    p.env = env;
+    p.manifold_min_light = min_light;
+    pt_renderer *r = NULL;
+    pt_error err = {0};
+    CHECKF(pt_renderer_new(s, &p, &r, &err) == PT_OK, "%s", err.msg);
+    if (!r)
+        return -1;
+    pt_render_stats st = {0};
+    for (uint32_t i = 0; i < side * side * spp; i++)
+        pt_render_sample(r, i % side, (i / side) % side, i / (side * side), &st, NULL);
+    pt_renderer_free(r);
+    return (long long)st.chains;
+}
+
 static void unbiased(void)
 {
     char path[1024];
@@ -593,18 +615,8 @@ static void unbiased(void)
         paired("AttenuationTest", s, env, 8, 0.0f, 0);
         /* With the default bound a uniform sky has no light sample past
          * it: no chain, BSDF sampling alone (and the image as before). */
-        pt_render_params p;
-        pt_render_params_default(&p);
-        p.width = p.height = 16;
-        p.env = env;
-        pt_renderer *r = NULL;
-        CHECKF(pt_renderer_new(s, &p, &r, &err) == PT_OK, "%s", err.msg);
-        pt_render_stats st = {0};
-        for (uint32_t i = 0; r && i < 16 * 16 * 64; i++)
-            pt_render_sample(r, i % 16, (i / 16) % 16, i / 256, &st, NULL);
-        CHECKF(r && st.chains == 0, "%llu chains under a uniform sky by default",
-               (unsigned long long)st.chains);
-        pt_renderer_free(r);
+        long long n = chains_of(s, env, PT_MANIFOLD_MIN_LIGHT, 16, 64);
+        CHECKF(n == 0, "%lld chains under a uniform sky by default", n);
     }
     pt_scene_free(s);
     pt_env_free(env);
@@ -624,20 +636,9 @@ static void unbiased(void)
      * paths. */
     for (int v = 0; v < 3; v++) {
         s = chrome_ball_scene(v != 2, v != 0);
-        pt_render_params p;
-        pt_render_params_default(&p);
-        p.width = p.height = 8;
-        p.env = v == 0 ? env : NULL;
-        p.manifold_min_light = 0.0f;
-        pt_renderer *r = NULL;
-        CHECKF(s && pt_renderer_new(s, &p, &r, &err) == PT_OK, "%s", err.msg);
-        pt_render_stats st = {0};
-        for (uint32_t i = 0; r && i < 8 * 8 * 16; i++)
-            pt_render_sample(r, i % 8, (i / 8) % 8, i / 64, &st, NULL);
-        CHECKF(r && (st.chains > 0) == (v == 2), "%s in one object%s: %llu chains",
-               v == 2 ? "one ball" : "two balls", v ? " in the sun" : "",
-               (unsigned long long)st.chains);
-        pt_renderer_free(r);
+        long long n = s ? chains_of(s, v == 0 ? env : NULL, 0.0f, 8, 16) : -1;
+        CHECKF(n >= 0 && (n > 0) == (v == 2), "%s in one object%s: %lld chains",
+               v == 2 ? "one ball" : "two balls", v ? " in the sun" : "", n);
         pt_scene_free(s);
     }
     pt_env_free(env);
