@@ -238,7 +238,8 @@ typedef struct surface {
     pt_vec3 color; /* COLOR_0 (PT_FEAT_VERTEX_COLOR) */
     int mapped;    /* ns comes from a normal map (PT_FEAT_NORMAL_MAP) */
     /* The clear coat's own normal, where coat_mapped: from its
-     * clearcoatNormalTexture (PT_FEAT_CLEARCOAT and PT_FEAT_NORMAL_MAP). */
+     * clearcoatNormalTexture, or the interpolated normal under a mapped
+     * base (PT_FEAT_CLEARCOAT and PT_FEAT_NORMAL_MAP). */
     pt_vec3 nc;
     int coat_mapped;
     /* The interpolated tangent and its handedness, where aniso: an
@@ -565,8 +566,16 @@ static inline void surface_at(const pt_renderer *r, const pt_hit *hit, float tim
             }
             if (coat)
                 coat_normal_map(s, hit, sf, features);
-            if (m->normal_tex >= 0)
+            if (m->normal_tex >= 0) {
+                /* KHR_materials_clearcoat: a coat without a
+                 * clearcoatNormalTexture is not normal-mapped, even where
+                 * the base is; it keeps the interpolated normal. */
+                if ((features & PT_FEAT_CLEARCOAT) && m->clearcoat > 0.0f && !sf->coat_mapped) {
+                    sf->nc = sf->ns;
+                    sf->coat_mapped = 1;
+                }
                 normal_map(s, hit, sf, features);
+            }
         }
     }
     if (features & PT_FEAT_ANISOTROPY) {
