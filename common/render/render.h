@@ -313,6 +313,11 @@ const pt_camera *pt_renderer_camera(const pt_renderer *r);
  * variants, on a processor where the lanes are fast). */
 int pt_renderer_lanes(const pt_renderer *r);
 
+/* 1 when the renderer tries manifold chains (light through smooth glass,
+ * off smooth metal): the scene has a surface and a light a chain can
+ * connect, and no option turned them off. */
+int pt_renderer_chains(const pt_renderer *r);
+
 /* PT_OK when the scene has a light source (an emissive triangle, a punctual
  * light) or has_env (an environment map or uniform background is given);
  * else PT_ERR_ARG with a message naming the scene (name) that says how to

@@ -633,12 +633,25 @@ static void unbiased(void)
      * lamp or the sun in both, which a chain (one root) would not deliver.
      * Chains take smooth opaque surfaces of objects on their convex hull
      * only (with one ball in the sun: chains); these keep their sampled
-     * paths. */
+     * paths, and their renderer, which no chain could connect in, tries
+     * none (pt_renderer_chains). */
     for (int v = 0; v < 3; v++) {
         s = chrome_ball_scene(v != 2, v != 0);
         long long n = s ? chains_of(s, v == 0 ? env : NULL, 0.0f, 8, 16) : -1;
         CHECKF(n >= 0 && (n > 0) == (v == 2), "%s in one object%s: %lld chains",
                v == 2 ? "one ball" : "two balls", v ? " in the sun" : "", n);
+        pt_render_params p;
+        pt_render_params_default(&p);
+        p.env = v == 0 ? env : NULL;
+        pt_renderer *r = NULL;
+        pt_error er = {0};
+        if (s && pt_renderer_new(s, &p, &r, &er) == PT_OK) {
+            CHECKF(pt_renderer_chains(r) == (v == 2), "%s in one object%s: chains %s",
+                   v == 2 ? "one ball" : "two balls", v ? " in the sun" : "",
+                   pt_renderer_chains(r) ? "on" : "off");
+            pt_renderer_free(r);
+        } else
+            CHECKF(0, "renderer: %s", er.msg);
         pt_scene_free(s);
     }
     pt_env_free(env);
