@@ -22,6 +22,7 @@ void pt_closure_init(pt_closure *c, pt_vec3 wo)
     c->n_lobes = 0;
     c->n_groups = 0;
     c->dead = !(wo.z > 0.0f);
+    c->coat_mirror = 0;
 }
 
 /* Nothing scatters at this wo. */
@@ -221,6 +222,11 @@ void pt_closure_add_layers(pt_closure *c, const pt_layers *l)
     }
     if (l->sheen_max > 0.0f)
         add_lobe(c, g, PT_LOBE_SHEEN, ps)->p.sheen = sheen;
+}
+
+void pt_closure_coat_mirror(pt_closure *c)
+{
+    c->coat_mirror = 1;
 }
 
 /* One lobe's f cos, pdf share and factor on the lobes under it. */
@@ -465,18 +471,36 @@ pt_vec3 pt_closure_reflected(const pt_closure *c, pt_vec3 *wi, float *take)
 
 /* 1 when l is the base's GGX lobe, or a coat on the base's normal, at
  * PT_BSDF_MIN_ALPHA: glTF's roughness up to about 0.03, a mirror in all
- * but the last tenth of a degree. */
-static inline int lobe_mirror(const pt_lobe *l)
+ * but the last tenth of a degree. Under c->coat_mirror, the coat on the
+ * surface's normal alone. */
+static inline int lobe_mirror(const pt_closure *c, const pt_lobe *l)
 {
-    return (l->kind == PT_LOBE_SPECULAR && !(l->p.specular.alpha > PT_BSDF_MIN_ALPHA)) ||
-           (l->kind == PT_LOBE_COAT && !l->p.coat.own && !(l->p.coat.alpha > PT_BSDF_MIN_ALPHA));
+    return (l->kind == PT_LOBE_SPECULAR && !c->coat_mirror &&
+            !(l->p.specular.alpha > PT_BSDF_MIN_ALPHA)) ||
+           (l->kind == PT_LOBE_COAT && (c->coat_mirror || !l->p.coat.own) &&
+            !(l->p.coat.alpha > PT_BSDF_MIN_ALPHA));
+}
+
+/* wo mirrored about the mirror lobes' normal: the shading frame's, or
+ * under c->coat_mirror the coat's own. */
+static pt_vec3 mirror_dir(const pt_closure *c)
+{
+    if (c->coat_mirror)
+        for (uint32_t i = 0; i < c->n_lobes; i++) {
+            const pt_lobe *l = &c->lobe[i];
+            if (l->kind == PT_LOBE_COAT && l->p.coat.own) {
+                pt_vec3 v = l->p.coat.wo;
+                return pt_frame_to_world(&l->p.coat.fr, pt_v3(-v.x, -v.y, v.z));
+            }
+        }
+    return pt_v3(-c->wo.x, -c->wo.y, c->wo.z);
 }
 
 pt_vec3 pt_closure_mirrored(const pt_closure *c, pt_vec3 *wi, float *take)
 {
     pt_vec3 w = pt_v3(0.0f, 0.0f, 0.0f);
     *take = 0.0f;
-    *wi = pt_v3(-c->wo.x, -c->wo.y, c->wo.z);
+    *wi = mirror_dir(c);
     if (c->dead)
         return w;
     /* Outermost group first: what the lobes met so far pass on (their below
@@ -488,7 +512,7 @@ pt_vec3 pt_closure_mirrored(const pt_closure *c, pt_vec3 *wi, float *take)
             const pt_lobe *l = &c->lobe[gr->first + i];
             float share, below;
             lobe_eval(l, c->wo, *wi, &share, &below);
-            if (lobe_mirror(l) && l->prob > 0.0f) {
+            if (lobe_mirror(c, l) && l->prob > 0.0f) {
                 /* GGX's f cos integrated over wi as alpha goes to 0: D's
                  * mass at the mirror direction, G2 1, the Fresnel at wo.h
                  * = wo.z (the coat's, Fc(wo), is its weight). */
@@ -522,7 +546,7 @@ pt_vec3 pt_closure_eval_mirror(const pt_closure *c, pt_vec3 wi, pt_vec3 *f)
                 fm = pt_v3_scale(fm, below);
             }
             fa = pt_v3_add(fl, fa);
-            if (lobe_mirror(l))
+            if (lobe_mirror(c, l))
                 fm = pt_v3_add(fl, fm);
         }
     }
@@ -535,7 +559,7 @@ int pt_closure_has_mirror(const pt_closure *c)
 {
     uint32_t n = 0;
     for (uint32_t i = 0; i < c->n_lobes; i++)
-        n += (uint32_t)lobe_mirror(&c->lobe[i]);
+        n += (uint32_t)lobe_mirror(c, &c->lobe[i]);
     return n == 0 ? 0 : n == c->n_lobes ? 2 : 1;
 }
 

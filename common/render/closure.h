@@ -92,8 +92,12 @@ typedef struct pt_closure_group {
 
 typedef struct pt_closure {
     pt_vec3 wo;
-    uint32_t n_lobes, n_groups;                    /* no groups: nothing scatters */
-    int dead;                                      /* wo is below a lobe's normal: stays empty */
+    uint32_t n_lobes, n_groups; /* no groups: nothing scatters */
+    int dead;                   /* wo is below a lobe's normal: stays empty */
+    /* The base is normal-mapped and the coat lies on the surface's own
+     * (interpolated) normal (pt_closure_coat_mirror): the coat alone is a
+     * mirror to the reflection chains, which solve for that normal. */
+    int coat_mirror;
     pt_closure_group group[PT_CLOSURE_MAX_GROUPS]; /* [0] the innermost */
     pt_lobe lobe[PT_CLOSURE_MAX_LOBES];
 } pt_closure;
@@ -135,6 +139,12 @@ void pt_closure_add_base_dt_irid(pt_closure *c, const pt_bsdf *b, float dt, pt_v
 void pt_closure_add_glass(pt_closure *c, const pt_glass *g);
 /* Clearcoat and sheen (layers.h) over what is there. */
 void pt_closure_add_layers(pt_closure *c, const pt_layers *l);
+/* Marks the closure's coat, given its own normal (pt_layers_coat_normal),
+ * as lying on the surface's interpolated normal over a normal-mapped base
+ * (KHR_materials_clearcoat without a clearcoatNormalTexture): the chains'
+ * mirror is then that coat's lobe, reflected about its normal, and the
+ * base's lobes, on the map's normal, are none (pt_closure_mirrored). */
+void pt_closure_coat_mirror(pt_closure *c);
 
 /* f(wo, wi) |cos wi| and the pdf pt_closure_sample gives wi (solid angle;
  * delta lobes excluded). */
@@ -170,13 +180,15 @@ pt_vec3 pt_closure_refracted(const pt_closure *c, pt_vec3 *wi, float *take);
 pt_vec3 pt_closure_reflected(const pt_closure *c, pt_vec3 *wi, float *take);
 
 /* Its GGX lobes at PT_BSDF_MIN_ALPHA (glTF roughness up to about 0.03: the
- * base's, and a coat's on the base's normal), taken as the mirror they
+ * base's, and a coat's on the base's normal; under pt_closure_coat_mirror
+ * the coat's alone, on its own normal), taken as the mirror they
  * stand for: render.c's reflection chains, which deliver the light such a
  * lobe reflects onto a rough vertex. The expected weight of that delta
  * reflection (each lobe's Fresnel at wo.z, its f cos integrated over wi as
  * alpha goes to 0, times the below factors of the lobes around it at the
  * mirrored direction), the probability that sampling picks them in *take,
- * the mirrored direction in *wi. Zero without one. */
+ * the mirrored direction (about the mirror lobes' normal) in *wi. Zero
+ * without one. */
 pt_vec3 pt_closure_mirrored(const pt_closure *c, pt_vec3 *wi, float *take);
 
 /* The share of pt_closure_eval's f cos at wi that those mirror lobes give

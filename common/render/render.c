@@ -243,8 +243,9 @@ typedef struct surface {
     pt_vec3 color; /* COLOR_0 (PT_FEAT_VERTEX_COLOR) */
     int mapped;    /* ns comes from a normal map (PT_FEAT_NORMAL_MAP) */
     /* The clear coat's own normal, where coat_mapped: from its
-     * clearcoatNormalTexture, or the interpolated normal under a mapped
-     * base (PT_FEAT_CLEARCOAT and PT_FEAT_NORMAL_MAP). */
+     * clearcoatNormalTexture (1), or the interpolated normal under a mapped
+     * base (2: the chains' mirror, pt_closure_coat_mirror) (PT_FEAT_CLEARCOAT
+     * and PT_FEAT_NORMAL_MAP). */
     pt_vec3 nc;
     int coat_mapped;
     /* The interpolated tangent and its handedness, where aniso: an
@@ -577,7 +578,7 @@ static inline void surface_at(const pt_renderer *r, const pt_hit *hit, float tim
                  * the base is; it keeps the interpolated normal. */
                 if ((features & PT_FEAT_CLEARCOAT) && m->clearcoat > 0.0f && !sf->coat_mapped) {
                     sf->nc = sf->ns;
-                    sf->coat_mapped = 1;
+                    sf->coat_mapped = 2;
                 }
                 normal_map(s, hit, sf, features);
             }
@@ -1605,6 +1606,8 @@ material_closure(const pt_renderer *r, const surface *sf, int glass, int front, 
         pt_layers_coat_normal(&lay, pt_frame_to_local(fr, nc));
     }
     pt_closure_add_layers(cl, &lay);
+    if ((features & PT_FEAT_CLEARCOAT) && (features & PT_FEAT_NORMAL_MAP) && sf->coat_mapped == 2)
+        pt_closure_coat_mirror(cl);
 }
 
 /* A closure path guiding samples at: one with a diffuse lobe or a GGX lobe
@@ -1763,12 +1766,13 @@ static int mr_glass(const pt_material *m)
 }
 
 /* ... or an opaque surface with a GGX lobe at PT_BSDF_MIN_ALPHA (roughness
- * up to sqrt(PT_BSDF_MIN_ALPHA), about 0.03) on the shading normal, which
- * the chains take as a mirror (pt_closure_mirrored): smooth metal, a smooth
- * dielectric (a polished floor, plastic: F0 0.04 times its specular), or a
- * smooth clear coat without a normal of its own (car paint); nothing may
- * bend the base's normal. A texture may make either lobe rough in places,
- * where the closure says so. */
+ * up to sqrt(PT_BSDF_MIN_ALPHA), about 0.03) on the surface's interpolated
+ * normal, which the chains take as a mirror (pt_closure_mirrored): smooth
+ * metal, a smooth dielectric (a polished floor, plastic: F0 0.04 times its
+ * specular), or a smooth clear coat without a normal of its own (car
+ * paint). A normal map bends the base's lobes off that normal: then only
+ * such a coat, which keeps it (pt_closure_coat_mirror). A texture may make
+ * either lobe rough in places, where the closure says so. */
 static int mr_smooth(const pt_material *m)
 {
     const int base = (m->metallic > 0.0f || m->specular > 0.0f) &&
@@ -1776,7 +1780,7 @@ static int mr_smooth(const pt_material *m)
     const int coat = m->clearcoat > 0.0f && m->clearcoat_normal_tex < 0 &&
                      (m->clearcoat_rough_tex >= 0 ||
                       m->clearcoat_roughness * m->clearcoat_roughness <= PT_BSDF_MIN_ALPHA);
-    return !(m->transmission > 0.0f) && m->normal_tex < 0 && (base || coat) &&
+    return !(m->transmission > 0.0f) && (m->normal_tex < 0 ? base || coat : coat) &&
            m->alpha_mode == PT_ALPHA_OPAQUE && !(m->ext & ~(uint32_t)PT_MATX_SPECULAR_TEX);
 }
 
@@ -2566,8 +2570,13 @@ static __attribute__((noinline)) int mr_connect(const pt_renderer *r, path *pa, 
         return MF_SEED_BLOCKED;
     pt_vec3 next = mr_towards(sf.p, wl, at);
     /* shade's test for a reflected direction, and the solver's chain
-     * within the float reflection's rounding */
-    if (!(pt_v3_dot(wi, ngs) > 0.0f) || !(wi_l.z > 0.0f) || !(pt_v3_dot(wi, next) > 0.9999f))
+     * within the float reflection's rounding (a coat mirroring on its own
+     * normal over a mapped base, coat_mapped 2, may reflect below the
+     * map's normal, as its sampled directions may) */
+    const int coat_own =
+        (features & PT_FEAT_CLEARCOAT) && (features & PT_FEAT_NORMAL_MAP) && sf.coat_mapped == 2;
+    if (!(pt_v3_dot(wi, ngs) > 0.0f) || !(wi_l.z > 0.0f || coat_own) ||
+        !(pt_v3_dot(wi, next) > 0.9999f))
         return MF_SEED_BLOCKED;
     /* y sees the light (past thin walls, as shade's shadow rays); aimed from
      * the offset origin, so that nothing at a light's point is met */

@@ -60,6 +60,7 @@
 #include "common/render/render.h"
 #include "common/scene/scene.h"
 #include "tests/check.h"
+#include "tests/common/render/normal_texel.h"
 #include "tests/common/render/ortho.h"
 #include "tests/common/render/paired.h"
 
@@ -1032,11 +1033,15 @@ static void emitter_sphere(void)
  * against the direct 0.3589), so only their count (none) is checked. A
  * black wall under a smooth clear coat (car paint without its paint): the
  * coat's F = Fc(sin t) = 0.04 + 0.96 (1 - sin t)^5, the same way; a wall of
- * smooth black plastic (a dielectric base of F0 0.04) the same.
+ * smooth black plastic (a dielectric base of F0 0.04) the same. So does the
+ * coated wall whose base has a normal map (a texel 25 degrees off): the
+ * coat keeps the wall's own normal (KHR_materials_clearcoat), and the
+ * chains mirror off it alone (pt_closure_coat_mirror); without that the
+ * coat's sun is found by chance (no chain, the direct term).
  */
 #define G_METAL 0.8
 /* The wall's material: wall_builder's kind. */
-enum { WALL_GLASS, WALL_METAL, WALL_COAT, WALL_PLASTIC };
+enum { WALL_GLASS, WALL_METAL, WALL_COAT, WALL_PLASTIC, WALL_COAT_MAPPED };
 
 /* A builder holding plane_and_glass's plane and, of its thin glass (of
  * smooth metal, black under a smooth clear coat, or smooth black plastic,
@@ -1064,11 +1069,24 @@ static pt_scene_builder *wall_builder(int pane, int roof, int kind)
             m.metallic = 0.0f;
             m.roughness = 0.0f;
             m.base_color[0] = m.base_color[1] = m.base_color[2] = 0.0f;
-            if (kind == WALL_COAT) {
+            if (kind == WALL_COAT || kind == WALL_COAT_MAPPED) {
                 m.specular = 0.0f;
                 m.roughness = 1.0f;
                 m.clearcoat = 1.0f;
                 m.clearcoat_roughness = 0.0f;
+            }
+            if (kind == WALL_COAT_MAPPED) {
+                pt_texture t;
+                memset(&t, 0, sizeof t);
+                t.width = t.height = 1;
+                t.rgba = pt_malloc(4);
+                if (t.rgba) {
+                    texel_for(25.0, 1.0, t.rgba);
+                    t.rgba[3] = 255;
+                }
+                uint32_t ti = 0;
+                CHECK(pt_scene_builder_add_texture(b, &t, &ti, &err) == PT_OK);
+                m.normal_tex = (int32_t)ti;
             }
         }
         CHECKF(pt_scene_builder_add_material(b, &m, &mw, &err) == PT_OK, "%s", err.msg);
@@ -1077,8 +1095,22 @@ static pt_scene_builder *wall_builder(int pane, int roof, int kind)
     const float wall[12] = {0, -R, 0, 0, R, 0, 0, R, H, 0, -R, H};
     const float small[12] = {0, 0, 0.6f, 0, 0.8f, 0.6f, 0, 0.8f, 1.4f, 0, 0, 1.4f};
     const uint32_t quad[6] = {0, 1, 2, 0, 2, 3};
-    CHECK(pt_scene_builder_add_mesh(b, "wall", pane ? small : wall, NULL, NULL, 4, quad, 2, NULL,
-                                    mw, &err) == PT_OK);
+    /* u along +y, v along +z: the tangent +y */
+    const float *pos = pane ? small : wall;
+    float uv[8], tan[16];
+    for (int i = 0; i < 4; i++) {
+        uv[2 * i] = 0.5f + pos[3 * i + 1] / (2.0f * R);
+        uv[2 * i + 1] = pos[3 * i + 2] / H;
+        tan[4 * i] = tan[4 * i + 2] = 0.0f;
+        tan[4 * i + 1] = tan[4 * i + 3] = 1.0f;
+    }
+    pt_mesh_extra ex = {NULL, tan, NULL};
+    if (kind == WALL_COAT_MAPPED)
+        CHECK(pt_scene_builder_add_mesh_extra(b, "wall", pos, NULL, uv, &ex, 4, quad, 2, NULL, mw,
+                                              &err) == PT_OK);
+    else
+        CHECK(pt_scene_builder_add_mesh(b, "wall", pos, NULL, NULL, 4, quad, 2, NULL, mw, &err) ==
+              PT_OK);
     /* wider than the plane, so that no point of it sees the sun past it */
     const float W = 10.0f * R, top[12] = {-W, -W, 12, W, -W, 12, W, W, 12, -W, W, 12};
     if (roof)
@@ -1105,9 +1137,11 @@ static pt_scene *wall_scene(int roof, int kind)
 
 static void directional_wall(void)
 {
-    for (int v = 0; v < 8; v++) {
+    for (int v = 0; v < 10; v++) {
         const int roof = v & 1, kind = v >> 1, metal = kind != WALL_GLASS;
         pt_scene *s = wall_scene(roof, kind);
+        if (s && kind == WALL_COAT_MAPPED)
+            CHECK((s->features & PT_FEAT_NORMAL_MAP) && s->tangents);
         if (!s)
             continue;
         double t = 20.0 * 3.14159265358979323846 / 180.0;
@@ -1121,10 +1155,11 @@ static void directional_wall(void)
             pt_render_stats st = {0};
             double se = 0.0, m = plane_mean(s, 4, roof ? 3 : 2, 6, 256, off, &st, &se);
             printf("%s wall%s, directional light%s: %.6f +- %.6f, closed form %.6f; %llu chains\n",
-                   kind == WALL_METAL     ? "metal"
-                   : kind == WALL_COAT    ? "coated"
-                   : kind == WALL_PLASTIC ? "plastic"
-                                          : "glass",
+                   kind == WALL_METAL         ? "metal"
+                   : kind == WALL_COAT        ? "coated"
+                   : kind == WALL_PLASTIC     ? "plastic"
+                   : kind == WALL_COAT_MAPPED ? "coated normal-mapped"
+                                              : "glass",
                    roof ? " under a glass roof" : "", off ? ", without reflection chains" : "", m,
                    se, off ? direct : want, (unsigned long long)st.chains);
             if (off && metal)
