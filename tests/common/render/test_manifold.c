@@ -643,6 +643,7 @@ static void unbiased(void)
                v == 2 ? "one ball" : "two balls", v ? " in the sun" : "", n);
         pt_render_params p;
         pt_render_params_default(&p);
+        p.width = p.height = 8;
         p.env = v == 0 ? env : NULL;
         pt_renderer *r = NULL;
         pt_error er = {0};
