@@ -1596,11 +1596,19 @@ material_closure(const pt_renderer *r, const surface *sf, int glass, int front, 
         return;
     if ((features & PT_FEAT_CLEARCOAT) && (features & PT_FEAT_NORMAL_MAP) && sf->coat_mapped) {
         /* The coat's own normal, turned and bent as the base's mapped one
-         * is (shade), in the base's local frame. */
+         * is (shading_normals), in the base's local frame; the surface's
+         * interpolated one (coat_mapped 2) as an unmapped base's is, turned
+         * to ng's side and never bent, so that the chains, which solve for
+         * that normal, mirror where the coat does. */
         pt_vec3 nc = sf->nc;
-        if (pt_v3_dot(sf->ng, wo) < 0.0f)
-            nc = pt_v3_neg(nc);
-        nc = valid_reflection(ng, wo, nc);
+        if (sf->coat_mapped == 2) {
+            if (pt_v3_dot(nc, ng) < 0.0f)
+                nc = pt_v3_neg(nc);
+        } else {
+            if (pt_v3_dot(sf->ng, wo) < 0.0f)
+                nc = pt_v3_neg(nc);
+            nc = valid_reflection(ng, wo, nc);
+        }
         if (pt_v3_dot(nc, wo) <= 0.0f)
             nc = ng;
         pt_layers_coat_normal(&lay, pt_frame_to_local(fr, nc));

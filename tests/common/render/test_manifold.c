@@ -1392,7 +1392,10 @@ static pt_scene *chrome_ball_scene(int two, int sun)
  * (no_mirror: the sampled paths alone) and the default (a uniform sky has
  * no lamp: no chain), each within 5 standard errors; the wall's NEE and
  * the sky its sampled paths find leave what the chain took (mshare,
- * ekeep), or the chained image reads E plus the mirrored sky again.
+ * ekeep), or the chained image reads E plus the mirrored sky again. The
+ * same with the black coated wall whose base is normal-mapped
+ * (directional_wall's), F the coat's Fc, Schlick's of F0 0.04: its coat
+ * alone is the mirror the chains take and the sampled paths leave.
  */
 #define L_SKY 0.5
 
@@ -1419,18 +1422,20 @@ static double wall_loss(const double p[3], double g)
     return sum * (0.5 * pi / nt) * (2.0 * pi / np);
 }
 
-static void env_wall(void)
+static void env_wall(int kind)
 {
-    pt_scene_builder *b = wall_builder(0, 0, WALL_METAL);
+    pt_scene_builder *b = wall_builder(0, 0, kind);
     if (!b)
         return;
     pt_scene *s = lit_scene(b, NULL, NULL, pt_test_ortho_down(1.0f, 0.3f, 3.0f, 5e-4f));
     pt_env *env = NULL;
     pt_error err = {0};
     CHECK(pt_env_uniform(pt_v3((float)L_SKY, (float)L_SKY, (float)L_SKY), &env, &err) == PT_OK);
+    const char *name = kind == WALL_METAL ? "metal" : "coated normal-mapped";
     if (s && env) {
         const double p[3] = {1.0, 0.3, 0.0}, pi = 3.14159265358979323846;
-        double want = RHO_D / pi * L_SKY * (pi - wall_loss(p, G_METAL));
+        /* the coat's Fc is Schlick's of F0 0.04 */
+        double want = RHO_D / pi * L_SKY * (pi - wall_loss(p, kind == WALL_METAL ? G_METAL : 0.04));
         static const char *const what[3] = {"every direction chained", "no chain (no_mirror)",
                                             "the default bound: no lamp, no chain"};
         for (int v = 0; v < 3; v++) {
@@ -1445,13 +1450,13 @@ static void env_wall(void)
             q.no_mirror = v == 1;
             pt_render_stats st = {0};
             double se = 0.0, m = params_mean(s, &q, 1024, &st, &se);
-            printf("metal wall under a uniform sky, %s: %.6f +- %.6f, closed form %.6f; %llu "
+            printf("%s wall under a uniform sky, %s: %.6f +- %.6f, closed form %.6f; %llu "
                    "chains\n",
-                   what[v], m, se, want, (unsigned long long)st.chains);
-            CHECKF(fabs(m - want) < 5.0 * se + 1e-4 * want, "%s: %g against %g (+- %g)", what[v], m,
-                   want, se);
-            CHECKF(v == 0 ? st.chains > 0 : st.chains == 0, "%s: %llu chains", what[v],
-                   (unsigned long long)st.chains);
+                   name, what[v], m, se, want, (unsigned long long)st.chains);
+            CHECKF(fabs(m - want) < 5.0 * se + 1e-4 * want, "%s wall, %s: %g against %g (+- %g)",
+                   name, what[v], m, want, se);
+            CHECKF(v == 0 ? st.chains > 0 : st.chains == 0, "%s wall, %s: %llu chains", name,
+                   what[v], (unsigned long long)st.chains);
         }
     }
     pt_env_free(env);
@@ -1471,7 +1476,8 @@ int main(void)
     directional_wall();
     point_wall();
     glint_in_mirror();
-    env_wall();
+    env_wall(WALL_METAL);
+    env_wall(WALL_COAT_MAPPED);
     unbiased();
     return check_report();
 }
