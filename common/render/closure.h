@@ -139,8 +139,9 @@ void pt_closure_add_base_dt_irid(pt_closure *c, const pt_bsdf *b, float dt, pt_v
 void pt_closure_add_glass(pt_closure *c, const pt_glass *g);
 /* Clearcoat and sheen (layers.h) over what is there. */
 void pt_closure_add_layers(pt_closure *c, const pt_layers *l);
-/* Marks the closure's coat, given its own normal (pt_layers_coat_normal),
- * as lying on the surface's interpolated normal over a normal-mapped base
+/* Marks the closure's coat (pt_closure_add_layers, before or after), given
+ * its own normal (pt_layers_coat_normal), as lying on the surface's
+ * interpolated normal over a normal-mapped base
  * (KHR_materials_clearcoat without a clearcoatNormalTexture): the chains'
  * mirror is then that coat's lobe, reflected about its normal, and the
  * base's lobes, on the map's normal, are none (pt_closure_mirrored). */

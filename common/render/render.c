@@ -233,6 +233,14 @@ static inline pt_vec3 vert4(const float *arr, uint32_t i)
     return pt_v3(arr[4 * i], arr[4 * i + 1], arr[4 * i + 2]);
 }
 
+/* Where a clear coat's own normal comes from (surface.coat_mapped). */
+enum {
+    COAT_SHARED = 0,  /* none: the coat shares the base's normal */
+    COAT_TEXTURE = 1, /* its clearcoatNormalTexture */
+    COAT_SURFACE = 2, /* the interpolated normal under a normal-mapped base: the
+                         chains' mirror (pt_closure_coat_mirror) */
+};
+
 /* Everything the integrator needs to know about a surface point. */
 typedef struct surface {
     pt_vec3 p;  /* world position */
@@ -242,9 +250,7 @@ typedef struct surface {
     float uv1[2];  /* TEXCOORD_1 (PT_FEAT_TEXTURES; 0 without the set) */
     pt_vec3 color; /* COLOR_0 (PT_FEAT_VERTEX_COLOR) */
     int mapped;    /* ns comes from a normal map (PT_FEAT_NORMAL_MAP) */
-    /* The clear coat's own normal, where coat_mapped: from its
-     * clearcoatNormalTexture (1), or the interpolated normal under a mapped
-     * base (2: the chains' mirror, pt_closure_coat_mirror) (PT_FEAT_CLEARCOAT
+    /* The clear coat's own normal, where coat_mapped (COAT_*; PT_FEAT_CLEARCOAT
      * and PT_FEAT_NORMAL_MAP). */
     pt_vec3 nc;
     int coat_mapped;
@@ -351,7 +357,9 @@ static void coat_normal_map(const pt_scene *s, const pt_hit *hit, surface *sf,
 {
     const pt_material *m = sf->mat;
     sf->coat_mapped = tangent_normal(s, hit, sf, m->clearcoat_normal_tex, m->clearcoat_normal_scale,
-                                     PT_SLOT_CLEARCOAT_NORMAL, &sf->nc, features);
+                                     PT_SLOT_CLEARCOAT_NORMAL, &sf->nc, features)
+                          ? COAT_TEXTURE
+                          : COAT_SHARED;
 }
 
 /*
@@ -556,7 +564,7 @@ static inline void surface_at(const pt_renderer *r, const pt_hit *hit, float tim
         const int coat = (features & PT_FEAT_CLEARCOAT) && m->clearcoat > 0.0f &&
                          m->clearcoat_normal_tex >= 0 && s->tangents;
         if (features & PT_FEAT_CLEARCOAT)
-            sf->coat_mapped = 0;
+            sf->coat_mapped = COAT_SHARED;
         if ((m->normal_tex >= 0 && s->tangents) || coat) {
             if (!(features & PT_FEAT_TEXTURES) || !s->uvs) {
                 /* normal_map reads the UVs; set them even where no other
@@ -576,9 +584,10 @@ static inline void surface_at(const pt_renderer *r, const pt_hit *hit, float tim
                 /* KHR_materials_clearcoat: a coat without a
                  * clearcoatNormalTexture is not normal-mapped, even where
                  * the base is; it keeps the interpolated normal. */
-                if ((features & PT_FEAT_CLEARCOAT) && m->clearcoat > 0.0f && !sf->coat_mapped) {
+                if ((features & PT_FEAT_CLEARCOAT) && m->clearcoat > 0.0f &&
+                    sf->coat_mapped == COAT_SHARED) {
                     sf->nc = sf->ns;
-                    sf->coat_mapped = 2;
+                    sf->coat_mapped = COAT_SURFACE;
                 }
                 normal_map(s, hit, sf, features);
             }
@@ -1597,13 +1606,14 @@ material_closure(const pt_renderer *r, const surface *sf, int glass, int front, 
     if ((features & PT_FEAT_CLEARCOAT) && (features & PT_FEAT_NORMAL_MAP) && sf->coat_mapped) {
         /* The coat's own normal, turned and bent as the base's mapped one
          * is (shading_normals), in the base's local frame; the surface's
-         * interpolated one (coat_mapped 2) as an unmapped base's is, turned
+         * interpolated one (COAT_SURFACE) as an unmapped base's is, turned
          * to ng's side and never bent, so that the chains, which solve for
-         * that normal, mirror where the coat does. */
+         * that normal, mirror where the coat does, and mirror off it alone. */
         pt_vec3 nc = sf->nc;
-        if (sf->coat_mapped == 2) {
+        if (sf->coat_mapped == COAT_SURFACE) {
             if (pt_v3_dot(nc, ng) < 0.0f)
                 nc = pt_v3_neg(nc);
+            pt_closure_coat_mirror(cl);
         } else {
             if (pt_v3_dot(sf->ng, wo) < 0.0f)
                 nc = pt_v3_neg(nc);
@@ -1614,8 +1624,6 @@ material_closure(const pt_renderer *r, const surface *sf, int glass, int front, 
         pt_layers_coat_normal(&lay, pt_frame_to_local(fr, nc));
     }
     pt_closure_add_layers(cl, &lay);
-    if ((features & PT_FEAT_CLEARCOAT) && (features & PT_FEAT_NORMAL_MAP) && sf->coat_mapped == 2)
-        pt_closure_coat_mirror(cl);
 }
 
 /* A closure path guiding samples at: one with a diffuse lobe or a GGX lobe
@@ -2579,10 +2587,10 @@ static __attribute__((noinline)) int mr_connect(const pt_renderer *r, path *pa, 
     pt_vec3 next = mr_towards(sf.p, wl, at);
     /* shade's test for a reflected direction, and the solver's chain
      * within the float reflection's rounding (a coat mirroring on its own
-     * normal over a mapped base, coat_mapped 2, may reflect below the
+     * normal over a mapped base, COAT_SURFACE, may reflect below the
      * map's normal, as its sampled directions may) */
-    const int coat_own =
-        (features & PT_FEAT_CLEARCOAT) && (features & PT_FEAT_NORMAL_MAP) && sf.coat_mapped == 2;
+    const int coat_own = (features & PT_FEAT_CLEARCOAT) && (features & PT_FEAT_NORMAL_MAP) &&
+                         sf.coat_mapped == COAT_SURFACE;
     if (!(pt_v3_dot(wi, ngs) > 0.0f) || !(wi_l.z > 0.0f || coat_own) ||
         !(pt_v3_dot(wi, next) > 0.9999f))
         return MF_SEED_BLOCKED;
