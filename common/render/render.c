@@ -2586,13 +2586,11 @@ static __attribute__((noinline)) int mr_connect(const pt_renderer *r, path *pa, 
         return MF_SEED_BLOCKED;
     pt_vec3 next = mr_towards(sf.p, wl, at);
     /* shade's test for a reflected direction, and the solver's chain
-     * within the float reflection's rounding (a coat mirroring on its own
-     * normal over a mapped base, COAT_SURFACE, may reflect below the
-     * map's normal, as its sampled directions may) */
-    const int coat_own = (features & PT_FEAT_CLEARCOAT) && (features & PT_FEAT_NORMAL_MAP) &&
-                         sf.coat_mapped == COAT_SURFACE;
-    if (!(pt_v3_dot(wi, ngs) > 0.0f) || !(wi_l.z > 0.0f || coat_own) ||
-        !(pt_v3_dot(wi, next) > 0.9999f))
+     * within the float reflection's rounding. (A weight means wo.z > 0, so
+     * a reflection about the shading normal is above it; a coat mirroring
+     * on its own normal over a mapped base, COAT_SURFACE, may reflect
+     * below the map's normal, as its sampled directions may.) */
+    if (!(pt_v3_dot(wi, ngs) > 0.0f) || !(pt_v3_dot(wi, next) > 0.9999f))
         return MF_SEED_BLOCKED;
     /* y sees the light (past thin walls, as shade's shadow rays); aimed from
      * the offset origin, so that nothing at a light's point is met */
