@@ -58,20 +58,6 @@ typedef struct setup {
 
 static const float PX = 0.3f, PY = 0.2f;
 
-static uint32_t one_texel(pt_scene_builder *b, const uint8_t c[3])
-{
-    pt_texture t;
-    memset(&t, 0, sizeof t);
-    t.width = t.height = 1;
-    t.rgba = pt_malloc(4);
-    memcpy(t.rgba, c, 3);
-    t.rgba[3] = 255;
-    uint32_t ti = 0;
-    pt_error err = {0};
-    CHECK(pt_scene_builder_add_texture(b, &t, &ti, &err) == PT_OK);
-    return ti;
-}
-
 static pt_scene *build(const setup *su)
 {
     pt_scene_builder *b = NULL;

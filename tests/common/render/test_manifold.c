@@ -1072,17 +1072,9 @@ static pt_scene_builder *wall_builder(int pane, int roof, int kind)
                 m.clearcoat_roughness = 0.0f;
             }
             if (kind == WALL_COAT_MAPPED) {
-                pt_texture t;
-                memset(&t, 0, sizeof t);
-                t.width = t.height = 1;
-                t.rgba = pt_malloc(4);
-                if (t.rgba) {
-                    texel_for(25.0, 1.0, t.rgba);
-                    t.rgba[3] = 255;
-                }
-                uint32_t ti = 0;
-                CHECK(pt_scene_builder_add_texture(b, &t, &ti, &err) == PT_OK);
-                m.normal_tex = (int32_t)ti;
+                uint8_t c[3];
+                texel_for(25.0, 1.0, c);
+                m.normal_tex = (int32_t)one_texel(b, c);
             }
         }
         CHECKF(pt_scene_builder_add_material(b, &m, &mw, &err) == PT_OK, "%s", err.msg);

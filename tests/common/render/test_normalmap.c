@@ -74,15 +74,8 @@ static pt_scene *build_plane(const plane_setup *su)
     pt_error err = {0};
     CHECK(pt_scene_builder_new(&b, &err) == PT_OK);
     uint32_t ti = 0, bi = 0;
-    if (su->c[2]) {
-        pt_texture t;
-        memset(&t, 0, sizeof t);
-        t.width = t.height = 1;
-        t.rgba = pt_malloc(4);
-        memcpy(t.rgba, su->c, 3);
-        t.rgba[3] = 255;
-        CHECK(pt_scene_builder_add_texture(b, &t, &ti, &err) == PT_OK);
-    }
+    if (su->c[2])
+        ti = one_texel(b, su->c);
     if (su->two_tone) {
         /* 2 x 1, nearest: u < 0.5 black, u >= 0.5 white (linear bytes). */
         pt_texture t;
