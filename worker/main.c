@@ -155,6 +155,12 @@ static void usage(FILE *f)
             "                     which on refuses); the farm's image is this one, bit for\n"
             "                     bit; not yet faster on the scenes measured\n"
             "                     (docs/bench/guiding.md)\n"
+            "  --bdpt             bidirectional path tracing: each sample also traces a\n"
+            "                     path from the lights and joins the two at every vertex\n"
+            "                     (light reaching a room indirectly, through a gap or off\n"
+            "                     the ceiling, converges many times sooner); scenes lit by\n"
+            "                     emissive surfaces with opaque materials; standalone only\n"
+            "                     for now (docs/bench/bdpt.md)\n"
             "  --denoise          denoise the finished image (NFOR, guided by the passes\n"
             "                     albedo, normal, depth and halves, which it turns on):\n"
             "                     the EXR gets the layer denoised.R/G/B beside the\n"
@@ -245,6 +251,7 @@ int main(int argc, char **argv)
         OPT_FRAME,
         OPT_LIST,
         OPT_MAX_DENOISE,
+        OPT_BDPT,
         OPT_SERVER, /* the farm worker's, from here on */
         OPT_PREFETCH,
         OPT_TOKEN,
@@ -255,6 +262,7 @@ int main(int argc, char **argv)
     static const struct option own[] = {
         {"scene", required_argument, NULL, OPT_SCENE},
         {"max-denoise-mb", required_argument, NULL, OPT_MAX_DENOISE},
+        {"bdpt", no_argument, NULL, OPT_BDPT},
         {"output", required_argument, NULL, 'o'},
         {"threads", required_argument, NULL, OPT_THREADS},
         {"time", required_argument, NULL, OPT_TIME},
@@ -333,6 +341,9 @@ int main(int argc, char **argv)
             /* 32 MiB holds regions of 32 pixels of any frame (crops of 224). */
             bad = bad_value(
                 pt_opt_u32("--max-denoise-mb", optarg, 32, 1u << 22, &max_denoise_mb, &err), &err);
+            break;
+        case OPT_BDPT:
+            o.bdpt = 1;
             break;
         case 'h':
             usage(stdout);

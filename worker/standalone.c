@@ -335,6 +335,7 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
     p.clamp_direct = o->clamp_direct;
     p.clamp_indirect = o->clamp_indirect;
     p.passes = o->passes;
+    p.bdpt = o->bdpt ? 1u : 0u;
     /* Guiding samples glossy closures only (main refuses on with adaptive
      * sampling; auto is then off: a tile's stop would depend on its pass). */
     p.guiding =

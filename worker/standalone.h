@@ -43,6 +43,7 @@ typedef struct wrk_standalone_opts {
     double fps;        /* frames per second (24 by default; --fps) */
     pt_view view;      /* the PNG's exposure and view transform; the EXR stays linear */
     int guiding;       /* --guiding: PT_GUIDING_* (options.h); guided where pt_guide_enabled */
+    int bdpt;          /* --bdpt: bidirectional path tracing (pt_render_params.bdpt) */
     float clamp_direct, clamp_indirect; /* sample clamping (pt_render_params; 0: off) */
     int denoise; /* --denoise: passes has PT_PASS_DENOISE; denoised.R/G/B added, PNG of it */
     uint64_t denoise_max; /* --max-denoise-mb: the denoiser's memory at most; 0: no limit */

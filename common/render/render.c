@@ -83,6 +83,9 @@ typedef void (*tile_fn)(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_
 /* Sample clamping (clamp_sample): set when the parameters ask for it; only
  * the clamped, guided and passes variants have its code. */
 #define FEAT_CLAMP (1u << 29)
+/* Bidirectional path tracing (params.bdpt, bd_sample): only its variant
+ * has the code. */
+#define FEAT_BDPT (1u << 28)
 /* The renderer's own features, set by the parameters: the variants without
  * them are what a render that does not ask for them runs. */
 #define PARAM_FEATURES (FEAT_GUIDE | FEAT_CLAMP | FEAT_PASSES)
@@ -153,6 +156,13 @@ struct pt_renderer {
     /* Cryptomatte (PT_PASS_CRYPTOMATTE): each object's and material's id, or NULL. */
     uint32_t *crypto_obj, *crypto_mat;
     photon_src photon; /* FEAT_GUIDE: where caustic photons come from (photon_trace) */
+    /* FEAT_BDPT: the emissive triangles light paths start on (ascending)
+     * and the running sum of their power (area x luminance) */
+    struct {
+        uint32_t n;
+        uint32_t *tri;
+        double *cdf;
+    } bd;
 };
 
 void pt_render_params_default(pt_render_params *p)
@@ -166,6 +176,7 @@ void pt_render_params_default(pt_render_params *p)
     p->env = NULL;
     p->transparent = 0;
     p->guiding = 0;
+    p->bdpt = 0;
     p->passes = 0;
     p->clamp_direct = 0.0f;
     p->clamp_indirect = 0.0f;
@@ -3683,12 +3694,22 @@ static void shade_lanes(const pt_renderer *r, path *paths, const uint8_t *live, 
 
 /* One path, start to end: the reference that the batched tile loop below
  * must match bit for bit (tested through pt_render_sample). */
+static uint64_t bd_block(const pt_renderer *r, path *paths, uint32_t n, const uint32_t features);
+
 static inline __attribute__((always_inline)) pt_vec3
 li_impl(const pt_renderer *r, pixel_ctx *pc, uint32_t index, pt_render_stats *stats, int *covered,
         const pt_render_guiding *gd, pt_pass_sample *ps, const uint32_t features)
 {
     path pa;
     path_start(r, pc, index, &pa, features);
+    if (features & FEAT_BDPT) {
+        uint64_t rays = bd_block(r, &pa, 1, features);
+        if (stats)
+            stats->rays += rays;
+        if (covered)
+            *covered = !pa.escaped;
+        return pa.L;
+    }
     pass_rec pr;
     if ((features & FEAT_PASSES) && ps) {
         memset(&pr, 0, sizeof pr);
@@ -3968,6 +3989,542 @@ trace_batch(const pt_renderer *r, path *paths, uint32_t n, stage_lanes *sl, cons
 }
 
 /*
+ * Bidirectional path tracing (params.bdpt; FEAT_BDPT; Veach 1997, ch. 10;
+ * the weights' bookkeeping as in pbrt-v3's BDPT, Pharr et al. 2016, sec.
+ * 16.3). Each sample traces a camera path z_1 z_2 ... as the unidirectional
+ * variants do (the same numbers) and a light path y_0 y_1 ... from an
+ * emissive triangle picked by power (r->bd), numbers of dimensions of its
+ * own, and joins them at every pair of their vertices. A path z_1 .. z_k
+ * (z_k on a light) is then sampled by strategies s = 0 (the camera path
+ * finds the light), s = 1 (a light sample, as NEE), and s >= 2 (camera
+ * vertex z_{t-1} joined to light vertex z_t, t = k + 1 - s), each weighed by
+ * the power heuristic over all of them. Strategies t < 2 (light paths joined
+ * to the camera itself, "light tracing") are not taken: their light lands
+ * on any pixel, and a task renders its own tile's pixels only, so a sample
+ * keeps every contribution in its own pixel and the image stays a pure
+ * function of (seed, pixel, sample index), whatever the split.
+ *
+ * What the light path reaches is light that the camera path finds only by
+ * chance: the NVIDIA Cornell box's light, trapped in the gap above its
+ * lamp and leaving through a slit, or a room lit by a lamp turned to the
+ * ceiling. Opaque surfaces and emissive triangles only (bd_supported):
+ * environment, punctual lights and glass keep the unidirectional variants.
+ */
+#define BD_VERTS 48u             /* vertices a camera or a light path keeps */
+#define DIM_BD_LIGHT 0x40000000u /* the light path's numbers: 8 a vertex from here */
+
+/* A vertex of either path: its surface and closure (built for wo, the
+ * direction to the vertex before it on its own path), its throughput up to
+ * it (beta), and the area densities of sampling it from its own path's
+ * side (pf) and from the other (pr). delta: its closure's sampled lobe was
+ * a delta. */
+typedef struct bd_vert {
+    pt_vec3 p, ng, ngs, wo, beta;
+    surface sf;
+    pt_frame fr;
+    pt_closure cl;
+    double pf, pr;
+    int delta;
+    uint32_t tri;
+    float b1, b2;
+} bd_vert;
+
+/* The triangle's area (the renderer's copy of its corners). */
+static float bd_tri_area(const pt_renderer *r, uint32_t t)
+{
+    const tri_rec *tr = &r->tris[t];
+    return 0.5f * pt_v3_len(pt_v3_cross(pt_v3_sub(tr->v1, tr->v0), pt_v3_sub(tr->v2, tr->v0)));
+}
+
+/* The area density with which a light path starts at a point of emitter
+ * tri: its pick probability (r->bd.cdf) over its area; 0 when the light
+ * paths never start there. */
+static double bd_start_pdf(const pt_renderer *r, uint32_t tri)
+{
+    const uint32_t *t = r->bd.tri;
+    uint32_t lo = 0, hi = r->bd.n;
+    while (lo < hi) {
+        uint32_t mid = lo + (hi - lo) / 2;
+        if (t[mid] < tri)
+            lo = mid + 1;
+        else
+            hi = mid;
+    }
+    if (lo >= r->bd.n || t[lo] != tri)
+        return 0.0;
+    double w = r->bd.cdf[lo] - (lo ? r->bd.cdf[lo - 1] : 0.0);
+    return w / r->bd.cdf[r->bd.n - 1] / bd_tri_area(r, tri);
+}
+
+/* The solid-angle density of the light path's first direction d from
+ * emitter tri: cosine-weighted about its normal, on one side or, for a
+ * double-sided emitter, either side at one half. */
+static double bd_emit_pdf(const pt_renderer *r, uint32_t tri, pt_vec3 d)
+{
+    const pt_material *m = &r->scene->materials[r->scene->tri_material[tri]];
+    float c = pt_v3_dot(r->tris[tri].ng, d);
+    if (m->double_sided)
+        return 0.5 * fabsf(c) / PT_PI;
+    return c > 0.0f ? c / PT_PI : 0.0;
+}
+
+/* Solid-angle density pw at `from` as an area density at v. */
+static inline double bd_area(double pw, pt_vec3 from, const bd_vert *v)
+{
+    pt_vec3 d = pt_v3_sub(v->p, from);
+    double d2 = pt_v3_dot(d, d);
+    if (!(d2 > 0.0))
+        return 0.0;
+    return pw * fabs(pt_v3_dot(v->ng, d)) / (d2 * sqrt(d2));
+}
+
+static inline pt_vec3 bd_dir(pt_vec3 from, pt_vec3 to)
+{
+    return pt_v3_norm(pt_v3_sub(to, from));
+}
+
+/* The vertex a ray along d found at hit, its closure built for wo = -d.
+ * 0 where bd_supported leaves nothing to build (a transmitter). */
+static int bd_vertex(const pt_renderer *r, const pt_hit *hit, pt_vec3 d, float time, bd_vert *v,
+                     const uint32_t features)
+{
+    surface_at(r, hit, time, &v->sf, features);
+    if ((features & PT_FEAT_TRANSMISSION) && transmits(v->sf.mat))
+        return 0;
+    int front;
+    pt_vec3 ns;
+    v->wo = pt_v3_neg(d);
+    shading_normals(&v->sf, v->wo, 0, &front, &v->ngs, &ns, features);
+    v->fr = pt_frame_from_normal(ns);
+    material_closure(r, &v->sf, 0, front, &v->fr, v->wo, pt_frame_to_local(&v->fr, v->wo), v->ngs,
+                     &v->cl, features);
+    v->p = v->sf.p;
+    v->ng = v->sf.ng;
+    v->tri = hit->tri;
+    v->b1 = hit->b1;
+    v->b2 = hit->b2;
+    v->delta = 0;
+    v->pf = v->pr = 0.0;
+    return 1;
+}
+
+/* f cos towards d at v (its closure, built for v->wo) and the solid-angle
+ * density of sampling d there; 0 below v's surface on wo's side. */
+static pt_vec3 bd_fcos(const bd_vert *v, pt_vec3 d, float *pdf)
+{
+    *pdf = 0.0f;
+    if (!(pt_v3_dot(d, v->ngs) > 0.0f))
+        return pt_v3(0.0f, 0.0f, 0.0f);
+    return pt_closure_eval(&v->cl, pt_frame_to_local(&v->fr, d), pdf);
+}
+
+/* The solid-angle density of sampling wout at v when the path came from
+ * win (its closure built for win). */
+static float bd_pdf(const pt_renderer *r, const bd_vert *v, pt_vec3 win, pt_vec3 wout,
+                    const uint32_t features)
+{
+    int front;
+    pt_vec3 ngs, ns;
+    shading_normals(&v->sf, win, 0, &front, &ngs, &ns, features);
+    if (!(pt_v3_dot(wout, ngs) > 0.0f))
+        return 0.0f;
+    pt_frame fr = pt_frame_from_normal(ns);
+    pt_closure cl;
+    material_closure(r, &v->sf, 0, front, &fr, win, pt_frame_to_local(&fr, win), ngs, &cl,
+                     features);
+    float pdf;
+    pt_closure_eval(&cl, pt_frame_to_local(&fr, wout), &pdf);
+    return pdf;
+}
+
+/* The light path's factor for a shading normal (Veach 1997, sec. 5.3):
+ * light carried from wo to wi at v scatters by the adjoint BSDF, which
+ * differs from the BSDF by |wo.ns| |wi.ng| / (|wo.ng| |wi.ns|). */
+static inline float bd_adjoint(const bd_vert *v, pt_vec3 wo, pt_vec3 wi)
+{
+    pt_vec3 ns = pt_frame_to_world(&v->fr, pt_v3(0.0f, 0.0f, 1.0f));
+    float den = fabsf(pt_v3_dot(wo, v->ng)) * fabsf(pt_v3_dot(wi, ns));
+    return den > 0.0f ? fabsf(pt_v3_dot(wo, ns)) * fabsf(pt_v3_dot(wi, v->ng)) / den : 0.0f;
+}
+
+static inline double bd_ratio(double a, double b)
+{
+    return b > 0.0 ? a / b : 1.0; /* a delta's density, 0 on both sides, cancels */
+}
+
+/*
+ * The power-heuristic weight of strategy s for the path z_1 .. z_k. pc[i]:
+ * the area density of z_i sampled from the camera's side (i >= 2); pl[i]:
+ * from the light's, pl[k] a light path's start there; pn: a light sample's
+ * (s = 1) of z_k from z_{k-1}; delta[i]: z_i scatters by a delta lobe (no
+ * strategy joins there). Strategy s' takes the camera vertices z_0 ..
+ * z_{t'-1}, t' = k + 1 - s', and the light's z_{t'} .. z_k; only t' >= 2
+ * and what BD_VERTS keeps count. The densities of strategy s' over s's are
+ * built one vertex at a time outwards from s (pbrt-v3's MISWeight).
+ */
+static double bd_weight(uint32_t k, uint32_t s, const double *pc, const double *pl, double pn,
+                        const int *delta)
+{
+#define BD_TAKEN(sp)                                                                               \
+    ((sp) <= BD_VERTS && k + 1 - (sp) <= BD_VERTS + 1 &&                                           \
+     ((sp) == 0 || ((sp) == 1 ? !delta[k - 1] : !delta[k - (sp)] && !delta[k + 1 - (sp)])))
+    double sum = 1.0, q = 1.0;
+    for (uint32_t sp = s + 1; k + 1 - sp >= 2; sp++) { /* z_{t'} moves to the light's side */
+        uint32_t tp = k + 1 - sp;
+        if (sp == 1)
+            q *= bd_ratio(pn, pc[k]);
+        else if (sp == 2)
+            q *= bd_ratio(pl[k], pn) * bd_ratio(pl[k - 1], pc[k - 1]);
+        else
+            q *= bd_ratio(pl[tp], pc[tp]);
+        if (BD_TAKEN(sp))
+            sum += q * q;
+    }
+    q = 1.0;
+    for (uint32_t sp = s; sp-- > 0;) { /* z_{t'-1} moves to the camera's side */
+        uint32_t tp = k + 1 - sp;
+        if (sp == 1)
+            q *= bd_ratio(pc[k - 1], pl[k - 1]) * bd_ratio(pn, pl[k]);
+        else if (sp == 0)
+            q *= bd_ratio(pc[k], pn);
+        else
+            q *= bd_ratio(pc[tp - 1], pl[tp - 1]);
+        if (BD_TAKEN(sp))
+            sum += q * q;
+    }
+#undef BD_TAKEN
+    return 1.0 / sum;
+}
+
+/* A sample's two paths and the densities of the path being weighed. */
+typedef struct bd_scratch {
+    bd_vert cam[BD_VERTS + 1]; /* cam[1 ..]: z_1 ..; cam[0] holds the camera's point */
+    bd_vert lig[BD_VERTS];     /* lig[0]: y_0, on the light */
+    double pc[2 * BD_VERTS + 3], pl[2 * BD_VERTS + 3];
+    int delta[2 * BD_VERTS + 3];
+} bd_scratch;
+
+/* The light path of pa's sample into bs->lig; returns its vertex count
+ * (0: none) and adds its rays to *rays. */
+static uint32_t bd_light_path(const pt_renderer *r, const path *pa, bd_scratch *bs, uint64_t *rays,
+                              const uint32_t features)
+{
+    const pt_scene *s = r->scene;
+    const pixel_ctx *pc = pa->pc;
+    float u[DIM_PER_BOUNCE];
+    pt_sample_group g;
+    pt_sample_group_init(&g, pc->seed, DIM_BD_LIGHT);
+    pt_sample_group_eval(&g, pa->index, u);
+    /* A triangle by power, a point uniform on it (Turk 1990), a direction
+     * by the cosine about the side it emits to. */
+    double x = u[0] * r->bd.cdf[r->bd.n - 1];
+    uint32_t lo = 0, hi = r->bd.n - 1;
+    while (lo < hi) {
+        uint32_t mid = lo + (hi - lo) / 2;
+        if (r->bd.cdf[mid] > x)
+            hi = mid;
+        else
+            lo = mid + 1;
+    }
+    uint32_t tri = r->bd.tri[lo];
+    const tri_rec *tr = &r->tris[tri];
+    float su = sqrtf(u[1]), b1 = 1.0f - su, b2 = u[2] * su;
+    bd_vert *y0 = &bs->lig[0];
+    y0->p = pt_v3_add(pt_v3_add(pt_v3_scale(tr->v0, 1.0f - b1 - b2), pt_v3_scale(tr->v1, b1)),
+                      pt_v3_scale(tr->v2, b2));
+    y0->ng = tr->ng;
+    y0->tri = tri;
+    y0->b1 = b1;
+    y0->b2 = b2;
+    y0->delta = 0;
+    y0->pf = bd_start_pdf(r, tri);
+    y0->pr = 0.0;
+    pt_vec3 n = tr->ng;
+    float ud = u[3];
+    if (s->materials[s->tri_material[tri]].double_sided) {
+        if (ud < 0.5f) {
+            n = pt_v3_neg(n);
+            ud *= 2.0f;
+        } else {
+            ud = 2.0f * ud - 1.0f;
+        }
+        ud = pt_fminf(ud, 0x1.fffffep-1f);
+    }
+    pt_vec3 dl = pt_sample_cosine_hemisphere(ud, u[4]);
+    pt_frame ef = pt_frame_from_normal(n);
+    pt_vec3 dir = pt_frame_to_world(&ef, dl);
+    double pw = bd_emit_pdf(r, tri, dir);
+    pt_vec3 le = pt_emitted(s, tri, b1, b2, dir);
+    if ((features & PT_FEAT_ALPHA) && r->alpha && pt_alpha_tri(s, tri))
+        le = pt_v3_scale(le, pt_alpha_coverage(s, tri, b1, b2));
+    if (!(pw > 0.0) || !(y0->pf > 0.0) || !any_positive(le))
+        return 0;
+    pt_vec3 beta = pt_v3_scale(le, (float)(fabsf(pt_v3_dot(tr->ng, dir)) / (y0->pf * pw)));
+    pt_vec3 o = pt_offset_apply(r->offset, y0->p, n);
+    float ua = u[5];
+    int prev_delta = 0;
+    uint32_t nl = 1;
+    while (nl < BD_VERTS) {
+        pt_hit hit;
+        (*rays)++;
+        if (!closest_hit(r, o, dir, pa->time, ua, &hit, features))
+            break;
+        bd_vert *y = &bs->lig[nl];
+        if (!bd_vertex(r, &hit, dir, pa->time, y, features))
+            break;
+        y->beta = beta;
+        y->pf = prev_delta ? 0.0 : bd_area(pw, bs->lig[nl - 1].p, y);
+        nl++;
+        if (nl >= 3) {
+            /* y_{nl-3} from y_{nl-2}, the path coming from y_{nl-1} */
+            bd_vert *a = &bs->lig[nl - 3], *b = &bs->lig[nl - 2];
+            a->pr = b->delta
+                        ? 0.0
+                        : bd_area(bd_pdf(r, b, bd_dir(b->p, y->p), bd_dir(b->p, a->p), features),
+                                  b->p, a);
+        }
+        if (nl >= BD_VERTS || nl > r->params.max_depth)
+            break;
+        pt_sample_group_init(&g, pc->seed, DIM_BD_LIGHT + DIM_PER_BOUNCE * nl);
+        pt_sample_group_eval(&g, pa->index, u);
+        const float uc[3] = {u[OFF_LIGHT_PICK + 1], u[OFF_BSDF_DIR], u[OFF_BSDF_DIR + 1]};
+        pt_vec3 wi_l;
+        float p;
+        int delta = 0;
+        pt_vec3 w = pt_closure_sample(&y->cl, uc, &wi_l, &p, &delta);
+        if (!(p > 0.0f) || !any_positive(w))
+            break;
+        pt_vec3 wi = pt_frame_to_world(&y->fr, wi_l);
+        if (!(pt_v3_dot(wi, y->ngs) > 0.0f))
+            break;
+        y->delta = delta;
+        beta = pt_v3_scale(pt_v3_mul(beta, w), bd_adjoint(y, y->wo, wi));
+        if (nl >= r->params.rr_depth) {
+            /* Roulette by the throughput over the first vertex's. */
+            float m = pt_luminance(beta) / pt_fmaxf(pt_luminance(bs->lig[1].beta), 1e-30f);
+            float survive = m < RR_MAX_SURVIVE ? m : RR_MAX_SURVIVE;
+            if (!(u[OFF_RR] < survive))
+                break;
+            beta = pt_v3_scale(beta, 1.0f / survive);
+        }
+        pw = delta ? 0.0 : p;
+        prev_delta = delta;
+        ua = u[OFF_ALPHA];
+        o = pt_offset_apply(r->offset, y->p, y->ngs);
+        dir = wi;
+    }
+    return nl;
+}
+
+/* A shadow ray from camera vertex x to point `to` (offset off the far
+ * surface by nto) carrying c. */
+static void bd_shadow(const pt_renderer *r, path *pa, const bd_vert *x, pt_vec3 to, pt_vec3 nto,
+                      pt_vec3 c, uint32_t alpha_key, uint64_t *rays, const uint32_t features)
+{
+    shadow_ray sr = {{0, 0, 0}, {0, 0, 0}, 0.0f, {0, 0, 0}, 0, 0};
+    sr.from = pt_offset_apply(r->offset, x->p, x->ngs);
+    pt_vec3 sd = pt_v3_sub(pt_offset_apply(r->offset, to, nto), sr.from);
+    sr.dist = pt_v3_len(sd);
+    if (!(sr.dist > 0.0f))
+        return;
+    sr.dir = pt_v3_scale(sd, 1.0f / sr.dist);
+    sr.contrib = c;
+    sr.alpha_key = alpha_key;
+    (*rays)++;
+    trace_shadow(r, pa, &sr, NULL, features);
+}
+
+/* The camera densities of z_1 .. z_t1 into pc/pl/delta (the ones every
+ * strategy's path with this camera prefix shares). */
+static void bd_camera_part(bd_scratch *bs, uint32_t t1)
+{
+    for (uint32_t i = 1; i <= t1; i++) {
+        bs->pc[i] = bs->cam[i].pf;
+        bs->pl[i] = bs->cam[i].pr;
+        bs->delta[i] = bs->cam[i].delta;
+    }
+    bs->delta[t1] = 0;
+}
+
+/* The sample of pa (started by path_start) by bidirectional path tracing,
+ * into pa->L; adds its rays to *rays. */
+static void bd_sample(const pt_renderer *r, path *pa, bd_scratch *bs, uint64_t *rays,
+                      const uint32_t features)
+{
+    const pt_scene *s = r->scene;
+    const uint32_t max_k = r->params.max_depth + 1u; /* z_1 .. z_k: k - 1 bounces */
+    uint32_t nl = r->bd.n ? bd_light_path(r, pa, bs, rays, features) : 0;
+    pt_vec3 beta = pt_v3(1.0f, 1.0f, 1.0f);
+    double pw = 0.0;
+    int prev_delta = 0;
+    bs->cam[0].p = pa->o;
+    for (uint32_t t1 = 1; t1 <= BD_VERTS; t1++) {
+        float u[DIM_PER_BOUNCE];
+        draw_bounce(pa->pc, t1 - 1, pa->index, u);
+        pt_hit hit;
+        (*rays)++;
+        if (!closest_hit(r, pa->o, pa->d, pa->time, u[OFF_ALPHA], &hit, features)) {
+            if (t1 == 1)
+                pa->escaped = 1;
+            break;
+        }
+        bd_vert *x = &bs->cam[t1];
+        if (!bd_vertex(r, &hit, pa->d, pa->time, x, features))
+            break;
+        x->beta = beta;
+        x->pf = t1 >= 2 && !prev_delta ? bd_area(pw, bs->cam[t1 - 1].p, x) : 0.0;
+        if (t1 >= 3) {
+            bd_vert *a = &bs->cam[t1 - 2], *b = &bs->cam[t1 - 1];
+            a->pr = b->delta
+                        ? 0.0
+                        : bd_area(bd_pdf(r, b, bd_dir(b->p, x->p), bd_dir(b->p, a->p), features),
+                                  b->p, a);
+        }
+        /* s = 0: the camera path found a light. */
+        if ((features & PT_FEAT_EMITTERS) && emits(x->sf.mat) && t1 <= max_k) {
+            pt_vec3 le = pt_emitted(s, x->tri, x->b1, x->b2, x->wo);
+            if (any_positive(le)) {
+                double w = 1.0;
+                if (t1 >= 2) {
+                    const uint32_t k = t1;
+                    const bd_vert *xp = &bs->cam[k - 1];
+                    bd_camera_part(bs, k);
+                    bs->delta[k - 1] = xp->delta;
+                    bs->pl[k] = bd_start_pdf(r, x->tri);
+                    bs->pl[k - 1] = bd_area(bd_emit_pdf(r, x->tri, bd_dir(x->p, xp->p)), x->p, xp);
+                    if (k >= 3)
+                        bs->pl[k - 2] = bd_area(bd_pdf(r, xp, bd_dir(xp->p, x->p),
+                                                       bd_dir(xp->p, bs->cam[k - 2].p), features),
+                                                xp->p, &bs->cam[k - 2]);
+                    float lp =
+                        pt_lights_pdf(r->lights, s, x->tri, xp->p,
+                                      light_normal(r, &xp->sf, xp->wo, features), x->p, x->ng);
+                    w = bd_weight(k, 0, bs->pc, bs->pl, bd_area(lp, xp->p, x), bs->delta);
+                }
+                pa->L = pt_v3_add(pa->L, pt_v3_scale(pt_v3_mul(beta, le), (float)w));
+            }
+        }
+        if (t1 >= max_k)
+            break;
+        /* s = 1: a light sample (NEE), as the unidirectional variants take it. */
+        if (r->nee) {
+            const float u3[3] = {u[OFF_LIGHT_PICK], u[OFF_LIGHT_POINT], u[OFF_LIGHT_POINT + 1]};
+            pt_light_sample ls;
+            float bp;
+            pt_vec3 f;
+            if (pt_lights_sample(r->lights, s, x->p, light_normal(r, &x->sf, x->wo, features), u3,
+                                 &ls) &&
+                ls.pdf > 0.0f && ls.delta == PT_LIGHT_AREA && any_positive(ls.radiance) &&
+                any_positive(f = bd_fcos(x, ls.wi, &bp))) {
+                const uint32_t k = t1 + 1;
+                pt_vec3 lrad = ls.radiance;
+                if ((features & PT_FEAT_ALPHA) && r->alpha && pt_alpha_tri(s, ls.tri) &&
+                    !(r->alpha_solid && r->alpha_solid[ls.tri]))
+                    lrad = pt_v3_scale(lrad, light_coverage(r, &ls));
+                bd_vert yl;
+                yl.p = ls.position;
+                yl.ng = ls.normal;
+                bd_camera_part(bs, t1);
+                bs->delta[k] = 0;
+                bs->pc[k] = bd_area(bp, x->p, &yl);
+                bs->pl[k] = bd_start_pdf(r, ls.tri);
+                bs->pl[k - 1] = bd_area(bd_emit_pdf(r, ls.tri, pt_v3_neg(ls.wi)), yl.p, x);
+                if (t1 >= 2)
+                    bs->pl[t1 - 1] =
+                        bd_area(bd_pdf(r, x, ls.wi, bd_dir(x->p, bs->cam[t1 - 1].p), features),
+                                x->p, &bs->cam[t1 - 1]);
+                double w = bd_weight(k, 1, bs->pc, bs->pl, bd_area(ls.pdf, x->p, &yl), bs->delta);
+                pt_vec3 c = pt_v3_scale(pt_v3_mul(beta, pt_v3_mul(f, lrad)), (float)(w / ls.pdf));
+                pt_vec3 nto = pt_v3_dot(ls.normal, ls.wi) > 0.0f ? pt_v3_neg(ls.normal) : ls.normal;
+                bd_shadow(r, pa, x, ls.position, nto, c,
+                          (features & PT_FEAT_ALPHA) ? pt_alpha_key(u[OFF_ALPHA], ALPHA_SALT_SHADOW)
+                                                     : 0u,
+                          rays, features);
+            }
+        }
+        /* s >= 2: x joined to each light vertex y_j past the light. */
+        for (uint32_t j = 1; j < nl && t1 + j + 1 <= max_k; j++) {
+            const bd_vert *y = &bs->lig[j];
+            pt_vec3 d = pt_v3_sub(y->p, x->p);
+            float d2 = pt_v3_dot(d, d);
+            if (!(d2 > 0.0f))
+                continue;
+            pt_vec3 dn = pt_v3_scale(d, 1.0f / sqrtf(d2));
+            float px, py;
+            pt_vec3 fx = bd_fcos(x, dn, &px), fy;
+            if (!any_positive(fx) || !any_positive(fy = bd_fcos(y, pt_v3_neg(dn), &py)))
+                continue;
+            /* the path z_1 .. z_t1 (camera), z_{t1+1} = y_j .. z_k = y_0 */
+            const uint32_t k = t1 + j + 1;
+            bd_camera_part(bs, t1);
+            for (uint32_t jj = 0; jj <= j; jj++) {
+                bs->pl[k - jj] = bs->lig[jj].pf;
+                bs->pc[k - jj] = bs->lig[jj].pr;
+                bs->delta[k - jj] = bs->lig[jj].delta;
+            }
+            bs->delta[t1 + 1] = 0;
+            bs->pc[t1 + 1] = bd_area(px, x->p, y);
+            bs->pl[t1] = bd_area(py, y->p, x);
+            bs->pc[t1 + 2] =
+                bd_area(bd_pdf(r, y, pt_v3_neg(dn), bd_dir(y->p, bs->lig[j - 1].p), features), y->p,
+                        &bs->lig[j - 1]);
+            if (t1 >= 2)
+                bs->pl[t1 - 1] =
+                    bd_area(bd_pdf(r, x, dn, bd_dir(x->p, bs->cam[t1 - 1].p), features), x->p,
+                            &bs->cam[t1 - 1]);
+            const bd_vert *y1 = &bs->lig[1];
+            pt_vec3 y1n =
+                light_normal(r, &y1->sf, bd_dir(y1->p, j >= 2 ? bs->lig[2].p : x->p), features);
+            float lp = pt_lights_pdf(r->lights, s, bs->lig[0].tri, y1->p, y1n, bs->lig[0].p,
+                                     bs->lig[0].ng);
+            double w =
+                bd_weight(k, j + 1, bs->pc, bs->pl, bd_area(lp, y1->p, &bs->lig[0]), bs->delta);
+            pt_vec3 c = pt_v3_mul(pt_v3_mul(beta, fx), pt_v3_mul(fy, y->beta));
+            c = pt_v3_scale(c, (float)(w / d2) * bd_adjoint(y, y->wo, pt_v3_neg(dn)));
+            uint32_t key = (features & PT_FEAT_ALPHA) ? pt_alpha_key(u[OFF_ALPHA], 2u + j) : 0u;
+            bd_shadow(r, pa, x, y->p, y->ngs, c, key, rays, features);
+        }
+        /* On: the BSDF's direction, roulette as the unidirectional variants. */
+        const float uc[3] = {u[OFF_LIGHT_PICK + 1], u[OFF_BSDF_DIR], u[OFF_BSDF_DIR + 1]};
+        pt_vec3 wi_l;
+        float p;
+        int delta = 0;
+        pt_vec3 w = pt_closure_sample(&x->cl, uc, &wi_l, &p, &delta);
+        if (!(p > 0.0f) || !any_positive(w))
+            break;
+        pt_vec3 wi = pt_frame_to_world(&x->fr, wi_l);
+        if (!(pt_v3_dot(wi, x->ngs) > 0.0f))
+            break;
+        x->delta = delta;
+        beta = pt_v3_mul(beta, w);
+        if (t1 >= r->params.rr_depth) {
+            float m = max2(beta.x, max2(beta.y, beta.z));
+            float survive = m < RR_MAX_SURVIVE ? m : RR_MAX_SURVIVE;
+            if (!(u[OFF_RR] < survive))
+                break;
+            beta = pt_v3_scale(beta, 1.0f / survive);
+        }
+        pw = delta ? 0.0 : p;
+        prev_delta = delta;
+        pa->o = pt_offset_apply(r->offset, x->p, x->ngs);
+        pa->d = wi;
+        pa->depth = t1;
+    }
+}
+
+/* bd_sample for paths[0 .. n) (started by path_start), one by one, on a
+ * scratch of its own; returns their rays. */
+static __attribute__((noinline)) uint64_t bd_block(const pt_renderer *r, path *paths, uint32_t n,
+                                                   const uint32_t features)
+{
+    bd_scratch bs;
+    uint64_t rays = 0;
+    for (uint32_t k = 0; k < n; k++)
+        bd_sample(r, &paths[k], &bs, &rays, features);
+    return rays;
+}
+
+/*
  * Samples [s0, s1) of a tile's pixels. Pixels are taken in row-major groups
  * and, per aligned block of PT_SAMPLE_BLOCK samples, the block's samples of
  * the whole group are traced together (trace_batch); then each pixel sums its
@@ -4029,7 +4586,10 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
                         pa->mf = &mfs[g * nb + i];
                     }
                 }
-            local.rays += trace_batch(r, paths, np * nb, sl, features, sink, &local.capped);
+            if (features & FEAT_BDPT)
+                local.rays += bd_block(r, paths, np * nb, features);
+            else
+                local.rays += trace_batch(r, paths, np * nb, sl, features, sink, &local.capped);
             if ((features & FEAT_GUIDE) && gd) {
                 for (uint32_t k = 0; k < np * nb; k++)
                     guide_record(&paths[k]);
@@ -4081,7 +4641,7 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
     }
 }
 
-#define ALL_FEATURES 0xffffffffu
+#define ALL_FEATURES (0xffffffffu & ~FEAT_BDPT)
 #define VARIANT(li_name, tile_name, feat)                                                          \
     static pt_vec3 li_name(const pt_renderer *r, pixel_ctx *pc, uint32_t index,                    \
                            pt_render_stats *stats, int *covered, const pt_render_guiding *gd,      \
@@ -4124,6 +4684,7 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
 #define GENERAL_ONLY                                                                               \
     (uint32_t)(OTHER_LIGHTS | PT_FEAT_ALPHA | GLASS | SURFACE_EXTRAS | LAYERS | PT_FEAT_MOTION |   \
                MATERIAL_EXTS | PT_FEAT_INSTANCES)
+VARIANT(li_bdpt, tile_bdpt, (ALL_FEATURES & ~PARAM_FEATURES) | FEAT_BDPT)
 VARIANT(li_guided_passes, tile_guided_passes, ALL_FEATURES)
 VARIANT(li_passes, tile_passes, ALL_FEATURES & ~FEAT_GUIDE)
 VARIANT(li_guided, tile_guided, ALL_FEATURES & ~FEAT_PASSES)
@@ -4140,7 +4701,11 @@ VARIANT(li_lambert_untextured, tile_lambert_untextured,
 static void pick_variant(pt_renderer *r, uint32_t features)
 {
     int tex = (features & NO_TEX) != 0, glossy = (features & PT_FEAT_GLOSSY) != 0;
-    if ((features & FEAT_PASSES) && (features & FEAT_GUIDE)) {
+    if (features & FEAT_BDPT) {
+        r->li = li_bdpt;
+        r->tile = tile_bdpt;
+        r->variant = "bdpt";
+    } else if ((features & FEAT_PASSES) && (features & FEAT_GUIDE)) {
         r->li = li_guided_passes;
         r->tile = tile_guided_passes;
         r->variant = "guided-passes";
@@ -4573,6 +5138,73 @@ static pt_status mf_accel_new(pt_renderer *r, pt_error *err)
     return pt_accel_new_subset(s, r->mf_tris, n, &r->mf_accel, err);
 }
 
+/* PT_OK when bidirectional path tracing (params.bdpt) can render scene
+ * with params: light paths start on emissive triangles and scatter off
+ * opaque surfaces only; else what stands in the way. */
+static pt_status bd_supported(const pt_scene *scene, const pt_render_params *params, pt_error *err)
+{
+    const uint32_t f = scene->features;
+    const char *why = NULL;
+    if (params->env)
+        why = "an environment light (--env, --background)";
+    else if (f & PT_FEAT_PUNCTUAL)
+        why = "KHR_lights_punctual lights";
+    else if (f & (PT_FEAT_TRANSMISSION | PT_FEAT_VOLUME | PT_FEAT_THIN_GLASS |
+                  PT_FEAT_DIFFUSE_TRANSMISSION | PT_FEAT_DISPERSION))
+        why = "transmissive materials (glass, KHR_materials_transmission, "
+              "KHR_materials_diffuse_transmission)";
+    else if (f & PT_FEAT_UNLIT)
+        why = "unlit materials (KHR_materials_unlit)";
+    else if (!(f & PT_FEAT_EMITTERS))
+        why = "no emissive surface to start light paths on";
+    else if (params->guiding)
+        why = "path guiding";
+    else if (params->passes & PT_PASS_ALL)
+        why = "render passes";
+    else if (params->clamp_direct > 0.0f || params->clamp_indirect > 0.0f)
+        why = "sample clamping";
+    else if (params->light_strategy != PT_LIGHT_MIS)
+        why = "a light strategy other than MIS";
+    if (!why)
+        return PT_OK;
+    return pt_error_set(err, PT_ERR_ARG,
+                        "bidirectional path tracing (--bdpt) renders scenes lit by emissive "
+                        "surfaces with opaque materials only; this render has %s",
+                        why);
+}
+
+/* r->bd: the emissive triangles by power, as light paths pick them. */
+static pt_status bd_setup(pt_renderer *r, pt_error *err)
+{
+    const pt_scene *s = r->scene;
+    uint32_t n = 0;
+    for (uint32_t t = 0; t < s->num_triangles; t++)
+        n += emits(&s->materials[s->tri_material[t]]);
+    r->bd.tri = pt_malloc_array(n ? n : 1, sizeof *r->bd.tri);
+    r->bd.cdf = pt_malloc_array(n ? n : 1, sizeof *r->bd.cdf);
+    if (!r->bd.tri || !r->bd.cdf)
+        return pt_error_set(err, PT_ERR_NOMEM, "out of memory for the light paths' emitters");
+    double sum = 0.0;
+    r->bd.n = 0;
+    for (uint32_t t = 0; t < s->num_triangles; t++) {
+        const pt_material *m = &s->materials[s->tri_material[t]];
+        if (!emits(m))
+            continue;
+        /* Power by the emission at the centroid: a light path's start
+         * density is any positive one; where it is 0 the other strategies
+         * take the light. */
+        pt_vec3 le = pt_emitted(s, t, 1.0f / 3.0f, 1.0f / 3.0f, r->tris[t].ng);
+        double w = (double)bd_tri_area(r, t) * pt_luminance(le) * (m->double_sided ? 2.0 : 1.0);
+        if (!(w > 0.0) || !isfinite(w))
+            continue;
+        sum += w;
+        r->bd.tri[r->bd.n] = t;
+        r->bd.cdf[r->bd.n] = sum;
+        r->bd.n++;
+    }
+    return PT_OK;
+}
+
 pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params, pt_renderer **out,
                           pt_error *err)
 {
@@ -4582,6 +5214,11 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
     if (!scene->camera.ortho && !(scene->camera.yfov > 0.0f && scene->camera.yfov < PT_PI))
         return pt_error_set(err, PT_ERR_ARG, "camera field of view %g rad is not in (0, pi)",
                             (double)scene->camera.yfov);
+    if (params->bdpt) {
+        pt_status bs = bd_supported(scene, params, err);
+        if (bs != PT_OK)
+            return bs;
+    }
     pt_renderer *r = pt_calloc(1, sizeof *r);
     if (!r)
         return pt_error_set(err, PT_ERR_NOMEM, "out of memory for the renderer");
@@ -4686,6 +5323,11 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
         if (!r->manifold)
             features &= ~(uint32_t)PT_FEAT_MANIFOLD;
     }
+    if (params->bdpt) {
+        if ((st = bd_setup(r, err)) != PT_OK)
+            goto fail;
+        features |= FEAT_BDPT;
+    }
     /* Guiding samples glossy closures only (closure_guidable): a
      * Lambert-only scene keeps its variant. */
     if (params->guiding && (features & PT_FEAT_GLOSSY))
@@ -4715,7 +5357,7 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
     /* Without fast lanes (an x86-64 processor without AVX2 runs shade_lanes'
      * baseline clone, which does the lanes one by one) the per-path shading
      * is faster: docs/bench/throughput.md, "Fourth round". */
-    r->lanes = !(features & (PT_FEAT_GLOSSY | GENERAL_ONLY | PARAM_FEATURES)) &&
+    r->lanes = !(features & (PT_FEAT_GLOSSY | GENERAL_ONLY | PARAM_FEATURES | FEAT_BDPT)) &&
                !params->scalar_shading && pt_simd_lanes_fast();
     *out = r;
     return PT_OK;
@@ -4741,6 +5383,8 @@ void pt_renderer_free(pt_renderer *r)
     pt_free(r->mr);
     pt_free(r->mr_of_object);
     pt_free(r->mr_side);
+    pt_free(r->bd.tri);
+    pt_free(r->bd.cdf);
     pt_accel_free(r->accel);
     pt_free(r);
 }

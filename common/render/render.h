@@ -219,6 +219,11 @@ typedef struct pt_render_params {
     uint32_t guiding;        /* 1: renders may be handed a path-guiding distribution
                                 (pt_render_tile_guided); picks the guided variant when the
                                 scene has glossy materials; default 0 */
+    uint32_t bdpt;           /* 1: bidirectional path tracing (render.c, bd_sample): a
+                                light path from the emitters joined to every camera
+                                vertex; scenes lit by emissive surfaces alone, without
+                                glass (pt_renderer_new refuses others), and without
+                                guiding, passes or clamping; default 0 */
     uint32_t transparent;    /* 1: a camera ray that escapes adds nothing (the environment
                                 still lights the scene through bounces and NEE), so RGB is
                                 premultiplied by the coverage, pt_pixel_acc.hits / n
