@@ -29,6 +29,9 @@
 #             lamp helmet]
 #   RES       image size [128x128]       THREADS  render threads [2]
 #   REF_SPP   reference spp [4096]       SPP      list [16,32,64,128,256]
+#   BASE_SPP  the base build's list [SPP]: where the new build reaches in
+#             16 spp an error the base takes hundreds for (--bdpt), its rows
+#             must span the new ones' errors; the k-th of each alternate
 #   NEW_ARGS  [--guiding on; set but empty: nothing, the defaults]
 #   BASE_ARGS [""]
 #   SEED0     repetition r renders with seed SEED0 + r [0]: another run
@@ -127,6 +130,9 @@ echo "scene,build,spp,rep,cpu,relmse,worst" >"$CSV"
 LOADS=$OUT/loadavg.csv
 echo "scene,build,spp,rep,load1" >"$LOADS"
 IFS=, read -r -a spps <<<"$SPP"
+IFS=, read -r -a base_spps <<<"${BASE_SPP:-$SPP}"
+nrows=${#spps[@]}
+if ((${#base_spps[@]} > nrows)); then nrows=${#base_spps[@]}; fi
 for name in $SCENES; do
     args=$(scene_args "$name") || { echo "guiding.sh: no scene '$name'" >&2; exit 2; }
     # shellcheck disable=SC2086 # the arguments are words
@@ -147,8 +153,10 @@ for name in $SCENES; do
         done
     done
     for rep in $(seq 1 "$REPS"); do
-        for spp in "${spps[@]}"; do
+        for ((row = 0; row < nrows; row++)); do
             for build in base new; do
+                if [[ $build == base ]]; then spp=${base_spps[row]:-}; else spp=${spps[row]:-}; fi
+                [[ -n $spp ]] || continue
                 build_args "$build"
                 img=$OUT/${name}_${build}_${spp}_${rep}.exr
                 c=$(cpu_run "$build" $((SEED0 + rep)) "$spp" "$img" "$@" "${extra[@]}")

@@ -187,8 +187,10 @@ def main():
                   % (label, label, label))
             print("|---:|---:|---:|---:|---:|---:|---:|")
             for spp, b, n, t, ratio in compare(rbase, new):
-                print("| %d | %.2f | %.4g | %.2f | %.4g | %s | %s |" % (
-                    spp, b[1], b[2], n[1], n[2], "%.2f" % t if t else "-",
+                # base spp, or base/new where BASE_SPP gave the base its own
+                label_spp = "%d" % spp if n[0] == spp else "%d / %d" % (spp, n[0])
+                print("| %s | %.2f | %.4g | %.2f | %.4g | %s | %s |" % (
+                    label_spp, b[1], b[2], n[1], n[2], "%.2f" % t if t else "-",
                     "%.2fx" % ratio if ratio else "-"))
             print()
             ls = ld.get(scene)
