@@ -4196,6 +4196,22 @@ static double bd_weight(uint32_t k, uint32_t s, const double *pc, const double *
     return 1.0 / sum;
 }
 
+/* The next direction at v by its closure (numbers u, as a bounce's), its
+ * weight f cos / p and density, and whether its lobe is a delta; 0 when the
+ * path ends there (no lobe, or a direction below v's surface). */
+static int bd_scatter(const bd_vert *v, const float u[DIM_PER_BOUNCE], pt_vec3 *wi, pt_vec3 *w,
+                      float *p, int *delta)
+{
+    const float uc[3] = {u[OFF_LIGHT_PICK + 1], u[OFF_BSDF_DIR], u[OFF_BSDF_DIR + 1]};
+    pt_vec3 wi_l;
+    *delta = 0;
+    *w = pt_closure_sample(&v->cl, uc, &wi_l, p, delta);
+    if (!(*p > 0.0f) || !any_positive(*w))
+        return 0;
+    *wi = pt_frame_to_world(&v->fr, wi_l);
+    return pt_v3_dot(*wi, v->ngs) > 0.0f;
+}
+
 /* A sample's two paths and the densities of the path being weighed. */
 typedef struct bd_scratch {
     bd_vert cam[BD_VERTS + 1]; /* cam[1 ..]: z_1 ..; cam[0] holds the camera's point */
@@ -4287,15 +4303,10 @@ static uint32_t bd_light_path(const pt_renderer *r, const path *pa, bd_scratch *
             break;
         pt_sample_group_init(&g, pc->seed, DIM_BD_LIGHT + DIM_PER_BOUNCE * nl);
         pt_sample_group_eval(&g, pa->index, u);
-        const float uc[3] = {u[OFF_LIGHT_PICK + 1], u[OFF_BSDF_DIR], u[OFF_BSDF_DIR + 1]};
-        pt_vec3 wi_l;
+        pt_vec3 wi, w;
         float p;
-        int delta = 0;
-        pt_vec3 w = pt_closure_sample(&y->cl, uc, &wi_l, &p, &delta);
-        if (!(p > 0.0f) || !any_positive(w))
-            break;
-        pt_vec3 wi = pt_frame_to_world(&y->fr, wi_l);
-        if (!(pt_v3_dot(wi, y->ngs) > 0.0f))
+        int delta;
+        if (!bd_scatter(y, u, &wi, &w, &p, &delta))
             break;
         y->delta = delta;
         beta = pt_v3_scale(pt_v3_mul(beta, w), bd_adjoint(y, y->wo, wi));
@@ -4485,15 +4496,10 @@ static void bd_sample(const pt_renderer *r, path *pa, bd_scratch *bs, uint64_t *
             bd_shadow(r, pa, x, y->p, y->ngs, c, key, rays, features);
         }
         /* On: the BSDF's direction, roulette as the unidirectional variants. */
-        const float uc[3] = {u[OFF_LIGHT_PICK + 1], u[OFF_BSDF_DIR], u[OFF_BSDF_DIR + 1]};
-        pt_vec3 wi_l;
+        pt_vec3 wi, w;
         float p;
-        int delta = 0;
-        pt_vec3 w = pt_closure_sample(&x->cl, uc, &wi_l, &p, &delta);
-        if (!(p > 0.0f) || !any_positive(w))
-            break;
-        pt_vec3 wi = pt_frame_to_world(&x->fr, wi_l);
-        if (!(pt_v3_dot(wi, x->ngs) > 0.0f))
+        int delta;
+        if (!bd_scatter(x, u, &wi, &w, &p, &delta))
             break;
         x->delta = delta;
         beta = pt_v3_mul(beta, w);
@@ -5281,7 +5287,7 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
         (params->env && pt_lights_has_env(r->lights) &&
          pt_env_splits(params->env,
                        params->light_strategy == PT_LIGHT_MIS ? PT_ENV_MIS : PT_ENV_FULL));
-    uint32_t features = scene->features | (params->extra_features & ~PARAM_FEATURES);
+    uint32_t features = scene->features | (params->extra_features & ~(PARAM_FEATURES | FEAT_BDPT));
     r->alpha = (scene->features & PT_FEAT_ALPHA) != 0;
     for (uint32_t i = 0; r->alpha && i < scene->num_materials; i++)
         r->blend |= scene->materials[i].alpha_mode == PT_ALPHA_BLEND;

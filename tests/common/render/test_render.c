@@ -37,6 +37,7 @@
 #include "common/scene/scene.h"
 #include "tests/check.h"
 #include "tests/common/render/furnace.h"
+#include "tests/common/render/tile_ref.h"
 
 static pt_scene *load(const char *rel, float scale)
 {
@@ -498,26 +499,8 @@ static void batched_as_single(const pt_scene *s, uint32_t extra, uint32_t scalar
     pt_render_stats ts = {0}, rs = {0};
     pt_rect rect = {1, 2, W, H}; /* not at the origin, rows shorter than the image */
     pt_render_tile(r, rect, s0, s1, tile, &ts);
-    uint32_t tw = rect.x1 - rect.x0, n = tw * (rect.y1 - rect.y0);
-    memset(ref, 0, sizeof ref);
-    for (uint32_t k = 0; k < n; k++) {
-        for (uint32_t b0 = s0; b0 < s1;) {
-            uint32_t b1 = (b0 / PT_SAMPLE_BLOCK + 1) * PT_SAMPLE_BLOCK;
-            b1 = b1 < s1 ? b1 : s1;
-            pt_block_acc blk = {{0, 0, 0}, 0, 0, 0};
-            for (uint32_t i = b0; i < b1; i++) {
-                int cov = 0;
-                if (!pt_block_acc_sample(&blk, pt_render_sample(r, rect.x0 + k % tw,
-                                                                rect.y0 + k / tw, i, &rs, &cov)))
-                    rs.rejected++;
-                else
-                    blk.hits += (uint32_t)cov;
-            }
-            pt_pixel_acc_add_block(&ref[k], &blk);
-            rs.samples += blk.n;
-            b0 = b1;
-        }
-    }
+    uint32_t n = (rect.x1 - rect.x0) * (rect.y1 - rect.y0);
+    tile_ref(r, rect, s0, s1, ref, &rs);
     CHECKF(memcmp(tile, ref, n * sizeof *tile) == 0,
            "variant %s (%s), strategy %u, samples [%u,%u): tile differs from one path at a time",
            pt_renderer_variant(r), pt_renderer_lanes(r) ? "lanes" : "per path", strategy, s0, s1);
