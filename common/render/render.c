@@ -4196,6 +4196,17 @@ static double bd_weight(uint32_t k, uint32_t s, const double *pc, const double *
     return 1.0 / sum;
 }
 
+/* The area density of a sampled from b when the path came to b from c
+ * (a, b, c consecutive on one path): a's pr once c is known. 0 after a
+ * delta at b. */
+static double bd_back(const pt_renderer *r, const bd_vert *a, const bd_vert *b, const bd_vert *c,
+                      const uint32_t features)
+{
+    if (b->delta)
+        return 0.0;
+    return bd_area(bd_pdf(r, b, bd_dir(b->p, c->p), bd_dir(b->p, a->p), features), b->p, a);
+}
+
 /* The next direction at v by its closure (numbers u, as a bounce's), its
  * weight f cos / p and density, and whether its lobe is a delta; 0 when the
  * path ends there (no lobe, or a direction below v's surface). */
@@ -4291,14 +4302,8 @@ static uint32_t bd_light_path(const pt_renderer *r, const path *pa, bd_scratch *
         y->beta = beta;
         y->pf = prev_delta ? 0.0 : bd_area(pw, bs->lig[nl - 1].p, y);
         nl++;
-        if (nl >= 3) {
-            /* y_{nl-3} from y_{nl-2}, the path coming from y_{nl-1} */
-            bd_vert *a = &bs->lig[nl - 3], *b = &bs->lig[nl - 2];
-            a->pr = b->delta
-                        ? 0.0
-                        : bd_area(bd_pdf(r, b, bd_dir(b->p, y->p), bd_dir(b->p, a->p), features),
-                                  b->p, a);
-        }
+        if (nl >= 3) /* y_{nl-3} from y_{nl-2}, the path coming from y_{nl-1} */
+            bs->lig[nl - 3].pr = bd_back(r, &bs->lig[nl - 3], &bs->lig[nl - 2], y, features);
         if (nl >= BD_VERTS || nl > r->params.max_depth)
             break;
         pt_sample_group_init(&g, pc->seed, DIM_BD_LIGHT + DIM_PER_BOUNCE * nl);
@@ -4384,13 +4389,8 @@ static void bd_sample(const pt_renderer *r, path *pa, bd_scratch *bs, uint64_t *
             break;
         x->beta = beta;
         x->pf = t1 >= 2 && !prev_delta ? bd_area(pw, bs->cam[t1 - 1].p, x) : 0.0;
-        if (t1 >= 3) {
-            bd_vert *a = &bs->cam[t1 - 2], *b = &bs->cam[t1 - 1];
-            a->pr = b->delta
-                        ? 0.0
-                        : bd_area(bd_pdf(r, b, bd_dir(b->p, x->p), bd_dir(b->p, a->p), features),
-                                  b->p, a);
-        }
+        if (t1 >= 3)
+            bs->cam[t1 - 2].pr = bd_back(r, &bs->cam[t1 - 2], &bs->cam[t1 - 1], x, features);
         /* s = 0: the camera path found a light. */
         if ((features & PT_FEAT_EMITTERS) && emits(x->sf.mat) && t1 <= max_k) {
             pt_vec3 le = pt_emitted(s, x->tri, x->b1, x->b2, x->wo);
