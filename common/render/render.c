@@ -4207,6 +4207,17 @@ static double bd_back(const pt_renderer *r, const bd_vert *a, const bd_vert *b, 
     return bd_area(bd_pdf(r, b, bd_dir(b->p, c->p), bd_dir(b->p, a->p), features), b->p, a);
 }
 
+/* Russian roulette with survival min(m, RR_MAX_SURVIVE) by number u: 0
+ * when the path ends, else *beta scaled up by the survival. */
+static inline int bd_roulette(pt_vec3 *beta, float m, float u)
+{
+    float survive = m < RR_MAX_SURVIVE ? m : RR_MAX_SURVIVE;
+    if (!(u < survive))
+        return 0;
+    *beta = pt_v3_scale(*beta, 1.0f / survive);
+    return 1;
+}
+
 /* The next direction at v by its closure (numbers u, as a bounce's), its
  * weight f cos / p and density, and whether its lobe is a delta; 0 when the
  * path ends there (no lobe, or a direction below v's surface). */
@@ -4315,14 +4326,12 @@ static uint32_t bd_light_path(const pt_renderer *r, const path *pa, bd_scratch *
             break;
         y->delta = delta;
         beta = pt_v3_scale(pt_v3_mul(beta, w), bd_adjoint(y, y->wo, wi));
-        if (nl >= r->params.rr_depth) {
-            /* Roulette by the throughput over the first vertex's. */
-            float m = pt_luminance(beta) / pt_fmaxf(pt_luminance(bs->lig[1].beta), 1e-30f);
-            float survive = m < RR_MAX_SURVIVE ? m : RR_MAX_SURVIVE;
-            if (!(u[OFF_RR] < survive))
-                break;
-            beta = pt_v3_scale(beta, 1.0f / survive);
-        }
+        /* Roulette by the throughput over the first vertex's. */
+        if (nl >= r->params.rr_depth &&
+            !bd_roulette(&beta,
+                         pt_luminance(beta) / pt_fmaxf(pt_luminance(bs->lig[1].beta), 1e-30f),
+                         u[OFF_RR]))
+            break;
         pw = delta ? 0.0 : p;
         prev_delta = delta;
         ua = u[OFF_ALPHA];
@@ -4503,13 +4512,9 @@ static void bd_sample(const pt_renderer *r, path *pa, bd_scratch *bs, uint64_t *
             break;
         x->delta = delta;
         beta = pt_v3_mul(beta, w);
-        if (t1 >= r->params.rr_depth) {
-            float m = max2(beta.x, max2(beta.y, beta.z));
-            float survive = m < RR_MAX_SURVIVE ? m : RR_MAX_SURVIVE;
-            if (!(u[OFF_RR] < survive))
-                break;
-            beta = pt_v3_scale(beta, 1.0f / survive);
-        }
+        if (t1 >= r->params.rr_depth &&
+            !bd_roulette(&beta, max2(beta.x, max2(beta.y, beta.z)), u[OFF_RR]))
+            break;
         pw = delta ? 0.0 : p;
         prev_delta = delta;
         pa->o = pt_offset_apply(r->offset, x->p, x->ngs);
