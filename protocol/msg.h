@@ -115,9 +115,13 @@ const char *proto_msg_type_name(uint32_t type);
 #define PROTO_FILM_DENOISE (1u << 7)
 /* Bit 8, with bit 7: progressive saves are denoised too (server/sched/writer.h). */
 #define PROTO_FILM_DENOISE_PROGRESSIVE (1u << 8)
+/* Bit 9: bidirectional path tracing (pt_render_params.bdpt): a worker
+ * renders the task with it; the coordinator refused the job at submission
+ * where the scene cannot take it (pt_render_check_bdpt). */
+#define PROTO_FILM_BDPT (1u << 9)
 #define PROTO_FILM_KNOWN                                                                           \
     (PROTO_FILM_TRANSPARENT | PROTO_FILM_PASSES | PROTO_FILM_DENOISE |                             \
-     PROTO_FILM_DENOISE_PROGRESSIVE)
+     PROTO_FILM_DENOISE_PROGRESSIVE | PROTO_FILM_BDPT)
 /* The PT_PASS_* mask of film flags, and the flags of a mask. */
 static inline uint32_t proto_film_passes(uint32_t flags)
 {

@@ -157,6 +157,9 @@ static void usage(FILE *f)
         "                         here; a queue's jobs\n"
         "  --denoise-region N     those regions' side in pixels (default 512; a\n"
         "                         multiple of 32, 32 to 1024)\n"
+        "  --bdpt                 bidirectional path tracing, as ptworker --bdpt (the\n"
+        "                         same bits); one-job mode (queued jobs: ptctl submit\n"
+        "                         --bdpt)\n"
         "  --guiding on|off|auto  path guiding learned by the farm (default off): as\n"
         "                         ptworker --guiding, whose image it gives bit for bit;\n"
         "                         one-job mode (queued jobs: ptctl submit --guiding)\n"
@@ -544,6 +547,8 @@ static void job_from_options(srv_config *c, const pt_render_opts *ro, parsed *x)
     }
     if (ro->given & PT_ROPT(PT_ROPT_TRANSPARENT))
         c->job.film_flags |= PROTO_FILM_TRANSPARENT;
+    if (ro->bdpt)
+        c->job.film_flags |= PROTO_FILM_BDPT;
     c->job.film_flags |= proto_film_of_passes(ro->passes);
     if (ro->denoise)
         c->job.film_flags |= PROTO_FILM_DENOISE;
@@ -632,6 +637,11 @@ static int check_options(srv_config *c, const pt_render_opts *ro, parsed *x, int
     if (c->state_dir && c->job.variant[0]) {
         fprintf(stderr, "ptserve: --variant is for one-job mode; a queued job asks for it "
                         "with ptctl submit --variant\n");
+        return 2;
+    }
+    if (c->state_dir && (c->job.film_flags & PROTO_FILM_BDPT)) {
+        fprintf(stderr, "ptserve: --bdpt is for one-job mode; a queued job asks for it with "
+                        "ptctl submit --bdpt\n");
         return 2;
     }
     if (c->state_dir && (c->job.film_flags & PROTO_FILM_TRANSPARENT)) {

@@ -289,6 +289,7 @@ static void render_one(worker *w, const task_item *t, done_item *d)
     p.rr_depth = k->rr_depth;
     p.light_strategy = PT_LIGHT_MIS;
     p.transparent = (k->film_flags & PROTO_FILM_TRANSPARENT) ? 1u : 0u;
+    p.bdpt = (k->film_flags & PROTO_FILM_BDPT) ? 1u : 0u;
     p.passes = proto_film_passes(k->film_flags);
     p.clamp_direct = k->clamp[0];
     p.clamp_indirect = k->clamp[1];

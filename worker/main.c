@@ -159,8 +159,8 @@ static void usage(FILE *f)
             "                     path from the lights and joins the two at every vertex\n"
             "                     (light reaching a room indirectly, through a gap or off\n"
             "                     the ceiling, converges many times sooner); scenes lit by\n"
-            "                     emissive surfaces with opaque materials; standalone only\n"
-            "                     for now (docs/bench/bdpt.md)\n"
+            "                     emissive surfaces with opaque materials; ptserve and\n"
+            "                     ptctl submit take it too (docs/bench/bdpt.md)\n"
             "  --denoise          denoise the finished image (NFOR, guided by the passes\n"
             "                     albedo, normal, depth and halves, which it turns on):\n"
             "                     the EXR gets the layer denoised.R/G/B beside the\n"
@@ -251,7 +251,6 @@ int main(int argc, char **argv)
         OPT_FRAME,
         OPT_LIST,
         OPT_MAX_DENOISE,
-        OPT_BDPT,
         OPT_SERVER, /* the farm worker's, from here on */
         OPT_PREFETCH,
         OPT_TOKEN,
@@ -262,7 +261,6 @@ int main(int argc, char **argv)
     static const struct option own[] = {
         {"scene", required_argument, NULL, OPT_SCENE},
         {"max-denoise-mb", required_argument, NULL, OPT_MAX_DENOISE},
-        {"bdpt", no_argument, NULL, OPT_BDPT},
         {"output", required_argument, NULL, 'o'},
         {"threads", required_argument, NULL, OPT_THREADS},
         {"time", required_argument, NULL, OPT_TIME},
@@ -341,9 +339,6 @@ int main(int argc, char **argv)
             /* 32 MiB holds regions of 32 pixels of any frame (crops of 224). */
             bad = bad_value(
                 pt_opt_u32("--max-denoise-mb", optarg, 32, 1u << 22, &max_denoise_mb, &err), &err);
-            break;
-        case OPT_BDPT:
-            o.bdpt = 1;
             break;
         case 'h':
             usage(stdout);
@@ -436,6 +431,7 @@ int main(int argc, char **argv)
     o.target_error = ro.target_error;
     o.min_gain = ro.min_gain;
     o.guiding = (int)ro.guiding;
+    o.bdpt = ro.bdpt;
     if (o.guiding && (o.target_error > 0.0 || o.min_gain > 0.0)) {
         /* A tile's adaptive stop would depend on the pass it is in: auto
          * leaves guiding off, on is refused. */

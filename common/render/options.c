@@ -45,6 +45,7 @@ static const struct {
     [PT_ROPT_CLAMP_DIRECT] = {"clamp-direct", required_argument},
     [PT_ROPT_CLAMP_INDIRECT] = {"clamp-indirect", required_argument},
     [PT_ROPT_GUIDING] = {"guiding", required_argument},
+    [PT_ROPT_BDPT] = {"bdpt", no_argument},
 };
 
 void pt_render_opts_init(pt_render_opts *o)
@@ -138,6 +139,9 @@ pt_status pt_render_opt_set(pt_render_opts *o, int c, const char *text, pt_error
         st = pt_opt_rgb(opt, text, 1e20, o->background, err);
         break;
     case PT_ROPT_TRANSPARENT:
+        break;
+    case PT_ROPT_BDPT:
+        o->bdpt = 1;
         break;
     case PT_ROPT_SHUTTER:
         st = pt_opt_shutter(opt, text, o->shutter, err);

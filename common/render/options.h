@@ -4,7 +4,8 @@
  * ptworker --scene, ptserve (one job) and ptctl submit describe the same
  * render: samples, size, seed, bounce cap, camera, variant, animation,
  * environment, film, shutter, adaptive sampling, tiles, the preview's
- * view, the render passes, sample clamping and path guiding. Their names, their value syntax and
+ * view, the render passes, sample clamping, path guiding and bidirectional
+ * path tracing. Their names, their value syntax and
  * their limits are here once, so a job that one program accepts the others accept too, and "--spp
  * 0" or
  * "--res 64x" is refused with the same words everywhere. A program builds
@@ -60,12 +61,16 @@ typedef enum pt_ropt_id {
     PT_ROPT_CLAMP_DIRECT,
     PT_ROPT_CLAMP_INDIRECT,
     PT_ROPT_GUIDING,
+    PT_ROPT_BDPT,
     PT_ROPT_COUNT
 } pt_ropt_id;
 
 #define PT_ROPT_BASE 0x4000
 #define PT_ROPT(id) (1u << (id)) /* an option's bit in a mask */
-#define PT_ROPT_ALL ((1u << PT_ROPT_COUNT) - 1u)
+/* The masks are 32 bits: the table holds 32 options at most (a 33rd
+ * widens `given` and the masks to 64 bits). */
+#define PT_ROPT_ALL ((uint32_t)((UINT64_C(1) << PT_ROPT_COUNT) - 1u))
+_Static_assert(PT_ROPT_COUNT <= 32, "the render options' masks are 32 bits");
 
 /* The limits, one set for every program. */
 #define PT_ROPT_MAX_SPP (1u << 24)
@@ -100,6 +105,7 @@ typedef struct pt_render_opts {
                                 (the coordinator's; denoise is set with it) */
     float clamp_direct, clamp_indirect; /* sample clamping (pt_render_params); 0: off */
     uint32_t guiding;                   /* PT_GUIDING_*; off unless given */
+    int bdpt; /* --bdpt: bidirectional path tracing (pt_render_params.bdpt) */
 } pt_render_opts;
 
 /* --guiding: off, on, or auto (pt_guide_enabled, guide.h, says where each

@@ -5149,14 +5149,12 @@ static pt_status mf_accel_new(pt_renderer *r, pt_error *err)
     return pt_accel_new_subset(s, r->mf_tris, n, &r->mf_accel, err);
 }
 
-/* PT_OK when bidirectional path tracing (params.bdpt) can render scene
- * with params: light paths start on emissive triangles and scatter off
- * opaque surfaces only; else what stands in the way. */
-static pt_status bd_supported(const pt_scene *scene, const pt_render_params *params, pt_error *err)
+pt_status pt_render_check_bdpt(const pt_scene *scene, int has_env, int guiding, uint32_t passes,
+                               int clamped, pt_error *err)
 {
     const uint32_t f = scene->features;
     const char *why = NULL;
-    if (params->env)
+    if (has_env)
         why = "an environment light (--env, --background)";
     else if (f & PT_FEAT_PUNCTUAL)
         why = "KHR_lights_punctual lights";
@@ -5168,14 +5166,12 @@ static pt_status bd_supported(const pt_scene *scene, const pt_render_params *par
         why = "unlit materials (KHR_materials_unlit)";
     else if (!(f & PT_FEAT_EMITTERS))
         why = "no emissive surface to start light paths on";
-    else if (params->guiding)
+    else if (guiding)
         why = "path guiding";
-    else if (params->passes & PT_PASS_ALL)
-        why = "render passes";
-    else if (params->clamp_direct > 0.0f || params->clamp_indirect > 0.0f)
+    else if (passes & PT_PASS_ALL)
+        why = "render passes (--passes, --denoise)";
+    else if (clamped)
         why = "sample clamping";
-    else if (params->light_strategy != PT_LIGHT_MIS)
-        why = "a light strategy other than MIS";
     if (!why)
         return PT_OK;
     return pt_error_set(err, PT_ERR_ARG,
@@ -5226,9 +5222,15 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
         return pt_error_set(err, PT_ERR_ARG, "camera field of view %g rad is not in (0, pi)",
                             (double)scene->camera.yfov);
     if (params->bdpt) {
-        pt_status bs = bd_supported(scene, params, err);
+        pt_status bs =
+            pt_render_check_bdpt(scene, params->env != NULL, params->guiding != 0, params->passes,
+                                 params->clamp_direct > 0.0f || params->clamp_indirect > 0.0f, err);
         if (bs != PT_OK)
             return bs;
+        if (params->light_strategy != PT_LIGHT_MIS)
+            return pt_error_set(err, PT_ERR_ARG,
+                                "bidirectional path tracing weighs every strategy by MIS: "
+                                "light_strategy must be PT_LIGHT_MIS");
     }
     pt_renderer *r = pt_calloc(1, sizeof *r);
     if (!r)

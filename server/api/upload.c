@@ -141,6 +141,13 @@ static void verify_upload(srv_upload *k)
     }
     if (st == PT_OK && (st = pt_render_check_lit(scene, proto_env_any(ev), entry, &err)) != PT_OK)
         what = "scene refused";
+    /* --bdpt where it cannot render (guiding as the job would resolve it,
+     * below): refused here, not by every worker. */
+    if (st == PT_OK && (k->m.film_flags & PROTO_FILM_BDPT) &&
+        (st = pt_render_check_bdpt(scene, proto_env_any(ev), pt_guide_enabled(k->m.guiding, scene),
+                                   proto_film_passes(k->m.film_flags),
+                                   k->m.clamp[0] > 0.0f || k->m.clamp[1] > 0.0f, &err)) != PT_OK)
+        what = "job refused";
     pt_remove_tree(k->tmp);
     if (st != PT_OK) {
         pt_scene_free(scene);
