@@ -4240,7 +4240,19 @@ typedef struct bd_scratch {
     bd_vert lig[BD_VERTS];     /* lig[0]: y_0, on the light */
     double pc[2 * BD_VERTS + 3], pl[2 * BD_VERTS + 3];
     int delta[2 * BD_VERTS + 3];
+    double pn_far; /* bd_light_pdf towards y_2 (a light path of 3 vertices or more) */
 } bd_scratch;
+
+/* A light sample's area density of the light path's start y_0 from y_1,
+ * y_1 receiving towards `next` (the vertex after it on the whole path): the
+ * density of strategy s = 1 for every path that ends y_1 y_0. */
+static double bd_light_pdf(const pt_renderer *r, const bd_scratch *bs, pt_vec3 next,
+                           const uint32_t features)
+{
+    const bd_vert *y0 = &bs->lig[0], *y1 = &bs->lig[1];
+    pt_vec3 n = light_normal(r, &y1->sf, bd_dir(y1->p, next), features);
+    return bd_area(pt_lights_pdf(r->lights, r->scene, y0->tri, y1->p, n, y0->p, y0->ng), y1->p, y0);
+}
 
 /* The light path of pa's sample into bs->lig; returns its vertex count
  * (0: none) and adds its rays to *rays. */
@@ -4379,6 +4391,8 @@ static void bd_sample(const pt_renderer *r, path *pa, bd_scratch *bs, uint64_t *
     const pt_scene *s = r->scene;
     const uint32_t max_k = r->params.max_depth + 1u; /* z_1 .. z_k: k - 1 bounces */
     uint32_t nl = r->bd.n ? bd_light_path(r, pa, bs, rays, features) : 0;
+    if (nl >= 3)
+        bs->pn_far = bd_light_pdf(r, bs, bs->lig[2].p, features);
     pt_vec3 beta = pt_v3(1.0f, 1.0f, 1.0f);
     double pw = 0.0;
     int prev_delta = 0;
@@ -4400,6 +4414,10 @@ static void bd_sample(const pt_renderer *r, path *pa, bd_scratch *bs, uint64_t *
         x->pf = t1 >= 2 && !prev_delta ? bd_area(pw, bs->cam[t1 - 1].p, x) : 0.0;
         if (t1 >= 3)
             bs->cam[t1 - 2].pr = bd_back(r, &bs->cam[t1 - 2], &bs->cam[t1 - 1], x, features);
+        /* The densities of z_1 .. z_t1 that every strategy below shares
+         * (z_{t1-2}'s from the light's side is its pr, just set); each
+         * strategy writes those of its own join (pl[t1 - 1], pl[t1], ...). */
+        bd_camera_part(bs, t1);
         /* s = 0: the camera path found a light. */
         if ((features & PT_FEAT_EMITTERS) && emits(x->sf.mat) && t1 <= max_k) {
             pt_vec3 le = pt_emitted(s, x->tri, x->b1, x->b2, x->wo);
@@ -4408,14 +4426,8 @@ static void bd_sample(const pt_renderer *r, path *pa, bd_scratch *bs, uint64_t *
                 if (t1 >= 2) {
                     const uint32_t k = t1;
                     const bd_vert *xp = &bs->cam[k - 1];
-                    bd_camera_part(bs, k);
-                    bs->delta[k - 1] = xp->delta;
                     bs->pl[k] = bd_start_pdf(r, x->tri);
                     bs->pl[k - 1] = bd_area(bd_emit_pdf(r, x->tri, bd_dir(x->p, xp->p)), x->p, xp);
-                    if (k >= 3)
-                        bs->pl[k - 2] = bd_area(bd_pdf(r, xp, bd_dir(xp->p, x->p),
-                                                       bd_dir(xp->p, bs->cam[k - 2].p), features),
-                                                xp->p, &bs->cam[k - 2]);
                     float lp =
                         pt_lights_pdf(r->lights, s, x->tri, xp->p,
                                       light_normal(r, &xp->sf, xp->wo, features), x->p, x->ng);
@@ -4444,7 +4456,6 @@ static void bd_sample(const pt_renderer *r, path *pa, bd_scratch *bs, uint64_t *
                 bd_vert yl;
                 yl.p = ls.position;
                 yl.ng = ls.normal;
-                bd_camera_part(bs, t1);
                 bs->delta[k] = 0;
                 bs->pc[k] = bd_area(bp, x->p, &yl);
                 bs->pl[k] = bd_start_pdf(r, ls.tri);
@@ -4476,7 +4487,6 @@ static void bd_sample(const pt_renderer *r, path *pa, bd_scratch *bs, uint64_t *
                 continue;
             /* the path z_1 .. z_t1 (camera), z_{t1+1} = y_j .. z_k = y_0 */
             const uint32_t k = t1 + j + 1;
-            bd_camera_part(bs, t1);
             for (uint32_t jj = 0; jj <= j; jj++) {
                 bs->pl[k - jj] = bs->lig[jj].pf;
                 bs->pc[k - jj] = bs->lig[jj].pr;
@@ -4492,13 +4502,9 @@ static void bd_sample(const pt_renderer *r, path *pa, bd_scratch *bs, uint64_t *
                 bs->pl[t1 - 1] =
                     bd_area(bd_pdf(r, x, dn, bd_dir(x->p, bs->cam[t1 - 1].p), features), x->p,
                             &bs->cam[t1 - 1]);
-            const bd_vert *y1 = &bs->lig[1];
-            pt_vec3 y1n =
-                light_normal(r, &y1->sf, bd_dir(y1->p, j >= 2 ? bs->lig[2].p : x->p), features);
-            float lp = pt_lights_pdf(r->lights, s, bs->lig[0].tri, y1->p, y1n, bs->lig[0].p,
-                                     bs->lig[0].ng);
             double w =
-                bd_weight(k, j + 1, bs->pc, bs->pl, bd_area(lp, y1->p, &bs->lig[0]), bs->delta);
+                bd_weight(k, j + 1, bs->pc, bs->pl,
+                          j >= 2 ? bs->pn_far : bd_light_pdf(r, bs, x->p, features), bs->delta);
             pt_vec3 c = pt_v3_mul(pt_v3_mul(beta, fx), pt_v3_mul(fy, y->beta));
             c = pt_v3_scale(c, (float)(w / d2) * bd_adjoint(y, y->wo, pt_v3_neg(dn)));
             uint32_t key = (features & PT_FEAT_ALPHA) ? pt_alpha_key(u[OFF_ALPHA], 2u + j) : 0u;
