@@ -162,6 +162,9 @@ struct pt_renderer {
         uint32_t n;
         uint32_t *tri;
         double *cdf;
+        double env_w; /* the environment's power in cdf's units (bd_setup), 0: none */
+        pt_vec3 c;    /* the scene's bounding sphere, whose disks the environment's */
+        float rad;    /* light paths start on */
     } bd;
 };
 
@@ -3993,8 +3996,8 @@ trace_batch(const pt_renderer *r, path *paths, uint32_t n, stage_lanes *sl, cons
  * the weights' bookkeeping as in pbrt-v3's BDPT, Pharr et al. 2016, sec.
  * 16.3). Each sample traces a camera path z_1 z_2 ... as the unidirectional
  * variants do (the same numbers) and a light path y_0 y_1 ... from an
- * emissive triangle picked by power (r->bd), numbers of dimensions of its
- * own, and joins them at every pair of their vertices. A path z_1 .. z_k
+ * emissive triangle or the environment picked by power (r->bd), numbers of
+ * dimensions of its own, and joins them at every pair of their vertices. A path z_1 .. z_k
  * (z_k on a light) is then sampled by strategies s = 0 (the camera path
  * finds the light), s = 1 (a light sample, as NEE), and s >= 2 (camera
  * vertex z_{t-1} joined to light vertex z_t, t = k + 1 - s), each weighed by
@@ -4007,8 +4010,9 @@ trace_batch(const pt_renderer *r, path *paths, uint32_t n, stage_lanes *sl, cons
  * What the light path reaches is light that the camera path finds only by
  * chance: the NVIDIA Cornell box's light, trapped in the gap above its
  * lamp and leaving through a slit, or a room lit by a lamp turned to the
- * ceiling. Opaque surfaces and emissive triangles only (bd_supported):
- * environment, punctual lights and glass keep the unidirectional variants.
+ * ceiling, or a room lit by the sky through its opening. Opaque surfaces,
+ * emissive triangles and the environment only (pt_render_check_bdpt):
+ * punctual lights and glass keep the unidirectional variants.
  */
 #define BD_VERTS 48u             /* vertices a camera or a light path keeps */
 #define DIM_BD_LIGHT 0x40000000u /* the light path's numbers: 8 a vertex from here */
@@ -4025,6 +4029,7 @@ typedef struct bd_vert {
     pt_closure cl;
     double pf, pr;
     int delta;
+    int inf; /* the environment at infinity (y_0 or z_k only): p holds the direction to it */
     uint32_t tri;
     float b1, b2;
 } bd_vert;
@@ -4034,6 +4039,13 @@ static float bd_tri_area(const pt_renderer *r, uint32_t t)
 {
     const tri_rec *tr = &r->tris[t];
     return 0.5f * pt_v3_len(pt_v3_cross(pt_v3_sub(tr->v1, tr->v0), pt_v3_sub(tr->v2, tr->v0)));
+}
+
+/* The emitters' power in r->bd.cdf's units: the triangles' and the
+ * environment's. */
+static inline double bd_total(const pt_renderer *r)
+{
+    return (r->bd.n ? r->bd.cdf[r->bd.n - 1] : 0.0) + r->bd.env_w;
 }
 
 /* The area density with which a light path starts at a point of emitter
@@ -4053,7 +4065,18 @@ static double bd_start_pdf(const pt_renderer *r, uint32_t tri)
     if (lo >= r->bd.n || t[lo] != tri)
         return 0.0;
     double w = r->bd.cdf[lo] - (lo ? r->bd.cdf[lo - 1] : 0.0);
-    return w / r->bd.cdf[r->bd.n - 1] / bd_tri_area(r, tri);
+    return w / bd_total(r) / bd_tri_area(r, tri);
+}
+
+/* The solid-angle density with which a light path starts from the
+ * environment in direction w (towards it): its pick probability times the
+ * map's whole distribution. */
+static double bd_env_start_pdf(const pt_renderer *r, pt_vec3 w)
+{
+    if (!(r->bd.env_w > 0.0))
+        return 0.0;
+    return r->bd.env_w / bd_total(r) *
+           pt_env_pdf(r->params.env, w, PT_ENV_FULL, pt_v3(0.0f, 0.0f, 0.0f));
 }
 
 /* The solid-angle density of the light path's first direction d from
@@ -4068,9 +4091,13 @@ static double bd_emit_pdf(const pt_renderer *r, uint32_t tri, pt_vec3 d)
     return c > 0.0f ? c / PT_PI : 0.0;
 }
 
-/* Solid-angle density pw at `from` as an area density at v. */
+/* Solid-angle density pw at `from` as an area density at v; at infinity
+ * (the environment) a density stays one of solid angle, as the light
+ * sample's and the light path's start there are. */
 static inline double bd_area(double pw, pt_vec3 from, const bd_vert *v)
 {
+    if (v->inf)
+        return pw;
     pt_vec3 d = pt_v3_sub(v->p, from);
     double d2 = pt_v3_dot(d, d);
     if (!(d2 > 0.0))
@@ -4081,6 +4108,21 @@ static inline double bd_area(double pw, pt_vec3 from, const bd_vert *v)
 static inline pt_vec3 bd_dir(pt_vec3 from, pt_vec3 to)
 {
     return pt_v3_norm(pt_v3_sub(to, from));
+}
+
+/* The unit direction from `from` to vertex v, on a surface or at infinity. */
+static inline pt_vec3 bd_to(pt_vec3 from, const bd_vert *v)
+{
+    return v->inf ? v->p : bd_dir(from, v->p);
+}
+
+/* The area density at v of a light path from the environment along -w:
+ * its start uniform on the disk of radius rad facing w (pbrt-v3's
+ * infinite lights, Pharr et al. 2016, sec. 16.1.5), whose parallel rays
+ * meet v's surface at |w.ng|. */
+static inline double bd_env_area(const pt_renderer *r, const bd_vert *v, pt_vec3 w)
+{
+    return fabs(pt_v3_dot(v->ng, w)) / (PT_PI * (double)r->bd.rad * (double)r->bd.rad);
 }
 
 /* The vertex a ray along d found at hit, its closure built for wo = -d.
@@ -4103,7 +4145,7 @@ static int bd_vertex(const pt_renderer *r, const pt_hit *hit, pt_vec3 d, float t
     v->tri = hit->tri;
     v->b1 = hit->b1;
     v->b2 = hit->b2;
-    v->delta = 0;
+    v->delta = v->inf = 0;
     v->pf = v->pr = 0.0;
     return 1;
 }
@@ -4159,8 +4201,13 @@ static inline double bd_ratio(double a, double b)
  * (s = 1) of z_k from z_{k-1}; delta[i]: z_i scatters by a delta lobe (no
  * strategy joins there). Strategy s' takes the camera vertices z_0 ..
  * z_{t'-1}, t' = k + 1 - s', and the light's z_{t'} .. z_k; only t' >= 2
- * and what BD_VERTS keeps count. The densities of strategy s' over s's are
- * built one vertex at a time outwards from s (pbrt-v3's MISWeight).
+ * and what BD_VERTS keeps count. The densities of strategies s' over s's
+ * are built one vertex at a time outwards from s (pbrt-v3's MISWeight)
+ * along s' = 0, 2, 3, ...; s' = 1 is a branch off 0 or 2, never a step
+ * between them: a light sample's density may be 0 where the others' are
+ * not (the environment's compensated distribution, env.h, leaves out the
+ * directions darker than its mean), and a step through it would lose
+ * every strategy past it.
  */
 static double bd_weight(uint32_t k, uint32_t s, const double *pc, const double *pl, double pn,
                         const int *delta)
@@ -4168,27 +4215,42 @@ static double bd_weight(uint32_t k, uint32_t s, const double *pc, const double *
 #define BD_TAKEN(sp)                                                                               \
     ((sp) <= BD_VERTS && k + 1 - (sp) <= BD_VERTS + 1 &&                                           \
      ((sp) == 0 || ((sp) == 1 ? !delta[k - 1] : !delta[k - (sp)] && !delta[k + 1 - (sp)])))
-    double sum = 1.0, q = 1.0;
-    for (uint32_t sp = s + 1; k + 1 - sp >= 2; sp++) { /* z_{t'} moves to the light's side */
-        uint32_t tp = k + 1 - sp;
+    double sum = 1.0, q = 1.0, q1;
+    /* z_k and z_{k-1} change sides between s' = 0 and 2 */
+    const double up2 = bd_ratio(pl[k], pc[k]) * bd_ratio(pl[k - 1], pc[k - 1]);
+    const double down2 = bd_ratio(pc[k], pl[k]) * bd_ratio(pc[k - 1], pl[k - 1]);
+    uint32_t from = s;
+    if (s == 1) { /* onto the chain: 0, then 2 */
+        q = bd_ratio(pc[k], pn);
+        if (BD_TAKEN(0))
+            sum += q * q;
+        q1 = bd_ratio(pl[k], pn) * bd_ratio(pl[k - 1], pc[k - 1]);
+        if (k + 1 - 2 >= 2 && BD_TAKEN(2))
+            sum += q1 * q1;
+        q = q1;
+        from = 2;
+    } else if (s == 0 && k >= 2) {
+        q1 = bd_ratio(pn, pc[k]);
+        if (BD_TAKEN(1))
+            sum += q1 * q1;
+    }
+    q = s == 1 ? q : 1.0;
+    for (uint32_t sp = from + 1; k + 1 - sp >= 2; sp++) { /* z_{t'} moves to the light's side */
         if (sp == 1)
-            q *= bd_ratio(pn, pc[k]);
-        else if (sp == 2)
-            q *= bd_ratio(pl[k], pn) * bd_ratio(pl[k - 1], pc[k - 1]);
-        else
-            q *= bd_ratio(pl[tp], pc[tp]);
+            continue;
+        q *= sp == 2 ? up2 : bd_ratio(pl[k + 1 - sp], pc[k + 1 - sp]);
         if (BD_TAKEN(sp))
             sum += q * q;
     }
     q = 1.0;
-    for (uint32_t sp = s; sp-- > 0;) { /* z_{t'-1} moves to the camera's side */
-        uint32_t tp = k + 1 - sp;
-        if (sp == 1)
-            q *= bd_ratio(pc[k - 1], pl[k - 1]) * bd_ratio(pn, pl[k]);
-        else if (sp == 0)
-            q *= bd_ratio(pc[k], pn);
-        else
-            q *= bd_ratio(pc[tp - 1], pl[tp - 1]);
+    for (uint32_t sp = s == 1 ? 0 : s; sp-- > 0;) { /* z_{t'-1} moves to the camera's side */
+        if (sp == 1) {
+            q1 = q * bd_ratio(pc[k - 1], pl[k - 1]) * bd_ratio(pn, pl[k]);
+            if (BD_TAKEN(1))
+                sum += q1 * q1;
+            continue;
+        }
+        q *= sp == 0 ? down2 : bd_ratio(pc[k - sp], pl[k - sp]);
         if (BD_TAKEN(sp))
             sum += q * q;
     }
@@ -4204,7 +4266,7 @@ static double bd_back(const pt_renderer *r, const bd_vert *a, const bd_vert *b, 
 {
     if (b->delta)
         return 0.0;
-    return bd_area(bd_pdf(r, b, bd_dir(b->p, c->p), bd_dir(b->p, a->p), features), b->p, a);
+    return bd_area(bd_pdf(r, b, bd_to(b->p, c), bd_to(b->p, a), features), b->p, a);
 }
 
 /* Russian roulette with survival min(m, RR_MAX_SURVIVE) by number u: 0
@@ -4251,23 +4313,21 @@ static double bd_light_pdf(const pt_renderer *r, const bd_scratch *bs, pt_vec3 n
 {
     const bd_vert *y0 = &bs->lig[0], *y1 = &bs->lig[1];
     pt_vec3 n = light_normal(r, &y1->sf, bd_dir(y1->p, next), features);
+    if (y0->inf)
+        return pt_lights_env_pdf(r->lights, y0->p, n);
     return bd_area(pt_lights_pdf(r->lights, r->scene, y0->tri, y1->p, n, y0->p, y0->ng), y1->p, y0);
 }
 
-/* The light path of pa's sample into bs->lig; returns its vertex count
- * (0: none) and adds its rays to *rays. */
-static uint32_t bd_light_path(const pt_renderer *r, const path *pa, bd_scratch *bs, uint64_t *rays,
-                              const uint32_t features)
+/* A light path's start y0 on an emitter triangle picked by x (in [0, the
+ * triangles' power)): a point uniform on it (Turk 1990) by u[1..2], a
+ * direction by the cosine about the side it emits to by u[3..4]. Its ray
+ * (*o, *dir), throughput and the direction's solid-angle density *pw; 0
+ * when it carries nothing. */
+static int bd_start_tri(const pt_renderer *r, const float u[DIM_PER_BOUNCE], double x, bd_vert *y0,
+                        pt_vec3 *o, pt_vec3 *dir, pt_vec3 *beta, double *pw,
+                        const uint32_t features)
 {
     const pt_scene *s = r->scene;
-    const pixel_ctx *pc = pa->pc;
-    float u[DIM_PER_BOUNCE];
-    pt_sample_group g;
-    pt_sample_group_init(&g, pc->seed, DIM_BD_LIGHT);
-    pt_sample_group_eval(&g, pa->index, u);
-    /* A triangle by power, a point uniform on it (Turk 1990), a direction
-     * by the cosine about the side it emits to. */
-    double x = u[0] * r->bd.cdf[r->bd.n - 1];
     uint32_t lo = 0, hi = r->bd.n - 1;
     while (lo < hi) {
         uint32_t mid = lo + (hi - lo) / 2;
@@ -4279,16 +4339,13 @@ static uint32_t bd_light_path(const pt_renderer *r, const path *pa, bd_scratch *
     uint32_t tri = r->bd.tri[lo];
     const tri_rec *tr = &r->tris[tri];
     float su = sqrtf(u[1]), b1 = 1.0f - su, b2 = u[2] * su;
-    bd_vert *y0 = &bs->lig[0];
     y0->p = pt_v3_add(pt_v3_add(pt_v3_scale(tr->v0, 1.0f - b1 - b2), pt_v3_scale(tr->v1, b1)),
                       pt_v3_scale(tr->v2, b2));
     y0->ng = tr->ng;
     y0->tri = tri;
     y0->b1 = b1;
     y0->b2 = b2;
-    y0->delta = 0;
     y0->pf = bd_start_pdf(r, tri);
-    y0->pr = 0.0;
     pt_vec3 n = tr->ng;
     float ud = u[3];
     if (s->materials[s->tri_material[tri]].double_sided) {
@@ -4302,15 +4359,70 @@ static uint32_t bd_light_path(const pt_renderer *r, const path *pa, bd_scratch *
     }
     pt_vec3 dl = pt_sample_cosine_hemisphere(ud, u[4]);
     pt_frame ef = pt_frame_from_normal(n);
-    pt_vec3 dir = pt_frame_to_world(&ef, dl);
-    double pw = bd_emit_pdf(r, tri, dir);
-    pt_vec3 le = pt_emitted(s, tri, b1, b2, dir);
+    *dir = pt_frame_to_world(&ef, dl);
+    *pw = bd_emit_pdf(r, tri, *dir);
+    pt_vec3 le = pt_emitted(s, tri, b1, b2, *dir);
     if ((features & PT_FEAT_ALPHA) && r->alpha && pt_alpha_tri(s, tri))
         le = pt_v3_scale(le, pt_alpha_coverage(s, tri, b1, b2));
-    if (!(pw > 0.0) || !(y0->pf > 0.0) || !any_positive(le))
+    if (!(*pw > 0.0) || !(y0->pf > 0.0) || !any_positive(le))
         return 0;
-    pt_vec3 beta = pt_v3_scale(le, (float)(fabsf(pt_v3_dot(tr->ng, dir)) / (y0->pf * pw)));
-    pt_vec3 o = pt_offset_apply(r->offset, y0->p, n);
+    *beta = pt_v3_scale(le, (float)(fabsf(pt_v3_dot(tr->ng, *dir)) / (y0->pf * *pw)));
+    *o = pt_offset_apply(r->offset, y0->p, n);
+    return 1;
+}
+
+/* A light path's start y0 on the environment: a direction w of the map by
+ * its whole distribution (u[1..2]), a point uniform on the disk of the
+ * scene's bounding sphere that faces w (u[3..4], by the cosine sample's
+ * disk coordinates), the ray from there along -w. As bd_start_tri. */
+static int bd_start_env(const pt_renderer *r, const float u[DIM_PER_BOUNCE], bd_vert *y0,
+                        pt_vec3 *o, pt_vec3 *dir, pt_vec3 *beta)
+{
+    pt_vec3 w, le;
+    float pd;
+    const float uw[2] = {u[1], u[2]};
+    if (!pt_env_sample(r->params.env, uw, PT_ENV_FULL, pt_v3(0.0f, 0.0f, 0.0f), &w, &le, &pd) ||
+        !(pd > 0.0f) || !any_positive(le))
+        return 0;
+    const float R = r->bd.rad;
+    pt_vec3 dk = pt_sample_cosine_hemisphere(u[3], u[4]);
+    pt_frame f = pt_frame_from_normal(w);
+    *o = pt_v3_add(pt_v3_add(r->bd.c, pt_v3_scale(w, R)),
+                   pt_v3_add(pt_v3_scale(f.t, dk.x * R), pt_v3_scale(f.b, dk.y * R)));
+    *dir = pt_v3_neg(w);
+    y0->p = w;
+    y0->ng = *dir;
+    y0->inf = 1;
+    y0->tri = UINT32_MAX;
+    y0->b1 = y0->b2 = 0.0f;
+    y0->pf = r->bd.env_w / bd_total(r) * pd;
+    *beta = pt_v3_scale(le, (float)(PT_PI * (double)R * (double)R / y0->pf));
+    return 1;
+}
+
+/* The light path of pa's sample into bs->lig; returns its vertex count
+ * (0: none) and adds its rays to *rays. Its start: an emitter triangle or
+ * the environment, by their power (r->bd). */
+static uint32_t bd_light_path(const pt_renderer *r, const path *pa, bd_scratch *bs, uint64_t *rays,
+                              const uint32_t features)
+{
+    const pixel_ctx *pc = pa->pc;
+    float u[DIM_PER_BOUNCE];
+    pt_sample_group g;
+    pt_sample_group_init(&g, pc->seed, DIM_BD_LIGHT);
+    pt_sample_group_eval(&g, pa->index, u);
+    bd_vert *y0 = &bs->lig[0];
+    y0->delta = y0->inf = 0;
+    y0->pr = 0.0;
+    pt_vec3 o, dir, beta;
+    double pw = 0.0;
+    const double x = u[0] * bd_total(r), tris = r->bd.n ? r->bd.cdf[r->bd.n - 1] : 0.0;
+    if (r->bd.env_w > 0.0 && !(x < tris)) {
+        if (!bd_start_env(r, u, y0, &o, &dir, &beta))
+            return 0;
+    } else if (!bd_start_tri(r, u, x, y0, &o, &dir, &beta, &pw, features)) {
+        return 0;
+    }
     float ua = u[5];
     int prev_delta = 0;
     uint32_t nl = 1;
@@ -4323,7 +4435,9 @@ static uint32_t bd_light_path(const pt_renderer *r, const path *pa, bd_scratch *
         if (!bd_vertex(r, &hit, dir, pa->time, y, features))
             break;
         y->beta = beta;
-        y->pf = prev_delta ? 0.0 : bd_area(pw, bs->lig[nl - 1].p, y);
+        y->pf = prev_delta           ? 0.0
+                : y0->inf && nl == 1 ? bd_env_area(r, y, y0->p)
+                                     : bd_area(pw, bs->lig[nl - 1].p, y);
         nl++;
         if (nl >= 3) /* y_{nl-3} from y_{nl-2}, the path coming from y_{nl-1} */
             bs->lig[nl - 3].pr = bd_back(r, &bs->lig[nl - 3], &bs->lig[nl - 2], y, features);
@@ -4354,17 +4468,24 @@ static uint32_t bd_light_path(const pt_renderer *r, const path *pa, bd_scratch *
 }
 
 /* A shadow ray from camera vertex x to point `to` (offset off the far
- * surface by nto) carrying c. */
+ * surface by nto), or along direction `to` to the environment (far),
+ * carrying c. */
 static void bd_shadow(const pt_renderer *r, path *pa, const bd_vert *x, pt_vec3 to, pt_vec3 nto,
-                      pt_vec3 c, uint32_t alpha_key, uint64_t *rays, const uint32_t features)
+                      int far, pt_vec3 c, uint32_t alpha_key, uint64_t *rays,
+                      const uint32_t features)
 {
     shadow_ray sr = {{0, 0, 0}, {0, 0, 0}, 0.0f, {0, 0, 0}, 0, 0};
     sr.from = pt_offset_apply(r->offset, x->p, x->ngs);
-    pt_vec3 sd = pt_v3_sub(pt_offset_apply(r->offset, to, nto), sr.from);
-    sr.dist = pt_v3_len(sd);
-    if (!(sr.dist > 0.0f))
-        return;
-    sr.dir = pt_v3_scale(sd, 1.0f / sr.dist);
+    if (far) {
+        sr.dir = to;
+        sr.dist = INFINITY;
+    } else {
+        pt_vec3 sd = pt_v3_sub(pt_offset_apply(r->offset, to, nto), sr.from);
+        sr.dist = pt_v3_len(sd);
+        if (!(sr.dist > 0.0f))
+            return;
+        sr.dir = pt_v3_scale(sd, 1.0f / sr.dist);
+    }
     sr.contrib = c;
     sr.alpha_key = alpha_key;
     (*rays)++;
@@ -4383,6 +4504,37 @@ static void bd_camera_part(bd_scratch *bs, uint32_t t1)
     bs->delta[t1] = 0;
 }
 
+/* s = 0 for a camera path z_1 .. z_{t1-1} whose ray pa->d (sampled at
+ * z_{t1-1} with solid-angle density pw, 0 after a delta) left the scene:
+ * the environment's light along it, weighed against the strategies that
+ * take the path z_1 .. z_{t1-1} z_t1 with z_t1 at infinity. */
+static void bd_escape(const pt_renderer *r, path *pa, bd_scratch *bs, uint32_t t1, pt_vec3 beta,
+                      double pw, const uint32_t features)
+{
+    pt_vec3 le = pt_env_eval(r->params.env, pa->d);
+    if (!any_positive(le))
+        return;
+    double w = 1.0;
+    if (t1 >= 2) {
+        const uint32_t k = t1;
+        bd_vert *xp = &bs->cam[k - 1];
+        bd_vert e;
+        e.inf = 1;
+        e.p = pa->d;
+        if (k >= 3) /* z_{k-2} from z_{k-1}, the path coming from the environment */
+            bs->cam[k - 2].pr = bd_back(r, &bs->cam[k - 2], xp, &e, features);
+        bd_camera_part(bs, k - 1);
+        bs->delta[k - 1] = xp->delta;
+        bs->delta[k] = 0;
+        bs->pc[k] = pw;
+        bs->pl[k] = bd_env_start_pdf(r, pa->d);
+        bs->pl[k - 1] = bd_env_area(r, xp, pa->d);
+        float lp = pt_lights_env_pdf(r->lights, pa->d, light_normal(r, &xp->sf, xp->wo, features));
+        w = bd_weight(k, 0, bs->pc, bs->pl, lp, bs->delta);
+    }
+    pa->L = pt_v3_add(pa->L, pt_v3_scale(pt_v3_mul(beta, le), (float)w));
+}
+
 /* The sample of pa (started by path_start) by bidirectional path tracing,
  * into pa->L; adds its rays to *rays. */
 static void bd_sample(const pt_renderer *r, path *pa, bd_scratch *bs, uint64_t *rays,
@@ -4390,7 +4542,7 @@ static void bd_sample(const pt_renderer *r, path *pa, bd_scratch *bs, uint64_t *
 {
     const pt_scene *s = r->scene;
     const uint32_t max_k = r->params.max_depth + 1u; /* z_1 .. z_k: k - 1 bounces */
-    uint32_t nl = r->bd.n ? bd_light_path(r, pa, bs, rays, features) : 0;
+    uint32_t nl = r->bd.n || r->bd.env_w > 0.0 ? bd_light_path(r, pa, bs, rays, features) : 0;
     if (nl >= 3)
         bs->pn_far = bd_light_pdf(r, bs, bs->lig[2].p, features);
     pt_vec3 beta = pt_v3(1.0f, 1.0f, 1.0f);
@@ -4405,6 +4557,8 @@ static void bd_sample(const pt_renderer *r, path *pa, bd_scratch *bs, uint64_t *
         if (!closest_hit(r, pa->o, pa->d, pa->time, u[OFF_ALPHA], &hit, features)) {
             if (t1 == 1)
                 pa->escaped = 1;
+            if ((features & PT_FEAT_ENV) && r->params.env && !(t1 == 1 && r->params.transparent))
+                bd_escape(r, pa, bs, t1, beta, pw, features);
             break;
         }
         bd_vert *x = &bs->cam[t1];
@@ -4438,7 +4592,8 @@ static void bd_sample(const pt_renderer *r, path *pa, bd_scratch *bs, uint64_t *
         }
         if (t1 >= max_k)
             break;
-        /* s = 1: a light sample (NEE), as the unidirectional variants take it. */
+        /* s = 1: a light sample (NEE), as the unidirectional variants take
+         * it: an emitter triangle's point, or a direction of the map. */
         if (r->nee) {
             const float u3[3] = {u[OFF_LIGHT_PICK], u[OFF_LIGHT_POINT], u[OFF_LIGHT_POINT + 1]};
             pt_light_sample ls;
@@ -4446,28 +4601,37 @@ static void bd_sample(const pt_renderer *r, path *pa, bd_scratch *bs, uint64_t *
             pt_vec3 f;
             if (pt_lights_sample(r->lights, s, x->p, light_normal(r, &x->sf, x->wo, features), u3,
                                  &ls) &&
-                ls.pdf > 0.0f && ls.delta == PT_LIGHT_AREA && any_positive(ls.radiance) &&
-                any_positive(f = bd_fcos(x, ls.wi, &bp))) {
+                ls.pdf > 0.0f &&
+                (ls.delta == PT_LIGHT_AREA ||
+                 ((features & PT_FEAT_ENV) && ls.delta == PT_LIGHT_ENV)) &&
+                any_positive(ls.radiance) && any_positive(f = bd_fcos(x, ls.wi, &bp))) {
                 const uint32_t k = t1 + 1;
+                const int far = ls.delta == PT_LIGHT_ENV;
                 pt_vec3 lrad = ls.radiance;
-                if ((features & PT_FEAT_ALPHA) && r->alpha && pt_alpha_tri(s, ls.tri) &&
+                if (!far && (features & PT_FEAT_ALPHA) && r->alpha && pt_alpha_tri(s, ls.tri) &&
                     !(r->alpha_solid && r->alpha_solid[ls.tri]))
                     lrad = pt_v3_scale(lrad, light_coverage(r, &ls));
                 bd_vert yl;
-                yl.p = ls.position;
-                yl.ng = ls.normal;
+                yl.inf = far;
+                yl.p = far ? ls.wi : ls.position;
+                yl.ng = far ? pt_v3_neg(ls.wi) : ls.normal;
                 bs->delta[k] = 0;
                 bs->pc[k] = bd_area(bp, x->p, &yl);
-                bs->pl[k] = bd_start_pdf(r, ls.tri);
-                bs->pl[k - 1] = bd_area(bd_emit_pdf(r, ls.tri, pt_v3_neg(ls.wi)), yl.p, x);
+                if (far) {
+                    bs->pl[k] = bd_env_start_pdf(r, ls.wi);
+                    bs->pl[k - 1] = bd_env_area(r, x, ls.wi);
+                } else {
+                    bs->pl[k] = bd_start_pdf(r, ls.tri);
+                    bs->pl[k - 1] = bd_area(bd_emit_pdf(r, ls.tri, pt_v3_neg(ls.wi)), yl.p, x);
+                }
                 if (t1 >= 2)
                     bs->pl[t1 - 1] =
                         bd_area(bd_pdf(r, x, ls.wi, bd_dir(x->p, bs->cam[t1 - 1].p), features),
                                 x->p, &bs->cam[t1 - 1]);
                 double w = bd_weight(k, 1, bs->pc, bs->pl, bd_area(ls.pdf, x->p, &yl), bs->delta);
                 pt_vec3 c = pt_v3_scale(pt_v3_mul(beta, pt_v3_mul(f, lrad)), (float)(w / ls.pdf));
-                pt_vec3 nto = pt_v3_dot(ls.normal, ls.wi) > 0.0f ? pt_v3_neg(ls.normal) : ls.normal;
-                bd_shadow(r, pa, x, ls.position, nto, c,
+                pt_vec3 nto = pt_v3_dot(yl.ng, ls.wi) > 0.0f ? pt_v3_neg(yl.ng) : yl.ng;
+                bd_shadow(r, pa, x, yl.p, nto, far, c,
                           (features & PT_FEAT_ALPHA) ? pt_alpha_key(u[OFF_ALPHA], ALPHA_SALT_SHADOW)
                                                      : 0u,
                           rays, features);
@@ -4496,7 +4660,7 @@ static void bd_sample(const pt_renderer *r, path *pa, bd_scratch *bs, uint64_t *
             bs->pc[t1 + 1] = bd_area(px, x->p, y);
             bs->pl[t1] = bd_area(py, y->p, x);
             bs->pc[t1 + 2] =
-                bd_area(bd_pdf(r, y, pt_v3_neg(dn), bd_dir(y->p, bs->lig[j - 1].p), features), y->p,
+                bd_area(bd_pdf(r, y, pt_v3_neg(dn), bd_to(y->p, &bs->lig[j - 1]), features), y->p,
                         &bs->lig[j - 1]);
             if (t1 >= 2)
                 bs->pl[t1 - 1] =
@@ -4508,7 +4672,7 @@ static void bd_sample(const pt_renderer *r, path *pa, bd_scratch *bs, uint64_t *
             pt_vec3 c = pt_v3_mul(pt_v3_mul(beta, fx), pt_v3_mul(fy, y->beta));
             c = pt_v3_scale(c, (float)(w / d2) * bd_adjoint(y, y->wo, pt_v3_neg(dn)));
             uint32_t key = (features & PT_FEAT_ALPHA) ? pt_alpha_key(u[OFF_ALPHA], 2u + j) : 0u;
-            bd_shadow(r, pa, x, y->p, y->ngs, c, key, rays, features);
+            bd_shadow(r, pa, x, y->p, y->ngs, 0, c, key, rays, features);
         }
         /* On: the BSDF's direction, roulette as the unidirectional variants. */
         pt_vec3 wi, w;
@@ -5160,9 +5324,7 @@ pt_status pt_render_check_bdpt(const pt_scene *scene, int has_env, int guiding, 
 {
     const uint32_t f = scene->features;
     const char *why = NULL;
-    if (has_env)
-        why = "an environment light (--env, --background)";
-    else if (f & PT_FEAT_PUNCTUAL)
+    if (f & PT_FEAT_PUNCTUAL)
         why = "KHR_lights_punctual lights";
     else if (f & (PT_FEAT_TRANSMISSION | PT_FEAT_VOLUME | PT_FEAT_THIN_GLASS |
                   PT_FEAT_DIFFUSE_TRANSMISSION | PT_FEAT_DISPERSION))
@@ -5170,8 +5332,8 @@ pt_status pt_render_check_bdpt(const pt_scene *scene, int has_env, int guiding, 
               "KHR_materials_diffuse_transmission)";
     else if (f & PT_FEAT_UNLIT)
         why = "unlit materials (KHR_materials_unlit)";
-    else if (!(f & PT_FEAT_EMITTERS))
-        why = "no emissive surface to start light paths on";
+    else if (!(f & PT_FEAT_EMITTERS) && !has_env)
+        why = "no emissive surface or environment to start light paths on";
     else if (guiding)
         why = "path guiding";
     else if (passes & PT_PASS_ALL)
@@ -5182,7 +5344,7 @@ pt_status pt_render_check_bdpt(const pt_scene *scene, int has_env, int guiding, 
         return PT_OK;
     return pt_error_set(err, PT_ERR_ARG,
                         "bidirectional path tracing (--bdpt) renders scenes lit by emissive "
-                        "surfaces with opaque materials only; this render has %s",
+                        "surfaces and environments with opaque materials only; this render has %s",
                         why);
 }
 
@@ -5214,6 +5376,19 @@ static pt_status bd_setup(pt_renderer *r, pt_error *err)
         r->bd.tri[r->bd.n] = t;
         r->bd.cdf[r->bd.n] = sum;
         r->bd.n++;
+    }
+    /* The environment: the flux its parallel rays carry through the disk
+     * of the scene's bounding sphere, pi R^2 4 pi mean, over pi as the
+     * triangles' area x luminance is. */
+    const pt_env *env = r->params.env;
+    r->bd.env_w = 0.0;
+    if (env) {
+        pt_vec3 lo = s->bounds_min, hi = s->bounds_max;
+        r->bd.c = pt_v3_scale(pt_v3_add(lo, hi), 0.5f);
+        r->bd.rad = 0.5f * pt_v3_len(pt_v3_sub(hi, lo)) * 1.001f + 1e-6f;
+        double w = 4.0 * PT_PI * (double)r->bd.rad * (double)r->bd.rad * pt_env_mean_luminance(env);
+        if (w > 0.0 && isfinite(w))
+            r->bd.env_w = w;
     }
     return PT_OK;
 }
@@ -5319,8 +5494,9 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
      * (light off glass through a cutout stays out, as it was); a refraction
      * chain's seed ray answers a shadow ray, which alpha would make
      * stochastic. */
-    const int chains = !params->no_manifold && r->nee && params->light_strategy == PT_LIGHT_MIS &&
-                       (features & PT_FEAT_GLOSSY) && !(features & PT_FEAT_MOTION);
+    const int chains = !params->no_manifold && !params->bdpt && r->nee &&
+                       params->light_strategy == PT_LIGHT_MIS && (features & PT_FEAT_GLOSSY) &&
+                       !(features & PT_FEAT_MOTION);
     r->refract = chains && !(features & PT_FEAT_ALPHA) &&
                  (params->env || scene_punctual(scene) || (features & PT_FEAT_EMITTERS)) &&
                  scene_manifold(scene);

@@ -324,8 +324,8 @@ int pt_renderer_lanes(const pt_renderer *r);
 int pt_renderer_chains(const pt_renderer *r);
 
 /* PT_OK when bidirectional path tracing (pt_render_params.bdpt) can render
- * scene: lit by emissive triangles alone (has_env: an environment map or a
- * background), with opaque materials (no transmission, no unlit), and
+ * scene: lit by emissive triangles, an environment (has_env: a map or a
+ * background) or both, with opaque materials (no transmission, no unlit), and
  * without guiding, render passes (the PT_PASS_* mask) or clamping; else
  * PT_ERR_ARG saying what stands in the way, in words for the user (the
  * coordinator refuses such a job when it is submitted; pt_renderer_new

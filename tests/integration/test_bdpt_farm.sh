@@ -2,16 +2,19 @@
 # Bidirectional path tracing on the farm: ptctl submit --bdpt (a queue, 2
 # local workers) and ptserve --local 2 --bdpt give the image ptworker --scene
 # ... --bdpt gives, bit for bit, and that image is not the unidirectional one
-# (so a farm that dropped the flag would fail). A render --bdpt cannot take
-# (a background light, render passes) is refused by all three before any
-# work starts, with the reason; queue mode refuses ptserve's own --bdpt (a
-# queued job asks with ptctl submit).
+# (so a farm that dropped the flag would fail). The box is lit by its lamp
+# and by a background through its open front, so light paths start on
+# both. A render --bdpt cannot take (glass, render passes) is refused by
+# all three before any work starts, with the reason; queue mode refuses
+# ptserve's own --bdpt (a queued job asks with ptctl submit).
 set -euo pipefail
 # shellcheck source=tests/integration/lib_farm.sh
 . "$(dirname "$0")/lib_farm.sh"
 farm_init bdpt_farm
 
-view=(--res 40x32 --spp 24 --seed 5)
+bg=0.4,0.5,0.6
+view=(--res 40x32 --spp 24 --seed 5 --background "$bg")
+glass=$src/scenes/glass_things.gltf
 "$bin/ptworker" --scene "$scene" "${view[@]}" --bdpt --tile 16 --chunk 8 -q \
   -o "$tmp/ref.exr" 2> "$tmp/ref.log" || fail "ptworker --bdpt: $(cat "$tmp/ref.log")"
 "$bin/ptworker" --scene "$scene" "${view[@]}" --tile 16 --chunk 8 -q \
@@ -29,8 +32,8 @@ bad() { # WHAT PATTERN CMD...
     fail "$what: rc $rc: $(cat "$tmp/bad.log")"
   fi
 }
-bad "ptworker --bdpt --background" "this render has an environment light" \
-  "$bin/ptworker" --scene "$scene" "${view[@]}" --bdpt --background 0.5,0.5,0.5 -q -o "$tmp/x.exr"
+bad "ptworker --bdpt, glass" "this render has transmissive materials" \
+  "$bin/ptworker" --scene "$glass" "${view[@]}" --bdpt -q -o "$tmp/x.exr"
 bad "ptserve --bdpt --passes" "this render has render passes" \
   "$bin/ptserve" --local 1 "${view[@]}" --bdpt --passes albedo -o "$tmp/x.exr" "$scene"
 bad "ptserve --state-dir --bdpt" "one-job mode" \
@@ -39,8 +42,8 @@ bad "ptserve --state-dir --bdpt" "one-job mode" \
 
 serve serve.log
 workers 2
-bad "ptctl submit --bdpt --background" "job refused: bidirectional path tracing (--bdpt)" \
-  "$bin/ptctl" submit "$scene" "${view[@]}" --bdpt --background 0.5,0.5,0.5
+bad "ptctl submit --bdpt, glass" "job refused: bidirectional path tracing (--bdpt)" \
+  "$bin/ptctl" submit "$glass" "${view[@]}" --bdpt
 job=$("$bin/ptctl" submit "$scene" "${view[@]}" --bdpt)
 "$bin/ptctl" watch "$job" 2> /dev/null || fail "watch exited $?"
 "$bin/ptctl" fetch "$job" -o "$tmp/queued.exr"
