@@ -512,8 +512,100 @@ def chrome_sun():
     write(b.finish(doc), "chrome_sun.gltf")
 
 
+def look_rotation(eye, target):
+    """The glTF rotation (x, y, z, w) of a camera at eye looking at target,
+    y up (a camera looks down its -Z)."""
+    f = normalize(sub(target, eye))
+    r = normalize(cross(f, (0.0, 1.0, 0.0)))
+    u = cross(r, f)
+    z = (-f[0], -f[1], -f[2])
+    m = ((r[0], u[0], z[0]), (r[1], u[1], z[1]), (r[2], u[2], z[2]))  # columns r, u, z
+    tr = m[0][0] + m[1][1] + m[2][2]
+    if tr > 0.0:
+        s = math.sqrt(tr + 1.0) * 2.0
+        q = ((m[2][1] - m[1][2]) / s, (m[0][2] - m[2][0]) / s, (m[1][0] - m[0][1]) / s, 0.25 * s)
+    else:
+        i = max(range(3), key=lambda k: m[k][k])
+        j, k = (i + 1) % 3, (i + 2) % 3
+        s = math.sqrt(1.0 + m[i][i] - m[j][j] - m[k][k]) * 2.0
+        q = [0.0, 0.0, 0.0, (m[k][j] - m[j][k]) / s]
+        q[i] = 0.25 * s
+        q[j] = (m[j][i] + m[i][j]) / s
+        q[k] = (m[k][i] + m[i][k]) / s
+    return [f32(c) for c in q]
+
+
+def window_room():
+    """A closed room (4 x 3 x 5 m) with one window in its back wall and a
+    cabinet, for an environment map to light through the window: under
+    rooitou_park_1k.hdr the low sun falls through it onto the left wall, and
+    the rest of the room is lit by that patch and the sky, in bounces (the
+    indirect light bidirectional path tracing is for). The camera looks
+    into the room, away from the window."""
+    def quad(corners, normal):
+        a, b_, c, d = corners
+        if dot(cross(sub(b_, a), sub(c, a)), normal) < 0.0:
+            a, b_, c, d = a, d, c, b_
+        return [a, b_, c, d], [normal] * 4, [0, 1, 2, 0, 2, 3]
+
+    def box_faces(lo, hi):
+        (x0, y0, z0), (x1, y1, z1) = lo, hi
+        return [
+            ([(x0, y1, z0), (x1, y1, z0), (x1, y1, z1), (x0, y1, z1)], (0.0, 1.0, 0.0)),
+            ([(x0, y0, z1), (x1, y0, z1), (x1, y1, z1), (x0, y1, z1)], (0.0, 0.0, 1.0)),
+            ([(x0, y0, z0), (x1, y0, z0), (x1, y1, z0), (x0, y1, z0)], (0.0, 0.0, -1.0)),
+            ([(x1, y0, z0), (x1, y0, z1), (x1, y1, z1), (x1, y1, z0)], (1.0, 0.0, 0.0)),
+            ([(x0, y0, z0), (x0, y0, z1), (x0, y1, z1), (x0, y1, z0)], (-1.0, 0.0, 0.0)),
+        ]
+
+    X, Y, Z = 2.0, 3.0, 2.5
+    wx0, wx1, wy0, wy1 = 0.2, 1.4, 0.9, 2.1  # the window, in the wall z = -Z
+    walls = [
+        ("floor", [(-X, 0.0, -Z), (X, 0.0, -Z), (X, 0.0, Z), (-X, 0.0, Z)], (0.0, 1.0, 0.0), 1),
+        ("ceiling", [(-X, Y, -Z), (X, Y, -Z), (X, Y, Z), (-X, Y, Z)], (0.0, -1.0, 0.0), 0),
+        ("front", [(-X, 0.0, Z), (X, 0.0, Z), (X, Y, Z), (-X, Y, Z)], (0.0, 0.0, -1.0), 0),
+        ("left", [(-X, 0.0, -Z), (-X, 0.0, Z), (-X, Y, Z), (-X, Y, -Z)], (1.0, 0.0, 0.0), 0),
+        ("right", [(X, 0.0, -Z), (X, 0.0, Z), (X, Y, Z), (X, Y, -Z)], (-1.0, 0.0, 0.0), 0),
+        ("back_a", [(-X, 0.0, -Z), (wx0, 0.0, -Z), (wx0, Y, -Z), (-X, Y, -Z)], (0.0, 0.0, 1.0), 0),
+        ("back_b", [(wx1, 0.0, -Z), (X, 0.0, -Z), (X, Y, -Z), (wx1, Y, -Z)], (0.0, 0.0, 1.0), 0),
+        ("back_c", [(wx0, 0.0, -Z), (wx1, 0.0, -Z), (wx1, wy0, -Z), (wx0, wy0, -Z)],
+         (0.0, 0.0, 1.0), 0),
+        ("back_d", [(wx0, wy1, -Z), (wx1, wy1, -Z), (wx1, Y, -Z), (wx0, Y, -Z)],
+         (0.0, 0.0, 1.0), 0),
+    ]
+    walls += [("cabinet_%d" % i, c, n, 2)
+              for i, (c, n) in enumerate(box_faces((-1.2, 0.0, -0.6), (0.0, 0.9, 0.4)))]
+    b = Builder()
+    meshes, nodes = [], []
+    for name, corners, normal, mat in walls:
+        pos, nrm, idx = quad(corners, normal)
+        meshes.append({"name": name, "primitives": [b.primitive(pos, nrm, idx, mat)]})
+        nodes.append({"name": name, "mesh": len(meshes) - 1})
+    materials = [
+        lambert("plaster", (0.75, 0.73, 0.7), double_sided=True),
+        lambert("wood", (0.45, 0.3, 0.2), double_sided=True),
+        lambert("cabinet", (0.2, 0.35, 0.6), double_sided=True),
+    ]
+    eye, target = (1.5, 1.4, 2.2), (-1.5, 0.8, -0.5)
+    nodes.append({"name": "Camera", "camera": 0, "translation": list(eye),
+                  "rotation": look_rotation(eye, target)})
+    doc = {
+        "asset": {"version": "2.0", "generator": "ptfarm scenes/make_scenes.py"},
+        "extensionsUsed": ["KHR_materials_specular"],
+        "scene": 0,
+        "scenes": [{"name": "window_room", "nodes": list(range(len(nodes)))}],
+        "nodes": nodes,
+        "meshes": meshes,
+        "materials": materials,
+        "cameras": [{"name": "Camera", "type": "perspective",
+                     "perspective": {"yfov": 1.2, "aspectRatio": 1.0, "znear": 0.01}}],
+    }
+    write(b.finish(doc), "window_room.gltf")
+
+
 if __name__ == "__main__":
     cornell_box()
     furnace()
     glass_things()
     chrome_sun()
+    window_room()

@@ -78,6 +78,7 @@ scene_args() {
     lamp) echo "--scene $SHARED/scenes/StainedGlassLamp/StainedGlassLamp.gltf" ;;
     helmet) echo "--scene $SHARED/scenes/DamagedHelmet/DamagedHelmet.glb --env $SHARED/envs/rooitou_park_1k.hdr" ;;
     toycar_park) echo "--scene $SHARED/scenes/ToyCar/ToyCar.gltf --env $SHARED/envs/rooitou_park_1k.hdr" ;;
+    window) echo "--scene $ROOT/scenes/window_room.gltf --env $SHARED/envs/rooitou_park_1k.hdr" ;;
     *) return 1 ;;
     esac
 }
