@@ -248,6 +248,16 @@ def oriented_quads(quads, facing):
     return pos, nrm, idx
 
 
+def meshes_of(b, parts):
+    """A mesh and a node of its own for each (name, (positions, normals,
+    indices), material) of parts, in order."""
+    meshes, nodes = [], []
+    for name, (pos, nrm, idx), mat in parts:
+        meshes.append({"name": name, "primitives": [b.primitive(pos, nrm, idx, mat)]})
+        nodes.append({"name": name, "mesh": len(meshes) - 1})
+    return meshes, nodes
+
+
 def cornell_box():
     white = (0.725, 0.71, 0.68)
     red = (0.63, 0.065, 0.05)
@@ -289,11 +299,8 @@ def cornell_box():
     ]
 
     b = Builder()
-    meshes, nodes = [], []
-    for name, quads, facing, mat in surfaces:
-        pos, nrm, idx = oriented_quads(quads, facing)
-        meshes.append({"name": name, "primitives": [b.primitive(pos, nrm, idx, mat)]})
-        nodes.append({"name": name, "mesh": len(meshes) - 1})
+    meshes, nodes = meshes_of(b, [(name, oriented_quads(quads, facing), mat)
+                                  for name, quads, facing, mat in surfaces])
 
     yfov = 2.0 * math.atan(0.5 * CB_FILM / CB_FOCAL)
     nodes.append({"name": "Camera", "camera": 0,
@@ -576,11 +583,8 @@ def window_room():
     walls += [("cabinet_%d" % i, c, n, 2)
               for i, (c, n) in enumerate(box_faces((-1.2, 0.0, -0.6), (0.0, 0.9, 0.4)))]
     b = Builder()
-    meshes, nodes = [], []
-    for name, corners, normal, mat in walls:
-        pos, nrm, idx = quad(corners, normal)
-        meshes.append({"name": name, "primitives": [b.primitive(pos, nrm, idx, mat)]})
-        nodes.append({"name": name, "mesh": len(meshes) - 1})
+    meshes, nodes = meshes_of(b, [(name, quad(corners, normal), mat)
+                                  for name, corners, normal, mat in walls])
     materials = [
         lambert("plaster", (0.75, 0.73, 0.7), double_sided=True),
         lambert("wood", (0.45, 0.3, 0.2), double_sided=True),
