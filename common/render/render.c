@@ -4467,29 +4467,41 @@ static uint32_t bd_light_path(const pt_renderer *r, const path *pa, bd_scratch *
     return nl;
 }
 
-/* A shadow ray from camera vertex x to point `to` (offset off the far
- * surface by nto), or along direction `to` to the environment (far),
- * carrying c. */
-static void bd_shadow(const pt_renderer *r, path *pa, const bd_vert *x, pt_vec3 to, pt_vec3 nto,
-                      int far, pt_vec3 c, uint32_t alpha_key, uint64_t *rays,
-                      const uint32_t features)
+/* What the shadow ray from camera vertex x to point `to` (offset off the
+ * far surface by nto), or along direction `to` to the environment (far),
+ * lets through: 0 blocked, 1 clear, between for BLEND surfaces (as
+ * trace_shadow weighs them). Counts its ray in *rays. Traced before a
+ * join's densities are worked out, so that a blocked one costs none. */
+static float bd_visible(const pt_renderer *r, const path *pa, const bd_vert *x, pt_vec3 to,
+                        pt_vec3 nto, int far, uint32_t alpha_key, uint64_t *rays,
+                        const uint32_t features)
 {
-    shadow_ray sr = {{0, 0, 0}, {0, 0, 0}, 0.0f, {0, 0, 0}, 0, 0};
-    sr.from = pt_offset_apply(r->offset, x->p, x->ngs);
+    pt_vec3 from = pt_offset_apply(r->offset, x->p, x->ngs), dir;
+    float dist;
     if (far) {
-        sr.dir = to;
-        sr.dist = INFINITY;
+        dir = to;
+        dist = INFINITY;
     } else {
-        pt_vec3 sd = pt_v3_sub(pt_offset_apply(r->offset, to, nto), sr.from);
-        sr.dist = pt_v3_len(sd);
-        if (!(sr.dist > 0.0f))
-            return;
-        sr.dir = pt_v3_scale(sd, 1.0f / sr.dist);
+        pt_vec3 sd = pt_v3_sub(pt_offset_apply(r->offset, to, nto), from);
+        dist = pt_v3_len(sd);
+        if (!(dist > 0.0f))
+            return 0.0f;
+        dir = pt_v3_scale(sd, 1.0f / dist);
     }
-    sr.contrib = c;
-    sr.alpha_key = alpha_key;
     (*rays)++;
-    trace_shadow(r, pa, &sr, NULL, features);
+    if ((features & PT_FEAT_ALPHA) && r->blend && !((features & PT_FEAT_MOTION) && r->motion))
+        return pt_accel_transmittance_alpha(r->accel, from, dir, dist, alpha_key);
+    int blocked;
+    if ((features & PT_FEAT_MOTION) && r->motion) {
+        int alpha = (features & PT_FEAT_ALPHA) && r->alpha;
+        blocked = pt_accel_occluded_time(r->accel, from, dir, dist, pa->time, alpha,
+                                         alpha ? alpha_key : 0);
+    } else {
+        blocked = (features & PT_FEAT_ALPHA) && r->alpha
+                      ? pt_accel_occluded_alpha(r->accel, from, dir, dist, alpha_key)
+                      : pt_accel_occluded(r->accel, from, dir, dist);
+    }
+    return blocked ? 0.0f : 1.0f;
 }
 
 /* The camera densities of z_1 .. z_t1 into pc/pl/delta (the ones every
@@ -4502,6 +4514,58 @@ static void bd_camera_part(bd_scratch *bs, uint32_t t1)
         bs->delta[i] = bs->cam[i].delta;
     }
     bs->delta[t1] = 0;
+}
+
+/* s = 1 at camera vertex x = z_t1 (throughput beta, its bounce's numbers
+ * u): a light sample, as the unidirectional variants take it (an emitter
+ * triangle's point, or a direction of the map), weighed against the other
+ * strategies, into pa->L. */
+static void bd_nee(const pt_renderer *r, path *pa, bd_scratch *bs, const bd_vert *x, uint32_t t1,
+                   pt_vec3 beta, const float u[DIM_PER_BOUNCE], uint64_t *rays,
+                   const uint32_t features)
+{
+    const pt_scene *s = r->scene;
+    const float u3[3] = {u[OFF_LIGHT_PICK], u[OFF_LIGHT_POINT], u[OFF_LIGHT_POINT + 1]};
+    pt_light_sample ls;
+    float bp;
+    pt_vec3 f;
+    if (pt_lights_sample(r->lights, s, x->p, light_normal(r, &x->sf, x->wo, features), u3, &ls) &&
+        ls.pdf > 0.0f &&
+        (ls.delta == PT_LIGHT_AREA || ((features & PT_FEAT_ENV) && ls.delta == PT_LIGHT_ENV)) &&
+        any_positive(ls.radiance) && any_positive(f = bd_fcos(x, ls.wi, &bp))) {
+        const uint32_t k = t1 + 1;
+        const int far = ls.delta == PT_LIGHT_ENV;
+        pt_vec3 lrad = ls.radiance;
+        if (!far && (features & PT_FEAT_ALPHA) && r->alpha && pt_alpha_tri(s, ls.tri) &&
+            !(r->alpha_solid && r->alpha_solid[ls.tri]))
+            lrad = pt_v3_scale(lrad, light_coverage(r, &ls));
+        bd_vert yl;
+        yl.inf = far;
+        yl.p = far ? ls.wi : ls.position;
+        yl.ng = far ? pt_v3_neg(ls.wi) : ls.normal;
+        pt_vec3 nto = pt_v3_dot(yl.ng, ls.wi) > 0.0f ? pt_v3_neg(yl.ng) : yl.ng;
+        const float vis = bd_visible(
+            r, pa, x, yl.p, nto, far,
+            (features & PT_FEAT_ALPHA) ? pt_alpha_key(u[OFF_ALPHA], ALPHA_SALT_SHADOW) : 0u, rays,
+            features);
+        if (!(vis > 0.0f))
+            return;
+        bs->delta[k] = 0;
+        bs->pc[k] = bd_area(bp, x->p, &yl);
+        if (far) {
+            bs->pl[k] = bd_env_start_pdf(r, ls.wi);
+            bs->pl[k - 1] = bd_env_area(r, x, ls.wi);
+        } else {
+            bs->pl[k] = bd_start_pdf(r, ls.tri);
+            bs->pl[k - 1] = bd_area(bd_emit_pdf(r, ls.tri, pt_v3_neg(ls.wi)), yl.p, x);
+        }
+        if (t1 >= 2)
+            bs->pl[t1 - 1] = bd_area(bd_pdf(r, x, ls.wi, bd_dir(x->p, bs->cam[t1 - 1].p), features),
+                                     x->p, &bs->cam[t1 - 1]);
+        double w = bd_weight(k, 1, bs->pc, bs->pl, bd_area(ls.pdf, x->p, &yl), bs->delta);
+        pt_vec3 c = pt_v3_scale(pt_v3_mul(beta, pt_v3_mul(f, lrad)), (float)(w / ls.pdf));
+        pa->L = pt_v3_add(pa->L, pt_v3_scale(c, vis));
+    }
 }
 
 /* s = 0 for a camera path z_1 .. z_{t1-1} whose ray pa->d (sampled at
@@ -4592,51 +4656,9 @@ static void bd_sample(const pt_renderer *r, path *pa, bd_scratch *bs, uint64_t *
         }
         if (t1 >= max_k)
             break;
-        /* s = 1: a light sample (NEE), as the unidirectional variants take
-         * it: an emitter triangle's point, or a direction of the map. */
-        if (r->nee) {
-            const float u3[3] = {u[OFF_LIGHT_PICK], u[OFF_LIGHT_POINT], u[OFF_LIGHT_POINT + 1]};
-            pt_light_sample ls;
-            float bp;
-            pt_vec3 f;
-            if (pt_lights_sample(r->lights, s, x->p, light_normal(r, &x->sf, x->wo, features), u3,
-                                 &ls) &&
-                ls.pdf > 0.0f &&
-                (ls.delta == PT_LIGHT_AREA ||
-                 ((features & PT_FEAT_ENV) && ls.delta == PT_LIGHT_ENV)) &&
-                any_positive(ls.radiance) && any_positive(f = bd_fcos(x, ls.wi, &bp))) {
-                const uint32_t k = t1 + 1;
-                const int far = ls.delta == PT_LIGHT_ENV;
-                pt_vec3 lrad = ls.radiance;
-                if (!far && (features & PT_FEAT_ALPHA) && r->alpha && pt_alpha_tri(s, ls.tri) &&
-                    !(r->alpha_solid && r->alpha_solid[ls.tri]))
-                    lrad = pt_v3_scale(lrad, light_coverage(r, &ls));
-                bd_vert yl;
-                yl.inf = far;
-                yl.p = far ? ls.wi : ls.position;
-                yl.ng = far ? pt_v3_neg(ls.wi) : ls.normal;
-                bs->delta[k] = 0;
-                bs->pc[k] = bd_area(bp, x->p, &yl);
-                if (far) {
-                    bs->pl[k] = bd_env_start_pdf(r, ls.wi);
-                    bs->pl[k - 1] = bd_env_area(r, x, ls.wi);
-                } else {
-                    bs->pl[k] = bd_start_pdf(r, ls.tri);
-                    bs->pl[k - 1] = bd_area(bd_emit_pdf(r, ls.tri, pt_v3_neg(ls.wi)), yl.p, x);
-                }
-                if (t1 >= 2)
-                    bs->pl[t1 - 1] =
-                        bd_area(bd_pdf(r, x, ls.wi, bd_dir(x->p, bs->cam[t1 - 1].p), features),
-                                x->p, &bs->cam[t1 - 1]);
-                double w = bd_weight(k, 1, bs->pc, bs->pl, bd_area(ls.pdf, x->p, &yl), bs->delta);
-                pt_vec3 c = pt_v3_scale(pt_v3_mul(beta, pt_v3_mul(f, lrad)), (float)(w / ls.pdf));
-                pt_vec3 nto = pt_v3_dot(yl.ng, ls.wi) > 0.0f ? pt_v3_neg(yl.ng) : yl.ng;
-                bd_shadow(r, pa, x, yl.p, nto, far, c,
-                          (features & PT_FEAT_ALPHA) ? pt_alpha_key(u[OFF_ALPHA], ALPHA_SALT_SHADOW)
-                                                     : 0u,
-                          rays, features);
-            }
-        }
+        /* s = 1: a light sample (NEE). */
+        if (r->nee)
+            bd_nee(r, pa, bs, x, t1, beta, u, rays, features);
         /* s >= 2: x joined to each light vertex y_j past the light. */
         for (uint32_t j = 1; j < nl && t1 + j + 1 <= max_k; j++) {
             const bd_vert *y = &bs->lig[j];
@@ -4648,6 +4670,10 @@ static void bd_sample(const pt_renderer *r, path *pa, bd_scratch *bs, uint64_t *
             float px, py;
             pt_vec3 fx = bd_fcos(x, dn, &px), fy;
             if (!any_positive(fx) || !any_positive(fy = bd_fcos(y, pt_v3_neg(dn), &py)))
+                continue;
+            uint32_t key = (features & PT_FEAT_ALPHA) ? pt_alpha_key(u[OFF_ALPHA], 2u + j) : 0u;
+            const float vis = bd_visible(r, pa, x, y->p, y->ngs, 0, key, rays, features);
+            if (!(vis > 0.0f))
                 continue;
             /* the path z_1 .. z_t1 (camera), z_{t1+1} = y_j .. z_k = y_0 */
             const uint32_t k = t1 + j + 1;
@@ -4671,8 +4697,7 @@ static void bd_sample(const pt_renderer *r, path *pa, bd_scratch *bs, uint64_t *
                           j >= 2 ? bs->pn_far : bd_light_pdf(r, bs, x->p, features), bs->delta);
             pt_vec3 c = pt_v3_mul(pt_v3_mul(beta, fx), pt_v3_mul(fy, y->beta));
             c = pt_v3_scale(c, (float)(w / d2) * bd_adjoint(y, y->wo, pt_v3_neg(dn)));
-            uint32_t key = (features & PT_FEAT_ALPHA) ? pt_alpha_key(u[OFF_ALPHA], 2u + j) : 0u;
-            bd_shadow(r, pa, x, y->p, y->ngs, 0, c, key, rays, features);
+            pa->L = pt_v3_add(pa->L, pt_v3_scale(c, vis));
         }
         /* On: the BSDF's direction, roulette as the unidirectional variants. */
         pt_vec3 wi, w;
