@@ -88,6 +88,7 @@ struct pt_lights {
     uint32_t npunct;          /* the punctual class's lights (0: no class) */
     uint32_t npunct_all;      /* punctual lights NEE can choose, by class or tree */
     uint32_t *tree_punct;     /* tree light count + i: the scene's punctual light */
+    uint32_t ntree_punct;     /* ... for i below this */
     const pt_punctual *punct; /* the scene's */
     double *punct_cdf;        /* npunct + 1: cumulative power among them, 0 to 1 */
     float *punct_pmf;         /* the probability of choosing each, class included */
@@ -393,6 +394,7 @@ static pt_status build_tree(const pt_scene *scene, pt_lights *L, const double *p
         it->two_sided = 0;
         L->tree_punct[j++] = i;
     }
+    L->ntree_punct = m;
     pt_status st = pt_light_tree_new(items, n + m, &L->tree, err);
     pt_free(items);
     return st;
@@ -1247,6 +1249,18 @@ void pt_lights_sample_n(const pt_lights *lights, const pt_scene *scene, uint32_t
             ok[k0 + l] = 1;
         }
     }
+}
+
+float pt_lights_punctual_pmf(const pt_lights *lights, uint32_t i, pt_vec3 p, pt_vec3 n)
+{
+    if (!lights || !lights->punct)
+        return 0.0f;
+    if (lights->tree)
+        for (uint32_t j = 0; j < lights->ntree_punct; j++)
+            if (lights->tree_punct[j] == i)
+                return (float)(pt_light_tree_pmf(lights->tree, p, n, lights->count + j) *
+                               lights->p_tri);
+    return i < lights->npunct ? lights->punct_pmf[i] : 0.0f;
 }
 
 float pt_lights_pdf(const pt_lights *lights, const pt_scene *scene, uint32_t tri, pt_vec3 p,

@@ -143,6 +143,11 @@ void pt_lights_sample_n(const pt_lights *lights, const pt_scene *scene, uint32_t
                         const pt_vec3 *p, const pt_vec3 *nrm, const float (*u)[3],
                         pt_light_sample *s, int *ok);
 
+/* The probability with which pt_lights_sample chooses the scene's punctual
+ * light i for a receiver at p with normal n (as pt_lights_sample takes
+ * them: by the light tree where it holds the light); 0 when it never does. */
+float pt_lights_punctual_pmf(const pt_lights *lights, uint32_t i, pt_vec3 p, pt_vec3 n);
+
 /* Solid-angle pdf that pt_lights_sample would give for reaching point `hit` on
  * triangle `tri` (normal n_light) from p with receiver normal n (the same n
  * NEE was given there: MIS needs the same function); 0 when tri is not a

@@ -162,9 +162,12 @@ struct pt_renderer {
         uint32_t n;
         uint32_t *tri;
         double *cdf;
-        double env_w; /* the environment's power in cdf's units (bd_setup), 0: none */
-        pt_vec3 c;    /* the scene's bounding sphere, whose disks the environment's */
-        float rad;    /* light paths start on */
+        uint32_t np;    /* point and spot lights light paths start at: the scene's */
+        uint32_t *pidx; /* punctual light pidx[i], with the running sum of their */
+        double *pcdf;   /* power in cdf's units, after the triangles' */
+        double env_w;   /* the environment's power in cdf's units (bd_setup), 0: none */
+        pt_vec3 c;      /* the scene's bounding sphere, whose disks the environment's */
+        float rad;      /* light paths start on */
     } bd;
 };
 
@@ -3996,23 +3999,23 @@ trace_batch(const pt_renderer *r, path *paths, uint32_t n, stage_lanes *sl, cons
  * the weights' bookkeeping as in pbrt-v3's BDPT, Pharr et al. 2016, sec.
  * 16.3). Each sample traces a camera path z_1 z_2 ... as the unidirectional
  * variants do (the same numbers) and a light path y_0 y_1 ... from an
- * emissive triangle or the environment picked by power (r->bd), numbers of
- * dimensions of its own, and joins them at every pair of their vertices. A path z_1 .. z_k
- * (z_k on a light) is then sampled by strategies s = 0 (the camera path
- * finds the light), s = 1 (a light sample, as NEE), and s >= 2 (camera
- * vertex z_{t-1} joined to light vertex z_t, t = k + 1 - s), each weighed by
- * the power heuristic over all of them. Strategies t < 2 (light paths joined
- * to the camera itself, "light tracing") are not taken: their light lands
- * on any pixel, and a task renders its own tile's pixels only, so a sample
- * keeps every contribution in its own pixel and the image stays a pure
- * function of (seed, pixel, sample index), whatever the split.
+ * emissive triangle, a point or spot light or the environment picked by
+ * power (r->bd), numbers of dimensions of its own, and joins them at every pair of their vertices.
+ * A path z_1 .. z_k (z_k on a light) is then sampled by strategies s = 0 (the camera path finds the
+ * light), s = 1 (a light sample, as NEE), and s >= 2 (camera vertex z_{t-1} joined to light vertex
+ * z_t, t = k + 1 - s), each weighed by the power heuristic over all of them. Strategies t < 2
+ * (light paths joined to the camera itself, "light tracing") are not taken: their light lands on
+ * any pixel, and a task renders its own tile's pixels only, so a sample keeps every contribution in
+ * its own pixel and the image stays a pure function of (seed, pixel, sample index), whatever the
+ * split.
  *
  * What the light path reaches is light that the camera path finds only by
  * chance: the NVIDIA Cornell box's light, trapped in the gap above its
  * lamp and leaving through a slit, or a room lit by a lamp turned to the
  * ceiling, or a room lit by the sky through its opening. Opaque surfaces,
- * emissive triangles and the environment only (pt_render_check_bdpt):
- * punctual lights and glass keep the unidirectional variants.
+ * emissive triangles, point and spot lights and the environment only
+ * (pt_render_check_bdpt): directional lights, lights with a range and
+ * glass keep the unidirectional variants.
  */
 #define BD_VERTS 48u             /* vertices a camera or a light path keeps */
 #define DIM_BD_LIGHT 0x40000000u /* the light path's numbers: 8 a vertex from here */
@@ -4029,7 +4032,9 @@ typedef struct bd_vert {
     pt_closure cl;
     double pf, pr;
     int delta;
-    int inf; /* the environment at infinity (y_0 or z_k only): p holds the direction to it */
+    int inf;    /* the environment at infinity (y_0 or z_k only): p holds the direction to it */
+    int dlight; /* a point or spot light (y_0 or z_k only; tri: its index): no strategy
+                   finds it by a direction, and its delta marks that for bd_weight */
     uint32_t tri;
     float b1, b2;
 } bd_vert;
@@ -4043,9 +4048,33 @@ static float bd_tri_area(const pt_renderer *r, uint32_t t)
 
 /* The emitters' power in r->bd.cdf's units: the triangles' and the
  * environment's. */
+static inline double bd_tris(const pt_renderer *r)
+{
+    return r->bd.n ? r->bd.cdf[r->bd.n - 1] : 0.0;
+}
+
 static inline double bd_total(const pt_renderer *r)
 {
-    return (r->bd.n ? r->bd.cdf[r->bd.n - 1] : 0.0) + r->bd.env_w;
+    return bd_tris(r) + (r->bd.np ? r->bd.pcdf[r->bd.np - 1] : 0.0) + r->bd.env_w;
+}
+
+/* The probability that a light path starts at the scene's punctual light i. */
+static double bd_punct_pick(const pt_renderer *r, uint32_t i)
+{
+    for (uint32_t k = 0; k < r->bd.np; k++)
+        if (r->bd.pidx[k] == i)
+            return (r->bd.pcdf[k] - (k ? r->bd.pcdf[k - 1] : 0.0)) / bd_total(r);
+    return 0.0;
+}
+
+/* The solid-angle density of a light path's first direction d from point or
+ * spot light l: uniform over the sphere, or over the spot's outer cone. */
+static double bd_punct_dir_pdf(const pt_punctual *l, pt_vec3 d)
+{
+    if (l->type != PT_PUNCTUAL_SPOT)
+        return 1.0 / (4.0 * PT_PI);
+    double c = 1.0 - (double)l->cos_outer;
+    return c > 0.0 && pt_v3_dot(d, l->direction) >= l->cos_outer ? 1.0 / (2.0 * PT_PI * c) : 0.0;
 }
 
 /* The area density with which a light path starts at a point of emitter
@@ -4145,7 +4174,7 @@ static int bd_vertex(const pt_renderer *r, const pt_hit *hit, pt_vec3 d, float t
     v->tri = hit->tri;
     v->b1 = hit->b1;
     v->b2 = hit->b2;
-    v->delta = v->inf = 0;
+    v->delta = v->inf = v->dlight = 0;
     v->pf = v->pr = 0.0;
     return 1;
 }
@@ -4199,7 +4228,8 @@ static inline double bd_ratio(double a, double b)
  * the area density of z_i sampled from the camera's side (i >= 2); pl[i]:
  * from the light's, pl[k] a light path's start there; pn: a light sample's
  * (s = 1) of z_k from z_{k-1}; delta[i]: z_i scatters by a delta lobe (no
- * strategy joins there). Strategy s' takes the camera vertices z_0 ..
+ * strategy joins there), delta[k]: z_k is a point or spot light (no camera
+ * path finds it: s = 0 is not a strategy). Strategy s' takes the camera vertices z_0 ..
  * z_{t'-1}, t' = k + 1 - s', and the light's z_{t'} .. z_k; only t' >= 2
  * and what BD_VERTS keeps count. The densities of strategies s' over s's
  * are built one vertex at a time outwards from s (pbrt-v3's MISWeight)
@@ -4214,7 +4244,9 @@ static double bd_weight(uint32_t k, uint32_t s, const double *pc, const double *
 {
 #define BD_TAKEN(sp)                                                                               \
     ((sp) <= BD_VERTS && k + 1 - (sp) <= BD_VERTS + 1 &&                                           \
-     ((sp) == 0 || ((sp) == 1 ? !delta[k - 1] : !delta[k - (sp)] && !delta[k + 1 - (sp)])))
+     ((sp) == 0   ? !delta[k]                                                                      \
+      : (sp) == 1 ? !delta[k - 1]                                                                  \
+                  : !delta[k - (sp)] && !delta[k + 1 - (sp)]))
     double sum = 1.0, q = 1.0, q1;
     /* z_k and z_{k-1} change sides between s' = 0 and 2 */
     const double up2 = bd_ratio(pl[k], pc[k]) * bd_ratio(pl[k - 1], pc[k - 1]);
@@ -4264,7 +4296,7 @@ static double bd_weight(uint32_t k, uint32_t s, const double *pc, const double *
 static double bd_back(const pt_renderer *r, const bd_vert *a, const bd_vert *b, const bd_vert *c,
                       const uint32_t features)
 {
-    if (b->delta)
+    if (b->delta || a->dlight)
         return 0.0;
     return bd_area(bd_pdf(r, b, bd_to(b->p, c), bd_to(b->p, a), features), b->p, a);
 }
@@ -4315,6 +4347,8 @@ static double bd_light_pdf(const pt_renderer *r, const bd_scratch *bs, pt_vec3 n
     pt_vec3 n = light_normal(r, &y1->sf, bd_dir(y1->p, next), features);
     if (y0->inf)
         return pt_lights_env_pdf(r->lights, y0->p, n);
+    if (y0->dlight)
+        return pt_lights_punctual_pmf(r->lights, y0->tri, y1->p, n);
     return bd_area(pt_lights_pdf(r->lights, r->scene, y0->tri, y1->p, n, y0->p, y0->ng), y1->p, y0);
 }
 
@@ -4371,6 +4405,35 @@ static int bd_start_tri(const pt_renderer *r, const float u[DIM_PER_BOUNCE], dou
     return 1;
 }
 
+/* A light path's start y0 at the scene's point or spot light i (picked with
+ * probability pick): a direction uniform over the sphere or the spot's
+ * outer cone by u[3..4], its density in *pw. As bd_start_tri. */
+static int bd_start_punct(const pt_renderer *r, const float u[DIM_PER_BOUNCE], uint32_t i,
+                          double pick, bd_vert *y0, pt_vec3 *o, pt_vec3 *dir, pt_vec3 *beta,
+                          double *pw)
+{
+    const pt_punctual *l = &r->scene->punctual[i];
+    const float cmin = l->type == PT_PUNCTUAL_SPOT ? l->cos_outer : -1.0f;
+    float z = 1.0f - u[3] * (1.0f - cmin), sz = sqrtf(fmaxf(0.0f, 1.0f - z * z));
+    float phi = 2.0f * (float)PT_PI * u[4];
+    pt_frame f =
+        pt_frame_from_normal(l->type == PT_PUNCTUAL_SPOT ? l->direction : pt_v3(0.0f, 0.0f, 1.0f));
+    *dir = pt_frame_to_world(&f, pt_v3(sz * cosf(phi), sz * sinf(phi), z));
+    *pw = bd_punct_dir_pdf(l, *dir);
+    pt_vec3 in = pt_punctual_intensity(l, pt_v3_neg(*dir), 1.0f);
+    if (!(*pw > 0.0) || !(pick > 0.0) || !any_positive(in))
+        return 0;
+    y0->p = l->position;
+    y0->ng = *dir;
+    y0->tri = i;
+    y0->dlight = y0->delta = 1;
+    y0->b1 = y0->b2 = 0.0f;
+    y0->pf = pick;
+    *beta = pt_v3_scale(in, (float)(1.0 / (pick * *pw)));
+    *o = l->position;
+    return 1;
+}
+
 /* A light path's start y0 on the environment: a direction w of the map by
  * its whole distribution (u[1..2]), a point uniform on the disk of the
  * scene's bounding sphere that faces w (u[3..4], by the cosine sample's
@@ -4412,12 +4475,19 @@ static uint32_t bd_light_path(const pt_renderer *r, const path *pa, bd_scratch *
     pt_sample_group_init(&g, pc->seed, DIM_BD_LIGHT);
     pt_sample_group_eval(&g, pa->index, u);
     bd_vert *y0 = &bs->lig[0];
-    y0->delta = y0->inf = 0;
+    y0->delta = y0->inf = y0->dlight = 0;
     y0->pr = 0.0;
     pt_vec3 o, dir, beta;
     double pw = 0.0;
-    const double x = u[0] * bd_total(r), tris = r->bd.n ? r->bd.cdf[r->bd.n - 1] : 0.0;
-    if (r->bd.env_w > 0.0 && !(x < tris)) {
+    const double total = bd_total(r), x = u[0] * total, tris = bd_tris(r);
+    if (r->bd.np && x >= tris && (x - tris < r->bd.pcdf[r->bd.np - 1] || !(r->bd.env_w > 0.0))) {
+        uint32_t k = 0;
+        while (k + 1 < r->bd.np && !(r->bd.pcdf[k] > x - tris))
+            k++;
+        double pick = (r->bd.pcdf[k] - (k ? r->bd.pcdf[k - 1] : 0.0)) / total;
+        if (!bd_start_punct(r, u, r->bd.pidx[k], pick, y0, &o, &dir, &beta, &pw))
+            return 0;
+    } else if (r->bd.env_w > 0.0 && !(x < tris)) {
         if (!bd_start_env(r, u, y0, &o, &dir, &beta))
             return 0;
     } else if (!bd_start_tri(r, u, x, y0, &o, &dir, &beta, &pw, features)) {
@@ -4468,7 +4538,8 @@ static uint32_t bd_light_path(const pt_renderer *r, const path *pa, bd_scratch *
 }
 
 /* What the shadow ray from camera vertex x to point `to` (offset off the
- * far surface by nto), or along direction `to` to the environment (far),
+ * far surface by nto; far 2: a point light's, no surface there), or along
+ * direction `to` to the environment (far 1),
  * lets through: 0 blocked, 1 clear, between for BLEND surfaces (as
  * trace_shadow weighs them). Counts its ray in *rays. Traced before a
  * join's densities are worked out, so that a blocked one costs none. */
@@ -4478,11 +4549,11 @@ static float bd_visible(const pt_renderer *r, const path *pa, const bd_vert *x, 
 {
     pt_vec3 from = pt_offset_apply(r->offset, x->p, x->ngs), dir;
     float dist;
-    if (far) {
+    if (far == 1) {
         dir = to;
         dist = INFINITY;
     } else {
-        pt_vec3 sd = pt_v3_sub(pt_offset_apply(r->offset, to, nto), from);
+        pt_vec3 sd = pt_v3_sub(far == 2 ? to : pt_offset_apply(r->offset, to, nto), from);
         dist = pt_v3_len(sd);
         if (!(dist > 0.0f))
             return 0.0f;
@@ -4531,28 +4602,37 @@ static void bd_nee(const pt_renderer *r, path *pa, bd_scratch *bs, const bd_vert
     pt_vec3 f;
     if (pt_lights_sample(r->lights, s, x->p, light_normal(r, &x->sf, x->wo, features), u3, &ls) &&
         ls.pdf > 0.0f &&
-        (ls.delta == PT_LIGHT_AREA || ((features & PT_FEAT_ENV) && ls.delta == PT_LIGHT_ENV)) &&
+        (ls.delta == PT_LIGHT_AREA || ((features & PT_FEAT_ENV) && ls.delta == PT_LIGHT_ENV) ||
+         ((features & PT_FEAT_PUNCTUAL) && ls.delta == PT_LIGHT_AT)) &&
         any_positive(ls.radiance) && any_positive(f = bd_fcos(x, ls.wi, &bp))) {
         const uint32_t k = t1 + 1;
-        const int far = ls.delta == PT_LIGHT_ENV;
+        const int far = ls.delta == PT_LIGHT_ENV, at = ls.delta == PT_LIGHT_AT;
         pt_vec3 lrad = ls.radiance;
-        if (!far && (features & PT_FEAT_ALPHA) && r->alpha && pt_alpha_tri(s, ls.tri) &&
-            !(r->alpha_solid && r->alpha_solid[ls.tri]))
+        if (ls.delta == PT_LIGHT_AREA && (features & PT_FEAT_ALPHA) && r->alpha &&
+            pt_alpha_tri(s, ls.tri) && !(r->alpha_solid && r->alpha_solid[ls.tri]))
             lrad = pt_v3_scale(lrad, light_coverage(r, &ls));
         bd_vert yl;
         yl.inf = far;
+        yl.dlight = at;
         yl.p = far ? ls.wi : ls.position;
-        yl.ng = far ? pt_v3_neg(ls.wi) : ls.normal;
+        yl.ng = far || at ? pt_v3_neg(ls.wi) : ls.normal;
         pt_vec3 nto = pt_v3_dot(yl.ng, ls.wi) > 0.0f ? pt_v3_neg(yl.ng) : yl.ng;
         const float vis = bd_visible(
-            r, pa, x, yl.p, nto, far,
+            r, pa, x, yl.p, nto,
+            far  ? 1
+            : at ? 2
+                 : 0,
             (features & PT_FEAT_ALPHA) ? pt_alpha_key(u[OFF_ALPHA], ALPHA_SALT_SHADOW) : 0u, rays,
             features);
         if (!(vis > 0.0f))
             return;
-        bs->delta[k] = 0;
-        bs->pc[k] = bd_area(bp, x->p, &yl);
-        if (far) {
+        bs->delta[k] = at;
+        bs->pc[k] = at ? 0.0 : bd_area(bp, x->p, &yl);
+        if (at) {
+            uint32_t i = (uint32_t)(ls.punct - s->punctual);
+            bs->pl[k] = bd_punct_pick(r, i);
+            bs->pl[k - 1] = bd_area(bd_punct_dir_pdf(ls.punct, pt_v3_neg(ls.wi)), yl.p, x);
+        } else if (far) {
             bs->pl[k] = bd_env_start_pdf(r, ls.wi);
             bs->pl[k - 1] = bd_env_area(r, x, ls.wi);
         } else {
@@ -4562,7 +4642,8 @@ static void bd_nee(const pt_renderer *r, path *pa, bd_scratch *bs, const bd_vert
         if (t1 >= 2)
             bs->pl[t1 - 1] = bd_area(bd_pdf(r, x, ls.wi, bd_dir(x->p, bs->cam[t1 - 1].p), features),
                                      x->p, &bs->cam[t1 - 1]);
-        double w = bd_weight(k, 1, bs->pc, bs->pl, bd_area(ls.pdf, x->p, &yl), bs->delta);
+        double w =
+            bd_weight(k, 1, bs->pc, bs->pl, at ? ls.pdf : bd_area(ls.pdf, x->p, &yl), bs->delta);
         pt_vec3 c = pt_v3_scale(pt_v3_mul(beta, pt_v3_mul(f, lrad)), (float)(w / ls.pdf));
         pa->L = pt_v3_add(pa->L, pt_v3_scale(c, vis));
     }
@@ -4584,6 +4665,7 @@ static void bd_escape(const pt_renderer *r, path *pa, bd_scratch *bs, uint32_t t
         bd_vert *xp = &bs->cam[k - 1];
         bd_vert e;
         e.inf = 1;
+        e.dlight = 0;
         e.p = pa->d;
         if (k >= 3) /* z_{k-2} from z_{k-1}, the path coming from the environment */
             bs->cam[k - 2].pr = bd_back(r, &bs->cam[k - 2], xp, &e, features);
@@ -4606,7 +4688,8 @@ static void bd_sample(const pt_renderer *r, path *pa, bd_scratch *bs, uint64_t *
 {
     const pt_scene *s = r->scene;
     const uint32_t max_k = r->params.max_depth + 1u; /* z_1 .. z_k: k - 1 bounces */
-    uint32_t nl = r->bd.n || r->bd.env_w > 0.0 ? bd_light_path(r, pa, bs, rays, features) : 0;
+    uint32_t nl =
+        r->bd.n || r->bd.np || r->bd.env_w > 0.0 ? bd_light_path(r, pa, bs, rays, features) : 0;
     if (nl >= 3)
         bs->pn_far = bd_light_pdf(r, bs, bs->lig[2].p, features);
     pt_vec3 beta = pt_v3(1.0f, 1.0f, 1.0f);
@@ -4686,8 +4769,10 @@ static void bd_sample(const pt_renderer *r, path *pa, bd_scratch *bs, uint64_t *
             bs->pc[t1 + 1] = bd_area(px, x->p, y);
             bs->pl[t1] = bd_area(py, y->p, x);
             bs->pc[t1 + 2] =
-                bd_area(bd_pdf(r, y, pt_v3_neg(dn), bd_to(y->p, &bs->lig[j - 1]), features), y->p,
-                        &bs->lig[j - 1]);
+                bs->lig[j - 1].dlight
+                    ? 0.0
+                    : bd_area(bd_pdf(r, y, pt_v3_neg(dn), bd_to(y->p, &bs->lig[j - 1]), features),
+                              y->p, &bs->lig[j - 1]);
             if (t1 >= 2)
                 bs->pl[t1 - 1] =
                     bd_area(bd_pdf(r, x, dn, bd_dir(x->p, bs->cam[t1 - 1].p), features), x->p,
@@ -5344,36 +5429,50 @@ static pt_status mf_accel_new(pt_renderer *r, pt_error *err)
     return pt_accel_new_subset(s, r->mf_tris, n, &r->mf_accel, err);
 }
 
+/* What in this render bidirectional path tracing cannot take, in words for
+ * the user; NULL: nothing (pt_render_check_bdpt). */
+static const char *bd_why(const pt_scene *scene, int has_env, int guiding, uint32_t passes,
+                          int clamped)
+{
+    const uint32_t f = scene->features;
+    for (uint32_t i = 0; i < scene->num_punctual; i++) {
+        if (scene->punctual[i].type == PT_PUNCTUAL_DIRECTIONAL)
+            return "a directional light (KHR_lights_punctual)";
+        if (scene->punctual[i].range > 0.0f)
+            return "a point or spot light with a range (KHR_lights_punctual)";
+    }
+    if (f & (PT_FEAT_TRANSMISSION | PT_FEAT_VOLUME | PT_FEAT_THIN_GLASS |
+             PT_FEAT_DIFFUSE_TRANSMISSION | PT_FEAT_DISPERSION))
+        return "transmissive materials (glass, KHR_materials_transmission, "
+               "KHR_materials_diffuse_transmission)";
+    if (f & PT_FEAT_UNLIT)
+        return "unlit materials (KHR_materials_unlit)";
+    if (!(f & (PT_FEAT_EMITTERS | PT_FEAT_PUNCTUAL)) && !has_env)
+        return "no emissive surface, point or spot light or environment to start light paths on";
+    if (guiding)
+        return "path guiding";
+    if (passes & PT_PASS_ALL)
+        return "render passes (--passes, --denoise)";
+    if (clamped)
+        return "sample clamping";
+    return NULL;
+}
+
 pt_status pt_render_check_bdpt(const pt_scene *scene, int has_env, int guiding, uint32_t passes,
                                int clamped, pt_error *err)
 {
-    const uint32_t f = scene->features;
-    const char *why = NULL;
-    if (f & PT_FEAT_PUNCTUAL)
-        why = "KHR_lights_punctual lights";
-    else if (f & (PT_FEAT_TRANSMISSION | PT_FEAT_VOLUME | PT_FEAT_THIN_GLASS |
-                  PT_FEAT_DIFFUSE_TRANSMISSION | PT_FEAT_DISPERSION))
-        why = "transmissive materials (glass, KHR_materials_transmission, "
-              "KHR_materials_diffuse_transmission)";
-    else if (f & PT_FEAT_UNLIT)
-        why = "unlit materials (KHR_materials_unlit)";
-    else if (!(f & PT_FEAT_EMITTERS) && !has_env)
-        why = "no emissive surface or environment to start light paths on";
-    else if (guiding)
-        why = "path guiding";
-    else if (passes & PT_PASS_ALL)
-        why = "render passes (--passes, --denoise)";
-    else if (clamped)
-        why = "sample clamping";
+    const char *why = bd_why(scene, has_env, guiding, passes, clamped);
     if (!why)
         return PT_OK;
     return pt_error_set(err, PT_ERR_ARG,
                         "bidirectional path tracing (--bdpt) renders scenes lit by emissive "
-                        "surfaces and environments with opaque materials only; this render has %s",
+                        "surfaces, point and spot lights and environments with opaque materials "
+                        "only; this render has %s",
                         why);
 }
 
-/* r->bd: the emissive triangles by power, as light paths pick them. */
+/* r->bd: the emissive triangles, point and spot lights and environment by
+ * power, as light paths pick them. */
 static pt_status bd_setup(pt_renderer *r, pt_error *err)
 {
     const pt_scene *s = r->scene;
@@ -5401,6 +5500,23 @@ static pt_status bd_setup(pt_renderer *r, pt_error *err)
         r->bd.tri[r->bd.n] = t;
         r->bd.cdf[r->bd.n] = sum;
         r->bd.n++;
+    }
+    /* Point and spot lights: their flux over pi, 4 I or 2 (1 - cos outer) I. */
+    r->bd.np = 0;
+    r->bd.pidx = pt_malloc_array(s->num_punctual ? s->num_punctual : 1, sizeof *r->bd.pidx);
+    r->bd.pcdf = pt_malloc_array(s->num_punctual ? s->num_punctual : 1, sizeof *r->bd.pcdf);
+    if (!r->bd.pidx || !r->bd.pcdf)
+        return pt_error_set(err, PT_ERR_NOMEM, "out of memory for the light paths' lights");
+    double psum = 0.0;
+    for (uint32_t i = 0; i < s->num_punctual; i++) {
+        const pt_punctual *l = &s->punctual[i];
+        double w = pt_luminance(l->intensity) *
+                   (l->type == PT_PUNCTUAL_SPOT ? 2.0 * (1.0 - (double)l->cos_outer) : 4.0);
+        if (l->type == PT_PUNCTUAL_DIRECTIONAL || !(w > 0.0) || !isfinite(w))
+            continue;
+        psum += w;
+        r->bd.pidx[r->bd.np] = i;
+        r->bd.pcdf[r->bd.np++] = psum;
     }
     /* The environment: the flux its parallel rays carry through the disk
      * of the scene's bounding sphere, pi R^2 4 pi mean, over pi as the
@@ -5605,6 +5721,8 @@ void pt_renderer_free(pt_renderer *r)
     pt_free(r->mr_side);
     pt_free(r->bd.tri);
     pt_free(r->bd.cdf);
+    pt_free(r->bd.pidx);
+    pt_free(r->bd.pcdf);
     pt_accel_free(r->accel);
     pt_free(r);
 }

@@ -27,6 +27,9 @@
  *   open front lets it in) reads 1 at every pixel; the Cornell box under a
  *   map of a sun and a sky, its ceiling light on, is the unidirectional
  *   render's by the paired test, and its tiles are its samples'.
+ * - Point and spot lights: the Cornell box with one of each beside its
+ *   lamp is the unidirectional render's by the paired test and the image
+ *   mean, and its tiles are its samples'.
  * - What it cannot render is refused with a message naming --bdpt.
  */
 #include <math.h>
@@ -148,6 +151,36 @@ static pt_env *sun_map(void)
     CHECKF(pt_env_new(&m, 1.0f, 0.0f, &e, &err) == PT_OK, "%s", err.msg);
     pt_free(m.rgb);
     return e;
+}
+
+/* The Cornell box (loaded anew) with a point light under its ceiling and
+ * a spot light on its left wall turned to the floor, beside its own lamp:
+ * light paths start at all three by power. */
+static pt_scene *cornell_lamps(void)
+{
+    pt_scene *s = furnace_load("scenes/cornell_box.gltf");
+    if (!s)
+        return NULL;
+    pt_punctual *l = pt_malloc_array(2, sizeof *l);
+    if (!l) {
+        pt_scene_free(s);
+        return NULL;
+    }
+    memset(l, 0, 2 * sizeof *l);
+    pt_vec3 c = pt_v3_scale(pt_v3_add(s->bounds_min, s->bounds_max), 0.5f);
+    l[0].type = PT_PUNCTUAL_POINT;
+    l[0].position = pt_v3_add(c, pt_v3(0.1f, 0.12f, 0.05f));
+    l[0].intensity = pt_v3(0.3f, 0.25f, 0.2f);
+    l[1].type = PT_PUNCTUAL_SPOT;
+    l[1].position = pt_v3(s->bounds_max.x - 0.05f, c.y, c.z);
+    l[1].direction = pt_v3_norm(pt_v3(-0.6f, -1.0f, 0.1f));
+    l[1].intensity = pt_v3(0.2f, 0.3f, 0.4f);
+    l[1].cos_inner = cosf(0.3f);
+    l[1].cos_outer = cosf(0.5f);
+    s->punctual = l;
+    s->num_punctual = 2;
+    s->features |= PT_FEAT_PUNCTUAL;
+    return s;
 }
 
 static void paired(const char *name, const pt_scene *s, uint32_t side, uint32_t bs, uint32_t spp)
@@ -277,7 +310,7 @@ static void refusals(const pt_scene *cornell)
     }
     pt_scene *sun = furnace_load("scenes/chrome_sun.gltf");
     if (sun) {
-        refused(sun, &p, "a punctual light");
+        refused(sun, &p, "a directional light");
         pt_scene_free(sun);
     }
     pt_scene *empty = furnace_load("scenes/cornell_box.gltf");
@@ -311,6 +344,16 @@ int main(void)
         }
         env = NULL;
         pt_env_free(sun);
+        pt_scene *lamps = cornell_lamps();
+        if (lamps) {
+            /* 512 spp: at 128 the unidirectional render's rare paths put
+             * the largest |z| at 3.8 to 4.0 for two seeds of seven, and
+             * at 1,024 every seed reads 1.7 to 2.9 (no bias there). */
+            paired("Cornell box with a point and a spot light", lamps, 32, 8, 512);
+            same_mean("Cornell box with a point and a spot light", lamps, 16, 2048);
+            tile_as_samples(lamps);
+            pt_scene_free(lamps);
+        }
         pt_scene_free(cornell);
     }
     pt_scene *nv = load_shared_asset("CornellBox/cornellBox.gltf", "KHR_");
