@@ -166,6 +166,7 @@ struct pt_renderer {
         uint32_t *pidx; /* punctual light pidx[i], with the running sum of their */
         double *pcdf;   /* power in cdf's units, after the triangles' */
         double env_w;   /* the environment's power in cdf's units (bd_setup), 0: none */
+        double total;   /* the triangles', punctual lights' and environment's together */
         pt_vec3 c;      /* the scene's bounding sphere, whose disks the environment's */
         float rad;      /* light paths start on */
     } bd;
@@ -4055,7 +4056,13 @@ static inline double bd_tris(const pt_renderer *r)
 
 static inline double bd_total(const pt_renderer *r)
 {
-    return bd_tris(r) + (r->bd.np ? r->bd.pcdf[r->bd.np - 1] : 0.0) + r->bd.env_w;
+    return r->bd.total;
+}
+
+/* The probability that a light path starts at punctual entry k of r->bd. */
+static inline double bd_punct_share(const pt_renderer *r, uint32_t k)
+{
+    return (r->bd.pcdf[k] - (k ? r->bd.pcdf[k - 1] : 0.0)) / bd_total(r);
 }
 
 /* The probability that a light path starts at the scene's punctual light i. */
@@ -4063,7 +4070,7 @@ static double bd_punct_pick(const pt_renderer *r, uint32_t i)
 {
     for (uint32_t k = 0; k < r->bd.np; k++)
         if (r->bd.pidx[k] == i)
-            return (r->bd.pcdf[k] - (k ? r->bd.pcdf[k - 1] : 0.0)) / bd_total(r);
+            return bd_punct_share(r, k);
     return 0.0;
 }
 
@@ -4484,8 +4491,7 @@ static uint32_t bd_light_path(const pt_renderer *r, const path *pa, bd_scratch *
         uint32_t k = 0;
         while (k + 1 < r->bd.np && !(r->bd.pcdf[k] > x - tris))
             k++;
-        double pick = (r->bd.pcdf[k] - (k ? r->bd.pcdf[k - 1] : 0.0)) / total;
-        if (!bd_start_punct(r, u, r->bd.pidx[k], pick, y0, &o, &dir, &beta, &pw))
+        if (!bd_start_punct(r, u, r->bd.pidx[k], bd_punct_share(r, k), y0, &o, &dir, &beta, &pw))
             return 0;
     } else if (r->bd.env_w > 0.0 && !(x < tris)) {
         if (!bd_start_env(r, u, y0, &o, &dir, &beta))
@@ -5531,6 +5537,8 @@ static pt_status bd_setup(pt_renderer *r, pt_error *err)
         if (w > 0.0 && isfinite(w))
             r->bd.env_w = w;
     }
+    /* Once, for every light path's pick and start density. */
+    r->bd.total = bd_tris(r) + (r->bd.np ? r->bd.pcdf[r->bd.np - 1] : 0.0) + r->bd.env_w;
     return PT_OK;
 }
 
