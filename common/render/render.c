@@ -4273,7 +4273,6 @@ static double bd_weight(uint32_t k, uint32_t s, const double *pc, const double *
         if (BD_TAKEN(1))
             sum += q1 * q1;
     }
-    q = s == 1 ? q : 1.0;
     for (uint32_t sp = from + 1; k + 1 - sp >= 2; sp++) { /* z_{t'} moves to the light's side */
         if (sp == 1)
             continue;
