@@ -1698,6 +1698,26 @@ static inline float closure_guide_share(const pt_closure *cl)
     return share < 1.0f ? share : 1.0f;
 }
 
+/* The passes of the camera ray's hit: its distance (the ray's direction is
+ * a unit vector) and Cryptomatte ids. */
+static inline __attribute__((always_inline)) void pass_first_hit(const pt_renderer *r, pass_rec *pr,
+                                                                 const pt_hit *hit,
+                                                                 const surface *sf,
+                                                                 const uint32_t features)
+{
+    const pt_scene *s = r->scene;
+    pr->v.depth = hit->t;
+    if (r->crypto_obj) {
+        /* Through an instance, its node's object (a prototype's triangles
+         * are shared by every node instancing the mesh). */
+        uint32_t obj = (features & PT_FEAT_INSTANCES) && hit->inst
+                           ? s->instances[hit->inst - 1].object
+                           : s->tri_object[hit->tri];
+        pr->v.crypto[PT_CRYPTO_OBJECT] = r->crypto_obj[obj];
+        pr->v.crypto[PT_CRYPTO_MATERIAL] = r->crypto_mat[sf->mat - s->materials];
+    }
+}
+
 /* The passes at an unlit surface (PT_FEAT_UNLIT), where the path ends: its
  * colour is the albedo, its interpolated normal turned to the ray the
  * normal. */
@@ -2802,18 +2822,8 @@ shade(const pt_renderer *r, path *pa, const pt_hit *hit, const float u[DIM_PER_B
     pt_vec3 wo = pt_v3_neg(pa->d);
 
     shade_emission(r, pa, hit, sf, features);
-    if ((features & FEAT_PASSES) && pa->pr && pa->depth == 0) {
-        pa->pr->v.depth = hit->t; /* the camera ray's direction is a unit vector */
-        if (r->crypto_obj) {
-            /* Through an instance, its node's object (a prototype's
-             * triangles are shared by every node instancing the mesh). */
-            uint32_t obj = (features & PT_FEAT_INSTANCES) && hit->inst
-                               ? s->instances[hit->inst - 1].object
-                               : s->tri_object[hit->tri];
-            pa->pr->v.crypto[PT_CRYPTO_OBJECT] = r->crypto_obj[obj];
-            pa->pr->v.crypto[PT_CRYPTO_MATERIAL] = r->crypto_mat[sf->mat - s->materials];
-        }
-    }
+    if ((features & FEAT_PASSES) && pa->pr && pa->depth == 0)
+        pass_first_hit(r, pa->pr, hit, sf, features);
     if ((features & PT_FEAT_UNLIT) && (sf->mat->ext & PT_MATX_UNLIT)) {
         if ((features & FEAT_PASSES) && pa->pr && !pa->pr->found)
             pass_unlit(r, pa, sf, wo, features);
@@ -3709,18 +3719,20 @@ li_impl(const pt_renderer *r, pixel_ctx *pc, uint32_t index, pt_render_stats *st
 {
     path pa;
     path_start(r, pc, index, &pa, features);
+    pass_rec pr;
+    if ((features & FEAT_PASSES) && ps) {
+        memset(&pr, 0, sizeof pr);
+        pa.pr = &pr;
+    }
     if (features & FEAT_BDPT) {
         uint64_t rays = bd_block(r, &pa, 1, features);
         if (stats)
             stats->rays += rays;
         if (covered)
             *covered = !pa.escaped;
+        if ((features & FEAT_PASSES) && ps)
+            *ps = pr.v;
         return pa.L;
-    }
-    pass_rec pr;
-    if ((features & FEAT_PASSES) && ps) {
-        memset(&pr, 0, sizeof pr);
-        pa.pr = &pr;
     }
     guide_path gp;
     if ((features & FEAT_GUIDE) && gd) {
@@ -4688,6 +4700,23 @@ static void bd_escape(const pt_renderer *r, path *pa, bd_scratch *bs, uint32_t t
 
 /* The sample of pa (started by path_start) by bidirectional path tracing,
  * into pa->L; adds its rays to *rays. */
+/* The render passes at the camera path's vertex x = z_t1 (FEAT_PASSES), as
+ * shade() records them: the camera ray's hit, and the first vertex whose
+ * closure is not all specular (the albedo through the specular ones before
+ * it, beta their throughput), short of the last bounce. */
+static void bd_passes(const pt_renderer *r, pass_rec *pr, const pt_hit *hit, const bd_vert *x,
+                      uint32_t t1, pt_vec3 beta, const uint32_t features)
+{
+    if (t1 == 1)
+        pass_first_hit(r, pr, hit, &x->sf, features);
+    pt_vec3 alb = pt_v3(0.0f, 0.0f, 0.0f);
+    if (!pr->found && t1 <= r->params.max_depth && pt_closure_albedo(&x->cl, &alb)) {
+        pr->found = 1;
+        pr->v.albedo = pt_v3_mul(beta, alb);
+        pr->v.normal = x->fr.n;
+    }
+}
+
 static void bd_sample(const pt_renderer *r, path *pa, bd_scratch *bs, uint64_t *rays,
                       const uint32_t features)
 {
@@ -4716,6 +4745,8 @@ static void bd_sample(const pt_renderer *r, path *pa, bd_scratch *bs, uint64_t *
         bd_vert *x = &bs->cam[t1];
         if (!bd_vertex(r, &hit, pa->d, pa->time, x, features))
             break;
+        if ((features & FEAT_PASSES) && pa->pr)
+            bd_passes(r, pa->pr, &hit, x, t1, beta, features);
         x->beta = beta;
         x->pf = t1 >= 2 && !prev_delta ? bd_area(pw, bs->cam[t1 - 1].p, x) : 0.0;
         if (t1 >= 3)
@@ -4727,6 +4758,8 @@ static void bd_sample(const pt_renderer *r, path *pa, bd_scratch *bs, uint64_t *
         /* s = 0: the camera path found a light. */
         if ((features & PT_FEAT_EMITTERS) && emits(x->sf.mat) && t1 <= max_k) {
             pt_vec3 le = pt_emitted(s, x->tri, x->b1, x->b2, x->wo);
+            if ((features & FEAT_PASSES) && pa->pr && t1 == 1)
+                pa->pr->v.emission = le;
             if (any_positive(le)) {
                 double w = 1.0;
                 if (t1 >= 2) {
@@ -4981,6 +5014,7 @@ tile_impl(const pt_renderer *r, pt_rect tile, uint32_t s0, uint32_t s1, pt_pixel
     (uint32_t)(OTHER_LIGHTS | PT_FEAT_ALPHA | GLASS | SURFACE_EXTRAS | LAYERS | PT_FEAT_MOTION |   \
                MATERIAL_EXTS | PT_FEAT_INSTANCES)
 VARIANT(li_bdpt, tile_bdpt, (ALL_FEATURES & ~PARAM_FEATURES) | FEAT_BDPT)
+VARIANT(li_bdpt_passes, tile_bdpt_passes, (ALL_FEATURES & ~FEAT_GUIDE & ~FEAT_CLAMP) | FEAT_BDPT)
 VARIANT(li_guided_passes, tile_guided_passes, ALL_FEATURES)
 VARIANT(li_passes, tile_passes, ALL_FEATURES & ~FEAT_GUIDE)
 VARIANT(li_guided, tile_guided, ALL_FEATURES & ~FEAT_PASSES)
@@ -4997,7 +5031,12 @@ VARIANT(li_lambert_untextured, tile_lambert_untextured,
 static void pick_variant(pt_renderer *r, uint32_t features)
 {
     int tex = (features & NO_TEX) != 0, glossy = (features & PT_FEAT_GLOSSY) != 0;
-    if (features & FEAT_BDPT) {
+    if ((features & FEAT_BDPT) && (features & FEAT_PASSES)) {
+        /* bdpt that also records the passes: its beauty is li_bdpt's bits */
+        r->li = li_bdpt_passes;
+        r->tile = tile_bdpt_passes;
+        r->variant = "bdpt-passes";
+    } else if (features & FEAT_BDPT) {
         r->li = li_bdpt;
         r->tile = tile_bdpt;
         r->variant = "bdpt";
@@ -5436,8 +5475,7 @@ static pt_status mf_accel_new(pt_renderer *r, pt_error *err)
 
 /* What in this render bidirectional path tracing cannot take, in words for
  * the user; NULL: nothing (pt_render_check_bdpt). */
-static const char *bd_why(const pt_scene *scene, int has_env, int guiding, uint32_t passes,
-                          int clamped)
+static const char *bd_why(const pt_scene *scene, int has_env, int guiding, int clamped)
 {
     const uint32_t f = scene->features;
     for (uint32_t i = 0; i < scene->num_punctual; i++) {
@@ -5456,17 +5494,15 @@ static const char *bd_why(const pt_scene *scene, int has_env, int guiding, uint3
         return "no emissive surface, point or spot light or environment to start light paths on";
     if (guiding)
         return "path guiding";
-    if (passes & PT_PASS_ALL)
-        return "render passes (--passes, --denoise)";
     if (clamped)
         return "sample clamping";
     return NULL;
 }
 
-pt_status pt_render_check_bdpt(const pt_scene *scene, int has_env, int guiding, uint32_t passes,
-                               int clamped, pt_error *err)
+pt_status pt_render_check_bdpt(const pt_scene *scene, int has_env, int guiding, int clamped,
+                               pt_error *err)
 {
-    const char *why = bd_why(scene, has_env, guiding, passes, clamped);
+    const char *why = bd_why(scene, has_env, guiding, clamped);
     if (!why)
         return PT_OK;
     return pt_error_set(err, PT_ERR_ARG,
@@ -5552,7 +5588,7 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
                             (double)scene->camera.yfov);
     if (params->bdpt) {
         pt_status bs =
-            pt_render_check_bdpt(scene, params->env != NULL, params->guiding != 0, params->passes,
+            pt_render_check_bdpt(scene, params->env != NULL, params->guiding != 0,
                                  params->clamp_direct > 0.0f || params->clamp_indirect > 0.0f, err);
         if (bs != PT_OK)
             return bs;

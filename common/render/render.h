@@ -326,12 +326,13 @@ int pt_renderer_chains(const pt_renderer *r);
 /* PT_OK when bidirectional path tracing (pt_render_params.bdpt) can render
  * scene: lit by emissive triangles, an environment (has_env: a map or a
  * background) or both, with opaque materials (no transmission, no unlit), and
- * without guiding, render passes (the PT_PASS_* mask) or clamping; else
+ * without guiding or clamping (render passes it records as the other
+ * variants do); else
  * PT_ERR_ARG saying what stands in the way, in words for the user (the
  * coordinator refuses such a job when it is submitted; pt_renderer_new
  * refuses the same). Any thread. */
-pt_status pt_render_check_bdpt(const pt_scene *scene, int has_env, int guiding, uint32_t passes,
-                               int clamped, pt_error *err);
+pt_status pt_render_check_bdpt(const pt_scene *scene, int has_env, int guiding, int clamped,
+                               pt_error *err);
 
 /* PT_OK when the scene has a light source (an emissive triangle, a punctual
  * light) or has_env (an environment map or uniform background is given);

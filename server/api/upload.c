@@ -145,7 +145,6 @@ static void verify_upload(srv_upload *k)
      * below): refused here, not by every worker. */
     if (st == PT_OK && (k->m.film_flags & PROTO_FILM_BDPT) &&
         (st = pt_render_check_bdpt(scene, proto_env_any(ev), pt_guide_enabled(k->m.guiding, scene),
-                                   proto_film_passes(k->m.film_flags),
                                    k->m.clamp[0] > 0.0f || k->m.clamp[1] > 0.0f, &err)) != PT_OK)
         what = "job refused";
     pt_remove_tree(k->tmp);

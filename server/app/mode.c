@@ -149,7 +149,6 @@ static pt_status setup_single(srv_server *s, pt_error *err)
     st = pt_render_check_lit(scene, proto_env_any(&jp.env), cfg->scene_path, err);
     if (st == PT_OK && (jp.film_flags & PROTO_FILM_BDPT))
         st = pt_render_check_bdpt(scene, proto_env_any(&jp.env), jp.guiding != 0,
-                                  proto_film_passes(jp.film_flags),
                                   jp.clamp[0] > 0.0f || jp.clamp[1] > 0.0f, err);
     /* Cryptomatte's manifests come from the names of the scene loaded here. */
     pt_crypto_meta *crypto = NULL;

@@ -4,16 +4,19 @@
 # ... --bdpt gives, bit for bit, and that image is not the unidirectional one
 # (so a farm that dropped the flag would fail). The box is lit by its lamp
 # and by a background through its open front, so light paths start on
-# both. A render --bdpt cannot take (glass, render passes) is refused by
-# all three before any work starts, with the reason; queue mode refuses
-# ptserve's own --bdpt (a queued job asks with ptctl submit).
+# both. Every render also writes the denoiser's passes and the denoised
+# layer (--passes, --denoise), which the farm's images carry bit for bit
+# too. A render --bdpt cannot take (glass) is refused by all three before
+# any work starts, with the reason; queue mode refuses ptserve's own
+# --bdpt (a queued job asks with ptctl submit).
 set -euo pipefail
 # shellcheck source=tests/integration/lib_farm.sh
 . "$(dirname "$0")/lib_farm.sh"
 farm_init bdpt_farm
 
 bg=0.4,0.5,0.6
-view=(--res 40x32 --spp 24 --seed 5 --background "$bg")
+passes=albedo,normal,depth,halves
+view=(--res 40x32 --spp 24 --seed 5 --background "$bg" --passes "$passes" --denoise)
 glass=$src/scenes/glass_things.gltf
 "$bin/ptworker" --scene "$scene" "${view[@]}" --bdpt --tile 16 --chunk 8 -q \
   -o "$tmp/ref.exr" 2> "$tmp/ref.log" || fail "ptworker --bdpt: $(cat "$tmp/ref.log")"
@@ -22,6 +25,9 @@ glass=$src/scenes/glass_things.gltf
 if "$bin/ptexr-diff" "$tmp/ref.exr" "$tmp/plain.exr" > /dev/null 2>&1; then
   fail "--bdpt changes nothing here: the test could not tell it from the default"
 fi
+for layer in albedo.R N.X depth.Z halfA.R denoised.R; do
+  grep -aq "$layer" "$tmp/ref.exr" || fail "ptworker --bdpt wrote no $layer"
+done
 
 # Refusals: the reason, a non-zero exit, no output, before anything renders.
 bad() { # WHAT PATTERN CMD...
@@ -34,8 +40,6 @@ bad() { # WHAT PATTERN CMD...
 }
 bad "ptworker --bdpt, glass" "this render has transmissive materials" \
   "$bin/ptworker" --scene "$glass" "${view[@]}" --bdpt -q -o "$tmp/x.exr"
-bad "ptserve --bdpt --passes" "this render has render passes" \
-  "$bin/ptserve" --local 1 "${view[@]}" --bdpt --passes albedo -o "$tmp/x.exr" "$scene"
 bad "ptserve --state-dir --bdpt" "one-job mode" \
   "$bin/ptserve" --state-dir "$tmp/qstate" --listen 127.0.0.1:0 --bdpt
 [ ! -e "$tmp/x.exr" ] || fail "a refused render wrote its output"

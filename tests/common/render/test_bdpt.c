@@ -297,9 +297,6 @@ static void refusals(const pt_scene *cornell)
     p.guiding = 1;
     refused(cornell, &p, "guiding");
     p.guiding = 0;
-    p.passes = PT_PASS_ALBEDO;
-    refused(cornell, &p, "passes");
-    p.passes = 0;
     p.clamp_indirect = 10.0f;
     refused(cornell, &p, "clamping");
     p.clamp_indirect = 0.0f;
@@ -324,6 +321,72 @@ static void refusals(const pt_scene *cornell)
     }
 }
 
+/* --bdpt records the render passes as the unidirectional variants do
+ * (shade()): the camera ray's hit gives depth, emission and the
+ * Cryptomatte ids, and the first vertex that is not all specular the
+ * albedo (through the specular ones before it) and the normal. Where the
+ * two variants' camera paths agree up to that vertex (rough surfaces, or a
+ * mirror's one delta lobe, which either samples without a random choice),
+ * each pixel's pass sums are the same bits (not the halves: they are the
+ * beauty's, which is the bdpt variant's without passes), and a tile
+ * equals one sample at a time. */
+static void passes(const char *name, const pt_scene *s)
+{
+    enum { SIDE = 16, SPP = 8 };
+    pt_renderer *rr[2] = {NULL, NULL};
+    for (uint32_t k = 0; k < 2; k++) {
+        pt_render_params p;
+        pt_render_params_default(&p);
+        p.width = p.height = SIDE;
+        p.seed = 3;
+        p.bdpt = k;
+        p.passes = PT_PASS_ALL;
+        pt_error err = {0};
+        CHECKF(pt_renderer_new(s, &p, &rr[k], &err) == PT_OK, "%s: %s", name, err.msg);
+    }
+    pt_renderer *plain = make(s, SIDE, 1, 3);
+    static pt_pixel_acc acc[3][SIDE * SIDE];
+    static pt_pass_acc pacc[2][SIDE * SIDE];
+    const pt_rect all = {0, 0, SIDE, SIDE};
+    if (rr[0] && rr[1] && plain) {
+        CHECK(strcmp(pt_renderer_variant(rr[1]), "bdpt-passes") == 0);
+        for (int k = 0; k < 2; k++)
+            pt_render_tile_passes(rr[k], all, 0, SPP, acc[k], pacc[k], NULL, NULL);
+        pt_render_tile(plain, all, 0, SPP, acc[2], NULL);
+        CHECKF(memcmp(acc[1], acc[2], sizeof acc[1]) == 0, "%s: the beauty changed", name);
+        uint32_t differ = 0, lit = 0, ids = 0;
+        for (uint32_t i = 0; i < SIDE * SIDE; i++) {
+            const pt_pass_acc *u = &pacc[0][i], *b = &pacc[1][i];
+            differ += memcmp(u->s, b->s, PT_PS_EVEN * sizeof u->s[0]) != 0 ||
+                      memcmp(u->sq, b->sq, sizeof u->sq) != 0 ||
+                      memcmp(u->cid, b->cid, sizeof u->cid) != 0 ||
+                      memcmp(u->ccnt, b->ccnt, sizeof u->ccnt) != 0 || u->n_even != b->n_even;
+            lit += b->s[PT_PS_ALBEDO] != 0 && b->s[PT_PS_NORMAL + 2] != 0 && b->s[PT_PS_DEPTH] != 0;
+            ids += b->ccnt[PT_CRYPTO_OBJECT][0] != 0;
+        }
+        /* the renders' passes are there to compare */
+        CHECKF(lit > SIDE * SIDE / 2 && ids > SIDE * SIDE / 2,
+               "%s: %u pixels with passes, %u with ids", name, lit, ids);
+        printf("%s, passes: %u of %u pixels differ from the unidirectional render's\n", name,
+               differ, SIDE * SIDE);
+        CHECKF(differ == 0, "%s: %u pixels' passes differ", name, differ);
+        /* a tile's pass sums are those of its samples one at a time */
+        uint32_t px = SIDE / 2, py = SIDE / 3;
+        double sum = 0.0;
+        for (uint32_t i = 0; i < SPP; i++) {
+            pt_pass_sample ps;
+            pt_render_sample_passes(rr[1], px, py, i, NULL, NULL, &ps);
+            sum += ps.albedo.x;
+        }
+        double tile = pt_fixed_to_double(pacc[1][py * SIDE + px].s[PT_PS_ALBEDO]);
+        CHECKF(fabs(tile - sum) <= 1e-6 * (1.0 + fabs(sum)),
+               "%s: albedo %.9g one by one, %.9g a tile", name, sum, tile);
+    }
+    pt_renderer_free(rr[0]);
+    pt_renderer_free(rr[1]);
+    pt_renderer_free(plain);
+}
+
 int main(void)
 {
     furnace();
@@ -332,6 +395,7 @@ int main(void)
     if (cornell) {
         paired("Cornell box", cornell, 32, 8, 128);
         tile_as_samples(cornell);
+        passes("Cornell box", cornell);
         refusals(cornell);
         /* Its ceiling light and a map with a sun through the open front:
          * light paths start on either by power. */
@@ -373,6 +437,7 @@ int main(void)
         max_depth = 0;
         lower_variance(nv);
         tile_as_samples(nv);
+        passes("NVIDIA Cornell box", nv);
         pt_scene_free(nv);
     }
     return check_report();
