@@ -750,6 +750,7 @@ static int eval_punctual(const pt_punctual *l, pt_vec3 p, float pmf, pt_light_sa
         return 0;
     if (l->type == PT_PUNCTUAL_DIRECTIONAL) {
         s->delta = PT_LIGHT_FAR;
+        s->punct = l;
         s->wi = pt_v3_neg(l->direction);
         s->dist = INFINITY;
         s->radiance = l->intensity;

@@ -92,7 +92,7 @@ typedef struct pt_light_sample {
                          (directional: dist infinite, radiance is its irradiance); or
                          PT_LIGHT_ENV (the environment along wi: dist infinite, radiance
                          and a solid-angle pdf, weighed by MIS) */
-    /* PT_LIGHT_AT: the light (else not set) */
+    /* PT_LIGHT_AT and PT_LIGHT_FAR: the light (else not set) */
     const pt_punctual *punct;
 } pt_light_sample;
 

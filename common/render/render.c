@@ -4026,9 +4026,9 @@ trace_batch(const pt_renderer *r, path *paths, uint32_t n, stage_lanes *sl, cons
  * chance: the NVIDIA Cornell box's light, trapped in the gap above its
  * lamp and leaving through a slit, or a room lit by a lamp turned to the
  * ceiling, or a room lit by the sky through its opening. Opaque surfaces,
- * emissive triangles, point and spot lights and the environment only
- * (pt_render_check_bdpt): directional lights, lights with a range and
- * glass keep the unidirectional variants.
+ * emissive triangles, point, spot and directional lights and the
+ * environment only (pt_render_check_bdpt): lights with a range and glass
+ * keep the unidirectional variants.
  */
 #define BD_VERTS 48u             /* vertices a camera or a light path keeps */
 #define DIM_BD_LIGHT 0x40000000u /* the light path's numbers: 8 a vertex from here */
@@ -4363,10 +4363,10 @@ static double bd_light_pdf(const pt_renderer *r, const bd_scratch *bs, pt_vec3 n
 {
     const bd_vert *y0 = &bs->lig[0], *y1 = &bs->lig[1];
     pt_vec3 n = light_normal(r, &y1->sf, bd_dir(y1->p, next), features);
+    if (y0->dlight) /* a point, spot or directional light */
+        return pt_lights_punctual_pmf(r->lights, y0->tri, y1->p, n);
     if (y0->inf)
         return pt_lights_env_pdf(r->lights, y0->p, n);
-    if (y0->dlight)
-        return pt_lights_punctual_pmf(r->lights, y0->tri, y1->p, n);
     return bd_area(pt_lights_pdf(r->lights, r->scene, y0->tri, y1->p, n, y0->p, y0->ng), y1->p, y0);
 }
 
@@ -4425,12 +4425,35 @@ static int bd_start_tri(const pt_renderer *r, const float u[DIM_PER_BOUNCE], dou
 
 /* A light path's start y0 at the scene's point or spot light i (picked with
  * probability pick): a direction uniform over the sphere or the spot's
- * outer cone by u[3..4], its density in *pw. As bd_start_tri. */
+ * outer cone by u[3..4], its density in *pw. As bd_start_tri. A
+ * directional light: its direction, from a point uniform on the disk of
+ * the scene's bounding sphere that faces the light (as bd_start_env); y0
+ * lies at infinity towards the light, and the next vertex's density is
+ * the disk's (bd_env_area). */
 static int bd_start_punct(const pt_renderer *r, const float u[DIM_PER_BOUNCE], uint32_t i,
                           double pick, bd_vert *y0, pt_vec3 *o, pt_vec3 *dir, pt_vec3 *beta,
                           double *pw)
 {
     const pt_punctual *l = &r->scene->punctual[i];
+    if (l->type == PT_PUNCTUAL_DIRECTIONAL) {
+        if (!(pick > 0.0) || !any_positive(l->intensity))
+            return 0;
+        const float R = r->bd.rad;
+        pt_vec3 w = pt_v3_neg(l->direction), dk = pt_sample_cosine_hemisphere(u[3], u[4]);
+        pt_frame f = pt_frame_from_normal(w);
+        *o = pt_v3_add(pt_v3_add(r->bd.c, pt_v3_scale(w, R)),
+                       pt_v3_add(pt_v3_scale(f.t, dk.x * R), pt_v3_scale(f.b, dk.y * R)));
+        *dir = l->direction;
+        *pw = 1.0; /* not read: the next vertex's density is the disk's */
+        y0->p = w;
+        y0->ng = *dir;
+        y0->inf = y0->dlight = y0->delta = 1;
+        y0->tri = i;
+        y0->b1 = y0->b2 = 0.0f;
+        y0->pf = pick;
+        *beta = pt_v3_scale(l->intensity, (float)(PT_PI * (double)R * (double)R / pick));
+        return 1;
+    }
     const float cmin = l->type == PT_PUNCTUAL_SPOT ? l->cos_outer : -1.0f;
     float z = 1.0f - u[3] * (1.0f - cmin), sz = sqrtf(fmaxf(0.0f, 1.0f - z * z));
     float phi = 2.0f * (float)PT_PI * u[4];
@@ -4620,10 +4643,13 @@ static void bd_nee(const pt_renderer *r, path *pa, bd_scratch *bs, const bd_vert
     if (pt_lights_sample(r->lights, s, x->p, light_normal(r, &x->sf, x->wo, features), u3, &ls) &&
         ls.pdf > 0.0f &&
         (ls.delta == PT_LIGHT_AREA || ((features & PT_FEAT_ENV) && ls.delta == PT_LIGHT_ENV) ||
-         ((features & PT_FEAT_PUNCTUAL) && ls.delta == PT_LIGHT_AT)) &&
+         ((features & PT_FEAT_PUNCTUAL) &&
+          (ls.delta == PT_LIGHT_AT || ls.delta == PT_LIGHT_FAR))) &&
         any_positive(ls.radiance) && any_positive(f = bd_fcos(x, ls.wi, &bp))) {
         const uint32_t k = t1 + 1;
-        const int far = ls.delta == PT_LIGHT_ENV, at = ls.delta == PT_LIGHT_AT;
+        /* far: at infinity (the map, a directional light); at: a delta light */
+        const int dirl = ls.delta == PT_LIGHT_FAR;
+        const int far = ls.delta == PT_LIGHT_ENV || dirl, at = ls.delta == PT_LIGHT_AT || dirl;
         pt_vec3 lrad = ls.radiance;
         if (ls.delta == PT_LIGHT_AREA && (features & PT_FEAT_ALPHA) && r->alpha &&
             pt_alpha_tri(s, ls.tri) && !(r->alpha_solid && r->alpha_solid[ls.tri]))
@@ -4648,7 +4674,8 @@ static void bd_nee(const pt_renderer *r, path *pa, bd_scratch *bs, const bd_vert
         if (at) {
             uint32_t i = (uint32_t)(ls.punct - s->punctual);
             bs->pl[k] = bd_punct_pick(r, i);
-            bs->pl[k - 1] = bd_area(bd_punct_dir_pdf(ls.punct, pt_v3_neg(ls.wi)), yl.p, x);
+            bs->pl[k - 1] = dirl ? bd_env_area(r, x, ls.wi)
+                                 : bd_area(bd_punct_dir_pdf(ls.punct, pt_v3_neg(ls.wi)), yl.p, x);
         } else if (far) {
             bs->pl[k] = bd_env_start_pdf(r, ls.wi);
             bs->pl[k - 1] = bd_env_area(r, x, ls.wi);
@@ -5479,8 +5506,6 @@ static const char *bd_why(const pt_scene *scene, int has_env, int guiding, int c
 {
     const uint32_t f = scene->features;
     for (uint32_t i = 0; i < scene->num_punctual; i++) {
-        if (scene->punctual[i].type == PT_PUNCTUAL_DIRECTIONAL)
-            return "a directional light (KHR_lights_punctual)";
         if (scene->punctual[i].range > 0.0f)
             return "a point or spot light with a range (KHR_lights_punctual)";
     }
@@ -5542,7 +5567,14 @@ static pt_status bd_setup(pt_renderer *r, pt_error *err)
         r->bd.cdf[r->bd.n] = sum;
         r->bd.n++;
     }
-    /* Point and spot lights: their flux over pi, 4 I or 2 (1 - cos outer) I. */
+    /* The scene's bounding sphere: a light path from the environment or a
+     * directional light starts on its disk that faces the light. */
+    pt_vec3 lo = s->bounds_min, hi = s->bounds_max;
+    r->bd.c = pt_v3_scale(pt_v3_add(lo, hi), 0.5f);
+    r->bd.rad = 0.5f * pt_v3_len(pt_v3_sub(hi, lo)) * 1.001f + 1e-6f;
+    const double rad2 = (double)r->bd.rad * (double)r->bd.rad;
+    /* Point, spot and directional lights: their flux over pi, 4 I,
+     * 2 (1 - cos outer) I, or E R^2 (the irradiance E through the disk). */
     r->bd.np = 0;
     r->bd.pidx = pt_malloc_array(s->num_punctual ? s->num_punctual : 1, sizeof *r->bd.pidx);
     r->bd.pcdf = pt_malloc_array(s->num_punctual ? s->num_punctual : 1, sizeof *r->bd.pcdf);
@@ -5551,9 +5583,11 @@ static pt_status bd_setup(pt_renderer *r, pt_error *err)
     double psum = 0.0;
     for (uint32_t i = 0; i < s->num_punctual; i++) {
         const pt_punctual *l = &s->punctual[i];
-        double w = pt_luminance(l->intensity) *
-                   (l->type == PT_PUNCTUAL_SPOT ? 2.0 * (1.0 - (double)l->cos_outer) : 4.0);
-        if (l->type == PT_PUNCTUAL_DIRECTIONAL || !(w > 0.0) || !isfinite(w))
+        double w = pt_luminance(l->intensity) * (l->type == PT_PUNCTUAL_SPOT
+                                                     ? 2.0 * (1.0 - (double)l->cos_outer)
+                                                 : l->type == PT_PUNCTUAL_DIRECTIONAL ? rad2
+                                                                                      : 4.0);
+        if (!(w > 0.0) || !isfinite(w))
             continue;
         psum += w;
         r->bd.pidx[r->bd.np] = i;
@@ -5565,10 +5599,7 @@ static pt_status bd_setup(pt_renderer *r, pt_error *err)
     const pt_env *env = r->params.env;
     r->bd.env_w = 0.0;
     if (env) {
-        pt_vec3 lo = s->bounds_min, hi = s->bounds_max;
-        r->bd.c = pt_v3_scale(pt_v3_add(lo, hi), 0.5f);
-        r->bd.rad = 0.5f * pt_v3_len(pt_v3_sub(hi, lo)) * 1.001f + 1e-6f;
-        double w = 4.0 * PT_PI * (double)r->bd.rad * (double)r->bd.rad * pt_env_mean_luminance(env);
+        double w = 4.0 * PT_PI * rad2 * pt_env_mean_luminance(env);
         if (w > 0.0 && isfinite(w))
             r->bd.env_w = w;
     }
