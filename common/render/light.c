@@ -727,12 +727,18 @@ static int sample_punctual(const pt_lights *lights, pt_vec3 p, double v, pt_ligh
 /* atten times a point or spot light's falloff towards a point at distance
  * dist along -wi (wi: the unit direction from that point to the light): the
  * range's window and the spot's cone (the top of the file). */
+float pt_punctual_range_window(const pt_punctual *l, float dist)
+{
+    if (!(l->range > 0.0f))
+        return 1.0f;
+    float x = dist / l->range, x4 = (x * x) * (x * x);
+    return x4 < 1.0f ? 1.0f - x4 : 0.0f;
+}
+
 static inline float punctual_falloff(const pt_punctual *l, pt_vec3 wi, float dist, float atten)
 {
-    if (l->range > 0.0f) {
-        float x = dist / l->range, x4 = (x * x) * (x * x);
-        atten *= x4 < 1.0f ? 1.0f - x4 : 0.0f;
-    }
+    if (l->range > 0.0f)
+        atten *= pt_punctual_range_window(l, dist);
     if (l->type == PT_PUNCTUAL_SPOT) {
         float scale = 1.0f / fmaxf(0.001f, l->cos_inner - l->cos_outer);
         float a = -pt_v3_dot(l->direction, wi) * scale - l->cos_outer * scale;

@@ -102,6 +102,11 @@ typedef struct pt_light_sample {
  * sample weighs it (without the 1 / dist^2). */
 pt_vec3 pt_punctual_intensity(const pt_punctual *l, pt_vec3 wi, float dist);
 
+/* The window of l's range at distance dist: 1 - (dist / range)^4 within
+ * it, 0 past it, 1 without a range; the factor pt_punctual_intensity and
+ * a light sample take for it. */
+float pt_punctual_range_window(const pt_punctual *l, float dist);
+
 /* Builds the light list. A scene without emitters gives a valid, empty set. */
 pt_status pt_lights_new(const pt_scene *scene, pt_lights **out, pt_error *err);
 /* The same with an environment (may be NULL) as a third class, sampled by

@@ -4027,8 +4027,8 @@ trace_batch(const pt_renderer *r, path *paths, uint32_t n, stage_lanes *sl, cons
  * lamp and leaving through a slit, or a room lit by a lamp turned to the
  * ceiling, or a room lit by the sky through its opening. Opaque surfaces,
  * emissive triangles, point, spot and directional lights and the
- * environment only (pt_render_check_bdpt): lights with a range and glass
- * keep the unidirectional variants.
+ * environment only (pt_render_check_bdpt): glass keeps the unidirectional
+ * variants.
  */
 #define BD_VERTS 48u             /* vertices a camera or a light path keeps */
 #define DIM_BD_LIGHT 0x40000000u /* the light path's numbers: 8 a vertex from here */
@@ -4461,7 +4461,9 @@ static int bd_start_punct(const pt_renderer *r, const float u[DIM_PER_BOUNCE], u
         pt_frame_from_normal(l->type == PT_PUNCTUAL_SPOT ? l->direction : pt_v3(0.0f, 0.0f, 1.0f));
     *dir = pt_frame_to_world(&f, pt_v3(sz * cosf(phi), sz * sinf(phi), z));
     *pw = bd_punct_dir_pdf(l, *dir);
-    pt_vec3 in = pt_punctual_intensity(l, pt_v3_neg(*dir), 1.0f);
+    /* at distance 0: the range's window, 1 there, is taken at the first
+     * vertex (bd_light_path) */
+    pt_vec3 in = pt_punctual_intensity(l, pt_v3_neg(*dir), 0.0f);
     if (!(*pw > 0.0) || !(pick > 0.0) || !any_positive(in))
         return 0;
     y0->p = l->position;
@@ -4544,6 +4546,14 @@ static uint32_t bd_light_path(const pt_renderer *r, const path *pa, bd_scratch *
         bd_vert *y = &bs->lig[nl];
         if (!bd_vertex(r, &hit, dir, pa->time, y, features))
             break;
+        if (nl == 1 && y0->dlight && !y0->inf) {
+            /* a point or spot light's range: its window at the distance
+             * the light travelled (the ray starts at the light) */
+            const float win = pt_punctual_range_window(&r->scene->punctual[y0->tri], hit.t);
+            if (!(win > 0.0f))
+                break;
+            beta = pt_v3_scale(beta, win);
+        }
         y->beta = beta;
         y->pf = prev_delta           ? 0.0
                 : y0->inf && nl == 1 ? bd_env_area(r, y, y0->p)
@@ -5505,10 +5515,6 @@ static pt_status mf_accel_new(pt_renderer *r, pt_error *err)
 static const char *bd_why(const pt_scene *scene, int has_env, int guiding, int clamped)
 {
     const uint32_t f = scene->features;
-    for (uint32_t i = 0; i < scene->num_punctual; i++) {
-        if (scene->punctual[i].range > 0.0f)
-            return "a point or spot light with a range (KHR_lights_punctual)";
-    }
     if (f & (PT_FEAT_TRANSMISSION | PT_FEAT_VOLUME | PT_FEAT_THIN_GLASS |
              PT_FEAT_DIFFUSE_TRANSMISSION | PT_FEAT_DISPERSION))
         return "transmissive materials (glass, KHR_materials_transmission, "

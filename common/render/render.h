@@ -324,8 +324,8 @@ int pt_renderer_lanes(const pt_renderer *r);
 int pt_renderer_chains(const pt_renderer *r);
 
 /* PT_OK when bidirectional path tracing (pt_render_params.bdpt) can render
- * scene: lit by emissive triangles, point, spot and directional lights
- * without a range, an environment (has_env: a map or a background) or
+ * scene: lit by emissive triangles, point, spot and directional lights,
+ * an environment (has_env: a map or a background) or
  * any of them, with opaque materials (no transmission, no unlit), and
  * without guiding or clamping (render passes it records as the other
  * variants do); else

@@ -158,7 +158,9 @@ static pt_env *sun_map(void)
  * light paths start at all three by power. With sun, also a directional
  * light through the open front, from over the camera's right shoulder,
  * onto the floor and the back wall; sun 2: that light alone (the lamp
- * off, no point or spot light). */
+ * off, no point or spot light); sun 3: no sun, and the point and the spot
+ * light with ranges short of the far walls (KHR_lights_punctual's
+ * window). */
 static pt_scene *cornell_lamps(int sun)
 {
     pt_scene *s = furnace_load("scenes/cornell_box.gltf");
@@ -180,7 +182,11 @@ static pt_scene *cornell_lamps(int sun)
     l[1].intensity = pt_v3(0.2f, 0.3f, 0.4f);
     l[1].cos_inner = cosf(0.3f);
     l[1].cos_outer = cosf(0.5f);
-    if (sun) {
+    if (sun == 3) {
+        float size = pt_v3_len(pt_v3_sub(s->bounds_max, s->bounds_min));
+        l[0].range = 0.45f * size;
+        l[1].range = 0.6f * size;
+    } else if (sun) {
         const pt_camera *cam = &s->camera;
         l[2].type = PT_PUNCTUAL_DIRECTIONAL;
         l[2].direction =
@@ -189,7 +195,7 @@ static pt_scene *cornell_lamps(int sun)
         l[2].intensity = pt_v3(1.5f, 1.3f, 1.0f);
     }
     s->punctual = l;
-    s->num_punctual = sun ? 3 : 2;
+    s->num_punctual = sun && sun != 3 ? 3 : 2;
     if (sun == 2) {
         l[0] = l[2];
         s->num_punctual = 1;
@@ -443,6 +449,14 @@ int main(void)
             same_mean("Cornell box with a sun", sun_lamps, 16, CHECK_WORK(2048));
             tile_as_samples(sun_lamps);
             pt_scene_free(sun_lamps);
+        }
+        /* Point and spot lights with a range: the window is taken at a
+         * light path's first vertex. */
+        pt_scene *ranged = cornell_lamps(3);
+        if (ranged) {
+            paired("Cornell box with lights of a range", ranged, 32, 8, CHECK_WORK(512));
+            same_mean("Cornell box with lights of a range", ranged, 16, CHECK_WORK(2048));
+            pt_scene_free(ranged);
         }
         /* The sun alone: the light paths from it carry more of the image. */
         pt_scene *sun_alone = cornell_lamps(2);
