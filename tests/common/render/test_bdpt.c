@@ -428,42 +428,36 @@ int main(void)
         }
         env = NULL;
         pt_env_free(sun);
-        pt_scene *lamps = cornell_lamps(0);
-        if (lamps) {
-            /* 512 spp: at 128 the unidirectional render's rare paths put
-             * the largest |z| at 3.8 to 4.0 for two seeds of seven, and
-             * at 1,024 every seed reads 1.7 to 2.9 (no bias there). */
-            paired("Cornell box with a point and a spot light", lamps, 32, 8, 512);
-            same_mean("Cornell box with a point and a spot light", lamps, 16, CHECK_WORK(2048));
-            tile_as_samples(lamps);
+        /* The box's lamp with a point and a spot light, then a directional
+         * light too (its light paths start on the disk of the scene's
+         * bounding sphere that faces it, their first vertex at the disk's
+         * area density), the point and spot light with ranges (the window
+         * taken at a light path's first vertex), and the sun alone (its
+         * light paths carry more of the image). The lamps' blocks at 512
+         * spp: at 128 the unidirectional render's rare paths put the
+         * largest |z| at 3.8 to 4.0 for two seeds of seven, and at 1,024
+         * every seed reads 1.7 to 2.9 (no bias there). A sanitizer build
+         * leaves out the blocks of the sun beside the lamps (for time). */
+        static const struct {
+            const char *name;
+            int mode; /* cornell_lamps' */
+            uint32_t spp, tile;
+        } lamp_cases[] = {
+            {"Cornell box with a point and a spot light", 0, 512, 1},
+            {"Cornell box with a sun", 1, CHECK_SANITIZED ? 0 : 512, 1},
+            {"Cornell box with lights of a range", 3, CHECK_WORK(512), 0},
+            {"Cornell box lit by a sun alone", 2, CHECK_WORK(512), 0},
+        };
+        for (size_t i = 0; i < sizeof lamp_cases / sizeof lamp_cases[0]; i++) {
+            pt_scene *lamps = cornell_lamps(lamp_cases[i].mode);
+            if (!lamps)
+                continue;
+            if (lamp_cases[i].spp)
+                paired(lamp_cases[i].name, lamps, 32, 8, lamp_cases[i].spp);
+            same_mean(lamp_cases[i].name, lamps, 16, CHECK_WORK(2048));
+            if (lamp_cases[i].tile)
+                tile_as_samples(lamps);
             pt_scene_free(lamps);
-        }
-        /* A directional light too: its light paths start on the disk of
-         * the scene's bounding sphere that faces it, their first vertex
-         * at the disk's area density. */
-        pt_scene *sun_lamps = cornell_lamps(1);
-        if (sun_lamps) {
-            /* (a sanitizer build: the sun alone's blocks below, for time) */
-            if (!CHECK_SANITIZED)
-                paired("Cornell box with a sun", sun_lamps, 32, 8, 512);
-            same_mean("Cornell box with a sun", sun_lamps, 16, CHECK_WORK(2048));
-            tile_as_samples(sun_lamps);
-            pt_scene_free(sun_lamps);
-        }
-        /* Point and spot lights with a range: the window is taken at a
-         * light path's first vertex. */
-        pt_scene *ranged = cornell_lamps(3);
-        if (ranged) {
-            paired("Cornell box with lights of a range", ranged, 32, 8, CHECK_WORK(512));
-            same_mean("Cornell box with lights of a range", ranged, 16, CHECK_WORK(2048));
-            pt_scene_free(ranged);
-        }
-        /* The sun alone: the light paths from it carry more of the image. */
-        pt_scene *sun_alone = cornell_lamps(2);
-        if (sun_alone) {
-            paired("Cornell box lit by a sun alone", sun_alone, 32, 8, CHECK_WORK(512));
-            same_mean("Cornell box lit by a sun alone", sun_alone, 16, CHECK_WORK(2048));
-            pt_scene_free(sun_alone);
         }
         pt_scene_free(cornell);
     }
