@@ -4423,6 +4423,20 @@ static int bd_start_tri(const pt_renderer *r, const float u[DIM_PER_BOUNCE], dou
     return 1;
 }
 
+/* A point uniform on the disk of the scene's bounding sphere that faces
+ * direction w (towards the light), by the cosine sample's disk coordinates
+ * of (u3, u4): where a light path from the environment or a directional
+ * light starts, along -w (pbrt-v3's infinite lights, Pharr et al. 2016,
+ * sec. 16.1.5). */
+static pt_vec3 bd_disk_origin(const pt_renderer *r, pt_vec3 w, float u3, float u4)
+{
+    const float R = r->bd.rad;
+    pt_vec3 dk = pt_sample_cosine_hemisphere(u3, u4);
+    pt_frame f = pt_frame_from_normal(w);
+    return pt_v3_add(pt_v3_add(r->bd.c, pt_v3_scale(w, R)),
+                     pt_v3_add(pt_v3_scale(f.t, dk.x * R), pt_v3_scale(f.b, dk.y * R)));
+}
+
 /* A light path's start y0 at the scene's point or spot light i (picked with
  * probability pick): a direction uniform over the sphere or the spot's
  * outer cone by u[3..4], its density in *pw. As bd_start_tri. A
@@ -4439,10 +4453,8 @@ static int bd_start_punct(const pt_renderer *r, const float u[DIM_PER_BOUNCE], u
         if (!(pick > 0.0) || !any_positive(l->intensity))
             return 0;
         const float R = r->bd.rad;
-        pt_vec3 w = pt_v3_neg(l->direction), dk = pt_sample_cosine_hemisphere(u[3], u[4]);
-        pt_frame f = pt_frame_from_normal(w);
-        *o = pt_v3_add(pt_v3_add(r->bd.c, pt_v3_scale(w, R)),
-                       pt_v3_add(pt_v3_scale(f.t, dk.x * R), pt_v3_scale(f.b, dk.y * R)));
+        pt_vec3 w = pt_v3_neg(l->direction);
+        *o = bd_disk_origin(r, w, u[3], u[4]);
         *dir = l->direction;
         *pw = 1.0; /* not read: the next vertex's density is the disk's */
         y0->p = w;
@@ -4491,10 +4503,7 @@ static int bd_start_env(const pt_renderer *r, const float u[DIM_PER_BOUNCE], bd_
         !(pd > 0.0f) || !any_positive(le))
         return 0;
     const float R = r->bd.rad;
-    pt_vec3 dk = pt_sample_cosine_hemisphere(u[3], u[4]);
-    pt_frame f = pt_frame_from_normal(w);
-    *o = pt_v3_add(pt_v3_add(r->bd.c, pt_v3_scale(w, R)),
-                   pt_v3_add(pt_v3_scale(f.t, dk.x * R), pt_v3_scale(f.b, dk.y * R)));
+    *o = bd_disk_origin(r, w, u[3], u[4]);
     *dir = pt_v3_neg(w);
     y0->p = w;
     y0->ng = *dir;
