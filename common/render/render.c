@@ -4744,8 +4744,6 @@ static void bd_escape(const pt_renderer *r, path *pa, bd_scratch *bs, uint32_t t
     pa->L = pt_v3_add(pa->L, pt_v3_scale(pt_v3_mul(beta, le), (float)w));
 }
 
-/* The sample of pa (started by path_start) by bidirectional path tracing,
- * into pa->L; adds its rays to *rays. */
 /* The render passes at the camera path's vertex x = z_t1 (FEAT_PASSES), as
  * shade() records them: the camera ray's hit, and the first vertex whose
  * closure is not all specular (the albedo through the specular ones before
@@ -4763,6 +4761,8 @@ static void bd_passes(const pt_renderer *r, pass_rec *pr, const pt_hit *hit, con
     }
 }
 
+/* The sample of pa (started by path_start) by bidirectional path tracing,
+ * into pa->L; adds its rays to *rays. */
 static void bd_sample(const pt_renderer *r, path *pa, bd_scratch *bs, uint64_t *rays,
                       const uint32_t features)
 {
