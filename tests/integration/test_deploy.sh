@@ -405,17 +405,19 @@ if command -v dpkg-query >/dev/null && command -v ldd >/dev/null; then
   runtime=$(sed -n 's/^runtime_pkgs=(\(.*\))$/\1/p' "$deploy/setup.sh")
   [[ -n "$runtime" ]] || fail "deploy/setup.sh: no runtime_pkgs=(...) line"
   dpkg-query -W -f='${Package}\t${Depends}, ${Pre-Depends}\n' >"$T/dpkg.tsv"
-  # The package that owns each library file (merged /usr: try both spellings).
-  # A sanitizer build loads its runtimes (libasan, libubsan), which a release
-  # image never has: those are left out.
+  # The package that owns each library file (merged /usr: every spelling,
+  # asked of dpkg in one call, which reads its database once: one call per
+  # spelling took 7 s). A sanitizer build loads its runtimes (libasan,
+  # libubsan), which a release image never has: those are left out. dpkg
+  # prints "pkg[:arch][, pkg2]: path", and exits 1 for the spellings no
+  # package owns.
   owners=$(ldd "$PT_BIN/ptserve" "$PT_BIN/ptworker" | awk '/=> \// {print $3}' |
     grep -vE '/lib(a|ub|t|l)san\.so' | sort -u |
     while read -r lib; do
       r=$(readlink -f "$lib")
-      for cand in "$lib" "$r" "${r#/usr}" "/usr$r"; do
-        o=$(dpkg -S "$cand" 2>/dev/null | head -n 1) && { echo "${o%%:*}"; break; }
-      done
-    done | sort -u)
+      printf '%s\n' "$lib" "$r" "${r#/usr}" "/usr$r"
+    done | sort -u | { xargs dpkg -S 2>/dev/null || true; } | grep -v '^diversion ' |
+    sed 's/[:,].*//' | sort -u)
   [[ -n "$owners" ]] || fail "dpkg knows no package of the programs' libraries"
   "$py" - "$T/dpkg.tsv" "$runtime" "$owners" <<'EOF' || fail "runtime libraries: see above"
 import re, sys
