@@ -416,7 +416,7 @@ static int same_params(const pt_render_params *a, const pt_render_params *b)
     return a->width == b->width && a->height == b->height && a->seed == b->seed &&
            a->max_depth == b->max_depth && a->rr_depth == b->rr_depth &&
            a->light_strategy == b->light_strategy && a->transparent == b->transparent &&
-           a->passes == b->passes && a->guiding == b->guiding &&
+           a->passes == b->passes && a->guiding == b->guiding && a->bdpt == b->bdpt &&
            memcmp(&a->clamp_direct, &b->clamp_direct, sizeof a->clamp_direct) == 0 &&
            memcmp(&a->clamp_indirect, &b->clamp_indirect, sizeof a->clamp_indirect) == 0;
 }

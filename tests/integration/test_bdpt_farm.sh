@@ -52,6 +52,13 @@ job=$("$bin/ptctl" submit "$scene" "${view[@]}" --bdpt)
 "$bin/ptctl" watch "$job" 2> /dev/null || fail "watch exited $?"
 "$bin/ptctl" fetch "$job" -o "$tmp/queued.exr"
 "$bin/ptexr-diff" "$tmp/ref.exr" "$tmp/queued.exr" || fail "ptctl submit --bdpt image differs"
+# The same scene and view without --bdpt on the same workers: a worker
+# must not reuse the renderer it built for the --bdpt job.
+job=$("$bin/ptctl" submit "$scene" "${view[@]}")
+"$bin/ptctl" watch "$job" 2> /dev/null || fail "watch exited $?"
+"$bin/ptctl" fetch "$job" -o "$tmp/queued_plain.exr"
+"$bin/ptexr-diff" "$tmp/plain.exr" "$tmp/queued_plain.exr" ||
+  fail "ptctl submit after a --bdpt job of the same scene: not the unidirectional image"
 
 "$bin/ptserve" --local 2 --worker-threads 1 "${view[@]}" --bdpt --tile 16 --task-time 50 \
   -o "$tmp/local.exr" "$scene" 2> "$tmp/local.log" ||
