@@ -378,8 +378,9 @@ static const char SUBMIT_HELP[] =
     "                     at F / R seconds (default 24)\n"
     "  --guiding on|off|auto  path guiding learned by the farm (default off; as\n"
     "                     ptworker --guiding, whose image it gives bit for bit)\n"
-    "  --bdpt             bidirectional path tracing, as ptworker --bdpt (the same\n"
-    "                     bits); a scene it cannot render is refused at submission\n"
+    "  --bdpt[=auto|on|off]  bidirectional path tracing, as ptworker --bdpt (the\n"
+    "                     same bits); a scene on cannot render is refused at\n"
+    "                     submission; auto (the default) is decided there, once\n"
     "  --clamp-direct X   clamp each sample's light that reaches the camera or the\n"
     "                     first surface it sees to R+G+B <= X, as Cycles' Clamp\n"
     "                     Direct (biased; default 0, off)\n"
@@ -513,8 +514,10 @@ static int cmd_submit(int argc, char **argv, globals *g)
         m.film_flags |= PROTO_FILM_DENOISE;
     if (ro.denoise_progressive)
         m.film_flags |= PROTO_FILM_DENOISE_PROGRESSIVE;
-    if (ro.bdpt)
+    if (ro.bdpt == PT_BDPT_ON)
         m.film_flags |= PROTO_FILM_BDPT;
+    else if (ro.bdpt == PT_BDPT_OFF)
+        m.film_flags |= PROTO_FILM_BDPT_OFF;
     m.clamp[0] = ro.clamp_direct;
     m.clamp[1] = ro.clamp_indirect;
     m.guiding = (uint8_t)ro.guiding;

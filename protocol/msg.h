@@ -119,9 +119,13 @@ const char *proto_msg_type_name(uint32_t type);
  * renders the task with it; the coordinator refused the job at submission
  * where the scene cannot take it (pt_render_check_bdpt). */
 #define PROTO_FILM_BDPT (1u << 9)
+/* Bit 10, SUBMIT: the user said --bdpt=off. Without it or bit 9 the
+ * coordinator decides (--bdpt auto, pt_bdpt_auto) when it admits the job
+ * and sets bit 9 where bdpt renders it; workers read bit 9 only. */
+#define PROTO_FILM_BDPT_OFF (1u << 10)
 #define PROTO_FILM_KNOWN                                                                           \
     (PROTO_FILM_TRANSPARENT | PROTO_FILM_PASSES | PROTO_FILM_DENOISE |                             \
-     PROTO_FILM_DENOISE_PROGRESSIVE | PROTO_FILM_BDPT)
+     PROTO_FILM_DENOISE_PROGRESSIVE | PROTO_FILM_BDPT | PROTO_FILM_BDPT_OFF)
 /* The PT_PASS_* mask of film flags, and the flags of a mask. */
 static inline uint32_t proto_film_passes(uint32_t flags)
 {

@@ -157,9 +157,9 @@ static void usage(FILE *f)
         "                         here; a queue's jobs\n"
         "  --denoise-region N     those regions' side in pixels (default 512; a\n"
         "                         multiple of 32, 32 to 1024)\n"
-        "  --bdpt                 bidirectional path tracing, as ptworker --bdpt (the\n"
-        "                         same bits); one-job mode (queued jobs: ptctl submit\n"
-        "                         --bdpt)\n"
+        "  --bdpt[=auto|on|off]   bidirectional path tracing, as ptworker --bdpt (the\n"
+        "                         same bits; auto, the default, decided here once per\n"
+        "                         job); one-job mode (queued jobs: ptctl submit --bdpt)\n"
         "  --guiding on|off|auto  path guiding learned by the farm (default off): as\n"
         "                         ptworker --guiding, whose image it gives bit for bit;\n"
         "                         one-job mode (queued jobs: ptctl submit --guiding)\n"
@@ -547,8 +547,10 @@ static void job_from_options(srv_config *c, const pt_render_opts *ro, parsed *x)
     }
     if (ro->given & PT_ROPT(PT_ROPT_TRANSPARENT))
         c->job.film_flags |= PROTO_FILM_TRANSPARENT;
-    if (ro->bdpt)
+    if (ro->bdpt == PT_BDPT_ON)
         c->job.film_flags |= PROTO_FILM_BDPT;
+    else if (ro->bdpt == PT_BDPT_OFF)
+        c->job.film_flags |= PROTO_FILM_BDPT_OFF;
     c->job.film_flags |= proto_film_of_passes(ro->passes);
     if (ro->denoise)
         c->job.film_flags |= PROTO_FILM_DENOISE;
@@ -639,7 +641,7 @@ static int check_options(srv_config *c, const pt_render_opts *ro, parsed *x, int
                         "with ptctl submit --variant\n");
         return 2;
     }
-    if (c->state_dir && (c->job.film_flags & PROTO_FILM_BDPT)) {
+    if (c->state_dir && (c->job.film_flags & (PROTO_FILM_BDPT | PROTO_FILM_BDPT_OFF))) {
         fprintf(stderr, "ptserve: --bdpt is for one-job mode; a queued job asks for it with "
                         "ptctl submit --bdpt\n");
         return 2;

@@ -16,6 +16,7 @@
 #include "common/image/exr.h"
 #include "common/image/image.h"
 #include "common/render/adaptive.h"
+#include "common/render/bdpt_auto.h"
 #include "common/render/denoise_frame.h"
 #include "common/render/env.h"
 #include "common/render/film.h"
@@ -335,7 +336,6 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
     p.clamp_direct = o->clamp_direct;
     p.clamp_indirect = o->clamp_indirect;
     p.passes = o->passes;
-    p.bdpt = o->bdpt ? 1u : 0u;
     /* Guiding samples glossy closures only (main refuses on with adaptive
      * sampling; auto is then off: a tile's stop would depend on its pass). */
     p.guiding =
@@ -352,6 +352,23 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
         /* It would render black: say how to light it instead. */
         fprintf(stderr, "ptworker: %s\n", err.msg);
         goto done;
+    }
+    p.bdpt = o->bdpt == PT_BDPT_ON ? 1u : 0u;
+    if (o->bdpt == PT_BDPT_AUTO) {
+        int on = 0;
+        double share = -1.0;
+        if (pt_bdpt_auto(scene, env != NULL, p.guiding != 0,
+                         p.clamp_direct > 0.0f || p.clamp_indirect > 0.0f, &on, &share,
+                         &err) != PT_OK) {
+            fprintf(stderr, "ptworker: --bdpt auto: %s\n", err.msg);
+            goto done;
+        }
+        p.bdpt = on ? 1u : 0u;
+        if (on && !o->quiet)
+            fprintf(stderr,
+                    "ptworker: --bdpt auto: on (%.0f %% of the emitters' light first lands "
+                    "in a pocket; --bdpt=off to render without)\n",
+                    100.0 * share);
     }
     if (pt_renderer_new(scene, &p, &r, &err) != PT_OK ||
         pt_film_new(p.width, p.height, &film, &err) != PT_OK ||

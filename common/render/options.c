@@ -45,7 +45,7 @@ static const struct {
     [PT_ROPT_CLAMP_DIRECT] = {"clamp-direct", required_argument},
     [PT_ROPT_CLAMP_INDIRECT] = {"clamp-indirect", required_argument},
     [PT_ROPT_GUIDING] = {"guiding", required_argument},
-    [PT_ROPT_BDPT] = {"bdpt", no_argument},
+    [PT_ROPT_BDPT] = {"bdpt", optional_argument},
 };
 
 void pt_render_opts_init(pt_render_opts *o)
@@ -141,7 +141,15 @@ pt_status pt_render_opt_set(pt_render_opts *o, int c, const char *text, pt_error
     case PT_ROPT_TRANSPARENT:
         break;
     case PT_ROPT_BDPT:
-        o->bdpt = 1;
+        /* --bdpt alone is on, as before auto was the default. */
+        if (!text || strcmp(text, "on") == 0)
+            o->bdpt = PT_BDPT_ON;
+        else if (strcmp(text, "off") == 0)
+            o->bdpt = PT_BDPT_OFF;
+        else if (strcmp(text, "auto") == 0)
+            o->bdpt = PT_BDPT_AUTO;
+        else
+            st = pt_error_set(err, PT_ERR_ARG, "%s: '%s' is not on, off or auto", opt, text);
         break;
     case PT_ROPT_SHUTTER:
         st = pt_opt_shutter(opt, text, o->shutter, err);

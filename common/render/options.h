@@ -26,6 +26,7 @@
 
 #include "common/base/error.h"
 #include "common/image/view.h"
+#include "common/render/bdpt_auto.h"
 #include "common/scene/scene.h"
 
 /* The options, by id; getopt's value for one is PT_ROPT_BASE + id. */
@@ -105,7 +106,7 @@ typedef struct pt_render_opts {
                                 (the coordinator's; denoise is set with it) */
     float clamp_direct, clamp_indirect; /* sample clamping (pt_render_params); 0: off */
     uint32_t guiding;                   /* PT_GUIDING_*; off unless given */
-    int bdpt; /* --bdpt: bidirectional path tracing (pt_render_params.bdpt) */
+    int bdpt; /* --bdpt[=auto|on|off]: PT_BDPT_* (bdpt_auto.h), auto unless given */
 } pt_render_opts;
 
 /* --guiding: off, on, or auto (pt_guide_enabled, guide.h, says where each

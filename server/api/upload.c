@@ -2,6 +2,7 @@
 #include "server/api/upload.h"
 
 #include <fcntl.h>
+#include <inttypes.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <string.h>
@@ -19,6 +20,7 @@
 #include "common/scene/anim.h"
 #include "common/scene/scene.h"
 #include "server/api/client.h"
+#include "server/log.h"
 #include "server/net/loop.h"
 #include "server/store/state.h"
 
@@ -143,6 +145,22 @@ static void verify_upload(srv_upload *k)
         what = "scene refused";
     /* --bdpt where it cannot render (guiding as the job would resolve it,
      * below): refused here, not by every worker. */
+    /* --bdpt auto, decided once for the job from the scene (bdpt_auto.h):
+     * the job holds the answer from here on, in its checkpoint too. */
+    int bdpt = 0;
+    double share = -1.0;
+    if (st == PT_OK && !(k->m.film_flags & (PROTO_FILM_BDPT | PROTO_FILM_BDPT_OFF))) {
+        if ((st = pt_bdpt_auto(scene, proto_env_any(ev), pt_guide_enabled(k->m.guiding, scene),
+                               k->m.clamp[0] > 0.0f || k->m.clamp[1] > 0.0f, &bdpt, &share,
+                               &err)) != PT_OK)
+            what = "job refused";
+        else if (bdpt) {
+            k->m.film_flags |= PROTO_FILM_BDPT;
+            srv_log("job %" PRIu64 ": --bdpt auto: on (%.0f %% of the emitters' light first "
+                    "lands in a pocket)",
+                    k->job_id, 100.0 * share);
+        }
+    }
     if (st == PT_OK && (k->m.film_flags & PROTO_FILM_BDPT) &&
         (st = pt_render_check_bdpt(scene, proto_env_any(ev), pt_guide_enabled(k->m.guiding, scene),
                                    k->m.clamp[0] > 0.0f || k->m.clamp[1] > 0.0f, &err)) != PT_OK)
