@@ -81,6 +81,19 @@ int pt_render_opt_is(int c)
     return c >= PT_ROPT_BASE && c < PT_ROPT_BASE + PT_ROPT_COUNT;
 }
 
+/* off, on or auto into *out as values[0], [1] or [2]. */
+static pt_status on_off_auto(const char *opt, const char *text, const int values[3], int *out,
+                             pt_error *err)
+{
+    static const char *const names[3] = {"off", "on", "auto"};
+    for (int k = 0; k < 3; k++)
+        if (strcmp(text, names[k]) == 0) {
+            *out = values[k];
+            return PT_OK;
+        }
+    return pt_error_set(err, PT_ERR_ARG, "%s: '%s' is not on, off or auto", opt, text);
+}
+
 /* A name a farm job carries (camera, variant, animation): 1 to 64 bytes. */
 static pt_status name_of(const char *opt, const char *text, const char **out, pt_error *err)
 {
@@ -142,14 +155,8 @@ pt_status pt_render_opt_set(pt_render_opts *o, int c, const char *text, pt_error
         break;
     case PT_ROPT_BDPT:
         /* --bdpt alone is on, as before auto was the default. */
-        if (!text || strcmp(text, "on") == 0)
-            o->bdpt = PT_BDPT_ON;
-        else if (strcmp(text, "off") == 0)
-            o->bdpt = PT_BDPT_OFF;
-        else if (strcmp(text, "auto") == 0)
-            o->bdpt = PT_BDPT_AUTO;
-        else
-            st = pt_error_set(err, PT_ERR_ARG, "%s: '%s' is not on, off or auto", opt, text);
+        st = on_off_auto(opt, text ? text : "on",
+                         (const int[3]){PT_BDPT_OFF, PT_BDPT_ON, PT_BDPT_AUTO}, &o->bdpt, err);
         break;
     case PT_ROPT_SHUTTER:
         st = pt_opt_shutter(opt, text, o->shutter, err);
@@ -202,16 +209,13 @@ pt_status pt_render_opt_set(pt_render_opts *o, int c, const char *text, pt_error
             *(id == PT_ROPT_CLAMP_DIRECT ? &o->clamp_direct : &o->clamp_indirect) = (float)v;
         break;
     }
-    case PT_ROPT_GUIDING:
-        if (strcmp(text, "off") == 0)
-            o->guiding = PT_GUIDING_OFF;
-        else if (strcmp(text, "on") == 0)
-            o->guiding = PT_GUIDING_ON;
-        else if (strcmp(text, "auto") == 0)
-            o->guiding = PT_GUIDING_AUTO;
-        else
-            st = pt_error_set(err, PT_ERR_ARG, "%s: '%s' is not on, off or auto", opt, text);
+    case PT_ROPT_GUIDING: {
+        int g = 0;
+        st = on_off_auto(opt, text, (const int[3]){PT_GUIDING_OFF, PT_GUIDING_ON, PT_GUIDING_AUTO},
+                         &g, err);
+        o->guiding = (uint32_t)g;
         break;
+    }
     case PT_ROPT_COUNT:
         break;
     }
