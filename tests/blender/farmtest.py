@@ -144,7 +144,7 @@ def ptworker(scene, args, out, extra=()):
         if args[i] in skip:
             i += 2
             continue
-        if args[i] in ("--transparent", "--denoise"):
+        if args[i] in ("--transparent", "--denoise") or args[i].startswith("--bdpt"):
             keep.append(args[i])
             i += 1
             continue

@@ -19,7 +19,7 @@ import json
 import os
 
 import bpy
-from bpy.props import BoolProperty, IntProperty, PointerProperty, StringProperty
+from bpy.props import BoolProperty, EnumProperty, IntProperty, PointerProperty, StringProperty
 
 from . import farm, passes, scene_export
 
@@ -56,6 +56,17 @@ class PtfarmSettings(bpy.types.PropertyGroup):
                                "coordinator that requires none")
     spp: IntProperty(name="Samples", default=64, min=1, max=65536,
                      description="Samples per pixel")
+    integrator: EnumProperty(
+        name="Integrator", default="AUTO",
+        items=[("AUTO", "Automatic", "Bidirectional where the scene's emissive surfaces light "
+                "pockets (a lamp under the ceiling, inside a fitting), else path tracing; "
+                "the coordinator decides and logs why (ptctl submit's default)"),
+               ("PATH", "Path Tracing", "Unidirectional path tracing with light sampling, "
+                "as Cycles (--bdpt=off)"),
+               ("BDPT", "Bidirectional", "Each sample also traces a path from the lights and "
+                "joins the two (--bdpt): light that reaches the picture indirectly converges "
+                "sooner; opaque materials only")],
+        description="How each sample finds the light")
     seed: IntProperty(name="Seed", default=0, min=0, description="Same seed, same image")
     priority: IntProperty(name="Priority", default=0,
                           description="Higher runs first; ties in submission order")
@@ -335,6 +346,7 @@ class RENDER_PT_ptfarm(bpy.types.Panel):
         col.prop(s, "token_file")
         col = layout.column()
         col.prop(s, "spp")
+        col.prop(s, "integrator")
         col.prop(s, "use_denoise")
         col.prop(s, "seed")
         col.prop(s, "priority")

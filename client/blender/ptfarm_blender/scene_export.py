@@ -417,6 +417,7 @@ def export(scene, folder, animation, settings):
         args += ["--passes", ",".join(asked)]
     if settings.use_denoise:
         args += ["--denoise"]
+    args += {"PATH": ["--bdpt=off"], "BDPT": ["--bdpt"]}.get(settings.integrator, [])
     args += world_options(scene, folder, warn)
     frames = None
     fps = scene.render.fps
