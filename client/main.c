@@ -816,6 +816,7 @@ static void print_status(const proto_job_info *j)
     printf("tiles      %lu (%lu stopped by adaptive sampling)\n", (unsigned long)j->tiles,
            (unsigned long)j->tiles_stopped);
     printf("workers    %lu\n", (unsigned long)j->workers);
+    printf("integrator %s\n", j->bdpt ? "bidirectional (--bdpt)" : "path tracing");
     if (j->guided && j->state != PROTO_JOB_RUNNING)
         printf("guiding    on\n");
     else if (j->guided && j->guide_pass > 0)

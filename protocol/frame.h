@@ -41,8 +41,9 @@
  * same bits however its tasks are sized); 5: frame ranges (the pose in TASK, the range in
  * SUBMIT and JOB_INFO, FETCH_FRAME); 6: motion blur's shutter in TASK and SUBMIT; 7: the
  * samples rejected in JOB_INFO; 8: sample clamping (CLAMP) in TASK and SUBMIT; 9: the
- * contributions clamped in RESULT and JOB_INFO */
-#define PROTO_VERSION 9u
+ * contributions clamped in RESULT and JOB_INFO; 10: the integrator in JOB_INFO and
+ * --bdpt=off's film flag in SUBMIT */
+#define PROTO_VERSION 10u
 #define PROTO_FRAME_HEADER 12u
 #define PROTO_FRAME_TRAILER 4u
 #define PROTO_FRAME_OVERHEAD (PROTO_FRAME_HEADER + PROTO_FRAME_TRAILER)

@@ -154,6 +154,7 @@ void proto_json_job(FILE *f, const proto_job_info *j)
                 (unsigned long)j->guide_spp);
     else
         fputs("null", f);
+    fprintf(f, ", \"integrator\": \"%s\"", j->bdpt ? "bidirectional" : "path");
     fputs(", \"message\": ", f);
     proto_json_string(f, j->message);
     if (j->frame_step) {

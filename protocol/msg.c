@@ -1303,7 +1303,7 @@ pt_status proto_msg_decode_submit(const uint8_t *p, size_t len, proto_submit *ou
 
 /* Bytes of a JOB_INFO with every string empty: the least an entry of
  * JOB_LIST can take, so a count is checked against the bytes present. */
-#define JOB_INFO_FIXED 161u
+#define JOB_INFO_FIXED 162u
 
 static const char *job_info_problem(const proto_job_info *m)
 {
@@ -1321,6 +1321,8 @@ static const char *job_info_problem(const proto_job_info *m)
         return "frames listed over the cap";
     if (m->guided > 1 || (!m->guided && (m->guide_pass || m->guide_spp)))
         return "guiding pass of an unguided job";
+    if (m->bdpt > 1)
+        return "bidirectional flag not 0 or 1";
     return NULL;
 }
 
@@ -1366,6 +1368,7 @@ static void w_job_info(proto_writer *w, const proto_job_info *m)
     proto_w_u32(w, m->guide_pass);
     proto_w_u32(w, m->guide_spp);
     proto_w_u64(w, m->clamped);
+    proto_w_u8(w, m->bdpt);
 }
 
 /* Reads one JOB_INFO into m (which may be left half-filled on failure). */
@@ -1413,8 +1416,11 @@ static void r_job_info(proto_reader *r, proto_job_info *m)
     m->guide_pass = proto_r_u32(r, "guiding pass");
     m->guide_spp = proto_r_u32(r, "guiding samples");
     m->clamped = proto_r_u64(r, "contributions clamped");
+    m->bdpt = proto_r_u8(r, "bidirectional");
     if (r->status == PT_OK && (m->guided > 1 || (!m->guided && (m->guide_pass || m->guide_spp))))
         proto_r_fail(r, PT_ERR_PROTO, "out of range:", "guiding");
+    if (r->status == PT_OK && m->bdpt > 1)
+        proto_r_fail(r, PT_ERR_PROTO, "out of range:", "bidirectional");
 }
 
 pt_status proto_msg_encode_job_info(proto_writer *w, const proto_job_info *m, pt_error *err)

@@ -695,7 +695,9 @@ const char *proto_job_state_name(uint32_t state);
  *   ..   4    u32  the samples per pixel its distribution was learned from (0 in pass 0)
  *   ..   8    u64  contributions clamped (--clamp-direct/--clamp-indirect), over the
  *                  results merged
- *   size 161+a+b+c+d+e+20K */
+ *   ..   1    u8   bidirectional: 1 the job renders with bidirectional path tracing
+ *                  (PROTO_FILM_BDPT: asked for, or chosen by --bdpt auto), 0 not
+ *   size 162+a+b+c+d+e+20K */
 typedef struct proto_job_info {
     uint64_t job_id;
     uint8_t state;
@@ -726,6 +728,7 @@ typedef struct proto_job_info {
     uint8_t guided;      /* 1: path guiding learned by the farm */
     uint32_t guide_pass; /* the pass being rendered (0 when not guided) */
     uint32_t guide_spp;  /* samples per pixel its distribution was learned from */
+    uint8_t bdpt;        /* 1: bidirectional path tracing (PROTO_FILM_BDPT) */
 } proto_job_info;
 
 /* JOB_LIST
@@ -733,7 +736,7 @@ typedef struct proto_job_info {
  *   4    ...       N JOB_INFO entries, back to back
  * Decoded, jobs is a pt_malloc'd array of N entries (NULL when N is 0) that
  * the caller frees with pt_free; N is checked against the bytes present (each
- * entry needs at least 153 bytes) before anything is allocated. */
+ * entry needs at least 162 bytes) before anything is allocated. */
 typedef struct proto_job_list {
     uint32_t count;
     proto_job_info *jobs;

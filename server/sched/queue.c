@@ -264,6 +264,7 @@ void srv_queue_info(const srv_server *s, const srv_entry *j, proto_job_info *m)
     /* The pass being rendered, its distribution learned from the samples
      * before it (job_guide.c); a job not running shows none. */
     m->guided = r->params.guiding != 0;
+    m->bdpt = (r->params.film_flags & PROTO_FILM_BDPT) != 0;
     if (m->guided && j->job) {
         m->guide_pass = srv_job_guide_pass(j->job);
         m->guide_spp = pt_guide_pass_start(m->guide_pass, r->params.spp);

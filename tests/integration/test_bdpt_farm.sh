@@ -99,6 +99,14 @@ for m in auto off; do
   "$bin/ptctl" fetch "$job" -o "$tmp/nv_q_$m.exr"
   "$bin/ptexr-diff" "$tmp/nv_$m.exr" "$tmp/nv_q_$m.exr" ||
     fail "ptctl submit (--bdpt $m), NVIDIA box: not ptworker's image"
+  # ptctl status says which integrator the job has, and its JSON.
+  want=bidirectional
+  [ $m = off ] && want=path
+  "$bin/ptctl" status "$job" --json > "$tmp/status.json"
+  [ "$(json "$tmp/status.json" 'd["integrator"]')" = $want ] ||
+    fail "status --json (--bdpt $m): $(cat "$tmp/status.json")"
+  "$bin/ptctl" status "$job" | grep -q "^integrator *${want}" ||
+    fail "ptctl status (--bdpt $m) does not say $want: $("$bin/ptctl" status "$job")"
 done
 grep -q -- "--bdpt auto: on" "$tmp/serve.log" || fail "the coordinator did not say it chose bdpt"
 

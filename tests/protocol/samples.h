@@ -240,6 +240,7 @@ static inline proto_job_info sample_job_info(int v)
     m.guided = v != 1;
     m.guide_pass = v == 0 ? 2 : v == 2 ? UINT32_MAX : 0;
     m.guide_spp = v == 0 ? 48 : v == 2 ? UINT32_MAX : 0;
+    m.bdpt = v == 2;
     if (v == 0) { /* a frame range, two frames rendering */
         m.frame_first = 1001;
         m.frame_last = 1100;

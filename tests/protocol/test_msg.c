@@ -171,12 +171,12 @@ static int job_info_same(const proto_job_info *a, const proto_job_info *b)
            a->frame_step == b->frame_step && a->frames_done == b->frames_done &&
            a->frames_rendering == b->frames_rendering && a->nshown == b->nshown &&
            shown_same(a, b) && a->guided == b->guided && a->guide_pass == b->guide_pass &&
-           a->guide_spp == b->guide_spp && a->clamped == b->clamped;
+           a->guide_spp == b->guide_spp && a->clamped == b->clamped && a->bdpt == b->bdpt;
 }
 
 static size_t job_info_size(const proto_job_info *m)
 {
-    return 161 + strlen(m->name) + strlen(m->owner) + strlen(m->scene) + strlen(m->output) +
+    return 162 + strlen(m->name) + strlen(m->owner) + strlen(m->scene) + strlen(m->output) +
            strlen(m->message) + 20u * m->nshown;
 }
 
@@ -1874,6 +1874,7 @@ static void job_info_raw(proto_writer *w, int f, size_t n)
     proto_w_u32(w, 0);
     proto_w_u32(w, 0);
     proto_w_u64(w, 0); /* contributions clamped */
+    proto_w_u8(w, 0);  /* not bidirectional */
 }
 
 static void test_job_info(void)
@@ -1884,7 +1885,7 @@ static void test_job_info(void)
     /* Every string at its cap round-trips; one byte over is refused by both sides. */
     proto_job_info m = sample_job_info(2);
     CHECK(proto_msg_encode_job_info(&w, &m, &err) == PT_OK);
-    CHECK(w.len == 161 + 2 * PROTO_MAX_NAME + 2 * PROTO_MAX_PATH + PROTO_MAX_ERROR_TEXT);
+    CHECK(w.len == 162 + 2 * PROTO_MAX_NAME + 2 * PROTO_MAX_PATH + PROTO_MAX_ERROR_TEXT);
     static proto_job_info b;
     CHECK(proto_msg_decode_job_info(w.buf, w.len, &b, &err) == PT_OK);
     CHECK(job_info_same(&m, &b));
@@ -1917,9 +1918,9 @@ static void test_job_info(void)
         proto_writer_reset(&w);
         job_info_raw(&w, 0, 0);
         if (k == 0)
-            w.buf[w.len - 17] = 2; /* guided 2 */
+            w.buf[w.len - 18] = 2; /* guided 2 */
         else
-            proto_put_u32(w.buf + w.len - (k == 1 ? 16 : 12), 16); /* a pass, unguided */
+            proto_put_u32(w.buf + w.len - (k == 1 ? 17 : 13), 16); /* a pass, unguided */
         CHECKF(decode_any(PROTO_MSG_JOB_INFO, w.buf, w.len, &err) == PT_ERR_PROTO &&
                    strstr(err.msg, "guiding"),
                "case %d: %s", k, err.msg);
@@ -1930,6 +1931,17 @@ static void test_job_info(void)
         proto_writer_reset(&w);
         CHECKF(proto_msg_encode_job_info(&w, &m, &err) == PT_ERR_ARG && w.len == 0, "case %d", k);
     }
+    /* The bidirectional flag: 0 or 1. */
+    proto_writer_reset(&w);
+    job_info_raw(&w, 0, 0);
+    w.buf[w.len - 1] = 2;
+    CHECKF(decode_any(PROTO_MSG_JOB_INFO, w.buf, w.len, &err) == PT_ERR_PROTO &&
+               strstr(err.msg, "bidirectional"),
+           "%s", err.msg);
+    m = sample_job_info(1);
+    m.bdpt = 2;
+    proto_writer_reset(&w);
+    CHECK(proto_msg_encode_job_info(&w, &m, &err) == PT_ERR_ARG && w.len == 0);
     /* Any state value decodes; names for the known ones. */
     m = sample_job_info(0);
     m.state = 200;
@@ -1993,8 +2005,8 @@ static void test_job_list(void)
     CHECK(job_list_check(head, 4, "cap", &alloc) == PT_ERR_PROTO && alloc == 0);
     /* A count that the bytes present cannot hold: refused before allocating. */
     proto_writer_reset(&w);
-    jobs[0] = sample_job_info(1); /* the smallest entry: 161 bytes */
-    CHECK(proto_msg_encode_job_list(&w, jobs, 1, &err) == PT_OK && w.len == 4 + 161);
+    jobs[0] = sample_job_info(1); /* the smallest entry: 162 bytes */
+    CHECK(proto_msg_encode_job_list(&w, jobs, 1, &err) == PT_OK && w.len == 4 + 162);
     CHECK(job_list_check(w.buf, w.len, NULL, &alloc) == PT_OK && alloc == 1);
     proto_put_u32(w.buf, 2);
     CHECK(job_list_check(w.buf, w.len, "bytes", &alloc) == PT_ERR_PROTO && alloc == 0);

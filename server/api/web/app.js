@@ -83,7 +83,8 @@ function jobPage() {
       `ETA ${eta(j)}, error ${j.error === null ? "-" : (100 * j.error).toFixed(2) + "%"}, by ${j.owner}` +
       (j.guiding && j.state === "running" ? `, guiding pass ${j.guiding.pass}` +
         (j.guiding.pass ? ` (learned from ${j.guiding.learned_spp} spp)` : " (learning)") : "") +
-      (j.contributions_clamped ? `, ${j.contributions_clamped} contributions clamped` : "");
+      (j.contributions_clamped ? `, ${j.contributions_clamped} contributions clamped` : "") +
+      (j.integrator === "bidirectional" ? ", bidirectional" : "");
     $("info").textContent = JSON.stringify(j, null, 1);
     document.body.dataset.samples = j.samples_done;
     // A new image only when the coordinator has saved one (--save-interval).
