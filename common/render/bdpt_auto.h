@@ -19,9 +19,11 @@
  * measured), and where at least PT_BDPT_AUTO_SHARE of the emitters' power
  * first lands in a pocket. A pocket point is one most of whose
  * cosine-distributed directions meet a surface within PT_BDPT_AUTO_NEAR of
- * the scene's bounding-box diagonal. The share is estimated from a fixed
- * set of photons (a fixed hash sequence: the same scene gives the same
- * answer on every machine that traces it alike), and it is a function of the
+ * the scene's bounding-box diagonal (every triangle counts as opaque here,
+ * MASK and BLEND ones too: an estimate used to choose, never to weigh). The
+ * share is estimated from a fixed set of photons (Sobol numbers of a fixed
+ * seed: the same scene gives the same answer on every machine that traces
+ * it alike), and it is a function of the
  * scene alone, not of the camera, the resolution or the split, so the
  * coordinator decides once for a job and a standalone render decides the
  * same.
