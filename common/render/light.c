@@ -41,9 +41,11 @@
 #include <string.h>
 
 #include "common/base/alloc.h"
+#include "common/render/bsdf.h"
 #include "common/render/env.h"
 #include "common/render/light_lanes.h"
 #include "common/render/light_tree.h"
+#include "common/render/sampler.h"
 #include "common/render/sphtri.h"
 #include "common/scene/accel.h"
 #include "common/scene/motion.h"
@@ -190,6 +192,84 @@ pt_vec3 pt_emitted(const pt_scene *scene, uint32_t tri, float b1, float b2, pt_v
             return pt_v3(0.0f, 0.0f, 0.0f);
     }
     return emission(scene, m, tri, b1, b2);
+}
+
+pt_status pt_emitters_init(pt_emitters *e, const pt_scene *s, pt_error *err)
+{
+    uint32_t n = 0;
+    for (uint32_t t = 0; t < s->num_triangles; t++)
+        n += emits(&s->materials[s->tri_material[t]]);
+    e->n = 0;
+    e->tri = pt_malloc_array(n ? n : 1, sizeof *e->tri);
+    e->cdf = pt_malloc_array(n ? n : 1, sizeof *e->cdf);
+    if (!e->tri || !e->cdf) {
+        pt_emitters_fini(e);
+        return pt_error_set(err, PT_ERR_NOMEM, "out of memory for the emitters' table");
+    }
+    double sum = 0.0;
+    for (uint32_t t = 0; t < s->num_triangles; t++) {
+        const pt_material *m = &s->materials[s->tri_material[t]];
+        if (!emits(m))
+            continue;
+        /* Power by the emission at the centroid: a light path's start
+         * density is any positive one; where it is 0 the other strategies
+         * take the light. */
+        pt_vec3 v[3], ng;
+        float area;
+        tri_geom(s, t, v, &ng, &area);
+        pt_vec3 le = pt_emitted(s, t, 1.0f / 3.0f, 1.0f / 3.0f, ng);
+        double w = (double)area * pt_luminance(le) * (m->double_sided ? 2.0 : 1.0);
+        if (!(w > 0.0) || !isfinite(w))
+            continue;
+        sum += w;
+        e->tri[e->n] = t;
+        e->cdf[e->n++] = sum;
+    }
+    return PT_OK;
+}
+
+void pt_emitters_fini(pt_emitters *e)
+{
+    pt_free(e->tri);
+    pt_free(e->cdf);
+    e->tri = NULL;
+    e->cdf = NULL;
+    e->n = 0;
+}
+
+uint32_t pt_emitters_pick(const pt_emitters *e, double x)
+{
+    uint32_t lo = 0, hi = e->n - 1;
+    while (lo < hi) {
+        uint32_t mid = lo + (hi - lo) / 2;
+        if (e->cdf[mid] > x)
+            hi = mid;
+        else
+            lo = mid + 1;
+    }
+    return lo;
+}
+
+pt_vec3 pt_emitter_start(pt_vec3 ng, int double_sided, const float u[4], float *b1, float *b2,
+                         pt_vec3 *side)
+{
+    float su = sqrtf(u[0]);
+    *b1 = 1.0f - su;
+    *b2 = u[1] * su;
+    pt_vec3 n = ng;
+    float ud = u[2];
+    if (double_sided) {
+        if (ud < 0.5f) {
+            n = pt_v3_neg(n);
+            ud *= 2.0f;
+        } else {
+            ud = 2.0f * ud - 1.0f;
+        }
+        ud = pt_fminf(ud, 0x1.fffffep-1f);
+    }
+    *side = n;
+    pt_frame f = pt_frame_from_normal(n);
+    return pt_frame_to_world(&f, pt_sample_cosine_hemisphere(ud, u[3]));
 }
 
 /* The texels per triangle footprint_mean reads one by one; a larger

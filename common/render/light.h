@@ -164,4 +164,35 @@ float pt_lights_pdf(const pt_lights *lights, const pt_scene *scene, uint32_t tri
  * w_out (unit, away from the light); 0 on the back of a single-sided emitter. */
 pt_vec3 pt_emitted(const pt_scene *scene, uint32_t tri, float b1, float b2, pt_vec3 w_out);
 
+/* The emissive triangles by power, where light paths start (bidirectional
+ * path tracing, render.c; --bdpt auto's photons, bdpt_auto.c): each one's
+ * area times the luminance of its emission at the centroid, twice that
+ * when double-sided; those of no power left out. */
+typedef struct pt_emitters {
+    uint32_t n;    /* triangles of positive power */
+    uint32_t *tri; /* their indices in the scene, ascending */
+    double *cdf;   /* the running sum of their power */
+} pt_emitters;
+
+pt_status pt_emitters_init(pt_emitters *e, const pt_scene *scene, pt_error *err);
+void pt_emitters_fini(pt_emitters *e); /* accepts a zeroed table */
+
+/* Their power together. */
+static inline double pt_emitters_total(const pt_emitters *e)
+{
+    return e->n ? e->cdf[e->n - 1] : 0.0;
+}
+
+/* The entry (an index into e->tri) whose share of the running sum holds x,
+ * for x in [0, total): a triangle by power. e->n must be at least 1. */
+uint32_t pt_emitters_pick(const pt_emitters *e, double x);
+
+/* Where a light path leaves an emissive triangle (geometric normal ng,
+ * double_sided as its material): barycentrics uniform in area by u[0..1]
+ * into *b1, *b2, and a direction by the cosine about the side it leaves
+ * from, by u[2..3] (of a double-sided one, the side by u[2]'s half, which is
+ * then rescaled); that side's normal into *side. Returns the direction. */
+pt_vec3 pt_emitter_start(pt_vec3 ng, int double_sided, const float u[4], float *b1, float *b2,
+                         pt_vec3 *side);
+
 #endif

@@ -156,12 +156,9 @@ struct pt_renderer {
     /* Cryptomatte (PT_PASS_CRYPTOMATTE): each object's and material's id, or NULL. */
     uint32_t *crypto_obj, *crypto_mat;
     photon_src photon; /* FEAT_GUIDE: where caustic photons come from (photon_trace) */
-    /* FEAT_BDPT: the emissive triangles light paths start on (ascending)
-     * and the running sum of their power (area x luminance) */
+    /* FEAT_BDPT: the emissive triangles light paths start on, by power */
     struct {
-        uint32_t n;
-        uint32_t *tri;
-        double *cdf;
+        pt_emitters em;
         uint32_t np;    /* point and spot lights light paths start at: the scene's */
         uint32_t *pidx; /* punctual light pidx[i], with the running sum of their */
         double *pcdf;   /* power in cdf's units, after the triangles' */
@@ -4059,11 +4056,11 @@ static float bd_tri_area(const pt_renderer *r, uint32_t t)
     return 0.5f * pt_v3_len(pt_v3_cross(pt_v3_sub(tr->v1, tr->v0), pt_v3_sub(tr->v2, tr->v0)));
 }
 
-/* The emitters' power in r->bd.cdf's units: the triangles' and the
+/* The emitters' power in r->bd.em.cdf's units: the triangles' and the
  * environment's. */
 static inline double bd_tris(const pt_renderer *r)
 {
-    return r->bd.n ? r->bd.cdf[r->bd.n - 1] : 0.0;
+    return pt_emitters_total(&r->bd.em);
 }
 
 static inline double bd_total(const pt_renderer *r)
@@ -4097,12 +4094,13 @@ static double bd_punct_dir_pdf(const pt_punctual *l, pt_vec3 d)
 }
 
 /* The area density with which a light path starts at a point of emitter
- * tri: its pick probability (r->bd.cdf) over its area; 0 when the light
+ * tri: its pick probability (r->bd.em) over its area; 0 when the light
  * paths never start there. */
 static double bd_start_pdf(const pt_renderer *r, uint32_t tri)
 {
-    const uint32_t *t = r->bd.tri;
-    uint32_t lo = 0, hi = r->bd.n;
+    const pt_emitters *em = &r->bd.em;
+    const uint32_t *t = em->tri;
+    uint32_t lo = 0, hi = em->n;
     while (lo < hi) {
         uint32_t mid = lo + (hi - lo) / 2;
         if (t[mid] < tri)
@@ -4110,9 +4108,9 @@ static double bd_start_pdf(const pt_renderer *r, uint32_t tri)
         else
             hi = mid;
     }
-    if (lo >= r->bd.n || t[lo] != tri)
+    if (lo >= em->n || t[lo] != tri)
         return 0.0;
-    double w = r->bd.cdf[lo] - (lo ? r->bd.cdf[lo - 1] : 0.0);
+    double w = em->cdf[lo] - (lo ? em->cdf[lo - 1] : 0.0);
     return w / bd_total(r) / bd_tri_area(r, tri);
 }
 
@@ -4380,17 +4378,12 @@ static int bd_start_tri(const pt_renderer *r, const float u[DIM_PER_BOUNCE], dou
                         const uint32_t features)
 {
     const pt_scene *s = r->scene;
-    uint32_t lo = 0, hi = r->bd.n - 1;
-    while (lo < hi) {
-        uint32_t mid = lo + (hi - lo) / 2;
-        if (r->bd.cdf[mid] > x)
-            hi = mid;
-        else
-            lo = mid + 1;
-    }
-    uint32_t tri = r->bd.tri[lo];
+    uint32_t tri = r->bd.em.tri[pt_emitters_pick(&r->bd.em, x)];
     const tri_rec *tr = &r->tris[tri];
-    float su = sqrtf(u[1]), b1 = 1.0f - su, b2 = u[2] * su;
+    float b1, b2;
+    pt_vec3 n;
+    *dir = pt_emitter_start(tr->ng, s->materials[s->tri_material[tri]].double_sided, &u[1], &b1,
+                            &b2, &n);
     y0->p = pt_v3_add(pt_v3_add(pt_v3_scale(tr->v0, 1.0f - b1 - b2), pt_v3_scale(tr->v1, b1)),
                       pt_v3_scale(tr->v2, b2));
     y0->ng = tr->ng;
@@ -4398,20 +4391,6 @@ static int bd_start_tri(const pt_renderer *r, const float u[DIM_PER_BOUNCE], dou
     y0->b1 = b1;
     y0->b2 = b2;
     y0->pf = bd_start_pdf(r, tri);
-    pt_vec3 n = tr->ng;
-    float ud = u[3];
-    if (s->materials[s->tri_material[tri]].double_sided) {
-        if (ud < 0.5f) {
-            n = pt_v3_neg(n);
-            ud *= 2.0f;
-        } else {
-            ud = 2.0f * ud - 1.0f;
-        }
-        ud = pt_fminf(ud, 0x1.fffffep-1f);
-    }
-    pt_vec3 dl = pt_sample_cosine_hemisphere(ud, u[4]);
-    pt_frame ef = pt_frame_from_normal(n);
-    *dir = pt_frame_to_world(&ef, dl);
     *pw = bd_emit_pdf(r, tri, *dir);
     pt_vec3 le = pt_emitted(s, tri, b1, b2, *dir);
     if ((features & PT_FEAT_ALPHA) && r->alpha && pt_alpha_tri(s, tri))
@@ -4769,7 +4748,7 @@ static void bd_sample(const pt_renderer *r, path *pa, bd_scratch *bs, uint64_t *
     const pt_scene *s = r->scene;
     const uint32_t max_k = r->params.max_depth + 1u; /* z_1 .. z_k: k - 1 bounces */
     uint32_t nl =
-        r->bd.n || r->bd.np || r->bd.env_w > 0.0 ? bd_light_path(r, pa, bs, rays, features) : 0;
+        r->bd.em.n || r->bd.np || r->bd.env_w > 0.0 ? bd_light_path(r, pa, bs, rays, features) : 0;
     if (nl >= 3)
         bs->pn_far = bd_light_pdf(r, bs, bs->lig[2].p, features);
     pt_vec3 beta = pt_v3(1.0f, 1.0f, 1.0f);
@@ -5557,31 +5536,9 @@ pt_status pt_render_check_bdpt(const pt_scene *scene, int has_env, int guiding, 
 static pt_status bd_setup(pt_renderer *r, pt_error *err)
 {
     const pt_scene *s = r->scene;
-    uint32_t n = 0;
-    for (uint32_t t = 0; t < s->num_triangles; t++)
-        n += emits(&s->materials[s->tri_material[t]]);
-    r->bd.tri = pt_malloc_array(n ? n : 1, sizeof *r->bd.tri);
-    r->bd.cdf = pt_malloc_array(n ? n : 1, sizeof *r->bd.cdf);
-    if (!r->bd.tri || !r->bd.cdf)
-        return pt_error_set(err, PT_ERR_NOMEM, "out of memory for the light paths' emitters");
-    double sum = 0.0;
-    r->bd.n = 0;
-    for (uint32_t t = 0; t < s->num_triangles; t++) {
-        const pt_material *m = &s->materials[s->tri_material[t]];
-        if (!emits(m))
-            continue;
-        /* Power by the emission at the centroid: a light path's start
-         * density is any positive one; where it is 0 the other strategies
-         * take the light. */
-        pt_vec3 le = pt_emitted(s, t, 1.0f / 3.0f, 1.0f / 3.0f, r->tris[t].ng);
-        double w = (double)bd_tri_area(r, t) * pt_luminance(le) * (m->double_sided ? 2.0 : 1.0);
-        if (!(w > 0.0) || !isfinite(w))
-            continue;
-        sum += w;
-        r->bd.tri[r->bd.n] = t;
-        r->bd.cdf[r->bd.n] = sum;
-        r->bd.n++;
-    }
+    pt_status st = pt_emitters_init(&r->bd.em, s, err);
+    if (st != PT_OK)
+        return st;
     /* The scene's bounding sphere: a light path from the environment or a
      * directional light starts on its disk that faces the light. */
     pt_vec3 lo = s->bounds_min, hi = s->bounds_max;
@@ -5808,8 +5765,7 @@ void pt_renderer_free(pt_renderer *r)
     pt_free(r->mr);
     pt_free(r->mr_of_object);
     pt_free(r->mr_side);
-    pt_free(r->bd.tri);
-    pt_free(r->bd.cdf);
+    pt_emitters_fini(&r->bd.em);
     pt_free(r->bd.pidx);
     pt_free(r->bd.pcdf);
     pt_accel_free(r->accel);
