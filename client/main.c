@@ -514,10 +514,7 @@ static int cmd_submit(int argc, char **argv, globals *g)
         m.film_flags |= PROTO_FILM_DENOISE;
     if (ro.denoise_progressive)
         m.film_flags |= PROTO_FILM_DENOISE_PROGRESSIVE;
-    if (ro.bdpt == PT_BDPT_ON)
-        m.film_flags |= PROTO_FILM_BDPT;
-    else if (ro.bdpt == PT_BDPT_OFF)
-        m.film_flags |= PROTO_FILM_BDPT_OFF;
+    m.film_flags |= proto_film_of_bdpt(ro.bdpt);
     m.clamp[0] = ro.clamp_direct;
     m.clamp[1] = ro.clamp_indirect;
     m.guiding = (uint8_t)ro.guiding;

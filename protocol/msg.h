@@ -31,6 +31,7 @@
 #include <stdint.h>
 
 #include "common/base/error.h"
+#include "common/render/bdpt_auto.h"
 #include "common/render/tile.h"
 #include "protocol/wire.h"
 
@@ -126,6 +127,12 @@ const char *proto_msg_type_name(uint32_t type);
 #define PROTO_FILM_KNOWN                                                                           \
     (PROTO_FILM_TRANSPARENT | PROTO_FILM_PASSES | PROTO_FILM_DENOISE |                             \
      PROTO_FILM_DENOISE_PROGRESSIVE | PROTO_FILM_BDPT | PROTO_FILM_BDPT_OFF)
+/* The film flags of --bdpt's PT_BDPT_* (bdpt_auto.h): auto sets neither,
+ * and the coordinator decides. */
+static inline uint32_t proto_film_of_bdpt(int mode)
+{
+    return mode == PT_BDPT_ON ? PROTO_FILM_BDPT : mode == PT_BDPT_OFF ? PROTO_FILM_BDPT_OFF : 0u;
+}
 /* The PT_PASS_* mask of film flags, and the flags of a mask. */
 static inline uint32_t proto_film_passes(uint32_t flags)
 {

@@ -547,10 +547,7 @@ static void job_from_options(srv_config *c, const pt_render_opts *ro, parsed *x)
     }
     if (ro->given & PT_ROPT(PT_ROPT_TRANSPARENT))
         c->job.film_flags |= PROTO_FILM_TRANSPARENT;
-    if (ro->bdpt == PT_BDPT_ON)
-        c->job.film_flags |= PROTO_FILM_BDPT;
-    else if (ro->bdpt == PT_BDPT_OFF)
-        c->job.film_flags |= PROTO_FILM_BDPT_OFF;
+    c->job.film_flags |= proto_film_of_bdpt(ro->bdpt);
     c->job.film_flags |= proto_film_of_passes(ro->passes);
     if (ro->denoise)
         c->job.film_flags |= PROTO_FILM_DENOISE;

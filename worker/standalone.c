@@ -365,10 +365,7 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
         }
         p.bdpt = on ? 1u : 0u;
         if (on && !o->quiet)
-            fprintf(stderr,
-                    "ptworker: --bdpt auto: on (%.0f %% of the emitters' light first lands "
-                    "in a pocket; --bdpt=off to render without)\n",
-                    100.0 * share);
+            fprintf(stderr, "ptworker: " PT_BDPT_AUTO_ON "\n", 100.0 * share);
     }
     if (pt_renderer_new(scene, &p, &r, &err) != PT_OK ||
         pt_film_new(p.width, p.height, &film, &err) != PT_OK ||

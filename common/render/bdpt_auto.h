@@ -42,6 +42,12 @@ enum { PT_BDPT_AUTO = 0, PT_BDPT_ON = 1, PT_BDPT_OFF = 2 };
 #define PT_BDPT_AUTO_NEAR 0.05     /* "near": this fraction of the bounds' diagonal */
 #define PT_BDPT_AUTO_SHARE 0.25    /* the pocketed share of power that turns bdpt on */
 
+/* What every program says when auto turns bdpt on (a printf format of the
+ * share in per cent). */
+#define PT_BDPT_AUTO_ON                                                                            \
+    "--bdpt auto: on (%.0f %% of the emitters' light first lands in a pocket; --bdpt=off to "      \
+    "render without)"
+
 /* The share in [0, 1] of the power of scene's emissive triangles whose
  * first landing is in a pocket (above); 0 for a scene without emitters.
  * PT_OK, or an error building the ray queries. */

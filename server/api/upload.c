@@ -144,27 +144,26 @@ static void verify_upload(srv_upload *k)
     if (st == PT_OK && (st = pt_render_check_lit(scene, proto_env_any(ev), entry, &err)) != PT_OK)
         what = "scene refused";
     /* --bdpt where it cannot render (guiding as the job would resolve it,
-     * below): refused here, not by every worker. */
-    /* --bdpt auto, decided once for the job from the scene (bdpt_auto.h):
-     * the job holds the answer from here on, in its checkpoint too. */
+     * below): refused here, not by every worker. Without --bdpt or
+     * --bdpt=off, auto decides once for the job from the scene
+     * (bdpt_auto.h): the job holds the answer from here on, in its
+     * checkpoint too. */
+    const int guided = pt_guide_enabled(k->m.guiding, scene);
+    const int clamped = k->m.clamp[0] > 0.0f || k->m.clamp[1] > 0.0f;
     int bdpt = 0;
     double share = -1.0;
-    if (st == PT_OK && !(k->m.film_flags & (PROTO_FILM_BDPT | PROTO_FILM_BDPT_OFF))) {
-        if ((st = pt_bdpt_auto(scene, proto_env_any(ev), pt_guide_enabled(k->m.guiding, scene),
-                               k->m.clamp[0] > 0.0f || k->m.clamp[1] > 0.0f, &bdpt, &share,
-                               &err)) != PT_OK)
+    if (st == PT_OK && (k->m.film_flags & PROTO_FILM_BDPT)) {
+        if ((st = pt_render_check_bdpt(scene, proto_env_any(ev), guided, clamped, &err)) != PT_OK)
+            what = "job refused";
+    } else if (st == PT_OK && !(k->m.film_flags & PROTO_FILM_BDPT_OFF)) {
+        if ((st = pt_bdpt_auto(scene, proto_env_any(ev), guided, clamped, &bdpt, &share, &err)) !=
+            PT_OK)
             what = "job refused";
         else if (bdpt) {
             k->m.film_flags |= PROTO_FILM_BDPT;
-            srv_log("job %" PRIu64 ": --bdpt auto: on (%.0f %% of the emitters' light first "
-                    "lands in a pocket)",
-                    k->job_id, 100.0 * share);
+            srv_log("job %" PRIu64 ": " PT_BDPT_AUTO_ON, k->job_id, 100.0 * share);
         }
     }
-    if (st == PT_OK && (k->m.film_flags & PROTO_FILM_BDPT) &&
-        (st = pt_render_check_bdpt(scene, proto_env_any(ev), pt_guide_enabled(k->m.guiding, scene),
-                                   k->m.clamp[0] > 0.0f || k->m.clamp[1] > 0.0f, &err)) != PT_OK)
-        what = "job refused";
     pt_remove_tree(k->tmp);
     if (st != PT_OK) {
         pt_scene_free(scene);

@@ -147,22 +147,21 @@ static pt_status setup_single(srv_server *s, pt_error *err)
         srv_log("--guiding: every material is Lambert; nothing to guide");
     }
     st = pt_render_check_lit(scene, proto_env_any(&jp.env), cfg->scene_path, err);
-    /* --bdpt auto, decided once for the job from the scene (bdpt_auto.h). */
+    /* --bdpt where it cannot render is refused; without --bdpt or
+     * --bdpt=off, auto decides once for the job from the scene
+     * (bdpt_auto.h). */
+    const int clamped = jp.clamp[0] > 0.0f || jp.clamp[1] > 0.0f;
     int bdpt = 0;
     double share = -1.0;
-    if (st == PT_OK && !(jp.film_flags & (PROTO_FILM_BDPT | PROTO_FILM_BDPT_OFF)) &&
-        (st = pt_bdpt_auto(scene, proto_env_any(&jp.env), jp.guiding != 0,
-                           jp.clamp[0] > 0.0f || jp.clamp[1] > 0.0f, &bdpt, &share, err)) ==
-            PT_OK &&
-        bdpt) {
-        jp.film_flags |= PROTO_FILM_BDPT;
-        srv_log("--bdpt auto: on (%.0f %% of the emitters' light first lands in a pocket; "
-                "--bdpt=off to render without)",
-                100.0 * share);
-    }
     if (st == PT_OK && (jp.film_flags & PROTO_FILM_BDPT))
-        st = pt_render_check_bdpt(scene, proto_env_any(&jp.env), jp.guiding != 0,
-                                  jp.clamp[0] > 0.0f || jp.clamp[1] > 0.0f, err);
+        st = pt_render_check_bdpt(scene, proto_env_any(&jp.env), jp.guiding != 0, clamped, err);
+    else if (st == PT_OK && !(jp.film_flags & PROTO_FILM_BDPT_OFF) &&
+             (st = pt_bdpt_auto(scene, proto_env_any(&jp.env), jp.guiding != 0, clamped, &bdpt,
+                                &share, err)) == PT_OK &&
+             bdpt) {
+        jp.film_flags |= PROTO_FILM_BDPT;
+        srv_log(PT_BDPT_AUTO_ON, 100.0 * share);
+    }
     /* Cryptomatte's manifests come from the names of the scene loaded here. */
     pt_crypto_meta *crypto = NULL;
     if (st == PT_OK && (proto_film_passes(jp.film_flags) & PT_PASS_CRYPTOMATTE)) {
