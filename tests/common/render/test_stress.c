@@ -7,6 +7,13 @@
  *
  * - Scale and placement: the Cornell box at scale 1e-4, 1e4 and translated by
  *   1e5 equals the unscaled image.
+ * - Scale, sample by sample: the light paths that need more than a ray and a
+ *   light sample (reflection chains off chrome in the sun, refraction chains
+ *   through a glass ball, bidirectional paths on the NVIDIA Cornell box) give
+ *   the same samples at scale 1e-3 and 1e3 as at 1 with the same random
+ *   numbers (a paired z-test per block: a sample that takes another path
+ *   after a rounding moves its block's mean by one standard error at most),
+ *   and --bdpt auto measures the same pocket share.
  * - Degenerate geometry: zero-area and needle (1e-7 wide) triangles, emissive
  *   ones too, leave a closed box's image unchanged; duplicated coplanar
  *   triangles of two materials give an image between the two materials';
@@ -31,10 +38,12 @@
 #include <unistd.h>
 
 #include "common/base/alloc.h"
+#include "common/render/bdpt_auto.h"
 #include "common/render/render.h"
 #include "common/scene/accel.h"
 #include "common/scene/scene.h"
 #include "tests/check.h"
+#include "tests/common/render/paired.h"
 #include "tests/rng.h"
 
 /* ---- rendering and statistics ---------------------------------------------------------- */
@@ -361,6 +370,162 @@ static void scale_and_placement(void)
     }
     image_free(&a);
     pt_scene_free(ref);
+}
+
+/* The scene at path loaded at `scale`; NULL where a shared asset is absent
+ * (outside CI) or it did not load (a failed CHECK). */
+static pt_scene *load_scaled(const char *path, float scale)
+{
+    if (!check_shared_file(path))
+        return NULL;
+    pt_scene_opts o = {0};
+    o.scale = scale;
+    pt_scene *s = NULL;
+    pt_error err = {0};
+    CHECKF(pt_scene_load(path, &o, &s, &err) == PT_OK, "%s: %s", path, err.msg);
+    return s;
+}
+
+static pt_renderer *scaled_renderer(const pt_scene *s, const pt_env *env, int bdpt, uint32_t side)
+{
+    pt_render_params p = {0};
+    pt_render_params_default(&p);
+    p.width = p.height = side;
+    p.seed = 7;
+    p.env = env;
+    p.bdpt = bdpt;
+    pt_renderer *r = NULL;
+    pt_error err = {0};
+    CHECKF(pt_renderer_new(s, &p, &r, &err) == PT_OK, "%s", err.msg);
+    return r;
+}
+
+/* The paired differences of a and b's samples (the same random numbers)
+ * over blocks of `bs` pixels: the blocks x channels whose mean difference is
+ * past z_crit(1e-3, tests) of its standard error (blocks.h) and past 1e-4
+ * of the block's mean (float rounding of a scaled scene: its lengths and
+ * offsets round at other places, which moves every sample a little the same
+ * way). A sample that takes another path after a rounding is one large
+ * difference among bs^2 spp: it moves the mean by one standard error at most.
+ * Fills *chains_a, *chains_b; NaN or Inf samples fail a CHECK. */
+static int scaled_differing(const char *what, pt_renderer *a, pt_renderer *b, uint32_t side,
+                            uint32_t bs, uint32_t spp, uint64_t *chains_a, uint64_t *chains_b)
+{
+    const uint32_t nb = side / bs;
+    const double bound = z_crit(0.001, (int)(3 * nb * nb));
+    pt_render_stats sa = {0}, sb = {0};
+    int count = 0;
+    uint64_t bad = 0;
+    double zmax = 0.0;
+    for (uint32_t by = 0; by < nb; by++)
+        for (uint32_t bx = 0; bx < nb; bx++) {
+            double sum[3] = {0, 0, 0}, sq[3] = {0, 0, 0}, mean[3] = {0, 0, 0};
+            double n = (double)bs * bs * spp;
+            for (uint32_t y = by * bs; y < (by + 1) * bs; y++)
+                for (uint32_t x = bx * bs; x < (bx + 1) * bs; x++)
+                    for (uint32_t i = 0; i < spp; i++) {
+                        pt_vec3 va = pt_render_sample(a, x, y, i, &sa, NULL);
+                        pt_vec3 vb = pt_render_sample(b, x, y, i, &sb, NULL);
+                        bad += !pt_isfinite3(va) || !pt_isfinite3(vb);
+                        const double d[3] = {va.x - vb.x, va.y - vb.y, va.z - vb.z};
+                        const double m[3] = {va.x, va.y, va.z};
+                        for (int c = 0; c < 3; c++) {
+                            sum[c] += d[c];
+                            sq[c] += d[c] * d[c];
+                            mean[c] += m[c] / n;
+                        }
+                    }
+            for (int c = 0; c < 3; c++) {
+                double m = sum[c] / n;
+                double se = sqrt(fmax(sq[c] / n - m * m, 0.0) / (n - 1.0));
+                if (!(se > 0.0))
+                    continue;
+                zmax = fmax(zmax, fabs(m) / se);
+                if (fabs(m) > bound * se && fabs(m) > 1e-4 * fabs(mean[c]) + 1e-8) {
+                    count++;
+                    printf("  %s: block %u,%u channel %d differs by %.3g +- %.3g (mean %.4g)\n",
+                           what, bx, by, c, m, se, mean[c]);
+                }
+            }
+        }
+    printf("  %s: largest |z| %.2f (bound %.2f), chains %llu vs %llu\n", what, zmax, bound,
+           (unsigned long long)sa.chains, (unsigned long long)sb.chains);
+    CHECKF(bad == 0, "%s: %llu non-finite samples", what, (unsigned long long)bad);
+    *chains_a = sa.chains;
+    *chains_b = sb.chains;
+    return count;
+}
+
+/* Every length in the renderer's tolerances (ray offsets, the chains' seeds,
+ * solver and hull test, bdpt's disk and pocket probes) must scale with the
+ * scene: the same samples at 1e-3 and 1e3 as at 1. The glass ball is lit by
+ * a map of a dim sky and one lamp 2,000 times brighter, over the chains'
+ * threshold (PT_MANIFOLD_MIN_LIGHT times the map's mean), so that its light
+ * samples of the lamp chain through the ball. */
+static void scale_features(void)
+{
+    const uint32_t SIDE = 24, BLOCK = 8, SPP = 32, MW = 64, MH = 32;
+    pt_error err = {0};
+    float *px = pt_malloc_array((size_t)MW * MH * 3, sizeof(float));
+    pt_env *lamp = NULL;
+    if (px) {
+        for (uint32_t i = 0; i < MW * MH * 3; i++)
+            px[i] = 0.5f;
+        for (uint32_t y = 2; y < 4; y++) /* high above, over the ball */
+            for (uint32_t x = 30; x < 32; x++)
+                for (int c = 0; c < 3; c++)
+                    px[3 * (y * MW + x) + c] = 1000.0f;
+        pt_envmap map = {MW, MH, px};
+        CHECKF(pt_env_new(&map, 1.0f, 0.0f, &lamp, &err) == PT_OK, "%s", err.msg);
+    }
+    pt_free(px);
+    char chrome[4096], glass[4096], nvidia[4096];
+    snprintf(chrome, sizeof chrome, "%s/scenes/chrome_sun.gltf", PT_SOURCE_DIR);
+    snprintf(glass, sizeof glass, "%s/scenes/glass_things.gltf", PT_SOURCE_DIR);
+    snprintf(nvidia, sizeof nvidia, "%s/CornellBox/cornellBox.gltf", PT_SHARED_SCENES);
+    const struct {
+        const char *path, *what;
+        const pt_env *env;
+        int bdpt; /* bidirectional; else the chains must run */
+    } sc[] = {{chrome, "chrome in the sun (reflection chains)", NULL, 0},
+              {glass, "glass ball (refraction chains)", lamp, 0},
+              {nvidia, "NVIDIA Cornell box (bdpt)", NULL, 1}};
+    const float scales[] = {1e-3f, 1e3f};
+    for (size_t i = 0; i < sizeof sc / sizeof sc[0]; i++) {
+        pt_scene *ref = load_scaled(sc[i].path, 1.0f);
+        if (!ref)
+            continue;
+        double share0 = 0.0;
+        if (sc[i].bdpt)
+            CHECKF(pt_bdpt_pocketed(ref, &share0, &err) == PT_OK, "%s", err.msg);
+        pt_renderer *a = scaled_renderer(ref, sc[i].env, sc[i].bdpt, SIDE);
+        for (size_t k = 0; k < sizeof scales / sizeof scales[0] && a; k++) {
+            pt_scene *s = load_scaled(sc[i].path, scales[k]);
+            pt_renderer *b = s ? scaled_renderer(s, sc[i].env, sc[i].bdpt, SIDE) : NULL;
+            if (b) {
+                char name[160];
+                snprintf(name, sizeof name, "%s at scale %g", sc[i].what, (double)scales[k]);
+                uint64_t ca = 0, cb = 0;
+                int n = scaled_differing(name, a, b, SIDE, BLOCK, SPP, &ca, &cb);
+                CHECKF(n == 0, "%s: %d blocks x channels differ", name, n);
+                if (!sc[i].bdpt)
+                    CHECKF(ca > 0 && cb > 0, "%s: no chains (%llu, %llu)", name,
+                           (unsigned long long)ca, (unsigned long long)cb);
+                if (sc[i].bdpt) {
+                    double share = 0.0;
+                    CHECKF(pt_bdpt_pocketed(s, &share, &err) == PT_OK, "%s", err.msg);
+                    printf("  %s: pocket share %.4f (at 1: %.4f)\n", name, share, share0);
+                    CHECKF(fabs(share - share0) < 0.01, "%s: pocket share %.4f, at 1 %.4f", name,
+                           share, share0);
+                }
+            }
+            pt_renderer_free(b);
+            pt_scene_free(s);
+        }
+        pt_renderer_free(a);
+        pt_scene_free(ref);
+    }
+    pt_env_free(lamp);
 }
 
 /* ---- degenerate geometry ---------------------------------------------------------------- */
@@ -810,6 +975,7 @@ static void absurd_inputs(void)
 int main(void)
 {
     scale_and_placement();
+    scale_features();
     degenerate_geometry();
     extreme_values();
     million_triangles();
