@@ -22,9 +22,12 @@
  * test), sample by sample, and counts the blocks (bs x bs pixels) x
  * channels where the paired differences' mean is more than z_crit(1e-3,
  * blocks x 3) standard errors from 0 (blocks.h: Bonferroni), the error
- * from the differences' own spread; it prints the blocks that differ under
- * name, and fills the largest |z|, the images' mean green, the samples
- * that were not finite and each renderer's stats.
+ * from the differences' own spread, and more than rel_tol of the block's
+ * mean in a (0 for any difference: float rounding that moves every sample
+ * the same way, as a scene's scale does, is a difference of rel_tol); it
+ * prints the blocks that differ under name, and fills the largest |z|, the
+ * images' mean green, the samples that were not finite and each renderer's
+ * stats.
  *
  * render_smoke renders a loaded sample asset at 32 x 32, 8 spp, under a
  * uniform grey sky, and CHECKs that every sample was accepted (no NaN or
@@ -156,7 +159,8 @@ typedef struct paired_result {
 } paired_result;
 
 static inline paired_result paired_blocks_z(const char *name, pt_renderer *a, pt_renderer *b,
-                                            uint32_t side, uint32_t bs, uint32_t spp)
+                                            uint32_t side, uint32_t bs, uint32_t spp,
+                                            double rel_tol)
 {
     paired_result pr;
     memset(&pr, 0, sizeof pr);
@@ -165,7 +169,7 @@ static inline paired_result paired_blocks_z(const char *name, pt_renderer *a, pt
     pr.z_bound = z_crit(0.001, (int)pr.tests);
     for (uint32_t by = 0; by < nb; by++)
         for (uint32_t bx = 0; bx < nb; bx++) {
-            double sum[3] = {0, 0, 0}, sq[3] = {0, 0, 0};
+            double sum[3] = {0, 0, 0}, sq[3] = {0, 0, 0}, av[3] = {0, 0, 0};
             uint64_t n = 0;
             for (uint32_t y = by * bs; y < (by + 1) * bs; y++)
                 for (uint32_t x = bx * bs; x < (bx + 1) * bs; x++)
@@ -177,9 +181,11 @@ static inline paired_result paired_blocks_z(const char *name, pt_renderer *a, pt
                             continue;
                         }
                         const double d[3] = {va.x - vb.x, va.y - vb.y, va.z - vb.z};
+                        const double xa[3] = {va.x, va.y, va.z};
                         for (int c = 0; c < 3; c++) {
                             sum[c] += d[c];
                             sq[c] += d[c] * d[c];
+                            av[c] += xa[c];
                         }
                         pr.mean_a += va.y;
                         pr.mean_b += vb.y;
@@ -192,7 +198,7 @@ static inline paired_result paired_blocks_z(const char *name, pt_renderer *a, pt
                     continue; /* no difference at all */
                 double z = fabs(m) / se;
                 pr.z_max = fmax(pr.z_max, z);
-                if (z > pr.z_bound) {
+                if (z > pr.z_bound && fabs(m) > rel_tol * fabs(av[c] / (double)n)) {
                     pr.bad++;
                     printf("%s: block %u,%u channel %d differs by %.5f +- %.5f\n", name, bx, by, c,
                            m, se);

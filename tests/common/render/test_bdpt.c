@@ -212,7 +212,7 @@ static void paired(const char *name, const pt_scene *s, uint32_t side, uint32_t 
 {
     pt_renderer *a = make(s, side, 0, 3), *b = make(s, side, 1, 3);
     if (a && b) {
-        paired_result pr = paired_blocks_z(name, a, b, side, bs, spp);
+        paired_result pr = paired_blocks_z(name, a, b, side, bs, spp, 0.0);
         printf("%s: %u of %u block channels differ (|z| > %.2f; largest %.2f); image mean %.5f "
                "unidirectional, %.5f bidirectional\n",
                name, pr.bad, pr.tests, pr.z_bound, pr.z_max, pr.mean_a, pr.mean_b);

@@ -541,7 +541,7 @@ static void paired(const char *name, const pt_scene *s, const pt_env *env, uint3
     p.no_manifold = 1;
     CHECKF(pt_renderer_new(s, &p, &ro, &err) == PT_OK, "%s", err.msg);
     if (rn && ro) {
-        paired_result pr = paired_blocks_z(name, rn, ro, side, bs, spp);
+        paired_result pr = paired_blocks_z(name, rn, ro, side, bs, spp, 0.0);
         printf("%s: %u of %u block channels differ (|z| > %.2f; largest %.2f); image mean %.5f "
                "with manifold NEE, %.5f without; %llu chains\n",
                name, pr.bad, pr.tests, pr.z_bound, pr.z_max, pr.mean_a, pr.mean_b,

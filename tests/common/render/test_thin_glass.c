@@ -593,7 +593,7 @@ static void paired_blocks(const char *name, const pt_scene *s, const pt_env *env
         pt_renderer_free(ro);
         return;
     }
-    paired_result pr = paired_blocks_z(name, rn, ro, side, 4, spp);
+    paired_result pr = paired_blocks_z(name, rn, ro, side, 4, spp, 0.0);
     printf("%s: %u of %u block channels differ (|z| > %.2f; largest %.2f); %llu walls "
            "crossed\n",
            name, pr.bad, pr.tests, pr.z_bound, pr.z_max, (unsigned long long)pr.sa.crossings);
