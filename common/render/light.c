@@ -108,7 +108,8 @@ static pt_vec3 vertex(const pt_scene *s, uint32_t i)
 
 /* Vertices, unit geometric normal (from the winding) and area of triangle
  * tri. The normal is computed exactly as pt_accel_hit_point does, so a hit's
- * ng and a sample's normal agree to the bit. */
+ * ng and a sample's normal agree to the bit. The area is pt_accel_tri_area's:
+ * a lamp 1e10 wide still has one. */
 static void tri_geom(const pt_scene *s, uint32_t tri, pt_vec3 v[3], pt_vec3 *n, float *area)
 {
     const uint32_t *t = &s->indices[3 * tri];
@@ -117,7 +118,7 @@ static void tri_geom(const pt_scene *s, uint32_t tri, pt_vec3 v[3], pt_vec3 *n, 
     v[2] = vertex(s, t[2]);
     pt_vec3 c = pt_v3_cross(pt_v3_sub(v[1], v[0]), pt_v3_sub(v[2], v[0]));
     float len = pt_v3_len(c);
-    *area = 0.5f * len;
+    *area = pt_accel_tri_area(c);
     *n = (len > 0.0f && isfinite(len)) ? pt_v3_scale(c, 1.0f / len) : pt_accel_degenerate_normal(c);
 }
 

@@ -4053,7 +4053,7 @@ typedef struct bd_vert {
 static float bd_tri_area(const pt_renderer *r, uint32_t t)
 {
     const tri_rec *tr = &r->tris[t];
-    return 0.5f * pt_v3_len(pt_v3_cross(pt_v3_sub(tr->v1, tr->v0), pt_v3_sub(tr->v2, tr->v0)));
+    return pt_accel_tri_area(pt_v3_cross(pt_v3_sub(tr->v1, tr->v0), pt_v3_sub(tr->v2, tr->v0)));
 }
 
 /* The emitters' power in r->bd.em.cdf's units: the triangles' and the

@@ -105,6 +105,20 @@ const uint8_t *pt_accel_alpha_solid(const pt_accel *accel);
  * (computed in double; (0,0,1) when it has no direction). */
 pt_vec3 pt_accel_degenerate_normal(pt_vec3 n);
 
+/* The area of a triangle whose edges' cross product is c: |c| / 2, in float
+ * where |c| is (every triangle of a scene of sane size: the same bits as
+ * 0.5f * pt_v3_len(c)), else from c in double: past about 1e9 a side the
+ * float sum of squares overflows, and an emitter of infinite area would
+ * have no light sample (its pmf over the area 0). */
+static inline float pt_accel_tri_area(pt_vec3 c)
+{
+    float len = pt_v3_len(c);
+    if (isfinite(len))
+        return 0.5f * len;
+    double x = c.x, y = c.y, z = c.z;
+    return (float)(0.5 * sqrt(x * x + y * y + z * z));
+}
+
 /* The point p of an instance's prototype in scene space. */
 static inline pt_vec3 pt_instance_point(const pt_instance *in, pt_vec3 p)
 {
