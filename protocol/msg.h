@@ -133,6 +133,13 @@ static inline uint32_t proto_film_of_bdpt(int mode)
 {
     return mode == PT_BDPT_ON ? PROTO_FILM_BDPT : mode == PT_BDPT_OFF ? PROTO_FILM_BDPT_OFF : 0u;
 }
+/* ... and the PT_BDPT_* of a job's film flags. */
+static inline int proto_bdpt_of_film(uint32_t flags)
+{
+    return (flags & PROTO_FILM_BDPT)       ? PT_BDPT_ON
+           : (flags & PROTO_FILM_BDPT_OFF) ? PT_BDPT_OFF
+                                           : PT_BDPT_AUTO;
+}
 /* The PT_PASS_* mask of film flags, and the flags of a mask. */
 static inline uint32_t proto_film_passes(uint32_t flags)
 {

@@ -95,3 +95,17 @@ pt_status pt_bdpt_auto(const pt_scene *s, int has_env, int guiding, int clamped,
     *on = st == PT_OK && *share >= PT_BDPT_AUTO_SHARE;
     return st;
 }
+
+pt_status pt_bdpt_resolve(const pt_scene *s, int mode, int has_env, int guiding, int clamped,
+                          int *on, double *share, pt_error *err)
+{
+    *on = 0;
+    *share = -1.0;
+    if (mode == PT_BDPT_AUTO)
+        return pt_bdpt_auto(s, has_env, guiding, clamped, on, share, err);
+    if (mode != PT_BDPT_ON)
+        return PT_OK;
+    pt_status st = pt_render_check_bdpt(s, has_env, guiding, clamped, err);
+    *on = st == PT_OK;
+    return st;
+}

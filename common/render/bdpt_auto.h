@@ -61,4 +61,11 @@ pt_status pt_bdpt_pocketed(const pt_scene *scene, double *share, pt_error *err);
 pt_status pt_bdpt_auto(const pt_scene *scene, int has_env, int guiding, int clamped, int *on,
                        double *share, pt_error *err);
 
+/* What a render does with --bdpt's mode (PT_BDPT_*), decided where the
+ * coordinator admits a job: on: *on = 1 when pt_render_check_bdpt takes
+ * the scene, else its error; off: *on = 0; auto: pt_bdpt_auto's answer.
+ * *share as pt_bdpt_auto gives it (-1 unless auto measured it). */
+pt_status pt_bdpt_resolve(const pt_scene *scene, int mode, int has_env, int guiding, int clamped,
+                          int *on, double *share, pt_error *err);
+
 #endif

@@ -152,17 +152,13 @@ static void verify_upload(srv_upload *k)
     const int clamped = k->m.clamp[0] > 0.0f || k->m.clamp[1] > 0.0f;
     int bdpt = 0;
     double share = -1.0;
-    if (st == PT_OK && (k->m.film_flags & PROTO_FILM_BDPT)) {
-        if ((st = pt_render_check_bdpt(scene, proto_env_any(ev), guided, clamped, &err)) != PT_OK)
-            what = "job refused";
-    } else if (st == PT_OK && !(k->m.film_flags & PROTO_FILM_BDPT_OFF)) {
-        if ((st = pt_bdpt_auto(scene, proto_env_any(ev), guided, clamped, &bdpt, &share, &err)) !=
-            PT_OK)
-            what = "job refused";
-        else if (bdpt) {
-            k->m.film_flags |= PROTO_FILM_BDPT;
-            srv_log("job %" PRIu64 ": " PT_BDPT_AUTO_ON, k->job_id, 100.0 * share);
-        }
+    if (st == PT_OK &&
+        (st = pt_bdpt_resolve(scene, proto_bdpt_of_film(k->m.film_flags), proto_env_any(ev), guided,
+                              clamped, &bdpt, &share, &err)) != PT_OK)
+        what = "job refused";
+    else if (st == PT_OK && bdpt && !(k->m.film_flags & PROTO_FILM_BDPT)) {
+        k->m.film_flags |= PROTO_FILM_BDPT;
+        srv_log("job %" PRIu64 ": " PT_BDPT_AUTO_ON, k->job_id, 100.0 * share);
     }
     pt_remove_tree(k->tmp);
     if (st != PT_OK) {

@@ -153,12 +153,10 @@ static pt_status setup_single(srv_server *s, pt_error *err)
     const int clamped = jp.clamp[0] > 0.0f || jp.clamp[1] > 0.0f;
     int bdpt = 0;
     double share = -1.0;
-    if (st == PT_OK && (jp.film_flags & PROTO_FILM_BDPT))
-        st = pt_render_check_bdpt(scene, proto_env_any(&jp.env), jp.guiding != 0, clamped, err);
-    else if (st == PT_OK && !(jp.film_flags & PROTO_FILM_BDPT_OFF) &&
-             (st = pt_bdpt_auto(scene, proto_env_any(&jp.env), jp.guiding != 0, clamped, &bdpt,
-                                &share, err)) == PT_OK &&
-             bdpt) {
+    if (st == PT_OK &&
+        (st = pt_bdpt_resolve(scene, proto_bdpt_of_film(jp.film_flags), proto_env_any(&jp.env),
+                              jp.guiding != 0, clamped, &bdpt, &share, err)) == PT_OK &&
+        bdpt && !(jp.film_flags & PROTO_FILM_BDPT)) {
         jp.film_flags |= PROTO_FILM_BDPT;
         srv_log(PT_BDPT_AUTO_ON, 100.0 * share);
     }
