@@ -99,13 +99,17 @@ static inline void render_smoke(const pt_scene *s)
     pt_env_free(env);
 }
 
-static inline pt_renderer *paired_renderer(const pt_scene *s, const pt_env *env, uint32_t side)
+/* A renderer of side x side pixels, seed 7, under env, bidirectional when
+ * bdpt: paired_differing's, and test_stress's scale check's. */
+static inline pt_renderer *paired_renderer(const pt_scene *s, const pt_env *env, uint32_t side,
+                                           int bdpt)
 {
     pt_render_params p = {0};
     pt_render_params_default(&p);
     p.width = p.height = side;
     p.seed = 7;
     p.env = env;
+    p.bdpt = bdpt != 0;
     pt_renderer *r = NULL;
     pt_error err = {0};
     CHECKF(pt_renderer_new(s, &p, &r, &err) == PT_OK, "%s", err.msg);
@@ -115,7 +119,7 @@ static inline pt_renderer *paired_renderer(const pt_scene *s, const pt_env *env,
 static inline int paired_differing(const pt_scene *a, const pt_scene *b, const pt_env *env,
                                    uint32_t side, uint32_t spp)
 {
-    pt_renderer *ra = paired_renderer(a, env, side), *rb = paired_renderer(b, env, side);
+    pt_renderer *ra = paired_renderer(a, env, side, 0), *rb = paired_renderer(b, env, side, 0);
     int count = -1;
     uint64_t bad = 0;
     if (ra && rb) {

@@ -328,17 +328,26 @@ static pt_scene *furnace(pt_material m, float E)
 
 /* ---- scale and placement ---------------------------------------------------------------- */
 
-static pt_scene *load_cornell(float scale, pt_vec3 tr)
+/* The scene at path scaled by `scale`, then moved by tr; NULL where a
+ * shared asset is absent (outside CI) or it did not load (a failed CHECK). */
+static pt_scene *load_scaled(const char *path, float scale, pt_vec3 tr)
 {
-    char path[4096];
-    snprintf(path, sizeof path, "%s/scenes/cornell_box.gltf", PT_SOURCE_DIR);
+    if (!check_shared_file(path))
+        return NULL;
     pt_scene_opts o = {0};
     o.scale = scale;
     o.translate = tr;
     pt_scene *s = NULL;
     pt_error err = {0};
-    CHECKF(pt_scene_load(path, &o, &s, &err) == PT_OK, "%s", err.msg);
+    CHECKF(pt_scene_load(path, &o, &s, &err) == PT_OK, "%s: %s", path, err.msg);
     return s;
+}
+
+static pt_scene *load_cornell(float scale, pt_vec3 tr)
+{
+    char path[4096];
+    snprintf(path, sizeof path, "%s/scenes/cornell_box.gltf", PT_SOURCE_DIR);
+    return load_scaled(path, scale, tr);
 }
 
 static void scale_and_placement(void)
@@ -371,34 +380,6 @@ static void scale_and_placement(void)
     }
     image_free(&a);
     pt_scene_free(ref);
-}
-
-/* The scene at path loaded at `scale`; NULL where a shared asset is absent
- * (outside CI) or it did not load (a failed CHECK). */
-static pt_scene *load_scaled(const char *path, float scale)
-{
-    if (!check_shared_file(path))
-        return NULL;
-    pt_scene_opts o = {0};
-    o.scale = scale;
-    pt_scene *s = NULL;
-    pt_error err = {0};
-    CHECKF(pt_scene_load(path, &o, &s, &err) == PT_OK, "%s: %s", path, err.msg);
-    return s;
-}
-
-static pt_renderer *scaled_renderer(const pt_scene *s, const pt_env *env, int bdpt, uint32_t side)
-{
-    pt_render_params p = {0};
-    pt_render_params_default(&p);
-    p.width = p.height = side;
-    p.seed = 7;
-    p.env = env;
-    p.bdpt = bdpt;
-    pt_renderer *r = NULL;
-    pt_error err = {0};
-    CHECKF(pt_renderer_new(s, &p, &r, &err) == PT_OK, "%s", err.msg);
-    return r;
 }
 
 /* Every length in the renderer's tolerances (ray offsets, the chains' seeds,
@@ -442,16 +423,16 @@ static void scale_features(void)
      * squares overflows (pt_accel_tri_area) */
     const float scales[] = {1e-3f, 1e3f, 1e11f};
     for (size_t i = 0; i < sizeof sc / sizeof sc[0]; i++) {
-        pt_scene *ref = load_scaled(sc[i].path, 1.0f);
+        pt_scene *ref = load_scaled(sc[i].path, 1.0f, pt_v3(0, 0, 0));
         if (!ref)
             continue;
         double share0 = 0.0;
         if (sc[i].bdpt)
             CHECKF(pt_bdpt_pocketed(ref, &share0, &err) == PT_OK, "%s", err.msg);
-        pt_renderer *a = scaled_renderer(ref, sc[i].env, sc[i].bdpt, SIDE);
+        pt_renderer *a = paired_renderer(ref, sc[i].env, SIDE, sc[i].bdpt);
         for (size_t k = 0; k < sizeof scales / sizeof scales[0] && a; k++) {
-            pt_scene *s = load_scaled(sc[i].path, scales[k]);
-            pt_renderer *b = s ? scaled_renderer(s, sc[i].env, sc[i].bdpt, SIDE) : NULL;
+            pt_scene *s = load_scaled(sc[i].path, scales[k], pt_v3(0, 0, 0));
+            pt_renderer *b = s ? paired_renderer(s, sc[i].env, SIDE, sc[i].bdpt) : NULL;
             if (b) {
                 char name[160];
                 snprintf(name, sizeof name, "%s at scale %g", sc[i].what, (double)scales[k]);
