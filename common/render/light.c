@@ -118,7 +118,7 @@ static void tri_geom(const pt_scene *s, uint32_t tri, pt_vec3 v[3], pt_vec3 *n, 
     v[2] = vertex(s, t[2]);
     pt_vec3 c = pt_v3_cross(pt_v3_sub(v[1], v[0]), pt_v3_sub(v[2], v[0]));
     float len = pt_v3_len(c);
-    *area = pt_accel_tri_area(c);
+    *area = pt_accel_tri_area(c, len);
     *n = (len > 0.0f && isfinite(len)) ? pt_v3_scale(c, 1.0f / len) : pt_accel_degenerate_normal(c);
 }
 

@@ -4053,7 +4053,8 @@ typedef struct bd_vert {
 static float bd_tri_area(const pt_renderer *r, uint32_t t)
 {
     const tri_rec *tr = &r->tris[t];
-    return pt_accel_tri_area(pt_v3_cross(pt_v3_sub(tr->v1, tr->v0), pt_v3_sub(tr->v2, tr->v0)));
+    pt_vec3 c = pt_v3_cross(pt_v3_sub(tr->v1, tr->v0), pt_v3_sub(tr->v2, tr->v0));
+    return pt_accel_tri_area(c, pt_v3_len(c));
 }
 
 /* The emitters' power in r->bd.em.cdf's units: the triangles' and the

@@ -105,14 +105,14 @@ const uint8_t *pt_accel_alpha_solid(const pt_accel *accel);
  * (computed in double; (0,0,1) when it has no direction). */
 pt_vec3 pt_accel_degenerate_normal(pt_vec3 n);
 
-/* The area of a triangle whose edges' cross product is c: |c| / 2, in float
- * where |c| is (every triangle of a scene of sane size: the same bits as
- * 0.5f * pt_v3_len(c)), else from c in double: past about 1e9 a side the
- * float sum of squares overflows, and an emitter of infinite area would
- * have no light sample (its pmf over the area 0). */
-static inline float pt_accel_tri_area(pt_vec3 c)
+/* The area of a triangle whose edges' cross product is c, len its float
+ * length pt_v3_len(c) (which the callers have for the normal): len / 2
+ * where it is finite (every triangle of a scene of sane size), else from c
+ * in double: past about 1e9 a side the float sum of squares overflows, and
+ * an emitter of infinite area would have no light sample (its pmf over the
+ * area 0). */
+static inline float pt_accel_tri_area(pt_vec3 c, float len)
 {
-    float len = pt_v3_len(c);
     if (isfinite(len))
         return 0.5f * len;
     double x = c.x, y = c.y, z = c.z;
