@@ -2645,6 +2645,55 @@ std::vector<mat4> instance_matrices(importer &im, int ni)
     return out;
 }
 
+// A portal node: extras {"ptfarm_portal": true} (or a number other than 0),
+// which Blender's glTF exporter writes from an object's custom property of
+// that name (Include > Custom Properties).
+bool is_portal(const tinygltf::Node &n)
+{
+    if (!n.extras.IsObject() || !n.extras.Has("ptfarm_portal"))
+        return false;
+    const tinygltf::Value &v = n.extras.Get("ptfarm_portal");
+    return (v.IsBool() && v.Get<bool>()) || (v.IsNumber() && v.GetNumberAsDouble() != 0.0);
+}
+
+// A portal node's mesh (PT_FEAT_PORTAL): its triangles under the node's
+// world matrix become openings the environment lights the scene through,
+// not geometry. They are placed as the file's still is (an animation does
+// not move them) and take no EXT_mesh_gpu_instancing copies.
+void add_portal(importer &im, int ni, int mesh, const mat4 &w)
+{
+    const tinygltf::Mesh &m = im.model.meshes[size_t(mesh)];
+    const tinygltf::Node &n = im.model.nodes[size_t(ni)];
+    std::string name = n.name.empty() ? "node " + std::to_string(ni) : n.name;
+    for (size_t pi = 0; pi < m.primitives.size(); pi++) {
+        const tinygltf::Primitive &p = m.primitives[pi];
+        char what[160];
+        snprintf(what, sizeof what, "portal %.64s (mesh %d primitive %zu)", name.c_str(), mesh, pi);
+        draco_primitive(im, mesh, int(pi), what);
+        int mode = p.mode < 0 ? TINYGLTF_MODE_TRIANGLES : p.mode;
+        if (mode != TINYGLTF_MODE_TRIANGLES && mode != TINYGLTF_MODE_TRIANGLE_STRIP &&
+            mode != TINYGLTF_MODE_TRIANGLE_FAN)
+            im.fail(PT_ERR_FORMAT, "%s: primitive mode %d is not triangles", what, mode);
+        auto pos_it = p.attributes.find("POSITION");
+        if (pos_it == p.attributes.end())
+            im.fail(PT_ERR_FORMAT, "%s: no POSITION attribute", what);
+        std::vector<float> pos;
+        read_floats(im, pos_it->second, what, TINYGLTF_TYPE_VEC3, COMP_INT16, pos);
+        std::vector<uint32_t> tri = triangle_list(im, p, pos.size() / 3, what);
+        for (size_t t = 0; t + 2 < tri.size(); t += 3) {
+            double v[9];
+            for (int k = 0; k < 3; k++) {
+                const float *q = &pos[3 * size_t(tri[t + size_t(k)])];
+                for (int r = 0; r < 3; r++)
+                    v[3 * k + r] = w[size_t(r)] * q[0] + w[size_t(4 + r)] * q[1] +
+                                   w[size_t(8 + r)] * q[2] + w[size_t(12 + r)];
+            }
+            pt_error e{};
+            im.check_builder(pt_scene_builder_add_portal(im.b, v, name.c_str(), &e), &e);
+        }
+    }
+}
+
 void visit(importer &im, int ni, const mat4 &parent, int depth, std::vector<char> &on_path)
 {
     const tinygltf::Model &m = im.model;
@@ -2667,6 +2716,10 @@ void visit(importer &im, int ni, const mat4 &parent, int depth, std::vector<char
         if (size_t(n.mesh) >= m.meshes.size())
             im.fail(PT_ERR_FORMAT, "node %d: mesh %d out of range (%zu meshes)", ni, n.mesh,
                     m.meshes.size());
+        if (is_portal(n)) {
+            add_portal(im, ni, n.mesh, w);
+            goto children;
+        }
         const tinygltf::Mesh &mesh = m.meshes[size_t(n.mesh)];
         // Cryptomatte's object: the node, by its name.
         pt_error oe{};
@@ -3431,6 +3484,9 @@ extern "C" pt_status pt_scene_list(const char *path, FILE *out, pt_error *err)
                 l->type >= 0 && l->type <= 2 ? kinds[l->type] : "?");
     }
     fprintf(out, "emissive triangles: %s\n", s->features & PT_FEAT_EMITTERS ? "yes" : "none");
+    fprintf(out, "environment portals: %u triangles%s\n", s->num_portals,
+            s->num_portals ? " (the map is sampled through them as well)"
+                           : " (a mesh node with extras \"ptfarm_portal\": true)");
     pt_scene_free(s);
     try {
         importer im;

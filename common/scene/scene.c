@@ -61,6 +61,8 @@ struct pt_scene_builder {
     pt_punctual *puns;
     double *pun_pos; /* 3 per light: the world-space position in double */
     uint32_t npun, cap_pun, cap_pun_pos;
+    double *portals; /* 9 per portal triangle: its world-space corners */
+    uint32_t nportal, cap_portal;
     int hash_set;
     char hash[65];
     pt_motion_build *motion; /* moving meshes' time steps, or NULL (motion.h) */
@@ -180,6 +182,7 @@ void pt_scene_builder_free(pt_scene_builder *b)
     pt_free(b->cam_pos);
     pt_free(b->puns);
     pt_free(b->pun_pos);
+    pt_free(b->portals);
     pt_motion_build_free(b->motion);
     pt_free(b->protos);
     pt_free(b->inst_xf);
@@ -549,6 +552,32 @@ pt_status pt_scene_builder_add_punctual(pt_scene_builder *b, const pt_punctual *
     d->direction = pt_v3_scale(p->direction, 1.0f / dlen);
     size_t len = strnlen(p->name, sizeof p->name - 1);
     memset(d->name + len, 0, sizeof d->name - len);
+    return PT_OK;
+}
+
+pt_status pt_scene_builder_add_portal(pt_scene_builder *b, const double v[9], const char *what,
+                                      pt_error *err)
+{
+    for (int i = 0; i < 9; i++)
+        if (!isfinite(v[i]) || fabs(v[i]) > (double)PT_SCENE_MAX_COORD)
+            return pt_error_set(err, PT_ERR_FORMAT,
+                                "portal '%.64s': a corner is not finite or over %g", what,
+                                (double)PT_SCENE_MAX_COORD);
+    double e1[3], e2[3];
+    for (int r = 0; r < 3; r++) {
+        e1[r] = v[3 + r] - v[r];
+        e2[r] = v[6 + r] - v[r];
+    }
+    double cx = e1[1] * e2[2] - e1[2] * e2[1], cy = e1[2] * e2[0] - e1[0] * e2[2],
+           cz = e1[0] * e2[1] - e1[1] * e2[0];
+    if (!(cx * cx + cy * cy + cz * cz > 0.0))
+        return PT_OK; /* no area: no light comes through it */
+    if (b->nportal >= PT_SCENE_MAX_PORTALS)
+        return pt_error_set(err, PT_ERR_LIMIT, "portal '%.64s': more than %u portal triangles",
+                            what, PT_SCENE_MAX_PORTALS);
+    if (!reserve((void **)&b->portals, &b->cap_portal, b->nportal + 1, sizeof(double), 9))
+        return pt_error_set(err, PT_ERR_NOMEM, "portal '%.64s': out of memory", what);
+    memcpy(&b->portals[9 * (size_t)b->nportal++], v, 9 * sizeof(double));
     return PT_OK;
 }
 
@@ -1239,6 +1268,12 @@ static pt_status hash_scene(const pt_scene *s, char out[65], pt_error *err)
         EVP_DigestUpdate(ctx, f, sizeof f);
         EVP_DigestUpdate(ctx, l->name, sizeof l->name);
     }
+    /* Portals only when there are any, likewise. */
+    if (s->num_portals > 0) {
+        EVP_DigestUpdate(ctx, "portals", 7);
+        EVP_DigestUpdate(ctx, &s->num_portals, sizeof s->num_portals);
+        EVP_DigestUpdate(ctx, s->portals, 9 * (size_t)s->num_portals * sizeof(float));
+    }
     /* Zeroed first: a failed digest reads as 64 zeros, as pt_sha256_hex's does. */
     unsigned char md[EVP_MAX_MD_SIZE] = {0};
     EVP_DigestFinal_ex(ctx, md, NULL);
@@ -1329,6 +1364,7 @@ void pt_scene_free(pt_scene *s)
     free_textures(s->textures, s->num_textures);
     pt_free(s->cameras);
     pt_free(s->punctual);
+    pt_free(s->portals);
     pt_motion_free(s->motion);
     pt_free(s->prototypes);
     pt_free(s->instances);
@@ -2091,11 +2127,27 @@ pt_status pt_scene_builder_finish(pt_scene_builder *b, const pt_scene_opts *opts
             goto fail;
         }
     }
+    if (b->nportal > 0) {
+        s->portals = pt_malloc_array(9 * (size_t)b->nportal, sizeof(float));
+        if (!s->portals) {
+            st = pt_error_set(err, PT_ERR_NOMEM, "portals: out of memory");
+            goto fail;
+        }
+        s->num_portals = b->nportal;
+        for (size_t i = 0; i < 9 * (size_t)b->nportal; i++)
+            s->portals[i] = (float)(b->portals[i] * sc + t[i % 3] - s->origin[i % 3]);
+        if (!finite_n(s->portals, (int)(9 * b->nportal))) {
+            st = pt_error_set(err, PT_ERR_ARG, "a portal is not finite after scaling");
+            goto fail;
+        }
+    }
     s->features = scene_features(s, b->has_uv, err, &st);
     if (st != PT_OK)
         goto fail;
     if (s->num_punctual > 0)
         s->features |= PT_FEAT_PUNCTUAL;
+    if (s->num_portals > 0)
+        s->features |= PT_FEAT_PORTAL;
     if (s->num_instances > 0)
         s->features |= PT_FEAT_INSTANCES;
     if ((st = finish_extra(b, s, err)) != PT_OK)

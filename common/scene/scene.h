@@ -100,6 +100,11 @@ enum { PT_FEAT_THIN_GLASS = 1u << 24 };
  * the file: the scene has such glass, an environment and nothing that
  * moves or is cut out by alpha. */
 enum { PT_FEAT_MANIFOLD = 1u << 25 };
+/* Environment portals: the scene names openings (a window, a door) through
+ * which the environment lights it (pt_scene.portals), and next-event
+ * estimation of the environment samples directions through them as well
+ * as from the map (common/render/light.c, after Bitterli et al. 2015). */
+enum { PT_FEAT_PORTAL = 1u << 26 };
 
 /* pt_material.ext: what the BSDF of a material reads past the core
  * metallic-roughness inputs, set by the builder from the material's fields,
@@ -371,6 +376,13 @@ typedef struct pt_scene {
 
     uint32_t num_punctual;
     pt_punctual *punctual; /* positions in scene space; may be 0 */
+
+    /* Environment portals (PT_FEAT_PORTAL): triangles that are not
+     * geometry (no ray meets them) but openings the environment's light
+     * comes through: a mesh node whose extras hold "ptfarm_portal": true.
+     * 9 floats a triangle (its corners, scene space); NULL and 0 without. */
+    uint32_t num_portals;
+    float *portals;
 
     pt_vec3 bounds_min, bounds_max; /* scene space: they contain every stored position */
     uint32_t features;              /* PT_FEAT_* */
@@ -747,6 +759,16 @@ pt_status pt_scene_builder_add_camera_at(pt_scene_builder *b, const pt_camera *c
  * 0 <= inner < outer <= pi/2 (given as cosines). */
 pt_status pt_scene_builder_add_punctual(pt_scene_builder *b, const pt_punctual *p,
                                         const double position[3], pt_error *err);
+/* The most portal triangles a scene may have: each light sample of the
+ * environment measures every one's solid angle. */
+#define PT_SCENE_MAX_PORTALS 64u
+/* Adds a portal triangle (PT_FEAT_PORTAL) by its world-space corners in
+ * double (v[0..2], v[3..5], v[6..8]); `what` names it in errors. A
+ * triangle without area is dropped (it lets no light through). Rejects
+ * (PT_ERR_FORMAT) a corner that is not finite or over PT_SCENE_MAX_COORD,
+ * and past PT_SCENE_MAX_PORTALS (PT_ERR_LIMIT). */
+pt_status pt_scene_builder_add_portal(pt_scene_builder *b, const double v[9], const char *what,
+                                      pt_error *err);
 /* Finishes: applies opts' scale/translate (in double), computes the bounds,
  * rebases the scene (origin, above) and rounds positions to float (a
  * point or spot light's intensity is scaled by scale^2 and its range by

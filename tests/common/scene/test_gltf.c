@@ -1404,6 +1404,45 @@ static void test_project_scenes(void)
     }
 }
 
+/* Environment portals: a node whose extras hold "ptfarm_portal": true
+ * gives its mesh's triangles as portals, placed by its node, and no
+ * geometry; false (or no such key) leaves it geometry. */
+static void test_portals(void)
+{
+    unsigned char bin[68];
+    make_bin(bin, 0.0f, 2);
+    write_file("portal.bin", bin, sizeof bin);
+    const char *flags[2] = {"true", "false"};
+    for (int i = 0; i < 2; i++) {
+        char nodes[256], name[32];
+        snprintf(nodes, sizeof nodes,
+                 "[{\"mesh\":0,\"children\":[1]},{\"mesh\":0,\"translation\":[0,0,3],"
+                 "\"name\":\"window\",\"extras\":{\"ptfarm_portal\":%s}}]",
+                 flags[i]);
+        snprintf(name, sizeof name, "portal_%d.gltf", i);
+        make_gltf(name, "portal.bin", k_pos_ok, k_views, nodes, "");
+        pt_scene *s = NULL;
+        pt_error err = {0};
+        CHECKF(pt_scene_load(tpath(name), NULL, &s, &err) == PT_OK, "%s", err.msg);
+        if (!s)
+            continue;
+        if (i == 0) {
+            CHECKF(s->num_triangles == 1 && s->num_portals == 1 && (s->features & PT_FEAT_PORTAL),
+                   "a portal node: %u triangles, %u portals", s->num_triangles, s->num_portals);
+            /* its corners (0,0,0), (1,0,0), (0,1,0) moved to z = 3 */
+            const float want[9] = {0, 0, 3, 1, 0, 3, 0, 1, 3};
+            for (int k = 0; s->num_portals == 1 && k < 9; k++)
+                CHECKF(fabs(s->portals[k] + s->origin[k % 3] - want[k]) < 1e-6,
+                       "portal corner %d: %g", k, s->portals[k] + s->origin[k % 3]);
+        } else {
+            CHECKF(s->num_triangles == 2 && s->num_portals == 0 && !(s->features & PT_FEAT_PORTAL),
+                   "\"ptfarm_portal\": false: %u triangles, %u portals", s->num_triangles,
+                   s->num_portals);
+        }
+        pt_scene_free(s);
+    }
+}
+
 /* alphaMode and alphaCutoff: read into the material (cutoff default 0.5),
  * PT_FEAT_ALPHA only when a material is MASK or BLEND, no warning; an
  * unknown mode or a negative cutoff is refused naming the field. */
@@ -1536,6 +1575,7 @@ int main(void)
     test_png_stream();
     test_instancing_caps();
     test_lights();
+    test_portals();
     test_confined();
     test_alpha_modes();
     test_project_scenes();
