@@ -579,6 +579,14 @@ int pt_env_splits(const pt_env *env, int which)
     return which == PT_ENV_MIS ? env->split_comp : env->split;
 }
 
+int pt_env_sun(const pt_env *env, pt_vec3 *axis)
+{
+    if (!env->split)
+        return 0;
+    *axis = env->sun_axis;
+    return 1;
+}
+
 float pt_env_pdf(const pt_env *env, pt_vec3 dir, int which, pt_vec3 n)
 {
     const env_dist *d = dist_of(env, which, n);

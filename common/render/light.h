@@ -127,10 +127,12 @@ uint32_t pt_lights_punctual_count(const pt_lights *lights);
 /* 1 when the environment can be chosen. */
 int pt_lights_has_env(const pt_lights *lights);
 /* The solid-angle pdf with which pt_lights_sample gives direction dir of the
- * environment to a receiver with normal n (pt_lights_sample's; the
- * environment's split bounds by it too, env.h), its class's share
- * included; 0 without one. */
-float pt_lights_env_pdf(const pt_lights *lights, pt_vec3 dir, pt_vec3 n);
+ * environment to a receiver at p with normal n (pt_lights_sample's; the
+ * environment's split bounds by n too, env.h, and the scene's portals by
+ * both, portal.h), its class's share included; 0 without one. */
+float pt_lights_env_pdf(const pt_lights *lights, pt_vec3 dir, pt_vec3 p, pt_vec3 n);
+/* 1 when the environment is sampled through the scene's portals as well. */
+int pt_lights_has_portals(const pt_lights *lights);
 
 /* Samples a light point seen from p. n: the receiver's unit normal on the
  * side it reflects light to, or a zero vector for a receiver that scatters

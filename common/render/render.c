@@ -1296,7 +1296,7 @@ static inline __attribute__((always_inline)) void shade_miss(const pt_renderer *
         le = pt_v3_mul(le, pa->mf->ekeep); /* a lamp off a mirror, chained (mr_env_nee) */
     float lp = 0.0f, mis = 1.0f; /* the map's pdf and the MIS weight (the path log's too) */
     if (pa->prev_pdf > 0.0f && strategy == PT_LIGHT_MIS) {
-        lp = pt_lights_env_pdf(r->lights, pa->d, pa->prev_n);
+        lp = pt_lights_env_pdf(r->lights, pa->d, pa->prev_p, pa->prev_n);
         mis = power_heuristic(pa->prev_pdf, lp);
         le = pt_v3_scale(le, mis);
     }
@@ -2154,7 +2154,7 @@ static __attribute__((noinline)) float mf_bsdf_weight(const pt_renderer *r, cons
     /* Where light sampling never picks the direction (the dim part of a
      * map whose sampling is MIS-compensated), or manifold NEE does not
      * take it (mf_min_light), no chain is solved. */
-    float lp = pt_lights_env_pdf(r->lights, pa->d, m->ln);
+    float lp = pt_lights_env_pdf(r->lights, pa->d, m->x, m->ln);
     if (!(lp > 0.0f) || !(pt_luminance(le) > r->mf_min_light))
         return 1.0f;
     mf_link lk;
@@ -4365,7 +4365,7 @@ static double bd_light_pdf(const pt_renderer *r, const bd_scratch *bs, pt_vec3 n
     if (y0->dlight) /* a point, spot or directional light */
         return pt_lights_punctual_pmf(r->lights, y0->tri, y1->p, n);
     if (y0->inf)
-        return pt_lights_env_pdf(r->lights, y0->p, n);
+        return pt_lights_env_pdf(r->lights, y0->p, y1->p, n);
     return bd_area(pt_lights_pdf(r->lights, r->scene, y0->tri, y1->p, n, y0->p, y0->ng), y1->p, y0);
 }
 
@@ -4718,7 +4718,8 @@ static void bd_escape(const pt_renderer *r, path *pa, bd_scratch *bs, uint32_t t
         bs->pc[k] = pw;
         bs->pl[k] = bd_env_start_pdf(r, pa->d);
         bs->pl[k - 1] = bd_env_area(r, xp, pa->d);
-        float lp = pt_lights_env_pdf(r->lights, pa->d, light_normal(r, &xp->sf, xp->wo, features));
+        float lp =
+            pt_lights_env_pdf(r->lights, pa->d, xp->p, light_normal(r, &xp->sf, xp->wo, features));
         w = bd_weight(k, 0, bs->pc, bs->pl, lp, bs->delta);
     }
     pa->L = pt_v3_add(pa->L, pt_v3_scale(pt_v3_mul(beta, le), (float)w));
@@ -5659,7 +5660,7 @@ pt_status pt_renderer_new(const pt_scene *scene, const pt_render_params *params,
                           pt_lights_has_tree(r->lights));
     r->light_tree = pt_lights_has_tree(r->lights);
     r->recv_normal =
-        r->light_tree ||
+        r->light_tree || pt_lights_has_portals(r->lights) ||
         (params->env && pt_lights_has_env(r->lights) &&
          pt_env_splits(params->env,
                        params->light_strategy == PT_LIGHT_MIS ? PT_ENV_MIS : PT_ENV_FULL));

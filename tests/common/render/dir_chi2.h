@@ -60,7 +60,7 @@ static float pcg32_float(pcg32 *r)
     return (float)(pcg32_next(r) >> 8) * 0x1p-24f;
 }
 
-static pt_vec3 dir_at(float theta_deg, float phi)
+static inline pt_vec3 dir_at(float theta_deg, float phi)
 {
     float t = theta_deg * (PT_PI / 180.0f);
     return pt_v3(sinf(t) * cosf(phi), sinf(t) * sinf(phi), cosf(t));
@@ -85,6 +85,13 @@ static float rel_err(float a, float b)
 #define NT 10
 #define NP 20
 #define NCELL (NT * NP)
+/* The quadrature's tolerances (inner over phi, outer over t) and depth; a
+ * pdf with edges (an indicator, as a portal's) takes finer ones. */
+#ifndef CHI2_SIMPSON_DEPTH
+#define CHI2_SIMPSON_EPS_INNER 1e-7
+#define CHI2_SIMPSON_EPS_OUTER 1e-6
+#define CHI2_SIMPSON_DEPTH 8
+#endif
 
 typedef float (*pdf_fn)(const void *ctx, pt_vec3 wi);
 
@@ -173,7 +180,7 @@ static double outer_fn(simpson_ctx *c, double t)
 {
     simpson_ctx in = *c;
     in.t = t;
-    return simpson(inner_fn, &in, c->p0, c->p1, 1e-7, 8);
+    return simpson(inner_fn, &in, c->p0, c->p1, CHI2_SIMPSON_EPS_INNER, CHI2_SIMPSON_DEPTH);
 }
 
 static void cell_probs(const binning *bn, double prob[NCELL])
@@ -181,8 +188,8 @@ static void cell_probs(const binning *bn, double prob[NCELL])
     for (int it = 0; it < NT; it++)
         for (int ip = 0; ip < NP; ip++) {
             simpson_ctx c = {bn, 0.0, 2.0 * PI_D * ip / NP, 2.0 * PI_D * (ip + 1) / NP};
-            prob[it * NP + ip] =
-                simpson(outer_fn, &c, (double)it / NT, (double)(it + 1) / NT, 1e-6, 8);
+            prob[it * NP + ip] = simpson(outer_fn, &c, (double)it / NT, (double)(it + 1) / NT,
+                                         CHI2_SIMPSON_EPS_OUTER, CHI2_SIMPSON_DEPTH);
         }
 }
 

@@ -1,0 +1,63 @@
+/*
+ * portal.h - environment portals: the openings (windows, doors) through
+ * which the environment lights an interior, sampled by solid angle.
+ *
+ * A scene names them (pt_scene.portals: triangles no ray meets, from mesh
+ * nodes marked "ptfarm_portal", scene.h). Seen from a receiver at p, the
+ * directions through them are most of the directions along which the map
+ * can light p at all; the map's own distribution (env.h) spreads its
+ * samples over the whole sphere, and inside a room nearly all of them end
+ * on a wall. Bitterli, Novak and Jarosz 2015 ("Portal-Masked Environment
+ * Map Sampling", EGSR) sample the map masked by the portal; here, as in
+ * Cycles' portal lights, the directions through the portals are sampled
+ * uniformly in the solid angle they subtend (a triangle chosen by its solid
+ * angle, then Arvo's map within it: sphtri.h) and the environment light
+ * mixes that with the map's distribution (light.c), which keeps a sun in
+ * a window found by the map's samples.
+ *
+ * A triangle counts for a receiver when some corner lies strictly above
+ * its tangent plane (normal n; a zero n: every triangle), so a wall facing
+ * away from the window sends no sample there. The density of a direction
+ * is k / Omega, Omega the counted triangles' solid angles summed and k how
+ * many of them the ray from p crosses (1 but where two overlap from p).
+ * Pure functions of their arguments; any thread.
+ */
+#ifndef PT_COMMON_RENDER_PORTAL_H
+#define PT_COMMON_RENDER_PORTAL_H
+
+#include <stdint.h>
+
+#include "common/math/vec.h"
+#include "common/scene/scene.h"
+
+/* The portals as a receiver at p with normal nrm sees them: each
+ * triangle's solid angle from p (0 where it does not count) and their sum
+ * Omega. Measured once a receiver, read by both functions below. */
+typedef struct pt_portal_view {
+    double om[PT_SCENE_MAX_PORTALS];
+    double sum;
+} pt_portal_view;
+
+/* The view of the n portal triangles tris (9 floats each, n at most
+ * PT_SCENE_MAX_PORTALS) from p with normal nrm. */
+void pt_portal_view_init(pt_portal_view *v, const float *tris, uint32_t n, pt_vec3 p, pt_vec3 nrm);
+
+/* A direction from p through the portals for u0, u1, u2 in [0,1) (u0 the
+ * triangle, by its solid angle; u1, u2 the direction within it) into *wi,
+ * with its density (per steradian, above) into *pdf: pt_portal_pdf's,
+ * with the chosen triangle counted as crossed even where rounding puts the
+ * direction just past its edge. Returns 0 when no triangle counts or the
+ * sample is impossible. v: the view from p. */
+int pt_portal_sample(const pt_portal_view *v, const float *tris, uint32_t n, pt_vec3 p, float u0,
+                     float u1, float u2, pt_vec3 *wi, double *pdf);
+
+/* How many counted triangles the ray from p along dir crosses (k, above). */
+uint32_t pt_portal_crossings(const pt_portal_view *v, const float *tris, uint32_t n, pt_vec3 p,
+                             pt_vec3 dir);
+
+/* The density pt_portal_sample gives direction dir (unit) from p: k /
+ * Omega (above); 0 when dir crosses no counted triangle. */
+double pt_portal_pdf(const pt_portal_view *v, const float *tris, uint32_t n, pt_vec3 p,
+                     pt_vec3 dir);
+
+#endif

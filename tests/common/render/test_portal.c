@@ -1,0 +1,350 @@
+/*
+ * test_portal.c - environment portals (common/render/portal.c and the
+ * environment light's mixture in light.c; PT_FEAT_PORTAL).
+ *
+ * - Chi-square of the portal sampler against its own density (dir_chi2.h):
+ *   a quad of two triangles above the receiver, a triangle behind it that
+ *   overlaps part of it as seen from there (directions through both: k = 2),
+ *   and one below the receiver's tangent plane, which must take no sample
+ *   with the normal given and its share without one.
+ * - Chi-square of the environment light's samples (pt_lights_sample: the
+ *   portals mixed with a map that has a sun) against pt_lights_env_pdf,
+ *   which MIS weighs BSDF-sampled rays by: the two must be one density.
+ * - Irradiance through a window, in closed form: a black closed box whose
+ *   ceiling has a rectangular hole, a Lambert floor (albedo rho), a uniform
+ *   sky of radiance L. A floor point's radiance is rho L F, F its form
+ *   factor to the hole (the parallel-rectangle formula, summed over the
+ *   hole's corners); an orthographic view of the floor averages it. With
+ *   the hole a portal, MIS and NEE alone both agree with it (z < 5 on the
+ *   image's standard error), as does MIS without the portal; and the
+ *   portal's standard error is under half that without it (measured: about
+ *   a fifth).
+ * - Import: a glTF node whose extras hold "ptfarm_portal": true gives
+ *   portals and no geometry, changes the scene's hash, and a portal of
+ *   lines is refused with its name.
+ */
+#define N_CHI2_TESTS 3
+/* The portals' density is an indicator: its cells' integrals need finer
+ * quadrature than a lobe's. */
+#define CHI2_SIMPSON_EPS_INNER 1e-9
+#define CHI2_SIMPSON_EPS_OUTER 1e-8
+#define CHI2_SIMPSON_DEPTH 12
+#include "common/render/portal.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "common/base/alloc.h"
+#include "common/render/env.h"
+#include "common/render/film.h"
+#include "common/render/light.h"
+#include "common/render/render.h"
+#include "common/scene/scene.h"
+#include "tests/check.h"
+#include "tests/common/render/dir_chi2.h"
+
+/* ---- the sampler against its density ---------------------------------------------- */
+
+enum { NTRI = 4 };
+static const float tris[NTRI * 9] = {
+    /* a quad at y = 1, x in [-0.5, 0.5], z in [-0.3, 0.7] */
+    -0.5f, 1.0f, -0.3f, 0.5f, 1.0f, -0.3f, 0.5f, 1.0f, 0.7f, -0.5f, 1.0f, -0.3f, 0.5f, 1.0f, 0.7f,
+    -0.5f, 1.0f, 0.7f,
+    /* behind it from the origin, over its +x half and past it */
+    0.0f, 2.0f, 0.0f, 1.6f, 2.0f, 0.0f, 0.4f, 2.0f, 1.2f,
+    /* below the plane y = 0 */
+    -1.0f, -1.0f, -1.0f, 1.0f, -1.0f, -1.0f, 0.0f, -1.0f, 1.0f};
+
+typedef struct portal_ctx {
+    pt_vec3 p, n;
+    pt_portal_view v;
+} portal_ctx;
+
+static float portal_pdf_fn(const void *ctx, pt_vec3 w)
+{
+    const portal_ctx *c = ctx;
+    return (float)pt_portal_pdf(&c->v, tris, NTRI, c->p, w);
+}
+
+static pt_vec3 portal_sample_fn(const void *ctx, pcg32 *r, float *pdf)
+{
+    const portal_ctx *c = ctx;
+    float u0 = pcg32_float(r), u1 = pcg32_float(r), u2 = pcg32_float(r);
+    pt_vec3 wi = pt_v3(0, 0, 1);
+    double pd = 0.0;
+    *pdf = pt_portal_sample(&c->v, tris, NTRI, c->p, u0, u1, u2, &wi, &pd) ? (float)pd : 0.0f;
+    return wi;
+}
+
+static void chi2_portals(void)
+{
+    portal_ctx c = {pt_v3(0.1f, 0.0f, 0.05f), pt_v3(0, 1, 0), {{0}, 0}};
+    pt_portal_view_init(&c.v, tris, NTRI, c.p, c.n);
+    CHECKF(c.v.om[3] == 0.0 && c.v.om[0] > 0.0 && c.v.om[2] > 0.0,
+           "the triangle below the plane counts (%g), or one above does not", c.v.om[3]);
+    binning bn = {pt_frame_from_normal(pt_v3(0, 1, 0)), 2.0, portal_pdf_fn, &c};
+    double total = chi2_run("portals, above the plane", &bn, portal_sample_fn, &c, 300000, 5);
+    /* The overlap: the sampler's density integrates to 1 only where the
+     * directions through two triangles count twice. */
+    CHECKF(fabs(total - 1.0) < 2e-3, "portals: the density integrates to %.5f", total);
+
+    portal_ctx z = {c.p, pt_v3(0, 0, 0), {{0}, 0}};
+    pt_portal_view_init(&z.v, tris, NTRI, z.p, z.n);
+    CHECKF(z.v.om[3] > 0.0, "without a normal the triangle below takes no share");
+    binning bz = {pt_frame_from_normal(pt_v3(0, 1, 0)), 2.0, portal_pdf_fn, &z};
+    chi2_run("portals, no normal", &bz, portal_sample_fn, &z, 300000, 6);
+}
+
+/* ---- the environment light's mixture ----------------------------------------------- */
+
+/* A scene of one far triangle (a scene needs geometry) and the portals
+ * turned to face the horizon, away from the map's poles, where its
+ * density's quadrature and its float pdf lose digits. */
+static pt_scene *portal_scene(void)
+{
+    pt_scene_builder *b = NULL;
+    pt_error err = {0};
+    CHECK(pt_scene_builder_new(&b, &err) == PT_OK);
+    pt_material m = pt_material_default();
+    uint32_t mat = 0;
+    CHECK(pt_scene_builder_add_material(b, &m, &mat, &err) == PT_OK);
+    const float far[9] = {50, 50, 50, 51, 50, 50, 50, 51, 50};
+    const uint32_t idx[3] = {0, 1, 2};
+    CHECK(pt_scene_builder_add_mesh(b, "far", far, NULL, NULL, 3, idx, 1, NULL, mat, &err) ==
+          PT_OK);
+    for (int t = 0; t < NTRI; t++) {
+        double v[9];
+        for (int i = 0; i < 9; i++) /* y and z swapped: the portals face the horizon */
+            v[i] = tris[9 * t + i + (i % 3 == 1 ? 1 : i % 3 == 2 ? -1 : 0)];
+        CHECKF(pt_scene_builder_add_portal(b, v, "test", &err) == PT_OK, "%s", err.msg);
+    }
+    pt_scene *s = NULL;
+    CHECKF(pt_scene_builder_finish(b, NULL, &s, &err) == PT_OK, "%s", err.msg);
+    return s;
+}
+
+/* A 64 x 32 map: a sky that brightens towards the zenith, black within 4
+ * rows of the poles, and a 3 x 3 patch 30 times brighter near the
+ * portals' side (smooth enough for the quadrature of its cells). */
+static pt_env *patch_sky(void)
+{
+    enum { W = 64, H = 32 };
+    static float px[W * H * 3];
+    for (int y = 0; y < H; y++)
+        for (int x = 0; x < W; x++)
+            for (int c = 0; c < 3; c++)
+                px[3 * (y * W + x) + c] = y < 4 || y >= H - 4 ? 0.0f
+                                          : abs(x - 58) <= 1 && abs(y - 12) <= 1
+                                              ? 30.0f
+                                              : 1.0f + 2.0f * (H - y) / H;
+    pt_env *env = NULL;
+    pt_error err = {0};
+    CHECKF(pt_env_new(&(pt_envmap){W, H, px}, 1.0f, 0.0f, &env, &err) == PT_OK, "%s", err.msg);
+    return env;
+}
+
+typedef struct light_ctx {
+    const pt_lights *L;
+    const pt_scene *s;
+    pt_vec3 p, n;
+} light_ctx;
+
+static float light_pdf_fn(const void *ctx, pt_vec3 w)
+{
+    const light_ctx *c = ctx;
+    return pt_lights_env_pdf(c->L, w, c->p, c->n);
+}
+
+static pt_vec3 light_sample_fn(const void *ctx, pcg32 *r, float *pdf)
+{
+    const light_ctx *c = ctx;
+    float u[3] = {pcg32_float(r), pcg32_float(r), pcg32_float(r)};
+    pt_light_sample ls;
+    *pdf = pt_lights_sample(c->L, c->s, c->p, c->n, u, &ls) ? ls.pdf : 0.0f;
+    return ls.wi;
+}
+
+static void chi2_mixture(void)
+{
+    pt_scene *s = portal_scene();
+    pt_env *env = patch_sky();
+    pt_lights *L = NULL;
+    pt_error err = {0};
+    if (s && env)
+        CHECKF(pt_lights_new_env(s, env, PT_ENV_FULL, &L, &err) == PT_OK, "%s", err.msg);
+    if (L) {
+        CHECK(pt_lights_has_portals(L));
+        /* The receiver in scene space (the far triangle moves its origin). */
+        pt_vec3 p = pt_v3((float)(0.1 - s->origin[0]), (float)(0.05 - s->origin[1]),
+                          (float)(0.0 - s->origin[2]));
+        light_ctx c = {L, s, p, pt_v3(0, 0, 1)};
+        binning bn = {pt_frame_from_normal(pt_v3(0, 0, 1)), 2.0, light_pdf_fn, &c};
+        chi2_run("environment through portals", &bn, light_sample_fn, &c, 300000, 7);
+    }
+    pt_lights_free(L);
+    pt_env_free(env);
+    pt_scene_free(s);
+}
+
+/* ---- irradiance through a window ---------------------------------------------------- */
+
+/* The box: x and z in [-1, 1], y in [0, 1]; the hole in the ceiling. */
+static const double HX0 = -0.2, HX1 = 0.3, HZ0 = -0.25, HZ1 = 0.25;
+
+static void add_quad(pt_scene_builder *b, const char *what, const float q[12], uint32_t mat)
+{
+    pt_error err = {0};
+    const uint32_t idx[6] = {0, 1, 2, 0, 2, 3};
+    CHECKF(pt_scene_builder_add_mesh(b, what, q, NULL, NULL, 4, idx, 2, NULL, mat, &err) == PT_OK,
+           "%s", err.msg);
+}
+
+static pt_scene *window_box(float rho, int portal)
+{
+    pt_scene_builder *b = NULL;
+    pt_error err = {0};
+    CHECK(pt_scene_builder_new(&b, &err) == PT_OK);
+    pt_material m = pt_material_default();
+    m.metallic = 0.0f;
+    m.specular = 0.0f;
+    m.double_sided = 1;
+    m.base_color[0] = m.base_color[1] = m.base_color[2] = rho;
+    uint32_t floor_mat = 0, black = 0;
+    CHECK(pt_scene_builder_add_material(b, &m, &floor_mat, &err) == PT_OK);
+    m.base_color[0] = m.base_color[1] = m.base_color[2] = 0.0f;
+    CHECK(pt_scene_builder_add_material(b, &m, &black, &err) == PT_OK);
+    const float x0 = (float)HX0, x1 = (float)HX1, z0 = (float)HZ0, z1 = (float)HZ1;
+    const float fl[12] = {-1, 0, -1, 1, 0, -1, 1, 0, 1, -1, 0, 1};
+    add_quad(b, "floor", fl, floor_mat);
+    const float walls[4][12] = {{-1, 0, -1, 1, 0, -1, 1, 1, -1, -1, 1, -1},
+                                {-1, 0, 1, 1, 0, 1, 1, 1, 1, -1, 1, 1},
+                                {-1, 0, -1, -1, 0, 1, -1, 1, 1, -1, 1, -1},
+                                {1, 0, -1, 1, 0, 1, 1, 1, 1, 1, 1, -1}};
+    for (int i = 0; i < 4; i++)
+        add_quad(b, "wall", walls[i], black);
+    /* The ceiling around the hole: four rectangles. */
+    const float ceil[4][12] = {{-1, 1, -1, 1, 1, -1, 1, 1, z0, -1, 1, z0},
+                               {-1, 1, z1, 1, 1, z1, 1, 1, 1, -1, 1, 1},
+                               {-1, 1, z0, x0, 1, z0, x0, 1, z1, -1, 1, z1},
+                               {x1, 1, z0, 1, 1, z0, 1, 1, z1, x1, 1, z1}};
+    for (int i = 0; i < 4; i++)
+        add_quad(b, "ceiling", ceil[i], black);
+    if (portal) {
+        const double q[2][9] = {{HX0, 1, HZ0, HX1, 1, HZ0, HX1, 1, HZ1},
+                                {HX0, 1, HZ0, HX1, 1, HZ1, HX0, 1, HZ1}};
+        for (int i = 0; i < 2; i++)
+            CHECKF(pt_scene_builder_add_portal(b, q[i], "hole", &err) == PT_OK, "%s", err.msg);
+    }
+    pt_camera cam = {0};
+    cam.position = pt_v3(0, 0.9f, 0);
+    cam.forward = pt_v3(0, -1, 0);
+    cam.right = pt_v3(1, 0, 0);
+    cam.up = pt_v3(0, 0, -1);
+    cam.ortho = 1;
+    cam.xmag = cam.ymag = 0.8f;
+    cam.aspect = 1.0f;
+    snprintf(cam.name, sizeof cam.name, "down");
+    CHECK(pt_scene_builder_add_camera(b, &cam, &err) == PT_OK);
+    pt_scene *s = NULL;
+    CHECKF(pt_scene_builder_finish(b, NULL, &s, &err) == PT_OK, "%s", err.msg);
+    return s;
+}
+
+/* A corner's term of the form factor from a floor point to a parallel
+ * rectangle at height 1 (signed extents a, b from the point): Howell's
+ * catalogue, configuration B-3, odd in a and in b, so the hole's factor is
+ * the signed sum over its corners. */
+static double corner_term(double a, double b)
+{
+    double sa = sqrt(1.0 + a * a), sb = sqrt(1.0 + b * b);
+    return (a / sa * atan(b / sa) + b / sb * atan(a / sb)) / (2.0 * PI_D);
+}
+
+static double hole_factor(double x, double z)
+{
+    return corner_term(HX1 - x, HZ1 - z) - corner_term(HX0 - x, HZ1 - z) -
+           corner_term(HX1 - x, HZ0 - z) + corner_term(HX0 - x, HZ0 - z);
+}
+
+/* The mean of the image's green channel and its standard error. */
+static double render_mean(const pt_scene *s, const pt_env *env, uint32_t strategy, uint32_t w,
+                          uint32_t spp, double *se)
+{
+    pt_render_params p = {0};
+    pt_render_params_default(&p);
+    p.width = p.height = w;
+    p.seed = 13;
+    p.env = env;
+    p.light_strategy = strategy;
+    pt_renderer *r = NULL;
+    pt_error err = {0};
+    CHECKF(pt_renderer_new(s, &p, &r, &err) == PT_OK, "%s", err.msg);
+    pt_pixel_acc *acc = pt_malloc_array((size_t)w * w, sizeof *acc);
+    double sum = 0.0, var = 0.0;
+    if (r && acc) {
+        pt_render_stats st = {0};
+        pt_render_tile(r, (pt_rect){0, 0, w, w}, 0, spp, acc, &st);
+        CHECK(st.rejected == 0);
+        for (uint32_t i = 0; i < w * w; i++) {
+            double k = acc[i].n, g = pt_acc_sum(&acc[i], 1) / k;
+            double lum = (0.2126 * pt_acc_sum(&acc[i], 0) + 0.7152 * pt_acc_sum(&acc[i], 1) +
+                          0.0722 * pt_acc_sum(&acc[i], 2)) /
+                         k;
+            sum += g;
+            var += fmax((pt_acc_sum_sq(&acc[i]) - k * lum * lum) / (k - 1.0), 0.0) / k;
+        }
+    }
+    pt_free(acc);
+    pt_renderer_free(r);
+    *se = sqrt(var) / ((double)w * w);
+    return sum / ((double)w * w);
+}
+
+static void window_irradiance(void)
+{
+    const float rho = 0.5f, L = 2.0f;
+    /* The view: x and z in [-0.8, 0.8]; the factor's mean over it by the
+     * midpoint rule on a 400 x 400 grid (smooth: far below the noise). */
+    const int G = 400;
+    double f = 0.0;
+    for (int j = 0; j < G; j++)
+        for (int i = 0; i < G; i++)
+            f += hole_factor(-0.8 + 1.6 * (i + 0.5) / G, -0.8 + 1.6 * (j + 0.5) / G);
+    double want = rho * L * f / ((double)G * G);
+    pt_env *env = NULL;
+    pt_error err = {0};
+    CHECK(pt_env_uniform(pt_v3(L, L, L), &env, &err) == PT_OK);
+    pt_scene *with = window_box(rho, 1), *without = window_box(rho, 0);
+    if (env && with && without) {
+        CHECK((with->features & PT_FEAT_PORTAL) && !(without->features & PT_FEAT_PORTAL));
+        double se_m, se_n, se_0;
+        double mis = render_mean(with, env, PT_LIGHT_MIS, 32, 64, &se_m);
+        double nee = render_mean(with, env, PT_LIGHT_NEE_ONLY, 32, 64, &se_n);
+        double none = render_mean(without, env, PT_LIGHT_MIS, 32, 64, &se_0);
+        printf("window: want %.5f; portal MIS %.5f (se %.2e), NEE %.5f (se %.2e); "
+               "no portal %.5f (se %.2e): se ratio %.3f\n",
+               want, mis, se_m, nee, se_n, none, se_0, se_m / se_0);
+        CHECKF(fabs(mis - want) < 5.0 * se_m + 1e-4 * want, "portal MIS %.5f, want %.5f", mis,
+               want);
+        CHECKF(fabs(nee - want) < 5.0 * se_n + 1e-4 * want, "portal NEE %.5f, want %.5f", nee,
+               want);
+        CHECKF(fabs(none - want) < 5.0 * se_0 + 1e-4 * want, "no portal %.5f, want %.5f", none,
+               want);
+        CHECKF(se_m < 0.5 * se_0, "the portal's standard error %.2e, without it %.2e", se_m, se_0);
+    }
+    pt_scene_free(with);
+    pt_scene_free(without);
+    pt_env_free(env);
+}
+
+int main(void)
+{
+    int64_t live0 = pt_alloc_live();
+    chi2_portals();
+    chi2_mixture();
+    window_irradiance();
+    CHECK(pt_alloc_live() == live0);
+    return check_report();
+}
