@@ -542,13 +542,15 @@ def look_rotation(eye, target):
     return [f32(c) for c in q]
 
 
-def window_room():
+def window_room(portal=False):
     """A closed room (4 x 3 x 5 m) with one window in its back wall and a
     cabinet, for an environment map to light through the window: under
     rooitou_park_1k.hdr the low sun falls through it onto the left wall, and
     the rest of the room is lit by that patch and the sky, in bounces (the
     indirect light bidirectional path tracing is for). The camera looks
-    into the room, away from the window."""
+    into the room, away from the window. With portal, window_portal.gltf:
+    the same room with the window marked as an environment portal (a quad
+    in its opening whose node's extras say "ptfarm_portal": true)."""
     def quad(corners, normal):
         a, b_, c, d = corners
         if dot(cross(sub(b_, a), sub(c, a)), normal) < 0.0:
@@ -582,9 +584,14 @@ def window_room():
     ]
     walls += [("cabinet_%d" % i, c, n, 2)
               for i, (c, n) in enumerate(box_faces((-1.2, 0.0, -0.6), (0.0, 0.9, 0.4)))]
+    if portal:
+        walls.append(("window_portal", [(wx0, wy0, -Z), (wx1, wy0, -Z), (wx1, wy1, -Z),
+                                        (wx0, wy1, -Z)], (0.0, 0.0, 1.0), 0))
     b = Builder()
     meshes, nodes = meshes_of(b, [(name, quad(corners, normal), mat)
                                   for name, corners, normal, mat in walls])
+    if portal:
+        nodes[-1]["extras"] = {"ptfarm_portal": True}
     materials = [
         lambert("plaster", (0.75, 0.73, 0.7), double_sided=True),
         lambert("wood", (0.45, 0.3, 0.2), double_sided=True),
@@ -604,7 +611,7 @@ def window_room():
         "cameras": [{"name": "Camera", "type": "perspective",
                      "perspective": {"yfov": 1.2, "aspectRatio": 1.0, "znear": 0.01}}],
     }
-    write(b.finish(doc), "window_room.gltf")
+    write(b.finish(doc), "window_portal.gltf" if portal else "window_room.gltf")
 
 
 if __name__ == "__main__":
@@ -613,3 +620,4 @@ if __name__ == "__main__":
     glass_things()
     chrome_sun()
     window_room()
+    window_room(portal=True)
