@@ -30,6 +30,7 @@ import os
 import struct
 
 import bpy
+from mathutils import Vector
 
 from . import passes
 
@@ -110,6 +111,27 @@ def _shader_of(node_tree, socket_name):
     return sock.links[0].from_node
 
 
+def is_portal(light):
+    """Whether a Blender light is a Cycles portal (an area light with
+    Portal checked), which the farm takes as an environment portal."""
+    cycles = getattr(light, "cycles", None)
+    return light.type == "AREA" and bool(getattr(cycles, "is_portal", False))
+
+
+def portal_corners(obj):
+    """The four corners of a portal light, glTF world space (+Y up), in
+    order round the rectangle: the light's size (and size_y for a rectangle
+    or an ellipse) in its local XY plane, placed by its world matrix."""
+    light = obj.data
+    sx = light.size
+    sy = light.size_y if light.shape in ("RECTANGLE", "ELLIPSE") else light.size
+    out = []
+    for x, y in ((-0.5, -0.5), (0.5, -0.5), (0.5, 0.5), (-0.5, 0.5)):
+        w = obj.matrix_world @ Vector((x * sx, y * sy, 0.0))
+        out.append((w.x, w.z, -w.y))  # Blender's Z up to glTF's Y up
+    return out
+
+
 def check_scene(scene):
     """Warnings, one sentence each, for what Blender renders in this scene
     and the export drops."""
@@ -123,7 +145,11 @@ def check_scene(scene):
             continue
         if obj.type == "LIGHT":
             light = obj.data
-            if light.type == "AREA":
+            if is_portal(light):
+                if light.shape in ("DISK", "ELLIPSE"):
+                    warn.append("light '%s': a round portal goes to the farm as the rectangle "
+                                "around it" % obj.name)
+            elif light.type == "AREA":
                 warn.append("light '%s': area lights are not exported (KHR_lights_punctual has "
                             "point, spot and sun only)" % obj.name)
             elif light.type in ("POINT", "SPOT") and light.shadow_soft_size > 0:
@@ -310,19 +336,85 @@ def convert_lights(doc, scene):
             lights[li]["intensity"] = float(light.energy) / (4.0 * math.pi)
 
 
+def add_portals(doc, portals, base):
+    """Adds each portal of portals (name, four corners) to the file as a
+    node of its own with a two-triangle mesh and extras {"ptfarm_portal":
+    true}, which ptfarm reads as an environment portal (README, "Windows:
+    environment portals"). base: the length of the binary chunk's data (a
+    multiple of 4), where the returned bytes will follow: the positions
+    (float32) and indices (uint16) of them all."""
+    blob = b""
+    if not doc.get("buffers"):
+        doc["buffers"] = [{"byteLength": 0}]
+    buf = doc["buffers"][0]
+    scene = doc["scenes"][doc.get("scene", 0)]
+    for name, corners in portals:
+        pos = struct.pack("<12f", *[c for p in corners for c in p])
+        idx = struct.pack("<6H", 0, 1, 2, 0, 2, 3)
+        views = doc.setdefault("bufferViews", [])
+        accs = doc.setdefault("accessors", [])
+        off = base + len(blob)
+        views.append({"buffer": 0, "byteOffset": off, "byteLength": 48})
+        views.append({"buffer": 0, "byteOffset": off + 48, "byteLength": 12})
+        lo = [min(p[k] for p in corners) for k in range(3)]
+        hi = [max(p[k] for p in corners) for k in range(3)]
+        accs.append({"bufferView": len(views) - 2, "componentType": 5126, "count": 4,
+                     "type": "VEC3", "min": lo, "max": hi})
+        accs.append({"bufferView": len(views) - 1, "componentType": 5123, "count": 6,
+                     "type": "SCALAR"})
+        meshes = doc.setdefault("meshes", [])
+        meshes.append({"name": name, "primitives": [
+            {"attributes": {"POSITION": len(accs) - 2}, "indices": len(accs) - 1}]})
+        nodes = doc.setdefault("nodes", [])
+        nodes.append({"name": name, "mesh": len(meshes) - 1, "extras": {"ptfarm_portal": True}})
+        scene.setdefault("nodes", []).append(len(nodes) - 1)
+        blob += pos + idx
+    buf["byteLength"] = base + len(blob)
+    return blob
+
+
+def _glb_binary(data, old_n):
+    """The data of a GLB's binary chunk (b"" without one), padded to 4."""
+    rest = data[20 + old_n:]
+    binary = b""
+    if len(rest) >= 8:
+        m, kind = struct.unpack_from("<I4s", rest, 0)
+        if kind == b"BIN\0":
+            binary = rest[8:8 + m]
+    return binary + b"\0" * ((4 - len(binary) % 4) % 4)
+
+
+def _write_glb(path, doc, data, binary):
+    """The GLB rewritten with doc as its JSON chunk and binary as its
+    binary chunk's data."""
+    text = json.dumps(doc, separators=(",", ":")).encode("utf-8")
+    text += b" " * ((4 - len(text) % 4) % 4)
+    chunks = struct.pack("<I4s", len(text), b"JSON") + text
+    chunks += struct.pack("<I4s", len(binary), b"BIN\0") + binary
+    with open(path, "wb") as f:
+        f.write(data[:4] + struct.pack("<II", 2, 12 + len(chunks)) + chunks)
+
+
 def fix_up(path, scene, lights):
     """The exported file adjusted for ptfarm: with lights True, the lights'
-    units (convert_lights). Materials are kept as exported: a Principled
-    Specular of 0 comes out as KHR_materials_specular with a black
-    specularColorFactor, which ptfarm reads as Cycles does (F0 0, F90 1, the
-    diffuse weighted by the coloured Fresnel; tests/blender/
-    test_light_units.py). Rewrites the GLB's JSON chunk only when something
-    changed."""
-    if not lights:
+    units (convert_lights); Cycles portal lights as environment portals
+    (add_portals). Materials are kept as exported: a Principled Specular of
+    0 comes out as KHR_materials_specular with a black specularColorFactor,
+    which ptfarm reads as Cycles does (F0 0, F90 1, the diffuse weighted by
+    the coloured Fresnel; tests/blender/test_light_units.py). Rewrites the
+    GLB only when something changed."""
+    portals = [(obj.name, portal_corners(obj)) for obj in scene.objects
+               if obj.type == "LIGHT" and _visible(obj, scene) and is_portal(obj.data)]
+    if not lights and not portals:
         return
     doc, data, n = _read_glb_json(path)
-    convert_lights(doc, scene)
-    _write_glb_json(path, doc, data, n)
+    if lights:
+        convert_lights(doc, scene)
+    if portals:
+        binary = _glb_binary(data, n)
+        _write_glb(path, doc, data, binary + add_portals(doc, portals, len(binary)))
+    else:
+        _write_glb_json(path, doc, data, n)
 
 
 def glb_summary(path):
