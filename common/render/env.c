@@ -579,11 +579,12 @@ int pt_env_splits(const pt_env *env, int which)
     return which == PT_ENV_MIS ? env->split_comp : env->split;
 }
 
-int pt_env_sun(const pt_env *env, pt_vec3 *axis)
+int pt_env_sun(const pt_env *env, pt_vec3 *axis, float *sin_half)
 {
     if (!env->split)
         return 0;
     *axis = env->sun_axis;
+    *sin_half = -env->sun_lim;
     return 1;
 }
 

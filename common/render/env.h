@@ -101,9 +101,10 @@ float pt_env_pdf(const pt_env *env, pt_vec3 dir, int which, pt_vec3 n);
  * the receiver's normal changes its sampling. */
 int pt_env_splits(const pt_env *env, int which);
 
-/* 1 when the map has a sun by the split's rule (above), its cone's axis
- * (unit, towards the sun) into *axis; 0 without one. */
-int pt_env_sun(const pt_env *env, pt_vec3 *axis);
+/* 1 when the map has a sun by the split's rule (above): its cone's axis
+ * (unit, towards the sun) into *axis and the sine of its half-angle (its
+ * texels' bilinear support included) into *sin_half; 0 without one. */
+int pt_env_sun(const pt_env *env, pt_vec3 *axis, float *sin_half);
 
 /* The mean radiance over the sphere (luminance, weighted by solid angle):
  * the flux it sends into a sphere of radius R is 4 pi^2 R^2 times this. */

@@ -100,10 +100,9 @@ struct pt_lights {
     double c_env;             /* u0 >= c_env chooses the environment (1: never) */
     float p_env;              /* the probability of choosing it */
     int env_dist;             /* its distribution (env.h, PT_ENV_*) */
-    const float *portals;     /* the scene's portals (portal.h), NULL: none or no env */
+    const float *portals;     /* the scene's portals (portal.h), NULL: none, no env, or
+                                 a sun that shines in through one (below) */
     uint32_t nportals;
-    int has_sun; /* the map has a sun (pt_env_sun), towards sun_axis */
-    pt_vec3 sun_axis;
 };
 
 static pt_vec3 vertex(const pt_scene *s, uint32_t i)
@@ -535,6 +534,52 @@ pt_status pt_lights_new_env(const pt_scene *scene, const pt_env *env, int env_di
     return pt_lights_new_select(scene, env, env_dist, PT_LIGHT_SELECT_AUTO, out, err);
 }
 
+/* With portals (portal.h) a light sample of the environment takes a
+ * direction through them with probability PORTAL_SHARE, else one of the
+ * map's distribution, and its pdf is the mixture's (Veach's one-sample
+ * model): the portals give the sky in a window the samples that the map
+ * would spend on walls, and the map's part still finds what they miss. A
+ * receiver that sees no portal (none has a corner above its tangent
+ * plane) samples the map alone. Where the map has a sun (pt_env_sun) that
+ * can shine in through a portal, the portals are not used at all: the sun
+ * through the window is then most of the room's light, the map's own
+ * samples find it, and a share of uniform directions through the window
+ * takes samples from it. A portal's front (its counter-clockwise side,
+ * the glTF front face) faces into the room, so the sun can shine in
+ * through it when the sun's cone reaches behind it. Measured on the window
+ * room (docs/bench/portals.md): under the overcast map a share of 0.8 has
+ * 1.14 times the error of 0.95, 0.5 1.65 times; with the park's map turned
+ * so that its sun is behind the room, 0.8 has 0.74 times the error of 0.5;
+ * under the park's sun, which shines in, a share of 0.05 has 0.83 of the
+ * error for 1.19 times the CPU (1.00 times the time to the same error) and
+ * larger shares lose. */
+#define PORTAL_SHARE 0.8
+
+/* Whether env has a sun whose cone reaches behind some portal of scene's
+ * (the side its front does not face). */
+static int sun_enters(const pt_env *env, const pt_scene *scene)
+{
+    pt_vec3 axis;
+    float sin_half;
+    if (!pt_env_sun(env, &axis, &sin_half))
+        return 0;
+    for (uint32_t i = 0; i < scene->num_portals; i++) {
+        const float *t = scene->portals + 9 * (size_t)i;
+        pt_vec3 a = pt_v3(t[0], t[1], t[2]), b = pt_v3(t[3], t[4], t[5]),
+                c = pt_v3(t[6], t[7], t[8]);
+        pt_vec3 n = pt_v3_cross(pt_v3_sub(b, a), pt_v3_sub(c, a));
+        float len = pt_v3_len(n);
+        if (len > 0.0f && pt_v3_dot(axis, n) < sin_half * len)
+            return 1;
+    }
+    return 0;
+}
+
+static inline double portal_share(const pt_portal_view *v)
+{
+    return v->counted ? PORTAL_SHARE : 0.0;
+}
+
 pt_status pt_lights_new_select(const pt_scene *scene, const pt_env *env, int env_dist,
                                uint32_t select, pt_lights **out, pt_error *err)
 {
@@ -717,10 +762,9 @@ others : {
         L->env = NULL; /* too faint to choose in float: as if none */
         L->c_env = 1.0;
     }
-    if (L->env && scene->num_portals > 0) {
+    if (L->env && scene->num_portals > 0 && !sun_enters(L->env, scene)) {
         L->portals = scene->portals;
         L->nportals = scene->num_portals;
-        L->has_sun = pt_env_sun(L->env, &L->sun_axis);
     }
 }
 
@@ -782,49 +826,14 @@ int pt_lights_has_portals(const pt_lights *lights)
     return lights && lights->portals;
 }
 
-/* With portals (portal.h) a light sample of the environment takes a
- * direction through them with a probability, the share, else one of the
- * map's distribution, and its pdf is the mixture's (Veach's one-sample
- * model): the portals give the sky in a window the samples that the map
- * would spend on walls, and the map's part still finds a sun in it. The
- * share is a function of the receiver alone, so that sampling and the MIS
- * weight of a BSDF-sampled ray compute the same one:
- * - 0 where no portal counts (their solid angle 0 from p): the map alone;
- * - SHARE_SUN_IN where the map has a sun (pt_env_sun) and its axis from p
- *   crosses a portal: the sun through the window is most of p's light and
- *   the map's own samples find it;
- * - SHARE_SUNNY under a map with a sun that p does not see through a
- *   portal: its bright haze around the sun, seen through a window, is also
- *   better sampled by the map than uniformly;
- * - SHARE otherwise: a sky without a sun, where uniform directions through
- *   the window are near its own distribution there.
- * Measured on the window room (docs/bench/portals.md): under the park's
- * sun, shares of 0.3 to 0.6 give the same error, 0.8 and 0.95 up to 1.7
- * times more; under the overcast map 0.95 the least, 0.8 1.14 times it. */
-#define PORTAL_SHARE 0.8
-#define PORTAL_SHARE_SUNNY 0.5
-#define PORTAL_SHARE_SUN_IN 0.05
-
-static double portal_share(const pt_lights *lights, const pt_portal_view *v, pt_vec3 p)
-{
-    if (!(v->sum > 0.0))
-        return 0.0;
-    if (!lights->has_sun)
-        return PORTAL_SHARE;
-    return pt_portal_crossings(v, lights->portals, lights->nportals, p, lights->sun_axis) > 0
-               ? PORTAL_SHARE_SUN_IN
-               : PORTAL_SHARE_SUNNY;
-}
-
 /* The mixture's density of dir at p for the map's density map_pdf, with
  * v the portals' view from p. */
-static inline double portal_mix(const pt_lights *lights, const pt_portal_view *v, pt_vec3 p,
-                                pt_vec3 dir, double map_pdf)
+static inline double portal_mix(pt_portal_view *v, pt_vec3 dir, double map_pdf)
 {
-    double share = portal_share(lights, v, p);
+    double share = portal_share(v);
     if (!(share > 0.0))
         return map_pdf;
-    double pp = pt_portal_pdf(v, lights->portals, lights->nportals, p, dir);
+    double pp = pt_portal_pdf(v, dir);
     return share * pp + (1.0 - share) * map_pdf;
 }
 
@@ -836,7 +845,7 @@ float pt_lights_env_pdf(const pt_lights *lights, pt_vec3 dir, pt_vec3 p, pt_vec3
     if (lights->portals) {
         pt_portal_view v;
         pt_portal_view_init(&v, lights->portals, lights->nportals, p, n);
-        return lights->p_env * (float)portal_mix(lights, &v, p, dir, map);
+        return lights->p_env * (float)portal_mix(&v, dir, map);
     }
     return lights->p_env * map;
 }
@@ -850,11 +859,10 @@ static int sample_env_portals(const pt_lights *lights, pt_vec3 p, pt_vec3 n, dou
     pt_portal_view v;
     pt_portal_view_init(&v, lights->portals, lights->nportals, p, n);
     float map;
-    double pdf, share = portal_share(lights, &v, p);
+    double pdf, share = portal_share(&v);
     if (u0 < share) {
         double pp;
-        if (!pt_portal_sample(&v, lights->portals, lights->nportals, p, (float)(u0 / share), u[1],
-                              u[2], &s->wi, &pp))
+        if (!pt_portal_sample(&v, (float)(u0 / share), u[1], u[2], &s->wi, &pp))
             return 0;
         s->radiance = pt_env_eval(lights->env, s->wi);
         map = pt_env_pdf(lights->env, s->wi, lights->env_dist, n);
@@ -862,7 +870,7 @@ static int sample_env_portals(const pt_lights *lights, pt_vec3 p, pt_vec3 n, dou
     } else {
         if (!pt_env_sample(lights->env, &u[1], lights->env_dist, n, &s->wi, &s->radiance, &map))
             return 0;
-        pdf = portal_mix(lights, &v, p, s->wi, map);
+        pdf = portal_mix(&v, s->wi, map);
     }
     s->pdf = lights->p_env * (float)pdf;
     return s->pdf > 0.0f && isfinite(s->pdf);

@@ -23,65 +23,75 @@ static inline int counts(const float *t, pt_vec3 p, pt_vec3 nrm)
 
 void pt_portal_view_init(pt_portal_view *v, const float *tris, uint32_t n, pt_vec3 p, pt_vec3 nrm)
 {
+    v->tris = tris;
+    v->n = n < PT_SCENE_MAX_PORTALS ? n : PT_SCENE_MAX_PORTALS;
+    v->p = p;
+    v->counted = 0;
+    v->measured = 0;
     v->sum = 0.0;
-    for (uint32_t i = 0; i < n && i < PT_SCENE_MAX_PORTALS; i++) {
-        const float *t = tris + 9 * (size_t)i;
-        v->om[i] = counts(t, p, nrm)
-                       ? pt_sphtri_solid_angle(p, corner(t, 0), corner(t, 1), corner(t, 2))
+    for (uint32_t i = 0; i < v->n; i++)
+        if (counts(tris + 9 * (size_t)i, p, nrm))
+            v->counted |= UINT64_C(1) << i;
+}
+
+void pt_portal_measure(pt_portal_view *v)
+{
+    if (v->measured)
+        return;
+    v->measured = 1;
+    v->sum = 0.0;
+    for (uint32_t i = 0; i < v->n; i++) {
+        const float *t = v->tris + 9 * (size_t)i;
+        v->om[i] = (v->counted >> i & 1u)
+                       ? pt_sphtri_solid_angle(v->p, corner(t, 0), corner(t, 1), corner(t, 2))
                        : 0.0;
         v->sum += v->om[i];
     }
 }
 
-/* Whether the ray from p along d crosses triangle t (either side; Moller
- * and Trumbore 1997, in double). */
+/* Whether the ray from p along d crosses triangle t (either side). With
+ * a, b, c the corners less p, d = (alpha a + beta b + gamma c) / t for the
+ * point where the ray meets the plane when alpha, beta and gamma, each
+ * det(...) / det(a, b, c) by Cramer's rule, are all >= 0: three triple
+ * products of the same sign as det(a, b, c), no division. */
 static int crosses(const float *t, pt_vec3 p, pt_vec3 d)
 {
-    double a[3], e1[3], e2[3], o[3], dd[3] = {d.x, d.y, d.z}, pp[3] = {p.x, p.y, p.z};
-    for (int r = 0; r < 3; r++) {
-        a[r] = t[r];
-        e1[r] = (double)t[3 + r] - a[r];
-        e2[r] = (double)t[6 + r] - a[r];
-        o[r] = pp[r] - a[r];
+    pt_vec3 a = pt_v3_sub(corner(t, 0), p), b = pt_v3_sub(corner(t, 1), p),
+            c = pt_v3_sub(corner(t, 2), p);
+    pt_vec3 bc = pt_v3_cross(b, c);
+    float det = pt_v3_dot(a, bc);
+    float al = pt_v3_dot(d, bc), be = pt_v3_dot(a, pt_v3_cross(d, c)),
+          ga = pt_v3_dot(a, pt_v3_cross(b, d));
+    if (det < 0.0f) {
+        det = -det;
+        al = -al;
+        be = -be;
+        ga = -ga;
     }
-    double q[3] = {dd[1] * e2[2] - dd[2] * e2[1], dd[2] * e2[0] - dd[0] * e2[2],
-                   dd[0] * e2[1] - dd[1] * e2[0]};
-    double det = e1[0] * q[0] + e1[1] * q[1] + e1[2] * q[2];
-    if (det == 0.0 || !isfinite(det))
-        return 0;
-    double inv = 1.0 / det;
-    double u = (o[0] * q[0] + o[1] * q[1] + o[2] * q[2]) * inv;
-    if (!(u >= 0.0 && u <= 1.0))
-        return 0;
-    double s[3] = {o[1] * e1[2] - o[2] * e1[1], o[2] * e1[0] - o[0] * e1[2],
-                   o[0] * e1[1] - o[1] * e1[0]};
-    double v = (dd[0] * s[0] + dd[1] * s[1] + dd[2] * s[2]) * inv;
-    if (!(v >= 0.0 && u + v <= 1.0))
-        return 0;
-    double dist = (e2[0] * s[0] + e2[1] * s[1] + e2[2] * s[2]) * inv;
-    return dist > 0.0;
+    return det > 0.0f && al >= 0.0f && be >= 0.0f && ga >= 0.0f && al + be + ga > 0.0f;
 }
 
 /* How many counted triangles other than `skip` the ray crosses. */
-static uint32_t crossings(const pt_portal_view *v, const float *tris, uint32_t n, pt_vec3 p,
-                          pt_vec3 d, uint32_t skip)
+static uint32_t crossings(const pt_portal_view *v, pt_vec3 d, uint32_t skip)
 {
     uint32_t k = 0;
-    for (uint32_t i = 0; i < n && i < PT_SCENE_MAX_PORTALS; i++)
-        k += i != skip && v->om[i] > 0.0 && crosses(tris + 9 * (size_t)i, p, d);
+    for (uint32_t i = 0; i < v->n; i++)
+        k += i != skip && (v->counted >> i & 1u) && crosses(v->tris + 9 * (size_t)i, v->p, d);
     return k;
 }
 
-int pt_portal_sample(const pt_portal_view *v, const float *tris, uint32_t n, pt_vec3 p, float u0,
-                     float u1, float u2, pt_vec3 *wi, double *pdf)
+int pt_portal_sample(pt_portal_view *v, float u0, float u1, float u2, pt_vec3 *wi, double *pdf)
 {
+    if (!v->counted)
+        return 0;
+    pt_portal_measure(v);
     if (!(v->sum > 0.0) || !isfinite(v->sum))
         return 0;
     /* The triangle whose share of the sum holds u0; the last counted one
      * past the rounding of the running sum. */
     double x = (double)u0 * v->sum, run = 0.0;
     uint32_t pick = UINT32_MAX;
-    for (uint32_t i = 0; i < n && i < PT_SCENE_MAX_PORTALS; i++) {
+    for (uint32_t i = 0; i < v->n; i++) {
         if (!(v->om[i] > 0.0))
             continue;
         pick = i;
@@ -89,23 +99,19 @@ int pt_portal_sample(const pt_portal_view *v, const float *tris, uint32_t n, pt_
         if (x < run)
             break;
     }
-    const float *t = tris + 9 * (size_t)pick;
+    const float *t = v->tris + 9 * (size_t)pick;
     double omega;
-    if (!pt_sphtri_sample(p, corner(t, 0), corner(t, 1), corner(t, 2), u1, u2, wi, &omega))
+    if (!pt_sphtri_sample(v->p, corner(t, 0), corner(t, 1), corner(t, 2), u1, u2, wi, &omega))
         return 0;
-    *pdf = (double)(1u + crossings(v, tris, n, p, *wi, pick)) / v->sum;
+    *pdf = (double)(1u + crossings(v, *wi, pick)) / v->sum;
     return 1;
 }
 
-uint32_t pt_portal_crossings(const pt_portal_view *v, const float *tris, uint32_t n, pt_vec3 p,
-                             pt_vec3 dir)
+double pt_portal_pdf(pt_portal_view *v, pt_vec3 dir)
 {
-    return crossings(v, tris, n, p, dir, UINT32_MAX);
-}
-
-double pt_portal_pdf(const pt_portal_view *v, const float *tris, uint32_t n, pt_vec3 p, pt_vec3 dir)
-{
-    if (!(v->sum > 0.0))
+    uint32_t k = v->counted ? crossings(v, dir, UINT32_MAX) : 0u;
+    if (k == 0)
         return 0.0;
-    return (double)crossings(v, tris, n, p, dir, UINT32_MAX) / v->sum;
+    pt_portal_measure(v);
+    return v->sum > 0.0 ? (double)k / v->sum : 0.0;
 }

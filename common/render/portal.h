@@ -30,34 +30,40 @@
 #include "common/math/vec.h"
 #include "common/scene/scene.h"
 
-/* The portals as a receiver at p with normal nrm sees them: each
- * triangle's solid angle from p (0 where it does not count) and their sum
- * Omega. Measured once a receiver, read by both functions below. */
+/* The portals as a receiver at p with normal nrm sees them: which
+ * triangles count (bit i of `counted`; PT_SCENE_MAX_PORTALS is 64), and,
+ * once measured (pt_portal_measure, which the functions below call when
+ * they need it), each one's solid angle from p (0 where it does not count)
+ * and their sum Omega. Most light samples of the map from inside a room
+ * cross no portal, and their density needs no solid angle. */
 typedef struct pt_portal_view {
+    const float *tris; /* 9 floats a triangle */
+    uint32_t n;
+    pt_vec3 p;
+    uint64_t counted;
+    int measured;
     double om[PT_SCENE_MAX_PORTALS];
     double sum;
 } pt_portal_view;
 
-/* The view of the n portal triangles tris (9 floats each, n at most
- * PT_SCENE_MAX_PORTALS) from p with normal nrm. */
+/* The view of the n portal triangles tris (n at most PT_SCENE_MAX_PORTALS;
+ * the rest are ignored) from p with normal nrm. */
 void pt_portal_view_init(pt_portal_view *v, const float *tris, uint32_t n, pt_vec3 p, pt_vec3 nrm);
+
+/* Measures the counted triangles' solid angles (once). */
+void pt_portal_measure(pt_portal_view *v);
 
 /* A direction from p through the portals for u0, u1, u2 in [0,1) (u0 the
  * triangle, by its solid angle; u1, u2 the direction within it) into *wi,
  * with its density (per steradian, above) into *pdf: pt_portal_pdf's,
  * with the chosen triangle counted as crossed even where rounding puts the
  * direction just past its edge. Returns 0 when no triangle counts or the
- * sample is impossible. v: the view from p. */
-int pt_portal_sample(const pt_portal_view *v, const float *tris, uint32_t n, pt_vec3 p, float u0,
-                     float u1, float u2, pt_vec3 *wi, double *pdf);
-
-/* How many counted triangles the ray from p along dir crosses (k, above). */
-uint32_t pt_portal_crossings(const pt_portal_view *v, const float *tris, uint32_t n, pt_vec3 p,
-                             pt_vec3 dir);
+ * sample is impossible. */
+int pt_portal_sample(pt_portal_view *v, float u0, float u1, float u2, pt_vec3 *wi, double *pdf);
 
 /* The density pt_portal_sample gives direction dir (unit) from p: k /
- * Omega (above); 0 when dir crosses no counted triangle. */
-double pt_portal_pdf(const pt_portal_view *v, const float *tris, uint32_t n, pt_vec3 p,
-                     pt_vec3 dir);
+ * Omega (above); 0 when dir crosses no counted triangle (then nothing is
+ * measured). */
+double pt_portal_pdf(pt_portal_view *v, pt_vec3 dir);
 
 #endif
