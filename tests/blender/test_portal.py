@@ -58,7 +58,7 @@ plain, _ = export()
 without = render(plain, "without")
 
 # The portal: 2 m along X, 1 m along its local Y, turned 90 degrees about X
-# (upright, facing -Y), centred at (1, 2, 3).
+# (upright, shining towards +Y: its local -Z), centred at (1, 2, 3).
 data = bpy.data.lights.new("Window", "AREA")
 data.shape = "RECTANGLE"
 data.size, data.size_y = 2.0, 1.0
@@ -79,6 +79,19 @@ acc = doc["accessors"][doc["meshes"][nodes[0]["mesh"]]["primitives"][0]["attribu
 want_lo, want_hi = [0.0, 2.5, -2.0], [2.0, 3.5, -2.0]
 t.check(all(abs(a - b) < 1e-5 for a, b in zip(acc["min"] + acc["max"], want_lo + want_hi)),
         "its corners span %s to %s (want %s to %s)" % (acc["min"], acc["max"], want_lo, want_hi))
+# Its front faces where the light shines: +Y in Blender, -Z in glTF.
+with open(exp.path, "rb") as f:
+    glb = f.read()
+n_json = struct.unpack_from("<I", glb, 12)[0]
+binary = glb[20 + n_json + 8:]
+view = doc["bufferViews"][acc["bufferView"]]
+c = struct.unpack_from("<9f", binary, view.get("byteOffset", 0))
+e1 = [c[3 + k] - c[k] for k in range(3)]
+e2 = [c[6 + k] - c[k] for k in range(3)]
+normal = [e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2],
+          e1[0] * e2[1] - e1[1] * e2[0]]
+t.check(normal[2] < 0 and abs(normal[0]) < 1e-6 and abs(normal[1]) < 1e-6,
+        "its front faces where the light shines (normal %s, want -Z)" % normal)
 t.check(not any("area light" in w for w in exp.warnings),
         "no warning that the portal is dropped: %s" % exp.warnings)
 listed = subprocess.run([os.path.join(t.BIN, "ptworker"), "--list", exp.path],

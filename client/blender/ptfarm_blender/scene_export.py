@@ -121,12 +121,14 @@ def is_portal(light):
 def portal_corners(obj):
     """The four corners of a portal light, glTF world space (+Y up), in
     order round the rectangle: the light's size (and size_y for a rectangle
-    or an ellipse) in its local XY plane, placed by its world matrix."""
+    or an ellipse) in its local XY plane, placed by its world matrix; wound
+    so that the quad's front faces where the light points (its local -Z),
+    into the room, as ptfarm takes a portal's front (README)."""
     light = obj.data
     sx = light.size
     sy = light.size_y if light.shape in ("RECTANGLE", "ELLIPSE") else light.size
     out = []
-    for x, y in ((-0.5, -0.5), (0.5, -0.5), (0.5, 0.5), (-0.5, 0.5)):
+    for x, y in ((-0.5, -0.5), (-0.5, 0.5), (0.5, 0.5), (0.5, -0.5)):
         w = obj.matrix_world @ Vector((x * sx, y * sy, 0.0))
         out.append((w.x, w.z, -w.y))  # Blender's Z up to glTF's Y up
     return out
