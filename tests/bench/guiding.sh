@@ -34,6 +34,9 @@
 #             must span the new ones' errors; the k-th of each alternate
 #   NEW_ARGS  [--guiding on; set but empty: nothing, the defaults]
 #   BASE_ARGS [""]
+#   BASE_SCENES  the scene the base build renders for each of SCENES, in
+#             order [SCENES]: another file of the same picture, as the
+#             window room without its portal (window) for window_portal
 #   SEED0     repetition r renders with seed SEED0 + r [0]: another run
 #             with other seeds adds repetitions (concatenate the CSVs)
 #   OUT       folder for references, images and CSV [/tmp/ptfarm-guiding];
@@ -61,11 +64,23 @@ SEED0=${SEED0:-0}
 OUT=${OUT:-/tmp/ptfarm-guiding}
 REFS=${REFS:-$OUT}
 PLOTS=${PLOTS:-$OUT}
-mkdir -p "$OUT/new" "$OUT/base" "$REFS" "$PLOTS"
+mkdir -p "$OUT/new" "$OUT/base" "$OUT/rooms" "$REFS" "$PLOTS"
 
 # Private copies of the programs: a rebuild during the run cannot touch them.
 cp "$1/ptworker" "$1/ptbench" "$OUT/new/"
 cp "$2/ptworker" "$OUT/base/"
+
+# OUT/rooms/chair_ROOM.gltf: SheenChair standing in scenes/ROOM.gltf, made
+# once; prints its path.
+room_with_chair() {
+    local out=$OUT/rooms/chair_$1.gltf
+    if [[ ! -f $out ]]; then
+        python3 "$ROOT/tests/bench/merge_gltf.py" "$ROOT/scenes/$1.gltf" \
+            "$SHARED/scenes/SheenChair/SheenChair.gltf" "$OUT/rooms" "chair_$1" \
+            --at=-0.3,0,1.0 --rotate-y 40 >&2
+    fi
+    echo "$out"
+}
 
 # The scenes: name -> ptworker arguments (the scene and its light).
 scene_args() {
@@ -79,6 +94,18 @@ scene_args() {
     helmet) echo "--scene $SHARED/scenes/DamagedHelmet/DamagedHelmet.glb --env $SHARED/envs/rooitou_park_1k.hdr" ;;
     toycar_park) echo "--scene $SHARED/scenes/ToyCar/ToyCar.gltf --env $SHARED/envs/rooitou_park_1k.hdr" ;;
     window) echo "--scene $ROOT/scenes/window_room.gltf --env $SHARED/envs/rooitou_park_1k.hdr" ;;
+    window_portal) echo "--scene $ROOT/scenes/window_portal.gltf --env $SHARED/envs/rooitou_park_1k.hdr" ;;
+    window_overcast) echo "--scene $ROOT/scenes/window_room.gltf --env $SHARED/envs/potsdamer_platz_1k.hdr" ;;
+    window_portal_overcast) echo "--scene $ROOT/scenes/window_portal.gltf --env $SHARED/envs/potsdamer_platz_1k.hdr" ;;
+    # the park's map turned so that its sun is behind the room
+    window_behind) echo "--scene $ROOT/scenes/window_room.gltf --env $SHARED/envs/rooitou_park_1k.hdr --env-rotate 180" ;;
+    window_portal_behind) echo "--scene $ROOT/scenes/window_portal.gltf --env $SHARED/envs/rooitou_park_1k.hdr --env-rotate 180" ;;
+    # SheenChair in the window room, with and without the window's portal
+    # (merge_gltf.py writes them into OUT/rooms).
+    chair_room) echo "--scene $(room_with_chair window_room) --env $SHARED/envs/rooitou_park_1k.hdr" ;;
+    chair_portal) echo "--scene $(room_with_chair window_portal) --env $SHARED/envs/rooitou_park_1k.hdr" ;;
+    chair_room_overcast) echo "--scene $(room_with_chair window_room) --env $SHARED/envs/potsdamer_platz_1k.hdr" ;;
+    chair_portal_overcast) echo "--scene $(room_with_chair window_portal) --env $SHARED/envs/potsdamer_platz_1k.hdr" ;;
     *) return 1 ;;
     esac
 }
@@ -105,6 +132,19 @@ cpu_run() {
     /usr/bin/time -o "$OUT/time.txt" -f "%U %S" "$OUT/$build/ptworker" "$@" --res "$RES" \
         --threads "$THREADS" --spp "$spp" --seed "$seed" -q -o "$out" >/dev/null 2>&1
     awk '{ printf "%.3f\n", $1 + $2 }' "$OUT/time.txt"
+}
+
+# cpu_run of BUILD SEED SPP OUT on its scene: the base build's from
+# BASE_SCENES (base_words), the new build's the arguments after OUT; then
+# the build's own arguments (extra).
+scene_run() {
+    local build=$1 seed=$2 spp=$3 out=$4
+    shift 4
+    if [[ $build == base ]]; then
+        cpu_run base "$seed" "$spp" "$out" "${base_words[@]}" "${extra[@]}"
+    else
+        cpu_run new "$seed" "$spp" "$out" "$@" "${extra[@]}"
+    fi
 }
 
 # extra: a build's own ptworker arguments (NEW_ARGS or BASE_ARGS, then the
@@ -134,8 +174,14 @@ IFS=, read -r -a spps <<<"$SPP"
 IFS=, read -r -a base_spps <<<"${BASE_SPP:-$SPP}"
 nrows=${#spps[@]}
 if ((${#base_spps[@]} > nrows)); then nrows=${#base_spps[@]}; fi
+read -r -a base_scenes <<<"${BASE_SCENES:-$SCENES}"
+scene_no=0
 for name in $SCENES; do
     args=$(scene_args "$name") || { echo "guiding.sh: no scene '$name'" >&2; exit 2; }
+    base_name=${base_scenes[scene_no]:-$name}
+    scene_no=$((scene_no + 1))
+    base_args=$(scene_args "$base_name") || { echo "guiding.sh: no scene '$base_name'" >&2; exit 2; }
+    read -r -a base_words <<<"$base_args"
     # shellcheck disable=SC2086 # the arguments are words
     set -- $args
     view=$(scene_view "$name")
@@ -149,7 +195,7 @@ for name in $SCENES; do
     for build in base new; do
         build_args "$build"
         for rep in $(seq 1 "$REPS"); do
-            c=$(cpu_run "$build" $((SEED0 + rep)) 1 "$OUT/load.exr" "$@" "${extra[@]}")
+            c=$(scene_run "$build" $((SEED0 + rep)) 1 "$OUT/load.exr" "$@")
             echo "$name,$build,0,$rep,$c,0,0" >>"$CSV"
         done
     done
@@ -160,7 +206,7 @@ for name in $SCENES; do
                 [[ -n $spp ]] || continue
                 build_args "$build"
                 img=$OUT/${name}_${build}_${spp}_${rep}.exr
-                c=$(cpu_run "$build" $((SEED0 + rep)) "$spp" "$img" "$@" "${extra[@]}")
+                c=$(scene_run "$build" $((SEED0 + rep)) "$spp" "$img" "$@")
                 e=$("$OUT/new/ptbench" error "$img" "$ref" |
                     awk '/^relMSE/ { r = $2 } /^worst0/ { w = $2 } END { print r "," w }')
                 echo "$name,$build,$spp,$rep,$c,$e" >>"$CSV"
