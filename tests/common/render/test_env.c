@@ -58,6 +58,7 @@
 #include "common/render/render.h"
 #include "common/scene/scene.h"
 #include "tests/check.h"
+#include "tests/common/render/env_mean.h"
 #include "tests/rng.h"
 #include "tests/stats.h"
 
@@ -617,41 +618,6 @@ static pt_scene *plane_scene(float rho, int occluder, float yfov)
     pt_scene *s = NULL;
     CHECKF(pt_scene_builder_finish(b, NULL, &s, &err) == PT_OK, "%s", err.msg);
     return s;
-}
-
-/* The mean of the image's green channel and its standard error. */
-static double render_mean(const pt_scene *s, const pt_env *env, uint32_t strategy, uint32_t w,
-                          uint32_t spp, double *se)
-{
-    pt_render_params p = {0};
-    pt_render_params_default(&p);
-    p.width = p.height = w;
-    p.seed = 11;
-    p.env = env;
-    p.light_strategy = strategy;
-    pt_renderer *r = NULL;
-    pt_error err = {0};
-    CHECKF(pt_renderer_new(s, &p, &r, &err) == PT_OK, "%s", err.msg);
-    pt_pixel_acc *acc = pt_malloc_array((size_t)w * w, sizeof *acc);
-    double sum = 0.0, var = 0.0;
-    if (r && acc) {
-        pt_render_stats st = {0};
-        pt_rect all = {0, 0, w, w};
-        pt_render_tile(r, all, 0, spp, acc, &st);
-        CHECK(st.rejected == 0);
-        for (uint32_t i = 0; i < w * w; i++) {
-            double k = acc[i].n;
-            double lum = (0.2126 * pt_acc_sum(&acc[i], 0) + 0.7152 * pt_acc_sum(&acc[i], 1) +
-                          0.0722 * pt_acc_sum(&acc[i], 2)) /
-                         k;
-            sum += pt_acc_sum(&acc[i], 1) / k;
-            var += fmax((pt_acc_sum_sq(&acc[i]) - k * lum * lum) / (k - 1.0), 0.0) / k;
-        }
-    }
-    pt_free(acc);
-    pt_renderer_free(r);
-    *se = sqrt(var) / ((double)w * w);
-    return sum / ((double)w * w);
 }
 
 static void uniform_sky(void)

@@ -47,6 +47,8 @@
 #include "common/scene/scene.h"
 #include "tests/check.h"
 #include "tests/common/render/dir_chi2.h"
+#include "tests/common/render/env_mean.h"
+#include "tests/common/render/ortho.h"
 
 /* ---- the sampler against its density ---------------------------------------------- */
 
@@ -106,10 +108,9 @@ static void chi2_portals(void)
 
 /* ---- the environment light's mixture ----------------------------------------------- */
 
-/* A scene of one far triangle (a scene needs geometry) and the portals
- * turned to face the horizon, away from the map's poles, where its
- * density's quadrature and its float pdf lose digits. */
-static pt_scene *portal_scene(void)
+/* A scene of portals (n triangles, 9 doubles each) and one far triangle (a
+ * scene needs geometry). */
+static pt_scene *portals_scene(const double *v, int n)
 {
     pt_scene_builder *b = NULL;
     pt_error err = {0};
@@ -121,15 +122,22 @@ static pt_scene *portal_scene(void)
     const uint32_t idx[3] = {0, 1, 2};
     CHECK(pt_scene_builder_add_mesh(b, "far", far, NULL, NULL, 3, idx, 1, NULL, mat, &err) ==
           PT_OK);
-    for (int t = 0; t < NTRI; t++) {
-        double v[9];
-        for (int i = 0; i < 9; i++) /* y and z swapped: the portals face the horizon */
-            v[i] = tris[9 * t + i + (i % 3 == 1 ? 1 : i % 3 == 2 ? -1 : 0)];
-        CHECKF(pt_scene_builder_add_portal(b, v, "test", &err) == PT_OK, "%s", err.msg);
-    }
+    for (int t = 0; t < n; t++)
+        CHECKF(pt_scene_builder_add_portal(b, v + 9 * t, "test", &err) == PT_OK, "%s", err.msg);
     pt_scene *s = NULL;
     CHECKF(pt_scene_builder_finish(b, NULL, &s, &err) == PT_OK, "%s", err.msg);
     return s;
+}
+
+/* The sampler's portals turned to face the horizon (y and z swapped), away
+ * from the map's poles, where its density's quadrature and its float pdf
+ * lose digits. */
+static pt_scene *portal_scene(void)
+{
+    double v[NTRI * 9];
+    for (int i = 0; i < NTRI * 9; i++)
+        v[i] = tris[i + (i % 3 == 1 ? 1 : i % 3 == 2 ? -1 : 0)];
+    return portals_scene(v, NTRI);
 }
 
 /* A 64 x 32 map: a sky that brightens towards the zenith, black within 4
@@ -198,34 +206,18 @@ static void chi2_mixture(void)
 /* ---- a sun that shines in -------------------------------------------------------- */
 
 /* One portal quad in the plane z = 0, its front towards +z (front 1) or
- * -z, and a far triangle (a scene needs geometry). */
+ * -z. */
 static pt_scene *quad_scene(int front)
 {
-    pt_scene_builder *b = NULL;
-    pt_error err = {0};
-    CHECK(pt_scene_builder_new(&b, &err) == PT_OK);
-    pt_material m = pt_material_default();
-    uint32_t mat = 0;
-    CHECK(pt_scene_builder_add_material(b, &m, &mat, &err) == PT_OK);
-    const float far[9] = {5, 5, 5, 6, 5, 5, 5, 6, 5};
-    const uint32_t idx[3] = {0, 1, 2};
-    CHECK(pt_scene_builder_add_mesh(b, "far", far, NULL, NULL, 3, idx, 1, NULL, mat, &err) ==
-          PT_OK);
     /* counter-clockwise seen from +z: its front faces +z */
     double q[2][9] = {{-1, -1, 0, 1, -1, 0, 1, 1, 0}, {-1, -1, 0, 1, 1, 0, -1, 1, 0}};
-    for (int i = 0; i < 2; i++) {
-        if (!front) { /* swap two corners: the other side */
-            for (int k = 0; k < 3; k++) {
-                double t = q[i][3 + k];
-                q[i][3 + k] = q[i][6 + k];
-                q[i][6 + k] = t;
-            }
+    for (int i = 0; i < 2 && !front; i++) /* two corners swapped: the other side */
+        for (int k = 0; k < 3; k++) {
+            double t = q[i][3 + k];
+            q[i][3 + k] = q[i][6 + k];
+            q[i][6 + k] = t;
         }
-        CHECKF(pt_scene_builder_add_portal(b, q[i], "window", &err) == PT_OK, "%s", err.msg);
-    }
-    pt_scene *s = NULL;
-    CHECKF(pt_scene_builder_finish(b, NULL, &s, &err) == PT_OK, "%s", err.msg);
-    return s;
+    return portals_scene(&q[0][0], 2);
 }
 
 /* The portals are used unless the map's sun can shine in through one:
@@ -266,8 +258,8 @@ static void sun_rule(void)
 
 /* ---- irradiance through a window ---------------------------------------------------- */
 
-/* The box: x and z in [-1, 1], y in [0, 1]; the hole in the ceiling. */
-static const double HX0 = -0.2, HX1 = 0.3, HZ0 = -0.25, HZ1 = 0.25;
+/* The box: x and y in [-1, 1], z in [0, 1]; the hole in the ceiling. */
+static const double HX0 = -0.2, HX1 = 0.3, HY0 = -0.25, HY1 = 0.25;
 
 static void add_quad(pt_scene_builder *b, const char *what, const float q[12], uint32_t mat)
 {
@@ -291,37 +283,29 @@ static pt_scene *window_box(float rho, int portal)
     CHECK(pt_scene_builder_add_material(b, &m, &floor_mat, &err) == PT_OK);
     m.base_color[0] = m.base_color[1] = m.base_color[2] = 0.0f;
     CHECK(pt_scene_builder_add_material(b, &m, &black, &err) == PT_OK);
-    const float x0 = (float)HX0, x1 = (float)HX1, z0 = (float)HZ0, z1 = (float)HZ1;
-    const float fl[12] = {-1, 0, -1, 1, 0, -1, 1, 0, 1, -1, 0, 1};
+    const float x0 = (float)HX0, x1 = (float)HX1, y0 = (float)HY0, y1 = (float)HY1;
+    const float fl[12] = {-1, -1, 0, 1, -1, 0, 1, 1, 0, -1, 1, 0};
     add_quad(b, "floor", fl, floor_mat);
-    const float walls[4][12] = {{-1, 0, -1, 1, 0, -1, 1, 1, -1, -1, 1, -1},
-                                {-1, 0, 1, 1, 0, 1, 1, 1, 1, -1, 1, 1},
-                                {-1, 0, -1, -1, 0, 1, -1, 1, 1, -1, 1, -1},
-                                {1, 0, -1, 1, 0, 1, 1, 1, 1, 1, 1, -1}};
+    const float walls[4][12] = {{-1, -1, 0, 1, -1, 0, 1, -1, 1, -1, -1, 1},
+                                {-1, 1, 0, 1, 1, 0, 1, 1, 1, -1, 1, 1},
+                                {-1, -1, 0, -1, 1, 0, -1, 1, 1, -1, -1, 1},
+                                {1, -1, 0, 1, 1, 0, 1, 1, 1, 1, -1, 1}};
     for (int i = 0; i < 4; i++)
         add_quad(b, "wall", walls[i], black);
     /* The ceiling around the hole: four rectangles. */
-    const float ceil[4][12] = {{-1, 1, -1, 1, 1, -1, 1, 1, z0, -1, 1, z0},
-                               {-1, 1, z1, 1, 1, z1, 1, 1, 1, -1, 1, 1},
-                               {-1, 1, z0, x0, 1, z0, x0, 1, z1, -1, 1, z1},
-                               {x1, 1, z0, 1, 1, z0, 1, 1, z1, x1, 1, z1}};
+    const float ceil[4][12] = {{-1, -1, 1, 1, -1, 1, 1, y0, 1, -1, y0, 1},
+                               {-1, y1, 1, 1, y1, 1, 1, 1, 1, -1, 1, 1},
+                               {-1, y0, 1, x0, y0, 1, x0, y1, 1, -1, y1, 1},
+                               {x1, y0, 1, 1, y0, 1, 1, y1, 1, x1, y1, 1}};
     for (int i = 0; i < 4; i++)
         add_quad(b, "ceiling", ceil[i], black);
     if (portal) {
-        const double q[2][9] = {{HX0, 1, HZ0, HX1, 1, HZ0, HX1, 1, HZ1},
-                                {HX0, 1, HZ0, HX1, 1, HZ1, HX0, 1, HZ1}};
+        const double q[2][9] = {{HX0, HY0, 1, HX1, HY0, 1, HX1, HY1, 1},
+                                {HX0, HY0, 1, HX1, HY1, 1, HX0, HY1, 1}};
         for (int i = 0; i < 2; i++)
             CHECKF(pt_scene_builder_add_portal(b, q[i], "hole", &err) == PT_OK, "%s", err.msg);
     }
-    pt_camera cam = {0};
-    cam.position = pt_v3(0, 0.9f, 0);
-    cam.forward = pt_v3(0, -1, 0);
-    cam.right = pt_v3(1, 0, 0);
-    cam.up = pt_v3(0, 0, -1);
-    cam.ortho = 1;
-    cam.xmag = cam.ymag = 0.8f;
-    cam.aspect = 1.0f;
-    snprintf(cam.name, sizeof cam.name, "down");
+    pt_camera cam = pt_test_ortho_down(0.0f, 0.0f, 0.9f, 0.8f);
     CHECK(pt_scene_builder_add_camera(b, &cam, &err) == PT_OK);
     pt_scene *s = NULL;
     CHECKF(pt_scene_builder_finish(b, NULL, &s, &err) == PT_OK, "%s", err.msg);
@@ -338,50 +322,16 @@ static double corner_term(double a, double b)
     return (a / sa * atan(b / sa) + b / sb * atan(a / sb)) / (2.0 * PI_D);
 }
 
-static double hole_factor(double x, double z)
+static double hole_factor(double x, double y)
 {
-    return corner_term(HX1 - x, HZ1 - z) - corner_term(HX0 - x, HZ1 - z) -
-           corner_term(HX1 - x, HZ0 - z) + corner_term(HX0 - x, HZ0 - z);
-}
-
-/* The mean of the image's green channel and its standard error. */
-static double render_mean(const pt_scene *s, const pt_env *env, uint32_t strategy, uint32_t w,
-                          uint32_t spp, double *se)
-{
-    pt_render_params p = {0};
-    pt_render_params_default(&p);
-    p.width = p.height = w;
-    p.seed = 13;
-    p.env = env;
-    p.light_strategy = strategy;
-    pt_renderer *r = NULL;
-    pt_error err = {0};
-    CHECKF(pt_renderer_new(s, &p, &r, &err) == PT_OK, "%s", err.msg);
-    pt_pixel_acc *acc = pt_malloc_array((size_t)w * w, sizeof *acc);
-    double sum = 0.0, var = 0.0;
-    if (r && acc) {
-        pt_render_stats st = {0};
-        pt_render_tile(r, (pt_rect){0, 0, w, w}, 0, spp, acc, &st);
-        CHECK(st.rejected == 0);
-        for (uint32_t i = 0; i < w * w; i++) {
-            double k = acc[i].n, g = pt_acc_sum(&acc[i], 1) / k;
-            double lum = (0.2126 * pt_acc_sum(&acc[i], 0) + 0.7152 * pt_acc_sum(&acc[i], 1) +
-                          0.0722 * pt_acc_sum(&acc[i], 2)) /
-                         k;
-            sum += g;
-            var += fmax((pt_acc_sum_sq(&acc[i]) - k * lum * lum) / (k - 1.0), 0.0) / k;
-        }
-    }
-    pt_free(acc);
-    pt_renderer_free(r);
-    *se = sqrt(var) / ((double)w * w);
-    return sum / ((double)w * w);
+    return corner_term(HX1 - x, HY1 - y) - corner_term(HX0 - x, HY1 - y) -
+           corner_term(HX1 - x, HY0 - y) + corner_term(HX0 - x, HY0 - y);
 }
 
 static void window_irradiance(void)
 {
     const float rho = 0.5f, L = 2.0f;
-    /* The view: x and z in [-0.8, 0.8]; the factor's mean over it by the
+    /* The view: x and y in [-0.8, 0.8]; the factor's mean over it by the
      * midpoint rule on a 400 x 400 grid (smooth: far below the noise). */
     const int G = 400;
     double f = 0.0;
