@@ -1441,6 +1441,26 @@ static void test_portals(void)
         }
         pt_scene_free(s);
     }
+    /* 65 portal nodes of one triangle each: past the limit, refused with
+     * the node's name and nothing leaked; a portal of NaN corners too. */
+    char nodes[8192];
+    int at = snprintf(nodes, sizeof nodes, "[{\"mesh\":0,\"children\":[");
+    for (int i = 1; i <= 65; i++)
+        at += snprintf(nodes + at, sizeof nodes - (size_t)at, "%s%d", i > 1 ? "," : "", i);
+    at += snprintf(nodes + at, sizeof nodes - (size_t)at, "]}");
+    for (int i = 1; i <= 65; i++)
+        at += snprintf(nodes + at, sizeof nodes - (size_t)at,
+                       ",{\"mesh\":0,\"name\":\"w%d\",\"translation\":[0,0,%d],"
+                       "\"extras\":{\"ptfarm_portal\":true}}",
+                       i, i);
+    snprintf(nodes + at, sizeof nodes - (size_t)at, "]");
+    make_gltf("portal_many.gltf", "portal.bin", k_pos_ok, k_views, nodes, "");
+    expect_fail("portal_many.gltf", PT_ERR_LIMIT, "more than 64 portal triangles");
+    make_gltf("portal_nan.gltf", "portal.bin", k_pos_ok, k_views,
+              "[{\"mesh\":0,\"children\":[1]},{\"mesh\":0,\"name\":\"bad\","
+              "\"scale\":[1e300,1e300,1e300],\"extras\":{\"ptfarm_portal\":true}}]",
+              "");
+    expect_fail("portal_nan.gltf", 0, "portal 'bad'");
 }
 
 /* alphaMode and alphaCutoff: read into the material (cutoff default 0.5),
