@@ -100,8 +100,8 @@ int pt_portal_sample(pt_portal_view *v, float u0, float u1, float u2, pt_vec3 *w
             break;
     }
     const float *t = v->tris + 9 * (size_t)pick;
-    double omega;
-    if (!pt_sphtri_sample(v->p, corner(t, 0), corner(t, 1), corner(t, 2), u1, u2, wi, &omega))
+    if (!pt_sphtri_sample_omega(v->p, corner(t, 0), corner(t, 1), corner(t, 2), v->om[pick], u1, u2,
+                                wi))
         return 0;
     *pdf = (double)(1u + crossings(v, *wi, pick)) / v->sum;
     return 1;

@@ -88,17 +88,11 @@ double pt_sphtri_solid_angle(pt_vec3 p, pt_vec3 a, pt_vec3 b, pt_vec3 c)
     return o > 0.0 && isfinite(o) && num > 0.0 ? o : 0.0;
 }
 
-int pt_sphtri_sample(pt_vec3 p, pt_vec3 a, pt_vec3 b, pt_vec3 c, float u1, float u2, pt_vec3 *wi,
-                     double *omega)
+/* Arvo's map for unit directions A, B, C, the inner angle alpha at A and
+ * the area: the direction for u1, u2 into *wi. */
+static int arvo_map(d3 A, d3 B, d3 C, double alpha, double area, float u1, float u2, pt_vec3 *wi)
 {
-    d3 v[3] = {{0, 0, 0}, {0, 0, 0}, {0, 0, 0}};
-    double ang[3] = {0, 0, 0};
-    double area = setup(p, a, b, c, v, ang);
-    *omega = area;
-    if (!(area > 0.0))
-        return 0;
-    const d3 A = v[0], B = v[1], C = v[2];
-    double alpha = ang[0], ca = cos(alpha), sa = sin(alpha);
+    double ca = cos(alpha), sa = sin(alpha);
     double sub = (double)u1 * area;
     double s = sin(sub - alpha), t = cos(sub - alpha);
     double u = t - ca, w = s + sa * dot(A, B);
@@ -119,4 +113,26 @@ int pt_sphtri_sample(pt_vec3 p, pt_vec3 a, pt_vec3 b, pt_vec3 c, float u1, float
         return 0;
     *wi = pt_v3((float)out.x, (float)out.y, (float)out.z);
     return 1;
+}
+
+int pt_sphtri_sample(pt_vec3 p, pt_vec3 a, pt_vec3 b, pt_vec3 c, float u1, float u2, pt_vec3 *wi,
+                     double *omega)
+{
+    d3 v[3] = {{0, 0, 0}, {0, 0, 0}, {0, 0, 0}};
+    double ang[3] = {0, 0, 0};
+    double area = setup(p, a, b, c, v, ang);
+    *omega = area;
+    if (!(area > 0.0))
+        return 0;
+    return arvo_map(v[0], v[1], v[2], ang[0], area, u1, u2, wi);
+}
+
+int pt_sphtri_sample_omega(pt_vec3 p, pt_vec3 a, pt_vec3 b, pt_vec3 c, double omega, float u1,
+                           float u2, pt_vec3 *wi)
+{
+    d3 A, B, C, ab, ac;
+    if (!(omega > 0.0) || !unit(d3_of(a, p), &A) || !unit(d3_of(b, p), &B) ||
+        !unit(d3_of(c, p), &C) || !unit(cross(A, B), &ab) || !unit(cross(A, C), &ac))
+        return 0;
+    return arvo_map(A, B, C, angle(ab, ac), omega, u1, u2, wi);
 }

@@ -34,4 +34,11 @@ double pt_sphtri_solid_angle(pt_vec3 p, pt_vec3 a, pt_vec3 b, pt_vec3 c);
 int pt_sphtri_sample(pt_vec3 p, pt_vec3 a, pt_vec3 b, pt_vec3 c, float u1, float u2, pt_vec3 *wi,
                      double *omega);
 
+/* The same direction for a triangle whose solid angle omega (> 0) the
+ * caller has already (pt_sphtri_solid_angle's): one inner angle is
+ * computed instead of three. Returns 0 when the triangle is degenerate
+ * from p. */
+int pt_sphtri_sample_omega(pt_vec3 p, pt_vec3 a, pt_vec3 b, pt_vec3 c, double omega, float u1,
+                           float u2, pt_vec3 *wi);
+
 #endif
