@@ -10,9 +10,14 @@ static inline pt_vec3 corner(const float *t, int k)
     return pt_v3(t[3 * k], t[3 * k + 1], t[3 * k + 2]);
 }
 
-/* Whether triangle t counts for a receiver at p with normal nrm (portal.h). */
+/* Whether triangle t counts for a receiver at p with normal nrm (portal.h):
+ * p on its front side (the room's), and some corner above p's plane. */
 static inline int counts(const float *t, pt_vec3 p, pt_vec3 nrm)
 {
+    pt_vec3 a = corner(t, 0);
+    pt_vec3 front = pt_v3_cross(pt_v3_sub(corner(t, 1), a), pt_v3_sub(corner(t, 2), a));
+    if (!(pt_v3_dot(pt_v3_sub(p, a), front) > 0.0f))
+        return 0;
     if (nrm.x == 0.0f && nrm.y == 0.0f && nrm.z == 0.0f)
         return 1;
     for (int k = 0; k < 3; k++)

@@ -15,9 +15,13 @@
  * mixes that with the map's distribution (light.c), which keeps a sun in
  * a window found by the map's samples.
  *
- * A triangle counts for a receiver when some corner lies strictly above
- * its tangent plane (normal n; a zero n: every triangle), so a wall facing
- * away from the window sends no sample there. The density of a direction
+ * A portal's front (its counter-clockwise side, the glTF front face)
+ * faces into the room. A triangle counts for a receiver on its front side
+ * when some corner lies strictly above the receiver's tangent plane
+ * (normal n; a zero n: no bound), so a wall facing away from the window
+ * sends no sample there, and neither does a point outside the room (the
+ * ground seen through the window), whose samples through the window would
+ * end in the room. The density of a direction
  * is k / Omega, Omega the counted triangles' solid angles summed and k how
  * many of them the ray from p crosses (1 but where two overlap from p).
  * Pure functions of their arguments; any thread.

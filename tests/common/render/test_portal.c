@@ -6,7 +6,8 @@
  *   a quad of two triangles above the receiver, a triangle behind it that
  *   overlaps part of it as seen from there (directions through both: k = 2),
  *   and one below the receiver's tangent plane, which must take no sample
- *   with the normal given and its share without one.
+ *   with the normal given and its share without one; a receiver behind
+ *   the fronts of portals (outside the room) counts none of them.
  * - Chi-square of the environment light's samples (pt_lights_sample: the
  *   portals mixed with a map that has a bright patch) against
  *   pt_lights_env_pdf, which MIS weighs BSDF-sampled rays by: the two must
@@ -60,7 +61,9 @@ static const float tris[NTRI * 9] = {
     /* behind it from the origin, over its +x half and past it */
     0.0f, 2.0f, 0.0f, 1.6f, 2.0f, 0.0f, 0.4f, 2.0f, 1.2f,
     /* below the plane y = 0 */
-    -1.0f, -1.0f, -1.0f, 1.0f, -1.0f, -1.0f, 0.0f, -1.0f, 1.0f};
+    -1.0f, -1.0f, -1.0f, 0.0f, -1.0f, 1.0f, 1.0f, -1.0f, -1.0f};
+/* Their fronts (counter-clockwise sides) face the receivers: the quad's and
+ * the one behind it's -y, down to the origin; the one below's +y. */
 
 typedef struct portal_ctx {
     pt_vec3 p, n;
@@ -102,6 +105,12 @@ static void chi2_portals(void)
     pt_portal_view_init(&z.v, tris, NTRI, z.p, z.n);
     pt_portal_measure(&z.v);
     CHECKF(z.v.om[3] > 0.0, "without a normal the triangle below takes no share");
+    /* Behind the fronts of the quad and of the triangle past it (outside
+     * the room): those two take no share, the one below still does. */
+    pt_portal_view out;
+    pt_portal_view_init(&out, tris, NTRI, pt_v3(0.1f, 3.0f, 0.05f), pt_v3(0, 0, 0));
+    CHECKF(out.counted == (UINT64_C(1) << 3), "behind the fronts: counted %#llx, want 0x8",
+           (unsigned long long)out.counted);
     binning bz = {pt_frame_from_normal(pt_v3(0, 1, 0)), 2.0, portal_pdf_fn, &z};
     chi2_run("portals, no normal", &bz, portal_sample_fn, &z, 300000, 6);
 }
@@ -137,6 +146,12 @@ static pt_scene *portal_scene(void)
     double v[NTRI * 9];
     for (int i = 0; i < NTRI * 9; i++)
         v[i] = tris[i + (i % 3 == 1 ? 1 : i % 3 == 2 ? -1 : 0)];
+    for (int t = 0; t < NTRI; t++) /* the swap mirrors: two corners swapped keep the fronts */
+        for (int k = 0; k < 3; k++) {
+            double x = v[9 * t + 3 + k];
+            v[9 * t + 3 + k] = v[9 * t + 6 + k];
+            v[9 * t + 6 + k] = x;
+        }
     return portals_scene(v, NTRI);
 }
 
@@ -195,6 +210,10 @@ static void chi2_mixture(void)
         pt_vec3 p = pt_v3((float)(0.1 - s->origin[0]), (float)(0.05 - s->origin[1]),
                           (float)(0.0 - s->origin[2]));
         light_ctx c = {L, s, p, pt_v3(0, 0, 1)};
+        pt_portal_view v;
+        pt_portal_view_init(&v, s->portals, s->num_portals, p, c.n);
+        CHECKF(v.counted == 7, "the receiver counts portals %#llx, want 0x7",
+               (unsigned long long)v.counted);
         binning bn = {pt_frame_from_normal(pt_v3(0, 0, 1)), 2.0, light_pdf_fn, &c};
         chi2_run("environment through portals", &bn, light_sample_fn, &c, 300000, 7);
     }
@@ -300,8 +319,9 @@ static pt_scene *window_box(float rho, int portal)
     for (int i = 0; i < 4; i++)
         add_quad(b, "ceiling", ceil[i], black);
     if (portal) {
-        const double q[2][9] = {{HX0, HY0, 1, HX1, HY0, 1, HX1, HY1, 1},
-                                {HX0, HY0, 1, HX1, HY1, 1, HX0, HY1, 1}};
+        /* its front down, into the box */
+        const double q[2][9] = {{HX0, HY0, 1, HX1, HY1, 1, HX1, HY0, 1},
+                                {HX0, HY0, 1, HX0, HY1, 1, HX1, HY1, 1}};
         for (int i = 0; i < 2; i++)
             CHECKF(pt_scene_builder_add_portal(b, q[i], "hole", &err) == PT_OK, "%s", err.msg);
     }
