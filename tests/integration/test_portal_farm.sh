@@ -14,8 +14,12 @@ tmp=$(mktemp -d /tmp/pt_portal_farm_XXXXXX)
 trap 'rm -rf "$tmp"' EXIT
 fail() { echo "FAIL: $*" >&2; exit 1; }
 scene=$src/scenes/window_portal.gltf
-"$bin/ptworker" --list "$scene" | grep -q "environment portals: 2 triangles" ||
-    fail "ptworker --list does not count the window's portal"
+listed=$("$bin/ptworker" --list "$scene")
+[[ $listed == *"environment portals: 2 triangles"* ]] ||
+    fail "ptworker --list does not count the window's portal: $listed"
+# its front faces +z, into the room (the window is in the wall z = -2.5)
+[[ $listed == *"front towards (0, 0, 1): 2 triangles"* ]] ||
+    fail "ptworker --list does not say which way the portal faces: $listed"
 park=$shared/envs/rooitou_park_1k.hdr
 lights=("--background 0.8,0.9,1")
 if [[ -f $park ]]; then
