@@ -100,9 +100,8 @@ struct pt_lights {
     double c_env;             /* u0 >= c_env chooses the environment (1: never) */
     float p_env;              /* the probability of choosing it */
     int env_dist;             /* its distribution (env.h, PT_ENV_*) */
-    const float *portals;     /* the scene's portals (portal.h), NULL: none, no env, or
-                                 a sun that shines in through one (below) */
-    uint32_t nportals;
+    const pt_scene *portals;  /* the scene, whose portals (portal.h) are used; NULL:
+                                 none, no env, or a sun that shines in through one */
 };
 
 static pt_vec3 vertex(const pt_scene *s, uint32_t i)
@@ -564,20 +563,11 @@ static int sun_enters(const pt_env *env, const pt_scene *scene)
     if (!pt_env_sun(env, &axis, &sin_half))
         return 0;
     for (uint32_t i = 0; i < scene->num_portals; i++) {
-        const float *t = scene->portals + 9 * (size_t)i;
-        pt_vec3 a = pt_v3(t[0], t[1], t[2]), b = pt_v3(t[3], t[4], t[5]),
-                c = pt_v3(t[6], t[7], t[8]);
-        pt_vec3 n = pt_v3_cross(pt_v3_sub(b, a), pt_v3_sub(c, a));
-        float len = pt_v3_len(n);
-        if (len > 0.0f && pt_v3_dot(axis, n) < sin_half * len)
+        const float *f = scene->portal_fronts + 3 * (size_t)i;
+        if (pt_v3_dot(axis, pt_v3(f[0], f[1], f[2])) < sin_half)
             return 1;
     }
     return 0;
-}
-
-static inline double portal_share(const pt_portal_view *v)
-{
-    return v->counted ? PORTAL_SHARE : 0.0;
 }
 
 pt_status pt_lights_new_select(const pt_scene *scene, const pt_env *env, int env_dist,
@@ -762,10 +752,8 @@ others : {
         L->env = NULL; /* too faint to choose in float: as if none */
         L->c_env = 1.0;
     }
-    if (L->env && scene->num_portals > 0 && !sun_enters(L->env, scene)) {
-        L->portals = scene->portals;
-        L->nportals = scene->num_portals;
-    }
+    if (L->env && scene->num_portals > 0 && !sun_enters(L->env, scene))
+        L->portals = scene;
 }
 
     pt_free(scratch);
@@ -826,15 +814,24 @@ int pt_lights_has_portals(const pt_lights *lights)
     return lights && lights->portals;
 }
 
-/* The mixture's density of dir at p for the map's density map_pdf, with
- * v the portals' view from p. */
-static inline double portal_mix(pt_portal_view *v, pt_vec3 dir, double map_pdf)
+/* The portals' view from a receiver at p with normal n. */
+static inline void portal_view(const pt_lights *lights, pt_vec3 p, pt_vec3 n, pt_portal_view *v)
 {
-    double share = portal_share(v);
-    if (!(share > 0.0))
-        return map_pdf;
-    double pp = pt_portal_pdf(v, dir);
-    return share * pp + (1.0 - share) * map_pdf;
+    const pt_scene *s = lights->portals;
+    pt_portal_view_init(v, s->portals, s->portal_fronts, s->num_portals, p, n);
+}
+
+/* The share of a receiver whose view is v: PORTAL_SHARE where a portal
+ * counts, else 0 (the map alone). */
+static inline double portal_share(const pt_portal_view *v)
+{
+    return v->counted ? PORTAL_SHARE : 0.0;
+}
+
+/* The mixture's density for a share, the portals' density and the map's. */
+static inline double portal_mix(double share, double portal_pdf, double map_pdf)
+{
+    return share * portal_pdf + (1.0 - share) * map_pdf;
 }
 
 float pt_lights_env_pdf(const pt_lights *lights, pt_vec3 dir, pt_vec3 p, pt_vec3 n)
@@ -844,8 +841,10 @@ float pt_lights_env_pdf(const pt_lights *lights, pt_vec3 dir, pt_vec3 p, pt_vec3
     float map = pt_env_pdf(lights->env, dir, lights->env_dist, n);
     if (lights->portals) {
         pt_portal_view v;
-        pt_portal_view_init(&v, lights->portals, lights->nportals, p, n);
-        return lights->p_env * (float)portal_mix(&v, dir, map);
+        portal_view(lights, p, n, &v);
+        double share = portal_share(&v);
+        if (share > 0.0)
+            return lights->p_env * (float)portal_mix(share, pt_portal_pdf(&v, dir), map);
     }
     return lights->p_env * map;
 }
@@ -857,21 +856,20 @@ static int sample_env_portals(const pt_lights *lights, pt_vec3 p, pt_vec3 n, dou
                               const float u[3], pt_light_sample *s)
 {
     pt_portal_view v;
-    pt_portal_view_init(&v, lights->portals, lights->nportals, p, n);
+    portal_view(lights, p, n, &v);
     float map;
-    double pdf, share = portal_share(&v);
+    double pp, share = portal_share(&v);
     if (u0 < share) {
-        double pp;
         if (!pt_portal_sample(&v, (float)(u0 / share), u[1], u[2], &s->wi, &pp))
             return 0;
         s->radiance = pt_env_eval(lights->env, s->wi);
         map = pt_env_pdf(lights->env, s->wi, lights->env_dist, n);
-        pdf = share * pp + (1.0 - share) * map;
     } else {
         if (!pt_env_sample(lights->env, &u[1], lights->env_dist, n, &s->wi, &s->radiance, &map))
             return 0;
-        pdf = portal_mix(&v, s->wi, map);
+        pp = share > 0.0 ? pt_portal_pdf(&v, s->wi) : 0.0;
     }
+    double pdf = portal_mix(share, pp, map);
     s->pdf = lights->p_env * (float)pdf;
     return s->pdf > 0.0f && isfinite(s->pdf);
 }

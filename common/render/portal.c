@@ -10,13 +10,12 @@ static inline pt_vec3 corner(const float *t, int k)
     return pt_v3(t[3 * k], t[3 * k + 1], t[3 * k + 2]);
 }
 
-/* Whether triangle t counts for a receiver at p with normal nrm (portal.h):
- * p on its front side (the room's), and some corner above p's plane. */
-static inline int counts(const float *t, pt_vec3 p, pt_vec3 nrm)
+/* Whether triangle t, its front towards `front`, counts for a receiver at
+ * p with normal nrm (portal.h): p on its front side (the room's), and some
+ * corner above p's plane. */
+static inline int counts(const float *t, const float *front, pt_vec3 p, pt_vec3 nrm)
 {
-    pt_vec3 a = corner(t, 0);
-    pt_vec3 front = pt_v3_cross(pt_v3_sub(corner(t, 1), a), pt_v3_sub(corner(t, 2), a));
-    if (!(pt_v3_dot(pt_v3_sub(p, a), front) > 0.0f))
+    if (!(pt_v3_dot(pt_v3_sub(p, corner(t, 0)), pt_v3(front[0], front[1], front[2])) > 0.0f))
         return 0;
     if (nrm.x == 0.0f && nrm.y == 0.0f && nrm.z == 0.0f)
         return 1;
@@ -26,16 +25,17 @@ static inline int counts(const float *t, pt_vec3 p, pt_vec3 nrm)
     return 0; /* every corner on or below the plane */
 }
 
-void pt_portal_view_init(pt_portal_view *v, const float *tris, uint32_t n, pt_vec3 p, pt_vec3 nrm)
+void pt_portal_view_init(pt_portal_view *v, const float *tris, const float *fronts, uint32_t n,
+                         pt_vec3 p, pt_vec3 nrm)
 {
     v->tris = tris;
+    v->fronts = fronts;
     v->n = n < PT_SCENE_MAX_PORTALS ? n : PT_SCENE_MAX_PORTALS;
     v->p = p;
     v->counted = 0;
     v->measured = 0;
-    v->sum = 0.0;
     for (uint32_t i = 0; i < v->n; i++)
-        if (counts(tris + 9 * (size_t)i, p, nrm))
+        if (counts(tris + 9 * (size_t)i, fronts + 3 * (size_t)i, p, nrm))
             v->counted |= UINT64_C(1) << i;
 }
 

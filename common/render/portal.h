@@ -41,7 +41,8 @@
  * and their sum Omega. Most light samples of the map from inside a room
  * cross no portal, and their density needs no solid angle. */
 typedef struct pt_portal_view {
-    const float *tris; /* 9 floats a triangle */
+    const float *tris;   /* 9 floats a triangle */
+    const float *fronts; /* 3 floats a triangle: its front's unit normal */
     uint32_t n;
     pt_vec3 p;
     uint64_t counted;
@@ -50,9 +51,11 @@ typedef struct pt_portal_view {
     double sum;
 } pt_portal_view;
 
-/* The view of the n portal triangles tris (n at most PT_SCENE_MAX_PORTALS;
- * the rest are ignored) from p with normal nrm. */
-void pt_portal_view_init(pt_portal_view *v, const float *tris, uint32_t n, pt_vec3 p, pt_vec3 nrm);
+/* The view of the n portal triangles tris with their fronts (a scene's
+ * portals and portal_fronts; n at most PT_SCENE_MAX_PORTALS, the rest are
+ * ignored) from p with normal nrm. */
+void pt_portal_view_init(pt_portal_view *v, const float *tris, const float *fronts, uint32_t n,
+                         pt_vec3 p, pt_vec3 nrm);
 
 /* Measures the counted triangles' solid angles (once). */
 void pt_portal_measure(pt_portal_view *v);

@@ -3491,13 +3491,10 @@ extern "C" pt_status pt_scene_list(const char *path, FILE *out, pt_error *err)
     // distinct direction, so a portal wound the wrong way shows before a render.
     std::vector<std::pair<std::array<float, 3>, unsigned>> fronts;
     for (uint32_t i = 0; i < s->num_portals; i++) {
-        const float *t = s->portals + 9 * size_t(i);
-        pt_vec3 a = pt_v3(t[0], t[1], t[2]);
-        pt_vec3 n = pt_v3_norm(pt_v3_cross(pt_v3_sub(pt_v3(t[3], t[4], t[5]), a),
-                                           pt_v3_sub(pt_v3(t[6], t[7], t[8]), a)));
-        std::array<float, 3> d{std::round(n.x * 1000.0f) / 1000.0f + 0.0f,
-                               std::round(n.y * 1000.0f) / 1000.0f + 0.0f,
-                               std::round(n.z * 1000.0f) / 1000.0f + 0.0f};
+        const float *n = s->portal_fronts + 3 * size_t(i);
+        std::array<float, 3> d{std::round(n[0] * 1000.0f) / 1000.0f + 0.0f,
+                               std::round(n[1] * 1000.0f) / 1000.0f + 0.0f,
+                               std::round(n[2] * 1000.0f) / 1000.0f + 0.0f};
         auto f =
             std::find_if(fronts.begin(), fronts.end(), [&](const auto &e) { return e.first == d; });
         if (f == fronts.end())

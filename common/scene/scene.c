@@ -555,6 +555,20 @@ pt_status pt_scene_builder_add_punctual(pt_scene_builder *b, const pt_punctual *
     return PT_OK;
 }
 
+/* The cross product of a portal triangle's edges (corners v, double): its
+ * front's normal, unnormalised. */
+static void portal_cross(const double v[9], double c[3])
+{
+    double e1[3], e2[3];
+    for (int r = 0; r < 3; r++) {
+        e1[r] = v[3 + r] - v[r];
+        e2[r] = v[6 + r] - v[r];
+    }
+    c[0] = e1[1] * e2[2] - e1[2] * e2[1];
+    c[1] = e1[2] * e2[0] - e1[0] * e2[2];
+    c[2] = e1[0] * e2[1] - e1[1] * e2[0];
+}
+
 pt_status pt_scene_builder_add_portal(pt_scene_builder *b, const double v[9], const char *what,
                                       pt_error *err)
 {
@@ -563,14 +577,9 @@ pt_status pt_scene_builder_add_portal(pt_scene_builder *b, const double v[9], co
             return pt_error_set(err, PT_ERR_FORMAT,
                                 "portal '%.64s': a corner is not finite or over %g", what,
                                 (double)PT_SCENE_MAX_COORD);
-    double e1[3], e2[3];
-    for (int r = 0; r < 3; r++) {
-        e1[r] = v[3 + r] - v[r];
-        e2[r] = v[6 + r] - v[r];
-    }
-    double cx = e1[1] * e2[2] - e1[2] * e2[1], cy = e1[2] * e2[0] - e1[0] * e2[2],
-           cz = e1[0] * e2[1] - e1[1] * e2[0];
-    if (!(cx * cx + cy * cy + cz * cz > 0.0))
+    double c[3];
+    portal_cross(v, c);
+    if (!(c[0] * c[0] + c[1] * c[1] + c[2] * c[2] > 0.0))
         return PT_OK; /* no area: no light comes through it */
     if (b->nportal >= PT_SCENE_MAX_PORTALS)
         return pt_error_set(err, PT_ERR_LIMIT, "portal '%.64s': more than %u portal triangles",
@@ -1365,6 +1374,7 @@ void pt_scene_free(pt_scene *s)
     pt_free(s->cameras);
     pt_free(s->punctual);
     pt_free(s->portals);
+    pt_free(s->portal_fronts);
     pt_motion_free(s->motion);
     pt_free(s->prototypes);
     pt_free(s->instances);
@@ -2129,13 +2139,21 @@ pt_status pt_scene_builder_finish(pt_scene_builder *b, const pt_scene_opts *opts
     }
     if (b->nportal > 0) {
         s->portals = pt_malloc_array(9 * (size_t)b->nportal, sizeof(float));
-        if (!s->portals) {
+        s->portal_fronts = pt_malloc_array(3 * (size_t)b->nportal, sizeof(float));
+        if (!s->portals || !s->portal_fronts) {
             st = pt_error_set(err, PT_ERR_NOMEM, "portals: out of memory");
             goto fail;
         }
         s->num_portals = b->nportal;
         for (size_t i = 0; i < 9 * (size_t)b->nportal; i++)
             s->portals[i] = (float)(b->portals[i] * sc + t[i % 3] - s->origin[i % 3]);
+        for (uint32_t i = 0; i < b->nportal; i++) {
+            double c[3]; /* the edges scale by sc, their cross product by sc^2 */
+            portal_cross(b->portals + 9 * (size_t)i, c);
+            double len = sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]);
+            for (int r = 0; r < 3; r++)
+                s->portal_fronts[3 * (size_t)i + r] = (float)(c[r] / len);
+        }
         if (!finite_n(s->portals, (int)(9 * b->nportal))) {
             st = pt_error_set(err, PT_ERR_ARG, "a portal is not finite after scaling");
             goto fail;

@@ -380,9 +380,13 @@ typedef struct pt_scene {
     /* Environment portals (PT_FEAT_PORTAL): triangles that are not
      * geometry (no ray meets them) but openings the environment's light
      * comes through: a mesh node whose extras hold "ptfarm_portal": true.
-     * 9 floats a triangle (its corners, scene space); NULL and 0 without. */
+     * 9 floats a triangle (its corners, scene space); NULL and 0 without.
+     * portal_fronts: 3 floats a triangle, the unit normal of its front (its
+     * counter-clockwise side, which faces into the room), derived from the
+     * corners in double before they are rounded. */
     uint32_t num_portals;
     float *portals;
+    float *portal_fronts;
 
     pt_vec3 bounds_min, bounds_max; /* scene space: they contain every stored position */
     uint32_t features;              /* PT_FEAT_* */

@@ -65,6 +65,44 @@ static const float tris[NTRI * 9] = {
 /* Their fronts (counter-clockwise sides) face the receivers: the quad's and
  * the one behind it's -y, down to the origin; the one below's +y. */
 
+/* A scene of portals (n triangles, 9 doubles each) and one far triangle (a
+ * scene needs geometry). */
+static pt_scene *portals_scene(const double *v, int n)
+{
+    pt_scene_builder *b = NULL;
+    pt_error err = {0};
+    CHECK(pt_scene_builder_new(&b, &err) == PT_OK);
+    pt_material m = pt_material_default();
+    uint32_t mat = 0;
+    CHECK(pt_scene_builder_add_material(b, &m, &mat, &err) == PT_OK);
+    const float far[9] = {50, 50, 50, 51, 50, 50, 50, 51, 50};
+    const uint32_t idx[3] = {0, 1, 2};
+    CHECK(pt_scene_builder_add_mesh(b, "far", far, NULL, NULL, 3, idx, 1, NULL, mat, &err) ==
+          PT_OK);
+    for (int t = 0; t < n; t++)
+        CHECKF(pt_scene_builder_add_portal(b, v + 9 * t, "test", &err) == PT_OK, "%s", err.msg);
+    pt_scene *s = NULL;
+    CHECKF(pt_scene_builder_finish(b, NULL, &s, &err) == PT_OK, "%s", err.msg);
+    return s;
+}
+
+/* The sampler's portals as they are (a scene holds their fronts), and the
+ * view of them from p (world space) with normal n. */
+static pt_scene *plain_scene(void)
+{
+    double v[NTRI * 9];
+    for (int i = 0; i < NTRI * 9; i++)
+        v[i] = tris[i];
+    return portals_scene(v, NTRI);
+}
+
+static void view_from(const pt_scene *s, pt_vec3 p, pt_vec3 n, pt_portal_view *v)
+{
+    pt_vec3 q = pt_v3((float)(p.x - s->origin[0]), (float)(p.y - s->origin[1]),
+                      (float)(p.z - s->origin[2]));
+    pt_portal_view_init(v, s->portals, s->portal_fronts, s->num_portals, q, n);
+}
+
 typedef struct portal_ctx {
     pt_vec3 p, n;
     pt_portal_view v;
@@ -90,8 +128,11 @@ static pt_vec3 portal_sample_fn(const void *ctx, pcg32 *r, float *pdf)
 
 static void chi2_portals(void)
 {
+    pt_scene *s = plain_scene();
+    if (!s)
+        return;
     portal_ctx c = {.p = pt_v3(0.1f, 0.0f, 0.05f), .n = pt_v3(0, 1, 0)};
-    pt_portal_view_init(&c.v, tris, NTRI, c.p, c.n);
+    view_from(s, c.p, c.n, &c.v);
     pt_portal_measure(&c.v);
     CHECKF(c.v.om[3] == 0.0 && c.v.om[0] > 0.0 && c.v.om[2] > 0.0,
            "the triangle below the plane counts (%g), or one above does not", c.v.om[3]);
@@ -102,41 +143,21 @@ static void chi2_portals(void)
     CHECKF(fabs(total - 1.0) < 2e-3, "portals: the density integrates to %.5f", total);
 
     portal_ctx z = {.p = c.p, .n = pt_v3(0, 0, 0)};
-    pt_portal_view_init(&z.v, tris, NTRI, z.p, z.n);
+    view_from(s, z.p, z.n, &z.v);
     pt_portal_measure(&z.v);
     CHECKF(z.v.om[3] > 0.0, "without a normal the triangle below takes no share");
     /* Behind the fronts of the quad and of the triangle past it (outside
      * the room): those two take no share, the one below still does. */
     pt_portal_view out;
-    pt_portal_view_init(&out, tris, NTRI, pt_v3(0.1f, 3.0f, 0.05f), pt_v3(0, 0, 0));
+    view_from(s, pt_v3(0.1f, 3.0f, 0.05f), pt_v3(0, 0, 0), &out);
     CHECKF(out.counted == (UINT64_C(1) << 3), "behind the fronts: counted %#llx, want 0x8",
            (unsigned long long)out.counted);
     binning bz = {pt_frame_from_normal(pt_v3(0, 1, 0)), 2.0, portal_pdf_fn, &z};
     chi2_run("portals, no normal", &bz, portal_sample_fn, &z, 300000, 6);
+    pt_scene_free(s);
 }
 
 /* ---- the environment light's mixture ----------------------------------------------- */
-
-/* A scene of portals (n triangles, 9 doubles each) and one far triangle (a
- * scene needs geometry). */
-static pt_scene *portals_scene(const double *v, int n)
-{
-    pt_scene_builder *b = NULL;
-    pt_error err = {0};
-    CHECK(pt_scene_builder_new(&b, &err) == PT_OK);
-    pt_material m = pt_material_default();
-    uint32_t mat = 0;
-    CHECK(pt_scene_builder_add_material(b, &m, &mat, &err) == PT_OK);
-    const float far[9] = {50, 50, 50, 51, 50, 50, 50, 51, 50};
-    const uint32_t idx[3] = {0, 1, 2};
-    CHECK(pt_scene_builder_add_mesh(b, "far", far, NULL, NULL, 3, idx, 1, NULL, mat, &err) ==
-          PT_OK);
-    for (int t = 0; t < n; t++)
-        CHECKF(pt_scene_builder_add_portal(b, v + 9 * t, "test", &err) == PT_OK, "%s", err.msg);
-    pt_scene *s = NULL;
-    CHECKF(pt_scene_builder_finish(b, NULL, &s, &err) == PT_OK, "%s", err.msg);
-    return s;
-}
 
 /* The sampler's portals turned to face the horizon (y and z swapped), away
  * from the map's poles, where its density's quadrature and its float pdf
@@ -211,7 +232,7 @@ static void chi2_mixture(void)
                           (float)(0.0 - s->origin[2]));
         light_ctx c = {L, s, p, pt_v3(0, 0, 1)};
         pt_portal_view v;
-        pt_portal_view_init(&v, s->portals, s->num_portals, p, c.n);
+        pt_portal_view_init(&v, s->portals, s->portal_fronts, s->num_portals, p, c.n);
         CHECKF(v.counted == 7, "the receiver counts portals %#llx, want 0x7",
                (unsigned long long)v.counted);
         binning bn = {pt_frame_from_normal(pt_v3(0, 0, 1)), 2.0, light_pdf_fn, &c};
