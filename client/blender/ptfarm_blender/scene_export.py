@@ -310,16 +310,6 @@ def _read_glb_json(path):
     return json.loads(data[20:20 + n].decode("utf-8")), data, n
 
 
-def _write_glb_json(path, doc, data, old_n):
-    text = json.dumps(doc, separators=(",", ":")).encode("utf-8")
-    text += b" " * ((4 - len(text) % 4) % 4)  # chunks are 4-byte aligned (glTF 2.0, 4.4.3)
-    rest = data[20 + old_n:]
-    total = 12 + 8 + len(text) + len(rest)
-    out = data[:4] + struct.pack("<II", 2, total) + struct.pack("<I4s", len(text), b"JSON")
-    with open(path, "wb") as f:
-        f.write(out + text + rest)
-
-
 def convert_lights(doc, scene):
     """Rewrites the file's punctual lights in ptfarm's units from the Blender
     lights' data (for an exporter without the Unitless mode): intensity
@@ -341,8 +331,8 @@ def convert_lights(doc, scene):
 def add_portals(doc, portals, base):
     """Adds each portal of portals (name, four corners) to the file as a
     node of its own with a two-triangle mesh and extras {"ptfarm_portal":
-    true}, which ptfarm reads as an environment portal (README, "Windows:
-    environment portals"). base: the length of the binary chunk's data (a
+    true}, which ptfarm reads as an environment portal (README, "Environment
+    portals"). base: the length of the binary chunk's data (a
     multiple of 4), where the returned bytes will follow: the positions
     (float32) and indices (uint16) of them all."""
     blob = b""
@@ -387,12 +377,13 @@ def _glb_binary(data, old_n):
 
 
 def _write_glb(path, doc, data, binary):
-    """The GLB rewritten with doc as its JSON chunk and binary as its
-    binary chunk's data."""
+    """The GLB rewritten with doc as its JSON chunk and binary (no chunk
+    when empty) as its binary chunk's data."""
     text = json.dumps(doc, separators=(",", ":")).encode("utf-8")
-    text += b" " * ((4 - len(text) % 4) % 4)
+    text += b" " * ((4 - len(text) % 4) % 4)  # chunks are 4-byte aligned (glTF 2.0, 4.4.3)
     chunks = struct.pack("<I4s", len(text), b"JSON") + text
-    chunks += struct.pack("<I4s", len(binary), b"BIN\0") + binary
+    if binary:
+        chunks += struct.pack("<I4s", len(binary), b"BIN\0") + binary
     with open(path, "wb") as f:
         f.write(data[:4] + struct.pack("<II", 2, 12 + len(chunks)) + chunks)
 
@@ -412,11 +403,10 @@ def fix_up(path, scene, lights):
     doc, data, n = _read_glb_json(path)
     if lights:
         convert_lights(doc, scene)
+    binary = _glb_binary(data, n)
     if portals:
-        binary = _glb_binary(data, n)
-        _write_glb(path, doc, data, binary + add_portals(doc, portals, len(binary)))
-    else:
-        _write_glb_json(path, doc, data, n)
+        binary += add_portals(doc, portals, len(binary))
+    _write_glb(path, doc, data, binary)
 
 
 def glb_summary(path):
