@@ -58,9 +58,8 @@ def main():
     for n in asset.get("nodes", []):
         if "mesh" in n:
             n["mesh"] += shift["meshes"]
-        n["children"] = [c + shift["nodes"] for c in n.get("children", [])] or None
-        if n["children"] is None:
-            del n["children"]
+        if "children" in n:
+            n["children"] = [c + shift["nodes"] for c in n["children"]]
         for k in ("camera", "skin"):
             if k in n:
                 sys.exit("merge_gltf.py: the asset's nodes may not hold a %s" % k)
