@@ -2659,9 +2659,17 @@ bool is_portal(const tinygltf::Node &n)
 // A portal node's mesh (PT_FEAT_PORTAL): its triangles under the node's
 // world matrix become openings the environment lights the scene through,
 // not geometry. They are placed as the file's still is (an animation does
-// not move them) and take no EXT_mesh_gpu_instancing copies.
+// not move them) and take no EXT_mesh_gpu_instancing copies. A node that
+// mirrors (its world matrix's determinant negative) makes a primitive's
+// front face clockwise (glTF 2.0, 3.7.4), so its corners are taken in the
+// other order: the front stays the side the file means (the scene builder
+// flips a mesh's winding alike).
 void add_portal(importer &im, int ni, int mesh, const mat4 &w)
 {
+    const double det = w[0] * (w[5] * w[10] - w[9] * w[6]) - w[4] * (w[1] * w[10] - w[9] * w[2]) +
+                       w[8] * (w[1] * w[6] - w[5] * w[2]);
+    const size_t order[2][3] = {{0, 1, 2}, {0, 2, 1}};
+    const size_t *corner = order[det < 0.0];
     const tinygltf::Mesh &m = im.model.meshes[size_t(mesh)];
     const tinygltf::Node &n = im.model.nodes[size_t(ni)];
     std::string name = n.name.empty() ? "node " + std::to_string(ni) : n.name;
@@ -2683,7 +2691,7 @@ void add_portal(importer &im, int ni, int mesh, const mat4 &w)
         for (size_t t = 0; t + 2 < tri.size(); t += 3) {
             double v[9];
             for (int k = 0; k < 3; k++) {
-                const float *q = &pos[3 * size_t(tri[t + size_t(k)])];
+                const float *q = &pos[3 * size_t(tri[t + corner[k]])];
                 for (int r = 0; r < 3; r++)
                     v[3 * k + r] = w[size_t(r)] * q[0] + w[size_t(4 + r)] * q[1] +
                                    w[size_t(8 + r)] * q[2] + w[size_t(12 + r)];

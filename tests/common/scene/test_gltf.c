@@ -1461,6 +1461,31 @@ static void test_portals(void)
               "\"scale\":[1e300,1e300,1e300],\"extras\":{\"ptfarm_portal\":true}}]",
               "");
     expect_fail("portal_nan.gltf", 0, "portal 'bad'");
+    /* A node that mirrors makes its front face clockwise (glTF 3.7.4): the
+     * triangle (0,0,0), (1,0,0), (0,1,0) faces +z, and under scale
+     * (1, 1, -1) its corners stay where they are but it faces -z. */
+    const char *scales[2] = {"1,1,1", "1,1,-1"};
+    for (int i = 0; i < 2; i++) {
+        char mirrored[256];
+        snprintf(mirrored, sizeof mirrored,
+                 "[{\"mesh\":0,\"children\":[1]},{\"mesh\":0,\"scale\":[%s],"
+                 "\"extras\":{\"ptfarm_portal\":true}}]",
+                 scales[i]);
+        make_gltf("portal_mirror.gltf", "portal.bin", k_pos_ok, k_views, mirrored, "");
+        pt_scene *s = NULL;
+        pt_error err = {0};
+        CHECKF(pt_scene_load(tpath("portal_mirror.gltf"), NULL, &s, &err) == PT_OK, "%s", err.msg);
+        if (s && s->num_portals == 1) {
+            const float *f = s->portal_fronts;
+            float want = i ? -1.0f : 1.0f;
+            CHECKF(f[0] == 0.0f && f[1] == 0.0f && f[2] == want,
+                   "scale %s: portal front (%g, %g, %g), want (0, 0, %g)", scales[i], f[0], f[1],
+                   f[2], want);
+        } else {
+            CHECKF(0, "scale %s: %u portals", scales[i], s ? s->num_portals : 0);
+        }
+        pt_scene_free(s);
+    }
 }
 
 /* alphaMode and alphaCutoff: read into the material (cutoff default 0.5),
