@@ -23,6 +23,7 @@
 #include "common/render/guide_run.h"
 #include "common/render/options.h"
 #include "common/render/passes.h"
+#include "common/render/portal.h"
 #include "common/render/render.h"
 #include "common/render/tile.h"
 #include "common/scene/scene.h"
@@ -352,6 +353,17 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
         /* It would render black: say how to light it instead. */
         fprintf(stderr, "ptworker: %s\n", err.msg);
         goto done;
+    }
+    if (scene->num_portals) {
+        uint32_t reversed = 0;
+        pt_vec3 f;
+        if (pt_portal_reversed(scene, &reversed, &f, &err) != PT_OK) {
+            fprintf(stderr, "ptworker: %s\n", err.msg);
+            goto done;
+        }
+        if (reversed)
+            fprintf(stderr, "ptworker: " PT_PORTAL_REVERSED_WARNING "\n", reversed,
+                    scene->num_portals, (double)f.x, (double)f.y, (double)f.z);
     }
     p.bdpt = o->bdpt == PT_BDPT_ON ? 1u : 0u;
     if (o->bdpt == PT_BDPT_AUTO) {

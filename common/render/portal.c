@@ -2,7 +2,10 @@
 
 #include <math.h>
 
+#include "common/base/alloc.h"
+#include "common/render/sampler.h"
 #include "common/render/sphtri.h"
+#include "common/scene/accel.h"
 #include "common/scene/scene.h"
 
 static inline pt_vec3 corner(const float *t, int k)
@@ -119,4 +122,73 @@ double pt_portal_pdf(pt_portal_view *v, pt_vec3 dir)
         return 0.0;
     pt_portal_measure(v);
     return v->sum > 0.0 ? (double)k / v->sum : 0.0;
+}
+
+/* ---- which way a portal faces ------------------------------------------------ */
+
+#define PROBE_SEED 0x706f7274u /* "port" */
+
+pt_status pt_portal_openness(const pt_scene *s, float *open, pt_error *err)
+{
+    if (s->num_portals == 0)
+        return PT_OK;
+    /* Every triangle but glass's (an accel over a subset is of still
+     * triangles only, so a scene of instances keeps them all). */
+    uint32_t *sel = NULL, nsel = 0;
+    pt_accel *a = NULL;
+    pt_status st;
+    if (s->features & PT_FEAT_INSTANCES) {
+        st = pt_accel_new(s, &a, err);
+    } else {
+        if (!(sel = pt_malloc_array(s->num_triangles ? s->num_triangles : 1, sizeof *sel)))
+            return pt_error_set(err, PT_ERR_NOMEM, "portal check: out of memory");
+        for (uint32_t t = 0; t < s->num_triangles; t++)
+            if (!(s->materials[s->tri_material[t]].transmission > 0.0f))
+                sel[nsel++] = t;
+        st = pt_accel_new_subset(s, sel, nsel, &a, err);
+    }
+    for (uint32_t i = 0; st == PT_OK && i < s->num_portals; i++) {
+        const float *t = s->portals + 9 * (size_t)i, *f = s->portal_fronts + 3 * (size_t)i;
+        pt_vec3 c = pt_v3_scale(pt_v3_add(pt_v3_add(corner(t, 0), corner(t, 1)), corner(t, 2)),
+                                1.0f / 3.0f);
+        for (int side = 0; side < 2; side++) {
+            pt_vec3 n = pt_v3(f[0], f[1], f[2]);
+            if (side)
+                n = pt_v3_neg(n);
+            pt_frame fr = pt_frame_from_normal(n);
+            pt_vec3 o = pt_accel_offset_ray(a, c, n);
+            uint32_t out = 0;
+            for (uint32_t k = 0; k < PT_PORTAL_PROBES; k++) {
+                float u[2];
+                pt_sample_2d(PROBE_SEED, k, 0, u);
+                pt_vec3 d = pt_frame_to_world(&fr, pt_sample_cosine_hemisphere(u[0], u[1]));
+                out += !pt_accel_occluded(a, o, d, INFINITY);
+            }
+            open[2 * (size_t)i + (size_t)side] = (float)out / (float)PT_PORTAL_PROBES;
+        }
+    }
+    pt_accel_free(a);
+    pt_free(sel);
+    return st;
+}
+
+pt_status pt_portal_reversed(const pt_scene *s, uint32_t *n, pt_vec3 *front, pt_error *err)
+{
+    *n = 0;
+    *front = pt_v3(0.0f, 0.0f, 0.0f);
+    if (s->num_portals == 0)
+        return PT_OK;
+    float *open = pt_malloc_array(2 * (size_t)s->num_portals, sizeof *open);
+    if (!open)
+        return pt_error_set(err, PT_ERR_NOMEM, "portal check: out of memory");
+    pt_status st = pt_portal_openness(s, open, err);
+    for (uint32_t i = 0; st == PT_OK && i < s->num_portals; i++)
+        if (open[2 * i] >= open[2 * i + 1] + PT_PORTAL_REVERSED_GAP) {
+            if ((*n)++ == 0) {
+                const float *f = s->portal_fronts + 3 * (size_t)i;
+                *front = pt_v3(f[0], f[1], f[2]);
+            }
+        }
+    pt_free(open);
+    return st;
 }

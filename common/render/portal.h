@@ -31,6 +31,7 @@
 
 #include <stdint.h>
 
+#include "common/base/error.h"
 #include "common/math/vec.h"
 #include "common/scene/scene.h"
 
@@ -72,5 +73,37 @@ int pt_portal_sample(pt_portal_view *v, float u0, float u1, float u2, pt_vec3 *w
  * Omega (above); 0 when dir crosses no counted triangle (then nothing is
  * measured). */
 double pt_portal_pdf(pt_portal_view *v, pt_vec3 dir);
+
+/* ---- which way a portal faces, checked before a render ------------------ */
+
+/* A portal wound the wrong way faces out of its room: no point in the room
+ * is on its front, so it is never sampled, and the render is the one
+ * without it, silently. Seen from its centroid, a portal in an opening
+ * has the room's walls in front and the outdoors behind; one wound the
+ * wrong way, the reverse. pt_portal_openness measures it: for each portal
+ * triangle i, the share of PT_PORTAL_PROBES directions, cosine-distributed
+ * about its front (open[2 i]) and about its back (open[2 i + 1]), that
+ * leave the scene without meeting a surface, glass excepted (a material
+ * that transmits: a window's pane is not a wall; in a scene of instances
+ * every surface counts). Fixed directions: a function of the scene. open
+ * holds 2 x scene->num_portals floats. PT_OK, or an error building the ray
+ * queries. */
+#define PT_PORTAL_PROBES 64u
+pt_status pt_portal_openness(const pt_scene *scene, float *open, pt_error *err);
+
+/* How many of scene's portal triangles look wound the wrong way (their
+ * front more open than their back by PT_PORTAL_REVERSED_GAP or more: a
+ * window's back sees at least the sky's half above a ground plane, its
+ * front a closed room) into *n, and the first one's front into *front.
+ * *n is 0 for a scene without portals (and nothing is traced). */
+#define PT_PORTAL_REVERSED_GAP 0.25f
+pt_status pt_portal_reversed(const pt_scene *scene, uint32_t *n, pt_vec3 *front, pt_error *err);
+
+/* What every program says when pt_portal_reversed finds some (a printf
+ * format of n, the scene's portal triangles, and the front's x, y, z). */
+#define PT_PORTAL_REVERSED_WARNING                                                                 \
+    "warning: %u of %u portal triangles look wound the wrong way: their front sees the "           \
+    "outdoors and their back a room (the first faces (%.3g, %.3g, %.3g)); a portal's front "       \
+    "(its counter-clockwise side) must face into the room, or the map is not sampled through it"
 
 #endif

@@ -16,6 +16,7 @@
 #include "common/render/env.h"
 #include "common/render/guide_sched.h"
 #include "common/render/options.h"
+#include "common/render/portal.h"
 #include "common/render/render.h"
 #include "common/scene/anim.h"
 #include "common/scene/scene.h"
@@ -160,6 +161,13 @@ static void verify_upload(srv_upload *k)
         k->m.film_flags |= PROTO_FILM_BDPT;
         srv_log("job %" PRIu64 ": " PT_BDPT_AUTO_ON, k->job_id, 100.0 * share);
     }
+    uint32_t reversed = 0;
+    pt_vec3 pf;
+    if (st == PT_OK && (st = pt_portal_reversed(scene, &reversed, &pf, &err)) != PT_OK)
+        what = "job refused";
+    else if (st == PT_OK && reversed)
+        srv_log("job %" PRIu64 ": " PT_PORTAL_REVERSED_WARNING, k->job_id, reversed,
+                scene->num_portals, (double)pf.x, (double)pf.y, (double)pf.z);
     pt_remove_tree(k->tmp);
     if (st != PT_OK) {
         pt_scene_free(scene);

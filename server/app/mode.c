@@ -11,6 +11,7 @@
 #include "common/render/env.h"
 #include "common/render/guide_sched.h"
 #include "common/render/options.h"
+#include "common/render/portal.h"
 #include "common/render/render.h"
 #include "common/render/tile.h"
 #include "common/scene/anim.h"
@@ -160,6 +161,11 @@ static pt_status setup_single(srv_server *s, pt_error *err)
         jp.film_flags |= PROTO_FILM_BDPT;
         srv_log(PT_BDPT_AUTO_ON, 100.0 * share);
     }
+    uint32_t reversed = 0;
+    pt_vec3 pf;
+    if (st == PT_OK && (st = pt_portal_reversed(scene, &reversed, &pf, err)) == PT_OK && reversed)
+        srv_log(PT_PORTAL_REVERSED_WARNING, reversed, scene->num_portals, (double)pf.x,
+                (double)pf.y, (double)pf.z);
     /* Cryptomatte's manifests come from the names of the scene loaded here. */
     pt_crypto_meta *crypto = NULL;
     if (st == PT_OK && (proto_film_passes(jp.film_flags) & PT_PASS_CRYPTOMATTE)) {

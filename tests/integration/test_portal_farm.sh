@@ -5,7 +5,8 @@
 # is the standalone render's, bit for bit, with 1 and 3 local workers: under
 # a uniform background, and under the park map turned so that its sun is
 # behind the room (a map with a sun that cannot shine in: the portals are
-# used), which needs ../shared (skipped without it, unless CI=true).
+# used), which needs ../shared (skipped without it, unless CI=true). And a
+# portal wound the wrong way is named before a render.
 set -euo pipefail
 bin=${PT_BIN:?}
 src=${PT_SOURCE_DIR:?}
@@ -20,6 +21,29 @@ listed=$("$bin/ptworker" --list "$scene")
 # its front faces +z, into the room (the window is in the wall z = -2.5)
 [[ $listed == *"front towards (0, 0, 1): 2 triangles"* ]] ||
     fail "ptworker --list does not say which way the portal faces: $listed"
+# The window's portal wound the wrong way (its node mirrored about the
+# wall's plane: the corners stay, and glTF's front face turns clockwise,
+# out of the room) is named before the render, by ptworker and by the
+# coordinator; the window as it is, not.
+python3 - "$scene" "$tmp/reversed.gltf" <<'PY'
+import json, sys
+g = json.load(open(sys.argv[1]))
+node = next(n for n in g["nodes"] if n.get("extras", {}).get("ptfarm_portal"))
+node["matrix"] = [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, -1, 0, 0, 0, -5, 1]  # z -> -5 - z
+json.dump(g, open(sys.argv[2], "w"))
+PY
+warned="2 of 2 portal triangles look wound the wrong way"
+tiny=(--background "1,1,1" --res 8x8 --spp 1 -q)
+"$bin/ptworker" --scene "$scene" "${tiny[@]}" -o "$tmp/fwd.exr" 2> "$tmp/fwd.log"
+[[ $(cat "$tmp/fwd.log") != *"wound the wrong way"* ]] ||
+    fail "ptworker warns of the window's portal: $(cat "$tmp/fwd.log")"
+"$bin/ptworker" --scene "$tmp/reversed.gltf" "${tiny[@]}" -o "$tmp/rev.exr" 2> "$tmp/rev.log"
+[[ $(cat "$tmp/rev.log") == *"$warned"*"(0, 0, -1)"* ]] ||
+    fail "ptworker does not name the reversed portal: $(cat "$tmp/rev.log")"
+"$bin/ptserve" --local 1 "${tiny[@]}" -o "$tmp/rev_farm.exr" "$tmp/reversed.gltf" \
+    2> "$tmp/serve.log" || fail "ptserve --local 1, reversed: $(cat "$tmp/serve.log")"
+[[ $(cat "$tmp/serve.log") == *"$warned"* ]] ||
+    fail "ptserve does not name the reversed portal: $(cat "$tmp/serve.log")"
 park=$shared/envs/rooitou_park_1k.hdr
 lights=("--background 0.8,0.9,1")
 if [[ -f $park ]]; then

@@ -309,7 +309,10 @@ static void add_quad(pt_scene_builder *b, const char *what, const float q[12], u
            "%s", err.msg);
 }
 
-static pt_scene *window_box(float rho, int portal)
+/* The box with its hole: portal 0 none, 1 the hole a portal facing down
+ * into the box, 2 the same wound the wrong way (facing up); pane: a glass
+ * pane over the hole, outside the box. */
+static pt_scene *window_box_ex(float rho, int portal, int pane)
 {
     pt_scene_builder *b = NULL;
     pt_error err = {0};
@@ -340,17 +343,72 @@ static pt_scene *window_box(float rho, int portal)
     for (int i = 0; i < 4; i++)
         add_quad(b, "ceiling", ceil[i], black);
     if (portal) {
-        /* its front down, into the box */
-        const double q[2][9] = {{HX0, HY0, 1, HX1, HY1, 1, HX1, HY0, 1},
-                                {HX0, HY0, 1, HX0, HY1, 1, HX1, HY1, 1}};
+        /* its front down, into the box (portal 1), or up */
+        double q[2][9] = {{HX0, HY0, 1, HX1, HY1, 1, HX1, HY0, 1},
+                          {HX0, HY0, 1, HX0, HY1, 1, HX1, HY1, 1}};
+        for (int i = 0; i < 2 && portal == 2; i++)
+            for (int k = 0; k < 3; k++) {
+                double t = q[i][3 + k];
+                q[i][3 + k] = q[i][6 + k];
+                q[i][6 + k] = t;
+            }
         for (int i = 0; i < 2; i++)
             CHECKF(pt_scene_builder_add_portal(b, q[i], "hole", &err) == PT_OK, "%s", err.msg);
+    }
+    if (pane) {
+        pt_material g = pt_material_default();
+        g.transmission = 1.0f;
+        uint32_t glass = 0;
+        CHECK(pt_scene_builder_add_material(b, &g, &glass, &err) == PT_OK);
+        const float q[12] = {-0.5f, -0.5f, 1.05f, 0.5f,  -0.5f, 1.05f,
+                             0.5f,  0.5f,  1.05f, -0.5f, 0.5f,  1.05f};
+        add_quad(b, "pane", q, glass);
     }
     pt_camera cam = pt_test_ortho_down(0.0f, 0.0f, 0.9f, 0.8f);
     CHECK(pt_scene_builder_add_camera(b, &cam, &err) == PT_OK);
     pt_scene *s = NULL;
     CHECKF(pt_scene_builder_finish(b, NULL, &s, &err) == PT_OK, "%s", err.msg);
     return s;
+}
+
+static pt_scene *window_box(float rho, int portal)
+{
+    return window_box_ex(rho, portal, 0);
+}
+
+/* ---- which way a portal faces ------------------------------------------------- */
+
+/* The hole's portal facing into the box has the box in front (no probe
+ * leaves) and the sky behind (every probe leaves); wound the wrong way,
+ * the reverse, and pt_portal_reversed counts both of its triangles. A
+ * glass pane over the hole is seen through. */
+static void reversed_portals(void)
+{
+    for (int pane = 0; pane < 2; pane++)
+        for (int portal = 1; portal <= 2; portal++) {
+            pt_scene *s = window_box_ex(0.5f, portal, pane);
+            if (!s)
+                continue;
+            float open[4] = {-1, -1, -1, -1};
+            pt_error err = {0};
+            CHECKF(pt_portal_openness(s, open, &err) == PT_OK, "%s", err.msg);
+            float in = portal == 1 ? open[0] : open[1], out = portal == 1 ? open[1] : open[0];
+            CHECKF(in == 0.0f && out == 1.0f && open[0] == open[2] && open[1] == open[3],
+                   "portal %d, pane %d: the box's side %g open, the sky's %g", portal, pane, in,
+                   out);
+            uint32_t n = 99;
+            pt_vec3 f;
+            CHECKF(pt_portal_reversed(s, &n, &f, &err) == PT_OK, "%s", err.msg);
+            CHECKF(n == (portal == 2 ? 2u : 0u) && f.z == (portal == 2 ? 1.0f : 0.0f),
+                   "portal %d, pane %d: %u reversed, front z %g", portal, pane, n, f.z);
+            pt_scene_free(s);
+        }
+    pt_scene *none = window_box(0.5f, 0);
+    uint32_t n = 99;
+    pt_vec3 f;
+    pt_error err = {0};
+    CHECK(none && pt_portal_reversed(none, &n, &f, &err) == PT_OK && n == 0);
+    pt_scene_free(none);
 }
 
 /* A corner's term of the form factor from a floor point to a parallel
@@ -412,6 +470,7 @@ int main(void)
     chi2_portals();
     chi2_mixture();
     sun_rule();
+    reversed_portals();
     window_irradiance();
     CHECK(pt_alloc_live() == live0);
     return check_report();
