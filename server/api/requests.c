@@ -377,6 +377,7 @@ void srv_requests_verified(srv_server *s, srv_conn *c, srv_upload *k)
     snprintf(r->name, sizeof r->name, "%s", m->name);
     snprintf(r->owner, sizeof r->owner, "%s", c->name);
     snprintf(r->scene, sizeof r->scene, "%s", k->scene);
+    snprintf(r->message, sizeof r->message, "%s", k->note);
     r->submitted = (uint64_t)time(NULL);
     srv_job_params p;
     submitted_params(s->cfg, k, &p);

@@ -165,9 +165,12 @@ static void verify_upload(srv_upload *k)
     pt_vec3 pf;
     if (st == PT_OK && (st = pt_portal_reversed(scene, &reversed, &pf, &err)) != PT_OK)
         what = "job refused";
-    else if (st == PT_OK && reversed)
-        srv_log("job %" PRIu64 ": " PT_PORTAL_REVERSED_WARNING, k->job_id, reversed,
-                scene->num_portals, (double)pf.x, (double)pf.y, (double)pf.z);
+    else if (st == PT_OK && reversed) {
+        /* The job keeps it as its message, which status shows its client. */
+        snprintf(k->note, sizeof k->note, PT_PORTAL_REVERSED_WARNING, reversed, scene->num_portals,
+                 (double)pf.x, (double)pf.y, (double)pf.z);
+        srv_log("job %" PRIu64 ": %s", k->job_id, k->note);
+    }
     pt_remove_tree(k->tmp);
     if (st != PT_OK) {
         pt_scene_free(scene);

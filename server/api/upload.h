@@ -50,10 +50,11 @@ struct srv_upload {
     char scene[256]; /* the entry file's name */
     uint32_t ntris;
     float aspect;
-    char look[PROTO_MAX_NAME + 1]; /* a range's view when the file has no camera
-                                      (pt_anim_range_view), else "" */
-    uint32_t guided;               /* SUBMIT's guiding resolved against the scene */
-    float guide_box[6];            /* then the first distribution's bounds */
+    char look[PROTO_MAX_NAME + 1];       /* a range's view when the file has no camera
+                                            (pt_anim_range_view), else "" */
+    char note[PROTO_MAX_ERROR_TEXT + 1]; /* a warning the job keeps as its message, or "" */
+    uint32_t guided;                     /* SUBMIT's guiding resolved against the scene */
+    float guide_box[6];                  /* then the first distribution's bounds */
     srv_upload *next;
 };
 

@@ -6,7 +6,8 @@
 # a uniform background, and under the park map turned so that its sun is
 # behind the room (a map with a sun that cannot shine in: the portals are
 # used), which needs ../shared (skipped without it, unless CI=true). And a
-# portal wound the wrong way is named before a render.
+# portal wound the wrong way is named before a render, and kept as its
+# job's message on a queue.
 set -euo pipefail
 bin=${PT_BIN:?}
 src=${PT_SOURCE_DIR:?}
@@ -44,6 +45,24 @@ tiny=(--background "1,1,1" --res 8x8 --spp 1 -q)
     2> "$tmp/serve.log" || fail "ptserve --local 1, reversed: $(cat "$tmp/serve.log")"
 [[ $(cat "$tmp/serve.log") == *"$warned"* ]] ||
     fail "ptserve does not name the reversed portal: $(cat "$tmp/serve.log")"
+# Submitted to a queue, the job keeps it as its message: ptctl status shows
+# it to the client (no worker needed: the upload check names it).
+"$bin/ptserve" --state-dir "$tmp/state" --output-dir "$tmp/out" --listen 127.0.0.1:0 \
+    --port-file "$tmp/port" 2> "$tmp/queue.log" &
+srv_pid=$!
+trap 'kill "$srv_pid" 2>/dev/null || true; rm -rf "$tmp"' EXIT
+for _ in $(seq 100); do [[ -s $tmp/port ]] && break; sleep 0.05; done
+[[ -s $tmp/port ]] || fail "ptserve did not start: $(cat "$tmp/queue.log")"
+PTFARM_SERVER=127.0.0.1:$(cat "$tmp/port")
+export PTFARM_SERVER
+id=$("$bin/ptctl" submit "$tmp/reversed.gltf" --background "1,1,1" --res 8x8 --spp 1)
+status=$("$bin/ptctl" status "$id")
+[[ $status == *"message"*"$warned"* ]] || fail "ptctl status does not show the warning: $status"
+id=$("$bin/ptctl" submit "$scene" --background "1,1,1" --res 8x8 --spp 1)
+status=$("$bin/ptctl" status "$id")
+[[ $status != *"wound the wrong way"* ]] || fail "the window's job has the warning: $status"
+kill "$srv_pid"
+wait "$srv_pid" 2>/dev/null || true
 park=$shared/envs/rooitou_park_1k.hdr
 lights=("--background 0.8,0.9,1")
 if [[ -f $park ]]; then
