@@ -5,6 +5,8 @@ a scripted stand-in for ptctl, for what a small real queue rarely shows.
   11 still renders): a frame is fetched only once no frame before it is
   rendering, never while the farm still holds a partial image of it, and
   every frame is fetched once, in range order.
+- The coordinator's message of a running job is shown beside its
+  progress.
 - ptctl's failures become the sentences the add-on shows: a refused token,
   no coordinator, a refused job, a job that failed on the farm, a status
   that is not JSON; never a traceback.
@@ -130,6 +132,23 @@ job.run()
 snap = job.snapshot()
 check(snap["error"] is None and [f for f, _ in snap["fetched"]] == [None] and
       open(snap["fetched"][0][1]).read() == "-", "a still is fetched once when done")
+
+# What the coordinator says of a running job (its message) is shown beside
+# the progress: a scene check's warning, the denoiser's progress.
+d, ptctl = setup({"status": [{"id": 7, "state": "done", "progress": 1.0}]})
+job = job_for(d, ptctl, None)
+for st, want in [({"id": 7, "state": "running", "progress": 0.5, "workers": 1,
+                   "message": "warning: 2 of 2 portal triangles look wound the wrong way"},
+                  "job 7 running 50%, 1 worker: warning: 2 of 2 portal triangles look wound "
+                  "the wrong way"),
+                 ({"id": 7, "state": "running", "progress": 1.0, "workers": 1,
+                   "message": "denoising the image: 40 %"},
+                  "job 7 running 100%, 1 worker: denoising the image: 40 %"),
+                 ({"id": 7, "state": "running", "progress": 0.5, "workers": 1},
+                  "job 7 running 50%, 1 worker")]:
+    job._follow(7, st)
+    shown = job.snapshot()["message"]
+    check(shown == want, "the job's message is shown: '%s'" % shown)
 
 # Failures: one sentence, no traceback.
 cases = [

@@ -218,6 +218,10 @@ class FarmJob:
             if self.frames is not None and st.get("frames_done") is not None:
                 msg += ", frame %d of %d" % (min(st["frames_done"] + 1, len(self.frames)),
                                              len(self.frames))
+        # What the coordinator says of the job besides (a warning from its
+        # scene check, "denoising the image: 40 %", a paused output folder).
+        if st.get("message"):
+            msg += ": %s" % st["message"]
         self._set(phase=state, progress=progress, message=msg, status=st)
 
     def _fetch(self, job, frame):
