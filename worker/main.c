@@ -22,6 +22,7 @@
 #include "common/base/opt.h"
 #include "common/base/version.h"
 #include "common/render/options.h"
+#include "common/render/portal.h"
 #include "common/render/render.h"
 #include "common/render/tile.h"
 #include "common/scene/anim.h"
@@ -216,6 +217,21 @@ static void usage(FILE *f)
 }
 
 /* An option's value through common/base/opt.h: -1 after saying why. */
+/* --list: after the portals, the ones that look wound the wrong way (as a
+ * render warns of them). */
+static void list_portals(const pt_scene *scene, FILE *out, void *ctx)
+{
+    (void)ctx;
+    uint32_t reversed = 0;
+    pt_vec3 f;
+    pt_error err = {0};
+    if (pt_portal_reversed(scene, &reversed, &f, &err) != PT_OK)
+        fprintf(out, "  (not checked: %s)\n", err.msg);
+    else if (reversed)
+        fprintf(out, "  " PT_PORTAL_REVERSED_WARNING "\n", reversed, scene->num_portals,
+                (double)f.x, (double)f.y, (double)f.z);
+}
+
 static int bad_value(pt_status st, const pt_error *err)
 {
     if (st == PT_OK)
@@ -313,7 +329,7 @@ int main(int argc, char **argv)
             break;
         case OPT_LIST:
             /* What the scene offers the options above; nothing rendered. */
-            if (pt_scene_list(optarg, stdout, &err) != PT_OK) {
+            if (pt_scene_list_with(optarg, stdout, list_portals, NULL, &err) != PT_OK) {
                 fprintf(stderr, "ptworker: %s\n", err.msg);
                 return 1;
             }

@@ -3451,6 +3451,12 @@ void list_model(importer &im, FILE *out)
 
 extern "C" pt_status pt_scene_list(const char *path, FILE *out, pt_error *err)
 {
+    return pt_scene_list_with(path, out, nullptr, nullptr, err);
+}
+
+extern "C" pt_status pt_scene_list_with(const char *path, FILE *out, pt_scene_list_more *more,
+                                        void *ctx, pt_error *err)
+{
     // The built still: the cameras in the order --camera numbers them, the
     // lights, the sizes; with every check of a load (caps, hostile files).
     pt_scene_opts so{};
@@ -3513,6 +3519,8 @@ extern "C" pt_status pt_scene_list(const char *path, FILE *out, pt_error *err)
     for (const auto &f : fronts)
         fprintf(out, "  front towards (%.3g, %.3g, %.3g): %u triangle%s\n", double(f.first[0]),
                 double(f.first[1]), double(f.first[2]), f.second, f.second == 1 ? "" : "s");
+    if (more)
+        more(s, out, ctx);
     pt_scene_free(s);
     try {
         importer im;

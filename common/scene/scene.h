@@ -601,6 +601,13 @@ pt_status pt_camera_look_finish(const pt_camera_look_opts *l, const char *camera
  * first, with every check of pt_scene_load (its errors). */
 pt_status pt_scene_list(const char *path, FILE *out, pt_error *err);
 
+/* pt_scene_list, and more(scene, out, ctx) on the loaded still right after
+ * its portals are listed, for what layers above the scene print of it (a
+ * portal wound the wrong way); more may be NULL. */
+typedef void pt_scene_list_more(const pt_scene *scene, FILE *out, void *ctx);
+pt_status pt_scene_list_with(const char *path, FILE *out, pt_scene_list_more *more, void *ctx,
+                             pt_error *err);
+
 /* A default view of the box [lo, hi] for an image of `aspect` (width/height;
  * 0: square) into *out: a 40-degree camera looking down -Z from a little
  * above, at the distance where the 8 corners' projections fit the image

@@ -34,6 +34,11 @@ node["matrix"] = [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, -1, 0, 0, 0, -5, 1]  # z -> -5 -
 json.dump(g, open(sys.argv[2], "w"))
 PY
 warned="2 of 2 portal triangles look wound the wrong way"
+listed=$("$bin/ptworker" --list "$tmp/reversed.gltf")
+[[ $listed == *"front towards (0, 0, -1): 2 triangles"*"$warned"* ]] ||
+    fail "ptworker --list does not name the reversed portal: $listed"
+[[ $("$bin/ptworker" --list "$scene") != *"wound the wrong way"* ]] ||
+    fail "ptworker --list warns of the window's portal"
 tiny=(--background "1,1,1" --res 8x8 --spp 1 -q)
 "$bin/ptworker" --scene "$scene" "${tiny[@]}" -o "$tmp/fwd.exr" 2> "$tmp/fwd.log"
 [[ $(cat "$tmp/fwd.log") != *"wound the wrong way"* ]] ||
