@@ -313,7 +313,9 @@ static const char SUBMIT_HELP[] =
     "\n"
     "Queues a render of SCENE (.gltf or .glb): the scene and every file it references\n"
     "are packed into one bundle and uploaded. Prints the new job's id alone on\n"
-    "stdout. Upload progress goes to stderr when it is a terminal.\n"
+    "stdout. Upload progress goes to stderr when it is a terminal; what the\n"
+    "coordinator's check of the scene says of the job (a portal wound the wrong\n"
+    "way), which ptctl status shows as its message, goes to stderr always.\n"
     "\n"
     "options:\n"
     "  --spp N            samples per pixel (default 64)\n"
@@ -593,6 +595,14 @@ static int cmd_submit(int argc, char **argv, globals *g)
         return fail_close(conn, &err);
     printf("%llu\n", (unsigned long long)id);
     fflush(stdout);
+    /* What the coordinator's check of the scene said of the job (a portal
+     * wound the wrong way): its message, on stderr, before any work. */
+    static proto_job_info j;
+    if (ctl_status(conn, id, &j, &err) == PT_OK && j.message[0]) {
+        char msg[PROTO_MAX_ERROR_TEXT + 1];
+        ctl_printable(j.message, msg, sizeof msg);
+        fprintf(stderr, "ptctl: job %llu: %s\n", (unsigned long long)id, msg);
+    }
     if (watch)
         rc = watch_job(conn, id);
     ctl_close(conn);

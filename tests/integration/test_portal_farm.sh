@@ -60,10 +60,14 @@ for _ in $(seq 100); do [[ -s $tmp/port ]] && break; sleep 0.05; done
 [[ -s $tmp/port ]] || fail "ptserve did not start: $(cat "$tmp/queue.log")"
 PTFARM_SERVER=127.0.0.1:$(cat "$tmp/port")
 export PTFARM_SERVER
-id=$("$bin/ptctl" submit "$tmp/reversed.gltf" --background "1,1,1" --res 8x8 --spp 1)
+id=$("$bin/ptctl" submit "$tmp/reversed.gltf" --background "1,1,1" --res 8x8 --spp 1 \
+    2> "$tmp/submit.log")
+[[ $(cat "$tmp/submit.log") == "ptctl: job $id: warning: $warned"* ]] ||
+    fail "ptctl submit does not print the warning: $(cat "$tmp/submit.log")"
 status=$("$bin/ptctl" status "$id")
 [[ $status == *"message"*"$warned"* ]] || fail "ptctl status does not show the warning: $status"
-id=$("$bin/ptctl" submit "$scene" --background "1,1,1" --res 8x8 --spp 1)
+id=$("$bin/ptctl" submit "$scene" --background "1,1,1" --res 8x8 --spp 1 2> "$tmp/submit.log")
+[[ ! -s $tmp/submit.log ]] || fail "ptctl submit printed: $(cat "$tmp/submit.log")"
 status=$("$bin/ptctl" status "$id")
 [[ $status != *"wound the wrong way"* ]] || fail "the window's job has the warning: $status"
 kill "$srv_pid"
