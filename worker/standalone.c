@@ -357,11 +357,10 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
     if (scene->num_portals) {
         uint32_t reversed = 0;
         pt_vec3 f;
-        if (pt_portal_reversed(scene, &reversed, &f, &err) != PT_OK) {
-            fprintf(stderr, "ptworker: %s\n", err.msg);
-            goto done;
-        }
-        if (reversed)
+        /* A check, not a condition: a failure of its own is said, no more. */
+        if (pt_portal_reversed(scene, &reversed, &f, &err) != PT_OK)
+            fprintf(stderr, "ptworker: the portals' directions were not checked: %s\n", err.msg);
+        else if (reversed)
             fprintf(stderr, "ptworker: " PT_PORTAL_REVERSED_WARNING "\n", reversed,
                     scene->num_portals, (double)f.x, (double)f.y, (double)f.z);
     }

@@ -6,6 +6,7 @@
 #include "common/render/sampler.h"
 #include "common/render/sphtri.h"
 #include "common/scene/accel.h"
+#include "common/scene/motion.h"
 #include "common/scene/scene.h"
 
 static inline pt_vec3 corner(const float *t, int k)
@@ -132,12 +133,13 @@ pt_status pt_portal_openness(const pt_scene *s, float *open, pt_error *err)
 {
     if (s->num_portals == 0)
         return PT_OK;
-    /* Every triangle but glass's (an accel over a subset is of still
-     * triangles only, so a scene of instances keeps them all). */
+    /* Every triangle but glass's (an accel over a subset is of still flat
+     * triangles only, so a scene of instances or of moving triangles keeps
+     * them all). */
     uint32_t *sel = NULL, nsel = 0;
     pt_accel *a = NULL;
     pt_status st;
-    if (s->features & PT_FEAT_INSTANCES) {
+    if ((s->features & PT_FEAT_INSTANCES) || (s->motion && s->motion->num_triangles > 0)) {
         st = pt_accel_new(s, &a, err);
     } else {
         if (!(sel = pt_malloc_array(s->num_triangles ? s->num_triangles : 1, sizeof *sel)))

@@ -163,9 +163,12 @@ static void verify_upload(srv_upload *k)
     }
     uint32_t reversed = 0;
     pt_vec3 pf;
-    if (st == PT_OK && (st = pt_portal_reversed(scene, &reversed, &pf, &err)) != PT_OK)
-        what = "job refused";
-    else if (st == PT_OK && reversed) {
+    pt_error perr = {0};
+    if (st == PT_OK && pt_portal_reversed(scene, &reversed, &pf, &perr) != PT_OK) {
+        /* A check, not a condition of the job. */
+        srv_log("job %" PRIu64 ": the portals' directions were not checked: %s", k->job_id,
+                perr.msg);
+    } else if (st == PT_OK && reversed) {
         /* The job keeps it as its message, which status shows its client. */
         snprintf(k->note, sizeof k->note, PT_PORTAL_REVERSED_WARNING, reversed, scene->num_portals,
                  (double)pf.x, (double)pf.y, (double)pf.z);

@@ -163,7 +163,10 @@ static pt_status setup_single(srv_server *s, pt_error *err)
     }
     uint32_t reversed = 0;
     pt_vec3 pf;
-    if (st == PT_OK && (st = pt_portal_reversed(scene, &reversed, &pf, err)) == PT_OK && reversed)
+    pt_error perr = {0};
+    if (st == PT_OK && pt_portal_reversed(scene, &reversed, &pf, &perr) != PT_OK)
+        srv_log("the portals' directions were not checked: %s", perr.msg);
+    else if (st == PT_OK && reversed)
         srv_log(PT_PORTAL_REVERSED_WARNING, reversed, scene->num_portals, (double)pf.x,
                 (double)pf.y, (double)pf.z);
     /* Cryptomatte's manifests come from the names of the scene loaded here. */

@@ -26,12 +26,27 @@ listed=$("$bin/ptworker" --list "$scene")
 # wall's plane: the corners stay, and glTF's front face turns clockwise,
 # out of the room) is named before the render, by ptworker and by the
 # coordinator; the window as it is, not.
-python3 - "$scene" "$tmp/reversed.gltf" <<'PY'
-import json, sys
+# The same with a cabinet moving, rendered with a shutter: moving triangles
+# too are probed.
+python3 - "$scene" "$tmp/reversed.gltf" "$tmp/moving.gltf" <<'PY'
+import base64, json, struct, sys
 g = json.load(open(sys.argv[1]))
 node = next(n for n in g["nodes"] if n.get("extras", {}).get("ptfarm_portal"))
 node["matrix"] = [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, -1, 0, 0, 0, -5, 1]  # z -> -5 - z
 json.dump(g, open(sys.argv[2], "w"))
+data = struct.pack("<8f", 0, 1, 0, 0, 0, 0.3, 0, 0)  # times 0, 1 s; x from 0 to 0.3
+g["buffers"].append({"byteLength": 32, "uri": "data:application/octet-stream;base64,"
+                     + base64.b64encode(data).decode()})
+b, v, a = len(g["buffers"]) - 1, len(g["bufferViews"]), len(g["accessors"])
+g["bufferViews"] += [{"buffer": b, "byteOffset": 0, "byteLength": 8},
+                     {"buffer": b, "byteOffset": 8, "byteLength": 24}]
+g["accessors"] += [{"bufferView": v, "componentType": 5126, "count": 2, "type": "SCALAR",
+                    "min": [0], "max": [1]},
+                   {"bufferView": v + 1, "componentType": 5126, "count": 2, "type": "VEC3"}]
+cab = next(i for i, n in enumerate(g["nodes"]) if n.get("name") == "cabinet_0")
+g["animations"] = [{"samplers": [{"input": a, "output": a + 1}],
+                    "channels": [{"sampler": 0, "target": {"node": cab, "path": "translation"}}]}]
+json.dump(g, open(sys.argv[3], "w"))
 PY
 warned="2 of 2 portal triangles look wound the wrong way"
 listed=$("$bin/ptworker" --list "$tmp/reversed.gltf")
@@ -46,6 +61,10 @@ tiny=(--background "1,1,1" --res 8x8 --spp 1 -q)
 "$bin/ptworker" --scene "$tmp/reversed.gltf" "${tiny[@]}" -o "$tmp/rev.exr" 2> "$tmp/rev.log"
 [[ $(cat "$tmp/rev.log") == *"$warned"*"(0, 0, -1)"* ]] ||
     fail "ptworker does not name the reversed portal: $(cat "$tmp/rev.log")"
+"$bin/ptworker" --scene "$tmp/moving.gltf" "${tiny[@]}" --shutter 0,0.5 -o "$tmp/mov.exr" \
+    2> "$tmp/mov.log" || fail "ptworker, moving: $(cat "$tmp/mov.log")"
+[[ $(cat "$tmp/mov.log") == *"$warned"* && $(cat "$tmp/mov.log") != *"--shutter"* ]] ||
+    fail "ptworker does not name the reversed portal among moving triangles: $(cat "$tmp/mov.log")"
 "$bin/ptserve" --local 1 "${tiny[@]}" -o "$tmp/rev_farm.exr" "$tmp/reversed.gltf" \
     2> "$tmp/serve.log" || fail "ptserve --local 1, reversed: $(cat "$tmp/serve.log")"
 [[ $(cat "$tmp/serve.log") == *"$warned"* ]] ||
