@@ -329,7 +329,7 @@ int main(int argc, char **argv)
             break;
         case OPT_LIST:
             /* What the scene offers the options above; nothing rendered. */
-            if (pt_scene_list_with(optarg, stdout, list_portals, NULL, &err) != PT_OK) {
+            if (pt_scene_list(optarg, stdout, list_portals, NULL, &err) != PT_OK) {
                 fprintf(stderr, "ptworker: %s\n", err.msg);
                 return 1;
             }

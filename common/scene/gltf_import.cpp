@@ -3449,13 +3449,8 @@ void list_model(importer &im, FILE *out)
 
 } // namespace
 
-extern "C" pt_status pt_scene_list(const char *path, FILE *out, pt_error *err)
-{
-    return pt_scene_list_with(path, out, nullptr, nullptr, err);
-}
-
-extern "C" pt_status pt_scene_list_with(const char *path, FILE *out, pt_scene_list_more *more,
-                                        void *ctx, pt_error *err)
+extern "C" pt_status pt_scene_list(const char *path, FILE *out, pt_scene_list_more *more, void *ctx,
+                                   pt_error *err)
 {
     // The built still: the cameras in the order --camera numbers them, the
     // lights, the sizes; with every check of a load (caps, hostile files).

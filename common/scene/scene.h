@@ -598,15 +598,13 @@ pt_status pt_camera_look_finish(const pt_camera_look_opts *l, const char *camera
  * node, projection); its punctual lights; whether it has emissive
  * triangles; its animations (channels, time range), KHR_materials_variants
  * variants and the extensions it uses and requires. Loads it as a still
- * first, with every check of pt_scene_load (its errors). */
-pt_status pt_scene_list(const char *path, FILE *out, pt_error *err);
-
-/* pt_scene_list, and more(scene, out, ctx) on the loaded still right after
- * its portals are listed, for what layers above the scene print of it (a
- * portal wound the wrong way); more may be NULL. */
+ * first, with every check of pt_scene_load (its errors). more (or NULL)
+ * is called with the loaded still and ctx right after its portals are
+ * listed, for what layers above the scene print of it (a portal wound the
+ * wrong way). */
 typedef void pt_scene_list_more(const pt_scene *scene, FILE *out, void *ctx);
-pt_status pt_scene_list_with(const char *path, FILE *out, pt_scene_list_more *more, void *ctx,
-                             pt_error *err);
+pt_status pt_scene_list(const char *path, FILE *out, pt_scene_list_more *more, void *ctx,
+                        pt_error *err);
 
 /* A default view of the box [lo, hi] for an image of `aspect` (width/height;
  * 0: square) into *out: a 40-degree camera looking down -Z from a little
