@@ -216,22 +216,17 @@ static void usage(FILE *f)
             WRK_LINK_TIMEOUT_MIN_MS / 1000u, WRK_LINK_TIMEOUT_MAX_MS / 1000u);
 }
 
-/* An option's value through common/base/opt.h: -1 after saying why. */
 /* --list: after the portals, the ones that look wound the wrong way (as a
  * render warns of them). */
 static void list_portals(const pt_scene *scene, FILE *out, void *ctx)
 {
     (void)ctx;
-    uint32_t reversed = 0;
-    pt_vec3 f;
-    pt_error err = {0};
-    if (pt_portal_reversed(scene, &reversed, &f, &err) != PT_OK)
-        fprintf(out, "  (not checked: %s)\n", err.msg);
-    else if (reversed)
-        fprintf(out, "  " PT_PORTAL_REVERSED_WARNING "\n", reversed, scene->num_portals,
-                (double)f.x, (double)f.y, (double)f.z);
+    char note[512];
+    if (pt_portal_check_text(scene, note, sizeof note))
+        fprintf(out, "  %s\n", note);
 }
 
+/* An option's value through common/base/opt.h: -1 after saying why. */
 static int bad_value(pt_status st, const pt_error *err)
 {
     if (st == PT_OK)

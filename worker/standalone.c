@@ -354,16 +354,9 @@ int wrk_standalone_run(const wrk_standalone_opts *o)
         fprintf(stderr, "ptworker: %s\n", err.msg);
         goto done;
     }
-    if (scene->num_portals) {
-        uint32_t reversed = 0;
-        pt_vec3 f;
-        /* A check, not a condition: a failure of its own is said, no more. */
-        if (pt_portal_reversed(scene, &reversed, &f, &err) != PT_OK)
-            fprintf(stderr, "ptworker: the portals' directions were not checked: %s\n", err.msg);
-        else if (reversed)
-            fprintf(stderr, "ptworker: " PT_PORTAL_REVERSED_WARNING "\n", reversed,
-                    scene->num_portals, (double)f.x, (double)f.y, (double)f.z);
-    }
+    char note[512];
+    if (pt_portal_check_text(scene, note, sizeof note))
+        fprintf(stderr, "ptworker: %s\n", note);
     p.bdpt = o->bdpt == PT_BDPT_ON ? 1u : 0u;
     if (o->bdpt == PT_BDPT_AUTO) {
         int on = 0;

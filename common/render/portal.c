@@ -1,6 +1,7 @@
 #include "common/render/portal.h"
 
 #include <math.h>
+#include <stdio.h>
 
 #include "common/base/alloc.h"
 #include "common/render/sampler.h"
@@ -193,4 +194,25 @@ pt_status pt_portal_reversed(const pt_scene *s, uint32_t *n, pt_vec3 *front, pt_
         }
     pt_free(open);
     return st;
+}
+
+int pt_portal_check_text(const pt_scene *s, char *out, size_t cap)
+{
+    uint32_t n = 0;
+    pt_vec3 f;
+    pt_error err = {0};
+    out[0] = '\0';
+    if (pt_portal_reversed(s, &n, &f, &err) != PT_OK) {
+        snprintf(out, cap, "the portals' directions were not checked: %s", err.msg);
+        return -1;
+    }
+    if (n == 0)
+        return 0;
+    snprintf(out, cap,
+             "warning: %u of %u portal triangles look wound the wrong way: their front sees the "
+             "outdoors and their back a room (the first faces (%.3g, %.3g, %.3g)); a portal's "
+             "front (its counter-clockwise side) must face into the room, or the map is not "
+             "sampled through it",
+             n, s->num_portals, (double)f.x, (double)f.y, (double)f.z);
+    return 1;
 }

@@ -29,6 +29,7 @@
 #ifndef PT_COMMON_RENDER_PORTAL_H
 #define PT_COMMON_RENDER_PORTAL_H
 
+#include <stddef.h>
 #include <stdint.h>
 
 #include "common/base/error.h"
@@ -99,11 +100,11 @@ pt_status pt_portal_openness(const pt_scene *scene, float *open, pt_error *err);
 #define PT_PORTAL_REVERSED_GAP 0.25f
 pt_status pt_portal_reversed(const pt_scene *scene, uint32_t *n, pt_vec3 *front, pt_error *err);
 
-/* What every program says when pt_portal_reversed finds some (a printf
- * format of n, the scene's portal triangles, and the front's x, y, z). */
-#define PT_PORTAL_REVERSED_WARNING                                                                 \
-    "warning: %u of %u portal triangles look wound the wrong way: their front sees the "           \
-    "outdoors and their back a room (the first faces (%.3g, %.3g, %.3g)); a portal's front "       \
-    "(its counter-clockwise side) must face into the room, or the map is not sampled through it"
+/* What every program says of scene's portals before a render, into out
+ * (cap bytes): the warning of those pt_portal_reversed names (returns 1),
+ * or that the check could not run, and why (returns -1: a check, never a
+ * condition of the render); returns 0 with out "" when there is nothing to
+ * say, as for a scene without portals. */
+int pt_portal_check_text(const pt_scene *scene, char *out, size_t cap);
 
 #endif

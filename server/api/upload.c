@@ -161,19 +161,13 @@ static void verify_upload(srv_upload *k)
         k->m.film_flags |= PROTO_FILM_BDPT;
         srv_log("job %" PRIu64 ": " PT_BDPT_AUTO_ON, k->job_id, 100.0 * share);
     }
-    uint32_t reversed = 0;
-    pt_vec3 pf;
-    pt_error perr = {0};
-    if (st == PT_OK && pt_portal_reversed(scene, &reversed, &pf, &perr) != PT_OK) {
-        /* A check, not a condition of the job. */
-        srv_log("job %" PRIu64 ": the portals' directions were not checked: %s", k->job_id,
-                perr.msg);
-    } else if (st == PT_OK && reversed) {
-        /* The job keeps it as its message, which status shows its client. */
-        snprintf(k->note, sizeof k->note, PT_PORTAL_REVERSED_WARNING, reversed, scene->num_portals,
-                 (double)pf.x, (double)pf.y, (double)pf.z);
+    /* A warning the job keeps as its message, which status shows its
+     * client; a check that could not run is logged only. */
+    int said = st == PT_OK ? pt_portal_check_text(scene, k->note, sizeof k->note) : 0;
+    if (said)
         srv_log("job %" PRIu64 ": %s", k->job_id, k->note);
-    }
+    if (said < 0)
+        k->note[0] = '\0';
     pt_remove_tree(k->tmp);
     if (st != PT_OK) {
         pt_scene_free(scene);

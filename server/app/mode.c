@@ -161,14 +161,9 @@ static pt_status setup_single(srv_server *s, pt_error *err)
         jp.film_flags |= PROTO_FILM_BDPT;
         srv_log(PT_BDPT_AUTO_ON, 100.0 * share);
     }
-    uint32_t reversed = 0;
-    pt_vec3 pf;
-    pt_error perr = {0};
-    if (st == PT_OK && pt_portal_reversed(scene, &reversed, &pf, &perr) != PT_OK)
-        srv_log("the portals' directions were not checked: %s", perr.msg);
-    else if (st == PT_OK && reversed)
-        srv_log(PT_PORTAL_REVERSED_WARNING, reversed, scene->num_portals, (double)pf.x,
-                (double)pf.y, (double)pf.z);
+    char note[512];
+    if (st == PT_OK && pt_portal_check_text(scene, note, sizeof note))
+        srv_log("%s", note);
     /* Cryptomatte's manifests come from the names of the scene loaded here. */
     pt_crypto_meta *crypto = NULL;
     if (st == PT_OK && (proto_film_passes(jp.film_flags) & PT_PASS_CRYPTOMATTE)) {
