@@ -9,12 +9,10 @@
 # portal wound the wrong way is named before a render, and kept as its
 # job's message on a queue.
 set -euo pipefail
-bin=${PT_BIN:?}
-src=${PT_SOURCE_DIR:?}
+# shellcheck source=tests/integration/lib_farm.sh
+. "$(dirname "$0")/lib_farm.sh"
+farm_init portal_farm
 shared=${PT_SHARED_SCENES:?}/..
-tmp=$(mktemp -d /tmp/pt_portal_farm_XXXXXX)
-trap 'rm -rf "$tmp"' EXIT
-fail() { echo "FAIL: $*" >&2; exit 1; }
 scene=$src/scenes/window_portal.gltf
 listed=$("$bin/ptworker" --list "$scene")
 [[ $listed == *"environment portals: 2 triangles"* ]] ||
@@ -71,14 +69,7 @@ tiny=(--background "1,1,1" --res 8x8 --spp 1 -q)
     fail "ptserve does not name the reversed portal: $(cat "$tmp/serve.log")"
 # Submitted to a queue, the job keeps it as its message: ptctl status shows
 # it to the client (no worker needed: the upload check names it).
-"$bin/ptserve" --state-dir "$tmp/state" --output-dir "$tmp/out" --listen 127.0.0.1:0 \
-    --port-file "$tmp/port" 2> "$tmp/queue.log" &
-srv_pid=$!
-trap 'kill "$srv_pid" 2>/dev/null || true; rm -rf "$tmp"' EXIT
-for _ in $(seq 100); do [[ -s $tmp/port ]] && break; sleep 0.05; done
-[[ -s $tmp/port ]] || fail "ptserve did not start: $(cat "$tmp/queue.log")"
-PTFARM_SERVER=127.0.0.1:$(cat "$tmp/port")
-export PTFARM_SERVER
+serve queue.log
 id=$("$bin/ptctl" submit "$tmp/reversed.gltf" --background "1,1,1" --res 8x8 --spp 1 \
     2> "$tmp/submit.log")
 [[ $(cat "$tmp/submit.log") == "ptctl: job $id: warning: $warned"* ]] ||
@@ -89,8 +80,7 @@ id=$("$bin/ptctl" submit "$scene" --background "1,1,1" --res 8x8 --spp 1 2> "$tm
 [[ ! -s $tmp/submit.log ]] || fail "ptctl submit printed: $(cat "$tmp/submit.log")"
 status=$("$bin/ptctl" status "$id")
 [[ $status != *"wound the wrong way"* ]] || fail "the window's job has the warning: $status"
-kill "$srv_pid"
-wait "$srv_pid" 2>/dev/null || true
+stop_server
 park=$shared/envs/rooitou_park_1k.hdr
 lights=("--background 0.8,0.9,1")
 if [[ -f $park ]]; then
@@ -114,4 +104,5 @@ for light in "${lights[@]}"; do
             fail "$light, the farm with $n workers: $(cat "$tmp/diff")"
     done
 done
+failed=0
 echo "PASS"
