@@ -24,7 +24,9 @@
  * after a rough one), the BSDF hits no rough bounce came before (seen
  * from the camera directly or through smooth bounces only: no light sample
  * or guide reaches them), the caustics by the smooth bounces between their
- * last rough vertex and the light (1, 2, 3 or more), and by the number of
+ * last rough vertex and the light (1, 2, 3 or more) and by what that vertex
+ * has on its camera side (the camera, a rough vertex, smooth bounces), and
+ * by the number of
  * bounces before the light was found. --pixel X,Y renders that
  * pixel alone (its share is then of its own squared error): a glint that a
  * few of many samples find, seen at the reference's sample count. Guided,
@@ -202,6 +204,16 @@ static double by_camera[2];
  * interfaces reaches the first two). */
 #define CHAIN_BINS 3
 static double by_chain[CHAIN_BINS];
+/* And by what their last rough vertex D has on its camera side, which
+ * decides the estimator that could sample them other than by chance
+ * (docs/bench/issue30.md, "Which estimator could take what is left"): the
+ * camera itself (light tracing joins D to the camera), a rough vertex
+ * (bidirectional path tracing joins the two), or smooth bounces (E S+ D S+
+ * L: no join of two rough vertices samples it; only merging light and
+ * camera paths near D, or a chain solved through the smooth bounces). A
+ * thin wall crossed straight counts as nothing: a join crosses it too. */
+#define SIDE_BINS 3
+static double by_side[SIDE_BINS];
 /* And by the bounces before the event that added it: 0 to 4, 5 to 8, 9 and
  * more. */
 #define DEPTH_BINS 7
@@ -319,6 +331,9 @@ static void classify(const pt_scene *s, double share, float total)
      * the smooth ones). */
     int rough = 0;
     uint32_t bounces = 0, nee_bounces = 0, smooth_run = 0;
+    /* The vertex before the current one (0 the camera, 1 rough, 2 smooth)
+     * and, for the caustic, the last rough vertex's (side). */
+    int before = 0, side = 0;
     /* The GUIDE event before the next bounce, and the last rough bounce's. */
     const event *guided = NULL, *leave = NULL;
     for (uint32_t k = 0; k < nev; k++) {
@@ -342,8 +357,14 @@ static void classify(const pt_scene *s, double share, float total)
                 rough = 1;
                 leave = guided;
                 smooth_run = 0;
-            } else
+                side = before;
+                before = 1;
+            } else {
                 smooth_run++;
+                /* straight through a thin wall: wi = -wo */
+                if (!(e->delta && e->c == -e->b))
+                    before = 2;
+            }
             guided = NULL;
             break;
         case PT_TRACE_GUIDE:
@@ -375,8 +396,10 @@ static void classify(const pt_scene *s, double share, float total)
                 int caustic = rough && smooth_run > 0;
                 by_kind[caustic ? 2 : 1] += share * lum / total;
                 add_hit(rough, bounces, smooth_run, share * lum / total);
-                if (caustic)
+                if (caustic) {
                     by_guide[guide_bin(leave)] += share * lum / total;
+                    by_side[side] += share * lum / total;
+                }
                 add_depth(bounces, share * lum / total);
             }
             break;
@@ -387,8 +410,10 @@ static void classify(const pt_scene *s, double share, float total)
                 int caustic = rough && smooth_run > 0;
                 by_kind[caustic ? 2 : 1] += share * lum / total;
                 add_hit(rough, bounces, smooth_run, share * lum / total);
-                if (caustic)
+                if (caustic) {
                     by_guide[guide_bin(leave)] += share * lum / total;
+                    by_side[side] += share * lum / total;
+                }
                 add_depth(bounces, share * lum / total);
             }
             break;
@@ -670,6 +695,9 @@ int main(int argc, char **argv)
     printf("caustics by the smooth bounces from their last rough vertex to the light: 1 %.4f, "
            "2 %.4f, 3+ %.4f\n",
            by_chain[0], by_chain[1], by_chain[2]);
+    printf("caustics by their last rough vertex's camera side: the camera (light tracing) "
+           "%.4f, a rough vertex (BDPT's joins) %.4f, smooth bounces (merging) %.4f\n",
+           by_side[0], by_side[1], by_side[2]);
     printf("by bounces before the light was found: 0 %.4f, 1 %.4f, 2 %.4f, 3 %.4f, 4 %.4f, "
            "5-8 %.4f, 9+ %.4f\n",
            by_depth[0], by_depth[1], by_depth[2], by_depth[3], by_depth[4], by_depth[5],

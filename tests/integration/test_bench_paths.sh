@@ -7,7 +7,8 @@
 # (common/render/path_trace.h), and the renderer that users run has none of
 # that log compiled in. glass_things.gltf under a uniform background: a
 # glass ball on a floor, whose caustic the summary must find among paths
-# that reach the light through a smooth bounce after a rough one.
+# that reach the light through a smooth bounce after a rough one, and
+# split by what the rough vertex has on its camera side.
 #
 # Environment (set by ctest): PT_BIN (the build's bin folder), PT_SOURCE_DIR.
 set -euo pipefail
@@ -56,6 +57,20 @@ awk '/^by technique/ { gsub(",", ""); hit = $7 + 0; caustic = $NF + 0 }
         exit !(c1 && c2 && cam >= 0 && cam <= hit + 1e-4 && d <= 1e-3 && chain > 0)
      }' "$tmp/out.txt" ||
     { echo "FAIL: the BSDF hits' and the caustics' splits"; exit 1; }
+# The caustics by their rough vertex's camera side add up to the caustics'
+# too; the floor's caustic under the ball, seen by the camera itself, is
+# light tracing's.
+awk '/^by technique/ { gsub(",", ""); caustic = $NF + 0 }
+     /^caustics by their last rough vertex/ {
+        gsub(",", ""); n = 0
+        for (i = 1; i <= NF; i++) if ($i ~ /^[0-9.]+$/) { v[n++] = $i + 0; s += $i }
+        cam = v[0]; found = n == 3
+     }
+     END {
+        d = s - caustic; if (d < 0) d = -d
+        exit !(found && d <= 1e-3 && cam > 0)
+     }' "$tmp/out.txt" ||
+    { echo "FAIL: the caustics' split by their rough vertex's camera side"; exit 1; }
 grep -q 'glass:dielectric(delta) > .*| BSDF hit env' "$tmp/out.txt" ||
     { echo "FAIL: no path through the glass to the background"; exit 1; }
 
